@@ -1,0 +1,58 @@
+"""The ``tap-bench`` command line.
+
+Each sub-command lives in its own module of this package, which defines
+``add_parser(subparsers)``; the parser it adds sets ``func`` (taking the parsed arguments and
+returning an exit code). Add a module to ``COMMANDS`` to register it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from tap_bench.errors import TapBenchError
+
+COMMANDS = (
+    "tap_bench.cli.sample",
+    "tap_bench.cli.label",
+    "tap_bench.cli.fit",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from tap_bench import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="tap-bench",
+        description="Scenario benchmark toolkit: TAP (Trajectory-to-Action Pipeline) labels "
+        "driving behaviour as Scenario Description Language (SDL) labels.",
+    )
+    parser.add_argument("--version", action="version", version=f"tap-bench {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMANDS:
+        importlib.import_module(name).add_parser(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``tap-bench``; returns the process exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except TapBenchError as err:
+        print(f"tap-bench {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"tap-bench {args.command}: interrupted; no partial output was written.",
+              file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,358 @@
+"""The trajectory table: its contract (SPEC section 1) and its validation on entry.
+
+One row per vehicle per time step::
+
+    scenario_id  str    scenario the track belongs to
+    track_id     str    track within the scenario (a string even when it looks like a number)
+    t            float  time [s], strictly increasing within a track, 10 Hz
+    x, y         float  position [m], WOMD axes: y to the left
+    heading      float  [rad], counter-clockwise from +x
+    speed        float  [m/s], >= 0 (computed from vx, vy when absent)
+
+Optional: ``valid`` (bool), ``vx``, ``vy`` [m/s], ``object_type`` (vehicle, pedestrian,
+cyclist, other), ``is_ego`` (bool), ``source``, ``env``, ``policy``, ``seed``, ``crashed``.
+
+Rows of different tracks may be interleaved (WOMD's time-major layout is fine); rows of one
+track must be in increasing ``t`` and are never silently sorted. A step of 0.1 s (10 %
+tolerance) is regular; a gap of a whole number of steps (2 or more) marks missing steps and
+splits the track into valid segments, as ``valid == False`` rows do. Any other step is
+irregular and an error. Data sampled at another rate is refused: resample it first with
+:func:`tap_bench.resample_to_10hz`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from tap_bench.errors import TrajectoryTableError, did_you_mean
+
+__all__ = [
+    "DT",
+    "HZ",
+    "IDENTIFYING_COLUMNS",
+    "OBJECT_TYPES",
+    "OPTIONAL_COLUMNS",
+    "REQUIRED_COLUMNS",
+    "validate_trajectories",
+]
+
+HZ = 10.0
+"""Sampling rate TAP works at [Hz] (WOMD: 91 steps over 9.1 s)."""
+DT = 1.0 / HZ
+"""Time step [s]."""
+DT_TOLERANCE = 0.1
+"""Relative tolerance on a step: 0.09 s to 0.11 s is one regular step (WOMD: about 0.1002 s)."""
+MAX_GAP_STEPS = 10_000
+"""A larger jump in t is taken as a mistake (wrong units), not as missing steps."""
+
+REQUIRED_COLUMNS = ("scenario_id", "track_id", "t", "x", "y", "heading", "speed")
+OPTIONAL_COLUMNS = (
+    "valid",
+    "vx",
+    "vy",
+    "object_type",
+    "is_ego",
+    "source",
+    "env",
+    "policy",
+    "seed",
+    "crashed",
+)
+IDENTIFYING_COLUMNS = ("source", "env", "policy", "seed", "object_type", "is_ego")
+"""Per-track columns carried from the trajectory table into label and segment tables."""
+OBJECT_TYPES = ("vehicle", "pedestrian", "cyclist", "other")
+
+_NUMERIC = ("t", "x", "y", "heading", "speed", "vx", "vy")
+_KEYS = ("scenario_id", "track_id")
+_TWO_PI = 2.0 * np.pi
+
+
+@dataclass(frozen=True)
+class TrackIndex:
+    """Where each track and each valid segment lies in a validated table.
+
+    The validated table is ordered by (scenario_id, track_id) and then by ``t``. Arrays are
+    over that order.
+
+    Attributes:
+        track: (n_rows,) int64, index of the track (0 .. n_tracks-1) of each row.
+        track_start: (n_tracks + 1,) int64, first row of each track, then n_rows.
+        segment: (n_rows,) int64, index of the valid segment of each row, -1 on invalid rows.
+        segment_start: (n_segments,) int64, first row of each valid segment.
+        segment_stop: (n_segments,) int64, one past the last row of each valid segment.
+        segment_track: (n_segments,) int64, the track of each segment.
+    """
+
+    track: np.ndarray
+    track_start: np.ndarray
+    segment: np.ndarray
+    segment_start: np.ndarray
+    segment_stop: np.ndarray
+    segment_track: np.ndarray
+
+    @property
+    def n_tracks(self) -> int:
+        return len(self.track_start) - 1
+
+    @property
+    def n_segments(self) -> int:
+        return len(self.segment_start)
+
+    @property
+    def segment_length(self) -> np.ndarray:
+        """(n_segments,) int64, number of steps in each valid segment."""
+        return self.segment_stop - self.segment_start
+
+
+def _where(table: pd.DataFrame, pos: int) -> str:
+    """Describe input row ``pos`` by position and keys, for error messages."""
+    parts = []
+    for col in ("scenario_id", "track_id", "t"):
+        if col in table.columns:
+            parts.append(f"{col}={table[col].iloc[pos]!r}")
+    return f"row {pos}" + (f" ({', '.join(parts)})" if parts else "")
+
+
+def _fail(message: str, source: str, *, column: str | None = None, row: int | None = None):
+    raise TrajectoryTableError(f"{source}: {message}", column=column, row=row)
+
+
+def _as_id_strings(col: pd.Series, name: str, source: str) -> pd.Series:
+    """Identifiers as strings; integral floats (3.0, from a NaN-holding column) become '3'."""
+    if col.isna().any():
+        pos = int(np.flatnonzero(col.isna().to_numpy())[0])
+        _fail(f"column {name!r} is empty at row {pos}; every row needs a {name}.", source,
+              column=name, row=pos)
+    if pd.api.types.is_float_dtype(col):
+        values = col.to_numpy()
+        if np.all(values == np.round(values)):
+            col = pd.Series(values.astype(np.int64), index=col.index)
+    if pd.api.types.is_string_dtype(col) and not pd.api.types.is_object_dtype(col):
+        return col
+    return col.astype(str)
+
+
+def _check_columns(table: pd.DataFrame, source: str) -> None:
+    present = set(table.columns)
+    missing = [c for c in REQUIRED_COLUMNS if c not in present]
+    if "speed" in missing and {"vx", "vy"} <= present:
+        missing.remove("speed")
+    if not missing:
+        return
+    hints = []
+    for col in missing:
+        err = did_you_mean("column", col, [c for c in map(str, table.columns)])
+        if "Did you mean" in str(err):
+            hints.append(f"{col!r}: {str(err).split('. Known')[0].split('. ', 1)[1]}")
+    fix = (" Rename the columns, or add them." + (" " + "; ".join(hints) if hints else ""))
+    extra = " (speed may instead be given as vx, vy)" if "speed" in missing else ""
+    _fail(f"missing required column(s) {', '.join(map(repr, missing))}{extra}; the table has "
+          f"{', '.join(map(repr, map(str, table.columns)))}.{fix}", source, column=missing[0])
+
+
+def _numeric(table: pd.DataFrame, col: str, source: str) -> np.ndarray:
+    series = table[col]
+    if pd.api.types.is_bool_dtype(series) or not pd.api.types.is_numeric_dtype(series):
+        converted = pd.to_numeric(series, errors="coerce")
+        bad = converted.isna().to_numpy() & series.notna().to_numpy()
+        if pd.api.types.is_bool_dtype(series) or bad.any():
+            pos = int(np.flatnonzero(bad)[0]) if bad.any() else 0
+            _fail(f"column {col!r} must be numeric; {_where(table, pos)} holds "
+                  f"{series.iloc[pos]!r}. Convert it to a number.", source, column=col, row=pos)
+        series = converted
+    return series.to_numpy(dtype=np.float64, na_value=np.nan)
+
+
+def _bool_column(table: pd.DataFrame, col: str, source: str) -> np.ndarray:
+    series = table[col]
+    if pd.api.types.is_bool_dtype(series) and not series.isna().any():
+        return series.to_numpy(dtype=bool)
+    values = series.to_numpy(dtype=object)
+    ok = np.array([v in (True, False, 0, 1) and v is not None for v in values], dtype=bool)
+    if not ok.all():
+        pos = int(np.flatnonzero(~ok)[0])
+        _fail(f"column {col!r} must be true/false (or 1/0); {_where(table, pos)} holds "
+              f"{values[pos]!r}.", source, column=col, row=pos)
+    return values.astype(bool)
+
+
+def validate_trajectories(table: pd.DataFrame, *, source: str = "trajectory table") -> pd.DataFrame:
+    """Check a trajectory table against the contract and return it normalised.
+
+    The result has string ``scenario_id`` and ``track_id``, float64 kinematic columns, a
+    boolean ``valid`` column (all true when the input had none), ``speed`` computed as
+    ``hypot(vx, vy)`` when absent, and rows ordered by (scenario_id, track_id, t).
+
+    Args:
+        table: the trajectory table (one row per vehicle per step).
+        source: a name for the table in error messages, usually its file path.
+
+    Raises:
+        TrajectoryTableError: naming the column, the row and the fix, for: an empty table,
+            missing columns, non-numeric, NaN or infinite values, a non-increasing or
+            irregular ``t``, a sampling rate other than 10 Hz, headings that look like
+            degrees, negative speed, unknown object types, duplicate (scenario_id,
+            track_id, t).
+    """
+    clean, _ = validate_and_index(table, source=source)
+    return clean
+
+
+def validate_and_index(
+    table: pd.DataFrame, *, source: str = "trajectory table"
+) -> tuple[pd.DataFrame, TrackIndex]:
+    """:func:`validate_trajectories`, also returning where tracks and valid segments lie."""
+    if not isinstance(table, pd.DataFrame):
+        raise TypeError(f"{source}: expected a pandas DataFrame, got {type(table).__name__}")
+    if len(table) == 0:
+        _fail("the table is empty; a trajectory table needs at least one row per step of "
+              "each track.", source)
+    table = table.reset_index(drop=True)
+    _check_columns(table, source)
+
+    cols: dict[str, np.ndarray | pd.Series] = {}
+    for key in _KEYS:
+        cols[key] = _as_id_strings(table[key], key, source)
+    for col in _NUMERIC:
+        if col in table.columns:
+            cols[col] = _numeric(table, col, source)
+    if "speed" not in table.columns:
+        cols["speed"] = np.hypot(cols["vx"], cols["vy"])
+    valid = _bool_column(table, "valid", source) if "valid" in table.columns else None
+
+    # Infinite values are never data; NaN is only allowed on rows marked invalid.
+    for col in _NUMERIC:
+        if col not in cols:
+            continue
+        values = cols[col]
+        inf = np.isinf(values)
+        if inf.any():
+            pos = int(np.flatnonzero(inf)[0])
+            _fail(f"column {col!r} is infinite at {_where(table, pos)}. Replace it with a "
+                  "finite value, or mark the row valid=False and set it to NaN.", source,
+                  column=col, row=pos)
+        nan = np.isnan(values)
+        if col == "t":
+            if nan.any():
+                pos = int(np.flatnonzero(nan)[0])
+                _fail(f"column 't' is NaN at {_where(table, pos)}; every row needs a time.",
+                      source, column="t", row=pos)
+        elif col in ("x", "y", "heading", "speed") and nan.any():
+            bad = nan if valid is None else nan & valid
+            if bad.any():
+                pos = int(np.flatnonzero(bad)[0])
+                _fail(f"column {col!r} is NaN at {_where(table, pos)}, a valid row. Mark the "
+                      "row valid=False (a gap that splits the track) or drop it.", source,
+                      column=col, row=pos)
+    if valid is None:
+        valid = np.ones(len(table), dtype=bool)
+
+    speed = cols["speed"]
+    neg = valid & (speed < 0)
+    if neg.any():
+        pos = int(np.flatnonzero(neg)[0])
+        name = "speed" if "speed" in table.columns else "hypot(vx, vy)"
+        _fail(f"{name} is negative ({speed[pos]!r} m/s) at {_where(table, pos)}; speed is a "
+              "magnitude. Use abs(), or give vx, vy instead.", source, column="speed", row=pos)
+    heading = cols["heading"]
+    big = valid & (np.abs(heading) > _TWO_PI + 1e-6)
+    if big.any():
+        pos = int(np.flatnonzero(big)[0])
+        _fail(f"heading {heading[pos]!r} at {_where(table, pos)} is beyond 2*pi: headings look "
+              "like degrees. Convert with numpy.deg2rad (radians, counter-clockwise from +x); "
+              "if they are unwrapped radians, wrap them to (-pi, pi].", source,
+              column="heading", row=pos)
+
+    if "object_type" in table.columns:
+        otype = table["object_type"].astype(str).str.lower()
+        bad = ~otype.isin(OBJECT_TYPES).to_numpy()
+        if bad.any():
+            pos = int(np.flatnonzero(bad)[0])
+            _fail(f"object_type {table['object_type'].iloc[pos]!r} at {_where(table, pos)} is "
+                  f"not one of {', '.join(OBJECT_TYPES)}.", source, column="object_type",
+                  row=pos)
+        cols["object_type"] = otype
+    if "is_ego" in table.columns:
+        cols["is_ego"] = _bool_column(table, "is_ego", source)
+    if "crashed" in table.columns:
+        cols["crashed"] = _bool_column(table, "crashed", source)
+
+    # Group rows by track, keeping each track's rows in input order (never sorting by t).
+    sc_codes, _ = pd.factorize(cols["scenario_id"], sort=True)
+    tr_codes, tr_uniques = pd.factorize(cols["track_id"], sort=True)
+    key = sc_codes.astype(np.int64) * max(len(tr_uniques), 1) + tr_codes
+    order = np.argsort(key, kind="stable")
+    key_sorted = key[order]
+    t = cols["t"][order]
+    new_track = np.empty(len(order), dtype=bool)
+    new_track[0] = True
+    np.not_equal(key_sorted[1:], key_sorted[:-1], out=new_track[1:])
+    dt = np.diff(t)
+    same = ~new_track[1:]
+    back = same & (dt <= 0)
+    if back.any():
+        i = int(np.flatnonzero(back)[0])
+        a, b = int(order[i]), int(order[i + 1])
+        what = "repeats" if dt[i] == 0 else "goes back from"
+        if dt[i] == 0:
+            _fail(f"duplicate (scenario_id, track_id, t): {_where(table, b)} repeats row {a}. "
+                  "Drop one of them.", source, column="t", row=b)
+        _fail(f"t is not increasing within a track: {_where(table, b)} {what} t={t[i]!r} at "
+              f"row {a}. Rows of one track must be in time order; tap-bench does not sort "
+              "them silently: sort by t yourself if the order is only a storage accident.",
+              source, column="t", row=b)
+
+    steps = dt / DT
+    whole = np.round(steps)
+    regular = np.abs(steps - 1.0) <= DT_TOLERANCE
+    gap = (whole >= 2) & (np.abs(steps - whole) <= DT_TOLERANCE) & (whole <= MAX_GAP_STEPS)
+    irregular = same & ~regular & ~gap
+    if irregular.any():
+        same_dt = dt[same]
+        median = float(np.median(same_dt)) if same_dt.size else float("nan")
+        if same_dt.size and abs(median / DT - 1.0) > DT_TOLERANCE:
+            _fail(f"the table is sampled at {1.0 / median:.3g} Hz (median step {median:.4g} s); "
+                  "TAP works at 10 Hz. Resample it with tap_bench.resample_to_10hz(table) "
+                  "(linear interpolation of x, y, speed and unwrapped heading).", source,
+                  column="t")
+        i = int(np.flatnonzero(irregular)[0])
+        a, b = int(order[i]), int(order[i + 1])
+        _fail(f"irregular time step of {dt[i]:.4g} s between row {a} and {_where(table, b)}; "
+              "steps must be 0.1 s, or a whole number of steps where rows are missing. "
+              "Resample the track with tap_bench.resample_to_10hz(table).", source,
+              column="t", row=b)
+
+    clean = pd.DataFrame({k: (v[order] if isinstance(v, np.ndarray) else
+                              v.iloc[order].reset_index(drop=True)) for k, v in cols.items()})
+    clean["valid"] = valid[order]
+    for col in table.columns:
+        if col not in clean.columns:
+            clean[col] = table[col].iloc[order].reset_index(drop=True)
+    ordered = [c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS) if c in clean.columns]
+    clean = clean[ordered + [c for c in clean.columns if c not in ordered]]
+
+    track_starts = np.flatnonzero(new_track)
+    track = np.cumsum(new_track) - 1
+    # A new valid segment starts at every valid row that follows an invalid row, a gap or
+    # the start of its track.
+    v = clean["valid"].to_numpy()
+    starts_seg = v.copy()
+    starts_seg[1:] &= new_track[1:] | ~v[:-1] | gap
+    segment = np.cumsum(starts_seg) - 1
+    segment[~v] = -1
+    seg_start = np.flatnonzero(starts_seg)
+    ends_seg = v.copy()
+    ends_seg[:-1] &= new_track[1:] | ~v[1:] | gap
+    seg_stop = np.flatnonzero(ends_seg) + 1
+    index = TrackIndex(
+        track=track.astype(np.int64),
+        track_start=np.append(track_starts, len(order)).astype(np.int64),
+        segment=segment.astype(np.int64),
+        segment_start=seg_start.astype(np.int64),
+        segment_stop=seg_stop.astype(np.int64),
+        segment_track=track[seg_start].astype(np.int64),
+    )
+    return clean, index
