@@ -1,0 +1,255 @@
+"""TAP end to end: trajectory table in, label, segment and per-step tables out.
+
+>>> result = tap(table, thresholds="paper")          # doctest: +SKIP
+>>> result.labels("action")                          # one row per trajectory segment
+>>> result.segments("all")                           # one row per run of one label
+>>> label(table, level="all")                        # the label table directly
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from tap_bench import sdl
+from tap_bench.errors import ShortSegmentWarning, did_you_mean
+from tap_bench.kinematics import Kinematics, compute_kinematics
+from tap_bench.stages import StageConfig, StepLabels, find_runs, run_stages
+from tap_bench.thresholds import Thresholds, resolve_thresholds
+from tap_bench.trajectories import DT, IDENTIFYING_COLUMNS, validate_and_index
+
+__all__ = ["LABEL_COLUMNS", "SEGMENT_COLUMNS", "TapResult", "label", "tap"]
+
+LABEL_COLUMNS = ("scenario_id", "track_id", "segment", "level", "lateral", "longitudinal",
+                 "sdl", "t_start", "t_end")
+"""Columns of the label table, followed by the identifying columns the input had."""
+SEGMENT_COLUMNS = ("scenario_id", "track_id", "segment", "level", "axis", "label", "t_start",
+                   "t_end")
+"""Columns of the segment table, followed by the identifying columns the input had."""
+
+
+@dataclass(frozen=True)
+class TapResult:
+    """Everything TAP produced for one trajectory table.
+
+    ``t_end`` is exclusive everywhere: the time of the last step plus 0.1 s, so that the runs
+    of one segment tile it and ``t_end - t_start`` is a run's duration.
+
+    Attributes:
+        segments_info: one row per labelled valid segment: scenario_id, track_id, segment
+            (0-based index of the valid segment within its track), t_start, t_end, n_steps,
+            and the identifying columns of the input.
+        short_segments: the valid segments shorter than 1 s, which carry no label, with the
+            same columns.
+        step_labels: per-step codes of every level over the labelled steps.
+        step_t: (m,) time of each labelled step [s].
+        step_segment: (m,) row of ``segments_info`` of each labelled step.
+        thresholds: the thresholds used.
+        config: the stage timing parameters used.
+        timings: seconds spent per stage (validate, kinematics, stages, tables).
+    """
+
+    segments_info: pd.DataFrame
+    short_segments: pd.DataFrame
+    step_labels: StepLabels
+    step_t: np.ndarray
+    step_segment: np.ndarray
+    thresholds: Thresholds
+    config: StageConfig
+    timings: dict[str, float] = field(default_factory=dict, compare=False)
+
+    def labels(self, level: str = "action") -> pd.DataFrame:
+        """The label table (SPEC section 1) at ``level`` or at ``"all"`` levels."""
+        levels = _levels(level)
+        frames = [self._labels_one(lv) for lv in levels]
+        out = pd.concat(frames, ignore_index=True) if len(frames) > 1 else frames[0]
+        if len(levels) > 1:
+            order = np.argsort(np.tile(np.arange(len(self.segments_info)), len(levels)),
+                               kind="stable")
+            out = out.iloc[order].reset_index(drop=True)
+        return out
+
+    def segments(self, level: str = "action") -> pd.DataFrame:
+        """The segment table (SPEC section 1): one row per run of one label."""
+        frames = [self._segments_one(lv, axis) for lv in _levels(level) for axis in sdl.AXES]
+        out = pd.concat(frames, ignore_index=True)
+        key = out.pop("_seg").to_numpy()
+        order = np.argsort(key, kind="stable")
+        return out.iloc[order].reset_index(drop=True)
+
+    def steps(self) -> pd.DataFrame:
+        """Per-step labels: scenario_id, track_id, segment, t and one column per level and
+        axis (``trace_lateral`` ... ``action_longitudinal``) as categoricals."""
+        per_step = self.segments_info.take(self.step_segment).reset_index(drop=True)
+        out = pd.DataFrame({
+            "scenario_id": per_step["scenario_id"], "track_id": per_step["track_id"],
+            "segment": per_step["segment"], "t": self.step_t,
+        })
+        for level in sdl.LEVELS:
+            for axis in sdl.AXES:
+                out[f"{level}_{axis}"] = pd.Categorical.from_codes(
+                    self.step_labels.codes(level, axis), categories=sdl.code_names(level, axis))
+        return out
+
+    # -- internals -----------------------------------------------------------------------
+    def _runs(self, level: str, axis: str):
+        codes = self.step_labels.codes(level, axis)
+        seg_first = np.ones(len(codes), dtype=bool)
+        seg_first[1:] = self.step_segment[1:] != self.step_segment[:-1]
+        return find_runs(codes, self.step_segment, seg_first)
+
+    def _sequences(self, level: str, axis: str) -> pa.Array:
+        """(S,) the ' > '-joined label sequence of each segment (a pyarrow string array)."""
+        runs = self._runs(level, axis)
+        offsets = np.searchsorted(runs.seg, np.arange(len(self.segments_info) + 1))
+        tokens = pa.array(sdl.code_names(level, axis)).take(pa.array(runs.code))
+        return pc.binary_join(pa.ListArray.from_arrays(pa.array(offsets, pa.int64()), tokens)
+                              if len(offsets) else pa.array([], pa.list_(pa.string())),
+                              sdl.SEPARATOR)
+
+    def _labels_one(self, level: str) -> pd.DataFrame:
+        info = self.segments_info
+        lat = self._sequences(level, "lateral")
+        lon = self._sequences(level, "longitudinal")
+        sdl_text = pc.binary_join_element_wise(lat, lon, sdl.SDL_SEPARATOR)
+        out = pd.DataFrame({
+            "scenario_id": info["scenario_id"], "track_id": info["track_id"],
+            "segment": info["segment"], "level": level,
+            "lateral": _strings(lat), "longitudinal": _strings(lon), "sdl": _strings(sdl_text),
+            "t_start": info["t_start"], "t_end": info["t_end"],
+        })
+        for col in info.columns:
+            if col in IDENTIFYING_COLUMNS:
+                out[col] = info[col]
+        return out
+
+    def _segments_one(self, level: str, axis: str) -> pd.DataFrame:
+        info = self.segments_info
+        runs = self._runs(level, axis)
+        names = pa.array(sdl.code_names(level, axis))
+        last = runs.start + runs.length - 1
+        per_run = info.take(runs.seg).reset_index(drop=True)
+        out = pd.DataFrame({
+            "scenario_id": per_run["scenario_id"], "track_id": per_run["track_id"],
+            "segment": per_run["segment"], "level": level, "axis": axis,
+            "label": _strings(names.take(pa.array(runs.code))),
+            "t_start": self.step_t[runs.start], "t_end": self.step_t[last] + DT,
+        })
+        for col in info.columns:
+            if col in IDENTIFYING_COLUMNS:
+                out[col] = per_run[col]
+        out["_seg"] = runs.seg
+        return out
+
+
+def _levels(level: str) -> tuple[str, ...]:
+    if level == "all":
+        return sdl.LEVELS
+    if level not in sdl.LEVELS:
+        raise did_you_mean("level", level, (*sdl.LEVELS, "all"))
+    return (level,)
+
+
+def _strings(values: pa.Array) -> pd.Series:
+    """A pyarrow string array as a pandas string Series, without a round trip via Python."""
+    return pd.Series(values, dtype=pd.StringDtype("pyarrow", na_value=np.nan))
+
+
+def _segment_frame(tracks: pd.DataFrame, kin: Kinematics, index, which: np.ndarray,
+                   ordinal: np.ndarray) -> pd.DataFrame:
+    """One row per valid segment selected by ``which`` (bool, (n_segments,))."""
+    rows = index.segment_start[which]
+    stops = index.segment_stop[which]
+    frame = tracks.take(index.segment_track[which]).reset_index(drop=True)
+    frame.insert(2, "segment", ordinal[which])
+    frame.insert(3, "t_start", kin.t[rows])
+    frame.insert(4, "t_end", kin.t[stops - 1] + DT if len(rows) else np.zeros(0))
+    frame.insert(5, "n_steps", stops - rows)
+    return frame
+
+
+def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
+        config: StageConfig | None = None, *, source: str = "trajectory table") -> TapResult:
+    """Run the Trajectory-to-Action Pipeline on a trajectory table.
+
+    Args:
+        table: a trajectory table (SPEC section 1), validated on entry.
+        thresholds: a :class:`Thresholds`, a preset name (``"paper"``) or a JSON file path.
+        config: stage timing parameters (1 s minimum run, 4 s merge gap by default).
+        source: a name for the table in error messages (its file path).
+
+    Returns:
+        A :class:`TapResult`; segments shorter than 1 s are listed in ``short_segments``.
+    """
+    config = config or StageConfig()
+    th = resolve_thresholds(thresholds)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    clean, index = validate_and_index(table, source=source)
+    t1 = time.perf_counter()
+    kin = compute_kinematics(clean, index)
+    t2 = time.perf_counter()
+
+    lengths = index.segment_length
+    track_first_seg = np.searchsorted(index.segment_track, np.arange(index.n_tracks))
+    ordinal = np.arange(index.n_segments) - track_first_seg[index.segment_track]
+    long_enough = lengths >= config.min_steps
+    starts, stops = index.segment_start[long_enough], index.segment_stop[long_enough]
+    per_track = ["scenario_id", "track_id", *(c for c in IDENTIFYING_COLUMNS if c in clean)]
+    tracks = clean[per_track].take(index.track_start[:-1]).reset_index(drop=True)
+    info = _segment_frame(tracks, kin, index, long_enough, ordinal)
+    short = _segment_frame(tracks, kin, index, ~long_enough, ordinal)
+
+    seg_len = stops - starts
+    n_steps = int(seg_len.sum())
+    step_rows = np.repeat(starts, seg_len) + (
+        np.arange(n_steps) - np.repeat(np.cumsum(seg_len) - seg_len, seg_len))
+    step_segment = np.repeat(np.arange(len(starts)), seg_len)
+    t3 = time.perf_counter()
+    labels = run_stages(kin.w[step_rows], kin.a[step_rows], kin.v[step_rows], seg_len, th,
+                        config)
+    t4 = time.perf_counter()
+    timings.update(validate=t1 - t0, kinematics=t2 - t1, layout=t3 - t2, stages=t4 - t3)
+    return TapResult(segments_info=info, short_segments=short, step_labels=labels,
+                     step_t=kin.t[step_rows], step_segment=step_segment, thresholds=th,
+                     config=config, timings=timings)
+
+
+def label(table: pd.DataFrame, thresholds: Thresholds | str = "paper", level: str = "action",
+          config: StageConfig | None = None, *, source: str = "trajectory table"
+          ) -> pd.DataFrame:
+    """The SDL label table of a trajectory table (one row per trajectory segment and level).
+
+    Args:
+        table: a trajectory table (SPEC section 1).
+        thresholds: a :class:`Thresholds`, a preset name (``"paper"``) or a JSON file path.
+        level: ``"trace"``, ``"trend"``, ``"maneuver"``, ``"action"`` or ``"all"``.
+        config: stage timing parameters.
+        source: a name for the table in error messages.
+
+    Warns:
+        ShortSegmentWarning: when valid segments shorter than 1 s had to be left unlabelled
+            (use :func:`tap` to get them as a table).
+    """
+    _levels(level)  # fail on a bad level before doing any work
+    result = tap(table, thresholds, config, source=source)
+    warn_short_segments(result)
+    return result.labels(level)
+
+
+def warn_short_segments(result: TapResult) -> None:
+    """Warn, with counts, when some valid segments were too short to label."""
+    short = result.short_segments
+    if len(short):
+        n_tracks = short[["scenario_id", "track_id"]].drop_duplicates().shape[0]
+        warnings.warn(
+            f"{len(short)} valid segment(s) in {n_tracks} track(s) are shorter than "
+            f"{result.config.min_run:g} s and carry no label (steps: "
+            f"{int(short['n_steps'].sum())}); tap(...).short_segments lists them.",
+            ShortSegmentWarning, stacklevel=3)
