@@ -1,0 +1,13 @@
+"""Waymo Open Motion Dataset (WOMD) files, read and written without TensorFlow.
+
+Modules, in the order data flows:
+
+- :mod:`~tap_bench.womd.checksum`: CRC-32C (the ``crc32c`` package, or a numpy fallback);
+- :mod:`~tap_bench.womd.tfrecord`: TFRecord framing, plain or GZIP, record by record;
+- :mod:`~tap_bench.womd.proto`: the ``Scenario`` message classes, built at run time;
+- :mod:`~tap_bench.womd.scenario`: a ``Scenario`` record to the trajectory table;
+- :mod:`~tap_bench.womd.tf_example`: the ``tf.Example`` motion format to the table;
+- :mod:`~tap_bench.womd.scenarionet`: ScenarioNet pickles, through a restricted unpickler;
+- :mod:`~tap_bench.womd.writer`: a trajectory table back to ``Scenario`` TFRecords;
+- :mod:`~tap_bench.womd.ingest`: many files, streamed, in worker processes, with a report.
+"""

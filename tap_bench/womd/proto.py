@@ -1,0 +1,154 @@
+"""WOMD's ``Scenario`` messages, built at run time from a descriptor written here.
+
+No protoc step, no generated code, no TensorFlow: the message classes come from a
+``FileDescriptorProto`` assembled from the field tables below (field numbers from Waymo's
+``scenario.proto``, proto2, package ``waymo.open_dataset``), which the ``protobuf`` package
+turns into classes at import.
+
+Two files are built:
+
+- ``waymo.open_dataset`` (:data:`Scenario`, :data:`Track`, :data:`ObjectState`,
+  :data:`RequiredPrediction`): the messages as WOMD defines them, used to write scenarios and
+  to decode them field by field. ``DynamicMapState`` and ``MapFeature`` are declared without
+  fields: their content is kept as unknown fields, so a parsed scenario re-serialises with
+  its map intact. ``Track`` also declares two tap-bench fields (51001, 51002) that keep a
+  table's string track ids and extra columns; other WOMD tools keep them as unknown fields.
+- ``tap_bench.womd.view`` (:data:`ScenarioView`): the same wire format read lazily. A
+  track's states stay raw bytes, decoded in bulk with numpy (:mod:`tap_bench.womd.scenario`),
+  and enums are plain ints so an unknown object type is seen rather than dropped.
+"""
+
+from __future__ import annotations
+
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+__all__ = [
+    "OBJECT_STATE_FIELDS",
+    "OBJECT_TYPE_NAMES",
+    "ObjectState",
+    "RequiredPrediction",
+    "Scenario",
+    "ScenarioView",
+    "TAP_BENCH_COLUMNS_FIELD",
+    "TAP_BENCH_TRACK_ID_FIELD",
+    "Track",
+]
+
+_F = descriptor_pb2.FieldDescriptorProto
+_SCALARS = {
+    "double": _F.TYPE_DOUBLE, "float": _F.TYPE_FLOAT, "int32": _F.TYPE_INT32,
+    "bool": _F.TYPE_BOOL, "string": _F.TYPE_STRING, "bytes": _F.TYPE_BYTES,
+}
+
+OBJECT_STATE_FIELDS = (
+    ("center_x", 2, "double"),
+    ("center_y", 3, "double"),
+    ("center_z", 4, "double"),
+    ("length", 5, "float"),
+    ("width", 6, "float"),
+    ("height", 7, "float"),
+    ("heading", 8, "float"),
+    ("velocity_x", 9, "float"),
+    ("velocity_y", 10, "float"),
+    ("valid", 11, "bool"),
+)
+"""ObjectState fields: (name, number, type). Positions [m], heading [rad], velocity [m/s]."""
+
+OBJECT_TYPE_NAMES = {0: "other", 1: "vehicle", 2: "pedestrian", 3: "cyclist", 4: "other"}
+"""Track.ObjectType (UNSET 0, VEHICLE 1, PEDESTRIAN 2, CYCLIST 3, OTHER 4) to the contract's
+object_type; UNSET is read as ``other``."""
+
+TAP_BENCH_TRACK_ID_FIELD = 51001
+"""Track field (string) holding a table's track_id when it is not a WOMD int32 id."""
+TAP_BENCH_COLUMNS_FIELD = 51002
+"""Track field (string, JSON) holding a table's columns that WOMD has no field for."""
+
+_TRACK_EXTRA = (
+    ("tap_bench_track_id", TAP_BENCH_TRACK_ID_FIELD, "string"),
+    ("tap_bench_columns", TAP_BENCH_COLUMNS_FIELD, "string"),
+)
+
+# name -> fields (name, number, type); "repeated X" marks repeated fields, ".Name" a message,
+# "enum:.Name" an enum.
+_WAYMO = {
+    "ObjectState": OBJECT_STATE_FIELDS,
+    "Track": (("id", 1, "int32"), ("object_type", 2, "enum:.Track.ObjectType"),
+              ("states", 3, "repeated .ObjectState"), *_TRACK_EXTRA),
+    "DynamicMapState": (),
+    "MapFeature": (),
+    "RequiredPrediction": (("track_index", 1, "int32"),
+                           ("difficulty", 2, "enum:.RequiredPrediction.DifficultyLevel")),
+    "Scenario": (("timestamps_seconds", 1, "repeated double"),
+                 ("tracks", 2, "repeated .Track"),
+                 ("objects_of_interest", 4, "repeated int32"),
+                 ("scenario_id", 5, "string"),
+                 ("sdc_track_index", 6, "int32"),
+                 ("dynamic_map_states", 7, "repeated .DynamicMapState"),
+                 ("map_features", 8, "repeated .MapFeature"),
+                 ("current_time_index", 10, "int32"),
+                 ("tracks_to_predict", 11, "repeated .RequiredPrediction")),
+}
+_WAYMO_ENUMS = {
+    "Track": ("ObjectType", ("TYPE_UNSET", "TYPE_VEHICLE", "TYPE_PEDESTRIAN", "TYPE_CYCLIST",
+                             "TYPE_OTHER")),
+    "RequiredPrediction": ("DifficultyLevel", ("NONE", "LEVEL_1", "LEVEL_2")),
+}
+_VIEW = {
+    "TrackView": (("id", 1, "int32"), ("object_type", 2, "int32"),
+                  ("states", 3, "repeated bytes"), *_TRACK_EXTRA),
+    "RequiredPredictionView": (("track_index", 1, "int32"), ("difficulty", 2, "int32")),
+    "ScenarioView": (("timestamps_seconds", 1, "repeated double"),
+                     ("tracks", 2, "repeated .TrackView"),
+                     ("objects_of_interest", 4, "repeated int32"),
+                     ("scenario_id", 5, "string"),
+                     ("sdc_track_index", 6, "int32"),
+                     ("current_time_index", 10, "int32"),
+                     ("tracks_to_predict", 11, "repeated .RequiredPredictionView")),
+}
+
+
+def _file(name: str, package: str, messages: dict, enums: dict) -> descriptor_pb2.FileDescriptorProto:
+    fd = descriptor_pb2.FileDescriptorProto(name=name, package=package, syntax="proto2")
+    for msg_name, fields in messages.items():
+        msg = fd.message_type.add(name=msg_name)
+        if msg_name in enums:
+            enum_name, values = enums[msg_name]
+            enum = msg.enum_type.add(name=enum_name)
+            for number, value in enumerate(values):
+                enum.value.add(name=value, number=number)
+        for field_name, number, kind in fields:
+            field = msg.field.add(name=field_name, number=number, label=_F.LABEL_OPTIONAL)
+            if kind.startswith("repeated "):
+                field.label = _F.LABEL_REPEATED
+                kind = kind.removeprefix("repeated ")
+            if kind.startswith("enum:"):
+                field.type = _F.TYPE_ENUM
+                field.type_name = f".{package}{kind.removeprefix('enum:')}"
+            elif kind.startswith("."):
+                field.type = _F.TYPE_MESSAGE
+                field.type_name = f".{package}{kind}"
+            else:
+                field.type = _SCALARS[kind]
+    return fd
+
+
+_POOL = descriptor_pool.DescriptorPool()
+_POOL.Add(_file("waymo_open_dataset/protos/scenario.proto", "waymo.open_dataset", _WAYMO,
+                _WAYMO_ENUMS))
+_POOL.Add(_file("tap_bench/womd/view.proto", "tap_bench.womd.view", _VIEW, {}))
+
+
+def _cls(full_name: str) -> type:
+    return message_factory.GetMessageClass(_POOL.FindMessageTypeByName(full_name))
+
+
+Scenario = _cls("waymo.open_dataset.Scenario")
+"""WOMD ``Scenario`` message class."""
+Track = _cls("waymo.open_dataset.Track")
+"""WOMD ``Track`` message class."""
+ObjectState = _cls("waymo.open_dataset.ObjectState")
+"""WOMD ``ObjectState`` message class (one state of one track at one time step)."""
+RequiredPrediction = _cls("waymo.open_dataset.RequiredPrediction")
+"""WOMD ``RequiredPrediction`` message class (a track to predict and its difficulty)."""
+ScenarioView = _cls("tap_bench.womd.view.ScenarioView")
+"""A Scenario read lazily: track states stay raw bytes and enums plain ints."""

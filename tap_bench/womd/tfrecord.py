@@ -1,0 +1,180 @@
+"""TFRecord files, read and written record by record without TensorFlow.
+
+A TFRecord file is a sequence of records, each framed as::
+
+    uint64 length (little-endian) | uint32 masked CRC-32C of those 8 bytes
+    data (length bytes)           | uint32 masked CRC-32C of the data
+
+Files may be GZIP-compressed as a whole (TensorFlow's ``compression_type="GZIP"``); the
+reader recognises them by their magic bytes, whatever their name.
+"""
+
+from __future__ import annotations
+
+import gzip
+import os
+import struct
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import BinaryIO
+
+from tap_bench.womd.checksum import masked_crc32c
+from tap_bench.womd.errors import WomdRecordError
+
+__all__ = ["Record", "TFRecordWriter", "iter_records"]
+
+_HEADER = struct.Struct("<QI")
+_CRC = struct.Struct("<I")
+_GZIP_MAGIC = b"\x1f\x8b"
+_DAMAGED = ("The file is damaged (an interrupted download or copy?): fetch it again, or "
+            "ingest with on_error='skip' to go on without it.")
+
+
+@dataclass(frozen=True)
+class Record:
+    """One record of a TFRecord file.
+
+    Attributes:
+        path: the file it came from.
+        index: 0-based position of the record in the file.
+        offset: byte offset of the record's length header (in the decompressed stream of a
+            GZIP file).
+        data: the record's payload.
+    """
+
+    path: str
+    index: int
+    offset: int
+    data: bytes
+
+    def error(self, problem: str, fix: str) -> WomdRecordError:
+        """An error about this record, naming file, index and offset."""
+        return WomdRecordError(self.path, self.index, self.offset, problem, fix)
+
+
+def iter_records(
+    path: str | os.PathLike,
+    *,
+    check_crc: bool = True,
+    on_error: Callable[[WomdRecordError], None] | None = None,
+) -> Iterator[Record]:
+    """Yield the records of a TFRecord file (plain or GZIP) one at a time.
+
+    Memory holds one record at a time, whatever the size of the file.
+
+    Args:
+        path: the file.
+        check_crc: check both CRC-32C of every record (default). Turning it off saves the
+            checksum time on trusted local copies.
+        on_error: None (default) raises the first :class:`WomdRecordError`; a callable is
+            given each error instead and reading goes on: after a bad data CRC with the
+            next record, after broken framing (bad length CRC, truncation) with the next
+            file, as the start of the next record is then unknown.
+
+    Raises:
+        WomdRecordError: a record with a bad CRC, a truncated record or trailing bytes too
+            short for a header, naming the file, record and byte offset.
+    """
+    path = str(path)
+    raw = open(path, "rb")
+    try:
+        stream: BinaryIO = raw
+        if raw.peek(2)[:2] == _GZIP_MAGIC:
+            stream = gzip.GzipFile(fileobj=raw, mode="rb")
+        yield from _records(path, stream, check_crc, on_error)
+    finally:
+        if stream is not raw:
+            stream.close()
+        raw.close()
+
+
+def _records(path: str, stream: BinaryIO, check_crc: bool,
+             on_error: Callable[[WomdRecordError], None] | None) -> Iterator[Record]:
+    offset = 0
+    index = 0
+    while True:
+        try:
+            header = stream.read(_HEADER.size)
+        except (OSError, EOFError) as err:  # a damaged GZIP stream
+            _report(on_error, WomdRecordError(
+                path, index, offset, f"the GZIP stream cannot be decompressed ({err})",
+                _DAMAGED, resumable=False))
+            return
+        if not header:
+            return
+        if len(header) < _HEADER.size:
+            _report(on_error, WomdRecordError(
+                path, index, offset, f"the file ends {len(header)} bytes into a record's "
+                f"12-byte length header", _DAMAGED, resumable=False))
+            return
+        length, length_crc = _HEADER.unpack(header)
+        if check_crc and masked_crc32c(header[:8]) != length_crc:
+            _report(on_error, WomdRecordError(
+                path, index, offset, f"the CRC of the length field does not match (length "
+                f"reads {length} bytes); this is not a TFRecord file, or it is damaged",
+                "Check that the file is a TFRecord of WOMD Scenario or tf.Example protos. "
+                + _DAMAGED, resumable=False))
+            return
+        try:
+            body = stream.read(length + _CRC.size)
+        except (OSError, EOFError, OverflowError, MemoryError) as err:
+            _report(on_error, WomdRecordError(
+                path, index, offset, f"the record's {length} bytes cannot be read ({err})",
+                _DAMAGED, resumable=False))
+            return
+        if len(body) < length + _CRC.size:
+            _report(on_error, WomdRecordError(
+                path, index, offset, f"truncated: the length field announces {length} bytes "
+                f"of data and a 4-byte CRC, but the file ends after {len(body)}", _DAMAGED,
+                resumable=False))
+            return
+        data = body[:length]
+        if check_crc and masked_crc32c(data) != _CRC.unpack_from(body, length)[0]:
+            _report(on_error, WomdRecordError(
+                path, index, offset, f"the CRC of the {length} data bytes does not match: "
+                "the record is corrupt", _DAMAGED))
+        else:
+            yield Record(path, index, offset, data)
+        offset += _HEADER.size + length + _CRC.size
+        index += 1
+
+
+def _report(on_error: Callable[[WomdRecordError], None] | None, err: WomdRecordError) -> None:
+    if on_error is None:
+        raise err
+    on_error(err)
+
+
+class TFRecordWriter:
+    """Write records to a TFRecord file, GZIP-compressed when ``compress`` is true.
+
+    Use it as a context manager; ``write`` frames each record with its two masked CRCs.
+    Writing is not atomic by itself: write into ``tap_bench.tableio.atomic_path``.
+    """
+
+    def __init__(self, path: str | os.PathLike, *, compress: bool = False):
+        self.path = Path(path)
+        self._raw = open(self.path, "wb")
+        self._stream: BinaryIO = (gzip.GzipFile(fileobj=self._raw, mode="wb")
+                                  if compress else self._raw)
+        self.records = 0
+
+    def write(self, data: bytes) -> None:
+        """Append one record."""
+        length = struct.pack("<Q", len(data))
+        self._stream.write(length + _CRC.pack(masked_crc32c(length)))
+        self._stream.write(data)
+        self._stream.write(_CRC.pack(masked_crc32c(data)))
+        self.records += 1
+
+    def close(self) -> None:
+        if self._stream is not self._raw:
+            self._stream.close()
+        self._raw.close()
+
+    def __enter__(self) -> TFRecordWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
