@@ -25,12 +25,12 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 __all__ = [
     "OBJECT_STATE_FIELDS",
     "OBJECT_TYPE_NAMES",
+    "TAP_BENCH_COLUMNS_FIELD",
+    "TAP_BENCH_TRACK_ID_FIELD",
     "ObjectState",
     "RequiredPrediction",
     "Scenario",
     "ScenarioView",
-    "TAP_BENCH_COLUMNS_FIELD",
-    "TAP_BENCH_TRACK_ID_FIELD",
     "Track",
 ]
 
@@ -107,7 +107,8 @@ _VIEW = {
 }
 
 
-def _file(name: str, package: str, messages: dict, enums: dict) -> descriptor_pb2.FileDescriptorProto:
+def _file(name: str, package: str, messages: dict,
+          enums: dict) -> descriptor_pb2.FileDescriptorProto:
     fd = descriptor_pb2.FileDescriptorProto(name=name, package=package, syntax="proto2")
     for msg_name, fields in messages.items():
         msg = fd.message_type.add(name=msg_name)

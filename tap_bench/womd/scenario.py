@@ -23,7 +23,6 @@ from google.protobuf.message import DecodeError
 from tap_bench.errors import did_you_mean
 from tap_bench.trajectories import OBJECT_TYPES
 from tap_bench.womd import proto
-from tap_bench.womd.errors import WomdRecordError
 from tap_bench.womd.tfrecord import Record
 
 __all__ = ["SCENARIO_COLUMNS", "StateDecodeError", "decode_object_states", "decode_scenario",
@@ -223,7 +222,7 @@ def _decode_uniform(buf: np.ndarray, pos: np.ndarray, lengths: np.ndarray,
     else:
         values, counts = np.unique(lengths, return_counts=True)
         groups = [(int(v), np.flatnonzero(lengths == v))
-                  for v, c in zip(values, counts) if c >= _UNIFORM_MIN]
+                  for v, c in zip(values, counts, strict=True) if c >= _UNIFORM_MIN]
     done = np.zeros(n, dtype=bool)
     for length, members in groups:
         first = int(pos[0] if members is None else pos[members[0]])
@@ -459,7 +458,7 @@ def repeated_strings(strings: Sequence[str], repeats: int | Sequence[int]) -> pa
     sizes = np.repeat(np.fromiter(map(len, encoded), np.int64, len(encoded)), counts)
     offsets = np.zeros(len(sizes) + 1, dtype=np.int64)
     np.cumsum(sizes, out=offsets[1:])
-    data = b"".join(e * int(r) for e, r in zip(encoded, counts))
+    data = b"".join(e * int(r) for e, r in zip(encoded, counts, strict=True))
     if offsets[-1] < 2**31:
         return pa.StringArray.from_buffers(len(sizes), pa.py_buffer(offsets.astype(np.int32)),
                                            pa.py_buffer(data))

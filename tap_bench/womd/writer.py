@@ -127,7 +127,7 @@ def _extra_columns(track: pd.DataFrame, slots: np.ndarray, n_steps: int,
             kept[name] = {"value": values[0], "steps": slots.tolist()}
         else:
             series: list[object] = [None] * n_steps
-            for slot, v in zip(slots.tolist(), values):
+            for slot, v in zip(slots.tolist(), values, strict=True):
                 series[slot] = v
             kept[name] = {"series": series}
     return json.dumps(kept, separators=(",", ":")) if kept else ""
@@ -157,7 +157,8 @@ def restore_extra_columns(table: pa.Table, extra_json: Sequence[str], n_steps: i
         column = pa.array(values)
         if name in table.column_names:
             fallback = table.column(name).to_pylist()
-            column = pa.array([v if v is not None else f for v, f in zip(values, fallback)])
+            column = pa.array([v if v is not None else f
+                               for v, f in zip(values, fallback, strict=True)])
             table = table.set_column(table.column_names.index(name), name, column)
         else:
             table = table.append_column(name, column)
@@ -262,7 +263,7 @@ def encode_scenarios(table: pd.DataFrame) -> Iterator[tuple[str, bytes]]:
     codes, names = pd.factorize(clean["scenario_id"], sort=False)
     starts = np.flatnonzero(np.r_[True, codes[1:] != codes[:-1]])
     stops = np.r_[starts[1:], len(codes)]
-    spans = {names[codes[a]]: (a, b) for a, b in zip(starts, stops)}
+    spans = {names[codes[a]]: (a, b) for a, b in zip(starts, stops, strict=True)}
     for scenario_id in order:
         a, b = spans[scenario_id]
         group = clean.iloc[a:b].reset_index(drop=True)
