@@ -1,4 +1,8 @@
-"""tap-bench: a scenario benchmark toolkit built on TAP, the Trajectory-to-Action Pipeline."""
+"""tap-bench: a scenario benchmark toolkit built on TAP, the Trajectory-to-Action Pipeline.
+
+Trajectory table -> kinematics -> TAP labels (four stages) -> similarity, metrics,
+comparisons -> report. Each stage has its own module; the names below are the public API.
+"""
 
 from __future__ import annotations
 
@@ -13,7 +17,21 @@ from tap_bench.errors import (
     TrajectoryTableError,
     UnknownNameError,
 )
+from tap_bench.fitting import FitReport, fit_report, fit_thresholds
+from tap_bench.kinematics import compute_kinematics, one_second_samples
+from tap_bench.labelling import TapResult, label, tap
+from tap_bench.resampling import resample_to_10hz
+from tap_bench.sdl import LEVELS, vocabulary
+from tap_bench.stages import StageConfig
+from tap_bench.synthetic import behaviour, random_trajectories, sample_table
 from tap_bench.tableio import read_table, write_table
+from tap_bench.thresholds import (
+    PRESETS,
+    Provenance,
+    Thresholds,
+    load_thresholds,
+    save_thresholds,
+)
 from tap_bench.trajectories import validate_trajectories
 
 __all__ = [
@@ -27,6 +45,30 @@ __all__ = [
     "UnknownNameError",
     # data contracts and files
     "read_table",
+    "resample_to_10hz",
     "validate_trajectories",
     "write_table",
+    # kinematics
+    "compute_kinematics",
+    "one_second_samples",
+    # TAP labelling
+    "LEVELS",
+    "StageConfig",
+    "TapResult",
+    "label",
+    "tap",
+    "vocabulary",
+    # thresholds
+    "PRESETS",
+    "FitReport",
+    "Provenance",
+    "Thresholds",
+    "fit_report",
+    "fit_thresholds",
+    "load_thresholds",
+    "save_thresholds",
+    # synthetic data
+    "behaviour",
+    "random_trajectories",
+    "sample_table",
 ]

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from tap_bench.trajectories import HZ, TrackIndex, validate_and_index
+from tap_bench.trajectories import HZ, CheckedTable, TrackIndex, validate_and_index
 
 __all__ = ["STEPS_PER_SECOND", "Kinematics", "compute_kinematics", "one_second_samples",
            "window_means"]
@@ -53,33 +53,35 @@ def _derivative(step_diff: np.ndarray, t: np.ndarray, index: TrackIndex) -> np.n
     segment, so a track's values never depend on other rows of the table.
     """
     n = len(t)
-    rows = np.arange(n)
-    first = np.zeros(n, dtype=bool)
-    last = np.zeros(n, dtype=bool)
-    first[index.segment_start] = True
-    last[index.segment_stop - 1] = True
-    invalid = index.segment < 0
-    lo = np.where(first | invalid, rows, rows - 1)
-    hi = np.where(last | invalid, rows, rows + 1)
-    d = np.append(np.nan_to_num(step_diff), 0.0)
-    span = hi - lo
-    num = np.where(span >= 1, d[lo], 0.0) + np.where(span == 2, d[np.minimum(lo + 1, n - 1)], 0.0)
-    dt = t[hi] - t[lo]
-    out = np.divide(num, dt, out=np.zeros(n), where=dt > 0)
-    out[invalid] = np.nan
+    num = np.zeros(n)
+    den = np.ones(n)
+    if n > 2:
+        num[1:-1] = step_diff[:-1] + step_diff[1:]
+        den[1:-1] = t[2:] - t[:-2]
+    first = index.segment_start
+    last = index.segment_stop - 1
+    single = first == last
+    f, lst = first[~single], last[~single]
+    num[f] = step_diff[f]
+    den[f] = t[f + 1] - t[f]
+    num[lst] = step_diff[lst - 1]
+    den[lst] = t[lst] - t[lst - 1]
+    num[first[single]] = 0.0
+    out = num / den
+    out[index.segment < 0] = np.nan
     return out
 
 
-def compute_kinematics(clean: pd.DataFrame, index: TrackIndex) -> Kinematics:
+def compute_kinematics(checked: CheckedTable) -> Kinematics:
     """Acceleration and yaw rate of every valid row of a validated table.
 
     Args:
-        clean: the table returned by :func:`validate_and_index` (rows grouped by track).
-        index: its :class:`TrackIndex`.
+        checked: the result of :func:`validate_and_index` (rows grouped by track).
     """
-    t = clean["t"].to_numpy(dtype=np.float64)
-    v = clean["speed"].to_numpy(dtype=np.float64).copy()
-    heading = clean["heading"].to_numpy(dtype=np.float64)
+    index = checked.index
+    t = np.asarray(checked["t"], dtype=np.float64)
+    v = np.array(checked["speed"], dtype=np.float64)
+    heading = np.asarray(checked["heading"], dtype=np.float64)
     dh = np.diff(heading)
     dh = (dh + np.pi) % (2.0 * np.pi) - np.pi  # the unwrapped heading's step change
     dv = np.diff(v)
@@ -106,7 +108,8 @@ def window_means(signal: np.ndarray, starts: np.ndarray, width: int) -> np.ndarr
     return signal[idx].sum(axis=1) / width
 
 
-def one_second_samples(table: pd.DataFrame | Kinematics) -> dict[str, np.ndarray]:
+def one_second_samples(table: pd.DataFrame | Kinematics, *, source: str = "trajectory table"
+                       ) -> dict[str, np.ndarray]:
     """The distributions D_w, D_a, D_v of SPEC section 3.
 
     One-second averages over non-overlapping 10-step windows of every valid segment,
@@ -114,13 +117,14 @@ def one_second_samples(table: pd.DataFrame | Kinematics) -> dict[str, np.ndarray
 
     Args:
         table: a trajectory table, or its :class:`Kinematics`.
+        source: a name for the table in error messages (its file path).
 
     Returns:
         ``{"w": |mean yaw rate| [rad/s], "a": mean acceleration [m/s^2], "v": mean speed
         [m/s]}``, each a float64 array of the same length (one entry per window).
     """
     kin = table if isinstance(table, Kinematics) else compute_kinematics(
-        *validate_and_index(table))
+        validate_and_index(table, source=source))
     idx = kin.index
     n_windows = idx.segment_length // STEPS_PER_SECOND
     starts = np.repeat(idx.segment_start, n_windows)

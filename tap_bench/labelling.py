@@ -191,9 +191,10 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
     th = resolve_thresholds(thresholds)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    clean, index = validate_and_index(table, source=source)
+    checked = validate_and_index(table, source=source)
+    index = checked.index
     t1 = time.perf_counter()
-    kin = compute_kinematics(clean, index)
+    kin = compute_kinematics(checked)
     t2 = time.perf_counter()
 
     lengths = index.segment_length
@@ -201,8 +202,7 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
     ordinal = np.arange(index.n_segments) - track_first_seg[index.segment_track]
     long_enough = lengths >= config.min_steps
     starts, stops = index.segment_start[long_enough], index.segment_stop[long_enough]
-    per_track = ["scenario_id", "track_id", *(c for c in IDENTIFYING_COLUMNS if c in clean)]
-    tracks = clean[per_track].take(index.track_start[:-1]).reset_index(drop=True)
+    tracks = checked.per_track(["scenario_id", "track_id", *IDENTIFYING_COLUMNS])
     info = _segment_frame(tracks, kin, index, long_enough, ordinal)
     short = _segment_frame(tracks, kin, index, ~long_enough, ordinal)
 

@@ -198,9 +198,9 @@ def random_trajectories(n: int, steps: int = 91, *, seed: int = 0,
 
     scenarios = scenarios or n // 50 + 1
     scenario_names = np.array([f"syn{i:05d}" for i in range(scenarios)], dtype=object)
-    track_names = np.arange(n).astype(str).astype(object)
+    track_names = np.array([f"{i:06d}" for i in range(n)], dtype=object)
     return pd.DataFrame({
-        "scenario_id": pd.array(np.repeat(scenario_names[np.arange(n) % scenarios], steps),
+        "scenario_id": pd.array(np.repeat(scenario_names[np.arange(n) * scenarios // n], steps),
                                 dtype="str"),
         "track_id": pd.array(np.repeat(track_names, steps), dtype="str"),
         "t": np.tile(np.arange(steps) * DT, n),

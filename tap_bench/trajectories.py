@@ -112,8 +112,13 @@ def _where(table: pd.DataFrame, pos: int) -> str:
     parts = []
     for col in ("scenario_id", "track_id", "t"):
         if col in table.columns:
-            parts.append(f"{col}={table[col].iloc[pos]!r}")
+            parts.append(f"{col}={_plain(table[col].iloc[pos])!r}")
     return f"row {pos}" + (f" ({', '.join(parts)})" if parts else "")
+
+
+def _plain(value):
+    """A numpy scalar as the Python value it holds (for readable messages)."""
+    return value.item() if hasattr(value, "item") else value
 
 
 def _fail(message: str, source: str, *, column: str | None = None, row: int | None = None):
@@ -161,7 +166,7 @@ def _numeric(table: pd.DataFrame, col: str, source: str) -> np.ndarray:
         if pd.api.types.is_bool_dtype(series) or bad.any():
             pos = int(np.flatnonzero(bad)[0]) if bad.any() else 0
             _fail(f"column {col!r} must be numeric; {_where(table, pos)} holds "
-                  f"{series.iloc[pos]!r}. Convert it to a number.", source, column=col, row=pos)
+                  f"{_plain(series.iloc[pos])!r}. Convert it to a number.", source, column=col, row=pos)
         series = converted
     return series.to_numpy(dtype=np.float64, na_value=np.nan)
 
@@ -175,7 +180,7 @@ def _bool_column(table: pd.DataFrame, col: str, source: str) -> np.ndarray:
     if not ok.all():
         pos = int(np.flatnonzero(~ok)[0])
         _fail(f"column {col!r} must be true/false (or 1/0); {_where(table, pos)} holds "
-              f"{values[pos]!r}.", source, column=col, row=pos)
+              f"{_plain(values[pos])!r}.", source, column=col, row=pos)
     return values.astype(bool)
 
 
@@ -197,14 +202,88 @@ def validate_trajectories(table: pd.DataFrame, *, source: str = "trajectory tabl
             degrees, negative speed, unknown object types, duplicate (scenario_id,
             track_id, t).
     """
-    clean, _ = validate_and_index(table, source=source)
-    return clean
+    return validate_and_index(table, source=source).frame()
 
 
-def validate_and_index(
-    table: pd.DataFrame, *, source: str = "trajectory table"
-) -> tuple[pd.DataFrame, TrackIndex]:
-    """:func:`validate_trajectories`, also returning where tracks and valid segments lie."""
+@dataclass(frozen=True)
+class CheckedTable:
+    """A validated trajectory table as columns in track order, with its :class:`TrackIndex`.
+
+    Attributes:
+        columns: column name -> (n_rows,) numpy array (numeric, bool) or pandas Series
+            (strings), rows grouped by (scenario_id, track_id), each track in time order.
+        index: where tracks and valid segments lie.
+    """
+
+    columns: dict[str, np.ndarray | pd.Series]
+    index: TrackIndex
+
+    def __getitem__(self, name: str) -> np.ndarray | pd.Series:
+        return self.columns[name]
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.columns
+
+    def frame(self) -> pd.DataFrame:
+        """The columns as a DataFrame (contract columns first)."""
+        ordered = [c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS) if c in self.columns]
+        ordered += [c for c in self.columns if c not in ordered]
+        return pd.DataFrame({c: _values(self.columns[c]) for c in ordered})
+
+    def per_track(self, names: list[str] | tuple[str, ...]) -> pd.DataFrame:
+        """One row per track: the given columns at each track's first row."""
+        rows = self.index.track_start[:-1]
+        return pd.DataFrame({c: _take(self.columns[c], rows) for c in names if c in self})
+
+
+def _values(col: np.ndarray | pd.Series):
+    return col.reset_index(drop=True) if isinstance(col, pd.Series) else col
+
+
+def _take(col: np.ndarray | pd.Series, rows: np.ndarray | None):
+    if rows is None:
+        return col
+    if isinstance(col, pd.Series):
+        return col.take(rows).reset_index(drop=True)
+    return col[rows]
+
+
+def _track_order(scenario: pd.Series, track: pd.Series) -> tuple[np.ndarray | None, np.ndarray]:
+    """Order that groups rows by (scenario_id, track_id), stable within a track.
+
+    Returns:
+        (order, new_track): ``order`` is None when the rows are grouped and sorted already
+        (the common case, detected without factorising every row); ``new_track`` is a
+        (n_rows,) bool mask of the first row of each track in the grouped order.
+    """
+    n = len(scenario)
+
+    def changes(col: pd.Series) -> np.ndarray:
+        values = col.array
+        out = np.ones(n, dtype=bool)
+        if n > 1:
+            out[1:] = np.asarray(values[1:] != values[:-1], dtype=bool)
+        return out
+
+    change = changes(scenario) | changes(track)
+    starts = np.flatnonzero(change)
+    sc_codes, _ = pd.factorize(scenario.take(starts), sort=True)
+    tr_codes, tr_uniques = pd.factorize(track.take(starts), sort=True)
+    block_key = sc_codes.astype(np.int64) * max(len(tr_uniques), 1) + tr_codes
+    if np.all(block_key[1:] > block_key[:-1]):
+        return None, change
+    sc_codes, _ = pd.factorize(scenario, sort=True)
+    tr_codes, tr_uniques = pd.factorize(track, sort=True)
+    key = sc_codes.astype(np.int64) * max(len(tr_uniques), 1) + tr_codes
+    order = np.argsort(key, kind="stable")
+    key = key[order]
+    new_track = np.ones(n, dtype=bool)
+    new_track[1:] = key[1:] != key[:-1]
+    return order, new_track
+
+
+def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table") -> CheckedTable:
+    """:func:`validate_trajectories` without building a DataFrame: columns and index."""
     if not isinstance(table, pd.DataFrame):
         raise TypeError(f"{source}: expected a pandas DataFrame, got {type(table).__name__}")
     if len(table) == 0:
@@ -255,13 +334,13 @@ def validate_and_index(
     if neg.any():
         pos = int(np.flatnonzero(neg)[0])
         name = "speed" if "speed" in table.columns else "hypot(vx, vy)"
-        _fail(f"{name} is negative ({speed[pos]!r} m/s) at {_where(table, pos)}; speed is a "
+        _fail(f"{name} is negative ({float(speed[pos])!r} m/s) at {_where(table, pos)}; speed is a "
               "magnitude. Use abs(), or give vx, vy instead.", source, column="speed", row=pos)
     heading = cols["heading"]
     big = valid & (np.abs(heading) > _TWO_PI + 1e-6)
     if big.any():
         pos = int(np.flatnonzero(big)[0])
-        _fail(f"heading {heading[pos]!r} at {_where(table, pos)} is beyond 2*pi: headings look "
+        _fail(f"heading {float(heading[pos])!r} at {_where(table, pos)} is beyond 2*pi: headings look "
               "like degrees. Convert with numpy.deg2rad (radians, counter-clockwise from +x); "
               "if they are unwrapped radians, wrap them to (-pi, pi].", source,
               column="heading", row=pos)
@@ -281,64 +360,57 @@ def validate_and_index(
         cols["crashed"] = _bool_column(table, "crashed", source)
 
     # Group rows by track, keeping each track's rows in input order (never sorting by t).
-    sc_codes, _ = pd.factorize(cols["scenario_id"], sort=True)
-    tr_codes, tr_uniques = pd.factorize(cols["track_id"], sort=True)
-    key = sc_codes.astype(np.int64) * max(len(tr_uniques), 1) + tr_codes
-    order = np.argsort(key, kind="stable")
-    key_sorted = key[order]
-    t = cols["t"][order]
-    new_track = np.empty(len(order), dtype=bool)
-    new_track[0] = True
-    np.not_equal(key_sorted[1:], key_sorted[:-1], out=new_track[1:])
+    order, new_track = _track_order(cols["scenario_id"], cols["track_id"])
+    t = cols["t"] if order is None else cols["t"][order]
     dt = np.diff(t)
     same = ~new_track[1:]
     back = same & (dt <= 0)
     if back.any():
         i = int(np.flatnonzero(back)[0])
-        a, b = int(order[i]), int(order[i + 1])
-        what = "repeats" if dt[i] == 0 else "goes back from"
+        a, b = (i, i + 1) if order is None else (int(order[i]), int(order[i + 1]))
         if dt[i] == 0:
             _fail(f"duplicate (scenario_id, track_id, t): {_where(table, b)} repeats row {a}. "
                   "Drop one of them.", source, column="t", row=b)
-        _fail(f"t is not increasing within a track: {_where(table, b)} {what} t={t[i]!r} at "
-              f"row {a}. Rows of one track must be in time order; tap-bench does not sort "
-              "them silently: sort by t yourself if the order is only a storage accident.",
-              source, column="t", row=b)
+        _fail(f"t is not increasing within a track: {_where(table, b)} goes back from "
+              f"t={float(t[i])!r} at row {a}. Rows of one track must be in time order; tap-bench does "
+              "not sort them silently: sort by t yourself if the order is only a storage "
+              "accident.", source, column="t", row=b)
 
     steps = dt / DT
     whole = np.round(steps)
     regular = np.abs(steps - 1.0) <= DT_TOLERANCE
     gap = (whole >= 2) & (np.abs(steps - whole) <= DT_TOLERANCE) & (whole <= MAX_GAP_STEPS)
     irregular = same & ~regular & ~gap
-    if irregular.any():
+    n_pairs = int(same.sum())
+    if n_pairs and (irregular.any() or int((regular & same).sum()) < 0.5 * n_pairs):
+        # Mostly non-0.1 s steps: the table is at another rate, not 10 Hz with gaps.
         same_dt = dt[same]
-        median = float(np.median(same_dt)) if same_dt.size else float("nan")
-        if same_dt.size and abs(median / DT - 1.0) > DT_TOLERANCE:
+        median = float(np.median(same_dt))
+        if abs(median / DT - 1.0) > DT_TOLERANCE:
             _fail(f"the table is sampled at {1.0 / median:.3g} Hz (median step {median:.4g} s); "
                   "TAP works at 10 Hz. Resample it with tap_bench.resample_to_10hz(table) "
                   "(linear interpolation of x, y, speed and unwrapped heading).", source,
                   column="t")
+    if irregular.any():
         i = int(np.flatnonzero(irregular)[0])
-        a, b = int(order[i]), int(order[i + 1])
+        a, b = (i, i + 1) if order is None else (int(order[i]), int(order[i + 1]))
         _fail(f"irregular time step of {dt[i]:.4g} s between row {a} and {_where(table, b)}; "
               "steps must be 0.1 s, or a whole number of steps where rows are missing. "
               "Resample the track with tap_bench.resample_to_10hz(table).", source,
               column="t", row=b)
 
-    clean = pd.DataFrame({k: (v[order] if isinstance(v, np.ndarray) else
-                              v.iloc[order].reset_index(drop=True)) for k, v in cols.items()})
-    clean["valid"] = valid[order]
+    cols["valid"] = valid
     for col in table.columns:
-        if col not in clean.columns:
-            clean[col] = table[col].iloc[order].reset_index(drop=True)
-    ordered = [c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS) if c in clean.columns]
-    clean = clean[ordered + [c for c in clean.columns if c not in ordered]]
+        if col not in cols:
+            cols[col] = table[col]
+    cols = {k: _take(v, order) for k, v in cols.items()}
 
     track_starts = np.flatnonzero(new_track)
     track = np.cumsum(new_track) - 1
+    n_rows = len(new_track)
     # A new valid segment starts at every valid row that follows an invalid row, a gap or
     # the start of its track.
-    v = clean["valid"].to_numpy()
+    v = cols["valid"]
     starts_seg = v.copy()
     starts_seg[1:] &= new_track[1:] | ~v[:-1] | gap
     segment = np.cumsum(starts_seg) - 1
@@ -349,10 +421,10 @@ def validate_and_index(
     seg_stop = np.flatnonzero(ends_seg) + 1
     index = TrackIndex(
         track=track.astype(np.int64),
-        track_start=np.append(track_starts, len(order)).astype(np.int64),
+        track_start=np.append(track_starts, n_rows).astype(np.int64),
         segment=segment.astype(np.int64),
         segment_start=seg_start.astype(np.int64),
         segment_stop=seg_stop.astype(np.int64),
         segment_track=track[seg_start].astype(np.int64),
     )
-    return clean, index
+    return CheckedTable(columns=cols, index=index)

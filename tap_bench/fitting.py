@@ -1,0 +1,356 @@
+"""Learning the thresholds Theta from data (SPEC section 3).
+
+Each distribution (D_w of |w|, D_a, D_v without the Stopped partition) is fitted on its own
+by minimising J (:mod:`tap_bench.objective`) with four methods:
+
+``descent``
+    The paper's method: finite-difference gradient descent, grad_i = (J(theta + eps e_i) -
+    J(theta - eps e_i)) / (2 eps), theta <- theta - eta grad, 100 epochs from each of three
+    starting guesses, with Table 1's eps and eta. A step that would leave thresholds out of
+    order or a partition with fewer than two samples is halved until it does not.
+``descent-scaled``
+    The same gradient, but a scale-free step: theta moves along -grad/|grad| by a step
+    that starts at 5 % of the data's 1-99 % range, grows by 1.2 after an improvement and
+    halves after a rejected move. It does not depend on the units or on the size of J,
+    which the paper's eta*grad does (see docs/thresholds.md for how little the paper's
+    rates move on some data).
+``cem``
+    The sampling cross-entropy method (de Boer et al., 2005): Gaussian proposals around
+    each start, the best 10 % refit the mean and spread (smoothing 0.7), 60 iterations.
+``grid``
+    Exhaustive search over a lattice of the data's quantiles (every increasing tuple of
+    72 values for three thresholds, 300 for two), then two rounds of a finer local
+    lattice around the best cell. It is the reference the others are measured against.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from tap_bench.errors import TapBenchError, did_you_mean
+from tap_bench.kinematics import one_second_samples
+from tap_bench.objective import SortedSamples
+from tap_bench.thresholds import NAMES, UNITS, Provenance, Thresholds
+
+__all__ = ["METHODS", "PAPER_HYPERPARAMETERS", "PAPER_STARTS", "DistributionFit",
+           "FitReport", "FitRun", "fit_report", "fit_thresholds"]
+
+METHODS = ("descent", "descent-scaled", "cem", "grid")
+DISTRIBUTIONS = ("w", "a", "v")
+PAPER_HYPERPARAMETERS = {"a": (0.05, 0.05), "v": (0.05, 0.2), "w": (0.005, 0.01)}
+"""Table 1 of the paper: (eps, eta) per distribution."""
+PAPER_STARTS = {
+    "a": ((-0.5, 0.5), (-1.0, 1.0), (-2.0, 2.0)),
+    "v": ((7.0, 22.0), (10.0, 24.0), (12.0, 26.0)),
+    "w": ((0.01, 0.05, 0.1), (0.02, 0.07, 0.15), (0.05, 0.1, 0.2)),
+}
+"""The paper's three starting guesses per distribution (Appendix C)."""
+V_STOP = 0.1
+"""The fixed Stopped threshold [m/s] (the paper sets it by hand)."""
+
+
+@dataclass(frozen=True)
+class FitRun:
+    """One optimisation run on one distribution.
+
+    Attributes:
+        dist: ``"w"``, ``"a"`` or ``"v"``.
+        method: one of :data:`METHODS`.
+        start: the starting guess (None for the grid).
+        theta: the thresholds reached, in increasing order [unit of ``dist``].
+        objective: J at ``theta`` [unit^2].
+        history: J after each epoch or iteration.
+    """
+
+    dist: str
+    method: str
+    start: tuple[float, ...] | None
+    theta: tuple[float, ...]
+    objective: float
+    history: tuple[float, ...] = field(default=(), repr=False)
+
+
+@dataclass(frozen=True)
+class DistributionFit:
+    """All runs on one distribution, the grid optimum and the chosen run."""
+
+    dist: str
+    n_samples: int
+    runs: tuple[FitRun, ...]
+    grid: FitRun | None
+    chosen: FitRun
+
+
+@dataclass(frozen=True)
+class FitReport:
+    """The fitted thresholds and how every method and start fared."""
+
+    thresholds: Thresholds
+    fits: dict[str, DistributionFit]
+
+    def table(self) -> pd.DataFrame:
+        """One row per distribution, method and start: thresholds, J and the distance to the
+        grid optimum (difference in J and largest threshold difference, in the unit)."""
+        rows = []
+        for dist, fit in self.fits.items():
+            for run in (*fit.runs, *([fit.grid] if fit.grid else [])):
+                row: dict[str, Any] = {
+                    "dist": dist, "unit": UNITS[dist], "method": run.method,
+                    "start": "" if run.start is None else
+                    "(" + ", ".join(f"{v:g}" for v in run.start) + ")",
+                    "theta": "(" + ", ".join(f"{v:.4f}" for v in run.theta) + ")",
+                    "J": run.objective, "chosen": run is fit.chosen,
+                }
+                if fit.grid is not None:
+                    row["dJ_to_grid"] = run.objective - fit.grid.objective
+                    row["dtheta_to_grid"] = float(np.max(np.abs(
+                        np.subtract(run.theta, fit.grid.theta))))
+                rows.append(row)
+        return pd.DataFrame(rows)
+
+
+# -- the optimisers ---------------------------------------------------------------------------
+def _probe(s: SortedSamples, thetas: np.ndarray, eps: float) -> tuple[np.ndarray, np.ndarray]:
+    """J and its central finite-difference gradient at each row of (S, d) ``thetas``.
+
+    One batched evaluation of the centres and their 2d probes. Where one side of a probe is
+    infeasible the one-sided difference is used; where both are, 0.
+    """
+    n_starts, d = thetas.shape
+    probes = np.concatenate([thetas[:, None, :], thetas[:, None, :] + eps * np.eye(d)[None],
+                             thetas[:, None, :] - eps * np.eye(d)[None]], axis=1)
+    j = s.objective(probes.reshape(-1, d)).reshape(n_starts, 2 * d + 1)
+    j0, jp, jm = j[:, :1], j[:, 1:d + 1], j[:, d + 1:]
+    fp, fm = np.isfinite(jp), np.isfinite(jm)
+    with np.errstate(invalid="ignore"):
+        grad = np.where(fp & fm, (jp - jm) / (2 * eps),
+                        np.where(fp, (jp - j0) / eps, np.where(fm, (j0 - jm) / eps, 0.0)))
+    return j[:, 0], np.nan_to_num(grad, nan=0.0, posinf=0.0, neginf=0.0)
+
+
+def _data_scale(s: SortedSamples) -> float:
+    lo, hi = np.quantile(s.x, [0.01, 0.99])
+    return float(hi - lo) or float(s.x[-1] - s.x[0]) or 1.0
+
+
+def descent(s: SortedSamples, starts: np.ndarray, eps: float, eta: float, epochs: int = 100,
+            step: str = "paper") -> list[tuple[np.ndarray, float, list[float]]]:
+    """Finite-difference descent from each start; returns (theta, J, history) per start.
+
+    ``step="paper"``: theta <- theta - eta * grad (halved while infeasible).
+    ``step="scaled"``: a move of ``size`` along -grad/|grad|, kept only if J decreases;
+    ``size`` starts at 5 % of the data's 1-99 % range, x1.2 on success, x0.5 on failure.
+    Each epoch is one batched evaluation of J for all starts.
+    """
+    theta = np.array(starts, dtype=np.float64)
+    j, g = _probe(s, theta, eps)
+    size = np.full(len(theta), 0.05 * _data_scale(s))
+    hist: list[list[float]] = [[] for _ in theta]
+    for _ in range(epochs):
+        if step == "paper":
+            move = -eta * g
+            cand = theta + move
+            for _ in range(30):  # halve a move that leaves the feasible set
+                bad = ~s.feasible(cand)
+                if not bad.any():
+                    break
+                move[bad] *= 0.5
+                cand[bad] = theta[bad] + move[bad]
+            ok = s.feasible(cand)
+            theta[ok] = cand[ok]
+            j, g = _probe(s, theta, eps)
+        else:
+            norm = np.linalg.norm(g, axis=1, keepdims=True)
+            direction = np.divide(-g, norm, out=np.zeros_like(g), where=norm > 0)
+            cand = theta + size[:, None] * direction
+            j_new, g_new = _probe(s, cand, eps)
+            better = j_new < j
+            theta[better], j[better], g[better] = cand[better], j_new[better], g_new[better]
+            size = np.where(better, size * 1.2, size * 0.5)
+        for k in range(len(theta)):
+            hist[k].append(float(j[k]))
+    return [(theta[k].copy(), float(j[k]), hist[k]) for k in range(len(theta))]
+
+
+def cem(s: SortedSamples, starts: np.ndarray, rng: np.random.Generator, iterations: int = 60,
+        population: int = 100, elite: float = 0.1, smoothing: float = 0.7
+        ) -> list[tuple[np.ndarray, float, list[float]]]:
+    """Sampling cross-entropy method from each start; (theta, J, history) per start."""
+    mean = np.array(starts, dtype=np.float64)
+    n_starts, d = mean.shape
+    std = np.full_like(mean, 0.1 * _data_scale(s))
+    best = mean.copy()
+    best_j = s.objective(mean)
+    n_elite = max(2, round(elite * population))
+    hist = [[] for _ in range(n_starts)]
+    for _ in range(iterations):
+        draws = np.sort(mean[:, None, :] + std[:, None, :] *
+                        rng.standard_normal((n_starts, population, d)), axis=2)
+        j = s.objective(draws.reshape(-1, d)).reshape(n_starts, population)
+        order = np.argsort(j, axis=1, kind="stable")[:, :n_elite]
+        elites = np.take_along_axis(draws, order[:, :, None], axis=1)
+        top = np.take_along_axis(j, order[:, :1], axis=1)[:, 0]
+        improved = top < best_j
+        best[improved] = elites[improved, 0]
+        best_j[improved] = top[improved]
+        finite = np.isfinite(np.take_along_axis(j, order, axis=1)).all(axis=1)
+        new_mean = elites.mean(axis=1)
+        new_std = elites.std(axis=1)
+        mean = np.where(finite[:, None], smoothing * new_mean + (1 - smoothing) * mean, mean)
+        std = np.where(finite[:, None], smoothing * new_std + (1 - smoothing) * std, std * 0.7)
+        for k in range(n_starts):
+            hist[k].append(float(best_j[k]))
+    return [(best[k].copy(), float(best_j[k]), hist[k]) for k in range(n_starts)]
+
+
+def _increasing_tuples(values: np.ndarray, d: int) -> np.ndarray:
+    """Every strictly increasing d-tuple of ``values`` (sorted, distinct): (C(n, d), d)."""
+    n = len(values)
+    grids = np.meshgrid(*[np.arange(n)] * d, indexing="ij")
+    idx = np.stack([g.ravel() for g in grids], axis=1)
+    idx = idx[np.all(np.diff(idx, axis=1) > 0, axis=1)]
+    return values[idx]
+
+
+def _best_of(s: SortedSamples, thetas: np.ndarray, chunk: int = 20000) -> tuple[np.ndarray, float]:
+    best_j, best = np.inf, None
+    for lo in range(0, len(thetas), chunk):
+        j = s.objective(thetas[lo:lo + chunk])
+        k = int(np.argmin(j))
+        if j[k] < best_j:
+            best_j, best = float(j[k]), thetas[lo + k]
+    return best, best_j
+
+
+def grid_search(s: SortedSamples, d: int, size: int | None = None, refine: int = 2,
+                fine: int = 9) -> tuple[np.ndarray, float]:
+    """Exhaustive search on a quantile lattice, then ``refine`` rounds of local lattices."""
+    size = size or (72 if d >= 3 else 300)
+    probs = np.linspace(0.0005, 0.9995, size)
+    values = np.unique(np.quantile(s.x, probs))
+    best, best_j = _best_of(s, _increasing_tuples(values, d))
+    if best is None:
+        raise TapBenchError("no feasible thresholds on the grid: too few distinct samples")
+    spacing = np.gradient(values) if len(values) > 1 else np.ones(1)
+    width = np.interp(best, values, spacing)
+    for _ in range(refine):
+        axes = [np.linspace(b - w, b + w, fine) for b, w in zip(best, width, strict=True)]
+        local = np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")], axis=1)
+        local = local[np.all(np.diff(local, axis=1) > 0, axis=1)]
+        cand, cand_j = _best_of(s, local)
+        if cand is not None and cand_j <= best_j:
+            best, best_j = cand, cand_j
+        width = width * 2.0 / (fine - 1)
+    return np.asarray(best, dtype=np.float64), best_j
+
+
+# -- fitting --------------------------------------------------------------------------------
+def _samples(data: pd.DataFrame | dict[str, np.ndarray], v_stop: float
+             ) -> dict[str, np.ndarray]:
+    samples = data if isinstance(data, dict) else one_second_samples(data)
+    for dist in DISTRIBUTIONS:
+        if dist not in samples:
+            raise TapBenchError(f"samples lack the distribution {dist!r} (need w, a and v)")
+    out = {k: np.asarray(samples[k], dtype=np.float64) for k in DISTRIBUTIONS}
+    out["w"] = np.abs(out["w"])
+    out["v"] = out["v"][out["v"] > v_stop]  # the Stopped partition takes no part in J
+    return out
+
+
+def fit_report(data: pd.DataFrame | dict[str, np.ndarray], *,
+               methods: tuple[str, ...] = METHODS, select: str = "best",
+               dataset: str = "trajectory table", epochs: int = 100, seed: int = 0,
+               starts: dict[str, tuple[tuple[float, ...], ...]] | None = None,
+               hyperparameters: dict[str, tuple[float, float]] | None = None,
+               v_stop: float = V_STOP) -> FitReport:
+    """Fit Theta_w, Theta_a and Theta_v with several methods and report them all.
+
+    Args:
+        data: a trajectory table, or one-second samples ``{"w", "a", "v"}`` as returned by
+            :func:`tap_bench.kinematics.one_second_samples`.
+        methods: which of :data:`METHODS` to run (the grid is always run when asked for
+            and is the reference for distances).
+        select: ``"best"`` keeps the lowest J over all methods and starts; a method name
+            keeps the lowest J of that method.
+        dataset: a name for the data, kept in the provenance.
+        epochs: descent epochs per start.
+        seed: seed of the cross-entropy method's sampling.
+        starts: starting guesses per distribution (default: the paper's).
+        hyperparameters: (eps, eta) per distribution (default: the paper's Table 1).
+        v_stop: the fixed Stopped threshold [m/s].
+    """
+    for m in methods:
+        if m not in METHODS:
+            raise did_you_mean("fitting method", m, METHODS)
+    if select != "best" and select not in methods:
+        raise TapBenchError(f"select={select!r} is not among the methods run {methods!r}; "
+                            "use 'best' or one of them.")
+    starts = {**PAPER_STARTS, **(starts or {})}
+    hyper = {**PAPER_HYPERPARAMETERS, **(hyperparameters or {})}
+    samples = _samples(data, v_stop)
+    rng = np.random.default_rng(seed)
+    fits: dict[str, DistributionFit] = {}
+    for dist in DISTRIBUTIONS:
+        x = samples[dist]
+        d = len(starts[dist][0])
+        if len(x) < 2 * (d + 1):
+            raise TapBenchError(
+                f"{dataset}: only {len(x)} one-second samples of {dist} ({UNITS[dist]}); "
+                f"fitting {d} thresholds needs at least {2 * (d + 1)} (two per partition). "
+                "Fit on more data, or label with --thresholds paper.")
+        s = SortedSamples(x)
+        start_arr = np.array(starts[dist], dtype=np.float64)
+        eps, eta = hyper[dist]
+        runs: list[FitRun] = []
+        for method in methods:
+            if method == "grid":
+                continue
+            if method == "cem":
+                results = cem(s, start_arr, rng)
+            else:
+                results = descent(s, start_arr, eps, eta, epochs,
+                                  step="paper" if method == "descent" else "scaled")
+            for st, (theta, j, hist) in zip(starts[dist], results, strict=True):
+                runs.append(FitRun(dist, method, tuple(st), tuple(map(float, theta)), j,
+                                   tuple(hist)))
+        grid = None
+        if "grid" in methods:
+            theta, j = grid_search(s, d)
+            grid = FitRun(dist, "grid", None, tuple(map(float, theta)), j)
+        pool = [*runs, *([grid] if grid else [])]
+        if select != "best":
+            pool = [r for r in pool if r.method == select]
+        chosen = min(pool, key=lambda r: r.objective)
+        if not np.isfinite(chosen.objective):
+            raise TapBenchError(f"{dataset}: no feasible thresholds found for {dist}")
+        fits[dist] = DistributionFit(dist, len(x), tuple(runs), grid, chosen)
+
+    from tap_bench import __version__
+
+    th = Thresholds(
+        *fits["w"].chosen.theta, *fits["a"].chosen.theta, v_stop, *fits["v"].chosen.theta,
+        provenance=Provenance(
+            dataset=dataset,
+            n_samples={d: fits[d].n_samples for d in DISTRIBUTIONS},
+            objective={d: fits[d].chosen.objective for d in DISTRIBUTIONS},
+            method={d: fits[d].chosen.method for d in DISTRIBUTIONS},
+            details={
+                "select": select, "methods": list(methods), "epochs": epochs, "seed": seed,
+                "starts": {d: [list(s) for s in starts[d]] for d in DISTRIBUTIONS},
+                "eps_eta": {d: list(hyper[d]) for d in DISTRIBUTIONS},
+                "chosen_start": {d: list(fits[d].chosen.start) if fits[d].chosen.start
+                                 else None for d in DISTRIBUTIONS},
+                "v_stop_fixed": v_stop, "names": {d: list(NAMES[d]) for d in NAMES},
+                "tap_bench": __version__,
+            },
+        ))
+    return FitReport(thresholds=th, fits=fits)
+
+
+def fit_thresholds(data: pd.DataFrame | dict[str, np.ndarray], **kwargs) -> Thresholds:
+    """Fitted :class:`Thresholds` with provenance; see :func:`fit_report` for the options."""
+    return fit_report(data, **kwargs).thresholds
