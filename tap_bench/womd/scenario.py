@@ -26,7 +26,7 @@ from tap_bench.womd import proto
 from tap_bench.womd.tfrecord import Record
 
 __all__ = ["SCENARIO_COLUMNS", "StateDecodeError", "decode_object_states", "decode_scenario",
-           "normalise_object_types", "repeated_strings"]
+           "normalise_object_types", "repeated_strings", "wrap_heading"]
 
 SCENARIO_COLUMNS = (
     "scenario_id", "track_id", "t", "x", "y", "heading", "speed", "valid", "vx", "vy",
@@ -439,7 +439,7 @@ _NOT_A_SCENARIO = ("Is the file a WOMD scenario file (uncompressed/scenario/...)
 _INCONSISTENT = "The scenario is inconsistent (a damaged file?); skip it with on_error='skip'."
 
 
-def _wrap(heading: np.ndarray) -> np.ndarray:
+def wrap_heading(heading: np.ndarray) -> np.ndarray:
     """Headings beyond [-pi, pi] (WOMD has some, up to about 3 pi) wrapped into [-pi, pi);
     the others are left bit for bit."""
     out = heading.copy()
@@ -484,7 +484,7 @@ def _table(scenario_id: str, times: np.ndarray, kept: Sequence[int], track_ids: 
         "t": np.tile(times, n_kept),
         "x": st["x"],
         "y": st["y"],
-        "heading": _wrap(st["heading"].astype(np.float64)),
+        "heading": wrap_heading(st["heading"].astype(np.float64)),
         "speed": np.hypot(vx, vy),
         "valid": valid,
         "vx": vx,
