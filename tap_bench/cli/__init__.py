@@ -18,6 +18,7 @@ COMMANDS = (
     "tap_bench.cli.sample",
     "tap_bench.cli.label",
     "tap_bench.cli.fit",
+    "tap_bench.cli.ingest",
 )
 
 

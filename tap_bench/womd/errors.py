@@ -22,7 +22,7 @@ class WomdRecordError(FileFormatError):
             framing itself is broken: the next record's start is unknown).
     """
 
-    def __init__(self, path: str, record: int, offset: int, problem: str, fix: str, *,
+    def __init__(self, path: str, record: int, offset: int, problem: str, fix: str,
                  resumable: bool = True):
         self.path = str(path)
         self.record = record
@@ -31,3 +31,12 @@ class WomdRecordError(FileFormatError):
         self.fix = fix
         self.resumable = resumable
         super().__init__(f"{path}: record {record} at byte {offset}: {problem}. {fix}")
+
+    def __reduce__(self):  # keeps the attributes across worker processes
+        return (type(self), (self.path, self.record, self.offset, self.problem, self.fix,
+                             self.resumable))
+
+    def as_dict(self) -> dict:
+        """The location and the problem, for a report."""
+        return {"path": self.path, "record": self.record, "offset": self.offset,
+                "problem": self.problem}

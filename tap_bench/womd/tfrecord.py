@@ -110,11 +110,17 @@ def _records(path: str, stream: BinaryIO, check_crc: bool,
             return
         length, length_crc = _HEADER.unpack(header)
         if check_crc and masked_crc32c(header[:8]) != length_crc:
-            _report(on_error, WomdRecordError(
-                path, index, offset, f"the CRC of the length field does not match (length "
-                f"reads {length} bytes); this is not a TFRecord file, or it is damaged",
-                "Check that the file is a TFRecord of WOMD Scenario or tf.Example protos. "
-                + _DAMAGED, resumable=False))
+            if index == 0:
+                problem = ("the CRC of the first length field does not match: this is not a "
+                           "TFRecord file")
+                fix = ("Pass only TFRecord files of WOMD Scenario or tf.Example protos (for "
+                       "example 'training/*.tfrecord*'), or ScenarioNet *.pkl files.")
+            else:
+                problem = (f"the CRC of the length field does not match (it reads {length} "
+                           "bytes): the file is damaged")
+                fix = _DAMAGED
+            _report(on_error, WomdRecordError(path, index, offset, problem, fix,
+                                              resumable=False))
             return
         try:
             body = stream.read(length + _CRC.size)

@@ -1,0 +1,385 @@
+"""WOMD files in, one trajectory table out: streaming, in worker processes, with a report.
+
+:func:`iter_womd` yields one table per scenario and holds one record at a time, so data
+sets larger than memory can be processed scenario by scenario; :func:`read_womd` gathers
+them into one table; :func:`ingest_womd` streams them into a Parquet file, written
+atomically, decoding batches of records in worker processes.
+
+Three input formats, told apart per file (``format="auto"``): TFRecords of ``Scenario``
+protos (``uncompressed/scenario/...``), TFRecords of motion ``tf.Example`` protos
+(``uncompressed/tf_example/...``), and ScenarioNet scenario pickles (``*.pkl``).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import glob
+import json
+import multiprocessing
+import os
+import sys
+import time
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from tap_bench.errors import FileFormatError, did_you_mean
+from tap_bench.tableio import atomic_path
+from tap_bench.womd.errors import WomdRecordError
+from tap_bench.womd.scenario import decode_scenario, normalise_object_types
+from tap_bench.womd.scenarionet import decode_scenarionet, load_scenarionet
+from tap_bench.womd.tf_example import decode_tf_example, is_motion_example
+from tap_bench.womd.tfrecord import Record, iter_records
+
+__all__ = ["FORMATS", "IngestReport", "expand_paths", "ingest_womd", "iter_womd", "read_womd"]
+
+FORMATS = ("auto", "scenario", "tf_example", "scenarionet")
+ON_ERROR = ("stop", "skip")
+BATCH_BYTES = 8 << 20
+"""Records are sent to worker processes in batches of about this many bytes."""
+_SCENARIONET_INDEX = {"dataset_summary.pkl", "dataset_mapping.pkl"}
+
+
+@dataclass
+class IngestReport:
+    """What an ingest read, wrote and skipped.
+
+    Attributes:
+        inputs: the files read.
+        output: the table written (None when reading into memory).
+        files, records, scenarios, rows: counts read and kept.
+        bytes_read: bytes of input files read [B].
+        seconds: wall time [s].
+        workers: decoding processes.
+        skipped: one entry per skipped record (path, record, offset, problem); empty with
+            ``on_error="stop"``.
+    """
+
+    inputs: list[str] = field(default_factory=list)
+    output: str | None = None
+    format: str = "auto"
+    object_types: list[str] | None = None
+    files: int = 0
+    records: int = 0
+    scenarios: int = 0
+    rows: int = 0
+    bytes_read: int = 0
+    seconds: float = 0.0
+    workers: int = 1
+    skipped: list[dict] = field(default_factory=list)
+
+    @property
+    def mb_per_s(self) -> float:
+        """Input throughput [MB/s]."""
+        return self.bytes_read / 1e6 / self.seconds if self.seconds else float("nan")
+
+    def to_json(self) -> str:
+        return json.dumps({**asdict(self), "mb_per_s": round(self.mb_per_s, 2)}, indent=2)
+
+
+def expand_paths(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> list[Path]:
+    """Files named by paths, glob patterns (``data/*.tfrecord*``, ``**`` recursive) or
+    directories (every file in them), sorted; ScenarioNet's ``dataset_summary.pkl`` and
+    ``dataset_mapping.pkl`` index files are left out.
+
+    Raises:
+        FileFormatError: a pattern or path that matches no file.
+    """
+    if isinstance(paths, str | os.PathLike):
+        paths = [paths]
+    found: list[Path] = []
+    for item in paths:
+        text = str(item)
+        if glob.has_magic(text):
+            matches = sorted(Path(p) for p in glob.glob(text, recursive=True))
+        elif Path(text).is_dir():
+            matches = sorted(p for p in Path(text).iterdir())
+        else:
+            matches = [Path(text)] if Path(text).exists() else []
+        matches = [p for p in matches if p.is_file() and p.name not in _SCENARIONET_INDEX]
+        if not matches:
+            raise FileFormatError(f"{text}: no such file, or no file matches the pattern. "
+                                    "Quote glob patterns so the shell does not expand them.")
+        found.extend(matches)
+    return list(dict.fromkeys(found))
+
+
+def _check_choice(kind: str, value: str, allowed: tuple[str, ...]) -> str:
+    if value not in allowed:
+        raise did_you_mean(kind, value, allowed)
+    return value
+
+
+def _file_format(path: Path, format: str, check_crc: bool) -> str:
+    if format != "auto":
+        return format
+    if path.suffix == ".pkl":
+        return "scenarionet"
+    for record in iter_records(path, check_crc=check_crc, on_error=lambda err: None):
+        return "tf_example" if is_motion_example(record.data) else "scenario"
+    return "scenario"
+
+
+@dataclass
+class _Batch:
+    """A unit of work: records of one file, or one ScenarioNet pickle."""
+
+    path: str
+    format: str
+    records: list[Record]
+    size: int
+
+
+def _decode_batch(batch: _Batch, object_types: frozenset[str] | None, skip: bool
+                  ) -> tuple[list[pa.Table], list[dict]]:
+    """Decode a batch; with ``skip`` a bad record is listed and left out, else raised."""
+    tables: list[pa.Table] = []
+    skipped: list[dict] = []
+    if batch.format == "scenarionet":
+        try:
+            scenario = load_scenarionet(batch.path)
+            tables.append(decode_scenarionet(scenario, path=batch.path,
+                                             object_types=object_types))
+        except WomdRecordError as err:
+            if not skip:
+                raise
+            skipped.append(err.as_dict())
+        return tables, skipped
+    decode = decode_tf_example if batch.format == "tf_example" else decode_scenario
+    for record in batch.records:
+        try:
+            tables.append(decode(record, object_types=object_types))
+        except WomdRecordError as err:
+            if not skip:
+                raise
+            skipped.append(err.as_dict())
+    return tables, skipped
+
+
+def _batches(files: list[Path], format: str, check_crc: bool, batch_bytes: int,
+             on_bad_framing: Callable[[WomdRecordError], None] | None,
+             report: IngestReport) -> Iterator[_Batch]:
+    for path in files:
+        fmt = _file_format(path, format, check_crc)
+        report.files += 1
+        if fmt == "scenarionet":
+            size = path.stat().st_size
+            report.records += 1
+            report.bytes_read += size
+            yield _Batch(str(path), fmt, [], size)
+            continue
+        records: list[Record] = []
+        size = 0
+        for record in iter_records(path, check_crc=check_crc, on_error=on_bad_framing):
+            records.append(record)
+            size += len(record.data) + 16
+            report.records += 1
+            report.bytes_read += len(record.data) + 16
+            if size >= batch_bytes:
+                yield _Batch(str(path), fmt, records, size)
+                records, size = [], 0
+        if records:
+            yield _Batch(str(path), fmt, records, size)
+
+
+def _iter_tables(paths, *, format: str, object_types, on_error: str, check_crc: bool,
+                 workers: int, report: IngestReport, log: Callable[[str], None] | None,
+                 batch_bytes: int = BATCH_BYTES,
+                 progress: Callable[[int, int], None] | None = None) -> Iterator[pa.Table]:
+    """Decoded tables (Arrow) in input order; fills ``report`` as it goes."""
+    _check_choice("format", format, FORMATS)
+    _check_choice("on_error value", on_error, ON_ERROR)
+    types = normalise_object_types(object_types)
+    files = expand_paths(paths)
+    report.inputs = [str(p) for p in files]
+    report.format = format
+    report.object_types = sorted(types) if types is not None else None
+    report.workers = workers
+    skip = on_error == "skip"
+
+    def skipped(entries: list[dict]) -> None:
+        for entry in entries:
+            report.skipped.append(entry)
+            if log is not None:
+                log(f"skipped {entry['path']}: record {entry['record']} at byte "
+                    f"{entry['offset']}: {entry['problem']}")
+
+    def bad_framing(err: WomdRecordError) -> None:
+        skipped([{**err.as_dict(), "problem": err.problem
+                  + ("" if err.resumable else "; the rest of the file cannot be read")}])
+
+    def finish(batch: _Batch, result: tuple[list[pa.Table], list[dict]]) -> list[pa.Table]:
+        tables, bad = result
+        skipped(bad)
+        report.scenarios += len(tables)
+        report.rows += sum(t.num_rows for t in tables)
+        if progress is not None:
+            progress(batch.size, len(tables))
+        return tables
+
+    batches = _batches(files, format, check_crc, batch_bytes, bad_framing if skip else None,
+                       report)
+    if workers <= 1:
+        for batch in batches:
+            yield from finish(batch, _decode_batch(batch, types, skip))
+        return
+    context = multiprocessing.get_context("forkserver" if sys.platform == "linux" else None)
+    with cf.ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
+        pending: list[tuple[_Batch, cf.Future]] = []
+        try:
+            for batch in batches:
+                pending.append((batch, pool.submit(_decode_batch, batch, types, skip)))
+                while len(pending) > 2 * workers:  # bounded: memory stays flat
+                    done, future = pending.pop(0)
+                    yield from finish(done, future.result())
+            while pending:
+                done, future = pending.pop(0)
+                yield from finish(done, future.result())
+        finally:
+            for _, future in pending:
+                future.cancel()
+
+
+def iter_womd(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
+              format: str = "auto", object_types: Iterable[str] | str | None = None,
+              on_error: str = "stop", check_crc: bool = True,
+              report: IngestReport | None = None) -> Iterator[pd.DataFrame]:
+    """Yield a trajectory table per scenario, reading one record at a time.
+
+    Args:
+        paths: files, glob patterns or directories (see :func:`expand_paths`).
+        format: ``auto`` (default: ``*.pkl`` are ScenarioNet, TFRecords are sniffed),
+            ``scenario``, ``tf_example`` or ``scenarionet``.
+        object_types: keep only these object types (``vehicle``, ``pedestrian``,
+            ``cyclist``, ``other``); None keeps all.
+        on_error: ``stop`` raises the first bad record; ``skip`` leaves it out and lists it
+            in ``report.skipped``.
+        check_crc: check the CRC-32C of every record.
+        report: filled with counts and skipped records as the iteration goes.
+
+    Yields:
+        pandas DataFrames with :data:`tap_bench.womd.scenario.SCENARIO_COLUMNS` (SPEC
+        section 1), one per scenario, rows ordered by track then time.
+
+    Raises:
+        WomdRecordError: a bad record with ``on_error="stop"``, naming file, record and
+            byte offset.
+    """
+    report = report if report is not None else IngestReport()
+    for table in _iter_tables(paths, format=format, object_types=object_types,
+                              on_error=on_error, check_crc=check_crc, workers=1,
+                              report=report, log=None):
+        yield table.to_pandas()
+
+
+def read_womd(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
+              format: str = "auto", object_types: Iterable[str] | str | None = None,
+              on_error: str = "stop", check_crc: bool = True, workers: int = 1,
+              report: IngestReport | None = None) -> pd.DataFrame:
+    """Read WOMD files into one trajectory table.
+
+    Arguments as :func:`iter_womd`, plus ``workers`` decoding processes.
+
+    Returns:
+        One pandas DataFrame with :data:`tap_bench.womd.scenario.SCENARIO_COLUMNS`,
+        scenarios in input order (an empty table with those columns when nothing is kept).
+    """
+    report = report if report is not None else IngestReport()
+    tables = list(_iter_tables(paths, format=format, object_types=object_types,
+                               on_error=on_error, check_crc=check_crc, workers=workers,
+                               report=report, log=None))
+    if not tables:
+        return pd.DataFrame({name: pd.Series(dtype=object) for name in _columns()})
+    return pa.concat_tables(tables, promote_options="default").to_pandas()
+
+
+def _columns() -> tuple[str, ...]:
+    from tap_bench.womd.scenario import SCENARIO_COLUMNS
+
+    return SCENARIO_COLUMNS
+
+
+def report_path(output: str | os.PathLike) -> Path:
+    """Where :func:`ingest_womd` writes its report: beside the output, ``.report.json``."""
+    output = Path(output)
+    return output.with_name(output.name + ".report.json")
+
+
+def ingest_womd(paths: str | os.PathLike | Iterable[str | os.PathLike],
+                output: str | os.PathLike, *, format: str = "auto",
+                object_types: Iterable[str] | str | None = None, on_error: str = "stop",
+                check_crc: bool = True, workers: int = 1, progress: bool = False,
+                log: Callable[[str], None] | None = None,
+                batch_bytes: int = BATCH_BYTES) -> IngestReport:
+    """Stream WOMD files into one Parquet trajectory table, atomically.
+
+    The table goes to a temporary file beside ``output``, renamed onto it only when every
+    input has been read: an interrupted or failed ingest leaves no output. Memory holds a
+    few batches of records and their tables, whatever the size of the inputs. The report
+    (:class:`IngestReport`) is written beside the output as ``<output>.report.json``.
+
+    Args:
+        paths, format, object_types, on_error, check_crc: as :func:`iter_womd`.
+        output: the Parquet file to write.
+        workers: decoding processes (1 decodes in this process).
+        progress: show a progress bar (tqdm, on stderr) with scenarios and MB/s.
+        log: called with a line for every skipped record (``on_error="skip"``).
+        batch_bytes: records per work unit [B].
+
+    Returns:
+        The report.
+
+    Raises:
+        WomdRecordError: a bad record with ``on_error="stop"``; nothing is written.
+    """
+    output = Path(output)
+    if output.suffix not in (".parquet", ".pq"):
+        raise FileFormatError(f"{output}: the output of an ingest is a Parquet file; name "
+                              "it *.parquet.")
+    normalise_object_types(object_types)  # a misspelled type fails before any work
+    report = IngestReport(output=str(output))
+    start = time.perf_counter()
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        total = sum(p.stat().st_size for p in expand_paths(paths))
+        bar = tqdm(total=total, unit="B", unit_scale=True, unit_divisor=1000,
+                   desc="ingest", file=sys.stderr, dynamic_ncols=True)
+
+    def advance(size: int, scenarios: int) -> None:
+        if bar is not None:
+            bar.update(min(size, bar.total - bar.n))
+            bar.set_postfix(scenarios=report.scenarios, refresh=False)
+
+    try:
+        with atomic_path(output) as tmp:
+            writer = None
+            try:
+                for table in _iter_tables(paths, format=format, object_types=object_types,
+                                          on_error=on_error, check_crc=check_crc,
+                                          workers=workers, report=report, log=log,
+                                          batch_bytes=batch_bytes, progress=advance):
+                    if writer is None:
+                        writer = pq.ParquetWriter(tmp, table.schema)
+                    writer.write_table(table.cast(writer.schema)
+                                       if table.schema != writer.schema else table)
+                if writer is None:  # nothing kept: an empty table with the columns
+                    from tap_bench.womd.scenario import SCENARIO_COLUMNS
+
+                    empty = pa.table({c: pa.array([], pa.string()) for c in SCENARIO_COLUMNS})
+                    pq.write_table(empty, tmp)
+            finally:
+                if writer is not None:
+                    writer.close()
+            report.seconds = time.perf_counter() - start
+            with atomic_path(report_path(output)) as report_tmp:
+                report_tmp.write_text(report.to_json())
+    finally:
+        if bar is not None:
+            bar.close()
+    return report
