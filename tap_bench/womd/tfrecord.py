@@ -126,7 +126,8 @@ def _records(path: str, stream: BinaryIO, check_crc: bool,
             body = stream.read(length + _CRC.size)
         except (OSError, EOFError, OverflowError, MemoryError) as err:
             _report(on_error, WomdRecordError(
-                path, index, offset, f"the record's {length} bytes cannot be read ({err})",
+                path, index, offset, f"the record's {length} bytes cannot be read: the "
+                f"GZIP stream is damaged or cut short ({err})",
                 _DAMAGED, resumable=False))
             return
         if len(body) < length + _CRC.size:
