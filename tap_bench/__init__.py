@@ -22,6 +22,15 @@ from tap_bench.kinematics import compute_kinematics, one_second_samples
 from tap_bench.labelling import TapResult, label, tap
 from tap_bench.resampling import resample_to_10hz
 from tap_bench.sdl import LEVELS, vocabulary
+from tap_bench.sim import (
+    Policy,
+    Rollout,
+    available_policies,
+    load_policy,
+    register_policy,
+    rollout,
+)
+from tap_bench.sim.registration import register_suite as _register_suite
 from tap_bench.stages import StageConfig
 from tap_bench.synthetic import behaviour, random_trajectories, sample_table
 from tap_bench.tableio import read_table, write_table
@@ -33,6 +42,9 @@ from tap_bench.thresholds import (
     save_thresholds,
 )
 from tap_bench.trajectories import validate_trajectories
+
+# The scenario suite's Gymnasium ids (tap_bench/highway-v0 ...); reads envs/ only, fast.
+_register_suite()
 
 __all__ = [
     # errors
@@ -71,4 +83,12 @@ __all__ = [
     "behaviour",
     "random_trajectories",
     "sample_table",
+    # simulation: highway-env scenarios (gymnasium.make("tap_bench/highway-v0")), policies,
+    # rollouts; more in tap_bench.sim
+    "Policy",
+    "Rollout",
+    "available_policies",
+    "load_policy",
+    "register_policy",
+    "rollout",
 ]

@@ -19,6 +19,11 @@ COMMANDS = (
     "tap_bench.cli.label",
     "tap_bench.cli.fit",
     "tap_bench.cli.ingest",
+    # simulation: highway-env scenarios, policies, rollouts, training
+    "tap_bench.cli.envs",
+    "tap_bench.cli.policies",
+    "tap_bench.cli.rollout",
+    "tap_bench.cli.train",
 )
 
 

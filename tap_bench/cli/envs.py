@@ -1,0 +1,55 @@
+"""``tap-bench envs``: the registered scenarios and their settings."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "envs", help="list the scenario envs of the suite with their settings",
+        description="List the scenarios of envs/ (Gymnasium ids tap_bench/<name>-vN) with "
+        "their highway-env id, episode length, decision rate, lane-change setting, default "
+        "seeds and config overrides. Every file is validated against highway-env's defaults.")
+    p.add_argument("name", nargs="?", help="show one scenario's full highway-env config")
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.set_defaults(func=run)
+
+
+def _seed_range(seeds: tuple[int, ...]) -> str:
+    if seeds == tuple(range(seeds[0], seeds[-1] + 1)):
+        return f"{seeds[0]}-{seeds[-1]}"
+    return ",".join(map(str, seeds))
+
+
+def run(args: argparse.Namespace) -> int:
+    from tap_bench.sim.scenario_env import get_scenario
+    from tap_bench.sim.suite import env_class, scenario_names
+
+    names = [args.name] if args.name else scenario_names()
+    scenarios = [get_scenario(n) for n in names]
+    rows = [{
+        "id": s.env_id, "highway_env_id": s.highway_env_id, "duration_s": s.duration,
+        "policy_hz": s.policy_frequency, "simulation_hz": s.config["simulation_frequency"],
+        "lane_change": s.lane_change, "default_seeds": _seed_range(s.default_seeds),
+        "overrides": dict(s.overrides), "description": s.description,
+    } for s in scenarios]
+    if args.name:
+        full = env_class(scenarios[0].highway_env_id).default_config()
+        full.update(scenarios[0].config)
+        rows[0]["config"] = full
+    if args.json or args.name:
+        print(json.dumps(rows if not args.name else rows[0], indent=2, default=str))
+        return 0
+    header = ("id", "highway-env", "length", "decisions", "lane change", "seeds")
+    table = [header] + [(r["id"], r["highway_env_id"], f"{r['duration_s']:g} s",
+                         f"{r['policy_hz']} Hz", r["lane_change"], r["default_seeds"])
+                        for r in rows]
+    widths = [max(len(str(row[i])) for row in table) for i in range(len(header))]
+    for row in table:
+        print("  ".join(str(c).ljust(w) for c, w in zip(row, widths, strict=True)).rstrip())
+    print("\nAll simulate at 10 Hz and record every vehicle. Overrides:")
+    for r in rows:
+        print(f"  {r['id']}: {json.dumps(r['overrides'])}\n    {r['description']}")
+    return 0

@@ -1,0 +1,66 @@
+"""``tap-bench rollout``: run a policy on a scenario for a set of seeds."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "rollout", help="run a policy on a scenario for a set of seeds",
+        description="Run a policy on a scenario, one episode per seed, and write the "
+        "trajectory table (every vehicle, every 0.1 s, Waymo axes) and the episode table "
+        "(seed, return, length, crashed, mean speed). The same seed gives the same table, "
+        "with any number of workers. A failing episode is reported and the rest kept.")
+    p.add_argument("--env", required=True, help="scenario name (highway) or id")
+    p.add_argument("--policy", required=True,
+                   help="policy name (tap-bench policies), .json definition or SB3 .zip")
+    p.add_argument("--seeds", help="'0-49' or '1,4,7' (default: the scenario's default seeds)")
+    p.add_argument("-o", "--output", required=True,
+                   help="trajectory table (.parquet or .csv); the episode table goes beside "
+                   "it as <name>.episodes.<suffix>")
+    p.add_argument("--episodes", help="episode table path (default: beside the output)")
+    p.add_argument("--workers", type=int, default=1, help="processes (default 1)")
+    p.add_argument("--lane-change", choices=("default", "realistic"),
+                   help="override the scenario's lane-change setting")
+    p.add_argument("--duration", type=float, help="override the episode length [s]")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def episodes_path(output: Path) -> Path:
+    """``idm.parquet`` -> ``idm.episodes.parquet`` (``.csv.gz`` kept whole)."""
+    name = output.name
+    for suffix in (".csv.gz", ".parquet", ".pq", ".csv"):
+        if name.lower().endswith(suffix):
+            return output.with_name(name[: -len(suffix)] + ".episodes" + name[-len(suffix):])
+    return output.with_name(name + ".episodes.parquet")
+
+
+def run(args: argparse.Namespace) -> int:
+    import sys
+
+    from tap_bench.sim.rollout import rollout
+    from tap_bench.sim.scenario_env import get_scenario
+    from tap_bench.tableio import write_table
+
+    output = Path(args.output)
+    episodes_out = Path(args.episodes) if args.episodes else episodes_path(output)
+    seeds = args.seeds if args.seeds else list(get_scenario(args.env).default_seeds)
+    trajectories, episodes = rollout(
+        args.env, args.policy, seeds, workers=args.workers, lane_change=args.lane_change,
+        duration=args.duration, progress=False if args.no_progress else None)
+    ok = episodes[episodes["status"] == "ok"]
+    if len(trajectories):
+        write_table(trajectories, output)
+    write_table(episodes, episodes_out)
+    print(f"{len(ok)}/{len(episodes)} episodes, {len(trajectories)} rows -> "
+          f"{output if len(trajectories) else '(no trajectories)'}; episodes -> {episodes_out}")
+    if len(ok):
+        print(f"mean return {ok['return'].mean():.3f}, crash rate {ok['crashed'].mean():.1%}, "
+              f"mean ego speed {ok['mean_speed'].mean():.2f} m/s")
+    failed = episodes[episodes["status"] != "ok"]
+    for row in failed.itertuples():
+        print(f"seed {row.seed} failed: {row.error}", file=sys.stderr)
+    return 1 if len(failed) == len(episodes) else 0

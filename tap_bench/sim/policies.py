@@ -1,0 +1,284 @@
+"""Driving policies: one protocol, a registry, and the simple built-ins.
+
+A policy drives the ego vehicle of a scenario env. Its definition is data: a JSON file in
+``policies/`` (``{"name": "idm", "kind": "idm", "description": "...", "params": {...}}``)
+whose ``kind`` names the code that builds it:
+
+================  ===========================================================================
+kind              policy
+================  ===========================================================================
+``idm``           IDM/MOBIL drives the ego (:mod:`tap_bench.sim.idm`)
+``random``        uniform random actions from a seeded copy of the action space
+``lane_keeping``  always the "keep lane, keep speed" action (``IDLE``)
+``sb3``           a Stable-Baselines3 model from a ``.zip`` (:mod:`tap_bench.sim.sb3`)
+================  ===========================================================================
+
+Policies defined in Python are added with :func:`register_policy`.
+"""
+
+from __future__ import annotations
+
+import copy
+import importlib
+import inspect
+import json
+import os
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+import gymnasium as gym
+import numpy as np
+
+from tap_bench.errors import FileFormatError, UnknownNameError, did_you_mean
+from tap_bench.sim.suite import suite_dir
+
+__all__ = [
+    "CHEAP_OBSERVATION",
+    "LaneKeepingPolicy",
+    "Policy",
+    "PolicyDefinition",
+    "RandomPolicy",
+    "available_policies",
+    "load_policy",
+    "policy_kinds",
+    "register_policy",
+]
+
+CHEAP_OBSERVATION: dict[str, Any] = {"type": "AttributesObservation", "attributes": ["time"]}
+"""The observation rollouts give a policy that reads none: highway-env's clock instead of
+the Kinematics table, which costs about 11 ms a decision."""
+
+
+@runtime_checkable
+class Policy(Protocol):
+    """What drives the ego vehicle of a scenario env.
+
+    Attributes:
+        name: the policy's name in tables (``policy`` column).
+        observation: the highway-env observation config the policy reads, or None when it
+            reads none (rollouts then use :data:`CHEAP_OBSERVATION`).
+    """
+
+    name: str
+    observation: Mapping[str, Any] | None
+
+    def reset(self, env: gym.Env, *, seed: int) -> None:
+        """Start an episode: ``env`` has just been reset with ``seed``; seed the policy's own
+        randomness with it. A policy that drives through the simulator takes over here."""
+        ...
+
+    def act(self, observation: Any) -> Any:
+        """The action for ``observation``, in the env's action space."""
+        ...
+
+
+@dataclass(frozen=True)
+class PolicyDefinition:
+    """A policy as data: a file in ``policies/`` or a Python registration.
+
+    Attributes:
+        name: registry name (``idm-aggressive``).
+        kind: what builds it (``idm``, ``random``, ``lane_keeping``, ``sb3``, or ``python``).
+        description: one line for ``tap-bench policies``.
+        params: keyword arguments of the builder.
+        path: the definition file, when there is one; relative paths in ``params`` are
+            relative to its folder.
+    """
+
+    name: str
+    kind: str
+    description: str = ""
+    params: Mapping[str, Any] = field(default_factory=dict)
+    path: Path | None = field(default=None, compare=False)
+
+    def build(self) -> Policy:
+        """A fresh policy object."""
+        if self.kind == "python":
+            return _PYTHON_POLICIES[self.name]()
+        builder = _builder(self.kind)
+        params = dict(self.params)
+        if self.path is not None and "base_dir" in inspect.signature(builder).parameters:
+            params["base_dir"] = self.path.parent
+        try:
+            return builder(self.name, **params)
+        except (TypeError, ValueError, UnknownNameError) as err:
+            where = self.path or self.name
+            raise FileFormatError(f"{where}: params do not fit policy kind {self.kind!r}: {err}"
+                                  ) from err
+
+
+class RandomPolicy:
+    """Uniformly random actions, from a copy of the env's action space seeded per episode."""
+
+    observation = None
+
+    def __init__(self, name: str = "random") -> None:
+        self.name = name
+        self._space: gym.Space | None = None
+
+    def reset(self, env: gym.Env, *, seed: int) -> None:
+        self._space = copy.deepcopy(env.action_space)
+        self._space.seed(int(seed))
+
+    def act(self, observation: Any) -> Any:
+        if self._space is None:
+            raise RuntimeError("RandomPolicy.act before reset: call reset(env, seed=...) first.")
+        return self._space.sample()
+
+
+def idle_action(env: gym.Env) -> Any:
+    """The action that keeps the lane and the speed: ``IDLE`` of a meta-action space, zero
+    acceleration and steering of a continuous one."""
+    action_type = env.unwrapped.action_type
+    indexes = getattr(action_type, "actions_indexes", None)
+    if indexes is not None and "IDLE" in indexes:
+        return int(indexes["IDLE"])
+    space = env.action_space
+    if isinstance(space, gym.spaces.Box):
+        return np.zeros(space.shape, dtype=space.dtype)
+    raise ValueError(f"no lane-keeping action in the action space {space}; use a "
+                     "DiscreteMetaAction or ContinuousAction env.")
+
+
+class LaneKeepingPolicy:
+    """Constant lane keeping: always keep the lane and the current target speed."""
+
+    observation = None
+
+    def __init__(self, name: str = "lane-keeping") -> None:
+        self.name = name
+        self._action: Any = None
+
+    def reset(self, env: gym.Env, *, seed: int) -> None:
+        self._action = idle_action(env)
+
+    def act(self, observation: Any) -> Any:
+        if self._action is None:
+            raise RuntimeError("LaneKeepingPolicy.act before reset: call reset(env, seed=...).")
+        return self._action
+
+
+_KINDS: dict[str, str] = {
+    "idm": "tap_bench.sim.idm:IDMPolicy",
+    "random": "tap_bench.sim.policies:RandomPolicy",
+    "lane_keeping": "tap_bench.sim.policies:LaneKeepingPolicy",
+    "sb3": "tap_bench.sim.sb3:SB3Policy",
+}
+_PYTHON_POLICIES: dict[str, Callable[[], Policy]] = {}
+_PYTHON_DESCRIPTIONS: dict[str, str] = {}
+
+
+def policy_kinds() -> list[str]:
+    """The kinds a definition file can name."""
+    return sorted(_KINDS)
+
+
+def _builder(kind: str) -> Callable[..., Policy]:
+    if kind not in _KINDS:
+        raise did_you_mean("policy kind", kind, _KINDS)
+    module, _, name = _KINDS[kind].partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def register_policy(name: str, factory: Callable[[], Policy], description: str = "") -> None:
+    """Make a Python policy available by name (to :func:`load_policy`, rollouts, the CLI).
+
+    Args:
+        name: a name not yet taken by a file in ``policies/`` or another registration.
+        factory: builds a fresh policy; it must be importable by name (a module-level
+            function or class) for rollouts with several workers.
+        description: one line for ``tap-bench policies``.
+
+    Raises:
+        ValueError: the name is taken.
+    """
+    if name in _PYTHON_POLICIES or name in _file_definitions():
+        raise ValueError(f"policy {name!r} is already registered; choose another name.")
+    _PYTHON_POLICIES[name] = factory
+    _PYTHON_DESCRIPTIONS[name] = description
+
+
+def _read_definition(path: Path) -> PolicyDefinition:
+    try:
+        doc = json.loads(path.read_text())
+    except OSError as err:
+        raise FileFormatError(f"{path}: cannot read the policy file: {err}") from err
+    except json.JSONDecodeError as err:
+        raise FileFormatError(f"{path}: not valid JSON: {err}") from err
+    if not isinstance(doc, dict):
+        raise FileFormatError(f"{path}: a policy file holds one JSON object.")
+    allowed = ("name", "kind", "description", "params")
+    for key in doc:
+        if key not in allowed:
+            raise FileFormatError(f"{path}: {did_you_mean('policy field', key, allowed)}")
+    for key in ("name", "kind"):
+        if not isinstance(doc.get(key), str):
+            raise FileFormatError(f"{path}: field {key!r} (a string) is missing.")
+    if doc["name"] != path.stem:
+        raise FileFormatError(f"{path}: name {doc['name']!r} differs from the file name; rename "
+                              f"the file to {doc['name']}.json or fix the name.")
+    if doc["kind"] not in _KINDS:
+        raise FileFormatError(f"{path}: {did_you_mean('policy kind', doc['kind'], _KINDS)}")
+    params = doc.get("params", {})
+    if not isinstance(params, dict):
+        raise FileFormatError(f"{path}: params must be an object of keyword arguments.")
+    return PolicyDefinition(name=doc["name"], kind=doc["kind"],
+                            description=str(doc.get("description", "")), params=params,
+                            path=path)
+
+
+def _file_definitions(folder: str | os.PathLike | None = None) -> dict[str, Path]:
+    folder = Path(folder) if folder else suite_dir("policies")
+    return {p.stem: p for p in sorted(folder.glob("*.json"))}
+
+
+def available_policies(folder: str | os.PathLike | None = None) -> dict[str, PolicyDefinition]:
+    """Every policy by name: the files of ``folder`` (default ``policies/``) and the Python
+    registrations.
+
+    Raises:
+        FileFormatError: a definition file is broken (naming it and the field).
+    """
+    out = {name: _read_definition(path) for name, path in _file_definitions(folder).items()}
+    for name, description in _PYTHON_DESCRIPTIONS.items():
+        out[name] = PolicyDefinition(name=name, kind="python", description=description)
+    return dict(sorted(out.items()))
+
+
+def get_definition(name: str | os.PathLike) -> PolicyDefinition:
+    """The definition of a policy given by name or by the path of its ``.json`` file."""
+    text = str(name)
+    if text.endswith(".json"):
+        path = Path(text)
+        if not path.is_file():
+            raise FileFormatError(f"{path}: no such policy file.")
+        return _read_definition(path)
+    if text.endswith(".zip"):
+        path = Path(text)
+        if not path.is_file():
+            raise FileFormatError(f"{path}: no such model file.")
+        return PolicyDefinition(name=path.stem, kind="sb3",
+                                params={"model": str(path.resolve())})
+    if text in _PYTHON_POLICIES:
+        return PolicyDefinition(name=text, kind="python",
+                                description=_PYTHON_DESCRIPTIONS.get(text, ""))
+    files = _file_definitions()
+    if text not in files:
+        raise did_you_mean("policy", text, [*files, *_PYTHON_POLICIES])
+    return _read_definition(files[text])
+
+
+def load_policy(name: str | os.PathLike | Policy) -> Policy:
+    """A policy by name (``"idm"``), definition file (``.json``) or SB3 model (``.zip``).
+
+    A policy object is returned as it is.
+
+    Raises:
+        UnknownNameError: no such policy, with the closest names.
+        FileFormatError: a broken definition file.
+    """
+    if isinstance(name, Policy):
+        return name
+    return get_definition(name).build()

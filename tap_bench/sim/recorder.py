@@ -1,0 +1,148 @@
+"""Recording a highway-env episode as a trajectory table (SPEC section 1).
+
+Every vehicle on the road is recorded at every simulated step (10 Hz), in Waymo's axes:
+highway-env's y axis points to the driver's right, so y, vy and heading change sign on the
+way in, and a left lane change becomes a positive yaw rate. Headings are wrapped to
+(-pi, pi]. The ego vehicle has ``track_id`` ``"ego"`` and ``is_ego`` true; the others are
+numbered ``"1"``, ``"2"`` ... in the order they first appear on the road.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+import pandas as pd
+
+from tap_bench.trajectories import HZ
+
+__all__ = ["EGO_TRACK_ID", "TrajectoryRecorder", "scenario_id"]
+
+EGO_TRACK_ID = "ego"
+_TWO_PI = 2.0 * np.pi
+
+
+def scenario_id(env: str, seed: int | None, episode: int = 0, policy: str | None = None) -> str:
+    """The ``scenario_id`` of an episode: ``highway/idm/s3``, ``highway/s3`` without a policy,
+    ``highway/s3/e2`` for the third episode after seeding with 3, ``highway/unseeded/e0``."""
+    parts = [env] + ([policy] if policy else [])
+    parts.append(f"s{seed}" if seed is not None else "unseeded")
+    if episode or seed is None:
+        parts.append(f"e{episode}")
+    return "/".join(parts)
+
+
+class TrajectoryRecorder:
+    """Collects the vehicles of one episode, step by step, and builds its trajectory table.
+
+    Call :meth:`start` at reset, :meth:`frame` after every simulated step (and once at the
+    reset state), then :meth:`table`. With ``record=False`` it only keeps track of which
+    vehicles it has seen (the scenario env needs that to set up new vehicles) and
+    :meth:`table` is empty.
+    """
+
+    def __init__(self, *, record: bool = True) -> None:
+        self.record = record
+        self.env = ""
+        self.seed: int | None = None
+        self.episode = 0
+        self._reset_buffers()
+
+    def _reset_buffers(self) -> None:
+        # A reference to every vehicle seen keeps id() unique for the whole episode.
+        self._seen: dict[int, tuple[int, object]] = {}
+        self._n_others = 0
+        self._rows: list[tuple] = []
+
+    def start(self, env: str, seed: int | None, episode: int) -> None:
+        """Begin a new episode of ``env`` (a scenario name) reset with ``seed``."""
+        self.env, self.seed, self.episode = env, seed, episode
+        self._reset_buffers()
+
+    @property
+    def n_rows(self) -> int:
+        """Rows recorded so far in this episode."""
+        return len(self._rows)
+
+    def frame(self, step: int, vehicles: Iterable[object], ego: object) -> list[object]:
+        """Record the state after simulated step ``step`` (0 is the reset state).
+
+        Args:
+            step: simulated steps since reset; t = step * 0.1 s.
+            vehicles: the road's vehicles (``env.unwrapped.road.vehicles``).
+            ego: the controlled vehicle (``env.unwrapped.vehicle``).
+
+        Returns:
+            the vehicles seen for the first time, in road order.
+        """
+        new = []
+        seen = self._seen
+        rows = self._rows
+        for vehicle in vehicles:
+            key = id(vehicle)
+            entry = seen.get(key)
+            if entry is None:
+                if vehicle is ego:
+                    entry = (0, vehicle)
+                else:
+                    self._n_others += 1
+                    entry = (self._n_others, vehicle)
+                seen[key] = entry
+                new.append(vehicle)
+            if not self.record:
+                continue
+            code = 0 if vehicle is ego else entry[0]
+            x, y = vehicle.position
+            speed = vehicle.speed
+            heading = vehicle.heading
+            rows.append((step, code, x, y, heading, speed, vehicle.crashed))
+        return new
+
+    def table(self, **columns: object) -> pd.DataFrame:
+        """The episode's trajectory table, ordered by track (ego first) and time.
+
+        Args:
+            **columns: constant columns to add (``policy="idm"``).
+        """
+        names = ("step", "code", "x", "y", "heading", "speed", "crashed")
+        if not self._rows:
+            data = {n: np.empty(0) for n in names}
+        else:
+            cols = list(zip(*self._rows, strict=True))
+            data = {n: np.asarray(c) for n, c in zip(names, cols, strict=True)}
+        step = data["step"].astype(np.int64)
+        code = data["code"].astype(np.int64)
+        order = np.lexsort((step, code))
+        step, code = step[order], code[order]
+        x = data["x"].astype(np.float64)[order]
+        y = -data["y"].astype(np.float64)[order]
+        heading = -data["heading"].astype(np.float64)[order]
+        speed = data["speed"].astype(np.float64)[order]
+        track_names = np.array([EGO_TRACK_ID] + [str(i) for i in range(1, self._n_others + 1)],
+                               dtype=object)
+        policy = columns.pop("policy", None)
+        table = pd.DataFrame({
+            "scenario_id": scenario_id(self.env, self.seed, self.episode, policy),
+            "track_id": track_names[code] if len(code) else np.empty(0, dtype=object),
+            "t": step / HZ,
+            "x": x,
+            "y": y,
+            # wrapped to (-pi, pi]: highway-env lets headings grow around a roundabout
+            "heading": np.pi - np.mod(np.pi - heading, _TWO_PI),
+            "speed": np.abs(speed),
+            "valid": np.ones(len(step), dtype=bool),
+            "vx": speed * np.cos(heading),
+            "vy": speed * np.sin(heading),
+            "object_type": "vehicle",
+            "is_ego": code == 0,
+            "source": "highway-env",
+            "env": self.env,
+        })
+        if policy is not None:
+            table["policy"] = policy
+        table["seed"] = pd.array([self.seed] * len(table), dtype="Int64")
+        table["episode"] = np.full(len(table), self.episode, dtype=np.int64)
+        table["crashed"] = data["crashed"].astype(bool)[order]
+        for name, value in columns.items():
+            table[name] = value
+        return table

@@ -1,0 +1,62 @@
+"""Gymnasium ids for the scenario suite: ``tap_bench/<name>-v<version>``.
+
+:func:`register_suite` runs on ``import tap_bench``. It reads only the name and version of
+each file in ``envs/`` (so the import stays fast and never imports highway-env); the file is
+fully validated when an environment is made.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from pathlib import Path
+
+import gymnasium as gym
+
+from tap_bench.sim.suite import suite_dir
+
+__all__ = ["ENTRY_POINT", "register_scenario", "register_suite", "registered_ids"]
+
+ENTRY_POINT = "tap_bench.sim.scenario_env:make_env"
+
+
+def register_scenario(path: str | os.PathLike) -> str:
+    """Register a scenario file under ``tap_bench/<name>-v<version>``; return the id.
+
+    Registering the same file again is a no-op; another file under an id already taken is
+    an error (Gymnasium ids are global to the process).
+    """
+    path = Path(path).resolve()
+    doc = json.loads(path.read_text())
+    env_id = f"tap_bench/{doc['name']}-v{int(doc['version'])}"
+    existing = gym.registry.get(env_id)
+    if existing is not None:
+        if Path(str(existing.kwargs.get("scenario"))).resolve() == path:
+            return env_id
+        raise ValueError(f"{path}: the id {env_id} is already registered for "
+                         f"{existing.kwargs.get('scenario')}; rename the scenario or bump its "
+                         "version.")
+    gym.register(id=env_id, entry_point=ENTRY_POINT, kwargs={"scenario": str(path)})
+    return env_id
+
+
+def register_suite(folder: str | os.PathLike | None = None) -> list[str]:
+    """Register every scenario file in ``folder`` (default: the suite's ``envs/``).
+
+    A file that cannot be read is skipped with a warning naming it, so that one broken file
+    does not break ``import tap_bench``; making its env reports the full error.
+    """
+    folder = Path(folder) if folder else suite_dir("envs")
+    ids = []
+    for path in sorted(folder.glob("*.json")):
+        try:
+            ids.append(register_scenario(path))
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            warnings.warn(f"{path}: scenario not registered: {err}", stacklevel=2)
+    return ids
+
+
+def registered_ids() -> list[str]:
+    """The tap-bench ids in Gymnasium's registry."""
+    return sorted(k for k in gym.registry if k.startswith("tap_bench/"))

@@ -1,0 +1,248 @@
+"""Rollouts: a policy on a scenario for a list of seeds, in parallel processes.
+
+Each seed is one episode. The env is reset with the seed, so every policy meets the same
+initial traffic on a seed; the policy is reset with the same seed, so the episode, and its
+trajectory table, depend on the seed alone, whichever worker runs it and whatever ran
+before in that worker. Workers are fresh processes (``spawn``): nothing from the parent's
+process state, such as highway-env's class attributes, reaches them. An episode that raises
+is reported in the episode table (``status`` ``"error"``, with the error) and leaves no rows
+in the trajectory table; the other episodes are kept. A worker process that dies is
+replaced, and its episodes are run again; an episode whose worker dies twice is reported as
+an error.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import multiprocessing
+import os
+import traceback
+import warnings
+from collections.abc import Mapping, Sequence
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import gymnasium as gym
+import numpy as np
+import pandas as pd
+
+from tap_bench.sim.policies import CHEAP_OBSERVATION, Policy, PolicyDefinition, get_definition
+from tap_bench.sim.suite import Scenario, parse_seeds
+
+__all__ = ["EPISODE_COLUMNS", "EpisodeFailedWarning", "Rollout", "rollout", "run_episode"]
+
+EPISODE_COLUMNS = ("env", "policy", "seed", "return", "length", "duration_s", "crashed",
+                   "mean_speed", "terminated", "truncated", "status", "error")
+"""The episode table: one row per seed.
+
+env, policy: scenario and policy names. seed: int. return: sum of rewards. length: decisions
+(``env.step`` calls). duration_s: simulated time [s]. crashed: the ego collided. mean_speed:
+the ego's mean speed over its recorded steps [m/s]. terminated, truncated: how the episode
+ended. status: ``"ok"`` or ``"error"``; error: the exception of a failed episode, else "".
+"""
+
+
+class EpisodeFailedWarning(UserWarning):
+    """Some episodes of a rollout raised; they are listed in the episode table."""
+
+
+class Rollout(NamedTuple):
+    """What :func:`rollout` returns; unpacks as ``trajectories, episodes = rollout(...)``.
+
+    Attributes:
+        trajectories: the trajectory table (SPEC section 1) of every successful episode,
+            with ``env``, ``policy``, ``seed``, ``episode``, ``is_ego`` and ``crashed``.
+        episodes: the episode table (:data:`EPISODE_COLUMNS`), in the order of the seeds.
+    """
+
+    trajectories: pd.DataFrame
+    episodes: pd.DataFrame
+
+
+@dataclass(frozen=True)
+class _Task:
+    scenario: Scenario
+    policy: PolicyDefinition | Policy
+    seed: int
+    record: bool
+
+
+def run_episode(env: gym.Env, policy: Policy, seed: int, *, record: bool = True
+                ) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """Run one episode of ``policy`` on a scenario env reset with ``seed``.
+
+    Returns:
+        the episode's trajectory table (empty when ``record`` is False) and its row of the
+        episode table.
+    """
+    from tap_bench.sim.scenario_env import find_scenario_env
+
+    scenario_env = find_scenario_env(env)
+    obs, _ = env.reset(seed=seed)
+    policy.reset(env, seed=seed)
+    total, steps = 0.0, 0
+    terminated = truncated = False
+    while not (terminated or truncated):
+        obs, reward, terminated, truncated, _ = env.step(policy.act(obs))
+        total += float(reward)
+        steps += 1
+    inner = env.unwrapped
+    table = scenario_env.trajectories(policy=policy.name) if record else pd.DataFrame()
+    if record and len(table):
+        mean_speed = float(table.loc[table["is_ego"].to_numpy(), "speed"].mean())
+    else:
+        mean_speed = float("nan")
+    row = {"env": scenario_env.scenario.name, "policy": policy.name, "seed": int(seed),
+           "return": total, "length": steps, "duration_s": inner.steps / 10.0,
+           "crashed": bool(inner.vehicle.crashed), "mean_speed": mean_speed,
+           "terminated": bool(terminated), "truncated": bool(truncated), "status": "ok",
+           "error": ""}
+    return table, row
+
+
+# Per-process caches: a worker builds each env and policy once and reuses them across seeds
+# (reset with the seed makes that safe).
+_ENVS: dict[str, gym.Env] = {}
+_POLICIES: dict[str, Policy] = {}
+
+
+def _observation_config(policy: Policy) -> Mapping[str, Any]:
+    return CHEAP_OBSERVATION if policy.observation is None else policy.observation
+
+
+def _run_task(task: _Task) -> tuple[pd.DataFrame, dict[str, Any]]:
+    from tap_bench.sim.scenario_env import ScenarioEnv
+
+    policy_key = repr(task.policy)
+    try:
+        policy = _POLICIES.get(policy_key)
+        if policy is None:
+            policy = (task.policy.build() if isinstance(task.policy, PolicyDefinition)
+                      else task.policy)
+            _POLICIES[policy_key] = policy
+        obs_config = _observation_config(policy)
+        env_key = repr((task.scenario, sorted(obs_config.items()), task.record))
+        env = _ENVS.get(env_key)
+        if env is None:
+            scenario = task.scenario.with_overrides({"observation": dict(obs_config)})
+            env = _ENVS[env_key] = ScenarioEnv(scenario, record=task.record)
+        return run_episode(env, policy, task.seed, record=task.record)
+    except Exception as err:  # one failing episode must not end the rollout
+        _ENVS.pop(locals().get("env_key", ""), None)
+        _POLICIES.pop(policy_key, None)
+        lines = traceback.format_exception_only(type(err), err)
+        where = traceback.extract_tb(err.__traceback__)[-1]
+        message = (f"{''.join(lines).strip()} (at {os.path.basename(where.filename)}:"
+                   f"{where.lineno})")
+        return pd.DataFrame(), _failed_row(task, message)
+
+
+def _failed_row(task: _Task, message: str) -> dict[str, Any]:
+    name = getattr(task.policy, "name", str(task.policy))
+    return {"env": task.scenario.name, "policy": name, "seed": task.seed,
+            "return": float("nan"), "length": 0, "duration_s": float("nan"), "crashed": False,
+            "mean_speed": float("nan"), "terminated": False, "truncated": False,
+            "status": "error", "error": message}
+
+
+def _worker_init() -> None:
+    # One BLAS/torch thread per worker: the workers are the parallelism.
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    os.environ.setdefault("MKL_NUM_THREADS", "1")
+    warnings.filterwarnings("ignore", module="gymnasium")
+    warnings.filterwarnings("ignore", category=UserWarning, module="tap_bench.sim.sb3")
+
+
+def _run_parallel(tasks: list[_Task], workers: int, bar: Any) -> dict[int, tuple]:
+    results: dict[int, tuple] = {}
+    strikes: dict[int, int] = {}
+    pending = list(tasks)
+    context = multiprocessing.get_context("spawn")
+    while pending:
+        with cf.ProcessPoolExecutor(max_workers=min(workers, len(pending)),
+                                    mp_context=context, initializer=_worker_init) as pool:
+            futures = {pool.submit(_run_task, task): task for task in pending}
+            pending = []
+            for future in cf.as_completed(futures):
+                task = futures[future]
+                try:
+                    results[task.seed] = future.result()
+                except BrokenProcessPool:
+                    strikes[task.seed] = strikes.get(task.seed, 0) + 1
+                    if strikes[task.seed] < 2:
+                        pending.append(task)
+                        continue
+                    results[task.seed] = (pd.DataFrame(), _failed_row(
+                        task, "the worker process died while running this episode (twice)"))
+                bar.update(1)
+        pending.sort(key=lambda t: t.seed)
+    return results
+
+
+def rollout(env: str | os.PathLike | Scenario | gym.Env,
+            policy: str | os.PathLike | Policy | PolicyDefinition,
+            seeds: str | int | Sequence[int], *, workers: int = 1,
+            config: Mapping[str, Any] | None = None, duration: float | None = None,
+            lane_change: str | None = None, record: bool = True,
+            progress: bool | None = None) -> Rollout:
+    """Run ``policy`` on scenario ``env`` once per seed.
+
+    Args:
+        env: scenario name (``"highway"``), Gymnasium id, scenario file, :class:`Scenario`,
+            or a scenario env (its scenario is used).
+        policy: policy name (``"idm"``), definition or model file, or a policy object
+            (pickled to the workers).
+        seeds: ``"0-49"``, ``"1,4,7"``, an int or a sequence of ints.
+        workers: processes; 1 runs in this process. The tables do not depend on it.
+        config: more highway-env config overrides for the scenario.
+        duration: another episode length [s].
+        lane_change: another lane-change setting (``"default"``, ``"realistic"``).
+        record: build the trajectory table (False: episode table only, faster).
+        progress: show a progress bar (None: only on a terminal).
+
+    Returns:
+        :class:`Rollout` (trajectory table, episode table).
+
+    Warns:
+        EpisodeFailedWarning: some episodes failed; their rows say why.
+    """
+    from tqdm.auto import tqdm
+
+    from tap_bench.sim.scenario_env import find_scenario_env, get_scenario
+
+    if isinstance(env, gym.Env):
+        scenario = find_scenario_env(env).scenario
+    else:
+        scenario = get_scenario(env)
+    if config or duration is not None or lane_change is not None:
+        scenario = scenario.with_overrides(config, duration=duration, lane_change=lane_change)
+    seed_list = parse_seeds(seeds)
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be a positive integer, got {workers!r}.")
+    spec = policy if isinstance(policy, Policy | PolicyDefinition) else get_definition(policy)
+    if isinstance(spec, PolicyDefinition):
+        spec.build()  # fail here, once, on a bad definition rather than in every worker
+    tasks = [_Task(scenario, spec, seed, record) for seed in seed_list]
+    name = getattr(spec, "name", "policy")
+    with tqdm(total=len(tasks), desc=f"{scenario.name} {name}", unit="episode",
+              disable=None if progress is None else not progress) as bar:
+        if workers == 1:
+            results = {}
+            for task in tasks:
+                results[task.seed] = _run_task(task)
+                bar.update(1)
+        else:
+            results = _run_parallel(tasks, workers, bar)
+    tables = [results[s][0] for s in seed_list if len(results[s][0])]
+    rows = [results[s][1] for s in seed_list]
+    episodes = pd.DataFrame(rows, columns=list(EPISODE_COLUMNS))
+    episodes["seed"] = episodes["seed"].astype(np.int64)
+    failed = episodes[episodes["status"] != "ok"]
+    if len(failed):
+        listed = "; ".join(f"seed {r.seed}: {r.error}" for r in failed.head(3).itertuples())
+        warnings.warn(f"{len(failed)} of {len(episodes)} episodes of {name} on {scenario.name} "
+                      f"failed and were left out of the trajectory table ({listed}). The "
+                      "episode table lists them.", EpisodeFailedWarning, stacklevel=2)
+    trajectories = pd.concat(tables, ignore_index=True) if tables else pd.DataFrame()
+    return Rollout(trajectories, episodes)

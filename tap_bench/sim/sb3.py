@@ -1,0 +1,153 @@
+"""Stable-Baselines3 agents as policies.
+
+Stable-Baselines3 (and torch) are imported only when a model is loaded: install them with
+the ``sb3`` extra. A model file is a zip holding Python pickles: loading it can run code
+from the file, so every load warns (:class:`UntrustedModelWarning`) and only files you trust
+should be loaded. The models in ``policies/`` are built by ``tap-bench train``.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from tap_bench.errors import FileFormatError, TapBenchError, did_you_mean
+
+__all__ = ["ALGORITHMS", "SB3Policy", "UntrustedModelWarning", "load_model"]
+
+ALGORITHMS = ("a2c", "dqn", "ppo")
+"""Stable-Baselines3 algorithms tap-bench can train and load."""
+
+
+class UntrustedModelWarning(UserWarning):
+    """A Stable-Baselines3 model file (pickles) is being loaded: it can run code."""
+
+
+def algorithm_class(algo: str) -> type:
+    """The Stable-Baselines3 class of ``algo`` (``"dqn"``, ``"ppo"``, ``"a2c"``)."""
+    algo = algo.lower()
+    if algo not in ALGORITHMS:
+        raise did_you_mean("algorithm", algo, ALGORITHMS)
+    try:
+        import stable_baselines3
+    except ImportError as err:
+        raise TapBenchError(
+            "Stable-Baselines3 is not installed: pip install torch==2.13.0 (a CPU build), "
+            "then pip install 'tap-bench[sb3]'.") from err
+    return getattr(stable_baselines3, algo.upper())
+
+
+def _algo_of(path: Path) -> str:
+    """Read the algorithm from the policy class recorded in an SB3 zip (no unpickling)."""
+    import json
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            data = json.loads(archive.read("data"))
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile) as err:
+        raise FileFormatError(f"{path}: not a Stable-Baselines3 model file ({err}).") from err
+    module = str(data.get("policy_class", {}).get("__module__", ""))
+    for algo in ALGORITHMS:
+        if f".{algo}." in module or module.endswith(f".{algo}"):
+            return algo
+    raise FileFormatError(f"{path}: cannot tell the algorithm from {module!r}; give \"algo\" "
+                          f"({', '.join(ALGORITHMS)}) in the policy definition.")
+
+
+def load_model(path: str | os.PathLike, algo: str | None = None) -> Any:
+    """Load a Stable-Baselines3 model on the CPU, warning that the file must be trusted.
+
+    Args:
+        path: the ``.zip`` file.
+        algo: ``"dqn"``, ``"ppo"``, ``"a2c"``; read from the file when None.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileFormatError(f"{path}: no such model file.")
+    algo = algo or _algo_of(path)
+    cls = algorithm_class(algo)
+    warnings.warn(
+        f"{path}: Stable-Baselines3 model files contain Python pickles, and loading one can "
+        "run code from it. Load only model files you trust.", UntrustedModelWarning,
+        stacklevel=2)
+    return cls.load(str(path), device="cpu")
+
+
+class SB3Policy:
+    """A Stable-Baselines3 model acting on the env's observation.
+
+    The model is loaded at the first :meth:`reset`, so the object is cheap to build and to
+    send to rollout workers.
+
+    Args:
+        name: the policy's name.
+        model: the ``.zip`` file (relative paths are relative to ``base_dir``).
+        algo: ``"dqn"``, ``"ppo"``, ``"a2c"``; read from the file when None.
+        observation: the highway-env observation config the model was trained on; rollouts
+            build the env with it. None keeps the scenario's own.
+        env: the scenario the model was trained on (information only).
+        deterministic: act greedily (True) or sample from the policy.
+        base_dir: folder of the definition file.
+        **training: what ``tap-bench train`` recorded (timesteps, seed, command); kept in
+            :attr:`training`.
+    """
+
+    def __init__(self, name: str, model: str, algo: str | None = None,
+                 observation: Mapping[str, Any] | None = None, env: str | None = None,
+                 deterministic: bool = True, base_dir: str | os.PathLike | None = None,
+                 **training: Any) -> None:
+        path = Path(model)
+        if not path.is_absolute() and base_dir is not None:
+            path = Path(base_dir) / path
+        if not path.is_file():
+            raise FileFormatError(f"policy {name!r}: model file {path} does not exist; train "
+                                  "it with `tap-bench train` or fix \"model\".")
+        if algo is not None and algo.lower() not in ALGORITHMS:
+            raise did_you_mean("algorithm", algo, ALGORITHMS)
+        self.name = name
+        self.path = path
+        self.algo = algo.lower() if algo else None
+        self.observation = dict(observation) if observation is not None else None
+        self.env = env
+        self.deterministic = deterministic
+        self.training = training
+        self._model: Any = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        state["_model"] = None  # workers load their own copy
+        return state
+
+    def reset(self, env: gym.Env, *, seed: int) -> None:
+        if self._model is None:
+            self._model = load_model(self.path, self.algo)
+        expected = self._model.observation_space
+        if not _same_space(expected, env.observation_space):
+            raise TapBenchError(
+                f"policy {self.name!r}: the env's observation space {env.observation_space} "
+                f"differs from the one the model was trained on ({expected}). Build the env "
+                "with the policy's observation config (rollouts do this), or retrain.")
+        self._model.set_random_seed(int(seed))
+
+    def act(self, observation: Any) -> Any:
+        if self._model is None:
+            raise RuntimeError(f"policy {self.name!r}: act before reset.")
+        action, _ = self._model.predict(observation, deterministic=self.deterministic)
+        if isinstance(action, np.ndarray) and action.shape == ():
+            return int(action)
+        return action
+
+
+def _same_space(a: gym.Space, b: gym.Space) -> bool:
+    if type(a) is not type(b):
+        return False
+    if isinstance(a, gym.spaces.Box):
+        return a.shape == b.shape
+    return a == b

@@ -1,0 +1,199 @@
+"""The scenario environment: a highway-env environment configured from a scenario file,
+recording every vehicle at 10 Hz.
+
+``gymnasium.make("tap_bench/highway-v0")`` builds one (after ``import tap_bench``); so does
+:func:`make_env`. The result behaves like the highway-env environment it wraps
+(``env.unwrapped`` is that environment), with three differences:
+
+- every simulated step (10 Hz) of every vehicle is recorded: :func:`episode_trajectories`
+  returns the current episode as a trajectory table in Waymo axes;
+- the episode is truncated by counting decisions (``duration * policy_frequency``), not by
+  highway-env's floating-point clock, which drifts;
+- the lane-change setting of the scenario is applied to every vehicle, and building a scene
+  may not change highway-env's shared vehicle classes (see :mod:`tap_bench.sim.vehicles`).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import pandas as pd
+
+from tap_bench.errors import FileFormatError, TapBenchError, did_you_mean
+from tap_bench.sim.recorder import TrajectoryRecorder
+from tap_bench.sim.suite import (
+    Scenario,
+    check_config,
+    env_class,
+    load_scenario,
+    scenario_names,
+    suite_dir,
+)
+from tap_bench.sim.vehicles import LANE_CHANGE_SETTINGS, apply_lane_change, guard_class_attributes
+
+__all__ = ["ScenarioEnv", "episode_trajectories", "get_scenario", "make_env"]
+
+
+@functools.lru_cache(maxsize=64)
+def _load_cached(path: str, mtime: float) -> Scenario:
+    return load_scenario(path)
+
+
+def get_scenario(name: str | os.PathLike | Scenario) -> Scenario:
+    """A scenario by name (``"highway"``), Gymnasium id (``"tap_bench/highway-v0"``) or the
+    path of a scenario file.
+
+    Raises:
+        UnknownNameError: no such scenario, with the closest names.
+        FileFormatError: the file breaks the scenario format.
+    """
+    if isinstance(name, Scenario):
+        return name
+    text = str(name)
+    path = Path(text)
+    if text.endswith(".json"):
+        if not path.is_file():
+            raise FileFormatError(f"{path}: no such scenario file.")
+    else:
+        short = text.removeprefix("tap_bench/")
+        base, _, version = short.rpartition("-v")
+        if base and version.isdigit():
+            short = base
+        else:
+            version = None
+        known = scenario_names()
+        if short not in known:
+            raise did_you_mean("scenario", text, known)
+        path = suite_dir("envs") / f"{short}.json"
+        scenario = _load_cached(str(path), path.stat().st_mtime)
+        if version is not None and int(version) != scenario.version:
+            raise TapBenchError(f"scenario {text!r}: the suite has {scenario.env_id}; version "
+                                f"{version} is not available.")
+        return scenario
+    return _load_cached(str(path), path.stat().st_mtime)
+
+
+class ScenarioEnv(gym.Wrapper):
+    """A highway-env environment set up and recorded as a tap-bench scenario.
+
+    Args:
+        scenario: the scenario (see :func:`get_scenario`).
+        render_mode: highway-env's ``"rgb_array"`` or ``"human"``, or None.
+        record: record every vehicle at every step (turn off to train faster).
+
+    Attributes:
+        scenario: the validated scenario.
+        max_steps: decisions in an episode that runs to its time limit.
+    """
+
+    def __init__(self, scenario: Scenario, *, render_mode: str | None = None,
+                 record: bool = True) -> None:
+        cls = env_class(scenario.highway_env_id)
+        # highway-env builds a first scene in its constructor
+        with guard_class_attributes(f"building {scenario.env_id}"):
+            inner = cls(config=scenario.config, render_mode=render_mode)
+        super().__init__(inner)
+        self.scenario = scenario
+        self.max_steps = scenario.max_steps
+        self._lane_change = (None if scenario.lane_change == "default"
+                             else LANE_CHANGE_SETTINGS[scenario.lane_change])
+        self.recorder = TrajectoryRecorder(record=record)
+        self._decisions = 0
+        self._seed: int | None = None
+        self._episode = -1
+        # highway-env calls _automatic_rendering after each intermediate simulated step of a
+        # decision (it is how its video recorder captures frames): record those steps there.
+        self._render_frame = inner._automatic_rendering
+        inner._automatic_rendering = self._intermediate_frame
+
+    def _frame(self) -> None:
+        env = self.env.unwrapped
+        new = self.recorder.frame(env.steps, env.road.vehicles, env.vehicle)
+        if self._lane_change is not None:
+            for vehicle in new:
+                apply_lane_change(vehicle, self._lane_change)
+
+    def _intermediate_frame(self) -> None:
+        self._frame()
+        self._render_frame()
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[Any, dict[str, Any]]:
+        """Reset to the initial traffic of ``seed`` (the same for every policy)."""
+        if options and "config" in options:
+            check_config(self.scenario.highway_env_id, options["config"],
+                         source=f"{self.scenario.env_id} reset options")
+        if seed is not None:
+            self._seed, self._episode = int(seed), 0
+        else:
+            self._episode += 1
+        with guard_class_attributes(f"resetting {self.scenario.env_id}"):
+            obs, info = self.env.reset(seed=seed, options=options)
+        self._decisions = 0
+        self.recorder.start(self.scenario.name, self._seed, self._episode)
+        self._frame()
+        return obs, info
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self._decisions += 1
+        self._frame()
+        truncated = bool(self._decisions >= self.max_steps) and not terminated
+        return obs, reward, terminated, truncated, info
+
+    def trajectories(self, **columns: object) -> pd.DataFrame:
+        """The current episode so far as a trajectory table (SPEC section 1).
+
+        Args:
+            **columns: constant columns to add, e.g. ``policy="idm"``.
+        """
+        return self.recorder.table(**columns)
+
+
+def make_env(scenario: str | os.PathLike | Scenario, *, config: Mapping[str, Any] | None = None,
+             duration: float | None = None, lane_change: str | None = None,
+             record: bool = True, render_mode: str | None = None) -> gym.Env:
+    """Build a scenario environment; what ``gymnasium.make("tap_bench/<name>-v0")`` calls.
+
+    Args:
+        scenario: name, Gymnasium id, scenario file path or :class:`Scenario`.
+        config: more highway-env config overrides, validated like the scenario file's.
+        duration: another episode length [s].
+        lane_change: another lane-change setting (``"default"``, ``"realistic"``).
+        record: record every vehicle at every step.
+        render_mode: highway-env's render mode.
+    """
+    spec = get_scenario(scenario)
+    if config or duration is not None or lane_change is not None:
+        spec = spec.with_overrides(config, duration=duration, lane_change=lane_change)
+    return ScenarioEnv(spec, render_mode=render_mode, record=record)
+
+
+def find_scenario_env(env: gym.Env) -> ScenarioEnv:
+    """The :class:`ScenarioEnv` inside a stack of wrappers."""
+    current = env
+    while True:
+        if isinstance(current, ScenarioEnv):
+            return current
+        inner = getattr(current, "env", None)
+        if inner is None or inner is current:
+            break
+        current = inner
+    raise TapBenchError(f"{env} is not a tap-bench scenario env; build it with "
+                        "gymnasium.make('tap_bench/<scenario>-v0') or tap_bench.sim.make_env.")
+
+
+def episode_trajectories(env: gym.Env, **columns: object) -> pd.DataFrame:
+    """The trajectory table of the current (or just finished) episode of a scenario env,
+    through any wrappers.
+
+    Args:
+        env: an env built by ``gymnasium.make("tap_bench/...")`` or :func:`make_env`.
+        **columns: constant columns to add, e.g. ``policy="idm"``.
+    """
+    return find_scenario_env(env).trajectories(**columns)

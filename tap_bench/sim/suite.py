@@ -1,0 +1,402 @@
+"""The scenario suite as data: one JSON file per scenario in ``envs/``.
+
+A scenario file names a highway-env environment, overrides some of its configuration and
+fixes the episode length and the default seeds::
+
+    {
+      "name": "highway",                  # the scenario; the Gymnasium id is tap_bench/highway-v0
+      "version": 0,                       # bump it whenever the scenario's behaviour changes
+      "highway_env_id": "highway-v0",     # a highway-env Gymnasium id
+      "description": "...",
+      "duration": 40,                     # episode length [s] (simulated time)
+      "default_seeds": "0-49",            # seeds used when none are given ("0-49", "3,5,8-9")
+      "lane_change": "default",           # "default" or "realistic" (tap_bench.sim.vehicles)
+      "config": {"lanes_count": 4, ...}   # highway-env config overrides
+    }
+
+Every file is validated against the environment's own defaults: an unknown field or config
+key is an error that names the file, the key and the closest known keys; so is a value of the
+wrong type. ``simulation_frequency`` is always 10 Hz (the rate of the trajectory table) and
+``policy_frequency`` must divide it, so every decision lasts a whole number of recorded steps.
+"""
+
+from __future__ import annotations
+
+import copy
+import functools
+import inspect
+import json
+import os
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from tap_bench.errors import FileFormatError, did_you_mean
+from tap_bench.trajectories import HZ
+
+__all__ = [
+    "SIMULATION_FREQUENCY",
+    "Scenario",
+    "check_config",
+    "load_scenario",
+    "parse_seeds",
+    "scenario_names",
+    "suite_dir",
+]
+
+SIMULATION_FREQUENCY = int(HZ)
+"""Simulation rate of every scenario [Hz]: one simulated step is one trajectory-table row."""
+
+_FIELDS = ("name", "version", "highway_env_id", "description", "duration", "default_seeds",
+           "lane_change", "config")
+_REQUIRED = ("name", "version", "highway_env_id", "duration", "config")
+_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
+# Keys the scenario file owns itself: highway-env's own copies are set from them.
+_OWNED_KEYS = {
+    "duration": "set the top-level field \"duration\" (seconds) instead",
+    "simulation_frequency": "it is always 10 Hz, the rate of the trajectory table",
+    "controlled_vehicles": "tap-bench records exactly one ego vehicle",
+}
+
+
+def suite_dir(kind: str) -> Path:
+    """The folder of the suite's ``kind`` files (``"envs"`` or ``"policies"``).
+
+    ``$TAP_BENCH_SUITE`` (a folder holding ``envs/`` and ``policies/``) takes precedence;
+    otherwise the folders at the root of the tap-bench source tree are used.
+    """
+    root = os.environ.get("TAP_BENCH_SUITE")
+    base = Path(root) if root else Path(__file__).resolve().parents[2]
+    return base / kind
+
+
+def parse_seeds(spec: str | int | list[int] | range, *, source: str = "seeds") -> list[int]:
+    """Seeds from ``"0-49"``, ``"3,5,8-9"``, an int, a list or a range.
+
+    Returns:
+        the seeds in the order given, duplicates refused.
+
+    Raises:
+        ValueError: naming ``source`` and the part that is not a seed or a range of seeds.
+    """
+    if isinstance(spec, bool):
+        raise ValueError(f"{source}: {spec!r} is not a seed; give an int, '0-49' or '1,4,7'.")
+    if isinstance(spec, int):
+        seeds = [spec]
+    elif isinstance(spec, range | list | tuple):
+        seeds = [int(s) for s in spec]
+    elif isinstance(spec, str):
+        seeds = []
+        for part in spec.replace(" ", "").split(","):
+            match = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
+            if not match:
+                raise ValueError(f"{source}: {part!r} in {spec!r} is not a seed or a range; "
+                                 "write seeds as '0-49' (inclusive) or '1,4,7' (non-negative).")
+            lo = int(match.group(1))
+            hi = int(match.group(2)) if match.group(2) else lo
+            if hi < lo:
+                raise ValueError(f"{source}: range {part!r} runs backwards; write '{hi}-{lo}'.")
+            seeds.extend(range(lo, hi + 1))
+    else:
+        raise ValueError(f"{source}: {spec!r} is not a seed list; give '0-49', an int or a list.")
+    if not seeds:
+        raise ValueError(f"{source}: no seeds given.")
+    if any(s < 0 for s in seeds):
+        raise ValueError(f"{source}: seeds must be non-negative, got {min(seeds)}.")
+    if len(set(seeds)) != len(seeds):
+        dup = next(s for s in seeds if seeds.count(s) > 1)
+        raise ValueError(f"{source}: seed {dup} is given twice; each seed is one episode.")
+    return seeds
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One validated scenario of the suite.
+
+    Attributes:
+        name: short name (``highway``); the Gymnasium id is :attr:`env_id`.
+        version: the ``-vN`` of the id.
+        highway_env_id: the highway-env environment it configures.
+        description: one line for ``tap-bench envs``.
+        duration: episode length [s].
+        default_seeds: seeds used when a caller gives none.
+        lane_change: name of the lane-change setting (see :mod:`tap_bench.sim.vehicles`).
+        overrides: the highway-env config overrides of the file, validated.
+        path: the file it was read from (None when built in code).
+    """
+
+    name: str
+    version: int
+    highway_env_id: str
+    duration: float
+    overrides: Mapping[str, Any]
+    description: str = ""
+    default_seeds: tuple[int, ...] = tuple(range(10))
+    lane_change: str = "default"
+    path: Path | None = field(default=None, compare=False)
+
+    @property
+    def env_id(self) -> str:
+        """The Gymnasium id, ``tap_bench/<name>-v<version>``."""
+        return f"tap_bench/{self.name}-v{self.version}"
+
+    @property
+    def config(self) -> dict[str, Any]:
+        """The full highway-env config overrides: :attr:`overrides` plus the keys the suite
+        owns (``simulation_frequency`` 10 Hz, ``duration``, one controlled vehicle)."""
+        full = copy.deepcopy(dict(self.overrides))
+        full.setdefault("policy_frequency",
+                        env_class(self.highway_env_id).default_config()["policy_frequency"])
+        full["simulation_frequency"] = SIMULATION_FREQUENCY
+        full["duration"] = self.duration
+        full["controlled_vehicles"] = 1
+        return full
+
+    @property
+    def policy_frequency(self) -> int:
+        """Decisions per simulated second [Hz]."""
+        return int(self.config["policy_frequency"])
+
+    @property
+    def max_steps(self) -> int:
+        """Decisions (``env.step`` calls) in an episode that runs to its time limit."""
+        return round(self.duration * self.policy_frequency)
+
+    def with_overrides(self, config: Mapping[str, Any] | None = None, *,
+                       duration: float | None = None, lane_change: str | None = None
+                       ) -> Scenario:
+        """A copy with more config overrides, another duration or lane-change setting,
+        validated as a scenario file is."""
+        merged = copy.deepcopy(dict(self.overrides))
+        defaults = env_class(self.highway_env_id).default_config()
+        for key, value in (config or {}).items():
+            if key in ("observation", "action") and isinstance(value, Mapping) \
+                    and "type" not in value:
+                # highway-env replaces the whole dict: keep the type and the other settings
+                merged[key] = {**(merged.get(key) or defaults[key]), **value}
+            else:
+                merged[key] = copy.deepcopy(value)
+        return _build(
+            {"name": self.name, "version": self.version, "highway_env_id": self.highway_env_id,
+             "description": self.description,
+             "duration": self.duration if duration is None else duration,
+             "default_seeds": list(self.default_seeds),
+             "lane_change": self.lane_change if lane_change is None else lane_change,
+             "config": merged},
+            source=f"{self.env_id} overrides", path=self.path)
+
+
+@functools.cache
+def env_class(highway_env_id: str) -> type:
+    """The environment class behind a highway-env Gymnasium id."""
+    import gymnasium
+    import highway_env  # noqa: F401  (registers the highway-env ids)
+
+    try:
+        spec = gymnasium.spec(highway_env_id)
+    except gymnasium.error.Error as err:
+        known = [k for k in gymnasium.registry
+                 if gymnasium.registry[k].entry_point.__str__().startswith("highway_env")]
+        raise did_you_mean("highway-env id", highway_env_id, known) from err
+    entry = spec.entry_point
+    if callable(entry):
+        return entry
+    module, _, name = entry.partition(":")
+    return getattr(__import__(module, fromlist=[name]), name)
+
+
+def _observation_classes() -> dict[str, type]:
+    from highway_env.envs.common import observation as obs
+
+    return {
+        "Kinematics": obs.KinematicObservation,
+        "TimeToCollision": obs.TimeToCollisionObservation,
+        "OccupancyGrid": obs.OccupancyGridObservation,
+        "KinematicsGoal": obs.KinematicsGoalObservation,
+        "GrayscaleObservation": obs.GrayscaleObservation,
+        "AttributesObservation": obs.AttributesObservation,
+        "TupleObservation": obs.TupleObservation,
+        "LidarObservation": obs.LidarObservation,
+        "ExitObservation": obs.ExitObservation,
+    }
+
+
+def _action_classes() -> dict[str, type]:
+    from highway_env.envs.common import action as act
+
+    return {
+        "ContinuousAction": act.ContinuousAction,
+        "DiscreteAction": act.DiscreteAction,
+        "DiscreteMetaAction": act.DiscreteMetaAction,
+    }
+
+
+def _init_parameters(cls: type) -> set[str]:
+    """Keyword parameters a highway-env observation or action class accepts, following
+    ``**kwargs`` up the class hierarchy (they swallow misspelled keys otherwise)."""
+    names: set[str] = set()
+    for klass in cls.__mro__:
+        if "__init__" not in vars(klass):
+            continue
+        params = inspect.signature(klass.__init__).parameters
+        names |= {n for n, p in params.items() if n not in ("self", "env")
+                  and p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)}
+        if not any(p.kind == p.VAR_KEYWORD for p in params.values()):
+            break
+    return names | {"type"}
+
+
+def _type_name(value: Any) -> str:
+    return {bool: "true/false", int: "a number", float: "a number", str: "a string",
+            list: "a list", dict: "an object"}.get(type(value), type(value).__name__)
+
+
+def _check_value(key: str, value: Any, default: Any, where: str) -> None:
+    if default is None or value is None:
+        return
+    if isinstance(default, bool):
+        ok = isinstance(value, bool)
+    elif isinstance(default, int | float):
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+    elif isinstance(default, str):
+        ok = isinstance(value, str)
+    elif isinstance(default, list | tuple):
+        ok = isinstance(value, list | tuple)
+    elif isinstance(default, dict):
+        ok = isinstance(value, dict)
+    else:
+        ok = True
+    if not ok:
+        raise FileFormatError(f"{where}: {key!r} is {value!r}, but highway-env expects "
+                              f"{_type_name(default)} (default {default!r}).")
+
+
+def _check_space(key: str, value: Any, default: Any, classes: dict[str, type],
+                 where: str) -> None:
+    if not isinstance(value, dict):
+        raise FileFormatError(f"{where}: {key!r} must be an object with a \"type\", got "
+                              f"{value!r}.")
+    kind = value.get("type", (default or {}).get("type"))
+    if kind is None:
+        raise FileFormatError(f"{where}: {key!r} needs a \"type\"; one of "
+                              f"{', '.join(sorted(classes))}.")
+    if kind.startswith("MultiAgent"):
+        raise FileFormatError(f"{where}: {key} type {kind!r} drives several egos; tap-bench "
+                              "records one ego per episode. Use a single-agent type.")
+    if kind not in classes:
+        raise FileFormatError(f"{where}: {did_you_mean(f'{key} type', kind, classes)}")
+    allowed = _init_parameters(classes[kind])
+    for sub in value:
+        if sub not in allowed:
+            raise FileFormatError(
+                f"{where}: {key}: {did_you_mean(f'{kind} parameter', sub, allowed)}")
+
+
+def check_config(highway_env_id: str, config: Mapping[str, Any], *, source: str = "config"
+                 ) -> None:
+    """Check config overrides against the defaults of the highway-env environment.
+
+    Args:
+        highway_env_id: the highway-env id (``"highway-v0"``).
+        config: the overrides.
+        source: where they come from, for the message (a file path).
+
+    Raises:
+        FileFormatError: naming the key, with "did you mean", for an unknown key, a value of
+            the wrong type, an unknown observation or action type or parameter.
+    """
+    defaults = env_class(highway_env_id).default_config()
+    where = f"{source} ({highway_env_id})"
+    for key, value in config.items():
+        if key in _OWNED_KEYS:
+            raise FileFormatError(f"{where}: config key {key!r} is not allowed here: "
+                                  f"{_OWNED_KEYS[key]}.")
+        if key not in defaults:
+            raise FileFormatError(
+                f"{where}: {did_you_mean('highway-env config key', key, defaults)}")
+        if key == "observation":
+            _check_space(key, value, defaults[key], _observation_classes(), where)
+        elif key == "action":
+            _check_space(key, value, defaults[key], _action_classes(), where)
+        else:
+            _check_value(key, value, defaults[key], where)
+    freq = config.get("policy_frequency", defaults.get("policy_frequency"))
+    if not isinstance(freq, int) or isinstance(freq, bool) or freq <= 0 \
+            or SIMULATION_FREQUENCY % freq:
+        raise FileFormatError(f"{where}: policy_frequency {freq!r} must be a whole divisor of "
+                              f"the {SIMULATION_FREQUENCY} Hz simulation: 1, 2, 5 or 10.")
+
+
+def _build(doc: Any, *, source: str, path: Path | None) -> Scenario:
+    if not isinstance(doc, dict):
+        raise FileFormatError(f"{source}: a scenario file holds one JSON object, got "
+                              f"{type(doc).__name__}.")
+    for key in doc:
+        if key not in _FIELDS:
+            raise FileFormatError(f"{source}: {did_you_mean('scenario field', key, _FIELDS)}")
+    missing = [k for k in _REQUIRED if k not in doc]
+    if missing:
+        raise FileFormatError(f"{source}: missing field(s) {', '.join(map(repr, missing))}; "
+                              f"a scenario needs {', '.join(_REQUIRED)}.")
+    name = doc["name"]
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise FileFormatError(f"{source}: name {name!r} must be lower case letters, digits and "
+                              "underscores, starting with a letter (it becomes the env id).")
+    version = doc["version"]
+    if not isinstance(version, int) or isinstance(version, bool) or version < 0:
+        raise FileFormatError(f"{source}: version {version!r} must be a non-negative integer.")
+    duration = doc["duration"]
+    if not isinstance(duration, int | float) or isinstance(duration, bool) or duration <= 0:
+        raise FileFormatError(f"{source}: duration {duration!r} must be a positive number of "
+                              "seconds.")
+    lane_change = doc.get("lane_change", "default")
+    from tap_bench.sim.vehicles import LANE_CHANGE_SETTINGS
+
+    if lane_change not in LANE_CHANGE_SETTINGS:
+        err = did_you_mean("lane-change setting", lane_change, LANE_CHANGE_SETTINGS)
+        raise FileFormatError(f"{source}: {err}")
+    try:
+        seeds = tuple(parse_seeds(doc.get("default_seeds", "0-9"), source="default_seeds"))
+    except ValueError as err:
+        raise FileFormatError(f"{source}: {err}") from err
+    config = doc["config"]
+    if not isinstance(config, dict):
+        raise FileFormatError(f"{source}: config must be an object of highway-env settings.")
+    check_config(doc["highway_env_id"], config, source=source)
+    scenario = Scenario(name=name, version=version, highway_env_id=doc["highway_env_id"],
+                        duration=float(duration), overrides=copy.deepcopy(config),
+                        description=str(doc.get("description", "")), default_seeds=seeds,
+                        lane_change=lane_change, path=path)
+    steps = duration * scenario.policy_frequency
+    if abs(steps - round(steps)) > 1e-9:
+        raise FileFormatError(f"{source}: duration {duration} s is not a whole number of "
+                              f"decisions at policy_frequency {scenario.policy_frequency} Hz.")
+    return scenario
+
+
+def load_scenario(path: str | os.PathLike) -> Scenario:
+    """Read and validate one scenario file.
+
+    Raises:
+        FileFormatError: the file is missing, is not JSON, or breaks the format above.
+    """
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except OSError as err:
+        raise FileFormatError(f"{path}: cannot read the scenario file: {err}") from err
+    except json.JSONDecodeError as err:
+        raise FileFormatError(f"{path}: not valid JSON: {err}") from err
+    scenario = _build(doc, source=str(path), path=path)
+    if scenario.name != path.stem:
+        raise FileFormatError(f"{path}: name {scenario.name!r} differs from the file name; "
+                              f"rename the file to {scenario.name}.json or fix the name.")
+    return scenario
+
+
+def scenario_names(folder: str | os.PathLike | None = None) -> list[str]:
+    """Names of the scenario files in ``folder`` (default: the suite's ``envs/``)."""
+    folder = Path(folder) if folder else suite_dir("envs")
+    return sorted(p.stem for p in folder.glob("*.json"))
