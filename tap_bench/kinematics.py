@@ -67,7 +67,8 @@ def _derivative(step_diff: np.ndarray, t: np.ndarray, index: TrackIndex) -> np.n
     num[lst] = step_diff[lst - 1]
     den[lst] = t[lst] - t[lst - 1]
     num[first[single]] = 0.0
-    out = num / den
+    with np.errstate(invalid="ignore", divide="ignore"):  # invalid rows: set to NaN below
+        out = num / den
     out[index.segment < 0] = np.nan
     return out
 

@@ -80,8 +80,8 @@ def _lane_change(side: int, pause: float = 0.0, w: float = 0.12,
 
 
 def _two_turns() -> tuple[np.ndarray, np.ndarray]:
-    """Left turn, 4.5 s straight, right turn: too far apart to be a merge."""
-    yaw = _profile((1.0, 0.0), (1.5, 0.1), (4.5, 0.0), (1.5, -0.1), (1.0, 0.0))
+    """Left turn, 4.5 s straight, right turn: too far apart to be a merge (10.5 s)."""
+    yaw = _profile((1.5, 0.0), (1.5, 0.1), (4.5, 0.0), (1.5, -0.1), (1.5, 0.0))
     return np.full(len(yaw), 8.0), yaw
 
 

@@ -1,0 +1,184 @@
+"""Hand-worked behaviour fixtures: expected SDL labels at all four levels (paper thresholds).
+
+Thresholds (paper): w 0.0283 / 0.0754 / 0.1541 rad/s, a -1.3715 / 1.5557 m/s^2,
+v 0.1 / 10.214 / 24.4046 m/s. Fixtures are built by ``tap_bench.synthetic`` from per-step
+controls: heading[k+1] - heading[k] = yaw[k] * 0.1 s, so the central-difference yaw rate at
+a step is the mean of the commanded yaw of that step and the one before: a turn of yaw w
+starting at step s reads w/2 at step s and at the step after it ends. The working for each
+expectation is in the comment beside it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import tap_bench as tb
+from tap_bench.synthetic import from_controls
+
+LEVELS = ("trace", "trend", "maneuver", "action")
+
+
+def labels_of(table: pd.DataFrame) -> dict[str, str]:
+    out = tb.label(table, "paper", level="all")
+    assert len(out) == 4, "one segment expected"
+    return dict(zip(out["level"], out["sdl"], strict=True))
+
+
+EXPECTED = {
+    # v = 5 m/s (<= 10.214 Slow), w = 0, a = 0.
+    "cruise_slow": ("Straight | Maintain Speed",) * 3 + ("Straight | Maintain Slow Speed",),
+    # 10.214 < 15 <= 24.4046: Medium.
+    "cruise_medium": ("Straight | Maintain Speed",) * 3 + ("Straight | Maintain Medium Speed",),
+    # 28 > 24.4046: Fast.
+    "cruise_fast": ("Straight | Maintain Speed",) * 3 + ("Straight | Maintain Fast Speed",),
+    # v = 0 < v_stop: trace knows nothing of speed (a = 0 Maintain); from trend on, Stopped.
+    "parked": ("Straight | Maintain Speed",) + ("Straight | Stopped",) * 3,
+    # yaw 0.05 for 3 s: the edge steps read 0.025 <= w_str, so the run is exactly the 30
+    # turning steps; |w| = 0.05 in (0.0283, 0.0754]: Gradual. 8 m/s is Slow.
+    "gradual_left_turn": ("Straight > Left Turn > Straight | Maintain Speed",) * 3
+    + ("Straight > Gradual Left Turn > Straight | Maintain Slow Speed",),
+    # yaw 0.12: the run has 31 steps, the two edge steps at 0.06 (Gradual) form 1-step
+    # pieces, so the whole run takes the class of its mean |w| = 0.116: Medium.
+    "medium_left_turn": ("Straight > Left Turn > Straight | Maintain Speed",) * 3
+    + ("Straight > Medium Left Turn > Straight | Maintain Slow Speed",),
+    # yaw 0.3: mean |w| = 0.29 > 0.1541: Aggressive.
+    "aggressive_left_turn": ("Straight > Left Turn > Straight | Maintain Speed",) * 3
+    + ("Straight > Aggressive Left Turn > Straight | Maintain Slow Speed",),
+    "gradual_right_turn": ("Straight > Right Turn > Straight | Maintain Speed",) * 3
+    + ("Straight > Gradual Right Turn > Straight | Maintain Slow Speed",),
+    "medium_right_turn": ("Straight > Right Turn > Straight | Maintain Speed",) * 3
+    + ("Straight > Medium Right Turn > Straight | Maintain Slow Speed",),
+    "aggressive_right_turn": ("Straight > Right Turn > Straight | Maintain Speed",) * 3
+    + ("Straight > Aggressive Right Turn > Straight | Maintain Slow Speed",),
+    # +0.12 for 1.5 s then -0.12 for 1.5 s: the step between reads (0.12 - 0.12)/2 = 0, a
+    # one-step Straight run. Trend: its 1 s window mean is ~0 (still Straight, still short),
+    # so it joins its longer neighbour; both are 15 steps, the earlier (Left) wins. Maneuver:
+    # Left then Right with no gap: Left Merge. 15 m/s: Medium.
+    "left_lane_change": (
+        "Straight > Left Turn > Straight > Right Turn > Straight | Maintain Speed",
+        "Straight > Left Turn > Right Turn > Straight | Maintain Speed",
+        "Straight > Left Merge > Straight | Maintain Speed",
+        "Straight > Left Merge > Straight | Maintain Medium Speed",
+    ),
+    "right_lane_change": (
+        "Straight > Right Turn > Straight > Left Turn > Straight | Maintain Speed",
+        "Straight > Right Turn > Left Turn > Straight | Maintain Speed",
+        "Straight > Right Merge > Straight | Maintain Speed",
+        "Straight > Right Merge > Straight | Maintain Medium Speed",
+    ),
+    # A 2 s straight pause (< 4 s) between the turns: the pause survives the trend stage
+    # (>= 1 s) and is swallowed by the merge.
+    "left_lane_change_with_pause": (
+        "Straight > Left Turn > Straight > Right Turn > Straight | Maintain Speed",
+        "Straight > Left Turn > Straight > Right Turn > Straight | Maintain Speed",
+        "Straight > Left Merge > Straight | Maintain Speed",
+        "Straight > Left Merge > Straight | Maintain Medium Speed",
+    ),
+    # 4.5 s of straight commanded; the right turn's leading edge step reads -0.05, so the
+    # straight run is 44 steps = 4.4 s > 4 s: two turns, no merge. Both turns are Medium.
+    "two_turns_apart": (
+        ("Straight > Left Turn > Straight > Right Turn > Straight | Maintain Speed",) * 3
+        + ("Straight > Medium Left Turn > Straight > Medium Right Turn > Straight | "
+           "Maintain Slow Speed",)
+    ),
+    # 1 s at 8 m/s, -2.5 m/s^2 for 3.2 s, 2.5 s stopped, +2 m/s^2 for 2.4 s. The first
+    # braking step reads (7.75 - 8)/0.2 = -1.25 (Maintain), so the first run is 1.1 s.
+    # Stopped from the first zero speed to the start of the pull-away. All speeds <= 8: Slow.
+    "stop_and_go": (
+        "Straight | Maintain Speed > Decelerate > Maintain Speed > Accelerate",
+        "Straight | Maintain Speed > Decelerate > Stopped > Accelerate",
+        "Straight | Maintain Speed > Decelerate > Stopped > Accelerate",
+        "Straight | Maintain Slow Speed > Decelerate Slow Speed > Stopped > "
+        "Accelerate Slow Speed",
+    ),
+    # 5 m/s + 3 m/s^2: Slow for 18 steps (v <= 10.214), Medium for 47, Fast for 14: every
+    # piece >= 1 s, so the run is split. The last 12 steps are Maintain (v constant; the
+    # step at the corner reads 1.5 <= 1.5557).
+    "accelerate_through_bands": (
+        ("Straight | Accelerate > Maintain Speed",) * 3
+        + ("Straight | Accelerate Slow Speed > Accelerate Medium Speed > "
+           "Accelerate Fast Speed > Maintain Fast Speed",)
+    ),
+    # Braking from 26 m/s at -4 m/s^2: only 4 steps of the Decelerate run are above
+    # 24.4046 (Fast), a piece < 1 s, so the whole run takes its mean speed (22.2): Medium.
+    "hard_brake": (
+        ("Straight | Maintain Speed > Decelerate > Maintain Speed",) * 3
+        + ("Straight | Maintain Fast Speed > Decelerate Medium Speed > "
+           "Maintain Medium Speed",)
+    ),
+    # A 0.4 s blip of 0.05 rad/s reads 0.025, 0.05 x3, 0.025: a 3-step Left Turn in the
+    # trace; its 1 s window mean is 0.02 <= w_str, so the low-pass makes it Straight.
+    "flicker": ("Straight > Left Turn > Straight | Maintain Speed",)
+    + ("Straight | Maintain Speed",) * 2 + ("Straight | Maintain Medium Speed",),
+}
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED))
+def test_behaviour_labels_at_every_level(name):
+    got = labels_of(tb.behaviour(name))
+    assert tuple(got[level] for level in LEVELS) == EXPECTED[name]
+
+
+def test_every_builtin_behaviour_has_hand_worked_labels():
+    assert set(EXPECTED) == set(tb.synthetic.BEHAVIOURS)
+
+
+def test_merge_gap_parameter_decides_a_merge():
+    table = tb.behaviour("left_lane_change_with_pause")
+    strict = tb.label(table, level="maneuver", config=tb.StageConfig(merge_gap=1.5))
+    assert strict["lateral"].item() == "Straight > Left Turn > Straight > Right Turn > Straight"
+
+
+def test_merges_pair_greedily_from_the_start():
+    # L, R, L, R all close together: (L, R) and (L, R) pair into two Left Merges joined.
+    yaw = np.concatenate([np.zeros(15), np.full(15, 0.12), np.full(15, -0.12), np.zeros(15),
+                          np.full(15, 0.12), np.full(15, -0.12), np.zeros(15)])
+    got = tb.label(from_controls(np.full(len(yaw), 15.0), yaw), level="maneuver")
+    assert got["lateral"].item() == "Straight > Left Merge > Straight > Left Merge > Straight"
+    # L, R, L: the first pair merges, the last Left stays a turn.
+    yaw = np.concatenate([np.zeros(15), np.full(15, 0.12), np.full(15, -0.12), np.zeros(15),
+                          np.full(15, 0.12), np.zeros(15)])
+    got = tb.label(from_controls(np.full(len(yaw), 15.0), yaw), level="maneuver")
+    assert got["lateral"].item() == "Straight > Left Merge > Straight > Left Turn > Straight"
+
+
+def test_turn_split_into_intensities_when_every_piece_lasts():
+    # 2 s at 0.05 (Gradual; its first step reads 0.025, Straight) then 2 s at 0.35: the
+    # corner reads 0.2 and the trailing edge 0.175, both Aggressive. Pieces of 19 and 21
+    # steps, both >= 1 s: kept apart.
+    yaw = np.concatenate([np.zeros(20), np.full(20, 0.05), np.full(20, 0.35), np.zeros(20)])
+    got = tb.label(from_controls(np.full(len(yaw), 8.0), yaw), level="action")
+    assert got["lateral"].item() == ("Straight > Gradual Left Turn > Aggressive Left Turn > "
+                                     "Straight")
+
+
+def test_stopped_vehicle_yaw_noise_is_straight():
+    rng = np.random.default_rng(0)
+    yaw = rng.normal(0.0, 0.2, 91)  # a parked car whose heading jitters
+    got = tb.label(from_controls(np.zeros(91), yaw), level="all")
+    assert set(got["sdl"][got["level"] != "trace"]) == {"Straight | Stopped"}
+
+
+def test_segment_table_tiles_each_trajectory():
+    result = tb.tap(tb.behaviour("stop_and_go"))
+    seg = result.segments("action")
+    for axis, part in seg.groupby("axis"):
+        assert part["t_start"].iloc[0] == 0.0
+        assert np.allclose(part["t_end"].iloc[-1], 9.1)
+        assert np.allclose(part["t_start"].to_numpy()[1:], part["t_end"].to_numpy()[:-1])
+    lon = seg[seg["axis"] == "longitudinal"]
+    assert lon["label"].tolist() == ["Maintain Slow Speed", "Decelerate Slow Speed", "Stopped",
+                                     "Accelerate Slow Speed"]
+    assert np.allclose(lon["t_start"], [0.0, 1.1, 4.2, 6.8])
+
+
+def test_step_table_has_every_level():
+    result = tb.tap(tb.behaviour("left_lane_change"))
+    steps = result.steps()
+    assert len(steps) == 91
+    assert steps["maneuver_lateral"].iloc[30] == "Left Merge"
+    assert steps["trace_lateral"].iloc[35] == "Straight"
+    assert steps["trend_lateral"].iloc[35] == "Left Turn"
+    assert steps["action_longitudinal"].iloc[0] == "Maintain Medium Speed"

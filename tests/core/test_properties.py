@@ -1,0 +1,129 @@
+"""Properties of TAP that hold for any valid trajectory table (hypothesis)."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pandas as pd
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import tap_bench as tb
+from tap_bench.synthetic import from_controls
+
+SETTINGS = settings(max_examples=40, deadline=None,
+                    suppress_health_check=[HealthCheck.too_slow])
+
+
+@st.composite
+def tracks(draw, max_tracks: int = 4):
+    """A table of 1..max_tracks tracks built from piecewise-constant controls with noise,
+    some rows invalid (gaps), all at 10 Hz."""
+    frames = []
+    n_tracks = draw(st.integers(1, max_tracks))
+    for k in range(n_tracks):
+        n = draw(st.integers(1, 120))
+        pieces = draw(st.lists(st.tuples(st.integers(1, 40), st.floats(-0.6, 0.6),
+                                         st.floats(-4.0, 4.0)), min_size=1, max_size=6))
+        yaw = np.concatenate([np.full(d, w) for d, w, _ in pieces])[:n]
+        acc = np.concatenate([np.full(d, a) for d, _, a in pieces])[:n]
+        if len(yaw) < n:
+            yaw = np.pad(yaw, (0, n - len(yaw)))
+            acc = np.pad(acc, (0, n - len(acc)))
+        v0 = draw(st.floats(0.0, 35.0))
+        speed = np.maximum(v0 + np.cumsum(acc) * 0.1, 0.0)
+        seed = draw(st.integers(0, 2**16))
+        rng = np.random.default_rng(seed)
+        yaw = yaw + rng.normal(0, draw(st.sampled_from([0.0, 0.01, 0.05])), n)
+        frame = from_controls(speed, yaw, scenario_id=f"s{k % 2}", track_id=str(k),
+                              heading0=draw(st.floats(-3.1, 3.1)))
+        if draw(st.booleans()):
+            frame["valid"] = rng.random(n) > draw(st.sampled_from([0.0, 0.05, 0.3]))
+        frames.append(frame)
+    table = pd.concat(frames, ignore_index=True)
+    if "valid" in table:
+        table["valid"] = table["valid"].fillna(True).astype(bool)
+    return table
+
+
+def _label(table: pd.DataFrame, level: str = "all") -> pd.DataFrame:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", tb.ShortSegmentWarning)
+        return tb.label(table, "paper", level=level)
+
+
+def _key(frame: pd.DataFrame) -> pd.DataFrame:
+    return frame.sort_values(["scenario_id", "track_id", "segment", "level"]).reset_index(
+        drop=True)
+
+
+@SETTINGS
+@given(tracks())
+def test_any_valid_table_labels_and_every_level_has_one_row_per_segment(table):
+    result = tb.tap(table)
+    labels = result.labels("all")
+    n_seg = len(result.segments_info)
+    assert len(labels) == 4 * n_seg
+    assert labels["sdl"].str.contains(" | ", regex=False).all()
+    # every step of every labelled segment is accounted for
+    assert int(result.segments_info["n_steps"].sum()) == len(result.step_t)
+    # vocabulary at each level
+    for level in tb.LEVELS:
+        part = labels[labels["level"] == level]
+        for axis in ("lateral", "longitudinal"):
+            words = {w for seq in part[axis] for w in seq.split(" > ")}
+            assert words <= set(tb.vocabulary(level, axis))
+
+
+@SETTINGS
+@given(tracks(), st.randoms(use_true_random=False))
+def test_labels_do_not_depend_on_row_order(table, rnd):
+    base = _label(table)
+    # interleave tracks time-major and shuffle the order of tracks; keep each track's order
+    order = list(table.groupby(["scenario_id", "track_id"], sort=False).groups.values())
+    rnd.shuffle(order)
+    shuffled = pd.concat([table.loc[idx] for idx in order])
+    shuffled = shuffled.assign(_k=shuffled.groupby(["scenario_id", "track_id"]).cumcount())
+    shuffled = shuffled.sort_values("_k", kind="stable").drop(columns="_k")
+    pd.testing.assert_frame_equal(_key(_label(shuffled)), _key(base))
+
+
+@SETTINGS
+@given(tracks(max_tracks=3), tracks(max_tracks=3))
+def test_labels_of_a_track_do_not_depend_on_other_tracks(table, others):
+    others = others.assign(scenario_id="other-" + others["scenario_id"])
+    alone = _label(table)
+    both = pd.concat([others, table], ignore_index=True)
+    if "valid" in both:
+        both["valid"] = both["valid"].fillna(True).astype(bool)
+    together = _label(both)
+    together = together[~together["scenario_id"].str.startswith("other-")]
+    pd.testing.assert_frame_equal(_key(together), _key(alone))
+
+
+@SETTINGS
+@given(tracks())
+def test_labelling_is_deterministic(table):
+    pd.testing.assert_frame_equal(_label(table), _label(table))
+
+
+@SETTINGS
+@given(tracks())
+def test_no_run_shorter_than_one_second_after_the_trace(table):
+    seg = tb.tap(table).segments("all")
+    later = seg[seg["level"] != "trace"]
+    assert ((later["t_end"] - later["t_start"]) >= 1.0 - 1e-9).all()
+
+
+def _swap(text: str) -> str:
+    return text.replace("Left", "\0").replace("Right", "Left").replace("\0", "Right")
+
+
+@SETTINGS
+@given(tracks())
+def test_mirrored_trajectories_swap_left_and_right(table):
+    mirrored = table.assign(y=-table["y"], heading=-table["heading"])
+    a, b = _label(table), _label(mirrored)
+    assert b["lateral"].tolist() == [_swap(x) for x in a["lateral"]]
+    assert b["longitudinal"].tolist() == a["longitudinal"].tolist()
