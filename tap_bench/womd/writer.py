@@ -226,15 +226,17 @@ def _scenario_record(scenario_id: str, group: pd.DataFrame, extras: Sequence[str
         for i in chosen:
             scenario.tracks_to_predict.add(track_index=int(i), difficulty=int(difficulty[i]))
     parts = [scenario.SerializeToString()]
-    by_track = group.groupby(track_codes, sort=False) if extras else None
+    if extras:
+        by_track = np.argsort(track_codes, kind="stable")
+        bounds = np.searchsorted(track_codes[by_track], np.arange(n_tracks + 1))
     for i in range(n_tracks):
         track = proto.Track(id=ids[i], object_type=_TYPE_NUMBERS[otype[i]])
         if keep_strings:
             track.tap_bench_track_id = str(track_names[i])
         if extras:
-            rows = by_track.get_group(i)
-            track.tap_bench_columns = _extra_columns(rows, slot[rows.index.to_numpy()],
-                                                     n_steps, extras)
+            rows = by_track[bounds[i]:bounds[i + 1]]
+            track.tap_bench_columns = _extra_columns(group.iloc[rows], slot[rows], n_steps,
+                                                     extras)
         body = track.SerializeToString() + states[i].tobytes()
         parts.append(_TRACKS_FIELD_TAG + _varint(len(body)) + body)
     return b"".join(parts)
