@@ -171,7 +171,7 @@ def test_tf_example_layout_matches_a_scenario_laid_out_by_hand(womd_dir):
                 + [-1.0] * (pad * n))
         put("valid", [int(s.valid) for t in tracks for s in t.states[steps]] + [0] * (pad * n),
             "int64_list")
-        put("timestamp_micros", [int(round(x * 1e6)) for _ in tracks for x in times[steps]]
+        put("timestamp_micros", [round(x * 1e6) for _ in tracks for x in times[steps]]
             + [-1] * (pad * n), "int64_list")
     got = decode_tf_example(Record("made.tfrecord", 0, 0, example.SerializeToString())
                             ).to_pandas()

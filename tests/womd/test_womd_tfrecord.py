@@ -121,7 +121,7 @@ def test_file_ending_inside_a_header(tmp_path):
 def test_a_file_that_is_not_a_tfrecord(tmp_path):
     path = tmp_path / "notes.txt"
     path.write_text("these are not the records you are looking for")
-    with pytest.raises(WomdRecordError, match="record 0 at byte 0: .*not a TFRecord file"):
+    with pytest.raises(WomdRecordError, match=r"record 0 at byte 0: .*not a TFRecord file"):
         list(iter_records(path))
 
 
