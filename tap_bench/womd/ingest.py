@@ -41,6 +41,14 @@ FORMATS = ("auto", "scenario", "tf_example", "scenarionet")
 ON_ERROR = ("stop", "skip")
 BATCH_BYTES = 8 << 20
 """Records are sent to worker processes in batches of about this many bytes."""
+ROW_GROUP_ROWS = 1 << 18
+"""Rows per Parquet row group: tables are gathered to this size before they are written."""
+PARQUET_OPTIONS = {
+    "compression": "snappy",
+    # Dictionary pages for the repetitive string columns only: on float columns they cost
+    # more time than they save space.
+    "use_dictionary": ["scenario_id", "track_id", "object_type", "source"],
+}
 _SCENARIONET_INDEX = {"dataset_summary.pkl", "dataset_mapping.pkl"}
 
 
@@ -359,15 +367,31 @@ def ingest_womd(paths: str | os.PathLike | Iterable[str | os.PathLike],
     try:
         with atomic_path(output) as tmp:
             writer = None
+            pending: list[pa.Table] = []
+            pending_rows = 0
+
+            def flush() -> None:
+                nonlocal writer, pending, pending_rows
+                if not pending:
+                    return
+                table = pa.concat_tables(pending, promote_options="default")
+                if writer is None:
+                    writer = pq.ParquetWriter(tmp, table.schema, **PARQUET_OPTIONS)
+                elif table.schema != writer.schema:
+                    table = table.cast(writer.schema)
+                writer.write_table(table, row_group_size=ROW_GROUP_ROWS)
+                pending, pending_rows = [], 0
+
             try:
                 for table in _iter_tables(paths, format=format, object_types=object_types,
                                           on_error=on_error, check_crc=check_crc,
                                           workers=workers, report=report, log=log,
                                           batch_bytes=batch_bytes, progress=advance):
-                    if writer is None:
-                        writer = pq.ParquetWriter(tmp, table.schema)
-                    writer.write_table(table.cast(writer.schema)
-                                       if table.schema != writer.schema else table)
+                    pending.append(table)
+                    pending_rows += table.num_rows
+                    if pending_rows >= ROW_GROUP_ROWS:
+                        flush()
+                flush()
                 if writer is None:  # nothing kept: an empty table with the columns
                     from tap_bench.womd.scenario import SCENARIO_COLUMNS
 

@@ -128,8 +128,8 @@ def _state_positions(buf: np.ndarray, first: np.ndarray, n_steps: int
     """Positions and lengths of the ``states`` fields of serialized tracks.
 
     Each track's ``n_steps`` states follow one another from ``first`` (protobuf writes
-    fields in number order: id, object_type, then the states). The tracks are walked in
-    lockstep, one state of every track per step.
+    fields in number order: id, object_type, then the states). Tracks whose states all
+    have the first one's length are placed at once; the others are walked in lockstep.
 
     Returns:
         (n_tracks, n_steps) int64 payload positions and lengths.
@@ -138,19 +138,39 @@ def _state_positions(buf: np.ndarray, first: np.ndarray, n_steps: int
         StateDecodeError: a field other than a state where a state should be.
     """
     n_tracks = len(first)
-    pos = np.empty((n_steps, n_tracks), dtype=np.int64)
-    size = np.empty((n_steps, n_tracks), dtype=np.int64)
-    at = first.astype(np.int64)
+    first = first.astype(np.int64)
+    # Most tracks have states of one length (every field set, or WOMD's short invalid
+    # states throughout): their positions follow from the first one. Check them all at once.
+    length = buf[first + 1].astype(np.int64)
+    stride = np.where(length < 0x80, length + 2, 0)
+    grid = np.minimum(first[:, None] + stride[:, None] * np.arange(n_steps), len(buf) - 2)
+    regular = (stride > 0) & (buf[grid] == _STATES_TAG).all(axis=1) \
+        & (buf[grid + 1] == length[:, None]).all(axis=1)
+    pos = grid + 2
+    size = np.broadcast_to(length[:, None], (n_tracks, n_steps)).copy()
+    others = np.flatnonzero(~regular)
+    if others.size:
+        pos[others], size[others] = _walk_states(buf, first[others], n_steps, others)
+    return pos.ravel(), size.ravel()
+
+
+def _walk_states(buf: np.ndarray, first: np.ndarray, n_steps: int, tracks: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """State positions and lengths of tracks whose states differ in length, walked in
+    lockstep: one state of every track per step. ``tracks`` numbers them for errors."""
+    pos = np.empty((n_steps, len(first)), dtype=np.int64)
+    size = np.empty((n_steps, len(first)), dtype=np.int64)
+    at = first
     for step in range(n_steps):
         tags = buf[at]
         if (tags != _STATES_TAG).any():
-            track = int(np.flatnonzero(tags != _STATES_TAG)[0])
+            track = int(tracks[np.flatnonzero(tags != _STATES_TAG)[0]])
             raise StateDecodeError("expected a state (field 3) here", track * n_steps + step)
         length = buf[at + 1].astype(np.int64)
         if (length & 0x80).any():  # a state of 128 bytes or more: a longer varint
             value, start, too_long = _varint(buf, at + 1)
             if too_long.any():
-                track = int(np.flatnonzero(too_long)[0])
+                track = int(tracks[np.flatnonzero(too_long)[0]])
                 raise StateDecodeError("malformed length of a state", track * n_steps + step)
             length = value.astype(np.int64)
         else:
@@ -158,7 +178,7 @@ def _state_positions(buf: np.ndarray, first: np.ndarray, n_steps: int
         pos[step] = start
         size[step] = length
         at = start + length
-    return pos.T.ravel(), size.T.ravel()
+    return pos.T, size.T
 
 
 def _header_size(track: bytes) -> int:
