@@ -18,9 +18,10 @@ by minimising J (:mod:`tap_bench.objective`) with four methods:
     The sampling cross-entropy method (de Boer et al., 2005): Gaussian proposals around
     each start, the best 10 % refit the mean and spread (smoothing 0.7), 60 iterations.
 ``grid``
-    Exhaustive search over a lattice of the data's quantiles (every increasing tuple of
-    72 values for three thresholds, 300 for two), then two rounds of a finer local
-    lattice around the best cell. It is the reference the others are measured against.
+    Exhaustive search over a lattice of split ranks (every increasing tuple of 72 ranks
+    evenly spaced over the sorted data for three thresholds, 300 for two), then finer
+    local lattices around the best down to single samples. It is the reference the
+    others are measured against.
 """
 
 from __future__ import annotations
@@ -216,36 +217,65 @@ def _increasing_tuples(values: np.ndarray, d: int) -> np.ndarray:
     return values[idx]
 
 
-def _best_of(s: SortedSamples, thetas: np.ndarray, chunk: int = 20000) -> tuple[np.ndarray, float]:
-    best_j, best = np.inf, None
-    for lo in range(0, len(thetas), chunk):
-        j = s.objective(thetas[lo:lo + chunk])
+def _argmin(evaluate, candidates: np.ndarray, chunk: int = 20000) -> tuple[int, float]:
+    """Row of ``candidates`` with the lowest ``evaluate(rows)`` (first on ties), and its J."""
+    best_j, best = np.inf, -1
+    for lo in range(0, len(candidates), chunk):
+        j = evaluate(candidates[lo:lo + chunk])
         k = int(np.argmin(j))
         if j[k] < best_j:
-            best_j, best = float(j[k]), thetas[lo + k]
+            best_j, best = float(j[k]), lo + k
     return best, best_j
 
 
-def grid_search(s: SortedSamples, d: int, size: int | None = None, refine: int = 2,
-                fine: int = 9) -> tuple[np.ndarray, float]:
-    """Exhaustive search on a quantile lattice, then ``refine`` rounds of local lattices."""
-    size = size or (72 if d >= 3 else 300)
-    probs = np.linspace(0.0005, 0.9995, size)
-    values = np.unique(np.quantile(s.x, probs))
-    best, best_j = _best_of(s, _increasing_tuples(values, d))
-    if best is None:
+def grid_search(s: SortedSamples, d: int, size: int | None = None, fine: int = 17,
+                seeds: int = 4) -> tuple[np.ndarray, float]:
+    """Exhaustive search on a rank lattice, refined down to single samples.
+
+    Thresholds only matter through where they split the sorted samples, so the search runs
+    over split ranks r where x[r-1] < x[r] (threshold halfway between them): first every
+    increasing d-tuple of ``size`` split ranks evenly spaced over the data (72 for d = 3,
+    300 for d = 2), then local lattices of ``fine`` split ranks per threshold around each
+    of the ``seeds`` best lattice points, shrinking until neighbouring splits are tried.
+    """
+    x = s.x
+    splits = np.flatnonzero(x[1:] > x[:-1]) + 1  # ranks where a threshold can fall
+    m = len(splits)
+    if m < d:
         raise TapBenchError("no feasible thresholds on the grid: too few distinct samples")
-    spacing = np.gradient(values) if len(values) > 1 else np.ones(1)
-    width = np.interp(best, values, spacing)
-    for _ in range(refine):
-        axes = [np.linspace(b - w, b + w, fine) for b, w in zip(best, width, strict=True)]
-        local = np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")], axis=1)
-        local = local[np.all(np.diff(local, axis=1) > 0, axis=1)]
-        cand, cand_j = _best_of(s, local)
-        if cand is not None and cand_j <= best_j:
-            best, best_j = cand, cand_j
-        width = width * 2.0 / (fine - 1)
-    return np.asarray(best, dtype=np.float64), best_j
+
+    def evaluate(idx: np.ndarray) -> np.ndarray:
+        return s.objective_at_ranks(splits[idx])
+
+    size = min(size or (72 if d >= 3 else 300), m)
+    lattice = np.unique(np.linspace(0, m - 1, size).round().astype(np.int64))
+    tuples = _increasing_tuples(lattice, d)
+    j_lattice = np.concatenate([evaluate(tuples[lo:lo + 20000])
+                                for lo in range(0, len(tuples), 20000)])
+    if not np.isfinite(j_lattice).any():
+        raise TapBenchError("no feasible thresholds on the grid: too few distinct samples")
+    best, best_j = tuples[0], np.inf
+    # J has several basins: refine from the `seeds` best lattice points, keep the lowest.
+    for k in np.argsort(j_lattice, kind="stable")[:seeds]:
+        if not np.isfinite(j_lattice[k]):
+            break
+        cell, cell_j = tuples[k], float(j_lattice[k])
+        step = max(1, int(np.ceil((m - 1) / max(len(lattice) - 1, 1))))
+        while True:
+            offsets = np.unique(np.linspace(-step, step, fine).round().astype(np.int64))
+            axes = [np.clip(b + offsets, 0, m - 1) for b in cell]
+            local = np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")], axis=1)
+            local = local[np.all(np.diff(local, axis=1) > 0, axis=1)]
+            i, j = _argmin(evaluate, local)
+            if i >= 0 and j <= cell_j:
+                cell, cell_j = local[i], j
+            if step == 1:
+                break
+            step = max(1, step * 2 // (fine - 1))
+        if cell_j < best_j:
+            best, best_j = cell, cell_j
+    ranks = splits[best]
+    return 0.5 * (x[ranks - 1] + x[ranks]), best_j
 
 
 # -- fitting --------------------------------------------------------------------------------

@@ -124,7 +124,9 @@ class SortedSamples:
             (counts, mu): (K, d + 1) int64 and float64; mu is NaN where a partition holds
             fewer than two samples.
         """
-        b = self.bounds(thetas)
+        return self._stats(self.bounds(thetas))
+
+    def _stats(self, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         lo_idx, hi_idx = b[:, :-1], b[:, 1:]
         m = hi_idx - lo_idx
         s1h, s1l = self._s1
@@ -145,10 +147,26 @@ class SortedSamples:
     def objective(self, thetas: np.ndarray) -> np.ndarray:
         """J for each row of ``thetas`` ((K, d) -> (K,)); +inf where a row is infeasible."""
         thetas = np.atleast_2d(np.asarray(thetas, dtype=np.float64))
-        counts, mu = self.partition_stats(thetas)
-        diff = mu[:, :, None] - mu[:, None, :]
-        j = np.nansum(np.triu(diff**2, k=1).reshape(len(mu), -1), axis=1) if mu.size else \
-            np.zeros(0)
+        if len(thetas) == 0:
+            return np.zeros(0)
         ordered = np.all(np.diff(thetas, axis=1) > 0, axis=1)
-        feasible = ordered & np.all(counts >= 2, axis=1)
-        return np.where(feasible, j, np.inf)
+        return np.where(ordered, self._objective(self.bounds(thetas)), np.inf)
+
+    def objective_at_ranks(self, ranks: np.ndarray) -> np.ndarray:
+        """J when the partitions end at the given split ranks ((K, d) ints in 1..n-1).
+
+        Equal to :meth:`objective` at thresholds between x[r-1] and x[r] where those differ;
+        no binary search needed.
+        """
+        ranks = np.atleast_2d(np.asarray(ranks, dtype=np.int64))
+        k = len(ranks)
+        b = np.hstack([np.zeros((k, 1), dtype=np.int64), ranks,
+                       np.full((k, 1), len(self.x), dtype=np.int64)])
+        return self._objective(b)
+
+    def _objective(self, b: np.ndarray) -> np.ndarray:
+        counts, mu = self._stats(b)
+        # sum over pairs p < q of (mu_p - mu_q)^2 = P * sum_p (mu_p - mean mu)^2 (stable)
+        centred = mu - np.nanmean(mu, axis=1, keepdims=True)
+        j = mu.shape[1] * np.nansum(centred**2, axis=1)
+        return np.where(np.all(counts >= 2, axis=1), j, np.inf)

@@ -166,7 +166,8 @@ def _numeric(table: pd.DataFrame, col: str, source: str) -> np.ndarray:
         if pd.api.types.is_bool_dtype(series) or bad.any():
             pos = int(np.flatnonzero(bad)[0]) if bad.any() else 0
             _fail(f"column {col!r} must be numeric; {_where(table, pos)} holds "
-                  f"{_plain(series.iloc[pos])!r}. Convert it to a number.", source, column=col, row=pos)
+                  f"{_plain(series.iloc[pos])!r}. Convert it to a number.", source,
+                  column=col, row=pos)
         series = converted
     return series.to_numpy(dtype=np.float64, na_value=np.nan)
 
@@ -340,9 +341,10 @@ def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table")
     big = valid & (np.abs(heading) > _TWO_PI + 1e-6)
     if big.any():
         pos = int(np.flatnonzero(big)[0])
-        _fail(f"heading {float(heading[pos])!r} at {_where(table, pos)} is beyond 2*pi: headings look "
-              "like degrees. Convert with numpy.deg2rad (radians, counter-clockwise from +x); "
-              "if they are unwrapped radians, wrap them to (-pi, pi].", source,
+        _fail(f"heading {float(heading[pos])!r} at {_where(table, pos)} is beyond 2*pi: "
+              "headings look like degrees. Convert with numpy.deg2rad (radians, "
+              "counter-clockwise from +x); if they are unwrapped radians, wrap them to "
+              "(-pi, pi].", source,
               column="heading", row=pos)
 
     if "object_type" in table.columns:
@@ -368,13 +370,19 @@ def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table")
     if back.any():
         i = int(np.flatnonzero(back)[0])
         a, b = (i, i + 1) if order is None else (int(order[i]), int(order[i + 1]))
+        track_rows = np.flatnonzero(np.cumsum(new_track) == np.cumsum(new_track)[i + 1])
+        same_t = track_rows[(t[track_rows] == t[i + 1]) & (track_rows < i + 1)]
+        if len(same_t):  # the same time appears earlier in the track: a duplicate
+            a = int(same_t[0]) if order is None else int(order[same_t[0]])
+            _fail(f"duplicate (scenario_id, track_id, t): {_where(table, b)} repeats row {a}. "
+                  "Drop one of them.", source, column="t", row=b)
         if dt[i] == 0:
             _fail(f"duplicate (scenario_id, track_id, t): {_where(table, b)} repeats row {a}. "
                   "Drop one of them.", source, column="t", row=b)
         _fail(f"t is not increasing within a track: {_where(table, b)} goes back from "
-              f"t={float(t[i])!r} at row {a}. Rows of one track must be in time order; tap-bench does "
-              "not sort them silently: sort by t yourself if the order is only a storage "
-              "accident.", source, column="t", row=b)
+              f"t={float(t[i])!r} at row {a}. Rows of one track must be in time order; "
+              "tap-bench does not sort them silently: sort by t yourself if the order is only "
+              "a storage accident.", source, column="t", row=b)
 
     steps = dt / DT
     whole = np.round(steps)

@@ -164,7 +164,7 @@ def test_stopped_vehicle_yaw_noise_is_straight():
 def test_segment_table_tiles_each_trajectory():
     result = tb.tap(tb.behaviour("stop_and_go"))
     seg = result.segments("action")
-    for axis, part in seg.groupby("axis"):
+    for _axis, part in seg.groupby("axis"):
         assert part["t_start"].iloc[0] == 0.0
         assert np.allclose(part["t_end"].iloc[-1], 9.1)
         assert np.allclose(part["t_start"].to_numpy()[1:], part["t_end"].to_numpy()[:-1])

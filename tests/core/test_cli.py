@@ -1,0 +1,117 @@
+"""The ``tap-bench`` command: sample, label, fit, and its errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import tap_bench as tb
+from tap_bench.cli import main
+
+
+@pytest.fixture
+def sample(tmp_path):
+    path = tmp_path / "sample.parquet"
+    assert main(["sample", "-o", str(path), "--random", "30"]) == 0
+    return path
+
+
+def test_label_all_levels_with_segments_and_steps(sample, tmp_path, capsys):
+    out, seg, steps = tmp_path / "l.csv", tmp_path / "s.parquet", tmp_path / "st.parquet"
+    code = main(["label", str(sample), "-o", str(out), "--level", "all", "--segments", str(seg),
+                 "--steps", str(steps)])
+    assert code == 0
+    labels = tb.read_table(out)
+    assert set(labels["level"]) == set(tb.LEVELS)
+    assert len(labels) == 4 * (18 + 30)
+    assert list(labels.columns[:9]) == ["scenario_id", "track_id", "segment", "level",
+                                        "lateral", "longitudinal", "sdl", "t_start", "t_end"]
+    segments = pd.read_parquet(seg)
+    assert {"axis", "label"} <= set(segments.columns)
+    assert len(pd.read_parquet(steps)) == len(tb.read_table(sample))
+    text = capsys.readouterr().out
+    assert "labelled 48 segment(s)" in text and "distinct action-level labels" in text
+
+
+def test_label_default_level_is_action(sample, tmp_path):
+    out = tmp_path / "l.parquet"
+    assert main(["label", str(sample), "-o", str(out)]) == 0
+    assert set(pd.read_parquet(out)["level"]) == {"action"}
+
+
+def test_csv_ids_that_look_numeric_stay_strings(tmp_path):
+    table = tb.behaviour("cruise_slow", scenario_id="007", track_id="0042")
+    path = tmp_path / "t.csv"
+    table.to_csv(path, index=False)
+    out = tmp_path / "l.csv"
+    assert main(["label", str(path), "-o", str(out)]) == 0
+    labels = tb.read_table(out)
+    assert labels[["scenario_id", "track_id"]].iloc[0].tolist() == ["007", "0042"]
+
+
+def test_fit_then_label_with_the_fitted_thresholds(sample, tmp_path, capsys):
+    th = tmp_path / "th.json"
+    assert main(["fit", str(sample), "-o", str(th), "--methods", "descent", "grid"]) == 0
+    text = capsys.readouterr().out
+    for dist in ("w:", "a:", "v:"):
+        assert dist in text
+    assert "dJ_to_grid" in text and "chosen:" in text
+    doc = json.loads(th.read_text())
+    assert doc["provenance"]["dataset"] == str(sample)
+    out = tmp_path / "l.parquet"
+    assert main(["label", str(sample), "-o", str(out), "--thresholds", str(th)]) == 0
+
+
+def test_errors_name_the_file_and_exit_2(tmp_path, capsys):
+    bad = tmp_path / "bad.csv"
+    table = tb.behaviour("cruise_slow")
+    table.loc[3, "speed"] = -1.0
+    table.to_csv(bad, index=False)
+    out = tmp_path / "l.csv"
+    assert main(["label", str(bad), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert str(bad) in err and "row 3" in err and "negative" in err
+    assert not out.exists()  # nothing half-written
+    assert main(["label", str(tmp_path / "none.parquet"), "-o", str(out)]) == 2
+    assert "no such file" in capsys.readouterr().err
+    assert main(["label", str(bad), "-o", str(tmp_path / "l.txt")]) == 2
+    assert main(["label", str(bad), "-o", str(out), "--thresholds", "papr"]) == 2
+    assert "Did you mean 'paper'" in capsys.readouterr().err
+
+
+def test_short_segments_report(tmp_path, capsys):
+    table = tb.behaviour("cruise_slow").assign(valid=True)
+    table.loc[4, "valid"] = False
+    path, out, rep = tmp_path / "t.parquet", tmp_path / "l.parquet", tmp_path / "short.csv"
+    tb.write_table(table, path)
+    assert main(["label", str(path), "-o", str(out), "--report", str(rep)]) == 0
+    assert "shorter than 1 s" in capsys.readouterr().err
+    assert tb.read_table(rep)["n_steps"].tolist() == [4]
+
+
+def test_write_is_atomic(tmp_path, monkeypatch):
+    target = tmp_path / "x.parquet"
+    tb.write_table(pd.DataFrame({"a": [1]}), target)
+
+    def boom(self, path, **kw):
+        with open(path, "wb") as fh:
+            fh.write(b"partial")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(pd.DataFrame, "to_parquet", boom)
+    with pytest.raises(OSError):
+        tb.write_table(pd.DataFrame({"a": [2]}), target)
+    monkeypatch.undo()
+    assert pd.read_parquet(target)["a"].tolist() == [1]
+    assert [p.name for p in tmp_path.iterdir()] == ["x.parquet"]
+
+
+def test_resampled_table_labels_like_the_original():
+    table = tb.behaviour("aggressive_right_turn")
+    two_hz = table.iloc[::5].reset_index(drop=True)
+    back = tb.resample_to_10hz(two_hz)
+    assert np.allclose(back["t"].diff().dropna(), 0.1)
+    assert tb.label(back)["sdl"].item() == tb.label(table)["sdl"].item()
