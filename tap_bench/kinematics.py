@@ -105,8 +105,12 @@ def window_means(signal: np.ndarray, starts: np.ndarray, width: int) -> np.ndarr
     """
     if len(starts) == 0:
         return np.zeros(0)
-    idx = starts[:, None] + np.arange(width)[None, :]
-    return signal[idx].sum(axis=1) / width
+    # reduceat over (start, start + width) pairs sums each window on its own, in order.
+    bounds = np.empty(2 * len(starts), dtype=np.int64)
+    bounds[0::2] = starts
+    bounds[1::2] = starts + width
+    padded = np.append(signal, 0.0)  # so that start + width may equal len(signal)
+    return np.add.reduceat(padded, bounds)[0::2] / width
 
 
 def one_second_samples(table: pd.DataFrame | Kinematics, *, source: str = "trajectory table"

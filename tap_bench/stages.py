@@ -212,21 +212,28 @@ def _merges(runs: Runs, gap_steps: int) -> Runs:
 
 
 def _refine(runs: Runs, signal: np.ndarray, classes: np.ndarray, refine: np.ndarray,
-            bounds: tuple[float, float], layout: _Layout, min_steps: int) -> np.ndarray:
-    """Per-step class (0, 1, 2) inside the runs flagged by ``refine`` (R,) bool.
+            bounds: tuple[float, float], min_steps: int) -> np.ndarray:
+    """Per-step class (0, 1, 2) inside the runs flagged by ``refine`` (R,) bool, else 0.
 
     A run keeps its per-step classes if every piece of one class is at least ``min_steps``
     long; otherwise the whole run takes the class of its mean ``signal``.
     """
-    run_id = np.repeat(np.arange(len(runs.start)), runs.length)
-    pieces = find_runs(run_id * 4 + classes, layout.seg, layout.seg_first)
-    first_piece = np.searchsorted(pieces.start, runs.start)
-    shortest = np.minimum.reduceat(pieces.length, first_piece)
+    m = len(classes)
+    run_start = np.zeros(m, dtype=bool)
+    run_start[runs.start] = True
+    piece_start = run_start.copy()
+    piece_start[1:] |= classes[1:] != classes[:-1]
+    starts = np.flatnonzero(piece_start)
+    lengths = np.diff(np.append(starts, m))
+    first_piece = np.searchsorted(starts, runs.start)
+    shortest = np.minimum.reduceat(lengths, first_piece)
     mean = np.add.reduceat(signal, runs.start) / runs.length
     run_class = np.where(mean <= bounds[0], 0, np.where(mean <= bounds[1], 1, 2))
-    uniform = shortest < min_steps
-    out = np.where(np.repeat(uniform, runs.length), np.repeat(run_class, runs.length), classes)
-    return np.where(np.repeat(refine, runs.length), out, 0)
+    # per run: -1 keeps the per-step classes, 0..2 is the class of the whole run, and runs
+    # that are not refined get 0.
+    choice = np.where(refine, np.where(shortest < min_steps, run_class, -1), 0)
+    per_step = np.repeat(choice, runs.length)
+    return np.where(per_step < 0, classes, per_step)
 
 
 def run_stages(w: np.ndarray, a: np.ndarray, v: np.ndarray, seg_length: np.ndarray,
@@ -282,10 +289,9 @@ def run_stages(w: np.ndarray, a: np.ndarray, v: np.ndarray, seg_length: np.ndarr
 
     # Stage 4: action.
     abs_w = np.abs(w_eff)
-    w_class = np.where(abs_w <= th.w_grad, 0, np.where(abs_w <= th.w_med, 1, 2))
+    w_class = (abs_w > th.w_grad).astype(np.int8) + (abs_w > th.w_med)
     is_turn = (lat_runs.code == sdl.LEFT) | (lat_runs.code == sdl.RIGHT)
-    intensity = _refine(lat_runs, abs_w, w_class, is_turn, (th.w_grad, th.w_med), layout,
-                        min_steps)
+    intensity = _refine(lat_runs, abs_w, w_class, is_turn, (th.w_grad, th.w_med), min_steps)
     side = np.where(maneuver_lat == sdl.RIGHT, 1, 0)
     action_lat = np.select(
         [maneuver_lat == sdl.STRAIGHT, maneuver_lat == sdl.LEFT_MERGE,
@@ -294,9 +300,9 @@ def run_stages(w: np.ndarray, a: np.ndarray, v: np.ndarray, seg_length: np.ndarr
         1 + 3 * side + intensity,
     )
     long_runs = find_runs(trend_long, seg, seg_first)
-    v_class = np.where(v <= th.v_slow, 0, np.where(v <= th.v_med, 1, 2))
+    v_class = (v > th.v_slow).astype(np.int8) + (v > th.v_med)
     moving = long_runs.code != sdl.STOPPED
-    speed = _refine(long_runs, v, v_class, moving, (th.v_slow, th.v_med), layout, min_steps)
+    speed = _refine(long_runs, v, v_class, moving, (th.v_slow, th.v_med), min_steps)
     action_long = np.where(trend_long == sdl.STOPPED, sdl.ACTION_STOPPED,
                            3 * trend_long + speed)
 
