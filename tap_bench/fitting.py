@@ -61,7 +61,8 @@ class FitRun:
     Attributes:
         dist: ``"w"``, ``"a"`` or ``"v"``.
         method: one of :data:`METHODS`.
-        start: the starting guess (None for the grid).
+        start: the starting guess actually used (None for the grid): the paper's guess, or
+            the equal-count quantiles where that guess was infeasible on the data.
         theta: the thresholds reached, in increasing order [unit of ``dist``].
         objective: J at ``theta`` [unit^2].
         history: J after each epoch or iteration.
@@ -278,6 +279,24 @@ def grid_search(s: SortedSamples, d: int, size: int | None = None, fine: int = 1
     return 0.5 * (x[ranks - 1] + x[ranks]), best_j
 
 
+def feasible_starts(s: SortedSamples, starts: np.ndarray) -> np.ndarray:
+    """Starting guesses moved into the feasible set where they are not in it.
+
+    A start that leaves a partition with fewer than two samples (say, a 22 m/s threshold on
+    urban data with nothing faster) would give J = inf and never move. Such a start is
+    replaced by thresholds at the data's (i+1)/(d+1) quantiles, which split the samples
+    into d + 1 equal parts; feasible starts are kept as they are.
+    """
+    starts = np.array(starts, dtype=np.float64)
+    bad = ~s.feasible(starts)
+    if bad.any():
+        d = starts.shape[1]
+        ranks = np.round(np.arange(1, d + 1) * len(s) / (d + 1)).astype(np.int64)
+        quantile = 0.5 * (s.x[ranks - 1] + s.x[ranks])
+        starts[bad] = quantile
+    return starts
+
+
 # -- fitting --------------------------------------------------------------------------------
 def _samples(data: pd.DataFrame | dict[str, np.ndarray], v_stop: float
              ) -> dict[str, np.ndarray]:
@@ -324,6 +343,7 @@ def fit_report(data: pd.DataFrame | dict[str, np.ndarray], *,
     samples = _samples(data, v_stop)
     rng = np.random.default_rng(seed)
     fits: dict[str, DistributionFit] = {}
+    moved: dict[str, list[tuple[float, ...]]] = {}
     for dist in DISTRIBUTIONS:
         x = samples[dist]
         d = len(starts[dist][0])
@@ -333,7 +353,10 @@ def fit_report(data: pd.DataFrame | dict[str, np.ndarray], *,
                 f"fitting {d} thresholds needs at least {2 * (d + 1)} (two per partition). "
                 "Fit on more data, or label with --thresholds paper.")
         s = SortedSamples(x)
-        start_arr = np.array(starts[dist], dtype=np.float64)
+        start_arr = feasible_starts(s, np.array(starts[dist], dtype=np.float64))
+        moved[dist] = sorted({tuple(map(float, a)) for a, b in
+                              zip(start_arr, starts[dist], strict=True)
+                              if tuple(map(float, a)) != tuple(map(float, b))})
         eps, eta = hyper[dist]
         runs: list[FitRun] = []
         for method in methods:
@@ -344,9 +367,9 @@ def fit_report(data: pd.DataFrame | dict[str, np.ndarray], *,
             else:
                 results = descent(s, start_arr, eps, eta, epochs,
                                   step="paper" if method == "descent" else "scaled")
-            for st, (theta, j, hist) in zip(starts[dist], results, strict=True):
-                runs.append(FitRun(dist, method, tuple(st), tuple(map(float, theta)), j,
-                                   tuple(hist)))
+            for st, (theta, j, hist) in zip(start_arr, results, strict=True):
+                runs.append(FitRun(dist, method, tuple(map(float, st)),
+                                   tuple(map(float, theta)), j, tuple(hist)))
         grid = None
         if "grid" in methods:
             theta, j = grid_search(s, d)
@@ -374,6 +397,7 @@ def fit_report(data: pd.DataFrame | dict[str, np.ndarray], *,
                 "eps_eta": {d: list(hyper[d]) for d in DISTRIBUTIONS},
                 "chosen_start": {d: list(fits[d].chosen.start) if fits[d].chosen.start
                                  else None for d in DISTRIBUTIONS},
+                "starts_moved_into_data": {d: moved[d] for d in DISTRIBUTIONS},
                 "v_stop_fixed": v_stop, "names": {d: list(NAMES[d]) for d in NAMES},
                 "tap_bench": __version__,
             },

@@ -164,3 +164,16 @@ def test_fit_select_one_method():
     assert th.provenance.method == {"w": "descent", "a": "descent", "v": "descent"}
     with pytest.raises(tb.UnknownNameError, match="Did you mean 'cem'"):
         tb.fit_thresholds(table, methods=("cme",))
+
+
+def test_infeasible_starts_are_moved_into_the_data():
+    # urban speeds: nothing above 15 m/s, so the paper's v starts (med 22..26) are infeasible
+    rng = np.random.default_rng(3)
+    samples = {"w": rng.gamma(1.0, 0.02, 900), "a": rng.normal(0, 1, 900),
+               "v": rng.uniform(0.2, 15.0, 900)}
+    report = tb.fit_report(samples, methods=("descent", "grid"))
+    runs = report.fits["v"].runs
+    assert all(np.isfinite(r.objective) for r in runs)
+    assert all(r.start[1] < 15.0 for r in runs)
+    moved = report.thresholds.provenance.details["starts_moved_into_data"]["v"]
+    assert len(moved) == 1  # the three infeasible starts all became the same quantile start
