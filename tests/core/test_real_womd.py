@@ -1,0 +1,63 @@
+"""The TAP core on the real WOMD files of ../shared/data/womd (skipped when absent)."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tap_bench as tb
+from tap_bench.trajectories import validate_and_index
+
+DATA = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "womd"
+FILES = ["motion_data_one_scenario.tfrecord", "womd_scenario_input.tfrecord"]
+
+pytestmark = pytest.mark.womd
+
+
+@pytest.fixture(scope="module")
+def vehicles():
+    if not all((DATA / f).is_file() for f in FILES):
+        pytest.skip(f"real WOMD files not found in {DATA}")
+    read_womd = pytest.importorskip("tap_bench.womd.ingest").read_womd
+    table = read_womd([DATA / f for f in FILES])
+    return table[table["object_type"] == "vehicle"].reset_index(drop=True)
+
+
+def test_real_scenarios_label_at_every_level(vehicles):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", tb.ShortSegmentWarning)
+        result = tb.tap(vehicles)
+    labels = result.labels("all")
+    assert set(labels["scenario_id"]) == {"637f20cafde22ff8", "ee519cf571686d19"}
+    # 70 + 189 vehicle tracks; every labelled segment has four rows
+    assert len(labels) == 4 * len(result.segments_info)
+    assert result.segments_info["n_steps"].min() >= 10
+    # segments too short to label are reported, not lost
+    total = len(result.segments_info) + len(result.short_segments)
+    assert total == validate_and_index(vehicles).index.n_segments
+    # the SDC of the first scenario is labelled
+    ego = labels[(labels["is_ego"]) & (labels["level"] == "action")]
+    assert "637f20cafde22ff8" in set(ego["scenario_id"])
+
+
+def test_parked_vehicles_are_stopped(vehicles):
+    result = tb.tap(vehicles)
+    labels = result.labels("trend")
+    speed = vehicles.groupby(["scenario_id", "track_id"])["speed"].max()
+    parked = speed[speed < 0.05].index
+    assert len(parked) > 10
+    got = labels.set_index(["scenario_id", "track_id"]).loc[
+        labels.set_index(["scenario_id", "track_id"]).index.isin(parked), "sdl"]
+    assert (got == "Straight | Stopped").all()
+
+
+def test_one_second_samples_and_fit_on_real_data(vehicles):
+    samples = tb.one_second_samples(vehicles)
+    segs = validate_and_index(vehicles).index
+    assert len(samples["v"]) == int((segs.segment_length // 10).sum())
+    report = tb.fit_report(samples, methods=("descent", "grid"))
+    for dist in ("w", "a", "v"):
+        assert np.isfinite(report.fits[dist].chosen.objective)
