@@ -42,6 +42,15 @@ from tap_bench.thresholds import (
     save_thresholds,
 )
 from tap_bench.trajectories import validate_trajectories
+from tap_bench.womd import (
+    IngestReport,
+    WomdRecordError,
+    classify_trajectories,
+    ingest_womd,
+    iter_womd,
+    read_womd,
+    write_womd,
+)
 
 # The scenario suite's Gymnasium ids (tap_bench/highway-v0 ...); reads envs/ only, fast.
 _register_suite()
@@ -91,4 +100,12 @@ __all__ = [
     "load_policy",
     "register_policy",
     "rollout",
+    # Waymo Open Motion Dataset (tap_bench.womd)
+    "IngestReport",
+    "WomdRecordError",
+    "classify_trajectories",
+    "ingest_womd",
+    "iter_womd",
+    "read_womd",
+    "write_womd",
 ]
