@@ -311,7 +311,7 @@ def _samples(data: pd.DataFrame | dict[str, np.ndarray], v_stop: float
 
 
 def fit_report(data: pd.DataFrame | dict[str, np.ndarray], *,
-               methods: tuple[str, ...] = METHODS, select: str = "best",
+               methods: tuple[str, ...] = METHODS, select: str | None = None,
                dataset: str = "trajectory table", epochs: int = 100, seed: int = 0,
                starts: dict[str, tuple[tuple[float, ...], ...]] | None = None,
                hyperparameters: dict[str, tuple[float, float]] | None = None,
@@ -323,8 +323,11 @@ def fit_report(data: pd.DataFrame | dict[str, np.ndarray], *,
             :func:`tap_bench.kinematics.one_second_samples`.
         methods: which of :data:`METHODS` to run (the grid is always run when asked for
             and is the reference for distances).
-        select: ``"best"`` keeps the lowest J over all methods and starts; a method name
-            keeps the lowest J of that method.
+        select: which run becomes the thresholds. A method name keeps the lowest J of that
+            method's starts; ``"best"`` the lowest J over every method and start. Default:
+            ``"descent"`` (the paper's method) when it is run, else ``"best"``. The paper's
+            local descent from domain-informed starts is the default on purpose: on real
+            data the global minimum of J can be degenerate (docs/thresholds.md).
         dataset: a name for the data, kept in the provenance.
         epochs: descent epochs per start.
         seed: seed of the cross-entropy method's sampling.
@@ -335,6 +338,8 @@ def fit_report(data: pd.DataFrame | dict[str, np.ndarray], *,
     for m in methods:
         if m not in METHODS:
             raise did_you_mean("fitting method", m, METHODS)
+    if select is None:
+        select = "descent" if "descent" in methods else "best"
     if select != "best" and select not in methods:
         raise TapBenchError(f"select={select!r} is not among the methods run {methods!r}; "
                             "use 'best' or one of them.")

@@ -140,10 +140,15 @@ def test_fit_thresholds_from_a_table_with_provenance(tmp_path):
     assert prov.n_samples["v"] < prov.n_samples["a"]  # stopped samples left out
     assert th.v_stop == 0.1
     for dist in ("w", "a", "v"):
-        runs = [r for r in report.fits[dist].runs]
+        runs = list(report.fits[dist].runs)
         assert len(runs) == 9  # three methods x three starts, plus the grid apart
-        assert prov.objective[dist] == min(r.objective for r in
-                                           [*runs, report.fits[dist].grid])
+        # by default the paper's descent decides, the lowest J of its three starts
+        assert prov.method[dist] == "descent"
+        assert prov.objective[dist] == min(r.objective for r in runs if r.method == "descent")
+    best = tb.fit_report(table, select="best").thresholds.provenance
+    for dist in ("w", "a", "v"):
+        assert best.objective[dist] == min(
+            r.objective for r in [*report.fits[dist].runs, report.fits[dist].grid])
     table_rows = report.table()
     assert set(table_rows["method"]) == {"descent", "descent-scaled", "cem", "grid"}
     path = tb.save_thresholds(th, tmp_path / "th.json")
