@@ -1,9 +1,7 @@
 """A Stable-Baselines3 callback that logs the behaviour coverage of recent episodes.
 
-Coverage here is a quick training-time signal, :func:`label_coverage`: the share of a
-reference set of labels that the ego's SDL labels of the last ``window`` episodes contain.
-The benchmark's coverage metric, frequency-weighted and with confidence intervals, lives
-elsewhere; this one only shows during training whether an agent's behaviour is broadening.
+Coverage here is the quick training-time signal of :func:`tap_bench.sim.coverage.label_coverage`
+over the ego's SDL labels of the last ``window`` episodes.
 
 This module imports Stable-Baselines3: import it only where SB3 is installed.
 """
@@ -11,49 +9,13 @@ This module imports Stable-Baselines3: import it only where SB3 is installed.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Collection, Iterable
+from collections.abc import Collection
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from tap_bench import sdl
+from tap_bench.sim.coverage import label_coverage
 
-__all__ = ["CoverageCallback", "label_coverage", "vocabulary_tokens"]
-
-
-def vocabulary_tokens(level: str = "action") -> frozenset[str]:
-    """Every single label of ``level``, lateral and longitudinal (``"Left Merge"``,
-    ``"Maintain Fast Speed"`` ...): the default reference of :func:`label_coverage`."""
-    return frozenset(sdl.vocabulary(level, "lateral")) | frozenset(
-        sdl.vocabulary(level, "longitudinal"))
-
-
-def label_coverage(sdl_labels: Iterable[str], reference: Collection[str] | None = None, *,
-                   level: str = "action") -> float:
-    """Share of ``reference`` seen in ``sdl_labels``, in [0, 1].
-
-    Args:
-        sdl_labels: SDL labels (``"Straight > Left Merge | Maintain Fast Speed"``).
-        reference: the labels to cover. Whole SDL labels (e.g. those of an IDM corpus) are
-            matched whole. None: the single labels of ``level`` (:func:`vocabulary_tokens`),
-            matched against the single labels the SDL labels are made of.
-        level: the TAP level of ``sdl_labels`` (only used when ``reference`` is None).
-
-    Returns:
-        ``len(seen & reference) / len(reference)``.
-    """
-    labels = set(sdl_labels)
-    if reference is None:
-        reference = vocabulary_tokens(level)
-        seen: set[str] = set()
-        for label in labels:
-            for side in label.split(sdl.SDL_SEPARATOR):
-                seen.update(side.split(sdl.SEPARATOR))
-    else:
-        reference = set(reference)
-        seen = labels
-    if not reference:
-        raise ValueError("label_coverage: the reference set is empty.")
-    return len(seen & set(reference)) / len(reference)
+__all__ = ["CoverageCallback"]
 
 
 class CoverageCallback(BaseCallback):

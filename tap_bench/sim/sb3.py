@@ -57,6 +57,13 @@ def _algo_of(path: Path) -> str:
     for algo in ALGORITHMS:
         if f".{algo}." in module or module.endswith(f".{algo}"):
             return algo
+    # PPO and A2C share ActorCriticPolicy: tell them by their own hyper-parameters.
+    if "clip_range" in data:
+        return "ppo"
+    if "target_update_interval" in data:
+        return "dqn"
+    if "ent_coef" in data:
+        return "a2c"
     raise FileFormatError(f"{path}: cannot tell the algorithm from {module!r}; give \"algo\" "
                           f"({', '.join(ALGORITHMS)}) in the policy definition.")
 
@@ -134,6 +141,11 @@ class SB3Policy:
                 f"policy {self.name!r}: the env's observation space {env.observation_space} "
                 f"differs from the one the model was trained on ({expected}). Build the env "
                 "with the policy's observation config (rollouts do this), or retrain.")
+        if self._model.action_space != env.action_space:
+            raise TapBenchError(
+                f"policy {self.name!r}: the env's action space {env.action_space} differs from "
+                f"the model's ({self._model.action_space}); the model was trained on "
+                f"{self.env or 'another scenario'}.")
         self._model.set_random_seed(int(seed))
 
     def act(self, observation: Any) -> Any:

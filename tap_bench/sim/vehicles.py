@@ -3,8 +3,10 @@
 highway-env steers every vehicle with a cascade of two proportional controllers: lateral
 offset to lateral speed (time constant ``TAU_LATERAL``) and heading to yaw rate
 (``TAU_HEADING``). Its defaults change lane in about 1 s with yaw-rate peaks above 1 rad/s,
-far faster than people do. The ``realistic`` setting slows both loops; ``docs/simulation.md``
-gives the yaw-rate peaks each setting produces. Settings are applied per vehicle (instance
+far faster than people do; TAP then sees the short left turn of a left lane change as noise
+and keeps only the longer counter-steer: a Right Turn. The ``realistic`` setting slows both
+loops and feeds the lane's curvature forward; ``docs/simulation.md`` gives the yaw-rate peaks
+each setting produces. Settings are applied per vehicle (instance
 attributes), never by changing highway-env's classes, which all environments of a process
 share.
 """
@@ -34,15 +36,18 @@ class LaneChange:
 
     Attributes:
         tau_lateral: lateral offset to lateral speed time constant [s].
-        tau_heading: heading to yaw rate time constant [s]; the pursuit look-ahead is half of
-            it, as in highway-env.
+        tau_heading: heading to yaw rate time constant [s].
+        tau_pursuit: look-ahead of the lane heading fed forward [s]. Equal to
+            ``tau_heading`` it cancels the heading lag on curves, so a slow heading loop
+            still follows roundabouts and turns; highway-env uses half of it.
     """
 
     tau_lateral: float
     tau_heading: float
+    tau_pursuit: float
 
     def __post_init__(self) -> None:
-        for name in ("tau_lateral", "tau_heading"):
+        for name in ("tau_lateral", "tau_heading", "tau_pursuit"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"LaneChange.{name} must be a positive time [s], got "
                                  f"{getattr(self, name)!r}.")
@@ -50,9 +55,9 @@ class LaneChange:
 
 LANE_CHANGE_SETTINGS: dict[str, LaneChange] = {
     # highway-env's own ControlledVehicle constants: a 4 m lane change in about 1 s.
-    "default": LaneChange(tau_lateral=0.6, tau_heading=0.2),
-    # Lane changes of about 3.5 s, yaw-rate peaks near 0.15 rad/s at 25 m/s.
-    "realistic": LaneChange(tau_lateral=1.0, tau_heading=1.0),
+    "default": LaneChange(tau_lateral=0.6, tau_heading=0.2, tau_pursuit=0.1),
+    # Lane changes of about 3.5 s, yaw-rate peaks near 0.16 rad/s at 25 m/s.
+    "realistic": LaneChange(tau_lateral=1.0, tau_heading=1.0, tau_pursuit=1.0),
 }
 """The lane-change settings a scenario can name."""
 
@@ -67,7 +72,7 @@ def apply_lane_change(vehicle: object, setting: LaneChange) -> None:
         return
     vehicle.KP_LATERAL = 1.0 / setting.tau_lateral
     vehicle.KP_HEADING = 1.0 / setting.tau_heading
-    vehicle.TAU_PURSUIT = 0.5 * setting.tau_heading
+    vehicle.TAU_PURSUIT = setting.tau_pursuit
 
 
 class IntersectionIDMVehicle(IDMVehicle):
