@@ -5,16 +5,12 @@ waymo-open-dataset), computed from two states only: the one at the current time 
 and the last valid one after it. It is an independent reference for TAP's lateral and
 longitudinal labels: a track it calls ``LEFT_TURN`` should carry a Left Turn or a Left Merge,
 a ``STATIONARY`` one a Stopped label. The constants are those of
-``../shared/data/womd/README.md``.
-
-    python -m tap_bench.womd.trajectory_types '../shared/data/womd/*.tfrecord' ...
-
-prints the agreement table of the given files (vehicles, paper thresholds, maneuver level).
+``../shared/data/womd/README.md``. ``benchmarks/bench_womd_agreement.py`` prints the
+agreement table of WOMD files (vehicles, paper thresholds, maneuver level).
 """
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -173,29 +169,3 @@ def agreement_table(per_track: pd.DataFrame) -> pd.DataFrame:
                      "TAP labels that agree": "" if kind == "all"
                      else AGREEMENT_RULES[kind].text})
     return pd.DataFrame(rows)
-
-
-def _main(argv: list[str]) -> None:  # pragma: no cover - a report for the docs
-    import warnings
-
-    from tap_bench import label
-    from tap_bench.womd.ingest import read_womd
-
-    table = read_womd(argv, object_types="vehicle")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        labels = label(table, level="maneuver")
-    per_track = label_agreement(classify_trajectories(table), labels)
-    summary = agreement_table(per_track).astype(str)
-    print("| " + " | ".join(summary.columns) + " |")
-    print("|" + "---|" * len(summary.columns))
-    for row in summary.itertuples(index=False):
-        print("| " + " | ".join(row) + " |")
-    print()
-    wrong = per_track[~per_track["agrees"]]
-    print(wrong[["scenario_id", "track_id", "trajectory_type", "dy", "heading_change",
-                 "max_speed", "lateral", "longitudinal"]].to_string(index=False))
-
-
-if __name__ == "__main__":  # pragma: no cover
-    _main(sys.argv[1:])
