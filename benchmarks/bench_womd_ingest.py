@@ -113,7 +113,7 @@ def decode_one_process(paths: list[Path], to_pandas: bool) -> int:
         for record in iter_records(path):
             table = decode_scenario(record)
             if to_pandas:
-                table.to_pandas()
+                table.to_pandas(split_blocks=True)  # as iter_womd and read_womd do
             scenarios += 1
     return scenarios
 
