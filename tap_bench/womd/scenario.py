@@ -14,7 +14,7 @@ field by field across every state at once rather than state by state in Python.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 
 import numpy as np
 import pyarrow as pa
@@ -25,8 +25,9 @@ from tap_bench.trajectories import OBJECT_TYPES
 from tap_bench.womd import proto
 from tap_bench.womd.tfrecord import Record
 
-__all__ = ["SCENARIO_COLUMNS", "StateDecodeError", "decode_object_states", "decode_scenario",
-           "normalise_object_types", "repeated_strings", "wrap_heading"]
+__all__ = ["SCENARIO_COLUMNS", "STATE_COLUMNS", "StateDecodeError", "decode_object_states",
+           "decode_scenario", "normalise_object_types", "repeated_strings",
+           "trajectory_table", "wrap_heading"]
 
 SCENARIO_COLUMNS = (
     "scenario_id", "track_id", "t", "x", "y", "heading", "speed", "valid", "vx", "vy",
@@ -449,9 +450,18 @@ def decode_scenario(record: Record, *, object_types: frozenset[str] | None = Non
         track_pos, step = divmod(err.state, n_steps)
         raise record.error(f"track {track_ids[track_pos]} state {step}: {err}",
                            _NOT_A_SCENARIO) from None
-    return _table(view.scenario_id, times, kept, track_ids, type_names, extra_json, st,
-                  sdc=sdc, interest=interest, tracks=tracks, to_predict=to_predict,
-                  difficulty=difficulty, source=source)
+    kept_arr = np.asarray(kept, dtype=np.int64)
+    womd_ids = np.array([tracks[i].id for i in kept], dtype=np.int64)
+    table = trajectory_table(
+        view.scenario_id, times, track_ids, type_names, st, is_ego=kept_arr == sdc,
+        object_of_interest=np.isin(womd_ids, list(interest)),
+        track_to_predict=to_predict[kept_arr], prediction_difficulty=difficulty[kept_arr],
+        source=source)
+    if any(extra_json):
+        from tap_bench.womd.writer import restore_extra_columns
+
+        table = restore_extra_columns(table, extra_json, n_steps)
+    return table
 
 
 _NOT_A_SCENARIO = ("Is the file a WOMD scenario file (uncompressed/scenario/...)? A file of "
@@ -486,46 +496,58 @@ def repeated_strings(strings: Sequence[str], repeats: int | Sequence[int]) -> pa
                                             pa.py_buffer(data)).cast(pa.string())
 
 
-def _table(scenario_id: str, times: np.ndarray, kept: Sequence[int], track_ids: list[str],
-           type_names: list[str], extra_json: list[str], st: dict[str, np.ndarray], *,
-           sdc: int, interest: set[int], tracks, to_predict: np.ndarray,
-           difficulty: np.ndarray, source: str) -> pa.Table:
-    n_steps = len(times)
-    n_kept = len(kept)
-    n = n_kept * n_steps
-    valid = st["valid"]
-    invalid = ~valid
-    kept_arr = np.asarray(kept, dtype=np.int64)
-    vx = st["vx"].astype(np.float64)
-    vy = st["vy"].astype(np.float64)
-    columns: dict[str, object] = {
-        "scenario_id": repeated_strings([scenario_id], n),
-        "track_id": repeated_strings(track_ids, n_steps),
-        "t": np.tile(times, n_kept),
-        "x": st["x"],
-        "y": st["y"],
-        "heading": wrap_heading(st["heading"].astype(np.float64)),
-        "speed": np.hypot(vx, vy),
-        "valid": valid,
-        "vx": vx,
-        "vy": vy,
-        "object_type": repeated_strings(type_names, n_steps),
-        "is_ego": np.repeat(kept_arr == sdc, n_steps),
-        "source": repeated_strings([source], n),
-        "z": st["z"],
-        "length": st["length"].astype(np.float64),
-        "width": st["width"].astype(np.float64),
-        "height": st["height"].astype(np.float64),
-    }
-    for name in ("x", "y", "heading", "speed", "vx", "vy", "z", "length", "width", "height"):
-        columns[name][invalid] = np.nan
-    womd_ids = np.array([tracks[i].id for i in kept], dtype=np.int64)
-    columns["object_of_interest"] = np.repeat(np.isin(womd_ids, list(interest)), n_steps)
-    columns["track_to_predict"] = np.repeat(to_predict[kept_arr], n_steps)
-    columns["prediction_difficulty"] = np.repeat(difficulty[kept_arr], n_steps)
-    table = pa.table(columns)
-    if any(extra_json):
-        from tap_bench.womd.writer import restore_extra_columns
+STATE_COLUMNS = ("x", "y", "z", "heading", "vx", "vy", "length", "width", "height")
+"""Per-step kinematic columns of :func:`trajectory_table` (NaN on invalid steps)."""
 
-        table = restore_extra_columns(table, extra_json, n_steps)
-    return table
+
+def trajectory_table(scenario_id: str, times: np.ndarray, track_ids: Sequence[str],
+                     object_types: Sequence[str], states: Mapping[str, np.ndarray], *,
+                     is_ego: np.ndarray, object_of_interest: np.ndarray,
+                     track_to_predict: np.ndarray, prediction_difficulty: np.ndarray,
+                     source: str) -> pa.Table:
+    """One scenario's tracks as a trajectory table with :data:`SCENARIO_COLUMNS`.
+
+    The common last step of every reader (Scenario, tf.Example, ScenarioNet).
+
+    Args:
+        scenario_id: the scenario.
+        times: (n_steps,) time of each step [s].
+        track_ids, object_types: (n_tracks,) strings.
+        states: (n_tracks * n_steps,) arrays, track by track: ``valid`` (bool) and
+            :data:`STATE_COLUMNS` (positions and sizes [m], heading [rad], velocity
+            [m/s]; any float dtype).
+        is_ego, object_of_interest, track_to_predict: (n_tracks,) bool.
+        prediction_difficulty: (n_tracks,) int, 0 where not to predict.
+        source: the value of the ``source`` column.
+
+    Returns:
+        The table; kinematics are NaN on invalid steps, ``speed = hypot(vx, vy)`` and
+        headings beyond pi are wrapped (:func:`wrap_heading`).
+    """
+    n_steps = len(times)
+    n = len(track_ids) * n_steps
+    valid = np.asarray(states["valid"], dtype=bool)
+    kin = {name: np.array(states[name], dtype=np.float64) for name in STATE_COLUMNS}
+    kin["heading"] = wrap_heading(kin["heading"])
+    kin["speed"] = np.hypot(kin["vx"], kin["vy"])
+    for values in kin.values():
+        values[~valid] = np.nan
+
+    def per_track(values: np.ndarray, dtype: type) -> np.ndarray:
+        return np.repeat(np.asarray(values, dtype=dtype), n_steps)
+
+    return pa.table({
+        "scenario_id": repeated_strings([scenario_id], n),
+        "track_id": repeated_strings(list(track_ids), n_steps),
+        "t": np.tile(np.asarray(times, dtype=np.float64), len(track_ids)),
+        "x": kin["x"], "y": kin["y"], "heading": kin["heading"], "speed": kin["speed"],
+        "valid": valid, "vx": kin["vx"], "vy": kin["vy"],
+        "object_type": repeated_strings(list(object_types), n_steps),
+        "is_ego": per_track(is_ego, bool),
+        "source": repeated_strings([source], n),
+        "z": kin["z"], "length": kin["length"], "width": kin["width"],
+        "height": kin["height"],
+        "object_of_interest": per_track(object_of_interest, bool),
+        "track_to_predict": per_track(track_to_predict, bool),
+        "prediction_difficulty": per_track(prediction_difficulty, np.int8),
+    })

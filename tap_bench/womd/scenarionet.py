@@ -21,7 +21,7 @@ import numpy as np
 import pyarrow as pa
 
 from tap_bench.womd.errors import WomdRecordError
-from tap_bench.womd.scenario import repeated_strings, wrap_heading
+from tap_bench.womd.scenario import trajectory_table
 
 __all__ = ["RestrictedUnpickler", "decode_scenarionet", "load_scenarionet"]
 
@@ -131,34 +131,13 @@ def decode_scenarionet(scenario: dict, *, path: str = "<scenario>",
             values = state.get(key)
             parts[key].append(np.full(n_steps, np.nan) if values is None else
                               np.asarray(values, dtype=np.float64).reshape(n_steps, -1)[:, 0])
-    n = len(ids) * n_steps
-    cat = {k: (np.concatenate(v) if v else np.zeros(0, dtype=bool if k == "valid" else float))
-           for k, v in parts.items()}
-    invalid = ~cat["valid"]
-    for key in ("x", "y", "z", "heading", "vx", "vy", "length", "width", "height"):
-        cat[key][invalid] = np.nan
+    states = {k: (np.concatenate(v) if v else np.zeros(0, dtype=bool if k == "valid"
+                                                       else np.float64))
+              for k, v in parts.items()}
     ids_arr = np.array(ids, dtype=object)
-    columns = {
-        "scenario_id": repeated_strings([scenario_id], n),
-        "track_id": repeated_strings(ids, n_steps),
-        "t": np.tile(times, len(ids)),
-        "x": cat["x"],
-        "y": cat["y"],
-        "heading": wrap_heading(cat["heading"]),
-        "speed": np.hypot(cat["vx"], cat["vy"]),
-        "valid": cat["valid"],
-        "vx": cat["vx"],
-        "vy": cat["vy"],
-        "object_type": repeated_strings(types, n_steps),
-        "is_ego": np.repeat(ids_arr == sdc, n_steps),
-        "source": repeated_strings([source], n),
-        "z": cat["z"],
-        "length": cat["length"],
-        "width": cat["width"],
-        "height": cat["height"],
-        "object_of_interest": np.repeat(np.isin(ids_arr, list(interest)), n_steps),
-        "track_to_predict": np.repeat(np.isin(ids_arr, list(predict)), n_steps),
-        "prediction_difficulty": np.repeat(
-            np.array([predict.get(i, 0) for i in ids], dtype=np.int8), n_steps),
-    }
-    return pa.table(columns)
+    return trajectory_table(
+        scenario_id, times, ids, types, states, is_ego=ids_arr == sdc,
+        object_of_interest=np.isin(ids_arr, list(interest)),
+        track_to_predict=np.isin(ids_arr, list(predict)),
+        prediction_difficulty=np.array([predict.get(i, 0) for i in ids], dtype=np.int8),
+        source=source)

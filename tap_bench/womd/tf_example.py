@@ -16,7 +16,7 @@ import pyarrow as pa
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from google.protobuf.message import DecodeError
 
-from tap_bench.womd.scenario import repeated_strings, wrap_heading
+from tap_bench.womd.scenario import trajectory_table
 from tap_bench.womd.tfrecord import Record
 
 __all__ = ["Example", "decode_tf_example", "is_motion_example"]
@@ -145,14 +145,10 @@ def decode_tf_example(record: Record, *, object_types: frozenset[str] | None = N
     if object_types is not None:
         keep &= np.isin(names, list(object_types))
     kept = np.flatnonzero(keep)
-    n = len(kept) * n_steps
 
     def grid(name: str) -> np.ndarray:
-        values = series(name)[kept].astype(np.float64).ravel()
-        values[~valid[kept].ravel()] = np.nan
-        return values
+        return series(name)[kept].ravel()
 
-    vx, vy = grid("velocity_x"), grid("velocity_y")
     flags = {}
     for key in ("is_sdc", "objects_of_interest", "tracks_to_predict"):
         flags[key] = (_values(features, f"state/{key}", record, np.int64)[kept] > 0
@@ -161,27 +157,13 @@ def decode_tf_example(record: Record, *, object_types: frozenset[str] | None = N
                    if "scenario/id" in features else f"{record.path}#{record.index}")
     difficulty = (_values(features, "state/difficulty_level", record, np.int64)[kept]
                   if "state/difficulty_level" in features else np.zeros(len(kept)))
-    columns = {
-        "scenario_id": repeated_strings([scenario_id], n),
-        "track_id": repeated_strings([str(int(i)) for i in ids[kept]], n_steps),
-        "t": np.tile(times, len(kept)),
-        "x": grid("x"),
-        "y": grid("y"),
-        "heading": wrap_heading(grid("bbox_yaw")),
-        "speed": np.hypot(vx, vy),
-        "valid": valid[kept].ravel(),
-        "vx": vx,
-        "vy": vy,
-        "object_type": repeated_strings(list(names[kept]), n_steps),
-        "is_ego": np.repeat(flags["is_sdc"], n_steps),
-        "source": repeated_strings([source], n),
-        "z": grid("z"),
-        "length": grid("length"),
-        "width": grid("width"),
-        "height": grid("height"),
-        "object_of_interest": np.repeat(flags["objects_of_interest"], n_steps),
-        "track_to_predict": np.repeat(flags["tracks_to_predict"], n_steps),
-        "prediction_difficulty": np.repeat(
-            np.where(flags["tracks_to_predict"], difficulty, 0).astype(np.int8), n_steps),
-    }
-    return pa.table(columns)
+    states = {name: grid(key) for name, key in (
+        ("x", "x"), ("y", "y"), ("z", "z"), ("heading", "bbox_yaw"), ("vx", "velocity_x"),
+        ("vy", "velocity_y"), ("length", "length"), ("width", "width"), ("height", "height"))}
+    states["valid"] = valid[kept].ravel()
+    return trajectory_table(
+        scenario_id, times, [str(int(i)) for i in ids[kept]], list(names[kept]), states,
+        is_ego=flags["is_sdc"], object_of_interest=flags["objects_of_interest"],
+        track_to_predict=flags["tracks_to_predict"],
+        prediction_difficulty=np.where(flags["tracks_to_predict"], difficulty, 0),
+        source=source)
