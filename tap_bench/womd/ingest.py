@@ -336,7 +336,7 @@ def iter_womd(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
     report = report if report is not None else IngestReport()
     for table in _iter_tables(paths, format=format, object_types=object_types,
                               on_error=on_error, check_crc=check_crc, workers=1,
-                              report=report, log=None):
+                              report=report, log=None, batch_bytes=0):
         yield table.to_pandas(split_blocks=True)
 
 

@@ -1,6 +1,6 @@
 """WOMD ``Scenario`` records to the trajectory table (SPEC section 1).
 
-A scenario becomes one row per track per time step, time-major within each track, with
+A scenario becomes one row per track per time step, track by track, steps in time order, with
 ``t`` from ``timestamps_seconds``. Steps a track has no valid state for stay as rows with
 ``valid=False`` and NaN kinematics, so ``t`` stays regular. WOMD's axes are the contract's;
 headings are wrapped into [-pi, pi) where WOMD stores them beyond (a few percent of its

@@ -59,8 +59,7 @@ _STATE_DTYPE = np.dtype([("state_tag", "u1"), ("state_length", "u1")]
                            for item in ((f"{name}_tag", "u1"), (name, kind))])
 _STATE_SIZE = _STATE_DTYPE.itemsize - 2  # 59 bytes, the tag and length prefix excluded
 _STATE_WIRE = {"<f8": 1, "<f4": 5, "u1": 0}
-_STATE_NUMBERS = dict(proto.OBJECT_STATE_FIELDS and
-                      [(name, number) for name, number, _ in proto.OBJECT_STATE_FIELDS])
+_STATE_NUMBERS = {name: number for name, number, _ in proto.OBJECT_STATE_FIELDS}
 
 
 def _varint(value: int) -> bytes:
