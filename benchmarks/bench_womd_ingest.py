@@ -6,7 +6,8 @@ scenario, 5 % invalid steps) under a scratch folder, then measures:
 - decoding into the trajectory table (Arrow, and pandas) in one process [MB/s per core];
 - the same with two worker processes (``workers=2``);
 - ``ingest_womd`` to Parquet with 1 and 2 workers (reading, decoding, writing);
-- peak memory (RSS) while streaming a shard set four times the size of the budget.
+- peak memory (RSS) while streaming a shard set three times the size of the budget
+  (1.2 GB) with ``iter_womd``, and of the main process of ``ingest_womd(workers=2)``.
 
 The machine is shared: besides wall-clock rates, each figure is also given per CPU-second
 (input bytes / CPU time of every process involved), which is the rate of one core whatever
@@ -40,7 +41,7 @@ TRACKS = 100
 STEPS = 91
 SCENARIOS_PER_SHARD = 90  # about 50 MB a shard
 MEMORY_BUDGET_MB = 400
-"""RSS the streaming read must stay under while reading four times as much data."""
+"""RSS [MB] the reading process must stay under while it reads 1.2 GB (three times as much)."""
 
 
 def synthetic_shard(rng: np.random.Generator, shard: int) -> pd.DataFrame:
@@ -134,6 +135,15 @@ def status_mb(key: str) -> float:
     return float("nan")
 
 
+def ingest_memory(folder: Path, workers: int) -> None:
+    """Child process: ingest every file of ``folder`` to Parquet, print the peak RSS of this
+    (the main) process [MB]."""
+    with tempfile.TemporaryDirectory() as out:
+        ingest_womd(sorted(folder.iterdir()), Path(out) / "all.parquet", format="scenario",
+                    workers=workers)
+    print(f"{status_mb('VmHWM'):.1f}")
+
+
 def stream_memory(folder: Path) -> None:
     """Child process: stream every file of ``folder`` with iter_womd, print RSS samples."""
     files = sorted(folder.iterdir())
@@ -151,9 +161,13 @@ def main() -> None:
                                                           "tap-bench-womd-bench"))
     parser.add_argument("--mb", type=int, default=300, help="size of the shard set [MB]")
     parser.add_argument("--stream-memory", help=argparse.SUPPRESS)
+    parser.add_argument("--ingest-memory", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.stream_memory:
         stream_memory(Path(args.stream_memory))
+        return
+    if args.ingest_memory:
+        ingest_memory(Path(args.ingest_memory), workers=2)
         return
     scratch = Path(args.scratch)
     paths = build_shards(scratch / "shards", args.mb)
@@ -187,8 +201,13 @@ def main() -> None:
     figures["streamed_MB"] = round(4 * nbytes / 1e6, 1)
     figures["stream_peak_rss_MB"] = float(output[0])
     figures["stream_rss_samples_MB"] = [float(v) for v in output[1:]]
+    output = subprocess.run([sys.executable, __file__, "--ingest-memory", str(many)],
+                            check=True, capture_output=True, text=True).stdout.split()
+    figures["ingest_2_workers_main_peak_rss_MB"] = float(output[0])
     figures["memory_budget_MB"] = MEMORY_BUDGET_MB
-    figures["within_budget"] = float(output[0]) < MEMORY_BUDGET_MB
+    figures["within_budget"] = max(figures["stream_peak_rss_MB"],
+                                   figures["ingest_2_workers_main_peak_rss_MB"]
+                                   ) < MEMORY_BUDGET_MB
     report("womd_ingest", figures, seed=SEED, tracks_per_scenario=TRACKS, steps=STEPS)
 
 
