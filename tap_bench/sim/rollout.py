@@ -114,13 +114,14 @@ def _observation_config(policy: Policy) -> Mapping[str, Any]:
 def _run_task(task: _Task) -> tuple[pd.DataFrame, dict[str, Any]]:
     from tap_bench.sim.scenario_env import ScenarioEnv
 
-    policy_key = repr(task.policy)
+    # Definitions are data with a stable repr: build each once per process. A policy object
+    # is used as it came (a copy per task in a worker).
+    policy_key = repr(task.policy) if isinstance(task.policy, PolicyDefinition) else None
+    env_key = None
     try:
-        policy = _POLICIES.get(policy_key)
+        policy = _POLICIES.get(policy_key) if policy_key else task.policy
         if policy is None:
-            policy = (task.policy.build() if isinstance(task.policy, PolicyDefinition)
-                      else task.policy)
-            _POLICIES[policy_key] = policy
+            policy = _POLICIES[policy_key] = task.policy.build()
         obs_config = _observation_config(policy)
         env_key = repr((task.scenario, sorted(obs_config.items()), task.record))
         env = _ENVS.get(env_key)
@@ -129,7 +130,8 @@ def _run_task(task: _Task) -> tuple[pd.DataFrame, dict[str, Any]]:
             env = _ENVS[env_key] = ScenarioEnv(scenario, record=task.record)
         return run_episode(env, policy, task.seed, record=task.record)
     except Exception as err:  # one failing episode must not end the rollout
-        _ENVS.pop(locals().get("env_key", ""), None)
+        # an env or policy left in an unknown state is rebuilt for the next episode
+        _ENVS.pop(env_key, None)
         _POLICIES.pop(policy_key, None)
         lines = traceback.format_exception_only(type(err), err)
         where = traceback.extract_tb(err.__traceback__)[-1]

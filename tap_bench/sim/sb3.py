@@ -102,14 +102,16 @@ class SB3Policy:
         env: the scenario the model was trained on (information only).
         deterministic: act greedily (True) or sample from the policy.
         base_dir: folder of the definition file.
-        **training: what ``tap-bench train`` recorded (timesteps, seed, command); kept in
-            :attr:`training`.
+        timesteps, seed, hyperparameters, train_seconds, command: what ``tap-bench train``
+            recorded; kept in :attr:`training`.
     """
 
     def __init__(self, name: str, model: str, algo: str | None = None,
                  observation: Mapping[str, Any] | None = None, env: str | None = None,
-                 deterministic: bool = True, base_dir: str | os.PathLike | None = None,
-                 **training: Any) -> None:
+                 deterministic: bool = True, base_dir: str | os.PathLike | None = None, *,
+                 timesteps: int | None = None, seed: int | None = None,
+                 hyperparameters: Mapping[str, Any] | None = None,
+                 train_seconds: float | None = None, command: str | None = None) -> None:
         path = Path(model)
         if not path.is_absolute() and base_dir is not None:
             path = Path(base_dir) / path
@@ -124,7 +126,9 @@ class SB3Policy:
         self.observation = dict(observation) if observation is not None else None
         self.env = env
         self.deterministic = deterministic
-        self.training = training
+        self.training = {"timesteps": timesteps, "seed": seed,
+                         "hyperparameters": hyperparameters, "train_seconds": train_seconds,
+                         "command": command}
         self._model: Any = None
 
     def __getstate__(self) -> dict[str, Any]:

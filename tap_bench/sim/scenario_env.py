@@ -143,7 +143,9 @@ class ScenarioEnv(gym.Wrapper):
         obs, reward, terminated, truncated, info = self.env.step(action)
         self._decisions += 1
         self._frame()
-        truncated = bool(self._decisions >= self.max_steps) and not terminated
+        # highway-env's own time limit compares a drifting float clock (never earlier than
+        # this count, at most one decision later); the count decides.
+        truncated = (bool(truncated) or self._decisions >= self.max_steps) and not terminated
         return obs, reward, terminated, truncated, info
 
     def trajectories(self, **columns: object) -> pd.DataFrame:

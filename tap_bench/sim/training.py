@@ -90,7 +90,7 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
     cls = algorithm_class(algo)
     algo = algo.lower()
     import torch
-    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.logger import Logger, make_output_format
     from stable_baselines3.common.monitor import Monitor
 
     torch.set_num_threads(1)  # a shared CPU; also makes runs repeatable
@@ -106,9 +106,11 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
         callbacks.append(CoverageCallback(window=coverage_window))
     gym_env = Monitor(gym_env)
     model = cls("MlpPolicy", gym_env, seed=seed, verbose=verbose, device="cpu", **params)
-    formats = ["stdout", "csv"] if log_dir else ["stdout"]
-    model.set_logger(configure(str(log_dir) if log_dir else None,
-                               formats if verbose or log_dir else [""]))
+    outputs = [make_output_format("stdout", "")] if verbose else []
+    if log_dir:
+        Path(log_dir).mkdir(parents=True, exist_ok=True)
+        outputs.append(make_output_format("csv", str(log_dir)))
+    model.set_logger(Logger(str(log_dir) if log_dir else None, outputs))
     start = time.perf_counter()
     model.learn(total_timesteps=timesteps, callback=callbacks or None, progress_bar=False)
     seconds = time.perf_counter() - start
