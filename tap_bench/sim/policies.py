@@ -21,7 +21,6 @@ from __future__ import annotations
 import copy
 import importlib
 import inspect
-import json
 import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -32,7 +31,7 @@ import gymnasium as gym
 import numpy as np
 
 from tap_bench.errors import FileFormatError, UnknownNameError, did_you_mean
-from tap_bench.sim.suite import suite_dir
+from tap_bench.sim.suite import read_json, suite_dir
 
 __all__ = [
     "CHEAP_OBSERVATION",
@@ -201,14 +200,7 @@ def register_policy(name: str, factory: Callable[[], Policy], description: str =
 
 
 def _read_definition(path: Path) -> PolicyDefinition:
-    try:
-        doc = json.loads(path.read_text())
-    except OSError as err:
-        raise FileFormatError(f"{path}: cannot read the policy file: {err}") from err
-    except json.JSONDecodeError as err:
-        raise FileFormatError(f"{path}: not valid JSON: {err}") from err
-    if not isinstance(doc, dict):
-        raise FileFormatError(f"{path}: a policy file holds one JSON object.")
+    doc = read_json(path, "policy")
     allowed = ("name", "kind", "description", "params")
     for key in doc:
         if key not in allowed:

@@ -29,6 +29,7 @@ import pandas as pd
 
 from tap_bench.sim.policies import CHEAP_OBSERVATION, Policy, PolicyDefinition, get_definition
 from tap_bench.sim.suite import Scenario, parse_seeds
+from tap_bench.trajectories import HZ
 
 __all__ = ["EPISODE_COLUMNS", "EpisodeFailedWarning", "Rollout", "rollout", "run_episode"]
 
@@ -94,7 +95,7 @@ def run_episode(env: gym.Env, policy: Policy, seed: int, *, record: bool = True
     else:
         mean_speed = float("nan")
     row = {"env": scenario_env.scenario.name, "policy": policy.name, "seed": int(seed),
-           "return": total, "length": steps, "duration_s": inner.steps / 10.0,
+           "return": total, "length": steps, "duration_s": inner.steps / HZ,
            "crashed": bool(inner.vehicle.crashed), "mean_speed": mean_speed,
            "terminated": bool(terminated), "truncated": bool(truncated), "status": "ok",
            "error": ""}

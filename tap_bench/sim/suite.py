@@ -42,6 +42,7 @@ __all__ = [
     "check_config",
     "load_scenario",
     "parse_seeds",
+    "read_json",
     "scenario_names",
     "suite_dir",
 ]
@@ -376,6 +377,24 @@ def _build(doc: Any, *, source: str, path: Path | None) -> Scenario:
     return scenario
 
 
+def read_json(path: Path, what: str) -> dict[str, Any]:
+    """The JSON object of a suite file (``what``: "scenario", "policy").
+
+    Raises:
+        FileFormatError: unreadable, not JSON, or not one object, naming the file.
+    """
+    try:
+        doc = json.loads(path.read_text())
+    except OSError as err:
+        raise FileFormatError(f"{path}: cannot read the {what} file: {err}") from err
+    except json.JSONDecodeError as err:
+        raise FileFormatError(f"{path}: not valid JSON: {err}") from err
+    if not isinstance(doc, dict):
+        raise FileFormatError(f"{path}: a {what} file holds one JSON object, got "
+                              f"{type(doc).__name__}.")
+    return doc
+
+
 def load_scenario(path: str | os.PathLike) -> Scenario:
     """Read and validate one scenario file.
 
@@ -383,13 +402,7 @@ def load_scenario(path: str | os.PathLike) -> Scenario:
         FileFormatError: the file is missing, is not JSON, or breaks the format above.
     """
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except OSError as err:
-        raise FileFormatError(f"{path}: cannot read the scenario file: {err}") from err
-    except json.JSONDecodeError as err:
-        raise FileFormatError(f"{path}: not valid JSON: {err}") from err
-    scenario = _build(doc, source=str(path), path=path)
+    scenario = _build(read_json(path, "scenario"), source=str(path), path=path)
     if scenario.name != path.stem:
         raise FileFormatError(f"{path}: name {scenario.name!r} differs from the file name; "
                               f"rename the file to {scenario.name}.json or fix the name.")
