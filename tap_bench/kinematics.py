@@ -105,12 +105,20 @@ def window_means(signal: np.ndarray, starts: np.ndarray, width: int) -> np.ndarr
     """
     if len(starts) == 0:
         return np.zeros(0)
-    # reduceat over (start, start + width) pairs sums each window on its own, in order.
-    bounds = np.empty(2 * len(starts), dtype=np.int64)
-    bounds[0::2] = starts
-    bounds[1::2] = starts + width
-    padded = np.append(signal, 0.0)  # so that start + width may equal len(signal)
-    return np.add.reduceat(padded, bounds)[0::2] / width
+    # reduceat over (start, start + width) pairs sums each window on its own, in order;
+    # a window that ends at the last row is summed from its start to the end instead.
+    n = len(signal)
+    out = np.empty(len(starts))
+    at_end = starts + width >= n
+    inner = starts[~at_end]
+    if len(inner):
+        bounds = np.empty(2 * len(inner), dtype=np.int64)
+        bounds[0::2] = inner
+        bounds[1::2] = inner + width
+        out[~at_end] = np.add.reduceat(signal, bounds)[0::2]
+    if at_end.any():
+        out[at_end] = np.add.reduceat(signal[n - width:], [0])[0]
+    return out / width
 
 
 def one_second_samples(table: pd.DataFrame | Kinematics, *, source: str = "trajectory table"
