@@ -1,0 +1,192 @@
+"""The benchmark's episode table: one row per (env, policy, seed) with the ego's label and
+its safety and efficiency measures.
+
+Every score of :mod:`tap_bench.bench` (comparisons, coverage, unique manoeuvres, the gate)
+reads this one table:
+
+=================  =========================================================================
+column             what
+=================  =========================================================================
+``env``            scenario name (``highway``); ``""`` for data without envs
+``policy``         policy name
+``seed``           int; the same seed is the same initial traffic for every policy
+``scenario_id``    the episode's scenario id in the trajectory and label tables
+``status``         ``"ok"``, or ``"error"`` for an episode that failed (kept, not scored)
+``error``          why it failed ("" when ok)
+``sdl``            the ego's SDL label at the chosen level; NA when the ego has no label
+``lateral``        its lateral sequence
+``longitudinal``   its longitudinal sequence
+``return``         sum of rewards (rollouts only)
+measures           ``crashed``, ``mean_speed``, ``min_headway_s``, ``min_ttc_s``,
+                   ``rms_jerk``, ``duration_s`` (:mod:`tap_bench.bench.measures`)
+=================  =========================================================================
+
+The ego's label is the label of its longest valid segment (highway-env egos have exactly
+one; an ego with gaps in its record keeps its main stretch).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from tap_bench.bench.measures import MEASURES, ego_measures
+from tap_bench.errors import LabelTableError, TrajectoryTableError
+
+__all__ = ["EPISODE_COLUMNS", "ego_labels", "episode_table"]
+
+EPISODE_COLUMNS = ("env", "policy", "seed", "scenario_id", "status", "error", "sdl", "lateral",
+                   "longitudinal", "return", *(m.name for m in MEASURES), "duration_s")
+"""Columns of the episode table, in order."""
+
+_LABEL_FIELDS = ("sdl", "lateral", "longitudinal")
+
+
+def _ego_mask(table: pd.DataFrame, source: str) -> np.ndarray:
+    if "is_ego" in table.columns:
+        return table["is_ego"].fillna(False).to_numpy(bool)
+    per_scenario = table.groupby("scenario_id", sort=False)["track_id"].nunique()
+    if (per_scenario > 1).any():
+        sid = per_scenario.index[np.argmax(per_scenario.to_numpy() > 1)]
+        raise LabelTableError(
+            f"{source}: scenario {sid!r} has {per_scenario[sid]} tracks and no is_ego column "
+            "says which one the policy drove; add a boolean is_ego column.")
+    return np.ones(len(table), bool)
+
+
+def ego_labels(labels: pd.DataFrame, level: str, *, source: str = "label table"
+               ) -> pd.DataFrame:
+    """The ego's label of every scenario of a label table at ``level``.
+
+    Args:
+        labels: a label table (SPEC section 1) with ``is_ego`` (or one track per scenario).
+        level: the SDL level to take.
+        source: a name for the table in error messages.
+
+    Returns:
+        one row per scenario: scenario_id, sdl, lateral, longitudinal and the identifying
+        columns env, policy, seed present in the input.
+    """
+    missing = [c for c in ("scenario_id", "track_id", *_LABEL_FIELDS) if c not in labels]
+    if missing:
+        raise LabelTableError(f"{source}: missing column(s) {', '.join(missing)}; a label "
+                              "table comes from 'tap-bench label' or tap_bench.label().")
+    table = labels
+    if "level" in table.columns:
+        present = set(table["level"].unique())
+        if level not in present:
+            raise LabelTableError(f"{source}: no rows at level {level!r}; it holds "
+                                  f"{', '.join(sorted(map(str, present)))}. Label it with "
+                                  f"--level {level} or --level all.")
+        table = table[table["level"].to_numpy() == level]
+    table = table[_ego_mask(table, source)]
+    duration = (table["t_end"] - table["t_start"]).to_numpy(float) if "t_end" in table else \
+        np.zeros(len(table))
+    order = np.lexsort((-duration,))
+    table = table.iloc[order].drop_duplicates("scenario_id", keep="first")
+    keep = ["scenario_id", *_LABEL_FIELDS, *(c for c in ("env", "policy", "seed")
+                                           if c in table.columns)]
+    return table[keep].reset_index(drop=True)
+
+
+def episode_table(*, labels: pd.DataFrame | None = None,
+                  trajectories: pd.DataFrame | None = None,
+                  episodes: pd.DataFrame | None = None, level: str = "action",
+                  policy: str | None = None, source: str = "input") -> pd.DataFrame:
+    """Build the episode table from what is at hand.
+
+    Args:
+        labels: label table of the trajectories (the ego's label is taken from it).
+        trajectories: trajectory table; gives the measures (and ``crashed``).
+        episodes: a rollout's episode table (:data:`tap_bench.sim.rollout.EPISODE_COLUMNS`);
+            gives ``return``, ``status`` and the failed episodes.
+        level: SDL level of the ego label.
+        policy: the policy name when the tables have no ``policy`` column.
+        source: a name for error messages (a file path).
+
+    Returns:
+        the episode table (:data:`EPISODE_COLUMNS`), sorted by env, policy and seed.
+
+    Raises:
+        LabelTableError, TrajectoryTableError: a table lacks what the benchmark needs; the
+            message names the column and the fix.
+    """
+    if labels is None and trajectories is None and episodes is None:
+        raise ValueError("episode_table needs labels, trajectories or episodes.")
+    parts = []
+    if labels is not None:
+        parts.append(ego_labels(labels, level, source=source))
+    if trajectories is not None:
+        parts.append(ego_measures(trajectories))
+    out = None
+    for part in parts:
+        if out is None:
+            out = part
+        else:
+            extra = [c for c in part.columns if c not in out.columns or c == "scenario_id"]
+            out = out.merge(part[extra], on="scenario_id", how="outer")
+    if out is not None:
+        out = _fill_ids(out, policy, source)
+    if episodes is not None:
+        eps = episodes.copy()
+        if policy is not None and "policy" not in eps:
+            eps["policy"] = policy
+        for col in ("env", "policy", "seed"):
+            if col not in eps:
+                raise TrajectoryTableError(f"{source}: the episode table has no {col!r} column; "
+                                           "it comes from tap_bench.rollout().", column=col)
+        eps = eps.rename(columns={"crashed": "_crashed", "mean_speed": "_mean_speed"})
+        eps["seed"] = eps["seed"].astype(np.int64)
+        if out is None:
+            out = eps.rename(columns={"_crashed": "crashed", "_mean_speed": "mean_speed"})
+        else:
+            out = out.merge(eps, on=["env", "policy", "seed"], how="outer")
+            for col in ("crashed", "mean_speed"):
+                out[col] = out[col].where(out[col].notna(), out.pop(f"_{col}")) \
+                    if col in out else out.pop(f"_{col}")
+    for col in EPISODE_COLUMNS:
+        if col not in out.columns:
+            out[col] = _default(col)
+    out["status"] = out["status"].fillna("ok")
+    out["error"] = out["error"].fillna("")
+    out["env"] = out["env"].fillna("").astype(str)
+    out["crashed"] = out["crashed"].astype("boolean")
+    for col in _LABEL_FIELDS:
+        out[col] = out[col].astype("string")
+    dup = out.duplicated(["env", "policy", "seed"], keep=False)
+    if dup.any():
+        row = out[dup].iloc[0]
+        raise LabelTableError(
+            f"{source}: env {row['env']!r}, policy {row['policy']!r}, seed {row['seed']} occurs "
+            "in several scenarios; one seed is one episode. Give each run its own seeds or "
+            "split the tables.")
+    out = out[list(EPISODE_COLUMNS) + [c for c in out.columns if c not in EPISODE_COLUMNS]]
+    return out.sort_values(["env", "policy", "seed"], kind="stable").reset_index(drop=True)
+
+
+def _default(col: str):
+    if col in ("status",):
+        return "ok"
+    if col in ("error", "env"):
+        return ""
+    if col in _LABEL_FIELDS or col in ("scenario_id",):
+        return pd.NA
+    return np.nan
+
+
+def _fill_ids(out: pd.DataFrame, policy: str | None, source: str) -> pd.DataFrame:
+    if "policy" not in out.columns:
+        if policy is None:
+            raise LabelTableError(f"{source}: no 'policy' column; name the policy (--name / "
+                                  "policy=...) or add the column.")
+        out["policy"] = policy
+    elif policy is not None:
+        out["policy"] = out["policy"].fillna(policy)
+    if "seed" not in out.columns or out["seed"].isna().any():
+        raise LabelTableError(
+            f"{source}: every episode needs a 'seed' (the initial traffic it was run on) to be "
+            "paired with another policy; rollouts write it. Add an integer seed column.")
+    out["seed"] = out["seed"].astype(np.int64)
+    if "env" not in out.columns:
+        out["env"] = ""
+    return out

@@ -1,0 +1,91 @@
+"""Unique manoeuvres: labels an agent produces that the reference corpus never shows
+(issue 6 part 3, SPEC section 6).
+
+The **novelty rate** is the share of the agent's episodes whose ego SDL label is absent
+from the reference corpus (:func:`tap_bench.bench.coverage.corpus_reference`). Its interval
+is a percentile bootstrap over the agent's episodes (stratified by env when several envs
+are pooled). "Never shows" is relative to a finite corpus: a label absent from a small
+reference may only be rare; the report states the reference's size beside the rate.
+
+This differs from SPEC section 5's *unique* label (no other trajectory of one data set has
+it, :mod:`tap_bench.similarity`): here the agent is held against another corpus.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from tap_bench.bench.bootstrap import BootstrapConfig, percentile_interval, resample_weights
+from tap_bench.bench.coverage import Reference
+from tap_bench.errors import LabelTableError
+
+__all__ = ["NoveltyResult", "novelty"]
+
+
+@dataclass(frozen=True)
+class NoveltyResult:
+    """Novel labels of one agent.
+
+    Attributes:
+        n: episodes with a label.
+        n_novel: episodes whose label the reference never shows.
+        rate, rate_low, rate_high: ``n_novel / n`` and its interval.
+        labels: one row per novel label: label, count, share (of the agent's episodes),
+            example_scenario (the first episode showing it), sorted by count.
+    """
+
+    n: int
+    n_novel: int
+    rate: float
+    rate_low: float
+    rate_high: float
+    labels: pd.DataFrame
+
+    def row(self) -> dict:
+        """The scalar fields as a dict (a row of the novelty table)."""
+        return {"n": self.n, "n_novel": self.n_novel, "novel_rate": self.rate,
+                "novel_low": self.rate_low, "novel_high": self.rate_high,
+                "n_novel_labels": len(self.labels)}
+
+
+def novelty(episodes: pd.DataFrame, reference: Reference, *,
+            config: BootstrapConfig | None = None, stream: int = 0) -> NoveltyResult:
+    """The agent's labels that ``reference`` never shows, as a rate and examples.
+
+    Args:
+        episodes: the agent's rows of the episode table (``sdl``; ``env`` and
+            ``scenario_id`` when present); failed episodes and NA labels are left out.
+        reference: a corpus reference (whole SDL labels) at the labels' level.
+        config: bootstrap resamples, level and seed.
+        stream: random stream of the config.
+    """
+    if reference.kind != "corpus":
+        raise LabelTableError("novelty needs a reference corpus (its whole SDL labels); a "
+                              "vocabulary holds every single label, so nothing is novel.")
+    config = config or BootstrapConfig()
+    ok = episodes
+    if "status" in ok.columns:
+        ok = ok[ok["status"] == "ok"]
+    ok = ok[ok["sdl"].notna()]
+    lab = ok["sdl"].to_numpy(str)
+    novel = ~reference.contains(lab)
+    n = len(lab)
+    if n == 0:
+        empty = pd.DataFrame(columns=["label", "count", "share", "example_scenario"])
+        return NoveltyResult(0, 0, float("nan"), float("nan"), float("nan"), empty)
+    strata = ok["env"].to_numpy() if "env" in ok.columns else None
+    W = resample_weights(n, config, strata=strata, stream=20_000 + stream)
+    lo, hi = percentile_interval(W @ novel.astype(float) / n, config.level)
+    example = ok["scenario_id"].to_numpy() if "scenario_id" in ok.columns else \
+        np.arange(n).astype(str)
+    table = pd.DataFrame({"label": lab[novel], "example_scenario": example[novel]})
+    labels = (table.groupby("label", sort=False)
+              .agg(count=("label", "size"), example_scenario=("example_scenario", "first"))
+              .reset_index())
+    labels["share"] = labels["count"] / n
+    labels = labels.sort_values(["count", "label"], ascending=[False, True], kind="stable")
+    labels = labels[["label", "count", "share", "example_scenario"]].reset_index(drop=True)
+    return NoveltyResult(n, int(novel.sum()), float(novel.mean()), float(lo), float(hi), labels)

@@ -1,0 +1,408 @@
+"""``bench run``: roll out every policy of a suite in every env over its seeds, label, score,
+and write ``results/<run>/``.
+
+What a run folder holds:
+
+======================  ====================================================================
+``summary.json``        suite, seeds, thresholds, level, versions, machine, timings, failed
+                        episodes, the interval methods, headline figures
+``episodes.parquet``    the episode table (:mod:`tap_bench.bench.episodes`), failed
+                        episodes included with their error
+``labels.parquet``      TAP labels of every track at every level
+``trajectories.parquet``  the rollouts (unless ``keep_trajectories`` is False)
+``<table>.parquet``     every table of :class:`tap_bench.bench.scoring.Scores`
+``plots/*.png``         label distributions, measures, coverage, forest plots, novelty
+``report.html``         the static report (no server, images embedded)
+======================  ====================================================================
+
+The folder is built under a temporary name beside the target and renamed into place only
+when complete, so an interrupted run leaves nothing that looks finished; an existing run
+folder is never replaced unless ``overwrite`` is given. Rollouts run in worker processes,
+one task per (env, policy, chunk of seeds), each labelling its own episodes; an episode
+that fails is recorded with its error and left out of the scores, and a task whose worker
+dies marks its episodes failed: one bad episode never ends a run.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import json
+import multiprocessing
+import os
+import shutil
+import sys
+import tempfile
+import time
+import traceback
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from tap_bench.bench.episodes import episode_table
+from tap_bench.bench.scoring import Scores, score
+from tap_bench.bench.suite import Suite, load_suite
+from tap_bench.errors import FileFormatError
+
+__all__ = ["RunResult", "read_run", "run_suite"]
+
+CHUNK = 5
+"""Seeds per worker task: small enough to balance two workers and move the progress bar."""
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """What :func:`run_suite` returns.
+
+    Attributes:
+        folder: the run folder written.
+        summary: the content of ``summary.json``.
+        episodes: the episode table.
+        scores: the scored tables.
+        report: path of ``report.html``.
+    """
+
+    folder: Path
+    summary: dict[str, Any]
+    episodes: pd.DataFrame
+    scores: Scores
+    report: Path
+
+
+@dataclass(frozen=True)
+class _Task:
+    suite: Suite
+    env: str
+    policy: str
+    seeds: tuple[int, ...]
+    keep_trajectories: bool
+
+
+def _run_task(task: _Task) -> dict[str, Any]:
+    """Roll out, label and measure one chunk of seeds (in a worker process)."""
+    from tap_bench.labelling import tap
+    from tap_bench.sim.rollout import rollout
+
+    timings = {}
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        trajectories, episodes = rollout(task.suite.scenario(task.env), task.policy,
+                                         list(task.seeds), workers=1, progress=False)
+    t1 = time.perf_counter()
+    labels = pd.DataFrame()
+    if len(trajectories):
+        result = tap(trajectories, task.suite.thresholds,
+                     source=f"{task.env}/{task.policy} rollout")
+        labels = result.labels("all")
+    t2 = time.perf_counter()
+    eps = episode_table(labels=labels if len(labels) else None,
+                        trajectories=trajectories if len(trajectories) else None,
+                        episodes=episodes, level=task.suite.level, policy=task.policy)
+    t3 = time.perf_counter()
+    timings = {"rollout": t1 - t0, "labelling": t2 - t1, "measures": t3 - t2}
+    return {"episodes": eps, "labels": labels,
+            "trajectories": trajectories if task.keep_trajectories else None,
+            "timings": timings}
+
+
+def _failed_task(task: _Task, message: str) -> dict[str, Any]:
+    eps = pd.DataFrame({"env": task.env, "policy": task.policy, "seed": list(task.seeds),
+                        "status": "error", "error": message})
+    return {"episodes": episode_table(episodes=eps, level=task.suite.level),
+            "labels": pd.DataFrame(), "trajectories": None, "timings": {}}
+
+
+def _worker_init() -> None:
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    os.environ.setdefault("MKL_NUM_THREADS", "1")
+    warnings.filterwarnings("ignore")
+
+
+def _tasks(suite: Suite, keep: bool) -> list[_Task]:
+    chunks = [suite.seeds[i:i + CHUNK] for i in range(0, len(suite.seeds), CHUNK)]
+    return [_Task(suite, env, policy, chunk, keep)
+            for env in suite.envs for policy in suite.policies for chunk in chunks]
+
+
+def _rollouts(suite: Suite, workers: int, keep: bool, progress: bool | None
+              ) -> list[dict[str, Any]]:
+    from tqdm.auto import tqdm
+
+    tasks = _tasks(suite, keep)
+    results: list[dict[str, Any] | None] = [None] * len(tasks)
+    bar = tqdm(total=sum(len(t.seeds) for t in tasks), desc=f"bench {suite.name}",
+               unit="episode", disable=None if progress is None else not progress)
+    with bar:
+        if workers == 1:
+            for i, task in enumerate(tasks):
+                results[i] = _guarded(task)
+                bar.update(len(task.seeds))
+            return results  # type: ignore[return-value]
+        context = multiprocessing.get_context("spawn")
+        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=context,
+                                    initializer=_worker_init) as pool:
+            futures = {pool.submit(_run_task, task): i for i, task in enumerate(tasks)}
+            for future in cf.as_completed(futures):
+                i = futures[future]
+                try:
+                    results[i] = future.result()
+                except Exception as err:  # a dead worker or an error outside any episode
+                    results[i] = _failed_task(tasks[i], _describe(err))
+                bar.update(len(tasks[i].seeds))
+    return results  # type: ignore[return-value]
+
+
+def _guarded(task: _Task) -> dict[str, Any]:
+    try:
+        return _run_task(task)
+    except Exception as err:  # keep the run going; the episodes say why
+        return _failed_task(task, _describe(err))
+
+
+def _describe(err: BaseException) -> str:
+    text = "".join(traceback.format_exception_only(type(err), err)).strip()
+    return text or type(err).__name__
+
+
+def _versions() -> dict[str, str]:
+    from importlib import metadata
+
+    out = {}
+    for pkg in ("tap-bench", "numpy", "pandas", "pyarrow", "gymnasium", "highway-env",
+                "matplotlib", "stable-baselines3", "torch"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            continue
+    return out
+
+
+def _machine() -> dict[str, Any]:
+    try:
+        load = [round(x, 2) for x in os.getloadavg()]
+    except OSError:
+        load = []
+    return {"cores": os.cpu_count(), "load_avg": load, "python": sys.version.split()[0]}
+
+
+def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
+              workers: int = 2, womd: Sequence[str | os.PathLike] | None = None,
+              keep_trajectories: bool = True, overwrite: bool = False,
+              progress: bool | None = None, report: bool = True) -> RunResult:
+    """Run a benchmark suite and write its run folder.
+
+    Args:
+        suite: a :class:`Suite`, a suite name (``default``) or a suite JSON path.
+        output: the run folder to create (``results/run-001``).
+        workers: rollout processes (1: in this process).
+        womd: WOMD files (TFRecord or ScenarioNet pickles) to label as a second coverage
+            and novelty reference, and to match highway-env scenarios against.
+        keep_trajectories: also write ``trajectories.parquet``.
+        overwrite: replace an existing run folder.
+        progress: progress bar (None: only on a terminal).
+        report: write the plots and ``report.html``.
+
+    Returns:
+        :class:`RunResult`.
+
+    Raises:
+        FileExistsError: ``output`` exists and ``overwrite`` is False.
+    """
+    from tap_bench.thresholds import resolve_thresholds
+
+    suite = suite if isinstance(suite, Suite) else load_suite(suite)
+    output = Path(output)
+    if output.exists() and not overwrite:
+        raise FileExistsError(f"{output} exists; choose another run folder or pass "
+                              "--overwrite to replace it.")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be a positive integer, got {workers!r}.")
+    thresholds = resolve_thresholds(suite.thresholds)
+    for env in suite.envs:  # fail now on a bad override, not in a worker
+        suite.scenario(env)
+    timings: dict[str, float] = {}
+    t_start = time.perf_counter()
+    womd_labels = womd_traj = None
+    if womd:
+        t0 = time.perf_counter()
+        womd_traj, womd_labels = _label_womd(womd, suite)
+        timings["womd"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    results = _rollouts(suite, workers, keep_trajectories or bool(womd), progress)
+    timings["rollouts_wall"] = time.perf_counter() - t0
+    for key in ("rollout", "labelling", "measures"):
+        timings[f"{key}_cpu_in_workers"] = sum(r["timings"].get(key, 0.0) for r in results)
+    episodes = pd.concat([r["episodes"] for r in results], ignore_index=True)
+    episodes = episodes.sort_values(["env", "policy", "seed"], kind="stable")
+    episodes = episodes.reset_index(drop=True)
+    labels = pd.concat([r["labels"] for r in results if len(r["labels"])], ignore_index=True) \
+        if any(len(r["labels"]) for r in results) else pd.DataFrame()
+    trajectories = None
+    if keep_trajectories or womd:
+        frames = [r["trajectories"] for r in results
+                  if r["trajectories"] is not None and len(r["trajectories"])]
+        trajectories = pd.concat(frames, ignore_index=True) if frames else None
+
+    t0 = time.perf_counter()
+    matches = None
+    if womd_labels is not None and len(labels):
+        from tap_bench.bench.scenarios import match_scenarios
+
+        matches = match_scenarios(labels, trajectories, womd_labels, womd_traj,
+                                  level=suite.level, top=3)
+    references = {"WOMD": womd_labels} if womd_labels is not None else None
+    scores = score(episodes, reference_policy=suite.reference, level=suite.level,
+                   config=suite.bootstrap, references=references, scenario_matches=matches)
+    timings["scoring"] = time.perf_counter() - t0
+
+    failed = episodes[episodes["status"] != "ok"]
+    summary = {
+        "format": "tap-bench-run", "format_version": 1,
+        "run": output.name, "created": time.strftime("%Y-%m-%d %H:%M:%S"),
+        "suite": suite.to_dict(), "suite_file": str(suite.path) if suite.path else None,
+        "level": suite.level, "seeds": list(suite.seeds),
+        "thresholds": thresholds.to_dict() if hasattr(thresholds, "to_dict") else
+        str(suite.thresholds),
+        "reference_policy": suite.reference,
+        "womd_files": [str(p) for p in womd] if womd else [],
+        "versions": _versions(), "machine": _machine(),
+        "n_episodes": len(episodes), "n_failed": len(failed),
+        "failed": failed[["env", "policy", "seed", "error"]].to_dict("records"),
+        "methods": scores.methods,
+        "headline": _headline(scores, episodes),
+        "timings": timings,
+    }
+    t0 = time.perf_counter()
+    folder = _write_run(output, overwrite, summary, episodes, labels, trajectories
+                        if keep_trajectories else None, scores, report)
+    timings["writing_and_report"] = time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_start
+    _write_json(folder / "summary.json", summary)  # with the final timings
+    return RunResult(folder, summary, episodes, scores, folder / "report.html")
+
+
+def _label_womd(paths, suite: Suite) -> tuple[pd.DataFrame, pd.DataFrame]:
+    from tap_bench.labelling import tap
+    from tap_bench.womd import read_womd
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        traj = read_womd([str(p) for p in paths])
+        labels = tap(traj, suite.thresholds, source="WOMD").labels("all")
+    return traj, labels
+
+
+def _headline(scores: Scores, episodes: pd.DataFrame) -> dict[str, Any]:
+    """Per policy, pooled over envs: crash rate, mean speed, coverage of the reference."""
+    out: dict[str, Any] = {}
+    m = scores.measures
+    pooled_env = "all" if (m["env"] == "all").any() else m["env"].iloc[0] if len(m) else ""
+    for policy in sorted(episodes["policy"].unique()):
+        row: dict[str, Any] = {}
+        sub = m[(m["policy"] == policy) & (m["env"] == pooled_env)]
+        for r in sub.itertuples():
+            row[r.measure] = _round(r.mean)
+        cov = scores.coverage
+        if len(cov):
+            c = cov[(cov["policy"] == policy) & (cov["env"] == pooled_env)]
+            for r in c.itertuples():
+                row[f"coverage of {r.reference}"] = _round(r.coverage)
+        out[policy] = row
+    return out
+
+
+def _round(x: float) -> float | None:
+    return None if x is None or not np.isfinite(x) else round(float(x), 4)
+
+
+def _write_json(path: Path, doc: dict[str, Any]) -> None:
+    from tap_bench.tableio import atomic_path
+
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(doc, indent=2, default=_json_default) + "\n")
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating):
+        return None if not np.isfinite(value) else float(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
+    if isinstance(value, Path):
+        return str(value)
+    return str(value)
+
+
+def _write_run(output: Path, overwrite: bool, summary: dict[str, Any], episodes: pd.DataFrame,
+               labels: pd.DataFrame, trajectories: pd.DataFrame | None, scores: Scores,
+               report: bool) -> Path:
+    output.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{output.name}.", suffix=".tmp", dir=output.parent))
+    try:
+        episodes.to_parquet(tmp / "episodes.parquet", index=False)
+        if len(labels):
+            labels.to_parquet(tmp / "labels.parquet", index=False)
+        if trajectories is not None and len(trajectories):
+            trajectories.to_parquet(tmp / "trajectories.parquet", index=False)
+        for name, table in scores.tables().items():
+            if len(table):
+                _parquet_safe(table).to_parquet(tmp / f"{name}.parquet", index=False)
+        _write_json(tmp / "summary.json", summary)
+        if report:
+            from tap_bench.bench.report import write_report
+
+            write_report(tmp, summary, episodes, scores)
+        if output.exists():
+            if not overwrite:
+                raise FileExistsError(f"{output} appeared while the run was going; run again "
+                                      "with another folder or --overwrite.")
+            old = output.with_name(f".{output.name}.old")
+            if old.exists():
+                shutil.rmtree(old)
+            output.rename(old)
+            tmp.rename(output)
+            shutil.rmtree(old)
+        else:
+            tmp.rename(output)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return output
+
+
+def _parquet_safe(table: pd.DataFrame) -> pd.DataFrame:
+    """Object columns holding mixed Python values as strings (Parquet needs one type)."""
+    out = table.copy()
+    for col in out.columns:
+        if out[col].dtype == object:
+            kinds = {type(v) for v in out[col].dropna()}
+            if len(kinds) > 1:
+                out[col] = out[col].astype("string")
+    return out
+
+
+def read_run(folder: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame]:
+    """``summary.json`` and the episode table of a run folder.
+
+    Raises:
+        FileFormatError: the folder is not a finished run (no summary or episode table).
+    """
+    folder = Path(folder)
+    summary_path = folder / "summary.json"
+    episodes_path = folder / "episodes.parquet"
+    for path in (summary_path, episodes_path):
+        if not path.is_file():
+            raise FileFormatError(f"{folder}: not a finished run folder ({path.name} is "
+                                  "missing); make one with 'tap-bench bench run'.")
+    try:
+        summary = json.loads(summary_path.read_text())
+    except json.JSONDecodeError as err:
+        raise FileFormatError(f"{summary_path}: not valid JSON: {err}") from err
+    return summary, pd.read_parquet(episodes_path)

@@ -1,0 +1,300 @@
+"""Benchmark suites as data: which envs, policies and seeds a run covers, and how it is scored.
+
+A suite is a JSON file in ``envs/suites/`` (beside the scenario files it names; with
+``$TAP_BENCH_SUITE`` set, in ``$TAP_BENCH_SUITE/envs/suites/``)::
+
+    {
+      "name": "default", "version": 0,
+      "description": "every scenario x every built-in policy",
+      "envs": ["highway", "merge"],                 # scenario names (tap-bench envs)
+      "policies": ["idm", "idm-aggressive"],        # policy names (tap-bench policies)
+      "seeds": "0-29",                              # every policy meets the same seeds
+      "reference_policy": "idm",                    # compared with every other policy;
+                                                    # its ego labels are the coverage reference
+      "level": "maneuver",                          # SDL level scored
+      "thresholds": "paper",                        # TAP thresholds (preset or JSON file)
+      "env_overrides": {"highway": {"duration": 15, "config": {"vehicles_count": 10}}},
+      "bootstrap": {"n_resamples": 2000, "level": 0.95, "seed": 0},
+      "gate": {"alpha": 0.05, "n_permutations": 9999, "seed": 0,
+               "margins": {"crashed": 0.1, "mean_speed": 1.0, "label_tv": 0.2}}
+    }
+
+Every field but ``name``, ``envs``, ``policies`` and ``seeds`` has the default shown in
+:class:`Suite`. Unknown fields, envs and policies are refused with "did you mean".
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from tap_bench import sdl
+from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.measures import MEASURES
+from tap_bench.errors import FileFormatError, UnknownNameError, did_you_mean
+
+__all__ = ["GATE_METRICS", "GateConfig", "Suite", "available_suites", "load_suite",
+           "suite_from_dict"]
+
+GATE_METRICS = (*(m.name for m in MEASURES), "label_tv")
+"""What the regression gate checks per (env, policy): the measures' means and the total
+variation distance between the ego label distributions of the run and of the baseline."""
+
+DEFAULT_MARGINS: Mapping[str, float] = {
+    "crashed": 0.10,  # collision rate, absolute
+    "mean_speed": 1.0,  # [m/s]
+    "min_headway_s": 0.3,  # [s]
+    "min_ttc_s": 1.0,  # [s]
+    "rms_jerk": 1.0,  # [m/s^3]
+    "label_tv": 0.20,  # total variation distance of label distributions, in [0, 1]
+}
+
+_FIELDS = ("name", "version", "description", "envs", "policies", "seeds", "reference_policy",
+           "level", "thresholds", "env_overrides", "bootstrap", "gate")
+_OVERRIDE_FIELDS = ("duration", "config", "lane_change")
+_GATE_FIELDS = ("alpha", "n_permutations", "seed", "margins")
+
+
+@dataclass(frozen=True)
+class GateConfig:
+    """How ``bench check`` decides that a metric moved.
+
+    A metric of one (env, policy) moved when its change from the baseline is larger than
+    its margin **and** a permutation test (episodes exchanged between run and baseline)
+    rejects "no change" at ``alpha`` after Holm's correction over every check of the run.
+
+    Attributes:
+        margins: metric -> largest change tolerated (absolute, in the metric's unit).
+        alpha: family-wise error rate of the gate.
+        n_permutations: permutations per test (enough that Holm can reach alpha).
+        seed: seed of the permutations.
+    """
+
+    margins: Mapping[str, float] = field(default_factory=lambda: dict(DEFAULT_MARGINS))
+    alpha: float = 0.05
+    n_permutations: int = 9999
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for key, value in self.margins.items():
+            if key not in GATE_METRICS:
+                raise did_you_mean("gate metric", key, GATE_METRICS)
+            if not isinstance(value, int | float) or isinstance(value, bool) or value < 0:
+                raise ValueError(f"gate margin {key!r} must be a number >= 0, got {value!r}.")
+        if not 0 < self.alpha < 1:
+            raise ValueError(f"gate alpha must be in (0, 1), got {self.alpha!r}.")
+        if not isinstance(self.n_permutations, int) or self.n_permutations < 99:
+            raise ValueError(f"gate n_permutations must be an integer >= 99, got "
+                             f"{self.n_permutations!r}.")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"alpha": self.alpha, "n_permutations": self.n_permutations, "seed": self.seed,
+                "margins": dict(self.margins)}
+
+
+@dataclass(frozen=True)
+class Suite:
+    """A validated benchmark suite (see the module docstring for the file format).
+
+    Attributes:
+        name, version, description: identity.
+        envs: scenario names.
+        policies: policy names.
+        seeds: the seeds every policy runs in every env.
+        reference_policy: the policy every other one is compared with, whose ego labels
+            are the coverage reference (None: the first policy).
+        level: the SDL level scored.
+        thresholds: a thresholds preset name or JSON path.
+        env_overrides: env -> {"duration": s, "config": {...}, "lane_change": name}.
+        bootstrap: interval settings.
+        gate: regression-gate settings.
+        path: the file it was read from.
+    """
+
+    name: str
+    envs: tuple[str, ...]
+    policies: tuple[str, ...]
+    seeds: tuple[int, ...]
+    version: int = 0
+    description: str = ""
+    reference_policy: str | None = None
+    level: str = "maneuver"
+    thresholds: str = "paper"
+    env_overrides: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    bootstrap: BootstrapConfig = field(default_factory=BootstrapConfig)
+    gate: GateConfig = field(default_factory=GateConfig)
+    path: Path | None = field(default=None, compare=False)
+
+    @property
+    def reference(self) -> str:
+        """The reference policy's name."""
+        return self.reference_policy or self.policies[0]
+
+    def scenario(self, env: str):
+        """The env's :class:`tap_bench.sim.Scenario` with this suite's overrides."""
+        from tap_bench.sim.scenario_env import get_scenario
+
+        scenario = get_scenario(env)
+        over = self.env_overrides.get(env)
+        if over:
+            scenario = scenario.with_overrides(over.get("config"), duration=over.get("duration"),
+                                               lane_change=over.get("lane_change"))
+        return scenario
+
+    def to_dict(self) -> dict[str, Any]:
+        """The suite as the JSON it was (or could have been) read from, defaults filled."""
+        return {"name": self.name, "version": self.version, "description": self.description,
+                "envs": list(self.envs), "policies": list(self.policies),
+                "seeds": list(self.seeds), "reference_policy": self.reference,
+                "level": self.level, "thresholds": self.thresholds,
+                "env_overrides": {k: dict(v) for k, v in self.env_overrides.items()},
+                "bootstrap": {"n_resamples": self.bootstrap.n_resamples,
+                              "level": self.bootstrap.level, "seed": self.bootstrap.seed},
+                "gate": self.gate.to_dict()}
+
+
+def suites_dir() -> Path:
+    """The folder of suite files: ``envs/suites/`` of the scenario suite."""
+    from tap_bench.sim.suite import suite_dir
+
+    return suite_dir("envs") / "suites"
+
+
+def available_suites() -> list[str]:
+    """Names of the suite files in :func:`suites_dir`."""
+    return sorted(p.stem for p in suites_dir().glob("*.json"))
+
+
+def _strings(doc: Mapping[str, Any], key: str, source: str) -> tuple[str, ...]:
+    value = doc[key]
+    if not isinstance(value, list) or not value or not all(isinstance(v, str) for v in value):
+        raise FileFormatError(f"{source}: {key!r} must be a non-empty list of names, got "
+                              f"{value!r}.")
+    if len(set(value)) != len(value):
+        dup = next(v for v in value if value.count(v) > 1)
+        raise FileFormatError(f"{source}: {key!r} names {dup!r} twice.")
+    return tuple(value)
+
+
+def suite_from_dict(doc: Any, *, source: str = "suite", path: Path | None = None,
+                    check_names: bool = True) -> Suite:
+    """Validate a suite document (the parsed JSON).
+
+    Args:
+        doc: the document.
+        source: where it came from, for messages.
+        path: the file, when there is one.
+        check_names: check the envs and policies exist (needs highway-env's registry).
+
+    Raises:
+        FileFormatError: naming the field, the bad value and what is allowed.
+    """
+    from tap_bench.sim.suite import parse_seeds
+
+    if not isinstance(doc, dict):
+        raise FileFormatError(f"{source}: a suite file holds one JSON object.")
+    for key in doc:
+        if key not in _FIELDS:
+            raise FileFormatError(f"{source}: {did_you_mean('suite field', key, _FIELDS)}")
+    missing = [k for k in ("name", "envs", "policies", "seeds") if k not in doc]
+    if missing:
+        raise FileFormatError(f"{source}: missing field(s) {', '.join(map(repr, missing))}; a "
+                              "suite needs name, envs, policies and seeds.")
+    envs = _strings(doc, "envs", source)
+    policies = _strings(doc, "policies", source)
+    try:
+        seeds = tuple(parse_seeds(doc["seeds"], source=f"{source}: seeds"))
+    except ValueError as err:
+        raise FileFormatError(str(err)) from err
+    level = doc.get("level", "maneuver")
+    if level not in sdl.LEVELS:
+        raise FileFormatError(f"{source}: {did_you_mean('level', level, sdl.LEVELS)}")
+    reference = doc.get("reference_policy")
+    if reference is not None and reference not in policies:
+        raise FileFormatError(f"{source}: reference_policy {reference!r} is not one of the "
+                              f"suite's policies ({', '.join(policies)}).")
+    overrides = doc.get("env_overrides", {})
+    if not isinstance(overrides, dict):
+        raise FileFormatError(f"{source}: env_overrides must be an object env -> overrides.")
+    for env, over in overrides.items():
+        if env not in envs:
+            raise FileFormatError(f"{source}: env_overrides names {env!r}, which is not in "
+                                  f"envs ({', '.join(envs)}).")
+        if not isinstance(over, dict):
+            raise FileFormatError(f"{source}: env_overrides[{env!r}] must be an object.")
+        for key in over:
+            if key not in _OVERRIDE_FIELDS:
+                err = did_you_mean("env override", key, _OVERRIDE_FIELDS)
+                raise FileFormatError(f"{source}: env_overrides[{env!r}]: {err}")
+    try:
+        boot = BootstrapConfig(**doc.get("bootstrap", {}))
+    except (TypeError, ValueError) as err:
+        raise FileFormatError(f"{source}: bootstrap: {err} (fields: n_resamples, level, "
+                              "seed).") from err
+    gate_doc = doc.get("gate", {})
+    for key in gate_doc:
+        if key not in _GATE_FIELDS:
+            raise FileFormatError(f"{source}: gate: "
+                                  f"{did_you_mean('gate field', key, _GATE_FIELDS)}")
+    try:
+        margins = {**DEFAULT_MARGINS, **gate_doc.get("margins", {})}
+        gate = GateConfig(**{**gate_doc, "margins": margins})
+    except (TypeError, ValueError, UnknownNameError) as err:
+        raise FileFormatError(f"{source}: gate: {err}") from err
+    thresholds = doc.get("thresholds", "paper")
+    if not isinstance(thresholds, str):
+        raise FileFormatError(f"{source}: thresholds must be a preset name or a JSON path.")
+    if path is not None and thresholds.endswith(".json") and not os.path.isabs(thresholds):
+        thresholds = str((path.parent / thresholds).resolve())
+    suite = Suite(name=str(doc["name"]), version=int(doc.get("version", 0)),
+                  description=str(doc.get("description", "")), envs=envs, policies=policies,
+                  seeds=seeds, reference_policy=reference, level=level, thresholds=thresholds,
+                  env_overrides=overrides, bootstrap=boot, gate=gate, path=path)
+    if check_names:
+        _check_names(suite, source)
+    return suite
+
+
+def _check_names(suite: Suite, source: str) -> None:
+    from tap_bench.sim.policies import available_policies
+    from tap_bench.sim.suite import scenario_names
+
+    known_envs = scenario_names()
+    for env in suite.envs:
+        if env not in known_envs:
+            raise FileFormatError(f"{source}: {did_you_mean('env', env, known_envs)}")
+    known = available_policies()
+    for policy in suite.policies:
+        if policy not in known and not Path(policy).suffix:
+            raise FileFormatError(f"{source}: {did_you_mean('policy', policy, known)}")
+    for env in suite.env_overrides:
+        try:
+            suite.scenario(env)
+        except (FileFormatError, ValueError) as err:
+            raise FileFormatError(f"{source}: env_overrides[{env!r}]: {err}") from err
+
+
+def load_suite(name_or_path: str | os.PathLike) -> Suite:
+    """A suite by name (``default``, a file of :func:`suites_dir`) or by JSON path.
+
+    Raises:
+        UnknownNameError: no suite of that name (with the closest names).
+        FileFormatError: the file is not JSON or breaks the format.
+    """
+    text = str(name_or_path)
+    path = Path(text)
+    if not text.endswith(".json"):
+        path = suites_dir() / f"{text}.json"
+        if not path.is_file():
+            raise did_you_mean("suite", text, available_suites())
+    try:
+        doc = json.loads(path.read_text())
+    except OSError as err:
+        raise FileFormatError(f"{path}: cannot read the suite file: {err}") from err
+    except json.JSONDecodeError as err:
+        raise FileFormatError(f"{path}: not valid JSON: {err}") from err
+    return suite_from_dict(doc, source=str(path), path=path)
