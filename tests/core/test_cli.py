@@ -115,3 +115,13 @@ def test_resampled_table_labels_like_the_original():
     back = tb.resample_to_10hz(two_hz)
     assert np.allclose(back["t"].diff().dropna(), 0.1)
     assert tb.label(back)["sdl"].item() == tb.label(table)["sdl"].item()
+
+
+def test_written_files_get_the_usual_permissions(tmp_path):
+    import os
+    import stat
+
+    target = tb.write_table(pd.DataFrame({"a": [1]}), tmp_path / "p.csv")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert stat.S_IMODE(target.stat().st_mode) == 0o666 & ~umask
