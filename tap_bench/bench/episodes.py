@@ -33,7 +33,7 @@ import pandas as pd
 from tap_bench.bench.measures import MEASURES, ego_measures
 from tap_bench.errors import LabelTableError, TrajectoryTableError
 
-__all__ = ["EPISODE_COLUMNS", "ego_labels", "episode_table"]
+__all__ = ["EPISODE_COLUMNS", "ego_labels", "episode_table", "episodes_from_table"]
 
 EPISODE_COLUMNS = ("env", "policy", "seed", "scenario_id", "status", "error", "sdl", "lateral",
                    "longitudinal", "return", *(m.name for m in MEASURES), "duration_s")
@@ -190,3 +190,26 @@ def _fill_ids(out: pd.DataFrame, policy: str | None, source: str) -> pd.DataFram
     if "env" not in out.columns:
         out["env"] = ""
     return out
+
+
+def episodes_from_table(table: pd.DataFrame, *, level: str, thresholds: str = "paper",
+                        policy: str | None = None, source: str = "input"
+                        ) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame | None]:
+    """The episode table of a trajectory table or of a label table.
+
+    A table with an ``sdl`` column is a label table (measures then stay NaN unless it carries
+    them); any other is a trajectory table, labelled here with ``thresholds`` at every
+    level, whose measures are computed too.
+
+    Returns:
+        (episode table, label table, trajectory table or None).
+    """
+    from tap_bench.labelling import tap
+
+    if "sdl" in table.columns:
+        return episode_table(labels=table, level=level, policy=policy, source=source), \
+            table, None
+    labels = tap(table, thresholds, source=source).labels("all")
+    eps = episode_table(labels=labels, trajectories=table, level=level, policy=policy,
+                        source=source)
+    return eps, labels, table

@@ -48,7 +48,7 @@ from tap_bench.bench.scoring import Scores, score
 from tap_bench.bench.suite import Suite, load_suite
 from tap_bench.errors import FileFormatError
 
-__all__ = ["RunResult", "read_run", "run_suite"]
+__all__ = ["RunResult", "package_versions", "read_run", "run_suite", "write_results"]
 
 CHUNK = 5
 """Seeds per worker task: small enough to balance two workers and move the progress bar."""
@@ -169,7 +169,8 @@ def _describe(err: BaseException) -> str:
     return text or type(err).__name__
 
 
-def _versions() -> dict[str, str]:
+def package_versions() -> dict[str, str]:
+    """Versions of tap-bench and the packages its results depend on."""
     from importlib import metadata
 
     out = {}
@@ -271,7 +272,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         str(suite.thresholds),
         "reference_policy": suite.reference,
         "womd_files": [str(p) for p in womd] if womd else [],
-        "versions": _versions(), "machine": _machine(),
+        "versions": package_versions(), "machine": _machine(),
         "n_episodes": len(episodes), "n_failed": len(failed),
         "failed": failed[["env", "policy", "seed", "error"]].to_dict("records"),
         "methods": scores.methods,
@@ -279,7 +280,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "timings": timings,
     }
     t0 = time.perf_counter()
-    folder = _write_run(output, overwrite, summary, episodes, labels, trajectories
+    folder = write_results(output, overwrite, summary, episodes, labels, trajectories
                         if keep_trajectories else None, scores, report)
     timings["writing_and_report"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
@@ -340,9 +341,22 @@ def _json_default(value: Any) -> Any:
     return str(value)
 
 
-def _write_run(output: Path, overwrite: bool, summary: dict[str, Any], episodes: pd.DataFrame,
-               labels: pd.DataFrame, trajectories: pd.DataFrame | None, scores: Scores,
-               report: bool) -> Path:
+def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str, Any],
+                  episodes: pd.DataFrame, labels: pd.DataFrame,
+                  trajectories: pd.DataFrame | None, scores: Scores, report: bool = True
+                  ) -> Path:
+    """Write a results folder (tables, ``summary.json``, plots, report) atomically.
+
+    The folder is built under a temporary name beside ``output`` and renamed into place
+    when complete; an existing ``output`` is replaced only when ``overwrite`` is True.
+
+    Raises:
+        FileExistsError: ``output`` exists and ``overwrite`` is False.
+    """
+    output = Path(output)
+    if output.exists() and not overwrite:
+        raise FileExistsError(f"{output} exists; choose another folder or pass --overwrite "
+                              "to replace it.")
     output.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{output.name}.", suffix=".tmp", dir=output.parent))
     try:

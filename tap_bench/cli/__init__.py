@@ -24,6 +24,11 @@ COMMANDS = (
     "tap_bench.cli.policies",
     "tap_bench.cli.rollout",
     "tap_bench.cli.train",
+    # the benchmark: matched comparison, coverage, suite runs and the regression gate
+    "tap_bench.cli.compare",
+    "tap_bench.cli.coverage",
+    "tap_bench.cli.bench",
+    "tap_bench.cli.demo",
 )
 
 

@@ -1,0 +1,118 @@
+"""``tap-bench bench``: run a benchmark suite (``bench run``), check a run against a baseline
+(``bench check``) and list the suites (``bench suites``)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "bench", help="run a benchmark suite; check a run against a baseline",
+        description="Benchmark suites (envs/suites/*.json): every policy in every env over "
+        "the suite's seeds, labelled by TAP and scored; results/<run>/ holds Parquet tables, "
+        "summary.json, PNG plots and report.html. 'bench check' is the regression gate.")
+    sub = p.add_subparsers(dest="bench_command", metavar="ACTION")
+
+    r = sub.add_parser("run", help="run a suite and write results/<run>/",
+                       description="Roll out every policy of the suite in every env over its "
+                       "seeds (in worker processes), label every vehicle with TAP, score "
+                       "(matched comparisons, coverage, unique manoeuvres) and write the run "
+                       "folder atomically. A failing episode is reported, not fatal.")
+    r.add_argument("--suite", default="default",
+                   help="suite name (tap-bench bench suites) or JSON file (default: default)")
+    r.add_argument("-o", "--output", required=True, help="run folder (results/run-001)")
+    r.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                   help="rollout processes (default 2)")
+    r.add_argument("--womd", nargs="+", metavar="FILE",
+                   help="WOMD files (TFRecord, ScenarioNet .pkl): a second coverage reference, "
+                   "and each episode matched to its nearest WOMD scenarios")
+    r.add_argument("--no-trajectories", action="store_true",
+                   help="do not write trajectories.parquet")
+    r.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
+    r.add_argument("--no-progress", action="store_true", help="no progress bar")
+    r.set_defaults(func=run_bench)
+
+    c = sub.add_parser("check", help="regression gate: compare a run with a baseline",
+                       description="Compare a run with a baseline, per env, policy and metric "
+                       "(measure means and the label distribution). A metric moved when its "
+                       "change exceeds its margin and a permutation test, Holm-corrected over "
+                       "all checks, rejects 'no change'. Exits 1 with a table of what moved, "
+                       "0 when nothing did. The baseline changes only with --update-baseline.")
+    c.add_argument("run", help="run folder written by 'bench run'")
+    c.add_argument("--baseline", required=True, help="baseline JSON "
+                   "(results/baselines/default.json)")
+    c.add_argument("--update-baseline", action="store_true",
+                   help="replace the baseline with this run (and exit 0)")
+    c.add_argument("--all", action="store_true", help="print every check, not only moves")
+    c.add_argument("-o", "--output", help="also write the check table (.csv/.parquet)")
+    c.set_defaults(func=check_bench)
+
+    s = sub.add_parser("suites", help="list the benchmark suites")
+    s.set_defaults(func=list_suites)
+    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+
+
+def run_bench(args: argparse.Namespace) -> int:
+    from tap_bench.bench.demo import timing_split
+    from tap_bench.bench.runner import run_suite
+
+    result = run_suite(args.suite, args.output, workers=args.workers, womd=args.womd,
+                       keep_trajectories=not args.no_trajectories, overwrite=args.overwrite,
+                       progress=False if args.no_progress else None)
+    s = result.summary
+    split = timing_split(result)
+    print(f"{s['n_episodes']} episodes, {s['n_failed']} failed; {split['total']:.0f} s "
+          f"(rollouts {split['rollout']:.0f} s, labelling {split['labelling']:.0f} s, scoring "
+          f"{split['scoring']:.1f} s, report {split['report']:.1f} s)")
+    for row in s["failed"][:10]:
+        print(f"  failed: {row['env']} {row['policy']} seed {row['seed']}: {row['error']}",
+              file=sys.stderr)
+    print(f"wrote {result.folder}/ (report: {result.report})")
+    return 0
+
+
+def check_bench(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from tap_bench.bench.gate import check, read_baseline, write_baseline
+    from tap_bench.bench.runner import read_run
+    from tap_bench.tableio import write_table
+
+    summary, episodes = read_run(args.run)
+    baseline_path = Path(args.baseline)
+    if args.update_baseline:
+        if baseline_path.is_file():
+            try:
+                doc, base = read_baseline(baseline_path)
+                result = check(summary, episodes, doc, base)
+                print("against the old baseline: " + result.format())
+            except Exception as err:  # an old or foreign baseline is being replaced anyway
+                print(f"(the old baseline could not be compared: {err})")
+        write_baseline(summary, episodes, baseline_path)
+        print(f"baseline {baseline_path} now holds run {summary.get('run')} "
+              f"({int((episodes['status'] == 'ok').sum())} episodes)")
+        return 0
+    doc, base = read_baseline(baseline_path)
+    result = check(summary, episodes, doc, base)
+    print(result.format(all_rows=args.all))
+    if args.output:
+        write_table(result.table, args.output)
+    if result.moved:
+        print(f"FAIL: the run moved against {baseline_path}; if the change is intended, "
+              "accept it with --update-baseline.")
+        return 1
+    print(f"OK: nothing moved beyond its margin against {baseline_path}.")
+    return 0
+
+
+def list_suites(args: argparse.Namespace) -> int:
+    from tap_bench.bench.suite import available_suites, load_suite
+
+    for name in available_suites():
+        suite = load_suite(name)
+        print(f"{name:12s} {len(suite.envs)} envs x {len(suite.policies)} policies x "
+              f"{len(suite.seeds)} seeds, level {suite.level}: {suite.description}")
+    return 0

@@ -1,0 +1,108 @@
+"""``tap-bench compare``: matched comparison of two policies' trajectory or label tables."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from tap_bench.sdl import LEVELS
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "compare", help="compare two policies: paired by seed and matched by SDL label",
+        description="Compare policy A with policy B. Each input is a trajectory table "
+        "(labelled here; safety and efficiency measures computed from it) or a label table "
+        "(labels only). Episodes on the same (env, seed) are paired: label agreement, "
+        "per-label frequency differences and probabilities of improvement with paired "
+        "bootstrap intervals over seeds. Episodes with the same ego label are grouped: "
+        "measures compared inside each group. B's labels are also the reference for A's "
+        "coverage and unique manoeuvres. Writes Parquet tables, PNG plots and report.html.")
+    p.add_argument("a", help="policy A: trajectory or label table (.parquet/.csv)")
+    p.add_argument("b", help="policy B (the reference): trajectory or label table")
+    p.add_argument("-o", "--output", required=True, help="results folder to write")
+    p.add_argument("--names", nargs=2, metavar=("A", "B"),
+                   help="policy names (default: the tables' policy column, else file names)")
+    p.add_argument("--level", default="maneuver", choices=LEVELS,
+                   help="SDL level compared (default maneuver)")
+    p.add_argument("--thresholds", default="paper",
+                   help="TAP thresholds for trajectory tables (preset or JSON; default paper)")
+    p.add_argument("--metric", default="exact", choices=("exact", "levenshtein"),
+                   help="label distance for the matched groups (default exact, g_SDL)")
+    p.add_argument("--d-sim", type=float, default=0,
+                   help="largest label distance inside a matched group (default 0)")
+    p.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples (2000)")
+    p.add_argument("--ci", type=float, default=0.95, help="interval level (0.95)")
+    p.add_argument("--seed", type=int, default=0, help="bootstrap seed (0)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    p.set_defaults(func=run)
+
+
+def _name(table, given: str | None, path: str) -> str:
+    if given:
+        return given
+    if "policy" in table.columns and table["policy"].nunique() == 1:
+        return str(table["policy"].iloc[0])
+    return Path(path).name.split(".")[0]
+
+
+def run(args: argparse.Namespace) -> int:
+    import dataclasses
+    import time
+
+    import pandas as pd
+
+    from tap_bench.bench.bootstrap import BootstrapConfig
+    from tap_bench.bench.compare import matched_by_label
+    from tap_bench.bench.episodes import episodes_from_table
+    from tap_bench.bench.runner import package_versions, write_results
+    from tap_bench.bench.scoring import score
+    from tap_bench.errors import LabelTableError
+    from tap_bench.tableio import read_table
+
+    config = BootstrapConfig(n_resamples=args.resamples, level=args.ci, seed=args.seed)
+    names = args.names or [None, None]
+    parts = []
+    for path, given in zip((args.a, args.b), names, strict=True):
+        table = read_table(path)
+        name = _name(table, given, path)
+        if "policy" in table.columns:
+            table = table.assign(policy=name)
+        parts.append((name, *episodes_from_table(table, level=args.level,
+                                                  thresholds=args.thresholds, policy=name,
+                                                  source=str(path))))
+    (a, eps_a, lab_a, _), (b, eps_b, lab_b, _) = parts
+    if a == b:
+        raise LabelTableError(f"both inputs are policy {a!r}; name them apart with "
+                              "--names A B.")
+    episodes = pd.concat([eps_a, eps_b], ignore_index=True)
+    scores = score(episodes, reference_policy=b, level=args.level, config=config,
+                   comparisons=[(a, b)])
+    if args.metric != "exact" or args.d_sim:
+        matched = matched_by_label(episodes, a, b, metric=args.metric, d_sim=args.d_sim,
+                                   config=config).assign(policy_a=a, policy_b=b)
+        scores = dataclasses.replace(scores, matched=matched)
+    summary = {"format": "tap-bench-compare", "run": Path(args.output).name,
+               "created": time.strftime("%Y-%m-%d %H:%M:%S"),
+               "suite": {"name": "compare", "description": f"{a} ({args.a}) against {b} "
+                         f"({args.b})", "policies": [a, b],
+                         "envs": sorted(episodes["env"].unique())},
+               "level": args.level, "thresholds": args.thresholds, "reference_policy": b,
+               "seeds": sorted(int(s) for s in episodes["seed"].unique()),
+               "n_episodes": len(episodes),
+               "n_failed": int((episodes["status"] != "ok").sum()),
+               "methods": scores.methods, "versions": package_versions()}
+    labels = pd.concat([lab_a, lab_b], ignore_index=True)
+    folder = write_results(args.output, args.overwrite, summary, episodes, labels, None, scores)
+    for row in scores.paired.itertuples():
+        print(f"{row.env}: {row.n_pairs} seeds paired; same ego label on {row.agreement:.0%} "
+              f"[{row.agreement_low:.0%}, {row.agreement_high:.0%}]")
+    pm = scores.paired_measures
+    if len(pm):
+        env = "all" if (pm["env"] == "all").any() else pm["env"].iloc[0]
+        for r in pm[pm["env"] == env].itertuples():
+            print(f"  {r.measure:14s} {a} {r.mean_a:8.3f}  {b} {r.mean_b:8.3f}  "
+                  f"diff {r.diff:+.3f} [{r.diff_low:+.3f}, {r.diff_high:+.3f}]  "
+                  f"P({a} better) {r.p_improvement:.2f} [{r.p_low:.2f}, {r.p_high:.2f}]")
+    print(f"wrote {folder}/ (report: {folder / 'report.html'})")
+    return 0
