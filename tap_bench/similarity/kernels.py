@@ -1,0 +1,408 @@
+"""Compiled kernels for ADE and DTW: pairwise distances and pruned exact nearest neighbours.
+
+numba compiles these on first use and caches the machine code beside this file
+(``cache=True``), so the compile time (a few seconds) is paid once per installation; see
+:func:`tap_bench.similarity.nearest.compile_kernels`. Every kernel is serial and releases
+the GIL (``nogil=True``): the callers run chunks of queries on a thread pool instead of
+numba's parallel layer, whose worker threads spin while they wait and crawl on a shared
+machine.
+
+Conventions: a trajectory is an (n, 2) block of float64 points; the point cost is the
+Euclidean distance sqrt(dx^2 + dy^2), computed by the same expression everywhere so that
+pruned and brute-force searches produce bit-identical distances. Searches return sums (ADE
+is the sum divided by the length) and break ties by the lowest candidate index, as
+``argmin`` over a brute-force distance row does.
+
+Pruning never changes a result: a candidate is skipped only when a lower bound of its
+distance exceeds ``best * (1 + REL) + slack``, where ``slack`` absorbs the rounding of the
+bounds (the caller sets it from the data's scale).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+REL = 1e-9
+"""Relative slack on every pruning bound (the bounds round differently from the distance)."""
+
+
+@njit(cache=True, nogil=True)
+def _cost(a, i, b, j):
+    dx = a[i, 0] - b[j, 0]
+    dy = a[i, 1] - b[j, 1]
+    return np.sqrt(dx * dx + dy * dy)
+
+
+@njit(cache=True, nogil=True)
+def ade_sum(a, b):
+    """Sum over t of ||a_t - b_t|| for (n, 2) arrays of equal n [m]."""
+    s = 0.0
+    for t in range(a.shape[0]):
+        s += _cost(a, t, b, t)
+    return s
+
+
+@njit(cache=True, nogil=True)
+def dtw_full(a, b):
+    """DTW distance of (n, 2) and (m, 2): min over warping paths of the summed point costs.
+
+    Full window, steps (1, 0), (0, 1), (1, 1); two rows of the dynamic programme.
+    """
+    n, m = a.shape[0], b.shape[0]
+    prev = np.empty(m)
+    curr = np.empty(m)
+    s = 0.0
+    for j in range(m):
+        s += _cost(a, 0, b, j)
+        prev[j] = s
+    for i in range(1, n):
+        curr[0] = _cost(a, i, b, 0) + prev[0]
+        for j in range(1, m):
+            v = prev[j - 1]
+            if prev[j] < v:
+                v = prev[j]
+            if curr[j - 1] < v:
+                v = curr[j - 1]
+            curr[j] = _cost(a, i, b, j) + v
+        prev, curr = curr, prev
+    return prev[m - 1]
+
+
+@njit(cache=True, nogil=True)
+def pairwise(kind, points, offsets, left, right, out):
+    """out[k] = distance(left[k], right[k]) for ragged trajectories (kind 0 ADE sum, 1 DTW)."""
+    for k in range(left.shape[0]):
+        a = points[offsets[left[k]]:offsets[left[k] + 1]]
+        b = points[offsets[right[k]]:offsets[right[k] + 1]]
+        if kind == 0:
+            out[k] = ade_sum(a, b)
+        else:
+            out[k] = dtw_full(a, b)
+
+
+# -- ADE: exact nearest neighbours among trajectories of one length --------------------------
+@njit(cache=True, nogil=True)
+def ade_nearest_chunk(X, S, C, order, pos, slack, queries, out_nb, out_sum, out_eval):
+    """ADE nearest neighbour of each query among all rows of X (itself excluded).
+
+    Args:
+        X: (N, L, 2) normalised trajectories of one length.
+        S: (N, K, 2) sums of the points of K consecutive blocks of each trajectory.
+        C: (N, 2) sums of all points.
+        order: (N,) rows sorted by C[:, 0]; pos: (N,) position of each row in ``order``.
+        slack: absolute slack on the bounds [m, in sum units].
+        queries: (q,) rows to answer.
+        out_nb, out_sum, out_eval: (q,) neighbour row, its ADE sum, candidates evaluated in
+            full or abandoned early.
+
+    Bounds (in sum units, all <= sum_t ||a_t - b_t||): |sum of x differences| (the scan
+    order), ||C_a - C_b||, and sum_k ||S_a,k - S_b,k|| (each block's points: the norm of a sum
+    is at most the sum of norms). Candidates are visited outward from the query in the
+    sorted order, nearest key first, until the key difference alone exceeds the best sum.
+    """
+    n_rows, length = X.shape[0], X.shape[1]
+    n_blocks = S.shape[1]
+    for qi in range(queries.shape[0]):
+        q = queries[qi]
+        xq = X[q]
+        p = pos[q]
+        kq = C[q, 0]
+        best = np.inf
+        best_j = -1
+        evaluated = 0
+        left = p - 1
+        right = p + 1
+        while True:
+            dl = kq - C[order[left], 0] if left >= 0 else np.inf
+            dr = C[order[right], 0] - kq if right < n_rows else np.inf
+            if dl <= dr:
+                if dl == np.inf:
+                    break
+                c = order[left]
+                dk = dl
+                left -= 1
+            else:
+                c = order[right]
+                dk = dr
+                right += 1
+            bound = best * (1.0 + REL) + slack
+            if dk > bound:
+                break
+            dx = C[q, 0] - C[c, 0]
+            dy = C[q, 1] - C[c, 1]
+            if np.sqrt(dx * dx + dy * dy) > bound:
+                continue
+            lb = 0.0
+            for k in range(n_blocks):
+                dx = S[q, k, 0] - S[c, k, 0]
+                dy = S[q, k, 1] - S[c, k, 1]
+                lb += np.sqrt(dx * dx + dy * dy)
+                if lb > bound:
+                    break
+            if lb > bound:
+                continue
+            evaluated += 1
+            xc = X[c]
+            s = 0.0
+            for t in range(length):
+                s += _cost(xq, t, xc, t)
+                if s > bound:
+                    break
+            if s > bound:
+                continue
+            if s < best or (s == best and c < best_j):
+                best = s
+                best_j = c
+        out_nb[qi] = best_j
+        out_sum[qi] = best
+        out_eval[qi] = evaluated
+
+
+# -- DTW: exact nearest neighbours among ragged trajectories ---------------------------------
+@njit(cache=True, nogil=True)
+def _box_distance(ax0, ax1, ay0, ay1, bx0, bx1, by0, by1):
+    dx = max(0.0, ax0 - bx1, bx0 - ax1)
+    dy = max(0.0, ay0 - by1, by0 - ay1)
+    if dx == 0.0 or dy == 0.0:  # overlapping on an axis: no square root needed
+        return dx + dy
+    return np.sqrt(dx * dx + dy * dy)
+
+
+@njit(cache=True, nogil=True)
+def _point_box_distance(a, i, boxes, k):
+    dx = max(0.0, boxes[k, 0] - a[i, 0], a[i, 0] - boxes[k, 1])
+    dy = max(0.0, boxes[k, 2] - a[i, 1], a[i, 1] - boxes[k, 3])
+    if dx == 0.0 or dy == 0.0:
+        return dx + dy
+    return np.sqrt(dx * dx + dy * dy)
+
+
+@njit(cache=True, nogil=True)
+def _blocks_bound(blocks, counts, n_blocks, r, box):
+    """sum_k counts[r, k] * distance(block box k of row r, box): rows r's interior points."""
+    lb = 0.0
+    for k in range(n_blocks[r]):
+        if counts[r, k] > 0:
+            lb += counts[r, k] * _box_distance(blocks[r, k, 0], blocks[r, k, 1],
+                                               blocks[r, k, 2], blocks[r, k, 3],
+                                               box[0], box[1], box[2], box[3])
+    return lb
+
+
+@njit(cache=True, nogil=True)
+def _points_bound(a, boxes, k, limit):
+    """sum over a's interior points of their distance to boxes[k]; stops once past limit."""
+    lb = 0.0
+    for i in range(1, a.shape[0] - 1):
+        lb += _point_box_distance(a, i, boxes, k)
+        if lb > limit:
+            break
+    return lb
+
+
+@njit(cache=True, nogil=True)
+def coarse_bound(a, b, boxes, n_blocks, rest, cur, nxt):
+    """Lower bound of DTW(a, b) from a's points against the boxes of b's column blocks.
+
+    Columns of b are cut into ``n_blocks`` consecutive non-empty blocks (column j in block
+    (j * n_blocks) // m). A warping path visits, row by row, a monotone chain of (row, block)
+    cells with steps (1, 0), (0, 1), (1, 1), each at least once; a visit costs at least the
+    distance from the row's point to the block's box, and the first and last cells cost
+    exactly ||a_0 - b_0|| and ||a_n-1 - b_m-1||. The cheapest such chain, found backwards
+    from the last cell, bounds the DTW distance from below.
+
+    Fills ``rest[i, k]`` (n + 1, K) with a lower bound of the cost of any path's cells in rows
+    i .. n-1 when the path enters row i in block k or later (``rest[n, :] = 0``). Returns the
+    bound of the whole path, B(0, 0).
+    """
+    n, m = a.shape[0], b.shape[0]
+    nb = n_blocks
+    # B(i, k): cheapest chain from cell (i, k) to (n-1, nb-1), one row at a time in the
+    # (K,) work arrays cur and nxt; rest keeps each row's suffix minima over k.
+    for k in range(nb):
+        rest[n, k] = 0.0
+    for i in range(n - 1, -1, -1):
+        for k in range(nb - 1, -1, -1):
+            if i == n - 1 and k == nb - 1:
+                cur[k] = _cost(a, n - 1, b, m - 1)
+                continue
+            c = _cost(a, 0, b, 0) if (i == 0 and k == 0) else _point_box_distance(a, i, boxes, k)
+            v = np.inf
+            if i + 1 < n:
+                v = nxt[k]
+                if k + 1 < nb and nxt[k + 1] < v:
+                    v = nxt[k + 1]
+            if k + 1 < nb and cur[k + 1] < v:
+                v = cur[k + 1]
+            cur[k] = c + v
+        low = np.inf
+        for k in range(nb - 1, -1, -1):
+            if cur[k] < low:
+                low = cur[k]
+            rest[i, k] = low
+        cur, nxt = nxt, cur
+    return nxt[0]  # B(0, 0): every path starts in the first cell
+
+
+@njit(cache=True, nogil=True)
+def dtw_bounded(a, b, rest, n_blocks, bound, prev, curr):
+    """DTW of a (n, 2) and b (m, 2), or inf once it must exceed ``bound``.
+
+    ``rest[i, k]`` bounds from below the cost of a path's cells in rows i .. n-1 when it
+    enters row i at a column of block k or later (see :func:`coarse_bound`). A cell (i, j) is
+    dead when its cost so far plus ``rest[i + 1, block(j)]`` exceeds ``bound``; each row is
+    computed only from the first live column of the row above to the last live one and on
+    while cells stay live (the PrunedDTW scheme of Silva and Batista). A value returned at
+    most ``bound`` is bit-identical to :func:`dtw_full`.
+    """
+    n, m = a.shape[0], b.shape[0]
+    s = 0.0
+    psc = 0
+    pec = -1
+    for j in range(m):
+        s += _cost(a, 0, b, j)
+        if s + rest[1, (j * n_blocks) // m] > bound:
+            break
+        prev[j] = s
+        pec = j
+    if pec < 0:
+        return np.inf
+    for i in range(1, n):
+        nsc = -1
+        nec = -1
+        left = np.inf
+        j = psc
+        while j < m:
+            v = left
+            if j <= pec and prev[j] < v:
+                v = prev[j]
+            if j - 1 >= psc and j - 1 <= pec and prev[j - 1] < v:
+                v = prev[j - 1]
+            if v == np.inf:
+                if j > pec:
+                    break
+                curr[j] = np.inf
+                left = np.inf
+            else:
+                d = _cost(a, i, b, j) + v
+                if d + rest[i + 1, (j * n_blocks) // m] > bound:
+                    curr[j] = np.inf
+                    left = np.inf
+                    if j > pec:
+                        break
+                else:
+                    curr[j] = d
+                    left = d
+                    if nsc < 0:
+                        nsc = j
+                    nec = j
+            j += 1
+        if nsc < 0:
+            return np.inf
+        prev, curr = curr, prev
+        psc = nsc
+        pec = nec
+    if pec == m - 1:
+        return prev[m - 1]
+    return np.inf
+
+
+@njit(cache=True, nogil=True)
+def dtw_nearest_chunk(P, off, first, last, box, blocks, counts, n_blocks, order, pos,
+                      candidate, slack, queries, hints, out_nb, out_sum, out_eval):
+    """DTW nearest neighbour of each query among the candidate rows (itself excluded).
+
+    Args:
+        P: (total, 2) points of all trajectories laid end to end; off: (N + 1,) offsets.
+        first, last: (N, 2) first and last points; box: (N, 4) bounding boxes
+            (xmin, xmax, ymin, ymax).
+        blocks: (N, K, 4) boxes of consecutive blocks of points (row r uses the first
+            n_blocks[r] <= K, none empty); counts: (N, K) points of each block other than
+            the first and last of the trajectory; n_blocks: (N,) int64.
+        order: (N,) rows sorted by last[:, 0]; pos: (N,) position of each row in it.
+        candidate: (N,) bool, rows that may be returned.
+        slack: absolute slack on the bounds [m].
+        queries: (q,) rows to answer; hints: (q,) a row to try first (-1 for none).
+        out_nb, out_sum, out_eval: (q,) neighbour row, its DTW distance, candidates whose
+            dynamic programme was started.
+
+    Bounds, each at most the DTW distance, cheapest first: the first and last cells of every
+    path (||first_a - first_b|| + ||last_a - last_b||, at least the difference of the last
+    x, which orders the scan); every interior row and column holds a cell, which costs at
+    least its point's distance to the other's bounding box (per block of points); the
+    row-by-block chain of :func:`coarse_bound`, whose suffixes then prune the programme.
+    """
+    n_rows = order.shape[0]
+    max_len = 0
+    for r in range(n_rows):
+        if off[r + 1] - off[r] > max_len:
+            max_len = off[r + 1] - off[r]
+    prev = np.empty(max_len)
+    curr = np.empty(max_len)
+    rest = np.empty((max_len + 1, blocks.shape[1]))
+    cur = np.empty(blocks.shape[1])
+    nxt = np.empty(blocks.shape[1])
+    for qi in range(queries.shape[0]):
+        q = queries[qi]
+        a = P[off[q]:off[q + 1]]
+        p = pos[q]
+        kq = last[q, 0]
+        best = np.inf
+        best_j = -1
+        evaluated = 0
+        left = p - 1
+        right = p + 1
+        hint = hints[qi]
+        while True:
+            if hint >= 0:
+                c = hint
+                hint = -1
+                dk = 0.0
+            else:
+                dl = kq - last[order[left], 0] if left >= 0 else np.inf
+                dr = last[order[right], 0] - kq if right < n_rows else np.inf
+                if dl <= dr:
+                    if dl == np.inf:
+                        break
+                    c = order[left]
+                    dk = dl
+                    left -= 1
+                else:
+                    c = order[right]
+                    dk = dr
+                    right += 1
+            bound = best * (1.0 + REL) + slack
+            if dk > bound:
+                break
+            if c == q or not candidate[c] or c == best_j:
+                continue
+            dx = first[q, 0] - first[c, 0]
+            dy = first[q, 1] - first[c, 1]
+            ends = np.sqrt(dx * dx + dy * dy)
+            dx = last[q, 0] - last[c, 0]
+            dy = last[q, 1] - last[c, 1]
+            ends += np.sqrt(dx * dx + dy * dy)
+            if ends > bound:
+                continue
+            if ends + _blocks_bound(blocks, counts, n_blocks, q, box[c]) > bound:
+                continue
+            if ends + _blocks_bound(blocks, counts, n_blocks, c, box[q]) > bound:
+                continue
+            b = P[off[c]:off[c + 1]]
+            if ends + _points_bound(a, box, c, bound - ends) > bound:
+                continue
+            if ends + _points_bound(b, box, q, bound - ends) > bound:
+                continue
+            if coarse_bound(a, b, blocks[c], n_blocks[c], rest, cur, nxt) > bound:
+                continue
+            evaluated += 1
+            d = dtw_bounded(a, b, rest, n_blocks[c], bound, prev, curr)
+            if d > bound:
+                continue
+            if d < best or (d == best and c < best_j):
+                best = d
+                best_j = c
+        out_nb[qi] = best_j
+        out_sum[qi] = best
+        out_eval[qi] = evaluated
