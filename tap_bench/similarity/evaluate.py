@@ -219,7 +219,7 @@ def evaluate(trajectories: pd.DataFrame, labels: pd.DataFrame | None = None, *,
         "dtw": figures["dtw"],
         "sdl_exact": {
             "queries_with_exact_match": int((nb_rows["n_exact_matches"] > 0).sum()),
-            "unique_labels": int(len(unique_rows)),
+            "unique_labels": len(unique_rows),
             "share_unique": len(unique_rows) / len(ls),
         },
         "timing": timing,

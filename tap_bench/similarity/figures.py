@@ -32,8 +32,8 @@ def _tokens(text: str) -> tuple[list[str], list[str]]:
 
 def _difference(reference: str, other: str) -> str:
     """'+extra, -missing' actions of ``other`` against ``reference`` (by set of tokens)."""
-    ref = set(sum(_tokens(reference), []))
-    oth = set(sum(_tokens(other), []))
+    ref = {t for side in _tokens(reference) for t in side}
+    oth = {t for side in _tokens(other) for t in side}
     extra = [f"+{t}" for t in sorted(oth - ref)]
     missing = [f"-{t}" for t in sorted(ref - oth)]
     return ", ".join(extra + missing) or "same actions, other order"

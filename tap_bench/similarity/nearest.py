@@ -23,6 +23,7 @@ no neighbour.
 
 from __future__ import annotations
 
+import itertools
 import os
 import time
 from collections.abc import Callable
@@ -119,8 +120,7 @@ def _run(kernel: Callable[..., None], args: tuple, per_query: tuple[np.ndarray, 
     n = len(per_query[0])
     if n == 0:
         return
-    bounds = list(range(0, n, chunk)) + [n]
-    pieces = list(zip(bounds[:-1], bounds[1:], strict=True))
+    pieces = list(itertools.pairwise([*range(0, n, chunk), n]))
     with tqdm(total=n, desc=desc, unit="query", disable=None if progress is None else
               not progress, leave=False) as bar:
         def job(lo: int, hi: int) -> int:

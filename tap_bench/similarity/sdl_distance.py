@@ -64,12 +64,13 @@ def parse_sdl(text: str, *, level: str | None = None) -> tuple[tuple[str, ...], 
         LabelTableError: no ``" | "`` separator, an empty side, or an unknown token (with the
             closest known tokens).
     """
-    if not isinstance(text, str) or text.count(sdl.SDL_SEPARATOR) != 1:
+    bar = sdl.SDL_SEPARATOR.strip()
+    if not isinstance(text, str) or text.count(bar) != 1:
         raise LabelTableError(
             f"SDL label {text!r} must hold exactly one {sdl.SDL_SEPARATOR!r} between the lateral "
             f"and the longitudinal labels, e.g. 'Straight > Gradual Left Turn{sdl.SDL_SEPARATOR}"
             "Maintain Medium Speed'.")
-    lat_text, lon_text = text.split(sdl.SDL_SEPARATOR)
+    lat_text, lon_text = text.split(bar)
     return (_tokens(lat_text, "lateral", level, text), _tokens(lon_text, "longitudinal", level,
                                                                 text))
 

@@ -1,0 +1,46 @@
+"""``tap-bench unique``: trajectories whose SDL label no other has (TAP paper section 6.4)."""
+
+from __future__ import annotations
+
+import argparse
+
+from tap_bench.sdl import LEVELS
+from tap_bench.similarity.unique import label_counts, unique_labels
+from tap_bench.tableio import read_table, write_table
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "unique", help="list the unique behaviours of a label table",
+        description="A trajectory is unique at a level when no other trajectory of the table "
+        "has its SDL label. Prints the counts and the examples with the most actions.")
+    p.add_argument("labels", help="label table from 'tap-bench label' (.parquet or .csv)")
+    p.add_argument("--level", choices=[*LEVELS, "all"], default=None,
+                   help="SDL level, or 'all' for each level (needed when the table holds "
+                   "several)")
+    p.add_argument("-o", "--output", help="write the unique trajectories (.parquet or .csv)")
+    p.add_argument("--counts", help="also write every distinct label with its count")
+    p.add_argument("--top", type=int, default=10, help="examples to print per level (10)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    table = read_table(args.labels)
+    counts = label_counts(table, args.level)
+    unique = unique_labels(table, args.level)
+    for level, group in counts.groupby("level", sort=False):
+        n = int(group["count"].sum())
+        mine = unique[unique["level"] == level] if "level" in unique.columns else unique
+        print(f"{level}: {len(mine):,} of {n:,} trajectories ({100 * len(mine) / n:.2f} %) "
+              f"have a unique label; {len(group):,} distinct labels")
+        for _, row in mine.head(args.top).iterrows():
+            print(f"  {row['scenario_id']}:{row['track_id']}  {row['n_actions']} actions  "
+                  f"{row['sdl']}")
+    if args.output:
+        write_table(unique, args.output)
+    if args.counts:
+        write_table(counts, args.counts)
+    written = [w for w in (args.output, args.counts) if w]
+    if written:
+        print("wrote " + ", ".join(written))
+    return 0
