@@ -1,0 +1,113 @@
+"""Matched comparison on the hand-worked pairs of conftest.hand_pairs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.compare import NO_LABEL, matched_by_label, paired_comparison
+from tap_bench.errors import LabelTableError, UnknownNameError
+
+from .conftest import make_episodes
+
+
+def test_agreement_and_label_differences_by_hand(hand_pairs):
+    pc = paired_comparison(hand_pairs, "A", "B")
+    row = pc.summary.iloc[0]
+    assert row["n_pairs"] == 4 and row["n_dropped"] == 0
+    assert row["agreement"] == pytest.approx(0.75)  # seeds 0, 2, 3 agree
+    diffs = pc.labels.set_index("label")["diff"].to_dict()
+    assert diffs == pytest.approx({"x | s": 0.25, "y | s": -0.25, "z | s": 0.0})
+    freq = pc.labels.set_index("label")[["freq_a", "freq_b"]].loc["x | s"].to_list()
+    assert freq == pytest.approx([0.5, 0.25])
+    assert (pc.labels["diff_low"] <= pc.labels["diff"]).all()
+    assert (pc.labels["band_low"] <= pc.labels["diff"]).all()
+    assert (pc.labels["diff"] <= pc.labels["band_high"]).all()
+
+
+def test_measure_differences_and_probability_of_improvement_by_hand(hand_pairs):
+    m = paired_comparison(hand_pairs, "A", "B").measures.set_index("measure")
+    speed = m.loc["mean_speed"]
+    assert speed["mean_a"] == pytest.approx(11.25) and speed["mean_b"] == pytest.approx(10.25)
+    assert speed["diff"] == pytest.approx(1.0)
+    # A faster on seeds 0, 3; tie on 1; slower on 2 -> (2 + 0.5) / 4
+    assert speed["p_improvement"] == pytest.approx(0.625)
+    crash = m.loc["crashed"]
+    # lower is better: A better on seed 1, worse on 3, ties on 0, 2 -> (1 + 1) / 4
+    assert crash["p_improvement"] == pytest.approx(0.5)
+    assert crash["diff"] == pytest.approx(0.0)
+
+
+def test_failed_episode_drops_its_pair(hand_pairs):
+    eps = hand_pairs.copy()
+    eps.loc[(eps["policy"] == "B") & (eps["seed"] == 1), "status"] = "error"
+    row = paired_comparison(eps, "A", "B").summary.iloc[0]
+    assert row["n_pairs"] == 3 and row["n_dropped"] == 1
+    assert row["agreement"] == pytest.approx(1.0)
+
+
+def test_missing_label_is_its_own_label(hand_pairs):
+    eps = hand_pairs.copy()
+    eps.loc[(eps["policy"] == "A") & (eps["seed"] == 0), "sdl"] = pd.NA
+    labels = paired_comparison(eps, "A", "B").labels
+    assert NO_LABEL in set(labels["label"])
+
+
+def test_pooled_over_envs_is_added(hand_pairs):
+    other = hand_pairs.assign(env="f")
+    pc = paired_comparison(pd.concat([hand_pairs, other], ignore_index=True), "A", "B")
+    assert list(pc.summary["env"]) == ["e", "f", "all"]
+    assert pc.summary.set_index("env").loc["all", "n_pairs"] == 8
+
+
+def test_intervals_depend_on_the_seed_only(hand_pairs):
+    one = paired_comparison(hand_pairs, "A", "B", config=BootstrapConfig(seed=3))
+    two = paired_comparison(hand_pairs, "A", "B", config=BootstrapConfig(seed=3))
+    pd.testing.assert_frame_equal(one.measures, two.measures)
+
+
+def test_unknown_policy_and_no_common_seed_are_clear(hand_pairs):
+    with pytest.raises(LabelTableError, match="no episodes of policy 'C'"):
+        paired_comparison(hand_pairs, "A", "C")
+    shifted = hand_pairs.copy()
+    shifted.loc[shifted["policy"] == "B", "seed"] += 10
+    with pytest.raises(LabelTableError, match="share no"):
+        paired_comparison(shifted, "A", "B")
+
+
+def test_matched_by_label_groups_equal_labels():
+    rows = []
+    # label m: A at 10, 12 m/s; B at 7, 9 m/s. label k: only A. label j: A once, B twice.
+    for seed, (pol, lab, v) in enumerate([("A", "m", 10), ("A", "m", 12), ("B", "m", 7),
+                                          ("B", "m", 9), ("A", "k", 20), ("A", "k", 21),
+                                          ("A", "j", 5), ("B", "j", 6), ("B", "j", 6)]):
+        rows.append({"policy": pol, "seed": seed, "sdl": f"Straight | {lab}",
+                     "mean_speed": v})
+    eps = make_episodes(rows)
+    eps["sdl"] = eps["sdl"].str.replace("| m", "| Maintain Speed").str.replace(
+        "| k", "| Accelerate").str.replace("| j", "| Decelerate")
+    out = matched_by_label(eps, "A", "B", min_group=2)
+    speed = out[out["measure"] == "mean_speed"]
+    assert list(speed["label"]) == ["Straight | Maintain Speed"]  # k: no B; j: one A
+    assert speed.iloc[0][["n_a", "n_b", "mean_a", "mean_b", "diff"]].tolist() == [2, 2, 11.0,
+                                                                                  8.0, 3.0]
+    # within one token edit, Decelerate and Maintain Speed join the anchors' groups
+    near = matched_by_label(eps, "A", "B", metric="levenshtein", d_sim=1, min_group=2)
+    near = near[near["measure"] == "mean_speed"].set_index("label")
+    assert near.loc["Straight | Maintain Speed", "n_a"] == 5  # m, k, j of A
+    assert near.loc["Straight | Maintain Speed", "n_b"] == 4
+
+
+def test_matched_metric_is_checked(hand_pairs):
+    with pytest.raises(UnknownNameError, match="levenshtein"):
+        matched_by_label(hand_pairs, "A", "B", metric="levenstein")
+    with pytest.raises(ValueError, match="d_sim"):
+        matched_by_label(hand_pairs, "A", "B", d_sim=1)
+
+
+def test_no_nan_in_interval_when_measure_absent(hand_pairs):
+    m = paired_comparison(hand_pairs, "A", "B").measures
+    assert set(m["measure"]) == {"mean_speed", "crashed"}
+    assert np.isfinite(m[["diff_low", "diff_high"]].to_numpy()).all()

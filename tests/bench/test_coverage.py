@@ -1,0 +1,124 @@
+"""Coverage, entropy and unique manoeuvres on label sets small enough to check by hand."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.coverage import (
+    Reference,
+    corpus_reference,
+    coverage,
+    entropy_bits,
+    vocabulary_reference,
+)
+from tap_bench.bench.novelty import novelty
+from tap_bench.errors import LabelTableError
+from tap_bench.sim.coverage import label_coverage
+
+A = "Straight | Maintain Speed"
+B = "Left Merge | Accelerate"
+C = "Right Turn | Decelerate > Stopped"
+
+
+def ref_table(labels: list[str]) -> pd.DataFrame:
+    return pd.DataFrame({"scenario_id": [f"s{i}" for i in range(len(labels))],
+                         "track_id": "1", "sdl": labels, "object_type": "vehicle"})
+
+
+def test_corpus_reference_weights_are_frequencies():
+    ref = corpus_reference(ref_table([A, A, A, B]), "maneuver")
+    assert list(ref.items) == sorted([A, B])
+    assert dict(zip(ref.items, ref.weights, strict=True)) == {A: 0.75, B: 0.25}
+    assert ref.n_trajectories == 4
+
+
+def test_corpus_reference_keeps_vehicles_only():
+    table = ref_table([A, B, C])
+    table.loc[2, "object_type"] = "pedestrian"
+    assert set(corpus_reference(table, "maneuver").items) == {A, B}
+
+
+def test_coverage_by_hand():
+    # reference A x3, B x1; the agent shows A once and C twice
+    ref = corpus_reference(ref_table([A, A, A, B]), "maneuver")
+    result = coverage(pd.Series([A, C, C]), ref)
+    assert result.coverage == pytest.approx(1 / 2)  # A of {A, B}
+    assert result.weighted_coverage == pytest.approx(0.75)  # A's weight
+    assert result.covered == (A,) and result.missed == (B,)
+    assert result.n_distinct == 2
+    # observed entropy of (1/3, 2/3)
+    assert result.entropy_observed_bits == pytest.approx(
+        -(1 / 3 * np.log2(1 / 3) + 2 / 3 * np.log2(2 / 3)))
+    assert 0 <= result.coverage_low <= result.coverage <= result.coverage_high <= 1
+
+
+def test_full_coverage_and_nothing_missed():
+    ref = corpus_reference(ref_table([A, B]), "maneuver")
+    result = coverage(pd.Series([A, B, A, B]), ref)
+    assert result.coverage == 1.0 and result.weighted_coverage == 1.0 and result.missed == ()
+
+
+def test_vocabulary_coverage_counts_single_labels_and_matches_the_training_signal():
+    ref = vocabulary_reference("maneuver")
+    # maneuver vocabulary: 5 lateral + 4 longitudinal single labels
+    assert len(ref) == 9
+    labels = [A, B, "Straight > Left Merge | Maintain Speed > Accelerate"]
+    result = coverage(pd.Series(labels), ref)
+    # Straight, Left Merge, Maintain Speed, Accelerate: 4 of 9
+    assert result.coverage == pytest.approx(4 / 9)
+    assert result.coverage == pytest.approx(label_coverage(labels, level="maneuver"))
+
+
+def test_entropy_by_hand():
+    chao_shen, plug_in = entropy_bits(np.array([2, 2]))
+    assert plug_in == pytest.approx(1.0)
+    # no singletons: sample coverage 1, Chao-Shen = sum p log p / (1 - (1-p)^n), n = 4
+    assert chao_shen == pytest.approx(1.0 / (1 - 0.5 ** 4))
+    assert entropy_bits(np.array([5]))[1] == pytest.approx(0.0)
+
+
+def test_novelty_by_hand():
+    ref = corpus_reference(ref_table([A, A, B]), "maneuver")
+    episodes = pd.DataFrame({"scenario_id": ["e0", "e1", "e2", "e3"], "env": "h",
+                             "status": ["ok", "ok", "ok", "error"], "sdl": [A, C, C, C]})
+    result = novelty(episodes, ref)
+    assert (result.n, result.n_novel) == (3, 2)  # the failed episode is left out
+    assert result.rate == pytest.approx(2 / 3)
+    assert result.labels.to_dict("records") == [
+        {"label": C, "count": 2, "share": pytest.approx(2 / 3), "example_scenario": "e1"}]
+    assert 0 <= result.rate_low <= result.rate <= result.rate_high <= 1
+
+
+def test_novelty_needs_a_corpus():
+    with pytest.raises(LabelTableError, match="corpus"):
+        novelty(pd.DataFrame({"sdl": [A]}), vocabulary_reference("maneuver"))
+
+
+def test_no_labels_at_the_level_is_a_clear_error():
+    table = ref_table([A]).assign(level="action")
+    with pytest.raises(LabelTableError, match="level 'maneuver'"):
+        corpus_reference(table, "maneuver")
+
+
+def test_coverage_interval_rate_on_a_zipf_label_distribution():
+    """The estimand is the expected coverage of n episodes; its true value is known for a
+    synthetic label distribution: mean over reference labels of 1 - (1 - p)^n."""
+    K, n = 30, 60
+    p = 1 / np.arange(1, K + 1) ** 1.2
+    p /= p.sum()
+    items = np.array([f"L{i:02d}" for i in range(K)], dtype=object)
+    ref = Reference(items, np.full(K, 1 / K), "corpus", "maneuver", "synthetic")
+    truth = np.mean(1 - (1 - p) ** n)
+    hits = 0
+    reps = 200
+    for r in range(reps):
+        rng = np.random.default_rng(r)
+        labels = items[rng.choice(K, n, p=p)]
+        res = coverage(labels, ref, config=BootstrapConfig(n_resamples=500, seed=r))
+        hits += res.coverage_low <= truth <= res.coverage_high
+    print(f"coverage interval (augmented bootstrap), K={K}, n={n}: {hits / reps:.3f} "
+          "(nominal 0.95)")
+    assert hits / reps >= 0.85
