@@ -135,6 +135,9 @@ class ScenarioEnv(gym.Wrapper):
         with guard_class_attributes(f"resetting {self.scenario.env_id}"):
             obs, info = self.env.reset(seed=seed, options=options)
         self._decisions = 0
+        # reset options may have changed the decision rate
+        self.max_steps = round(self.scenario.duration
+                               * self.env.unwrapped.config["policy_frequency"])
         self.recorder.start(self.scenario.name, self._seed, self._episode)
         self._frame()
         return obs, info

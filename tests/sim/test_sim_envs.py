@@ -131,6 +131,16 @@ def test_truncation_counts_decisions():
     assert env.unwrapped.steps == 30
 
 
+def test_reset_options_are_validated_and_may_change_the_decision_rate():
+    env = gym.make("tap_bench/merge-v0", duration=2, config={"observation": CHEAP})
+    env.reset(seed=0)
+    with pytest.raises(tap_bench.FileFormatError, match="Did you mean 'policy_frequency'"):
+        env.reset(seed=0, options={"config": {"policy_frequncy": 2}})
+    env.reset(seed=0, options={"config": {"policy_frequency": 2}})
+    ends = [env.step(1)[3] for _ in range(4)]
+    assert ends == [False, False, False, True]
+
+
 def test_intersection_does_not_change_idm_vehicle_for_other_envs():
     before = {k: v for k, v in vars(IDMVehicle).items() if k.isupper()}
     env = gym.make("tap_bench/intersection-v0", duration=1)
