@@ -147,6 +147,22 @@ class ScenarioSet:
     def __len__(self) -> int:
         return len(self.scenario_ids)
 
+    @classmethod
+    def from_descriptions(cls, descriptions: Mapping[str, ScenarioDescription], *,
+                          multiset: bool = False) -> ScenarioSet:
+        """A set from scenario id -> description (hand-written SDLs, other data sets)."""
+        ids = np.asarray([str(k) for k in descriptions], dtype=object)
+        vocabulary, counts = {}, {}
+        for part in PARTS:
+            names = tuple(sorted({n for d in descriptions.values() for n in d.part(part)}))
+            col = {n: k for k, n in enumerate(names)}
+            mat = np.zeros((len(ids), len(names)), dtype=np.int32)
+            for i, d in enumerate(descriptions.values()):
+                for name, c in d.part(part).items():
+                    mat[i, col[name]] = c if multiset else min(c, 1)
+            vocabulary[part], counts[part] = names, mat
+        return cls(scenario_ids=ids, vocabulary=vocabulary, counts=counts, multiset=multiset)
+
     def index(self, scenario_id: str) -> int:
         hit = np.flatnonzero(self.scenario_ids == str(scenario_id))
         if len(hit) == 0:
