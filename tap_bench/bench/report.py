@@ -65,7 +65,8 @@ def _label_heatmaps(scores: Scores, folder: Path) -> Path | None:
     envs = sorted(counts["env"].unique())
     policies = sorted(counts["policy"].unique())
     fig, axes = plt.subplots(len(envs), 1, figsize=(2.2 + 1.1 * len(policies) + 4.5,
-                                                     1.2 + 3.4 * len(envs)), squeeze=False)
+                                                     1.2 + 3.6 * len(envs)), squeeze=False,
+                             layout="constrained")
     for ax, env in zip(axes[:, 0], envs, strict=True):
         sub = counts[counts["env"] == env]
         top = sub.groupby("sdl")["share"].sum().sort_values(ascending=False).index[:TOP_LABELS]
@@ -81,7 +82,7 @@ def _label_heatmaps(scores: Scores, folder: Path) -> Path | None:
                         color="white" if v < 0.6 else "black")
         ax.set_title(f"{env}: share of episodes with each ego label (top {len(top)})",
                      fontsize=9)
-        fig.colorbar(im, ax=ax, fraction=0.02)
+        fig.colorbar(im, ax=ax, fraction=0.02, pad=0.01)
     return _save(fig, folder / "label_distribution.png")
 
 
@@ -100,7 +101,8 @@ def _measures_plot(scores: Scores, folder: Path) -> Path | None:
         return None
     plt = _plt()
     fig, axes = plt.subplots(1, len(MEASURES), figsize=(3.2 * len(MEASURES), 0.5 + 0.45 *
-                                                       m["policy"].nunique() + 1))
+                                                       m["policy"].nunique() + 1),
+                             layout="constrained")
     for ax, meas in zip(np.atleast_1d(axes), MEASURES, strict=True):
         sub = m[m["measure"] == meas.name].sort_values("policy")
         _interval_plot(ax, sub["policy"].tolist(), sub["mean"], sub["low"], sub["high"])
@@ -118,7 +120,8 @@ def _coverage_plot(scores: Scores, folder: Path) -> Path | None:
         return None
     plt = _plt()
     refs = sorted(cov["reference"].unique())
-    fig, axes = plt.subplots(1, 2, figsize=(10, 1 + 0.5 * cov["policy"].nunique() * len(refs)))
+    fig, axes = plt.subplots(1, 2, figsize=(10, 1.5 + 0.5 * cov["policy"].nunique() * len(refs)),
+                             layout="constrained")
     for k, ref in enumerate(refs):
         sub = cov[cov["reference"] == ref].sort_values("policy")
         off = (k - (len(refs) - 1) / 2) * 0.25
@@ -372,8 +375,9 @@ def _seed_text(seeds: list[int]) -> str:
 
 
 def _thresholds_text(th: Any) -> str:
-    if isinstance(th, dict):
-        vals = {k: th.get(k) for k in ("w", "a", "v") if k in th}
-        if vals:
-            return "; ".join(f"{k} {v}" for k, v in vals.items())
+    if isinstance(th, dict) and isinstance(th.get("thresholds"), dict):
+        units = th.get("units", {})
+        return "; ".join(
+            f"{dist} ({units.get(dist, '')}): " + ", ".join(f"{k} {v:g}" for k, v in vals.items())
+            for dist, vals in th["thresholds"].items())
     return str(th)

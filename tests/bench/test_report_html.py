@@ -1,0 +1,96 @@
+"""The HTML report renders in headless Chromium (Debian's chromium and chromium-driver) with
+its tables and images; it needs no server."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.runner import write_results
+from tap_bench.bench.scoring import score
+
+from .conftest import make_episodes
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+CHROMEDRIVER = shutil.which("chromedriver")
+
+LABELS = ["Straight | Maintain Speed", "Left Merge > Straight | Accelerate > Maintain Speed",
+          "Right Merge | Decelerate", "Straight | Decelerate > Stopped"]
+
+
+def synthetic_run(tmp_path: Path) -> Path:
+    rng = np.random.default_rng(0)
+    rows = []
+    for env in ("highway", "merge"):
+        for policy, p in (("idm", [0.6, 0.2, 0.1, 0.1]), ("random", [0.1, 0.3, 0.4, 0.2]),
+                          ("idm-aggressive", [0.4, 0.4, 0.2, 0.0])):
+            for seed in range(15):
+                rows.append({"env": env, "policy": policy, "seed": seed,
+                             "scenario_id": f"{env}/{policy}/s{seed}",
+                             "sdl": LABELS[rng.choice(4, p=p)],
+                             "crashed": bool(rng.random() < 0.2),
+                             "mean_speed": rng.normal(20, 2), "min_headway_s": rng.normal(2, .3),
+                             "min_ttc_s": rng.uniform(2, 10), "rms_jerk": rng.normal(3, 1)})
+    episodes = make_episodes(rows)
+    episodes.loc[3, ["status", "error"]] = ["error", "RuntimeError: boom"]
+    scores = score(episodes, reference_policy="idm", level="maneuver",
+                   config=BootstrapConfig(n_resamples=200))
+    summary = {"run": "html-test", "suite": {"name": "synthetic", "envs": ["highway", "merge"],
+                                             "policies": ["idm", "random", "idm-aggressive"]},
+               "level": "maneuver", "seeds": list(range(15)), "methods": scores.methods,
+               "n_episodes": len(episodes), "n_failed": 1}
+    return write_results(tmp_path / "run", False, summary, episodes, pd.DataFrame(), None,
+                         scores)
+
+
+def test_report_is_written_with_embedded_images(tmp_path):
+    folder = synthetic_run(tmp_path)
+    page = (folder / "report.html").read_text()
+    pngs = sorted((folder / "plots").glob("*.png"))
+    assert len(pngs) >= 6
+    assert page.count("data:image/png;base64,") == len(pngs)
+    assert "RuntimeError: boom" in page  # the failed episode is listed
+    assert "<script" not in page
+
+
+@pytest.mark.skipif(not (CHROMIUM and CHROMEDRIVER),
+                    reason="needs Debian's chromium and chromium-driver (apt-get install "
+                    "chromium chromium-driver; .ci/run installs them)")
+def test_report_renders_in_headless_chromium(tmp_path):
+    webdriver = pytest.importorskip("selenium.webdriver")
+    from selenium.webdriver.chrome.service import Service
+
+    folder = synthetic_run(tmp_path)
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                 "--no-first-run", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync", "--window-size=1280,2000",
+                 f"--user-data-dir={tmp_path / 'profile'}"):
+        options.add_argument(flag)
+    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+    try:
+        driver.get((folder / "report.html").resolve().as_uri())
+        assert driver.title == "tap-bench html-test"
+        ids = set(driver.execute_script(
+            "return Array.from(document.querySelectorAll('table')).map(t => t.id)"))
+        assert {"facts", "measures", "paired", "paired_measures", "paired_labels", "matched",
+                "coverage", "novelty", "failed"} <= ids
+        rows = driver.execute_script(
+            "return document.querySelector('#coverage tbody').rows.length")
+        assert rows == len(pd.read_parquet(folder / "coverage.parquet"))
+        images = driver.execute_script(
+            "return Array.from(document.images).map(i => [i.complete, i.naturalWidth, "
+            "i.getBoundingClientRect().width])")
+        assert len(images) == len(list((folder / "plots").glob("*.png")))
+        assert all(done and natural > 100 and shown > 100 for done, natural, shown in images)
+        shot = tmp_path / "report.png"
+        driver.save_screenshot(str(shot))
+        assert shot.stat().st_size > 10_000
+    finally:
+        driver.quit()

@@ -1,0 +1,105 @@
+"""``bench run`` on tiny suites: the run folder, a failing episode that does not end the
+run, atomic writes that never replace a run unless asked, worker processes."""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tap_bench.bench.runner import read_run, run_suite
+from tap_bench.bench.suite import suite_from_dict
+from tap_bench.errors import FileFormatError
+from tap_bench.sim.policies import LaneKeepingPolicy, available_policies, register_policy
+
+
+class FlakyPolicy(LaneKeepingPolicy):
+    """Keeps its lane, but raises on seed 1 (an episode that fails mid-run)."""
+
+    def __init__(self) -> None:
+        super().__init__(name="flaky-test")
+
+    def reset(self, env, *, seed: int) -> None:
+        self._seed = seed
+        super().reset(env, seed=seed)
+
+    def act(self, observation):
+        if self._seed == 1:
+            raise RuntimeError("flaky policy breaks on seed 1")
+        return super().act(observation)
+
+
+if "flaky-test" not in available_policies():
+    register_policy("flaky-test", FlakyPolicy, "test policy that fails on seed 1")
+
+
+def tiny(policies, seeds="0-2", **extra):
+    return suite_from_dict({"name": "tiny", "envs": ["merge"], "policies": policies,
+                            "seeds": seeds, "env_overrides": {"merge": {"duration": 3}},
+                            "bootstrap": {"n_resamples": 200}, **extra}, check_names=False)
+
+
+@pytest.fixture(scope="module")
+def flaky_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs") / "run-001"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return run_suite(tiny(["lane-keeping", "flaky-test"]), out, workers=1, progress=False)
+
+
+def test_run_folder_holds_tables_summary_plots_and_report(flaky_run):
+    folder = flaky_run.folder
+    for name in ("episodes", "labels", "trajectories", "label_counts", "measures", "paired",
+                 "paired_measures", "paired_labels", "coverage", "novelty"):
+        assert (folder / f"{name}.parquet").is_file(), name
+    assert (folder / "report.html").is_file()
+    assert sorted(p.name for p in (folder / "plots").glob("*.png"))
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["seeds"] == [0, 1, 2]
+    assert summary["level"] == "maneuver"
+    assert summary["thresholds"]["thresholds"]["w"] == {"str": 0.0283, "grad": 0.0754,
+                                                        "med": 0.1541}
+    assert "numpy" in summary["versions"] and summary["suite"]["name"] == "tiny"
+    assert {"rollouts_wall", "scoring", "total"} <= set(summary["timings"])
+    assert not [p for p in folder.parent.iterdir() if p.name.startswith(".")]
+
+
+def test_one_failing_episode_is_reported_and_the_rest_scored(flaky_run):
+    eps = flaky_run.episodes
+    failed = eps[eps["status"] != "ok"]
+    assert failed[["policy", "seed"]].values.tolist() == [["flaky-test", 1]]
+    assert "breaks on seed 1" in failed["error"].iloc[0]
+    assert flaky_run.summary["n_failed"] == 1
+    assert flaky_run.summary["failed"][0]["seed"] == 1
+    paired = flaky_run.scores.paired.iloc[0]
+    assert (paired["n_pairs"], paired["n_dropped"]) == (2, 1)
+    # lane keeping on both sides of a pair: the same ego label on every paired seed
+    assert paired["agreement"] == 1.0
+
+
+def test_an_existing_run_is_never_replaced_unless_asked(flaky_run):
+    before = (flaky_run.folder / "episodes.parquet").read_bytes()
+    with pytest.raises(FileExistsError, match="--overwrite"):
+        run_suite(tiny(["lane-keeping"]), flaky_run.folder, workers=1, progress=False)
+    assert (flaky_run.folder / "episodes.parquet").read_bytes() == before
+
+
+def test_read_run(flaky_run, tmp_path):
+    summary, episodes = read_run(flaky_run.folder)
+    assert summary["run"] == "run-001" and len(episodes) == 6
+    with pytest.raises(FileFormatError, match="not a finished run folder"):
+        read_run(tmp_path)
+
+
+def test_workers_give_the_same_episodes(tmp_path):
+    suite = tiny(["idm", "idm-aggressive"], seeds="0-1")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        one = run_suite(suite, tmp_path / "one", workers=1, progress=False, report=False)
+        two = run_suite(suite, tmp_path / "two", workers=2, progress=False, report=False)
+    cols = ["env", "policy", "seed", "sdl", "mean_speed", "rms_jerk", "crashed"]
+    pd.testing.assert_frame_equal(one.episodes[cols], two.episodes[cols])
+    assert np.isfinite(one.episodes["mean_speed"]).all()
