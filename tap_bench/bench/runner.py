@@ -46,12 +46,30 @@ import pandas as pd
 from tap_bench.bench.episodes import episode_table
 from tap_bench.bench.scoring import Scores, score
 from tap_bench.bench.suite import Suite, load_suite
-from tap_bench.errors import FileFormatError
+from tap_bench.errors import FileFormatError, TapBenchError
 
-__all__ = ["RunResult", "package_versions", "read_run", "run_suite", "write_results"]
+__all__ = ["RunExistsError", "RunResult", "check_output", "package_versions", "read_run",
+           "run_suite", "write_results"]
 
 CHUNK = 5
 """Seeds per worker task: small enough to balance two workers and move the progress bar."""
+
+
+class RunExistsError(TapBenchError, FileExistsError):
+    """The results folder exists and replacing it was not asked for."""
+
+
+def check_output(output: str | os.PathLike, overwrite: bool) -> Path:
+    """``output`` as a Path; refuses an existing folder unless ``overwrite``.
+
+    Raises:
+        RunExistsError: naming the folder and the flag that replaces it.
+    """
+    output = Path(output)
+    if output.exists() and not overwrite:
+        raise RunExistsError(f"{output} exists; choose another folder or pass --overwrite to "
+                             "replace it.")
+    return output
 
 
 @dataclass(frozen=True)
@@ -212,15 +230,12 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         :class:`RunResult`.
 
     Raises:
-        FileExistsError: ``output`` exists and ``overwrite`` is False.
+        RunExistsError: ``output`` exists and ``overwrite`` is False.
     """
     from tap_bench.thresholds import resolve_thresholds
 
     suite = suite if isinstance(suite, Suite) else load_suite(suite)
-    output = Path(output)
-    if output.exists() and not overwrite:
-        raise FileExistsError(f"{output} exists; choose another run folder or pass "
-                              "--overwrite to replace it.")
+    output = check_output(output, overwrite)
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers must be a positive integer, got {workers!r}.")
     thresholds = resolve_thresholds(suite.thresholds)
@@ -351,12 +366,9 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
     when complete; an existing ``output`` is replaced only when ``overwrite`` is True.
 
     Raises:
-        FileExistsError: ``output`` exists and ``overwrite`` is False.
+        RunExistsError: ``output`` exists and ``overwrite`` is False.
     """
-    output = Path(output)
-    if output.exists() and not overwrite:
-        raise FileExistsError(f"{output} exists; choose another folder or pass --overwrite "
-                              "to replace it.")
+    output = check_output(output, overwrite)
     output.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{output.name}.", suffix=".tmp", dir=output.parent))
     try:
@@ -375,8 +387,8 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
             write_report(tmp, summary, episodes, scores)
         if output.exists():
             if not overwrite:
-                raise FileExistsError(f"{output} appeared while the run was going; run again "
-                                      "with another folder or --overwrite.")
+                raise RunExistsError(f"{output} appeared while the run was going; run again "
+                                     "with another folder or --overwrite.")
             old = output.with_name(f".{output.name}.old")
             if old.exists():
                 shutil.rmtree(old)

@@ -55,11 +55,12 @@ def run(args: argparse.Namespace) -> int:
     from tap_bench.bench.bootstrap import BootstrapConfig
     from tap_bench.bench.compare import matched_by_label
     from tap_bench.bench.episodes import episodes_from_table
-    from tap_bench.bench.runner import package_versions, write_results
+    from tap_bench.bench.runner import check_output, package_versions, write_results
     from tap_bench.bench.scoring import score
     from tap_bench.errors import LabelTableError
     from tap_bench.tableio import read_table
 
+    check_output(args.output, args.overwrite)  # before any work
     config = BootstrapConfig(n_resamples=args.resamples, level=args.ci, seed=args.seed)
     names = args.names or [None, None]
     parts = []

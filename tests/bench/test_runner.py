@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench.runner import read_run, run_suite
+from tap_bench.bench.runner import RunExistsError, read_run, run_suite
 from tap_bench.bench.suite import suite_from_dict
 from tap_bench.errors import FileFormatError
 from tap_bench.sim.policies import LaneKeepingPolicy, available_policies, register_policy
@@ -82,7 +82,7 @@ def test_one_failing_episode_is_reported_and_the_rest_scored(flaky_run):
 
 def test_an_existing_run_is_never_replaced_unless_asked(flaky_run):
     before = (flaky_run.folder / "episodes.parquet").read_bytes()
-    with pytest.raises(FileExistsError, match="--overwrite"):
+    with pytest.raises(RunExistsError, match="--overwrite"):
         run_suite(tiny(["lane-keeping"]), flaky_run.folder, workers=1, progress=False)
     assert (flaky_run.folder / "episodes.parquet").read_bytes() == before
 

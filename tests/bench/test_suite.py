@@ -56,7 +56,7 @@ def test_bad_suites_are_refused_with_the_fix(doc, message):
 
 
 def test_unknown_suite_name_and_bad_json(tmp_path):
-    with pytest.raises(UnknownNameError, match="(?i)did you mean 'default'"):
+    with pytest.raises(UnknownNameError, match=r"(?i)did you mean 'default'"):
         load_suite("defualt")
     bad = tmp_path / "bad.json"
     bad.write_text("{")

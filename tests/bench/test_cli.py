@@ -1,0 +1,108 @@
+"""The command line: compare, coverage, bench suites; the demo (slow)."""
+
+from __future__ import annotations
+
+import time
+import warnings
+
+import pandas as pd
+import pytest
+
+from tap_bench.cli import main
+
+
+@pytest.fixture(scope="module")
+def two_policies(tmp_path_factory):
+    """IDM and aggressive IDM on the same four merge seeds, as trajectory tables."""
+    import tap_bench
+    from tap_bench.sim.scenario_env import get_scenario
+
+    folder = tmp_path_factory.mktemp("cli")
+    scenario = get_scenario("merge").with_overrides(duration=5)
+    paths = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for policy in ("idm", "idm-aggressive"):
+            traj, _ = tap_bench.rollout(scenario, policy, "0-3", progress=False)
+            paths[policy] = folder / f"{policy}.parquet"
+            traj.to_parquet(paths[policy])
+    return folder, paths
+
+
+def test_compare_trajectory_tables(two_policies, capsys):
+    folder, paths = two_policies
+    out = folder / "cmp"
+    assert main(["compare", str(paths["idm-aggressive"]), str(paths["idm"]), "-o", str(out),
+                 "--resamples", "200"]) == 0
+    text = capsys.readouterr().out
+    assert "4 seeds paired" in text and "mean_speed" in text and "P(idm-aggressive better)" in text
+    paired = pd.read_parquet(out / "paired.parquet")
+    assert paired[["policy_a", "policy_b", "n_pairs"]].values.tolist() == [
+        ["idm-aggressive", "idm", 4]]
+    assert (out / "report.html").is_file() and (out / "paired_measures.parquet").is_file()
+    # again into the same folder: refused, then allowed with --overwrite
+    assert main(["compare", str(paths["idm-aggressive"]), str(paths["idm"]), "-o",
+                 str(out)]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+
+
+def test_compare_label_tables_with_names(two_policies, capsys):
+    folder, paths = two_policies
+    for policy, path in paths.items():
+        assert main(["label", str(path), "-o", str(folder / f"{policy}.labels.parquet"),
+                     "--level", "all"]) == 0
+    capsys.readouterr()
+    out = folder / "cmp-labels"
+    assert main(["compare", str(folder / "idm.labels.parquet"),
+                 str(folder / "idm-aggressive.labels.parquet"), "-o", str(out),
+                 "--names", "a", "b", "--metric", "levenshtein", "--d-sim", "1",
+                 "--resamples", "200"]) == 0
+    assert set(pd.read_parquet(out / "episodes.parquet")["policy"]) == {"a", "b"}
+
+
+def test_compare_same_policy_twice_is_refused(two_policies, capsys):
+    folder, paths = two_policies
+    assert main(["compare", str(paths["idm"]), str(paths["idm"]), "-o",
+                 str(folder / "same")]) == 2
+    assert "--names" in capsys.readouterr().err
+
+
+def test_coverage_against_a_corpus_and_the_vocabulary(two_policies, capsys):
+    folder, paths = two_policies
+    out = folder / "coverage.csv"
+    assert main(["coverage", str(paths["idm-aggressive"]), "--reference", str(paths["idm"]),
+                 "--reference-tracks", "ego", "--level", "maneuver", "--resamples", "200",
+                 "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "coverage" in text and "unique manoeuvres" in text
+    row = pd.read_csv(out).iloc[0]
+    assert 0 <= row["coverage_low"] <= row["coverage"] <= row["coverage_high"] <= 1
+    assert (folder / "coverage.novel.csv").is_file()
+    assert main(["coverage", str(paths["idm"]), "--vocabulary", "--resamples", "200"]) == 0
+    assert "single labels of the maneuver level" in capsys.readouterr().out
+
+
+def test_bad_input_names_the_file(tmp_path, capsys):
+    bad = tmp_path / "bad.csv"
+    pd.DataFrame({"scenario_id": ["s"], "track_id": ["1"], "sdl": ["Straight | Stopped"]}
+                 ).to_csv(bad)
+    assert main(["coverage", str(bad), "--vocabulary"]) == 2
+    err = capsys.readouterr().err
+    assert str(bad) in err and "lateral, longitudinal" in err and "tap-bench label" in err
+
+
+def test_bench_suites_lists_the_committed_suites(capsys):
+    assert main(["bench", "suites"]) == 0
+    out = capsys.readouterr().out
+    assert "default" in out and "demo" in out
+
+
+@pytest.mark.slow
+def test_demo_runs_and_prints_the_report(tmp_path, capsys):
+    start = time.perf_counter()
+    assert main(["demo", "-o", str(tmp_path / "demo"), "--no-progress"]) == 0
+    elapsed = time.perf_counter() - start
+    out = capsys.readouterr().out
+    assert f"report: {(tmp_path / 'demo' / 'report.html').resolve()}" in out
+    assert "144 episodes" in out
+    print(f"demo wall time {elapsed:.0f} s")
