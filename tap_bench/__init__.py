@@ -31,6 +31,18 @@ from tap_bench.sim import (
     rollout,
 )
 from tap_bench.sim.registration import register_suite as _register_suite
+from tap_bench.similarity import (
+    ade_nearest,
+    dtw_nearest,
+    evaluate,
+    label_set,
+    normalised_shapes,
+    rank_scenarios,
+    scenario_set,
+    search,
+    search_like,
+    unique_labels,
+)
 from tap_bench.stages import StageConfig
 from tap_bench.synthetic import behaviour, random_trajectories, sample_table
 from tap_bench.tableio import read_table, write_table
@@ -108,4 +120,16 @@ __all__ = [
     "iter_womd",
     "read_womd",
     "write_womd",
+    # similarity: SDL search, unique behaviours, scenario-level SDL, the ADE / DTW baselines
+    # and the paper's experiments; more in tap_bench.similarity
+    "ade_nearest",
+    "dtw_nearest",
+    "evaluate",
+    "label_set",
+    "normalised_shapes",
+    "rank_scenarios",
+    "scenario_set",
+    "search",
+    "search_like",
+    "unique_labels",
 ]
