@@ -48,8 +48,11 @@ def pick_examples(ev: Evaluation, n: int = 3) -> list[tuple[str, int]]:
     """
     nb = ev.neighbours
     ls = ev.labels
-    turning = ls.n_lateral[ls.code[nb["query"].to_numpy()]] > 1
-    score = nb["n_exact_matches"].to_numpy() + 1_000_000 * turning
+    query = nb["query"].to_numpy()
+    turning = ls.n_lateral[ls.code[query]] > 1
+    # parked vehicles' jitter makes dull examples: prefer trajectories that travel 5 m
+    extent = np.array([np.abs(ev.shapes[q]).max(initial=0.0) for q in query])
+    score = nb["n_exact_matches"].to_numpy() + 1e6 * turning + 1e7 * (extent > 5.0)
     both_found = (nb["ade_neighbour"] >= 0).to_numpy() & (nb["dtw_neighbour"] >= 0).to_numpy()
     ade_d, dtw_d = nb["ade_different"].to_numpy(), nb["dtw_different"].to_numpy()
     lat_same = ~nb["ade_lateral_different"].to_numpy() & ~nb["dtw_lateral_different"].to_numpy()
@@ -108,7 +111,8 @@ def similarity_figure(ev: Evaluation, examples: list[tuple[str, int]] | None = N
             text = str(ls.labels[ls.code[j]])
             note = "" if text == ref_text else f"  [{_difference(ref_text, text)}]"
             differs.append(bool(note))
-            ax.plot(pts[:, 0], pts[:, 1], color=colour, lw=2.0, zorder=3,
+            ax.plot(pts[:, 0], pts[:, 1], color=colour, lw=3.6 if metric == "ade" else 1.8,
+                    zorder=3,
                     label=_wrap(f"nearest by {name} ({rec[f'{metric}_distance']:.2f} m): "
                                 f"{text}{note}", 110))
             ax_v.plot(shapes.time_of(j), shapes.speed_of(j), color=colour, lw=1.8, zorder=3)

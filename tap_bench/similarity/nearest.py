@@ -48,6 +48,8 @@ __all__ = [
 ]
 
 SHAPE_METRICS = ("ade", "dtw")
+_SMALL_GROUP = 256
+"""ADE groups up to this size skip the search for exact copies."""
 
 
 @dataclass(frozen=True)
@@ -110,29 +112,35 @@ def _queries(shapes: Shapes, queries: np.ndarray | None) -> np.ndarray:
     return q
 
 
-def _run(kernel: Callable[..., None], args: tuple, per_query: tuple[np.ndarray, ...],
-         outputs: tuple[np.ndarray, ...], workers: int, chunk: int, progress: bool | None,
+Task = tuple[Callable[..., None], tuple, tuple[np.ndarray, ...], tuple[np.ndarray, ...]]
+"""(kernel, shared arguments, per-query arrays, per-query outputs)."""
+
+
+def _run(tasks: list[Task], workers: int, chunk: int, progress: bool | None,
          desc: str) -> None:
-    """Run ``kernel(*args, *per_query[chunk], *outputs[chunk])`` over query chunks on threads.
-
-    ``per_query`` and ``outputs`` hold one row per query; each task gets a contiguous slice.
-    """
-    n = len(per_query[0])
-    if n == 0:
+    """Run every task's ``kernel(*args, *per_query[c], *outputs[c])`` over chunks c of its
+    queries, all tasks on one thread pool and one progress bar."""
+    pieces = []
+    for task in tasks:
+        n = len(task[2][0])
+        pieces += [(task, lo, hi) for lo, hi in itertools.pairwise([*range(0, n, chunk), n])]
+    total = sum(hi - lo for _, lo, hi in pieces)
+    if total == 0:
         return
-    pieces = list(itertools.pairwise([*range(0, n, chunk), n]))
-    with tqdm(total=n, desc=desc, unit="query", disable=None if progress is None else
-              not progress, leave=False) as bar:
-        def job(lo: int, hi: int) -> int:
-            kernel(*args, *(a[lo:hi] for a in per_query), *(o[lo:hi] for o in outputs))
-            return hi - lo
 
-        if workers == 1:
-            for lo, hi in pieces:
-                bar.update(job(lo, hi))
+    def job(piece: tuple[Task, int, int]) -> int:
+        (kernel, args, per_query, outputs), lo, hi = piece
+        kernel(*args, *(a[lo:hi] for a in per_query), *(o[lo:hi] for o in outputs))
+        return hi - lo
+
+    with tqdm(total=total, desc=desc, unit="query", disable=None if progress is None else
+              not progress, leave=False) as bar:
+        if workers == 1 or len(pieces) == 1:
+            for piece in pieces:
+                bar.update(job(piece))
         else:
             with ThreadPoolExecutor(max_workers=workers) as pool:
-                for done in pool.map(lambda p: job(*p), pieces):
+                for done in pool.map(job, pieces):
                     bar.update(done)
 
 
@@ -240,6 +248,8 @@ def ade_nearest(shapes: Shapes, queries: np.ndarray | None = None, *,
     member = np.full(len(shapes), -1, dtype=np.int64)
     for g, (rows, _L) in enumerate(groups):
         member[rows] = g
+    tasks: list[Task] = []
+    finish = []
     for g, (rows, L) in enumerate(groups):
         mine = np.flatnonzero(member[q_all] == g)
         if len(mine) == 0 or len(rows) < 2:
@@ -248,28 +258,31 @@ def ade_nearest(shapes: Shapes, queries: np.ndarray | None = None, *,
         X = _dense(shapes, rows, L)
         cuts = np.unique(np.linspace(0, L, min(blocks, L) + 1).astype(np.int64))[:-1]
         S = np.add.reduceat(X, cuts, axis=1)
-        rep = _duplicates(shapes, rows, L, np.concatenate(
-            [S.reshape(len(rows), -1), X[:, -1]], axis=1))
-        twin, _ = _answer_duplicates(rep, rows, q_all[mine])
-        out_nb[mine[twin >= 0]], out_d[mine[twin >= 0]] = twin[twin >= 0], 0.0
-        mine = mine[twin < 0]
-        keep = rep == rows  # one row per group of identical trajectories
-        cand = rows[keep]
-        if len(mine) == 0 or len(cand) < 2:
-            continue
-        X = np.ascontiguousarray(X[keep])
-        S = np.ascontiguousarray(S[keep])
+        cand = rows
+        if len(rows) > _SMALL_GROUP:  # small groups cannot hold a costly cluster of copies
+            rep = _duplicates(shapes, rows, L, np.concatenate(
+                [S.reshape(len(rows), -1), X[:, -1]], axis=1))
+            twin, _ = _answer_duplicates(rep, rows, q_all[mine])
+            out_nb[mine[twin >= 0]], out_d[mine[twin >= 0]] = twin[twin >= 0], 0.0
+            mine = mine[twin < 0]
+            keep = rep == rows  # one row per group of identical trajectories
+            cand = rows[keep]
+            if len(mine) == 0 or len(cand) < 2:
+                continue
+            X, S = X[keep], S[keep]
+        X, S = np.ascontiguousarray(X), np.ascontiguousarray(S)
         C = np.ascontiguousarray(S.sum(axis=1))
         order = np.argsort(C[:, 0], kind="stable").astype(np.int64)
         pos = np.empty_like(order)
         pos[order] = np.arange(len(order))
         local = np.searchsorted(cand, q_all[mine])  # these queries are representatives
         slack = 1e-10 * L * (1.0 + float(np.abs(X).max(initial=0.0)))
-        nb = np.empty(len(mine), dtype=np.int64)
-        d = np.empty(len(mine))
-        ev = np.empty(len(mine), dtype=np.int64)
-        _run(kernels.ade_nearest_chunk, (X, S, C, order, pos, slack), (local,), (nb, d, ev),
-             workers, chunk, progress, f"ADE nearest (length {L})")
+        out = (np.empty(len(mine), dtype=np.int64), np.empty(len(mine)),
+               np.empty(len(mine), dtype=np.int64))
+        tasks.append((kernels.ade_nearest_chunk, (X, S, C, order, pos, slack), (local,), out))
+        finish.append((mine, cand, L, out))
+    _run(tasks, workers, chunk, progress, "ADE nearest")
+    for mine, cand, L, (nb, d, ev) in finish:
         found = nb >= 0
         out_nb[mine] = np.where(found, cand[np.maximum(nb, 0)], -1)
         out_d[mine] = np.where(found, d / L, np.nan)
@@ -359,11 +372,10 @@ def dtw_nearest(shapes: Shapes, queries: np.ndarray | None = None, *,
         d = np.empty(len(mine))
         ev = np.empty(len(mine), dtype=np.int64)
         hint = np.where(hints[mine] >= 0, rep[np.maximum(hints[mine], 0)], -1)
-        _run(kernels.dtw_nearest_chunk,
-             (shapes.points, shapes.offsets, f["first"], f["last"], f["box"], f["blocks"],
-              f["counts"], f["n_blocks"], order, pos, candidate, slack), (q_all[mine], hint),
-             (nb, d, ev),
-             workers, chunk, progress, "DTW nearest")
+        _run([(kernels.dtw_nearest_chunk,
+               (shapes.points, shapes.offsets, f["first"], f["last"], f["box"], f["blocks"],
+                f["counts"], f["n_blocks"], order, pos, candidate, slack),
+               (q_all[mine], hint), (nb, d, ev))], workers, chunk, progress, "DTW nearest")
         found = nb >= 0
         out_nb[mine] = np.where(found, nb, -1)
         out_d[mine] = np.where(found, d, np.nan)
