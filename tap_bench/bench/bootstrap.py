@@ -117,9 +117,16 @@ def weighted_means(weights: np.ndarray, values: np.ndarray) -> np.ndarray:
     """
     values = np.asarray(values, dtype=float)
     present = ~np.isnan(values)
-    filled = np.where(present, values, 0.0)
+    if present.all():
+        return weights @ values / weights.sum(axis=-1, keepdims=values.ndim > 1)
+    # sums and counts in one pass over the weights
+    both = np.concatenate([np.where(present, values, 0.0), present.astype(float)], axis=-1) \
+        if values.ndim > 1 else np.column_stack([np.where(present, values, 0.0), present])
+    prod = weights @ both
+    k = both.shape[-1] // 2
     with np.errstate(invalid="ignore", divide="ignore"):
-        return (weights @ filled) / (weights @ present.astype(float))
+        out = prod[..., :k] / prod[..., k:]
+    return out if values.ndim > 1 else out[..., 0]
 
 
 def percentile_interval(resampled: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray]:
@@ -139,12 +146,20 @@ def percentile_interval(resampled: np.ndarray, level: float) -> tuple[np.ndarray
         squeeze = True
     else:
         squeeze = False
-    low = np.full(resampled.shape[1], np.nan)
-    high = np.full(resampled.shape[1], np.nan)
-    finite = ~np.all(np.isnan(resampled), axis=0)
-    if finite.any():
-        low[finite], high[finite] = np.nanquantile(resampled[:, finite], [alpha, 1 - alpha],
-                                                   axis=0)
+    nan = np.isnan(resampled)
+    if not nan.any():  # the common case, one vectorised call
+        low, high = np.quantile(resampled, [alpha, 1 - alpha], axis=0)
+    else:
+        low = np.full(resampled.shape[1], np.nan)
+        high = np.full(resampled.shape[1], np.nan)
+        clean = ~nan.any(axis=0)
+        if clean.any():
+            low[clean], high[clean] = np.quantile(resampled[:, clean], [alpha, 1 - alpha],
+                                                  axis=0)
+        partial = ~clean & ~nan.all(axis=0)
+        if partial.any():
+            low[partial], high[partial] = np.nanquantile(resampled[:, partial],
+                                                         [alpha, 1 - alpha], axis=0)
     if squeeze:
         return low[0], high[0]
     return low, high

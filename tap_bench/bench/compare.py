@@ -72,20 +72,21 @@ class PairedComparison:
     method: str
 
 
-def _pairs(episodes: pd.DataFrame, a: str, b: str) -> tuple[pd.DataFrame, int]:
+def _pairs(episodes: pd.DataFrame, a: str, b: str) -> tuple[pd.DataFrame, pd.Series]:
+    """(pairs of ok episodes sorted by env and seed, pairs lost to a failed episode per env)."""
     for name in (a, b):
         if not (episodes["policy"] == name).any():
             known = sorted(episodes["policy"].unique())
             raise LabelTableError(f"no episodes of policy {name!r}; the table has "
                                   f"{', '.join(map(repr, known))}.")
-    ok = episodes[episodes["status"] == "ok"]
-    left = ok[ok["policy"] == a].drop(columns="policy")
-    right = ok[ok["policy"] == b].drop(columns="policy")
-    pairs = left.merge(right, on=["env", "seed"], suffixes=("_a", "_b"))
-    all_a = episodes[episodes["policy"] == a][["env", "seed"]]
-    all_b = episodes[episodes["policy"] == b][["env", "seed"]]
-    n_possible = len(all_a.merge(all_b, on=["env", "seed"]))
-    return pairs.sort_values(["env", "seed"]).reset_index(drop=True), n_possible - len(pairs)
+    mine = episodes[episodes["policy"].isin([a, b])]
+    left = mine[mine["policy"] == a].drop(columns="policy")
+    right = mine[mine["policy"] == b].drop(columns="policy")
+    both = left.merge(right, on=["env", "seed"], suffixes=("_a", "_b"))
+    ok = (both["status_a"] == "ok") & (both["status_b"] == "ok")
+    dropped = (~ok).groupby(both["env"]).sum()
+    pairs = both[ok.to_numpy()].sort_values(["env", "seed"], kind="stable")
+    return pairs.reset_index(drop=True), dropped
 
 
 def paired_comparison(episodes: pd.DataFrame, a: str, b: str, *,
@@ -106,26 +107,29 @@ def paired_comparison(episodes: pd.DataFrame, a: str, b: str, *,
         LabelTableError: a policy has no episodes, or A and B share no (env, seed).
     """
     config = config or BootstrapConfig()
-    pairs, n_dropped_total = _pairs(episodes, a, b)
+    pairs, dropped = _pairs(episodes, a, b)
     if pairs.empty:
         raise LabelTableError(
             f"policies {a!r} and {b!r} share no (env, seed) with both episodes ok; run them on "
             "the same envs and seeds to pair them.")
     envs = sorted(pairs["env"].unique())
-    groups = [(env, pairs["env"].to_numpy() == env) for env in envs]
+    env_of = pairs["env"].to_numpy()
+    # one resampling of seeds per env; the pooled bootstrap resamples within every env,
+    # which is the per-env resamplings side by side (pairs are sorted by env)
+    weights = {env: resample_weights(int((env_of == env).sum()), config, stream=k)
+               for k, env in enumerate(envs)}
+    groups = [(env, env_of == env, weights[env]) for env in envs]
     if len(envs) > 1:
-        groups.append((ALL_ENVS, np.ones(len(pairs), bool)))
+        groups.append((ALL_ENVS, np.ones(len(pairs), bool),
+                       np.hstack([weights[env] for env in envs])))
     summary, measure_rows, label_rows = [], [], []
-    for k, (env, mask) in enumerate(groups):
+    for env, mask, W in groups:
         sub = pairs[mask]
-        strata = sub["env"].to_numpy() if env == ALL_ENVS else None
-        W = resample_weights(len(sub), config, strata=strata, stream=k)
         lab_a = sub["sdl_a"].fillna(NO_LABEL).to_numpy(str)
         lab_b = sub["sdl_b"].fillna(NO_LABEL).to_numpy(str)
         agree = (lab_a == lab_b).astype(float)
         lo, hi = percentile_interval(W @ agree / len(sub), config.level)
-        n_drop = n_dropped_total if env == ALL_ENVS else int(
-            _pairs(episodes[episodes["env"] == env], a, b)[1])
+        n_drop = int(dropped.sum()) if env == ALL_ENVS else int(dropped.get(env, 0))
         summary.append({"env": env, "policy_a": a, "policy_b": b, "n_pairs": len(sub),
                         "n_dropped": n_drop, "agreement": agree.mean(), "agreement_low": lo,
                         "agreement_high": hi})
@@ -139,25 +143,29 @@ def paired_comparison(episodes: pd.DataFrame, a: str, b: str, *,
 
 
 def _measure_rows(env: str, sub: pd.DataFrame, W: np.ndarray, measures, config) -> list[dict]:
+    present = [m for m in measures if f"{m.name}_a" in sub.columns]
+    if not present:
+        return []
+    va = np.column_stack([sub[f"{m.name}_a"].to_numpy(float, na_value=np.nan) for m in present])
+    vb = np.column_stack([sub[f"{m.name}_b"].to_numpy(float, na_value=np.nan) for m in present])
+    both = ~(np.isnan(va) | np.isnan(vb))
+    diff = np.where(both, va - vb, np.nan)
+    sign = np.array([1.0 if m.higher_is_better else -1.0 for m in present])
+    better = np.where(both, (sign * diff > 0) + 0.5 * (diff == 0), np.nan)
+    # every measure's difference and improvement in one product with the weights
+    boot = weighted_means(W, np.hstack([diff, better]))
+    lo, hi = percentile_interval(boot, config.level)
+    k = len(present)
     rows = []
-    for m in measures:
-        if f"{m.name}_a" not in sub.columns:
+    for j, m in enumerate(present):
+        if not both[:, j].any():
             continue
-        va = sub[f"{m.name}_a"].to_numpy(float, na_value=np.nan)
-        vb = sub[f"{m.name}_b"].to_numpy(float, na_value=np.nan)
-        both = ~(np.isnan(va) | np.isnan(vb))
-        if not both.any():
-            continue
-        diff = np.where(both, va - vb, np.nan)
-        sign = 1.0 if m.higher_is_better else -1.0
-        better = np.where(both, (sign * diff > 0) + 0.5 * (diff == 0), np.nan)
-        d_lo, d_hi = percentile_interval(weighted_means(W, diff), config.level)
-        p_lo, p_hi = percentile_interval(weighted_means(W, better), config.level)
         rows.append({"env": env, "measure": m.name, "higher_is_better": m.higher_is_better,
-                     "n": int(both.sum()), "mean_a": float(np.nanmean(va[both])),
-                     "mean_b": float(np.nanmean(vb[both])), "diff": float(np.nanmean(diff)),
-                     "diff_low": d_lo, "diff_high": d_hi,
-                     "p_improvement": float(np.nanmean(better)), "p_low": p_lo, "p_high": p_hi})
+                     "n": int(both[:, j].sum()), "mean_a": float(np.mean(va[both[:, j], j])),
+                     "mean_b": float(np.mean(vb[both[:, j], j])),
+                     "diff": float(np.nanmean(diff[:, j])), "diff_low": lo[j],
+                     "diff_high": hi[j], "p_improvement": float(np.nanmean(better[:, j])),
+                     "p_low": lo[k + j], "p_high": hi[k + j]})
     return rows
 
 
@@ -166,8 +174,8 @@ def _label_rows(env: str, lab_a: np.ndarray, lab_b: np.ndarray, W: np.ndarray,
     names, codes = np.unique(np.concatenate([lab_a, lab_b]), return_inverse=True)
     n = len(lab_a)
     onehot_diff = np.zeros((n, len(names)))
-    np.add.at(onehot_diff, (np.arange(n), codes[:n]), 1.0)
-    np.add.at(onehot_diff, (np.arange(n), codes[n:]), -1.0)
+    onehot_diff[np.arange(n), codes[:n]] += 1.0
+    onehot_diff[np.arange(n), codes[n:]] -= 1.0
     estimate = onehot_diff.mean(axis=0)
     boot = W @ onehot_diff / n
     lo, hi = percentile_interval(boot, config.level)
@@ -223,6 +231,9 @@ def matched_by_label(episodes: pd.DataFrame, a: str, b: str, *, metric: str = "e
         lab = sub["sdl"].to_numpy(str)
         names, codes = np.unique(lab, return_inverse=True)
         shared = np.intersect1d(codes[is_a], codes[~is_a])
+        present = [m for m in measures if m.name in sub.columns]
+        x = np.column_stack([sub[m.name].to_numpy(float, na_value=np.nan) for m in present]) \
+            if present else np.zeros((len(sub), 0))
         if metric == "exact":
             within = np.eye(len(names), dtype=bool)
         else:
@@ -232,24 +243,21 @@ def matched_by_label(episodes: pd.DataFrame, a: str, b: str, *, metric: str = "e
             ma, mb = member & is_a, member & ~is_a
             if ma.sum() < min_group or mb.sum() < min_group:
                 continue
-            Wa = resample_weights(int(ma.sum()), config, stream=2 * stream + 1)
-            Wb = resample_weights(int(mb.sum()), config, stream=2 * stream + 2)
+            Wa = resample_weights(int(ma.sum()), config, stream=50_000 + 2 * stream)
+            Wb = resample_weights(int(mb.sum()), config, stream=50_001 + 2 * stream)
             stream += 1
-            for m in measures:
-                if m.name not in sub.columns:
-                    continue
-                x = sub[m.name].to_numpy(float, na_value=np.nan)
-                xa, xb = x[ma], x[mb]
+            boot = weighted_means(Wa, x[ma]) - weighted_means(Wb, x[mb])
+            lo, hi = percentile_interval(boot, config.level)
+            for j, m in enumerate(present):
+                xa, xb = x[ma, j], x[mb, j]
                 if np.isnan(xa).all() or np.isnan(xb).all():
                     continue
-                boot = weighted_means(Wa, xa) - weighted_means(Wb, xb)
-                lo, hi = percentile_interval(boot, config.level)
                 rows.append({"env": env, "label": names[anchor], "n_a": int(ma.sum()),
                              "n_b": int(mb.sum()), "measure": m.name,
                              "higher_is_better": m.higher_is_better,
                              "mean_a": float(np.nanmean(xa)), "mean_b": float(np.nanmean(xb)),
                              "diff": float(np.nanmean(xa) - np.nanmean(xb)),
-                             "diff_low": lo, "diff_high": hi})
+                             "diff_low": lo[j], "diff_high": hi[j]})
     out = pd.DataFrame(rows, columns=["env", "label", "n_a", "n_b", "measure",
                                       "higher_is_better", "mean_a", "mean_b", "diff",
                                       "diff_low", "diff_high"])

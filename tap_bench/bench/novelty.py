@@ -81,11 +81,9 @@ def novelty(episodes: pd.DataFrame, reference: Reference, *,
     lo, hi = percentile_interval(W @ novel.astype(float) / n, config.level)
     example = ok["scenario_id"].to_numpy() if "scenario_id" in ok.columns else \
         np.arange(n).astype(str)
-    table = pd.DataFrame({"label": lab[novel], "example_scenario": example[novel]})
-    labels = (table.groupby("label", sort=False)
-              .agg(count=("label", "size"), example_scenario=("example_scenario", "first"))
-              .reset_index())
-    labels["share"] = labels["count"] / n
-    labels = labels.sort_values(["count", "label"], ascending=[False, True], kind="stable")
-    labels = labels[["label", "count", "share", "example_scenario"]].reset_index(drop=True)
+    names, first, counts = np.unique(lab[novel], return_index=True, return_counts=True)
+    order = np.lexsort((names, -counts))
+    labels = pd.DataFrame({"label": names[order], "count": counts[order],
+                           "share": counts[order] / n,
+                           "example_scenario": example[novel][first[order]]})
     return NoveltyResult(n, int(novel.sum()), float(novel.mean()), float(lo), float(hi), labels)

@@ -12,7 +12,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.bootstrap import BootstrapConfig, percentile_interval, resample_weights
+from tap_bench.bench.bootstrap import (
+    BootstrapConfig,
+    percentile_interval,
+    resample_weights,
+    weighted_means,
+)
 from tap_bench.bench.compare import ALL_ENVS, matched_by_label, paired_comparison
 from tap_bench.bench.coverage import Reference, corpus_reference, coverage
 from tap_bench.bench.measures import MEASURES
@@ -74,21 +79,28 @@ def _env_groups(table: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
 def policy_measures(episodes: pd.DataFrame, config: BootstrapConfig) -> pd.DataFrame:
     """Mean of each measure per env (and pooled) and policy, with percentile intervals over
     episodes (stratified by env when pooled)."""
-    ok = episodes[episodes["status"] == "ok"]
+    ok = episodes[episodes["status"] == "ok"].sort_values(["policy", "env"], kind="stable")
     rows = []
     stream = 30_000
     for policy, pol in ok.groupby("policy", sort=True):
-        for env, sub in _env_groups(pol):
-            W = resample_weights(len(sub), config, strata=sub["env"].to_numpy()
-                                 if env == ALL_ENVS else None, stream=stream)
+        env_of = pol["env"].to_numpy()
+        envs = sorted(set(env_of))
+        weights = {}
+        for env in envs:
+            weights[env] = resample_weights(int((env_of == env).sum()), config, stream=stream)
             stream += 1
-            values = np.column_stack([sub[m.name].to_numpy(float, na_value=np.nan)
-                                      for m in MEASURES])
-            present = ~np.isnan(values)
-            filled = np.where(present, values, 0.0)
+        groups = [(env, env_of == env, weights[env]) for env in envs]
+        if len(envs) > 1:  # pooled: the per-env resamplings side by side (rows sorted by env)
+            groups.append((ALL_ENVS, np.ones(len(pol), bool),
+                           np.hstack([weights[env] for env in envs])))
+        values = np.column_stack([pol[m.name].to_numpy(float, na_value=np.nan)
+                                  for m in MEASURES])
+        for env, mask, W in groups:
+            sub = values[mask]
+            present = ~np.isnan(sub)
+            boot = weighted_means(W, sub)
             with np.errstate(invalid="ignore", divide="ignore"):
-                boot = (W @ filled) / (W @ present)
-                est = filled.sum(0) / present.sum(0)
+                est = np.where(present, sub, 0.0).sum(0) / present.sum(0)
             lo, hi = percentile_interval(boot, config.level)
             for j, m in enumerate(MEASURES):
                 rows.append({"env": env, "policy": policy, "measure": m.name,
