@@ -8,6 +8,18 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
+from tap_bench.bench import (
+    BootstrapConfig,
+    check,
+    corpus_reference,
+    coverage,
+    load_suite,
+    matched_by_label,
+    novelty,
+    paired_comparison,
+    run_suite,
+    vocabulary_reference,
+)
 from tap_bench.errors import (
     FileFormatError,
     LabelTableError,
@@ -132,4 +144,16 @@ __all__ = [
     "search",
     "search_like",
     "unique_labels",
+    # the benchmark (tap_bench.bench): matched comparison, coverage, unique manoeuvres,
+    # suite runs and the regression gate; more in tap_bench.bench
+    "BootstrapConfig",
+    "check",
+    "corpus_reference",
+    "coverage",
+    "load_suite",
+    "matched_by_label",
+    "novelty",
+    "paired_comparison",
+    "run_suite",
+    "vocabulary_reference",
 ]
