@@ -231,6 +231,8 @@ def dtw_bounded(a, b, rest, bound, prev, curr):
         nsc = -1
         nec = -1
         left = np.inf
+        ax = a[i, 0]
+        ay = a[i, 1]
         j = psc
         while j < m:
             v = left
@@ -244,7 +246,9 @@ def dtw_bounded(a, b, rest, bound, prev, curr):
                 curr[j] = np.inf
                 left = np.inf
             else:
-                d = _cost(a, i, b, j) + v
+                dx = ax - b[j, 0]
+                dy = ay - b[j, 1]
+                d = np.sqrt(dx * dx + dy * dy) + v  # _cost(a, i, b, j), bit for bit
                 if d > limit:
                     curr[j] = np.inf
                     left = np.inf
