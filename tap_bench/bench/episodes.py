@@ -113,18 +113,15 @@ def episode_table(*, labels: pd.DataFrame | None = None,
     """
     if labels is None and trajectories is None and episodes is None:
         raise ValueError("episode_table needs labels, trajectories or episodes.")
-    parts = []
-    if labels is not None:
-        parts.append(ego_labels(labels, level, source=source))
-    if trajectories is not None:
-        parts.append(ego_measures(trajectories))
     out = None
-    for part in parts:
+    if trajectories is not None:
+        out = ego_measures(trajectories)  # every scenario with an ego, labelled or not
+    if labels is not None:
+        ego = ego_labels(labels, level, source=source)
         if out is None:
-            out = part
+            out = ego
         else:
-            extra = [c for c in part.columns if c not in out.columns or c == "scenario_id"]
-            out = out.merge(part[extra], on="scenario_id", how="outer")
+            out = out.merge(ego[["scenario_id", *_LABEL_FIELDS]], on="scenario_id", how="left")
     if out is not None:
         out = _fill_ids(out, policy, source)
     if episodes is not None:

@@ -25,7 +25,6 @@ Every field but ``name``, ``envs``, ``policies`` and ``seeds`` has the default s
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -291,10 +290,6 @@ def load_suite(name_or_path: str | os.PathLike) -> Suite:
         path = suites_dir() / f"{text}.json"
         if not path.is_file():
             raise did_you_mean("suite", text, available_suites())
-    try:
-        doc = json.loads(path.read_text())
-    except OSError as err:
-        raise FileFormatError(f"{path}: cannot read the suite file: {err}") from err
-    except json.JSONDecodeError as err:
-        raise FileFormatError(f"{path}: not valid JSON: {err}") from err
-    return suite_from_dict(doc, source=str(path), path=path)
+    from tap_bench.sim.suite import read_json
+
+    return suite_from_dict(read_json(path, "suite"), source=str(path), path=path)
