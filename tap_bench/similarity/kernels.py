@@ -81,6 +81,23 @@ def pairwise(kind, points, offsets, left, right, out):
             out[k] = dtw_full(a, b)
 
 
+@njit(cache=True, nogil=True)
+def _outward(key, order, kq, left, right):
+    """The next candidate outward from a query along a sorted key.
+
+    ``order`` sorts the rows by ``key``; ``left`` and ``right`` are the next positions on
+    either side of the query's. Returns (row, |key difference|, left, right) for the side
+    whose next key is nearer ``kq``; row -1 once both sides are exhausted.
+    """
+    dl = kq - key[order[left]] if left >= 0 else np.inf
+    dr = key[order[right]] - kq if right < order.shape[0] else np.inf
+    if dl <= dr:
+        if dl == np.inf:
+            return -1, np.inf, left, right
+        return order[left], dl, left - 1, right
+    return order[right], dr, left, right + 1
+
+
 # -- ADE: exact nearest neighbours among trajectories of one length --------------------------
 @njit(cache=True, nogil=True)
 def ade_nearest_chunk(X, S, C, order, pos, slack, queries, out_nb, out_sum, out_eval):
@@ -101,8 +118,9 @@ def ade_nearest_chunk(X, S, C, order, pos, slack, queries, out_nb, out_sum, out_
     is at most the sum of norms). Candidates are visited outward from the query in the
     sorted order, nearest key first, until the key difference alone exceeds the best sum.
     """
-    n_rows, length = X.shape[0], X.shape[1]
+    length = X.shape[1]
     n_blocks = S.shape[1]
+    key = C[:, 0]
     for qi in range(queries.shape[0]):
         q = queries[qi]
         xq = X[q]
@@ -114,18 +132,9 @@ def ade_nearest_chunk(X, S, C, order, pos, slack, queries, out_nb, out_sum, out_
         left = p - 1
         right = p + 1
         while True:
-            dl = kq - C[order[left], 0] if left >= 0 else np.inf
-            dr = C[order[right], 0] - kq if right < n_rows else np.inf
-            if dl <= dr:
-                if dl == np.inf:
-                    break
-                c = order[left]
-                dk = dl
-                left -= 1
-            else:
-                c = order[right]
-                dk = dr
-                right += 1
+            c, dk, left, right = _outward(key, order, kq, left, right)
+            if c < 0:
+                break
             bound = best * (1.0 + REL) + slack
             if dk > bound:
                 break
@@ -299,6 +308,7 @@ def dtw_nearest_chunk(P, off, first, last, box, blocks, counts, n_blocks, order,
     tighter, but costs more than the programmes it saves on trajectory data.
     """
     n_rows = order.shape[0]
+    key = last[:, 0]
     max_len = 0
     for r in range(n_rows):
         if off[r + 1] - off[r] > max_len:
@@ -323,18 +333,9 @@ def dtw_nearest_chunk(P, off, first, last, box, blocks, counts, n_blocks, order,
                 hint = -1
                 dk = 0.0
             else:
-                dl = kq - last[order[left], 0] if left >= 0 else np.inf
-                dr = last[order[right], 0] - kq if right < n_rows else np.inf
-                if dl <= dr:
-                    if dl == np.inf:
-                        break
-                    c = order[left]
-                    dk = dl
-                    left -= 1
-                else:
-                    c = order[right]
-                    dk = dr
-                    right += 1
+                c, dk, left, right = _outward(key, order, kq, left, right)
+                if c < 0:
+                    break
             bound = best * (1.0 + REL) + slack
             if dk > bound:
                 break
