@@ -23,7 +23,10 @@ LABELS = ["Straight | Maintain Speed", "Left Merge > Straight | Accelerate > Mai
           "Right Merge | Decelerate", "Straight | Decelerate > Stopped"]
 
 
-def synthetic_run(tmp_path: Path) -> Path:
+@pytest.fixture(scope="module")
+def run_folder(tmp_path_factory) -> Path:
+    """A scored run of three policies in two envs (synthetic episodes, one failed)."""
+    tmp_path = tmp_path_factory.mktemp("report")
     rng = np.random.default_rng(0)
     rows = []
     for env in ("highway", "merge"):
@@ -48,8 +51,8 @@ def synthetic_run(tmp_path: Path) -> Path:
                          scores)
 
 
-def test_report_is_written_with_embedded_images(tmp_path):
-    folder = synthetic_run(tmp_path)
+def test_report_is_written_with_embedded_images(run_folder):
+    folder = run_folder
     page = (folder / "report.html").read_text()
     pngs = sorted((folder / "plots").glob("*.png"))
     assert len(pngs) >= 6
@@ -61,11 +64,11 @@ def test_report_is_written_with_embedded_images(tmp_path):
 @pytest.mark.skipif(not (CHROMIUM and CHROMEDRIVER),
                     reason="needs Debian's chromium and chromium-driver (apt-get install "
                     "chromium chromium-driver; .ci/run installs them)")
-def test_report_renders_in_headless_chromium(tmp_path):
+def test_report_renders_in_headless_chromium(run_folder, tmp_path):
     webdriver = pytest.importorskip("selenium.webdriver")
     from selenium.webdriver.chrome.service import Service
 
-    folder = synthetic_run(tmp_path)
+    folder = run_folder
     options = webdriver.ChromeOptions()
     options.binary_location = CHROMIUM
     for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic",
