@@ -196,16 +196,27 @@ def _novelty_plot(scores: Scores, folder: Path) -> Path | None:
         return None
     plt = _plt()
     refs = sorted(nov["reference"].unique())
-    fig, ax = plt.subplots(figsize=(8, 1 + 0.5 * nov["policy"].nunique() * len(refs)))
+    fig, ax = plt.subplots(figsize=(9, 1.2 + 0.7 * nov["policy"].nunique() * len(refs)))
+    examples = _pooled(scores.novel_labels)
     for k, ref in enumerate(refs):
         sub = nov[nov["reference"] == ref].sort_values("policy")
+        offset = (k - (len(refs) - 1) / 2) * 0.25
         _interval_plot(ax, sub["policy"].tolist(), sub["novel_rate"], sub["novel_low"],
-                       sub["novel_high"], color=f"C{k}",
-                       offset=(k - (len(refs) - 1) / 2) * 0.25, label=ref)
+                       sub["novel_high"], color=f"C{k}", offset=offset, label=ref)
+        for y, policy in enumerate(sub["policy"]):  # the most frequent novel label, as text
+            ex = examples[(examples["reference"] == ref) & (examples["policy"] == policy)] \
+                if len(examples) else examples
+            if len(ex):
+                top = ex.sort_values("count", ascending=False).iloc[0]
+                ax.annotate(f"e.g. {_short(top['label'], 55)} ({top['count']}x)",
+                            (0.01, y + offset - 0.22), fontsize=6, color=f"C{k}",
+                            xycoords=("axes fraction", "data"))
     ax.set_xlim(-0.02, 1.02)
+    ax.set_ylim(-0.6, nov["policy"].nunique() - 0.5)
     ax.set_xlabel("share of episodes whose ego label the reference never shows")
-    ax.set_title("Unique manoeuvres (novelty rate), 95 % intervals", fontsize=9)
-    ax.legend(fontsize=7)
+    ax.set_title("Unique manoeuvres (novelty rate), 95 % intervals, with the most frequent "
+                 "novel label", fontsize=9)
+    ax.legend(fontsize=7, loc="lower right")
     return _save(fig, folder / "novelty.png")
 
 
