@@ -28,6 +28,7 @@ from tap_bench.similarity.nearest import (
 )
 from tap_bench.similarity.sdl_distance import LabelSet, label_set
 from tap_bench.similarity.shape import Shapes, normalised_shapes
+from tap_bench.similarity.unique import unique_labels
 from tap_bench.tableio import atomic_path, write_table
 
 __all__ = ["PAPER", "Evaluation", "evaluate", "write_evaluation"]
@@ -147,10 +148,10 @@ def evaluate(trajectories: pd.DataFrame, labels: pd.DataFrame | None = None, *,
 
         labels = tap(trajectories, thresholds, source=source).labels(level)
     ls = label_set(_select(label_set(labels, level).table, object_types), level)
-    shapes = normalised_shapes(trajectories, ls.table, source=source)
-    q = _sample(len(ls), queries, seed)
     if len(ls) < 2:
         raise LabelTableError("evaluation needs at least two labelled trajectories.")
+    shapes = normalised_shapes(trajectories, ls.table, source=source)
+    q = _sample(len(ls), queries, seed)
 
     # numba loads (or first compiles) its kernels here, outside the timed searches
     kernel_s = compile_kernels()
@@ -167,7 +168,7 @@ def evaluate(trajectories: pd.DataFrame, labels: pd.DataFrame | None = None, *,
         "segment": keys["segment"].to_numpy()[q] if "segment" in keys.columns else 0,
         "sdl": text[q], "n_exact_matches": ls.counts[ls.code[q]] - 1,
     })
-    figures: dict[str, dict] = {}
+    found: dict[str, dict] = {}
     for res in (ade, dtw):
         m = res.metric
         nb = res.neighbour
@@ -183,7 +184,7 @@ def evaluate(trajectories: pd.DataFrame, labels: pd.DataFrame | None = None, *,
         nb_rows[f"{m}_longitudinal_different"] = has & (lon[safe] != lon[q])
         answered = int(has.sum())
         diff = int(nb_rows[f"{m}_different"].sum())
-        figures[m] = {
+        found[m] = {
             "queries_with_neighbour": answered,
             "queries_without_neighbour": int(len(q) - answered),
             "different_label": diff,
@@ -196,8 +197,6 @@ def evaluate(trajectories: pd.DataFrame, labels: pd.DataFrame | None = None, *,
         }
 
     unique_rows = np.flatnonzero(ls.counts[ls.code] == 1)
-    from tap_bench.similarity.unique import unique_labels
-
     unique = unique_labels(ls)
     label_s, n_timed = _label_timing(trajectories, keys, thresholds, timing_trajectories, 2)
     per_compare = _compare_timing(ls.code)
@@ -223,8 +222,8 @@ def evaluate(trajectories: pd.DataFrame, labels: pd.DataFrame | None = None, *,
             "distinct_labels": ls.n_labels, "queries": len(q),
             "sampled": len(q) < len(ls), "seed": seed, "ade_length": ade_length,
         },
-        "ade": figures["ade"],
-        "dtw": figures["dtw"],
+        "ade": found["ade"],
+        "dtw": found["dtw"],
         "sdl_exact": {
             "queries_with_exact_match": int((nb_rows["n_exact_matches"] > 0).sum()),
             "unique_labels": len(unique_rows),

@@ -175,8 +175,7 @@ def _duplicates(shapes: Shapes, rows: np.ndarray, L: int | None,
     return rows[rep]
 
 
-def _answer_duplicates(rep: np.ndarray, rows: np.ndarray, queries: np.ndarray
-                       ) -> tuple[np.ndarray, np.ndarray]:
+def _answer_duplicates(rep: np.ndarray, rows: np.ndarray, queries: np.ndarray) -> np.ndarray:
     """For each query of ``rows``: the lowest other row with the same representative, or -1.
 
     Args:
@@ -193,8 +192,7 @@ def _answer_duplicates(rep: np.ndarray, rows: np.ndarray, queries: np.ndarray
                       -1)
     second = np.where((first_pos + 1 < len(srep)) &
                       (srep[np.minimum(first_pos + 1, len(srep) - 1)] == group_rep), second, -1)
-    answer = np.where(group_rep != queries, group_rep, second)
-    return answer, local
+    return np.where(group_rep != queries, group_rep, second)
 
 
 def _ade_groups(shapes: Shapes, length: str | int) -> tuple[list[tuple[np.ndarray, int]],
@@ -262,7 +260,7 @@ def ade_nearest(shapes: Shapes, queries: np.ndarray | None = None, *,
         if len(rows) > _SMALL_GROUP:  # small groups cannot hold a costly cluster of copies
             rep = _duplicates(shapes, rows, L, np.concatenate(
                 [S.reshape(len(rows), -1), X[:, -1]], axis=1))
-            twin, _ = _answer_duplicates(rep, rows, q_all[mine])
+            twin = _answer_duplicates(rep, rows, q_all[mine])
             out_nb[mine[twin >= 0]], out_d[mine[twin >= 0]] = twin[twin >= 0], 0.0
             mine = mine[twin < 0]
             keep = rep == rows  # one row per group of identical trajectories
@@ -358,7 +356,7 @@ def dtw_nearest(shapes: Shapes, queries: np.ndarray | None = None, *,
     f = _dtw_features(shapes, blocks)
     rep = _duplicates(shapes, rows, None, np.concatenate([f["first"], f["last"], f["box"]],
                                                          axis=1))
-    twin, _ = _answer_duplicates(rep, rows, q_all)
+    twin = _answer_duplicates(rep, rows, q_all)
     out_nb[twin >= 0], out_d[twin >= 0] = twin[twin >= 0], 0.0
     mine = np.flatnonzero(twin < 0)
     if len(mine) and n > 1:
