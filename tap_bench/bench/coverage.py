@@ -24,9 +24,10 @@ estimand is the expected coverage of an evaluation with the same number of episo
 which the observed value is unbiased. A plain bootstrap underestimates its spread (labels
 the agent produces but the sample missed never appear in a resample). The intervals
 therefore follow Chao et al. (2014, Ecol. Monogr. 84:45, the iNEXT method): the empirical
-label distribution is augmented with the undetected labels the Chao1 estimator predicts
-(capped at the reference items not yet seen, all counted as reference items: a
-conservative choice), carrying the Good-Turing undetected probability; episodes are drawn
+label distribution is augmented with the undetected labels the Chao1 estimator predicts,
+carrying the Good-Turing undetected probability (as many of them as the reference has
+unseen items count as reference items, which widens the interval: the conservative
+choice); episodes are drawn
 from it (multinomially for whole labels, independently per item for vocabulary items) and
 the interval is ``estimate +- z * sd`` over those draws, clipped to [0, 1]. The tests measure
 the resulting coverage rate on synthetic label distributions (docs/benchmark.md has the
@@ -271,21 +272,24 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
     missed = reference.items[missed_idx[np.argsort(-reference.weights[missed_idx],
                                                    kind="stable")]]
 
-    # augmented population: detected items + undetected ones (all counted as reference items)
+    # augmented population: the detected items and the f0 undetected ones Chao1 predicts;
+    # up to as many of them as the reference has unseen items count as reference items
     f0, p0, p_adj = _undetected(freq.astype(float), n)
-    f0 = min(f0, len(missed_idx))
+    p_each = p0 / f0 if f0 else 0.0  # detection probability of one undetected item
+    n_ref_undetected = min(f0, len(missed_idx))
     w_missed = float(reference.weights[missed_idx].mean()) if len(missed_idx) else 0.0
     rng = config.rng(10_000 + stream)
     B = config.n_resamples
-    in_ref_pop = np.r_[in_ref, np.ones(f0, bool)]
-    w_pop = np.r_[w_item, np.full(f0, w_missed)]
-    if reference.kind == "corpus":
-        prob = np.r_[p_adj, np.full(f0, p0 / f0 if f0 else 0.0)]
-        prob = prob / prob.sum()
-        draws = rng.multinomial(n, prob, size=B)  # (B, m) episodes per label
-    else:  # incidence: each episode shows each item independently
-        prob = np.r_[p_adj, np.full(f0, min(p0 / f0, 1.0) if f0 else 0.0)]
+    if reference.kind == "corpus":  # one label per episode: multinomial draws
+        in_ref_pop = np.r_[in_ref, np.arange(f0) < n_ref_undetected]
+        prob = np.r_[p_adj, np.full(f0, p_each)]
+        draws = rng.multinomial(n, prob / prob.sum(), size=B)  # (B, m) episodes per label
+    else:  # vocabulary items: the universe is the reference; items shown independently
+        in_ref_pop = np.r_[in_ref, np.ones(n_ref_undetected, bool)]
+        prob = np.r_[p_adj, np.full(n_ref_undetected, min(p_each, 1.0))]
         draws = rng.binomial(n, prob, size=(B, len(prob)))
+    w_pop = np.where(in_ref_pop, np.r_[w_item, np.full(len(prob) - len(w_item), w_missed)],
+                     0.0)
     seen = draws > 0
     boot_cov = (seen & in_ref_pop).sum(axis=1) / K
     boot_wcov = (seen * w_pop).sum(axis=1)
@@ -298,7 +302,7 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
     c_lo, c_hi = interval(cov, boot_cov)
     w_lo, w_hi = interval(wcov, boot_wcov)
     if reference.kind == "corpus":
-        label_draws = draws
+        label_draws = draws  # the same augmented population of whole labels
     else:
         g0, q0, q_adj = _undetected(counts.astype(float), n)
         q = np.r_[q_adj, np.full(g0, q0 / g0 if g0 else 0.0)]
