@@ -135,7 +135,8 @@ def evaluate(trajectories: pd.DataFrame, labels: pd.DataFrame | None = None, *,
             :class:`~tap_bench.Thresholds`.
         queries: answer a random sample of this many trajectories (default: all).
         seed: seed of the sample.
-        object_types: trajectories kept (the paper: vehicles); None keeps all.
+        object_types: trajectories kept (the paper: vehicles); None, or a label table
+            without an ``object_type`` column, keeps all.
         ade_length: ``"equal"`` or a prefix length, see :func:`ade_nearest`.
         workers: threads for the nearest-neighbour searches.
         timing_trajectories: tracks labelled to time TAP.
