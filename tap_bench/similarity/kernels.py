@@ -82,6 +82,14 @@ def pairwise(kind, points, offsets, left, right, out):
 
 
 @njit(cache=True, nogil=True)
+def _keep_nearer(d, c, best, best_j):
+    """(best, best_j) after candidate c at distance d: nearer wins, ties to the lower row."""
+    if d < best or (d == best and c < best_j):
+        return d, c
+    return best, best_j
+
+
+@njit(cache=True, nogil=True)
 def _outward(key, order, kq, left, right):
     """The next candidate outward from a query along a sorted key.
 
@@ -158,11 +166,8 @@ def ade_nearest_chunk(X, S, C, order, pos, slack, queries, out_nb, out_sum, out_
                 s += _cost(xq, t, xc, t)
                 if s > bound:
                     break
-            if s > bound:
-                continue
-            if s < best or (s == best and c < best_j):
-                best = s
-                best_j = c
+            if s <= bound:
+                best, best_j = _keep_nearer(s, c, best, best_j)
         out_nb[qi] = best_j
         out_sum[qi] = best
         out_eval[qi] = evaluated
@@ -372,11 +377,8 @@ def dtw_nearest_chunk(P, off, first, last, box, blocks, counts, n_blocks, order,
                 continue
             evaluated += 1
             d = dtw_bounded(a, b, rest, bound, prev, curr)
-            if d > bound:
-                continue
-            if d < best or (d == best and c < best_j):
-                best = d
-                best_j = c
+            if d <= bound:
+                best, best_j = _keep_nearer(d, c, best, best_j)
         out_nb[qi] = best_j
         out_sum[qi] = best
         out_eval[qi] = evaluated
