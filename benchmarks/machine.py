@@ -20,7 +20,7 @@ from importlib import metadata
 from pathlib import Path
 
 PACKAGES = ("tap-bench", "numpy", "pandas", "pyarrow", "gymnasium", "highway-env", "protobuf",
-            "crc32c", "stable-baselines3", "torch", "numba", "ray")
+            "crc32c", "rapidfuzz", "stable-baselines3", "torch", "numba", "ray")
 
 
 def _cpu_model() -> str:
