@@ -118,31 +118,35 @@ class TrajectoryRecorder:
         y = -data["y"].astype(np.float64)[order]
         heading = -data["heading"].astype(np.float64)[order]
         speed = data["speed"].astype(np.float64)[order]
+        crashed = data["crashed"].astype(bool)[order]
         track_names = np.array([EGO_TRACK_ID] + [str(i) for i in range(1, self._n_others + 1)],
                                dtype=object)
         policy = columns.pop("policy", None)
-        table = pd.DataFrame({
-            "scenario_id": scenario_id(self.env, self.seed, self.episode, policy),
-            "track_id": track_names[code] if len(code) else np.empty(0, dtype=object),
+        n = len(step)
+        seed = pd.array(np.full(n, 0 if self.seed is None else self.seed), dtype="Int64")
+        if self.seed is None:
+            seed[:] = pd.NA
+        data = {
+            "scenario_id": np.full(n, scenario_id(self.env, self.seed, self.episode, policy),
+                                   dtype=object),
+            "track_id": track_names[code] if n else np.empty(0, dtype=object),
             "t": step / HZ,
             "x": x,
             "y": y,
             # wrapped to (-pi, pi]: highway-env lets headings grow around a roundabout
             "heading": np.pi - np.mod(np.pi - heading, _TWO_PI),
             "speed": np.abs(speed),
-            "valid": np.ones(len(step), dtype=bool),
+            "valid": np.ones(n, dtype=bool),
             "vx": speed * np.cos(heading),
             "vy": speed * np.sin(heading),
-            "object_type": "vehicle",
+            "object_type": np.full(n, "vehicle", dtype=object),
             "is_ego": code == 0,
-            "source": "highway-env",
-            "env": self.env,
-        })
-        if policy is not None:
-            table["policy"] = policy
-        table["seed"] = pd.array([self.seed] * len(table), dtype="Int64")
-        table["episode"] = np.full(len(table), self.episode, dtype=np.int64)
-        table["crashed"] = data["crashed"].astype(bool)[order]
-        for name, value in columns.items():
-            table[name] = value
-        return table
+            "source": np.full(n, "highway-env", dtype=object),
+            "env": np.full(n, self.env, dtype=object),
+            **({"policy": np.full(n, policy, dtype=object)} if policy is not None else {}),
+            "seed": seed,
+            "episode": np.full(n, self.episode, dtype=np.int64),
+            "crashed": crashed,
+            **{name: np.full(n, value, dtype=object) for name, value in columns.items()},
+        }
+        return pd.DataFrame(data, copy=False)

@@ -6,9 +6,9 @@ trajectory table, depend on the seed alone, whichever worker runs it and whateve
 before in that worker. Workers are fresh processes (``spawn``): nothing from the parent's
 process state, such as highway-env's class attributes, reaches them. An episode that raises
 is reported in the episode table (``status`` ``"error"``, with the error) and leaves no rows
-in the trajectory table; the other episodes are kept. A worker process that dies is
-replaced, and its episodes are run again; an episode whose worker dies twice is reported as
-an error.
+in the trajectory table; the other episodes are kept. When a worker process dies, the
+episodes left run one at a time in a fresh worker, so that the one that kills it is found
+and reported as an error, and the others complete.
 """
 
 from __future__ import annotations
@@ -158,28 +158,36 @@ def _worker_init() -> None:
 
 
 def _run_parallel(tasks: list[_Task], workers: int, bar: Any) -> dict[int, tuple]:
-    results: dict[int, tuple] = {}
-    strikes: dict[int, int] = {}
-    pending = list(tasks)
     context = multiprocessing.get_context("spawn")
-    while pending:
-        with cf.ProcessPoolExecutor(max_workers=min(workers, len(pending)),
-                                    mp_context=context, initializer=_worker_init) as pool:
-            futures = {pool.submit(_run_task, task): task for task in pending}
-            pending = []
-            for future in cf.as_completed(futures):
-                task = futures[future]
-                try:
-                    results[task.seed] = future.result()
-                except BrokenProcessPool:
-                    strikes[task.seed] = strikes.get(task.seed, 0) + 1
-                    if strikes[task.seed] < 2:
-                        pending.append(task)
-                        continue
-                    results[task.seed] = (pd.DataFrame(), _failed_row(
-                        task, "the worker process died while running this episode (twice)"))
+
+    def pool(n: int) -> cf.ProcessPoolExecutor:
+        return cf.ProcessPoolExecutor(max_workers=n, mp_context=context,
+                                      initializer=_worker_init)
+
+    results: dict[int, tuple] = {}
+    with pool(min(workers, len(tasks))) as executor:
+        futures = {executor.submit(_run_task, task): task for task in tasks}
+        for future in cf.as_completed(futures):
+            try:
+                results[futures[future].seed] = future.result()
                 bar.update(1)
-        pending.sort(key=lambda t: t.seed)
+            except BrokenProcessPool:
+                pass  # every unfinished episode fails with the dead worker's pool
+    # A worker died. Run the episodes left one at a time in a single worker process, so that
+    # the one that kills it is known; a fresh process takes over after each death.
+    executor = None
+    for task in (t for t in tasks if t.seed not in results):
+        executor = executor or pool(1)
+        try:
+            results[task.seed] = executor.submit(_run_task, task).result()
+        except BrokenProcessPool:
+            results[task.seed] = (pd.DataFrame(), _failed_row(
+                task, "the worker process died while running this episode"))
+            executor.shutdown()
+            executor = None
+        bar.update(1)
+    if executor is not None:
+        executor.shutdown()
     return results
 
 
