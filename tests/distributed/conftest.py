@@ -1,0 +1,45 @@
+"""Fixtures for the distributed tests: one local Ray cluster of 2 CPUs for the module,
+shut down afterwards, and writer-made WOMD shards."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+
+@pytest.fixture(scope="package")
+def ray_backend():
+    """A :class:`RayBackend` on a local cluster of 2 CPUs started for these tests."""
+    pytest.importorskip("ray")
+    from tap_bench.distributed import RayBackend
+
+    backend = RayBackend(num_cpus=2, object_store_memory=100 << 20)
+    yield backend
+    import ray
+
+    ray.shutdown()
+
+
+def _shard_table(i: int) -> pd.DataFrame:
+    from tap_bench import random_trajectories
+
+    table = random_trajectories(30, seed=i, scenarios=3)
+    table["scenario_id"] = f"shard{i}-" + table["scenario_id"].astype(str)
+    return table
+
+
+@pytest.fixture(scope="package")
+def womd_shards(tmp_path_factory) -> tuple[list[Path], pd.DataFrame]:
+    """Three WOMD TFRecord shards written from random trajectories (distinct scenarios), and
+    the table they hold."""
+    from tap_bench.womd.writer import write_womd
+
+    folder = tmp_path_factory.mktemp("womd")
+    tables, paths = [], []
+    for i in range(3):
+        table = _shard_table(i)
+        paths.append(write_womd(table, folder / f"training.tfrecord-{i:05d}-of-00003"))
+        tables.append(table)
+    return paths, pd.concat(tables, ignore_index=True)
