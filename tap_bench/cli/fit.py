@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import pandas as pd
 
+from tap_bench.distributed.backend import add_backend_arguments
 from tap_bench.fitting import METHODS, fit_report
 from tap_bench.kinematics import one_second_samples
 from tap_bench.tableio import read_table
@@ -20,7 +23,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "distributions of a trajectory table (SPEC section 3) with every method and start, "
         "print how each fared against the grid optimum, and save the chosen thresholds as "
         "versioned JSON.")
-    p.add_argument("input", help="trajectory table (.parquet or .csv)")
+    p.add_argument("input", help="trajectory table (.parquet or .csv), or a directory of "
+                   "Parquet shards")
     p.add_argument("-o", "--output", required=True, help="thresholds JSON to write")
     p.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS,
                    help="methods to run (default: all)")
@@ -29,17 +33,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "all (default: descent, the paper's method, when it is run)")
     p.add_argument("--epochs", type=int, default=100, help="descent epochs per start (100)")
     p.add_argument("--seed", type=int, default=0, help="seed of the cross-entropy method")
+    add_backend_arguments(p, shards=False)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
-    table = read_table(args.input)
-    samples = one_second_samples(table, source=str(args.input))
+    options = {"methods": tuple(args.methods), "select": args.select,
+               "dataset": str(args.input), "epochs": args.epochs, "seed": args.seed}
+    if args.backend != "local" or Path(args.input).is_dir():
+        samples, options["dataset"] = _sharded_samples(args)
+    else:
+        table = read_table(args.input)
+        samples = one_second_samples(table, source=str(args.input))
     t1 = time.perf_counter()
-    report = fit_report(samples, methods=tuple(args.methods),
-                        select=args.select, dataset=str(args.input), epochs=args.epochs,
-                        seed=args.seed)
+    report = fit_report(samples, **options)
     t2 = time.perf_counter()
     save_thresholds(report.thresholds, args.output)
     frame = report.table()
@@ -54,3 +62,21 @@ def run(args: argparse.Namespace) -> int:
     print(f"\nchosen: w {th.of('w')}  a {th.of('a')}  v {th.of('v')}")
     print(f"samples {t1 - t0:.2f} s, fitting {t2 - t1:.2f} s; wrote {args.output}")
     return 0
+
+
+def _sharded_samples(args: argparse.Namespace) -> tuple[dict, str]:
+    """One-second samples per Parquet shard as tasks, merged exactly (sorted), and the data
+    set's name for the provenance."""
+    from tap_bench.distributed.backend import backend_from_args, close_backend
+    from tap_bench.distributed.fitting import dataset_name, shard_samples
+
+    backend = backend_from_args(args)
+    try:
+        merged = shard_samples(args.input, backend, retries=args.retries)
+    finally:
+        close_backend(backend)
+    for shard, error in merged.failed:
+        print(f"warning: {shard} left out of the fit: {error}", file=sys.stderr)
+    print(f"one-second samples of {len(merged.shards) - len(merged.failed)} of "
+          f"{len(merged.shards)} shard(s) on {backend.name}")
+    return merged.samples, dataset_name(str(args.input), merged)

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
+from tap_bench.distributed.backend import add_backend_arguments
 from tap_bench.womd.ingest import FORMATS, ON_ERROR, ingest_womd, report_path
 
 
@@ -24,12 +26,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--object-types vehicle --workers 2")
     w.add_argument("inputs", nargs="+", metavar="PATTERN",
                    help="files, directories or quoted glob patterns ('**' is recursive)")
-    w.add_argument("-o", "--output", required=True, help="trajectory table to write (.parquet)")
+    w.add_argument("-o", "--output", required=True,
+                   help="trajectory table to write (.parquet), or a directory of Parquet "
+                   "parts, one per input file (a name without suffix, or --backend ray)")
     w.add_argument("--object-types", default=None,
                    help="comma-separated types to keep: vehicle, pedestrian, cyclist, other "
                    "(default: all)")
-    w.add_argument("--workers", type=int, default=1,
-                   help="decoding processes (default 1)")
+    w.add_argument("--workers", type=int, default=None,
+                   help="decoding processes (default 1); with --backend ray and no "
+                   "--address, the CPUs of the local Ray cluster (default: all)")
     w.add_argument("--on-error", default="stop", choices=ON_ERROR,
                    help="at a bad record: stop (default, nothing is written) or skip it and "
                    "list it in the report")
@@ -38,6 +43,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     w.add_argument("--no-crc", action="store_true",
                    help="do not check the CRC-32C of records (trusted local copies only)")
     w.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_backend_arguments(w)
     w.set_defaults(func=run)
 
 
@@ -48,15 +54,17 @@ def _log(line: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.workers < 1:
+    if args.workers is not None and args.workers < 1:
         print(f"tap-bench ingest: error: --workers must be 1 or more, not {args.workers}",
               file=sys.stderr)
         return 2
     types = ([t.strip() for t in args.object_types.split(",") if t.strip()]
              if args.object_types else None)
+    if args.backend != "local" or Path(args.output).is_dir() or not Path(args.output).suffix:
+        return _run_sharded(args, types)
     report = ingest_womd(args.inputs, args.output, format=args.format, object_types=types,
                          on_error=args.on_error, check_crc=not args.no_crc,
-                         workers=args.workers, progress=not args.no_progress, log=_log)
+                         workers=args.workers or 1, progress=not args.no_progress, log=_log)
     print(f"read {report.records} record(s) from {report.files} file(s) "
           f"({report.bytes_read / 1e6:.1f} MB in {report.seconds:.1f} s, "
           f"{report.mb_per_s:.1f} MB/s): {report.scenarios} scenario(s), {report.rows} rows")
@@ -65,3 +73,33 @@ def run(args: argparse.Namespace) -> int:
               f"{report_path(args.output)}", file=sys.stderr)
     print(f"wrote {args.output} and {report_path(args.output)}")
     return 0
+
+
+def _run_sharded(args: argparse.Namespace, types: list[str] | None) -> int:
+    """One task per input file, each writing its Parquet part of the output directory."""
+    from tap_bench.distributed.backend import backend_from_args, close_backend
+    from tap_bench.distributed.shards import ingest_shards
+
+    backend = backend_from_args(args, workers=args.workers)
+    try:
+        report = ingest_shards(args.inputs, args.output, backend, format=args.format,
+                               object_types=types, on_error=args.on_error,
+                               check_crc=not args.no_crc, retries=args.retries,
+                               resume=args.resume,
+                               progress=False if args.no_progress else None)
+    finally:
+        close_backend(backend)
+    scenarios = sum(s.get("scenarios", 0) for s in report.shards)
+    skipped = sum(len(s.get("skipped", [])) for s in report.shards)
+    mb = report.bytes_read / 1e6
+    print(f"ingested {len(report.shards) - len(report.failed)} of {len(report.shards)} "
+          f"file(s) on {report.backend} ({report.workers} worker(s)): {mb:.1f} MB in "
+          f"{report.seconds:.1f} s ({mb / max(report.seconds, 1e-9):.1f} MB/s), "
+          f"{scenarios} scenario(s), {report.rows} rows")
+    if skipped:
+        _log(f"skipped {skipped} record(s); listed in {args.output}/_report.json")
+    for failed in report.failed:
+        _log(f"{failed['input']} failed after {failed['attempts']} attempt(s): "
+             f"{failed['error']}")
+    print(f"wrote {args.output}/ (one part per file) and {args.output}/_report.json")
+    return 1 if report.shards and len(report.failed) == len(report.shards) else 0

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from tap_bench.distributed.backend import add_backend_arguments
+
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -26,6 +28,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="override the scenario's lane-change setting")
     p.add_argument("--duration", type=float, help="override the episode length [s]")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--batch", type=int, default=None,
+                   help="seeds per task with --backend ray (default 8)")
+    add_backend_arguments(p, shards=False)
     p.set_defaults(func=run)
 
 
@@ -48,9 +53,13 @@ def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
     episodes_out = Path(args.episodes) if args.episodes else episodes_path(output)
     seeds = args.seeds if args.seeds else list(get_scenario(args.env).default_seeds)
-    trajectories, episodes = rollout(
-        args.env, args.policy, seeds, workers=args.workers, lane_change=args.lane_change,
-        duration=args.duration, progress=False if args.no_progress else None)
+    progress = False if args.no_progress else None
+    if args.backend == "local":
+        trajectories, episodes = rollout(
+            args.env, args.policy, seeds, workers=args.workers, lane_change=args.lane_change,
+            duration=args.duration, progress=progress)
+    else:
+        trajectories, episodes = _distributed(args, seeds, progress)
     ok = episodes[episodes["status"] == "ok"]
     if len(trajectories):
         write_table(trajectories, output)
@@ -64,3 +73,19 @@ def run(args: argparse.Namespace) -> int:
     for row in failed.itertuples():
         print(f"seed {row.seed} failed: {row.error}", file=sys.stderr)
     return 1 if len(failed) == len(episodes) else 0
+
+
+def _distributed(args: argparse.Namespace, seeds, progress: bool | None):
+    """The rollout as Ray tasks of ``--batch`` seeds; the same tables as locally."""
+    from tap_bench.distributed.backend import backend_from_args, close_backend
+    from tap_bench.distributed.rollouts import DEFAULT_BATCH, distributed_rollout
+
+    workers = args.workers if args.workers != 1 else None  # default: all the CPUs
+    backend = backend_from_args(args, workers=workers)
+    try:
+        return distributed_rollout(args.env, args.policy, seeds, backend,
+                                   batch=args.batch or DEFAULT_BATCH,
+                                   lane_change=args.lane_change, duration=args.duration,
+                                   retries=args.retries, progress=progress)
+    finally:
+        close_backend(backend)

@@ -31,7 +31,8 @@ from typing import Any, Generic, Protocol, TypeVar, runtime_checkable
 
 from tap_bench.errors import TapBenchError, did_you_mean
 
-__all__ = ["BACKENDS", "Backend", "LocalBackend", "Outcome", "RayBackend", "make_backend"]
+__all__ = ["BACKENDS", "Backend", "LocalBackend", "Outcome", "RayBackend", "add_backend_arguments",
+           "backend_from_args", "close_backend", "make_backend"]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -323,3 +324,36 @@ def make_backend(name: str = "local", *, workers: int | None = None,
             raise TapBenchError("--address joins a Ray cluster; use it with --backend ray.")
         return LocalBackend(workers or 1)
     return RayBackend(address=address, num_cpus=workers if address is None else None)
+
+
+# -- command line -------------------------------------------------------------------------
+def add_backend_arguments(parser: Any, *, shards: bool = True) -> None:
+    """Add ``--backend``, ``--address``, ``--retries`` (and ``--resume``) to a sub-command."""
+    parser.add_argument("--backend", default="local", choices=BACKENDS,
+                        help="where the work runs: local (default) or ray (joins --address, "
+                        "or starts a local Ray cluster; pip install 'tap-bench[ray]')")
+    parser.add_argument("--address", default=None,
+                        help="the Ray cluster to join: 'auto' (the one 'ray start' made on "
+                        "this node), 'ray://head:10001' or 'head:6379' (default: start a "
+                        "local cluster)")
+    parser.add_argument("--retries", type=int, default=DEFAULT_RETRIES,
+                        help=f"retries of a failed task before it is reported "
+                        f"(default {DEFAULT_RETRIES})")
+    if shards:
+        parser.add_argument("--resume", action="store_true",
+                            help="with a directory output: keep the parts already written "
+                            "and do the missing ones")
+
+
+def backend_from_args(args: Any, workers: int | None = None) -> LocalBackend | RayBackend:
+    """The backend that ``--backend`` and ``--address`` ask for (``workers``: local
+    processes, or the CPUs of a local Ray cluster started here)."""
+    if args.retries < 0:
+        raise TapBenchError(f"--retries must be 0 or more, not {args.retries}.")
+    return make_backend(args.backend, workers=workers, address=args.address)
+
+
+def close_backend(backend: LocalBackend | RayBackend) -> None:
+    """Stop a local Ray cluster that :func:`backend_from_args` started."""
+    if isinstance(backend, RayBackend):
+        backend.shutdown()

@@ -25,7 +25,7 @@ import numpy as np
 from tap_bench.distributed.backend import DEFAULT_RETRIES, Backend
 from tap_bench.errors import TapBenchError
 
-__all__ = ["ShardSamples", "distributed_fit_report", "shard_samples"]
+__all__ = ["ShardSamples", "dataset_name", "distributed_fit_report", "shard_samples"]
 
 _DISTRIBUTIONS = ("w", "a", "v")
 
@@ -100,9 +100,14 @@ def distributed_fit_report(paths: str | os.PathLike | Iterable[str | os.PathLike
     from tap_bench.fitting import fit_report
 
     merged = shard_samples(paths, backend, retries=retries, progress=progress)
-    name = dataset or (str(paths) if isinstance(paths, str | os.PathLike)
-                       else ", ".join(map(str, paths)))
-    if merged.failed:
-        name += (f" ({len(merged.shards) - len(merged.failed)} of {len(merged.shards)} "
-                 "shards; failed: " + ", ".join(s for s, _ in merged.failed) + ")")
+    name = dataset_name(dataset or (str(paths) if isinstance(paths, str | os.PathLike)
+                                    else ", ".join(map(str, paths))), merged)
     return fit_report(merged.samples, dataset=name, **fit_options), merged
+
+
+def dataset_name(name: str, merged: ShardSamples) -> str:
+    """``name``, followed by the shards left out when some failed (for the provenance)."""
+    if not merged.failed:
+        return name
+    return (f"{name} ({len(merged.shards) - len(merged.failed)} of {len(merged.shards)} "
+            "shards; failed: " + ", ".join(s for s, _ in merged.failed) + ")")
