@@ -147,11 +147,16 @@ def _tasks(suite: Suite, keep: bool) -> list[_Task]:
             for env in suite.envs for policy in suite.policies for chunk in chunks]
 
 
-def _rollouts(suite: Suite, workers: int, keep: bool, progress: bool | None
-              ) -> list[dict[str, Any]]:
+def _rollouts(suite: Suite, workers: int, keep: bool, progress: bool | None,
+              backend: Any = None) -> list[dict[str, Any]]:
     from tqdm.auto import tqdm
 
     tasks = _tasks(suite, keep)
+    if backend is not None:  # a tap_bench.distributed backend (Ray): one task per chunk
+        outcomes = backend.map(_run_task, tasks, retries=1, unit="chunk", progress=progress,
+                               desc=f"bench {suite.name} ({backend.name})")
+        return [o.value if o.ok else _failed_task(task, o.error)
+                for task, o in zip(tasks, outcomes, strict=True)]
     results: list[dict[str, Any] | None] = [None] * len(tasks)
     bar = tqdm(total=sum(len(t.seeds) for t in tasks), desc=f"bench {suite.name}",
                unit="episode", disable=None if progress is None else not progress)
@@ -212,7 +217,8 @@ def _machine() -> dict[str, Any]:
 def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
               workers: int = 2, womd: Sequence[str | os.PathLike] | None = None,
               keep_trajectories: bool = True, overwrite: bool = False,
-              progress: bool | None = None, report: bool = True) -> RunResult:
+              progress: bool | None = None, report: bool = True,
+              backend: Any = None) -> RunResult:
     """Run a benchmark suite and write its run folder.
 
     Args:
@@ -225,6 +231,9 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         overwrite: replace an existing run folder.
         progress: progress bar (None: only on a terminal).
         report: write the plots and ``report.html``.
+        backend: run the rollout chunks as tasks on this
+            :class:`tap_bench.distributed.Backend` (a Ray cluster) instead of ``workers``
+            local processes; the tables are the same.
 
     Returns:
         :class:`RunResult`.
@@ -250,7 +259,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         timings["womd"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    results = _rollouts(suite, workers, keep_trajectories or bool(womd), progress)
+    results = _rollouts(suite, workers, keep_trajectories or bool(womd), progress, backend)
     timings["rollouts_wall"] = time.perf_counter() - t0
     for key in ("rollout", "labelling", "measures"):
         timings[f"{key}_cpu_in_workers"] = sum(r["timings"].get(key, 0.0) for r in results)

@@ -7,6 +7,8 @@ import argparse
 import os
 import sys
 
+from tap_bench.distributed.backend import add_backend_arguments
+
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -33,6 +35,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="do not write trajectories.parquet")
     r.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_backend_arguments(r, shards=False)
     r.set_defaults(func=run_bench)
 
     c = sub.add_parser("check", help="regression gate: compare a run with a baseline",
@@ -58,10 +61,17 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run_bench(args: argparse.Namespace) -> int:
     from tap_bench.bench.demo import timing_split
     from tap_bench.bench.runner import run_suite
+    from tap_bench.distributed.backend import backend_from_args, close_backend
 
-    result = run_suite(args.suite, args.output, workers=args.workers, womd=args.womd,
-                       keep_trajectories=not args.no_trajectories, overwrite=args.overwrite,
-                       progress=False if args.no_progress else None)
+    backend = backend_from_args(args) if args.backend != "local" or args.address else None
+    try:
+        result = run_suite(args.suite, args.output, workers=args.workers, womd=args.womd,
+                           keep_trajectories=not args.no_trajectories,
+                           overwrite=args.overwrite,
+                           progress=False if args.no_progress else None, backend=backend)
+    finally:
+        if backend is not None:
+            close_backend(backend)
     s = result.summary
     split = timing_split(result)
     print(f"{s['n_episodes']} episodes, {s['n_failed']} failed; {split['total']:.0f} s "
