@@ -126,7 +126,7 @@ def ego_measures(table: pd.DataFrame) -> pd.DataFrame:
     step0 = int(step.min()) if len(step) else 0
     key = sid_codes.astype(np.int64) * n_steps + (step - step0)
 
-    ego_track = table["track_id"].to_numpy()[ego_rows]
+    ego_track = table["track_id"].take(ego_rows).to_numpy()  # not the whole string column
     ego_sid = sid_codes[ego_rows]
     _check_one_ego(ego_sid, ego_track, sids)
 
@@ -181,7 +181,7 @@ def ego_measures(table: pd.DataFrame) -> pd.DataFrame:
     out = pd.DataFrame({"scenario_id": np.asarray(sids)[scen]})
     for col in _KEEP:
         if col in table.columns:
-            out[col] = table[col].to_numpy()[first]
+            out[col] = table[col].take(first).to_numpy()
     out["crashed"] = crashed
     out["mean_speed"] = mean_speed
     out["min_headway_s"] = min_headway
