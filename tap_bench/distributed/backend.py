@@ -57,6 +57,8 @@ class Outcome(Generic[R]):
             dies is restarted by Ray within one attempt.
         seconds: wall time of the successful attempt, measured in the worker [s] (NaN when
             failed).
+        cpu_seconds: CPU time of the worker process (all its threads) over that attempt [s]
+            (NaN when failed); with ``seconds``, how much of a core the task got.
     """
 
     item: int
@@ -64,6 +66,7 @@ class Outcome(Generic[R]):
     error: str = ""
     attempts: int = 1
     seconds: float = float("nan")
+    cpu_seconds: float = float("nan")
 
     @property
     def ok(self) -> bool:
@@ -91,10 +94,11 @@ def _describe(err: BaseException) -> str:
     return text.splitlines()[-1] if text else type(err).__name__
 
 
-def _timed(fn: Callable[[T], R], item: T) -> tuple[R, float]:
-    start = time.perf_counter()
+def _timed(fn: Callable[[T], R], item: T) -> tuple[R, float, float]:
+    """``fn(item)``, its wall time and the CPU time of this process meanwhile [s]."""
+    start, cpu = time.perf_counter(), time.process_time()
     value = fn(item)
-    return value, time.perf_counter() - start
+    return value, time.perf_counter() - start, time.process_time() - cpu
 
 
 def _check_retries(retries: int) -> int:
@@ -145,11 +149,13 @@ class LocalBackend:
         attempts = dict.fromkeys(range(len(items)), 0)
         errors: dict[int, str] = {}
 
-        def record(i: int, result: tuple[R, float] | None, error: str, bar: Any) -> bool:
+        def record(i: int, result: tuple[R, float, float] | None, error: str, bar: Any
+                   ) -> bool:
             """Store the attempt; True when item i is settled (done or out of retries)."""
             attempts[i] += 1
             if result is not None:
-                outcomes[i] = Outcome(i, result[0], "", attempts[i], result[1])
+                value, seconds, cpu = result
+                outcomes[i] = Outcome(i, value, "", attempts[i], seconds, cpu)
             elif attempts[i] > retries:
                 outcomes[i] = Outcome(i, None, error, attempts[i])
             else:
@@ -290,7 +296,7 @@ class RayBackend:
                 for ref in done:
                     i = running.pop(ref)
                     try:
-                        value, seconds = ray.get(ref)
+                        value, seconds, cpu = ray.get(ref)
                     except RayTaskError as err:
                         if attempts[i] <= retries:
                             queue.append(i)
@@ -301,7 +307,7 @@ class RayBackend:
                         outcomes[i] = Outcome(i, None, f"{type(err).__name__}: the worker "
                                               "process died while running it", attempts[i])
                     else:
-                        outcomes[i] = Outcome(i, value, "", attempts[i], seconds)
+                        outcomes[i] = Outcome(i, value, "", attempts[i], seconds, cpu)
                     bar.update(1)
         return outcomes  # type: ignore[return-value]
 

@@ -47,8 +47,9 @@ class ShardReport:
         backend, workers: where it ran.
         seconds: wall time [s].
         shards: one dict per input shard: ``input``, ``output`` (the part, None when it
-            failed), ``ok``, ``attempts``, ``seconds`` (in the worker), ``rows`` (written),
-            ``bytes`` (input size [B]), ``error`` ("" when ok) and per-kind counts.
+            failed), ``ok``, ``attempts``, ``seconds`` and ``cpu_seconds`` (wall and CPU
+            time in the worker [s]), ``rows`` (written), ``bytes`` (input size [B]),
+            ``error`` ("" when ok) and per-kind counts.
     """
 
     kind: str
@@ -138,10 +139,11 @@ def _run(kind: str, fn, jobs: list[Any], inputs: list[Path], parts: list[Path],
                                  "bytes": src.stat().st_size if src.exists() else 0}
         outcome = outcomes.get(i)
         if outcome is None:
-            entry.update(ok=True, attempts=0, seconds=0.0, error="", resumed=True)
+            entry.update(ok=True, attempts=0, seconds=0.0, cpu_seconds=0.0, error="",
+                         resumed=True)
         elif outcome.ok:
             entry.update(ok=True, attempts=outcome.attempts, seconds=outcome.seconds,
-                         error="", **outcome.value)
+                         cpu_seconds=outcome.cpu_seconds, error="", **outcome.value)
         else:
             entry.update(output=None, ok=False, attempts=outcome.attempts,
                          seconds=float("nan"), error=outcome.error)
