@@ -211,22 +211,23 @@ def _leader_gaps(key, other_mask, ego_rows, ego_key, x, y, heading, speed):
     pos_ok = pos < len(ego_key)
     pos_ok[pos_ok] = ego_key[pos[pos_ok]] == key[others[pos_ok]]
     others, pos = others[pos_ok], pos[pos_ok]
-    e = ego_rows[pos]
-    c, s = np.cos(heading[e]), np.sin(heading[e])
-    dx, dy = x[others] - x[e], y[others] - y[e]
+    # the ego's frame per ego step (m values), gathered per other row
+    h_e = heading[ego_rows]
+    c, s = np.cos(h_e)[pos], np.sin(h_e)[pos]
+    dx, dy = x[others] - x[ego_rows][pos], y[others] - y[ego_rows][pos]
     ahead = dx * c + dy * s
-    side = -dx * s + dy * c
-    lead = (ahead > 0) & (np.abs(side) < LANE_HALF_WIDTH) & (ahead < LOOKAHEAD)
+    lead = (ahead > 0) & (ahead < LOOKAHEAD)
+    lead[lead] = np.abs(dy[lead] * c[lead] - dx[lead] * s[lead]) < LANE_HALF_WIDTH
     others, pos, ahead = others[lead], pos[lead], ahead[lead]
     gap = np.full(len(ego_key), np.nan)
     closing = np.full(len(ego_key), np.nan)
     if len(others):
-        # nearest leader per ego step: sort by (step, distance), keep the first of each step
-        order = np.lexsort((ahead, pos))
-        pos, ahead, others = pos[order], ahead[order], others[order]
-        first = np.r_[True, pos[1:] != pos[:-1]]
-        p, o = pos[first], others[first]
-        gap[p] = np.maximum(ahead[first] - VEHICLE_LENGTH, 0.0)
+        # nearest leader per ego step, in linear time (no sort of the candidate rows)
+        nearest = np.full(len(ego_key), np.inf)
+        np.minimum.at(nearest, pos, ahead)
+        first = ahead == nearest[pos]
+        p, o = pos[first], others[first]  # a tie keeps one of the equally near leaders
+        gap[p] = np.maximum(nearest[p] - VEHICLE_LENGTH, 0.0)
         e = ego_rows[p]
         closing[p] = speed[e] - speed[o] * np.cos(heading[o] - heading[e])
     return gap, closing
