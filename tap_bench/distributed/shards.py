@@ -6,11 +6,11 @@ rows, attempts, time and, for a shard that failed on every retry, the error. A f
 leaves no part; the others land. Parquet readers (pandas, pyarrow, Ray Data) read the
 directory as one table and skip the ``_report.json``.
 
-Memory per worker is bounded by one shard, whatever the size of the data set: ingestion
-streams a shard's records in batches of 8 MB (:func:`tap_bench.womd.ingest.ingest_womd`), and
-labelling holds one part (the tracks of one input file) at a time. A scenario must lie in a
-single shard, as it does in WOMD's files and in parts written here, so that labels do not
-depend on how the data was cut.
+Memory per worker is bounded whatever the size of the data set or of a shard: ingestion
+streams a file's records in batches of 8 MB (:func:`tap_bench.womd.ingest.ingest_womd`), and
+labelling reads a part in chunks of whole scenarios of about a million rows
+(:data:`LABEL_CHUNK_ROWS`). A scenario must lie in a single shard, as it does in WOMD's files
+and in parts written here, so that labels do not depend on how the data was cut.
 
 On a multi-node cluster every path must be on a file system all nodes see (NFS, a mounted
 bucket): tasks read their shard and write their part themselves; only counts travel back.
@@ -22,16 +22,21 @@ import json
 import os
 import re
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
+import pandas as pd
+import pyarrow.compute as pc
 
 from tap_bench.distributed.backend import DEFAULT_RETRIES, Backend, Outcome
 from tap_bench.errors import FileFormatError, TapBenchError
 from tap_bench.tableio import atomic_path
 
-__all__ = ["REPORT_NAME", "ShardReport", "ingest_shards", "label_shards", "parquet_shards"]
+__all__ = ["LABEL_CHUNK_ROWS", "REPORT_NAME", "ShardReport", "ingest_shards", "label_shards",
+           "parquet_shards"]
 
 REPORT_NAME = "_report.json"
 """The report of a sharded run, inside its output directory (ignored by Parquet readers)."""
@@ -216,6 +221,54 @@ def ingest_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
 
 
 # -- labelling ----------------------------------------------------------------------------
+LABEL_CHUNK_ROWS = 1 << 20
+"""Trajectory rows a label task holds at once: whole scenarios, about this many rows."""
+
+
+class _NotContiguous(Exception):
+    """A part whose scenarios are not each in one run of rows."""
+
+
+def _scenario_chunks(path: str, rows: int) -> Iterator[pd.DataFrame]:
+    """A Parquet part as tables of whole scenarios of about ``rows`` rows each.
+
+    Raises:
+        _NotContiguous: a scenario met again after another one (the part is not grouped
+            by scenario, as ingested parts are).
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    seen: set[str] = set()
+
+    def emit(table: pa.Table) -> pd.DataFrame:
+        ids = set(pc.unique(table.column("scenario_id").cast(pa.string())).to_pylist())
+        if seen & ids:
+            raise _NotContiguous(path)
+        seen.update(ids)
+        return table.to_pandas()
+
+    pending: list[pa.RecordBatch] = []
+    size = 0
+    for batch in pq.ParquetFile(path).iter_batches(batch_size=min(rows, 1 << 16)):
+        pending.append(batch)
+        size += batch.num_rows
+        if size < rows:
+            continue
+        table = pa.Table.from_batches(pending)
+        ids = np.asarray(table.column("scenario_id").cast(pa.string()).to_numpy(
+            zero_copy_only=False))
+        other = np.flatnonzero(ids != ids[-1])
+        if len(other) == 0:  # one scenario so far: it may go on in the next batch
+            continue
+        cut = int(other[-1]) + 1  # the last scenario may go on in the next batch
+        yield emit(table.slice(0, cut))
+        pending = table.slice(cut).to_batches()
+        size = table.num_rows - cut
+    if size:
+        yield emit(pa.Table.from_batches(pending))
+
+
 @dataclass(frozen=True)
 class _LabelJob:
     input: str
@@ -223,27 +276,54 @@ class _LabelJob:
     thresholds: Any  # Thresholds
     config: Any  # StageConfig
     level: str
+    chunk_rows: int
 
 
 def _label_shard(job: _LabelJob) -> dict[str, Any]:
-    """Label one Parquet part and write its label table."""
-    from tap_bench.labelling import tap
-    from tap_bench.tableio import read_table, write_table
+    """Label one Parquet part, whole scenarios at a time, and write its label table."""
+    try:
+        return _label_chunks(job, _scenario_chunks(job.input, job.chunk_rows))
+    except _NotContiguous:  # a part not grouped by scenario: label it whole
+        from tap_bench.tableio import read_table
 
-    table = read_table(job.input)
-    result = tap(table, job.thresholds, job.config, source=job.input)
-    labels = result.labels(job.level)
-    write_table(labels, job.output)
-    return {"rows": len(labels), "trajectory_rows": len(table),
-            "segments": len(result.segments_info),
-            "short_segments": len(result.short_segments)}
+        return _label_chunks(job, iter([read_table(job.input)]))
+
+
+def _label_chunks(job: _LabelJob, tables: Iterator[pd.DataFrame]) -> dict[str, Any]:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from tap_bench.labelling import tap
+
+    counts = {"rows": 0, "trajectory_rows": 0, "segments": 0, "short_segments": 0}
+    with atomic_path(job.output) as tmp:
+        writer = None
+        try:
+            for table in tables:
+                result = tap(table, job.thresholds, job.config, source=job.input)
+                labels = pa.Table.from_pandas(result.labels(job.level), preserve_index=False)
+                if writer is None:
+                    writer = pq.ParquetWriter(tmp, labels.schema)
+                writer.write_table(labels.cast(writer.schema))
+                counts["rows"] += labels.num_rows
+                counts["trajectory_rows"] += len(table)
+                counts["segments"] += len(result.segments_info)
+                counts["short_segments"] += len(result.short_segments)
+        finally:
+            if writer is not None:
+                writer.close()
+        if writer is None:
+            raise FileFormatError(f"{job.input}: the part has no rows; remove it or ingest "
+                                  "its source again.")
+    return counts
 
 
 def label_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
                  output: str | os.PathLike, backend: Backend, *,
                  thresholds: Any = "paper", level: str = "action", config: Any = None,
                  retries: int = DEFAULT_RETRIES, resume: bool = False,
-                 progress: bool | None = None) -> ShardReport:
+                 chunk_rows: int = LABEL_CHUNK_ROWS, progress: bool | None = None
+                 ) -> ShardReport:
     """Label every Parquet shard of a trajectory data set, one task and one part per shard.
 
     Args:
@@ -256,6 +336,8 @@ def label_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
         config: :class:`~tap_bench.stages.StageConfig` (default: 1 s runs, 4 s merge gap).
         retries: retries of a failed shard.
         resume: keep the parts an earlier run wrote and label only the missing ones.
+        chunk_rows: trajectory rows a task labels at once (whole scenarios; a part whose
+            scenarios are not each one run of rows is labelled whole).
         progress: progress bar over shards (None: only on a terminal).
 
     Returns:
@@ -275,7 +357,9 @@ def label_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
         raise TapBenchError(f"{out}: the output directory holds the input shards; write the "
                             "labels to another directory.")
     parts = [out / name for name in _part_names(inputs)]
-    jobs = [_LabelJob(str(src.resolve()), str(part.resolve()), th, config, level)
+    if isinstance(chunk_rows, bool) or not isinstance(chunk_rows, int) or chunk_rows < 1:
+        raise ValueError(f"chunk_rows must be a positive integer, got {chunk_rows!r}.")
+    jobs = [_LabelJob(str(src.resolve()), str(part.resolve()), th, config, level, chunk_rows)
             for src, part in zip(inputs, parts, strict=True)]
     return _run("label", _label_shard, jobs, inputs, parts, out, backend, retries, resume,
                 progress)

@@ -101,3 +101,29 @@ def test_the_distributed_fit_gives_the_thresholds_of_the_local_fit(ingested, ray
             assert got.fits[dist].grid.theta == local.fits[dist].grid.theta
     assert all(np.all(np.diff(x) >= 0) for x in merged.samples.values())
     assert len(merged.samples["v"]) == len(one_second_samples(pd.read_parquet(out))["v"])
+
+
+def test_labels_do_not_depend_on_the_chunk_size_nor_on_scenarios_interleaved(
+        ingested, tmp_path):
+    from tap_bench import label
+
+    out, _, _ = ingested
+    whole = _sorted(label(pd.read_parquet(out), level="all"), KEYS)
+    small = label_shards(out, tmp_path / "small", LocalBackend(1), level="all",
+                         chunk_rows=3000, progress=False)
+    assert not small.failed
+    pd.testing.assert_frame_equal(_sorted(pd.read_parquet(tmp_path / "small"), KEYS), whole,
+                                  check_dtype=False)
+    # rows of two scenarios interleaved step by step: chunks cannot hold whole scenarios,
+    # so the part is labelled whole
+    table = pd.read_parquet(next(out.glob("*.parquet")))
+    first, second = table["scenario_id"].unique()[:2]
+    pair = table[table["scenario_id"].isin([first, second])]
+    mixed = pair.sort_values("t", kind="stable").reset_index(drop=True)
+    assert mixed["scenario_id"].ne(mixed["scenario_id"].shift()).sum() > 2
+    (tmp_path / "mixed").mkdir()
+    mixed.to_parquet(tmp_path / "mixed" / "mixed.parquet")
+    label_shards(tmp_path / "mixed", tmp_path / "mixed-labels", LocalBackend(1),
+                 chunk_rows=500, progress=False)
+    pd.testing.assert_frame_equal(_sorted(pd.read_parquet(tmp_path / "mixed-labels"), KEYS[:3]),
+                                  _sorted(label(pair), KEYS[:3]), check_dtype=False)
