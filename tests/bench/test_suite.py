@@ -12,7 +12,7 @@ from tap_bench.errors import FileFormatError, UnknownNameError
 GOOD = {"name": "t", "envs": ["highway"], "policies": ["idm", "random"], "seeds": "0-4"}
 
 
-@pytest.mark.parametrize("name", ["default", "demo"])
+@pytest.mark.parametrize("name", ["default", "demo", "rl-highway"])
 def test_committed_suites_load(name):
     suite = load_suite(name)
     assert suite.name == name and suite.envs and suite.policies and suite.seeds
