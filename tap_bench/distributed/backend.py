@@ -13,8 +13,11 @@ processes.
   optional dependency (``pip install 'tap-bench[ray]'``); it is imported only here, when a
   :class:`RayBackend` is made.
 
-At most ``in_flight`` items are submitted at a time (default: twice the workers), so the
-driver's memory holds that many results whatever the number of items.
+A :class:`RayBackend` keeps at most ``in_flight`` tasks submitted (default: twice the
+cluster's CPUs), so the object store and the driver hold that many tasks' arguments and
+results at a time, whatever the number of items; the values returned are kept for the
+caller, so functions should return summaries (counts, sorted samples) and write bulk
+output themselves.
 """
 
 from __future__ import annotations
@@ -147,7 +150,6 @@ class LocalBackend:
         retries = _check_retries(retries)
         outcomes: dict[int, Outcome[R]] = {}
         attempts = dict.fromkeys(range(len(items)), 0)
-        errors: dict[int, str] = {}
 
         def record(i: int, result: tuple[R, float, float] | None, error: str, bar: Any
                    ) -> bool:
@@ -159,8 +161,7 @@ class LocalBackend:
             elif attempts[i] > retries:
                 outcomes[i] = Outcome(i, None, error, attempts[i])
             else:
-                errors[i] = error
-                return False
+                return False  # retried
             bar.update(1)
             return True
 
