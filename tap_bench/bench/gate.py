@@ -89,7 +89,9 @@ def _json_value(v: Any) -> Any:
     if isinstance(v, np.integer):
         return int(v)
     if isinstance(v, float | np.floating):
-        return None if not np.isfinite(v) else round(float(v), 6)
+        # full precision: a rounded baseline would differ from an identical run by the
+        # rounding, which a permutation test on a constant measure calls significant
+        return None if not np.isfinite(v) else float(v)
     return str(v)
 
 

@@ -101,6 +101,14 @@ def test_missing_cell_and_failed_episodes_move(tmp_path):
         ("random", "episodes"), ("idm", "failed_episodes")}
 
 
+def test_a_run_checked_against_its_own_baseline_has_no_change(tmp_path):
+    episodes = synthetic(0)
+    episodes["mean_speed"] += 1e-9 * np.arange(len(episodes))  # digits a rounding would lose
+    doc, base = baseline_of(episodes, tmp_path)
+    table = check(SUMMARY, episodes, doc, base).table
+    assert (table["change"] == 0).all() and (table["p_value"] == 1).all()
+
+
 def test_mismatched_settings_are_refused(tmp_path):
     doc, base = baseline_of(synthetic(0), tmp_path)
     other = {**SUMMARY, "level": "action"}
