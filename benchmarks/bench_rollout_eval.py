@@ -16,6 +16,14 @@ from machine import report
 from tap_bench.sim import available_policies, rollout
 
 
+def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """Wilson score interval of a proportion k/n (sound at 0 and at n, unlike k/n +- z*se)."""
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return float(centre - half), float(centre + half)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", default="highway")
@@ -38,8 +46,7 @@ def main() -> None:
             "mean_return": round(float(ok["return"].mean()), 2),
             "return_sd": round(float(ok["return"].std()), 2),
             "crash_rate": round(float(crash), 3),
-            # normal-approximation 95 % interval half-width of the crash rate
-            "crash_rate_ci95": round(float(1.96 * np.sqrt(crash * (1 - crash) / n)), 3),
+            "crash_rate_wilson95": [round(x, 3) for x in wilson(int(ok["crashed"].sum()), n)],
             "mean_length": round(float(ok["length"].mean()), 1),
             "mean_ego_speed_m_s": round(float(ok["mean_speed"].mean()), 2),
         }

@@ -65,14 +65,13 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
         algo: ``"dqn"``, ``"ppo"`` or ``"a2c"``.
         env: scenario name, id or file.
         timesteps: decisions (env steps) to train for.
-        seed: seeds SB3, torch and the env's first reset; the run is reproducible on one
-            machine with one torch thread.
+        seed: seeds SB3 (torch, numpy) and the env's first reset.
         output: the ``.zip`` to write; the definition goes to the same name with ``.json``.
         hyperparameters: overrides of :data:`HYPERPARAMETERS`.
         coverage: label episodes and log behaviour coverage (:mod:`tap_bench.sim.callbacks`).
         coverage_window: episodes the coverage is computed over.
-        log_dir: write SB3's logs (CSV) there; stdout only when None.
-        verbose: SB3's verbosity.
+        log_dir: write SB3's log, with the ``tap/*`` coverage keys, there as CSV.
+        verbose: SB3's verbosity; 1 also prints the log.
         command: the command line to record (default: this process's).
 
     Raises:
