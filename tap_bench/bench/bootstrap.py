@@ -28,6 +28,7 @@ import numpy as np
 
 __all__ = [
     "BootstrapConfig",
+    "wilson_interval",
     "percentile_interval",
     "resample_weights",
     "simultaneous_band",
@@ -191,3 +192,28 @@ def simultaneous_band(estimate: np.ndarray, resampled: np.ndarray, level: float
     t = np.abs(resampled[:, moving] - estimate[moving]) / se[moving]
     q = float(np.nanquantile(np.nanmax(t, axis=1), level))
     return estimate - q * se, estimate + q * se
+
+
+def wilson_interval(successes: int, n: int, level: float) -> tuple[float, float]:
+    """Wilson score interval of a proportion (Wilson 1927).
+
+    Used for a single rate such as a policy's collision rate, where the percentile bootstrap
+    collapses to a zero-width interval when no episode (or every episode) crashed.
+
+    Args:
+        successes: count of events.
+        n: trials (episodes).
+        level: two-sided level, e.g. 0.95.
+
+    Returns:
+        (low, high) in [0, 1]; (nan, nan) when n is 0.
+    """
+    from statistics import NormalDist
+
+    if n <= 0:
+        return float("nan"), float("nan")
+    z = NormalDist().inv_cdf(0.5 + level / 2)
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z / (1 + z * z / n) * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    return max(0.0, float(centre - half)), min(1.0, float(centre + half))

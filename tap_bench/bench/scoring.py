@@ -17,6 +17,7 @@ from tap_bench.bench.bootstrap import (
     percentile_interval,
     resample_weights,
     weighted_means,
+    wilson_interval,
 )
 from tap_bench.bench.compare import ALL_ENVS, matched_by_label, paired_comparison
 from tap_bench.bench.coverage import Reference, corpus_reference, coverage
@@ -103,9 +104,12 @@ def policy_measures(episodes: pd.DataFrame, config: BootstrapConfig) -> pd.DataF
                 est = np.where(present, sub, 0.0).sum(0) / present.sum(0)
             lo, hi = percentile_interval(boot, config.level)
             for j, m in enumerate(MEASURES):
-                rows.append({"env": env, "policy": policy, "measure": m.name,
-                             "n": int(present[:, j].sum()), "mean": est[j], "low": lo[j],
-                             "high": hi[j]})
+                n_j = int(present[:, j].sum())
+                low, high = lo[j], hi[j]
+                if m.name == "crashed":  # a rate: Wilson, which stays honest at 0 and 1
+                    low, high = wilson_interval(int(np.nansum(sub[:, j])), n_j, config.level)
+                rows.append({"env": env, "policy": policy, "measure": m.name, "n": n_j,
+                             "mean": est[j], "low": low, "high": high})
     return pd.DataFrame(rows, columns=["env", "policy", "measure", "n", "mean", "low", "high"])
 
 
@@ -194,7 +198,8 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
                 nov_rows.append({**key, **nv.row(), "reference_size": ref.n_trajectories})
                 nov_labels.append(nv.labels.assign(**key))
     methods = {
-        "measures": config.describe("episodes, stratified by env when pooled"),
+        "measures": config.describe("episodes, stratified by env when pooled")
+        + f"; crash rates: {config.level:.0%} Wilson score intervals",
         "paired": method_paired,
         "matched": config.describe("episodes of each policy within a label group, "
                                    "independently"),

@@ -121,3 +121,14 @@ def test_simultaneous_band_holds_all_labels_jointly():
           f"{joint_pointwise / 300:.3f} (nominal joint 0.95)")
     assert joint_band / 300 >= 0.90
     assert joint_pointwise / 300 < joint_band / 300
+
+
+def test_wilson_interval_by_hand_and_at_zero():
+    from tap_bench.bench.bootstrap import wilson_interval
+
+    # 0 of 10: (0, z^2 / (n + z^2)) = (0, 0.2775) at 95 %
+    low, high = wilson_interval(0, 10, 0.95)
+    assert low == pytest.approx(0.0, abs=1e-12)
+    assert high == pytest.approx(1.959964 ** 2 / (10 + 1.959964 ** 2), abs=1e-5)
+    low, high = wilson_interval(5, 10, 0.95)
+    assert (low, high) == pytest.approx((0.2366, 0.7634), abs=1e-4)
