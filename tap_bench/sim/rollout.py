@@ -31,7 +31,8 @@ from tap_bench.sim.policies import CHEAP_OBSERVATION, Policy, PolicyDefinition, 
 from tap_bench.sim.suite import Scenario, parse_seeds
 from tap_bench.trajectories import HZ
 
-__all__ = ["EPISODE_COLUMNS", "EpisodeFailedWarning", "Rollout", "rollout", "run_episode"]
+__all__ = ["EPISODE_COLUMNS", "EpisodeFailedWarning", "Rollout", "collect_rollout", "rollout",
+           "run_episode"]
 
 EPISODE_COLUMNS = ("env", "policy", "seed", "return", "length", "duration_s", "crashed",
                    "mean_speed", "terminated", "truncated", "status", "error")
@@ -245,15 +246,28 @@ def rollout(env: str | os.PathLike | Scenario | gym.Env,
                 bar.update(1)
         else:
             results = _run_parallel(tasks, workers, bar)
-    tables = [results[s][0] for s in seed_list if len(results[s][0])]
-    rows = [results[s][1] for s in seed_list]
-    episodes = pd.DataFrame(rows, columns=list(EPISODE_COLUMNS))
+    episodes = pd.DataFrame([results[s][1] for s in seed_list], columns=list(EPISODE_COLUMNS))
+    return collect_rollout([results[s][0] for s in seed_list], episodes, stacklevel=3)
+
+
+def collect_rollout(tables: Sequence[pd.DataFrame], episodes: pd.DataFrame, *,
+                    stacklevel: int = 2) -> Rollout:
+    """Assemble a :class:`Rollout` from per-episode trajectory tables (empty for failed
+    episodes) and the episode table, warning once about the failed episodes.
+
+    For other ways of running episodes (other executors) that must return what
+    :func:`rollout` returns.
+    """
+    episodes = episodes.reset_index(drop=True)
     episodes["seed"] = episodes["seed"].astype(np.int64)
     failed = episodes[episodes["status"] != "ok"]
     if len(failed):
+        first = failed.iloc[0]
         listed = "; ".join(f"seed {r.seed}: {r.error}" for r in failed.head(3).itertuples())
-        warnings.warn(f"{len(failed)} of {len(episodes)} episodes of {name} on {scenario.name} "
-                      f"failed and were left out of the trajectory table ({listed}). The "
-                      "episode table lists them.", EpisodeFailedWarning, stacklevel=2)
-    trajectories = pd.concat(tables, ignore_index=True) if tables else pd.DataFrame()
+        warnings.warn(f"{len(failed)} of {len(episodes)} episodes of {first['policy']} on "
+                      f"{first['env']} failed and were left out of the trajectory table "
+                      f"({listed}). The episode table lists them.", EpisodeFailedWarning,
+                      stacklevel=stacklevel)
+    kept = [t for t in tables if len(t)]
+    trajectories = pd.concat(kept, ignore_index=True) if kept else pd.DataFrame()
     return Rollout(trajectories, episodes)
