@@ -16,7 +16,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
 from tap_bench.distributed.backend import DEFAULT_RETRIES, Backend
@@ -74,7 +73,7 @@ def distributed_rollout(env: Any, policy: Any, seeds: str | int | Sequence[int],
     import gymnasium as gym
 
     from tap_bench.sim.policies import Policy, PolicyDefinition, get_definition
-    from tap_bench.sim.rollout import EPISODE_COLUMNS, EpisodeFailedWarning, Rollout
+    from tap_bench.sim.rollout import EPISODE_COLUMNS, collect_rollout
     from tap_bench.sim.scenario_env import find_scenario_env, get_scenario
     from tap_bench.sim.suite import parse_seeds
 
@@ -102,16 +101,7 @@ def distributed_rollout(env: Any, policy: Any, seeds: str | int | Sequence[int],
             episode_tables.append(episodes)
         else:
             episode_tables.append(_failed_episodes(work, name, outcome.error, EPISODE_COLUMNS))
-    episodes = pd.concat(episode_tables, ignore_index=True)
-    episodes["seed"] = episodes["seed"].astype(np.int64)
-    failed = episodes[episodes["status"] != "ok"]
-    if len(failed):
-        listed = "; ".join(f"seed {r.seed}: {r.error}" for r in failed.head(3).itertuples())
-        warnings.warn(f"{len(failed)} of {len(episodes)} episodes of {name} on {scenario.name} "
-                      f"failed and were left out of the trajectory table ({listed}). The "
-                      "episode table lists them.", EpisodeFailedWarning, stacklevel=2)
-    trajectories = pd.concat(tables, ignore_index=True) if tables else pd.DataFrame()
-    return Rollout(trajectories, episodes)
+    return collect_rollout(tables, pd.concat(episode_tables, ignore_index=True), stacklevel=3)
 
 
 def _failed_episodes(work: _Batch, name: str, error: str, columns: Sequence[str]
