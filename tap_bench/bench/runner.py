@@ -46,17 +46,13 @@ import pandas as pd
 from tap_bench.bench.episodes import episode_table
 from tap_bench.bench.scoring import Scores, score
 from tap_bench.bench.suite import Suite, load_suite
-from tap_bench.errors import FileFormatError, TapBenchError
+from tap_bench.errors import FileFormatError, RunExistsError
 
 __all__ = ["RunExistsError", "RunResult", "check_output", "package_versions", "read_run",
            "run_suite", "write_results"]
 
 CHUNK = 5
 """Seeds per worker task: small enough to balance two workers and move the progress bar."""
-
-
-class RunExistsError(TapBenchError, FileExistsError):
-    """The results folder exists and replacing it was not asked for."""
 
 
 def check_output(output: str | os.PathLike, overwrite: bool) -> Path:

@@ -27,6 +27,7 @@ import gymnasium as gym
 import numpy as np
 import pandas as pd
 
+from tap_bench.errors import EpisodeFailedWarning
 from tap_bench.sim.policies import CHEAP_OBSERVATION, Policy, PolicyDefinition, get_definition
 from tap_bench.sim.suite import Scenario, parse_seeds
 from tap_bench.trajectories import HZ
@@ -43,10 +44,6 @@ env, policy: scenario and policy names. seed: int. return: sum of rewards. lengt
 the ego's mean speed over its recorded steps [m/s]. terminated, truncated: how the episode
 ended. status: ``"ok"`` or ``"error"``; error: the exception of a failed episode, else "".
 """
-
-
-class EpisodeFailedWarning(UserWarning):
-    """Some episodes of a rollout raised; they are listed in the episode table."""
 
 
 class Rollout(NamedTuple):

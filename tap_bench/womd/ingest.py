@@ -29,9 +29,8 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from tap_bench.errors import FileFormatError, did_you_mean
+from tap_bench.errors import FileFormatError, WomdRecordError, did_you_mean
 from tap_bench.tableio import atomic_path
-from tap_bench.womd.errors import WomdRecordError
 from tap_bench.womd.scenario import decode_scenario, normalise_object_types
 from tap_bench.womd.scenarionet import decode_scenarionet, load_scenarionet
 from tap_bench.womd.tf_example import decode_tf_example, is_motion_example
