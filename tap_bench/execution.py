@@ -203,7 +203,7 @@ class _Worker:
             [sys.executable, "-c", "from tap_bench.execution import _worker_main; "
              "_worker_main()"], stdin=subprocess.PIPE,
             stdout=subprocess.PIPE, env=env, cwd=os.getcwd(),
-            preexec_fn=_ignore_sigint if os.name == "posix" else None)
+            preexec_fn=_worker_preexec if os.name == "posix" else None)
         self.running: int | None = None
 
     def submit(self, i: int, fn: Callable, item: Any) -> None:
@@ -229,8 +229,18 @@ class _Worker:
                 process.wait()
 
 
-def _ignore_sigint() -> None:
+def _worker_preexec() -> None:
+    """In the new worker, before Python starts: ignore the terminal's SIGINT, and on Linux
+    ask the kernel for SIGTERM when the parent dies, so that a worker busy with a long item
+    does not outlive a parent killed by SIGKILL."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass  # the closed input still ends an idle worker
 
 
 def _worker_main() -> None:

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from tap_bench.distributed.backend import add_backend_arguments
+from tap_bench.execution import add_backend_arguments
 from tap_bench.womd.ingest import FORMATS, ON_ERROR, ingest_womd, report_path
 
 
@@ -77,8 +77,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_sharded(args: argparse.Namespace, types: list[str] | None) -> int:
     """One task per input file, each writing its Parquet part of the output directory."""
-    from tap_bench.distributed.backend import backend_from_args, close_backend
     from tap_bench.distributed.shards import ingest_shards
+    from tap_bench.execution import backend_from_args, close_backend
 
     backend = backend_from_args(args, workers=args.workers)
     try:

@@ -31,8 +31,8 @@ import numpy as np
 import pandas as pd
 import pyarrow.compute as pc
 
-from tap_bench.distributed.backend import DEFAULT_RETRIES, Backend, Outcome
 from tap_bench.errors import FileFormatError, TapBenchError
+from tap_bench.execution import DEFAULT_RETRIES, Backend, Outcome
 from tap_bench.tableio import atomic_path
 
 __all__ = ["LABEL_CHUNK_ROWS", "REPORT_NAME", "ShardReport", "ingest_shards", "label_shards",
