@@ -43,7 +43,7 @@ from tap_bench.bench.bootstrap import (
     weighted_means,
 )
 from tap_bench.bench.measures import MEASURES, Measure
-from tap_bench.errors import LabelTableError
+from tap_bench.errors import LabelTableError, ParameterError
 
 __all__ = ["NO_LABEL", "PairedComparison", "matched_by_label", "paired_comparison"]
 
@@ -221,8 +221,9 @@ def matched_by_label(episodes: pd.DataFrame, a: str, b: str, *, metric: str = "e
 
         raise did_you_mean("metric", metric, ("exact", "levenshtein"))
     if metric == "exact" and d_sim != 0:
-        raise ValueError("metric 'exact' (g_SDL) is 0 or 1: use d_sim=0, or metric "
-                         "'levenshtein' for near labels.")
+        raise ParameterError("metric", metric, "",
+            message="metric 'exact' (g_SDL) is 0 or 1: use d_sim=0, or metric "
+                    "'levenshtein' for near labels.")
     ok = episodes[(episodes["status"] == "ok") & episodes["sdl"].notna()
                   & episodes["policy"].isin([a, b])]
     rows = []

@@ -34,7 +34,7 @@ from typing import Any
 from tap_bench import sdl
 from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.measures import MEASURES
-from tap_bench.errors import FileFormatError, UnknownNameError, did_you_mean
+from tap_bench.errors import FileFormatError, ParameterError, UnknownNameError, did_you_mean
 
 __all__ = ["GATE_METRICS", "GateConfig", "Suite", "available_suites", "load_suite",
            "suite_from_dict"]
@@ -83,12 +83,15 @@ class GateConfig:
             if key not in GATE_METRICS:
                 raise did_you_mean("gate metric", key, GATE_METRICS)
             if not isinstance(value, int | float) or isinstance(value, bool) or value < 0:
-                raise ValueError(f"gate margin {key!r} must be a number >= 0, got {value!r}.")
-        if not 0 < self.alpha < 1:
-            raise ValueError(f"gate alpha must be in (0, 1), got {self.alpha!r}.")
-        if not isinstance(self.n_permutations, int) or self.n_permutations < 99:
-            raise ValueError(f"gate n_permutations must be an integer >= 99, got "
-                             f"{self.n_permutations!r}.")
+                raise ParameterError(f"gate margin {key!r}", value, "a number >= 0")
+        if isinstance(self.alpha, bool) or not isinstance(self.alpha, int | float) \
+                or not 0 < self.alpha < 1:
+            raise ParameterError("gate alpha", self.alpha, "a number in (0, 1)")
+        if isinstance(self.n_permutations, bool) or not isinstance(self.n_permutations, int) \
+                or self.n_permutations < 99:
+            raise ParameterError("gate n_permutations", self.n_permutations, "an integer >= 99")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ParameterError("gate seed", self.seed, "a non-negative integer")
 
     def to_dict(self) -> dict[str, Any]:
         return {"alpha": self.alpha, "n_permutations": self.n_permutations, "seed": self.seed,
@@ -249,7 +252,11 @@ def suite_from_dict(doc: Any, *, source: str = "suite", path: Path | None = None
         raise FileFormatError(f"{source}: thresholds must be a preset name or a JSON path.")
     if path is not None and thresholds.endswith(".json") and not os.path.isabs(thresholds):
         thresholds = str((path.parent / thresholds).resolve())
-    suite = Suite(name=str(doc["name"]), version=int(doc.get("version", 0)),
+    version = doc.get("version", 0)
+    if isinstance(version, bool) or not isinstance(version, int) or version < 0:
+        raise FileFormatError(f"{source}: version must be a non-negative integer (the suite's "
+                              f"version, raised when it changes), got {version!r}.")
+    suite = Suite(name=str(doc["name"]), version=version,
                   description=str(doc.get("description", "")), envs=envs, policies=policies,
                   seeds=seeds, reference_policy=reference, level=level, thresholds=thresholds,
                   env_overrides=overrides, bootstrap=boot, gate=gate, path=path)

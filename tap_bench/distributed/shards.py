@@ -32,7 +32,7 @@ import pandas as pd
 import pyarrow.compute as pc
 
 from tap_bench import sdl
-from tap_bench.errors import FileFormatError, TapBenchError
+from tap_bench.errors import FileFormatError, ParameterError, TapBenchError
 from tap_bench.execution import DEFAULT_RETRIES, Backend, Outcome
 from tap_bench.tableio import atomic_path
 
@@ -358,7 +358,8 @@ def label_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
                             "labels to another directory.")
     parts = [out / name for name in _part_names(inputs)]
     if isinstance(chunk_rows, bool) or not isinstance(chunk_rows, int) or chunk_rows < 1:
-        raise ValueError(f"chunk_rows must be a positive integer, got {chunk_rows!r}.")
+        raise ParameterError("chunk_rows", chunk_rows, "",
+            message=f"chunk_rows must be a positive integer, got {chunk_rows!r}.")
     jobs = [_LabelJob(str(src.resolve()), str(part.resolve()), th, config, level, chunk_rows)
             for src, part in zip(inputs, parts, strict=True)]
     return _run("label", _label_shard, jobs, inputs, parts, out, backend, retries, resume,

@@ -30,7 +30,7 @@ from typing import Any, Protocol, runtime_checkable
 import gymnasium as gym
 import numpy as np
 
-from tap_bench.errors import FileFormatError, UnknownNameError, did_you_mean
+from tap_bench.errors import FileFormatError, ParameterError, UnknownNameError, did_you_mean
 from tap_bench.sim.suite import read_json, suite_dir
 
 __all__ = [
@@ -137,8 +137,9 @@ def idle_action(env: gym.Env) -> Any:
     space = env.action_space
     if isinstance(space, gym.spaces.Box):
         return np.zeros(space.shape, dtype=space.dtype)
-    raise ValueError(f"no lane-keeping action in the action space {space}; use a "
-                     "DiscreteMetaAction or ContinuousAction env.")
+    raise ParameterError("action space", str(space), "",
+        message=f"no lane-keeping action in the action space {space}; use a "
+                "DiscreteMetaAction or ContinuousAction env.")
 
 
 class LaneKeepingPolicy:
