@@ -22,6 +22,7 @@ __all__ = [
     "StateDecodeError",
     "UnknownNameError",
     "SuiteError",
+    "CatalogueError",
     "RunExistsError",
     "BaselineError",
     "BaselineMismatchError",
@@ -145,6 +146,10 @@ class StateDecodeError(TapBenchError, ValueError):
 
     def __reduce__(self):
         return (type(self), (str(self), self.state))
+
+
+class CatalogueError(TapBenchError, FileNotFoundError):
+    """The built-in scenarios and policies (or a catalogue folder) cannot be found."""
 
 
 class SuiteError(TapBenchError, ValueError):

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tap_bench import sdl
+from tap_bench import catalogue, sdl
 from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.measures import MEASURES
 from tap_bench.errors import FileFormatError, ParameterError, UnknownNameError, did_you_mean
@@ -160,15 +160,14 @@ class Suite:
 
 
 def suites_dir() -> Path:
-    """The folder of suite files: ``envs/suites/`` of the scenario suite."""
-    from tap_bench.sim.suite import suite_dir
-
-    return suite_dir("envs") / "suites"
+    """The built-in folder of suite files (``envs/suites/``); :func:`available_suites` also
+    lists those of ``$TAP_BENCH_PATH`` (:mod:`tap_bench.catalogue`)."""
+    return catalogue.roots()[-1] / catalogue.KINDS["suites"]
 
 
 def available_suites() -> list[str]:
-    """Names of the suite files in :func:`suites_dir`."""
-    return sorted(p.stem for p in suites_dir().glob("*.json"))
+    """Names of the suite files of every catalogue folder."""
+    return sorted(catalogue.files("suites"))
 
 
 def _strings(doc: Mapping[str, Any], key: str, source: str) -> tuple[str, ...]:
@@ -294,9 +293,10 @@ def load_suite(name_or_path: str | os.PathLike) -> Suite:
     text = str(name_or_path)
     path = Path(text)
     if not text.endswith(".json"):
-        path = suites_dir() / f"{text}.json"
-        if not path.is_file():
+        found = catalogue.find("suites", text)
+        if found is None:
             raise did_you_mean("suite", text, available_suites())
+        path = found
     from tap_bench.sim.suite import read_json
 
     return suite_from_dict(read_json(path, "suite"), source=str(path), path=path)

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from tap_bench import catalogue
 from tap_bench.errors import FileFormatError, ParameterError, did_you_mean
 from tap_bench.trajectories import HZ
 
@@ -65,14 +66,9 @@ _OWNED_KEYS = {
 
 
 def suite_dir(kind: str) -> Path:
-    """The folder of the suite's ``kind`` files (``"envs"`` or ``"policies"``).
-
-    ``$TAP_BENCH_SUITE`` (a folder holding ``envs/`` and ``policies/``) takes precedence;
-    otherwise the folders at the root of the tap-bench source tree are used.
-    """
-    root = os.environ.get("TAP_BENCH_SUITE")
-    base = Path(root) if root else Path(__file__).resolve().parents[2]
-    return base / kind
+    """The last (built-in, or ``$TAP_BENCH_SUITE``) folder of ``kind`` files (``"envs"`` or
+    ``"policies"``); :mod:`tap_bench.catalogue` searches every folder."""
+    return catalogue.roots()[-1] / catalogue.KINDS[kind]
 
 
 def _seeds_error(source: str, spec: object, message: str) -> ParameterError:
@@ -429,5 +425,6 @@ def load_scenario(path: str | os.PathLike) -> Scenario:
 
 def scenario_names(folder: str | os.PathLike | None = None) -> list[str]:
     """Names of the scenario files in ``folder`` (default: the suite's ``envs/``)."""
-    folder = Path(folder) if folder else suite_dir("envs")
-    return sorted(p.stem for p in folder.glob("*.json"))
+    if folder:
+        return sorted(p.stem for p in Path(folder).glob("*.json"))
+    return sorted(catalogue.files("envs"))
