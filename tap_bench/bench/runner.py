@@ -265,7 +265,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
 
 def _label_womd(paths, suite: Suite) -> tuple[pd.DataFrame, pd.DataFrame]:
     from tap_bench.labelling import tap
-    from tap_bench.womd import read_womd
+    from tap_bench.sources import read_womd
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

@@ -7,7 +7,7 @@ leaves no part; the others land. Parquet readers (pandas, pyarrow, Ray Data) rea
 directory as one table and skip the ``_report.json``.
 
 Memory per worker is bounded whatever the size of the data set or of a shard: ingestion
-streams a file's records in batches of 8 MB (:func:`tap_bench.womd.ingest.ingest_womd`), and
+streams a file's records in batches of 8 MB (:func:`tap_bench.sources.ingest.ingest_womd`), and
 labelling reads a part in chunks of whole scenarios of about a million rows
 (:data:`LABEL_CHUNK_ROWS`). A scenario must lie in a single shard, as it does in WOMD's files
 and in parts written here, so that labels do not depend on how the data was cut.
@@ -99,7 +99,7 @@ def parquet_shards(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> li
     Raises:
         FileFormatError: a path or pattern that gives no Parquet shard.
     """
-    from tap_bench.womd.ingest import expand_paths
+    from tap_bench.sources.ingest import expand_paths
 
     shards = [p for p in expand_paths(paths)
               if p.suffix in (".parquet", ".pq") and not p.name.startswith(("_", "."))]
@@ -172,7 +172,7 @@ class _IngestJob:
 
 def _ingest_shard(job: _IngestJob) -> dict[str, Any]:
     """Ingest one WOMD file into one part; its report goes back to the driver."""
-    from tap_bench.womd.ingest import ingest_womd, report_path
+    from tap_bench.sources.ingest import ingest_womd, report_path
 
     report = ingest_womd([job.input], job.output, format=job.format,
                          object_types=job.object_types, on_error=job.on_error,
@@ -194,7 +194,7 @@ def ingest_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
         output: the directory to write (``womd/``): ``<input name>.parquet`` per input and
             ``_report.json``.
         backend: where the tasks run.
-        format, object_types, check_crc: as :func:`tap_bench.womd.ingest_womd`.
+        format, object_types, check_crc: as :func:`tap_bench.sources.ingest_womd`.
         on_error: ``stop`` (default): a bad record fails its shard, which is retried and
             then reported, the other shards kept; ``skip``: bad records are left out and
             listed under the shard's ``skipped``.
@@ -205,10 +205,10 @@ def ingest_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
     Returns:
         The :class:`ShardReport`, also written to ``<output>/_report.json``.
     """
-    from tap_bench.womd.ingest import FORMATS, ON_ERROR, _check_choice, expand_paths
+    from tap_bench.sources.ingest import ON_ERROR, _check_choice, expand_paths, formats
     from tap_bench.womd.scenario import normalise_object_types
 
-    _check_choice("format", format, FORMATS)
+    _check_choice("format", format, formats())
     _check_choice("on_error value", on_error, ON_ERROR)
     types = normalise_object_types(object_types)
     inputs = expand_paths(paths)

@@ -52,7 +52,7 @@ def test_validate_names_the_row_and_the_fix():
     with pytest.raises(LabelTableError, match=r"row 1 \(scenario_id='s', track_id='2'.*"
                                               r"tap-bench label"):
         validate_labels(bad, "maneuver", source="x.parquet")
-    with pytest.raises(LabelTableError, match="missing column.*'sdl'"):
+    with pytest.raises(LabelTableError, match=r"missing column.*'sdl'"):
         validate_labels(_table().drop(columns="sdl"), "maneuver")
 
 

@@ -1,12 +1,14 @@
-"""WOMD files in, one trajectory table out: streaming, in worker processes, with a report.
+"""Driving-data files in, one trajectory table out: streaming, in worker processes, with a
+report.
 
 :func:`iter_womd` yields one table per scenario and holds one record at a time, so data
 sets larger than memory can be processed scenario by scenario; :func:`read_womd` gathers
 them into one table; :func:`ingest_womd` streams them into a Parquet file, written
 atomically, decoding batches of records in worker processes.
 
-Three input formats, told apart per file (``format="auto"``): TFRecords of ``Scenario``
-protos (``uncompressed/scenario/...``), TFRecords of motion ``tf.Example`` protos
+The input formats are the registered readers (:mod:`tap_bench.sources.registry`), told
+apart per file with ``format="auto"``; built in: TFRecords of ``Scenario`` protos
+(``uncompressed/scenario/...``), TFRecords of motion ``tf.Example`` protos
 (``uncompressed/tf_example/...``), and ScenarioNet scenario pickles (``*.pkl``).
 """
 
@@ -30,15 +32,14 @@ import pyarrow.parquet as pq
 
 from tap_bench.errors import FileFormatError, ParameterError, WomdRecordError, did_you_mean
 from tap_bench.execution import Backend, LocalBackend
+from tap_bench.sources import builtin  # noqa: F401 (the built-in readers are registered)
+from tap_bench.sources.registry import Reader, get_reader, reader_names, readers
 from tap_bench.tableio import atomic_path
-from tap_bench.womd.scenario import decode_scenario, normalise_object_types
-from tap_bench.womd.scenarionet import decode_scenarionet, load_scenarionet
-from tap_bench.womd.tf_example import decode_tf_example, is_motion_example
+from tap_bench.womd.scenario import normalise_object_types
 from tap_bench.womd.tfrecord import Record, iter_records
 
-__all__ = ["FORMATS", "IngestReport", "expand_paths", "ingest_womd", "iter_womd", "read_womd"]
+__all__ = ["IngestReport", "expand_paths", "formats", "ingest_womd", "iter_womd", "read_womd"]
 
-FORMATS = ("auto", "scenario", "tf_example", "scenarionet")
 ON_ERROR = ("stop", "skip")
 BATCH_BYTES = 8 << 20
 """Records are sent to worker processes in batches of about this many bytes."""
@@ -125,14 +126,27 @@ def _check_choice(kind: str, value: str, allowed: tuple[str, ...]) -> str:
     return value
 
 
-def _file_format(path: Path, format: str, check_crc: bool) -> str:
+def formats() -> tuple[str, ...]:
+    """``"auto"`` and the registered formats (:mod:`tap_bench.sources.registry`)."""
+    return ("auto", *reader_names())
+
+
+def _file_format(path: Path, format: str, check_crc: bool) -> Reader:
+    """The reader of ``path``: the one asked for, or the one that claims it (``auto``): a
+    file reader by its name's ending, else the first TFRecord reader whose ``sniff`` accepts
+    the first record, else the TFRecord fallback (``sniff=None``)."""
     if format != "auto":
-        return format
-    if path.suffix == ".pkl":
-        return "scenarionet"
+        return get_reader(format)
+    name = path.name.lower()
+    for reader in readers():
+        if reader.framing == "file" and name.endswith(reader.suffixes):
+            return reader
+    tfrecord = [r for r in readers() if r.framing == "tfrecord"]
+    fallback = next((r for r in reversed(tfrecord) if r.sniff is None), tfrecord[-1])
     for record in iter_records(path, check_crc=check_crc, on_error=lambda err: None):
-        return "tf_example" if is_motion_example(record.data) else "scenario"
-    return "scenario"
+        return next((r for r in tfrecord if r.sniff is not None and r.sniff(record.data)),
+                    fallback)
+    return fallback
 
 
 @dataclass
@@ -140,7 +154,7 @@ class _Batch:
     """A unit of work: records of one file, or one ScenarioNet pickle."""
 
     path: str
-    format: str
+    reader: Reader
     records: list[Record]
     size: int
 
@@ -201,20 +215,18 @@ def _decode_records(batch: _Batch, object_types: frozenset[str] | None, skip: bo
                     ) -> tuple[list[pa.Table], list[dict]]:
     tables: list[pa.Table] = []
     skipped: list[dict] = []
-    if batch.format == "scenarionet":
+    decode = batch.reader.decode
+    if batch.reader.framing == "file":
         try:
-            scenario = load_scenarionet(batch.path)
-            tables.append(decode_scenarionet(scenario, path=batch.path,
-                                             object_types=object_types))
+            tables.append(decode(batch.path, object_types))
         except WomdRecordError as err:
             if not skip:
                 raise
             skipped.append(err.as_dict())
         return tables, skipped
-    decode = decode_tf_example if batch.format == "tf_example" else decode_scenario
     for record in batch.records:
         try:
-            tables.append(decode(record, object_types=object_types))
+            tables.append(decode(record, object_types))
         except WomdRecordError as err:
             if not skip:
                 raise
@@ -228,7 +240,7 @@ def _batches(files: list[Path], format: str, check_crc: bool, batch_bytes: int,
     for path in files:
         fmt = _file_format(path, format, check_crc)
         report.files += 1
-        if fmt == "scenarionet":
+        if fmt.framing == "file":
             size = path.stat().st_size
             report.records += 1
             report.bytes_read += size
@@ -254,7 +266,7 @@ def _iter_tables(paths, *, format: str, object_types, on_error: str, check_crc: 
                  batch_bytes: int = BATCH_BYTES,
                  progress: Callable[[int, int], None] | None = None) -> Iterator[pa.Table]:
     """Decoded tables (Arrow) in input order; fills ``report`` as it goes."""
-    _check_choice("format", format, FORMATS)
+    _check_choice("format", format, formats())
     _check_choice("on_error value", on_error, ON_ERROR)
     types = normalise_object_types(object_types)
     files = expand_paths(paths)
