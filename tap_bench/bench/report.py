@@ -308,7 +308,10 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
         ("SDL level", summary.get("level", "")),
         ("thresholds", _thresholds_text(summary.get("thresholds"))),
         ("reference policy", summary.get("reference_policy", "")),
-        ("WOMD files", ", ".join(Path(p).name for p in summary.get("womd_files", [])) or "–"),
+        ("references", "; ".join(
+            f"{name}: " + (", ".join(Path(p).name for p in src) if isinstance(src, list)
+                           else Path(str(src)).name)
+            for name, src in summary.get("references", {}).items()) or "–"),
         ("episodes", f"{summary.get('n_episodes', len(episodes))} "
                      f"({summary.get('n_failed', 0)} failed)"),
         ("created", summary.get("created", "")),
