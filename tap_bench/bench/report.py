@@ -24,6 +24,7 @@ import pandas as pd
 
 from tap_bench.bench.measures import MEASURES
 from tap_bench.bench.scoring import Scores
+from tap_bench.tableio import atomic_path
 
 __all__ = ["write_plots", "write_report"]
 
@@ -292,8 +293,6 @@ def _img(path: Path, alt: str) -> str:
 def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: pd.DataFrame,
                  scores: Scores) -> Path:
     """Write ``plots/*.png`` and ``report.html`` into a run folder; returns the HTML path."""
-    from tap_bench.tableio import atomic_path
-
     folder = Path(folder)
     plots = {p.stem: p for p in write_plots(scores, folder / "plots")}
     suite = summary.get("suite", {})

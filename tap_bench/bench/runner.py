@@ -42,6 +42,7 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.bench.episodes import episode_table
+from tap_bench.bench.report import write_report
 from tap_bench.bench.scenarios import match_scenarios
 from tap_bench.bench.scoring import Scores, score
 from tap_bench.bench.suite import Suite, load_suite
@@ -53,7 +54,7 @@ from tap_bench.sim.policies import PolicyDefinition
 from tap_bench.sim.rollout import resolve_policy, rollout
 from tap_bench.sim.suite import Scenario
 from tap_bench.sources import read_womd
-from tap_bench.tableio import read_table
+from tap_bench.tableio import atomic_path, read_table
 from tap_bench.thresholds import Thresholds, resolve_thresholds
 
 __all__ = ["RunExistsError", "RunResult", "check_output", "package_versions", "read_run",
@@ -341,8 +342,6 @@ def _round(x: float) -> float | None:
 
 
 def _write_json(path: Path, doc: dict[str, Any]) -> None:
-    from tap_bench.tableio import atomic_path
-
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(doc, indent=2, default=_json_default) + "\n")
 
@@ -385,8 +384,6 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
                 _parquet_safe(table).to_parquet(tmp / f"{name}.parquet", index=False)
         _write_json(tmp / "summary.json", summary)
         if report:
-            from tap_bench.bench.report import write_report
-
             write_report(tmp, summary, episodes, scores)
         if output.exists():
             if not overwrite:
