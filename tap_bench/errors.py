@@ -26,6 +26,7 @@ __all__ = [
     "RunExistsError",
     "BaselineError",
     "BaselineMismatchError",
+    "EpisodesFailedError",
     # warnings
     "ShortSegmentWarning",
     "EpisodeFailedWarning",
@@ -166,6 +167,27 @@ class BaselineError(TapBenchError, ValueError):
 
 class BaselineMismatchError(BaselineError):
     """The run and the baseline were not made with the same suite, level or thresholds."""
+
+
+class EpisodesFailedError(TapBenchError, RuntimeError):
+    """Every episode of a rollout or a suite run failed: there is no result to return.
+
+    Attributes:
+        what: what was run ("4 episodes of idm on highway").
+        errors: the first errors, one line each (``"seed 0: RuntimeError: ..."``).
+    """
+
+    def __init__(self, what: str, errors: list[str]):
+        self.what = what
+        self.errors = list(errors)
+        listed = "; ".join(self.errors[:3])
+        more = f" (and {len(self.errors) - 3} more)" if len(self.errors) > 3 else ""
+        super().__init__(f"every one of {what} failed, so there is no result. The first "
+                         f"errors: {listed}{more}. Fix the first error (run one seed with "
+                         "workers=1 to see its traceback) and run again.")
+
+    def __reduce__(self):
+        return (type(self), (self.what, self.errors))
 
 
 class UnknownNameError(TapBenchError, KeyError):

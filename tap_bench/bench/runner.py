@@ -21,19 +21,29 @@ folder is never replaced unless ``overwrite`` is given. Episodes run as tasks of
 :mod:`tap_bench.execution` (local worker processes or Ray), one task per (env, policy, seed),
 each labelling its own episode; an episode that fails is recorded with its error and left
 out of the scores, and an episode whose worker dies is tried once more and then recorded as
-failed: one bad episode never costs another.
+failed: one bad episode never costs another. A run where every episode failed is an error
+(:class:`~tap_bench.errors.EpisodesFailedError`), not an empty result.
+
+With an episode cache (:mod:`tap_bench.bench.cache`), an episode whose inputs did not change
+is read instead of simulated; labels, measures and scores are always recomputed, so a run
+with the cache gives the same tables as one without. Before the episodes start, the run
+estimates how long it will take, from the cache's timings of earlier runs or by timing a
+first episode of each env.
 """
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import json
+import math
 import os
 import shutil
 import sys
 import tempfile
 import time
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -41,24 +51,36 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from tap_bench.bench.cache import (
+    EpisodeCache,
+    episode_key,
+    policy_fingerprint,
+    scenario_fingerprint,
+    simulation_fingerprint,
+)
 from tap_bench.bench.episodes import episode_table
 from tap_bench.bench.report import write_report
 from tap_bench.bench.scenarios import match_scenarios
 from tap_bench.bench.scoring import Scores, score
 from tap_bench.bench.suite import Suite, load_suite
-from tap_bench.errors import FileFormatError, ParameterError, RunExistsError
+from tap_bench.errors import (
+    EpisodesFailedError,
+    FileFormatError,
+    ParameterError,
+    RunExistsError,
+)
 from tap_bench.execution import Backend, resolve_backend
 from tap_bench.labelling import tap
 from tap_bench.labels import validate_labels
 from tap_bench.sim.policies import PolicyDefinition
-from tap_bench.sim.rollout import resolve_policy, rollout
-from tap_bench.sim.suite import Scenario
+from tap_bench.sim.rollout import EPISODE_COLUMNS, resolve_policy, rollout_episode
+from tap_bench.sim.suite import Scenario, parse_seeds
 from tap_bench.sources import read_womd
 from tap_bench.tableio import atomic_path, read_table
 from tap_bench.thresholds import Thresholds, resolve_thresholds
 
-__all__ = ["RunExistsError", "RunResult", "check_output", "package_versions", "read_run",
-           "run_suite", "write_results"]
+__all__ = ["CACHED_EPISODE_S", "RunExistsError", "RunPlan", "RunResult", "check_output",
+           "package_versions", "read_run", "run_suite", "write_results"]
 
 def check_output(output: str | os.PathLike, overwrite: bool) -> Path:
     """``output`` as a Path; refuses an existing folder unless ``overwrite``.
@@ -105,15 +127,28 @@ class _Task:
     thresholds: Thresholds
     level: str
     keep_trajectories: bool
+    cache: EpisodeCache | None = None
+    key: str | None = None  # None: this episode is not cached (see bench.cache)
+    key_doc: Mapping[str, Any] | None = None
 
 
 def _run_task(task: _Task) -> dict[str, Any]:
-    """Roll out, label and measure one episode (in a worker process)."""
+    """Roll out (or read from the cache), label and measure one episode (in a worker)."""
     t0 = time.perf_counter()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        trajectories, episodes = rollout(task.scenario, task.definition, [task.seed],
-                                         progress=False)
+    cached = task.cache.get(task.key) if task.cache is not None and task.key else None
+    if cached is not None:
+        trajectories, row = cached.trajectories, cached.row
+    else:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            trajectories, row = rollout_episode(task.scenario, task.definition, task.seed)
+        if row["status"] == "ok" and task.cache is not None and task.key:
+            with contextlib.suppress(OSError):  # a full or read-only cache costs only reuse
+                task.cache.put(task.key, task.key_doc or {}, trajectories, row,
+                               time.perf_counter() - t0)
+    trajectories = trajectories.reset_index(drop=True)
+    episodes = pd.DataFrame([row], columns=list(EPISODE_COLUMNS))
+    episodes["seed"] = episodes["seed"].astype(np.int64)
     t1 = time.perf_counter()
     labels = pd.DataFrame()
     if len(trajectories):
@@ -128,32 +163,176 @@ def _run_task(task: _Task) -> dict[str, Any]:
     timings = {"rollout": t1 - t0, "labelling": t2 - t1, "measures": t3 - t2}
     return {"episodes": eps, "labels": labels,
             "trajectories": trajectories if task.keep_trajectories else None,
-            "timings": timings}
+            "timings": timings, "cached": cached is not None}
 
 
 def _failed_task(task: _Task, message: str) -> dict[str, Any]:
     eps = pd.DataFrame({"env": [task.env], "policy": [task.policy], "seed": [task.seed],
                         "status": ["error"], "error": [message]})
     return {"episodes": episode_table(episodes=eps, level=task.level),
-            "labels": pd.DataFrame(), "trajectories": None, "timings": {}}
+            "labels": pd.DataFrame(), "trajectories": None, "timings": {}, "cached": False}
 
 
-def _tasks(suite: Suite, thresholds: Thresholds, keep: bool) -> list[_Task]:
+def _tasks(suite: Suite, thresholds: Thresholds, keep: bool, cache: EpisodeCache | None
+           ) -> list[_Task]:
     scenarios = {env: suite.scenario(env) for env in suite.envs}  # resolved once
     definitions = [resolve_policy(policy) for policy in suite.policies]  # built once here
-    return [_Task(env, scenarios[env], d.name, d, seed, thresholds, suite.level, keep)
-            for env in suite.envs for d in definitions for seed in suite.seeds]
+    if cache is None:
+        return [_Task(env, scenarios[env], d.name, d, seed, thresholds, suite.level, keep)
+                for env in suite.envs for d in definitions for seed in suite.seeds]
+    versions = simulation_fingerprint()
+    envs = {env: scenario_fingerprint(scenarios[env]) for env in suite.envs}
+    policies = {d.name: policy_fingerprint(d) for d in definitions}
+    tasks = []
+    for env in suite.envs:
+        for d in definitions:
+            for seed in suite.seeds:
+                key = doc = None
+                if policies[d.name] is not None:
+                    key, doc = episode_key(envs[env], policies[d.name], seed, versions)
+                tasks.append(_Task(env, scenarios[env], d.name, d, seed, thresholds,
+                                   suite.level, keep, cache, key, doc))
+    return tasks
+
+
+CACHED_EPISODE_S = 0.2
+"""Estimate of a cached episode's wall time (read, label, measure) when no run has measured
+it yet [s]: 0.1-0.3 s on the 2-core development machine."""
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """What a run will do and how long it should take, said before it starts.
+
+    Attributes:
+        episodes: episodes of the suite.
+        cached: episodes found in the cache (checked when read).
+        simulate: episodes to simulate.
+        workers: processes the episodes are spread over.
+        seconds: estimated wall time of the episodes' work [s] (NaN when unknown).
+        overhead_seconds: estimated rest of the run: worker start-up, scoring, the report
+            [s] (NaN when no run has measured it).
+        basis: where the per-episode times come from, in words.
+    """
+
+    episodes: int
+    cached: int
+    simulate: int
+    workers: int
+    seconds: float
+    overhead_seconds: float
+    basis: str
+
+    def describe(self, suite: str) -> str:
+        """One line for the user: ``suite default: 750 episodes (600 cached, 150 to
+        simulate) on 2 workers: about 4 min (...)``."""
+        if math.isfinite(self.seconds):
+            known = math.isfinite(self.overhead_seconds)
+            total = self.seconds + (self.overhead_seconds if known else 0.0)
+            when = f"about {_duration(total)}" + ("" if known else
+                                                  " plus start-up, scoring and the report")
+        else:
+            when = "no estimate yet"
+        return (f"suite {suite}: {self.episodes} episodes ({self.cached} cached, "
+                f"{self.simulate} to simulate) on {self.workers} worker(s): {when} "
+                f"({self.basis})")
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def _plan(tasks: list[_Task], cached: list[bool], workers: int, known: Mapping[str, Any],
+          measured: Mapping[str, float]) -> RunPlan:
+    simulated = {**known.get("simulated", {}), **measured}
+    per_hit = known.get("cached", {})
+    fallback_hit = (float(np.mean(list(per_hit.values()))) if per_hit
+                    else CACHED_EPISODE_S)
+    total, unknown = 0.0, 0
+    for task, hit in zip(tasks, cached, strict=True):
+        if hit:
+            total += per_hit.get(task.env, fallback_hit)
+        elif task.env in simulated:
+            total += simulated[task.env]
+        else:
+            unknown += 1
+    n_hit = sum(cached)
+    if unknown:
+        seconds = float("nan")
+    else:
+        seconds = total / max(1, min(workers, len(tasks)))
+    parts = []
+    if measured:
+        parts.append(f"timed a first episode of {', '.join(sorted(measured))}")
+    if known.get("simulated") or known.get("cached"):
+        parts.append("per-episode times of earlier runs in the cache")
+    if unknown:
+        parts.append(f"{unknown} episode(s) of envs whose first episode failed")
+    return RunPlan(len(tasks), n_hit, len(tasks) - n_hit, workers, seconds,
+                   float(known.get("overhead", float("nan"))),
+                   "; ".join(parts) or "cached episodes only")
 
 
 def _rollouts(suite: Suite, thresholds: Thresholds, backend: Backend, keep: bool,
-              progress: bool | None) -> list[dict[str, Any]]:
+              progress: bool | None, cache: EpisodeCache | None,
+              announce: Callable[[str], None] | None
+              ) -> tuple[list[dict[str, Any]], RunPlan]:
     """Every episode of the suite as a task on ``backend`` (one recovery rule: an episode
-    whose worker died is tried once more, then recorded as failed)."""
-    tasks = _tasks(suite, thresholds, keep)
-    outcomes = backend.map(_run_task, tasks, unit="episode", progress=progress,
-                           desc=f"bench {suite.name} ({backend.name})")
-    return [o.value if o.ok else _failed_task(task, o.error)
-            for task, o in zip(tasks, outcomes, strict=True)]
+    whose worker died is tried once more, then recorded as failed), cached episodes read
+    rather than simulated. Before the tasks start, ``announce`` gets the run's estimate,
+    from the cache's timings or from a first episode of each env without one."""
+    tasks = _tasks(suite, thresholds, keep, cache)
+    cached = [cache is not None and t.key is not None and cache.contains(t.key)
+              for t in tasks]
+    known = cache.timings() if cache is not None else {}
+    probes, seen = [], set(known.get("simulated", {}))
+    for i, (task, hit) in enumerate(zip(tasks, cached, strict=True)):
+        if not hit and task.env not in seen:
+            probes.append(i)
+            seen.add(task.env)
+    results: dict[int, dict[str, Any]] = {}
+    seconds: dict[int, float] = {}
+    measured: dict[str, float] = {}
+    if probes:
+        if announce is not None:
+            announce(f"timing a first episode of {len(probes)} env(s) for the estimate ...")
+        outcomes = backend.map(_run_task, [tasks[i] for i in probes], progress=False)
+        for i, outcome in zip(probes, outcomes, strict=True):
+            results[i] = outcome.value if outcome.ok else _failed_task(tasks[i], outcome.error)
+            seconds[i] = outcome.seconds
+            if outcome.ok:
+                measured[tasks[i].env] = outcome.seconds
+    plan = _plan(tasks, cached, backend.workers, known, measured)
+    if announce is not None:
+        announce(plan.describe(suite.name))
+    rest = [i for i in range(len(tasks)) if i not in results]
+    outcomes = backend.map(_run_task, [tasks[i] for i in rest], unit="episode",
+                           progress=progress, desc=f"bench {suite.name} ({backend.name})")
+    for i, outcome in zip(rest, outcomes, strict=True):
+        results[i] = outcome.value if outcome.ok else _failed_task(tasks[i], outcome.error)
+        seconds[i] = outcome.seconds
+    out = [results[i] for i in range(len(tasks))]
+    for i, result in enumerate(out):
+        result["seconds"] = seconds[i]
+        result["env"] = tasks[i].env
+    return out, plan
+
+
+def _observed_timings(results: list[dict[str, Any]]) -> tuple[dict[str, float],
+                                                              dict[str, float]]:
+    """Mean wall time per episode by env [s]: (simulated, cached), successful ones only."""
+    simulated: dict[str, list[float]] = {}
+    cached: dict[str, list[float]] = {}
+    for r in results:
+        if r["timings"] and math.isfinite(r["seconds"]):
+            (cached if r["cached"] else simulated).setdefault(r["env"], []).append(
+                r["seconds"])
+    return ({env: float(np.mean(v)) for env, v in simulated.items()},
+            {env: float(np.mean(v)) for env, v in cached.items()})
 
 
 def package_versions() -> dict[str, str]:
@@ -183,7 +362,9 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
               references: Mapping[str, ReferenceSource] | None = None,
               keep_trajectories: bool = True, overwrite: bool = False,
               progress: bool | None = None, report: bool = True,
-              backend: Backend | None = None) -> RunResult:
+              backend: Backend | None = None, seeds: str | Sequence[int] | None = None,
+              cache: EpisodeCache | str | os.PathLike | None = None,
+              announce: Callable[[str], None] | None = None) -> RunResult:
     """Run a benchmark suite and write its run folder.
 
     Args:
@@ -203,14 +384,27 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         backend: run the episodes as tasks on this :class:`tap_bench.execution.Backend`
             (a Ray cluster, say) instead of ``workers`` local processes; the tables are the
             same.
+        seeds: run these seeds instead of the suite's (``"0-4"``, a list).
+        cache: an :class:`~tap_bench.bench.cache.EpisodeCache` or its folder: episodes
+            found there are read instead of simulated, new ones are stored, and the cache is
+            pruned to its size bound afterwards (None: simulate everything, store nothing).
+            The tables are the same either way.
+        announce: called with one line saying how many episodes will be simulated and how
+            long the run should take, before the episodes start (the CLI prints it).
 
     Returns:
         :class:`RunResult`.
 
     Raises:
         RunExistsError: ``output`` exists and ``overwrite`` is False.
+        EpisodesFailedError: every episode failed (naming the first errors); nothing is
+            written.
     """
     suite = suite if isinstance(suite, Suite) else load_suite(suite)
+    if seeds is not None:
+        suite = dataclasses.replace(suite, seeds=tuple(parse_seeds(seeds, source="seeds")))
+    if cache is not None and not isinstance(cache, EpisodeCache):
+        cache = EpisodeCache(Path(cache))
     output = check_output(output, overwrite)
     runner = resolve_backend(backend, workers)
     thresholds = resolve_thresholds(suite.thresholds)
@@ -229,9 +423,14 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     with_trajectories = any(traj is not None for traj, _ in corpora.values())
 
     t0 = time.perf_counter()
-    results = _rollouts(suite, thresholds, runner, keep_trajectories or with_trajectories,
-                        progress)
+    results, plan = _rollouts(suite, thresholds, runner,
+                              keep_trajectories or with_trajectories, progress, cache, announce)
     timings["rollouts_wall"] = time.perf_counter() - t0
+    if not any(r["timings"] for r in results):
+        errors = [f"{r['env']} {row.policy} seed {row.seed}: {row.error}"
+                  for r in results for row in r["episodes"].itertuples()]
+        raise EpisodesFailedError(f"the {len(results)} episode(s) of suite {suite.name}",
+                                  errors)
     for key in ("rollout", "labelling", "measures"):
         timings[f"{key}_cpu_in_workers"] = sum(r["timings"].get(key, 0.0) for r in results)
     episodes = pd.concat([r["episodes"] for r in results], ignore_index=True)
@@ -273,6 +472,11 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "methods": scores.methods,
         "headline": _headline(scores, episodes),
         "timings": timings,
+        "estimate": {"seconds": _round(plan.seconds),
+                     "overhead": _round(plan.overhead_seconds), "basis": plan.basis},
+        "cache": None if cache is None else {
+            "dir": str(cache.root), "cached": sum(r["cached"] for r in results),
+            "simulated": sum(not r["cached"] for r in results)},
     }
     t0 = time.perf_counter()
     folder = write_results(output, overwrite, summary, episodes, labels, trajectories
@@ -280,6 +484,13 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     timings["writing_and_report"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
     _write_json(folder / "summary.json", summary)  # with the final timings
+    if cache is not None:
+        simulated, cached = _observed_timings(results)
+        work = sum(r["seconds"] for r in results if math.isfinite(r["seconds"]))
+        overhead = timings["total"] - work / max(1, min(runner.workers, len(results)))
+        with contextlib.suppress(OSError):  # the run is written; the cache is a convenience
+            cache.record_timings(simulated, cached, overhead)
+            cache.prune()
     return RunResult(folder, summary, episodes, scores, folder / "report.html")
 
 

@@ -1,5 +1,6 @@
 """``tap-bench bench``: run a benchmark suite (``bench run``), check a run against a baseline
-(``bench check``) and list the suites (``bench suites``)."""
+(``bench check``), list the suites (``bench suites``) and look after the episode cache
+(``bench cache``)."""
 
 from __future__ import annotations
 
@@ -26,6 +27,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     r.add_argument("--suite", default="default",
                    help="suite name (tap-bench bench suites) or JSON file (default: default)")
     r.add_argument("-o", "--output", required=True, help="run folder (results/run-001)")
+    r.add_argument("--seeds", help="run these seeds instead of the suite's ('0-4', '1,4,7')")
+    where = r.add_mutually_exclusive_group()
+    where.add_argument("--cache", metavar="DIR", default=None,
+                           help="episode cache folder: episodes whose env, policy, seed and "
+                       "code did not change are read, not simulated (default: "
+                       "$TAP_BENCH_CACHE, else ~/.cache/tap-bench; pruned to 2 GiB after "
+                       "each run)")
+    where.add_argument("--no-cache", action="store_true",
+                       help="simulate every episode and leave the cache alone")
     r.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                    help="rollout processes (default 2)")
     r.add_argument("--womd", nargs="+", metavar="FILE",
@@ -60,6 +70,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
     s = sub.add_parser("suites", help="list the benchmark suites")
     s.set_defaults(func=list_suites)
+
+    k = sub.add_parser("cache", help="the episode cache: where it is, its size; prune it",
+                       description="bench run keeps every simulated episode in a cache "
+                       "(keyed by the env's resolved config, the policy's definition and "
+                       "model file, the seed and the simulation code) and re-simulates only "
+                       "what changed. 'info' says where it is and how big; 'prune' deletes "
+                       "the least recently used episodes down to --max-size.")
+    k.add_argument("action", choices=("info", "prune"), help="info or prune")
+    k.add_argument("--cache", metavar="DIR", default=None,
+                   help="the cache folder (default: $TAP_BENCH_CACHE, else "
+                   "~/.cache/tap-bench)")
+    k.add_argument("--max-size", default=None,
+                   help="with prune: the size to keep, e.g. 500M, 2G, 0 to empty it "
+                   "(default 2G)")
+    k.set_defaults(func=cache_command)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
@@ -78,17 +103,21 @@ def _references(specs: list[str]) -> dict[str, list[str]]:
 
 
 def run_bench(args: argparse.Namespace) -> int:
+    from tap_bench.bench.cache import EpisodeCache, default_cache_dir
     from tap_bench.bench.demo import timing_split
     from tap_bench.bench.runner import run_suite
     from tap_bench.execution import backend_from_args, close_backend
 
+    cache = None if args.no_cache else EpisodeCache(args.cache or default_cache_dir())
     backend = backend_from_args(args) if args.backend != "local" or args.address else None
     try:
         result = run_suite(args.suite, args.output, workers=args.workers, womd=args.womd,
                            references=_references(args.reference),
                            keep_trajectories=not args.no_trajectories,
                            overwrite=args.overwrite,
-                           progress=False if args.no_progress else None, backend=backend)
+                           progress=False if args.no_progress else None, backend=backend,
+                           seeds=args.seeds, cache=cache,
+                           announce=lambda line: print(line, flush=True))
     finally:
         if backend is not None:
             close_backend(backend)
@@ -97,6 +126,9 @@ def run_bench(args: argparse.Namespace) -> int:
     print(f"{s['n_episodes']} episodes, {s['n_failed']} failed; {split['total']:.0f} s "
           f"(rollouts {split['rollout']:.0f} s, labelling {split['labelling']:.0f} s, scoring "
           f"{split['scoring']:.1f} s, report {split['report']:.1f} s)")
+    if s.get("cache"):
+        print(f"episode cache {s['cache']['dir']}: {s['cache']['cached']} read, "
+              f"{s['cache']['simulated']} simulated")
     for row in s["failed"][:10]:
         print(f"  failed: {row['env']} {row['policy']} seed {row['seed']}: {row['error']}",
               file=sys.stderr)
@@ -135,6 +167,26 @@ def check_bench(args: argparse.Namespace) -> int:
               "accept it with --update-baseline.")
         return 1
     print(f"OK: nothing moved beyond its margin against {baseline_path}.")
+    return 0
+
+
+def cache_command(args: argparse.Namespace) -> int:
+    from tap_bench.bench.cache import EpisodeCache, default_cache_dir, parse_size
+
+    cache = EpisodeCache(args.cache or default_cache_dir())
+    if args.action == "prune":
+        limit = parse_size(args.max_size) if args.max_size is not None else cache.max_bytes
+        report = cache.prune(limit)
+        print(f"pruned {cache.root}: removed {report.removed} episode(s) "
+              f"({report.freed_bytes / 2**20:.1f} MiB); kept {report.kept} "
+              f"({report.kept_bytes / 2**20:.1f} MiB, limit {limit / 2**20:.0f} MiB)")
+        return 0
+    if args.max_size is not None:
+        print("tap-bench bench: error: --max-size goes with 'prune'.", file=sys.stderr)
+        return 2
+    entries, size = cache.size()
+    print(f"episode cache {cache.root}: {entries} episode(s), {size / 2**20:.1f} MiB "
+          f"(pruned to {cache.max_bytes / 2**30:.0f} GiB after each bench run)")
     return 0
 
 

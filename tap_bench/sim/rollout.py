@@ -24,15 +24,16 @@ import gymnasium as gym
 import numpy as np
 import pandas as pd
 
-from tap_bench.errors import EpisodeFailedWarning
+from tap_bench.errors import EpisodeFailedWarning, EpisodesFailedError
 from tap_bench.execution import DEFAULT_RETRIES, Backend, resolve_backend
 from tap_bench.sim.policies import CHEAP_OBSERVATION, Policy, PolicyDefinition, get_definition
 from tap_bench.sim.scenario_env import ScenarioEnv, find_scenario_env, get_scenario
 from tap_bench.sim.suite import Scenario, parse_seeds
 from tap_bench.trajectories import HZ
 
-__all__ = ["EPISODE_COLUMNS", "EpisodeFailedWarning", "Rollout", "collect_rollout",
-           "resolve_policy", "resolve_scenario", "rollout", "run_episode"]
+__all__ = ["EPISODE_COLUMNS", "EpisodeFailedWarning", "EpisodesFailedError", "Rollout",
+           "collect_rollout", "resolve_policy", "resolve_scenario", "rollout",
+           "rollout_episode", "run_episode"]
 
 EPISODE_COLUMNS = ("env", "policy", "seed", "return", "length", "duration_s", "crashed",
                    "mean_speed", "terminated", "truncated", "status", "error")
@@ -134,6 +135,19 @@ def _run_task(task: _Task) -> tuple[pd.DataFrame, dict[str, Any]]:
         return pd.DataFrame(), _failed_row(task, message)
 
 
+def rollout_episode(scenario: Scenario, policy: PolicyDefinition | Policy, seed: int, *,
+                    record: bool = True) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """One episode in this process, reusing this process's env and policy objects (the
+    unit of work of :func:`rollout` and of ``bench run``).
+
+    Returns:
+        the episode's trajectory table (empty when it failed or ``record`` is False) and its
+        row of the episode table; a failed episode is a row with ``status`` "error", never
+        an exception.
+    """
+    return _run_task(_Task(scenario, policy, int(seed), record))
+
+
 def _failed_row(task: _Task, message: str) -> dict[str, Any]:
     name = getattr(task.policy, "name", str(task.policy))
     return {"env": task.scenario.name, "policy": name, "seed": task.seed,
@@ -174,6 +188,9 @@ def rollout(env: str | os.PathLike | Scenario | gym.Env,
 
     Warns:
         EpisodeFailedWarning: some episodes failed; their rows say why.
+
+    Raises:
+        EpisodesFailedError: every episode failed (naming the first errors).
     """
     scenario = resolve_scenario(env, config=config, duration=duration,
                                 lane_change=lane_change)
@@ -228,10 +245,18 @@ def collect_rollout(tables: Sequence[pd.DataFrame], episodes: pd.DataFrame, *,
 
     For other ways of running episodes (other executors) that must return what
     :func:`rollout` returns.
+
+    Raises:
+        EpisodesFailedError: every episode failed: an empty result would only hide why.
     """
     episodes = episodes.reset_index(drop=True)
     episodes["seed"] = episodes["seed"].astype(np.int64)
     failed = episodes[episodes["status"] != "ok"]
+    if len(failed) and len(failed) == len(episodes):
+        first = failed.iloc[0]
+        raise EpisodesFailedError(
+            f"{len(episodes)} episode(s) of {first['policy']} on {first['env']}",
+            [f"seed {r.seed}: {r.error}" for r in failed.itertuples()])
     if len(failed):
         first = failed.iloc[0]
         listed = "; ".join(f"seed {r.seed}: {r.error}" for r in failed.head(3).itertuples())
