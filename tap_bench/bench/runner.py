@@ -328,7 +328,7 @@ def _observed_timings(results: list[dict[str, Any]]) -> tuple[dict[str, float],
     simulated: dict[str, list[float]] = {}
     cached: dict[str, list[float]] = {}
     for r in results:
-        if r["timings"] and math.isfinite(r["seconds"]):
+        if (r["episodes"]["status"] == "ok").all() and math.isfinite(r["seconds"]):
             (cached if r["cached"] else simulated).setdefault(r["env"], []).append(
                 r["seconds"])
     return ({env: float(np.mean(v)) for env, v in simulated.items()},
@@ -426,8 +426,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     results, plan = _rollouts(suite, thresholds, runner,
                               keep_trajectories or with_trajectories, progress, cache, announce)
     timings["rollouts_wall"] = time.perf_counter() - t0
-    if not any(r["timings"] for r in results):
-        errors = [f"{r['env']} {row.policy} seed {row.seed}: {row.error}"
+    if not any((r["episodes"]["status"] == "ok").all() for r in results):
+        errors = [f"{row.env} {row.policy} seed {row.seed}: {row.error}"
                   for r in results for row in r["episodes"].itertuples()]
         raise EpisodesFailedError(f"the {len(results)} episode(s) of suite {suite.name}",
                                   errors)

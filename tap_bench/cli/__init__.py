@@ -64,9 +64,10 @@ def _terminate(signum: int, frame: object) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``tap-bench``; returns the process exit code.
 
-    Exit codes: 0 success, 1 the command ran but its check failed (a regression, every
-    episode failed), 2 a usage or input error (every :class:`TapBenchError`, printed as one
-    message), 130 interrupted (Ctrl-C or SIGTERM).
+    Exit codes: 0 success, 1 the command ran but its check failed (a regression), 2 a
+    usage or input error, or nothing to show (every :class:`TapBenchError`, printed as one
+    message, such as every episode of a rollout failing), 130 interrupted (Ctrl-C or
+    SIGTERM).
     """
     parser = build_parser()
     args = parser.parse_args(argv)
