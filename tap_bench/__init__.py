@@ -6,19 +6,11 @@ comparisons -> report. Each stage has its own module; the names below are the pu
 
 from __future__ import annotations
 
+import importlib
+import importlib.util
+from typing import Any
+
 from tap_bench._version import __version__ as __version__
-from tap_bench.bench import (
-    BootstrapConfig,
-    check,
-    corpus_reference,
-    coverage,
-    load_suite,
-    matched_by_label,
-    novelty,
-    paired_comparison,
-    run_suite,
-    vocabulary_reference,
-)
 from tap_bench.errors import (
     FileFormatError,
     LabelTableError,
@@ -28,45 +20,52 @@ from tap_bench.errors import (
     TrajectoryTableError,
     UnknownNameError,
 )
-from tap_bench.fitting import FitReport, fit_report, fit_thresholds
-from tap_bench.kinematics import compute_kinematics, one_second_samples
-from tap_bench.labelling import TapResult, label, tap
-from tap_bench.resampling import resample_to_10hz
-from tap_bench.sdl import LEVELS, vocabulary
-from tap_bench.sim import (
-    Policy,
-    Rollout,
-    available_policies,
-    load_policy,
-    register_policy,
-    rollout,
-)
 from tap_bench.sim.registration import register_suite as _register_suite
-from tap_bench.similarity import (
-    ade_nearest,
-    dtw_nearest,
-    evaluate,
-    label_set,
-    normalised_shapes,
-    rank_scenarios,
-    scenario_set,
-    search,
-    search_like,
-    unique_labels,
-)
-from tap_bench.sources import IngestReport, ingest_womd, iter_womd, read_womd, register_reader
-from tap_bench.stages import StageConfig
-from tap_bench.synthetic import behaviour, random_trajectories, sample_table
-from tap_bench.tableio import read_table, write_table
-from tap_bench.thresholds import (
-    PRESETS,
-    Provenance,
-    Thresholds,
-    load_thresholds,
-    save_thresholds,
-)
-from tap_bench.trajectories import validate_trajectories
-from tap_bench.womd import WomdRecordError, classify_trajectories, write_womd
+
+# The public API by module, imported on first use: `import tap_bench` (and so every
+# `tap-bench` command) pays only for what it touches, not for pandas, highway-env and numba
+# at once. `from tap_bench import X` and `tap_bench.X` work as with eager imports.
+_LAZY_MODULES = {
+    "tap_bench.bench": ("BootstrapConfig", "check", "corpus_reference", "coverage",
+                        "load_suite", "matched_by_label", "novelty", "paired_comparison",
+                        "run_suite", "vocabulary_reference"),
+    "tap_bench.fitting": ("FitReport", "fit_report", "fit_thresholds"),
+    "tap_bench.kinematics": ("compute_kinematics", "one_second_samples"),
+    "tap_bench.labelling": ("TapResult", "label", "tap"),
+    "tap_bench.resampling": ("resample_to_10hz",),
+    "tap_bench.sdl": ("LEVELS", "vocabulary"),
+    "tap_bench.sim": ("Policy", "Rollout", "available_policies", "load_policy",
+                      "register_policy", "rollout"),
+    "tap_bench.similarity": ("ade_nearest", "dtw_nearest", "evaluate", "label_set",
+                             "normalised_shapes", "rank_scenarios", "scenario_set", "search",
+                             "search_like", "unique_labels"),
+    "tap_bench.sources": ("IngestReport", "ingest_womd", "iter_womd", "read_womd",
+                          "register_reader"),
+    "tap_bench.stages": ("StageConfig",),
+    "tap_bench.synthetic": ("behaviour", "random_trajectories", "sample_table"),
+    "tap_bench.tableio": ("read_table", "write_table"),
+    "tap_bench.thresholds": ("PRESETS", "Provenance", "Thresholds", "load_thresholds",
+                             "save_thresholds"),
+    "tap_bench.trajectories": ("validate_trajectories",),
+    "tap_bench.womd": ("WomdRecordError", "classify_trajectories", "write_womd"),
+}
+_LAZY = {name: module for module, names in _LAZY_MODULES.items() for name in names}
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        if not name.startswith("_") and importlib.util.find_spec(f"tap_bench.{name}"):
+            return importlib.import_module(f"tap_bench.{name}")  # tap_bench.bench.Suite
+        raise AttributeError(f"module 'tap_bench' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # the next access is a plain attribute
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY})
+
 
 # The scenario suite's Gymnasium ids (tap_bench/highway-v0 ...); reads envs/ only, fast.
 _register_suite()

@@ -24,8 +24,8 @@ from pathlib import Path
 
 from tap_bench.errors import CatalogueError, did_you_mean
 
-__all__ = ["KINDS", "PATH_VARIABLE", "REPLACE_VARIABLE", "builtin_root", "files", "find",
-           "folders"]
+__all__ = ["CACHE_VARIABLE", "KINDS", "PATH_VARIABLE", "REPLACE_VARIABLE", "builtin_root",
+           "cache_dir", "files", "find", "folders"]
 
 KINDS = {"envs": "envs", "policies": "policies", "suites": os.path.join("envs", "suites")}
 """Kind of file -> its folder under a catalogue root."""
@@ -33,6 +33,8 @@ PATH_VARIABLE = "TAP_BENCH_PATH"
 """Environment variable: more catalogue roots, searched first."""
 REPLACE_VARIABLE = "TAP_BENCH_SUITE"
 """Environment variable: a catalogue root that replaces the built-in one."""
+CACHE_VARIABLE = "TAP_BENCH_CACHE"
+"""Environment variable: the folder of tap-bench's caches."""
 
 _PACKAGE = Path(__file__).resolve().parent
 
@@ -82,3 +84,13 @@ def files(kind: str, suffix: str = ".json") -> dict[str, Path]:
 def find(kind: str, name: str, suffix: str = ".json") -> Path | None:
     """The file of ``kind`` called ``name``, or None."""
     return files(kind, suffix).get(name)
+
+
+def cache_dir() -> Path:
+    """Where tap-bench keeps what it can rebuild (episodes of ``bench run``, what highway-env
+    accepts): ``$TAP_BENCH_CACHE``, else ``$XDG_CACHE_HOME/tap-bench``, else
+    ``~/.cache/tap-bench``. Deleting it costs only time."""
+    if os.environ.get(CACHE_VARIABLE):
+        return Path(os.environ[CACHE_VARIABLE]).expanduser()
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join("~", ".cache")
+    return Path(base).expanduser() / "tap-bench"

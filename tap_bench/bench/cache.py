@@ -56,17 +56,17 @@ from typing import Any
 
 import pandas as pd
 
+from tap_bench import catalogue
 from tap_bench._version import __version__
 from tap_bench.errors import ParameterError
 from tap_bench.sim.policies import PolicyDefinition
-from tap_bench.sim.suite import Scenario, env_class
+from tap_bench.sim.schema import default_config
+from tap_bench.sim.suite import Scenario
 
-__all__ = ["CACHE_VARIABLE", "DEFAULT_MAX_BYTES", "ENTRY_FORMAT", "CachedEpisode",
+__all__ = ["DEFAULT_MAX_BYTES", "ENTRY_FORMAT", "CachedEpisode",
            "EpisodeCache", "default_cache_dir", "episode_key", "parse_size",
            "policy_fingerprint", "scenario_fingerprint", "simulation_fingerprint"]
 
-CACHE_VARIABLE = "TAP_BENCH_CACHE"
-"""Environment variable: the cache folder."""
 DEFAULT_MAX_BYTES = 2 << 30
 """Size the cache is pruned to after a run [B]: ten default suites."""
 ENTRY_FORMAT = 1
@@ -80,11 +80,9 @@ _KEY = re.compile(r"^[0-9a-f]{64}$")
 
 
 def default_cache_dir() -> Path:
-    """``$TAP_BENCH_CACHE``, else ``$XDG_CACHE_HOME/tap-bench``, else ``~/.cache/tap-bench``."""
-    if os.environ.get(CACHE_VARIABLE):
-        return Path(os.environ[CACHE_VARIABLE]).expanduser()
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join("~", ".cache")
-    return Path(base).expanduser() / "tap-bench"
+    """:func:`tap_bench.catalogue.cache_dir`: ``$TAP_BENCH_CACHE``, else
+    ``$XDG_CACHE_HOME/tap-bench``, else ``~/.cache/tap-bench``."""
+    return catalogue.cache_dir()
 
 
 def parse_size(text: str | int, parameter: str = "--max-size") -> int:
@@ -133,7 +131,7 @@ def simulation_fingerprint() -> dict[str, Any]:
 def scenario_fingerprint(scenario: Scenario) -> dict[str, Any]:
     """The env part of a key: the highway-env id, its resolved config, lane changes,
     duration [s] and decisions per episode."""
-    config = env_class(scenario.highway_env_id).default_config()
+    config = default_config(scenario.highway_env_id)
     config.update(scenario.config)
     return {"highway_env_id": scenario.highway_env_id, "config": config,
             "lane_change": scenario.lane_change, "duration": scenario.duration,

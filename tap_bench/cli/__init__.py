@@ -2,7 +2,12 @@
 
 Each sub-command lives in its own module of this package, which defines
 ``add_parser(subparsers)``; the parser it adds sets ``func`` (taking the parsed arguments and
-returning an exit code). Add a module to ``COMMANDS`` to register it.
+returning an exit code). Add a module and its one-line help to ``COMMANDS`` to register it.
+
+Only the module of the command being run is imported: ``tap-bench --help`` lists the
+commands from ``COMMANDS`` alone, and ``tap-bench envs`` never imports the modules (and
+their pandas, highway-env or numba) that ``tap-bench search`` needs. A sub-command module
+imports what only its ``run`` needs inside ``run`` for the same reason.
 """
 
 from __future__ import annotations
@@ -18,30 +23,47 @@ from collections.abc import Sequence
 
 from tap_bench.errors import TapBenchError
 
-COMMANDS = (
-    "tap_bench.cli.sample",
-    "tap_bench.cli.label",
-    "tap_bench.cli.fit",
-    "tap_bench.cli.ingest",
+COMMANDS: dict[str, tuple[str, str]] = {
+    # name: (module, the help line of 'tap-bench --help'; the module's add_parser says the same)
+    "sample": ("tap_bench.cli.sample",
+               "write a built-in synthetic trajectory table (no data needed)"),
+    "label": ("tap_bench.cli.label", "label trajectories with SDL labels (TAP)"),
+    "fit": ("tap_bench.cli.fit", "learn TAP thresholds from trajectories"),
+    "ingest": ("tap_bench.cli.ingest", "convert a data set to a trajectory table"),
     # simulation: highway-env scenarios, policies, rollouts, training
-    "tap_bench.cli.envs",
-    "tap_bench.cli.policies",
-    "tap_bench.cli.rollout",
-    "tap_bench.cli.train",
+    "envs": ("tap_bench.cli.envs", "list the scenario envs of the suite with their settings"),
+    "policies": ("tap_bench.cli.policies", "list the available driving policies"),
+    "rollout": ("tap_bench.cli.rollout", "run a policy on a scenario for a set of seeds"),
+    "train": ("tap_bench.cli.train",
+              "train a Stable-Baselines3 agent (DQN, PPO, A2C) on a scenario"),
     # the benchmark: matched comparison, coverage, suite runs and the regression gate
-    "tap_bench.cli.compare",
-    "tap_bench.cli.coverage",
-    "tap_bench.cli.bench",
-    "tap_bench.cli.demo",
+    "compare": ("tap_bench.cli.compare",
+                "compare two policies: paired by seed and matched by SDL label"),
+    "coverage": ("tap_bench.cli.coverage",
+                 "how much of a reference's behaviour an agent shows, and what is new"),
+    "bench": ("tap_bench.cli.bench", "run a benchmark suite; check a run against a baseline"),
+    "demo": ("tap_bench.cli.demo",
+             "run the demo benchmark (no download) and write its HTML report"),
     # similarity: SDL search, unique behaviours, the paper's ADE / DTW experiments
-    "tap_bench.cli.search",
-    "tap_bench.cli.unique",
-    "tap_bench.cli.evaluate",
-)
+    "search": ("tap_bench.cli.search",
+               "find trajectories (or scenarios) with similar SDL labels"),
+    "unique": ("tap_bench.cli.unique", "list the unique behaviours of a label table"),
+    "evaluate": ("tap_bench.cli.evaluate",
+                 "SDL search against ADE and DTW nearest neighbours, unique labels"),
+}
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from tap_bench import __version__
+def _command(argv: Sequence[str]) -> str | None:
+    """The sub-command ``argv`` names: its first argument that is not an option (the
+    top-level options, --help and --version, take no value)."""
+    first = next((a for a in argv if not a.startswith("-")), None)
+    return first if first in COMMANDS else None
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The ``tap-bench`` parser: the full parser of the command ``argv`` names, one help
+    line for every other command (None: the full parser of every command)."""
+    from tap_bench._version import __version__
 
     parser = argparse.ArgumentParser(
         prog="tap-bench",
@@ -50,8 +72,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"tap-bench {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMANDS:
-        importlib.import_module(name).add_parser(sub)
+    chosen = _command(argv) if argv is not None else None
+    for name, (module, help_line) in COMMANDS.items():
+        if argv is None or name == chosen:
+            importlib.import_module(module).add_parser(sub)
+        else:
+            sub.add_parser(name, help=help_line)
     return parser
 
 
@@ -69,7 +95,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     message, such as every episode of a rollout failing), 130 interrupted (Ctrl-C or
     SIGTERM).
     """
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()

@@ -24,11 +24,18 @@ def _seed_range(seeds: tuple[int, ...]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tap_bench.sim.scenario_env import get_scenario
-    from tap_bench.sim.suite import env_class, scenario_names
+    # not tap_bench.sim.scenario_env, which imports highway-env: the files and the
+    # defaults they are checked against are enough here (tap_bench.sim.schema)
+    from tap_bench import catalogue
+    from tap_bench.sim.schema import default_config
+    from tap_bench.sim.suite import load_scenario
 
-    names = [args.name] if args.name else scenario_names()
-    scenarios = [get_scenario(n) for n in names]
+    if args.name:
+        from tap_bench.sim.scenario_env import get_scenario
+
+        scenarios = [get_scenario(args.name)]
+    else:
+        scenarios = [load_scenario(path) for path in catalogue.files("envs").values()]
     rows = [{
         "id": s.env_id, "highway_env_id": s.highway_env_id, "duration_s": s.duration,
         "policy_hz": s.policy_frequency, "simulation_hz": s.config["simulation_frequency"],
@@ -36,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
         "overrides": dict(s.overrides), "description": s.description,
     } for s in scenarios]
     if args.name:
-        full = env_class(scenarios[0].highway_env_id).default_config()
+        full = default_config(scenarios[0].highway_env_id)
         full.update(scenarios[0].config)
         rows[0]["config"] = full
     if args.json or args.name:

@@ -13,8 +13,8 @@ Modules, by what they do:
 - :mod:`~tap_bench.sim.wrappers`, :mod:`~tap_bench.sim.callbacks`,
   :mod:`~tap_bench.sim.training`: Gymnasium and Stable-Baselines3 integration.
 
-Names that need highway-env (``make_env``, ``ScenarioEnv``, ``EpisodeLabels`` ...) are
-imported on first use, so ``import tap_bench`` stays fast.
+Every name below is imported on first use (``tap_bench.sim.rollout`` imports pandas and the
+execution layer, ``make_env`` highway-env), so ``import tap_bench`` stays fast.
 """
 
 from __future__ import annotations
@@ -22,25 +22,18 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-from tap_bench.sim.policies import (
-    Policy,
-    PolicyDefinition,
-    available_policies,
-    load_policy,
-    register_policy,
-)
-from tap_bench.sim.registration import register_scenario, register_suite, registered_ids
-from tap_bench.sim.rollout import EpisodeFailedWarning, Rollout, rollout, run_episode
-from tap_bench.sim.suite import Scenario, load_scenario, parse_seeds, scenario_names
-
-_LAZY = {
-    "ScenarioEnv": "tap_bench.sim.scenario_env",
-    "episode_trajectories": "tap_bench.sim.scenario_env",
-    "get_scenario": "tap_bench.sim.scenario_env",
-    "make_env": "tap_bench.sim.scenario_env",
-    "EpisodeLabels": "tap_bench.sim.wrappers",
-    "LANE_CHANGE_SETTINGS": "tap_bench.sim.vehicles",
+_LAZY_MODULES = {
+    "tap_bench.sim.policies": ("Policy", "PolicyDefinition", "available_policies",
+                               "load_policy", "register_policy"),
+    "tap_bench.sim.registration": ("register_scenario", "register_suite", "registered_ids"),
+    "tap_bench.sim.rollout": ("EpisodeFailedWarning", "Rollout", "rollout", "run_episode"),
+    "tap_bench.sim.suite": ("Scenario", "load_scenario", "parse_seeds", "scenario_names"),
+    "tap_bench.sim.scenario_env": ("ScenarioEnv", "episode_trajectories", "get_scenario",
+                                   "make_env"),
+    "tap_bench.sim.wrappers": ("EpisodeLabels",),
+    "tap_bench.sim.vehicles": ("LANE_CHANGE_SETTINGS",),
 }
+_LAZY = {name: module for module, names in _LAZY_MODULES.items() for name in names}
 
 __all__ = [
     # scenarios and envs
@@ -75,3 +68,7 @@ def __getattr__(name: str) -> Any:
     if name in _LAZY:
         return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'tap_bench.sim' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY})

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import copy
 import functools
-import inspect
 import json
 import math
 import operator
@@ -37,8 +36,8 @@ from typing import Any
 
 from tap_bench import catalogue
 from tap_bench.errors import FileFormatError, ParameterError, did_you_mean
+from tap_bench.sim.schema import SPACES, default_config, space_parameters
 from tap_bench.sim.vehicles import LANE_CHANGE_SETTINGS
-from tap_bench.trajectories import HZ
 
 __all__ = [
     "SIMULATION_FREQUENCY",
@@ -51,7 +50,7 @@ __all__ = [
     "suite_dir",
 ]
 
-SIMULATION_FREQUENCY = int(HZ)
+SIMULATION_FREQUENCY = 10  # = tap_bench.trajectories.HZ, not imported: it brings pandas
 """Simulation rate of every scenario [Hz]: one simulated step is one trajectory-table row."""
 
 _FIELDS = ("name", "version", "highway_env_id", "description", "duration", "default_seeds",
@@ -163,7 +162,7 @@ class Scenario:
         owns (``simulation_frequency`` 10 Hz, ``duration``, one controlled vehicle)."""
         full = copy.deepcopy(dict(self.overrides))
         full.setdefault("policy_frequency",
-                        env_class(self.highway_env_id).default_config()["policy_frequency"])
+                        default_config(self.highway_env_id)["policy_frequency"])
         full["simulation_frequency"] = SIMULATION_FREQUENCY
         full["duration"] = self.duration
         full["controlled_vehicles"] = 1
@@ -185,7 +184,7 @@ class Scenario:
         """A copy with more config overrides, another duration or lane-change setting,
         validated as a scenario file is."""
         merged = copy.deepcopy(dict(self.overrides))
-        defaults = env_class(self.highway_env_id).default_config()
+        defaults = default_config(self.highway_env_id)
         for key, value in (config or {}).items():
             if key in ("observation", "action") and isinstance(value, Mapping) \
                     and "type" not in value:
@@ -222,47 +221,6 @@ def env_class(highway_env_id: str) -> type:
     return getattr(__import__(module, fromlist=[name]), name)
 
 
-def _observation_classes() -> dict[str, type]:
-    from highway_env.envs.common import observation as obs
-
-    return {
-        "Kinematics": obs.KinematicObservation,
-        "TimeToCollision": obs.TimeToCollisionObservation,
-        "OccupancyGrid": obs.OccupancyGridObservation,
-        "KinematicsGoal": obs.KinematicsGoalObservation,
-        "GrayscaleObservation": obs.GrayscaleObservation,
-        "AttributesObservation": obs.AttributesObservation,
-        "TupleObservation": obs.TupleObservation,
-        "LidarObservation": obs.LidarObservation,
-        "ExitObservation": obs.ExitObservation,
-    }
-
-
-def _action_classes() -> dict[str, type]:
-    from highway_env.envs.common import action as act
-
-    return {
-        "ContinuousAction": act.ContinuousAction,
-        "DiscreteAction": act.DiscreteAction,
-        "DiscreteMetaAction": act.DiscreteMetaAction,
-    }
-
-
-def _init_parameters(cls: type) -> set[str]:
-    """Keyword parameters a highway-env observation or action class accepts, following
-    ``**kwargs`` up the class hierarchy (they swallow misspelled keys otherwise)."""
-    names: set[str] = set()
-    for klass in cls.__mro__:
-        if "__init__" not in vars(klass):
-            continue
-        params = inspect.signature(klass.__init__).parameters
-        names |= {n for n, p in params.items() if n not in ("self", "env")
-                  and p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)}
-        if not any(p.kind == p.VAR_KEYWORD for p in params.values()):
-            break
-    return names | {"type"}
-
-
 def _type_name(value: Any) -> str:
     return {bool: "true/false", int: "a number", float: "a number", str: "a string",
             list: "a list", dict: "an object"}.get(type(value), type(value).__name__)
@@ -288,21 +246,21 @@ def _check_value(key: str, value: Any, default: Any, where: str) -> None:
                               f"{_type_name(default)} (default {default!r}).")
 
 
-def _check_space(key: str, value: Any, default: Any, classes: dict[str, type],
-                 where: str) -> None:
+def _check_space(key: str, value: Any, default: Any, where: str) -> None:
     if not isinstance(value, dict):
         raise FileFormatError(f"{where}: {key!r} must be an object with a \"type\", got "
                               f"{value!r}.")
     kind = value.get("type", (default or {}).get("type"))
     if kind is None:
         raise FileFormatError(f"{where}: {key!r} needs a \"type\"; one of "
-                              f"{', '.join(sorted(classes))}.")
+                              f"{', '.join(sorted(space_parameters(key)))}.")
     if kind.startswith("MultiAgent"):
         raise FileFormatError(f"{where}: {key} type {kind!r} drives several egos; tap-bench "
                               "records one ego per episode. Use a single-agent type.")
-    if kind not in classes:
-        raise FileFormatError(f"{where}: {did_you_mean(f'{key} type', kind, classes)}")
-    allowed = _init_parameters(classes[kind])
+    parameters = space_parameters(key)
+    if kind not in parameters:
+        raise FileFormatError(f"{where}: {did_you_mean(f'{key} type', kind, parameters)}")
+    allowed = parameters[kind]
     for sub in value:
         if sub not in allowed:
             raise FileFormatError(
@@ -322,7 +280,7 @@ def check_config(highway_env_id: str, config: Mapping[str, Any], *, source: str 
         FileFormatError: naming the key, with "did you mean", for an unknown key, a value of
             the wrong type, an unknown observation or action type or parameter.
     """
-    defaults = env_class(highway_env_id).default_config()
+    defaults = default_config(highway_env_id)
     where = f"{source} ({highway_env_id})"
     for key, value in config.items():
         if key in _OWNED_KEYS:
@@ -331,10 +289,8 @@ def check_config(highway_env_id: str, config: Mapping[str, Any], *, source: str 
         if key not in defaults:
             raise FileFormatError(
                 f"{where}: {did_you_mean('highway-env config key', key, defaults)}")
-        if key == "observation":
-            _check_space(key, value, defaults[key], _observation_classes(), where)
-        elif key == "action":
-            _check_space(key, value, defaults[key], _action_classes(), where)
+        if key in SPACES:
+            _check_space(key, value, defaults[key], where)
         else:
             _check_value(key, value, defaults[key], where)
     freq = config.get("policy_frequency", defaults.get("policy_frequency"))

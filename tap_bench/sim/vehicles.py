@@ -9,6 +9,10 @@ loops and feeds the lane's curvature forward; ``docs/simulation.md`` gives the y
 each setting produces. Settings are applied per vehicle (instance
 attributes), never by changing highway-env's classes, which all environments of a process
 share.
+
+Importing this module does not import highway-env (its settings are read by every reader of
+scenario files, ``tap-bench envs`` included); :class:`IntersectionIDMVehicle`, a highway-env
+subclass, is made on first use.
 """
 
 from __future__ import annotations
@@ -16,14 +20,13 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator
 from dataclasses import dataclass
-
-from highway_env.vehicle.behavior import IDMVehicle
+from typing import Any
 
 from tap_bench.errors import ParameterError, TapBenchError
 
 __all__ = [
     "LANE_CHANGE_SETTINGS",
-    "IntersectionIDMVehicle",
+    "IntersectionIDMVehicle",  # noqa: F822 (made on first use, by __getattr__)
     "LaneChange",
     "apply_lane_change",
     "guard_class_attributes",
@@ -77,19 +80,33 @@ def apply_lane_change(vehicle: object, setting: LaneChange) -> None:
     vehicle.TAU_PURSUIT = setting.tau_pursuit
 
 
-class IntersectionIDMVehicle(IDMVehicle):
-    """The IDM/MOBIL vehicle of the intersection scenario.
+def _intersection_idm_vehicle() -> type:
+    from highway_env.vehicle.behavior import IDMVehicle
 
-    highway-env's intersection sets ``DISTANCE_WANTED``, ``COMFORT_ACC_MAX`` and
-    ``COMFORT_ACC_MIN`` on the class of its other vehicles each time it builds a scene; on
-    :class:`IDMVehicle` itself that would change every later highway, merge or roundabout
-    of the process. The intersection scenario names this subclass instead, which already
-    holds those values.
-    """
+    class IntersectionIDMVehicle(IDMVehicle):
+        """The IDM/MOBIL vehicle of the intersection scenario.
 
-    DISTANCE_WANTED = 7.0  # [m] jam distance at the intersection
-    COMFORT_ACC_MAX = 6.0  # [m/s2]
-    COMFORT_ACC_MIN = -3.0  # [m/s2]
+        highway-env's intersection sets ``DISTANCE_WANTED``, ``COMFORT_ACC_MAX`` and
+        ``COMFORT_ACC_MIN`` on the class of its other vehicles each time it builds a scene;
+        on :class:`IDMVehicle` itself that would change every later highway, merge or
+        roundabout of the process. The intersection scenario names this subclass instead,
+        which already holds those values.
+        """
+
+        DISTANCE_WANTED = 7.0  # [m] jam distance at the intersection
+        COMFORT_ACC_MAX = 6.0  # [m/s2]
+        COMFORT_ACC_MIN = -3.0  # [m/s2]
+
+    # found by name, as highway-env's "other_vehicles_type" and pickle look classes up
+    IntersectionIDMVehicle.__qualname__ = "IntersectionIDMVehicle"
+    return IntersectionIDMVehicle
+
+
+def __getattr__(name: str) -> Any:
+    if name == "IntersectionIDMVehicle":
+        cls = globals()[name] = _intersection_idm_vehicle()
+        return cls
+    raise AttributeError(f"module 'tap_bench.sim.vehicles' has no attribute {name!r}")
 
 
 def _watched_classes() -> tuple[type, ...]:

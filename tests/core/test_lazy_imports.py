@@ -1,0 +1,83 @@
+"""The public API resolves every name although it is imported lazily; ``import tap_bench``,
+``tap-bench --help`` and ``tap-bench envs`` stay clear of the heavy dependencies; the
+command table agrees with the commands' own parsers."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import tap_bench
+import tap_bench.sim
+from tap_bench.cli import COMMANDS, build_parser, main
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.mark.parametrize("package", [tap_bench, tap_bench.sim], ids=lambda p: p.__name__)
+def test_every_public_name_resolves(package):
+    for name in package.__all__:
+        value = getattr(package, name)
+        assert value is not None, name
+        exec(f"from {package.__name__} import {name}", {})
+    assert set(package.__all__) <= set(dir(package))
+
+
+def test_a_missing_name_is_an_attribute_error_and_subpackages_load():
+    with pytest.raises(AttributeError, match="no attribute 'not_a_name'"):
+        tap_bench.not_a_name  # noqa: B018
+    assert tap_bench.bench.Suite is importlib.import_module("tap_bench.bench.suite").Suite
+
+
+def _loaded_after(code: str, tmp_path: Path) -> set[str]:
+    """Top-level modules loaded by ``code`` in a fresh interpreter."""
+    script = (f"import sys\n{code}\nimport json\n"
+              "print(json.dumps(sorted({m.split('.')[0] for m in sys.modules})))")
+    out = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, check=True,
+                         capture_output=True, text=True,
+                         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
+                              "TAP_BENCH_CACHE": str(tmp_path / "cache")})
+    return set(json.loads(out.stdout.strip().splitlines()[-1]))
+
+
+HEAVY = {"pandas", "pyarrow", "highway_env", "matplotlib", "numba", "scipy", "torch", "pygame"}
+
+
+def test_import_and_the_quick_commands_leave_the_heavy_packages_alone(tmp_path):
+    assert not _loaded_after("import tap_bench", tmp_path) & HEAVY
+    help_modules = _loaded_after(
+        "from tap_bench.cli import main\ntry:\n    main(['--help'])\nexcept SystemExit:\n"
+        "    pass", tmp_path)
+    assert not help_modules & HEAVY  # numpy, yes: gymnasium's, for the env ids
+    # the first 'envs' reads highway-env's defaults once; later ones read the cache
+    _loaded_after("from tap_bench.cli import main\nmain(['envs'])", tmp_path)
+    assert not _loaded_after("from tap_bench.cli import main\nmain(['envs'])", tmp_path) & HEAVY
+
+
+def test_the_command_table_agrees_with_the_commands():
+    full = build_parser()
+    actions = next(a for a in full._actions if isinstance(a, argparse._SubParsersAction))
+    helps = {c.dest: c.help for c in actions._choices_actions}
+    assert helps == {name: help_line for name, (_, help_line) in COMMANDS.items()}
+    quick = build_parser(["label", "x"])
+    quick_actions = next(a for a in quick._actions
+                         if isinstance(a, argparse._SubParsersAction))
+    assert list(quick_actions.choices) == list(COMMANDS)
+
+
+def test_help_lists_every_command_and_a_typo_is_refused(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["--help"])
+    assert exit_.value.code == 0
+    out = capsys.readouterr().out
+    assert all(name in out for name in COMMANDS)
+    with pytest.raises(SystemExit) as exit_:
+        main(["labl", "x"])
+    assert exit_.value.code == 2
+    assert "invalid choice: 'labl'" in capsys.readouterr().err
