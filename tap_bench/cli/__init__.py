@@ -6,8 +6,7 @@ returning an exit code). Add a module and its one-line help to ``COMMANDS`` to r
 
 Only the module of the command being run is imported: ``tap-bench --help`` lists the
 commands from ``COMMANDS`` alone, and ``tap-bench envs`` never imports the modules (and
-their pandas, highway-env or numba) that ``tap-bench search`` needs. A sub-command module
-imports what only its ``run`` needs inside ``run`` for the same reason.
+their pandas, highway-env or numba) that ``tap-bench search`` needs.
 """
 
 from __future__ import annotations
