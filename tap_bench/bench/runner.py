@@ -10,9 +10,14 @@ What a run folder holds:
                         episodes included with their error
 ``labels.parquet``      TAP labels of every track at every level
 ``trajectories.parquet``  the rollouts (unless ``keep_trajectories`` is False)
+``segments.parquet``    the segment table (label timelines) of every track at the suite's
+                        level
+``roads.parquet``       each env's road network as a map table (:mod:`tap_bench.maps`), for
+                        the replay viewer (with the trajectories)
 ``<table>.parquet``     every table of :class:`tap_bench.bench.scoring.Scores`
 ``plots/*.png``         label distributions, measures, coverage, forest plots, novelty
 ``report.html``         the static report (no server, images embedded)
+``viewer/``             the replay viewer (:mod:`tap_bench.viewer`; with the trajectories)
 ======================  ====================================================================
 
 The folder is built under a temporary name beside the target and renamed into place only
@@ -112,18 +117,19 @@ def _run_task(task: _Task) -> dict[str, Any]:
         trajectories, episodes = rollout(task.suite.scenario(task.env), task.policy,
                                          list(task.seeds), workers=1, progress=False)
     t1 = time.perf_counter()
-    labels = pd.DataFrame()
+    labels = segments = pd.DataFrame()
     if len(trajectories):
         result = tap(trajectories, task.suite.thresholds,
                      source=f"{task.env}/{task.policy} rollout")
         labels = result.labels("all")
+        segments = result.segments(task.suite.level)
     t2 = time.perf_counter()
     eps = episode_table(labels=labels if len(labels) else None,
                         trajectories=trajectories if len(trajectories) else None,
                         episodes=episodes, level=task.suite.level, policy=task.policy)
     t3 = time.perf_counter()
     timings = {"rollout": t1 - t0, "labelling": t2 - t1, "measures": t3 - t2}
-    return {"episodes": eps, "labels": labels,
+    return {"episodes": eps, "labels": labels, "segments": segments,
             "trajectories": trajectories if task.keep_trajectories else None,
             "timings": timings}
 
@@ -132,7 +138,8 @@ def _failed_task(task: _Task, message: str) -> dict[str, Any]:
     eps = pd.DataFrame({"env": task.env, "policy": task.policy, "seed": list(task.seeds),
                         "status": "error", "error": message})
     return {"episodes": episode_table(episodes=eps, level=task.suite.level),
-            "labels": pd.DataFrame(), "trajectories": None, "timings": {}}
+            "labels": pd.DataFrame(), "segments": pd.DataFrame(), "trajectories": None,
+            "timings": {}}
 
 
 def _worker_init() -> None:
@@ -268,6 +275,9 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     episodes = episodes.reset_index(drop=True)
     labels = pd.concat([r["labels"] for r in results if len(r["labels"])], ignore_index=True) \
         if any(len(r["labels"]) for r in results) else pd.DataFrame()
+    segments = pd.concat([r["segments"] for r in results if len(r["segments"])],
+                         ignore_index=True) \
+        if any(len(r["segments"]) for r in results) else None
     trajectories = None
     if keep_trajectories or womd:
         frames = [r["trajectories"] for r in results
@@ -304,8 +314,15 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "timings": timings,
     }
     t0 = time.perf_counter()
+    roads = None
+    if keep_trajectories:  # the replay viewer draws them; highway-env's road is seed-free
+        from tap_bench.sim.roads import road_table
+
+        roads = pd.concat([road_table(suite.scenario(env)) for env in suite.envs],
+                          ignore_index=True)
     folder = write_results(output, overwrite, summary, episodes, labels, trajectories
-                        if keep_trajectories else None, scores, report)
+                           if keep_trajectories else None, scores, report,
+                           segments=segments, roads=roads)
     timings["writing_and_report"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
     _write_json(folder / "summary.json", summary)  # with the final timings
@@ -367,9 +384,11 @@ def _json_default(value: Any) -> Any:
 
 def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str, Any],
                   episodes: pd.DataFrame, labels: pd.DataFrame,
-                  trajectories: pd.DataFrame | None, scores: Scores, report: bool = True
+                  trajectories: pd.DataFrame | None, scores: Scores, report: bool = True, *,
+                  segments: pd.DataFrame | None = None, roads: pd.DataFrame | None = None
                   ) -> Path:
-    """Write a results folder (tables, ``summary.json``, plots, report) atomically.
+    """Write a results folder (tables, ``summary.json``, plots, report, and the replay
+    viewer when the trajectories are given) atomically.
 
     The folder is built under a temporary name beside ``output`` and renamed into place
     when complete; an existing ``output`` is replaced only when ``overwrite`` is True.
@@ -386,14 +405,23 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
             labels.to_parquet(tmp / "labels.parquet", index=False)
         if trajectories is not None and len(trajectories):
             trajectories.to_parquet(tmp / "trajectories.parquet", index=False)
+        for name, table in (("segments", segments), ("roads", roads)):
+            if table is not None and len(table):
+                table.to_parquet(tmp / f"{name}.parquet", index=False)
         for name, table in scores.tables().items():
             if len(table):
                 _parquet_safe(table).to_parquet(tmp / f"{name}.parquet", index=False)
         _write_json(tmp / "summary.json", summary)
+        viewer = report and (tmp / "trajectories.parquet").is_file()
+        if viewer:
+            from tap_bench.viewer import write_run_viewer
+
+            write_run_viewer(tmp, tmp / "viewer")
         if report:
             from tap_bench.bench.report import write_report
 
-            write_report(tmp, summary, episodes, scores)
+            write_report(tmp, summary, episodes, scores, viewer="viewer/index.html"
+                         if viewer else None)
         if output.exists():
             if not overwrite:
                 raise RunExistsError(f"{output} appeared while the run was going; run again "
