@@ -290,7 +290,7 @@ def _img(path: Path, alt: str) -> str:
 
 
 def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: pd.DataFrame,
-                 scores: Scores) -> Path:
+                 scores: Scores, *, viewer: str | None = None) -> Path:
     """Write ``plots/*.png`` and ``report.html`` into a run folder; returns the HTML path."""
     from tap_bench.tableio import atomic_path
 

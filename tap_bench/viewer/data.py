@@ -17,6 +17,7 @@ int16 too, in hundredths. Label timelines are ``[t_start, t_end, label]`` runs.
 from __future__ import annotations
 
 import base64
+import itertools
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -65,7 +66,7 @@ def clip_polyline(xy: np.ndarray, box: tuple[float, float, float, float]) -> lis
     x0, y0, x1, y1 = box
     pieces: list[list[np.ndarray]] = []
     current: list[np.ndarray] = []
-    for a, b in zip(xy[:-1], xy[1:], strict=True):
+    for a, b in itertools.pairwise(xy):
         d = b - a
         t_lo, t_hi = 0.0, 1.0
         inside = True
