@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.bench.measures import MEASURES, ego_measures
-from tap_bench.errors import LabelTableError, TrajectoryTableError
+from tap_bench.errors import LabelTableError, ParameterError, TrajectoryTableError
 
 __all__ = ["EPISODE_COLUMNS", "ego_labels", "episode_table", "episodes_from_table"]
 
@@ -112,7 +112,8 @@ def episode_table(*, labels: pd.DataFrame | None = None,
             message names the column and the fix.
     """
     if labels is None and trajectories is None and episodes is None:
-        raise ValueError("episode_table needs labels, trajectories or episodes.")
+        raise ParameterError("labels, trajectories, episodes", None, "",
+            message="episode_table needs labels, trajectories or episodes.")
     out = None
     if trajectories is not None:
         out = ego_measures(trajectories)  # every scenario with an ego, labelled or not

@@ -30,8 +30,9 @@ from typing import Any, Protocol, runtime_checkable
 import gymnasium as gym
 import numpy as np
 
-from tap_bench.errors import FileFormatError, UnknownNameError, did_you_mean
-from tap_bench.sim.suite import read_json, suite_dir
+from tap_bench import catalogue
+from tap_bench.errors import FileFormatError, ParameterError, UnknownNameError, did_you_mean
+from tap_bench.sim.suite import read_json
 
 __all__ = [
     "CHEAP_OBSERVATION",
@@ -137,8 +138,9 @@ def idle_action(env: gym.Env) -> Any:
     space = env.action_space
     if isinstance(space, gym.spaces.Box):
         return np.zeros(space.shape, dtype=space.dtype)
-    raise ValueError(f"no lane-keeping action in the action space {space}; use a "
-                     "DiscreteMetaAction or ContinuousAction env.")
+    raise ParameterError("action space", str(space), "",
+        message=f"no lane-keeping action in the action space {space}; use a "
+                "DiscreteMetaAction or ContinuousAction env.")
 
 
 class LaneKeepingPolicy:
@@ -222,8 +224,9 @@ def _read_definition(path: Path) -> PolicyDefinition:
 
 
 def _file_definitions(folder: str | os.PathLike | None = None) -> dict[str, Path]:
-    folder = Path(folder) if folder else suite_dir("policies")
-    return {p.stem: p for p in sorted(folder.glob("*.json"))}
+    if folder:
+        return {p.stem: p for p in sorted(Path(folder).glob("*.json"))}
+    return catalogue.files("policies")
 
 
 def available_policies(folder: str | os.PathLike | None = None) -> dict[str, PolicyDefinition]:

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from tap_bench.errors import ParameterError
 from tap_bench.tableio import atomic_path
 
 __all__ = ["HYPERPARAMETERS", "TrainingResult", "train"]
@@ -82,10 +83,10 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
 
     output = Path(output)
     if output.suffix != ".zip":
-        raise ValueError(f"output {output}: a Stable-Baselines3 model is a .zip file; name it "
-                         f"{output.with_suffix('.zip').name}.")
-    if timesteps < 1:
-        raise ValueError(f"timesteps must be >= 1, got {timesteps}.")
+        raise ParameterError("output", str(output), "a .zip file (a Stable-Baselines3 model)",
+                             hint=f"Name it {output.with_suffix('.zip').name}.")
+    if isinstance(timesteps, bool) or not isinstance(timesteps, int) or timesteps < 1:
+        raise ParameterError("timesteps", timesteps, "an integer >= 1")
     cls = algorithm_class(algo)
     algo = algo.lower()
     import torch

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from tap_bench.errors import LabelTableError
+from tap_bench.errors import LabelTableError, ParameterError
 from tap_bench.similarity.nearest import (
     ade_nearest,
     compile_kernels,
@@ -74,7 +74,7 @@ def _sample(n: int, queries: int | None, seed: int) -> np.ndarray:
     if queries is None or queries >= n:
         return np.arange(n, dtype=np.int64)
     if queries < 1:
-        raise ValueError(f"queries must be >= 1, got {queries}")
+        raise ParameterError("queries", queries, "", message=f"queries must be >= 1, got {queries}")
     return np.sort(np.random.default_rng(seed).choice(n, size=queries, replace=False))
 
 

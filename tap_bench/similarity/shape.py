@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from tap_bench.errors import LabelTableError, TapBenchError
+from tap_bench.errors import LabelTableError, ParameterError, TapBenchError
 from tap_bench.trajectories import IDENTIFYING_COLUMNS, validate_and_index
 
 __all__ = ["Shapes", "ade", "dtw", "normalised_shapes"]
@@ -82,7 +82,8 @@ def normalised_shapes(trajectories: pd.DataFrame, labels: pd.DataFrame | None = 
             trajectory (several levels: select one).
     """
     if min_steps < 2:
-        raise ValueError(f"min_steps must be >= 2 (a shape needs two points), got {min_steps}")
+        raise ParameterError("min_steps", min_steps, "",
+            message=f"min_steps must be >= 2 (a shape needs two points), got {min_steps}")
     checked = validate_and_index(trajectories, source=source)
     index = checked.index
     track_first = np.searchsorted(index.segment_track, np.arange(index.n_tracks))

@@ -180,8 +180,8 @@ def write_womd_viewer(paths: Sequence[str | os.PathLike], output: str | os.PathL
     """
     from tap_bench.bench.episodes import episode_table
     from tap_bench.labelling import tap
-    from tap_bench.womd import read_womd
-    from tap_bench.womd.map_features import read_womd_maps
+    from tap_bench.sources import read_womd
+    from tap_bench.sources.maps import read_maps
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -198,7 +198,7 @@ def write_womd_viewer(paths: Sequence[str | os.PathLike], output: str | os.PathL
     segments = result.segments(level)
     eps, entries = episode_index(episodes, chunk_by=("scenario_id",), has_replay=sids)
     chunks = episode_chunks(traj, eps, segments, labelled_tracks="all")
-    maps = read_womd_maps(paths)
+    maps = read_maps(paths)
     by_map = dict(tuple(maps.groupby("map_id", sort=False))) if len(maps) else {}
     for docs in chunks.values():
         for doc in docs:

@@ -21,7 +21,7 @@ def womd():
     files = sorted(WOMD_DIR.glob("*.tfrecord")) + sorted(WOMD_DIR.glob("*.pkl"))
     if not files:
         pytest.skip(f"real WOMD samples not found in {WOMD_DIR}")
-    from tap_bench.womd import read_womd
+    from tap_bench.sources import read_womd
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

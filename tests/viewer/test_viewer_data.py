@@ -134,12 +134,12 @@ def test_encode_int16_is_little_endian():
 
 
 def test_womd_maps_belong_to_the_scenarios_read(womd_dir):
-    from tap_bench.womd import read_womd
-    from tap_bench.womd.map_features import read_womd_maps
+    from tap_bench.sources import read_womd
+    from tap_bench.sources.maps import read_maps
 
     for name in ("motion_data_one_scenario.tfrecord", "motion_data_one_example.tfrecord",
                  "sd_waymo_v1.2_eb4b91b10ca94ff2.pkl"):
-        maps = check_map_table(read_womd_maps(womd_dir / name), name)
+        maps = check_map_table(read_maps(womd_dir / name), name)
         sids = set(read_womd(womd_dir / name)["scenario_id"].astype(str))
         assert set(maps["map_id"]) == sids, name
         assert {"lane", "road_line", "road_edge"} <= set(maps["kind"]), name

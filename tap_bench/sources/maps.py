@@ -1,6 +1,8 @@
-"""WOMD map features as a map table (:mod:`tap_bench.maps`), one ``map_id`` per scenario.
+"""The maps of driving-data files as a map table (:mod:`tap_bench.maps`), one ``map_id`` per
+scenario.
 
-The three formats :func:`tap_bench.womd.read_womd` reads carry the map differently:
+The built-in readers (:mod:`tap_bench.sources.builtin`) carry the map differently; files of
+other registered formats give no map:
 
 - ``Scenario`` records: ``map_features`` (map.proto), read with
   :data:`tap_bench.womd.proto.ScenarioMapView`;
@@ -24,9 +26,9 @@ from google.protobuf.message import DecodeError
 
 from tap_bench.maps import MAP_COLUMNS, empty_map
 from tap_bench.womd import proto
-from tap_bench.womd.errors import WomdRecordError
+from tap_bench.errors import WomdRecordError
 
-__all__ = ["read_womd_maps"]
+__all__ = ["read_maps"]
 
 _BROKEN_LINES = {1, 4, 5}  # RoadLineType: BROKEN_SINGLE_WHITE, BROKEN_SINGLE/DOUBLE_YELLOW
 # tf.Example roadgraph_samples/type -> (kind, style)
@@ -121,7 +123,7 @@ def _tf_example_maps(path: Path, out: _Features) -> None:
 
 
 def _scenarionet_maps(path: Path, out: _Features) -> None:
-    from tap_bench.womd.scenarionet import load_scenarionet
+    from tap_bench.sources.scenarionet import load_scenarionet
 
     scenario = load_scenarionet(path)
     meta = scenario.get("metadata", {}) if isinstance(scenario, dict) else {}
@@ -139,11 +141,16 @@ def _scenarionet_maps(path: Path, out: _Features) -> None:
             out.add(sid, "crosswalk", "", np.asarray(feature.get("polygon", [])))
 
 
-def read_womd_maps(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> pd.DataFrame:
-    """The map features of every scenario in WOMD files, as one map table.
+_MAP_READERS = {"scenario": _scenario_maps, "tf_example": _tf_example_maps,
+                "scenarionet": _scenarionet_maps}
+"""Reader name (:mod:`tap_bench.sources.registry`) -> how its files carry the map."""
+
+
+def read_maps(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> pd.DataFrame:
+    """The map features of every scenario in driving-data files, as one map table.
 
     Args:
-        paths: files, directories or glob patterns, as for :func:`tap_bench.womd.read_womd`.
+        paths: files, directories or glob patterns, as for :func:`tap_bench.sources.read_womd`.
 
     Returns:
         the map table (``map_id`` is the scenario id); no rows for files without a map.
@@ -151,15 +158,11 @@ def read_womd_maps(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> pd
     Raises:
         WomdRecordError: a record that cannot be read, naming file, record and offset.
     """
-    from tap_bench.womd.ingest import _file_format, expand_paths
+    from tap_bench.sources.ingest import _file_format, expand_paths
 
     out = _Features()
     for path in expand_paths(paths):
-        fmt = _file_format(path, "auto", True)
-        if fmt == "scenarionet":
-            _scenarionet_maps(path, out)
-        elif fmt == "tf_example":
-            _tf_example_maps(path, out)
-        else:
-            _scenario_maps(path, out)
+        read = _MAP_READERS.get(_file_format(path, "auto", True).name)
+        if read is not None:
+            read(path, out)
     return out.table()
