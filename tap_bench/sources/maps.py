@@ -24,9 +24,9 @@ import numpy as np
 import pandas as pd
 from google.protobuf.message import DecodeError
 
+from tap_bench.errors import WomdRecordError
 from tap_bench.maps import MAP_COLUMNS, empty_map
 from tap_bench.womd import proto
-from tap_bench.errors import WomdRecordError
 
 __all__ = ["read_maps"]
 
