@@ -103,7 +103,7 @@ const TAPVIEW = (() => {
     for (const ch of label) h = (h * 31 + ch.charCodeAt(0)) % 360;
     return `hsl(${h},55%,60%)`;
   }
-  function darkText(c) { return !["#343a40", "#c92a2a", "#4c6ef5", "#ae3ec9"].includes(c); }
+  function darkText(c) { return !["#343a40", "#c92a2a", "#4c6ef5", "#ae3ec9", "#f03e3e"].includes(c); }
 
   function labelAt(runs, t) {
     if (!runs) return null;
