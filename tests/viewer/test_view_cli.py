@@ -32,3 +32,20 @@ def test_view_writes_womd_scenarios(womd_dir, tmp_path, capsys):
     files = [str(womd_dir / "womd_scenario_input.tfrecord")]
     assert main(["view", *files, "-o", str(out), "--no-open"]) == 0
     assert (out / "data" / "ee519cf571686d19.js").is_file()
+
+
+def test_an_older_run_without_segments_or_roads_is_relabelled(tiny_run, tmp_path):
+    import json
+
+    from tap_bench.viewer import write_run_viewer
+
+    run = tmp_path / "old"
+    shutil.copytree(tiny_run, run, ignore=shutil.ignore_patterns("segments.parquet",
+                                                                  "roads.parquet", "viewer"))
+    page = write_run_viewer(run)
+    fresh = (tiny_run / "viewer" / "data" / "highway-0.js").read_text()
+    again = (page.parent / "data" / "highway-0.js").read_text()
+    assert again == fresh  # the egos' labels and the roads are built again, identically
+    index = (page.parent / "data" / "index.js").read_text()
+    doc = json.loads(index[len("TAPVIEW.index("):-len(");\n")])
+    assert set(doc["maps"]) == {"highway", "roundabout"} and all(doc["maps"].values())
