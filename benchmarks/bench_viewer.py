@@ -19,7 +19,7 @@ from pathlib import Path
 import pandas as pd
 from machine import report
 
-from tap_bench.viewer import write_run_viewer
+from tap_bench.bench.runner import run_viewer
 
 
 def _size(folder: Path) -> int:
@@ -65,7 +65,7 @@ def main() -> None:
     episodes = len(pd.read_parquet(args.run / "episodes.parquet"))
     out = Path(tempfile.mkdtemp()) / "viewer"
     t0 = time.perf_counter()
-    page = write_run_viewer(args.run, out)
+    page = run_viewer(args.run, out)
     write_s = time.perf_counter() - t0
     chunks = [p for p in (out / "data").glob("*.js") if p.name != "index.js"]
     chunk_bytes = sum(p.stat().st_size for p in chunks)

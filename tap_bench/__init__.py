@@ -6,8 +6,7 @@ comparisons -> report. Each stage has its own module; the names below are the pu
 
 from __future__ import annotations
 
-__version__ = "0.1.0"
-
+from tap_bench._version import __version__ as __version__
 from tap_bench.bench import (
     BootstrapConfig,
     check,

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from tap_bench.errors import ParameterError
+from tap_bench.errors import ParameterError, did_you_mean
 from tap_bench.trajectories import DT
 
 __all__ = ["BEHAVIOURS", "behaviour", "from_controls", "random_trajectories", "sample_table"]
@@ -139,8 +139,6 @@ BEHAVIOURS = {
 def behaviour(name: str, *, scenario_id: str = "behaviours", track_id: str | None = None,
               **kw) -> pd.DataFrame:
     """One named behaviour of :data:`BEHAVIOURS` as a trajectory table."""
-    from tap_bench.errors import did_you_mean
-
     if name not in BEHAVIOURS:
         raise did_you_mean("behaviour", name, BEHAVIOURS)
     speed, yaw = BEHAVIOURS[name]()

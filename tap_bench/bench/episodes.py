@@ -32,6 +32,7 @@ import pandas as pd
 
 from tap_bench.bench.measures import MEASURES, ego_measures
 from tap_bench.errors import LabelTableError, ParameterError, TrajectoryTableError
+from tap_bench.labelling import tap
 
 __all__ = ["EPISODE_COLUMNS", "ego_labels", "episode_table", "episodes_from_table"]
 
@@ -202,8 +203,6 @@ def episodes_from_table(table: pd.DataFrame, *, level: str, thresholds: str = "p
     Returns:
         (episode table, label table, trajectory table or None).
     """
-    from tap_bench.labelling import tap
-
     if "sdl" in table.columns:
         return episode_table(labels=table, level=level, policy=policy, source=source), \
             table, None

@@ -35,6 +35,7 @@ from tap_bench.bench.compare import NO_LABEL
 from tap_bench.bench.measures import MEASURES
 from tap_bench.bench.suite import GATE_METRICS, GateConfig
 from tap_bench.errors import BaselineMismatchError, FileFormatError
+from tap_bench.tableio import atomic_path
 
 __all__ = ["BASELINE_FORMAT", "GateResult", "check", "holm", "read_baseline", "write_baseline"]
 
@@ -106,8 +107,6 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
         episodes: the run's episode table.
         path: the baseline JSON to write.
     """
-    from tap_bench.tableio import atomic_path
-
     ok = episodes[episodes["status"] == "ok"]
     rows = [[_json_value(v) for v in r] for r in ok[list(_EPISODE_FIELDS)].itertuples(
         index=False)]

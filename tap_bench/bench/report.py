@@ -30,6 +30,7 @@ import pandas as pd
 
 from tap_bench.bench.measures import MEASURES, Measure
 from tap_bench.bench.scoring import Scores
+from tap_bench.tableio import atomic_path
 
 __all__ = ["html_table", "summary_table", "write_plots", "write_report"]
 
@@ -696,8 +697,6 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
         viewer: the replay viewer's page relative to the report (``viewer/index.html``):
             rows naming episodes or labels link to their replay; None: no links.
     """
-    from tap_bench.tableio import atomic_path
-
     folder = Path(folder)
     reference = str(summary.get("reference_policy", ""))
     plots = {p.stem: p for p in write_plots(scores, folder / "plots", reference=reference)}
@@ -858,7 +857,10 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
         ("SDL level", summary.get("level", "")),
         ("thresholds", _thresholds_text(summary.get("thresholds"))),
         ("reference policy", reference),
-        ("WOMD files", ", ".join(Path(p).name for p in summary.get("womd_files", [])) or "–"),
+        ("references", "; ".join(
+            f"{name}: " + (", ".join(Path(p).name for p in src) if isinstance(src, list)
+                           else Path(str(src)).name)
+            for name, src in summary.get("references", {}).items()) or "–"),
         ("episodes", f"{summary.get('n_episodes', len(episodes))} "
                      f"({summary.get('n_failed', 0)} failed)"),
         ("created", summary.get("created", "")),

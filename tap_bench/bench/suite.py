@@ -35,6 +35,9 @@ from tap_bench import catalogue, sdl
 from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.measures import MEASURES
 from tap_bench.errors import FileFormatError, ParameterError, UnknownNameError, did_you_mean
+from tap_bench.sim.policies import available_policies
+from tap_bench.sim.scenario_env import get_scenario
+from tap_bench.sim.suite import parse_seeds, read_json, scenario_names
 
 __all__ = ["GATE_METRICS", "GateConfig", "Suite", "available_suites", "load_suite",
            "suite_from_dict"]
@@ -138,8 +141,6 @@ class Suite:
 
     def scenario(self, env: str):
         """The env's :class:`tap_bench.sim.Scenario` with this suite's overrides."""
-        from tap_bench.sim.scenario_env import get_scenario
-
         scenario = get_scenario(env)
         over = self.env_overrides.get(env)
         if over:
@@ -194,8 +195,6 @@ def suite_from_dict(doc: Any, *, source: str = "suite", path: Path | None = None
     Raises:
         FileFormatError: naming the field, the bad value and what is allowed.
     """
-    from tap_bench.sim.suite import parse_seeds
-
     if not isinstance(doc, dict):
         raise FileFormatError(f"{source}: a suite file holds one JSON object.")
     for key in doc:
@@ -265,9 +264,6 @@ def suite_from_dict(doc: Any, *, source: str = "suite", path: Path | None = None
 
 
 def _check_names(suite: Suite, source: str) -> None:
-    from tap_bench.sim.policies import available_policies
-    from tap_bench.sim.suite import scenario_names
-
     known_envs = scenario_names()
     for env in suite.envs:
         if env not in known_envs:
@@ -297,6 +293,5 @@ def load_suite(name_or_path: str | os.PathLike) -> Suite:
         if found is None:
             raise did_you_mean("suite", text, available_suites())
         path = found
-    from tap_bench.sim.suite import read_json
 
     return suite_from_dict(read_json(path, "suite"), source=str(path), path=path)

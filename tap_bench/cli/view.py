@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import argparse
 import time
+import webbrowser
 from pathlib import Path
+
+from tap_bench.bench.runner import run_viewer
+from tap_bench.viewer import write_womd_viewer
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -36,15 +40,13 @@ def _is_run(path: Path) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tap_bench.viewer import write_run_viewer, write_womd_viewer
-
     start = time.perf_counter()
     first = Path(args.paths[0])
     if len(args.paths) == 1 and _is_run(first):
         output = Path(args.output) if args.output else first / "viewer"
         page = output / "index.html"
         if args.rebuild or not (output / "data" / "index.js").is_file():
-            page = write_run_viewer(first, output)
+            page = run_viewer(first, output)
             print(f"wrote {output}/ in {time.perf_counter() - start:.1f} s "
                   f"({_size(output) / 1e6:.1f} MB)")
     else:
@@ -56,8 +58,6 @@ def run(args: argparse.Namespace) -> int:
     uri = page.resolve().as_uri()
     print(f"viewer: {uri}")
     if not args.no_open:
-        import webbrowser
-
         if not webbrowser.open(uri):
             print("(no browser found here: open the page above in one)")
     return 0

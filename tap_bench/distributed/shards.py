@@ -34,7 +34,19 @@ import pyarrow.compute as pc
 from tap_bench import sdl
 from tap_bench.errors import FileFormatError, ParameterError, TapBenchError
 from tap_bench.execution import DEFAULT_RETRIES, Backend, Outcome
-from tap_bench.tableio import atomic_path
+from tap_bench.labelling import tap
+from tap_bench.sources.ingest import (
+    ON_ERROR,
+    _check_choice,
+    expand_paths,
+    formats,
+    ingest_womd,
+    report_path,
+)
+from tap_bench.stages import StageConfig
+from tap_bench.tableio import atomic_path, read_table
+from tap_bench.thresholds import resolve_thresholds
+from tap_bench.womd.scenario import normalise_object_types
 
 __all__ = ["LABEL_CHUNK_ROWS", "REPORT_NAME", "ShardReport", "ingest_shards", "label_shards",
            "parquet_shards"]
@@ -99,8 +111,6 @@ def parquet_shards(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> li
     Raises:
         FileFormatError: a path or pattern that gives no Parquet shard.
     """
-    from tap_bench.sources.ingest import expand_paths
-
     shards = [p for p in expand_paths(paths)
               if p.suffix in (".parquet", ".pq") and not p.name.startswith(("_", "."))]
     if not shards:
@@ -172,8 +182,6 @@ class _IngestJob:
 
 def _ingest_shard(job: _IngestJob) -> dict[str, Any]:
     """Ingest one WOMD file into one part; its report goes back to the driver."""
-    from tap_bench.sources.ingest import ingest_womd, report_path
-
     report = ingest_womd([job.input], job.output, format=job.format,
                          object_types=job.object_types, on_error=job.on_error,
                          check_crc=job.check_crc, workers=1)
@@ -205,9 +213,6 @@ def ingest_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
     Returns:
         The :class:`ShardReport`, also written to ``<output>/_report.json``.
     """
-    from tap_bench.sources.ingest import ON_ERROR, _check_choice, expand_paths, formats
-    from tap_bench.womd.scenario import normalise_object_types
-
     _check_choice("format", format, formats())
     _check_choice("on_error value", on_error, ON_ERROR)
     types = normalise_object_types(object_types)
@@ -285,7 +290,6 @@ def _label_shard(job: _LabelJob) -> dict[str, Any]:
     try:
         return _label_chunks(job, _scenario_chunks(job.input, job.chunk_rows))
     except _NotContiguous:  # a part not grouped by scenario: label it whole
-        from tap_bench.tableio import read_table
 
         return _label_chunks(job, iter([read_table(job.input)]))
 
@@ -294,7 +298,6 @@ def _label_chunks(job: _LabelJob, tables: Iterator[pd.DataFrame]) -> dict[str, A
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from tap_bench.labelling import tap
 
     counts = {"rows": 0, "trajectory_rows": 0, "segments": 0, "short_segments": 0}
     with atomic_path(job.output) as tmp:
@@ -345,9 +348,6 @@ def label_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
         The :class:`ShardReport` (also ``<output>/_report.json``); each shard lists its
         label ``rows``, ``segments`` and ``short_segments`` (too short to label).
     """
-    from tap_bench.stages import StageConfig
-    from tap_bench.thresholds import resolve_thresholds
-
     sdl.levels(level)  # a bad level fails here, not in every task
     th = resolve_thresholds(thresholds)
     config = config or StageConfig()

@@ -18,7 +18,7 @@ from typing import Any
 
 import gymnasium as gym
 
-from tap_bench.errors import ParameterError
+from tap_bench.errors import ParameterError, did_you_mean
 from tap_bench.sim.policies import idle_action
 
 __all__ = ["IDMParameters", "IDMPolicy", "take_over_ego"]
@@ -118,8 +118,6 @@ class IDMPolicy:
         fields = {f.name for f in dataclasses.fields(IDMParameters)}
         unknown = sorted(set(params) - fields)
         if unknown:
-            from tap_bench.errors import did_you_mean
-
             raise did_you_mean("IDM parameter", unknown[0], fields)
         self.name = name
         self.params = IDMParameters(**params)

@@ -14,8 +14,10 @@ import warnings
 
 import numpy as np
 import pandas as pd
+from highway_env.road.lane import StraightLane
 
 from tap_bench.maps import MAP_COLUMNS, SAMPLE_STEP, empty_map
+from tap_bench.sim.scenario_env import get_scenario, make_env
 from tap_bench.sim.suite import Scenario
 
 __all__ = ["network_table", "road_table"]
@@ -26,8 +28,6 @@ _STYLE = {1: "dashed", 2: "solid", 3: "solid"}  # highway-env LineType -> style;
 def _stations(lane) -> np.ndarray:
     """Longitudinal positions [m] to sample a lane at: its ends, and every SAMPLE_STEP on
     lanes that are not straight."""
-    from highway_env.road.lane import StraightLane
-
     length = float(lane.length)
     if isinstance(lane, StraightLane):
         return np.array([0.0, length])
@@ -74,8 +74,6 @@ def road_table(scenario: Scenario | str) -> pd.DataFrame:
 
     Builds the env and resets it once (seed 0): the road does not depend on the seed.
     """
-    from tap_bench.sim.scenario_env import get_scenario, make_env
-
     scenario = get_scenario(scenario)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

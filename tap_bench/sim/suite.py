@@ -37,6 +37,7 @@ from typing import Any
 
 from tap_bench import catalogue
 from tap_bench.errors import FileFormatError, ParameterError, did_you_mean
+from tap_bench.sim.vehicles import LANE_CHANGE_SETTINGS
 from tap_bench.trajectories import HZ
 
 __all__ = [
@@ -367,7 +368,6 @@ def _build(doc: Any, *, source: str, path: Path | None) -> Scenario:
         raise FileFormatError(f"{source}: duration {duration!r} must be a positive number of "
                               "seconds.")
     lane_change = doc.get("lane_change", "default")
-    from tap_bench.sim.vehicles import LANE_CHANGE_SETTINGS
 
     if lane_change not in LANE_CHANGE_SETTINGS:
         err = did_you_mean("lane-change setting", lane_change, LANE_CHANGE_SETTINGS)

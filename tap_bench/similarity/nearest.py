@@ -35,6 +35,7 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 from tap_bench.errors import ParameterError, did_you_mean
+from tap_bench.similarity import kernels
 from tap_bench.similarity.shape import Shapes
 
 __all__ = [
@@ -234,8 +235,6 @@ def ade_nearest(shapes: Shapes, queries: np.ndarray | None = None, *,
     Returns:
         :class:`Neighbours` with ADE distances [m].
     """
-    from tap_bench.similarity import kernels
-
     t0 = time.perf_counter()
     q_all = _queries(shapes, queries)
     workers = _workers(workers)
@@ -338,8 +337,6 @@ def dtw_nearest(shapes: Shapes, queries: np.ndarray | None = None, *,
     Returns:
         :class:`Neighbours` with DTW distances [m].
     """
-    from tap_bench.similarity import kernels
-
     t0 = time.perf_counter()
     if shapes.lengths.min(initial=2) < 2:
         raise ParameterError("trajectories", "a trajectory of one point", "",
@@ -391,8 +388,6 @@ def brute_force_nearest(shapes: Shapes, queries: np.ndarray | None = None, *,
 
     O(q * n) full distance computations; for tests and small sets only.
     """
-    from tap_bench.similarity import kernels
-
     if metric not in SHAPE_METRICS:
         raise did_you_mean("metric", metric, SHAPE_METRICS)
     t0 = time.perf_counter()
@@ -449,8 +444,6 @@ def time_comparisons(shapes: Shapes, metric: str, n: int = 1000, *, seed: int = 
     The paper's "time per 1,000 comparisons" measure; ADE pairs are drawn among trajectories
     of equal length (the most common length). Best of ``repeats``.
     """
-    from tap_bench.similarity import kernels
-
     if metric not in SHAPE_METRICS:
         raise did_you_mean("metric", metric, SHAPE_METRICS)
     rng = np.random.default_rng(seed)

@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.errors import LabelTableError, ParameterError, TapBenchError
+from tap_bench.similarity import kernels
 from tap_bench.trajectories import IDENTIFYING_COLUMNS, validate_and_index
 
 __all__ = ["Shapes", "ade", "dtw", "normalised_shapes"]
@@ -182,8 +183,6 @@ def ade(a: np.ndarray, b: np.ndarray) -> float:
     Raises:
         TapBenchError: the lengths differ (compare a common prefix: ``ade(a[:k], b[:k])``).
     """
-    from tap_bench.similarity import kernels
-
     a, b = _as_points(a, "a"), _as_points(b, "b")
     if len(a) != len(b):
         raise TapBenchError(f"ADE needs trajectories of equal length, got {len(a)} and {len(b)} "
@@ -194,6 +193,4 @@ def ade(a: np.ndarray, b: np.ndarray) -> float:
 
 def dtw(a: np.ndarray, b: np.ndarray) -> float:
     """Dynamic time warping distance of (n, 2) and (m, 2) trajectories [m], full window."""
-    from tap_bench.similarity import kernels
-
     return float(kernels.dtw_full(_as_points(a, "a"), _as_points(b, "b")))

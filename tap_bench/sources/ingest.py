@@ -35,7 +35,7 @@ from tap_bench.execution import Backend, LocalBackend
 from tap_bench.sources import builtin  # noqa: F401 (the built-in readers are registered)
 from tap_bench.sources.registry import Reader, get_reader, reader_names, readers
 from tap_bench.tableio import atomic_path
-from tap_bench.womd.scenario import normalise_object_types
+from tap_bench.womd.scenario import SCENARIO_COLUMNS, normalise_object_types
 from tap_bench.womd.tfrecord import Record, iter_records
 
 __all__ = ["IngestReport", "expand_paths", "formats", "ingest_womd", "iter_womd", "read_womd"]
@@ -409,8 +409,6 @@ def read_womd(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
 
 
 def _columns() -> tuple[str, ...]:
-    from tap_bench.womd.scenario import SCENARIO_COLUMNS
-
     return SCENARIO_COLUMNS
 
 
@@ -502,7 +500,6 @@ def ingest_womd(paths: str | os.PathLike | Iterable[str | os.PathLike],
                         flush()
                 flush()
                 if writer is None:  # nothing kept: an empty table with the columns
-                    from tap_bench.womd.scenario import SCENARIO_COLUMNS
 
                     empty = pa.table({c: pa.array([], pa.string()) for c in SCENARIO_COLUMNS})
                     pq.write_table(empty, tmp)

@@ -26,7 +26,11 @@ from google.protobuf.message import DecodeError
 
 from tap_bench.errors import WomdRecordError
 from tap_bench.maps import MAP_COLUMNS, empty_map
+from tap_bench.sources.ingest import _file_format, expand_paths
+from tap_bench.sources.scenarionet import load_scenarionet
 from tap_bench.womd import proto
+from tap_bench.womd.tf_example import Example
+from tap_bench.womd.tfrecord import iter_records
 
 __all__ = ["read_maps"]
 
@@ -74,7 +78,6 @@ def _points(points) -> np.ndarray:
 
 
 def _scenario_maps(path: Path, out: _Features) -> None:
-    from tap_bench.womd.tfrecord import iter_records
 
     for record in iter_records(path):
         try:
@@ -96,9 +99,6 @@ def _scenario_maps(path: Path, out: _Features) -> None:
 
 
 def _tf_example_maps(path: Path, out: _Features) -> None:
-    from tap_bench.womd.tf_example import Example
-    from tap_bench.womd.tfrecord import iter_records
-
     for record in iter_records(path):
         features = Example.FromString(record.data).features.feature
         if "roadgraph_samples/xyz" not in features:
@@ -123,7 +123,6 @@ def _tf_example_maps(path: Path, out: _Features) -> None:
 
 
 def _scenarionet_maps(path: Path, out: _Features) -> None:
-    from tap_bench.sources.scenarionet import load_scenarionet
 
     scenario = load_scenarionet(path)
     meta = scenario.get("metadata", {}) if isinstance(scenario, dict) else {}
@@ -158,7 +157,6 @@ def read_maps(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> pd.Data
     Raises:
         WomdRecordError: a record that cannot be read, naming file, record and offset.
     """
-    from tap_bench.sources.ingest import _file_format, expand_paths
 
     out = _Features()
     for path in expand_paths(paths):

@@ -27,8 +27,16 @@ from typing import Any
 
 import pandas as pd
 
-from tap_bench.errors import FileFormatError
-from tap_bench.viewer.data import episode_chunks, episode_index, map_features
+from tap_bench.bench.episodes import episode_table
+from tap_bench.bench.suite import suite_from_dict
+from tap_bench.labelling import tap
+from tap_bench.maps import empty_map
+from tap_bench.sim.roads import road_table
+from tap_bench.sources import read_womd
+from tap_bench.sources.maps import read_maps
+from tap_bench.tableio import atomic_path
+from tap_bench.thresholds import Thresholds
+from tap_bench.viewer.data import MAP_MARGIN, episode_chunks, episode_index, map_features
 
 __all__ = ["STATIC_FILES", "write_run_viewer", "write_viewer", "write_womd_viewer"]
 
@@ -56,8 +64,6 @@ def write_viewer(output: str | os.PathLike, index: dict[str, Any],
     Returns:
         the path of ``index.html``.
     """
-    from tap_bench.tableio import atomic_path
-
     output = Path(output)
     data = output / "data"
     if data.exists():
@@ -80,51 +86,35 @@ def _env_boxes(trajectories: pd.DataFrame, margin: float) -> dict[str, tuple]:
             for env, r in box.iterrows()}
 
 
-def write_run_viewer(run: str | os.PathLike, output: str | os.PathLike | None = None
-                     ) -> Path:
-    """Write the replay viewer of a run folder (``bench run``, ``demo``).
-
-    Reads ``summary.json``, ``episodes.parquet``, ``trajectories.parquet`` and, when there,
-    ``segments.parquet`` (else the egos are labelled again with the run's thresholds),
-    ``roads.parquet`` (else each env's road is built again) and ``novel_labels.parquet``.
+def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
+                     episodes: pd.DataFrame, trajectories: pd.DataFrame, *,
+                     segments: pd.DataFrame | None = None, roads: pd.DataFrame | None = None,
+                     novel_labels: pd.DataFrame | None = None) -> Path:
+    """Write the replay viewer of a run (``bench run``, ``demo``).
 
     Args:
-        run: the run folder.
-        output: the viewer folder (default ``<run>/viewer``).
+        output: the viewer folder (``<run>/viewer``).
+        summary: the run's ``summary.json`` content (level, thresholds, suite, reference).
+        episodes: the episode table.
+        trajectories: the run's trajectory table.
+        segments: the segment table (label timelines); None labels the egos again with the
+            run's thresholds (runs written before ``segments.parquet`` existed).
+        roads: the map table of the envs' roads; None builds each env's road again from
+            the suite.
+        novel_labels: the run's ``novel_labels`` table (marks novel episodes).
 
     Returns:
         the path of the viewer's ``index.html``.
-
-    Raises:
-        FileFormatError: the folder is not a run, or has no trajectories to replay.
     """
-    from tap_bench.bench.runner import read_run
-    from tap_bench.viewer.data import MAP_MARGIN
-
-    run = Path(run)
-    summary, episodes = read_run(run)
-    traj_path = run / "trajectories.parquet"
-    if not traj_path.is_file():
-        raise FileFormatError(f"{run}: no trajectories.parquet to replay; run the suite again "
-                              "without --no-trajectories.")
-    trajectories = pd.read_parquet(traj_path)
     level = str(summary.get("level", "maneuver"))
-    seg_path = run / "segments.parquet"
-    if seg_path.is_file():
-        segments = pd.read_parquet(seg_path)
-    else:
+    if segments is None:
         segments = _ego_segments(trajectories, summary.get("thresholds", "paper"), level)
     if "level" in segments.columns:
         segments = segments[segments["level"] == level]
-    roads_path = run / "roads.parquet"
-    if roads_path.is_file():
-        roads = pd.read_parquet(roads_path)
-    else:
+    if roads is None:
         roads = _rebuild_roads(summary, sorted(trajectories["env"].unique()))
-    novel_path = run / "novel_labels.parquet"
-    novel = pd.read_parquet(novel_path) if novel_path.is_file() else None
     have = set(trajectories["scenario_id"].astype(str).unique())
-    eps, entries = episode_index(episodes, novel_labels=novel, has_replay=have)
+    eps, entries = episode_index(episodes, novel_labels=novel_labels, has_replay=have)
     chunks = episode_chunks(trajectories, eps, segments)
     boxes = _env_boxes(trajectories, MAP_MARGIN) if "env" in trajectories.columns else {}
     maps = {str(env): map_features(sub, boxes.get(str(env)))
@@ -132,20 +122,17 @@ def write_run_viewer(run: str | os.PathLike, output: str | os.PathLike | None = 
     for entry in entries:
         entry["map"] = entry["env"] if entry["env"] in maps else None
     suite = summary.get("suite", {})
-    index = {"run": {"name": str(summary.get("run", run.name)),
+    index = {"run": {"name": str(summary.get("run", Path(output).parent.name)),
                      "suite": str(suite.get("name", "")), "level": level,
                      "reference": str(summary.get("reference_policy", "")),
                      "source": "highway-env", "created": str(summary.get("created", ""))},
              "episodes": entries, "maps": maps}
-    return write_viewer(output if output is not None else run / "viewer", index, chunks)
+    return write_viewer(output, index, chunks)
 
 
 def _ego_segments(trajectories: pd.DataFrame, thresholds: Any, level: str) -> pd.DataFrame:
     """The egos' segment table at ``level`` (for run folders written before
     ``segments.parquet`` existed)."""
-    from tap_bench.labelling import tap
-    from tap_bench.thresholds import Thresholds
-
     if isinstance(thresholds, dict):
         thresholds = Thresholds.from_dict(thresholds, source="summary.json thresholds")
     ego = trajectories[trajectories["is_ego"].fillna(False).to_numpy(bool)]
@@ -155,10 +142,6 @@ def _ego_segments(trajectories: pd.DataFrame, thresholds: Any, level: str) -> pd
 
 
 def _rebuild_roads(summary: dict[str, Any], envs: Sequence[str]) -> pd.DataFrame:
-    from tap_bench.bench.suite import suite_from_dict
-    from tap_bench.maps import empty_map
-    from tap_bench.sim.roads import road_table
-
     suite = suite_from_dict(summary.get("suite", {}), source="summary.json")
     frames = [road_table(suite.scenario(env)) for env in envs if env in suite.envs]
     return pd.concat(frames, ignore_index=True) if frames else empty_map()
@@ -178,11 +161,6 @@ def write_womd_viewer(paths: Sequence[str | os.PathLike], output: str | os.PathL
     Returns:
         the path of the viewer's ``index.html``.
     """
-    from tap_bench.bench.episodes import episode_table
-    from tap_bench.labelling import tap
-    from tap_bench.sources import read_womd
-    from tap_bench.sources.maps import read_maps
-
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         traj = read_womd([str(p) for p in paths])

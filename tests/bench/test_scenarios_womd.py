@@ -98,4 +98,4 @@ def test_bench_run_with_a_womd_reference(womd, tmp_path):
     matches = result.scores.scenario_matches
     assert len(matches) == 4 * 3 and (tmp_path / "run" / "scenario_matches.parquet").is_file()
     assert "scenario_matches" in (tmp_path / "run" / "report.html").read_text()
-    assert result.summary["womd_files"] == [str(f) for f in files]
+    assert result.summary["references"] == {"WOMD": [str(f) for f in files]}

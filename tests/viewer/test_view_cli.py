@@ -37,12 +37,12 @@ def test_view_writes_womd_scenarios(womd_dir, tmp_path, capsys):
 def test_an_older_run_without_segments_or_roads_is_relabelled(tiny_run, tmp_path):
     import json
 
-    from tap_bench.viewer import write_run_viewer
+    from tap_bench.bench.runner import run_viewer
 
     run = tmp_path / "old"
     shutil.copytree(tiny_run, run, ignore=shutil.ignore_patterns("segments.parquet",
                                                                   "roads.parquet", "viewer"))
-    page = write_run_viewer(run)
+    page = run_viewer(run)
     fresh = (tiny_run / "viewer" / "data" / "highway-0.js").read_text()
     again = (page.parent / "data" / "highway-0.js").read_text()
     assert again == fresh  # the egos' labels and the roads are built again, identically
