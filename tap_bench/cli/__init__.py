@@ -43,6 +43,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("tap_bench.cli.bench", "run a benchmark suite; check a run against a baseline"),
     "demo": ("tap_bench.cli.demo",
              "run the demo benchmark (no download) and write its HTML report"),
+    "view": ("tap_bench.cli.view",
+             "replay episodes: two policies side by side, with their labels"),
     # similarity: SDL search, unique behaviours, the paper's ADE / DTW experiments
     "search": ("tap_bench.cli.search",
                "find trajectories (or scenarios) with similar SDL labels"),
