@@ -300,7 +300,7 @@ def _rollouts(suite: Suite, thresholds: Thresholds, backend: Backend, keep: bool
     known = cache.timings() if cache is not None else {}
     probes, seen = [], set(known.get("simulated", {}))
     for i, (task, hit) in enumerate(zip(tasks, cached, strict=True)):
-        if not hit and task.env not in seen:
+        if announce is not None and not hit and task.env not in seen:  # no one to tell: no probe
             probes.append(i)
             seen.add(task.env)
     results: dict[int, dict[str, Any]] = {}
@@ -399,7 +399,9 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
             pruned to its size bound afterwards (None: simulate everything, store nothing).
             The tables are the same either way.
         announce: called with one line saying how many episodes will be simulated and how
-            long the run should take, before the episodes start (the CLI prints it).
+            long the run should take, before the episodes start (the CLI prints it); to
+            estimate an env no earlier run timed, its first episode runs first. None: no
+            estimate.
 
     Returns:
         :class:`RunResult`.
