@@ -6,16 +6,15 @@ folder), as ``tap-bench bench run --cache DIR`` does. The changed policy is a co
 built-in one with another IDM time gap, found first through ``$TAP_BENCH_PATH``, so only its
 episodes miss the cache. The script checks that the re-run's tables equal the first run's.
 
-The whole default suite (750 episodes) takes 20-27 min on 2 cores; ``--seeds 0-2`` runs the
-same envs and policies on 3 seeds (75 episodes), and the figures are then extrapolated to
-the full suite: each run's worker start-up (the part of the episodes' wall time the
-workers did not spend on episodes) and what lies outside ``run_suite`` stay as measured,
-and the rest (episodes, scoring, writing and the report) grows in proportion to the
-episodes. Start-up is a larger share of a small suite, so the subset's re-run ratio is the
-pessimistic one.
+The whole default suite (750 episodes) takes 20-27 min on 2 cores. ``--seeds 0-2`` runs the
+same envs and policies on 3 seeds (75 episodes); with two subsets (``--seeds 0-2 --seeds
+0-5``) each part of each run (worker start-up, episodes, scoring, writing and the report)
+is fitted as a + b x episodes over the two sizes and the sum extrapolated to the full suite.
+With one subset, every part but worker start-up is taken to grow with the episodes, which
+over-states the re-run (its plots are a fixed cost).
 
-Usage: ``nice -n 10 python benchmarks/bench_incremental.py [--suite default] [--seeds 0-2]
-[--workers 2] [--changed idm-defensive]``.
+Usage: ``nice -n 10 python benchmarks/bench_incremental.py [--suite default] [--seeds 0-2
+[--seeds 0-5]] [--workers 2] [--changed idm-defensive]``.
 """
 
 from __future__ import annotations
@@ -36,6 +35,9 @@ from tap_bench.bench.runner import run_suite
 from tap_bench.bench.suite import load_suite
 from tap_bench.sim.policies import get_definition
 
+RUNS = ("first", "rerun", "changed")
+PARTS = ("worker_startup", "episode_work", "scoring", "writing_and_report", "outside")
+
 
 def timed_run(suite, folder: Path, workers: int, cache: EpisodeCache, seeds: str | None):
     start = time.perf_counter()
@@ -50,83 +52,95 @@ def timed_run(suite, folder: Path, workers: int, cache: EpisodeCache, seeds: str
     return result, seconds
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--suite", default="default")
-    parser.add_argument("--seeds", default=None, help="a subset of the suite's seeds")
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--changed", default="idm-defensive",
-                        help="the policy changed before the third run (an IDM kind)")
-    args = parser.parse_args()
-    suite = load_suite(args.suite)
+def parts(result, wall: float, workers: int) -> dict[str, float]:
+    """Where a run's wall time went [s]. Worker start-up is the part of the episodes' wall
+    time the workers did not spend on episodes (start, imports, messages)."""
+    t = result.summary["timings"]
+    work = sum(t.get(f"{k}_cpu_in_workers", 0.0) for k in ("rollout", "labelling", "measures"))
+    startup = max(0.0, t["rollouts_wall"] - work / workers)
+    return {"worker_startup": startup, "episode_work": t["rollouts_wall"] - startup,
+            "scoring": t["scoring"], "writing_and_report": t["writing_and_report"],
+            "outside": max(0.0, wall - t["total"]), "wall": wall}
+
+
+def experiment(suite, seeds: str | None, workers: int, changed_policy: str) -> dict:
+    """The three runs on ``seeds``: their parts and checks."""
     with tempfile.TemporaryDirectory(prefix="bench-incremental-") as tmp:
         root = Path(tmp)
         cache = EpisodeCache(root / "cache")
-        print(f"suite {suite.name}, seeds {args.seeds or 'all'}, {args.workers} workers",
-              flush=True)
-        first, t_first = timed_run(suite, root / "first", args.workers, cache, args.seeds)
-        rerun, t_rerun = timed_run(suite, root / "rerun", args.workers, cache, args.seeds)
+        print(f"suite {suite.name}, seeds {seeds or 'all'}, {workers} workers", flush=True)
+        first, t_first = timed_run(suite, root / "first", workers, cache, seeds)
+        rerun, t_rerun = timed_run(suite, root / "rerun", workers, cache, seeds)
         for name in ("episodes", "labels", "trajectories"):
             pd.testing.assert_frame_equal(pd.read_parquet(first.folder / f"{name}.parquet"),
                                           pd.read_parquet(rerun.folder / f"{name}.parquet"))
         for name, table in first.scores.tables().items():
             pd.testing.assert_frame_equal(table, rerun.scores.tables()[name], obj=name)
 
-        definition = get_definition(args.changed)
+        definition = get_definition(changed_policy)
         doc = json.loads(definition.path.read_text())
         doc["params"]["time_wanted"] = round(doc["params"].get("time_wanted", 1.5) * 1.2, 3)
-        (root / "catalogue" / "policies").mkdir(parents=True)
-        (root / "catalogue" / "policies" / f"{args.changed}.json").write_text(json.dumps(doc))
-        os.environ["TAP_BENCH_PATH"] = str(root / "catalogue")
-        changed, t_changed = timed_run(suite, root / "changed", args.workers, cache,
-                                       args.seeds)
+        catalogue = root / "catalogue" / "policies"
+        catalogue.mkdir(parents=True)
+        (catalogue / f"{changed_policy}.json").write_text(json.dumps(doc))
+        os.environ["TAP_BENCH_PATH"] = str(catalogue.parent)
+        try:
+            changed, t_changed = timed_run(suite, root / "changed", workers, cache, seeds)
+        finally:
+            del os.environ["TAP_BENCH_PATH"]
         entries, size = cache.size()
+    return {"episodes": first.summary["n_episodes"],
+            "simulated_in_changed_run": changed.summary["cache"]["simulated"],
+            "rerun_tables_identical_to_first": True,
+            "cache_entries": entries, "cache_mib": round(size / 2**20, 1),
+            "parts_s": {name: parts(r, t, workers) for name, r, t in (
+                ("first", first, t_first), ("rerun", rerun, t_rerun),
+                ("changed", changed, t_changed))}}
 
-    n = first.summary["n_episodes"]
+
+def extrapolate(subsets: list[dict], full: int) -> dict[str, float]:
+    """Each run's wall time at ``full`` episodes (module docstring)."""
+    out = {}
+    for run in RUNS:
+        total = 0.0
+        for part in PARTS:
+            values = [(s["episodes"], s["parts_s"][run][part]) for s in subsets]
+            if len(values) >= 2:
+                (n0, y0), (n1, y1) = values[0], values[-1]
+                slope = (y1 - y0) / (n1 - n0)
+                total += max(0.0, y1 + slope * (full - n1))
+            else:
+                n, y = values[0]
+                total += y if part in ("worker_startup", "outside") else y * full / n
+        out[f"{run}_s"] = round(total, 1)
+    out["rerun_over_first"] = round(out["rerun_s"] / out["first_s"], 3)
+    out["changed_over_first"] = round(out["changed_s"] / out["first_s"], 3)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--suite", default="default")
+    parser.add_argument("--seeds", action="append", default=None,
+                        help="a subset of the suite's seeds (repeat for a second size)")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--changed", default="idm-defensive",
+                        help="the policy changed before the third run (an IDM kind)")
+    args = parser.parse_args()
+    suite = load_suite(args.suite)
+    subsets = [experiment(suite, seeds, args.workers, args.changed)
+               for seeds in (args.seeds or [None])]
+    for subset in subsets:
+        walls = {run: subset["parts_s"][run]["wall"] for run in RUNS}
+        subset["rerun_over_first"] = round(walls["rerun"] / walls["first"], 3)
+        subset["changed_over_first"] = round(walls["changed"] / walls["first"], 3)
+        subset["parts_s"] = {run: {k: round(v, 1) for k, v in p.items()}
+                             for run, p in subset["parts_s"].items()}
     full = len(suite.envs) * len(suite.policies) * len(suite.seeds)
-    scale = full / n
-
-    def parts(result, wall: float) -> dict:
-        """Where a run's wall time went [s]; start-up is the part of the episodes' wall
-        time the workers did not spend on episodes (start, imports, messages)."""
-        t = result.summary["timings"]
-        work = sum(t.get(f"{k}_cpu_in_workers", 0.0) for k in ("rollout", "labelling",
-                                                                 "measures"))
-        episodes = t["rollouts_wall"]
-        startup = max(0.0, episodes - work / args.workers)
-        return {"wall": wall, "episodes": episodes, "worker_startup": startup,
-                "scoring": t["scoring"], "writing_and_report": t["writing_and_report"],
-                "outside_run_suite": max(0.0, wall - t["total"])}
-
-    def extrapolate(p: dict) -> float:
-        """The run at full size: start-up and what lies outside run_suite stay, the rest
-        grows with the episodes."""
-        return (p["worker_startup"] + p["outside_run_suite"] + scale * (
-            p["episodes"] - p["worker_startup"] + p["scoring"] + p["writing_and_report"]))
-
-    split = {name: parts(r, t) for name, r, t in (("first", first, t_first),
-                                                  ("rerun", rerun, t_rerun),
-                                                  ("changed", changed, t_changed))}
-    figures = {
-        "episodes": n,
-        "first_run_s": round(t_first, 1),
-        "rerun_unchanged_s": round(t_rerun, 1),
-        "one_policy_changed_s": round(t_changed, 1),
-        "rerun_over_first": round(t_rerun / t_first, 3),
-        "changed_over_first": round(t_changed / t_first, 3),
-        "simulated_in_changed_run": changed.summary["cache"]["simulated"],
-        "rerun_tables_identical_to_first": True,
-        "split_s": {name: {k: round(v, 1) for k, v in p.items()} for name, p in split.items()},
-        "cache_entries": entries, "cache_mib": round(size / 2**20, 1),
-    }
-    if n != full:
-        ext = {name: extrapolate(p) for name, p in split.items()}
-        figures[f"extrapolated_to_{full}_episodes"] = {
-            "first_run_s": round(ext["first"], 1),
-            "rerun_unchanged_s": round(ext["rerun"], 1),
-            "one_policy_changed_s": round(ext["changed"], 1),
-            "rerun_over_first": round(ext["rerun"] / ext["first"], 3),
-            "changed_over_first": round(ext["changed"] / ext["first"], 3)}
+    figures: dict = {"subsets": {seeds or "all": s for seeds, s in
+                                 zip(args.seeds or [None], subsets, strict=True)}}
+    if subsets[-1]["episodes"] != full:
+        figures[f"extrapolated_to_{full}_episodes"] = extrapolate(subsets, full)
     report("bench_incremental", figures, suite=suite.name, seeds=args.seeds or "suite's",
            workers=args.workers, changed_policy=args.changed)
 
