@@ -34,8 +34,10 @@ _LAZY_MODULES = {
     "tap_bench.labelling": ("TapResult", "label", "tap"),
     "tap_bench.resampling": ("resample_to_10hz",),
     "tap_bench.sdl": ("LEVELS", "vocabulary"),
-    "tap_bench.sim": ("Policy", "Rollout", "available_policies", "load_policy",
-                      "register_policy", "rollout"),
+    # the defining modules, not tap_bench.sim, whose attribute "rollout" is also a submodule
+    "tap_bench.sim.policies": ("Policy", "available_policies", "load_policy",
+                               "register_policy"),
+    "tap_bench.sim.rollout": ("Rollout", "rollout"),
     "tap_bench.similarity": ("ade_nearest", "dtw_nearest", "evaluate", "label_set",
                              "normalised_shapes", "rank_scenarios", "scenario_set", "search",
                              "search_like", "unique_labels"),

@@ -21,6 +21,8 @@ execution layer, ``make_env`` highway-env), so ``import tap_bench`` stays fast.
 from __future__ import annotations
 
 import importlib
+import sys
+import types
 from typing import Any
 
 _LAZY_MODULES = {
@@ -73,3 +75,19 @@ def __getattr__(name: str) -> Any:
 
 def __dir__() -> list[str]:
     return sorted({*globals(), *_LAZY})
+
+
+class _Package(types.ModuleType):
+    """``tap_bench.sim.rollout`` is the function that ``from tap_bench.sim import rollout``
+    promises, also after its submodule has been imported: the import system then sets the
+    package's attribute of that name to the submodule, which is refused here (the
+    submodule stays in ``sys.modules``, where ``from tap_bench.sim.rollout import X``
+    finds it)."""
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name in _LAZY and isinstance(value, types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package

@@ -9,6 +9,7 @@ import importlib
 import json
 import subprocess
 import sys
+import types
 from pathlib import Path
 
 import pytest
@@ -24,9 +25,17 @@ ROOT = Path(__file__).resolve().parents[2]
 def test_every_public_name_resolves(package):
     for name in package.__all__:
         value = getattr(package, name)
-        assert value is not None, name
+        assert value is not None and not isinstance(value, types.ModuleType), name
         exec(f"from {package.__name__} import {name}", {})
     assert set(package.__all__) <= set(dir(package))
+
+
+def test_a_name_that_is_also_a_submodule_stays_the_function():
+    import tap_bench.sim.rollout  # sets the package attribute, as any such import does
+    from tap_bench.sim import rollout as from_sim
+
+    assert callable(tap_bench.rollout) and callable(tap_bench.sim.rollout)
+    assert from_sim is tap_bench.rollout is sys.modules["tap_bench.sim.rollout"].rollout
 
 
 def test_a_missing_name_is_an_attribute_error_and_subpackages_load():
