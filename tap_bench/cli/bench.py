@@ -23,7 +23,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                        description="Roll out every policy of the suite in every env over its "
                        "seeds (in worker processes), label every vehicle with TAP, score "
                        "(matched comparisons, coverage, unique manoeuvres) and write the run "
-                       "folder atomically. A failing episode is reported, not fatal.")
+                       "folder atomically. A failing episode is reported, not fatal; a run "
+                       "where every episode failed is an error. Episodes already in the "
+                       "episode cache are read, not simulated (the tables are the same), and "
+                       "the run says how long it will take before it starts.")
     r.add_argument("--suite", default="default",
                    help="suite name (tap-bench bench suites) or JSON file (default: default)")
     r.add_argument("-o", "--output", required=True, help="run folder (results/run-001)")
