@@ -8,8 +8,8 @@ everything the rollout's trajectory table depends on:
   the scenario's overrides, the suite's overrides, the episode length), the lane-change
   setting, the duration and the number of decisions;
 - the policy: its full definition (name, kind, parameters), the SHA-256 of every file a
-  parameter names (an SB3 ``.zip``), and for kind ``import`` the SHA-256 of the factory's
-  module source;
+  parameter names (an SB3 ``.zip``, with the versions of Stable-Baselines3 and torch that
+  run it), and for kind ``import`` the SHA-256 of the factory's module source;
 - the seed;
 - the code and versions: the cache entry format, tap-bench's version, the SHA-256 of the
   simulation modules that produce an episode (recorder, scenario env, vehicles, policies,
@@ -144,8 +144,9 @@ def policy_fingerprint(definition: PolicyDefinition) -> dict[str, Any] | None:
     registration: no definition to hash).
 
     Every string parameter naming an existing file (relative to the definition file's
-    folder, as the builders read them) adds that file's SHA-256; kind ``import`` adds the
-    SHA-256 of the factory module's source.
+    folder, as the builders read them) adds that file's SHA-256; kind ``sb3`` adds the
+    versions of Stable-Baselines3 and torch; kind ``import`` adds the SHA-256 of the
+    factory module's source.
     """
     if definition.kind == "python":
         return None
@@ -158,6 +159,8 @@ def policy_fingerprint(definition: PolicyDefinition) -> dict[str, Any] | None:
                 files[key] = _sha256_file(path)
     doc: dict[str, Any] = {"name": definition.name, "kind": definition.kind,
                            "params": dict(definition.params), "files": files}
+    if definition.kind == "sb3":  # the same weights act otherwise under another torch
+        doc["versions"] = {pkg: _version(pkg) for pkg in ("stable-baselines3", "torch")}
     if definition.kind == "import":
         module = str(definition.params.get("factory", "")).partition(":")[0]
         try:

@@ -155,6 +155,7 @@ def test_the_key_follows_every_input(tmp_path):
     model.write_bytes(b"weights v2")
     after = policy_fingerprint(definition)
     assert before["files"]["model"] != after["files"]["model"]
+    assert set(after["versions"]) == {"stable-baselines3", "torch"}
     # a policy registered in Python has no definition to hash: never cached
     assert policy_fingerprint(PolicyDefinition("mine", "python")) is None
 
