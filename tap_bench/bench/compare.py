@@ -12,7 +12,8 @@ pair counts once):
 - ``agreement``: share of pairs whose ego SDL labels are equal (Wilson interval);
 - per env and label L (no pooled row: a label belongs to its env): ``freq_a - freq_b``, the
   difference in the share of pairs whose ego label is L, with Tango's paired score
-  interval, and a simultaneous band over the env's labels (Tango at the Sidak level), so
+  interval, and a simultaneous band over the env's labels (Tango intervals at a critical
+  value calibrated by a bootstrap of the pairs, :func:`~tap_bench.bench.intervals.tango_band`), so
   that "some label differs" can be read off the band without a multiple-testing correction;
 - per measure: the mean of A, of B, the mean paired difference A - B (Tango for the crash
   rate, a paired t interval otherwise), and the probability of improvement P(A better than
@@ -43,7 +44,7 @@ from tap_bench.bench.intervals import (
     MEASURE_BOUNDS,
     mean_interval,
     newcombe_interval,
-    sidak_level,
+    tango_band,
     tango_interval,
     welch_interval,
     wilson_interval,
@@ -143,14 +144,16 @@ def paired_comparison(episodes: pd.DataFrame, a: str, b: str, *,
                         "agreement_low": lo, "agreement_high": hi})
         measure_rows += _measure_rows(env, sub, measures, config.level)
         if env != ALL_ENVS:  # a label is (env, label): no pooled label rows
-            label_rows += _label_rows(env, lab_a, lab_b, config.level)
+            label_rows += _label_rows(env, lab_a, lab_b, config,
+                                      config.rng("paired band", env, a, b))
     return PairedComparison(
         summary=pd.DataFrame(summary), measures=pd.DataFrame(measure_rows),
         labels=pd.DataFrame(label_rows),
         method=(f"{config.level:.0%} intervals over pairs of episodes (A and B on one seed); "
                 "agreement: Wilson; label frequency differences, crash-rate differences and "
                 "the probability of improvement: Tango's paired score interval; label bands: "
-                "Tango at the Sidak level over each env's labels; other measure differences: "
+                "Tango at a sup-score critical value (bootstrap of pairs) over each env's "
+                "labels; other measure differences: "
                 "paired t. 'all' pools every pair of every env."))
 
 
@@ -185,7 +188,9 @@ def _measure_rows(env: str, sub: pd.DataFrame, measures, level: float) -> list[d
     return rows
 
 
-def _label_rows(env: str, lab_a: np.ndarray, lab_b: np.ndarray, level: float) -> list[dict]:
+def _label_rows(env: str, lab_a: np.ndarray, lab_b: np.ndarray, config: BootstrapConfig,
+                rng: np.random.Generator) -> list[dict]:
+    level = config.level
     names, codes = np.unique(np.concatenate([lab_a, lab_b]), return_inverse=True)
     n = len(lab_a)
     k = len(names)
@@ -197,7 +202,7 @@ def _label_rows(env: str, lab_a: np.ndarray, lab_b: np.ndarray, level: float) ->
     only_b = (in_b & ~in_a).sum(axis=0)
     estimate = (only_a - only_b) / n
     lo, hi = tango_interval(only_a, only_b, np.full(k, n), level)
-    band_lo, band_hi = tango_interval(only_a, only_b, np.full(k, n), sidak_level(level, k))
+    band_lo, band_hi = tango_band(in_a & ~in_b, in_b & ~in_a, level, rng, config.n_resamples)
     freq_a = in_a.sum(axis=0) / n
     freq_b = in_b.sum(axis=0) / n
     order = np.argsort(-np.abs(estimate), kind="stable")

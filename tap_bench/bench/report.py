@@ -25,7 +25,7 @@ import pandas as pd
 from tap_bench.bench.measures import MEASURES
 from tap_bench.bench.scoring import Scores
 
-__all__ = ["write_plots", "write_report"]
+__all__ = ["diversity_display", "write_plots", "write_report"]
 
 TOP_LABELS = 12  # labels shown per heat map and forest plot
 TABLE_ROWS = 40  # rows shown per long table in the HTML (the Parquet files hold all)
@@ -145,8 +145,7 @@ def _forest_plots(scores: Scores, folder: Path) -> list[Path]:
     if labels.empty:
         return out
     plt = _plt()
-    for (a, b), sub in labels.groupby(["policy_a", "policy_b"], sort=True):
-        sub = _pooled(sub)
+    for (a, b, env), sub in labels.groupby(["policy_a", "policy_b", "env"], sort=True):
         sub = sub.reindex(sub["diff"].abs().sort_values(ascending=False).index)[:TOP_LABELS]
         sub = sub.iloc[::-1]
         fig, ax = plt.subplots(figsize=(9, 1 + 0.4 * len(sub)))
@@ -156,11 +155,11 @@ def _forest_plots(scores: Scores, folder: Path) -> list[Path]:
         _interval_plot(ax, [_short(t, 70) for t in sub["label"]], sub["diff"], sub["diff_low"],
                        sub["diff_high"], label="95 % interval")
         ax.axvline(0, color="k", lw=0.8)
-        ax.set_xlabel(f"share of seeds: {a} minus {b}")
-        ax.set_title(f"Paired by seed: ego label frequency differences, {a} vs {b} "
-                     f"(env: {sub['env'].iloc[0]})", fontsize=9)
+        ax.set_xlabel(f"share of seeds: {a} minus {b} (the reference)")
+        ax.set_title(f"Paired by seed: ego label frequency differences, {a} vs {b}, "
+                     f"env {env}", fontsize=9)
         ax.legend(fontsize=7, loc="lower right")
-        out.append(_save(fig, folder / f"forest_{_slug(a)}_vs_{_slug(b)}.png"))
+        out.append(_save(fig, folder / f"forest_{_slug(a)}_vs_{_slug(b)}_{_slug(env)}.png"))
     return out
 
 
@@ -333,8 +332,8 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
     section("Behaviour: ego label distributions",
             "Share of each policy's episodes whose ego carries each SDL label, per env.",
             img("label_distribution", "label distribution heat map"))
-    section("Safety and efficiency", "Means over episodes with percentile bootstrap "
-            "intervals; 'all' pools the envs (resampling within each env).",
+    section("Safety and efficiency", "Means over episodes with Student t intervals (Wilson "
+            "for the crash rate); 'all' pools every episode of the policy.",
             img("measures", "measures per policy"),
             html_table(_pooled(scores.measures), table_id="measures"))
     section("Matched comparison: paired by seed", "Each policy against the reference policy on "
@@ -348,8 +347,15 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
             "ego label in one env (both policies present), the measures compared.",
             html_table(scores.matched, table_id="matched"))
     section("Behaviour coverage", "Share of the reference's labels each policy shows, "
-            "frequency-weighted too, and the entropy of its labels.",
+            "frequency-weighted too; a label is (env, label), and 'all' is the share of every "
+            "env's reference labels shown.",
             img("coverage", "coverage"), html_table(scores.coverage, table_id="coverage"))
+    section("Behaviour diversity", "Hill numbers of each policy's ego labels (q0: distinct "
+            "labels, q1: exp(Shannon entropy), q2: inverse Simpson) at a common number of "
+            "episodes per env, with the sample completeness (the share of the policy's label "
+            "distribution the episodes have shown); 'whole distribution' is the asymptotic "
+            "estimate, given as 'at least' where the completeness is too low to estimate it.",
+            html_table(diversity_display(scores.diversity), table_id="diversity"))
     section("Unique manoeuvres", "Labels a policy shows that the reference never does.",
             img("novelty", "novelty"), html_table(scores.novelty, table_id="novelty"),
             html_table(scores.novel_labels, caption="novel labels with an example episode",
@@ -358,6 +364,20 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
         section("Scenarios matched across data sets", "Each simulated episode beside its "
                 "nearest WOMD scenarios by scenario-level SDL (Scenario2Vector distance).",
                 html_table(scores.scenario_matches, table_id="scenario_matches"))
+    if not scores.gate_power.empty:
+        from tap_bench.bench.power import POWER, power_summary
+
+        power = power_summary(scores.gate_power)
+        small = power[power["cells_too_small"] > 0]
+        warn = "".join(
+            f'<p class="fail">{html.escape(r.metric)}: {r.cells_too_small} of {r.cells} '
+            f"(env, policy) cells cannot detect a change of one margin ({r.margin:g}) with "
+            f"{r.n} seeds; up to {r.seeds_for_margin:.0f} seeds needed.</p>"
+            for r in small.itertuples())
+        section("Regression gate: power at this seed count", f"Per metric, the smallest "
+                f"change 'bench check' detects with {POWER:.0%} power (median and worst "
+                "(env, policy)), and the seeds the worst cell needs to detect a change of one "
+                "margin.", html_table(power, table_id="gate_power"), warn)
     failed = episodes[episodes["status"] != "ok"]
     section("Failed episodes", "Left out of every score.",
             html_table(failed[["env", "policy", "seed", "error"]], table_id="failed")
@@ -375,6 +395,34 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
     with atomic_path(path) as tmp:
         tmp.write_text(page, encoding="utf-8")
     return path
+
+
+def _interval_text(est: float, low: float, high: float, bound: bool) -> str:
+    if not np.isfinite(est):
+        return "–"
+    if bound:
+        return f"at least {est:.1f}"
+    return f"{est:.1f} [{low:.1f}, {high:.1f}]"
+
+
+def diversity_display(table: pd.DataFrame) -> pd.DataFrame:
+    """The diversity table as text, "at least" where a value is only a lower bound."""
+    if table.empty:
+        return table
+    rows = []
+    for r in table.to_dict("records"):
+        row = {"env": r["env"], "policy": r["policy"], "episodes": r["n"],
+               "at episodes": r["size"], "method": r["method"]}
+        for q in (0, 1, 2):
+            row[f"q{q}"] = _interval_text(r[f"hill_q{q}"], r[f"hill_q{q}_low"],
+                                          r[f"hill_q{q}_high"], r["hill_is_bound"])
+        row["completeness"] = (f"{r['completeness']:.0%} [{r['completeness_low']:.0%}, "
+                               f"{r['completeness_high']:.0%}]")
+        asym = ", ".join(f"{r[f'asymptote_q{q}']:.1f}" for q in (0, 1, 2))
+        row["whole distribution (q0, q1, q2)"] = (f"at least {asym}" if r["asymptote_is_bound"]
+                                                  else asym)
+        rows.append(row)
+    return pd.DataFrame(rows)
 
 
 def _seed_text(seeds: list[int]) -> str:

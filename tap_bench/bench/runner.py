@@ -5,7 +5,9 @@ What a run folder holds:
 
 ======================  ====================================================================
 ``summary.json``        suite, seeds, thresholds, level, versions, machine, timings, failed
-                        episodes, the interval methods, headline figures
+                        episodes, the interval methods, headline figures, and the
+                        provenance: each policy's full definition (with the SHA-256 of a
+                        model file) and each env's resolved config
 ``episodes.parquet``    the episode table (:mod:`tap_bench.bench.episodes`), failed
                         episodes included with their error
 ``labels.parquet``      TAP labels of every track at every level
@@ -44,12 +46,13 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.bench.episodes import episode_table
+from tap_bench.bench.power import power_table
 from tap_bench.bench.scoring import Scores, score
-from tap_bench.bench.suite import Suite, load_suite
+from tap_bench.bench.suite import GATE_METRICS, Suite, load_suite
 from tap_bench.errors import FileFormatError, RunExistsError
 
-__all__ = ["RunExistsError", "RunResult", "check_output", "package_versions", "read_run",
-           "run_suite", "write_results"]
+__all__ = ["RunExistsError", "RunResult", "check_output", "package_versions", "provenance",
+           "read_run", "run_suite", "write_results"]
 
 CHUNK = 5
 """Seeds per worker task: small enough to balance two workers and move the progress bar."""
@@ -278,8 +281,11 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         matches = match_scenarios(labels, trajectories, womd_labels, womd_traj,
                                   level=suite.level, top=3)
     references = {"WOMD": womd_labels} if womd_labels is not None else None
+    power = power_table(episodes, suite.gate,
+                        n_tests=len(suite.envs) * len(suite.policies) * len(GATE_METRICS))
     scores = score(episodes, reference_policy=suite.reference, level=suite.level,
-                   config=suite.bootstrap, references=references, scenario_matches=matches)
+                   config=suite.bootstrap, references=references, scenario_matches=matches,
+                   gate_power=power)
     timings["scoring"] = time.perf_counter() - t0
 
     failed = episodes[episodes["status"] != "ok"]
@@ -297,6 +303,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "failed": failed[["env", "policy", "seed", "error"]].to_dict("records"),
         "methods": scores.methods,
         "headline": _headline(scores, episodes),
+        "provenance": provenance(suite),
         "timings": timings,
     }
     t0 = time.perf_counter()
@@ -306,6 +313,48 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     timings["total"] = time.perf_counter() - t_start
     _write_json(folder / "summary.json", summary)  # with the final timings
     return RunResult(folder, summary, episodes, scores, folder / "report.html")
+
+
+def _sha256(path: Path) -> str:
+    import hashlib
+
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def provenance(suite: Suite) -> dict[str, Any]:
+    """What every policy and env of a suite is, in full, so that ``bench check`` can say what
+    changed since a baseline.
+
+    Returns:
+        ``{"policies": {name: {"kind", "params", "model_sha256"?}}, "envs": {name:
+        {"highway_env_id", "version", "duration", "lane_change", "config"}}}``; a model
+        file's SHA-256 is taken from the file its definition names.
+    """
+    from tap_bench.sim.policies import get_definition
+
+    policies = {}
+    for name in suite.policies:
+        definition = get_definition(name)
+        entry: dict[str, Any] = {"kind": definition.kind, "params": dict(definition.params)}
+        model = definition.params.get("model")
+        if isinstance(model, str):
+            path = Path(model)
+            if not path.is_absolute() and definition.path is not None:
+                path = definition.path.parent / path
+            entry["model_sha256"] = _sha256(path) if path.is_file() else "(missing file)"
+        policies[name] = json.loads(json.dumps(entry, default=str))
+    envs = {}
+    for env in suite.envs:
+        scenario = suite.scenario(env)
+        envs[env] = json.loads(json.dumps(
+            {"highway_env_id": scenario.highway_env_id, "version": scenario.version,
+             "duration": scenario.duration, "lane_change": scenario.lane_change,
+             "config": scenario.config}, default=str))
+    return {"policies": policies, "envs": envs}
 
 
 def _label_womd(paths, suite: Suite) -> tuple[pd.DataFrame, pd.DataFrame]:
