@@ -41,7 +41,10 @@ singletons over sampling units, as iNEXT's); as many of them as the reference ha
 items count as reference items, which widens the interval: the conservative choice.
 Episodes are drawn from it (multinomially for whole labels, independently per item for
 vocabulary items) and the interval is ``estimate +- z * sd`` over those draws, clipped to
-[0, 1]. ``benchmarks/interval_coverage.py`` measures its coverage rate.
+[0, 1]. When the population has nothing undetected to draw (a handful of episodes with no
+singleton), the draws cannot move and the interval is ``estimate +- n u / K`` instead, with
+u the Wilson upper limit of 0 of n: at most that share of episodes could show an item not
+yet seen (never a zero-width interval on an estimate). ``benchmarks/interval_coverage.py`` measures its coverage rate.
 """
 
 from __future__ import annotations
@@ -54,7 +57,7 @@ import pandas as pd
 from tap_bench import sdl
 from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.diversity import estimated_population
-from tap_bench.bench.intervals import z_value
+from tap_bench.bench.intervals import wilson_interval, z_value
 from tap_bench.errors import LabelTableError, did_you_mean
 from tap_bench.sim.coverage import vocabulary_tokens
 
@@ -257,6 +260,11 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
     seen = draws > 0
     boot = np.column_stack([(seen & in_ref_pop).sum(axis=1) / K, (seen * w_pop).sum(axis=1)])
     (c_lo, c_hi), (w_lo, w_hi) = _intervals(np.array([cov, wcov]), boot, config.level)
+    if np.std(boot[:, 0]) == 0:  # nothing undetected to draw: bound what n episodes can add
+        _, u = wilson_interval(0, n, config.level)
+        c_lo, c_hi = max(0.0, cov - n * u / K), min(1.0, cov + n * u / K)
+        step = n * u * float(reference.weights.max())
+        w_lo, w_hi = max(0.0, wcov - step), min(1.0, wcov + step)
     return CoverageResult(
         n=n, coverage=cov, coverage_low=c_lo, coverage_high=c_hi, weighted_coverage=wcov,
         weighted_low=w_lo, weighted_high=w_hi, n_distinct=len(names), n_reference=K,
@@ -286,7 +294,7 @@ def pooled_coverage(results: list[CoverageResult], corpus_sizes: list[int], leve
     Returns:
         coverage = sum covered / sum K (the K-weighted mean of the per-env coverages),
         weighted coverage = the corpus-size-weighted mean of the per-env ones; intervals
-        from the per-draw aggregates of the envs' bootstrap draws (envs independent).
+        ``estimate +- z sd`` with the sd of that weighted sum of independent envs.
     """
     results = [r for r in results]
     K = np.array([r.n_reference for r in results], float)
@@ -297,13 +305,23 @@ def pooled_coverage(results: list[CoverageResult], corpus_sizes: list[int], leve
     ck, wk = K / K.sum(), N / N.sum()
     cov = float(sum(c * r.coverage for c, r in zip(ck, results, strict=True)))
     wcov = float(sum(w * r.weighted_coverage for w, r in zip(wk, results, strict=True)))
-    with_draws = [r.draws if len(r.draws) else np.array([[r.coverage, r.weighted_coverage]])
-                  for r in results]
-    B = max(len(d) for d in with_draws)
-    draws = np.column_stack([
-        sum(c * np.resize(d[:, 0], B) for c, d in zip(ck, with_draws, strict=True)),
-        sum(w * np.resize(d[:, 1], B) for w, d in zip(wk, with_draws, strict=True))])
-    (c_lo, c_hi), (w_lo, w_hi) = _intervals(np.array([cov, wcov]), draws, level)
+    # envs are independent: the pooled sd is the root of the weighted sum of squared sds;
+    # an env whose draws could not move contributes its fallback half-width / z
+    z = z_value(level)
+
+    def sd_of(r: CoverageResult, j: int) -> float:
+        lo, hi = ((r.coverage_low, r.coverage_high) if j == 0 else
+                  (r.weighted_low, r.weighted_high))
+        spread = float(np.std(r.draws[:, j])) if len(r.draws) else 0.0
+        return max(spread, (hi - lo) / (2 * z)) if np.isfinite(hi - lo) else spread
+
+    sd_c = float(np.sqrt(sum((c * sd_of(r, 0)) ** 2 for c, r in zip(ck, results,
+                                                                     strict=True))))
+    sd_w = float(np.sqrt(sum((w * sd_of(r, 1)) ** 2 for w, r in zip(wk, results,
+                                                                     strict=True))))
+    c_lo, c_hi = max(0.0, cov - z * sd_c), min(1.0, cov + z * sd_c)
+    w_lo, w_hi = max(0.0, wcov - z * sd_w), min(1.0, wcov + z * sd_w)
+    draws = np.zeros((0, 2))
     return CoverageResult(
         n=sum(r.n for r in results), coverage=cov, coverage_low=c_lo, coverage_high=c_hi,
         weighted_coverage=wcov, weighted_low=w_lo, weighted_high=w_hi,

@@ -121,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
     if args.output:
         out = Path(args.output)
         write_table(pd.DataFrame(rows), out)
-        if len(novel):
+        if not args.vocabulary:  # a corpus: its novel labels, possibly none
             novel_path = episodes_path(out).with_name(
                 episodes_path(out).name.replace(".episodes.", ".novel."))
             write_table(novel, novel_path)
