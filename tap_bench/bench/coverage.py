@@ -44,7 +44,8 @@ vocabulary items) and the interval is ``estimate +- z * sd`` over those draws, c
 [0, 1]. When the population has nothing undetected to draw (a handful of episodes with no
 singleton), the draws cannot move and the interval is ``estimate +- n u / K`` instead, with
 u the Wilson upper limit of 0 of n: at most that share of episodes could show an item not
-yet seen (never a zero-width interval on an estimate). ``benchmarks/interval_coverage.py`` measures its coverage rate.
+yet seen (never a zero-width interval on an estimate). ``benchmarks/interval_coverage.py``
+measures its coverage rate.
 """
 
 from __future__ import annotations

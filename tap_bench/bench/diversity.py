@@ -40,8 +40,10 @@ the same way.
 **Intervals** (iNEXT's): the detected labels' probabilities are shrunk and the f0 undetected
 labels are given the Good-Turing undetected mass (:func:`estimated_population`, iNEXT's
 ``EstiBootComm``); ``n_resamples`` samples of n episodes are drawn from it and the interval
-is ``estimate +- z sd`` of the statistic over those draws, clipped at 0 (1 for
-completeness). ``benchmarks/interval_coverage.py`` measures their coverage.
+is ``estimate +- z sd`` of the statistic over those draws, clipped at 0; for completeness,
+whose target is the sample's own (random) coverage, the sd is that of the estimate's error
+in each draw (estimate minus the probability of the labels the draw shows), clipped to
+[0, 1]. ``benchmarks/interval_coverage.py`` measures their coverage.
 """
 
 from __future__ import annotations
@@ -111,7 +113,7 @@ def estimated_population(freq: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarr
     b = float((p * (1 - p) ** n).sum())
     w = a / b if f0 > 0 and b > 0 else 0.0
     p_detected = p * (1 - w * (1 - p) ** n)
-    k0 = int(math.ceil(f0 - 1e-9))
+    k0 = math.ceil(f0 - 1e-9)
     p_undetected = np.full(k0, a / k0) if k0 > 0 else np.zeros(0)
     return p_detected, p_undetected
 
@@ -326,8 +328,12 @@ def diversity(labels, *, size: int | None = None, config: BootstrapConfig | None
     rng = rng or config.rng("diversity")
     p_det, p_und = estimated_population(counts, n)
     prob = np.r_[p_det, p_und]
-    draws = rng.multinomial(n, prob / prob.sum(), size=config.n_resamples)
-    boot = np.column_stack([hill_numbers(draws, m), completeness(draws)])
+    prob = prob / prob.sum()
+    draws = rng.multinomial(n, prob, size=config.n_resamples)
+    # completeness estimates the sample's own coverage (the probability of the labels it
+    # shows), itself random: its error in a draw is the estimate minus that coverage
+    shown = (draws > 0) @ prob
+    boot = np.column_stack([hill_numbers(draws, m), completeness(draws) - shown])
     z = z_value(config.level)
     sd = np.nanstd(boot, axis=0)
     low = np.maximum(hill - z * sd[:3], 0.0)
@@ -364,7 +370,7 @@ def pooled_diversity(results: list[DiversityResult], level: float) -> DiversityR
     methods = {r.method for r in results}
     return DiversityResult(
         n=sum(r.n for r in results), n_distinct=sum(r.n_distinct for r in results),
-        size=int(round(np.mean([r.size for r in results]))),
+        size=round(float(np.mean([r.size for r in results]))),
         method=methods.pop() if len(methods) == 1 else "mixed", hill=hill, hill_low=low,
         hill_high=high, hill_is_bound=bound, completeness=comp,
         completeness_low=max(0.0, comp - z * float(sd[3])),

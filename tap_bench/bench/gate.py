@@ -512,7 +512,7 @@ def _refuse_if_it_cannot_fire(plans: list, config: GateConfig) -> None:
             "gate could never fire. Raise gate.n_permutations in the suite (and "
             "--update-baseline) or check fewer envs and policies.")
     best = []
-    for key, base, run in plans:
+    for _, base, run in plans:
         sb, sr = set(base["seed"].astype(np.int64)), set(run["seed"].astype(np.int64))
         if len(base) == len(run) and sb == sr:
             best.append(smallest_p(config.n_permutations, paired_seeds=len(sb)))

@@ -303,5 +303,5 @@ def welch_interval(a, b, level: float, *, bounds: tuple[float, float] | None = N
         return _constant_bounds(diff, min(na, nb), level, (diff - span, diff + span)) \
             if span > 0 else (diff, diff)
     df = (va + vb) ** 2 / (va * va / (na - 1) + vb * vb / (nb - 1))
-    half = t_quantile(0.5 + level / 2, max(1, int(math.floor(df)))) * math.sqrt(va + vb)
+    half = t_quantile(0.5 + level / 2, max(1, math.floor(df))) * math.sqrt(va + vb)
     return diff - half, diff + half

@@ -5,8 +5,9 @@ The **novelty rate** is the share of the agent's episodes whose ego SDL label is
 from the reference corpus (:func:`tap_bench.bench.coverage.corpus_reference`), with a
 Wilson score interval (0 novel of 30 episodes: [0, 0.114], never [0, 0]). Pooled over envs
 it is the episode-weighted mean of the per-env rates, each env's episodes held against that
-env's reference (:mod:`tap_bench.bench.scoring`). "Never shows" is relative to a finite corpus: a label absent from a small
-reference may only be rare; the report states the reference's size beside the rate.
+env's reference (:mod:`tap_bench.bench.scoring`). "Never shows" is relative to a finite
+corpus: a label absent from a small reference may only be rare; the report states the
+reference's size beside the rate.
 
 This differs from SPEC section 5's *unique* label (no other trajectory of one data set has
 it, :mod:`tap_bench.similarity`): here the agent is held against another corpus.

@@ -13,7 +13,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "compare", help="compare two policies: paired by seed and matched by SDL label",
         description="Compare policy A (the one evaluated, e.g. an RL agent) with the "
         "reference policy B (e.g. IDM): every difference is A minus B, and P(A better) is "
-        "the probability that A beats the reference on the same seed. Each input is a trajectory table "
+        "the probability that A beats the reference on the same seed. Each input is a "
+        "trajectory table "
         "(labelled here; safety and efficiency measures computed from it) or a label table "
         "(labels only). Episodes on the same (env, seed) are paired: label agreement, "
         "per-label frequency differences and probabilities of improvement with paired "

@@ -253,7 +253,7 @@ def test_a_non_numeric_or_missing_baseline_metric_is_an_error(tmp_path):
     col = doc["episodes"]["columns"].index("min_ttc_s")
     doc["episodes"]["rows"][3][col] = "fast"
     path.write_text(json.dumps(doc))
-    with pytest.raises(BaselineError, match="row 3 .* min_ttc_s = 'fast'"):
+    with pytest.raises(BaselineError, match=r"row 3 .* min_ttc_s = 'fast'"):
         read_baseline(path)
     for row in doc["episodes"]["rows"]:
         del row[col]
