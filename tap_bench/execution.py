@@ -12,10 +12,11 @@ worker costs only the item it was running: each worker runs one item at a time, 
 that killed it is known, and a fresh worker takes its place.
 
 - :class:`LocalBackend`: this process (``workers=1``) or a pool of worker processes. Workers
-  are started as ``python -m tap_bench.execution`` (not ``multiprocessing``): they never
+  are fresh interpreters running :func:`_worker_main` (not ``multiprocessing``): they never
   re-import the caller's script, so the API works from a plain script without an
-  ``if __name__ == "__main__":`` guard, and a worker whose parent dies (even by SIGKILL)
-  sees its input close and exits, leaving no orphan.
+  ``if __name__ == "__main__":`` guard; a worker whose parent dies (even by SIGKILL) is sent
+  SIGTERM by the kernel (Linux) or sees its input close, and exits, leaving no orphan. No
+  semaphore, shared memory or resource-tracker process is involved.
 - :class:`RayBackend`: Ray tasks on a running cluster (``address="auto"``) or on a local
   cluster it starts. Ray is optional (``pip install 'tap-bench[ray]'``) and imported only
   when a :class:`RayBackend` is made.
@@ -203,7 +204,7 @@ class _Worker:
             [sys.executable, "-c", "from tap_bench.execution import _worker_main; "
              "_worker_main()"], stdin=subprocess.PIPE,
             stdout=subprocess.PIPE, env=env, cwd=os.getcwd(),
-            preexec_fn=_ignore_sigint if os.name == "posix" else None)
+            preexec_fn=_worker_preexec if os.name == "posix" else None)
         self.running: int | None = None
 
     def submit(self, i: int, fn: Callable, item: Any) -> None:
@@ -229,8 +230,18 @@ class _Worker:
                 process.wait()
 
 
-def _ignore_sigint() -> None:
+def _worker_preexec() -> None:
+    """In the new worker, before Python starts: ignore the terminal's SIGINT, and on Linux
+    ask the kernel for SIGTERM when the parent dies, so that a worker busy with a long item
+    does not outlive a parent killed by SIGKILL."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass  # the closed input still ends an idle worker
 
 
 def _worker_main() -> None:

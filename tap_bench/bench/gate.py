@@ -51,6 +51,7 @@ from tap_bench.bench.compare import NO_LABEL
 from tap_bench.bench.measures import MEASURES
 from tap_bench.bench.suite import GATE_METRICS, GateConfig
 from tap_bench.errors import BaselineError, BaselineMismatchError, FileFormatError, ParameterError
+from tap_bench.tableio import atomic_path
 
 __all__ = ["BASELINE_FORMAT", "EXACT_FLIPS_MAX_SEEDS", "MAX_FAILED_SHARE", "GateResult",
            "check", "definition_changes", "holm", "read_baseline", "smallest_p",
@@ -132,8 +133,6 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
         episodes: the run's episode table.
         path: the baseline JSON to write.
     """
-    from tap_bench.tableio import atomic_path
-
     ok = episodes[episodes["status"] == "ok"]
     n_failed = len(episodes) - len(ok)
     if ok.empty:
