@@ -49,7 +49,7 @@ CONFIG = {"vehicles_count": 10}
 POOL = 300  # seeds of the unchanged policy
 CHANGED_SEEDS = 100
 BLOCKS = (10, 30, 100)
-MAX_PAIRS = 200  # false-alarm checks per block size
+MAX_PAIRS = 1000  # false-alarm checks per block size (every ordered pair of blocks)
 IDM = {"time_wanted": 1.5, "distance_wanted": 10.0, "comfort_acc_max": 3.0,
        "comfort_acc_min": -5.0, "delta": 4.0, "politeness": 0.0,
        "lane_change_min_acc_gain": 0.2, "lane_change_max_braking_imposed": 2.0,
@@ -58,6 +58,8 @@ CHANGES = {"idm": {}, "idm-speed-0.9": {"target_speed_factor": 0.9},
            "idm-gap-2.5s": {"time_wanted": 2.5}}
 SUMMARY = {"suite": {"name": "gate-calibration", "version": 0}, "level": "maneuver",
            "thresholds": "paper"}
+BASELINE = {"suite": "gate-calibration", "suite_version": 0, "level": "maneuver",
+            "thresholds": "paper"}
 
 
 def _episodes(name: str, seeds: list[int], workers: int) -> pd.DataFrame:
@@ -109,7 +111,7 @@ def main() -> None:
         pairs = list(itertools.permutations(range(len(blocks)), 2))[:MAX_PAIRS]
         fired, metrics = 0, {}
         for i, j in pairs:
-            result = check(SUMMARY, _as_idm(blocks[j]), SUMMARY, _as_idm(blocks[i]), gate)
+            result = check(SUMMARY, _as_idm(blocks[j]), BASELINE, _as_idm(blocks[i]), gate)
             fired += result.moved
             for m in result.moved_rows()["metric"]:
                 metrics[m] = metrics.get(m, 0) + 1
@@ -128,7 +130,7 @@ def main() -> None:
                 seeds = range(k * n, (k + 1) * n)
                 base = _as_idm(idm[idm["seed"].isin(seeds)])
                 run = _as_idm(changed[changed["seed"].isin(seeds)])
-                result = check(SUMMARY, run, SUMMARY, base, gate)
+                result = check(SUMMARY, run, BASELINE, base, gate)
                 fired += result.moved
                 for m in result.moved_rows()["metric"]:
                     metrics[m] = metrics.get(m, 0) + 1

@@ -40,10 +40,14 @@ the same way.
 **Intervals** (iNEXT's): the detected labels' probabilities are shrunk and the f0 undetected
 labels are given the Good-Turing undetected mass (:func:`estimated_population`, iNEXT's
 ``EstiBootComm``); ``n_resamples`` samples of n episodes are drawn from it and the interval
-is ``estimate +- z sd`` of the statistic over those draws, clipped at 0; for completeness,
+is ``estimate +- z sd`` of the statistic over those draws, clipped at 1; for completeness,
 whose target is the sample's own (random) coverage, the sd is that of the estimate's error
 in each draw (estimate minus the probability of the labels the draw shows), clipped to
-[0, 1]. ``benchmarks/interval_coverage.py`` measures their coverage.
+[0, 1]. A sample whose population has nothing undetected (no label seen once) gives draws
+that cannot move; the interval is then +- n u for the Hill numbers and - u for
+completeness, u the Wilson upper limit of 0 of n (at most that share of episodes could show
+a label not seen yet), never a point. ``benchmarks/interval_coverage.py`` measures their
+coverage.
 """
 
 from __future__ import annotations
@@ -54,7 +58,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.intervals import z_value
+from tap_bench.bench.intervals import wilson_interval, z_value
 from tap_bench.errors import ParameterError
 
 __all__ = [
@@ -336,7 +340,10 @@ def diversity(labels, *, size: int | None = None, config: BootstrapConfig | None
     boot = np.column_stack([hill_numbers(draws, m), completeness(draws) - shown])
     z = z_value(config.level)
     sd = np.nanstd(boot, axis=0)
-    low = np.maximum(hill - z * sd[:3], 0.0)
+    if not np.any(sd > 0):  # nothing undetected to draw: bound what n episodes can add
+        _, u = wilson_interval(0, n, config.level)
+        sd = np.array([n * u / z] * 3 + [u / z])
+    low = np.maximum(hill - z * sd[:3], 1.0)
     high = hill + z * sd[:3]
     method = "interpolated" if m < n else "observed" if m == n else "extrapolated"
     reliable = comp >= MIN_COMPLETENESS

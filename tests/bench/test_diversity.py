@@ -89,3 +89,9 @@ def test_policies_compare_at_a_common_size():
     assert table.loc["p", "method"] == "interpolated" and table.loc["q", "method"] == "observed"
     assert table.loc["p", "hill_q0"] < 5  # rarefied from 20 to 10 episodes
     assert (table["hill_q0_low"] < table["hill_q0"]).all()
+
+
+def test_one_label_only_still_has_an_interval():
+    d = diversity(["a"] * 30, config=BootstrapConfig(n_resamples=200))
+    assert d.hill == pytest.approx([1, 1, 1]) and d.completeness == 1.0
+    assert (d.hill_high > d.hill).all() and d.completeness_low < 1.0
