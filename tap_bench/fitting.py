@@ -33,7 +33,7 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.errors import TapBenchError, did_you_mean
-from tap_bench.kinematics import one_second_samples
+from tap_bench.kinematics import V_STOP, one_second_samples
 from tap_bench.objective import SortedSamples
 from tap_bench.thresholds import NAMES, UNITS, Provenance, Thresholds
 
@@ -50,8 +50,6 @@ PAPER_STARTS = {
     "w": ((0.01, 0.05, 0.1), (0.02, 0.07, 0.15), (0.05, 0.1, 0.2)),
 }
 """The paper's three starting guesses per distribution (Appendix C)."""
-V_STOP = 0.1
-"""The fixed Stopped threshold [m/s] (the paper sets it by hand)."""
 
 
 @dataclass(frozen=True)
@@ -300,7 +298,7 @@ def feasible_starts(s: SortedSamples, starts: np.ndarray) -> np.ndarray:
 # -- fitting --------------------------------------------------------------------------------
 def _samples(data: pd.DataFrame | dict[str, np.ndarray], v_stop: float
              ) -> dict[str, np.ndarray]:
-    samples = data if isinstance(data, dict) else one_second_samples(data)
+    samples = data if isinstance(data, dict) else one_second_samples(data, v_stop=v_stop)
     for dist in DISTRIBUTIONS:
         if dist not in samples:
             raise TapBenchError(f"samples lack the distribution {dist!r} (need w, a and v)")

@@ -19,16 +19,21 @@ import pyarrow.compute as pc
 
 from tap_bench import sdl
 from tap_bench.errors import ShortSegmentWarning, did_you_mean
-from tap_bench.kinematics import Kinematics, compute_kinematics
+from tap_bench.kinematics import Kinematics, Plausibility, compute_kinematics
 from tap_bench.stages import StageConfig, StepLabels, find_runs, run_stages
 from tap_bench.thresholds import Thresholds, resolve_thresholds
 from tap_bench.trajectories import DT, IDENTIFYING_COLUMNS, validate_and_index
 
-__all__ = ["LABEL_COLUMNS", "SEGMENT_COLUMNS", "TapResult", "label", "tap"]
+__all__ = ["GLITCH_COLUMNS", "LABEL_COLUMNS", "SEGMENT_COLUMNS", "TapResult", "label", "tap"]
 
 LABEL_COLUMNS = ("scenario_id", "track_id", "segment", "level", "lateral", "longitudinal",
                  "sdl", "t_start", "t_end")
 """Columns of the label table, followed by the identifying columns the input had."""
+GLITCH_COLUMNS = ("heading_glitches", "speed_glitches", "reversing_steps", "travel")
+"""Per labelled segment, in the label table after ``t_end``: steps whose heading change was a
+flip or faster than the vehicle can turn, steps whose speed was a spike, steps moving
+against the heading (SPEC section 2, :mod:`tap_bench.kinematics`), and how far the segment
+gets from its start [m] (under 1 m: no turn, no merge)."""
 SEGMENT_COLUMNS = ("scenario_id", "track_id", "segment", "level", "axis", "label", "t_start",
                    "t_end")
 """Columns of the segment table, followed by the identifying columns the input had."""
@@ -44,12 +49,15 @@ class TapResult:
     Attributes:
         segments_info: one row per labelled valid segment: scenario_id, track_id, segment
             (0-based index of the valid segment within its track), t_start, t_end, n_steps,
-            and the identifying columns of the input.
+            the glitch counts (:data:`GLITCH_COLUMNS`) and the identifying columns of the
+            input.
         short_segments: the valid segments shorter than 1 s, which carry no label, with the
             same columns.
         step_labels: per-step codes of every level over the labelled steps.
         step_t: (m,) time of each labelled step [s].
         step_segment: (m,) row of ``segments_info`` of each labelled step.
+        step_flags: per labelled step, (m,) bool each: ``heading_glitch``, ``speed_glitch``,
+            ``heading_trusted``, ``reversing``.
         thresholds: the thresholds used.
         config: the stage timing parameters used.
         timings: seconds spent per stage (validate, kinematics, stages, tables).
@@ -60,8 +68,10 @@ class TapResult:
     step_labels: StepLabels
     step_t: np.ndarray
     step_segment: np.ndarray
+    step_flags: dict[str, np.ndarray]
     thresholds: Thresholds
     config: StageConfig
+    plausibility: Plausibility
     timings: dict[str, float] = field(default_factory=dict, compare=False)
 
     def labels(self, level: str = "action") -> pd.DataFrame:
@@ -84,8 +94,10 @@ class TapResult:
         return out.iloc[order].reset_index(drop=True)
 
     def steps(self) -> pd.DataFrame:
-        """Per-step labels: scenario_id, track_id, segment, t and one column per level and
-        axis (``trace_lateral`` ... ``action_longitudinal``) as categoricals."""
+        """Per-step labels: scenario_id, track_id, segment, t, one column per level and
+        axis (``trace_lateral`` ... ``action_longitudinal``) as categoricals, and the
+        per-step flags ``heading_glitch``, ``speed_glitch``, ``heading_trusted`` and
+        ``reversing`` (bool)."""
         per_step = self.segments_info.take(self.step_segment).reset_index(drop=True)
         out = pd.DataFrame({
             "scenario_id": per_step["scenario_id"], "track_id": per_step["track_id"],
@@ -95,6 +107,27 @@ class TapResult:
             for axis in sdl.AXES:
                 out[f"{level}_{axis}"] = pd.Categorical.from_codes(
                     self.step_labels.codes(level, axis), categories=sdl.code_names(level, axis))
+        for name, flags in self.step_flags.items():
+            out[name] = flags
+        return out
+
+    def glitches(self) -> pd.DataFrame:
+        """Per track: its valid segments (labelled and too short), the glitch counts over
+        all of them (:data:`GLITCH_COLUMNS`, ``travel`` the largest) and ``still`` (no
+        segment gets 1 m from its start, so no turn and no merge)."""
+        keys = ["scenario_id", "track_id"]
+        every = pd.concat([self.segments_info.assign(labelled=True),
+                           self.short_segments.assign(labelled=False)], ignore_index=True)
+        if not len(every):
+            return pd.DataFrame(columns=[*keys, "segments", "short_segments", "short_steps",
+                                         *GLITCH_COLUMNS, "still"])
+        every["short_steps"] = np.where(every["labelled"], 0, every["n_steps"])
+        out = every.groupby(keys, sort=True).agg(
+            segments=("segment", "size"), short_segments=("labelled", lambda s: int((~s).sum())),
+            short_steps=("short_steps", "sum"), heading_glitches=("heading_glitches", "sum"),
+            speed_glitches=("speed_glitches", "sum"), reversing_steps=("reversing_steps", "sum"),
+            travel=("travel", "max")).reset_index()
+        out["still"] = out["travel"] < self.plausibility.min_travel
         return out
 
     # -- internals -----------------------------------------------------------------------
@@ -124,8 +157,8 @@ class TapResult:
             "lateral": _strings(lat), "longitudinal": _strings(lon), "sdl": _strings(sdl_text),
             "t_start": info["t_start"], "t_end": info["t_end"],
         })
-        for col in info.columns:
-            if col in IDENTIFYING_COLUMNS:
+        for col in (*GLITCH_COLUMNS, *IDENTIFYING_COLUMNS):
+            if col in info.columns:
                 out[col] = info[col]
         return out
 
@@ -171,30 +204,39 @@ def _segment_frame(tracks: pd.DataFrame, kin: Kinematics, index, which: np.ndarr
     frame.insert(3, "t_start", kin.t[rows])
     frame.insert(4, "t_end", kin.t[stops - 1] + DT if len(rows) else np.zeros(0))
     frame.insert(5, "n_steps", stops - rows)
+    counts = {"heading_glitches": kin.heading_glitch, "speed_glitches": kin.speed_glitch,
+              "reversing_steps": kin.reversing}
+    for pos, (name, flags) in enumerate(counts.items(), start=6):
+        csum = np.concatenate([[0], np.cumsum(flags, dtype=np.int64)])
+        frame.insert(pos, name, csum[stops] - csum[rows])
+    frame.insert(9, "travel", kin.travel[which])
     return frame
 
 
 def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
-        config: StageConfig | None = None, *, source: str = "trajectory table") -> TapResult:
+        config: StageConfig | None = None, *, plausibility: Plausibility | None = None,
+        source: str = "trajectory table") -> TapResult:
     """Run the Trajectory-to-Action Pipeline on a trajectory table.
 
     Args:
         table: a trajectory table (SPEC section 1), validated on entry.
         thresholds: a :class:`Thresholds`, a preset name (``"paper"``) or a JSON file path.
-        config: stage timing parameters (1 s minimum run, 4 s merge gap by default).
+        config: stage parameters (1 s minimum run, the merge rule's 4 s, 0.2 rad, 1.5 m).
+        plausibility: the bounds that tell glitches from motion (SPEC section 2).
         source: a name for the table in error messages (its file path).
 
     Returns:
         A :class:`TapResult`; segments shorter than 1 s are listed in ``short_segments``.
     """
     config = config or StageConfig()
+    plausibility = plausibility or Plausibility()
     th = resolve_thresholds(thresholds)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     checked = validate_and_index(table, source=source)
     index = checked.index
     t1 = time.perf_counter()
-    kin = compute_kinematics(checked)
+    kin = compute_kinematics(checked, plausibility)
     t2 = time.perf_counter()
 
     lengths = index.segment_length
@@ -213,24 +255,30 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
     step_segment = np.repeat(np.arange(len(starts)), seg_len)
     t3 = time.perf_counter()
     labels = run_stages(kin.w[step_rows], kin.a[step_rows], kin.v[step_rows], seg_len, th,
-                        config)
+                        config, heading=kin.heading[step_rows], x=kin.x[step_rows],
+                        y=kin.y[step_rows])
+    flags = {"heading_glitch": kin.heading_glitch[step_rows],
+             "speed_glitch": kin.speed_glitch[step_rows],
+             "heading_trusted": kin.trusted[step_rows], "reversing": kin.reversing[step_rows]}
     t4 = time.perf_counter()
     timings.update(validate=t1 - t0, kinematics=t2 - t1, layout=t3 - t2, stages=t4 - t3)
     return TapResult(segments_info=info, short_segments=short, step_labels=labels,
-                     step_t=kin.t[step_rows], step_segment=step_segment, thresholds=th,
-                     config=config, timings=timings)
+                     step_t=kin.t[step_rows], step_segment=step_segment, step_flags=flags,
+                     thresholds=th, config=config, plausibility=plausibility,
+                     timings=timings)
 
 
 def label(table: pd.DataFrame, thresholds: Thresholds | str = "paper", level: str = "action",
-          config: StageConfig | None = None, *, source: str = "trajectory table"
-          ) -> pd.DataFrame:
+          config: StageConfig | None = None, *, plausibility: Plausibility | None = None,
+          source: str = "trajectory table") -> pd.DataFrame:
     """The SDL label table of a trajectory table (one row per trajectory segment and level).
 
     Args:
         table: a trajectory table (SPEC section 1).
         thresholds: a :class:`Thresholds`, a preset name (``"paper"``) or a JSON file path.
         level: ``"trace"``, ``"trend"``, ``"maneuver"``, ``"action"`` or ``"all"``.
-        config: stage timing parameters.
+        config: stage parameters.
+        plausibility: the bounds that tell glitches from motion (SPEC section 2).
         source: a name for the table in error messages.
 
     Warns:
@@ -238,7 +286,7 @@ def label(table: pd.DataFrame, thresholds: Thresholds | str = "paper", level: st
             (use :func:`tap` to get them as a table).
     """
     _levels(level)  # fail on a bad level before doing any work
-    result = tap(table, thresholds, config, source=source)
+    result = tap(table, thresholds, config, plausibility=plausibility, source=source)
     warn_short_segments(result)
     return result.labels(level)
 

@@ -136,8 +136,13 @@ def test_fit_thresholds_from_a_table_with_provenance(tmp_path):
     th = report.thresholds
     prov = th.provenance
     assert prov.dataset == "synthetic-300"
-    assert prov.n_samples["w"] == prov.n_samples["a"] == 300 * 9
-    assert prov.n_samples["v"] < prov.n_samples["a"]  # stopped samples left out
+    samples = tb.one_second_samples(table)
+    moving = int((samples["v"] > 0.1).sum())
+    assert len(samples["v"]) == 300 * 9
+    # stopped windows take no part in D_a, D_w (SPEC 3) nor in J(Theta_v)
+    assert prov.n_samples["a"] == prov.n_samples["v"] == moving < 300 * 9
+    # nor do windows whose heading is not trusted (a slow crawl) in D_w
+    assert prov.n_samples["w"] == len(samples["w"]) <= moving
     assert th.v_stop == 0.1
     for dist in ("w", "a", "v"):
         runs = list(report.fits[dist].runs)
