@@ -21,12 +21,14 @@ were chosen on):
   more than pi/2 is taken as a flip of the box by pi and folded back; a step change whose
   yaw rate exceeds ``v / r_min + w_noise`` (v: the larger repaired speed of the two steps)
   is bounded to it;
-- **untrusted headings**: a heading is only trusted where the vehicle moves: its motion,
-  measured from positions averaged over 1 s windows 1 s apart, is at least ``v_heading``;
-  where it is not, and on every step of a segment that travels less than ``min_travel``
-  in all, the yaw rate is 0 (no turn, no merge);
-- **reversing**: a moving step whose motion points more than 120 degrees away from its
-  heading is reversing; its yaw rate is 0 too, so reversing never reads as a turn the
+- **untrusted headings**: a heading is only trusted where the vehicle moves. Each segment
+  is cut into one-second blocks (10 steps from its start, the last one shorter); a block
+  moves when its mean position changes by ``v_heading`` per second or more between the
+  blocks before and after it. Where it does not, and on every step of a segment whose
+  block means never get ``min_travel`` away from the first one, the yaw rate is 0 (no
+  turn, no merge);
+- **reversing**: a moving block whose motion points more than 120 degrees away from the
+  heading at its middle step is reversing; its yaw rate is 0 too, so reversing never reads as a turn the
   other way. Reversing steps are flagged and counted.
 """
 
@@ -38,7 +40,14 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.errors import TapBenchError
-from tap_bench.trajectories import HZ, CheckedTable, TrackIndex, validate_and_index
+from tap_bench.trajectories import (
+    DT,
+    DT_TOLERANCE,
+    HZ,
+    CheckedTable,
+    TrackIndex,
+    validate_and_index,
+)
 
 __all__ = ["STEPS_PER_SECOND", "Kinematics", "Plausibility", "compute_kinematics",
            "one_second_samples", "window_means"]
@@ -156,96 +165,94 @@ def _derivative(step_diff: np.ndarray, t: np.ndarray, index: TrackIndex) -> np.n
     return out
 
 
-def _shift(values: np.ndarray, k: int, fill) -> np.ndarray:
-    """values[i + k] at i (``fill`` beyond the ends)."""
-    out = np.full_like(values, fill)
-    if k > 0:
-        out[:-k] = values[k:]
-    elif k < 0:
-        out[-k:] = values[:k]
-    else:
-        out[:] = values
-    return out
-
-
 def _despike(v: np.ndarray, t: np.ndarray, seg: np.ndarray, jump: float, max_steps: int
              ) -> tuple[np.ndarray, np.ndarray]:
     """Speed with its spikes replaced, and the (n,) bool mask of replaced rows.
 
-    ``jump`` is the largest believable change over one step [m/s]. ``seg`` is the segment
-    of each row (-1 invalid).
+    ``jump`` is the largest believable change over one step [m/s]; ``seg`` the segment of
+    each row (-1 invalid). Only rows entered by a larger jump can start a spike, so the
+    checks run on those few rows.
     """
     v = v.copy()
-    replaced = np.zeros(len(v), dtype=bool)
     n = len(v)
+    replaced = np.zeros(n, dtype=bool)
     if n < 3:
+        return v, replaced
+    with np.errstate(invalid="ignore"):
+        big = np.abs(np.diff(v)) > jump  # NaN (invalid rows) compares False
+    in_seg = (seg[1:] == seg[:-1]) & (seg[1:] >= 0)
+    entry = np.flatnonzero(big & in_seg) + 1  # rows entered by a big jump from their segment
+    if len(entry) == 0:
         return v, replaced
     # Longest first: in 1, 11, 10, 3, 12, 12, 1 the spikes are (11, 10) and (12, 12), not 3.
     for length in range(max_steps, 0, -1):
-        before, after = _shift(v, -1, np.nan), _shift(v, length, np.nan)
-        same = (seg >= 0) & (_shift(seg, -1, -2) == seg) & (_shift(seg, length, -2) == seg)
-        inner = [_shift(v, k, np.nan) for k in range(length)]
-        lo, hi = np.minimum.reduce(inner), np.maximum.reduce(inner)
+        start = entry[entry + length < n]
+        start = start[seg[start + length] == seg[start]]
+        if len(start) == 0:
+            continue
+        inner = v[start[:, None] + np.arange(length)]
+        before, after = v[start - 1], v[start + length]
         with np.errstate(invalid="ignore"):
-            edge_hi, edge_lo = np.fmax(before, after), np.fmin(before, after)
-            spike = same & (((lo - edge_hi > jump) | (edge_lo - hi > jump))
-                            & (np.abs(after - before) <= jump * (length + 1)))
-        for start in np.flatnonzero(spike):
-            if replaced[start - 1:start + length + 1].any():  # overlaps a repaired spike
+            up = inner.min(axis=1) - np.maximum(before, after) > jump
+            down = np.minimum(before, after) - inner.max(axis=1) > jump
+            spike = (up | down) & (np.abs(after - before) <= jump * (length + 1))
+        for k in start[spike].tolist():
+            if replaced[k - 1:k + length + 1].any():  # touches a spike already repaired
                 continue
-            t0, t1 = t[start - 1], t[start + length]
-            rows = np.arange(start, start + length)
-            v[rows] = v[start - 1] + (v[start + length] - v[start - 1]) * (t[rows] - t0) / (t1 - t0)
+            rows = np.arange(k, k + length)
+            t0, t1 = t[k - 1], t[k + length]
+            v[rows] = v[k - 1] + (v[k + length] - v[k - 1]) * (t[rows] - t0) / (t1 - t0)
             replaced[rows] = True
     # A first (last) step that jumps away from two neighbours that agree with each other.
-    nxt, nxt2 = _shift(v, 1, np.nan), _shift(v, 2, np.nan)
-    prv, prv2 = _shift(v, -1, np.nan), _shift(v, -2, np.nan)
-    seg_n2, seg_p2 = _shift(seg, 2, -2), _shift(seg, -2, -2)
-    first = (seg >= 0) & (_shift(seg, -1, -2) != seg) & (seg_n2 == seg)
-    last = (seg >= 0) & (_shift(seg, 1, -2) != seg) & (seg_p2 == seg)
+    ends = np.unique(np.concatenate([entry - 1, entry]))
+    ends = ends[(ends >= 0) & (ends < n)]
+    first = ends[(seg[ends] >= 0) & ((ends == 0) | (seg[np.maximum(ends - 1, 0)] != seg[ends]))
+                 & (ends + 2 < n)]
+    first = first[(seg[np.minimum(first + 2, n - 1)] == seg[first])]
+    last = ends[(seg[ends] >= 0) & ((ends == n - 1) | (seg[np.minimum(ends + 1, n - 1)]
+                                                       != seg[ends])) & (ends >= 2)]
+    last = last[seg[last - 2] == seg[last]]
     with np.errstate(invalid="ignore"):
-        first &= (np.abs(v - nxt) > jump) & (np.abs(nxt - nxt2) <= jump)
-        last &= (np.abs(v - prv) > jump) & (np.abs(prv - prv2) <= jump)
-    v[first], v[last] = nxt[first], prv[last]
-    replaced |= first | last
+        first = first[(np.abs(v[first] - v[first + 1]) > jump)
+                      & (np.abs(v[first + 1] - v[first + 2]) <= jump) & ~replaced[first + 1]]
+        last = last[(np.abs(v[last] - v[last - 1]) > jump)
+                    & (np.abs(v[last - 1] - v[last - 2]) <= jump) & ~replaced[last - 1]]
+    v[first], v[last] = v[first + 1], v[last - 1]
+    replaced[first] = replaced[last] = True
     return v, replaced
 
 
-def _centred_means(values: np.ndarray, index: TrackIndex, width: int) -> np.ndarray:
-    """Mean of ``values`` over the ``width``-step window centred on each row of a valid
-    segment (shifted to lie inside it; the whole segment when shorter), NaN elsewhere."""
-    n = len(values)
-    seg = index.segment
-    ok = seg >= 0
-    csum = np.zeros(n + 1)
-    np.cumsum(np.where(ok, values, 0.0), out=csum[1:])
-    rows = np.arange(n)
-    safe = np.where(ok, seg, 0)
-    s0, s1 = index.segment_start[safe], index.segment_stop[safe]
-    w = np.minimum(width, s1 - s0)
-    lo = np.clip(rows - w // 2, s0, s1 - w)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        out = (csum[lo + w] - csum[lo]) / w
-    return np.where(ok, out, np.nan)
-
-
-def _anchor(offset: np.ndarray, index: TrackIndex) -> np.ndarray:
-    """(n_segments,) the constant that turns the summed repaired changes into headings.
-
-    ``offset`` is raw heading minus summed changes per row: constant within a segment
-    except where the raw heading was flipped by pi or jumped. The direction (mod pi) is the
-    segment's axial mean of the offsets; of its two senses, the one most rows agree with.
+def _anchor(heading: np.ndarray, cum: np.ndarray, index: TrackIndex, glitchy: np.ndarray
+            ) -> np.ndarray:
+    """(n_segments,) the constant that turns the summed repaired changes ``cum`` into
+    headings: the raw heading at the segment's start, except in segments with a heading
+    glitch (``glitchy``, (n_segments,) bool). There ``heading - cum`` is the constant on
+    most rows but off by pi (or more) on the flipped ones: the direction (mod pi) is the
+    axial mean of the offsets, and of its two senses the one most rows agree with.
     """
-    if index.n_segments == 0:
-        return np.zeros(0)
-    starts = index.segment_start
-    ok = index.segment >= 0
-    two = np.where(ok, 2.0 * offset, 0.0)
-    c2 = 0.5 * np.arctan2(np.add.reduceat(np.where(ok, np.sin(two), 0.0), starts),
-                          np.add.reduceat(np.where(ok, np.cos(two), 0.0), starts))
-    safe = np.where(ok, index.segment, 0)
-    agree = np.where(ok, np.sign(np.cos(offset - c2[safe])), 0.0)
-    return np.where(np.add.reduceat(agree, starts) >= 0, c2, c2 + np.pi)
+    first = index.segment_start
+    out = heading[first] - cum[first]
+    for s in np.flatnonzero(glitchy).tolist():
+        offset = heading[first[s]:index.segment_stop[s]] - cum[first[s]:index.segment_stop[s]]
+        c2 = 0.5 * np.arctan2(np.sin(2 * offset).sum(), np.cos(2 * offset).sum())
+        out[s] = c2 if np.sign(np.cos(offset - c2)).sum() >= 0 else c2 + np.pi
+    return out
+
+
+def _blocks(index: TrackIndex) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One-second blocks of every valid segment: (starts, lengths, segment of each block).
+
+    Blocks of 10 steps from each segment's start; the last one of a segment takes what is
+    left (1 to 10 steps).
+    """
+    lengths = index.segment_length
+    n_blocks = -(-lengths // STEPS_PER_SECOND)
+    seg = np.repeat(np.arange(index.n_segments), n_blocks)
+    first_block = np.cumsum(n_blocks) - n_blocks
+    within = np.arange(n_blocks.sum()) - np.repeat(first_block, n_blocks)
+    starts = index.segment_start[seg] + within * STEPS_PER_SECOND
+    stops = np.minimum(starts + STEPS_PER_SECOND, index.segment_stop[seg])
+    return starts, stops - starts, seg
 
 
 def compute_kinematics(checked: CheckedTable, plausibility: Plausibility | None = None
@@ -262,56 +269,84 @@ def compute_kinematics(checked: CheckedTable, plausibility: Plausibility | None 
     seg = index.segment
     n = len(seg)
     t = np.asarray(checked["t"], dtype=np.float64)
-    raw_v = np.asarray(checked["speed"], dtype=np.float64)
     raw_heading = np.asarray(checked["heading"], dtype=np.float64)
-    x = np.array(checked["x"], dtype=np.float64)
-    y = np.array(checked["y"], dtype=np.float64)
+    x = np.asarray(checked["x"], dtype=np.float64)
+    y = np.asarray(checked["y"], dtype=np.float64)
     valid = seg >= 0
-    dt = np.diff(t)
     in_seg = valid[1:] & (seg[1:] == seg[:-1])  # (n-1,) step k -> k+1 inside a segment
 
-    v, speed_glitch = _despike(raw_v, t, seg, p.a_max / HZ, p.max_spike_steps)
+    v, speed_glitch = _despike(np.asarray(checked["speed"], dtype=np.float64), t, seg,
+                               p.a_max / HZ, p.max_spike_steps)
 
-    # Heading: wrap each step's change, fold flips by pi, bound what the speed allows.
+    # Heading: wrap each step's change, fold flips by pi, bound what the speed allows. The
+    # bound is at least w_noise * 0.09 s, so only larger changes need a closer look.
     dh = np.diff(raw_heading)
-    dh = np.where(in_seg, (dh + np.pi) % (2.0 * np.pi) - np.pi, 0.0)
-    flip = np.abs(dh) > 0.5 * np.pi
-    dh = np.where(flip, dh - np.pi * np.sign(dh), dh)
-    with np.errstate(invalid="ignore"):
-        bound = (np.fmax(v[:-1], v[1:]) / p.r_min + p.w_noise) * dt
-    over = np.abs(dh) > bound
-    dh = np.clip(dh, -bound, bound) if n > 1 else dh
+    dh[~in_seg] = 0.0
+    wrap = np.flatnonzero(np.abs(dh) > np.pi)
+    dh[wrap] -= 2.0 * np.pi * np.round(dh[wrap] / (2.0 * np.pi))
     heading_glitch = np.zeros(n, dtype=bool)
-    heading_glitch[1:] = in_seg & (flip | over)
+    k = np.flatnonzero(np.abs(dh) > p.w_noise * DT * (1.0 - DT_TOLERANCE))
+    if len(k):
+        bound = (np.fmax(v[k], v[k + 1]) / p.r_min + p.w_noise) * (t[k + 1] - t[k])
+        k, bound = k[np.abs(dh[k]) > bound], bound[np.abs(dh[k]) > bound]
+        step = dh[k]
+        step = np.where(np.abs(step) > 0.5 * np.pi, step - np.pi * np.sign(step), step)
+        dh[k] = np.clip(step, -bound, bound)
+        heading_glitch[k + 1] = True
     cum = np.zeros(n)
     np.cumsum(dh, out=cum[1:])
-    safe = np.where(valid, seg, 0)
-    first = index.segment_start[safe]
-    heading = np.where(valid, cum + _anchor(raw_heading - cum, index)[safe], np.nan)
+    glitchy = np.zeros(index.n_segments, dtype=bool)
+    glitchy[seg[heading_glitch]] = True
+    anchor = np.repeat(_anchor(raw_heading, cum, index, glitchy), index.segment_length)
+    if valid.all():
+        heading = cum + anchor
+    else:  # the valid rows are the segments, in order
+        heading = np.full(n, np.nan)
+        heading[valid] = cum[valid] + anchor
 
-    # Motion from positions averaged over 1 s, compared 1 s apart.
-    mx = _centred_means(x, index, STEPS_PER_SECOND)
-    my = _centred_means(y, index, STEPS_PER_SECOND)
-    rows = np.arange(n)
-    half = STEPS_PER_SECOND // 2
-    ahead = np.minimum(rows + half, index.segment_stop[safe] - 1)
-    behind = np.maximum(rows - half, first)
-    ux, uy = mx[ahead] - mx[behind], my[ahead] - my[behind]
-    span = t[ahead] - t[behind]
+    # Motion, from positions averaged over one-second blocks: each block moves by the
+    # change between the blocks before and after it (its own neighbour at a segment end).
+    starts, lengths, block_seg = _blocks(index)
+    nb = len(starts)
+    if valid.all():
+        mx = np.add.reduceat(x, starts) / lengths if nb else np.zeros(0)
+        my = np.add.reduceat(y, starts) / lengths if nb else np.zeros(0)
+    else:
+        mx = np.add.reduceat(np.where(valid, x, 0.0), starts) / lengths if nb else np.zeros(0)
+        my = np.add.reduceat(np.where(valid, y, 0.0), starts) / lengths if nb else np.zeros(0)
+    mt = 0.5 * (t[starts] + t[starts + lengths - 1])
+    prev = np.arange(nb) - 1
+    nxt = np.arange(nb) + 1
+    if nb:
+        prev[0] = 0
+        nxt[-1] = nb - 1
+    prev = np.where(block_seg[prev] == block_seg, prev, np.arange(nb))
+    nxt = np.where(block_seg[nxt] == block_seg, nxt, np.arange(nb))
+    ux, uy, span = mx[nxt] - mx[prev], my[nxt] - my[prev], mt[nxt] - mt[prev]
     dist = np.hypot(ux, uy)
+    centre = heading[starts + lengths // 2]
     with np.errstate(invalid="ignore", divide="ignore"):
         motion = np.where(span > 0, dist / span, 0.0)
-        along = np.where(dist > 0, (ux * np.cos(heading) + uy * np.sin(heading)) / dist, 1.0)
-    moving = valid & (motion >= p.v_heading)
-    reversing = moving & (along < _REVERSE_COS)
-    far = np.hypot(mx - mx[first], my - my[first])
-    travel = np.zeros(index.n_segments)
-    if index.n_segments:
-        travel = np.fmax.reduceat(np.where(valid, far, 0.0), index.segment_start)
-    trusted = moving & ~reversing & (travel[safe] >= p.min_travel)
+        along = np.where(dist > 0, (ux * np.cos(centre) + uy * np.sin(centre)) / dist, 1.0)
+    moving = motion >= p.v_heading
+    first_block = np.flatnonzero(np.r_[True, block_seg[1:] != block_seg[:-1]]) if nb else \
+        np.zeros(0, dtype=np.int64)
+    home = np.repeat(first_block, np.diff(np.r_[first_block, nb]))
+    travel = (np.maximum.reduceat(np.hypot(mx - mx[home], my - my[home]), first_block)
+              if nb else np.zeros(0))
+    far = travel[block_seg] >= p.min_travel  # a still vehicle neither turns nor reverses
+    block_reversing = moving & far & (along < _REVERSE_COS)
+    block_trusted = moving & far & ~block_reversing
+
+    trusted = np.zeros(n, dtype=bool)
+    trusted[valid] = np.repeat(block_trusted, lengths)
+    reversing = np.zeros(n, dtype=bool)
+    if block_reversing.any():
+        reversing[valid] = np.repeat(block_reversing, lengths)
 
     a = _derivative(np.diff(v), t, index)
-    w = np.where(trusted, _derivative(dh, t, index), 0.0)
+    w = _derivative(dh, t, index)
+    w[~trusted] = 0.0  # NaN stays on invalid rows: they are never trusted
     w[~valid] = np.nan
     v[~valid] = np.nan
     return Kinematics(t=t, v=v, a=a, w=w, index=index, heading=heading, x=x, y=y,

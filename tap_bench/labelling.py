@@ -56,8 +56,8 @@ class TapResult:
         step_labels: per-step codes of every level over the labelled steps.
         step_t: (m,) time of each labelled step [s].
         step_segment: (m,) row of ``segments_info`` of each labelled step.
-        step_flags: per labelled step, (m,) bool each: ``heading_glitch``, ``speed_glitch``,
-            ``heading_trusted``, ``reversing``.
+        step_rows: (m,) row of the validated table of each labelled step.
+        kinematics: the kinematic signals and glitch flags of every row.
         thresholds: the thresholds used.
         config: the stage timing parameters used.
         timings: seconds spent per stage (validate, kinematics, stages, tables).
@@ -68,7 +68,8 @@ class TapResult:
     step_labels: StepLabels
     step_t: np.ndarray
     step_segment: np.ndarray
-    step_flags: dict[str, np.ndarray]
+    step_rows: np.ndarray
+    kinematics: Kinematics
     thresholds: Thresholds
     config: StageConfig
     plausibility: Plausibility
@@ -107,8 +108,11 @@ class TapResult:
             for axis in sdl.AXES:
                 out[f"{level}_{axis}"] = pd.Categorical.from_codes(
                     self.step_labels.codes(level, axis), categories=sdl.code_names(level, axis))
-        for name, flags in self.step_flags.items():
-            out[name] = flags
+        kin, rows = self.kinematics, self.step_rows
+        for name, flags in (("heading_glitch", kin.heading_glitch),
+                            ("speed_glitch", kin.speed_glitch),
+                            ("heading_trusted", kin.trusted), ("reversing", kin.reversing)):
+            out[name] = flags[rows]
         return out
 
     def glitches(self) -> pd.DataFrame:
@@ -207,8 +211,9 @@ def _segment_frame(tracks: pd.DataFrame, kin: Kinematics, index, which: np.ndarr
     counts = {"heading_glitches": kin.heading_glitch, "speed_glitches": kin.speed_glitch,
               "reversing_steps": kin.reversing}
     for pos, (name, flags) in enumerate(counts.items(), start=6):
-        csum = np.concatenate([[0], np.cumsum(flags, dtype=np.int64)])
-        frame.insert(pos, name, csum[stops] - csum[rows])
+        flagged = index.segment[np.flatnonzero(flags)]  # flags are rare: count them sparsely
+        per_segment = np.bincount(flagged, minlength=index.n_segments)
+        frame.insert(pos, name, per_segment[which].astype(np.int64))
     frame.insert(9, "travel", kin.travel[which])
     return frame
 
@@ -255,15 +260,12 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
     step_segment = np.repeat(np.arange(len(starts)), seg_len)
     t3 = time.perf_counter()
     labels = run_stages(kin.w[step_rows], kin.a[step_rows], kin.v[step_rows], seg_len, th,
-                        config, heading=kin.heading[step_rows], x=kin.x[step_rows],
-                        y=kin.y[step_rows])
-    flags = {"heading_glitch": kin.heading_glitch[step_rows],
-             "speed_glitch": kin.speed_glitch[step_rows],
-             "heading_trusted": kin.trusted[step_rows], "reversing": kin.reversing[step_rows]}
+                        config, heading=kin.heading, x=kin.x, y=kin.y, rows=step_rows)
     t4 = time.perf_counter()
     timings.update(validate=t1 - t0, kinematics=t2 - t1, layout=t3 - t2, stages=t4 - t3)
     return TapResult(segments_info=info, short_segments=short, step_labels=labels,
-                     step_t=kin.t[step_rows], step_segment=step_segment, step_flags=flags,
+                     step_t=kin.t[step_rows], step_segment=step_segment, step_rows=step_rows,
+                     kinematics=kin,
                      thresholds=th, config=config, plausibility=plausibility,
                      timings=timings)
 

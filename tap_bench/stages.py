@@ -209,11 +209,16 @@ def _trace_longitudinal(a: np.ndarray, th: Thresholds) -> np.ndarray:
 
 @dataclass(frozen=True)
 class _Path:
-    """Per-step heading (unwrapped within each segment) [rad] and position [m], (m,) each."""
+    """Heading (unwrapped within each segment) [rad] and position [m] of the steps.
+
+    ``heading``, ``x``, ``y`` are (n,) arrays over rows; ``rows`` (m,) maps each step to
+    its row (the steps of a segment are consecutive rows).
+    """
 
     heading: np.ndarray
     x: np.ndarray
     y: np.ndarray
+    rows: np.ndarray
 
 
 def _merge_ok(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
@@ -227,13 +232,14 @@ def _merge_ok(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
     if len(a) == 0:
         return np.zeros(0, dtype=bool)
     h = path.heading
-    last = b - 1
-    h0 = h[a]
+    first, last = path.rows[a], path.rows[b - 1]
+    h0 = h[first]
     net = h[last] - h0
-    offset = (-(path.x[last] - path.x[a]) * np.sin(h0) + (path.y[last] - path.y[a]) * np.cos(h0))
+    offset = (-(path.x[last] - path.x[first]) * np.sin(h0)
+              + (path.y[last] - path.y[first]) * np.cos(h0))
     bounds = np.empty(2 * len(a), dtype=np.int64)
-    bounds[0::2], bounds[1::2] = a, b
-    padded = np.append(h, h[-1])  # b may be one past the last step
+    bounds[0::2], bounds[1::2] = first, last + 1
+    padded = np.append(h, h[-1])  # last + 1 may be one past the last row
     high = np.maximum.reduceat(padded, bounds)[0::2]
     low = np.minimum.reduceat(padded, bounds)[0::2]
     excursion = np.maximum(high - h0, h0 - low)
@@ -252,7 +258,7 @@ def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int) -> Run
     where the heading is back at the first turn's start heading: if both halves then form
     merges (the rest of the middle turn lasting 1 s or more), they are two merges.
     """
-    m = len(path.heading)
+    m = len(path.rows)
     turn = np.flatnonzero((runs.code == sdl.LEFT) | (runs.code == sdl.RIGHT))
     if len(turn) < 2:
         return runs
@@ -278,8 +284,8 @@ def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int) -> Run
         lengths = e2 - s2
         rows = np.repeat(s2, lengths) + (np.arange(lengths.sum())
                                          - np.repeat(np.cumsum(lengths) - lengths, lengths))
-        h0 = np.repeat(path.heading[start[nxt]], lengths)
-        back = np.repeat(side[nxt], lengths) * (path.heading[rows] - h0) <= 0
+        h0 = np.repeat(path.heading[path.rows[start[nxt]]], lengths)
+        back = np.repeat(side[nxt], lengths) * (path.heading[path.rows[rows]] - h0) <= 0
         offsets = np.cumsum(lengths) - lengths
         first = np.minimum.reduceat(np.where(back, rows, m), offsets)
         usable = (first > s2) & (e2 - first >= min_steps)
@@ -335,7 +341,8 @@ def _refine(runs: Runs, signal: np.ndarray, classes: np.ndarray, refine: np.ndar
 
 def run_stages(w: np.ndarray, a: np.ndarray, v: np.ndarray, seg_length: np.ndarray,
                thresholds: Thresholds, config: StageConfig = StageConfig(), *,
-               heading: np.ndarray, x: np.ndarray, y: np.ndarray) -> StepLabels:
+               heading: np.ndarray, x: np.ndarray, y: np.ndarray,
+               rows: np.ndarray | None = None) -> StepLabels:
     """Label every step of the given segments at all four levels.
 
     Args:
@@ -346,9 +353,11 @@ def run_stages(w: np.ndarray, a: np.ndarray, v: np.ndarray, seg_length: np.ndarr
             ``config.min_steps`` long.
         thresholds: Theta.
         config: stage parameters.
-        heading: (m,) heading [rad], unwrapped within each segment (stage 3's net heading
-            change and sideways move).
-        x, y: (m,) position [m].
+        heading: heading [rad], unwrapped within each segment (stage 3's net heading
+            change and sideways move): (m,) per step, or (n,) per row with ``rows``.
+        x, y: position [m], like ``heading``.
+        rows: (m,) the row of ``heading``, ``x``, ``y`` of each step; the steps of one
+            segment must be consecutive rows. Default: the arrays are per step.
     """
     m = len(w)
     min_steps = config.min_steps
@@ -386,7 +395,8 @@ def run_stages(w: np.ndarray, a: np.ndarray, v: np.ndarray, seg_length: np.ndarr
 
     # Stage 3: maneuver.
     path = _Path(heading=np.asarray(heading, dtype=np.float64),
-                 x=np.asarray(x, dtype=np.float64), y=np.asarray(y, dtype=np.float64))
+                 x=np.asarray(x, dtype=np.float64), y=np.asarray(y, dtype=np.float64),
+                 rows=np.arange(m) if rows is None else np.asarray(rows, dtype=np.int64))
     lat_runs = _merges(find_runs(trend_lat, seg, seg_first), path, config, min_steps)
     maneuver_lat = lat_runs.expand(m)
 
