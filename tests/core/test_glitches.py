@@ -124,8 +124,10 @@ def test_heading_glitch_at_the_first_step_of_a_right_turn():
     assert abs(kin.w[0]) <= 1.7 + 1e-9 and np.allclose(kin.w[2:], -0.2)
     assert np.allclose(np.diff(kin.heading[1:]), -0.02)
     labels = tb.label(table, level="all").set_index("level")["lateral"]
-    # The trace still shows the bounded first step as a 1-step Left Turn; the low-pass
-    # removes it (window mean (1.7 - 0.2 * 9) / 10 < 0). |w| = 0.2 > w_med: Aggressive.
+    # The trace still shows the bounded glitch: w = 1.7 at step 0 and (0.17 - 0.02) / 0.2
+    # = 0.75 at step 1, a 2-step Left Turn; the low-pass removes it (its window means
+    # (1.7 + 0.75 - 8 * 0.2) / 10 = 0.085 > w_str, still 2 steps: it joins the Right Turn).
+    # |w| = 0.2 > w_med: Aggressive.
     assert labels["trace"] == "Left Turn > Right Turn"
     assert labels[["trend", "maneuver", "action"]].tolist() == [
         "Right Turn", "Right Turn", "Aggressive Right Turn"]
