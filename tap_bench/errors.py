@@ -12,6 +12,7 @@ from collections.abc import Iterable
 
 __all__ = [
     "FileFormatError",
+    "FitWarning",
     "LabelTableError",
     "ShortSegmentWarning",
     "TapBenchError",
@@ -57,6 +58,11 @@ class UnknownNameError(TapBenchError, KeyError):
 
     def __str__(self) -> str:  # KeyError would quote the message
         return str(self.args[0])
+
+
+class FitWarning(UserWarning):
+    """A threshold fit to look at: its J far above the grid optimum, or a degenerate band
+    (SPEC section 3)."""
 
 
 class ShortSegmentWarning(UserWarning):
