@@ -1,0 +1,104 @@
+"""Do TAP's merges find highway-env's lane changes? The simulator knows the truth.
+
+IDM/MOBIL drives the ego on the highway and merge scenarios (their own lane-change setting,
+realistic) for the given seeds. The recorder writes the ego's lane on each step
+(``lane``, highway-env's lane number on its road, growing to the right), so every change of
+lane on one road is a lane change of known direction. TAP labels the ego (paper thresholds,
+maneuver level) and the script counts:
+
+- lane changes found: the maneuver-level lateral run at the step where the lane changes is
+  a merge of the right direction (Right Merge for a move to a larger lane number);
+- merges without a lane change: merge runs in which the lane never changes;
+- turns on these straight roads (runs labelled Left or Right Turn).
+
+    python benchmarks/bench_lane_change_merges.py [--seeds 0-99] [--workers 2] [--save FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import warnings
+
+import numpy as np
+import pandas as pd
+from machine import report
+
+import tap_bench as tb
+from tap_bench.sim import rollout
+
+ENVS = ("highway", "merge")
+
+
+def lane_changes(ego: pd.DataFrame) -> pd.DataFrame:
+    """One row per lane change of the ego: scenario_id, t (the first step in the new lane),
+    side (``right`` when the lane number grows)."""
+    ego = ego.sort_values(["scenario_id", "t"], kind="stable")
+    same = (ego["scenario_id"].to_numpy()[1:] == ego["scenario_id"].to_numpy()[:-1]) & (
+        ego["road"].to_numpy()[1:] == ego["road"].to_numpy()[:-1])
+    lane = ego["lane"].to_numpy()
+    change = np.flatnonzero(same & (lane[1:] != lane[:-1])) + 1
+    return pd.DataFrame({"scenario_id": ego["scenario_id"].to_numpy()[change],
+                         "t": ego["t"].to_numpy()[change],
+                         "side": np.where(lane[change] > lane[change - 1], "right", "left")})
+
+
+def score(ego: pd.DataFrame, segments: pd.DataFrame) -> dict:
+    """Lane changes against the maneuver-level lateral runs of the ego."""
+    changes = lane_changes(ego)
+    runs = segments[(segments["axis"] == "lateral") & (segments["level"] == "maneuver")]
+    found, wrong_side, other = 0, 0, {}
+    for row in changes.itertuples(index=False):
+        hit = runs[(runs["scenario_id"] == row.scenario_id) & (runs["t_start"] <= row.t + 1e-6)
+                   & (runs["t_end"] > row.t + 1e-6)]
+        label = hit["label"].iloc[0] if len(hit) else "(unlabelled)"
+        want = "Right Merge" if row.side == "right" else "Left Merge"
+        if label == want:
+            found += 1
+        elif label.endswith("Merge"):
+            wrong_side += 1
+        else:
+            other[label] = other.get(label, 0) + 1
+    merges = runs[runs["label"].str.endswith("Merge")]
+    empty = 0
+    for run in merges.itertuples(index=False):
+        inside = changes[(changes["scenario_id"] == run.scenario_id)
+                         & (changes["t"] >= run.t_start - 1e-6) & (changes["t"] < run.t_end)]
+        empty += len(inside) == 0
+    turns = runs[runs["label"].str.endswith("Turn")]
+    n = len(changes)
+    return {"episodes": int(ego["scenario_id"].nunique()), "lane_changes": n,
+            "right": int((changes["side"] == "right").sum()),
+            "found_as_merge_of_that_side": found,
+            "share_found": round(found / n, 4) if n else None,
+            "merge_of_the_other_side": wrong_side, "not_a_merge": other,
+            "merge_runs": len(merges), "merges_without_a_lane_change": empty,
+            "turn_runs": len(turns),
+            "episodes_with_a_turn": int(turns["scenario_id"].nunique())}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", default="0-99")
+    parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--save", help="also write the ego trajectories (Parquet)")
+    args = parser.parse_args()
+    warnings.filterwarnings("ignore")
+    figures, egos = {}, []
+    for env in ENVS:
+        table, episodes = rollout(env, "idm", args.seeds, workers=args.workers, progress=False)
+        ego = table[table["is_ego"].to_numpy()].reset_index(drop=True)
+        egos.append(ego)
+        result = tb.tap(ego, "paper")
+        figures[env] = {**score(ego, result.segments("maneuver")),
+                        "crashed_episodes": int(episodes["crashed"].sum())}
+    everything = pd.concat(egos, ignore_index=True)
+    result = tb.tap(everything, "paper")
+    figures["both"] = score(everything, result.segments("maneuver"))
+    if args.save:
+        tb.write_table(everything, args.save)
+    report("lane_change_merges", figures, seeds=args.seeds, envs=list(ENVS), policy="idm",
+           thresholds="paper", level="maneuver")
+
+
+if __name__ == "__main__":
+    main()
