@@ -216,3 +216,37 @@ def test_step_table_has_every_level():
     assert steps["trace_lateral"].iloc[35] == "Straight"
     assert steps["trend_lateral"].iloc[35] == "Left Turn"
     assert steps["action_longitudinal"].iloc[0] == "Maintain Medium Speed"
+
+
+def test_merge_rule_parameters_decide_a_merge():
+    # left_lane_change: the heading peaks at 0.18 rad and comes back; the car moves about
+    # 15 m/s * 3 s * 0.09 = 4 m to the left over the pair
+    table = tb.behaviour("left_lane_change")
+
+    def lateral(**kw):
+        return tb.label(table, level="maneuver", config=tb.StageConfig(**kw))["lateral"].item()
+
+    assert lateral() == "Straight > Left Merge > Straight"
+    assert lateral(merge_offset=3.5) == "Straight > Left Merge > Straight"
+    assert lateral(merge_offset=4.5) == "Straight > Left Turn > Right Turn > Straight"
+    assert lateral(merge_excursion=0.15) == "Straight > Left Turn > Right Turn > Straight"
+    # the S-curve turns 0.8 rad away: allowed that far, it is a lateral move
+    s_curve = tb.label(tb.behaviour("s_curve"), level="maneuver",
+                       config=tb.StageConfig(merge_excursion=1.0))
+    assert s_curve["lateral"].item() == "Straight > Left Merge > Straight"
+    # the turn-exit overshoot never comes back to its heading, whatever the excursion
+    overshoot = tb.label(tb.behaviour("turn_exit_overshoot"), level="maneuver",
+                         config=tb.StageConfig(merge_excursion=3.0))
+    assert overshoot["lateral"].item() == "Straight > Left Turn > Right Turn > Straight"
+    for name in ("merge_heading", "merge_offset", "merge_excursion", "merge_gap"):
+        with pytest.raises(tb.TapBenchError, match=name):
+            tb.StageConfig(**{name: -1.0})
+
+
+def test_a_right_lane_change_is_never_a_left_merge():
+    # the sideways move must go to the first turn's side: mirror the shape of a left lane
+    # change's heading but not its positions, and it cannot merge
+    table = tb.behaviour("left_lane_change")
+    table["y"] = -table["y"]  # the car moves right while its heading turns left, then right
+    got = tb.label(table, level="maneuver")["lateral"].item()
+    assert "Merge" not in got
