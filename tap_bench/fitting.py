@@ -26,14 +26,14 @@ by minimising J (:mod:`tap_bench.objective`) with four methods:
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-import warnings
-
+from tap_bench._version import __version__
 from tap_bench.errors import FitWarning, TapBenchError, did_you_mean
 from tap_bench.kinematics import V_STOP, one_second_samples
 from tap_bench.objective import SortedSamples
@@ -414,7 +414,6 @@ def fit_report(data: pd.DataFrame | dict[str, np.ndarray], *,
             warnings.warn(note, FitWarning, stacklevel=2)
         fits[dist] = DistributionFit(dist, len(x), tuple(runs), grid, chosen, notes)
 
-    from tap_bench import __version__
 
     th = Thresholds(
         *fits["w"].chosen.theta, *fits["a"].chosen.theta, v_stop, *fits["v"].chosen.theta,

@@ -15,8 +15,8 @@ were chosen on):
 
 - **speed spikes**: a run of 1 to 3 steps whose speed jumps away from both neighbours by
   more than ``a_max`` allows and back again (both neighbours agreeing with each other) is
-  replaced by the straight line between the neighbours (longest runs first); a first or last step that jumps
-  away from two agreeing neighbours takes its neighbour's value;
+  replaced by the straight line between the neighbours (longest runs first); a first or
+  last step that jumps away from two agreeing neighbours takes its neighbour's value;
 - **heading flips and jumps**: the heading is unwrapped step by step; a step change of
   more than pi/2 is taken as a flip of the box by pi and folded back; a step change whose
   yaw rate exceeds ``v / r_min + w_noise`` (v: the larger repaired speed of the two steps)
@@ -28,8 +28,8 @@ were chosen on):
   block means never get ``min_travel`` away from the first one, the yaw rate is 0 (no
   turn, no merge);
 - **reversing**: a moving block whose motion points more than 120 degrees away from the
-  heading at its middle step is reversing; its yaw rate is 0 too, so reversing never reads as a turn the
-  other way. Reversing steps are flagged and counted.
+  heading at its middle step is reversing; its yaw rate is 0 too, so reversing never reads
+  as a turn the other way. Reversing steps are flagged and counted.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from tap_bench.errors import TapBenchError
+from tap_bench.errors import ParameterError
 from tap_bench.trajectories import (
     DT,
     DT_TOLERANCE,
@@ -87,16 +87,14 @@ class Plausibility:
         for name in ("r_min", "w_noise", "a_max"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
-                raise TapBenchError(f"Plausibility.{name} must be a finite number > 0, got "
-                                    f"{value!r}")
+                raise ParameterError(f"Plausibility.{name}", value, "a finite number > 0")
         for name in ("v_heading", "min_travel"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value >= 0):
-                raise TapBenchError(f"Plausibility.{name} must be a finite number >= 0, got "
-                                    f"{value!r}")
+                raise ParameterError(f"Plausibility.{name}", value, "a finite number >= 0")
         if not (isinstance(self.max_spike_steps, int) and self.max_spike_steps >= 0):
-            raise TapBenchError("Plausibility.max_spike_steps must be an int >= 0, got "
-                                f"{self.max_spike_steps!r}")
+            raise ParameterError("Plausibility.max_spike_steps", self.max_spike_steps,
+                                 "an int >= 0")
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tap_bench import sdl
-from tap_bench.errors import TapBenchError
+from tap_bench.errors import ParameterError, TapBenchError
 from tap_bench.kinematics import STEPS_PER_SECOND, window_means
 from tap_bench.thresholds import Thresholds
 
@@ -69,8 +69,8 @@ class StageConfig:
                            ("merge_excursion", "rad")):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value >= 0):
-                raise TapBenchError(f"StageConfig.{name} must be a finite number >= 0 {unit}, "
-                                    f"got {value!r}")
+                raise ParameterError(f"StageConfig.{name}", value, f"a finite number >= 0 "
+                                     f"[{unit}]")
 
     @property
     def min_steps(self) -> int:

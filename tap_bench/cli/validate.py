@@ -5,7 +5,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import pandas as pd
+
 from tap_bench.sdl import LEVELS
+from tap_bench.sources.ingest import read_womd
+from tap_bench.tableio import read_table
+from tap_bench.womd.validation import markdown, validate_womd, write_validation
 
 _TABLE_SUFFIXES = (".parquet", ".csv")
 
@@ -35,15 +40,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tap_bench.tableio import read_table
-    from tap_bench.womd.ingest import read_womd
-    from tap_bench.womd.validation import markdown, validate_womd, write_validation
-
     types = None if args.object_types == "all" else tuple(
         t.strip().lower() for t in args.object_types.split(",") if t.strip())
     if all(Path(i).suffix.lower() in _TABLE_SUFFIXES for i in args.inputs):
-        import pandas as pd
-
         table = pd.concat([read_table(i) for i in args.inputs], ignore_index=True)
     else:
         table = read_womd(args.inputs, object_types=types)

@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.errors import ShortSegmentWarning
+from tap_bench.labelling import tap
 from tap_bench.tableio import atomic_path, write_table
 from tap_bench.womd.trajectory_types import (
     START_INDEX,
@@ -112,8 +113,6 @@ def validate_womd(table: pd.DataFrame, thresholds="paper", config=None, plausibi
         level: the TAP level compared (maneuver).
         source: a name for the table in messages.
     """
-    from tap_bench.labelling import tap
-
     if object_types is not None and "object_type" in table.columns:
         table = table[table["object_type"].astype(str).str.lower().isin(object_types)]
     with warnings.catch_warnings():

@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.womd.ingest import ingest_womd
+from tap_bench.sources.ingest import ingest_womd
 from tap_bench.womd.trajectory_types import (
     TAP_CATEGORIES,
     agreement_table,
