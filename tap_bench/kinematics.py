@@ -163,25 +163,34 @@ def _derivative(step_diff: np.ndarray, t: np.ndarray, index: TrackIndex) -> np.n
     return out
 
 
-def _despike(v: np.ndarray, t: np.ndarray, seg: np.ndarray, jump: float, max_steps: int
-             ) -> tuple[np.ndarray, np.ndarray]:
+def _despike(v: np.ndarray, dv: np.ndarray, t: np.ndarray, seg: np.ndarray,
+             in_seg: np.ndarray, jump: float, max_steps: int
+             ) -> tuple[np.ndarray, np.ndarray | None]:
     """Speed with its spikes replaced, and the (n,) bool mask of replaced rows.
 
-    ``jump`` is the largest believable change over one step [m/s]; ``seg`` the segment of
-    each row (-1 invalid). Only rows entered by a larger jump can start a spike, so the
-    checks run on those few rows.
+    Args:
+        v: (n,) speed [m/s]; dv: (n-1,) its step changes; t: (n,) time [s]; seg: (n,) the
+            segment of each row (-1 invalid); in_seg: (n-1,) bool, step k -> k+1 inside a
+            segment.
+        jump: the largest believable change over one step [m/s].
+        max_steps: the longest spike repaired.
+
+    Returns:
+        the repaired speed (``v`` itself, not a copy, when nothing was repaired) and the
+        mask of repaired rows (None when nothing was). Only rows entered by a larger jump
+        can start a spike, so the checks run on those few rows.
     """
-    v = v.copy()
     n = len(v)
-    replaced = np.zeros(n, dtype=bool)
     if n < 3:
-        return v, replaced
+        return v, None
     with np.errstate(invalid="ignore"):
-        big = np.abs(np.diff(v)) > jump  # NaN (invalid rows) compares False
-    in_seg = (seg[1:] == seg[:-1]) & (seg[1:] >= 0)
-    entry = np.flatnonzero(big & in_seg) + 1  # rows entered by a big jump from their segment
+        big = np.abs(dv) > jump  # NaN (invalid rows) compares False
+    big &= in_seg
+    entry = np.flatnonzero(big) + 1  # rows entered by a big jump from their segment
     if len(entry) == 0:
-        return v, replaced
+        return v, None
+    v = v.copy()
+    replaced = np.zeros(n, dtype=bool)
     # Longest first: in 1, 11, 10, 3, 12, 12, 1 the spikes are (11, 10) and (12, 12), not 3.
     for length in range(max_steps, 0, -1):
         start = entry[entry + length < n]
@@ -217,7 +226,7 @@ def _despike(v: np.ndarray, t: np.ndarray, seg: np.ndarray, jump: float, max_ste
                     & (np.abs(v[last - 1] - v[last - 2]) <= jump) & ~replaced[last - 1]]
     v[first], v[last] = v[first + 1], v[last - 1]
     replaced[first] = replaced[last] = True
-    return v, replaced
+    return (v, replaced) if replaced.any() else (v, None)
 
 
 def _anchor(heading: np.ndarray, cum: np.ndarray, index: TrackIndex, glitchy: np.ndarray
@@ -273,17 +282,25 @@ def compute_kinematics(checked: CheckedTable, plausibility: Plausibility | None 
     valid = seg >= 0
     in_seg = valid[1:] & (seg[1:] == seg[:-1])  # (n-1,) step k -> k+1 inside a segment
 
-    v, speed_glitch = _despike(np.asarray(checked["speed"], dtype=np.float64), t, seg,
-                               p.a_max / HZ, p.max_spike_steps)
+    v = np.asarray(checked["speed"], dtype=np.float64)
+    dv = np.diff(v)
+    v, speed_glitch = _despike(v, dv, t, seg, in_seg, p.a_max / HZ, p.max_spike_steps)
+    if speed_glitch is None:
+        speed_glitch = np.zeros(n, dtype=bool)
+    else:
+        dv = np.diff(v)
 
     # Heading: wrap each step's change, fold flips by pi, bound what the speed allows. The
     # bound is at least w_noise * 0.09 s, so only larger changes need a closer look.
+    all_valid = bool(valid.all())
     dh = np.diff(raw_heading)
     dh[~in_seg] = 0.0
-    wrap = np.flatnonzero(np.abs(dh) > np.pi)
+    size = np.abs(dh)
+    wrap = np.flatnonzero(size > np.pi)
     dh[wrap] -= 2.0 * np.pi * np.round(dh[wrap] / (2.0 * np.pi))
+    size[wrap] = np.abs(dh[wrap])
     heading_glitch = np.zeros(n, dtype=bool)
-    k = np.flatnonzero(np.abs(dh) > p.w_noise * DT * (1.0 - DT_TOLERANCE))
+    k = np.flatnonzero(size > p.w_noise * DT * (1.0 - DT_TOLERANCE))
     if len(k):
         bound = (np.fmax(v[k], v[k + 1]) / p.r_min + p.w_noise) * (t[k + 1] - t[k])
         k, bound = k[np.abs(dh[k]) > bound], bound[np.abs(dh[k]) > bound]
@@ -294,9 +311,9 @@ def compute_kinematics(checked: CheckedTable, plausibility: Plausibility | None 
     cum = np.zeros(n)
     np.cumsum(dh, out=cum[1:])
     glitchy = np.zeros(index.n_segments, dtype=bool)
-    glitchy[seg[heading_glitch]] = True
+    glitchy[seg[k + 1]] = True
     anchor = np.repeat(_anchor(raw_heading, cum, index, glitchy), index.segment_length)
-    if valid.all():
+    if all_valid:
         heading = cum + anchor
     else:  # the valid rows are the segments, in order
         heading = np.full(n, np.nan)
@@ -306,7 +323,7 @@ def compute_kinematics(checked: CheckedTable, plausibility: Plausibility | None 
     # change between the blocks before and after it (its own neighbour at a segment end).
     starts, lengths, block_seg = _blocks(index)
     nb = len(starts)
-    if valid.all():
+    if all_valid:
         mx = np.add.reduceat(x, starts) / lengths if nb else np.zeros(0)
         my = np.add.reduceat(y, starts) / lengths if nb else np.zeros(0)
     else:
@@ -336,19 +353,23 @@ def compute_kinematics(checked: CheckedTable, plausibility: Plausibility | None 
     block_reversing = moving & far & (along < _REVERSE_COS)
     block_trusted = moving & far & ~block_reversing
 
-    trusted = np.zeros(n, dtype=bool)
-    trusted[valid] = np.repeat(block_trusted, lengths)
+    if all_valid:
+        trusted = np.repeat(block_trusted, lengths)
+    else:
+        trusted = np.zeros(n, dtype=bool)
+        trusted[valid] = np.repeat(block_trusted, lengths)
     reversing = np.zeros(n, dtype=bool)
     if block_reversing.any():
         reversing[valid] = np.repeat(block_reversing, lengths)
 
-    a = _derivative(np.diff(v), t, index)
+    a = _derivative(dv, t, index)
     w = _derivative(dh, t, index)
-    w[~trusted] = 0.0  # NaN stays on invalid rows: they are never trusted
-    w[~valid] = np.nan
-    v[~valid] = np.nan
+    w *= trusted  # 0 where the heading is not trusted
+    if not all_valid:
+        w[~valid] = np.nan
+        v = np.where(valid, v, np.nan)
     return Kinematics(t=t, v=v, a=a, w=w, index=index, heading=heading, x=x, y=y,
-                      speed_glitch=speed_glitch & valid, heading_glitch=heading_glitch,
+                      speed_glitch=speed_glitch, heading_glitch=heading_glitch,
                       trusted=trusted, reversing=reversing, travel=travel)
 
 

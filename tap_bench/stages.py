@@ -247,16 +247,67 @@ def _merge_ok(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
             & (excursion <= config.merge_excursion))
 
 
+def _back_at(path: _Path, pos: int, start: int, stop: int, side: int) -> int:
+    """The first step of [start, stop) where the heading is back at its value at ``pos``
+    (having turned towards ``side``, +1 left), or -1."""
+    h = path.heading
+    back = side * (h[path.rows[start:stop]] - h[path.rows[pos]]) <= 0
+    hit = np.flatnonzero(back)
+    return start + int(hit[0]) if len(hit) else -1
+
+
+def _chain(path: _Path, start: np.ndarray, stop: np.ndarray, side: np.ndarray, first: int,
+           last: int, config: StageConfig, min_steps: int, code: np.ndarray) -> None:
+    """Merges along turns ``first`` .. ``last`` of one segment, each consecutive pair a
+    candidate (opposite sides, close enough): lane changes in a row. Writes merge codes into
+    ``code`` (m,).
+
+    Greedy from the start. The current turn (from ``pos``, which may lie inside a turn run
+    after a split) and the next one: if the heading is back at its value at ``pos`` inside
+    the next turn, with 1 s or more of that turn left, and the part up to there is a merge
+    whose rest pairs with the turn after it (whole, or split the same way), the next turn
+    is split there: its rest starts the next lane change. Otherwise the pair is a merge if
+    it passes whole, else the current turn stays a turn.
+    """
+
+    def ok(a: int, b: int, towards: int) -> bool:
+        return bool(_merge_ok(path, np.array([a]), np.array([b]), np.array([towards]),
+                              config)[0])
+
+    def merge_code(towards: int) -> int:
+        return sdl.LEFT_MERGE if towards > 0 else sdl.RIGHT_MERGE
+
+    i, pos = first, int(start[first])
+    while i < last:
+        nxt_start, nxt_stop = int(start[i + 1]), int(stop[i + 1])
+        cut = _back_at(path, pos, nxt_start, nxt_stop, int(side[i]))
+        if (i + 1 < last and cut > nxt_start and nxt_stop - cut >= min_steps
+                and ok(pos, cut, int(side[i]))):
+            cut2 = _back_at(path, cut, int(start[i + 2]), int(stop[i + 2]), int(side[i + 1]))
+            if ok(cut, int(stop[i + 2]), int(side[i + 1])) or (
+                    cut2 > start[i + 2] and ok(cut, cut2, int(side[i + 1]))):
+                code[pos:cut] = merge_code(int(side[i]))
+                i, pos = i + 1, cut
+                continue
+        if ok(pos, nxt_stop, int(side[i])):
+            code[pos:nxt_stop] = merge_code(int(side[i]))
+            i += 2
+        else:
+            i += 1
+        if i <= last:
+            pos = int(start[i])
+
+
 def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int) -> Runs:
     """Stage 3: pairs of opposite turns that form a lateral move become merges.
 
     Turn runs are paired greedily from the start of each segment. A turn and the next one,
     going the other way and starting at most ``merge_gap`` after the first ends, form a
-    merge (the straight steps between them included) when :func:`_merge_ok` holds. Two lane
-    changes in a row (right, then back left) read Right, Left, Right: the middle turn is
-    the end of the first and the start of the second. So first the middle turn is split
-    where the heading is back at the first turn's start heading: if both halves then form
-    merges (the rest of the middle turn lasting 1 s or more), they are two merges.
+    merge (the straight steps between them included) when :func:`_merge_ok` holds. A lone
+    such pair is checked for all segments at once. Where several follow each other (lane
+    changes in a row: right, then back left reads Right, Left, Right, the middle turn being
+    the end of the first and the start of the second), :func:`_chain` pairs them one by one
+    and splits a middle turn where the heading is back.
     """
     m = len(path.rows)
     turn = np.flatnonzero((runs.code == sdl.LEFT) | (runs.code == sdl.RIGHT))
@@ -268,47 +319,22 @@ def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int) -> Run
     seg = runs.seg[turn]
     cand = ((seg[1:] == seg[:-1]) & (side[1:] != side[:-1])
             & (start[1:] - stop[:-1] <= config.merge_gap_steps))
-    k = np.flatnonzero(cand)
-    if len(k) == 0:
+    if not cand.any():
         return runs
-    whole = np.zeros(len(cand), dtype=bool)
-    whole[k] = _merge_ok(path, start[k], stop[k + 1], side[k], config)
-
-    # Where, inside the second turn, the heading is back at the first turn's start.
-    split = np.full(len(cand), -1, dtype=np.int64)
-    two = np.zeros(len(cand), dtype=bool)
-    nxt = k[(k + 1 < len(cand))]
-    nxt = nxt[cand[nxt + 1]]
-    if len(nxt):
-        s2, e2 = start[nxt + 1], stop[nxt + 1]
-        lengths = e2 - s2
-        rows = np.repeat(s2, lengths) + (np.arange(lengths.sum())
-                                         - np.repeat(np.cumsum(lengths) - lengths, lengths))
-        h0 = np.repeat(path.heading[path.rows[start[nxt]]], lengths)
-        back = np.repeat(side[nxt], lengths) * (path.heading[path.rows[rows]] - h0) <= 0
-        offsets = np.cumsum(lengths) - lengths
-        first = np.minimum.reduceat(np.where(back, rows, m), offsets)
-        usable = (first > s2) & (e2 - first >= min_steps)
-        nxt, first = nxt[usable], first[usable]
-        ok = (_merge_ok(path, start[nxt], first, side[nxt], config)
-              & _merge_ok(path, first, stop[nxt + 2], side[nxt + 1], config))
-        split[nxt[ok]] = first[ok]
-        two[nxt[ok]] = True
+    before = np.r_[False, cand[:-1]]
+    after = np.r_[cand[1:], False]
+    lone = np.flatnonzero(cand & ~before & ~after)
+    merged = lone[_merge_ok(path, start[lone], stop[lone + 1], side[lone], config)]
 
     code = runs.expand(m).astype(np.int64)
-    used = -1
-    for i in k.tolist():
-        if i <= used:
-            continue
-        first_code = sdl.LEFT_MERGE if side[i] > 0 else sdl.RIGHT_MERGE
-        if two[i]:
-            cut = int(split[i])
-            code[start[i]:cut] = first_code
-            code[cut:stop[i + 2]] = sdl.RIGHT_MERGE if side[i] > 0 else sdl.LEFT_MERGE
-            used = i + 2
-        elif whole[i]:
-            code[start[i]:stop[i + 1]] = first_code
-            used = i + 1
+    for i in merged.tolist():
+        code[start[i]:stop[i + 1]] = sdl.LEFT_MERGE if side[i] > 0 else sdl.RIGHT_MERGE
+    chain_first = np.flatnonzero(cand & ~before & after)
+    for first in chain_first.tolist():
+        last = first + 1
+        while last < len(cand) and cand[last]:
+            last += 1
+        _chain(path, start, stop, side, first, last, config, min_steps, code)
     seg_first = np.zeros(m, dtype=bool)
     seg_first[runs.start[np.r_[True, runs.seg[1:] != runs.seg[:-1]]]] = True
     return find_runs(code, np.repeat(runs.seg, runs.length), seg_first)
