@@ -13,6 +13,7 @@ from typing import Any
 from tap_bench._version import __version__ as __version__
 from tap_bench.errors import (
     FileFormatError,
+    FitWarning,
     LabelTableError,
     ShortSegmentWarning,
     TapBenchError,
@@ -30,7 +31,7 @@ _LAZY_MODULES = {
                         "load_suite", "matched_by_label", "novelty", "paired_comparison",
                         "run_suite", "vocabulary_reference"),
     "tap_bench.fitting": ("FitReport", "fit_report", "fit_thresholds"),
-    "tap_bench.kinematics": ("compute_kinematics", "one_second_samples"),
+    "tap_bench.kinematics": ("Plausibility", "compute_kinematics", "one_second_samples"),
     "tap_bench.labelling": ("TapResult", "label", "tap"),
     "tap_bench.resampling": ("resample_to_10hz",),
     "tap_bench.sdl": ("LEVELS", "vocabulary"),
@@ -50,6 +51,7 @@ _LAZY_MODULES = {
                              "save_thresholds"),
     "tap_bench.trajectories": ("validate_trajectories",),
     "tap_bench.womd": ("WomdRecordError", "classify_trajectories", "write_womd"),
+    "tap_bench.womd.validation": ("validate_womd",),
 }
 _LAZY = {name: module for module, names in _LAZY_MODULES.items() for name in names}
 
@@ -75,6 +77,7 @@ _register_suite()
 __all__ = [
     # errors
     "FileFormatError",
+    "FitWarning",
     "LabelTableError",
     "ShortSegmentWarning",
     "TapBenchError",
@@ -87,6 +90,7 @@ __all__ = [
     "validate_trajectories",
     "write_table",
     # kinematics
+    "Plausibility",
     "compute_kinematics",
     "one_second_samples",
     # TAP labelling
@@ -125,6 +129,7 @@ __all__ = [
     "iter_womd",
     "read_womd",
     "register_reader",
+    "validate_womd",
     "write_womd",
     # similarity: SDL search, unique behaviours, scenario-level SDL, the ADE / DTW baselines
     # and the paper's experiments; more in tap_bench.similarity

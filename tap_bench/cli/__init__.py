@@ -29,6 +29,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "label": ("tap_bench.cli.label", "label trajectories with SDL labels (TAP)"),
     "fit": ("tap_bench.cli.fit", "learn TAP thresholds from trajectories"),
     "ingest": ("tap_bench.cli.ingest", "convert a data set to a trajectory table"),
+    "validate": ("tap_bench.cli.validate",
+                 "compare TAP labels of WOMD tracks with Waymo's trajectory types"),
     # simulation: highway-env scenarios, policies, rollouts, training
     "envs": ("tap_bench.cli.envs", "list the scenario envs of the suite with their settings"),
     "policies": ("tap_bench.cli.policies", "list the available driving policies"),

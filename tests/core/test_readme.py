@@ -42,6 +42,10 @@ SLOW = {
     "tap-bench demo",  # about 2 min on 2 cores
     "tap-bench rollout --env highway --policy idm --seeds 0-49 -o idm.parquet --workers 2",
     "tap-bench evaluate trajectories.parquet --labels labels.parquet -o results/eval/",
+    # the shipped DQN agent against IDM on 30 highway seeds (the sb3 extra)
+    "tap-bench rollout --env highway --policy dqn-highway --seeds 0-29 -o dqn.parquet",
+    "tap-bench rollout --env highway --policy idm --seeds 0-29 -o idm.parquet",
+    "tap-bench compare dqn.parquet idm.parquet -o results/dqn-vs-idm/",
 }
 NOT_RUN = {  # command -> why the tests cannot run it as written
     "pip install -e .": "installs the package",
@@ -53,10 +57,8 @@ NOT_RUN = {  # command -> why the tests cannot run it as written
     "tap-bench label womd.parquet -o womd_labels.parquet --level all": "needs WOMD files",
     "tap-bench train --algo dqn --env highway --timesteps 10000 -o "
     "policies/dqn-highway.zip": "trains for an hour (tests/sim trains a small agent)",
-    "tap-bench compare idm.parquet dqn.parquet -o results/idm-vs-dqn/":
-        "needs a DQN rollout the README does not make (tests/bench runs compare)",
     "tap-bench coverage dqn.parquet --reference womd_labels.parquet --level maneuver":
-        "needs a DQN rollout and WOMD labels",
+        "needs WOMD labels (womd_labels.parquet, from the WOMD commands)",
     "tap-bench bench run --suite default -o results/run-001/":
         "takes 20-27 min (tests/bench/test_cache.py runs bench run on a small suite)",
     "tap-bench bench check results/run-001/ --baseline results/baselines/default.json":
