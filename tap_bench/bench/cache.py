@@ -31,7 +31,7 @@ recomputes them from the trajectory tables with the run's thresholds.
 
 **Location and size**: ``$TAP_BENCH_CACHE``, else ``$XDG_CACHE_HOME/tap-bench``, else
 ``~/.cache/tap-bench`` (:func:`default_cache_dir`). An entry of the default suite is about
-90 kB (its 750 episodes take about 65 MB; ``benchmarks/bench_incremental.py`` measures
+80 kB (its 750 episodes take about 60 MiB; ``benchmarks/bench_incremental.py`` measures
 it). After each run the cache is pruned to ``max_bytes`` (:data:`DEFAULT_MAX_BYTES`),
 least recently used entries first (a hit refreshes an entry's time); ``tap-bench bench
 cache prune --max-size`` prunes by hand.

@@ -292,9 +292,10 @@ def _tasks(suite: Suite, thresholds: Thresholds, keep: bool, cache: EpisodeCache
     return tasks
 
 
-CACHED_EPISODE_S = 0.2
-"""Estimate of a cached episode's wall time (read, label, measure) when no run has measured
-it yet [s]: 0.1-0.3 s on the 2-core development machine."""
+CACHED_EPISODE_S = 0.03
+"""Estimate of a cached episode's worker time (read, verify, label and measure, in batches)
+when no run has measured it yet [s]: 0.028 s in the default suite on the 2-core
+development machine (``benchmarks/bench_incremental.py``)."""
 
 
 @dataclass(frozen=True)
