@@ -60,7 +60,7 @@ NOT_RUN = {  # command -> why the tests cannot run it as written
     "tap-bench coverage dqn.parquet --reference womd_labels.parquet --level maneuver":
         "needs WOMD labels (womd_labels.parquet, from the WOMD commands)",
     "tap-bench bench run --suite default -o results/run-001/":
-        "takes 20-27 min (tests/bench/test_cache.py runs bench run on a small suite)",
+        "takes 10-27 min (tests/bench/test_cache.py runs bench run on a small suite)",
     "tap-bench bench check results/run-001/ --baseline results/baselines/default.json":
         "needs the default suite's run",
     "tap-bench ingest womd 'data/training/*.tfrecord*' -o womd/ --backend ray --address auto":
