@@ -1,8 +1,9 @@
 """``bench check``: the regression gate of a run against a stored baseline.
 
 A baseline file (JSON) keeps, for every (env, policy) of a suite, the per-episode values
-the gate needs: the ego's SDL label and the measures (:data:`GATE_METRICS`). The gate
-compares a run's episodes with the baseline's, per (env, policy) and metric:
+the gate needs: the ego's SDL label and the measures
+(:func:`~tap_bench.bench.suite.gate_metrics`). The gate compares a run's episodes with
+the baseline's, per (env, policy) and metric:
 
 - measures: the change of the mean (run - baseline); label distribution: the total
   variation distance between the two ego label distributions (``label_tv``, in [0, 1]);
@@ -33,13 +34,17 @@ import pandas as pd
 
 from tap_bench.bench.compare import NO_LABEL
 from tap_bench.bench.measures import MEASURES
-from tap_bench.bench.suite import GATE_METRICS, GateConfig
+from tap_bench.bench.suite import GateConfig, gate_metrics
 from tap_bench.errors import FileFormatError, TapBenchError
 
 __all__ = ["BASELINE_FORMAT", "GateResult", "check", "holm", "read_baseline", "write_baseline"]
 
 BASELINE_FORMAT = "tap-bench-baseline"
-_EPISODE_FIELDS = ("env", "policy", "seed", "sdl", *(m.name for m in MEASURES))
+
+
+def _episode_fields() -> tuple[str, ...]:
+    return ("env", "policy", "seed", "sdl", *MEASURES.names())
+
 _IDENTITY = ("suite", "suite_version", "level", "thresholds")
 
 
@@ -113,7 +118,7 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
     from tap_bench.tableio import atomic_path
 
     ok = episodes[episodes["status"] == "ok"]
-    rows = [[_json_value(v) for v in r] for r in ok[list(_EPISODE_FIELDS)].itertuples(
+    rows = [[_json_value(v) for v in r] for r in ok[list(_episode_fields())].itertuples(
         index=False)]
     gate = run_summary.get("suite", {}).get("gate") or GateConfig().to_dict()
     doc = {"format": BASELINE_FORMAT, "format_version": 1,
@@ -121,7 +126,7 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
            "created": time.strftime("%Y-%m-%d %H:%M:%S"),
            "from_run": run_summary.get("run"), "seeds": run_summary.get("seeds"),
            "versions": run_summary.get("versions", {}), "gate": gate,
-           "episodes": {"columns": list(_EPISODE_FIELDS), "rows": rows}}
+           "episodes": {"columns": list(_episode_fields()), "rows": rows}}
     path = Path(path)
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(doc, indent=1) + "\n")
@@ -154,7 +159,7 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
     except (KeyError, TypeError, ValueError) as err:
         raise FileFormatError(f"{path}: 'episodes' must hold 'columns' and 'rows': {err}"
                               ) from err
-    missing = [c for c in _EPISODE_FIELDS if c not in table.columns]
+    missing = [c for c in _episode_fields() if c not in table.columns]
     if missing:
         raise FileFormatError(f"{path}: baseline episodes lack {', '.join(missing)}; "
                               "re-make it with --update-baseline.")
@@ -259,8 +264,8 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
                          "note": "in the baseline, missing from the run", "forced": True})
             continue
         stream += 1
-        for metric in GATE_METRICS:
-            margin = float(config.margins.get(metric, np.inf))
+        for metric in gate_metrics():
+            margin = float(config.margins[metric])  # GateConfig gives every metric one
             if metric == "label_tv":
                 b = base["sdl"].fillna(NO_LABEL).astype(str).to_numpy()
                 r = run["sdl"].fillna(NO_LABEL).astype(str).to_numpy()

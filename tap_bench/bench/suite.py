@@ -36,21 +36,28 @@ from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.measures import MEASURES
 from tap_bench.errors import FileFormatError, UnknownNameError, did_you_mean
 
-__all__ = ["GATE_METRICS", "GateConfig", "Suite", "available_suites", "load_suite",
-           "suite_from_dict"]
+__all__ = ["GATE_METRICS", "GateConfig", "Suite", "available_suites", "default_margins",
+           "gate_metrics", "load_suite", "suite_from_dict"]
 
-GATE_METRICS = (*(m.name for m in MEASURES), "label_tv")
-"""What the regression gate checks per (env, policy): the measures' means and the total
-variation distance between the ego label distributions of the run and of the baseline."""
+LABEL_TV_MARGIN = 0.20
+"""Default margin of ``label_tv``, the total variation distance of label distributions."""
 
-DEFAULT_MARGINS: Mapping[str, float] = {
-    "crashed": 0.10,  # collision rate, absolute
-    "mean_speed": 1.0,  # [m/s]
-    "min_headway_s": 0.3,  # [s]
-    "min_ttc_s": 1.0,  # [s]
-    "rms_jerk": 1.0,  # [m/s^3]
-    "label_tv": 0.20,  # total variation distance of label distributions, in [0, 1]
-}
+
+def gate_metrics() -> tuple[str, ...]:
+    """What the regression gate checks per (env, policy): every registered measure's mean
+    (:data:`~tap_bench.bench.measures.MEASURES`) and ``label_tv``, the total variation
+    distance between the ego label distributions of the run and of the baseline."""
+    return (*MEASURES.names(), "label_tv")
+
+
+def default_margins() -> dict[str, float]:
+    """metric -> default gate margin: each measure's registered margin, and label_tv's."""
+    return {**MEASURES.margins(), "label_tv": LABEL_TV_MARGIN}
+
+
+GATE_METRICS = gate_metrics()
+"""The gate's metrics when this module was imported (:func:`gate_metrics` is current)."""
+DEFAULT_MARGINS: Mapping[str, float] = default_margins()
 
 _FIELDS = ("name", "version", "description", "envs", "policies", "seeds", "reference_policy",
            "level", "thresholds", "env_overrides", "bootstrap", "gate")
@@ -73,15 +80,19 @@ class GateConfig:
         seed: seed of the permutations.
     """
 
-    margins: Mapping[str, float] = field(default_factory=lambda: dict(DEFAULT_MARGINS))
+    margins: Mapping[str, float] = field(default_factory=default_margins)
     alpha: float = 0.05
     n_permutations: int = 9999
     seed: int = 0
 
     def __post_init__(self) -> None:
+        metrics = gate_metrics()
+        for key in self.margins:
+            if key not in metrics:
+                raise did_you_mean("gate metric", key, metrics)
+        # every metric has a margin: those not given take their registered default
+        object.__setattr__(self, "margins", {**default_margins(), **self.margins})
         for key, value in self.margins.items():
-            if key not in GATE_METRICS:
-                raise did_you_mean("gate metric", key, GATE_METRICS)
             if not isinstance(value, int | float) or isinstance(value, bool) or value < 0:
                 raise ValueError(f"gate margin {key!r} must be a number >= 0, got {value!r}.")
         if not 0 < self.alpha < 1:
@@ -240,7 +251,7 @@ def suite_from_dict(doc: Any, *, source: str = "suite", path: Path | None = None
             raise FileFormatError(f"{source}: gate: "
                                   f"{did_you_mean('gate field', key, _GATE_FIELDS)}")
     try:
-        margins = {**DEFAULT_MARGINS, **gate_doc.get("margins", {})}
+        margins = {**default_margins(), **gate_doc.get("margins", {})}
         gate = GateConfig(**{**gate_doc, "margins": margins})
     except (TypeError, ValueError, UnknownNameError) as err:
         raise FileFormatError(f"{source}: gate: {err}") from err
