@@ -16,12 +16,11 @@ in a roundabout lies at ``d`` near 0 and a vehicle on the inner lane of a rounda
 ``d`` of about a lane width. The frame is fixed in space for the whole path: ``d`` of an
 agent changes only when that agent moves across the ego's path.
 
-Pruning (never all pairs at every step): agents are put in a grid of cells of the reach
-(the largest distance asked for); each ego step looks at its own and the eight neighbouring
-cells of its scene and time step only, keeps agents within the reach, and projects each of
-them onto the part of the line within ``behind`` .. ``ahead`` of the ego's arc position,
-decimated to vertices about :data:`PATH_SPACING` apart. All of it is flat numpy over every
-path at once.
+Pruning (never all pairs at every step): the grid cells each line passes near are hashed
+with the arc range of the line there; an agent's row meets a path only if its cell is one
+of those and the path has an ego step at that time, and is then projected onto the fine
+segments (vertices about :data:`PATH_SPACING` apart) of that arc range only. All of it is
+flat numpy over every path at once.
 """
 
 from __future__ import annotations
@@ -31,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = [
+    "COARSE_SPACING",
     "CORRIDOR_HALF_WIDTH",
     "EXTENSION",
     "PATH_SPACING",
@@ -48,6 +48,8 @@ the next lane 3 m or more away (docs/interactions.md)."""
 SAME_DIRECTION = np.pi / 3
 """[rad] an agent whose heading is within this of the path's direction drives along it
 (a leader can be followed); crossing and oncoming agents are not leaders."""
+COARSE_SPACING = 10.0
+"""[m] spacing of the vertices of the straight extensions near the path's ends."""
 PATH_SPACING = 2.0
 """[m] vertices of the reference line are kept about this far apart. The line then departs
 from the recorded path by at most the sagitta c^2 / (8 R): 0.05 m on a 10 m radius turn."""
@@ -77,6 +79,7 @@ class Paths:
     """The rows of a scene and the ego paths to build frames for.
 
     Attributes:
+        scene: (n,) int64 scenario of each row (rows of different scenarios never meet).
         key: (n,) int64 scene-and-step key of each row (:func:`scene_keys`).
         track: (n,) int64 track of each row (an agent is never its own other).
         x, y: (n,) position [m].
@@ -86,6 +89,7 @@ class Paths:
             in time order (one valid segment of one track).
     """
 
+    scene: np.ndarray
     key: np.ndarray
     track: np.ndarray
     x: np.ndarray
@@ -153,8 +157,13 @@ def _ragged(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return group, within
 
 
-def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, spacing: float):
+def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, spacing: float,
+                     coarse: float, reach: float):
     """The decimated, extended polylines of every path, laid end to end.
+
+    Each line: the straight back extension (a far vertex at -EXTENSION, then vertices every
+    ``coarse`` metres from ``reach`` to the start), the recorded positions about ``spacing``
+    apart, and the front extension likewise.
 
     Returns (vx, vy, vs, first, count, arc): vertex coordinates and arc lengths (q,), the
     first vertex and vertex count of each path (P,), and the arc length of each ego step (m,).
@@ -180,128 +189,189 @@ def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, sp
     kept = np.flatnonzero(keep)
     kept_path = ego_path[kept]
     n_kept = np.bincount(kept_path, minlength=paths.n_paths)
-    count = n_kept + 2
+    n_ext = int(np.ceil(reach / coarse))
+    ext = np.r_[EXTENSION, coarse * np.arange(n_ext, 0, -1)]  # distances from the end
+    count = n_kept + 2 * len(ext)
     first = np.cumsum(count) - count
     q = int(count.sum())
     vx, vy, vs = np.empty(q), np.empty(q), np.empty(q)
     _, within = _ragged(n_kept)
-    dest = first[kept_path] + 1 + within
+    dest = first[kept_path] + len(ext) + within
     vx[dest], vy[dest], vs[dest] = x[kept], y[kept], arc[kept]
     hb, he = h[first_step], h[last_step]
-    back, front = first, first + count - 1
-    vx[back] = x[first_step] - EXTENSION * np.cos(hb)
-    vy[back] = y[first_step] - EXTENSION * np.sin(hb)
-    vs[back] = -EXTENSION
-    vx[front] = x[last_step] + EXTENSION * np.cos(he)
-    vy[front] = y[last_step] + EXTENSION * np.sin(he)
-    vs[front] = arc[last_step] + EXTENSION
+    back = first[:, None] + np.arange(len(ext))[None, :]  # (P, e), far to near
+    vx[back] = x[first_step, None] - ext[None, :] * np.cos(hb)[:, None]
+    vy[back] = y[first_step, None] - ext[None, :] * np.sin(hb)[:, None]
+    vs[back] = -ext[None, :]
+    front = (first + count - 1)[:, None] - np.arange(len(ext))[None, :]  # far to near
+    vx[front] = x[last_step, None] + ext[None, :] * np.cos(he)[:, None]
+    vy[front] = y[last_step, None] + ext[None, :] * np.sin(he)[:, None]
+    vs[front] = arc[last_step, None] + ext[None, :]
     return vx, vy, vs, first, count, arc
 
 
-def _neighbours(paths: Paths, ego_row: np.ndarray, others: np.ndarray, reach: float
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """(ego step, other row) pairs of the same scene and step within ``reach`` of each other,
-    found through a grid of cells of side ``reach`` (3 x 3 cells per ego step)."""
-    cell = max(float(reach), 1.0)
-    ox, oy = paths.x[others], paths.y[others]
-    ex, ey = paths.x[ego_row], paths.y[ego_row]
-    x0 = min(ox.min(), ex.min())
-    y0 = min(oy.min(), ey.min())
-    cx = np.floor((ox - x0) / cell).astype(np.int64) + 1
-    cy = np.floor((oy - y0) / cell).astype(np.int64) + 1
-    ny = int(max(cy.max(), np.floor((ey.max() - y0) / cell) + 1)) + 2
-    nx = int(max(cx.max(), np.floor((ex.max() - x0) / cell) + 1)) + 2
-    o_key = (paths.key[others] * nx + cx) * ny + cy
-    order = np.argsort(o_key, kind="stable")
-    o_sorted = o_key[order]
-    ecx = np.floor((ex - x0) / cell).astype(np.int64) + 1
-    ecy = np.floor((ey - y0) / cell).astype(np.int64) + 1
-    e_key = paths.key[ego_row]
-    steps, rows = [], []
-    for dx in (-1, 0, 1):  # the 3 cells of one grid row are adjacent in the sorted keys
-        k_lo = (e_key * nx + ecx + dx) * ny + ecy - 1
-        lo = np.searchsorted(o_sorted, k_lo, "left")
-        hi = np.searchsorted(o_sorted, k_lo + 2, "right")
-        group, within = _ragged(hi - lo)
-        steps.append(group)
-        rows.append(others[order[lo[group] + within]])
-    step = np.concatenate(steps)
-    other = np.concatenate(rows)
-    near = (paths.track[other] != paths.track[ego_row[step]]) & (
-        np.hypot(paths.x[other] - ex[step], paths.y[other] - ey[step]) <= reach)
-    step, other = step[near], other[near]
-    order = np.lexsort((other, step))
-    return step[order], other[order]
+def _line_cells(vx, vy, vs, first, count, lo_arc, hi_arc, scene, cell):
+    """The grid cells near each line: (cell key, path, arc_lo, arc_hi) per (path, cell),
+    sorted by cell key. A cell is near a line when one of the line's samples (every half
+    cell) lies in it or in one of its 8 neighbours; arc_lo .. arc_hi is the arc range of
+    those samples. A point within ``lateral`` of the line (``cell = 4/3 lateral + spacing``)
+    has its foot point F within a quarter cell of a sample S, so it is within ``lateral +
+    cell / 4 < cell`` of S on each axis: its cell is one of S's 9, and F's arc is within a
+    quarter cell of the range."""
+    n_paths = len(first)
+    half = cell / 2
+    n_samp = np.ceil((hi_arc - lo_arc) / half).astype(np.int64) + 1
+    path, k = _ragged(n_samp)
+    arc = lo_arc[path] + k * half
+    span = vs.max() - vs.min() + 1.0
+    offset = np.repeat(np.arange(n_paths), count) * span
+    g = vs + offset
+    sx = np.interp(arc + path * span, g, vx)
+    sy = np.interp(arc + path * span, g, vy)
+    cx = np.floor(sx / cell).astype(np.int64)
+    cy = np.floor(sy / cell).astype(np.int64)
+    dx = np.array([-1, -1, -1, 0, 0, 0, 1, 1, 1])
+    dy = np.array([-1, 0, 1, -1, 0, 1, -1, 0, 1])
+    keys = _cell_key(scene[path][:, None], cx[:, None] + dx, cy[:, None] + dy).ravel()
+    path9 = np.repeat(path, 9)
+    arc9 = np.repeat(arc, 9)
+    both = keys * n_paths + path9  # (cell, path) pairs; arc ranges reduced over each
+    order = np.argsort(both, kind="stable")
+    both, arc9 = both[order], arc9[order]
+    start = np.flatnonzero(np.r_[True, both[1:] != both[:-1]])
+    return (keys[order][start], path9[order][start], np.minimum.reduceat(arc9, start),
+            np.maximum.reduceat(arc9, start))
 
 
-def path_frame(paths: Paths, others: np.ndarray | None = None, *, ahead: float = 100.0,
-               behind: float = 30.0, lateral: float = 10.0, spacing: float = PATH_SPACING
+def _cell_key(scene, cx, cy):
+    # cells of 1e6 per axis per scene: coordinates up to 1e7 m (SPEC 2) over cells >= 10 m
+    return (scene * 2_000_003 + cx + 1_000_001) * 2_000_003 + cy + 1_000_001
+
+
+def path_frame(paths: Paths, others: np.ndarray | None = None, *,
+               ahead: float | np.ndarray = 100.0, behind: float = 30.0, lateral: float = 10.0,
+               near: float = 0.0, lateral_near: float = 0.0, spacing: float = PATH_SPACING
                ) -> PathFrame:
     """Every other agent near each ego step, in the frame of the ego's path.
+
+    Kept: agents with ``-behind <= s <= ahead`` and ``|d| <= lateral``, and, when ``near``
+    is given, agents with ``|s| <= near`` and ``|d| <= lateral_near`` (a wider zone beside
+    the ego: the next lanes).
+
+    Pruned, never all pairs at every step: the cells of a grid (side ``lateral`` +
+    ``spacing``) that each line passes near are hashed with the arc range of the line
+    there; an agent's row meets a path only when its cell is one of them and the path has an
+    ego step at that row's time, and it is projected exactly onto the fine segments of that
+    arc range within the ego step's window.
 
     Args:
         paths: the rows and the ego paths (:class:`Paths`).
         others: (n,) bool, rows that may be others (valid rows of the object types wanted);
             default every row.
-        ahead: [m] largest ``s`` kept.
+        ahead: [m] largest ``s`` kept: a number, or (m,) one per ego step.
         behind: [m] largest ``-s`` kept.
         lateral: [m] largest ``|d|`` kept.
+        near, lateral_near: [m] the zone beside the ego (0: none).
         spacing: [m] vertex spacing of the reference line.
 
     Returns:
-        :class:`PathFrame` of the kept (ego step, other) pairs.
+        :class:`PathFrame` of the kept (ego step, other) pairs, ordered by ego step.
     """
-    for name, value in (("ahead", ahead), ("behind", behind), ("lateral", lateral),
-                        ("spacing", spacing)):
+    if near > 0 and lateral_near > lateral:
+        main = path_frame(paths, others, ahead=ahead, behind=behind, lateral=lateral,
+                          spacing=spacing)
+        side = path_frame(paths, others, ahead=near, behind=near, lateral=lateral_near,
+                          spacing=spacing)
+        fields = ("step", "other", "s", "d", "heading_rel", "v_along")
+        both = {f: np.r_[getattr(main, f), getattr(side, f)] for f in fields}
+        order = np.lexsort((both["other"], both["step"]))
+        both = {f: v[order] for f, v in both.items()}
+        new = np.ones(len(order), bool)
+        new[1:] = (both["step"][1:] != both["step"][:-1]) | (both["other"][1:]
+                                                             != both["other"][:-1])
+        return PathFrame(**{f: v[new] for f, v in both.items()}, ego_row=main.ego_row,
+                         ego_path=main.ego_path, arc=main.arc)
+    for name, value in (("behind", behind), ("lateral", lateral), ("spacing", spacing)):
         if not (np.isfinite(value) and value > 0):
             raise ValueError(f"path_frame: {name} must be a finite distance > 0 m, got "
                              f"{value!r}.")
     ego_row, ego_path = paths.ego_rows()
-    vx, vy, vs, first, count, arc = _reference_lines(paths, ego_row, ego_path, spacing)
+    ahead = np.broadcast_to(np.asarray(ahead, float), (len(ego_row),))
+    if len(ahead) and not (np.isfinite(ahead).all() and (ahead > 0).all()):
+        raise ValueError("path_frame: ahead must be a finite distance > 0 m.")
+    far = float(max(ahead.max(initial=0.0), behind))
+    cell = 4.0 / 3.0 * lateral + spacing  # see _line_cells: every point within lateral
+    vx, vy, vs, first, count, arc = _reference_lines(paths, ego_row, ego_path, spacing,
+                                                     COARSE_SPACING, far + 2 * cell)
     empty = np.zeros(0)
+    ints = np.zeros(0, np.int64)
     others_rows = np.flatnonzero(np.ones(len(paths.key), bool) if others is None else others)
     if not len(ego_row) or not len(others_rows):
-        ints = np.zeros(0, np.int64)
         return PathFrame(ints, ints, empty, empty, empty, empty, ego_row, ego_path, arc)
-    reach = float(np.hypot(max(ahead, behind), lateral))
-    step, other = _neighbours(paths, ego_row, others_rows, reach)
+    length = paths.stop - paths.start
+    step0 = np.cumsum(length) - length
+    last_step = step0 + length - 1
+    # the stretch of each line any ego step looks at
+    a_lo = arc[step0] - behind - cell
+    a_hi = arc[last_step] + np.maximum.reduceat(ahead, step0) + cell
+    c_key, c_path, c_lo, c_hi = _line_cells(vx, vy, vs, first, count, a_lo, a_hi,
+                                            paths.scene[paths.start], cell)
+    # join the other agents' rows on those cells
+    o_key = _cell_key(paths.scene[others_rows], np.floor(paths.x[others_rows] / cell)
+                      .astype(np.int64), np.floor(paths.y[others_rows] / cell).astype(np.int64))
+    lo = np.searchsorted(c_key, o_key, "left")
+    hi = np.searchsorted(c_key, o_key, "right")
+    which, within = _ragged(hi - lo)
+    entry = lo[which] + within
+    other = others_rows[which]
+    path = c_path[entry]
+    # the path's ego step at the other's time (rows of one scene and step share a key)
+    k = paths.key[other] - paths.key[paths.start[path]]
+    ok = (k >= 0) & (k < length[path])
+    step = np.where(ok, step0[path] + k, 0)
+    ok &= paths.key[ego_row[step]] == paths.key[other]
+    ok &= paths.track[other] != paths.track[ego_row[step]]
+    # the arc range of the line near the agent, within the ego step's window
+    w_lo = np.maximum(c_lo[entry], arc[step] - behind - spacing)
+    w_hi = np.minimum(c_hi[entry], arc[step] + ahead[step] + spacing)
+    ok &= w_lo <= w_hi
+    step, other, path, w_lo, w_hi = step[ok], other[ok], path[ok], w_lo[ok], w_hi[ok]
+    px, py = paths.x[other], paths.y[other]
 
-    # the part of each line within [arc - behind, arc + ahead] of the ego step: its segments
-    path = ego_path[step]
-    # one sorted array of every line's vertex arc lengths, each path offset past the last
-    span = 10.0 * EXTENSION + arc.max(initial=0.0)
+    # exact projection onto the fine segments of that range
+    span = vs.max() - vs.min() + 1.0
     global_s = vs + np.repeat(np.arange(len(first)), count) * span
-    at = arc[step] + path * span
-    lo = np.searchsorted(global_s, at - behind, "right") - 1
-    hi = np.searchsorted(global_s, at + ahead, "left")
-    lo = np.clip(lo, first[path], first[path] + count[path] - 2)
-    hi = np.clip(hi, lo + 1, first[path] + count[path] - 1)
+    last = first + count - 1
+    # the foot point lies within half a sample spacing of the range (see _line_cells)
+    lo = np.searchsorted(global_s, w_lo - cell / 2 + path * span, "right") - 1
+    hi = np.searchsorted(global_s, w_hi + cell / 2 + path * span, "left")
+    lo = np.clip(lo, first[path], last[path] - 1)
+    hi = np.clip(hi, lo + 1, last[path])
     n_seg = hi - lo
     pair, within = _ragged(n_seg)
     a = lo[pair] + within  # segment a -> a + 1
     ax, ay = vx[a], vy[a]
     ux, uy = vx[a + 1] - ax, vy[a + 1] - ay
     len2 = np.maximum(ux * ux + uy * uy, 1e-12)
-    px, py = paths.x[other][pair] - ax, paths.y[other][pair] - ay
-    tt = np.clip((px * ux + py * uy) / len2, 0.0, 1.0)
-    ex_, ey_ = px - tt * ux, py - tt * uy
+    qx, qy = px[pair] - ax, py[pair] - ay
+    tt = np.clip((qx * ux + qy * uy) / len2, 0.0, 1.0)
+    ex_, ey_ = qx - tt * ux, qy - tt * uy
     dist2 = ex_ * ex_ + ey_ * ey_
     starts = np.cumsum(n_seg) - n_seg
+    if not len(starts):
+        return PathFrame(ints, ints, empty, empty, empty, empty, ego_row, ego_path, arc)
     best = np.minimum.reduceat(dist2, starts)
     is_best = dist2 <= best[pair]
-    # the first (nearest along the line) of equally near segments
-    pos = np.full(len(step), len(pair))
+    pos = np.full(len(step), len(pair))  # the first (nearest along the line) of ties
     np.minimum.at(pos, pair[is_best], np.flatnonzero(is_best))
     seg, t_best = a[pos], tt[pos]
-    ux_b, uy_b = ux[pos], uy[pos]
-    norm = np.sqrt(len2[pos])
-    s_abs = vs[seg] + t_best * (vs[seg + 1] - vs[seg])
-    s = s_abs - arc[step]
-    d = (ux_b * py[pos] - uy_b * px[pos]) / norm
-    direction = np.arctan2(uy_b, ux_b)
-    heading_rel = _wrap(paths.heading[other] - direction)
-    keep = (s <= ahead) & (s >= -behind) & (np.abs(d) <= lateral)
-    v_along = paths.speed[other] * np.cos(heading_rel)
-    return PathFrame(step=step[keep], other=other[keep], s=s[keep], d=d[keep],
-                     heading_rel=heading_rel[keep], v_along=v_along[keep], ego_row=ego_row,
+    s = vs[seg] + t_best * (vs[seg + 1] - vs[seg]) - arc[step]
+    d = (ux[pos] * qy[pos] - uy[pos] * qx[pos]) / np.sqrt(len2[pos])
+    keep = np.flatnonzero((s <= ahead[step]) & (s >= -behind) & (np.abs(d) <= lateral))
+    keep = keep[np.lexsort((other[keep], step[keep]))]
+    pos, other = pos[keep], other[keep]
+    heading_rel = _wrap(paths.heading[other] - np.arctan2(uy[pos], ux[pos]))
+    return PathFrame(step=step[keep], other=other, s=s[keep], d=d[keep],
+                     heading_rel=heading_rel,
+                     v_along=paths.speed[other] * np.cos(heading_rel), ego_row=ego_row,
                      ego_path=ego_path, arc=arc)

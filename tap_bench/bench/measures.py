@@ -377,8 +377,8 @@ def ego_steps(table: pd.DataFrame) -> EgoSteps:
     crashed_all = (table["crashed"].fillna(False).to_numpy(bool) if "crashed" in table.columns
                    else np.zeros(len(table), bool))
 
-    gap, closing, leader = _leaders(key, valid & ~is_ego, ego_rows, ego_key, seg_sid, x, y,
-                                    heading, speed, length)
+    gap, closing, leader = _leaders(key, sid_codes.astype(np.int64), valid & ~is_ego,
+                                    ego_rows, ego_key, seg_sid, x, y, heading, speed, length)
     v_ego = speed[ego_rows]
     crashed = crashed_all[ego_rows]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -461,7 +461,8 @@ def _check_one_ego(ego_sid: np.ndarray, ego_track: np.ndarray, sids) -> None:
             "is_ego must mark one track per scenario.", column="is_ego")
 
 
-def _leaders(key, other_mask, ego_rows, ego_key, ego_sid, x, y, heading, speed, length):
+def _leaders(key, scene, other_mask, ego_rows, ego_key, ego_sid, x, y, heading, speed,
+             length):
     """(m,) bumper gap, closing speed and row of the leader along the ego's path at each ego
     step (NaN, NaN, -1: no leader)."""
     m = len(ego_rows)
@@ -478,8 +479,8 @@ def _leaders(key, other_mask, ego_rows, ego_key, ego_sid, x, y, heading, speed, 
     start = np.flatnonzero(new_path)
     stop = np.r_[start[1:], m]
     track = np.r_[np.ones(m, np.int64), np.zeros(len(others), np.int64)]
-    paths = Paths(key=key[rows], track=track, x=x[rows], y=y[rows], heading=heading[rows],
-                  speed=speed[rows], start=start, stop=stop)
+    paths = Paths(scene=scene[rows], key=key[rows], track=track, x=x[rows], y=y[rows],
+                  heading=heading[rows], speed=speed[rows], start=start, stop=stop)
     frame = path_frame(paths, np.r_[np.zeros(m, bool), np.ones(len(others), bool)],
                        ahead=LOOKAHEAD, behind=1.0, lateral=CORRIDOR_HALF_WIDTH)
     ahead = (frame.s > 0) & (np.abs(frame.heading_rel) <= SAME_DIRECTION)

@@ -27,9 +27,9 @@ def straight(track: int, x0: float, y: float, speed: float):
 
 def scene(*tracks) -> Paths:
     cat = {k: np.concatenate([t[k] for t in tracks]) for k in tracks[0]}
-    return Paths(key=cat["key"], track=cat["track"], x=cat["x"], y=cat["y"],
-                 heading=cat["heading"], speed=cat["speed"], start=np.array([0]),
-                 stop=np.array([N]))
+    return Paths(scene=np.zeros(len(cat["key"]), np.int64), key=cat["key"],
+                 track=cat["track"], x=cat["x"], y=cat["y"], heading=cat["heading"],
+                 speed=cat["speed"], start=np.array([0]), stop=np.array([N]))
 
 
 def of_track(frame, paths, track):
