@@ -26,8 +26,12 @@ relation             when (``s``, ``d``: the other agent in the ego's path frame
 
 "By its own sideways motion": the frame is the ego's own path, so an agent also enters or
 leaves the corridor when the *ego* changes lanes towards or away from it. An entry (exit)
-counts as the other's only when the ego's maneuver-level label where the path meets the
-other agent is not a merge towards (away from) that agent's side.
+counts as the other's only when (a) the other agent's own maneuver-level lateral label is a
+turn or a merge within 1 s of the crossing (it moves sideways; a lane change or a turn
+into the road), and (b) the ego's maneuver-level label where the path meets the other
+agent is not a merge towards (away from) that agent's side. A lane change TAP does not
+label (one already under way when the record starts, or too gentle to show a yaw
+pattern) is not attributed to anyone: no Cut-in or Cut-out is reported.
 
 Where several relations hold at one step the first of Cut-in, Cut-out, Lead Braking,
 Overtaking, Being Overtaken, Following, Free Driving wins. Runs (of one relation with one
@@ -186,7 +190,7 @@ def _paint(relation, other, start, stop, code, row_of):
 
 
 def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
-                      stop: np.ndarray, ego_lateral: np.ndarray, a_dec: float,
+                      stop: np.ndarray, lateral: np.ndarray, a_dec: float,
                       config: InteractionConfig | None = None) -> InteractionSteps:
     """The relation of every step of the given ego segments.
 
@@ -194,9 +198,9 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
         checked: the validated trajectory table (rows grouped by track, in time order).
         kin: its kinematics.
         start, stop: (S,) row ranges of the ego segments (valid segments of tracks).
-        ego_lateral: (m,) the egos' maneuver-level lateral codes over those rows laid end to
-            end (:data:`tap_bench.sdl.LATERAL_NAMES`): tells an ego's lane change from an
-            other agent's.
+        lateral: (n,) maneuver-level lateral code of every row of ``checked``
+            (:data:`tap_bench.sdl.LATERAL_NAMES`; -1 where the row carries no label): tells
+            an ego's lane change from an other agent's.
         a_dec: [m/s^2] the deceleration threshold (TAP's Theta_a, negative).
         config: parameters.
     """
@@ -224,9 +228,9 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
                   start=np.asarray(start, np.int64), stop=np.asarray(stop, np.int64))
     ego_row, ego_path = paths.ego_rows()
     m = len(ego_row)
-    if len(ego_lateral) != m:
-        raise TapBenchError(f"interaction_steps: {len(ego_lateral)} lateral codes for {m} "
-                            "ego steps.")
+    if len(lateral) != n:
+        raise TapBenchError(f"interaction_steps: {len(lateral)} lateral codes for {n} rows.")
+    ego_lateral = lateral[ego_row]
     v_e = speed[ego_row]
     reach = np.maximum(config.range_m, config.range_s * v_e)
     # what the relations need: the corridor and its edges far ahead (leaders, cut-ins and
@@ -305,6 +309,17 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
         at = arc[st] + s[pairs]
         return (at >= 0) & (at <= arc[path_last[ego_path[st]]])
 
+    def other_moving_sideways(pairs: np.ndarray) -> np.ndarray:
+        """The other agent's own lateral label is a turn or a merge within 1 s."""
+        rows = q_other[pairs]
+        seg = idx.segment[rows]
+        lo, hi = idx.segment_start[seg], idx.segment_stop[seg] - 1
+        hit = np.zeros(len(pairs), bool)
+        for off in range(-merge_window, merge_window + 1):
+            code = lateral[np.clip(rows + off, lo, hi)]
+            hit |= (code > sdl.STRAIGHT)
+        return hit
+
     # Cut-in: the new leader was outside the corridor one step before, and far out earlier
     new_lead = leader_pair[has_leader]
     prev = lagged(new_lead, -1)
@@ -312,8 +327,8 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
     prev = prev[prev >= 0]
     out_before = np.abs(d[prev]) > config.corridor
     entering, prev = entering[out_before], prev[out_before]
-    ok = on_record(entering) & reaches(entering, -1) & ~ego_merging(entering,
-                                                                    np.sign(d[prev]))
+    ok = (on_record(entering) & reaches(entering, -1) & other_moving_sideways(entering)
+          & ~ego_merging(entering, np.sign(d[prev])))
     cut_in = entering[ok]
 
     # Cut-out: the leader of the step before is outside the corridor now, still ahead
@@ -324,8 +339,8 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
     leaving = nxt[ok]
     ok = (np.abs(d[leaving]) > config.corridor) & (s[leaving] > 0)
     leaving = leaving[ok]
-    ok = on_record(leaving) & reaches(leaving, +1) & ~ego_merging(leaving,
-                                                                  -np.sign(d[leaving]))
+    ok = (on_record(leaving) & reaches(leaving, +1) & other_moving_sideways(leaving)
+          & ~ego_merging(leaving, -np.sign(d[leaving])))
     cut_out = leaving[ok]
 
     # Overtaking / Being Overtaken: s changes sign beside the corridor

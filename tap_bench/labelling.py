@@ -33,9 +33,9 @@ from tap_bench.trajectories import DT, IDENTIFYING_COLUMNS, validate_and_index
 
 __all__ = ["INTERACTION_TRACKS", "LABEL_COLUMNS", "SEGMENT_COLUMNS", "TapResult", "label", "tap"]
 
-INTERACTION_TRACKS = ("ego", "all")
-"""Whose interactions :func:`tap` labels: the egos (``is_ego``), or every vehicle and
-cyclist track."""
+INTERACTION_TRACKS = ("auto", "ego", "all")
+"""Whose interactions :func:`tap` labels: the egos (``is_ego``), every vehicle and cyclist
+track, or ``auto``: the egos when the table has an ``is_ego`` column, else every track."""
 
 LABEL_COLUMNS = ("scenario_id", "track_id", "segment", "level", "lateral", "longitudinal",
                  "sdl", "t_start", "t_end")
@@ -274,8 +274,9 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
         config: stage timing parameters (1 s minimum run, 4 s merge gap by default).
         source: a name for the table in error messages (its file path).
         interactions: also label the interaction axis (SPEC 7,
-            :mod:`tap_bench.interactions`) of the egos (``"ego"``: tracks with ``is_ego``)
-            or of every vehicle and cyclist track (``"all"``); None: not at all.
+            :mod:`tap_bench.interactions`) of the egos (``"ego"``: tracks with ``is_ego``),
+            of every vehicle and cyclist track (``"all"``), or ``"auto"`` (the egos when
+            the table has ``is_ego``, else every track); None: not at all.
         interaction_config: parameters of the interaction axis.
 
     Returns:
@@ -314,11 +315,13 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
     timings.update(validate=t1 - t0, kinematics=t2 - t1, layout=t3 - t2, stages=t4 - t3)
     extra = {}
     if interactions is not None:
+        if interactions == "auto":
+            interactions = "ego" if "is_ego" in info.columns else "all"
         chosen = _interaction_segments(info, interactions, source)
-        on_axis = np.isin(step_segment, chosen)
-        inter = interaction_steps(checked, kin, starts[chosen], stops[chosen],
-                                  labels.maneuver_lateral[on_axis], th.a_dec,
-                                  interaction_config)
+        lateral = np.full(len(kin.t), -1, np.int8)  # every labelled row's lateral code
+        lateral[step_rows] = labels.maneuver_lateral
+        inter = interaction_steps(checked, kin, starts[chosen], stops[chosen], lateral,
+                                  th.a_dec, interaction_config)
         track_ids = np.asarray(pd.Series(checked["track_id"]).to_numpy(object)
                                [index.track_start[:-1]], dtype=object)
         extra = {"interactions": inter, "interaction_segments": chosen,

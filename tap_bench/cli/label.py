@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 
 from tap_bench.distributed.backend import add_backend_arguments
-from tap_bench.labelling import tap
+from tap_bench.labelling import INTERACTION_TRACKS, tap
 from tap_bench.sdl import LEVELS
 from tap_bench.stages import StageConfig
 from tap_bench.tableio import read_table, write_table
@@ -36,6 +36,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--min-run", type=float, default=1.0, help="shortest label run [s] (1)")
     p.add_argument("--merge-gap", type=float, default=4.0,
                    help="longest straight stretch inside a merge [s] (4)")
+    p.add_argument("--interactions", nargs="?", const="auto", default=None,
+                   choices=INTERACTION_TRACKS,
+                   help="also label the interaction axis (Following, Cut-in, Overtaking ...; "
+                   "SPEC 7, docs/interactions.md): of the egos when the table has is_ego, "
+                   "else of every track; '--interactions all' labels every vehicle and "
+                   "cyclist track. Adds the 'interaction' column and, with --segments, "
+                   "axis='interaction' rows naming the other agent (other_track_id)")
     add_backend_arguments(p)
     p.set_defaults(func=run)
 
@@ -47,7 +54,8 @@ def run(args: argparse.Namespace) -> int:
     table = read_table(args.input)
     t1 = time.perf_counter()
     config = StageConfig(min_run=args.min_run, merge_gap=args.merge_gap)
-    result = tap(table, args.thresholds, config, source=str(args.input))
+    result = tap(table, args.thresholds, config, source=str(args.input),
+                 interactions=args.interactions)
     labels = result.labels(args.level)
     write_table(labels, args.output)
     if args.segments:
@@ -74,6 +82,12 @@ def run(args: argparse.Namespace) -> int:
           f"labels; most common:")
     for text, n in counts.head(5).items():
         print(f"  {n:6d}  {text}")
+    if result.interactions is not None:
+        relations = result.segments("trend")
+        relations = relations[relations["axis"] == "interaction"]
+        per = relations["label"].value_counts()
+        print(f"interaction axis of {len(result.interaction_segments)} segment(s): "
+              + ", ".join(f"{name} {n}" for name, n in per.items()) + " run(s)")
     written = [args.output, args.segments, args.steps, args.report]
     print("wrote " + ", ".join(w for w in written if w))
     return 0
@@ -96,7 +110,7 @@ def _run_sharded(args: argparse.Namespace) -> int:
     try:
         report = label_shards(args.input, args.output, backend, thresholds=args.thresholds,
                               level=args.level, config=config, retries=args.retries,
-                              resume=args.resume)
+                              resume=args.resume, interactions=args.interactions)
     finally:
         close_backend(backend)
     short = sum(s.get("short_segments", 0) for s in report.shards)
