@@ -170,3 +170,24 @@ def test_label_table_columns_and_other_tracks():
         tap(scene, interactions="egos")
     plain = tap(scene).labels("maneuver")
     assert "interaction" not in plain.columns
+
+
+def test_cli_label_interactions(tmp_path, capsys):
+    from tap_bench.cli import main
+
+    scene = pd.concat([vehicle("ego", const(15), flat(0), circle=False, ego=True),
+                       vehicle("cutter", const(15, 20), lane_offset(2, 5, 4, 0),
+                               circle=False)], ignore_index=True)
+    src, out, seg = tmp_path / "t.parquet", tmp_path / "l.parquet", tmp_path / "s.parquet"
+    scene.to_parquet(src)
+    assert main(["label", str(src), "-o", str(out), "--interactions", "--segments",
+                 str(seg), "--level", "maneuver"]) == 0
+    assert "Cut-in 1" in capsys.readouterr().out
+    labels = pd.read_parquet(out).set_index("track_id")
+    assert labels.loc["ego", "interaction"] == "Free Driving > Cut-in > Following"
+    assert pd.isna(labels.loc["cutter", "interaction"])  # egos only when is_ego is given
+    segs = pd.read_parquet(seg)
+    cut = segs[(segs["axis"] == "interaction") & (segs["label"] == "Cut-in")]
+    assert list(cut["other_track_id"]) == ["cutter"]
+    assert main(["label", str(src), "-o", str(out), "--interactions", "all"]) == 0
+    assert pd.read_parquet(out)["interaction"].notna().all()
