@@ -74,8 +74,7 @@ __all__ = [
     "interaction_steps",
 ]
 
-RELATIONS = ("Free Driving", "Following", "Cut-in", "Cut-out", "Overtaking",
-             "Being Overtaken", "Lead Braking")
+RELATIONS = sdl.INTERACTION_NAMES
 """The interaction vocabulary; a per-step relation is an index into it."""
 FREE_DRIVING, FOLLOWING, CUT_IN, CUT_OUT, OVERTAKING, BEING_OVERTAKEN, LEAD_BRAKING = range(7)
 OTHER_TYPES = ("vehicle", "cyclist")

@@ -6,11 +6,18 @@ vocabulary; a per-step label is a small integer code indexing the level's name l
 
 from __future__ import annotations
 
-__all__ = ["AXES", "LEVELS", "SDL_SEPARATOR", "SEPARATOR", "vocabulary"]
+__all__ = ["AXES", "INTERACTION_NAMES", "LABEL_AXES", "LEVELS", "SDL_SEPARATOR", "SEPARATOR",
+           "check_axes", "vocabulary"]
 
 LEVELS = ("trace", "trend", "maneuver", "action")
 """Levels from the most abstract to the most detailed."""
 AXES = ("lateral", "longitudinal")
+"""TAP's two axes of a vehicle's own motion: the ``sdl`` label is ``lateral | longitudinal``."""
+LABEL_AXES = ("lateral", "longitudinal", "interaction")
+"""Every axis a label can be compared on (SPEC 7 adds the interaction axis)."""
+INTERACTION_NAMES = ("Free Driving", "Following", "Cut-in", "Cut-out", "Overtaking",
+                     "Being Overtaken", "Lead Braking")
+"""The interaction vocabulary (:mod:`tap_bench.interactions`), the same at every level."""
 SEPARATOR = " > "
 """Joins the chronologically ordered labels of one axis."""
 SDL_SEPARATOR = " | "
@@ -69,11 +76,31 @@ def code_names(level: str, axis: str) -> tuple[str, ...]:
 
 
 def vocabulary(level: str, axis: str) -> tuple[str, ...]:
-    """Every label that can appear at ``level`` on ``axis`` (``"lateral"``/``"longitudinal"``)."""
+    """Every label that can appear at ``level`` on ``axis`` (:data:`LABEL_AXES`)."""
     from tap_bench.errors import did_you_mean
 
     if level not in LEVELS:
         raise did_you_mean("level", level, LEVELS)
-    if axis not in AXES:
-        raise did_you_mean("axis", axis, AXES)
+    if axis not in LABEL_AXES:
+        raise did_you_mean("axis", axis, LABEL_AXES)
+    if axis == "interaction":
+        return INTERACTION_NAMES
     return _VOCABULARY[(level, axis)]
+
+
+def check_axes(axes: str | tuple[str, ...] | list[str] | None) -> tuple[str, ...]:
+    """The axes to compare labels on, checked: a sequence (or a comma-separated string) of
+    distinct names of :data:`LABEL_AXES`, in that order; None gives TAP's two (:data:`AXES`).
+    """
+    from tap_bench.errors import LabelTableError, did_you_mean
+
+    if axes is None:
+        return AXES
+    names = [a.strip() for a in axes.split(",")] if isinstance(axes, str) else list(axes)
+    for name in names:
+        if name not in LABEL_AXES:
+            raise did_you_mean("axis", name, LABEL_AXES)
+    if not names or len(set(names)) != len(names):
+        raise LabelTableError(f"axes {axes!r}: give one or more distinct axes of "
+                              f"{', '.join(LABEL_AXES)}.")
+    return tuple(a for a in LABEL_AXES if a in names)

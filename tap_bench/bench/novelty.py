@@ -52,7 +52,8 @@ class NoveltyResult:
 
 
 def novelty(episodes: pd.DataFrame, reference: Reference, *,
-            config: BootstrapConfig | None = None, stream: int = 0) -> NoveltyResult:
+            config: BootstrapConfig | None = None, stream: int = 0,
+            axes=None) -> NoveltyResult:
     """The agent's labels that ``reference`` never shows, as a rate and examples.
 
     Args:
@@ -61,7 +62,10 @@ def novelty(episodes: pd.DataFrame, reference: Reference, *,
         reference: a corpus reference (whole SDL labels) at the labels' level.
         config: bootstrap resamples, level and seed.
         stream: random stream of the config.
+        axes: the axes a label is made of (as the reference's; default the ``sdl`` label).
     """
+    from tap_bench.similarity.sdl_distance import label_text
+
     if reference.kind != "corpus":
         raise LabelTableError("novelty needs a reference corpus (its whole SDL labels); a "
                               "vocabulary holds every single label, so nothing is novel.")
@@ -69,8 +73,9 @@ def novelty(episodes: pd.DataFrame, reference: Reference, *,
     ok = episodes
     if "status" in ok.columns:
         ok = ok[ok["status"] == "ok"]
-    ok = ok[ok["sdl"].notna()]
-    lab = ok["sdl"].to_numpy(str)
+    text = label_text(ok, axes)
+    ok = ok[text.notna().to_numpy()]
+    lab = text.dropna().to_numpy(str)
     novel = ~reference.contains(lab)
     n = len(lab)
     if n == 0:

@@ -24,6 +24,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                      help="use the SDL vocabulary of the level as the reference")
     p.add_argument("--level", default="maneuver", choices=LEVELS,
                    help="SDL level (default maneuver)")
+    p.add_argument("--axes", default=None, metavar="AXES",
+                   help="comma-separated axes a label is made of: lateral, longitudinal, "
+                   "interaction (default lateral,longitudinal; with interaction, trajectory "
+                   "tables are labelled with their egos' interactions, and label tables "
+                   "must carry them)")
     p.add_argument("--reference-tracks", default="vehicles", choices=("vehicles", "ego", "all"),
                    help="which reference trajectories count (default: every vehicle)")
     p.add_argument("--thresholds", default="paper",
@@ -49,6 +54,8 @@ def run(args: argparse.Namespace) -> int:
     from tap_bench.bench.novelty import novelty
     from tap_bench.cli.rollout import episodes_path
     from tap_bench.labelling import tap
+    from tap_bench.sdl import check_axes
+    from tap_bench.similarity.sdl_distance import label_text
     from tap_bench.tableio import read_table, write_table
 
     config = BootstrapConfig(n_resamples=args.resamples, level=args.ci, seed=args.seed)
@@ -57,18 +64,21 @@ def run(args: argparse.Namespace) -> int:
                          and table["policy"].nunique() == 1 else Path(args.agent).stem)
     if "seed" not in table.columns:  # coverage needs episodes, not pairs: number them
         table = table.assign(seed=pd.factorize(table["scenario_id"])[0])
+    axes = check_axes(args.axes)
+    inter = "auto" if "interaction" in axes else None
     episodes, _, _ = episodes_from_table(table.assign(policy=name), level=args.level,
                                          thresholds=args.thresholds, policy=name,
-                                         source=str(args.agent))
+                                         source=str(args.agent), interactions=inter)
     if args.vocabulary:
-        reference = vocabulary_reference(args.level)
+        reference = vocabulary_reference(args.level, axes=axes)
     else:
         ref_table = read_table(args.reference)
         if "sdl" not in ref_table.columns:
-            ref_table = tap(ref_table, args.thresholds, source=str(args.reference)
-                            ).labels(args.level)
+            ref_table = tap(ref_table, args.thresholds, source=str(args.reference),
+                            interactions="all" if inter else None).labels(args.level)
         reference = corpus_reference(ref_table, args.level, tracks=args.reference_tracks,
-                                     name=Path(args.reference).name)
+                                     name=Path(args.reference).name, axes=axes)
+    episodes = episodes.assign(sdl=label_text(episodes, axes))  # the label on the axes
     ok = episodes[(episodes["status"] == "ok") & episodes["sdl"].notna()]
     groups = [(env, sub) for env, sub in ok.groupby("env", sort=True)]
     if len(groups) > 1:
