@@ -14,7 +14,7 @@ relation             when (``s``, ``d``: the other agent in the ego's path frame
 ``Cut-in``           an agent enters the corridor ahead from outside (it was at least
                      ``approach`` beyond the corridor's edge in the ``approach_window`` before)
                      by its own sideways motion, and becomes the leader; lasts
-                     ``event_duration`` from the entry
+                     ``event_duration``, from ``cut_in_lead`` before the entry
 ``Cut-out``          the leader leaves the corridor by its own sideways motion (and gets at
                      least ``approach`` beyond the edge within ``approach_window``); lasts
                      ``event_duration`` from the exit
@@ -42,7 +42,9 @@ low-pass). Only vehicles and cyclists are others (pedestrians are not followed).
 Beyond the ends of the ego's record the path frame is a straight extrapolation: a curving
 road moves away from it, so ``d`` changes there without anyone moving sideways. Cut-ins and
 cut-outs are therefore only detected where the other agent's foot point lies on the
-recorded path (one ahead of the ego's last recorded position cannot be told apart).
+recorded path, or ahead of its end when the path ends straight at speed (its heading changed
+by at most 0.05 rad over its last 2 s while it drove at least 20 m: an episode that ends in
+a crash during a cut-in on a highway).
 The parameters and the data that justify them: docs/interactions.md.
 """
 
@@ -79,6 +81,9 @@ RELATIONS = sdl.INTERACTION_NAMES
 FREE_DRIVING, FOLLOWING, CUT_IN, CUT_OUT, OVERTAKING, BEING_OVERTAKEN, LEAD_BRAKING = range(7)
 OTHER_TYPES = ("vehicle", "cyclist")
 """Object types that can be the other agent of a relation."""
+END_STRAIGHT_STEPS = 20  # [steps] a path ends straight when its heading changed by at most
+END_STRAIGHT_RAD = 0.05  # [rad] this over its last 2 s (0.05 rad: a 1 km radius at 25 m/s)
+END_STRAIGHT_DISTANCE = 20.0  # [m] ... while driving at least this far (not parked)
 
 
 @dataclass(frozen=True)
@@ -96,8 +101,11 @@ class InteractionConfig:
         approach: [m] how far beyond the corridor's edge a cutting-in agent came from, or a
             cutting-out agent goes to.
         approach_window: [s] within which it came from (goes to) there.
-        event_duration: [s] how long a Cut-in or Cut-out lasts from the crossing of the
-            corridor's edge (the time in which the ego has to respond).
+        event_duration: [s] how long a Cut-in or Cut-out lasts (the time in which the ego
+            has to respond).
+        cut_in_lead: [s] a Cut-in starts this long before the agent crosses the corridor's
+            edge (it is already moving in; an episode that ends in a crash soon after the
+            crossing still shows the Cut-in).
         pass_length: [m] an overtaken agent is alongside while ``|s| <=`` this.
         min_moving_speed: [m/s] slower agents are not overtaken (parked cars are passed).
         min_run: [s] the shortest run of one relation (stage 2).
@@ -111,6 +119,7 @@ class InteractionConfig:
     approach: float = 1.0
     approach_window: float = 3.0
     event_duration: float = 2.0
+    cut_in_lead: float = 1.0
     pass_length: float = 5.0
     min_moving_speed: float = 2.0
     min_run: float = 1.0
@@ -118,7 +127,7 @@ class InteractionConfig:
     def __post_init__(self) -> None:
         for name in ("corridor", "range_m", "range_s", "same_direction", "band",
                      "approach", "approach_window", "event_duration", "pass_length",
-                     "min_run"):
+                     "min_run", "cut_in_lead"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
                 raise TapBenchError(f"InteractionConfig.{name} must be a finite number > 0, "
@@ -126,6 +135,9 @@ class InteractionConfig:
         if self.band <= self.corridor:
             raise TapBenchError(f"InteractionConfig.band ({self.band} m) must be wider than "
                                 f"the corridor ({self.corridor} m).")
+        if self.cut_in_lead >= self.event_duration:
+            raise TapBenchError(f"InteractionConfig.cut_in_lead ({self.cut_in_lead} s) must be "
+                                f"shorter than event_duration ({self.event_duration} s).")
         if not self.min_moving_speed >= 0:
             raise TapBenchError("InteractionConfig.min_moving_speed must be >= 0 m/s, got "
                                 f"{self.min_moving_speed!r}.")
@@ -301,12 +313,21 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
             hit |= ego_lateral[k] == want
         return hit
 
+    # the straight extension beyond the record's end is trusted where the path ends straight
+    h_last = heading[ego_row[path_last]]
+    h_before = heading[ego_row[np.maximum(path_last - END_STRAIGHT_STEPS, path_first)]]
+    back = np.maximum(path_last - END_STRAIGHT_STEPS, path_first)
+    ends_straight = (np.abs(np.angle(np.exp(1j * (h_last - h_before)))) <= END_STRAIGHT_RAD) \
+        & (arc[path_last] - arc[back] >= END_STRAIGHT_DISTANCE)
+
     def on_record(pairs: np.ndarray) -> np.ndarray:
-        """The other's foot point lies on the ego's recorded path, not on the straight
-        extensions (where d also changes because the road curves away from the line)."""
+        """The other's foot point lies on the ego's recorded path, or on the straight
+        extension ahead of a path that ends straight (elsewhere the road may curve away from
+        the extension, and d changes without anyone moving sideways)."""
         st = q_step[pairs]
         at = arc[st] + s[pairs]
-        return (at >= 0) & (at <= arc[path_last[ego_path[st]]])
+        path = ego_path[st]
+        return (at >= 0) & ((at <= arc[path_last[path]]) | ends_straight[path])
 
     def other_moving_sideways(pairs: np.ndarray) -> np.ndarray:
         """The other agent's own lateral label is a turn or a merge within 1 s."""
@@ -383,8 +404,8 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
     event = config.steps(config.event_duration)
     zero = np.zeros(len(cut_out), np.int64)
     _paint(relation, other, *windows(cut_out, zero, zero + event), CUT_OUT, q_other[cut_out])
-    zero = np.zeros(len(cut_in), np.int64)
-    _paint(relation, other, *windows(cut_in, zero, zero + event), CUT_IN, q_other[cut_in])
+    lead = np.full(len(cut_in), config.steps(config.cut_in_lead), np.int64)
+    _paint(relation, other, *windows(cut_in, lead, event - lead), CUT_IN, q_other[cut_in])
 
     # runs of one (relation, other agent); stage 2's joining of runs shorter than 1 s
     other_track = np.where(other >= 0, idx.track[np.maximum(other, 0)], -1)

@@ -3,8 +3,8 @@
 Every scene is 8 s at 10 Hz; the ego (``"ego"``) drives at constant speed. Expected labels
 are worked out from the definitions in tap_bench/interactions.py: e.g. a car that moves from
 the next lane (4 m to the left) into the ego's lane with a half-cosine profile between 2 and
-5 s crosses the corridor edge (1.8 m) at about 3.6 s: Free Driving until then, Cut-in for
-2 s, then Following.
+5 s crosses the corridor edge (1.8 m) at about 3.6 s: Free Driving until 2.6 s, Cut-in for
+2 s (from 1 s before the crossing), then Following.
 """
 
 from __future__ import annotations
@@ -91,9 +91,10 @@ def test_cut_in_20_m_ahead_names_the_agent(circle):
                              cutter)
     assert runs(inter) == [("Free Driving", None), ("Cut-in", "cutter"),
                            ("Following", "cutter")]
-    # the corridor edge is crossed where the offset 2 + 2 cos(pi u) is 1.8 m: u = 0.532
+    # the corridor edge is crossed where the offset 2 + 2 cos(pi u) is 1.8 m: u = 0.532;
+    # the Cut-in starts 1 s before
     t_cross = 2 + 3 * np.arccos(-0.1) / np.pi
-    assert inter["t_start"].iloc[1] == pytest.approx(t_cross, abs=0.15)
+    assert inter["t_start"].iloc[1] == pytest.approx(t_cross - 1.0, abs=0.15)
     assert inter["t_end"].iloc[1] - inter["t_start"].iloc[1] == pytest.approx(2.0)
     assert row["interaction"] == "Free Driving > Cut-in > Following"
 
