@@ -26,6 +26,7 @@ COMMANDS = (
     "tap_bench.cli.train",
     # the benchmark: matched comparison, coverage, suite runs and the regression gate
     "tap_bench.cli.compare",
+    "tap_bench.cli.contexts",
     "tap_bench.cli.coverage",
     "tap_bench.cli.bench",
     "tap_bench.cli.demo",
