@@ -28,6 +28,7 @@ COMMANDS = (
     "tap_bench.cli.compare",
     "tap_bench.cli.contexts",
     "tap_bench.cli.coverage",
+    "tap_bench.cli.gap",
     "tap_bench.cli.bench",
     "tap_bench.cli.demo",
     # similarity: SDL search, unique behaviours, the paper's ADE / DTW experiments
