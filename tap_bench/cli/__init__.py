@@ -34,6 +34,7 @@ COMMANDS = (
     # similarity: SDL search, unique behaviours, the paper's ADE / DTW experiments
     "tap_bench.cli.search",
     "tap_bench.cli.unique",
+    "tap_bench.cli.export",
     "tap_bench.cli.evaluate",
 )
 
