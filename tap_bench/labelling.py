@@ -27,6 +27,7 @@ from tap_bench.interactions import (
     interaction_steps,
 )
 from tap_bench.kinematics import Kinematics, compute_kinematics
+from tap_bench.labels import LABEL_COLUMNS, SEGMENT_COLUMNS
 from tap_bench.stages import StageConfig, StepLabels, find_runs, run_stages
 from tap_bench.thresholds import Thresholds, resolve_thresholds
 from tap_bench.trajectories import DT, IDENTIFYING_COLUMNS, validate_and_index
@@ -36,17 +37,6 @@ __all__ = ["INTERACTION_TRACKS", "LABEL_COLUMNS", "SEGMENT_COLUMNS", "TapResult"
 INTERACTION_TRACKS = ("auto", "ego", "all")
 """Whose interactions :func:`tap` labels: the egos (``is_ego``), every vehicle and cyclist
 track, or ``auto``: the egos when the table has an ``is_ego`` column, else every track."""
-
-LABEL_COLUMNS = ("scenario_id", "track_id", "segment", "level", "lateral", "longitudinal",
-                 "sdl", "t_start", "t_end")
-"""Columns of the label table, followed by the identifying columns the input had."""
-SEGMENT_COLUMNS = ("scenario_id", "track_id", "segment", "level", "axis", "label", "t_start",
-                   "t_end")
-"""Columns of the segment table, followed by the identifying columns the input had. With
-interactions, the label table gains ``interaction`` (the relations joined by ``' > '``; NA on
-tracks not labelled on that axis) and the segment table ``axis = "interaction"`` rows and an
-``other_track_id`` column (NA on the other axes and on Free Driving)."""
-
 
 @dataclass(frozen=True)
 class TapResult:
@@ -87,7 +77,7 @@ class TapResult:
 
     def labels(self, level: str = "action") -> pd.DataFrame:
         """The label table (SPEC section 1) at ``level`` or at ``"all"`` levels."""
-        levels = _levels(level)
+        levels = sdl.levels(level)
         frames = [self._labels_one(lv) for lv in levels]
         out = pd.concat(frames, ignore_index=True) if len(frames) > 1 else frames[0]
         if len(levels) > 1:
@@ -99,9 +89,9 @@ class TapResult:
     def segments(self, level: str = "action") -> pd.DataFrame:
         """The segment table (SPEC section 1): one row per run of one label; with
         interactions, the ``axis = "interaction"`` runs too (at every level asked for)."""
-        frames = [self._segments_one(lv, axis) for lv in _levels(level) for axis in sdl.AXES]
+        frames = [self._segments_one(lv, axis) for lv in sdl.levels(level) for axis in sdl.AXES]
         if self.interactions is not None:
-            frames += [self._interaction_segments(lv) for lv in _levels(level)]
+            frames += [self._interaction_segments(lv) for lv in sdl.levels(level)]
         out = pd.concat(frames, ignore_index=True)
         key = out.pop("_seg").to_numpy()
         order = np.argsort(key, kind="stable")
@@ -236,14 +226,6 @@ class TapResult:
         return out
 
 
-def _levels(level: str) -> tuple[str, ...]:
-    if level == "all":
-        return sdl.LEVELS
-    if level not in sdl.LEVELS:
-        raise did_you_mean("level", level, (*sdl.LEVELS, "all"))
-    return (level,)
-
-
 def _strings(values: pa.Array) -> pd.Series:
     """A pyarrow string array as a pandas string Series, without a round trip via Python."""
     return pd.Series(values, dtype=pd.StringDtype("pyarrow", na_value=np.nan))
@@ -364,7 +346,7 @@ def label(table: pd.DataFrame, thresholds: Thresholds | str = "paper", level: st
         ShortSegmentWarning: when valid segments shorter than 1 s had to be left unlabelled
             (use :func:`tap` to get them as a table).
     """
-    _levels(level)  # fail on a bad level before doing any work
+    sdl.levels(level)  # fail on a bad level before doing any work
     result = tap(table, thresholds, config, source=source)
     warn_short_segments(result)
     return result.labels(level)

@@ -14,13 +14,13 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
 
-from tap_bench.interactions import RELATIONS  # noqa: E402
-from tap_bench.labelling import tap  # noqa: E402
-from tap_bench.pathframe import CORRIDOR_HALF_WIDTH, Paths, path_frame  # noqa: E402
+from tap_bench.interactions import RELATIONS
+from tap_bench.labelling import tap
+from tap_bench.pathframe import CORRIDOR_HALF_WIDTH, Paths, path_frame
 
 R = 60.0
 T = np.round(np.arange(80) / 10, 10)

@@ -45,6 +45,7 @@ import pandas as pd
 from tap_bench import sdl
 from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.errors import LabelTableError, did_you_mean
+from tap_bench.labels import label_text
 from tap_bench.sim.coverage import vocabulary_tokens
 
 __all__ = [
@@ -88,8 +89,7 @@ class Reference:
 def vocabulary_reference(level: str = "action", *, axes=None) -> Reference:
     """The single labels of ``level`` on ``axes`` (default lateral and longitudinal; the
     interaction axis adds its relations), equally weighted."""
-    if level not in sdl.LEVELS:
-        raise did_you_mean("level", level, sdl.LEVELS)
+    sdl.check_level(level)
     axes = sdl.check_axes(axes)
     tokens = {t for axis in axes for t in sdl.vocabulary(level, axis)} if axes != sdl.AXES \
         else vocabulary_tokens(level)
@@ -112,7 +112,6 @@ def corpus_reference(labels: pd.DataFrame, level: str, *, tracks: str = "vehicle
             label; :func:`tap_bench.similarity.sdl_distance.label_text`). Rows without a
             label on an axis (not labelled with interactions) are left out.
     """
-    from tap_bench.similarity.sdl_distance import label_text
 
     if tracks not in ("vehicles", "ego", "all"):
         raise did_you_mean("reference tracks", tracks, ("vehicles", "ego", "all"))
@@ -182,8 +181,8 @@ def _items_of(labels: np.ndarray, reference: Reference) -> list[set[str]] | np.n
     out = []
     for text in labels:
         items: set[str] = set()
-        for side in text.split(sdl.SDL_SEPARATOR):
-            items.update(side.split(sdl.SEPARATOR))
+        for side in sdl.parse_sdl(text):
+            items.update(side)
         out.append(items)
     return out
 

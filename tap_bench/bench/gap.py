@@ -37,7 +37,9 @@ import pandas as pd
 from tap_bench import sdl
 from tap_bench.bench.bootstrap import BootstrapConfig, percentile_interval
 from tap_bench.errors import LabelTableError
+from tap_bench.kinematics import compute_kinematics
 from tap_bench.labelling import tap
+from tap_bench.trajectories import validate_and_index
 
 __all__ = ["GapResult", "behaviour_gap", "label_occurrences", "labelled_with_speed"]
 
@@ -86,9 +88,6 @@ def labelled_with_speed(table: pd.DataFrame, level: str, *, interactions: str,
 
 def _segment_mean_speed(result, table: pd.DataFrame, source: str) -> np.ndarray:
     """(segments,) mean speed of each labelled segment [m/s]."""
-    from tap_bench.kinematics import compute_kinematics
-    from tap_bench.trajectories import validate_and_index
-
     kin = compute_kinematics(validate_and_index(table, source=source))
     idx = kin.index
     info = result.segments_info

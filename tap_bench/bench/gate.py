@@ -35,7 +35,8 @@ import pandas as pd
 from tap_bench.bench.compare import NO_LABEL
 from tap_bench.bench.measures import MEASURES
 from tap_bench.bench.suite import GateConfig, gate_metrics
-from tap_bench.errors import FileFormatError, TapBenchError
+from tap_bench.errors import BaselineMismatchError, FileFormatError
+from tap_bench.tableio import atomic_path
 
 __all__ = ["BASELINE_FORMAT", "GateResult", "check", "holm", "read_baseline", "write_baseline"]
 
@@ -46,10 +47,6 @@ def _episode_fields() -> tuple[str, ...]:
     return ("env", "policy", "seed", "sdl", *MEASURES.names())
 
 _IDENTITY = ("suite", "suite_version", "level", "thresholds")
-
-
-class BaselineMismatchError(TapBenchError, ValueError):
-    """The run and the baseline were not made with the same suite, level or thresholds."""
 
 
 @dataclass(frozen=True)
@@ -115,8 +112,6 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
         episodes: the run's episode table.
         path: the baseline JSON to write.
     """
-    from tap_bench.tableio import atomic_path
-
     ok = episodes[episodes["status"] == "ok"]
     rows = [[_json_value(v) for v in r] for r in ok[list(_episode_fields())].itertuples(
         index=False)]

@@ -74,6 +74,7 @@ __all__ = [
     "Measure",
     "MeasureRegistry",
     "ego_measures",
+    "ego_step_measures",
     "ego_steps",
     "register_measure",
 ]
@@ -108,6 +109,8 @@ class EgoSteps:
             scored or no leader; 0 when crashed).
         has_others: (S,) bool, the episode records other road users.
         first_row: (S,) the input row of each episode's first ego step.
+        scored: (m,) bool, the step counts in the episode's minima (after the burn-in, or
+            in the closing-in run that ends in a crash).
     """
 
     scenario_id: np.ndarray
@@ -125,6 +128,7 @@ class EgoSteps:
     ttc: np.ndarray
     has_others: np.ndarray
     first_row: np.ndarray
+    scored: np.ndarray
 
     @property
     def n_episodes(self) -> int:
@@ -415,7 +419,43 @@ def ego_steps(table: pd.DataFrame) -> EgoSteps:
     return EgoSteps(scenario_id=np.asarray(sids)[scen], starts=starts, counts=counts,
                     step=ego_step, t=t_ego, speed=v_ego, accel=accel, crashed=crashed,
                     leader_row=leader, gap=gap, closing=closing, headway=headway, ttc=ttc,
-                    has_others=has_others, first_row=ego_rows[starts])
+                    has_others=has_others, first_row=ego_rows[starts], scored=scored)
+
+
+def ego_step_measures(table: pd.DataFrame) -> pd.DataFrame:
+    """The ego's safety measures at every valid step of every scenario (what
+    :func:`ego_measures` reduces to one row per episode), for viewers and plots.
+
+    Args:
+        table: a trajectory table, as for :func:`ego_steps`.
+
+    Returns:
+        one row per valid ego step, sorted by scenario (in order of first appearance) and
+        time: ``scenario_id``, ``t`` [s], ``speed`` [m/s], ``gap_m`` (bumper gap to the
+        leader along the path [m]), ``headway_s`` and ``ttc_s`` [s] (capped at
+        :data:`HEADWAY_CAP_S` and :data:`TTC_CAP_S`; NaN without a leader, and the headway
+        below :data:`MIN_SPEED_FOR_HEADWAY`; 0 while crashed), ``scored`` (False where the
+        burn-in leaves the step out of the episode minima).
+    """
+    steps = ego_steps(table)
+    headway, ttc = _unscored(steps)
+    return pd.DataFrame({
+        "scenario_id": np.repeat(steps.scenario_id, steps.counts), "t": steps.t,
+        "speed": steps.speed, "gap_m": steps.gap,
+        "headway_s": np.minimum(headway, HEADWAY_CAP_S), "ttc_s": np.minimum(ttc, TTC_CAP_S),
+        "scored": steps.scored})
+
+
+def _unscored(steps: EgoSteps) -> tuple[np.ndarray, np.ndarray]:
+    """(headway, ttc) at every step, the burn-in not applied (0 while crashed)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        headway = np.where(steps.speed >= MIN_SPEED_FOR_HEADWAY, steps.gap / steps.speed,
+                           np.nan)
+        ttc = np.where(steps.closing > 0, steps.gap / steps.closing, np.inf)
+    ttc = np.where(np.isnan(steps.gap), np.nan, ttc)
+    headway[steps.crashed] = 0.0
+    ttc[steps.crashed] = 0.0
+    return headway, ttc
 
 
 def ego_measures(table: pd.DataFrame) -> pd.DataFrame:

@@ -21,6 +21,7 @@ import pandas as pd
 from tap_bench.bench.bootstrap import BootstrapConfig, percentile_interval, resample_weights
 from tap_bench.bench.coverage import Reference
 from tap_bench.errors import LabelTableError
+from tap_bench.labels import label_text
 
 __all__ = ["NoveltyResult", "novelty"]
 
@@ -64,7 +65,6 @@ def novelty(episodes: pd.DataFrame, reference: Reference, *,
         stream: random stream of the config.
         axes: the axes a label is made of (as the reference's; default the ``sdl`` label).
     """
-    from tap_bench.similarity.sdl_distance import label_text
 
     if reference.kind != "corpus":
         raise LabelTableError("novelty needs a reference corpus (its whole SDL labels); a "

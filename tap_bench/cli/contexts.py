@@ -3,6 +3,13 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+
+import pandas as pd
+
+from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.contexts import compare_contexts, context_occurrences
+from tap_bench.tableio import read_table, write_table
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -31,14 +38,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
-    import pandas as pd
-
-    from tap_bench.bench.bootstrap import BootstrapConfig
-    from tap_bench.bench.contexts import compare_contexts, context_occurrences
-    from tap_bench.tableio import read_table, write_table
-
     table = pd.concat([read_table(p) for p in args.trajectories], ignore_index=True)
     if "policy" in table.columns:
         table = table[table["policy"].isin([args.a, args.b])]

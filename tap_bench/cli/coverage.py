@@ -54,8 +54,8 @@ def run(args: argparse.Namespace) -> int:
     from tap_bench.bench.novelty import novelty
     from tap_bench.cli.rollout import episodes_path
     from tap_bench.labelling import tap
+    from tap_bench.labels import label_text
     from tap_bench.sdl import check_axes
-    from tap_bench.similarity.sdl_distance import label_text
     from tap_bench.tableio import read_table, write_table
 
     config = BootstrapConfig(n_resamples=args.resamples, level=args.ci, seed=args.seed)

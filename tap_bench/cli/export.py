@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import argparse
 
+from tap_bench.labelling import tap
+from tap_bench.openlabel import write_openlabel
 from tap_bench.sdl import LEVELS
+from tap_bench.tableio import read_table
 
 FORMATS = ("openlabel",)
 
@@ -34,10 +37,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tap_bench.labelling import tap
-    from tap_bench.openlabel import write_openlabel
-    from tap_bench.tableio import read_table
-
     table = read_table(args.input)
     if "axis" not in table.columns:  # a trajectory table: label it
         table = tap(table, args.thresholds, source=str(args.input),

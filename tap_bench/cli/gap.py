@@ -3,8 +3,14 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
+import pandas as pd
+
+from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.gap import behaviour_gap, labelled_with_speed
 from tap_bench.sdl import LEVELS
+from tap_bench.tableio import read_table, write_table
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -41,14 +47,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
-    import pandas as pd
-
-    from tap_bench.bench.bootstrap import BootstrapConfig
-    from tap_bench.bench.gap import behaviour_gap, labelled_with_speed
-    from tap_bench.tableio import read_table, write_table
-
     config = BootstrapConfig(n_resamples=args.resamples, level=args.ci, seed=args.seed)
     table = read_table(args.policy_table)
     ref_table = read_table(args.reference)

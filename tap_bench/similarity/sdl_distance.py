@@ -22,78 +22,29 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-import pyarrow as pa
-import pyarrow.compute as pc
 from rapidfuzz.distance import Levenshtein
 from rapidfuzz.process import cdist
 
 from tap_bench import sdl
-from tap_bench.errors import LabelTableError, did_you_mean
+from tap_bench.errors import LabelTableError
+from tap_bench.labels import label_text, missing_axes, row_key, select_level, validate_labels
+from tap_bench.sdl import parse_sdl
 
 __all__ = [
     "METRICS",
     "LabelSet",
     "g_sdl",
     "label_set",
-    "label_text",
     "levenshtein_matrix",
-    "parse_sdl",
     "sdl_levenshtein",
 ]
 
 METRICS = ("exact", "levenshtein")
 """Label distances: ``exact`` is g_SDL (0 or 1), ``levenshtein`` the token edit distance."""
 
-REQUIRED_LABEL_COLUMNS = ("scenario_id", "track_id", "lateral", "longitudinal", "sdl")
-
-# Every token of each axis over all levels; one character per token in the encoded strings.
-_TOKENS = {
-    axis: tuple(dict.fromkeys(name for level in sdl.LEVELS for name in sdl.vocabulary(level, axis)))
-    for axis in sdl.LABEL_AXES
-}
-_CHAR = {axis: {tok: chr(0x41 + i) for i, tok in enumerate(toks)} for axis, toks in _TOKENS.items()}
-
-
-def parse_sdl(text: str, *, level: str | None = None, axes=None) -> tuple[tuple[str, ...], ...]:
-    """Split a label into its token sequences, one per axis.
-
-    Args:
-        text: ``"<lateral> > <lateral> ... | <longitudinal> > ..."`` (the SDL label), or with
-            other ``axes`` their sequences joined by ``" | "`` in the order of
-            :data:`tap_bench.sdl.LABEL_AXES` (e.g. ``"Straight | Following > Cut-in"``).
-        level: when given, every token must belong to that level's vocabulary.
-        axes: the axes the label holds (default: lateral and longitudinal).
-
-    Returns:
-        one tuple of tokens per axis, each in chronological order.
-
-    Raises:
-        LabelTableError: not one ``" | "`` between consecutive axes, an empty side, or an
-            unknown token (with the closest known tokens).
-    """
-    axes = sdl.check_axes(axes)
-    bar = sdl.SDL_SEPARATOR.strip()
-    if not isinstance(text, str) or text.count(bar) != len(axes) - 1:
-        example = ("'Straight > Gradual Left Turn" + sdl.SDL_SEPARATOR + "Maintain Medium Speed'"
-                   if axes == sdl.AXES else "one sequence per axis")
-        raise LabelTableError(
-            f"label {text!r} must hold {len(axes)} sequence(s) ({', '.join(axes)}) joined by "
-            f"{sdl.SDL_SEPARATOR!r}, e.g. {example}.")
-    return tuple(_tokens(part, axis, level, text)
-                 for part, axis in zip(text.split(bar), axes, strict=True))
-
-
-def _tokens(seq: str, axis: str, level: str | None, where: str) -> tuple[str, ...]:
-    tokens = tuple(tok.strip() for tok in seq.split(sdl.SEPARATOR.strip()))
-    known = sdl.vocabulary(level, axis) if level else _TOKENS[axis]
-    for tok in tokens:
-        if not tok:
-            raise LabelTableError(f"SDL label {where!r}: an empty {axis} label; labels are "
-                                  f"joined by {sdl.SEPARATOR!r} with one on each side.")
-        if tok not in known:
-            scope = f"{level}-level {axis} label" if level else f"{axis} label"
-            raise LabelTableError(f"SDL label {where!r}: {did_you_mean(scope, tok, known)}")
-    return tokens
+# One character per label of each axis in the encoded strings.
+_CHAR = {axis: {tok: chr(0x41 + i) for i, tok in enumerate(sdl.tokens(axis))}
+         for axis in sdl.LABEL_AXES}
 
 
 def g_sdl(a: str, b: str) -> int:
@@ -208,50 +159,6 @@ class LabelSet:
         return out
 
 
-def _select_level(labels: pd.DataFrame, level: str | None, source: str) -> tuple[pd.DataFrame,
-                                                                                 str | None]:
-    if "level" not in labels.columns:
-        if level is not None and level not in sdl.LEVELS:
-            raise did_you_mean("level", level, sdl.LEVELS)
-        return labels, level
-    present = [lv for lv in sdl.LEVELS if lv in set(labels["level"].astype(str).unique())]
-    if level is None:
-        if len(present) != 1:
-            raise LabelTableError(
-                f"{source}: the table holds labels of {len(present)} levels "
-                f"({', '.join(present)}); choose one with level=... (--level).")
-        level = present[0]
-    elif level not in sdl.LEVELS:
-        raise did_you_mean("level", level, sdl.LEVELS)
-    elif level not in present:
-        raise LabelTableError(f"{source}: no labels at level {level!r}; the table has "
-                              f"{', '.join(present) or 'none'}. Label at that level with "
-                              f"'tap-bench label --level {level}' (or --level all).")
-    rows = (labels["level"].astype(str) == level).to_numpy()
-    return labels.loc[rows], level
-
-
-def label_text(labels: pd.DataFrame, axes=None) -> pd.Series:
-    """The label of each row on ``axes``: its sequences joined by ``" | "`` (``sdl`` for
-    TAP's two axes); NA where an axis is empty (a track not labelled on that axis)."""
-    axes = sdl.check_axes(axes)
-    if axes == sdl.AXES and "sdl" in labels.columns:
-        return labels["sdl"]
-    missing = [a for a in axes if a not in labels.columns]
-    if missing:
-        raise LabelTableError(_missing_axes(missing))
-    arrays = [pa.array(labels[a].astype("string"), type=pa.large_string()) for a in axes]
-    joined = arrays[0] if len(arrays) == 1 else pc.binary_join_element_wise(
-        *arrays, pa.scalar(sdl.SDL_SEPARATOR, pa.large_string()))
-    return pd.Series(joined.to_pandas(), index=labels.index, dtype="string")
-
-
-def _missing_axes(missing: list[str]) -> str:
-    fix = (" Label with 'tap-bench label --interactions' (tap(..., interactions='auto'))."
-           if "interaction" in missing else " Make the table with 'tap-bench label'.")
-    return f"no {', '.join(map(repr, missing))} column for the axes asked for.{fix}"
-
-
 def label_set(labels: pd.DataFrame | LabelSet, level: str | None = None, *, axes=None,
               source: str = "label table") -> LabelSet:
     """Encode one level of a label table (SPEC section 1) for search and comparison.
@@ -279,39 +186,10 @@ def label_set(labels: pd.DataFrame | LabelSet, level: str | None = None, *, axes
             raise LabelTableError(f"{source}: a LabelSet of axes {labels.axes} was given "
                                   f"where axes {axes} were asked for.")
         return labels
-    if not isinstance(labels, pd.DataFrame):
-        raise TypeError(f"{source}: expected a pandas DataFrame, got {type(labels).__name__}")
-    required = ("scenario_id", "track_id", *axes, *(("sdl",) if axes == sdl.AXES else ()))
-    missing = [c for c in required if c not in labels.columns]
-    if missing:
-        extra = [a for a in missing if a == "interaction"]
-        if extra:
-            raise LabelTableError(f"{source}: {_missing_axes(extra)}")
-        raise LabelTableError(
-            f"{source}: missing column(s) {', '.join(map(repr, missing))}; a label table has "
-            f"{', '.join(REQUIRED_LABEL_COLUMNS)} (and level, t_start, t_end): make it with "
-            "'tap-bench label'.")
-    table, level = _select_level(labels, level, source)
-    # Keep the input's row numbers (before level selection) for error messages.
-    input_rows = np.flatnonzero(labels["level"].astype(str).to_numpy() == level) \
-        if "level" in labels.columns else np.arange(len(labels))
-    if "interaction" in axes:  # tracks not labelled on that axis (not egos) are left out
-        on_axis = table["interaction"].notna().to_numpy()
-        if not on_axis.any():
-            raise LabelTableError(f"{source}: no row carries an interaction label; label the "
-                                  "table with --interactions (or --interactions all).")
-        table, input_rows = table.loc[on_axis], input_rows[on_axis]
-    if len(table) == 0:
-        raise LabelTableError(f"{source}: the label table is empty.")
-    table = table.reset_index(drop=True)
-
-    for col in (*axes, *(("sdl",) if axes == sdl.AXES else ())):
-        empty = table[col].isna().to_numpy()
-        if empty.any():
-            pos = int(np.flatnonzero(empty)[0])
-            raise LabelTableError(f"{source}: column {col!r} is empty at row "
-                                  f"{int(input_rows[pos])} ({_key(table, pos)}); every row needs "
-                                  "a label.")
+    if axes == sdl.AXES:  # the contract's own check: columns, empty labels, sdl = lat | lon
+        table, level, input_rows = validate_labels(labels, level, source=source)
+    else:
+        table, level, input_rows = _select_on_axes(labels, level, axes, source)
     text = label_text(table, axes).astype(str)
     code, uniques = pd.factorize(text, sort=False)
     uniques = np.asarray(uniques, dtype=object)
@@ -319,22 +197,6 @@ def label_set(labels: pd.DataFrame | LabelSet, level: str | None = None, *, axes
     counts = np.bincount(code, minlength=n_u).astype(np.int64)
     first_row = np.full(n_u, len(code), dtype=np.int64)
     np.minimum.at(first_row, code, np.arange(len(code), dtype=np.int64))
-
-    if axes == sdl.AXES:  # sdl must be lateral | longitudinal on every row (one pass)
-        def arrow(col: str) -> pa.Array:
-            return pa.array(table[col].astype(str), type=pa.large_string())
-
-        joined = pc.binary_join_element_wise(arrow("lateral"), arrow("longitudinal"),
-                                             pa.scalar(sdl.SDL_SEPARATOR, pa.large_string()))
-        bad = ~np.asarray(pc.equal(joined, arrow("sdl")), dtype=bool)
-        if bad.any():
-            pos = int(np.flatnonzero(bad)[0])
-            raise LabelTableError(
-                f"{source}: row {int(input_rows[pos])} ({_key(table, pos)}): sdl "
-                f"{table['sdl'].iloc[pos]!r} is not lateral + {sdl.SDL_SEPARATOR!r} + "
-                f"longitudinal ({table['lateral'].iloc[pos]!r}, "
-                f"{table['longitudinal'].iloc[pos]!r}). Rebuild the table with "
-                "'tap-bench label'.")
 
     k = len(axes)
     axis_index = np.empty((n_u, k), dtype=np.int64)
@@ -346,8 +208,8 @@ def label_set(labels: pd.DataFrame | LabelSet, level: str | None = None, *, axes
         except LabelTableError as err:
             row = int(first_row[u])
             column = "sdl" if axes == sdl.AXES else "/".join(axes)
-            raise LabelTableError(f"{source}: row {int(input_rows[row])} ({_key(table, row)}), "
-                                  f"column {column!r}: {err}") from None
+            raise LabelTableError(f"{source}: row {int(input_rows[row])} "
+                                  f"({row_key(table, row)}), column {column!r}: {err}") from None
         for j, (tokens, axis) in enumerate(zip(parts, axes, strict=True)):
             axis_index[u, j] = indexes[j].setdefault(_encode(tokens, axis), len(indexes[j]))
             n_tokens[u, j] = len(tokens)
@@ -357,10 +219,36 @@ def label_set(labels: pd.DataFrame | LabelSet, level: str | None = None, *, axes
                     n_tokens=n_tokens)
 
 
-def _key(table: pd.DataFrame, pos: int) -> str:
-    parts = [f"{c}={table[c].iloc[pos]!r}" for c in ("scenario_id", "track_id", "segment")
-             if c in table.columns]
-    return ", ".join(parts)
+def _select_on_axes(labels: pd.DataFrame, level: str | None, axes: tuple[str, ...],
+                    source: str) -> tuple[pd.DataFrame, str | None, np.ndarray]:
+    """The rows of one level that carry a label on every axis of ``axes`` (tracks not
+    labelled with interactions are left out), with their positions in the input."""
+    if not isinstance(labels, pd.DataFrame):
+        raise LabelTableError(f"{source}: expected a label table (pandas DataFrame), got "
+                              f"{type(labels).__name__}.")
+    missing = [c for c in ("scenario_id", "track_id", *axes) if c not in labels.columns]
+    if missing:
+        raise LabelTableError(f"{source}: {missing_axes(missing)}")
+    table, level = select_level(labels, level, source)
+    input_rows = np.flatnonzero(labels["level"].astype(str).to_numpy() == level) \
+        if "level" in labels.columns else np.arange(len(labels))
+    if "interaction" in axes:
+        on_axis = table["interaction"].notna().to_numpy()
+        if not on_axis.any():
+            raise LabelTableError(f"{source}: no row carries an interaction label; label the "
+                                  "table with --interactions (or --interactions all).")
+        table, input_rows = table.loc[on_axis], input_rows[on_axis]
+    if len(table) == 0:
+        raise LabelTableError(f"{source}: the label table is empty.")
+    table = table.reset_index(drop=True)
+    for col in axes:
+        empty = table[col].isna().to_numpy()
+        if empty.any():
+            pos = int(np.flatnonzero(empty)[0])
+            raise LabelTableError(f"{source}: column {col!r} is empty at row "
+                                  f"{int(input_rows[pos])} ({row_key(table, pos)}); every row "
+                                  "needs a label.")
+    return table, level, input_rows
 
 
 def levenshtein_matrix(labels: LabelSet, rows: np.ndarray | None = None,

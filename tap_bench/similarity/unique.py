@@ -47,7 +47,8 @@ def label_counts(labels: pd.DataFrame | LabelSet, level: str | None = None, *,
     for lv in _levels(labels, level):
         ls = label_set(labels, lv, axes=axes)
         first = ls.table.take(ls.first_row)
-        parts = [str(text).split(sdl.SDL_SEPARATOR) for text in ls.labels]
+        parts = [[sdl.join(side) for side in sdl.parse_sdl(str(text), axes=ls.axes)]
+                 for text in ls.labels]
         out = pd.DataFrame({"level": ls.level, "sdl": ls.labels.astype(str)})
         for j, axis in enumerate(ls.axes):
             out[axis] = [p[j] for p in parts]

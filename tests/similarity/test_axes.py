@@ -85,7 +85,7 @@ def test_coverage_and_novelty_on_the_interaction_axis():
                           "interaction": ["Following", "Following > Cut-out", "Free Driving"],
                           "sdl": "Straight | Maintain Speed", "env": "e",
                           "scenario_id": ["a", "b", "c"]})
-    from tap_bench.similarity.sdl_distance import label_text
+    from tap_bench.labels import label_text
 
     cv = coverage(label_text(agent, axes), ref)
     assert cv.coverage == pytest.approx(2 / 3)

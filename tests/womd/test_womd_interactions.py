@@ -14,7 +14,7 @@ FILES = ("motion_data_one_scenario.tfrecord", "womd_scenario_input.tfrecord",
 
 @pytest.fixture(scope="module")
 def relations():
-    from tap_bench.womd.ingest import read_womd
+    from tap_bench.sources.ingest import read_womd
 
     from .conftest import WOMD_DIR
 
