@@ -25,30 +25,27 @@ column                 unit    what (over the ego's steps inside the run)
 **Comparison** (:func:`compare_contexts`). Per env and context, each episode's occurrences
 are reduced to one value per measure (the smallest TTC and headway, the hardest braking,
 the mean jerk, the first reaction), and policies A and B are compared on the seeds where
-*both* meet the context: the mean paired difference A - B with a percentile bootstrap
-interval over those seeds (the same initial traffic, so seed noise cancels). Where fewer
-than ``min_pairs`` seeds pair up, the episodes of A and of B that meet the context are
-compared unpaired (resampled independently) and the row says so; with fewer than
-``min_pairs`` episodes on a side the row has no interval. ``braked`` is a proportion: its
-difference gets Newcombe's hybrid score interval (paired: Newcombe 1998b, method 10;
-unpaired: Newcombe 1998a, method 10), which stays honest when every seed braked. A
-percentile bootstrap of values that are equal on every pair has no spread: such rows say
-so in ``method`` ("no spread") instead of passing a zero-width interval for a measured one.
+*both* meet the context: the mean paired difference A - B with Student's t interval over
+those seeds (the same initial traffic, so seed noise cancels). Where fewer than
+``min_pairs`` seeds pair up, the episodes of A and of B that meet the context are compared
+unpaired (Welch's t interval) and the row says so; with fewer than ``min_pairs`` episodes
+on a side the row has no interval. ``braked`` is a proportion: its paired difference gets
+Tango's score interval, the unpaired one Newcombe's, which stay honest when every seed
+braked. The intervals are :mod:`tap_bench.bench.intervals`' (a sample whose values are all
+equal gets the bounded-measure interval there, or none).
 """
 
 from __future__ import annotations
 
-import zlib
-from statistics import NormalDist
-
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.bootstrap import (
-    BootstrapConfig,
-    percentile_interval,
-    resample_weights,
-    weighted_means,
+from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.intervals import (
+    mean_interval,
+    newcombe_interval,
+    tango_interval,
+    welch_interval,
 )
 from tap_bench.bench.measures import HEADWAY_CAP_S, TTC_CAP_S, ego_steps
 from tap_bench.errors import LabelTableError
@@ -157,48 +154,8 @@ def _rms_jerk(v: np.ndarray) -> float:
     return float(np.sqrt(np.nanmean(d2 ** 2)))
 
 
-def _wilson(k: int, n: int, z: float) -> tuple[float, float]:
-    p = k / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return centre - half, centre + half
-
-
-def _newcombe_unpaired(k1: int, n1: int, k2: int, n2: int, level: float
-                       ) -> tuple[float, float]:
-    """Newcombe's (1998a, method 10) hybrid score interval of p1 - p2, independent samples."""
-    z = NormalDist().inv_cdf(0.5 + level / 2)
-    p1, p2 = k1 / n1, k2 / n2
-    l1, u1 = _wilson(k1, n1, z)
-    l2, u2 = _wilson(k2, n2, z)
-    d = p1 - p2
-    return (float(d - np.hypot(p1 - l1, u2 - p2)), float(d + np.hypot(u1 - p1, p2 - l2)))
-
-
-def _newcombe_paired(x: np.ndarray, y: np.ndarray, level: float) -> tuple[float, float]:
-    """Newcombe's (1998b, method 10) score interval of p(x) - p(y) for paired binary data,
-    with the continuity-corrected correlation phi."""
-    z = NormalDist().inv_cdf(0.5 + level / 2)
-    n = len(x)
-    a, b = int(np.sum(x & y)), int(np.sum(x & ~y))
-    c, d = int(np.sum(~x & y)), int(np.sum(~x & ~y))
-    p1, p2 = (a + b) / n, (a + c) / n
-    l1, u1 = _wilson(a + b, n, z)
-    l2, u2 = _wilson(a + c, n, z)
-    denom = (a + b) * (c + d) * (a + c) * (b + d)
-    num = a * d - b * c
-    if num > 0:
-        num = max(num - n / 2, 0.0)
-    phi = num / np.sqrt(denom) if denom > 0 else 0.0
-    delta = np.sqrt(max((p1 - l1) ** 2 - 2 * phi * (p1 - l1) * (u2 - p2) + (u2 - p2) ** 2, 0))
-    eps = np.sqrt(max((u1 - p1) ** 2 - 2 * phi * (u1 - p1) * (p2 - l2) + (p2 - l2) ** 2, 0))
-    diff = p1 - p2
-    return float(max(diff - delta, -1.0)), float(min(diff + eps, 1.0))
-
-
-def _stream(*names: str) -> int:
-    """A random stream named by what it draws (not by loop position)."""
-    return zlib.crc32("/".join(names).encode()) & 0x7FFFFFFF
+_BOUNDS = {"min_ttc_s": (0.0, TTC_CAP_S), "min_headway_s": (0.0, HEADWAY_CAP_S),
+           "braked": (0.0, 1.0)}
 
 
 def _per_episode(occ: pd.DataFrame) -> pd.DataFrame:
@@ -217,15 +174,15 @@ def compare_contexts(occurrences: pd.DataFrame, a: str, b: str, *,
     Args:
         occurrences: :func:`context_occurrences` of both policies (with env, policy, seed).
         a, b: policy names (B is the reference: differences are A - B).
-        config: bootstrap resamples, level and seed.
+        config: the interval level.
         min_pairs: fewest seeds (or episodes per side) for an interval.
         contexts: the contexts to compare (default every relation but Free Driving).
 
     Returns:
         one row per env, context and measure: env, context, measure, unit,
         higher_is_better, n_pairs, n_a, n_b (episodes meeting the context), mean_a, mean_b,
-        diff (A - B), diff_low, diff_high, method (``"paired by seed"``, ``"unpaired"`` or
-        ``"too few"``).
+        diff (A - B), diff_low, diff_high, method (``"paired by seed ..."``,
+        ``"unpaired ..."`` or ``"too few"``).
 
     Raises:
         LabelTableError: a policy has no occurrences, or a column is missing.
@@ -259,39 +216,32 @@ def compare_contexts(occurrences: pd.DataFrame, a: str, b: str, *,
                    "mean_b": float(vb.mean()) if len(vb) else np.nan,
                    "diff": np.nan, "diff_low": np.nan, "diff_high": np.nan,
                    "method": "too few"}
-            if name == "braked" and len(paired) >= min_pairs:
-                lo, hi = _newcombe_paired(va.loc[paired].to_numpy(bool),
-                                          vb.loc[paired].to_numpy(bool), config.level)
-                d = (va.loc[paired] - vb.loc[paired]).to_numpy(float)
-                row.update(diff=float(d.mean()), diff_low=lo, diff_high=hi,
-                           method="paired by seed (Newcombe score)",
-                           mean_a=float(va.loc[paired].mean()),
-                           mean_b=float(vb.loc[paired].mean()))
-            elif name == "braked" and len(va) >= min_pairs and len(vb) >= min_pairs:
-                lo, hi = _newcombe_unpaired(int(va.sum()), len(va), int(vb.sum()), len(vb),
+            bounds = _BOUNDS.get(name)
+            diff_bounds = None if bounds is None else (bounds[0] - bounds[1],
+                                                       bounds[1] - bounds[0])
+            if len(paired) >= min_pairs:
+                xa, xb = va.loc[paired].to_numpy(float), vb.loc[paired].to_numpy(float)
+                if name == "braked":
+                    lo, hi = tango_interval(int(np.sum((xa > 0) & (xb == 0))),
+                                            int(np.sum((xa == 0) & (xb > 0))), len(xa),
                                             config.level)
-                row.update(diff=float(va.mean() - vb.mean()), diff_low=lo, diff_high=hi,
-                           method="unpaired (Newcombe score)")
-            elif len(paired) >= min_pairs:
-                d = (va.loc[paired] - vb.loc[paired]).to_numpy(float)
-                W = resample_weights(len(d), config, stream=_stream("contexts", env, context,
-                                                                     name, "paired"))
-                lo, hi = percentile_interval(weighted_means(W, d[:, None]), config.level)
-                row.update(diff=float(d.mean()), diff_low=float(lo[0]), diff_high=float(hi[0]),
-                           method="paired by seed" if np.ptp(d) > 0 else
-                           "paired by seed (no spread: every pair differs by the same)",
-                           mean_a=float(va.loc[paired].mean()),
-                           mean_b=float(vb.loc[paired].mean()))
+                    method = "paired by seed (Tango score)"
+                else:
+                    lo, hi = mean_interval(xa - xb, config.level, bounds=diff_bounds)
+                    method = "paired by seed (t)"
+                row.update(diff=float(np.mean(xa - xb)), diff_low=lo, diff_high=hi,
+                           method=method, mean_a=float(xa.mean()), mean_b=float(xb.mean()))
             elif len(va) >= min_pairs and len(vb) >= min_pairs:
-                Wa = resample_weights(len(va), config, stream=_stream("contexts", env, context,
-                                                                       name, "a"))
-                Wb = resample_weights(len(vb), config, stream=_stream("contexts", env, context,
-                                                                       name, "b"))
-                boot = (weighted_means(Wa, va.to_numpy(float)[:, None])
-                        - weighted_means(Wb, vb.to_numpy(float)[:, None]))
-                lo, hi = percentile_interval(boot, config.level)
-                row.update(diff=float(va.mean() - vb.mean()), diff_low=float(lo[0]),
-                           diff_high=float(hi[0]), method="unpaired")
+                if name == "braked":
+                    lo, hi = newcombe_interval(int(va.sum()), len(va), int(vb.sum()), len(vb),
+                                               config.level)
+                    method = "unpaired (Newcombe score)"
+                else:
+                    lo, hi = welch_interval(va.to_numpy(float), vb.to_numpy(float),
+                                            config.level, bounds=bounds)
+                    method = "unpaired (Welch t)"
+                row.update(diff=float(va.mean() - vb.mean()), diff_low=lo, diff_high=hi,
+                           method=method)
             elif len(va) and len(vb):
                 row["diff"] = float(va.mean() - vb.mean())
             rows.append(row)

@@ -28,14 +28,13 @@ label table is taken whole (and the result says so).
 
 from __future__ import annotations
 
-import zlib
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
 from tap_bench import sdl
-from tap_bench.bench.bootstrap import BootstrapConfig, percentile_interval
+from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.errors import LabelTableError
 from tap_bench.kinematics import compute_kinematics
 from tap_bench.labelling import tap
@@ -174,17 +173,17 @@ def behaviour_gap(policy: pd.DataFrame, reference: pd.DataFrame, *, name: str = 
     share_p = count_p / max(count_p.sum(), 1e-12)
     share_r = count_r / max(count_r.sum(), 1e-12)
     gap = float(_tv(count_p, count_r))
-    rng = config.rng(_stream(name, reference_name))
+    rng = config.rng("gap", name, reference_name)
     B = config.n_resamples
     # resampled label counts: multinomial draws of trajectories on each side
     wp = rng.multinomial(len(occ_p), np.full(len(occ_p), 1 / len(occ_p)), size=B)
     wr = rng.multinomial(len(occ_r), np.full(len(occ_r), 1 / len(occ_r)), size=B)
     bp, br = wp @ occ_p, wr @ occ_r
     boot_gap = _tv(bp, br)
-    g_lo, g_hi = percentile_interval(boot_gap[:, None], config.level)
+    g_lo, g_hi = _percentile(boot_gap[:, None], config.level)
     diff_boot = (bp / np.maximum(bp.sum(1, keepdims=True), 1e-12)
                  - br / np.maximum(br.sum(1, keepdims=True), 1e-12))
-    d_lo, d_hi = percentile_interval(diff_boot, config.level)
+    d_lo, d_hi = _percentile(diff_boot, config.level)
     # the floor: two samples of the reference's own label distribution, of the same sizes
     w1 = rng.multinomial(len(occ_p), np.full(len(occ_r), 1 / len(occ_r)), size=B)
     w2 = rng.multinomial(len(occ_r), np.full(len(occ_r), 1 / len(occ_r)), size=B)
@@ -202,6 +201,7 @@ def behaviour_gap(policy: pd.DataFrame, reference: pd.DataFrame, *, name: str = 
                      reference=described)
 
 
-def _stream(*names: str) -> int:
-    """A random stream named by what it draws."""
-    return zlib.crc32("/".join(("gap", *names)).encode()) & 0x7FFFFFFF
+def _percentile(boot: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray]:
+    """Percentile interval of resampled statistics (B, k) along axis 0."""
+    lo, hi = np.nanquantile(boot, [(1 - level) / 2, (1 + level) / 2], axis=0)
+    return lo, hi
