@@ -228,7 +228,10 @@ def compare_contexts(occurrences: pd.DataFrame, a: str, b: str, *,
                     method = "paired by seed (Tango score)"
                 else:
                     lo, hi = mean_interval(xa - xb, config.level, bounds=diff_bounds)
-                    method = "paired by seed (t)"
+                    method = "paired by seed (t)" if np.isfinite(lo) else \
+                        "paired by seed (every pair differs by the same: no t interval)"
+                    if diff_bounds is not None and np.isfinite(lo):
+                        lo, hi = max(lo, diff_bounds[0]), min(hi, diff_bounds[1])
                 row.update(diff=float(np.mean(xa - xb)), diff_low=lo, diff_high=hi,
                            method=method, mean_a=float(xa.mean()), mean_b=float(xb.mean()))
             elif len(va) >= min_pairs and len(vb) >= min_pairs:
@@ -240,6 +243,8 @@ def compare_contexts(occurrences: pd.DataFrame, a: str, b: str, *,
                     lo, hi = welch_interval(va.to_numpy(float), vb.to_numpy(float),
                                             config.level, bounds=bounds)
                     method = "unpaired (Welch t)"
+                    if diff_bounds is not None and np.isfinite(lo):
+                        lo, hi = max(lo, diff_bounds[0]), min(hi, diff_bounds[1])
                 row.update(diff=float(va.mean() - vb.mean()), diff_low=lo, diff_high=hi,
                            method=method)
             elif len(va) and len(vb):
