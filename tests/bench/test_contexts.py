@@ -64,3 +64,27 @@ def test_compare_by_context_pairs_seeds_where_both_meet_it():
     out = compare_contexts(few, "A", "B", config=BootstrapConfig(n_resamples=500))
     row = out[(out["context"] == "Cut-in") & (out["measure"] == "reaction_time_s")].iloc[0]
     assert row["n_pairs"] == 3 and row["method"] == "too few" and np.isnan(row["diff_low"])
+
+
+def test_cli_contexts_and_gap(tmp_path, capsys):
+    from tap_bench.cli import main
+
+    scenes = [cut_in_scene(s, 3.0 + 0.1 * s, "B") for s in range(5)]
+    scenes += [cut_in_scene(s, 4.0 + 0.2 * s, "A") for s in range(5)]
+    src = tmp_path / "runs.parquet"
+    pd.concat(scenes, ignore_index=True).to_parquet(src)
+    out = tmp_path / "contexts.csv"
+    assert main(["contexts", str(src), "--a", "A", "--b", "B", "-o", str(out),
+                 "--min-pairs", "3"]) == 0
+    text = capsys.readouterr().out
+    assert "e / Cut-in: 5 seed(s) where both meet it" in text
+    table = pd.read_csv(out)
+    row = table[(table["context"] == "Cut-in") & (table["measure"] == "reaction_time_s")]
+    assert row["diff"].iloc[0] == pytest.approx(1.2, abs=0.01)  # 1 s + 0.1 s * mean(0..4)
+    assert (tmp_path / "contexts.occurrences.csv").is_file()
+    # the gap of A from B's trajectories as the "real" reference: same labels, no gap
+    assert main(["gap", str(src), "--reference", str(src), "--min-speed", "0",
+                 "--max-speed", "50", "-o", str(tmp_path / "gap.csv")]) == 0
+    gap = pd.read_csv(tmp_path / "gap.csv").set_index("policy")
+    assert set(gap.index) == {"A", "B"}
+    assert (gap["gap"] <= gap["gap_high"]).all() and (gap["gap"] >= 0).all()
