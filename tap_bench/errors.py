@@ -13,6 +13,8 @@ from collections.abc import Iterable
 __all__ = [
     "FileFormatError",
     "LabelTableError",
+    "OutputExistsError",
+    "OutputPathError",
     "ShortSegmentWarning",
     "TapBenchError",
     "ThresholdsError",
@@ -52,6 +54,15 @@ class FileFormatError(TapBenchError, ValueError):
     """A file that tap-bench cannot read or write (unknown suffix, unreadable content)."""
 
 
+class OutputPathError(TapBenchError, ValueError):
+    """An output that must not or cannot be written: it is one of the inputs, it would
+    replace something tap-bench did not write, or its place is not writable."""
+
+
+class OutputExistsError(OutputPathError, FileExistsError):
+    """A results folder exists and replacing it (``--overwrite``) was not asked for."""
+
+
 class UnknownNameError(TapBenchError, KeyError):
     """A name (preset, level, policy, env ...) that is not registered."""
 
@@ -72,7 +83,12 @@ def did_you_mean(kind: str, name: str, known: Iterable[str]) -> UnknownNameError
         known: the names that exist.
     """
     known = sorted(known)
-    close = difflib.get_close_matches(str(name), known, n=3, cutoff=0.5)
+    # compared without case, so that 'HIGHWAY' finds 'highway' and 'IDM' finds 'idm'
+    folded: dict[str, str] = {}
+    for k in known:
+        folded.setdefault(str(k).casefold(), k)
+    close = [folded[c] for c in difflib.get_close_matches(
+        str(name).casefold(), list(folded), n=3, cutoff=0.5)]
     hint = f" Did you mean {' or '.join(repr(c) for c in close)}?" if close else ""
     return UnknownNameError(
         f"unknown {kind} {name!r}.{hint} Known: {', '.join(repr(k) for k in known)}."

@@ -13,14 +13,16 @@ What a run folder holds:
 ``<table>.parquet``     every table of :class:`tap_bench.bench.scoring.Scores`
 ``plots/*.png``         label distributions, measures, coverage, forest plots, novelty
 ``report.html``         the static report (no server, images embedded)
+``.tap-bench-folder``   the marker that lets ``--overwrite`` replace the folder
 ======================  ====================================================================
 
 The folder is built under a temporary name beside the target and renamed into place only
 when complete, so an interrupted run leaves nothing that looks finished; an existing run
-folder is never replaced unless ``overwrite`` is given. Rollouts run in worker processes,
-one task per (env, policy, chunk of seeds), each labelling its own episodes; an episode
-that fails is recorded with its error and left out of the scores, and a task whose worker
-dies marks its episodes failed: one bad episode never ends a run.
+folder is never replaced unless ``overwrite`` is given, and then only when tap-bench wrote
+it (its marker is there): any other folder, a file or a link is refused. Rollouts run in
+worker processes, one task per (env, policy, chunk of seeds), each labelling its own
+episodes; an episode that fails is recorded with its error and left out of the scores,
+and a task whose worker dies marks its episodes failed: one bad episode never ends a run.
 """
 
 from __future__ import annotations
@@ -29,9 +31,7 @@ import concurrent.futures as cf
 import json
 import multiprocessing
 import os
-import shutil
 import sys
-import tempfile
 import time
 import traceback
 import warnings
@@ -46,7 +46,8 @@ import pandas as pd
 from tap_bench.bench.episodes import episode_table
 from tap_bench.bench.scoring import Scores, score
 from tap_bench.bench.suite import Suite, load_suite
-from tap_bench.errors import FileFormatError, TapBenchError
+from tap_bench.errors import FileFormatError, OutputExistsError
+from tap_bench.tableio import atomic_folder, check_folder_output
 
 __all__ = ["RunExistsError", "RunResult", "check_output", "package_versions", "read_run",
            "run_suite", "write_results"]
@@ -55,21 +56,22 @@ CHUNK = 5
 """Seeds per worker task: small enough to balance two workers and move the progress bar."""
 
 
-class RunExistsError(TapBenchError, FileExistsError):
-    """The results folder exists and replacing it was not asked for."""
+RunExistsError = OutputExistsError
+"""The results folder exists and replacing it was not asked for (kept name of
+:class:`tap_bench.errors.OutputExistsError`)."""
 
 
 def check_output(output: str | os.PathLike, overwrite: bool) -> Path:
-    """``output`` as a Path; refuses an existing folder unless ``overwrite``.
+    """``output`` as a Path, checked before any work (:func:`tap_bench.tableio.
+    check_folder_output`): a new folder in a writable place, or, with ``overwrite``, a run
+    folder tap-bench wrote.
 
     Raises:
         RunExistsError: naming the folder and the flag that replaces it.
+        OutputPathError: the place is not writable, or ``output`` is a file, a link or a
+            folder tap-bench did not write.
     """
-    output = Path(output)
-    if output.exists() and not overwrite:
-        raise RunExistsError(f"{output} exists; choose another folder or pass --overwrite to "
-                             "replace it.")
-    return output
+    return check_folder_output(output, overwrite)
 
 
 @dataclass(frozen=True)
@@ -372,15 +374,14 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
     """Write a results folder (tables, ``summary.json``, plots, report) atomically.
 
     The folder is built under a temporary name beside ``output`` and renamed into place
-    when complete; an existing ``output`` is replaced only when ``overwrite`` is True.
+    when complete (:func:`tap_bench.tableio.atomic_folder`); an existing ``output`` is
+    replaced only when ``overwrite`` is True and tap-bench wrote it.
 
     Raises:
         RunExistsError: ``output`` exists and ``overwrite`` is False.
+        OutputPathError: ``output`` is a file, a link or a folder tap-bench did not write.
     """
-    output = check_output(output, overwrite)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{output.name}.", suffix=".tmp", dir=output.parent))
-    try:
+    with atomic_folder(output, overwrite, kind="run") as tmp:
         episodes.to_parquet(tmp / "episodes.parquet", index=False)
         if len(labels):
             labels.to_parquet(tmp / "labels.parquet", index=False)
@@ -394,22 +395,7 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
             from tap_bench.bench.report import write_report
 
             write_report(tmp, summary, episodes, scores)
-        if output.exists():
-            if not overwrite:
-                raise RunExistsError(f"{output} appeared while the run was going; run again "
-                                     "with another folder or --overwrite.")
-            old = output.with_name(f".{output.name}.old")
-            if old.exists():
-                shutil.rmtree(old)
-            output.rename(old)
-            tmp.rename(output)
-            shutil.rmtree(old)
-        else:
-            tmp.rename(output)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return output
+    return Path(output)
 
 
 def _parquet_safe(table: pd.DataFrame) -> pd.DataFrame:

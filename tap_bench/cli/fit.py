@@ -12,7 +12,7 @@ import pandas as pd
 from tap_bench.distributed.backend import add_backend_arguments
 from tap_bench.fitting import METHODS, fit_report
 from tap_bench.kinematics import one_second_samples
-from tap_bench.tableio import read_table
+from tap_bench.tableio import check_outputs, read_table
 from tap_bench.thresholds import save_thresholds
 
 
@@ -38,6 +38,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_outputs([args.output], [args.input])
     t0 = time.perf_counter()
     options = {"methods": tuple(args.methods), "select": args.select,
                "dataset": str(args.input), "epochs": args.epochs, "seed": args.seed}

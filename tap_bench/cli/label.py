@@ -11,7 +11,7 @@ from tap_bench.distributed.backend import add_backend_arguments
 from tap_bench.labelling import tap
 from tap_bench.sdl import LEVELS
 from tap_bench.stages import StageConfig
-from tap_bench.tableio import read_table, write_table
+from tap_bench.tableio import check_outputs, read_table, write_tables
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -43,20 +43,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.backend != "local" or Path(args.input).is_dir():
         return _run_sharded(args)
+    # before any work: no output replaces the input, every output can be written
+    check_outputs([args.output, args.segments, args.steps, args.report], [args.input])
     t0 = time.perf_counter()
     table = read_table(args.input)
     t1 = time.perf_counter()
     config = StageConfig(min_run=args.min_run, merge_gap=args.merge_gap)
     result = tap(table, args.thresholds, config, source=str(args.input))
     labels = result.labels(args.level)
-    write_table(labels, args.output)
-    if args.segments:
-        write_table(result.segments(args.level), args.segments)
-    if args.steps:
-        write_table(result.steps(), args.steps)
     short = result.short_segments
+    outputs = {args.output: labels}
+    if args.segments:
+        outputs[args.segments] = result.segments(args.level)
+    if args.steps:
+        outputs[args.steps] = result.steps()
     if args.report:
-        write_table(short, args.report)
+        outputs[args.report] = short
+    write_tables(outputs)  # together or not at all
     t2 = time.perf_counter()
 
     info = result.segments_info

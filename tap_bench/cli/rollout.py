@@ -48,10 +48,11 @@ def run(args: argparse.Namespace) -> int:
 
     from tap_bench.sim.rollout import rollout
     from tap_bench.sim.scenario_env import get_scenario
-    from tap_bench.tableio import write_table
+    from tap_bench.tableio import check_outputs, write_tables
 
     output = Path(args.output)
     episodes_out = Path(args.episodes) if args.episodes else episodes_path(output)
+    check_outputs([output, episodes_out])  # before the rollouts
     seeds = args.seeds if args.seeds else list(get_scenario(args.env).default_seeds)
     progress = False if args.no_progress else None
     if args.backend == "local":
@@ -61,9 +62,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         trajectories, episodes = _distributed(args, seeds, progress)
     ok = episodes[episodes["status"] == "ok"]
-    if len(trajectories):
-        write_table(trajectories, output)
-    write_table(episodes, episodes_out)
+    outputs = {output: trajectories} if len(trajectories) else {}
+    write_tables({**outputs, episodes_out: episodes})  # together or not at all
     print(f"{len(ok)}/{len(episodes)} episodes, {len(trajectories)} rows -> "
           f"{output if len(trajectories) else '(no trajectories)'}; episodes -> {episodes_out}")
     if len(ok):
