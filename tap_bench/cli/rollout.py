@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from tap_bench.cli.progress import add_progress_arguments, progress_choice
 from tap_bench.distributed.backend import add_backend_arguments
 
 
@@ -27,7 +28,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--lane-change", choices=("default", "realistic"),
                    help="override the scenario's lane-change setting")
     p.add_argument("--duration", type=float, help="override the episode length [s]")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_progress_arguments(p)
     p.add_argument("--batch", type=int, default=None,
                    help="seeds per task with --backend ray (default 8)")
     add_backend_arguments(p, shards=False)
@@ -54,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     episodes_out = Path(args.episodes) if args.episodes else episodes_path(output)
     check_outputs([output, episodes_out])  # before the rollouts
     seeds = args.seeds if args.seeds else list(get_scenario(args.env).default_seeds)
-    progress = False if args.no_progress else None
+    progress = progress_choice(args)
     if args.backend == "local":
         trajectories, episodes = rollout(
             args.env, args.policy, seeds, workers=args.workers, lane_change=args.lane_change,

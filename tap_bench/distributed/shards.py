@@ -22,7 +22,7 @@ import json
 import os
 import re
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -167,6 +167,7 @@ class _IngestJob:
     object_types: tuple[str, ...] | None
     on_error: str
     check_crc: bool
+    max_record_bytes: int
 
 
 def _ingest_shard(job: _IngestJob) -> dict[str, Any]:
@@ -175,7 +176,8 @@ def _ingest_shard(job: _IngestJob) -> dict[str, Any]:
 
     report = ingest_womd([job.input], job.output, format=job.format,
                          object_types=job.object_types, on_error=job.on_error,
-                         check_crc=job.check_crc, workers=1)
+                         check_crc=job.check_crc, workers=1,
+                         max_record_bytes=job.max_record_bytes)
     report_path(job.output).unlink(missing_ok=True)  # gathered into _report.json instead
     return {"rows": report.rows, "records": report.records, "scenarios": report.scenarios,
             "skipped": report.skipped}
@@ -185,7 +187,9 @@ def ingest_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
                   output: str | os.PathLike, backend: Backend, *, format: str = "auto",
                   object_types: Iterable[str] | str | None = None, on_error: str = "stop",
                   check_crc: bool = True, retries: int = DEFAULT_RETRIES,
-                  resume: bool = False, progress: bool | None = None) -> ShardReport:
+                  resume: bool = False, progress: bool | None = None,
+                  max_record_bytes: int | None = None,
+                  log: Callable[[str], None] | None = None) -> ShardReport:
     """Ingest WOMD files into a directory of Parquet parts, one task and one part per file.
 
     Args:
@@ -193,29 +197,33 @@ def ingest_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
         output: the directory to write (``womd/``): ``<input name>.parquet`` per input and
             ``_report.json``.
         backend: where the tasks run.
-        format, object_types, check_crc: as :func:`tap_bench.womd.ingest_womd`.
+        format, object_types, check_crc, max_record_bytes: as
+            :func:`tap_bench.womd.ingest_womd` (None: its default).
         on_error: ``stop`` (default): a bad record fails its shard, which is retried and
             then reported, the other shards kept; ``skip``: bad records are left out and
             listed under the shard's ``skipped``.
         retries: retries of a failed shard.
         resume: keep the parts an earlier run wrote and ingest only the missing ones.
         progress: progress bar over shards (None: only on a terminal).
+        log: told of every file left out (not a record file; default: a warning).
 
     Returns:
         The :class:`ShardReport`, also written to ``<output>/_report.json``.
     """
-    from tap_bench.womd.ingest import FORMATS, ON_ERROR, _check_choice, expand_paths
+    from tap_bench.womd.ingest import FORMATS, ON_ERROR, _check_choice, record_files
     from tap_bench.womd.scenario import normalise_object_types
+    from tap_bench.womd.tfrecord import MAX_RECORD_BYTES
 
     _check_choice("format", format, FORMATS)
     _check_choice("on_error value", on_error, ON_ERROR)
     types = normalise_object_types(object_types)
-    inputs = expand_paths(paths)
+    inputs = record_files(paths, log)
     out = _prepare_output(output, resume)
     parts = [out / name for name in _part_names(inputs)]
     jobs = [_IngestJob(str(src.resolve()), str(part.resolve()), format,
                        tuple(sorted(types)) if types is not None else None, on_error,
-                       check_crc) for src, part in zip(inputs, parts, strict=True)]
+                       check_crc, max_record_bytes or MAX_RECORD_BYTES)
+            for src, part in zip(inputs, parts, strict=True)]
     return _run("ingest", _ingest_shard, jobs, inputs, parts, out, backend, retries, resume,
                 progress)
 
