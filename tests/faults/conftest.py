@@ -5,10 +5,12 @@ temporary debris, and runs the command line in this process (``cli``) or in a ch
 from __future__ import annotations
 
 import os
+import shlex
 import subprocess
 import sys
 import tempfile
 import time
+import uuid
 from pathlib import Path
 
 import pytest
@@ -21,8 +23,20 @@ DEBRIS = (".tmp", ".old", ".bak")
 """Name endings of tap-bench's temporary files and folders."""
 
 
+_HELPERS = ("multiprocessing.forkserver", "multiprocessing.resource_tracker")
+"""multiprocessing's per-process helpers: they live as long as this process, one of each,
+and end with it (they are not orphans; ``cli_process`` checks that they end)."""
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
 def _children(pid: int) -> set[int]:
-    """Every live descendant of ``pid`` (from /proc; empty where there is none)."""
+    """Every live descendant of ``pid`` but multiprocessing's helpers (from /proc)."""
     parents: dict[int, int] = {}
     for entry in Path("/proc").glob("[0-9]*"):
         try:
@@ -30,7 +44,8 @@ def _children(pid: int) -> set[int]:
         except OSError:
             continue
         fields = stat.rsplit(")", 1)[-1].split()
-        if fields and fields[0] != "Z":  # zombies are reaped by their parent
+        if fields and fields[0] != "Z" and not any(  # zombies are reaped by their parent
+                h in _cmdline(int(entry.name)) for h in _HELPERS):
             parents[int(entry.name)] = int(fields[1])
     found, todo = set(), [pid]
     while todo:
@@ -92,12 +107,37 @@ def cli(capsys):
     return run
 
 
-def run_process(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    """``python -m tap_bench ARGS`` in a child process with this checkout first on the path."""
+def _marked(marker: str) -> set[int]:
+    """Live processes whose environment holds ``marker`` (a child and all it started)."""
+    found = set()
+    for entry in Path("/proc").glob("[0-9]*"):
+        try:
+            if marker.encode() in (entry / "environ").read_bytes():
+                found.add(int(entry.name))
+        except OSError:
+            continue
+    return found
+
+
+def run_process(*args: str, cwd: Path | None = None, shell_pipe: str | None = None
+                ) -> subprocess.CompletedProcess:
+    """``python -m tap_bench ARGS`` in a child process with this checkout first on the
+    path (piped into ``shell_pipe``, a shell command, when given). Afterwards no process
+    the child started may be alive, wherever it was re-parented (found by a marker in the
+    environment)."""
+    marker = f"TAP_BENCH_FAULT_TEST={uuid.uuid4().hex}"
     env = {**os.environ, "PYTHONPATH": f"{PROJECT_ROOT}{os.pathsep}"
-           f"{os.environ.get('PYTHONPATH', '')}"}
-    return subprocess.run([sys.executable, "-m", "tap_bench", *map(str, args)],
-                          capture_output=True, env=env, cwd=cwd, timeout=300)
+           f"{os.environ.get('PYTHONPATH', '')}", marker.split("=")[0]: marker.split("=")[1]}
+    command = [sys.executable, "-m", "tap_bench", *map(str, args)]
+    if shell_pipe:
+        command = ["bash", "-o", "pipefail", "-c",
+                   " ".join(shlex.quote(c) for c in command) + " | " + shell_pipe]
+    result = subprocess.run(command, capture_output=True, env=env, cwd=cwd, timeout=300)
+    deadline = time.monotonic() + 10
+    while _marked(marker) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not _marked(marker), f"processes outlived tap-bench {args}: {_marked(marker)}"
+    return result
 
 
 @pytest.fixture
