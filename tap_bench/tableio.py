@@ -26,7 +26,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from tap_bench.errors import FileFormatError, OutputExistsError, OutputPathError
+from tap_bench.errors import FileFormatError, OutputPathError, RunExistsError
 
 __all__ = ["FOLDER_MARKER", "atomic_folder", "atomic_path", "atomic_paths", "check_folder_output",
            "check_outputs", "check_writable", "read_table", "write_table", "write_tables"]
@@ -239,7 +239,7 @@ def check_folder_output(path: str | os.PathLike, overwrite: bool) -> Path:
                 f"{FOLDER_MARKER}); it is never replaced. Choose another folder, or remove "
                 "it yourself.")
         if not overwrite:
-            raise OutputExistsError(f"{path} exists; choose another folder or pass "
+            raise RunExistsError(f"{path} exists; choose another folder or pass "
                                     "--overwrite to replace it.")
         if not os.access(path.parent, os.W_OK | os.X_OK):
             raise OutputPathError(f"{path}: cannot replace it, {path.parent} is not "
@@ -263,7 +263,7 @@ def atomic_folder(path: str | os.PathLike, overwrite: bool = False,
         kind: what the folder holds, recorded in the marker.
 
     Raises:
-        OutputPathError, OutputExistsError: see :func:`check_folder_output`.
+        OutputPathError, RunExistsError: see :func:`check_folder_output`.
     """
     path = check_folder_output(path, overwrite)
     try:

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from tap_bench import sdl
 from tap_bench.bench.bootstrap import (
     BootstrapConfig,
     percentile_interval,
@@ -274,8 +275,9 @@ def _levenshtein_within(names: np.ndarray, d_sim: float) -> np.ndarray:
 
     table = pd.DataFrame({"scenario_id": [f"l{i}" for i in range(len(names))],
                           "track_id": "0", "sdl": names})
-    split = table["sdl"].str.split(" | ", n=1, expand=True, regex=False)
-    table["lateral"], table["longitudinal"] = split[0], split[1]
+    sides = [sdl.parse_sdl(str(text)) for text in names]
+    table["lateral"] = [sdl.join(lat) for lat, _ in sides]
+    table["longitudinal"] = [sdl.join(lon) for _, lon in sides]
     ls = label_set(table)
     # label_set keeps labels in order of first use, which is the order of ``names`` here
     return levenshtein_matrix(ls) <= d_sim

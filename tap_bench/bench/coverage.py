@@ -87,8 +87,7 @@ class Reference:
 
 def vocabulary_reference(level: str = "action") -> Reference:
     """The single labels of ``level``, lateral and longitudinal, equally weighted."""
-    if level not in sdl.LEVELS:
-        raise did_you_mean("level", level, sdl.LEVELS)
+    sdl.check_level(level)
     items = np.array(sorted(vocabulary_tokens(level)), dtype=object)
     return Reference(items, np.full(len(items), 1.0 / len(items)), "vocabulary", level,
                      f"the {len(items)} single labels of the {level} level")
@@ -173,8 +172,8 @@ def _items_of(labels: np.ndarray, reference: Reference) -> list[set[str]] | np.n
     out = []
     for text in labels:
         items: set[str] = set()
-        for side in text.split(sdl.SDL_SEPARATOR):
-            items.update(side.split(sdl.SEPARATOR))
+        for side in sdl.parse_sdl(text):
+            items.update(side)
         out.append(items)
     return out
 

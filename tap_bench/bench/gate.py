@@ -34,17 +34,13 @@ import pandas as pd
 from tap_bench.bench.compare import NO_LABEL
 from tap_bench.bench.measures import MEASURES
 from tap_bench.bench.suite import GATE_METRICS, GateConfig
-from tap_bench.errors import FileFormatError, TapBenchError
+from tap_bench.errors import BaselineMismatchError, FileFormatError
 
 __all__ = ["BASELINE_FORMAT", "GateResult", "check", "holm", "read_baseline", "write_baseline"]
 
 BASELINE_FORMAT = "tap-bench-baseline"
 _EPISODE_FIELDS = ("env", "policy", "seed", "sdl", *(m.name for m in MEASURES))
 _IDENTITY = ("suite", "suite_version", "level", "thresholds")
-
-
-class BaselineMismatchError(TapBenchError, ValueError):
-    """The run and the baseline were not made with the same suite, level or thresholds."""
 
 
 @dataclass(frozen=True)

@@ -19,21 +19,19 @@ What a run folder holds:
 The folder is built under a temporary name beside the target and renamed into place only
 when complete, so an interrupted run leaves nothing that looks finished; an existing run
 folder is never replaced unless ``overwrite`` is given, and then only when tap-bench wrote
-it (its marker is there): any other folder, a file or a link is refused. Rollouts run in
-worker processes, one task per (env, policy, chunk of seeds), each labelling its own
-episodes; an episode that fails is recorded with its error and left out of the scores,
-and a task whose worker dies marks its episodes failed: one bad episode never ends a run.
+it (its marker is there): any other folder, a file or a link is refused. Episodes run as
+tasks of :mod:`tap_bench.execution` (local worker processes or Ray), one task per (env,
+policy, seed), each labelling its own episode; an episode that fails is recorded with its
+error and left out of the scores, and an episode whose worker dies is tried once more and
+then recorded as failed: one bad episode never costs another.
 """
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import json
-import multiprocessing
 import os
 import sys
 import time
-import traceback
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -46,20 +44,16 @@ import pandas as pd
 from tap_bench.bench.episodes import episode_table
 from tap_bench.bench.scoring import Scores, score
 from tap_bench.bench.suite import Suite, load_suite
-from tap_bench.errors import FileFormatError, OutputExistsError
+from tap_bench.errors import FileFormatError, RunExistsError
+from tap_bench.execution import Backend, resolve_backend
+from tap_bench.labelling import tap
+from tap_bench.sim.rollout import rollout
+from tap_bench.sim.suite import Scenario
 from tap_bench.tableio import atomic_folder, check_folder_output
+from tap_bench.thresholds import Thresholds, resolve_thresholds
 
 __all__ = ["RunExistsError", "RunResult", "check_output", "package_versions", "read_run",
            "run_suite", "write_results"]
-
-CHUNK = 5
-"""Seeds per worker task: small enough to balance two workers and move the progress bar."""
-
-
-RunExistsError = OutputExistsError
-"""The results folder exists and replacing it was not asked for (kept name of
-:class:`tap_bench.errors.OutputExistsError`)."""
-
 
 def check_output(output: str | os.PathLike, overwrite: bool) -> Path:
     """``output`` as a Path, checked before any work (:func:`tap_bench.tableio.
@@ -95,34 +89,35 @@ class RunResult:
 
 @dataclass(frozen=True)
 class _Task:
-    suite: Suite
+    """One episode of a suite run: what a worker needs, and nothing more (the scenario is
+    resolved once, by the caller)."""
+
     env: str
+    scenario: Scenario
     policy: str
-    seeds: tuple[int, ...]
+    seed: int
+    thresholds: Thresholds
+    level: str
     keep_trajectories: bool
 
 
 def _run_task(task: _Task) -> dict[str, Any]:
-    """Roll out, label and measure one chunk of seeds (in a worker process)."""
-    from tap_bench.labelling import tap
-    from tap_bench.sim.rollout import rollout
-
-    timings = {}
+    """Roll out, label and measure one episode (in a worker process)."""
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        trajectories, episodes = rollout(task.suite.scenario(task.env), task.policy,
-                                         list(task.seeds), workers=1, progress=False)
+        trajectories, episodes = rollout(task.scenario, task.policy, [task.seed],
+                                         progress=False)
     t1 = time.perf_counter()
     labels = pd.DataFrame()
     if len(trajectories):
-        result = tap(trajectories, task.suite.thresholds,
+        result = tap(trajectories, task.thresholds,
                      source=f"{task.env}/{task.policy} rollout")
         labels = result.labels("all")
     t2 = time.perf_counter()
     eps = episode_table(labels=labels if len(labels) else None,
                         trajectories=trajectories if len(trajectories) else None,
-                        episodes=episodes, level=task.suite.level, policy=task.policy)
+                        episodes=episodes, level=task.level, policy=task.policy)
     t3 = time.perf_counter()
     timings = {"rollout": t1 - t0, "labelling": t2 - t1, "measures": t3 - t2}
     return {"episodes": eps, "labels": labels,
@@ -131,67 +126,27 @@ def _run_task(task: _Task) -> dict[str, Any]:
 
 
 def _failed_task(task: _Task, message: str) -> dict[str, Any]:
-    eps = pd.DataFrame({"env": task.env, "policy": task.policy, "seed": list(task.seeds),
-                        "status": "error", "error": message})
-    return {"episodes": episode_table(episodes=eps, level=task.suite.level),
+    eps = pd.DataFrame({"env": [task.env], "policy": [task.policy], "seed": [task.seed],
+                        "status": ["error"], "error": [message]})
+    return {"episodes": episode_table(episodes=eps, level=task.level),
             "labels": pd.DataFrame(), "trajectories": None, "timings": {}}
 
 
-def _worker_init() -> None:
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    os.environ.setdefault("MKL_NUM_THREADS", "1")
-    warnings.filterwarnings("ignore")
+def _tasks(suite: Suite, thresholds: Thresholds, keep: bool) -> list[_Task]:
+    scenarios = {env: suite.scenario(env) for env in suite.envs}  # resolved once
+    return [_Task(env, scenarios[env], policy, seed, thresholds, suite.level, keep)
+            for env in suite.envs for policy in suite.policies for seed in suite.seeds]
 
 
-def _tasks(suite: Suite, keep: bool) -> list[_Task]:
-    chunks = [suite.seeds[i:i + CHUNK] for i in range(0, len(suite.seeds), CHUNK)]
-    return [_Task(suite, env, policy, chunk, keep)
-            for env in suite.envs for policy in suite.policies for chunk in chunks]
-
-
-def _rollouts(suite: Suite, workers: int, keep: bool, progress: bool | None,
-              backend: Any = None) -> list[dict[str, Any]]:
-    from tqdm.auto import tqdm
-
-    tasks = _tasks(suite, keep)
-    if backend is not None:  # a tap_bench.distributed backend (Ray): one task per chunk
-        outcomes = backend.map(_run_task, tasks, retries=1, unit="chunk", progress=progress,
-                               desc=f"bench {suite.name} ({backend.name})")
-        return [o.value if o.ok else _failed_task(task, o.error)
-                for task, o in zip(tasks, outcomes, strict=True)]
-    results: list[dict[str, Any] | None] = [None] * len(tasks)
-    bar = tqdm(total=sum(len(t.seeds) for t in tasks), desc=f"bench {suite.name}",
-               unit="episode", disable=None if progress is None else not progress)
-    with bar:
-        if workers == 1:
-            for i, task in enumerate(tasks):
-                results[i] = _guarded(task)
-                bar.update(len(task.seeds))
-            return results  # type: ignore[return-value]
-        context = multiprocessing.get_context("spawn")
-        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=context,
-                                    initializer=_worker_init) as pool:
-            futures = {pool.submit(_run_task, task): i for i, task in enumerate(tasks)}
-            for future in cf.as_completed(futures):
-                i = futures[future]
-                try:
-                    results[i] = future.result()
-                except Exception as err:  # a dead worker or an error outside any episode
-                    results[i] = _failed_task(tasks[i], _describe(err))
-                bar.update(len(tasks[i].seeds))
-    return results  # type: ignore[return-value]
-
-
-def _guarded(task: _Task) -> dict[str, Any]:
-    try:
-        return _run_task(task)
-    except Exception as err:  # keep the run going; the episodes say why
-        return _failed_task(task, _describe(err))
-
-
-def _describe(err: BaseException) -> str:
-    text = "".join(traceback.format_exception_only(type(err), err)).strip()
-    return text or type(err).__name__
+def _rollouts(suite: Suite, thresholds: Thresholds, backend: Backend, keep: bool,
+              progress: bool | None) -> list[dict[str, Any]]:
+    """Every episode of the suite as a task on ``backend`` (one recovery rule: an episode
+    whose worker died is tried once more, then recorded as failed)."""
+    tasks = _tasks(suite, thresholds, keep)
+    outcomes = backend.map(_run_task, tasks, unit="episode", progress=progress,
+                           desc=f"bench {suite.name} ({backend.name})")
+    return [o.value if o.ok else _failed_task(task, o.error)
+            for task, o in zip(tasks, outcomes, strict=True)]
 
 
 def package_versions() -> dict[str, str]:
@@ -220,7 +175,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
               workers: int = 2, womd: Sequence[str | os.PathLike] | None = None,
               keep_trajectories: bool = True, overwrite: bool = False,
               progress: bool | None = None, report: bool = True,
-              backend: Any = None) -> RunResult:
+              backend: Backend | None = None) -> RunResult:
     """Run a benchmark suite and write its run folder.
 
     Args:
@@ -233,9 +188,9 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         overwrite: replace an existing run folder.
         progress: progress bar (None: only on a terminal).
         report: write the plots and ``report.html``.
-        backend: run the rollout chunks as tasks on this
-            :class:`tap_bench.distributed.Backend` (a Ray cluster) instead of ``workers``
-            local processes; the tables are the same.
+        backend: run the episodes as tasks on this :class:`tap_bench.execution.Backend`
+            (a Ray cluster, say) instead of ``workers`` local processes; the tables are the
+            same.
 
     Returns:
         :class:`RunResult`.
@@ -243,15 +198,10 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     Raises:
         RunExistsError: ``output`` exists and ``overwrite`` is False.
     """
-    from tap_bench.thresholds import resolve_thresholds
-
     suite = suite if isinstance(suite, Suite) else load_suite(suite)
     output = check_output(output, overwrite)
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"workers must be a positive integer, got {workers!r}.")
+    runner = resolve_backend(backend, workers)
     thresholds = resolve_thresholds(suite.thresholds)
-    for env in suite.envs:  # fail now on a bad override, not in a worker
-        suite.scenario(env)
     timings: dict[str, float] = {}
     t_start = time.perf_counter()
     womd_labels = womd_traj = None
@@ -261,7 +211,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         timings["womd"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    results = _rollouts(suite, workers, keep_trajectories or bool(womd), progress, backend)
+    results = _rollouts(suite, thresholds, runner, keep_trajectories or bool(womd), progress)
     timings["rollouts_wall"] = time.perf_counter() - t0
     for key in ("rollout", "labelling", "measures"):
         timings[f"{key}_cpu_in_workers"] = sum(r["timings"].get(key, 0.0) for r in results)

@@ -8,7 +8,7 @@ import os
 import sys
 
 from tap_bench.cli.progress import add_progress_arguments, progress_choice
-from tap_bench.distributed.backend import add_backend_arguments
+from tap_bench.execution import add_backend_arguments
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -62,7 +62,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run_bench(args: argparse.Namespace) -> int:
     from tap_bench.bench.demo import timing_split
     from tap_bench.bench.runner import run_suite
-    from tap_bench.distributed.backend import backend_from_args, close_backend
+    from tap_bench.execution import backend_from_args, close_backend
 
     backend = backend_from_args(args) if args.backend != "local" or args.address else None
     try:

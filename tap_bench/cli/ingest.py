@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from tap_bench.cli.progress import add_progress_arguments, progress_choice
-from tap_bench.distributed.backend import add_backend_arguments
+from tap_bench.execution import add_backend_arguments
 from tap_bench.womd.ingest import FORMATS, ON_ERROR, ingest_womd, report_path
 from tap_bench.womd.tfrecord import MAX_RECORD_BYTES
 
@@ -88,8 +88,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_sharded(args: argparse.Namespace, types: list[str] | None) -> int:
     """One task per input file, each writing its Parquet part of the output directory."""
-    from tap_bench.distributed.backend import backend_from_args, close_backend
     from tap_bench.distributed.shards import ingest_shards
+    from tap_bench.execution import backend_from_args, close_backend
 
     backend = backend_from_args(args, workers=args.workers)
     try:

@@ -22,13 +22,11 @@ from typing import Any
 
 import numpy as np
 
-from tap_bench.distributed.backend import DEFAULT_RETRIES, Backend
 from tap_bench.errors import TapBenchError
+from tap_bench.execution import DEFAULT_RETRIES, Backend
+from tap_bench.fitting import DISTRIBUTIONS
 
 __all__ = ["ShardSamples", "dataset_name", "distributed_fit_report", "shard_samples"]
-
-_DISTRIBUTIONS = ("w", "a", "v")
-
 
 def _sorted_samples(path: str) -> dict[str, np.ndarray]:
     """One shard's one-second samples, each distribution sorted, (n_windows,) float64."""
@@ -36,7 +34,7 @@ def _sorted_samples(path: str) -> dict[str, np.ndarray]:
     from tap_bench.tableio import read_table
 
     samples = one_second_samples(read_table(path), source=path)
-    return {k: np.sort(samples[k], kind="stable") for k in _DISTRIBUTIONS}
+    return {k: np.sort(samples[k], kind="stable") for k in DISTRIBUTIONS}
 
 
 @dataclass(frozen=True)
@@ -72,7 +70,7 @@ def shard_samples(paths: str | os.PathLike | Iterable[str | os.PathLike], backen
     if not runs:
         raise TapBenchError(f"every shard failed; the first: {failed[0][0]}: {failed[0][1]}")
     merged = {k: np.sort(np.concatenate([r[k] for r in runs]), kind="stable")
-              for k in _DISTRIBUTIONS}
+              for k in DISTRIBUTIONS}
     return ShardSamples(merged, tuple(shards), failed)
 
 

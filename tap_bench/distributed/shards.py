@@ -31,8 +31,9 @@ import numpy as np
 import pandas as pd
 import pyarrow.compute as pc
 
-from tap_bench.distributed.backend import DEFAULT_RETRIES, Backend, Outcome
+from tap_bench import sdl
 from tap_bench.errors import FileFormatError, TapBenchError
+from tap_bench.execution import DEFAULT_RETRIES, Backend, Outcome
 from tap_bench.tableio import atomic_path
 
 __all__ = ["LABEL_CHUNK_ROWS", "REPORT_NAME", "ShardReport", "ingest_shards", "label_shards",
@@ -352,11 +353,10 @@ def label_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
         The :class:`ShardReport` (also ``<output>/_report.json``); each shard lists its
         label ``rows``, ``segments`` and ``short_segments`` (too short to label).
     """
-    from tap_bench.labelling import _levels
     from tap_bench.stages import StageConfig
     from tap_bench.thresholds import resolve_thresholds
 
-    _levels(level)  # a bad level fails here, not in every task
+    sdl.levels(level)  # a bad level fails here, not in every task
     th = resolve_thresholds(thresholds)
     config = config or StageConfig()
     inputs = parquet_shards(paths)

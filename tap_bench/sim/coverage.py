@@ -40,8 +40,8 @@ def label_coverage(sdl_labels: Iterable[str], reference: Collection[str] | None 
         reference = vocabulary_tokens(level)
         seen: set[str] = set()
         for label in labels:
-            for side in label.split(sdl.SDL_SEPARATOR):
-                seen.update(side.split(sdl.SEPARATOR))
+            for side in sdl.parse_sdl(label):
+                seen.update(side)
     else:
         reference = set(reference)
         seen = labels

@@ -39,8 +39,7 @@ class EpisodeLabels(gym.Wrapper):
         from tap_bench import sdl
         from tap_bench.errors import did_you_mean
 
-        if level not in sdl.LEVELS:
-            raise did_you_mean("level", level, sdl.LEVELS)
+        sdl.check_level(level)
         if tracks not in _TRACKS:
             raise did_you_mean("tracks", tracks, _TRACKS)
         scenario_env = find_scenario_env(env)

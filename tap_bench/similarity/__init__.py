@@ -16,6 +16,7 @@ The TAP paper's sections 4.2, 6.3 and 6.4 and the Scenario2Vector scenario dista
 
 from __future__ import annotations
 
+from tap_bench.sdl import parse_sdl
 from tap_bench.similarity.evaluate import Evaluation, evaluate, write_evaluation
 from tap_bench.similarity.nearest import (
     Neighbours,
@@ -38,7 +39,6 @@ from tap_bench.similarity.sdl_distance import (
     LabelSet,
     g_sdl,
     label_set,
-    parse_sdl,
     sdl_levenshtein,
 )
 from tap_bench.similarity.search import (

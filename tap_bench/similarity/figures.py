@@ -26,8 +26,8 @@ MAX_MATCHES_DRAWN = 60
 
 
 def _tokens(text: str) -> tuple[list[str], list[str]]:
-    lat, _, lon = str(text).partition(sdl.SDL_SEPARATOR)
-    return lat.split(sdl.SEPARATOR), lon.split(sdl.SEPARATOR)
+    lat, lon = sdl.parse_sdl(str(text))
+    return list(lat), list(lon)
 
 
 def _difference(reference: str, other: str) -> str:
@@ -164,8 +164,8 @@ def unique_figure(ev: Evaluation, n: int = 2):
         key = ls.table.iloc[r]
         ax.set_title(f"{key['scenario_id']}:{key['track_id']}: {len(lat)} lateral, "
                      f"{len(lon)} longitudinal actions\n"
-                     + _wrap(sdl.SEPARATOR.join(lat), 60) + "\n"
-                     + _wrap(sdl.SEPARATOR.join(lon), 60), fontsize=8)
+                     + _wrap(sdl.join(lat), 60) + "\n"
+                     + _wrap(sdl.join(lon), 60), fontsize=8)
         ax.set_xlabel("x along the initial heading [m]")
         ax.set_ylabel("y, left [m]")
         ax_v.plot(ev.shapes.time_of(r), ev.shapes.speed_of(r), color=REFERENCE, lw=2)

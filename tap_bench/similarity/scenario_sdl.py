@@ -33,7 +33,8 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.errors import LabelTableError, did_you_mean
-from tap_bench.similarity.sdl_distance import label_set, parse_sdl
+from tap_bench.sdl import parse_sdl
+from tap_bench.similarity.sdl_distance import label_set
 from tap_bench.trajectories import DT, validate_and_index
 
 __all__ = [

@@ -14,7 +14,7 @@ Modules, in the order data flows:
   for TAP labels.
 """
 
-from tap_bench.womd.errors import WomdRecordError
+from tap_bench.errors import WomdRecordError
 from tap_bench.womd.ingest import IngestReport, ingest_womd, iter_womd, read_womd
 from tap_bench.womd.trajectory_types import classify_trajectories
 from tap_bench.womd.writer import write_womd

@@ -12,16 +12,15 @@ protos (``uncompressed/scenario/...``), TFRecords of motion ``tf.Example`` proto
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import glob
 import json
-import multiprocessing
 import os
 import shutil
 import sys
 import tempfile
 import time
 import warnings
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -31,9 +30,9 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from tap_bench.errors import FileFormatError, did_you_mean
+from tap_bench.errors import FileFormatError, ParameterError, WomdRecordError, did_you_mean
+from tap_bench.execution import Backend, LocalBackend
 from tap_bench.tableio import atomic_paths, check_outputs
-from tap_bench.womd.errors import WomdRecordError
 from tap_bench.womd.scenario import decode_scenario, normalise_object_types
 from tap_bench.womd.scenarionet import decode_scenarionet, load_scenarionet
 from tap_bench.womd.tf_example import decode_tf_example, is_motion_example
@@ -206,6 +205,7 @@ class _Decoded:
     scenarios: int = 0
     spooled: str | None = None
     ids: list[tuple[str, int, int]] = field(default_factory=list)
+    error: WomdRecordError | None = None
 
 
 def _decode_batch(batch: _Batch, object_types: frozenset[str] | None, skip: bool
@@ -216,13 +216,27 @@ def _decode_batch(batch: _Batch, object_types: frozenset[str] | None, skip: bool
     return _Decoded(tables, skipped, time.process_time() - start, len(tables), ids=ids)
 
 
-def _decode_to_spool(batch: _Batch, object_types: frozenset[str] | None, skip: bool,
-                     spool: str) -> _Decoded:
+@dataclass(frozen=True)
+class _SpoolTask:
+    """A batch to decode in a worker, and the folder its tables go to."""
+
+    batch: _Batch
+    object_types: frozenset[str] | None
+    skip: bool
+    spool: str
+
+
+def _decode_to_spool(task: _SpoolTask) -> _Decoded:
     """:func:`_decode_batch` in a worker process. The tables go back through an Arrow IPC
-    file in ``spool`` (memory-backed where /dev/shm exists) rather than through a pipe:
-    pickling them would cost about half the decoding time again."""
+    file in the spool folder (memory-backed where /dev/shm exists) rather than through a
+    pipe: pickling them would cost about half the decoding time again. A bad record with
+    ``skip`` False comes back as ``error`` (not raised: it is not worth a retry)."""
     start = time.process_time()
-    tables, skipped, ids = _decode_records(batch, object_types, skip)
+    try:
+        tables, skipped, ids = _decode_records(task.batch, task.object_types, task.skip)
+    except WomdRecordError as err:
+        return _Decoded([], [], time.process_time() - start, 0, error=err)
+    spool = task.spool
     path = None
     if tables:
         table = pa.concat_tables(tables, promote_options="default")
@@ -331,6 +345,7 @@ def _batches(files: list[Path], format: str, check_crc: bool, batch_bytes: int,
 
 def _iter_tables(paths, *, format: str, object_types, on_error: str, check_crc: bool,
                  workers: int, report: IngestReport, log: Callable[[str], None] | None,
+                 backend: Backend | None = None,
                  batch_bytes: int = BATCH_BYTES,
                  progress: Callable[[int, int], None] | None = None,
                  max_record_bytes: int = MAX_RECORD_BYTES,
@@ -352,7 +367,12 @@ def _iter_tables(paths, *, format: str, object_types, on_error: str, check_crc: 
     report.inputs = [str(p) for p in files]
     report.format = format
     report.object_types = sorted(types) if types is not None else None
-    report.workers = workers
+    report.workers = backend.workers if backend is not None else workers
+    if backend is not None and getattr(backend, "address", None) is not None:
+        raise ParameterError("backend", backend, "a backend on this machine (decoded "
+                             "tables come back through its memory)",
+                             hint="For a cluster, ingest shards with 'tap-bench ingest ... "
+                             "--backend ray -o DIR' (tap_bench.distributed.ingest_shards).")
     skip = on_error == "skip"
 
     def skipped(entries: list[dict]) -> None:
@@ -399,36 +419,51 @@ def _iter_tables(paths, *, format: str, object_types, on_error: str, check_crc: 
 
     batches = _batches(files, format, check_crc, batch_bytes, bad_framing if skip else None,
                        report, max_record_bytes)
-    if workers <= 1:
+    if backend is None and workers <= 1:
         for batch in batches:
             yield from finish(batch, _decode_batch(batch, types, skip))
         return
-    context = multiprocessing.get_context("forkserver" if sys.platform == "linux" else None)
-    if context.get_start_method() == "forkserver":
-        # Workers fork from a server that has imported the decoders once, rather than each
-        # importing them (about a second on a loaded machine).
-        context.set_forkserver_preload([__name__])
     shm = Path("/dev/shm")
     spool = tempfile.mkdtemp(prefix="tap-bench-ingest-",
                              dir=shm if shm.is_dir() and os.access(shm, os.W_OK) else None)
+    sent: deque[_Batch] = deque()  # outcomes come in order: the batch of each, in turn
+
+    def tasks() -> Iterator[_SpoolTask]:
+        for batch in batches:
+            sent.append(batch)
+            yield _SpoolTask(batch, types, skip, spool)
+
     try:
-        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
-            pending: list[tuple[_Batch, cf.Future]] = []
-            try:
-                for batch in batches:
-                    pending.append((batch, pool.submit(_decode_to_spool, batch, types, skip,
-                                                       spool)))
-                    while len(pending) > 2 * workers:  # bounded: memory stays flat
-                        done, future = pending.pop(0)
-                        yield from finish(done, future.result())
-                while pending:
-                    done, future = pending.pop(0)
-                    yield from finish(done, future.result())
-            finally:
-                for _, future in pending:
-                    future.cancel()
+        runner = backend if backend is not None else LocalBackend(workers)
+        for outcome in runner.imap(_decode_to_spool, tasks(), progress=False):
+            batch = sent.popleft()
+            if outcome.ok:
+                result: _Decoded = outcome.value
+                if result.error is not None:
+                    raise result.error  # a bad record, with on_error="stop"
+                yield from finish(batch, result)
+                continue
+            # the batch failed on every attempt (its worker died, say): with "skip" its
+            # records are listed and the others kept; with "stop" the ingest ends here
+            lost = _lost_batch(batch, outcome.error)
+            if not skip:
+                raise lost
+            skipped([lost.as_dict()])
+            if progress is not None:
+                progress(batch.size, 0)
     finally:
         shutil.rmtree(spool, ignore_errors=True)
+
+
+def _lost_batch(batch: _Batch, error: str) -> WomdRecordError:
+    """The error for a batch whose decoding failed outside any record's own checks."""
+    first = batch.records[0] if batch.records else None
+    count = len(batch.records) or 1
+    return WomdRecordError(
+        batch.path, first.index if first else 0, first.offset if first else 0,
+        f"decoding {count} record(s) from here failed: {error}",
+        "Run again with --workers 1 to see the error in this process; other files and "
+        "records are not affected with --on-error skip.")
 
 
 def iter_womd(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
@@ -507,7 +542,7 @@ def ingest_womd(paths: str | os.PathLike | Iterable[str | os.PathLike],
                 object_types: Iterable[str] | str | None = None, on_error: str = "stop",
                 check_crc: bool = True, workers: int = 1, progress: bool | None = False,
                 log: Callable[[str], None] | None = None,
-                batch_bytes: int = BATCH_BYTES,
+                batch_bytes: int = BATCH_BYTES, backend: Backend | None = None,
                 max_record_bytes: int = MAX_RECORD_BYTES) -> IngestReport:
     """Stream WOMD files into one Parquet trajectory table, atomically.
 
@@ -522,6 +557,10 @@ def ingest_womd(paths: str | os.PathLike | Iterable[str | os.PathLike],
             :func:`iter_womd`.
         output: the Parquet file to write (not one of the inputs).
         workers: decoding processes (1 decodes in this process).
+        backend: decode on this :class:`tap_bench.execution.Backend` instead of
+            ``workers`` local processes (it must run on this machine: tables come back
+            through shared memory). A batch whose worker dies is tried once more, then
+            reported (``on_error="skip"``) or raised.
         progress: show a progress bar (tqdm, on stderr) with scenarios and MB/s; None:
             only when stderr is a terminal.
         log: called with a line for every skipped record (``on_error="skip"``) and every
@@ -586,7 +625,8 @@ def ingest_womd(paths: str | os.PathLike | Iterable[str | os.PathLike],
                 for table in _iter_tables(paths, format=format, object_types=object_types,
                                           on_error=on_error, check_crc=check_crc,
                                           workers=workers, report=report, log=log,
-                                          batch_bytes=batch_bytes, progress=advance,
+                                          backend=backend, batch_bytes=batch_bytes,
+                                          progress=advance,
                                           max_record_bytes=max_record_bytes, files=files):
                     pending.append(table)
                     pending_rows += table.num_rows

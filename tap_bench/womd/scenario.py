@@ -20,7 +20,7 @@ import numpy as np
 import pyarrow as pa
 from google.protobuf.message import DecodeError
 
-from tap_bench.errors import did_you_mean
+from tap_bench.errors import StateDecodeError, did_you_mean
 from tap_bench.trajectories import OBJECT_TYPES
 from tap_bench.womd import proto
 from tap_bench.womd.tfrecord import Record
@@ -47,18 +47,6 @@ _FIXED32 = {5: "length", 6: "width", 7: "height", 8: "heading", 9: "vx", 10: "vy
 _VALID_FIELD = 11
 _STATES_TAG = 3 << 3 | 2
 _PAD = 32  # zero bytes after the buffer, so that reads past a malformed state stay in bounds
-
-
-class StateDecodeError(ValueError):
-    """Raised by :func:`decode_object_states` for bytes that are not ObjectState messages.
-
-    Attributes:
-        state: index of the first malformed state in the input order.
-    """
-
-    def __init__(self, message: str, state: int):
-        super().__init__(message)
-        self.state = state
 
 
 def _varint(buf: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

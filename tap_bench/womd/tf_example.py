@@ -16,7 +16,7 @@ import pyarrow as pa
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from google.protobuf.message import DecodeError
 
-from tap_bench.womd.errors import WomdRecordError
+from tap_bench.errors import WomdRecordError
 from tap_bench.womd.scenario import trajectory_table
 from tap_bench.womd.tfrecord import Record
 

@@ -25,8 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
+from tap_bench.errors import WomdRecordError
 from tap_bench.womd.checksum import masked_crc32c
-from tap_bench.womd.errors import WomdRecordError
 
 __all__ = ["MAX_RECORD_BYTES", "Record", "TFRecordWriter", "describe_start", "iter_records",
            "looks_like_tfrecord"]

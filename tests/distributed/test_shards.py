@@ -9,12 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.distributed import (
-    LocalBackend,
-    distributed_fit_report,
-    ingest_shards,
-    label_shards,
-)
+from tap_bench.distributed import distributed_fit_report, ingest_shards, label_shards
+from tap_bench.execution import LocalBackend
 
 KEYS = ["scenario_id", "track_id", "segment", "level"]
 

@@ -19,8 +19,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from tap_bench.errors import WomdRecordError
 from tap_bench.womd import proto
-from tap_bench.womd.errors import WomdRecordError
 from tap_bench.womd.ingest import IngestReport, ingest_womd, read_womd
 from tap_bench.womd.scenarionet import decode_scenarionet
 from tap_bench.womd.tf_example import Example

@@ -9,9 +9,8 @@ import pandas as pd
 import pytest
 
 from tap_bench.cli import main
-from tap_bench.errors import FileFormatError, UnknownNameError
+from tap_bench.errors import FileFormatError, UnknownNameError, WomdRecordError
 from tap_bench.womd import proto
-from tap_bench.womd.errors import WomdRecordError
 from tap_bench.womd.ingest import IngestReport, ingest_womd, iter_womd, read_womd
 from tap_bench.womd.tfrecord import TFRecordWriter, iter_records
 from tap_bench.womd.writer import encode_scenarios, write_womd
