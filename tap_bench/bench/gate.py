@@ -34,7 +34,12 @@ import pandas as pd
 from tap_bench.bench.compare import NO_LABEL
 from tap_bench.bench.measures import MEASURES
 from tap_bench.bench.suite import GATE_METRICS, GateConfig
-from tap_bench.errors import BaselineMismatchError, FileFormatError
+from tap_bench.errors import (
+    BaselineError,
+    BaselineMismatchError,
+    FileFormatError,
+    UnknownNameError,
+)
 
 __all__ = ["BASELINE_FORMAT", "GateResult", "check", "holm", "read_baseline", "write_baseline"]
 
@@ -105,10 +110,28 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
         run_summary: the run's ``summary.json``.
         episodes: the run's episode table.
         path: the baseline JSON to write.
+
+    Raises:
+        BaselineError: the run has no episode, or an (env, policy) of it has no episode that
+            ran to the end: such a baseline would test nothing there.
     """
     from tap_bench.tableio import atomic_path
 
     ok = episodes[episodes["status"] == "ok"]
+    run = run_summary.get("run")
+    if ok.empty:
+        raise BaselineError(
+            f"run {run!r} has {len(episodes)} episode(s) and none ran to the end; a baseline "
+            "from it would let every later check pass. Fix the failures (bench run lists "
+            "them) and make the baseline from a run whose episodes succeed.")
+    cells = episodes[["env", "policy"]].drop_duplicates()
+    done = set(map(tuple, ok[["env", "policy"]].drop_duplicates().to_numpy()))
+    empty = [(e, p) for e, p in cells.to_numpy() if (e, p) not in done]
+    if empty:
+        listed = ", ".join(f"{e or '-'}/{p}" for e, p in empty[:5])
+        raise BaselineError(
+            f"run {run!r}: every episode of {listed} failed; the baseline would not test "
+            "it. Fix those failures, or drop them from the suite, and run again.")
     rows = [[_json_value(v) for v in r] for r in ok[list(_EPISODE_FIELDS)].itertuples(
         index=False)]
     gate = run_summary.get("suite", {}).get("gate") or GateConfig().to_dict()
@@ -137,7 +160,10 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
                               f"'tap-bench bench check RUN --baseline {path} "
                               "--update-baseline'.")
     try:
-        doc = json.loads(path.read_text())
+        doc = json.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as err:
+        raise FileFormatError(f"{path}: not a text file (byte {err.start} is not UTF-8); a "
+                              "baseline is the JSON written by --update-baseline.") from None
     except json.JSONDecodeError as err:
         raise FileFormatError(f"{path}: not valid JSON: {err}") from err
     if not isinstance(doc, dict) or doc.get("format") != BASELINE_FORMAT:
@@ -154,7 +180,44 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
     if missing:
         raise FileFormatError(f"{path}: baseline episodes lack {', '.join(missing)}; "
                               "re-make it with --update-baseline.")
+    _check_baseline_rows(table, path)
+    gate = doc.get("gate") or {}
+    if not isinstance(gate, dict):
+        raise FileFormatError(f"{path}: 'gate' must be an object of gate settings, got "
+                              f"{gate!r}.")
+    try:
+        GateConfig(**{k: v for k, v in gate.items()
+                      if k in ("alpha", "n_permutations", "seed", "margins")})
+    except (TypeError, ValueError, UnknownNameError) as err:
+        raise FileFormatError(f"{path}: gate settings: {err} Restore them from the suite "
+                              "(envs/suites/*.json) or re-make the baseline with "
+                              "--update-baseline.") from None
     return doc, table
+
+
+def _check_baseline_rows(table: pd.DataFrame, path: Path) -> None:
+    """Every value of a baseline's episodes of the type its column holds: text for env,
+    policy (and sdl, or null), an integer seed, a number (or null, true/false for
+    ``crashed``) for each measure."""
+    def bad(col: str, ok) -> None:
+        for i, value in enumerate(table[col].tolist()):
+            if not ok(value):
+                raise FileFormatError(
+                    f"{path}: episode row {i}, column {col!r}: {value!r} is not "
+                    f"{kinds[col]}. The baseline was edited or damaged; re-make it with "
+                    "--update-baseline.")
+
+    text = "text"
+    kinds = {"env": text, "policy": text, "seed": "a non-negative integer", "sdl": "text or null",
+             **{m.name: "a number or null" for m in MEASURES}}
+    bad("env", lambda v: isinstance(v, str))
+    bad("policy", lambda v: isinstance(v, str))
+    bad("seed", lambda v: (isinstance(v, int) and not isinstance(v, bool))
+        or (isinstance(v, str) and v.isdigit()))  # baselines before 0.2 wrote it as text
+    bad("sdl", lambda v: v is None or isinstance(v, str))
+    for m in MEASURES:
+        bad(m.name, lambda v, flag=m.name == "crashed": v is None or (
+            isinstance(v, int | float) and (flag or not isinstance(v, bool))))
 
 
 def holm(p: np.ndarray) -> np.ndarray:
@@ -267,6 +330,12 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
                 b = pd.to_numeric(base[metric], errors="coerce").to_numpy(float)
                 r = pd.to_numeric(run[metric], errors="coerce").to_numpy(float)
                 b, r = b[np.isfinite(b)], r[np.isfinite(r)]
+                if len(b) < 2 and len(r) >= 2:  # null or text in the baseline: never silent
+                    rows.append({**key, "metric": metric, "n_baseline": len(b),
+                                 "n_run": len(r), "margin": margin, "forced": True,
+                                 "note": "the baseline holds fewer than 2 numbers for it; "
+                                         "re-make the baseline"})
+                    continue
                 if len(b) < 2 or len(r) < 2:
                     rows.append({**key, "metric": metric, "n_baseline": len(b),
                                  "n_run": len(r), "margin": margin, "forced": False,
