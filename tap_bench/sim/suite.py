@@ -33,10 +33,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tap_bench.errors import FileFormatError, did_you_mean
+import numpy as np
+
+from tap_bench.errors import FileFormatError, ParameterError, did_you_mean
 from tap_bench.trajectories import HZ
 
 __all__ = [
+    "MAX_SEED",
+    "MAX_SEEDS",
     "SIMULATION_FREQUENCY",
     "Scenario",
     "check_config",
@@ -73,43 +77,82 @@ def suite_dir(kind: str) -> Path:
     return base / kind
 
 
+MAX_SEEDS = 100_000
+"""The most seeds one seed list may name: 100,000 episodes per (env, policy) is more than a
+thousand times the default suite's 30, and each episode's tables are held in memory. A
+longer list is refused before anything is built (``"0-999999999"`` once took 21 GB)."""
+MAX_SEED = 2**63 - 1
+"""The largest seed: seeds are stored as 64-bit integers in every table."""
+
+
 def parse_seeds(spec: str | int | list[int] | range, *, source: str = "seeds") -> list[int]:
     """Seeds from ``"0-49"``, ``"3,5,8-9"``, an int, a list or a range.
+
+    The count is known from the ranges before a single seed is made, so a huge range costs
+    nothing to refuse.
 
     Returns:
         the seeds in the order given, duplicates refused.
 
     Raises:
-        ValueError: naming ``source`` and the part that is not a seed or a range of seeds.
+        ParameterError: (a ValueError) naming ``source``, the value and what is allowed: a
+            part that is not a seed or a range of seeds, a seed given twice, or more than
+            :data:`MAX_SEEDS` seeds.
     """
+    form = "seeds written '0-49' (inclusive) or '1,4,7' (non-negative integers)"
+
+    def bad(value: object, allowed: str = form, hint: str = "") -> ParameterError:
+        return ParameterError(source, value, allowed, hint=hint)
+
     if isinstance(spec, bool):
-        raise ValueError(f"{source}: {spec!r} is not a seed; give an int, '0-49' or '1,4,7'.")
+        raise bad(spec, hint=f"{spec!r} is not a seed.")
+    ranges: list[range] = []
     if isinstance(spec, int):
-        seeds = [spec]
-    elif isinstance(spec, range | list | tuple):
-        seeds = [int(s) for s in spec]
+        ranges = [range(spec, spec + 1)]
+    elif isinstance(spec, range):
+        ranges = [spec]
+    elif isinstance(spec, list | tuple):
+        if len(spec) > MAX_SEEDS:
+            raise bad(f"{len(spec):,} seeds", _AT_MOST, _SPLIT)
+        for s in spec:
+            if isinstance(s, bool) or not isinstance(s, int | np.integer):
+                raise bad(s, "an integer seed", "Every seed of a list is an integer.")
+        ranges = [range(int(s), int(s) + 1) for s in spec]
     elif isinstance(spec, str):
-        seeds = []
         for part in spec.replace(" ", "").split(","):
             match = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
             if not match:
-                raise ValueError(f"{source}: {part!r} in {spec!r} is not a seed or a range; "
-                                 "write seeds as '0-49' (inclusive) or '1,4,7' (non-negative).")
+                raise bad(spec, hint=f"{part!r} is not a seed or a range.")
             lo = int(match.group(1))
             hi = int(match.group(2)) if match.group(2) else lo
             if hi < lo:
-                raise ValueError(f"{source}: range {part!r} runs backwards; write '{hi}-{lo}'.")
-            seeds.extend(range(lo, hi + 1))
+                raise bad(spec, hint=f"The range {part!r} runs backwards; write '{hi}-{lo}'.")
+            ranges.append(range(lo, hi + 1))
     else:
-        raise ValueError(f"{source}: {spec!r} is not a seed list; give '0-49', an int or a list.")
-    if not seeds:
-        raise ValueError(f"{source}: no seeds given.")
-    if any(s < 0 for s in seeds):
-        raise ValueError(f"{source}: seeds must be non-negative, got {min(seeds)}.")
+        raise bad(spec)
+    count = sum(len(r) for r in ranges)
+    if count > MAX_SEEDS:
+        raise bad(spec if isinstance(spec, str) else f"{count:,} seeds", _AT_MOST,
+                  f"It names {count:,}. {_SPLIT}")
+    if count == 0:
+        raise bad(spec, hint="It names no seed.")
+    low = min(r.start for r in ranges if len(r))
+    high = max(r[-1] for r in ranges if len(r))
+    if low < 0:
+        raise bad(low, "a non-negative seed")
+    if high > MAX_SEED:
+        raise bad(high, f"a seed at most {MAX_SEED} (2^63 - 1), the largest a table stores")
+    seeds = [s for r in ranges for s in r]
     if len(set(seeds)) != len(seeds):
-        dup = next(s for s in seeds if seeds.count(s) > 1)
-        raise ValueError(f"{source}: seed {dup} is given twice; each seed is one episode.")
+        seen: set[int] = set()
+        dup = next(s for s in seeds if s in seen or seen.add(s))
+        raise bad(spec if isinstance(spec, str) else f"{count:,} seeds", "each seed once",
+                  f"Seed {dup} is given twice; each seed is one episode.")
     return seeds
+
+
+_AT_MOST = f"at most {MAX_SEEDS:,} seeds (tap_bench.sim.suite.MAX_SEEDS)"
+_SPLIT = "Run the seeds in several lists (say '0-99999', then '100000-199999')."
 
 
 @dataclass(frozen=True)
