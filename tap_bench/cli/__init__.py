@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 
@@ -63,6 +64,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except TapBenchError as err:
         print(f"tap-bench {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the reader went away (tap-bench policies | head): stop quietly
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # the final flush must not fail again
+        return 141  # 128 + SIGPIPE, as for any program whose reader left
     except KeyboardInterrupt:
         print(f"tap-bench {args.command}: interrupted; no partial output was written.",
               file=sys.stderr)

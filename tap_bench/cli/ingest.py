@@ -107,6 +107,8 @@ def _run_sharded(args: argparse.Namespace, types: list[str] | None) -> int:
           f"file(s) on {report.backend} ({report.workers} worker(s)): {mb:.1f} MB in "
           f"{report.seconds:.1f} s ({mb / max(report.seconds, 1e-9):.1f} MB/s), "
           f"{scenarios} scenario(s), {report.rows} rows")
+    for note in report.notes:
+        _log(note)
     if skipped:
         _log(f"skipped {skipped} record(s); listed in {args.output}/_report.json")
     for failed in report.failed:

@@ -7,6 +7,7 @@ import sys
 import time
 from pathlib import Path
 
+from tap_bench.errors import TrajectoryTableError
 from tap_bench.execution import add_backend_arguments
 from tap_bench.labelling import tap
 from tap_bench.sdl import LEVELS
@@ -52,6 +53,9 @@ def run(args: argparse.Namespace) -> int:
     result = tap(table, args.thresholds, config, source=str(args.input))
     labels = result.labels(args.level)
     short = result.short_segments
+    if len(result.segments_info) == 0:
+        raise TrajectoryTableError(_nothing_to_label(table, short, args.input, config),
+                                   column="valid")
     outputs = {args.output: labels}
     if args.segments:
         outputs[args.segments] = result.segments(args.level)
@@ -82,6 +86,22 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _nothing_to_label(table, short, source: str, config: StageConfig) -> str:
+    """Why a table gave no label, for the error: no rows, no valid state, or only short
+    stretches."""
+    n_tracks = table[["scenario_id", "track_id"]].drop_duplicates().shape[0] if len(table) \
+        else 0
+    valid = int(table["valid"].sum()) if "valid" in table.columns else len(table)
+    what = (f"{source}: nothing to label: {len(table)} row(s) of {n_tracks} track(s)")
+    if len(table) == 0:
+        return f"{what}. Give a table with trajectories."
+    if valid == 0:
+        return (f"{what}, and 'valid' is False on every row. Check the column (it marks the "
+                "states that were observed) or the source the table came from.")
+    return (f"{what}, {valid} valid, but every valid stretch ({len(short)}) is shorter than "
+            f"{config.min_run:g} s (--min-run).")
+
+
 def _run_sharded(args: argparse.Namespace) -> int:
     """Label each Parquet shard of ``input`` as a task; one label part per shard."""
     from tap_bench.distributed.shards import label_shards
@@ -107,6 +127,8 @@ def _run_sharded(args: argparse.Namespace) -> int:
           f"shard(s) on {report.backend} ({report.workers} worker(s)) in "
           f"{report.seconds:.1f} s: {report.rows} label rows, {short} segment(s) too short "
           f"to label; wrote {args.output}/")
+    for note in report.notes:
+        print(f"tap-bench label: {note}", file=sys.stderr)
     for failed in report.failed:
         print(f"warning: {failed['input']} failed after {failed['attempts']} attempt(s): "
               f"{failed['error']}", file=sys.stderr)

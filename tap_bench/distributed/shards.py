@@ -64,6 +64,7 @@ class ShardReport:
     workers: int
     seconds: float = 0.0
     shards: list[dict[str, Any]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
 
     @property
     def failed(self) -> list[dict[str, Any]]:
@@ -76,7 +77,8 @@ class ShardReport:
 
     @property
     def bytes_read(self) -> int:
-        return sum(s["bytes"] for s in self.shards if s["ok"])
+        """Bytes of the inputs read in this run [B] (not those of resumed parts)."""
+        return sum(s["bytes"] for s in self.shards if s["ok"] and not s.get("resumed"))
 
     def to_json(self) -> str:
         return json.dumps({**asdict(self), "failed": len(self.failed), "rows": self.rows,
@@ -123,6 +125,17 @@ def _prepare_output(output: str | os.PathLike, resume: bool) -> Path:
     return out
 
 
+def _whole_part(path: Path) -> bool:
+    """Whether a part file is a readable Parquet file (its footer and schema read)."""
+    import pyarrow.parquet as pq
+
+    try:
+        pq.read_metadata(path)
+    except Exception:  # pyarrow raises several kinds for a damaged file
+        return False
+    return True
+
+
 def _part_names(inputs: Sequence[Path]) -> list[str]:
     """One part name per input: its file name made Parquet, numbered when names clash."""
     stems = [re.sub(r"\.(parquet|pq)$", "", p.name) for p in inputs]
@@ -136,7 +149,16 @@ def _run(kind: str, fn, jobs: list[Any], inputs: list[Path], parts: list[Path],
          progress: bool | None) -> ShardReport:
     start = time.perf_counter()
     report = ShardReport(kind, str(out), backend.name, backend.workers)
-    todo = [i for i, part in enumerate(parts) if not (resume and part.exists())]
+    damaged = {i for i, part in enumerate(parts) if resume and part.exists()
+               and not _whole_part(part)}
+    for i in sorted(damaged):  # an earlier run's part that cannot be read is done again
+        aside = parts[i].with_name(f".{parts[i].name}.damaged")  # hidden from readers, kept
+        os.replace(parts[i], aside)
+        report.notes.append(f"{parts[i]}: the part an earlier run left cannot be read as "
+                            f"Parquet; it is made again (the damaged file is kept as "
+                            f"{aside.name}).")
+    todo = [i for i, part in enumerate(parts)
+            if not (resume and part.exists()) or i in damaged]
     outcomes: dict[int, Outcome] = dict(zip(todo, backend.map(
         fn, [jobs[i] for i in todo], retries=retries, desc=f"{kind} ({backend.name})",
         unit="shard", progress=progress), strict=True))
@@ -144,6 +166,8 @@ def _run(kind: str, fn, jobs: list[Any], inputs: list[Path], parts: list[Path],
         entry: dict[str, Any] = {"input": str(src), "output": str(part),
                                  "bytes": src.stat().st_size if src.exists() else 0}
         outcome = outcomes.get(i)
+        if i in damaged:
+            entry["redone"] = "the earlier part could not be read"
         if outcome is None:
             entry.update(ok=True, attempts=0, seconds=0.0, cpu_seconds=0.0, error="",
                          resumed=True)
