@@ -172,7 +172,15 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
                               f"expected {BASELINE_FORMAT!r}).")
     try:
         eps = doc["episodes"]
-        table = pd.DataFrame(eps["rows"], columns=eps["columns"])
+        rows, columns = eps["rows"], eps["columns"]
+        if not isinstance(columns, list) or not isinstance(rows, list) or not all(
+                isinstance(r, list) and len(r) == len(columns) for r in rows):
+            raise ValueError(f"'rows' must be a list of lists of {len(columns)} values, one "
+                             "per column" if isinstance(columns, list) else
+                             "'columns' must be a list of names")
+        if not rows:
+            raise ValueError("it holds no episode; a baseline tests nothing without them")
+        table = pd.DataFrame(rows, columns=columns)
     except (KeyError, TypeError, ValueError) as err:
         raise FileFormatError(f"{path}: 'episodes' must hold 'columns' and 'rows': {err}"
                               ) from err

@@ -363,7 +363,8 @@ def read_run(folder: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame]:
     """``summary.json`` and the episode table of a run folder.
 
     Raises:
-        FileFormatError: the folder is not a finished run (no summary or episode table).
+        FileFormatError: the folder is not a finished run (no summary or episode table), or
+            one of them is damaged: not JSON, not an object, not Parquet, columns missing.
     """
     folder = Path(folder)
     summary_path = folder / "summary.json"
@@ -372,8 +373,25 @@ def read_run(folder: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame]:
         if not path.is_file():
             raise FileFormatError(f"{folder}: not a finished run folder ({path.name} is "
                                   "missing); make one with 'tap-bench bench run'.")
+    redo = "The run folder is damaged; run 'tap-bench bench run' again."
     try:
-        summary = json.loads(summary_path.read_text())
-    except json.JSONDecodeError as err:
-        raise FileFormatError(f"{summary_path}: not valid JSON: {err}") from err
-    return summary, pd.read_parquet(episodes_path)
+        summary = json.loads(summary_path.read_bytes().decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise FileFormatError(f"{summary_path}: not valid JSON ({err}). {redo}") from None
+    if not isinstance(summary, dict):
+        raise FileFormatError(f"{summary_path}: holds a {type(summary).__name__}, not the "
+                              f"run's summary object. {redo}")
+    for key in ("suite", "thresholds"):
+        if summary.get(key) is not None and not isinstance(summary[key], dict | str):
+            raise FileFormatError(f"{summary_path}: {key!r} is a "
+                                  f"{type(summary[key]).__name__}. {redo}")
+    try:
+        episodes = pd.read_parquet(episodes_path)
+    except Exception as err:  # pyarrow raises several kinds for a damaged file
+        raise FileFormatError(f"{episodes_path}: not a readable Parquet table "
+                              f"({type(err).__name__}: {err}). {redo}") from None
+    missing = [c for c in ("env", "policy", "seed", "status") if c not in episodes.columns]
+    if missing:
+        raise FileFormatError(f"{episodes_path}: not an episode table (no "
+                              f"{', '.join(missing)} column). {redo}")
+    return summary, episodes

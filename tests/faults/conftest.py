@@ -5,17 +5,16 @@ temporary debris, and runs the command line in this process (``cli``) or in a ch
 from __future__ import annotations
 
 import os
-import shlex
-import subprocess
 import sys
 import tempfile
 import time
-import uuid
 from pathlib import Path
 
 import pytest
 
 from tap_bench.cli import main
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # for fault_helpers
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
 WOMD_DIR = (PROJECT_ROOT / ".." / "shared" / "data" / "womd").resolve()
@@ -67,21 +66,28 @@ def _debris(folder: Path) -> set[str]:
     return out
 
 
-def _shared_temp() -> set[str]:
-    names = set()
-    for folder in (Path(tempfile.gettempdir()), Path("/dev/shm")):
-        if folder.is_dir():
-            names |= {str(p) for p in folder.glob("tap-bench-*")}
-    return names
-
-
 @pytest.fixture(autouse=True)
-def no_orphans_and_no_debris(tmp_path):
+def no_orphans_and_no_debris(tmp_path, monkeypatch):
     """After each test: no process left behind, no temporary file or folder of tap-bench
-    (``.*.tmp``, ``.*.old``, ``.*.bak``) in the test's folder or beside the project, no
-    ``tap-bench-*`` spool in the temporary folder or /dev/shm."""
+    (``.*.tmp``, ``.*.old``, ``.*.bak``) in the test's folder or beside the project, and
+    every temporary file or folder this process made (``tempfile.mkstemp`` / ``mkdtemp``,
+    wherever: /tmp, /dev/shm, beside an output) removed again."""
+    made: list[str] = []
+    real_mkdtemp, real_mkstemp = tempfile.mkdtemp, tempfile.mkstemp
+
+    def mkdtemp(*args, **kwargs):
+        path = real_mkdtemp(*args, **kwargs)
+        made.append(path)
+        return path
+
+    def mkstemp(*args, **kwargs):
+        fd, path = real_mkstemp(*args, **kwargs)
+        made.append(path)
+        return fd, path
+
+    monkeypatch.setattr(tempfile, "mkdtemp", mkdtemp)
+    monkeypatch.setattr(tempfile, "mkstemp", mkstemp)
     before = _children(os.getpid())
-    shared = _shared_temp()
     project = _debris(PROJECT_ROOT / "results") | _debris(PROJECT_ROOT / "policies")
     yield
     deadline = time.monotonic() + 10
@@ -91,7 +97,8 @@ def no_orphans_and_no_debris(tmp_path):
         left = _children(os.getpid()) - before
     assert not left, f"orphan processes left: {sorted(left)}"
     assert not _debris(tmp_path), f"temporary debris: {sorted(_debris(tmp_path))}"
-    assert _shared_temp() <= shared, f"spool left: {sorted(_shared_temp() - shared)}"
+    kept = [p for p in made if os.path.lexists(p)]
+    assert not kept, f"temporary files or folders left: {kept}"
     assert (_debris(PROJECT_ROOT / "results") | _debris(PROJECT_ROOT / "policies")) <= project
 
 
@@ -105,39 +112,6 @@ def cli(capsys):
         return code, out.out, out.err
 
     return run
-
-
-def _marked(marker: str) -> set[int]:
-    """Live processes whose environment holds ``marker`` (a child and all it started)."""
-    found = set()
-    for entry in Path("/proc").glob("[0-9]*"):
-        try:
-            if marker.encode() in (entry / "environ").read_bytes():
-                found.add(int(entry.name))
-        except OSError:
-            continue
-    return found
-
-
-def run_process(*args: str, cwd: Path | None = None, shell_pipe: str | None = None
-                ) -> subprocess.CompletedProcess:
-    """``python -m tap_bench ARGS`` in a child process with this checkout first on the
-    path (piped into ``shell_pipe``, a shell command, when given). Afterwards no process
-    the child started may be alive, wherever it was re-parented (found by a marker in the
-    environment)."""
-    marker = f"TAP_BENCH_FAULT_TEST={uuid.uuid4().hex}"
-    env = {**os.environ, "PYTHONPATH": f"{PROJECT_ROOT}{os.pathsep}"
-           f"{os.environ.get('PYTHONPATH', '')}", marker.split("=")[0]: marker.split("=")[1]}
-    command = [sys.executable, "-m", "tap_bench", *map(str, args)]
-    if shell_pipe:
-        command = ["bash", "-o", "pipefail", "-c",
-                   " ".join(shlex.quote(c) for c in command) + " | " + shell_pipe]
-    result = subprocess.run(command, capture_output=True, env=env, cwd=cwd, timeout=300)
-    deadline = time.monotonic() + 10
-    while _marked(marker) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert not _marked(marker), f"processes outlived tap-bench {args}: {_marked(marker)}"
-    return result
 
 
 @pytest.fixture

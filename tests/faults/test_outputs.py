@@ -9,6 +9,7 @@ import stat
 import numpy as np
 import pandas as pd
 import pytest
+from fault_helpers import label_table
 
 from tap_bench import tableio
 from tap_bench.bench.runner import RunExistsError, check_output
@@ -22,14 +23,6 @@ from tap_bench.tableio import (
 )
 
 IS_ROOT = os.geteuid() == 0
-
-
-def label_table(policy: str, seeds, label=lambda s: "Straight | Maintain Speed"):
-    """The ego labels of one policy's episodes on ``seeds`` in env ``highway``."""
-    return pd.DataFrame({"scenario_id": [f"{policy}-{s}" for s in seeds], "track_id": "ego",
-                         "sdl": [label(s) for s in seeds], "lateral": "Straight",
-                         "longitudinal": "Maintain Speed", "seed": list(seeds),
-                         "policy": policy, "env": "highway"})
 
 
 @pytest.fixture
@@ -95,7 +88,7 @@ def test_overwrite_onto_a_file_or_a_symlink_is_a_message_not_a_traceback(tmp_pat
         target.symlink_to(run)
     else:
         target.symlink_to(tmp_path / "nowhere")
-    code, out, err = cli("compare", a, b, "-o", target, "--overwrite", "--resamples", "100")
+    code, _, err = cli("compare", a, b, "-o", target, "--overwrite", "--resamples", "100")
     assert code == 2 and "Traceback" not in err and str(target) in err
     assert ("is a file" in err) if kind == "file" else ("symbolic link" in err)
     assert target.is_symlink() == (kind != "file")
