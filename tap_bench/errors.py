@@ -22,6 +22,7 @@ __all__ = [
     "StateDecodeError",
     "UnknownNameError",
     "SuiteError",
+    "CatalogueError",
     "RunExistsError",
     "OutputPathError",
     "BaselineError",
@@ -50,22 +51,25 @@ class ParameterError(TapBenchError, ValueError):
         allowed: what is allowed, in words.
     """
 
-    def __init__(self, parameter: str, value: object, allowed: str, *, hint: str = ""):
+    def __init__(self, parameter: str, value: object, allowed: str, *, hint: str = "",
+                 message: str | None = None):
         self.parameter = parameter
         self.value = value
         self.allowed = allowed
         self.hint = hint
-        super().__init__(f"{parameter} must be {allowed}, got {value!r}."
-                         + (f" {hint}" if hint else ""))
+        if message is None:
+            message = f"{parameter} must be {allowed}, got {value!r}." + (
+                f" {hint}" if hint else "")
+        super().__init__(message)
 
     def __reduce__(self):  # keeps the attributes across worker processes
         return (_rebuild_parameter_error, (self.parameter, self.value, self.allowed,
-                                           self.hint))
+                                           self.hint, str(self)))
 
 
-def _rebuild_parameter_error(parameter: str, value: object, allowed: str, hint: str
-                             ) -> ParameterError:
-    return ParameterError(parameter, value, allowed, hint=hint)
+def _rebuild_parameter_error(parameter: str, value: object, allowed: str, hint: str,
+                             message: str) -> ParameterError:
+    return ParameterError(parameter, value, allowed, hint=hint, message=message)
 
 
 class TrajectoryTableError(TapBenchError, ValueError):
@@ -143,6 +147,10 @@ class StateDecodeError(TapBenchError, ValueError):
 
     def __reduce__(self):
         return (type(self), (str(self), self.state))
+
+
+class CatalogueError(TapBenchError, FileNotFoundError):
+    """The built-in scenarios and policies (or a catalogue folder) cannot be found."""
 
 
 class SuiteError(TapBenchError, ValueError):

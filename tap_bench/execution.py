@@ -12,10 +12,11 @@ worker costs only the item it was running: each worker runs one item at a time, 
 that killed it is known, and a fresh worker takes its place.
 
 - :class:`LocalBackend`: this process (``workers=1``) or a pool of worker processes. Workers
-  are started as ``python -m tap_bench.execution`` (not ``multiprocessing``): they never
+  are fresh interpreters running :func:`_worker_main` (not ``multiprocessing``): they never
   re-import the caller's script, so the API works from a plain script without an
-  ``if __name__ == "__main__":`` guard, and a worker whose parent dies (even by SIGKILL)
-  sees its input close and exits, leaving no orphan.
+  ``if __name__ == "__main__":`` guard; a worker whose parent dies (even by SIGKILL) is sent
+  SIGTERM by the kernel (Linux) or sees its input close, and exits, leaving no orphan. No
+  semaphore, shared memory or resource-tracker process is involved.
 - :class:`RayBackend`: Ray tasks on a running cluster (``address="auto"``) or on a local
   cluster it starts. Ray is optional (``pip install 'tap-bench[ray]'``) and imported only
   when a :class:`RayBackend` is made.

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tap_bench.errors import ParameterError
+
 __all__ = [
     "BootstrapConfig",
     "wilson_interval",
@@ -53,11 +55,11 @@ class BootstrapConfig:
     def __post_init__(self) -> None:
         if isinstance(self.n_resamples, bool) or not isinstance(self.n_resamples, int) \
                 or self.n_resamples < 100:
-            raise ValueError(f"n_resamples must be an integer >= 100, got {self.n_resamples!r}.")
+            raise ParameterError("n_resamples", self.n_resamples, "an integer >= 100")
         if not isinstance(self.level, float | int) or not 0.5 <= float(self.level) < 1:
-            raise ValueError(f"level must be in [0.5, 1), e.g. 0.95; got {self.level!r}.")
+            raise ParameterError("level", self.level, "a number in [0.5, 1), e.g. 0.95")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}.")
+            raise ParameterError("seed", self.seed, "a non-negative integer")
 
     def rng(self, stream: int = 0) -> np.random.Generator:
         """A generator for one named use of the config (``stream``), so that two statistics
@@ -94,7 +96,7 @@ def resample_weights(n: int, config: BootstrapConfig, *, strata: np.ndarray | No
     else:
         strata = np.asarray(strata)
         if strata.shape != (n,):
-            raise ValueError(f"strata must have shape ({n},), got {strata.shape}.")
+            raise ParameterError("strata", strata.shape, f"of shape ({n},)")
         _, codes = np.unique(strata, return_inverse=True)
         groups = [np.flatnonzero(codes == g) for g in range(codes.max() + 1)]
     offsets = (np.arange(B) * n)[:, None]

@@ -43,7 +43,8 @@ from tap_bench.bench.bootstrap import (
     weighted_means,
 )
 from tap_bench.bench.measures import MEASURES, Measure
-from tap_bench.errors import LabelTableError
+from tap_bench.errors import LabelTableError, ParameterError, did_you_mean
+from tap_bench.similarity.sdl_distance import label_set, levenshtein_matrix
 
 __all__ = ["NO_LABEL", "PairedComparison", "matched_by_label", "paired_comparison"]
 
@@ -217,12 +218,11 @@ def matched_by_label(episodes: pd.DataFrame, a: str, b: str, *, metric: str = "e
     """
     config = config or BootstrapConfig()
     if metric not in ("exact", "levenshtein"):
-        from tap_bench.errors import did_you_mean
-
         raise did_you_mean("metric", metric, ("exact", "levenshtein"))
     if metric == "exact" and d_sim != 0:
-        raise ValueError("metric 'exact' (g_SDL) is 0 or 1: use d_sim=0, or metric "
-                         "'levenshtein' for near labels.")
+        raise ParameterError("metric", metric, "",
+            message="metric 'exact' (g_SDL) is 0 or 1: use d_sim=0, or metric "
+                    "'levenshtein' for near labels.")
     ok = episodes[(episodes["status"] == "ok") & episodes["sdl"].notna()
                   & episodes["policy"].isin([a, b])]
     rows = []
@@ -271,8 +271,6 @@ def matched_by_label(episodes: pd.DataFrame, a: str, b: str, *, metric: str = "e
 
 def _levenshtein_within(names: np.ndarray, d_sim: float) -> np.ndarray:
     """(u, u) bool: label j within ``d_sim`` token edits of label i."""
-    from tap_bench.similarity.sdl_distance import label_set, levenshtein_matrix
-
     table = pd.DataFrame({"scenario_id": [f"l{i}" for i in range(len(names))],
                           "track_id": "0", "sdl": names})
     sides = [sdl.parse_sdl(str(text)) for text in names]

@@ -31,7 +31,8 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.bench.measures import MEASURES, ego_measures
-from tap_bench.errors import LabelTableError, TrajectoryTableError
+from tap_bench.errors import LabelTableError, ParameterError, TrajectoryTableError
+from tap_bench.labelling import tap
 
 __all__ = ["EPISODE_COLUMNS", "ego_labels", "episode_table", "episodes_from_table"]
 
@@ -112,7 +113,8 @@ def episode_table(*, labels: pd.DataFrame | None = None,
             message names the column and the fix.
     """
     if labels is None and trajectories is None and episodes is None:
-        raise ValueError("episode_table needs labels, trajectories or episodes.")
+        raise ParameterError("labels, trajectories, episodes", None, "",
+            message="episode_table needs labels, trajectories or episodes.")
     out = None
     if trajectories is not None:
         out = ego_measures(trajectories)  # every scenario with an ego, labelled or not
@@ -201,8 +203,6 @@ def episodes_from_table(table: pd.DataFrame, *, level: str, thresholds: str = "p
     Returns:
         (episode table, label table, trajectory table or None).
     """
-    from tap_bench.labelling import tap
-
     if "sdl" in table.columns:
         return episode_table(labels=table, level=level, policy=policy, source=source), \
             table, None

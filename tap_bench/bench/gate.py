@@ -40,6 +40,7 @@ from tap_bench.errors import (
     FileFormatError,
     UnknownNameError,
 )
+from tap_bench.tableio import atomic_path
 
 __all__ = ["BASELINE_FORMAT", "GateResult", "check", "holm", "read_baseline", "write_baseline"]
 
@@ -115,8 +116,6 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
         BaselineError: the run has no episode, or an (env, policy) of it has no episode that
             ran to the end: such a baseline would test nothing there.
     """
-    from tap_bench.tableio import atomic_path
-
     ok = episodes[episodes["status"] == "ok"]
     run = run_summary.get("run")
     if ok.empty:

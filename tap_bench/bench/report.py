@@ -24,6 +24,7 @@ import pandas as pd
 
 from tap_bench.bench.measures import MEASURES
 from tap_bench.bench.scoring import Scores
+from tap_bench.tableio import atomic_path
 
 __all__ = ["write_plots", "write_report"]
 
@@ -292,8 +293,6 @@ def _img(path: Path, alt: str) -> str:
 def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: pd.DataFrame,
                  scores: Scores) -> Path:
     """Write ``plots/*.png`` and ``report.html`` into a run folder; returns the HTML path."""
-    from tap_bench.tableio import atomic_path
-
     folder = Path(folder)
     plots = {p.stem: p for p in write_plots(scores, folder / "plots")}
     suite = summary.get("suite", {})
@@ -308,7 +307,10 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
         ("SDL level", summary.get("level", "")),
         ("thresholds", _thresholds_text(summary.get("thresholds"))),
         ("reference policy", summary.get("reference_policy", "")),
-        ("WOMD files", ", ".join(Path(p).name for p in summary.get("womd_files", [])) or "–"),
+        ("references", "; ".join(
+            f"{name}: " + (", ".join(Path(p).name for p in src) if isinstance(src, list)
+                           else Path(str(src)).name)
+            for name, src in summary.get("references", {}).items()) or "–"),
         ("episodes", f"{summary.get('n_episodes', len(episodes))} "
                      f"({summary.get('n_failed', 0)} failed)"),
         ("created", summary.get("created", "")),

@@ -33,7 +33,7 @@ import os
 import sys
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -42,14 +42,19 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.bench.episodes import episode_table
+from tap_bench.bench.report import write_report
+from tap_bench.bench.scenarios import match_scenarios
 from tap_bench.bench.scoring import Scores, score
 from tap_bench.bench.suite import Suite, load_suite
-from tap_bench.errors import FileFormatError, RunExistsError
+from tap_bench.errors import FileFormatError, ParameterError, RunExistsError
 from tap_bench.execution import Backend, resolve_backend
 from tap_bench.labelling import tap
-from tap_bench.sim.rollout import rollout
+from tap_bench.labels import validate_labels
+from tap_bench.sim.policies import PolicyDefinition
+from tap_bench.sim.rollout import resolve_policy, rollout
 from tap_bench.sim.suite import Scenario
-from tap_bench.tableio import atomic_folder, check_folder_output
+from tap_bench.sources import read_womd
+from tap_bench.tableio import atomic_folder, atomic_path, check_folder_output, read_table
 from tap_bench.thresholds import Thresholds, resolve_thresholds
 
 __all__ = ["RunExistsError", "RunResult", "check_output", "package_versions", "read_run",
@@ -94,7 +99,8 @@ class _Task:
 
     env: str
     scenario: Scenario
-    policy: str
+    policy: str  # the policy's name
+    definition: PolicyDefinition
     seed: int
     thresholds: Thresholds
     level: str
@@ -106,7 +112,7 @@ def _run_task(task: _Task) -> dict[str, Any]:
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        trajectories, episodes = rollout(task.scenario, task.policy, [task.seed],
+        trajectories, episodes = rollout(task.scenario, task.definition, [task.seed],
                                          progress=False)
     t1 = time.perf_counter()
     labels = pd.DataFrame()
@@ -134,8 +140,9 @@ def _failed_task(task: _Task, message: str) -> dict[str, Any]:
 
 def _tasks(suite: Suite, thresholds: Thresholds, keep: bool) -> list[_Task]:
     scenarios = {env: suite.scenario(env) for env in suite.envs}  # resolved once
-    return [_Task(env, scenarios[env], policy, seed, thresholds, suite.level, keep)
-            for env in suite.envs for policy in suite.policies for seed in suite.seeds]
+    definitions = [resolve_policy(policy) for policy in suite.policies]  # built once here
+    return [_Task(env, scenarios[env], d.name, d, seed, thresholds, suite.level, keep)
+            for env in suite.envs for d in definitions for seed in suite.seeds]
 
 
 def _rollouts(suite: Suite, thresholds: Thresholds, backend: Backend, keep: bool,
@@ -173,6 +180,7 @@ def _machine() -> dict[str, Any]:
 
 def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
               workers: int = 2, womd: Sequence[str | os.PathLike] | None = None,
+              references: Mapping[str, ReferenceSource] | None = None,
               keep_trajectories: bool = True, overwrite: bool = False,
               progress: bool | None = None, report: bool = True,
               backend: Backend | None = None) -> RunResult:
@@ -182,8 +190,12 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         suite: a :class:`Suite`, a suite name (``default``) or a suite JSON path.
         output: the run folder to create (``results/run-001``).
         workers: rollout processes (1: in this process).
-        womd: WOMD files (TFRecord or ScenarioNet pickles) to label as a second coverage
-            and novelty reference, and to match highway-env scenarios against.
+        womd: WOMD files (TFRecord or ScenarioNet pickles): shorthand for
+            ``references={"WOMD": womd}``.
+        references: more coverage and novelty references, by name: a label table
+            (DataFrame, or a .parquet/.csv label file), or driving-data files of any
+            registered format (a path or a list of paths), which are labelled with the
+            suite's thresholds and also matched scenario by scenario against the episodes.
         keep_trajectories: also write ``trajectories.parquet``.
         overwrite: replace an existing run folder.
         progress: progress bar (None: only on a terminal).
@@ -204,14 +216,21 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     thresholds = resolve_thresholds(suite.thresholds)
     timings: dict[str, float] = {}
     t_start = time.perf_counter()
-    womd_labels = womd_traj = None
+    sources = dict(references or {})
     if womd:
-        t0 = time.perf_counter()
-        womd_traj, womd_labels = _label_womd(womd, suite)
-        timings["womd"] = time.perf_counter() - t0
+        if "WOMD" in sources:
+            raise ParameterError("references", sorted(sources), "names other than 'WOMD' "
+                                 "when womd= is given (womd= is references={'WOMD': ...})")
+        sources["WOMD"] = list(womd)
+    t0 = time.perf_counter()
+    corpora = {name: _reference(name, source, suite) for name, source in sources.items()}
+    if corpora:
+        timings["references"] = time.perf_counter() - t0
+    with_trajectories = any(traj is not None for traj, _ in corpora.values())
 
     t0 = time.perf_counter()
-    results = _rollouts(suite, thresholds, runner, keep_trajectories or bool(womd), progress)
+    results = _rollouts(suite, thresholds, runner, keep_trajectories or with_trajectories,
+                        progress)
     timings["rollouts_wall"] = time.perf_counter() - t0
     for key in ("rollout", "labelling", "measures"):
         timings[f"{key}_cpu_in_workers"] = sum(r["timings"].get(key, 0.0) for r in results)
@@ -221,21 +240,21 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     labels = pd.concat([r["labels"] for r in results if len(r["labels"])], ignore_index=True) \
         if any(len(r["labels"]) for r in results) else pd.DataFrame()
     trajectories = None
-    if keep_trajectories or womd:
+    if keep_trajectories or with_trajectories:
         frames = [r["trajectories"] for r in results
                   if r["trajectories"] is not None and len(r["trajectories"])]
         trajectories = pd.concat(frames, ignore_index=True) if frames else None
 
     t0 = time.perf_counter()
-    matches = None
-    if womd_labels is not None and len(labels):
-        from tap_bench.bench.scenarios import match_scenarios
-
-        matches = match_scenarios(labels, trajectories, womd_labels, womd_traj,
-                                  level=suite.level, top=3)
-    references = {"WOMD": womd_labels} if womd_labels is not None else None
+    matches = []
+    for name, (ref_traj, ref_labels) in corpora.items():
+        if ref_traj is not None and len(labels):
+            matches.append(match_scenarios(labels, trajectories, ref_labels, ref_traj,
+                                           level=suite.level, top=3).assign(reference=name))
     scores = score(episodes, reference_policy=suite.reference, level=suite.level,
-                   config=suite.bootstrap, references=references, scenario_matches=matches)
+                   config=suite.bootstrap,
+                   references={name: lab for name, (_, lab) in corpora.items()} or None,
+                   scenario_matches=pd.concat(matches, ignore_index=True) if matches else None)
     timings["scoring"] = time.perf_counter() - t0
 
     failed = episodes[episodes["status"] != "ok"]
@@ -247,7 +266,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "thresholds": thresholds.to_dict() if hasattr(thresholds, "to_dict") else
         str(suite.thresholds),
         "reference_policy": suite.reference,
-        "womd_files": [str(p) for p in womd] if womd else [],
+        "references": {name: _describe_source(source) for name, source in sources.items()},
         "versions": package_versions(), "machine": _machine(),
         "n_episodes": len(episodes), "n_failed": len(failed),
         "failed": failed[["env", "policy", "seed", "error"]].to_dict("records"),
@@ -264,15 +283,39 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     return RunResult(folder, summary, episodes, scores, folder / "report.html")
 
 
-def _label_womd(paths, suite: Suite) -> tuple[pd.DataFrame, pd.DataFrame]:
-    from tap_bench.labelling import tap
-    from tap_bench.womd import read_womd
+ReferenceSource = pd.DataFrame | str | os.PathLike | Sequence[str | os.PathLike]
+"""A coverage reference: a label table, a label file, or driving-data files."""
 
+_LABEL_SUFFIXES = (".parquet", ".pq", ".csv", ".csv.gz")
+
+
+def _reference(name: str, source: ReferenceSource, suite: Suite
+               ) -> tuple[pd.DataFrame | None, pd.DataFrame]:
+    """(trajectories or None, label table) of one named reference."""
+    if isinstance(source, pd.DataFrame):
+        validate_labels(source, suite.level, source=f"reference {name!r}")
+        return None, source
+    paths = [source] if isinstance(source, str | os.PathLike) else list(source)
+    if not paths:
+        raise ParameterError(f"references[{name!r}]", source, "a label table or data files")
+    if len(paths) == 1 and str(paths[0]).lower().endswith(_LABEL_SUFFIXES):
+        table = read_table(paths[0])
+        if "sdl" in table.columns:  # a label file
+            validate_labels(table, suite.level, source=str(paths[0]))
+            return None, table
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         traj = read_womd([str(p) for p in paths])
-        labels = tap(traj, suite.thresholds, source="WOMD").labels("all")
+        labels = tap(traj, suite.thresholds, source=name).labels("all")
     return traj, labels
+
+
+def _describe_source(source: ReferenceSource) -> Any:
+    if isinstance(source, pd.DataFrame):
+        return f"a label table of {len(source)} rows"
+    if isinstance(source, str | os.PathLike):
+        return str(source)
+    return [str(p) for p in source]
 
 
 def _headline(scores: Scores, episodes: pd.DataFrame) -> dict[str, Any]:
@@ -299,8 +342,6 @@ def _round(x: float) -> float | None:
 
 
 def _write_json(path: Path, doc: dict[str, Any]) -> None:
-    from tap_bench.tableio import atomic_path
-
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(doc, indent=2, default=_json_default) + "\n")
 
@@ -342,8 +383,6 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
                 _parquet_safe(table).to_parquet(tmp / f"{name}.parquet", index=False)
         _write_json(tmp / "summary.json", summary)
         if report:
-            from tap_bench.bench.report import write_report
-
             write_report(tmp, summary, episodes, scores)
     return Path(output)
 

@@ -31,7 +31,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="rollout processes (default 2)")
     r.add_argument("--womd", nargs="+", metavar="FILE",
                    help="WOMD files (TFRecord, ScenarioNet .pkl): a second coverage reference, "
-                   "and each episode matched to its nearest WOMD scenarios")
+                   "and each episode matched to its nearest WOMD scenarios (the same as "
+                   "--reference WOMD=FILE,...)")
+    r.add_argument("--reference", action="append", default=[], metavar="NAME=FILE[,FILE]",
+                   help="another coverage and novelty reference: a label file (.parquet, "
+                   ".csv with an sdl column) or driving-data files of any format 'tap-bench "
+                   "ingest' reads; repeatable")
     r.add_argument("--no-trajectories", action="store_true",
                    help="do not write trajectories.parquet")
     r.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
@@ -59,6 +64,20 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
+def _references(specs: list[str]) -> dict[str, list[str]]:
+    from tap_bench.errors import ParameterError
+
+    out: dict[str, list[str]] = {}
+    for spec in specs:
+        name, sep, files = spec.partition("=")
+        if not sep or not name or not files:
+            raise ParameterError("--reference", spec, "NAME=FILE or NAME=FILE,FILE,...")
+        if name in out:
+            raise ParameterError("--reference", spec, "a name used once")
+        out[name] = files.split(",")
+    return out
+
+
 def run_bench(args: argparse.Namespace) -> int:
     from tap_bench.bench.demo import timing_split
     from tap_bench.bench.runner import run_suite
@@ -67,6 +86,7 @@ def run_bench(args: argparse.Namespace) -> int:
     backend = backend_from_args(args) if args.backend != "local" or args.address else None
     try:
         result = run_suite(args.suite, args.output, workers=args.workers, womd=args.womd,
+                           references=_references(args.reference),
                            keep_trajectories=not args.no_trajectories,
                            overwrite=args.overwrite,
                            progress=progress_choice(args), backend=backend)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from tap_bench.cli.progress import add_progress_arguments, progress_choice
 from tap_bench.execution import add_backend_arguments
-from tap_bench.womd.ingest import FORMATS, ON_ERROR, ingest_womd, report_path
+from tap_bench.sources.ingest import ON_ERROR, formats, ingest_womd, report_path
 from tap_bench.womd.tfrecord import MAX_RECORD_BYTES
 
 
@@ -40,7 +40,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     w.add_argument("--on-error", default="stop", choices=ON_ERROR,
                    help="at a bad record: stop (default, nothing is written) or skip it and "
                    "list it in the report")
-    w.add_argument("--format", default="auto", choices=FORMATS,
+    w.add_argument("--format", default="auto", choices=formats(),
                    help="input format (default: auto, per file)")
     w.add_argument("--no-crc", action="store_true",
                    help="do not check the CRC-32C of records (trusted local copies only)")

@@ -13,6 +13,7 @@ from collections.abc import Collection
 
 from stable_baselines3.common.callbacks import BaseCallback
 
+from tap_bench.errors import ParameterError
 from tap_bench.sim.coverage import label_coverage
 
 __all__ = ["CoverageCallback"]
@@ -36,7 +37,8 @@ class CoverageCallback(BaseCallback):
                  level: str = "action", verbose: int = 0) -> None:
         super().__init__(verbose)
         if window < 1:
-            raise ValueError(f"CoverageCallback: window must be >= 1 episode, got {window}.")
+            raise ParameterError("window", window, "",
+                message=f"CoverageCallback: window must be >= 1 episode, got {window}.")
         self.window = window
         self.reference = reference
         self.level = level

@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Collection, Iterable
 
 from tap_bench import sdl
+from tap_bench.errors import ParameterError
 
 __all__ = ["label_coverage", "vocabulary_tokens"]
 
@@ -46,5 +47,6 @@ def label_coverage(sdl_labels: Iterable[str], reference: Collection[str] | None 
         reference = set(reference)
         seen = labels
     if not reference:
-        raise ValueError("label_coverage: the reference set is empty.")
+        raise ParameterError("reference", reference, "",
+            message="label_coverage: the reference set is empty.")
     return len(seen & set(reference)) / len(reference)

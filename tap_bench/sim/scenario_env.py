@@ -24,6 +24,7 @@ from typing import Any
 import gymnasium as gym
 import pandas as pd
 
+from tap_bench import catalogue
 from tap_bench.errors import FileFormatError, TapBenchError, did_you_mean
 from tap_bench.sim.recorder import TrajectoryRecorder
 from tap_bench.sim.suite import (
@@ -32,7 +33,6 @@ from tap_bench.sim.suite import (
     env_class,
     load_scenario,
     scenario_names,
-    suite_dir,
 )
 from tap_bench.sim.vehicles import LANE_CHANGE_SETTINGS, apply_lane_change, guard_class_attributes
 
@@ -69,7 +69,7 @@ def get_scenario(name: str | os.PathLike | Scenario) -> Scenario:
         known = scenario_names()
         if short not in known:
             raise did_you_mean("scenario", text, known)
-        path = suite_dir("envs") / f"{short}.json"
+        path = catalogue.files("envs")[short]
         scenario = _load_cached(str(path), path.stat().st_mtime)
         if version is not None and int(version) != scenario.version:
             raise TapBenchError(f"scenario {text!r}: the suite has {scenario.env_id}; version "

@@ -26,6 +26,8 @@ import copy
 import functools
 import inspect
 import json
+import math
+import operator
 import os
 import re
 from collections.abc import Mapping
@@ -33,9 +35,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
+from tap_bench import catalogue
 from tap_bench.errors import FileFormatError, ParameterError, did_you_mean
+from tap_bench.sim.vehicles import LANE_CHANGE_SETTINGS
 from tap_bench.trajectories import HZ
 
 __all__ = [
@@ -67,14 +69,14 @@ _OWNED_KEYS = {
 
 
 def suite_dir(kind: str) -> Path:
-    """The folder of the suite's ``kind`` files (``"envs"`` or ``"policies"``).
+    """The last (built-in, or ``$TAP_BENCH_SUITE``) folder of ``kind`` files (``"envs"`` or
+    ``"policies"``); :mod:`tap_bench.catalogue` searches every folder."""
+    return catalogue.roots()[-1] / catalogue.KINDS[kind]
 
-    ``$TAP_BENCH_SUITE`` (a folder holding ``envs/`` and ``policies/``) takes precedence;
-    otherwise the folders at the root of the tap-bench source tree are used.
-    """
-    root = os.environ.get("TAP_BENCH_SUITE")
-    base = Path(root) if root else Path(__file__).resolve().parents[2]
-    return base / kind
+
+def _seeds_error(source: str, spec: object, message: str) -> ParameterError:
+    return ParameterError(source, spec, "seeds as '0-49', '1,4,7', an int or a list",
+                          message=message)
 
 
 MAX_SEEDS = 100_000
@@ -95,17 +97,12 @@ def parse_seeds(spec: str | int | list[int] | range, *, source: str = "seeds") -
         the seeds in the order given, duplicates refused.
 
     Raises:
-        ParameterError: (a ValueError) naming ``source``, the value and what is allowed: a
-            part that is not a seed or a range of seeds, a seed given twice, or more than
-            :data:`MAX_SEEDS` seeds.
+        ParameterError: naming ``source`` and the part that is not a seed or a range of
+            seeds, a seed given twice, or more than :data:`MAX_SEEDS` seeds.
     """
-    form = "seeds written '0-49' (inclusive) or '1,4,7' (non-negative integers)"
-
-    def bad(value: object, allowed: str = form, hint: str = "") -> ParameterError:
-        return ParameterError(source, value, allowed, hint=hint)
-
     if isinstance(spec, bool):
-        raise bad(spec, hint=f"{spec!r} is not a seed.")
+        raise _seeds_error(source, spec, f"{source}: {spec!r} is not a seed; "
+                                         f"give an int, '0-49' or '1,4,7'.")
     ranges: list[range] = []
     if isinstance(spec, int):
         ranges = [range(spec, spec + 1)]
@@ -113,42 +110,58 @@ def parse_seeds(spec: str | int | list[int] | range, *, source: str = "seeds") -
         ranges = [spec]
     elif isinstance(spec, list | tuple):
         if len(spec) > MAX_SEEDS:
-            raise bad(f"{len(spec):,} seeds", _AT_MOST, _SPLIT)
+            raise _too_many(source, f"{len(spec):,} seeds", len(spec))
         for s in spec:
-            if isinstance(s, bool) or not isinstance(s, int | np.integer):
-                raise bad(s, "an integer seed", "Every seed of a list is an integer.")
-        ranges = [range(int(s), int(s) + 1) for s in spec]
+            try:
+                if isinstance(s, bool):
+                    raise TypeError(s)
+                ranges.append(range(operator.index(s), operator.index(s) + 1))
+            except TypeError:
+                raise _seeds_error(source, spec, f"{source}: {s!r} in the list is not an "
+                                   "integer seed.") from None
     elif isinstance(spec, str):
         for part in spec.replace(" ", "").split(","):
             match = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
             if not match:
-                raise bad(spec, hint=f"{part!r} is not a seed or a range.")
+                raise _seeds_error(source, spec, f"{source}: {part!r} in {spec!r} is not a seed "
+                                   "or a range; write seeds as '0-49' (inclusive) or '1,4,7' "
+                                   "(non-negative).")
             lo = int(match.group(1))
             hi = int(match.group(2)) if match.group(2) else lo
             if hi < lo:
-                raise bad(spec, hint=f"The range {part!r} runs backwards; write '{hi}-{lo}'.")
+                raise _seeds_error(source, spec, f"{source}: range {part!r} runs backwards; "
+                                                 f"write '{hi}-{lo}'.")
             ranges.append(range(lo, hi + 1))
     else:
-        raise bad(spec)
+        raise _seeds_error(source, spec, f"{source}: {spec!r} is not a seed list; "
+                                         f"give '0-49', an int or a list.")
     count = sum(len(r) for r in ranges)
     if count > MAX_SEEDS:
-        raise bad(spec if isinstance(spec, str) else f"{count:,} seeds", _AT_MOST,
-                  f"It names {count:,}. {_SPLIT}")
+        raise _too_many(source, spec if isinstance(spec, str) else f"{count:,} seeds", count)
     if count == 0:
-        raise bad(spec, hint="It names no seed.")
+        raise _seeds_error(source, spec, f"{source}: no seeds given.")
     low = min(r.start for r in ranges if len(r))
     high = max(r[-1] for r in ranges if len(r))
     if low < 0:
-        raise bad(low, "a non-negative seed")
+        raise _seeds_error(source, spec, f"{source}: seeds must be non-negative, got {low}.")
     if high > MAX_SEED:
-        raise bad(high, f"a seed at most {MAX_SEED} (2^63 - 1), the largest a table stores")
+        raise _seeds_error(source, spec, f"{source}: seed {high} is larger than {MAX_SEED} "
+                                         "(2^63 - 1), the largest a table stores.")
     seeds = [s for r in ranges for s in r]
     if len(set(seeds)) != len(seeds):
         seen: set[int] = set()
         dup = next(s for s in seeds if s in seen or seen.add(s))
-        raise bad(spec if isinstance(spec, str) else f"{count:,} seeds", "each seed once",
-                  f"Seed {dup} is given twice; each seed is one episode.")
+        raise _seeds_error(source, spec if isinstance(spec, str) else f"{count:,} seeds",
+                           f"{source}: seed {dup} is given twice; each seed is one episode.")
     return seeds
+
+
+def _too_many(source: str, value: object, count: int) -> ParameterError:
+    return ParameterError(
+        source, value, f"at most {MAX_SEEDS:,} seeds", message=(
+            f"{source}: {count:,} seeds, more than the maximum of {MAX_SEEDS:,} "
+            "(tap_bench.sim.suite.MAX_SEEDS) in one list; run the seeds in several lists "
+            "(say '0-99999', then '100000-199999')."))
 
 
 _AT_MOST = f"at most {MAX_SEEDS:,} seeds (tap_bench.sim.suite.MAX_SEEDS)"
@@ -392,11 +405,11 @@ def _build(doc: Any, *, source: str, path: Path | None) -> Scenario:
     if not isinstance(version, int) or isinstance(version, bool) or version < 0:
         raise FileFormatError(f"{source}: version {version!r} must be a non-negative integer.")
     duration = doc["duration"]
-    if not isinstance(duration, int | float) or isinstance(duration, bool) or duration <= 0:
+    if not isinstance(duration, int | float) or isinstance(duration, bool) \
+            or not math.isfinite(duration) or duration <= 0:
         raise FileFormatError(f"{source}: duration {duration!r} must be a positive number of "
                               "seconds.")
     lane_change = doc.get("lane_change", "default")
-    from tap_bench.sim.vehicles import LANE_CHANGE_SETTINGS
 
     if lane_change not in LANE_CHANGE_SETTINGS:
         err = did_you_mean("lane-change setting", lane_change, LANE_CHANGE_SETTINGS)
@@ -454,5 +467,6 @@ def load_scenario(path: str | os.PathLike) -> Scenario:
 
 def scenario_names(folder: str | os.PathLike | None = None) -> list[str]:
     """Names of the scenario files in ``folder`` (default: the suite's ``envs/``)."""
-    folder = Path(folder) if folder else suite_dir("envs")
-    return sorted(p.stem for p in folder.glob("*.json"))
+    if folder:
+        return sorted(p.stem for p in Path(folder).glob("*.json"))
+    return sorted(catalogue.files("envs"))

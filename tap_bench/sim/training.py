@@ -18,6 +18,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from tap_bench.errors import ParameterError
+from tap_bench.sim.sb3 import algorithm_class
+from tap_bench.sim.scenario_env import get_scenario, make_env
+from tap_bench.sim.wrappers import EpisodeLabels
 from tap_bench.tableio import atomic_path
 
 __all__ = ["HYPERPARAMETERS", "TrainingResult", "train"]
@@ -77,15 +81,12 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
     Raises:
         ValueError: ``timesteps`` or ``output`` is not usable.
     """
-    from tap_bench.sim.sb3 import algorithm_class
-    from tap_bench.sim.scenario_env import get_scenario, make_env
-
     output = Path(output)
     if output.suffix != ".zip":
-        raise ValueError(f"output {output}: a Stable-Baselines3 model is a .zip file; name it "
-                         f"{output.with_suffix('.zip').name}.")
-    if timesteps < 1:
-        raise ValueError(f"timesteps must be >= 1, got {timesteps}.")
+        raise ParameterError("output", str(output), "a .zip file (a Stable-Baselines3 model)",
+                             hint=f"Name it {output.with_suffix('.zip').name}.")
+    if isinstance(timesteps, bool) or not isinstance(timesteps, int) or timesteps < 1:
+        raise ParameterError("timesteps", timesteps, "an integer >= 1")
     cls = algorithm_class(algo)
     algo = algo.lower()
     import torch
@@ -98,10 +99,10 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
     gym_env = make_env(scenario, record=coverage)
     callbacks = []
     if coverage:
-        from tap_bench.sim.callbacks import CoverageCallback
-        from tap_bench.sim.wrappers import EpisodeLabels
-
         gym_env = EpisodeLabels(gym_env, tracks="ego")
+        # callbacks.py subclasses SB3's BaseCallback: imported only where SB3 is installed
+        from tap_bench.sim.callbacks import CoverageCallback
+
         callbacks.append(CoverageCallback(window=coverage_window))
     gym_env = Monitor(gym_env)
     model = cls("MlpPolicy", gym_env, seed=seed, verbose=verbose, device="cpu", **params)

@@ -24,6 +24,7 @@ from tap_bench.errors import StateDecodeError, did_you_mean
 from tap_bench.trajectories import OBJECT_TYPES
 from tap_bench.womd import proto
 from tap_bench.womd.tfrecord import Record
+from tap_bench.womd.writer import restore_extra_columns
 
 __all__ = ["SCENARIO_COLUMNS", "STATE_COLUMNS", "StateDecodeError", "decode_object_states",
            "decode_scenario", "normalise_object_types", "repeated_strings",
@@ -450,12 +451,10 @@ def decode_scenario(record: Record, *, object_types: frozenset[str] | None = Non
         track_to_predict=to_predict[kept_arr], prediction_difficulty=difficulty[kept_arr],
         source=source)
     if any(extra_json):
-        from tap_bench.womd.writer import restore_extra_columns
-
         try:
             table = restore_extra_columns(table, extra_json, n_steps)
         except ValueError as err:
-            raise record.error(f"the tap-bench columns (Track field 1000) cannot be read: "
+            raise record.error(f"the tap-bench columns (Track field 51002) cannot be read: "
                                f"{err}", _INCONSISTENT) from None
     return table
 

@@ -103,3 +103,55 @@ def test_workers_give_the_same_episodes(tmp_path):
     cols = ["env", "policy", "seed", "sdl", "mean_speed", "rms_jerk", "crashed"]
     pd.testing.assert_frame_equal(one.episodes[cols], two.episodes[cols])
     assert np.isfinite(one.episodes["mean_speed"]).all()
+
+
+KILLER = '''
+import os
+from tap_bench.sim.policies import LaneKeepingPolicy
+
+class KillsOnSeed(LaneKeepingPolicy):
+    """Keeps its lane; its worker process dies in the episode of seed 1."""
+
+    def reset(self, env, *, seed):
+        self._seed = seed
+        super().reset(env, seed=seed)
+
+    def act(self, observation):
+        if self._seed == 1:
+            os._exit(9)
+        return super().act(observation)
+'''
+
+
+def test_a_policy_that_kills_its_worker_costs_only_its_own_episodes(tmp_path, monkeypatch):
+    # The killer is listed first: under the old pool every pending episode failed with it,
+    # healthy IDM ones included.
+    (tmp_path / "killer_policy.py").write_text(KILLER)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    definition = tmp_path / "killer.json"
+    definition.write_text(json.dumps({"name": "killer", "kind": "import",
+                                      "params": {"factory": "killer_policy:KillsOnSeed"}}))
+    suite = tiny([str(definition), "idm"], seeds="0-3")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = run_suite(suite, tmp_path / "run", workers=2, progress=False, report=False)
+    eps = result.episodes.set_index(["policy", "seed"])["status"]
+    assert eps.loc[("idm", slice(None))].eq("ok").all()
+    assert eps.loc[("killer", 1)] == "error"
+    assert eps.loc[("killer", [0, 2, 3])].eq("ok").all()
+    failed = result.episodes[result.episodes["status"] != "ok"]
+    assert "died" in failed["error"].iloc[0]
+
+
+def test_a_named_label_table_is_a_reference(tmp_path):
+    from tap_bench.labelling import label
+    from tap_bench.sim.rollout import rollout
+
+    trajectories, _ = rollout("merge", "idm", [5, 6], duration=3, progress=False)
+    mine = label(trajectories, level="maneuver")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = run_suite(tiny(["idm", "lane-keeping"]), tmp_path / "run", workers=1,
+                           progress=False, report=False, references={"my corpus": mine})
+    assert "my corpus" in set(result.scores.coverage["reference"])
+    assert result.summary["references"] == {"my corpus": f"a label table of {len(mine)} rows"}

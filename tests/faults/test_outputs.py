@@ -162,7 +162,7 @@ def test_two_outputs_on_one_path_are_refused(tmp_path, cli, trajectories):
 
 
 def test_ingest_refuses_an_output_that_is_an_input(tmp_path):
-    from tap_bench.womd.ingest import ingest_womd
+    from tap_bench.sources.ingest import ingest_womd
 
     path = tmp_path / "odd.parquet"
     path.write_bytes(b"\x00" * 20)

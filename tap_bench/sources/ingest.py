@@ -1,12 +1,14 @@
-"""WOMD files in, one trajectory table out: streaming, in worker processes, with a report.
+"""Driving-data files in, one trajectory table out: streaming, in worker processes, with a
+report.
 
 :func:`iter_womd` yields one table per scenario and holds one record at a time, so data
 sets larger than memory can be processed scenario by scenario; :func:`read_womd` gathers
 them into one table; :func:`ingest_womd` streams them into a Parquet file, written
 atomically, decoding batches of records in worker processes.
 
-Three input formats, told apart per file (``format="auto"``): TFRecords of ``Scenario``
-protos (``uncompressed/scenario/...``), TFRecords of motion ``tf.Example`` protos
+The input formats are the registered readers (:mod:`tap_bench.sources.registry`), told
+apart per file with ``format="auto"``; built in: TFRecords of ``Scenario`` protos
+(``uncompressed/scenario/...``), TFRecords of motion ``tf.Example`` protos
 (``uncompressed/tf_example/...``), and ScenarioNet scenario pickles (``*.pkl``).
 """
 
@@ -32,16 +34,15 @@ import pyarrow.parquet as pq
 
 from tap_bench.errors import FileFormatError, ParameterError, WomdRecordError, did_you_mean
 from tap_bench.execution import Backend, LocalBackend
+from tap_bench.sources import builtin  # noqa: F401 (the built-in readers are registered)
+from tap_bench.sources.registry import Reader, get_reader, reader_names, readers
 from tap_bench.tableio import atomic_paths, check_outputs
-from tap_bench.womd.scenario import decode_scenario, normalise_object_types
-from tap_bench.womd.scenarionet import decode_scenarionet, load_scenarionet
-from tap_bench.womd.tf_example import decode_tf_example, is_motion_example
+from tap_bench.womd.scenario import SCENARIO_COLUMNS, normalise_object_types
 from tap_bench.womd.tfrecord import MAX_RECORD_BYTES, Record, iter_records, looks_like_tfrecord
 
-__all__ = ["FORMATS", "IngestReport", "expand_paths", "ingest_womd", "iter_womd", "read_womd",
+__all__ = ["IngestReport", "expand_paths", "formats", "ingest_womd", "iter_womd", "read_womd",
            "record_files"]
 
-FORMATS = ("auto", "scenario", "tf_example", "scenarionet")
 ON_ERROR = ("stop", "skip")
 BATCH_BYTES = 8 << 20
 """Records are sent to worker processes in batches of about this many bytes."""
@@ -153,15 +154,16 @@ def record_files(paths: str | os.PathLike | Iterable[str | os.PathLike],
                 note(f"{files[0]}: the file is empty (0 bytes): no records in it.")
             kept.extend(files)
             continue
-        good = [p for p in files if p.suffix == ".pkl" or looks_like_tfrecord(p)]
+        good = [p for p in files if _file_reader(p) is not None or looks_like_tfrecord(p)]
         for p in files:
             if p not in good:
                 what = ("empty" if p.stat().st_size == 0 else
-                        "not a TFRecord or ScenarioNet file")
+                        "not a TFRecord nor a file a reader claims by its name")
                 note(f"{p}: skipped, {what}.")
         if not good:
             raise FileFormatError(f"{item}: no TFRecord or ScenarioNet (*.pkl) file there; "
-                                  f"{len(files)} other file(s) left out.")
+                                  f"{len(files)} other file(s) left out. Readers: "
+                                  f"{', '.join(reader_names())}.")
         kept.extend(good)
     return list(dict.fromkeys(kept))
 
@@ -172,15 +174,34 @@ def _check_choice(kind: str, value: str, allowed: tuple[str, ...]) -> str:
     return value
 
 
-def _file_format(path: Path, format: str, check_crc: bool, max_record_bytes: int) -> str:
+def formats() -> tuple[str, ...]:
+    """``"auto"`` and the registered formats (:mod:`tap_bench.sources.registry`)."""
+    return ("auto", *reader_names())
+
+
+def _file_format(path: Path, format: str, check_crc: bool,
+                 max_record_bytes: int = MAX_RECORD_BYTES) -> Reader:
+    """The reader of ``path``: the one asked for, or the one that claims it (``auto``): a
+    file reader by its name's ending, else the first TFRecord reader whose ``sniff`` accepts
+    the first record, else the TFRecord fallback (``sniff=None``)."""
     if format != "auto":
-        return format
-    if path.suffix == ".pkl":
-        return "scenarionet"
+        return get_reader(format)
+    if _file_reader(path) is not None:
+        return _file_reader(path)
+    tfrecord = [r for r in readers() if r.framing == "tfrecord"]
+    fallback = next((r for r in reversed(tfrecord) if r.sniff is None), tfrecord[-1])
     for record in iter_records(path, check_crc=check_crc, on_error=lambda err: None,
                                max_record_bytes=max_record_bytes):
-        return "tf_example" if is_motion_example(record.data) else "scenario"
-    return "scenario"
+        return next((r for r in tfrecord if r.sniff is not None and r.sniff(record.data)),
+                    fallback)
+    return fallback
+
+
+def _file_reader(path: Path) -> Reader | None:
+    """The reader of whole files whose name ending ``path`` has (``.pkl``), if any."""
+    name = path.name.lower()
+    return next((r for r in readers() if r.framing == "file" and name.endswith(r.suffixes)),
+                None)
 
 
 @dataclass
@@ -188,7 +209,7 @@ class _Batch:
     """A unit of work: records of one file, or one ScenarioNet pickle."""
 
     path: str
-    format: str
+    reader: Reader
     records: list[Record]
     size: int
 
@@ -256,10 +277,11 @@ def _decode_records(batch: _Batch, object_types: frozenset[str] | None, skip: bo
     skipped: list[dict] = []
     ids: list[tuple[str, int, int]] = []
     seen: dict[str, int] = {}
+    decode = batch.reader.decode
 
-    def decode_one(index: int, offset: int, decode: Callable[[], pa.Table]) -> None:
+    def decode_one(index: int, offset: int, source: str | Record) -> None:
         try:
-            table = decode()
+            table = decode(source, object_types)
             sid = _scenario_id(table)
             if sid and sid in seen:
                 raise WomdRecordError(batch.path, index, offset, _duplicate(sid, batch.path,
@@ -280,14 +302,11 @@ def _decode_records(batch: _Batch, object_types: frozenset[str] | None, skip: bo
         tables.append(table)
         ids.append((sid, index, offset))
 
-    if batch.format == "scenarionet":
-        decode_one(0, 0, lambda: decode_scenarionet(load_scenarionet(batch.path),
-                                                    path=batch.path, object_types=object_types))
+    if batch.reader.framing == "file":
+        decode_one(0, 0, batch.path)
         return tables, skipped, ids
-    decode = decode_tf_example if batch.format == "tf_example" else decode_scenario
     for record in batch.records:
-        decode_one(record.index, record.offset,
-                   lambda r=record: decode(r, object_types=object_types))
+        decode_one(record.index, record.offset, record)
     return tables, skipped, ids
 
 
@@ -313,11 +332,11 @@ def _batches(files: list[Path], format: str, check_crc: bool, batch_bytes: int,
     for path in files:
         fmt = _file_format(path, format, check_crc, max_record_bytes)
         report.files += 1
-        if fmt == "scenarionet":
+        if fmt.framing == "file":
             size = path.stat().st_size
             if size > max_record_bytes:
                 err = WomdRecordError(
-                    str(path), 0, 0, f"the pickle has {size} bytes, more than the limit of "
+                    str(path), 0, 0, f"the file has {size} bytes, more than the limit of "
                     f"{max_record_bytes} bytes", "Raise the limit (max_record_bytes, "
                     "--max-record-mb) if the file is genuine.")
                 if on_bad_framing is None:
@@ -351,7 +370,7 @@ def _iter_tables(paths, *, format: str, object_types, on_error: str, check_crc: 
                  max_record_bytes: int = MAX_RECORD_BYTES,
                  files: list[Path] | None = None) -> Iterator[pa.Table]:
     """Decoded tables (Arrow) in input order; fills ``report`` as it goes."""
-    _check_choice("format", format, FORMATS)
+    _check_choice("format", format, formats())
     _check_choice("on_error value", on_error, ON_ERROR)
     types = normalise_object_types(object_types)
 
@@ -526,8 +545,6 @@ def read_womd(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
 
 
 def _columns() -> tuple[str, ...]:
-    from tap_bench.womd.scenario import SCENARIO_COLUMNS
-
     return SCENARIO_COLUMNS
 
 
@@ -634,7 +651,6 @@ def ingest_womd(paths: str | os.PathLike | Iterable[str | os.PathLike],
                         flush()
                 flush()
                 if writer is None:  # nothing kept: an empty table with the columns
-                    from tap_bench.womd.scenario import SCENARIO_COLUMNS
 
                     empty = pa.table({c: pa.array([], pa.string()) for c in SCENARIO_COLUMNS})
                     pq.write_table(empty, tmp)
