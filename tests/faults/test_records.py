@@ -20,9 +20,9 @@ import pandas as pd
 import pytest
 
 from tap_bench.errors import WomdRecordError
-from tap_bench.womd import proto
 from tap_bench.sources.ingest import IngestReport, ingest_womd, read_womd
 from tap_bench.sources.scenarionet import decode_scenarionet
+from tap_bench.womd import proto
 from tap_bench.womd.tf_example import Example
 from tap_bench.womd.tfrecord import MAX_RECORD_BYTES, TFRecordWriter, iter_records
 from tap_bench.womd.writer import encode_scenarios
