@@ -105,43 +105,6 @@ def test_workers_give_the_same_episodes(tmp_path):
     assert np.isfinite(one.episodes["mean_speed"]).all()
 
 
-KILLER = '''
-import os
-from tap_bench.sim.policies import LaneKeepingPolicy
-
-class KillsOnSeed(LaneKeepingPolicy):
-    """Keeps its lane; its worker process dies in the episode of seed 1."""
-
-    def reset(self, env, *, seed):
-        self._seed = seed
-        super().reset(env, seed=seed)
-
-    def act(self, observation):
-        if self._seed == 1:
-            os._exit(9)
-        return super().act(observation)
-'''
-
-
-def test_a_policy_that_kills_its_worker_costs_only_its_own_episodes(tmp_path, monkeypatch):
-    # The killer is listed first: under the old pool every pending episode failed with it,
-    # healthy IDM ones included.
-    (tmp_path / "killer_policy.py").write_text(KILLER)
-    monkeypatch.syspath_prepend(str(tmp_path))
-    definition = tmp_path / "killer.json"
-    definition.write_text(json.dumps({"name": "killer", "kind": "import",
-                                      "params": {"factory": "killer_policy:KillsOnSeed"}}))
-    suite = tiny([str(definition), "idm"], seeds="0-3")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        result = run_suite(suite, tmp_path / "run", workers=2, progress=False, report=False)
-    eps = result.episodes.set_index(["policy", "seed"])["status"]
-    assert eps.loc[("idm", slice(None))].eq("ok").all()
-    assert eps.loc[("killer", 1)] == "error"
-    assert eps.loc[("killer", [0, 2, 3])].eq("ok").all()
-    failed = result.episodes[result.episodes["status"] != "ok"]
-    assert "died" in failed["error"].iloc[0]
-
 
 def test_a_named_label_table_is_a_reference(tmp_path):
     from tap_bench.labelling import label
