@@ -10,10 +10,18 @@ What a run folder holds:
                         episodes included with their error
 ``labels.parquet``      TAP labels of every track at every level
 ``trajectories.parquet``  the rollouts (unless ``keep_trajectories`` is False)
+``segments.parquet``    the segment table (label timelines) of every track at the suite's
+                        level
+``roads.parquet``       each env's road network as a map table (:mod:`tap_bench.maps`), for
+                        the replay viewer (with the trajectories)
 ``<table>.parquet``     every table of :class:`tap_bench.bench.scoring.Scores`
 ``plots/*.png``         label distributions, measures, coverage, forest plots, novelty
 ``report.html``         the static report (no server, images embedded)
+<<<<<<< HEAD
 ``.tap-bench-folder``   the marker that lets ``--overwrite`` replace the folder
+=======
+``viewer/``             the replay viewer (:mod:`tap_bench.viewer`; with the trajectories)
+>>>>>>> main
 ======================  ====================================================================
 
 The folder is built under a temporary name beside the target and renamed into place only
@@ -51,13 +59,16 @@ from tap_bench.execution import Backend, resolve_backend
 from tap_bench.labelling import tap
 from tap_bench.labels import validate_labels
 from tap_bench.sim.policies import PolicyDefinition
+from tap_bench.sim.roads import road_table
 from tap_bench.sim.rollout import resolve_policy, rollout
 from tap_bench.sim.suite import Scenario
 from tap_bench.sources import read_womd
 from tap_bench.tableio import atomic_folder, atomic_path, check_folder_output, read_table
 from tap_bench.thresholds import Thresholds, resolve_thresholds
+from tap_bench.viewer import write_run_viewer
 
 __all__ = ["RunExistsError", "RunResult", "check_output", "package_versions", "read_run",
+           "run_viewer",
            "run_suite", "write_results"]
 
 def check_output(output: str | os.PathLike, overwrite: bool) -> Path:
@@ -115,18 +126,19 @@ def _run_task(task: _Task) -> dict[str, Any]:
         trajectories, episodes = rollout(task.scenario, task.definition, [task.seed],
                                          progress=False)
     t1 = time.perf_counter()
-    labels = pd.DataFrame()
+    labels = segments = pd.DataFrame()
     if len(trajectories):
         result = tap(trajectories, task.thresholds,
                      source=f"{task.env}/{task.policy} rollout")
         labels = result.labels("all")
+        segments = result.segments(task.level)
     t2 = time.perf_counter()
     eps = episode_table(labels=labels if len(labels) else None,
                         trajectories=trajectories if len(trajectories) else None,
                         episodes=episodes, level=task.level, policy=task.policy)
     t3 = time.perf_counter()
     timings = {"rollout": t1 - t0, "labelling": t2 - t1, "measures": t3 - t2}
-    return {"episodes": eps, "labels": labels,
+    return {"episodes": eps, "labels": labels, "segments": segments,
             "trajectories": trajectories if task.keep_trajectories else None,
             "timings": timings}
 
@@ -135,7 +147,8 @@ def _failed_task(task: _Task, message: str) -> dict[str, Any]:
     eps = pd.DataFrame({"env": [task.env], "policy": [task.policy], "seed": [task.seed],
                         "status": ["error"], "error": [message]})
     return {"episodes": episode_table(episodes=eps, level=task.level),
-            "labels": pd.DataFrame(), "trajectories": None, "timings": {}}
+            "labels": pd.DataFrame(), "segments": pd.DataFrame(), "trajectories": None,
+            "timings": {}}
 
 
 def _tasks(suite: Suite, thresholds: Thresholds, keep: bool) -> list[_Task]:
@@ -239,6 +252,9 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     episodes = episodes.reset_index(drop=True)
     labels = pd.concat([r["labels"] for r in results if len(r["labels"])], ignore_index=True) \
         if any(len(r["labels"]) for r in results) else pd.DataFrame()
+    segments = pd.concat([r["segments"] for r in results if len(r["segments"])],
+                         ignore_index=True) \
+        if any(len(r["segments"]) for r in results) else None
     trajectories = None
     if keep_trajectories or with_trajectories:
         frames = [r["trajectories"] for r in results
@@ -275,8 +291,13 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "timings": timings,
     }
     t0 = time.perf_counter()
+    roads = None
+    if keep_trajectories:  # the replay viewer draws them; highway-env's road is seed-free
+        roads = pd.concat([road_table(suite.scenario(env)) for env in suite.envs],
+                          ignore_index=True)
     folder = write_results(output, overwrite, summary, episodes, labels, trajectories
-                        if keep_trajectories else None, scores, report)
+                           if keep_trajectories else None, scores, report,
+                           segments=segments, roads=roads)
     timings["writing_and_report"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
     _write_json(folder / "summary.json", summary)  # with the final timings
@@ -360,9 +381,11 @@ def _json_default(value: Any) -> Any:
 
 def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str, Any],
                   episodes: pd.DataFrame, labels: pd.DataFrame,
-                  trajectories: pd.DataFrame | None, scores: Scores, report: bool = True
+                  trajectories: pd.DataFrame | None, scores: Scores, report: bool = True, *,
+                  segments: pd.DataFrame | None = None, roads: pd.DataFrame | None = None
                   ) -> Path:
-    """Write a results folder (tables, ``summary.json``, plots, report) atomically.
+    """Write a results folder (tables, ``summary.json``, plots, report, and the replay
+    viewer when the trajectories are given) atomically.
 
     The folder is built under a temporary name beside ``output`` and renamed into place
     when complete (:func:`tap_bench.tableio.atomic_folder`); an existing ``output`` is
@@ -378,12 +401,20 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
             labels.to_parquet(tmp / "labels.parquet", index=False)
         if trajectories is not None and len(trajectories):
             trajectories.to_parquet(tmp / "trajectories.parquet", index=False)
+        for name, table in (("segments", segments), ("roads", roads)):
+            if table is not None and len(table):
+                table.to_parquet(tmp / f"{name}.parquet", index=False)
         for name, table in scores.tables().items():
             if len(table):
                 _parquet_safe(table).to_parquet(tmp / f"{name}.parquet", index=False)
         _write_json(tmp / "summary.json", summary)
+        viewer = report and trajectories is not None and len(trajectories) > 0
+        if viewer:
+            write_run_viewer(tmp / "viewer", summary, episodes, trajectories,
+                             segments=segments, roads=roads, novel_labels=scores.novel_labels)
         if report:
-            write_report(tmp, summary, episodes, scores)
+            write_report(tmp, summary, episodes, scores, viewer="viewer/index.html"
+                         if viewer else None)
     return Path(output)
 
 
@@ -434,3 +465,33 @@ def read_run(folder: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame]:
         raise FileFormatError(f"{episodes_path}: not an episode table (no "
                               f"{', '.join(missing)} column). {redo}")
     return summary, episodes
+
+
+def run_viewer(folder: str | os.PathLike, output: str | os.PathLike | None = None) -> Path:
+    """Write (again) the replay viewer of a finished run folder.
+
+    Reads ``trajectories.parquet`` and, when there, ``segments.parquet``, ``roads.parquet``
+    and ``novel_labels.parquet`` (older runs lack the first two: the egos are labelled again
+    with the run's thresholds and the roads rebuilt from its suite).
+
+    Args:
+        folder: the run folder.
+        output: the viewer folder (default ``<folder>/viewer``).
+
+    Returns:
+        the path of the viewer's ``index.html``.
+
+    Raises:
+        FileFormatError: the folder is not a finished run, or has no trajectories.
+    """
+    folder = Path(folder)
+    summary, episodes = read_run(folder)
+    traj_path = folder / "trajectories.parquet"
+    if not traj_path.is_file():
+        raise FileFormatError(f"{folder}: no trajectories.parquet to replay; run the suite "
+                              "again without --no-trajectories.")
+    optional = {name: pd.read_parquet(folder / f"{name}.parquet")
+                if (folder / f"{name}.parquet").is_file() else None
+                for name in ("segments", "roads", "novel_labels")}
+    return write_run_viewer(output if output is not None else folder / "viewer", summary,
+                            episodes, pd.read_parquet(traj_path), **optional)

@@ -33,6 +33,7 @@ COMMANDS = (
     "tap_bench.cli.coverage",
     "tap_bench.cli.bench",
     "tap_bench.cli.demo",
+    "tap_bench.cli.view",
     # similarity: SDL search, unique behaviours, the paper's ADE / DTW experiments
     "tap_bench.cli.search",
     "tap_bench.cli.unique",

@@ -5,7 +5,8 @@ that turns files of any registered format into one trajectory table.
 - :mod:`~tap_bench.sources.builtin`: WOMD ``Scenario`` and ``tf.Example`` TFRecords (decoded
   by :mod:`tap_bench.womd`), ScenarioNet pickles;
 - :mod:`~tap_bench.sources.scenarionet`: ScenarioNet pickles through a restricted unpickler;
-- :mod:`~tap_bench.sources.ingest`: many files, streamed, in worker processes, with a report.
+- :mod:`~tap_bench.sources.ingest`: many files, streamed, in worker processes, with a report;
+- :mod:`~tap_bench.sources.maps`: the files' road maps (lanes, lines, edges) as a map table.
 """
 
 from tap_bench.sources import builtin as _builtin  # noqa: F401 (registers the built-ins)
