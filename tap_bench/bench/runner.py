@@ -17,11 +17,8 @@ What a run folder holds:
 ``<table>.parquet``     every table of :class:`tap_bench.bench.scoring.Scores`
 ``plots/*.png``         label distributions, measures, coverage, forest plots, novelty
 ``report.html``         the static report (no server, images embedded)
-<<<<<<< HEAD
-``.tap-bench-folder``   the marker that lets ``--overwrite`` replace the folder
-=======
 ``viewer/``             the replay viewer (:mod:`tap_bench.viewer`; with the trajectories)
->>>>>>> main
+``.tap-bench-folder``   the marker that lets ``--overwrite`` replace the folder
 ======================  ====================================================================
 
 The folder is built under a temporary name beside the target and renamed into place only
