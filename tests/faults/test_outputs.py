@@ -281,3 +281,20 @@ def test_coverage_and_unique_outputs_land_together(tmp_path, cli, two_policies):
     code, _, err = cli("coverage", a, "--reference", b, "-o", b, "--resamples", "100")
     assert code == 2 and "is also an input" in err
     assert np.array_equal(pd.read_parquet(b)["seed"], np.arange(6))
+
+
+def test_the_viewer_never_deletes_a_folder_it_did_not_write(tmp_path):
+    """`tap-bench view … -o FOLDER` removed FOLDER/data before writing."""
+    from tap_bench.viewer import write_viewer
+
+    mine = tmp_path / "project"
+    (mine / "data").mkdir(parents=True)
+    (mine / "data" / "results.csv").write_text("precious\n")
+    with pytest.raises(OutputPathError, match="was not written by tap-bench"):
+        write_viewer(mine, {"episodes": [], "maps": {}, "run": {}}, {})
+    assert (mine / "data" / "results.csv").read_text() == "precious\n"
+    viewer = tmp_path / "viewer"
+    for _ in range(2):  # a viewer tap-bench wrote is replaced
+        page = write_viewer(viewer, {"episodes": [], "maps": {}, "run": {}}, {"c0": []})
+        assert page.is_file() and (viewer / "data" / "c0.js").is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["project", "viewer"]
