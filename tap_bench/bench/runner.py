@@ -17,7 +17,7 @@ What a run folder holds:
 ``<table>.parquet``     every table of :class:`tap_bench.bench.scoring.Scores`
 ``plots/*.png``         label distributions, measures, coverage, forest plots, novelty
 ``report.html``         the static report (no server, images embedded)
-``viewer/``             the replay viewer (:mod:`tap_bench.viewer`; with the trajectories)
+``viewer/``             the replay viewer (:mod:`tap_bench.bench.viewer`; with the trajectories)
 ``.tap-bench-folder``   the marker that lets ``--overwrite`` replace the folder
 ======================  ====================================================================
 
@@ -51,6 +51,7 @@ from tap_bench.bench.report import write_report
 from tap_bench.bench.scenarios import match_scenarios
 from tap_bench.bench.scoring import Scores, score
 from tap_bench.bench.suite import Suite, load_suite
+from tap_bench.bench.viewer import write_run_viewer
 from tap_bench.errors import FileFormatError, ParameterError, RunExistsError
 from tap_bench.execution import Backend, resolve_backend
 from tap_bench.labelling import tap
@@ -62,7 +63,6 @@ from tap_bench.sim.suite import Scenario
 from tap_bench.sources import read_womd
 from tap_bench.tableio import atomic_folder, atomic_path, check_folder_output, read_table
 from tap_bench.thresholds import Thresholds, resolve_thresholds
-from tap_bench.viewer import write_run_viewer
 
 __all__ = ["RunExistsError", "RunResult", "check_output", "package_versions", "read_run",
            "run_viewer",

@@ -8,7 +8,7 @@ import webbrowser
 from pathlib import Path
 
 from tap_bench.bench.runner import run_viewer
-from tap_bench.viewer import write_womd_viewer
+from tap_bench.bench.viewer import write_womd_viewer
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

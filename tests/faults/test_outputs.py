@@ -285,7 +285,7 @@ def test_coverage_and_unique_outputs_land_together(tmp_path, cli, two_policies):
 
 def test_the_viewer_never_deletes_a_folder_it_did_not_write(tmp_path):
     """`tap-bench view … -o FOLDER` removed FOLDER/data before writing."""
-    from tap_bench.viewer import write_viewer
+    from tap_bench.bench.viewer import write_viewer
 
     mine = tmp_path / "project"
     (mine / "data").mkdir(parents=True)

@@ -129,7 +129,7 @@ def test_filters_narrow_the_list(tiny_run, browser, screenshots):
 
 
 def test_womd_scenarios_show_their_map_and_labels(womd_dir, tmp_path, browser, screenshots):
-    from tap_bench.viewer import write_womd_viewer
+    from tap_bench.bench.viewer import write_womd_viewer
 
     files = [womd_dir / "motion_data_one_scenario.tfrecord",
              womd_dir / "sd_waymo_v1.2_eb4b91b10ca94ff2.pkl"]

@@ -10,9 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.errors import FileFormatError
-from tap_bench.maps import check_map_table
-from tap_bench.viewer.data import (
+from tap_bench.bench.viewer.data import (
     MISSING,
     clip_polyline,
     encode_int16,
@@ -20,6 +18,8 @@ from tap_bench.viewer.data import (
     episode_index,
     map_features,
 )
+from tap_bench.errors import FileFormatError
+from tap_bench.maps import check_map_table
 
 
 def _int16(text: str) -> np.ndarray:

@@ -2,7 +2,7 @@
  *
  * data/index.js calls TAPVIEW.index(doc): the episode list, the road maps per env and the
  * run's facts. data/<chunk>.js calls TAPVIEW.chunk(name, episodes) when a chunk is loaded
- * (every policy of one env and seed). See tap_bench/viewer/data.py for the documents.
+ * (every policy of one env and seed). See tap_bench/bench/viewer/data.py for the documents.
  *
  * State lives in TAPVIEW.state and in the URL hash (#ep=<id>&b=<policy>&t=<s> and filters
  * f_env, f_policy, f_label, f_sdl, f_crash, f_novel), so a link opens a given replay.

@@ -28,6 +28,7 @@ import pandas as pd
 
 from tap_bench.bench.episodes import episode_table
 from tap_bench.bench.suite import suite_from_dict
+from tap_bench.bench.viewer.data import MAP_MARGIN, episode_chunks, episode_index, map_features
 from tap_bench.labelling import tap
 from tap_bench.maps import empty_map
 from tap_bench.sim.roads import road_table
@@ -35,12 +36,11 @@ from tap_bench.sources import read_womd
 from tap_bench.sources.maps import read_maps
 from tap_bench.tableio import atomic_folder
 from tap_bench.thresholds import Thresholds
-from tap_bench.viewer.data import MAP_MARGIN, episode_chunks, episode_index, map_features
 
 __all__ = ["STATIC_FILES", "write_run_viewer", "write_viewer", "write_womd_viewer"]
 
 STATIC_FILES = ("index.html", "viewer.js", "viewer.css")
-"""The viewer's own files, package data of :mod:`tap_bench.viewer`."""
+"""The viewer's own files, package data of :mod:`tap_bench.bench.viewer`."""
 
 
 def _script(call: str, name: str | None, doc: Any) -> str:
@@ -53,7 +53,7 @@ def _script(call: str, name: str | None, doc: Any) -> str:
 
 def write_viewer(output: str | os.PathLike, index: dict[str, Any],
                  chunks: dict[str, list[dict[str, Any]]]) -> Path:
-    """Write the viewer folder from its documents (:mod:`tap_bench.viewer.data`).
+    """Write the viewer folder from its documents (:mod:`tap_bench.bench.viewer.data`).
 
     Args:
         output: the folder to (re)write.
@@ -68,7 +68,7 @@ def write_viewer(output: str | os.PathLike, index: dict[str, Any],
             file, a link, any other folder: it is never replaced).
     """
     output = Path(output)
-    static = resources.files("tap_bench.viewer") / "static"
+    static = resources.files("tap_bench.bench.viewer") / "static"
     # built beside the target and moved into place whole; an earlier viewer is replaced
     with atomic_folder(output, overwrite=True, kind="viewer") as tmp:
         data = tmp / "data"
