@@ -29,6 +29,7 @@ __all__ = [
     "BaselineMismatchError",
     # warnings
     "ShortSegmentWarning",
+    "FitWarning",
     "EpisodeFailedWarning",
     "UntrustedModelWarning",
     "did_you_mean",
@@ -180,6 +181,11 @@ class UnknownNameError(TapBenchError, KeyError):
 
     def __str__(self) -> str:  # KeyError would quote the message
         return str(self.args[0])
+
+
+class FitWarning(UserWarning):
+    """A threshold fit to look at: its J far above the grid optimum, or a degenerate band
+    (SPEC section 3)."""
 
 
 class ShortSegmentWarning(UserWarning):

@@ -41,6 +41,8 @@ EPISODE_COLUMNS = ("env", "policy", "seed", "scenario_id", "status", "error", "s
 """Columns of the episode table, in order."""
 
 _LABEL_FIELDS = ("sdl", "lateral", "longitudinal")
+_SHARED = ("crashed", "mean_speed", "duration_s")
+"""Columns both the ego measures and a rollout's episode table carry."""
 
 
 def _ego_mask(table: pd.DataFrame, source: str) -> np.ndarray:
@@ -134,13 +136,17 @@ def episode_table(*, labels: pd.DataFrame | None = None,
             if col not in eps:
                 raise TrajectoryTableError(f"{source}: the episode table has no {col!r} column; "
                                            "it comes from tap_bench.rollout().", column=col)
-        eps = eps.rename(columns={"crashed": "_crashed", "mean_speed": "_mean_speed"})
+        # columns both tables carry: the trajectories' value, else the rollout's (a failed
+        # episode has no trajectory)
+        eps = eps.rename(columns={c: f"_{c}" for c in _SHARED if c in eps.columns})
         eps["seed"] = eps["seed"].astype(np.int64)
         if out is None:
-            out = eps.rename(columns={"_crashed": "crashed", "_mean_speed": "mean_speed"})
+            out = eps.rename(columns={f"_{c}": c for c in _SHARED})
         else:
             out = out.merge(eps, on=["env", "policy", "seed"], how="outer")
-            for col in ("crashed", "mean_speed"):
+            for col in _SHARED:
+                if f"_{col}" not in out:
+                    continue
                 out[col] = out[col].where(out[col].notna(), out.pop(f"_{col}")) \
                     if col in out else out.pop(f"_{col}")
     for col in EPISODE_COLUMNS:

@@ -29,10 +29,11 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.bench.measures import MEASURES, Measure
+from tap_bench.bench.power import POWER, power_summary
 from tap_bench.bench.scoring import Scores
 from tap_bench.tableio import atomic_path
 
-__all__ = ["html_table", "summary_table", "write_plots", "write_report"]
+__all__ = ["diversity_display", "html_table", "summary_table", "write_plots", "write_report"]
 
 TOP_LABELS = 12  # labels shown per heat map and forest plot
 TABLE_ROWS = 10  # rows shown before "show all" in the HTML (the Parquet files hold all)
@@ -627,7 +628,11 @@ def _display_matched(table: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for r in table.itertuples(index=False):
         meas = MEASURE_BY_NAME.get(r.measure)
-        if meas is None:
+        if meas is None:  # a group too small to test: listed with its sizes
+            if getattr(r, "note", ""):
+                rows.append({"env": r.env, "label": r.label, "A": r.policy_a,
+                             "B": r.policy_b, "episodes A": r.n_a, "episodes B": r.n_b,
+                             "measure": "–", "A vs B": r.note})
             continue
         mark, cls = _mark(r.diff_low, r.diff_high, meas.higher_is_better)
         rows.append({"env": r.env, "label": r.label, "A": r.policy_a, "B": r.policy_b,
@@ -828,6 +833,16 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
     parts.append(html_table(_display_coverage(scores.coverage), table_id="coverage",
                             caption="Coverage per env and reference, with the diversity of "
                             "each policy's labels."))
+    if not scores.diversity.empty:
+        parts.append("<h2>Behaviour diversity</h2>")
+        parts.append(html_table(
+            diversity_display(scores.diversity), table_id="diversity",
+            caption="Hill numbers of each policy's ego labels (q0: distinct labels, q1: "
+            "exp(Shannon entropy), q2: inverse Simpson) at a common number of episodes per "
+            "env, with the sample completeness (the share of the policy's label distribution "
+            "the episodes have shown); 'whole distribution' is the asymptotic estimate, "
+            "'at least' where the completeness is too low to estimate it; 'all' is the mean "
+            "over envs."))
     parts.append("<h2>Unique manoeuvres</h2>")
     parts.append(img("novelty", "novelty",
                      "Novelty rate, all envs pooled: the share of each policy's episodes "
@@ -847,6 +862,20 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
         parts.append(html_table(scores.scenario_matches, table_id="scenario_matches",
                                 caption="Each simulated episode beside its nearest WOMD "
                                 "scenarios by scenario-level SDL (Scenario2Vector distance)."))
+
+    if not scores.gate_power.empty:
+        power = power_summary(scores.gate_power)
+        parts.append("<h2>Regression gate: power at this seed count</h2>")
+        parts.append(html_table(
+            power, table_id="gate_power",
+            caption=f"Per metric, the smallest change 'bench check' detects with "
+            f"{POWER:.0%} power (median and worst (env, policy)), and the seeds the worst "
+            "cell needs to detect a change of one margin."))
+        for r in power[power["cells_too_small"] > 0].itertuples():
+            parts.append(f'<p class="note">{html.escape(r.metric)}: {r.cells_too_small} of '
+                         f"{r.cells} (env, policy) cells cannot detect a change of one margin "
+                         f"({r.margin:g}) with {r.n} seeds; up to {r.seeds_for_margin:.0f} "
+                         "seeds needed.</p>")
 
     # 4. the run
     parts.append("<h2>The run</h2>")
@@ -889,6 +918,34 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
     with atomic_path(path) as tmp:
         tmp.write_text(page, encoding="utf-8")
     return path
+
+
+def _hill_text(est: float, low: float, high: float, bound: bool) -> str:
+    if not np.isfinite(est):
+        return "–"
+    if bound:
+        return f"at least {est:.1f}"
+    return f"{est:.1f} [{low:.1f}, {high:.1f}]"
+
+
+def diversity_display(table: pd.DataFrame) -> pd.DataFrame:
+    """The diversity table as text, "at least" where a value is only a lower bound."""
+    if table.empty:
+        return table
+    rows = []
+    for r in table.to_dict("records"):
+        row = {"env": r["env"], "policy": r["policy"], "episodes": r["n"],
+               "at episodes": r["size"], "method": r["method"]}
+        for q in (0, 1, 2):
+            row[f"q{q}"] = _hill_text(r[f"hill_q{q}"], r[f"hill_q{q}_low"],
+                                      r[f"hill_q{q}_high"], r["hill_is_bound"])
+        row["completeness"] = (f"{r['completeness']:.0%} [{r['completeness_low']:.0%}, "
+                               f"{r['completeness_high']:.0%}]")
+        asym = ", ".join(f"{r[f'asymptote_q{q}']:.1f}" for q in (0, 1, 2))
+        row["whole distribution (q0, q1, q2)"] = (f"at least {asym}" if r["asymptote_is_bound"]
+                                                  else asym)
+        rows.append(row)
+    return pd.DataFrame(rows)
 
 
 def _seed_text(seeds: list[int]) -> str:

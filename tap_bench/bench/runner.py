@@ -5,7 +5,9 @@ What a run folder holds:
 
 ======================  ====================================================================
 ``summary.json``        suite, seeds, thresholds, level, versions, machine, timings, failed
-                        episodes, the interval methods, headline figures
+                        episodes, the interval methods, headline figures, and the
+                        provenance: each policy's full definition (with the SHA-256 of a
+                        model file) and each env's resolved config
 ``episodes.parquet``    the episode table (:mod:`tap_bench.bench.episodes`), failed
                         episodes included with their error
 ``labels.parquet``      TAP labels of every track at every level
@@ -33,6 +35,7 @@ then recorded as failed: one bad episode never costs another.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import sys
@@ -47,16 +50,17 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.bench.episodes import episode_table
+from tap_bench.bench.power import power_table
 from tap_bench.bench.report import write_report
 from tap_bench.bench.scenarios import match_scenarios
 from tap_bench.bench.scoring import Scores, score
-from tap_bench.bench.suite import Suite, load_suite
+from tap_bench.bench.suite import GATE_METRICS, Suite, load_suite
 from tap_bench.bench.viewer import write_run_viewer
 from tap_bench.errors import FileFormatError, ParameterError, RunExistsError
 from tap_bench.execution import Backend, resolve_backend
 from tap_bench.labelling import tap
 from tap_bench.labels import validate_labels
-from tap_bench.sim.policies import PolicyDefinition
+from tap_bench.sim.policies import PolicyDefinition, get_definition
 from tap_bench.sim.roads import road_table
 from tap_bench.sim.rollout import resolve_policy, rollout
 from tap_bench.sim.suite import Scenario
@@ -64,9 +68,8 @@ from tap_bench.sources import read_womd
 from tap_bench.tableio import atomic_folder, atomic_path, check_folder_output, read_table
 from tap_bench.thresholds import Thresholds, resolve_thresholds
 
-__all__ = ["RunExistsError", "RunResult", "check_output", "package_versions", "read_run",
-           "run_viewer",
-           "run_suite", "write_results"]
+__all__ = ["RunExistsError", "RunResult", "check_output", "package_versions", "provenance",
+           "read_run", "run_suite", "run_viewer", "write_results"]
 
 def check_output(output: str | os.PathLike, overwrite: bool) -> Path:
     """``output`` as a Path, checked before any work (:func:`tap_bench.tableio.
@@ -264,10 +267,13 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         if ref_traj is not None and len(labels):
             matches.append(match_scenarios(labels, trajectories, ref_labels, ref_traj,
                                            level=suite.level, top=3).assign(reference=name))
+    power = power_table(episodes, suite.gate,
+                        n_tests=len(suite.envs) * len(suite.policies) * len(GATE_METRICS))
     scores = score(episodes, reference_policy=suite.reference, level=suite.level,
                    config=suite.bootstrap,
                    references={name: lab for name, (_, lab) in corpora.items()} or None,
-                   scenario_matches=pd.concat(matches, ignore_index=True) if matches else None)
+                   scenario_matches=pd.concat(matches, ignore_index=True) if matches else None,
+                   gate_power=power)
     timings["scoring"] = time.perf_counter() - t0
 
     failed = episodes[episodes["status"] != "ok"]
@@ -285,6 +291,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "failed": failed[["env", "policy", "seed", "error"]].to_dict("records"),
         "methods": scores.methods,
         "headline": _headline(scores, episodes),
+        "provenance": provenance(suite),
         "timings": timings,
     }
     t0 = time.perf_counter()
@@ -299,6 +306,44 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     timings["total"] = time.perf_counter() - t_start
     _write_json(folder / "summary.json", summary)  # with the final timings
     return RunResult(folder, summary, episodes, scores, folder / "report.html")
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def provenance(suite: Suite) -> dict[str, Any]:
+    """What every policy and env of a suite is, in full, so that ``bench check`` can say what
+    changed since a baseline.
+
+    Returns:
+        ``{"policies": {name: {"kind", "params", "model_sha256"?}}, "envs": {name:
+        {"highway_env_id", "version", "duration", "lane_change", "config"}}}``; a model
+        file's SHA-256 is taken from the file its definition names.
+    """
+    policies = {}
+    for name in suite.policies:
+        definition = get_definition(name)
+        entry: dict[str, Any] = {"kind": definition.kind, "params": dict(definition.params)}
+        model = definition.params.get("model")
+        if isinstance(model, str):
+            path = Path(model)
+            if not path.is_absolute() and definition.path is not None:
+                path = definition.path.parent / path
+            entry["model_sha256"] = _sha256(path) if path.is_file() else "(missing file)"
+        policies[name] = json.loads(json.dumps(entry, default=str))
+    envs = {}
+    for env in suite.envs:
+        scenario = suite.scenario(env)
+        envs[env] = json.loads(json.dumps(
+            {"highway_env_id": scenario.highway_env_id, "version": scenario.version,
+             "duration": scenario.duration, "lane_change": scenario.lane_change,
+             "config": scenario.config}, default=str))
+    return {"policies": policies, "envs": envs}
 
 
 ReferenceSource = pd.DataFrame | str | os.PathLike | Sequence[str | os.PathLike]

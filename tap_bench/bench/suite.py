@@ -255,6 +255,16 @@ def suite_from_dict(doc: Any, *, source: str = "suite", path: Path | None = None
         gate = GateConfig(**{**gate_doc, "margins": margins})
     except (TypeError, ValueError, UnknownNameError) as err:
         raise FileFormatError(f"{source}: gate: {err}") from err
+    n_tests = len(envs) * len(policies) * len(GATE_METRICS)
+    if n_tests / (gate.n_permutations + 1) >= gate.alpha:  # the gate could never fire
+        need = int(n_tests / gate.alpha + 1e-9)  # P + 1 > tests / alpha
+        raise FileFormatError(
+            f"{source}: gate: {len(envs)} envs x {len(policies)} policies x "
+            f"{len(GATE_METRICS)} metrics = {n_tests} tests with n_permutations "
+            f"{gate.n_permutations}: no p-value is below 1/{gate.n_permutations + 1}, so the "
+            f"smallest Holm-adjusted one is {n_tests / (gate.n_permutations + 1):.3g} >= alpha "
+            f"{gate.alpha:g} and the gate could never fire. Set gate.n_permutations to at "
+            f"least {need}.")
     thresholds = doc.get("thresholds", "paper")
     if not isinstance(thresholds, str):
         raise FileFormatError(f"{source}: thresholds must be a preset name or a JSON path.")

