@@ -9,7 +9,7 @@ import pandas as pd
 
 from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.contexts import compare_contexts, context_occurrences
-from tap_bench.tableio import read_table, write_table
+from tap_bench.tableio import check_outputs, read_table, write_tables
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -38,6 +38,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    occ_path = None
+    if args.output:
+        out_path = Path(args.output)
+        occ_path = out_path.with_name(f"{out_path.stem}.occurrences{out_path.suffix}")
+    check_outputs([args.output, occ_path], args.trajectories)  # before any work
     table = pd.concat([read_table(p) for p in args.trajectories], ignore_index=True)
     if "policy" in table.columns:
         table = table[table["policy"].isin([args.a, args.b])]
@@ -56,9 +61,6 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {r.measure:16s} {args.a} {r.mean_a:8.2f}  {args.b} {r.mean_b:8.2f}  "
                   f"diff {r.diff:+8.2f} {interval} {r.unit}  {r.method}")
     if args.output:
-        path = Path(args.output)
-        write_table(out, path)
-        occ_path = path.with_name(f"{path.stem}.occurrences{path.suffix}")
-        write_table(occ, occ_path)
-        print(f"wrote {path} and {occ_path}")
+        write_tables({args.output: out, occ_path: occ})
+        print(f"wrote {args.output} and {occ_path}")
     return 0

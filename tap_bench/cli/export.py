@@ -7,7 +7,7 @@ import argparse
 from tap_bench.labelling import tap
 from tap_bench.openlabel import write_openlabel
 from tap_bench.sdl import LEVELS
-from tap_bench.tableio import read_table
+from tap_bench.tableio import check_outputs, read_table
 
 FORMATS = ("openlabel",)
 
@@ -37,6 +37,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.output.endswith(".json"):  # a directory of documents is made by the writer
+        check_outputs([args.output], [args.input])  # before any work
     table = read_table(args.input)
     if "axis" not in table.columns:  # a trajectory table: label it
         table = tap(table, args.thresholds, source=str(args.input),

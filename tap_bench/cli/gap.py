@@ -10,7 +10,7 @@ import pandas as pd
 from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.gap import behaviour_gap, labelled_with_speed
 from tap_bench.sdl import LEVELS
-from tap_bench.tableio import read_table, write_table
+from tap_bench.tableio import check_outputs, read_table, write_tables
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -47,6 +47,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    labels_path = None
+    if args.output:
+        path = Path(args.output)
+        labels_path = path.with_name(f"{path.stem}.labels{path.suffix}")
+    check_outputs([args.output, labels_path], [args.policy_table, args.reference])
     config = BootstrapConfig(n_resamples=args.resamples, level=args.ci, seed=args.seed)
     table = read_table(args.policy_table)
     ref_table = read_table(args.reference)
@@ -75,9 +80,7 @@ def run(args: argparse.Namespace) -> int:
                   f"{r.diff_high:+.1%}]")
     print(f"({config.describe('trajectories of each side, independently')})")
     if args.output:
-        path = Path(args.output)
-        write_table(pd.DataFrame(rows), path)
-        labels_path = path.with_name(f"{path.stem}.labels{path.suffix}")
-        write_table(pd.concat(per_label, ignore_index=True), labels_path)
-        print(f"wrote {path} and {labels_path}")
+        write_tables({args.output: pd.DataFrame(rows),
+                      labels_path: pd.concat(per_label, ignore_index=True)})
+        print(f"wrote {args.output} and {labels_path}")
     return 0
