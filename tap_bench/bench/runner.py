@@ -35,6 +35,7 @@ then recorded as failed: one bad episode never costs another.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -50,13 +51,14 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.bench.episodes import episode_table
+from tap_bench.bench.gap import behaviour_gap, labelled_with_speed
 from tap_bench.bench.power import power_table
 from tap_bench.bench.report import write_report
 from tap_bench.bench.scenarios import match_scenarios
 from tap_bench.bench.scoring import Scores, score
 from tap_bench.bench.suite import Suite, gate_metrics, load_suite
 from tap_bench.bench.viewer import write_run_viewer
-from tap_bench.errors import FileFormatError, ParameterError, RunExistsError
+from tap_bench.errors import FileFormatError, LabelTableError, ParameterError, RunExistsError
 from tap_bench.execution import Backend, resolve_backend
 from tap_bench.labelling import tap
 from tap_bench.labels import validate_labels
@@ -128,7 +130,7 @@ def _run_task(task: _Task) -> dict[str, Any]:
     t1 = time.perf_counter()
     labels = segments = pd.DataFrame()
     if len(trajectories):
-        result = tap(trajectories, task.thresholds,
+        result = tap(trajectories, task.thresholds, interactions="ego",
                      source=f"{task.env}/{task.policy} rollout")
         labels = result.labels("all")
         segments = result.segments(task.level)
@@ -274,6 +276,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
                    references={name: lab for name, (_, lab) in corpora.items()} or None,
                    scenario_matches=pd.concat(matches, ignore_index=True) if matches else None,
                    gate_power=power)
+    scores = _with_gaps(scores, corpora, labels, episodes, suite)
     timings["scoring"] = time.perf_counter() - t0
 
     failed = episodes[episodes["status"] != "ok"]
@@ -371,6 +374,47 @@ def _reference(name: str, source: ReferenceSource, suite: Suite
         traj = read_womd([str(p) for p in paths])
         labels = tap(traj, suite.thresholds, source=name).labels("all")
     return traj, labels
+
+
+def _with_gaps(scores: Scores, corpora: Mapping[str, tuple[pd.DataFrame | None, pd.DataFrame]],
+               labels: pd.DataFrame, episodes: pd.DataFrame, suite: Suite) -> Scores:
+    """``scores`` with the sim-to-real gap of every policy from each reference given as
+    driving-data files (:mod:`tap_bench.bench.gap`): the egos' labels at the suite's level,
+    lateral, longitudinal and interaction, against the reference's vehicles at the speeds
+    the policy drives."""
+    real = {name: traj for name, (traj, _) in corpora.items() if traj is not None}
+    if not real or not len(labels) or "is_ego" not in labels.columns:
+        return scores
+    egos = labels[(labels["level"] == suite.level) & labels["is_ego"].fillna(False)]
+    speeds = episodes[["env", "policy", "seed", "mean_speed"]]
+    egos = egos.drop(columns=["mean_speed"], errors="ignore").merge(
+        speeds, on=["env", "policy", "seed"], how="left")
+    axes = tuple(a for a in ("lateral", "longitudinal", "interaction") if a in egos.columns)
+    rows, per_label = [], []
+    for name, traj in real.items():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            reference = labelled_with_speed(traj, suite.level, interactions="all",
+                                            thresholds=suite.thresholds, source=name)
+        for policy, mine in egos.groupby("policy", sort=True):
+            try:
+                gap = behaviour_gap(mine, reference, name=str(policy), axes=axes,
+                                    config=suite.bootstrap, reference_name=name)
+            except LabelTableError as err:  # nothing comparable: said, not scored
+                scores.methods.setdefault("gap skipped", "")
+                scores.methods["gap skipped"] += f"{policy} vs {name}: {err} "
+                continue
+            rows.append({"reference": name, **gap.row()})
+            per_label.append(gap.labels.assign(reference=name, policy=str(policy)))
+    if not rows:
+        return scores
+    scores.methods["gap"] = (
+        "total variation distance between the shares of single labels ("
+        + ", ".join(axes) + f") of the policy's egos and of the reference's vehicles at the "
+        f"policy's speeds; {suite.bootstrap.level:.0%} percentile bootstrap "
+        f"({suite.bootstrap.n_resamples} resamples); floor: two samples of the reference")
+    return dataclasses.replace(scores, gap=pd.DataFrame(rows),
+                               gap_labels=pd.concat(per_label, ignore_index=True))
 
 
 def _describe_source(source: ReferenceSource) -> Any:

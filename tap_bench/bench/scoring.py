@@ -46,6 +46,10 @@ class Scores:
             a margin needs (:mod:`tap_bench.bench.power`; empty when not asked).
         scenario_matches: highway-env scenarios beside their nearest WOMD scenarios (when
             a WOMD reference was given).
+        gap: reference, and :meth:`tap_bench.bench.gap.GapResult.row` per policy: the
+            sim-to-real behaviour gap from each reference of real driving given as data
+            files (empty otherwise).
+        gap_labels: reference, policy and the per-label share differences of each gap.
         references: name -> the :class:`Reference` used.
         methods: table name -> how its intervals were computed.
     """
@@ -62,12 +66,14 @@ class Scores:
     diversity: pd.DataFrame = field(default_factory=pd.DataFrame)
     gate_power: pd.DataFrame = field(default_factory=pd.DataFrame)
     scenario_matches: pd.DataFrame = field(default_factory=pd.DataFrame)
+    gap: pd.DataFrame = field(default_factory=pd.DataFrame)
+    gap_labels: pd.DataFrame = field(default_factory=pd.DataFrame)
     references: dict[str, Reference] = field(default_factory=dict)
     methods: dict[str, str] = field(default_factory=dict)
 
     TABLES = ("label_counts", "measures", "paired", "paired_measures", "paired_labels",
               "matched", "coverage", "novelty", "novel_labels", "diversity", "gate_power",
-              "scenario_matches")
+              "scenario_matches", "gap", "gap_labels")
 
     def tables(self) -> dict[str, pd.DataFrame]:
         """name -> table, in report order."""

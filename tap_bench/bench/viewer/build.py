@@ -137,10 +137,15 @@ def _ego_segments(trajectories: pd.DataFrame, thresholds: Any, level: str) -> pd
     ``segments.parquet`` existed)."""
     if isinstance(thresholds, dict):
         thresholds = Thresholds.from_dict(thresholds, source="summary.json thresholds")
-    ego = trajectories[trajectories["is_ego"].fillna(False).to_numpy(bool)]
+    # the whole scene is labelled (the interaction axis needs the other vehicles), the
+    # egos' segments kept, as the runner writes them
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return tap(ego, thresholds, source="run trajectories").segments(level)
+        segments = tap(trajectories, thresholds, source="run trajectories",
+                       interactions="ego").segments(level)
+    ego = trajectories.loc[trajectories["is_ego"].fillna(False).to_numpy(bool),
+                           ["scenario_id", "track_id"]].drop_duplicates()
+    return segments.merge(ego, on=["scenario_id", "track_id"])
 
 
 def _rebuild_roads(summary: dict[str, Any], envs: Sequence[str]) -> pd.DataFrame:
