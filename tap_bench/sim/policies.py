@@ -251,6 +251,14 @@ def get_definition(name: str | os.PathLike) -> PolicyDefinition:
         path = Path(text)
         if not path.is_file():
             raise FileFormatError(f"{path}: no such model file.")
+        beside = path.with_suffix(".json")
+        if beside.is_file():
+            # the definition `tap-bench train` wrote: it knows the observation config
+            definition = _read_definition(beside)
+            model = definition.params.get("model")
+            if definition.kind == "sb3" and isinstance(model, str) \
+                    and (beside.parent / model).resolve() == path.resolve():
+                return definition
         return PolicyDefinition(name=path.stem, kind="sb3",
                                 params={"model": str(path.resolve())})
     if text in _PYTHON_POLICIES:
