@@ -30,6 +30,7 @@ import functools
 import json
 import os
 import shlex
+import signal
 import sys
 import time
 from collections.abc import Mapping
@@ -105,9 +106,12 @@ class TrainingResult:
         return self.timesteps / self.train_seconds
 
 
-def _make_training_env(scenario: Scenario, fast: bool) -> gym.Env:
+def _make_training_env(scenario: Scenario, fast: bool, worker: bool = False) -> gym.Env:
     """One training env (a module-level function: worker processes build it by name)."""
     from stable_baselines3.common.monitor import Monitor
+
+    if worker:  # Ctrl-C stops the training in the main process, which then saves the model
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     from tap_bench.sim.scenario_env import ScenarioEnv
 
@@ -117,10 +121,10 @@ def _make_training_env(scenario: Scenario, fast: bool) -> gym.Env:
 def _vec_env(scenario: Scenario, *, n_envs: int, fast: bool, seed: int) -> Any:
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
-    factory = functools.partial(_make_training_env, scenario, fast)
     if n_envs == 1:
-        vec = DummyVecEnv([factory])
+        vec = DummyVecEnv([functools.partial(_make_training_env, scenario, fast)])
     else:
+        factory = functools.partial(_make_training_env, scenario, fast, worker=True)
         # forkserver: workers start from a clean interpreter, not a copy of this process
         # (which may hold torch's threads and highway-env's shared classes)
         vec = SubprocVecEnv([factory] * n_envs, start_method="forkserver")
@@ -138,7 +142,9 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
     Args:
         algo: ``"dqn"``, ``"ppo"`` or ``"a2c"``.
         env: scenario name, id or file.
-        timesteps: decisions (env steps, over all envs) to train for.
+        timesteps: decisions (env steps, over all envs) to train for. Ctrl-C (SIGINT) stops
+            the training early: the model and the curve so far are saved, and the definition
+            records the steps trained and ``interrupted_of``.
         seed: seeds SB3 (torch, numpy) and the envs' first resets (env i gets seed + i).
         output: the ``.zip`` to write; the definition goes to the same name with ``.json``,
             the curve to ``.curve.csv`` and ``.curve.png``.
@@ -193,13 +199,24 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
             outputs.append(make_output_format("csv", str(log_dir)))
         model.set_logger(Logger(str(log_dir) if log_dir else None, outputs))
         start = time.perf_counter()
-        model.learn(total_timesteps=timesteps, callback=callbacks or None, progress_bar=False)
+        interrupted = False
+        try:
+            model.learn(total_timesteps=timesteps, callback=callbacks or None,
+                        progress_bar=False)
+        except KeyboardInterrupt:
+            # Ctrl-C: keep what was learned, with a last curve point
+            interrupted = True
+            print(f"training interrupted at {model.num_timesteps} steps: saving the model.",
+                  file=sys.stderr, flush=True)
+            if callbacks:
+                callbacks[0].on_training_end()
         seconds = time.perf_counter() - start
         episodes = model._episode_num
     finally:
         vec.close()
     eval_seconds = sum(callbacks[0].eval_seconds) if callbacks else 0.0
 
+    trained = int(model.num_timesteps)
     output.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(output) as tmp, open(tmp, "wb") as handle:
         model.save(handle)
@@ -207,14 +224,17 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
     doc = {
         "name": output.stem,
         "kind": "sb3",
-        "description": f"{algo.upper()} trained on {scenario.env_id} for {timesteps} steps "
+        "description": f"{algo.upper()} trained on {scenario.env_id} for {trained} steps "
                        f"(seed {seed}) by tap-bench train.",
         "params": {
             "model": output.name,
             "algo": algo,
             "env": scenario.env_id,
             "observation": observation,
-            "timesteps": timesteps,
+            "timesteps": trained,
+            **({"interrupted_of": timesteps} if interrupted else {}),
+            "n_envs": n_envs,
+            "fast": fast,
             "seed": seed,
             "hyperparameters": params,
             "train_seconds": round(seconds - eval_seconds, 1),
@@ -224,7 +244,7 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
     with atomic_path(definition) as tmp:
         tmp.write_text(json.dumps(doc, indent=2) + "\n")
     result = TrainingResult(model_path=output, definition_path=definition,
-                            timesteps=int(model.num_timesteps), seconds=seconds,
+                            timesteps=trained, seconds=seconds,
                             train_seconds=seconds - eval_seconds, episodes=int(episodes))
     if callbacks:
         from tap_bench.sim.curve import plot_curve
