@@ -204,16 +204,20 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
             model.learn(total_timesteps=timesteps, callback=callbacks or None,
                         progress_bar=False)
         except KeyboardInterrupt:
-            # Ctrl-C: keep what was learned, with a last curve point
+            # Ctrl-C: keep what was learned. The workers may be half-way through a reply,
+            # so they are stopped rather than asked to close.
             interrupted = True
             print(f"training interrupted at {model.num_timesteps} steps: saving the model.",
                   file=sys.stderr, flush=True)
-            if callbacks:
-                callbacks[0].on_training_end()
+            for process in getattr(vec, "processes", ()):
+                process.terminate()
+            vec.closed = True
         seconds = time.perf_counter() - start
         episodes = model._episode_num
     finally:
         vec.close()
+    if interrupted and callbacks:
+        callbacks[0].on_training_end()  # the last point of the curve
     eval_seconds = sum(callbacks[0].eval_seconds) if callbacks else 0.0
 
     trained = int(model.num_timesteps)

@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from tap_bench.sim import make_env
 from tap_bench.sim.curve import CURVE_COLUMNS, CurveConfig, coverage_reference, curve_row
 from tap_bench.sim.policies import get_definition, load_policy
 from tap_bench.sim.rollout import rollout
@@ -59,6 +60,31 @@ def test_a_short_training_gives_a_loadable_model_and_its_learning_curve(tmp_path
                               progress=False)
     assert episodes["status"].tolist() == ["ok", "ok"], episodes["error"].tolist()
     assert episodes["policy"].tolist() == [f"{algo}-tiny"] * 2
+
+
+def test_ctrl_c_saves_the_model_and_the_curve_trained_so_far(tmp_path, write_scenario,
+                                                          monkeypatch):
+    from tap_bench.sim.callbacks import CoverageCallback
+    from tap_bench.sim.training import train
+
+    step = CoverageCallback._on_step
+
+    def interrupted(self):  # Ctrl-C once 32 steps are done
+        if self.num_timesteps >= 32:
+            raise KeyboardInterrupt
+        return step(self)
+
+    monkeypatch.setattr(CoverageCallback, "_on_step", interrupted)
+    short = write_scenario("short", duration=5)
+    result = train("ppo", short, timesteps=10_000, seed=0, output=tmp_path / "ppo-cut.zip",
+                   hyperparameters=TINY["ppo"], curve=TINY_CURVE)
+    doc = json.loads(result.definition_path.read_text())
+    assert doc["params"]["timesteps"] == result.timesteps < 10_000
+    assert doc["params"]["interrupted_of"] == 10_000
+    assert result.curve["timesteps"].tolist() == [0, result.timesteps]
+    with pytest.warns(UserWarning, match="pickles"):
+        load_policy(result.model_path).reset(
+            make_env(short), seed=0)
 
 
 def test_idm_covers_its_own_rollouts_completely_and_crashes_less_than_lane_keeping():
