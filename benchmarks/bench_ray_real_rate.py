@@ -21,8 +21,8 @@ from pathlib import Path
 from machine import report
 
 from tap_bench.labelling import tap
+from tap_bench.sources import ingest_womd
 from tap_bench.tableio import read_table
-from tap_bench.womd import ingest_womd
 
 WOMD_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "womd"
 FILES = ("motion_data_one_scenario.tfrecord", "womd_scenario_input.tfrecord")

@@ -3,9 +3,9 @@
 Rolls out ``--policy`` on ``--env`` for ``--seeds`` episodes (recording every vehicle) with
 
 - ``local-1``: :func:`tap_bench.sim.rollout.rollout` in this process (the baseline);
-- ``local-2``: the same with ``workers=2`` (spawned processes);
-- ``ray-1``, ``ray-2``: :func:`tap_bench.distributed.distributed_rollout` on a local Ray
-  cluster of 1 and 2 CPUs, ``--batch`` seeds per task,
+- ``local-2``: the same with ``workers=2`` (worker processes of :mod:`tap_bench.execution`);
+- ``ray-1``, ``ray-2``: the same ``rollout(..., backend=RayBackend(...))`` on a local Ray
+  cluster of 1 and 2 CPUs, one episode per task,
 
 and checks that every table equals the baseline's. Throughput is episodes per second of wall
 clock; the start of a local Ray cluster (``ray.init`` to the first task done) is timed apart.
@@ -14,7 +14,7 @@ Ray's overhead per task is measured on the 2-CPU cluster: the wall time per task
 a function that does nothing over ``--tasks`` items, through :meth:`RayBackend.map` (which
 keeps at most 2 x CPUs tasks in flight) and as a plain ``ray.get([f.remote() ...])``.
 
-    nice -n 10 python benchmarks/bench_ray_rollouts.py [--seeds 0-23] [--batch 4]
+    nice -n 10 python benchmarks/bench_ray_rollouts.py [--seeds 0-23]
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import warnings
 import pandas as pd
 from machine import report
 
-from tap_bench.distributed import RayBackend, distributed_rollout
+from tap_bench.execution import RayBackend
 from tap_bench.sim.rollout import rollout
 
 
@@ -54,12 +54,10 @@ def main() -> None:
     parser.add_argument("--env", default="highway")
     parser.add_argument("--policy", default="idm")
     parser.add_argument("--seeds", default="0-23")
-    parser.add_argument("--batch", type=int, default=4)
     parser.add_argument("--tasks", type=int, default=500)
     args = parser.parse_args()
     warnings.simplefilter("ignore")
-    figures: dict = {"env": args.env, "policy": args.policy, "seeds": args.seeds,
-                     "batch": args.batch}
+    figures: dict = {"env": args.env, "policy": args.policy, "seeds": args.seeds}
     runs: dict[str, dict] = {}
     t0 = time.perf_counter()
     base = rollout(args.env, args.policy, args.seeds, progress=False)
@@ -78,8 +76,7 @@ def main() -> None:
             backend.map(_nothing, [0], progress=False)
             ready = time.perf_counter() - start
             t0 = time.perf_counter()
-            got = distributed_rollout(args.env, args.policy, args.seeds, backend,
-                                      batch=args.batch, progress=False)
+            got = rollout(args.env, args.policy, args.seeds, backend=backend, progress=False)
             wall = time.perf_counter() - t0
             pd.testing.assert_frame_equal(got.trajectories, base.trajectories)
             pd.testing.assert_frame_equal(got.episodes, base.episodes)

@@ -32,7 +32,8 @@ import pandas as pd
 from bench_womd_ingest import build_shards
 from machine import report
 
-from tap_bench.distributed import LocalBackend, RayBackend, ingest_shards, label_shards
+from tap_bench.distributed import ingest_shards, label_shards
+from tap_bench.execution import LocalBackend, RayBackend
 
 
 def run(backend, shards: list[Path], out: Path) -> dict:

@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 from machine import report
 
-from tap_bench.womd.ingest import IngestReport, _iter_tables, ingest_womd, iter_womd
+from tap_bench.sources.ingest import IngestReport, _iter_tables, ingest_womd, iter_womd
 from tap_bench.womd.scenario import decode_scenario
 from tap_bench.womd.tfrecord import iter_records
 from tap_bench.womd.writer import write_womd

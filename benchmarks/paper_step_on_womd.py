@@ -31,11 +31,11 @@ from tap_bench.objective import SortedSamples
 
 
 def load(data: Path) -> pd.DataFrame:
-    from tap_bench.womd.ingest import read_womd
+    from tap_bench.sources.ingest import read_womd
 
     frames = [read_womd(sorted(data.glob("*.tfrecord")), object_types="vehicle")]
     try:
-        from tap_bench.womd.scenarionet import decode_scenarionet, load_scenarionet
+        from tap_bench.sources.scenarionet import decode_scenarionet, load_scenarionet
 
         for pkl in sorted(data.glob("*.pkl")):
             frames.append(decode_scenarionet(load_scenarionet(pkl), path=str(pkl)).to_pandas())

@@ -6,8 +6,7 @@ comparisons -> report. Each stage has its own module; the names below are the pu
 
 from __future__ import annotations
 
-__version__ = "0.1.0"
-
+from tap_bench._version import __version__ as __version__
 from tap_bench.bench import (
     BootstrapConfig,
     check,
@@ -55,6 +54,7 @@ from tap_bench.similarity import (
     search_like,
     unique_labels,
 )
+from tap_bench.sources import IngestReport, ingest_womd, iter_womd, read_womd, register_reader
 from tap_bench.stages import StageConfig
 from tap_bench.synthetic import behaviour, random_trajectories, sample_table
 from tap_bench.tableio import read_table, write_table
@@ -66,15 +66,7 @@ from tap_bench.thresholds import (
     save_thresholds,
 )
 from tap_bench.trajectories import validate_trajectories
-from tap_bench.womd import (
-    IngestReport,
-    WomdRecordError,
-    classify_trajectories,
-    ingest_womd,
-    iter_womd,
-    read_womd,
-    write_womd,
-)
+from tap_bench.womd import WomdRecordError, classify_trajectories, write_womd
 
 # The scenario suite's Gymnasium ids (tap_bench/highway-v0 ...); reads envs/ only, fast.
 _register_suite()
@@ -131,6 +123,7 @@ __all__ = [
     "ingest_womd",
     "iter_womd",
     "read_womd",
+    "register_reader",
     "write_womd",
     # similarity: SDL search, unique behaviours, scenario-level SDL, the ADE / DTW baselines
     # and the paper's experiments; more in tap_bench.similarity

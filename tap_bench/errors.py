@@ -11,19 +11,64 @@ import difflib
 from collections.abc import Iterable
 
 __all__ = [
-    "FileFormatError",
-    "LabelTableError",
-    "ShortSegmentWarning",
+    # errors
     "TapBenchError",
-    "ThresholdsError",
+    "ParameterError",
     "TrajectoryTableError",
+    "LabelTableError",
+    "ThresholdsError",
+    "FileFormatError",
+    "WomdRecordError",
+    "StateDecodeError",
     "UnknownNameError",
+    "SuiteError",
+    "CatalogueError",
+    "RunExistsError",
+    "BaselineError",
+    "BaselineMismatchError",
+    # warnings
+    "ShortSegmentWarning",
+    "EpisodeFailedWarning",
+    "UntrustedModelWarning",
     "did_you_mean",
 ]
 
 
 class TapBenchError(Exception):
     """Base class of every error raised on purpose by tap-bench."""
+
+
+class ParameterError(TapBenchError, ValueError):
+    """A parameter (of a function or a command line option) has a value it cannot take.
+
+    The message names the parameter, the value received and what is allowed (the
+    scikit-learn convention).
+
+    Attributes:
+        parameter: the parameter's name (``workers``, ``--seeds``).
+        value: the value received.
+        allowed: what is allowed, in words.
+    """
+
+    def __init__(self, parameter: str, value: object, allowed: str, *, hint: str = "",
+                 message: str | None = None):
+        self.parameter = parameter
+        self.value = value
+        self.allowed = allowed
+        self.hint = hint
+        if message is None:
+            message = f"{parameter} must be {allowed}, got {value!r}." + (
+                f" {hint}" if hint else "")
+        super().__init__(message)
+
+    def __reduce__(self):  # keeps the attributes across worker processes
+        return (_rebuild_parameter_error, (self.parameter, self.value, self.allowed,
+                                           self.hint, str(self)))
+
+
+def _rebuild_parameter_error(parameter: str, value: object, allowed: str, hint: str,
+                             message: str) -> ParameterError:
+    return ParameterError(parameter, value, allowed, hint=hint, message=message)
 
 
 class TrajectoryTableError(TapBenchError, ValueError):
@@ -52,6 +97,77 @@ class FileFormatError(TapBenchError, ValueError):
     """A file that tap-bench cannot read or write (unknown suffix, unreadable content)."""
 
 
+class WomdRecordError(FileFormatError):
+    """A record of a WOMD (or other driving-data) file is damaged or is not what the reader
+    expects.
+
+    The message names the file, the record (0-based) and its byte offset, what was wrong and
+    the fix.
+
+    Attributes:
+        path: the file.
+        record: 0-based index of the record in the file.
+        offset: byte offset of the record's start (in the decompressed stream of a GZIP file).
+        problem: what was wrong, without the location.
+        resumable: whether the records after this one can still be read (false when the
+            framing itself is broken: the next record's start is unknown).
+    """
+
+    def __init__(self, path: str, record: int, offset: int, problem: str, fix: str,
+                 resumable: bool = True):
+        self.path = str(path)
+        self.record = record
+        self.offset = offset
+        self.problem = problem
+        self.fix = fix
+        self.resumable = resumable
+        super().__init__(f"{path}: record {record} at byte {offset}: {problem}. {fix}")
+
+    def __reduce__(self):  # keeps the attributes across worker processes
+        return (type(self), (self.path, self.record, self.offset, self.problem, self.fix,
+                             self.resumable))
+
+    def as_dict(self) -> dict:
+        """The location and the problem, for a report."""
+        return {"path": self.path, "record": self.record, "offset": self.offset,
+                "problem": self.problem}
+
+
+class StateDecodeError(TapBenchError, ValueError):
+    """Bytes that are not WOMD ObjectState messages (raised by the vectorised decoder).
+
+    Attributes:
+        state: index of the first malformed state in the input order.
+    """
+
+    def __init__(self, message: str, state: int):
+        super().__init__(message)
+        self.state = state
+
+    def __reduce__(self):
+        return (type(self), (str(self), self.state))
+
+
+class CatalogueError(TapBenchError, FileNotFoundError):
+    """The built-in scenarios and policies (or a catalogue folder) cannot be found."""
+
+
+class SuiteError(TapBenchError, ValueError):
+    """A scenario, policy or suite file (or definition) that breaks its format."""
+
+
+class RunExistsError(TapBenchError, FileExistsError):
+    """The results folder exists and replacing it was not asked for."""
+
+
+class BaselineError(TapBenchError, ValueError):
+    """A baseline file that cannot be used (malformed, or a run that cannot become one)."""
+
+
+class BaselineMismatchError(BaselineError):
+    """The run and the baseline were not made with the same suite, level or thresholds."""
+
+
 class UnknownNameError(TapBenchError, KeyError):
     """A name (preset, level, policy, env ...) that is not registered."""
 
@@ -61,6 +177,14 @@ class UnknownNameError(TapBenchError, KeyError):
 
 class ShortSegmentWarning(UserWarning):
     """Valid segments shorter than 1 s were found: they cannot carry a label (SPEC section 2)."""
+
+
+class EpisodeFailedWarning(UserWarning):
+    """Some episodes of a rollout raised; they are listed in the episode table."""
+
+
+class UntrustedModelWarning(UserWarning):
+    """A Stable-Baselines3 model file (pickles) is being loaded: it can run code."""
 
 
 def did_you_mean(kind: str, name: str, known: Iterable[str]) -> UnknownNameError:

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from tap_bench._version import __version__
 from tap_bench.errors import TapBenchError, did_you_mean
 from tap_bench.kinematics import one_second_samples
 from tap_bench.objective import SortedSamples
@@ -387,7 +388,6 @@ def fit_report(data: pd.DataFrame | dict[str, np.ndarray], *,
             raise TapBenchError(f"{dataset}: no feasible thresholds found for {dist}")
         fits[dist] = DistributionFit(dist, len(x), tuple(runs), grid, chosen)
 
-    from tap_bench import __version__
 
     th = Thresholds(
         *fits["w"].chosen.theta, *fits["a"].chosen.theta, v_stop, *fits["v"].chosen.theta,

@@ -18,21 +18,14 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from tap_bench import sdl
-from tap_bench.errors import ShortSegmentWarning, did_you_mean
+from tap_bench.errors import ShortSegmentWarning
 from tap_bench.kinematics import Kinematics, compute_kinematics
+from tap_bench.labels import LABEL_COLUMNS, SEGMENT_COLUMNS
 from tap_bench.stages import StageConfig, StepLabels, find_runs, run_stages
 from tap_bench.thresholds import Thresholds, resolve_thresholds
 from tap_bench.trajectories import DT, IDENTIFYING_COLUMNS, validate_and_index
 
 __all__ = ["LABEL_COLUMNS", "SEGMENT_COLUMNS", "TapResult", "label", "tap"]
-
-LABEL_COLUMNS = ("scenario_id", "track_id", "segment", "level", "lateral", "longitudinal",
-                 "sdl", "t_start", "t_end")
-"""Columns of the label table, followed by the identifying columns the input had."""
-SEGMENT_COLUMNS = ("scenario_id", "track_id", "segment", "level", "axis", "label", "t_start",
-                   "t_end")
-"""Columns of the segment table, followed by the identifying columns the input had."""
-
 
 @dataclass(frozen=True)
 class TapResult:
@@ -66,7 +59,7 @@ class TapResult:
 
     def labels(self, level: str = "action") -> pd.DataFrame:
         """The label table (SPEC section 1) at ``level`` or at ``"all"`` levels."""
-        levels = _levels(level)
+        levels = sdl.levels(level)
         frames = [self._labels_one(lv) for lv in levels]
         out = pd.concat(frames, ignore_index=True) if len(frames) > 1 else frames[0]
         if len(levels) > 1:
@@ -77,7 +70,7 @@ class TapResult:
 
     def segments(self, level: str = "action") -> pd.DataFrame:
         """The segment table (SPEC section 1): one row per run of one label."""
-        frames = [self._segments_one(lv, axis) for lv in _levels(level) for axis in sdl.AXES]
+        frames = [self._segments_one(lv, axis) for lv in sdl.levels(level) for axis in sdl.AXES]
         out = pd.concat(frames, ignore_index=True)
         key = out.pop("_seg").to_numpy()
         order = np.argsort(key, kind="stable")
@@ -146,14 +139,6 @@ class TapResult:
                 out[col] = per_run[col]
         out["_seg"] = runs.seg
         return out
-
-
-def _levels(level: str) -> tuple[str, ...]:
-    if level == "all":
-        return sdl.LEVELS
-    if level not in sdl.LEVELS:
-        raise did_you_mean("level", level, (*sdl.LEVELS, "all"))
-    return (level,)
 
 
 def _strings(values: pa.Array) -> pd.Series:
@@ -237,7 +222,7 @@ def label(table: pd.DataFrame, thresholds: Thresholds | str = "paper", level: st
         ShortSegmentWarning: when valid segments shorter than 1 s had to be left unlabelled
             (use :func:`tap` to get them as a table).
     """
-    _levels(level)  # fail on a bad level before doing any work
+    sdl.levels(level)  # fail on a bad level before doing any work
     result = tap(table, thresholds, config, source=source)
     warn_short_segments(result)
     return result.labels(level)

@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from tap_bench.errors import ParameterError
+
 __all__ = ["SortedSamples"]
 
 _SPLIT = 134217729.0  # 2^27 + 1, Veltkamp's splitter for float64
@@ -83,9 +85,11 @@ class SortedSamples:
     def __init__(self, samples: np.ndarray):
         x = np.sort(np.asarray(samples, dtype=np.float64))
         if not np.all(np.isfinite(x)):
-            raise ValueError("samples must be finite")
+            raise ParameterError("samples", "non-finite values", "",
+                message="samples must be finite")
         if len(x) >= 2**26:
-            raise ValueError("at most 2^26 samples per distribution")
+            raise ParameterError("samples", len(x), "",
+                message="at most 2^26 samples per distribution")
         self.x = x
         i = np.arange(len(x), dtype=np.float64)
         self._s1 = _dd_prefix(x)

@@ -1,12 +1,21 @@
-"""The SDL vocabulary: levels, label names and the integer codes the stages work with.
+"""The SDL vocabulary and text: levels, label names, the integer codes the stages work with,
+and the one place an SDL label is built (:func:`format_sdl`, :func:`join`) or taken apart
+(:func:`parse_sdl`, :func:`split`).
 
 Lateral and longitudinal labels are kept apart (SPEC section 4). Each level has its own
-vocabulary; a per-step label is a small integer code indexing the level's name list.
+vocabulary; a per-step label is a small integer code indexing the level's name list. An SDL
+label is ``lateral + " | " + longitudinal``, each side its chronologically ordered labels
+joined by ``" > "``.
 """
 
 from __future__ import annotations
 
-__all__ = ["AXES", "LEVELS", "SDL_SEPARATOR", "SEPARATOR", "vocabulary"]
+from collections.abc import Iterable, Sequence
+
+from tap_bench.errors import LabelTableError, did_you_mean
+
+__all__ = ["AXES", "LEVELS", "SDL_SEPARATOR", "SEPARATOR", "check_level", "format_sdl",
+           "join", "levels", "parse_sdl", "split", "tokens", "vocabulary"]
 
 LEVELS = ("trace", "trend", "maneuver", "action")
 """Levels from the most abstract to the most detailed."""
@@ -68,12 +77,92 @@ def code_names(level: str, axis: str) -> tuple[str, ...]:
     return LATERAL_NAMES if axis == "lateral" else LONGITUDINAL_NAMES
 
 
+def check_level(level: str, *, allow_all: bool = False) -> str:
+    """``level`` when it is an SDL level (or ``"all"`` with ``allow_all``), else an
+    :class:`~tap_bench.errors.UnknownNameError` with the closest names."""
+    known = (*LEVELS, "all") if allow_all else LEVELS
+    if level not in known:
+        raise did_you_mean("level", level, known)
+    return level
+
+
+def levels(level: str) -> tuple[str, ...]:
+    """The levels ``level`` names: itself, or every level for ``"all"``."""
+    return LEVELS if check_level(level, allow_all=True) == "all" else (level,)
+
+
 def vocabulary(level: str, axis: str) -> tuple[str, ...]:
     """Every label that can appear at ``level`` on ``axis`` (``"lateral"``/``"longitudinal"``)."""
-    from tap_bench.errors import did_you_mean
-
-    if level not in LEVELS:
-        raise did_you_mean("level", level, LEVELS)
+    check_level(level)
     if axis not in AXES:
         raise did_you_mean("axis", axis, AXES)
     return _VOCABULARY[(level, axis)]
+
+
+def tokens(axis: str) -> tuple[str, ...]:
+    """Every label of ``axis`` at any level, in a fixed order."""
+    if axis not in AXES:
+        raise did_you_mean("axis", axis, AXES)
+    return _TOKENS[axis]
+
+
+def join(labels: Iterable[str]) -> str:
+    """One axis's chronologically ordered labels as text: ``"Straight > Left Turn"``."""
+    return SEPARATOR.join(labels)
+
+
+def split(text: str) -> tuple[str, ...]:
+    """The labels of one axis's text, in order (spacing around ``>`` tolerated)."""
+    return tuple(tok.strip() for tok in text.split(SEPARATOR.strip()))
+
+
+def format_sdl(lateral: str | Sequence[str], longitudinal: str | Sequence[str]) -> str:
+    """The SDL label of a lateral and a longitudinal side (text, or label sequences)."""
+    lat = lateral if isinstance(lateral, str) else join(lateral)
+    lon = longitudinal if isinstance(longitudinal, str) else join(longitudinal)
+    return lat + SDL_SEPARATOR + lon
+
+
+def parse_sdl(text: str, *, level: str | None = None) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """Split an SDL label into its lateral and longitudinal label sequences.
+
+    Args:
+        text: ``"<lateral> > <lateral> ... | <longitudinal> > ..."``.
+        level: when given, every label must belong to that level's vocabulary.
+
+    Returns:
+        (lateral labels, longitudinal labels), each in chronological order.
+
+    Raises:
+        LabelTableError: no ``" | "`` separator, an empty side, or an unknown label (with the
+            closest known labels).
+    """
+    bar = SDL_SEPARATOR.strip()
+    if not isinstance(text, str) or text.count(bar) != 1:
+        raise LabelTableError(
+            f"SDL label {text!r} must hold exactly one {SDL_SEPARATOR!r} between the lateral "
+            f"and the longitudinal labels, e.g. 'Straight > Gradual Left Turn{SDL_SEPARATOR}"
+            "Maintain Medium Speed'.")
+    lat_text, lon_text = text.split(bar)
+    return (_checked(lat_text, "lateral", level, text),
+            _checked(lon_text, "longitudinal", level, text))
+
+
+def _checked(seq: str, axis: str, level: str | None, where: str) -> tuple[str, ...]:
+    labels = split(seq)
+    known = vocabulary(level, axis) if level else _TOKENS[axis]
+    for tok in labels:
+        if not tok:
+            raise LabelTableError(f"SDL label {where!r}: an empty {axis} label; labels are "
+                                  f"joined by {SEPARATOR!r} with one on each side.")
+        if tok not in known:
+            scope = f"{level}-level {axis} label" if level else f"{axis} label"
+            raise LabelTableError(f"SDL label {where!r}: {did_you_mean(scope, tok, known)}")
+    return labels
+
+
+# Every label of each axis over all levels, in a fixed order.
+_TOKENS = {
+    axis: tuple(dict.fromkeys(name for level in LEVELS for name in _VOCABULARY[(level, axis)]))
+    for axis in AXES
+}

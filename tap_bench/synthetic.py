@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from tap_bench.errors import ParameterError, did_you_mean
 from tap_bench.trajectories import DT
 
 __all__ = ["BEHAVIOURS", "behaviour", "from_controls", "random_trajectories", "sample_table"]
@@ -35,7 +36,8 @@ def from_controls(speed: np.ndarray, yaw_rate: np.ndarray, *, scenario_id: str =
     yaw_rate = np.asarray(yaw_rate, dtype=np.float64)
     n = len(speed)
     if len(yaw_rate) != n:
-        raise ValueError(f"speed has {n} steps but yaw_rate has {len(yaw_rate)}")
+        raise ParameterError("yaw_rate", len(yaw_rate), "",
+            message=f"speed has {n} steps but yaw_rate has {len(yaw_rate)}")
     heading = heading0 + np.concatenate([[0.0], np.cumsum(yaw_rate[:-1]) * DT])
     x = x0 + np.concatenate([[0.0], np.cumsum(speed[:-1] * np.cos(heading[:-1])) * DT])
     y = y0 + np.concatenate([[0.0], np.cumsum(speed[:-1] * np.sin(heading[:-1])) * DT])
@@ -137,8 +139,6 @@ BEHAVIOURS = {
 def behaviour(name: str, *, scenario_id: str = "behaviours", track_id: str | None = None,
               **kw) -> pd.DataFrame:
     """One named behaviour of :data:`BEHAVIOURS` as a trajectory table."""
-    from tap_bench.errors import did_you_mean
-
     if name not in BEHAVIOURS:
         raise did_you_mean("behaviour", name, BEHAVIOURS)
     speed, yaw = BEHAVIOURS[name]()

@@ -1,20 +1,24 @@
 """Matched comparison of two policies A and B (SPEC section 6, issue 6 part 1).
 
-Both functions read the episode table (:mod:`tap_bench.bench.episodes`).
+Both functions read the episode table (:mod:`tap_bench.bench.episodes`). Labels are always
+compared within one env: a label is the pair (env, label), so a roundabout label never
+matches a highway one. The intervals are those of :mod:`tap_bench.bench.intervals`.
 
 **Paired by seed** (:func:`paired_comparison`). A seed is the same initial traffic for every
-policy, so A's and B's episodes on one (env, seed) form a pair, and the pair is the unit of
-resampling. Reported per env and pooled over envs (``env == "all"``; the bootstrap then
-resamples seeds within each env, so every env keeps its weight):
+policy, so A's and B's episodes on one (env, seed) form a pair. Reported per env, and pooled
+over envs (``env == "all"``) as the **pair-weighted mean of the per-env figures** (every
+pair counts once):
 
-- ``agreement``: share of pairs whose ego SDL labels are equal;
-- per label L: ``freq_a - freq_b``, the difference in the share of pairs whose ego label is
-  L, with a percentile interval and a simultaneous (max-|t|) band over all labels of the
-  table, so that "some label differs" can be read off the band without a multiple-testing
-  correction;
-- per measure: the mean of A, of B, the mean paired difference A - B, and the probability
-  of improvement P(A better than B on the same seed), ties counting one half (the paired
-  form of rliable's probability of improvement).
+- ``agreement``: share of pairs whose ego SDL labels are equal (Wilson interval);
+- per env and label L (no pooled row: a label belongs to its env): ``freq_a - freq_b``, the
+  difference in the share of pairs whose ego label is L, with Tango's paired score
+  interval, and a simultaneous band over the env's labels (Tango intervals at a critical
+  value calibrated by a bootstrap of the pairs, :func:`~tap_bench.bench.intervals.tango_band`), so
+  that "some label differs" can be read off the band without a multiple-testing correction;
+- per measure: the mean of A, of B, the mean paired difference A - B (Tango for the crash
+  rate, a paired t interval otherwise), and the probability of improvement P(A better than
+  B on the same seed), ties counting one half: ``0.5 + (wins - losses) / (2 n)``, with
+  Tango's interval of ``(wins - losses) / n`` carried over.
 
 An episode that failed in either policy, or whose ego has no label, drops its pair from the
 label statistics (the count is reported); "(no label)" is its own label when only the
@@ -23,8 +27,9 @@ label is missing.
 **Matched by SDL** (:func:`matched_by_label`). Episodes of A and B (any seed) are grouped by
 the ego's label within an env, exactly or within ``d_sim`` edit distance of a label that
 both produce (:mod:`tap_bench.similarity`), and the measures are compared inside each
-group: does A drive more safely than B *when both do the same manoeuvre*? Unpaired, so the
-episodes of A and of B in a group are resampled independently.
+group: does A drive more safely than B *when both do the same manoeuvre*? Unpaired: Welch
+intervals for the measures, Newcombe's for the crash rate. A group with fewer than
+:data:`MIN_GROUP` episodes of either policy is listed with its sizes but not tested.
 """
 
 from __future__ import annotations
@@ -34,21 +39,32 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.bootstrap import (
-    BootstrapConfig,
-    percentile_interval,
-    resample_weights,
-    simultaneous_band,
-    weighted_means,
+from tap_bench import sdl
+from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.intervals import (
+    MEASURE_BOUNDS,
+    mean_interval,
+    newcombe_interval,
+    tango_band,
+    tango_interval,
+    welch_interval,
+    wilson_interval,
 )
 from tap_bench.bench.measures import MEASURES, Measure
-from tap_bench.errors import LabelTableError
+from tap_bench.errors import LabelTableError, ParameterError, did_you_mean
+from tap_bench.similarity.sdl_distance import label_set, levenshtein_matrix
 
-__all__ = ["NO_LABEL", "PairedComparison", "matched_by_label", "paired_comparison"]
+__all__ = ["MIN_GROUP", "NO_LABEL", "PairedComparison", "matched_by_label",
+           "paired_comparison"]
 
 NO_LABEL = "(no label)"
 """The label of an episode whose ego carries none (a record shorter than 1 s)."""
 ALL_ENVS = "all"
+MIN_GROUP = 5
+"""Fewest episodes of each policy for a label group to be tested: below it Welch's interval
+of a mean difference covers far less than its level on the skewed measures of rollouts
+(``benchmarks/interval_coverage.py``: 3 vs 3 episodes cover well under 0.90), and a group
+of 3 against 2 says nothing a reader should act on."""
 
 
 @dataclass(frozen=True)
@@ -96,8 +112,8 @@ def paired_comparison(episodes: pd.DataFrame, a: str, b: str, *,
 
     Args:
         episodes: the episode table holding both policies.
-        a, b: policy names.
-        config: bootstrap resamples, level and seed.
+        a, b: policy names; B is the reference (differences are A - B).
+        config: the interval level (``config.level``).
         measures: the measures to compare (those absent from the table are skipped).
 
     Returns:
@@ -114,82 +130,95 @@ def paired_comparison(episodes: pd.DataFrame, a: str, b: str, *,
             "the same envs and seeds to pair them.")
     envs = sorted(pairs["env"].unique())
     env_of = pairs["env"].to_numpy()
-    # one resampling of seeds per env; the pooled bootstrap resamples within every env,
-    # which is the per-env resamplings side by side (pairs are sorted by env)
-    weights = {env: resample_weights(int((env_of == env).sum()), config, stream=k)
-               for k, env in enumerate(envs)}
-    groups = [(env, env_of == env, weights[env]) for env in envs]
+    groups = [(env, env_of == env) for env in envs]
     if len(envs) > 1:
-        groups.append((ALL_ENVS, np.ones(len(pairs), bool),
-                       np.hstack([weights[env] for env in envs])))
+        groups.append((ALL_ENVS, np.ones(len(pairs), bool)))
     summary, measure_rows, label_rows = [], [], []
-    for env, mask, W in groups:
+    for env, mask in groups:
         sub = pairs[mask]
         lab_a = sub["sdl_a"].fillna(NO_LABEL).to_numpy(str)
         lab_b = sub["sdl_b"].fillna(NO_LABEL).to_numpy(str)
-        agree = (lab_a == lab_b).astype(float)
-        lo, hi = percentile_interval(W @ agree / len(sub), config.level)
+        n_agree = int((lab_a == lab_b).sum())
+        lo, hi = wilson_interval(n_agree, len(sub), config.level)
         n_drop = int(dropped.sum()) if env == ALL_ENVS else int(dropped.get(env, 0))
         summary.append({"env": env, "policy_a": a, "policy_b": b, "n_pairs": len(sub),
-                        "n_dropped": n_drop, "agreement": agree.mean(), "agreement_low": lo,
-                        "agreement_high": hi})
-        measure_rows += _measure_rows(env, sub, W, measures, config)
-        label_rows += _label_rows(env, lab_a, lab_b, W, config)
+                        "n_dropped": n_drop, "agreement": n_agree / len(sub),
+                        "agreement_low": lo, "agreement_high": hi})
+        measure_rows += _measure_rows(env, sub, measures, config.level)
+        if env != ALL_ENVS:  # a label is (env, label): no pooled label rows
+            label_rows += _label_rows(env, lab_a, lab_b, config,
+                                      config.rng("paired band", env, a, b))
     return PairedComparison(
         summary=pd.DataFrame(summary), measures=pd.DataFrame(measure_rows),
         labels=pd.DataFrame(label_rows),
-        method=config.describe("seeds (pairs of episodes), stratified by env when pooled")
-        + "; label bands simultaneous (max-|t|) over each env's labels")
+        method=(f"{config.level:.0%} intervals over pairs of episodes (A and B on one seed); "
+                "agreement: Wilson; label frequency differences, crash-rate differences and "
+                "the probability of improvement: Tango's paired score interval; label bands: "
+                "Tango at a sup-score critical value (bootstrap of pairs) over each env's "
+                "labels; other measure differences: "
+                "paired t. 'all' pools every pair of every env."))
 
 
-def _measure_rows(env: str, sub: pd.DataFrame, W: np.ndarray, measures, config) -> list[dict]:
-    present = [m for m in measures if f"{m.name}_a" in sub.columns]
-    if not present:
-        return []
-    va = np.column_stack([sub[f"{m.name}_a"].to_numpy(float, na_value=np.nan) for m in present])
-    vb = np.column_stack([sub[f"{m.name}_b"].to_numpy(float, na_value=np.nan) for m in present])
-    both = ~(np.isnan(va) | np.isnan(vb))
-    diff = np.where(both, va - vb, np.nan)
-    sign = np.array([1.0 if m.higher_is_better else -1.0 for m in present])
-    better = np.where(both, (sign * diff > 0) + 0.5 * (diff == 0), np.nan)
-    # every measure's difference and improvement in one product with the weights
-    boot = weighted_means(W, np.hstack([diff, better]))
-    lo, hi = percentile_interval(boot, config.level)
-    k = len(present)
+def _measure_rows(env: str, sub: pd.DataFrame, measures, level: float) -> list[dict]:
     rows = []
-    for j, m in enumerate(present):
-        if not both[:, j].any():
+    for m in measures:
+        if f"{m.name}_a" not in sub.columns:
             continue
+        va = sub[f"{m.name}_a"].to_numpy(float, na_value=np.nan)
+        vb = sub[f"{m.name}_b"].to_numpy(float, na_value=np.nan)
+        both = ~(np.isnan(va) | np.isnan(vb))
+        n = int(both.sum())
+        if not n:
+            continue
+        va, vb = va[both], vb[both]
+        diff = va - vb
+        sign = 1.0 if m.higher_is_better else -1.0
+        wins, losses = int((sign * diff > 0).sum()), int((sign * diff < 0).sum())
+        d_lo, d_hi = tango_interval(wins, losses, n, level)
+        if m.name == "crashed":  # a difference of paired proportions
+            lo, hi = tango_interval(int(((va > 0) & (vb == 0)).sum()),
+                                    int(((va == 0) & (vb > 0)).sum()), n, level)
+        else:
+            bounds = MEASURE_BOUNDS.get(m.name)
+            span = None if bounds is None else (bounds[0] - bounds[1], bounds[1] - bounds[0])
+            lo, hi = mean_interval(diff, level, bounds=span)
         rows.append({"env": env, "measure": m.name, "higher_is_better": m.higher_is_better,
-                     "n": int(both[:, j].sum()), "mean_a": float(np.mean(va[both[:, j], j])),
-                     "mean_b": float(np.mean(vb[both[:, j], j])),
-                     "diff": float(np.nanmean(diff[:, j])), "diff_low": lo[j],
-                     "diff_high": hi[j], "p_improvement": float(np.nanmean(better[:, j])),
-                     "p_low": lo[k + j], "p_high": hi[k + j]})
+                     "n": n, "mean_a": float(va.mean()), "mean_b": float(vb.mean()),
+                     "diff": float(diff.mean()), "diff_low": lo, "diff_high": hi,
+                     "p_improvement": 0.5 + (wins - losses) / (2 * n),
+                     "p_low": 0.5 + d_lo / 2, "p_high": 0.5 + d_hi / 2})
     return rows
 
 
-def _label_rows(env: str, lab_a: np.ndarray, lab_b: np.ndarray, W: np.ndarray,
-                config: BootstrapConfig) -> list[dict]:
+def _label_rows(env: str, lab_a: np.ndarray, lab_b: np.ndarray, config: BootstrapConfig,
+                rng: np.random.Generator) -> list[dict]:
+    level = config.level
     names, codes = np.unique(np.concatenate([lab_a, lab_b]), return_inverse=True)
     n = len(lab_a)
-    onehot_diff = np.zeros((n, len(names)))
-    onehot_diff[np.arange(n), codes[:n]] += 1.0
-    onehot_diff[np.arange(n), codes[n:]] -= 1.0
-    estimate = onehot_diff.mean(axis=0)
-    boot = W @ onehot_diff / n
-    lo, hi = percentile_interval(boot, config.level)
-    band_lo, band_hi = simultaneous_band(estimate, boot, config.level)
-    freq_a = np.bincount(codes[:n], minlength=len(names)) / n
-    freq_b = np.bincount(codes[n:], minlength=len(names)) / n
+    k = len(names)
+    in_a = np.zeros((n, k), bool)
+    in_b = np.zeros((n, k), bool)
+    in_a[np.arange(n), codes[:n]] = True
+    in_b[np.arange(n), codes[n:]] = True
+    only_a = (in_a & ~in_b).sum(axis=0)
+    only_b = (in_b & ~in_a).sum(axis=0)
+    estimate = (only_a - only_b) / n
+    lo, hi = tango_interval(only_a, only_b, np.full(k, n), level)
+    band_lo, band_hi = tango_band(in_a & ~in_b, in_b & ~in_a, level, rng, config.n_resamples)
+    freq_a = in_a.sum(axis=0) / n
+    freq_b = in_b.sum(axis=0) / n
     order = np.argsort(-np.abs(estimate), kind="stable")
     return [{"env": env, "label": names[j], "freq_a": freq_a[j], "freq_b": freq_b[j],
              "diff": estimate[j], "diff_low": lo[j], "diff_high": hi[j],
              "band_low": band_lo[j], "band_high": band_hi[j]} for j in order]
 
 
+MATCHED_COLUMNS = ("env", "label", "n_a", "n_b", "tested", "measure", "higher_is_better",
+                   "mean_a", "mean_b", "diff", "diff_low", "diff_high", "note")
+
+
 def matched_by_label(episodes: pd.DataFrame, a: str, b: str, *, metric: str = "exact",
-                     d_sim: float = 0, min_group: int = 2,
+                     d_sim: float = 0, min_group: int = MIN_GROUP,
                      config: BootstrapConfig | None = None,
                      measures: tuple[Measure, ...] = MEASURES) -> pd.DataFrame:
     """Compare A and B inside groups of episodes that do the same (or a near) manoeuvre.
@@ -201,67 +230,68 @@ def matched_by_label(episodes: pd.DataFrame, a: str, b: str, *, metric: str = "e
 
     Args:
         episodes: the episode table holding both policies.
-        a, b: policy names.
+        a, b: policy names (B is the reference: differences are A - B).
         metric: ``"exact"`` or ``"levenshtein"`` (:mod:`tap_bench.similarity`).
         d_sim: the largest distance inside a group (``<=``).
-        min_group: groups with fewer episodes of A or of B are left out.
-        config: bootstrap resamples, level and seed; episodes of A and of B are resampled
-            independently within the group.
+        min_group: groups with fewer episodes of A or of B are listed (one row, ``tested``
+            False, measure NA) but not tested.
+        config: the interval level.
         measures: the measures compared.
 
     Returns:
-        one row per group and measure: env, label (the anchor), n_a, n_b, measure,
-        higher_is_better, mean_a, mean_b, diff (A - B), diff_low, diff_high; sorted by
-        env and group size.
+        one row per tested group and measure, and one per untested group:
+        :data:`MATCHED_COLUMNS`; sorted by env and group size.
     """
     config = config or BootstrapConfig()
     if metric not in ("exact", "levenshtein"):
-        from tap_bench.errors import did_you_mean
-
         raise did_you_mean("metric", metric, ("exact", "levenshtein"))
     if metric == "exact" and d_sim != 0:
-        raise ValueError("metric 'exact' (g_SDL) is 0 or 1: use d_sim=0, or metric "
-                         "'levenshtein' for near labels.")
+        raise ParameterError("d_sim", d_sim, "0 with metric 'exact' (g_SDL is 0 or 1)",
+                             hint="Use metric 'levenshtein' for near labels.")
+    if isinstance(min_group, bool) or not isinstance(min_group, int) or min_group < 2:
+        raise ParameterError("min_group", min_group, "an integer >= 2")
     ok = episodes[(episodes["status"] == "ok") & episodes["sdl"].notna()
                   & episodes["policy"].isin([a, b])]
     rows = []
-    stream = 0
     for env, sub in ok.groupby("env", sort=True):
         is_a = (sub["policy"] == a).to_numpy()
         lab = sub["sdl"].to_numpy(str)
         names, codes = np.unique(lab, return_inverse=True)
         shared = np.intersect1d(codes[is_a], codes[~is_a])
         present = [m for m in measures if m.name in sub.columns]
-        x = np.column_stack([sub[m.name].to_numpy(float, na_value=np.nan) for m in present]) \
-            if present else np.zeros((len(sub), 0))
-        if metric == "exact":
-            within = np.eye(len(names), dtype=bool)
-        else:
-            within = _levenshtein_within(names, d_sim)
+        within = np.eye(len(names), dtype=bool) if metric == "exact" else \
+            _levenshtein_within(names, d_sim)
         for anchor in shared:
             member = within[anchor][codes]
             ma, mb = member & is_a, member & ~is_a
+            key = {"env": env, "label": names[anchor], "n_a": int(ma.sum()),
+                   "n_b": int(mb.sum())}
             if ma.sum() < min_group or mb.sum() < min_group:
+                rows.append({**key, "tested": False,
+                             "note": f"fewer than {min_group} episodes of a policy: not "
+                             "tested"})
                 continue
-            Wa = resample_weights(int(ma.sum()), config, stream=50_000 + 2 * stream)
-            Wb = resample_weights(int(mb.sum()), config, stream=50_001 + 2 * stream)
-            stream += 1
-            boot = weighted_means(Wa, x[ma]) - weighted_means(Wb, x[mb])
-            lo, hi = percentile_interval(boot, config.level)
-            for j, m in enumerate(present):
-                xa, xb = x[ma, j], x[mb, j]
-                if np.isnan(xa).all() or np.isnan(xb).all():
+            for m in present:
+                xa = sub[m.name].to_numpy(float, na_value=np.nan)[ma]
+                xb = sub[m.name].to_numpy(float, na_value=np.nan)[mb]
+                xa, xb = xa[np.isfinite(xa)], xb[np.isfinite(xb)]
+                if len(xa) < min_group or len(xb) < min_group:
                     continue
-                rows.append({"env": env, "label": names[anchor], "n_a": int(ma.sum()),
-                             "n_b": int(mb.sum()), "measure": m.name,
+                if m.name == "crashed":
+                    lo, hi = newcombe_interval(int(xa.sum()), len(xa), int(xb.sum()),
+                                               len(xb), config.level)
+                else:
+                    lo, hi = welch_interval(xa, xb, config.level,
+                                            bounds=MEASURE_BOUNDS.get(m.name))
+                rows.append({**key, "tested": True, "measure": m.name,
                              "higher_is_better": m.higher_is_better,
-                             "mean_a": float(np.nanmean(xa)), "mean_b": float(np.nanmean(xb)),
-                             "diff": float(np.nanmean(xa) - np.nanmean(xb)),
-                             "diff_low": lo[j], "diff_high": hi[j]})
-    out = pd.DataFrame(rows, columns=["env", "label", "n_a", "n_b", "measure",
-                                      "higher_is_better", "mean_a", "mean_b", "diff",
-                                      "diff_low", "diff_high"])
+                             "mean_a": float(xa.mean()), "mean_b": float(xb.mean()),
+                             "diff": float(xa.mean() - xb.mean()), "diff_low": lo,
+                             "diff_high": hi, "note": ""})
+    out = pd.DataFrame(rows, columns=list(MATCHED_COLUMNS))
     if len(out):
+        out["tested"] = out["tested"].astype(bool)
+        out["note"] = out["note"].fillna("")
         size = out["n_a"] + out["n_b"]
         out = out.assign(_size=-size).sort_values(["env", "_size", "label"], kind="stable")
         out = out.drop(columns="_size").reset_index(drop=True)
@@ -270,12 +300,11 @@ def matched_by_label(episodes: pd.DataFrame, a: str, b: str, *, metric: str = "e
 
 def _levenshtein_within(names: np.ndarray, d_sim: float) -> np.ndarray:
     """(u, u) bool: label j within ``d_sim`` token edits of label i."""
-    from tap_bench.similarity.sdl_distance import label_set, levenshtein_matrix
-
     table = pd.DataFrame({"scenario_id": [f"l{i}" for i in range(len(names))],
                           "track_id": "0", "sdl": names})
-    split = table["sdl"].str.split(" | ", n=1, expand=True, regex=False)
-    table["lateral"], table["longitudinal"] = split[0], split[1]
+    sides = [sdl.parse_sdl(str(text)) for text in names]
+    table["lateral"] = [sdl.join(lat) for lat, _ in sides]
+    table["longitudinal"] = [sdl.join(lon) for _, lon in sides]
     ls = label_set(table)
     # label_set keeps labels in order of first use, which is the order of ``names`` here
     return levenshtein_matrix(ls) <= d_sim

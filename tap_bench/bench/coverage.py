@@ -16,34 +16,49 @@ For an agent's n episodes, :func:`coverage` reports
 - ``coverage``: share of the reference's items exhibited at least once;
 - ``weighted_coverage``: the reference weight of the items exhibited (the share of the
   reference corpus's trajectories whose label the agent shows);
-- ``entropy_bits``: the entropy of the agent's SDL label distribution, Chao-Shen
-  coverage-adjusted (Chao & Shen 2003), and ``entropy_observed_bits``, the plug-in value.
+- ``n_distinct``, the items covered and those missed.
+
+The diversity of the agent's own labels (Hill numbers, completeness) is
+:mod:`tap_bench.bench.diversity`'s.
+
+**Labels belong to an env.** A reference made of rollouts in one env is held against the
+agent's episodes in that env only; pooled over envs (:func:`pooled_coverage`) the coverage
+is the share of all the envs' (env, label) reference items shown, that is the per-env
+coverages averaged with weights K_env (each env's number of reference items), and the
+weighted coverage the per-env weighted coverages averaged with the envs' shares of the
+reference corpus. A reference without envs (a WOMD corpus, the vocabulary) is one set for
+every env, and its pooled coverage is that of all the agent's episodes together.
 
 **What the intervals are for.** Coverage counts distinct labels, so it grows with n: the
 estimand is the expected coverage of an evaluation with the same number of episodes, of
 which the observed value is unbiased. A plain bootstrap underestimates its spread (labels
 the agent produces but the sample missed never appear in a resample). The intervals
 therefore follow Chao et al. (2014, Ecol. Monogr. 84:45, the iNEXT method): the empirical
-label distribution is augmented with the undetected labels the Chao1 estimator predicts,
-carrying the Good-Turing undetected probability (as many of them as the reference has
-unseen items count as reference items, which widens the interval: the conservative
-choice); episodes are drawn
-from it (multinomially for whole labels, independently per item for vocabulary items) and
-the interval is ``estimate +- z * sd`` over those draws, clipped to [0, 1]. The tests measure
-the resulting coverage rate on synthetic label distributions (docs/benchmark.md has the
-figures).
+distribution is augmented with the undetected items the Chao1 (Chao2 for incidence)
+estimator predicts, carrying the Good-Turing undetected mass
+(:func:`tap_bench.bench.diversity.estimated_population`, whose undetected mass is
+singletons over sampling units, as iNEXT's); as many of them as the reference has unseen
+items count as reference items, which widens the interval: the conservative choice.
+Episodes are drawn from it (multinomially for whole labels, independently per item for
+vocabulary items) and the interval is ``estimate +- z * sd`` over those draws, clipped to
+[0, 1]. When the population has nothing undetected to draw (a handful of episodes with no
+singleton), the draws cannot move and the interval is ``estimate +- n u / K`` instead, with
+u the Wilson upper limit of 0 of n: at most that share of episodes could show an item not
+yet seen (never a zero-width interval on an estimate). ``benchmarks/interval_coverage.py``
+measures its coverage rate.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from statistics import NormalDist
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 
 from tap_bench import sdl
 from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.diversity import estimated_population
+from tap_bench.bench.intervals import wilson_interval, z_value
 from tap_bench.errors import LabelTableError, did_you_mean
 from tap_bench.sim.coverage import vocabulary_tokens
 
@@ -52,7 +67,7 @@ __all__ = [
     "Reference",
     "corpus_reference",
     "coverage",
-    "entropy_bits",
+    "pooled_coverage",
     "vocabulary_reference",
 ]
 
@@ -87,8 +102,7 @@ class Reference:
 
 def vocabulary_reference(level: str = "action") -> Reference:
     """The single labels of ``level``, lateral and longitudinal, equally weighted."""
-    if level not in sdl.LEVELS:
-        raise did_you_mean("level", level, sdl.LEVELS)
+    sdl.check_level(level)
     items = np.array(sorted(vocabulary_tokens(level)), dtype=object)
     return Reference(items, np.full(len(items), 1.0 / len(items)), "vocabulary", level,
                      f"the {len(items)} single labels of the {level} level")
@@ -137,11 +151,11 @@ class CoverageResult:
         n: episodes scored.
         coverage, coverage_low, coverage_high: share of reference items exhibited.
         weighted_coverage, weighted_low, weighted_high: reference weight exhibited.
-        entropy_bits, entropy_low, entropy_high: Chao-Shen entropy of the agent's labels.
-        entropy_observed_bits: plug-in entropy of the observed labels.
         n_distinct: distinct SDL labels of the agent.
+        n_reference: items of the reference (K).
         covered: the reference items exhibited.
         missed: the reference items not exhibited, heaviest first.
+        draws: (B, 2) bootstrap draws of (coverage, weighted coverage), for pooling.
     """
 
     n: int
@@ -151,20 +165,17 @@ class CoverageResult:
     weighted_coverage: float
     weighted_low: float
     weighted_high: float
-    entropy_bits: float
-    entropy_low: float
-    entropy_high: float
-    entropy_observed_bits: float
     n_distinct: int
+    n_reference: int
     covered: tuple[str, ...]
     missed: tuple[str, ...]
+    draws: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 2)))
 
     def row(self) -> dict:
         """The scalar fields as a dict (a row of the coverage table)."""
         return {k: getattr(self, k) for k in (
             "n", "coverage", "coverage_low", "coverage_high", "weighted_coverage",
-            "weighted_low", "weighted_high", "entropy_bits", "entropy_low", "entropy_high",
-            "entropy_observed_bits", "n_distinct")}
+            "weighted_low", "weighted_high", "n_distinct", "n_reference")}
 
 
 def _items_of(labels: np.ndarray, reference: Reference) -> list[set[str]] | np.ndarray:
@@ -173,67 +184,24 @@ def _items_of(labels: np.ndarray, reference: Reference) -> list[set[str]] | np.n
     out = []
     for text in labels:
         items: set[str] = set()
-        for side in text.split(sdl.SDL_SEPARATOR):
-            items.update(side.split(sdl.SEPARATOR))
+        for side in sdl.parse_sdl(text):
+            items.update(side)
         out.append(items)
     return out
 
 
-def entropy_bits(counts: np.ndarray) -> tuple[float, float]:
-    """(Chao-Shen, plug-in) entropy in bits of a label count vector.
-
-    Chao-Shen: with n the total, f1 the labels seen once and C = 1 - f1/n (f1 = n is
-    taken as n - 1) the estimated sample coverage, p~ = C * count/n and
-    H = -sum p~ log2 p~ / (1 - (1 - p~)^n).
-    """
-    counts = np.asarray(counts, dtype=float)
-    n = counts.sum()
-    if n == 0:
-        return float("nan"), float("nan")
-    p = counts[counts > 0] / n
-    return float(_chao_shen(counts[None, :])[0]), float(-(p * np.log2(p)).sum())
-
-
-def _chao_shen(counts: np.ndarray) -> np.ndarray:
-    """(B,) Chao-Shen entropy [bits] of each row of a (B, m) count matrix (equal totals)."""
-    n = counts.sum(axis=1, keepdims=True)
-    if n[0, 0] <= 1:
-        return np.zeros(len(counts))
-    f1 = (counts == 1).sum(axis=1, keepdims=True)
-    c = 1.0 - np.minimum(f1, n - 1) / n
-    pa = c * counts / n
-    with np.errstate(divide="ignore", invalid="ignore"):
-        terms = np.where(counts > 0, -pa * np.log2(pa) / (1.0 - (1.0 - pa) ** n), 0.0)
-    return terms.sum(axis=1)
-
-
-def _undetected(freq: np.ndarray, n: int) -> tuple[int, float, np.ndarray]:
-    """Chao1 undetected count, their total probability and the adjusted probabilities of
-    the detected items, from detection counts ``freq`` over n units (iNEXT's
-    EstiBootComm)."""
-    f1, f2 = float((freq == 1).sum()), float((freq == 2).sum())
-    if f2 > 0:
-        f0 = (n - 1) / n * f1 * f1 / (2 * f2)
-    else:
-        f0 = (n - 1) / n * f1 * (f1 - 1) / 2
-    total = freq.sum()
-    share = f1 / total * (n * f0 / (n * f0 + f1)) if f1 > 0 else 0.0  # undetected mass
-    p = freq / n
-    tail = (p * (1 - p) ** n).sum()
-    lam = share / tail if tail > 0 else 0.0
-    p_adj = p * (1 - lam * (1 - p) ** n)
-    return int(np.ceil(f0)), share * total / n, np.clip(p_adj, 0, 1)
-
-
 def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
-             config: BootstrapConfig | None = None, stream: int = 0) -> CoverageResult:
+             config: BootstrapConfig | None = None,
+             rng: np.random.Generator | None = None) -> CoverageResult:
     """Coverage of ``reference`` by an agent's ego labels, with intervals.
 
     Args:
-        labels: (n,) the agent's SDL labels, one per episode (NA labels are dropped).
+        labels: (n,) the agent's SDL labels, one per episode (NA labels are dropped), all
+            from the env(s) the reference stands for.
         reference: a :class:`Reference` at the labels' level.
         config: bootstrap resamples, level and seed.
-        stream: random stream of the config (one per agent, so agents do not share draws).
+        rng: the random stream; default ``config.rng("coverage", reference.description)``
+            (callers name it by env, policy and reference).
 
     Returns:
         :class:`CoverageResult`.
@@ -242,12 +210,11 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
     lab = pd.Series(labels, dtype="string").dropna().to_numpy(str)
     n = len(lab)
     K = len(reference)
-    names, counts = np.unique(lab, return_counts=True)
-    h, h_obs = entropy_bits(counts)
     if n == 0:
         nan = float("nan")
-        return CoverageResult(0, 0.0, nan, nan, 0.0, nan, nan, nan, nan, nan, nan, 0, (),
-                              tuple(reference.items))
+        return CoverageResult(0, 0.0, nan, nan, 0.0, nan, nan, 0, K, (),
+                              tuple(reference.items), np.zeros((0, 2)))
+    names, counts = np.unique(lab, return_counts=True)
     # the items the agent shows (whole labels or single labels) and how many episodes show each
     if reference.kind == "corpus":
         items, freq = names, counts
@@ -272,46 +239,92 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
     missed = reference.items[missed_idx[np.argsort(-reference.weights[missed_idx],
                                                    kind="stable")]]
 
-    # augmented population: the detected items and the f0 undetected ones Chao1 predicts;
-    # up to as many of them as the reference has unseen items count as reference items
-    f0, p0, p_adj = _undetected(freq.astype(float), n)
-    p_each = p0 / f0 if f0 else 0.0  # detection probability of one undetected item
+    # augmented population: the detected items and the f0 undetected ones Chao1 (Chao2)
+    # predicts; up to as many of them as the reference has unseen items count as its items
+    p_adj, p_undetected = estimated_population(freq.astype(float), n)
+    f0 = len(p_undetected)
     n_ref_undetected = min(f0, len(missed_idx))
     w_missed = float(reference.weights[missed_idx].mean()) if len(missed_idx) else 0.0
-    rng = config.rng(10_000 + stream)
+    rng = rng or config.rng("coverage", reference.description)
     B = config.n_resamples
     if reference.kind == "corpus":  # one label per episode: multinomial draws
         in_ref_pop = np.r_[in_ref, np.arange(f0) < n_ref_undetected]
-        prob = np.r_[p_adj, np.full(f0, p_each)]
+        prob = np.r_[p_adj, p_undetected]
         draws = rng.multinomial(n, prob / prob.sum(), size=B)  # (B, m) episodes per label
     else:  # vocabulary items: the universe is the reference; items shown independently
         in_ref_pop = np.r_[in_ref, np.ones(n_ref_undetected, bool)]
-        prob = np.r_[p_adj, np.full(n_ref_undetected, min(p_each, 1.0))]
-        draws = rng.binomial(n, prob, size=(B, len(prob)))
+        prob = np.r_[p_adj, p_undetected[:n_ref_undetected]]
+        draws = rng.binomial(n, np.clip(prob, 0.0, 1.0), size=(B, len(prob)))
     w_pop = np.where(in_ref_pop, np.r_[w_item, np.full(len(prob) - len(w_item), w_missed)],
                      0.0)
     seen = draws > 0
-    boot_cov = (seen & in_ref_pop).sum(axis=1) / K
-    boot_wcov = (seen * w_pop).sum(axis=1)
-    z = NormalDist().inv_cdf(0.5 + config.level / 2)
-
-    def interval(estimate: float, boot: np.ndarray) -> tuple[float, float]:
-        sd = float(np.std(boot))
-        return max(0.0, estimate - z * sd), min(1.0, estimate + z * sd)
-
-    c_lo, c_hi = interval(cov, boot_cov)
-    w_lo, w_hi = interval(wcov, boot_wcov)
-    if reference.kind == "corpus":
-        label_draws = draws  # the same augmented population of whole labels
-    else:
-        g0, q0, q_adj = _undetected(counts.astype(float), n)
-        q = np.r_[q_adj, np.full(g0, q0 / g0 if g0 else 0.0)]
-        label_draws = rng.multinomial(n, q / q.sum(), size=B)
-    boot_h = _chao_shen(label_draws)
-    sd_h = float(np.std(boot_h))
+    boot = np.column_stack([(seen & in_ref_pop).sum(axis=1) / K, (seen * w_pop).sum(axis=1)])
+    (c_lo, c_hi), (w_lo, w_hi) = _intervals(np.array([cov, wcov]), boot, config.level)
+    if np.std(boot[:, 0]) == 0:  # nothing undetected to draw: bound what n episodes can add
+        _, u = wilson_interval(0, n, config.level)
+        c_lo, c_hi = max(0.0, cov - n * u / K), min(1.0, cov + n * u / K)
+        step = n * u * float(reference.weights.max())
+        w_lo, w_hi = max(0.0, wcov - step), min(1.0, wcov + step)
     return CoverageResult(
         n=n, coverage=cov, coverage_low=c_lo, coverage_high=c_hi, weighted_coverage=wcov,
-        weighted_low=w_lo, weighted_high=w_hi, entropy_bits=h,
-        entropy_low=max(0.0, h - z * sd_h), entropy_high=h + z * sd_h,
-        entropy_observed_bits=h_obs, n_distinct=len(names), covered=tuple(covered),
-        missed=tuple(missed))
+        weighted_low=w_lo, weighted_high=w_hi, n_distinct=len(names), n_reference=K,
+        covered=tuple(covered), missed=tuple(missed), draws=boot)
+
+
+def _intervals(estimate: np.ndarray, boot: np.ndarray, level: float
+               ) -> list[tuple[float, float]]:
+    """``estimate +- z sd`` of each column of the draws, clipped to [0, 1]."""
+    z = z_value(level)
+    sd = np.std(boot, axis=0) if len(boot) else np.full(len(estimate), np.nan)
+    return [(max(0.0, float(e - z * s)), min(1.0, float(e + z * s)))
+            for e, s in zip(estimate, sd, strict=True)]
+
+
+def pooled_coverage(results: list[CoverageResult], corpus_sizes: list[int], level: float
+                    ) -> CoverageResult:
+    """The coverage of the union of per-env references keyed by (env, label).
+
+    Args:
+        results: per-env coverages, each of that env's agent episodes against that env's
+            reference.
+        corpus_sizes: each env's reference corpus size (trajectories), the weights of the
+            weighted coverage.
+        level: interval level.
+
+    Returns:
+        coverage = sum covered / sum K (the K-weighted mean of the per-env coverages),
+        weighted coverage = the corpus-size-weighted mean of the per-env ones; intervals
+        ``estimate +- z sd`` with the sd of that weighted sum of independent envs.
+    """
+    results = [r for r in results]
+    K = np.array([r.n_reference for r in results], float)
+    N = np.array(corpus_sizes, float)
+    if not len(results) or K.sum() == 0:
+        nan = float("nan")
+        return CoverageResult(0, 0.0, nan, nan, 0.0, nan, nan, 0, 0, (), ())
+    ck, wk = K / K.sum(), N / N.sum()
+    cov = float(sum(c * r.coverage for c, r in zip(ck, results, strict=True)))
+    wcov = float(sum(w * r.weighted_coverage for w, r in zip(wk, results, strict=True)))
+    # envs are independent: the pooled sd is the root of the weighted sum of squared sds;
+    # an env whose draws could not move contributes its fallback half-width / z
+    z = z_value(level)
+
+    def sd_of(r: CoverageResult, j: int) -> float:
+        lo, hi = ((r.coverage_low, r.coverage_high) if j == 0 else
+                  (r.weighted_low, r.weighted_high))
+        spread = float(np.std(r.draws[:, j])) if len(r.draws) else 0.0
+        return max(spread, (hi - lo) / (2 * z)) if np.isfinite(hi - lo) else spread
+
+    sd_c = float(np.sqrt(sum((c * sd_of(r, 0)) ** 2 for c, r in zip(ck, results,
+                                                                     strict=True))))
+    sd_w = float(np.sqrt(sum((w * sd_of(r, 1)) ** 2 for w, r in zip(wk, results,
+                                                                     strict=True))))
+    c_lo, c_hi = max(0.0, cov - z * sd_c), min(1.0, cov + z * sd_c)
+    w_lo, w_hi = max(0.0, wcov - z * sd_w), min(1.0, wcov + z * sd_w)
+    draws = np.zeros((0, 2))
+    return CoverageResult(
+        n=sum(r.n for r in results), coverage=cov, coverage_low=c_lo, coverage_high=c_hi,
+        weighted_coverage=wcov, weighted_low=w_lo, weighted_high=w_hi,
+        n_distinct=sum(r.n_distinct for r in results), n_reference=int(K.sum()),
+        covered=tuple(c for r in results for c in r.covered),
+        missed=tuple(c for r in results for c in r.missed), draws=draws)

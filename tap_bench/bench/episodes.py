@@ -31,7 +31,8 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.bench.measures import MEASURES, ego_measures
-from tap_bench.errors import LabelTableError, TrajectoryTableError
+from tap_bench.errors import LabelTableError, ParameterError, TrajectoryTableError
+from tap_bench.labelling import tap
 
 __all__ = ["EPISODE_COLUMNS", "ego_labels", "episode_table", "episodes_from_table"]
 
@@ -40,6 +41,8 @@ EPISODE_COLUMNS = ("env", "policy", "seed", "scenario_id", "status", "error", "s
 """Columns of the episode table, in order."""
 
 _LABEL_FIELDS = ("sdl", "lateral", "longitudinal")
+_SHARED = ("crashed", "mean_speed", "duration_s")
+"""Columns both the ego measures and a rollout's episode table carry."""
 
 
 def _ego_mask(table: pd.DataFrame, source: str) -> np.ndarray:
@@ -112,7 +115,8 @@ def episode_table(*, labels: pd.DataFrame | None = None,
             message names the column and the fix.
     """
     if labels is None and trajectories is None and episodes is None:
-        raise ValueError("episode_table needs labels, trajectories or episodes.")
+        raise ParameterError("labels, trajectories, episodes", None, "",
+            message="episode_table needs labels, trajectories or episodes.")
     out = None
     if trajectories is not None:
         out = ego_measures(trajectories)  # every scenario with an ego, labelled or not
@@ -132,13 +136,17 @@ def episode_table(*, labels: pd.DataFrame | None = None,
             if col not in eps:
                 raise TrajectoryTableError(f"{source}: the episode table has no {col!r} column; "
                                            "it comes from tap_bench.rollout().", column=col)
-        eps = eps.rename(columns={"crashed": "_crashed", "mean_speed": "_mean_speed"})
+        # columns both tables carry: the trajectories' value, else the rollout's (a failed
+        # episode has no trajectory)
+        eps = eps.rename(columns={c: f"_{c}" for c in _SHARED if c in eps.columns})
         eps["seed"] = eps["seed"].astype(np.int64)
         if out is None:
-            out = eps.rename(columns={"_crashed": "crashed", "_mean_speed": "mean_speed"})
+            out = eps.rename(columns={f"_{c}": c for c in _SHARED})
         else:
             out = out.merge(eps, on=["env", "policy", "seed"], how="outer")
-            for col in ("crashed", "mean_speed"):
+            for col in _SHARED:
+                if f"_{col}" not in out:
+                    continue
                 out[col] = out[col].where(out[col].notna(), out.pop(f"_{col}")) \
                     if col in out else out.pop(f"_{col}")
     for col in EPISODE_COLUMNS:
@@ -201,8 +209,6 @@ def episodes_from_table(table: pd.DataFrame, *, level: str, thresholds: str = "p
     Returns:
         (episode table, label table, trajectory table or None).
     """
-    from tap_bench.labelling import tap
-
     if "sdl" in table.columns:
         return episode_table(labels=table, level=level, policy=policy, source=source), \
             table, None

@@ -1,27 +1,42 @@
 """``bench check``: the regression gate of a run against a stored baseline.
 
 A baseline file (JSON) keeps, for every (env, policy) of a suite, the per-episode values
-the gate needs: the ego's SDL label and the measures (:data:`GATE_METRICS`). The gate
-compares a run's episodes with the baseline's, per (env, policy) and metric:
+the gate needs: the seed, the ego's SDL label and the measures (:data:`GATE_METRICS`), and
+the provenance of the run (each policy's full definition, with the SHA-256 of a model
+file, and each env's resolved config). The gate compares a run's episodes with the
+baseline's, per (env, policy) and metric:
 
 - measures: the change of the mean (run - baseline); label distribution: the total
   variation distance between the two ego label distributions (``label_tv``, in [0, 1]);
-- a **permutation test** of "no change" (episodes exchanged between run and baseline,
-  ``n_permutations`` times, seeded): runs with other seeds are exchangeable with the
-  baseline's under no change, so seed noise alone rarely fires the gate;
+- **paired** when the run and the baseline have the same seeds (the simulator is
+  deterministic, so an unchanged policy gives the same episode on a seed): a sign-flip
+  permutation test on the per-seed differences (for ``label_tv``, run and baseline labels
+  swapped within seeds), exact over all 2^n flips up to :data:`EXACT_FLIPS_MAX_SEEDS` seeds;
+- **unpaired** otherwise: episodes exchanged between run and baseline;
 - **Holm's correction** over every test of the check, so ``alpha`` bounds the chance that a
   check of an unchanged suite fires anywhere;
 - a metric **moved** when its change exceeds its margin *and* the Holm-adjusted p-value is
   below ``alpha``: a change must be both practically and statistically real.
 
-An (env, policy) of the baseline missing from the run, or with failed episodes in the run,
-moves too. The baseline file changes only through :func:`write_baseline`
-(``--update-baseline``).
+**A gate that can never fire is refused.** With m tests and P permutations no p-value is
+below 1 / (P + 1), and no Holm-adjusted one below m / (P + 1); with n paired seeds no
+sign-flip p-value is below 2 / 2^n. :func:`check` raises :class:`~tap_bench.errors.
+ParameterError` (naming the numbers and what would do) when the smallest attainable
+Holm-adjusted p-value is not below alpha.
+
+An (env, policy) of the baseline missing from the run, with failed episodes in the run, or
+whose policy or env definition changed since the baseline (named, with what changed),
+moves too. A baseline whose metric is missing or not numeric is an error
+(:func:`read_baseline`), and a run with no episode, or with more than
+:data:`MAX_FAILED_SHARE` of its episodes failed, cannot become one (:func:`write_baseline`).
+The baseline file changes only through :func:`write_baseline` (``--update-baseline``).
 """
 
 from __future__ import annotations
 
+import itertools
 import json
+import math
 import os
 import time
 from dataclasses import dataclass
@@ -31,20 +46,26 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from tap_bench.bench.bootstrap import named_rng
 from tap_bench.bench.compare import NO_LABEL
 from tap_bench.bench.measures import MEASURES
 from tap_bench.bench.suite import GATE_METRICS, GateConfig
-from tap_bench.errors import FileFormatError, TapBenchError
+from tap_bench.errors import BaselineError, BaselineMismatchError, FileFormatError, ParameterError
+from tap_bench.tableio import atomic_path
 
-__all__ = ["BASELINE_FORMAT", "GateResult", "check", "holm", "read_baseline", "write_baseline"]
+__all__ = ["BASELINE_FORMAT", "EXACT_FLIPS_MAX_SEEDS", "MAX_FAILED_SHARE", "GateResult",
+           "check", "definition_changes", "holm", "read_baseline", "smallest_p",
+           "write_baseline"]
 
 BASELINE_FORMAT = "tap-bench-baseline"
 _EPISODE_FIELDS = ("env", "policy", "seed", "sdl", *(m.name for m in MEASURES))
 _IDENTITY = ("suite", "suite_version", "level", "thresholds")
-
-
-class BaselineMismatchError(TapBenchError, ValueError):
-    """The run and the baseline were not made with the same suite, level or thresholds."""
+MAX_FAILED_SHARE = 0.05
+"""A run with more than this share of failed episodes cannot become a baseline: the
+baseline would hold a different set of episodes per (env, policy) than the runs checked
+against it, and a failure that is part of the behaviour must be fixed, not frozen."""
+EXACT_FLIPS_MAX_SEEDS = 16
+"""Up to this many paired seeds the sign-flip test enumerates all 2^n flips (exact p)."""
 
 
 @dataclass(frozen=True)
@@ -69,13 +90,15 @@ class GateResult:
     def format(self, *, all_rows: bool = False) -> str:
         """A plain-text table of what moved (or of every check)."""
         shown = self.table if all_rows else self.moved_rows()
+        kinds = sorted(set(self.table.get("test", pd.Series(dtype=str)).dropna()) - {""})
         head = (f"gate: {int(self.table['moved'].sum())} of {len(self.table)} checks moved "
                 f"(moved = |change| > margin and Holm-adjusted permutation p < "
-                f"{self.config.alpha:g}, {self.config.n_permutations} permutations)")
+                f"{self.config.alpha:g}; {', '.join(kinds) or 'no'} tests, "
+                f"{self.config.n_permutations} permutations)")
         if shown.empty:
             return head
-        cols = ["env", "policy", "metric", "baseline", "run", "change", "margin", "p_holm",
-                "moved", "note"]
+        cols = ["env", "policy", "metric", "test", "baseline", "run", "change", "margin",
+                "p_holm", "moved", "note"]
         text = shown[cols].to_string(index=False, float_format=lambda v: f"{v:.4g}",
                                      na_rep="-")
         return f"{head}\n{text}"
@@ -110,17 +133,27 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
         episodes: the run's episode table.
         path: the baseline JSON to write.
     """
-    from tap_bench.tableio import atomic_path
-
     ok = episodes[episodes["status"] == "ok"]
+    n_failed = len(episodes) - len(ok)
+    if ok.empty:
+        raise BaselineError(f"run {run_summary.get('run')!r} has no finished episode "
+                            f"({len(episodes)} episodes, {n_failed} failed): it cannot become "
+                            "a baseline. Fix the failures (summary.json lists them) and run "
+                            "again.")
+    if n_failed > MAX_FAILED_SHARE * len(episodes):
+        raise BaselineError(f"run {run_summary.get('run')!r} has {n_failed} of "
+                            f"{len(episodes)} episodes failed ({n_failed / len(episodes):.1%}, "
+                            f"more than {MAX_FAILED_SHARE:.0%}): it cannot become a baseline. "
+                            "Fix the failures (summary.json lists them) and run again.")
     rows = [[_json_value(v) for v in r] for r in ok[list(_EPISODE_FIELDS)].itertuples(
         index=False)]
     gate = run_summary.get("suite", {}).get("gate") or GateConfig().to_dict()
-    doc = {"format": BASELINE_FORMAT, "format_version": 1,
+    doc = {"format": BASELINE_FORMAT, "format_version": 2,
            **_identity(run_summary),
            "created": time.strftime("%Y-%m-%d %H:%M:%S"),
            "from_run": run_summary.get("run"), "seeds": run_summary.get("seeds"),
            "versions": run_summary.get("versions", {}), "gate": gate,
+           "provenance": run_summary.get("provenance", {}),
            "episodes": {"columns": list(_EPISODE_FIELDS), "rows": rows}}
     path = Path(path)
     with atomic_path(path) as tmp:
@@ -156,8 +189,20 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
                               ) from err
     missing = [c for c in _EPISODE_FIELDS if c not in table.columns]
     if missing:
-        raise FileFormatError(f"{path}: baseline episodes lack {', '.join(missing)}; "
-                              "re-make it with --update-baseline.")
+        raise BaselineError(f"{path}: baseline episodes lack {', '.join(missing)}; a metric "
+                            "the gate checks cannot be missing. Re-make it with "
+                            "--update-baseline.")
+    for m in MEASURES:
+        values = table[m.name]
+        bad = values.map(lambda v: v is not None and not isinstance(v, bool | int | float))
+        if bad.any():
+            row = int(np.flatnonzero(bad.to_numpy())[0])
+            raise BaselineError(
+                f"{path}: episode row {row} ({table['env'].iloc[row]}, "
+                f"{table['policy'].iloc[row]}, seed {table['seed'].iloc[row]}) has "
+                f"{m.name} = {values.iloc[row]!r}, not a number; a baseline holds numbers "
+                "(or null where a measure is undefined). Re-make it with --update-baseline.")
+        table[m.name] = pd.to_numeric(values, errors="coerce").astype(float)
     return doc, table
 
 
@@ -174,8 +219,73 @@ def holm(p: np.ndarray) -> np.ndarray:
     return out
 
 
-def _permutations(n: int, config: GateConfig, stream: int) -> np.ndarray:
-    rng = np.random.default_rng([config.seed, stream])
+def smallest_p(n_permutations: int, *, paired_seeds: int | None = None,
+               sizes: tuple[int, int] | None = None) -> float:
+    """The smallest p-value one permutation test can give.
+
+    Args:
+        n_permutations: random permutations P (p >= 1 / (P + 1)).
+        paired_seeds: for a paired test, the seeds n (exact sign flips: p >= 2 / 2^n).
+        sizes: for an unpaired test, the two sample sizes (p >= 2 / C(n1 + n2, n1)).
+    """
+    floor = 1.0 / (n_permutations + 1)
+    if paired_seeds is not None:
+        if paired_seeds <= EXACT_FLIPS_MAX_SEEDS:
+            return 2.0 / 2 ** paired_seeds if paired_seeds > 0 else 1.0
+        return max(floor, 2.0 / 2 ** paired_seeds)
+    if sizes is not None:
+        return max(floor, min(1.0, 2.0 / math.comb(sum(sizes), sizes[0])))
+    return floor
+
+
+def _flips(n: int, config: GateConfig, key: tuple) -> np.ndarray:
+    """(F, n) of +-1: all 2^n sign patterns (n <= EXACT_FLIPS_MAX_SEEDS), else the identity
+    and P random ones from the stream ``("gate", *key)``."""
+    if n <= EXACT_FLIPS_MAX_SEEDS:
+        return np.array(list(itertools.product((1.0, -1.0), repeat=n))).reshape(-1, n)
+    rng = named_rng(config.seed, "gate", *key)
+    random = rng.choice((1.0, -1.0), size=(config.n_permutations, n))
+    return np.vstack([np.ones((1, n)), random])
+
+
+def _p_from(perm_stats: np.ndarray, observed: float) -> float:
+    """Share of the flips (the identity among them) whose statistic reaches the observed."""
+    return float((perm_stats >= observed - 1e-12).sum()) / len(perm_stats)
+
+
+def _paired_mean_test(base: np.ndarray, run: np.ndarray, config: GateConfig, key: tuple
+                      ) -> tuple[float, float]:
+    """(mean per-seed change, sign-flip p of |mean change|)."""
+    d = run - base
+    flips = _flips(len(d), config, key)
+    perm = np.abs(flips @ d) / len(d)
+    return float(d.mean()), _p_from(perm, abs(float(d.mean())))
+
+
+def _tv(codes_b: np.ndarray, codes_r: np.ndarray, k: int) -> np.ndarray:
+    """(F,) total variation distance between rows of two (F, n) code matrices."""
+    F, nb = codes_b.shape
+    nr = codes_r.shape[1]
+    offsets = (np.arange(F) * k)[:, None]
+    cb = np.bincount((offsets + codes_b).ravel(), minlength=F * k).reshape(F, k)
+    cr = np.bincount((offsets + codes_r).ravel(), minlength=F * k).reshape(F, k)
+    return 0.5 * np.abs(cb / nb - cr / nr).sum(axis=1)
+
+
+def _paired_tv_test(base: np.ndarray, run: np.ndarray, config: GateConfig, key: tuple
+                    ) -> tuple[float, float]:
+    """(TV of the label distributions, p with run and baseline labels swapped per seed)."""
+    _, codes = np.unique(np.r_[base, run], return_inverse=True)
+    k = int(codes.max()) + 1
+    cb, cr = codes[:len(base)], codes[len(base):]
+    flips = _flips(len(base), config, key) > 0
+    perm = _tv(np.where(flips, cb, cr), np.where(flips, cr, cb), k)
+    observed = float(_tv(cb[None, :], cr[None, :], k)[0])
+    return observed, _p_from(perm, observed)
+
+
+def _permutations(n: int, config: GateConfig, key: tuple) -> np.ndarray:
+    rng = named_rng(config.seed, "gate", *key)
     return np.argsort(rng.random((config.n_permutations, n)), axis=1)
 
 
@@ -193,19 +303,50 @@ def _mean_test(base: np.ndarray, run: np.ndarray, perms: np.ndarray) -> tuple[fl
 def _tv_test(base: np.ndarray, run: np.ndarray, perms: np.ndarray) -> tuple[float, float]:
     """(total variation distance of the label distributions, permutation p)."""
     _, codes = np.unique(np.r_[base, run], return_inverse=True)
-    k = codes.max() + 1
-    n_b, n_r = len(base), len(run)
-
-    def tv(groups: np.ndarray) -> np.ndarray:
-        P = groups.shape[0]
-        offsets = (np.arange(P) * k)[:, None]
-        cb = np.bincount((offsets + groups[:, :n_b]).ravel(), minlength=P * k).reshape(P, k)
-        cr = np.bincount((offsets + groups[:, n_b:]).ravel(), minlength=P * k).reshape(P, k)
-        return 0.5 * np.abs(cb / n_b - cr / n_r).sum(axis=1)
-
-    observed = float(tv(codes[None, :])[0])
-    exceed = tv(codes[perms]) >= observed - 1e-12
+    k = int(codes.max()) + 1
+    n_b = len(base)
+    observed = float(_tv(codes[None, :n_b], codes[None, n_b:], k)[0])
+    shuffled = codes[perms]
+    exceed = _tv(shuffled[:, :n_b], shuffled[:, n_b:], k) >= observed - 1e-12
     return observed, float((1 + exceed.sum()) / (1 + len(perms)))
+
+
+def definition_changes(run: dict[str, Any] | None, baseline: dict[str, Any] | None
+                       ) -> list[tuple[str, str, str]]:
+    """What changed in the policies' and envs' definitions since the baseline.
+
+    Args:
+        run, baseline: the ``provenance`` of a run summary and of a baseline:
+            ``{"policies": {name: definition}, "envs": {name: resolved config}}``.
+
+    Returns:
+        (kind, name, what changed) per changed policy or env, e.g. ``("policy", "idm",
+        "params.time_wanted: 1.5 -> 3.0")``; names absent on one side are not listed.
+    """
+    out = []
+    for kind, key in (("policy", "policies"), ("env", "envs")):
+        here = (run or {}).get(key, {})
+        there = (baseline or {}).get(key, {})
+        for name in sorted(set(here) & set(there)):
+            diffs = _dict_diff(there[name], here[name])
+            if diffs:
+                out.append((kind, name, "; ".join(diffs)))
+    return out
+
+
+def _dict_diff(old: Any, new: Any, prefix: str = "") -> list[str]:
+    if isinstance(old, dict) and isinstance(new, dict):
+        out = []
+        for k in sorted(set(old) | set(new), key=str):
+            where = f"{prefix}.{k}" if prefix else str(k)
+            if k not in old:
+                out.append(f"{where}: added {new[k]!r}")
+            elif k not in new:
+                out.append(f"{where}: removed (was {old[k]!r})")
+            else:
+                out += _dict_diff(old[k], new[k], where)
+        return out
+    return [] if old == new else [f"{prefix or 'value'}: {old!r} -> {new!r}"]
 
 
 def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
@@ -220,6 +361,8 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
 
     Raises:
         BaselineMismatchError: suite, level or thresholds differ.
+        ParameterError: the gate can never fire with these tests, permutations and seeds
+            (the message gives the numbers and what would do).
     """
     here, there = _identity(run_summary), {k: baseline.get(k) for k in _IDENTITY}
     diff = [k for k in _IDENTITY if here[k] != there[k]]
@@ -233,12 +376,19 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
         config = GateConfig(**{k: v for k, v in gate.items()
                                if k in ("alpha", "n_permutations", "seed", "margins")})
     rows: list[dict[str, Any]] = []
+    changed = definition_changes(run_summary.get("provenance"), baseline.get("provenance"))
+    changed_policy = {name: what for kind, name, what in changed if kind == "policy"}
+    changed_env = {name: what for kind, name, what in changed if kind == "env"}
     run_ok = run_episodes[run_episodes["status"] == "ok"]
     run_failed = run_episodes[run_episodes["status"] != "ok"]
     cells = sorted(set(map(tuple, baseline_episodes[["env", "policy"]].drop_duplicates()
                            .to_numpy())) | set(map(tuple, run_episodes[["env", "policy"]]
                                                    .drop_duplicates().to_numpy())))
-    stream = 0
+    for kind, name, what in changed:
+        rows.append({"env": name if kind == "env" else "", "policy": name if kind == "policy"
+                     else "", "metric": "definition", "test": "", "forced": True,
+                     "note": f"{kind} {name!r} changed since the baseline: {what}"})
+    plans = []  # (key, base, run) of the cells to test
     for env, policy in cells:
         base = baseline_episodes[(baseline_episodes["env"] == env)
                                  & (baseline_episodes["policy"] == policy)]
@@ -258,32 +408,65 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
             rows.append({**key, "metric": "episodes", "n_baseline": len(base), "n_run": 0,
                          "note": "in the baseline, missing from the run", "forced": True})
             continue
-        stream += 1
+        plans.append((key, base, run))
+    _refuse_if_it_cannot_fire(plans, config)
+    for key, base, run in plans:
+        seeds_b = base["seed"].astype(np.int64).to_numpy()
+        seeds_r = run["seed"].astype(np.int64).to_numpy()
+        paired = len(seeds_b) == len(seeds_r) and set(seeds_b) == set(seeds_r)
+        if paired:
+            base = base.iloc[np.argsort(seeds_b, kind="stable")]
+            run = run.iloc[np.argsort(seeds_r, kind="stable")]
+        why = _why(key, changed_policy, changed_env)
         for metric in GATE_METRICS:
-            margin = float(config.margins.get(metric, np.inf))
+            margin = float(config.margins[metric])
+            name = (key["env"], key["policy"], metric)
+            row = {**key, "metric": metric, "test": "paired" if paired else "unpaired",
+                   "margin": margin, "forced": False, "note": why}
             if metric == "label_tv":
                 b = base["sdl"].fillna(NO_LABEL).astype(str).to_numpy()
                 r = run["sdl"].fillna(NO_LABEL).astype(str).to_numpy()
-                perms = _permutations(len(b) + len(r), config, stream)
-                change, p = _tv_test(b, r, perms)
-                b_val = r_val = np.nan  # a distance between the two: see 'change'
-            else:
-                b = pd.to_numeric(base[metric], errors="coerce").to_numpy(float)
-                r = pd.to_numeric(run[metric], errors="coerce").to_numpy(float)
-                b, r = b[np.isfinite(b)], r[np.isfinite(r)]
-                if len(b) < 2 or len(r) < 2:
-                    rows.append({**key, "metric": metric, "n_baseline": len(b),
-                                 "n_run": len(r), "margin": margin, "forced": False,
-                                 "note": "fewer than 2 values on a side: not tested"})
+                if paired:
+                    change, p = _paired_tv_test(b, r, config, name)
+                else:
+                    change, p = _tv_test(b, r, _permutations(len(b) + len(r), config, name))
+                rows.append({**row, "n_baseline": len(b), "n_run": len(r), "baseline": np.nan,
+                             "run": np.nan, "change": change, "p_value": p})
+                continue
+            b = pd.to_numeric(base[metric], errors="coerce").to_numpy(float)
+            r = pd.to_numeric(run[metric], errors="coerce").to_numpy(float)
+            if paired:
+                one_side = np.isfinite(b) != np.isfinite(r)
+                if one_side.any():
+                    rows.append({**row, "n_baseline": int(np.isfinite(b).sum()),
+                                 "n_run": int(np.isfinite(r).sum()), "forced": True,
+                                 "note": f"defined on {int(one_side.sum())} seeds in only one "
+                                 "of run and baseline (e.g. seed "
+                                 f"{int(seeds_r[np.argsort(seeds_r)][one_side][0])})"})
                     continue
-                perms = _permutations(len(b) + len(r), config, stream)
-                change, p = _mean_test(b, r, perms)
-                b_val, r_val = float(b.mean()), float(r.mean())
-            rows.append({**key, "metric": metric, "n_baseline": len(b), "n_run": len(r),
-                         "baseline": b_val, "run": r_val, "change": change, "margin": margin,
-                         "p_value": p, "forced": False, "note": ""})
+                both = np.isfinite(b) & np.isfinite(r)
+                b, r = b[both], r[both]
+            else:
+                b, r = b[np.isfinite(b)], r[np.isfinite(r)]
+            if not len(b) and not len(r):
+                rows.append({**row, "n_baseline": 0, "n_run": 0, "test": "",
+                             "note": "undefined on every episode of both (e.g. no leader "
+                             "ever): nothing to compare"})
+                continue
+            if len(b) < 2 or len(r) < 2:
+                rows.append({**row, "n_baseline": len(b), "n_run": len(r), "forced": True,
+                             "note": "defined on fewer than 2 episodes of one side only"})
+                continue
+            if paired:
+                change, p = _paired_mean_test(b, r, config, name)
+            else:
+                change, p = _mean_test(b, r, _permutations(len(b) + len(r), config, name))
+            rows.append({**row, "n_baseline": len(b), "n_run": len(r),
+                         "baseline": float(b.mean()), "run": float(r.mean()),
+                         "change": change, "p_value": p})
     table = pd.DataFrame(rows)
-    for col in ("baseline", "run", "change", "margin", "p_value"):
+    for col in ("baseline", "run", "change", "margin", "p_value", "n_baseline", "n_run",
+                "test"):
         if col not in table.columns:
             table[col] = np.nan
     tested = table["p_value"].notna().to_numpy()
@@ -293,9 +476,53 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
     beyond = np.abs(table["change"].to_numpy(float)) > table["margin"].to_numpy(float)
     table["moved"] = (significant & beyond) | table["forced"].fillna(False).to_numpy(bool)
     table["note"] = table["note"].fillna("")
+    table["test"] = table["test"].fillna("")
     table = table.drop(columns="forced")
-    table = table[["env", "policy", "metric", "n_baseline", "n_run", "baseline", "run",
+    table = table[["env", "policy", "metric", "test", "n_baseline", "n_run", "baseline", "run",
                    "change", "margin", "p_value", "p_holm", "moved", "note"]]
     table = table.sort_values(["moved", "env", "policy"], ascending=[False, True, True],
                               kind="stable").reset_index(drop=True)
     return GateResult(table, bool(table["moved"].any()), config)
+
+
+def _why(key: dict[str, Any], policies: dict[str, str], envs: dict[str, str]) -> str:
+    bits = []
+    if key["policy"] in policies:
+        bits.append(f"policy {key['policy']!r} changed: {policies[key['policy']]}")
+    if key["env"] in envs:
+        bits.append(f"env {key['env']!r} changed: {envs[key['env']]}")
+    return "; ".join(bits)
+
+
+def _refuse_if_it_cannot_fire(plans: list, config: GateConfig) -> None:
+    """Raise when the smallest attainable Holm-adjusted p-value is not below alpha."""
+    m = len(plans) * len(GATE_METRICS)
+    if not m:
+        return
+    floor = m / (config.n_permutations + 1)
+    if floor >= config.alpha:
+        need = math.floor(m / config.alpha + 1e-9)  # P + 1 > m / alpha
+        raise ParameterError(
+            "gate n_permutations", config.n_permutations,
+            f"at least {need} for {m} tests at alpha {config.alpha:g}",
+            hint=f"With {config.n_permutations} permutations no p-value is below "
+            f"1/{config.n_permutations + 1}, so the smallest Holm-adjusted p-value is "
+            f"{m}/{config.n_permutations + 1} = {floor:.3g} >= alpha {config.alpha:g}: the "
+            "gate could never fire. Raise gate.n_permutations in the suite (and "
+            "--update-baseline) or check fewer envs and policies.")
+    best = []
+    for _, base, run in plans:
+        sb, sr = set(base["seed"].astype(np.int64)), set(run["seed"].astype(np.int64))
+        if len(base) == len(run) and sb == sr:
+            best.append(smallest_p(config.n_permutations, paired_seeds=len(sb)))
+        else:
+            best.append(smallest_p(config.n_permutations, sizes=(len(base), len(run))))
+    if min(best) * m >= config.alpha:
+        n = min(len(b) for _, b, _ in plans)
+        need = next(k for k in range(1, 64) if 2.0 / 2 ** k * m < config.alpha)
+        raise ParameterError(
+            "seeds", n, f"at least {need} paired seeds for {m} tests at alpha "
+            f"{config.alpha:g}",
+            hint=f"With {n} seeds the smallest p-value of a test is {min(best):.3g}, so the "
+            f"smallest Holm-adjusted one is {min(best) * m:.3g} >= alpha: the gate could "
+            "never fire. Run the suite on more seeds (and --update-baseline).")

@@ -30,6 +30,7 @@ table.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -48,6 +49,7 @@ __all__ = [
     "VEHICLE_LENGTH",
     "Measure",
     "ego_measures",
+    "ego_step_measures",
 ]
 
 LANE_HALF_WIDTH = 2.0  # [m] half of highway-env's 4 m lane: a leader is within it laterally
@@ -88,22 +90,26 @@ MEASURES: tuple[Measure, ...] = (
 _KEEP = ("env", "policy", "seed", "source")
 
 
-def ego_measures(table: pd.DataFrame) -> pd.DataFrame:
-    """Safety and efficiency measures of the ego of every scenario of a trajectory table.
+class _EgoSteps(NamedTuple):
+    """Every valid ego step of a table, sorted by scenario and time (m steps)."""
 
-    Args:
-        table: trajectory table with ``scenario_id``, ``track_id``, ``t``, ``x``, ``y``,
-            ``heading``, ``speed`` and ``is_ego``; optional ``valid``, ``crashed``, and the
-            identifying ``env``, ``policy``, ``seed``, ``source``, which are carried over.
-            Rows of one track must be at distinct 0.1 s steps.
+    table: pd.DataFrame
+    sids: pd.Index  # scenario ids, by code
+    sid_codes: np.ndarray  # (n,) scenario code of every row of the table
+    is_ego: np.ndarray  # (n,) bool
+    valid: np.ndarray  # (n,) bool
+    rows: np.ndarray  # (m,) table rows of the ego steps
+    key: np.ndarray  # (m,) scenario code * steps + step, increasing
+    sid: np.ndarray  # (m,) scenario code of each ego step
+    t: np.ndarray  # (m,) [s]
+    speed: np.ndarray  # (m,) [m/s]
+    gap: np.ndarray  # (m,) bumper gap to the leader [m], NaN without one
+    headway: np.ndarray  # (m,) [s], NaN without a leader or below MIN_SPEED_FOR_HEADWAY
+    ttc: np.ndarray  # (m,) [s], inf when not closing in, NaN without a leader
+    burn_in: np.ndarray  # (m,) bool: within BURN_IN_S of the ego's first step
 
-    Returns:
-        one row per scenario with an ego: ``scenario_id``, the identifying columns present,
-        and the columns of the module docstring.
 
-    Raises:
-        TrajectoryTableError: ``is_ego`` is missing, or a scenario has two ego tracks.
-    """
+def _ego_steps(table: pd.DataFrame) -> _EgoSteps:
     for col in ("scenario_id", "track_id", "t", "x", "y", "heading", "speed", "is_ego"):
         if col not in table.columns:
             fix = (" Mark the ego (the policy's vehicle, WOMD's self-driving car) with a "
@@ -150,13 +156,58 @@ def ego_measures(table: pd.DataFrame) -> pd.DataFrame:
         headway = np.where(v_ego >= MIN_SPEED_FOR_HEADWAY, gap / v_ego, np.nan)
         ttc = np.where(closing > 0, gap / closing, np.inf)
     ttc = np.where(np.isnan(gap), np.nan, ttc)
+    seg_sid = ego_sid[order]
+    t_rel = t[ego_rows] - _group_first(t[ego_rows], seg_sid)
+    return _EgoSteps(table, sids, sid_codes, is_ego, valid, ego_rows, ego_key, seg_sid,
+                     t[ego_rows], v_ego, gap, headway, ttc, t_rel < BURN_IN_S - 1e-9)
+
+
+def ego_step_measures(table: pd.DataFrame) -> pd.DataFrame:
+    """The ego's safety measures at every valid step of every scenario (what
+    :func:`ego_measures` reduces to one row per episode).
+
+    Args:
+        table: a trajectory table, as for :func:`ego_measures`.
+
+    Returns:
+        one row per valid ego step, sorted by scenario (in order of first appearance) and
+        time: ``scenario_id``, ``t`` [s], ``speed`` [m/s], ``gap_m`` (bumper gap to the
+        leader [m]), ``headway_s`` and ``ttc_s`` [s] (capped at :data:`HEADWAY_CAP_S` and
+        :data:`TTC_CAP_S`; NaN without a leader, and the headway below
+        :data:`MIN_SPEED_FOR_HEADWAY`), ``scored`` (False during the first
+        :data:`BURN_IN_S`, which the episode minima leave out).
+    """
+    st = _ego_steps(table)
+    return pd.DataFrame({
+        "scenario_id": np.asarray(st.sids)[st.sid], "t": st.t, "speed": st.speed,
+        "gap_m": st.gap, "headway_s": np.minimum(st.headway, HEADWAY_CAP_S),
+        "ttc_s": np.minimum(st.ttc, TTC_CAP_S), "scored": ~st.burn_in})
+
+
+def ego_measures(table: pd.DataFrame) -> pd.DataFrame:
+    """Safety and efficiency measures of the ego of every scenario of a trajectory table.
+
+    Args:
+        table: trajectory table with ``scenario_id``, ``track_id``, ``t``, ``x``, ``y``,
+            ``heading``, ``speed`` and ``is_ego``; optional ``valid``, ``crashed``, and the
+            identifying ``env``, ``policy``, ``seed``, ``source``, which are carried over.
+            Rows of one track must be at distinct 0.1 s steps.
+
+    Returns:
+        one row per scenario with an ego: ``scenario_id``, the identifying columns present,
+        and the columns of the module docstring.
+
+    Raises:
+        TrajectoryTableError: ``is_ego`` is missing, or a scenario has two ego tracks.
+    """
+    st = _ego_steps(table)
+    sids, sid_codes, is_ego, valid = st.sids, st.sid_codes, st.is_ego, st.valid
+    ego_rows, ego_key, seg_sid, v_ego = st.rows, st.key, st.sid, st.speed
     # the initial gaps are the scenario's, not the policy's: skip the first BURN_IN_S of each
-    t_rel = t[ego_rows] - _group_first(t[ego_rows], ego_sid[order])
-    headway[t_rel < BURN_IN_S - 1e-9] = np.nan
-    ttc[t_rel < BURN_IN_S - 1e-9] = np.nan
+    headway = np.where(st.burn_in, np.nan, st.headway)
+    ttc = np.where(st.burn_in, np.nan, st.ttc)
 
     # per scenario reductions over the ego's (sorted) rows
-    seg_sid = ego_sid[order]
     starts = np.flatnonzero(np.r_[True, seg_sid[1:] != seg_sid[:-1]]) if len(seg_sid) else \
         np.zeros(0, np.int64)
     counts = np.diff(np.r_[starts, len(seg_sid)])
@@ -173,7 +224,7 @@ def ego_measures(table: pd.DataFrame) -> pd.DataFrame:
     if "crashed" in table.columns:
         c = table["crashed"].fillna(False).to_numpy(bool)[ego_rows]
         crashed = np.logical_or.reduceat(c, starts) if len(starts) else crashed
-    t_ego = t[ego_rows]
+    t_ego = st.t
     duration = (np.maximum.reduceat(t_ego, starts) - np.minimum.reduceat(t_ego, starts)
                 + 1.0 / HZ) if len(starts) else np.zeros(0)
 

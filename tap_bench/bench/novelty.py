@@ -2,10 +2,12 @@
 (issue 6 part 3, SPEC section 6).
 
 The **novelty rate** is the share of the agent's episodes whose ego SDL label is absent
-from the reference corpus (:func:`tap_bench.bench.coverage.corpus_reference`). Its interval
-is a percentile bootstrap over the agent's episodes (stratified by env when several envs
-are pooled). "Never shows" is relative to a finite corpus: a label absent from a small
-reference may only be rare; the report states the reference's size beside the rate.
+from the reference corpus (:func:`tap_bench.bench.coverage.corpus_reference`), with a
+Wilson score interval (0 novel of 30 episodes: [0, 0.114], never [0, 0]). Pooled over envs
+it is the episode-weighted mean of the per-env rates, each env's episodes held against that
+env's reference (:mod:`tap_bench.bench.scoring`). "Never shows" is relative to a finite
+corpus: a label absent from a small reference may only be rare; the report states the
+reference's size beside the rate.
 
 This differs from SPEC section 5's *unique* label (no other trajectory of one data set has
 it, :mod:`tap_bench.similarity`): here the agent is held against another corpus.
@@ -18,11 +20,12 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.bootstrap import BootstrapConfig, percentile_interval, resample_weights
+from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.coverage import Reference
+from tap_bench.bench.intervals import wilson_interval
 from tap_bench.errors import LabelTableError
 
-__all__ = ["NoveltyResult", "novelty"]
+__all__ = ["NoveltyResult", "novelty", "pooled_novelty"]
 
 
 @dataclass(frozen=True)
@@ -52,15 +55,14 @@ class NoveltyResult:
 
 
 def novelty(episodes: pd.DataFrame, reference: Reference, *,
-            config: BootstrapConfig | None = None, stream: int = 0) -> NoveltyResult:
+            config: BootstrapConfig | None = None) -> NoveltyResult:
     """The agent's labels that ``reference`` never shows, as a rate and examples.
 
     Args:
         episodes: the agent's rows of the episode table (``sdl``; ``env`` and
             ``scenario_id`` when present); failed episodes and NA labels are left out.
         reference: a corpus reference (whole SDL labels) at the labels' level.
-        config: bootstrap resamples, level and seed.
-        stream: random stream of the config.
+        config: the interval level.
     """
     if reference.kind != "corpus":
         raise LabelTableError("novelty needs a reference corpus (its whole SDL labels); a "
@@ -76,9 +78,7 @@ def novelty(episodes: pd.DataFrame, reference: Reference, *,
     if n == 0:
         empty = pd.DataFrame(columns=["label", "count", "share", "example_scenario"])
         return NoveltyResult(0, 0, float("nan"), float("nan"), float("nan"), empty)
-    strata = ok["env"].to_numpy() if "env" in ok.columns else None
-    W = resample_weights(n, config, strata=strata, stream=20_000 + stream)
-    lo, hi = percentile_interval(W @ novel.astype(float) / n, config.level)
+    lo, hi = wilson_interval(int(novel.sum()), n, config.level)
     example = ok["scenario_id"].to_numpy() if "scenario_id" in ok.columns else \
         np.arange(n).astype(str)
     names, first, counts = np.unique(lab[novel], return_index=True, return_counts=True)
@@ -87,3 +87,22 @@ def novelty(episodes: pd.DataFrame, reference: Reference, *,
                            "share": counts[order] / n,
                            "example_scenario": example[novel][first[order]]})
     return NoveltyResult(n, int(novel.sum()), float(novel.mean()), float(lo), float(hi), labels)
+
+
+def pooled_novelty(results: dict[str, NoveltyResult], level: float) -> NoveltyResult:
+    """Pool per-env novelty: the episode-weighted mean of the per-env rates (each env's
+    episodes held against its own reference), a Wilson interval on the pooled counts, and
+    the per-env novel labels with an ``env`` column (a label is (env, label))."""
+    n = sum(r.n for r in results.values())
+    k = sum(r.n_novel for r in results.values())
+    frames = [r.labels.assign(env=env) for env, r in results.items() if len(r.labels)]
+    labels = pd.concat(frames, ignore_index=True) if frames else \
+        pd.DataFrame(columns=["label", "count", "share", "example_scenario", "env"])
+    if len(labels):
+        labels["share"] = labels["count"] / n
+        labels = labels.sort_values(["count", "env", "label"], ascending=[False, True, True],
+                                    kind="stable").reset_index(drop=True)
+    if n == 0:
+        return NoveltyResult(0, 0, float("nan"), float("nan"), float("nan"), labels)
+    lo, hi = wilson_interval(k, n, level)
+    return NoveltyResult(n, k, k / n, float(lo), float(hi), labels)

@@ -5,37 +5,43 @@ What a run folder holds:
 
 ======================  ====================================================================
 ``summary.json``        suite, seeds, thresholds, level, versions, machine, timings, failed
-                        episodes, the interval methods, headline figures
+                        episodes, the interval methods, headline figures, and the
+                        provenance: each policy's full definition (with the SHA-256 of a
+                        model file) and each env's resolved config
 ``episodes.parquet``    the episode table (:mod:`tap_bench.bench.episodes`), failed
                         episodes included with their error
 ``labels.parquet``      TAP labels of every track at every level
 ``trajectories.parquet``  the rollouts (unless ``keep_trajectories`` is False)
+``segments.parquet``    the segment table (label timelines) of every track at the suite's
+                        level
+``roads.parquet``       each env's road network as a map table (:mod:`tap_bench.maps`), for
+                        the replay viewer (with the trajectories)
 ``<table>.parquet``     every table of :class:`tap_bench.bench.scoring.Scores`
 ``plots/*.png``         label distributions, measures, coverage, forest plots, novelty
 ``report.html``         the static report (no server, images embedded)
+``viewer/``             the replay viewer (:mod:`tap_bench.bench.viewer`; with the trajectories)
 ======================  ====================================================================
 
 The folder is built under a temporary name beside the target and renamed into place only
 when complete, so an interrupted run leaves nothing that looks finished; an existing run
-folder is never replaced unless ``overwrite`` is given. Rollouts run in worker processes,
-one task per (env, policy, chunk of seeds), each labelling its own episodes; an episode
-that fails is recorded with its error and left out of the scores, and a task whose worker
-dies marks its episodes failed: one bad episode never ends a run.
+folder is never replaced unless ``overwrite`` is given. Episodes run as tasks of
+:mod:`tap_bench.execution` (local worker processes or Ray), one task per (env, policy, seed),
+each labelling its own episode; an episode that fails is recorded with its error and left
+out of the scores, and an episode whose worker dies is tried once more and then recorded as
+failed: one bad episode never costs another.
 """
 
 from __future__ import annotations
 
-import concurrent.futures as cf
+import hashlib
 import json
-import multiprocessing
 import os
 import shutil
 import sys
 import tempfile
 import time
-import traceback
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -44,20 +50,26 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.bench.episodes import episode_table
+from tap_bench.bench.power import power_table
+from tap_bench.bench.report import write_report
+from tap_bench.bench.scenarios import match_scenarios
 from tap_bench.bench.scoring import Scores, score
-from tap_bench.bench.suite import Suite, load_suite
-from tap_bench.errors import FileFormatError, TapBenchError
+from tap_bench.bench.suite import GATE_METRICS, Suite, load_suite
+from tap_bench.bench.viewer import write_run_viewer
+from tap_bench.errors import FileFormatError, ParameterError, RunExistsError
+from tap_bench.execution import Backend, resolve_backend
+from tap_bench.labelling import tap
+from tap_bench.labels import validate_labels
+from tap_bench.sim.policies import PolicyDefinition, get_definition
+from tap_bench.sim.roads import road_table
+from tap_bench.sim.rollout import resolve_policy, rollout
+from tap_bench.sim.suite import Scenario
+from tap_bench.sources import read_womd
+from tap_bench.tableio import atomic_path, read_table
+from tap_bench.thresholds import Thresholds, resolve_thresholds
 
-__all__ = ["RunExistsError", "RunResult", "check_output", "package_versions", "read_run",
-           "run_suite", "write_results"]
-
-CHUNK = 5
-"""Seeds per worker task: small enough to balance two workers and move the progress bar."""
-
-
-class RunExistsError(TapBenchError, FileExistsError):
-    """The results folder exists and replacing it was not asked for."""
-
+__all__ = ["RunExistsError", "RunResult", "check_output", "package_versions", "provenance",
+           "read_run", "run_suite", "run_viewer", "write_results"]
 
 def check_output(output: str | os.PathLike, overwrite: bool) -> Path:
     """``output`` as a Path; refuses an existing folder unless ``overwrite``.
@@ -93,103 +105,68 @@ class RunResult:
 
 @dataclass(frozen=True)
 class _Task:
-    suite: Suite
+    """One episode of a suite run: what a worker needs, and nothing more (the scenario is
+    resolved once, by the caller)."""
+
     env: str
-    policy: str
-    seeds: tuple[int, ...]
+    scenario: Scenario
+    policy: str  # the policy's name
+    definition: PolicyDefinition
+    seed: int
+    thresholds: Thresholds
+    level: str
     keep_trajectories: bool
 
 
 def _run_task(task: _Task) -> dict[str, Any]:
-    """Roll out, label and measure one chunk of seeds (in a worker process)."""
-    from tap_bench.labelling import tap
-    from tap_bench.sim.rollout import rollout
-
-    timings = {}
+    """Roll out, label and measure one episode (in a worker process)."""
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        trajectories, episodes = rollout(task.suite.scenario(task.env), task.policy,
-                                         list(task.seeds), workers=1, progress=False)
+        trajectories, episodes = rollout(task.scenario, task.definition, [task.seed],
+                                         progress=False)
     t1 = time.perf_counter()
-    labels = pd.DataFrame()
+    labels = segments = pd.DataFrame()
     if len(trajectories):
-        result = tap(trajectories, task.suite.thresholds,
+        result = tap(trajectories, task.thresholds,
                      source=f"{task.env}/{task.policy} rollout")
         labels = result.labels("all")
+        segments = result.segments(task.level)
     t2 = time.perf_counter()
     eps = episode_table(labels=labels if len(labels) else None,
                         trajectories=trajectories if len(trajectories) else None,
-                        episodes=episodes, level=task.suite.level, policy=task.policy)
+                        episodes=episodes, level=task.level, policy=task.policy)
     t3 = time.perf_counter()
     timings = {"rollout": t1 - t0, "labelling": t2 - t1, "measures": t3 - t2}
-    return {"episodes": eps, "labels": labels,
+    return {"episodes": eps, "labels": labels, "segments": segments,
             "trajectories": trajectories if task.keep_trajectories else None,
             "timings": timings}
 
 
 def _failed_task(task: _Task, message: str) -> dict[str, Any]:
-    eps = pd.DataFrame({"env": task.env, "policy": task.policy, "seed": list(task.seeds),
-                        "status": "error", "error": message})
-    return {"episodes": episode_table(episodes=eps, level=task.suite.level),
-            "labels": pd.DataFrame(), "trajectories": None, "timings": {}}
+    eps = pd.DataFrame({"env": [task.env], "policy": [task.policy], "seed": [task.seed],
+                        "status": ["error"], "error": [message]})
+    return {"episodes": episode_table(episodes=eps, level=task.level),
+            "labels": pd.DataFrame(), "segments": pd.DataFrame(), "trajectories": None,
+            "timings": {}}
 
 
-def _worker_init() -> None:
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    os.environ.setdefault("MKL_NUM_THREADS", "1")
-    warnings.filterwarnings("ignore")
+def _tasks(suite: Suite, thresholds: Thresholds, keep: bool) -> list[_Task]:
+    scenarios = {env: suite.scenario(env) for env in suite.envs}  # resolved once
+    definitions = [resolve_policy(policy) for policy in suite.policies]  # built once here
+    return [_Task(env, scenarios[env], d.name, d, seed, thresholds, suite.level, keep)
+            for env in suite.envs for d in definitions for seed in suite.seeds]
 
 
-def _tasks(suite: Suite, keep: bool) -> list[_Task]:
-    chunks = [suite.seeds[i:i + CHUNK] for i in range(0, len(suite.seeds), CHUNK)]
-    return [_Task(suite, env, policy, chunk, keep)
-            for env in suite.envs for policy in suite.policies for chunk in chunks]
-
-
-def _rollouts(suite: Suite, workers: int, keep: bool, progress: bool | None,
-              backend: Any = None) -> list[dict[str, Any]]:
-    from tqdm.auto import tqdm
-
-    tasks = _tasks(suite, keep)
-    if backend is not None:  # a tap_bench.distributed backend (Ray): one task per chunk
-        outcomes = backend.map(_run_task, tasks, retries=1, unit="chunk", progress=progress,
-                               desc=f"bench {suite.name} ({backend.name})")
-        return [o.value if o.ok else _failed_task(task, o.error)
-                for task, o in zip(tasks, outcomes, strict=True)]
-    results: list[dict[str, Any] | None] = [None] * len(tasks)
-    bar = tqdm(total=sum(len(t.seeds) for t in tasks), desc=f"bench {suite.name}",
-               unit="episode", disable=None if progress is None else not progress)
-    with bar:
-        if workers == 1:
-            for i, task in enumerate(tasks):
-                results[i] = _guarded(task)
-                bar.update(len(task.seeds))
-            return results  # type: ignore[return-value]
-        context = multiprocessing.get_context("spawn")
-        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=context,
-                                    initializer=_worker_init) as pool:
-            futures = {pool.submit(_run_task, task): i for i, task in enumerate(tasks)}
-            for future in cf.as_completed(futures):
-                i = futures[future]
-                try:
-                    results[i] = future.result()
-                except Exception as err:  # a dead worker or an error outside any episode
-                    results[i] = _failed_task(tasks[i], _describe(err))
-                bar.update(len(tasks[i].seeds))
-    return results  # type: ignore[return-value]
-
-
-def _guarded(task: _Task) -> dict[str, Any]:
-    try:
-        return _run_task(task)
-    except Exception as err:  # keep the run going; the episodes say why
-        return _failed_task(task, _describe(err))
-
-
-def _describe(err: BaseException) -> str:
-    text = "".join(traceback.format_exception_only(type(err), err)).strip()
-    return text or type(err).__name__
+def _rollouts(suite: Suite, thresholds: Thresholds, backend: Backend, keep: bool,
+              progress: bool | None) -> list[dict[str, Any]]:
+    """Every episode of the suite as a task on ``backend`` (one recovery rule: an episode
+    whose worker died is tried once more, then recorded as failed)."""
+    tasks = _tasks(suite, thresholds, keep)
+    outcomes = backend.map(_run_task, tasks, unit="episode", progress=progress,
+                           desc=f"bench {suite.name} ({backend.name})")
+    return [o.value if o.ok else _failed_task(task, o.error)
+            for task, o in zip(tasks, outcomes, strict=True)]
 
 
 def package_versions() -> dict[str, str]:
@@ -216,24 +193,29 @@ def _machine() -> dict[str, Any]:
 
 def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
               workers: int = 2, womd: Sequence[str | os.PathLike] | None = None,
+              references: Mapping[str, ReferenceSource] | None = None,
               keep_trajectories: bool = True, overwrite: bool = False,
               progress: bool | None = None, report: bool = True,
-              backend: Any = None) -> RunResult:
+              backend: Backend | None = None) -> RunResult:
     """Run a benchmark suite and write its run folder.
 
     Args:
         suite: a :class:`Suite`, a suite name (``default``) or a suite JSON path.
         output: the run folder to create (``results/run-001``).
         workers: rollout processes (1: in this process).
-        womd: WOMD files (TFRecord or ScenarioNet pickles) to label as a second coverage
-            and novelty reference, and to match highway-env scenarios against.
+        womd: WOMD files (TFRecord or ScenarioNet pickles): shorthand for
+            ``references={"WOMD": womd}``.
+        references: more coverage and novelty references, by name: a label table
+            (DataFrame, or a .parquet/.csv label file), or driving-data files of any
+            registered format (a path or a list of paths), which are labelled with the
+            suite's thresholds and also matched scenario by scenario against the episodes.
         keep_trajectories: also write ``trajectories.parquet``.
         overwrite: replace an existing run folder.
         progress: progress bar (None: only on a terminal).
         report: write the plots and ``report.html``.
-        backend: run the rollout chunks as tasks on this
-            :class:`tap_bench.distributed.Backend` (a Ray cluster) instead of ``workers``
-            local processes; the tables are the same.
+        backend: run the episodes as tasks on this :class:`tap_bench.execution.Backend`
+            (a Ray cluster, say) instead of ``workers`` local processes; the tables are the
+            same.
 
     Returns:
         :class:`RunResult`.
@@ -241,25 +223,27 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     Raises:
         RunExistsError: ``output`` exists and ``overwrite`` is False.
     """
-    from tap_bench.thresholds import resolve_thresholds
-
     suite = suite if isinstance(suite, Suite) else load_suite(suite)
     output = check_output(output, overwrite)
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"workers must be a positive integer, got {workers!r}.")
+    runner = resolve_backend(backend, workers)
     thresholds = resolve_thresholds(suite.thresholds)
-    for env in suite.envs:  # fail now on a bad override, not in a worker
-        suite.scenario(env)
     timings: dict[str, float] = {}
     t_start = time.perf_counter()
-    womd_labels = womd_traj = None
+    sources = dict(references or {})
     if womd:
-        t0 = time.perf_counter()
-        womd_traj, womd_labels = _label_womd(womd, suite)
-        timings["womd"] = time.perf_counter() - t0
+        if "WOMD" in sources:
+            raise ParameterError("references", sorted(sources), "names other than 'WOMD' "
+                                 "when womd= is given (womd= is references={'WOMD': ...})")
+        sources["WOMD"] = list(womd)
+    t0 = time.perf_counter()
+    corpora = {name: _reference(name, source, suite) for name, source in sources.items()}
+    if corpora:
+        timings["references"] = time.perf_counter() - t0
+    with_trajectories = any(traj is not None for traj, _ in corpora.values())
 
     t0 = time.perf_counter()
-    results = _rollouts(suite, workers, keep_trajectories or bool(womd), progress, backend)
+    results = _rollouts(suite, thresholds, runner, keep_trajectories or with_trajectories,
+                        progress)
     timings["rollouts_wall"] = time.perf_counter() - t0
     for key in ("rollout", "labelling", "measures"):
         timings[f"{key}_cpu_in_workers"] = sum(r["timings"].get(key, 0.0) for r in results)
@@ -268,22 +252,28 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     episodes = episodes.reset_index(drop=True)
     labels = pd.concat([r["labels"] for r in results if len(r["labels"])], ignore_index=True) \
         if any(len(r["labels"]) for r in results) else pd.DataFrame()
+    segments = pd.concat([r["segments"] for r in results if len(r["segments"])],
+                         ignore_index=True) \
+        if any(len(r["segments"]) for r in results) else None
     trajectories = None
-    if keep_trajectories or womd:
+    if keep_trajectories or with_trajectories:
         frames = [r["trajectories"] for r in results
                   if r["trajectories"] is not None and len(r["trajectories"])]
         trajectories = pd.concat(frames, ignore_index=True) if frames else None
 
     t0 = time.perf_counter()
-    matches = None
-    if womd_labels is not None and len(labels):
-        from tap_bench.bench.scenarios import match_scenarios
-
-        matches = match_scenarios(labels, trajectories, womd_labels, womd_traj,
-                                  level=suite.level, top=3)
-    references = {"WOMD": womd_labels} if womd_labels is not None else None
+    matches = []
+    for name, (ref_traj, ref_labels) in corpora.items():
+        if ref_traj is not None and len(labels):
+            matches.append(match_scenarios(labels, trajectories, ref_labels, ref_traj,
+                                           level=suite.level, top=3).assign(reference=name))
+    power = power_table(episodes, suite.gate,
+                        n_tests=len(suite.envs) * len(suite.policies) * len(GATE_METRICS))
     scores = score(episodes, reference_policy=suite.reference, level=suite.level,
-                   config=suite.bootstrap, references=references, scenario_matches=matches)
+                   config=suite.bootstrap,
+                   references={name: lab for name, (_, lab) in corpora.items()} or None,
+                   scenario_matches=pd.concat(matches, ignore_index=True) if matches else None,
+                   gate_power=power)
     timings["scoring"] = time.perf_counter() - t0
 
     failed = episodes[episodes["status"] != "ok"]
@@ -295,32 +285,100 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "thresholds": thresholds.to_dict() if hasattr(thresholds, "to_dict") else
         str(suite.thresholds),
         "reference_policy": suite.reference,
-        "womd_files": [str(p) for p in womd] if womd else [],
+        "references": {name: _describe_source(source) for name, source in sources.items()},
         "versions": package_versions(), "machine": _machine(),
         "n_episodes": len(episodes), "n_failed": len(failed),
         "failed": failed[["env", "policy", "seed", "error"]].to_dict("records"),
         "methods": scores.methods,
         "headline": _headline(scores, episodes),
+        "provenance": provenance(suite),
         "timings": timings,
     }
     t0 = time.perf_counter()
+    roads = None
+    if keep_trajectories:  # the replay viewer draws them; highway-env's road is seed-free
+        roads = pd.concat([road_table(suite.scenario(env)) for env in suite.envs],
+                          ignore_index=True)
     folder = write_results(output, overwrite, summary, episodes, labels, trajectories
-                        if keep_trajectories else None, scores, report)
+                           if keep_trajectories else None, scores, report,
+                           segments=segments, roads=roads)
     timings["writing_and_report"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
     _write_json(folder / "summary.json", summary)  # with the final timings
     return RunResult(folder, summary, episodes, scores, folder / "report.html")
 
 
-def _label_womd(paths, suite: Suite) -> tuple[pd.DataFrame, pd.DataFrame]:
-    from tap_bench.labelling import tap
-    from tap_bench.womd import read_womd
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
+
+def provenance(suite: Suite) -> dict[str, Any]:
+    """What every policy and env of a suite is, in full, so that ``bench check`` can say what
+    changed since a baseline.
+
+    Returns:
+        ``{"policies": {name: {"kind", "params", "model_sha256"?}}, "envs": {name:
+        {"highway_env_id", "version", "duration", "lane_change", "config"}}}``; a model
+        file's SHA-256 is taken from the file its definition names.
+    """
+    policies = {}
+    for name in suite.policies:
+        definition = get_definition(name)
+        entry: dict[str, Any] = {"kind": definition.kind, "params": dict(definition.params)}
+        model = definition.params.get("model")
+        if isinstance(model, str):
+            path = Path(model)
+            if not path.is_absolute() and definition.path is not None:
+                path = definition.path.parent / path
+            entry["model_sha256"] = _sha256(path) if path.is_file() else "(missing file)"
+        policies[name] = json.loads(json.dumps(entry, default=str))
+    envs = {}
+    for env in suite.envs:
+        scenario = suite.scenario(env)
+        envs[env] = json.loads(json.dumps(
+            {"highway_env_id": scenario.highway_env_id, "version": scenario.version,
+             "duration": scenario.duration, "lane_change": scenario.lane_change,
+             "config": scenario.config}, default=str))
+    return {"policies": policies, "envs": envs}
+
+
+ReferenceSource = pd.DataFrame | str | os.PathLike | Sequence[str | os.PathLike]
+"""A coverage reference: a label table, a label file, or driving-data files."""
+
+_LABEL_SUFFIXES = (".parquet", ".pq", ".csv", ".csv.gz")
+
+
+def _reference(name: str, source: ReferenceSource, suite: Suite
+               ) -> tuple[pd.DataFrame | None, pd.DataFrame]:
+    """(trajectories or None, label table) of one named reference."""
+    if isinstance(source, pd.DataFrame):
+        validate_labels(source, suite.level, source=f"reference {name!r}")
+        return None, source
+    paths = [source] if isinstance(source, str | os.PathLike) else list(source)
+    if not paths:
+        raise ParameterError(f"references[{name!r}]", source, "a label table or data files")
+    if len(paths) == 1 and str(paths[0]).lower().endswith(_LABEL_SUFFIXES):
+        table = read_table(paths[0])
+        if "sdl" in table.columns:  # a label file
+            validate_labels(table, suite.level, source=str(paths[0]))
+            return None, table
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         traj = read_womd([str(p) for p in paths])
-        labels = tap(traj, suite.thresholds, source="WOMD").labels("all")
+        labels = tap(traj, suite.thresholds, source=name).labels("all")
     return traj, labels
+
+
+def _describe_source(source: ReferenceSource) -> Any:
+    if isinstance(source, pd.DataFrame):
+        return f"a label table of {len(source)} rows"
+    if isinstance(source, str | os.PathLike):
+        return str(source)
+    return [str(p) for p in source]
 
 
 def _headline(scores: Scores, episodes: pd.DataFrame) -> dict[str, Any]:
@@ -347,8 +405,6 @@ def _round(x: float) -> float | None:
 
 
 def _write_json(path: Path, doc: dict[str, Any]) -> None:
-    from tap_bench.tableio import atomic_path
-
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(doc, indent=2, default=_json_default) + "\n")
 
@@ -367,9 +423,11 @@ def _json_default(value: Any) -> Any:
 
 def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str, Any],
                   episodes: pd.DataFrame, labels: pd.DataFrame,
-                  trajectories: pd.DataFrame | None, scores: Scores, report: bool = True
+                  trajectories: pd.DataFrame | None, scores: Scores, report: bool = True, *,
+                  segments: pd.DataFrame | None = None, roads: pd.DataFrame | None = None
                   ) -> Path:
-    """Write a results folder (tables, ``summary.json``, plots, report) atomically.
+    """Write a results folder (tables, ``summary.json``, plots, report, and the replay
+    viewer when the trajectories are given) atomically.
 
     The folder is built under a temporary name beside ``output`` and renamed into place
     when complete; an existing ``output`` is replaced only when ``overwrite`` is True.
@@ -386,14 +444,20 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
             labels.to_parquet(tmp / "labels.parquet", index=False)
         if trajectories is not None and len(trajectories):
             trajectories.to_parquet(tmp / "trajectories.parquet", index=False)
+        for name, table in (("segments", segments), ("roads", roads)):
+            if table is not None and len(table):
+                table.to_parquet(tmp / f"{name}.parquet", index=False)
         for name, table in scores.tables().items():
             if len(table):
                 _parquet_safe(table).to_parquet(tmp / f"{name}.parquet", index=False)
         _write_json(tmp / "summary.json", summary)
+        viewer = report and trajectories is not None and len(trajectories) > 0
+        if viewer:
+            write_run_viewer(tmp / "viewer", summary, episodes, trajectories,
+                             segments=segments, roads=roads, novel_labels=scores.novel_labels)
         if report:
-            from tap_bench.bench.report import write_report
-
-            write_report(tmp, summary, episodes, scores)
+            write_report(tmp, summary, episodes, scores, viewer="viewer/index.html"
+                         if viewer else None)
         if output.exists():
             if not overwrite:
                 raise RunExistsError(f"{output} appeared while the run was going; run again "
@@ -441,3 +505,33 @@ def read_run(folder: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame]:
     except json.JSONDecodeError as err:
         raise FileFormatError(f"{summary_path}: not valid JSON: {err}") from err
     return summary, pd.read_parquet(episodes_path)
+
+
+def run_viewer(folder: str | os.PathLike, output: str | os.PathLike | None = None) -> Path:
+    """Write (again) the replay viewer of a finished run folder.
+
+    Reads ``trajectories.parquet`` and, when there, ``segments.parquet``, ``roads.parquet``
+    and ``novel_labels.parquet`` (older runs lack the first two: the egos are labelled again
+    with the run's thresholds and the roads rebuilt from its suite).
+
+    Args:
+        folder: the run folder.
+        output: the viewer folder (default ``<folder>/viewer``).
+
+    Returns:
+        the path of the viewer's ``index.html``.
+
+    Raises:
+        FileFormatError: the folder is not a finished run, or has no trajectories.
+    """
+    folder = Path(folder)
+    summary, episodes = read_run(folder)
+    traj_path = folder / "trajectories.parquet"
+    if not traj_path.is_file():
+        raise FileFormatError(f"{folder}: no trajectories.parquet to replay; run the suite "
+                              "again without --no-trajectories.")
+    optional = {name: pd.read_parquet(folder / f"{name}.parquet")
+                if (folder / f"{name}.parquet").is_file() else None
+                for name in ("segments", "roads", "novel_labels")}
+    return write_run_viewer(output if output is not None else folder / "viewer", summary,
+                            episodes, pd.read_parquet(traj_path), **optional)

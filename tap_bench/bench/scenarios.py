@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.errors import LabelTableError
+from tap_bench.similarity.scenario_sdl import rank_scenarios, scenario_set
 
 __all__ = ["DEFAULT_RADIUS", "match_scenarios"]
 
@@ -72,8 +73,6 @@ def match_scenarios(sim_labels: pd.DataFrame, sim_trajectories: pd.DataFrame | N
         womd_scenario_id, distance, same_actions, the six distance counts, womd_ego_sdl,
         womd_vehicles_sdl (the most common label of WOMD's other vehicles).
     """
-    from tap_bench.similarity.scenario_sdl import rank_scenarios, scenario_set
-
     for name, table in (("simulated", sim_labels), ("WOMD", womd_labels)):
         if "is_ego" not in table.columns:
             raise LabelTableError(f"{name} labels need an is_ego column to match scenarios "

@@ -7,25 +7,22 @@ benchmark times it on 10 policies x 5 envs x 100 seeds).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.bootstrap import (
-    BootstrapConfig,
-    percentile_interval,
-    resample_weights,
-    weighted_means,
-    wilson_interval,
-)
-from tap_bench.bench.compare import ALL_ENVS, matched_by_label, paired_comparison
-from tap_bench.bench.coverage import Reference, corpus_reference, coverage
+from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.compare import ALL_ENVS, MIN_GROUP, matched_by_label, paired_comparison
+from tap_bench.bench.coverage import Reference, corpus_reference, coverage, pooled_coverage
+from tap_bench.bench.diversity import MIN_COMPLETENESS, diversity, pooled_diversity
+from tap_bench.bench.intervals import MEASURE_BOUNDS, mean_interval, wilson_interval
 from tap_bench.bench.measures import MEASURES
-from tap_bench.bench.novelty import novelty
+from tap_bench.bench.novelty import novelty, pooled_novelty
 from tap_bench.errors import LabelTableError
 
-__all__ = ["Scores", "policy_measures", "score"]
+__all__ = ["Scores", "diversity_table", "policy_measures", "reference_scores", "score"]
 
 
 @dataclass(frozen=True)
@@ -35,14 +32,18 @@ class Scores:
     Attributes:
         label_counts: env, policy, sdl, count, share: each policy's ego label distribution.
         measures: env (and "all"), policy, measure, n, mean, low, high: per-policy means of
-            the safety and efficiency measures (bootstrap over episodes).
+            the safety and efficiency measures (t intervals; Wilson for the crash rate).
         paired: env, policy_a, policy_b, n_pairs, n_dropped, agreement (+ interval).
         paired_measures: the paired measure differences and probabilities of improvement.
-        paired_labels: the paired per-label frequency differences.
+        paired_labels: the paired per-label frequency differences (per env).
         matched: measure differences inside groups of equal labels.
         coverage: env, policy, reference, and the coverage fields.
         novelty: env, policy, reference, novelty fields.
-        novel_labels: env, policy, label, count, share, example_scenario.
+        novel_labels: env, policy, reference, label, count, share, example_scenario.
+        diversity: env, policy, and the Hill numbers, completeness and asymptotes of
+            :class:`tap_bench.bench.diversity.DiversityResult`.
+        gate_power: per env and measure, the gate's minimum detectable effect and the seeds
+            a margin needs (:mod:`tap_bench.bench.power`; empty when not asked).
         scenario_matches: highway-env scenarios beside their nearest WOMD scenarios (when
             a WOMD reference was given).
         references: name -> the :class:`Reference` used.
@@ -58,12 +59,15 @@ class Scores:
     coverage: pd.DataFrame
     novelty: pd.DataFrame
     novel_labels: pd.DataFrame
+    diversity: pd.DataFrame = field(default_factory=pd.DataFrame)
+    gate_power: pd.DataFrame = field(default_factory=pd.DataFrame)
     scenario_matches: pd.DataFrame = field(default_factory=pd.DataFrame)
     references: dict[str, Reference] = field(default_factory=dict)
     methods: dict[str, str] = field(default_factory=dict)
 
     TABLES = ("label_counts", "measures", "paired", "paired_measures", "paired_labels",
-              "matched", "coverage", "novelty", "novel_labels", "scenario_matches")
+              "matched", "coverage", "novelty", "novel_labels", "diversity", "gate_power",
+              "scenario_matches")
 
     def tables(self) -> dict[str, pd.DataFrame]:
         """name -> table, in report order."""
@@ -78,38 +82,23 @@ def _env_groups(table: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
 
 
 def policy_measures(episodes: pd.DataFrame, config: BootstrapConfig) -> pd.DataFrame:
-    """Mean of each measure per env (and pooled) and policy, with percentile intervals over
-    episodes (stratified by env when pooled)."""
-    ok = episodes[episodes["status"] == "ok"].sort_values(["policy", "env"], kind="stable")
+    """Mean of each measure per env (and pooled: every episode of the policy) and policy,
+    with Student's t intervals over episodes and Wilson intervals for the crash rate."""
+    ok = episodes[episodes["status"] == "ok"]
     rows = []
-    stream = 30_000
     for policy, pol in ok.groupby("policy", sort=True):
-        env_of = pol["env"].to_numpy()
-        envs = sorted(set(env_of))
-        weights = {}
-        for env in envs:
-            weights[env] = resample_weights(int((env_of == env).sum()), config, stream=stream)
-            stream += 1
-        groups = [(env, env_of == env, weights[env]) for env in envs]
-        if len(envs) > 1:  # pooled: the per-env resamplings side by side (rows sorted by env)
-            groups.append((ALL_ENVS, np.ones(len(pol), bool),
-                           np.hstack([weights[env] for env in envs])))
-        values = np.column_stack([pol[m.name].to_numpy(float, na_value=np.nan)
-                                  for m in MEASURES])
-        for env, mask, W in groups:
-            sub = values[mask]
-            present = ~np.isnan(sub)
-            boot = weighted_means(W, sub)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                est = np.where(present, sub, 0.0).sum(0) / present.sum(0)
-            lo, hi = percentile_interval(boot, config.level)
-            for j, m in enumerate(MEASURES):
-                n_j = int(present[:, j].sum())
-                low, high = lo[j], hi[j]
+        for env, sub in _env_groups(pol):
+            for m in MEASURES:
+                x = sub[m.name].to_numpy(float, na_value=np.nan)
+                x = x[np.isfinite(x)]
+                n = len(x)
                 if m.name == "crashed":  # a rate: Wilson, which stays honest at 0 and 1
-                    low, high = wilson_interval(int(np.nansum(sub[:, j])), n_j, config.level)
-                rows.append({"env": env, "policy": policy, "measure": m.name, "n": n_j,
-                             "mean": est[j], "low": low, "high": high})
+                    low, high = wilson_interval(int(x.sum()), n, config.level)
+                else:
+                    low, high = mean_interval(x, config.level, bounds=MEASURE_BOUNDS.get(m.name))
+                rows.append({"env": env, "policy": policy, "measure": m.name, "n": n,
+                             "mean": float(x.mean()) if n else np.nan, "low": low,
+                             "high": high})
     return pd.DataFrame(rows, columns=["env", "policy", "measure", "n", "mean", "low", "high"])
 
 
@@ -122,24 +111,121 @@ def _label_counts(episodes: pd.DataFrame) -> pd.DataFrame:
                               kind="stable").reset_index(drop=True)
 
 
+def _scored(episodes: pd.DataFrame) -> pd.DataFrame:
+    return episodes[(episodes["status"] == "ok") & episodes["sdl"].notna()]
+
+
+def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str, Reference],
+                     name: str, *, config: BootstrapConfig,
+                     policies: list[str] | None = None
+                     ) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
+    """Coverage and unique manoeuvres of every policy against one reference, per env and
+    pooled: the one scoring path of ``bench run``, ``compare`` and ``tap-bench coverage``.
+
+    Args:
+        episodes: the episode table (failed and unlabelled episodes are left out).
+        reference: one :class:`Reference` for every env (a corpus without envs such as WOMD,
+            or the vocabulary), or env -> Reference (rollouts of a policy, keyed by env: an
+            env's episodes are held against that env's reference only).
+        name: the reference's name in the tables (``"idm rollouts"``, ``"WOMD"``).
+        config: interval level, resamples and seed; each coverage draws from the stream
+            ``("coverage", env, policy, name)``.
+        policies: the policies to score (default every policy of ``episodes``).
+
+    Returns:
+        (coverage rows, novelty rows, novel labels), each with env, policy, reference.
+        Pooled rows (``env == "all"``) aggregate the per-env ones for env-keyed references
+        (:func:`tap_bench.bench.coverage.pooled_coverage`,
+        :func:`tap_bench.bench.novelty.pooled_novelty`) and score all episodes together
+        against a reference without envs.
+    """
+    ok = _scored(episodes)
+    keyed = not isinstance(reference, Reference)
+    cov_rows, nov_rows, nov_labels = [], [], []
+    for policy in policies if policies is not None else sorted(ok["policy"].unique()):
+        pol = ok[ok["policy"] == policy]
+        per_env_cov, per_env_nov, sizes = [], {}, []
+        for env, sub in _env_groups(pol):
+            key = {"env": env, "policy": policy, "reference": name}
+            if env == ALL_ENVS and keyed:
+                if not per_env_cov:
+                    continue
+                cv = pooled_coverage(per_env_cov, sizes, config.level)
+                nv = pooled_novelty(per_env_nov, config.level) if per_env_nov else None
+            else:
+                ref = reference.get(env) if keyed else reference
+                if ref is None:
+                    continue
+                cv = coverage(sub["sdl"], ref, config=config,
+                              rng=config.rng("coverage", env, policy, name))
+                nv = novelty(sub, ref, config=config) if ref.kind == "corpus" else None
+                if keyed:
+                    per_env_cov.append(cv)
+                    sizes.append(ref.n_trajectories)
+                    if nv is not None:
+                        per_env_nov[env] = nv
+            cov_rows.append({**key, **cv.row()})
+            if nv is not None:
+                size = sum(r.n_trajectories for r in reference.values()) if keyed and \
+                    env == ALL_ENVS else (reference.get(env) if keyed else reference
+                                          ).n_trajectories
+                nov_rows.append({**key, **nv.row(), "reference_size": size})
+                labels = nv.labels if "env" in nv.labels.columns else nv.labels.assign(env=env)
+                nov_labels.append(labels.assign(policy=policy, reference=name))
+    cov = pd.DataFrame(cov_rows)
+    nov = pd.DataFrame(nov_rows)
+    frames = [f for f in nov_labels if len(f)]
+    labels = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(
+        columns=["env", "policy", "reference", "label", "count", "share", "example_scenario"])
+    if len(labels):
+        labels = labels[["env", "policy", "reference", "label", "count", "share",
+                         "example_scenario"]]
+    return cov, nov, labels
+
+
+def diversity_table(episodes: pd.DataFrame, config: BootstrapConfig,
+                    size: int | None = None) -> pd.DataFrame:
+    """Hill numbers of every policy's ego labels per env, at the env's common sample size
+    (default: the smallest number of labelled episodes among the env's policies), and pooled
+    (``env == "all"``: the mean of the per-env figures). Streams ``("diversity", env,
+    policy)``."""
+    ok = _scored(episodes)
+    rows, per_policy = [], {}
+    for env, sub in ok.groupby("env", sort=True):
+        n_of = sub.groupby("policy").size()
+        m = size if size is not None else int(n_of.min())
+        for policy in sorted(n_of.index):
+            d = diversity(sub.loc[sub["policy"] == policy, "sdl"].to_numpy(object), size=m,
+                          config=config, rng=config.rng("diversity", env, policy))
+            per_policy.setdefault(policy, []).append(d)
+            rows.append({"env": str(env), "policy": policy, **d.row()})
+    if ok["env"].nunique() > 1:
+        for policy, results in sorted(per_policy.items()):
+            rows.append({"env": ALL_ENVS, "policy": policy,
+                         **pooled_diversity(results, config.level).row()})
+    return pd.DataFrame(rows)
+
+
 def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
           config: BootstrapConfig | None = None,
           references: dict[str, pd.DataFrame] | None = None,
           comparisons: list[tuple[str, str]] | None = None,
-          scenario_matches: pd.DataFrame | None = None) -> Scores:
+          scenario_matches: pd.DataFrame | None = None,
+          gate_power: pd.DataFrame | None = None) -> Scores:
     """Score a run.
 
     Args:
         episodes: the episode table (:mod:`tap_bench.bench.episodes`) of every policy.
-        reference_policy: the policy compared with every other one; its ego labels (per env,
-            and pooled) are the ``"<policy> rollouts"`` coverage reference.
+        reference_policy: the policy compared with every other one; its ego labels, per
+            env, are the ``"<policy> rollouts"`` coverage reference of that env.
         level: the SDL level of the episode table's labels.
-        config: bootstrap settings.
+        config: interval settings.
         references: more reference corpora: name -> label table (e.g. ``{"WOMD": labels}``;
             vehicles' labels at ``level`` are used; one reference for every env).
-        comparisons: (A, B) pairs to compare; default every other policy against the
-            reference policy, as (policy, reference).
+        comparisons: (A, B) pairs to compare, B the reference; default every other policy
+            against the reference policy, as (policy, reference).
         scenario_matches: a precomputed table of cross-data-set scenario matches to carry.
+        gate_power: a precomputed power table of the gate to carry.
 
     Returns:
         :class:`Scores`.
@@ -164,50 +250,47 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
         matched.append(matched_by_label(episodes, a, b, config=config).assign(policy_a=a,
                                                                              policy_b=b))
 
-    ok = episodes[(episodes["status"] == "ok") & episodes["sdl"].notna()]
+    ok = _scored(episodes)
     ref_eps = ok[ok["policy"] == reference_policy]
-    cov_rows, nov_rows, nov_labels = [], [], []
+    cov_parts, nov_parts, label_parts = [], [], []
     refs: dict[str, Reference] = {}
-    corpora: list[tuple[str, pd.DataFrame | None]] = [(f"{reference_policy} rollouts", None)]
-    corpora += list((references or {}).items())
-    stream = 0
-    for ref_name, ref_table in corpora:
-        fixed = None
-        if ref_table is not None:
-            fixed = corpus_reference(ref_table, level, tracks="vehicles", name=ref_name)
-            refs[ref_name] = fixed
-        for policy in policies:
-            if ref_table is None and policy == reference_policy:
-                continue  # a corpus covers itself
-            pol = ok[ok["policy"] == policy]
-            for env, sub in _env_groups(pol):
-                if fixed is not None:
-                    ref = fixed
-                else:
-                    r_sub = ref_eps if env == ALL_ENVS else ref_eps[ref_eps["env"] == env]
-                    if r_sub.empty:
-                        continue
-                    ref = corpus_reference(r_sub.assign(level=level), level, tracks="all",
-                                           name=ref_name)
-                    refs.setdefault(f"{ref_name} ({env})", ref)
-                stream += 1
-                cv = coverage(sub["sdl"], ref, config=config, stream=stream)
-                nv = novelty(sub, ref, config=config, stream=stream)
-                key = {"env": env, "policy": policy, "reference": ref_name}
-                cov_rows.append({**key, **cv.row()})
-                nov_rows.append({**key, **nv.row(), "reference_size": ref.n_trajectories})
-                nov_labels.append(nv.labels.assign(**key))
+    rollouts = f"{reference_policy} rollouts"
+    per_env: dict[str, Reference] = {}
+    for env, sub in ref_eps.groupby("env", sort=True):
+        per_env[str(env)] = corpus_reference(sub.assign(level=level), level, tracks="all",
+                                             name=f"{rollouts} ({env})")
+        refs[f"{rollouts} ({env})"] = per_env[str(env)]
+    others = [p for p in policies if p != reference_policy]  # a corpus covers itself
+    parts = [reference_scores(episodes, per_env, rollouts, config=config, policies=others)]
+    for name, table in (references or {}).items():
+        refs[name] = corpus_reference(table, level, tracks="vehicles", name=name)
+        parts.append(reference_scores(episodes, refs[name], name, config=config))
+    for cov, nov, lab in parts:
+        cov_parts.append(cov)
+        nov_parts.append(nov)
+        label_parts.append(lab)
     methods = {
-        "measures": config.describe("episodes, stratified by env when pooled")
-        + f"; crash rates: {config.level:.0%} Wilson score intervals",
+        "measures": f"{config.level:.0%} Student t intervals over episodes; crash rates: "
+                    "Wilson score intervals; 'all' pools every episode of the policy",
         "paired": method_paired,
-        "matched": config.describe("episodes of each policy within a label group, "
-                                   "independently"),
+        "matched": (f"{config.level:.0%} Welch t intervals (Newcombe score intervals for the "
+                    "crash rate) between the episodes of each policy in a label group of one "
+                    f"env; groups with fewer than {MIN_GROUP} episodes of a policy are listed, "
+                    "not tested"),
         "coverage": (f"estimate +- z sd, z for {config.level:.0%}, sd over "
                      f"{config.n_resamples} draws from the label distribution augmented with "
-                     "Chao1-estimated undetected labels (Chao et al. 2014, iNEXT); "
-                     f"seed {config.seed}"),
-        "novelty": config.describe("episodes, stratified by env when pooled"),
+                     "Chao1-estimated undetected labels (Chao et al. 2014, iNEXT); labels are "
+                     "(env, label): 'all' is the share of every env's reference labels shown "
+                     f"(K-weighted mean of the envs); seed {config.seed}, streams named "
+                     "('coverage', env, policy, reference)"),
+        "novelty": f"{config.level:.0%} Wilson score intervals; 'all' pools the per-env "
+                   "counts (each env held against its own reference)",
+        "diversity": (f"Hill numbers q = 0, 1, 2 at a common sample size per env (the "
+                      "smallest episode count of its policies; iNEXT rarefaction/"
+                      f"extrapolation), {config.level:.0%} intervals estimate +- z sd over "
+                      f"{config.n_resamples} iNEXT bootstrap draws; asymptotes given as "
+                      f"'at least' when the sample completeness is below {MIN_COMPLETENESS}; "
+                      "'all' is the mean over envs"),
     }
     if skipped:
         methods["skipped comparisons"] = "; ".join(skipped)
@@ -219,7 +302,8 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
     return Scores(
         label_counts=_label_counts(episodes), measures=policy_measures(episodes, config),
         paired=cat(paired), paired_measures=cat(paired_m), paired_labels=cat(paired_l),
-        matched=cat(matched), coverage=pd.DataFrame(cov_rows), novelty=pd.DataFrame(nov_rows),
-        novel_labels=cat(nov_labels),
+        matched=cat(matched), coverage=cat(cov_parts), novelty=cat(nov_parts),
+        novel_labels=cat(label_parts), diversity=diversity_table(episodes, config),
+        gate_power=gate_power if gate_power is not None else pd.DataFrame(),
         scenario_matches=scenario_matches if scenario_matches is not None else pd.DataFrame(),
         references=refs, methods=methods)

@@ -31,10 +31,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tap_bench import sdl
+from tap_bench import catalogue, sdl
 from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.measures import MEASURES
-from tap_bench.errors import FileFormatError, UnknownNameError, did_you_mean
+from tap_bench.errors import FileFormatError, ParameterError, UnknownNameError, did_you_mean
+from tap_bench.sim.policies import available_policies
+from tap_bench.sim.scenario_env import get_scenario
+from tap_bench.sim.suite import parse_seeds, read_json, scenario_names
 
 __all__ = ["GATE_METRICS", "GateConfig", "Suite", "available_suites", "load_suite",
            "suite_from_dict"]
@@ -83,12 +86,15 @@ class GateConfig:
             if key not in GATE_METRICS:
                 raise did_you_mean("gate metric", key, GATE_METRICS)
             if not isinstance(value, int | float) or isinstance(value, bool) or value < 0:
-                raise ValueError(f"gate margin {key!r} must be a number >= 0, got {value!r}.")
-        if not 0 < self.alpha < 1:
-            raise ValueError(f"gate alpha must be in (0, 1), got {self.alpha!r}.")
-        if not isinstance(self.n_permutations, int) or self.n_permutations < 99:
-            raise ValueError(f"gate n_permutations must be an integer >= 99, got "
-                             f"{self.n_permutations!r}.")
+                raise ParameterError(f"gate margin {key!r}", value, "a number >= 0")
+        if isinstance(self.alpha, bool) or not isinstance(self.alpha, int | float) \
+                or not 0 < self.alpha < 1:
+            raise ParameterError("gate alpha", self.alpha, "a number in (0, 1)")
+        if isinstance(self.n_permutations, bool) or not isinstance(self.n_permutations, int) \
+                or self.n_permutations < 99:
+            raise ParameterError("gate n_permutations", self.n_permutations, "an integer >= 99")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ParameterError("gate seed", self.seed, "a non-negative integer")
 
     def to_dict(self) -> dict[str, Any]:
         return {"alpha": self.alpha, "n_permutations": self.n_permutations, "seed": self.seed,
@@ -135,8 +141,6 @@ class Suite:
 
     def scenario(self, env: str):
         """The env's :class:`tap_bench.sim.Scenario` with this suite's overrides."""
-        from tap_bench.sim.scenario_env import get_scenario
-
         scenario = get_scenario(env)
         over = self.env_overrides.get(env)
         if over:
@@ -157,15 +161,14 @@ class Suite:
 
 
 def suites_dir() -> Path:
-    """The folder of suite files: ``envs/suites/`` of the scenario suite."""
-    from tap_bench.sim.suite import suite_dir
-
-    return suite_dir("envs") / "suites"
+    """The built-in folder of suite files (``envs/suites/``); :func:`available_suites` also
+    lists those of ``$TAP_BENCH_PATH`` (:mod:`tap_bench.catalogue`)."""
+    return catalogue.roots()[-1] / catalogue.KINDS["suites"]
 
 
 def available_suites() -> list[str]:
-    """Names of the suite files in :func:`suites_dir`."""
-    return sorted(p.stem for p in suites_dir().glob("*.json"))
+    """Names of the suite files of every catalogue folder."""
+    return sorted(catalogue.files("suites"))
 
 
 def _strings(doc: Mapping[str, Any], key: str, source: str) -> tuple[str, ...]:
@@ -192,8 +195,6 @@ def suite_from_dict(doc: Any, *, source: str = "suite", path: Path | None = None
     Raises:
         FileFormatError: naming the field, the bad value and what is allowed.
     """
-    from tap_bench.sim.suite import parse_seeds
-
     if not isinstance(doc, dict):
         raise FileFormatError(f"{source}: a suite file holds one JSON object.")
     for key in doc:
@@ -244,12 +245,26 @@ def suite_from_dict(doc: Any, *, source: str = "suite", path: Path | None = None
         gate = GateConfig(**{**gate_doc, "margins": margins})
     except (TypeError, ValueError, UnknownNameError) as err:
         raise FileFormatError(f"{source}: gate: {err}") from err
+    n_tests = len(envs) * len(policies) * len(GATE_METRICS)
+    if n_tests / (gate.n_permutations + 1) >= gate.alpha:  # the gate could never fire
+        need = int(n_tests / gate.alpha + 1e-9)  # P + 1 > tests / alpha
+        raise FileFormatError(
+            f"{source}: gate: {len(envs)} envs x {len(policies)} policies x "
+            f"{len(GATE_METRICS)} metrics = {n_tests} tests with n_permutations "
+            f"{gate.n_permutations}: no p-value is below 1/{gate.n_permutations + 1}, so the "
+            f"smallest Holm-adjusted one is {n_tests / (gate.n_permutations + 1):.3g} >= alpha "
+            f"{gate.alpha:g} and the gate could never fire. Set gate.n_permutations to at "
+            f"least {need}.")
     thresholds = doc.get("thresholds", "paper")
     if not isinstance(thresholds, str):
         raise FileFormatError(f"{source}: thresholds must be a preset name or a JSON path.")
     if path is not None and thresholds.endswith(".json") and not os.path.isabs(thresholds):
         thresholds = str((path.parent / thresholds).resolve())
-    suite = Suite(name=str(doc["name"]), version=int(doc.get("version", 0)),
+    version = doc.get("version", 0)
+    if isinstance(version, bool) or not isinstance(version, int) or version < 0:
+        raise FileFormatError(f"{source}: version must be a non-negative integer (the suite's "
+                              f"version, raised when it changes), got {version!r}.")
+    suite = Suite(name=str(doc["name"]), version=version,
                   description=str(doc.get("description", "")), envs=envs, policies=policies,
                   seeds=seeds, reference_policy=reference, level=level, thresholds=thresholds,
                   env_overrides=overrides, bootstrap=boot, gate=gate, path=path)
@@ -259,9 +274,6 @@ def suite_from_dict(doc: Any, *, source: str = "suite", path: Path | None = None
 
 
 def _check_names(suite: Suite, source: str) -> None:
-    from tap_bench.sim.policies import available_policies
-    from tap_bench.sim.suite import scenario_names
-
     known_envs = scenario_names()
     for env in suite.envs:
         if env not in known_envs:
@@ -287,9 +299,9 @@ def load_suite(name_or_path: str | os.PathLike) -> Suite:
     text = str(name_or_path)
     path = Path(text)
     if not text.endswith(".json"):
-        path = suites_dir() / f"{text}.json"
-        if not path.is_file():
+        found = catalogue.find("suites", text)
+        if found is None:
             raise did_you_mean("suite", text, available_suites())
-    from tap_bench.sim.suite import read_json
+        path = found
 
     return suite_from_dict(read_json(path, "suite"), source=str(path), path=path)

@@ -8,8 +8,12 @@ returning an exit code). Add a module to ``COMMANDS`` to register it.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import os
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 
 from tap_bench.errors import TapBenchError
@@ -29,6 +33,7 @@ COMMANDS = (
     "tap_bench.cli.coverage",
     "tap_bench.cli.bench",
     "tap_bench.cli.demo",
+    "tap_bench.cli.view",
     # similarity: SDL search, unique behaviours, the paper's ADE / DTW experiments
     "tap_bench.cli.search",
     "tap_bench.cli.unique",
@@ -51,13 +56,27 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _terminate(signum: int, frame: object) -> None:
+    """SIGTERM ends a command as Ctrl-C does: cleanup runs, workers stop, nothing partial
+    is left (outputs are written atomically)."""
+    raise KeyboardInterrupt
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``tap-bench``; returns the process exit code."""
+    """Entry point of ``tap-bench``; returns the process exit code.
+
+    Exit codes: 0 success, 1 the command ran but its check failed (a regression, every
+    episode failed), 2 a usage or input error (every :class:`TapBenchError`, printed as one
+    message), 130 interrupted (Ctrl-C or SIGTERM).
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         return int(args.func(args) or 0)
     except TapBenchError as err:
@@ -67,6 +86,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"tap-bench {args.command}: interrupted; no partial output was written.",
               file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # the reader of our output went away (tap-bench policies | head): not an error
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":  # pragma: no cover

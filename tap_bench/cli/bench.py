@@ -7,7 +7,7 @@ import argparse
 import os
 import sys
 
-from tap_bench.distributed.backend import add_backend_arguments
+from tap_bench.execution import add_backend_arguments
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -30,7 +30,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="rollout processes (default 2)")
     r.add_argument("--womd", nargs="+", metavar="FILE",
                    help="WOMD files (TFRecord, ScenarioNet .pkl): a second coverage reference, "
-                   "and each episode matched to its nearest WOMD scenarios")
+                   "and each episode matched to its nearest WOMD scenarios (the same as "
+                   "--reference WOMD=FILE,...)")
+    r.add_argument("--reference", action="append", default=[], metavar="NAME=FILE[,FILE]",
+                   help="another coverage and novelty reference: a label file (.parquet, "
+                   ".csv with an sdl column) or driving-data files of any format 'tap-bench "
+                   "ingest' reads; repeatable")
     r.add_argument("--no-trajectories", action="store_true",
                    help="do not write trajectories.parquet")
     r.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
@@ -41,9 +46,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     c = sub.add_parser("check", help="regression gate: compare a run with a baseline",
                        description="Compare a run with a baseline, per env, policy and metric "
                        "(measure means and the label distribution). A metric moved when its "
-                       "change exceeds its margin and a permutation test, Holm-corrected over "
-                       "all checks, rejects 'no change'. Exits 1 with a table of what moved, "
-                       "0 when nothing did. The baseline changes only with --update-baseline.")
+                       "change exceeds its margin and a permutation test (paired by seed when "
+                       "the run has the baseline's seeds), Holm-corrected over all checks, "
+                       "rejects 'no change'; a policy or env whose definition changed since "
+                       "the baseline is named with what changed. Exits 1 with a table of what "
+                       "moved, 0 when nothing did, 2 when the gate could never fire (too few "
+                       "permutations or seeds). The baseline changes only with "
+                       "--update-baseline.")
     c.add_argument("run", help="run folder written by 'bench run'")
     c.add_argument("--baseline", required=True, help="baseline JSON "
                    "(results/baselines/default.json)")
@@ -51,6 +60,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="replace the baseline with this run (and exit 0)")
     c.add_argument("--all", action="store_true", help="print every check, not only moves")
     c.add_argument("-o", "--output", help="also write the check table (.csv/.parquet)")
+    c.add_argument("--power", action="store_true",
+                   help="also print, per metric, the smallest change the gate detects with 80 "
+                   "%% power at the baseline's seed count and the seeds a change of one margin "
+                   "needs")
     c.set_defaults(func=check_bench)
 
     s = sub.add_parser("suites", help="list the benchmark suites")
@@ -58,14 +71,29 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
+def _references(specs: list[str]) -> dict[str, list[str]]:
+    from tap_bench.errors import ParameterError
+
+    out: dict[str, list[str]] = {}
+    for spec in specs:
+        name, sep, files = spec.partition("=")
+        if not sep or not name or not files:
+            raise ParameterError("--reference", spec, "NAME=FILE or NAME=FILE,FILE,...")
+        if name in out:
+            raise ParameterError("--reference", spec, "a name used once")
+        out[name] = files.split(",")
+    return out
+
+
 def run_bench(args: argparse.Namespace) -> int:
     from tap_bench.bench.demo import timing_split
     from tap_bench.bench.runner import run_suite
-    from tap_bench.distributed.backend import backend_from_args, close_backend
+    from tap_bench.execution import backend_from_args, close_backend
 
     backend = backend_from_args(args) if args.backend != "local" or args.address else None
     try:
         result = run_suite(args.suite, args.output, workers=args.workers, womd=args.womd,
+                           references=_references(args.reference),
                            keep_trajectories=not args.no_trajectories,
                            overwrite=args.overwrite,
                            progress=False if args.no_progress else None, backend=backend)
@@ -107,7 +135,13 @@ def check_bench(args: argparse.Namespace) -> int:
         return 0
     doc, base = read_baseline(baseline_path)
     result = check(summary, episodes, doc, base)
+    if not doc.get("provenance"):
+        print(f"note: {baseline_path} records no policy or env definitions (made before "
+              "format 2); changed definitions cannot be named. Re-make it with "
+              "--update-baseline.")
     print(result.format(all_rows=args.all))
+    if args.power:
+        print_power(base.assign(status="ok"), result.config, len(result.table))
     if args.output:
         write_table(result.table, args.output)
     if result.moved:
@@ -116,6 +150,24 @@ def check_bench(args: argparse.Namespace) -> int:
         return 1
     print(f"OK: nothing moved beyond its margin against {baseline_path}.")
     return 0
+
+
+def print_power(episodes, config, n_tests: int) -> None:
+    """The gate's minimum detectable effects per metric, and a warning for each metric whose
+    margin is below what the seeds can detect."""
+    from tap_bench.bench.power import POWER, power_summary, power_table
+
+    table = power_table(episodes, config, n_tests=n_tests)
+    summary = power_summary(table)
+    print(f"power: smallest change detected with {POWER:.0%} power over {n_tests} tests at "
+          f"alpha {config.alpha:g} (median and worst (env, policy)), and the seeds the worst "
+          "needs for a change of one margin:")
+    print(summary.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+    for r in summary.itertuples():
+        if r.cells_too_small:
+            print(f"warning: {r.metric}: {r.cells_too_small} of {r.cells} (env, policy) cells "
+                  f"cannot detect a change of one margin ({r.margin:g}) with {r.n} seeds; "
+                  f"up to {r.seeds_for_margin:.0f} seeds needed.")
 
 
 def list_suites(args: argparse.Namespace) -> int:

@@ -11,15 +11,20 @@ from tap_bench.sdl import LEVELS
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "compare", help="compare two policies: paired by seed and matched by SDL label",
-        description="Compare policy A with policy B. Each input is a trajectory table "
+        description="Compare policy A (the one evaluated, e.g. an RL agent) with the "
+        "reference policy B (e.g. IDM): every difference is A minus B, and P(A better) is "
+        "the probability that A beats the reference on the same seed. Each input is a "
+        "trajectory table "
         "(labelled here; safety and efficiency measures computed from it) or a label table "
         "(labels only). Episodes on the same (env, seed) are paired: label agreement, "
         "per-label frequency differences and probabilities of improvement with paired "
-        "bootstrap intervals over seeds. Episodes with the same ego label are grouped: "
+        "score and t intervals over seeds. Episodes with the same ego label are grouped: "
         "measures compared inside each group. B's labels are also the reference for A's "
         "coverage and unique manoeuvres. Writes Parquet tables, PNG plots and report.html.")
-    p.add_argument("a", help="policy A: trajectory or label table (.parquet/.csv)")
-    p.add_argument("b", help="policy B (the reference): trajectory or label table")
+    p.add_argument("a", help="policy A, the one evaluated: trajectory or label table "
+                   "(.parquet/.csv)")
+    p.add_argument("b", help="policy B, the reference A is compared with (differences are "
+                   "A - B; B's labels are the coverage reference): trajectory or label table")
     p.add_argument("-o", "--output", required=True, help="results folder to write")
     p.add_argument("--names", nargs=2, metavar=("A", "B"),
                    help="policy names (default: the tables' policy column, else file names)")
@@ -31,7 +36,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="label distance for the matched groups (default exact, g_SDL)")
     p.add_argument("--d-sim", type=float, default=0,
                    help="largest label distance inside a matched group (default 0)")
-    p.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples (2000)")
+    p.add_argument("--resamples", type=int, default=2000,
+                   help="bootstrap draws of the coverage and diversity intervals (2000)")
     p.add_argument("--ci", type=float, default=0.95, help="interval level (0.95)")
     p.add_argument("--seed", type=int, default=0, help="bootstrap seed (0)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
@@ -95,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
                "methods": scores.methods, "versions": package_versions()}
     labels = pd.concat([lab_a, lab_b], ignore_index=True)
     folder = write_results(args.output, args.overwrite, summary, episodes, labels, None, scores)
+    print(f"A = {a} (evaluated), B = {b} (the reference); differences are A - B")
     for row in scores.paired.itertuples():
         print(f"{row.env}: {row.n_pairs} seeds paired; same ego label on {row.agreement:.0%} "
               f"[{row.agreement_low:.0%}, {row.agreement_high:.0%}]")

@@ -11,12 +11,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "coverage", help="how much of a reference's behaviour an agent shows, and what is new",
         description="Coverage of a reference label set by an agent's ego labels: the share of "
-        "the reference's labels the agent shows, frequency-weighted, and the entropy of its "
-        "labels, with intervals (see docs/benchmark.md); and its unique manoeuvres, the "
+        "the reference's labels the agent shows, frequency-weighted, and the diversity of its "
+        "labels (Hill numbers with sample completeness), with intervals (see "
+        "docs/benchmark.md); and its unique manoeuvres, the "
         "labels the reference never shows, as a rate with an interval and examples. The "
         "agent is a trajectory or label table with one ego per episode; the reference is a "
         "label or trajectory table (e.g. WOMD, or IDM rollouts) or, with --vocabulary, the "
-        "single labels of the level.")
+        "single labels of the level. A reference with an env column (rollouts) is held "
+        "against the agent's episodes of the same env only; the scores and random streams "
+        "are those of 'bench run'.")
     p.add_argument("agent", help="the agent's trajectory or label table (.parquet/.csv)")
     ref = p.add_mutually_exclusive_group(required=True)
     ref.add_argument("--reference", help="reference corpus: label or trajectory table")
@@ -44,9 +47,9 @@ def run(args: argparse.Namespace) -> int:
     import pandas as pd
 
     from tap_bench.bench.bootstrap import BootstrapConfig
-    from tap_bench.bench.coverage import corpus_reference, coverage, vocabulary_reference
+    from tap_bench.bench.coverage import corpus_reference, vocabulary_reference
     from tap_bench.bench.episodes import episodes_from_table
-    from tap_bench.bench.novelty import novelty
+    from tap_bench.bench.scoring import diversity_table, reference_scores
     from tap_bench.cli.rollout import episodes_path
     from tap_bench.labelling import tap
     from tap_bench.tableio import read_table, write_table
@@ -60,60 +63,82 @@ def run(args: argparse.Namespace) -> int:
     episodes, _, _ = episodes_from_table(table.assign(policy=name), level=args.level,
                                          thresholds=args.thresholds, policy=name,
                                          source=str(args.agent))
+    agent_envs = sorted(set(episodes["env"]))
     if args.vocabulary:
         reference = vocabulary_reference(args.level)
+        ref_name = f"{args.level} vocabulary"
     else:
         ref_table = read_table(args.reference)
         if "sdl" not in ref_table.columns:
             ref_table = tap(ref_table, args.thresholds, source=str(args.reference)
                             ).labels(args.level)
-        reference = corpus_reference(ref_table, args.level, tracks=args.reference_tracks,
-                                     name=Path(args.reference).name)
+        ref_name = Path(args.reference).name
+        if "env" in ref_table.columns and set(agent_envs) <= set(ref_table["env"].unique()) \
+                and agent_envs != [""]:  # rollouts: a label is (env, label)
+            reference = {env: corpus_reference(ref_table[ref_table["env"] == env],
+                                               args.level, tracks=args.reference_tracks,
+                                               name=f"{ref_name} ({env})")
+                         for env in agent_envs}
+        else:
+            reference = corpus_reference(ref_table, args.level, tracks=args.reference_tracks,
+                                         name=ref_name)
+    cov, nov, novel = reference_scores(episodes, reference, ref_name, config=config)
+    div = diversity_table(episodes, config)
     ok = episodes[(episodes["status"] == "ok") & episodes["sdl"].notna()]
-    groups = [(env, sub) for env, sub in ok.groupby("env", sort=True)]
-    if len(groups) > 1:
-        groups.append(("all", ok))
-    rows, novel_tables = [], []
+    described = reference.description if not isinstance(reference, dict) else \
+        "; ".join(r.description for r in reference.values())
     print(f"{name}: {len(ok)} episodes with an ego label at level {args.level}; reference: "
-          f"{reference.description}")
-    for k, (env, sub) in enumerate(groups):
-        cv = coverage(sub["sdl"], reference, config=config, stream=k)
-        row = {"env": env, "policy": name, **cv.row()}
-        head = f"  {env or 'episodes'}: coverage {cv.coverage:.1%} [{cv.coverage_low:.1%}, " \
-               f"{cv.coverage_high:.1%}], weighted {cv.weighted_coverage:.1%} " \
-               f"[{cv.weighted_low:.1%}, {cv.weighted_high:.1%}], entropy " \
-               f"{cv.entropy_bits:.2f} bits [{cv.entropy_low:.2f}, {cv.entropy_high:.2f}] " \
-               f"({cv.n_distinct} distinct labels)"
-        if reference.kind == "corpus":
-            nv = novelty(sub, reference, config=config, stream=k)
-            row.update(nv.row())
-            novel_tables.append(nv.labels.assign(env=env, policy=name))
-            head += f"; unique manoeuvres {nv.rate:.1%} [{nv.rate_low:.1%}, " \
-                    f"{nv.rate_high:.1%}] of episodes, {len(nv.labels)} labels"
+          f"{described}")
+    rows = []
+    for r in cov.itertuples(index=False):
+        d = div[div["env"] == r.env].iloc[0] if (div["env"] == r.env).any() else None
+        head = (f"  {r.env or 'episodes'}: coverage {r.coverage:.1%} [{r.coverage_low:.1%}, "
+                f"{r.coverage_high:.1%}], weighted {r.weighted_coverage:.1%} "
+                f"[{r.weighted_low:.1%}, {r.weighted_high:.1%}]")
+        row = r._asdict()
+        if d is not None:
+            head += f"; {diversity_text(d)}"
+            row.update({k: d[k] for k in div.columns if k not in ("env", "policy", "n")})
+        match = nov[nov["env"] == r.env] if len(nov) else nov
+        if len(match):
+            v = match.iloc[0]
+            head += (f"; unique manoeuvres {v['novel_rate']:.1%} [{v['novel_low']:.1%}, "
+                     f"{v['novel_high']:.1%}] of episodes, {int(v['n_novel_labels'])} labels")
+            row.update({k: v[k] for k in nov.columns if k not in row})
         rows.append(row)
         print(head)
-    method = (f"{config.level:.0%} intervals; coverage and entropy: iNEXT-style augmented "
-              f"bootstrap over episodes, novelty: percentile bootstrap over episodes; "
-              f"{config.n_resamples} resamples, seed {config.seed}")
-    print(f"  ({method})")
-    if novel_tables:
-        novel = novel_tables[-1]
-        if len(novel):
-            print(f"unique manoeuvres ({'all envs' if len(groups) > 1 else 'all'}), most "
-                  "frequent first:")
-            for r in novel.head(args.examples).itertuples():
-                print(f"  {r.count:4d}  {r.label}   e.g. {r.example_scenario}")
-    missed = cv.missed[: args.examples]  # of the last group: the pooled one
-    if missed:
-        print("reference labels never shown (heaviest first): " + "; ".join(missed))
+    print(f"  ({config.level:.0%} intervals; coverage and diversity: iNEXT-style augmented "
+          f"bootstrap over episodes, {config.n_resamples} draws, seed {config.seed}; "
+          "novelty: Wilson)")
+    pooled = "all" if (novel["env"] == "all").any() else None
+    shown = novel[novel["env"] != "all"] if pooled is None else novel
+    if len(shown):
+        print("unique manoeuvres, most frequent first:")
+        for r in shown.sort_values("count", ascending=False, kind="stable").head(
+                args.examples).itertuples():
+            print(f"  {r.count:4d}  {(r.env + ': ') if r.env else ''}{r.label}   e.g. "
+                  f"{r.example_scenario}")
     if args.output:
         out = Path(args.output)
         write_table(pd.DataFrame(rows), out)
-        if novel_tables:
+        if not args.vocabulary:  # a corpus: its novel labels, possibly none
             novel_path = episodes_path(out).with_name(
                 episodes_path(out).name.replace(".episodes.", ".novel."))
-            write_table(pd.concat(novel_tables, ignore_index=True), novel_path)
+            write_table(novel, novel_path)
             print(f"wrote {out} and {novel_path}")
         else:
             print(f"wrote {out}")
     return 0
+
+
+def diversity_text(row) -> str:
+    """Hill numbers and completeness of a diversity row, "at least" where not estimable."""
+    at = f"{row['size']} episodes"
+    hill = ", ".join(f"q{q} {row[f'hill_q{q}']:.1f}" for q in (0, 1, 2))
+    if row["hill_is_bound"]:
+        hill = "at least " + hill
+    asym = ", ".join(f"{row[f'asymptote_q{q}']:.1f}" for q in (0, 1, 2))
+    asym = f"at least {asym} (completeness too low to estimate)" if row["asymptote_is_bound"] \
+        else asym
+    return (f"diversity at {at}: {hill}; sample completeness {row['completeness']:.0%}; "
+            f"whole distribution: {asym}")

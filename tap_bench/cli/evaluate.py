@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 
 from tap_bench.sdl import LEVELS
-from tap_bench.similarity.evaluate import evaluate, write_evaluation
+from tap_bench.similarity.evaluate import evaluate
+from tap_bench.similarity.figures import write_evaluation
 from tap_bench.tableio import read_table
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from tap_bench.distributed.backend import add_backend_arguments
+from tap_bench.execution import add_backend_arguments
 from tap_bench.fitting import METHODS, fit_report
 from tap_bench.kinematics import one_second_samples
 from tap_bench.tableio import read_table
@@ -67,8 +67,8 @@ def run(args: argparse.Namespace) -> int:
 def _sharded_samples(args: argparse.Namespace) -> tuple[dict, str]:
     """One-second samples per Parquet shard as tasks, merged exactly (sorted), and the data
     set's name for the provenance."""
-    from tap_bench.distributed.backend import backend_from_args, close_backend
     from tap_bench.distributed.fitting import dataset_name, shard_samples
+    from tap_bench.execution import backend_from_args, close_backend
 
     backend = backend_from_args(args)
     try:

@@ -6,8 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from tap_bench.distributed.backend import add_backend_arguments
-from tap_bench.womd.ingest import FORMATS, ON_ERROR, ingest_womd, report_path
+from tap_bench.execution import add_backend_arguments
+from tap_bench.sources.ingest import ON_ERROR, formats, ingest_womd, report_path
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -38,7 +38,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     w.add_argument("--on-error", default="stop", choices=ON_ERROR,
                    help="at a bad record: stop (default, nothing is written) or skip it and "
                    "list it in the report")
-    w.add_argument("--format", default="auto", choices=FORMATS,
+    w.add_argument("--format", default="auto", choices=formats(),
                    help="input format (default: auto, per file)")
     w.add_argument("--no-crc", action="store_true",
                    help="do not check the CRC-32C of records (trusted local copies only)")
@@ -77,8 +77,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_sharded(args: argparse.Namespace, types: list[str] | None) -> int:
     """One task per input file, each writing its Parquet part of the output directory."""
-    from tap_bench.distributed.backend import backend_from_args, close_backend
     from tap_bench.distributed.shards import ingest_shards
+    from tap_bench.execution import backend_from_args, close_backend
 
     backend = backend_from_args(args, workers=args.workers)
     try:

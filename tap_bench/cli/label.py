@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from tap_bench.distributed.backend import add_backend_arguments
+from tap_bench.execution import add_backend_arguments
 from tap_bench.labelling import tap
 from tap_bench.sdl import LEVELS
 from tap_bench.stages import StageConfig
@@ -81,8 +81,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_sharded(args: argparse.Namespace) -> int:
     """Label each Parquet shard of ``input`` as a task; one label part per shard."""
-    from tap_bench.distributed.backend import backend_from_args, close_backend
     from tap_bench.distributed.shards import label_shards
+    from tap_bench.execution import backend_from_args, close_backend
 
     extra = [flag for flag, value in (("--segments", args.segments), ("--steps", args.steps),
                                       ("--report", args.report)) if value]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from tap_bench.distributed.backend import add_backend_arguments
+from tap_bench.execution import add_backend_arguments, backend_from_args, close_backend
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -28,8 +28,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="override the scenario's lane-change setting")
     p.add_argument("--duration", type=float, help="override the episode length [s]")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("--batch", type=int, default=None,
-                   help="seeds per task with --backend ray (default 8)")
     add_backend_arguments(p, shards=False)
     p.set_defaults(func=run)
 
@@ -54,12 +52,14 @@ def run(args: argparse.Namespace) -> int:
     episodes_out = Path(args.episodes) if args.episodes else episodes_path(output)
     seeds = args.seeds if args.seeds else list(get_scenario(args.env).default_seeds)
     progress = False if args.no_progress else None
-    if args.backend == "local":
+    workers = args.workers if args.backend == "local" or args.workers != 1 else None
+    backend = backend_from_args(args, workers=workers)  # ray default: all the CPUs
+    try:
         trajectories, episodes = rollout(
-            args.env, args.policy, seeds, workers=args.workers, lane_change=args.lane_change,
-            duration=args.duration, progress=progress)
-    else:
-        trajectories, episodes = _distributed(args, seeds, progress)
+            args.env, args.policy, seeds, backend=backend, lane_change=args.lane_change,
+            duration=args.duration, retries=args.retries, progress=progress)
+    finally:
+        close_backend(backend)
     ok = episodes[episodes["status"] == "ok"]
     if len(trajectories):
         write_table(trajectories, output)
@@ -73,19 +73,3 @@ def run(args: argparse.Namespace) -> int:
     for row in failed.itertuples():
         print(f"seed {row.seed} failed: {row.error}", file=sys.stderr)
     return 1 if len(failed) == len(episodes) else 0
-
-
-def _distributed(args: argparse.Namespace, seeds, progress: bool | None):
-    """The rollout as Ray tasks of ``--batch`` seeds; the same tables as locally."""
-    from tap_bench.distributed.backend import backend_from_args, close_backend
-    from tap_bench.distributed.rollouts import DEFAULT_BATCH, distributed_rollout
-
-    workers = args.workers if args.workers != 1 else None  # default: all the CPUs
-    backend = backend_from_args(args, workers=workers)
-    try:
-        return distributed_rollout(args.env, args.policy, seeds, backend,
-                                   batch=args.batch or DEFAULT_BATCH,
-                                   lane_change=args.lane_change, duration=args.duration,
-                                   retries=args.retries, progress=progress)
-    finally:
-        close_backend(backend)

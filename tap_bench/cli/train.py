@@ -66,6 +66,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"learning curve: {len(result.curve)} evaluations on seeds {curve.seeds} "
               f"({result.seconds - result.train_seconds:.0f} s); last: return "
               f"{last['return_mean']:.2f}, crash rate {last['crash_rate']:.2f}, coverage "
-              f"{last['coverage']:.2f}, entropy {last['entropy_bits']:.2f} bits")
+              f"{last['coverage']:.2f}, diversity {last['diversity']:.2f} labels")
         print(f"wrote {result.curve_path} and {result.plot_path}")
     return 0

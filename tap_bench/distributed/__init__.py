@@ -1,21 +1,12 @@
-"""Scaling out: the same rollouts, ingestion, labelling and fitting on a Ray cluster.
+"""Scaling out: WOMD ingestion, labelling and fitting on shard sets, on any backend.
 
-``backend`` (where work runs: :class:`LocalBackend`, :class:`RayBackend`), ``rollouts``
-(batches of seeds per task), ``shards`` (ingest and label shard sets into partitioned
-Parquet) and ``fitting`` (per-shard one-second samples merged into the exact summary).
-Ray is imported only when a :class:`RayBackend` is made (``pip install 'tap-bench[ray]'``).
+``shards`` (ingest and label shard sets into partitioned Parquet) and ``fitting`` (per-shard
+one-second samples merged into the exact summary). Where the work runs (local processes or a
+Ray cluster) is :mod:`tap_bench.execution`; rollouts and suite runs take its backends
+directly (``rollout(..., backend=...)``, ``run_suite(..., backend=...)``).
 """
 
-from tap_bench.distributed.backend import (
-    BACKENDS,
-    Backend,
-    LocalBackend,
-    Outcome,
-    RayBackend,
-    make_backend,
-)
 from tap_bench.distributed.fitting import ShardSamples, distributed_fit_report, shard_samples
-from tap_bench.distributed.rollouts import distributed_rollout
 from tap_bench.distributed.shards import (
     ShardReport,
     ingest_shards,
@@ -24,9 +15,6 @@ from tap_bench.distributed.shards import (
 )
 
 __all__ = [
-    # where work runs
-    "BACKENDS", "Backend", "LocalBackend", "Outcome", "RayBackend", "make_backend",
-    # the work
-    "distributed_rollout", "ingest_shards", "label_shards", "parquet_shards", "ShardReport",
+    "ingest_shards", "label_shards", "parquet_shards", "ShardReport",
     "distributed_fit_report", "shard_samples", "ShardSamples",
 ]

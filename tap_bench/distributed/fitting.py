@@ -22,21 +22,19 @@ from typing import Any
 
 import numpy as np
 
-from tap_bench.distributed.backend import DEFAULT_RETRIES, Backend
+from tap_bench.distributed.shards import parquet_shards
 from tap_bench.errors import TapBenchError
+from tap_bench.execution import DEFAULT_RETRIES, Backend
+from tap_bench.fitting import DISTRIBUTIONS, fit_report
+from tap_bench.kinematics import one_second_samples
+from tap_bench.tableio import read_table
 
 __all__ = ["ShardSamples", "dataset_name", "distributed_fit_report", "shard_samples"]
 
-_DISTRIBUTIONS = ("w", "a", "v")
-
-
 def _sorted_samples(path: str) -> dict[str, np.ndarray]:
     """One shard's one-second samples, each distribution sorted, (n_windows,) float64."""
-    from tap_bench.kinematics import one_second_samples
-    from tap_bench.tableio import read_table
-
     samples = one_second_samples(read_table(path), source=path)
-    return {k: np.sort(samples[k], kind="stable") for k in _DISTRIBUTIONS}
+    return {k: np.sort(samples[k], kind="stable") for k in DISTRIBUTIONS}
 
 
 @dataclass(frozen=True)
@@ -62,8 +60,6 @@ def shard_samples(paths: str | os.PathLike | Iterable[str | os.PathLike], backen
     Raises:
         TapBenchError: every shard failed.
     """
-    from tap_bench.distributed.shards import parquet_shards
-
     shards = [str(p) for p in parquet_shards(paths)]
     outcomes = backend.map(_sorted_samples, shards, retries=retries, unit="shard",
                            desc=f"samples ({backend.name})", progress=progress)
@@ -72,7 +68,7 @@ def shard_samples(paths: str | os.PathLike | Iterable[str | os.PathLike], backen
     if not runs:
         raise TapBenchError(f"every shard failed; the first: {failed[0][0]}: {failed[0][1]}")
     merged = {k: np.sort(np.concatenate([r[k] for r in runs]), kind="stable")
-              for k in _DISTRIBUTIONS}
+              for k in DISTRIBUTIONS}
     return ShardSamples(merged, tuple(shards), failed)
 
 
@@ -97,8 +93,6 @@ def distributed_fit_report(paths: str | os.PathLike | Iterable[str | os.PathLike
         on every attempt is left out and listed, in ``ShardSamples.failed`` and in the
         provenance's dataset name.
     """
-    from tap_bench.fitting import fit_report
-
     merged = shard_samples(paths, backend, retries=retries, progress=progress)
     name = dataset_name(dataset or (str(paths) if isinstance(paths, str | os.PathLike)
                                     else ", ".join(map(str, paths))), merged)

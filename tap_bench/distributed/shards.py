@@ -7,7 +7,7 @@ leaves no part; the others land. Parquet readers (pandas, pyarrow, Ray Data) rea
 directory as one table and skip the ``_report.json``.
 
 Memory per worker is bounded whatever the size of the data set or of a shard: ingestion
-streams a file's records in batches of 8 MB (:func:`tap_bench.womd.ingest.ingest_womd`), and
+streams a file's records in batches of 8 MB (:func:`tap_bench.sources.ingest.ingest_womd`), and
 labelling reads a part in chunks of whole scenarios of about a million rows
 (:data:`LABEL_CHUNK_ROWS`). A scenario must lie in a single shard, as it does in WOMD's files
 and in parts written here, so that labels do not depend on how the data was cut.
@@ -31,9 +31,22 @@ import numpy as np
 import pandas as pd
 import pyarrow.compute as pc
 
-from tap_bench.distributed.backend import DEFAULT_RETRIES, Backend, Outcome
-from tap_bench.errors import FileFormatError, TapBenchError
-from tap_bench.tableio import atomic_path
+from tap_bench import sdl
+from tap_bench.errors import FileFormatError, ParameterError, TapBenchError
+from tap_bench.execution import DEFAULT_RETRIES, Backend, Outcome
+from tap_bench.labelling import tap
+from tap_bench.sources.ingest import (
+    ON_ERROR,
+    _check_choice,
+    expand_paths,
+    formats,
+    ingest_womd,
+    report_path,
+)
+from tap_bench.stages import StageConfig
+from tap_bench.tableio import atomic_path, read_table
+from tap_bench.thresholds import resolve_thresholds
+from tap_bench.womd.scenario import normalise_object_types
 
 __all__ = ["LABEL_CHUNK_ROWS", "REPORT_NAME", "ShardReport", "ingest_shards", "label_shards",
            "parquet_shards"]
@@ -98,8 +111,6 @@ def parquet_shards(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> li
     Raises:
         FileFormatError: a path or pattern that gives no Parquet shard.
     """
-    from tap_bench.womd.ingest import expand_paths
-
     shards = [p for p in expand_paths(paths)
               if p.suffix in (".parquet", ".pq") and not p.name.startswith(("_", "."))]
     if not shards:
@@ -171,8 +182,6 @@ class _IngestJob:
 
 def _ingest_shard(job: _IngestJob) -> dict[str, Any]:
     """Ingest one WOMD file into one part; its report goes back to the driver."""
-    from tap_bench.womd.ingest import ingest_womd, report_path
-
     report = ingest_womd([job.input], job.output, format=job.format,
                          object_types=job.object_types, on_error=job.on_error,
                          check_crc=job.check_crc, workers=1)
@@ -193,7 +202,7 @@ def ingest_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
         output: the directory to write (``womd/``): ``<input name>.parquet`` per input and
             ``_report.json``.
         backend: where the tasks run.
-        format, object_types, check_crc: as :func:`tap_bench.womd.ingest_womd`.
+        format, object_types, check_crc: as :func:`tap_bench.sources.ingest_womd`.
         on_error: ``stop`` (default): a bad record fails its shard, which is retried and
             then reported, the other shards kept; ``skip``: bad records are left out and
             listed under the shard's ``skipped``.
@@ -204,10 +213,7 @@ def ingest_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
     Returns:
         The :class:`ShardReport`, also written to ``<output>/_report.json``.
     """
-    from tap_bench.womd.ingest import FORMATS, ON_ERROR, _check_choice, expand_paths
-    from tap_bench.womd.scenario import normalise_object_types
-
-    _check_choice("format", format, FORMATS)
+    _check_choice("format", format, formats())
     _check_choice("on_error value", on_error, ON_ERROR)
     types = normalise_object_types(object_types)
     inputs = expand_paths(paths)
@@ -284,7 +290,6 @@ def _label_shard(job: _LabelJob) -> dict[str, Any]:
     try:
         return _label_chunks(job, _scenario_chunks(job.input, job.chunk_rows))
     except _NotContiguous:  # a part not grouped by scenario: label it whole
-        from tap_bench.tableio import read_table
 
         return _label_chunks(job, iter([read_table(job.input)]))
 
@@ -293,7 +298,6 @@ def _label_chunks(job: _LabelJob, tables: Iterator[pd.DataFrame]) -> dict[str, A
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from tap_bench.labelling import tap
 
     counts = {"rows": 0, "trajectory_rows": 0, "segments": 0, "short_segments": 0}
     with atomic_path(job.output) as tmp:
@@ -344,11 +348,7 @@ def label_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
         The :class:`ShardReport` (also ``<output>/_report.json``); each shard lists its
         label ``rows``, ``segments`` and ``short_segments`` (too short to label).
     """
-    from tap_bench.labelling import _levels
-    from tap_bench.stages import StageConfig
-    from tap_bench.thresholds import resolve_thresholds
-
-    _levels(level)  # a bad level fails here, not in every task
+    sdl.levels(level)  # a bad level fails here, not in every task
     th = resolve_thresholds(thresholds)
     config = config or StageConfig()
     inputs = parquet_shards(paths)
@@ -358,7 +358,8 @@ def label_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
                             "labels to another directory.")
     parts = [out / name for name in _part_names(inputs)]
     if isinstance(chunk_rows, bool) or not isinstance(chunk_rows, int) or chunk_rows < 1:
-        raise ValueError(f"chunk_rows must be a positive integer, got {chunk_rows!r}.")
+        raise ParameterError("chunk_rows", chunk_rows, "",
+            message=f"chunk_rows must be a positive integer, got {chunk_rows!r}.")
     jobs = [_LabelJob(str(src.resolve()), str(part.resolve()), th, config, level, chunk_rows)
             for src, part in zip(inputs, parts, strict=True)]
     return _run("label", _label_shard, jobs, inputs, parts, out, backend, retries, resume,

@@ -7,6 +7,7 @@ Modules, by what they do:
 - :mod:`~tap_bench.sim.scenario_env`: the env those ids build, recording at 10 Hz;
 - :mod:`~tap_bench.sim.observation`: highway-env's Kinematics observation without pandas;
 - :mod:`~tap_bench.sim.recorder`: vehicles to a trajectory table in Waymo axes;
+- :mod:`~tap_bench.sim.roads`: a scenario's road network as a map table;
 - :mod:`~tap_bench.sim.vehicles`: lane-change settings, process-wide vehicle state;
 - :mod:`~tap_bench.sim.policies`, :mod:`~tap_bench.sim.idm`, :mod:`~tap_bench.sim.sb3`:
   the Policy protocol, its registry and the built-ins;

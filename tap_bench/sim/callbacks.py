@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 from stable_baselines3.common.callbacks import BaseCallback
 
+from tap_bench.errors import ParameterError
 from tap_bench.sim.curve import CURVE_COLUMNS, CurveConfig, GreedyModelPolicy, curve_row
 from tap_bench.sim.suite import Scenario
 
@@ -27,7 +28,7 @@ class CoverageCallback(BaseCallback):
     egos' labels and the labels' diversity.
 
     Each row also goes to SB3's logger as ``tap/coverage``, ``tap/weighted_coverage``,
-    ``tap/entropy_bits``, ``tap/distinct_labels``, ``tap/crash_rate`` and
+    ``tap/diversity``, ``tap/distinct_labels``, ``tap/crash_rate`` and
     ``tap/eval_return``.
 
     Args:
@@ -49,7 +50,7 @@ class CoverageCallback(BaseCallback):
                  verbose: int = 0) -> None:
         super().__init__(verbose)
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-            raise ValueError(f"CoverageCallback: every must be >= 1 env step, got {every!r}.")
+            raise ParameterError("every", every, "an integer >= 1 (env steps)")
         self.scenario = scenario
         self.reference = reference
         self.config = config
@@ -98,7 +99,7 @@ class CoverageCallback(BaseCallback):
         self.eval_seconds.append(time.perf_counter() - began)
         for key, value in (("coverage", row["coverage"]),
                            ("weighted_coverage", row["weighted_coverage"]),
-                           ("entropy_bits", row["entropy_bits"]),
+                           ("diversity", row["diversity"]),
                            ("distinct_labels", row["n_distinct"]),
                            ("crash_rate", row["crash_rate"]),
                            ("eval_return", row["return_mean"])):
@@ -106,5 +107,5 @@ class CoverageCallback(BaseCallback):
         self.logger.dump(self.num_timesteps)  # as SB3's EvalCallback: one log row per point
         if self.verbose:
             print(f"{self.num_timesteps} steps: return {row['return_mean']:.2f}, crash rate "
-                  f"{row['crash_rate']:.2f}, coverage {row['coverage']:.2f}, entropy "
-                  f"{row['entropy_bits']:.2f} bits", flush=True)
+                  f"{row['crash_rate']:.2f}, coverage {row['coverage']:.2f}, diversity "
+                  f"{row['diversity']:.2f} labels", flush=True)

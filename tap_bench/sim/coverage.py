@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Collection, Iterable
 
 from tap_bench import sdl
+from tap_bench.errors import ParameterError
 
 __all__ = ["label_coverage", "vocabulary_tokens"]
 
@@ -41,11 +42,12 @@ def label_coverage(sdl_labels: Iterable[str], reference: Collection[str] | None 
         reference = vocabulary_tokens(level)
         seen: set[str] = set()
         for label in labels:
-            for side in label.split(sdl.SDL_SEPARATOR):
-                seen.update(side.split(sdl.SEPARATOR))
+            for side in sdl.parse_sdl(label):
+                seen.update(side)
     else:
         reference = set(reference)
         seen = labels
     if not reference:
-        raise ValueError("label_coverage: the reference set is empty.")
+        raise ParameterError("reference", reference, "",
+            message="label_coverage: the reference set is empty.")
     return len(seen & set(reference)) / len(reference)

@@ -5,8 +5,9 @@ scenario (the scenario itself: 10 Hz, recorded, whatever env it trains on); its 
 labelled with TAP, and one row of the curve records how well it drives (return, crash rate)
 and what it does: the coverage of a reference label set (IDM/MOBIL rollouts on the same
 seeds, a WOMD label table, or the SDL vocabulary) and the diversity of its own labels
-(entropy, distinct labels). Reading the rows in order shows how the agent's repertoire of
-behaviours grows, or collapses, as its return improves.
+(Hill numbers: distinct labels and the effective number of labels). Reading the rows in
+order shows how the agent's repertoire of behaviours grows, or collapses, as its return
+improves.
 
 The curve table, one row per evaluation (:data:`CURVE_COLUMNS`):
 
@@ -24,12 +25,16 @@ column                  what
 ``n``                   evaluation episodes whose ego has a label
 ``coverage`` (+ ``_low``, ``_high``)   share of the reference's labels shown
 ``weighted_coverage`` (+ ``weighted_low``, ``weighted_high``)   reference weight shown
-``entropy_bits`` (+ ``entropy_low``, ``entropy_high``)   Chao-Shen entropy of the labels
-``n_distinct``          distinct SDL labels of the agent
+``n_distinct``          distinct SDL labels of the agent (Hill number q = 0 of the sample)
+``diversity`` (+ ``diversity_low``, ``diversity_high``)   effective number of labels, the
+                        Hill number q = 1 (exp of the Shannon entropy) of the sample
+``completeness``        sample completeness: the estimated share of the agent's label
+                        distribution the evaluation has shown
 ======================  ====================================================================
 
-Intervals are those of :func:`tap_bench.bench.coverage.coverage` (coverage, entropy) and
-:func:`tap_bench.bench.bootstrap.wilson_interval` (crash rate).
+The intervals are those of the benchmark's measures: :func:`tap_bench.bench.coverage.coverage`,
+:func:`tap_bench.bench.diversity.diversity` (at the sample's own size: every point has the
+same seeds) and :func:`tap_bench.bench.intervals.wilson_interval` (crash rate).
 """
 
 from __future__ import annotations
@@ -44,7 +49,22 @@ import gymnasium as gym
 import numpy as np
 import pandas as pd
 
+from tap_bench import sdl
+from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.coverage import (
+    Reference,
+    corpus_reference,
+    coverage,
+    vocabulary_reference,
+)
+from tap_bench.bench.diversity import ORDERS, diversity
+from tap_bench.bench.episodes import ego_labels
+from tap_bench.bench.intervals import wilson_interval
+from tap_bench.errors import ParameterError, did_you_mean
+from tap_bench.labelling import tap
+from tap_bench.sim.rollout import rollout
 from tap_bench.sim.suite import Scenario, parse_seeds
+from tap_bench.tableio import atomic_path, read_table
 
 __all__ = ["CURVE_COLUMNS", "CurveConfig", "GreedyModelPolicy", "coverage_reference",
            "curve_row", "plot_curve"]
@@ -52,7 +72,8 @@ __all__ = ["CURVE_COLUMNS", "CurveConfig", "GreedyModelPolicy", "coverage_refere
 CURVE_COLUMNS = ("timesteps", "seconds", "train_return", "episodes", "return_mean",
                  "return_sd", "crash_rate", "crash_low", "crash_high", "n", "coverage",
                  "coverage_low", "coverage_high", "weighted_coverage", "weighted_low",
-                 "weighted_high", "entropy_bits", "entropy_low", "entropy_high", "n_distinct")
+                 "weighted_high", "n_distinct", "diversity", "diversity_low", "diversity_high",
+                 "completeness")
 """Columns of the curve table, in order (see the module docstring)."""
 
 
@@ -71,7 +92,7 @@ class CurveConfig:
         level: SDL level of the labels.
         thresholds: TAP thresholds preset or file.
         level_ci: two-sided level of the intervals.
-        n_resamples: draws of the coverage and entropy intervals.
+        n_resamples: draws of the coverage and diversity intervals.
     """
 
     points: int = 10
@@ -83,14 +104,11 @@ class CurveConfig:
     n_resamples: int = 1000
 
     def __post_init__(self) -> None:
-        from tap_bench import sdl
-        from tap_bench.errors import did_you_mean
-
         if isinstance(self.points, bool) or not isinstance(self.points, int) \
                 or self.points < 1:
-            raise ValueError(f"curve points must be an integer >= 1, got {self.points!r}.")
+            raise ParameterError("points", self.points, "an integer >= 1 (evaluations)")
         if len(parse_seeds(self.seeds, source="curve seeds")) < 2:
-            raise ValueError(f"curve seeds {self.seeds!r}: give at least 2 evaluation seeds.")
+            raise ParameterError("seeds", self.seeds, "at least 2 evaluation seeds")
         if self.level not in sdl.LEVELS:
             raise did_you_mean("level", self.level, sdl.LEVELS)
 
@@ -99,10 +117,8 @@ class CurveConfig:
         """The evaluation seeds."""
         return parse_seeds(self.seeds, source="curve seeds")
 
-    def bootstrap(self) -> Any:
+    def bootstrap(self) -> BootstrapConfig:
         """The :class:`~tap_bench.bench.bootstrap.BootstrapConfig` of the intervals."""
-        from tap_bench.bench.bootstrap import BootstrapConfig
-
         return BootstrapConfig(n_resamples=self.n_resamples, level=self.level_ci, seed=0)
 
 
@@ -137,9 +153,6 @@ class GreedyModelPolicy:
 
 def _ego_sdl(trajectories: pd.DataFrame, config: CurveConfig, source: str) -> pd.Series:
     """The ego's SDL label per seed (NA when it has none) of a rollout's trajectories."""
-    from tap_bench.bench.episodes import ego_labels
-    from tap_bench.labelling import tap
-
     if trajectories.empty:
         return pd.Series(dtype="string")
     ego = trajectories[trajectories["is_ego"].to_numpy(bool)]
@@ -151,7 +164,7 @@ def _ego_sdl(trajectories: pd.DataFrame, config: CurveConfig, source: str) -> pd
     return sdl.reindex(seeds.index).set_axis(seeds.to_numpy()).astype("string")
 
 
-def coverage_reference(config: CurveConfig, scenario: Scenario) -> Any:
+def coverage_reference(config: CurveConfig, scenario: Scenario) -> Reference:
     """The reference of the curve's coverage (:class:`tap_bench.bench.coverage.Reference`).
 
     ``config.reference`` is ``"vocabulary"``, a policy name (its rollouts on the curve's
@@ -161,16 +174,10 @@ def coverage_reference(config: CurveConfig, scenario: Scenario) -> Any:
         FileFormatError: the file cannot be read; LabelTableError: it has no labels at the
             level; UnknownNameError: no such policy.
     """
-    from tap_bench.bench.coverage import corpus_reference, vocabulary_reference
-    from tap_bench.sim.rollout import rollout
-
     ref = config.reference
     if ref == "vocabulary":
         return vocabulary_reference(config.level)
     if ref.endswith((".parquet", ".csv", ".csv.gz")):
-        from tap_bench.labelling import tap
-        from tap_bench.tableio import read_table
-
         table = read_table(ref)
         if "sdl" not in table.columns:
             table = tap(table, config.thresholds, source=ref).labels(config.level)
@@ -184,7 +191,7 @@ def coverage_reference(config: CurveConfig, scenario: Scenario) -> Any:
                             name=f"{ref} rollouts on {scenario.name}, seeds {config.seeds}")
 
 
-def curve_row(policy: Any, scenario: Scenario, reference: Any, config: CurveConfig, *,
+def curve_row(policy: Any, scenario: Scenario, reference: Reference, config: CurveConfig, *,
               timesteps: int, seconds: float, train_return: float) -> dict[str, Any]:
     """Evaluate ``policy`` on the curve's seeds of ``scenario`` and return one curve row.
 
@@ -198,17 +205,16 @@ def curve_row(policy: Any, scenario: Scenario, reference: Any, config: CurveConf
     Returns:
         a dict with the keys :data:`CURVE_COLUMNS`.
     """
-    from tap_bench.bench.bootstrap import wilson_interval
-    from tap_bench.bench.coverage import coverage
-    from tap_bench.sim.rollout import rollout
-
     trajectories, episodes = rollout(scenario, policy, config.seed_list, progress=False)
     ok = episodes[episodes["status"] == "ok"]
     if ok.empty:
         raise RuntimeError(f"curve evaluation at {timesteps} steps: every episode failed "
                            f"({episodes['error'].iloc[0]}).")
     sdl = _ego_sdl(trajectories, config, f"{policy.name} at {timesteps} steps")
-    cv = coverage(sdl, reference, config=config.bootstrap(), stream=int(timesteps))
+    boot = config.bootstrap()
+    cv = coverage(sdl, reference, config=boot, rng=boot.rng("curve coverage", timesteps))
+    dv = diversity(sdl.dropna().to_numpy(), config=boot,
+                   rng=boot.rng("curve diversity", timesteps))
     crashes = int(ok["crashed"].sum())
     low, high = wilson_interval(crashes, len(ok), config.level_ci)
     row = {"timesteps": int(timesteps), "seconds": float(seconds),
@@ -216,6 +222,9 @@ def curve_row(policy: Any, scenario: Scenario, reference: Any, config: CurveConf
            "return_mean": float(ok["return"].mean()), "return_sd": float(ok["return"].std()),
            "crash_rate": crashes / len(ok), "crash_low": low, "crash_high": high}
     row.update(cv.row())
+    q1 = ORDERS.index(1)
+    row.update(diversity=float(dv.hill[q1]), diversity_low=float(dv.hill_low[q1]),
+               diversity_high=float(dv.hill_high[q1]), completeness=dv.completeness)
     return {k: row[k] for k in CURVE_COLUMNS}
 
 
@@ -231,8 +240,6 @@ def plot_curve(curve: pd.DataFrame, path: str | os.PathLike, *, title: str = "")
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
-
-    from tap_bench.tableio import atomic_path
 
     x = curve["timesteps"].to_numpy()
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6), layout="constrained")
@@ -253,10 +260,14 @@ def plot_curve(curve: pd.DataFrame, path: str | os.PathLike, *, title: str = "")
     ax.fill_between(x, curve["weighted_low"], curve["weighted_high"], alpha=0.2, color="C1")
     ax.plot(x, curve["weighted_coverage"], "^-", color="C1", label="weighted coverage")
     ax.set_ylim(-0.02, 1.02)
-    ax.set_title("coverage of the reference; entropy", fontsize=9)
+    ax.set_title("coverage of the reference; diversity", fontsize=9)
     twin = ax.twinx()
-    twin.plot(x, curve["entropy_bits"], "d:", color="C2", label="entropy [bits]")
-    twin.set_ylabel("entropy of the agent's labels [bits]", fontsize=8)
+    twin.fill_between(x, curve["diversity_low"], curve["diversity_high"], alpha=0.15,
+                      color="C2")
+    twin.plot(x, curve["diversity"], "d:", color="C2", label="effective labels (q = 1)")
+    twin.plot(x, curve["n_distinct"], "x:", color="C4", label="distinct labels")
+    twin.set_ylim(bottom=0)
+    twin.set_ylabel("labels of the agent", fontsize=8)
     lines = ax.get_legend_handles_labels()
     more = twin.get_legend_handles_labels()
     ax.legend(lines[0] + more[0], lines[1] + more[1], fontsize=7, loc="upper left")

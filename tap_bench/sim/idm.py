@@ -18,6 +18,7 @@ from typing import Any
 
 import gymnasium as gym
 
+from tap_bench.errors import ParameterError, did_you_mean
 from tap_bench.sim.policies import idle_action
 
 __all__ = ["IDMParameters", "IDMPolicy", "take_over_ego"]
@@ -60,17 +61,21 @@ class IDMParameters:
                     "target_speed_factor")
         for name in positive:
             if not getattr(self, name) > 0:
-                raise ValueError(f"IDM parameter {name} must be positive, got "
-                                 f"{getattr(self, name)!r}.")
+                raise ParameterError(name, getattr(self, name), "",
+                    message=f"IDM parameter {name} must be positive, got "
+                            f"{getattr(self, name)!r}.")
         if not self.comfort_acc_min < 0:
-            raise ValueError(f"IDM parameter comfort_acc_min is a deceleration and must be "
-                             f"negative, got {self.comfort_acc_min!r}.")
+            raise ParameterError("comfort_acc_min", self.comfort_acc_min, "",
+                message=f"IDM parameter comfort_acc_min is a deceleration and must be "
+                        f"negative, got {self.comfort_acc_min!r}.")
         if not 0 <= self.politeness <= 1:
-            raise ValueError(f"IDM parameter politeness must lie in [0, 1], got "
-                             f"{self.politeness!r}.")
+            raise ParameterError("politeness", self.politeness, "",
+                message=f"IDM parameter politeness must lie in [0, 1], got "
+                        f"{self.politeness!r}.")
         if self.lane_change_min_acc_gain < 0:
-            raise ValueError("IDM parameter lane_change_min_acc_gain must be >= 0, got "
-                             f"{self.lane_change_min_acc_gain!r}.")
+            raise ParameterError("lane_change_min_acc_gain", self.lane_change_min_acc_gain, "",
+                message="IDM parameter lane_change_min_acc_gain must be >= 0, got "
+                        f"{self.lane_change_min_acc_gain!r}.")
 
     def constants(self) -> dict[str, float]:
         """The highway-env attribute names and values (``TIME_WANTED`` ...)."""
@@ -113,8 +118,6 @@ class IDMPolicy:
         fields = {f.name for f in dataclasses.fields(IDMParameters)}
         unknown = sorted(set(params) - fields)
         if unknown:
-            from tap_bench.errors import did_you_mean
-
             raise did_you_mean("IDM parameter", unknown[0], fields)
         self.name = name
         self.params = IDMParameters(**params)

@@ -11,9 +11,13 @@ kind              policy
 ``random``        uniform random actions from a seeded copy of the action space
 ``lane_keeping``  always the "keep lane, keep speed" action (``IDLE``)
 ``sb3``           a Stable-Baselines3 model from a ``.zip`` (:mod:`tap_bench.sim.sb3`)
+``import``        your own class or function, ``params: {"factory": "module:name", ...}``:
+                  called as ``factory(name, **other_params)``; the module must be importable
+                  (on ``PYTHONPATH``), so it also works in worker processes and on Ray
 ================  ===========================================================================
 
-Policies defined in Python are added with :func:`register_policy`.
+Policies defined in Python in this process only are added with :func:`register_policy`
+(they run with ``workers=1``; use an ``import`` definition file for parallel runs).
 """
 
 from __future__ import annotations
@@ -30,8 +34,9 @@ from typing import Any, Protocol, runtime_checkable
 import gymnasium as gym
 import numpy as np
 
-from tap_bench.errors import FileFormatError, UnknownNameError, did_you_mean
-from tap_bench.sim.suite import read_json, suite_dir
+from tap_bench import catalogue
+from tap_bench.errors import FileFormatError, ParameterError, UnknownNameError, did_you_mean
+from tap_bench.sim.suite import read_json
 
 __all__ = [
     "CHEAP_OBSERVATION",
@@ -95,6 +100,12 @@ class PolicyDefinition:
     def build(self) -> Policy:
         """A fresh policy object."""
         if self.kind == "python":
+            if self.name not in _PYTHON_POLICIES:
+                raise UnknownNameError(
+                    f"policy {self.name!r} was registered with register_policy in another "
+                    "process; Python registrations exist only in the process that made them. "
+                    "Run with workers=1, or define it in a file of kind 'import' "
+                    "({\"kind\": \"import\", \"params\": {\"factory\": \"module:Class\"}}).")
             return _PYTHON_POLICIES[self.name]()
         builder = _builder(self.kind)
         params = dict(self.params)
@@ -137,8 +148,9 @@ def idle_action(env: gym.Env) -> Any:
     space = env.action_space
     if isinstance(space, gym.spaces.Box):
         return np.zeros(space.shape, dtype=space.dtype)
-    raise ValueError(f"no lane-keeping action in the action space {space}; use a "
-                     "DiscreteMetaAction or ContinuousAction env.")
+    raise ParameterError("action space", str(space), "",
+        message=f"no lane-keeping action in the action space {space}; use a "
+                "DiscreteMetaAction or ContinuousAction env.")
 
 
 class LaneKeepingPolicy:
@@ -164,9 +176,32 @@ _KINDS: dict[str, str] = {
     "random": "tap_bench.sim.policies:RandomPolicy",
     "lane_keeping": "tap_bench.sim.policies:LaneKeepingPolicy",
     "sb3": "tap_bench.sim.sb3:SB3Policy",
+    "import": "tap_bench.sim.policies:import_policy",
 }
 _PYTHON_POLICIES: dict[str, Callable[[], Policy]] = {}
 _PYTHON_DESCRIPTIONS: dict[str, str] = {}
+
+
+def import_policy(name: str, factory: str, **params: Any) -> Policy:
+    """The policy that ``factory`` (``"module:attribute"``) builds: ``factory(name, **params)``.
+
+    Raises:
+        ParameterError: ``factory`` is not ``module:attribute``, or cannot be imported.
+    """
+    module_name, _, attribute = str(factory).partition(":")
+    if not module_name or not attribute:
+        raise ParameterError("factory", factory, "'module:attribute' (an importable class or "
+                             "function)")
+    try:
+        target = getattr(importlib.import_module(module_name), attribute)
+    except (ImportError, AttributeError) as err:
+        raise ParameterError("factory", factory, "an importable 'module:attribute'",
+                             hint=f"({err}; is its folder on PYTHONPATH?)") from err
+    policy = target(name, **params)
+    if not isinstance(policy, Policy):
+        raise ParameterError("factory", factory, "a callable returning a Policy (name, "
+                             "observation, reset(env, seed=), act(obs))")
+    return policy
 
 
 def policy_kinds() -> list[str]:
@@ -222,8 +257,9 @@ def _read_definition(path: Path) -> PolicyDefinition:
 
 
 def _file_definitions(folder: str | os.PathLike | None = None) -> dict[str, Path]:
-    folder = Path(folder) if folder else suite_dir("policies")
-    return {p.stem: p for p in sorted(folder.glob("*.json"))}
+    if folder:
+        return {p.stem: p for p in sorted(Path(folder).glob("*.json"))}
+    return catalogue.files("policies")
 
 
 def available_policies(folder: str | os.PathLike | None = None) -> dict[str, PolicyDefinition]:

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import gymnasium as gym
 
-from tap_bench.sim.suite import suite_dir
+from tap_bench import catalogue
+from tap_bench.errors import CatalogueError, SuiteError
 
 __all__ = ["ENTRY_POINT", "register_scenario", "register_suite", "registered_ids"]
 
@@ -34,7 +35,7 @@ def register_scenario(path: str | os.PathLike) -> str:
     if existing is not None:
         if Path(str(existing.kwargs.get("scenario"))).resolve() == path:
             return env_id
-        raise ValueError(f"{path}: the id {env_id} is already registered for "
+        raise SuiteError(f"{path}: the id {env_id} is already registered for "
                          f"{existing.kwargs.get('scenario')}; rename the scenario or bump its "
                          "version.")
     gym.register(id=env_id, entry_point=ENTRY_POINT, kwargs={"scenario": str(path)})
@@ -47,9 +48,16 @@ def register_suite(folder: str | os.PathLike | None = None) -> list[str]:
     A file that cannot be read is skipped with a warning naming it, so that one broken file
     does not break ``import tap_bench``; making its env reports the full error.
     """
-    folder = Path(folder) if folder else suite_dir("envs")
+    if folder:
+        paths = sorted(Path(folder).glob("*.json"))
+    else:
+        try:
+            paths = list(catalogue.files("envs").values())
+        except CatalogueError as err:  # import tap_bench still works; using an env says why
+            warnings.warn(str(err), stacklevel=2)
+            return []
     ids = []
-    for path in sorted(folder.glob("*.json")):
+    for path in paths:
         try:
             ids.append(register_scenario(path))
         except (OSError, ValueError, KeyError, TypeError) as err:

@@ -3,23 +3,20 @@
 Each seed is one episode. The env is reset with the seed, so every policy meets the same
 initial traffic on a seed; the policy is reset with the same seed, so the episode, and its
 trajectory table, depend on the seed alone, whichever worker runs it and whatever ran
-before in that worker. Workers are fresh processes (``spawn``): nothing from the parent's
-process state, such as highway-env's class attributes, reaches them. An episode that raises
-is reported in the episode table (``status`` ``"error"``, with the error) and leaves no rows
-in the trajectory table; the other episodes are kept. When a worker process dies, the
-episodes left run one at a time in a fresh worker, so that the one that kills it is found
-and reported as an error, and the others complete.
+before in that worker. Episodes run as tasks of :mod:`tap_bench.execution` (this process,
+fresh local worker processes, or Ray), one task per episode: nothing from the parent's
+process state, such as highway-env's class attributes, reaches a worker. An episode that
+raises is reported in the episode table (``status`` ``"error"``, with the error) and leaves
+no rows in the trajectory table; an episode whose worker dies is tried once more and then
+reported the same way. The other episodes are kept.
 """
 
 from __future__ import annotations
 
-import concurrent.futures as cf
-import multiprocessing
 import os
 import traceback
 import warnings
 from collections.abc import Mapping, Sequence
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -27,12 +24,15 @@ import gymnasium as gym
 import numpy as np
 import pandas as pd
 
+from tap_bench.errors import EpisodeFailedWarning
+from tap_bench.execution import DEFAULT_RETRIES, Backend, resolve_backend
 from tap_bench.sim.policies import CHEAP_OBSERVATION, Policy, PolicyDefinition, get_definition
+from tap_bench.sim.scenario_env import ScenarioEnv, find_scenario_env, get_scenario
 from tap_bench.sim.suite import Scenario, parse_seeds
 from tap_bench.trajectories import HZ
 
-__all__ = ["EPISODE_COLUMNS", "EpisodeFailedWarning", "Rollout", "collect_rollout", "rollout",
-           "run_episode"]
+__all__ = ["EPISODE_COLUMNS", "EpisodeFailedWarning", "Rollout", "collect_rollout",
+           "resolve_policy", "resolve_scenario", "rollout", "run_episode"]
 
 EPISODE_COLUMNS = ("env", "policy", "seed", "return", "length", "duration_s", "crashed",
                    "mean_speed", "terminated", "truncated", "status", "error")
@@ -43,10 +43,6 @@ env, policy: scenario and policy names. seed: int. return: sum of rewards. lengt
 the ego's mean speed over its recorded steps [m/s]. terminated, truncated: how the episode
 ended. status: ``"ok"`` or ``"error"``; error: the exception of a failed episode, else "".
 """
-
-
-class EpisodeFailedWarning(UserWarning):
-    """Some episodes of a rollout raised; they are listed in the episode table."""
 
 
 class Rollout(NamedTuple):
@@ -78,8 +74,6 @@ def run_episode(env: gym.Env, policy: Policy, seed: int, *, record: bool = True
         the episode's trajectory table (empty when ``record`` is False) and its row of the
         episode table.
     """
-    from tap_bench.sim.scenario_env import find_scenario_env
-
     scenario_env = find_scenario_env(env)
     obs, _ = env.reset(seed=seed)
     policy.reset(env, seed=seed)
@@ -114,8 +108,6 @@ def _observation_config(policy: Policy) -> Mapping[str, Any]:
 
 
 def _run_task(task: _Task) -> tuple[pd.DataFrame, dict[str, Any]]:
-    from tap_bench.sim.scenario_env import ScenarioEnv
-
     # Definitions are data with a stable repr: build each once per process. A policy object
     # is used as it came (a copy per task in a worker).
     policy_key = repr(task.policy) if isinstance(task.policy, PolicyDefinition) else None
@@ -150,54 +142,13 @@ def _failed_row(task: _Task, message: str) -> dict[str, Any]:
             "status": "error", "error": message}
 
 
-def _worker_init() -> None:
-    # One BLAS/torch thread per worker: the workers are the parallelism.
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    os.environ.setdefault("MKL_NUM_THREADS", "1")
-    warnings.filterwarnings("ignore", module="gymnasium")
-    warnings.filterwarnings("ignore", category=UserWarning, module="tap_bench.sim.sb3")
-
-
-def _run_parallel(tasks: list[_Task], workers: int, bar: Any) -> dict[int, tuple]:
-    context = multiprocessing.get_context("spawn")
-
-    def pool(n: int) -> cf.ProcessPoolExecutor:
-        return cf.ProcessPoolExecutor(max_workers=n, mp_context=context,
-                                      initializer=_worker_init)
-
-    results: dict[int, tuple] = {}
-    with pool(min(workers, len(tasks))) as executor:
-        futures = {executor.submit(_run_task, task): task for task in tasks}
-        for future in cf.as_completed(futures):
-            try:
-                results[futures[future].seed] = future.result()
-                bar.update(1)
-            except BrokenProcessPool:
-                pass  # every unfinished episode fails with the dead worker's pool
-    # A worker died. Run the episodes left one at a time in a single worker process, so that
-    # the one that kills it is known; a fresh process takes over after each death.
-    executor = None
-    for task in (t for t in tasks if t.seed not in results):
-        executor = executor or pool(1)
-        try:
-            results[task.seed] = executor.submit(_run_task, task).result()
-        except BrokenProcessPool:
-            results[task.seed] = (pd.DataFrame(), _failed_row(
-                task, "the worker process died while running this episode"))
-            executor.shutdown()
-            executor = None
-        bar.update(1)
-    if executor is not None:
-        executor.shutdown()
-    return results
-
-
 def rollout(env: str | os.PathLike | Scenario | gym.Env,
             policy: str | os.PathLike | Policy | PolicyDefinition,
             seeds: str | int | Sequence[int], *, workers: int = 1,
             config: Mapping[str, Any] | None = None, duration: float | None = None,
             lane_change: str | None = None, record: bool = True,
-            progress: bool | None = None) -> Rollout:
+            progress: bool | None = None, backend: Backend | None = None,
+            retries: int = DEFAULT_RETRIES) -> Rollout:
     """Run ``policy`` on scenario ``env`` once per seed.
 
     Args:
@@ -207,11 +158,16 @@ def rollout(env: str | os.PathLike | Scenario | gym.Env,
             (pickled to the workers).
         seeds: ``"0-49"``, ``"1,4,7"``, an int or a sequence of ints.
         workers: processes; 1 runs in this process. The tables do not depend on it.
+            Ignored when ``backend`` is given.
         config: more highway-env config overrides for the scenario.
         duration: another episode length [s].
         lane_change: another lane-change setting (``"default"``, ``"realistic"``).
         record: build the trajectory table (False: episode table only, faster).
         progress: show a progress bar (None: only on a terminal).
+        backend: where the episodes run (:mod:`tap_bench.execution`: local processes or
+            a Ray cluster); one task per episode.
+        retries: retries of an episode whose worker died (the recovery rule of
+            :mod:`tap_bench.execution`).
 
     Returns:
         :class:`Rollout` (trajectory table, episode table).
@@ -219,35 +175,50 @@ def rollout(env: str | os.PathLike | Scenario | gym.Env,
     Warns:
         EpisodeFailedWarning: some episodes failed; their rows say why.
     """
-    from tqdm.auto import tqdm
+    scenario = resolve_scenario(env, config=config, duration=duration,
+                                lane_change=lane_change)
+    seed_list = parse_seeds(seeds)
+    runner = resolve_backend(backend, workers)
+    spec = resolve_policy(policy)
+    tasks = [_Task(scenario, spec, seed, record) for seed in seed_list]
+    name = getattr(spec, "name", "policy")
+    outcomes = runner.map(_run_task, tasks, retries=retries, unit="episode",
+                          desc=f"{scenario.name} {name}", progress=progress)
+    results = [o.value if o.ok else (pd.DataFrame(), _failed_row(task, o.error))
+               for task, o in zip(tasks, outcomes, strict=True)]
+    episodes = pd.DataFrame([row for _, row in results], columns=list(EPISODE_COLUMNS))
+    return collect_rollout([table for table, _ in results], episodes, stacklevel=3)
 
-    from tap_bench.sim.scenario_env import find_scenario_env, get_scenario
 
+def resolve_scenario(env: str | os.PathLike | Scenario | gym.Env, *,
+                     config: Mapping[str, Any] | None = None, duration: float | None = None,
+                     lane_change: str | None = None) -> Scenario:
+    """The :class:`Scenario` that ``env`` names, with the overrides applied.
+
+    Args:
+        env: scenario name, Gymnasium id, scenario file, :class:`Scenario` or scenario env.
+        config, duration, lane_change: as :func:`rollout`.
+    """
     if isinstance(env, gym.Env):
         scenario = find_scenario_env(env).scenario
     else:
         scenario = get_scenario(env)
     if config or duration is not None or lane_change is not None:
         scenario = scenario.with_overrides(config, duration=duration, lane_change=lane_change)
-    seed_list = parse_seeds(seeds)
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"workers must be a positive integer, got {workers!r}.")
-    spec = policy if isinstance(policy, Policy | PolicyDefinition) else get_definition(policy)
+    return scenario
+
+
+def resolve_policy(policy: str | os.PathLike | Policy | PolicyDefinition
+                   ) -> Policy | PolicyDefinition:
+    """A policy object as given, or the definition a name or file names, built once here
+    so that a bad definition fails at once rather than in every worker."""
+    if isinstance(policy, Policy | PolicyDefinition):
+        spec = policy
+    else:
+        spec = get_definition(os.fspath(policy) if isinstance(policy, os.PathLike) else policy)
     if isinstance(spec, PolicyDefinition):
-        spec.build()  # fail here, once, on a bad definition rather than in every worker
-    tasks = [_Task(scenario, spec, seed, record) for seed in seed_list]
-    name = getattr(spec, "name", "policy")
-    with tqdm(total=len(tasks), desc=f"{scenario.name} {name}", unit="episode",
-              disable=None if progress is None else not progress) as bar:
-        if workers == 1:
-            results = {}
-            for task in tasks:
-                results[task.seed] = _run_task(task)
-                bar.update(1)
-        else:
-            results = _run_parallel(tasks, workers, bar)
-    episodes = pd.DataFrame([results[s][1] for s in seed_list], columns=list(EPISODE_COLUMNS))
-    return collect_rollout([results[s][0] for s in seed_list], episodes, stacklevel=3)
+        spec.build()
+    return spec
 
 
 def collect_rollout(tables: Sequence[pd.DataFrame], episodes: pd.DataFrame, *,

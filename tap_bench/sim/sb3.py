@@ -17,16 +17,17 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from tap_bench.errors import FileFormatError, TapBenchError, did_you_mean
+from tap_bench.errors import (
+    FileFormatError,
+    TapBenchError,
+    UntrustedModelWarning,
+    did_you_mean,
+)
 
 __all__ = ["ALGORITHMS", "SB3Policy", "UntrustedModelWarning", "load_model"]
 
 ALGORITHMS = ("a2c", "dqn", "ppo")
 """Stable-Baselines3 algorithms tap-bench can train and load."""
-
-
-class UntrustedModelWarning(UserWarning):
-    """A Stable-Baselines3 model file (pickles) is being loaded: it can run code."""
 
 
 def algorithm_class(algo: str) -> type:

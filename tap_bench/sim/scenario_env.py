@@ -26,7 +26,8 @@ from typing import Any
 import gymnasium as gym
 import pandas as pd
 
-from tap_bench.errors import FileFormatError, TapBenchError, did_you_mean
+from tap_bench import catalogue
+from tap_bench.errors import FileFormatError, ParameterError, TapBenchError, did_you_mean
 from tap_bench.sim.recorder import TrajectoryRecorder
 from tap_bench.sim.suite import (
     Scenario,
@@ -34,7 +35,6 @@ from tap_bench.sim.suite import (
     env_class,
     load_scenario,
     scenario_names,
-    suite_dir,
 )
 from tap_bench.sim.vehicles import LANE_CHANGE_SETTINGS, apply_lane_change, guard_class_attributes
 
@@ -75,7 +75,7 @@ def get_scenario(name: str | os.PathLike | Scenario) -> Scenario:
         known = scenario_names()
         if short not in known:
             raise did_you_mean("scenario", text, known)
-        path = suite_dir("envs") / f"{short}.json"
+        path = catalogue.files("envs")[short]
         scenario = _load_cached(str(path), path.stat().st_mtime)
         if version is not None and int(version) != scenario.version:
             raise TapBenchError(f"scenario {text!r}: the suite has {scenario.env_id}; version "
@@ -110,14 +110,15 @@ class ScenarioEnv(gym.Wrapper):
         config = scenario.config
         if fast:
             if record:
-                raise ValueError(f"{scenario.env_id}: a fast env simulates at "
-                                 f"{FAST_SIMULATION_FREQUENCY} Hz and cannot record the 10 Hz "
-                                 "trajectory table; build it with record=False.")
+                raise ParameterError("record", record, "False for a fast env", message=(
+                    f"{scenario.env_id}: a fast env simulates at {FAST_SIMULATION_FREQUENCY} "
+                    "Hz and cannot record the 10 Hz trajectory table; build it with "
+                    "record=False."))
             if FAST_SIMULATION_FREQUENCY % scenario.policy_frequency:
-                raise ValueError(
+                raise ParameterError("fast", fast, "False here", message=(
                     f"{scenario.env_id}: policy_frequency {scenario.policy_frequency} Hz does "
                     f"not divide the fast simulation's {FAST_SIMULATION_FREQUENCY} Hz; use 1 "
-                    f"or {FAST_SIMULATION_FREQUENCY} Hz, or fast=False.")
+                    f"or {FAST_SIMULATION_FREQUENCY} Hz, or fast=False."))
             config = {**config, "simulation_frequency": FAST_SIMULATION_FREQUENCY}
         cls = env_class(scenario.highway_env_id)
         # highway-env builds a first scene in its constructor

@@ -26,6 +26,8 @@ import copy
 import functools
 import inspect
 import json
+import math
+import operator
 import os
 import re
 from collections.abc import Mapping
@@ -33,7 +35,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tap_bench.errors import FileFormatError, did_you_mean
+from tap_bench import catalogue
+from tap_bench.errors import FileFormatError, ParameterError, did_you_mean
+from tap_bench.sim.vehicles import LANE_CHANGE_SETTINGS
 from tap_bench.trajectories import HZ
 
 __all__ = [
@@ -63,14 +67,14 @@ _OWNED_KEYS = {
 
 
 def suite_dir(kind: str) -> Path:
-    """The folder of the suite's ``kind`` files (``"envs"`` or ``"policies"``).
+    """The last (built-in, or ``$TAP_BENCH_SUITE``) folder of ``kind`` files (``"envs"`` or
+    ``"policies"``); :mod:`tap_bench.catalogue` searches every folder."""
+    return catalogue.roots()[-1] / catalogue.KINDS[kind]
 
-    ``$TAP_BENCH_SUITE`` (a folder holding ``envs/`` and ``policies/``) takes precedence;
-    otherwise the folders at the root of the tap-bench source tree are used.
-    """
-    root = os.environ.get("TAP_BENCH_SUITE")
-    base = Path(root) if root else Path(__file__).resolve().parents[2]
-    return base / kind
+
+def _seeds_error(source: str, spec: object, message: str) -> ParameterError:
+    return ParameterError(source, spec, "seeds as '0-49', '1,4,7', an int or a list",
+                          message=message)
 
 
 def parse_seeds(spec: str | int | list[int] | range, *, source: str = "seeds") -> list[int]:
@@ -80,35 +84,45 @@ def parse_seeds(spec: str | int | list[int] | range, *, source: str = "seeds") -
         the seeds in the order given, duplicates refused.
 
     Raises:
-        ValueError: naming ``source`` and the part that is not a seed or a range of seeds.
+        ParameterError: naming ``source`` and the part that is not a seed or a range of seeds.
     """
     if isinstance(spec, bool):
-        raise ValueError(f"{source}: {spec!r} is not a seed; give an int, '0-49' or '1,4,7'.")
+        raise _seeds_error(source, spec, f"{source}: {spec!r} is not a seed; "
+                                         f"give an int, '0-49' or '1,4,7'.")
     if isinstance(spec, int):
         seeds = [spec]
     elif isinstance(spec, range | list | tuple):
-        seeds = [int(s) for s in spec]
+        try:
+            seeds = [operator.index(s) for s in spec]
+        except TypeError:
+            raise _seeds_error(source, spec, f"{source}: {spec!r} holds a value "
+                               "that is not an integer seed.") from None
     elif isinstance(spec, str):
         seeds = []
         for part in spec.replace(" ", "").split(","):
             match = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
             if not match:
-                raise ValueError(f"{source}: {part!r} in {spec!r} is not a seed or a range; "
-                                 "write seeds as '0-49' (inclusive) or '1,4,7' (non-negative).")
+                raise _seeds_error(source, spec, f"{source}: {part!r} in {spec!r} is not a seed "
+                                   "or a range; write seeds as '0-49' (inclusive) or '1,4,7' "
+                                   "(non-negative).")
             lo = int(match.group(1))
             hi = int(match.group(2)) if match.group(2) else lo
             if hi < lo:
-                raise ValueError(f"{source}: range {part!r} runs backwards; write '{hi}-{lo}'.")
+                raise _seeds_error(source, spec, f"{source}: range {part!r} runs backwards; "
+                                                 f"write '{hi}-{lo}'.")
             seeds.extend(range(lo, hi + 1))
     else:
-        raise ValueError(f"{source}: {spec!r} is not a seed list; give '0-49', an int or a list.")
+        raise _seeds_error(source, spec, f"{source}: {spec!r} is not a seed list; "
+                                         f"give '0-49', an int or a list.")
     if not seeds:
-        raise ValueError(f"{source}: no seeds given.")
+        raise _seeds_error(source, spec, f"{source}: no seeds given.")
     if any(s < 0 for s in seeds):
-        raise ValueError(f"{source}: seeds must be non-negative, got {min(seeds)}.")
+        raise _seeds_error(source, spec, f"{source}: seeds must be non-negative, "
+                                         f"got {min(seeds)}.")
     if len(set(seeds)) != len(seeds):
         dup = next(s for s in seeds if seeds.count(s) > 1)
-        raise ValueError(f"{source}: seed {dup} is given twice; each seed is one episode.")
+        raise _seeds_error(source, spec, f"{source}: seed {dup} is given twice; "
+                                         f"each seed is one episode.")
     return seeds
 
 
@@ -349,11 +363,11 @@ def _build(doc: Any, *, source: str, path: Path | None) -> Scenario:
     if not isinstance(version, int) or isinstance(version, bool) or version < 0:
         raise FileFormatError(f"{source}: version {version!r} must be a non-negative integer.")
     duration = doc["duration"]
-    if not isinstance(duration, int | float) or isinstance(duration, bool) or duration <= 0:
+    if not isinstance(duration, int | float) or isinstance(duration, bool) \
+            or not math.isfinite(duration) or duration <= 0:
         raise FileFormatError(f"{source}: duration {duration!r} must be a positive number of "
                               "seconds.")
     lane_change = doc.get("lane_change", "default")
-    from tap_bench.sim.vehicles import LANE_CHANGE_SETTINGS
 
     if lane_change not in LANE_CHANGE_SETTINGS:
         err = did_you_mean("lane-change setting", lane_change, LANE_CHANGE_SETTINGS)
@@ -411,5 +425,6 @@ def load_scenario(path: str | os.PathLike) -> Scenario:
 
 def scenario_names(folder: str | os.PathLike | None = None) -> list[str]:
     """Names of the scenario files in ``folder`` (default: the suite's ``envs/``)."""
-    folder = Path(folder) if folder else suite_dir("envs")
-    return sorted(p.stem for p in folder.glob("*.json"))
+    if folder:
+        return sorted(p.stem for p in Path(folder).glob("*.json"))
+    return sorted(catalogue.files("envs"))

@@ -41,9 +41,12 @@ from typing import Any
 import gymnasium as gym
 import pandas as pd
 
-from tap_bench.sim.curve import CurveConfig
-from tap_bench.sim.suite import Scenario
-from tap_bench.tableio import atomic_path
+from tap_bench.errors import ParameterError
+from tap_bench.sim.curve import CurveConfig, coverage_reference, plot_curve
+from tap_bench.sim.sb3 import algorithm_class
+from tap_bench.sim.scenario_env import ScenarioEnv, get_scenario
+from tap_bench.sim.suite import Scenario, env_class
+from tap_bench.tableio import atomic_path, write_table
 
 __all__ = ["DEFAULT_N_ENVS", "HYPERPARAMETERS", "TrainingResult", "train"]
 
@@ -112,9 +115,6 @@ def _make_training_env(scenario: Scenario, fast: bool, worker: bool = False) -> 
 
     if worker:  # Ctrl-C stops the training in the main process, which then saves the model
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-    from tap_bench.sim.scenario_env import ScenarioEnv
-
     return Monitor(ScenarioEnv(scenario, record=False, fast=fast))
 
 
@@ -159,19 +159,16 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
         command: the command line to record (default: this process's).
 
     Raises:
-        ValueError: ``timesteps``, ``n_envs`` or ``output`` is not usable.
+        ParameterError: ``timesteps``, ``n_envs`` or ``output`` is not usable.
     """
-    from tap_bench.sim.sb3 import algorithm_class
-    from tap_bench.sim.scenario_env import get_scenario
-
     output = Path(output)
     if output.suffix != ".zip":
-        raise ValueError(f"output {output}: a Stable-Baselines3 model is a .zip file; name it "
-                         f"{output.with_suffix('.zip').name}.")
+        raise ParameterError("output", str(output), "a .zip file (a Stable-Baselines3 model)",
+                             hint=f"Name it {output.with_suffix('.zip').name}.")
     if isinstance(timesteps, bool) or not isinstance(timesteps, int) or timesteps < 1:
-        raise ValueError(f"timesteps must be an integer >= 1, got {timesteps!r}.")
+        raise ParameterError("timesteps", timesteps, "an integer >= 1")
     if isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1:
-        raise ValueError(f"n_envs must be an integer >= 1, got {n_envs!r}.")
+        raise ParameterError("n_envs", n_envs, "an integer >= 1 (training envs)")
     cls = algorithm_class(algo)
     algo = algo.lower()
     import torch
@@ -183,8 +180,8 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
     observation = _observation_config(scenario)
     callbacks = []
     if curve is not None:
+        # callbacks.py subclasses SB3's BaseCallback: imported only where SB3 is installed
         from tap_bench.sim.callbacks import CoverageCallback
-        from tap_bench.sim.curve import coverage_reference
 
         reference = coverage_reference(curve, scenario)
         callbacks.append(CoverageCallback(
@@ -251,9 +248,6 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
                             timesteps=trained, seconds=seconds,
                             train_seconds=seconds - eval_seconds, episodes=int(episodes))
     if callbacks:
-        from tap_bench.sim.curve import plot_curve
-        from tap_bench.tableio import write_table
-
         table = callbacks[0].curve
         stem = output.with_suffix("")
         curve_path = write_table(table, f"{stem}.curve.csv")
@@ -268,8 +262,6 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
 
 def _observation_config(scenario: Scenario) -> dict[str, Any]:
     """The observation config the agent reads: the scenario's, else highway-env's default."""
-    from tap_bench.sim.suite import env_class
-
     config = scenario.config.get("observation")
     if config is None:
         config = env_class(scenario.highway_env_id).default_config()["observation"]

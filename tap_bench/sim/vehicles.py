@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 from highway_env.vehicle.behavior import IDMVehicle
 
-from tap_bench.errors import TapBenchError
+from tap_bench.errors import ParameterError, TapBenchError
 
 __all__ = [
     "LANE_CHANGE_SETTINGS",
@@ -49,8 +49,9 @@ class LaneChange:
     def __post_init__(self) -> None:
         for name in ("tau_lateral", "tau_heading", "tau_pursuit"):
             if not getattr(self, name) > 0:
-                raise ValueError(f"LaneChange.{name} must be a positive time [s], got "
-                                 f"{getattr(self, name)!r}.")
+                raise ParameterError(f"LaneChange.{name}", getattr(self, name), "",
+                    message=f"LaneChange.{name} must be a positive time [s], got "
+                            f"{getattr(self, name)!r}.")
 
 
 LANE_CHANGE_SETTINGS: dict[str, LaneChange] = {

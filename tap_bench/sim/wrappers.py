@@ -7,6 +7,9 @@ from typing import Any
 import gymnasium as gym
 import pandas as pd
 
+from tap_bench import sdl
+from tap_bench.errors import ParameterError, did_you_mean
+from tap_bench.labelling import tap
 from tap_bench.sim.recorder import EGO_TRACK_ID
 from tap_bench.sim.scenario_env import find_scenario_env
 
@@ -36,16 +39,14 @@ class EpisodeLabels(gym.Wrapper):
     def __init__(self, env: gym.Env, *, level: str = "action",
                  thresholds: Any = "paper", tracks: str = "all") -> None:
         super().__init__(env)
-        from tap_bench import sdl
-        from tap_bench.errors import did_you_mean
 
-        if level not in sdl.LEVELS:
-            raise did_you_mean("level", level, sdl.LEVELS)
+        sdl.check_level(level)
         if tracks not in _TRACKS:
             raise did_you_mean("tracks", tracks, _TRACKS)
         scenario_env = find_scenario_env(env)
         if not scenario_env.recorder.record:
-            raise ValueError("EpisodeLabels needs a recording env; build it with record=True.")
+            raise ParameterError("env", "a non-recording env", "",
+                message="EpisodeLabels needs a recording env; build it with record=True.")
         self._scenario_env = scenario_env
         self.level = level
         self.thresholds = thresholds
@@ -62,8 +63,6 @@ class EpisodeLabels(gym.Wrapper):
 
     def episode_labels(self) -> pd.DataFrame:
         """The label table of the current episode so far (see the class docstring)."""
-        from tap_bench.labelling import tap
-
         table = self._scenario_env.trajectories()
         if self.tracks == "ego":
             table = table[table["track_id"] == EGO_TRACK_ID]

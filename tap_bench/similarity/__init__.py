@@ -16,7 +16,9 @@ The TAP paper's sections 4.2, 6.3 and 6.4 and the Scenario2Vector scenario dista
 
 from __future__ import annotations
 
-from tap_bench.similarity.evaluate import Evaluation, evaluate, write_evaluation
+from tap_bench.sdl import parse_sdl
+from tap_bench.similarity.evaluate import Evaluation, evaluate
+from tap_bench.similarity.figures import write_evaluation
 from tap_bench.similarity.nearest import (
     Neighbours,
     ade_nearest,
@@ -38,7 +40,6 @@ from tap_bench.similarity.sdl_distance import (
     LabelSet,
     g_sdl,
     label_set,
-    parse_sdl,
     sdl_levenshtein,
 )
 from tap_bench.similarity.search import (

@@ -4,22 +4,22 @@ For every trajectory (or a random sample of queries) :func:`evaluate` finds its 
 trajectory by ADE and by DTW on normalised shapes and counts how often that neighbour carries
 a different SDL label: the paper's argument that shape distances miss behaviour (WOMD:
 7,924 of 25,889 ADE neighbours and 6,246 DTW neighbours differ). It also counts the unique
-labels (paper: 395) and times 1,000 comparisons of each method. :func:`write_evaluation`
+labels (paper: 395) and times 1,000 comparisons of each method.
+:func:`tap_bench.similarity.figures.write_evaluation`
 writes the results as JSON, a Markdown table beside the paper's figures, the per-query
 neighbours, and PNG figures like the paper's Figures 5 and 6.
 """
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from tap_bench.errors import LabelTableError
+from tap_bench.errors import LabelTableError, ParameterError
+from tap_bench.labelling import tap
 from tap_bench.similarity.nearest import (
     ade_nearest,
     compile_kernels,
@@ -29,9 +29,8 @@ from tap_bench.similarity.nearest import (
 from tap_bench.similarity.sdl_distance import LabelSet, label_set
 from tap_bench.similarity.shape import Shapes, normalised_shapes
 from tap_bench.similarity.unique import unique_labels
-from tap_bench.tableio import atomic_path, write_table
 
-__all__ = ["PAPER", "Evaluation", "evaluate", "write_evaluation"]
+__all__ = ["PAPER", "Evaluation", "evaluate", "markdown"]
 
 PAPER = {
     "data": "WOMD, 492 scenarios, 25,889 vehicle trajectories of 9 s, action level",
@@ -74,7 +73,7 @@ def _sample(n: int, queries: int | None, seed: int) -> np.ndarray:
     if queries is None or queries >= n:
         return np.arange(n, dtype=np.int64)
     if queries < 1:
-        raise ValueError(f"queries must be >= 1, got {queries}")
+        raise ParameterError("queries", queries, "", message=f"queries must be >= 1, got {queries}")
     return np.sort(np.random.default_rng(seed).choice(n, size=queries, replace=False))
 
 
@@ -93,8 +92,6 @@ def _select(labels: pd.DataFrame, object_types: tuple[str, ...] | None) -> pd.Da
 def _label_timing(trajectories: pd.DataFrame, keys: pd.DataFrame, thresholds, n: int,
                   repeats: int) -> tuple[float, int]:
     """Seconds to label ``n`` of the evaluated tracks with TAP (best of ``repeats``)."""
-    from tap_bench.labelling import tap
-
     tracks = keys[["scenario_id", "track_id"]].astype(str).drop_duplicates().head(n)
     key = trajectories["scenario_id"].astype(str) + "\x00" + trajectories["track_id"].astype(str)
     wanted = set(tracks["scenario_id"] + "\x00" + tracks["track_id"])
@@ -145,8 +142,6 @@ def evaluate(trajectories: pd.DataFrame, labels: pd.DataFrame | None = None, *,
     """
     t_start = time.perf_counter()
     if labels is None:
-        from tap_bench.labelling import tap
-
         labels = tap(trajectories, thresholds, source=source).labels(level)
     ls = label_set(_select(label_set(labels, level).table, object_types), level)
     if len(ls) < 2:
@@ -317,44 +312,3 @@ def markdown(ev: Evaluation) -> str:
         "`fig6_unique.png`; per-query neighbours: `neighbours.parquet`.",
     ]
     return "\n".join(lines) + "\n"
-
-
-def write_evaluation(ev: Evaluation, out_dir: str | Path, *, figures: bool = True) -> list[Path]:
-    """Write evaluation.json, evaluation.md, neighbours.parquet, unique.parquet and the PNG
-    figures into ``out_dir``, each atomically. Returns the paths written."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    written = []
-    path = out / "evaluation.json"
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(ev.summary, indent=2, default=_json_default))
-    written.append(path)
-    path = out / "evaluation.md"
-    with atomic_path(path) as tmp:
-        tmp.write_text(markdown(ev))
-    written.append(path)
-    written.append(write_table(ev.neighbours, out / "neighbours.parquet"))
-    written.append(write_table(ev.unique, out / "unique.parquet"))
-    if figures:
-        from tap_bench.similarity.figures import similarity_figure, unique_figure
-
-        for name, make in (("fig5_similarity.png", similarity_figure),
-                           ("fig6_unique.png", unique_figure)):
-            fig = make(ev)
-            if fig is None:
-                continue
-            path = out / name
-            with atomic_path(path) as tmp:
-                fig.savefig(tmp, format="png", dpi=120, bbox_inches="tight")
-            import matplotlib.pyplot as plt
-
-            plt.close(fig)
-            written.append(path)
-    return written
-
-
-def _json_default(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"cannot write {type(value).__name__} as JSON")
-

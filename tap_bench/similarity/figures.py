@@ -1,4 +1,5 @@
-"""Figures like the TAP paper's Figures 5 and 6, drawn from an :class:`Evaluation`.
+"""Figures like the TAP paper's Figures 5 and 6, drawn from an :class:`Evaluation`, and
+:func:`write_evaluation`, which writes an evaluation's tables, report and figures.
 
 Figure 5: a reference trajectory (magenta), every trajectory with its exact SDL label (grey),
 its nearest neighbours by ADE (dark blue) and by DTW (light blue), with their labels (a
@@ -9,12 +10,15 @@ labels. All trajectories are normalised: they start at the origin heading along 
 
 from __future__ import annotations
 
+import json
 import textwrap
+from pathlib import Path
 
 import numpy as np
 
 from tap_bench import sdl
-from tap_bench.similarity.evaluate import Evaluation
+from tap_bench.similarity.evaluate import Evaluation, markdown
+from tap_bench.tableio import atomic_path, write_table
 
 __all__ = ["pick_examples", "similarity_figure", "unique_figure"]
 
@@ -26,8 +30,8 @@ MAX_MATCHES_DRAWN = 60
 
 
 def _tokens(text: str) -> tuple[list[str], list[str]]:
-    lat, _, lon = str(text).partition(sdl.SDL_SEPARATOR)
-    return lat.split(sdl.SEPARATOR), lon.split(sdl.SEPARATOR)
+    lat, lon = sdl.parse_sdl(str(text))
+    return list(lat), list(lon)
 
 
 def _difference(reference: str, other: str) -> str:
@@ -164,8 +168,8 @@ def unique_figure(ev: Evaluation, n: int = 2):
         key = ls.table.iloc[r]
         ax.set_title(f"{key['scenario_id']}:{key['track_id']}: {len(lat)} lateral, "
                      f"{len(lon)} longitudinal actions\n"
-                     + _wrap(sdl.SEPARATOR.join(lat), 60) + "\n"
-                     + _wrap(sdl.SEPARATOR.join(lon), 60), fontsize=8)
+                     + _wrap(sdl.join(lat), 60) + "\n"
+                     + _wrap(sdl.join(lon), 60), fontsize=8)
         ax.set_xlabel("x along the initial heading [m]")
         ax.set_ylabel("y, left [m]")
         ax_v.plot(ev.shapes.time_of(r), ev.shapes.speed_of(r), color=REFERENCE, lw=2)
@@ -175,3 +179,42 @@ def unique_figure(ev: Evaluation, n: int = 2):
     fig.suptitle("Trajectories whose SDL label no other trajectory has", fontsize=11)
     fig.tight_layout()
     return fig
+
+
+def write_evaluation(ev: Evaluation, out_dir: str | Path, *, figures: bool = True) -> list[Path]:
+    """Write evaluation.json, evaluation.md, neighbours.parquet, unique.parquet and the PNG
+    figures into ``out_dir``, each atomically. Returns the paths written."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    path = out / "evaluation.json"
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(ev.summary, indent=2, default=_json_default))
+    written.append(path)
+    path = out / "evaluation.md"
+    with atomic_path(path) as tmp:
+        tmp.write_text(markdown(ev))
+    written.append(path)
+    written.append(write_table(ev.neighbours, out / "neighbours.parquet"))
+    written.append(write_table(ev.unique, out / "unique.parquet"))
+    if figures:
+        for name, make in (("fig5_similarity.png", similarity_figure),
+                           ("fig6_unique.png", unique_figure)):
+            fig = make(ev)
+            if fig is None:
+                continue
+            path = out / name
+            with atomic_path(path) as tmp:
+                fig.savefig(tmp, format="png", dpi=120, bbox_inches="tight")
+            import matplotlib.pyplot as plt
+
+            plt.close(fig)
+            written.append(path)
+    return written
+
+
+def _json_default(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"cannot write {type(value).__name__} as JSON")
+

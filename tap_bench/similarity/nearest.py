@@ -34,7 +34,8 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
-from tap_bench.errors import did_you_mean
+from tap_bench.errors import ParameterError, did_you_mean
+from tap_bench.similarity import kernels
 from tap_bench.similarity.shape import Shapes
 
 __all__ = [
@@ -98,7 +99,7 @@ def _workers(workers: int | None) -> int:
         except AttributeError:  # pragma: no cover - not Linux
             return max(1, os.cpu_count() or 1)
     if workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
+        raise ParameterError("workers", workers, "", message=f"workers must be >= 1, got {workers}")
     return workers
 
 
@@ -206,7 +207,8 @@ def _ade_groups(shapes: Shapes, length: str | int) -> tuple[list[tuple[np.ndarra
         return groups, np.zeros(0, dtype=np.int64)
     k = int(length)
     if k < 1:
-        raise ValueError(f"length must be 'equal' or a number of points >= 1, got {length!r}")
+        raise ParameterError("length", length, "",
+            message=f"length must be 'equal' or a number of points >= 1, got {length!r}")
     return [(np.flatnonzero(lengths >= k), k)], np.flatnonzero(lengths < k)
 
 
@@ -233,8 +235,6 @@ def ade_nearest(shapes: Shapes, queries: np.ndarray | None = None, *,
     Returns:
         :class:`Neighbours` with ADE distances [m].
     """
-    from tap_bench.similarity import kernels
-
     t0 = time.perf_counter()
     q_all = _queries(shapes, queries)
     workers = _workers(workers)
@@ -337,17 +337,17 @@ def dtw_nearest(shapes: Shapes, queries: np.ndarray | None = None, *,
     Returns:
         :class:`Neighbours` with DTW distances [m].
     """
-    from tap_bench.similarity import kernels
-
     t0 = time.perf_counter()
     if shapes.lengths.min(initial=2) < 2:
-        raise ValueError("every trajectory needs at least 2 points for DTW bounds")
+        raise ParameterError("trajectories", "a trajectory of one point", "",
+            message="every trajectory needs at least 2 points for DTW bounds")
     q_all = _queries(shapes, queries)
     workers = _workers(workers)
     hints = np.full(len(q_all), -1, dtype=np.int64) if hints is None else \
         np.asarray(hints, dtype=np.int64)
     if hints.shape != q_all.shape:
-        raise ValueError(f"hints must have one row per query ({len(q_all)}), got {hints.shape}")
+        raise ParameterError("hints", hints.shape, "",
+            message=f"hints must have one row per query ({len(q_all)}), got {hints.shape}")
     n = len(shapes)
     out_nb = np.full(len(q_all), -1, dtype=np.int64)
     out_d = np.full(len(q_all), np.nan)
@@ -388,8 +388,6 @@ def brute_force_nearest(shapes: Shapes, queries: np.ndarray | None = None, *,
 
     O(q * n) full distance computations; for tests and small sets only.
     """
-    from tap_bench.similarity import kernels
-
     if metric not in SHAPE_METRICS:
         raise did_you_mean("metric", metric, SHAPE_METRICS)
     t0 = time.perf_counter()
@@ -446,8 +444,6 @@ def time_comparisons(shapes: Shapes, metric: str, n: int = 1000, *, seed: int = 
     The paper's "time per 1,000 comparisons" measure; ADE pairs are drawn among trajectories
     of equal length (the most common length). Best of ``repeats``.
     """
-    from tap_bench.similarity import kernels
-
     if metric not in SHAPE_METRICS:
         raise did_you_mean("metric", metric, SHAPE_METRICS)
     rng = np.random.default_rng(seed)

@@ -32,8 +32,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from tap_bench.errors import LabelTableError, did_you_mean
-from tap_bench.similarity.sdl_distance import label_set, parse_sdl
+from tap_bench.errors import LabelTableError, ParameterError, did_you_mean
+from tap_bench.sdl import parse_sdl
+from tap_bench.similarity.sdl_distance import label_set
 from tap_bench.trajectories import DT, validate_and_index
 
 __all__ = [
@@ -123,8 +124,9 @@ def scenario_distance(query: ScenarioDescription, other: ScenarioDescription,
 def _weights(weights: Sequence[float]) -> np.ndarray:
     w = np.asarray(weights, dtype=np.float64)
     if w.shape != (6,) or not np.all(np.isfinite(w)) or (w < 0).any():
-        raise ValueError(f"weights must be six finite numbers >= 0 ({', '.join(DISTANCE_PARTS)}),"
-                         f" got {weights!r}")
+        raise ParameterError("weights", weights, "",
+            message=f"weights must be six finite numbers >= 0 ({', '.join(DISTANCE_PARTS)}),"
+                    f" got {weights!r}")
     return w
 
 
@@ -239,7 +241,8 @@ def scenario_set(labels: pd.DataFrame, trajectories: pd.DataFrame | None = None,
             raise LabelTableError("radius needs the trajectory table (positions of the ego and "
                                   "the other tracks); pass trajectories=... (--trajectories).")
         if not radius > 0:
-            raise ValueError(f"radius must be > 0 m, got {radius!r}")
+            raise ParameterError("radius", radius, "",
+                message=f"radius must be > 0 m, got {radius!r}")
         near = _near_ego(trajectories, radius, "trajectory table")
         key = pd.MultiIndex.from_frame(table[["scenario_id", "track_id"]].astype(str))
         near_key = pd.MultiIndex.from_frame(near.astype(str))

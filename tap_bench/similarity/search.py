@@ -20,12 +20,12 @@ import pandas as pd
 
 from tap_bench import sdl
 from tap_bench.errors import LabelTableError, did_you_mean
+from tap_bench.sdl import parse_sdl
 from tap_bench.similarity.sdl_distance import (
     METRICS,
     LabelSet,
     label_set,
     levenshtein_matrix,
-    parse_sdl,
 )
 
 __all__ = [
@@ -55,7 +55,7 @@ def _label_distances(labels: LabelSet, reference: str, metric: str) -> np.ndarra
 
 def _canonical(reference: str, level: str | None) -> str:
     lat, lon = parse_sdl(reference, level=level)
-    return sdl.SEPARATOR.join(lat) + sdl.SDL_SEPARATOR + sdl.SEPARATOR.join(lon)
+    return sdl.format_sdl(lat, lon)
 
 
 def search(labels: pd.DataFrame | LabelSet, reference: str, *, metric: str = "exact",

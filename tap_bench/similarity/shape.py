@@ -20,7 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from tap_bench.errors import LabelTableError, TapBenchError
+from tap_bench.errors import LabelTableError, ParameterError, TapBenchError
+from tap_bench.similarity import kernels
 from tap_bench.trajectories import IDENTIFYING_COLUMNS, validate_and_index
 
 __all__ = ["Shapes", "ade", "dtw", "normalised_shapes"]
@@ -82,7 +83,8 @@ def normalised_shapes(trajectories: pd.DataFrame, labels: pd.DataFrame | None = 
             trajectory (several levels: select one).
     """
     if min_steps < 2:
-        raise ValueError(f"min_steps must be >= 2 (a shape needs two points), got {min_steps}")
+        raise ParameterError("min_steps", min_steps, "",
+            message=f"min_steps must be >= 2 (a shape needs two points), got {min_steps}")
     checked = validate_and_index(trajectories, source=source)
     index = checked.index
     track_first = np.searchsorted(index.segment_track, np.arange(index.n_tracks))
@@ -181,8 +183,6 @@ def ade(a: np.ndarray, b: np.ndarray) -> float:
     Raises:
         TapBenchError: the lengths differ (compare a common prefix: ``ade(a[:k], b[:k])``).
     """
-    from tap_bench.similarity import kernels
-
     a, b = _as_points(a, "a"), _as_points(b, "b")
     if len(a) != len(b):
         raise TapBenchError(f"ADE needs trajectories of equal length, got {len(a)} and {len(b)} "
@@ -193,6 +193,4 @@ def ade(a: np.ndarray, b: np.ndarray) -> float:
 
 def dtw(a: np.ndarray, b: np.ndarray) -> float:
     """Dynamic time warping distance of (n, 2) and (m, 2) trajectories [m], full window."""
-    from tap_bench.similarity import kernels
-
     return float(kernels.dtw_full(_as_points(a, "a"), _as_points(b, "b")))

@@ -44,7 +44,7 @@ def label_counts(labels: pd.DataFrame | LabelSet, level: str | None = None) -> p
     for lv in _levels(labels, level):
         ls = label_set(labels, lv)
         first = ls.table.take(ls.first_row)
-        lat_lon = [str(text).split(sdl.SDL_SEPARATOR) for text in ls.labels]
+        lat_lon = [[sdl.join(side) for side in sdl.parse_sdl(str(text))] for text in ls.labels]
         out = pd.DataFrame({
             "level": ls.level, "sdl": ls.labels.astype(str),
             "lateral": [p[0] for p in lat_lon], "longitudinal": [p[1] for p in lat_lon],

@@ -30,6 +30,7 @@ __all__ = [
     "ObjectState",
     "RequiredPrediction",
     "Scenario",
+    "ScenarioMapView",
     "ScenarioView",
     "Track",
 ]
@@ -37,6 +38,7 @@ __all__ = [
 _F = descriptor_pb2.FieldDescriptorProto
 _SCALARS = {
     "double": _F.TYPE_DOUBLE, "float": _F.TYPE_FLOAT, "int32": _F.TYPE_INT32,
+    "int64": _F.TYPE_INT64,
     "bool": _F.TYPE_BOOL, "string": _F.TYPE_STRING, "bytes": _F.TYPE_BYTES,
 }
 
@@ -104,6 +106,17 @@ _VIEW = {
                      ("sdc_track_index", 6, "int32"),
                      ("current_time_index", 10, "int32"),
                      ("tracks_to_predict", 11, "repeated .RequiredPredictionView")),
+    # the map (map.proto): polylines of lanes, painted lines, road edges; crosswalk polygons
+    "MapPointView": (("x", 1, "double"), ("y", 2, "double"), ("z", 3, "double")),
+    "LaneCenterView": (("speed_limit_mph", 1, "double"), ("type", 2, "int32"),
+                       ("polyline", 8, "repeated .MapPointView")),
+    "LineView": (("type", 1, "int32"), ("polyline", 2, "repeated .MapPointView")),
+    "PolygonView": (("polygon", 1, "repeated .MapPointView"),),
+    "MapFeatureView": (("id", 1, "int64"), ("lane", 3, ".LaneCenterView"),
+                       ("road_line", 4, ".LineView"), ("road_edge", 5, ".LineView"),
+                       ("crosswalk", 8, ".PolygonView")),
+    "ScenarioMapView": (("scenario_id", 5, "string"),
+                        ("map_features", 8, "repeated .MapFeatureView")),
 }
 
 
@@ -153,3 +166,6 @@ RequiredPrediction = _cls("waymo.open_dataset.RequiredPrediction")
 """WOMD ``RequiredPrediction`` message class (a track to predict and its difficulty)."""
 ScenarioView = _cls("tap_bench.womd.view.ScenarioView")
 """A Scenario read lazily: track states stay raw bytes and enums plain ints."""
+ScenarioMapView = _cls("tap_bench.womd.view.ScenarioMapView")
+"""A Scenario's id and map features only (lanes, road lines, road edges, crosswalks; WOMD's
+map.proto field numbers); the tracks are skipped."""

@@ -20,10 +20,11 @@ import numpy as np
 import pyarrow as pa
 from google.protobuf.message import DecodeError
 
-from tap_bench.errors import did_you_mean
+from tap_bench.errors import StateDecodeError, did_you_mean
 from tap_bench.trajectories import OBJECT_TYPES
 from tap_bench.womd import proto
 from tap_bench.womd.tfrecord import Record
+from tap_bench.womd.writer import restore_extra_columns
 
 __all__ = ["SCENARIO_COLUMNS", "STATE_COLUMNS", "StateDecodeError", "decode_object_states",
            "decode_scenario", "normalise_object_types", "repeated_strings",
@@ -47,18 +48,6 @@ _FIXED32 = {5: "length", 6: "width", 7: "height", 8: "heading", 9: "vx", 10: "vy
 _VALID_FIELD = 11
 _STATES_TAG = 3 << 3 | 2
 _PAD = 32  # zero bytes after the buffer, so that reads past a malformed state stay in bounds
-
-
-class StateDecodeError(ValueError):
-    """Raised by :func:`decode_object_states` for bytes that are not ObjectState messages.
-
-    Attributes:
-        state: index of the first malformed state in the input order.
-    """
-
-    def __init__(self, message: str, state: int):
-        super().__init__(message)
-        self.state = state
 
 
 def _varint(buf: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -458,8 +447,6 @@ def decode_scenario(record: Record, *, object_types: frozenset[str] | None = Non
         track_to_predict=to_predict[kept_arr], prediction_difficulty=difficulty[kept_arr],
         source=source)
     if any(extra_json):
-        from tap_bench.womd.writer import restore_extra_columns
-
         table = restore_extra_columns(table, extra_json, n_steps)
     return table
 

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
+from tap_bench.errors import WomdRecordError
 from tap_bench.womd.checksum import masked_crc32c
-from tap_bench.womd.errors import WomdRecordError
 
 __all__ = ["Record", "TFRecordWriter", "iter_records"]
 

@@ -111,3 +111,25 @@ def test_no_nan_in_interval_when_measure_absent(hand_pairs):
     m = paired_comparison(hand_pairs, "A", "B").measures
     assert set(m["measure"]) == {"mean_speed", "crashed"}
     assert np.isfinite(m[["diff_low", "diff_high"]].to_numpy()).all()
+
+
+def test_small_label_groups_are_listed_not_tested():
+    rows = []
+    # issue 11: a 3 vs 2 group must not print a "significant" difference
+    for seed, (pol, v) in enumerate([("A", 1.0), ("A", 1.2), ("A", 0.9), ("B", 3.0),
+                                     ("B", 3.1)]):
+        rows.append({"policy": pol, "seed": seed, "sdl": "Straight | Maintain Speed",
+                     "min_headway_s": v})
+    out = matched_by_label(make_episodes(rows), "A", "B")
+    assert len(out) == 1 and not out.iloc[0]["tested"]
+    assert (out.iloc[0]["n_a"], out.iloc[0]["n_b"]) == (3, 2)
+    assert "fewer than 5" in out.iloc[0]["note"] and pd.isna(out.iloc[0]["diff_low"])
+
+
+def test_no_zero_width_interval_on_estimated_paired_quantities(hand_pairs):
+    eps = hand_pairs.assign(crashed=False)
+    pc = paired_comparison(eps, "A", "B")
+    crash = pc.measures.set_index("measure").loc["crashed"]
+    assert crash["diff"] == 0 and crash["diff_low"] < 0 < crash["diff_high"]
+    assert crash["p_low"] < 0.5 < crash["p_high"]
+    assert (pc.labels["band_high"] > pc.labels["band_low"]).all()

@@ -66,3 +66,16 @@ def test_missing_columns_and_levels_name_the_fix():
     two = pd.concat([labels, labels.assign(track_id="2")]).assign(level="maneuver")
     with pytest.raises(LabelTableError, match="is_ego"):
         ego_labels(two, "maneuver")
+
+
+def test_duration_is_one_column_when_both_tables_carry_it():
+    # the measures and the rollout's episode table both have duration_s: one column, the
+    # trajectories' value, and the rollout's for an episode without trajectory (issue 11)
+    traj = ego_track("h/p/s0", 0, 30)
+    episodes = pd.DataFrame({"env": ["h", "h"], "policy": "p", "seed": [0, 1],
+                             "duration_s": [3.0, 1.5], "crashed": [False, False],
+                             "mean_speed": [15.0, np.nan], "status": ["ok", "error"],
+                             "error": ["", "ValueError: x"]})
+    eps = episode_table(trajectories=traj, episodes=episodes, level="maneuver")
+    assert not {"duration_s_x", "duration_s_y"} & set(eps.columns)
+    assert eps["duration_s"].tolist() == pytest.approx([3.0, 1.5])

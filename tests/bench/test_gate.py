@@ -21,7 +21,7 @@ from tap_bench.bench.gate import (
 )
 from tap_bench.bench.suite import GateConfig
 from tap_bench.cli import main
-from tap_bench.errors import FileFormatError
+from tap_bench.errors import BaselineError, FileFormatError, ParameterError
 
 from .conftest import make_episodes
 
@@ -196,3 +196,98 @@ def test_gate_on_rollouts_fires_on_changed_idm_parameters_and_not_on_other_seeds
     fired = check(changed.summary, changed.episodes, doc, base_eps)
     assert fired.moved, fired.format(all_rows=True)
     assert "mean_speed" in set(fired.moved_rows()["metric"])
+
+
+def test_paired_seeds_flag_a_change_an_unpaired_test_misses(tmp_path):
+    # issue 11: identical seeds, min TTC 2.7 s lower on average: the paired sign-flip test
+    # on per-seed differences flags it; exchanging episodes (unpaired) does not
+    base = synthetic(0, n=12)
+    doc, base_eps = baseline_of(base, tmp_path)
+    run = base.copy()
+    shift = np.where(np.arange(len(run)) % 3 == 0, -1.0, -3.5)
+    run.loc[run["policy"] == "idm", "min_ttc_s"] += shift[run["policy"] == "idm"]
+    result = check(SUMMARY, run, doc, base_eps)
+    row = result.table.query("policy == 'idm' and metric == 'min_ttc_s'").iloc[0]
+    assert row["test"] == "paired" and row["moved"]
+    others = result.table.query("policy == 'random' and metric != 'label_tv'")
+    assert (others["p_value"] == 1).all() and not others["moved"].any()  # deterministic
+    shifted = run.assign(seed=run["seed"] + 100)
+    unpaired = check(SUMMARY, shifted, doc, base_eps).table
+    assert set(unpaired["test"]) == {"unpaired"}
+
+
+def test_a_gate_that_can_never_fire_is_refused_with_the_numbers(tmp_path):
+    doc, base = baseline_of(synthetic(0), tmp_path)
+    with pytest.raises(ParameterError, match=r"12/100 = 0\.12") as err:
+        check(SUMMARY, synthetic(1), doc, base, GateConfig(n_permutations=99))
+    assert "at least 240" in str(err.value)
+    few = synthetic(0, n=3)
+    doc, base = baseline_of(few, tmp_path)
+    with pytest.raises(ParameterError, match="seeds"):
+        check(SUMMARY, few, doc, base)
+
+
+def test_suite_gate_that_can_never_fire_is_refused():
+    from tap_bench.bench.suite import suite_from_dict
+
+    doc = {"name": "x", "envs": ["a", "b", "c", "d", "e"],
+           "policies": ["p", "q", "r", "s", "t"], "seeds": "0-9",
+           "gate": {"n_permutations": 999}}
+    with pytest.raises(FileFormatError, match=r"150 tests .* 0\.15 >= alpha 0\.05"):
+        suite_from_dict(doc, check_names=False)
+
+
+def test_runs_that_cannot_become_a_baseline(tmp_path):
+    eps = synthetic(0)
+    with pytest.raises(BaselineError, match="no finished episode"):
+        write_baseline(SUMMARY, eps.assign(status="error"), tmp_path / "b.json")
+    bad = eps.copy()
+    bad.loc[bad.index[:6], "status"] = "error"  # 6 of 80 = 7.5 % > 5 %
+    with pytest.raises(BaselineError, match="6 of 80"):
+        write_baseline(SUMMARY, bad, tmp_path / "b.json")
+
+
+def test_a_non_numeric_or_missing_baseline_metric_is_an_error(tmp_path):
+    path = write_baseline(SUMMARY, synthetic(0), tmp_path / "b.json")
+    doc = json.loads(path.read_text())
+    col = doc["episodes"]["columns"].index("min_ttc_s")
+    doc["episodes"]["rows"][3][col] = "fast"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(BaselineError, match=r"row 3 .* min_ttc_s = 'fast'"):
+        read_baseline(path)
+    for row in doc["episodes"]["rows"]:
+        del row[col]
+    doc["episodes"]["columns"].remove("min_ttc_s")
+    path.write_text(json.dumps(doc))
+    with pytest.raises(BaselineError, match="lack min_ttc_s"):
+        read_baseline(path)
+
+
+def test_changed_definitions_are_named(tmp_path):
+    prov = {"policies": {"idm": {"kind": "idm", "params": {"time_wanted": 1.5}},
+                         "random": {"kind": "random", "params": {}}},
+            "envs": {"highway": {"duration": 40, "config": {"lanes_count": 4}}}}
+    summary = {**SUMMARY, "provenance": prov}
+    doc, base = read_baseline(write_baseline(summary, synthetic(0), tmp_path / "b.json"))
+    changed = json.loads(json.dumps(prov))
+    changed["policies"]["idm"]["params"]["time_wanted"] = 3.0
+    changed["envs"]["highway"]["config"]["lanes_count"] = 3
+    result = check({**SUMMARY, "provenance": changed}, synthetic(1), doc, base)
+    notes = " ".join(result.moved_rows()["note"])
+    assert "policy 'idm' changed since the baseline: params.time_wanted: 1.5 -> 3.0" in notes
+    assert "env 'highway' changed since the baseline: config.lanes_count: 4 -> 3" in notes
+
+
+def test_power_names_the_seeds_a_margin_needs():
+    from tap_bench.bench.power import power_table
+
+    eps = synthetic(0, n=10)
+    table = power_table(eps, GateConfig()).set_index(["policy", "metric"])
+    speed = table.loc[("idm", "mean_speed")]
+    sd = eps.loc[eps["policy"] == "idm", "mean_speed"].std()
+    # 12 tests: (z_{1 - 0.05/24} + z_0.8) sd sqrt(2/10) = (2.8653 + 0.8416) sd 0.4472
+    assert speed["mde"] == pytest.approx((2.8653 + 0.8416) * sd * np.sqrt(0.2), rel=1e-3)
+    assert speed["too_small"] == (speed["mde"] > 1.0)
+    # seeds for a change of the 1 m/s margin: 2 ((z + z) sd / 1)^2
+    assert speed["seeds_for_margin"] == np.ceil(2 * ((2.8653 + 0.8416) * sd) ** 2)
+    assert table["too_small"].dtype == bool

@@ -6,7 +6,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench.measures import BURN_IN_S, TTC_CAP_S, VEHICLE_LENGTH, ego_measures
+from tap_bench.bench.measures import (
+    BURN_IN_S,
+    TTC_CAP_S,
+    VEHICLE_LENGTH,
+    ego_measures,
+    ego_step_measures,
+)
 from tap_bench.errors import TrajectoryTableError
 
 
@@ -33,6 +39,23 @@ def test_following_a_slower_leader_by_hand():
     assert m["rms_jerk"] == pytest.approx(0.0, abs=1e-6)
     assert not m["crashed"]
     assert m["duration_s"] == pytest.approx(6.0)
+
+
+def test_step_measures_follow_the_closing_gap_by_hand():
+    # a leader 90 m ahead (inside the 100 m look-ahead) at 10 m/s: at step k the bumper gap
+    # is 85 - k m, closing at 10 m/s, the ego at 20 m/s; the car alongside is never a leader
+    scene = pd.concat([track("s", "ego", 0, 0, 20, ego=True), track("s", "1", 90, 0, 10),
+                       track("s", "2", 2, 4.0, 20)], ignore_index=True)
+    steps = ego_step_measures(scene)
+    assert len(steps) == 60 and (steps["scenario_id"] == "s").all()
+    gap = 90 - 10 * steps["t"] - VEHICLE_LENGTH
+    assert np.allclose(steps["gap_m"], gap)
+    assert np.allclose(steps["headway_s"], np.minimum(gap / 20, 10.0))
+    assert np.allclose(steps["ttc_s"], np.minimum(gap / 10, TTC_CAP_S))
+    assert list(steps["scored"]) == [t >= BURN_IN_S - 1e-9 for t in steps["t"]]
+    # the episode minimum is the minimum over the scored steps
+    assert ego_measures(scene)["min_ttc_s"].iloc[0] == pytest.approx(
+        steps.loc[steps["scored"], "ttc_s"].min())
 
 
 def test_initial_gap_is_not_the_policys():

@@ -58,7 +58,8 @@ def test_report_is_written_with_embedded_images(run_folder):
     assert len(pngs) >= 6
     assert page.count("data:image/png;base64,") == len(pngs)
     assert "RuntimeError: boom" in page  # the failed episode is listed
-    assert "<script" not in page
+    assert "<script src" not in page and 'src="http' not in page  # nothing from the network
+    assert page.index('id="summary"') < page.index('id="paired"')  # the summary comes first
 
 
 @pytest.mark.skipif(not (CHROMIUM and CHROMEDRIVER),
@@ -82,8 +83,8 @@ def test_report_renders_in_headless_chromium(run_folder, tmp_path):
         assert driver.title == "tap-bench html-test"
         ids = set(driver.execute_script(
             "return Array.from(document.querySelectorAll('table')).map(t => t.id)"))
-        assert {"facts", "measures", "paired", "paired_measures", "paired_labels", "matched",
-                "coverage", "novelty", "failed"} <= ids
+        assert {"summary", "facts", "measures", "paired", "paired_measures", "paired_labels",
+                "matched", "coverage", "novelty", "failed"} <= ids
         rows = driver.execute_script(
             "return document.querySelector('#coverage tbody').rows.length")
         assert rows == len(pd.read_parquet(folder / "coverage.parquet"))

@@ -103,3 +103,18 @@ def test_workers_give_the_same_episodes(tmp_path):
     cols = ["env", "policy", "seed", "sdl", "mean_speed", "rms_jerk", "crashed"]
     pd.testing.assert_frame_equal(one.episodes[cols], two.episodes[cols])
     assert np.isfinite(one.episodes["mean_speed"]).all()
+
+
+
+def test_a_named_label_table_is_a_reference(tmp_path):
+    from tap_bench.labelling import label
+    from tap_bench.sim.rollout import rollout
+
+    trajectories, _ = rollout("merge", "idm", [5, 6], duration=3, progress=False)
+    mine = label(trajectories, level="maneuver")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = run_suite(tiny(["idm", "lane-keeping"]), tmp_path / "run", workers=1,
+                           progress=False, report=False, references={"my corpus": mine})
+    assert "my corpus" in set(result.scores.coverage["reference"])
+    assert result.summary["references"] == {"my corpus": f"a label table of {len(mine)} rows"}

@@ -21,7 +21,7 @@ def womd():
     files = sorted(WOMD_DIR.glob("*.tfrecord")) + sorted(WOMD_DIR.glob("*.pkl"))
     if not files:
         pytest.skip(f"real WOMD samples not found in {WOMD_DIR}")
-    from tap_bench.womd import read_womd
+    from tap_bench.sources import read_womd
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -98,4 +98,4 @@ def test_bench_run_with_a_womd_reference(womd, tmp_path):
     matches = result.scores.scenario_matches
     assert len(matches) == 4 * 3 and (tmp_path / "run" / "scenario_matches.parquet").is_file()
     assert "scenario_matches" in (tmp_path / "run" / "report.html").read_text()
-    assert result.summary["womd_files"] == [str(f) for f in files]
+    assert result.summary["references"] == {"WOMD": [str(f) for f in files]}

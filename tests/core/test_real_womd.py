@@ -21,7 +21,7 @@ pytestmark = pytest.mark.womd
 def vehicles():
     if not all((DATA / f).is_file() for f in FILES):
         pytest.skip(f"real WOMD files not found in {DATA}")
-    read_womd = pytest.importorskip("tap_bench.womd.ingest").read_womd
+    read_womd = pytest.importorskip("tap_bench.sources.ingest").read_womd
     table = read_womd([DATA / f for f in FILES])
     return table[table["object_type"] == "vehicle"].reset_index(drop=True)
 

@@ -13,7 +13,7 @@ import pytest
 def ray_backend():
     """A :class:`RayBackend` on a local cluster of 2 CPUs started for these tests."""
     pytest.importorskip("ray")
-    from tap_bench.distributed import RayBackend
+    from tap_bench.execution import RayBackend
 
     backend = RayBackend(num_cpus=2, object_store_memory=100 << 20)
     yield backend

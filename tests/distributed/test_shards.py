@@ -9,12 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.distributed import (
-    LocalBackend,
-    distributed_fit_report,
-    ingest_shards,
-    label_shards,
-)
+from tap_bench.distributed import distributed_fit_report, ingest_shards, label_shards
+from tap_bench.execution import LocalBackend
 
 KEYS = ["scenario_id", "track_id", "segment", "level"]
 
@@ -56,7 +52,7 @@ def test_a_corrupt_shard_is_reported_and_the_others_land(ingested):
 
 
 def test_ray_ingest_gives_the_tables_of_a_local_ingest(ingested):
-    from tap_bench.womd import read_womd
+    from tap_bench.sources import read_womd
 
     out, _, inputs = ingested
     for src in inputs:

@@ -9,7 +9,8 @@ import pytest
 from similarity_helpers import pairs_of_cruises, triples
 
 from tap_bench.similarity import brute_force_nearest, evaluate, normalised_shapes
-from tap_bench.similarity.evaluate import markdown, write_evaluation
+from tap_bench.similarity.evaluate import markdown
+from tap_bench.similarity.figures import write_evaluation
 
 
 def test_pairs_known_by_construction():

@@ -16,7 +16,7 @@ from tap_bench.similarity import (
     search_like,
     unique_labels,
 )
-from tap_bench.womd.ingest import read_womd
+from tap_bench.sources.ingest import read_womd
 
 pytestmark = pytest.mark.womd
 

@@ -9,10 +9,9 @@ import pandas as pd
 import pytest
 
 from tap_bench.cli import main
-from tap_bench.errors import FileFormatError, UnknownNameError
+from tap_bench.errors import FileFormatError, UnknownNameError, WomdRecordError
+from tap_bench.sources.ingest import IngestReport, ingest_womd, iter_womd, read_womd
 from tap_bench.womd import proto
-from tap_bench.womd.errors import WomdRecordError
-from tap_bench.womd.ingest import IngestReport, ingest_womd, iter_womd, read_womd
 from tap_bench.womd.tfrecord import TFRecordWriter, iter_records
 from tap_bench.womd.writer import encode_scenarios, write_womd
 
@@ -92,10 +91,10 @@ def test_skip_goes_on_after_a_corrupt_crc(tmp_path, two_cars_and_a_walker):
 
 def test_interrupted_ingest_leaves_no_output(tmp_path, two_cars_and_a_walker, monkeypatch):
     path = write_womd(many_scenarios(two_cars_and_a_walker, 4), tmp_path / "in.tfrecord")
-    import tap_bench.womd.ingest as ingest
+    import tap_bench.sources.builtin as builtin
 
     calls = []
-    real = ingest.decode_scenario
+    real = builtin.decode_scenario
 
     def interrupted(record, **kwargs):
         calls.append(record.index)
@@ -103,7 +102,7 @@ def test_interrupted_ingest_leaves_no_output(tmp_path, two_cars_and_a_walker, mo
             raise KeyboardInterrupt
         return real(record, **kwargs)
 
-    monkeypatch.setattr(ingest, "decode_scenario", interrupted)
+    monkeypatch.setattr(builtin, "decode_scenario", interrupted)
     out_dir = tmp_path / "out"
     with pytest.raises(KeyboardInterrupt):
         ingest_womd(path, out_dir / "t.parquet", batch_bytes=1)

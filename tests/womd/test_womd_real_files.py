@@ -8,9 +8,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from tap_bench.sources.ingest import read_womd
 from tap_bench.trajectories import validate_trajectories
 from tap_bench.womd import proto
-from tap_bench.womd.ingest import read_womd
 from tap_bench.womd.scenario import decode_scenario
 from tap_bench.womd.tf_example import decode_tf_example
 from tap_bench.womd.tfrecord import iter_records

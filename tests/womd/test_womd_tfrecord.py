@@ -9,7 +9,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tap_bench.womd.errors import WomdRecordError
+from tap_bench.errors import WomdRecordError
 from tap_bench.womd.tfrecord import TFRecordWriter, iter_records
 
 PAYLOADS = [b"first record", b"", b"x" * 5000, b"last"]

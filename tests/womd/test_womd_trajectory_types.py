@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 import tap_bench
-from tap_bench.womd.ingest import ingest_womd
+from tap_bench.sources.ingest import ingest_womd
 from tap_bench.womd.trajectory_types import (
     agreement_table,
     classify_trajectories,

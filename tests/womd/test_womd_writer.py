@@ -10,8 +10,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from tap_bench.errors import TrajectoryTableError
+from tap_bench.sources.ingest import read_womd
 from tap_bench.womd import proto
-from tap_bench.womd.ingest import read_womd
 from tap_bench.womd.scenario import StateDecodeError, decode_object_states
 from tap_bench.womd.tfrecord import iter_records
 from tap_bench.womd.writer import encode_scenarios, write_womd

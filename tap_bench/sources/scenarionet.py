@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from tap_bench.womd.errors import WomdRecordError
+from tap_bench.errors import WomdRecordError
 from tap_bench.womd.scenario import trajectory_table
 
 __all__ = ["RestrictedUnpickler", "decode_scenarionet", "load_scenarionet"]

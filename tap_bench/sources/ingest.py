@@ -1,26 +1,27 @@
-"""WOMD files in, one trajectory table out: streaming, in worker processes, with a report.
+"""Driving-data files in, one trajectory table out: streaming, in worker processes, with a
+report.
 
 :func:`iter_womd` yields one table per scenario and holds one record at a time, so data
 sets larger than memory can be processed scenario by scenario; :func:`read_womd` gathers
 them into one table; :func:`ingest_womd` streams them into a Parquet file, written
 atomically, decoding batches of records in worker processes.
 
-Three input formats, told apart per file (``format="auto"``): TFRecords of ``Scenario``
-protos (``uncompressed/scenario/...``), TFRecords of motion ``tf.Example`` protos
+The input formats are the registered readers (:mod:`tap_bench.sources.registry`), told
+apart per file with ``format="auto"``; built in: TFRecords of ``Scenario`` protos
+(``uncompressed/scenario/...``), TFRecords of motion ``tf.Example`` protos
 (``uncompressed/tf_example/...``), and ScenarioNet scenario pickles (``*.pkl``).
 """
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import glob
 import json
-import multiprocessing
 import os
 import shutil
 import sys
 import tempfile
 import time
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -29,17 +30,16 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from tap_bench.errors import FileFormatError, did_you_mean
+from tap_bench.errors import FileFormatError, ParameterError, WomdRecordError, did_you_mean
+from tap_bench.execution import Backend, LocalBackend
+from tap_bench.sources import builtin  # noqa: F401 (the built-in readers are registered)
+from tap_bench.sources.registry import Reader, get_reader, reader_names, readers
 from tap_bench.tableio import atomic_path
-from tap_bench.womd.errors import WomdRecordError
-from tap_bench.womd.scenario import decode_scenario, normalise_object_types
-from tap_bench.womd.scenarionet import decode_scenarionet, load_scenarionet
-from tap_bench.womd.tf_example import decode_tf_example, is_motion_example
+from tap_bench.womd.scenario import SCENARIO_COLUMNS, normalise_object_types
 from tap_bench.womd.tfrecord import Record, iter_records
 
-__all__ = ["FORMATS", "IngestReport", "expand_paths", "ingest_womd", "iter_womd", "read_womd"]
+__all__ = ["IngestReport", "expand_paths", "formats", "ingest_womd", "iter_womd", "read_womd"]
 
-FORMATS = ("auto", "scenario", "tf_example", "scenarionet")
 ON_ERROR = ("stop", "skip")
 BATCH_BYTES = 8 << 20
 """Records are sent to worker processes in batches of about this many bytes."""
@@ -126,14 +126,27 @@ def _check_choice(kind: str, value: str, allowed: tuple[str, ...]) -> str:
     return value
 
 
-def _file_format(path: Path, format: str, check_crc: bool) -> str:
+def formats() -> tuple[str, ...]:
+    """``"auto"`` and the registered formats (:mod:`tap_bench.sources.registry`)."""
+    return ("auto", *reader_names())
+
+
+def _file_format(path: Path, format: str, check_crc: bool) -> Reader:
+    """The reader of ``path``: the one asked for, or the one that claims it (``auto``): a
+    file reader by its name's ending, else the first TFRecord reader whose ``sniff`` accepts
+    the first record, else the TFRecord fallback (``sniff=None``)."""
     if format != "auto":
-        return format
-    if path.suffix == ".pkl":
-        return "scenarionet"
+        return get_reader(format)
+    name = path.name.lower()
+    for reader in readers():
+        if reader.framing == "file" and name.endswith(reader.suffixes):
+            return reader
+    tfrecord = [r for r in readers() if r.framing == "tfrecord"]
+    fallback = next((r for r in reversed(tfrecord) if r.sniff is None), tfrecord[-1])
     for record in iter_records(path, check_crc=check_crc, on_error=lambda err: None):
-        return "tf_example" if is_motion_example(record.data) else "scenario"
-    return "scenario"
+        return next((r for r in tfrecord if r.sniff is not None and r.sniff(record.data)),
+                    fallback)
+    return fallback
 
 
 @dataclass
@@ -141,7 +154,7 @@ class _Batch:
     """A unit of work: records of one file, or one ScenarioNet pickle."""
 
     path: str
-    format: str
+    reader: Reader
     records: list[Record]
     size: int
 
@@ -156,6 +169,7 @@ class _Decoded:
     cpu_seconds: float
     scenarios: int = 0
     spooled: str | None = None
+    error: WomdRecordError | None = None
 
 
 def _decode_batch(batch: _Batch, object_types: frozenset[str] | None, skip: bool
@@ -166,13 +180,27 @@ def _decode_batch(batch: _Batch, object_types: frozenset[str] | None, skip: bool
     return _Decoded(tables, skipped, time.process_time() - start, len(tables))
 
 
-def _decode_to_spool(batch: _Batch, object_types: frozenset[str] | None, skip: bool,
-                     spool: str) -> _Decoded:
+@dataclass(frozen=True)
+class _SpoolTask:
+    """A batch to decode in a worker, and the folder its tables go to."""
+
+    batch: _Batch
+    object_types: frozenset[str] | None
+    skip: bool
+    spool: str
+
+
+def _decode_to_spool(task: _SpoolTask) -> _Decoded:
     """:func:`_decode_batch` in a worker process. The tables go back through an Arrow IPC
-    file in ``spool`` (memory-backed where /dev/shm exists) rather than through a pipe:
-    pickling them would cost about half the decoding time again."""
+    file in the spool folder (memory-backed where /dev/shm exists) rather than through a
+    pipe: pickling them would cost about half the decoding time again. A bad record with
+    ``skip`` False comes back as ``error`` (not raised: it is not worth a retry)."""
     start = time.process_time()
-    tables, skipped = _decode_records(batch, object_types, skip)
+    try:
+        tables, skipped = _decode_records(task.batch, task.object_types, task.skip)
+    except WomdRecordError as err:
+        return _Decoded([], [], time.process_time() - start, 0, error=err)
+    spool = task.spool
     path = None
     if tables:
         table = pa.concat_tables(tables, promote_options="default")
@@ -187,20 +215,18 @@ def _decode_records(batch: _Batch, object_types: frozenset[str] | None, skip: bo
                     ) -> tuple[list[pa.Table], list[dict]]:
     tables: list[pa.Table] = []
     skipped: list[dict] = []
-    if batch.format == "scenarionet":
+    decode = batch.reader.decode
+    if batch.reader.framing == "file":
         try:
-            scenario = load_scenarionet(batch.path)
-            tables.append(decode_scenarionet(scenario, path=batch.path,
-                                             object_types=object_types))
+            tables.append(decode(batch.path, object_types))
         except WomdRecordError as err:
             if not skip:
                 raise
             skipped.append(err.as_dict())
         return tables, skipped
-    decode = decode_tf_example if batch.format == "tf_example" else decode_scenario
     for record in batch.records:
         try:
-            tables.append(decode(record, object_types=object_types))
+            tables.append(decode(record, object_types))
         except WomdRecordError as err:
             if not skip:
                 raise
@@ -214,7 +240,7 @@ def _batches(files: list[Path], format: str, check_crc: bool, batch_bytes: int,
     for path in files:
         fmt = _file_format(path, format, check_crc)
         report.files += 1
-        if fmt == "scenarionet":
+        if fmt.framing == "file":
             size = path.stat().st_size
             report.records += 1
             report.bytes_read += size
@@ -236,17 +262,23 @@ def _batches(files: list[Path], format: str, check_crc: bool, batch_bytes: int,
 
 def _iter_tables(paths, *, format: str, object_types, on_error: str, check_crc: bool,
                  workers: int, report: IngestReport, log: Callable[[str], None] | None,
+                 backend: Backend | None = None,
                  batch_bytes: int = BATCH_BYTES,
                  progress: Callable[[int, int], None] | None = None) -> Iterator[pa.Table]:
     """Decoded tables (Arrow) in input order; fills ``report`` as it goes."""
-    _check_choice("format", format, FORMATS)
+    _check_choice("format", format, formats())
     _check_choice("on_error value", on_error, ON_ERROR)
     types = normalise_object_types(object_types)
     files = expand_paths(paths)
     report.inputs = [str(p) for p in files]
     report.format = format
     report.object_types = sorted(types) if types is not None else None
-    report.workers = workers
+    report.workers = backend.workers if backend is not None else workers
+    if backend is not None and getattr(backend, "address", None) is not None:
+        raise ParameterError("backend", backend, "a backend on this machine (decoded "
+                             "tables come back through its memory)",
+                             hint="For a cluster, ingest shards with 'tap-bench ingest ... "
+                             "--backend ray -o DIR' (tap_bench.distributed.ingest_shards).")
     skip = on_error == "skip"
 
     def skipped(entries: list[dict]) -> None:
@@ -276,36 +308,51 @@ def _iter_tables(paths, *, format: str, object_types, on_error: str, check_crc: 
 
     batches = _batches(files, format, check_crc, batch_bytes, bad_framing if skip else None,
                        report)
-    if workers <= 1:
+    if backend is None and workers <= 1:
         for batch in batches:
             yield from finish(batch, _decode_batch(batch, types, skip))
         return
-    context = multiprocessing.get_context("forkserver" if sys.platform == "linux" else None)
-    if context.get_start_method() == "forkserver":
-        # Workers fork from a server that has imported the decoders once, rather than each
-        # importing them (about a second on a loaded machine).
-        context.set_forkserver_preload([__name__])
     shm = Path("/dev/shm")
     spool = tempfile.mkdtemp(prefix="tap-bench-ingest-",
                              dir=shm if shm.is_dir() and os.access(shm, os.W_OK) else None)
+    sent: deque[_Batch] = deque()  # outcomes come in order: the batch of each, in turn
+
+    def tasks() -> Iterator[_SpoolTask]:
+        for batch in batches:
+            sent.append(batch)
+            yield _SpoolTask(batch, types, skip, spool)
+
     try:
-        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
-            pending: list[tuple[_Batch, cf.Future]] = []
-            try:
-                for batch in batches:
-                    pending.append((batch, pool.submit(_decode_to_spool, batch, types, skip,
-                                                       spool)))
-                    while len(pending) > 2 * workers:  # bounded: memory stays flat
-                        done, future = pending.pop(0)
-                        yield from finish(done, future.result())
-                while pending:
-                    done, future = pending.pop(0)
-                    yield from finish(done, future.result())
-            finally:
-                for _, future in pending:
-                    future.cancel()
+        runner = backend if backend is not None else LocalBackend(workers)
+        for outcome in runner.imap(_decode_to_spool, tasks(), progress=False):
+            batch = sent.popleft()
+            if outcome.ok:
+                result: _Decoded = outcome.value
+                if result.error is not None:
+                    raise result.error  # a bad record, with on_error="stop"
+                yield from finish(batch, result)
+                continue
+            # the batch failed on every attempt (its worker died, say): with "skip" its
+            # records are listed and the others kept; with "stop" the ingest ends here
+            lost = _lost_batch(batch, outcome.error)
+            if not skip:
+                raise lost
+            skipped([lost.as_dict()])
+            if progress is not None:
+                progress(batch.size, 0)
     finally:
         shutil.rmtree(spool, ignore_errors=True)
+
+
+def _lost_batch(batch: _Batch, error: str) -> WomdRecordError:
+    """The error for a batch whose decoding failed outside any record's own checks."""
+    first = batch.records[0] if batch.records else None
+    count = len(batch.records) or 1
+    return WomdRecordError(
+        batch.path, first.index if first else 0, first.offset if first else 0,
+        f"decoding {count} record(s) from here failed: {error}",
+        "Run again with --workers 1 to see the error in this process; other files and "
+        "records are not affected with --on-error skip.")
 
 
 def iter_womd(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
@@ -362,8 +409,6 @@ def read_womd(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
 
 
 def _columns() -> tuple[str, ...]:
-    from tap_bench.womd.scenario import SCENARIO_COLUMNS
-
     return SCENARIO_COLUMNS
 
 
@@ -378,7 +423,8 @@ def ingest_womd(paths: str | os.PathLike | Iterable[str | os.PathLike],
                 object_types: Iterable[str] | str | None = None, on_error: str = "stop",
                 check_crc: bool = True, workers: int = 1, progress: bool = False,
                 log: Callable[[str], None] | None = None,
-                batch_bytes: int = BATCH_BYTES) -> IngestReport:
+                batch_bytes: int = BATCH_BYTES, backend: Backend | None = None
+                ) -> IngestReport:
     """Stream WOMD files into one Parquet trajectory table, atomically.
 
     The table goes to a temporary file beside ``output``, renamed onto it only when every
@@ -390,6 +436,10 @@ def ingest_womd(paths: str | os.PathLike | Iterable[str | os.PathLike],
         paths, format, object_types, on_error, check_crc: as :func:`iter_womd`.
         output: the Parquet file to write.
         workers: decoding processes (1 decodes in this process).
+        backend: decode on this :class:`tap_bench.execution.Backend` instead of
+            ``workers`` local processes (it must run on this machine: tables come back
+            through shared memory). A batch whose worker dies is tried once more, then
+            reported (``on_error="skip"``) or raised.
         progress: show a progress bar (tqdm, on stderr) with scenarios and MB/s.
         log: called with a line for every skipped record (``on_error="skip"``).
         batch_bytes: records per work unit [B].
@@ -442,6 +492,7 @@ def ingest_womd(paths: str | os.PathLike | Iterable[str | os.PathLike],
                 for table in _iter_tables(paths, format=format, object_types=object_types,
                                           on_error=on_error, check_crc=check_crc,
                                           workers=workers, report=report, log=log,
+                                          backend=backend,
                                           batch_bytes=batch_bytes, progress=advance):
                     pending.append(table)
                     pending_rows += table.num_rows
@@ -449,7 +500,6 @@ def ingest_womd(paths: str | os.PathLike | Iterable[str | os.PathLike],
                         flush()
                 flush()
                 if writer is None:  # nothing kept: an empty table with the columns
-                    from tap_bench.womd.scenario import SCENARIO_COLUMNS
 
                     empty = pa.table({c: pa.array([], pa.string()) for c in SCENARIO_COLUMNS})
                     pq.write_table(empty, tmp)

@@ -1,14 +1,10 @@
-"""Backends: each item's outcome in order, failures retried then reported, a killed worker's
+"""The Ray backend: each item's outcome in order, failures retried then reported, a killed worker's
 task retried."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
-
-import pytest
-
-from tap_bench.distributed import LocalBackend
 
 
 def _square_or_fail(x: int) -> int:
@@ -36,11 +32,6 @@ def _check_outcomes(outcomes) -> None:
     assert all(o.ok and o.attempts == 1 for o in outcomes if o.item != 3)
 
 
-def test_local_backend_reports_a_failing_item_after_its_retries_and_keeps_the_others():
-    _check_outcomes(LocalBackend(1).map(_square_or_fail, range(5), retries=2,
-                                        progress=False))
-
-
 def test_ray_backend_reports_a_failing_item_after_its_retries_and_keeps_the_others(
         ray_backend):
     _check_outcomes(ray_backend.map(_square_or_fail, list(range(5)), retries=2,
@@ -59,18 +50,6 @@ def test_a_ray_task_killed_on_every_retry_is_reported(ray_backend, tmp_path):
     assert not outcomes[0].ok and "died" in outcomes[0].error
 
 
-def test_a_local_pool_task_whose_worker_is_killed_is_retried(tmp_path):
-    markers = [str(tmp_path / f"attempts-{i}") for i in range(3)]
-    outcomes = LocalBackend(2).map(_die_once, markers, retries=1, progress=False)
-    assert all(o.ok for o in outcomes)
-    assert [Path(m).read_text() for m in markers].count("2") >= 1
-
-
-def test_make_backend_names_the_choices():
-    from tap_bench.distributed import make_backend
-    from tap_bench.errors import TapBenchError
-
-    with pytest.raises(KeyError, match="ray"):
-        make_backend("rey")
-    with pytest.raises(TapBenchError, match="--backend ray"):
-        make_backend("local", address="auto")
+def test_ray_imap_streams_in_order(ray_backend):
+    got = list(ray_backend.imap(_square_or_fail, iter([0, 1, 2, 4]), window=1, progress=False))
+    assert [o.value for o in got] == [0, 1, 4, 16]

@@ -1,0 +1,190 @@
+"""Writing the replay viewer: one folder that opens in a browser from disk.
+
+::
+
+    viewer/
+      index.html        the page (no network, no server: open it from disk)
+      viewer.js         the player, the episode list, the label timelines and the charts
+      viewer.css
+      data/index.js     the episode list, the road maps and the run's facts
+      data/<chunk>.js   the episodes of one env and seed (every policy), loaded on demand
+
+Browsers do not let a page opened from disk read files with ``fetch``; they do run
+``<script>`` files beside it, so every data file is a script that hands its JSON to the
+viewer (``TAPVIEW.index(...)``, ``TAPVIEW.chunk(...)``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import warnings
+from collections.abc import Sequence
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from tap_bench.bench.episodes import episode_table
+from tap_bench.bench.suite import suite_from_dict
+from tap_bench.bench.viewer.data import MAP_MARGIN, episode_chunks, episode_index, map_features
+from tap_bench.labelling import tap
+from tap_bench.maps import empty_map
+from tap_bench.sim.roads import road_table
+from tap_bench.sources import read_womd
+from tap_bench.sources.maps import read_maps
+from tap_bench.tableio import atomic_path
+from tap_bench.thresholds import Thresholds
+
+__all__ = ["STATIC_FILES", "write_run_viewer", "write_viewer", "write_womd_viewer"]
+
+STATIC_FILES = ("index.html", "viewer.js", "viewer.css")
+"""The viewer's own files, package data of :mod:`tap_bench.bench.viewer`."""
+
+
+def _script(call: str, name: str | None, doc: Any) -> str:
+    text = json.dumps(doc, separators=(",", ":"), allow_nan=False)
+    # a "</script>" inside a label must not end a script element that loads the file
+    text = text.replace("</", "<\\/")
+    head = f"{json.dumps(name)}," if name is not None else ""
+    return f"TAPVIEW.{call}({head}{text});\n"
+
+
+def write_viewer(output: str | os.PathLike, index: dict[str, Any],
+                 chunks: dict[str, list[dict[str, Any]]]) -> Path:
+    """Write the viewer folder from its documents (:mod:`tap_bench.bench.viewer.data`).
+
+    Args:
+        output: the folder to (re)write.
+        index: the index document (``episodes``, ``maps``, ``run``).
+        chunks: chunk name -> episode documents.
+
+    Returns:
+        the path of ``index.html``.
+    """
+    output = Path(output)
+    data = output / "data"
+    if data.exists():
+        shutil.rmtree(data)
+    data.mkdir(parents=True)
+    static = resources.files("tap_bench.bench.viewer") / "static"
+    for name in STATIC_FILES:
+        (output / name).write_bytes((static / name).read_bytes())
+    for name, docs in chunks.items():
+        (data / f"{name}.js").write_text(_script("chunk", name, docs), encoding="utf-8")
+    with atomic_path(data / "index.js") as tmp:
+        tmp.write_text(_script("index", None, index), encoding="utf-8")
+    return output / "index.html"
+
+
+def _env_boxes(trajectories: pd.DataFrame, margin: float) -> dict[str, tuple]:
+    box = trajectories.groupby("env")[["x", "y"]].agg(["min", "max"])
+    return {str(env): (r[("x", "min")] - margin, r[("y", "min")] - margin,
+                       r[("x", "max")] + margin, r[("y", "max")] + margin)
+            for env, r in box.iterrows()}
+
+
+def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
+                     episodes: pd.DataFrame, trajectories: pd.DataFrame, *,
+                     segments: pd.DataFrame | None = None, roads: pd.DataFrame | None = None,
+                     novel_labels: pd.DataFrame | None = None) -> Path:
+    """Write the replay viewer of a run (``bench run``, ``demo``).
+
+    Args:
+        output: the viewer folder (``<run>/viewer``).
+        summary: the run's ``summary.json`` content (level, thresholds, suite, reference).
+        episodes: the episode table.
+        trajectories: the run's trajectory table.
+        segments: the segment table (label timelines); None labels the egos again with the
+            run's thresholds (runs written before ``segments.parquet`` existed).
+        roads: the map table of the envs' roads; None builds each env's road again from
+            the suite.
+        novel_labels: the run's ``novel_labels`` table (marks novel episodes).
+
+    Returns:
+        the path of the viewer's ``index.html``.
+    """
+    level = str(summary.get("level", "maneuver"))
+    if segments is None:
+        segments = _ego_segments(trajectories, summary.get("thresholds", "paper"), level)
+    if "level" in segments.columns:
+        segments = segments[segments["level"] == level]
+    if roads is None:
+        roads = _rebuild_roads(summary, sorted(trajectories["env"].unique()))
+    have = set(trajectories["scenario_id"].astype(str).unique())
+    eps, entries = episode_index(episodes, novel_labels=novel_labels, has_replay=have)
+    chunks = episode_chunks(trajectories, eps, segments)
+    boxes = _env_boxes(trajectories, MAP_MARGIN) if "env" in trajectories.columns else {}
+    maps = {str(env): map_features(sub, boxes.get(str(env)))
+            for env, sub in roads.groupby("map_id", sort=True)}
+    for entry in entries:
+        entry["map"] = entry["env"] if entry["env"] in maps else None
+    suite = summary.get("suite", {})
+    index = {"run": {"name": str(summary.get("run", Path(output).parent.name)),
+                     "suite": str(suite.get("name", "")), "level": level,
+                     "reference": str(summary.get("reference_policy", "")),
+                     "source": "highway-env", "created": str(summary.get("created", ""))},
+             "episodes": entries, "maps": maps}
+    return write_viewer(output, index, chunks)
+
+
+def _ego_segments(trajectories: pd.DataFrame, thresholds: Any, level: str) -> pd.DataFrame:
+    """The egos' segment table at ``level`` (for run folders written before
+    ``segments.parquet`` existed)."""
+    if isinstance(thresholds, dict):
+        thresholds = Thresholds.from_dict(thresholds, source="summary.json thresholds")
+    ego = trajectories[trajectories["is_ego"].fillna(False).to_numpy(bool)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return tap(ego, thresholds, source="run trajectories").segments(level)
+
+
+def _rebuild_roads(summary: dict[str, Any], envs: Sequence[str]) -> pd.DataFrame:
+    suite = suite_from_dict(summary.get("suite", {}), source="summary.json")
+    frames = [road_table(suite.scenario(env)) for env in envs if env in suite.envs]
+    return pd.concat(frames, ignore_index=True) if frames else empty_map()
+
+
+def write_womd_viewer(paths: Sequence[str | os.PathLike], output: str | os.PathLike, *,
+                      thresholds: Any = "paper", level: str = "maneuver") -> Path:
+    """Write the replay viewer of WOMD files: every scenario with its map and the label
+    timelines of every vehicle (the self-driving car is the ego).
+
+    Args:
+        paths: WOMD files (Scenario TFRecords, tf.Example TFRecords, ScenarioNet pickles).
+        output: the viewer folder.
+        thresholds: TAP thresholds (preset name, path or :class:`Thresholds`).
+        level: the SDL level of the timelines.
+
+    Returns:
+        the path of the viewer's ``index.html``.
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        traj = read_womd([str(p) for p in paths])
+        result = tap(traj, thresholds, source="WOMD")
+    sids = list(dict.fromkeys(traj["scenario_id"].astype(str)))
+    seed_of = {sid: i for i, sid in enumerate(sids)}
+    traj = traj.assign(env="WOMD", policy="logged",
+                       seed=traj["scenario_id"].astype(str).map(seed_of).astype("int64"))
+    labels = result.labels("all").assign(env="WOMD", policy="logged")
+    labels["seed"] = labels["scenario_id"].astype(str).map(seed_of).astype("int64")
+    episodes = episode_table(labels=labels, trajectories=traj, level=level,
+                             source="WOMD files")
+    segments = result.segments(level)
+    eps, entries = episode_index(episodes, chunk_by=("scenario_id",), has_replay=sids)
+    chunks = episode_chunks(traj, eps, segments, labelled_tracks="all")
+    maps = read_maps(paths)
+    by_map = dict(tuple(maps.groupby("map_id", sort=False))) if len(maps) else {}
+    for docs in chunks.values():
+        for doc in docs:
+            sub = by_map.get(doc["id"])
+            doc["map"] = map_features(sub) if sub is not None else []
+    for entry in entries:
+        entry["map"] = None  # carried by the episode itself
+    index = {"run": {"name": ", ".join(Path(p).name for p in paths), "suite": "WOMD",
+                     "level": level, "reference": "", "source": "WOMD", "created": ""},
+             "episodes": entries, "maps": {}}
+    return write_viewer(output, index, chunks)

@@ -1,0 +1,600 @@
+"""Where work runs: one execution layer for every parallel job of tap-bench.
+
+A backend maps a function over work items (episodes, shards, batches of records) and gives
+one :class:`Outcome` per item, in the items' order: :meth:`Backend.map` as a list,
+:meth:`Backend.imap` as a bounded stream (at most ``window`` items submitted beyond the one
+the caller is waiting for, so memory stays flat however many items there are).
+
+**The recovery rule**, the same on every backend: an item whose function raises, or whose
+worker process dies, is tried again ``retries`` times (default once); an item that still
+fails comes back as a failed outcome with its error, and every other item is kept. A dead
+worker costs only the item it was running: each worker runs one item at a time, so the one
+that killed it is known, and a fresh worker takes its place.
+
+- :class:`LocalBackend`: this process (``workers=1``) or a pool of worker processes. Workers
+  are fresh interpreters running :func:`_worker_main` (not ``multiprocessing``): they never
+  re-import the caller's script, so the API works from a plain script without an
+  ``if __name__ == "__main__":`` guard; a worker whose parent dies (even by SIGKILL) is sent
+  SIGTERM by the kernel (Linux) or sees its input close, and exits, leaving no orphan. No
+  semaphore, shared memory or resource-tracker process is involved.
+- :class:`RayBackend`: Ray tasks on a running cluster (``address="auto"``) or on a local
+  cluster it starts. Ray is optional (``pip install 'tap-bench[ray]'``) and imported only
+  when a :class:`RayBackend` is made.
+
+Functions and items must be picklable by reference (module-level functions, dataclasses),
+since both backends run them in other processes.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import selectors
+import signal
+import struct
+import subprocess
+import sys
+import time
+import traceback
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import IO, Any, Generic, Protocol, TypeVar, runtime_checkable
+
+from tap_bench.errors import ParameterError, TapBenchError, did_you_mean
+
+__all__ = ["BACKENDS", "DEFAULT_RETRIES", "Backend", "LocalBackend", "Outcome", "RayBackend",
+           "add_backend_arguments", "backend_from_args", "check_workers", "close_backend",
+           "describe_error", "make_backend"]
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+BACKENDS = ("local", "ray")
+DEFAULT_RETRIES = 1
+"""Retries of a failed item after its first attempt: a dead worker or an error is tried once
+more, then reported."""
+DEFAULT_OBJECT_STORE_BYTES = 256 << 20
+"""Object store of a local Ray cluster started here [B]: results are small summaries and
+tables of one shard, and /dev/shm is small on many machines."""
+WORKER_THREADS_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+                      "OPENBLAS_NUM_THREADS": "1", "OMP_WAIT_POLICY": "PASSIVE"}
+"""Environment of a worker process: one BLAS/OpenMP thread each (the workers are the
+parallelism), and OpenMP threads that sleep rather than spin while they wait."""
+
+
+@dataclass(frozen=True)
+class Outcome(Generic[R]):
+    """The result of one work item.
+
+    Attributes:
+        item: index of the item in the mapped sequence.
+        value: what the function returned (None when it failed).
+        error: the last error, one line, or "" when it succeeded.
+        attempts: attempts made (1 when it succeeded first time).
+        seconds: wall time of the successful attempt, measured in the worker [s] (NaN when
+            failed).
+        cpu_seconds: CPU time of the worker process (all its threads) over that attempt [s]
+            (NaN when failed); with ``seconds``, how much of a core the task got.
+    """
+
+    item: int
+    value: R | None
+    error: str = ""
+    attempts: int = 1
+    seconds: float = float("nan")
+    cpu_seconds: float = float("nan")
+
+    @property
+    def ok(self) -> bool:
+        return not self.error
+
+
+@runtime_checkable
+class Backend(Protocol):
+    """Maps a function over work items under the recovery rule (module docstring)."""
+
+    name: str
+
+    @property
+    def workers(self) -> int:
+        """Processes (CPUs) the work is spread over."""
+
+    def imap(self, fn: Callable[[T], R], items: Iterable[T], *,
+             retries: int = DEFAULT_RETRIES, window: int | None = None, desc: str = "",
+             unit: str = "item", progress: bool | None = None, total: int | None = None
+             ) -> Iterator[Outcome[R]]:
+        """``fn(item)`` for each item, yielded in the items' order, at most ``window``
+        items in flight (None: twice the workers)."""
+
+    def map(self, fn: Callable[[T], R], items: Sequence[T], *,
+            retries: int = DEFAULT_RETRIES, desc: str = "", unit: str = "item",
+            progress: bool | None = None) -> list[Outcome[R]]:
+        """``fn(item)`` for each item; one :class:`Outcome` per item, in order."""
+
+
+def describe_error(err: BaseException) -> str:
+    """One line naming an exception: its type and message."""
+    text = "".join(traceback.format_exception_only(type(err), err)).strip()
+    return text.splitlines()[-1] if text else type(err).__name__
+
+
+def _timed(fn: Callable[[T], R], item: T) -> tuple[R, float, float]:
+    """``fn(item)``, its wall time and the CPU time of this process meanwhile [s]."""
+    start, cpu = time.perf_counter(), time.process_time()
+    value = fn(item)
+    return value, time.perf_counter() - start, time.process_time() - cpu
+
+
+def check_workers(workers: Any, name: str = "workers") -> int:
+    """``workers`` as a positive int, or a :class:`ParameterError` naming it."""
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ParameterError(name, workers, "a positive integer (processes)")
+    return workers
+
+
+def _check_retries(retries: Any) -> int:
+    if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+        raise ParameterError("retries", retries, "an integer >= 0")
+    return retries
+
+
+def _bar(total: int | None, desc: str, unit: str, progress: bool | None) -> Any:
+    from tqdm.auto import tqdm  # a progress bar only where one is drawn
+
+    return tqdm(total=total, desc=desc or None, unit=unit,
+                disable=None if progress is None else not progress)
+
+
+class _Attempts:
+    """Bookkeeping of the recovery rule: attempts per item and the outcome once settled."""
+
+    def __init__(self, retries: int):
+        self.retries = retries
+        self.count: dict[int, int] = {}
+
+    def settle(self, i: int, result: tuple[Any, float, float] | None, error: str
+               ) -> Outcome | None:
+        """Record an attempt of item ``i``: its outcome, or None when it is to be retried."""
+        self.count[i] = self.count.get(i, 0) + 1
+        if result is not None:
+            value, seconds, cpu = result
+            return Outcome(i, value, "", self.count[i], seconds, cpu)
+        if self.count[i] > self.retries:
+            return Outcome(i, None, error, self.count[i])
+        return None
+
+
+def _numbered(items: Iterable[T]) -> Iterator[tuple[int, T]]:
+    return enumerate(items)
+
+
+# -- local processes ---------------------------------------------------------------------
+_HEADER = struct.Struct("<Q")
+
+
+def _send(stream: IO[bytes], obj: Any) -> None:
+    data = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+    stream.write(_HEADER.pack(len(data)))
+    stream.write(data)
+    stream.flush()
+
+
+def _receive(stream: IO[bytes]) -> Any:
+    """The next message, or raise EOFError when the other side has gone."""
+    header = stream.read(_HEADER.size)
+    if len(header) < _HEADER.size:
+        raise EOFError
+    size = _HEADER.unpack(header)[0]
+    data = stream.read(size)
+    if len(data) < size:
+        raise EOFError
+    return pickle.loads(data)
+
+
+class _Worker:
+    """One worker process and the item it runs (None when idle)."""
+
+    def __init__(self) -> None:
+        env = {**os.environ, **WORKER_THREADS_ENV}
+        env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)
+        # Interrupts are the parent's to handle: a worker ignores the terminal's SIGINT and
+        # ends when the parent closes its input or terminates it.
+        self.process = subprocess.Popen(
+            [sys.executable, "-c", "from tap_bench.execution import _worker_main; "
+             "_worker_main()"], stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE, env=env, cwd=os.getcwd(),
+            preexec_fn=_worker_preexec if os.name == "posix" else None)
+        self.running: int | None = None
+
+    def submit(self, i: int, fn: Callable, item: Any) -> None:
+        self.running = i
+        _send(self.process.stdin, (fn, item))  # type: ignore[arg-type]
+
+    def close(self, timeout: float = 2.0) -> None:
+        """Stop the worker: close its input, then terminate and kill if it lingers."""
+        process = self.process
+        for stream in (process.stdin, process.stdout):
+            try:
+                stream.close()  # type: ignore[union-attr]
+            except OSError:
+                pass
+        try:
+            process.wait(timeout=timeout if self.running is None else 0.05)
+        except subprocess.TimeoutExpired:
+            process.terminate()
+            try:
+                process.wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+
+
+def _worker_preexec() -> None:
+    """In the new worker, before Python starts: ignore the terminal's SIGINT, and on Linux
+    ask the kernel for SIGTERM when the parent dies, so that a worker busy with a long item
+    does not outlive a parent killed by SIGKILL."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass  # the closed input still ends an idle worker
+
+
+def _worker_main() -> None:
+    """The loop of a worker process: read (fn, item), reply with the timed result."""
+    import warnings
+
+    # The protocol owns the original stdout; what the work prints goes to stderr.
+    output = os.fdopen(os.dup(sys.stdout.fileno()), "wb")
+    os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
+    source = sys.stdin.buffer
+    warnings.simplefilter("ignore")  # the parent reports failures; workers stay quiet
+    while True:
+        try:
+            fn, item = _receive(source)
+        except EOFError:
+            return  # the parent closed our input (or died): nothing is left to do
+        except Exception as err:  # an item that cannot be unpickled here
+            _send(output, ("error", f"cannot load the task in the worker: "
+                                    f"{describe_error(err)}"))
+            continue
+        try:
+            reply: tuple = ("ok", _timed(fn, item))
+        except Exception as err:
+            reply = ("error", describe_error(err))
+        try:
+            _send(output, reply)
+        except (pickle.PicklingError, TypeError, AttributeError) as err:
+            _send(output, ("error", f"the result cannot be sent back: {describe_error(err)}"))
+
+
+@dataclass
+class LocalBackend:
+    """Work in this process (``workers=1``) or in a pool of ``workers`` worker processes.
+
+    Workers start once per :meth:`imap` / :meth:`map` call and are reused for its items, so
+    per-process caches (an env, a policy) pay off across items; each runs one item at a
+    time. Workers are stopped when the call ends, also on an exception, Ctrl-C or SIGTERM
+    (the command line turns SIGTERM into an interrupt).
+    """
+
+    processes: int = 1
+    name: str = field(default="local", init=False)
+
+    def __post_init__(self) -> None:
+        check_workers(self.processes)
+
+    @property
+    def workers(self) -> int:
+        return self.processes
+
+    def map(self, fn: Callable[[T], R], items: Sequence[T], *,
+            retries: int = DEFAULT_RETRIES, desc: str = "", unit: str = "item",
+            progress: bool | None = None) -> list[Outcome[R]]:
+        return list(self.imap(fn, items, retries=retries, window=len(items) or 1, desc=desc,
+                              unit=unit, progress=progress, total=len(items)))
+
+    def imap(self, fn: Callable[[T], R], items: Iterable[T], *,
+             retries: int = DEFAULT_RETRIES, window: int | None = None, desc: str = "",
+             unit: str = "item", progress: bool | None = None, total: int | None = None
+             ) -> Iterator[Outcome[R]]:
+        retries = _check_retries(retries)
+        if total is None and isinstance(items, Sequence):
+            total = len(items)
+        with _bar(total, desc, unit, progress) as bar:
+            if self.processes == 1:
+                yield from self._inline(fn, items, retries, bar)
+            else:
+                yield from self._pool(fn, items, retries, window or 2 * self.processes, bar)
+
+    @staticmethod
+    def _inline(fn, items, retries, bar) -> Iterator[Outcome]:
+        attempts = _Attempts(retries)
+        for i, item in _numbered(items):
+            outcome = None
+            while outcome is None:
+                try:
+                    result, error = _timed(fn, item), ""
+                except Exception as err:  # one failing item must not end the run
+                    result, error = None, describe_error(err)
+                outcome = attempts.settle(i, result, error)
+            bar.update(1)
+            yield outcome
+
+    def _pool(self, fn, items, retries, window, bar) -> Iterator[Outcome]:
+        attempts = _Attempts(retries)
+        source = _numbered(items)
+        waiting: deque[int] = deque()  # items to (re)submit, first come first served
+        held: dict[int, Any] = {}  # items submitted or waiting, by index
+        done: dict[int, Outcome] = {}  # finished but not yet yielded (order)
+        next_out = 0
+        exhausted = False
+        workers: list[_Worker] = []
+        selector = selectors.DefaultSelector()
+        try:
+            while True:
+                # keep the window full: items read from the source only as room frees up
+                while not exhausted and len(held) + len(done) < window + 1:
+                    try:
+                        i, item = next(source)
+                    except StopIteration:
+                        exhausted = True
+                        break
+                    held[i] = item
+                    waiting.append(i)
+                while waiting:
+                    worker = next((w for w in workers if w.running is None), None)
+                    if worker is None and len(workers) < self.processes:
+                        worker = _Worker()
+                        workers.append(worker)
+                        selector.register(worker.process.stdout, selectors.EVENT_READ, worker)
+                    if worker is None:
+                        break
+                    i = waiting.popleft()
+                    try:
+                        worker.submit(i, fn, held[i])
+                    except (BrokenPipeError, OSError):
+                        waiting.appendleft(i)  # the worker died idle: replace it
+                        worker.running = None
+                        self._retire(worker, workers, selector)
+                    except (pickle.PicklingError, TypeError, AttributeError) as err:
+                        worker.running = None
+                        done[i] = Outcome(i, None, f"the task cannot be sent to a worker: "
+                                          f"{describe_error(err)}", 1)
+                        del held[i]
+                        bar.update(1)
+                while next_out in done:
+                    yield done.pop(next_out)
+                    next_out += 1
+                if exhausted and not held and not done:
+                    return
+                if not any(w.running is not None for w in workers):
+                    continue
+                for key, _ in selector.select():
+                    worker = key.data
+                    i = worker.running
+                    try:
+                        status, payload = _receive(worker.process.stdout)
+                    except (EOFError, OSError, pickle.UnpicklingError):
+                        code = worker.process.poll()
+                        worker.running = None
+                        self._retire(worker, workers, selector)
+                        outcome = attempts.settle(
+                            i, None, "the worker process died while running it"
+                            + (f" (exit code {code})" if code is not None else ""))
+                    else:
+                        worker.running = None
+                        if status == "ok":
+                            outcome = attempts.settle(i, payload, "")
+                        else:
+                            outcome = attempts.settle(i, None, payload)
+                    if outcome is None:
+                        waiting.append(i)
+                    else:
+                        del held[i]
+                        done[i] = outcome
+                        bar.update(1)
+        finally:
+            for worker in workers:
+                worker.close()
+            selector.close()
+
+    @staticmethod
+    def _retire(worker: _Worker, workers: list[_Worker], selector: Any) -> None:
+        try:
+            selector.unregister(worker.process.stdout)
+        except (KeyError, ValueError):
+            pass
+        worker.close(timeout=0.5)
+        workers.remove(worker)
+
+
+# -- Ray ------------------------------------------------------------------------------------
+@dataclass
+class RayBackend:
+    """Ray tasks, one per item, on a running cluster or on a local one started here.
+
+    Args:
+        address: a running cluster (``"auto"``, ``"ray://head:10001"``, ``"10.0.0.1:6379"``);
+            None starts a local cluster (or uses the one this process already joined).
+        num_cpus: CPUs of a local cluster started here (None: all of this machine's).
+        object_store_memory: object store of a local cluster started here [B].
+        in_flight: items submitted at once (None: twice the cluster's CPUs).
+
+    A worker that dies, or a function that raises, is resubmitted from here, so both count
+    as attempts under the recovery rule.
+    """
+
+    address: str | None = None
+    num_cpus: int | None = None
+    object_store_memory: int = DEFAULT_OBJECT_STORE_BYTES
+    in_flight: int | None = None
+    name: str = field(default="ray", init=False)
+    started: bool = field(default=False, init=False)
+
+    def __post_init__(self) -> None:
+        try:
+            import ray  # optional: only a RayBackend needs it
+        except ImportError as err:
+            raise TapBenchError("the ray backend needs Ray: pip install 'tap-bench[ray]' "
+                                "(or pip install 'ray[data]>=2.9').") from err
+        if not ray.is_initialized():
+            kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
+            if self.address is None:
+                kwargs.update(num_cpus=self.num_cpus,
+                              object_store_memory=self.object_store_memory)
+            try:
+                ray.init(address=self.address, **kwargs)
+            except ConnectionError as err:
+                raise TapBenchError(
+                    f"cannot join the Ray cluster at --address {self.address!r}: {err}. "
+                    "Start one with 'ray start --head', or leave out --address to start a "
+                    "local cluster.") from err
+            self.started = True
+
+    @property
+    def workers(self) -> int:
+        import ray
+
+        return max(1, int(ray.cluster_resources().get("CPU", 1)))
+
+    def shutdown(self) -> None:
+        """Leave the cluster (and stop it, when it was started here)."""
+        import ray
+
+        if self.started:
+            ray.shutdown()
+            self.started = False
+
+    def map(self, fn: Callable[[T], R], items: Sequence[T], *,
+            retries: int = DEFAULT_RETRIES, desc: str = "", unit: str = "item",
+            progress: bool | None = None) -> list[Outcome[R]]:
+        return list(self.imap(fn, items, retries=retries, desc=desc, unit=unit,
+                              progress=progress, total=len(items)))
+
+    def imap(self, fn: Callable[[T], R], items: Iterable[T], *,
+             retries: int = DEFAULT_RETRIES, window: int | None = None, desc: str = "",
+             unit: str = "item", progress: bool | None = None, total: int | None = None
+             ) -> Iterator[Outcome[R]]:
+        import ray
+        from ray.exceptions import RayError, RayTaskError
+
+        retries = _check_retries(retries)
+        if total is None and isinstance(items, Sequence):
+            total = len(items)
+        task = ray.remote(_timed).options(max_retries=0, num_cpus=1)
+        fn_ref = ray.put(fn)
+        limit = window or self.in_flight or 2 * self.workers
+        attempts = _Attempts(retries)
+        source = _numbered(items)
+        held: dict[int, Any] = {}
+        done: dict[int, Outcome] = {}
+        running: dict[Any, int] = {}
+        waiting: deque[int] = deque()
+        next_out, exhausted = 0, False
+        with _bar(total, desc, unit, progress) as bar:
+            while True:
+                while not exhausted and len(held) + len(done) < limit + 1:
+                    try:
+                        i, item = next(source)
+                    except StopIteration:
+                        exhausted = True
+                        break
+                    held[i] = item
+                    waiting.append(i)
+                while waiting:
+                    i = waiting.popleft()
+                    running[task.remote(fn_ref, held[i])] = i
+                while next_out in done:
+                    yield done.pop(next_out)
+                    next_out += 1
+                if exhausted and not held and not done:
+                    return
+                if not running:
+                    continue
+                ready, _ = ray.wait(list(running), num_returns=1)
+                for ref in ready:
+                    i = running.pop(ref)
+                    try:
+                        result, error = ray.get(ref), ""
+                    except RayTaskError as err:
+                        result, error = None, describe_error(err.as_instanceof_cause())
+                    except RayError as err:  # its worker or node died
+                        result, error = None, (f"{type(err).__name__}: the worker process "
+                                               "died while running it")
+                    outcome = attempts.settle(i, result, error)
+                    if outcome is None:
+                        waiting.append(i)
+                    else:
+                        del held[i]
+                        done[i] = outcome
+                        bar.update(1)
+
+
+def make_backend(name: str = "local", *, workers: int | None = None,
+                 address: str | None = None) -> LocalBackend | RayBackend:
+    """The backend a command line or a caller asked for.
+
+    Args:
+        name: ``"local"`` or ``"ray"``.
+        workers: local processes, or the CPUs of a local Ray cluster started here (None:
+            1 locally, all CPUs for Ray).
+        address: the Ray cluster to join (``"auto"``, ``"ray://head:10001"``); only with
+            ``name="ray"``.
+    """
+    if name not in BACKENDS:
+        raise did_you_mean("backend", name, BACKENDS)
+    if workers is not None:
+        check_workers(workers)
+    if name == "local":
+        if address is not None:
+            raise TapBenchError("--address joins a Ray cluster; use it with --backend ray.")
+        return LocalBackend(workers or 1)
+    return RayBackend(address=address, num_cpus=workers if address is None else None)
+
+
+def resolve_backend(backend: Backend | None, workers: int) -> Backend:
+    """``backend`` when given, else a :class:`LocalBackend` of ``workers`` processes."""
+    return backend if backend is not None else LocalBackend(check_workers(workers))
+
+
+# -- command line -------------------------------------------------------------------------
+def add_backend_arguments(parser: Any, *, shards: bool = True) -> None:
+    """Add ``--backend``, ``--address``, ``--retries`` (and ``--resume``) to a sub-command."""
+    parser.add_argument("--backend", default="local", choices=BACKENDS,
+                        help="where the work runs: local (default) or ray (joins --address, "
+                        "or starts a local Ray cluster; pip install 'tap-bench[ray]')")
+    parser.add_argument("--address", default=None,
+                        help="the Ray cluster to join: 'auto' (the one 'ray start' made on "
+                        "this node), 'ray://head:10001' or 'head:6379' (default: start a "
+                        "local cluster)")
+    parser.add_argument("--retries", type=int, default=DEFAULT_RETRIES,
+                        help=f"retries of a failed task (an error, or a worker that died) "
+                        f"before it is reported (default {DEFAULT_RETRIES})")
+    if shards:
+        parser.add_argument("--resume", action="store_true",
+                            help="with a directory output: keep the parts already written "
+                            "and do the missing ones")
+
+
+def backend_from_args(args: Any, workers: int | None = None) -> LocalBackend | RayBackend:
+    """The backend that ``--backend`` and ``--address`` ask for (``workers``: local
+    processes, or the CPUs of a local Ray cluster started here)."""
+    _check_retries_arg(args.retries)
+    return make_backend(args.backend, workers=workers, address=args.address)
+
+
+def _check_retries_arg(retries: Any) -> None:
+    if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+        raise ParameterError("--retries", retries, "an integer >= 0")
+
+
+def close_backend(backend: Backend | None) -> None:
+    """Stop a local Ray cluster that :func:`backend_from_args` started."""
+    if isinstance(backend, RayBackend):
+        backend.shutdown()
+

@@ -1,0 +1,61 @@
+"""Bad parameters on the command line end in one message and exit 2, never a traceback."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from tap_bench.cli import main
+from tap_bench.errors import ParameterError
+
+
+@pytest.mark.parametrize(("argv", "names"), [
+    (["rollout", "--env", "merge", "--policy", "idm", "--seeds", "9-3", "-o", "{o}"],
+     "runs backwards"),
+    (["rollout", "--env", "merge", "--policy", "idm", "--seeds", "0", "--workers", "0",
+      "-o", "{o}"], "workers"),
+    (["rollout", "--env", "merge", "--policy", "idm", "--seeds", "0", "--duration", "nan",
+      "-o", "{o}"], "duration"),
+    (["rollout", "--env", "merge", "--policy", "idm", "--seeds", "0", "--retries", "-1",
+      "-o", "{o}"], "--retries"),
+    (["train", "--env", "highway", "--algo", "dqn", "--timesteps", "-5", "-o", "{o}.zip"],
+     "timesteps"),
+])
+def test_bad_values_are_messages_with_exit_2(argv, names, tmp_path, capsys):
+    argv = [a.replace("{o}", str(tmp_path / "out.parquet")) for a in argv]
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert names in err and "Traceback" not in err
+
+
+def test_compare_with_zero_resamples(tmp_path, capsys):
+    from tap_bench.sim.rollout import rollout
+    from tap_bench.tableio import write_table
+
+    a, _ = rollout("merge", "idm", [0], duration=2, progress=False)
+    write_table(a, tmp_path / "a.parquet")
+    code = main(["compare", str(tmp_path / "a.parquet"), str(tmp_path / "a.parquet"),
+                 "--resamples", "0", "-o", str(tmp_path / "cmp")])
+    err = capsys.readouterr().err
+    assert code == 2 and "n_resamples" in err
+
+
+def test_a_suite_with_a_bad_version_is_named(tmp_path, capsys):
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps({"name": "s", "version": "abc", "envs": ["merge"],
+                                "policies": ["idm"], "seeds": "0-1"}))
+    code = main(["bench", "run", "--suite", str(path), "-o", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert code == 2 and "version" in err and "'abc'" in err
+
+
+def test_parameter_error_names_parameter_value_and_what_is_allowed():
+    err = ParameterError("workers", 0, "a positive integer")
+    assert str(err) == "workers must be a positive integer, got 0."
+    assert isinstance(err, ValueError)
+    import pickle
+
+    again = pickle.loads(pickle.dumps(err))
+    assert str(again) == str(err) and again.parameter == "workers"

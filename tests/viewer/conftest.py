@@ -1,0 +1,102 @@
+"""Fixtures of the viewer and report tests: a short real run (rollouts, labels, scores,
+report and viewer), the real WOMD samples, and a headless Chromium driven by Selenium.
+
+Screenshots go to ``$TAP_BENCH_SCREENSHOTS`` (default ``<tmp>/tap-bench-screenshots``) for a
+person to look at.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+import warnings
+from pathlib import Path
+
+import pytest
+
+PROJECT_ROOT = Path(__file__).resolve().parents[2]
+WOMD_DIR = (PROJECT_ROOT / ".." / "shared" / "data" / "womd").resolve()
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+CHROMEDRIVER = shutil.which("chromedriver")
+BROWSER_FLAGS = ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                 "--no-first-run", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync", "--window-size=1400,1000")
+
+TINY_SUITE = {
+    "name": "tiny", "version": 0,
+    "description": "two envs x two policies x three seeds, 6 s episodes: fast browser tests",
+    "envs": ["highway", "roundabout"], "policies": ["idm", "random"], "seeds": "0-2",
+    "reference_policy": "idm", "level": "maneuver", "thresholds": "paper",
+    "env_overrides": {"highway": {"duration": 6, "config": {"vehicles_count": 8}},
+                      "roundabout": {"duration": 6}},
+    "bootstrap": {"n_resamples": 200, "level": 0.95, "seed": 0},
+}
+
+
+@pytest.fixture(scope="session")
+def tiny_run(tmp_path_factory) -> Path:
+    """A finished run folder of :data:`TINY_SUITE` (report and viewer included)."""
+    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.suite import suite_from_dict
+
+    suite = suite_from_dict(TINY_SUITE, source="TINY_SUITE")
+    folder = tmp_path_factory.mktemp("viewer") / "tiny"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return run_suite(suite, folder, workers=1, progress=False).folder
+
+
+@pytest.fixture
+def womd_dir() -> Path:
+    """The folder of real WOMD samples (``../shared/data/womd``); skips when absent."""
+    if not (WOMD_DIR / "motion_data_one_scenario.tfrecord").is_file():
+        pytest.skip(f"real WOMD samples not found in {WOMD_DIR}")
+    return WOMD_DIR
+
+
+@pytest.fixture(scope="session")
+def screenshots() -> Path:
+    """Where the browser tests write their screenshots."""
+    folder = Path(os.environ.get("TAP_BENCH_SCREENSHOTS",
+                                 Path(tempfile.gettempdir()) / "tap-bench-screenshots"))
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+@pytest.fixture(scope="session")
+def browser(tmp_path_factory):
+    """Headless Chromium (Debian's chromium and chromium-driver) with its console log."""
+    if not (CHROMIUM and CHROMEDRIVER):
+        pytest.skip("needs Debian's chromium and chromium-driver (apt-get install chromium "
+                    "chromium-driver; .ci/run installs them)")
+    webdriver = pytest.importorskip("selenium.webdriver")
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    for flag in (*BROWSER_FLAGS, f"--user-data-dir={tmp_path_factory.mktemp('profile')}"):
+        options.add_argument(flag)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+    driver.set_script_timeout(20)
+    try:
+        yield driver
+    finally:
+        driver.quit()
+
+
+def console_errors(driver) -> list[str]:
+    """The browser console's errors since the last call (SEVERE entries)."""
+    return [e["message"] for e in driver.get_log("browser") if e["level"] == "SEVERE"]
+
+
+def open_page(driver, path: Path, fragment: str = "") -> None:
+    """Load a page from disk and wait until the viewer (if any) has opened its episode."""
+    driver.get(path.resolve().as_uri() + fragment)
+    driver.execute_async_script(
+        "const done = arguments[arguments.length - 1];"
+        "const wait = () => (typeof TAPVIEW === 'undefined') ? done(null) :"
+        "  TAPVIEW.state.ready ? TAPVIEW.state.ready.then(() => done(true), e => done(String(e)))"
+        "  : setTimeout(wait, 20);"
+        "wait();")

@@ -1,0 +1,148 @@
+"""The replay viewer used as a person would, in headless Chromium: it loads without console
+errors, playback moves the time and the label timeline, A and B stay on one clock, filters
+narrow the list, and WOMD scenarios show their map and labels. Each test writes a screenshot.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pandas as pd
+import pytest
+
+from .conftest import console_errors, open_page
+
+
+def _state(driver, expr: str):
+    return driver.execute_script(f"return {expr};")
+
+
+def _paired_seed(run) -> tuple[str, str]:
+    """(A's scenario id, B's policy): random against idm on the first highway seed."""
+    eps = pd.read_parquet(run / "episodes.parquet")
+    a = eps[(eps["env"] == "highway") & (eps["policy"] == "random")].iloc[0]
+    return a["scenario_id"], "idm"
+
+
+def test_viewer_loads_without_console_errors(tiny_run, browser, screenshots):
+    page = tiny_run / "viewer" / "index.html"
+    open_page(browser, page)
+    assert console_errors(browser) == []
+    eps = pd.read_parquet(tiny_run / "episodes.parquet")
+    items = _state(browser, "document.querySelectorAll('#episode-list li').length")
+    assert items == len(eps)
+    assert _state(browser, "TAPVIEW.state.a.doc.id") == eps["scenario_id"].iloc[0]
+    # the road is drawn: the map of the env has lanes
+    assert _state(browser, "TAPVIEW.state.index.maps.highway.length") > 0
+    browser.save_screenshot(str(screenshots / "viewer-first-episode.png"))
+
+
+def test_playback_advances_time_and_the_label_timeline(tiny_run, browser, screenshots):
+    sid, b = _paired_seed(tiny_run)
+    open_page(browser, tiny_run / "viewer" / "index.html", f"#ep={sid}&b={b}&t=0")
+    x0 = float(_state(browser, "TAPVIEW.state.a.view.timeline.playhead.getAttribute('x1')"))
+    browser.find_element("id", "speed").send_keys("4")  # 4x
+    browser.find_element("id", "play").click()
+    time.sleep(0.8)
+    browser.find_element("id", "play").click()  # pause
+    t = _state(browser, "TAPVIEW.state.t")
+    assert t > 0.5  # 0.8 s at 4x, minus start-up
+    x1 = float(_state(browser, "TAPVIEW.state.a.view.timeline.playhead.getAttribute('x1')"))
+    assert x1 > x0
+    shown = browser.find_element("id", "time").text
+    assert shown.startswith(f"t = {t:.1f} s")
+    # the readout names the labels under the playhead, as the data has them
+    runs = _state(browser, "TAPVIEW.state.a.doc.labels[TAPVIEW.state.a.ego.id]")
+    lat = next(r[2] for r in runs["lateral"] if r[0] <= min(t, 5.9) < r[1])
+    now = browser.find_element("css selector", "#pane-a .now").text
+    assert now.startswith(f"now: {lat}")
+    browser.save_screenshot(str(screenshots / "viewer-playing.png"))
+    # stepping moves by one 0.1 s step
+    browser.find_element("id", "step-fwd").click()
+    assert _state(browser, "TAPVIEW.state.t") == pytest.approx(round(t * 10 + 1) / 10)
+    assert console_errors(browser) == []
+
+
+def test_a_and_b_stay_in_sync(tiny_run, browser, screenshots):
+    sid, b = _paired_seed(tiny_run)
+    open_page(browser, tiny_run / "viewer" / "index.html", f"#ep={sid}&b={b}&t=0")
+    a_entry = _state(browser, "TAPVIEW.state.a.entry")
+    b_entry = _state(browser, "TAPVIEW.state.b.entry")
+    assert (a_entry["policy"], b_entry["policy"]) == ("random", "idm")
+    assert (a_entry["env"], a_entry["seed"]) == (b_entry["env"], b_entry["seed"])
+    for target in (1.7, 3.2):
+        browser.execute_script(f"TAPVIEW.seek({target});")
+        heads = _state(browser, "[TAPVIEW.state.a, TAPVIEW.state.b].map(e => "
+                                "[e.view.timeline.playhead.getAttribute('x1'), "
+                                "e.view.chart.playhead.getAttribute('x1')])")
+        assert heads[0] == heads[1]  # one clock, one time axis
+        # both panes draw the same instant: the canvases say so
+        stamps = _state(browser, "Array.from(document.querySelectorAll('#panes .now'))"
+                                 ".map(p => p.textContent)")
+        assert len(stamps) == 2 and all(s.startswith("now: ") for s in stamps)
+    browser.find_element("id", "play").click()
+    time.sleep(0.5)
+    browser.find_element("id", "play").click()
+    heads = _state(browser, "[TAPVIEW.state.a, TAPVIEW.state.b].map(e => "
+                            "e.view.timeline.playhead.getAttribute('x1'))")
+    assert heads[0] == heads[1]
+    browser.save_screenshot(str(screenshots / "viewer-side-by-side.png"))
+    # the hash names the replay, so the address opens it again
+    assert f"ep={sid.replace('/', '%2F')}" in browser.current_url
+    assert console_errors(browser) == []
+
+
+def test_filters_narrow_the_list(tiny_run, browser, screenshots):
+    from selenium.webdriver.support.ui import Select
+
+    open_page(browser, tiny_run / "viewer" / "index.html")
+    eps = pd.read_parquet(tiny_run / "episodes.parquet")
+
+    def listed() -> list[str]:
+        return _state(browser, "Array.from(document.querySelectorAll('#episode-list li'))"
+                               ".map(li => li.dataset.id)")
+
+    Select(browser.find_element("id", "filter-policy")).select_by_value("random")
+    assert sorted(listed()) == sorted(eps.loc[eps["policy"] == "random", "scenario_id"])
+    Select(browser.find_element("id", "filter-env")).select_by_value("roundabout")
+    want = eps[(eps["policy"] == "random") & (eps["env"] == "roundabout")]
+    assert sorted(listed()) == sorted(want["scenario_id"])
+    Select(browser.find_element("id", "filter-crash")).select_by_value("yes")
+    assert sorted(listed()) == sorted(want.loc[want["crashed"].astype(bool), "scenario_id"])
+    browser.find_element("id", "filter-clear").click()
+    assert len(listed()) == len(eps)
+    label = eps["lateral"].dropna().iloc[0].split(" > ")[0]
+    browser.find_element("id", "filter-label").send_keys(label)
+    hits = eps[eps["sdl"].fillna("").str.lower().str.contains(label.lower(), regex=False)]
+    assert sorted(listed()) == sorted(hits["scenario_id"])
+    assert 0 < len(hits) <= len(eps)
+    count = browser.find_element("id", "list-count").text
+    assert count.startswith(f"{len(hits)} of {len(eps)} episodes")
+    browser.save_screenshot(str(screenshots / "viewer-filtered.png"))
+    # clicking a listed episode opens it
+    first = listed()[0]
+    browser.find_element("css selector", f"#episode-list li[data-id='{first}']").click()
+    browser.execute_async_script("const d = arguments[0]; setTimeout(d, 200);")
+    assert _state(browser, "TAPVIEW.state.a.doc.id") == first
+    assert console_errors(browser) == []
+
+
+def test_womd_scenarios_show_their_map_and_labels(womd_dir, tmp_path, browser, screenshots):
+    from tap_bench.bench.viewer import write_womd_viewer
+
+    files = [womd_dir / "motion_data_one_scenario.tfrecord",
+             womd_dir / "sd_waymo_v1.2_eb4b91b10ca94ff2.pkl"]
+    page = write_womd_viewer(files, tmp_path / "womd")
+    open_page(browser, page, "#ep=637f20cafde22ff8&t=4")
+    assert console_errors(browser) == []
+    assert _state(browser, "TAPVIEW.state.index.episodes.length") == 2
+    doc = json.loads(_state(browser, "JSON.stringify({n: TAPVIEW.state.a.doc.map.length, "
+                                     "labelled: Object.keys(TAPVIEW.state.a.doc.labels).length,"
+                                     "kinds: [...new Set(TAPVIEW.state.a.doc.map"
+                                     ".map(f => f[0]))]})"))
+    assert doc["n"] > 100 and {"lane", "road_edge"} <= set(doc["kinds"])
+    assert doc["labelled"] > 10  # every labelled vehicle, not only the ego
+    now = browser.find_element("css selector", "#pane-a .now").text
+    assert now.startswith("now: ") and "(no label)" not in now
+    browser.save_screenshot(str(screenshots / "viewer-womd.png"))
