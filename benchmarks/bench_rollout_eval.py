@@ -12,7 +12,7 @@ import warnings
 
 from machine import report
 
-from tap_bench.bench.bootstrap import wilson_interval
+from tap_bench.bench.intervals import wilson_interval
 from tap_bench.sim import available_policies, rollout
 
 

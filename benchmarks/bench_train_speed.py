@@ -31,15 +31,16 @@ from machine import report
 ROOT = Path(__file__).resolve().parents[1]
 VARIANTS = {  # name: extra arguments of `tap-bench train` (None: the "before" code)
     "before": None,
-    "1 env, exact": ["--n-envs", "1", "--exact", "--no-curve"],
-    "1 env, fast": ["--n-envs", "1", "--no-curve"],
-    "2 envs, exact": ["--n-envs", "2", "--exact", "--no-curve"],
-    "2 envs, fast (default)": ["--n-envs", "2", "--no-curve"],
+    "1-env-exact": ["--n-envs", "1", "--exact", "--no-curve"],
+    "1-env-fast": ["--n-envs", "1", "--no-curve"],
+    "2-envs-exact": ["--n-envs", "2", "--exact", "--no-curve"],
+    "2-envs-fast": ["--n-envs", "2", "--no-curve"],  # the default of tap-bench train
 }
 
 
 def export(ref: str, folder: Path) -> Path:
     """The tree of git ``ref`` of this repository, written to ``folder``."""
+    folder.mkdir(parents=True)
     archive = subprocess.run(["git", "-C", str(ROOT), "archive", ref], check=True,
                              capture_output=True).stdout
     subprocess.run(["tar", "-x", "-C", str(folder)], input=archive, check=True)

@@ -210,7 +210,10 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
                 process.terminate()
             vec.closed = True
         seconds = time.perf_counter() - start
-        episodes = model._episode_num
+        # every training env is a Monitor; after Ctrl-C the workers are gone (SB3's own count
+        # then: off-policy algorithms keep it, on-policy ones do not)
+        episodes = model._episode_num if interrupted else sum(
+            len(r) for r in vec.env_method("get_episode_rewards"))
     finally:
         vec.close()
     if interrupted and callbacks:

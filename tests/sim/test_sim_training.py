@@ -33,6 +33,7 @@ def test_a_short_training_gives_a_loadable_model_and_its_learning_curve(tmp_path
                    hyperparameters=TINY[algo], curve=TINY_CURVE, log_dir=tmp_path / "log")
     assert result.model_path.is_file() and result.definition_path.is_file()
     assert result.timesteps >= 32 and result.steps_per_second > 0
+    assert result.episodes >= 4  # 5-decision episodes, or shorter when the ego crashes
     doc = json.loads(result.definition_path.read_text())
     assert doc["params"]["timesteps"] == 32 and doc["params"]["seed"] == 3
     assert doc["params"]["observation"] == {"type": "Kinematics"}
