@@ -164,11 +164,16 @@ class ScenarioEnv(gym.Wrapper):
             self._seed, self._episode = int(seed), 0
         else:
             self._episode += 1
-        with guard_class_attributes(f"resetting {self.scenario.env_id}"):
-            obs, info = self.env.reset(seed=seed, options=options)
         from tap_bench.sim.observation import use_fast_observation
 
-        use_fast_observation(self.env)  # the same Kinematics arrays, without pandas
+        with guard_class_attributes(f"resetting {self.scenario.env_id}"):
+            obs, info = self.env.reset(seed=seed, options=options)
+            # the same Kinematics arrays, without pandas
+            use_fast_observation(self.env)
+            if self.scenario.script is not None:
+                inner = self.env.unwrapped
+                self.scenario.script.install(inner)
+                obs = inner.observation_type.observe()  # with the scripted vehicle
         self._decisions = 0
         # reset options may have changed the decision rate
         self.max_steps = round(self.scenario.duration
