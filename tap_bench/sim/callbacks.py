@@ -1,67 +1,111 @@
-"""A Stable-Baselines3 callback that logs the behaviour coverage of recent episodes.
-
-Coverage here is the quick training-time signal of :func:`tap_bench.sim.coverage.label_coverage`
-over the ego's SDL labels of the last ``window`` episodes.
+"""A Stable-Baselines3 callback that records the behaviour-coverage learning curve.
 
 This module imports Stable-Baselines3: import it only where SB3 is installed.
 """
 
 from __future__ import annotations
 
-from collections import deque
-from collections.abc import Collection
+import time
+from collections.abc import Mapping
+from typing import Any
 
+import numpy as np
+import pandas as pd
 from stable_baselines3.common.callbacks import BaseCallback
 
 from tap_bench.errors import ParameterError
-from tap_bench.sim.coverage import label_coverage
+from tap_bench.sim.curve import CURVE_COLUMNS, CurveConfig, GreedyModelPolicy, curve_row
+from tap_bench.sim.suite import Scenario
 
 __all__ = ["CoverageCallback"]
 
 
 class CoverageCallback(BaseCallback):
-    """Logs ``tap/coverage`` (:func:`label_coverage` of the ego labels of the last
-    ``window`` episodes), ``tap/distinct_labels`` and ``tap/episodes_labelled`` to SB3's
-    logger at every episode end.
+    """Evaluates the agent at the start of training, every ``every`` env steps and at the
+    end, and records one row of the learning curve each time (:mod:`tap_bench.sim.curve`):
+    greedy episodes on the curve's seeds of ``scenario`` (10 Hz, recorded, whatever env the
+    agent trains on), their return and crash rate, the coverage of ``reference`` by the
+    egos' labels and the labels' diversity.
 
-    The training env must be wrapped in :class:`tap_bench.sim.wrappers.EpisodeLabels`
-    (``tracks="ego"`` is enough), which puts ``tap_ego_sdl`` in the final ``info``.
+    Each row also goes to SB3's logger as ``tap/coverage``, ``tap/weighted_coverage``,
+    ``tap/diversity``, ``tap/distinct_labels``, ``tap/crash_rate`` and
+    ``tap/eval_return``.
 
     Args:
-        window: number of recent episodes.
-        reference: labels to cover; None for the single labels of ``level``.
-        level: the TAP level the env's wrapper labels at.
+        scenario: the scenario to evaluate on.
+        reference: the coverage reference
+            (:func:`tap_bench.sim.curve.coverage_reference`).
+        config: the curve's settings (seeds, level, thresholds, intervals).
+        every: env steps between evaluations (counted over all training envs).
+        observation: the highway-env observation config the agent reads.
+        name: the agent's name in the rollouts.
+
+    Attributes:
+        rows: the curve so far, one dict per evaluation (:attr:`curve` as a table).
+        eval_seconds: wall time of each evaluation [s].
     """
 
-    def __init__(self, window: int = 100, reference: Collection[str] | None = None, *,
-                 level: str = "action", verbose: int = 0) -> None:
+    def __init__(self, scenario: Scenario, reference: Any, config: CurveConfig, *,
+                 every: int, observation: Mapping[str, Any], name: str = "agent",
+                 verbose: int = 0) -> None:
         super().__init__(verbose)
-        if window < 1:
-            raise ParameterError("window", window, "",
-                message=f"CoverageCallback: window must be >= 1 episode, got {window}.")
-        self.window = window
+        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+            raise ParameterError("every", every, "an integer >= 1 (env steps)")
+        self.scenario = scenario
         self.reference = reference
-        self.level = level
-        self.recent: deque[str] = deque(maxlen=window)
-        self.episodes = 0
-        self.coverage = 0.0
+        self.config = config
+        self.every = every
+        self.observation = dict(observation)
+        self.name = name
+        self.rows: list[dict[str, Any]] = []
+        self.eval_seconds: list[float] = []
+        self._next = 0
+        self._start = 0.0
+
+    @property
+    def curve(self) -> pd.DataFrame:
+        """The curve table (:data:`tap_bench.sim.curve.CURVE_COLUMNS`)."""
+        return pd.DataFrame(self.rows, columns=list(CURVE_COLUMNS))
+
+    @property
+    def coverage(self) -> float | None:
+        """The coverage of the last evaluation (None before one)."""
+        return self.rows[-1]["coverage"] if self.rows else None
+
+    def _on_training_start(self) -> None:
+        self._start = time.perf_counter()
+        self._evaluate()
+        self._next = self.every
 
     def _on_step(self) -> bool:
-        infos = self.locals.get("infos", ())
-        dones = self.locals.get("dones", ())
-        for done, info in zip(dones, infos, strict=False):
-            if not done:
-                continue
-            if "tap_ego_sdl" not in info:
-                raise RuntimeError(
-                    "CoverageCallback: the finished episode's info has no 'tap_ego_sdl'; wrap "
-                    "the training env in tap_bench.sim.wrappers.EpisodeLabels.")
-            self.episodes += 1
-            if info["tap_ego_sdl"] is not None:
-                self.recent.append(info["tap_ego_sdl"])
-            self.coverage = (label_coverage(self.recent, self.reference, level=self.level)
-                             if self.recent else 0.0)
-            self.logger.record("tap/coverage", self.coverage)
-            self.logger.record("tap/distinct_labels", len(set(self.recent)))
-            self.logger.record("tap/episodes_labelled", self.episodes)
+        if self.num_timesteps >= self._next:
+            self._evaluate()
+            self._next = self.num_timesteps + self.every
         return True
+
+    def _on_training_end(self) -> None:
+        if not self.rows or self.rows[-1]["timesteps"] != self.num_timesteps:
+            self._evaluate()
+
+    def _evaluate(self) -> None:
+        began = time.perf_counter()
+        buffer = self.model.ep_info_buffer
+        train_return = float(np.mean([e["r"] for e in buffer])) if buffer else float("nan")
+        policy = GreedyModelPolicy(self.model, self.name, self.observation)
+        row = curve_row(policy, self.scenario, self.reference, self.config,
+                        timesteps=self.num_timesteps,
+                        seconds=time.perf_counter() - self._start, train_return=train_return)
+        self.rows.append(row)
+        self.eval_seconds.append(time.perf_counter() - began)
+        for key, value in (("coverage", row["coverage"]),
+                           ("weighted_coverage", row["weighted_coverage"]),
+                           ("diversity", row["diversity"]),
+                           ("distinct_labels", row["n_distinct"]),
+                           ("crash_rate", row["crash_rate"]),
+                           ("eval_return", row["return_mean"])):
+            self.logger.record(f"tap/{key}", value)
+        self.logger.dump(self.num_timesteps)  # as SB3's EvalCallback: one log row per point
+        if self.verbose:
+            print(f"{self.num_timesteps} steps: return {row['return_mean']:.2f}, crash rate "
+                  f"{row['crash_rate']:.2f}, coverage {row['coverage']:.2f}, diversity "
+                  f"{row['diversity']:.2f} labels", flush=True)
