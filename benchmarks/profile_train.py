@@ -36,7 +36,7 @@ PROBES = (
     ("observation", "tap_bench/sim/observation.py", "observe"),
     ("recording", "tap_bench/sim/recorder.py", "frame"),
     ("labelling (coverage)", "tap_bench/sim/wrappers.py", "episode_labels"),
-    ("curve evaluations", "tap_bench/sim/callbacks.py", "_evaluate"),
+    ("curve evaluations", "tap_bench/rl/callbacks.py", "_evaluate"),
     ("gradient steps", "stable_baselines3/dqn/dqn.py", "train"),
     ("gradient steps", "stable_baselines3/ppo/ppo.py", "train"),
     ("gradient steps", "stable_baselines3/a2c/a2c.py", "train"),
@@ -84,7 +84,7 @@ def main() -> None:
     from machine import report
 
     import tap_bench
-    from tap_bench.sim.training import train
+    from tap_bench.rl.training import train
 
     warnings.filterwarnings("ignore")
     kwargs = {}

@@ -43,8 +43,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tap_bench.sim.curve import CurveConfig
-    from tap_bench.sim.training import DEFAULT_N_ENVS, train
+    from tap_bench.rl.curve import CurveConfig
+    from tap_bench.rl.training import DEFAULT_N_ENVS, train
 
     n_envs = DEFAULT_N_ENVS if args.n_envs is None else args.n_envs
     command = "tap-bench train " + " ".join(shlex.quote(a) for a in (

@@ -12,9 +12,9 @@ Modules, by what they do:
 - :mod:`~tap_bench.sim.policies`, :mod:`~tap_bench.sim.idm`, :mod:`~tap_bench.sim.sb3`:
   the Policy protocol, its registry and the built-ins;
 - :mod:`~tap_bench.sim.rollout`: deterministic, process-parallel rollouts;
-- :mod:`~tap_bench.sim.wrappers`, :mod:`~tap_bench.sim.callbacks`,
-  :mod:`~tap_bench.sim.training`: Gymnasium and Stable-Baselines3 integration;
-- :mod:`~tap_bench.sim.curve`: the behaviour-coverage learning curve of training.
+- :mod:`~tap_bench.sim.wrappers`: Gymnasium integration (episode labels).
+
+Training agents and their behaviour-coverage learning curve are :mod:`tap_bench.rl`.
 
 Names that need highway-env (``make_env``, ``ScenarioEnv``, ``EpisodeLabels`` ...) are
 imported on first use, so ``import tap_bench`` stays fast.

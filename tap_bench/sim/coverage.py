@@ -2,7 +2,7 @@
 
 The benchmark's coverage metric (:mod:`tap_bench.bench.coverage`), frequency-weighted and
 with confidence intervals, is the measure of record (the training curve of
-:mod:`tap_bench.sim.curve` uses it); this one is its point estimate against the SDL
+:mod:`tap_bench.rl.curve` uses it); this one is its point estimate against the SDL
 vocabulary, for a quick look at a set of labels.
 """
 

@@ -9,8 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from tap_bench.rl.curve import CURVE_COLUMNS, CurveConfig, coverage_reference, curve_row
 from tap_bench.sim import make_env
-from tap_bench.sim.curve import CURVE_COLUMNS, CurveConfig, coverage_reference, curve_row
 from tap_bench.sim.policies import get_definition, load_policy
 from tap_bench.sim.rollout import rollout
 from tap_bench.sim.scenario_env import get_scenario
@@ -25,7 +25,7 @@ TINY_CURVE = CurveConfig(points=1, seeds="500-501", reference="vocabulary")
 @pytest.mark.parametrize(("algo", "n_envs"), [("ppo", 2), ("dqn", 1)])
 def test_a_short_training_gives_a_loadable_model_and_its_learning_curve(tmp_path, algo,
                                                                        n_envs, write_scenario):
-    from tap_bench.sim.training import train
+    from tap_bench.rl.training import train
 
     short = write_scenario("short", duration=5)  # 3 vehicles, 5 decisions an episode
     output = tmp_path / f"{algo}-tiny.zip"
@@ -67,8 +67,8 @@ def test_a_short_training_gives_a_loadable_model_and_its_learning_curve(tmp_path
 
 def test_ctrl_c_saves_the_model_and_the_curve_trained_so_far(tmp_path, write_scenario,
                                                           monkeypatch):
-    from tap_bench.sim.callbacks import CoverageCallback
-    from tap_bench.sim.training import train
+    from tap_bench.rl.callbacks import CoverageCallback
+    from tap_bench.rl.training import train
 
     step = CoverageCallback._on_step
 
@@ -123,7 +123,7 @@ def test_a_label_table_is_a_reference_and_bad_settings_are_refused(tmp_path):
 
 
 def test_bad_training_arguments_are_refused_before_any_work(tmp_path):
-    from tap_bench.sim.training import train
+    from tap_bench.rl.training import train
 
     with pytest.raises(ValueError, match=r"\.zip"):
         train("ppo", "highway", timesteps=10, seed=0, output=tmp_path / "m.pt")
@@ -135,7 +135,7 @@ def test_bad_training_arguments_are_refused_before_any_work(tmp_path):
 
 @pytest.mark.slow
 def test_a_longer_training_on_the_fast_variant_learns_to_crash_less(tmp_path):
-    from tap_bench.sim.training import train
+    from tap_bench.rl.training import train
 
     config = CurveConfig(points=1, seeds="500-509", reference="vocabulary")
     result = train("ppo", "highway", timesteps=3000, seed=0, output=tmp_path / "ppo.zip",

@@ -14,7 +14,7 @@ import pandas as pd
 from stable_baselines3.common.callbacks import BaseCallback
 
 from tap_bench.errors import ParameterError
-from tap_bench.sim.curve import CURVE_COLUMNS, CurveConfig, GreedyModelPolicy, curve_row
+from tap_bench.rl.curve import CURVE_COLUMNS, CurveConfig, GreedyModelPolicy, curve_row
 from tap_bench.sim.suite import Scenario
 
 __all__ = ["CoverageCallback"]
@@ -22,7 +22,7 @@ __all__ = ["CoverageCallback"]
 
 class CoverageCallback(BaseCallback):
     """Evaluates the agent at the start of training, every ``every`` env steps and at the
-    end, and records one row of the learning curve each time (:mod:`tap_bench.sim.curve`):
+    end, and records one row of the learning curve each time (:mod:`tap_bench.rl.curve`):
     greedy episodes on the curve's seeds of ``scenario`` (10 Hz, recorded, whatever env the
     agent trains on), their return and crash rate, the coverage of ``reference`` by the
     egos' labels and the labels' diversity.
@@ -34,7 +34,7 @@ class CoverageCallback(BaseCallback):
     Args:
         scenario: the scenario to evaluate on.
         reference: the coverage reference
-            (:func:`tap_bench.sim.curve.coverage_reference`).
+            (:func:`tap_bench.rl.curve.coverage_reference`).
         config: the curve's settings (seeds, level, thresholds, intervals).
         every: env steps between evaluations (counted over all training envs).
         observation: the highway-env observation config the agent reads.
@@ -64,7 +64,7 @@ class CoverageCallback(BaseCallback):
 
     @property
     def curve(self) -> pd.DataFrame:
-        """The curve table (:data:`tap_bench.sim.curve.CURVE_COLUMNS`)."""
+        """The curve table (:data:`tap_bench.rl.curve.CURVE_COLUMNS`)."""
         return pd.DataFrame(self.rows, columns=list(CURVE_COLUMNS))
 
     @property

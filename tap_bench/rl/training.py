@@ -5,7 +5,7 @@ The model is written atomically to the ``.zip`` given, and beside it a policy de
 its hyper-parameters, the seed, the number of timesteps, how it was trained and the
 command, so that the model loads by name (``tap-bench rollout --policy dqn-highway``) and
 can be rebuilt; and the behaviour-coverage learning curve (``<name>.curve.csv``, a table,
-and ``<name>.curve.png``; :mod:`tap_bench.sim.curve`).
+and ``<name>.curve.png``; :mod:`tap_bench.rl.curve`).
 
 Where the time goes (``benchmarks/profile_train.py``): almost all of it is highway-env's
 simulation (IDM and MOBIL for every vehicle, neighbour searches and collision checks over
@@ -42,7 +42,7 @@ import gymnasium as gym
 import pandas as pd
 
 from tap_bench.errors import ParameterError
-from tap_bench.sim.curve import CurveConfig, coverage_reference, plot_curve
+from tap_bench.rl.curve import CurveConfig, coverage_reference, plot_curve
 from tap_bench.sim.sb3 import algorithm_class
 from tap_bench.sim.scenario_env import ScenarioEnv, get_scenario
 from tap_bench.sim.suite import Scenario, env_class
@@ -80,7 +80,7 @@ class TrainingResult:
         seconds: wall time of the training, evaluations for the curve included [s].
         train_seconds: wall time of the training alone [s].
         episodes: training episodes finished.
-        curve: the learning curve (:data:`tap_bench.sim.curve.CURVE_COLUMNS`), or None
+        curve: the learning curve (:data:`tap_bench.rl.curve.CURVE_COLUMNS`), or None
             without it.
         curve_path, plot_path: the curve table (``.curve.csv``) and its plot
             (``.curve.png``), or None.
@@ -153,7 +153,7 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
         fast: train on the scenario's fast variant (see the module docstring); False trains
             on the scenario itself.
         curve: record the behaviour-coverage learning curve with these settings
-            (:class:`tap_bench.sim.curve.CurveConfig`); None: no curve.
+            (:class:`tap_bench.rl.curve.CurveConfig`); None: no curve.
         log_dir: write SB3's log, with the ``tap/*`` curve keys, there as CSV.
         verbose: SB3's verbosity; 1 also prints the log and each curve point.
         command: the command line to record (default: this process's).
@@ -181,7 +181,7 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
     callbacks = []
     if curve is not None:
         # callbacks.py subclasses SB3's BaseCallback: imported only where SB3 is installed
-        from tap_bench.sim.callbacks import CoverageCallback
+        from tap_bench.rl.callbacks import CoverageCallback
 
         reference = coverage_reference(curve, scenario)
         callbacks.append(CoverageCallback(
