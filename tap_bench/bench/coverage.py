@@ -57,7 +57,7 @@ import pandas as pd
 
 from tap_bench import sdl
 from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.diversity import estimated_population
+from tap_bench.bench.diversity import estimated_population, pivot_interval
 from tap_bench.bench.intervals import wilson_interval, z_value
 from tap_bench.errors import LabelTableError, did_you_mean
 from tap_bench.sim.coverage import vocabulary_tokens
@@ -241,7 +241,8 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
 
     # augmented population: the detected items and the f0 undetected ones Chao1 (Chao2)
     # predicts; up to as many of them as the reference has unseen items count as its items
-    p_adj, p_undetected = estimated_population(freq.astype(float), n)
+    p_adj, p_undetected = estimated_population(freq.astype(float), n, undetected="upper",
+                                               level=config.level)
     f0 = len(p_undetected)
     n_ref_undetected = min(f0, len(missed_idx))
     w_missed = float(reference.weights[missed_idx].mean()) if len(missed_idx) else 0.0
@@ -259,7 +260,10 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
                      0.0)
     seen = draws > 0
     boot = np.column_stack([(seen & in_ref_pop).sum(axis=1) / K, (seen * w_pop).sum(axis=1)])
-    (c_lo, c_hi), (w_lo, w_hi) = _intervals(np.array([cov, wcov]), boot, config.level)
+    shown_p = 1 - (1 - np.clip(prob, 0.0, 1.0)) ** n  # each item's chance to be shown
+    centre = np.array([float((shown_p * in_ref_pop).sum()) / K, float((shown_p * w_pop).sum())])
+    (c_lo, c_hi), (w_lo, w_hi) = _intervals(np.array([cov, wcov]), boot, centre,
+                                            config.level)
     if np.std(boot[:, 0]) == 0:  # nothing undetected to draw: bound what n episodes can add
         _, u = wilson_interval(0, n, config.level)
         c_lo, c_hi = max(0.0, cov - n * u / K), min(1.0, cov + n * u / K)
@@ -271,13 +275,20 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
         covered=tuple(covered), missed=tuple(missed), draws=boot)
 
 
-def _intervals(estimate: np.ndarray, boot: np.ndarray, level: float
+def _intervals(estimate: np.ndarray, boot: np.ndarray, centre: np.ndarray, level: float
                ) -> list[tuple[float, float]]:
-    """``estimate +- z sd`` of each column of the draws, clipped to [0, 1]."""
-    z = z_value(level)
-    sd = np.std(boot, axis=0) if len(boot) else np.full(len(estimate), np.nan)
-    return [(max(0.0, float(e - z * s)), min(1.0, float(e + z * s)))
-            for e, s in zip(estimate, sd, strict=True)]
+    """The logit-pivot interval of each share in [0, 1] (:func:`tap_bench.bench.diversity.
+    pivot_interval`, ``centre`` the population's own values); where the estimate is 0 or 1
+    (the logit is infinite), the draws' percentile interval widened to hold the estimate."""
+    low, high = pivot_interval(estimate, boot, centre, (0.0, 1.0), level)
+    alpha = 1 - level
+    pct_lo, pct_hi = np.quantile(boot, [alpha / 2, 1 - alpha / 2], axis=0)
+    out = []
+    for e, lo, hi, plo, phi in zip(estimate, low, high, pct_lo, pct_hi, strict=True):
+        if not np.isfinite(lo):
+            lo, hi = plo, phi
+        out.append((max(0.0, min(float(lo), e)), min(1.0, max(float(hi), e))))
+    return out
 
 
 def pooled_coverage(results: list[CoverageResult], corpus_sizes: list[int], level: float

@@ -65,11 +65,15 @@ __all__ = [
     "MIN_COMPLETENESS",
     "DiversityResult",
     "asymptotic_hill",
+    "chao1_upper_f0",
     "completeness",
+    "completeness_se",
     "diversity",
     "estimated_population",
     "hill_numbers",
+    "pivot_interval",
     "pooled_diversity",
+    "population_hill",
 ]
 
 MIN_COMPLETENESS = 0.5
@@ -88,9 +92,41 @@ def _chao1_f0(f1: np.ndarray, f2: np.ndarray, n: np.ndarray) -> np.ndarray:
                         (n - 1) / n * f1 * (f1 - 1) / 2)
 
 
-def estimated_population(freq: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+def chao1_upper_f0(f1: float, f2: float, n: int, s_obs: int, level: float = 0.95) -> float:
+    """The upper limit of Chao (1987)'s log-normal interval for the undetected count f0.
+
+    Chao1's f0 = (n-1)/n f1^2 / (2 f2) is a lower bound of the number of undetected labels;
+    its log-normal interval is ``S_obs + f0 / K .. S_obs + f0 K`` with
+    ``K = exp(z sqrt(log(1 + var(f0) / f0^2)))`` and Chao (1987)'s variance
+    ``f2 (A/2 r^2 + A^2 r^3 + A^2/4 r^4)``, r = f1 / f2, A = (n-1)/n (f2 = 0: the
+    bias-corrected form's variance, with S_obs the detected count). Returns ``f0 K`` (0 when
+    f0 is 0).
+    """
+    f0 = float(_chao1_f0(np.array(f1), np.array(f2), np.array(float(n))))
+    if f0 <= 0:
+        return 0.0
+    a = (n - 1) / n
+    if f2 > 0:
+        r = f1 / f2
+        var = f2 * (a / 2 * r ** 2 + a * a * r ** 3 + a * a / 4 * r ** 4)
+    else:
+        var = (a * f1 * (f1 - 1) / 2 + a * a * f1 * (2 * f1 - 1) ** 2 / 4
+               - a * a * f1 ** 4 / (4 * (s_obs + f0)))
+    var = max(var, 0.0)
+    return f0 * math.exp(z_value(level) * math.sqrt(math.log(1 + var / f0 ** 2)))
+
+
+def estimated_population(freq: np.ndarray, n: int, *, undetected: str = "chao1",
+                         level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
     """iNEXT's bootstrap population: adjusted probabilities of the detected items and of the
     undetected ones (``EstiBootComm.Ind`` and ``EstiBootComm.Sam``).
+
+    ``undetected="chao1"`` is iNEXT's: the undetected mass is split over ceil(f0) items, f0
+    Chao1's (Chao2's) estimate. ``undetected="upper"`` splits the same mass over the
+    :func:`chao1_upper_f0` items at ``level`` instead (the widened population of this
+    module's intervals, see the module docstring): Chao1 is a lower bound, and the fewer
+    items carry the undetected mass the more surely each is redrawn, so iNEXT's population
+    understates the spread of every count of distinct items.
 
     Args:
         freq: (k,) how many of the n sampling units show each detected item: for abundance
@@ -101,10 +137,16 @@ def estimated_population(freq: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarr
             number of **sampling units** in both cases (not the total of ``freq``, which
             for incidence data counts incidences).
 
+        undetected: ``"chao1"`` (iNEXT) or ``"upper"`` (see above).
+        level: the level of the upper limit (``undetected="upper"``).
+
     Returns:
-        (p_detected (k,), p_undetected (ceil f0,)): relative abundances (abundance data, in
-        all summing to about 1) or detection probabilities per unit (incidence data).
+        (p_detected (k,), p_undetected (k0,)): relative abundances (abundance data, in
+        all summing to about 1) or detection probabilities per unit (incidence data); k0 is
+        ceil(f0) or ceil(f0 upper).
     """
+    if undetected not in ("chao1", "upper"):
+        raise ParameterError("undetected", undetected, "'chao1' (iNEXT) or 'upper'")
     freq = np.asarray(freq, dtype=float)
     freq = freq[freq > 0]
     if n <= 0 or not len(freq):
@@ -117,7 +159,8 @@ def estimated_population(freq: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarr
     b = float((p * (1 - p) ** n).sum())
     w = a / b if f0 > 0 and b > 0 else 0.0
     p_detected = p * (1 - w * (1 - p) ** n)
-    k0 = math.ceil(f0 - 1e-9)
+    spread = f0 if undetected == "chao1" else chao1_upper_f0(f1, f2, n, len(freq), level)
+    k0 = math.ceil(spread - 1e-9)
     p_undetected = np.full(k0, a / k0) if k0 > 0 else np.zeros(0)
     return p_detected, p_undetected
 
@@ -189,8 +232,8 @@ def hill_numbers(counts: np.ndarray, size: int) -> np.ndarray:
         d1_n = np.exp(-(np.where(present, p * np.log(p), 0.0)).sum(axis=1))
     if m < n:
         lf = _log_factorials(n)
-        q0 = (1 - np.where(present, np.exp(_log_choose(lf, n - x, m) - _log_choose(
-            lf, np.array(n), np.array(m))), 0.0)).sum(axis=1)
+        q0 = np.where(present, 1 - np.exp(_log_choose(lf, n - x, m) - _log_choose(
+            lf, np.array(n), np.array(m))), 0.0).sum(axis=1)  # absent labels add nothing
         k = np.arange(1, m + 1)
         log_cnm = _log_choose(lf, np.array(n), np.array(m))
         # f_k(m) for every row and k: sum over labels of C(X_i, k) C(n - X_i, m - k) / C(n, m)
@@ -246,6 +289,95 @@ def asymptotic_hill(counts: np.ndarray) -> np.ndarray:
     return np.array([q0, q1, q2])
 
 
+def population_hill(prob: np.ndarray, size: int) -> np.ndarray:
+    """(3,) the Hill numbers q = 0, 1, 2 at sample size m of a known label distribution:
+    what :func:`hill_numbers` estimates (Chao et al. 2014's qD(m), the Hill number of the
+    expected label-frequency profile of m episodes).
+
+    q0 = sum_i 1 - (1 - p_i)^m (the expected distinct labels), q1 = exp(E[H_m]) with H_m
+    the plug-in entropy of m episodes, q2 = 1 / (1/m + (1 - 1/m) sum_i p_i^2).
+
+    Args:
+        prob: (S,) label probabilities (summing to 1; zeros allowed).
+        size: m >= 1 episodes.
+    """
+    p = np.asarray(prob, dtype=float)
+    p = p[p > 0]
+    m = int(size)
+    q0 = float(np.sum(1 - (1 - p) ** m))
+    lf = _log_factorials(m)
+    k = np.arange(1, m + 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rest = (m - k)[None, :] * np.log1p(-np.minimum(p, 1.0))[:, None]
+        rest = np.where((m - k)[None, :] == 0, 0.0, rest)  # p = 1: 0 * log 0 is 0
+        log_pmf = (lf[m] - lf[k] - lf[m - k])[None, :] + k[None, :] * np.log(p)[:, None] + rest
+    pmf = np.exp(np.where(np.isfinite(log_pmf), log_pmf, -np.inf))
+    h = -float((pmf * (k / m * np.log(k / m))[None, :]).sum())
+    q2 = 1.0 / (1.0 / m + (1 - 1.0 / m) * float(np.sum(p * p)))
+    return np.array([q0, math.exp(h), q2])
+
+
+def pivot_interval(estimate: np.ndarray, draws: np.ndarray, centre: np.ndarray,
+                   bounds: tuple[np.ndarray | float, np.ndarray | float], level: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The bootstrap interval of statistics that lie in known bounds, from the pivot
+    ``logit(estimate) - logit(truth)`` (the basic bootstrap on the logit scale of the
+    bounded range; Davison & Hinkley 1997 section 5.2.1 on transformed pivots).
+
+    In each draw from the bootstrap population the truth is known (``centre``, e.g.
+    :func:`population_hill` of the population), so ``logit(draw) - logit(centre)`` is a
+    draw of the estimator's error on that scale; the interval maps ``logit(estimate) -
+    upper quantile .. logit(estimate) - lower quantile`` back. This corrects the
+    estimator's bias (the Jensen bias of q = 1, 2 at small n), an error that grows with the
+    value, and the pile-up at a bound (a Hill number at m lies in [1, m]: 9 distinct labels
+    in 10 episodes cannot be 2 above their expectation), which a symmetric ``+- z sd`` and
+    a pivot on the raw or log scale get wrong.
+
+    Args:
+        estimate: (k,) the sample's values.
+        draws: (B, k) the statistic over B draws from the population.
+        centre: (k,) its value in the population.
+        bounds: (low, high), scalars or (k,): the range the statistic lies in.
+        level: two-sided level.
+
+    Returns:
+        (low (k,), high (k,)); NaN where the estimate or the population's value is at a
+        bound (the logit is infinite there: the caller falls back).
+    """
+    lo_b, hi_b = (np.asarray(b, float) for b in bounds)
+    span = hi_b - lo_b
+
+    def logit(x: np.ndarray) -> np.ndarray:
+        u = (np.asarray(x, float) - lo_b) / span
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.log(u / (1 - u))
+
+    est, cen = logit(estimate), logit(centre)
+    with np.errstate(invalid="ignore"):
+        err = logit(draws) - cen
+    err = np.clip(np.nan_to_num(err, nan=0.0), -50.0, 50.0)  # draws at a bound
+    alpha = 1 - level
+    lo_q, hi_q = np.quantile(err, [alpha / 2, 1 - alpha / 2], axis=0)
+    ok = np.isfinite(est) & np.isfinite(cen)
+
+    def back(v: np.ndarray) -> np.ndarray:
+        return lo_b + span / (1 + np.exp(-np.clip(v, -50.0, 50.0)))
+
+    return (np.where(ok, back(est - hi_q), np.nan), np.where(ok, back(est - lo_q), np.nan))
+
+
+def completeness_se(counts: np.ndarray) -> float:
+    """Esty's (1983) standard error of the sample completeness's error Ĉ - C:
+    ``sqrt(f1 (1 - f1/n) + 2 f2) / n``, from his normal limit law for the Good-Turing
+    coverage estimator (C is the sample's own coverage, itself random)."""
+    x = np.asarray(counts)
+    n = float(x.sum())
+    if n == 0:
+        return float("nan")
+    f1, f2 = float((x == 1).sum()), float((x == 2).sum())
+    return math.sqrt(max(f1 * (1 - f1 / n) + 2 * f2, 0.0)) / n
+
+
 @dataclass(frozen=True)
 class DiversityResult:
     """The diversity of one policy's labels (module docstring).
@@ -261,7 +393,10 @@ class DiversityResult:
         asymptote: (3,) asymptotic Hill numbers, or the sample's values when
             ``asymptote_is_bound``.
         asymptote_is_bound: completeness below :data:`MIN_COMPLETENESS`: "at least".
-        draws: (B, 4) the bootstrap draws of (q0, q1, q2 at m, completeness), for pooling.
+        draws: (B, 4) the bootstrap draws of (q0, q1, q2 at m, completeness's error), for
+            pooling.
+        centre: (3,) the Hill numbers at m of the bootstrap population (the draws' truth).
+        completeness_se: Esty's standard error of the completeness (pooling).
     """
 
     n: int
@@ -278,6 +413,8 @@ class DiversityResult:
     asymptote: np.ndarray
     asymptote_is_bound: bool
     draws: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 4)))
+    centre: np.ndarray = field(repr=False, default_factory=lambda: np.full(3, np.nan))
+    completeness_se: float = float("nan")
 
     def row(self) -> dict:
         """The scalar fields as a dict (a row of the diversity table)."""
@@ -330,7 +467,7 @@ def diversity(labels, *, size: int | None = None, config: BootstrapConfig | None
     hill = hill_numbers(counts, m)
     comp = float(completeness(counts))
     rng = rng or config.rng("diversity")
-    p_det, p_und = estimated_population(counts, n)
+    p_det, p_und = estimated_population(counts, n, undetected="upper", level=config.level)
     prob = np.r_[p_det, p_und]
     prob = prob / prob.sum()
     draws = rng.multinomial(n, prob, size=config.n_resamples)
@@ -338,13 +475,19 @@ def diversity(labels, *, size: int | None = None, config: BootstrapConfig | None
     # shows), itself random: its error in a draw is the estimate minus that coverage
     shown = (draws > 0) @ prob
     boot = np.column_stack([hill_numbers(draws, m), completeness(draws) - shown])
+    centre = population_hill(prob, m)
+    low, high = pivot_interval(hill, boot[:, :3], centre, (1.0, float(m)), config.level)
+    se = completeness_se(counts)
+    _, u = wilson_interval(0, n, config.level)
     z = z_value(config.level)
-    sd = np.nanstd(boot, axis=0)
-    if not np.any(sd > 0):  # nothing undetected to draw: bound what n episodes can add
-        _, u = wilson_interval(0, n, config.level)
-        sd = np.array([n * u / z] * 3 + [u / z])
-    low = np.maximum(hill - z * sd[:3], 1.0)
-    high = hill + z * sd[:3]
+    stuck = ~np.isfinite(low) | ~np.isfinite(high) | (high - low <= 0)
+    if np.any(stuck):  # nothing undetected to draw: bound what n episodes can add
+        low = np.where(stuck, hill - n * u, low)
+        high = np.where(stuck, hill + n * u, high)
+    low = np.maximum(np.minimum(low, hill), 1.0)
+    high = np.minimum(np.maximum(high, hill), float(m))
+    comp_low, comp_high = ((max(0.0, comp - z * se), min(1.0, comp + z * se)) if se > 0
+                           else (max(0.0, comp - u), comp))
     method = "interpolated" if m < n else "observed" if m == n else "extrapolated"
     reliable = comp >= MIN_COMPLETENESS
     hill_bound = method == "extrapolated" and (m > 2 * n or not reliable)
@@ -355,14 +498,17 @@ def diversity(labels, *, size: int | None = None, config: BootstrapConfig | None
     return DiversityResult(
         n=n, n_distinct=len(counts), size=m, method=method, hill=hill, hill_low=low,
         hill_high=high, hill_is_bound=bool(hill_bound), completeness=comp,
-        completeness_low=max(0.0, comp - z * float(sd[3])),
-        completeness_high=min(1.0, comp + z * float(sd[3])), asymptote=asym,
-        asymptote_is_bound=not reliable, draws=boot)
+        completeness_low=comp_low, completeness_high=comp_high, asymptote=asym,
+        asymptote_is_bound=not reliable, draws=boot, centre=centre,
+        completeness_se=se if se > 0 else u / z)
 
 
 def pooled_diversity(results: list[DiversityResult], level: float) -> DiversityResult:
     """The mean over envs of per-env diversities (each env's figures at its own common
-    size), with the interval from the per-draw means of the envs' bootstrap draws."""
+    size). Hill-number intervals: the logit pivot (:func:`pivot_interval`) of the
+    per-draw means of the envs' bootstrap draws against the mean of their populations'
+    values, for every order (within [1, mean m]); completeness: Esty's standard errors of
+    independent envs combined (``sqrt(sum se^2) / E``)."""
     results = [r for r in results if r.n > 0]
     if not results:
         return _empty(0)
@@ -370,17 +516,24 @@ def pooled_diversity(results: list[DiversityResult], level: float) -> DiversityR
     hill = np.mean([r.hill for r in results], axis=0)
     comp = float(np.mean([r.completeness for r in results]))
     draws = np.mean([r.draws for r in results], axis=0)
-    sd = np.nanstd(draws, axis=0)
+    centre = np.mean([r.centre for r in results], axis=0)
+    low, high = pivot_interval(hill, draws[:, :3], centre,
+                               (1.0, float(np.mean([r.size for r in results]))), level)
+    sd = np.nanstd(draws[:, :3], axis=0)
+    low = np.where(np.isfinite(low), np.minimum(low, hill), hill - z * sd)
+    high = np.where(np.isfinite(high), np.maximum(high, hill), hill + z * sd)
     bound = any(r.hill_is_bound for r in results)
-    low = np.maximum(hill - z * sd[:3], 0.0) if not bound else hill.copy()
-    high = hill + z * sd[:3] if not bound else np.full(3, np.nan)
+    if bound:
+        low, high = hill.copy(), np.full(3, np.nan)
+    se = math.sqrt(sum(r.completeness_se ** 2 for r in results)) / len(results)
     methods = {r.method for r in results}
     return DiversityResult(
         n=sum(r.n for r in results), n_distinct=sum(r.n_distinct for r in results),
         size=round(float(np.mean([r.size for r in results]))),
-        method=methods.pop() if len(methods) == 1 else "mixed", hill=hill, hill_low=low,
-        hill_high=high, hill_is_bound=bound, completeness=comp,
-        completeness_low=max(0.0, comp - z * float(sd[3])),
-        completeness_high=min(1.0, comp + z * float(sd[3])),
+        method=methods.pop() if len(methods) == 1 else "mixed", hill=hill,
+        hill_low=np.maximum(low, 0.0), hill_high=high, hill_is_bound=bound,
+        completeness=comp, completeness_low=max(0.0, comp - z * se),
+        completeness_high=min(1.0, comp + z * se),
         asymptote=np.mean([r.asymptote for r in results], axis=0),
-        asymptote_is_bound=any(r.asymptote_is_bound for r in results), draws=draws)
+        asymptote_is_bound=any(r.asymptote_is_bound for r in results), draws=draws,
+        centre=centre, completeness_se=se)
