@@ -57,7 +57,11 @@ import pandas as pd
 
 from tap_bench import sdl
 from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.diversity import estimated_population, pivot_interval
+from tap_bench.bench.diversity import (
+    distinct_variance,
+    estimated_population,
+    studentized_interval,
+)
 from tap_bench.bench.intervals import wilson_interval, z_value
 from tap_bench.errors import LabelTableError, did_you_mean
 from tap_bench.sim.coverage import vocabulary_tokens
@@ -241,8 +245,7 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
 
     # augmented population: the detected items and the f0 undetected ones Chao1 (Chao2)
     # predicts; up to as many of them as the reference has unseen items count as its items
-    p_adj, p_undetected = estimated_population(freq.astype(float), n, undetected="upper",
-                                               level=config.level)
+    p_adj, p_undetected = estimated_population(freq.astype(float), n)
     f0 = len(p_undetected)
     n_ref_undetected = min(f0, len(missed_idx))
     w_missed = float(reference.weights[missed_idx].mean()) if len(missed_idx) else 0.0
@@ -251,7 +254,8 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
     if reference.kind == "corpus":  # one label per episode: multinomial draws
         in_ref_pop = np.r_[in_ref, np.arange(f0) < n_ref_undetected]
         prob = np.r_[p_adj, p_undetected]
-        draws = rng.multinomial(n, prob / prob.sum(), size=B)  # (B, m) episodes per label
+        prob = prob / prob.sum()
+        draws = rng.multinomial(n, prob, size=B)  # (B, m) episodes per label
     else:  # vocabulary items: the universe is the reference; items shown independently
         in_ref_pop = np.r_[in_ref, np.ones(n_ref_undetected, bool)]
         prob = np.r_[p_adj, p_undetected[:n_ref_undetected]]
@@ -262,8 +266,21 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
     boot = np.column_stack([(seen & in_ref_pop).sum(axis=1) / K, (seen * w_pop).sum(axis=1)])
     shown_p = 1 - (1 - np.clip(prob, 0.0, 1.0)) ** n  # each item's chance to be shown
     centre = np.array([float((shown_p * in_ref_pop).sum()) / K, float((shown_p * w_pop).sum())])
-    (c_lo, c_hi), (w_lo, w_hi) = _intervals(np.array([cov, wcov]), boot, centre,
-                                            config.level)
+    # standard errors that studentize the draws: the variance of the (weighted) count of
+    # reference items shown under each sample's own population, its undetected items
+    # counted up to the reference items that sample has not shown
+    unseen = K - (seen & in_ref_pop).sum(axis=1)
+    # (floored at one episode's worth, estimate / n, as the Hill numbers' are)
+    se = np.sqrt([distinct_variance(freq, n, weights=w, undetected_weight=u,
+                                    max_undetected=np.array([len(missed_idx)]))
+                  for w, u in ((in_ref / K, 1.0 / K), (w_item, w_missed))])
+    se = np.maximum(se, np.array([cov, wcov]) / n)
+    draws_se = np.sqrt(np.column_stack([
+        distinct_variance(draws, n, weights=w, undetected_weight=u, max_undetected=unseen)
+        for w, u in ((in_ref_pop / K, 1.0 / K), (w_pop, w_missed))]))
+    draws_se = np.maximum(draws_se, boot / n)
+    (c_lo, c_hi), (w_lo, w_hi) = _intervals(np.array([cov, wcov]), se, boot, draws_se,
+                                            centre, config.level)
     if np.std(boot[:, 0]) == 0:  # nothing undetected to draw: bound what n episodes can add
         _, u = wilson_interval(0, n, config.level)
         c_lo, c_hi = max(0.0, cov - n * u / K), min(1.0, cov + n * u / K)
@@ -275,19 +292,20 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
         covered=tuple(covered), missed=tuple(missed), draws=boot)
 
 
-def _intervals(estimate: np.ndarray, boot: np.ndarray, centre: np.ndarray, level: float
-               ) -> list[tuple[float, float]]:
-    """The logit-pivot interval of each share in [0, 1] (:func:`tap_bench.bench.diversity.
-    pivot_interval`, ``centre`` the population's own values); where the estimate is 0 or 1
-    (the logit is infinite), the draws' percentile interval widened to hold the estimate."""
-    low, high = pivot_interval(estimate, boot, centre, (0.0, 1.0), level)
+def _intervals(estimate: np.ndarray, se: np.ndarray, boot: np.ndarray, draws_se: np.ndarray,
+               centre: np.ndarray, level: float) -> list[tuple[float, float]]:
+    """The studentized bootstrap interval of each share (:func:`tap_bench.bench.diversity.
+    studentized_interval`), clipped to [0, 1]; where a standard error is 0 (nothing seen
+    once: no undetected item), the draws' percentile interval widened to hold the
+    estimate."""
+    low, high = studentized_interval(estimate, se, boot, draws_se, centre, level)
     alpha = 1 - level
     pct_lo, pct_hi = np.quantile(boot, [alpha / 2, 1 - alpha / 2], axis=0)
     out = []
     for e, lo, hi, plo, phi in zip(estimate, low, high, pct_lo, pct_hi, strict=True):
         if not np.isfinite(lo):
-            lo, hi = plo, phi
-        out.append((max(0.0, min(float(lo), e)), min(1.0, max(float(hi), e))))
+            lo, hi = min(plo, e), max(phi, e)
+        out.append((max(0.0, float(lo)), min(1.0, float(hi))))
     return out
 
 

@@ -65,15 +65,16 @@ __all__ = [
     "MIN_COMPLETENESS",
     "DiversityResult",
     "asymptotic_hill",
-    "chao1_upper_f0",
     "completeness",
     "completeness_se",
+    "distinct_variance",
     "diversity",
     "estimated_population",
     "hill_numbers",
-    "pivot_interval",
+    "hill_variance",
     "pooled_diversity",
     "population_hill",
+    "studentized_interval",
 ]
 
 MIN_COMPLETENESS = 0.5
@@ -92,41 +93,9 @@ def _chao1_f0(f1: np.ndarray, f2: np.ndarray, n: np.ndarray) -> np.ndarray:
                         (n - 1) / n * f1 * (f1 - 1) / 2)
 
 
-def chao1_upper_f0(f1: float, f2: float, n: int, s_obs: int, level: float = 0.95) -> float:
-    """The upper limit of Chao (1987)'s log-normal interval for the undetected count f0.
-
-    Chao1's f0 = (n-1)/n f1^2 / (2 f2) is a lower bound of the number of undetected labels;
-    its log-normal interval is ``S_obs + f0 / K .. S_obs + f0 K`` with
-    ``K = exp(z sqrt(log(1 + var(f0) / f0^2)))`` and Chao (1987)'s variance
-    ``f2 (A/2 r^2 + A^2 r^3 + A^2/4 r^4)``, r = f1 / f2, A = (n-1)/n (f2 = 0: the
-    bias-corrected form's variance, with S_obs the detected count). Returns ``f0 K`` (0 when
-    f0 is 0).
-    """
-    f0 = float(_chao1_f0(np.array(f1), np.array(f2), np.array(float(n))))
-    if f0 <= 0:
-        return 0.0
-    a = (n - 1) / n
-    if f2 > 0:
-        r = f1 / f2
-        var = f2 * (a / 2 * r ** 2 + a * a * r ** 3 + a * a / 4 * r ** 4)
-    else:
-        var = (a * f1 * (f1 - 1) / 2 + a * a * f1 * (2 * f1 - 1) ** 2 / 4
-               - a * a * f1 ** 4 / (4 * (s_obs + f0)))
-    var = max(var, 0.0)
-    return f0 * math.exp(z_value(level) * math.sqrt(math.log(1 + var / f0 ** 2)))
-
-
-def estimated_population(freq: np.ndarray, n: int, *, undetected: str = "chao1",
-                         level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+def estimated_population(freq: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     """iNEXT's bootstrap population: adjusted probabilities of the detected items and of the
     undetected ones (``EstiBootComm.Ind`` and ``EstiBootComm.Sam``).
-
-    ``undetected="chao1"`` is iNEXT's: the undetected mass is split over ceil(f0) items, f0
-    Chao1's (Chao2's) estimate. ``undetected="upper"`` splits the same mass over the
-    :func:`chao1_upper_f0` items at ``level`` instead (the widened population of this
-    module's intervals, see the module docstring): Chao1 is a lower bound, and the fewer
-    items carry the undetected mass the more surely each is redrawn, so iNEXT's population
-    understates the spread of every count of distinct items.
 
     Args:
         freq: (k,) how many of the n sampling units show each detected item: for abundance
@@ -137,16 +106,10 @@ def estimated_population(freq: np.ndarray, n: int, *, undetected: str = "chao1",
             number of **sampling units** in both cases (not the total of ``freq``, which
             for incidence data counts incidences).
 
-        undetected: ``"chao1"`` (iNEXT) or ``"upper"`` (see above).
-        level: the level of the upper limit (``undetected="upper"``).
-
     Returns:
-        (p_detected (k,), p_undetected (k0,)): relative abundances (abundance data, in
-        all summing to about 1) or detection probabilities per unit (incidence data); k0 is
-        ceil(f0) or ceil(f0 upper).
+        (p_detected (k,), p_undetected (ceil f0,)): relative abundances (abundance data, in
+        all summing to about 1) or detection probabilities per unit (incidence data).
     """
-    if undetected not in ("chao1", "upper"):
-        raise ParameterError("undetected", undetected, "'chao1' (iNEXT) or 'upper'")
     freq = np.asarray(freq, dtype=float)
     freq = freq[freq > 0]
     if n <= 0 or not len(freq):
@@ -159,8 +122,7 @@ def estimated_population(freq: np.ndarray, n: int, *, undetected: str = "chao1",
     b = float((p * (1 - p) ** n).sum())
     w = a / b if f0 > 0 and b > 0 else 0.0
     p_detected = p * (1 - w * (1 - p) ** n)
-    spread = f0 if undetected == "chao1" else chao1_upper_f0(f1, f2, n, len(freq), level)
-    k0 = math.ceil(spread - 1e-9)
+    k0 = math.ceil(f0 - 1e-9)
     p_undetected = np.full(k0, a / k0) if k0 > 0 else np.zeros(0)
     return p_detected, p_undetected
 
@@ -317,53 +279,110 @@ def population_hill(prob: np.ndarray, size: int) -> np.ndarray:
     return np.array([q0, math.exp(h), q2])
 
 
-def pivot_interval(estimate: np.ndarray, draws: np.ndarray, centre: np.ndarray,
-                   bounds: tuple[np.ndarray | float, np.ndarray | float], level: float
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """The bootstrap interval of statistics that lie in known bounds, from the pivot
-    ``logit(estimate) - logit(truth)`` (the basic bootstrap on the logit scale of the
-    bounded range; Davison & Hinkley 1997 section 5.2.1 on transformed pivots).
+def distinct_variance(counts: np.ndarray, n: int, *, weights: np.ndarray | None = None,
+                      undetected_weight: float = 1.0,
+                      max_undetected: np.ndarray | None = None) -> np.ndarray:
+    """The variance of a (weighted) count of distinct items shown by n sampling units, under
+    each sample's own bootstrap population (:func:`estimated_population`): the standard
+    error that studentizes the richness-type statistics (module docstring).
 
-    In each draw from the bootstrap population the truth is known (``centre``, e.g.
-    :func:`population_hill` of the population), so ``logit(draw) - logit(centre)`` is a
-    draw of the estimator's error on that scale; the interval maps ``logit(estimate) -
-    upper quantile .. logit(estimate) - lower quantile`` back. This corrects the
-    estimator's bias (the Jensen bias of q = 1, 2 at small n), an error that grows with the
-    value, and the pile-up at a bound (a Hill number at m lies in [1, m]: 9 distinct labels
-    in 10 episodes cannot be 2 above their expectation), which a symmetric ``+- z sd`` and
-    a pivot on the raw or log scale get wrong.
+    ``sum_i w_i q_i (1 - q_i)`` over the population's items, q_i = 1 - (1 - p_i)^n the
+    chance that item i is shown (items taken as independent: the multinomial's small
+    negative covariances are left out, which errs on the wide side).
 
     Args:
-        estimate: (k,) the sample's values.
-        draws: (B, k) the statistic over B draws from the population.
-        centre: (k,) its value in the population.
-        bounds: (low, high), scalars or (k,): the range the statistic lies in.
+        counts: (S,) or (B, S) detections per item of one sample or of B samples (zeros
+            allowed: the item is not in that sample).
+        n: sampling units of each sample.
+        weights: (S,) each item's weight w_i (default 1: the distinct count).
+        undetected_weight: the weight of each undetected item of the population.
+        max_undetected: (B,) at most this many undetected items count (a reference's
+            unseen items); default no limit.
+
+    Returns:
+        (B,) or a float: the variances.
+    """
+    x = np.atleast_2d(np.asarray(counts, dtype=float))
+    w_item = np.ones(x.shape[1]) if weights is None else np.asarray(weights, float)
+    f1 = (x == 1).sum(axis=1).astype(float)
+    f2 = (x == 2).sum(axis=1).astype(float)
+    f0 = _chao1_f0(f1, f2, np.full(len(x), float(n)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        A = np.where(f1 > 0, n * f0 / (n * f0 + f1), 1.0)
+        a = np.where(f1 > 0, f1 / n * A, 0.0)
+        p = x / n
+        b = (p * (1 - p) ** n).sum(axis=1)
+        shrink = np.where((f0 > 0) & (b > 0), a / b, 0.0)
+    p_det = p * (1 - shrink[:, None] * (1 - p) ** n)
+    q = 1 - (1 - np.clip(p_det, 0.0, 1.0)) ** n
+    var = (np.where(x > 0, q * (1 - q), 0.0) * w_item * w_item).sum(axis=1)
+    k0 = np.where(f1 > 0, np.ceil(f0 - 1e-9), 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        q_und = 1 - (1 - np.where(k0 > 0, a / np.maximum(k0, 1), 0.0)) ** n
+    if max_undetected is not None:
+        k0 = np.minimum(k0, max_undetected)
+    var = var + k0 * undetected_weight ** 2 * q_und * (1 - q_und)
+    return var if np.ndim(counts) == 2 else float(var[0])
+
+
+def hill_variance(counts: np.ndarray, n: int, hill: np.ndarray) -> np.ndarray:
+    """(3,) or (B, 3) variances that studentize the Hill numbers ``hill`` (at any m) of
+    samples of n episodes: q = 0 the distinct count's (:func:`distinct_variance`); q = 1
+    the delta method's ``D^2 (sum p log^2 p - H^2) / n``; q = 2 ``D^4 (1 - 1/m)^2 4 (sum
+    p^3 - (sum p^2)^2) / n``, p the sample's relative frequencies. Each is floored at
+    ``(D / n)^2`` (one episode's worth), since a sample of distinct labels gives the delta
+    method 0.
+
+    Args:
+        counts: (S,) or (B, S) label counts (totals n).
+        n: episodes.
+        hill: (3,) or (B, 3) the Hill numbers being studentized.
+    """
+    x = np.atleast_2d(np.asarray(counts, dtype=float))
+    d = np.atleast_2d(np.asarray(hill, dtype=float))
+    p = x / n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        log_p = np.where(x > 0, np.log(np.where(x > 0, p, 1.0)), 0.0)
+    h = -(p * log_p).sum(axis=1)
+    v1 = np.maximum((p * log_p ** 2).sum(axis=1) - h * h, 0.0) / n * d[:, 1] ** 2
+    s2 = (p * p).sum(axis=1)
+    v2 = 4 * np.maximum((p ** 3).sum(axis=1) - s2 * s2, 0.0) / n * d[:, 2] ** 4
+    var = np.column_stack([distinct_variance(x, n), v1, v2])
+    var = np.maximum(var, (d / n) ** 2)
+    return var if np.ndim(counts) == 2 else var[0]
+
+
+def studentized_interval(estimate: np.ndarray, se: np.ndarray, draws: np.ndarray,
+                         draw_se: np.ndarray, centre: np.ndarray, level: float
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """The studentized bootstrap (bootstrap-t) interval (Efron & Tibshirani 1993 ch. 12;
+    Davison & Hinkley 1997 section 5.2.1).
+
+    In each draw from the bootstrap population the truth is known (``centre``, e.g.
+    :func:`population_hill` of the population), so ``t* = (draw - centre) / draw_se`` is a
+    draw of the estimator's studentized error; the interval is ``estimate - t*_(1-a/2) se
+    .. estimate - t*_(a/2) se``. Unlike ``estimate +- z sd`` it follows an error whose
+    spread grows with the estimate (few singletons: a low richness with a narrow bootstrap
+    spread), a skewed error, and the estimator's bias (the Jensen bias of q = 1, 2 at
+    small n; the population's own value differs from the sample's).
+
+    Args:
+        estimate, se: (k,) the sample's values and standard errors.
+        draws, draw_se: (B, k) the statistic and its standard error in each draw.
+        centre: (k,) the statistic's value in the population.
         level: two-sided level.
 
     Returns:
-        (low (k,), high (k,)); NaN where the estimate or the population's value is at a
-        bound (the logit is infinite there: the caller falls back).
+        (low (k,), high (k,)); NaN where a standard error is 0 or not finite.
     """
-    lo_b, hi_b = (np.asarray(b, float) for b in bounds)
-    span = hi_b - lo_b
-
-    def logit(x: np.ndarray) -> np.ndarray:
-        u = (np.asarray(x, float) - lo_b) / span
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.log(u / (1 - u))
-
-    est, cen = logit(estimate), logit(centre)
-    with np.errstate(invalid="ignore"):
-        err = logit(draws) - cen
-    err = np.clip(np.nan_to_num(err, nan=0.0), -50.0, 50.0)  # draws at a bound
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (np.asarray(draws, float) - centre) / draw_se
     alpha = 1 - level
-    lo_q, hi_q = np.quantile(err, [alpha / 2, 1 - alpha / 2], axis=0)
-    ok = np.isfinite(est) & np.isfinite(cen)
-
-    def back(v: np.ndarray) -> np.ndarray:
-        return lo_b + span / (1 + np.exp(-np.clip(v, -50.0, 50.0)))
-
-    return (np.where(ok, back(est - hi_q), np.nan), np.where(ok, back(est - lo_q), np.nan))
+    ok = np.isfinite(se) & (se > 0)
+    t = np.nan_to_num(t, nan=0.0, posinf=1e6, neginf=-1e6)  # a draw with se 0: extreme
+    lo_q, hi_q = np.quantile(t, [alpha / 2, 1 - alpha / 2], axis=0)
+    return (np.where(ok, estimate - hi_q * se, np.nan),
+            np.where(ok, estimate - lo_q * se, np.nan))
 
 
 def completeness_se(counts: np.ndarray) -> float:
@@ -397,6 +416,8 @@ class DiversityResult:
             pooling.
         centre: (3,) the Hill numbers at m of the bootstrap population (the draws' truth).
         completeness_se: Esty's standard error of the completeness (pooling).
+        hill_se: (3,) the standard errors that studentize the Hill numbers;
+        draws_se: (B, 3) the same in each draw (pooling).
     """
 
     n: int
@@ -415,6 +436,8 @@ class DiversityResult:
     draws: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 4)))
     centre: np.ndarray = field(repr=False, default_factory=lambda: np.full(3, np.nan))
     completeness_se: float = float("nan")
+    hill_se: np.ndarray = field(repr=False, default_factory=lambda: np.full(3, np.nan))
+    draws_se: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
 
     def row(self) -> dict:
         """The scalar fields as a dict (a row of the diversity table)."""
@@ -467,7 +490,7 @@ def diversity(labels, *, size: int | None = None, config: BootstrapConfig | None
     hill = hill_numbers(counts, m)
     comp = float(completeness(counts))
     rng = rng or config.rng("diversity")
-    p_det, p_und = estimated_population(counts, n, undetected="upper", level=config.level)
+    p_det, p_und = estimated_population(counts, n)
     prob = np.r_[p_det, p_und]
     prob = prob / prob.sum()
     draws = rng.multinomial(n, prob, size=config.n_resamples)
@@ -476,18 +499,19 @@ def diversity(labels, *, size: int | None = None, config: BootstrapConfig | None
     shown = (draws > 0) @ prob
     boot = np.column_stack([hill_numbers(draws, m), completeness(draws) - shown])
     centre = population_hill(prob, m)
-    low, high = pivot_interval(hill, boot[:, :3], centre, (1.0, float(m)), config.level)
-    se = completeness_se(counts)
+    se = np.sqrt(hill_variance(counts, n, hill))
+    boot_se = np.sqrt(hill_variance(draws, n, boot[:, :3]))
+    low, high = studentized_interval(hill, se, boot[:, :3], boot_se, centre, config.level)
+    comp_se = completeness_se(counts)
     _, u = wilson_interval(0, n, config.level)
     z = z_value(config.level)
     stuck = ~np.isfinite(low) | ~np.isfinite(high) | (high - low <= 0)
     if np.any(stuck):  # nothing undetected to draw: bound what n episodes can add
         low = np.where(stuck, hill - n * u, low)
         high = np.where(stuck, hill + n * u, high)
-    low = np.maximum(np.minimum(low, hill), 1.0)
-    high = np.minimum(np.maximum(high, hill), float(m))
-    comp_low, comp_high = ((max(0.0, comp - z * se), min(1.0, comp + z * se)) if se > 0
-                           else (max(0.0, comp - u), comp))
+    low, high = np.maximum(low, 1.0), np.minimum(high, float(m))
+    comp_low, comp_high = ((max(0.0, comp - z * comp_se), min(1.0, comp + z * comp_se))
+                           if comp_se > 0 else (max(0.0, comp - u), comp))
     method = "interpolated" if m < n else "observed" if m == n else "extrapolated"
     reliable = comp >= MIN_COMPLETENESS
     hill_bound = method == "extrapolated" and (m > 2 * n or not reliable)
@@ -500,15 +524,16 @@ def diversity(labels, *, size: int | None = None, config: BootstrapConfig | None
         hill_high=high, hill_is_bound=bool(hill_bound), completeness=comp,
         completeness_low=comp_low, completeness_high=comp_high, asymptote=asym,
         asymptote_is_bound=not reliable, draws=boot, centre=centre,
-        completeness_se=se if se > 0 else u / z)
+        completeness_se=comp_se if comp_se > 0 else u / z, hill_se=se, draws_se=boot_se)
 
 
 def pooled_diversity(results: list[DiversityResult], level: float) -> DiversityResult:
     """The mean over envs of per-env diversities (each env's figures at its own common
-    size). Hill-number intervals: the logit pivot (:func:`pivot_interval`) of the
-    per-draw means of the envs' bootstrap draws against the mean of their populations'
-    values, for every order (within [1, mean m]); completeness: Esty's standard errors of
-    independent envs combined (``sqrt(sum se^2) / E``)."""
+    size). Hill-number intervals: the studentized bootstrap
+    (:func:`studentized_interval`) of the per-draw means of the envs' draws against the
+    mean of their populations' values, with the envs' standard errors combined as for
+    independent envs (``sqrt(sum se^2) / E``, per draw likewise); completeness: Esty's
+    standard errors combined the same way."""
     results = [r for r in results if r.n > 0]
     if not results:
         return _empty(0)
@@ -517,23 +542,25 @@ def pooled_diversity(results: list[DiversityResult], level: float) -> DiversityR
     comp = float(np.mean([r.completeness for r in results]))
     draws = np.mean([r.draws for r in results], axis=0)
     centre = np.mean([r.centre for r in results], axis=0)
-    low, high = pivot_interval(hill, draws[:, :3], centre,
-                               (1.0, float(np.mean([r.size for r in results]))), level)
+    e = len(results)
+    se = np.sqrt(np.sum([r.hill_se ** 2 for r in results], axis=0)) / e
+    draws_se = np.sqrt(np.sum([r.draws_se ** 2 for r in results], axis=0)) / e
+    low, high = studentized_interval(hill, se, draws[:, :3], draws_se, centre, level)
     sd = np.nanstd(draws[:, :3], axis=0)
-    low = np.where(np.isfinite(low), np.minimum(low, hill), hill - z * sd)
-    high = np.where(np.isfinite(high), np.maximum(high, hill), hill + z * sd)
+    low = np.where(np.isfinite(low), low, hill - z * sd)
+    high = np.where(np.isfinite(high), high, hill + z * sd)
     bound = any(r.hill_is_bound for r in results)
     if bound:
         low, high = hill.copy(), np.full(3, np.nan)
-    se = math.sqrt(sum(r.completeness_se ** 2 for r in results)) / len(results)
+    comp_se = math.sqrt(sum(r.completeness_se ** 2 for r in results)) / e
     methods = {r.method for r in results}
     return DiversityResult(
         n=sum(r.n for r in results), n_distinct=sum(r.n_distinct for r in results),
         size=round(float(np.mean([r.size for r in results]))),
         method=methods.pop() if len(methods) == 1 else "mixed", hill=hill,
         hill_low=np.maximum(low, 0.0), hill_high=high, hill_is_bound=bound,
-        completeness=comp, completeness_low=max(0.0, comp - z * se),
-        completeness_high=min(1.0, comp + z * se),
+        completeness=comp, completeness_low=max(0.0, comp - z * comp_se),
+        completeness_high=min(1.0, comp + z * comp_se),
         asymptote=np.mean([r.asymptote for r in results], axis=0),
         asymptote_is_bound=any(r.asymptote_is_bound for r in results), draws=draws,
-        centre=centre, completeness_se=se)
+        centre=centre, completeness_se=comp_se, hill_se=se, draws_se=draws_se)
