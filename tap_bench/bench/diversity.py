@@ -385,16 +385,26 @@ def studentized_interval(estimate: np.ndarray, se: np.ndarray, draws: np.ndarray
             np.where(ok, estimate - lo_q * se, np.nan))
 
 
-def completeness_se(counts: np.ndarray) -> float:
-    """Esty's (1983) standard error of the sample completeness's error Ĉ - C:
-    ``sqrt(f1 (1 - f1/n) + 2 f2) / n``, from his normal limit law for the Good-Turing
-    coverage estimator (C is the sample's own coverage, itself random)."""
-    x = np.asarray(counts)
-    n = float(x.sum())
+def completeness_se(counts: np.ndarray) -> np.ndarray | float:
+    """Esty's (1983) standard error of the sample completeness's error Ĉ - C, from his
+    normal limit law for the Good-Turing coverage estimator (C is the sample's own
+    coverage, itself random): ``sqrt(f1 (1 - f1/n) + 2 f2) / n``, floored at ``1 / n``
+    (one singleton's worth; 0 when nothing was seen once or twice).
+
+    Args:
+        counts: (S,) or (B, S) label counts (totals n).
+
+    Returns:
+        a float, or (B,).
+    """
+    x = np.atleast_2d(np.asarray(counts))
+    n = float(x[0].sum())
     if n == 0:
-        return float("nan")
-    f1, f2 = float((x == 1).sum()), float((x == 2).sum())
-    return math.sqrt(max(f1 * (1 - f1 / n) + 2 * f2, 0.0)) / n
+        return float("nan") if np.ndim(counts) == 1 else np.full(len(x), np.nan)
+    f1 = (x == 1).sum(axis=1).astype(float)
+    f2 = (x == 2).sum(axis=1).astype(float)
+    se = np.maximum(np.sqrt(np.maximum(f1 * (1 - f1 / n) + 2 * f2, 0.0)), 1.0) / n
+    return float(se[0]) if np.ndim(counts) == 1 else se
 
 
 @dataclass(frozen=True)
@@ -415,9 +425,8 @@ class DiversityResult:
         draws: (B, 4) the bootstrap draws of (q0, q1, q2 at m, completeness's error), for
             pooling.
         centre: (3,) the Hill numbers at m of the bootstrap population (the draws' truth).
-        completeness_se: Esty's standard error of the completeness (pooling).
-        hill_se: (3,) the standard errors that studentize the Hill numbers;
-        draws_se: (B, 3) the same in each draw (pooling).
+        se: (4,) the standard errors that studentize (q0, q1, q2, completeness);
+        draws_se: (B, 4) the same in each draw (pooling).
     """
 
     n: int
@@ -435,9 +444,8 @@ class DiversityResult:
     asymptote_is_bound: bool
     draws: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 4)))
     centre: np.ndarray = field(repr=False, default_factory=lambda: np.full(3, np.nan))
-    completeness_se: float = float("nan")
-    hill_se: np.ndarray = field(repr=False, default_factory=lambda: np.full(3, np.nan))
-    draws_se: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
+    se: np.ndarray = field(repr=False, default_factory=lambda: np.full(4, np.nan))
+    draws_se: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 4)))
 
     def row(self) -> dict:
         """The scalar fields as a dict (a row of the diversity table)."""
@@ -499,19 +507,18 @@ def diversity(labels, *, size: int | None = None, config: BootstrapConfig | None
     shown = (draws > 0) @ prob
     boot = np.column_stack([hill_numbers(draws, m), completeness(draws) - shown])
     centre = population_hill(prob, m)
-    se = np.sqrt(hill_variance(counts, n, hill))
-    boot_se = np.sqrt(hill_variance(draws, n, boot[:, :3]))
-    low, high = studentized_interval(hill, se, boot[:, :3], boot_se, centre, config.level)
-    comp_se = completeness_se(counts)
+    se = np.r_[np.sqrt(hill_variance(counts, n, hill)), completeness_se(counts)]
+    draws_se = np.column_stack([np.sqrt(hill_variance(draws, n, boot[:, :3])),
+                                completeness_se(draws)])
+    low, high = studentized_interval(np.r_[hill, comp], se, boot, draws_se,
+                                     np.r_[centre, 0.0], config.level)
     _, u = wilson_interval(0, n, config.level)
-    z = z_value(config.level)
     stuck = ~np.isfinite(low) | ~np.isfinite(high) | (high - low <= 0)
     if np.any(stuck):  # nothing undetected to draw: bound what n episodes can add
-        low = np.where(stuck, hill - n * u, low)
-        high = np.where(stuck, hill + n * u, high)
-    low, high = np.maximum(low, 1.0), np.minimum(high, float(m))
-    comp_low, comp_high = ((max(0.0, comp - z * comp_se), min(1.0, comp + z * comp_se))
-                           if comp_se > 0 else (max(0.0, comp - u), comp))
+        low = np.where(stuck, np.r_[hill - n * u, comp - u], low)
+        high = np.where(stuck, np.r_[hill + n * u, comp], high)
+    comp_low, comp_high = max(0.0, float(low[3])), min(1.0, float(high[3]))
+    low, high = np.maximum(low[:3], 1.0), np.minimum(high[:3], float(m))
     method = "interpolated" if m < n else "observed" if m == n else "extrapolated"
     reliable = comp >= MIN_COMPLETENESS
     hill_bound = method == "extrapolated" and (m > 2 * n or not reliable)
@@ -524,7 +531,7 @@ def diversity(labels, *, size: int | None = None, config: BootstrapConfig | None
         hill_high=high, hill_is_bound=bool(hill_bound), completeness=comp,
         completeness_low=comp_low, completeness_high=comp_high, asymptote=asym,
         asymptote_is_bound=not reliable, draws=boot, centre=centre,
-        completeness_se=comp_se if comp_se > 0 else u / z, hill_se=se, draws_se=boot_se)
+        se=se, draws_se=draws_se)
 
 
 def pooled_diversity(results: list[DiversityResult], level: float) -> DiversityResult:
@@ -543,24 +550,25 @@ def pooled_diversity(results: list[DiversityResult], level: float) -> DiversityR
     draws = np.mean([r.draws for r in results], axis=0)
     centre = np.mean([r.centre for r in results], axis=0)
     e = len(results)
-    se = np.sqrt(np.sum([r.hill_se ** 2 for r in results], axis=0)) / e
+    se = np.sqrt(np.sum([r.se ** 2 for r in results], axis=0)) / e
     draws_se = np.sqrt(np.sum([r.draws_se ** 2 for r in results], axis=0)) / e
-    low, high = studentized_interval(hill, se, draws[:, :3], draws_se, centre, level)
-    sd = np.nanstd(draws[:, :3], axis=0)
-    low = np.where(np.isfinite(low), low, hill - z * sd)
-    high = np.where(np.isfinite(high), high, hill + z * sd)
+    low, high = studentized_interval(np.r_[hill, comp], se, draws, draws_se,
+                                     np.r_[centre, 0.0], level)
+    sd = np.nanstd(draws, axis=0)
+    low = np.where(np.isfinite(low), low, np.r_[hill, comp] - z * sd)
+    high = np.where(np.isfinite(high), high, np.r_[hill, comp] + z * sd)
+    comp_low, comp_high = max(0.0, float(low[3])), min(1.0, float(high[3]))
+    low, high = low[:3], high[:3]
     bound = any(r.hill_is_bound for r in results)
     if bound:
         low, high = hill.copy(), np.full(3, np.nan)
-    comp_se = math.sqrt(sum(r.completeness_se ** 2 for r in results)) / e
     methods = {r.method for r in results}
     return DiversityResult(
         n=sum(r.n for r in results), n_distinct=sum(r.n_distinct for r in results),
         size=round(float(np.mean([r.size for r in results]))),
         method=methods.pop() if len(methods) == 1 else "mixed", hill=hill,
         hill_low=np.maximum(low, 0.0), hill_high=high, hill_is_bound=bound,
-        completeness=comp, completeness_low=max(0.0, comp - z * comp_se),
-        completeness_high=min(1.0, comp + z * comp_se),
+        completeness=comp, completeness_low=comp_low, completeness_high=comp_high,
         asymptote=np.mean([r.asymptote for r in results], axis=0),
         asymptote_is_bound=any(r.asymptote_is_bound for r in results), draws=draws,
-        centre=centre, completeness_se=comp_se, hill_se=se, draws_se=draws_se)
+        centre=centre, se=se, draws_se=draws_se)
