@@ -21,6 +21,7 @@ from tap_bench.bench import (
 )
 from tap_bench.errors import (
     FileFormatError,
+    FitWarning,
     LabelTableError,
     ShortSegmentWarning,
     TapBenchError,
@@ -29,7 +30,7 @@ from tap_bench.errors import (
     UnknownNameError,
 )
 from tap_bench.fitting import FitReport, fit_report, fit_thresholds
-from tap_bench.kinematics import compute_kinematics, one_second_samples
+from tap_bench.kinematics import Plausibility, compute_kinematics, one_second_samples
 from tap_bench.labelling import TapResult, label, tap
 from tap_bench.resampling import resample_to_10hz
 from tap_bench.sdl import LEVELS, vocabulary
@@ -67,6 +68,7 @@ from tap_bench.thresholds import (
 )
 from tap_bench.trajectories import validate_trajectories
 from tap_bench.womd import WomdRecordError, classify_trajectories, write_womd
+from tap_bench.womd.validation import validate_womd
 
 # The scenario suite's Gymnasium ids (tap_bench/highway-v0 ...); reads envs/ only, fast.
 _register_suite()
@@ -74,6 +76,7 @@ _register_suite()
 __all__ = [
     # errors
     "FileFormatError",
+    "FitWarning",
     "LabelTableError",
     "ShortSegmentWarning",
     "TapBenchError",
@@ -86,6 +89,7 @@ __all__ = [
     "validate_trajectories",
     "write_table",
     # kinematics
+    "Plausibility",
     "compute_kinematics",
     "one_second_samples",
     # TAP labelling
@@ -124,6 +128,7 @@ __all__ = [
     "iter_womd",
     "read_womd",
     "register_reader",
+    "validate_womd",
     "write_womd",
     # similarity: SDL search, unique behaviours, scenario-level SDL, the ADE / DTW baselines
     # and the paper's experiments; more in tap_bench.similarity

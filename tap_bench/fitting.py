@@ -26,6 +26,7 @@ by minimising J (:mod:`tap_bench.objective`) with four methods:
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -33,13 +34,14 @@ import numpy as np
 import pandas as pd
 
 from tap_bench._version import __version__
-from tap_bench.errors import TapBenchError, did_you_mean
-from tap_bench.kinematics import one_second_samples
+from tap_bench.errors import FitWarning, TapBenchError, did_you_mean
+from tap_bench.kinematics import V_STOP, one_second_samples
 from tap_bench.objective import SortedSamples
 from tap_bench.thresholds import NAMES, UNITS, Provenance, Thresholds
 
-__all__ = ["METHODS", "PAPER_HYPERPARAMETERS", "PAPER_STARTS", "DistributionFit",
-           "FitReport", "FitRun", "fit_report", "fit_thresholds"]
+__all__ = ["FAR_ABOVE_GRID", "J_RESOLUTION", "METHODS", "PAPER_HYPERPARAMETERS", "PAPER_STARTS",
+           "RESOLUTION", "DistributionFit", "FitReport", "FitRun", "fit_report",
+           "fit_thresholds"]
 
 METHODS = ("descent", "descent-scaled", "cem", "grid")
 DISTRIBUTIONS = ("w", "a", "v")
@@ -51,8 +53,15 @@ PAPER_STARTS = {
     "w": ((0.01, 0.05, 0.1), (0.02, 0.07, 0.15), (0.05, 0.1, 0.2)),
 }
 """The paper's three starting guesses per distribution (Appendix C)."""
-V_STOP = 0.1
-"""The fixed Stopped threshold [m/s] (the paper sets it by hand)."""
+FAR_ABOVE_GRID = 2.0
+"""A chosen fit whose J is more than this many times the grid optimum's, and above it by
+more than :data:`J_RESOLUTION` of the data's scale, is reported."""
+J_RESOLUTION = 0.01
+"""J's scale is the squared mean absolute difference of all samples (the size of the mu_p);
+differences of J below this share of it are too small to report."""
+RESOLUTION = 0.01
+"""A band narrower than this share of the data's 1-99 % range is degenerate: thresholds
+that close split nothing a reader of the labels can tell apart."""
 
 
 @dataclass(frozen=True)
@@ -86,6 +95,7 @@ class DistributionFit:
     runs: tuple[FitRun, ...]
     grid: FitRun | None
     chosen: FitRun
+    warnings: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -94,6 +104,11 @@ class FitReport:
 
     thresholds: Thresholds
     fits: dict[str, DistributionFit]
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """What to look at in the fit, per distribution (also raised as FitWarning)."""
+        return tuple(w for fit in self.fits.values() for w in fit.warnings)
 
     def table(self) -> pd.DataFrame:
         """One row per distribution, method and start: thresholds, J and the distance to the
@@ -301,7 +316,7 @@ def feasible_starts(s: SortedSamples, starts: np.ndarray) -> np.ndarray:
 # -- fitting --------------------------------------------------------------------------------
 def _samples(data: pd.DataFrame | dict[str, np.ndarray], v_stop: float
              ) -> dict[str, np.ndarray]:
-    samples = data if isinstance(data, dict) else one_second_samples(data)
+    samples = data if isinstance(data, dict) else one_second_samples(data, v_stop=v_stop)
     for dist in DISTRIBUTIONS:
         if dist not in samples:
             raise TapBenchError(f"samples lack the distribution {dist!r} (need w, a and v)")
@@ -358,6 +373,14 @@ def fit_report(data: pd.DataFrame | dict[str, np.ndarray], *,
                 f"{dataset}: only {len(x)} one-second samples of {dist} ({UNITS[dist]}); "
                 f"fitting {d} thresholds needs at least {2 * (d + 1)} (two per partition). "
                 "Fit on more data, or label with --thresholds paper.")
+        distinct = np.unique(x)
+        if len(distinct) < d + 1:
+            shown = ", ".join(f"{v:.6g}" for v in distinct[:3])
+            raise TapBenchError(
+                f"{dataset}: the {len(x)} one-second samples of {dist} ({UNITS[dist]}) take "
+                f"only {len(distinct)} distinct value(s) ({shown}); {d} thresholds need "
+                f"{d + 1} or more to split them. The data has no {_WHAT[dist]} to learn from: "
+                "fit on data that has, or label with --thresholds paper.")
         s = SortedSamples(x)
         start_arr = feasible_starts(s, np.array(starts[dist], dtype=np.float64))
         moved[dist] = sorted({tuple(map(float, a)) for a, b in
@@ -386,7 +409,10 @@ def fit_report(data: pd.DataFrame | dict[str, np.ndarray], *,
         chosen = min(pool, key=lambda r: r.objective)
         if not np.isfinite(chosen.objective):
             raise TapBenchError(f"{dataset}: no feasible thresholds found for {dist}")
-        fits[dist] = DistributionFit(dist, len(x), tuple(runs), grid, chosen)
+        notes = _fit_warnings(dataset, dist, s, chosen, grid)
+        for note in notes:
+            warnings.warn(note, FitWarning, stacklevel=2)
+        fits[dist] = DistributionFit(dist, len(x), tuple(runs), grid, chosen, notes)
 
 
     th = Thresholds(
@@ -404,10 +430,45 @@ def fit_report(data: pd.DataFrame | dict[str, np.ndarray], *,
                                  else None for d in DISTRIBUTIONS},
                 "starts_moved_into_data": {d: moved[d] for d in DISTRIBUTIONS},
                 "v_stop_fixed": v_stop, "names": {d: list(NAMES[d]) for d in NAMES},
+                "warnings": [w for d in DISTRIBUTIONS for w in fits[d].warnings],
                 "tap_bench": __version__,
             },
         ))
     return FitReport(thresholds=th, fits=fits)
+
+
+_WHAT = {"w": "turning", "a": "change of speed", "v": "range of speeds"}
+
+
+def _fit_warnings(dataset: str, dist: str, s: SortedSamples, chosen: FitRun,
+                  grid: FitRun | None) -> tuple[str, ...]:
+    """Warnings for one distribution's chosen fit, each naming both figures."""
+    unit = UNITS[dist]
+    out = []
+    theta = ", ".join(f"{v:.4g}" for v in chosen.theta)
+    n = len(s.x)
+    mu_all = float(np.dot(2.0 * np.arange(n) - n + 1, s.x) / (n * (n - 1) / 2))
+    if (grid is not None and chosen.objective > FAR_ABOVE_GRID * grid.objective
+            and chosen.objective - grid.objective > J_RESOLUTION * mu_all**2):
+        ratio = chosen.objective / grid.objective if grid.objective > 0 else float("inf")
+        out.append(
+            f"{dataset}: {dist}: the chosen fit ({chosen.method}, ({theta}) {unit}) has J = "
+            f"{chosen.objective:.4g}, {ratio:.3g} times the grid optimum's J = "
+            f"{grid.objective:.4g} at ({', '.join(f'{v:.4g}' for v in grid.theta)}) {unit}. "
+            "Compare both (tap-bench fit prints every run); --select best takes the lowest J.")
+    lo, hi = np.quantile(s.x, [0.01, 0.99])
+    resolution = RESOLUTION * float(hi - lo)
+    edges = np.asarray(chosen.theta)
+    widths = np.diff(edges)
+    names = NAMES[dist] if dist != "v" else NAMES[dist][1:]
+    for k in np.flatnonzero(widths < resolution):
+        out.append(
+            f"{dataset}: {dist}: the band between {dist}_{names[k]} = {edges[k]:.4g} and "
+            f"{dist}_{names[k + 1]} = {edges[k + 1]:.4g} {unit} is {widths[k]:.2g} {unit} "
+            f"wide, narrower than the data's resolution ({RESOLUTION:.0%} of its 1-99 % "
+            f"range, {resolution:.2g} {unit}): a degenerate band. Look at the other runs of "
+            "tap-bench fit, or label with --thresholds paper.")
+    return tuple(out)
 
 
 def fit_thresholds(data: pd.DataFrame | dict[str, np.ndarray], **kwargs) -> Thresholds:

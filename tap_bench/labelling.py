@@ -19,13 +19,13 @@ import pyarrow.compute as pc
 
 from tap_bench import sdl
 from tap_bench.errors import ShortSegmentWarning
-from tap_bench.kinematics import Kinematics, compute_kinematics
-from tap_bench.labels import LABEL_COLUMNS, SEGMENT_COLUMNS
+from tap_bench.kinematics import Kinematics, Plausibility, compute_kinematics
+from tap_bench.labels import GLITCH_COLUMNS, LABEL_COLUMNS, SEGMENT_COLUMNS
 from tap_bench.stages import StageConfig, StepLabels, find_runs, run_stages
 from tap_bench.thresholds import Thresholds, resolve_thresholds
 from tap_bench.trajectories import DT, IDENTIFYING_COLUMNS, validate_and_index
 
-__all__ = ["LABEL_COLUMNS", "SEGMENT_COLUMNS", "TapResult", "label", "tap"]
+__all__ = ["GLITCH_COLUMNS", "LABEL_COLUMNS", "SEGMENT_COLUMNS", "TapResult", "label", "tap"]
 
 @dataclass(frozen=True)
 class TapResult:
@@ -37,12 +37,15 @@ class TapResult:
     Attributes:
         segments_info: one row per labelled valid segment: scenario_id, track_id, segment
             (0-based index of the valid segment within its track), t_start, t_end, n_steps,
-            and the identifying columns of the input.
+            the glitch counts (:data:`GLITCH_COLUMNS`) and the identifying columns of the
+            input.
         short_segments: the valid segments shorter than 1 s, which carry no label, with the
             same columns.
         step_labels: per-step codes of every level over the labelled steps.
         step_t: (m,) time of each labelled step [s].
         step_segment: (m,) row of ``segments_info`` of each labelled step.
+        step_rows: (m,) row of the validated table of each labelled step.
+        kinematics: the kinematic signals and glitch flags of every row.
         thresholds: the thresholds used.
         config: the stage timing parameters used.
         timings: seconds spent per stage (validate, kinematics, stages, tables).
@@ -53,8 +56,11 @@ class TapResult:
     step_labels: StepLabels
     step_t: np.ndarray
     step_segment: np.ndarray
+    step_rows: np.ndarray
+    kinematics: Kinematics
     thresholds: Thresholds
     config: StageConfig
+    plausibility: Plausibility
     timings: dict[str, float] = field(default_factory=dict, compare=False)
 
     def labels(self, level: str = "action") -> pd.DataFrame:
@@ -77,8 +83,10 @@ class TapResult:
         return out.iloc[order].reset_index(drop=True)
 
     def steps(self) -> pd.DataFrame:
-        """Per-step labels: scenario_id, track_id, segment, t and one column per level and
-        axis (``trace_lateral`` ... ``action_longitudinal``) as categoricals."""
+        """Per-step labels: scenario_id, track_id, segment, t, one column per level and
+        axis (``trace_lateral`` ... ``action_longitudinal``) as categoricals, and the
+        per-step flags ``heading_glitch``, ``speed_glitch``, ``heading_trusted`` and
+        ``reversing`` (bool)."""
         per_step = self.segments_info.take(self.step_segment).reset_index(drop=True)
         out = pd.DataFrame({
             "scenario_id": per_step["scenario_id"], "track_id": per_step["track_id"],
@@ -88,6 +96,30 @@ class TapResult:
             for axis in sdl.AXES:
                 out[f"{level}_{axis}"] = pd.Categorical.from_codes(
                     self.step_labels.codes(level, axis), categories=sdl.code_names(level, axis))
+        kin, rows = self.kinematics, self.step_rows
+        for name, flags in (("heading_glitch", kin.heading_glitch),
+                            ("speed_glitch", kin.speed_glitch),
+                            ("heading_trusted", kin.trusted), ("reversing", kin.reversing)):
+            out[name] = flags[rows]
+        return out
+
+    def glitches(self) -> pd.DataFrame:
+        """Per track: its valid segments (labelled and too short), the glitch counts over
+        all of them (:data:`GLITCH_COLUMNS`, ``travel`` the largest) and ``still`` (no
+        segment gets 1 m from its start, so no turn and no merge)."""
+        keys = ["scenario_id", "track_id"]
+        every = pd.concat([self.segments_info.assign(labelled=True),
+                           self.short_segments.assign(labelled=False)], ignore_index=True)
+        if not len(every):
+            return pd.DataFrame(columns=[*keys, "segments", "short_segments", "short_steps",
+                                         *GLITCH_COLUMNS, "still"])
+        every["short_steps"] = np.where(every["labelled"], 0, every["n_steps"])
+        out = every.groupby(keys, sort=True).agg(
+            segments=("segment", "size"), short_segments=("labelled", lambda s: int((~s).sum())),
+            short_steps=("short_steps", "sum"), heading_glitches=("heading_glitches", "sum"),
+            speed_glitches=("speed_glitches", "sum"), reversing_steps=("reversing_steps", "sum"),
+            travel=("travel", "max")).reset_index()
+        out["still"] = out["travel"] < self.plausibility.min_travel
         return out
 
     # -- internals -----------------------------------------------------------------------
@@ -117,8 +149,8 @@ class TapResult:
             "lateral": _strings(lat), "longitudinal": _strings(lon), "sdl": _strings(sdl_text),
             "t_start": info["t_start"], "t_end": info["t_end"],
         })
-        for col in info.columns:
-            if col in IDENTIFYING_COLUMNS:
+        for col in (*GLITCH_COLUMNS, *IDENTIFYING_COLUMNS):
+            if col in info.columns:
                 out[col] = info[col]
         return out
 
@@ -156,30 +188,40 @@ def _segment_frame(tracks: pd.DataFrame, kin: Kinematics, index, which: np.ndarr
     frame.insert(3, "t_start", kin.t[rows])
     frame.insert(4, "t_end", kin.t[stops - 1] + DT if len(rows) else np.zeros(0))
     frame.insert(5, "n_steps", stops - rows)
+    counts = {"heading_glitches": kin.heading_glitch, "speed_glitches": kin.speed_glitch,
+              "reversing_steps": kin.reversing}
+    for pos, (name, flags) in enumerate(counts.items(), start=6):
+        flagged = index.segment[np.flatnonzero(flags)]  # flags are rare: count them sparsely
+        per_segment = np.bincount(flagged, minlength=index.n_segments)
+        frame.insert(pos, name, per_segment[which].astype(np.int64))
+    frame.insert(9, "travel", kin.travel[which])
     return frame
 
 
 def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
-        config: StageConfig | None = None, *, source: str = "trajectory table") -> TapResult:
+        config: StageConfig | None = None, *, plausibility: Plausibility | None = None,
+        source: str = "trajectory table") -> TapResult:
     """Run the Trajectory-to-Action Pipeline on a trajectory table.
 
     Args:
         table: a trajectory table (SPEC section 1), validated on entry.
         thresholds: a :class:`Thresholds`, a preset name (``"paper"``) or a JSON file path.
-        config: stage timing parameters (1 s minimum run, 4 s merge gap by default).
+        config: stage parameters (1 s minimum run, the merge rule's 4 s, 0.2 rad, 1.5 m).
+        plausibility: the bounds that tell glitches from motion (SPEC section 2).
         source: a name for the table in error messages (its file path).
 
     Returns:
         A :class:`TapResult`; segments shorter than 1 s are listed in ``short_segments``.
     """
     config = config or StageConfig()
+    plausibility = plausibility or Plausibility()
     th = resolve_thresholds(thresholds)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     checked = validate_and_index(table, source=source)
     index = checked.index
     t1 = time.perf_counter()
-    kin = compute_kinematics(checked)
+    kin = compute_kinematics(checked, plausibility)
     t2 = time.perf_counter()
 
     lengths = index.segment_length
@@ -198,24 +240,27 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
     step_segment = np.repeat(np.arange(len(starts)), seg_len)
     t3 = time.perf_counter()
     labels = run_stages(kin.w[step_rows], kin.a[step_rows], kin.v[step_rows], seg_len, th,
-                        config)
+                        config, heading=kin.heading, x=kin.x, y=kin.y, rows=step_rows)
     t4 = time.perf_counter()
     timings.update(validate=t1 - t0, kinematics=t2 - t1, layout=t3 - t2, stages=t4 - t3)
     return TapResult(segments_info=info, short_segments=short, step_labels=labels,
-                     step_t=kin.t[step_rows], step_segment=step_segment, thresholds=th,
-                     config=config, timings=timings)
+                     step_t=kin.t[step_rows], step_segment=step_segment, step_rows=step_rows,
+                     kinematics=kin,
+                     thresholds=th, config=config, plausibility=plausibility,
+                     timings=timings)
 
 
 def label(table: pd.DataFrame, thresholds: Thresholds | str = "paper", level: str = "action",
-          config: StageConfig | None = None, *, source: str = "trajectory table"
-          ) -> pd.DataFrame:
+          config: StageConfig | None = None, *, plausibility: Plausibility | None = None,
+          source: str = "trajectory table") -> pd.DataFrame:
     """The SDL label table of a trajectory table (one row per trajectory segment and level).
 
     Args:
         table: a trajectory table (SPEC section 1).
         thresholds: a :class:`Thresholds`, a preset name (``"paper"``) or a JSON file path.
         level: ``"trace"``, ``"trend"``, ``"maneuver"``, ``"action"`` or ``"all"``.
-        config: stage timing parameters.
+        config: stage parameters.
+        plausibility: the bounds that tell glitches from motion (SPEC section 2).
         source: a name for the table in error messages.
 
     Warns:
@@ -223,7 +268,7 @@ def label(table: pd.DataFrame, thresholds: Thresholds | str = "paper", level: st
             (use :func:`tap` to get them as a table).
     """
     sdl.levels(level)  # fail on a bad level before doing any work
-    result = tap(table, thresholds, config, source=source)
+    result = tap(table, thresholds, config, plausibility=plausibility, source=source)
     warn_short_segments(result)
     return result.labels(level)
 

@@ -17,7 +17,8 @@ sdl             ``lateral + " | " + longitudinal`` (built by :func:`tap_bench.sd
 t_start, t_end  the segment's first and last time [s]
 ==============  ===========================================================================
 
-followed by the identifying columns the trajectory table had (``source``, ``env``,
+then, from :func:`tap_bench.tap`, the glitch counts of the segment (:data:`GLITCH_COLUMNS`,
+SPEC section 2), followed by the identifying columns the trajectory table had (``source``, ``env``,
 ``policy``, ``seed``, ``is_ego`` ...). **Segment table**: one row per label run,
 :data:`SEGMENT_COLUMNS`, ``axis`` naming the axis of ``label``.
 """
@@ -32,12 +33,17 @@ import pyarrow.compute as pc
 from tap_bench import sdl
 from tap_bench.errors import LabelTableError
 
-__all__ = ["LABEL_COLUMNS", "REQUIRED_LABEL_COLUMNS", "SEGMENT_COLUMNS", "row_key",
-           "select_level", "validate_labels"]
+__all__ = ["GLITCH_COLUMNS", "LABEL_COLUMNS", "REQUIRED_LABEL_COLUMNS", "SEGMENT_COLUMNS",
+           "row_key", "select_level", "validate_labels"]
 
 LABEL_COLUMNS = ("scenario_id", "track_id", "segment", "level", "lateral", "longitudinal",
                  "sdl", "t_start", "t_end")
 """Columns of the label table, followed by the identifying columns the input had."""
+GLITCH_COLUMNS = ("heading_glitches", "speed_glitches", "reversing_steps", "travel")
+"""Per labelled segment, after ``t_end``: steps whose heading change was a flip or faster than
+the vehicle can turn, steps whose speed was a spike, steps moving against the heading
+(:mod:`tap_bench.kinematics`), and how far the segment gets from its start [m] (under 1 m:
+no turn, no merge)."""
 SEGMENT_COLUMNS = ("scenario_id", "track_id", "segment", "level", "axis", "label", "t_start",
                    "t_end")
 """Columns of the segment table, followed by the identifying columns the input had."""

@@ -11,12 +11,14 @@ Rules that SPEC leaves open, decided here and documented in docs/tap.md:
 - Low-pass window: a short run of k steps is relabelled from the mean of its signal over the
   10-step window centred on it (k steps plus (10-k)//2 before and the rest after), shifted
   to lie inside the segment. Lateral signal: w with stopped steps set to 0; longitudinal:
-  Stopped if the window's mean speed is below v_stop, else the trace rule on its mean a.
+  Stopped if the window's mean speed is at most v_stop, else the trace rule on its mean a.
 - Joining: while a segment has a run shorter than 1 s, its shortest such run (the earliest
   on ties) takes the label of its longer neighbour (the earlier one on ties).
 - Merges: turn runs are paired greedily from the start: a turn and the next turn of the
   opposite direction that starts at most ``merge_gap`` after the first ends become one
-  merge; a turn that was paired is not paired again.
+  merge when the heading comes back and the vehicle moved sideways (:func:`_merge_ok`);
+  a turn that was paired is not paired again; two lane changes in a row share their
+  middle turn, which is split where the heading is back (:func:`_merges`).
 - Action classes inside a turn run use |w| <= w_grad Gradual (|w| under w_str included),
   <= w_med Medium, else Aggressive; inside a moving run v <= v_slow Slow, <= v_med Medium,
   else Fast.
@@ -29,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tap_bench import sdl
-from tap_bench.errors import TapBenchError
+from tap_bench.errors import ParameterError, TapBenchError
 from tap_bench.kinematics import STEPS_PER_SECOND, window_means
 from tap_bench.thresholds import Thresholds
 
@@ -38,21 +40,37 @@ __all__ = ["StageConfig", "StepLabels", "run_stages"]
 
 @dataclass(frozen=True)
 class StageConfig:
-    """Timing parameters of the stages.
+    """Parameters of the stages.
 
     Attributes:
         min_run: the shortest label run [s] (SPEC: 1 s); also the low-pass window.
-        merge_gap: the longest straight stretch between the two turns of a merge [s] (4 s).
+        merge_gap: the longest stretch between the end of a merge's first turn and the
+            start of its second [s] (4 s).
+        merge_heading: the largest net heading change over a merge [rad] (0.2): the
+            vehicle ends up parallel to where it started.
+        merge_offset: the smallest sideways move of a merge [m] (1.5), across the heading
+            at its start, towards the first turn's side.
+        merge_excursion: the largest heading change from the start at any step of a merge
+            [rad] (pi/6, the bound of Waymo's straight trajectory types, inside which a
+            lateral move is STRAIGHT_LEFT or STRAIGHT_RIGHT); an S-curve that turns
+            farther is two turns.
     """
 
     min_run: float = 1.0
     merge_gap: float = 4.0
+    merge_heading: float = 0.2
+    merge_offset: float = 1.5
+    merge_excursion: float = float(np.pi / 6)
 
     def __post_init__(self) -> None:
         if not self.min_run > 0:
             raise TapBenchError(f"StageConfig.min_run must be > 0 s, got {self.min_run!r}")
-        if not self.merge_gap >= 0:
-            raise TapBenchError(f"StageConfig.merge_gap must be >= 0 s, got {self.merge_gap!r}")
+        for name, unit in (("merge_gap", "s"), ("merge_heading", "rad"), ("merge_offset", "m"),
+                           ("merge_excursion", "rad")):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value >= 0):
+                raise ParameterError(f"StageConfig.{name}", value, f"a finite number >= 0 "
+                                     f"[{unit}]")
 
     @property
     def min_steps(self) -> int:
@@ -189,26 +207,137 @@ def _trace_longitudinal(a: np.ndarray, th: Thresholds) -> np.ndarray:
                     np.where(a <= th.a_dec, sdl.DECELERATE, sdl.MAINTAIN))
 
 
-def _merges(runs: Runs, gap_steps: int) -> Runs:
+@dataclass(frozen=True)
+class _Path:
+    """Heading (unwrapped within each segment) [rad] and position [m] of the steps.
+
+    ``heading``, ``x``, ``y`` are (n,) arrays over rows; ``rows`` (m,) maps each step to
+    its row (the steps of a segment are consecutive rows).
+    """
+
+    heading: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    rows: np.ndarray
+
+
+def _merge_ok(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
+              config: StageConfig) -> np.ndarray:
+    """(k,) bool: the steps [a, b) of one segment form a merge towards ``side`` (+1 left).
+
+    The heading comes back (net change <= merge_heading), never strays farther than
+    merge_excursion from the start, and the vehicle moves sideways by merge_offset or more
+    towards ``side``, across the heading at ``a``.
+    """
+    if len(a) == 0:
+        return np.zeros(0, dtype=bool)
+    h = path.heading
+    first, last = path.rows[a], path.rows[b - 1]
+    h0 = h[first]
+    net = h[last] - h0
+    offset = (-(path.x[last] - path.x[first]) * np.sin(h0)
+              + (path.y[last] - path.y[first]) * np.cos(h0))
+    bounds = np.empty(2 * len(a), dtype=np.int64)
+    bounds[0::2], bounds[1::2] = first, last + 1
+    padded = np.append(h, h[-1])  # last + 1 may be one past the last row
+    high = np.maximum.reduceat(padded, bounds)[0::2]
+    low = np.minimum.reduceat(padded, bounds)[0::2]
+    excursion = np.maximum(high - h0, h0 - low)
+    return ((np.abs(net) <= config.merge_heading) & (side * offset >= config.merge_offset)
+            & (excursion <= config.merge_excursion))
+
+
+def _back_at(path: _Path, pos: int, start: int, stop: int, side: int) -> int:
+    """The first step of [start, stop) where the heading is back at its value at ``pos``
+    (having turned towards ``side``, +1 left), or -1."""
+    h = path.heading
+    back = side * (h[path.rows[start:stop]] - h[path.rows[pos]]) <= 0
+    hit = np.flatnonzero(back)
+    return start + int(hit[0]) if len(hit) else -1
+
+
+def _chain(path: _Path, start: np.ndarray, stop: np.ndarray, side: np.ndarray, first: int,
+           last: int, config: StageConfig, min_steps: int, code: np.ndarray) -> None:
+    """Merges along turns ``first`` .. ``last`` of one segment, each consecutive pair a
+    candidate (opposite sides, close enough): lane changes in a row. Writes merge codes into
+    ``code`` (m,).
+
+    Greedy from the start. The current turn (from ``pos``, which may lie inside a turn run
+    after a split) and the next one: if the heading is back at its value at ``pos`` inside
+    the next turn, with 1 s or more of that turn left, and the part up to there is a merge
+    whose rest pairs with the turn after it (whole, or split the same way), the next turn
+    is split there: its rest starts the next lane change. Otherwise the pair is a merge if
+    it passes whole, else the current turn stays a turn.
+    """
+
+    def ok(a: int, b: int, towards: int) -> bool:
+        return bool(_merge_ok(path, np.array([a]), np.array([b]), np.array([towards]),
+                              config)[0])
+
+    def merge_code(towards: int) -> int:
+        return sdl.LEFT_MERGE if towards > 0 else sdl.RIGHT_MERGE
+
+    i, pos = first, int(start[first])
+    while i < last:
+        nxt_start, nxt_stop = int(start[i + 1]), int(stop[i + 1])
+        cut = _back_at(path, pos, nxt_start, nxt_stop, int(side[i]))
+        if (i + 1 < last and cut > nxt_start and nxt_stop - cut >= min_steps
+                and ok(pos, cut, int(side[i]))):
+            cut2 = _back_at(path, cut, int(start[i + 2]), int(stop[i + 2]), int(side[i + 1]))
+            if ok(cut, int(stop[i + 2]), int(side[i + 1])) or (
+                    cut2 > start[i + 2] and ok(cut, cut2, int(side[i + 1]))):
+                code[pos:cut] = merge_code(int(side[i]))
+                i, pos = i + 1, cut
+                continue
+        if ok(pos, nxt_stop, int(side[i])):
+            code[pos:nxt_stop] = merge_code(int(side[i]))
+            i += 2
+        else:
+            i += 1
+        if i <= last:
+            pos = int(start[i])
+
+
+def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int) -> Runs:
+    """Stage 3: pairs of opposite turns that form a lateral move become merges.
+
+    Turn runs are paired greedily from the start of each segment. A turn and the next one,
+    going the other way and starting at most ``merge_gap`` after the first ends, form a
+    merge (the straight steps between them included) when :func:`_merge_ok` holds. A lone
+    such pair is checked for all segments at once. Where several follow each other (lane
+    changes in a row: right, then back left reads Right, Left, Right, the middle turn being
+    the end of the first and the start of the second), :func:`_chain` pairs them one by one
+    and splits a middle turn where the heading is back.
+    """
+    m = len(path.rows)
     turn = np.flatnonzero((runs.code == sdl.LEFT) | (runs.code == sdl.RIGHT))
     if len(turn) < 2:
         return runs
-    i, j = turn[:-1], turn[1:]
-    gap = runs.start[j] - (runs.start[i] + runs.length[i])
-    cand = (runs.seg[i] == runs.seg[j]) & (runs.code[i] != runs.code[j]) & (gap <= gap_steps)
-    # Greedy pairing: in a chain of overlapping candidate pairs take the 1st, 3rd, ...
-    k = np.arange(len(cand))
-    chain_start = cand & ~np.append(False, cand[:-1])
-    pos = k - np.maximum.accumulate(np.where(chain_start, k, 0))
-    take = cand & (pos % 2 == 0)
-    i, j = i[take], j[take]
-    merge = np.where(runs.code[i] == sdl.LEFT, sdl.LEFT_MERGE, sdl.RIGHT_MERGE)
-    code = runs.code.copy()
-    code[i] = merge
-    code[j] = merge
-    mid = j - i == 2
-    code[i[mid] + 1] = merge[mid]
-    return coalesce(Runs(runs.start, runs.length, code, runs.seg))
+    start = runs.start[turn]
+    stop = start + runs.length[turn]
+    side = np.where(runs.code[turn] == sdl.LEFT, 1, -1)
+    seg = runs.seg[turn]
+    cand = ((seg[1:] == seg[:-1]) & (side[1:] != side[:-1])
+            & (start[1:] - stop[:-1] <= config.merge_gap_steps))
+    if not cand.any():
+        return runs
+    before = np.r_[False, cand[:-1]]
+    after = np.r_[cand[1:], False]
+    lone = np.flatnonzero(cand & ~before & ~after)
+    merged = lone[_merge_ok(path, start[lone], stop[lone + 1], side[lone], config)]
+
+    code = runs.expand(m).astype(np.int64)
+    for i in merged.tolist():
+        code[start[i]:stop[i + 1]] = sdl.LEFT_MERGE if side[i] > 0 else sdl.RIGHT_MERGE
+    chain_first = np.flatnonzero(cand & ~before & after)
+    for first in chain_first.tolist():
+        last = first + 1
+        while last < len(cand) and cand[last]:
+            last += 1
+        _chain(path, start, stop, side, first, last, config, min_steps, code)
+    seg_first = np.zeros(m, dtype=bool)
+    seg_first[runs.start[np.r_[True, runs.seg[1:] != runs.seg[:-1]]]] = True
+    return find_runs(code, np.repeat(runs.seg, runs.length), seg_first)
 
 
 def _refine(runs: Runs, signal: np.ndarray, classes: np.ndarray, refine: np.ndarray,
@@ -237,7 +366,9 @@ def _refine(runs: Runs, signal: np.ndarray, classes: np.ndarray, refine: np.ndar
 
 
 def run_stages(w: np.ndarray, a: np.ndarray, v: np.ndarray, seg_length: np.ndarray,
-               thresholds: Thresholds, config: StageConfig = StageConfig()) -> StepLabels:
+               thresholds: Thresholds, config: StageConfig = StageConfig(), *,
+               heading: np.ndarray, x: np.ndarray, y: np.ndarray,
+               rows: np.ndarray | None = None) -> StepLabels:
     """Label every step of the given segments at all four levels.
 
     Args:
@@ -247,7 +378,12 @@ def run_stages(w: np.ndarray, a: np.ndarray, v: np.ndarray, seg_length: np.ndarr
         seg_length: (S,) steps in each segment, summing to m; each at least
             ``config.min_steps`` long.
         thresholds: Theta.
-        config: timing parameters.
+        config: stage parameters.
+        heading: heading [rad], unwrapped within each segment (stage 3's net heading
+            change and sideways move): (m,) per step, or (n,) per row with ``rows``.
+        x, y: position [m], like ``heading``.
+        rows: (m,) the row of ``heading``, ``x``, ``y`` of each step; the steps of one
+            segment must be consecutive rows. Default: the arrays are per step.
     """
     m = len(w)
     min_steps = config.min_steps
@@ -267,7 +403,7 @@ def run_stages(w: np.ndarray, a: np.ndarray, v: np.ndarray, seg_length: np.ndarr
     trace_long = _trace_longitudinal(a, th).astype(np.int8)
 
     # Stage 2: trend. Stopped steps are Straight; then the low-pass.
-    stopped = v < th.v_stop
+    stopped = v <= th.v_stop
     w_eff = np.where(stopped, 0.0, w)
     lat = np.where(stopped, sdl.STRAIGHT, trace_lat)
     lon = np.where(stopped, sdl.STOPPED, trace_long)
@@ -277,14 +413,17 @@ def run_stages(w: np.ndarray, a: np.ndarray, v: np.ndarray, seg_length: np.ndarr
 
     def classify_long(starts):
         mean_v = window_means(v, starts, min_steps)
-        return np.where(mean_v < th.v_stop, sdl.STOPPED,
+        return np.where(mean_v <= th.v_stop, sdl.STOPPED,
                         _trace_longitudinal(window_means(a, starts, min_steps), th))
 
     trend_lat = _low_pass(lat, layout, classify_lat, min_steps)
     trend_long = _low_pass(lon, layout, classify_long, min_steps)
 
     # Stage 3: maneuver.
-    lat_runs = _merges(find_runs(trend_lat, seg, seg_first), config.merge_gap_steps)
+    path = _Path(heading=np.asarray(heading, dtype=np.float64),
+                 x=np.asarray(x, dtype=np.float64), y=np.asarray(y, dtype=np.float64),
+                 rows=np.arange(m) if rows is None else np.asarray(rows, dtype=np.int64))
+    lat_runs = _merges(find_runs(trend_lat, seg, seg_first), path, config, min_steps)
     maneuver_lat = lat_runs.expand(m)
 
     # Stage 4: action.

@@ -113,6 +113,35 @@ def _flicker() -> tuple[np.ndarray, np.ndarray]:
     return np.full(len(yaw), 12.0), yaw
 
 
+def _u_turn() -> tuple[np.ndarray, np.ndarray]:
+    """1.5 s straight, a U-turn at 0.5 rad/s for 6.3 s (3.15 rad, radius 8 m), 1.3 s
+    straight, at 4 m/s."""
+    yaw = _profile((1.5, 0.0), (6.3, 0.5), (1.3, 0.0))
+    return np.full(len(yaw), 4.0), yaw
+
+
+def _turn_exit_overshoot() -> tuple[np.ndarray, np.ndarray]:
+    """A 2 rad left turn (0.5 rad/s for 4 s) with a counter-steer of -0.1 rad/s for 1.2 s
+    at its exit, at 6 m/s: a turn, not a merge (the heading does not come back)."""
+    yaw = _profile((1.5, 0.0), (4.0, 0.5), (1.2, -0.1), (2.4, 0.0))
+    return np.full(len(yaw), 6.0), yaw
+
+
+def _s_curve() -> tuple[np.ndarray, np.ndarray]:
+    """Left 0.8 rad (0.4 rad/s for 2 s), at once right 0.8 rad, at 8 m/s: the heading comes
+    back and the road moves sideways by 8 m, but it turned farther than a lane change
+    (pi/6): two turns."""
+    yaw = _profile((1.5, 0.0), (2.0, 0.4), (2.0, -0.4), (3.6, 0.0))
+    return np.full(len(yaw), 8.0), yaw
+
+
+def _two_lane_changes() -> tuple[np.ndarray, np.ndarray]:
+    """A right lane change, then at once one back to the left (each 3 s, yaw 0.12 rad/s,
+    about 4 m sideways), at 15 m/s: the middle 3 s turn left without a break."""
+    yaw = _profile((2.0, 0.0), (1.5, -0.12), (3.0, 0.12), (1.5, -0.12), (1.1, 0.0))
+    return np.full(len(yaw), 15.0), yaw
+
+
 BEHAVIOURS = {
     "cruise_slow": lambda: _cruise(5.0),
     "cruise_medium": lambda: _cruise(15.0),
@@ -132,6 +161,10 @@ BEHAVIOURS = {
     "accelerate_through_bands": _accelerate_through_bands,
     "hard_brake": _hard_brake,
     "flicker": _flicker,
+    "u_turn": _u_turn,
+    "turn_exit_overshoot": _turn_exit_overshoot,
+    "s_curve": _s_curve,
+    "two_lane_changes": _two_lane_changes,
 }
 """Named hand-shaped behaviours (each 9.1 s at 10 Hz unless noted in its builder)."""
 

@@ -45,6 +45,10 @@ DT = 1.0 / HZ
 """Time step [s]."""
 DT_TOLERANCE = 0.1
 """Relative tolerance on a step: 0.09 s to 0.11 s is one regular step (WOMD: about 0.1002 s)."""
+MAX_SPEED = 100.0
+"""No vehicle moves faster [m/s]: a larger speed is an input error (SPEC section 2)."""
+MAX_COORDINATE = 1e7
+"""Largest |x| or |y| [m] of a position in a local metric frame (SPEC section 2)."""
 MAX_GAP_STEPS = 10_000
 """A larger jump in t is taken as a mistake (wrong units), not as missing steps."""
 
@@ -200,8 +204,8 @@ def validate_trajectories(table: pd.DataFrame, *, source: str = "trajectory tabl
         TrajectoryTableError: naming the column, the row and the fix, for: an empty table,
             missing columns, non-numeric, NaN or infinite values, a non-increasing or
             irregular ``t``, a sampling rate other than 10 Hz, headings that look like
-            degrees, negative speed, unknown object types, duplicate (scenario_id,
-            track_id, t).
+            degrees, negative speed, a speed above 100 m/s or a coordinate beyond 1e7 m,
+            unknown object types, duplicate (scenario_id, track_id, t).
     """
     return validate_and_index(table, source=source).frame()
 
@@ -337,6 +341,21 @@ def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table")
         name = "speed" if "speed" in table.columns else "hypot(vx, vy)"
         _fail(f"{name} is negative ({float(speed[pos])!r} m/s) at {_where(table, pos)}; speed is a "
               "magnitude. Use abs(), or give vx, vy instead.", source, column="speed", row=pos)
+    fast = valid & (speed > MAX_SPEED)
+    if fast.any():
+        pos = int(np.flatnonzero(fast)[0])
+        name = "speed" if "speed" in table.columns else "hypot(vx, vy)"
+        _fail(f"{name} is {float(speed[pos])!r} m/s at {_where(table, pos)}; no vehicle moves "
+              f"faster than {MAX_SPEED:g} m/s. Check the units (m/s, not km/h or mm/s) or mark "
+              "the row valid=False.", source, column="speed", row=pos)
+    for col in ("x", "y"):
+        far = valid & (np.abs(cols[col]) > MAX_COORDINATE)
+        if far.any():
+            pos = int(np.flatnonzero(far)[0])
+            _fail(f"{col} is {float(cols[col][pos])!r} m at {_where(table, pos)}, beyond "
+                  f"{MAX_COORDINATE:g} m from the origin: positions must be metres in a local "
+                  "frame. Check the units (m, not mm), convert latitude/longitude to a local "
+                  "metric frame, or mark the row valid=False.", source, column=col, row=pos)
     heading = cols["heading"]
     big = valid & (np.abs(heading) > _TWO_PI + 1e-6)
     if big.any():

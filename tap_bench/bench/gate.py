@@ -50,7 +50,13 @@ from tap_bench.bench.bootstrap import named_rng
 from tap_bench.bench.compare import NO_LABEL
 from tap_bench.bench.measures import MEASURES
 from tap_bench.bench.suite import GATE_METRICS, GateConfig
-from tap_bench.errors import BaselineError, BaselineMismatchError, FileFormatError, ParameterError
+from tap_bench.errors import (
+    BaselineError,
+    BaselineMismatchError,
+    FileFormatError,
+    ParameterError,
+    UnknownNameError,
+)
 from tap_bench.tableio import atomic_path
 
 __all__ = ["BASELINE_FORMAT", "EXACT_FLIPS_MAX_SEEDS", "MAX_FAILED_SHARE", "GateResult",
@@ -132,6 +138,10 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
         run_summary: the run's ``summary.json``.
         episodes: the run's episode table.
         path: the baseline JSON to write.
+
+    Raises:
+        BaselineError: the run has no episode, or an (env, policy) of it has no episode that
+            ran to the end: such a baseline would test nothing there.
     """
     ok = episodes[episodes["status"] == "ok"]
     n_failed = len(episodes) - len(ok)
@@ -145,6 +155,15 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
                             f"{len(episodes)} episodes failed ({n_failed / len(episodes):.1%}, "
                             f"more than {MAX_FAILED_SHARE:.0%}): it cannot become a baseline. "
                             "Fix the failures (summary.json lists them) and run again.")
+    cells = episodes[["env", "policy"]].drop_duplicates()
+    done = set(map(tuple, ok[["env", "policy"]].drop_duplicates().to_numpy()))
+    empty = [(e, p) for e, p in cells.to_numpy() if (e, p) not in done]
+    if empty:
+        listed = ", ".join(f"{e or '-'}/{p}" for e, p in empty[:5])
+        raise BaselineError(
+            f"run {run_summary.get('run')!r}: every episode of {listed} failed; the baseline "
+            "would not test it. Fix those failures, or drop them from the suite, and run "
+            "again.")
     rows = [[_json_value(v) for v in r] for r in ok[list(_EPISODE_FIELDS)].itertuples(
         index=False)]
     gate = run_summary.get("suite", {}).get("gate") or GateConfig().to_dict()
@@ -165,8 +184,10 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
     """The baseline's header and its episode rows.
 
     Raises:
-        FileFormatError: missing file (with the command that makes one), not JSON, or not
-            a baseline.
+        FileFormatError: missing file (with the command that makes one), not JSON (or not
+            text), not a baseline, rows of the wrong shape or type, gate settings that
+            :class:`GateConfig` refuses.
+        BaselineError: a metric missing, or a measure that is not a number.
     """
     path = Path(path)
     if not path.is_file():
@@ -174,7 +195,10 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
                               f"'tap-bench bench check RUN --baseline {path} "
                               "--update-baseline'.")
     try:
-        doc = json.loads(path.read_text())
+        doc = json.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as err:
+        raise FileFormatError(f"{path}: not a text file (byte {err.start} is not UTF-8); a "
+                              "baseline is the JSON written by --update-baseline.") from None
     except json.JSONDecodeError as err:
         raise FileFormatError(f"{path}: not valid JSON: {err}") from err
     if not isinstance(doc, dict) or doc.get("format") != BASELINE_FORMAT:
@@ -183,7 +207,15 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
                               f"expected {BASELINE_FORMAT!r}).")
     try:
         eps = doc["episodes"]
-        table = pd.DataFrame(eps["rows"], columns=eps["columns"])
+        rows, columns = eps["rows"], eps["columns"]
+        if not isinstance(columns, list) or not isinstance(rows, list) or not all(
+                isinstance(r, list) and len(r) == len(columns) for r in rows):
+            raise ValueError(f"'rows' must be a list of lists of {len(columns)} values, one "
+                             "per column" if isinstance(columns, list) else
+                             "'columns' must be a list of names")
+        if not rows:
+            raise ValueError("it holds no episode; a baseline tests nothing without them")
+        table = pd.DataFrame(rows, columns=columns)
     except (KeyError, TypeError, ValueError) as err:
         raise FileFormatError(f"{path}: 'episodes' must hold 'columns' and 'rows': {err}"
                               ) from err
@@ -203,7 +235,41 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
                 f"{m.name} = {values.iloc[row]!r}, not a number; a baseline holds numbers "
                 "(or null where a measure is undefined). Re-make it with --update-baseline.")
         table[m.name] = pd.to_numeric(values, errors="coerce").astype(float)
+    _check_baseline_rows(table, path)
+    gate = doc.get("gate") or {}
+    if not isinstance(gate, dict):
+        raise FileFormatError(f"{path}: 'gate' must be an object of gate settings, got "
+                              f"{gate!r}.")
+    try:
+        GateConfig(**{k: v for k, v in gate.items()
+                      if k in ("alpha", "n_permutations", "seed", "margins")})
+    except (TypeError, ValueError, UnknownNameError) as err:
+        raise FileFormatError(f"{path}: gate settings: {err} Restore them from the suite "
+                              "(envs/suites/*.json) or re-make the baseline with "
+                              "--update-baseline.") from None
     return doc, table
+
+
+def _check_baseline_rows(table: pd.DataFrame, path: Path) -> None:
+    """Every identifying value of a baseline's episodes of the type its column holds: text
+    for env, policy (and sdl, or null), an integer seed (the measures are checked by
+    :func:`read_baseline`)."""
+    def bad(col: str, ok) -> None:
+        for i, value in enumerate(table[col].tolist()):
+            if not ok(value):
+                raise FileFormatError(
+                    f"{path}: episode row {i}, column {col!r}: {value!r} is not "
+                    f"{kinds[col]}. The baseline was edited or damaged; re-make it with "
+                    "--update-baseline.")
+
+    text = "text"
+    kinds = {"env": text, "policy": text, "seed": "a non-negative integer",
+             "sdl": "text or null"}
+    bad("env", lambda v: isinstance(v, str))
+    bad("policy", lambda v: isinstance(v, str))
+    bad("seed", lambda v: (isinstance(v, int) and not isinstance(v, bool))
+        or (isinstance(v, str) and v.isdigit()))  # baselines before 0.2 wrote it as text
+    bad("sdl", lambda v: v is None or isinstance(v, str))
 
 
 def holm(p: np.ndarray) -> np.ndarray:

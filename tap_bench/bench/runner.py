@@ -20,15 +20,17 @@ What a run folder holds:
 ``plots/*.png``         label distributions, measures, coverage, forest plots, novelty
 ``report.html``         the static report (no server, images embedded)
 ``viewer/``             the replay viewer (:mod:`tap_bench.bench.viewer`; with the trajectories)
+``.tap-bench-folder``   the marker that lets ``--overwrite`` replace the folder
 ======================  ====================================================================
 
 The folder is built under a temporary name beside the target and renamed into place only
 when complete, so an interrupted run leaves nothing that looks finished; an existing run
-folder is never replaced unless ``overwrite`` is given. Episodes run as tasks of
-:mod:`tap_bench.execution` (local worker processes or Ray), one task per (env, policy, seed),
-each labelling its own episode; an episode that fails is recorded with its error and left
-out of the scores, and an episode whose worker dies is tried once more and then recorded as
-failed: one bad episode never costs another.
+folder is never replaced unless ``overwrite`` is given, and then only when tap-bench wrote
+it (its marker is there): any other folder, a file or a link is refused. Episodes run as
+tasks of :mod:`tap_bench.execution` (local worker processes or Ray), one task per (env,
+policy, seed), each labelling its own episode; an episode that fails is recorded with its
+error and left out of the scores, and an episode whose worker dies is tried once more and
+then recorded as failed: one bad episode never costs another.
 """
 
 from __future__ import annotations
@@ -36,9 +38,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
 import sys
-import tempfile
 import time
 import warnings
 from collections.abc import Mapping, Sequence
@@ -65,23 +65,23 @@ from tap_bench.sim.roads import road_table
 from tap_bench.sim.rollout import resolve_policy, rollout
 from tap_bench.sim.suite import Scenario
 from tap_bench.sources import read_womd
-from tap_bench.tableio import atomic_path, read_table
+from tap_bench.tableio import atomic_folder, atomic_path, check_folder_output, read_table
 from tap_bench.thresholds import Thresholds, resolve_thresholds
 
 __all__ = ["RunExistsError", "RunResult", "check_output", "package_versions", "provenance",
            "read_run", "run_suite", "run_viewer", "write_results"]
 
 def check_output(output: str | os.PathLike, overwrite: bool) -> Path:
-    """``output`` as a Path; refuses an existing folder unless ``overwrite``.
+    """``output`` as a Path, checked before any work (:func:`tap_bench.tableio.
+    check_folder_output`): a new folder in a writable place, or, with ``overwrite``, a run
+    folder tap-bench wrote.
 
     Raises:
         RunExistsError: naming the folder and the flag that replaces it.
+        OutputPathError: the place is not writable, or ``output`` is a file, a link or a
+            folder tap-bench did not write.
     """
-    output = Path(output)
-    if output.exists() and not overwrite:
-        raise RunExistsError(f"{output} exists; choose another folder or pass --overwrite to "
-                             "replace it.")
-    return output
+    return check_folder_output(output, overwrite)
 
 
 @dataclass(frozen=True)
@@ -430,15 +430,14 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
     viewer when the trajectories are given) atomically.
 
     The folder is built under a temporary name beside ``output`` and renamed into place
-    when complete; an existing ``output`` is replaced only when ``overwrite`` is True.
+    when complete (:func:`tap_bench.tableio.atomic_folder`); an existing ``output`` is
+    replaced only when ``overwrite`` is True and tap-bench wrote it.
 
     Raises:
         RunExistsError: ``output`` exists and ``overwrite`` is False.
+        OutputPathError: ``output`` is a file, a link or a folder tap-bench did not write.
     """
-    output = check_output(output, overwrite)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{output.name}.", suffix=".tmp", dir=output.parent))
-    try:
+    with atomic_folder(output, overwrite, kind="run") as tmp:
         episodes.to_parquet(tmp / "episodes.parquet", index=False)
         if len(labels):
             labels.to_parquet(tmp / "labels.parquet", index=False)
@@ -458,22 +457,7 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
         if report:
             write_report(tmp, summary, episodes, scores, viewer="viewer/index.html"
                          if viewer else None)
-        if output.exists():
-            if not overwrite:
-                raise RunExistsError(f"{output} appeared while the run was going; run again "
-                                     "with another folder or --overwrite.")
-            old = output.with_name(f".{output.name}.old")
-            if old.exists():
-                shutil.rmtree(old)
-            output.rename(old)
-            tmp.rename(output)
-            shutil.rmtree(old)
-        else:
-            tmp.rename(output)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return output
+    return Path(output)
 
 
 def _parquet_safe(table: pd.DataFrame) -> pd.DataFrame:
@@ -491,7 +475,8 @@ def read_run(folder: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame]:
     """``summary.json`` and the episode table of a run folder.
 
     Raises:
-        FileFormatError: the folder is not a finished run (no summary or episode table).
+        FileFormatError: the folder is not a finished run (no summary or episode table), or
+            one of them is damaged: not JSON, not an object, not Parquet, columns missing.
     """
     folder = Path(folder)
     summary_path = folder / "summary.json"
@@ -500,11 +485,28 @@ def read_run(folder: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame]:
         if not path.is_file():
             raise FileFormatError(f"{folder}: not a finished run folder ({path.name} is "
                                   "missing); make one with 'tap-bench bench run'.")
+    redo = "The run folder is damaged; run 'tap-bench bench run' again."
     try:
-        summary = json.loads(summary_path.read_text())
-    except json.JSONDecodeError as err:
-        raise FileFormatError(f"{summary_path}: not valid JSON: {err}") from err
-    return summary, pd.read_parquet(episodes_path)
+        summary = json.loads(summary_path.read_bytes().decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise FileFormatError(f"{summary_path}: not valid JSON ({err}). {redo}") from None
+    if not isinstance(summary, dict):
+        raise FileFormatError(f"{summary_path}: holds a {type(summary).__name__}, not the "
+                              f"run's summary object. {redo}")
+    for key in ("suite", "thresholds"):
+        if summary.get(key) is not None and not isinstance(summary[key], dict | str):
+            raise FileFormatError(f"{summary_path}: {key!r} is a "
+                                  f"{type(summary[key]).__name__}. {redo}")
+    try:
+        episodes = pd.read_parquet(episodes_path)
+    except Exception as err:  # pyarrow raises several kinds for a damaged file
+        raise FileFormatError(f"{episodes_path}: not a readable Parquet table "
+                              f"({type(err).__name__}: {err}). {redo}") from None
+    missing = [c for c in ("env", "policy", "seed", "status") if c not in episodes.columns]
+    if missing:
+        raise FileFormatError(f"{episodes_path}: not an episode table (no "
+                              f"{', '.join(missing)} column). {redo}")
+    return summary, episodes
 
 
 def run_viewer(folder: str | os.PathLike, output: str | os.PathLike | None = None) -> Path:

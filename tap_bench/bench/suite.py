@@ -82,6 +82,16 @@ class GateConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
+        if not isinstance(self.margins, Mapping):
+            raise ValueError(f"gate margins must be an object metric -> margin, got "
+                             f"{self.margins!r}.")
+        for name, value, kind in (("alpha", self.alpha, "a number"),
+                                  ("n_permutations", self.n_permutations, "an integer"),
+                                  ("seed", self.seed, "an integer")):
+            allowed = (int, float) if kind == "a number" else (int,)
+            if isinstance(value, bool) or not isinstance(value, allowed):
+                raise ValueError(f"gate {name} must be {kind}, got {value!r} "
+                                 f"({type(value).__name__}).")
         for key, value in self.margins.items():
             if key not in GATE_METRICS:
                 raise did_you_mean("gate metric", key, GATE_METRICS)

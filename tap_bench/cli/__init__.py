@@ -23,6 +23,7 @@ COMMANDS = (
     "tap_bench.cli.label",
     "tap_bench.cli.fit",
     "tap_bench.cli.ingest",
+    "tap_bench.cli.validate",
     # simulation: highway-env scenarios, policies, rollouts, training
     "tap_bench.cli.envs",
     "tap_bench.cli.policies",

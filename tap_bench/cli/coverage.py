@@ -52,9 +52,15 @@ def run(args: argparse.Namespace) -> int:
     from tap_bench.bench.scoring import diversity_table, reference_scores
     from tap_bench.cli.rollout import episodes_path
     from tap_bench.labelling import tap
-    from tap_bench.tableio import read_table, write_table
+    from tap_bench.tableio import check_outputs, read_table, write_tables
 
     config = BootstrapConfig(n_resamples=args.resamples, level=args.ci, seed=args.seed)
+    novel_path = None
+    if args.output:
+        out = Path(args.output)
+        novel_path = episodes_path(out).with_name(
+            episodes_path(out).name.replace(".episodes.", ".novel."))
+        check_outputs([out, novel_path], [args.agent, args.reference])
     table = read_table(args.agent)
     name = args.name or (str(table["policy"].iloc[0]) if "policy" in table.columns
                          and table["policy"].nunique() == 1 else Path(args.agent).stem)
@@ -119,15 +125,11 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {r.count:4d}  {(r.env + ': ') if r.env else ''}{r.label}   e.g. "
                   f"{r.example_scenario}")
     if args.output:
-        out = Path(args.output)
-        write_table(pd.DataFrame(rows), out)
+        outputs = {out: pd.DataFrame(rows)}
         if not args.vocabulary:  # a corpus: its novel labels, possibly none
-            novel_path = episodes_path(out).with_name(
-                episodes_path(out).name.replace(".episodes.", ".novel."))
-            write_table(novel, novel_path)
-            print(f"wrote {out} and {novel_path}")
-        else:
-            print(f"wrote {out}")
+            outputs[novel_path] = novel
+        write_tables(outputs)  # together or not at all
+        print("wrote " + " and ".join(map(str, outputs)))
     return 0
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from tap_bench.sdl import LEVELS
-from tap_bench.similarity.evaluate import evaluate
+from tap_bench.similarity.evaluate import SEGMENTS, evaluate
 from tap_bench.similarity.figures import write_evaluation
 from tap_bench.tableio import read_table
 
@@ -32,6 +32,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--ade-length", default="equal",
                    help="'equal': ADE compares equal lengths only (default); N: every "
                    "trajectory cut to its first N points, shorter ones left out")
+    p.add_argument("--segments", choices=SEGMENTS, default="full",
+                   help="'full' (default): trajectories valid over their whole scenario, the "
+                   "paper's 9 s WOMD tracks; 'all': every labelled valid segment")
     p.add_argument("--workers", type=int, help="threads (default: the usable cores)")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.set_defaults(func=run)
@@ -45,17 +48,24 @@ def run(args: argparse.Namespace) -> int:
     length = args.ade_length if args.ade_length == "equal" else int(args.ade_length)
     ev = evaluate(trajectories, labels, level=args.level, thresholds=args.thresholds,
                   queries=args.queries, seed=args.seed, object_types=types, ade_length=length,
-                  workers=args.workers, source=str(args.trajectories))
+                  segments=args.segments, workers=args.workers, source=str(args.trajectories))
     written = write_evaluation(ev, args.output, figures=not args.no_figures)
     s = ev.summary
-    print(f"{s['data']['queries']:,} queries among {s['data']['trajectories']:,} trajectories "
-          f"({s['data']['level']} level):")
+    d = s["data"]
+    scope = ("full-length" if d["segments"] == "full" else "all") + " trajectories"
+    print(f"{d['queries']:,} queries among {d['trajectories']:,} {scope} "
+          f"({d['level']} level; {d['stationary_queries']:,} queries stationary):")
     for m in ("ade", "dtw"):
         f = s[m]
         share = "n/a" if f["share_different"] is None else f"{100 * f['share_different']:.2f} %"
         print(f"  nearest by {m.upper()}: {f['different_label']:,} of "
               f"{f['queries_with_neighbour']:,} have a different SDL label ({share}); search "
               f"{f['search_seconds']:.2f} s")
+        for part in ("moving", "stationary"):
+            g = f[part]
+            share = "n/a" if g["share_different"] is None else f"{100 * g['share_different']:.2f} %"
+            print(f"    {part}: {g['different_label']:,} of {g['queries_with_neighbour']:,} "
+                  f"({share})")
     u = s["sdl_exact"]
     print(f"  unique labels: {u['unique_labels']:,} ({100 * u['share_unique']:.2f} %)")
     t = s["timing"]

@@ -5,14 +5,16 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import pandas as pd
 
+from tap_bench.errors import FitWarning
 from tap_bench.execution import add_backend_arguments
 from tap_bench.fitting import METHODS, fit_report
 from tap_bench.kinematics import one_second_samples
-from tap_bench.tableio import read_table
+from tap_bench.tableio import check_outputs, read_table
 from tap_bench.thresholds import save_thresholds
 
 
@@ -38,6 +40,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_outputs([args.output], [args.input])
     t0 = time.perf_counter()
     options = {"methods": tuple(args.methods), "select": args.select,
                "dataset": str(args.input), "epochs": args.epochs, "seed": args.seed}
@@ -47,7 +50,9 @@ def run(args: argparse.Namespace) -> int:
         table = read_table(args.input)
         samples = one_second_samples(table, source=str(args.input))
     t1 = time.perf_counter()
-    report = fit_report(samples, **options)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FitWarning)  # printed below, after the tables
+        report = fit_report(samples, **options)
     t2 = time.perf_counter()
     save_thresholds(report.thresholds, args.output)
     frame = report.table()
@@ -61,6 +66,8 @@ def run(args: argparse.Namespace) -> int:
     th = report.thresholds
     print(f"\nchosen: w {th.of('w')}  a {th.of('a')}  v {th.of('v')}")
     print(f"samples {t1 - t0:.2f} s, fitting {t2 - t1:.2f} s; wrote {args.output}")
+    for note in report.warnings:
+        print(f"warning: {note}", file=sys.stderr)
     return 0
 
 

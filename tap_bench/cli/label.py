@@ -7,11 +7,12 @@ import sys
 import time
 from pathlib import Path
 
+from tap_bench.errors import TrajectoryTableError
 from tap_bench.execution import add_backend_arguments
 from tap_bench.labelling import tap
 from tap_bench.sdl import LEVELS
 from tap_bench.stages import StageConfig
-from tap_bench.tableio import read_table, write_table
+from tap_bench.tableio import check_outputs, read_table, write_tables
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -32,10 +33,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="SDL level (default: action); 'all' gives one row per level")
     p.add_argument("--segments", help="also write the segment table (one row per label run)")
     p.add_argument("--steps", help="also write per-step labels of every level")
-    p.add_argument("--report", help="write the segments too short to label (< 1 s) here")
+    p.add_argument("--report", help="write one row per track here: its valid segments, those "
+                   "too short to label (< 1 s), its glitches (heading flips and jumps, speed "
+                   "spikes), reversing steps and how far it travels")
     p.add_argument("--min-run", type=float, default=1.0, help="shortest label run [s] (1)")
     p.add_argument("--merge-gap", type=float, default=4.0,
                    help="longest straight stretch inside a merge [s] (4)")
+    p.add_argument("--merge-heading", type=float, default=0.2,
+                   help="largest net heading change over a merge [rad] (0.2)")
+    p.add_argument("--merge-offset", type=float, default=1.5,
+                   help="smallest sideways move of a merge [m] (1.5)")
     add_backend_arguments(p)
     p.set_defaults(func=run)
 
@@ -43,20 +50,27 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.backend != "local" or Path(args.input).is_dir():
         return _run_sharded(args)
+    # before any work: no output replaces the input, every output can be written
+    check_outputs([args.output, args.segments, args.steps, args.report], [args.input])
     t0 = time.perf_counter()
     table = read_table(args.input)
     t1 = time.perf_counter()
-    config = StageConfig(min_run=args.min_run, merge_gap=args.merge_gap)
+    config = _config(args)
     result = tap(table, args.thresholds, config, source=str(args.input))
     labels = result.labels(args.level)
-    write_table(labels, args.output)
-    if args.segments:
-        write_table(result.segments(args.level), args.segments)
-    if args.steps:
-        write_table(result.steps(), args.steps)
     short = result.short_segments
+    if len(result.segments_info) == 0:
+        raise TrajectoryTableError(_nothing_to_label(table, short, args.input, config),
+                                   column="valid")
+    glitches = result.glitches()
+    outputs = {args.output: labels}
+    if args.segments:
+        outputs[args.segments] = result.segments(args.level)
+    if args.steps:
+        outputs[args.steps] = result.steps()
     if args.report:
-        write_table(short, args.report)
+        outputs[args.report] = glitches
+    write_tables(outputs)  # together or not at all
     t2 = time.perf_counter()
 
     info = result.segments_info
@@ -68,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
         where = f"; listed in {args.report}" if args.report else "; --report FILE lists them"
         print(f"warning: {len(short)} valid segment(s) shorter than {config.min_run:g} s "
               f"carry no label{where}", file=sys.stderr)
+    print(_glitch_summary(glitches, args.report))
     shown = labels if args.level != "all" else labels[labels["level"] == "action"]
     counts = shown["sdl"].value_counts()
     print(f"{counts.size} distinct {'action' if args.level == 'all' else args.level}-level "
@@ -77,6 +92,40 @@ def run(args: argparse.Namespace) -> int:
     written = [args.output, args.segments, args.steps, args.report]
     print("wrote " + ", ".join(w for w in written if w))
     return 0
+
+
+def _nothing_to_label(table, short, source: str, config: StageConfig) -> str:
+    """Why a table gave no label, for the error: no rows, no valid state, or only short
+    stretches."""
+    n_tracks = table[["scenario_id", "track_id"]].drop_duplicates().shape[0] if len(table) \
+        else 0
+    valid = int(table["valid"].sum()) if "valid" in table.columns else len(table)
+    what = (f"{source}: nothing to label: {len(table)} row(s) of {n_tracks} track(s)")
+    if len(table) == 0:
+        return f"{what}. Give a table with trajectories."
+    if valid == 0:
+        return (f"{what}, and 'valid' is False on every row. Check the column (it marks the "
+                "states that were observed) or the source the table came from.")
+    return (f"{what}, {valid} valid, but every valid stretch ({len(short)}) is shorter than "
+            f"{config.min_run:g} s (--min-run).")
+
+
+def _config(args: argparse.Namespace) -> StageConfig:
+    return StageConfig(min_run=args.min_run, merge_gap=args.merge_gap,
+                       merge_heading=args.merge_heading, merge_offset=args.merge_offset)
+
+
+def _glitch_summary(glitches, report: str | None) -> str:
+    """One line: how many tracks carry which glitches (SPEC section 2)."""
+    parts = []
+    for col, what in (("heading_glitches", "heading flips or jumps"),
+                      ("speed_glitches", "speed spikes"), ("reversing_steps", "reversing steps")):
+        hit = glitches[col] > 0
+        parts.append(f"{int(glitches[col].sum())} {what} in {int(hit.sum())} track(s)")
+    still = int(glitches["still"].sum())
+    where = f" (per track in {report})" if report else " (--report FILE lists them per track)"
+    return (f"glitches repaired: {', '.join(parts)}; {still} of {len(glitches)} track(s) "
+            f"travel less than 1 m (no turn, no merge){where}")
 
 
 def _run_sharded(args: argparse.Namespace) -> int:
@@ -91,7 +140,7 @@ def _run_sharded(args: argparse.Namespace) -> int:
               "input or --backend ray, the output directory's _report.json counts the short "
               "segments of every shard.", file=sys.stderr)
         return 2
-    config = StageConfig(min_run=args.min_run, merge_gap=args.merge_gap)
+    config = _config(args)
     backend = backend_from_args(args)
     try:
         report = label_shards(args.input, args.output, backend, thresholds=args.thresholds,
@@ -104,6 +153,8 @@ def _run_sharded(args: argparse.Namespace) -> int:
           f"shard(s) on {report.backend} ({report.workers} worker(s)) in "
           f"{report.seconds:.1f} s: {report.rows} label rows, {short} segment(s) too short "
           f"to label; wrote {args.output}/")
+    for note in report.notes:
+        print(f"tap-bench label: {note}", file=sys.stderr)
     for failed in report.failed:
         print(f"warning: {failed['input']} failed after {failed['attempts']} attempt(s): "
               f"{failed['error']}", file=sys.stderr)

@@ -16,7 +16,7 @@ from tap_bench.sdl import LEVELS
 from tap_bench.similarity.scenario_sdl import rank_scenarios, scenario_set
 from tap_bench.similarity.sdl_distance import METRICS, label_set
 from tap_bench.similarity.search import search, search_like
-from tap_bench.tableio import read_table, write_table
+from tap_bench.tableio import check_outputs, read_table, write_table
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -70,6 +70,7 @@ def _split_like(value: str, labels: pd.DataFrame) -> tuple[str, str, int | None]
 
 
 def run(args: argparse.Namespace) -> int:
+    check_outputs([args.output], [args.labels, args.trajectories])
     table = read_table(args.labels)
     if args.scenario is not None:
         return _run_scenario(args, table)

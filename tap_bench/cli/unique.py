@@ -6,7 +6,7 @@ import argparse
 
 from tap_bench.sdl import LEVELS
 from tap_bench.similarity.unique import label_counts, unique_labels
-from tap_bench.tableio import read_table, write_table
+from tap_bench.tableio import check_outputs, read_table, write_tables
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -25,6 +25,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_outputs([args.output, args.counts], [args.labels])
     table = read_table(args.labels)
     counts = label_counts(table, args.level)
     unique = unique_labels(table, args.level)
@@ -36,10 +37,8 @@ def run(args: argparse.Namespace) -> int:
         for _, row in mine.head(args.top).iterrows():
             print(f"  {row['scenario_id']}:{row['track_id']}  {row['n_actions']} actions  "
                   f"{row['sdl']}")
-    if args.output:
-        write_table(unique, args.output)
-    if args.counts:
-        write_table(counts, args.counts)
+    outputs = {path: t for path, t in ((args.output, unique), (args.counts, counts)) if path}
+    write_tables(outputs)
     written = [w for w in (args.output, args.counts) if w]
     if written:
         print("wrote " + ", ".join(written))

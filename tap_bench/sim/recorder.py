@@ -5,6 +5,12 @@ highway-env's y axis points to the driver's right, so y, vy and heading change s
 way in, and a left lane change becomes a positive yaw rate. Headings are wrapped to
 (-pi, pi]. The ego vehicle has ``track_id`` ``"ego"`` and ``is_ego`` true; the others are
 numbered ``"1"``, ``"2"`` ... in the order they first appear on the road.
+
+Two optional columns record what the simulator knows and a data set does not: ``road``, the
+road segment the vehicle is on (highway-env's lane index without the lane, ``"a>b"``), and
+``lane``, the lane's number on it (highway-env counts from the left, 0 first). A change of
+``lane`` on one road is a lane change: to the right when it grows. They are the truth
+``benchmarks/bench_lane_change_merges.py`` checks TAP's merges against.
 """
 
 from __future__ import annotations
@@ -95,7 +101,9 @@ class TrajectoryRecorder:
             x, y = vehicle.position
             speed = vehicle.speed
             heading = vehicle.heading
-            rows.append((step, code, x, y, heading, speed, vehicle.crashed))
+            road_from, road_to, lane = vehicle.lane_index
+            rows.append((step, code, x, y, heading, speed, vehicle.crashed,
+                         f"{road_from}>{road_to}", lane))
         return new
 
     def table(self, **columns: object) -> pd.DataFrame:
@@ -104,7 +112,7 @@ class TrajectoryRecorder:
         Args:
             **columns: constant columns to add (``policy="idm"``).
         """
-        names = ("step", "code", "x", "y", "heading", "speed", "crashed")
+        names = ("step", "code", "x", "y", "heading", "speed", "crashed", "road", "lane")
         if not self._rows:
             data = {n: np.empty(0) for n in names}
         else:
@@ -119,6 +127,8 @@ class TrajectoryRecorder:
         heading = -data["heading"].astype(np.float64)[order]
         speed = data["speed"].astype(np.float64)[order]
         crashed = data["crashed"].astype(bool)[order]
+        road = data["road"].astype(object)[order]
+        lane = data["lane"].astype(np.int64)[order]
         track_names = np.array([EGO_TRACK_ID] + [str(i) for i in range(1, self._n_others + 1)],
                                dtype=object)
         policy = columns.pop("policy", None)
@@ -147,6 +157,8 @@ class TrajectoryRecorder:
             "seed": seed,
             "episode": np.full(n, self.episode, dtype=np.int64),
             "crashed": crashed,
+            "road": road,
+            "lane": lane,
             **{name: np.full(n, value, dtype=object) for name, value in columns.items()},
         }
         return pd.DataFrame(data, copy=False)

@@ -145,7 +145,9 @@ class SB3Policy:
             raise TapBenchError(
                 f"policy {self.name!r}: the env's observation space {env.observation_space} "
                 f"differs from the one the model was trained on ({expected}). Build the env "
-                "with the policy's observation config (rollouts do this), or retrain.")
+                "with the policy's observation config (rollouts do this when the model's "
+                "definition .json, written by 'tap-bench train', lies beside it or is given "
+                "instead of the .zip), or retrain.")
         if self._model.action_space != env.action_space:
             raise TapBenchError(
                 f"policy {self.name!r}: the env's action space {env.action_space} differs from "

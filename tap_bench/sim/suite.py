@@ -41,6 +41,8 @@ from tap_bench.sim.vehicles import LANE_CHANGE_SETTINGS
 from tap_bench.trajectories import HZ
 
 __all__ = [
+    "MAX_SEED",
+    "MAX_SEEDS",
     "SIMULATION_FREQUENCY",
     "Scenario",
     "check_config",
@@ -77,28 +79,47 @@ def _seeds_error(source: str, spec: object, message: str) -> ParameterError:
                           message=message)
 
 
+MAX_SEEDS = 100_000
+"""The most seeds one seed list may name: 100,000 episodes per (env, policy) is more than a
+thousand times the default suite's 30, and each episode's tables are held in memory. A
+longer list is refused before anything is built (``"0-999999999"`` once took 21 GB)."""
+MAX_SEED = 2**63 - 1
+"""The largest seed: seeds are stored as 64-bit integers in every table."""
+
+
 def parse_seeds(spec: str | int | list[int] | range, *, source: str = "seeds") -> list[int]:
     """Seeds from ``"0-49"``, ``"3,5,8-9"``, an int, a list or a range.
+
+    The count is known from the ranges before a single seed is made, so a huge range costs
+    nothing to refuse.
 
     Returns:
         the seeds in the order given, duplicates refused.
 
     Raises:
-        ParameterError: naming ``source`` and the part that is not a seed or a range of seeds.
+        ParameterError: naming ``source`` and the part that is not a seed or a range of
+            seeds, a seed given twice, or more than :data:`MAX_SEEDS` seeds.
     """
     if isinstance(spec, bool):
         raise _seeds_error(source, spec, f"{source}: {spec!r} is not a seed; "
                                          f"give an int, '0-49' or '1,4,7'.")
+    ranges: list[range] = []
     if isinstance(spec, int):
-        seeds = [spec]
-    elif isinstance(spec, range | list | tuple):
-        try:
-            seeds = [operator.index(s) for s in spec]
-        except TypeError:
-            raise _seeds_error(source, spec, f"{source}: {spec!r} holds a value "
-                               "that is not an integer seed.") from None
+        ranges = [range(spec, spec + 1)]
+    elif isinstance(spec, range):
+        ranges = [spec]
+    elif isinstance(spec, list | tuple):
+        if len(spec) > MAX_SEEDS:
+            raise _too_many(source, f"{len(spec):,} seeds", len(spec))
+        for s in spec:
+            try:
+                if isinstance(s, bool):
+                    raise TypeError(s)
+                ranges.append(range(operator.index(s), operator.index(s) + 1))
+            except TypeError:
+                raise _seeds_error(source, spec, f"{source}: {s!r} in the list is not an "
+                                   "integer seed.") from None
     elif isinstance(spec, str):
-        seeds = []
         for part in spec.replace(" ", "").split(","):
             match = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
             if not match:
@@ -110,20 +131,41 @@ def parse_seeds(spec: str | int | list[int] | range, *, source: str = "seeds") -
             if hi < lo:
                 raise _seeds_error(source, spec, f"{source}: range {part!r} runs backwards; "
                                                  f"write '{hi}-{lo}'.")
-            seeds.extend(range(lo, hi + 1))
+            ranges.append(range(lo, hi + 1))
     else:
         raise _seeds_error(source, spec, f"{source}: {spec!r} is not a seed list; "
                                          f"give '0-49', an int or a list.")
-    if not seeds:
+    count = sum(len(r) for r in ranges)
+    if count > MAX_SEEDS:
+        raise _too_many(source, spec if isinstance(spec, str) else f"{count:,} seeds", count)
+    if count == 0:
         raise _seeds_error(source, spec, f"{source}: no seeds given.")
-    if any(s < 0 for s in seeds):
-        raise _seeds_error(source, spec, f"{source}: seeds must be non-negative, "
-                                         f"got {min(seeds)}.")
+    low = min(r.start for r in ranges if len(r))
+    high = max(r[-1] for r in ranges if len(r))
+    if low < 0:
+        raise _seeds_error(source, spec, f"{source}: seeds must be non-negative, got {low}.")
+    if high > MAX_SEED:
+        raise _seeds_error(source, spec, f"{source}: seed {high} is larger than {MAX_SEED} "
+                                         "(2^63 - 1), the largest a table stores.")
+    seeds = [s for r in ranges for s in r]
     if len(set(seeds)) != len(seeds):
-        dup = next(s for s in seeds if seeds.count(s) > 1)
-        raise _seeds_error(source, spec, f"{source}: seed {dup} is given twice; "
-                                         f"each seed is one episode.")
+        seen: set[int] = set()
+        dup = next(s for s in seeds if s in seen or seen.add(s))
+        raise _seeds_error(source, spec if isinstance(spec, str) else f"{count:,} seeds",
+                           f"{source}: seed {dup} is given twice; each seed is one episode.")
     return seeds
+
+
+def _too_many(source: str, value: object, count: int) -> ParameterError:
+    return ParameterError(
+        source, value, f"at most {MAX_SEEDS:,} seeds", message=(
+            f"{source}: {count:,} seeds, more than the maximum of {MAX_SEEDS:,} "
+            "(tap_bench.sim.suite.MAX_SEEDS) in one list; run the seeds in several lists "
+            "(say '0-99999', then '100000-199999')."))
+
+
+_AT_MOST = f"at most {MAX_SEEDS:,} seeds (tap_bench.sim.suite.MAX_SEEDS)"
+_SPLIT = "Run the seeds in several lists (say '0-99999', then '100000-199999')."
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,10 @@ For every trajectory (or a random sample of queries) :func:`evaluate` finds its 
 trajectory by ADE and by DTW on normalised shapes and counts how often that neighbour carries
 a different SDL label: the paper's argument that shape distances miss behaviour (WOMD:
 7,924 of 25,889 ADE neighbours and 6,246 DTW neighbours differ). It also counts the unique
-labels (paper: 395) and times 1,000 comparisons of each method.
+labels (paper: 395) and times 1,000 comparisons of each method. As in the paper, it takes
+full-length trajectories by default (valid over the whole scenario: WOMD's 9.1 s), and it
+reports moving and stationary queries apart: on real data most queries are parked cars
+whose nearest neighbour is another parked car at distance 0, which flatters every method.
 :func:`tap_bench.similarity.figures.write_evaluation`
 writes the results as JSON, a Markdown table beside the paper's figures, the per-query
 neighbours, and PNG figures like the paper's Figures 5 and 6.
@@ -30,7 +33,14 @@ from tap_bench.similarity.sdl_distance import LabelSet, label_set
 from tap_bench.similarity.shape import Shapes, normalised_shapes
 from tap_bench.similarity.unique import unique_labels
 
-__all__ = ["PAPER", "Evaluation", "evaluate", "markdown"]
+__all__ = ["PAPER", "SEGMENTS", "Evaluation", "evaluate", "markdown"]
+
+SEGMENTS = ("full", "all")
+"""Which trajectories :func:`evaluate` compares: ``full``, the valid segments that span
+their whole scenario (the paper's 9 s WOMD tracks), or ``all`` valid segments."""
+STATIONARY_TRAVEL = 1.0
+"""A query whose normalised shape never gets this far [m] from its start is stationary
+(SPEC section 2: it travels less than about 1 m)."""
 
 PAPER = {
     "data": "WOMD, 492 scenarios, 25,889 vehicle trajectories of 9 s, action level",
@@ -89,6 +99,25 @@ def _select(labels: pd.DataFrame, object_types: tuple[str, ...] | None) -> pd.Da
     return labels.loc[keep]
 
 
+def _full_length(labels: pd.DataFrame, trajectories: pd.DataFrame) -> pd.DataFrame:
+    """The label rows whose segment spans its whole scenario (first to last time stamp)."""
+    from tap_bench.trajectories import DT
+
+    for col in ("t_start", "t_end"):
+        if col not in labels.columns:
+            raise LabelTableError(f"label table: missing column {col!r}, needed to find the "
+                                  "full-length trajectories; make it with 'tap-bench label', "
+                                  "or compare every segment (--segments all).")
+    span = trajectories.groupby(trajectories["scenario_id"].astype(str))["t"].agg(["min", "max"])
+    sid = labels["scenario_id"].astype(str)
+    first = sid.map(span["min"]).to_numpy(dtype=np.float64)
+    last = sid.map(span["max"]).to_numpy(dtype=np.float64)
+    t0 = labels["t_start"].to_numpy(dtype=np.float64)
+    t1 = labels["t_end"].to_numpy(dtype=np.float64) - DT  # t_end is exclusive
+    full = (np.abs(t0 - first) < 0.5 * DT) & (np.abs(t1 - last) < 0.5 * DT)
+    return labels.loc[full]
+
+
 def _label_timing(trajectories: pd.DataFrame, keys: pd.DataFrame, thresholds, n: int,
                   repeats: int) -> tuple[float, int]:
     """Seconds to label ``n`` of the evaluated tracks with TAP (best of ``repeats``)."""
@@ -119,9 +148,9 @@ def _compare_timing(code: np.ndarray, pairs: int = 1_000_000, repeats: int = 3) 
 def evaluate(trajectories: pd.DataFrame, labels: pd.DataFrame | None = None, *,
              level: str = "action", thresholds="paper", queries: int | None = None,
              seed: int = 0, object_types: tuple[str, ...] | None = ("vehicle",),
-             ade_length: str | int = "equal", workers: int | None = None,
-             timing_trajectories: int = 1000, progress: bool | None = None,
-             source: str = "trajectory table") -> Evaluation:
+             ade_length: str | int = "equal", segments: str = "full",
+             workers: int | None = None, timing_trajectories: int = 1000,
+             progress: bool | None = None, source: str = "trajectory table") -> Evaluation:
     """Reproduce the paper's similarity (6.3) and uniqueness (6.4) experiments.
 
     Args:
@@ -135,6 +164,8 @@ def evaluate(trajectories: pd.DataFrame, labels: pd.DataFrame | None = None, *,
         object_types: trajectories kept (the paper: vehicles); None, or a label table
             without an ``object_type`` column, keeps all.
         ade_length: ``"equal"`` or a prefix length, see :func:`ade_nearest`.
+        segments: ``"full"`` (default): only trajectories valid over their whole scenario,
+            the paper's full-length tracks; ``"all"``: every labelled valid segment.
         workers: threads for the nearest-neighbour searches.
         timing_trajectories: tracks labelled to time TAP.
         progress: progress bars (default: on a terminal).
@@ -143,9 +174,17 @@ def evaluate(trajectories: pd.DataFrame, labels: pd.DataFrame | None = None, *,
     t_start = time.perf_counter()
     if labels is None:
         labels = tap(trajectories, thresholds, source=source).labels(level)
-    ls = label_set(_select(label_set(labels, level).table, object_types), level)
-    if len(ls) < 2:
-        raise LabelTableError("evaluation needs at least two labelled trajectories.")
+    if segments not in SEGMENTS:
+        raise ParameterError("segments", segments, f"one of {', '.join(SEGMENTS)}")
+    chosen = _select(label_set(labels, level).table, object_types)
+    n_segments = len(chosen)
+    if segments == "full":
+        chosen = _full_length(chosen, trajectories)
+    if len(chosen) < 2:
+        hint = (f" ({len(chosen)} of {n_segments} span their whole scenario; compare every "
+                "segment with segments='all', --segments all)") if segments == "full" else ""
+        raise LabelTableError(f"evaluation needs at least two labelled trajectories{hint}.")
+    ls = label_set(chosen, level)
     shapes = normalised_shapes(trajectories, ls.table, source=source)
     q = _sample(len(ls), queries, seed)
 
@@ -153,6 +192,9 @@ def evaluate(trajectories: pd.DataFrame, labels: pd.DataFrame | None = None, *,
     kernel_s = compile_kernels()
     ade = ade_nearest(shapes, q, length=ade_length, workers=workers, progress=progress)
     dtw = dtw_nearest(shapes, q, hints=ade.neighbour, workers=workers, progress=progress)
+
+    reach = np.hypot(shapes.points[:, 0], shapes.points[:, 1])
+    stationary = np.maximum.reduceat(reach, shapes.offsets[:-1]) < STATIONARY_TRAVEL
 
     keys = ls.table
     lat = keys["lateral"].astype(str).to_numpy()
@@ -163,6 +205,7 @@ def evaluate(trajectories: pd.DataFrame, labels: pd.DataFrame | None = None, *,
         "track_id": keys["track_id"].to_numpy()[q],
         "segment": keys["segment"].to_numpy()[q] if "segment" in keys.columns else 0,
         "sdl": text[q], "n_exact_matches": ls.counts[ls.code[q]] - 1,
+        "stationary": stationary[q],
     })
     found: dict[str, dict] = {}
     for res in (ade, dtw):
@@ -191,6 +234,16 @@ def evaluate(trajectories: pd.DataFrame, labels: pd.DataFrame | None = None, *,
             "comparisons": res.comparisons,
             "distances_started": int(res.evaluated.sum()),
         }
+        for part, mask in (("moving", ~stationary[q]), ("stationary", stationary[q])):
+            answered_part = int((has & mask).sum())
+            diff_part = int((nb_rows[f"{m}_different"].to_numpy() & mask).sum())
+            found[m][part] = {
+                "queries": int(mask.sum()), "queries_with_neighbour": answered_part,
+                "different_label": diff_part,
+                "share_different": diff_part / answered_part if answered_part else None,
+                "median_distance": (float(np.median(res.distance[has & mask]))
+                                    if answered_part else None),
+            }
 
     unique_rows = np.flatnonzero(ls.counts[ls.code] == 1)
     unique = unique_labels(ls)
@@ -217,6 +270,9 @@ def evaluate(trajectories: pd.DataFrame, labels: pd.DataFrame | None = None, *,
             "points_min": int(lengths.min()), "points_max": int(lengths.max()),
             "distinct_labels": ls.n_labels, "queries": len(q),
             "sampled": len(q) < len(ls), "seed": seed, "ade_length": ade_length,
+            "segments": segments, "segments_before_selection": n_segments,
+            "stationary_trajectories": int(stationary.sum()),
+            "stationary_queries": int(stationary[q].sum()),
         },
         "ade": found["ade"],
         "dtw": found["dtw"],
@@ -248,7 +304,11 @@ def markdown(ev: Evaluation) -> str:
         f"Data: `{d['source']}`: {d['trajectories']:,} trajectories "
         f"({', '.join(d['object_types']) if isinstance(d['object_types'], list) else 'all'})"
         f" in {d['scenarios']:,} scenarios, {d['points_min']}-{d['points_max']} points each; "
-        f"{d['distinct_labels']:,} distinct {d['level']}-level labels. Queries: "
+        f"{d['distinct_labels']:,} distinct {d['level']}-level labels; "
+        + ("full-length trajectories only (valid over their whole scenario; "
+           f"{d['trajectories']:,} of {d['segments_before_selection']:,} labelled segments). "
+           if d["segments"] == "full" else "every labelled valid segment. ")
+        + "Queries: "
         f"{d['queries']:,}" + (f" (random sample, seed {d['seed']})" if d["sampled"] else
                                 " (every trajectory)") + ".",
         "",
@@ -265,6 +325,23 @@ def markdown(ev: Evaluation) -> str:
             f"{_pct(f['share_different'])} | {f['lateral_different']:,} | "
             f"{f['longitudinal_different']:,} | {p[m + '_different']:,} of "
             f"{p['trajectories']:,} ({100 * p[m + '_share']:.2f} %) |")
+    lines += [
+        "",
+        f"Moving and stationary queries apart (stationary: the trajectory never gets "
+        f"{STATIONARY_TRAVEL:g} m from its start; {d['stationary_queries']:,} of "
+        f"{d['queries']:,} queries):",
+        "",
+        "| nearest neighbour by | queries | with a different SDL label | share | median "
+        "distance [m] |",
+        "|---|---|---:|---:|---:|",
+    ]
+    for m, label in (("ade", "ADE"), ("dtw", "DTW")):
+        for part in ("moving", "stationary"):
+            f = s[m][part]
+            med = "n/a" if f["median_distance"] is None else f"{f['median_distance']:.3f}"
+            lines.append(f"| {label} | {part} ({f['queries']:,}) | {f['different_label']:,} of "
+                         f"{f['queries_with_neighbour']:,} | {_pct(f['share_different'])} | "
+                         f"{med} |")
     no_nb = s["ade"]["queries_without_neighbour"]
     if no_nb:
         lines += ["", f"{no_nb:,} queries have no ADE neighbour: no other trajectory has their "

@@ -9,7 +9,9 @@ Modules, in the order data flows:
 - :mod:`~tap_bench.womd.tf_example`: the ``tf.Example`` motion format to the table;
 - :mod:`~tap_bench.womd.writer`: a trajectory table back to ``Scenario`` TFRecords;
 - :mod:`~tap_bench.womd.trajectory_types`: Waymo's trajectory-type classifier, a reference
-  for TAP labels.
+  for TAP labels;
+- :mod:`~tap_bench.womd.validation`: TAP labels validated against it (``tap-bench
+  validate``).
 
 Reading many files, and other formats (ScenarioNet pickles of WOMD, nuPlan or Argoverse 2),
 is :mod:`tap_bench.sources`, whose registered readers use these decoders.

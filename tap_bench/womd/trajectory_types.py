@@ -1,23 +1,29 @@
 """Waymo's trajectory-type classifier, and how far TAP labels agree with it.
 
 WOMD's motion metrics bucket each track by a coarse trajectory type (``ClassifyTrack`` in
-waymo-open-dataset), computed from two states only: the one at the current time index (10)
-and the last valid one after it. It is an independent reference for TAP's lateral and
-longitudinal labels: a track it calls ``LEFT_TURN`` should carry a Left Turn or a Left Merge,
-a ``STATIONARY`` one a Stopped label. The constants are those of
-``../shared/data/womd/README.md``. ``benchmarks/bench_womd_agreement.py`` prints the
-agreement table of WOMD files (vehicles, paper thresholds, maneuver level).
+waymo-open-dataset), computed from two states only: the one at the current time index (10,
+i.e. 1 s) and the last valid one after it. It is an independent reference for TAP's
+lateral labels. The constants are those of ``../shared/data/womd/README.md``.
+
+The comparison is strict and on the classifier's own window: TAP's per-step labels from
+the start step to the track's last valid step (labelled on the whole track), reduced to one
+lateral category (:data:`TAP_CATEGORIES`), which must be the one the type allows
+(:data:`STRICT_RULES`): STATIONARY and STRAIGHT only Straight; STRAIGHT_LEFT a left merge
+or turn and nothing to the right; LEFT_TURN and LEFT_U_TURN a Left Turn and no turn or merge
+to the right (and the mirror images). Beside it: the direction alone (left, right, none),
+and the longitudinal side (STATIONARY: every label Stopped; the others: not all Stopped),
+which differ by definition (Waymo's stationary is below 2 m/s, TAP's Stopped at most
+0.1 m/s). :func:`tap_bench.womd.validation.validate_womd` and ``tap-bench validate`` write
+the tables.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import pandas as pd
 
-__all__ = ["AGREEMENT_RULES", "TRAJECTORY_TYPES", "agreement_table", "classify_trajectories",
-           "label_agreement"]
+__all__ = ["STRICT_RULES", "TAP_CATEGORIES", "TRAJECTORY_TYPES", "agreement_table",
+           "classify_trajectories", "confusion_table", "label_agreement"]
 
 MAX_STATIONARY_SPEED = 2.0
 """Below this speed at both ends [m/s] (and a short displacement) a track is STATIONARY."""
@@ -36,38 +42,47 @@ TRAJECTORY_TYPES = ("STATIONARY", "STRAIGHT", "STRAIGHT_LEFT", "STRAIGHT_RIGHT",
                     "LEFT_U_TURN", "RIGHT_TURN", "RIGHT_U_TURN")
 
 
-@dataclass(frozen=True)
-class Rule:
-    """What TAP labels agree with a trajectory type.
+TAP_CATEGORIES = ("Straight", "Left Merge", "Left Turn", "Left Turn and Merge", "Right Merge",
+                  "Right Turn", "Right Turn and Merge", "Left and Right", "unlabelled")
+"""TAP's lateral labels in the classifier's window, as one category: which turns and merges
+occur (Straight: none; "Left and Right": some of each side)."""
 
-    Attributes:
-        axis: ``lateral`` or ``longitudinal``.
-        any_of: agreement when one of these labels occurs on that axis...
-        only: ...or, when set, when every label on that axis is this one.
-        text: the rule in words, for the docs.
-    """
-
-    axis: str
-    any_of: tuple[str, ...] = ()
-    only: str | None = None
-    text: str = ""
-
-
-AGREEMENT_RULES = {
-    "STATIONARY": Rule("longitudinal", any_of=("Stopped",), text="a Stopped label"),
-    "STRAIGHT": Rule("lateral", only="Straight", text="lateral labels all Straight"),
-    "STRAIGHT_LEFT": Rule("lateral", any_of=("Left Turn", "Left Merge"),
-                          text="a Left Turn or Left Merge"),
-    "STRAIGHT_RIGHT": Rule("lateral", any_of=("Right Turn", "Right Merge"),
-                           text="a Right Turn or Right Merge"),
-    "LEFT_TURN": Rule("lateral", any_of=("Left Turn", "Left Merge"),
-                      text="a Left Turn or Left Merge"),
-    "LEFT_U_TURN": Rule("lateral", any_of=("Left Turn",), text="a Left Turn"),
-    "RIGHT_TURN": Rule("lateral", any_of=("Right Turn", "Right Merge"),
-                       text="a Right Turn or Right Merge"),
-    "RIGHT_U_TURN": Rule("lateral", any_of=("Right Turn",), text="a Right Turn"),
+STRICT_RULES = {
+    "STATIONARY": (("Straight",), "Straight only"),
+    "STRAIGHT": (("Straight",), "Straight only"),
+    "STRAIGHT_LEFT": (("Left Merge", "Left Turn", "Left Turn and Merge"),
+                      "a left merge or turn, nothing to the right"),
+    "STRAIGHT_RIGHT": (("Right Merge", "Right Turn", "Right Turn and Merge"),
+                       "a right merge or turn, nothing to the left"),
+    "LEFT_TURN": (("Left Turn", "Left Turn and Merge"),
+                  "a Left Turn, no turn or merge to the right"),
+    "LEFT_U_TURN": (("Left Turn", "Left Turn and Merge"),
+                    "a Left Turn, no turn or merge to the right"),
+    "RIGHT_TURN": (("Right Turn", "Right Turn and Merge"),
+                   "a Right Turn, no turn or merge to the left"),
+    "RIGHT_U_TURN": (("Right Turn", "Right Turn and Merge"),
+                     "a Right Turn, no turn or merge to the left"),
 }
-"""The agreement rule of each trajectory type (maneuver-level labels)."""
+"""Per trajectory type: the TAP categories that agree with it, and the rule in words."""
+
+_SIDE = {"STATIONARY": "none", "STRAIGHT": "none", "STRAIGHT_LEFT": "left",
+         "STRAIGHT_RIGHT": "right", "LEFT_TURN": "left", "LEFT_U_TURN": "left",
+         "RIGHT_TURN": "right", "RIGHT_U_TURN": "right"}
+
+
+def _step_index(table: pd.DataFrame) -> np.ndarray:
+    """(n_rows,) the time step of each row, from ``t``: steps since the scenario's first
+    time stamp, in units of the scenario's median step (WOMD: about 0.1002 s)."""
+    t = table["t"].to_numpy(dtype=np.float64)
+    scenario = table["scenario_id"].to_numpy()
+    frame = pd.DataFrame({"s": scenario, "t": t})
+    t0 = frame.groupby("s", sort=False)["t"].transform("min").to_numpy()
+    stamps = frame.drop_duplicates().sort_values(["s", "t"])
+    gaps = stamps.groupby("s", sort=False)["t"].diff()
+    dt = gaps.groupby(stamps["s"], sort=False).median()
+    step = pd.Series(scenario).map(dt).to_numpy(dtype=np.float64)
+    step = np.where(np.isfinite(step) & (step > 0), step, 0.1)
+    return np.round((t - t0) / step).astype(np.int64)
 
 
 def classify_trajectories(table: pd.DataFrame, *, start_index: int = START_INDEX
@@ -75,23 +90,31 @@ def classify_trajectories(table: pd.DataFrame, *, start_index: int = START_INDEX
     """Waymo's trajectory type of every track valid at ``start_index``.
 
     Args:
-        table: a trajectory table whose tracks have one row per step from the scenario's
-            first step (as read from WOMD), with ``valid``, ``vx`` and ``vy``.
-        start_index: the step the classification starts from (WOMD: 10).
+        table: a trajectory table with ``valid``, ``vx`` and ``vy`` (as read from WOMD).
+            Steps are counted from ``t`` (steps since the scenario's first time stamp), so
+            a table without its invalid rows is classified the same.
+        start_index: the step the classification starts from (WOMD: 10, at 1 s).
 
     Returns:
         One row per classified track: ``scenario_id``, ``track_id``, ``trajectory_type``,
         ``dx``, ``dy`` (end minus start in the start heading frame [m]),
         ``heading_change`` [rad, in (-pi, pi]], ``max_speed`` (of start and end [m/s]),
-        ``displacement`` [m]. Tracks invalid at ``start_index`` or with no valid state
-        after it are left out.
+        ``displacement`` [m], and the classifier's window: ``t_start`` (the start step's
+        time [s]) and ``t_end`` (the last valid step's time [s]). Tracks invalid at
+        ``start_index`` or with no valid state after it are left out.
     """
-    rows = table.sort_values(["scenario_id", "track_id", "t"], kind="stable")
-    step = rows.groupby(["scenario_id", "track_id"], sort=False).cumcount().to_numpy()
-    valid = rows["valid"].to_numpy(dtype=bool)
     keys = ["scenario_id", "track_id"]
-    start = rows[(step == start_index) & valid]
-    end = rows[(step > start_index) & valid].groupby(keys, sort=False).tail(1)
+    rows = table.reset_index(drop=True)
+    rows = rows.assign(_step=_step_index(rows))
+    valid = rows["valid"].to_numpy(dtype=bool) if "valid" in rows.columns else \
+        np.ones(len(rows), dtype=bool)
+    rows = rows[valid]
+    if "vx" not in rows.columns or "vy" not in rows.columns:
+        rows = rows.assign(vx=rows["speed"] * np.cos(rows["heading"]),
+                           vy=rows["speed"] * np.sin(rows["heading"]))
+    start = rows[rows["_step"] == start_index].drop_duplicates(keys)
+    after = rows[rows["_step"] > start_index]
+    end = after.loc[after.groupby(keys, sort=False)["_step"].idxmax()]
     pair = start.merge(end, on=keys, suffixes=("_0", "_1"))
     dx0 = pair["x_1"].to_numpy() - pair["x_0"].to_numpy()
     dy0 = pair["y_1"].to_numpy() - pair["y_0"].to_numpy()
@@ -113,59 +136,137 @@ def classify_trajectories(table: pd.DataFrame, *, start_index: int = START_INDEX
         ["STATIONARY", "STRAIGHT", "STRAIGHT_RIGHT", "STRAIGHT_LEFT", "RIGHT_U_TURN",
          "RIGHT_TURN", "LEFT_U_TURN"],
         default="LEFT_TURN")
-    return pd.DataFrame({"scenario_id": pair["scenario_id"], "track_id": pair["track_id"],
-                         "trajectory_type": kind, "dx": dx, "dy": dy, "heading_change": turn,
-                         "max_speed": speed, "displacement": displacement})
+    out = pd.DataFrame({"scenario_id": pair["scenario_id"], "track_id": pair["track_id"],
+                        "trajectory_type": kind, "dx": dx, "dy": dy, "heading_change": turn,
+                        "max_speed": speed, "displacement": displacement,
+                        "t_start": pair["t_0"].to_numpy(), "t_end": pair["t_1"].to_numpy()})
+    return out.sort_values(keys, kind="stable").reset_index(drop=True)
 
 
-def label_agreement(types: pd.DataFrame, labels: pd.DataFrame) -> pd.DataFrame:
-    """Per classified track, whether its TAP labels agree with its trajectory type.
+def _category(lateral: pd.Series) -> np.ndarray:
+    """TAP category (:data:`TAP_CATEGORIES`) of each ``" > "``-joined lateral sequence."""
+    text = lateral.fillna("").astype(str)
+    tokens = {name: text.str.contains(name, regex=False).to_numpy()
+              for name in ("Left Turn", "Left Merge", "Right Turn", "Right Merge")}
+    left = tokens["Left Turn"] | tokens["Left Merge"]
+    right = tokens["Right Turn"] | tokens["Right Merge"]
+
+    def side(turn: np.ndarray, merge: np.ndarray, name: str) -> np.ndarray:
+        return np.where(turn & merge, f"{name} Turn and Merge",
+                        np.where(turn, f"{name} Turn", f"{name} Merge"))
+
+    return np.select([text.to_numpy() == "", left & right, left, right],
+                     ["unlabelled", "Left and Right",
+                      side(tokens["Left Turn"], tokens["Left Merge"], "Left"),
+                      side(tokens["Right Turn"], tokens["Right Merge"], "Right")],
+                     default="Straight")
+
+
+def _window_sequences(types: pd.DataFrame, steps: pd.DataFrame, level: str) -> pd.DataFrame:
+    """Per classified track, its ``level`` labels in the classifier's window as ``" > "``
+    sequences (runs of one label; `` / `` between valid segments)."""
+    keys = ["scenario_id", "track_id"]
+    cols = [f"{level}_lateral", f"{level}_longitudinal"]
+    part = steps[[*keys, "segment", "t", *cols]].merge(types[[*keys, "t_start", "t_end"]],
+                                                        on=keys)
+    eps = 1e-6
+    part = part[(part["t"] >= part["t_start"] - eps) & (part["t"] <= part["t_end"] + eps)]
+    part = part.sort_values([*keys, "t"], kind="stable").reset_index(drop=True)
+    out = part[keys].drop_duplicates().reset_index(drop=True)
+    if not len(part):
+        return out.assign(lateral="", longitudinal="")
+    track = part[keys].ne(part[keys].shift()).any(axis=1).to_numpy()
+    segment = track | (part["segment"].to_numpy() != part["segment"].shift().to_numpy())
+    for col, name in zip(cols, ("lateral", "longitudinal"), strict=True):
+        values = part[col].astype(str).to_numpy()
+        change = segment.copy()
+        change[1:] |= values[1:] != values[:-1]
+        runs = part.loc[change, keys].assign(
+            label=values[change], sep=np.where(track[change], "",
+                                               np.where(segment[change], " / ", " > ")))
+        runs["text"] = runs["sep"] + runs["label"]
+        joined = runs.groupby(keys, sort=False)["text"].agg("".join).reset_index()
+        out = out.merge(joined.rename(columns={"text": name}), on=keys, how="left")
+    return out
+
+
+def label_agreement(types: pd.DataFrame, steps: pd.DataFrame, *, level: str = "maneuver"
+                    ) -> pd.DataFrame:
+    """Per classified track, TAP's labels in the classifier's window and the agreement.
 
     Args:
         types: from :func:`classify_trajectories`.
-        labels: a TAP label table at one level (maneuver recommended); a track's segments
-            are taken together.
+        steps: TAP's per-step table (:meth:`tap_bench.TapResult.steps`): ``scenario_id``,
+            ``track_id``, ``segment``, ``t`` and ``<level>_lateral``,
+            ``<level>_longitudinal``.
+        level: the TAP level compared (maneuver: turns and merges without intensities).
 
     Returns:
-        ``types`` with ``lateral`` and ``longitudinal`` (the labels of all the track's
-        segments, joined by `` / ``; empty when none was long enough to label),
-        ``labelled`` (bool: the track carries labels) and ``agrees`` (bool; false when
-        unlabelled).
+        ``types`` with ``lateral`` and ``longitudinal`` (the labels in the window; empty
+        when no labelled step falls in it), ``labelled`` (bool), ``tap_category``
+        (:data:`TAP_CATEGORIES`), ``strict`` (the category is one :data:`STRICT_RULES`
+        allows), ``direction`` (TAP's side, left, right or none, is the type's; a track
+        with both sides never agrees) and ``longitudinal_agrees`` (STATIONARY: every label
+        Stopped; moving types: not every label Stopped); all false when unlabelled.
     """
     keys = ["scenario_id", "track_id"]
-    per_track = labels.sort_values([*keys, "t_start"]).groupby(keys, sort=False).agg(
-        lateral=("lateral", " / ".join), longitudinal=("longitudinal", " / ".join)
-    ).reset_index()
-    out = types.merge(per_track, on=keys, how="left")
+    seqs = _window_sequences(types, steps, level)
+    out = types.merge(seqs, on=keys, how="left")
     out[["lateral", "longitudinal"]] = out[["lateral", "longitudinal"]].fillna("")
-
-    def agrees(row) -> bool:
-        rule = AGREEMENT_RULES[row["trajectory_type"]]
-        text = row[rule.axis]
-        tokens = [t.strip() for part in text.split(" / ") for t in part.split(">") if t.strip()]
-        if rule.only is not None:
-            return bool(tokens) and all(t == rule.only for t in tokens)
-        return any(t in rule.any_of for t in tokens)
-
     out["labelled"] = out["lateral"] != ""
-    out["agrees"] = (out.apply(agrees, axis=1).astype(bool) if len(out)
-                     else pd.Series(dtype=bool))
+    category = _category(out["lateral"])
+    out["tap_category"] = category
+    kind = out["trajectory_type"].to_numpy()
+    allowed = np.array([cat in STRICT_RULES[k][0] for k, cat in zip(kind, category,
+                                                                     strict=True)], dtype=bool)
+    tap_side = np.select([np.char.startswith(category.astype(str), "Left and"),
+                          np.char.startswith(category.astype(str), "Left"),
+                          np.char.startswith(category.astype(str), "Right"),
+                          category == "Straight"], ["both", "left", "right", "none"],
+                         default="unlabelled")
+    side = np.array([_SIDE[k] for k in kind], dtype=object)
+    lon = out["longitudinal"].str.replace(" / ", " > ", regex=False).str.split(" > ")
+    all_stopped = lon.map(lambda tokens: bool(tokens) and all(t == "Stopped" for t in tokens)
+                          ).to_numpy(dtype=bool)
+    labelled = out["labelled"].to_numpy()
+    out["strict"] = allowed & labelled
+    out["direction"] = (tap_side == side) & labelled
+    out["longitudinal_agrees"] = np.where(kind == "STATIONARY", all_stopped, ~all_stopped
+                                          ) & labelled
     return out
 
 
 def agreement_table(per_track: pd.DataFrame) -> pd.DataFrame:
-    """Per trajectory type: tracks classified, tracks labelled (a valid segment of 1 s or
-    more), labelled tracks whose labels agree, their share, and the rule."""
+    """Per trajectory type (and ``all``): tracks, labelled tracks, and among those the
+    strict lateral agreement, the direction-only agreement and the longitudinal one
+    (counts and shares), with the strict rule in words."""
     rows = []
     for kind in (*TRAJECTORY_TYPES, "all"):
         sel = per_track if kind == "all" else per_track[per_track["trajectory_type"] == kind]
         if not len(sel):
             continue
         labelled = int(sel["labelled"].sum())
-        agree = int(sel["agrees"].sum())
-        rows.append({"trajectory_type": kind, "tracks": len(sel), "labelled": labelled,
-                     "agree": agree,
-                     "agreement": round(agree / labelled, 3) if labelled else float("nan"),
-                     "TAP labels that agree": "" if kind == "all"
-                     else AGREEMENT_RULES[kind].text})
+        row = {"trajectory_type": kind, "tracks": len(sel), "labelled": labelled}
+        for col in ("strict", "direction", "longitudinal_agrees"):
+            agree = int(sel[col].sum())
+            name = "longitudinal" if col == "longitudinal_agrees" else col
+            row[name] = agree
+            row[f"{name}_share"] = round(agree / labelled, 3) if labelled else float("nan")
+        row["strict rule"] = "" if kind == "all" else STRICT_RULES[kind][1]
+        rows.append(row)
     return pd.DataFrame(rows)
+
+
+def confusion_table(per_track: pd.DataFrame) -> pd.DataFrame:
+    """Tracks per trajectory type (rows) and TAP category in its window (columns), with
+    totals; every type and category appears, zeros included."""
+    table = pd.crosstab(pd.Categorical(per_track["trajectory_type"],
+                                       categories=TRAJECTORY_TYPES),
+                        pd.Categorical(per_track["tap_category"], categories=TAP_CATEGORIES),
+                        dropna=False)
+    table.index.name, table.columns.name = "trajectory_type", None
+    table.index = table.index.astype(str)
+    table.columns = table.columns.astype(str)
+    table["total"] = table.sum(axis=1)
+    table.loc["total"] = table.sum(axis=0)
+    return table

@@ -112,6 +112,40 @@ EXPECTED = {
     # trace; its 1 s window mean is 0.02 <= w_str, so the low-pass makes it Straight.
     "flicker": ("Straight > Left Turn > Straight | Maintain Speed",)
     + ("Straight | Maintain Speed",) * 2 + ("Straight | Maintain Medium Speed",),
+    # Yaw 0.5 for 6.3 s; the edge steps read 0.25 > w_str, so one Left run of 64 steps,
+    # every |w| > 0.1541: Aggressive. A single turn, nothing to pair. 4 m/s: Slow.
+    "u_turn": ("Straight > Left Turn > Straight | Maintain Speed",) * 3
+    + ("Straight > Aggressive Left Turn > Straight | Maintain Slow Speed",),
+    # 0.5 rad/s for 4 s then -0.1 for 1.2 s: the corner reads (0.5 - 0.1)/2 = 0.2 (Left),
+    # the trailing edge -0.05 (Right): Left 41 steps, Right 13. They are adjacent, but the
+    # net heading change is 2.0 - 0.12 = 1.88 rad > 0.2: no merge. Right run: 12 steps of
+    # 0.1 (Medium) and one of 0.05 (Gradual, a piece < 1 s), so the run takes its mean
+    # |w| = 0.096: Medium.
+    "turn_exit_overshoot": ("Straight > Left Turn > Right Turn > Straight | Maintain Speed",)
+    * 3 + ("Straight > Aggressive Left Turn > Medium Right Turn > Straight | "
+           "Maintain Slow Speed",),
+    # +0.4 for 2 s then -0.4 for 2 s: the corner step reads 0, a 1-step Straight run; its
+    # window (4 steps of 0.4, the 0, 5 of -0.4) means -0.04 < -w_str: Right Turn. Maneuver:
+    # the heading comes back and the car moves 5 m sideways, but it turned 0.8 rad away
+    # from its start heading, farther than pi/6: two turns, both Aggressive (0.4).
+    "s_curve": ("Straight > Left Turn > Straight > Right Turn > Straight | Maintain Speed",
+                "Straight > Left Turn > Right Turn > Straight | Maintain Speed",
+                "Straight > Left Turn > Right Turn > Straight | Maintain Speed",
+                "Straight > Aggressive Left Turn > Aggressive Right Turn > Straight | "
+                "Maintain Slow Speed"),
+    # -0.12 for 1.5 s, +0.12 for 3 s, -0.12 for 1.5 s at 15 m/s. Each corner reads 0, a
+    # 1-step Straight whose window means +-0.012 (Straight, still short): it joins its
+    # longer neighbour, the 30-step Left run. Trend: Right, Left, Right. Maneuver: the
+    # heading is back at its start half-way through the Left run (1.5 s left of it), so it
+    # is split there: Right then Left, each back to the start heading, 0.18 rad at most
+    # from it and about 4 m sideways: two merges.
+    "two_lane_changes": (
+        "Straight > Right Turn > Straight > Left Turn > Straight > Right Turn > Straight | "
+        "Maintain Speed",
+        "Straight > Right Turn > Left Turn > Right Turn > Straight | Maintain Speed",
+        "Straight > Right Merge > Left Merge > Straight | Maintain Speed",
+        "Straight > Right Merge > Left Merge > Straight | Maintain Medium Speed",
+    ),
 }
 
 
@@ -182,3 +216,37 @@ def test_step_table_has_every_level():
     assert steps["trace_lateral"].iloc[35] == "Straight"
     assert steps["trend_lateral"].iloc[35] == "Left Turn"
     assert steps["action_longitudinal"].iloc[0] == "Maintain Medium Speed"
+
+
+def test_merge_rule_parameters_decide_a_merge():
+    # left_lane_change: the heading peaks at 0.18 rad and comes back; the car moves about
+    # 15 m/s * 3 s * 0.09 = 4 m to the left over the pair
+    table = tb.behaviour("left_lane_change")
+
+    def lateral(**kw):
+        return tb.label(table, level="maneuver", config=tb.StageConfig(**kw))["lateral"].item()
+
+    assert lateral() == "Straight > Left Merge > Straight"
+    assert lateral(merge_offset=3.5) == "Straight > Left Merge > Straight"
+    assert lateral(merge_offset=4.5) == "Straight > Left Turn > Right Turn > Straight"
+    assert lateral(merge_excursion=0.15) == "Straight > Left Turn > Right Turn > Straight"
+    # the S-curve turns 0.8 rad away: allowed that far, it is a lateral move
+    s_curve = tb.label(tb.behaviour("s_curve"), level="maneuver",
+                       config=tb.StageConfig(merge_excursion=1.0))
+    assert s_curve["lateral"].item() == "Straight > Left Merge > Straight"
+    # the turn-exit overshoot never comes back to its heading, whatever the excursion
+    overshoot = tb.label(tb.behaviour("turn_exit_overshoot"), level="maneuver",
+                         config=tb.StageConfig(merge_excursion=3.0))
+    assert overshoot["lateral"].item() == "Straight > Left Turn > Right Turn > Straight"
+    for name in ("merge_heading", "merge_offset", "merge_excursion", "merge_gap"):
+        with pytest.raises(tb.TapBenchError, match=name):
+            tb.StageConfig(**{name: -1.0})
+
+
+def test_a_right_lane_change_is_never_a_left_merge():
+    # the sideways move must go to the first turn's side: mirror the shape of a left lane
+    # change's heading but not its positions, and it cannot merge
+    table = tb.behaviour("left_lane_change")
+    table["y"] = -table["y"]  # the car moves right while its heading turns left, then right
+    got = tb.label(table, level="maneuver")["lateral"].item()
+    assert "Merge" not in got

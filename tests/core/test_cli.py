@@ -26,14 +26,18 @@ def test_label_all_levels_with_segments_and_steps(sample, tmp_path, capsys):
     assert code == 0
     labels = tb.read_table(out)
     assert set(labels["level"]) == set(tb.LEVELS)
-    assert len(labels) == 4 * (18 + 30)
-    assert list(labels.columns[:9]) == ["scenario_id", "track_id", "segment", "level",
-                                        "lateral", "longitudinal", "sdl", "t_start", "t_end"]
+    n_tracks = len(tb.synthetic.BEHAVIOURS) + 30
+    assert len(labels) == 4 * n_tracks
+    assert list(labels.columns[:13]) == ["scenario_id", "track_id", "segment", "level",
+                                         "lateral", "longitudinal", "sdl", "t_start", "t_end",
+                                         "heading_glitches", "speed_glitches",
+                                         "reversing_steps", "travel"]
     segments = pd.read_parquet(seg)
     assert {"axis", "label"} <= set(segments.columns)
     assert len(pd.read_parquet(steps)) == len(tb.read_table(sample))
     text = capsys.readouterr().out
-    assert "labelled 48 segment(s)" in text and "distinct action-level labels" in text
+    assert f"labelled {n_tracks} segment(s)" in text and "distinct action-level labels" in text
+    assert "glitches repaired: 0 heading flips or jumps in 0 track(s)" in text
 
 
 def test_label_default_level_is_action(sample, tmp_path):
@@ -89,7 +93,9 @@ def test_short_segments_report(tmp_path, capsys):
     tb.write_table(table, path)
     assert main(["label", str(path), "-o", str(out), "--report", str(rep)]) == 0
     assert "shorter than 1 s" in capsys.readouterr().err
-    assert tb.read_table(rep)["n_steps"].tolist() == [4]
+    report = tb.read_table(rep)  # one row per track
+    assert report["segments"].tolist() == [2]
+    assert report["short_segments"].tolist() == [1] and report["short_steps"].tolist() == [4]
 
 
 def test_write_is_atomic(tmp_path, monkeypatch):

@@ -8,9 +8,11 @@ import math
 from fractions import Fraction
 
 import numpy as np
+import pandas as pd
 import pytest
 
 import tap_bench as tb
+from tap_bench.errors import TapBenchError
 from tap_bench.fitting import cem, descent, grid_search
 from tap_bench.objective import SortedSamples
 
@@ -136,8 +138,13 @@ def test_fit_thresholds_from_a_table_with_provenance(tmp_path):
     th = report.thresholds
     prov = th.provenance
     assert prov.dataset == "synthetic-300"
-    assert prov.n_samples["w"] == prov.n_samples["a"] == 300 * 9
-    assert prov.n_samples["v"] < prov.n_samples["a"]  # stopped samples left out
+    samples = tb.one_second_samples(table)
+    moving = int((samples["v"] > 0.1).sum())
+    assert len(samples["v"]) == 300 * 9
+    # stopped windows take no part in D_a, D_w (SPEC 3) nor in J(Theta_v)
+    assert prov.n_samples["a"] == prov.n_samples["v"] == moving < 300 * 9
+    # nor do windows whose heading is not trusted (a slow crawl) in D_w
+    assert prov.n_samples["w"] == len(samples["w"]) <= moving
     assert th.v_stop == 0.1
     for dist in ("w", "a", "v"):
         runs = list(report.fits[dist].runs)
@@ -182,3 +189,57 @@ def test_infeasible_starts_are_moved_into_the_data():
     assert all(r.start[1] < 15.0 for r in runs)
     moved = report.thresholds.provenance.details["starts_moved_into_data"]["v"]
     assert len(moved) == 1  # the three infeasible starts all became the same quantile start
+
+
+def test_warning_names_both_figures_far_above_the_grid_and_a_degenerate_band():
+    from tap_bench.fitting import FitRun, _fit_warnings
+    from tap_bench.objective import SortedSamples
+
+    s = SortedSamples(np.linspace(0.0, 0.4, 401))  # 1-99 % range 0.392: resolution 0.00392
+    chosen = FitRun("w", "descent", (0.01, 0.05, 0.1), (0.0126, 0.0502, 0.0509), 0.556)
+    grid = FitRun("w", "grid", None, (0.1, 0.2, 0.3), 0.0216)
+    notes = _fit_warnings("womd.parquet", "w", s, chosen, grid)
+    assert len(notes) == 2
+    far, band = notes
+    assert "womd.parquet: w:" in far and "J = 0.556" in far and "25.7 times" in far
+    assert "J = 0.0216" in far and "(0.1, 0.2, 0.3)" in far
+    assert "w_grad = 0.0502 and w_med = 0.0509" in band and "0.0007 rad/s wide" in band
+    assert "0.0039 rad/s" in band
+    # a fit at the grid optimum with well-spread bands: nothing to report
+    assert _fit_warnings("womd.parquet", "w", s, grid, grid) == ()
+    # J far above in ratio but both tiny against the data's scale: nothing either
+    tiny = FitRun("w", "descent", None, (0.1, 0.2, 0.3), 1e-8)
+    assert _fit_warnings("x", "w", s, tiny, FitRun("w", "grid", None, (0.1, 0.2, 0.3), 1e-11)
+                         ) == ()
+
+
+def test_fit_report_raises_fit_warnings(recwarn):
+    from tap_bench.errors import FitWarning
+
+    rng = np.random.default_rng(0)
+    samples = {"w": rng.uniform(0, 0.4, 500), "a": rng.normal(0, 1, 500),
+               "v": rng.uniform(0.5, 30, 500)}
+    report = tb.fit_report(samples, methods=("descent", "grid"), epochs=1,
+                           dataset="few-epochs")
+    raised = [str(w.message) for w in recwarn if issubclass(w.category, FitWarning)]
+    assert raised == list(report.warnings)
+    assert report.thresholds.provenance.details["warnings"] == list(report.warnings)
+
+
+def test_fit_on_a_constant_distribution_names_file_distribution_and_fix(tmp_path, capsys):
+    from tap_bench.cli import main
+
+    # straight cruises: every one-second |w| is 0. 5 x 9 windows, less the 3 stopped ones
+    # of stop_and_go (steps 40-69 mean 0.075, 0 and 0.06 m/s <= v_stop): 42 samples of w.
+    table = pd.concat([tb.behaviour(name) for name in ("cruise_slow", "cruise_medium",
+                                                       "cruise_fast", "stop_and_go",
+                                                       "hard_brake")], ignore_index=True)
+    with pytest.raises(TapBenchError, match="cruises.parquet: the 42 one-second samples of w"
+                       r" \(rad/s\) take only 1 distinct value"):
+        tb.fit_report(table, dataset="cruises.parquet")
+    path = tmp_path / "cruises.parquet"
+    tb.write_table(table, path)
+    assert main(["fit", str(path), "-o", str(tmp_path / "th.json")]) == 2
+    err = capsys.readouterr().err
+    assert str(path) in err and "samples of w" in err and "--thresholds paper" in err
+    assert not (tmp_path / "th.json").exists()

@@ -6,6 +6,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 import tap_bench as tb
@@ -61,3 +62,28 @@ def test_one_second_samples_and_fit_on_real_data(vehicles):
     report = tb.fit_report(samples, methods=("descent", "grid"))
     for dist in ("w", "a", "v"):
         assert np.isfinite(report.fits[dist].chosen.objective)
+
+
+def test_glitches_of_the_real_files_are_repaired_and_counted(vehicles):
+    result = tb.tap(vehicles)
+    labels = result.labels("all")
+    # ee519cf571686d19 track 916 (issue 12): parked, 0.3 m of travel, heading flipping
+    # between -0.29 and 2.87 rad, speed spiking to 12 m/s: once "Aggressive Right Turn |
+    # Accelerate Slow Speed"
+    parked = labels[(labels["scenario_id"] == "ee519cf571686d19")
+                    & (labels["track_id"] == "916")].set_index("level")
+    assert set(parked["lateral"]) == {"Straight"}
+    assert parked.loc["action", "longitudinal"] == "Maintain Slow Speed"
+    assert parked.loc["action", "heading_glitches"] == 3
+    assert parked.loc["action", "speed_glitches"] == 5
+    assert parked.loc["action", "travel"] < 1.0
+    # no vehicle that travels less than 1 m carries a turn or merge, at any level
+    still = labels[labels["travel"] < 1.0]
+    assert len(still) > 4 * 100
+    assert not still["lateral"].str.contains("Turn|Merge").any()
+    # the report per track adds them up over every valid segment, short ones included
+    report = result.glitches()
+    every = pd.concat([result.segments_info, result.short_segments])
+    assert report["heading_glitches"].sum() == every["heading_glitches"].sum() > labels.loc[
+        labels["level"] == "action", "heading_glitches"].sum()
+    assert (report["speed_glitches"] > 0).sum() > 10

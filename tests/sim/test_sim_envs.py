@@ -169,3 +169,26 @@ def test_realistic_setting_reaches_vehicles_that_enter_later():
     assert later, "the intersection spawned no vehicle; the test needs one"
     for vehicle in env.unwrapped.road.vehicles:
         assert vehicle.KP_HEADING == pytest.approx(1 / setting.tau_heading)
+
+
+def test_the_recorder_writes_road_and_lane():
+    # lane 1 of 3, LANE_LEFT at the third decision: lane 1, then 0 once the ego is closer to it
+    table = scripted("tap_bench/highway-v0", [1, 1, 0, 1, 1, 1, 1, 1], duration=8,
+                     config={"vehicles_count": 0, "initial_lane_id": 1, "observation": CHEAP})
+    ego = table[table["is_ego"]]
+    assert set(ego["road"]) == {"0>1"}
+    lane = ego["lane"].to_numpy()
+    assert lane[0] == 1 and lane[-1] == 0
+    assert np.count_nonzero(np.diff(lane)) == 1  # one lane change, to the left
+
+
+def test_two_lane_changes_in_a_row_are_two_merges():
+    # right at the third decision, back left at the sixth: the recorder sees both
+    table = scripted("tap_bench/highway-v0", [1, 1, 2, 1, 1, 0, 1, 1, 1, 1, 1, 1], duration=12,
+                     config={"vehicles_count": 0, "initial_lane_id": 1, "observation": CHEAP})
+    ego = table[table["is_ego"]]
+    assert np.diff(ego["lane"].to_numpy()).tolist().count(1) == 1
+    assert np.diff(ego["lane"].to_numpy()).tolist().count(-1) == 1
+    labels = tap_bench.label(ego, level="maneuver")
+    # trend: Right, Left (the end of the first and the start of the second), Right
+    assert labels["lateral"].tolist() == ["Straight > Right Merge > Left Merge > Straight"]

@@ -13,15 +13,17 @@ GRADUAL_LEFT = "Straight > Gradual Left Turn > Straight | Maintain Medium Speed"
 STOP_AND_GO = "Straight | Decelerate Slow Speed > Stopped > Accelerate Slow Speed"
 
 
-def label_rows(rows: list[tuple[str, str, str]], level: str = "action", **extra) -> pd.DataFrame:
-    """A label table from (scenario_id, track_id, sdl) triples, one segment each."""
+def label_rows(rows: list[tuple[str, str, str]], level: str = "action", *,
+               t_end: float = 9.1, **extra) -> pd.DataFrame:
+    """A label table from (scenario_id, track_id, sdl) triples, one segment each, from 0 s
+    to ``t_end`` (exclusive)."""
     sdl = [r[2] for r in rows]
     out = pd.DataFrame({
         "scenario_id": [r[0] for r in rows], "track_id": [r[1] for r in rows],
         "segment": 0, "level": level,
         "lateral": [s.split(" | ")[0] for s in sdl],
         "longitudinal": [s.split(" | ")[1] for s in sdl],
-        "sdl": sdl, "t_start": 0.0, "t_end": 9.1,
+        "sdl": sdl, "t_start": 0.0, "t_end": t_end,
     })
     for col, values in extra.items():
         out[col] = values
@@ -93,4 +95,4 @@ def triples() -> tuple[pd.DataFrame, pd.DataFrame]:
                                 ("O", o, "Straight | Maintain Slow Speed")):
             tracks[(f"triple{c}", name)] = pts
             rows.append((f"triple{c}", name, text))
-    return table_from_points(tracks), label_rows(rows)
+    return table_from_points(tracks), label_rows(rows, t_end=2.0)

@@ -80,3 +80,34 @@ def test_triples_known_by_construction(tmp_path):
     md = markdown(ev)
     assert "| ADE | 4 of 12 | 33.33 % |" in md and "| DTW | 8 of 12 | 66.67 % |" in md
     assert "7,924 of 25,889" in md
+
+
+def test_full_length_by_default_and_stationary_queries_apart():
+    import pandas as pd
+
+    import tap_bench as tb
+
+    names = ("parked", "cruise_slow", "cruise_medium", "gradual_left_turn")
+    tracks = [tb.behaviour(n, scenario_id="s") for n in names]
+    tracks.append(tb.behaviour("parked", scenario_id="s", track_id="parked_2", x0=50.0))
+    late = tb.behaviour("cruise_slow", scenario_id="s", track_id="late").iloc[20:]
+    table = pd.concat([*tracks, late], ignore_index=True)
+    ev = evaluate(table, object_types=None, progress=False, timing_trajectories=2)
+    d = ev.summary["data"]
+    # 'late' starts at 2 s, not at the scenario's first time stamp: not full length
+    assert d["segments"] == "full" and d["trajectories"] == 5
+    assert d["segments_before_selection"] == 6
+    assert d["stationary_trajectories"] == 2 and d["stationary_queries"] == 2
+    assert ev.neighbours.set_index("track_id")["stationary"].to_dict() == {
+        "parked": True, "cruise_slow": False, "cruise_medium": False,
+        "gradual_left_turn": False, "parked_2": True}
+    for m in ("ade", "dtw"):
+        assert ev.summary[m]["stationary"]["queries"] == 2
+        assert ev.summary[m]["moving"]["queries"] == 3
+        # the two parked cars are each other's neighbours at distance 0, with one label
+        assert ev.summary[m]["stationary"]["different_label"] == 0
+        assert ev.summary[m]["stationary"]["median_distance"] == 0.0
+    every = evaluate(table, object_types=None, segments="all", progress=False,
+                     timing_trajectories=2)
+    assert every.summary["data"]["trajectories"] == 6
+    assert "Moving and stationary queries apart" in markdown(ev)

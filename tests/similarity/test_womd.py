@@ -37,7 +37,7 @@ def womd(request):
 
 def test_evaluate_on_real_scenarios_matches_brute_force(womd):
     table, labels = womd
-    ev = evaluate(table, labels, progress=False, timing_trajectories=50)
+    ev = evaluate(table, labels, segments="all", progress=False, timing_trajectories=50)
     s = ev.summary
     vehicles = labels[labels["object_type"] == "vehicle"]
     assert s["data"]["trajectories"] == len(vehicles) > 300
@@ -55,6 +55,26 @@ def test_evaluate_on_real_scenarios_matches_brute_force(womd):
     assert 0 < s["ade"]["share_different"] < 1
     assert s["sdl_exact"]["unique_labels"] == len(unique_labels(ev.labels))
     assert s["timing"]["dtw_ms_per_1000"] > 0
+
+
+def test_evaluate_full_length_moving_and_stationary_apart(womd):
+    table, labels = womd
+    ev = evaluate(table, labels, progress=False, timing_trajectories=20)
+    s = ev.summary
+    # full length: valid over the whole scenario (91 steps, 199 for the 20 s pickle)
+    assert s["data"]["segments"] == "full"
+    assert set(ev.shapes.lengths) == {91, 199}
+    assert 50 < s["data"]["trajectories"] < s["data"]["segments_before_selection"]
+    for m in ("ade", "dtw"):
+        moving, still = s[m]["moving"], s[m]["stationary"]
+        assert moving["queries"] + still["queries"] == s["data"]["queries"]
+        assert moving["different_label"] + still["different_label"] == s[m]["different_label"]
+        assert still["queries"] > 0 and moving["queries"] > 0
+        # parked cars find parked neighbours a few cm away; moving ones do not
+        assert still["median_distance"] < 0.5 < moving["median_distance"]
+    stationary = ev.neighbours["stationary"].to_numpy()
+    reach = [np.hypot(*ev.shapes[i].T).max() for i in range(len(ev.shapes))]
+    assert (stationary == (np.array(reach) < 1.0)[ev.neighbours["query"]]).all()
 
 
 def test_search_and_scenarios_on_real_scenarios(womd):

@@ -17,6 +17,8 @@ from tap_bench.womd.tfrecord import iter_records
 from tap_bench.womd.writer import encode_scenarios, write_womd
 
 F32 = st.floats(-1e4, 1e4, allow_nan=False, width=32)
+VELOCITY = st.floats(-70.0, 70.0, allow_nan=False, width=32)
+"""A velocity component [m/s]: hypot of two stays under the contract's 100 m/s."""
 
 
 @st.composite
@@ -48,7 +50,8 @@ def trajectory_tables(draw):
                     "x": x if valid else np.nan, "y": draw(st.floats(-1e5, 1e5)) if valid
                     else np.nan,
                     "heading": draw(st.floats(-3.0, 3.0, width=32)),
-                    "vx": draw(F32), "vy": draw(F32), "valid": valid, "object_type": kind,
+                    "vx": draw(VELOCITY), "vy": draw(VELOCITY), "valid": valid,
+                    "object_type": kind,
                     "is_ego": k == ego, "source": "highway-env", "policy": policy,
                     "seed": s, "crashed": i == n_steps - 1 and k == 0,
                 })

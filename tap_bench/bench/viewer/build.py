@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import warnings
 from collections.abc import Sequence
 from importlib import resources
@@ -35,7 +34,7 @@ from tap_bench.maps import empty_map
 from tap_bench.sim.roads import road_table
 from tap_bench.sources import read_womd
 from tap_bench.sources.maps import read_maps
-from tap_bench.tableio import atomic_path
+from tap_bench.tableio import atomic_folder
 from tap_bench.thresholds import Thresholds
 
 __all__ = ["STATIC_FILES", "write_run_viewer", "write_viewer", "write_womd_viewer"]
@@ -63,19 +62,22 @@ def write_viewer(output: str | os.PathLike, index: dict[str, Any],
 
     Returns:
         the path of ``index.html``.
+
+    Raises:
+        OutputPathError: ``output`` exists and is not a viewer folder tap-bench wrote (a
+            file, a link, any other folder: it is never replaced).
     """
     output = Path(output)
-    data = output / "data"
-    if data.exists():
-        shutil.rmtree(data)
-    data.mkdir(parents=True)
     static = resources.files("tap_bench.bench.viewer") / "static"
-    for name in STATIC_FILES:
-        (output / name).write_bytes((static / name).read_bytes())
-    for name, docs in chunks.items():
-        (data / f"{name}.js").write_text(_script("chunk", name, docs), encoding="utf-8")
-    with atomic_path(data / "index.js") as tmp:
-        tmp.write_text(_script("index", None, index), encoding="utf-8")
+    # built beside the target and moved into place whole; an earlier viewer is replaced
+    with atomic_folder(output, overwrite=True, kind="viewer") as tmp:
+        data = tmp / "data"
+        data.mkdir()
+        for name in STATIC_FILES:
+            (tmp / name).write_bytes((static / name).read_bytes())
+        for name, docs in chunks.items():
+            (data / f"{name}.js").write_text(_script("chunk", name, docs), encoding="utf-8")
+        (data / "index.js").write_text(_script("index", None, index), encoding="utf-8")
     return output / "index.html"
 
 
