@@ -16,6 +16,7 @@ from tap_bench.bench.diversity import (
     diversity,
     estimated_population,
     hill_numbers,
+    pooled_diversity,
     population_hill,
     studentized_interval,
 )
@@ -174,3 +175,16 @@ def test_hill_intervals_are_not_symmetric_and_stay_in_range():
     assert (d.hill_low < d.hill).all() and (d.hill < d.hill_high).all()
     assert d.hill_high[2] - d.hill[2] > 1.2 * (d.hill[2] - d.hill_low[2])
     assert (d.hill_high <= len(labels)).all() and (d.hill_low >= 1).all()
+
+
+def test_pooled_diversity_combines_independent_envs():
+    labels = ["a"] * 6 + ["b"] * 4 + ["c"] * 3 + ["d", "d", "e", "f", "g"]
+    config = BootstrapConfig(n_resamples=500)
+    one = diversity(labels, config=config, rng=np.random.default_rng(1))
+    two = diversity(labels, config=config, rng=np.random.default_rng(2))
+    pooled = pooled_diversity([one, two], config.level)
+    assert pooled.hill == pytest.approx(one.hill)
+    assert pooled.se == pytest.approx(np.sqrt(one.se ** 2 + two.se ** 2) / 2)
+    # the mean of two independent envs is known better than either
+    assert (pooled.hill_high - pooled.hill_low < one.hill_high - one.hill_low).all()
+    assert pooled.completeness_low < pooled.completeness < pooled.completeness_high
