@@ -27,6 +27,7 @@ __all__ = [
     "OutputPathError",
     "BaselineError",
     "BaselineMismatchError",
+    "RegistrationError",
     # warnings
     "ShortSegmentWarning",
     "FitWarning",
@@ -219,3 +220,8 @@ def did_you_mean(kind: str, name: str, known: Iterable[str]) -> UnknownNameError
     return UnknownNameError(
         f"unknown {kind} {name!r}.{hint} Known: {', '.join(repr(k) for k in known)}."
     )
+
+
+class RegistrationError(TapBenchError, ValueError):
+    """A registry entry that is refused: a name registered twice, or an entry that lacks a
+    required field (a measure without a gate margin)."""

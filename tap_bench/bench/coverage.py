@@ -71,6 +71,7 @@ from tap_bench.bench.diversity import (
 )
 from tap_bench.bench.intervals import wilson_interval, z_value
 from tap_bench.errors import LabelTableError, did_you_mean
+from tap_bench.labels import label_text
 from tap_bench.sim.coverage import vocabulary_tokens
 
 __all__ = [
@@ -111,16 +112,20 @@ class Reference:
         return np.isin(np.asarray(labels, dtype=object), self.items)
 
 
-def vocabulary_reference(level: str = "action") -> Reference:
-    """The single labels of ``level``, lateral and longitudinal, equally weighted."""
+def vocabulary_reference(level: str = "action", *, axes=None) -> Reference:
+    """The single labels of ``level`` on ``axes`` (default lateral and longitudinal; the
+    interaction axis adds its relations), equally weighted."""
     sdl.check_level(level)
-    items = np.array(sorted(vocabulary_tokens(level)), dtype=object)
+    axes = sdl.check_axes(axes)
+    tokens = {t for axis in axes for t in sdl.vocabulary(level, axis)} if axes != sdl.AXES \
+        else vocabulary_tokens(level)
+    items = np.array(sorted(tokens), dtype=object)
     return Reference(items, np.full(len(items), 1.0 / len(items)), "vocabulary", level,
                      f"the {len(items)} single labels of the {level} level")
 
 
 def corpus_reference(labels: pd.DataFrame, level: str, *, tracks: str = "vehicles",
-                     name: str = "reference corpus") -> Reference:
+                     name: str = "reference corpus", axes=None) -> Reference:
     """The SDL labels of a reference corpus, weighted by their frequency.
 
     Args:
@@ -129,7 +134,11 @@ def corpus_reference(labels: pd.DataFrame, level: str, *, tracks: str = "vehicle
         tracks: ``"vehicles"`` (rows whose ``object_type`` is vehicle, or all rows when the
             column is absent), ``"ego"`` (rows with ``is_ego``), or ``"all"``.
         name: what the corpus is, for reports (``"WOMD"``, ``"idm rollouts"``).
+        axes: the axes a label is made of (default lateral and longitudinal: the ``sdl``
+            label; :func:`tap_bench.labels.label_text`). Rows without a
+            label on an axis (not labelled with interactions) are left out.
     """
+
     if tracks not in ("vehicles", "ego", "all"):
         raise did_you_mean("reference tracks", tracks, ("vehicles", "ego", "all"))
     table = labels
@@ -144,7 +153,7 @@ def corpus_reference(labels: pd.DataFrame, level: str, *, tracks: str = "vehicle
         if "is_ego" not in table.columns:
             raise LabelTableError(f"{name}: tracks='ego' needs an is_ego column.")
         table = table[table["is_ego"].fillna(False).to_numpy(bool)]
-    lab = table["sdl"].dropna().to_numpy(str)
+    lab = label_text(table, axes).dropna().to_numpy(str)
     if not len(lab):
         raise LabelTableError(f"{name}: no {tracks} labels at level {level!r}; label it at "
                               f"that level (--level {level} or all).")

@@ -1,7 +1,8 @@
 """``bench check``: the regression gate of a run against a stored baseline.
 
 A baseline file (JSON) keeps, for every (env, policy) of a suite, the per-episode values
-the gate needs: the seed, the ego's SDL label and the measures (:data:`GATE_METRICS`), and
+the gate needs: the seed, the ego's SDL label and the measures
+(:func:`~tap_bench.bench.suite.gate_metrics`), and
 the provenance of the run (each policy's full definition, with the SHA-256 of a model
 file, and each env's resolved config). The gate compares a run's episodes with the
 baseline's, per (env, policy) and metric:
@@ -49,7 +50,7 @@ import pandas as pd
 from tap_bench.bench.bootstrap import named_rng
 from tap_bench.bench.compare import NO_LABEL
 from tap_bench.bench.measures import MEASURES
-from tap_bench.bench.suite import GATE_METRICS, GateConfig
+from tap_bench.bench.suite import GateConfig, gate_metrics
 from tap_bench.errors import (
     BaselineError,
     BaselineMismatchError,
@@ -64,7 +65,11 @@ __all__ = ["BASELINE_FORMAT", "EXACT_FLIPS_MAX_SEEDS", "MAX_FAILED_SHARE", "Gate
            "write_baseline"]
 
 BASELINE_FORMAT = "tap-bench-baseline"
-_EPISODE_FIELDS = ("env", "policy", "seed", "sdl", *(m.name for m in MEASURES))
+
+
+def _episode_fields() -> tuple[str, ...]:
+    return ("env", "policy", "seed", "sdl", *MEASURES.names())
+
 _IDENTITY = ("suite", "suite_version", "level", "thresholds")
 MAX_FAILED_SHARE = 0.05
 """A run with more than this share of failed episodes cannot become a baseline: the
@@ -164,7 +169,7 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
             f"run {run_summary.get('run')!r}: every episode of {listed} failed; the baseline "
             "would not test it. Fix those failures, or drop them from the suite, and run "
             "again.")
-    rows = [[_json_value(v) for v in r] for r in ok[list(_EPISODE_FIELDS)].itertuples(
+    rows = [[_json_value(v) for v in r] for r in ok[list(_episode_fields())].itertuples(
         index=False)]
     gate = run_summary.get("suite", {}).get("gate") or GateConfig().to_dict()
     doc = {"format": BASELINE_FORMAT, "format_version": 2,
@@ -173,7 +178,7 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
            "from_run": run_summary.get("run"), "seeds": run_summary.get("seeds"),
            "versions": run_summary.get("versions", {}), "gate": gate,
            "provenance": run_summary.get("provenance", {}),
-           "episodes": {"columns": list(_EPISODE_FIELDS), "rows": rows}}
+           "episodes": {"columns": list(_episode_fields()), "rows": rows}}
     path = Path(path)
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(doc, indent=1) + "\n")
@@ -219,7 +224,7 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
     except (KeyError, TypeError, ValueError) as err:
         raise FileFormatError(f"{path}: 'episodes' must hold 'columns' and 'rows': {err}"
                               ) from err
-    missing = [c for c in _EPISODE_FIELDS if c not in table.columns]
+    missing = [c for c in _episode_fields() if c not in table.columns]
     if missing:
         raise BaselineError(f"{path}: baseline episodes lack {', '.join(missing)}; a metric "
                             "the gate checks cannot be missing. Re-make it with "
@@ -484,7 +489,7 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
             base = base.iloc[np.argsort(seeds_b, kind="stable")]
             run = run.iloc[np.argsort(seeds_r, kind="stable")]
         why = _why(key, changed_policy, changed_env)
-        for metric in GATE_METRICS:
+        for metric in gate_metrics():
             margin = float(config.margins[metric])
             name = (key["env"], key["policy"], metric)
             row = {**key, "metric": metric, "test": "paired" if paired else "unpaired",
@@ -562,7 +567,7 @@ def _why(key: dict[str, Any], policies: dict[str, str], envs: dict[str, str]) ->
 
 def _refuse_if_it_cannot_fire(plans: list, config: GateConfig) -> None:
     """Raise when the smallest attainable Holm-adjusted p-value is not below alpha."""
-    m = len(plans) * len(GATE_METRICS)
+    m = len(plans) * len(gate_metrics())
     if not m:
         return
     floor = m / (config.n_permutations + 1)

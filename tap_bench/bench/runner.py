@@ -54,7 +54,7 @@ from tap_bench.bench.power import power_table
 from tap_bench.bench.report import write_report
 from tap_bench.bench.scenarios import match_scenarios
 from tap_bench.bench.scoring import Scores, score
-from tap_bench.bench.suite import GATE_METRICS, Suite, load_suite
+from tap_bench.bench.suite import Suite, gate_metrics, load_suite
 from tap_bench.bench.viewer import write_run_viewer
 from tap_bench.errors import FileFormatError, ParameterError, RunExistsError
 from tap_bench.execution import Backend, resolve_backend
@@ -268,7 +268,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
             matches.append(match_scenarios(labels, trajectories, ref_labels, ref_traj,
                                            level=suite.level, top=3).assign(reference=name))
     power = power_table(episodes, suite.gate,
-                        n_tests=len(suite.envs) * len(suite.policies) * len(GATE_METRICS))
+                        n_tests=len(suite.envs) * len(suite.policies) * len(gate_metrics()))
     scores = score(episodes, reference_policy=suite.reference, level=suite.level,
                    config=suite.bootstrap,
                    references={name: lab for name, (_, lab) in corpora.items()} or None,

@@ -31,13 +31,16 @@ COMMANDS = (
     "tap_bench.cli.train",
     # the benchmark: matched comparison, coverage, suite runs and the regression gate
     "tap_bench.cli.compare",
+    "tap_bench.cli.contexts",
     "tap_bench.cli.coverage",
+    "tap_bench.cli.gap",
     "tap_bench.cli.bench",
     "tap_bench.cli.demo",
     "tap_bench.cli.view",
     # similarity: SDL search, unique behaviours, the paper's ADE / DTW experiments
     "tap_bench.cli.search",
     "tap_bench.cli.unique",
+    "tap_bench.cli.export",
     "tap_bench.cli.evaluate",
 )
 

@@ -27,6 +27,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                      help="use the SDL vocabulary of the level as the reference")
     p.add_argument("--level", default="maneuver", choices=LEVELS,
                    help="SDL level (default maneuver)")
+    p.add_argument("--axes", default=None, metavar="AXES",
+                   help="comma-separated axes a label is made of: lateral, longitudinal, "
+                   "interaction (default lateral,longitudinal; with interaction, trajectory "
+                   "tables are labelled with their egos' interactions, and label tables "
+                   "must carry them)")
     p.add_argument("--reference-tracks", default="vehicles", choices=("vehicles", "ego", "all"),
                    help="which reference trajectories count (default: every vehicle)")
     p.add_argument("--thresholds", default="paper",
@@ -52,6 +57,8 @@ def run(args: argparse.Namespace) -> int:
     from tap_bench.bench.scoring import diversity_table, reference_scores
     from tap_bench.cli.rollout import episodes_path
     from tap_bench.labelling import tap
+    from tap_bench.labels import label_text
+    from tap_bench.sdl import check_axes
     from tap_bench.tableio import check_outputs, read_table, write_tables
 
     config = BootstrapConfig(n_resamples=args.resamples, level=args.ci, seed=args.seed)
@@ -66,27 +73,31 @@ def run(args: argparse.Namespace) -> int:
                          and table["policy"].nunique() == 1 else Path(args.agent).stem)
     if "seed" not in table.columns:  # coverage needs episodes, not pairs: number them
         table = table.assign(seed=pd.factorize(table["scenario_id"])[0])
+    axes = check_axes(args.axes)
+    inter = "auto" if "interaction" in axes else None
     episodes, _, _ = episodes_from_table(table.assign(policy=name), level=args.level,
                                          thresholds=args.thresholds, policy=name,
-                                         source=str(args.agent))
+                                         source=str(args.agent), interactions=inter)
+    episodes = episodes.assign(sdl=label_text(episodes, axes))  # the label on the axes
     agent_envs = sorted(set(episodes["env"]))
     if args.vocabulary:
-        reference = vocabulary_reference(args.level)
+        reference = vocabulary_reference(args.level, axes=axes)
         ref_name = f"{args.level} vocabulary"
     else:
         ref_table = read_table(args.reference)
         if "sdl" not in ref_table.columns:
-            ref_table = tap(ref_table, args.thresholds, source=str(args.reference)
-                            ).labels(args.level)
+            ref_table = tap(ref_table, args.thresholds, source=str(args.reference),
+                            interactions="all" if inter else None).labels(args.level)
         ref_name = Path(args.reference).name
         if "env" in ref_table.columns and set(agent_envs) <= set(ref_table["env"].unique()) \
                 and agent_envs != [""]:  # rollouts: a label is (env, label)
             reference = {env: corpus_reference(ref_table[ref_table["env"] == env],
                                                args.level, tracks=args.reference_tracks,
-                                               name=f"{ref_name} ({env})")
+                                               name=f"{ref_name} ({env})", axes=axes)
                          for env in agent_envs}
         else:
             reference = corpus_reference(ref_table, args.level, tracks=args.reference_tracks,
+                                         axes=axes,
                                          name=ref_name)
     cov, nov, novel = reference_scores(episodes, reference, ref_name, config=config)
     div = diversity_table(episodes, config)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from tap_bench.errors import TrajectoryTableError
 from tap_bench.execution import add_backend_arguments
-from tap_bench.labelling import tap
+from tap_bench.labelling import INTERACTION_TRACKS, tap
 from tap_bench.sdl import LEVELS
 from tap_bench.stages import StageConfig
 from tap_bench.tableio import check_outputs, read_table, write_tables
@@ -43,6 +43,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="largest net heading change over a merge [rad] (0.2)")
     p.add_argument("--merge-offset", type=float, default=1.5,
                    help="smallest sideways move of a merge [m] (1.5)")
+    p.add_argument("--interactions", nargs="?", const="auto", default=None,
+                   choices=INTERACTION_TRACKS,
+                   help="also label the interaction axis (Following, Cut-in, Overtaking ...; "
+                   "SPEC 7, docs/interactions.md): of the egos when the table has is_ego, "
+                   "else of every track; '--interactions all' labels every vehicle and "
+                   "cyclist track. Adds the 'interaction' column and, with --segments, "
+                   "axis='interaction' rows naming the other agent (other_track_id)")
     add_backend_arguments(p)
     p.set_defaults(func=run)
 
@@ -56,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
     table = read_table(args.input)
     t1 = time.perf_counter()
     config = _config(args)
-    result = tap(table, args.thresholds, config, source=str(args.input))
+    result = tap(table, args.thresholds, config, source=str(args.input),
+                 interactions=args.interactions)
     labels = result.labels(args.level)
     short = result.short_segments
     if len(result.segments_info) == 0:
@@ -89,6 +97,12 @@ def run(args: argparse.Namespace) -> int:
           f"labels; most common:")
     for text, n in counts.head(5).items():
         print(f"  {n:6d}  {text}")
+    if result.interactions is not None:
+        relations = result.segments("trend")
+        relations = relations[relations["axis"] == "interaction"]
+        per = relations["label"].value_counts()
+        print(f"interaction axis of {len(result.interaction_segments)} segment(s): "
+              + ", ".join(f"{name} {n}" for name, n in per.items()) + " run(s)")
     written = [args.output, args.segments, args.steps, args.report]
     print("wrote " + ", ".join(w for w in written if w))
     return 0
@@ -145,7 +159,7 @@ def _run_sharded(args: argparse.Namespace) -> int:
     try:
         report = label_shards(args.input, args.output, backend, thresholds=args.thresholds,
                               level=args.level, config=config, retries=args.retries,
-                              resume=args.resume)
+                              resume=args.resume, interactions=args.interactions)
     finally:
         close_backend(backend)
     short = sum(s.get("short_segments", 0) for s in report.shards)

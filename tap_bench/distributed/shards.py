@@ -316,6 +316,7 @@ class _LabelJob:
     config: Any  # StageConfig
     level: str
     chunk_rows: int
+    interactions: str | None = None
 
 
 def _label_shard(job: _LabelJob) -> dict[str, Any]:
@@ -337,7 +338,8 @@ def _label_chunks(job: _LabelJob, tables: Iterator[pd.DataFrame]) -> dict[str, A
         writer = None
         try:
             for table in tables:
-                result = tap(table, job.thresholds, job.config, source=job.input)
+                result = tap(table, job.thresholds, job.config, source=job.input,
+                             interactions=job.interactions)
                 labels = pa.Table.from_pandas(result.labels(job.level), preserve_index=False)
                 if writer is None:
                     writer = pq.ParquetWriter(tmp, labels.schema)
@@ -359,8 +361,8 @@ def label_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
                  output: str | os.PathLike, backend: Backend, *,
                  thresholds: Any = "paper", level: str = "action", config: Any = None,
                  retries: int = DEFAULT_RETRIES, resume: bool = False,
-                 chunk_rows: int = LABEL_CHUNK_ROWS, progress: bool | None = None
-                 ) -> ShardReport:
+                 chunk_rows: int = LABEL_CHUNK_ROWS, progress: bool | None = None,
+                 interactions: str | None = None) -> ShardReport:
     """Label every Parquet shard of a trajectory data set, one task and one part per shard.
 
     Args:
@@ -376,6 +378,7 @@ def label_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
         chunk_rows: trajectory rows a task labels at once (whole scenarios; a part whose
             scenarios are not each one run of rows is labelled whole).
         progress: progress bar over shards (None: only on a terminal).
+        interactions: also label the interaction axis (:func:`tap_bench.labelling.tap`).
 
     Returns:
         The :class:`ShardReport` (also ``<output>/_report.json``); each shard lists its
@@ -393,7 +396,7 @@ def label_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
     if isinstance(chunk_rows, bool) or not isinstance(chunk_rows, int) or chunk_rows < 1:
         raise ParameterError("chunk_rows", chunk_rows, "",
             message=f"chunk_rows must be a positive integer, got {chunk_rows!r}.")
-    jobs = [_LabelJob(str(src.resolve()), str(part.resolve()), th, config, level, chunk_rows)
-            for src, part in zip(inputs, parts, strict=True)]
+    jobs = [_LabelJob(str(src.resolve()), str(part.resolve()), th, config, level, chunk_rows,
+                      interactions) for src, part in zip(inputs, parts, strict=True)]
     return _run("label", _label_shard, jobs, inputs, parts, out, backend, retries, resume,
                 progress)

@@ -134,6 +134,10 @@ class ScenarioEnv(gym.Wrapper):
             self._episode += 1
         with guard_class_attributes(f"resetting {self.scenario.env_id}"):
             obs, info = self.env.reset(seed=seed, options=options)
+            if self.scenario.script is not None:
+                inner = self.env.unwrapped
+                self.scenario.script.install(inner)
+                obs = inner.observation_type.observe()  # with the scripted vehicle
         self._decisions = 0
         # reset options may have changed the decision rate
         self.max_steps = round(self.scenario.duration

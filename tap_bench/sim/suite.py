@@ -57,7 +57,7 @@ SIMULATION_FREQUENCY = int(HZ)
 """Simulation rate of every scenario [Hz]: one simulated step is one trajectory-table row."""
 
 _FIELDS = ("name", "version", "highway_env_id", "description", "duration", "default_seeds",
-           "lane_change", "config")
+           "lane_change", "config", "script")
 _REQUIRED = ("name", "version", "highway_env_id", "duration", "config")
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 # Keys the scenario file owns itself: highway-env's own copies are set from them.
@@ -182,6 +182,7 @@ class Scenario:
         lane_change: name of the lane-change setting (see :mod:`tap_bench.sim.vehicles`).
         overrides: the highway-env config overrides of the file, validated.
         path: the file it was read from (None when built in code).
+        script: a scripted event (a cut-in, a braking leader; :mod:`tap_bench.sim.scripts`).
     """
 
     name: str
@@ -193,6 +194,7 @@ class Scenario:
     default_seeds: tuple[int, ...] = tuple(range(10))
     lane_change: str = "default"
     path: Path | None = field(default=None, compare=False)
+    script: Any = None  # tap_bench.sim.scripts.Script (imported lazily: highway-env)
 
     @property
     def env_id(self) -> str:
@@ -241,7 +243,8 @@ class Scenario:
              "duration": self.duration if duration is None else duration,
              "default_seeds": list(self.default_seeds),
              "lane_change": self.lane_change if lane_change is None else lane_change,
-             "config": merged},
+             "config": merged,
+             **({"script": self.script.to_dict()} if self.script is not None else {})},
             source=f"{self.env_id} overrides", path=self.path)
 
 
@@ -422,10 +425,15 @@ def _build(doc: Any, *, source: str, path: Path | None) -> Scenario:
     if not isinstance(config, dict):
         raise FileFormatError(f"{source}: config must be an object of highway-env settings.")
     check_config(doc["highway_env_id"], config, source=source)
+    script = None
+    if "script" in doc:
+        from tap_bench.sim.scripts import Script  # highway-env, imported on demand
+
+        script = Script.from_dict(doc["script"], source=source)
     scenario = Scenario(name=name, version=version, highway_env_id=doc["highway_env_id"],
                         duration=float(duration), overrides=copy.deepcopy(config),
                         description=str(doc.get("description", "")), default_seeds=seeds,
-                        lane_change=lane_change, path=path)
+                        lane_change=lane_change, path=path, script=script)
     steps = duration * scenario.policy_frequency
     if abs(steps - round(steps)) > 1e-9:
         raise FileFormatError(f"{source}: duration {duration} s is not a whole number of "
