@@ -283,9 +283,10 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
                     "crash rate) between the episodes of each policy in a label group of one "
                     f"env; groups with fewer than {MIN_GROUP} episodes of a policy are listed, "
                     "not tested"),
-        "coverage": (f"estimate +- z sd, z for {config.level:.0%}, sd over "
-                     f"{config.n_resamples} draws from the label distribution augmented with "
-                     "Chao1-estimated undetected labels (Chao et al. 2014, iNEXT); labels are "
+        "coverage": (f"{config.level:.0%} studentized bootstrap (bootstrap-t) intervals "
+                     f"over {config.n_resamples} draws from the label distribution augmented "
+                     "with Chao1-estimated undetected labels (Chao et al. 2014, iNEXT's "
+                     "population), each draw against its population's own value; labels are "
                      "(env, label): 'all' is the share of every env's reference labels shown "
                      f"(K-weighted mean of the envs); seed {config.seed}, streams named "
                      "('coverage', env, policy, reference)"),
@@ -293,8 +294,10 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
                    "counts (each env held against its own reference)",
         "diversity": (f"Hill numbers q = 0, 1, 2 at a common sample size per env (the "
                       "smallest episode count of its policies; iNEXT rarefaction/"
-                      f"extrapolation), {config.level:.0%} intervals estimate +- z sd over "
-                      f"{config.n_resamples} iNEXT bootstrap draws; asymptotes given as "
+                      f"extrapolation), {config.level:.0%} studentized bootstrap "
+                      f"(bootstrap-t) intervals over {config.n_resamples} draws from iNEXT's "
+                      "bootstrap population (completeness: Esty's standard error); "
+                      "asymptotes given as "
                       f"'at least' when the sample completeness is below {MIN_COMPLETENESS}; "
                       "'all' is the mean over envs"),
     }
