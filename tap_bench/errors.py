@@ -24,9 +24,11 @@ __all__ = [
     "SuiteError",
     "CatalogueError",
     "RunExistsError",
+    "OutputPathError",
     "BaselineError",
     "BaselineMismatchError",
     "EpisodesFailedError",
+    "RegistrationError",
     # warnings
     "ShortSegmentWarning",
     "FitWarning",
@@ -162,6 +164,12 @@ class RunExistsError(TapBenchError, FileExistsError):
     """The results folder exists and replacing it was not asked for."""
 
 
+class OutputPathError(TapBenchError, ValueError):
+    """An output that must not or cannot be written: it is one of the inputs, it would
+    replace something tap-bench did not write (a file, a link, a folder without tap-bench's
+    marker), or its place is not writable."""
+
+
 class BaselineError(TapBenchError, ValueError):
     """A baseline file that cannot be used (malformed, or a run that cannot become one)."""
 
@@ -224,8 +232,18 @@ def did_you_mean(kind: str, name: str, known: Iterable[str]) -> UnknownNameError
         known: the names that exist.
     """
     known = sorted(known)
-    close = difflib.get_close_matches(str(name), known, n=3, cutoff=0.5)
+    # compared without case, so that 'HIGHWAY' finds 'highway' and 'IDM' finds 'idm'
+    folded: dict[str, str] = {}
+    for k in known:
+        folded.setdefault(str(k).casefold(), k)
+    close = [folded[c] for c in difflib.get_close_matches(
+        str(name).casefold(), list(folded), n=3, cutoff=0.5)]
     hint = f" Did you mean {' or '.join(repr(c) for c in close)}?" if close else ""
     return UnknownNameError(
         f"unknown {kind} {name!r}.{hint} Known: {', '.join(repr(k) for k in known)}."
     )
+
+
+class RegistrationError(TapBenchError, ValueError):
+    """A registry entry that is refused: a name registered twice, or an entry that lacks a
+    required field (a measure without a gate margin)."""

@@ -18,14 +18,26 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from tap_bench import sdl
-from tap_bench.errors import ShortSegmentWarning
+from tap_bench.errors import ShortSegmentWarning, TapBenchError, did_you_mean
+from tap_bench.interactions import (
+    OTHER_TYPES,
+    RELATIONS,
+    InteractionConfig,
+    InteractionSteps,
+    interaction_steps,
+)
 from tap_bench.kinematics import Kinematics, Plausibility, compute_kinematics
 from tap_bench.labels import GLITCH_COLUMNS, LABEL_COLUMNS, SEGMENT_COLUMNS
 from tap_bench.stages import StageConfig, StepLabels, find_runs, run_stages
 from tap_bench.thresholds import Thresholds, resolve_thresholds
 from tap_bench.trajectories import DT, IDENTIFYING_COLUMNS, validate_and_index
 
-__all__ = ["GLITCH_COLUMNS", "LABEL_COLUMNS", "SEGMENT_COLUMNS", "TapResult", "label", "tap"]
+__all__ = ["GLITCH_COLUMNS", "INTERACTION_TRACKS", "LABEL_COLUMNS", "SEGMENT_COLUMNS",
+           "TapResult", "label", "tap"]
+
+INTERACTION_TRACKS = ("auto", "ego", "all")
+"""Whose interactions :func:`tap` labels: the egos (``is_ego``), every vehicle and cyclist
+track, or ``auto``: the egos when the table has an ``is_ego`` column, else every track."""
 
 @dataclass(frozen=True)
 class TapResult:
@@ -49,6 +61,10 @@ class TapResult:
         thresholds: the thresholds used.
         config: the stage timing parameters used.
         timings: seconds spent per stage (validate, kinematics, stages, tables).
+        interactions: per-step relations of the interaction axis (None: not asked for).
+        interaction_segments: (k,) rows of ``segments_info`` labelled on that axis, in the
+            order their steps are laid end to end in ``interactions``.
+        track_ids: (n_tracks,) track id of each track index (names the other agents).
     """
 
     segments_info: pd.DataFrame
@@ -62,6 +78,9 @@ class TapResult:
     config: StageConfig
     plausibility: Plausibility
     timings: dict[str, float] = field(default_factory=dict, compare=False)
+    interactions: InteractionSteps | None = None
+    interaction_segments: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    track_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, object))
 
     def labels(self, level: str = "action") -> pd.DataFrame:
         """The label table (SPEC section 1) at ``level`` or at ``"all"`` levels."""
@@ -75,8 +94,11 @@ class TapResult:
         return out
 
     def segments(self, level: str = "action") -> pd.DataFrame:
-        """The segment table (SPEC section 1): one row per run of one label."""
+        """The segment table (SPEC section 1): one row per run of one label; with
+        interactions, the ``axis = "interaction"`` runs too (at every level asked for)."""
         frames = [self._segments_one(lv, axis) for lv in sdl.levels(level) for axis in sdl.AXES]
+        if self.interactions is not None:
+            frames += [self._interaction_segments(lv) for lv in sdl.levels(level)]
         out = pd.concat(frames, ignore_index=True)
         key = out.pop("_seg").to_numpy()
         order = np.argsort(key, kind="stable")
@@ -101,6 +123,14 @@ class TapResult:
                             ("speed_glitch", kin.speed_glitch),
                             ("heading_trusted", kin.trusted), ("reversing", kin.reversing)):
             out[name] = flags[rows]
+        if self.interactions is not None:
+            codes = np.full(len(out), -1, np.int64)
+            other = np.full(len(out), -1, np.int64)
+            rows = self._interaction_step_rows()
+            codes[rows] = self.interactions.relation
+            other[rows] = self.interactions.other_track
+            out["interaction"] = pd.Categorical.from_codes(codes, categories=RELATIONS)
+            out["other_track_id"] = self._track_names(other)
         return out
 
     def glitches(self) -> pd.DataFrame:
@@ -120,6 +150,57 @@ class TapResult:
             speed_glitches=("speed_glitches", "sum"), reversing_steps=("reversing_steps", "sum"),
             travel=("travel", "max")).reset_index()
         out["still"] = out["travel"] < self.plausibility.min_travel
+        return out
+
+    # -- the interaction axis -------------------------------------------------------------
+    def _interaction_step_rows(self) -> np.ndarray:
+        """(m,) positions in the labelled steps of the interaction steps, in their order."""
+        seg_first = np.searchsorted(self.step_segment, np.arange(len(self.segments_info)))
+        lengths = self.segments_info["n_steps"].to_numpy(np.int64)
+        chosen = self.interaction_segments
+        n = lengths[chosen]
+        return np.repeat(seg_first[chosen], n) + (np.arange(n.sum())
+                                                  - np.repeat(np.cumsum(n) - n, n))
+
+    def _track_names(self, track: np.ndarray) -> pd.Series:
+        names = np.where(track >= 0, self.track_ids[np.maximum(track, 0)], None)
+        return pd.Series(names, dtype=pd.StringDtype("pyarrow", na_value=np.nan))
+
+    def _interaction_runs(self):
+        runs = self.interactions.runs
+        n_tracks = len(self.track_ids) + 1
+        return runs, (runs.code // n_tracks), runs.code % n_tracks - 1
+
+    def _interaction_sequences(self) -> pd.Series:
+        """(len(segments_info),) the relations of each segment joined by ' > ' (NA where the
+        segment is not labelled on the interaction axis)."""
+        out = np.full(len(self.segments_info), None, dtype=object)
+        runs, relation, _ = self._interaction_runs()
+        names = np.asarray(RELATIONS, dtype=object)[relation]
+        bounds = np.searchsorted(runs.seg, np.arange(len(self.interaction_segments) + 1))
+        for k, seg in enumerate(self.interaction_segments):
+            out[seg] = sdl.SEPARATOR.join(names[bounds[k]:bounds[k + 1]])
+        return pd.Series(out, dtype=pd.StringDtype("pyarrow", na_value=np.nan))
+
+    def _interaction_segments(self, level: str) -> pd.DataFrame:
+        runs, relation, other = self._interaction_runs()
+        info = self.segments_info.take(self.interaction_segments[runs.seg]).reset_index(
+            drop=True)
+        step_rows = self._interaction_step_rows()
+        first = step_rows[runs.start]
+        last = step_rows[runs.start + runs.length - 1]
+        out = pd.DataFrame({
+            "scenario_id": info["scenario_id"], "track_id": info["track_id"],
+            "segment": info["segment"], "level": level, "axis": "interaction",
+            "label": pd.Series(np.asarray(RELATIONS, dtype=object)[relation],
+                               dtype=pd.StringDtype("pyarrow", na_value=np.nan)),
+            "t_start": self.step_t[first], "t_end": self.step_t[last] + DT,
+            "other_track_id": self._track_names(other),
+        })
+        for col in info.columns:
+            if col in IDENTIFYING_COLUMNS:
+                out[col] = info[col]
+        out["_seg"] = self.interaction_segments[runs.seg]
         return out
 
     # -- internals -----------------------------------------------------------------------
@@ -149,6 +230,8 @@ class TapResult:
             "lateral": _strings(lat), "longitudinal": _strings(lon), "sdl": _strings(sdl_text),
             "t_start": info["t_start"], "t_end": info["t_end"],
         })
+        if self.interactions is not None:
+            out.insert(7, "interaction", self._interaction_sequences())
         for col in (*GLITCH_COLUMNS, *IDENTIFYING_COLUMNS):
             if col in info.columns:
                 out[col] = info[col]
@@ -166,6 +249,9 @@ class TapResult:
             "label": _strings(names.take(pa.array(runs.code))),
             "t_start": self.step_t[runs.start], "t_end": self.step_t[last] + DT,
         })
+        if self.interactions is not None:
+            out["other_track_id"] = pd.Series(pd.NA, index=out.index,
+                                              dtype=pd.StringDtype("pyarrow", na_value=np.nan))
         for col in info.columns:
             if col in IDENTIFYING_COLUMNS:
                 out[col] = per_run[col]
@@ -200,7 +286,8 @@ def _segment_frame(tracks: pd.DataFrame, kin: Kinematics, index, which: np.ndarr
 
 def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
         config: StageConfig | None = None, *, plausibility: Plausibility | None = None,
-        source: str = "trajectory table") -> TapResult:
+        source: str = "trajectory table", interactions: str | None = None,
+        interaction_config: InteractionConfig | None = None) -> TapResult:
     """Run the Trajectory-to-Action Pipeline on a trajectory table.
 
     Args:
@@ -209,10 +296,17 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
         config: stage parameters (1 s minimum run, the merge rule's 4 s, 0.2 rad, 1.5 m).
         plausibility: the bounds that tell glitches from motion (SPEC section 2).
         source: a name for the table in error messages (its file path).
+        interactions: also label the interaction axis (SPEC 7,
+            :mod:`tap_bench.interactions`) of the egos (``"ego"``: tracks with ``is_ego``),
+            of every vehicle and cyclist track (``"all"``), or ``"auto"`` (the egos when
+            the table has ``is_ego``, else every track); None: not at all.
+        interaction_config: parameters of the interaction axis.
 
     Returns:
         A :class:`TapResult`; segments shorter than 1 s are listed in ``short_segments``.
     """
+    if interactions is not None and interactions not in INTERACTION_TRACKS:
+        raise did_you_mean("interactions", str(interactions), INTERACTION_TRACKS)
     config = config or StageConfig()
     plausibility = plausibility or Plausibility()
     th = resolve_thresholds(thresholds)
@@ -243,11 +337,41 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
                         config, heading=kin.heading, x=kin.x, y=kin.y, rows=step_rows)
     t4 = time.perf_counter()
     timings.update(validate=t1 - t0, kinematics=t2 - t1, layout=t3 - t2, stages=t4 - t3)
+    extra = {}
+    if interactions is not None:
+        if interactions == "auto":
+            interactions = "ego" if "is_ego" in info.columns else "all"
+        chosen = _interaction_segments(info, interactions, source)
+        lateral = np.full(len(kin.t), -1, np.int8)  # every labelled row's lateral code
+        lateral[step_rows] = labels.maneuver_lateral
+        inter = interaction_steps(checked, kin, starts[chosen], stops[chosen], lateral,
+                                  th.a_dec, interaction_config)
+        track_ids = np.asarray(pd.Series(checked["track_id"]).to_numpy(object)
+                               [index.track_start[:-1]], dtype=object)
+        extra = {"interactions": inter, "interaction_segments": chosen,
+                 "track_ids": track_ids}
+        timings["interactions"] = time.perf_counter() - t4
     return TapResult(segments_info=info, short_segments=short, step_labels=labels,
                      step_t=kin.t[step_rows], step_segment=step_segment, step_rows=step_rows,
                      kinematics=kin,
                      thresholds=th, config=config, plausibility=plausibility,
-                     timings=timings)
+                     timings=timings, **extra)
+
+
+def _interaction_segments(info: pd.DataFrame, tracks: str, source: str) -> np.ndarray:
+    """Rows of ``info`` (labelled segments) whose track is labelled on the interaction axis."""
+    if tracks == "ego":
+        if "is_ego" not in info.columns:
+            raise TapBenchError(
+                f"{source}: interactions='ego' labels the tracks marked by an is_ego column, "
+                "and the table has none; mark the ego, or use interactions='all' (every "
+                "vehicle and cyclist).")
+        mask = info["is_ego"].fillna(False).to_numpy(bool)
+    else:
+        mask = np.ones(len(info), bool)
+    if "object_type" in info.columns:
+        mask = mask & info["object_type"].astype(str).isin(OTHER_TYPES).to_numpy()
+    return np.flatnonzero(mask)
 
 
 def label(table: pd.DataFrame, thresholds: Thresholds | str = "paper", level: str = "action",

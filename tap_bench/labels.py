@@ -21,6 +21,12 @@ then, from :func:`tap_bench.tap`, the glitch counts of the segment (:data:`GLITC
 SPEC section 2), followed by the identifying columns the trajectory table had (``source``, ``env``,
 ``policy``, ``seed``, ``is_ego`` ...). **Segment table**: one row per label run,
 :data:`SEGMENT_COLUMNS`, ``axis`` naming the axis of ``label``.
+
+**Interactions** (SPEC 7, :mod:`tap_bench.interactions`): a table labelled with interactions
+has an ``interaction`` column in the label table (the relations joined by ``" > "``; NA on
+tracks not labelled on that axis), and ``axis = "interaction"`` rows in the segment table
+with an ``other_track_id`` column (the other agent; NA on the other axes and on Free
+Driving). :func:`label_text` gives a row's label on any choice of axes.
 """
 
 from __future__ import annotations
@@ -34,7 +40,7 @@ from tap_bench import sdl
 from tap_bench.errors import LabelTableError
 
 __all__ = ["GLITCH_COLUMNS", "LABEL_COLUMNS", "REQUIRED_LABEL_COLUMNS", "SEGMENT_COLUMNS",
-           "row_key", "select_level", "validate_labels"]
+           "label_text", "missing_axes", "row_key", "select_level", "validate_labels"]
 
 LABEL_COLUMNS = ("scenario_id", "track_id", "segment", "level", "lateral", "longitudinal",
                  "sdl", "t_start", "t_end")
@@ -150,3 +156,30 @@ def validate_labels(labels: pd.DataFrame, level: str | None = None, *,
             f"({table['lateral'].iloc[pos]!r}, {table['longitudinal'].iloc[pos]!r}). Rebuild "
             "the table with 'tap-bench label'.")
     return table, level, input_rows
+
+
+def label_text(labels: pd.DataFrame, axes=None) -> pd.Series:
+    """The label of each row on ``axes`` (:func:`tap_bench.sdl.check_axes`): its sequences
+    joined by ``" | "`` in the order of :data:`tap_bench.sdl.LABEL_AXES` (``sdl`` for TAP's
+    two axes); NA where an axis is empty (a track not labelled on that axis).
+
+    Raises:
+        LabelTableError: a column of the axes is missing (with how to label it).
+    """
+    axes = sdl.check_axes(axes)
+    if axes == sdl.AXES and "sdl" in labels.columns:
+        return labels["sdl"]
+    missing = [a for a in axes if a not in labels.columns]
+    if missing:
+        raise LabelTableError(missing_axes(missing))
+    arrays = [pa.array(labels[a].astype("string"), type=pa.large_string()) for a in axes]
+    joined = arrays[0] if len(arrays) == 1 else pc.binary_join_element_wise(
+        *arrays, pa.scalar(sdl.SDL_SEPARATOR, pa.large_string()))
+    return pd.Series(joined.to_pandas(), index=labels.index, dtype="string")
+
+
+def missing_axes(missing: list[str]) -> str:
+    """The message for label columns of chosen axes that a table lacks."""
+    fix = (" Label with 'tap-bench label --interactions' (tap(..., interactions='auto'))."
+           if "interaction" in missing else " Make the table with 'tap-bench label'.")
+    return f"no {', '.join(map(repr, missing))} column for the axes asked for.{fix}"

@@ -14,12 +14,19 @@ from collections.abc import Iterable, Sequence
 
 from tap_bench.errors import LabelTableError, did_you_mean
 
-__all__ = ["AXES", "LEVELS", "SDL_SEPARATOR", "SEPARATOR", "check_level", "format_sdl",
-           "join", "levels", "parse_sdl", "split", "tokens", "vocabulary"]
+__all__ = ["AXES", "INTERACTION_NAMES", "LABEL_AXES", "LEVELS", "SDL_SEPARATOR", "SEPARATOR",
+           "check_axes", "check_level", "format_sdl", "join", "levels", "parse_sdl", "split",
+           "tokens", "vocabulary"]
 
 LEVELS = ("trace", "trend", "maneuver", "action")
 """Levels from the most abstract to the most detailed."""
 AXES = ("lateral", "longitudinal")
+"""TAP's two axes of a vehicle's own motion: the ``sdl`` label is ``lateral | longitudinal``."""
+LABEL_AXES = ("lateral", "longitudinal", "interaction")
+"""Every axis a label can be compared on (SPEC 7 adds the interaction axis)."""
+INTERACTION_NAMES = ("Free Driving", "Following", "Cut-in", "Cut-out", "Overtaking",
+                     "Being Overtaken", "Lead Braking")
+"""The interaction vocabulary (:mod:`tap_bench.interactions`), the same at every level."""
 SEPARATOR = " > "
 """Joins the chronologically ordered labels of one axis."""
 SDL_SEPARATOR = " | "
@@ -92,18 +99,36 @@ def levels(level: str) -> tuple[str, ...]:
 
 
 def vocabulary(level: str, axis: str) -> tuple[str, ...]:
-    """Every label that can appear at ``level`` on ``axis`` (``"lateral"``/``"longitudinal"``)."""
+    """Every label that can appear at ``level`` on ``axis`` (:data:`LABEL_AXES`)."""
     check_level(level)
-    if axis not in AXES:
-        raise did_you_mean("axis", axis, AXES)
+    if axis not in LABEL_AXES:
+        raise did_you_mean("axis", axis, LABEL_AXES)
+    if axis == "interaction":
+        return INTERACTION_NAMES
     return _VOCABULARY[(level, axis)]
 
 
 def tokens(axis: str) -> tuple[str, ...]:
     """Every label of ``axis`` at any level, in a fixed order."""
-    if axis not in AXES:
-        raise did_you_mean("axis", axis, AXES)
+    if axis not in LABEL_AXES:
+        raise did_you_mean("axis", axis, LABEL_AXES)
     return _TOKENS[axis]
+
+
+def check_axes(axes: str | Sequence[str] | None) -> tuple[str, ...]:
+    """The axes to compare labels on, checked: a sequence (or a comma-separated string) of
+    distinct names of :data:`LABEL_AXES`, in that order; None gives TAP's two (:data:`AXES`).
+    """
+    if axes is None:
+        return AXES
+    names = [a.strip() for a in axes.split(",")] if isinstance(axes, str) else list(axes)
+    for name in names:
+        if name not in LABEL_AXES:
+            raise did_you_mean("axis", name, LABEL_AXES)
+    if not names or len(set(names)) != len(names):
+        raise LabelTableError(f"axes {axes!r}: give one or more distinct axes of "
+                              f"{', '.join(LABEL_AXES)}.")
+    return tuple(a for a in LABEL_AXES if a in names)
 
 
 def join(labels: Iterable[str]) -> str:
@@ -123,29 +148,37 @@ def format_sdl(lateral: str | Sequence[str], longitudinal: str | Sequence[str]) 
     return lat + SDL_SEPARATOR + lon
 
 
-def parse_sdl(text: str, *, level: str | None = None) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """Split an SDL label into its lateral and longitudinal label sequences.
+def parse_sdl(text: str, *, level: str | None = None,
+              axes: str | Sequence[str] | None = None) -> tuple[tuple[str, ...], ...]:
+    """Split a label into its label sequences, one per axis.
 
     Args:
-        text: ``"<lateral> > <lateral> ... | <longitudinal> > ..."``.
+        text: ``"<lateral> > <lateral> ... | <longitudinal> > ..."`` (the SDL label), or with
+            other ``axes`` their sequences joined by ``" | "`` in the order of
+            :data:`LABEL_AXES` (e.g. ``"Straight | Following > Cut-in"``).
         level: when given, every label must belong to that level's vocabulary.
+        axes: the axes the label holds (default lateral and longitudinal).
 
     Returns:
-        (lateral labels, longitudinal labels), each in chronological order.
+        one tuple of labels per axis ((lateral, longitudinal) by default), each in
+        chronological order.
 
     Raises:
-        LabelTableError: no ``" | "`` separator, an empty side, or an unknown label (with the
-            closest known labels).
+        LabelTableError: not one ``" | "`` between consecutive axes, an empty side, or an
+            unknown label (with the closest known labels).
     """
+    axes = check_axes(axes)
     bar = SDL_SEPARATOR.strip()
-    if not isinstance(text, str) or text.count(bar) != 1:
-        raise LabelTableError(
-            f"SDL label {text!r} must hold exactly one {SDL_SEPARATOR!r} between the lateral "
-            f"and the longitudinal labels, e.g. 'Straight > Gradual Left Turn{SDL_SEPARATOR}"
-            "Maintain Medium Speed'.")
-    lat_text, lon_text = text.split(bar)
-    return (_checked(lat_text, "lateral", level, text),
-            _checked(lon_text, "longitudinal", level, text))
+    if not isinstance(text, str) or text.count(bar) != len(axes) - 1:
+        if axes == AXES:
+            raise LabelTableError(
+                f"SDL label {text!r} must hold exactly one {SDL_SEPARATOR!r} between the "
+                f"lateral and the longitudinal labels, e.g. 'Straight > Gradual Left Turn"
+                f"{SDL_SEPARATOR}Maintain Medium Speed'.")
+        raise LabelTableError(f"label {text!r} must hold {len(axes)} sequence(s) "
+                              f"({', '.join(axes)}) joined by {SDL_SEPARATOR!r}.")
+    return tuple(_checked(part, axis, level, text)
+                 for part, axis in zip(text.split(bar), axes, strict=True))
 
 
 def _checked(seq: str, axis: str, level: str | None, where: str) -> tuple[str, ...]:
@@ -166,3 +199,4 @@ _TOKENS = {
     axis: tuple(dict.fromkeys(name for level in LEVELS for name in _VOCABULARY[(level, axis)]))
     for axis in AXES
 }
+_TOKENS["interaction"] = INTERACTION_NAMES

@@ -1,22 +1,39 @@
-"""Reading and writing tables (Parquet or CSV) at the edges of the pipeline.
+"""Reading and writing tables (Parquet or CSV) at the edges of the pipeline, and the rules
+every output of tap-bench follows.
 
-Writes are atomic: the table goes to a temporary file beside the target, which is renamed
-over it only once complete, so an interrupted run never leaves half a file behind.
+- Writes are atomic: a file goes to a temporary file beside the target, renamed over it
+  only once complete (:func:`atomic_path`), so an interrupted run never leaves half a file
+  behind. Several outputs of one command land together or not at all
+  (:func:`atomic_paths`): their temporary files are made before the work starts, so an
+  unwritable place fails at once, and they are renamed into place only when all are done.
+- An output is never one of the inputs (:func:`check_outputs`).
+- A folder is replaced only when tap-bench wrote it: :func:`atomic_folder` leaves a marker
+  file (:data:`FOLDER_MARKER`) in every folder it builds and refuses to replace a folder
+  without one, a file or a symbolic link.
+- Files and folders get the usual modes (``0o666`` / ``0o777`` less the umask), not the
+  ``0o600`` / ``0o700`` of temporary files.
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
+import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 
 import pandas as pd
 
-from tap_bench.errors import FileFormatError
+from tap_bench.errors import FileFormatError, OutputPathError, RunExistsError
 
-__all__ = ["atomic_path", "read_table", "write_table"]
+__all__ = ["FOLDER_MARKER", "atomic_folder", "atomic_path", "atomic_paths", "check_folder_output",
+           "check_outputs", "check_writable", "read_table", "write_table", "write_tables"]
+
+FOLDER_MARKER = ".tap-bench-folder"
+"""The file tap-bench leaves in every results folder it writes; only a folder holding it may
+be replaced (``--overwrite``)."""
 
 _ID_COLUMNS = ("scenario_id", "track_id")
 _SUFFIXES = {".parquet": "parquet", ".pq": "parquet", ".csv": "csv", ".csv.gz": "csv"}
@@ -50,33 +67,266 @@ def read_table(path: str | os.PathLike) -> pd.DataFrame:
         raise FileFormatError(f"{path}: cannot read it as {fmt}: {err}") from err
 
 
+def _umask() -> int:
+    umask = os.umask(0)
+    os.umask(umask)
+    return umask
+
+
+def check_writable(path: str | os.PathLike) -> Path:
+    """Check, before any work, that a file can be written at ``path``.
+
+    The nearest existing folder on the way to ``path`` must be a writable folder, and
+    ``path`` itself must not be a folder. Nothing is created.
+
+    Raises:
+        OutputPathError: naming the path, what is in the way and the fix.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise OutputPathError(f"{path}: is a folder; give a file name for this output.")
+    parent = path.parent
+    while not parent.exists():
+        if parent == parent.parent:
+            break
+        parent = parent.parent
+    if parent.exists() and not parent.is_dir():
+        raise OutputPathError(f"{path}: {parent} is a file, not a folder; choose another "
+                              "output path.")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise OutputPathError(f"{path}: cannot write in {parent} (permission denied); choose "
+                              "a folder you can write to.")
+    return path
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve() or (a.exists() and b.exists() and a.samefile(b))
+    except OSError:
+        return False
+
+
+def check_outputs(outputs: Iterable[str | os.PathLike | None],
+                  inputs: Iterable[str | os.PathLike | None] = ()) -> list[Path]:
+    """Check the outputs of one command before any work: none is an input, none is given
+    twice, each is writable (:func:`check_writable`). ``None`` entries are ignored.
+
+    Returns:
+        the outputs as Paths.
+
+    Raises:
+        OutputPathError: naming the path and the fix.
+    """
+    outs = [Path(p) for p in outputs if p is not None]
+    ins = [Path(p) for p in inputs if p is not None]
+    for out in outs:
+        for src in ins:
+            if _same_file(out, src):
+                raise OutputPathError(f"{out}: is also an input ({src}); writing it would "
+                                      "replace the input. Choose another output path.")
+    for i, out in enumerate(outs):
+        for other in outs[:i]:
+            if _same_file(out, other):
+                raise OutputPathError(f"{out}: is given for two outputs; give each its own "
+                                      "path.")
+        check_writable(out)
+    return outs
+
+
+def _temp_beside(path: Path) -> Path:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except PermissionError as err:
+        raise OutputPathError(f"{path}: cannot write in {path.parent} ({err.strerror}); "
+                              "choose a folder you can write to.") from err
+    except (FileExistsError, NotADirectoryError) as err:
+        raise OutputPathError(f"{path}: {err.filename} is in the way ({err.strerror}); "
+                              "choose another output path.") from err
+    os.close(fd)
+    os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the file the usual mode
+    return Path(tmp)
+
+
+@contextlib.contextmanager
+def atomic_paths(paths: Sequence[str | os.PathLike]) -> Iterator[list[Path]]:
+    """Yield temporary paths beside ``paths``; on success rename them all into place.
+
+    The temporary files are created on entry, before the caller's work, so an output in an
+    unwritable place fails at once. On an exception nothing is renamed and the temporary
+    files are removed. When a rename fails midway (a full or vanished file system), the
+    outputs already renamed are put back as they were: the outputs land together or not
+    at all.
+
+    Raises:
+        OutputPathError: an output's folder cannot be written.
+    """
+    targets = [Path(p) for p in paths]
+    temps: list[Path] = []
+    try:
+        for target in targets:
+            temps.append(_temp_beside(target))
+        yield list(temps)
+        _commit(targets, temps)
+    finally:
+        for tmp in temps:
+            tmp.unlink(missing_ok=True)
+
+
+def _commit(targets: list[Path], temps: list[Path]) -> None:
+    """Rename ``temps`` onto ``targets``; undo the renames done when one fails."""
+    if len(targets) == 1:
+        os.replace(temps[0], targets[0])
+        return
+    backups: list[Path | None] = []
+    try:
+        for target in targets:  # hard links keep the old versions at no cost
+            backup = None
+            if target.is_file():
+                backup = target.with_name(f".{target.name}.{os.getpid()}.bak")
+                backup.unlink(missing_ok=True)
+                try:
+                    os.link(target, backup)
+                except OSError:
+                    shutil.copy2(target, backup)
+            backups.append(backup)
+        done = 0
+        try:
+            for tmp, target in zip(temps, targets, strict=True):
+                os.replace(tmp, target)
+                done += 1
+        except BaseException:
+            for target, backup in list(zip(targets, backups, strict=True))[:done]:
+                if backup is not None:
+                    os.replace(backup, target)
+                else:
+                    target.unlink(missing_ok=True)
+            raise
+    finally:
+        for backup in backups:
+            if backup is not None:
+                backup.unlink(missing_ok=True)
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` on success only."""
+    with atomic_paths([path]) as (tmp,):
+        yield tmp
+
+
+def check_folder_output(path: str | os.PathLike, overwrite: bool) -> Path:
+    """Check, before any work, that a results folder may be written at ``path``.
+
+    A new path is fine when its place is writable. An existing one is replaced only with
+    ``overwrite`` and only when it is a folder tap-bench wrote (it holds
+    :data:`FOLDER_MARKER`); a file, a symbolic link or any other folder is refused.
+
+    Raises:
+        OutputPathError: naming the path, why it is refused and the fix.
+    """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file the usual mode
-    tmp_path = Path(tmp)
+    if path.is_symlink():
+        raise OutputPathError(f"{path}: is a symbolic link; tap-bench does not replace "
+                              "links. Give the folder itself or another name.")
+    if path.exists():
+        if not path.is_dir():
+            raise OutputPathError(f"{path}: is a file, not a results folder; choose another "
+                                  "name or remove the file yourself.")
+        if not (path / FOLDER_MARKER).is_file():
+            raise OutputPathError(
+                f"{path}: exists and was not written by tap-bench (it has no "
+                f"{FOLDER_MARKER}); it is never replaced. Choose another folder, or remove "
+                "it yourself.")
+        if not overwrite:
+            raise RunExistsError(f"{path} exists; choose another folder or pass "
+                                    "--overwrite to replace it.")
+        if not os.access(path.parent, os.W_OK | os.X_OK):
+            raise OutputPathError(f"{path}: cannot replace it, {path.parent} is not "
+                                  "writable.")
+        return path
+    return check_writable(path)
+
+
+@contextlib.contextmanager
+def atomic_folder(path: str | os.PathLike, overwrite: bool = False,
+                  kind: str = "results") -> Iterator[Path]:
+    """Yield a temporary folder beside ``path``; move it onto ``path`` on success only.
+
+    The folder gets :data:`FOLDER_MARKER` and the usual mode. An existing ``path`` is
+    replaced only as :func:`check_folder_output` allows; it is checked again at the end,
+    as something may have appeared meanwhile.
+
+    Args:
+        path: the folder to write.
+        overwrite: replace an earlier folder tap-bench wrote there.
+        kind: what the folder holds, recorded in the marker.
+
+    Raises:
+        OutputPathError, RunExistsError: see :func:`check_folder_output`.
+    """
+    path = check_folder_output(path, overwrite)
     try:
-        yield tmp_path
-        os.replace(tmp_path, path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    except PermissionError as err:
+        raise OutputPathError(f"{path}: cannot write in {path.parent} ({err.strerror}); "
+                              "choose a folder you can write to.") from err
+    old: Path | None = None
+    try:
+        os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700
+        yield tmp
+        (tmp / FOLDER_MARKER).write_text(json.dumps({"written_by": "tap-bench",
+                                                     "kind": kind}) + "\n")
+        check_folder_output(path, overwrite)
+        if path.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old",
+                                        dir=path.parent))
+            os.replace(path, old / path.name)
+            try:
+                os.replace(tmp, path)
+            except BaseException:
+                os.replace(old / path.name, path)
+                raise
+        else:
+            os.replace(tmp, path)
     finally:
-        if tmp_path.exists():
-            tmp_path.unlink()
+        shutil.rmtree(tmp, ignore_errors=True)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+
+
+def _write(table: pd.DataFrame, tmp: Path, path: Path) -> None:
+    """Write ``table`` to ``tmp`` in the format the name of ``path`` asks for."""
+    if _format(path) == "parquet":
+        table.to_parquet(tmp, index=False)
+    else:
+        table.to_csv(tmp, index=False,
+                     compression="gzip" if path.name.lower().endswith(".gz") else None)
 
 
 def write_table(table: pd.DataFrame, path: str | os.PathLike) -> Path:
     """Write ``table`` atomically as Parquet or CSV, chosen by the suffix of ``path``."""
     path = Path(path)
-    fmt = _format(path)
+    _format(path)
     with atomic_path(path) as tmp:
-        if fmt == "parquet":
-            table.to_parquet(tmp, index=False)
-        else:
-            table.to_csv(tmp, index=False, compression="gzip" if path.name.endswith(".gz")
-                         else None)
+        _write(table, tmp, path)
     return path
+
+
+def write_tables(tables: Mapping[str | os.PathLike, pd.DataFrame]) -> list[Path]:
+    """Write several tables (path -> table) so that they land together or not at all.
+
+    Call :func:`check_outputs` on the paths before the work that makes the tables, so an
+    unwritable place fails before it.
+
+    Returns:
+        the paths written, in the order given.
+    """
+    paths = [Path(p) for p in tables]
+    for path in paths:
+        _format(path)
+    with atomic_paths(paths) as temps:
+        for tmp, path, table in zip(temps, paths, tables.values(), strict=True):
+            _write(table, tmp, path)
+    return paths

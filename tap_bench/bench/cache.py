@@ -11,10 +11,10 @@ everything the rollout's trajectory table depends on:
   parameter names (an SB3 ``.zip``, with the versions of Stable-Baselines3 and torch that
   run it), and for kind ``import`` the SHA-256 of the factory's module source;
 - the seed;
-- the code and versions: the cache entry format, tap-bench's version, the SHA-256 of the
-  simulation modules that produce an episode (recorder, scenario env, vehicles, policies,
-  rollout; so an edit to the recorder or to IDM invalidates its episodes even when the
-  version number stays), and the versions of highway-env, Gymnasium and NumPy.
+- the code and versions: the cache entry format, tap-bench's version, the SHA-256 of every
+  module of :mod:`tap_bench.sim` (recorder, scenario env, vehicles, policies, rollout ...;
+  so an edit to the recorder or to IDM invalidates the episodes even when the version
+  number stays), and the versions of highway-env, Gymnasium and NumPy.
 
 Policies registered in Python with :func:`tap_bench.register_policy` have no definition to
 hash and are never cached; failed episodes are never cached either.
@@ -72,9 +72,11 @@ DEFAULT_MAX_BYTES = 2 << 30
 """Size the cache is pruned to after a run [B]: ten default suites."""
 ENTRY_FORMAT = 1
 """Layout of an entry file; raised when it changes (old entries then miss)."""
-SIMULATION_MODULES = ("recorder.py", "scenario_env.py", "vehicles.py", "idm.py",
-                      "policies.py", "rollout.py", "sb3.py", "suite.py")
-"""The modules of :mod:`tap_bench.sim` an episode's trajectory table depends on."""
+def _simulation_modules() -> list[Path]:
+    """Every module of :mod:`tap_bench.sim`: the code an episode's trajectory table depends
+    on (all of them, so that a module added there is covered without a list to update; an
+    edit to one an episode does not use costs only a re-simulation)."""
+    return sorted((Path(__file__).resolve().parent.parent / "sim").glob("*.py"))
 _SUFFIX = ".episode"
 _STALE_TMP_S = 3600.0  # a temporary file this old belongs to a writer that died [s]
 _KEY = re.compile(r"^[0-9a-f]{64}$")
@@ -119,11 +121,10 @@ def _version(package: str) -> str:
 
 def simulation_fingerprint() -> dict[str, Any]:
     """The code and versions every episode's key includes (module docstring)."""
-    sim = Path(__file__).resolve().parent.parent / "sim"
     digest = hashlib.sha256()
-    for name in SIMULATION_MODULES:
-        digest.update(name.encode())
-        digest.update((sim / name).read_bytes())
+    for path in _simulation_modules():
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
     return {"entry_format": ENTRY_FORMAT, "tap-bench": __version__,
             "simulation_code": digest.hexdigest(), "highway-env": _version("highway-env"),
             "gymnasium": _version("gymnasium"), "numpy": _version("numpy")}

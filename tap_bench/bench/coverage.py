@@ -40,12 +40,19 @@ estimator predicts, carrying the Good-Turing undetected mass
 singletons over sampling units, as iNEXT's); as many of them as the reference has unseen
 items count as reference items, which widens the interval: the conservative choice.
 Episodes are drawn from it (multinomially for whole labels, independently per item for
-vocabulary items) and the interval is ``estimate +- z * sd`` over those draws, clipped to
-[0, 1]. When the population has nothing undetected to draw (a handful of episodes with no
-singleton), the draws cannot move and the interval is ``estimate +- n u / K`` instead, with
-u the Wilson upper limit of 0 of n: at most that share of episodes could show an item not
-yet seen (never a zero-width interval on an estimate). ``benchmarks/interval_coverage.py``
-measures its coverage rate.
+vocabulary items) and the interval is the **studentized bootstrap** of
+:mod:`tap_bench.bench.diversity` (:func:`~tap_bench.bench.diversity.studentized_interval`):
+each draw's coverage minus the population's own expected coverage, over the draw's own
+standard error (:func:`~tap_bench.bench.diversity.distinct_variance`: the variance of the
+count of reference items shown under that draw's population, its undetected items counted
+up to the reference items the draw has not shown; floored at estimate / n), gives t*, and
+the interval is ``estimate - t*_hi se .. estimate - t*_lo se``, clipped to [0, 1]. iNEXT's
+``estimate +- z sd`` covered 0.85-0.98 (0.86-0.91 at 30 episodes); why, and the measured
+coverage now, are in docs/benchmark.md. When the population has nothing undetected to draw
+(a handful of episodes with no singleton), the draws cannot move and the interval is
+``estimate +- n u / K`` instead, with u the Wilson upper limit of 0 of n: at most that
+share of episodes could show an item not yet seen (never a zero-width interval on an
+estimate).
 """
 
 from __future__ import annotations
@@ -57,9 +64,14 @@ import pandas as pd
 
 from tap_bench import sdl
 from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.diversity import estimated_population
+from tap_bench.bench.diversity import (
+    distinct_variance,
+    estimated_population,
+    studentized_interval,
+)
 from tap_bench.bench.intervals import wilson_interval, z_value
 from tap_bench.errors import LabelTableError, did_you_mean
+from tap_bench.labels import label_text
 from tap_bench.sim.coverage import vocabulary_tokens
 
 __all__ = [
@@ -100,16 +112,20 @@ class Reference:
         return np.isin(np.asarray(labels, dtype=object), self.items)
 
 
-def vocabulary_reference(level: str = "action") -> Reference:
-    """The single labels of ``level``, lateral and longitudinal, equally weighted."""
+def vocabulary_reference(level: str = "action", *, axes=None) -> Reference:
+    """The single labels of ``level`` on ``axes`` (default lateral and longitudinal; the
+    interaction axis adds its relations), equally weighted."""
     sdl.check_level(level)
-    items = np.array(sorted(vocabulary_tokens(level)), dtype=object)
+    axes = sdl.check_axes(axes)
+    tokens = {t for axis in axes for t in sdl.vocabulary(level, axis)} if axes != sdl.AXES \
+        else vocabulary_tokens(level)
+    items = np.array(sorted(tokens), dtype=object)
     return Reference(items, np.full(len(items), 1.0 / len(items)), "vocabulary", level,
                      f"the {len(items)} single labels of the {level} level")
 
 
 def corpus_reference(labels: pd.DataFrame, level: str, *, tracks: str = "vehicles",
-                     name: str = "reference corpus") -> Reference:
+                     name: str = "reference corpus", axes=None) -> Reference:
     """The SDL labels of a reference corpus, weighted by their frequency.
 
     Args:
@@ -118,7 +134,11 @@ def corpus_reference(labels: pd.DataFrame, level: str, *, tracks: str = "vehicle
         tracks: ``"vehicles"`` (rows whose ``object_type`` is vehicle, or all rows when the
             column is absent), ``"ego"`` (rows with ``is_ego``), or ``"all"``.
         name: what the corpus is, for reports (``"WOMD"``, ``"idm rollouts"``).
+        axes: the axes a label is made of (default lateral and longitudinal: the ``sdl``
+            label; :func:`tap_bench.labels.label_text`). Rows without a
+            label on an axis (not labelled with interactions) are left out.
     """
+
     if tracks not in ("vehicles", "ego", "all"):
         raise did_you_mean("reference tracks", tracks, ("vehicles", "ego", "all"))
     table = labels
@@ -133,7 +153,7 @@ def corpus_reference(labels: pd.DataFrame, level: str, *, tracks: str = "vehicle
         if "is_ego" not in table.columns:
             raise LabelTableError(f"{name}: tracks='ego' needs an is_ego column.")
         table = table[table["is_ego"].fillna(False).to_numpy(bool)]
-    lab = table["sdl"].dropna().to_numpy(str)
+    lab = label_text(table, axes).dropna().to_numpy(str)
     if not len(lab):
         raise LabelTableError(f"{name}: no {tracks} labels at level {level!r}; label it at "
                               f"that level (--level {level} or all).")
@@ -250,7 +270,8 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
     if reference.kind == "corpus":  # one label per episode: multinomial draws
         in_ref_pop = np.r_[in_ref, np.arange(f0) < n_ref_undetected]
         prob = np.r_[p_adj, p_undetected]
-        draws = rng.multinomial(n, prob / prob.sum(), size=B)  # (B, m) episodes per label
+        prob = prob / prob.sum()
+        draws = rng.multinomial(n, prob, size=B)  # (B, m) episodes per label
     else:  # vocabulary items: the universe is the reference; items shown independently
         in_ref_pop = np.r_[in_ref, np.ones(n_ref_undetected, bool)]
         prob = np.r_[p_adj, p_undetected[:n_ref_undetected]]
@@ -259,7 +280,23 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
                      0.0)
     seen = draws > 0
     boot = np.column_stack([(seen & in_ref_pop).sum(axis=1) / K, (seen * w_pop).sum(axis=1)])
-    (c_lo, c_hi), (w_lo, w_hi) = _intervals(np.array([cov, wcov]), boot, config.level)
+    shown_p = 1 - (1 - np.clip(prob, 0.0, 1.0)) ** n  # each item's chance to be shown
+    centre = np.array([float((shown_p * in_ref_pop).sum()) / K, float((shown_p * w_pop).sum())])
+    # standard errors that studentize the draws: the variance of the (weighted) count of
+    # reference items shown under each sample's own population, its undetected items
+    # counted up to the reference items that sample has not shown
+    unseen = K - (seen & in_ref_pop).sum(axis=1)
+    # (floored at one episode's worth, estimate / n, as the Hill numbers' are)
+    se = np.sqrt([distinct_variance(freq, n, weights=w, undetected_weight=u,
+                                    max_undetected=np.array([len(missed_idx)]))
+                  for w, u in ((in_ref / K, 1.0 / K), (w_item, w_missed))])
+    se = np.maximum(se, np.array([cov, wcov]) / n)
+    draws_se = np.sqrt(np.column_stack([
+        distinct_variance(draws, n, weights=w, undetected_weight=u, max_undetected=unseen)
+        for w, u in ((in_ref_pop / K, 1.0 / K), (w_pop, w_missed))]))
+    draws_se = np.maximum(draws_se, boot / n)
+    (c_lo, c_hi), (w_lo, w_hi) = _intervals(np.array([cov, wcov]), se, boot, draws_se,
+                                            centre, config.level)
     if np.std(boot[:, 0]) == 0:  # nothing undetected to draw: bound what n episodes can add
         _, u = wilson_interval(0, n, config.level)
         c_lo, c_hi = max(0.0, cov - n * u / K), min(1.0, cov + n * u / K)
@@ -271,13 +308,21 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
         covered=tuple(covered), missed=tuple(missed), draws=boot)
 
 
-def _intervals(estimate: np.ndarray, boot: np.ndarray, level: float
-               ) -> list[tuple[float, float]]:
-    """``estimate +- z sd`` of each column of the draws, clipped to [0, 1]."""
-    z = z_value(level)
-    sd = np.std(boot, axis=0) if len(boot) else np.full(len(estimate), np.nan)
-    return [(max(0.0, float(e - z * s)), min(1.0, float(e + z * s)))
-            for e, s in zip(estimate, sd, strict=True)]
+def _intervals(estimate: np.ndarray, se: np.ndarray, boot: np.ndarray, draws_se: np.ndarray,
+               centre: np.ndarray, level: float) -> list[tuple[float, float]]:
+    """The studentized bootstrap interval of each share (:func:`tap_bench.bench.diversity.
+    studentized_interval`), clipped to [0, 1]; where a standard error is 0 (nothing seen
+    once: no undetected item), the draws' percentile interval widened to hold the
+    estimate."""
+    low, high = studentized_interval(estimate, se, boot, draws_se, centre, level)
+    alpha = 1 - level
+    pct_lo, pct_hi = np.quantile(boot, [alpha / 2, 1 - alpha / 2], axis=0)
+    out = []
+    for e, lo, hi, plo, phi in zip(estimate, low, high, pct_lo, pct_hi, strict=True):
+        if not np.isfinite(lo):
+            lo, hi = min(plo, e), max(phi, e)
+        out.append((max(0.0, float(lo)), min(1.0, float(hi))))
+    return out
 
 
 def pooled_coverage(results: list[CoverageResult], corpus_sizes: list[int], level: float

@@ -37,17 +37,36 @@ report prints "at least ...". An extrapolation beyond twice the sample (m > 2 n,
 Chao et al. 2014 found it unreliable) or from a sample below that completeness is flagged
 the same way.
 
-**Intervals** (iNEXT's): the detected labels' probabilities are shrunk and the f0 undetected
-labels are given the Good-Turing undetected mass (:func:`estimated_population`, iNEXT's
-``EstiBootComm``); ``n_resamples`` samples of n episodes are drawn from it and the interval
-is ``estimate +- z sd`` of the statistic over those draws, clipped at 1; for completeness,
-whose target is the sample's own (random) coverage, the sd is that of the estimate's error
-in each draw (estimate minus the probability of the labels the draw shows), clipped to
-[0, 1]. A sample whose population has nothing undetected (no label seen once) gives draws
-that cannot move; the interval is then +- n u for the Hill numbers and - u for
-completeness, u the Wilson upper limit of 0 of n (at most that share of episodes could show
-a label not seen yet), never a point. ``benchmarks/interval_coverage.py`` measures their
-coverage.
+**What the Hill numbers at m estimate** (Chao et al. 2014's qD(m),
+:func:`population_hill`): the Hill number of the *expected* label-frequency profile of m
+episodes: ``sum_i 1 - (1 - p_i)^m`` for q = 0 (the expected number of distinct labels),
+``exp(E[H_m])`` for q = 1 (H_m the plug-in entropy of m episodes) and ``1 / (1/m + (1 - 1/m)
+sum_i p_i^2)`` for q = 2. For q = 1, 2 this is not the mean of the sample's own Hill number
+(Jensen: 10 episodes of a 30-label Zipf(1.2) distribution give q2 4.84 on average for an
+estimand of 4.32); the intervals are for this estimand.
+
+**Intervals: the studentized bootstrap from iNEXT's population.** The detected labels'
+probabilities are shrunk and the f0 undetected labels are given the Good-Turing undetected
+mass (:func:`estimated_population`, iNEXT's ``EstiBootComm``); ``n_resamples`` samples of n
+episodes are drawn from it. iNEXT's own interval, ``estimate +- z sd`` over the draws,
+covers 0.73-0.93 at 10 to 100 episodes in ``benchmarks/interval_coverage.py``, for three
+reasons measured there: the sd is too small when the sample shows few singletons, which is
+also when the estimate is low (the correlation of the bootstrap sd with the estimate is
+0.56-0.86 over samples of one distribution, so the misses pile up on one side); the error
+is skewed; and q = 1, 2 are biased at small n. The interval here is the **studentized
+bootstrap** (bootstrap-t; Efron & Tibshirani 1993 ch. 12, Davison & Hinkley 1997 5.2.1,
+:func:`studentized_interval`): in each draw the truth is the population's own value
+(:func:`population_hill`; for completeness the draw's coverage), ``t* = (draw - truth) /
+se*`` with se* the draw's own standard error, and the interval is ``estimate - t*_hi se ..
+estimate - t*_lo se``. The standard errors (:func:`hill_variance`, :func:`completeness_se`):
+for q = 0 the variance of the distinct count under the sample's own iNEXT population
+(:func:`distinct_variance`), for q = 1, 2 the delta method's, for completeness Esty's
+(1983), each floored at one episode's worth. Hill-number intervals are clipped to [1, m],
+completeness to [0, 1]; a bias-corrected interval need not be centred on the estimate.
+A sample whose population has nothing undetected (no label seen once) gives draws that
+cannot move; the interval is then +- n u for the Hill numbers and - u for completeness, u
+the Wilson upper limit of 0 of n (at most that share of episodes could show a label not
+seen yet), never a point. Measured coverage: docs/benchmark.md.
 """
 
 from __future__ import annotations
@@ -66,10 +85,15 @@ __all__ = [
     "DiversityResult",
     "asymptotic_hill",
     "completeness",
+    "completeness_se",
+    "distinct_variance",
     "diversity",
     "estimated_population",
     "hill_numbers",
+    "hill_variance",
     "pooled_diversity",
+    "population_hill",
+    "studentized_interval",
 ]
 
 MIN_COMPLETENESS = 0.5
@@ -189,8 +213,8 @@ def hill_numbers(counts: np.ndarray, size: int) -> np.ndarray:
         d1_n = np.exp(-(np.where(present, p * np.log(p), 0.0)).sum(axis=1))
     if m < n:
         lf = _log_factorials(n)
-        q0 = (1 - np.where(present, np.exp(_log_choose(lf, n - x, m) - _log_choose(
-            lf, np.array(n), np.array(m))), 0.0)).sum(axis=1)
+        q0 = np.where(present, 1 - np.exp(_log_choose(lf, n - x, m) - _log_choose(
+            lf, np.array(n), np.array(m))), 0.0).sum(axis=1)  # absent labels add nothing
         k = np.arange(1, m + 1)
         log_cnm = _log_choose(lf, np.array(n), np.array(m))
         # f_k(m) for every row and k: sum over labels of C(X_i, k) C(n - X_i, m - k) / C(n, m)
@@ -246,6 +270,162 @@ def asymptotic_hill(counts: np.ndarray) -> np.ndarray:
     return np.array([q0, q1, q2])
 
 
+def population_hill(prob: np.ndarray, size: int) -> np.ndarray:
+    """(3,) the Hill numbers q = 0, 1, 2 at sample size m of a known label distribution:
+    what :func:`hill_numbers` estimates (Chao et al. 2014's qD(m), the Hill number of the
+    expected label-frequency profile of m episodes).
+
+    q0 = sum_i 1 - (1 - p_i)^m (the expected distinct labels), q1 = exp(E[H_m]) with H_m
+    the plug-in entropy of m episodes, q2 = 1 / (1/m + (1 - 1/m) sum_i p_i^2).
+
+    Args:
+        prob: (S,) label probabilities (summing to 1; zeros allowed).
+        size: m >= 1 episodes.
+    """
+    p = np.asarray(prob, dtype=float)
+    p = p[p > 0]
+    m = int(size)
+    q0 = float(np.sum(1 - (1 - p) ** m))
+    lf = _log_factorials(m)
+    k = np.arange(1, m + 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rest = (m - k)[None, :] * np.log1p(-np.minimum(p, 1.0))[:, None]
+        rest = np.where((m - k)[None, :] == 0, 0.0, rest)  # p = 1: 0 * log 0 is 0
+        log_pmf = (lf[m] - lf[k] - lf[m - k])[None, :] + k[None, :] * np.log(p)[:, None] + rest
+    pmf = np.exp(np.where(np.isfinite(log_pmf), log_pmf, -np.inf))
+    h = -float((pmf * (k / m * np.log(k / m))[None, :]).sum())
+    q2 = 1.0 / (1.0 / m + (1 - 1.0 / m) * float(np.sum(p * p)))
+    return np.array([q0, math.exp(h), q2])
+
+
+def distinct_variance(counts: np.ndarray, n: int, *, weights: np.ndarray | None = None,
+                      undetected_weight: float = 1.0,
+                      max_undetected: np.ndarray | None = None) -> np.ndarray:
+    """The variance of a (weighted) count of distinct items shown by n sampling units, under
+    each sample's own bootstrap population (:func:`estimated_population`): the standard
+    error that studentizes the richness-type statistics (module docstring).
+
+    ``sum_i w_i q_i (1 - q_i)`` over the population's items, q_i = 1 - (1 - p_i)^n the
+    chance that item i is shown (items taken as independent: the multinomial's small
+    negative covariances are left out, which errs on the wide side).
+
+    Args:
+        counts: (S,) or (B, S) detections per item of one sample or of B samples (zeros
+            allowed: the item is not in that sample).
+        n: sampling units of each sample.
+        weights: (S,) each item's weight w_i (default 1: the distinct count).
+        undetected_weight: the weight of each undetected item of the population.
+        max_undetected: (B,) at most this many undetected items count (a reference's
+            unseen items); default no limit.
+
+    Returns:
+        (B,) or a float: the variances.
+    """
+    x = np.atleast_2d(np.asarray(counts, dtype=float))
+    w_item = np.ones(x.shape[1]) if weights is None else np.asarray(weights, float)
+    f1 = (x == 1).sum(axis=1).astype(float)
+    f2 = (x == 2).sum(axis=1).astype(float)
+    f0 = _chao1_f0(f1, f2, np.full(len(x), float(n)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        A = np.where(f1 > 0, n * f0 / (n * f0 + f1), 1.0)
+        a = np.where(f1 > 0, f1 / n * A, 0.0)
+        p = x / n
+        b = (p * (1 - p) ** n).sum(axis=1)
+        shrink = np.where((f0 > 0) & (b > 0), a / b, 0.0)
+    p_det = p * (1 - shrink[:, None] * (1 - p) ** n)
+    q = 1 - (1 - np.clip(p_det, 0.0, 1.0)) ** n
+    var = (np.where(x > 0, q * (1 - q), 0.0) * w_item * w_item).sum(axis=1)
+    k0 = np.where(f1 > 0, np.ceil(f0 - 1e-9), 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        q_und = 1 - (1 - np.where(k0 > 0, a / np.maximum(k0, 1), 0.0)) ** n
+    if max_undetected is not None:
+        k0 = np.minimum(k0, max_undetected)
+    var = var + k0 * undetected_weight ** 2 * q_und * (1 - q_und)
+    return var if np.ndim(counts) == 2 else float(var[0])
+
+
+def hill_variance(counts: np.ndarray, n: int, hill: np.ndarray) -> np.ndarray:
+    """(3,) or (B, 3) variances that studentize the Hill numbers ``hill`` (at any m) of
+    samples of n episodes: q = 0 the distinct count's (:func:`distinct_variance`); q = 1
+    the delta method's ``D^2 (sum p log^2 p - H^2) / n``; q = 2 ``D^4 (1 - 1/m)^2 4 (sum
+    p^3 - (sum p^2)^2) / n``, p the sample's relative frequencies. Each is floored at
+    ``(D / n)^2`` (one episode's worth), since a sample of distinct labels gives the delta
+    method 0.
+
+    Args:
+        counts: (S,) or (B, S) label counts (totals n).
+        n: episodes.
+        hill: (3,) or (B, 3) the Hill numbers being studentized.
+    """
+    x = np.atleast_2d(np.asarray(counts, dtype=float))
+    d = np.atleast_2d(np.asarray(hill, dtype=float))
+    p = x / n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        log_p = np.where(x > 0, np.log(np.where(x > 0, p, 1.0)), 0.0)
+    h = -(p * log_p).sum(axis=1)
+    v1 = np.maximum((p * log_p ** 2).sum(axis=1) - h * h, 0.0) / n * d[:, 1] ** 2
+    s2 = (p * p).sum(axis=1)
+    v2 = 4 * np.maximum((p ** 3).sum(axis=1) - s2 * s2, 0.0) / n * d[:, 2] ** 4
+    var = np.column_stack([distinct_variance(x, n), v1, v2])
+    var = np.maximum(var, (d / n) ** 2)
+    return var if np.ndim(counts) == 2 else var[0]
+
+
+def studentized_interval(estimate: np.ndarray, se: np.ndarray, draws: np.ndarray,
+                         draw_se: np.ndarray, centre: np.ndarray, level: float
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """The studentized bootstrap (bootstrap-t) interval (Efron & Tibshirani 1993 ch. 12;
+    Davison & Hinkley 1997 section 5.2.1).
+
+    In each draw from the bootstrap population the truth is known (``centre``, e.g.
+    :func:`population_hill` of the population), so ``t* = (draw - centre) / draw_se`` is a
+    draw of the estimator's studentized error; the interval is ``estimate - t*_(1-a/2) se
+    .. estimate - t*_(a/2) se``. Unlike ``estimate +- z sd`` it follows an error whose
+    spread grows with the estimate (few singletons: a low richness with a narrow bootstrap
+    spread), a skewed error, and the estimator's bias (the Jensen bias of q = 1, 2 at
+    small n; the population's own value differs from the sample's).
+
+    Args:
+        estimate, se: (k,) the sample's values and standard errors.
+        draws, draw_se: (B, k) the statistic and its standard error in each draw.
+        centre: (k,) the statistic's value in the population.
+        level: two-sided level.
+
+    Returns:
+        (low (k,), high (k,)); NaN where a standard error is 0 or not finite.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (np.asarray(draws, float) - centre) / draw_se
+    alpha = 1 - level
+    ok = np.isfinite(se) & (se > 0)
+    t = np.nan_to_num(t, nan=0.0, posinf=1e6, neginf=-1e6)  # a draw with se 0: extreme
+    lo_q, hi_q = np.quantile(t, [alpha / 2, 1 - alpha / 2], axis=0)
+    return (np.where(ok, estimate - hi_q * se, np.nan),
+            np.where(ok, estimate - lo_q * se, np.nan))
+
+
+def completeness_se(counts: np.ndarray) -> np.ndarray | float:
+    """Esty's (1983) standard error of the sample completeness's error Ĉ - C, from his
+    normal limit law for the Good-Turing coverage estimator (C is the sample's own
+    coverage, itself random): ``sqrt(f1 (1 - f1/n) + 2 f2) / n``, floored at ``1 / n``
+    (one singleton's worth; 0 when nothing was seen once or twice).
+
+    Args:
+        counts: (S,) or (B, S) label counts (totals n).
+
+    Returns:
+        a float, or (B,).
+    """
+    x = np.atleast_2d(np.asarray(counts))
+    n = float(x[0].sum())
+    if n == 0:
+        return float("nan") if np.ndim(counts) == 1 else np.full(len(x), np.nan)
+    f1 = (x == 1).sum(axis=1).astype(float)
+    f2 = (x == 2).sum(axis=1).astype(float)
+    se = np.maximum(np.sqrt(np.maximum(f1 * (1 - f1 / n) + 2 * f2, 0.0)), 1.0) / n
+    return float(se[0]) if np.ndim(counts) == 1 else se
+
+
 @dataclass(frozen=True)
 class DiversityResult:
     """The diversity of one policy's labels (module docstring).
@@ -261,7 +441,11 @@ class DiversityResult:
         asymptote: (3,) asymptotic Hill numbers, or the sample's values when
             ``asymptote_is_bound``.
         asymptote_is_bound: completeness below :data:`MIN_COMPLETENESS`: "at least".
-        draws: (B, 4) the bootstrap draws of (q0, q1, q2 at m, completeness), for pooling.
+        draws: (B, 4) the bootstrap draws of (q0, q1, q2 at m, completeness's error), for
+            pooling.
+        centre: (3,) the Hill numbers at m of the bootstrap population (the draws' truth).
+        se: (4,) the standard errors that studentize (q0, q1, q2, completeness);
+        draws_se: (B, 4) the same in each draw (pooling).
     """
 
     n: int
@@ -278,6 +462,9 @@ class DiversityResult:
     asymptote: np.ndarray
     asymptote_is_bound: bool
     draws: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 4)))
+    centre: np.ndarray = field(repr=False, default_factory=lambda: np.full(3, np.nan))
+    se: np.ndarray = field(repr=False, default_factory=lambda: np.full(4, np.nan))
+    draws_se: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 4)))
 
     def row(self) -> dict:
         """The scalar fields as a dict (a row of the diversity table)."""
@@ -338,13 +525,19 @@ def diversity(labels, *, size: int | None = None, config: BootstrapConfig | None
     # shows), itself random: its error in a draw is the estimate minus that coverage
     shown = (draws > 0) @ prob
     boot = np.column_stack([hill_numbers(draws, m), completeness(draws) - shown])
-    z = z_value(config.level)
-    sd = np.nanstd(boot, axis=0)
-    if not np.any(sd > 0):  # nothing undetected to draw: bound what n episodes can add
-        _, u = wilson_interval(0, n, config.level)
-        sd = np.array([n * u / z] * 3 + [u / z])
-    low = np.maximum(hill - z * sd[:3], 1.0)
-    high = hill + z * sd[:3]
+    centre = population_hill(prob, m)
+    se = np.r_[np.sqrt(hill_variance(counts, n, hill)), completeness_se(counts)]
+    draws_se = np.column_stack([np.sqrt(hill_variance(draws, n, boot[:, :3])),
+                                completeness_se(draws)])
+    low, high = studentized_interval(np.r_[hill, comp], se, boot, draws_se,
+                                     np.r_[centre, 0.0], config.level)
+    _, u = wilson_interval(0, n, config.level)
+    stuck = ~np.isfinite(low) | ~np.isfinite(high) | (high - low <= 0)
+    if np.any(stuck):  # nothing undetected to draw: bound what n episodes can add
+        low = np.where(stuck, np.r_[hill - n * u, comp - u], low)
+        high = np.where(stuck, np.r_[hill + n * u, comp], high)
+    comp_low, comp_high = max(0.0, float(low[3])), min(1.0, float(high[3]))
+    low, high = np.maximum(low[:3], 1.0), np.minimum(high[:3], float(m))
     method = "interpolated" if m < n else "observed" if m == n else "extrapolated"
     reliable = comp >= MIN_COMPLETENESS
     hill_bound = method == "extrapolated" and (m > 2 * n or not reliable)
@@ -355,14 +548,18 @@ def diversity(labels, *, size: int | None = None, config: BootstrapConfig | None
     return DiversityResult(
         n=n, n_distinct=len(counts), size=m, method=method, hill=hill, hill_low=low,
         hill_high=high, hill_is_bound=bool(hill_bound), completeness=comp,
-        completeness_low=max(0.0, comp - z * float(sd[3])),
-        completeness_high=min(1.0, comp + z * float(sd[3])), asymptote=asym,
-        asymptote_is_bound=not reliable, draws=boot)
+        completeness_low=comp_low, completeness_high=comp_high, asymptote=asym,
+        asymptote_is_bound=not reliable, draws=boot, centre=centre,
+        se=se, draws_se=draws_se)
 
 
 def pooled_diversity(results: list[DiversityResult], level: float) -> DiversityResult:
     """The mean over envs of per-env diversities (each env's figures at its own common
-    size), with the interval from the per-draw means of the envs' bootstrap draws."""
+    size). Hill-number intervals: the studentized bootstrap
+    (:func:`studentized_interval`) of the per-draw means of the envs' draws against the
+    mean of their populations' values, with the envs' standard errors combined as for
+    independent envs (``sqrt(sum se^2) / E``, per draw likewise); completeness: Esty's
+    standard errors combined the same way."""
     results = [r for r in results if r.n > 0]
     if not results:
         return _empty(0)
@@ -370,17 +567,27 @@ def pooled_diversity(results: list[DiversityResult], level: float) -> DiversityR
     hill = np.mean([r.hill for r in results], axis=0)
     comp = float(np.mean([r.completeness for r in results]))
     draws = np.mean([r.draws for r in results], axis=0)
+    centre = np.mean([r.centre for r in results], axis=0)
+    e = len(results)
+    se = np.sqrt(np.sum([r.se ** 2 for r in results], axis=0)) / e
+    draws_se = np.sqrt(np.sum([r.draws_se ** 2 for r in results], axis=0)) / e
+    low, high = studentized_interval(np.r_[hill, comp], se, draws, draws_se,
+                                     np.r_[centre, 0.0], level)
     sd = np.nanstd(draws, axis=0)
+    low = np.where(np.isfinite(low), low, np.r_[hill, comp] - z * sd)
+    high = np.where(np.isfinite(high), high, np.r_[hill, comp] + z * sd)
+    comp_low, comp_high = max(0.0, float(low[3])), min(1.0, float(high[3]))
+    low, high = low[:3], high[:3]
     bound = any(r.hill_is_bound for r in results)
-    low = np.maximum(hill - z * sd[:3], 0.0) if not bound else hill.copy()
-    high = hill + z * sd[:3] if not bound else np.full(3, np.nan)
+    if bound:
+        low, high = hill.copy(), np.full(3, np.nan)
     methods = {r.method for r in results}
     return DiversityResult(
         n=sum(r.n for r in results), n_distinct=sum(r.n_distinct for r in results),
         size=round(float(np.mean([r.size for r in results]))),
-        method=methods.pop() if len(methods) == 1 else "mixed", hill=hill, hill_low=low,
-        hill_high=high, hill_is_bound=bound, completeness=comp,
-        completeness_low=max(0.0, comp - z * float(sd[3])),
-        completeness_high=min(1.0, comp + z * float(sd[3])),
+        method=methods.pop() if len(methods) == 1 else "mixed", hill=hill,
+        hill_low=np.maximum(low, 0.0), hill_high=high, hill_is_bound=bound,
+        completeness=comp, completeness_low=comp_low, completeness_high=comp_high,
         asymptote=np.mean([r.asymptote for r in results], axis=0),
-        asymptote_is_bound=any(r.asymptote_is_bound for r in results), draws=draws)
+        asymptote_is_bound=any(r.asymptote_is_bound for r in results), draws=draws,
+        centre=centre, se=se, draws_se=draws_se)

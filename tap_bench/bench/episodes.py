@@ -16,6 +16,7 @@ column             what
 ``sdl``            the ego's SDL label at the chosen level; NA when the ego has no label
 ``lateral``        its lateral sequence
 ``longitudinal``   its longitudinal sequence
+``interaction``    its interaction sequence (SPEC 7), when the labels carry one
 ``return``         sum of rewards (rollouts only)
 measures           ``crashed``, ``mean_speed``, ``min_headway_s``, ``min_ttc_s``,
                    ``rms_jerk``, ``duration_s`` (:mod:`tap_bench.bench.measures`)
@@ -67,8 +68,8 @@ def ego_labels(labels: pd.DataFrame, level: str, *, source: str = "label table"
         source: a name for the table in error messages.
 
     Returns:
-        one row per scenario: scenario_id, sdl, lateral, longitudinal and the identifying
-        columns env, policy, seed present in the input.
+        one row per scenario: scenario_id, sdl, lateral, longitudinal, interaction (when
+        labelled) and the identifying columns env, policy, seed present in the input.
     """
     missing = [c for c in ("scenario_id", "track_id", *_LABEL_FIELDS) if c not in labels]
     if missing:
@@ -87,8 +88,8 @@ def ego_labels(labels: pd.DataFrame, level: str, *, source: str = "label table"
         np.zeros(len(table))
     order = np.lexsort((-duration,))
     table = table.iloc[order].drop_duplicates("scenario_id", keep="first")
-    keep = ["scenario_id", *_LABEL_FIELDS, *(c for c in ("env", "policy", "seed")
-                                           if c in table.columns)]
+    keep = ["scenario_id", *_LABEL_FIELDS, *(c for c in ("interaction", "env", "policy",
+                                                        "seed") if c in table.columns)]
     return table[keep].reset_index(drop=True)
 
 
@@ -125,7 +126,9 @@ def episode_table(*, labels: pd.DataFrame | None = None,
         if out is None:
             out = ego
         else:
-            out = out.merge(ego[["scenario_id", *_LABEL_FIELDS]], on="scenario_id", how="left")
+            out = out.merge(ego[["scenario_id", *_LABEL_FIELDS,
+                                 *(["interaction"] if "interaction" in ego else [])]],
+                            on="scenario_id", how="left")
     if out is not None:
         out = _fill_ids(out, policy, source)
     if episodes is not None:
@@ -156,7 +159,7 @@ def episode_table(*, labels: pd.DataFrame | None = None,
     out["error"] = out["error"].fillna("")
     out["env"] = out["env"].fillna("").astype(str)
     out["crashed"] = out["crashed"].astype("boolean")
-    for col in _LABEL_FIELDS:
+    for col in (*_LABEL_FIELDS, *(["interaction"] if "interaction" in out else [])):
         out[col] = out[col].astype("string")
     dup = out.duplicated(["env", "policy", "seed"], keep=False)
     if dup.any():
@@ -198,13 +201,15 @@ def _fill_ids(out: pd.DataFrame, policy: str | None, source: str) -> pd.DataFram
 
 
 def episodes_from_table(table: pd.DataFrame, *, level: str, thresholds: str = "paper",
-                        policy: str | None = None, source: str = "input"
+                        policy: str | None = None, source: str = "input",
+                        interactions: str | None = None
                         ) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame | None]:
     """The episode table of a trajectory table or of a label table.
 
     A table with an ``sdl`` column is a label table (measures then stay NaN unless it carries
     them); any other is a trajectory table, labelled here with ``thresholds`` at every
-    level, whose measures are computed too.
+    level, whose measures are computed too; ``interactions`` labels the interaction axis
+    too (:func:`tap_bench.labelling.tap`).
 
     Returns:
         (episode table, label table, trajectory table or None).
@@ -212,7 +217,7 @@ def episodes_from_table(table: pd.DataFrame, *, level: str, thresholds: str = "p
     if "sdl" in table.columns:
         return episode_table(labels=table, level=level, policy=policy, source=source), \
             table, None
-    labels = tap(table, thresholds, source=source).labels("all")
+    labels = tap(table, thresholds, source=source, interactions=interactions).labels("all")
     eps = episode_table(labels=labels, trajectories=table, level=level, policy=policy,
                         source=source)
     return eps, labels, table

@@ -1,7 +1,8 @@
 """``bench check``: the regression gate of a run against a stored baseline.
 
 A baseline file (JSON) keeps, for every (env, policy) of a suite, the per-episode values
-the gate needs: the seed, the ego's SDL label and the measures (:data:`GATE_METRICS`), and
+the gate needs: the seed, the ego's SDL label and the measures
+(:func:`~tap_bench.bench.suite.gate_metrics`), and
 the provenance of the run (each policy's full definition, with the SHA-256 of a model
 file, and each env's resolved config). The gate compares a run's episodes with the
 baseline's, per (env, policy) and metric:
@@ -49,8 +50,14 @@ import pandas as pd
 from tap_bench.bench.bootstrap import named_rng
 from tap_bench.bench.compare import NO_LABEL
 from tap_bench.bench.measures import MEASURES
-from tap_bench.bench.suite import GATE_METRICS, GateConfig
-from tap_bench.errors import BaselineError, BaselineMismatchError, FileFormatError, ParameterError
+from tap_bench.bench.suite import GateConfig, gate_metrics
+from tap_bench.errors import (
+    BaselineError,
+    BaselineMismatchError,
+    FileFormatError,
+    ParameterError,
+    UnknownNameError,
+)
 from tap_bench.tableio import atomic_path
 
 __all__ = ["BASELINE_FORMAT", "EXACT_FLIPS_MAX_SEEDS", "MAX_FAILED_SHARE", "GateResult",
@@ -58,7 +65,11 @@ __all__ = ["BASELINE_FORMAT", "EXACT_FLIPS_MAX_SEEDS", "MAX_FAILED_SHARE", "Gate
            "write_baseline"]
 
 BASELINE_FORMAT = "tap-bench-baseline"
-_EPISODE_FIELDS = ("env", "policy", "seed", "sdl", *(m.name for m in MEASURES))
+
+
+def _episode_fields() -> tuple[str, ...]:
+    return ("env", "policy", "seed", "sdl", *MEASURES.names())
+
 _IDENTITY = ("suite", "suite_version", "level", "thresholds")
 MAX_FAILED_SHARE = 0.05
 """A run with more than this share of failed episodes cannot become a baseline: the
@@ -132,6 +143,10 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
         run_summary: the run's ``summary.json``.
         episodes: the run's episode table.
         path: the baseline JSON to write.
+
+    Raises:
+        BaselineError: the run has no episode, or an (env, policy) of it has no episode that
+            ran to the end: such a baseline would test nothing there.
     """
     ok = episodes[episodes["status"] == "ok"]
     n_failed = len(episodes) - len(ok)
@@ -145,7 +160,16 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
                             f"{len(episodes)} episodes failed ({n_failed / len(episodes):.1%}, "
                             f"more than {MAX_FAILED_SHARE:.0%}): it cannot become a baseline. "
                             "Fix the failures (summary.json lists them) and run again.")
-    rows = [[_json_value(v) for v in r] for r in ok[list(_EPISODE_FIELDS)].itertuples(
+    cells = episodes[["env", "policy"]].drop_duplicates()
+    done = set(map(tuple, ok[["env", "policy"]].drop_duplicates().to_numpy()))
+    empty = [(e, p) for e, p in cells.to_numpy() if (e, p) not in done]
+    if empty:
+        listed = ", ".join(f"{e or '-'}/{p}" for e, p in empty[:5])
+        raise BaselineError(
+            f"run {run_summary.get('run')!r}: every episode of {listed} failed; the baseline "
+            "would not test it. Fix those failures, or drop them from the suite, and run "
+            "again.")
+    rows = [[_json_value(v) for v in r] for r in ok[list(_episode_fields())].itertuples(
         index=False)]
     gate = run_summary.get("suite", {}).get("gate") or GateConfig().to_dict()
     doc = {"format": BASELINE_FORMAT, "format_version": 2,
@@ -154,7 +178,7 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
            "from_run": run_summary.get("run"), "seeds": run_summary.get("seeds"),
            "versions": run_summary.get("versions", {}), "gate": gate,
            "provenance": run_summary.get("provenance", {}),
-           "episodes": {"columns": list(_EPISODE_FIELDS), "rows": rows}}
+           "episodes": {"columns": list(_episode_fields()), "rows": rows}}
     path = Path(path)
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(doc, indent=1) + "\n")
@@ -165,8 +189,10 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
     """The baseline's header and its episode rows.
 
     Raises:
-        FileFormatError: missing file (with the command that makes one), not JSON, or not
-            a baseline.
+        FileFormatError: missing file (with the command that makes one), not JSON (or not
+            text), not a baseline, rows of the wrong shape or type, gate settings that
+            :class:`GateConfig` refuses.
+        BaselineError: a metric missing, or a measure that is not a number.
     """
     path = Path(path)
     if not path.is_file():
@@ -174,7 +200,10 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
                               f"'tap-bench bench check RUN --baseline {path} "
                               "--update-baseline'.")
     try:
-        doc = json.loads(path.read_text())
+        doc = json.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as err:
+        raise FileFormatError(f"{path}: not a text file (byte {err.start} is not UTF-8); a "
+                              "baseline is the JSON written by --update-baseline.") from None
     except json.JSONDecodeError as err:
         raise FileFormatError(f"{path}: not valid JSON: {err}") from err
     if not isinstance(doc, dict) or doc.get("format") != BASELINE_FORMAT:
@@ -183,11 +212,19 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
                               f"expected {BASELINE_FORMAT!r}).")
     try:
         eps = doc["episodes"]
-        table = pd.DataFrame(eps["rows"], columns=eps["columns"])
+        rows, columns = eps["rows"], eps["columns"]
+        if not isinstance(columns, list) or not isinstance(rows, list) or not all(
+                isinstance(r, list) and len(r) == len(columns) for r in rows):
+            raise ValueError(f"'rows' must be a list of lists of {len(columns)} values, one "
+                             "per column" if isinstance(columns, list) else
+                             "'columns' must be a list of names")
+        if not rows:
+            raise ValueError("it holds no episode; a baseline tests nothing without them")
+        table = pd.DataFrame(rows, columns=columns)
     except (KeyError, TypeError, ValueError) as err:
         raise FileFormatError(f"{path}: 'episodes' must hold 'columns' and 'rows': {err}"
                               ) from err
-    missing = [c for c in _EPISODE_FIELDS if c not in table.columns]
+    missing = [c for c in _episode_fields() if c not in table.columns]
     if missing:
         raise BaselineError(f"{path}: baseline episodes lack {', '.join(missing)}; a metric "
                             "the gate checks cannot be missing. Re-make it with "
@@ -203,7 +240,41 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
                 f"{m.name} = {values.iloc[row]!r}, not a number; a baseline holds numbers "
                 "(or null where a measure is undefined). Re-make it with --update-baseline.")
         table[m.name] = pd.to_numeric(values, errors="coerce").astype(float)
+    _check_baseline_rows(table, path)
+    gate = doc.get("gate") or {}
+    if not isinstance(gate, dict):
+        raise FileFormatError(f"{path}: 'gate' must be an object of gate settings, got "
+                              f"{gate!r}.")
+    try:
+        GateConfig(**{k: v for k, v in gate.items()
+                      if k in ("alpha", "n_permutations", "seed", "margins")})
+    except (TypeError, ValueError, UnknownNameError) as err:
+        raise FileFormatError(f"{path}: gate settings: {err} Restore them from the suite "
+                              "(envs/suites/*.json) or re-make the baseline with "
+                              "--update-baseline.") from None
     return doc, table
+
+
+def _check_baseline_rows(table: pd.DataFrame, path: Path) -> None:
+    """Every identifying value of a baseline's episodes of the type its column holds: text
+    for env, policy (and sdl, or null), an integer seed (the measures are checked by
+    :func:`read_baseline`)."""
+    def bad(col: str, ok) -> None:
+        for i, value in enumerate(table[col].tolist()):
+            if not ok(value):
+                raise FileFormatError(
+                    f"{path}: episode row {i}, column {col!r}: {value!r} is not "
+                    f"{kinds[col]}. The baseline was edited or damaged; re-make it with "
+                    "--update-baseline.")
+
+    text = "text"
+    kinds = {"env": text, "policy": text, "seed": "a non-negative integer",
+             "sdl": "text or null"}
+    bad("env", lambda v: isinstance(v, str))
+    bad("policy", lambda v: isinstance(v, str))
+    bad("seed", lambda v: (isinstance(v, int) and not isinstance(v, bool))
+        or (isinstance(v, str) and v.isdigit()))  # baselines before 0.2 wrote it as text
+    bad("sdl", lambda v: v is None or isinstance(v, str))
 
 
 def holm(p: np.ndarray) -> np.ndarray:
@@ -418,7 +489,7 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
             base = base.iloc[np.argsort(seeds_b, kind="stable")]
             run = run.iloc[np.argsort(seeds_r, kind="stable")]
         why = _why(key, changed_policy, changed_env)
-        for metric in GATE_METRICS:
+        for metric in gate_metrics():
             margin = float(config.margins[metric])
             name = (key["env"], key["policy"], metric)
             row = {**key, "metric": metric, "test": "paired" if paired else "unpaired",
@@ -496,7 +567,7 @@ def _why(key: dict[str, Any], policies: dict[str, str], envs: dict[str, str]) ->
 
 def _refuse_if_it_cannot_fire(plans: list, config: GateConfig) -> None:
     """Raise when the smallest attainable Holm-adjusted p-value is not below alpha."""
-    m = len(plans) * len(GATE_METRICS)
+    m = len(plans) * len(gate_metrics())
     if not m:
         return
     floor = m / (config.n_permutations + 1)

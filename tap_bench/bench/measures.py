@@ -1,115 +1,320 @@
 """Safety and efficiency measures of the ego vehicle, one row per episode (scenario).
 
-From a trajectory table (SPEC section 1) with ``is_ego`` marking the ego vehicle, for each
-scenario:
+Every measure is one entry of the registry :data:`MEASURES`: a name (the column of the
+measures table), its unit, which direction is better, the default margin of the regression
+gate and a function of the ego's steps (:class:`EgoSteps`) giving one value per episode.
+Adding a measure is one function and one :func:`register_measure` decorator::
+
+    @register_measure("max_decel", unit="m/s^2", higher_is_better=True, margin=0.5,
+                      description="hardest braking of the ego (most negative acceleration)")
+    def max_decel(steps: EgoSteps) -> np.ndarray:
+        return steps.minimum(steps.accel)
+
+The registry refuses a name registered twice and a measure without a margin: a measure the
+gate cannot check is an error, never silently ungated.
+
+The built-in measures:
 
 ==================  ======  ================================================================
 column              unit    what
 ==================  ======  ================================================================
 ``crashed``         bool    the ego collided (any ego row with ``crashed`` true)
 ``mean_speed``      m/s     mean ego speed over its valid steps
-``min_headway_s``   s       smallest time headway to the vehicle ahead: bumper gap / ego
-                            speed, over steps with a leader and ego speed >= 1 m/s after the
-                            first :data:`BURN_IN_S`; capped at :data:`HEADWAY_CAP_S`
-``min_ttc_s``       s       smallest time to collision with the vehicle ahead: gap / closing
-                            speed, over steps after the burn-in where the ego closes in; capped at
+``min_headway_s``   s       smallest time headway to the leader: bumper gap / ego speed,
+                            over scored steps with a leader and ego speed >= 1 m/s; capped
+                            at :data:`HEADWAY_CAP_S`
+``min_ttc_s``       s       smallest time to collision with the leader: gap / closing speed
+                            over scored steps where the ego closes in; capped at
                             :data:`TTC_CAP_S` (no conflict at all gives the cap)
 ``rms_jerk``        m/s^3   root mean square of the ego's longitudinal jerk (d^2 v / dt^2)
-``duration_s``      s       time the ego was recorded
 ==================  ======  ================================================================
 
-The vehicle ahead (leader) at a step is the nearest other road user whose centre lies ahead
-of the ego's centre along the ego's heading, less than :data:`LANE_HALF_WIDTH` to either
-side and within :data:`LOOKAHEAD`; the gap is that distance less one :data:`VEHICLE_LENGTH`
-(centre to centre, minus half a length of each). Surrounding vehicles are only known where
-the table records them (highway-env rollouts record every vehicle; WOMD every tracked
-agent): without them the headway and TTC are NaN. Everything is vectorised over the whole
-table.
+and ``duration_s`` (s), the time the ego was recorded, beside them.
+
+**Along the ego's path** (SPEC sections 6 and 7). The leader at a step is the nearest other
+road user ahead on the ego's own path (:mod:`tap_bench.pathframe`: ``0 < s <=``
+:data:`LOOKAHEAD`), inside its corridor (``|d| <=`` :data:`~tap_bench.pathframe.
+CORRIDOR_HALF_WIDTH`) and driving along it (heading within :data:`~tap_bench.pathframe.
+SAME_DIRECTION` of the path), on straight roads, curves, merges, roundabouts and
+intersections alike. The gap is ``s`` less half of each vehicle's length (the ``length``
+column where the table has one, else :data:`VEHICLE_LENGTH`); the closing speed is the ego's
+speed less the leader's velocity along the path.
+
+**Collisions and the burn-in.** A step at which the ego is crashed has a TTC and a headway of
+0, so a crashed episode can never look safer than one without a conflict. The first
+:data:`BURN_IN_S` of an episode are not scored (the scenario sets those gaps, not the
+policy), except a conflict that leads to a crash: the run of steps, ending at the crash,
+in which the ego closes in on a leader is always scored.
+
+Surrounding vehicles are only known where the table records them (highway-env rollouts
+record every vehicle; WOMD every tracked agent): without any, headway and TTC are NaN.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 
-from tap_bench.errors import TrajectoryTableError
+from tap_bench.errors import RegistrationError, TrajectoryTableError, did_you_mean
+from tap_bench.pathframe import CORRIDOR_HALF_WIDTH, SAME_DIRECTION, Paths, path_frame
 from tap_bench.trajectories import HZ
 
 __all__ = [
     "BURN_IN_S",
     "HEADWAY_CAP_S",
-    "LANE_HALF_WIDTH",
     "LOOKAHEAD",
     "MEASURES",
     "MIN_SPEED_FOR_HEADWAY",
     "TTC_CAP_S",
     "VEHICLE_LENGTH",
+    "EgoSteps",
     "Measure",
+    "MeasureRegistry",
     "ego_measures",
     "ego_step_measures",
+    "ego_steps",
+    "register_measure",
 ]
 
-LANE_HALF_WIDTH = 2.0  # [m] half of highway-env's 4 m lane: a leader is within it laterally
-VEHICLE_LENGTH = 5.0  # [m] highway-env's vehicle length; bumper gap = centre gap - length
-LOOKAHEAD = 100.0  # [m] farthest leader considered, centre to centre
+VEHICLE_LENGTH = 5.0  # [m] highway-env's vehicle length, used where no `length` column is
+LOOKAHEAD = 100.0  # [m] farthest leader considered along the path, centre to centre
 MIN_SPEED_FOR_HEADWAY = 1.0  # [m/s] below this a time headway is not meaningful
 HEADWAY_CAP_S = 10.0  # [s] headways above this count as free driving
 BURN_IN_S = 2.0  # [s] headway and TTC skip the first steps: the scenario sets those gaps
 TTC_CAP_S = 10.0  # [s] times to collision above this (or none) count as no conflict
 
+_KEEP = ("env", "policy", "seed", "source")
+
+
+@dataclass(frozen=True)
+class EgoSteps:
+    """The ego's steps of every episode, sorted by episode and time: what measures read.
+
+    Per-step arrays are (m,) over the ego's valid steps; per-episode arrays (S,).
+
+    Attributes:
+        scenario_id: (S,) the episode's scenario id.
+        starts: (S,) first step of each episode; ``counts``: (S,) its steps.
+        step: (m,) int time step (round(t * 10)); consecutive steps differ by 1.
+        t: (m,) [s]; speed: (m,) [m/s]; accel: (m,) [m/s^2] (first difference of speed).
+        crashed: (m,) bool, the ego is crashed at that step.
+        leader_row: (m,) row of the leader in the input table, -1 where there is none.
+        gap: (m,) [m] bumper gap to the leader (NaN: no leader).
+        closing: (m,) [m/s] the ego's speed less the leader's velocity along the path.
+        headway: (m,) [s] time headway on scored steps (NaN elsewhere; 0 when crashed).
+        ttc: (m,) [s] time to collision on scored steps (inf: not closing in; NaN: not
+            scored or no leader; 0 when crashed).
+        has_others: (S,) bool, the episode records other road users.
+        first_row: (S,) the input row of each episode's first ego step.
+        scored: (m,) bool, the step counts in the episode's minima (after the burn-in, or
+            in the closing-in run that ends in a crash).
+    """
+
+    scenario_id: np.ndarray
+    starts: np.ndarray
+    counts: np.ndarray
+    step: np.ndarray
+    t: np.ndarray
+    speed: np.ndarray
+    accel: np.ndarray
+    crashed: np.ndarray
+    leader_row: np.ndarray
+    gap: np.ndarray
+    closing: np.ndarray
+    headway: np.ndarray
+    ttc: np.ndarray
+    has_others: np.ndarray
+    first_row: np.ndarray
+    scored: np.ndarray
+
+    @property
+    def n_episodes(self) -> int:
+        return len(self.starts)
+
+    @property
+    def episode(self) -> np.ndarray:
+        """(m,) the episode of each step."""
+        return np.repeat(np.arange(self.n_episodes), self.counts)
+
+    def mean(self, values: np.ndarray) -> np.ndarray:
+        """(S,) per-episode mean of (m,) ``values`` (NaN ignored; NaN when none)."""
+        ok = ~np.isnan(values)
+        total = np.bincount(self.episode[ok], weights=values[ok], minlength=self.n_episodes)
+        n = np.bincount(self.episode[ok], minlength=self.n_episodes)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return total / n
+
+    def minimum(self, values: np.ndarray, cap: float = np.inf) -> np.ndarray:
+        """(S,) per-episode minimum of (m,) ``values`` (NaN ignored), capped at ``cap``;
+        an episode with no value gets the cap."""
+        if not self.n_episodes:
+            return np.zeros(0)
+        filled = np.where(np.isnan(values), np.inf, values)
+        return np.minimum(np.minimum.reduceat(filled, self.starts), cap)
+
+    def any(self, values: np.ndarray) -> np.ndarray:
+        """(S,) bool: the episode has a true step."""
+        if not self.n_episodes:
+            return np.zeros(0, bool)
+        return np.logical_or.reduceat(values.astype(bool), self.starts)
+
+    def consecutive(self, lag: int = 1) -> np.ndarray:
+        """(m - lag,) bool: steps i and i + lag are ``lag`` steps apart in one episode."""
+        ep = self.episode
+        return (ep[lag:] == ep[:-lag]) & (self.step[lag:] - self.step[:-lag] == lag)
+
+
+MeasureFunction = Callable[[EgoSteps], np.ndarray]
+
 
 @dataclass(frozen=True)
 class Measure:
-    """A per-episode measure and which direction is better.
+    """A per-episode measure: how to compute it, its unit, direction and gate margin.
 
     Attributes:
         name: column of the measures table.
         unit: for axis labels.
         higher_is_better: True for speed, headway, TTC; False for crashes and jerk.
         description: one line for reports.
+        margin: the regression gate's default margin: the largest change of the mean
+            (absolute, in ``unit``) that is not a regression.
+        function: :class:`EgoSteps` -> (S,) values, one per episode.
     """
 
     name: str
     unit: str
     higher_is_better: bool
     description: str
+    margin: float
+    function: MeasureFunction
 
 
-MEASURES: tuple[Measure, ...] = (
-    Measure("crashed", "share", False, "collision rate of the ego"),
-    Measure("mean_speed", "m/s", True, "mean ego speed"),
-    Measure("min_headway_s", "s", True, "smallest time headway to the leader (capped 10 s)"),
-    Measure("min_ttc_s", "s", True, "smallest time to collision with the leader (capped 10 s)"),
-    Measure("rms_jerk", "m/s^3", False, "RMS longitudinal jerk of the ego"),
-)
-"""The measures scored in comparisons, in report order."""
+class MeasureRegistry:
+    """The measures, in registration (report) order; refuses duplicates and missing margins.
 
-_KEEP = ("env", "policy", "seed", "source")
+    Iterating gives the :class:`Measure` entries; ``registry["min_ttc_s"]`` one of them.
+    """
+
+    def __init__(self) -> None:
+        self._measures: dict[str, Measure] = {}
+
+    def register(self, measure: Measure) -> Measure:
+        """Add ``measure``.
+
+        Raises:
+            RegistrationError: the name is taken, the margin is missing, not a number or
+                negative, or the function is not callable.
+        """
+        if not isinstance(measure.name, str) or not measure.name.isidentifier():
+            raise RegistrationError(f"measure name {measure.name!r} must be an identifier "
+                                    "(it becomes a column name).")
+        if measure.name in self._measures:
+            raise RegistrationError(f"measure {measure.name!r} is already registered; pick "
+                                    "another name (a measure is registered once).")
+        margin = measure.margin
+        if (margin is None or isinstance(margin, bool) or not isinstance(margin, int | float)
+                or not np.isfinite(margin) or margin < 0):
+            raise RegistrationError(
+                f"measure {measure.name!r} needs a gate margin: a finite number >= 0 in "
+                f"{measure.unit} (the largest change that is not a regression), got "
+                f"{margin!r}.")
+        if not callable(measure.function):
+            raise RegistrationError(f"measure {measure.name!r}: function must be callable.")
+        self._measures[measure.name] = measure
+        return measure
+
+    def unregister(self, name: str) -> None:
+        """Remove a measure (for tests and plug-ins that replace their own)."""
+        del self._measures[self[name].name]
+
+    def __getitem__(self, name: str) -> Measure:
+        try:
+            return self._measures[name]
+        except KeyError:
+            raise did_you_mean("measure", name, self._measures) from None
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._measures
+
+    def __iter__(self) -> Iterator[Measure]:
+        return iter(tuple(self._measures.values()))
+
+    def __len__(self) -> int:
+        return len(self._measures)
+
+    def names(self) -> tuple[str, ...]:
+        """The measure names, in order."""
+        return tuple(self._measures)
+
+    def margins(self) -> dict[str, float]:
+        """name -> default gate margin."""
+        return {m.name: float(m.margin) for m in self._measures.values()}
 
 
-class _EgoSteps(NamedTuple):
-    """Every valid ego step of a table, sorted by scenario and time (m steps)."""
-
-    table: pd.DataFrame
-    sids: pd.Index  # scenario ids, by code
-    sid_codes: np.ndarray  # (n,) scenario code of every row of the table
-    is_ego: np.ndarray  # (n,) bool
-    valid: np.ndarray  # (n,) bool
-    rows: np.ndarray  # (m,) table rows of the ego steps
-    key: np.ndarray  # (m,) scenario code * steps + step, increasing
-    sid: np.ndarray  # (m,) scenario code of each ego step
-    t: np.ndarray  # (m,) [s]
-    speed: np.ndarray  # (m,) [m/s]
-    gap: np.ndarray  # (m,) bumper gap to the leader [m], NaN without one
-    headway: np.ndarray  # (m,) [s], NaN without a leader or below MIN_SPEED_FOR_HEADWAY
-    ttc: np.ndarray  # (m,) [s], inf when not closing in, NaN without a leader
-    burn_in: np.ndarray  # (m,) bool: within BURN_IN_S of the ego's first step
+MEASURES = MeasureRegistry()
+"""The measures scored in comparisons and checked by the gate, in report order."""
 
 
-def _ego_steps(table: pd.DataFrame) -> _EgoSteps:
+def register_measure(name: str, *, unit: str, higher_is_better: bool, margin: float,
+                     description: str, registry: MeasureRegistry = MEASURES
+                     ) -> Callable[[MeasureFunction], MeasureFunction]:
+    """Decorator: register ``function(steps: EgoSteps) -> (S,) values`` as a measure."""
+
+    def decorate(function: MeasureFunction) -> MeasureFunction:
+        registry.register(Measure(name, unit, higher_is_better, description, margin,
+                                  function))
+        return function
+
+    return decorate
+
+
+@register_measure("crashed", unit="share", higher_is_better=False, margin=0.10,
+                  description="collision rate of the ego")
+def _crashed(steps: EgoSteps) -> np.ndarray:
+    return steps.any(steps.crashed)
+
+
+@register_measure("mean_speed", unit="m/s", higher_is_better=True, margin=1.0,
+                  description="mean ego speed")
+def _mean_speed(steps: EgoSteps) -> np.ndarray:
+    return steps.mean(steps.speed)
+
+
+@register_measure("min_headway_s", unit="s", higher_is_better=True, margin=0.3,
+                  description="smallest time headway to the leader along the path (capped "
+                  "10 s; 0 on a crash)")
+def _min_headway(steps: EgoSteps) -> np.ndarray:
+    out = steps.minimum(steps.headway, HEADWAY_CAP_S)
+    out[~steps.has_others & ~steps.any(steps.crashed)] = np.nan
+    return out
+
+
+@register_measure("min_ttc_s", unit="s", higher_is_better=True, margin=1.0,
+                  description="smallest time to collision with the leader along the path "
+                  "(capped 10 s; 0 on a crash)")
+def _min_ttc(steps: EgoSteps) -> np.ndarray:
+    out = steps.minimum(steps.ttc, TTC_CAP_S)
+    out[~steps.has_others & ~steps.any(steps.crashed)] = np.nan
+    return out
+
+
+@register_measure("rms_jerk", unit="m/s^3", higher_is_better=False, margin=1.0,
+                  description="RMS longitudinal jerk of the ego")
+def _rms_jerk(steps: EgoSteps) -> np.ndarray:
+    v = steps.speed
+    d2 = (v[2:] - 2 * v[1:-1] + v[:-2]) * HZ * HZ
+    ok = steps.consecutive(2)  # a second difference over three consecutive steps
+    ep = steps.episode[2:][ok]
+    sq = np.bincount(ep, weights=d2[ok] ** 2, minlength=steps.n_episodes)
+    n = np.bincount(ep, minlength=steps.n_episodes)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt(sq / n)
+
+
+def _require(table: pd.DataFrame) -> None:
     for col in ("scenario_id", "track_id", "t", "x", "y", "heading", "speed", "is_ego"):
         if col not in table.columns:
             fix = (" Mark the ego (the policy's vehicle, WOMD's self-driving car) with a "
@@ -117,6 +322,21 @@ def _ego_steps(table: pd.DataFrame) -> _EgoSteps:
             raise TrajectoryTableError(f"ego measures need column {col!r}; the table has "
                                        f"{', '.join(map(str, table.columns))}.{fix}",
                                        column=col)
+
+
+def ego_steps(table: pd.DataFrame) -> EgoSteps:
+    """The ego's steps of every scenario with the leader, headway and TTC along its path.
+
+    Args:
+        table: trajectory table with ``scenario_id``, ``track_id``, ``t``, ``x``, ``y``,
+            ``heading``, ``speed`` and ``is_ego``; optional ``valid``, ``crashed`` and
+            ``length`` [m]. Rows of one track must be at distinct 0.1 s steps.
+
+    Raises:
+        TrajectoryTableError: ``is_ego`` is missing, a scenario has two ego tracks, or an
+            ego has two rows at one step.
+    """
+    _require(table)
     valid = np.ones(len(table), bool)
     if "valid" in table.columns:
         valid = table["valid"].fillna(False).to_numpy(bool, copy=True)
@@ -135,7 +355,6 @@ def _ego_steps(table: pd.DataFrame) -> _EgoSteps:
     ego_track = table["track_id"].take(ego_rows).to_numpy()  # not the whole string column
     ego_sid = sid_codes[ego_rows]
     _check_one_ego(ego_sid, ego_track, sids)
-
     order = np.argsort(key[ego_rows], kind="stable")
     ego_rows = ego_rows[order]
     ego_key = key[ego_rows]
@@ -144,101 +363,128 @@ def _ego_steps(table: pd.DataFrame) -> _EgoSteps:
         raise TrajectoryTableError(
             f"row {dup}: the ego of scenario {table['scenario_id'].iloc[dup]!r} has two rows at "
             f"t = {t[dup]:g} s; each track has one row per 0.1 s step.", column="t", row=int(dup))
+    seg_sid = ego_sid[order]
+    m = len(ego_rows)
+    starts = np.flatnonzero(np.r_[True, seg_sid[1:] != seg_sid[:-1]]) if m else \
+        np.zeros(0, np.int64)
+    counts = np.diff(np.r_[starts, m]).astype(np.int64)
+    scen = seg_sid[starts]
 
     x = table["x"].to_numpy(float)
     y = table["y"].to_numpy(float)
     heading = table["heading"].to_numpy(float)
     speed = table["speed"].to_numpy(float)
+    length = np.full(len(table), VEHICLE_LENGTH)
+    if "length" in table.columns:
+        given = pd.to_numeric(table["length"], errors="coerce").to_numpy(float)
+        length = np.where(np.isfinite(given) & (given > 0), given, VEHICLE_LENGTH)
+    crashed_all = (table["crashed"].fillna(False).to_numpy(bool) if "crashed" in table.columns
+                   else np.zeros(len(table), bool))
 
-    gap, closing = _leader_gaps(key, valid & ~is_ego, ego_rows, ego_key, x, y, heading, speed)
+    gap, closing, leader = _leaders(key, sid_codes.astype(np.int64), valid & ~is_ego,
+                                    ego_rows, ego_key, seg_sid, x, y, heading, speed, length)
     v_ego = speed[ego_rows]
+    crashed = crashed_all[ego_rows]
     with np.errstate(divide="ignore", invalid="ignore"):
         headway = np.where(v_ego >= MIN_SPEED_FOR_HEADWAY, gap / v_ego, np.nan)
         ttc = np.where(closing > 0, gap / closing, np.inf)
     ttc = np.where(np.isnan(gap), np.nan, ttc)
-    seg_sid = ego_sid[order]
-    t_rel = t[ego_rows] - _group_first(t[ego_rows], seg_sid)
-    return _EgoSteps(table, sids, sid_codes, is_ego, valid, ego_rows, ego_key, seg_sid,
-                     t[ego_rows], v_ego, gap, headway, ttc, t_rel < BURN_IN_S - 1e-9)
+    episode = np.repeat(np.arange(len(starts)), counts)
+    ego_step = step[ego_rows]
+    consecutive = np.ones(m, bool)
+    consecutive[1:] = (episode[1:] == episode[:-1]) & (ego_step[1:] - ego_step[:-1] == 1)
+    consecutive[starts] = False
+    # the initial gaps are the scenario's, not the policy's: the first BURN_IN_S are not
+    # scored, except a conflict that leads to a crash (the closing-in run ending at it)
+    t_ego = t[ego_rows]
+    t_rel = t_ego - np.repeat(t_ego[starts], counts) if m else t_ego
+    conflict = np.isfinite(ttc) | crashed
+    run_start = ~consecutive | ~np.r_[False, conflict[:-1]] if m else np.zeros(0, bool)
+    run_id = np.cumsum(run_start) - 1
+    to_crash = np.zeros(m, bool)
+    if m:
+        run_crash = np.logical_or.reduceat(crashed, np.flatnonzero(run_start))
+        to_crash = conflict & run_crash[run_id]
+    scored = (t_rel >= BURN_IN_S - 1e-9) | to_crash
+    headway = np.where(scored, headway, np.nan)
+    ttc = np.where(scored, ttc, np.nan)
+    headway[crashed] = 0.0
+    ttc[crashed] = 0.0
+    accel = np.full(m, np.nan)
+    if m > 1:
+        ok = consecutive[1:]
+        accel[1:][ok] = (v_ego[1:] - v_ego[:-1])[ok] * HZ
+
+    has_others = np.bincount(sid_codes[~is_ego & valid], minlength=len(sids))[scen] > 0
+    return EgoSteps(scenario_id=np.asarray(sids)[scen], starts=starts, counts=counts,
+                    step=ego_step, t=t_ego, speed=v_ego, accel=accel, crashed=crashed,
+                    leader_row=leader, gap=gap, closing=closing, headway=headway, ttc=ttc,
+                    has_others=has_others, first_row=ego_rows[starts], scored=scored)
 
 
 def ego_step_measures(table: pd.DataFrame) -> pd.DataFrame:
     """The ego's safety measures at every valid step of every scenario (what
-    :func:`ego_measures` reduces to one row per episode).
+    :func:`ego_measures` reduces to one row per episode), for viewers and plots.
 
     Args:
-        table: a trajectory table, as for :func:`ego_measures`.
+        table: a trajectory table, as for :func:`ego_steps`.
 
     Returns:
         one row per valid ego step, sorted by scenario (in order of first appearance) and
         time: ``scenario_id``, ``t`` [s], ``speed`` [m/s], ``gap_m`` (bumper gap to the
-        leader [m]), ``headway_s`` and ``ttc_s`` [s] (capped at :data:`HEADWAY_CAP_S` and
-        :data:`TTC_CAP_S`; NaN without a leader, and the headway below
-        :data:`MIN_SPEED_FOR_HEADWAY`), ``scored`` (False during the first
-        :data:`BURN_IN_S`, which the episode minima leave out).
+        leader along the path [m]), ``headway_s`` and ``ttc_s`` [s] (capped at
+        :data:`HEADWAY_CAP_S` and :data:`TTC_CAP_S`; NaN without a leader, and the headway
+        below :data:`MIN_SPEED_FOR_HEADWAY`; 0 while crashed), ``scored`` (False where the
+        burn-in leaves the step out of the episode minima).
     """
-    st = _ego_steps(table)
+    steps = ego_steps(table)
+    headway, ttc = _unscored(steps)
     return pd.DataFrame({
-        "scenario_id": np.asarray(st.sids)[st.sid], "t": st.t, "speed": st.speed,
-        "gap_m": st.gap, "headway_s": np.minimum(st.headway, HEADWAY_CAP_S),
-        "ttc_s": np.minimum(st.ttc, TTC_CAP_S), "scored": ~st.burn_in})
+        "scenario_id": np.repeat(steps.scenario_id, steps.counts), "t": steps.t,
+        "speed": steps.speed, "gap_m": steps.gap,
+        "headway_s": np.minimum(headway, HEADWAY_CAP_S), "ttc_s": np.minimum(ttc, TTC_CAP_S),
+        "scored": steps.scored})
+
+
+def _unscored(steps: EgoSteps) -> tuple[np.ndarray, np.ndarray]:
+    """(headway, ttc) at every step, the burn-in not applied (0 while crashed)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        headway = np.where(steps.speed >= MIN_SPEED_FOR_HEADWAY, steps.gap / steps.speed,
+                           np.nan)
+        ttc = np.where(steps.closing > 0, steps.gap / steps.closing, np.inf)
+    ttc = np.where(np.isnan(steps.gap), np.nan, ttc)
+    headway[steps.crashed] = 0.0
+    ttc[steps.crashed] = 0.0
+    return headway, ttc
 
 
 def ego_measures(table: pd.DataFrame) -> pd.DataFrame:
     """Safety and efficiency measures of the ego of every scenario of a trajectory table.
 
     Args:
-        table: trajectory table with ``scenario_id``, ``track_id``, ``t``, ``x``, ``y``,
-            ``heading``, ``speed`` and ``is_ego``; optional ``valid``, ``crashed``, and the
-            identifying ``env``, ``policy``, ``seed``, ``source``, which are carried over.
-            Rows of one track must be at distinct 0.1 s steps.
+        table: as :func:`ego_steps`; the identifying ``env``, ``policy``, ``seed``,
+            ``source`` are carried over.
 
     Returns:
         one row per scenario with an ego: ``scenario_id``, the identifying columns present,
-        and the columns of the module docstring.
-
-    Raises:
-        TrajectoryTableError: ``is_ego`` is missing, or a scenario has two ego tracks.
+        one column per registered measure (:data:`MEASURES`) and ``duration_s``.
     """
-    st = _ego_steps(table)
-    sids, sid_codes, is_ego, valid = st.sids, st.sid_codes, st.is_ego, st.valid
-    ego_rows, ego_key, seg_sid, v_ego = st.rows, st.key, st.sid, st.speed
-    # the initial gaps are the scenario's, not the policy's: skip the first BURN_IN_S of each
-    headway = np.where(st.burn_in, np.nan, st.headway)
-    ttc = np.where(st.burn_in, np.nan, st.ttc)
-
-    # per scenario reductions over the ego's (sorted) rows
-    starts = np.flatnonzero(np.r_[True, seg_sid[1:] != seg_sid[:-1]]) if len(seg_sid) else \
-        np.zeros(0, np.int64)
-    counts = np.diff(np.r_[starts, len(seg_sid)])
-    scen = seg_sid[starts]
-    has_others = np.bincount(sid_codes[~is_ego & valid], minlength=len(sids))[scen] > 0
-
-    mean_speed = np.add.reduceat(v_ego, starts) / counts if len(starts) else np.zeros(0)
-    min_headway = _reduce_min(headway, starts, HEADWAY_CAP_S)
-    min_ttc = _reduce_min(ttc, starts, TTC_CAP_S)
-    min_headway[~has_others] = np.nan
-    min_ttc[~has_others] = np.nan
-    rms_jerk = _rms_jerk(v_ego, ego_key, starts, counts)
-    crashed = np.zeros(len(starts), bool)
-    if "crashed" in table.columns:
-        c = table["crashed"].fillna(False).to_numpy(bool)[ego_rows]
-        crashed = np.logical_or.reduceat(c, starts) if len(starts) else crashed
-    t_ego = st.t
-    duration = (np.maximum.reduceat(t_ego, starts) - np.minimum.reduceat(t_ego, starts)
-                + 1.0 / HZ) if len(starts) else np.zeros(0)
-
-    first = ego_rows[starts]
-    out = pd.DataFrame({"scenario_id": np.asarray(sids)[scen]})
+    steps = ego_steps(table)
+    out = pd.DataFrame({"scenario_id": steps.scenario_id})
     for col in _KEEP:
         if col in table.columns:
-            out[col] = table[col].take(first).to_numpy()
-    out["crashed"] = crashed
-    out["mean_speed"] = mean_speed
-    out["min_headway_s"] = min_headway
-    out["min_ttc_s"] = min_ttc
-    out["rms_jerk"] = rms_jerk
-    out["duration_s"] = duration
+            out[col] = table[col].take(steps.first_row).to_numpy()
+    for measure in MEASURES:
+        values = np.asarray(measure.function(steps))
+        if values.shape != (steps.n_episodes,):
+            raise RegistrationError(f"measure {measure.name!r} returned shape {values.shape}, "
+                                    f"expected ({steps.n_episodes},): one value per episode.")
+        out[measure.name] = values
+    if steps.n_episodes:
+        last = steps.starts + steps.counts - 1
+        out["duration_s"] = steps.t[last] - steps.t[steps.starts] + 1.0 / HZ
+    else:
+        out["duration_s"] = np.zeros(0)
     return out
 
 
@@ -255,61 +501,39 @@ def _check_one_ego(ego_sid: np.ndarray, ego_track: np.ndarray, sids) -> None:
             "is_ego must mark one track per scenario.", column="is_ego")
 
 
-def _leader_gaps(key, other_mask, ego_rows, ego_key, x, y, heading, speed):
-    """(m,) bumper gap to the leader and closing speed at each ego step (NaN: no leader)."""
+def _leaders(key, scene, other_mask, ego_rows, ego_key, ego_sid, x, y, heading, speed,
+             length):
+    """(m,) bumper gap, closing speed and row of the leader along the ego's path at each ego
+    step (NaN, NaN, -1: no leader)."""
+    m = len(ego_rows)
+    gap = np.full(m, np.nan)
+    closing = np.full(m, np.nan)
+    leader = np.full(m, -1, np.int64)
     others = np.flatnonzero(other_mask)
-    pos = np.searchsorted(ego_key, key[others])
-    pos_ok = pos < len(ego_key)
-    pos_ok[pos_ok] = ego_key[pos[pos_ok]] == key[others[pos_ok]]
-    others, pos = others[pos_ok], pos[pos_ok]
-    # the ego's frame per ego step (m values), gathered per other row
-    h_e = heading[ego_rows]
-    c, s = np.cos(h_e)[pos], np.sin(h_e)[pos]
-    dx, dy = x[others] - x[ego_rows][pos], y[others] - y[ego_rows][pos]
-    ahead = dx * c + dy * s
-    lead = (ahead > 0) & (ahead < LOOKAHEAD)
-    lead[lead] = np.abs(dy[lead] * c[lead] - dx[lead] * s[lead]) < LANE_HALF_WIDTH
-    others, pos, ahead = others[lead], pos[lead], ahead[lead]
-    gap = np.full(len(ego_key), np.nan)
-    closing = np.full(len(ego_key), np.nan)
-    if len(others):
-        # nearest leader per ego step, in linear time (no sort of the candidate rows)
-        nearest = np.full(len(ego_key), np.inf)
-        np.minimum.at(nearest, pos, ahead)
-        first = ahead == nearest[pos]
-        p, o = pos[first], others[first]  # a tie keeps one of the equally near leaders
-        gap[p] = np.maximum(nearest[p] - VEHICLE_LENGTH, 0.0)
-        e = ego_rows[p]
-        closing[p] = speed[e] - speed[o] * np.cos(heading[o] - heading[e])
-    return gap, closing
-
-
-def _group_first(values: np.ndarray, group: np.ndarray) -> np.ndarray:
-    """(m,) the first value of each row's group (rows sorted by group)."""
-    if not len(values):
-        return values
-    starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
-    return np.repeat(values[starts], np.diff(np.r_[starts, len(values)]))
-
-
-def _reduce_min(values: np.ndarray, starts: np.ndarray, cap: float) -> np.ndarray:
-    """Per-group minimum of ``values`` (NaN ignored), capped at ``cap``."""
-    if not len(starts):
-        return np.zeros(0)
-    filled = np.where(np.isnan(values), np.inf, values)
-    return np.minimum(np.minimum.reduceat(filled, starts), cap)
-
-
-def _rms_jerk(v: np.ndarray, key: np.ndarray, starts: np.ndarray, counts: np.ndarray
-              ) -> np.ndarray:
-    """Per-group RMS of the second difference of speed over consecutive steps [m/s^3]."""
-    if not len(starts):
-        return np.zeros(0)
-    group = np.repeat(np.arange(len(starts)), counts)
-    d2 = (v[2:] - 2 * v[1:-1] + v[:-2]) * HZ * HZ
-    # a second difference counts only if its three steps are consecutive, in one group
-    ok = (group[2:] == group[:-2]) & (key[2:] - key[:-2] == 2)
-    sq = np.bincount(group[2:][ok], weights=d2[ok] ** 2, minlength=len(starts))
-    n = np.bincount(group[2:][ok], minlength=len(starts))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.sqrt(sq / n)
+    if not m or not len(others):
+        return gap, closing, leader
+    # the ego's rows (by key) then the others: each run of consecutive ego steps is a path
+    rows = np.r_[ego_rows, others]
+    new_path = np.ones(m, bool)
+    new_path[1:] = (ego_key[1:] - ego_key[:-1] != 1) | (ego_sid[1:] != ego_sid[:-1])
+    start = np.flatnonzero(new_path)
+    stop = np.r_[start[1:], m]
+    track = np.r_[np.ones(m, np.int64), np.zeros(len(others), np.int64)]
+    paths = Paths(scene=scene[rows], key=key[rows], track=track, x=x[rows], y=y[rows],
+                  heading=heading[rows], speed=speed[rows], start=start, stop=stop)
+    frame = path_frame(paths, np.r_[np.zeros(m, bool), np.ones(len(others), bool)],
+                       ahead=LOOKAHEAD, behind=1.0, lateral=CORRIDOR_HALF_WIDTH)
+    ahead = (frame.s > 0) & (np.abs(frame.heading_rel) <= SAME_DIRECTION)
+    step, s, other = frame.step[ahead], frame.s[ahead], rows[frame.other[ahead]]
+    v_along = frame.v_along[ahead]
+    if not len(step):
+        return gap, closing, leader
+    nearest = np.full(m, np.inf)
+    np.minimum.at(nearest, step, s)
+    first = s == nearest[step]
+    p, o, va = step[first], other[first], v_along[first]  # a tie keeps one equally near
+    e = ego_rows[p]
+    gap[p] = np.maximum(nearest[p] - 0.5 * (length[e] + length[o]), 0.0)
+    closing[p] = speed[e] - va
+    leader[p] = o
+    return gap, closing, leader

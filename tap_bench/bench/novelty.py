@@ -24,6 +24,7 @@ from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.coverage import Reference
 from tap_bench.bench.intervals import wilson_interval
 from tap_bench.errors import LabelTableError
+from tap_bench.labels import label_text
 
 __all__ = ["NoveltyResult", "novelty", "pooled_novelty"]
 
@@ -55,7 +56,7 @@ class NoveltyResult:
 
 
 def novelty(episodes: pd.DataFrame, reference: Reference, *,
-            config: BootstrapConfig | None = None) -> NoveltyResult:
+            config: BootstrapConfig | None = None, axes=None) -> NoveltyResult:
     """The agent's labels that ``reference`` never shows, as a rate and examples.
 
     Args:
@@ -63,6 +64,7 @@ def novelty(episodes: pd.DataFrame, reference: Reference, *,
             ``scenario_id`` when present); failed episodes and NA labels are left out.
         reference: a corpus reference (whole SDL labels) at the labels' level.
         config: the interval level.
+        axes: the axes a label is made of (as the reference's; default the ``sdl`` label).
     """
     if reference.kind != "corpus":
         raise LabelTableError("novelty needs a reference corpus (its whole SDL labels); a "
@@ -71,8 +73,9 @@ def novelty(episodes: pd.DataFrame, reference: Reference, *,
     ok = episodes
     if "status" in ok.columns:
         ok = ok[ok["status"] == "ok"]
-    ok = ok[ok["sdl"].notna()]
-    lab = ok["sdl"].to_numpy(str)
+    text = label_text(ok, axes)
+    ok = ok[text.notna().to_numpy()]
+    lab = text.dropna().to_numpy(str)
     novel = ~reference.contains(lab)
     n = len(lab)
     if n == 0:

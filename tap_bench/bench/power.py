@@ -32,7 +32,7 @@ import pandas as pd
 
 from tap_bench.bench.bootstrap import named_rng
 from tap_bench.bench.intervals import z_value
-from tap_bench.bench.suite import GATE_METRICS, GateConfig
+from tap_bench.bench.suite import GateConfig, gate_metrics
 
 __all__ = ["POWER", "power_summary", "power_table"]
 
@@ -81,7 +81,7 @@ def power_table(episodes: pd.DataFrame, config: GateConfig, *, n_tests: int | No
     """
     ok = episodes[episodes["status"] == "ok"] if "status" in episodes.columns else episodes
     cells = sorted(set(map(tuple, ok[["env", "policy"]].drop_duplicates().to_numpy())))
-    m = n_tests or len(cells) * len(GATE_METRICS)
+    m = n_tests or len(cells) * len(gate_metrics())
     alpha = config.alpha / max(m, 1)
     zsum = z_value(1 - alpha) + z_value(2 * POWER - 1)
     floor = m / (config.n_permutations + 1)
@@ -89,7 +89,7 @@ def power_table(episodes: pd.DataFrame, config: GateConfig, *, n_tests: int | No
     for env, policy in cells:
         sub = ok[(ok["env"] == env) & (ok["policy"] == policy)]
         n = len(sub)
-        for metric in GATE_METRICS:
+        for metric in gate_metrics():
             margin = float(config.margins[metric])
             row = {"env": env, "policy": policy, "metric": metric, "n": n, "margin": margin}
             if metric == "label_tv":

@@ -453,6 +453,8 @@ def html_table(table: pd.DataFrame, *, caption: str = "", max_rows: int = TABLE_
             cls = " ".join(x for x in ("l" if c in text_cols else "", attrs.get("class", ""))
                            if x)
             sort = f' data-v="{attrs["v"]}"' if "v" in attrs else _sort_key(v)
+            if "title" in attrs:  # what the cell means, on hover
+                sort += f' title="{html.escape(attrs["title"])}"'
             cells.append(f'<td class="{cls}"{sort}>'
                          f'{html.escape(text).replace(chr(10), "<br>")}</td>')
         if links is not None:
@@ -564,6 +566,20 @@ def summary_table(scores: Scores, reference: str) -> pd.DataFrame:
                 c = c.iloc[0]
                 row[f"{what} {ref}"] = (f"{_pct(c[est])}\n{_interval(_pct(c[lo]), _pct(c[hi]))}",
                                         {"v": float(c[est])})
+        gap = scores.gap
+        for ref in sorted(gap["reference"].unique()) if len(gap) else []:
+            g = gap[(gap["policy"] == policy) & (gap["reference"] == ref)]
+            if g.empty:
+                row[f"gap to {ref}"] = ("–", {})
+                continue
+            g = g.iloc[0]
+            row[f"gap to {ref}"] = (
+                f"{g['gap']:.2f}\n{_interval(f'{g.gap_low:.2f}', f'{g.gap_high:.2f}')}\n"
+                f"floor {g['floor']:.2f}",
+                {"v": float(g["gap"]), "title": "sim-to-real behaviour gap: total variation "
+                 "distance of label shares from the reference's vehicles at the policy's "
+                 "speeds (0 = drives like people, 1 = nothing in common); the floor is the "
+                 "gap two samples of the reference show by chance"})
         rows.append(row)
     return pd.DataFrame(rows)
 

@@ -20,16 +20,18 @@ What a run folder holds:
 ``plots/*.png``         label distributions, measures, coverage, forest plots, novelty
 ``report.html``         the static report (no server, images embedded)
 ``viewer/``             the replay viewer (:mod:`tap_bench.bench.viewer`; with the trajectories)
+``.tap-bench-folder``   the marker that lets ``--overwrite`` replace the folder
 ======================  ====================================================================
 
 The folder is built under a temporary name beside the target and renamed into place only
 when complete, so an interrupted run leaves nothing that looks finished; an existing run
-folder is never replaced unless ``overwrite`` is given. Episodes run as tasks of
-:mod:`tap_bench.execution` (local worker processes or Ray), one task per (env, policy, seed),
-each labelling its own episode; an episode that fails is recorded with its error and left
-out of the scores, and an episode whose worker dies is tried once more and then recorded as
-failed: one bad episode never costs another. A run where every episode failed is an error
-(:class:`~tap_bench.errors.EpisodesFailedError`), not an empty result.
+folder is never replaced unless ``overwrite`` is given, and then only when tap-bench wrote
+it (its marker is there): any other folder, a file or a link is refused. Episodes run as
+tasks of :mod:`tap_bench.execution` (local worker processes or Ray), one task per (env,
+policy, seed), each labelling its own episode; an episode that fails is recorded with its
+error and left out of the scores, and an episode whose worker dies is tried once more and
+then recorded as failed: one bad episode never costs another. A run where every episode
+failed is an error (:class:`~tap_bench.errors.EpisodesFailedError`), not an empty result.
 
 With an episode cache (:mod:`tap_bench.bench.cache`), an episode whose inputs did not change
 is read instead of simulated; labels, measures and scores are always recomputed, so a run
@@ -46,9 +48,7 @@ import hashlib
 import json
 import math
 import os
-import shutil
 import sys
-import tempfile
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
@@ -67,15 +67,17 @@ from tap_bench.bench.cache import (
     simulation_fingerprint,
 )
 from tap_bench.bench.episodes import episode_table
+from tap_bench.bench.gap import behaviour_gap, labelled_with_speed
 from tap_bench.bench.power import power_table
 from tap_bench.bench.report import write_report
 from tap_bench.bench.scenarios import match_scenarios
 from tap_bench.bench.scoring import Scores, score
-from tap_bench.bench.suite import GATE_METRICS, Suite, load_suite
+from tap_bench.bench.suite import Suite, gate_metrics, load_suite
 from tap_bench.bench.viewer import write_run_viewer
 from tap_bench.errors import (
     EpisodesFailedError,
     FileFormatError,
+    LabelTableError,
     ParameterError,
     RunExistsError,
 )
@@ -87,7 +89,7 @@ from tap_bench.sim.roads import road_table
 from tap_bench.sim.rollout import EPISODE_COLUMNS, resolve_policy, rollout_episode
 from tap_bench.sim.suite import Scenario, parse_seeds
 from tap_bench.sources import read_womd
-from tap_bench.tableio import atomic_path, read_table
+from tap_bench.tableio import atomic_folder, atomic_path, check_folder_output, read_table
 from tap_bench.thresholds import Thresholds, resolve_thresholds
 
 __all__ = ["CACHED_BATCH", "CACHED_EPISODE_S", "RunExistsError", "RunPlan", "RunResult",
@@ -95,16 +97,16 @@ __all__ = ["CACHED_BATCH", "CACHED_EPISODE_S", "RunExistsError", "RunPlan", "Run
            "run_viewer", "write_results"]
 
 def check_output(output: str | os.PathLike, overwrite: bool) -> Path:
-    """``output`` as a Path; refuses an existing folder unless ``overwrite``.
+    """``output`` as a Path, checked before any work (:func:`tap_bench.tableio.
+    check_folder_output`): a new folder in a writable place, or, with ``overwrite``, a run
+    folder tap-bench wrote.
 
     Raises:
         RunExistsError: naming the folder and the flag that replaces it.
+        OutputPathError: the place is not writable, or ``output`` is a file, a link or a
+            folder tap-bench did not write.
     """
-    output = Path(output)
-    if output.exists() and not overwrite:
-        raise RunExistsError(f"{output} exists; choose another folder or pass --overwrite to "
-                             "replace it.")
-    return output
+    return check_folder_output(output, overwrite)
 
 
 @dataclass(frozen=True)
@@ -164,7 +166,7 @@ def _run_task(task: _Task) -> dict[str, Any]:
     t1 = time.perf_counter()
     labels = segments = pd.DataFrame()
     if len(trajectories):
-        result = tap(trajectories, task.thresholds,
+        result = tap(trajectories, task.thresholds, interactions="ego",
                      source=f"{task.env}/{task.policy} rollout")
         labels = result.labels("all")
         segments = result.segments(task.level)
@@ -215,7 +217,7 @@ def _run_batch(batch: _CachedBatch) -> list[dict[str, Any]]:
         rows = pd.DataFrame([e.row for _, e in found], columns=list(EPISODE_COLUMNS))
         rows["seed"] = rows["seed"].astype(np.int64)
         t1 = time.perf_counter()
-        result = tap(trajectories, first.thresholds,
+        result = tap(trajectories, first.thresholds, interactions="ego",
                      source=f"{first.env}/{first.policy} rollout")
         labels, segments = result.labels("all"), result.segments(first.level)
         t2 = time.perf_counter()
@@ -557,12 +559,13 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
             matches.append(match_scenarios(labels, trajectories, ref_labels, ref_traj,
                                            level=suite.level, top=3).assign(reference=name))
     power = power_table(episodes, suite.gate,
-                        n_tests=len(suite.envs) * len(suite.policies) * len(GATE_METRICS))
+                        n_tests=len(suite.envs) * len(suite.policies) * len(gate_metrics()))
     scores = score(episodes, reference_policy=suite.reference, level=suite.level,
                    config=suite.bootstrap,
                    references={name: lab for name, (_, lab) in corpora.items()} or None,
                    scenario_matches=pd.concat(matches, ignore_index=True) if matches else None,
                    gate_power=power)
+    scores = _with_gaps(scores, corpora, labels, episodes, suite)
     timings["scoring"] = time.perf_counter() - t0
 
     failed = episodes[episodes["status"] != "ok"]
@@ -674,6 +677,47 @@ def _reference(name: str, source: ReferenceSource, suite: Suite
     return traj, labels
 
 
+def _with_gaps(scores: Scores, corpora: Mapping[str, tuple[pd.DataFrame | None, pd.DataFrame]],
+               labels: pd.DataFrame, episodes: pd.DataFrame, suite: Suite) -> Scores:
+    """``scores`` with the sim-to-real gap of every policy from each reference given as
+    driving-data files (:mod:`tap_bench.bench.gap`): the egos' labels at the suite's level,
+    lateral, longitudinal and interaction, against the reference's vehicles at the speeds
+    the policy drives."""
+    real = {name: traj for name, (traj, _) in corpora.items() if traj is not None}
+    if not real or not len(labels) or "is_ego" not in labels.columns:
+        return scores
+    egos = labels[(labels["level"] == suite.level) & labels["is_ego"].fillna(False)]
+    speeds = episodes[["env", "policy", "seed", "mean_speed"]]
+    egos = egos.drop(columns=["mean_speed"], errors="ignore").merge(
+        speeds, on=["env", "policy", "seed"], how="left")
+    axes = tuple(a for a in ("lateral", "longitudinal", "interaction") if a in egos.columns)
+    rows, per_label = [], []
+    for name, traj in real.items():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            reference = labelled_with_speed(traj, suite.level, interactions="all",
+                                            thresholds=suite.thresholds, source=name)
+        for policy, mine in egos.groupby("policy", sort=True):
+            try:
+                gap = behaviour_gap(mine, reference, name=str(policy), axes=axes,
+                                    config=suite.bootstrap, reference_name=name)
+            except LabelTableError as err:  # nothing comparable: said, not scored
+                scores.methods.setdefault("gap skipped", "")
+                scores.methods["gap skipped"] += f"{policy} vs {name}: {err} "
+                continue
+            rows.append({"reference": name, **gap.row()})
+            per_label.append(gap.labels.assign(reference=name, policy=str(policy)))
+    if not rows:
+        return scores
+    scores.methods["gap"] = (
+        "total variation distance between the shares of single labels ("
+        + ", ".join(axes) + f") of the policy's egos and of the reference's vehicles at the "
+        f"policy's speeds; {suite.bootstrap.level:.0%} percentile bootstrap "
+        f"({suite.bootstrap.n_resamples} resamples); floor: two samples of the reference")
+    return dataclasses.replace(scores, gap=pd.DataFrame(rows),
+                               gap_labels=pd.concat(per_label, ignore_index=True))
+
+
 def _describe_source(source: ReferenceSource) -> Any:
     if isinstance(source, pd.DataFrame):
         return f"a label table of {len(source)} rows"
@@ -731,15 +775,14 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
     viewer when the trajectories are given) atomically.
 
     The folder is built under a temporary name beside ``output`` and renamed into place
-    when complete; an existing ``output`` is replaced only when ``overwrite`` is True.
+    when complete (:func:`tap_bench.tableio.atomic_folder`); an existing ``output`` is
+    replaced only when ``overwrite`` is True and tap-bench wrote it.
 
     Raises:
         RunExistsError: ``output`` exists and ``overwrite`` is False.
+        OutputPathError: ``output`` is a file, a link or a folder tap-bench did not write.
     """
-    output = check_output(output, overwrite)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{output.name}.", suffix=".tmp", dir=output.parent))
-    try:
+    with atomic_folder(output, overwrite, kind="run") as tmp:
         episodes.to_parquet(tmp / "episodes.parquet", index=False)
         if len(labels):
             labels.to_parquet(tmp / "labels.parquet", index=False)
@@ -759,22 +802,7 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
         if report:
             write_report(tmp, summary, episodes, scores, viewer="viewer/index.html"
                          if viewer else None)
-        if output.exists():
-            if not overwrite:
-                raise RunExistsError(f"{output} appeared while the run was going; run again "
-                                     "with another folder or --overwrite.")
-            old = output.with_name(f".{output.name}.old")
-            if old.exists():
-                shutil.rmtree(old)
-            output.rename(old)
-            tmp.rename(output)
-            shutil.rmtree(old)
-        else:
-            tmp.rename(output)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return output
+    return Path(output)
 
 
 def _parquet_safe(table: pd.DataFrame) -> pd.DataFrame:
@@ -792,7 +820,8 @@ def read_run(folder: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame]:
     """``summary.json`` and the episode table of a run folder.
 
     Raises:
-        FileFormatError: the folder is not a finished run (no summary or episode table).
+        FileFormatError: the folder is not a finished run (no summary or episode table), or
+            one of them is damaged: not JSON, not an object, not Parquet, columns missing.
     """
     folder = Path(folder)
     summary_path = folder / "summary.json"
@@ -801,11 +830,28 @@ def read_run(folder: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame]:
         if not path.is_file():
             raise FileFormatError(f"{folder}: not a finished run folder ({path.name} is "
                                   "missing); make one with 'tap-bench bench run'.")
+    redo = "The run folder is damaged; run 'tap-bench bench run' again."
     try:
-        summary = json.loads(summary_path.read_text())
-    except json.JSONDecodeError as err:
-        raise FileFormatError(f"{summary_path}: not valid JSON: {err}") from err
-    return summary, pd.read_parquet(episodes_path)
+        summary = json.loads(summary_path.read_bytes().decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise FileFormatError(f"{summary_path}: not valid JSON ({err}). {redo}") from None
+    if not isinstance(summary, dict):
+        raise FileFormatError(f"{summary_path}: holds a {type(summary).__name__}, not the "
+                              f"run's summary object. {redo}")
+    for key in ("suite", "thresholds"):
+        if summary.get(key) is not None and not isinstance(summary[key], dict | str):
+            raise FileFormatError(f"{summary_path}: {key!r} is a "
+                                  f"{type(summary[key]).__name__}. {redo}")
+    try:
+        episodes = pd.read_parquet(episodes_path)
+    except Exception as err:  # pyarrow raises several kinds for a damaged file
+        raise FileFormatError(f"{episodes_path}: not a readable Parquet table "
+                              f"({type(err).__name__}: {err}). {redo}") from None
+    missing = [c for c in ("env", "policy", "seed", "status") if c not in episodes.columns]
+    if missing:
+        raise FileFormatError(f"{episodes_path}: not an episode table (no "
+                              f"{', '.join(missing)} column). {redo}")
+    return summary, episodes
 
 
 def run_viewer(folder: str | os.PathLike, output: str | os.PathLike | None = None) -> Path:

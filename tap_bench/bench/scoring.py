@@ -46,6 +46,10 @@ class Scores:
             a margin needs (:mod:`tap_bench.bench.power`; empty when not asked).
         scenario_matches: highway-env scenarios beside their nearest WOMD scenarios (when
             a WOMD reference was given).
+        gap: reference, and :meth:`tap_bench.bench.gap.GapResult.row` per policy: the
+            sim-to-real behaviour gap from each reference of real driving given as data
+            files (empty otherwise).
+        gap_labels: reference, policy and the per-label share differences of each gap.
         references: name -> the :class:`Reference` used.
         methods: table name -> how its intervals were computed.
     """
@@ -62,12 +66,14 @@ class Scores:
     diversity: pd.DataFrame = field(default_factory=pd.DataFrame)
     gate_power: pd.DataFrame = field(default_factory=pd.DataFrame)
     scenario_matches: pd.DataFrame = field(default_factory=pd.DataFrame)
+    gap: pd.DataFrame = field(default_factory=pd.DataFrame)
+    gap_labels: pd.DataFrame = field(default_factory=pd.DataFrame)
     references: dict[str, Reference] = field(default_factory=dict)
     methods: dict[str, str] = field(default_factory=dict)
 
     TABLES = ("label_counts", "measures", "paired", "paired_measures", "paired_labels",
               "matched", "coverage", "novelty", "novel_labels", "diversity", "gate_power",
-              "scenario_matches")
+              "scenario_matches", "gap", "gap_labels")
 
     def tables(self) -> dict[str, pd.DataFrame]:
         """name -> table, in report order."""
@@ -277,9 +283,10 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
                     "crash rate) between the episodes of each policy in a label group of one "
                     f"env; groups with fewer than {MIN_GROUP} episodes of a policy are listed, "
                     "not tested"),
-        "coverage": (f"estimate +- z sd, z for {config.level:.0%}, sd over "
-                     f"{config.n_resamples} draws from the label distribution augmented with "
-                     "Chao1-estimated undetected labels (Chao et al. 2014, iNEXT); labels are "
+        "coverage": (f"{config.level:.0%} studentized bootstrap (bootstrap-t) intervals "
+                     f"over {config.n_resamples} draws from the label distribution augmented "
+                     "with Chao1-estimated undetected labels (Chao et al. 2014, iNEXT's "
+                     "population), each draw against its population's own value; labels are "
                      "(env, label): 'all' is the share of every env's reference labels shown "
                      f"(K-weighted mean of the envs); seed {config.seed}, streams named "
                      "('coverage', env, policy, reference)"),
@@ -287,8 +294,10 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
                    "counts (each env held against its own reference)",
         "diversity": (f"Hill numbers q = 0, 1, 2 at a common sample size per env (the "
                       "smallest episode count of its policies; iNEXT rarefaction/"
-                      f"extrapolation), {config.level:.0%} intervals estimate +- z sd over "
-                      f"{config.n_resamples} iNEXT bootstrap draws; asymptotes given as "
+                      f"extrapolation), {config.level:.0%} studentized bootstrap "
+                      f"(bootstrap-t) intervals over {config.n_resamples} draws from iNEXT's "
+                      "bootstrap population (completeness: Esty's standard error); "
+                      "asymptotes given as "
                       f"'at least' when the sample completeness is below {MIN_COMPLETENESS}; "
                       "'all' is the mean over envs"),
     }

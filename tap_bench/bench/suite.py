@@ -39,21 +39,28 @@ from tap_bench.sim.policies import available_policies
 from tap_bench.sim.scenario_env import get_scenario
 from tap_bench.sim.suite import parse_seeds, read_json, scenario_names
 
-__all__ = ["GATE_METRICS", "GateConfig", "Suite", "available_suites", "load_suite",
-           "suite_from_dict"]
+__all__ = ["GATE_METRICS", "GateConfig", "Suite", "available_suites", "default_margins",
+           "gate_metrics", "load_suite", "suite_from_dict"]
 
-GATE_METRICS = (*(m.name for m in MEASURES), "label_tv")
-"""What the regression gate checks per (env, policy): the measures' means and the total
-variation distance between the ego label distributions of the run and of the baseline."""
+LABEL_TV_MARGIN = 0.20
+"""Default margin of ``label_tv``, the total variation distance of label distributions."""
 
-DEFAULT_MARGINS: Mapping[str, float] = {
-    "crashed": 0.10,  # collision rate, absolute
-    "mean_speed": 1.0,  # [m/s]
-    "min_headway_s": 0.3,  # [s]
-    "min_ttc_s": 1.0,  # [s]
-    "rms_jerk": 1.0,  # [m/s^3]
-    "label_tv": 0.20,  # total variation distance of label distributions, in [0, 1]
-}
+
+def gate_metrics() -> tuple[str, ...]:
+    """What the regression gate checks per (env, policy): every registered measure's mean
+    (:data:`~tap_bench.bench.measures.MEASURES`) and ``label_tv``, the total variation
+    distance between the ego label distributions of the run and of the baseline."""
+    return (*MEASURES.names(), "label_tv")
+
+
+def default_margins() -> dict[str, float]:
+    """metric -> default gate margin: each measure's registered margin, and label_tv's."""
+    return {**MEASURES.margins(), "label_tv": LABEL_TV_MARGIN}
+
+
+GATE_METRICS = gate_metrics()
+"""The gate's metrics when this module was imported (:func:`gate_metrics` is current)."""
+DEFAULT_MARGINS: Mapping[str, float] = default_margins()
 
 _FIELDS = ("name", "version", "description", "envs", "policies", "seeds", "reference_policy",
            "level", "thresholds", "env_overrides", "bootstrap", "gate")
@@ -76,15 +83,29 @@ class GateConfig:
         seed: seed of the permutations.
     """
 
-    margins: Mapping[str, float] = field(default_factory=lambda: dict(DEFAULT_MARGINS))
+    margins: Mapping[str, float] = field(default_factory=default_margins)
     alpha: float = 0.05
     n_permutations: int = 9999
     seed: int = 0
 
     def __post_init__(self) -> None:
+        if not isinstance(self.margins, Mapping):
+            raise ValueError(f"gate margins must be an object metric -> margin, got "
+                             f"{self.margins!r}.")
+        for name, value, kind in (("alpha", self.alpha, "a number"),
+                                  ("n_permutations", self.n_permutations, "an integer"),
+                                  ("seed", self.seed, "an integer")):
+            allowed = (int, float) if kind == "a number" else (int,)
+            if isinstance(value, bool) or not isinstance(value, allowed):
+                raise ValueError(f"gate {name} must be {kind}, got {value!r} "
+                                 f"({type(value).__name__}).")
+        metrics = gate_metrics()
+        for key in self.margins:
+            if key not in metrics:
+                raise did_you_mean("gate metric", key, metrics)
+        # every metric has a margin: those not given take their registered default
+        object.__setattr__(self, "margins", {**default_margins(), **self.margins})
         for key, value in self.margins.items():
-            if key not in GATE_METRICS:
-                raise did_you_mean("gate metric", key, GATE_METRICS)
             if not isinstance(value, int | float) or isinstance(value, bool) or value < 0:
                 raise ParameterError(f"gate margin {key!r}", value, "a number >= 0")
         if isinstance(self.alpha, bool) or not isinstance(self.alpha, int | float) \
@@ -241,16 +262,16 @@ def suite_from_dict(doc: Any, *, source: str = "suite", path: Path | None = None
             raise FileFormatError(f"{source}: gate: "
                                   f"{did_you_mean('gate field', key, _GATE_FIELDS)}")
     try:
-        margins = {**DEFAULT_MARGINS, **gate_doc.get("margins", {})}
+        margins = {**default_margins(), **gate_doc.get("margins", {})}
         gate = GateConfig(**{**gate_doc, "margins": margins})
     except (TypeError, ValueError, UnknownNameError) as err:
         raise FileFormatError(f"{source}: gate: {err}") from err
-    n_tests = len(envs) * len(policies) * len(GATE_METRICS)
+    n_tests = len(envs) * len(policies) * len(gate_metrics())
     if n_tests / (gate.n_permutations + 1) >= gate.alpha:  # the gate could never fire
         need = int(n_tests / gate.alpha + 1e-9)  # P + 1 > tests / alpha
         raise FileFormatError(
             f"{source}: gate: {len(envs)} envs x {len(policies)} policies x "
-            f"{len(GATE_METRICS)} metrics = {n_tests} tests with n_permutations "
+            f"{len(gate_metrics())} metrics = {n_tests} tests with n_permutations "
             f"{gate.n_permutations}: no p-value is below 1/{gate.n_permutations + 1}, so the "
             f"smallest Holm-adjusted one is {n_tests / (gate.n_permutations + 1):.3g} >= alpha "
             f"{gate.alpha:g} and the gate could never fire. Set gate.n_permutations to at "

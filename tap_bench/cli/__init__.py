@@ -40,8 +40,12 @@ COMMANDS: dict[str, tuple[str, str]] = {
     # the benchmark: matched comparison, coverage, suite runs and the regression gate
     "compare": ("tap_bench.cli.compare",
                 "compare two policies: paired by seed and matched by SDL label"),
+    "contexts": ("tap_bench.cli.contexts",
+                 "compare two policies inside interaction contexts (cut-in, ...)"),
     "coverage": ("tap_bench.cli.coverage",
                  "how much of a reference's behaviour an agent shows, and what is new"),
+    "gap": ("tap_bench.cli.gap",
+            "how far policies drive from real driving (per label and one number)"),
     "bench": ("tap_bench.cli.bench", "run a benchmark suite; check a run against a baseline"),
     "demo": ("tap_bench.cli.demo",
              "run the demo benchmark (no download) and write its HTML report"),
@@ -51,6 +55,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "search": ("tap_bench.cli.search",
                "find trajectories (or scenarios) with similar SDL labels"),
     "unique": ("tap_bench.cli.unique", "list the unique behaviours of a label table"),
+    "export": ("tap_bench.cli.export",
+               "export labels (every axis, with times and track ids) as OpenLABEL"),
     "evaluate": ("tap_bench.cli.evaluate",
                  "SDL search against ADE and DTW nearest neighbours, unique labels"),
 }

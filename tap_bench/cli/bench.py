@@ -8,6 +8,7 @@ import argparse
 import os
 import sys
 
+from tap_bench.cli.progress import add_progress_arguments, progress_choice
 from tap_bench.execution import add_backend_arguments
 
 
@@ -52,7 +53,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     r.add_argument("--no-trajectories", action="store_true",
                    help="do not write trajectories.parquet")
     r.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
-    r.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_progress_arguments(r)
     add_backend_arguments(r, shards=False)
     r.set_defaults(func=run_bench)
 
@@ -126,7 +127,7 @@ def run_bench(args: argparse.Namespace) -> int:
                            references=_references(args.reference),
                            keep_trajectories=not args.no_trajectories,
                            overwrite=args.overwrite,
-                           progress=False if args.no_progress else None, backend=backend,
+                           progress=progress_choice(args), backend=backend,
                            seeds=args.seeds, cache=cache,
                            announce=lambda line: print(line, flush=True))
     finally:

@@ -52,6 +52,27 @@ def _name(table, given: str | None, path: str) -> str:
     return Path(path).name.split(".")[0]
 
 
+def _warn_if_unpaired(eps_a, eps_b, a: tuple[str, str], b: tuple[str, str]) -> None:
+    """Warn (naming both files) when no (env, seed) is in both episode tables: nothing can
+    be paired, and only the label-matched comparison and coverage are left."""
+    import sys
+
+    def keys(eps) -> set[tuple[str, int]]:
+        return set(zip(eps["env"].astype(str), eps["seed"].astype(int), strict=True))
+
+    if keys(eps_a) & keys(eps_b):
+        return
+
+    def seeds(eps) -> str:
+        s = sorted(set(int(x) for x in eps["seed"]))
+        envs = ", ".join(sorted(set(map(str, eps["env"])))) or "-"
+        return f"seeds {s[0]}-{s[-1]} in {envs}" if s else "no episodes"
+
+    print(f"warning: {a[1]} ({a[0]}: {seeds(eps_a)}) and {b[1]} ({b[0]}: {seeds(eps_b)}) "
+          "share no (env, seed): no episode can be paired, so agreement and paired "
+          "differences are empty. Roll both policies out on the same seeds.", file=sys.stderr)
+
+
 def run(args: argparse.Namespace) -> int:
     import dataclasses
     import time
@@ -83,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
         raise LabelTableError(f"both inputs are policy {a!r}; name them apart with "
                               "--names A B.")
     episodes = pd.concat([eps_a, eps_b], ignore_index=True)
+    _warn_if_unpaired(eps_a, eps_b, (a, args.a), (b, args.b))
     scores = score(episodes, reference_policy=b, level=args.level, config=config,
                    comparisons=[(a, b)])
     if args.metric != "exact" or args.d_sim:

@@ -27,6 +27,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                      help="use the SDL vocabulary of the level as the reference")
     p.add_argument("--level", default="maneuver", choices=LEVELS,
                    help="SDL level (default maneuver)")
+    p.add_argument("--axes", default=None, metavar="AXES",
+                   help="comma-separated axes a label is made of: lateral, longitudinal, "
+                   "interaction (default lateral,longitudinal; with interaction, trajectory "
+                   "tables are labelled with their egos' interactions, and label tables "
+                   "must carry them)")
     p.add_argument("--reference-tracks", default="vehicles", choices=("vehicles", "ego", "all"),
                    help="which reference trajectories count (default: every vehicle)")
     p.add_argument("--thresholds", default="paper",
@@ -52,35 +57,47 @@ def run(args: argparse.Namespace) -> int:
     from tap_bench.bench.scoring import diversity_table, reference_scores
     from tap_bench.cli.rollout import episodes_path
     from tap_bench.labelling import tap
-    from tap_bench.tableio import read_table, write_table
+    from tap_bench.labels import label_text
+    from tap_bench.sdl import check_axes
+    from tap_bench.tableio import check_outputs, read_table, write_tables
 
     config = BootstrapConfig(n_resamples=args.resamples, level=args.ci, seed=args.seed)
+    novel_path = None
+    if args.output:
+        out = Path(args.output)
+        novel_path = episodes_path(out).with_name(
+            episodes_path(out).name.replace(".episodes.", ".novel."))
+        check_outputs([out, novel_path], [args.agent, args.reference])
     table = read_table(args.agent)
     name = args.name or (str(table["policy"].iloc[0]) if "policy" in table.columns
                          and table["policy"].nunique() == 1 else Path(args.agent).stem)
     if "seed" not in table.columns:  # coverage needs episodes, not pairs: number them
         table = table.assign(seed=pd.factorize(table["scenario_id"])[0])
+    axes = check_axes(args.axes)
+    inter = "auto" if "interaction" in axes else None
     episodes, _, _ = episodes_from_table(table.assign(policy=name), level=args.level,
                                          thresholds=args.thresholds, policy=name,
-                                         source=str(args.agent))
+                                         source=str(args.agent), interactions=inter)
+    episodes = episodes.assign(sdl=label_text(episodes, axes))  # the label on the axes
     agent_envs = sorted(set(episodes["env"]))
     if args.vocabulary:
-        reference = vocabulary_reference(args.level)
+        reference = vocabulary_reference(args.level, axes=axes)
         ref_name = f"{args.level} vocabulary"
     else:
         ref_table = read_table(args.reference)
         if "sdl" not in ref_table.columns:
-            ref_table = tap(ref_table, args.thresholds, source=str(args.reference)
-                            ).labels(args.level)
+            ref_table = tap(ref_table, args.thresholds, source=str(args.reference),
+                            interactions="all" if inter else None).labels(args.level)
         ref_name = Path(args.reference).name
         if "env" in ref_table.columns and set(agent_envs) <= set(ref_table["env"].unique()) \
                 and agent_envs != [""]:  # rollouts: a label is (env, label)
             reference = {env: corpus_reference(ref_table[ref_table["env"] == env],
                                                args.level, tracks=args.reference_tracks,
-                                               name=f"{ref_name} ({env})")
+                                               name=f"{ref_name} ({env})", axes=axes)
                          for env in agent_envs}
         else:
             reference = corpus_reference(ref_table, args.level, tracks=args.reference_tracks,
+                                         axes=axes,
                                          name=ref_name)
     cov, nov, novel = reference_scores(episodes, reference, ref_name, config=config)
     div = diversity_table(episodes, config)
@@ -119,15 +136,11 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {r.count:4d}  {(r.env + ': ') if r.env else ''}{r.label}   e.g. "
                   f"{r.example_scenario}")
     if args.output:
-        out = Path(args.output)
-        write_table(pd.DataFrame(rows), out)
+        outputs = {out: pd.DataFrame(rows)}
         if not args.vocabulary:  # a corpus: its novel labels, possibly none
-            novel_path = episodes_path(out).with_name(
-                episodes_path(out).name.replace(".episodes.", ".novel."))
-            write_table(novel, novel_path)
-            print(f"wrote {out} and {novel_path}")
-        else:
-            print(f"wrote {out}")
+            outputs[novel_path] = novel
+        write_tables(outputs)  # together or not at all
+        print("wrote " + " and ".join(map(str, outputs)))
     return 0
 
 

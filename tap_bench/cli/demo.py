@@ -6,6 +6,8 @@ import argparse
 import os
 import time
 
+from tap_bench.cli.progress import add_progress_arguments, progress_choice
+
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -19,7 +21,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="run folder (default results/demo; an earlier demo there is replaced)")
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                    help="rollout processes (default 2)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_progress_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -28,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     result = run_demo(args.output, workers=args.workers,
-                      progress=False if args.no_progress else None)
+                      progress=progress_choice(args))
     split = timing_split(result)
     summary = result.summary
     print(f"{summary['n_episodes']} episodes ({summary['n_failed']} failed) of "

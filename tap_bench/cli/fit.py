@@ -14,7 +14,7 @@ from tap_bench.errors import FitWarning
 from tap_bench.execution import add_backend_arguments
 from tap_bench.fitting import METHODS, fit_report
 from tap_bench.kinematics import one_second_samples
-from tap_bench.tableio import read_table
+from tap_bench.tableio import check_outputs, read_table
 from tap_bench.thresholds import save_thresholds
 
 
@@ -40,6 +40,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_outputs([args.output], [args.input])
     t0 = time.perf_counter()
     options = {"methods": tuple(args.methods), "select": args.select,
                "dataset": str(args.input), "epochs": args.epochs, "seed": args.seed}

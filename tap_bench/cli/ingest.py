@@ -6,8 +6,10 @@ import argparse
 import sys
 from pathlib import Path
 
+from tap_bench.cli.progress import add_progress_arguments, progress_choice
 from tap_bench.execution import add_backend_arguments
 from tap_bench.sources.ingest import ON_ERROR, formats, ingest_womd, report_path
+from tap_bench.womd.tfrecord import MAX_RECORD_BYTES
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -42,7 +44,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="input format (default: auto, per file)")
     w.add_argument("--no-crc", action="store_true",
                    help="do not check the CRC-32C of records (trusted local copies only)")
-    w.add_argument("--no-progress", action="store_true", help="no progress bar")
+    w.add_argument("--max-record-mb", type=float, default=MAX_RECORD_BYTES / (1 << 20),
+                   help="longest record read, in MiB (default %(default)g; a WOMD record is "
+                   "about 1 MB); a longer one is a bad record, never loaded")
+    add_progress_arguments(w)
     add_backend_arguments(w)
     w.set_defaults(func=run)
 
@@ -58,13 +63,19 @@ def run(args: argparse.Namespace) -> int:
         print(f"tap-bench ingest: error: --workers must be 1 or more, not {args.workers}",
               file=sys.stderr)
         return 2
+    if not args.max_record_mb > 0:
+        print(f"tap-bench ingest: error: --max-record-mb must be > 0, not {args.max_record_mb}",
+              file=sys.stderr)
+        return 2
+    args.max_record_bytes = int(args.max_record_mb * (1 << 20))
     types = ([t.strip() for t in args.object_types.split(",") if t.strip()]
              if args.object_types else None)
     if args.backend != "local" or Path(args.output).is_dir() or not Path(args.output).suffix:
         return _run_sharded(args, types)
     report = ingest_womd(args.inputs, args.output, format=args.format, object_types=types,
                          on_error=args.on_error, check_crc=not args.no_crc,
-                         workers=args.workers or 1, progress=not args.no_progress, log=_log)
+                         workers=args.workers or 1, progress=progress_choice(args), log=_log,
+                         max_record_bytes=args.max_record_bytes)
     print(f"read {report.records} record(s) from {report.files} file(s) "
           f"({report.bytes_read / 1e6:.1f} MB in {report.seconds:.1f} s, "
           f"{report.mb_per_s:.1f} MB/s): {report.scenarios} scenario(s), {report.rows} rows")
@@ -85,8 +96,8 @@ def _run_sharded(args: argparse.Namespace, types: list[str] | None) -> int:
         report = ingest_shards(args.inputs, args.output, backend, format=args.format,
                                object_types=types, on_error=args.on_error,
                                check_crc=not args.no_crc, retries=args.retries,
-                               resume=args.resume,
-                               progress=False if args.no_progress else None)
+                               resume=args.resume, progress=progress_choice(args),
+                               max_record_bytes=args.max_record_bytes, log=_log)
     finally:
         close_backend(backend)
     scenarios = sum(s.get("scenarios", 0) for s in report.shards)
@@ -96,6 +107,8 @@ def _run_sharded(args: argparse.Namespace, types: list[str] | None) -> int:
           f"file(s) on {report.backend} ({report.workers} worker(s)): {mb:.1f} MB in "
           f"{report.seconds:.1f} s ({mb / max(report.seconds, 1e-9):.1f} MB/s), "
           f"{scenarios} scenario(s), {report.rows} rows")
+    for note in report.notes:
+        _log(note)
     if skipped:
         _log(f"skipped {skipped} record(s); listed in {args.output}/_report.json")
     for failed in report.failed:

@@ -7,11 +7,12 @@ import sys
 import time
 from pathlib import Path
 
+from tap_bench.errors import TrajectoryTableError
 from tap_bench.execution import add_backend_arguments
-from tap_bench.labelling import tap
+from tap_bench.labelling import INTERACTION_TRACKS, tap
 from tap_bench.sdl import LEVELS
 from tap_bench.stages import StageConfig
-from tap_bench.tableio import read_table, write_table
+from tap_bench.tableio import check_outputs, read_table, write_tables
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -42,6 +43,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="largest net heading change over a merge [rad] (0.2)")
     p.add_argument("--merge-offset", type=float, default=1.5,
                    help="smallest sideways move of a merge [m] (1.5)")
+    p.add_argument("--interactions", nargs="?", const="auto", default=None,
+                   choices=INTERACTION_TRACKS,
+                   help="also label the interaction axis (Following, Cut-in, Overtaking ...; "
+                   "SPEC 7, docs/interactions.md): of the egos when the table has is_ego, "
+                   "else of every track; '--interactions all' labels every vehicle and "
+                   "cyclist track. Adds the 'interaction' column and, with --segments, "
+                   "axis='interaction' rows naming the other agent (other_track_id)")
     add_backend_arguments(p)
     p.set_defaults(func=run)
 
@@ -49,21 +57,28 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.backend != "local" or Path(args.input).is_dir():
         return _run_sharded(args)
+    # before any work: no output replaces the input, every output can be written
+    check_outputs([args.output, args.segments, args.steps, args.report], [args.input])
     t0 = time.perf_counter()
     table = read_table(args.input)
     t1 = time.perf_counter()
     config = _config(args)
-    result = tap(table, args.thresholds, config, source=str(args.input))
+    result = tap(table, args.thresholds, config, source=str(args.input),
+                 interactions=args.interactions)
     labels = result.labels(args.level)
-    write_table(labels, args.output)
-    if args.segments:
-        write_table(result.segments(args.level), args.segments)
-    if args.steps:
-        write_table(result.steps(), args.steps)
     short = result.short_segments
+    if len(result.segments_info) == 0:
+        raise TrajectoryTableError(_nothing_to_label(table, short, args.input, config),
+                                   column="valid")
     glitches = result.glitches()
+    outputs = {args.output: labels}
+    if args.segments:
+        outputs[args.segments] = result.segments(args.level)
+    if args.steps:
+        outputs[args.steps] = result.steps()
     if args.report:
-        write_table(glitches, args.report)
+        outputs[args.report] = glitches
+    write_tables(outputs)  # together or not at all
     t2 = time.perf_counter()
 
     info = result.segments_info
@@ -82,9 +97,31 @@ def run(args: argparse.Namespace) -> int:
           f"labels; most common:")
     for text, n in counts.head(5).items():
         print(f"  {n:6d}  {text}")
+    if result.interactions is not None:
+        relations = result.segments("trend")
+        relations = relations[relations["axis"] == "interaction"]
+        per = relations["label"].value_counts()
+        print(f"interaction axis of {len(result.interaction_segments)} segment(s): "
+              + ", ".join(f"{name} {n}" for name, n in per.items()) + " run(s)")
     written = [args.output, args.segments, args.steps, args.report]
     print("wrote " + ", ".join(w for w in written if w))
     return 0
+
+
+def _nothing_to_label(table, short, source: str, config: StageConfig) -> str:
+    """Why a table gave no label, for the error: no rows, no valid state, or only short
+    stretches."""
+    n_tracks = table[["scenario_id", "track_id"]].drop_duplicates().shape[0] if len(table) \
+        else 0
+    valid = int(table["valid"].sum()) if "valid" in table.columns else len(table)
+    what = (f"{source}: nothing to label: {len(table)} row(s) of {n_tracks} track(s)")
+    if len(table) == 0:
+        return f"{what}. Give a table with trajectories."
+    if valid == 0:
+        return (f"{what}, and 'valid' is False on every row. Check the column (it marks the "
+                "states that were observed) or the source the table came from.")
+    return (f"{what}, {valid} valid, but every valid stretch ({len(short)}) is shorter than "
+            f"{config.min_run:g} s (--min-run).")
 
 
 def _config(args: argparse.Namespace) -> StageConfig:
@@ -122,7 +159,7 @@ def _run_sharded(args: argparse.Namespace) -> int:
     try:
         report = label_shards(args.input, args.output, backend, thresholds=args.thresholds,
                               level=args.level, config=config, retries=args.retries,
-                              resume=args.resume)
+                              resume=args.resume, interactions=args.interactions)
     finally:
         close_backend(backend)
     short = sum(s.get("short_segments", 0) for s in report.shards)
@@ -130,6 +167,8 @@ def _run_sharded(args: argparse.Namespace) -> int:
           f"shard(s) on {report.backend} ({report.workers} worker(s)) in "
           f"{report.seconds:.1f} s: {report.rows} label rows, {short} segment(s) too short "
           f"to label; wrote {args.output}/")
+    for note in report.notes:
+        print(f"tap-bench label: {note}", file=sys.stderr)
     for failed in report.failed:
         print(f"warning: {failed['input']} failed after {failed['attempts']} attempt(s): "
               f"{failed['error']}", file=sys.stderr)

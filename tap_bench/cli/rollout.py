@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from tap_bench.cli.progress import add_progress_arguments, progress_choice
 from tap_bench.execution import add_backend_arguments, backend_from_args, close_backend
 
 
@@ -27,7 +28,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--lane-change", choices=("default", "realistic"),
                    help="override the scenario's lane-change setting")
     p.add_argument("--duration", type=float, help="override the episode length [s]")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_progress_arguments(p)
     add_backend_arguments(p, shards=False)
     p.set_defaults(func=run)
 
@@ -46,12 +47,13 @@ def run(args: argparse.Namespace) -> int:
 
     from tap_bench.sim.rollout import rollout
     from tap_bench.sim.scenario_env import get_scenario
-    from tap_bench.tableio import write_table
+    from tap_bench.tableio import check_outputs, write_tables
 
     output = Path(args.output)
     episodes_out = Path(args.episodes) if args.episodes else episodes_path(output)
+    check_outputs([output, episodes_out])  # before the rollouts
     seeds = args.seeds if args.seeds else list(get_scenario(args.env).default_seeds)
-    progress = False if args.no_progress else None
+    progress = progress_choice(args)
     workers = args.workers if args.backend == "local" or args.workers != 1 else None
     backend = backend_from_args(args, workers=workers)  # ray default: all the CPUs
     try:
@@ -61,9 +63,8 @@ def run(args: argparse.Namespace) -> int:
     finally:
         close_backend(backend)
     ok = episodes[episodes["status"] == "ok"]
-    if len(trajectories):
-        write_table(trajectories, output)
-    write_table(episodes, episodes_out)
+    outputs = {output: trajectories} if len(trajectories) else {}
+    write_tables({**outputs, episodes_out: episodes})  # together or not at all
     print(f"{len(ok)}/{len(episodes)} episodes, {len(trajectories)} rows -> "
           f"{output if len(trajectories) else '(no trajectories)'}; episodes -> {episodes_out}")
     if len(ok):

@@ -12,11 +12,11 @@ import argparse
 import pandas as pd
 
 from tap_bench.errors import LabelTableError
-from tap_bench.sdl import LEVELS
+from tap_bench.sdl import AXES, LEVELS
 from tap_bench.similarity.scenario_sdl import rank_scenarios, scenario_set
 from tap_bench.similarity.sdl_distance import METRICS, label_set
 from tap_bench.similarity.search import search, search_like
-from tap_bench.tableio import read_table, write_table
+from tap_bench.tableio import check_outputs, read_table, write_table
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -40,6 +40,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="keep labels within this distance (<=; default 0: the exact label)")
     p.add_argument("--level", choices=LEVELS, default=None,
                    help="SDL level (needed when the table holds several)")
+    p.add_argument("--axes", default=None, metavar="AXES",
+                   help="comma-separated axes a label is made of: lateral, longitudinal, "
+                   "interaction (default: lateral,longitudinal; interaction needs a table "
+                   "labelled with --interactions). The --sdl reference then joins one "
+                   "sequence per axis with ' | '")
     p.add_argument("--trajectories", help="trajectory table, for --scenario with --radius "
                    "(and road_type elements)")
     p.add_argument("--radius", type=float, help="--scenario: actors are the tracks within "
@@ -70,10 +75,11 @@ def _split_like(value: str, labels: pd.DataFrame) -> tuple[str, str, int | None]
 
 
 def run(args: argparse.Namespace) -> int:
+    check_outputs([args.output], [args.labels, args.trajectories])
     table = read_table(args.labels)
     if args.scenario is not None:
         return _run_scenario(args, table)
-    ls = label_set(table, args.level, source=str(args.labels))
+    ls = label_set(table, args.level, axes=args.axes, source=str(args.labels))
     if args.like is not None:
         scenario, track, segment = _split_like(args.like, ls.table)
         found = search_like(ls, scenario, track, segment, metric=args.metric, d_sim=args.d_sim)
@@ -81,11 +87,13 @@ def run(args: argparse.Namespace) -> int:
     else:
         found = search(ls, args.sdl, metric=args.metric, d_sim=args.d_sim)
         reference = args.sdl
-    print(f"reference ({ls.level} level): {reference}")
+    axes = "" if ls.axes == AXES else f", axes {' | '.join(ls.axes)}"
+    print(f"reference ({ls.level} level{axes}): {reference}")
     print(f"{len(found):,} of {len(ls):,} trajectories within {args.metric} distance "
           f"{args.d_sim:g}")
     if len(found):
-        counts = found.groupby(["distance", "sdl"], sort=True).size()
+        key = "label" if "label" in found.columns else "sdl"
+        counts = found.groupby(["distance", key], sort=True).size()
         print(f"{len(counts):,} distinct label(s); nearest first:")
         for (dist, text), n in counts.head(args.top).items():
             print(f"  d={dist:<3g} {n:6d}  {text}")

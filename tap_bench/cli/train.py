@@ -10,7 +10,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "train", help="train a Stable-Baselines3 agent (DQN, PPO, A2C) on a scenario",
         description="Train a Stable-Baselines3 agent on a scenario and write the model (.zip) "
-        "with a policy definition (.json) beside it, so that it loads by name. Needs the sb3 "
+        "with a policy definition (.json) beside it, so that it loads by name, and its "
+        "behaviour-coverage learning curve (.curve.csv, .curve.png). Training runs on the "
+        "scenario's fast variant (5 Hz simulation, collisions checked for the ego only) in "
+        "parallel envs; the curve evaluates the agent on the scenario itself. Needs the sb3 "
         "extra (pip install torch==2.13.0, then pip install 'tap-bench[sb3]').")
     p.add_argument("--algo", required=True, help="dqn, ppo or a2c")
     p.add_argument("--env", required=True, help="scenario name (highway) or id")
@@ -18,25 +21,51 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     p.add_argument("-o", "--output", required=True,
                    help="model file, e.g. policies/dqn-highway.zip")
-    p.add_argument("--no-coverage", action="store_true",
-                   help="do not label episodes or log behaviour coverage (faster)")
+    p.add_argument("--n-envs", type=int, default=None,
+                   help="training envs in parallel processes (default 2)")
+    p.add_argument("--exact", action="store_true",
+                   help="train on the scenario itself (10 Hz, every collision), not its fast "
+                   "variant: about twice as slow")
+    p.add_argument("--no-curve", action="store_true",
+                   help="do not evaluate the agent during training (no learning curve)")
+    p.add_argument("--curve-points", type=int, default=10,
+                   help="evaluations during training, besides the untrained one (default 10)")
+    p.add_argument("--curve-seeds", default="500-519",
+                   help="evaluation seeds of the curve (default 500-519)")
+    p.add_argument("--reference", default="idm",
+                   help="coverage reference: a policy whose rollouts on the curve seeds are "
+                   "the reference (default idm), a label or trajectory table (.parquet/.csv, "
+                   "e.g. WOMD), or 'vocabulary'")
+    p.add_argument("--level", default="maneuver", help="SDL level of the curve (maneuver)")
     p.add_argument("--log-dir", help="write SB3's training log as CSV there")
     p.add_argument("-v", "--verbose", action="count", default=0, help="SB3 verbosity")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from tap_bench.sim.training import train
+    from tap_bench.rl.curve import CurveConfig
+    from tap_bench.rl.training import DEFAULT_N_ENVS, train
 
-    command = "tap-bench train " + " ".join(
-        shlex.quote(a) for a in ("--algo", args.algo, "--env", args.env, "--timesteps",
-                                 str(args.timesteps), "--seed", str(args.seed), "-o",
-                                 args.output))
+    n_envs = DEFAULT_N_ENVS if args.n_envs is None else args.n_envs
+    command = "tap-bench train " + " ".join(shlex.quote(a) for a in (
+        "--algo", args.algo, "--env", args.env, "--timesteps", str(args.timesteps), "--seed",
+        str(args.seed), "--n-envs", str(n_envs), *(["--exact"] if args.exact else []),
+        "-o", args.output))
+    curve = None if args.no_curve else CurveConfig(
+        points=args.curve_points, seeds=args.curve_seeds, reference=args.reference,
+        level=args.level)
     result = train(args.algo, args.env, timesteps=args.timesteps, seed=args.seed,
-                   output=args.output, coverage=not args.no_coverage, log_dir=args.log_dir,
-                   verbose=args.verbose, command=command)
-    cov = "" if result.coverage is None else f", last coverage {result.coverage:.2f}"
-    print(f"trained {args.algo} on {args.env} for {args.timesteps} steps in "
-          f"{result.seconds:.0f} s ({result.episodes} episodes{cov})")
+                   output=args.output, n_envs=n_envs, fast=not args.exact, curve=curve,
+                   log_dir=args.log_dir, verbose=args.verbose, command=command)
+    print(f"trained {args.algo} on {args.env} for {result.timesteps} steps in "
+          f"{result.train_seconds:.0f} s ({result.steps_per_second:.1f} steps/s, "
+          f"{result.episodes} episodes)")
     print(f"wrote {result.model_path} and {result.definition_path}")
+    if result.curve is not None:
+        last = result.curve.iloc[-1]
+        print(f"learning curve: {len(result.curve)} evaluations on seeds {curve.seeds} "
+              f"({result.seconds - result.train_seconds:.0f} s); last: return "
+              f"{last['return_mean']:.2f}, crash rate {last['crash_rate']:.2f}, coverage "
+              f"{last['coverage']:.2f}, diversity {last['diversity']:.2f} labels")
+        print(f"wrote {result.curve_path} and {result.plot_path}")
     return 0

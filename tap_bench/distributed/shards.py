@@ -22,7 +22,7 @@ import json
 import os
 import re
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,12 +41,14 @@ from tap_bench.sources.ingest import (
     expand_paths,
     formats,
     ingest_womd,
+    record_files,
     report_path,
 )
 from tap_bench.stages import StageConfig
 from tap_bench.tableio import atomic_path, read_table
 from tap_bench.thresholds import resolve_thresholds
 from tap_bench.womd.scenario import normalise_object_types
+from tap_bench.womd.tfrecord import MAX_RECORD_BYTES
 
 __all__ = ["LABEL_CHUNK_ROWS", "REPORT_NAME", "ShardReport", "ingest_shards", "label_shards",
            "parquet_shards"]
@@ -76,6 +78,7 @@ class ShardReport:
     workers: int
     seconds: float = 0.0
     shards: list[dict[str, Any]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
 
     @property
     def failed(self) -> list[dict[str, Any]]:
@@ -88,7 +91,8 @@ class ShardReport:
 
     @property
     def bytes_read(self) -> int:
-        return sum(s["bytes"] for s in self.shards if s["ok"])
+        """Bytes of the inputs read in this run [B] (not those of resumed parts)."""
+        return sum(s["bytes"] for s in self.shards if s["ok"] and not s.get("resumed"))
 
     def to_json(self) -> str:
         return json.dumps({**asdict(self), "failed": len(self.failed), "rows": self.rows,
@@ -133,6 +137,17 @@ def _prepare_output(output: str | os.PathLike, resume: bool) -> Path:
     return out
 
 
+def _whole_part(path: Path) -> bool:
+    """Whether a part file is a readable Parquet file (its footer and schema read)."""
+    import pyarrow.parquet as pq
+
+    try:
+        pq.read_metadata(path)
+    except Exception:  # pyarrow raises several kinds for a damaged file
+        return False
+    return True
+
+
 def _part_names(inputs: Sequence[Path]) -> list[str]:
     """One part name per input: its file name made Parquet, numbered when names clash."""
     stems = [re.sub(r"\.(parquet|pq)$", "", p.name) for p in inputs]
@@ -146,7 +161,16 @@ def _run(kind: str, fn, jobs: list[Any], inputs: list[Path], parts: list[Path],
          progress: bool | None) -> ShardReport:
     start = time.perf_counter()
     report = ShardReport(kind, str(out), backend.name, backend.workers)
-    todo = [i for i, part in enumerate(parts) if not (resume and part.exists())]
+    damaged = {i for i, part in enumerate(parts) if resume and part.exists()
+               and not _whole_part(part)}
+    for i in sorted(damaged):  # an earlier run's part that cannot be read is done again
+        aside = parts[i].with_name(f".{parts[i].name}.damaged")  # hidden from readers, kept
+        os.replace(parts[i], aside)
+        report.notes.append(f"{parts[i]}: the part an earlier run left cannot be read as "
+                            f"Parquet; it is made again (the damaged file is kept as "
+                            f"{aside.name}).")
+    todo = [i for i, part in enumerate(parts)
+            if not (resume and part.exists()) or i in damaged]
     outcomes: dict[int, Outcome] = dict(zip(todo, backend.map(
         fn, [jobs[i] for i in todo], retries=retries, desc=f"{kind} ({backend.name})",
         unit="shard", progress=progress), strict=True))
@@ -154,6 +178,8 @@ def _run(kind: str, fn, jobs: list[Any], inputs: list[Path], parts: list[Path],
         entry: dict[str, Any] = {"input": str(src), "output": str(part),
                                  "bytes": src.stat().st_size if src.exists() else 0}
         outcome = outcomes.get(i)
+        if i in damaged:
+            entry["redone"] = "the earlier part could not be read"
         if outcome is None:
             entry.update(ok=True, attempts=0, seconds=0.0, cpu_seconds=0.0, error="",
                          resumed=True)
@@ -178,13 +204,15 @@ class _IngestJob:
     object_types: tuple[str, ...] | None
     on_error: str
     check_crc: bool
+    max_record_bytes: int
 
 
 def _ingest_shard(job: _IngestJob) -> dict[str, Any]:
     """Ingest one WOMD file into one part; its report goes back to the driver."""
     report = ingest_womd([job.input], job.output, format=job.format,
                          object_types=job.object_types, on_error=job.on_error,
-                         check_crc=job.check_crc, workers=1)
+                         check_crc=job.check_crc, workers=1,
+                         max_record_bytes=job.max_record_bytes)
     report_path(job.output).unlink(missing_ok=True)  # gathered into _report.json instead
     return {"rows": report.rows, "records": report.records, "scenarios": report.scenarios,
             "skipped": report.skipped}
@@ -194,7 +222,9 @@ def ingest_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
                   output: str | os.PathLike, backend: Backend, *, format: str = "auto",
                   object_types: Iterable[str] | str | None = None, on_error: str = "stop",
                   check_crc: bool = True, retries: int = DEFAULT_RETRIES,
-                  resume: bool = False, progress: bool | None = None) -> ShardReport:
+                  resume: bool = False, progress: bool | None = None,
+                  max_record_bytes: int | None = None,
+                  log: Callable[[str], None] | None = None) -> ShardReport:
     """Ingest WOMD files into a directory of Parquet parts, one task and one part per file.
 
     Args:
@@ -202,13 +232,15 @@ def ingest_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
         output: the directory to write (``womd/``): ``<input name>.parquet`` per input and
             ``_report.json``.
         backend: where the tasks run.
-        format, object_types, check_crc: as :func:`tap_bench.sources.ingest_womd`.
+        format, object_types, check_crc, max_record_bytes: as
+            :func:`tap_bench.sources.ingest_womd` (None: its default).
         on_error: ``stop`` (default): a bad record fails its shard, which is retried and
             then reported, the other shards kept; ``skip``: bad records are left out and
             listed under the shard's ``skipped``.
         retries: retries of a failed shard.
         resume: keep the parts an earlier run wrote and ingest only the missing ones.
         progress: progress bar over shards (None: only on a terminal).
+        log: told of every file left out (not a record file; default: a warning).
 
     Returns:
         The :class:`ShardReport`, also written to ``<output>/_report.json``.
@@ -216,12 +248,13 @@ def ingest_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
     _check_choice("format", format, formats())
     _check_choice("on_error value", on_error, ON_ERROR)
     types = normalise_object_types(object_types)
-    inputs = expand_paths(paths)
+    inputs = record_files(paths, log)
     out = _prepare_output(output, resume)
     parts = [out / name for name in _part_names(inputs)]
     jobs = [_IngestJob(str(src.resolve()), str(part.resolve()), format,
                        tuple(sorted(types)) if types is not None else None, on_error,
-                       check_crc) for src, part in zip(inputs, parts, strict=True)]
+                       check_crc, max_record_bytes or MAX_RECORD_BYTES)
+            for src, part in zip(inputs, parts, strict=True)]
     return _run("ingest", _ingest_shard, jobs, inputs, parts, out, backend, retries, resume,
                 progress)
 
@@ -283,6 +316,7 @@ class _LabelJob:
     config: Any  # StageConfig
     level: str
     chunk_rows: int
+    interactions: str | None = None
 
 
 def _label_shard(job: _LabelJob) -> dict[str, Any]:
@@ -304,7 +338,8 @@ def _label_chunks(job: _LabelJob, tables: Iterator[pd.DataFrame]) -> dict[str, A
         writer = None
         try:
             for table in tables:
-                result = tap(table, job.thresholds, job.config, source=job.input)
+                result = tap(table, job.thresholds, job.config, source=job.input,
+                             interactions=job.interactions)
                 labels = pa.Table.from_pandas(result.labels(job.level), preserve_index=False)
                 if writer is None:
                     writer = pq.ParquetWriter(tmp, labels.schema)
@@ -326,8 +361,8 @@ def label_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
                  output: str | os.PathLike, backend: Backend, *,
                  thresholds: Any = "paper", level: str = "action", config: Any = None,
                  retries: int = DEFAULT_RETRIES, resume: bool = False,
-                 chunk_rows: int = LABEL_CHUNK_ROWS, progress: bool | None = None
-                 ) -> ShardReport:
+                 chunk_rows: int = LABEL_CHUNK_ROWS, progress: bool | None = None,
+                 interactions: str | None = None) -> ShardReport:
     """Label every Parquet shard of a trajectory data set, one task and one part per shard.
 
     Args:
@@ -343,6 +378,7 @@ def label_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
         chunk_rows: trajectory rows a task labels at once (whole scenarios; a part whose
             scenarios are not each one run of rows is labelled whole).
         progress: progress bar over shards (None: only on a terminal).
+        interactions: also label the interaction axis (:func:`tap_bench.labelling.tap`).
 
     Returns:
         The :class:`ShardReport` (also ``<output>/_report.json``); each shard lists its
@@ -360,7 +396,7 @@ def label_shards(paths: str | os.PathLike | Iterable[str | os.PathLike],
     if isinstance(chunk_rows, bool) or not isinstance(chunk_rows, int) or chunk_rows < 1:
         raise ParameterError("chunk_rows", chunk_rows, "",
             message=f"chunk_rows must be a positive integer, got {chunk_rows!r}.")
-    jobs = [_LabelJob(str(src.resolve()), str(part.resolve()), th, config, level, chunk_rows)
-            for src, part in zip(inputs, parts, strict=True)]
+    jobs = [_LabelJob(str(src.resolve()), str(part.resolve()), th, config, level, chunk_rows,
+                      interactions) for src, part in zip(inputs, parts, strict=True)]
     return _run("label", _label_shard, jobs, inputs, parts, out, backend, retries, resume,
                 progress)

@@ -5,14 +5,16 @@ Modules, by what they do:
 - :mod:`~tap_bench.sim.suite`: scenario files (``envs/``), validated against highway-env;
 - :mod:`~tap_bench.sim.registration`: Gymnasium ids ``tap_bench/<name>-vN``;
 - :mod:`~tap_bench.sim.scenario_env`: the env those ids build, recording at 10 Hz;
+- :mod:`~tap_bench.sim.observation`: highway-env's Kinematics observation without pandas;
 - :mod:`~tap_bench.sim.recorder`: vehicles to a trajectory table in Waymo axes;
 - :mod:`~tap_bench.sim.roads`: a scenario's road network as a map table;
 - :mod:`~tap_bench.sim.vehicles`: lane-change settings, process-wide vehicle state;
 - :mod:`~tap_bench.sim.policies`, :mod:`~tap_bench.sim.idm`, :mod:`~tap_bench.sim.sb3`:
   the Policy protocol, its registry and the built-ins;
 - :mod:`~tap_bench.sim.rollout`: deterministic, process-parallel rollouts;
-- :mod:`~tap_bench.sim.wrappers`, :mod:`~tap_bench.sim.callbacks`,
-  :mod:`~tap_bench.sim.training`: Gymnasium and Stable-Baselines3 integration.
+- :mod:`~tap_bench.sim.wrappers`: Gymnasium integration (episode labels).
+
+Training agents and their behaviour-coverage learning curve are :mod:`tap_bench.rl`.
 
 Every name below is imported on first use (``tap_bench.sim.rollout`` imports pandas and the
 execution layer, ``make_env`` highway-env), so ``import tap_bench`` stays fast.

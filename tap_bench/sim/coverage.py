@@ -1,8 +1,9 @@
 """A quick behaviour-coverage signal for training: the share of a reference label set seen.
 
-The benchmark's coverage metric, frequency-weighted and with confidence intervals, is a
-separate measure; this one only shows during training whether an agent's behaviour is
-broadening (:class:`tap_bench.sim.callbacks.CoverageCallback` logs it).
+The benchmark's coverage metric (:mod:`tap_bench.bench.coverage`), frequency-weighted and
+with confidence intervals, is the measure of record (the training curve of
+:mod:`tap_bench.rl.curve` uses it); this one is its point estimate against the SDL
+vocabulary, for a quick look at a set of labels.
 """
 
 from __future__ import annotations

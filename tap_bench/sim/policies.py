@@ -284,11 +284,7 @@ def get_definition(name: str | os.PathLike) -> PolicyDefinition:
             raise FileFormatError(f"{path}: no such policy file.")
         return _read_definition(path)
     if text.endswith(".zip"):
-        path = Path(text)
-        if not path.is_file():
-            raise FileFormatError(f"{path}: no such model file.")
-        return PolicyDefinition(name=path.stem, kind="sb3",
-                                params={"model": str(path.resolve())})
+        return _model_definition(Path(text))
     if text in _PYTHON_POLICIES:
         return PolicyDefinition(name=text, kind="python",
                                 description=_PYTHON_DESCRIPTIONS.get(text, ""))
@@ -296,6 +292,27 @@ def get_definition(name: str | os.PathLike) -> PolicyDefinition:
     if text not in files:
         raise did_you_mean("policy", text, [*files, *_PYTHON_POLICIES])
     return _read_definition(files[text])
+
+
+def _model_definition(path: Path) -> PolicyDefinition:
+    """The definition of an SB3 model file: the ``.json`` that ``tap-bench train`` wrote
+    beside it (same name), which records the observation config the model reads, or, when
+    there is none, the model alone (it then reads the scenario's own observation)."""
+    if not path.is_file():
+        raise FileFormatError(f"{path}: no such model file.")
+    beside = path.with_suffix(".json")
+    if beside.is_file():
+        doc = read_json(beside, "policy")
+        params = doc.get("params") if isinstance(doc, dict) else None
+        model = params.get("model") if isinstance(params, dict) else None
+        if doc.get("kind") == "sb3" and isinstance(model, str) and (
+                beside.parent / model).resolve() == path.resolve():
+            definition = _read_definition(beside)
+            return PolicyDefinition(name=definition.name, kind="sb3",
+                                    description=definition.description,
+                                    params={**definition.params, "model": str(path.resolve())},
+                                    path=beside)
+    return PolicyDefinition(name=path.stem, kind="sb3", params={"model": str(path.resolve())})
 
 
 def load_policy(name: str | os.PathLike | Policy) -> Policy:

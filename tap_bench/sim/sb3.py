@@ -103,8 +103,10 @@ class SB3Policy:
         env: the scenario the model was trained on (information only).
         deterministic: act greedily (True) or sample from the policy.
         base_dir: folder of the definition file.
-        timesteps, seed, hyperparameters, train_seconds, command: what ``tap-bench train``
-            recorded; kept in :attr:`training`.
+        timesteps, seed, hyperparameters, train_seconds, command, n_envs, fast,
+            interrupted_of: what ``tap-bench train`` recorded (``n_envs`` parallel training
+            envs, on the fast variant or not; ``interrupted_of``: the timesteps asked for when
+            Ctrl-C stopped the training earlier); kept in :attr:`training`.
     """
 
     def __init__(self, name: str, model: str, algo: str | None = None,
@@ -112,7 +114,9 @@ class SB3Policy:
                  deterministic: bool = True, base_dir: str | os.PathLike | None = None, *,
                  timesteps: int | None = None, seed: int | None = None,
                  hyperparameters: Mapping[str, Any] | None = None,
-                 train_seconds: float | None = None, command: str | None = None) -> None:
+                 train_seconds: float | None = None, command: str | None = None,
+                 n_envs: int | None = None, fast: bool | None = None,
+                 interrupted_of: int | None = None) -> None:
         path = Path(model)
         if not path.is_absolute() and base_dir is not None:
             path = Path(base_dir) / path
@@ -129,7 +133,8 @@ class SB3Policy:
         self.deterministic = deterministic
         self.training = {"timesteps": timesteps, "seed": seed,
                          "hyperparameters": hyperparameters, "train_seconds": train_seconds,
-                         "command": command}
+                         "command": command, "n_envs": n_envs, "fast": fast,
+                         "interrupted_of": interrupted_of}
         self._model: Any = None
 
     def __getstate__(self) -> dict[str, Any]:
@@ -145,7 +150,9 @@ class SB3Policy:
             raise TapBenchError(
                 f"policy {self.name!r}: the env's observation space {env.observation_space} "
                 f"differs from the one the model was trained on ({expected}). Build the env "
-                "with the policy's observation config (rollouts do this), or retrain.")
+                "with the policy's observation config (rollouts do this when the model's "
+                "definition .json, written by 'tap-bench train', lies beside it or is given "
+                "instead of the .zip), or retrain.")
         if self._model.action_space != env.action_space:
             raise TapBenchError(
                 f"policy {self.name!r}: the env's action space {env.action_space} differs from "

@@ -10,7 +10,9 @@ recording every vehicle at 10 Hz.
 - the episode is truncated by counting decisions (``duration * policy_frequency``), not by
   highway-env's floating-point clock, which drifts;
 - the lane-change setting of the scenario is applied to every vehicle, and building a scene
-  may not change highway-env's shared vehicle classes (see :mod:`tap_bench.sim.vehicles`).
+  may not change highway-env's shared vehicle classes (see :mod:`tap_bench.sim.vehicles`);
+- the Kinematics observation is computed without pandas (the same arrays, several times
+  faster: :mod:`tap_bench.sim.observation`).
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import gymnasium as gym
 import pandas as pd
 
 from tap_bench import catalogue
-from tap_bench.errors import FileFormatError, TapBenchError, did_you_mean
+from tap_bench.errors import FileFormatError, ParameterError, TapBenchError, did_you_mean
 from tap_bench.sim.recorder import TrajectoryRecorder
 from tap_bench.sim.suite import (
     Scenario,
@@ -36,7 +38,11 @@ from tap_bench.sim.suite import (
 )
 from tap_bench.sim.vehicles import LANE_CHANGE_SETTINGS, apply_lane_change, guard_class_attributes
 
-__all__ = ["ScenarioEnv", "episode_trajectories", "get_scenario", "make_env"]
+__all__ = ["FAST_SIMULATION_FREQUENCY", "ScenarioEnv", "episode_trajectories", "get_scenario",
+           "make_env"]
+
+FAST_SIMULATION_FREQUENCY = 5
+"""Simulation rate of a ``fast`` scenario env [Hz]: highway-env's ``highway-fast-v0`` rate."""
 
 
 @functools.lru_cache(maxsize=64)
@@ -85,20 +91,42 @@ class ScenarioEnv(gym.Wrapper):
         scenario: the scenario (see :func:`get_scenario`).
         render_mode: highway-env's ``"rgb_array"`` or ``"human"``, or None.
         record: record every vehicle at every step (turn off to train faster).
+        fast: highway-env's fast training variant of the scenario (what ``highway-fast-v0``
+            does to ``highway-v0``): simulated at :data:`FAST_SIMULATION_FREQUENCY` instead
+            of 10 Hz, and collisions checked for the ego only (the others drive through each
+            other instead of crashing; IDM traffic rarely comes that close). The decisions,
+            observations, actions and rewards are those of the scenario, so an agent trained
+            on it acts in the scenario; the dynamics differ slightly. It cannot record: the
+            trajectory table is 10 Hz.
 
     Attributes:
         scenario: the validated scenario.
         max_steps: decisions in an episode that runs to its time limit.
+        fast: whether this is the fast variant.
     """
 
     def __init__(self, scenario: Scenario, *, render_mode: str | None = None,
-                 record: bool = True) -> None:
+                 record: bool = True, fast: bool = False) -> None:
+        config = scenario.config
+        if fast:
+            if record:
+                raise ParameterError("record", record, "False for a fast env", message=(
+                    f"{scenario.env_id}: a fast env simulates at {FAST_SIMULATION_FREQUENCY} "
+                    "Hz and cannot record the 10 Hz trajectory table; build it with "
+                    "record=False."))
+            if FAST_SIMULATION_FREQUENCY % scenario.policy_frequency:
+                raise ParameterError("fast", fast, "False here", message=(
+                    f"{scenario.env_id}: policy_frequency {scenario.policy_frequency} Hz does "
+                    f"not divide the fast simulation's {FAST_SIMULATION_FREQUENCY} Hz; use 1 "
+                    f"or {FAST_SIMULATION_FREQUENCY} Hz, or fast=False."))
+            config = {**config, "simulation_frequency": FAST_SIMULATION_FREQUENCY}
         cls = env_class(scenario.highway_env_id)
         # highway-env builds a first scene in its constructor
         with guard_class_attributes(f"building {scenario.env_id}"):
-            inner = cls(config=scenario.config, render_mode=render_mode)
+            inner = cls(config=config, render_mode=render_mode)
         super().__init__(inner)
         self.scenario = scenario
+        self.fast = fast
         self.max_steps = scenario.max_steps
         self._lane_change = (None if scenario.lane_change == "default"
                              else LANE_CHANGE_SETTINGS[scenario.lane_change])
@@ -117,6 +145,10 @@ class ScenarioEnv(gym.Wrapper):
         if self._lane_change is not None:
             for vehicle in new:
                 apply_lane_change(vehicle, self._lane_change)
+        if self.fast:
+            for vehicle in new:
+                if vehicle is not env.vehicle:
+                    vehicle.check_collisions = False
 
     def _intermediate_frame(self) -> None:
         self._frame()
@@ -132,8 +164,16 @@ class ScenarioEnv(gym.Wrapper):
             self._seed, self._episode = int(seed), 0
         else:
             self._episode += 1
+        from tap_bench.sim.observation import use_fast_observation
+
         with guard_class_attributes(f"resetting {self.scenario.env_id}"):
             obs, info = self.env.reset(seed=seed, options=options)
+            # the same Kinematics arrays, without pandas
+            use_fast_observation(self.env)
+            if self.scenario.script is not None:
+                inner = self.env.unwrapped
+                self.scenario.script.install(inner)
+                obs = inner.observation_type.observe()  # with the scripted vehicle
         self._decisions = 0
         # reset options may have changed the decision rate
         self.max_steps = round(self.scenario.duration
@@ -162,7 +202,8 @@ class ScenarioEnv(gym.Wrapper):
 
 def make_env(scenario: str | os.PathLike | Scenario, *, config: Mapping[str, Any] | None = None,
              duration: float | None = None, lane_change: str | None = None,
-             record: bool = True, render_mode: str | None = None) -> gym.Env:
+             record: bool = True, render_mode: str | None = None, fast: bool = False
+             ) -> gym.Env:
     """Build a scenario environment; what ``gymnasium.make("tap_bench/<name>-v0")`` calls.
 
     Args:
@@ -172,11 +213,12 @@ def make_env(scenario: str | os.PathLike | Scenario, *, config: Mapping[str, Any
         lane_change: another lane-change setting (``"default"``, ``"realistic"``).
         record: record every vehicle at every step.
         render_mode: highway-env's render mode.
+        fast: the fast training variant (:class:`ScenarioEnv`; needs ``record=False``).
     """
     spec = get_scenario(scenario)
     if config or duration is not None or lane_change is not None:
         spec = spec.with_overrides(config, duration=duration, lane_change=lane_change)
-    return ScenarioEnv(spec, render_mode=render_mode, record=record)
+    return ScenarioEnv(spec, render_mode=render_mode, record=record, fast=fast)
 
 
 def find_scenario_env(env: gym.Env) -> ScenarioEnv:

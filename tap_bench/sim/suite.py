@@ -40,6 +40,8 @@ from tap_bench.sim.schema import SPACES, default_config, space_parameters
 from tap_bench.sim.vehicles import LANE_CHANGE_SETTINGS
 
 __all__ = [
+    "MAX_SEED",
+    "MAX_SEEDS",
     "SIMULATION_FREQUENCY",
     "Scenario",
     "check_config",
@@ -54,7 +56,7 @@ SIMULATION_FREQUENCY = 10  # = tap_bench.trajectories.HZ, not imported: it bring
 """Simulation rate of every scenario [Hz]: one simulated step is one trajectory-table row."""
 
 _FIELDS = ("name", "version", "highway_env_id", "description", "duration", "default_seeds",
-           "lane_change", "config")
+           "lane_change", "config", "script")
 _REQUIRED = ("name", "version", "highway_env_id", "duration", "config")
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 # Keys the scenario file owns itself: highway-env's own copies are set from them.
@@ -76,28 +78,47 @@ def _seeds_error(source: str, spec: object, message: str) -> ParameterError:
                           message=message)
 
 
+MAX_SEEDS = 100_000
+"""The most seeds one seed list may name: 100,000 episodes per (env, policy) is more than a
+thousand times the default suite's 30, and each episode's tables are held in memory. A
+longer list is refused before anything is built (``"0-999999999"`` once took 21 GB)."""
+MAX_SEED = 2**63 - 1
+"""The largest seed: seeds are stored as 64-bit integers in every table."""
+
+
 def parse_seeds(spec: str | int | list[int] | range, *, source: str = "seeds") -> list[int]:
     """Seeds from ``"0-49"``, ``"3,5,8-9"``, an int, a list or a range.
+
+    The count is known from the ranges before a single seed is made, so a huge range costs
+    nothing to refuse.
 
     Returns:
         the seeds in the order given, duplicates refused.
 
     Raises:
-        ParameterError: naming ``source`` and the part that is not a seed or a range of seeds.
+        ParameterError: naming ``source`` and the part that is not a seed or a range of
+            seeds, a seed given twice, or more than :data:`MAX_SEEDS` seeds.
     """
     if isinstance(spec, bool):
         raise _seeds_error(source, spec, f"{source}: {spec!r} is not a seed; "
                                          f"give an int, '0-49' or '1,4,7'.")
+    ranges: list[range] = []
     if isinstance(spec, int):
-        seeds = [spec]
-    elif isinstance(spec, range | list | tuple):
-        try:
-            seeds = [operator.index(s) for s in spec]
-        except TypeError:
-            raise _seeds_error(source, spec, f"{source}: {spec!r} holds a value "
-                               "that is not an integer seed.") from None
+        ranges = [range(spec, spec + 1)]
+    elif isinstance(spec, range):
+        ranges = [spec]
+    elif isinstance(spec, list | tuple):
+        if len(spec) > MAX_SEEDS:
+            raise _too_many(source, f"{len(spec):,} seeds", len(spec))
+        for s in spec:
+            try:
+                if isinstance(s, bool):
+                    raise TypeError(s)
+                ranges.append(range(operator.index(s), operator.index(s) + 1))
+            except TypeError:
+                raise _seeds_error(source, spec, f"{source}: {s!r} in the list is not an "
+                                   "integer seed.") from None
     elif isinstance(spec, str):
-        seeds = []
         for part in spec.replace(" ", "").split(","):
             match = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
             if not match:
@@ -109,20 +130,41 @@ def parse_seeds(spec: str | int | list[int] | range, *, source: str = "seeds") -
             if hi < lo:
                 raise _seeds_error(source, spec, f"{source}: range {part!r} runs backwards; "
                                                  f"write '{hi}-{lo}'.")
-            seeds.extend(range(lo, hi + 1))
+            ranges.append(range(lo, hi + 1))
     else:
         raise _seeds_error(source, spec, f"{source}: {spec!r} is not a seed list; "
                                          f"give '0-49', an int or a list.")
-    if not seeds:
+    count = sum(len(r) for r in ranges)
+    if count > MAX_SEEDS:
+        raise _too_many(source, spec if isinstance(spec, str) else f"{count:,} seeds", count)
+    if count == 0:
         raise _seeds_error(source, spec, f"{source}: no seeds given.")
-    if any(s < 0 for s in seeds):
-        raise _seeds_error(source, spec, f"{source}: seeds must be non-negative, "
-                                         f"got {min(seeds)}.")
+    low = min(r.start for r in ranges if len(r))
+    high = max(r[-1] for r in ranges if len(r))
+    if low < 0:
+        raise _seeds_error(source, spec, f"{source}: seeds must be non-negative, got {low}.")
+    if high > MAX_SEED:
+        raise _seeds_error(source, spec, f"{source}: seed {high} is larger than {MAX_SEED} "
+                                         "(2^63 - 1), the largest a table stores.")
+    seeds = [s for r in ranges for s in r]
     if len(set(seeds)) != len(seeds):
-        dup = next(s for s in seeds if seeds.count(s) > 1)
-        raise _seeds_error(source, spec, f"{source}: seed {dup} is given twice; "
-                                         f"each seed is one episode.")
+        seen: set[int] = set()
+        dup = next(s for s in seeds if s in seen or seen.add(s))
+        raise _seeds_error(source, spec if isinstance(spec, str) else f"{count:,} seeds",
+                           f"{source}: seed {dup} is given twice; each seed is one episode.")
     return seeds
+
+
+def _too_many(source: str, value: object, count: int) -> ParameterError:
+    return ParameterError(
+        source, value, f"at most {MAX_SEEDS:,} seeds", message=(
+            f"{source}: {count:,} seeds, more than the maximum of {MAX_SEEDS:,} "
+            "(tap_bench.sim.suite.MAX_SEEDS) in one list; run the seeds in several lists "
+            "(say '0-99999', then '100000-199999')."))
+
+
+_AT_MOST = f"at most {MAX_SEEDS:,} seeds (tap_bench.sim.suite.MAX_SEEDS)"
+_SPLIT = "Run the seeds in several lists (say '0-99999', then '100000-199999')."
 
 
 @dataclass(frozen=True)
@@ -139,6 +181,7 @@ class Scenario:
         lane_change: name of the lane-change setting (see :mod:`tap_bench.sim.vehicles`).
         overrides: the highway-env config overrides of the file, validated.
         path: the file it was read from (None when built in code).
+        script: a scripted event (a cut-in, a braking leader; :mod:`tap_bench.sim.scripts`).
     """
 
     name: str
@@ -150,6 +193,7 @@ class Scenario:
     default_seeds: tuple[int, ...] = tuple(range(10))
     lane_change: str = "default"
     path: Path | None = field(default=None, compare=False)
+    script: Any = None  # tap_bench.sim.scripts.Script (imported lazily: highway-env)
 
     @property
     def env_id(self) -> str:
@@ -198,7 +242,8 @@ class Scenario:
              "duration": self.duration if duration is None else duration,
              "default_seeds": list(self.default_seeds),
              "lane_change": self.lane_change if lane_change is None else lane_change,
-             "config": merged},
+             "config": merged,
+             **({"script": self.script.to_dict()} if self.script is not None else {})},
             source=f"{self.env_id} overrides", path=self.path)
 
 
@@ -336,10 +381,15 @@ def _build(doc: Any, *, source: str, path: Path | None) -> Scenario:
     if not isinstance(config, dict):
         raise FileFormatError(f"{source}: config must be an object of highway-env settings.")
     check_config(doc["highway_env_id"], config, source=source)
+    script = None
+    if "script" in doc:
+        from tap_bench.sim.scripts import Script  # highway-env, imported on demand
+
+        script = Script.from_dict(doc["script"], source=source)
     scenario = Scenario(name=name, version=version, highway_env_id=doc["highway_env_id"],
                         duration=float(duration), overrides=copy.deepcopy(config),
                         description=str(doc.get("description", "")), default_seeds=seeds,
-                        lane_change=lane_change, path=path)
+                        lane_change=lane_change, path=path, script=script)
     steps = duration * scenario.policy_frequency
     if abs(steps - round(steps)) > 1e-9:
         raise FileFormatError(f"{source}: duration {duration} s is not a whole number of "

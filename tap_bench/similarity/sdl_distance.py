@@ -1,5 +1,8 @@
 """Distances between SDL labels: exact (g_SDL) and Levenshtein over label tokens.
 
+Labels are compared on chosen axes (``axes=``): TAP's lateral and longitudinal by default,
+the interaction axis of SPEC 7 beside or instead of them.
+
 An SDL label ``"Straight > Gradual Left Turn > Straight | Maintain Medium Speed"`` is two
 token sequences: lateral (``Straight``, ``Gradual Left Turn``, ``Straight``) and longitudinal
 (``Maintain Medium Speed``). The distances here (SPEC section 5, TAP paper section 6.3):
@@ -24,7 +27,7 @@ from rapidfuzz.process import cdist
 
 from tap_bench import sdl
 from tap_bench.errors import LabelTableError
-from tap_bench.labels import row_key, validate_labels
+from tap_bench.labels import label_text, missing_axes, row_key, select_level, validate_labels
 from tap_bench.sdl import parse_sdl
 
 __all__ = [
@@ -41,7 +44,7 @@ METRICS = ("exact", "levenshtein")
 
 # One character per label of each axis in the encoded strings.
 _CHAR = {axis: {tok: chr(0x41 + i) for i, tok in enumerate(sdl.tokens(axis))}
-         for axis in sdl.AXES}
+         for axis in sdl.LABEL_AXES}
 
 
 def g_sdl(a: str, b: str) -> int:
@@ -49,15 +52,15 @@ def g_sdl(a: str, b: str) -> int:
     return int(a != b)
 
 
-def sdl_levenshtein(a: str, b: str) -> int:
-    """Levenshtein distance between two SDL labels over whole label tokens.
+def sdl_levenshtein(a: str, b: str, *, axes=None) -> int:
+    """Levenshtein distance between two labels over whole label tokens.
 
-    The lateral edit distance plus the longitudinal edit distance; each insertion, deletion
-    or substitution of one label costs 1. ``"Straight | Maintain Medium Speed"`` against
+    The sum over the axes of each axis's edit distance; each insertion, deletion or
+    substitution of one label costs 1. ``"Straight | Maintain Medium Speed"`` against
     ``"Straight > Gradual Left Turn > Straight | Maintain Medium Speed"`` is 2.
     """
-    (lat_a, lon_a), (lat_b, lon_b) = parse_sdl(a), parse_sdl(b)
-    return int(Levenshtein.distance(lat_a, lat_b) + Levenshtein.distance(lon_a, lon_b))
+    return int(sum(Levenshtein.distance(x, y) for x, y in zip(
+        parse_sdl(a, axes=axes), parse_sdl(b, axes=axes), strict=True)))
 
 
 def _encode(tokens: tuple[str, ...] | list[str], axis: str) -> str:
@@ -66,39 +69,37 @@ def _encode(tokens: tuple[str, ...] | list[str], axis: str) -> str:
 
 @dataclass(frozen=True)
 class LabelSet:
-    """One level of a label table, encoded for fast comparison.
+    """One level of a label table on chosen axes, encoded for fast comparison.
 
     Rows are the label table's rows at that level, in their input order; a row is one
-    trajectory (one valid segment of a track).
+    trajectory (one valid segment of a track). A row's label is its sequences on ``axes``
+    joined by ``" | "``: the SDL label for TAP's two axes.
 
     Attributes:
         table: (n rows) the label rows at ``level``, index reset.
         level: the SDL level (``trace`` ... ``action``), or None when the table has no
             ``level`` column.
-        code: (n,) int64, index of each row's SDL label in ``labels``.
-        labels: (u,) the distinct SDL labels (object array of str), in order of first use.
+        axes: the axes compared (:data:`tap_bench.sdl.LABEL_AXES`, in that order).
+        code: (n,) int64, index of each row's label in ``labels``.
+        labels: (u,) the distinct labels (object array of str), in order of first use.
         counts: (u,) int64, rows holding each distinct label.
         first_row: (u,) int64, the first row holding each label.
-        lateral: (u,) int64, index of each label's lateral sequence in ``lateral_strings``.
-        longitudinal: (u,) int64, likewise in ``longitudinal_strings``.
-        lateral_strings: distinct lateral sequences, one character per token.
-        longitudinal_strings: distinct longitudinal sequences, one character per token.
-        n_lateral: (u,) int64 tokens in each label's lateral sequence.
-        n_longitudinal: (u,) int64 tokens in each label's longitudinal sequence.
+        axis_index: (u, k) int64, index of each label's sequence on axis j in
+            ``axis_strings[j]``.
+        axis_strings: per axis, its distinct sequences, one character per token.
+        n_tokens: (u, k) int64 tokens of each label on each axis.
     """
 
     table: pd.DataFrame
     level: str | None
+    axes: tuple[str, ...]
     code: np.ndarray
     labels: np.ndarray
     counts: np.ndarray
     first_row: np.ndarray
-    lateral: np.ndarray
-    longitudinal: np.ndarray
-    lateral_strings: list[str]
-    longitudinal_strings: list[str]
-    n_lateral: np.ndarray
-    n_longitudinal: np.ndarray
+    axis_index: np.ndarray
+    axis_strings: tuple[list[str], ...]
+    n_tokens: np.ndarray
 
     def __len__(self) -> int:
         return len(self.code)
@@ -107,27 +108,68 @@ class LabelSet:
     def n_labels(self) -> int:
         return len(self.labels)
 
-    def encode(self, text: str) -> tuple[str, str]:
-        """An SDL label as (lateral, longitudinal) encoded strings, checked at this level."""
-        lat, lon = parse_sdl(text, level=self.level)
-        return _encode(lat, "lateral"), _encode(lon, "longitudinal")
+    def _axis(self, axis: str) -> int:
+        if axis not in self.axes:
+            raise LabelTableError(f"this label set compares {', '.join(self.axes)}; it has no "
+                                  f"{axis} axis.")
+        return self.axes.index(axis)
+
+    @property
+    def lateral(self) -> np.ndarray:
+        return self.axis_index[:, self._axis("lateral")]
+
+    @property
+    def longitudinal(self) -> np.ndarray:
+        return self.axis_index[:, self._axis("longitudinal")]
+
+    @property
+    def lateral_strings(self) -> list[str]:
+        return self.axis_strings[self._axis("lateral")]
+
+    @property
+    def longitudinal_strings(self) -> list[str]:
+        return self.axis_strings[self._axis("longitudinal")]
+
+    def n_on(self, axis: str) -> np.ndarray:
+        """(u,) tokens of each label on ``axis`` (0 when the set does not compare it)."""
+        if axis not in self.axes:
+            return np.zeros(self.n_labels, np.int64)
+        return self.n_tokens[:, self.axes.index(axis)]
+
+    @property
+    def n_lateral(self) -> np.ndarray:
+        return self.n_on("lateral")
+
+    @property
+    def n_longitudinal(self) -> np.ndarray:
+        return self.n_on("longitudinal")
+
+    def encode(self, text: str) -> tuple[str, ...]:
+        """A label as one encoded string per axis, checked at this level."""
+        return tuple(_encode(tok, axis) for tok, axis in zip(
+            parse_sdl(text, level=self.level, axes=self.axes), self.axes, strict=True))
 
     def levenshtein_to(self, text: str) -> np.ndarray:
         """(u,) int32 Levenshtein distance from ``text`` to each distinct label."""
-        lat, lon = self.encode(text)
-        d_lat = cdist([lat], self.lateral_strings, scorer=Levenshtein.distance, dtype=np.int32)[0]
-        d_lon = cdist([lon], self.longitudinal_strings, scorer=Levenshtein.distance,
+        out = np.zeros(self.n_labels, np.int32)
+        for j, enc in enumerate(self.encode(text)):
+            d = cdist([enc], self.axis_strings[j], scorer=Levenshtein.distance,
                       dtype=np.int32)[0]
-        return d_lat[self.lateral] + d_lon[self.longitudinal]
+            out += d[self.axis_index[:, j]]
+        return out
 
 
-def label_set(labels: pd.DataFrame | LabelSet, level: str | None = None, *,
+def label_set(labels: pd.DataFrame | LabelSet, level: str | None = None, *, axes=None,
               source: str = "label table") -> LabelSet:
     """Encode one level of a label table (SPEC section 1) for search and comparison.
 
     Args:
-        labels: a label table (or a :class:`LabelSet`, returned as it is when its level fits).
+        labels: a label table (or a :class:`LabelSet`, returned as it is when its level and
+            axes fit).
         level: the SDL level; may be omitted when the table holds a single level.
+        axes: the axes to compare (default TAP's lateral and longitudinal; ``interaction``
+            needs a table labelled with interactions, whose rows without an interaction
+            label are left out).
         source: a name for the table in error messages (its file path).
 
     Raises:
@@ -135,44 +177,83 @@ def label_set(labels: pd.DataFrame | LabelSet, level: str | None = None, *,
             ``lateral | longitudinal``, or a token outside the level's vocabulary; each names
             the row and the fix.
     """
+    axes = sdl.check_axes(axes)
     if isinstance(labels, LabelSet):
         if level is not None and labels.level not in (None, level):
             raise LabelTableError(f"{source}: a LabelSet of level {labels.level!r} was given "
                                   f"where level {level!r} was asked for.")
+        if labels.axes != axes:
+            raise LabelTableError(f"{source}: a LabelSet of axes {labels.axes} was given "
+                                  f"where axes {axes} were asked for.")
         return labels
-    table, level, input_rows = validate_labels(labels, level, source=source)
-    code, uniques = pd.factorize(table["sdl"].astype(str), sort=False)
+    if axes == sdl.AXES:  # the contract's own check: columns, empty labels, sdl = lat | lon
+        table, level, input_rows = validate_labels(labels, level, source=source)
+    else:
+        table, level, input_rows = _select_on_axes(labels, level, axes, source)
+    text = label_text(table, axes).astype(str)
+    code, uniques = pd.factorize(text, sort=False)
     uniques = np.asarray(uniques, dtype=object)
     n_u = len(uniques)
     counts = np.bincount(code, minlength=n_u).astype(np.int64)
     first_row = np.full(n_u, len(code), dtype=np.int64)
     np.minimum.at(first_row, code, np.arange(len(code), dtype=np.int64))
 
-    lat_of = np.empty(n_u, dtype=np.int64)
-    lon_of = np.empty(n_u, dtype=np.int64)
-    lat_index: dict[str, int] = {}
-    lon_index: dict[str, int] = {}
-    n_lat = np.empty(n_u, dtype=np.int64)
-    n_lon = np.empty(n_u, dtype=np.int64)
-    for u, text in enumerate(uniques):
+    k = len(axes)
+    axis_index = np.empty((n_u, k), dtype=np.int64)
+    n_tokens = np.empty((n_u, k), dtype=np.int64)
+    indexes: list[dict[str, int]] = [{} for _ in axes]
+    for u, label in enumerate(uniques):
         try:
-            lat, lon = parse_sdl(text, level=level)
+            parts = parse_sdl(label, level=level, axes=axes)
         except LabelTableError as err:
             row = int(first_row[u])
-            raise LabelTableError(f"{source}: row {int(input_rows[row])} ({row_key(table, row)}), "
-                                  f"column 'sdl': {err}") from None
-        lat_of[u] = lat_index.setdefault(_encode(lat, "lateral"), len(lat_index))
-        lon_of[u] = lon_index.setdefault(_encode(lon, "longitudinal"), len(lon_index))
-        n_lat[u], n_lon[u] = len(lat), len(lon)
-    return LabelSet(table=table, level=level, code=code.astype(np.int64), labels=uniques,
-                    counts=counts, first_row=first_row, lateral=lat_of, longitudinal=lon_of,
-                    lateral_strings=list(lat_index), longitudinal_strings=list(lon_index),
-                    n_lateral=n_lat, n_longitudinal=n_lon)
+            column = "sdl" if axes == sdl.AXES else "/".join(axes)
+            raise LabelTableError(f"{source}: row {int(input_rows[row])} "
+                                  f"({row_key(table, row)}), column {column!r}: {err}") from None
+        for j, (tokens, axis) in enumerate(zip(parts, axes, strict=True)):
+            axis_index[u, j] = indexes[j].setdefault(_encode(tokens, axis), len(indexes[j]))
+            n_tokens[u, j] = len(tokens)
+    return LabelSet(table=table, level=level, axes=axes, code=code.astype(np.int64),
+                    labels=uniques, counts=counts, first_row=first_row,
+                    axis_index=axis_index, axis_strings=tuple(list(ix) for ix in indexes),
+                    n_tokens=n_tokens)
+
+
+def _select_on_axes(labels: pd.DataFrame, level: str | None, axes: tuple[str, ...],
+                    source: str) -> tuple[pd.DataFrame, str | None, np.ndarray]:
+    """The rows of one level that carry a label on every axis of ``axes`` (tracks not
+    labelled with interactions are left out), with their positions in the input."""
+    if not isinstance(labels, pd.DataFrame):
+        raise LabelTableError(f"{source}: expected a label table (pandas DataFrame), got "
+                              f"{type(labels).__name__}.")
+    missing = [c for c in ("scenario_id", "track_id", *axes) if c not in labels.columns]
+    if missing:
+        raise LabelTableError(f"{source}: {missing_axes(missing)}")
+    table, level = select_level(labels, level, source)
+    input_rows = np.flatnonzero(labels["level"].astype(str).to_numpy() == level) \
+        if "level" in labels.columns else np.arange(len(labels))
+    if "interaction" in axes:
+        on_axis = table["interaction"].notna().to_numpy()
+        if not on_axis.any():
+            raise LabelTableError(f"{source}: no row carries an interaction label; label the "
+                                  "table with --interactions (or --interactions all).")
+        table, input_rows = table.loc[on_axis], input_rows[on_axis]
+    if len(table) == 0:
+        raise LabelTableError(f"{source}: the label table is empty.")
+    table = table.reset_index(drop=True)
+    for col in axes:
+        empty = table[col].isna().to_numpy()
+        if empty.any():
+            pos = int(np.flatnonzero(empty)[0])
+            raise LabelTableError(f"{source}: column {col!r} is empty at row "
+                                  f"{int(input_rows[pos])} ({row_key(table, pos)}); every row "
+                                  "needs a label.")
+    return table, level, input_rows
 
 
 def levenshtein_matrix(labels: LabelSet, rows: np.ndarray | None = None,
                        workers: int = 1) -> np.ndarray:
-    """Levenshtein distances between distinct labels.
+    """Levenshtein distances between distinct labels (summed over the set's axes).
 
     Args:
         labels: an encoded label set.
@@ -184,9 +265,8 @@ def levenshtein_matrix(labels: LabelSet, rows: np.ndarray | None = None,
     """
     rows = np.arange(labels.n_labels) if rows is None else np.asarray(rows, dtype=np.int64)
     out = np.zeros((len(rows), labels.n_labels), dtype=np.int32)
-    for axis, strings in (("lateral", labels.lateral_strings),
-                          ("longitudinal", labels.longitudinal_strings)):
-        of = getattr(labels, axis)
+    for j, strings in enumerate(labels.axis_strings):
+        of = labels.axis_index[:, j]
         # Only the distinct sequences of ``rows`` against every distinct sequence: the work
         # the answer needs, and never a full u-by-u matrix of a fine-grained level.
         mine, inverse = np.unique(of[rows], return_inverse=True)

@@ -53,13 +53,13 @@ def _label_distances(labels: LabelSet, reference: str, metric: str) -> np.ndarra
     return labels.levenshtein_to(reference)
 
 
-def _canonical(reference: str, level: str | None) -> str:
-    lat, lon = parse_sdl(reference, level=level)
-    return sdl.format_sdl(lat, lon)
+def _canonical(reference: str, level: str | None, axes: tuple[str, ...]) -> str:
+    parts = parse_sdl(reference, level=level, axes=axes)
+    return sdl.SDL_SEPARATOR.join(sdl.join(tokens) for tokens in parts)
 
 
 def search(labels: pd.DataFrame | LabelSet, reference: str, *, metric: str = "exact",
-           d_sim: float = 0, level: str | None = None) -> pd.DataFrame:
+           d_sim: float = 0, level: str | None = None, axes=None) -> pd.DataFrame:
     """Every labelled trajectory whose SDL label is within ``d_sim`` of ``reference``.
 
     Args:
@@ -69,14 +69,17 @@ def search(labels: pd.DataFrame | LabelSet, reference: str, *, metric: str = "ex
         metric: ``"exact"`` (g_SDL: 0 or 1) or ``"levenshtein"`` (token edit distance).
         d_sim: the largest distance kept (``<=``); 0 keeps the exact label only.
         level: the level to search (may be omitted when the table holds one level).
+        axes: the axes compared (default lateral and longitudinal; e.g. ``("lateral",
+            "longitudinal", "interaction")``, whose reference is then
+            ``"<lateral> | <longitudinal> | <interaction>"``).
 
     Returns:
         The matching rows of the label table with a ``distance`` column, nearest first (ties
         in table order).
     """
     _check_metric(metric, d_sim)
-    ls = label_set(labels, level)
-    reference = _canonical(reference, ls.level)
+    ls = label_set(labels, level, axes=axes)
+    reference = _canonical(reference, ls.level, ls.axes)
     dist = _label_distances(ls, reference, metric)
     hit = dist <= d_sim
     rows = np.flatnonzero(hit[ls.code])
@@ -84,18 +87,25 @@ def search(labels: pd.DataFrame | LabelSet, reference: str, *, metric: str = "ex
     order = np.argsort(row_dist, kind="stable")
     out = ls.table.take(rows[order]).reset_index(drop=True)
     out.insert(0, "distance", row_dist[order])
+    return _with_label(out, ls, rows[order])
+
+
+def _with_label(out: pd.DataFrame, ls: LabelSet, rows: np.ndarray) -> pd.DataFrame:
+    """Beside ``sdl``, the label compared when the axes are not TAP's two (``label``)."""
+    if ls.axes != sdl.AXES:
+        out.insert(1, "label", ls.labels[ls.code[rows]].astype(str))
     return out
 
 
 def find_reference(labels: pd.DataFrame | LabelSet, scenario_id: str, track_id: str,
-                   segment: int | None = None, *, level: str | None = None) -> int:
+                   segment: int | None = None, *, level: str | None = None, axes=None) -> int:
     """The row of one trajectory in an encoded label set.
 
     Raises:
         LabelTableError: no such trajectory (with close scenario ids), or a track with more
             than one labelled segment when ``segment`` is not given.
     """
-    ls = label_set(labels, level)
+    ls = label_set(labels, level, axes=axes)
     t = ls.table
     sc = t["scenario_id"].astype(str).to_numpy()
     tr = t["track_id"].astype(str).to_numpy()
@@ -125,13 +135,13 @@ def find_reference(labels: pd.DataFrame | LabelSet, scenario_id: str, track_id: 
 
 def search_like(labels: pd.DataFrame | LabelSet, scenario_id: str, track_id: str,
                 segment: int | None = None, *, metric: str = "exact", d_sim: float = 0,
-                level: str | None = None) -> pd.DataFrame:
+                level: str | None = None, axes=None) -> pd.DataFrame:
     """Every other trajectory whose label is within ``d_sim`` of a given trajectory's label.
 
     As :func:`search` with the reference taken from the label table; the reference row itself
     is left out.
     """
-    ls = label_set(labels, level)
+    ls = label_set(labels, level, axes=axes)
     row = find_reference(ls, scenario_id, track_id, segment)
     _check_metric(metric, d_sim)
     reference = str(ls.labels[ls.code[row]])
@@ -142,7 +152,7 @@ def search_like(labels: pd.DataFrame | LabelSet, scenario_id: str, track_id: str
     order = np.argsort(row_dist[rows], kind="stable")
     out = ls.table.take(rows[order]).reset_index(drop=True)
     out.insert(0, "distance", row_dist[rows[order]])
-    return out
+    return _with_label(out, ls, rows[order])
 
 
 @dataclass(frozen=True)
@@ -171,9 +181,10 @@ class ExactMatches:
         return group[group != row]
 
 
-def exact_matches(labels: pd.DataFrame | LabelSet, *, level: str | None = None) -> ExactMatches:
+def exact_matches(labels: pd.DataFrame | LabelSet, *, level: str | None = None,
+                  axes=None) -> ExactMatches:
     """Answer the exact-label search of every trajectory against all others in one pass."""
-    ls = label_set(labels, level)
+    ls = label_set(labels, level, axes=axes)
     order = np.argsort(ls.code, kind="stable")
     offsets = np.zeros(ls.n_labels + 1, dtype=np.int64)
     np.cumsum(ls.counts, out=offsets[1:])
@@ -197,14 +208,14 @@ class LabelNeighbours:
 
 
 def levenshtein_nearest(labels: pd.DataFrame | LabelSet, *, level: str | None = None,
-                        chunk: int = 512, workers: int = 1) -> LabelNeighbours:
+                        chunk: int = 512, workers: int = 1, axes=None) -> LabelNeighbours:
     """Levenshtein nearest neighbour of every trajectory among all the others.
 
     A row whose label another row shares is at distance 0. Rows with a unique label are
     compared with every distinct label through a label-by-label distance matrix (built from
-    rapidfuzz's lateral and longitudinal matrices), ``chunk`` labels at a time.
+    rapidfuzz's per-axis matrices), ``chunk`` labels at a time.
     """
-    ls = label_set(labels, level)
+    ls = label_set(labels, level, axes=axes)
     n, u = len(ls), ls.n_labels
     dist = np.zeros(n, dtype=np.int64)
     neighbour = np.full(n, -1, dtype=np.int64)

@@ -26,34 +26,39 @@ def _levels(labels: pd.DataFrame | LabelSet, level: str | None) -> list[str | No
     return [level]
 
 
-def label_counts(labels: pd.DataFrame | LabelSet, level: str | None = None) -> pd.DataFrame:
+def label_counts(labels: pd.DataFrame | LabelSet, level: str | None = None, *,
+                 axes=None) -> pd.DataFrame:
     """How many trajectories carry each distinct label, with an example of each.
 
     Args:
         labels: a label table (SPEC section 1) or an encoded :class:`LabelSet`.
         level: the SDL level, ``"all"`` for every level in the table, or None when the table
             holds a single level.
+        axes: the axes a label is made of (default lateral and longitudinal).
 
     Returns:
-        One row per distinct label: level, sdl, lateral, longitudinal, count, share (of the
-        level's trajectories), n_lateral, n_longitudinal, n_actions (tokens on both axes),
-        and the first trajectory with it (scenario_id, track_id, segment); most common
-        first, ties by label.
+        One row per distinct label: level, sdl (the label on the axes), one column per axis
+        (lateral, longitudinal, interaction), count, share (of the level's trajectories),
+        n_<axis> (tokens on each axis), n_actions (tokens on every axis), and the first
+        trajectory with it (scenario_id, track_id, segment); most common first, ties by
+        label.
     """
     frames = []
     for lv in _levels(labels, level):
-        ls = label_set(labels, lv)
+        ls = label_set(labels, lv, axes=axes)
         first = ls.table.take(ls.first_row)
-        lat_lon = [[sdl.join(side) for side in sdl.parse_sdl(str(text))] for text in ls.labels]
-        out = pd.DataFrame({
-            "level": ls.level, "sdl": ls.labels.astype(str),
-            "lateral": [p[0] for p in lat_lon], "longitudinal": [p[1] for p in lat_lon],
-            "count": ls.counts, "share": ls.counts / len(ls),
-            "n_lateral": ls.n_lateral, "n_longitudinal": ls.n_longitudinal,
-            "n_actions": ls.n_lateral + ls.n_longitudinal,
-            "scenario_id": first["scenario_id"].to_numpy(),
-            "track_id": first["track_id"].to_numpy(),
-        })
+        parts = [[sdl.join(side) for side in sdl.parse_sdl(str(text), axes=ls.axes)]
+                 for text in ls.labels]
+        out = pd.DataFrame({"level": ls.level, "sdl": ls.labels.astype(str)})
+        for j, axis in enumerate(ls.axes):
+            out[axis] = [p[j] for p in parts]
+        out["count"] = ls.counts
+        out["share"] = ls.counts / len(ls)
+        for axis in ls.axes:
+            out[f"n_{axis}"] = ls.n_on(axis)
+        out["n_actions"] = ls.n_tokens.sum(axis=1)
+        out["scenario_id"] = first["scenario_id"].to_numpy()
+        out["track_id"] = first["track_id"].to_numpy()
         if "segment" in first.columns:
             out["segment"] = first["segment"].to_numpy()
         frames.append(out.sort_values(["count", "sdl"], ascending=[False, True],
@@ -61,27 +66,31 @@ def label_counts(labels: pd.DataFrame | LabelSet, level: str | None = None) -> p
     return pd.concat(frames, ignore_index=True)
 
 
-def unique_labels(labels: pd.DataFrame | LabelSet, level: str | None = None) -> pd.DataFrame:
+def unique_labels(labels: pd.DataFrame | LabelSet, level: str | None = None, *,
+                  axes=None) -> pd.DataFrame:
     """The trajectories whose label no other trajectory has, at one level or at each.
 
     Args:
         labels: a label table or an encoded :class:`LabelSet`.
         level: the SDL level, ``"all"`` for each level of the table, or None when the table
             holds a single level.
+        axes: the axes a label is made of (default lateral and longitudinal; with
+            ``interaction``, a trajectory is unique when no other does the same *and* meets
+            the same relations).
 
     Returns:
-        The label-table rows of the unique trajectories plus n_lateral, n_longitudinal and
+        The label-table rows of the unique trajectories plus n_<axis> per axis and
         n_actions; per level, those with the most actions first (the paper's observation: a
         dense sequence of actions makes a label rare), ties in table order.
     """
     frames = []
     for lv in _levels(labels, level):
-        ls = label_set(labels, lv)
+        ls = label_set(labels, lv, axes=axes)
         rows = np.flatnonzero(ls.counts[ls.code] == 1)
         out = ls.table.take(rows).reset_index(drop=True)
         code = ls.code[rows]
-        out["n_lateral"] = ls.n_lateral[code]
-        out["n_longitudinal"] = ls.n_longitudinal[code]
-        out["n_actions"] = out["n_lateral"] + out["n_longitudinal"]
+        for axis in ls.axes:
+            out[f"n_{axis}"] = ls.n_on(axis)[code]
+        out["n_actions"] = ls.n_tokens[code].sum(axis=1)
         frames.append(out.sort_values("n_actions", ascending=False, kind="stable"))
     return pd.concat(frames, ignore_index=True)

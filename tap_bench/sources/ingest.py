@@ -21,6 +21,7 @@ import shutil
 import sys
 import tempfile
 import time
+import warnings
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass, field
@@ -28,17 +29,19 @@ from pathlib import Path
 
 import pandas as pd
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from tap_bench.errors import FileFormatError, ParameterError, WomdRecordError, did_you_mean
 from tap_bench.execution import Backend, LocalBackend
 from tap_bench.sources import builtin  # noqa: F401 (the built-in readers are registered)
 from tap_bench.sources.registry import Reader, get_reader, reader_names, readers
-from tap_bench.tableio import atomic_path
+from tap_bench.tableio import atomic_paths, check_outputs
 from tap_bench.womd.scenario import SCENARIO_COLUMNS, normalise_object_types
-from tap_bench.womd.tfrecord import Record, iter_records
+from tap_bench.womd.tfrecord import MAX_RECORD_BYTES, Record, iter_records, looks_like_tfrecord
 
-__all__ = ["IngestReport", "expand_paths", "formats", "ingest_womd", "iter_womd", "read_womd"]
+__all__ = ["IngestReport", "expand_paths", "formats", "ingest_womd", "iter_womd", "read_womd",
+           "record_files"]
 
 ON_ERROR = ("stop", "skip")
 BATCH_BYTES = 8 << 20
@@ -68,6 +71,8 @@ class IngestReport:
         decode_cpu_seconds: CPU time spent decoding, in all processes [s].
         skipped: one entry per skipped record (path, record, offset, problem); empty with
             ``on_error="stop"``.
+        notes: files left out (not records, empty) and other remarks.
+        max_record_bytes: the longest record read [B].
     """
 
     inputs: list[str] = field(default_factory=list)
@@ -83,6 +88,8 @@ class IngestReport:
     workers: int = 1
     decode_cpu_seconds: float = 0.0
     skipped: list[dict] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    max_record_bytes: int = MAX_RECORD_BYTES
 
     @property
     def mb_per_s(self) -> float:
@@ -96,7 +103,8 @@ class IngestReport:
 def expand_paths(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> list[Path]:
     """Files named by paths, glob patterns (``data/*.tfrecord*``, ``**`` recursive) or
     directories (every file in them), sorted; ScenarioNet's ``dataset_summary.pkl`` and
-    ``dataset_mapping.pkl`` index files are left out.
+    ``dataset_mapping.pkl`` index files are left out. A path that exists is taken as it is,
+    even when its name holds ``[`` ``]``, ``*`` or ``?``.
 
     Raises:
         FileFormatError: a pattern or path that matches no file.
@@ -106,18 +114,58 @@ def expand_paths(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> list
     found: list[Path] = []
     for item in paths:
         text = str(item)
-        if glob.has_magic(text):
-            matches = sorted(Path(p) for p in glob.glob(text, recursive=True))
-        elif Path(text).is_dir():
+        if Path(text).is_dir():
             matches = sorted(p for p in Path(text).iterdir())
+        elif Path(text).exists():  # a file named with [ ] * ? is that file, not a pattern
+            matches = [Path(text)]
+        elif glob.has_magic(text):
+            matches = sorted(Path(p) for p in glob.glob(text, recursive=True))
         else:
-            matches = [Path(text)] if Path(text).exists() else []
+            matches = []
         matches = [p for p in matches if p.is_file() and p.name not in _SCENARIONET_INDEX]
         if not matches:
             raise FileFormatError(f"{text}: no such file, or no file matches the pattern. "
                                     "Quote glob patterns so the shell does not expand them.")
         found.extend(matches)
     return list(dict.fromkeys(found))
+
+
+def record_files(paths: str | os.PathLike | Iterable[str | os.PathLike],
+                 note: Callable[[str], None] | None = None) -> list[Path]:
+    """The WOMD files among ``paths`` (see :func:`expand_paths`).
+
+    Files found in a directory or by a pattern that are neither TFRecords (plain or GZIP,
+    sniffed by their first length header) nor ``*.pkl`` pickles, such as a README or an
+    empty file, are left out with a note; a file named on its own is kept as it is (and
+    reading it says what is wrong), but an empty one gets a note.
+
+    Raises:
+        FileFormatError: a path that matches no file, or only files that are not records.
+    """
+    if isinstance(paths, str | os.PathLike):
+        paths = [paths]
+    note = note or (lambda text: warnings.warn(text, stacklevel=3))
+    kept: list[Path] = []
+    for item in paths:
+        files = expand_paths([item])
+        named = len(files) == 1 and not Path(str(item)).is_dir() and Path(str(item)).exists()
+        if named:
+            if files[0].stat().st_size == 0:
+                note(f"{files[0]}: the file is empty (0 bytes): no records in it.")
+            kept.extend(files)
+            continue
+        good = [p for p in files if _file_reader(p) is not None or looks_like_tfrecord(p)]
+        for p in files:
+            if p not in good:
+                what = ("empty" if p.stat().st_size == 0 else
+                        "not a TFRecord nor a file a reader claims by its name")
+                note(f"{p}: skipped, {what}.")
+        if not good:
+            raise FileFormatError(f"{item}: no TFRecord or ScenarioNet (*.pkl) file there; "
+                                  f"{len(files)} other file(s) left out. Readers: "
+                                  f"{', '.join(reader_names())}.")
+        kept.extend(good)
+    return list(dict.fromkeys(kept))
 
 
 def _check_choice(kind: str, value: str, allowed: tuple[str, ...]) -> str:
@@ -131,22 +179,29 @@ def formats() -> tuple[str, ...]:
     return ("auto", *reader_names())
 
 
-def _file_format(path: Path, format: str, check_crc: bool) -> Reader:
+def _file_format(path: Path, format: str, check_crc: bool,
+                 max_record_bytes: int = MAX_RECORD_BYTES) -> Reader:
     """The reader of ``path``: the one asked for, or the one that claims it (``auto``): a
     file reader by its name's ending, else the first TFRecord reader whose ``sniff`` accepts
     the first record, else the TFRecord fallback (``sniff=None``)."""
     if format != "auto":
         return get_reader(format)
-    name = path.name.lower()
-    for reader in readers():
-        if reader.framing == "file" and name.endswith(reader.suffixes):
-            return reader
+    if _file_reader(path) is not None:
+        return _file_reader(path)
     tfrecord = [r for r in readers() if r.framing == "tfrecord"]
     fallback = next((r for r in reversed(tfrecord) if r.sniff is None), tfrecord[-1])
-    for record in iter_records(path, check_crc=check_crc, on_error=lambda err: None):
+    for record in iter_records(path, check_crc=check_crc, on_error=lambda err: None,
+                               max_record_bytes=max_record_bytes):
         return next((r for r in tfrecord if r.sniff is not None and r.sniff(record.data)),
                     fallback)
     return fallback
+
+
+def _file_reader(path: Path) -> Reader | None:
+    """The reader of whole files whose name ending ``path`` has (``.pkl``), if any."""
+    name = path.name.lower()
+    return next((r for r in readers() if r.framing == "file" and name.endswith(r.suffixes)),
+                None)
 
 
 @dataclass
@@ -162,13 +217,15 @@ class _Batch:
 @dataclass
 class _Decoded:
     """A decoded batch: its tables (or, from a worker, the Arrow IPC file holding them
-    concatenated), the records skipped, and the CPU time spent [s]."""
+    concatenated), the records skipped, the CPU time spent [s], and per table kept its
+    scenario id with the record's index and offset (``ids``)."""
 
     tables: list[pa.Table]
     skipped: list[dict]
     cpu_seconds: float
     scenarios: int = 0
     spooled: str | None = None
+    ids: list[tuple[str, int, int]] = field(default_factory=list)
     error: WomdRecordError | None = None
 
 
@@ -176,8 +233,8 @@ def _decode_batch(batch: _Batch, object_types: frozenset[str] | None, skip: bool
                   ) -> _Decoded:
     """Decode a batch; with ``skip`` a bad record is listed and left out, else raised."""
     start = time.process_time()
-    tables, skipped = _decode_records(batch, object_types, skip)
-    return _Decoded(tables, skipped, time.process_time() - start, len(tables))
+    tables, skipped, ids = _decode_records(batch, object_types, skip)
+    return _Decoded(tables, skipped, time.process_time() - start, len(tables), ids=ids)
 
 
 @dataclass(frozen=True)
@@ -197,7 +254,7 @@ def _decode_to_spool(task: _SpoolTask) -> _Decoded:
     ``skip`` False comes back as ``error`` (not raised: it is not worth a retry)."""
     start = time.process_time()
     try:
-        tables, skipped = _decode_records(task.batch, task.object_types, task.skip)
+        tables, skipped, ids = _decode_records(task.batch, task.object_types, task.skip)
     except WomdRecordError as err:
         return _Decoded([], [], time.process_time() - start, 0, error=err)
     spool = task.spool
@@ -208,47 +265,92 @@ def _decode_to_spool(task: _SpoolTask) -> _Decoded:
         os.close(fd)
         with pa.OSFile(path, "wb") as sink, pa.ipc.new_file(sink, table.schema) as writer:
             writer.write_table(table)
-    return _Decoded([], skipped, time.process_time() - start, len(tables), path)
+    return _Decoded([], skipped, time.process_time() - start, len(tables), path, ids)
 
 
 def _decode_records(batch: _Batch, object_types: frozenset[str] | None, skip: bool
-                    ) -> tuple[list[pa.Table], list[dict]]:
+                    ) -> tuple[list[pa.Table], list[dict], list[tuple[str, int, int]]]:
+    """Decode a batch's records: (tables, skipped records, (scenario id, record, offset)
+    of each table). Every failure of a decoder becomes a :class:`WomdRecordError` naming
+    the record, raised or (``skip``) listed; a scenario id met twice in the batch is one."""
     tables: list[pa.Table] = []
     skipped: list[dict] = []
+    ids: list[tuple[str, int, int]] = []
+    seen: dict[str, int] = {}
     decode = batch.reader.decode
+
+    def decode_one(index: int, offset: int, source: str | Record) -> None:
+        try:
+            table = decode(source, object_types)
+            sid = _scenario_id(table)
+            if sid and sid in seen:
+                raise WomdRecordError(batch.path, index, offset, _duplicate(sid, batch.path,
+                                                                            seen[sid]), _DUP)
+        except WomdRecordError as err:
+            if not skip:
+                raise
+            skipped.append(err.as_dict())
+            return
+        except Exception as err:  # a decoder's own failure is this record's error
+            wrapped = WomdRecordError(batch.path, index, offset, f"cannot be decoded "
+                                      f"({type(err).__name__}: {err})", _UNDECODABLE)
+            if not skip:
+                raise wrapped from err
+            skipped.append(wrapped.as_dict())
+            return
+        seen[sid] = index
+        tables.append(table)
+        ids.append((sid, index, offset))
+
     if batch.reader.framing == "file":
-        try:
-            tables.append(decode(batch.path, object_types))
-        except WomdRecordError as err:
-            if not skip:
-                raise
-            skipped.append(err.as_dict())
-        return tables, skipped
+        decode_one(0, 0, batch.path)
+        return tables, skipped, ids
     for record in batch.records:
-        try:
-            tables.append(decode(record, object_types))
-        except WomdRecordError as err:
-            if not skip:
-                raise
-            skipped.append(err.as_dict())
-    return tables, skipped
+        decode_one(record.index, record.offset, record)
+    return tables, skipped, ids
+
+
+_UNDECODABLE = ("The record is damaged or not in the format read; skip it with "
+                "on_error='skip' (--on-error skip) to keep the other records.")
+_DUP = ("Scenario ids must be unique: two records with one id would be merged into one "
+        "scenario. Ingest the files apart, or skip the repeat with on_error='skip'.")
+
+
+def _scenario_id(table: pa.Table) -> str:
+    if table.num_rows == 0:
+        return ""  # nothing kept (object_types): nothing to merge
+    return str(table.column("scenario_id")[0].as_py())
+
+
+def _duplicate(sid: str, path: str, record: int) -> str:
+    return f"scenario id {sid!r} was already read from {path}, record {record}"
 
 
 def _batches(files: list[Path], format: str, check_crc: bool, batch_bytes: int,
              on_bad_framing: Callable[[WomdRecordError], None] | None,
-             report: IngestReport) -> Iterator[_Batch]:
+             report: IngestReport, max_record_bytes: int) -> Iterator[_Batch]:
     for path in files:
-        fmt = _file_format(path, format, check_crc)
+        fmt = _file_format(path, format, check_crc, max_record_bytes)
         report.files += 1
         if fmt.framing == "file":
             size = path.stat().st_size
+            if size > max_record_bytes:
+                err = WomdRecordError(
+                    str(path), 0, 0, f"the file has {size} bytes, more than the limit of "
+                    f"{max_record_bytes} bytes", "Raise the limit (max_record_bytes, "
+                    "--max-record-mb) if the file is genuine.")
+                if on_bad_framing is None:
+                    raise err
+                on_bad_framing(err)
+                continue
             report.records += 1
             report.bytes_read += size
             yield _Batch(str(path), fmt, [], size)
             continue
         records: list[Record] = []
         size = 0
-        for record in iter_records(path, check_crc=check_crc, on_error=on_bad_framing):
+        for record in iter_records(path, check_crc=check_crc, on_error=on_bad_framing,
+                                   max_record_bytes=max_record_bytes):
             records.append(record)
             size += len(record.data) + 16
             report.records += 1
@@ -264,12 +366,23 @@ def _iter_tables(paths, *, format: str, object_types, on_error: str, check_crc: 
                  workers: int, report: IngestReport, log: Callable[[str], None] | None,
                  backend: Backend | None = None,
                  batch_bytes: int = BATCH_BYTES,
-                 progress: Callable[[int, int], None] | None = None) -> Iterator[pa.Table]:
+                 progress: Callable[[int, int], None] | None = None,
+                 max_record_bytes: int = MAX_RECORD_BYTES,
+                 files: list[Path] | None = None) -> Iterator[pa.Table]:
     """Decoded tables (Arrow) in input order; fills ``report`` as it goes."""
     _check_choice("format", format, formats())
     _check_choice("on_error value", on_error, ON_ERROR)
     types = normalise_object_types(object_types)
-    files = expand_paths(paths)
+
+    def note(text: str) -> None:
+        report.notes.append(text)
+        if log is not None:
+            log(text)
+        else:
+            warnings.warn(text, stacklevel=4)
+
+    if files is None:
+        files = record_files(paths, note)
     report.inputs = [str(p) for p in files]
     report.format = format
     report.object_types = sorted(types) if types is not None else None
@@ -292,6 +405,8 @@ def _iter_tables(paths, *, format: str, object_types, on_error: str, check_crc: 
         skipped([{**err.as_dict(), "problem": err.problem
                   + ("" if err.resumable else "; the rest of the file cannot be read")}])
 
+    seen: dict[str, tuple[str, int]] = {}  # scenario id -> (file, record) it came from
+
     def finish(batch: _Batch, result: _Decoded) -> list[pa.Table]:
         skipped(result.skipped)
         tables = result.tables
@@ -299,7 +414,22 @@ def _iter_tables(paths, *, format: str, object_types, on_error: str, check_crc: 
             with pa.memory_map(result.spooled) as source:
                 tables = [pa.ipc.open_file(source).read_all()]
             os.unlink(result.spooled)  # the mapping stays readable until released
-        report.scenarios += result.scenarios
+        repeats = []
+        for sid, index, offset in result.ids:
+            if sid and sid in seen:
+                err = WomdRecordError(batch.path, index, offset, _duplicate(sid, *seen[sid]),
+                                      _DUP)
+                if not skip:
+                    raise err
+                skipped([err.as_dict()])
+                repeats.append(sid)
+            elif sid:
+                seen[sid] = (batch.path, index)
+        if repeats:  # a batch holds each id once: its rows of a repeated id are the repeat
+            drop = pa.array(repeats, pa.string())
+            tables = [t.filter(pc.invert(pc.is_in(t.column("scenario_id").cast(pa.string()),
+                                                  drop))) for t in tables]
+        report.scenarios += result.scenarios - len(repeats)
         report.rows += sum(t.num_rows for t in tables)
         report.decode_cpu_seconds += result.cpu_seconds
         if progress is not None:
@@ -307,7 +437,7 @@ def _iter_tables(paths, *, format: str, object_types, on_error: str, check_crc: 
         return tables
 
     batches = _batches(files, format, check_crc, batch_bytes, bad_framing if skip else None,
-                       report)
+                       report, max_record_bytes)
     if backend is None and workers <= 1:
         for batch in batches:
             yield from finish(batch, _decode_batch(batch, types, skip))
@@ -358,7 +488,8 @@ def _lost_batch(batch: _Batch, error: str) -> WomdRecordError:
 def iter_womd(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
               format: str = "auto", object_types: Iterable[str] | str | None = None,
               on_error: str = "stop", check_crc: bool = True,
-              report: IngestReport | None = None) -> Iterator[pd.DataFrame]:
+              report: IngestReport | None = None,
+              max_record_bytes: int = MAX_RECORD_BYTES) -> Iterator[pd.DataFrame]:
     """Yield a trajectory table per scenario, reading one record at a time.
 
     Args:
@@ -371,6 +502,9 @@ def iter_womd(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
             in ``report.skipped``.
         check_crc: check the CRC-32C of every record.
         report: filled with counts and skipped records as the iteration goes.
+        max_record_bytes: the longest record read [B]
+            (:data:`tap_bench.womd.tfrecord.MAX_RECORD_BYTES`, 64 MiB); a longer one is a
+            bad record, never held in memory.
 
     Yields:
         pandas DataFrames with :data:`tap_bench.womd.scenario.SCENARIO_COLUMNS` (SPEC
@@ -383,14 +517,16 @@ def iter_womd(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
     report = report if report is not None else IngestReport()
     for table in _iter_tables(paths, format=format, object_types=object_types,
                               on_error=on_error, check_crc=check_crc, workers=1,
-                              report=report, log=None, batch_bytes=0):
+                              report=report, log=None, batch_bytes=0,
+                              max_record_bytes=max_record_bytes):
         yield table.to_pandas(split_blocks=True)
 
 
 def read_womd(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
               format: str = "auto", object_types: Iterable[str] | str | None = None,
               on_error: str = "stop", check_crc: bool = True, workers: int = 1,
-              report: IngestReport | None = None) -> pd.DataFrame:
+              report: IngestReport | None = None,
+              max_record_bytes: int = MAX_RECORD_BYTES) -> pd.DataFrame:
     """Read WOMD files into one trajectory table.
 
     Arguments as :func:`iter_womd`, plus ``workers`` decoding processes.
@@ -402,7 +538,7 @@ def read_womd(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
     report = report if report is not None else IngestReport()
     tables = list(_iter_tables(paths, format=format, object_types=object_types,
                                on_error=on_error, check_crc=check_crc, workers=workers,
-                               report=report, log=None))
+                               report=report, log=None, max_record_bytes=max_record_bytes))
     if not tables:
         return pd.DataFrame({name: pd.Series(dtype=object) for name in _columns()})
     return pa.concat_tables(tables, promote_options="default").to_pandas(split_blocks=True)
@@ -421,27 +557,31 @@ def report_path(output: str | os.PathLike) -> Path:
 def ingest_womd(paths: str | os.PathLike | Iterable[str | os.PathLike],
                 output: str | os.PathLike, *, format: str = "auto",
                 object_types: Iterable[str] | str | None = None, on_error: str = "stop",
-                check_crc: bool = True, workers: int = 1, progress: bool = False,
+                check_crc: bool = True, workers: int = 1, progress: bool | None = False,
                 log: Callable[[str], None] | None = None,
-                batch_bytes: int = BATCH_BYTES, backend: Backend | None = None
-                ) -> IngestReport:
+                batch_bytes: int = BATCH_BYTES, backend: Backend | None = None,
+                max_record_bytes: int = MAX_RECORD_BYTES) -> IngestReport:
     """Stream WOMD files into one Parquet trajectory table, atomically.
 
     The table goes to a temporary file beside ``output``, renamed onto it only when every
     input has been read: an interrupted or failed ingest leaves no output. Memory holds a
     few batches of records and their tables, whatever the size of the inputs. The report
-    (:class:`IngestReport`) is written beside the output as ``<output>.report.json``.
+    (:class:`IngestReport`) is written beside the output as ``<output>.report.json``; table
+    and report land together.
 
     Args:
-        paths, format, object_types, on_error, check_crc: as :func:`iter_womd`.
-        output: the Parquet file to write.
+        paths, format, object_types, on_error, check_crc, max_record_bytes: as
+            :func:`iter_womd`.
+        output: the Parquet file to write (not one of the inputs).
         workers: decoding processes (1 decodes in this process).
         backend: decode on this :class:`tap_bench.execution.Backend` instead of
             ``workers`` local processes (it must run on this machine: tables come back
             through shared memory). A batch whose worker dies is tried once more, then
             reported (``on_error="skip"``) or raised.
-        progress: show a progress bar (tqdm, on stderr) with scenarios and MB/s.
-        log: called with a line for every skipped record (``on_error="skip"``).
+        progress: show a progress bar (tqdm, on stderr) with scenarios and MB/s; None:
+            only when stderr is a terminal.
+        log: called with a line for every skipped record (``on_error="skip"``) and every
+            file left out (default: a warning).
         batch_bytes: records per work unit [B].
 
     Returns:
@@ -449,19 +589,29 @@ def ingest_womd(paths: str | os.PathLike | Iterable[str | os.PathLike],
 
     Raises:
         WomdRecordError: a bad record with ``on_error="stop"``; nothing is written.
+        OutputPathError: ``output`` is an input or cannot be written.
     """
     output = Path(output)
     if output.suffix not in (".parquet", ".pq"):
         raise FileFormatError(f"{output}: the output of an ingest is a Parquet file; name "
                               "it *.parquet.")
     normalise_object_types(object_types)  # a misspelled type fails before any work
-    report = IngestReport(output=str(output))
+    report = IngestReport(output=str(output), max_record_bytes=max_record_bytes)
+
+    def note(text: str) -> None:
+        report.notes.append(text)
+        (log or (lambda line: warnings.warn(line, stacklevel=4)))(text)
+
+    files = record_files(paths, note)
+    check_outputs([output, report_path(output)], files)
     start = time.perf_counter()
     bar = None
+    if progress is None:
+        progress = sys.stderr.isatty()
     if progress:
         from tqdm import tqdm
 
-        total = sum(p.stat().st_size for p in expand_paths(paths))
+        total = sum(p.stat().st_size for p in files)
         bar = tqdm(total=total, unit="B", unit_scale=True, unit_divisor=1000,
                    desc="ingest", file=sys.stderr, dynamic_ncols=True)
 
@@ -471,7 +621,7 @@ def ingest_womd(paths: str | os.PathLike | Iterable[str | os.PathLike],
             bar.set_postfix(scenarios=report.scenarios, refresh=False)
 
     try:
-        with atomic_path(output) as tmp:
+        with atomic_paths([output, report_path(output)]) as (tmp, report_tmp):
             writer = None
             pending: list[pa.Table] = []
             pending_rows = 0
@@ -492,8 +642,9 @@ def ingest_womd(paths: str | os.PathLike | Iterable[str | os.PathLike],
                 for table in _iter_tables(paths, format=format, object_types=object_types,
                                           on_error=on_error, check_crc=check_crc,
                                           workers=workers, report=report, log=log,
-                                          backend=backend,
-                                          batch_bytes=batch_bytes, progress=advance):
+                                          backend=backend, batch_bytes=batch_bytes,
+                                          progress=advance,
+                                          max_record_bytes=max_record_bytes, files=files):
                     pending.append(table)
                     pending_rows += table.num_rows
                     if pending_rows >= ROW_GROUP_ROWS:
@@ -507,8 +658,7 @@ def ingest_womd(paths: str | os.PathLike | Iterable[str | os.PathLike],
                 if writer is not None:
                     writer.close()
             report.seconds = time.perf_counter() - start
-            with atomic_path(report_path(output)) as report_tmp:
-                report_tmp.write_text(report.to_json())
+            report_tmp.write_text(report.to_json())
     finally:
         if bar is not None:
             bar.close()

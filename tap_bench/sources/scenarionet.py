@@ -83,7 +83,9 @@ def decode_scenarionet(scenario: dict, *, path: str = "<scenario>",
         row per track per step (tracks in the file's order).
 
     Raises:
-        WomdRecordError: a required key is missing or arrays disagree in length.
+        WomdRecordError: the scenario does not have ScenarioNet's structure (a list where a
+            dict belongs, a missing key, arrays of the wrong length, text where numbers
+            belong), naming the key or the track.
     """
     def fail(problem: str) -> WomdRecordError:
         return WomdRecordError(path, 0, 0, problem, "Is it a ScenarioNet scenario file "
@@ -91,33 +93,59 @@ def decode_scenarionet(scenario: dict, *, path: str = "<scenario>",
 
     if not isinstance(scenario, dict) or "tracks" not in scenario or "metadata" not in scenario:
         raise fail("not a ScenarioNet scenario: a dict with 'tracks' and 'metadata' expected")
-    meta = scenario["metadata"]
+    meta, tracks = scenario["metadata"], scenario["tracks"]
+    for key, value in (("metadata", meta), ("tracks", tracks)):
+        if not isinstance(value, dict):
+            raise fail(f"{key!r} is a {type(value).__name__}, where a dict belongs")
     if "ts" not in meta:
         raise fail("metadata has no 'ts' (time stamps)")
-    times = np.asarray(meta["ts"], dtype=np.float64)
+    try:
+        times = np.asarray(meta["ts"], dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError) as err:
+        raise fail(f"metadata 'ts' is not a list of numbers ({err})") from None
     n_steps = len(times)
+    if n_steps == 0:
+        raise fail("metadata 'ts' is empty: the scenario has no time steps")
     scenario_id = str(meta.get("scenario_id", scenario.get("id", Path(path).stem)))
+    if not scenario_id:
+        raise fail("metadata 'scenario_id' is empty: every scenario needs its id, or it "
+                   "would be merged with others")
     source = _SOURCES.get(str(meta.get("dataset", "")), str(meta.get("dataset", "scenarionet")))
     sdc = str(meta.get("sdc_id", ""))
-    interest = {str(i) for i in meta.get("objects_of_interest", []) or []}
-    predict = meta.get("tracks_to_predict", {}) or {}
-    predict = {str(k): int((v or {}).get("difficulty", 0) or 0) for k, v in predict.items()}
+    try:
+        interest = {str(i) for i in meta.get("objects_of_interest", []) or []}
+        predict = meta.get("tracks_to_predict", {}) or {}
+        predict = {str(k): int((v or {}).get("difficulty", 0) or 0) for k, v in predict.items()}
+    except (AttributeError, TypeError, ValueError) as err:
+        raise fail(f"metadata 'objects_of_interest' or 'tracks_to_predict' is malformed "
+                   f"({type(err).__name__}: {err})") from None
 
     ids, types, parts = [], [], {k: [] for k in ("x", "y", "z", "heading", "vx", "vy", "valid",
                                                   "length", "width", "height")}
-    for track_id, track in scenario["tracks"].items():
+    for track_id, track in tracks.items():
+        state = track.get("state", {}) if isinstance(track, dict) else None
+        if not isinstance(state, dict):
+            raise fail(f"track {track_id}: {'its state' if state is not None else 'it'} is "
+                       f"a {type(state if state is not None else track).__name__}, where a "
+                       "dict belongs")
         kind = _TYPES.get(str(track.get("type", "")).upper(), "other")
         if object_types is not None and kind not in object_types:
             continue
-        state = track.get("state", {})
         try:
             position = np.asarray(state["position"], dtype=np.float64).reshape(n_steps, -1)
             velocity = np.asarray(state["velocity"], dtype=np.float64).reshape(n_steps, 2)
             heading = np.asarray(state["heading"], dtype=np.float64).reshape(n_steps)
             valid = np.asarray(state["valid"]).astype(bool).reshape(n_steps)
-        except (KeyError, ValueError) as err:
-            raise fail(f"track {track_id}: state arrays missing or not of {n_steps} steps "
-                       f"({err})") from None
+            sizes = {key: np.full(n_steps, np.nan) if state.get(key) is None else
+                     np.asarray(state[key], dtype=np.float64).reshape(n_steps, -1)[:, 0]
+                     for key in ("length", "width", "height")}
+            if position.shape[1] < 2:
+                raise ValueError(f"position has {position.shape[1]} coordinate(s), not 2 or 3")
+        except KeyError as err:
+            raise fail(f"track {track_id}: state has no {err}") from None
+        except (TypeError, ValueError, IndexError) as err:
+            raise fail(f"track {track_id}: state arrays are not numbers of {n_steps} steps "
+                       f"({type(err).__name__}: {err})") from None
         ids.append(str(track_id))
         types.append(kind)
         parts["x"].append(position[:, 0])
@@ -127,10 +155,8 @@ def decode_scenarionet(scenario: dict, *, path: str = "<scenario>",
         parts["vx"].append(velocity[:, 0])
         parts["vy"].append(velocity[:, 1])
         parts["valid"].append(valid)
-        for key in ("length", "width", "height"):
-            values = state.get(key)
-            parts[key].append(np.full(n_steps, np.nan) if values is None else
-                              np.asarray(values, dtype=np.float64).reshape(n_steps, -1)[:, 0])
+        for key, values in sizes.items():
+            parts[key].append(values)
     states = {k: (np.concatenate(v) if v else np.zeros(0, dtype=bool if k == "valid"
                                                        else np.float64))
               for k, v in parts.items()}

@@ -373,6 +373,10 @@ def decode_scenario(record: Record, *, object_types: frozenset[str] | None = Non
     if not view.scenario_id and (n_steps == 0 or not len(view.tracks)):
         raise record.error("the record has no scenario_id, no timestamps or no tracks: it "
                            "is not a WOMD Scenario", _NOT_A_SCENARIO)
+    if not view.scenario_id:
+        raise record.error("the scenario has no scenario_id", "Every scenario needs its id: "
+                           "without one it would be merged with other scenarios. Skip the "
+                           "record with on_error='skip'.")
     if n_steps == 0:
         raise record.error(f"scenario {view.scenario_id!r} has no timestamps_seconds",
                            "The scenario is incomplete; skip it with on_error='skip'.")
@@ -447,7 +451,11 @@ def decode_scenario(record: Record, *, object_types: frozenset[str] | None = Non
         track_to_predict=to_predict[kept_arr], prediction_difficulty=difficulty[kept_arr],
         source=source)
     if any(extra_json):
-        table = restore_extra_columns(table, extra_json, n_steps)
+        try:
+            table = restore_extra_columns(table, extra_json, n_steps)
+        except ValueError as err:
+            raise record.error(f"the tap-bench columns (Track field 51002) cannot be read: "
+                               f"{err}", _INCONSISTENT) from None
     return table
 
 

@@ -16,6 +16,7 @@ import pyarrow as pa
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from google.protobuf.message import DecodeError
 
+from tap_bench.errors import WomdRecordError
 from tap_bench.womd.scenario import trajectory_table
 from tap_bench.womd.tfrecord import Record
 
@@ -63,6 +64,8 @@ Example = _example_class()
 
 _PARTS = ("past", "current", "future")
 _TYPES = {1: "vehicle", 2: "pedestrian", 3: "cyclist"}
+_NO_ID = ("Every scenario needs its id: without one it would be merged with other "
+          "scenarios. Skip the record with on_error='skip'.")
 _FIX = ("Is the file a WOMD tf_example file? A file of Scenario records "
         "(uncompressed/scenario/...) is read with format='scenario'.")
 
@@ -99,13 +102,26 @@ def decode_tf_example(record: Record, *, object_types: frozenset[str] | None = N
         row per agent per step (agents in slot order, steps in time order).
 
     Raises:
-        WomdRecordError: the record is not a motion tf.Example or its features disagree in
-            size.
+        WomdRecordError: the record is not a motion tf.Example, its features disagree in
+            size, or a feature holds the wrong kind of values (text that is not UTF-8, an
+            empty id, numbers where bytes belong).
     """
     try:
         features = Example.FromString(record.data).features.feature
     except DecodeError as err:
         raise record.error(f"not a serialized tf.Example (protobuf: {err})", _FIX) from None
+    try:
+        return _decode_features(features, record, object_types, source)
+    except WomdRecordError:
+        raise
+    except (AttributeError, IndexError, ValueError, TypeError) as err:  # + UnicodeDecodeError
+        raise record.error(f"a feature of the tf.Example has the wrong size or kind "
+                           f"({type(err).__name__}: {err})", _FIX) from None
+
+
+def _decode_features(features, record: Record, object_types: frozenset[str] | None,
+                     source: str) -> pa.Table:
+    """:func:`decode_tf_example` of the parsed features."""
     ids = _values(features, "state/id", record)
     n_slots = len(ids)
     if n_slots == 0:
@@ -155,6 +171,8 @@ def decode_tf_example(record: Record, *, object_types: frozenset[str] | None = N
                       if f"state/{key}" in features else np.zeros(len(kept), dtype=bool))
     scenario_id = (_values(features, "scenario/id", record, object)[0].decode()
                    if "scenario/id" in features else f"{record.path}#{record.index}")
+    if not scenario_id:
+        raise record.error("the tf.Example's scenario/id is empty", _NO_ID)
     difficulty = (_values(features, "state/difficulty_level", record, np.int64)[kept]
                   if "state/difficulty_level" in features else np.zeros(len(kept)))
     states = {name: grid(key) for name, key in (

@@ -7,6 +7,12 @@ A TFRecord file is a sequence of records, each framed as::
 
 Files may be GZIP-compressed as a whole (TensorFlow's ``compression_type="GZIP"``); the
 reader recognises them by their magic bytes, whatever their name.
+
+A record is read whole, so its length is bounded: :data:`MAX_RECORD_BYTES` (64 MiB) by
+default, more than 50 times the largest WOMD record seen (about 1.2 MB, a 9 s scenario with
+its map). A longer one is an error naming the limit, and the option that raises it; its
+bytes are skipped in chunks, never held, so a damaged or hostile file (a small GZIP file
+announcing a 2 GiB record) cannot make the reader allocate what it announces.
 """
 
 from __future__ import annotations
@@ -22,7 +28,13 @@ from typing import BinaryIO
 from tap_bench.errors import WomdRecordError
 from tap_bench.womd.checksum import masked_crc32c
 
-__all__ = ["Record", "TFRecordWriter", "iter_records"]
+__all__ = ["MAX_RECORD_BYTES", "Record", "TFRecordWriter", "describe_start", "iter_records",
+           "looks_like_tfrecord"]
+
+MAX_RECORD_BYTES = 64 << 20
+"""The longest record read by default [B]; raise it with ``max_record_bytes``
+(``--max-record-mb`` on the command line)."""
+_SKIP_CHUNK = 1 << 20
 
 _HEADER = struct.Struct("<QI")
 _CRC = struct.Struct("<I")
@@ -58,41 +70,101 @@ def iter_records(
     *,
     check_crc: bool = True,
     on_error: Callable[[WomdRecordError], None] | None = None,
+    max_record_bytes: int = MAX_RECORD_BYTES,
 ) -> Iterator[Record]:
     """Yield the records of a TFRecord file (plain or GZIP) one at a time.
 
-    Memory holds one record at a time, whatever the size of the file.
+    Memory holds one record at a time, whatever the size of the file, and never more than
+    ``max_record_bytes`` for it.
 
     Args:
         path: the file.
         check_crc: check both CRC-32C of every record (default). Turning it off saves the
             checksum time on trusted local copies.
         on_error: None (default) raises the first :class:`WomdRecordError`; a callable is
-            given each error instead and reading goes on: after a bad data CRC with the
-            next record, after broken framing (bad length CRC, truncation) with the next
-            file, as the start of the next record is then unknown.
+            given each error instead and reading goes on: after a bad data CRC or a record
+            over the size limit with the next record, after broken framing (bad length CRC,
+            truncation) with the next file, as the start of the next record is then
+            unknown.
+        max_record_bytes: the longest record read [B] (:data:`MAX_RECORD_BYTES`).
 
     Raises:
-        WomdRecordError: a record with a bad CRC, a truncated record or trailing bytes too
-            short for a header, naming the file, record and byte offset.
+        WomdRecordError: a record with a bad CRC, a truncated record, trailing bytes too
+            short for a header or a record longer than ``max_record_bytes``, naming the
+            file, record and byte offset.
     """
+    if isinstance(max_record_bytes, bool) or not isinstance(max_record_bytes, int) \
+            or max_record_bytes < 1:
+        raise ValueError(f"max_record_bytes must be a positive integer, got "
+                         f"{max_record_bytes!r}.")
     path = str(path)
     raw = open(path, "rb")
     try:
         stream: BinaryIO = raw
+        size: int | None = os.fstat(raw.fileno()).st_size
         if raw.peek(2)[:2] == _GZIP_MAGIC:
             stream = gzip.GzipFile(fileobj=raw, mode="rb")
-        yield from _records(path, stream, check_crc, on_error)
+            size = None  # the decompressed size is unknown until the end
+        yield from _records(path, stream, check_crc, on_error, max_record_bytes, size)
     finally:
         if stream is not raw:
             stream.close()
         raw.close()
 
 
+def looks_like_tfrecord(path: str | os.PathLike) -> bool:
+    """Whether a file starts with a TFRecord length header whose CRC matches (plain or
+    GZIP); an empty file does not."""
+    try:
+        with open(path, "rb") as raw:
+            stream: BinaryIO = raw
+            if raw.peek(2)[:2] == _GZIP_MAGIC:
+                stream = gzip.GzipFile(fileobj=raw, mode="rb")
+            header = stream.read(_HEADER.size)
+    except (OSError, EOFError):
+        return False
+    if len(header) < _HEADER.size:
+        return False
+    return masked_crc32c(header[:8]) == _HEADER.unpack(header)[1]
+
+
+def describe_start(data: bytes) -> str:
+    """What the first bytes of a file look like, for a message: text, a known format, or
+    the bytes themselves."""
+    if not data:
+        return "an empty file"
+    known = {b"PK\x03\x04": "a ZIP archive", b"PAR1": "a Parquet file",
+             b"\x89PNG": "a PNG image", b"%PDF": "a PDF document", b"\x80": "a Python pickle",
+             b"{": "JSON text", b"[": "JSON text"}
+    for magic, name in known.items():
+        if data.startswith(magic):
+            return f"{name} (it starts with {data[:12]!r})"
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        return f"binary data starting with {data[:12].hex(' ')}"
+    if text.isprintable() or all(c.isprintable() or c.isspace() for c in text):
+        return f"text starting with {text[:40]!r}"
+    return f"binary data starting with {data[:12].hex(' ')}"
+
+
+def _skip(stream: BinaryIO, n: int) -> int:
+    """Read and drop ``n`` bytes in chunks; the number of bytes dropped."""
+    dropped = 0
+    while dropped < n:
+        chunk = stream.read(min(_SKIP_CHUNK, n - dropped))
+        if not chunk:
+            break
+        dropped += len(chunk)
+    return dropped
+
+
 def _records(path: str, stream: BinaryIO, check_crc: bool,
-             on_error: Callable[[WomdRecordError], None] | None) -> Iterator[Record]:
+             on_error: Callable[[WomdRecordError], None] | None, max_record_bytes: int,
+             size: int | None) -> Iterator[Record]:
     offset = 0
     index = 0
+    what = "plain file" if size is not None else "GZIP stream"
     while True:
         try:
             header = stream.read(_HEADER.size)
@@ -112,7 +184,7 @@ def _records(path: str, stream: BinaryIO, check_crc: bool,
         if check_crc and masked_crc32c(header[:8]) != length_crc:
             if index == 0:
                 problem = ("the CRC of the first length field does not match: this is not a "
-                           "TFRecord file")
+                           f"TFRecord file; found {describe_start(header)}")
                 fix = ("Pass only TFRecord files of WOMD Scenario or tf.Example protos (for "
                        "example 'training/*.tfrecord*'), or ScenarioNet *.pkl files.")
             else:
@@ -122,18 +194,45 @@ def _records(path: str, stream: BinaryIO, check_crc: bool,
             _report(on_error, WomdRecordError(path, index, offset, problem, fix,
                                               resumable=False))
             return
+        left = None if size is None else size - offset - _HEADER.size
+        if left is not None and length + _CRC.size > left:
+            _report(on_error, WomdRecordError(
+                path, index, offset, f"truncated: the length field announces {length} bytes "
+                f"of data and a 4-byte CRC, but the {what} ends after {left}", _DAMAGED,
+                resumable=False))
+            return
+        if length > max_record_bytes:
+            problem = (f"the record announces {length} bytes, more than the limit of "
+                       f"{max_record_bytes} bytes ({max_record_bytes / (1 << 20):g} MiB)")
+            fix = ("A WOMD record is about 1 MB: the file is likely damaged. If the record is "
+                   "genuine, raise the limit (max_record_bytes, --max-record-mb).")
+            if on_error is None:
+                raise WomdRecordError(path, index, offset, problem, fix)
+            try:
+                dropped = _skip(stream, length + _CRC.size)
+            except (OSError, EOFError) as err:
+                dropped, problem = -1, f"{problem}; the {what} then cannot be read ({err})"
+            if dropped != length + _CRC.size:
+                on_error(WomdRecordError(path, index, offset, problem
+                                         + (f"; the {what} ends inside it" if dropped >= 0
+                                            else ""), fix, resumable=False))
+                return
+            on_error(WomdRecordError(path, index, offset, problem + "; skipped", fix))
+            offset += _HEADER.size + length + _CRC.size
+            index += 1
+            continue
         try:
             body = stream.read(length + _CRC.size)
         except (OSError, EOFError, OverflowError, MemoryError) as err:
             _report(on_error, WomdRecordError(
                 path, index, offset, f"the record's {length} bytes cannot be read: the "
-                f"GZIP stream is damaged or cut short ({err})",
+                f"{what} is damaged or cut short ({err})",
                 _DAMAGED, resumable=False))
             return
         if len(body) < length + _CRC.size:
             _report(on_error, WomdRecordError(
                 path, index, offset, f"truncated: the length field announces {length} bytes "
-                f"of data and a 4-byte CRC, but the file ends after {len(body)}", _DAMAGED,
+                f"of data and a 4-byte CRC, but the {what} ends after {len(body)}", _DAMAGED,
                 resumable=False))
             return
         data = body[:length]

@@ -139,29 +139,66 @@ def restore_extra_columns(table: pa.Table, extra_json: Sequence[str], n_steps: i
         table: a decoded scenario, ``n_steps`` rows per track, tracks in ``extra_json`` order.
         extra_json: per track, the JSON the writer stored ("" for none).
         n_steps: the scenario's number of time steps.
+
+    Raises:
+        ValueError: a track's JSON is malformed or does not have the writer's structure
+            (naming the track's position and the column); the decoder makes it a record
+            error.
     """
-    decoded = [json.loads(text) if text else {} for text in extra_json]
+    decoded = []
+    for i, text in enumerate(extra_json):
+        try:
+            doc = json.loads(text) if text else {}
+        except ValueError as err:  # also a UnicodeDecodeError of bytes
+            raise ValueError(f"track {i}: the tap-bench columns are not valid JSON ({err})"
+                             ) from None
+        if not isinstance(doc, dict):
+            raise ValueError(f"track {i}: the tap-bench columns hold a "
+                             f"{type(doc).__name__}, not an object of columns")
+        decoded.append(doc)
     names = list(dict.fromkeys(name for d in decoded for name in d))
     for name in names:
         values: list[object] = []
-        for d in decoded:
-            kept = d.get(name)
-            if isinstance(kept, dict) and "series" in kept:
-                values.extend(kept["series"])
-            elif isinstance(kept, dict):
-                steps = set(kept["steps"])
-                values.extend(kept["value"] if i in steps else None for i in range(n_steps))
+        for i, d in enumerate(decoded):
+            values.extend(_extra_values(d.get(name), n_steps, f"track {i}, column {name!r}"))
+        if len(values) != table.num_rows:
+            raise ValueError(f"column {name!r}: {len(values)} values for {table.num_rows} "
+                             "rows")
+        try:
+            if name in table.column_names:
+                fallback = table.column(name).to_pylist()
+                column = pa.array([v if v is not None else f
+                                   for v, f in zip(values, fallback, strict=True)])
+                table = table.set_column(table.column_names.index(name), name, column)
             else:
-                values.extend([kept] * n_steps)
-        column = pa.array(values)
-        if name in table.column_names:
-            fallback = table.column(name).to_pylist()
-            column = pa.array([v if v is not None else f
-                               for v, f in zip(values, fallback, strict=True)])
-            table = table.set_column(table.column_names.index(name), name, column)
-        else:
-            table = table.append_column(name, column)
+                table = table.append_column(name, pa.array(values))
+        except (pa.ArrowException, TypeError, ValueError) as err:
+            raise ValueError(f"column {name!r}: the tap-bench values do not form one column "
+                             f"({err})") from None
     return table
+
+
+def _extra_values(kept: object, n_steps: int, where: str) -> list[object]:
+    """The ``n_steps`` values of one track's column as the writer stored it: a constant,
+    ``{"value", "steps"}`` or ``{"series"}``."""
+    if not isinstance(kept, dict):
+        if isinstance(kept, list):
+            raise ValueError(f"{where}: a list where a value or an object belongs")
+        return [kept] * n_steps
+    if "series" in kept:
+        series = kept["series"]
+        if not isinstance(series, list) or len(series) != n_steps:
+            raise ValueError(f"{where}: 'series' must be a list of {n_steps} values, got "
+                             f"{type(series).__name__} of length "
+                             f"{len(series) if isinstance(series, list) else '-'}")
+        return series
+    steps = kept.get("steps")
+    if "value" not in kept or not isinstance(steps, list) or not all(
+            isinstance(s, int) and not isinstance(s, bool) for s in steps):
+        raise ValueError(f"{where}: an object needs 'value' and 'steps' (a list of step "
+                         "indices), or 'series'")
+    chosen = set(steps)
+    return [kept["value"] if i in chosen else None for i in range(n_steps)]
 
 
 def _column(group: pd.DataFrame, name: str, default: float) -> np.ndarray:

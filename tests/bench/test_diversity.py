@@ -11,9 +11,14 @@ from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.diversity import (
     asymptotic_hill,
     completeness,
+    completeness_se,
+    distinct_variance,
     diversity,
     estimated_population,
     hill_numbers,
+    pooled_diversity,
+    population_hill,
+    studentized_interval,
 )
 from tap_bench.bench.scoring import diversity_table
 
@@ -95,3 +100,91 @@ def test_one_label_only_still_has_an_interval():
     d = diversity(["a"] * 30, config=BootstrapConfig(n_resamples=200))
     assert d.hill == pytest.approx([1, 1, 1]) and d.completeness == 1.0
     assert (d.hill_high > d.hill).all() and d.completeness_low < 1.0
+
+
+def test_rarefying_many_samples_ignores_absent_labels():
+    # (B, S) draws carry zeros for labels a draw did not show; they add nothing at m < n
+    draws = np.array([[3, 1, 0, 0], [0, 2, 2, 0], [1, 1, 1, 1]])
+    rows = [hill_numbers(row[row > 0], 2) for row in draws]
+    assert hill_numbers(draws, 2) == pytest.approx(np.array(rows))
+
+
+def test_population_hill_by_hand():
+    # two equally likely labels, m = 2: q0 = 2 (1 - 1/4) = 1.5; the plug-in entropy is 0
+    # (same label, prob 1/2) or log 2: q1 = exp(log(2) / 2); q2 = 1 / (1/2 + 1/2 * 1/2)
+    assert population_hill(np.array([0.5, 0.5]), 2) == pytest.approx(
+        [1.5, np.sqrt(2), 4 / 3])
+    assert population_hill(np.array([1.0]), 5) == pytest.approx([1, 1, 1])
+
+
+def test_population_hill_is_what_the_estimators_estimate():
+    # the rarefied q0 is unbiased for the population's q0 at m, and 1 / q2 for its 1 / q2
+    # (Simpson's concentration is a U-statistic); q2 itself is not (Jensen), nor q1
+    p = np.array([0.4, 0.3, 0.15, 0.1, 0.05])
+    draws = np.random.default_rng(0).multinomial(20, p, size=4000)
+    at_m = hill_numbers(draws, 8)
+    truth = population_hill(p, 8)
+    assert at_m[:, 0].mean() == pytest.approx(truth[0], rel=0.005)
+    assert (1 / at_m[:, 2]).mean() == pytest.approx(1 / truth[2], rel=0.005)
+    assert at_m[:, 1].mean() == pytest.approx(truth[1], rel=0.03)
+    assert at_m[:, 2].mean() > truth[2]  # the Jensen bias the intervals correct
+
+
+def test_distinct_variance_is_that_of_the_bootstrap_population():
+    counts = np.array([5, 3, 2, 2, 1, 1, 1])
+    n = int(counts.sum())
+    p_det, p_und = estimated_population(counts, n)
+    q = 1 - (1 - np.r_[p_det, p_und]) ** n
+    assert distinct_variance(counts, n) == pytest.approx(float((q * (1 - q)).sum()))
+    # a row of many samples gives each sample's own
+    rows = np.array([[5, 3, 2, 2, 1, 1, 1, 0], [0, 6, 4, 3, 1, 1, 0, 0]])
+    assert distinct_variance(rows, n) == pytest.approx(
+        [distinct_variance(r[r > 0], n) for r in rows])
+
+
+def test_studentized_interval_by_hand():
+    # t* = (draw - centre) / draw_se = -2, -1, 0, 1, 2 (level 0.6: quantiles -1.2, 1.2)
+    draws = np.array([[8.0], [9.0], [10.0], [11.0], [12.0]])
+    low, high = studentized_interval(np.array([20.0]), np.array([2.0]), draws,
+                                     np.ones((5, 1)), np.array([10.0]), 0.6)
+    assert low == pytest.approx([20 - 1.2 * 2]) and high == pytest.approx([20 + 1.2 * 2])
+    # a skewed error gives an asymmetric interval, reflected about the estimate
+    skewed = np.array([[9.0], [9.5], [10.0], [10.5], [14.0]])
+    low, high = studentized_interval(np.array([20.0]), np.array([1.0]), skewed,
+                                     np.ones((5, 1)), np.array([10.0]), 0.6)
+    assert 20 - low[0] > high[0] - 20
+
+
+def test_completeness_standard_error_is_estys():
+    counts = np.array([6, 4, 3, 2, 2, 1, 1, 1])  # n 20, f1 3, f2 2
+    assert completeness_se(counts) == pytest.approx(np.sqrt(3 * (1 - 3 / 20) + 2 * 2) / 20)
+    # nothing seen once or twice: floored at one singleton's worth, 1 / n
+    assert completeness_se(np.array([10, 5, 5])) == pytest.approx(1 / 20)
+    assert completeness_se(np.array([[6, 4, 3, 2, 2, 1, 1, 1], [10, 5, 5, 0, 0, 0, 0, 0]])
+                           ) == pytest.approx([completeness_se(counts), 1 / 20])
+    labels = [f"L{i}" for i, c in enumerate(counts) for _ in range(c)]
+    d = diversity(labels, config=BootstrapConfig(n_resamples=500))
+    assert 0 <= d.completeness_low < d.completeness < d.completeness_high <= 1
+
+
+def test_hill_intervals_are_not_symmetric_and_stay_in_range():
+    # studentized: the interval follows the skew of the error (q2 = 1 / concentration is
+    # right-skewed), never the symmetric +- z sd of iNEXT, and stays within [1, m]
+    labels = ["a"] * 4 + ["b"] * 3 + ["c"] * 2 + ["d", "e", "f"]
+    d = diversity(labels, config=BootstrapConfig(n_resamples=2000))
+    assert (d.hill_low < d.hill).all() and (d.hill < d.hill_high).all()
+    assert d.hill_high[2] - d.hill[2] > 1.2 * (d.hill[2] - d.hill_low[2])
+    assert (d.hill_high <= len(labels)).all() and (d.hill_low >= 1).all()
+
+
+def test_pooled_diversity_combines_independent_envs():
+    labels = ["a"] * 6 + ["b"] * 4 + ["c"] * 3 + ["d", "d", "e", "f", "g"]
+    config = BootstrapConfig(n_resamples=500)
+    one = diversity(labels, config=config, rng=np.random.default_rng(1))
+    two = diversity(labels, config=config, rng=np.random.default_rng(2))
+    pooled = pooled_diversity([one, two], config.level)
+    assert pooled.hill == pytest.approx(one.hill)
+    assert pooled.se == pytest.approx(np.sqrt(one.se ** 2 + two.se ** 2) / 2)
+    # the mean of two independent envs is known better than either
+    assert (pooled.hill_high - pooled.hill_low < one.hill_high - one.hill_low).all()
+    assert pooled.completeness_low < pooled.completeness < pooled.completeness_high

@@ -8,12 +8,16 @@ import pytest
 
 from tap_bench.bench.measures import (
     BURN_IN_S,
+    MEASURES,
     TTC_CAP_S,
     VEHICLE_LENGTH,
     ego_measures,
     ego_step_measures,
+    ego_steps,
+    register_measure,
 )
-from tap_bench.errors import TrajectoryTableError
+from tap_bench.bench.suite import GateConfig, gate_metrics
+from tap_bench.errors import RegistrationError, TrajectoryTableError
 
 
 def track(sid, tid, x0, y, v, *, n=60, ego=False, crashed_at=None, accel=0.0):
@@ -58,6 +62,7 @@ def test_step_measures_follow_the_closing_gap_by_hand():
         steps.loc[steps["scored"], "ttc_s"].min())
 
 
+
 def test_initial_gap_is_not_the_policys():
     # a leader that pulls away: the only close moment is the first second
     scene = pd.concat([track("s", "ego", 0, 0, 20, ego=True), track("s", "1", 8, 0, 30)],
@@ -96,3 +101,152 @@ def test_two_egos_and_missing_is_ego_are_errors():
         ego_measures(scene)
     with pytest.raises(TrajectoryTableError, match="is_ego"):
         ego_measures(track("s", "a", 0, 0, 20).drop(columns="is_ego"))
+
+
+# -- along the path (SPEC 6 and 7): circles, curves, crashes ------------------------------
+
+def arc_track(sid, tid, radius, s0, v, *, n=60, ego=False, crashed_at=None, radius_at=None):
+    """A vehicle counter-clockwise on a circle of ``radius`` about the origin, starting at
+    arc length ``s0`` (measured on the ego's circle of radius 50 m); ``radius_at(t)`` may
+    change its radius (a lane change on the curve)."""
+    t = np.arange(n) / 10
+    r = np.full(n, float(radius)) if radius_at is None else radius_at(t)
+    angle = (s0 + v * t) / 50.0
+    x, y = r * np.cos(angle), r * np.sin(angle)
+    heading = np.arctan2(np.gradient(y), np.gradient(x))
+    speed = np.hypot(np.gradient(x), np.gradient(y)) * 10
+    crashed = np.zeros(n, bool) if crashed_at is None else t >= crashed_at - 1e-9
+    return pd.DataFrame({"scenario_id": sid, "track_id": tid, "t": t, "x": x, "y": y,
+                         "heading": heading, "speed": speed, "is_ego": ego,
+                         "crashed": crashed, "env": "h", "policy": "p", "seed": 0})
+
+
+def test_leader_on_a_circle_is_found_and_the_inner_lane_is_not():
+    # ego at 15 m/s on a 50 m circle; a slower car 40 m ahead on the arc; a car on the
+    # inner lane (46 m) just ahead of the ego
+    ego = arc_track("s", "ego", 50, 0, 15, ego=True)
+    lead = arc_track("s", "1", 50, 40, 10)
+    inner = arc_track("s", "2", 46, 8, 15)
+    steps = ego_steps(pd.concat([ego, lead, inner], ignore_index=True))
+    table = pd.concat([ego, lead, inner], ignore_index=True)
+    leaders = set(table["track_id"].to_numpy()[steps.leader_row[steps.leader_row >= 0]])
+    assert leaders == {"1"}
+    # gap along the arc: 40 - 5 * t - one vehicle length; closing 5 m/s
+    k = 30
+    assert steps.gap[k] == pytest.approx(40 - 5 * steps.t[k] - VEHICLE_LENGTH, abs=0.2)
+    assert steps.ttc[k] == pytest.approx(steps.gap[k] / 5, rel=0.02)
+    # the old straight strip saw the leader leave it (40 m along a 50 m circle is 15 m off
+    # the ego's heading), so this is the case the path frame exists for. With the leader
+    # recorded for 4 s only (while it is on the ego's recorded path, not on the straight
+    # extension beyond it), the smallest TTC is at 3.9 s.
+    table = pd.concat([ego, arc_track("s", "1", 50, 40, 10, n=40), inner], ignore_index=True)
+    m = ego_measures(table).iloc[0]
+    assert m["min_ttc_s"] == pytest.approx((40 - 5 * 3.9 - VEHICLE_LENGTH) / 5, rel=0.01)
+
+
+def test_a_crash_at_1_5_s_scores_zero_whatever_the_burn_in():
+    # the ego runs into a stopped car: contact at 1.5 s, inside the 2 s burn-in
+    ego = track("s", "ego", 0, 0, 10, ego=True, crashed_at=1.5, n=40)
+    stopped = track("s", "1", 20, 0, 0, n=40)
+    scene = pd.concat([ego, stopped], ignore_index=True)
+    m = ego_measures(scene).iloc[0]
+    assert BURN_IN_S > 1.5
+    assert m["crashed"] and m["min_ttc_s"] == 0.0 and m["min_headway_s"] == 0.0
+    steps = ego_steps(scene)
+    # the conflict that led to the crash is scored from its start, burn-in or not
+    assert np.isfinite(steps.ttc[0]) and steps.ttc[0] == pytest.approx(15 / 10)
+
+
+def test_a_conflict_in_the_burn_in_that_does_not_crash_is_dropped():
+    # the same approach, but the ego stops 1 m short at 1.2 s and the car drives away
+    ego = track("s", "ego", 0, 0, 10, ego=True, n=40)
+    ego.loc[ego["t"] >= 1.2, "speed"] = 0.0
+    ego.loc[ego["t"] >= 1.2, "x"] = 12.0
+    lead = track("s", "1", 18, 0, 0, n=40)
+    lead.loc[lead["t"] >= 1.2, "speed"] = 15.0
+    lead.loc[lead["t"] >= 1.2, "x"] = 18 + 15 * (lead["t"] - 1.2)
+    m = ego_measures(pd.concat([ego, lead], ignore_index=True)).iloc[0]
+    assert not m["crashed"] and m["min_ttc_s"] == TTC_CAP_S
+
+
+def test_a_crash_with_no_leader_in_the_corridor_is_still_zero():
+    # a side impact: nobody ahead in the corridor, but the ego is crashed from 3 s on
+    ego = track("s", "ego", 0, 0, 10, ego=True, crashed_at=3.0)
+    side = track("s", "1", 0, 4.0, 10)
+    m = ego_measures(pd.concat([ego, side], ignore_index=True)).iloc[0]
+    assert m["min_ttc_s"] == 0.0 and m["min_headway_s"] == 0.0
+
+
+def test_cut_in_on_a_curve_becomes_the_leader_once_in_the_corridor():
+    # on a 50 m circle the car 15 m ahead on the outer lane (54 m) moves into the ego's lane
+    # between 2 and 4 s, 3 m/s slower than the ego
+    def radius(t):
+        return 54 - 4 * np.clip((t - 2.0) / 2.0, 0, 1)
+
+    ego = arc_track("s", "ego", 50, 0, 15, ego=True)
+    cutter = arc_track("s", "7", None, 30, 12, radius_at=radius, n=45)
+    table = pd.concat([ego, cutter], ignore_index=True)
+    steps = ego_steps(table)
+    has = steps.leader_row >= 0
+    first = int(np.flatnonzero(has)[0])
+    # the corridor is 1.8 m: the cutter enters when its radius is below 51.8 m
+    assert radius(steps.t[first]) <= 51.8 + 0.15
+    assert radius(steps.t[first - 1]) > 51.8 - 0.15
+    assert not has[:first].any() and has[first:45].all()
+    # from then on the gap shrinks at 3 m/s: the smallest TTC is at the last step, 4.4 s
+    m = ego_measures(table).iloc[0]
+    assert m["min_ttc_s"] == pytest.approx((30 - 3 * 4.4 - VEHICLE_LENGTH) / 3, rel=0.03)
+
+
+def test_length_column_sets_the_bumper_gap():
+    scene = pd.concat([track("s", "ego", 0, 0, 20, ego=True), track("s", "1", 100, 0, 10)],
+                      ignore_index=True)
+    scene["length"] = np.where(scene["track_id"] == "ego", 4.0, 12.0)  # a truck ahead
+    m = ego_measures(scene).iloc[0]
+    assert m["min_ttc_s"] == pytest.approx(min((100 - 59 - 8) / 10, TTC_CAP_S))
+
+
+# -- the registry ------------------------------------------------------------------------
+
+def test_registry_refuses_duplicates_and_measures_without_margin():
+    with pytest.raises(RegistrationError, match="already registered"):
+        register_measure("min_ttc_s", unit="s", higher_is_better=True, margin=1.0,
+                         description="again")(lambda steps: steps.minimum(steps.ttc))
+    for bad in (None, -1.0, float("nan"), True):
+        with pytest.raises(RegistrationError, match="needs a gate margin"):
+            register_measure("max_decel", unit="m/s^2", higher_is_better=True, margin=bad,
+                             description="hardest braking")(lambda steps: steps.t)
+    assert "max_decel" not in MEASURES
+
+
+def test_a_measure_is_one_function_and_one_entry():
+    @register_measure("max_decel", unit="m/s^2", higher_is_better=True, margin=0.5,
+                      description="hardest braking of the ego")
+    def max_decel(steps):
+        return steps.minimum(steps.accel)
+
+    try:
+        ego = track("s", "ego", 0, 0, 20, ego=True, accel=-2.0, n=30)
+        out = ego_measures(ego)
+        assert out["max_decel"].iloc[0] == pytest.approx(-2.0)
+        gate = GateConfig()
+        assert gate.margins["max_decel"] == 0.5  # the gate checks it with its margin
+        assert "max_decel" in gate_metrics()
+        assert GateConfig(margins={"crashed": 0.2}).margins["max_decel"] == 0.5
+    finally:
+        MEASURES.unregister("max_decel")
+    assert "max_decel" not in gate_metrics()
+
+
+def test_no_crashed_roundabout_episode_keeps_a_capped_ttc():
+    """The demo's defect on a short rollout: idm-aggressive crashes in the roundabout on
+    seeds 2 and 5, which the straight-strip leader search scored with the capped TTC of
+    10 s; each crashed episode must score TTC and headway 0."""
+    from tap_bench.sim import rollout
+
+    trajectories, _ = rollout("roundabout", "idm-aggressive", [0, 1, 2, 4, 5], progress=False)
+    m = ego_measures(trajectories)
+    crashed = m[m["crashed"].astype(bool)]
+    assert len(crashed) >= 1, "no crash: the test would not test anything"
+    assert (crashed["min_ttc_s"] == 0).all() and (crashed["min_headway_s"] == 0).all()
+    assert (m.loc[~m["crashed"].astype(bool), "min_ttc_s"] > 0).all()

@@ -99,3 +99,14 @@ def test_bench_run_with_a_womd_reference(womd, tmp_path):
     assert len(matches) == 4 * 3 and (tmp_path / "run" / "scenario_matches.parquet").is_file()
     assert "scenario_matches" in (tmp_path / "run" / "report.html").read_text()
     assert result.summary["references"] == {"WOMD": [str(f) for f in files]}
+    # the sim-to-real gap of each policy from the real vehicles, in the tables and the report
+    gap = result.scores.gap.set_index("policy")
+    assert "idm" in gap.index
+    for policy in {"idm", "lane-keeping"} - set(gap.index):  # nothing comparable: said why
+        assert f"{policy} vs WOMD" in result.scores.methods["gap skipped"]
+    assert ((gap["gap_low"] <= gap["gap"]) & (gap["gap"] <= gap["gap_high"])).all()
+    assert ((gap["gap"] > 0) & (gap["gap"] <= 1)).all() and (gap["floor"] >= 0).all()
+    assert (tmp_path / "run" / "gap.parquet").is_file()
+    assert "gap to WOMD" in (tmp_path / "run" / "report.html").read_text()
+    labels = result.scores.gap_labels
+    assert {"lateral", "longitudinal", "interaction"} <= set(labels["axis"])

@@ -1,48 +1,147 @@
-"""Training: a few hundred steps give a model that loads by name and drives; the coverage
-callback logs to SB3's logger."""
+"""Training: a few dozen steps give a model that loads by name and by file and drives, with
+its learning curve (table and plot) beside it; the curve measures what it says."""
 
 from __future__ import annotations
 
-import csv
 import json
 
+import numpy as np
+import pandas as pd
 import pytest
 
+from tap_bench.rl.curve import CURVE_COLUMNS, CurveConfig, coverage_reference, curve_row
+from tap_bench.sim import make_env
 from tap_bench.sim.policies import get_definition, load_policy
 from tap_bench.sim.rollout import rollout
+from tap_bench.sim.scenario_env import get_scenario
 
 pytest.importorskip("stable_baselines3")
 
+TINY = {"ppo": {"n_steps": 16, "batch_size": 16, "n_epochs": 1},
+        "dqn": {"learning_starts": 8, "buffer_size": 200}}
+TINY_CURVE = CurveConfig(points=1, seeds="500-501", reference="vocabulary")
 
-@pytest.mark.slow
-@pytest.mark.parametrize("algo", ["ppo", "dqn"])
-def test_a_short_training_gives_a_loadable_model_and_logs_coverage(tmp_path, algo):
-    from tap_bench.sim.training import train
 
+@pytest.mark.parametrize(("algo", "n_envs"), [("ppo", 2), ("dqn", 1)])
+def test_a_short_training_gives_a_loadable_model_and_its_learning_curve(tmp_path, algo,
+                                                                       n_envs, write_scenario):
+    from tap_bench.rl.training import train
+
+    short = write_scenario("short", duration=5)  # 3 vehicles, 5 decisions an episode
     output = tmp_path / f"{algo}-tiny.zip"
-    small = {"ppo": {"n_steps": 64, "batch_size": 32, "n_epochs": 2},
-             "dqn": {"learning_starts": 50}}[algo]
-    result = train(algo, "highway", timesteps=200, seed=3, output=output,
-                   hyperparameters=small, log_dir=tmp_path / "log", coverage_window=10)
+    result = train(algo, short, timesteps=32, seed=3, output=output, n_envs=n_envs,
+                   hyperparameters=TINY[algo], curve=TINY_CURVE, log_dir=tmp_path / "log")
     assert result.model_path.is_file() and result.definition_path.is_file()
+    assert result.timesteps >= 32 and result.steps_per_second > 0
+    assert result.episodes >= 4  # 5-decision episodes, or shorter when the ego crashes
     doc = json.loads(result.definition_path.read_text())
-    assert doc["params"]["timesteps"] == 200 and doc["params"]["seed"] == 3
+    assert doc["params"]["timesteps"] == 32 and doc["params"]["seed"] == 3
     assert doc["params"]["observation"] == {"type": "Kinematics"}
-    assert result.episodes >= 1 and 0.0 < result.coverage <= 1.0
+    assert doc["params"]["train_seconds"] <= result.seconds
 
+    # the curve: the untrained agent and the end of training, on the curve's seeds
+    curve = pd.read_csv(result.curve_path)
+    assert list(curve.columns) == list(CURVE_COLUMNS)
+    assert curve["timesteps"].tolist() == [0, result.timesteps]
+    assert (curve["episodes"] == 2).all()
+    assert curve["coverage"].between(0, 1).all() and (curve["n_distinct"] >= 1).all()
+    assert (curve["crash_low"] <= curve["crash_rate"]).all()
+    assert (curve["crash_rate"] <= curve["crash_high"]).all()
+    assert result.plot_path.read_bytes()[:4] == b"\x89PNG"
     with open(tmp_path / "log" / "progress.csv") as handle:
-        rows = list(csv.DictReader(handle))
-    logged = [float(r["tap/coverage"]) for r in rows if r.get("tap/coverage")]
-    # SB3 writes the logger's values at its own interval: the last value may come later
-    assert logged and all(0.0 < c <= 1.0 for c in logged)
+        logged = pd.read_csv(handle)
+    assert "tap/coverage" in logged.columns
 
     definition = get_definition(result.definition_path)
     assert definition.kind == "sb3" and definition.name == f"{algo}-tiny"
+    # the .zip alone finds its definition beside it (the observation config is there)
+    by_zip = get_definition(result.model_path)
+    assert by_zip.name == definition.name
+    assert by_zip.params["observation"] == definition.params["observation"]
     with pytest.warns(UserWarning, match="pickles"):
-        _, episodes = rollout("highway", result.definition_path, [0, 1], duration=3,
+        _, episodes = rollout("highway", result.model_path, [0, 1], duration=3,
                               progress=False)
     assert episodes["status"].tolist() == ["ok", "ok"], episodes["error"].tolist()
     assert episodes["policy"].tolist() == [f"{algo}-tiny"] * 2
+
+
+def test_ctrl_c_saves_the_model_and_the_curve_trained_so_far(tmp_path, write_scenario,
+                                                          monkeypatch):
+    from tap_bench.rl.callbacks import CoverageCallback
+    from tap_bench.rl.training import train
+
+    step = CoverageCallback._on_step
+
+    def interrupted(self):  # Ctrl-C once 32 steps are done
+        if self.num_timesteps >= 32:
+            raise KeyboardInterrupt
+        return step(self)
+
+    monkeypatch.setattr(CoverageCallback, "_on_step", interrupted)
+    short = write_scenario("short", duration=5)
+    result = train("ppo", short, timesteps=10_000, seed=0, output=tmp_path / "ppo-cut.zip",
+                   hyperparameters=TINY["ppo"], curve=TINY_CURVE)
+    doc = json.loads(result.definition_path.read_text())
+    assert doc["params"]["timesteps"] == result.timesteps < 10_000
+    assert doc["params"]["interrupted_of"] == 10_000
+    assert result.curve["timesteps"].tolist() == [0, result.timesteps]
+    with pytest.warns(UserWarning, match="pickles"):
+        load_policy(result.model_path).reset(
+            make_env(short), seed=0)
+
+
+def test_idm_covers_its_own_rollouts_completely_and_crashes_less_than_lane_keeping():
+    scenario = get_scenario("highway").with_overrides(duration=10)
+    config = CurveConfig(points=1, seeds="0-2", reference="idm", n_resamples=200)
+    reference = coverage_reference(config, scenario)
+    assert reference.kind == "corpus" and reference.n_trajectories == 3
+    idm = curve_row(load_policy("idm"), scenario, reference, config, timesteps=7, seconds=1.0,
+                    train_return=np.nan)
+    assert idm["timesteps"] == 7 and idm["episodes"] == 3
+    # the same policy on the same seeds shows exactly the reference's labels
+    assert idm["coverage"] == idm["weighted_coverage"] == 1.0
+    assert idm["crash_rate"] == 0.0 and idm["crash_low"] == 0.0 and idm["crash_high"] > 0.3
+    keeping = curve_row(load_policy("lane-keeping"), scenario, reference, config,
+                        timesteps=7, seconds=1.0, train_return=np.nan)
+    assert keeping["crash_rate"] > idm["crash_rate"]
+    assert keeping["return_mean"] < idm["return_mean"]
+
+
+def test_a_label_table_is_a_reference_and_bad_settings_are_refused(tmp_path):
+    labels = pd.DataFrame({"scenario_id": ["a", "b", "c"], "track_id": ["1", "1", "2"],
+                           "level": "maneuver", "object_type": "vehicle",
+                           "sdl": ["Straight | Cruise", "Straight | Cruise", "Left Merge"]})
+    path = tmp_path / "womd_labels.csv"
+    labels.to_csv(path, index=False)
+    reference = coverage_reference(CurveConfig(reference=str(path)), get_scenario("highway"))
+    assert list(reference.items) == ["Left Merge", "Straight | Cruise"]
+    np.testing.assert_allclose(reference.weights, [1 / 3, 2 / 3])
+    with pytest.raises(ValueError, match="points"):
+        CurveConfig(points=0)
+    with pytest.raises(ValueError, match="at least 2"):
+        CurveConfig(seeds="5")
+
+
+def test_bad_training_arguments_are_refused_before_any_work(tmp_path):
+    from tap_bench.rl.training import train
+
+    with pytest.raises(ValueError, match=r"\.zip"):
+        train("ppo", "highway", timesteps=10, seed=0, output=tmp_path / "m.pt")
+    with pytest.raises(ValueError, match="n_envs"):
+        train("ppo", "highway", timesteps=10, seed=0, output=tmp_path / "m.zip", n_envs=0)
+    with pytest.raises(ValueError, match="timesteps"):
+        train("ppo", "highway", timesteps=0, seed=0, output=tmp_path / "m.zip")
+
+
+@pytest.mark.slow
+def test_a_longer_training_on_the_fast_variant_learns_to_crash_less(tmp_path):
+    from tap_bench.rl.training import train
+
+    config = CurveConfig(points=1, seeds="500-509", reference="vocabulary")
+    result = train("ppo", "highway", timesteps=3000, seed=0, output=tmp_path / "ppo.zip",
+                   curve=config)
+    first, last = result.curve.iloc[0], result.curve.iloc[-1]
+    assert last["return_mean"] > first["return_mean"]
 
 
 def test_a_model_for_another_action_space_is_refused_clearly(tmp_path):

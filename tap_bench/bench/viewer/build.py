@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import warnings
 from collections.abc import Sequence
 from importlib import resources
@@ -35,7 +34,7 @@ from tap_bench.maps import empty_map
 from tap_bench.sim.roads import road_table
 from tap_bench.sources import read_womd
 from tap_bench.sources.maps import read_maps
-from tap_bench.tableio import atomic_path
+from tap_bench.tableio import atomic_folder
 from tap_bench.thresholds import Thresholds
 
 __all__ = ["STATIC_FILES", "write_run_viewer", "write_viewer", "write_womd_viewer"]
@@ -63,19 +62,22 @@ def write_viewer(output: str | os.PathLike, index: dict[str, Any],
 
     Returns:
         the path of ``index.html``.
+
+    Raises:
+        OutputPathError: ``output`` exists and is not a viewer folder tap-bench wrote (a
+            file, a link, any other folder: it is never replaced).
     """
     output = Path(output)
-    data = output / "data"
-    if data.exists():
-        shutil.rmtree(data)
-    data.mkdir(parents=True)
     static = resources.files("tap_bench.bench.viewer") / "static"
-    for name in STATIC_FILES:
-        (output / name).write_bytes((static / name).read_bytes())
-    for name, docs in chunks.items():
-        (data / f"{name}.js").write_text(_script("chunk", name, docs), encoding="utf-8")
-    with atomic_path(data / "index.js") as tmp:
-        tmp.write_text(_script("index", None, index), encoding="utf-8")
+    # built beside the target and moved into place whole; an earlier viewer is replaced
+    with atomic_folder(output, overwrite=True, kind="viewer") as tmp:
+        data = tmp / "data"
+        data.mkdir()
+        for name in STATIC_FILES:
+            (tmp / name).write_bytes((static / name).read_bytes())
+        for name, docs in chunks.items():
+            (data / f"{name}.js").write_text(_script("chunk", name, docs), encoding="utf-8")
+        (data / "index.js").write_text(_script("index", None, index), encoding="utf-8")
     return output / "index.html"
 
 
@@ -135,10 +137,15 @@ def _ego_segments(trajectories: pd.DataFrame, thresholds: Any, level: str) -> pd
     ``segments.parquet`` existed)."""
     if isinstance(thresholds, dict):
         thresholds = Thresholds.from_dict(thresholds, source="summary.json thresholds")
-    ego = trajectories[trajectories["is_ego"].fillna(False).to_numpy(bool)]
+    # the whole scene is labelled (the interaction axis needs the other vehicles), the
+    # egos' segments kept, as the runner writes them
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return tap(ego, thresholds, source="run trajectories").segments(level)
+        segments = tap(trajectories, thresholds, source="run trajectories",
+                       interactions="ego").segments(level)
+    ego = trajectories.loc[trajectories["is_ego"].fillna(False).to_numpy(bool),
+                           ["scenario_id", "track_id"]].drop_duplicates()
+    return segments.merge(ego, on=["scenario_id", "track_id"])
 
 
 def _rebuild_roads(summary: dict[str, Any], envs: Sequence[str]) -> pd.DataFrame:

@@ -1,0 +1,106 @@
+"""Env steps per second of `tap-bench train`, before and after issue 16, on this machine.
+
+Each run is ``python -m tap_bench train --algo A --env highway --timesteps N --seed 0`` in a
+fresh process; env steps per second = N / the training wall time the command records in
+the model's ``.json`` (``train_seconds``: SB3's ``learn``, without the learning curve's
+evaluations, which run between training steps and are timed apart). CPU seconds are those of
+the command and its worker processes.
+
+"before" runs the code of a git commit (``--before-ref``, exported to a temporary folder);
+the other runs use this checkout with the settings given: ``n_envs`` training envs in
+parallel processes, on the scenario's fast variant or on the scenario itself (``--exact``).
+
+Usage: python benchmarks/bench_train_speed.py [--timesteps 2000] [--algos dqn,ppo]
+       [--before-ref ada5ea7] [--repeats 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from machine import report
+
+ROOT = Path(__file__).resolve().parents[1]
+VARIANTS = {  # name: extra arguments of `tap-bench train` (None: the "before" code)
+    "before": None,
+    "1-env-exact": ["--n-envs", "1", "--exact", "--no-curve"],
+    "1-env-fast": ["--n-envs", "1", "--no-curve"],
+    "2-envs-exact": ["--n-envs", "2", "--exact", "--no-curve"],
+    "2-envs-fast": ["--n-envs", "2", "--no-curve"],  # the default of tap-bench train
+}
+
+
+def export(ref: str, folder: Path) -> Path:
+    """The tree of git ``ref`` of this repository, written to ``folder``."""
+    folder.mkdir(parents=True)
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", ref], check=True,
+                             capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive, check=True)
+    return folder
+
+
+def run(source: Path, algo: str, timesteps: int, extra: list[str], out: Path) -> dict:
+    """One training command; its env steps per second and CPU seconds."""
+    model = out / f"{algo}-{abs(hash(tuple(extra)))}.zip"
+    env = {**os.environ, "PYTHONPATH": str(source), "PYTHONWARNINGS": "ignore"}
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "tap_bench", "train", "--algo", algo, "--env",
+                    "highway", "--timesteps", str(timesteps), "--seed", "0", "-o", str(model),
+                    *extra], env=env, cwd=source, check=True, capture_output=True)
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    train_seconds = json.loads(model.with_suffix(".json").read_text())["params"][
+        "train_seconds"]
+    return {"train_seconds": train_seconds, "steps_per_s": round(timesteps / train_seconds, 1),
+            "process_wall_s": round(wall, 1), "cpu_s": round(cpu, 1),
+            "cpu_ms_per_step": round(1000 * cpu / timesteps, 1),
+            "load_1m_after": round(os.getloadavg()[0], 2)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--timesteps", type=int, default=2000)
+    parser.add_argument("--algos", default="dqn,ppo")
+    parser.add_argument("--before-ref", default="ada5ea7",
+                        help="git commit of the code before (default: issue 16's start)")
+    parser.add_argument("--variants", default=",".join(VARIANTS),
+                        help="comma-separated names of " + ", ".join(VARIANTS))
+    parser.add_argument("--repeats", type=int, default=1)
+    args = parser.parse_args()
+    figures: dict[str, dict] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp)
+        before = export(args.before_ref, out / "before") if "before" in args.variants \
+            else None
+        for algo in args.algos.split(","):
+            for repeat in range(args.repeats):
+                for name in args.variants.split(","):
+                    extra = VARIANTS[name]
+                    source = before if extra is None else ROOT
+                    result = run(source, algo, args.timesteps, extra or [], out)
+                    key = f"{algo} / {name}" + (f" / run {repeat}" if args.repeats > 1 else "")
+                    figures[key] = result
+                    print(key, result, flush=True)
+        for algo in args.algos.split(","):
+            base = figures.get(f"{algo} / before")
+            if base:
+                for key, result in figures.items():
+                    if key.startswith(f"{algo} /"):
+                        result["speedup"] = round(result["steps_per_s"] / base["steps_per_s"],
+                                                  2)
+    report("train_speed", figures, timesteps=args.timesteps, seed=0, env="highway",
+           before_ref=args.before_ref)
+
+
+if __name__ == "__main__":
+    main()

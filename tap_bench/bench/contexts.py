@@ -1,0 +1,255 @@
+"""Behaviour compared by interaction context (issue 14 part 2): how a policy drives *when
+it follows, is cut in on, or its leader brakes*.
+
+**Occurrences** (:func:`context_occurrences`). Every run of one relation on the ego's
+interaction axis (:mod:`tap_bench.interactions`, trend level: runs of at least 1 s) is an
+occurrence of that context, with the measures inside its time span:
+
+=====================  ======  ==========================================================
+column                 unit    what (over the ego's steps inside the run)
+=====================  ======  ==========================================================
+``min_ttc_s``          s       smallest time to collision along the path (scored steps,
+                               :mod:`tap_bench.bench.measures`: 0 on a crash), capped 10 s
+``min_headway_s``      s       smallest time headway, capped 10 s
+``peak_decel``         m/s^2   hardest braking: the largest deceleration (0: never slowed;
+                               the impact of a crash is not braking and is left out)
+``rms_jerk``           m/s^3   RMS of the second difference of speed (crashed steps left
+                               out)
+``reaction_time_s``    s       Cut-in only: from the start of the Cut-in run (1 s before
+                               the cutter enters the corridor) to the ego's first step
+                               decelerating at or below ``a_dec``, looked for up to
+                               :data:`REACTION_HORIZON_S` after; NaN when it never brakes
+``braked``             share   Cut-in only: 1 when it braked within the horizon, else 0
+=====================  ======  ==========================================================
+
+**Comparison** (:func:`compare_contexts`). Per env and context, each episode's occurrences
+are reduced to one value per measure (the smallest TTC and headway, the hardest braking,
+the mean jerk, the first reaction), and policies A and B are compared on the seeds where
+*both* meet the context: the mean paired difference A - B with Student's t interval over
+those seeds (the same initial traffic, so seed noise cancels). Where fewer than
+``min_pairs`` seeds pair up, the episodes of A and of B that meet the context are compared
+unpaired (Welch's t interval) and the row says so; with fewer than ``min_pairs`` episodes
+on a side the row has no interval. ``braked`` is a proportion: its paired difference gets
+Tango's score interval, the unpaired one Newcombe's, which stay honest when every seed
+braked. The intervals are :mod:`tap_bench.bench.intervals`' (a sample whose values are all
+equal gets the bounded-measure interval there, or none).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.intervals import (
+    mean_interval,
+    newcombe_interval,
+    tango_interval,
+    welch_interval,
+)
+from tap_bench.bench.measures import HEADWAY_CAP_S, TTC_CAP_S, ego_steps
+from tap_bench.errors import LabelTableError
+from tap_bench.labelling import tap
+from tap_bench.sdl import INTERACTION_NAMES
+from tap_bench.thresholds import Thresholds, resolve_thresholds
+from tap_bench.trajectories import HZ
+
+__all__ = ["CONTEXT_MEASURES", "REACTION_HORIZON_S", "compare_contexts",
+           "context_occurrences"]
+
+REACTION_HORIZON_S = 5.0
+"""[s] how long after a cut-in starts the ego's first braking is looked for."""
+CONTEXT_MEASURES = (
+    # name, unit, higher is better, how one episode's occurrences are reduced
+    ("min_ttc_s", "s", True, "min"),
+    ("min_headway_s", "s", True, "min"),
+    ("peak_decel", "m/s^2", False, "max"),
+    ("rms_jerk", "m/s^3", False, "mean"),
+    ("reaction_time_s", "s", False, "first"),
+    ("braked", "share", True, "first"),
+)
+"""The measures inside a context: name, unit, whether higher is better, per-episode reduction."""
+_IDS = ("env", "policy", "seed")
+
+
+def context_occurrences(trajectories: pd.DataFrame, thresholds: Thresholds | str = "paper",
+                        *, source: str = "trajectory table") -> pd.DataFrame:
+    """Every interaction context each ego meets, with the measures inside it.
+
+    Args:
+        trajectories: trajectory table with ``is_ego`` (rollouts; identifying ``env``,
+            ``policy``, ``seed`` are carried).
+        thresholds: TAP thresholds (``a_dec`` decides braking for the reaction time).
+        source: a name for the table in error messages.
+
+    Returns:
+        one row per (episode, run of one relation): scenario_id, env, policy, seed (those
+        present), context, other_track_id, t_start, t_end [s], and the columns of
+        :data:`CONTEXT_MEASURES`.
+    """
+    th = resolve_thresholds(thresholds)
+    result = tap(trajectories, th, source=source, interactions="ego")
+    segs = result.segments("trend")
+    runs = segs[segs["axis"] == "interaction"].reset_index(drop=True)
+    steps = ego_steps(trajectories)
+    episode_of = {sid: k for k, sid in enumerate(steps.scenario_id)}
+    rows = []
+    # per run: the ego's steps inside [t_start, t_end)
+    ep = runs["scenario_id"].map(episode_of)
+    if ep.isna().any():
+        missing = runs.loc[ep.isna(), "scenario_id"].iloc[0]
+        raise LabelTableError(f"{source}: scenario {missing!r} has interaction labels but no "
+                              "ego steps.")
+    ep = ep.to_numpy(np.int64)
+    t = steps.t
+    # the impact of a crash is no braking: acceleration from a crashed step is left out
+    accel_all = steps.accel.copy()
+    crashed = steps.crashed.copy()
+    crashed[1:] |= steps.crashed[:-1] & steps.consecutive()
+    accel_all[crashed] = np.nan
+    for k, run in enumerate(runs.itertuples(index=False)):
+        lo = steps.starts[ep[k]]
+        hi = lo + steps.counts[ep[k]]
+        inside = np.arange(lo, hi)[(t[lo:hi] >= run.t_start - 1e-9)
+                                   & (t[lo:hi] < run.t_end - 1e-9)]
+        ttc, headway = steps.ttc[inside], steps.headway[inside]
+        accel = accel_all[inside]
+        v = np.where(crashed[inside], np.nan, steps.speed[inside])
+        row = {"scenario_id": run.scenario_id, "context": run.label,
+               "other_track_id": run.other_track_id, "t_start": run.t_start,
+               "t_end": run.t_end,
+               "min_ttc_s": _capped_min(ttc, TTC_CAP_S),
+               "min_headway_s": _capped_min(headway, HEADWAY_CAP_S),
+               "peak_decel": float(max(0.0, -np.nanmin(accel))) if np.isfinite(accel).any()
+               else np.nan,
+               "rms_jerk": _rms_jerk(v),
+               "reaction_time_s": np.nan, "braked": np.nan}
+        if run.label == "Cut-in":
+            later = np.arange(lo, hi)[(t[lo:hi] >= run.t_start - 1e-9)
+                                      & (t[lo:hi] <= run.t_start + REACTION_HORIZON_S)]
+            brake = later[accel_all[later] <= th.a_dec]
+            row["braked"] = float(len(brake) > 0)
+            if len(brake):
+                row["reaction_time_s"] = float(t[brake[0]] - run.t_start)
+        rows.append(row)
+    out = pd.DataFrame(rows, columns=["scenario_id", "context", "other_track_id", "t_start",
+                                      "t_end", *(m[0] for m in CONTEXT_MEASURES)])
+    ids = [c for c in _IDS if c in trajectories.columns]
+    if ids:
+        first = trajectories.drop_duplicates("scenario_id")[["scenario_id", *ids]]
+        out = out.merge(first, on="scenario_id", how="left")
+    return out[["scenario_id", *ids, *(c for c in out.columns
+                                       if c not in ("scenario_id", *ids))]]
+
+
+def _capped_min(values: np.ndarray, cap: float) -> float:
+    finite = values[~np.isnan(values)]
+    return float(min(finite.min(), cap)) if len(finite) else cap
+
+
+def _rms_jerk(v: np.ndarray) -> float:
+    if len(v) < 3:
+        return np.nan
+    d2 = (v[2:] - 2 * v[1:-1] + v[:-2]) * HZ * HZ
+    return float(np.sqrt(np.nanmean(d2 ** 2)))
+
+
+_BOUNDS = {"min_ttc_s": (0.0, TTC_CAP_S), "min_headway_s": (0.0, HEADWAY_CAP_S),
+           "braked": (0.0, 1.0)}
+
+
+def _per_episode(occ: pd.DataFrame) -> pd.DataFrame:
+    """One row per (env, policy, seed, context): each measure reduced over occurrences."""
+    occ = occ.sort_values("t_start", kind="stable")
+    how = {name: {"min": "min", "max": "max", "mean": "mean", "first": "first"}[reduce]
+           for name, _, _, reduce in CONTEXT_MEASURES}
+    return occ.groupby(["env", "policy", "seed", "context"], sort=True).agg(how).reset_index()
+
+
+def compare_contexts(occurrences: pd.DataFrame, a: str, b: str, *,
+                     config: BootstrapConfig | None = None, min_pairs: int = 5,
+                     contexts: tuple[str, ...] | None = None) -> pd.DataFrame:
+    """Compare policies ``a`` and ``b`` inside each interaction context.
+
+    Args:
+        occurrences: :func:`context_occurrences` of both policies (with env, policy, seed).
+        a, b: policy names (B is the reference: differences are A - B).
+        config: the interval level.
+        min_pairs: fewest seeds (or episodes per side) for an interval.
+        contexts: the contexts to compare (default every relation but Free Driving).
+
+    Returns:
+        one row per env, context and measure: env, context, measure, unit,
+        higher_is_better, n_pairs, n_a, n_b (episodes meeting the context), mean_a, mean_b,
+        diff (A - B), diff_low, diff_high, method (``"paired by seed ..."``,
+        ``"unpaired ..."`` or ``"too few"``).
+
+    Raises:
+        LabelTableError: a policy has no occurrences, or a column is missing.
+    """
+    config = config or BootstrapConfig()
+    for col in ("env", "policy", "seed", "context"):
+        if col not in occurrences.columns:
+            raise LabelTableError(f"context occurrences need column {col!r}; make them with "
+                                  "context_occurrences() from rollouts (env, policy, seed).")
+    for name in (a, b):
+        if not (occurrences["policy"] == name).any():
+            known = ", ".join(map(repr, sorted(occurrences["policy"].unique())))
+            raise LabelTableError(f"no context occurrences of policy {name!r}; the table has "
+                                  f"{known}.")
+    wanted = contexts or tuple(c for c in INTERACTION_NAMES if c != "Free Driving")
+    per = _per_episode(occurrences[occurrences["policy"].isin([a, b])
+                                   & occurrences["context"].isin(wanted)])
+    rows = []
+    for (env, context), group in per.groupby(["env", "context"], sort=True):
+        side_a = group[group["policy"] == a].set_index("seed")
+        side_b = group[group["policy"] == b].set_index("seed")
+        seeds = side_a.index.intersection(side_b.index).sort_values()
+        for name, unit, higher, _ in CONTEXT_MEASURES:
+            va, vb = side_a[name].dropna(), side_b[name].dropna()
+            if not len(va) and not len(vb):
+                continue
+            paired = [s for s in seeds if s in va.index and s in vb.index]
+            row = {"env": env, "context": context, "measure": name, "unit": unit,
+                   "higher_is_better": higher, "n_pairs": len(paired), "n_a": len(va),
+                   "n_b": len(vb), "mean_a": float(va.mean()) if len(va) else np.nan,
+                   "mean_b": float(vb.mean()) if len(vb) else np.nan,
+                   "diff": np.nan, "diff_low": np.nan, "diff_high": np.nan,
+                   "method": "too few"}
+            bounds = _BOUNDS.get(name)
+            diff_bounds = None if bounds is None else (bounds[0] - bounds[1],
+                                                       bounds[1] - bounds[0])
+            if len(paired) >= min_pairs:
+                xa, xb = va.loc[paired].to_numpy(float), vb.loc[paired].to_numpy(float)
+                if name == "braked":
+                    lo, hi = tango_interval(int(np.sum((xa > 0) & (xb == 0))),
+                                            int(np.sum((xa == 0) & (xb > 0))), len(xa),
+                                            config.level)
+                    method = "paired by seed (Tango score)"
+                else:
+                    lo, hi = mean_interval(xa - xb, config.level, bounds=diff_bounds)
+                    method = "paired by seed (t)" if np.isfinite(lo) else \
+                        "paired by seed (every pair differs by the same: no t interval)"
+                    if diff_bounds is not None and np.isfinite(lo):
+                        lo, hi = max(lo, diff_bounds[0]), min(hi, diff_bounds[1])
+                row.update(diff=float(np.mean(xa - xb)), diff_low=lo, diff_high=hi,
+                           method=method, mean_a=float(xa.mean()), mean_b=float(xb.mean()))
+            elif len(va) >= min_pairs and len(vb) >= min_pairs:
+                if name == "braked":
+                    lo, hi = newcombe_interval(int(va.sum()), len(va), int(vb.sum()), len(vb),
+                                               config.level)
+                    method = "unpaired (Newcombe score)"
+                else:
+                    lo, hi = welch_interval(va.to_numpy(float), vb.to_numpy(float),
+                                            config.level, bounds=bounds)
+                    method = "unpaired (Welch t)"
+                    if diff_bounds is not None and np.isfinite(lo):
+                        lo, hi = max(lo, diff_bounds[0]), min(hi, diff_bounds[1])
+                row.update(diff=float(va.mean() - vb.mean()), diff_low=lo, diff_high=hi,
+                           method=method)
+            elif len(va) and len(vb):
+                row["diff"] = float(va.mean() - vb.mean())
+            rows.append(row)
+    return pd.DataFrame(rows, columns=["env", "context", "measure", "unit",
+                                       "higher_is_better", "n_pairs", "n_a", "n_b", "mean_a",
+                                       "mean_b", "diff", "diff_low", "diff_high", "method"])

@@ -1,0 +1,86 @@
+"""``tap-bench gap``: the sim-to-real behaviour gap of policies from real driving."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import pandas as pd
+
+from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.gap import behaviour_gap, labelled_with_speed
+from tap_bench.sdl import LEVELS
+from tap_bench.tableio import check_outputs, read_table, write_tables
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "gap", help="how far policies drive from real driving (per label and one number)",
+        description="Compare each policy's ego behaviour (the shares of its single labels: "
+        "manoeuvres and interactions) with a reference corpus of real driving (WOMD "
+        "vehicles) in comparable situations (the reference's vehicles in the policy's speed "
+        "range): a per-label table of what the policy does more or less often than people, "
+        "and one number, the total variation distance of the label shares, with bootstrap "
+        "intervals and the floor two samples of the reference alone would show "
+        "(docs/interactions.md).")
+    p.add_argument("policy_table", help="the policies' trajectory table (rollouts; one "
+                   "policy, or a policy column) or label table with interactions")
+    p.add_argument("--reference", required=True,
+                   help="real driving: a trajectory table (WOMD, ingested; labelled here "
+                   "with every vehicle's interactions) or such a label table")
+    p.add_argument("--level", default="maneuver", choices=LEVELS,
+                   help="SDL level (default maneuver)")
+    p.add_argument("--axes", default="lateral,longitudinal,interaction",
+                   help="axes whose labels are compared (default all three)")
+    p.add_argument("--min-speed", type=float, help="reference vehicles slower than this "
+                   "[m/s] are left out (default: the policy's 5 %% mean-speed quantile)")
+    p.add_argument("--max-speed", type=float, help="... and faster than this (default: its "
+                   "95 %% quantile)")
+    p.add_argument("--thresholds", default="paper", help="TAP thresholds (default paper)")
+    p.add_argument("--top", type=int, default=8, help="labels printed per policy (8)")
+    p.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples (2000)")
+    p.add_argument("--ci", type=float, default=0.95, help="interval level (0.95)")
+    p.add_argument("--seed", type=int, default=0, help="bootstrap seed (0)")
+    p.add_argument("-o", "--output", help="write one row per policy (.csv/.parquet); the "
+                   "per-label table goes beside it as <name>.labels.<suffix>")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    labels_path = None
+    if args.output:
+        path = Path(args.output)
+        labels_path = path.with_name(f"{path.stem}.labels{path.suffix}")
+    check_outputs([args.output, labels_path], [args.policy_table, args.reference])
+    config = BootstrapConfig(n_resamples=args.resamples, level=args.ci, seed=args.seed)
+    table = read_table(args.policy_table)
+    ref_table = read_table(args.reference)
+    reference = labelled_with_speed(ref_table, args.level, interactions="all",
+                                    thresholds=args.thresholds, source=str(args.reference))
+    policies = (sorted(table["policy"].dropna().unique()) if "policy" in table.columns
+                else [Path(args.policy_table).name.split(".")[0]])
+    rows, per_label = [], []
+    for name in policies:
+        mine = table[table["policy"] == name] if "policy" in table.columns else table
+        labels = labelled_with_speed(mine, args.level, interactions="auto",
+                                     thresholds=args.thresholds, source=str(args.policy_table))
+        if "is_ego" in labels.columns:
+            labels = labels[labels["is_ego"].fillna(False).astype(bool)]
+        result = behaviour_gap(labels, reference, name=str(name), axes=args.axes,
+                               min_speed=args.min_speed, max_speed=args.max_speed,
+                               config=config, reference_name=Path(args.reference).name)
+        rows.append(result.row())
+        per_label.append(result.labels.assign(policy=name))
+        print(f"{name}: gap {result.gap:.3f} [{result.gap_low:.3f}, {result.gap_high:.3f}] "
+              f"(floor {result.floor:.3f}; {result.n_policy} episodes against "
+              f"{result.n_reference} trajectories; {result.reference})")
+        for r in result.labels.head(args.top).itertuples():
+            print(f"  {r.axis:12s} {r.label:28s} policy {r.share_policy:6.1%}  reference "
+                  f"{r.share_reference:6.1%}  diff {r.diff:+6.1%} [{r.diff_low:+.1%}, "
+                  f"{r.diff_high:+.1%}]")
+    print(f"({config.describe('trajectories of each side, independently')})")
+    if args.output:
+        write_tables({args.output: pd.DataFrame(rows),
+                      labels_path: pd.concat(per_label, ignore_index=True)})
+        print(f"wrote {args.output} and {labels_path}")
+    return 0

@@ -1,0 +1,442 @@
+"""Interaction labels (SPEC section 7): what an ego does around others, per step, naming them.
+
+For every step of an ego segment, one relation and the other agent it concerns:
+
+===================  ===========================================================================
+relation             when (``s``, ``d``: the other agent in the ego's path frame,
+                     :mod:`tap_bench.pathframe`; corridor ``|d| <= corridor``)
+===================  ===========================================================================
+``Free Driving``     nobody driving along the path in the corridor ahead within the range
+                     (``range_m`` or ``range_s`` times the ego's speed, the larger)
+``Following``        the nearest such agent ahead (the leader)
+``Lead Braking``     while Following, the leader decelerates: its acceleration, averaged over
+                     the 1 s window centred on the step, is at or below ``a_dec``
+``Cut-in``           an agent enters the corridor ahead from outside (it was at least
+                     ``approach`` beyond the corridor's edge in the ``approach_window`` before)
+                     by its own sideways motion, and becomes the leader; lasts
+                     ``event_duration``, from ``cut_in_lead`` before the entry
+``Cut-out``          the leader leaves the corridor by its own sideways motion (and gets at
+                     least ``approach`` beyond the edge within ``approach_window``); lasts
+                     ``event_duration`` from the exit
+``Overtaking``       the ego passes a moving agent outside its corridor (``corridor < |d| <=
+                     band``): its ``s`` goes from positive to negative; lasts while it is
+                     within ``pass_length`` of alongside, at least 1 s
+``Being Overtaken``  the reverse: ``s`` goes from negative to positive
+===================  ===========================================================================
+
+"By its own sideways motion": the frame is the ego's own path, so an agent also enters or
+leaves the corridor when the *ego* changes lanes towards or away from it. An entry (exit)
+counts as the other's only when (a) the other agent's own maneuver-level lateral label is a
+turn or a merge within 1 s of the crossing (it moves sideways; a lane change or a turn
+into the road), and (b) the ego's maneuver-level label where the path meets the other
+agent is not a merge towards (away from) that agent's side. A lane change TAP does not
+label (one already under way when the record starts, or too gentle to show a yaw
+pattern) is not attributed to anyone: no Cut-in or Cut-out is reported.
+
+Where several relations hold at one step the first of Cut-in, Cut-out, Lead Braking,
+Overtaking, Being Overtaken, Following, Free Driving wins. Runs (of one relation with one
+other agent) shorter than 1 s then follow stage 2's joining rule: the shortest joins its
+longer neighbour, taking its relation and agent (Lead Braking's 1 s averaging is stage 2's
+low-pass). Only vehicles and cyclists are others (pedestrians are not followed).
+
+Beyond the ends of the ego's record the path frame is a straight extrapolation: a curving
+road moves away from it, so ``d`` changes there without anyone moving sideways. Cut-ins and
+cut-outs are therefore only detected where the other agent's foot point lies on the
+recorded path, or ahead of its end when the path ends straight at speed (its heading changed
+by at most 0.05 rad over its last 2 s while it drove at least 20 m: an episode that ends in
+a crash during a cut-in on a highway).
+The parameters and the data that justify them: docs/interactions.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from tap_bench import sdl
+from tap_bench.errors import TapBenchError
+from tap_bench.kinematics import STEPS_PER_SECOND, Kinematics
+from tap_bench.pathframe import CORRIDOR_HALF_WIDTH, SAME_DIRECTION, Paths, path_frame
+from tap_bench.stages import Runs, find_runs, join_short_runs
+from tap_bench.trajectories import HZ, CheckedTable
+
+__all__ = [
+    "BEING_OVERTAKEN",
+    "CUT_IN",
+    "CUT_OUT",
+    "FOLLOWING",
+    "FREE_DRIVING",
+    "LEAD_BRAKING",
+    "OVERTAKING",
+    "RELATIONS",
+    "InteractionConfig",
+    "InteractionSteps",
+    "interaction_steps",
+]
+
+RELATIONS = sdl.INTERACTION_NAMES
+"""The interaction vocabulary; a per-step relation is an index into it."""
+FREE_DRIVING, FOLLOWING, CUT_IN, CUT_OUT, OVERTAKING, BEING_OVERTAKEN, LEAD_BRAKING = range(7)
+OTHER_TYPES = ("vehicle", "cyclist")
+"""Object types that can be the other agent of a relation."""
+END_STRAIGHT_STEPS = 20  # [steps] a path ends straight when its heading changed by at most
+END_STRAIGHT_RAD = 0.05  # [rad] this over its last 2 s (0.05 rad: a 1 km radius at 25 m/s)
+END_STRAIGHT_DISTANCE = 20.0  # [m] ... while driving at least this far (not parked)
+
+
+@dataclass(frozen=True)
+class InteractionConfig:
+    """Parameters of the interaction axis (docs/interactions.md justifies each on data).
+
+    Attributes:
+        corridor: [m] half width of the ego's corridor (SPEC 7: half a lane).
+        range_m: [m] a leader counts up to this far ahead along the path ...
+        range_s: [s] ... or up to this many seconds at the ego's speed, whichever is more.
+        same_direction: [rad] largest heading difference to the path of a leader or passed
+            agent (crossing and oncoming traffic are neither).
+        band: [m] largest ``|d|`` of an agent the ego overtakes or is overtaken by (the
+            next lane).
+        approach: [m] how far beyond the corridor's edge a cutting-in agent came from, or a
+            cutting-out agent goes to.
+        approach_window: [s] within which it came from (goes to) there.
+        event_duration: [s] how long a Cut-in or Cut-out lasts (the time in which the ego
+            has to respond).
+        cut_in_lead: [s] a Cut-in starts this long before the agent crosses the corridor's
+            edge (it is already moving in; an episode that ends in a crash soon after the
+            crossing still shows the Cut-in).
+        pass_length: [m] an overtaken agent is alongside while ``|s| <=`` this.
+        min_moving_speed: [m/s] slower agents are not overtaken (parked cars are passed).
+        min_run: [s] the shortest run of one relation (stage 2).
+    """
+
+    corridor: float = CORRIDOR_HALF_WIDTH
+    range_m: float = 60.0
+    range_s: float = 4.0
+    same_direction: float = SAME_DIRECTION
+    band: float = 6.0
+    approach: float = 1.0
+    approach_window: float = 3.0
+    event_duration: float = 2.0
+    cut_in_lead: float = 1.0
+    pass_length: float = 5.0
+    min_moving_speed: float = 2.0
+    min_run: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("corridor", "range_m", "range_s", "same_direction", "band",
+                     "approach", "approach_window", "event_duration", "pass_length",
+                     "min_run", "cut_in_lead"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+                raise TapBenchError(f"InteractionConfig.{name} must be a finite number > 0, "
+                                    f"got {value!r}.")
+        if self.band <= self.corridor:
+            raise TapBenchError(f"InteractionConfig.band ({self.band} m) must be wider than "
+                                f"the corridor ({self.corridor} m).")
+        if self.cut_in_lead >= self.event_duration:
+            raise TapBenchError(f"InteractionConfig.cut_in_lead ({self.cut_in_lead} s) must be "
+                                f"shorter than event_duration ({self.event_duration} s).")
+        if not self.min_moving_speed >= 0:
+            raise TapBenchError("InteractionConfig.min_moving_speed must be >= 0 m/s, got "
+                                f"{self.min_moving_speed!r}.")
+
+    def steps(self, seconds: float) -> int:
+        return max(1, round(seconds * STEPS_PER_SECOND))
+
+
+@dataclass(frozen=True)
+class InteractionSteps:
+    """Per-step relations of the ego segments, laid end to end as given.
+
+    Attributes:
+        relation: (m,) int8 index into :data:`RELATIONS`.
+        other_row: (m,) int64 row (of the checked table) of the other agent at that step,
+            -1 for Free Driving.
+        other_track: (m,) int64 track index of the other agent, -1 for Free Driving.
+        leader_row: (m,) int64 row of the leader before the relations were assigned (-1).
+        cut_in_step: (k,) int64 ego steps at which an agent cut in (its entry).
+        cut_in_track: (k,) int64 the track that cut in.
+        runs: the runs of (relation, other agent) per segment (codes: relation * (T + 1) +
+            other track + 1, T the number of tracks).
+    """
+
+    relation: np.ndarray
+    other_row: np.ndarray
+    other_track: np.ndarray
+    leader_row: np.ndarray
+    cut_in_step: np.ndarray
+    cut_in_track: np.ndarray
+    runs: Runs
+
+
+def _smoothed(values: np.ndarray, kin: Kinematics, rows: np.ndarray, width: int
+              ) -> np.ndarray:
+    """(k,) mean of ``values`` over the ``width``-step window centred on each of ``rows``
+    (valid rows), shifted to lie inside its valid segment (the whole segment when shorter)."""
+    idx = kin.index
+    seg = idx.segment[rows]
+    s0, s1 = idx.segment_start[seg], idx.segment_stop[seg]
+    w = np.minimum(width, s1 - s0)
+    lo = np.clip(rows - width // 2, s0, s1 - w)
+    total = np.zeros(len(rows))
+    for k in range(width):  # width is 10: ten gathers beat a cumulative sum of every row
+        inside = k < w
+        total[inside] += values[lo[inside] + k]
+    return total / w
+
+
+def _paint(relation, other, start, stop, code, row_of):
+    """Set ``relation``/``other`` over the half-open step ranges [start, stop) to ``code`` and
+    the given other rows (later ranges win)."""
+    counts = np.maximum(stop - start, 0)
+    if not counts.sum():
+        return
+    group = np.repeat(np.arange(len(start)), counts)
+    pos = np.repeat(start, counts) + (np.arange(counts.sum())
+                                      - np.repeat(np.cumsum(counts) - counts, counts))
+    relation[pos] = code
+    other[pos] = row_of[group]
+
+
+def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
+                      stop: np.ndarray, lateral: np.ndarray, a_dec: float,
+                      config: InteractionConfig | None = None) -> InteractionSteps:
+    """The relation of every step of the given ego segments.
+
+    Args:
+        checked: the validated trajectory table (rows grouped by track, in time order).
+        kin: its kinematics.
+        start, stop: (S,) row ranges of the ego segments (valid segments of tracks).
+        lateral: (n,) maneuver-level lateral code of every row of ``checked``
+            (:data:`tap_bench.sdl.LATERAL_NAMES`; -1 where the row carries no label): tells
+            an ego's lane change from an other agent's.
+        a_dec: [m/s^2] the deceleration threshold (TAP's Theta_a, negative).
+        config: parameters.
+    """
+    config = config or InteractionConfig()
+    idx = kin.index
+    n = len(kin.t)
+    step_no = np.rint(kin.t * HZ).astype(np.int64)
+    # per-track columns are read at each track's first row only (strings are slow per row)
+    first_rows = idx.track_start[:-1]
+    scen_of_track, _ = pd.factorize(pd.Series(checked["scenario_id"]).take(first_rows),
+                                    sort=False)
+    scen = scen_of_track[idx.track]
+    span = int(step_no.max() - step_no.min() + 1) if n else 1
+    key = scen.astype(np.int64) * span + (step_no - (step_no.min() if n else 0))
+    x = np.asarray(checked["x"], float)
+    y = np.asarray(checked["y"], float)
+    heading = np.asarray(checked["heading"], float)
+    speed = np.asarray(checked["speed"], float)
+    others = idx.segment >= 0
+    if "object_type" in checked:
+        kind = pd.Series(checked["object_type"]).take(first_rows).astype(str)
+        others &= kind.isin(OTHER_TYPES).to_numpy()[idx.track]
+    paths = Paths(scene=scen.astype(np.int64), key=key, track=idx.track, x=x, y=y,
+                  heading=heading, speed=speed,
+                  start=np.asarray(start, np.int64), stop=np.asarray(stop, np.int64))
+    ego_row, ego_path = paths.ego_rows()
+    m = len(ego_row)
+    if len(lateral) != n:
+        raise TapBenchError(f"interaction_steps: {len(lateral)} lateral codes for {n} rows.")
+    ego_lateral = lateral[ego_row]
+    v_e = speed[ego_row]
+    reach = np.maximum(config.range_m, config.range_s * v_e)
+    # what the relations need: the corridor and its edges far ahead (leaders, cut-ins and
+    # cut-outs), the next lanes near the ego (overtaking)
+    frame = path_frame(paths, others, ahead=reach, behind=1.0,
+                       lateral=config.corridor + config.approach + 0.5,
+                       near=3.0 * config.pass_length, lateral_near=config.band)
+    q_step, q_other = frame.step, frame.other
+    s, d, hrel = frame.s, frame.d, frame.heading_rel
+    track = idx.track[q_other]
+    along = np.abs(hrel) <= config.same_direction
+    inside = np.abs(d) <= config.corridor
+    ahead_in = (s > 0) & (s <= reach[q_step])
+
+    # the leader: the nearest agent driving along the path in the corridor, within range
+    cand = np.flatnonzero(inside & ahead_in & along)
+    leader_pair = np.full(m, -1, np.int64)
+    if len(cand):
+        nearest = np.full(m, np.inf)
+        np.minimum.at(nearest, q_step[cand], s[cand])
+        first = cand[s[cand] == nearest[q_step[cand]]]
+        leader_pair[q_step[first]] = first
+    has_leader = leader_pair >= 0
+    leader_row = np.where(has_leader, q_other[np.maximum(leader_pair, 0)], -1)
+
+    # each (ego path, other track) as a time series: the pair one step before and after
+    order = np.lexsort((q_step, track, ego_path[q_step]))
+    pos_in = np.empty(len(order), np.int64)
+    pos_in[order] = np.arange(len(order))
+
+    def lagged(pairs: np.ndarray, lag: int) -> np.ndarray:
+        """The pair ``lag`` steps later (negative: earlier) in the same series, or -1."""
+        j = pos_in[pairs] + lag
+        ok = (j >= 0) & (j < len(order))
+        out = np.full(len(pairs), -1, np.int64)
+        other = order[np.clip(j, 0, max(len(order) - 1, 0))]
+        ok &= (track[other] == track[pairs]) & (q_step[other] - q_step[pairs] == lag)
+        ok &= ego_path[q_step[other]] == ego_path[q_step[pairs]]
+        out[ok] = other[ok]
+        return out
+
+    def reaches(pairs: np.ndarray, direction: int) -> np.ndarray:
+        """Within the approach window before (-1) or after (+1): |d| >= corridor + approach."""
+        far = np.zeros(len(pairs), bool)
+        for lag in range(1, config.steps(config.approach_window) + 1):
+            q = lagged(pairs, direction * lag)
+            ok = q >= 0
+            far[ok] |= np.abs(d[q[ok]]) >= config.corridor + config.approach
+        return far
+
+    arc = frame.arc
+    # arc length of every ego step, offset per path so one searchsorted serves all paths
+    path_span = float(arc.max(initial=0.0)) + 2 * float(reach.max(initial=0.0)) + 10.0
+    arc_global = arc + ego_path * path_span
+    path_first = np.searchsorted(ego_path, np.arange(paths.n_paths))
+    path_last = np.r_[path_first[1:], m] - 1
+    merge_window = STEPS_PER_SECOND
+
+    def ego_merging(pairs: np.ndarray, side: np.ndarray) -> np.ndarray:
+        """The ego merges towards ``side`` (+1 left, -1 right) where its path meets the
+        other agent of each pair (within 1 s of that point)."""
+        p = ego_path[q_step[pairs]]
+        at = np.searchsorted(arc_global, arc[q_step[pairs]] + s[pairs] + p * path_span)
+        at = np.clip(at, path_first[p], path_last[p])
+        hit = np.zeros(len(pairs), bool)
+        want = np.where(side > 0, sdl.LEFT_MERGE, sdl.RIGHT_MERGE)
+        for off in range(-merge_window, merge_window + 1):
+            k = np.clip(at + off, path_first[p], path_last[p])
+            hit |= ego_lateral[k] == want
+        return hit
+
+    # the straight extension beyond the record's end is trusted where the path ends straight
+    h_last = heading[ego_row[path_last]]
+    h_before = heading[ego_row[np.maximum(path_last - END_STRAIGHT_STEPS, path_first)]]
+    back = np.maximum(path_last - END_STRAIGHT_STEPS, path_first)
+    ends_straight = (np.abs(np.angle(np.exp(1j * (h_last - h_before)))) <= END_STRAIGHT_RAD) \
+        & (arc[path_last] - arc[back] >= END_STRAIGHT_DISTANCE)
+
+    def on_record(pairs: np.ndarray) -> np.ndarray:
+        """The other's foot point lies on the ego's recorded path, or on the straight
+        extension ahead of a path that ends straight (elsewhere the road may curve away from
+        the extension, and d changes without anyone moving sideways)."""
+        st = q_step[pairs]
+        at = arc[st] + s[pairs]
+        path = ego_path[st]
+        return (at >= 0) & ((at <= arc[path_last[path]]) | ends_straight[path])
+
+    def other_moving_sideways(pairs: np.ndarray) -> np.ndarray:
+        """The other agent's own lateral label is a turn or a merge within 1 s."""
+        rows = q_other[pairs]
+        seg = idx.segment[rows]
+        lo, hi = idx.segment_start[seg], idx.segment_stop[seg] - 1
+        hit = np.zeros(len(pairs), bool)
+        for off in range(-merge_window, merge_window + 1):
+            code = lateral[np.clip(rows + off, lo, hi)]
+            hit |= (code > sdl.STRAIGHT)
+        return hit
+
+    # Cut-in: the new leader was outside the corridor one step before, and far out earlier
+    new_lead = leader_pair[has_leader]
+    prev = lagged(new_lead, -1)
+    entering = new_lead[(prev >= 0)]
+    prev = prev[prev >= 0]
+    out_before = np.abs(d[prev]) > config.corridor
+    entering, prev = entering[out_before], prev[out_before]
+    ok = (on_record(entering) & reaches(entering, -1) & other_moving_sideways(entering)
+          & ~ego_merging(entering, np.sign(d[prev])))
+    cut_in = entering[ok]
+
+    # Cut-out: the leader of the step before is outside the corridor now, still ahead
+    had = np.flatnonzero(has_leader[:-1]) if m > 1 else np.zeros(0, np.int64)
+    had = had[ego_path[had + 1] == ego_path[had]]
+    nxt = lagged(leader_pair[had], 1)
+    ok = nxt >= 0
+    leaving = nxt[ok]
+    ok = (np.abs(d[leaving]) > config.corridor) & (s[leaving] > 0)
+    leaving = leaving[ok]
+    ok = (on_record(leaving) & reaches(leaving, +1) & other_moving_sideways(leaving)
+          & ~ego_merging(leaving, -np.sign(d[leaving])))
+    cut_out = leaving[ok]
+
+    # Overtaking / Being Overtaken: s changes sign beside the corridor
+    prev_all = lagged(np.arange(len(order)), -1)
+    has_prev = prev_all >= 0
+    q = np.flatnonzero(has_prev)
+    p = prev_all[q]
+    beside = ((np.abs(d[q]) > config.corridor) & (np.abs(d[q]) <= config.band)
+              & (np.abs(d[p]) > config.corridor) & along[q]
+              & (speed[q_other[q]] >= config.min_moving_speed))
+    passing = q[beside & (s[p] > 0) & (s[q] <= 0)]
+    passed_by = q[beside & (s[p] < 0) & (s[q] >= 0)]
+
+    relation = np.zeros(m, np.int8)
+    other = np.full(m, -1, np.int64)
+    relation[has_leader] = FOLLOWING
+    other[has_leader] = leader_row[has_leader]
+    last_step = path_last[ego_path]  # (m,) last step of each step's path
+
+    def windows(pairs: np.ndarray, before: np.ndarray, after: np.ndarray):
+        st = q_step[pairs]
+        lo = np.maximum(st - before, path_first[ego_path[st]])
+        hi = np.minimum(st + after, last_step[st] + 1)
+        return lo, hi
+
+    def pass_half(pairs: np.ndarray) -> np.ndarray:
+        rel = np.abs(v_e[q_step[pairs]] - frame.v_along[pairs])
+        h = np.rint(config.pass_length / np.maximum(rel, 0.1) * HZ).astype(np.int64)
+        return np.clip(h, config.steps(config.min_run) // 2, 2 * STEPS_PER_SECOND)
+
+    h = pass_half(passed_by)
+    _paint(relation, other, *windows(passed_by, h, h + 1), BEING_OVERTAKEN, q_other[passed_by])
+    h = pass_half(passing)
+    _paint(relation, other, *windows(passing, h, h + 1), OVERTAKING, q_other[passing])
+    # Lead Braking: the leader's acceleration over the centred 1 s window
+    braking = has_leader.copy()
+    braking[has_leader] = _smoothed(kin.a, kin, leader_row[has_leader],
+                                    STEPS_PER_SECOND) <= a_dec
+    relation[braking] = LEAD_BRAKING
+    other[braking] = leader_row[braking]
+    event = config.steps(config.event_duration)
+    zero = np.zeros(len(cut_out), np.int64)
+    _paint(relation, other, *windows(cut_out, zero, zero + event), CUT_OUT, q_other[cut_out])
+    lead = np.full(len(cut_in), config.steps(config.cut_in_lead), np.int64)
+    _paint(relation, other, *windows(cut_in, lead, event - lead), CUT_IN, q_other[cut_in])
+
+    # runs of one (relation, other agent); stage 2's joining of runs shorter than 1 s
+    other_track = np.where(other >= 0, idx.track[np.maximum(other, 0)], -1)
+    n_tracks = idx.n_tracks + 1
+    code = relation.astype(np.int64) * n_tracks + other_track + 1
+    seg_first = np.ones(m, bool)
+    seg_first[1:] = ego_path[1:] != ego_path[:-1]
+    runs = join_short_runs(find_runs(code, ego_path, seg_first), config.steps(config.min_run))
+    code = np.repeat(runs.code, runs.length)
+    relation = (code // n_tracks).astype(np.int8)
+    other_track = code % n_tracks - 1
+    # the other's row at each step (its track's row at that step; -1 where not recorded)
+    other_row = _row_at(other_track, key[ego_row], idx.track, key)
+    return InteractionSteps(relation=relation, other_row=other_row, other_track=other_track,
+                            leader_row=leader_row, cut_in_step=q_step[cut_in],
+                            cut_in_track=track[cut_in], runs=runs)
+
+
+def _row_at(track: np.ndarray, step_key: np.ndarray, row_track: np.ndarray,
+            row_key: np.ndarray) -> np.ndarray:
+    """(m,) the row of ``track`` at ``step_key`` (-1 when the track has none there)."""
+    out = np.full(len(track), -1, np.int64)
+    want = track >= 0
+    if not want.any():
+        return out
+    span = int(row_key.max()) + 1
+    combined = row_track.astype(np.int64) * span + row_key
+    order = np.argsort(combined, kind="stable")
+    target = track[want] * span + step_key[want]
+    pos = np.clip(np.searchsorted(combined[order], target), 0, len(order) - 1)
+    hit = combined[order][pos] == target
+    rows = np.where(hit, order[pos], -1)
+    out[want] = rows
+    return out

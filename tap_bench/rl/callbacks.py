@@ -1,0 +1,111 @@
+"""A Stable-Baselines3 callback that records the behaviour-coverage learning curve.
+
+This module imports Stable-Baselines3: import it only where SB3 is installed.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from stable_baselines3.common.callbacks import BaseCallback
+
+from tap_bench.errors import ParameterError
+from tap_bench.rl.curve import CURVE_COLUMNS, CurveConfig, GreedyModelPolicy, curve_row
+from tap_bench.sim.suite import Scenario
+
+__all__ = ["CoverageCallback"]
+
+
+class CoverageCallback(BaseCallback):
+    """Evaluates the agent at the start of training, every ``every`` env steps and at the
+    end, and records one row of the learning curve each time (:mod:`tap_bench.rl.curve`):
+    greedy episodes on the curve's seeds of ``scenario`` (10 Hz, recorded, whatever env the
+    agent trains on), their return and crash rate, the coverage of ``reference`` by the
+    egos' labels and the labels' diversity.
+
+    Each row also goes to SB3's logger as ``tap/coverage``, ``tap/weighted_coverage``,
+    ``tap/diversity``, ``tap/distinct_labels``, ``tap/crash_rate`` and
+    ``tap/eval_return``.
+
+    Args:
+        scenario: the scenario to evaluate on.
+        reference: the coverage reference
+            (:func:`tap_bench.rl.curve.coverage_reference`).
+        config: the curve's settings (seeds, level, thresholds, intervals).
+        every: env steps between evaluations (counted over all training envs).
+        observation: the highway-env observation config the agent reads.
+        name: the agent's name in the rollouts.
+
+    Attributes:
+        rows: the curve so far, one dict per evaluation (:attr:`curve` as a table).
+        eval_seconds: wall time of each evaluation [s].
+    """
+
+    def __init__(self, scenario: Scenario, reference: Any, config: CurveConfig, *,
+                 every: int, observation: Mapping[str, Any], name: str = "agent",
+                 verbose: int = 0) -> None:
+        super().__init__(verbose)
+        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+            raise ParameterError("every", every, "an integer >= 1 (env steps)")
+        self.scenario = scenario
+        self.reference = reference
+        self.config = config
+        self.every = every
+        self.observation = dict(observation)
+        self.name = name
+        self.rows: list[dict[str, Any]] = []
+        self.eval_seconds: list[float] = []
+        self._next = 0
+        self._start = 0.0
+
+    @property
+    def curve(self) -> pd.DataFrame:
+        """The curve table (:data:`tap_bench.rl.curve.CURVE_COLUMNS`)."""
+        return pd.DataFrame(self.rows, columns=list(CURVE_COLUMNS))
+
+    @property
+    def coverage(self) -> float | None:
+        """The coverage of the last evaluation (None before one)."""
+        return self.rows[-1]["coverage"] if self.rows else None
+
+    def _on_training_start(self) -> None:
+        self._start = time.perf_counter()
+        self._evaluate()
+        self._next = self.every
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps >= self._next:
+            self._evaluate()
+            self._next = self.num_timesteps + self.every
+        return True
+
+    def _on_training_end(self) -> None:
+        if not self.rows or self.rows[-1]["timesteps"] != self.num_timesteps:
+            self._evaluate()
+
+    def _evaluate(self) -> None:
+        began = time.perf_counter()
+        buffer = self.model.ep_info_buffer
+        train_return = float(np.mean([e["r"] for e in buffer])) if buffer else float("nan")
+        policy = GreedyModelPolicy(self.model, self.name, self.observation)
+        row = curve_row(policy, self.scenario, self.reference, self.config,
+                        timesteps=self.num_timesteps,
+                        seconds=time.perf_counter() - self._start, train_return=train_return)
+        self.rows.append(row)
+        self.eval_seconds.append(time.perf_counter() - began)
+        for key, value in (("coverage", row["coverage"]),
+                           ("weighted_coverage", row["weighted_coverage"]),
+                           ("diversity", row["diversity"]),
+                           ("distinct_labels", row["n_distinct"]),
+                           ("crash_rate", row["crash_rate"]),
+                           ("eval_return", row["return_mean"])):
+            self.logger.record(f"tap/{key}", value)
+        self.logger.dump(self.num_timesteps)  # as SB3's EvalCallback: one log row per point
+        if self.verbose:
+            print(f"{self.num_timesteps} steps: return {row['return_mean']:.2f}, crash rate "
+                  f"{row['crash_rate']:.2f}, coverage {row['coverage']:.2f}, diversity "
+                  f"{row['diversity']:.2f} labels", flush=True)

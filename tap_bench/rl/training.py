@@ -1,0 +1,271 @@
+"""Training Stable-Baselines3 agents on a scenario, on the CPU: ``tap-bench train``.
+
+The model is written atomically to the ``.zip`` given, and beside it a policy definition
+(``.json``, kind ``sb3``) that records the scenario, the observation config, the algorithm,
+its hyper-parameters, the seed, the number of timesteps, how it was trained and the
+command, so that the model loads by name (``tap-bench rollout --policy dqn-highway``) and
+can be rebuilt; and the behaviour-coverage learning curve (``<name>.curve.csv``, a table,
+and ``<name>.curve.png``; :mod:`tap_bench.rl.curve`).
+
+Where the time goes (``benchmarks/profile_train.py``): almost all of it is highway-env's
+simulation (IDM and MOBIL for every vehicle, neighbour searches and collision checks over
+all pairs, at every simulated step), then the Kinematics observation (pandas); the gradient
+steps of the small MLPs are a few per cent. So training runs
+
+- on the scenario's fast variant (``fast=True``: 5 Hz simulation, collisions checked for
+  the ego only, as highway-env's ``highway-fast-v0``): half the simulated steps, and no
+  collision checks between the other vehicles; decisions, observation, actions and
+  reward are the scenario's, and the curve evaluates on the scenario itself;
+- on ``n_envs`` envs stepped in parallel worker processes (``SubprocVecEnv``; one env runs
+  in this process);
+- with the Kinematics observation computed without pandas (:mod:`tap_bench.sim.observation`);
+- with one torch thread: the workers are the parallelism, and batches of 32 to 64 rows
+  gain nothing from more.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import os
+import shlex
+import signal
+import sys
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import pandas as pd
+
+from tap_bench.errors import ParameterError
+from tap_bench.rl.curve import CurveConfig, coverage_reference, plot_curve
+from tap_bench.sim.sb3 import algorithm_class
+from tap_bench.sim.scenario_env import ScenarioEnv, get_scenario
+from tap_bench.sim.suite import Scenario, env_class
+from tap_bench.tableio import atomic_path, write_table
+
+__all__ = ["DEFAULT_N_ENVS", "HYPERPARAMETERS", "TrainingResult", "train"]
+
+HYPERPARAMETERS: dict[str, dict[str, Any]] = {
+    # highway-env's published Stable-Baselines3 settings for its highway tasks.
+    "dqn": {"policy_kwargs": {"net_arch": [256, 256]}, "learning_rate": 5e-4,
+            "buffer_size": 15000, "learning_starts": 200, "batch_size": 32, "gamma": 0.8,
+            "train_freq": 1, "gradient_steps": 1, "target_update_interval": 50,
+            "exploration_fraction": 0.7},
+    "ppo": {"policy_kwargs": {"net_arch": {"pi": [256, 256], "vf": [256, 256]}},
+            "n_steps": 256, "batch_size": 64, "n_epochs": 10, "learning_rate": 5e-4,
+            "gamma": 0.8},
+    "a2c": {"policy_kwargs": {"net_arch": [256, 256]}, "learning_rate": 7e-4, "gamma": 0.8},
+}
+"""Default hyper-parameters per algorithm; ``train(..., hyperparameters=...)`` overrides.
+With several envs, ``n_steps`` (PPO, A2C) is per env and ``train_freq`` (DQN) counts steps
+of all envs together."""
+
+DEFAULT_N_ENVS = 2
+"""Training envs stepped in parallel processes by default: one per core of a 2-core machine."""
+
+
+@dataclass(frozen=True)
+class TrainingResult:
+    """What :func:`train` wrote.
+
+    Attributes:
+        model_path: the ``.zip``.
+        definition_path: the policy definition ``.json`` beside it.
+        timesteps: env steps trained.
+        seconds: wall time of the training, evaluations for the curve included [s].
+        train_seconds: wall time of the training alone [s].
+        episodes: training episodes finished.
+        curve: the learning curve (:data:`tap_bench.rl.curve.CURVE_COLUMNS`), or None
+            without it.
+        curve_path, plot_path: the curve table (``.curve.csv``) and its plot
+            (``.curve.png``), or None.
+    """
+
+    model_path: Path
+    definition_path: Path
+    timesteps: int
+    seconds: float
+    train_seconds: float
+    episodes: int
+    curve: pd.DataFrame | None = None
+    curve_path: Path | None = None
+    plot_path: Path | None = None
+
+    @property
+    def coverage(self) -> float | None:
+        """The coverage of the last point of the curve (None without a curve)."""
+        if self.curve is None or self.curve.empty:
+            return None
+        return float(self.curve["coverage"].iloc[-1])
+
+    @property
+    def steps_per_second(self) -> float:
+        """Training env steps per second of training wall time (evaluations excluded)."""
+        return self.timesteps / self.train_seconds
+
+
+def _make_training_env(scenario: Scenario, fast: bool, worker: bool = False) -> gym.Env:
+    """One training env (a module-level function: worker processes build it by name)."""
+    from stable_baselines3.common.monitor import Monitor
+
+    if worker:  # Ctrl-C stops the training in the main process, which then saves the model
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return Monitor(ScenarioEnv(scenario, record=False, fast=fast))
+
+
+def _vec_env(scenario: Scenario, *, n_envs: int, fast: bool, seed: int) -> Any:
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    if n_envs == 1:
+        vec = DummyVecEnv([functools.partial(_make_training_env, scenario, fast)])
+    else:
+        factory = functools.partial(_make_training_env, scenario, fast, worker=True)
+        # forkserver: workers start from a clean interpreter, not a copy of this process
+        # (which may hold torch's threads and highway-env's shared classes)
+        vec = SubprocVecEnv([factory] * n_envs, start_method="forkserver")
+    vec.seed(seed)
+    return vec
+
+
+def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.PathLike,
+          hyperparameters: Mapping[str, Any] | None = None, n_envs: int = DEFAULT_N_ENVS,
+          fast: bool = True, curve: CurveConfig | None = None,
+          log_dir: str | os.PathLike | None = None, verbose: int = 0,
+          command: str | None = None) -> TrainingResult:
+    """Train ``algo`` on scenario ``env`` for ``timesteps`` decisions and save it.
+
+    Args:
+        algo: ``"dqn"``, ``"ppo"`` or ``"a2c"``.
+        env: scenario name, id or file.
+        timesteps: decisions (env steps, over all envs) to train for. Ctrl-C (SIGINT) stops
+            the training early: the model and the curve so far are saved, and the definition
+            records the steps trained and ``interrupted_of``.
+        seed: seeds SB3 (torch, numpy) and the envs' first resets (env i gets seed + i).
+        output: the ``.zip`` to write; the definition goes to the same name with ``.json``,
+            the curve to ``.curve.csv`` and ``.curve.png``.
+        hyperparameters: overrides of :data:`HYPERPARAMETERS`.
+        n_envs: training envs, stepped in parallel processes when more than one.
+        fast: train on the scenario's fast variant (see the module docstring); False trains
+            on the scenario itself.
+        curve: record the behaviour-coverage learning curve with these settings
+            (:class:`tap_bench.rl.curve.CurveConfig`); None: no curve.
+        log_dir: write SB3's log, with the ``tap/*`` curve keys, there as CSV.
+        verbose: SB3's verbosity; 1 also prints the log and each curve point.
+        command: the command line to record (default: this process's).
+
+    Raises:
+        ParameterError: ``timesteps``, ``n_envs`` or ``output`` is not usable.
+    """
+    output = Path(output)
+    if output.suffix != ".zip":
+        raise ParameterError("output", str(output), "a .zip file (a Stable-Baselines3 model)",
+                             hint=f"Name it {output.with_suffix('.zip').name}.")
+    if isinstance(timesteps, bool) or not isinstance(timesteps, int) or timesteps < 1:
+        raise ParameterError("timesteps", timesteps, "an integer >= 1")
+    if isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1:
+        raise ParameterError("n_envs", n_envs, "an integer >= 1 (training envs)")
+    cls = algorithm_class(algo)
+    algo = algo.lower()
+    import torch
+    from stable_baselines3.common.logger import HumanOutputFormat, Logger, make_output_format
+
+    torch.set_num_threads(1)  # a shared CPU; the env workers are the parallelism
+    scenario = get_scenario(env)
+    params = {**HYPERPARAMETERS[algo], **(hyperparameters or {})}
+    observation = _observation_config(scenario)
+    callbacks = []
+    if curve is not None:
+        # callbacks.py subclasses SB3's BaseCallback: imported only where SB3 is installed
+        from tap_bench.rl.callbacks import CoverageCallback
+
+        reference = coverage_reference(curve, scenario)
+        callbacks.append(CoverageCallback(
+            scenario, reference, curve, every=max(1, timesteps // curve.points),
+            observation=observation, name=output.stem, verbose=verbose))
+    vec = _vec_env(scenario, n_envs=n_envs, fast=fast, seed=seed)
+    try:
+        model = cls("MlpPolicy", vec, seed=seed, verbose=verbose, device="cpu", **params)
+        outputs = [HumanOutputFormat(sys.stdout)] if verbose else []
+        if log_dir:
+            Path(log_dir).mkdir(parents=True, exist_ok=True)
+            outputs.append(make_output_format("csv", str(log_dir)))
+        model.set_logger(Logger(str(log_dir) if log_dir else None, outputs))
+        start = time.perf_counter()
+        interrupted = False
+        try:
+            model.learn(total_timesteps=timesteps, callback=callbacks or None,
+                        progress_bar=False)
+        except KeyboardInterrupt:
+            # Ctrl-C: keep what was learned. The workers may be half-way through a reply,
+            # so they are stopped rather than asked to close.
+            interrupted = True
+            print(f"training interrupted at {model.num_timesteps} steps: saving the model.",
+                  file=sys.stderr, flush=True)
+            for process in getattr(vec, "processes", ()):
+                process.terminate()
+            vec.closed = True
+        seconds = time.perf_counter() - start
+        # every training env is a Monitor; after Ctrl-C the workers are gone (SB3's own count
+        # then: off-policy algorithms keep it, on-policy ones do not)
+        episodes = model._episode_num if interrupted else sum(
+            len(r) for r in vec.env_method("get_episode_rewards"))
+    finally:
+        vec.close()
+    if interrupted and callbacks:
+        callbacks[0].on_training_end()  # the last point of the curve
+    eval_seconds = sum(callbacks[0].eval_seconds) if callbacks else 0.0
+
+    trained = int(model.num_timesteps)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(output) as tmp, open(tmp, "wb") as handle:
+        model.save(handle)
+    definition = output.with_suffix(".json")
+    doc = {
+        "name": output.stem,
+        "kind": "sb3",
+        "description": f"{algo.upper()} trained on {scenario.env_id} for {trained} steps "
+                       f"(seed {seed}) by tap-bench train.",
+        "params": {
+            "model": output.name,
+            "algo": algo,
+            "env": scenario.env_id,
+            "observation": observation,
+            "timesteps": trained,
+            **({"interrupted_of": timesteps} if interrupted else {}),
+            "n_envs": n_envs,
+            "fast": fast,
+            "seed": seed,
+            "hyperparameters": params,
+            "train_seconds": round(seconds - eval_seconds, 1),
+            "command": command or " ".join(shlex.quote(a) for a in sys.argv),
+        },
+    }
+    with atomic_path(definition) as tmp:
+        tmp.write_text(json.dumps(doc, indent=2) + "\n")
+    result = TrainingResult(model_path=output, definition_path=definition,
+                            timesteps=trained, seconds=seconds,
+                            train_seconds=seconds - eval_seconds, episodes=int(episodes))
+    if callbacks:
+        table = callbacks[0].curve
+        stem = output.with_suffix("")
+        curve_path = write_table(table, f"{stem}.curve.csv")
+        plot_path = plot_curve(table, f"{stem}.curve.png",
+                               title=f"{output.stem}: {algo.upper()} on {scenario.env_id}, "
+                                     f"evaluated on seeds {curve.seeds}; coverage of "
+                                     f"{callbacks[0].reference.description}")
+        result = dataclasses.replace(result, curve=table, curve_path=curve_path,
+                                     plot_path=plot_path)
+    return result
+
+
+def _observation_config(scenario: Scenario) -> dict[str, Any]:
+    """The observation config the agent reads: the scenario's, else highway-env's default."""
+    config = scenario.config.get("observation")
+    if config is None:
+        config = env_class(scenario.highway_env_id).default_config()["observation"]
+    return dict(config)

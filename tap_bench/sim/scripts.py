@@ -1,0 +1,179 @@
+"""Scripted events of a scenario: a vehicle that cuts in front of the ego, a leader that brakes.
+
+A scenario file may hold one ``script`` (docs/interactions.md)::
+
+    "script": {"kind": "cut_in", "at": 5.0, "gap": 20.0, "speed_offset": -3.0}
+    "script": {"kind": "lead_braking", "at": 5.0, "gap": 30.0, "deceleration": 5.0,
+               "duration": 2.0}
+
+At reset a scripted vehicle is placed ``gap`` metres (centre to centre) ahead of the ego:
+in the next lane for a cut-in, in the ego's lane for lead braking, driving ``speed_offset``
+faster than the ego (negative: slower) without changing lanes by itself. ``at`` seconds
+after reset the cut-in vehicle steers into the lane the ego is then in (highway-env's lane
+controller, with the scenario's lane-change setting), or earlier when a faster ego has
+closed in to :data:`CLOSE_CUT_IN_GAP`, and only while it is at least :data:`MIN_CUT_IN_GAP`
+ahead of the ego (centre to centre: never into its side; an ego that has passed it meets no
+cut-in); the braking leader decelerates at
+``deceleration`` for ``duration`` and then drives on by IDM. Other vehicles in every lane
+from 20 m behind the ego to ``clear`` metres ahead are removed at reset, so the event
+happens as scripted whatever the seed's traffic. The seed still sets the rest of the
+traffic, the ego's lane and its starting point.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+from highway_env.vehicle.behavior import IDMVehicle
+
+from tap_bench.errors import FileFormatError, did_you_mean
+
+__all__ = ["SCRIPT_KINDS", "Script", "ScriptedVehicle"]
+
+SCRIPT_KINDS = ("cut_in", "lead_braking")
+_FIELDS = ("kind", "at", "gap", "speed_offset", "deceleration", "duration", "clear", "blocker")
+CLEAR_BEHIND = 20.0  # [m] vehicles this far behind the ego are removed too
+MIN_CUT_IN_GAP = 10.0  # [m] a cut-in waits until the vehicle is this far ahead of the ego
+CLOSE_CUT_IN_GAP = 15.0  # [m] an ego closing in to this gap is cut in on before ``at``
+
+
+@dataclass(frozen=True)
+class Script:
+    """One scripted event (see the module docstring).
+
+    Attributes:
+        kind: ``"cut_in"`` or ``"lead_braking"``.
+        at: [s] after reset, when the event starts.
+        gap: [m] centre gap ahead of the ego at reset.
+        speed_offset: [m/s] the scripted vehicle's speed less the ego's, at reset.
+        deceleration: [m/s^2] lead_braking: how hard the leader brakes (> 0).
+        duration: [s] lead_braking: how long it brakes.
+        clear: [m] other vehicles up to this far ahead (in every lane) are removed.
+        blocker: cut_in: also put a vehicle beside the ego in the cutter's lane, at the ego's
+            speed and never changing lanes, so that the ego cannot dodge the cut-in by
+            moving into that lane (MOBIL's safety rule forbids it; an ego that swerves away
+            never has the cutter on its path, and meets no cut-in).
+    """
+
+    kind: str
+    at: float
+    gap: float
+    speed_offset: float = 0.0
+    deceleration: float = 5.0
+    duration: float = 2.0
+    clear: float = 80.0
+    blocker: bool = False
+
+    def __post_init__(self) -> None:
+        if self.kind not in SCRIPT_KINDS:
+            raise did_you_mean("script kind", self.kind, SCRIPT_KINDS)
+        for name in ("at", "gap", "deceleration", "duration", "clear"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float) \
+                    or not np.isfinite(value) or value <= 0:
+                raise FileFormatError(f"script {name} must be a number > 0, got {value!r}.")
+        if isinstance(self.speed_offset, bool) or not isinstance(self.speed_offset,
+                                                                 int | float):
+            raise FileFormatError(f"script speed_offset must be a number [m/s], got "
+                                  f"{self.speed_offset!r}.")
+        if not isinstance(self.blocker, bool):
+            raise FileFormatError(f"script blocker must be true or false, got {self.blocker!r}.")
+        if self.blocker and self.kind != "cut_in":
+            raise FileFormatError("script blocker belongs to a cut_in script.")
+        if self.clear < self.gap:
+            raise FileFormatError(f"script clear ({self.clear} m) must reach the scripted "
+                                  f"vehicle ({self.gap} m ahead).")
+
+    @classmethod
+    def from_dict(cls, doc: Any, *, source: str = "script") -> Script:
+        """A script from its JSON object, every field checked."""
+        if not isinstance(doc, Mapping):
+            raise FileFormatError(f"{source}: script must be an object, e.g. {{\"kind\": "
+                                  "\"cut_in\", \"at\": 5, \"gap\": 20}.")
+        for key in doc:
+            if key not in _FIELDS:
+                raise FileFormatError(f"{source}: {did_you_mean('script field', key, _FIELDS)}")
+        for key in ("kind", "at", "gap"):
+            if key not in doc:
+                raise FileFormatError(f"{source}: script needs {key!r}.")
+        try:
+            return cls(**dict(doc))
+        except (FileFormatError, KeyError) as err:
+            raise FileFormatError(f"{source}: {err}") from err
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def install(self, env: Any) -> ScriptedVehicle:
+        """Place the scripted vehicle in a freshly reset highway-env env (``env.unwrapped``)
+        and clear the lanes involved. Returns the vehicle.
+
+        Raises:
+            FileFormatError: a cut-in on a road where the ego's lane has no neighbour.
+        """
+        road, ego = env.road, env.vehicle
+        network = road.network
+        ego_lane = network.get_lane(ego.lane_index)
+        s_ego, _ = ego_lane.local_coordinates(ego.position)
+        if self.kind == "cut_in":
+            sides = network.side_lanes(ego.lane_index)
+            if not sides:
+                raise FileFormatError(f"script cut_in: the ego's lane {ego.lane_index} has no "
+                                      "neighbouring lane to cut in from.")
+            lane_index = sorted(sides, key=lambda index: index[2])[0]
+        else:
+            lane_index = ego.lane_index
+        for vehicle in list(road.vehicles):
+            if vehicle is ego:
+                continue
+            s, _ = network.get_lane(vehicle.lane_index).local_coordinates(vehicle.position)
+            if s_ego - CLEAR_BEHIND <= s <= s_ego + self.clear:
+                road.vehicles.remove(vehicle)
+        lane = network.get_lane(lane_index)
+        s = s_ego + self.gap
+        speed = max(ego.speed + self.speed_offset, 0.0)
+        vehicle = ScriptedVehicle(road, lane.position(s, 0.0), lane.heading_at(s), speed,
+                                  target_lane_index=lane_index, target_speed=speed,
+                                  enable_lane_change=False)
+        vehicle.script = self
+        vehicle.ego = ego
+        road.vehicles.append(vehicle)
+        if self.blocker:
+            beside = IDMVehicle(road, lane.position(s_ego, 0.0), lane.heading_at(s_ego),
+                                ego.speed, target_lane_index=lane_index,
+                                target_speed=ego.speed, enable_lane_change=False)
+            road.vehicles.append(beside)
+        return vehicle
+
+
+class ScriptedVehicle(IDMVehicle):
+    """An IDM vehicle that follows a :class:`Script`: it keeps its lane until the event,
+    then cuts into the ego's lane or brakes."""
+
+    script: Script
+    ego: Any
+    elapsed: float = 0.0
+    fired: bool = False
+
+    def act(self, action: dict | str | None = None) -> None:
+        script = self.script
+        if script.kind == "cut_in" and not self.fired and self.ego.lane_index != self.lane_index:
+            lane = self.road.network.get_lane(self.ego.lane_index)
+            ahead = (lane.local_coordinates(self.position)[0]
+                     - lane.local_coordinates(self.ego.position)[0])
+            if ahead >= MIN_CUT_IN_GAP and (self.elapsed >= self.script.at - 1e-9
+                                             or ahead <= CLOSE_CUT_IN_GAP):
+                self.target_lane_index = self.ego.lane_index
+                self.fired = True
+        super().act(action)
+        braking = script.kind == "lead_braking" and \
+            script.at - 1e-9 <= self.elapsed < script.at + script.duration - 1e-9
+        if braking and not self.crashed and self.action:
+            self.action["acceleration"] = -script.deceleration if self.speed > 0 else 0.0
+
+    def step(self, dt: float) -> None:
+        super().step(dt)
+        self.elapsed += dt

@@ -1,0 +1,122 @@
+"""Fixtures of the fault-injection suite: every test is checked for orphan processes and for
+temporary debris, and runs the command line in this process (``cli``) or in a child
+(``cli_process``) the way a user would."""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+
+from tap_bench.cli import main
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # for fault_helpers
+
+PROJECT_ROOT = Path(__file__).resolve().parents[2]
+WOMD_DIR = (PROJECT_ROOT / ".." / "shared" / "data" / "womd").resolve()
+DEBRIS = (".tmp", ".old", ".bak")
+"""Name endings of tap-bench's temporary files and folders."""
+
+
+_HELPERS = ("multiprocessing.forkserver", "multiprocessing.resource_tracker")
+"""multiprocessing's per-process helpers: they live as long as this process, one of each,
+and end with it (they are not orphans; ``cli_process`` checks that they end)."""
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
+def _children(pid: int) -> set[int]:
+    """Every live descendant of ``pid`` but multiprocessing's helpers (from /proc)."""
+    parents: dict[int, int] = {}
+    for entry in Path("/proc").glob("[0-9]*"):
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        fields = stat.rsplit(")", 1)[-1].split()
+        if fields and fields[0] != "Z" and not any(  # zombies are reaped by their parent
+                h in _cmdline(int(entry.name)) for h in _HELPERS):
+            parents[int(entry.name)] = int(fields[1])
+    found, todo = set(), [pid]
+    while todo:
+        p = todo.pop()
+        for child, parent in parents.items():
+            if parent == p and child not in found:
+                found.add(child)
+                todo.append(child)
+    return found
+
+
+def _debris(folder: Path) -> set[str]:
+    if not folder.is_dir():
+        return set()
+    out = set()
+    for p in folder.rglob("*"):
+        if p.name.startswith(".") and p.name.endswith(DEBRIS):
+            out.add(str(p))
+    return out
+
+
+@pytest.fixture(autouse=True)
+def no_orphans_and_no_debris(tmp_path, monkeypatch):
+    """After each test: no process left behind, no temporary file or folder of tap-bench
+    (``.*.tmp``, ``.*.old``, ``.*.bak``) in the test's folder or beside the project, and
+    every temporary file or folder this process made (``tempfile.mkstemp`` / ``mkdtemp``,
+    wherever: /tmp, /dev/shm, beside an output) removed again."""
+    made: list[str] = []
+    real_mkdtemp, real_mkstemp = tempfile.mkdtemp, tempfile.mkstemp
+
+    def mkdtemp(*args, **kwargs):
+        path = real_mkdtemp(*args, **kwargs)
+        made.append(path)
+        return path
+
+    def mkstemp(*args, **kwargs):
+        fd, path = real_mkstemp(*args, **kwargs)
+        made.append(path)
+        return fd, path
+
+    monkeypatch.setattr(tempfile, "mkdtemp", mkdtemp)
+    monkeypatch.setattr(tempfile, "mkstemp", mkstemp)
+    before = _children(os.getpid())
+    project = _debris(PROJECT_ROOT / "results") | _debris(PROJECT_ROOT / "policies")
+    yield
+    deadline = time.monotonic() + 10
+    left = _children(os.getpid()) - before
+    while left and time.monotonic() < deadline:  # executors shut down asynchronously
+        time.sleep(0.1)
+        left = _children(os.getpid()) - before
+    assert not left, f"orphan processes left: {sorted(left)}"
+    assert not _debris(tmp_path), f"temporary debris: {sorted(_debris(tmp_path))}"
+    kept = [p for p in made if os.path.lexists(p)]
+    assert not kept, f"temporary files or folders left: {kept}"
+    assert (_debris(PROJECT_ROOT / "results") | _debris(PROJECT_ROOT / "policies")) <= project
+
+
+@pytest.fixture
+def cli(capsys):
+    """Run ``tap-bench ARGS`` in this process: (exit code, stdout, stderr)."""
+
+    def run(*args: str) -> tuple[int, str, str]:
+        code = main([str(a) for a in args])
+        out = capsys.readouterr()
+        return code, out.out, out.err
+
+    return run
+
+
+@pytest.fixture
+def womd_dir() -> Path:
+    """The folder of real WOMD samples (``../shared/data/womd``); skips when absent."""
+    if not (WOMD_DIR / "motion_data_one_scenario.tfrecord").is_file():
+        pytest.skip(f"real WOMD samples not found in {WOMD_DIR}")
+    return WOMD_DIR
