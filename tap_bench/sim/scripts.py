@@ -22,16 +22,16 @@ traffic, the ego's lane and its starting point.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
-from highway_env.vehicle.behavior import IDMVehicle
 
 from tap_bench.errors import FileFormatError, did_you_mean
 
-__all__ = ["SCRIPT_KINDS", "Script", "ScriptedVehicle"]
+__all__ = ["SCRIPT_KINDS", "Script", "ScriptedVehicle"]  # noqa: F822 (ScriptedVehicle: __getattr__)
 
 SCRIPT_KINDS = ("cut_in", "lead_braking")
 _FIELDS = ("kind", "at", "gap", "speed_offset", "deceleration", "duration", "clear", "blocker")
@@ -107,9 +107,9 @@ class Script:
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
-    def install(self, env: Any) -> ScriptedVehicle:
+    def install(self, env: Any) -> Any:
         """Place the scripted vehicle in a freshly reset highway-env env (``env.unwrapped``)
-        and clear the lanes involved. Returns the vehicle.
+        and clear the lanes involved. Returns the vehicle (a :class:`ScriptedVehicle`).
 
         Raises:
             FileFormatError: a cut-in on a road where the ego's lane has no neighbour.
@@ -135,7 +135,9 @@ class Script:
         lane = network.get_lane(lane_index)
         s = s_ego + self.gap
         speed = max(ego.speed + self.speed_offset, 0.0)
-        vehicle = ScriptedVehicle(road, lane.position(s, 0.0), lane.heading_at(s), speed,
+        from highway_env.vehicle.behavior import IDMVehicle
+
+        vehicle = _scripted_vehicle()(road, lane.position(s, 0.0), lane.heading_at(s), speed,
                                   target_lane_index=lane_index, target_speed=speed,
                                   enable_lane_change=False)
         vehicle.script = self
@@ -149,31 +151,47 @@ class Script:
         return vehicle
 
 
-class ScriptedVehicle(IDMVehicle):
-    """An IDM vehicle that follows a :class:`Script`: it keeps its lane until the event,
-    then cuts into the ego's lane or brakes."""
+@functools.cache
+def _scripted_vehicle() -> type:
+    """:class:`ScriptedVehicle`, made on first use: reading a scenario file with a script
+    (``tap-bench envs``) must not import highway-env, whose vehicle class it extends."""
+    from highway_env.vehicle.behavior import IDMVehicle
 
-    script: Script
-    ego: Any
-    elapsed: float = 0.0
-    fired: bool = False
+    class ScriptedVehicle(IDMVehicle):
+        """An IDM vehicle that follows a :class:`Script`: it keeps its lane until the event,
+        then cuts into the ego's lane or brakes."""
 
-    def act(self, action: dict | str | None = None) -> None:
-        script = self.script
-        if script.kind == "cut_in" and not self.fired and self.ego.lane_index != self.lane_index:
-            lane = self.road.network.get_lane(self.ego.lane_index)
-            ahead = (lane.local_coordinates(self.position)[0]
-                     - lane.local_coordinates(self.ego.position)[0])
-            if ahead >= MIN_CUT_IN_GAP and (self.elapsed >= self.script.at - 1e-9
-                                             or ahead <= CLOSE_CUT_IN_GAP):
-                self.target_lane_index = self.ego.lane_index
-                self.fired = True
-        super().act(action)
-        braking = script.kind == "lead_braking" and \
-            script.at - 1e-9 <= self.elapsed < script.at + script.duration - 1e-9
-        if braking and not self.crashed and self.action:
-            self.action["acceleration"] = -script.deceleration if self.speed > 0 else 0.0
+        script: Script
+        ego: Any
+        elapsed: float = 0.0
+        fired: bool = False
 
-    def step(self, dt: float) -> None:
-        super().step(dt)
-        self.elapsed += dt
+        def act(self, action: dict | str | None = None) -> None:
+            script = self.script
+            if script.kind == "cut_in" and not self.fired \
+                    and self.ego.lane_index != self.lane_index:
+                lane = self.road.network.get_lane(self.ego.lane_index)
+                ahead = (lane.local_coordinates(self.position)[0]
+                         - lane.local_coordinates(self.ego.position)[0])
+                if ahead >= MIN_CUT_IN_GAP and (self.elapsed >= self.script.at - 1e-9
+                                                 or ahead <= CLOSE_CUT_IN_GAP):
+                    self.target_lane_index = self.ego.lane_index
+                    self.fired = True
+            super().act(action)
+            braking = script.kind == "lead_braking" and \
+                script.at - 1e-9 <= self.elapsed < script.at + script.duration - 1e-9
+            if braking and not self.crashed and self.action:
+                self.action["acceleration"] = -script.deceleration if self.speed > 0 else 0.0
+
+        def step(self, dt: float) -> None:
+            super().step(dt)
+            self.elapsed += dt
+
+    ScriptedVehicle.__qualname__ = "ScriptedVehicle"  # found by name, as pickle looks it up
+    return ScriptedVehicle
+
+
+def __getattr__(name: str) -> Any:
+    if name == "ScriptedVehicle":
+        return _scripted_vehicle()
+    raise AttributeError(f"module 'tap_bench.sim.scripts' has no attribute {name!r}")

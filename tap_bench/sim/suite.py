@@ -193,7 +193,7 @@ class Scenario:
     default_seeds: tuple[int, ...] = tuple(range(10))
     lane_change: str = "default"
     path: Path | None = field(default=None, compare=False)
-    script: Any = None  # tap_bench.sim.scripts.Script (imported lazily: highway-env)
+    script: Any = None  # tap_bench.sim.scripts.Script (imported where a scenario has one)
 
     @property
     def env_id(self) -> str:
@@ -383,7 +383,7 @@ def _build(doc: Any, *, source: str, path: Path | None) -> Scenario:
     check_config(doc["highway_env_id"], config, source=source)
     script = None
     if "script" in doc:
-        from tap_bench.sim.scripts import Script  # highway-env, imported on demand
+        from tap_bench.sim.scripts import Script  # imported where a scenario has a script
 
         script = Script.from_dict(doc["script"], source=source)
     scenario = Scenario(name=name, version=version, highway_env_id=doc["highway_env_id"],
