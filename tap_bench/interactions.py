@@ -265,7 +265,8 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
         first = cand[s[cand] == nearest[q_step[cand]]]
         leader_pair[q_step[first]] = first
     has_leader = leader_pair >= 0
-    leader_row = np.where(has_leader, q_other[np.maximum(leader_pair, 0)], -1)
+    leader_row = np.full(m, -1, np.int64)  # indexed only where there is one: an ego
+    leader_row[has_leader] = q_other[leader_pair[has_leader]]  # alone has no pairs at all
 
     # each (ego path, other track) as a time series: the pair one step before and after
     order = np.lexsort((q_step, track, ego_path[q_step]))

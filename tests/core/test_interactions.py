@@ -85,6 +85,12 @@ def test_nobody_ahead_is_free_driving(circle):
     assert runs(inter) == [("Free Driving", None)]
 
 
+def test_an_ego_alone_is_free_driving(circle):
+    # no other track at all: no (ego step, other) pair to index (this raised IndexError)
+    _, inter = label_scene(vehicle("ego", const(12), flat(0), circle=circle, ego=True))
+    assert runs(inter) == [("Free Driving", None)]
+
+
 def test_cut_in_20_m_ahead_names_the_agent(circle):
     cutter = vehicle("cutter", const(15, 20), lane_offset(2, 5, 4, 0), circle=circle)
     row, inter = label_scene(vehicle("ego", const(15), flat(0), circle=circle, ego=True),

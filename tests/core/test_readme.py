@@ -46,6 +46,9 @@ SLOW = {
     "tap-bench rollout --env highway --policy dqn-highway --seeds 0-29 -o dqn.parquet",
     "tap-bench rollout --env highway --policy idm --seeds 0-29 -o idm.parquet",
     "tap-bench compare dqn.parquet idm.parquet -o results/dqn-vs-idm/",
+    # the scripted interaction suite (160 episodes) and its contexts
+    "tap-bench bench run --suite interactions -o results/inter/",
+    "tap-bench contexts results/inter/trajectories.parquet --a dqn-highway --b idm",
 }
 NOT_RUN = {  # command -> why the tests cannot run it as written
     "pip install -e .": "installs the package",
@@ -55,6 +58,12 @@ NOT_RUN = {  # command -> why the tests cannot run it as written
     "tap-bench ingest womd 'data/training/*.tfrecord*' -o womd.parquet --object-types "
     "vehicle --workers 2": "needs WOMD files (tests/womd reads the real ones)",
     "tap-bench label womd.parquet -o womd_labels.parquet --level all": "needs WOMD files",
+    "tap-bench label womd.parquet -o labels.parquet --interactions all --segments "
+    "segments.parquet": "needs WOMD files",
+    "tap-bench gap results/inter/trajectories.parquet --reference womd.parquet":
+        "needs WOMD files",
+    "tap-bench export segments.parquet --format openlabel -o openlabel/":
+        "needs the maneuver-level segments of the WOMD command above",
     "tap-bench train --algo dqn --env highway --timesteps 10000 -o "
     "policies/dqn-highway.zip": "trains for an hour (tests/sim trains a small agent)",
     "tap-bench coverage dqn.parquet --reference womd_labels.parquet --level maneuver":
