@@ -29,10 +29,10 @@ import pandas as pd
 from tap_bench import catalogue
 from tap_bench.errors import FileFormatError, ParameterError, TapBenchError, did_you_mean
 from tap_bench.sim.recorder import TrajectoryRecorder
+from tap_bench.sim.schema import env_class
 from tap_bench.sim.suite import (
     Scenario,
     check_config,
-    env_class,
     load_scenario,
     scenario_names,
 )

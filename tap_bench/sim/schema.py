@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from tap_bench import catalogue
-from tap_bench.errors import ParameterError
+from tap_bench.errors import ParameterError, did_you_mean
 
 __all__ = ["SPACES", "default_config", "space_parameters"]
 
@@ -100,7 +100,6 @@ def default_config(highway_env_id: str) -> dict[str, Any]:
     schema = _schema()
     config = schema["envs"].get(highway_env_id)
     if config is None:
-        from tap_bench.sim.suite import env_class  # imports highway-env
 
         config = env_class(highway_env_id).default_config()
         schema["envs"][highway_env_id] = json.loads(json.dumps(config, default=repr))
@@ -163,3 +162,21 @@ def _init_parameters(cls: type) -> set[str]:
         if not any(p.kind == p.VAR_KEYWORD for p in params.values()):
             break
     return names | {"type"}
+
+
+def env_class(highway_env_id: str) -> type:
+    """The environment class behind a highway-env Gymnasium id."""
+    import gymnasium
+    import highway_env  # noqa: F401  (registers the highway-env ids)
+
+    try:
+        spec = gymnasium.spec(highway_env_id)
+    except gymnasium.error.Error as err:
+        known = [k for k in gymnasium.registry
+                 if gymnasium.registry[k].entry_point.__str__().startswith("highway_env")]
+        raise did_you_mean("highway-env id", highway_env_id, known) from err
+    entry = spec.entry_point
+    if callable(entry):
+        return entry
+    module, _, name = entry.partition(":")
+    return getattr(__import__(module, fromlist=[name]), name)

@@ -248,24 +248,6 @@ class Scenario:
 
 
 @functools.cache
-def env_class(highway_env_id: str) -> type:
-    """The environment class behind a highway-env Gymnasium id."""
-    import gymnasium
-    import highway_env  # noqa: F401  (registers the highway-env ids)
-
-    try:
-        spec = gymnasium.spec(highway_env_id)
-    except gymnasium.error.Error as err:
-        known = [k for k in gymnasium.registry
-                 if gymnasium.registry[k].entry_point.__str__().startswith("highway_env")]
-        raise did_you_mean("highway-env id", highway_env_id, known) from err
-    entry = spec.entry_point
-    if callable(entry):
-        return entry
-    module, _, name = entry.partition(":")
-    return getattr(__import__(module, fromlist=[name]), name)
-
-
 def _type_name(value: Any) -> str:
     return {bool: "true/false", int: "a number", float: "a number", str: "a string",
             list: "a list", dict: "an object"}.get(type(value), type(value).__name__)
