@@ -165,8 +165,55 @@ class _Attempts:
         return None
 
 
-def _numbered(items: Iterable[T]) -> Iterator[tuple[int, T]]:
-    return enumerate(items)
+class _Window:
+    """What every pool keeps the same way: items read from the source only as room frees up
+    (at most ``size`` in flight beyond the one the caller waits for), attempts under the
+    recovery rule, and outcomes released in the items' order."""
+
+    def __init__(self, items: Iterable[Any], size: int, retries: int, bar: Any):
+        self.source = enumerate(items)
+        self.size = size
+        self.attempts = _Attempts(retries)
+        self.bar = bar
+        self.waiting: deque[int] = deque()  # items to (re)submit, first come first served
+        self.held: dict[int, Any] = {}  # items submitted or waiting, by index
+        self.done: dict[int, Outcome] = {}  # finished, not yet released (order)
+        self.next_out = 0
+        self.exhausted = False
+
+    def fill(self) -> None:
+        """Read items from the source until the window is full."""
+        while not self.exhausted and len(self.held) + len(self.done) < self.size + 1:
+            try:
+                i, item = next(self.source)
+            except StopIteration:
+                self.exhausted = True
+                return
+            self.held[i] = item
+            self.waiting.append(i)
+
+    def settle(self, i: int, result: tuple[Any, float, float] | None, error: str) -> None:
+        """An attempt of item ``i`` ended: retried (back in the queue) or finished."""
+        outcome = self.attempts.settle(i, result, error)
+        if outcome is None:
+            self.waiting.append(i)
+        else:
+            self.finish(outcome)
+
+    def finish(self, outcome: Outcome) -> None:
+        del self.held[outcome.item]
+        self.done[outcome.item] = outcome
+        self.bar.update(1)
+
+    def release(self) -> Iterator[Outcome]:
+        """The finished outcomes that are next in order."""
+        while self.next_out in self.done:
+            yield self.done.pop(self.next_out)
+            self.next_out += 1
+
+    @property
+    def finished(self) -> bool:
+        return self.exhausted and not self.held and not self.done
 
 
 # -- local processes ---------------------------------------------------------------------
@@ -314,7 +361,7 @@ class LocalBackend:
     @staticmethod
     def _inline(fn, items, retries, bar) -> Iterator[Outcome]:
         attempts = _Attempts(retries)
-        for i, item in _numbered(items):
+        for i, item in enumerate(items):
             outcome = None
             while outcome is None:
                 try:
@@ -325,28 +372,14 @@ class LocalBackend:
             bar.update(1)
             yield outcome
 
-    def _pool(self, fn, items, retries, window, bar) -> Iterator[Outcome]:
-        attempts = _Attempts(retries)
-        source = _numbered(items)
-        waiting: deque[int] = deque()  # items to (re)submit, first come first served
-        held: dict[int, Any] = {}  # items submitted or waiting, by index
-        done: dict[int, Outcome] = {}  # finished but not yet yielded (order)
-        next_out = 0
-        exhausted = False
+    def _pool(self, fn, items, retries, size, bar) -> Iterator[Outcome]:
+        window = _Window(items, size, retries, bar)
         workers: list[_Worker] = []
         selector = selectors.DefaultSelector()
         try:
             while True:
-                # keep the window full: items read from the source only as room frees up
-                while not exhausted and len(held) + len(done) < window + 1:
-                    try:
-                        i, item = next(source)
-                    except StopIteration:
-                        exhausted = True
-                        break
-                    held[i] = item
-                    waiting.append(i)
-                while waiting:
+                window.fill()
+                while window.waiting:
                     worker = next((w for w in workers if w.running is None), None)
                     if worker is None and len(workers) < self.processes:
                         worker = _Worker()
@@ -354,23 +387,19 @@ class LocalBackend:
                         selector.register(worker.process.stdout, selectors.EVENT_READ, worker)
                     if worker is None:
                         break
-                    i = waiting.popleft()
+                    i = window.waiting.popleft()
                     try:
-                        worker.submit(i, fn, held[i])
+                        worker.submit(i, fn, window.held[i])
                     except (BrokenPipeError, OSError):
-                        waiting.appendleft(i)  # the worker died idle: replace it
+                        window.waiting.appendleft(i)  # the worker died idle: replace it
                         worker.running = None
                         self._retire(worker, workers, selector)
                     except (pickle.PicklingError, TypeError, AttributeError) as err:
                         worker.running = None
-                        done[i] = Outcome(i, None, f"the task cannot be sent to a worker: "
-                                          f"{describe_error(err)}", 1)
-                        del held[i]
-                        bar.update(1)
-                while next_out in done:
-                    yield done.pop(next_out)
-                    next_out += 1
-                if exhausted and not held and not done:
+                        window.finish(Outcome(i, None, "the task cannot be sent to a worker: "
+                                              f"{describe_error(err)}", 1))
+                yield from window.release()
+                if window.finished:
                     return
                 if not any(w.running is not None for w in workers):
                     continue
@@ -383,21 +412,12 @@ class LocalBackend:
                         code = worker.process.poll()
                         worker.running = None
                         self._retire(worker, workers, selector)
-                        outcome = attempts.settle(
-                            i, None, "the worker process died while running it"
-                            + (f" (exit code {code})" if code is not None else ""))
+                        window.settle(i, None, "the worker process died while running it"
+                                      + (f" (exit code {code})" if code is not None else ""))
                     else:
                         worker.running = None
-                        if status == "ok":
-                            outcome = attempts.settle(i, payload, "")
-                        else:
-                            outcome = attempts.settle(i, None, payload)
-                    if outcome is None:
-                        waiting.append(i)
-                    else:
-                        del held[i]
-                        done[i] = outcome
-                        bar.update(1)
+                        window.settle(i, payload if status == "ok" else None,
+                                      "" if status == "ok" else payload)
         finally:
             for worker in workers:
                 worker.close()
@@ -488,31 +508,16 @@ class RayBackend:
             total = len(items)
         task = ray.remote(_timed).options(max_retries=0, num_cpus=1)
         fn_ref = ray.put(fn)
-        limit = window or self.in_flight or 2 * self.workers
-        attempts = _Attempts(retries)
-        source = _numbered(items)
-        held: dict[int, Any] = {}
-        done: dict[int, Outcome] = {}
+        queue = _Window(items, window or self.in_flight or 2 * self.workers, retries, None)
         running: dict[Any, int] = {}
-        waiting: deque[int] = deque()
-        next_out, exhausted = 0, False
-        with _bar(total, desc, unit, progress) as bar:
+        with _bar(total, desc, unit, progress) as queue.bar:
             while True:
-                while not exhausted and len(held) + len(done) < limit + 1:
-                    try:
-                        i, item = next(source)
-                    except StopIteration:
-                        exhausted = True
-                        break
-                    held[i] = item
-                    waiting.append(i)
-                while waiting:
-                    i = waiting.popleft()
-                    running[task.remote(fn_ref, held[i])] = i
-                while next_out in done:
-                    yield done.pop(next_out)
-                    next_out += 1
-                if exhausted and not held and not done:
+                queue.fill()
+                while queue.waiting:
+                    i = queue.waiting.popleft()
+                    running[task.remote(fn_ref, queue.held[i])] = i
+                yield from queue.release()
+                if queue.finished:
                     return
                 if not running:
                     continue
@@ -526,13 +531,7 @@ class RayBackend:
                     except RayError as err:  # its worker or node died
                         result, error = None, (f"{type(err).__name__}: the worker process "
                                                "died while running it")
-                    outcome = attempts.settle(i, result, error)
-                    if outcome is None:
-                        waiting.append(i)
-                    else:
-                        del held[i]
-                        done[i] = outcome
-                        bar.update(1)
+                    queue.settle(i, result, error)
 
 
 def make_backend(name: str = "local", *, workers: int | None = None,
