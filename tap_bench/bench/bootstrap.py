@@ -25,7 +25,8 @@ import numpy as np
 
 from tap_bench.errors import ParameterError
 
-__all__ = ["BootstrapConfig", "named_rng", "stream_key"]
+__all__ = ["BootstrapConfig", "add_bootstrap_arguments", "bootstrap_from_args", "named_rng",
+           "stream_key"]
 
 
 def stream_key(*name: object) -> list[int]:
@@ -81,3 +82,17 @@ class BootstrapConfig:
         """One line for reports: the bootstrap's resamples, what it draws, and the seed."""
         return (f"{self.level:.0%} intervals from {self.n_resamples} bootstrap draws of "
                 f"{what}, seed {self.seed} (streams named by env, policy and reference)")
+
+
+# -- command line -------------------------------------------------------------------------
+def add_bootstrap_arguments(parser, *, what: str = "bootstrap resamples") -> None:
+    """Add ``--resamples``, ``--ci`` and ``--seed`` (the :class:`BootstrapConfig` of a
+    sub-command) to an argparse parser."""
+    parser.add_argument("--resamples", type=int, default=2000, help=f"{what} (2000)")
+    parser.add_argument("--ci", type=float, default=0.95, help="interval level (0.95)")
+    parser.add_argument("--seed", type=int, default=0, help="bootstrap seed (0)")
+
+
+def bootstrap_from_args(args) -> BootstrapConfig:
+    """The :class:`BootstrapConfig` that ``--resamples``, ``--ci`` and ``--seed`` ask for."""
+    return BootstrapConfig(n_resamples=args.resamples, level=args.ci, seed=args.seed)

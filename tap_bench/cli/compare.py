@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from tap_bench.bench.bootstrap import add_bootstrap_arguments, bootstrap_from_args
 from tap_bench.sdl import LEVELS
 
 
@@ -36,10 +37,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="label distance for the matched groups (default exact, g_SDL)")
     p.add_argument("--d-sim", type=float, default=0,
                    help="largest label distance inside a matched group (default 0)")
-    p.add_argument("--resamples", type=int, default=2000,
-                   help="bootstrap draws of the coverage and diversity intervals (2000)")
-    p.add_argument("--ci", type=float, default=0.95, help="interval level (0.95)")
-    p.add_argument("--seed", type=int, default=0, help="bootstrap seed (0)")
+    add_bootstrap_arguments(p, what="bootstrap draws of the coverage and diversity intervals")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
     p.set_defaults(func=run)
 
@@ -79,7 +77,6 @@ def run(args: argparse.Namespace) -> int:
 
     import pandas as pd
 
-    from tap_bench.bench.bootstrap import BootstrapConfig
     from tap_bench.bench.compare import matched_by_label
     from tap_bench.bench.episodes import episodes_from_table
     from tap_bench.bench.runner import check_output, package_versions, write_results
@@ -88,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     from tap_bench.tableio import read_table
 
     check_output(args.output, args.overwrite)  # before any work
-    config = BootstrapConfig(n_resamples=args.resamples, level=args.ci, seed=args.seed)
+    config = bootstrap_from_args(args)
     names = args.names or [None, None]
     parts = []
     for path, given in zip((args.a, args.b), names, strict=True):

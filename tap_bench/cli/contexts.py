@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.bootstrap import add_bootstrap_arguments, bootstrap_from_args
 from tap_bench.bench.contexts import compare_contexts, context_occurrences
 from tap_bench.tableio import check_outputs, read_table, write_tables
 
@@ -29,9 +29,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="TAP thresholds (preset or JSON; default paper)")
     p.add_argument("--min-pairs", type=int, default=5,
                    help="fewest seeds for a paired interval (default 5)")
-    p.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples (2000)")
-    p.add_argument("--ci", type=float, default=0.95, help="interval level (0.95)")
-    p.add_argument("--seed", type=int, default=0, help="bootstrap seed (0)")
+    add_bootstrap_arguments(p)
     p.add_argument("-o", "--output", help="write the comparison table (.csv/.parquet); the "
                    "occurrences go beside it as <name>.occurrences.<suffix>")
     p.set_defaults(func=run)
@@ -47,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     if "policy" in table.columns:
         table = table[table["policy"].isin([args.a, args.b])]
     occ = context_occurrences(table, args.thresholds, source=", ".join(args.trajectories))
-    config = BootstrapConfig(n_resamples=args.resamples, level=args.ci, seed=args.seed)
+    config = bootstrap_from_args(args)
     out = compare_contexts(occ, args.a, args.b, config=config, min_pairs=args.min_pairs)
     print(f"{args.a} against {args.b} (the reference) inside interaction contexts; "
           f"differences {args.a} - {args.b}, {config.describe('seeds (pairs of episodes)')}")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from tap_bench.bench.bootstrap import add_bootstrap_arguments, bootstrap_from_args
 from tap_bench.sdl import LEVELS
 
 
@@ -38,9 +39,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="TAP thresholds for trajectory tables (preset or JSON; default paper)")
     p.add_argument("--name", help="the agent's name (default: its policy column or file name)")
     p.add_argument("--examples", type=int, default=10, help="novel labels listed (10)")
-    p.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples (2000)")
-    p.add_argument("--ci", type=float, default=0.95, help="interval level (0.95)")
-    p.add_argument("--seed", type=int, default=0, help="bootstrap seed (0)")
+    add_bootstrap_arguments(p)
     p.add_argument("-o", "--output", help="write the coverage and novelty rows here "
                    "(.csv/.parquet); the novel labels go beside it as <name>.novel.<suffix>")
     p.set_defaults(func=run)
@@ -51,7 +50,6 @@ def run(args: argparse.Namespace) -> int:
 
     import pandas as pd
 
-    from tap_bench.bench.bootstrap import BootstrapConfig
     from tap_bench.bench.coverage import corpus_reference, vocabulary_reference
     from tap_bench.bench.episodes import episodes_from_table
     from tap_bench.bench.scoring import diversity_table, reference_scores
@@ -61,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     from tap_bench.sdl import check_axes
     from tap_bench.tableio import check_outputs, read_table, write_tables
 
-    config = BootstrapConfig(n_resamples=args.resamples, level=args.ci, seed=args.seed)
+    config = bootstrap_from_args(args)
     novel_path = None
     if args.output:
         out = Path(args.output)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.bootstrap import add_bootstrap_arguments, bootstrap_from_args
 from tap_bench.bench.gap import behaviour_gap, labelled_with_speed
 from tap_bench.sdl import LEVELS
 from tap_bench.tableio import check_outputs, read_table, write_tables
@@ -38,9 +38,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    "95 %% quantile)")
     p.add_argument("--thresholds", default="paper", help="TAP thresholds (default paper)")
     p.add_argument("--top", type=int, default=8, help="labels printed per policy (8)")
-    p.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples (2000)")
-    p.add_argument("--ci", type=float, default=0.95, help="interval level (0.95)")
-    p.add_argument("--seed", type=int, default=0, help="bootstrap seed (0)")
+    add_bootstrap_arguments(p)
     p.add_argument("-o", "--output", help="write one row per policy (.csv/.parquet); the "
                    "per-label table goes beside it as <name>.labels.<suffix>")
     p.set_defaults(func=run)
@@ -52,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
         path = Path(args.output)
         labels_path = path.with_name(f"{path.stem}.labels{path.suffix}")
     check_outputs([args.output, labels_path], [args.policy_table, args.reference])
-    config = BootstrapConfig(n_resamples=args.resamples, level=args.ci, seed=args.seed)
+    config = bootstrap_from_args(args)
     table = read_table(args.policy_table)
     ref_table = read_table(args.reference)
     reference = labelled_with_speed(ref_table, args.level, interactions="all",
