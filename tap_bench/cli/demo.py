@@ -16,7 +16,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "random) in three highway-env scenarios over 12 seeds, label every vehicle with TAP, "
         "compare the policies with IDM/MOBIL (paired by seed and matched by SDL label), score "
         "behaviour coverage and unique manoeuvres, and write tables, plots and a static HTML "
-        "report. About two minutes on 2 cores.")
+        "report. Under a minute on 2 quiet cores.")
     p.add_argument("-o", "--output", default="results/demo",
                    help="run folder (default results/demo; an earlier demo there is replaced)")
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
