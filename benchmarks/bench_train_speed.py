@@ -20,6 +20,7 @@ import argparse
 import json
 import os
 import resource
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -91,13 +92,22 @@ def main() -> None:
                     key = f"{algo} / {name}" + (f" / run {repeat}" if args.repeats > 1 else "")
                     figures[key] = result
                     print(key, result, flush=True)
+        summary: dict[str, dict] = {}
         for algo in args.algos.split(","):
-            base = figures.get(f"{algo} / before")
+            for name in args.variants.split(","):
+                runs = [r["steps_per_s"] for k, r in figures.items()
+                        if k.split(" / ")[:2] == [algo, name]]
+                summary[f"{algo} / {name}"] = {"median_steps_per_s": statistics.median(runs),
+                                               "runs": runs}
+            base = summary.get(f"{algo} / before")
             if base:
-                for key, result in figures.items():
+                for key, row in summary.items():
                     if key.startswith(f"{algo} /"):
-                        result["speedup"] = round(result["steps_per_s"] / base["steps_per_s"],
-                                                  2)
+                        row["speedup"] = round(row["median_steps_per_s"]
+                                               / base["median_steps_per_s"], 2)
+        for key, row in summary.items():
+            print(key, row, flush=True)
+        figures["summary (median over repeats)"] = summary
     report("train_speed", figures, timesteps=args.timesteps, seed=0, env="highway",
            before_ref=args.before_ref)
 

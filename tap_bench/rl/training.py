@@ -25,6 +25,7 @@ steps of the small MLPs are a few per cent. So training runs
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import json
@@ -33,7 +34,7 @@ import shlex
 import signal
 import sys
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -119,6 +120,30 @@ def _make_training_env(scenario: Scenario, fast: bool, worker: bool = False) -> 
     return Monitor(ScenarioEnv(scenario, record=False, fast=fast))
 
 
+@contextlib.contextmanager
+def _main_not_rerun() -> Iterator[None]:
+    """Start worker processes without running the caller's script in them.
+
+    multiprocessing's forkserver and spawn start methods import the ``__main__`` module (by
+    file or by module name) in every worker, which runs a plain script without an
+    ``if __name__ == "__main__":`` guard again there: its ``train`` call would start more
+    workers. The training workers need nothing of it (they build their env from this
+    module), so ``__main__`` is hidden from multiprocessing while they start.
+    """
+    main = sys.modules.get("__main__")
+    if main is None:
+        yield
+        return
+    saved = {key: vars(main)[key] for key in ("__file__", "__spec__") if key in vars(main)}
+    vars(main).pop("__file__", None)
+    main.__spec__ = None
+    try:
+        yield
+    finally:
+        vars(main).pop("__spec__", None)
+        vars(main).update(saved)
+
+
 def _vec_env(scenario: Scenario, *, n_envs: int, fast: bool, seed: int) -> Any:
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
@@ -128,7 +153,8 @@ def _vec_env(scenario: Scenario, *, n_envs: int, fast: bool, seed: int) -> Any:
         factory = functools.partial(_make_training_env, scenario, fast, worker=True)
         # forkserver: workers start from a clean interpreter, not a copy of this process
         # (which may hold torch's threads and highway-env's shared classes)
-        vec = SubprocVecEnv([factory] * n_envs, start_method="forkserver")
+        with _main_not_rerun():
+            vec = SubprocVecEnv([factory] * n_envs, start_method="forkserver")
     vec.seed(seed)
     return vec
 
@@ -174,6 +200,7 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
     algo = algo.lower()
     import torch
     from stable_baselines3.common.logger import HumanOutputFormat, Logger, make_output_format
+    from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
     torch.set_num_threads(1)  # a shared CPU; the env workers are the parallelism
     scenario = get_scenario(env)
@@ -189,8 +216,17 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
             scenario, reference, curve, every=max(1, timesteps // curve.points),
             observation=observation, name=output.stem, verbose=verbose))
     vec = _vec_env(scenario, n_envs=n_envs, fast=fast, seed=seed)
+    learner_env, learn_callbacks = vec, list(callbacks)
     try:
-        model = cls("MlpPolicy", vec, seed=seed, verbose=verbose, device="cpu", **params)
+        if n_envs > 1 and issubclass(cls, OffPolicyAlgorithm):
+            # gradient steps while the workers simulate (overlap.py imports SB3)
+            from tap_bench.rl.overlap import FlushPendingCallback, OverlapVecEnv, overlapping
+
+            learner_env = OverlapVecEnv(vec)
+            cls = overlapping(cls, learner_env)
+            learn_callbacks.insert(0, FlushPendingCallback(learner_env))
+        model = cls("MlpPolicy", learner_env, seed=seed, verbose=verbose, device="cpu",
+                    **params)
         outputs = [HumanOutputFormat(sys.stdout)] if verbose else []
         if log_dir:
             Path(log_dir).mkdir(parents=True, exist_ok=True)
@@ -199,7 +235,7 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
         start = time.perf_counter()
         interrupted = False
         try:
-            model.learn(total_timesteps=timesteps, callback=callbacks or None,
+            model.learn(total_timesteps=timesteps, callback=learn_callbacks or None,
                         progress_bar=False)
         except KeyboardInterrupt:
             # Ctrl-C: keep what was learned. The workers may be half-way through a reply,

@@ -138,6 +138,16 @@ class ScenarioEnv(gym.Wrapper):
         # decision (it is how its video recorder captures frames): record those steps there.
         self._render_frame = inner._automatic_rendering
         inner._automatic_rendering = self._intermediate_frame
+        # highway-env builds a new observation at each reset and observes with it at once:
+        # make it the numpy one before that first observation
+        self._define_spaces = inner.define_spaces
+        inner.define_spaces = self._fast_spaces
+
+    def _fast_spaces(self) -> None:
+        from tap_bench.sim.observation import use_fast_observation
+
+        self._define_spaces()
+        use_fast_observation(self.env)
 
     def _frame(self) -> None:
         env = self.env.unwrapped
@@ -164,12 +174,14 @@ class ScenarioEnv(gym.Wrapper):
             self._seed, self._episode = int(seed), 0
         else:
             self._episode += 1
-        from tap_bench.sim.observation import use_fast_observation
+        # imported here, not at the top: it imports highway-env, which `tap-bench envs` and
+        # `--help` never need
+        from tap_bench.sim.fast_road import use_fast_road
 
         with guard_class_attributes(f"resetting {self.scenario.env_id}"):
             obs, info = self.env.reset(seed=seed, options=options)
-            # the same Kinematics arrays, without pandas
-            use_fast_observation(self.env)
+            # the same traffic, simulated sooner (the observation is already the numpy one)
+            use_fast_road(self.env)
             if self.scenario.script is not None:
                 inner = self.env.unwrapped
                 self.scenario.script.install(inner)

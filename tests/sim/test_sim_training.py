@@ -161,3 +161,91 @@ def test_a_model_for_another_action_space_is_refused_clearly(tmp_path):
     with pytest.warns(UserWarning, match="pickles"), \
             pytest.raises(TapBenchError, match="action space"):
         policy.reset(intersection, seed=0)
+
+
+def test_overlapped_gradient_steps_run_while_the_envs_simulate_and_none_is_lost(
+        write_scenario):
+    """DQN over several envs takes its gradient steps after the next actions are sent; it
+    takes as many as the plain loop, and the last ones before the training ends."""
+    from stable_baselines3 import DQN
+    from stable_baselines3.common.callbacks import CallbackList
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecEnvWrapper
+
+    from tap_bench.rl.overlap import FlushPendingCallback, OverlapVecEnv, overlapping
+    from tap_bench.rl.training import HYPERPARAMETERS
+    from tap_bench.sim.scenario_env import ScenarioEnv
+
+    scenario = get_scenario(write_scenario("short", duration=5))
+    events: list[str] = []
+
+    class Spy(VecEnvWrapper):  # what the workers are asked, in order
+        def reset(self):
+            return self.venv.reset()
+
+        def step_async(self, actions):
+            events.append("sent")
+            self.venv.step_async(actions)
+
+        def step_wait(self):
+            events.append("waited")
+            return self.venv.step_wait()
+
+    def learner(overlap: bool):
+        venv = DummyVecEnv([lambda: ScenarioEnv(scenario, record=False, fast=True)] * 2)
+        venv.seed(0)
+        env, cls, callbacks = Spy(venv), DQN, []
+        if overlap:
+            env = OverlapVecEnv(env)
+            cls = overlapping(DQN, env)
+            callbacks = [FlushPendingCallback(env)]
+        model = cls("MlpPolicy", env, seed=0, device="cpu",
+                    **{**HYPERPARAMETERS["dqn"], **TINY["dqn"]})
+        real_train = DQN.train
+
+        def noted(self, gradient_steps, batch_size=100):
+            events.append("train")
+            real_train(self, gradient_steps, batch_size)
+
+        DQN.train = noted
+        try:
+            model.learn(total_timesteps=40, callback=CallbackList(callbacks))
+        finally:
+            DQN.train = real_train
+        return model
+
+    plain = learner(overlap=False)
+    plain_events, events[:] = list(events), []
+    overlapped = learner(overlap=True)
+    assert plain._n_updates == overlapped._n_updates > 10
+    assert plain_events.count("train") == events.count("train")
+    # plain: sent, waited, train; overlapped: sent, train, waited (the gradient steps run
+    # while the step is simulated), and the last gradient steps before the end
+    assert "waited,train,sent" in ",".join(plain_events)
+    assert "sent,train,waited" in ",".join(events)
+    assert "waited,train,sent" not in ",".join(events)
+    assert events[-1] == "train"
+
+
+def test_a_plain_script_without_a_main_guard_trains_on_two_envs(tmp_path, write_scenario):
+    """The worker processes do not run the caller's script again."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    short = write_scenario("short", duration=5)
+    script = tmp_path / "train_it.py"
+    script.write_text(
+        "from tap_bench.rl.training import train\n"
+        "print('script ran')\n"
+        f"result = train('ppo', {str(short)!r}, timesteps=32, seed=0, n_envs=2,\n"
+        f"               hyperparameters={TINY['ppo']!r}, output={str(tmp_path / 'm.zip')!r})\n"
+        "print('trained', result.timesteps)\n")
+    root = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get(
+        "PYTHONPATH", "")])}
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          env=env, cwd=tmp_path, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.count("script ran") == 1
+    assert "trained 32" in done.stdout and "RuntimeError" not in done.stderr

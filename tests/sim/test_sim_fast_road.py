@@ -1,0 +1,171 @@
+"""The pruned neighbour search answers exactly what highway-env's does, so scenarios simulate
+bit for bit as before."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from highway_env.road.lane import StraightLane
+from highway_env.road.road import Road, RoadNetwork
+from highway_env.vehicle.behavior import IDMVehicle
+from highway_env.vehicle.objects import Landmark, Obstacle
+
+from tap_bench.sim import make_env
+from tap_bench.sim.fast_road import TOLERANCE, FastRoad, use_fast_road
+
+
+def _episodes(name: str, *, fast_road: bool, fast: bool = False, seeds=(0, 1),
+              **config) -> pd.DataFrame:
+    """Every vehicle's state after every decision, with the ego's reward and observation."""
+    env = make_env(name, config=config or None, duration=8, record=not fast, fast=fast)
+    rows = []
+    for seed in seeds:
+        env.reset(seed=seed)
+        road = env.unwrapped.road
+        if not fast_road:  # back to highway-env's own methods
+            for method in ("act", "step", "neighbour_vehicles"):
+                vars(road).pop(method, None)
+        rng = np.random.default_rng(seed)
+        done, decision = False, 0
+        while not done:
+            action = int(rng.integers(env.action_space.n)) if rng.random() < 0.4 else 1
+            obs, reward, terminated, truncated, _ = env.step(action)
+            done, decision = terminated or truncated, decision + 1
+            rows += [(seed, decision, k, *v.position, v.heading, v.speed, v.crashed,
+                      v.lane_index[2], reward, *np.ravel(obs)[:10])
+                     for k, v in enumerate(road.vehicles)]
+    return pd.DataFrame(rows)
+
+
+@pytest.mark.parametrize(("name", "fast", "config"), [
+    ("highway", False, {}), ("highway", True, {}),
+    ("highway", True, {"vehicles_count": 50, "lanes_count": 4}),
+    ("merge", False, {}), ("exit", False, {}), ("cut_in", True, {}), ("lead_braking", False, {}),
+    ("roundabout", False, {}),  # curved lanes: highway-env's own search
+])
+def test_scenarios_simulate_bit_for_bit_as_with_highway_envs_road(name, fast, config):
+    ours = _episodes(name, fast_road=True, fast=fast, **config)
+    theirs = _episodes(name, fast_road=False, fast=fast, **config)
+    assert len(ours) > 50
+    pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
+    if name == "highway" and not fast:
+        assert ours[8].any()  # crashes happen in these episodes: collisions are compared
+
+
+def test_every_query_in_dense_traffic_is_answered_as_highway_env_does(monkeypatch):
+    """Each query of a simulation, inside and outside Road.act, on own and other lanes."""
+    env = make_env("highway", config={"vehicles_count": 60, "lanes_count": 4}, duration=6)
+    env.reset(seed=5)
+    road = env.unwrapped.road
+    index = road.neighbour_vehicles.__self__
+    assert isinstance(index, FastRoad)
+    asked = []
+    fast_search = index.neighbour_vehicles
+
+    def checked(vehicle, lane_index=None):
+        answer = fast_search(vehicle, lane_index)
+        assert answer == Road.neighbour_vehicles(road, vehicle, lane_index)
+        asked.append(lane_index)
+        return answer
+
+    monkeypatch.setattr(road, "neighbour_vehicles", checked)
+    for _ in range(6):
+        env.step(1)
+        for vehicle in road.vehicles:  # outside act, on every lane of the road
+            for lane_index in road.network.all_side_lanes(vehicle.lane_index):
+                checked(vehicle, lane_index)
+    assert len(asked) > 1000
+
+
+def _straight_road(positions, *, objects=()) -> tuple[Road, list]:
+    network = RoadNetwork()
+    for lane in range(2):
+        network.add_lane("a", "b", StraightLane([0, 4 * lane], [500, 4 * lane]))
+    road = Road(network=network, np_random=np.random.RandomState(0))
+    vehicles = [IDMVehicle(road, np.array(p, dtype=float), 0.0, 20.0) for p in positions]
+    road.vehicles.extend(vehicles)
+    road.objects.extend(objects)
+    return road, vehicles
+
+
+@pytest.mark.parametrize("inside_act", [False, True])
+def test_ties_edges_and_objects_are_resolved_as_highway_env_does(inside_act):
+    half = StraightLane.DEFAULT_WIDTH / 2 + 1.0  # highway-env's on-lane margin is 1 m
+    positions = [
+        (100, 0), (100, 0),  # two vehicles at the same place: ties
+        (130, 0), (130, 0.5), (70, 0), (70, -0.5),  # equal s, different lateral offsets
+        (160, half), (160.5, half + 1e-9), (40, -half),  # on and just off the lane's edge
+        (100 + 1e-12, 0), (100 - 1e-12, 4),  # within rounding of the querying vehicle
+        (-5, 0), (-5 - 1e-9, 0), (505 - 1e-9, 0), (505, 0),  # the lane's ends
+        (200, 4), (220, 8),  # the other lane, and off the road
+    ]
+    obstacle = Obstacle(None, np.array([115.0, 0.0]))
+    landmark = Landmark(None, np.array([105.0, 0.0]))
+    road, vehicles = _straight_road(positions, objects=[obstacle, landmark])
+    obstacle.road = landmark.road = road
+    index = FastRoad(road)
+    expected, answered = [], []
+
+    def ask_all():
+        for vehicle in vehicles:
+            for lane_index in (("a", "b", 0), ("a", "b", 1), None):
+                expected.append(Road.neighbour_vehicles(road, vehicle, lane_index))
+                answered.append(index.neighbour_vehicles(vehicle, lane_index))
+
+    if inside_act:
+        road.vehicles[0].act = lambda *args: ask_all()  # queried while the road acts
+        index.act()
+    else:
+        ask_all()
+    assert len(answered) == 3 * len(vehicles)
+    assert answered == expected
+    assert any(leader is obstacle for leader, _ in answered)
+    assert not any(landmark in pair for pair in answered)
+
+
+def test_the_tolerance_is_far_above_the_rounding_of_the_projection():
+    """Positions up to 10 km: numpy's and highway-env's projections differ by far less."""
+    rng = np.random.default_rng(0)
+    lane = StraightLane([-300.0, 17.0], [9000.0, 2500.0])
+    positions = rng.uniform(-10_000, 10_000, size=(2000, 2))
+    delta = positions - lane.start
+    vectorised = delta[:, 0] * lane.direction[0] + delta[:, 1] * lane.direction[1]
+    exact = np.array([lane.local_coordinates(p)[0] for p in positions])
+    assert np.max(np.abs(vectorised - exact)) < TOLERANCE / 1000
+
+
+def test_only_highway_envs_own_road_gets_the_index():
+    env = make_env("highway", record=False, duration=2)
+    env.reset(seed=0)
+    assert isinstance(env.unwrapped.road.neighbour_vehicles.__self__, FastRoad)
+    assert not use_fast_road(env)  # already installed: not twice
+    intersection = make_env("intersection", record=False, duration=2)
+    intersection.reset(seed=0)  # a RegulatedRoad acts on its own
+    assert not use_fast_road(intersection)
+
+
+def test_collisions_are_checked_in_highway_envs_order_whoever_checks_them():
+    """Vehicles that check collisions anywhere in the road's list (an ego entered late, a
+    scripted vehicle): the same crashes and impacts as highway-env's loop over all pairs."""
+    import copy
+
+    for checks in ([False, True, False, False, True, False], [True] * 6, [False] * 6,
+                   [False, False, False, False, False, True]):
+        # three overlapping pairs and a chain closing in within the step
+        positions = [(100, 0), (102, 0), (140, 0), (141, 0.5), (180, 0), (184.9, 0)]
+        road, vehicles = _straight_road(positions)
+        for vehicle, check in zip(vehicles, checks, strict=True):
+            vehicle.check_collisions = check
+        theirs = copy.deepcopy(road)
+        FastRoad(road).step(0.2)
+        Road.step(theirs, 0.2)
+        for ours, reference in zip(road.vehicles, theirs.vehicles, strict=True):
+            assert ours.crashed == reference.crashed
+            np.testing.assert_array_equal(ours.position, reference.position)
+            np.testing.assert_array_equal(np.asarray(ours.impact if ours.impact is not None
+                                                     else np.nan),
+                                          np.asarray(reference.impact
+                                                     if reference.impact is not None
+                                                     else np.nan))
+        assert any(v.crashed for v in road.vehicles) == any(checks)
