@@ -26,6 +26,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--exact", action="store_true",
                    help="train on the scenario itself (10 Hz, every collision), not its fast "
                    "variant: about twice as slow")
+    p.add_argument("--keep", choices=("last", "best"), default="last",
+                   help="save the weights at the end of training (last, the default) or "
+                   "those of the learning curve's evaluation with the highest mean return "
+                   "(best: model selection on the curve's seeds)")
     p.add_argument("--no-curve", action="store_true",
                    help="do not evaluate the agent during training (no learning curve)")
     p.add_argument("--curve-points", type=int, default=10,
@@ -50,17 +54,20 @@ def run(args: argparse.Namespace) -> int:
     command = "tap-bench train " + " ".join(shlex.quote(a) for a in (
         "--algo", args.algo, "--env", args.env, "--timesteps", str(args.timesteps), "--seed",
         str(args.seed), "--n-envs", str(n_envs), *(["--exact"] if args.exact else []),
-        "-o", args.output))
+        *(["--keep", "best"] if args.keep == "best" else []), "-o", args.output))
     curve = None if args.no_curve else CurveConfig(
         points=args.curve_points, seeds=args.curve_seeds, reference=args.reference,
         level=args.level)
     result = train(args.algo, args.env, timesteps=args.timesteps, seed=args.seed,
                    output=args.output, n_envs=n_envs, fast=not args.exact, curve=curve,
-                   log_dir=args.log_dir, verbose=args.verbose, command=command)
+                   log_dir=args.log_dir, verbose=args.verbose, command=command,
+                   keep=args.keep)
     print(f"trained {args.algo} on {args.env} for {result.timesteps} steps in "
           f"{result.train_seconds:.0f} s ({result.steps_per_second:.1f} steps/s, "
           f"{result.episodes} episodes)")
-    print(f"wrote {result.model_path} and {result.definition_path}")
+    kept = ("" if result.kept_timesteps is None
+            else f" (the weights of its best evaluation, at {result.kept_timesteps} steps)")
+    print(f"wrote {result.model_path} and {result.definition_path}{kept}")
     if result.curve is not None:
         last = result.curve.iloc[-1]
         print(f"learning curve: {len(result.curve)} evaluations on seeds {curve.seeds} "

@@ -5,6 +5,7 @@ This module imports Stable-Baselines3: import it only where SB3 is installed.
 
 from __future__ import annotations
 
+import copy
 import time
 from collections.abc import Mapping
 from typing import Any
@@ -39,15 +40,19 @@ class CoverageCallback(BaseCallback):
         every: env steps between evaluations (counted over all training envs).
         observation: the highway-env observation config the agent reads.
         name: the agent's name in the rollouts.
+        keep_best: also keep a copy of the policy's weights at the evaluation with the
+            highest mean return (the first of equal ones), to save instead of the last.
 
     Attributes:
         rows: the curve so far, one dict per evaluation (:attr:`curve` as a table).
         eval_seconds: wall time of each evaluation [s].
+        best: the kept evaluation's row (None without ``keep_best`` or before one).
+        best_weights: the policy's ``state_dict`` at that evaluation.
     """
 
     def __init__(self, scenario: Scenario, reference: Any, config: CurveConfig, *,
                  every: int, observation: Mapping[str, Any], name: str = "agent",
-                 verbose: int = 0) -> None:
+                 keep_best: bool = False, verbose: int = 0) -> None:
         super().__init__(verbose)
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
             raise ParameterError("every", every, "an integer >= 1 (env steps)")
@@ -59,6 +64,9 @@ class CoverageCallback(BaseCallback):
         self.name = name
         self.rows: list[dict[str, Any]] = []
         self.eval_seconds: list[float] = []
+        self.keep_best = keep_best
+        self.best: dict[str, Any] | None = None
+        self.best_weights: dict[str, Any] | None = None
         self._next = 0
         self._start = 0.0
 
@@ -96,6 +104,10 @@ class CoverageCallback(BaseCallback):
                         timesteps=self.num_timesteps,
                         seconds=time.perf_counter() - self._start, train_return=train_return)
         self.rows.append(row)
+        if self.keep_best and (self.best is None
+                               or row["return_mean"] > self.best["return_mean"]):
+            self.best = row
+            self.best_weights = copy.deepcopy(self.model.policy.state_dict())
         self.eval_seconds.append(time.perf_counter() - began)
         for key, value in (("coverage", row["coverage"]),
                            ("weighted_coverage", row["weighted_coverage"]),

@@ -228,13 +228,15 @@ def curve_row(policy: Any, scenario: Scenario, reference: Reference, config: Cur
     return {k: row[k] for k in CURVE_COLUMNS}
 
 
-def plot_curve(curve: pd.DataFrame, path: str | os.PathLike, *, title: str = "") -> Path:
+def plot_curve(curve: pd.DataFrame, path: str | os.PathLike, *, title: str = "",
+               kept: int | None = None) -> Path:
     """Plot a curve table: return, crash rate and coverage/diversity against timesteps.
 
     Args:
         curve: the curve table (:data:`CURVE_COLUMNS`).
         path: the ``.png`` to write (atomically).
         title: the figure's title.
+        kept: the timesteps of the weights saved, when not the last (a dashed line).
     """
     import matplotlib
 
@@ -274,6 +276,12 @@ def plot_curve(curve: pd.DataFrame, path: str | os.PathLike, *, title: str = "")
     for ax in axes:
         ax.set_xlabel("training steps")
         ax.grid(alpha=0.3)
+        if kept is not None:
+            ax.axvline(kept, color="0.3", linestyle="--", linewidth=1)
+    if kept is not None:
+        axes[0].annotate(f"weights kept ({kept} steps)", (kept, 1), xycoords=(
+            "data", "axes fraction"), xytext=(3, -12), textcoords="offset points",
+            fontsize=7, color="0.3")
     if title:
         fig.suptitle(title, fontsize=10)
     path = Path(path)

@@ -4,10 +4,15 @@ Stable-Baselines3's off-policy loop (DQN) alternates: the envs simulate one step
 learner waits, then the learner takes its gradient steps while the envs wait. With the envs
 in worker processes the two can run at once: :func:`overlapping` makes a learner whose
 ``train`` only notes the gradient steps asked for, and :class:`OverlapVecEnv` runs them
-after it has sent the next actions to the workers, while they simulate. The one difference
+after it has sent the next actions to the workers, while they simulate. The differences
 from the plain loop: the action of a step is chosen by the network as it was before the
 previous step's gradient steps (one update of lag, among thousands; highway-env's DQN takes
-one gradient step per step). ``benchmarks/bench_train_speed.py`` measures what it saves.
+one gradient step per step); the exploration draws and the replay buffer's sample draws
+come in another order from the same generator, so a seeded run reproduces itself, not the
+plain loop's run; and the learner now computes while the workers do, three busy
+processes on two cores. Nothing in the gradient steps may talk to the envs (the workers'
+reply to the pending step would be read instead): DQN's do not.
+``benchmarks/bench_train_speed.py`` measures what it saves.
 
 This module subclasses Stable-Baselines3 classes: it is imported only where SB3 is installed.
 """

@@ -25,6 +25,7 @@ steps of the small MLPs are a few per cent. So training runs
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import dataclasses
 import functools
@@ -86,6 +87,8 @@ class TrainingResult:
             without it.
         curve_path, plot_path: the curve table (``.curve.csv``) and its plot
             (``.curve.png``), or None.
+        kept_timesteps: the env steps at which the saved weights were evaluated best
+            (``keep="best"``), or None when the last weights were saved.
     """
 
     model_path: Path
@@ -97,6 +100,7 @@ class TrainingResult:
     curve: pd.DataFrame | None = None
     curve_path: Path | None = None
     plot_path: Path | None = None
+    kept_timesteps: int | None = None
 
     @property
     def coverage(self) -> float | None:
@@ -122,16 +126,18 @@ def _make_training_env(scenario: Scenario, fast: bool, worker: bool = False) -> 
 
 @contextlib.contextmanager
 def _main_not_rerun() -> Iterator[None]:
-    """Start worker processes without running the caller's script in them.
+    """Start worker processes without running an unguarded caller's script in them.
 
     multiprocessing's forkserver and spawn start methods import the ``__main__`` module (by
-    file or by module name) in every worker, which runs a plain script without an
-    ``if __name__ == "__main__":`` guard again there: its ``train`` call would start more
-    workers. The training workers need nothing of it (they build their env from this
-    module), so ``__main__`` is hidden from multiprocessing while they start.
+    file or by module name) in every worker. A script with an ``if __name__ ==
+    "__main__":`` guard expects that (its top level may register envs the workers need); a
+    plain script without one would run its ``train`` call again there and fail. So for a
+    ``__main__`` whose source has no such guard, ``__main__`` is hidden from
+    multiprocessing while the workers start (they build their env from this module and
+    need nothing of it); any other ``__main__`` is left as it is.
     """
     main = sys.modules.get("__main__")
-    if main is None:
+    if main is None or _has_main_guard(main):
         yield
         return
     saved = {key: vars(main)[key] for key in ("__file__", "__spec__") if key in vars(main)}
@@ -142,6 +148,28 @@ def _main_not_rerun() -> Iterator[None]:
     finally:
         vars(main).pop("__spec__", None)
         vars(main).update(saved)
+
+
+def _has_main_guard(main: Any) -> bool:
+    """Whether ``main``'s source has a top-level ``if __name__ == "__main__":`` (True when
+    its source cannot be read: multiprocessing's usual behaviour then)."""
+    spec = getattr(main, "__spec__", None)
+    path = getattr(main, "__file__", None) or getattr(spec, "origin", None)
+    if not path:
+        return True  # python -c, an interactive session: nothing to import
+    try:
+        tree = ast.parse(Path(path).read_text(encoding="utf-8"), filename=str(path))
+    except (OSError, SyntaxError, UnicodeDecodeError, ValueError):
+        return True
+    for node in tree.body:
+        if isinstance(node, ast.If) and isinstance(node.test, ast.Compare) \
+                and len(node.test.ops) == 1 and isinstance(node.test.ops[0], ast.Eq):
+            sides = [node.test.left, *node.test.comparators]
+            names = [s.id for s in sides if isinstance(s, ast.Name)]
+            constants = [s.value for s in sides if isinstance(s, ast.Constant)]
+            if names == ["__name__"] and constants == ["__main__"]:
+                return True
+    return False
 
 
 def _vec_env(scenario: Scenario, *, n_envs: int, fast: bool, seed: int) -> Any:
@@ -163,7 +191,7 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
           hyperparameters: Mapping[str, Any] | None = None, n_envs: int = DEFAULT_N_ENVS,
           fast: bool = True, curve: CurveConfig | None = None,
           log_dir: str | os.PathLike | None = None, verbose: int = 0,
-          command: str | None = None) -> TrainingResult:
+          command: str | None = None, keep: str = "last") -> TrainingResult:
     """Train ``algo`` on scenario ``env`` for ``timesteps`` decisions and save it.
 
     Args:
@@ -184,9 +212,13 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
         log_dir: write SB3's log, with the ``tap/*`` curve keys, there as CSV.
         verbose: SB3's verbosity; 1 also prints the log and each curve point.
         command: the command line to record (default: this process's).
+        keep: which weights to save: ``"last"`` (the end of training) or ``"best"`` (those
+            of the curve's evaluation with the highest mean return, the first of equal
+            ones: model selection on the curve's seeds, which the benchmark's evaluation
+            seeds 1000+ do not overlap; needs the curve). The definition records which.
 
     Raises:
-        ParameterError: ``timesteps``, ``n_envs`` or ``output`` is not usable.
+        ParameterError: ``timesteps``, ``n_envs``, ``output`` or ``keep`` is not usable.
     """
     output = Path(output)
     if output.suffix != ".zip":
@@ -196,6 +228,12 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
         raise ParameterError("timesteps", timesteps, "an integer >= 1")
     if isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1:
         raise ParameterError("n_envs", n_envs, "an integer >= 1 (training envs)")
+    if keep not in ("last", "best"):
+        raise ParameterError("keep", keep, "'last' or 'best'")
+    if keep == "best" and curve is None:
+        raise ParameterError("keep", keep, "'last' without a learning curve", message=(
+            "keep='best' picks the weights of the best evaluation of the learning curve; "
+            "train with a curve (drop --no-curve), or keep='last'."))
     cls = algorithm_class(algo)
     algo = algo.lower()
     import torch
@@ -214,7 +252,8 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
         reference = coverage_reference(curve, scenario)
         callbacks.append(CoverageCallback(
             scenario, reference, curve, every=max(1, timesteps // curve.points),
-            observation=observation, name=output.stem, verbose=verbose))
+            observation=observation, name=output.stem, keep_best=keep == "best",
+            verbose=verbose))
     vec = _vec_env(scenario, n_envs=n_envs, fast=fast, seed=seed)
     learner_env, learn_callbacks = vec, list(callbacks)
     try:
@@ -241,6 +280,8 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
             # Ctrl-C: keep what was learned. The workers may be half-way through a reply,
             # so they are stopped rather than asked to close.
             interrupted = True
+            if learner_env is not vec:
+                learner_env.flush()  # the gradient steps still pending (no env needed)
             print(f"training interrupted at {model.num_timesteps} steps: saving the model.",
                   file=sys.stderr, flush=True)
             for process in getattr(vec, "processes", ()):
@@ -258,6 +299,9 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
     eval_seconds = sum(callbacks[0].eval_seconds) if callbacks else 0.0
 
     trained = int(model.num_timesteps)
+    kept = callbacks[0].best if keep == "best" else None
+    if kept is not None:
+        model.policy.load_state_dict(callbacks[0].best_weights)
     output.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(output) as tmp, open(tmp, "wb") as handle:
         model.save(handle)
@@ -266,7 +310,9 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
         "name": output.stem,
         "kind": "sb3",
         "description": f"{algo.upper()} trained on {scenario.env_id} for {trained} steps "
-                       f"(seed {seed}) by tap-bench train.",
+                       f"(seed {seed}) by tap-bench train" + (
+                           f"; the weights of its best evaluation, at {kept['timesteps']} "
+                           "steps." if kept is not None else "."),
         "params": {
             "model": output.name,
             "algo": algo,
@@ -274,6 +320,10 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
             "observation": observation,
             "timesteps": trained,
             **({"interrupted_of": timesteps} if interrupted else {}),
+            **({"kept": "best", "kept_timesteps": int(kept["timesteps"]),
+                "kept_eval_return": round(float(kept["return_mean"]), 3),
+                "kept_eval_crash_rate": float(kept["crash_rate"])}
+               if kept is not None else {"kept": "last"}),
             "n_envs": n_envs,
             "fast": fast,
             "seed": seed,
@@ -286,12 +336,13 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
         tmp.write_text(json.dumps(doc, indent=2) + "\n")
     result = TrainingResult(model_path=output, definition_path=definition,
                             timesteps=trained, seconds=seconds,
-                            train_seconds=seconds - eval_seconds, episodes=int(episodes))
+                            train_seconds=seconds - eval_seconds, episodes=int(episodes),
+                            kept_timesteps=None if kept is None else int(kept["timesteps"]))
     if callbacks:
         table = callbacks[0].curve
         stem = output.with_suffix("")
         curve_path = write_table(table, f"{stem}.curve.csv")
-        plot_path = plot_curve(table, f"{stem}.curve.png",
+        plot_path = plot_curve(table, f"{stem}.curve.png", kept=result.kept_timesteps,
                                title=f"{output.stem}: {algo.upper()} on {scenario.env_id}, "
                                      f"evaluated on seeds {curve.seeds}; coverage of "
                                      f"{callbacks[0].reference.description}")

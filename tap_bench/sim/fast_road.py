@@ -62,6 +62,7 @@ class FastRoad:
     def __init__(self, road: Road) -> None:
         self.road = road
         self._others: list[Any] | None = None
+        self._count = 0
         self._positions: np.ndarray | None = None
         self._lanes: dict[Any, tuple[list[float], list[float], list[int]] | None] = {}
 
@@ -91,6 +92,7 @@ class FastRoad:
 
     def act(self) -> None:
         """highway-env's ``Road.act`` with the projections kept for its duration."""
+        self._count = len(self.road.vehicles) + len(self.road.objects)
         self._others = [v for v in self.road.vehicles + self.road.objects
                         if not isinstance(v, Landmark)]
         self._positions = (np.array([v.position for v in self._others], dtype=float)
@@ -117,7 +119,9 @@ class FastRoad:
         lane = road.network.get_lane(lane_index)
         if type(lane) is not StraightLane or road.neighbour_vehicles_connected_lanes:
             return Road.neighbour_vehicles(road, vehicle, lane_index)
-        if self._others is None:  # outside Road.act: positions may change between queries
+        if self._others is None or self._count != len(road.vehicles) + len(road.objects):
+            # outside Road.act positions may change between queries; inside it a vehicle
+            # may have been added or removed (none of highway-env's does): project afresh
             others = [v for v in road.vehicles + road.objects if not isinstance(v, Landmark)]
             if not others:
                 return None, None

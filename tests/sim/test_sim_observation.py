@@ -93,3 +93,20 @@ def test_the_fast_variant_refuses_recording_and_rates_it_cannot_simulate():
         make_env("highway", fast=True)
     with pytest.raises(ValueError, match="policy_frequency 2"):
         make_env("highway", config={"policy_frequency": 2}, record=False, fast=True)
+
+
+def test_a_reset_observes_with_the_numpy_observation_from_its_first_observation(monkeypatch):
+    """highway-env observes once inside reset: with the numpy observation, not pandas."""
+    env = make_env("highway", record=False, duration=2)
+    env.reset(seed=0)
+    calls = []
+    original = KinematicObservation.observe
+
+    def counted(self):
+        calls.append(type(self))
+        return original(self)
+
+    monkeypatch.setattr(KinematicObservation, "observe", counted)
+    obs, _ = env.reset(seed=1)
+    assert KinematicObservation not in calls
+    np.testing.assert_array_equal(obs, original(env.unwrapped.observation_type))

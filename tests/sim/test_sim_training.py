@@ -22,7 +22,7 @@ TINY = {"ppo": {"n_steps": 16, "batch_size": 16, "n_epochs": 1},
 TINY_CURVE = CurveConfig(points=1, seeds="500-501", reference="vocabulary")
 
 
-@pytest.mark.parametrize(("algo", "n_envs"), [("ppo", 2), ("dqn", 1)])
+@pytest.mark.parametrize(("algo", "n_envs"), [("ppo", 2), ("dqn", 1), ("dqn", 2)])
 def test_a_short_training_gives_a_loadable_model_and_its_learning_curve(tmp_path, algo,
                                                                        n_envs, write_scenario):
     from tap_bench.rl.training import train
@@ -131,6 +131,43 @@ def test_bad_training_arguments_are_refused_before_any_work(tmp_path):
         train("ppo", "highway", timesteps=10, seed=0, output=tmp_path / "m.zip", n_envs=0)
     with pytest.raises(ValueError, match="timesteps"):
         train("ppo", "highway", timesteps=0, seed=0, output=tmp_path / "m.zip")
+
+
+def test_keep_best_saves_the_weights_of_the_best_evaluation(tmp_path, write_scenario):
+    """The saved model drives the curve's seeds exactly as at its best evaluation."""
+    from stable_baselines3 import DQN
+
+    from tap_bench.rl.curve import GreedyModelPolicy
+    from tap_bench.rl.training import train
+
+    short = write_scenario("short", duration=5)
+    config = CurveConfig(points=4, seeds="500-503", reference="vocabulary")
+    result = train("dqn", short, timesteps=120, seed=1, output=tmp_path / "best.zip", n_envs=1,
+                   hyperparameters={**TINY["dqn"], "learning_rate": 5e-3}, curve=config,
+                   keep="best")
+    curve = result.curve
+    best = curve.loc[curve["return_mean"].idxmax()]  # the first of equal maxima
+    assert result.kept_timesteps == best["timesteps"]
+    doc = json.loads(result.definition_path.read_text())["params"]
+    assert doc["kept"] == "best" and doc["kept_timesteps"] == best["timesteps"]
+    assert doc["timesteps"] == result.timesteps  # the steps trained, whichever weights kept
+    model = DQN.load(result.model_path, device="cpu")
+    again = curve_row(GreedyModelPolicy(model, "best", {"type": "Kinematics"}),
+                      get_scenario(short), coverage_reference(config, get_scenario(short)),
+                      config, timesteps=0, seconds=0.0, train_return=float("nan"))
+    assert again["return_mean"] == pytest.approx(best["return_mean"], abs=1e-9)
+    # the curve did change: otherwise "best" could not be told from "last"
+    assert curve["return_mean"].nunique() > 1
+
+
+def test_keep_best_needs_the_curve_and_keep_takes_two_values(tmp_path):
+    from tap_bench.rl.training import train
+
+    with pytest.raises(ValueError, match="curve"):
+        train("dqn", "highway", timesteps=10, seed=0, output=tmp_path / "m.zip", keep="best")
+    with pytest.raises(ValueError, match="keep"):
+        train("dqn", "highway", timesteps=10, seed=0, output=tmp_path / "m.zip",
+              keep="first")
 
 
 @pytest.mark.slow
@@ -249,3 +286,36 @@ def test_a_plain_script_without_a_main_guard_trains_on_two_envs(tmp_path, write_
     assert done.returncode == 0, done.stderr
     assert done.stdout.count("script ran") == 1
     assert "trained 32" in done.stdout and "RuntimeError" not in done.stderr
+
+
+@pytest.mark.parametrize(("source", "guarded"), [
+    ("train()\n", False),
+    ("def main():\n    train()\n\nif __name__ == '__main__':\n    main()\n", True),
+    ("if '__main__' == __name__:\n    train()\n", True),
+    ("def f():\n    if __name__ == '__main__':\n        pass\ntrain()\n", False),
+    ("if __name__ != '__main__':\n    pass\ntrain()\n", False),
+    ("this is not python(\n", True),  # unreadable: multiprocessing's usual behaviour
+])
+def test_only_a_script_without_a_main_guard_is_hidden_from_the_workers(tmp_path, monkeypatch,
+                                                                       source, guarded):
+    import sys
+    import types
+
+    from tap_bench.rl.training import _has_main_guard, _main_not_rerun
+
+    script = tmp_path / "script.py"
+    script.write_text(source)
+    main = types.ModuleType("__main__")
+    main.__file__ = str(script)
+    main.__spec__ = None
+    monkeypatch.setitem(sys.modules, "__main__", main)
+    assert _has_main_guard(main) is guarded
+    with _main_not_rerun():
+        assert (getattr(main, "__file__", None) == str(script)) is guarded
+    assert main.__file__ == str(script) and main.__spec__ is None  # restored
+    with pytest.raises(KeyError), _main_not_rerun():
+        raise KeyError("inside")
+    assert main.__file__ == str(script)
+    interactive = types.ModuleType("__main__")  # python -c, a REPL: no file at all
+    monkeypatch.setitem(sys.modules, "__main__", interactive)
+    assert _has_main_guard(interactive)
