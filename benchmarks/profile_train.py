@@ -35,6 +35,11 @@ PROBES = (
     ("observation", "highway_env/envs/common/observation.py", "observe"),
     ("observation", "tap_bench/sim/observation.py", "observe"),
     ("recording", "tap_bench/sim/recorder.py", "frame"),
+    # inside the simulation: highway-env's search, or tap-bench's (sim/fast_road.py, which
+    # falls back to highway-env's on curved lanes: counted twice there; highway is straight)
+    ("neighbour search", "highway_env/road/road.py", "neighbour_vehicles"),
+    ("neighbour search", "tap_bench/sim/fast_road.py", "neighbour_vehicles"),
+    ("collision checks", "highway_env/vehicle/objects.py", "handle_collisions"),
     ("labelling (coverage)", "tap_bench/sim/wrappers.py", "episode_labels"),
     ("curve evaluations", "tap_bench/rl/callbacks.py", "_evaluate"),
     ("gradient steps", "stable_baselines3/dqn/dqn.py", "train"),
@@ -49,7 +54,8 @@ NESTING = {  # group: the groups whose time is inside it
               "curve evaluations"),
     # the rest of the env: rewards, scene building at reset, highway-env's bookkeeping
     "env (step, reset)": ("simulation", "observation"),
-    "simulation": ("recording",),  # nearly all recording happens inside the simulation
+    # nearly all recording happens inside the simulation
+    "simulation": ("recording", "neighbour search", "collision checks"),
 }
 
 
@@ -84,7 +90,10 @@ def main() -> None:
     from machine import report
 
     import tap_bench
-    from tap_bench.rl.training import train
+    try:
+        from tap_bench.rl.training import train
+    except ImportError:  # the code before issue 16 kept it in tap_bench.sim
+        from tap_bench.sim.training import train
 
     warnings.filterwarnings("ignore")
     kwargs = {}

@@ -8,19 +8,22 @@ can be rebuilt; and the behaviour-coverage learning curve (``<name>.curve.csv``,
 and ``<name>.curve.png``; :mod:`tap_bench.rl.curve`).
 
 Where the time goes (``benchmarks/profile_train.py``): almost all of it is highway-env's
-simulation (IDM and MOBIL for every vehicle, neighbour searches and collision checks over
-all pairs, at every simulated step), then the Kinematics observation (pandas); the gradient
-steps of the small MLPs are a few per cent. So training runs
+simulation (IDM and MOBIL for every vehicle, neighbour searches and collision checks, at
+every simulated step), then the observation; the gradient steps of the small MLPs are a few
+per cent. So training runs
 
 - on the scenario's fast variant (``fast=True``: 5 Hz simulation, collisions checked for
-  the ego only, as highway-env's ``highway-fast-v0``): half the simulated steps, and no
-  collision checks between the other vehicles; decisions, observation, actions and
-  reward are the scenario's, and the curve evaluates on the scenario itself;
+  the ego only, as highway-env's ``highway-fast-v0``): half the simulated steps;
+  decisions, observation, actions and reward are the scenario's, and the curve evaluates
+  on the scenario itself;
+- with highway-env's neighbour search and collision loop computed sooner, the same results
+  bit for bit (:mod:`tap_bench.sim.fast_road`, in every scenario env), and the Kinematics
+  observation without pandas (:mod:`tap_bench.sim.observation`);
 - on ``n_envs`` envs stepped in parallel worker processes (``SubprocVecEnv``; one env runs
-  in this process);
-- with the Kinematics observation computed without pandas (:mod:`tap_bench.sim.observation`);
+  in this process), DQN's gradient steps overlapping their simulation
+  (:mod:`tap_bench.rl.overlap`);
 - with one torch thread: the workers are the parallelism, and batches of 32 to 64 rows
-  gain nothing from more.
+  gain nothing from more (two threads made PPO 10 % slower here).
 """
 
 from __future__ import annotations

@@ -104,9 +104,12 @@ class SB3Policy:
         deterministic: act greedily (True) or sample from the policy.
         base_dir: folder of the definition file.
         timesteps, seed, hyperparameters, train_seconds, command, n_envs, fast,
-            interrupted_of: what ``tap-bench train`` recorded (``n_envs`` parallel training
-            envs, on the fast variant or not; ``interrupted_of``: the timesteps asked for when
-            Ctrl-C stopped the training earlier); kept in :attr:`training`.
+            interrupted_of, kept, kept_timesteps, kept_eval_return, kept_eval_crash_rate:
+            what ``tap-bench train`` recorded (``n_envs`` parallel training envs, on the
+            fast variant or not; ``interrupted_of``: the timesteps asked for when Ctrl-C
+            stopped the training earlier; ``kept``: ``"last"`` or ``"best"``, the weights
+            saved, with the steps, return and crash rate of the evaluation they come from);
+            kept in :attr:`training`.
     """
 
     def __init__(self, name: str, model: str, algo: str | None = None,
@@ -116,7 +119,9 @@ class SB3Policy:
                  hyperparameters: Mapping[str, Any] | None = None,
                  train_seconds: float | None = None, command: str | None = None,
                  n_envs: int | None = None, fast: bool | None = None,
-                 interrupted_of: int | None = None) -> None:
+                 interrupted_of: int | None = None, kept: str | None = None,
+                 kept_timesteps: int | None = None, kept_eval_return: float | None = None,
+                 kept_eval_crash_rate: float | None = None) -> None:
         path = Path(model)
         if not path.is_absolute() and base_dir is not None:
             path = Path(base_dir) / path
@@ -134,7 +139,10 @@ class SB3Policy:
         self.training = {"timesteps": timesteps, "seed": seed,
                          "hyperparameters": hyperparameters, "train_seconds": train_seconds,
                          "command": command, "n_envs": n_envs, "fast": fast,
-                         "interrupted_of": interrupted_of}
+                         "interrupted_of": interrupted_of, "kept": kept,
+                         "kept_timesteps": kept_timesteps,
+                         "kept_eval_return": kept_eval_return,
+                         "kept_eval_crash_rate": kept_eval_crash_rate}
         self._model: Any = None
 
     def __getstate__(self) -> dict[str, Any]:

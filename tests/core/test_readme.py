@@ -64,8 +64,8 @@ NOT_RUN = {  # command -> why the tests cannot run it as written
         "needs WOMD files",
     "tap-bench export segments.parquet --format openlabel -o openlabel/":
         "needs the maneuver-level segments of the WOMD command above",
-    "tap-bench train --algo dqn --env highway --timesteps 10000 -o "
-    "policies/dqn-highway.zip": "trains for an hour (tests/sim trains a small agent)",
+    "tap-bench train --algo dqn --env highway --timesteps 30000 --keep best -o "
+    "my-dqn.zip": "trains for about 6 minutes (tests/sim trains small agents)",
     "tap-bench coverage dqn.parquet --reference womd_labels.parquet --level maneuver":
         "needs WOMD labels (womd_labels.parquet, from the WOMD commands)",
     "tap-bench bench run --suite default -o results/run-001/":

@@ -156,6 +156,10 @@ def test_keep_best_saves_the_weights_of_the_best_evaluation(tmp_path, write_scen
                       get_scenario(short), coverage_reference(config, get_scenario(short)),
                       config, timesteps=0, seconds=0.0, train_return=float("nan"))
     assert again["return_mean"] == pytest.approx(best["return_mean"], abs=1e-9)
+    # the definition loads as a policy, and says which weights it holds
+    policy = load_policy(result.definition_path)
+    assert policy.training["kept"] == "best"
+    assert policy.training["kept_timesteps"] == best["timesteps"]
     # the curve did change: otherwise "best" could not be told from "last"
     assert curve["return_mean"].nunique() > 1
 
