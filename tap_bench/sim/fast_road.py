@@ -1,12 +1,13 @@
-"""highway-env's per-step road work (``Road.act``, ``Road.step``), the same results sooner.
+"""highway-env's per-step road work (``Road.act``, ``Road.step``, the lane lookup), the same
+results sooner.
 
 Every IDM/MOBIL vehicle asks the road for its leader and follower on its own lane and on
 each lane it considers changing to, several times per simulated step; highway-env answers
 by projecting every other vehicle on the lane, one at a time, in Python. With 20 vehicles
-that was about 40 % of a simulated step (``benchmarks/profile_train.py``). Then
-``Road.step`` calls ``handle_collisions`` for every pair of vehicles, although in a fast
-training env (:class:`tap_bench.sim.scenario_env.ScenarioEnv`) only the ego's pairs can
-collide.
+that was about 30 % of a training step (``benchmarks/profile_train.py``). ``Road.step``
+then calls ``handle_collisions`` for every pair of vehicles, although in a fast training
+env (:class:`tap_bench.sim.scenario_env.ScenarioEnv`) only the ego's pairs can collide, and
+every vehicle looks up its lane by computing its distance to every lane of the network.
 
 :class:`FastRoad` gives the same answers, object for object and bit for bit:
 
@@ -21,16 +22,22 @@ collide.
   exactly highway-env's;
 - the collision loop skips the pairs in which neither vehicle checks collisions (the first
   thing highway-env's ``handle_collisions`` does for such a pair is return) and calls the
-  others in highway-env's order.
+  others in highway-env's order;
+- the lane lookup (``RoadNetwork.get_closest_lane_index``, on networks of straight lanes)
+  estimates each lane's distance in Python floats and computes highway-env's own distance
+  only for the lanes within :data:`TOLERANCE` of the nearest, keeping highway-env's first
+  minimum.
 
 Lanes that are not straight, and ``neighbour_vehicles_connected_lanes``, go to
-highway-env's search unchanged. Tested by simulating scenarios both ways and comparing every
-vehicle's state bit for bit, and every query of a dense simulation against highway-env's.
+highway-env's methods unchanged. Tested by simulating scenarios both ways and comparing
+every vehicle's state bit for bit, every query of a dense simulation against highway-env's,
+and slanted lanes, ties and lane boundaries.
 """
 
 from __future__ import annotations
 
 import bisect
+import math
 from typing import Any
 
 import numpy as np
@@ -65,12 +72,53 @@ class FastRoad:
         self._count = 0
         self._positions: np.ndarray | None = None
         self._lanes: dict[Any, tuple[list[float], list[float], list[int]] | None] = {}
+        self._flat: list[tuple[Any, ...]] = []
 
     def install(self) -> None:
-        """Route the road's ``act``, ``step`` and ``neighbour_vehicles`` through this."""
+        """Route the road's ``act``, ``step`` and ``neighbour_vehicles`` through this, and
+        its network's ``get_closest_lane_index`` when every lane is straight."""
         self.road.act = self.act
         self.road.step = self.step
         self.road.neighbour_vehicles = self.neighbour_vehicles
+        network = self.road.network
+        lanes = [((start, end, i), lane) for start, ends in network.graph.items()
+                 for end, row in ends.items() for i, lane in enumerate(row)]
+        if lanes and all(type(lane) is StraightLane for _, lane in lanes) \
+                and "get_closest_lane_index" not in vars(network):
+            self._flat = [(index, lane, float(lane.start[0]), float(lane.start[1]),
+                           float(lane.direction[0]), float(lane.direction[1]),
+                           float(lane.direction_lateral[0]), float(lane.direction_lateral[1]),
+                           float(lane.length), float(lane.heading)) for index, lane in lanes]
+            network.get_closest_lane_index = self.closest_lane_index
+
+    def closest_lane_index(self, position: np.ndarray, heading: float | None = None
+                           ) -> tuple[str, str, int]:
+        """highway-env's ``RoadNetwork.get_closest_lane_index(position, heading)`` on a
+        network of straight lanes, same result: each lane's distance (with heading)
+        estimated in Python floats, then highway-env's own distance computed for the lanes
+        within :data:`TOLERANCE` of the nearest, the first minimum in the network's order.
+        The network's lanes are read at :meth:`install` (highway-env builds a network once
+        per scene and does not change it)."""
+        x, y = float(position[0]), float(position[1])
+        estimates = []
+        for _, _, sx, sy, d0, d1, l0, l1, length, lane_heading in self._flat:
+            dx, dy = x - sx, y - sy
+            s = dx * d0 + dy * d1
+            distance = abs(dx * l0 + dy * l1) + max(s - length, 0.0) + max(-s, 0.0)
+            if heading is not None:
+                distance += abs((heading - lane_heading + math.pi) % (2 * math.pi) - math.pi)
+            estimates.append(distance)
+        bound = min(estimates) + TOLERANCE
+        if not math.isfinite(bound):  # a position or heading that is not finite
+            return type(self.road.network).get_closest_lane_index(self.road.network,
+                                                                  position, heading)
+        best = best_index = None
+        for (index, lane, *_), estimate in zip(self._flat, estimates, strict=True):
+            if estimate <= bound:  # highway-env's arithmetic on the candidates, in order
+                distance = lane.distance_with_heading(position, heading)
+                if best is None or distance < best:
+                    best, best_index = distance, index
+        return best_index
 
     def step(self, dt: float) -> None:
         """highway-env's ``Road.step``: move every vehicle by ``dt`` [s], then check the

@@ -26,6 +26,7 @@ def _episodes(name: str, *, fast_road: bool, fast: bool = False, seeds=(0, 1),
         if not fast_road:  # back to highway-env's own methods
             for method in ("act", "step", "neighbour_vehicles"):
                 vars(road).pop(method, None)
+            vars(road.network).pop("get_closest_lane_index", None)
         rng = np.random.default_rng(seed)
         done, decision = False, 0
         while not done:
@@ -229,3 +230,40 @@ def test_slanted_lanes_and_projections_off_by_less_than_the_tolerance(monkeypatc
             for lane_index in road.network.all_side_lanes(vehicle.lane_index):
                 checked(vehicle, lane_index)
     assert asked > 2000
+
+
+@pytest.mark.parametrize("angle", [0.0, 0.3, -2.1])
+def test_the_closest_lane_is_highway_envs_on_boundaries_ends_and_headings(angle):
+    """Positions on the boundary between two lanes (a tie: the first lane wins), beyond the
+    lanes' ends, any heading or none: the lane highway-env finds, on slanted lanes too."""
+    from highway_env.road.road import RoadNetwork
+
+    road, _ = _straight_road([], lanes=4, angle=angle)
+    road.network.add_lane("b", "c", StraightLane(*(
+        np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+        @ np.array([[500.0, 600.0], [0.0, 0.0]])).T))  # a second segment after the first
+    fast = FastRoad(road)
+    fast.install()
+    assert "get_closest_lane_index" in vars(road.network)
+    rng = np.random.default_rng(3)
+    rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    points = [(s, lateral) for s in (-50.0, 0.0, 250.0, 499.9, 500.0, 550.0, 700.0)
+              for lateral in (-3.0, 0.0, 2.0, 4.0, 6.0, 13.5)]  # 2.0 and 6.0: on boundaries
+    points += [tuple(p) for p in rng.uniform([-100, -10], [700, 20], size=(300, 2))]
+    asked = 0
+    for along, across in points:
+        position = rotation @ np.array([along, across])
+        for heading in (None, angle, angle + 0.4, angle - np.pi, rng.uniform(-7, 7)):
+            assert fast.closest_lane_index(position, heading) == \
+                RoadNetwork.get_closest_lane_index(road.network, position, heading)
+            asked += 1
+    assert asked > 1500
+
+
+def test_only_straight_networks_get_the_fast_lane_lookup():
+    env = make_env("roundabout", record=False, duration=2)
+    env.reset(seed=0)
+    assert "get_closest_lane_index" not in vars(env.unwrapped.road.network)
+    env = make_env("highway", record=False, duration=2)
+    env.reset(seed=0)
+    assert "get_closest_lane_index" in vars(env.unwrapped.road.network)
