@@ -16,9 +16,9 @@ per cent. So training runs
   the ego only, as highway-env's ``highway-fast-v0``): half the simulated steps;
   decisions, observation, actions and reward are the scenario's, and the curve evaluates
   on the scenario itself;
-- with highway-env's neighbour search and collision loop computed sooner, the same results
-  bit for bit (:mod:`tap_bench.sim.fast_road`, in every scenario env), and the Kinematics
-  observation without pandas (:mod:`tap_bench.sim.observation`);
+- with highway-env's neighbour search, collision loop and lane lookup computed sooner, the
+  same results bit for bit (:mod:`tap_bench.sim.fast_road`, in every scenario env), and
+  the Kinematics observation without pandas (:mod:`tap_bench.sim.observation`);
 - on ``n_envs`` envs stepped in parallel worker processes (``SubprocVecEnv``; one env runs
   in this process), DQN's gradient steps overlapping their simulation
   (:mod:`tap_bench.rl.overlap`);
