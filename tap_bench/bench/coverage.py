@@ -160,7 +160,9 @@ def corpus_reference(labels: pd.DataFrame, level: str, *, tracks: str = "vehicle
     items, counts = np.unique(lab, return_counts=True)
     return Reference(items.astype(object), counts / counts.sum(), "corpus", level,
                      f"{name}: {len(items)} distinct {level} labels of {len(lab)} "
-                     f"{tracks} trajectories", n_trajectories=len(lab))
+                     + {"all": "trajectories (every track)", "ego": "ego trajectories",
+                        "vehicles": "vehicle trajectories"}[tracks],
+                     n_trajectories=len(lab))
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "train", help="train a Stable-Baselines3 agent (DQN, PPO, A2C) on a scenario",
         description="Train a Stable-Baselines3 agent on a scenario and write the model (.zip) "
-        "with a policy definition (.json) beside it, so that it loads by name, and its "
+        "with a policy definition (.json) beside it, so that it loads by its file (--policy "
+        "my-dqn.zip), or by name once in a policies/ folder on $TAP_BENCH_PATH, and its "
         "behaviour-coverage learning curve (.curve.csv, .curve.png). Training runs on the "
         "scenario's fast variant (5 Hz simulation, collisions checked for the ego only) in "
         "parallel envs; the curve evaluates the agent on the scenario itself. Needs the sb3 "
@@ -40,10 +41,26 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="coverage reference: a policy whose rollouts on the curve seeds are "
                    "the reference (default idm), a label or trajectory table (.parquet/.csv, "
                    "e.g. WOMD), or 'vocabulary'")
-    p.add_argument("--level", default="maneuver", help="SDL level of the curve (maneuver)")
+    p.add_argument("--level", default="maneuver",
+                   help="SDL level of the curve's labels (default maneuver)")
     p.add_argument("--log-dir", help="write SB3's training log as CSV there")
     p.add_argument("-v", "--verbose", action="count", default=0, help="SB3 verbosity")
     p.set_defaults(func=run)
+
+
+def _curve_options(args: argparse.Namespace) -> list[str]:
+    """The curve options given that differ from their defaults (they decide the curve and,
+    with --keep best, the weights saved: the recorded command must repeat them)."""
+    if args.no_curve:
+        return ["--no-curve"]
+    options = []
+    for flag, value, default in (("--curve-points", str(args.curve_points), "10"),
+                                 ("--curve-seeds", args.curve_seeds, "500-519"),
+                                 ("--reference", args.reference, "idm"),
+                                 ("--level", args.level, "maneuver")):
+        if value != default:
+            options += [flag, value]
+    return options
 
 
 def run(args: argparse.Namespace) -> int:
@@ -54,7 +71,8 @@ def run(args: argparse.Namespace) -> int:
     command = "tap-bench train " + " ".join(shlex.quote(a) for a in (
         "--algo", args.algo, "--env", args.env, "--timesteps", str(args.timesteps), "--seed",
         str(args.seed), "--n-envs", str(n_envs), *(["--exact"] if args.exact else []),
-        *(["--keep", "best"] if args.keep == "best" else []), "-o", args.output))
+        *(["--keep", "best"] if args.keep == "best" else []), *_curve_options(args),
+        "-o", args.output))
     curve = None if args.no_curve else CurveConfig(
         points=args.curve_points, seeds=args.curve_seeds, reference=args.reference,
         level=args.level)

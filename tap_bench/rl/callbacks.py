@@ -38,6 +38,9 @@ class CoverageCallback(BaseCallback):
             (:func:`tap_bench.rl.curve.coverage_reference`).
         config: the curve's settings (seeds, level, thresholds, intervals).
         every: env steps between evaluations (counted over all training envs).
+        until: no evaluation during training from this many steps on (the training's
+            length): the end of training has its own, of the weights as saved, after the
+            last update. None: evaluate whenever ``every`` steps have passed.
         observation: the highway-env observation config the agent reads.
         name: the agent's name in the rollouts.
         keep_best: also keep a copy of the policy's weights at the evaluation with the
@@ -52,7 +55,8 @@ class CoverageCallback(BaseCallback):
 
     def __init__(self, scenario: Scenario, reference: Any, config: CurveConfig, *,
                  every: int, observation: Mapping[str, Any], name: str = "agent",
-                 keep_best: bool = False, verbose: int = 0) -> None:
+                 keep_best: bool = False, until: int | None = None,
+                 verbose: int = 0) -> None:
         super().__init__(verbose)
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
             raise ParameterError("every", every, "an integer >= 1 (env steps)")
@@ -65,6 +69,7 @@ class CoverageCallback(BaseCallback):
         self.rows: list[dict[str, Any]] = []
         self.eval_seconds: list[float] = []
         self.keep_best = keep_best
+        self.until = until
         self.best: dict[str, Any] | None = None
         self.best_weights: dict[str, Any] | None = None
         self._next = 0
@@ -86,9 +91,12 @@ class CoverageCallback(BaseCallback):
         self._next = self.every
 
     def _on_step(self) -> bool:
-        if self.num_timesteps >= self._next:
+        if self.num_timesteps >= self._next and (self.until is None
+                                                 or self.num_timesteps < self.until):
             self._evaluate()
-            self._next = self.num_timesteps + self.every
+            # the next multiple of `every`: envs add several steps at a time, and drifting
+            # from the grid would squeeze an extra evaluation in before the last one
+            self._next = self.every * (self.num_timesteps // self.every + 1)
         return True
 
     def _on_training_end(self) -> None:

@@ -106,7 +106,8 @@ class CurveConfig:
     def __post_init__(self) -> None:
         if isinstance(self.points, bool) or not isinstance(self.points, int) \
                 or self.points < 1:
-            raise ParameterError("points", self.points, "an integer >= 1 (evaluations)")
+            raise ParameterError("points", self.points, "an integer >= 1 (evaluations; "
+                                 "tap-bench train --curve-points)")
         if len(parse_seeds(self.seeds, source="curve seeds")) < 2:
             raise ParameterError("seeds", self.seeds, "at least 2 evaluation seeds")
         if self.level not in sdl.LEVELS:
@@ -186,8 +187,8 @@ def coverage_reference(config: CurveConfig, scenario: Scenario) -> Reference:
     trajectories, _ = rollout(scenario, ref, config.seed_list, progress=False)
     sdl = _ego_sdl(trajectories, config, f"{ref} rollouts on {scenario.name}")
     table = pd.DataFrame({"scenario_id": sdl.index.astype(str), "sdl": sdl.to_numpy(),
-                          "track_id": "ego"})
-    return corpus_reference(table, config.level, tracks="all",
+                          "track_id": "ego", "is_ego": True})
+    return corpus_reference(table, config.level, tracks="ego",
                             name=f"{ref} rollouts on {scenario.name}, seeds {config.seeds}")
 
 
@@ -279,9 +280,11 @@ def plot_curve(curve: pd.DataFrame, path: str | os.PathLike, *, title: str = "",
         if kept is not None:
             ax.axvline(kept, color="0.3", linestyle="--", linewidth=1)
     if kept is not None:
+        right = kept > (x.min() + x.max()) / 2  # the note on the side with room
         axes[0].annotate(f"weights kept ({kept} steps)", (kept, 1), xycoords=(
-            "data", "axes fraction"), xytext=(3, -12), textcoords="offset points",
-            fontsize=7, color="0.3")
+            "data", "axes fraction"), xytext=(-3 if right else 3, -12),
+            textcoords="offset points", ha="right" if right else "left", fontsize=7,
+            color="0.3")
     if title:
         fig.suptitle(title, fontsize=10)
     path = Path(path)

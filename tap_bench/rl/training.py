@@ -235,8 +235,9 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
         raise ParameterError("keep", keep, "'last' or 'best'")
     if keep == "best" and curve is None:
         raise ParameterError("keep", keep, "'last' without a learning curve", message=(
-            "keep='best' picks the weights of the best evaluation of the learning curve; "
-            "train with a curve (drop --no-curve), or keep='last'."))
+            "keeping the best weights needs the learning curve's evaluations: train with a "
+            "curve (tap-bench train: drop --no-curve; train(): pass curve=CurveConfig()), "
+            "or keep the last weights."))
     cls = algorithm_class(algo)
     algo = algo.lower()
     import torch
@@ -254,9 +255,10 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
 
         reference = coverage_reference(curve, scenario)
         callbacks.append(CoverageCallback(
-            scenario, reference, curve, every=max(1, timesteps // curve.points),
+            # ceil: points - 1 evaluations during training, the last one at its end
+            scenario, reference, curve, every=max(1, -(-timesteps // curve.points)),
             observation=observation, name=output.stem, keep_best=keep == "best",
-            verbose=verbose))
+            until=timesteps, verbose=verbose))
     vec = _vec_env(scenario, n_envs=n_envs, fast=fast, seed=seed)
     learner_env, learn_callbacks = vec, list(callbacks)
     try:
@@ -313,7 +315,7 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
         "name": output.stem,
         "kind": "sb3",
         "description": f"{algo.upper()} trained on {scenario.env_id} for {trained} steps "
-                       f"(seed {seed}) by tap-bench train" + (
+                       f"(seed {seed}) with tap-bench" + (
                            f"; the weights of its best evaluation, at {kept['timesteps']} "
                            "steps." if kept is not None else "."),
         "params": {
@@ -331,6 +333,9 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
             "fast": fast,
             "seed": seed,
             "hyperparameters": params,
+            "curve": None if curve is None else {
+                "points": curve.points, "seeds": curve.seeds,
+                "reference": str(curve.reference), "level": curve.level},
             "train_seconds": round(seconds - eval_seconds, 1),
             "command": command or " ".join(shlex.quote(a) for a in sys.argv),
         },

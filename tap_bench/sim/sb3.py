@@ -108,8 +108,9 @@ class SB3Policy:
             what ``tap-bench train`` recorded (``n_envs`` parallel training envs, on the
             fast variant or not; ``interrupted_of``: the timesteps asked for when Ctrl-C
             stopped the training earlier; ``kept``: ``"last"`` or ``"best"``, the weights
-            saved, with the steps, return and crash rate of the evaluation they come from);
-            kept in :attr:`training`.
+            saved, with the steps, return and crash rate of the evaluation they come from;
+            ``curve``: the learning curve's settings, None without one); kept in
+            :attr:`training`.
     """
 
     def __init__(self, name: str, model: str, algo: str | None = None,
@@ -121,7 +122,8 @@ class SB3Policy:
                  n_envs: int | None = None, fast: bool | None = None,
                  interrupted_of: int | None = None, kept: str | None = None,
                  kept_timesteps: int | None = None, kept_eval_return: float | None = None,
-                 kept_eval_crash_rate: float | None = None) -> None:
+                 kept_eval_crash_rate: float | None = None,
+                 curve: Mapping[str, Any] | None = None) -> None:
         path = Path(model)
         if not path.is_absolute() and base_dir is not None:
             path = Path(base_dir) / path
@@ -142,7 +144,8 @@ class SB3Policy:
                          "interrupted_of": interrupted_of, "kept": kept,
                          "kept_timesteps": kept_timesteps,
                          "kept_eval_return": kept_eval_return,
-                         "kept_eval_crash_rate": kept_eval_crash_rate}
+                         "kept_eval_crash_rate": kept_eval_crash_rate,
+                         "curve": dict(curve) if curve is not None else None}
         self._model: Any = None
 
     def __getstate__(self) -> dict[str, Any]:

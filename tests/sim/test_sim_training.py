@@ -323,3 +323,48 @@ def test_only_a_script_without_a_main_guard_is_hidden_from_the_workers(tmp_path,
     interactive = types.ModuleType("__main__")  # python -c, a REPL: no file at all
     monkeypatch.setitem(sys.modules, "__main__", interactive)
     assert _has_main_guard(interactive)
+
+
+def test_the_curve_has_points_plus_one_rows_and_its_last_one_is_the_saved_model(
+        tmp_path, write_scenario):
+    """Steps that do not divide into the points, and PPO's rollouts running past the
+    timesteps asked for: still the start, points - 1 evaluations during training and one of
+    the weights as saved."""
+    from stable_baselines3 import PPO
+
+    from tap_bench.rl.curve import GreedyModelPolicy
+    from tap_bench.rl.training import train
+
+    short = write_scenario("short", duration=5)
+    config = CurveConfig(points=3, seeds="500-502", reference="vocabulary")
+    result = train("ppo", short, timesteps=50, seed=2, output=tmp_path / "p.zip", n_envs=2,
+                   hyperparameters=TINY["ppo"], curve=config)
+    steps = result.curve["timesteps"].tolist()
+    assert len(steps) == config.points + 1, steps
+    assert steps[0] == 0 and steps[-1] == result.timesteps >= 50
+    assert [s // 17 for s in steps[1:-1]] == [1, 2]  # on the grid of ceil(50 / 3) steps
+    model = PPO.load(result.model_path, device="cpu")
+    again = curve_row(GreedyModelPolicy(model, "p", {"type": "Kinematics"}),
+                      get_scenario(short), coverage_reference(config, get_scenario(short)),
+                      config, timesteps=0, seconds=0.0, train_return=float("nan"))
+    assert again["return_mean"] == pytest.approx(result.curve["return_mean"].iloc[-1],
+                                                 abs=1e-9)
+    doc = json.loads(result.definition_path.read_text())["params"]
+    assert doc["curve"] == {"points": 3, "seeds": "500-502", "reference": "vocabulary",
+                            "level": "maneuver"}
+
+
+def test_the_recorded_command_repeats_the_curve_options_that_decide_the_model():
+    import argparse
+
+    from tap_bench.cli.train import _curve_options
+
+    def args(**changes):
+        base = dict(no_curve=False, curve_points=10, curve_seeds="500-519", reference="idm",
+                    level="maneuver")
+        return argparse.Namespace(**{**base, **changes})
+
+    assert _curve_options(args()) == []
+    assert _curve_options(args(curve_points=3, reference="vocabulary")) == [
+        "--curve-points", "3", "--reference", "vocabulary"]
+    assert _curve_options(args(no_curve=True, curve_points=3)) == ["--no-curve"]
