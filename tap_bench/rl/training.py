@@ -211,7 +211,8 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
         fast: train on the scenario's fast variant (see the module docstring); False trains
             on the scenario itself.
         curve: record the behaviour-coverage learning curve with these settings
-            (:class:`tap_bench.rl.curve.CurveConfig`); None: no curve.
+            (:class:`tap_bench.rl.curve.CurveConfig`); None (the default here; ``tap-bench
+            train`` records one unless ``--no-curve``): no curve.
         log_dir: write SB3's log, with the ``tap/*`` curve keys, there as CSV.
         verbose: SB3's verbosity; 1 also prints the log and each curve point.
         command: the command line to record (default: this process's).
