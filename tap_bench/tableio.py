@@ -28,8 +28,9 @@ import pandas as pd
 
 from tap_bench.errors import FileFormatError, OutputPathError, RunExistsError
 
-__all__ = ["FOLDER_MARKER", "atomic_folder", "atomic_path", "atomic_paths", "check_folder_output",
-           "check_outputs", "check_writable", "read_table", "write_table", "write_tables"]
+__all__ = ["FOLDER_MARKER", "atomic_folder", "atomic_path", "atomic_paths", "beside",
+           "check_folder_output", "check_outputs", "check_writable", "read_table", "write_table",
+           "write_tables"]
 
 FOLDER_MARKER = ".tap-bench-folder"
 """The file tap-bench leaves in every results folder it writes; only a folder holding it may
@@ -104,6 +105,13 @@ def _same_file(a: Path, b: Path) -> bool:
         return a.resolve() == b.resolve() or (a.exists() and b.exists() and a.samefile(b))
     except OSError:
         return False
+
+
+def beside(path: str | os.PathLike, part: str) -> Path:
+    """The companion file of an output: ``run.csv`` and ``"labels"`` give ``run.labels.csv``
+    (same folder and format)."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}.{part}{path.suffix}")
 
 
 def check_outputs(outputs: Iterable[str | os.PathLike | None],

@@ -287,16 +287,20 @@ def _mean_speed(steps: EgoSteps) -> np.ndarray:
                   description="smallest time headway to the leader along the path (capped "
                   "10 s; 0 on a crash)")
 def _min_headway(steps: EgoSteps) -> np.ndarray:
-    out = steps.minimum(steps.headway, HEADWAY_CAP_S)
-    out[~steps.has_others & ~steps.any(steps.crashed)] = np.nan
-    return out
+    return _leader_minimum(steps, steps.headway, HEADWAY_CAP_S)
 
 
 @register_measure("min_ttc_s", unit="s", higher_is_better=True, margin=1.0,
                   description="smallest time to collision with the leader along the path "
                   "(capped 10 s; 0 on a crash)")
 def _min_ttc(steps: EgoSteps) -> np.ndarray:
-    out = steps.minimum(steps.ttc, TTC_CAP_S)
+    return _leader_minimum(steps, steps.ttc, TTC_CAP_S)
+
+
+def _leader_minimum(steps: EgoSteps, values: np.ndarray, cap: float) -> np.ndarray:
+    """Per episode, the smallest of a measure to the leader, capped at ``cap``; NaN in an
+    episode with no other vehicle that did not crash (nothing to measure)."""
+    out = steps.minimum(values, cap)
     out[~steps.has_others & ~steps.any(steps.crashed)] = np.nan
     return out
 

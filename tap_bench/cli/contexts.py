@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import pandas as pd
 
 from tap_bench.bench.bootstrap import add_bootstrap_arguments, bootstrap_from_args
 from tap_bench.bench.contexts import compare_contexts, context_occurrences
-from tap_bench.tableio import check_outputs, read_table, write_tables
+from tap_bench.tableio import beside, check_outputs, read_table, write_tables
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -36,10 +35,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    occ_path = None
-    if args.output:
-        out_path = Path(args.output)
-        occ_path = out_path.with_name(f"{out_path.stem}.occurrences{out_path.suffix}")
+    occ_path = beside(args.output, "occurrences") if args.output else None
     check_outputs([args.output, occ_path], args.trajectories)  # before any work
     table = pd.concat([read_table(p) for p in args.trajectories], ignore_index=True)
     if "policy" in table.columns:

@@ -10,7 +10,7 @@ import pandas as pd
 from tap_bench.bench.bootstrap import add_bootstrap_arguments, bootstrap_from_args
 from tap_bench.bench.gap import behaviour_gap, labelled_with_speed
 from tap_bench.sdl import LEVELS
-from tap_bench.tableio import check_outputs, read_table, write_tables
+from tap_bench.tableio import beside, check_outputs, read_table, write_tables
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -45,10 +45,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    labels_path = None
-    if args.output:
-        path = Path(args.output)
-        labels_path = path.with_name(f"{path.stem}.labels{path.suffix}")
+    labels_path = beside(args.output, "labels") if args.output else None
     check_outputs([args.output, labels_path], [args.policy_table, args.reference])
     config = bootstrap_from_args(args)
     table = read_table(args.policy_table)

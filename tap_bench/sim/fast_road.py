@@ -141,15 +141,20 @@ class FastRoad:
     def act(self) -> None:
         """highway-env's ``Road.act`` with the projections kept for its duration."""
         self._count = len(self.road.vehicles) + len(self.road.objects)
-        self._others = [v for v in self.road.vehicles + self.road.objects
-                        if not isinstance(v, Landmark)]
-        self._positions = (np.array([v.position for v in self._others], dtype=float)
-                           if self._others else None)
+        self._others, self._positions = self._snapshot()
         try:
             Road.act(self.road)
         finally:
             self._others = self._positions = None
             self._lanes.clear()
+
+    def _snapshot(self) -> tuple[list[Any], np.ndarray | None]:
+        """The road's vehicles and objects a search may return (not Landmarks), in the
+        road's order, and their positions (n, 2) [m] (None when there are none)."""
+        others = [v for v in self.road.vehicles + self.road.objects
+                  if not isinstance(v, Landmark)]
+        positions = np.array([v.position for v in others], dtype=float) if others else None
+        return others, positions
 
     def neighbour_vehicles(self, vehicle: Any, lane_index: Any = None
                            ) -> tuple[Any | None, Any | None]:
@@ -170,10 +175,10 @@ class FastRoad:
         if self._others is None or self._count != len(road.vehicles) + len(road.objects):
             # outside Road.act positions may change between queries; inside it a vehicle
             # may have been added or removed (none of highway-env's does): project afresh
-            others = [v for v in road.vehicles + road.objects if not isinstance(v, Landmark)]
+            others, positions = self._snapshot()
             if not others:
                 return None, None
-            table = _project(lane, np.array([v.position for v in others], dtype=float))
+            table = _project(lane, positions)
         else:
             others = self._others
             if not others:
