@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -21,6 +22,7 @@ from tap_bench.bench.cache import (
 from tap_bench.bench.suite import Suite
 from tap_bench.sim.policies import PolicyDefinition
 from tap_bench.sim.rollout import resolve_policy
+from tap_bench.sim.sb3 import warn_untrusted_model
 from tap_bench.sim.suite import Scenario
 from tap_bench.thresholds import Thresholds
 
@@ -47,18 +49,24 @@ def _tasks(suite: Suite, thresholds: Thresholds, keep: bool, cache: EpisodeCache
            ) -> list[_Task]:
     scenarios = {env: suite.scenario(env) for env in suite.envs}  # resolved once
     definitions = [resolve_policy(policy) for policy in suite.policies]  # built once here
+    for d in definitions:  # workers load models with warnings off: said here, once each
+        if d.kind == "sb3" and isinstance(d.params.get("model"), str):
+            model = Path(d.params["model"])
+            if not model.is_absolute() and d.path is not None:
+                model = d.path.parent / model
+            warn_untrusted_model(model, stacklevel=4)
     if cache is None:
         return [_Task(env, scenarios[env], d.name, d, seed, thresholds, suite.level, keep)
                 for env in suite.envs for d in definitions for seed in suite.seeds]
     versions = simulation_fingerprint()
-    envs = {env: scenario_fingerprint(scenarios[env]) for env in suite.envs}
+    envs = {env: scenario_fingerprint(scenarios[env], env) for env in suite.envs}
     policies = {d.name: policy_fingerprint(d) for d in definitions}
     tasks = []
     for env in suite.envs:
         for d in definitions:
             for seed in suite.seeds:
                 key = doc = None
-                if policies[d.name] is not None:
+                if policies[d.name] is not None and envs[env] is not None:
                     key, doc = episode_key(envs[env], policies[d.name], seed, versions)
                 tasks.append(_Task(env, scenarios[env], d.name, d, seed, thresholds,
                                    suite.level, keep, cache, key, doc))

@@ -47,6 +47,7 @@ import dataclasses
 import math
 import os
 import time
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -80,6 +81,7 @@ from tap_bench.bench.scenarios import match_scenarios
 from tap_bench.bench.scoring import Scores, score
 from tap_bench.bench.suite import Suite, gate_metrics, load_suite
 from tap_bench.errors import (
+    CacheEntryWarning,
     EpisodesFailedError,
     ParameterError,
     RunExistsError,
@@ -189,6 +191,13 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
                   for r in results for row in r["episodes"].itertuples()]
         raise EpisodesFailedError(f"the {len(results)} episode(s) of suite {suite.name}",
                                   errors)
+    refused = [r["cache_note"] for r in results if r.get("cache_note")]
+    for note in refused[:5]:
+        warnings.warn(f"{note}; its episode was simulated again.", CacheEntryWarning,
+                      stacklevel=2)
+    if len(refused) > 5:
+        warnings.warn(f"{len(refused) - 5} more cache entries refused and simulated again "
+                      "(summary.json lists them all).", CacheEntryWarning, stacklevel=2)
     for key in ("rollout", "labelling", "measures"):
         timings[f"{key}_cpu_in_workers"] = sum(r["timings"].get(key, 0.0) for r in results)
     episodes = pd.concat([r["episodes"] for r in results], ignore_index=True)
@@ -242,7 +251,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
                      "overhead": _round(plan.overhead_seconds), "basis": plan.basis},
         "cache": None if cache is None else {
             "dir": str(cache.root), "cached": sum(r["cached"] for r in results),
-            "simulated": sum(not r["cached"] for r in results)},
+            "simulated": sum(not r["cached"] for r in results),
+            "refused": refused},
     }
     t0 = time.perf_counter()
     roads = None
