@@ -83,6 +83,7 @@ from tap_bench.bench.suite import Suite, gate_metrics, load_suite
 from tap_bench.errors import (
     CacheEntryWarning,
     EpisodesFailedError,
+    OutputPathError,
     ParameterError,
     RunExistsError,
 )
@@ -113,6 +114,20 @@ class RunResult:
     episodes: pd.DataFrame
     scores: Scores
     report: Path
+
+
+def _check_apart(output: Path, cache_root: Path) -> None:
+    """The run folder and the episode cache must not hold one another: ``--overwrite``
+    would delete the cache with the run, or the cache's files would fill the run folder.
+
+    Raises:
+        OutputPathError: naming both folders.
+    """
+    out, root = Path(output).resolve(), Path(cache_root).expanduser().resolve()
+    if out == root or root in out.parents or out in root.parents:
+        raise OutputPathError(f"{output}: the run folder and the episode cache ({cache_root}) "
+                              "overlap; give the run folder (-o) and the cache (--cache) "
+                              "separate places.")
 
 
 def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
@@ -166,6 +181,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     if cache is not None and not isinstance(cache, EpisodeCache):
         cache = EpisodeCache(Path(cache))
     output = check_output(output, overwrite)
+    if cache is not None:
+        _check_apart(output, cache.root)
     runner = resolve_backend(backend, workers)
     thresholds = resolve_thresholds(suite.thresholds)
     timings: dict[str, float] = {}

@@ -25,6 +25,7 @@ Every field but ``name``, ``envs``, ``policies`` and ``seeds`` has the default s
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -108,8 +109,9 @@ class GateConfig:
         # every metric has a margin: those not given take their registered default
         object.__setattr__(self, "margins", {**default_margins(), **self.margins})
         for key, value in self.margins.items():
-            if not isinstance(value, int | float) or isinstance(value, bool) or value < 0:
-                raise ParameterError(f"gate margin {key!r}", value, "a number >= 0")
+            if not isinstance(value, int | float) or isinstance(value, bool) \
+                    or not math.isfinite(value) or value < 0:
+                raise ParameterError(f"gate margin {key!r}", value, "a finite number >= 0")
         if isinstance(self.alpha, bool) or not isinstance(self.alpha, int | float) \
                 or not 0 < self.alpha < 1:
             raise ParameterError("gate alpha", self.alpha, "a number in (0, 1)")
