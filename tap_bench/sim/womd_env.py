@@ -45,7 +45,6 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
@@ -60,15 +59,15 @@ from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
 from tap_bench.errors import ParameterError
+from tap_bench.sim.womd_scene import TRAFFIC
 from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, lane_points
-from tap_bench.sim.womd_scene import CURRENT_STEP, Scene, SceneError, SceneRef, load_scene, \
-    scene_catalog
+from tap_bench.sim.womd_scene import CURRENT_STEP, Scene, SceneError, SceneRef, WomdScenes, \
+    load_scene
 
 __all__ = ["OFF_ROAD_MARGIN", "ROUTE_CORRIDOR", "TRAFFIC", "LogVehicle", "WomdEnv",
            "WomdIDMVehicle", "WomdNetwork", "WomdRoad", "WomdScenes", "logged_route",
            "make_womd_env"]
 
-TRAFFIC = ("log", "idm")
 OFF_ROAD_MARGIN = 0.5  # [m] beyond half the lane's width, from every lane centre: off road
 ROUTE_CORRIDOR = 4.0  # [m] progress counts while the ego is this close to the logged path
 ROUTE_OFF_MAP = 3.0  # [m] a logged position farther than half a lane width + this is off
@@ -591,61 +590,6 @@ def _path_progress(path: np.ndarray, cum: np.ndarray, p: np.ndarray) -> tuple[fl
 
 
 # ------------------------------------------------------------------ scenes and the env
-
-
-@dataclass(frozen=True)
-class WomdScenes:
-    """Recorded scenes to drive in: what a rollout or a suite names instead of a synthetic
-    scenario.
-
-    Attributes:
-        files: WOMD files (Scenario or tf.Example TFRecords, ScenarioNet pickles), patterns
-            or folders.
-        traffic: ``"log"`` or ``"idm"``.
-        ego: ``"sdc"`` or a track id.
-        policy_frequency: decisions per second (the simulation runs at 10 Hz).
-        name: the ``env`` column of the tables.
-    """
-
-    files: tuple[str, ...]
-    traffic: str = "log"
-    ego: str = "sdc"
-    policy_frequency: int = 2
-    name: str = "womd"
-    config: Mapping[str, Any] = field(default_factory=dict, compare=False)
-
-    def __post_init__(self) -> None:
-        if isinstance(self.files, str | os.PathLike):
-            object.__setattr__(self, "files", (str(self.files),))
-        object.__setattr__(self, "files", tuple(str(f) for f in self.files))
-        if not self.files:
-            raise ParameterError("files", self.files, "at least one WOMD file or pattern")
-        if self.traffic not in TRAFFIC:
-            raise ParameterError("traffic", self.traffic, f"one of {TRAFFIC}")
-        if not isinstance(self.policy_frequency, int) or self.policy_frequency <= 0 \
-                or 10 % self.policy_frequency:
-            raise ParameterError("policy_frequency", self.policy_frequency,
-                                 "a divisor of 10 Hz (1, 2, 5 or 10)")
-        if not str(self.ego):
-            raise ParameterError("ego", self.ego, "'sdc' or a track id")
-
-    @property
-    def env_id(self) -> str:
-        return "tap_bench/womd-v0"
-
-    @property
-    def max_steps(self) -> int:
-        return 0
-
-    def with_overrides(self, config: Mapping[str, Any] | None = None, **_: Any) -> WomdScenes:
-        """The same scenes with more highway-env config (the observation a policy reads)."""
-        merged = {**self.config, **(config or {})}
-        return WomdScenes(self.files, self.traffic, self.ego, self.policy_frequency,
-                          self.name, merged)
-
-    def catalog(self) -> list[SceneRef]:
-        """The scenarios, in seed order."""
-        return scene_catalog(self.files)
 
 
 class _WomdHighwayEnv(AbstractEnv):

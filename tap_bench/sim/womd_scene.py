@@ -15,16 +15,23 @@ from __future__ import annotations
 import hashlib
 import os
 from collections.abc import Iterable
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from tap_bench.errors import TapBenchError
+from tap_bench.errors import ParameterError, TapBenchError
 from tap_bench.womd.roadmap import RoadMap
 
-__all__ = ["CURRENT_STEP", "Scene", "SceneError", "SceneRef", "load_scene", "scene_catalog"]
+__all__ = ["CURRENT_STEP", "TRAFFIC", "Scene", "SceneError", "SceneRef", "WomdScenes",
+           "load_scene", "scene_catalog"]
+
+TRAFFIC = ("log", "idm")
+"""Traffic modes: ``log`` replays every other agent (non-reactive), ``idm`` drives the
+vehicles with IDM/MOBIL along the lanes they drove (reactive)."""
 
 CURRENT_STEP = 10
 """The current time of a WOMD scenario, as a step (1.0 s at 10 Hz): the policy drives from
@@ -224,3 +231,58 @@ def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:
     return Scene(sid, ref, digest, times, tracks.astype(str),
                  table["object_type"].to_numpy().reshape(n, t)[:, 0].astype(str), x, y,
                  heading, vx, vy, speed, valid, sizes["length"], sizes["width"], row, road)
+
+
+@dataclass(frozen=True)
+class WomdScenes:
+    """Recorded scenes to drive in: what a rollout or a suite names instead of a synthetic
+    scenario.
+
+    Attributes:
+        files: WOMD files (Scenario or tf.Example TFRecords, ScenarioNet pickles), patterns
+            or folders.
+        traffic: ``"log"`` or ``"idm"``.
+        ego: ``"sdc"`` or a track id.
+        policy_frequency: decisions per second (the simulation runs at 10 Hz).
+        name: the ``env`` column of the tables.
+    """
+
+    files: tuple[str, ...]
+    traffic: str = "log"
+    ego: str = "sdc"
+    policy_frequency: int = 2
+    name: str = "womd"
+    config: Mapping[str, Any] = field(default_factory=dict, compare=False)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.files, str | os.PathLike):
+            object.__setattr__(self, "files", (str(self.files),))
+        object.__setattr__(self, "files", tuple(str(f) for f in self.files))
+        if not self.files:
+            raise ParameterError("files", self.files, "at least one WOMD file or pattern")
+        if self.traffic not in TRAFFIC:
+            raise ParameterError("traffic", self.traffic, f"one of {TRAFFIC}")
+        if not isinstance(self.policy_frequency, int) or self.policy_frequency <= 0 \
+                or 10 % self.policy_frequency:
+            raise ParameterError("policy_frequency", self.policy_frequency,
+                                 "a divisor of 10 Hz (1, 2, 5 or 10)")
+        if not str(self.ego):
+            raise ParameterError("ego", self.ego, "'sdc' or a track id")
+
+    @property
+    def env_id(self) -> str:
+        return "tap_bench/womd-v0"
+
+    @property
+    def max_steps(self) -> int:
+        return 0
+
+    def with_overrides(self, config: Mapping[str, Any] | None = None, **_: Any) -> WomdScenes:
+        """The same scenes with more highway-env config (the observation a policy reads)."""
+        merged = {**self.config, **(config or {})}
+        return WomdScenes(self.files, self.traffic, self.ego, self.policy_frequency,
+                          self.name, merged)
+
+    def catalog(self) -> list[SceneRef]:
+        """The scenarios, in seed order."""
+        return scene_catalog(self.files)
