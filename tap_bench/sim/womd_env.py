@@ -59,10 +59,16 @@ from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
 from tap_bench.errors import ParameterError
-from tap_bench.sim.womd_scene import TRAFFIC
 from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, lane_points
-from tap_bench.sim.womd_scene import CURRENT_STEP, Scene, SceneError, SceneRef, WomdScenes, \
-    load_scene
+from tap_bench.sim.womd_scene import (
+    CURRENT_STEP,
+    TRAFFIC,
+    Scene,
+    SceneError,
+    SceneRef,
+    WomdScenes,
+    load_scene,
+)
 
 __all__ = ["OFF_ROAD_MARGIN", "ROUTE_CORRIDOR", "TRAFFIC", "LogVehicle", "WomdEnv",
            "WomdIDMVehicle", "WomdNetwork", "WomdRoad", "WomdScenes", "logged_route",
@@ -658,7 +664,7 @@ class _WomdHighwayEnv(AbstractEnv):
         ego.diagonal = math.hypot(ego.LENGTH, ego.WIDTH)
         self.road.vehicles.append(ego)
         self.controlled_vehicles = [ego]
-        self.simulated: dict[int, Vehicle] = {e: ego}
+        self.simulated: dict[int, Vehicle] = {}  # other simulated agents by row
         for row in range(len(scene.track_ids)):
             if row == e:
                 continue
@@ -712,7 +718,6 @@ class _WomdHighwayEnv(AbstractEnv):
         vehicles = self.road.vehicles
         vehicles[vehicles.index(old)] = new
         self.controlled_vehicles = [new]
-        self.simulated[e] = new
         self.replaying_ego = True
 
     # per step bookkeeping (called by WomdEnv after every simulated step)
@@ -867,7 +872,8 @@ class WomdEnv(gym.Wrapper):
                      ("x", "y", "heading", "speed", "vx", "vy", "valid")}
         self._crashed = np.zeros((n, t), bool)
         self._ego_cols = {"off_road": np.zeros(t, bool), "ran_red_light": np.zeros(t, bool),
-                          "route_progress": np.zeros(t), "log_distance": np.zeros(t)}
+                          "route_progress": np.zeros(t),
+                          "log_distance": np.full(t, np.nan)}
         self._last_step = CURRENT_STEP
         self.crash_with = ""
         self.crash_from_behind_by_log = False
@@ -888,7 +894,8 @@ class WomdEnv(gym.Wrapper):
         if not self.record:
             return
         rec = self._rec
-        for row, vehicle in inner.simulated.items():
+        # the ego as the policy left it (IDM and the log policy put their own in its place)
+        for row, vehicle in (*inner.simulated.items(), (e, ego)):
             self._crashed[row, k] = vehicle.crashed
             if isinstance(vehicle, LogVehicle):
                 continue
