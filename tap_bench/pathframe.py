@@ -12,8 +12,10 @@ record (SPEC 7):
   the heading change over that second divided by the distance driven in it (over the last
   :data:`CURVATURE_STRETCH` metres driven when it drove less in that second: an ego that
   stops in a curve; 0 when the whole path drove less than :data:`MIN_CURVATURE_TRAVEL`; at
-  most ``1 / R_MIN``). The arc turns at
-  most :data:`MAX_EXTENSION_TURN` and goes straight on from there.
+  most ``1 / R_MIN``). Where the curvature over that stretch fell below
+  :data:`FADE_RATIO` of the one over the stretch before it (the exit of a turn) it falls
+  on at the same rate to 0 and the line goes straight on. The arc turns at most
+  :data:`MAX_EXTENSION_TURN` and goes straight on from there.
 
 A leader stopped 25 m ahead on a 30 m curve at the end of a record is then still on the
 line (``d`` near 0) at ``s`` = its distance along the curve, as on a straight road. Every
@@ -76,6 +78,11 @@ PATH_SPACING = 2.0
 from the recorded path by at most the sagitta c^2 / (8 R): 0.05 m on a 10 m radius turn."""
 EXTENSION = 1000.0
 """[m] length of the extensions at both ends of the line (beyond any reach)."""
+FADE_RATIO = 0.75
+"""A curvature over the last stretch below this share of the one over the stretch before is
+a turn's exit, and the extension's curvature falls on to 0 at that rate; above it, the
+extension is a circular arc (heading noise makes a steady curve's measured curvature waver
+by a few per cent)."""
 STRAIGHT_SPACING = 10.0
 """[m] vertex spacing of a straight extension (curved ones are denser: a chord stays within
 5 cm of its arc)."""
@@ -358,9 +365,10 @@ class LaneMap:
             s = np.r_[0.0, np.cumsum(np.hypot(np.diff(lx), np.diff(ly)))]
             probe = min(10.0, s[-1])
             px, py = np.interp(probe, s, lx), np.interp(probe, s, ly)
-            u = np.array([(done + probe) * (1.0 if forward else -1.0)])
-            ax, ay = _arc_points(np.array([x0]), np.array([y0]), np.array([h0]),
-                                 np.array([kappa]), u)
+            ax, ay = _extension_points(np.array([x0]), np.array([y0]),
+                                       np.array([h0 if forward else h0 + np.pi]),
+                                       np.array([kappa if forward else -kappa]),
+                                       np.array([np.inf]), np.array([[done + probe]]))
             err = float(np.hypot(px - ax[0, 0], py - ay[0, 0]))
             if err < best_err:
                 best, best_err = lane, err
@@ -379,23 +387,68 @@ def _ragged(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return group, within
 
 
-def _arc_points(x0: np.ndarray, y0: np.ndarray, h0: np.ndarray, kappa: np.ndarray,
-                u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Points at signed distances ``u`` (P, e) along arcs of curvature ``kappa`` (P,) [1/m]
-    from (x0, y0) (P,) with heading ``h0`` (P,) [rad]: (P, e) x and y. Each arc turns at
-    most :data:`MAX_EXTENSION_TURN` and goes straight on from there; a curvature of 0 is
-    the straight line."""
-    k = kappa[:, None]
-    small = np.abs(k) < 1e-9
-    limit = np.where(small, np.inf, MAX_EXTENSION_TURN / np.maximum(np.abs(k), 1e-9))
-    ua = np.clip(u, -limit, limit)
-    rest = u - ua
-    safe = np.where(small, 1.0, k)
-    phi = k * ua
-    along = np.where(small, ua, np.sin(phi) / safe) + rest * np.cos(phi)
-    across = np.where(small, 0.0, (1.0 - np.cos(phi)) / safe) + rest * np.sin(phi)
-    c, s = np.cos(h0)[:, None], np.sin(h0)[:, None]
-    return x0[:, None] + along * c - across * s, y0[:, None] + along * s + across * c
+_NODES = 64  # integration nodes of an extension's curved stretch (a few cm at most)
+
+
+def _extension_points(x0: np.ndarray, y0: np.ndarray, h0: np.ndarray, kappa: np.ndarray,
+                      fade: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points at distances ``u`` (P, e), >= 0, ahead of (x0, y0) (P,) heading ``h0`` (P,)
+    [rad], along a curve that starts with curvature ``kappa`` (P,) [1/m] and falls linearly
+    to 0 over ``fade`` (P,) metres (inf: a circular arc); it turns at most
+    :data:`MAX_EXTENSION_TURN` and goes straight on from there. Returns (P, e) x and y."""
+    k = np.asarray(kappa, float)
+    fade = np.asarray(fade, float)
+    ak = np.abs(k)
+    # the length of the curved stretch: where the curvature reaches 0, or the turn its cap
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cap = np.where(ak > 1e-9, MAX_EXTENSION_TURN / ak, 0.0)  # constant curvature
+        full_turn = ak * fade / 2  # the whole turn of a fading curve
+        root = fade * (1 - np.sqrt(np.clip(1 - 2 * MAX_EXTENSION_TURN / (ak * fade), 0, 1)))
+    curved = np.where(np.isinf(fade), cap, np.where(full_turn > MAX_EXTENSION_TURN, root, fade))
+    curved = np.where(ak > 1e-9, curved, 0.0)
+    curved = np.minimum(curved, np.max(u, axis=1, initial=0.0))  # no farther than asked
+    g = curved[:, None] * np.linspace(0.0, 1.0, _NODES)[None, :]  # (P, N) nodes
+    f = np.where(fade > 0, fade, np.inf)[:, None]  # a fade of 0 has no curved stretch
+    with np.errstate(invalid="ignore"):
+        turn = k[:, None] * np.where(np.isinf(f), g, g - g * g / (2 * f))
+    head = h0[:, None] + turn
+    dg = np.diff(g, axis=1)
+    mid = 0.5 * (head[:, 1:] + head[:, :-1])  # the midpoint rule on each node interval
+    nx = np.concatenate([np.zeros((len(k), 1)), np.cumsum(dg * np.cos(mid), axis=1)], axis=1)
+    ny = np.concatenate([np.zeros((len(k), 1)), np.cumsum(dg * np.sin(mid), axis=1)], axis=1)
+    # on the curved stretch: between its (uniform) nodes; beyond it: straight on
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pos = np.where(curved[:, None] > 0, u / curved[:, None] * (_NODES - 1), 0.0)
+    pos = np.clip(pos, 0.0, _NODES - 1)
+    i = np.minimum(np.floor(pos).astype(np.int64), _NODES - 2)
+    frac = pos - i
+    rows = np.arange(len(k))[:, None]
+    out_x = nx[rows, i] + frac * (nx[rows, i + 1] - nx[rows, i])
+    out_y = ny[rows, i] + frac * (ny[rows, i + 1] - ny[rows, i])
+    rest = np.maximum(u - curved[:, None], 0.0)
+    out_x = out_x + rest * np.cos(head[:, -1:])
+    out_y = out_y + rest * np.sin(head[:, -1:])
+    return x0[:, None] + out_x, y0[:, None] + out_y
+
+
+def _fading(k_end: np.ndarray, k_before: np.ndarray, ds: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """(curvature at the end [1/m], metres over which it falls to 0) of each path end, from
+    the mean curvature over the last stretch ``k_end`` and over the stretch before it
+    ``k_before``, ``ds`` apart: a curvature that fell below :data:`FADE_RATIO` of the one
+    before (the same sign) falls on at that rate (the exit of a turn, which goes straight
+    on), else it holds (a steady curve whose measured curvature wavers, or a turn still
+    tightening: inf)."""
+    a_end, a_before = np.abs(k_end), np.abs(k_before)
+    falling = (np.sign(k_end) == np.sign(k_before)) & (a_end < FADE_RATIO * a_before) \
+        & (ds > 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rate = np.where(falling, (a_before - a_end) / np.where(ds > 0, ds, 1.0), 0.0)
+        # the mean is the curvature half a stretch back: at the end it has fallen further
+        at_end = np.where(falling, np.maximum(a_end - rate * ds / 2, 0.0), a_end)
+        fade = np.where(falling & (at_end > 0), at_end / np.where(rate > 0, rate, 1.0),
+                        np.inf)
+    return np.sign(k_end) * at_end, fade
 
 
 def _extension_spacing(kappa: np.ndarray, spacing: float) -> np.ndarray:
@@ -469,8 +522,20 @@ def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, sp
     reach_b = np.maximum(arc[np.minimum(first_step + second, last_step)] - arc[first_step],
                          CURVATURE_STRETCH)
     at_b = np.searchsorted(arc_global, arc[first_step] + reach_b + offset, "left")
-    k_front = _end_curvature(h, arc, last_step, np.clip(at_f, first_step, last_step))
-    k_back = _end_curvature(h, arc, np.clip(at_b, first_step, last_step), first_step)
+    at_f = np.clip(at_f, first_step, last_step)
+    at_b = np.clip(at_b, first_step, last_step)
+    # the same stretch once more, farther from the end: is the curvature falling (a turn's
+    # exit)? then it falls on at that rate (to 0: straight on), else it holds (a curve)
+    ds_f = arc[last_step] - arc[at_f]
+    ds_b = arc[at_b] - arc[first_step]
+    at_f0 = np.clip(np.searchsorted(arc_global, arc[at_f] - ds_f + offset, "right") - 1,
+                    first_step, last_step)
+    at_b0 = np.clip(np.searchsorted(arc_global, arc[at_b] + ds_b + offset, "left"),
+                    first_step, last_step)
+    k_front, fade_f = _fading(_end_curvature(h, arc, last_step, at_f),
+                              _end_curvature(h, arc, at_f, at_f0), ds_f)
+    k_back, fade_b = _fading(_end_curvature(h, arc, at_b, first_step),
+                             _end_curvature(h, arc, at_b0, at_b), ds_b)
     # distances of the extension vertices from each end, (P, e) far to near: the far vertex
     # at EXTENSION, then every few metres (closer on tighter arcs, or along lanes) to reach
     mapped = (lanes.covers(paths.scene[paths.start]) if lanes is not None
@@ -490,8 +555,11 @@ def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, sp
     _, within = _ragged(n_kept)
     dest = first[kept_path] + n_e + within
     vx[dest], vy[dest], vs[dest] = x[kept], y[kept], arc[kept]
-    bx, by = _arc_points(x[first_step], y[first_step], hb, k_back, -ext_b)
-    fx, fy = _arc_points(x[last_step], y[last_step], he, k_front, ext_f)
+    # the back extension: forwards from the first position, facing backwards, where the
+    # path's curvature has the other sign
+    bx, by = _extension_points(x[first_step], y[first_step], hb + np.pi, -k_back, fade_b,
+                               ext_b)
+    fx, fy = _extension_points(x[last_step], y[last_step], he, k_front, fade_f, ext_f)
     if lanes is not None and paths.n_paths:
         for p in range(paths.n_paths):
             scene = int(paths.scene[paths.start[p]])

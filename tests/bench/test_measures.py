@@ -329,3 +329,28 @@ def test_jerk_of_a_hand_worked_speed_profile_and_of_noise():
     # a run shorter than the window has no jerk
     short = ego.iloc[:10]
     assert np.isnan(ego_measures(short)["rms_jerk"].iloc[0])
+
+
+@pytest.mark.parametrize("side", [1, -1], ids=["left", "right"])
+@pytest.mark.parametrize("radius", [15.0, 20.0, 30.0])
+def test_a_car_stopped_on_the_road_out_of_a_turn_whose_exit_the_record_cuts(radius, side):
+    # a 90-degree turn: 2 s straight, a circle of `radius`, then the yaw rate falls to 0
+    # over 3 s; the record ends half way through that fall and a car stands 25 m on along
+    # the road (still in the exit). The line's curvature falls on as it fell: the car is the
+    # leader at every step, TTC and headway 2.0 s at the end (a straight road's figures)
+    from tap_bench.synthetic import from_controls
+    v, w0, fall = 10.0, side * 10.0 / radius, 3.0
+    turn_s = (np.pi / 2 - abs(w0) * fall / 2) / abs(w0)
+    t = np.arange(0, 2 + turn_s + fall + 6, 0.1)
+    w = np.where(t < 2, 0, np.where(t < 2 + turn_s, w0, np.where(
+        t < 2 + turn_s + fall, w0 * (1 - (t - 2 - turn_s) / fall), 0)))
+    full = from_controls(np.full(len(t), v), w, track_id="ego")
+    end = int(round((2 + turn_s + fall / 2) * 10))
+    ego = full.iloc[:end + 1].assign(is_ego=True)
+    car = full.iloc[[end + 25] * len(ego)].assign(
+        t=ego["t"].to_numpy(), speed=0.0, track_id="car", is_ego=False)
+    table = pd.concat([ego, car], ignore_index=True)
+    steps = ego_steps(table)
+    m = ego_measures(table).iloc[0]
+    assert (steps.leader_row >= 0).all()
+    assert m["min_ttc_s"] == pytest.approx(2.0, abs=0.05)
