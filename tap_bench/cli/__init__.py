@@ -133,6 +133,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     SIGTERM).
     """
     argv = sys.argv[1:] if argv is None else list(argv)
+    from tap_bench.execution import keep_freed_memory
+
+    keep_freed_memory()  # no page faults for every temporary column
     try:
         argv, plugins = _plugins(argv)
         if plugins:  # before the parsers are built: --format choices come from the registry

@@ -10,6 +10,8 @@ kind              policy
 ``idm``           IDM/MOBIL drives the ego (:mod:`tap_bench.sim.idm`)
 ``random``        uniform random actions from a seeded copy of the action space
 ``lane_keeping``  always the "keep lane, keep speed" action (``IDLE``)
+``log``           the human: replays the recorded ego of a real scene (``tap_bench/womd-v0``
+                  only), so its trajectory and labels are the log's
 ``sb3``           a Stable-Baselines3 model from a ``.zip`` (:mod:`tap_bench.sim.sb3`)
 ``import``        your own class or function, ``params: {"factory": "module:name", ...}``:
                   called as ``factory(name, **other_params)``; the module must be importable
@@ -49,6 +51,7 @@ __all__ = [
     "CHEAP_OBSERVATION",
     "POLICY_KINDS",
     "LaneKeepingPolicy",
+    "LogPolicy",
     "Policy",
     "PolicyDefinition",
     "PolicyKind",
@@ -181,6 +184,32 @@ class LaneKeepingPolicy:
         return self._action
 
 
+class LogPolicy:
+    """The human who drove a recorded scene: the ego replays its log (SPEC section 8), the
+    reference of every comparison on real scenes. Only recorded scenes have a log."""
+
+    observation = None
+
+    def __init__(self, name: str = "log") -> None:
+        self.name = name
+        self._action: Any = None
+
+    def reset(self, env: gym.Env, *, seed: int) -> None:
+        inner = env.unwrapped
+        if not hasattr(inner, "replay_ego"):
+            raise ParameterError("policy", self.name, "", message=(
+                f"policy {self.name!r} replays the recorded ego of a real scene; it drives "
+                "only in tap_bench/womd-v0 (tap-bench rollout --womd FILES). Choose another "
+                "policy for synthetic scenarios."))
+        inner.replay_ego()
+        self._action = idle_action(env)
+
+    def act(self, observation: Any) -> Any:
+        if self._action is None:
+            raise RuntimeError("LogPolicy.act before reset: call reset(env, seed=...).")
+        return self._action
+
+
 @dataclass(frozen=True)
 class PolicyKind:
     """What a definition's ``kind`` names: the builder of its policies.
@@ -212,6 +241,8 @@ for _kind in (PolicyKind("idm", "tap_bench.sim.idm:IDMPolicy", "IDM/MOBIL drives
                          "uniform random actions"),
               PolicyKind("lane_keeping", "tap_bench.sim.policies:LaneKeepingPolicy",
                          "always keep lane, keep speed"),
+              PolicyKind("log", "tap_bench.sim.policies:LogPolicy",
+                         "the human: replays the recorded ego of a real scene"),
               PolicyKind("sb3", "tap_bench.sim.sb3:SB3Policy", "a Stable-Baselines3 model"),
               PolicyKind("import", "tap_bench.sim.policies:import_policy",
                          "your own class or function, params.factory 'module:name'")):
