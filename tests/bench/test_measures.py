@@ -345,7 +345,7 @@ def test_a_car_stopped_on_the_road_out_of_a_turn_whose_exit_the_record_cuts(radi
     w = np.where(t < 2, 0, np.where(t < 2 + turn_s, w0, np.where(
         t < 2 + turn_s + fall, w0 * (1 - (t - 2 - turn_s) / fall), 0)))
     full = from_controls(np.full(len(t), v), w, track_id="ego")
-    end = int(round((2 + turn_s + fall / 2) * 10))
+    end = round((2 + turn_s + fall / 2) * 10)
     ego = full.iloc[:end + 1].assign(is_ego=True)
     car = full.iloc[[end + 25] * len(ego)].assign(
         t=ego["t"].to_numpy(), speed=0.0, track_id="car", is_ego=False)
