@@ -12,11 +12,10 @@ import warnings
 
 import pytest
 
-from tap_bench.bench.run_plan import _tasks
+from tap_bench.bench.run_plan import _tasks, plan_suite
 from tap_bench.bench.suite import suite_from_dict
 from tap_bench.errors import UntrustedModelWarning
 from tap_bench.sim.scenario_env import get_scenario, make_env
-from tap_bench.thresholds import resolve_thresholds
 
 MODULE = f"userdefs_{uuid.uuid4().hex[:8]}"
 SOURCE = '''
@@ -144,7 +143,7 @@ def test_the_parent_warns_once_per_sb3_model_before_the_run():
                              "seeds": "0-2", "reference_policy": "idm"})
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        _tasks(suite, resolve_thresholds("paper"), False, None)
+        _tasks(plan_suite(suite), False, None)
     untrusted = [str(w.message) for w in caught if w.category is UntrustedModelWarning]
     assert len(untrusted) == 2
     assert any("dqn-highway.zip" in m for m in untrusted)
