@@ -884,14 +884,16 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
         parts.append("<h2>Regression gate: power at this seed count</h2>")
         parts.append(html_table(
             power, table_id="gate_power",
-            caption=f"Per metric, the smallest change 'bench check' detects with "
-            f"{POWER:.0%} power (median and worst (env, policy)), and the seeds the worst "
-            "cell needs to detect a change of one margin."))
-        for r in power[power["cells_too_small"] > 0].itertuples():
-            parts.append(f'<p class="note">{html.escape(r.metric)}: {r.cells_too_small} of '
-                         f"{r.cells} (env, policy) cells cannot detect a change of one margin "
-                         f"({r.margin:g}) with {r.n} seeds; up to {r.seeds_for_margin:.0f} "
-                         "seeds needed.</p>")
+            caption="Per metric, the probability that 'bench check' on these seeds fails a "
+            "cell whose metric worsened by 'effect' (the gate's 'detect' margins): the "
+            "gate's own rule (margin and weighted one-sided test), exact for rates, "
+            "simulated for means; median and weakest (env, policy), and the seeds the "
+            f"weakest needs for {POWER:.0%}."))
+        for r in power[power["cells_underpowered"] > 0].itertuples():
+            parts.append(f'<p class="note">{html.escape(r.metric)}: {r.cells_underpowered} '
+                         f"of {r.cells} (env, policy) cells catch a worsening of {r.effect:g} "
+                         f"with less than {POWER:.0%} probability at {r.n} seeds; up to "
+                         f"{r.seeds_for_power:.0f} seeds needed.</p>")
 
     # 4. the run
     parts.append("<h2>The run</h2>")
