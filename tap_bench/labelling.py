@@ -143,9 +143,11 @@ class TapResult:
         if not len(every):
             return pd.DataFrame(columns=[*keys, "segments", "short_segments", "short_steps",
                                          *GLITCH_COLUMNS, "still"])
-        every["short_steps"] = np.where(every["labelled"], 0, every["n_steps"])
+        labelled = every["labelled"].to_numpy(bool)
+        every["short_steps"] = np.where(labelled, 0, every["n_steps"])
+        every["short"] = (~labelled).astype(np.int64)
         out = every.groupby(keys, sort=True).agg(
-            segments=("segment", "size"), short_segments=("labelled", lambda s: int((~s).sum())),
+            segments=("segment", "size"), short_segments=("short", "sum"),
             short_steps=("short_steps", "sum"), heading_glitches=("heading_glitches", "sum"),
             speed_glitches=("speed_glitches", "sum"), reversing_steps=("reversing_steps", "sum"),
             travel=("travel", "max")).reset_index()

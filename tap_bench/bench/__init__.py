@@ -11,9 +11,16 @@ Modules, by what they do:
 - :mod:`~tap_bench.bench.scenarios`: scenarios matched across data sets (highway-env to WOMD);
 - :mod:`~tap_bench.bench.coverage`, :mod:`~tap_bench.bench.novelty`: behaviour coverage and
   unique manoeuvres against a reference;
-- :mod:`~tap_bench.bench.suite`, :mod:`~tap_bench.bench.runner`,
-  :mod:`~tap_bench.bench.scoring`, :mod:`~tap_bench.bench.report`: suites as data, ``bench
-  run``, its tables and its report;
+- :mod:`~tap_bench.bench.suite`, :mod:`~tap_bench.bench.scoring`: suites as data, a run's
+  tables;
+- :mod:`~tap_bench.bench.runner`: ``bench run``, in four jobs:
+  :mod:`~tap_bench.bench.run_plan` (what the run will do, and how long it takes),
+  :mod:`~tap_bench.bench.run_tasks` (episodes as tasks of the execution layer, the cache),
+  :mod:`~tap_bench.bench.run_scores` (references, gaps, headline figures),
+  :mod:`~tap_bench.bench.run_folder` (write, read, provenance);
+- :mod:`~tap_bench.bench.report`: the report page, with
+  :mod:`~tap_bench.bench.report_figures` (the PNG plots) and
+  :mod:`~tap_bench.bench.report_tables` (the tables, numbers and HTML tables);
 - :mod:`~tap_bench.bench.gate`: ``bench check``, the regression gate;
 - :mod:`~tap_bench.bench.demo`: ``tap-bench demo``.
 """

@@ -105,6 +105,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     SIGTERM).
     """
     argv = sys.argv[1:] if argv is None else list(argv)
+    from tap_bench.execution import keep_freed_memory
+
+    keep_freed_memory()  # no page faults for every temporary column
     parser = build_parser(argv)
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):

@@ -20,9 +20,12 @@ every vehicle looks up its lane by computing its distance to every lane of the n
   in the last bit (BLAS may fuse the multiply-add), which the tolerance (1 micrometre,
   about 1e9 times that rounding at highway-env's scale) absorbs, so the decisions are
   exactly highway-env's;
+- the IDM/MOBIL vehicles decide their actions all at once (:mod:`tap_bench.sim.fast_idm`);
 - the collision loop skips the pairs in which neither vehicle checks collisions (the first
-  thing highway-env's ``handle_collisions`` does for such a pair is return) and calls the
-  others in highway-env's order;
+  thing highway-env's ``handle_collisions`` does for such a pair is return) and the pairs
+  farther apart, by more than :data:`TOLERANCE`, than highway-env's spherical pre-check
+  allows (for which it does nothing either; all distances at once with numpy), and calls
+  the others in highway-env's order;
 - the lane lookup (``RoadNetwork.get_closest_lane_index``, on networks of straight lanes)
   estimates each lane's distance in Python floats and computes highway-env's own distance
   only for the lanes within :data:`TOLERANCE` of the nearest, keeping highway-env's first
@@ -44,6 +47,8 @@ import numpy as np
 from highway_env.road.lane import StraightLane
 from highway_env.road.road import Road
 from highway_env.vehicle.objects import Landmark
+
+from tap_bench.sim.fast_idm import act_all, array_kernels_agree
 
 __all__ = ["TOLERANCE", "FastRoad", "use_fast_road"]
 
@@ -73,6 +78,7 @@ class FastRoad:
         self._positions: np.ndarray | None = None
         self._lanes: dict[Any, tuple[list[float], list[float], list[int]] | None] = {}
         self._flat: list[tuple[Any, ...]] = []
+        self._decide_at_once = array_kernels_agree()
 
     def install(self) -> None:
         """Route the road's ``act``, ``step`` and ``neighbour_vehicles`` through this, and
@@ -126,6 +132,13 @@ class FastRoad:
         vehicles, objects = self.road.vehicles, self.road.objects
         for vehicle in vehicles:
             vehicle.step(dt)
+        near = _near_pairs(vehicles, objects, dt)
+        if near is not None:
+            everyone = vehicles + objects
+            # each vehicle with the vehicles after it, then with every object, in order
+            for i, j in zip(*(k.tolist() for k in np.nonzero(np.triu(near, 1))), strict=True):
+                vehicles[i].handle_collisions(everyone[j], dt)
+            return
         checking = [i for i, vehicle in enumerate(vehicles) if vehicle.check_collisions]
         for i, vehicle in enumerate(vehicles):
             if vehicle.check_collisions:
@@ -143,7 +156,10 @@ class FastRoad:
         self._count = len(self.road.vehicles) + len(self.road.objects)
         self._others, self._positions = self._snapshot()
         try:
-            Road.act(self.road)
+            if self._decide_at_once:
+                act_all(self.road)
+            else:
+                Road.act(self.road)
         finally:
             self._others = self._positions = None
             self._lanes.clear()
@@ -208,6 +224,31 @@ class FastRoad:
             if sv < s and (s_rear is None or sv > s_rear):
                 s_rear, v_rear = sv, v
         return v_front, v_rear
+
+
+def _near_pairs(vehicles: list[Any], objects: list[Any], dt: float) -> np.ndarray | None:
+    """(n_vehicles, n_vehicles + n_objects) bool: the pairs whose collision check can do
+    anything, i.e. that fail highway-env's spherical pre-check (``_is_colliding``: farther
+    apart than half their diagonals plus the first one's travel in ``dt``, nothing happens)
+    by more than :data:`TOLERANCE`, and in which a vehicle checks collisions. None when
+    some vehicle or object lacks the position or diagonal that check reads (then every
+    pair is checked)."""
+    everyone = vehicles + objects
+    n = len(vehicles)
+    try:
+        position = np.array([o.position for o in everyone], dtype=float)
+        diagonal = np.array([o.diagonal for o in everyone], dtype=float)
+        speed = np.array([v.speed for v in vehicles], dtype=float)
+        checks = np.array([bool(o.check_collisions) for o in everyone])
+    except (AttributeError, TypeError, ValueError):
+        return None
+    if position.shape != (len(everyone), 2):
+        return None
+    delta = position[None, :, :] - position[:n, None, :]
+    distance = np.sqrt(delta[..., 0] ** 2 + delta[..., 1] ** 2)
+    bound = (diagonal[:n, None] + diagonal[None, :]) / 2 + speed[:, None] * dt
+    near = ~(distance > bound + TOLERANCE)  # NaN: near, highway-env decides
+    return near & (checks[:n, None] | checks[None, :])
 
 
 def _project(lane: StraightLane, positions: np.ndarray

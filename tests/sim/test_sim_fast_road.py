@@ -13,15 +13,19 @@ from highway_env.vehicle.objects import Landmark, Obstacle
 
 from tap_bench.sim import make_env
 from tap_bench.sim.fast_road import TOLERANCE, FastRoad, use_fast_road
+from tap_bench.sim.idm import IDMParameters, take_over_ego
 
 
 def _episodes(name: str, *, fast_road: bool, fast: bool = False, seeds=(0, 1),
-              **config) -> pd.DataFrame:
-    """Every vehicle's state after every decision, with the ego's reward and observation."""
+              idm_ego: IDMParameters | None = None, **config) -> pd.DataFrame:
+    """Every vehicle's state after every decision, with the ego's reward and observation
+    (``idm_ego``: the ego is an IDM/MOBIL vehicle with these parameters)."""
     env = make_env(name, config=config or None, duration=8, record=not fast, fast=fast)
     rows = []
     for seed in seeds:
         env.reset(seed=seed)
+        if idm_ego is not None:
+            take_over_ego(env, idm_ego)
         road = env.unwrapped.road
         if not fast_road:  # back to highway-env's own methods
             for method in ("act", "step", "neighbour_vehicles"):
@@ -34,7 +38,9 @@ def _episodes(name: str, *, fast_road: bool, fast: bool = False, seeds=(0, 1),
             obs, reward, terminated, truncated, _ = env.step(action)
             done, decision = terminated or truncated, decision + 1
             rows += [(seed, decision, k, *v.position, v.heading, v.speed, v.crashed,
-                      v.lane_index[2], reward, *np.ravel(obs)[:10])
+                      v.lane_index[2], v.target_lane_index[2], getattr(v, "timer", 0.0),
+                      float(v.action["steering"]), float(v.action["acceleration"]),
+                      reward, *np.ravel(obs)[:10])
                      for k, v in enumerate(road.vehicles)]
     return pd.DataFrame(rows)
 
@@ -53,6 +59,90 @@ def test_scenarios_simulate_bit_for_bit_as_with_highway_envs_road(name, fast, co
     pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
     if name == "highway" and not fast:
         assert ours[8].any()  # crashes happen in these episodes: collisions are compared
+
+
+@pytest.mark.parametrize(("name", "params"), [
+    ("highway", IDMParameters()),
+    ("highway", IDMParameters(time_wanted=0.8, distance_wanted=6.0, comfort_acc_max=4.5,
+                              politeness=0.0, lane_change_min_acc_gain=0.05,
+                              lane_change_delay=0.5, target_speed_factor=1.3)),
+    ("merge", IDMParameters(politeness=0.5, comfort_acc_min=-3.0, delta=3.0)),
+    ("exit", IDMParameters(target_speed_factor=0.7)),
+])
+def test_idm_egos_decide_bit_for_bit_as_with_highway_envs_road(name, params):
+    """Every vehicle an IDM/MOBIL vehicle, the ego with its own constants (set on the
+    instance), the others with random exponents (highway-env's randomize_behavior): the
+    same actions, lane changes and timers as highway-env's Road.act."""
+    config = {"vehicles_count": 40, "lanes_count": 4} if name == "highway" else {}
+    ours = _episodes(name, fast_road=True, idm_ego=params, seeds=(0, 3), **config)
+    theirs = _episodes(name, fast_road=False, idm_ego=params, seeds=(0, 3), **config)
+    pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
+    if name == "highway":  # vehicles changed lanes: MOBIL's decisions were compared
+        assert (ours[9] != ours.groupby([0, 2])[9].transform("first")).any()
+
+
+def test_the_vehicles_decide_at_once():
+    """The fast road hands plain IDM vehicles to fast_idm, and only those."""
+    from highway_env.vehicle.behavior import IDMVehicle, LinearVehicle
+
+    from tap_bench.sim import fast_idm
+
+    env = make_env("highway", record=False, duration=2)
+    env.reset(seed=0)
+    road = env.unwrapped.road
+    assert road.act.__self__._decide_at_once == fast_idm.array_kernels_agree()
+    others = [v for v in road.vehicles if v is not env.unwrapped.vehicle]
+    assert others and all(fast_idm.is_plain_idm(v) for v in others)
+    assert not fast_idm.is_plain_idm(env.unwrapped.vehicle)  # the ego of a policy
+    linear = LinearVehicle.create_from(others[0])
+    assert not fast_idm.is_plain_idm(linear)  # its own acceleration
+    plain = IDMVehicle.create_from(others[0])
+    plain.act = lambda *args: None
+    assert not fast_idm.is_plain_idm(plain)  # an instance's own act
+
+
+@pytest.mark.parametrize("mutation", ["steering", "acceleration", "lane coordinate",
+                                      "not zero", "velocity"])
+def test_a_changed_formula_is_caught(monkeypatch, mutation):
+    """The comparison sees a change of one ulp in any action, or a changed term of the
+    vectorised formulas: the bit-for-bit tests can fail."""
+    from tap_bench.sim import fast_idm
+
+    if mutation in ("steering", "acceleration"):
+        act = fast_idm._act_straight
+
+        def one_ulp_off(road, vehicles, lanes, targets):
+            act(road, vehicles, lanes, targets)
+            for vehicle in vehicles:
+                vehicle.action[mutation] = np.nextafter(vehicle.action[mutation], np.inf)
+
+        monkeypatch.setattr(fast_idm, "_act_straight", one_ulp_off)
+    elif mutation == "lane coordinate":
+        along = fast_idm._along
+        monkeypatch.setattr(fast_idm, "_along",
+                            lambda p, s, d: np.nextafter(along(p, s, d), np.inf))
+    elif mutation == "not zero":
+        not_zero = fast_idm._not_zero
+        monkeypatch.setattr(fast_idm, "_not_zero",
+                            lambda x: np.nextafter(not_zero(x), np.inf))
+    else:
+        velocity = fast_idm._velocity
+        monkeypatch.setattr(fast_idm, "_velocity", lambda objects: velocity(objects) * 1.01)
+    ours = _episodes("highway", fast_road=True, idm_ego=IDMParameters(), seeds=(0,))
+    theirs = _episodes("highway", fast_road=False, idm_ego=IDMParameters(), seeds=(0,))
+    with pytest.raises(AssertionError):
+        pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
+
+
+def test_machines_whose_array_kernels_differ_simulate_with_highway_envs_act(monkeypatch):
+    from tap_bench.sim import fast_idm, fast_road
+
+    monkeypatch.setattr(fast_road, "array_kernels_agree", lambda: False)
+    monkeypatch.setattr(fast_idm, "act_all", None)  # would fail if called
+    monkeypatch.setattr(fast_road, "act_all", None)
+    ours = _episodes("highway", fast_road=True, seeds=(0,))
+    theirs = _episodes("highway", fast_road=False, seeds=(0,))
+    pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
 
 
 def test_every_query_in_dense_traffic_is_answered_as_highway_env_does(monkeypatch):

@@ -1,0 +1,259 @@
+"""The run report's PNG figures, drawn at the size they are shown (text at least 10 px),
+scales fitted to the data, labels whole: label heat maps, measures, coverage, forest plots,
+improvement over the reference, novelty (part of :mod:`tap_bench.bench.report`)."""
+
+from __future__ import annotations
+
+import os
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from tap_bench.bench.measures import MEASURES
+from tap_bench.bench.report_tables import (
+    MEASURE_NAMES,
+    _envs,
+    _pooled,
+    _scale,
+    _slug,
+    _unit_label,
+)
+from tap_bench.bench.scoring import Scores
+
+TOP_LABELS = 12  # labels shown per heat map and forest plot
+DPI = 100  # figures are drawn at the size they are shown: 1 pt = 1.39 px
+FONT_PT = 8.5  # smallest text in a figure: 11.8 px
+MAX_WIDTH_IN = 11.0  # widest figure [in]: 1,100 px, inside the page's 1,200 px column
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    plt.rcParams.update({"font.size": FONT_PT, "axes.titlesize": FONT_PT + 1,
+                         "xtick.labelsize": FONT_PT, "ytick.labelsize": FONT_PT,
+                         "legend.fontsize": FONT_PT})
+    return plt
+
+
+def _wrap(label: str, width: int = 48) -> str:
+    """A label wrapped on whole words (never cut): ``A > B > C`` breaks after ``>``."""
+    return "\n".join(textwrap.wrap(str(label), width=width, break_long_words=False,
+                                   break_on_hyphens=False)) or str(label)
+
+
+def _save(fig, path: Path) -> Path:
+    fig.savefig(path, dpi=DPI)
+    _plt().close(fig)
+    return path
+
+
+def _label_heatmap(counts: pd.DataFrame, env: str, folder: Path) -> Path | None:
+    sub = counts[counts["env"] == env]
+    if sub.empty:
+        return None
+    plt = _plt()
+    policies = sorted(sub["policy"].unique())
+    top = sub.groupby("sdl")["share"].sum().sort_values(ascending=False).index[:TOP_LABELS]
+    mat = (sub[sub["sdl"].isin(top)].pivot_table(index="sdl", columns="policy",
+                                                 values="share", fill_value=0.0)
+           .reindex(index=top, columns=policies, fill_value=0.0)).to_numpy()
+    names = [_wrap(t, 52) for t in top]
+    lines = sum(n.count("\n") + 1 for n in names)
+    fig, ax = plt.subplots(figsize=(min(MAX_WIDTH_IN, 5.2 + 1.0 * len(policies)),
+                                    1.4 + 0.19 * lines + 0.12 * len(top)),
+                           layout="constrained")
+    vmax = max(float(mat.max()), 0.05)  # the colour scale is fitted to the shares shown
+    im = ax.imshow(mat, aspect="auto", cmap="Blues", vmin=0, vmax=vmax)
+    ax.set_xticks(range(len(policies)), policies, rotation=20, ha="right")
+    ax.set_yticks(range(len(top)), names)
+    for (i, j), v in np.ndenumerate(mat):
+        if v > 0:
+            ax.text(j, i, f"{v:.0%}", ha="center", va="center",
+                    color="white" if v > 0.6 * vmax else "black")
+    ax.set_title(f"{env}: share of each policy's episodes with each ego label "
+                 f"(top {len(top)})", loc="left")
+    fig.colorbar(im, ax=ax, fraction=0.04, pad=0.01, format=lambda x, _: f"{x:.0%}")
+    return _save(fig, folder / f"labels_{_slug(env)}.png")
+
+
+def _interval_plot(ax, names, est, lo, hi, *, color="C0", offset=0.0, label=None):
+    y = np.arange(len(names)) + offset
+    est, lo, hi = (np.asarray(v, float) for v in (est, lo, hi))
+    err = np.vstack([np.clip(est - lo, 0, None), np.clip(hi - est, 0, None)])
+    err = np.nan_to_num(err)
+    ax.errorbar(est, y, xerr=err, fmt="o", color=color, capsize=3, label=label, ms=4)
+    ax.set_yticks(np.arange(len(names)), names)
+
+
+def _fit(ax, lo, hi, *, floor: float | None = None, ceil: float | None = None) -> None:
+    """x limits fitted to the intervals shown, with a margin; clipped to [floor, ceil]."""
+    values = np.concatenate([np.asarray(lo, float), np.asarray(hi, float)])
+    values = values[np.isfinite(values)]
+    if not len(values):
+        return
+    a, b = float(values.min()), float(values.max())
+    pad = max((b - a) * 0.08, 1e-3 if b == a else 0)
+    a, b = a - pad, b + pad
+    if floor is not None:
+        a = max(a, floor)
+    if ceil is not None:
+        b = min(b, ceil)
+    if b > a:
+        ax.set_xlim(a, b)
+
+
+def _measures_plot(scores: Scores, env: str, reference: str, folder: Path) -> Path | None:
+    m = scores.measures[scores.measures["env"] == env] if len(scores.measures) else \
+        scores.measures
+    if m.empty:
+        return None
+    plt = _plt()
+    policies = sorted(m["policy"].unique())
+    fig, axes = plt.subplots(1, len(MEASURES), figsize=(MAX_WIDTH_IN, 1.3 + 0.3 * len(policies)),
+                             sharey=True, layout="constrained")
+    for ax, meas in zip(np.atleast_1d(axes), MEASURES, strict=True):
+        sub = m[m["measure"] == meas.name].set_index("policy").reindex(policies)
+        k = _scale(meas)
+        _interval_plot(ax, policies, sub["mean"] * k, sub["low"] * k, sub["high"] * k)
+        ref = sub.loc[reference, "mean"] * k if reference in sub.index else np.nan
+        if np.isfinite(ref):
+            ax.axvline(ref, color="0.6", lw=0.8, ls="--")
+        _fit(ax, sub["low"] * k, sub["high"] * k, floor=0.0,
+             ceil=100.0 if meas.name == "crashed" else None)
+        better = "higher" if meas.higher_is_better else "lower"
+        name = MEASURE_NAMES.get(meas.name, meas.name)
+        ax.set_title(f"{name} [{_unit_label(meas)}]\n{better} is better")
+        ax.grid(axis="x", alpha=0.3)
+    np.atleast_1d(axes)[0].invert_yaxis()
+    return _save(fig, folder / f"measures_{_slug(env)}.png")
+
+
+def _coverage_plot(scores: Scores, folder: Path) -> Path | None:
+    cov = _pooled(scores.coverage)
+    if cov.empty:
+        return None
+    plt = _plt()
+    refs = sorted(cov["reference"].unique())
+    policies = sorted(cov["policy"].unique())
+    fig, axes = plt.subplots(1, 2, figsize=(MAX_WIDTH_IN, 1.5 + 0.45 * len(policies)),
+                             sharey=True, layout="constrained")
+    for k, ref in enumerate(refs):
+        sub = cov[cov["reference"] == ref].set_index("policy").reindex(policies)
+        off = (k - (len(refs) - 1) / 2) * 0.25
+        _interval_plot(axes[0], policies, sub["coverage"] * 100, sub["coverage_low"] * 100,
+                       sub["coverage_high"] * 100, color=f"C{k}", offset=off, label=ref)
+        _interval_plot(axes[1], policies, sub["weighted_coverage"] * 100,
+                       sub["weighted_low"] * 100, sub["weighted_high"] * 100, color=f"C{k}",
+                       offset=off, label=ref)
+    axes[0].set_title("coverage [%]: share of the reference's labels shown", loc="left")
+    axes[1].set_title("frequency-weighted coverage [%]", loc="left")
+    _fit(axes[0], cov["coverage_low"] * 100, cov["coverage_high"] * 100, floor=0, ceil=100)
+    _fit(axes[1], cov["weighted_low"] * 100, cov["weighted_high"] * 100, floor=0, ceil=100)
+    for ax in axes:
+        ax.grid(axis="x", alpha=0.3)
+    axes[0].invert_yaxis()
+    axes[1].legend(loc="best", title="reference")
+    return _save(fig, folder / "coverage.png")
+
+
+def _forest_plots(scores: Scores, folder: Path) -> list[Path]:
+    labels = scores.paired_labels
+    out: list[Path] = []
+    if labels.empty:
+        return out
+    plt = _plt()
+    for (a, b), sub in labels.groupby(["policy_a", "policy_b"], sort=True):
+        sub = _pooled(sub)
+        sub = sub.reindex(sub["diff"].abs().sort_values(ascending=False).index)[:TOP_LABELS]
+        names = [_wrap(t, 60) for t in sub["label"]]
+        lines = sum(n.count("\n") + 1 for n in names)
+        fig, ax = plt.subplots(figsize=(MAX_WIDTH_IN, 1.3 + 0.2 * lines + 0.1 * len(sub)),
+                               layout="constrained")
+        y = np.arange(len(sub))
+        ax.hlines(y, sub["band_low"] * 100, sub["band_high"] * 100, color="0.85", lw=7,
+                  label="simultaneous band")
+        _interval_plot(ax, names, sub["diff"] * 100, sub["diff_low"] * 100,
+                       sub["diff_high"] * 100, label="95 % interval")
+        ax.axvline(0, color="k", lw=0.8)
+        _fit(ax, sub["band_low"] * 100, sub["band_high"] * 100, floor=-100, ceil=100)
+        ax.invert_yaxis()
+        ax.set_xlabel(f"difference in the share of seeds [percentage points]: {a} minus {b}")
+        ax.set_title(f"{a} vs {b}, paired by seed (env: {sub['env'].iloc[0]})", loc="left")
+        ax.legend(loc="best")
+        out.append(_save(fig, folder / f"forest_{_slug(a)}_vs_{_slug(b)}.png"))
+    return out
+
+
+def _improvement_plot(scores: Scores, folder: Path) -> Path | None:
+    pm = _pooled(scores.paired_measures)
+    if pm.empty:
+        return None
+    plt = _plt()
+    pairs = pm[["policy_a", "policy_b"]].drop_duplicates().to_records(index=False)
+    fig, ax = plt.subplots(figsize=(9.5, 1.2 + 0.24 * len(pm)), layout="constrained")
+    names = []
+    k = 0
+    for j, (a, b) in enumerate(pairs):
+        sub = pm[(pm["policy_a"] == a) & (pm["policy_b"] == b)]
+        for r in sub.itertuples():
+            ax.errorbar(r.p_improvement, k, xerr=[[max(r.p_improvement - r.p_low, 0)],
+                                                  [max(r.p_high - r.p_improvement, 0)]],
+                        fmt="o", color=f"C{j}", capsize=3, ms=4)
+            name = MEASURE_NAMES.get(r.measure, r.measure)
+            names.append(f"{a} vs {b}: {name}")
+            k += 1
+    ax.set_yticks(range(len(names)), names)
+    ax.axvline(0.5, color="k", lw=0.8)
+    ax.set_xlim(-0.02, 1.02)
+    ax.invert_yaxis()
+    ax.set_xlabel("P(A better than B on the same seed); ties count 1/2; 0.5: no difference")
+    return _save(fig, folder / "improvement.png")
+
+
+def _novelty_plot(scores: Scores, folder: Path) -> Path | None:
+    nov = _pooled(scores.novelty)
+    if nov.empty:
+        return None
+    plt = _plt()
+    refs = sorted(nov["reference"].unique())
+    policies = sorted(nov["policy"].unique())
+    fig, ax = plt.subplots(figsize=(9.5, 1.3 + 0.45 * len(policies)), layout="constrained")
+    for k, ref in enumerate(refs):
+        sub = nov[nov["reference"] == ref].set_index("policy").reindex(policies)
+        offset = (k - (len(refs) - 1) / 2) * 0.25
+        _interval_plot(ax, policies, sub["novel_rate"] * 100, sub["novel_low"] * 100,
+                       sub["novel_high"] * 100, color=f"C{k}", offset=offset, label=ref)
+    _fit(ax, nov["novel_low"] * 100, nov["novel_high"] * 100, floor=0, ceil=100)
+    ax.invert_yaxis()
+    ax.set_xlabel("novelty rate [%]: share of episodes whose ego label the reference never shows")
+    ax.legend(loc="best", title="reference")
+    ax.grid(axis="x", alpha=0.3)
+    return _save(fig, folder / "novelty.png")
+
+
+def write_plots(scores: Scores, folder: str | os.PathLike, *,
+                reference: str | None = None) -> list[Path]:
+    """Write the PNG plots of a scored run into ``folder`` and return their paths.
+
+    Per env: ``labels_<env>.png`` (label heat map) and ``measures_<env>.png``; pooled:
+    ``measures_all.png``, ``improvement.png``, ``coverage.png``, ``forest_<A>_vs_<B>.png``,
+    ``novelty.png``.
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    reference = reference or ""
+    paths: list[Path | None] = []
+    envs = _envs(scores)
+    for env in envs:
+        paths.append(_label_heatmap(scores.label_counts, env, folder))
+        paths.append(_measures_plot(scores, env, reference, folder))
+    if len(envs) > 1:
+        paths.append(_measures_plot(scores, "all", reference, folder))
+    paths += [_improvement_plot(scores, folder), _coverage_plot(scores, folder),
+              *_forest_plots(scores, folder), _novelty_plot(scores, folder)]
+    return [p for p in paths if p is not None]

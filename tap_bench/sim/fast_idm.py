@@ -1,0 +1,250 @@
+"""highway-env's IDM/MOBIL vehicles deciding all at once, the same decisions sooner.
+
+In ``Road.act`` every :class:`~highway_env.vehicle.behavior.IDMVehicle` runs, one after the
+other in Python: ``follow_road``, its lane-change policy (MOBIL, once a second), its steering
+controller, a neighbour search and the IDM acceleration towards its leader (and towards the
+leader on its target lane while it changes lanes). With 20 vehicles that was two thirds of a
+rollout. :func:`act_all` gives every vehicle the same action, bit for bit:
+
+- the lane-change decisions stay highway-env's own code, run per vehicle in the road's
+  order, interleaved with the ``act`` of every vehicle that is not a plain IDM vehicle (the
+  ego of another policy): a decision reads the target lanes and target speeds of vehicles
+  that acted before it in the same step, so their order is kept;
+- the steering command and the IDM accelerations, which read only positions, speeds,
+  headings and lanes (none of which change during ``Road.act``) and the vehicle's own target
+  lane, are then computed for every plain IDM vehicle at once with numpy, with
+  highway-env's formulas term for term in its order of operations (``np.dot`` of two
+  2-vectors is ``a0 * b0 + a1 * b1``; ``max``, ``min`` and ``np.clip`` keep their NaN and
+  signed-zero behaviour);
+- a vehicle on a lane that is not straight, or whose class or instance changes any method
+  involved, is left to highway-env's own ``act``.
+
+numpy's array kernels (``arcsin``, ``tan``, ``power`` ...) must give the same bits as its
+scalar ones for this to hold; :func:`array_kernels_agree` checks that on this machine once
+per process, and where they do not, :func:`act_all` is not used (``FastRoad`` falls back to
+highway-env's ``Road.act``). Tested by simulating scenarios both ways and comparing every
+vehicle's state bit for bit (``tests/sim/test_sim_fast_road.py``).
+"""
+
+from __future__ import annotations
+
+import functools
+from operator import attrgetter
+from typing import Any
+
+import numpy as np
+from highway_env.road.lane import StraightLane
+from highway_env.vehicle.behavior import IDMVehicle
+from highway_env.vehicle.kinematics import Vehicle
+from highway_env.vehicle.objects import RoadObject
+
+__all__ = ["act_all", "array_kernels_agree", "is_plain_idm"]
+
+_METHODS = ("act", "follow_road", "change_lane_policy", "mobil", "steering_control",
+            "acceleration", "desired_gap", "lane_distance_to")
+"""The methods of IDMVehicle that :func:`act_all` stands in for (or runs)."""
+
+_CONSTANTS = attrgetter("KP_LATERAL", "KP_HEADING", "LENGTH", "MAX_STEERING_ANGLE",
+                        "ACC_MAX", "COMFORT_ACC_MAX", "COMFORT_ACC_MIN", "DELTA",
+                        "DISTANCE_WANTED", "TIME_WANTED")
+_STATE = attrgetter("speed", "heading")
+_VELOCITY_CLASSES: dict[type, bool] = {}
+
+_EPS = 1e-2  # highway_env.utils.not_zero's epsilon
+
+
+@functools.cache
+def _plain_class(cls: type) -> bool:
+    return all(getattr(cls, name) is getattr(IDMVehicle, name) for name in _METHODS)
+
+
+def is_plain_idm(vehicle: Any) -> bool:
+    """Whether ``vehicle`` acts exactly as highway-env's IDMVehicle: that class or a subclass
+    (with other constants) that changes none of its decision methods, on the class or on the
+    instance."""
+    return _plain_class(type(vehicle)) and not (vars(vehicle).keys() & _METHODS)
+
+
+@functools.cache
+def array_kernels_agree() -> bool:
+    """Whether numpy's array kernels give the scalar kernels' bits on this machine, for
+    every operation :func:`act_all` vectorises (checked once per process)."""
+    rng = np.random.default_rng(0)
+    x = np.concatenate([rng.uniform(-1, 1, 256), rng.uniform(-50, 50, 256)])
+    y = rng.uniform(0.5, 60, 512)
+    e = rng.uniform(3.5, 4.5, 512)
+    a, b = rng.uniform(-100, 100, (2, 512, 2))
+    checks = [
+        (np.arcsin(np.clip(x, -1, 1)), [np.arcsin(np.clip(v, -1, 1)) for v in x]),
+        (np.arctan(2 * np.tan(x)), [np.arctan(2 * np.tan(v)) for v in x]),
+        (np.cos(x), [np.cos(v) for v in x]), (np.sin(x), [np.sin(v) for v in x]),
+        (np.power(y / 30.0, e), [np.power(v / 30.0, w) for v, w in zip(y, e, strict=True)]),
+        (np.power(x, 2), [np.power(v, 2) for v in x]),
+        (np.remainder(x + np.pi, 2 * np.pi), [(v + np.pi) % (2 * np.pi) for v in x]),
+        (a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1], [np.dot(u, w) for u, w in zip(a, b, strict=True)]),
+    ]
+    return all(np.array_equal(got, np.array(want, dtype=float)) for got, want in checks)
+
+
+def _not_zero(x: np.ndarray) -> np.ndarray:
+    """highway_env.utils.not_zero on each element."""
+    return np.where(np.abs(x) > _EPS, x, np.where(x >= 0, _EPS, -_EPS))
+
+
+def _standard_velocity(cls: type) -> bool:
+    """Whether objects of ``cls`` have highway-env's ``velocity``: speed times (cos, sin)
+    of the heading."""
+    if cls not in _VELOCITY_CLASSES:
+        _VELOCITY_CLASSES[cls] = (cls.velocity in (Vehicle.velocity, RoadObject.velocity)
+                                  and cls.direction is RoadObject.direction)
+    return _VELOCITY_CLASSES[cls]
+
+
+def _velocity(objects: list[Any]) -> np.ndarray:
+    """(n, 2) ``velocity`` of each object [m/s] (computed for highway-env's definition,
+    asked of the object otherwise)."""
+    out = np.empty((len(objects), 2))
+    standard = [k for k, obj in enumerate(objects)
+                if _standard_velocity(type(obj)) and "velocity" not in vars(obj)]
+    if len(standard) < len(objects):
+        for k in set(range(len(objects))) - set(standard):
+            out[k] = objects[k].velocity
+    if standard:
+        speed, heading = np.array([_STATE(objects[k]) for k in standard], dtype=float).T
+        out[standard, 0] = speed * np.cos(heading)
+        out[standard, 1] = speed * np.sin(heading)
+    return out
+
+
+def act_all(road: Any) -> None:
+    """highway-env's ``Road.act`` for ``road``: every vehicle decides its action (see the
+    module docstring); the same actions, target lanes and timers, bit for bit.
+
+    The road's search (``road.neighbour_vehicles``) must not depend on what the vehicles
+    decide (highway-env's does not; tap-bench's FastRoad neither).
+    """
+    network = road.network
+    plain = []
+    for vehicle in road.vehicles:
+        if not is_plain_idm(vehicle):
+            vehicle.act()
+            continue
+        if vehicle.crashed:
+            continue
+        vehicle.follow_road()
+        if vehicle.enable_lane_change:
+            vehicle.change_lane_policy()
+        plain.append(vehicle)
+    if not plain:
+        return
+    batch, lanes, targets = [], [], []
+    for vehicle in plain:
+        lane, target = vehicle.lane, network.get_lane(vehicle.target_lane_index)
+        if type(lane) is StraightLane and type(target) is StraightLane:
+            batch.append(vehicle)
+            lanes.append(lane)
+            targets.append(target)
+        else:  # highway-env's own arithmetic, after the lane-change policy it already ran
+            _act_rest(vehicle)
+    if batch:
+        _act_straight(road, batch, lanes, targets)
+
+
+def _act_rest(vehicle: Any) -> None:
+    """The part of ``IDMVehicle.act`` after the lane-change policy, as highway-env runs it."""
+    action = {"steering": np.clip(vehicle.steering_control(vehicle.target_lane_index),
+                                  -vehicle.MAX_STEERING_ANGLE, vehicle.MAX_STEERING_ANGLE)}
+    front, rear = vehicle.road.neighbour_vehicles(vehicle, vehicle.lane_index)
+    acceleration = vehicle.acceleration(ego_vehicle=vehicle, front_vehicle=front,
+                                        rear_vehicle=rear)
+    if vehicle.lane_index != vehicle.target_lane_index:
+        front, rear = vehicle.road.neighbour_vehicles(vehicle, vehicle.target_lane_index)
+        acceleration = min(acceleration, vehicle.acceleration(
+            ego_vehicle=vehicle, front_vehicle=front, rear_vehicle=rear))
+    action["acceleration"] = np.clip(acceleration, -vehicle.ACC_MAX, vehicle.ACC_MAX)
+    Vehicle.act(vehicle, action)
+
+
+def _lane_arrays(lanes: list[StraightLane]) -> tuple[np.ndarray, ...]:
+    """start (n, 2), direction (n, 2), lateral direction (n, 2), heading (n,), speed limit
+    (n,) (NaN: none) of each lane."""
+    start = np.array([lane.start for lane in lanes], dtype=float)
+    direction = np.array([lane.direction for lane in lanes], dtype=float)
+    lateral = np.array([lane.direction_lateral for lane in lanes], dtype=float)
+    heading = np.array([lane.heading for lane in lanes], dtype=float)
+    limit = np.array([np.nan if lane.speed_limit is None else lane.speed_limit
+                      for lane in lanes], dtype=float)
+    return start, direction, lateral, heading, limit
+
+
+def _along(position: np.ndarray, start: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """StraightLane.local_coordinates(position)[0] of each row: np.dot(position - start,
+    direction)."""
+    delta = position - start
+    return delta[:, 0] * direction[:, 0] + delta[:, 1] * direction[:, 1]
+
+
+def _act_straight(road: Any, vehicles: list[Any], lanes: list[StraightLane],
+                  targets: list[StraightLane]) -> None:
+    """The steering and IDM part of ``IDMVehicle.act`` for ``vehicles`` (plain IDM, on
+    straight ``lanes``, steering to straight ``targets``), all at once."""
+    n = len(vehicles)
+    (kp_lateral, kp_heading, length, max_steering, acc_max, comfort_max, comfort_min, delta,
+     distance_wanted, time_wanted) = np.array([_CONSTANTS(v) for v in vehicles],
+                                              dtype=float).T
+    speed, heading = np.array([_STATE(v) for v in vehicles], dtype=float).T
+    position = np.array([v.position for v in vehicles], dtype=float)
+    target_speed = np.array([getattr(v, "target_speed", 0) for v in vehicles], dtype=float)
+
+    # steering_control(target_lane_index), then act's clip
+    t_start, _, t_lateral, t_heading, _ = _lane_arrays(targets)
+    lat = _along(position, t_start, t_lateral)
+    nz_speed = _not_zero(speed)
+    heading_command = np.arcsin(np.clip(-kp_lateral * lat / nz_speed, -1, 1))
+    heading_ref = t_heading + np.clip(heading_command, -np.pi / 4, np.pi / 4)
+    heading_rate = kp_heading * (np.remainder(heading_ref - heading + np.pi, 2 * np.pi)
+                                 - np.pi)
+    slip = np.arcsin(np.clip(length / 2 / nz_speed * heading_rate, -1, 1))
+    steering = np.clip(np.arctan(2 * np.tan(slip)), -max_steering, max_steering)
+    steering = np.clip(steering, -max_steering, max_steering)
+
+    # acceleration(self, leader on the own lane), and on the target lane when changing
+    l_start, l_direction, _, _, limit = _lane_arrays(lanes)
+    own_s = _along(position, l_start, l_direction)
+    ego_target = np.where(np.isnan(limit), target_speed, np.clip(target_speed, 0, limit))
+    free = comfort_max * (1 - np.power(np.where(0 > speed, 0.0, speed)
+                                       / np.abs(_not_zero(ego_target)), delta))
+    direction = np.stack([np.cos(heading), np.sin(heading)], axis=1)
+    velocity = speed[:, None] * direction
+    gap_scale = 2 * np.sqrt(-comfort_max * comfort_min)
+
+    def accelerations(fronts: list[Any]) -> np.ndarray:
+        """IDM acceleration of each vehicle behind ``fronts`` (None: a free road)."""
+        out = free.copy()
+        rows = [k for k, front in enumerate(fronts) if front]
+        if not rows:
+            return out
+        ahead = [fronts[k] for k in rows]
+        front_position = np.array([f.position for f in ahead], dtype=float)
+        d = _along(front_position, l_start[rows], l_direction[rows]) - own_s[rows]
+        dv_vec = velocity[rows] - _velocity(ahead)
+        dv = dv_vec[:, 0] * direction[rows, 0] + dv_vec[:, 1] * direction[rows, 1]
+        s = speed[rows]
+        d_star = distance_wanted[rows] + s * time_wanted[rows] + s * dv / gap_scale[rows]
+        out[rows] = out[rows] - comfort_max[rows] * np.power(d_star / _not_zero(d), 2)
+        return out
+
+    search = road.neighbour_vehicles
+    acceleration = accelerations([search(v, v.lane_index)[0] for v in vehicles])
+    changing = [k for k, v in enumerate(vehicles) if v.lane_index != v.target_lane_index]
+    if changing:
+        fronts: list[Any] = [None] * n
+        for k in changing:
+            fronts[k] = search(vehicles[k], vehicles[k].target_lane_index)[0]
+        on_target = accelerations(fronts)
+        for k in changing:  # min(a, b): b only when smaller
+            if on_target[k] < acceleration[k]:
+                acceleration[k] = on_target[k]
+    acceleration = np.clip(acceleration, -acc_max, acc_max)
+    for k, vehicle in enumerate(vehicles):
+        vehicle.action = {"steering": steering[k], "acceleration": acceleration[k]}
