@@ -109,7 +109,8 @@ class GateResult:
         table: one row per (env, policy, metric): env, policy, metric, direction (which
             way is better: higher, lower, none), test (paired/unpaired), n_baseline, n_run,
             baseline, run, change (run - baseline; for label_tv the TV), margin, p_value
-            (one-sided, the worse way), p_min (the smallest p-value the test could give
+            (one-sided, the worse way; the better way on a row whose verdict is better),
+            p_min (the smallest p-value the test could give
             on these data), p_adjusted, verdict (worse, changed, better or
             empty), moved (the row fails the check), power (at the ``detect`` worsening),
             underpowered, note.
@@ -246,9 +247,9 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
     n_cells = len(cells)
     n_seeds = int(ok.groupby(["env", "policy"]).size().min())
     floor, level = firing_floor(config, cells=n_cells, seeds=n_seeds)
-    if floor > level:
+    if floor > level * (1 + 1e-9):
         need = next(k for k in range(1, 64)
-                    if firing_floor(config, cells=n_cells, seeds=k)[0] <= level)
+                    if firing_floor(config, cells=n_cells, seeds=k)[0] <= level * (1 + 1e-9))
         raise BaselineError(
             f"run {run_summary.get('run')!r} has {n_seeds} seeds in its smallest (env, "
             f"policy) cell: no test of a check on them could give a p-value below "
@@ -829,6 +830,10 @@ def _decide(table: pd.DataFrame, config: GateConfig) -> pd.DataFrame:
                        & ~forced, "changed", verdict)
     table["verdict"] = verdict
     table["moved"] = fails | forced
+    # an improvement shows the p-values of its side
+    improved = verdict == "better"
+    table.loc[improved, "p_value"] = table.loc[improved, "p_better"]
+    table.loc[improved, "p_adjusted"] = better_adj[improved]
     table["note"] = table["note"].fillna("")
     table["test"] = table["test"].fillna("")
     table["direction"] = table["direction"].fillna("")
@@ -876,9 +881,9 @@ def _with_power(table: pd.DataFrame, plans: list, config: GateConfig) -> pd.Data
 def _why(key: dict[str, Any], policies: dict[str, str], envs: dict[str, str]) -> str:
     bits = []
     if key["policy"] in policies:
-        bits.append(f"policy {key['policy']!r} changed: {policies[key['policy']]}")
+        bits.append(f"policy {key['policy']!r} changed (its definition row says how)")
     if key["env"] in envs:
-        bits.append(f"env {key['env']!r} changed: {envs[key['env']]}")
+        bits.append(f"env {key['env']!r} changed (its definition row says how)")
     return "; ".join(bits)
 
 
@@ -910,11 +915,11 @@ def _refuse_if_it_cannot_fire(plans: list, config: GateConfig) -> None:
               == set(r["seed"].astype(np.int64)) for _, b, r in plans]
     n = min(len(b) for _, b, _ in plans)
     floor, level = firing_floor(config, cells=cells, seeds=n if all(paired) else None)
-    if floor <= level:
+    if floor <= level * (1 + 1e-9):
         return
     if all(paired):
         need = next(k for k in range(1, 64)
-                    if firing_floor(config, cells=cells, seeds=k)[0] <= level)
+                    if firing_floor(config, cells=cells, seeds=k)[0] <= level * (1 + 1e-9))
         raise ParameterError(
             "seeds", n, f"at least {need} paired seeds at alpha {config.alpha:g}",
             hint=f"With {n} seeds no test's p-value is below {floor:.3g}, above the "

@@ -161,6 +161,13 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
 
     # 1. the summary
     pooled_env = "all" if len(_envs(scores)) > 1 else (_envs(scores) or ["–"])[0]
+    one = summary.get("one_outcome_cells") or []
+    if one:
+        listed = ", ".join(f"{c['env']}/{c['policy']} ({c['n']})" for c in one)
+        parts.append(f'<p class="note warning">One outcome on every seed: {html.escape(listed)}.'
+                     " These episodes are not independent samples (the scene does not vary "
+                     "with its seed for that policy); their intervals, pooled figures and "
+                     "contexts count one episode as many.</p>")
     parts.append("<h2>Summary: each policy against the reference</h2>")
     parts.append(html_table(
         summary_table(scores, reference), table_id="summary", max_rows=50,

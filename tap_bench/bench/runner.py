@@ -55,6 +55,7 @@ from typing import Any
 import pandas as pd
 
 from tap_bench.bench.cache import EpisodeCache
+from tap_bench.bench.episodes import one_outcome_cells
 from tap_bench.bench.power import power_table
 from tap_bench.bench.run_folder import (
     _machine,
@@ -236,6 +237,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "failed": failed[["env", "policy", "seed", "error"]].to_dict("records"),
         "methods": scores.methods,
         "headline": _headline(scores, episodes),
+        "one_outcome_cells": one_outcome_cells(episodes).to_dict("records"),
         "provenance": provenance(suite),
         "timings": timings,
         "estimate": {"seconds": _round(plan.seconds),

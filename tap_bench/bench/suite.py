@@ -77,7 +77,7 @@ def default_weights() -> dict[str, float]:
     safety = {k: v for k, v in SAFETY_WEIGHTS.items() if k in metrics}
     rest = [m for m in metrics if m not in safety]
     left = 1.0 - sum(safety.values())
-    return {**safety, **{m: left / len(rest) for m in rest}} if rest else safety
+    return {**safety, **{m: round(left / len(rest), 12) for m in rest}} if rest else safety
 
 
 GATE_METRICS = gate_metrics()
@@ -321,7 +321,7 @@ def suite_from_dict(doc: Any, *, source: str = "suite", path: Path | None = None
     cells = len(envs) * len(policies)
     metric = min(gate_metrics(), key=gate.share)
     reach = gate.alpha * gate.share(metric) / cells  # its level when every cell is tested
-    if 1.0 / (gate.n_permutations + 1) > reach:  # a check on other seeds could never fire
+    if 1.0 / (gate.n_permutations + 1) > reach * (1 + 1e-9):  # other seeds: never fires
         need = math.ceil(1.0 / reach - 1 - 1e-9)
         raise FileFormatError(
             f"{source}: gate: {len(envs)} envs x {len(policies)} policies = {cells} cells "

@@ -155,6 +155,11 @@ def run_bench(args: argparse.Namespace) -> int:
     for row in s["failed"][:10]:
         print(f"  failed: {row['env']} {row['policy']} seed {row['seed']}: {row['error']}",
               file=sys.stderr)
+    for row in s.get("one_outcome_cells", []):
+        print(f"warning: {row['env']}/{row['policy']}: all {row['n']} episodes have one "
+              "outcome (the same label and measures on every seed): they are not independent "
+              "samples; its intervals, pooled figures and contexts count one episode "
+              f"{row['n']} times.", file=sys.stderr)
     print(f"wrote {result.folder}/ (report: {result.report})")
     return 0
 

@@ -225,7 +225,7 @@ def test_a_gate_that_can_never_fire_is_refused_with_the_numbers(tmp_path):
     few = synthetic(0, n=3)  # paired on 3 seeds: a rate's exact p is at least 1/8
     with pytest.raises(ParameterError, match="seeds") as err:
         check(SUMMARY, few, doc, few)
-    assert "at least 6 paired seeds" in str(err.value)
+    assert "at least 5 paired seeds" in str(err.value)
 
 
 def test_a_refusing_check_still_lists_the_changed_definitions(tmp_path):
@@ -239,10 +239,10 @@ def test_a_refusing_check_still_lists_the_changed_definitions(tmp_path):
 
 
 def test_a_baseline_that_could_never_fire_is_refused_when_made(tmp_path):
-    with pytest.raises(BaselineError, match=r"3 seeds .* at least 6 seeds"):
+    with pytest.raises(BaselineError, match=r"3 seeds .* at least 5 seeds"):
         write_baseline(SUMMARY, synthetic(0, n=3), tmp_path / "b.json")
     assert not (tmp_path / "b.json").exists()
-    write_baseline(SUMMARY, synthetic(0, n=6), tmp_path / "b.json")  # 1/64 < 0.6 x 0.05
+    write_baseline(SUMMARY, synthetic(0, n=5), tmp_path / "b.json")  # 1/32 < 0.65 x 0.05
 
 
 def test_suite_gate_that_can_never_fire_is_refused():
@@ -251,7 +251,7 @@ def test_suite_gate_that_can_never_fire_is_refused():
     doc = {"name": "x", "envs": ["a", "b", "c", "d", "e"],
            "policies": ["p", "q", "r", "s", "t"], "seeds": "0-9",
            "gate": {"n_permutations": 999}}
-    with pytest.raises(FileFormatError, match=r"25 cells .* could never fire.*at least 7499"):
+    with pytest.raises(FileFormatError, match=r"25 cells .* could never fire.*at least 9999"):
         suite_from_dict(doc, check_names=False)
 
 
