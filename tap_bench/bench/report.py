@@ -71,6 +71,10 @@ figure{margin:.6em 0}img{border:1px solid #eee;max-width:100%;height:auto}
 figcaption{font-size:13px;color:#444;max-width:60em}
 .note{color:#555;font-size:13px}.fail{color:#a00}
 a.replay{white-space:nowrap}
+.verdict p{margin:.6em 0 .1em}.verdict ul{margin:.1em 0 .4em;padding-left:1.4em}
+.verdict span.worse{color:#c92a2a;font-weight:700;text-transform:uppercase}
+.verdict span.better{color:#2b8a3e;font-weight:700;text-transform:uppercase}
+.verdict span.same{color:#444;font-weight:600}.note.warning{color:#a05a00}
 """
 
 _SCRIPT = """
@@ -168,6 +172,34 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
                      " These episodes are not independent samples (the scene does not vary "
                      "with its seed for that policy); their intervals, pooled figures and "
                      "contexts count one episode as many.</p>")
+    verdict = summary.get("verdict") or []
+    if verdict:
+        parts.append(f"<h2>Verdict: each policy against {html.escape(reference)}</h2>")
+        parts.append('<p class="note">Paired by seed, safety first (crash rate, minimum TTC, '
+                     "minimum headway), then efficiency, then behaviour; each claim with its "
+                     "95 % interval (crash rate in percentage points). A policy that is less "
+                     "safe is never called better, however fast. Per-env claims are not "
+                     "corrected across envs; the regression gate is.</p>")
+        by_policy: dict[str, list[dict[str, Any]]] = {}
+        for row in verdict:
+            by_policy.setdefault(str(row["policy"]), []).append(row)
+        items = []
+        for policy, rows in by_policy.items():
+            lines = "".join(f"<li><b>{html.escape(str(r['area']))}</b>: "
+                            f"{html.escape(str(r['word']))}"
+                            + (f" <span class=\"note\">({html.escape(str(r['evidence']))})"
+                               "</span>" if r.get("evidence") else "") + "</li>"
+                            for r in rows)
+            word = html.escape(str(rows[0].get("overall", "")))
+            cls = "worse" if word.startswith("less safe") else "better" if \
+                word.startswith("safer") else "same"
+            items.append(f'<div class="verdict"><p><b>{html.escape(policy)}</b>: '
+                         f'<span class="{cls}">{word}</span></p><ul>{lines}</ul></div>')
+        parts.append("".join(items))
+        parts.append(img("tradeoff", "crash rate against mean speed per env",
+                         "Safety against progress, per env: each policy's crash rate "
+                         "(95 % Wilson interval) against its mean speed (95 % t interval); the "
+                         "reference is the square. Down is safer, right is faster."))
     parts.append("<h2>Summary: each policy against the reference</h2>")
     parts.append(html_table(
         summary_table(scores, reference), table_id="summary", max_rows=50,

@@ -80,6 +80,7 @@ from tap_bench.bench.run_tasks import CACHED_BATCH, _observed_timings, _rollouts
 from tap_bench.bench.scenarios import match_scenarios
 from tap_bench.bench.scoring import Scores, score
 from tap_bench.bench.suite import Suite, gate_metrics, load_suite
+from tap_bench.bench.verdict import verdict_table
 from tap_bench.errors import (
     EpisodesFailedError,
     ParameterError,
@@ -238,6 +239,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "methods": scores.methods,
         "headline": _headline(scores, episodes),
         "one_outcome_cells": one_outcome_cells(episodes).to_dict("records"),
+        "verdict": verdict_table(scores.paired_measures, scores.paired,
+                                 scores.paired_labels).to_dict("records"),
         "provenance": provenance(suite),
         "timings": timings,
         "estimate": {"seconds": _round(plan.seconds),
