@@ -43,7 +43,7 @@ def _shifted(shift: float) -> dict[str, np.ndarray]:
     """Each axis's distribution with ``shift`` of its first label's probability moved to
     the others (equally)."""
     out = {}
-    for axis, (names, p) in AXES.items():
+    for axis, (_names, p) in AXES.items():
         p = np.array(p, float)
         moved = min(shift, p[0])
         p = p.copy()

@@ -22,9 +22,10 @@ distance (the bias shrinks as the true gap grows); the estimate to read is
 with the basic bootstrap interval ``[2 gap - q_hi, 2 gap - q_lo]`` (clipped at 0), which
 the same correction centres; its lower end is 0 whenever the gap is within what two
 samples of one behaviour show (both sides pooled, the 97.5 % quantile), which the basic
-interval alone misses at a true gap of 0 (the bias is not smooth there). Its coverage, and that of the plug-in's percentile interval,
-is measured by ``benchmarks/gap_coverage.py`` for samples of the same behaviour (true gap
-0) and of different behaviour (docs/interactions.md).
+interval alone misses at a true gap of 0 (the bias is not smooth there). Its coverage,
+and that of the plug-in's percentile interval, is measured by
+``benchmarks/gap_coverage.py`` for samples of the same behaviour (true gap 0) and of
+different behaviour (docs/interactions.md).
 
 **Comparable situations.** The reference is restricted to its vehicles whose mean speed
 over the trajectory lies in the policy's speed range (``min_speed`` .. ``max_speed``,
