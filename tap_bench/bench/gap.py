@@ -48,7 +48,8 @@ from tap_bench.kinematics import compute_kinematics
 from tap_bench.labelling import tap
 from tap_bench.trajectories import validate_and_index
 
-__all__ = ["GapResult", "behaviour_gap", "debias", "label_occurrences", "labelled_with_speed"]
+__all__ = ["GapResult", "behaviour_gap", "debias", "label_occurrences", "labelled_with_speed",
+           "track_seconds", "windows"]
 
 
 @dataclass(frozen=True)
@@ -87,6 +88,34 @@ class GapResult:
                 "gap": self.gap, "gap_low": self.gap_low,
                 "gap_high": self.gap_high, "floor": self.floor, "n_policy": self.n_policy,
                 "n_reference": self.n_reference, "reference": self.reference}
+
+
+def track_seconds(table: pd.DataFrame) -> float:
+    """The median duration [s] of a trajectory table's tracks (WOMD: 9.1 s)."""
+    t = table.groupby(["scenario_id", "track_id"], sort=False)["t"]
+    return float((t.max() - t.min()).median())
+
+
+def windows(table: pd.DataFrame, seconds: float) -> pd.DataFrame:
+    """A trajectory table cut into consecutive windows of ``seconds`` per scenario (a
+    30 s episode against 9.1 s WOMD tracks: three windows, the rest dropped when shorter
+    than half a window). Each window is its own scenario, ``<scenario_id>#<k>``; ``t``
+    keeps its values.
+
+    Raises:
+        ValueError: ``seconds`` not a positive number.
+    """
+    if not np.isfinite(seconds) or seconds <= 0:
+        raise ValueError(f"window length must be a positive number of seconds, got "
+                         f"{seconds!r}.")
+    t0 = table.groupby("scenario_id", sort=False)["t"].transform("min")
+    k = np.floor((table["t"] - t0 + 1e-9) / seconds).astype(int)
+    ends = (table.assign(_k=k).groupby(["scenario_id", "_k"], sort=False)["t"]
+            .transform(lambda t: t.max() - t.min()))
+    keep = (ends >= seconds / 2 - 1e-9).to_numpy()
+    out = table[keep].copy()
+    out["scenario_id"] = out["scenario_id"].astype(str) + "#" + k[keep].astype(str)
+    return out
 
 
 def labelled_with_speed(table: pd.DataFrame, level: str, *, interactions: str,
