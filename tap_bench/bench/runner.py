@@ -186,6 +186,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     results, plan = _rollouts(suite, thresholds, runner,
                               keep_trajectories or with_trajectories, progress, cache, announce)
     timings["rollouts_wall"] = time.perf_counter() - t0
+    if announce is not None:
+        announce(f"episodes done ({timings['rollouts_wall']:.0f} s); scoring ...")
     if not any((r["episodes"]["status"] == "ok").all() for r in results):
         errors = [f"{row.env} {row.policy} seed {row.seed}: {row.error}"
                   for r in results for row in r["episodes"].itertuples()]
@@ -249,6 +251,9 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
             "dir": str(cache.root), "cached": sum(r["cached"] for r in results),
             "simulated": sum(not r["cached"] for r in results)},
     }
+    if announce is not None:
+        announce(f"scored ({timings['scoring']:.1f} s); writing the tables"
+                 + (", plots, report and replay viewer" if report else "") + " ...")
     t0 = time.perf_counter()
     roads = None
     if keep_trajectories:  # the replay viewer draws them; highway-env's road is seed-free

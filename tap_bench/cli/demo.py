@@ -32,7 +32,8 @@ def run(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     result = run_demo(args.output, workers=args.workers,
-                      progress=progress_choice(args))
+                      progress=progress_choice(args),
+                      announce=lambda line: print(line, flush=True))
     split = timing_split(result)
     summary = result.summary
     print(f"{summary['n_episodes']} episodes ({summary['n_failed']} failed) of "
