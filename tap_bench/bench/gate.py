@@ -747,7 +747,7 @@ def _test_cell(key: dict[str, Any], base: pd.DataFrame, run: pd.DataFrame,
         sign = direction(metric)
         row = {**key, "metric": metric, "test": "paired" if paired else "unpaired",
                "direction": {1: "higher", -1: "lower", 0: "none"}[sign],
-               "margin": float(config.margins[metric]), "forced": False, "note": why}
+               "margin": config.margin(metric), "forced": False, "note": why}
         if metric == "label_tv":
             b = base["sdl"].fillna(NO_LABEL).astype(str).to_numpy()
             r = run["sdl"].fillna(NO_LABEL).astype(str).to_numpy()
@@ -806,7 +806,8 @@ def _decide(table: pd.DataFrame, config: GateConfig) -> pd.DataFrame:
         if col not in table.columns:
             table[col] = np.nan
     tested = table["p_value"].notna().to_numpy()
-    weights = table["metric"].map(lambda m: config.share(m) if m in config.weights
+    metrics = set(gate_metrics())
+    weights = table["metric"].map(lambda m: config.share(m) if m in metrics
                                   else np.nan).to_numpy(float)
     table["p_adjusted"] = np.nan
     table.loc[tested, "p_adjusted"] = weighted_holm(
@@ -903,7 +904,7 @@ def firing_floor(config: GateConfig, *, cells: int, seeds: int | None) -> tuple[
 
 
 def _is_rate(metric: str) -> bool:
-    return metric in MEASURES and MEASURES[metric].unit == "share"
+    return metric in MEASURES and MEASURES[metric].is_rate
 
 
 def _refuse_if_it_cannot_fire(plans: list, config: GateConfig) -> None:

@@ -196,7 +196,7 @@ def rule_power(base: np.ndarray | pd.Series, metric: str, config: GateConfig, *,
     """
     from tap_bench.bench.gate import direction
 
-    margin = float(config.margins[metric])
+    margin = config.margin(metric)
     effect = config.detect * margin if effect is None else float(effect)
     level = config.alpha * config.share(metric) / max(cells, 1)
     floor = 1.0 / (config.n_permutations + 1)
@@ -219,10 +219,10 @@ def rule_power(base: np.ndarray | pd.Series, metric: str, config: GateConfig, *,
 
 
 def _is_rate(metric: str) -> bool:
-    """A measure whose values are 0 or 1 (its unit is 'share')."""
+    """A measure whose values are 0 or 1 (its entry's kind is "rate")."""
     from tap_bench.bench.measures import MEASURES
 
-    return metric in MEASURES and MEASURES[metric].unit == "share"
+    return metric in MEASURES and MEASURES[metric].is_rate
 
 
 def power_table(episodes: pd.DataFrame, config: GateConfig, *, cells: int | None = None,
@@ -258,7 +258,7 @@ def power_table(episodes: pd.DataFrame, config: GateConfig, *, cells: int | None
                       else sub[metric])
             n = len(values)
             run_n = n_run or n
-            margin = float(config.margins[metric])
+            margin = config.margin(metric)
             kw = dict(cells=in_play, paired=paired, seed_key=(env, policy))
             power = rule_power(values.to_numpy(), metric, config, n_run=run_n, **kw)
             need = math.nan

@@ -16,7 +16,7 @@ Safety first, then efficiency, then behaviour, each claim with its interval:
 A policy that is less safe is never "better": the overall word is **less safe**,
 whatever its speed (a random policy that crashes on 61 % of the seeds is faster than
 IDM). The intervals are those of the tables they come from (``methods`` in
-``summary.json``), each a 95 % interval on its own: a per-env claim is one of (envs x 3)
+``summary.json``), each at the run's level on its own: a per-env claim is one of (envs x 3)
 safety intervals, not corrected across them (the regression gate corrects; this is a
 reading of the run). This module adds no statistics, so it costs nothing to build.
 """
@@ -85,6 +85,8 @@ def verdict_table(paired_measures: pd.DataFrame, paired: pd.DataFrame | None = N
                                      "overall"])
     rows = []
     for (policy, reference), sub in pm.groupby(["policy_a", "policy_b"], sort=False):
+        if not (sub["env"] == "all").any() and sub["env"].nunique() == 1:
+            sub = sub.assign(env="all")  # one env: it is the pooled figure
         worse, better = [], []
         for measure in SAFETY:
             for r in sub[sub["measure"] == measure].itertuples():
@@ -118,7 +120,7 @@ def verdict_table(paired_measures: pd.DataFrame, paired: pd.DataFrame | None = N
                              f"no {_WORDS[measure][0]} difference detected")
                 eff.append(f"{_fmt(measure, r.diff, r.diff_low, r.diff_high)} (pooled)")
         rows.append({"policy": policy, "reference": reference, "area": "efficiency",
-                     "word": ", ".join(words), "evidence": "; ".join(eff)})
+                     "word": ", ".join(words) or "not measured", "evidence": "; ".join(eff)})
         rows.append({"policy": policy, "reference": reference, "area": "behaviour",
                      **_behaviour(policy, reference, paired, paired_labels)})
     out = pd.DataFrame(rows)

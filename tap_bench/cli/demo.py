@@ -50,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
             text += f" [{format(lo, fmt)}, {format(hi, fmt)}]"
         return text
 
-    print("per policy, pooled over the envs (95 % intervals):")
+    level = summary.get("suite", {}).get("bootstrap", {}).get("level", 0.95)
+    print(f"per policy, pooled over the envs ({level:.0%} intervals):")
     for policy, row in summary["headline"].items():
         bits = [f"crash rate {with_interval(row, 'crashed', '.0%')}",
                 f"mean speed {with_interval(row, 'mean_speed', '.1f')} m/s"]
