@@ -48,6 +48,8 @@ from tap_bench.sim.suite import parse_seeds, read_json, scenario_names
 __all__ = ["SAFETY_WEIGHTS", "GateConfig", "Suite", "available_suites", "default_margins",
            "default_weights", "gate_metrics", "load_suite", "suite_from_dict"]
 
+MAX_PERMUTATIONS = 100_000
+"""The most permutations the gate's test may ask for (ten times the default 9999)."""
 LABEL_TV_MARGIN = 0.20
 """Default margin of ``label_tv``, the total variation distance of label distributions."""
 
@@ -137,8 +139,9 @@ class GateConfig:
         # every metric has a margin: those not given take their registered default
         object.__setattr__(self, "margins", {**default_margins(), **self.margins})
         for key, value in self.margins.items():
-            if not isinstance(value, int | float) or isinstance(value, bool) or value < 0:
-                raise ParameterError(f"gate margin {key!r}", value, "a number >= 0")
+            if not isinstance(value, int | float) or isinstance(value, bool) \
+                    or not math.isfinite(value) or value < 0:
+                raise ParameterError(f"gate margin {key!r}", value, "a finite number >= 0")
         if not isinstance(self.weights, Mapping):
             raise ValueError(f"gate weights must be an object metric -> weight, got "
                              f"{self.weights!r}.")
@@ -160,6 +163,12 @@ class GateConfig:
         if isinstance(self.n_permutations, bool) or not isinstance(self.n_permutations, int) \
                 or self.n_permutations < 99:
             raise ParameterError("gate n_permutations", self.n_permutations, "an integer >= 99")
+        if self.n_permutations > MAX_PERMUTATIONS:
+            raise ParameterError(
+                "gate n_permutations", self.n_permutations, f"at most {MAX_PERMUTATIONS:,}",
+                message=f"gate n_permutations {self.n_permutations:,} is more than the limit "
+                f"of {MAX_PERMUTATIONS:,} (tap_bench.bench.suite.MAX_PERMUTATIONS): the "
+                "smallest p-value is 1/(n+1) already at 1e-5, and memory grows with n.")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ParameterError("gate seed", self.seed, "a non-negative integer")
 
