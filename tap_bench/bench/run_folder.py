@@ -92,6 +92,11 @@ def provenance(suite: Suite) -> dict[str, Any]:
     envs = {}
     for env in suite.envs:
         scenario = suite.scenario(env)
+        if env in suite.scenes:  # recorded scenes: the files and each scenario's hash
+            envs[env] = {"womd": list(scenario.files), "traffic": scenario.traffic,
+                         "ego": scenario.ego, "policy_frequency": scenario.policy_frequency,
+                         "scenarios": {str(ref): ref.digest() for ref in scenario.catalog()}}
+            continue
         envs[env] = json.loads(json.dumps(
             {"highway_env_id": scenario.highway_env_id, "version": scenario.version,
              "duration": scenario.duration, "lane_change": scenario.lane_change,

@@ -22,6 +22,7 @@ from tap_bench.bench.suite import Suite
 from tap_bench.sim.policies import PolicyDefinition
 from tap_bench.sim.rollout import resolve_policy
 from tap_bench.sim.suite import Scenario
+from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.thresholds import Thresholds
 
 
@@ -47,22 +48,41 @@ def _tasks(suite: Suite, thresholds: Thresholds, keep: bool, cache: EpisodeCache
            ) -> list[_Task]:
     scenarios = {env: suite.scenario(env) for env in suite.envs}  # resolved once
     definitions = [resolve_policy(policy) for policy in suite.policies]  # built once here
+    seeds = {env: suite.env_seeds(env) for env in suite.envs}
     if cache is None:
         return [_Task(env, scenarios[env], d.name, d, seed, thresholds, suite.level, keep)
-                for env in suite.envs for d in definitions for seed in suite.seeds]
+                for env in suite.envs for d in definitions for seed in seeds[env]]
     versions = simulation_fingerprint()
-    envs = {env: scenario_fingerprint(scenarios[env]) for env in suite.envs}
+    envs = {env: _env_fingerprints(scenarios[env], seeds[env]) for env in suite.envs}
     policies = {d.name: policy_fingerprint(d) for d in definitions}
     tasks = []
     for env in suite.envs:
         for d in definitions:
-            for seed in suite.seeds:
+            for seed in seeds[env]:
                 key = doc = None
-                if policies[d.name] is not None:
-                    key, doc = episode_key(envs[env], policies[d.name], seed, versions)
+                if policies[d.name] is not None and envs[env].get(seed) is not None:
+                    key, doc = episode_key(envs[env][seed], policies[d.name], seed, versions)
                 tasks.append(_Task(env, scenarios[env], d.name, d, seed, thresholds,
                                    suite.level, keep, cache, key, doc))
     return tasks
+
+
+def _env_fingerprints(scenario: Scenario | WomdScenes, seeds: tuple[int, ...]
+                      ) -> dict[int, dict[str, Any] | None]:
+    """seed -> the env part of its episode key: the scenario's for a synthetic env (the same
+    for every seed); for recorded scenes, each scenario's content hash and settings (None:
+    a scenario that cannot be read is not cached; its episode reports why)."""
+    if not isinstance(scenario, WomdScenes):
+        doc = scenario_fingerprint(scenario)
+        return dict.fromkeys(seeds, doc)
+    catalog = scenario.catalog()
+    out: dict[int, dict[str, Any] | None] = {}
+    for seed in seeds:
+        try:
+            out[seed] = scenario.fingerprint(catalog[seed])
+        except (IndexError, OSError, ValueError):
+            out[seed] = None
+    return out
 
 
 CACHED_EPISODE_S = 0.03

@@ -85,7 +85,6 @@ from tap_bench.errors import (
     RunExistsError,
 )
 from tap_bench.execution import Backend, resolve_backend
-from tap_bench.sim.roads import road_table
 from tap_bench.sim.suite import parse_seeds
 from tap_bench.thresholds import resolve_thresholds
 
@@ -160,7 +159,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     """
     suite = suite if isinstance(suite, Suite) else load_suite(suite)
     if seeds is not None:
-        suite = dataclasses.replace(suite, seeds=tuple(parse_seeds(seeds, source="seeds")))
+        suite = dataclasses.replace(suite, seeds=tuple(parse_seeds(seeds, source="seeds")),
+                                    all_seeds=False)
     if cache is not None and not isinstance(cache, EpisodeCache):
         cache = EpisodeCache(Path(cache))
     output = check_output(output, overwrite)
@@ -226,7 +226,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "format": "tap-bench-run", "format_version": 1,
         "run": output.name, "created": time.strftime("%Y-%m-%d %H:%M:%S"),
         "suite": suite.to_dict(), "suite_file": str(suite.path) if suite.path else None,
-        "level": suite.level, "seeds": list(suite.seeds),
+        "level": suite.level,
+        "seeds": "all" if suite.all_seeds else list(suite.seeds),
         "thresholds": thresholds.to_dict() if hasattr(thresholds, "to_dict") else
         str(suite.thresholds),
         "reference_policy": suite.reference,
@@ -247,8 +248,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     t0 = time.perf_counter()
     roads = None
     if keep_trajectories:  # the replay viewer draws them; highway-env's road is seed-free
-        roads = pd.concat([road_table(suite.scenario(env)) for env in suite.envs],
-                          ignore_index=True)
+        roads = pd.concat([suite.road(env) for env in suite.envs], ignore_index=True)
     folder = write_results(output, overwrite, summary, episodes, labels, trajectories
                            if keep_trajectories else None, scores, report,
                            segments=segments, roads=roads)
@@ -263,3 +263,4 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
             cache.record_timings(simulated, cached, overhead)
             cache.prune()
     return RunResult(folder, summary, episodes, scores, folder / "report.html")
+

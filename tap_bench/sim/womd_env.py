@@ -359,7 +359,7 @@ class WomdEnv(gym.Wrapper):
                      ("x", "y", "heading", "speed", "vx", "vy", "valid")}
         self._crashed = np.zeros((n, t), bool)
         self._ego_cols = {"off_road": np.zeros(t, bool), "ran_red_light": np.zeros(t, bool),
-                          "route_progress": np.zeros(t),
+                          "route_progress": np.full(t, np.nan),
                           "log_distance": np.full(t, np.nan)}
         self._last_step = CURRENT_STEP
         self.crash_with = ""

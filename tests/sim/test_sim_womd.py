@@ -311,3 +311,78 @@ def test_one_bad_scenario_is_reported_and_the_rest_land(tmp_path):
     assert status == {0: "ok", 1: "error"}
     assert "sd_bad" in result.episodes["error"].iloc[1]
     assert set(result.trajectories["scenario_id"]) == {"sd_good"}
+
+
+# ----------------------------------------------------------------- suites on recorded scenes
+
+
+def womd_suite(files: list[str], **extra) -> dict:
+    return {"name": "womd-test", "envs": [{"womd": files, "traffic": "log"}],
+            "policies": ["log", "idm"], "reference_policy": "log", "seeds": "all",
+            "bootstrap": {"n_resamples": 200}, **extra}
+
+
+def test_a_suite_names_recorded_scenes(tmp_path):
+    from tap_bench.bench.suite import suite_from_dict
+
+    good = scenarionet(tmp_path / "sd_good.pkl")
+    suite = suite_from_dict(womd_suite(["sd_*.pkl"]), path=tmp_path / "s.json")
+    assert suite.envs == ("womd",) and suite.env_seeds("womd") == (0,)
+    assert suite.scenes["womd"].files == (str(tmp_path / "sd_*.pkl"),)
+    assert suite.to_dict()["seeds"] == "all"
+    assert suite_from_dict(suite.to_dict()).scenes == suite.scenes
+    from tap_bench.errors import FileFormatError
+
+    bad = {**womd_suite([good]), "envs": [{"womd": good, "trafic": "idm"}]}
+    with pytest.raises(FileFormatError, match="Did you mean 'traffic'"):
+        suite_from_dict(bad)
+    with pytest.raises(FileFormatError, match="seeds 'all'"):
+        suite_from_dict({**womd_suite([good]), "envs": [{"womd": good}, "highway"]})
+    with pytest.raises(FileFormatError, match="twice"):
+        suite_from_dict({**womd_suite([good]), "envs": [{"womd": good}, {"womd": good}]})
+
+
+def test_the_cache_keys_a_scene_on_its_content(tmp_path):
+    import shutil
+
+    from tap_bench.bench.cache import EpisodeCache
+    from tap_bench.bench.run_plan import _tasks
+    from tap_bench.bench.suite import suite_from_dict
+    from tap_bench.thresholds import resolve_thresholds
+
+    a = scenarionet(tmp_path / "sd_a.pkl")
+    (tmp_path / "moved").mkdir()
+    b = shutil.copy(a, tmp_path / "moved" / "sd_a.pkl")
+    cache = EpisodeCache(tmp_path / "cache")
+    th = resolve_thresholds("paper")
+
+    def keys(path):
+        return [t.key for t in _tasks(suite_from_dict(womd_suite([str(path)])), th, False,
+                                      cache)]
+
+    assert keys(a) == keys(b)  # the same scene under another path
+    scenarionet(tmp_path / "moved" / "sd_a.pkl", ego_y=0.5)  # the content changed
+    assert keys(a) != keys(b)
+    assert all(keys(a)) and len(set(keys(a))) == 2  # one per policy
+
+
+def test_a_womd_suite_runs_against_the_human(real, tmp_path):
+    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.suite import suite_from_dict
+
+    good = scenarionet(tmp_path / "sd_good.pkl")
+    bad = scenarionet(tmp_path / "sd_bad.pkl", sdc=None)
+    suite = suite_from_dict(womd_suite([real[1], good, bad]))
+    result = run_suite(suite, tmp_path / "run", workers=1, progress=False)
+    eps = result.episodes
+    assert sorted(eps.loc[eps["status"] == "ok", "seed"].unique()) == [0, 1]
+    failed = eps[eps["status"] != "ok"]
+    assert set(failed["seed"]) == {2} and failed["error"].str.contains("sd_bad").all()
+    human = eps[(eps["policy"] == "log") & (eps["status"] == "ok")]
+    assert (human["log_ade"] == 0).all()
+    assert set(eps.loc[eps["status"] == "ok", "scenario_id"]) == {
+        "ee519cf571686d19/log", "ee519cf571686d19/idm", "sd_good/log", "sd_good/idm"}
+    page = (tmp_path / "run" / "report.html").read_text()
+    assert "Against the human" in page and "human-agreement" in page
+    roads = pd.read_parquet(tmp_path / "run" / "roads.parquet")
+    assert {"ee519cf571686d19", "sd_good"} <= set(roads["map_id"])
