@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -271,6 +272,8 @@ class WomdEnv(gym.Wrapper):
         scenes: the files and settings.
         record: build the trajectory table (off: faster training).
         render_mode: highway-env's.
+        cycle: for training: a seed past the last scenario wraps around, and a scenario that
+            cannot be built is skipped (with a warning) for the next one.
 
     Attributes:
         scenario: the :class:`WomdScenes` (``scenario.name`` is the ``env`` column).
@@ -279,13 +282,14 @@ class WomdEnv(gym.Wrapper):
     """
 
     def __init__(self, scenes: WomdScenes, *, record: bool = True,
-                 render_mode: str | None = None) -> None:
+                 render_mode: str | None = None, cycle: bool = False) -> None:
         config = {**_WomdHighwayEnv.default_config(), "policy_frequency":
                   scenes.policy_frequency, **dict(scenes.config)}
         inner = _WomdHighwayEnv(config=config, render_mode=render_mode)
         super().__init__(inner)
         self.scenario = scenes
         self.record = record
+        self.cycle = cycle
         self.catalog = scenes.catalog()
         if not self.catalog:
             raise SceneError(f"{', '.join(scenes.files)}: no scenario in these files.")
@@ -332,6 +336,23 @@ class WomdEnv(gym.Wrapper):
             index = int(seed)
         else:
             index = 0 if self._seed is None else (self._seed + 1) % len(self.catalog)
+        if self.cycle:
+            index %= len(self.catalog)
+        for _ in range(len(self.catalog) if self.cycle else 1):
+            try:
+                obs, info = self._start(index, options)
+                break
+            except SceneError as err:
+                if not self.cycle:
+                    raise
+                warnings.warn(f"{err} Skipped.", stacklevel=2)
+                index = (index + 1) % len(self.catalog)
+        else:
+            raise SceneError(f"{', '.join(self.scenario.files)}: no scenario can be built.")
+        self._start_record()
+        return obs, info
+
+    def _start(self, index: int, options: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
         self.scene = self.scene_at(index)
         self._seed = index
         inner = self.env.unwrapped
@@ -341,7 +362,6 @@ class WomdEnv(gym.Wrapper):
         self.max_steps = int(np.ceil((self.scene.n_steps - 1 - CURRENT_STEP)
                                      * inner.config["policy_frequency"]
                                      / inner.config["simulation_frequency"]))
-        self._start_record()
         return obs, info
 
     def _index_of(self, scenario_id: str) -> int:

@@ -386,3 +386,23 @@ def test_a_womd_suite_runs_against_the_human(real, tmp_path):
     assert "Against the human" in page and "human-agreement" in page
     roads = pd.read_parquet(tmp_path / "run" / "roads.parquet")
     assert {"ee519cf571686d19", "sd_good"} <= set(roads["map_id"])
+
+
+def test_an_sb3_agent_trains_on_recorded_scenes_and_drives_them(real, tmp_path):
+    pytest.importorskip("stable_baselines3")
+    from tap_bench.rl.training import train
+
+    scenes = WomdScenes((real[1], scenarionet(tmp_path / "sd_good.pkl")))
+    result = train("ppo", scenes, timesteps=32, seed=0, output=tmp_path / "ppo-womd.zip",
+                   n_envs=1, hyperparameters={"n_steps": 32, "batch_size": 16,
+                                              "n_epochs": 1})
+    doc = result.definition_path.read_text()
+    assert "tap_bench/womd-v0" in doc and "sd_good.pkl" in doc
+    out = rollout(scenes, str(result.model_path), "all")
+    assert list(out.episodes["status"]) == ["ok", "ok"]
+    assert out.episodes["route_progress"].notna().all()
+    with pytest.raises(Exception, match="no learning curve|without it"):
+        from tap_bench.rl.curve import CurveConfig
+
+        train("ppo", scenes, timesteps=32, seed=0, output=tmp_path / "x.zip", n_envs=1,
+              curve=CurveConfig())
