@@ -230,7 +230,9 @@ def _find(env):
 def test_the_log_policy_refuses_a_synthetic_scene():
     env = gym.make("tap_bench/highway-v0", duration=1)
     env.reset(seed=0)
-    with pytest.raises(Exception, match="recorded ego"):
+    from tap_bench.errors import ParameterError
+
+    with pytest.raises(ParameterError, match="recorded ego"):
         load_policy("log").reset(env, seed=0)
 
 
@@ -401,8 +403,37 @@ def test_an_sb3_agent_trains_on_recorded_scenes_and_drives_them(real, tmp_path):
     out = rollout(scenes, str(result.model_path), "all")
     assert list(out.episodes["status"]) == ["ok", "ok"]
     assert out.episodes["route_progress"].notna().all()
-    with pytest.raises(Exception, match="no learning curve|without it"):
-        from tap_bench.rl.curve import CurveConfig
+    from tap_bench.errors import ParameterError
+    from tap_bench.rl.curve import CurveConfig
 
+    with pytest.raises(ParameterError, match="without it"):
         train("ppo", scenes, timesteps=32, seed=0, output=tmp_path / "x.zip", n_envs=1,
               curve=CurveConfig())
+
+
+def test_idm_traffic_stops_at_red_lights(real):
+    # 637f20cafde22ff8: a red light holds a queue for the whole record
+    env = make_womd_env(real[0], traffic="idm")
+    policy = load_policy("log")
+    obs, _ = env.reset(seed=0)
+    policy.reset(env, seed=0)
+    inner = env.unwrapped
+    road = inner.road
+    before = {row: v.position.copy() for row, v in inner.simulated.items()}
+    stopping: dict[int, list[float]] = {}
+    done = False
+    while not done:
+        for row, vehicle in inner.simulated.items():
+            d = road.stop_distance(vehicle)
+            if d is not None:
+                stopping.setdefault(row, []).append(d)
+        obs, _, terminated, truncated, _ = env.step(policy.act(obs))
+        for row, vehicle in inner.simulated.items():
+            # nobody crosses a stop point while it is red
+            assert not road.crossed_red(before[row], vehicle.position), row
+            before[row] = vehicle.position.copy()
+        done = terminated or truncated
+    assert stopping, "some idm vehicle meets the red light"
+    for row, distances in stopping.items():
+        assert min(distances) > 0
+        assert inner.simulated[row].speed < 0.5  # it waits
