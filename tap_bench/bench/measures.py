@@ -22,11 +22,14 @@ column              unit    what
 ``mean_speed``      m/s     mean ego speed over its valid steps
 ``min_headway_s``   s       smallest time headway to the leader: bumper gap / ego speed,
                             over scored steps with a leader and ego speed >= 1 m/s; capped
-                            at :data:`HEADWAY_CAP_S`
+                            at :data:`HEADWAY_CAP_S`; NaN without a leader
 ``min_ttc_s``       s       smallest time to collision with the leader: gap / closing speed
-                            over scored steps where the ego closes in; capped at
-                            :data:`TTC_CAP_S` (no conflict at all gives the cap)
-``rms_jerk``        m/s^3   root mean square of the ego's longitudinal jerk (d^2 v / dt^2)
+                            over scored steps with a leader where the ego closes in; capped
+                            at :data:`TTC_CAP_S` (a leader never closed in on gives the cap);
+                            NaN without a leader
+``rms_jerk``        m/s^3   root mean square of the ego's longitudinal jerk: the second
+                            derivative of the Savitzky-Golay smoothed speed
+                            (:data:`JERK_WINDOW_S`, order :data:`JERK_POLYORDER`)
 ==================  ======  ================================================================
 
 and ``duration_s`` (s), the time the ego was recorded, beside them.
@@ -46,27 +49,61 @@ speed less the leader's velocity along the path.
 policy), except a conflict that leads to a crash: the run of steps, ending at the crash,
 in which the ego closes in on a leader is always scored.
 
+**No leader is not an observation.** An episode with no leader on any scored step (after
+the burn-in; or, for the headway, none while the ego moved at 1 m/s or more) has no minimum
+headway and no minimum TTC: NaN, never the 10 s cap (a 10 s "no leader" value averaged in
+turned aggressive IDM's lower headways into a higher mean). Means and intervals are taken
+over the episodes that have one, and the episodes without are counted
+(:func:`leader_counts`; the benchmark's measures table has ``n_missing``). A leader that
+the ego never closes in on still gives a TTC: the cap.
+
+**Jerk.** Differentiating a 10 Hz speed twice amplifies its noise 100-fold: a real Waymo car
+drove at 13.1 m/s^3 RMS jerk by second differences, 2.8 after 0.5 s of smoothing; IDM in a
+roundabout 11.4. As nuPlan's comfort metrics do (``ego_jerk``: a Savitzky-Golay filter
+before each derivative), the acceleration is the Savitzky-Golay derivative of the speed
+and the jerk the Savitzky-Golay derivative of that acceleration, each a fit of order
+:data:`JERK_POLYORDER` over :data:`JERK_WINDOW_S` (nuPlan's 15 steps and order 2 at its
+10 Hz), over each run of consecutive steps (a run shorter than the window gives no jerk).
+nuPlan's comfort bound is |longitudinal jerk| <= :data:`JERK_COMFORT_BOUND` m/s^3
+(``max_abs_lon_jerk``); the RMS here is a mean over time, so compare it with the bound as a
+typical, not a peak, value.
+
 Surrounding vehicles are only known where the table records them (highway-env rollouts
 record every vehicle; WOMD every tracked agent): without any, headway and TTC are NaN.
+Beyond the end of the ego's record the path goes on along its lane (``map_table``) or along
+an arc of its last curvature (:mod:`tap_bench.pathframe`): a leader stopped ahead on a curve
+is found as on a straight road.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from tap_bench.errors import RegistrationError, TrajectoryTableError, did_you_mean
-from tap_bench.pathframe import CORRIDOR_HALF_WIDTH, SAME_DIRECTION, Paths, path_frame
+from tap_bench.errors import RegistrationError, TrajectoryTableError
+from tap_bench.pathframe import (
+    CORRIDOR_HALF_WIDTH,
+    SAME_DIRECTION,
+    Paths,
+    path_frame,
+    scene_lanes,
+)
+from tap_bench.registry import Registry
 from tap_bench.trajectories import HZ
 
 __all__ = [
     "BURN_IN_S",
     "HEADWAY_CAP_S",
+    "JERK_COMFORT_BOUND",
+    "JERK_POLYORDER",
+    "JERK_WINDOW_S",
     "LOOKAHEAD",
     "MEASURES",
+    "MEASURE_KINDS",
     "SCENE_MEASURES",
     "SCENE_STEP_COLUMNS",
     "MIN_SPEED_FOR_HEADWAY",
@@ -77,8 +114,13 @@ __all__ = [
     "MeasureRegistry",
     "ego_measures",
     "ego_step_measures",
+    "check_measure",
     "ego_steps",
+    "leader_counts",
     "register_measure",
+    "run_measures",
+    "savgol_derivative",
+    "smoothed_jerk",
 ]
 
 VEHICLE_LENGTH = 5.0  # [m] highway-env's vehicle length, used where no `length` column is
@@ -86,7 +128,16 @@ LOOKAHEAD = 100.0  # [m] farthest leader considered along the path, centre to ce
 MIN_SPEED_FOR_HEADWAY = 1.0  # [m/s] below this a time headway is not meaningful
 HEADWAY_CAP_S = 10.0  # [s] headways above this count as free driving
 BURN_IN_S = 2.0  # [s] headway and TTC skip the first steps: the scenario sets those gaps
-TTC_CAP_S = 10.0  # [s] times to collision above this (or none) count as no conflict
+TTC_CAP_S = 10.0  # [s] times to collision above this count as no conflict
+JERK_WINDOW_S = 1.5
+"""[s] the Savitzky-Golay window of the jerk: 15 steps at 10 Hz, nuPlan's ``window_length``
+of its comfort metrics (``extract_ego_jerk``) at its 10 Hz simulation rate."""
+JERK_WINDOW_STEPS = round(JERK_WINDOW_S * HZ)
+JERK_POLYORDER = 2
+"""The polynomial order of the Savitzky-Golay fit (nuPlan's: 2)."""
+JERK_COMFORT_BOUND = 4.13
+"""[m/s^3] nuPlan's comfort bound on the ego's longitudinal |jerk| (``max_abs_lon_jerk``;
+its bound on the magnitude, ``max_abs_mag_jerk``, is 8.37)."""
 
 _KEEP = ("env", "policy", "seed", "source")
 
@@ -184,18 +235,35 @@ class EgoSteps:
 MeasureFunction = Callable[[EgoSteps], np.ndarray]
 
 
+MEASURE_KINDS = ("mean", "rate")
+"""What a measure's per-episode value is: ``"mean"`` (a number; its mean over episodes gets
+Student's t interval, bounded by :attr:`Measure.bounds` where the measure has them) or
+``"rate"`` (0 or 1 per episode; its mean is a proportion: Wilson's interval, Tango's for a
+paired difference, Newcombe's for an unpaired one, and the report shows it in %)."""
+
+
 @dataclass(frozen=True)
 class Measure:
-    """A per-episode measure: how to compute it, its unit, direction and gate margin.
+    """A per-episode measure: everything tap-bench needs to know about it, in one entry.
+
+    Every consumer (the episode table, the intervals, the comparison, power, the gate, the
+    report, the viewer) reads these fields; none looks at the name.
 
     Attributes:
         name: column of the measures table.
-        unit: for axis labels.
+        unit: its unit (``"m/s"``; ``"share"`` for a rate).
         higher_is_better: True for speed, headway, TTC; False for crashes and jerk.
         description: one line for reports.
         margin: the regression gate's default margin: the largest change of the mean
             (absolute, in ``unit``) that is not a regression.
-        function: :class:`EgoSteps` -> (S,) values, one per episode.
+        function: :class:`EgoSteps` -> (S,) values, one per episode (None only for an
+            entry that describes values computed elsewhere, such as the measures inside
+            an interaction context; the registry refuses it).
+        label: the name people read (``"min TTC"``; default: ``name`` with spaces).
+        kind: ``"mean"`` or ``"rate"`` (:data:`MEASURE_KINDS`).
+        bounds: (low, high) the values can take, where bounded (a cap), else None; a rate
+            is bounded by (0, 1).
+        decimals: decimals shown in tables and the viewer (a rate is shown in whole %).
     """
 
     name: str
@@ -203,69 +271,161 @@ class Measure:
     higher_is_better: bool
     description: str
     margin: float
-    function: MeasureFunction
+    function: MeasureFunction | None
+    label: str = ""
+    kind: str = "mean"
+    bounds: tuple[float, float] | None = None
+    decimals: int = 2
+
+    def __post_init__(self) -> None:
+        if not self.label:
+            object.__setattr__(self, "label", str(self.name).replace("_", " "))
+        if self.kind == "rate" and self.bounds is None:
+            object.__setattr__(self, "bounds", (0.0, 1.0))
+        if self.bounds is not None:
+            object.__setattr__(self, "bounds", (float(self.bounds[0]), float(self.bounds[1])))
+
+    @property
+    def is_rate(self) -> bool:
+        """The per-episode value is 0 or 1 and its mean a proportion."""
+        return self.kind == "rate"
+
+    @property
+    def interval_method(self) -> str:
+        """How the interval of its mean is computed, in words."""
+        if self.is_rate:
+            return "Wilson score interval"
+        if self.bounds is not None:
+            return (f"Student's t interval (bounded by [{self.bounds[0]:g}, "
+                    f"{self.bounds[1]:g}] {self.unit} when every value is equal)")
+        return "Student's t interval"
+
+    @property
+    def scale(self) -> float:
+        """Factor from the value to what is shown (100 for a rate, shown in %)."""
+        return 100.0 if self.is_rate else 1.0
+
+    @property
+    def display_unit(self) -> str:
+        """The unit as shown: ``%`` for a rate, ``m/s³`` for ``m/s^3``."""
+        if self.is_rate:
+            return "%"
+        return self.unit.replace("^2", "²").replace("^3", "³")
+
+    @property
+    def cap(self) -> float | None:
+        """The largest value the measure takes (its upper bound), None when unbounded."""
+        return None if self.bounds is None else self.bounds[1]
+
+    def to_dict(self) -> dict[str, object]:
+        """The entry without its function, as JSON data (run folders, the viewer)."""
+        return {"name": self.name, "label": self.label, "unit": self.unit,
+                "display_unit": self.display_unit, "higher_is_better": self.higher_is_better,
+                "description": self.description, "margin": self.margin, "kind": self.kind,
+                "bounds": None if self.bounds is None else list(self.bounds),
+                "decimals": self.decimals, "interval": self.interval_method}
 
 
-class MeasureRegistry:
-    """The measures, in registration (report) order; refuses duplicates and missing margins.
+def run_measures(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The measure entries a run recorded (``summary.json``'s ``measures``: what the report
+    and the viewer describe), else the registry's (a run folder older than the field)."""
+    recorded = summary.get("measures")
+    if isinstance(recorded, list) and recorded:
+        return [dict(e) for e in recorded]
+    return [m.to_dict() for m in MEASURES]
+
+
+def check_measure(measure: Measure) -> None:
+    """Check a measure entry as the registry does, and its function on a hand-built episode.
+
+    The function is called on the ego steps of two short episodes (one of them crashed,
+    with a leader ahead) and must return one finite-or-NaN float per episode, inside the
+    measure's bounds. Like Gymnasium's ``check_env``: run it on your measure in a test.
+
+    Raises:
+        RegistrationError: naming the measure and what is wrong.
+    """
+    _check_entry(measure)
+    steps = ego_steps(_check_table())
+    try:
+        values = np.asarray(measure.function(steps), dtype=float)
+    except Exception as err:  # a measure's own bug, reported with its name
+        raise RegistrationError(f"measure {measure.name!r}: its function failed on two "
+                                f"hand-built episodes: {type(err).__name__}: {err}") from err
+    if values.shape != (steps.n_episodes,):
+        raise RegistrationError(f"measure {measure.name!r}: its function must return one value "
+                                f"per episode, shape ({steps.n_episodes},); got "
+                                f"{values.shape}.")
+    finite = values[np.isfinite(values)]
+    if measure.bounds is not None and len(finite) and (
+            finite.min() < measure.bounds[0] - 1e-9 or finite.max() > measure.bounds[1] + 1e-9):
+        raise RegistrationError(f"measure {measure.name!r}: values {finite.tolist()} fall "
+                                f"outside its bounds {list(measure.bounds)}.")
+    if measure.is_rate and len(finite) and not np.isin(finite, (0.0, 1.0)).all():
+        raise RegistrationError(f"measure {measure.name!r} is a rate: each episode's value "
+                                f"must be 0 or 1, got {finite.tolist()}.")
+
+
+def _check_table() -> pd.DataFrame:
+    """Two hand-built 5 s episodes at 10 Hz for :func:`check_measure`: ``closing`` (the ego
+    at 20 m/s closes in on a leader at 15 m/s, 30 m ahead, and is crashed at its last step)
+    and ``alone`` (the ego at 10 m/s, braking gently, no one else)."""
+    t = np.arange(50) / HZ
+    rows = []
+    for sid, track, x0, v0, dv, ego, crash in (
+            ("closing", "ego", 0.0, 20.0, 0.0, True, True),
+            ("closing", "lead", 30.0, 15.0, 0.0, False, False),
+            ("alone", "ego", 0.0, 10.0, -0.5, True, False)):
+        v = v0 + dv * t
+        x = x0 + v0 * t + 0.5 * dv * t * t
+        crashed = np.zeros(len(t), bool)
+        crashed[-1] = crash
+        rows.append(pd.DataFrame({"scenario_id": sid, "track_id": track, "t": t, "x": x,
+                                  "y": 0.0, "heading": 0.0, "speed": v, "is_ego": ego,
+                                  "crashed": crashed}))
+    return pd.concat(rows, ignore_index=True)
+
+
+def _check_entry(measure: Measure) -> None:
+    """The registry's checks of an entry (raises RegistrationError)."""
+    if not isinstance(measure.name, str) or not measure.name.isidentifier():
+        raise RegistrationError(f"measure name {measure.name!r} must be an identifier "
+                                "(it becomes a column name).")
+    margin = measure.margin
+    if (margin is None or isinstance(margin, bool) or not isinstance(margin, int | float)
+            or not np.isfinite(margin) or margin < 0):
+        raise RegistrationError(
+            f"measure {measure.name!r} needs a gate margin: a finite number >= 0 in "
+            f"{measure.unit} (the largest change that is not a regression), got "
+            f"{margin!r}.")
+    if not callable(measure.function):
+        raise RegistrationError(f"measure {measure.name!r}: function must be callable.")
+    if measure.kind not in MEASURE_KINDS:
+        raise RegistrationError(f"measure {measure.name!r}: kind {measure.kind!r} is not one "
+                                f"of {MEASURE_KINDS}.")
+    if measure.bounds is not None and not (
+            len(measure.bounds) == 2 and measure.bounds[0] < measure.bounds[1]):
+        raise RegistrationError(f"measure {measure.name!r}: bounds {measure.bounds!r} must be "
+                                "(low, high) with low < high, or None.")
+    if isinstance(measure.decimals, bool) or not isinstance(measure.decimals, int) \
+            or not 0 <= measure.decimals <= 6:
+        raise RegistrationError(f"measure {measure.name!r}: decimals {measure.decimals!r} "
+                                "must be an integer from 0 to 6.")
+
+
+class MeasureRegistry(Registry[Measure]):
+    """The measures, in registration (report) order; refuses duplicates, missing margins
+    and entries that do not check (:func:`_check_entry`).
 
     Iterating gives the :class:`Measure` entries; ``registry["min_ttc_s"]`` one of them.
     """
 
     def __init__(self) -> None:
-        self._measures: dict[str, Measure] = {}
-
-    def register(self, measure: Measure) -> Measure:
-        """Add ``measure``.
-
-        Raises:
-            RegistrationError: the name is taken, the margin is missing, not a number or
-                negative, or the function is not callable.
-        """
-        if not isinstance(measure.name, str) or not measure.name.isidentifier():
-            raise RegistrationError(f"measure name {measure.name!r} must be an identifier "
-                                    "(it becomes a column name).")
-        if measure.name in self._measures:
-            raise RegistrationError(f"measure {measure.name!r} is already registered; pick "
-                                    "another name (a measure is registered once).")
-        margin = measure.margin
-        if (margin is None or isinstance(margin, bool) or not isinstance(margin, int | float)
-                or not np.isfinite(margin) or margin < 0):
-            raise RegistrationError(
-                f"measure {measure.name!r} needs a gate margin: a finite number >= 0 in "
-                f"{measure.unit} (the largest change that is not a regression), got "
-                f"{margin!r}.")
-        if not callable(measure.function):
-            raise RegistrationError(f"measure {measure.name!r}: function must be callable.")
-        self._measures[measure.name] = measure
-        return measure
-
-    def unregister(self, name: str) -> None:
-        """Remove a measure (for tests and plug-ins that replace their own)."""
-        del self._measures[self[name].name]
-
-    def __getitem__(self, name: str) -> Measure:
-        try:
-            return self._measures[name]
-        except KeyError:
-            raise did_you_mean("measure", name, self._measures) from None
-
-    def __contains__(self, name: object) -> bool:
-        return name in self._measures
-
-    def __iter__(self) -> Iterator[Measure]:
-        return iter(tuple(self._measures.values()))
-
-    def __len__(self) -> int:
-        return len(self._measures)
-
-    def names(self) -> tuple[str, ...]:
-        """The measure names, in order."""
-        return tuple(self._measures)
+        super().__init__("measure", check=_check_entry)
 
     def margins(self) -> dict[str, float]:
         """name -> default gate margin."""
-        return {m.name: float(m.margin) for m in self._measures.values()}
+        return {m.name: float(m.margin) for m in self}
 
 
 MEASURES = MeasureRegistry()
@@ -273,63 +433,123 @@ MEASURES = MeasureRegistry()
 
 
 def register_measure(name: str, *, unit: str, higher_is_better: bool, margin: float,
-                     description: str, registry: MeasureRegistry = MEASURES
+                     description: str, label: str = "", kind: str = "mean",
+                     bounds: tuple[float, float] | None = None, decimals: int = 2,
+                     registry: MeasureRegistry = MEASURES
                      ) -> Callable[[MeasureFunction], MeasureFunction]:
-    """Decorator: register ``function(steps: EgoSteps) -> (S,) values`` as a measure."""
+    """Decorator: register ``function(steps: EgoSteps) -> (S,) values`` as a measure (the
+    fields are :class:`Measure`'s)."""
 
     def decorate(function: MeasureFunction) -> MeasureFunction:
         registry.register(Measure(name, unit, higher_is_better, description, margin,
-                                  function))
+                                  function, label=label, kind=kind, bounds=bounds,
+                                  decimals=decimals))
         return function
 
     return decorate
 
 
 @register_measure("crashed", unit="share", higher_is_better=False, margin=0.10,
-                  description="collision rate of the ego")
+                  description="collision rate of the ego", label="crash rate", kind="rate")
 def _crashed(steps: EgoSteps) -> np.ndarray:
     return steps.any(steps.crashed)
 
 
 @register_measure("mean_speed", unit="m/s", higher_is_better=True, margin=1.0,
-                  description="mean ego speed")
+                  description="mean ego speed", label="mean speed", decimals=1)
 def _mean_speed(steps: EgoSteps) -> np.ndarray:
     return steps.mean(steps.speed)
 
 
 @register_measure("min_headway_s", unit="s", higher_is_better=True, margin=0.3,
                   description="smallest time headway to the leader along the path (capped "
-                  "10 s; 0 on a crash)")
+                  "10 s; 0 on a crash)", label="min headway", bounds=(0.0, HEADWAY_CAP_S))
 def _min_headway(steps: EgoSteps) -> np.ndarray:
     return _leader_minimum(steps, steps.headway, HEADWAY_CAP_S)
 
 
 @register_measure("min_ttc_s", unit="s", higher_is_better=True, margin=1.0,
                   description="smallest time to collision with the leader along the path "
-                  "(capped 10 s; 0 on a crash)")
+                  "(capped 10 s; 0 on a crash)", label="min TTC", bounds=(0.0, TTC_CAP_S))
 def _min_ttc(steps: EgoSteps) -> np.ndarray:
     return _leader_minimum(steps, steps.ttc, TTC_CAP_S)
 
 
 def _leader_minimum(steps: EgoSteps, values: np.ndarray, cap: float) -> np.ndarray:
     """Per episode, the smallest of a measure to the leader, capped at ``cap``; NaN in an
-    episode with no other vehicle that did not crash (nothing to measure)."""
+    episode with no value on any scored step (no leader after the burn-in, or none while
+    the ego moved, and no crash): "no leader" has no minimum, it is not a 10 s
+    observation. Such episodes are counted apart (:func:`leader_counts`)."""
     out = steps.minimum(values, cap)
-    out[~steps.has_others & ~steps.any(steps.crashed)] = np.nan
+    out[~steps.any(~np.isnan(values))] = np.nan
     return out
 
 
+def leader_counts(steps: EgoSteps) -> pd.DataFrame:
+    """Per episode: ``scenario_id``, ``leader_steps`` (scored steps with a leader) and
+    ``no_leader`` (True: min headway and min TTC are NaN, not the cap)."""
+    has = (steps.leader_row >= 0) & steps.scored
+    n = np.bincount(steps.episode[has], minlength=steps.n_episodes)
+    return pd.DataFrame({"scenario_id": steps.scenario_id, "leader_steps": n,
+                         "no_leader": (n == 0) & ~steps.any(steps.crashed)})
+
+
 @register_measure("rms_jerk", unit="m/s^3", higher_is_better=False, margin=1.0,
-                  description="RMS longitudinal jerk of the ego")
+                  description="RMS longitudinal jerk of the ego (Savitzky-Golay, 1.5 s, as "
+                  "nuPlan)", label="RMS jerk")
 def _rms_jerk(steps: EgoSteps) -> np.ndarray:
-    v = steps.speed
-    d2 = (v[2:] - 2 * v[1:-1] + v[:-2]) * HZ * HZ
-    ok = steps.consecutive(2)  # a second difference over three consecutive steps
-    ep = steps.episode[2:][ok]
-    sq = np.bincount(ep, weights=d2[ok] ** 2, minlength=steps.n_episodes)
-    n = np.bincount(ep, minlength=steps.n_episodes)
+    jerk = smoothed_jerk(steps)
+    ok = ~np.isnan(jerk)
+    sq = np.bincount(steps.episode[ok], weights=jerk[ok] ** 2, minlength=steps.n_episodes)
+    n = np.bincount(steps.episode[ok], minlength=steps.n_episodes)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.sqrt(sq / n)
+
+
+def smoothed_jerk(steps: EgoSteps) -> np.ndarray:
+    """(m,) [m/s^3] the ego's longitudinal jerk at each step: the Savitzky-Golay derivative
+    (window :data:`JERK_WINDOW_S`, order :data:`JERK_POLYORDER`) of the Savitzky-Golay
+    derivative of the speed, as nuPlan's ``extract_ego_jerk``, over each run of consecutive
+    steps; NaN in runs shorter than the window."""
+    m = len(steps.speed)
+    out = np.full(m, np.nan)
+    if not m:
+        return out
+    run_start = np.ones(m, bool)
+    run_start[1:] = ~steps.consecutive(1)
+    starts = np.flatnonzero(run_start)
+    stops = np.r_[starts[1:], m]
+    for a, b in zip(starts.tolist(), stops.tolist(), strict=False):
+        if b - a >= JERK_WINDOW_STEPS:
+            accel = savgol_derivative(steps.speed[a:b], JERK_WINDOW_STEPS, JERK_POLYORDER,
+                                      1.0 / HZ)
+            out[a:b] = savgol_derivative(accel, JERK_WINDOW_STEPS, JERK_POLYORDER, 1.0 / HZ)
+    return out
+
+
+def savgol_derivative(y: np.ndarray, window: int, order: int, delta: float) -> np.ndarray:
+    """(n,) the first derivative of ``y`` (n,) by a Savitzky-Golay filter: a least-squares
+    polynomial of ``order`` over each ``window`` (odd) samples ``delta`` apart, its slope at
+    the centre; the first and last ``window // 2`` samples take the slope of the first and
+    last window's polynomial at their place (scipy's ``savgol_filter(deriv=1,
+    mode="interp")``, without needing scipy)."""
+    y = np.asarray(y, dtype=np.float64)
+    n = len(y)
+    if window % 2 != 1 or window <= order or n < window:
+        raise ValueError(f"savgol_derivative: window {window} must be odd, above the order "
+                         f"{order} and at most the {n} samples.")
+    half = window // 2
+    x = np.arange(-half, half + 1, dtype=np.float64)
+    fit = np.linalg.pinv(np.vander(x, order + 1, increasing=True))  # (order + 1, window)
+    out = np.empty(n)
+    out[half:n - half] = np.lib.stride_tricks.sliding_window_view(y, window) @ fit[1]
+    powers = np.arange(1, order + 1)
+    for rows, coef in ((slice(0, half), fit @ y[:window]),
+                       (slice(n - half, n), fit @ y[n - window:])):
+        at = x[:half] if rows.start == 0 else x[half + 1:]
+        out[rows] = (powers[None, :] * coef[1:][None, :]
+                     * at[:, None] ** (powers - 1)[None, :]).sum(axis=1)
+    return out / delta
 
 
 SCENE_MEASURES = MeasureRegistry()
@@ -351,8 +571,8 @@ def _scene_column(steps: EgoSteps, name: str) -> np.ndarray:
 
 @register_measure("off_road", unit="share", higher_is_better=False, margin=0.10,
                   description="the ego left the road (farther than half its lane's width + "
-                  "0.5 m from every lane centre, or across a road edge)",
-                  registry=SCENE_MEASURES)
+                  "0.5 m from every lane centre, or across a road edge)", label="off road",
+                  kind="rate", registry=SCENE_MEASURES)
 def _off_road(steps: EgoSteps) -> np.ndarray:
     values = _scene_column(steps, "off_road")
     out = steps.any(np.nan_to_num(values) > 0.5).astype(float)
@@ -362,14 +582,14 @@ def _off_road(steps: EgoSteps) -> np.ndarray:
 
 @register_measure("route_progress", unit="share", higher_is_better=True, margin=0.10,
                   description="share of the logged ego's path covered along its route (0-1)",
-                  registry=SCENE_MEASURES)
+                  label="route progress", bounds=(0.0, 1.0), registry=SCENE_MEASURES)
 def _route_progress(steps: EgoSteps) -> np.ndarray:
     return steps.last(_scene_column(steps, "route_progress"))
 
 
 @register_measure("ran_red_light", unit="share", higher_is_better=False, margin=0.10,
                   description="the ego crossed a stop point while its signal was red",
-                  registry=SCENE_MEASURES)
+                  label="ran a red light", kind="rate", registry=SCENE_MEASURES)
 def _ran_red_light(steps: EgoSteps) -> np.ndarray:
     values = _scene_column(steps, "ran_red_light")
     out = steps.any(np.nan_to_num(values) > 0.5).astype(float)
@@ -379,14 +599,14 @@ def _ran_red_light(steps: EgoSteps) -> np.ndarray:
 
 @register_measure("log_ade", unit="m", higher_is_better=False, margin=1.0,
                   description="mean distance to the logged ego over the simulated steps",
-                  registry=SCENE_MEASURES)
+                  label="log ADE", registry=SCENE_MEASURES)
 def _log_ade(steps: EgoSteps) -> np.ndarray:
     return steps.mean(_scene_column(steps, "log_distance"))
 
 
 @register_measure("log_fde", unit="m", higher_is_better=False, margin=2.0,
                   description="distance to the logged ego at the last simulated step",
-                  registry=SCENE_MEASURES)
+                  label="log FDE", registry=SCENE_MEASURES)
 def _log_fde(steps: EgoSteps) -> np.ndarray:
     return steps.last(_scene_column(steps, "log_distance"))
 
@@ -401,13 +621,16 @@ def _require(table: pd.DataFrame) -> None:
                                        column=col)
 
 
-def ego_steps(table: pd.DataFrame) -> EgoSteps:
+def ego_steps(table: pd.DataFrame, map_table: pd.DataFrame | None = None) -> EgoSteps:
     """The ego's steps of every scenario with the leader, headway and TTC along its path.
 
     Args:
         table: trajectory table with ``scenario_id``, ``track_id``, ``t``, ``x``, ``y``,
             ``heading``, ``speed`` and ``is_ego``; optional ``valid``, ``crashed`` and
             ``length`` [m]. Rows of one track must be at distinct 0.1 s steps.
+        map_table: lane centre lines (:mod:`tap_bench.maps`; a scenario's map is the one
+            whose ``map_id`` is its ``scenario_id``, else its ``env``): the ego's path goes
+            on along its lane beyond the record. None: along an arc of its last curvature.
 
     Raises:
         TrajectoryTableError: ``is_ego`` is missing, a scenario has two ego tracks, or an
@@ -458,8 +681,10 @@ def ego_steps(table: pd.DataFrame) -> EgoSteps:
     crashed_all = (table["crashed"].fillna(False).to_numpy(bool) if "crashed" in table.columns
                    else np.zeros(len(table), bool))
 
+    lanes = None if map_table is None else scene_lanes(table, sid_codes, sids, map_table)
     gap, closing, leader = _leaders(key, sid_codes.astype(np.int64), valid & ~is_ego,
-                                    ego_rows, ego_key, seg_sid, x, y, heading, speed, length)
+                                    ego_rows, ego_key, seg_sid, x, y, heading, speed, length,
+                                    lanes)
     v_ego = speed[ego_rows]
     crashed = crashed_all[ego_rows]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -503,7 +728,8 @@ def ego_steps(table: pd.DataFrame) -> EgoSteps:
                     columns=columns)
 
 
-def ego_step_measures(table: pd.DataFrame) -> pd.DataFrame:
+def ego_step_measures(table: pd.DataFrame, map_table: pd.DataFrame | None = None
+                      ) -> pd.DataFrame:
     """The ego's safety measures at every valid step of every scenario (what
     :func:`ego_measures` reduces to one row per episode), for viewers and plots.
 
@@ -518,7 +744,7 @@ def ego_step_measures(table: pd.DataFrame) -> pd.DataFrame:
         below :data:`MIN_SPEED_FOR_HEADWAY`; 0 while crashed), ``scored`` (False where the
         burn-in leaves the step out of the episode minima).
     """
-    steps = ego_steps(table)
+    steps = ego_steps(table, map_table)
     headway, ttc = _unscored(steps)
     return pd.DataFrame({
         "scenario_id": np.repeat(steps.scenario_id, steps.counts), "t": steps.t,
@@ -539,19 +765,20 @@ def _unscored(steps: EgoSteps) -> tuple[np.ndarray, np.ndarray]:
     return headway, ttc
 
 
-def ego_measures(table: pd.DataFrame) -> pd.DataFrame:
+def ego_measures(table: pd.DataFrame, map_table: pd.DataFrame | None = None) -> pd.DataFrame:
     """Safety and efficiency measures of the ego of every scenario of a trajectory table.
 
     Args:
         table: as :func:`ego_steps`; the identifying ``env``, ``policy``, ``seed``,
             ``source`` are carried over.
+        map_table: lane centre lines (:func:`ego_steps`).
 
     Returns:
         one row per scenario with an ego: ``scenario_id``, the identifying columns present,
         one column per registered measure (:data:`MEASURES`, and :data:`SCENE_MEASURES`
         when the table carries :data:`SCENE_STEP_COLUMNS`) and ``duration_s``.
     """
-    steps = ego_steps(table)
+    steps = ego_steps(table, map_table)
     out = pd.DataFrame({"scenario_id": steps.scenario_id})
     for col in _KEEP:
         if col in table.columns:
@@ -585,7 +812,7 @@ def _check_one_ego(ego_sid: np.ndarray, ego_track: np.ndarray, sids) -> None:
 
 
 def _leaders(key, scene, other_mask, ego_rows, ego_key, ego_sid, x, y, heading, speed,
-             length):
+             length, lanes=None):
     """(m,) bumper gap, closing speed and row of the leader along the ego's path at each ego
     step (NaN, NaN, -1: no leader)."""
     m = len(ego_rows)
@@ -605,7 +832,7 @@ def _leaders(key, scene, other_mask, ego_rows, ego_key, ego_sid, x, y, heading, 
     paths = Paths(scene=scene[rows], key=key[rows], track=track, x=x[rows], y=y[rows],
                   heading=heading[rows], speed=speed[rows], start=start, stop=stop)
     frame = path_frame(paths, np.r_[np.zeros(m, bool), np.ones(len(others), bool)],
-                       ahead=LOOKAHEAD, behind=1.0, lateral=CORRIDOR_HALF_WIDTH)
+                       ahead=LOOKAHEAD, behind=1.0, lateral=CORRIDOR_HALF_WIDTH, lanes=lanes)
     ahead = (frame.s > 0) & (np.abs(frame.heading_rel) <= SAME_DIRECTION)
     step, s, other = frame.step[ahead], frame.s[ahead], rows[frame.other[ahead]]
     v_along = frame.v_along[ahead]

@@ -13,12 +13,10 @@ import pandas as pd
 
 from tap_bench.bench.measures import MEASURES
 from tap_bench.bench.report_tables import (
-    MEASURE_NAMES,
     _envs,
     _pooled,
-    _scale,
     _slug,
-    _unit_label,
+    interval_heading,
 )
 from tap_bench.bench.scoring import Scores
 
@@ -118,16 +116,16 @@ def _measures_plot(scores: Scores, env: str, reference: str, folder: Path) -> Pa
                              sharey=True, layout="constrained")
     for ax, meas in zip(np.atleast_1d(axes), MEASURES, strict=True):
         sub = m[m["measure"] == meas.name].set_index("policy").reindex(policies)
-        k = _scale(meas)
+        k = meas.scale
         _interval_plot(ax, policies, sub["mean"] * k, sub["low"] * k, sub["high"] * k)
         ref = sub.loc[reference, "mean"] * k if reference in sub.index else np.nan
         if np.isfinite(ref):
             ax.axvline(ref, color="0.6", lw=0.8, ls="--")
-        _fit(ax, sub["low"] * k, sub["high"] * k, floor=0.0,
-             ceil=100.0 if meas.name == "crashed" else None)
+        low, high = meas.bounds if meas.bounds is not None else (None, None)
+        _fit(ax, sub["low"] * k, sub["high"] * k, floor=None if low is None else low * k,
+             ceil=None if high is None else high * k)
         better = "higher" if meas.higher_is_better else "lower"
-        name = MEASURE_NAMES.get(meas.name, meas.name)
-        ax.set_title(f"{name} [{_unit_label(meas)}]\n{better} is better")
+        ax.set_title(f"{meas.label} [{meas.display_unit}]\n{better} is better")
         ax.grid(axis="x", alpha=0.3)
     np.atleast_1d(axes)[0].invert_yaxis()
     return _save(fig, folder / f"measures_{_slug(env)}.png")
@@ -161,7 +159,7 @@ def _coverage_plot(scores: Scores, folder: Path) -> Path | None:
     return _save(fig, folder / "coverage.png")
 
 
-def _forest_plots(scores: Scores, folder: Path) -> list[Path]:
+def _forest_plots(scores: Scores, folder: Path, level: float) -> list[Path]:
     labels = scores.paired_labels
     out: list[Path] = []
     if labels.empty:
@@ -178,7 +176,7 @@ def _forest_plots(scores: Scores, folder: Path) -> list[Path]:
         ax.hlines(y, sub["band_low"] * 100, sub["band_high"] * 100, color="0.85", lw=7,
                   label="simultaneous band")
         _interval_plot(ax, names, sub["diff"] * 100, sub["diff_low"] * 100,
-                       sub["diff_high"] * 100, label="95 % interval")
+                       sub["diff_high"] * 100, label=interval_heading(level))
         ax.axvline(0, color="k", lw=0.8)
         _fit(ax, sub["band_low"] * 100, sub["band_high"] * 100, floor=-100, ceil=100)
         ax.invert_yaxis()
@@ -204,7 +202,8 @@ def _improvement_plot(scores: Scores, folder: Path) -> Path | None:
             ax.errorbar(r.p_improvement, k, xerr=[[max(r.p_improvement - r.p_low, 0)],
                                                   [max(r.p_high - r.p_improvement, 0)]],
                         fmt="o", color=f"C{j}", capsize=3, ms=4)
-            name = MEASURE_NAMES.get(r.measure, r.measure)
+            meas = MEASURES.get(r.measure)
+            name = meas.label if meas is not None else r.measure
             names.append(f"{a} vs {b}: {name}")
             k += 1
     ax.set_yticks(range(len(names)), names)
@@ -237,8 +236,9 @@ def _novelty_plot(scores: Scores, folder: Path) -> Path | None:
 
 
 def write_plots(scores: Scores, folder: str | os.PathLike, *,
-                reference: str | None = None) -> list[Path]:
-    """Write the PNG plots of a scored run into ``folder`` and return their paths.
+                reference: str | None = None, level: float = 0.95) -> list[Path]:
+    """Write the PNG plots of a scored run into ``folder`` and return their paths
+    (``level``: the run's interval level, for the legends).
 
     Per env: ``labels_<env>.png`` (label heat map) and ``measures_<env>.png``; pooled:
     ``measures_all.png``, ``improvement.png``, ``coverage.png``, ``forest_<A>_vs_<B>.png``,
@@ -255,5 +255,5 @@ def write_plots(scores: Scores, folder: str | os.PathLike, *,
     if len(envs) > 1:
         paths.append(_measures_plot(scores, "all", reference, folder))
     paths += [_improvement_plot(scores, folder), _coverage_plot(scores, folder),
-              *_forest_plots(scores, folder), _novelty_plot(scores, folder)]
+              *_forest_plots(scores, folder, level), _novelty_plot(scores, folder)]
     return [p for p in paths if p is not None]

@@ -348,19 +348,17 @@ def test_the_cache_keys_a_scene_on_its_content(tmp_path):
     import shutil
 
     from tap_bench.bench.cache import EpisodeCache
-    from tap_bench.bench.run_plan import _tasks
+    from tap_bench.bench.run_plan import _tasks, plan_suite
     from tap_bench.bench.suite import suite_from_dict
-    from tap_bench.thresholds import resolve_thresholds
 
     a = scenarionet(tmp_path / "sd_a.pkl")
     (tmp_path / "moved").mkdir()
     b = shutil.copy(a, tmp_path / "moved" / "sd_a.pkl")
     cache = EpisodeCache(tmp_path / "cache")
-    th = resolve_thresholds("paper")
 
     def keys(path):
-        return [t.key for t in _tasks(suite_from_dict(womd_suite([str(path)])), th, False,
-                                      cache)]
+        plan = plan_suite(suite_from_dict(womd_suite([str(path)])))
+        return [t.key for t in _tasks(plan, False, cache)]
 
     assert keys(a) == keys(b)  # the same scene under another path
     scenarionet(tmp_path / "moved" / "sd_a.pkl", ego_y=0.5)  # the content changed

@@ -37,7 +37,9 @@ def test_every_vehicle_gets_relations_and_following_is_common(relations):
 
 def test_the_cut_ins_read_by_hand(relations):
     # docs/interactions.md: vehicles 9 then 7 turn left from the north approach into the
-    # road vehicle 63 is turning right into, just ahead of it (a cut-in from a side road)
+    # road vehicle 63 is turning right into, just ahead of it (a cut-in from a side road).
+    # 9 crosses while 63 stands at the junction (under 1 m/s for the whole run): SPEC 7
+    # gives a still ego no Cut-in; 7 comes once 63 moves off
     cut = relations[relations["label"] == "Cut-in"]
     found = set(zip(cut["scenario_id"], cut["track_id"], cut["other_track_id"], strict=True))
-    assert found == {("a3bb37c25ce56418", "63", "9"), ("a3bb37c25ce56418", "63", "7")}
+    assert found == {("a3bb37c25ce56418", "63", "7")}
