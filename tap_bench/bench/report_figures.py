@@ -32,9 +32,11 @@ def _plt():
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
+    # names in figures are the user's text, never matplotlib math: a policy called
+    # "a$b" or "$\\frac$" once crashed the report after the whole run
     plt.rcParams.update({"font.size": FONT_PT, "axes.titlesize": FONT_PT + 1,
                          "xtick.labelsize": FONT_PT, "ytick.labelsize": FONT_PT,
-                         "legend.fontsize": FONT_PT})
+                         "legend.fontsize": FONT_PT, "text.parse_math": False})
     return plt
 
 

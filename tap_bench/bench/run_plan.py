@@ -8,6 +8,7 @@ import math
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -24,6 +25,7 @@ from tap_bench.bench.suite import Suite, load_suite
 from tap_bench.plugins import load_plugins, merge_plugins
 from tap_bench.sim.policies import PolicyDefinition
 from tap_bench.sim.rollout import resolve_policy
+from tap_bench.sim.sb3 import warn_untrusted_model
 from tap_bench.sim.suite import Scenario, parse_seeds
 from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.thresholds import Thresholds, resolve_thresholds
@@ -121,12 +123,18 @@ def _tasks(plan: SuitePlan, keep: bool, cache: EpisodeCache | None) -> list[_Tas
     definitions = plan.definitions
     common = {"measures": plan.measure_names}
     seeds = {env: suite.env_seeds(env) for env in suite.envs}
+    for d in definitions:  # workers load models with warnings off: said here, once each
+        if d.kind == "sb3" and isinstance(d.params.get("model"), str):
+            model = Path(d.params["model"])
+            if not model.is_absolute() and d.path is not None:
+                model = d.path.parent / model
+            warn_untrusted_model(model, stacklevel=4)
     if cache is None:
         return [_Task(env, scenarios[env], d.name, d, seed, thresholds, suite.level, keep,
                       **common)
                 for env in suite.envs for d in definitions for seed in seeds[env]]
     versions = simulation_fingerprint()
-    envs = {env: _env_fingerprints(scenarios[env], seeds[env]) for env in suite.envs}
+    envs = {env: _env_fingerprints(scenarios[env], env, seeds[env]) for env in suite.envs}
     policies = {d.name: policy_fingerprint(d) for d in definitions}
     tasks = []
     for env in suite.envs:
@@ -140,19 +148,19 @@ def _tasks(plan: SuitePlan, keep: bool, cache: EpisodeCache | None) -> list[_Tas
     return tasks
 
 
-def _env_fingerprints(scenario: Scenario | WomdScenes, seeds: tuple[int, ...]
+def _env_fingerprints(scenario: Scenario | WomdScenes, env: str, seeds: tuple[int, ...]
                       ) -> dict[int, dict[str, Any] | None]:
-    """seed -> the env part of its episode key: the scenario's for a synthetic env (the same
-    for every seed); for recorded scenes, each scenario's content hash and settings (None:
-    a scenario that cannot be read is not cached; its episode reports why)."""
+    """seed -> the env part of its episode key (None: not cached): the scenario's
+    (:func:`~tap_bench.bench.cache.scenario_fingerprint`) for a synthetic env, the same for
+    every seed; for recorded scenes, the env's name and each scenario's content hash and
+    settings (a scenario that cannot be read is not cached; its episode reports why)."""
     if not isinstance(scenario, WomdScenes):
-        doc = scenario_fingerprint(scenario)
-        return dict.fromkeys(seeds, doc)
+        return dict.fromkeys(seeds, scenario_fingerprint(scenario, env))
     catalog = scenario.catalog()
     out: dict[int, dict[str, Any] | None] = {}
     for seed in seeds:
         try:
-            out[seed] = scenario.fingerprint(catalog[seed])
+            out[seed] = {"env": env, **scenario.fingerprint(catalog[seed])}
         except (IndexError, OSError, ValueError):
             out[seed] = None
     return out

@@ -45,11 +45,15 @@ def _prepare_worker(task: _Task) -> None:
             "worker imports it.")
 
 
-def _run_task(task: _Task) -> dict[str, Any]:
-    """Roll out (or read from the cache), label and measure one episode (in a worker)."""
+def _run_task(task: _Task, note: str | None = None) -> dict[str, Any]:
+    """Roll out (or read from the cache), label and measure one episode (in a worker).
+    ``note``: why a cache entry of this episode was refused already (in a batch)."""
     _prepare_worker(task)
     t0 = time.perf_counter()
-    cached = task.cache.get(task.key) if task.cache is not None and task.key else None
+    cached = None
+    if task.cache is not None and task.key:
+        cached, refused = task.cache.read(task.key)
+        note = note or refused
     if cached is not None:
         trajectories, row = cached.trajectories, cached.row
     else:
@@ -78,7 +82,7 @@ def _run_task(task: _Task) -> dict[str, Any]:
     timings = {"rollout": t1 - t0, "labelling": t2 - t1, "measures": t3 - t2}
     return {"episodes": eps, "labels": labels, "segments": segments,
             "trajectories": trajectories if task.keep_trajectories else None,
-            "timings": timings, "cached": cached is not None}
+            "timings": timings, "cached": cached is not None, "cache_note": note}
 
 
 def _run_ids(task: _Task, trajectories: pd.DataFrame) -> pd.DataFrame:
@@ -118,9 +122,10 @@ def _run_batch(batch: _CachedBatch) -> list[dict[str, Any]]:
     _prepare_worker(batch.tasks[0])
     t0 = time.perf_counter()
     first = batch.tasks[0]
-    entries = [task.cache.get(task.key) if task.cache is not None and task.key else None
-               for task in batch.tasks]
-    found = [(task, entry) for task, entry in zip(batch.tasks, entries, strict=True)
+    read = [task.cache.read(task.key) if task.cache is not None and task.key else (None, None)
+            for task in batch.tasks]
+    notes = {task.seed: note for task, (_, note) in zip(batch.tasks, read, strict=True)}
+    found = [(task, entry) for task, (entry, _) in zip(batch.tasks, read, strict=True)
              if entry is not None]
     results: dict[int, dict[str, Any]] = {}
     if found:
@@ -151,8 +156,9 @@ def _run_batch(batch: _CachedBatch) -> list[dict[str, Any]]:
                 "segments": by_episode["segments"].get(sid, pd.DataFrame()),
                 "trajectories": by_episode["trajectories"][sid]
                 if task.keep_trajectories else None,
-                "timings": dict(share), "cached": True}
-    return [results.get(task.seed) or _run_task(task) for task in batch.tasks]
+                "timings": dict(share), "cached": True, "cache_note": None}
+    return [results.get(task.seed) or _run_task(task, notes[task.seed])
+            for task in batch.tasks]
 
 
 def _split(table: pd.DataFrame, column: str) -> dict[Any, pd.DataFrame]:
