@@ -38,6 +38,7 @@ from tap_bench.bench.report_tables import (
     _display_paired_labels,
     _display_paired_measures,
     _envs,
+    _pct,
     _seed_text,
     _slug,
     _thresholds_text,
@@ -135,6 +136,53 @@ def _replay(viewer: str | None, **params: Any) -> str | None:
     return f"{viewer}#{'&'.join(parts)}"
 
 
+def _against_the_human(episodes: pd.DataFrame, reference: str) -> list[str]:
+    """The section "against the human" of runs on recorded scenes (SPEC section 8): each
+    policy's label agreement with the reference on the same scenes, per axis, and the
+    closed-loop measures beside the human's own. Empty for runs without recorded scenes."""
+    from tap_bench.bench.agreement import agreement_with_reference, scene_summary
+
+    if "route_progress" not in episodes.columns:
+        return []
+    scenes = episodes[episodes["route_progress"].notna()
+                      | episodes.get("log_ade", pd.Series(dtype=float)).notna()]
+    if scenes.empty:
+        return []
+    human = "the human" if reference == "log" else f"the reference policy {reference}"
+    parts = ["<h2>Against the human</h2>",
+             f'<p class="note">Recorded scenes: every policy drove the recorded ego of the '
+             f"same WOMD scenarios from 1.0 s, {human} drove them as logged. Episodes pair "
+             "by scenario.</p>"]
+    agree = agreement_with_reference(scenes, reference)
+    if len(agree):
+        shown = agree.assign(
+            agreement=[f"{a}/{n} = {_pct(sh)} [{_pct(lo)}, {_pct(hi)}]" if n else "–"
+                       for a, n, sh, lo, hi in zip(agree["agree"], agree["pairs"],
+                                                   agree["share"], agree["low"],
+                                                   agree["high"], strict=True)])
+        wide = shown.pivot_table(index=["env", "policy"], columns="axis", values="agreement",
+                                 aggfunc="first").reset_index()
+        wide.columns.name = None
+        parts.append(html_table(
+            wide, table_id="human-agreement",
+            caption=f"Label agreement with {human}: scenes where the policy's ego label on "
+            "an axis equals the human's on the same scene, with its 95 % Wilson interval. "
+            "sdl is lateral and longitudinal together; interaction the relations to others "
+            "(SPEC 7)."))
+    summary = scene_summary(scenes)
+    for col in summary.columns:
+        if col not in ("env", "policy", "episodes"):
+            summary[col] = summary[col].round(3)
+    parts.append(html_table(
+        summary, table_id="human-measures",
+        caption="Closed-loop measures on recorded scenes, mean over scenes: crashed and "
+        "off_road (share), route_progress (share of the human's path covered, 0-1), "
+        "ran_red_light (share), log_ade and log_fde (mean and final distance to the human's "
+        f"ego, m). The {reference} row is the floor: the human's own boxes can overlap "
+        "others' in the log."))
+    return parts
+
+
 def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: pd.DataFrame,
                  scores: Scores, *, viewer: str | None = None) -> Path:
     """Write ``plots/*.png`` and ``report.html`` into a run folder; returns the HTML path.
@@ -218,6 +266,8 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
         parts.append('<details><summary class="note">How the intervals are computed</summary>'
                      "<ul>" + "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>"
                                       for k, v in scores.methods.items()) + "</ul></details>")
+
+    parts.extend(_against_the_human(episodes, reference))
 
     # 2. per-env panels
     parts.append("<h2>Per env</h2>")
@@ -364,7 +414,8 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
     # 4. the run
     parts.append("<h2>The run</h2>")
     facts = pd.DataFrame([
-        ("envs", ", ".join(suite.get("envs", []))),
+        ("envs", ", ".join(e if isinstance(e, str) else str(e.get("name", "womd"))
+                           for e in suite.get("envs", []))),
         ("policies", ", ".join(suite.get("policies", []))),
         ("seeds", _seed_text(summary.get("seeds", []))),
         ("SDL level", summary.get("level", "")),

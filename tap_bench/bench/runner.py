@@ -89,7 +89,6 @@ from tap_bench.errors import (
     RunExistsError,
 )
 from tap_bench.execution import Backend, resolve_backend
-from tap_bench.sim.roads import road_table
 
 __all__ = ["CACHED_BATCH", "CACHED_EPISODE_S", "RunExistsError", "RunPlan", "RunResult",
            "SuitePlan", "plan_suite",
@@ -265,7 +264,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "format": "tap-bench-run", "format_version": 1,
         "run": output.name, "created": time.strftime("%Y-%m-%d %H:%M:%S"),
         "suite": suite.to_dict(), "suite_file": str(suite.path) if suite.path else None,
-        "level": suite.level, "seeds": list(suite.seeds),
+        "level": suite.level,
+        "seeds": "all" if suite.all_seeds else list(suite.seeds),
         "thresholds": thresholds.to_dict() if hasattr(thresholds, "to_dict") else
         str(suite.thresholds),
         "reference_policy": suite.reference,
@@ -295,8 +295,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     t0 = time.perf_counter()
     roads = None
     if keep_trajectories:  # the replay viewer draws them; highway-env's road is seed-free
-        roads = pd.concat([road_table(plan.scenarios[env]) for env in suite.envs],
-                          ignore_index=True)
+        roads = pd.concat([suite.road(env) for env in suite.envs], ignore_index=True)
     folder = write_results(output, overwrite, summary, episodes, labels, trajectories
                            if keep_trajectories else None, scores, report,
                            segments=segments, roads=roads)
@@ -311,3 +310,4 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
             cache.record_timings(simulated, cached, overhead)
             cache.prune()
     return RunResult(folder, summary, episodes, scores, folder / "report.html")
+

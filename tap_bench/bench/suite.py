@@ -25,6 +25,19 @@ A suite is a JSON file in ``envs/suites/`` (beside the scenario files it names; 
 Every field but ``name``, ``envs``, ``policies`` and ``seeds`` has the default shown in
 :class:`Suite` (``plugins``: none). Unknown fields, envs and policies are refused with
 "did you mean".
+
+**Recorded scenes.** An entry of ``envs`` may name WOMD data instead of a synthetic scene
+(``tap_bench/womd-v0``, SPEC section 8)::
+
+    "envs": [{"womd": "data/scenes/*.tfrecord", "traffic": "log"}],
+    "policies": ["log", "idm"], "reference_policy": "log", "seeds": "all"
+
+``womd`` is a path, a glob pattern or a list of them (relative to the suite file's folder);
+``traffic`` is ``log`` (default) or ``idm``; ``ego`` ``sdc`` (default) or a track id;
+``name`` the env's name in the tables (default ``womd`` for log traffic, ``womd-idm`` for
+idm). A seed is a scenario's index in the files, so episodes pair by scenario, and
+``"seeds": "all"`` runs every scenario (allowed when every env is recorded scenes). The
+policy ``log`` is the human who drove the scene.
 """
 
 from __future__ import annotations
@@ -44,6 +57,7 @@ from tap_bench.plugins import load_plugins
 from tap_bench.sim.policies import available_policies
 from tap_bench.sim.scenario_env import get_scenario
 from tap_bench.sim.suite import parse_seeds, read_json, scenario_names
+from tap_bench.sim.womd_scene import TRAFFIC, WomdScenes
 
 __all__ = ["SAFETY_WEIGHTS", "GateConfig", "Suite", "available_suites", "default_margins",
            "default_weights", "gate_metrics", "load_suite", "suite_from_dict"]
@@ -89,6 +103,7 @@ def default_weights() -> dict[str, float]:
 _FIELDS = ("name", "version", "description", "envs", "policies", "seeds", "reference_policy",
            "level", "thresholds", "env_overrides", "bootstrap", "gate", "plugins")
 _OVERRIDE_FIELDS = ("duration", "config", "lane_change")
+_SCENE_FIELDS = ("womd", "traffic", "ego", "name", "policy_frequency")
 _GATE_FIELDS = ("alpha", "n_permutations", "seed", "margins", "weights", "detect")
 
 
@@ -227,6 +242,8 @@ class Suite:
             kinds (:mod:`tap_bench.plugins`): imported before the suite is checked, and by
             every worker of a run before its first task.
         path: the file it was read from.
+        scenes: env name -> recorded WOMD scenes, for the envs that name WOMD data.
+        all_seeds: ``"seeds": "all"``: every scenario of each recorded-scene env.
     """
 
     name: str
@@ -243,6 +260,8 @@ class Suite:
     gate: GateConfig = field(default_factory=GateConfig)
     plugins: tuple[str, ...] = ()
     path: Path | None = field(default=None, compare=False)
+    scenes: Mapping[str, WomdScenes] = field(default_factory=dict)
+    all_seeds: bool = False
 
     @property
     def reference(self) -> str:
@@ -250,7 +269,10 @@ class Suite:
         return self.reference_policy or self.policies[0]
 
     def scenario(self, env: str):
-        """The env's :class:`tap_bench.sim.Scenario` with this suite's overrides."""
+        """The env's :class:`tap_bench.sim.Scenario` with this suite's overrides, or its
+        :class:`~tap_bench.sim.womd_scene.WomdScenes` for recorded scenes."""
+        if env in self.scenes:
+            return self.scenes[env]
         scenario = get_scenario(env)
         over = self.env_overrides.get(env)
         if over:
@@ -258,11 +280,34 @@ class Suite:
                                                lane_change=over.get("lane_change"))
         return scenario
 
+    def road(self, env: str):
+        """The env's map table (:mod:`tap_bench.maps`): highway-env's road (one per env), or
+        the maps of recorded scenes (one per scenario, ``map_id`` its scenario id)."""
+        if env in self.scenes:
+            from tap_bench.sources.maps import read_maps
+
+            return read_maps(self.scenes[env].files)
+        from tap_bench.sim.roads import road_table
+
+        return road_table(self.scenario(env))
+
+    def env_seeds(self, env: str) -> tuple[int, ...]:
+        """The seeds ``env`` runs: the suite's, or with ``"seeds": "all"`` the index of
+        every scenario of its files."""
+        if self.all_seeds and env in self.scenes:
+            return tuple(range(len(self.scenes[env].catalog())))
+        return self.seeds
+
     def to_dict(self) -> dict[str, Any]:
         """The suite as the JSON it was (or could have been) read from, defaults filled."""
+        envs = [{"womd": list(self.scenes[e].files), "traffic": self.scenes[e].traffic,
+                 "ego": self.scenes[e].ego, "name": e,
+                 "policy_frequency": self.scenes[e].policy_frequency}
+                if e in self.scenes else e for e in self.envs]
         return {"name": self.name, "version": self.version, "description": self.description,
-                "envs": list(self.envs), "policies": list(self.policies),
-                "seeds": list(self.seeds), "reference_policy": self.reference,
+                "envs": envs, "policies": list(self.policies),
+                "seeds": "all" if self.all_seeds else list(self.seeds),
+                "reference_policy": self.reference,
                 "level": self.level, "thresholds": self.thresholds,
                 "env_overrides": {k: dict(v) for k, v in self.env_overrides.items()},
                 "bootstrap": {"n_resamples": self.bootstrap.n_resamples,
@@ -322,10 +367,15 @@ def suite_from_dict(doc: Any, *, source: str = "suite", path: Path | None = None
         plugins = load_plugins(plugins, source=source)
     except ParameterError as err:
         raise FileFormatError(str(err)) from err
-    envs = _strings(doc, "envs", source)
+    envs, scenes = _envs(doc, source, path)
     policies = _strings(doc, "policies", source)
+    all_seeds = doc["seeds"] == "all"
+    if all_seeds and len(scenes) < len(envs):
+        raise FileFormatError(f"{source}: seeds 'all' means every scenario of recorded scenes; "
+                              "synthetic envs need seeds such as '0-29'.")
     try:
-        seeds = tuple(parse_seeds(doc["seeds"], source=f"{source}: seeds"))
+        seeds = () if all_seeds else tuple(parse_seeds(doc["seeds"],
+                                                       source=f"{source}: seeds"))
     except ValueError as err:
         raise FileFormatError(str(err)) from err
     level = doc.get("level", "maneuver")
@@ -389,15 +439,66 @@ def suite_from_dict(doc: Any, *, source: str = "suite", path: Path | None = None
                   description=str(doc.get("description", "")), envs=envs, policies=policies,
                   seeds=seeds, reference_policy=reference, level=level, thresholds=thresholds,
                   env_overrides=overrides, bootstrap=boot, gate=gate, plugins=plugins,
-                  path=path)
+                  path=path, scenes=scenes, all_seeds=all_seeds)
     if check_names:
         _check_names(suite, source)
     return suite
 
 
+def _envs(doc: Mapping[str, Any], source: str, path: Path | None
+          ) -> tuple[tuple[str, ...], dict[str, WomdScenes]]:
+    """The env names of a suite and the recorded scenes among them (module docstring)."""
+    value = doc["envs"]
+    if not isinstance(value, list) or not value:
+        raise FileFormatError(f"{source}: 'envs' must be a non-empty list of scenario names "
+                              f"or recorded scenes ({{\"womd\": \"PATH\"}}), got {value!r}.")
+    names, scenes = [], {}
+    for k, item in enumerate(value):
+        if isinstance(item, str):
+            names.append(item)
+            continue
+        where = f"{source}: envs[{k}]"
+        if not isinstance(item, dict) or "womd" not in item:
+            raise FileFormatError(f"{where}: an env is a scenario name or an object with "
+                                  f"'womd' (files of recorded scenes), got {item!r}.")
+        for key in item:
+            if key not in _SCENE_FIELDS:
+                raise FileFormatError(f"{where}: {did_you_mean('field', key, _SCENE_FIELDS)}")
+        files = item["womd"] if isinstance(item["womd"], list) else [item["womd"]]
+        if not files or not all(isinstance(f, str) and f for f in files):
+            raise FileFormatError(f"{where}: 'womd' must be a path or pattern (or a list of "
+                                  f"them), got {item['womd']!r}.")
+        if path is not None:
+            files = [f if os.path.isabs(f) else str(path.parent / f) for f in files]
+        traffic = item.get("traffic", "log")
+        if traffic not in TRAFFIC:
+            raise FileFormatError(f"{where}: {did_you_mean('traffic', str(traffic), TRAFFIC)}")
+        name = item.get("name", "womd" if traffic == "log" else f"womd-{traffic}")
+        try:
+            scenes[name] = WomdScenes(tuple(files), traffic=traffic,
+                                      ego=str(item.get("ego", "sdc")),
+                                      policy_frequency=item.get("policy_frequency", 2),
+                                      name=name)
+        except ValueError as err:
+            raise FileFormatError(f"{where}: {err}") from err
+        names.append(name)
+    if len(set(names)) != len(names):
+        dup = next(v for v in names if names.count(v) > 1)
+        raise FileFormatError(f"{source}: 'envs' names {dup!r} twice; give recorded scenes "
+                              "their own \"name\".")
+    return tuple(names), scenes
+
+
 def _check_names(suite: Suite, source: str) -> None:
     known_envs = scenario_names()
     for env in suite.envs:
+        if env in suite.scenes:
+            try:
+                if not suite.scenes[env].catalog():
+                    raise FileFormatError("no scenario in these files")
+            except (FileFormatError, ValueError, OSError) as err:
+                raise FileFormatError(f"{source}: env {env!r}: {err}") from err
+            continue
         if env not in known_envs:
             raise FileFormatError(f"{source}: {did_you_mean('env', env, known_envs)}")
     known = available_policies()

@@ -272,6 +272,7 @@ def list_suites(args: argparse.Namespace) -> int:
 
     for name in available_suites():
         suite = load_suite(name)
+        seeds = "all" if suite.all_seeds else len(suite.seeds)
         print(f"{name:12s} {len(suite.envs)} envs x {len(suite.policies)} policies x "
-              f"{len(suite.seeds)} seeds, level {suite.level}: {suite.description}")
+              f"{seeds} seeds, level {suite.level}: {suite.description}")
     return 0
