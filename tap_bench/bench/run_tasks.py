@@ -26,6 +26,7 @@ from tap_bench.errors import RegistrationError
 from tap_bench.execution import Backend
 from tap_bench.labelling import tap
 from tap_bench.sim.rollout import EPISODE_COLUMNS, rollout_episode
+from tap_bench.sim.womd_scene import WomdScenes
 
 
 def _prepare_worker(task: _Task) -> None:
@@ -63,7 +64,7 @@ def _run_task(task: _Task, note: str | None = None) -> dict[str, Any]:
             with contextlib.suppress(OSError):  # a full or read-only cache costs only reuse
                 task.cache.put(task.key, task.key_doc or {}, trajectories, row,
                                time.perf_counter() - t0)
-    trajectories = trajectories.reset_index(drop=True)
+    trajectories = _run_ids(task, trajectories).reset_index(drop=True)
     episodes = pd.DataFrame([row], columns=list(EPISODE_COLUMNS))
     episodes["seed"] = episodes["seed"].astype(np.int64)
     t1 = time.perf_counter()
@@ -82,6 +83,16 @@ def _run_task(task: _Task, note: str | None = None) -> dict[str, Any]:
     return {"episodes": eps, "labels": labels, "segments": segments,
             "trajectories": trajectories if task.keep_trajectories else None,
             "timings": timings, "cached": cached is not None, "cache_note": note}
+
+
+def _run_ids(task: _Task, trajectories: pd.DataFrame) -> pd.DataFrame:
+    """A recorded scene's episode under an id of its own in the run: every policy drives the
+    same WOMD scenario, so its id becomes ``<WOMD id>/<policy>`` (the WOMD id kept in
+    ``womd_scenario_id``); synthetic episodes' ids already name the policy."""
+    if not isinstance(task.scenario, WomdScenes) or not len(trajectories):
+        return trajectories
+    womd = trajectories["scenario_id"].astype(str)
+    return trajectories.assign(scenario_id=womd + "/" + task.policy, womd_scenario_id=womd)
 
 
 def _failed_task(task: _Task, message: str) -> dict[str, Any]:
@@ -118,7 +129,8 @@ def _run_batch(batch: _CachedBatch) -> list[dict[str, Any]]:
              if entry is not None]
     results: dict[int, dict[str, Any]] = {}
     if found:
-        trajectories = pd.concat([e.trajectories for _, e in found], ignore_index=True)
+        tables = [_run_ids(task, e.trajectories) for task, e in found]
+        trajectories = pd.concat(tables, ignore_index=True)
         rows = pd.DataFrame([e.row for _, e in found], columns=list(EPISODE_COLUMNS))
         rows["seed"] = rows["seed"].astype(np.int64)
         t1 = time.perf_counter()
@@ -136,8 +148,8 @@ def _run_batch(batch: _CachedBatch) -> list[dict[str, Any]]:
                       for name, table in (("labels", labels), ("segments", segments),
                                           ("trajectories", trajectories))}
         eps_by_seed = _split(eps, "seed")
-        for task, entry in found:
-            sid = entry.trajectories["scenario_id"].iat[0]
+        for (task, _), table in zip(found, tables, strict=True):
+            sid = table["scenario_id"].iat[0]
             results[task.seed] = {
                 "episodes": eps_by_seed[task.seed],
                 "labels": by_episode["labels"].get(sid, pd.DataFrame()),
