@@ -139,6 +139,9 @@ def test_road_maps_keep_the_topology(real):
     assert sum(len(lane.left) for lane in pkl.lanes.values()) > 10
     example = maps["a3bb37c25ce56418"]  # the tf.Example roadgraph has no topology
     assert example.topology == "inferred" and example.inferred_links > 50
+    env = make_womd_env(real[2])
+    run(env, "log", 0)
+    assert "successors inferred" in env.episode_info()["map"]
 
 
 # ----------------------------------------------------------------- the env on real scenes
@@ -294,9 +297,13 @@ def test_bad_scenarios_name_the_scenario_and_the_fix(tmp_path):
 
 
 def test_a_one_point_lane_is_left_out_and_the_scene_drives(tmp_path):
+    from tap_bench.sim.womd_env import MapWarning
+
     env = make_womd_env(scenarionet(tmp_path / "sd_one.pkl", one_point=True))
-    table = run(env, "idm", 0)
+    with pytest.warns(MapWarning, match="sd_one.*single point left out"):
+        table = run(env, "idm", 0)
     assert env.unwrapped.road.network.left_out == [2]
+    assert "left out (2)" in env.episode_info()["map"]
     assert env.episode_info()["route_progress"] > 0.9
     assert len(table)
 
