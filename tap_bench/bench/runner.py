@@ -55,6 +55,7 @@ from typing import Any
 import pandas as pd
 
 from tap_bench.bench.cache import EpisodeCache
+from tap_bench.bench.episodes import one_outcome_cells
 from tap_bench.bench.power import power_table
 from tap_bench.bench.run_folder import (
     _machine,
@@ -79,6 +80,7 @@ from tap_bench.bench.run_tasks import CACHED_BATCH, _observed_timings, _rollouts
 from tap_bench.bench.scenarios import match_scenarios
 from tap_bench.bench.scoring import Scores, score
 from tap_bench.bench.suite import Suite
+from tap_bench.bench.verdict import verdict_table
 from tap_bench.errors import (
     CacheEntryWarning,
     EpisodesFailedError,
@@ -202,6 +204,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     results, estimate = _rollouts(plan, runner, keep_trajectories or with_trajectories,
                                   progress, cache, announce)
     timings["rollouts_wall"] = time.perf_counter() - t0
+    if announce is not None:
+        announce(f"episodes done ({timings['rollouts_wall']:.0f} s); scoring ...")
     if not any((r["episodes"]["status"] == "ok").all() for r in results):
         errors = [f"{row.env} {row.policy} seed {row.seed}: {row.error}"
                   for r in results for row in r["episodes"].itertuples()]
@@ -271,6 +275,9 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "failed": failed[["env", "policy", "seed", "error"]].to_dict("records"),
         "methods": scores.methods,
         "headline": _headline(scores, episodes),
+        "one_outcome_cells": one_outcome_cells(episodes).to_dict("records"),
+        "verdict": verdict_table(scores.paired_measures, scores.paired,
+                                 scores.paired_labels).to_dict("records"),
         "provenance": provenance(plan),
         "measures": [m.to_dict() for m in plan.measures],
         "plugins": list(plan.plugins),
@@ -282,6 +289,9 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
             "simulated": sum(not r["cached"] for r in results),
             "refused": refused},
     }
+    if announce is not None:
+        announce(f"scored ({timings['scoring']:.1f} s); writing the tables"
+                 + (", plots, report and replay viewer" if report else "") + " ...")
     t0 = time.perf_counter()
     roads = None
     if keep_trajectories:  # the replay viewer draws them; highway-env's road is seed-free

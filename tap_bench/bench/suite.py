@@ -59,8 +59,8 @@ from tap_bench.sim.scenario_env import get_scenario
 from tap_bench.sim.suite import parse_seeds, read_json, scenario_names
 from tap_bench.sim.womd_scene import TRAFFIC, WomdScenes
 
-__all__ = ["GateConfig", "Suite", "available_suites", "default_margins",
-           "gate_metrics", "load_suite", "suite_from_dict"]
+__all__ = ["SAFETY_WEIGHTS", "GateConfig", "Suite", "available_suites", "default_margins",
+           "default_weights", "gate_metrics", "load_suite", "suite_from_dict"]
 
 MAX_PERMUTATIONS = 100_000
 """The most permutations the gate's test may ask for (ten times the default 9999)."""
@@ -80,33 +80,61 @@ def default_margins() -> dict[str, float]:
     return {**MEASURES.margins(), "label_tv": LABEL_TV_MARGIN}
 
 
+SAFETY_WEIGHTS: Mapping[str, float] = {"crashed": 0.65, "min_ttc_s": 0.1, "min_headway_s": 0.1}
+"""The gate's share of alpha per safety metric (of each (env, policy) cell): the safety
+family first, 0.85 of alpha, and the crash rate most of it, since a rate carries the least
+information per seed: its exact paired test reaches 1/2^k when k seeds turn to a crash,
+and 0.65 x 0.05 = 0.0325 lets k = 5 fire (0.6 would need 6). Every other metric shares the
+remaining 0.15 equally; a mean changes on every seed of a changed policy, so its small
+share still fires. Chosen by ``benchmarks/gate_calibration.py`` (docs/benchmark.md,
+"Multiplicity")."""
+
+
+def default_weights() -> dict[str, float]:
+    """metric -> the gate's default weight (share of alpha within a cell): the
+    :data:`SAFETY_WEIGHTS` of the registered safety measures, the rest split equally."""
+    metrics = gate_metrics()
+    safety = {k: v for k, v in SAFETY_WEIGHTS.items() if k in metrics}
+    rest = [m for m in metrics if m not in safety]
+    left = 1.0 - sum(safety.values())
+    return {**safety, **{m: round(left / len(rest), 12) for m in rest}} if rest else safety
+
 
 _FIELDS = ("name", "version", "description", "envs", "policies", "seeds", "reference_policy",
            "level", "thresholds", "env_overrides", "bootstrap", "gate", "plugins")
 _OVERRIDE_FIELDS = ("duration", "config", "lane_change")
 _SCENE_FIELDS = ("womd", "traffic", "ego", "name", "policy_frequency")
-_GATE_FIELDS = ("alpha", "n_permutations", "seed", "margins")
+_GATE_FIELDS = ("alpha", "n_permutations", "seed", "margins", "weights", "detect")
 
 
 @dataclass(frozen=True)
 class GateConfig:
     """How ``bench check`` decides that a metric moved.
 
-    A metric of one (env, policy) moved when its change from the baseline is larger than
-    its margin **and** a permutation test (episodes exchanged between run and baseline)
-    rejects "no change" at ``alpha`` after Holm's correction over every check of the run.
+    A metric of one (env, policy) fails when it moved the worse way (the measure's
+    registered direction; for ``label_tv`` any change) by more than its margin **and** a
+    one-sided permutation test rejects "no change" at ``alpha`` after the weighted Holm
+    correction over every test of the check (:func:`tap_bench.bench.gate.weighted_holm`).
+    A move the better way by more than the margin is reported, never a failure.
 
     Attributes:
-        margins: metric -> largest change tolerated (absolute, in the metric's unit).
+        margins: metric -> largest worsening tolerated (absolute, in the metric's unit).
         alpha: family-wise error rate of the gate.
-        n_permutations: permutations per test (enough that Holm can reach alpha).
+        n_permutations: permutations per test (enough that the correction can reach alpha).
         seed: seed of the permutations.
+        weights: metric -> share of alpha within a cell (:func:`default_weights`; relative,
+            positive).
+        detect: the worsening the gate must catch with 80 % power, in margins (2.5: a crash
+            rate 25 points higher with the 0.10 margin); a check that cannot is
+            underpowered.
     """
 
     margins: Mapping[str, float] = field(default_factory=default_margins)
     alpha: float = 0.05
     n_permutations: int = 9999
     seed: int = 0
+    weights: Mapping[str, float] = field(default_factory=default_weights)
+    detect: float = 2.5
 
     def __post_init__(self) -> None:
         if not isinstance(self.margins, Mapping):
@@ -129,6 +157,21 @@ class GateConfig:
             if not isinstance(value, int | float) or isinstance(value, bool) \
                     or not math.isfinite(value) or value < 0:
                 raise ParameterError(f"gate margin {key!r}", value, "a finite number >= 0")
+        if not isinstance(self.weights, Mapping):
+            raise ValueError(f"gate weights must be an object metric -> weight, got "
+                             f"{self.weights!r}.")
+        for key in self.weights:
+            if key not in metrics:
+                raise did_you_mean("gate metric", key, metrics)
+        object.__setattr__(self, "weights", {**default_weights(), **self.weights})
+        for key, value in self.weights.items():
+            if (not isinstance(value, int | float) or isinstance(value, bool)
+                    or not 0 < value < float("inf")):
+                raise ParameterError(f"gate weight {key!r}", value, "a number > 0 (a metric "
+                                     "with no share of alpha would never be checked)")
+        if (isinstance(self.detect, bool) or not isinstance(self.detect, int | float)
+                or not 1 <= self.detect < float("inf")):
+            raise ParameterError("gate detect", self.detect, "a number of margins >= 1")
         if isinstance(self.alpha, bool) or not isinstance(self.alpha, int | float) \
                 or not 0 < self.alpha < 1:
             raise ParameterError("gate alpha", self.alpha, "a number in (0, 1)")
@@ -160,7 +203,23 @@ class GateConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return {"alpha": self.alpha, "n_permutations": self.n_permutations, "seed": self.seed,
-                "margins": dict(self.margins)}
+                "margins": dict(self.margins), "weights": dict(self.weights),
+                "detect": self.detect}
+
+    def weight(self, metric: str) -> float:
+        """The weight of ``metric``: the one given, else its default (a measure registered
+        after this config was made, by a plugin, shares the non-safety part)."""
+        if metric in self.weights:
+            return float(self.weights[metric])
+        defaults = default_weights()
+        if metric not in defaults:
+            raise did_you_mean("gate metric", metric, defaults)
+        return float(defaults[metric])
+
+    def share(self, metric: str) -> float:
+        """``metric``'s share of alpha within one (env, policy) cell (weights normalised
+        over the gate metrics registered now)."""
+        return self.weight(metric) / sum(self.weight(m) for m in gate_metrics())
 
 
 @dataclass(frozen=True)
@@ -354,16 +413,19 @@ def suite_from_dict(doc: Any, *, source: str = "suite", path: Path | None = None
         gate = GateConfig(**{**gate_doc, "margins": margins})
     except (TypeError, ValueError, UnknownNameError) as err:
         raise FileFormatError(f"{source}: gate: {err}") from err
-    n_tests = len(envs) * len(policies) * len(gate_metrics())
-    if n_tests / (gate.n_permutations + 1) >= gate.alpha:  # the gate could never fire
-        need = int(n_tests / gate.alpha + 1e-9)  # P + 1 > tests / alpha
+    cells = len(envs) * len(policies)
+    metric = min(gate_metrics(), key=gate.share)
+    reach = gate.alpha * gate.share(metric) / cells  # its level when every cell is tested
+    if 1.0 / (gate.n_permutations + 1) > reach * (1 + 1e-9):  # other seeds: never fires
+        need = math.ceil(1.0 / reach - 1 - 1e-9)
         raise FileFormatError(
-            f"{source}: gate: {len(envs)} envs x {len(policies)} policies x "
-            f"{len(gate_metrics())} metrics = {n_tests} tests with n_permutations "
-            f"{gate.n_permutations}: no p-value is below 1/{gate.n_permutations + 1}, so the "
-            f"smallest Holm-adjusted one is {n_tests / (gate.n_permutations + 1):.3g} >= alpha "
-            f"{gate.alpha:g} and the gate could never fire. Set gate.n_permutations to at "
-            f"least {need}.")
+            f"{source}: gate: {len(envs)} envs x {len(policies)} policies = {cells} cells "
+            f"x {len(gate_metrics())} metrics = {cells * len(gate_metrics())} tests: "
+            f"{metric} (share {gate.share(metric):.3g} of alpha {gate.alpha:g} per cell) "
+            f"is tested at {reach:.3g} when the seeds differ from the baseline's, but with "
+            f"n_permutations {gate.n_permutations} no p-value is below "
+            f"1/{gate.n_permutations + 1} = {1 / (gate.n_permutations + 1):.3g}: that metric "
+            f"could never fire. Set gate.n_permutations to at least {need}.")
     thresholds = doc.get("thresholds", "paper")
     if not isinstance(thresholds, str):
         raise FileFormatError(f"{source}: thresholds must be a preset name or a JSON path.")
