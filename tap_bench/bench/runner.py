@@ -5,9 +5,11 @@ What a run folder holds:
 
 ======================  ====================================================================
 ``summary.json``        suite, seeds, thresholds, level, versions, machine, timings, failed
-                        episodes, the interval methods, headline figures, and the
-                        provenance: each policy's full definition (with the SHA-256 of a
-                        model file) and each env's resolved config
+                        episodes, the interval methods, headline figures, the run's
+                        measure entries and plugins (what the report, the viewer and
+                        ``bench check`` read), and the provenance: each policy's full
+                        definition (with the SHA-256 of a model file) and each env's
+                        resolved config
 ``episodes.parquet``    the episode table (:mod:`tap_bench.bench.episodes`), failed
                         episodes included with their error
 ``labels.parquet``      TAP labels of every track at every level
