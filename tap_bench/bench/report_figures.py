@@ -32,9 +32,11 @@ def _plt():
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
+    # names in figures are the user's text, never matplotlib math: a policy called
+    # "a$b" or "$\\frac$" once crashed the report after the whole run
     plt.rcParams.update({"font.size": FONT_PT, "axes.titlesize": FONT_PT + 1,
                          "xtick.labelsize": FONT_PT, "ytick.labelsize": FONT_PT,
-                         "legend.fontsize": FONT_PT})
+                         "legend.fontsize": FONT_PT, "text.parse_math": False})
     return plt
 
 
@@ -160,31 +162,87 @@ def _coverage_plot(scores: Scores, folder: Path) -> Path | None:
 
 
 def _forest_plots(scores: Scores, folder: Path, level: float) -> list[Path]:
+    """Per pair of policies, one figure with a panel per env: the labels whose share of
+    seeds differs most in that env, with their intervals and the simultaneous band."""
     labels = scores.paired_labels
     out: list[Path] = []
     if labels.empty:
         return out
     plt = _plt()
-    for (a, b), sub in labels.groupby(["policy_a", "policy_b"], sort=True):
-        sub = _pooled(sub)
-        sub = sub.reindex(sub["diff"].abs().sort_values(ascending=False).index)[:TOP_LABELS]
-        names = [_wrap(t, 60) for t in sub["label"]]
-        lines = sum(n.count("\n") + 1 for n in names)
-        fig, ax = plt.subplots(figsize=(MAX_WIDTH_IN, 1.3 + 0.2 * lines + 0.1 * len(sub)),
-                               layout="constrained")
-        y = np.arange(len(sub))
-        ax.hlines(y, sub["band_low"] * 100, sub["band_high"] * 100, color="0.85", lw=7,
-                  label="simultaneous band")
-        _interval_plot(ax, names, sub["diff"] * 100, sub["diff_low"] * 100,
-                       sub["diff_high"] * 100, label=interval_heading(level))
-        ax.axvline(0, color="k", lw=0.8)
-        _fit(ax, sub["band_low"] * 100, sub["band_high"] * 100, floor=-100, ceil=100)
-        ax.invert_yaxis()
-        ax.set_xlabel(f"difference in the share of seeds [percentage points]: {a} minus {b}")
-        ax.set_title(f"{a} vs {b}, paired by seed (env: {sub['env'].iloc[0]})", loc="left")
-        ax.legend(loc="best")
+    per_env = max(4, TOP_LABELS // 2)
+    for (a, b), pair in labels.groupby(["policy_a", "policy_b"], sort=True):
+        envs = sorted(pair["env"].unique(), key=str)
+        panels = []
+        for env in envs:
+            sub = pair[pair["env"] == env]
+            sub = sub.reindex(sub["diff"].abs().sort_values(ascending=False).index)[:per_env]
+            panels.append((env, sub, [_wrap(t, 60) for t in sub["label"]]))
+        heights = [1.0 + 0.2 * sum(n.count("\n") + 1 for n in names) + 0.1 * len(sub)
+                   for _, sub, names in panels]
+        fig, axes = plt.subplots(len(panels), 1, figsize=(MAX_WIDTH_IN, 0.6 + sum(heights)),
+                                 layout="constrained", sharex=True,
+                                 gridspec_kw={"height_ratios": heights}, squeeze=False)
+        for ax, (env, sub, names) in zip(axes[:, 0], panels, strict=True):
+            y = np.arange(len(sub))
+            ax.hlines(y, sub["band_low"] * 100, sub["band_high"] * 100, color="0.85", lw=7,
+                      label="simultaneous band")
+            _interval_plot(ax, names, sub["diff"] * 100, sub["diff_low"] * 100,
+                           sub["diff_high"] * 100, label=interval_heading(level))
+            ax.axvline(0, color="k", lw=0.8)
+            ax.invert_yaxis()
+            ax.set_title(f"{env}", loc="left", fontsize="medium")
+        _fit(axes[0, 0], pair["band_low"] * 100, pair["band_high"] * 100, floor=-100, ceil=100)
+        axes[-1, 0].set_xlabel(f"difference in the share of seeds [percentage points]: {a} "
+                               f"minus {b}")
+        axes[0, 0].legend(loc="best", fontsize="small")
+        fig.suptitle(f"{a} vs {b}, paired by seed: the labels that differ most, per env",
+                     x=0.01, ha="left")
         out.append(_save(fig, folder / f"forest_{_slug(a)}_vs_{_slug(b)}.png"))
     return out
+
+
+def _tradeoff_plot(scores: Scores, reference: str, folder: Path) -> Path | None:
+    """Safety against progress per env: each policy's crash rate (Wilson interval) against
+    its mean speed (t interval); the reference's point marked."""
+    m = scores.measures
+    if m.empty or not {"crashed", "mean_speed"} <= set(m["measure"]):
+        return None
+    plt = _plt()
+    envs = sorted((e for e in m["env"].unique() if e != "all"), key=str)
+    if (m["env"] == "all").any() and len(envs) > 1:
+        envs.append("all")
+    cols = min(3, len(envs))
+    rows = -(-len(envs) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(MAX_WIDTH_IN, 2.6 * rows),
+                             layout="constrained", squeeze=False)
+    policies = sorted(m["policy"].unique())
+    for ax, env in zip(axes.ravel(), envs, strict=False):
+        sub = m[m["env"] == env]
+        for k, policy in enumerate(policies):
+            c = sub[(sub["policy"] == policy) & (sub["measure"] == "crashed")]
+            v = sub[(sub["policy"] == policy) & (sub["measure"] == "mean_speed")]
+            if c.empty or v.empty:
+                continue
+            c, v = c.iloc[0], v.iloc[0]
+            xerr = np.nan_to_num([[max(v["mean"] - v["low"], 0)], [max(v["high"] - v["mean"],
+                                                                       0)]])
+            yerr = np.nan_to_num([[max(c["mean"] - c["low"], 0) * 100],
+                                  [max(c["high"] - c["mean"], 0) * 100]])
+            ax.errorbar(v["mean"], c["mean"] * 100, xerr=xerr, yerr=yerr, fmt="o" if
+                        policy != reference else "s", color=f"C{k}", capsize=2, ms=5,
+                        label=policy)
+        ax.set_title("pooled" if env == "all" else env, loc="left", fontsize="medium")
+        ax.set_ylim(-3, 103)
+        ax.grid(alpha=0.3)
+    for ax in axes.ravel()[len(envs):]:
+        ax.axis("off")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("crash rate [%] (lower is safer)")
+    for ax in axes[-1, :]:
+        ax.set_xlabel("mean speed [m/s] (progress)")
+    handles, names = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, names, loc="outside right upper", fontsize="small")
+    return _save(fig, folder / "tradeoff.png")
 
 
 def _improvement_plot(scores: Scores, folder: Path) -> Path | None:
@@ -241,7 +299,8 @@ def write_plots(scores: Scores, folder: str | os.PathLike, *,
     (``level``: the run's interval level, for the legends).
 
     Per env: ``labels_<env>.png`` (label heat map) and ``measures_<env>.png``; pooled:
-    ``measures_all.png``, ``improvement.png``, ``coverage.png``, ``forest_<A>_vs_<B>.png``,
+    ``measures_all.png``, ``tradeoff.png`` (crash rate against mean speed, per env),
+    ``improvement.png``, ``coverage.png``, ``forest_<A>_vs_<B>.png`` (a panel per env),
     ``novelty.png``.
     """
     folder = Path(folder)
@@ -254,6 +313,7 @@ def write_plots(scores: Scores, folder: str | os.PathLike, *,
         paths.append(_measures_plot(scores, env, reference, folder))
     if len(envs) > 1:
         paths.append(_measures_plot(scores, "all", reference, folder))
-    paths += [_improvement_plot(scores, folder), _coverage_plot(scores, folder),
+    paths += [_tradeoff_plot(scores, reference, folder), _improvement_plot(scores, folder),
+              _coverage_plot(scores, folder),
               *_forest_plots(scores, folder, level), _novelty_plot(scores, folder)]
     return [p for p in paths if p is not None]

@@ -26,6 +26,7 @@ from tap_bench.errors import RegistrationError
 from tap_bench.execution import Backend
 from tap_bench.labelling import tap
 from tap_bench.sim.rollout import EPISODE_COLUMNS, rollout_episode
+from tap_bench.sim.womd_scene import WomdScenes
 
 
 def _prepare_worker(task: _Task) -> None:
@@ -44,11 +45,15 @@ def _prepare_worker(task: _Task) -> None:
             "worker imports it.")
 
 
-def _run_task(task: _Task) -> dict[str, Any]:
-    """Roll out (or read from the cache), label and measure one episode (in a worker)."""
+def _run_task(task: _Task, note: str | None = None) -> dict[str, Any]:
+    """Roll out (or read from the cache), label and measure one episode (in a worker).
+    ``note``: why a cache entry of this episode was refused already (in a batch)."""
     _prepare_worker(task)
     t0 = time.perf_counter()
-    cached = task.cache.get(task.key) if task.cache is not None and task.key else None
+    cached = None
+    if task.cache is not None and task.key:
+        cached, refused = task.cache.read(task.key)
+        note = note or refused
     if cached is not None:
         trajectories, row = cached.trajectories, cached.row
     else:
@@ -59,7 +64,7 @@ def _run_task(task: _Task) -> dict[str, Any]:
             with contextlib.suppress(OSError):  # a full or read-only cache costs only reuse
                 task.cache.put(task.key, task.key_doc or {}, trajectories, row,
                                time.perf_counter() - t0)
-    trajectories = trajectories.reset_index(drop=True)
+    trajectories = _run_ids(task, trajectories).reset_index(drop=True)
     episodes = pd.DataFrame([row], columns=list(EPISODE_COLUMNS))
     episodes["seed"] = episodes["seed"].astype(np.int64)
     t1 = time.perf_counter()
@@ -77,7 +82,17 @@ def _run_task(task: _Task) -> dict[str, Any]:
     timings = {"rollout": t1 - t0, "labelling": t2 - t1, "measures": t3 - t2}
     return {"episodes": eps, "labels": labels, "segments": segments,
             "trajectories": trajectories if task.keep_trajectories else None,
-            "timings": timings, "cached": cached is not None}
+            "timings": timings, "cached": cached is not None, "cache_note": note}
+
+
+def _run_ids(task: _Task, trajectories: pd.DataFrame) -> pd.DataFrame:
+    """A recorded scene's episode under an id of its own in the run: every policy drives the
+    same WOMD scenario, so its id becomes ``<WOMD id>/<policy>`` (the WOMD id kept in
+    ``womd_scenario_id``); synthetic episodes' ids already name the policy."""
+    if not isinstance(task.scenario, WomdScenes) or not len(trajectories):
+        return trajectories
+    womd = trajectories["scenario_id"].astype(str)
+    return trajectories.assign(scenario_id=womd + "/" + task.policy, womd_scenario_id=womd)
 
 
 def _failed_task(task: _Task, message: str) -> dict[str, Any]:
@@ -107,13 +122,15 @@ def _run_batch(batch: _CachedBatch) -> list[dict[str, Any]]:
     _prepare_worker(batch.tasks[0])
     t0 = time.perf_counter()
     first = batch.tasks[0]
-    entries = [task.cache.get(task.key) if task.cache is not None and task.key else None
-               for task in batch.tasks]
-    found = [(task, entry) for task, entry in zip(batch.tasks, entries, strict=True)
+    read = [task.cache.read(task.key) if task.cache is not None and task.key else (None, None)
+            for task in batch.tasks]
+    notes = {task.seed: note for task, (_, note) in zip(batch.tasks, read, strict=True)}
+    found = [(task, entry) for task, (entry, _) in zip(batch.tasks, read, strict=True)
              if entry is not None]
     results: dict[int, dict[str, Any]] = {}
     if found:
-        trajectories = pd.concat([e.trajectories for _, e in found], ignore_index=True)
+        tables = [_run_ids(task, e.trajectories) for task, e in found]
+        trajectories = pd.concat(tables, ignore_index=True)
         rows = pd.DataFrame([e.row for _, e in found], columns=list(EPISODE_COLUMNS))
         rows["seed"] = rows["seed"].astype(np.int64)
         t1 = time.perf_counter()
@@ -131,16 +148,17 @@ def _run_batch(batch: _CachedBatch) -> list[dict[str, Any]]:
                       for name, table in (("labels", labels), ("segments", segments),
                                           ("trajectories", trajectories))}
         eps_by_seed = _split(eps, "seed")
-        for task, entry in found:
-            sid = entry.trajectories["scenario_id"].iat[0]
+        for (task, _), table in zip(found, tables, strict=True):
+            sid = table["scenario_id"].iat[0]
             results[task.seed] = {
                 "episodes": eps_by_seed[task.seed],
                 "labels": by_episode["labels"].get(sid, pd.DataFrame()),
                 "segments": by_episode["segments"].get(sid, pd.DataFrame()),
                 "trajectories": by_episode["trajectories"][sid]
                 if task.keep_trajectories else None,
-                "timings": dict(share), "cached": True}
-    return [results.get(task.seed) or _run_task(task) for task in batch.tasks]
+                "timings": dict(share), "cached": True, "cache_note": None}
+    return [results.get(task.seed) or _run_task(task, notes[task.seed])
+            for task in batch.tasks]
 
 
 def _split(table: pd.DataFrame, column: str) -> dict[Any, pd.DataFrame]:

@@ -46,6 +46,7 @@ import contextlib
 import math
 import os
 import time
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,6 +55,7 @@ from typing import Any
 import pandas as pd
 
 from tap_bench.bench.cache import EpisodeCache
+from tap_bench.bench.episodes import one_outcome_cells
 from tap_bench.bench.power import power_table
 from tap_bench.bench.run_folder import (
     _machine,
@@ -78,13 +80,15 @@ from tap_bench.bench.run_tasks import CACHED_BATCH, _observed_timings, _rollouts
 from tap_bench.bench.scenarios import match_scenarios
 from tap_bench.bench.scoring import Scores, score
 from tap_bench.bench.suite import Suite
+from tap_bench.bench.verdict import verdict_table
 from tap_bench.errors import (
+    CacheEntryWarning,
     EpisodesFailedError,
+    OutputPathError,
     ParameterError,
     RunExistsError,
 )
 from tap_bench.execution import Backend, resolve_backend
-from tap_bench.sim.roads import road_table
 
 __all__ = ["CACHED_BATCH", "CACHED_EPISODE_S", "RunExistsError", "RunPlan", "RunResult",
            "SuitePlan", "plan_suite",
@@ -109,6 +113,20 @@ class RunResult:
     episodes: pd.DataFrame
     scores: Scores
     report: Path
+
+
+def _check_apart(output: Path, cache_root: Path) -> None:
+    """The run folder and the episode cache must not hold one another: ``--overwrite``
+    would delete the cache with the run, or the cache's files would fill the run folder.
+
+    Raises:
+        OutputPathError: naming both folders.
+    """
+    out, root = Path(output).resolve(), Path(cache_root).expanduser().resolve()
+    if out == root or root in out.parents or out in root.parents:
+        raise OutputPathError(f"{output}: the run folder and the episode cache ({cache_root}) "
+                              "overlap; give the run folder (-o) and the cache (--cache) "
+                              "separate places.")
 
 
 def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
@@ -165,6 +183,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     suite, thresholds = plan.suite, plan.thresholds
     if cache is not None and not isinstance(cache, EpisodeCache):
         cache = EpisodeCache(Path(cache))
+    if cache is not None:
+        _check_apart(output, cache.root)
     runner = resolve_backend(backend, workers)
     timings: dict[str, float] = {}
     t_start = time.perf_counter()
@@ -184,11 +204,20 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     results, estimate = _rollouts(plan, runner, keep_trajectories or with_trajectories,
                                   progress, cache, announce)
     timings["rollouts_wall"] = time.perf_counter() - t0
+    if announce is not None:
+        announce(f"episodes done ({timings['rollouts_wall']:.0f} s); scoring ...")
     if not any((r["episodes"]["status"] == "ok").all() for r in results):
         errors = [f"{row.env} {row.policy} seed {row.seed}: {row.error}"
                   for r in results for row in r["episodes"].itertuples()]
         raise EpisodesFailedError(f"the {len(results)} episode(s) of suite {suite.name}",
                                   errors)
+    refused = [r["cache_note"] for r in results if r.get("cache_note")]
+    for note in refused[:5]:
+        warnings.warn(f"{note}; its episode was simulated again.", CacheEntryWarning,
+                      stacklevel=2)
+    if len(refused) > 5:
+        warnings.warn(f"{len(refused) - 5} more cache entries refused and simulated again "
+                      "(summary.json lists them all).", CacheEntryWarning, stacklevel=2)
     for key in ("rollout", "labelling", "measures"):
         timings[f"{key}_cpu_in_workers"] = sum(r["timings"].get(key, 0.0) for r in results)
     episodes = pd.concat([r["episodes"] for r in results], ignore_index=True)
@@ -235,7 +264,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "format": "tap-bench-run", "format_version": 1,
         "run": output.name, "created": time.strftime("%Y-%m-%d %H:%M:%S"),
         "suite": suite.to_dict(), "suite_file": str(suite.path) if suite.path else None,
-        "level": suite.level, "seeds": list(suite.seeds),
+        "level": suite.level,
+        "seeds": "all" if suite.all_seeds else list(suite.seeds),
         "thresholds": thresholds.to_dict() if hasattr(thresholds, "to_dict") else
         str(suite.thresholds),
         "reference_policy": suite.reference,
@@ -245,6 +275,9 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "failed": failed[["env", "policy", "seed", "error"]].to_dict("records"),
         "methods": scores.methods,
         "headline": _headline(scores, episodes),
+        "one_outcome_cells": one_outcome_cells(episodes).to_dict("records"),
+        "verdict": verdict_table(scores.paired_measures, scores.paired,
+                                 scores.paired_labels).to_dict("records"),
         "provenance": provenance(plan),
         "measures": [m.to_dict() for m in plan.measures],
         "plugins": list(plan.plugins),
@@ -253,13 +286,16 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
                      "overhead": _round(estimate.overhead_seconds), "basis": estimate.basis},
         "cache": None if cache is None else {
             "dir": str(cache.root), "cached": sum(r["cached"] for r in results),
-            "simulated": sum(not r["cached"] for r in results)},
+            "simulated": sum(not r["cached"] for r in results),
+            "refused": refused},
     }
+    if announce is not None:
+        announce(f"scored ({timings['scoring']:.1f} s); writing the tables"
+                 + (", plots, report and replay viewer" if report else "") + " ...")
     t0 = time.perf_counter()
     roads = None
     if keep_trajectories:  # the replay viewer draws them; highway-env's road is seed-free
-        roads = pd.concat([road_table(plan.scenarios[env]) for env in suite.envs],
-                          ignore_index=True)
+        roads = pd.concat([suite.road(env) for env in suite.envs], ignore_index=True)
     folder = write_results(output, overwrite, summary, episodes, labels, trajectories
                            if keep_trajectories else None, scores, report,
                            segments=segments, roads=roads)
@@ -274,3 +310,4 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
             cache.record_timings(simulated, cached, overhead)
             cache.prune()
     return RunResult(folder, summary, episodes, scores, folder / "report.html")
+

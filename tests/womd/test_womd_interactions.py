@@ -13,14 +13,10 @@ FILES = ("motion_data_one_scenario.tfrecord", "womd_scenario_input.tfrecord",
 
 
 @pytest.fixture(scope="module")
-def relations():
+def relations(womd_dir):
     from tap_bench.sources.ingest import read_womd
 
-    from .conftest import WOMD_DIR
-
-    if not (WOMD_DIR / FILES[0]).is_file():
-        pytest.skip(f"real WOMD samples not found in {WOMD_DIR}")
-    table = read_womd([WOMD_DIR / f for f in FILES])
+    table = read_womd([womd_dir / f for f in FILES])
     segs = tap(table, interactions="all").segments("maneuver")
     return segs[segs["axis"] == "interaction"]
 
