@@ -31,6 +31,7 @@ __all__ = [
     "RegistrationError",
     # warnings
     "ShortSegmentWarning",
+    "ResampledWarning",
     "FitWarning",
     "EpisodeFailedWarning",
     "UntrustedModelWarning",
