@@ -79,10 +79,50 @@ def _run_task(task: _Task, note: str | None = None) -> dict[str, Any]:
                         trajectories=trajectories if len(trajectories) else None,
                         episodes=episodes, level=task.level, policy=task.policy)
     t3 = time.perf_counter()
+    if row["status"] == "ok":
+        _store_labels(task, eps, labels, segments)
     timings = {"rollout": t1 - t0, "labelling": t2 - t1, "measures": t3 - t2}
     return {"episodes": eps, "labels": labels, "segments": segments,
             "trajectories": trajectories if task.keep_trajectories else None,
             "timings": timings, "cached": cached is not None, "cache_note": note}
+
+
+LABEL_TABLES = ("episodes", "labels", "segments")
+"""An episode's tables kept beside it in the cache (:meth:`EpisodeCache.put_labels`): its
+row of the episode table (measures included), its labels at every level and its segments
+at the suite's level."""
+
+
+def _store_labels(task: _Task, eps: pd.DataFrame, labels: pd.DataFrame,
+                  segments: pd.DataFrame) -> None:
+    """Keep one episode's labels and measures in the cache, so that a re-run only scores."""
+    if task.cache is None or not task.label_key:
+        return
+    with contextlib.suppress(OSError):  # a full or read-only cache costs only reuse
+        task.cache.put_labels(task.label_key, task.label_doc or {},
+                              dict(zip(LABEL_TABLES, (eps, labels, segments), strict=True)))
+
+
+def _from_label_cache(task: _Task) -> dict[str, Any] | None:
+    """One episode's result read whole from the cache: its labels and measures and, when the
+    run keeps them, its trajectories; None when any part is missing or refused (then the
+    episode goes the usual way). Equal to what :func:`_run_task` gives."""
+    if task.cache is None or not task.label_key:
+        return None
+    t0 = time.perf_counter()
+    tables, note = task.cache.read_labels(task.label_key)
+    if tables is None or set(tables) != set(LABEL_TABLES):
+        return None if note is None else {"cache_note": note}
+    trajectories = None
+    if task.keep_trajectories:
+        entry, note = task.cache.read(task.key)
+        if entry is None:
+            return None if note is None else {"cache_note": note}
+        trajectories = _run_ids(task, entry.trajectories).reset_index(drop=True)
+    return {"episodes": tables["episodes"], "labels": tables["labels"],
+            "segments": tables["segments"], "trajectories": trajectories,
+            "timings": {"rollout": time.perf_counter() - t0}, "cached": True,
+            "labels_cached": True, "cache_note": None}
 
 
 def _run_ids(task: _Task, trajectories: pd.DataFrame) -> pd.DataFrame:
@@ -150,10 +190,12 @@ def _run_batch(batch: _CachedBatch) -> list[dict[str, Any]]:
         eps_by_seed = _split(eps, "seed")
         for (task, _), table in zip(found, tables, strict=True):
             sid = table["scenario_id"].iat[0]
+            mine = {"episodes": eps_by_seed[task.seed],
+                    "labels": by_episode["labels"].get(sid, pd.DataFrame()),
+                    "segments": by_episode["segments"].get(sid, pd.DataFrame())}
+            _store_labels(task, mine["episodes"], mine["labels"], mine["segments"])
             results[task.seed] = {
-                "episodes": eps_by_seed[task.seed],
-                "labels": by_episode["labels"].get(sid, pd.DataFrame()),
-                "segments": by_episode["segments"].get(sid, pd.DataFrame()),
+                **mine,
                 "trajectories": by_episode["trajectories"][sid]
                 if task.keep_trajectories else None,
                 "timings": dict(share), "cached": True, "cache_note": None}
@@ -200,16 +242,25 @@ def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
     from the cache's timings or from a first episode of each env without one."""
     tasks = _tasks(suite_plan, keep, cache)
     suite = suite_plan.suite
-    cached = [cache is not None and t.key is not None and cache.contains(t.key)
-              for t in tasks]
+    results: dict[int, dict[str, Any]] = {}
+    seconds: dict[int, float] = {}
+    notes: dict[int, str] = {}
+    for i, task in enumerate(tasks):  # labelled before: read here, no worker needed
+        t0 = time.perf_counter()
+        hit = _from_label_cache(task)
+        if hit is not None and "episodes" in hit:
+            results[i] = hit
+            seconds[i] = time.perf_counter() - t0
+        elif hit is not None:
+            notes[i] = hit["cache_note"]
+    cached = [i in results or (cache is not None and t.key is not None
+                               and cache.contains(t.key)) for i, t in enumerate(tasks)]
     known = cache.timings() if cache is not None else {}
     probes, seen = [], set(known.get("simulated", {}))
     for i, (task, hit) in enumerate(zip(tasks, cached, strict=True)):
         if announce is not None and not hit and task.env not in seen:  # no one to tell: no probe
             probes.append(i)
             seen.add(task.env)
-    results: dict[int, dict[str, Any]] = {}
-    seconds: dict[int, float] = {}
     measured: dict[str, float] = {}
     if probes:
         if announce is not None:
@@ -225,7 +276,8 @@ def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
         announce(plan.describe(suite.name))
     items = _items(tasks, [i for i in range(len(tasks)) if i not in results], cached)
     outcomes = backend.map(_run_item, [item for _, item in items], unit="task",
-                           progress=progress, desc=f"bench {suite.name} ({backend.name})")
+                           progress=progress, desc=f"bench {suite.name} ({backend.name})"
+                           ) if items else []
     for (indices, _), outcome in zip(items, outcomes, strict=True):
         values = outcome.value if outcome.ok else [
             _failed_task(tasks[i], outcome.error) for i in indices]
@@ -236,6 +288,8 @@ def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
     for i, result in enumerate(out):
         result["seconds"] = seconds[i]
         result["env"] = tasks[i].env
+        if i in notes and not result.get("cache_note"):
+            result["cache_note"] = notes[i]
     return out, plan
 
 

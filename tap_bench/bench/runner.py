@@ -5,9 +5,11 @@ What a run folder holds:
 
 ======================  ====================================================================
 ``summary.json``        suite, seeds, thresholds, level, versions, machine, timings, failed
-                        episodes, the interval methods, headline figures, and the
-                        provenance: each policy's full definition (with the SHA-256 of a
-                        model file) and each env's resolved config
+                        episodes, the interval methods, headline figures, the run's
+                        measure entries and plugins (what the report, the viewer and
+                        ``bench check`` read), and the provenance: each policy's full
+                        definition (with the SHA-256 of a model file) and each env's
+                        resolved config
 ``episodes.parquet``    the episode table (:mod:`tap_bench.bench.episodes`), failed
                         episodes included with their error
 ``labels.parquet``      TAP labels of every track at every level
@@ -34,8 +36,10 @@ then recorded as failed: one bad episode never costs another. A run where every 
 failed is an error (:class:`~tap_bench.errors.EpisodesFailedError`), not an empty result.
 
 With an episode cache (:mod:`tap_bench.bench.cache`), an episode whose inputs did not change
-is read instead of simulated; labels, measures and scores are always recomputed, so a run
-with the cache gives the same tables as one without. Before the episodes start, the run
+is read instead of simulated, and its labels and measures too when they were made with the
+same thresholds, level and code (those episodes are read in this process: no worker
+starts for them); scores are always recomputed, and a run with the cache gives the same
+tables as one without, float for float. Before the episodes start, the run
 estimates how long it will take, from the cache's timings of earlier runs or by timing a
 first episode of each env.
 """
@@ -195,7 +199,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
                                  "when womd= is given (womd= is references={'WOMD': ...})")
         sources["WOMD"] = list(womd)
     t0 = time.perf_counter()
-    corpora = {name: _reference(name, source, suite) for name, source in sources.items()}
+    corpora = {name: _reference(name, source, suite.level, thresholds)
+               for name, source in sources.items()}
     if corpora:
         timings["references"] = time.perf_counter() - t0
     with_trajectories = any(traj is not None for traj, _ in corpora.values())
@@ -256,7 +261,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
             f"{', '.join(unmatched)}: the data marks no ego vehicle (is_ego), so its "
             "scenarios cannot be matched by what happens around the ego; coverage and "
             "novelty use all its vehicles")
-    scores = _with_gaps(scores, corpora, labels, episodes, suite)
+    scores = _with_gaps(scores, corpora, labels, episodes, suite.level, thresholds,
+                        suite.bootstrap)
     timings["scoring"] = time.perf_counter() - t0
 
     failed = episodes[episodes["status"] != "ok"]
@@ -287,6 +293,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "cache": None if cache is None else {
             "dir": str(cache.root), "cached": sum(r["cached"] for r in results),
             "simulated": sum(not r["cached"] for r in results),
+            "labelled_before": sum(bool(r.get("labels_cached")) for r in results),
             "refused": refused},
     }
     if announce is not None:
