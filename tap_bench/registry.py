@@ -1,4 +1,5 @@
-"""One small registry class for everything users add: measures, data formats, policy kinds.
+"""One small registry class for everything users add: measures, data formats, policy kinds,
+scenario kinds.
 
 A :class:`Registry` holds named entries in registration order. It refuses a name registered
 twice (a second registration is a mistake, never a silent override: waymax's
@@ -10,7 +11,9 @@ The registries built on it:
 
 - :data:`tap_bench.bench.measures.MEASURES`: the ego's safety and efficiency measures;
 - :data:`tap_bench.sources.registry.READERS`: the driving-data formats;
-- :data:`tap_bench.sim.policies.POLICY_KINDS`: the ``kind`` a policy file can name.
+- :data:`tap_bench.sim.policies.POLICY_KINDS`: the ``kind`` a policy file can name;
+- :data:`tap_bench.sim.schema.SCENARIO_KINDS`: the environments a scenario file's
+  ``highway_env_id`` can name (highway-env's ids, filled on first use).
 
 Entries exist in the process that registered them. To have them in every process of a run
 (worker processes, Ray workers), name the modules that register them as plugins

@@ -17,19 +17,24 @@ import contextlib
 import copy
 import functools
 import hashlib
+import importlib
 import importlib.util
 import inspect
 import json
 import os
 import tempfile
+from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 from typing import Any
 
 from tap_bench import catalogue
-from tap_bench.errors import ParameterError, did_you_mean
+from tap_bench.errors import ParameterError, RegistrationError
+from tap_bench.registry import Registry
+from tap_bench.sim.registration import WOMD_ENV_ID
 
-__all__ = ["SPACES", "default_config", "space_parameters"]
+__all__ = ["SCENARIO_KINDS", "SPACES", "ScenarioKind", "check_scenario_kind", "default_config",
+           "env_class", "scenario_kinds", "space_parameters"]
 
 SPACES = ("observation", "action")
 """The config keys whose value is a highway-env type with parameters."""
@@ -164,19 +169,81 @@ def _init_parameters(cls: type) -> set[str]:
     return names | {"type"}
 
 
-def env_class(highway_env_id: str) -> type:
-    """The environment class behind a highway-env Gymnasium id."""
-    import gymnasium
-    import highway_env  # noqa: F401  (registers the highway-env ids)
+@dataclass(frozen=True)
+class ScenarioKind:
+    """An environment a scenario file's ``highway_env_id`` may name.
 
-    try:
-        spec = gymnasium.spec(highway_env_id)
-    except gymnasium.error.Error as err:
-        known = [k for k in gymnasium.registry
-                 if gymnasium.registry[k].entry_point.__str__().startswith("highway_env")]
-        raise did_you_mean("highway-env id", highway_env_id, known) from err
-    entry = spec.entry_point
-    if callable(entry):
-        return entry
-    module, _, name = entry.partition(":")
-    return getattr(__import__(module, fromlist=[name]), name)
+    Args:
+        name: the Gymnasium id (``"highway-v0"``).
+        entry_point: ``"module:Class"`` of the environment class; it is built with
+            ``Class(config=..., render_mode=...)`` and must have ``default_config()``.
+        description: where it comes from, for messages and listings.
+        configurable: False for an environment a scenario file cannot configure (it takes
+            no highway-env config); naming it is refused with ``description`` as the fix.
+    """
+
+    name: str
+    entry_point: str
+    description: str = ""
+    configurable: bool = True
+
+
+def check_scenario_kind(kind: ScenarioKind) -> None:
+    """Refuse an entry whose environment workers could not import by name.
+
+    Raises:
+        RegistrationError: ``entry_point`` is not a ``"module:attribute"`` string.
+    """
+    module, _, attr = str(kind.entry_point).partition(":")
+    if not isinstance(kind.entry_point, str) or not module or not attr:
+        raise RegistrationError(
+            f"scenario kind {kind.name!r}: entry_point must be 'module:attribute' (got "
+            f"{kind.entry_point!r}), so that every worker process can import the environment.")
+
+
+SCENARIO_KINDS: Registry[ScenarioKind] = Registry("scenario kind (highway_env_id)",
+                                                  check=check_scenario_kind)
+"""The environments a scenario file may name; filled with highway-env's Gymnasium ids (and
+``tap_bench/womd-v0``, which cannot be configured by a file) by :func:`scenario_kinds`.
+Plugins add their own with ``SCENARIO_KINDS.register(ScenarioKind(...))``."""
+_FILLED = False
+
+
+def scenario_kinds() -> Registry[ScenarioKind]:
+    """:data:`SCENARIO_KINDS`, first filled with every Gymnasium id whose entry point is in
+    highway-env (importing highway-env: about a second, once per process) and with
+    ``tap_bench/womd-v0`` when it is registered."""
+    global _FILLED
+    if not _FILLED:
+        import gymnasium
+        import highway_env  # noqa: F401  (registers the highway-env ids)
+
+        for key, spec in gymnasium.registry.items():
+            entry = spec.entry_point
+            if key in SCENARIO_KINDS or not isinstance(entry, str):
+                continue
+            if entry.startswith("highway_env"):
+                SCENARIO_KINDS.register(ScenarioKind(key, entry, "highway-env"))
+            elif key == WOMD_ENV_ID:
+                SCENARIO_KINDS.register(ScenarioKind(
+                    key, entry, configurable=False, description=(
+                        "recorded WOMD scenes in closed loop take driving-data files, not a "
+                        "highway-env config: run them with `tap-bench rollout --womd FILES` or "
+                        "a suite's womd scenes, and name a highway-env id here")))
+        _FILLED = True
+    return SCENARIO_KINDS
+
+
+def env_class(highway_env_id: str) -> type:
+    """The environment class behind a scenario kind (:func:`scenario_kinds`).
+
+    Raises:
+        UnknownNameError: not a scenario kind (with the closest names).
+        ParameterError: a kind a scenario file cannot configure (``tap_bench/womd-v0``).
+    """
+    kind = scenario_kinds()[highway_env_id]
+    if not kind.configurable:
+        raise ParameterError("highway_env_id", highway_env_id, "a highway-env id",
+                             message=f"highway_env_id {highway_env_id!r}: {kind.description}.")
+    module, _, name = kind.entry_point.partition(":")
+    return getattr(importlib.import_module(module), name)

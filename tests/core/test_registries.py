@@ -1,5 +1,5 @@
-"""One Registry class for measures, formats and policy kinds; the public checkers run over
-every built-in entry and refuse broken ones with the reason."""
+"""One Registry class for measures, formats, policy kinds and scenario kinds; the public
+checkers run over every built-in entry and refuse broken ones with the reason."""
 
 from __future__ import annotations
 
@@ -10,9 +10,16 @@ import numpy as np
 import pytest
 
 from tap_bench.bench.measures import MEASURES, SCENE_MEASURES, Measure, check_measure
-from tap_bench.errors import RegistrationError, UnknownNameError
+from tap_bench.errors import ParameterError, RegistrationError, UnknownNameError
 from tap_bench.registry import Registry
 from tap_bench.sim.policies import POLICY_KINDS, PolicyKind, register_policy_kind
+from tap_bench.sim.schema import (
+    SCENARIO_KINDS,
+    ScenarioKind,
+    check_scenario_kind,
+    env_class,
+    scenario_kinds,
+)
 from tap_bench.sources import READERS, Reader, check_reader
 
 
@@ -42,9 +49,9 @@ def test_a_registry_keeps_order_refuses_duplicates_and_suggests_names():
     assert reg.names() == ("beta", "gamma") and reg.get("alpha") is None
 
 
-def test_the_three_registries_are_the_one_class():
+def test_the_registries_are_the_one_class():
     assert all(isinstance(r, Registry) for r in (MEASURES, SCENE_MEASURES, READERS,
-                                                 POLICY_KINDS))
+                                                 POLICY_KINDS, SCENARIO_KINDS))
 
 
 @pytest.mark.parametrize("measure", [*MEASURES, *SCENE_MEASURES], ids=lambda m: m.name)
@@ -136,3 +143,38 @@ def test_check_policy_refuses_a_policy_that_ignores_its_seed():
         check_policy(Unseeded(), "highway", seed=0, duration=3.0)
     with pytest.raises(RegistrationError, match="not a Policy"):
         check_policy(object(), "highway")
+
+
+def test_scenario_kinds_hold_highway_env_ids_and_womd_and_suggest_names():
+    import gymnasium
+
+    kinds = scenario_kinds()
+    assert kinds is SCENARIO_KINDS
+    highway = {k for k, spec in gymnasium.registry.items()
+               if str(spec.entry_point).startswith("highway_env")}
+    assert highway and highway <= set(kinds.names()) and "highway-v0" in kinds
+    for kind in kinds:
+        check_scenario_kind(kind)
+        if kind.configurable:
+            assert isinstance(env_class(kind.name), type), kind.name
+    assert env_class("highway-v0").__name__ == "HighwayEnv"
+    with pytest.raises(UnknownNameError, match="Did you mean 'highway-v0'"):
+        env_class("higway-v0")
+    if "tap_bench/womd-v0" in gymnasium.registry:
+        assert not kinds["tap_bench/womd-v0"].configurable
+        with pytest.raises(ParameterError, match="rollout --womd"):
+            env_class("tap_bench/womd-v0")
+
+
+def test_scenario_kinds_refuse_duplicates_and_entry_points_workers_cannot_import():
+    scenario_kinds()
+    with pytest.raises(RegistrationError, match="module:attribute"):
+        SCENARIO_KINDS.register(ScenarioKind("mine-v0", "not a name"))
+    with pytest.raises(RegistrationError, match="already registered"):
+        SCENARIO_KINDS.register(ScenarioKind("highway-v0", "highway_env.envs:HighwayEnv"))
+    assert "mine-v0" not in SCENARIO_KINDS
+    SCENARIO_KINDS.register(ScenarioKind("mine-v0", "highway_env.envs:HighwayEnv", "a plugin"))
+    try:
+        assert env_class("mine-v0").__name__ == "HighwayEnv"
+    finally:
+        SCENARIO_KINDS.unregister("mine-v0")
