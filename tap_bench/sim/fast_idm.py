@@ -44,6 +44,9 @@ _METHODS = ("act", "follow_road", "change_lane_policy", "mobil", "steering_contr
             "acceleration", "desired_gap", "lane_distance_to")
 """The methods of IDMVehicle that :func:`act_all` stands in for (or runs)."""
 
+_INSTANCE_OVERRIDES = frozenset(_METHODS) | {"velocity", "direction"}
+"""Attributes that, set on an instance, make it act differently from the class."""
+
 _CONSTANTS = attrgetter("KP_LATERAL", "KP_HEADING", "LENGTH", "MAX_STEERING_ANGLE",
                         "ACC_MAX", "COMFORT_ACC_MAX", "COMFORT_ACC_MIN", "DELTA",
                         "DISTANCE_WANTED", "TIME_WANTED")
@@ -55,14 +58,16 @@ _EPS = 1e-2  # highway_env.utils.not_zero's epsilon
 
 @functools.cache
 def _plain_class(cls: type) -> bool:
-    return all(getattr(cls, name) is getattr(IDMVehicle, name) for name in _METHODS)
+    return (all(getattr(cls, name) is getattr(IDMVehicle, name) for name in _METHODS)
+            and _standard_velocity(cls))
 
 
 def is_plain_idm(vehicle: Any) -> bool:
     """Whether ``vehicle`` acts exactly as highway-env's IDMVehicle: that class or a subclass
     (with other constants) that changes none of its decision methods, on the class or on the
-    instance."""
-    return _plain_class(type(vehicle)) and not (vars(vehicle).keys() & _METHODS)
+    instance), and whose own ``velocity`` and ``direction`` are highway-env's (``desired_gap``
+    reads them; :func:`act_all` computes them from speed and heading)."""
+    return _plain_class(type(vehicle)) and not (vars(vehicle).keys() & _INSTANCE_OVERRIDES)
 
 
 @functools.cache

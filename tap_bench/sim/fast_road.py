@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 from highway_env.road.lane import StraightLane
 from highway_env.road.road import Road
-from highway_env.vehicle.objects import Landmark
+from highway_env.vehicle.objects import Landmark, RoadObject
 
 from tap_bench.sim.fast_idm import act_all, array_kernels_agree
 
@@ -130,6 +130,10 @@ class FastRoad:
         """highway-env's ``Road.step``: move every vehicle by ``dt`` [s], then check the
         pairs in which a vehicle checks collisions, in highway-env's order."""
         vehicles, objects = self.road.vehicles, self.road.objects
+        if not all(map(_standard_collisions, vehicles + objects)):
+            # a class with its own collision rule: every pair, as highway-env does
+            Road.step(self.road, dt)
+            return
         for vehicle in vehicles:
             vehicle.step(dt)
         near = _near_pairs(vehicles, objects, dt)
@@ -224,6 +228,16 @@ class FastRoad:
             if sv < s and (s_rear is None or sv > s_rear):
                 s_rear, v_rear = sv, v
         return v_front, v_rear
+
+
+def _standard_collisions(obj: Any) -> bool:
+    """Whether ``obj`` checks collisions with highway-env's own rule
+    (``RoadObject.handle_collisions`` and ``_is_colliding``, on neither its class nor the
+    instance replaced): the rule the pair pruning of :meth:`FastRoad.step` assumes."""
+    cls = type(obj)
+    return (getattr(cls, "handle_collisions", None) is RoadObject.handle_collisions
+            and getattr(cls, "_is_colliding", None) is RoadObject._is_colliding
+            and not {"handle_collisions", "_is_colliding"} & vars(obj).keys())
 
 
 def _near_pairs(vehicles: list[Any], objects: list[Any], dt: float) -> np.ndarray | None:

@@ -17,9 +17,11 @@ from tap_bench.sim.idm import IDMParameters, take_over_ego
 
 
 def _episodes(name: str, *, fast_road: bool, fast: bool = False, seeds=(0, 1),
-              idm_ego: IDMParameters | None = None, **config) -> pd.DataFrame:
+              idm_ego: IDMParameters | None = None, others: type | None = None,
+              **config) -> pd.DataFrame:
     """Every vehicle's state after every decision, with the ego's reward and observation
-    (``idm_ego``: the ego is an IDM/MOBIL vehicle with these parameters)."""
+    (``idm_ego``: the ego is an IDM/MOBIL vehicle with these parameters; ``others``: the
+    class the other vehicles are given after the reset)."""
     env = make_env(name, config=config or None, duration=8, record=not fast, fast=fast)
     rows = []
     for seed in seeds:
@@ -27,6 +29,9 @@ def _episodes(name: str, *, fast_road: bool, fast: bool = False, seeds=(0, 1),
         if idm_ego is not None:
             take_over_ego(env, idm_ego)
         road = env.unwrapped.road
+        if others is not None:
+            for vehicle in road.vehicles[1:]:
+                vehicle.__class__ = others
         if not fast_road:  # back to highway-env's own methods
             for method in ("act", "step", "neighbour_vehicles"):
                 vars(road).pop(method, None)
@@ -59,6 +64,45 @@ def test_scenarios_simulate_bit_for_bit_as_with_highway_envs_road(name, fast, co
     pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
     if name == "highway" and not fast:
         assert ours[8].any()  # crashes happen in these episodes: collisions are compared
+
+
+class _SlipIDM(IDMVehicle):
+    """A user's vehicle whose velocity has a slip angle (desired_gap reads it)."""
+
+    @property
+    def velocity(self) -> np.ndarray:
+        return self.speed * np.array([np.cos(self.heading + 0.05), np.sin(self.heading + 0.05)])
+
+
+class _TurnedIDM(IDMVehicle):
+    """A user's vehicle whose direction is not its heading's (desired_gap projects on it)."""
+
+    @property
+    def direction(self) -> np.ndarray:
+        return np.array([np.cos(self.heading - 0.1), np.sin(self.heading - 0.1)])
+
+
+class _BubbleIDM(IDMVehicle):
+    """A user's vehicle with its own collision rule: a crash within its length + 6 m."""
+
+    def _is_colliding(self, other, dt):
+        if np.linalg.norm(other.position - self.position) < self.LENGTH + 6:
+            return True, False, np.zeros(2)
+        return False, False, np.zeros(2)
+
+
+@pytest.mark.parametrize("fast", [False, True])
+@pytest.mark.parametrize("others", [_SlipIDM, _TurnedIDM, _BubbleIDM])
+def test_user_vehicle_classes_simulate_as_with_highway_envs_road(others, fast):
+    """A class that changes what the fast paths compute themselves (its own velocity or
+    direction, its own collision rule) is left to highway-env: the same states and crashes."""
+    ours = _episodes("highway", fast_road=True, fast=fast, others=others,
+                     vehicles_count=30)
+    theirs = _episodes("highway", fast_road=False, fast=fast, others=others,
+                       vehicles_count=30)
+    pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
+    if others is _BubbleIDM:
+        assert ours[8].any() and not ours[8].all()
 
 
 @pytest.mark.parametrize(("name", "params"), [
