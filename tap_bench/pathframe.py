@@ -175,8 +175,7 @@ def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, sp
     new_path = np.zeros(len(ego_row), bool)
     new_path[first_step] = True
     step_len = np.where(new_path[1:], 0.0, step_len)
-    arc = np.concatenate([[0.0], np.cumsum(step_len)]) if len(ego_row) else np.zeros(0)
-    arc = arc - np.repeat(arc[first_step], length)
+    arc = _path_arc(step_len, first_step, length)
     # keep a vertex when its arc length enters a new spacing bin, and every path's ends
     bins = np.floor(arc / spacing)
     keep = np.ones(len(ego_row), bool)
@@ -208,6 +207,19 @@ def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, sp
     vy[front] = y[last_step, None] + ext[None, :] * np.sin(he)[:, None]
     vs[front] = arc[last_step, None] + ext[None, :]
     return vx, vy, vs, first, count, arc
+
+
+def _path_arc(step_len: np.ndarray, first_step: np.ndarray, length: np.ndarray
+              ) -> np.ndarray:
+    """(m,) arc length [m] of each ego step along its own path: the running sum of
+    ``step_len`` (m - 1,) (the length of the step into each next row) restarted at 0 at
+    every path's first step. Each path is summed on its own, so a path's arc lengths are
+    the same bits whichever paths come before it in the table (a batch of episodes or one)."""
+    arc = np.zeros(int(length.sum()))
+    for first, n in zip(first_step.tolist(), length.tolist(), strict=True):
+        if n > 1:
+            np.cumsum(step_len[first:first + n - 1], out=arc[first + 1:first + n])
+    return arc
 
 
 def _line_cells(vx, vy, vs, first, count, lo_arc, hi_arc, scene, cell):
