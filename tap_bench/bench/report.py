@@ -1,14 +1,14 @@
-"""The run report: PNG plots and one static HTML page (no server, nothing from the network).
+"""The run report: SVG figures and one static HTML page (no server, nothing from the network).
 
-:func:`write_report` writes ``plots/*.png`` and ``report.html`` into a run folder. The page
-embeds its images as data URIs, so the HTML file alone is the whole report (mail it, open
-it from disk); the PNG files are there for papers and slides. A small inline script sorts
+:func:`write_report` writes ``plots/*.svg`` and ``report.html`` into a run folder. The page
+holds its figures inline, so the HTML file alone is the whole report (mail it, open it from
+disk); the SVG files are there for papers and slides. A small inline script sorts
 and searches the long tables; without it the page still reads in full.
 
 The page reads from the top: a summary table of each policy against the reference policy
 (every measure with its interval and a better / worse / no-difference mark), then one panel
 per env, then the comparisons, coverage and unique manoeuvres in detail. Every figure is
-drawn at the size it is shown (text at least 10 px), its scales fitted to the data, its
+drawn at the size it is shown (text at least 11 px), its scales fitted to the data, its
 labels whole; every table gives units and numbers to their precision, shows its first rows
 and keeps the rest a click away. When the run has a replay viewer (``viewer/``), the rows
 that name episodes or labels link to the replay that shows them.
@@ -16,7 +16,6 @@ that name episodes or labels link to the replay that shows them.
 
 from __future__ import annotations
 
-import base64
 import html
 import os
 from pathlib import Path
@@ -67,7 +66,7 @@ td.same{color:#666}td.nowrap{white-space:nowrap}td.ref{color:#666;font-style:ita
 tr.more{display:none}table.open tr.more{display:table-row}tr.hidden{display:none !important}
 .tools{font-size:13px;margin:.3em 0;display:flex;gap:.8em;align-items:center}
 .tools input{font-size:13px;width:18em}
-figure{margin:.6em 0}img{border:1px solid #eee;max-width:100%;height:auto}
+figure{margin:.6em 0}img,figure svg{border:1px solid #eee;max-width:100%;height:auto}
 figcaption{font-size:13px;color:#444;max-width:60em}
 .note{color:#555;font-size:13px}.fail{color:#a00}
 a.replay{white-space:nowrap}
@@ -111,14 +110,10 @@ document.querySelectorAll('table.sortable th').forEach(function (th, k) {
 
 
 def _figure(path: Path, alt: str, caption: str) -> str:
-    from PIL import Image
-
-    with Image.open(path) as im:
-        width, height = im.size
-    data = base64.b64encode(path.read_bytes()).decode("ascii")
-    return (f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(alt)}" '
-            f'width="{width}" height="{height}"><figcaption>{html.escape(caption)}'
-            "</figcaption></figure>")
+    """An SVG figure inline in the page, with its caption."""
+    svg = path.read_text()
+    svg = svg.replace("<svg ", f'<svg role="img" aria-label="{html.escape(alt)}" ', 1)
+    return f"<figure>{svg}<figcaption>{html.escape(caption)}</figcaption></figure>"
 
 
 def _replay(viewer: str | None, **params: Any) -> str | None:
@@ -131,7 +126,7 @@ def _replay(viewer: str | None, **params: Any) -> str | None:
 
 def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: pd.DataFrame,
                  scores: Scores, *, viewer: str | None = None) -> Path:
-    """Write ``plots/*.png`` and ``report.html`` into a run folder; returns the HTML path.
+    """Write ``plots/*.svg`` and ``report.html`` into a run folder; returns the HTML path.
 
     Args:
         folder: the run folder.

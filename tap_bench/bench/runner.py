@@ -17,7 +17,7 @@ What a run folder holds:
 ``roads.parquet``       each env's road network as a map table (:mod:`tap_bench.maps`), for
                         the replay viewer (with the trajectories)
 ``<table>.parquet``     every table of :class:`tap_bench.bench.scoring.Scores`
-``plots/*.png``         label distributions, measures, coverage, forest plots, novelty
+``plots/*.svg``         label distributions, measures, coverage, forest plots, novelty
 ``report.html``         the static report (no server, images embedded)
 ``viewer/``             the replay viewer (:mod:`tap_bench.bench.viewer`; with the trajectories)
 ``.tap-bench-folder``   the marker that lets ``--overwrite`` replace the folder

@@ -56,7 +56,7 @@ def test_run_folder_holds_tables_summary_plots_and_report(flaky_run):
                  "paired_measures", "paired_labels", "coverage", "novelty"):
         assert (folder / f"{name}.parquet").is_file(), name
     assert (folder / "report.html").is_file()
-    assert sorted(p.name for p in (folder / "plots").glob("*.png"))
+    assert sorted(p.name for p in (folder / "plots").glob("*.svg"))
     summary = json.loads((folder / "summary.json").read_text())
     assert summary["seeds"] == [0, 1, 2]
     assert summary["level"] == "maneuver"
