@@ -52,8 +52,8 @@ record every vehicle; WOMD every tracked agent): without any, headway and TTC ar
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -67,6 +67,8 @@ __all__ = [
     "HEADWAY_CAP_S",
     "LOOKAHEAD",
     "MEASURES",
+    "SCENE_MEASURES",
+    "SCENE_STEP_COLUMNS",
     "MIN_SPEED_FOR_HEADWAY",
     "TTC_CAP_S",
     "VEHICLE_LENGTH",
@@ -111,6 +113,8 @@ class EgoSteps:
         first_row: (S,) the input row of each episode's first ego step.
         scored: (m,) bool, the step counts in the episode's minima (after the burn-in, or
             in the closing-in run that ends in a crash).
+        columns: the ego's (m,) values (float; NaN where missing) of the per-step columns
+            of :data:`SCENE_STEP_COLUMNS` the table has (recorded scenes write them).
     """
 
     scenario_id: np.ndarray
@@ -129,6 +133,7 @@ class EgoSteps:
     has_others: np.ndarray
     first_row: np.ndarray
     scored: np.ndarray
+    columns: Mapping[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def n_episodes(self) -> int:
@@ -160,6 +165,15 @@ class EgoSteps:
         if not self.n_episodes:
             return np.zeros(0, bool)
         return np.logical_or.reduceat(values.astype(bool), self.starts)
+
+    def last(self, values: np.ndarray) -> np.ndarray:
+        """(S,) per-episode last non-NaN value of (m,) ``values`` (NaN when none)."""
+        out = np.full(self.n_episodes, np.nan)
+        ok = np.flatnonzero(~np.isnan(values))
+        if len(ok):
+            ep = self.episode[ok]
+            out[ep] = values[ok]  # later steps overwrite earlier ones
+        return out
 
     def consecutive(self, lag: int = 1) -> np.ndarray:
         """(m - lag,) bool: steps i and i + lag are ``lag`` steps apart in one episode."""
@@ -318,6 +332,65 @@ def _rms_jerk(steps: EgoSteps) -> np.ndarray:
         return np.sqrt(sq / n)
 
 
+SCENE_MEASURES = MeasureRegistry()
+"""Measures of closed-loop episodes on recorded scenes (``tap_bench/womd-v0``, SPEC section
+8), from the per-step columns the env writes on the ego's rows
+(:data:`SCENE_STEP_COLUMNS`); :func:`ego_measures` adds them when a table has those
+columns (a synthetic scenario has no lanes of record, no signals and no human to compare
+with)."""
+SCENE_STEP_COLUMNS = ("off_road", "ran_red_light", "route_progress", "log_distance")
+"""Per-step ego columns of recorded-scene rollouts: off road (bool), crossed a red stop point
+at that step (bool), share of the logged path covered so far (0-1), distance to the logged
+ego at the same step [m] (NaN before the current time)."""
+
+
+def _scene_column(steps: EgoSteps, name: str) -> np.ndarray:
+    values = steps.columns.get(name)
+    return np.full(len(steps.t), np.nan) if values is None else values
+
+
+@register_measure("off_road", unit="share", higher_is_better=False, margin=0.10,
+                  description="the ego left the road (farther than half its lane's width + "
+                  "0.5 m from every lane centre, or across a road edge)",
+                  registry=SCENE_MEASURES)
+def _off_road(steps: EgoSteps) -> np.ndarray:
+    values = _scene_column(steps, "off_road")
+    out = steps.any(np.nan_to_num(values) > 0.5).astype(float)
+    out[np.isnan(steps.mean(values))] = np.nan
+    return out
+
+
+@register_measure("route_progress", unit="share", higher_is_better=True, margin=0.10,
+                  description="share of the logged ego's path covered along its route (0-1)",
+                  registry=SCENE_MEASURES)
+def _route_progress(steps: EgoSteps) -> np.ndarray:
+    return steps.last(_scene_column(steps, "route_progress"))
+
+
+@register_measure("ran_red_light", unit="share", higher_is_better=False, margin=0.10,
+                  description="the ego crossed a stop point while its signal was red",
+                  registry=SCENE_MEASURES)
+def _ran_red_light(steps: EgoSteps) -> np.ndarray:
+    values = _scene_column(steps, "ran_red_light")
+    out = steps.any(np.nan_to_num(values) > 0.5).astype(float)
+    out[np.isnan(steps.mean(values))] = np.nan
+    return out
+
+
+@register_measure("log_ade", unit="m", higher_is_better=False, margin=1.0,
+                  description="mean distance to the logged ego over the simulated steps",
+                  registry=SCENE_MEASURES)
+def _log_ade(steps: EgoSteps) -> np.ndarray:
+    return steps.mean(_scene_column(steps, "log_distance"))
+
+
+@register_measure("log_fde", unit="m", higher_is_better=False, margin=2.0,
+                  description="distance to the logged ego at the last simulated step",
+                  registry=SCENE_MEASURES)
+def _log_fde(steps: EgoSteps) -> np.ndarray:
+    return steps.last(_scene_column(steps, "log_distance"))
+
+
 def _require(table: pd.DataFrame) -> None:
     for col in ("scenario_id", "track_id", "t", "x", "y", "heading", "speed", "is_ego"):
         if col not in table.columns:
@@ -420,10 +493,14 @@ def ego_steps(table: pd.DataFrame) -> EgoSteps:
         accel[1:][ok] = (v_ego[1:] - v_ego[:-1])[ok] * HZ
 
     has_others = np.bincount(sid_codes[~is_ego & valid], minlength=len(sids))[scen] > 0
+    columns = {name: pd.to_numeric(table[name].take(ego_rows).astype("Float64"),
+                                   errors="coerce").to_numpy(float, na_value=np.nan)
+               for name in SCENE_STEP_COLUMNS if name in table.columns}
     return EgoSteps(scenario_id=np.asarray(sids)[scen], starts=starts, counts=counts,
                     step=ego_step, t=t_ego, speed=v_ego, accel=accel, crashed=crashed,
                     leader_row=leader, gap=gap, closing=closing, headway=headway, ttc=ttc,
-                    has_others=has_others, first_row=ego_rows[starts], scored=scored)
+                    has_others=has_others, first_row=ego_rows[starts], scored=scored,
+                    columns=columns)
 
 
 def ego_step_measures(table: pd.DataFrame) -> pd.DataFrame:
@@ -471,14 +548,16 @@ def ego_measures(table: pd.DataFrame) -> pd.DataFrame:
 
     Returns:
         one row per scenario with an ego: ``scenario_id``, the identifying columns present,
-        one column per registered measure (:data:`MEASURES`) and ``duration_s``.
+        one column per registered measure (:data:`MEASURES`, and :data:`SCENE_MEASURES`
+        when the table carries :data:`SCENE_STEP_COLUMNS`) and ``duration_s``.
     """
     steps = ego_steps(table)
     out = pd.DataFrame({"scenario_id": steps.scenario_id})
     for col in _KEEP:
         if col in table.columns:
             out[col] = table[col].take(steps.first_row).to_numpy()
-    for measure in MEASURES:
+    scene = [m for m in SCENE_MEASURES if steps.columns]  # recorded scenes only
+    for measure in (*MEASURES, *scene):
         values = np.asarray(measure.function(steps))
         if values.shape != (steps.n_episodes,):
             raise RegistrationError(f"measure {measure.name!r} returned shape {values.shape}, "

@@ -16,10 +16,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "trajectory table (every vehicle, every 0.1 s, Waymo axes) and the episode table "
         "(seed, return, length, crashed, mean speed). The same seed gives the same table, "
         "with any number of workers. A failing episode is reported and the rest kept.")
-    p.add_argument("--env", required=True, help="scenario name (highway) or id")
+    p.add_argument("--env", help="scenario name (highway) or id")
+    p.add_argument("--womd", nargs="+", metavar="FILE",
+                   help="recorded WOMD scenes instead of --env: Scenario or tf.Example "
+                   "TFRecords, ScenarioNet pickles, patterns or folders (tap_bench/womd-v0: "
+                   "the policy drives the recorded ego from 1.0 s; a seed is a scenario's "
+                   "index in these files, all of them by default)")
+    p.add_argument("--traffic", choices=("log", "idm"), default="log",
+                   help="with --womd: the other agents replay the log (log, default) or "
+                   "IDM/MOBIL drives the vehicles along their lanes (idm)")
+    p.add_argument("--ego", default="sdc",
+                   help="with --womd: the track the policy drives (default: sdc)")
     p.add_argument("--policy", required=True,
                    help="policy name (tap-bench policies), .json definition or SB3 .zip")
-    p.add_argument("--seeds", help="'0-49' or '1,4,7' (default: the scenario's default seeds)")
+    p.add_argument("--seeds", help="'0-49' or '1,4,7' (default: the scenario's default seeds; "
+                   "with --womd, 'all')")
     p.add_argument("-o", "--output", required=True,
                    help="trajectory table (.parquet or .csv); the episode table goes beside "
                    "it as <name>.episodes.<suffix>")
@@ -51,14 +62,23 @@ def run(args: argparse.Namespace) -> int:
 
     output = Path(args.output)
     episodes_out = Path(args.episodes) if args.episodes else episodes_path(output)
+    if bool(args.env) == bool(args.womd):
+        raise SystemExit("tap-bench rollout: give either --env SCENARIO or --womd FILES.")
     check_outputs([output, episodes_out])  # before the rollouts
-    seeds = args.seeds if args.seeds else list(get_scenario(args.env).default_seeds)
+    if args.womd:
+        from tap_bench.sim.womd_scene import WomdScenes
+
+        env = WomdScenes(tuple(args.womd), traffic=args.traffic, ego=args.ego)
+        seeds = args.seeds or "all"
+    else:
+        env = args.env
+        seeds = args.seeds if args.seeds else list(get_scenario(args.env).default_seeds)
     progress = progress_choice(args)
     workers = args.workers if args.backend == "local" or args.workers != 1 else None
     backend = backend_from_args(args, workers=workers)  # ray default: all the CPUs
     try:
         trajectories, episodes = rollout(
-            args.env, args.policy, seeds, backend=backend, lane_change=args.lane_change,
+            env, args.policy, seeds, backend=backend, lane_change=args.lane_change,
             duration=args.duration, retries=args.retries, progress=progress)
     finally:
         close_backend(backend)
@@ -70,6 +90,10 @@ def run(args: argparse.Namespace) -> int:
     if len(ok):
         print(f"mean return {ok['return'].mean():.3f}, crash rate {ok['crashed'].mean():.1%}, "
               f"mean ego speed {ok['mean_speed'].mean():.2f} m/s")
+    if len(ok) and "off_road" in ok.columns:
+        print(f"off road {ok['off_road'].mean():.1%}, route progress "
+              f"{ok['route_progress'].mean():.2f}, red lights run "
+              f"{ok['ran_red_light'].mean():.1%}, log ADE {ok['log_ade'].mean():.2f} m")
     failed = episodes[episodes["status"] != "ok"]
     for row in failed.itertuples():
         print(f"seed {row.seed} failed: {row.error}", file=sys.stderr)

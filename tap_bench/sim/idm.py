@@ -90,7 +90,8 @@ def take_over_ego(env: gym.Env, params: IDMParameters) -> Any:
 
     inner = env.unwrapped
     old = inner.vehicle
-    new = IDMVehicle.create_from(old)
+    # an env may drive its own IDM (tap_bench/womd-v0: routes, signals, map neighbours)
+    new = getattr(inner, "idm_vehicle_class", IDMVehicle).create_from(old)
     # Per-vehicle settings of the scenario (lane-change gains) carry over.
     for key, value in vars(old).items():
         if key.isupper():
@@ -98,6 +99,8 @@ def take_over_ego(env: gym.Env, params: IDMParameters) -> Any:
     for key, value in params.constants().items():
         setattr(new, key, value)
     new.target_speed = old.target_speed * params.target_speed_factor
+    new.LENGTH, new.WIDTH = old.LENGTH, old.WIDTH
+    new.diagonal = old.diagonal
     vehicles = inner.road.vehicles
     vehicles[vehicles.index(old)] = new
     inner.controlled_vehicles[inner.controlled_vehicles.index(old)] = new

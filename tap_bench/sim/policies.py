@@ -10,6 +10,8 @@ kind              policy
 ``idm``           IDM/MOBIL drives the ego (:mod:`tap_bench.sim.idm`)
 ``random``        uniform random actions from a seeded copy of the action space
 ``lane_keeping``  always the "keep lane, keep speed" action (``IDLE``)
+``log``           the human: replays the recorded ego of a real scene (``tap_bench/womd-v0``
+                  only), so its trajectory and labels are the log's
 ``sb3``           a Stable-Baselines3 model from a ``.zip`` (:mod:`tap_bench.sim.sb3`)
 ``import``        your own class or function, ``params: {"factory": "module:name", ...}``:
                   called as ``factory(name, **other_params)``; the module must be importable
@@ -41,6 +43,7 @@ from tap_bench.sim.suite import read_json
 __all__ = [
     "CHEAP_OBSERVATION",
     "LaneKeepingPolicy",
+    "LogPolicy",
     "Policy",
     "PolicyDefinition",
     "RandomPolicy",
@@ -171,10 +174,37 @@ class LaneKeepingPolicy:
         return self._action
 
 
+class LogPolicy:
+    """The human who drove a recorded scene: the ego replays its log (SPEC section 8), the
+    reference of every comparison on real scenes. Only recorded scenes have a log."""
+
+    observation = None
+
+    def __init__(self, name: str = "log") -> None:
+        self.name = name
+        self._action: Any = None
+
+    def reset(self, env: gym.Env, *, seed: int) -> None:
+        inner = env.unwrapped
+        if not hasattr(inner, "replay_ego"):
+            raise ParameterError("policy", self.name, "", message=(
+                f"policy {self.name!r} replays the recorded ego of a real scene; it drives "
+                "only in tap_bench/womd-v0 (tap-bench rollout --womd FILES). Choose another "
+                "policy for synthetic scenarios."))
+        inner.replay_ego()
+        self._action = idle_action(env)
+
+    def act(self, observation: Any) -> Any:
+        if self._action is None:
+            raise RuntimeError("LogPolicy.act before reset: call reset(env, seed=...).")
+        return self._action
+
+
 _KINDS: dict[str, str] = {
     "idm": "tap_bench.sim.idm:IDMPolicy",
     "random": "tap_bench.sim.policies:RandomPolicy",
     "lane_keeping": "tap_bench.sim.policies:LaneKeepingPolicy",
+    "log": "tap_bench.sim.policies:LogPolicy",
     "sb3": "tap_bench.sim.sb3:SB3Policy",
     "import": "tap_bench.sim.policies:import_policy",
 }

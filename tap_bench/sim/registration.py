@@ -17,9 +17,13 @@ import gymnasium as gym
 from tap_bench import catalogue
 from tap_bench.errors import CatalogueError, SuiteError
 
-__all__ = ["ENTRY_POINT", "register_scenario", "register_suite", "registered_ids"]
+__all__ = ["ENTRY_POINT", "WOMD_ENV_ID", "register_scenario", "register_suite",
+           "registered_ids"]
 
 ENTRY_POINT = "tap_bench.sim.scenario_env:make_env"
+WOMD_ENV_ID = "tap_bench/womd-v0"
+"""Recorded WOMD scenes in closed loop: ``gymnasium.make(WOMD_ENV_ID, files=[...],
+traffic="log" | "idm", ego="sdc")`` (:func:`tap_bench.sim.womd_env.make_womd_env`)."""
 
 
 def register_scenario(path: str | os.PathLike) -> str:
@@ -56,6 +60,8 @@ def register_suite(folder: str | os.PathLike | None = None) -> list[str]:
         except CatalogueError as err:  # import tap_bench still works; using an env says why
             warnings.warn(str(err), stacklevel=2)
             return []
+    if WOMD_ENV_ID not in gym.registry:
+        gym.register(id=WOMD_ENV_ID, entry_point="tap_bench.sim.womd_env:make_womd_env")
     ids = []
     for path in paths:
         try:
@@ -66,5 +72,6 @@ def register_suite(folder: str | os.PathLike | None = None) -> list[str]:
 
 
 def registered_ids() -> list[str]:
-    """The tap-bench ids in Gymnasium's registry."""
-    return sorted(k for k in gym.registry if k.startswith("tap_bench/"))
+    """The ids of the synthetic scenarios in Gymnasium's registry (``tap_bench/womd-v0``,
+    which needs files to drive in, is :data:`WOMD_ENV_ID`)."""
+    return sorted(k for k in gym.registry if k.startswith("tap_bench/") and k != WOMD_ENV_ID)

@@ -29,6 +29,7 @@ from tap_bench.execution import DEFAULT_RETRIES, Backend, resolve_backend
 from tap_bench.sim.policies import CHEAP_OBSERVATION, Policy, PolicyDefinition, get_definition
 from tap_bench.sim.scenario_env import ScenarioEnv, find_scenario_env, get_scenario
 from tap_bench.sim.suite import Scenario, parse_seeds
+from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.trajectories import HZ
 
 __all__ = ["EPISODE_COLUMNS", "EpisodeFailedWarning", "EpisodesFailedError", "Rollout",
@@ -43,6 +44,9 @@ env, policy: scenario and policy names. seed: int. return: sum of rewards. lengt
 (``env.step`` calls). duration_s: simulated time [s]. crashed: the ego collided. mean_speed:
 the ego's mean speed over its recorded steps [m/s]. terminated, truncated: how the episode
 ended. status: ``"ok"`` or ``"error"``; error: the exception of a failed episode, else "".
+Recorded scenes (``tap_bench/womd-v0``) add ``scenario_id``, ``traffic``, ``off_road``,
+``route_progress``, ``ran_red_light``, ``log_ade``, ``log_fde``, ``crash_with`` and
+``crash_from_behind_by_log`` (:meth:`tap_bench.sim.womd_env.WomdEnv.episode_info`).
 """
 
 
@@ -95,6 +99,8 @@ def run_episode(env: gym.Env, policy: Policy, seed: int, *, record: bool = True
            "crashed": bool(inner.vehicle.crashed), "mean_speed": mean_speed,
            "terminated": bool(terminated), "truncated": bool(truncated), "status": "ok",
            "error": ""}
+    if hasattr(scenario_env, "episode_info"):  # recorded scenes: off road, progress ...
+        row.update(scenario_env.episode_info())
     return table, row
 
 
@@ -122,7 +128,12 @@ def _run_task(task: _Task) -> tuple[pd.DataFrame, dict[str, Any]]:
         env = _ENVS.get(env_key)
         if env is None:
             scenario = task.scenario.with_overrides({"observation": dict(obs_config)})
-            env = _ENVS[env_key] = ScenarioEnv(scenario, record=task.record)
+            if isinstance(scenario, WomdScenes):
+                from tap_bench.sim.womd_env import WomdEnv
+
+                env = _ENVS[env_key] = WomdEnv(scenario, record=task.record)
+            else:
+                env = _ENVS[env_key] = ScenarioEnv(scenario, record=task.record)
         return run_episode(env, policy, task.seed, record=task.record)
     except Exception as err:  # one failing episode must not end the rollout
         # an env or policy left in an unknown state is rebuilt for the next episode
@@ -156,7 +167,7 @@ def _failed_row(task: _Task, message: str) -> dict[str, Any]:
             "status": "error", "error": message}
 
 
-def rollout(env: str | os.PathLike | Scenario | gym.Env,
+def rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
             policy: str | os.PathLike | Policy | PolicyDefinition,
             seeds: str | int | Sequence[int], *, workers: int = 1,
             config: Mapping[str, Any] | None = None, duration: float | None = None,
@@ -167,7 +178,9 @@ def rollout(env: str | os.PathLike | Scenario | gym.Env,
 
     Args:
         env: scenario name (``"highway"``), Gymnasium id, scenario file, :class:`Scenario`,
-            or a scenario env (its scenario is used).
+            a scenario env (its scenario is used), or recorded WOMD scenes
+            (:class:`~tap_bench.sim.womd_scene.WomdScenes`: a seed is a scenario's index
+            in the files; ``seeds="all"`` runs every one).
         policy: policy name (``"idm"``), definition or model file, or a policy object
             (pickled to the workers).
         seeds: ``"0-49"``, ``"1,4,7"``, an int or a sequence of ints.
@@ -194,7 +207,10 @@ def rollout(env: str | os.PathLike | Scenario | gym.Env,
     """
     scenario = resolve_scenario(env, config=config, duration=duration,
                                 lane_change=lane_change)
-    seed_list = parse_seeds(seeds)
+    if isinstance(scenario, WomdScenes) and (seeds is None or seeds == "all"):
+        seed_list = list(range(len(scenario.catalog())))
+    else:
+        seed_list = parse_seeds(seeds)
     runner = resolve_backend(backend, workers)
     spec = resolve_policy(policy)
     tasks = [_Task(scenario, spec, seed, record) for seed in seed_list]
@@ -203,11 +219,13 @@ def rollout(env: str | os.PathLike | Scenario | gym.Env,
                           desc=f"{scenario.name} {name}", progress=progress)
     results = [o.value if o.ok else (pd.DataFrame(), _failed_row(task, o.error))
                for task, o in zip(tasks, outcomes, strict=True)]
-    episodes = pd.DataFrame([row for _, row in results], columns=list(EPISODE_COLUMNS))
+    extra = [k for _, row in results for k in row if k not in EPISODE_COLUMNS]
+    columns = [*EPISODE_COLUMNS, *dict.fromkeys(extra)]  # recorded scenes add their measures
+    episodes = pd.DataFrame([row for _, row in results], columns=columns)
     return collect_rollout([table for table, _ in results], episodes, stacklevel=3)
 
 
-def resolve_scenario(env: str | os.PathLike | Scenario | gym.Env, *,
+def resolve_scenario(env: str | os.PathLike | Scenario | WomdScenes | gym.Env, *,
                      config: Mapping[str, Any] | None = None, duration: float | None = None,
                      lane_change: str | None = None) -> Scenario:
     """The :class:`Scenario` that ``env`` names, with the overrides applied.
@@ -216,6 +234,8 @@ def resolve_scenario(env: str | os.PathLike | Scenario | gym.Env, *,
         env: scenario name, Gymnasium id, scenario file, :class:`Scenario` or scenario env.
         config, duration, lane_change: as :func:`rollout`.
     """
+    if isinstance(env, WomdScenes):
+        return env.with_overrides(config) if config else env
     if isinstance(env, gym.Env):
         scenario = find_scenario_env(env).scenario
     else:

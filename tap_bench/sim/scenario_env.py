@@ -234,11 +234,12 @@ def make_env(scenario: str | os.PathLike | Scenario, *, config: Mapping[str, Any
 
 
 def find_scenario_env(env: gym.Env) -> ScenarioEnv:
-    """The :class:`ScenarioEnv` inside a stack of wrappers."""
+    """The :class:`ScenarioEnv` (or :class:`~tap_bench.sim.womd_env.WomdEnv`) inside a stack
+    of wrappers."""
     current = env
     while True:
-        if isinstance(current, ScenarioEnv):
-            return current
+        if isinstance(current, ScenarioEnv) or type(current).__name__ == "WomdEnv":
+            return current  # (tap_bench/womd-v0 records and reports like a ScenarioEnv)
         inner = getattr(current, "env", None)
         if inner is None or inner is current:
             break

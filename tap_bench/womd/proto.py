@@ -108,14 +108,36 @@ _VIEW = {
                      ("tracks_to_predict", 11, "repeated .RequiredPredictionView")),
     # the map (map.proto): polylines of lanes, painted lines, road edges; crosswalk polygons
     "MapPointView": (("x", 1, "double"), ("y", 2, "double"), ("z", 3, "double")),
+    # topology (map.proto): entry/exit lanes, neighbours with index ranges, boundaries
+    "BoundarySegmentView": (("lane_start_index", 1, "int32"), ("lane_end_index", 2, "int32"),
+                            ("boundary_feature_id", 3, "int64"),
+                            ("boundary_type", 4, "int32")),
+    "LaneNeighborView": (("feature_id", 1, "int64"), ("self_start_index", 2, "int32"),
+                         ("self_end_index", 3, "int32"), ("neighbor_start_index", 4, "int32"),
+                         ("neighbor_end_index", 5, "int32")),
     "LaneCenterView": (("speed_limit_mph", 1, "double"), ("type", 2, "int32"),
-                       ("polyline", 8, "repeated .MapPointView")),
+                       ("interpolating", 3, "bool"),
+                       ("polyline", 8, "repeated .MapPointView"),
+                       ("entry_lanes", 9, "repeated int64"),
+                       ("exit_lanes", 10, "repeated int64"),
+                       ("left_neighbors", 11, "repeated .LaneNeighborView"),
+                       ("right_neighbors", 12, "repeated .LaneNeighborView"),
+                       ("left_boundaries", 13, "repeated .BoundarySegmentView"),
+                       ("right_boundaries", 14, "repeated .BoundarySegmentView")),
     "LineView": (("type", 1, "int32"), ("polyline", 2, "repeated .MapPointView")),
     "PolygonView": (("polygon", 1, "repeated .MapPointView"),),
+    "StopSignView": (("lane", 1, "repeated int64"), ("position", 2, ".MapPointView")),
     "MapFeatureView": (("id", 1, "int64"), ("lane", 3, ".LaneCenterView"),
                        ("road_line", 4, ".LineView"), ("road_edge", 5, ".LineView"),
+                       ("stop_sign", 7, ".StopSignView"),
                        ("crosswalk", 8, ".PolygonView")),
-    "ScenarioMapView": (("scenario_id", 5, "string"),
+    # traffic signals per step (Scenario.dynamic_map_states, one per timestamp)
+    "TrafficSignalLaneStateView": (("lane", 1, "int64"), ("state", 2, "int32"),
+                                   ("stop_point", 3, ".MapPointView")),
+    "DynamicMapStateView": (("lane_states", 1, "repeated .TrafficSignalLaneStateView"),),
+    "ScenarioMapView": (("timestamps_seconds", 1, "repeated double"),
+                        ("scenario_id", 5, "string"),
+                        ("dynamic_map_states", 7, "repeated .DynamicMapStateView"),
                         ("map_features", 8, "repeated .MapFeatureView")),
 }
 
@@ -167,5 +189,6 @@ RequiredPrediction = _cls("waymo.open_dataset.RequiredPrediction")
 ScenarioView = _cls("tap_bench.womd.view.ScenarioView")
 """A Scenario read lazily: track states stay raw bytes and enums plain ints."""
 ScenarioMapView = _cls("tap_bench.womd.view.ScenarioMapView")
-"""A Scenario's id and map features only (lanes, road lines, road edges, crosswalks; WOMD's
-map.proto field numbers); the tracks are skipped."""
+"""A Scenario's id, timestamps, map features (lanes with their topology, road lines, road
+edges, stop signs, crosswalks; WOMD's map.proto field numbers) and traffic-signal states per
+step; the tracks are skipped."""

@@ -1,0 +1,287 @@
+"""A recorded WOMD scenario ready to drive in: its tracks as arrays, its road map, its ego.
+
+:func:`scene_catalog` lists the scenarios of some files (a seed of ``tap_bench/womd-v0`` is
+an index into it, in file and record order); :func:`load_scene` decodes one into a
+:class:`Scene`: every track as (n_tracks, n_steps) arrays in WOMD's axes, the
+:class:`~tap_bench.womd.roadmap.RoadMap` with its topology, the ego's row (the SDC, or a track
+named by id) and the scenario's content hash (the key of the episode cache).
+
+Bad data gets :class:`SceneError`, which names the scenario (or file and record) and says
+what to do: no SDC, an ego not valid at the current time, no lanes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from tap_bench.errors import ParameterError, TapBenchError
+from tap_bench.womd.roadmap import RoadMap
+
+__all__ = ["CURRENT_STEP", "TRAFFIC", "Scene", "SceneError", "SceneRef", "WomdScenes",
+           "load_scene", "scene_catalog"]
+
+TRAFFIC = ("log", "idm")
+"""Traffic modes: ``log`` replays every other agent (non-reactive), ``idm`` drives the
+vehicles with IDM/MOBIL along the lanes they drove (reactive)."""
+
+CURRENT_STEP = 10
+"""The current time of a WOMD scenario, as a step (1.0 s at 10 Hz): the policy drives from
+here; before it everything replays the log."""
+
+
+class SceneError(TapBenchError, ValueError):
+    """A scenario that cannot become a closed-loop scene (the message names it and the fix)."""
+
+
+@dataclass(frozen=True)
+class SceneRef:
+    """Where one scenario is: a file, the record in it (0 for a one-scenario file), its
+    reader's name."""
+
+    path: str
+    record: int
+    format: str
+
+    def __str__(self) -> str:
+        return f"{self.path} record {self.record}" if self.format != "scenarionet" \
+            else self.path
+
+
+@dataclass(frozen=True)
+class Scene:
+    """One recorded scenario as arrays.
+
+    Attributes:
+        scenario_id: WOMD's id.
+        ref: where it came from.
+        digest: SHA-256 of the scenario's bytes (the record or the file).
+        times: (T,) [s].
+        track_ids, object_types: (n,) str.
+        x, y, heading, vx, vy, speed: (n, T) in WOMD's axes [m, rad, m/s]; NaN where
+            invalid.
+        valid: (n, T) bool.
+        length, width: (n,) [m] (the track's median over its valid steps).
+        ego: the ego's row.
+        road: the road map.
+    """
+
+    scenario_id: str
+    ref: SceneRef
+    digest: str
+    times: np.ndarray
+    track_ids: np.ndarray
+    object_types: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    heading: np.ndarray
+    vx: np.ndarray
+    vy: np.ndarray
+    speed: np.ndarray
+    valid: np.ndarray
+    length: np.ndarray
+    width: np.ndarray
+    ego: int
+    road: RoadMap
+
+    @property
+    def n_steps(self) -> int:
+        """Steps in the record."""
+        return len(self.times)
+
+    def table(self) -> pd.DataFrame:
+        """The record as a trajectory table (every track, every step, WOMD axes)."""
+        n, t = self.x.shape
+        return pd.DataFrame({
+            "scenario_id": np.full(n * t, self.scenario_id, dtype=object),
+            "track_id": np.repeat(self.track_ids, t),
+            "t": np.tile(self.times - self.times[0], n),
+            "x": self.x.ravel(), "y": self.y.ravel(), "heading": self.heading.ravel(),
+            "speed": self.speed.ravel(), "valid": self.valid.ravel(),
+            "vx": self.vx.ravel(), "vy": self.vy.ravel(),
+            "object_type": np.repeat(self.object_types, t),
+            "is_ego": np.repeat(np.arange(n) == self.ego, t),
+            "source": np.full(n * t, "womd", dtype=object),
+            "length": np.repeat(self.length, t), "width": np.repeat(self.width, t)})
+
+
+def scene_catalog(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> list[SceneRef]:
+    """Every scenario of some files, in file and record order (a seed is an index into it).
+
+    Raises:
+        FileFormatError: a pattern that matches nothing, a file of an unknown format.
+    """
+    from tap_bench.sources.ingest import _file_format, expand_paths
+    from tap_bench.womd.tfrecord import iter_records
+
+    refs = []
+    for path in expand_paths(paths):
+        name = _file_format(path, "auto", True).name
+        if name == "scenarionet":
+            refs.append(SceneRef(str(path), 0, name))
+        elif name in ("scenario", "tf_example"):
+            refs.extend(SceneRef(str(path), record.index, name)
+                        for record in iter_records(path))
+        else:
+            raise SceneError(f"{path}: format {name!r} carries no map; closed-loop scenes "
+                             "need WOMD Scenario, tf.Example or ScenarioNet files.")
+    return refs
+
+
+def _read(ref: SceneRef) -> tuple[pd.DataFrame, RoadMap, str]:
+    from tap_bench.sources.scenarionet import decode_scenarionet, load_scenarionet
+    from tap_bench.womd import roadmap
+    from tap_bench.womd.scenario import decode_scenario
+    from tap_bench.womd.tf_example import decode_tf_example
+    from tap_bench.womd.tfrecord import iter_records
+
+    if ref.format == "scenarionet":
+        data = Path(ref.path).read_bytes()
+        scenario = load_scenarionet(ref.path)
+        table = decode_scenarionet(scenario, path=ref.path).to_pandas()
+        road = roadmap.scenarionet_road_map(scenario, source=ref.path)
+        return table, road, hashlib.sha256(data).hexdigest()
+    for record in iter_records(ref.path):
+        if record.index != ref.record:
+            continue
+        if ref.format == "scenario":
+            table = decode_scenario(record).to_pandas()
+            road = roadmap.scenario_road_map(record.data, source=str(ref))
+        else:
+            table = decode_tf_example(record).to_pandas()
+            road = roadmap.tf_example_road_map(record.data, source=str(ref))
+            if road is None:
+                road = RoadMap(str(table["scenario_id"].iloc[0]), {}, topology="none")
+        return table, road, hashlib.sha256(record.data).hexdigest()
+    raise SceneError(f"{ref.path}: no record {ref.record}; the file changed since it was "
+                     "listed.")
+
+
+def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:
+    """Decode one scenario into a :class:`Scene`.
+
+    Args:
+        ref: from :func:`scene_catalog`.
+        ego: ``"sdc"`` (the self-driving car) or a track id.
+
+    Raises:
+        SceneError: no SDC (or no such track), an ego not valid at the current time, a
+            record too short for a current time, no lanes; the message names the scenario.
+        WomdRecordError: the record cannot be decoded.
+    """
+    table, road, digest = _read(ref)
+    sid = str(table["scenario_id"].iloc[0]) if len(table) else road.scenario_id
+    where = f"scenario {sid} ({ref})"
+    tracks = pd.unique(table["track_id"])
+    n = len(tracks)
+    if n == 0:
+        raise SceneError(f"{where}: no tracks.")
+    t = len(table) // n
+    if t <= CURRENT_STEP + 1:
+        raise SceneError(f"{where}: {t} steps; a closed-loop scene needs more than "
+                         f"{CURRENT_STEP + 1} (1.0 s of history, then the future). Leave it out.")
+
+    def grid(col: str) -> np.ndarray:
+        return table[col].to_numpy(float).reshape(n, t)
+
+    valid = table["valid"].to_numpy(bool).reshape(n, t)
+    is_ego = table["is_ego"].to_numpy(bool).reshape(n, t)[:, 0]
+    if ego == "sdc":
+        rows = np.flatnonzero(is_ego)
+        if not len(rows):
+            raise SceneError(f"{where}: no self-driving car (no sdc_track_index / sdc_id). "
+                             "Name a track to drive with --ego TRACK_ID (ego='ID').")
+        row = int(rows[0])
+    else:
+        rows = np.flatnonzero(tracks.astype(str) == str(ego))
+        if not len(rows):
+            raise SceneError(f"{where}: no track {ego!r}; its tracks are "
+                             f"{', '.join(map(str, tracks[:10]))}{' ...' if n > 10 else ''}.")
+        row = int(rows[0])
+    if not valid[row, CURRENT_STEP]:
+        raise SceneError(f"{where}: the ego (track {tracks[row]}) is not valid at the current "
+                         "time (1.0 s), so nothing can take it over there. Choose another "
+                         "track with --ego, or leave the scenario out.")
+    if table["object_type"].to_numpy().reshape(n, t)[row, 0] != "vehicle":
+        raise SceneError(f"{where}: the ego (track {tracks[row]}) is not a vehicle.")
+    if not any(len(lane.centre) >= 2 for lane in road.lanes.values()):
+        raise SceneError(f"{where}: the map has no lanes (of two points or more), so there is "
+                         "no road to drive on. Use files with a map (Scenario protos, "
+                         "ScenarioNet pickles, tf.Examples with roadgraph_samples).")
+    x, y = grid("x"), grid("y")
+    heading, vx, vy = grid("heading"), grid("vx"), grid("vy")
+    speed = grid("speed")
+    sizes = {}
+    for col, default in (("length", 4.8), ("width", 2.0)):
+        values = grid(col) if col in table.columns else np.full((n, t), np.nan)
+        values = np.where(valid & np.isfinite(values) & (values > 0), values, np.nan)
+        with np.errstate(all="ignore"):
+            med = np.nanmedian(np.where(np.isnan(values).all(axis=1)[:, None], default,
+                                        values), axis=1)
+        sizes[col] = med
+    times = table["t"].to_numpy(float)[:t]
+    return Scene(sid, ref, digest, times, tracks.astype(str),
+                 table["object_type"].to_numpy().reshape(n, t)[:, 0].astype(str), x, y,
+                 heading, vx, vy, speed, valid, sizes["length"], sizes["width"], row, road)
+
+
+@dataclass(frozen=True)
+class WomdScenes:
+    """Recorded scenes to drive in: what a rollout or a suite names instead of a synthetic
+    scenario.
+
+    Attributes:
+        files: WOMD files (Scenario or tf.Example TFRecords, ScenarioNet pickles), patterns
+            or folders.
+        traffic: ``"log"`` or ``"idm"``.
+        ego: ``"sdc"`` or a track id.
+        policy_frequency: decisions per second (the simulation runs at 10 Hz).
+        name: the ``env`` column of the tables.
+    """
+
+    files: tuple[str, ...]
+    traffic: str = "log"
+    ego: str = "sdc"
+    policy_frequency: int = 2
+    name: str = "womd"
+    config: Mapping[str, Any] = field(default_factory=dict, compare=False)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.files, str | os.PathLike):
+            object.__setattr__(self, "files", (str(self.files),))
+        object.__setattr__(self, "files", tuple(str(f) for f in self.files))
+        if not self.files:
+            raise ParameterError("files", self.files, "at least one WOMD file or pattern")
+        if self.traffic not in TRAFFIC:
+            raise ParameterError("traffic", self.traffic, f"one of {TRAFFIC}")
+        if not isinstance(self.policy_frequency, int) or self.policy_frequency <= 0 \
+                or 10 % self.policy_frequency:
+            raise ParameterError("policy_frequency", self.policy_frequency,
+                                 "a divisor of 10 Hz (1, 2, 5 or 10)")
+        if not str(self.ego):
+            raise ParameterError("ego", self.ego, "'sdc' or a track id")
+
+    @property
+    def env_id(self) -> str:
+        return "tap_bench/womd-v0"
+
+    @property
+    def max_steps(self) -> int:
+        return 0
+
+    def with_overrides(self, config: Mapping[str, Any] | None = None, **_: Any) -> WomdScenes:
+        """The same scenes with more highway-env config (the observation a policy reads)."""
+        merged = {**self.config, **(config or {})}
+        return WomdScenes(self.files, self.traffic, self.ego, self.policy_frequency,
+                          self.name, merged)
+
+    def catalog(self) -> list[SceneRef]:
+        """The scenarios, in seed order."""
+        return scene_catalog(self.files)

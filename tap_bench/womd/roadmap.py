@@ -1,0 +1,624 @@
+"""A WOMD scenario's road map with its topology: what driving on it needs, not only drawing.
+
+:mod:`tap_bench.maps` keeps polylines to draw; this module keeps, per scenario
+(:class:`RoadMap`):
+
+- lanes (:class:`Lane`): id, centre line, type, speed limit, entry and exit lanes, left and
+  right neighbours with the index ranges over which they are neighbours (:class:`Neighbour`),
+  and a width from the lane's boundary lines where the data gives them (else
+  :data:`DEFAULT_LANE_WIDTH`);
+- road edges (the drivable surface's border), crosswalks (polygons), stop signs with the
+  lanes they control (:class:`StopSign`);
+- traffic-signal states per time step (:class:`SignalStates`, from ``dynamic_map_states``).
+
+Sources (the same three the trajectory readers know, :mod:`tap_bench.sources`):
+
+- ``Scenario`` protos: ``map_features`` and ``dynamic_map_states`` (map.proto) read with
+  :data:`tap_bench.womd.proto.ScenarioMapView`;
+- ScenarioNet pickles: ``map_features`` (``entry_lanes``, ``exit_lanes``, ``left_neighbor``,
+  ``right_neighbor``, ``left_boundaries``, ``right_boundaries``) and ``dynamic_map_states``;
+- motion ``tf.Example`` records: ``roadgraph_samples/*`` points grouped by ``id`` (lane
+  centre lines, lines, edges, crosswalks, stop signs); they carry no topology, and
+  ``traffic_light_state/*`` (up to 16 signals per step).
+
+Where a source gives no topology (the tf.Example roadgraph, or a map whose lanes name no
+entry or exit lane at all), successors are inferred: lane A precedes lane B when A's last
+point and B's first point are within :data:`JOIN_DISTANCE` and their headings there within
+:data:`JOIN_HEADING` (:func:`infer_successors`); :attr:`RoadMap.topology` then says
+``"inferred"`` and :attr:`RoadMap.inferred_links` how many links were made.
+
+Coordinates are WOMD's (y to the left, heading counter-clockwise) [m]; speeds [m/s].
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from google.protobuf.message import DecodeError
+
+from tap_bench.errors import FileFormatError, WomdRecordError
+
+__all__ = [
+    "CAUTION_STATES",
+    "DEFAULT_LANE_WIDTH",
+    "JOIN_DISTANCE",
+    "JOIN_HEADING",
+    "LANE_STATES",
+    "STOP_STATES",
+    "Lane",
+    "Neighbour",
+    "RoadMap",
+    "SignalStates",
+    "StopSign",
+    "infer_successors",
+    "iter_road_maps",
+    "read_road_maps",
+]
+
+DEFAULT_LANE_WIDTH = 3.7  # [m] width of a lane whose boundaries the data does not give
+MIN_LANE_WIDTH = 2.5  # [m] narrowest width taken from boundary lines (a bike lane is ~1.5)
+MAX_LANE_WIDTH = 6.0  # [m] widest width taken from boundary lines
+JOIN_DISTANCE = 0.5  # [m] lane ends this close meet (inferred successors)
+JOIN_HEADING = np.pi / 4  # [rad] ... with headings this close
+MPH = 0.44704  # [m/s] one mile per hour
+
+LANE_TYPES = {0: "undefined", 1: "freeway", 2: "surface_street", 3: "bike_lane"}
+"""LaneCenter.LaneType -> name."""
+LANE_STATES = ("unknown", "arrow_stop", "arrow_caution", "arrow_go", "stop", "caution", "go",
+               "flashing_stop", "flashing_caution")
+"""TrafficSignalLaneState.State, by number (0 unknown ... 8 flashing caution)."""
+STOP_STATES = frozenset({1, 4})
+"""Signal states that are red (arrow stop, stop): IDM stops at the stop point, crossing it is
+a red-light violation. A flashing red is a stop sign, not a red light."""
+CAUTION_STATES = frozenset({2, 5})
+"""Signal states that are yellow: IDM stops at the stop point when it can."""
+
+
+@dataclass(frozen=True)
+class Neighbour:
+    """A lane beside another over a range of points.
+
+    Attributes:
+        lane: the neighbouring lane's id.
+        self_start, self_end: the range of this lane's points (inclusive) along which it is
+            a neighbour.
+        start, end: the matching range of the neighbour's points.
+    """
+
+    lane: int
+    self_start: int
+    self_end: int
+    start: int = 0
+    end: int = 0
+
+
+@dataclass(frozen=True)
+class Lane:
+    """One lane (its centre line) of a WOMD map.
+
+    Attributes:
+        id: the map feature id.
+        centre: (n, 2) centre-line points [m], in driving order (n >= 1).
+        type: ``freeway``, ``surface_street``, ``bike_lane`` or ``undefined``.
+        speed_limit: [m/s]; NaN when the data does not say.
+        entry, exit: ids of the lanes that lead into it and that it leads to.
+        left, right: its neighbours on each side (driver's view).
+        width: [m], from its boundary lines where the data gives them, else
+            :data:`DEFAULT_LANE_WIDTH`.
+        width_measured: whether ``width`` comes from boundary lines.
+    """
+
+    id: int
+    centre: np.ndarray
+    type: str = "undefined"
+    speed_limit: float = float("nan")
+    entry: tuple[int, ...] = ()
+    exit: tuple[int, ...] = ()
+    left: tuple[Neighbour, ...] = ()
+    right: tuple[Neighbour, ...] = ()
+    width: float = DEFAULT_LANE_WIDTH
+    width_measured: bool = False
+
+    @property
+    def length(self) -> float:
+        """Length of the centre line [m]."""
+        return float(np.hypot(*np.diff(self.centre, axis=0).T).sum()) if len(self.centre) > 1 \
+            else 0.0
+
+
+@dataclass(frozen=True)
+class StopSign:
+    """A stop sign: where it stands [m] and the lanes it controls."""
+
+    id: int
+    position: np.ndarray
+    lanes: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
+class SignalStates:
+    """Traffic-signal states per time step.
+
+    Attributes:
+        lane: (k,) the controlled lanes' ids.
+        state: (n_steps, k) int8, :data:`LANE_STATES` numbers (0 where the step does not
+            report the lane).
+        stop_point: (k, 2) [m] where traffic on the lane stops.
+    """
+
+    lane: np.ndarray
+    state: np.ndarray
+    stop_point: np.ndarray
+
+    @classmethod
+    def empty(cls, n_steps: int = 0) -> SignalStates:
+        """No signals."""
+        return cls(np.zeros(0, np.int64), np.zeros((n_steps, 0), np.int8), np.zeros((0, 2)))
+
+    @property
+    def red(self) -> np.ndarray:
+        """(n_steps, k) bool: the lane's signal is red (:data:`STOP_STATES`)."""
+        return np.isin(self.state, list(STOP_STATES))
+
+    @property
+    def red_or_yellow(self) -> np.ndarray:
+        """(n_steps, k) bool: red or yellow (IDM stops)."""
+        return np.isin(self.state, list(STOP_STATES | CAUTION_STATES))
+
+
+@dataclass(frozen=True)
+class RoadMap:
+    """A scenario's road map with topology (see the module docstring).
+
+    Attributes:
+        scenario_id: the scenario.
+        lanes: id -> :class:`Lane`, in the source's order.
+        road_edges: (n_i, 2) polylines [m].
+        crosswalks: (n_i, 2) polygons [m].
+        stop_signs: the stop signs.
+        signals: signal states per step.
+        topology: ``"given"`` (the source names entry and exit lanes), ``"inferred"``
+            (successors inferred from lane ends that meet) or ``"none"`` (no lanes).
+        inferred_links: successor links inferred.
+        source: the file it came from.
+    """
+
+    scenario_id: str
+    lanes: dict[int, Lane]
+    road_edges: tuple[np.ndarray, ...] = ()
+    crosswalks: tuple[np.ndarray, ...] = ()
+    stop_signs: tuple[StopSign, ...] = ()
+    signals: SignalStates = field(default_factory=SignalStates.empty)
+    topology: str = "given"
+    inferred_links: int = 0
+    source: str = ""
+
+    def successors(self, lane_id: int) -> tuple[int, ...]:
+        """The exit lanes of a lane that exist in this map."""
+        return tuple(i for i in self.lanes[lane_id].exit if i in self.lanes)
+
+
+def infer_successors(lanes: dict[int, Lane], *, distance: float = JOIN_DISTANCE,
+                     heading: float = JOIN_HEADING) -> tuple[dict[int, Lane], int]:
+    """Lanes with entry and exit lanes inferred from lane ends that meet.
+
+    Lane A precedes lane B (A != B) when A's last point is within ``distance`` [m] of B's
+    first point and A's heading at its end is within ``heading`` [rad] of B's at its start.
+    Links already given are kept.
+
+    Returns:
+        the lanes with the links added, and how many links were added.
+    """
+    ids = [i for i, lane in lanes.items() if len(lane.centre) >= 2]
+    if not ids:
+        return dict(lanes), 0
+    first = np.array([lanes[i].centre[0] for i in ids])
+    last = np.array([lanes[i].centre[-1] for i in ids])
+    start_dir = np.array([_direction(lanes[i].centre, 0) for i in ids])
+    end_dir = np.array([_direction(lanes[i].centre, -1) for i in ids])
+    gap = np.hypot(last[:, None, 0] - first[None, :, 0], last[:, None, 1] - first[None, :, 1])
+    turn = np.abs(np.angle(np.exp(1j * (start_dir[None, :] - end_dir[:, None]))))
+    meet = (gap <= distance) & (turn <= heading)
+    np.fill_diagonal(meet, False)
+    exits: dict[int, list[int]] = {i: list(lanes[i].exit) for i in lanes}
+    entries: dict[int, list[int]] = {i: list(lanes[i].entry) for i in lanes}
+    added = 0
+    for a, b in zip(*np.nonzero(meet), strict=True):
+        ia, ib = ids[a], ids[b]
+        if ib not in exits[ia]:
+            exits[ia].append(ib)
+            added += 1
+        if ia not in entries[ib]:
+            entries[ib].append(ia)
+    out = {i: _replace(lane, entry=tuple(entries[i]), exit=tuple(exits[i]))
+           for i, lane in lanes.items()}
+    return out, added
+
+
+def _replace(lane: Lane, **changes) -> Lane:
+    from dataclasses import replace
+
+    return replace(lane, **changes)
+
+
+def _direction(points: np.ndarray, at: int) -> float:
+    """Heading [rad] of a polyline at its first (``at=0``) or last (``at=-1``) point, from
+    the nearest pair of distinct points."""
+    pts = points if at == 0 else points[::-1]
+    d = pts[1:] - pts[0]
+    moved = np.flatnonzero(np.hypot(d[:, 0], d[:, 1]) > 1e-6)
+    if not len(moved):
+        return 0.0
+    dx, dy = d[moved[0]]
+    return float(np.arctan2(dy, dx) if at == 0 else np.arctan2(-dy, -dx))
+
+
+def _segment_distance(points: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """(m,) distance [m] from each point to a polyline (k >= 1 points)."""
+    if len(line) == 1:
+        return np.hypot(*(points - line[0]).T)
+    a, b = line[:-1], line[1:]
+    ab = b - a
+    norm2 = np.maximum((ab ** 2).sum(axis=1), 1e-12)
+    ap = points[:, None, :] - a[None, :, :]
+    u = np.clip((ap * ab[None]).sum(axis=2) / norm2, 0.0, 1.0)
+    closest = a[None] + u[..., None] * ab[None]
+    return np.hypot(*(points[:, None, :] - closest).transpose(2, 0, 1)).min(axis=1)
+
+
+def _side_distance(centre: np.ndarray, segments: list[tuple[int, int, int]],
+                   lines: dict[int, np.ndarray]) -> float:
+    """Median distance [m] from the lane's points to the boundary lines of one side."""
+    found = []
+    for start, end, line_id in segments:
+        line = lines.get(line_id)
+        if line is None or len(line) == 0:
+            continue
+        lo, hi = max(0, start), min(len(centre) - 1, end)
+        if hi < lo:
+            continue
+        pts = centre[lo:hi + 1][:: max(1, (hi - lo + 1) // 20)]  # ~20 points are plenty
+        found.append(_segment_distance(pts, line))
+    return float(np.median(np.concatenate(found))) if found else float("nan")
+
+
+def _width(centre: np.ndarray, left, right, lines) -> tuple[float, bool]:
+    sides = [_side_distance(centre, segs, lines) for segs in (left, right)]
+    sides = [d for d in sides if np.isfinite(d) and d > 0]
+    if not sides:
+        return DEFAULT_LANE_WIDTH, False
+    width = sum(sides) if len(sides) == 2 else 2 * sides[0]
+    return float(np.clip(width, MIN_LANE_WIDTH, MAX_LANE_WIDTH)), True
+
+
+def _finish(scenario_id: str, raw: list[dict], lines: dict[int, np.ndarray], edges, crosswalks,
+            stops, signals: SignalStates, source: str, topology_given: bool) -> RoadMap:
+    """Build the :class:`RoadMap` from lanes read as dicts (id, centre, type, speed_limit,
+    entry, exit, left, right, left_b, right_b)."""
+    lanes: dict[int, Lane] = {}
+    for r in raw:
+        centre = np.asarray(r["centre"], dtype=float).reshape(-1, 2)
+        centre = centre[np.isfinite(centre).all(axis=1)]
+        width, measured = _width(centre, r.get("left_b", ()), r.get("right_b", ()), lines)
+        lanes[int(r["id"])] = Lane(
+            id=int(r["id"]), centre=centre, type=r.get("type", "undefined"),
+            speed_limit=float(r.get("speed_limit", np.nan)), entry=tuple(r.get("entry", ())),
+            exit=tuple(r.get("exit", ())), left=tuple(r.get("left", ())),
+            right=tuple(r.get("right", ())), width=width, width_measured=measured)
+    has_links = any(lane.entry or lane.exit for lane in lanes.values())
+    topology, added = "given", 0
+    if not lanes:
+        topology = "none"
+    elif not (topology_given and has_links):
+        lanes, added = infer_successors(lanes)
+        topology = "inferred"
+    return RoadMap(scenario_id, lanes, tuple(edges), tuple(crosswalks), tuple(stops), signals,
+                   topology, added, source)
+
+
+# ------------------------------------------------------------------ Scenario protos
+
+
+def _xy(points) -> np.ndarray:
+    return np.array([(p.x, p.y) for p in points], dtype=float).reshape(-1, 2)
+
+
+def _scenario_signals(view, n_steps: int) -> SignalStates:
+    states = view.dynamic_map_states
+    lanes: dict[int, int] = {}
+    stop_points: list[tuple[float, float]] = []
+    cells: list[tuple[int, int, int]] = []
+    for step, dms in enumerate(states):
+        for ls in dms.lane_states:
+            k = lanes.get(ls.lane)
+            if k is None:
+                k = lanes[ls.lane] = len(lanes)
+                stop_points.append((ls.stop_point.x, ls.stop_point.y))
+            cells.append((step, k, ls.state))
+    grid = np.zeros((max(n_steps, len(states)), len(lanes)), np.int8)
+    for step, k, state in cells:
+        grid[step, k] = state if 0 <= state < len(LANE_STATES) else 0
+    return SignalStates(np.array(list(lanes), np.int64), grid,
+                        np.array(stop_points, float).reshape(-1, 2))
+
+
+def _neighbours(items) -> tuple[Neighbour, ...]:
+    return tuple(Neighbour(int(n.feature_id), int(n.self_start_index), int(n.self_end_index),
+                           int(n.neighbor_start_index), int(n.neighbor_end_index))
+                 for n in items)
+
+
+def _bounds(items) -> list[tuple[int, int, int]]:
+    return [(int(b.lane_start_index), int(b.lane_end_index), int(b.boundary_feature_id))
+            for b in items]
+
+
+def scenario_road_map(data: bytes, *, source: str = "<record>") -> RoadMap:
+    """The road map of one serialized ``Scenario`` proto.
+
+    Raises:
+        FileFormatError: the bytes are not a Scenario.
+    """
+    from tap_bench.womd import proto
+
+    try:
+        view = proto.ScenarioMapView.FromString(data)
+    except DecodeError as err:
+        raise FileFormatError(f"{source}: not a serialized WOMD Scenario proto (protobuf: "
+                              f"{err}).") from None
+    raw, lines, edges, crosswalks, stops = [], {}, [], [], []
+    for f in view.map_features:
+        if f.HasField("lane"):
+            lane = f.lane
+            raw.append({"id": f.id, "centre": _xy(lane.polyline),
+                        "type": LANE_TYPES.get(lane.type, "undefined"),
+                        "speed_limit": (lane.speed_limit_mph * MPH
+                                        if lane.HasField("speed_limit_mph") else np.nan),
+                        "entry": tuple(int(i) for i in lane.entry_lanes),
+                        "exit": tuple(int(i) for i in lane.exit_lanes),
+                        "left": _neighbours(lane.left_neighbors),
+                        "right": _neighbours(lane.right_neighbors),
+                        "left_b": _bounds(lane.left_boundaries),
+                        "right_b": _bounds(lane.right_boundaries)})
+        elif f.HasField("road_line"):
+            lines[int(f.id)] = _xy(f.road_line.polyline)
+        elif f.HasField("road_edge"):
+            pts = _xy(f.road_edge.polyline)
+            lines[int(f.id)] = pts
+            if len(pts) >= 2:
+                edges.append(pts)
+        elif f.HasField("crosswalk"):
+            pts = _xy(f.crosswalk.polygon)
+            if len(pts) >= 3:
+                crosswalks.append(pts)
+        elif f.HasField("stop_sign"):
+            p = f.stop_sign.position
+            stops.append(StopSign(int(f.id), np.array([p.x, p.y]),
+                                  tuple(int(i) for i in f.stop_sign.lane)))
+    signals = _scenario_signals(view, len(view.timestamps_seconds))
+    return _finish(view.scenario_id, raw, lines, edges, crosswalks, stops, signals, source,
+                   topology_given=True)
+
+
+# ------------------------------------------------------------------ ScenarioNet pickles
+
+_SN_LANE_TYPES = {"LANE_FREEWAY": "freeway", "LANE_SURFACE_STREET": "surface_street",
+                  "LANE_BIKE_LANE": "bike_lane"}
+
+
+def _points(values) -> np.ndarray:
+    """(n, 2) points [m] from ScenarioNet's (n, 2) or (n, 3) arrays."""
+    pts = np.asarray(values, dtype=float)
+    return pts[:, :2] if pts.ndim == 2 and pts.shape[1] >= 2 else pts.reshape(-1, 2)
+
+
+def _sn_neighbours(items) -> tuple[Neighbour, ...]:
+    out = []
+    for n in items or ():
+        if isinstance(n, dict):
+            out.append(Neighbour(int(n["feature_id"]), int(n.get("self_start_index", 0)),
+                                 int(n.get("self_end_index", 0)),
+                                 int(n.get("neighbor_start_index", 0)),
+                                 int(n.get("neighbor_end_index", 0))))
+        else:  # an id alone: a neighbour along the whole lane
+            out.append(Neighbour(int(n), 0, 1 << 30))
+    return tuple(out)
+
+
+def _sn_bounds(items) -> list[tuple[int, int, int]]:
+    return [(int(b.get("lane_start_index", 0)), int(b.get("lane_end_index", 0)),
+             int(b.get("boundary_feature_id", -1))) for b in items or ()
+            if isinstance(b, dict)]
+
+
+def scenarionet_road_map(scenario: dict, *, source: str = "<scenario>") -> RoadMap:
+    """The road map of an unpickled ScenarioNet scenario
+    (:func:`tap_bench.sources.scenarionet.load_scenarionet`).
+
+    Raises:
+        FileFormatError: ``map_features`` or ``dynamic_map_states`` is not ScenarioNet's.
+    """
+    meta = scenario.get("metadata", {}) if isinstance(scenario, dict) else {}
+    sid = str(meta.get("scenario_id", scenario.get("id", Path(source).stem)))
+    features = scenario.get("map_features") or {}
+    if not isinstance(features, dict):
+        raise FileFormatError(f"{source}: map_features is a {type(features).__name__}, where "
+                              "a dict of features belongs.")
+    raw, lines, edges, crosswalks, stops = [], {}, [], [], []
+    try:
+        for key, f in features.items():
+            kind = str(f.get("type", ""))
+            if kind.startswith("LANE"):
+                mph = f.get("speed_limit_mph")
+                raw.append({"id": int(key),
+                            "centre": _points(f.get("polyline", [])),
+                            "type": _SN_LANE_TYPES.get(kind, "undefined"),
+                            "speed_limit": float(mph) * MPH if mph is not None else np.nan,
+                            "entry": tuple(int(i) for i in f.get("entry_lanes", []) or []),
+                            "exit": tuple(int(i) for i in f.get("exit_lanes", []) or []),
+                            "left": _sn_neighbours(f.get("left_neighbor")),
+                            "right": _sn_neighbours(f.get("right_neighbor")),
+                            "left_b": _sn_bounds(f.get("left_boundaries")),
+                            "right_b": _sn_bounds(f.get("right_boundaries"))})
+            elif kind.startswith(("ROAD_LINE", "ROAD_EDGE")):
+                pts = _points(f.get("polyline", []))
+                lines[int(key)] = pts
+                if kind.startswith("ROAD_EDGE") and len(pts) >= 2:
+                    edges.append(pts)
+            elif kind == "CROSSWALK":
+                pts = _points(f.get("polygon", []))
+                if len(pts) >= 3:
+                    crosswalks.append(pts)
+            elif kind == "STOP_SIGN":
+                pos = np.asarray(f.get("position", [np.nan, np.nan]), float).ravel()[:2]
+                stops.append(StopSign(int(key), pos,
+                                      tuple(int(i) for i in f.get("lane", []) or [])))
+    except (TypeError, ValueError, AttributeError) as err:
+        raise FileFormatError(f"{source}: a map feature is malformed ({type(err).__name__}: "
+                              f"{err}); is it a ScenarioNet scenario?") from None
+    n_steps = len(np.asarray(meta.get("ts", []), float).ravel())
+    signals = _sn_signals(scenario.get("dynamic_map_states") or {}, n_steps, source)
+    return _finish(sid, raw, lines, edges, crosswalks, stops, signals, source,
+                   topology_given=True)
+
+
+def _sn_signals(states: dict, n_steps: int, source: str) -> SignalStates:
+    names = {f"LANE_STATE_{name.upper()}": i for i, name in enumerate(LANE_STATES)}
+    lanes, grid_cols, points = [], [], []
+    for key, s in states.items():
+        try:
+            series = list((s.get("state") or {}).get("object_state", []))
+            lane = int(s.get("lane", key))
+            stop = np.asarray(s.get("stop_point", [np.nan, np.nan]), float).ravel()[:2]
+        except (TypeError, ValueError, AttributeError) as err:
+            raise FileFormatError(f"{source}: dynamic_map_states[{key!r}] is malformed "
+                                  f"({err}).") from None
+        col = np.zeros(max(n_steps, len(series)), np.int8)
+        col[:len(series)] = [names.get(str(v), 0) for v in series]
+        lanes.append(lane)
+        grid_cols.append(col)
+        points.append(stop)
+    if not lanes:
+        return SignalStates.empty(n_steps)
+    n = max(len(c) for c in grid_cols)
+    grid = np.zeros((n, len(lanes)), np.int8)
+    for k, col in enumerate(grid_cols):
+        grid[:len(col), k] = col
+    return SignalStates(np.array(lanes, np.int64), grid, np.array(points, float))
+
+
+# ------------------------------------------------------------------ tf.Example roadgraph
+
+_RG_LANES = {1: "freeway", 2: "surface_street", 3: "bike_lane"}
+_RG_EDGES = {15, 16}
+_RG_STOP_SIGN = 17
+_RG_CROSSWALK = 18
+
+
+def tf_example_road_map(data: bytes, *, source: str = "<record>") -> RoadMap | None:
+    """The road map of one motion ``tf.Example`` (None when it has no roadgraph). Its lanes
+    carry no topology: successors are inferred and there are no neighbours."""
+    from tap_bench.womd.tf_example import Example
+
+    try:
+        features = Example.FromString(data).features.feature
+    except DecodeError as err:
+        raise FileFormatError(f"{source}: not a serialized tf.Example ({err}).") from None
+    if "roadgraph_samples/xyz" not in features:
+        return None
+
+    def values(key, dtype=float):
+        f = features[key]
+        kind = f.WhichOneof("kind")
+        return np.array(getattr(f, kind).value if kind else [], dtype=dtype)
+
+    sid = (features["scenario/id"].bytes_list.value[0].decode()
+           if "scenario/id" in features else source)
+    xyz = values("roadgraph_samples/xyz").reshape(-1, 3)
+    kind = values("roadgraph_samples/type", np.int64)
+    ids = values("roadgraph_samples/id", np.int64)
+    valid = values("roadgraph_samples/valid", np.int64) > 0
+    if not (len(xyz) == len(kind) == len(ids) == len(valid)):
+        raise FileFormatError(f"{source}: roadgraph_samples/* features differ in length.")
+    xyz, kind, ids = xyz[valid], kind[valid], ids[valid]
+    cut = np.flatnonzero((ids[1:] != ids[:-1]) | (kind[1:] != kind[:-1])) + 1
+    raw, edges, crosswalks, stops = [], [], [], []
+    for part in np.split(np.arange(len(ids)), cut):
+        if not len(part):
+            continue
+        k, pts = int(kind[part[0]]), xyz[part, :2]
+        if k in _RG_LANES:
+            raw.append({"id": int(ids[part[0]]), "centre": pts, "type": _RG_LANES[k]})
+        elif k in _RG_EDGES and len(pts) >= 2:
+            edges.append(pts)
+        elif k == _RG_CROSSWALK and len(pts) >= 3:
+            crosswalks.append(pts)
+        elif k == _RG_STOP_SIGN:
+            stops.append(StopSign(int(ids[part[0]]), pts[0]))
+    signals = SignalStates.empty(91)
+    if "traffic_light_state/current/state" in features:
+        parts = [(p, values(f"traffic_light_state/{p}/state", np.int64)) for p in
+                 ("past", "current", "future")]
+        state = np.concatenate([v.reshape(-1, 16) for _, v in parts if len(v)], axis=0)
+        lane = np.concatenate([values(f"traffic_light_state/{p}/id", np.int64).reshape(-1, 16)
+                               for p, v in parts if len(v)], axis=0)
+        x = np.concatenate([values(f"traffic_light_state/{p}/x").reshape(-1, 16)
+                            for p, v in parts if len(v)], axis=0)
+        y = np.concatenate([values(f"traffic_light_state/{p}/y").reshape(-1, 16)
+                            for p, v in parts if len(v)], axis=0)
+        ok = (lane >= 0) & (state > 0)
+        uniq = np.unique(lane[ok])
+        grid = np.zeros((state.shape[0], len(uniq)), np.int8)
+        points = np.zeros((len(uniq), 2))
+        for k, lid in enumerate(uniq):
+            hit = ok & (lane == lid)
+            rows, cols = np.nonzero(hit)
+            grid[rows, k] = state[rows, cols]
+            points[k] = (x[rows[0], cols[0]], y[rows[0], cols[0]])
+        signals = SignalStates(uniq.astype(np.int64), grid, points)
+    return _finish(sid, raw, {}, edges, crosswalks, stops, signals, source,
+                   topology_given=False)
+
+
+# ------------------------------------------------------------------ files
+
+
+def iter_road_maps(paths: str | os.PathLike | Iterable[str | os.PathLike]
+                   ) -> Iterator[RoadMap]:
+    """The road map of every scenario in driving-data files, in file and record order.
+
+    Args:
+        paths: files, directories or glob patterns (:func:`tap_bench.sources.read_womd`).
+
+    Raises:
+        WomdRecordError / FileFormatError: a record or file that cannot be read, named.
+    """
+    from tap_bench.sources.ingest import _file_format, expand_paths
+    from tap_bench.sources.scenarionet import load_scenarionet
+    from tap_bench.womd.tfrecord import iter_records
+
+    for path in expand_paths(paths):
+        name = _file_format(path, "auto", True).name
+        if name == "scenarionet":
+            yield scenarionet_road_map(load_scenarionet(path), source=str(path))
+        elif name in ("scenario", "tf_example"):
+            for record in iter_records(path):
+                where = f"{path} record {record.index}"
+                try:
+                    road = (scenario_road_map(record.data, source=where) if name == "scenario"
+                            else tf_example_road_map(record.data, source=where))
+                except FileFormatError as err:
+                    raise WomdRecordError(str(path), record.index, record.offset, str(err),
+                                          "Is the file a WOMD scenario file?") from None
+                if road is not None:
+                    yield road
+
+
+def read_road_maps(paths: str | os.PathLike | Iterable[str | os.PathLike]
+                   ) -> dict[str, RoadMap]:
+    """:func:`iter_road_maps` as a dict scenario id -> :class:`RoadMap`."""
+    return {road.scenario_id: road for road in iter_road_maps(paths)}

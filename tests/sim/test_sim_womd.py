@@ -1,0 +1,313 @@
+"""Recorded WOMD scenes in closed loop (tap_bench/womd-v0): the map with topology, the fast
+lane lookup against highway-env's, the env on the real files, the human, IDM at red lights,
+idm traffic, the command, and bad scenarios."""
+
+from __future__ import annotations
+
+import pickle
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pandas as pd
+import pytest
+from highway_env.road.lane import PolyLaneFixedWidth
+from highway_env.road.road import RoadNetwork
+
+import tap_bench  # noqa: F401  (registers the envs)
+from tap_bench.bench.measures import ego_measures
+from tap_bench.labelling import label
+from tap_bench.sim.policies import load_policy
+from tap_bench.sim.rollout import rollout
+from tap_bench.sim.womd_env import WomdEnv, make_womd_env
+from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, lane_points
+from tap_bench.sim.womd_scene import CURRENT_STEP, SceneError, WomdScenes
+from tap_bench.womd.roadmap import Lane, infer_successors, read_road_maps
+
+WOMD_DIR = (Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "womd").resolve()
+FILES = ["motion_data_one_scenario.tfrecord", "womd_scenario_input.tfrecord",
+         "motion_data_one_example.tfrecord", "sd_waymo_v1.2_eb4b91b10ca94ff2.pkl"]
+
+
+@pytest.fixture
+def real() -> list[str]:
+    if not (WOMD_DIR / FILES[0]).is_file():
+        pytest.skip(f"real WOMD samples not found in {WOMD_DIR}")
+    return [str(WOMD_DIR / f) for f in FILES]
+
+
+def run(env: WomdEnv, policy: str, seed: int) -> pd.DataFrame:
+    p = load_policy(policy)
+    obs, _ = env.reset(seed=seed)
+    p.reset(env, seed=seed)
+    done = False
+    while not done:
+        obs, _, terminated, truncated, _ = env.step(p.act(obs))
+        done = terminated or truncated
+    return env.trajectories(policy=policy)
+
+
+# ----------------------------------------------------------------- lanes and lookup
+
+
+def arc(radius: float, start: float, sweep: float, length: float, origin=(0.0, 0.0)
+        ) -> np.ndarray:
+    """Points every 0.5 m along an arc (a straight line when radius is inf)."""
+    s = np.arange(0.0, length + 1e-9, 0.5)
+    if not np.isfinite(radius):
+        return np.c_[origin[0] + s * np.cos(start), origin[1] + s * np.sin(start)]
+    a = start + np.sign(sweep) * s / radius
+    cx = origin[0] - np.sign(sweep) * radius * np.sin(start)
+    cy = origin[1] + np.sign(sweep) * radius * np.cos(start)
+    return np.c_[cx + np.sign(sweep) * radius * np.sin(a), cy - np.sign(sweep) * radius
+                 * np.cos(a)]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_lane_lookup_and_projection_equal_highway_envs_on_generated_lanes(seed):
+    rng = np.random.default_rng(seed)
+    net, built = RoadNetwork(), []
+    for k in range(12):
+        radius = rng.choice([np.inf, rng.uniform(8, 200)])
+        pts = arc(radius, rng.uniform(-np.pi, np.pi), rng.choice([-1, 1]),
+                  rng.uniform(0.6, 80), origin=rng.uniform(-40, 40, 2))
+        pts = lane_points(pts)
+        lane = FastPolyLane(pts.tolist(), 3.7, womd_id=k)
+        net.add_lane(str(k), f"{k}>", PolyLaneFixedWidth(pts.tolist(), width=3.7))
+        built.append(((str(k), f"{k}>", 0), lane))
+    index = LaneIndex(built)
+    for _ in range(200):
+        p = rng.uniform(-90, 90, 2)
+        h = rng.uniform(-np.pi, np.pi)
+        assert index.closest(p, h) == net.get_closest_lane_index(p, h)
+        assert index.closest(p) == net.get_closest_lane_index(p)
+        _, lane = built[rng.integers(len(built))]
+        lon, lat = lane.local_coordinates(p)
+        assert (lon, lat) == tuple(lane.curve.cartesian_to_frenet(p))
+        assert lane.heading_at(lon) == PolyLaneFixedWidth.heading_at(lane, lon)
+
+
+def test_lane_lookup_equals_highway_envs_on_a_real_map(real):
+    road = read_road_maps(real[0])["637f20cafde22ff8"]
+    net, built = RoadNetwork(), []
+    for lane in road.lanes.values():
+        pts = lane_points(lane.centre)
+        if pts is None:
+            continue
+        index = (str(lane.id), f"{lane.id}>", 0)
+        net.add_lane(*index[:2], PolyLaneFixedWidth(pts.tolist(), width=lane.width))
+        built.append((index, FastPolyLane(pts.tolist(), lane.width, womd_id=lane.id)))
+    lookup = LaneIndex(built)
+    rng = np.random.default_rng(1)
+    centres = np.concatenate([lane.centre for lane in road.lanes.values()])
+    for p in centres[rng.choice(len(centres), 150)] + rng.normal(0, 2, (150, 2)):
+        h = rng.uniform(-np.pi, np.pi)
+        assert lookup.closest(p, h) == net.get_closest_lane_index(p, h)
+
+
+def test_short_and_degenerate_centre_lines():
+    assert lane_points(np.array([[1.0, 2.0]])) is None
+    assert lane_points(np.array([[1.0, 2.0], [1.0, 2.0]])) is None
+    short = lane_points(np.array([[0.0, 0.0], [0.3, 0.0]]))
+    assert np.hypot(*np.diff(short, axis=0).T).sum() >= 1.0
+    FastPolyLane(short.tolist(), 3.7)  # highway-env can build it
+
+
+def test_successors_are_inferred_from_lane_ends_that_meet():
+    lanes = {1: Lane(1, np.array([[0.0, 0.0], [10.0, 0.0]])),
+             2: Lane(2, np.array([[10.3, 0.1], [20.0, 0.0]])),  # meets 1's end
+             3: Lane(3, np.array([[10.0, 0.0], [10.0, -10.0]])),  # turns 90 degrees
+             4: Lane(4, np.array([[11.0, 0.0], [20.0, 0.0]]))}  # 1 m away
+    out, added = infer_successors(lanes)
+    assert out[1].exit == (2,) and out[2].entry == (1,) and added == 1
+
+
+# ----------------------------------------------------------------- the map
+
+
+def test_road_maps_keep_the_topology(real):
+    maps = {}
+    for f in real:
+        maps.update(read_road_maps(f))
+    scenario = maps["637f20cafde22ff8"]
+    assert scenario.topology == "given" and len(scenario.lanes) > 100
+    assert sum(len(lane.exit) for lane in scenario.lanes.values()) > 100
+    assert sum(len(lane.left) + len(lane.right) for lane in scenario.lanes.values()) > 100
+    assert scenario.signals.state.shape[0] == 91 and scenario.signals.state.shape[1] > 0
+    assert scenario.road_edges and scenario.crosswalks and scenario.stop_signs
+    widths = [lane.width for lane in scenario.lanes.values() if lane.width_measured]
+    assert 3.0 < np.median(widths) < 4.5
+    pkl = maps["eb4b91b10ca94ff2"]
+    assert pkl.topology == "given" and pkl.signals.state.shape == (199, 14)
+    assert sum(len(lane.left) for lane in pkl.lanes.values()) > 10
+    example = maps["a3bb37c25ce56418"]  # the tf.Example roadgraph has no topology
+    assert example.topology == "inferred" and example.inferred_links > 50
+
+
+# ----------------------------------------------------------------- the env on real scenes
+
+
+def test_the_human_replays_the_log_exactly(real):
+    env = make_womd_env(real)
+    for seed in range(len(env.catalog)):
+        table = run(env, "log", seed)
+        log = env.scene.table()
+        assert len(table) == len(log)
+        for col in ("x", "y", "heading", "speed"):
+            np.testing.assert_array_equal(table[col].to_numpy(), log[col].to_numpy())
+        ego = table[table["is_ego"]]
+        assert (ego["log_distance"].dropna() == 0).all()
+        info = env.episode_info()
+        assert info["log_ade"] == 0 and info["log_fde"] == 0
+        if np.isfinite(info["route_progress"]):
+            assert info["route_progress"] == pytest.approx(1.0)
+    # and its labels are the log's
+    ours = label(table[table["is_ego"]].drop(columns=["policy", "env", "seed", "source"]))
+    theirs = label(log[log["is_ego"]].drop(columns=["source"]))
+    assert ours["sdl"].tolist() == theirs["sdl"].tolist()
+
+
+def test_an_idm_ego_stops_for_the_red_light(real):
+    # 637f20cafde22ff8: the SDC waits at a red light for the whole record
+    env = make_womd_env(real[0])
+    scene_red = env.scene_at(0).road.signals.red
+    assert scene_red.any()
+    table = run(env, "idm", 0)
+    info = env.episode_info()
+    assert not info["ran_red_light"] and not info["off_road"]
+    assert info["log_fde"] < 1.0
+    # lane keeping does not stop: it runs the red light
+    run(env, "lane-keeping", 0)
+    assert env.episode_info()["ran_red_light"]
+    ego = table[table["is_ego"]]
+    assert (ego["speed"] >= 0).all()
+
+
+def test_an_idm_ego_follows_its_route(real):
+    env = make_womd_env(real[1])  # ee519cf571686d19: the SDC drives ~40 m along a street
+    run(env, "idm", 0)
+    info = env.episode_info()
+    assert info["route_progress"] == pytest.approx(1.0)
+    assert not info["off_road"] and not info["ran_red_light"]
+
+
+def test_idm_traffic_stays_on_its_lanes(real):
+    env = make_womd_env(real[1], traffic="idm")
+    table = run(env, "log", 0)
+    inner = env.unwrapped
+    assert inner.simulated, "some vehicles are driven by IDM"
+    network = inner.road.network
+    for row in inner.simulated:
+        track = table[(table["track_id"] == env.scene.track_ids[row])
+                      & (table["t"] > CURRENT_STEP / 10)]
+        for x, y in zip(track["x"], track["y"], strict=True):
+            lane = network.get_lane(network.get_closest_lane_index(np.array([x, -y])))
+            _, lat = lane.local_coordinates(np.array([x, -y]))
+            assert abs(lat) <= lane.width / 2 + 0.5
+    # pedestrians replay the log exactly
+    log = env.scene.table()
+    walkers = log["object_type"] == "pedestrian"
+    np.testing.assert_array_equal(table.loc[walkers.to_numpy(), "x"], log.loc[walkers, "x"])
+
+
+def test_every_built_in_policy_drives_and_the_measures_agree(real):
+    env = gym.make("tap_bench/womd-v0", files=real[1:2])
+    for policy in ("idm", "idm-aggressive", "idm-defensive", "random", "lane-keeping"):
+        table = run(_find(env), policy, 0)
+        measures = ego_measures(table)
+        info = _find(env).episode_info()
+        assert measures["off_road"].iloc[0] == float(info["off_road"])
+        assert measures["log_fde"].iloc[0] == pytest.approx(info["log_fde"])
+        assert measures["route_progress"].iloc[0] == pytest.approx(info["route_progress"])
+
+
+def _find(env):
+    from tap_bench.sim.scenario_env import find_scenario_env
+
+    return find_scenario_env(env)
+
+
+def test_the_log_policy_refuses_a_synthetic_scene():
+    env = gym.make("tap_bench/highway-v0", duration=1)
+    env.reset(seed=0)
+    with pytest.raises(Exception, match="recorded ego"):
+        load_policy("log").reset(env, seed=0)
+
+
+def test_rollout_pairs_the_human_and_a_policy_by_scenario(real):
+    scenes = WomdScenes(tuple(real[:2]))
+    human = rollout(scenes, "log", "all")
+    idm = rollout(scenes, "idm", "all")
+    assert list(human.episodes["scenario_id"]) == list(idm.episodes["scenario_id"])
+    assert set(human.trajectories["scenario_id"]) == {"637f20cafde22ff8", "ee519cf571686d19"}
+    for col in ("off_road", "route_progress", "ran_red_light", "log_ade", "log_fde"):
+        assert col in idm.episodes.columns
+
+
+def test_the_command_writes_both_tables(real, tmp_path, capsys):
+    from tap_bench.cli import main
+
+    out = tmp_path / "idm.parquet"
+    assert main(["rollout", "--womd", real[1], "--policy", "idm", "--traffic", "idm",
+                 "-o", str(out)]) == 0
+    episodes = pd.read_parquet(tmp_path / "idm.episodes.parquet")
+    assert {"crashed", "off_road", "route_progress"} <= set(episodes.columns)
+    table = pd.read_parquet(out)
+    assert (table["scenario_id"] == "ee519cf571686d19").all()
+    assert "route progress" in capsys.readouterr().out
+
+
+# ----------------------------------------------------------------- bad scenarios
+
+
+def scenarionet(path: Path, *, sdc: str | None = "ego", lanes: bool = True,
+                one_point: bool = False, ego_y: float = 0.0) -> str:
+    """A ScenarioNet pickle: a 100 m straight lane, the ego driving along it at 10 m/s."""
+    t = np.arange(91) * 0.1
+    ego = {"type": "VEHICLE", "state": {
+        "position": np.c_[10 * t, np.full(91, ego_y), np.zeros(91)],
+        "heading": np.zeros(91), "velocity": np.c_[np.full(91, 10.0), np.zeros(91)],
+        "valid": np.ones(91, bool), "length": np.full(91, 4.5), "width": np.full(91, 2.0)}}
+    features = {}
+    if lanes:
+        features["1"] = {"type": "LANE_SURFACE_STREET",
+                         "polyline": np.c_[np.arange(-10, 120, 0.5), np.zeros(260)],
+                         "entry_lanes": [], "exit_lanes": []}
+    if one_point:
+        features["2"] = {"type": "LANE_SURFACE_STREET", "polyline": np.array([[5.0, 5.0]])}
+    meta = {"scenario_id": path.stem, "ts": t, "dataset": "waymo"}
+    if sdc is not None:
+        meta["sdc_id"] = sdc
+    with path.open("wb") as f:
+        pickle.dump({"metadata": meta, "tracks": {"ego": ego}, "map_features": features,
+                     "dynamic_map_states": {}}, f)
+    return str(path)
+
+
+def test_bad_scenarios_name_the_scenario_and_the_fix(tmp_path):
+    cases = {"no-sdc": ({"sdc": None}, "no self-driving car.*--ego"),
+             "no-lanes": ({"lanes": False}, "no lanes"),
+             "off-map": ({"ego_y": 40.0}, "leaves the mapped lanes.*--ego")}
+    for name, (kwargs, message) in cases.items():
+        env = make_womd_env(scenarionet(tmp_path / f"sd_{name}.pkl", **kwargs))
+        with pytest.raises(SceneError, match=f"{name}.*{message}"):
+            env.reset(seed=0)
+
+
+def test_a_one_point_lane_is_left_out_and_the_scene_drives(tmp_path):
+    env = make_womd_env(scenarionet(tmp_path / "sd_one.pkl", one_point=True))
+    table = run(env, "idm", 0)
+    assert env.unwrapped.road.network.left_out == [2]
+    assert env.episode_info()["route_progress"] > 0.9
+    assert len(table)
+
+
+def test_one_bad_scenario_is_reported_and_the_rest_land(tmp_path):
+    good = scenarionet(tmp_path / "sd_good.pkl")
+    bad = scenarionet(tmp_path / "sd_bad.pkl", sdc=None)
+    with pytest.warns(UserWarning, match="1 of 2 episodes"):
+        result = rollout(WomdScenes((good, bad)), "idm", "all")
+    status = dict(zip(result.episodes["seed"], result.episodes["status"], strict=True))
+    assert status == {0: "ok", 1: "error"}
+    assert "sd_bad" in result.episodes["error"].iloc[1]
+    assert set(result.trajectories["scenario_id"]) == {"sd_good"}
