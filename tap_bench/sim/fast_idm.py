@@ -13,9 +13,10 @@ rollout. :func:`act_all` gives every vehicle the same action, bit for bit:
 - the steering command and the IDM accelerations, which read only positions, speeds,
   headings and lanes (none of which change during ``Road.act``) and the vehicle's own target
   lane, are then computed for every plain IDM vehicle at once with numpy, with
-  highway-env's formulas term for term in its order of operations (``np.dot`` of two
-  2-vectors is ``a0 * b0 + a1 * b1``; ``max``, ``min`` and ``np.clip`` keep their NaN and
-  signed-zero behaviour);
+  highway-env's formulas term for term in its order of operations (``max``, ``min`` and
+  ``np.clip`` keep their NaN and signed-zero behaviour; ``np.dot`` of two 2-vectors is
+  ``a0 * b0 + a1 * b1`` where the BLAS kernel computes that, and ``np.dot`` row by row
+  where it fuses the multiply-add);
 - a vehicle on a lane that is not straight, or whose class or instance changes any method
   involved, is left to highway-env's own ``act``.
 
@@ -73,7 +74,6 @@ def array_kernels_agree() -> bool:
     x = np.concatenate([rng.uniform(-1, 1, 256), rng.uniform(-50, 50, 256)])
     y = rng.uniform(0.5, 60, 512)
     e = rng.uniform(3.5, 4.5, 512)
-    a, b = rng.uniform(-100, 100, (2, 512, 2))
     checks = [
         (np.arcsin(np.clip(x, -1, 1)), [np.arcsin(np.clip(v, -1, 1)) for v in x]),
         (np.arctan(2 * np.tan(x)), [np.arctan(2 * np.tan(v)) for v in x]),
@@ -81,9 +81,27 @@ def array_kernels_agree() -> bool:
         (np.power(y / 30.0, e), [np.power(v / 30.0, w) for v, w in zip(y, e, strict=True)]),
         (np.power(x, 2), [np.power(v, 2) for v in x]),
         (np.remainder(x + np.pi, 2 * np.pi), [(v + np.pi) % (2 * np.pi) for v in x]),
-        (a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1], [np.dot(u, w) for u, w in zip(a, b, strict=True)]),
     ]
     return all(np.array_equal(got, np.array(want, dtype=float)) for got, want in checks)
+
+
+@functools.cache
+def _dot_is_mul_add() -> bool:
+    """Whether ``np.dot`` of two 2-vectors is ``a0 * b0 + a1 * b1`` here. It depends on the
+    BLAS kernel numpy calls (OpenBLAS picks one per CPU; one with fused multiply-adds
+    rounds differently), so it is checked once per process."""
+    a, b = np.random.default_rng(1).uniform(-100, 100, (2, 512, 2))
+    return np.array_equal(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1],
+                          np.array([np.dot(u, w) for u, w in zip(a, b, strict=True)]))
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(n,) ``np.dot(a[k], b[k])`` of (n, 2) rows, bit for bit: with numpy's arithmetic
+    where the BLAS kernel computes ``a0 * b0 + a1 * b1``, else by ``np.dot`` row by row."""
+    if _dot_is_mul_add():
+        return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]
+    a, b = np.ascontiguousarray(a, dtype=float), np.ascontiguousarray(b, dtype=float)
+    return np.array([np.dot(u, w) for u, w in zip(a, b, strict=True)], dtype=float)
 
 
 def _not_zero(x: np.ndarray) -> np.ndarray:
@@ -180,8 +198,7 @@ def _lane_arrays(lanes: list[StraightLane]) -> tuple[np.ndarray, ...]:
 def _along(position: np.ndarray, start: np.ndarray, direction: np.ndarray) -> np.ndarray:
     """StraightLane.local_coordinates(position)[0] of each row: np.dot(position - start,
     direction)."""
-    delta = position - start
-    return delta[:, 0] * direction[:, 0] + delta[:, 1] * direction[:, 1]
+    return _dot(position - start, direction)
 
 
 def _act_straight(road: Any, vehicles: list[Any], lanes: list[StraightLane],
@@ -228,7 +245,7 @@ def _act_straight(road: Any, vehicles: list[Any], lanes: list[StraightLane],
         front_position = np.array([f.position for f in ahead], dtype=float)
         d = _along(front_position, l_start[rows], l_direction[rows]) - own_s[rows]
         dv_vec = velocity[rows] - _velocity(ahead)
-        dv = dv_vec[:, 0] * direction[rows, 0] + dv_vec[:, 1] * direction[rows, 1]
+        dv = _dot(dv_vec, direction[rows])
         s = speed[rows]
         d_star = distance_wanted[rows] + s * time_wanted[rows] + s * dv / gap_scale[rows]
         out[rows] = out[rows] - comfort_max[rows] * np.power(d_star / _not_zero(d), 2)

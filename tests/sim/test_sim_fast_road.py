@@ -357,3 +357,19 @@ def test_only_straight_networks_get_the_fast_lane_lookup():
     env = make_env("highway", record=False, duration=2)
     env.reset(seed=0)
     assert "get_closest_lane_index" in vars(env.unwrapped.road.network)
+
+
+@pytest.mark.parametrize("mul_add", [True, False])
+def test_either_dot_product_simulates_bit_for_bit(monkeypatch, mul_add):
+    """np.dot of 2-vectors is a0 * b0 + a1 * b1 with some BLAS kernels and a fused
+    multiply-add with others (OpenBLAS picks by CPU): both ways of computing it give
+    highway-env's simulation (run this file with and without OPENBLAS_CORETYPE=Haswell to
+    meet both kernels)."""
+    from tap_bench.sim import fast_idm
+
+    if mul_add and not fast_idm._dot_is_mul_add():
+        pytest.skip("this machine's BLAS fuses the multiply-add")
+    monkeypatch.setattr(fast_idm, "_dot_is_mul_add", lambda: mul_add)
+    ours = _episodes("highway", fast_road=True, idm_ego=IDMParameters(), seeds=(2,))
+    theirs = _episodes("highway", fast_road=False, idm_ego=IDMParameters(), seeds=(2,))
+    pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
