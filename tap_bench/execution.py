@@ -22,7 +22,9 @@ that killed it is known, and a fresh worker takes its place.
   when a :class:`RayBackend` is made.
 
 Functions and items must be picklable by reference (module-level functions, dataclasses),
-since both backends run them in other processes.
+since both backends run them in other processes. Every worker imports the plugins its parent
+loaded (:func:`tap_bench.plugins.loaded_plugins`: the modules that register a user's
+measures, formats and policy kinds) before its first item.
 """
 
 from __future__ import annotations
@@ -42,6 +44,8 @@ from dataclasses import dataclass, field
 from typing import IO, Any, Generic, Protocol, TypeVar, runtime_checkable
 
 from tap_bench.errors import ParameterError, TapBenchError, did_you_mean
+from tap_bench.plugins import ENV_VAR as PLUGINS_ENV
+from tap_bench.plugins import load_plugins, loaded_plugins
 
 __all__ = ["BACKENDS", "DEFAULT_RETRIES", "Backend", "LocalBackend", "Outcome", "RayBackend",
            "add_backend_arguments", "backend_from_args", "check_workers", "close_backend",
@@ -157,6 +161,18 @@ def _timed(fn: Callable[[T], R], item: T) -> tuple[R, float, float]:
     start, cpu = time.perf_counter(), time.process_time()
     value = fn(item)
     return value, time.perf_counter() - start, time.process_time() - cpu
+
+
+def _timed_with_plugins(plugins: tuple[str, ...], paths: tuple[str, ...],
+                        fn: Callable[[T], R], item: T) -> tuple[R, float, float]:
+    """:func:`_timed` in a Ray worker, after importing the parent's plugins (a no-op after
+    the first task of the worker: Python's module cache). The parent's import path is added
+    behind the worker's own, as a local worker gets it as PYTHONPATH, so a plugin found by
+    the parent is found here (on a machine that has the same folders)."""
+    if plugins:
+        sys.path.extend(p for p in paths if p not in sys.path)
+        load_plugins(plugins, source="worker")
+    return _timed(fn, item)
 
 
 def check_workers(workers: Any, name: str = "workers") -> int:
@@ -278,6 +294,7 @@ class _Worker:
     def __init__(self) -> None:
         env = {**os.environ, **WORKER_THREADS_ENV}
         env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)
+        env[PLUGINS_ENV] = ",".join(loaded_plugins())  # imported before the first item
         # Interrupts are the parent's to handle: a worker ignores the terminal's SIGINT and
         # ends when the parent closes its input or terminates it.
         self.process = subprocess.Popen(
@@ -334,6 +351,12 @@ def _worker_main() -> None:
     os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
     source = sys.stdin.buffer
     warnings.simplefilter("ignore")  # the parent reports failures; workers stay quiet
+    plugins = [name for name in os.environ.get(PLUGINS_ENV, "").split(",") if name]
+    try:
+        load_plugins(plugins, source="worker")
+        broken = ""
+    except Exception as err:  # every item says why, rather than a worker that dies
+        broken = f"the worker cannot import the run's plugins: {describe_error(err)}"
     while True:
         try:
             fn, item = _receive(source)
@@ -344,6 +367,8 @@ def _worker_main() -> None:
                                     f"{describe_error(err)}"))
             continue
         try:
+            if broken:
+                raise TapBenchError(broken)
             reply: tuple = ("ok", _timed(fn, item))
         except Exception as err:
             reply = ("error", describe_error(err))
@@ -540,8 +565,9 @@ class RayBackend:
         retries = _check_retries(retries)
         if total is None and isinstance(items, Sequence):
             total = len(items)
-        task = ray.remote(_timed).options(max_retries=0, num_cpus=1)
+        task = ray.remote(_timed_with_plugins).options(max_retries=0, num_cpus=1)
         fn_ref = ray.put(fn)
+        plugins, paths = loaded_plugins(), tuple(p for p in sys.path if p)
         queue = _Window(items, window or self.in_flight or 2 * self.workers, retries, None)
         running: dict[Any, int] = {}
         with _bar(total, desc, unit, progress) as queue.bar:
@@ -549,7 +575,7 @@ class RayBackend:
                 queue.fill()
                 while queue.waiting:
                     i = queue.waiting.popleft()
-                    running[task.remote(fn_ref, queue.held[i])] = i
+                    running[task.remote(plugins, paths, fn_ref, queue.held[i])] = i
                 yield from queue.release()
                 if queue.finished:
                     return

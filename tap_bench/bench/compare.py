@@ -42,12 +42,10 @@ import pandas as pd
 from tap_bench import sdl
 from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.intervals import (
-    MEASURE_BOUNDS,
-    mean_interval,
-    newcombe_interval,
+    paired_measure_interval,
     tango_band,
     tango_interval,
-    welch_interval,
+    unpaired_measure_interval,
     wilson_interval,
 )
 from tap_bench.bench.measures import MEASURES, Measure
@@ -175,13 +173,8 @@ def _measure_rows(env: str, sub: pd.DataFrame, measures, level: float) -> list[d
         sign = 1.0 if m.higher_is_better else -1.0
         wins, losses = int((sign * diff > 0).sum()), int((sign * diff < 0).sum())
         d_lo, d_hi = tango_interval(wins, losses, n, level)
-        if m.name == "crashed":  # a difference of paired proportions
-            lo, hi = tango_interval(int(((va > 0) & (vb == 0)).sum()),
-                                    int(((va == 0) & (vb > 0)).sum()), n, level)
-        else:
-            bounds = MEASURE_BOUNDS.get(m.name)
-            span = None if bounds is None else (bounds[0] - bounds[1], bounds[1] - bounds[0])
-            lo, hi = mean_interval(diff, level, bounds=span)
+        # a rate: a difference of paired proportions (Tango); a mean: Student's t
+        lo, hi = paired_measure_interval(m, va, vb, level)
         rows.append({"env": env, "measure": m.name, "higher_is_better": m.higher_is_better,
                      "n": n, "mean_a": float(va.mean()), "mean_b": float(vb.mean()),
                      "diff": float(diff.mean()), "diff_low": lo, "diff_high": hi,
@@ -277,12 +270,7 @@ def matched_by_label(episodes: pd.DataFrame, a: str, b: str, *, metric: str = "e
                 xa, xb = xa[np.isfinite(xa)], xb[np.isfinite(xb)]
                 if len(xa) < min_group or len(xb) < min_group:
                     continue
-                if m.name == "crashed":
-                    lo, hi = newcombe_interval(int(xa.sum()), len(xa), int(xb.sum()),
-                                               len(xb), config.level)
-                else:
-                    lo, hi = welch_interval(xa, xb, config.level,
-                                            bounds=MEASURE_BOUNDS.get(m.name))
+                lo, hi = unpaired_measure_interval(m, xa, xb, config.level)
                 rows.append({**key, "tested": True, "measure": m.name,
                              "higher_is_better": m.higher_is_better,
                              "mean_a": float(xa.mean()), "mean_b": float(xb.mean()),

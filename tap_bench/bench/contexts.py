@@ -37,17 +37,14 @@ equal gets the bounded-measure interval there, or none).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
 
 from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.intervals import (
-    mean_interval,
-    newcombe_interval,
-    tango_interval,
-    welch_interval,
-)
-from tap_bench.bench.measures import HEADWAY_CAP_S, TTC_CAP_S, ego_steps
+from tap_bench.bench.intervals import paired_measure_interval, unpaired_measure_interval
+from tap_bench.bench.measures import HEADWAY_CAP_S, MEASURES, TTC_CAP_S, Measure, ego_steps
 from tap_bench.errors import LabelTableError
 from tap_bench.labelling import tap
 from tap_bench.sdl import INTERACTION_NAMES
@@ -59,16 +56,20 @@ __all__ = ["CONTEXT_MEASURES", "REACTION_HORIZON_S", "compare_contexts",
 
 REACTION_HORIZON_S = 5.0
 """[s] how long after a cut-in starts the ego's first braking is looked for."""
-CONTEXT_MEASURES = (
-    # name, unit, higher is better, how one episode's occurrences are reduced
-    ("min_ttc_s", "s", True, "min"),
-    ("min_headway_s", "s", True, "min"),
-    ("peak_decel", "m/s^2", False, "max"),
-    ("rms_jerk", "m/s^3", False, "mean"),
-    ("reaction_time_s", "s", False, "first"),
-    ("braked", "share", True, "first"),
+CONTEXT_MEASURES: tuple[tuple[Measure, str], ...] = (
+    # the entry (read for unit, direction, kind and bounds), and how one episode's
+    # occurrences are reduced; the values are computed by context_occurrences
+    (replace(MEASURES["min_ttc_s"], function=None), "min"),
+    (replace(MEASURES["min_headway_s"], function=None), "min"),
+    (Measure("peak_decel", "m/s^2", False, "hardest braking inside the context", 0.5, None,
+             label="peak deceleration"), "max"),
+    (replace(MEASURES["rms_jerk"], function=None), "mean"),
+    (Measure("reaction_time_s", "s", False, "cut-in to the ego's first braking", 0.5, None,
+             label="reaction time"), "first"),
+    (Measure("braked", "share", True, "the ego braked within the horizon of a cut-in", 0.1,
+             None, label="braked", kind="rate"), "first"),
 )
-"""The measures inside a context: name, unit, whether higher is better, per-episode reduction."""
+"""The measures inside a context, with their per-episode reduction."""
 _IDS = ("env", "policy", "seed")
 
 
@@ -133,7 +134,7 @@ def context_occurrences(trajectories: pd.DataFrame, thresholds: Thresholds | str
                 row["reaction_time_s"] = float(t[brake[0]] - run.t_start)
         rows.append(row)
     out = pd.DataFrame(rows, columns=["scenario_id", "context", "other_track_id", "t_start",
-                                      "t_end", *(m[0] for m in CONTEXT_MEASURES)])
+                                      "t_end", *(m.name for m, _ in CONTEXT_MEASURES)])
     ids = [c for c in _IDS if c in trajectories.columns]
     if ids:
         first = trajectories.drop_duplicates("scenario_id")[["scenario_id", *ids]]
@@ -154,15 +155,10 @@ def _rms_jerk(v: np.ndarray) -> float:
     return float(np.sqrt(np.nanmean(d2 ** 2)))
 
 
-_BOUNDS = {"min_ttc_s": (0.0, TTC_CAP_S), "min_headway_s": (0.0, HEADWAY_CAP_S),
-           "braked": (0.0, 1.0)}
-
-
 def _per_episode(occ: pd.DataFrame) -> pd.DataFrame:
     """One row per (env, policy, seed, context): each measure reduced over occurrences."""
     occ = occ.sort_values("t_start", kind="stable")
-    how = {name: {"min": "min", "max": "max", "mean": "mean", "first": "first"}[reduce]
-           for name, _, _, reduce in CONTEXT_MEASURES}
+    how = {m.name: reduce for m, reduce in CONTEXT_MEASURES}
     return occ.groupby(["env", "policy", "seed", "context"], sort=True).agg(how).reset_index()
 
 
@@ -205,46 +201,41 @@ def compare_contexts(occurrences: pd.DataFrame, a: str, b: str, *,
         side_a = group[group["policy"] == a].set_index("seed")
         side_b = group[group["policy"] == b].set_index("seed")
         seeds = side_a.index.intersection(side_b.index).sort_values()
-        for name, unit, higher, _ in CONTEXT_MEASURES:
-            va, vb = side_a[name].dropna(), side_b[name].dropna()
+        for m, _ in CONTEXT_MEASURES:
+            va, vb = side_a[m.name].dropna(), side_b[m.name].dropna()
             if not len(va) and not len(vb):
                 continue
             paired = [s for s in seeds if s in va.index and s in vb.index]
-            row = {"env": env, "context": context, "measure": name, "unit": unit,
-                   "higher_is_better": higher, "n_pairs": len(paired), "n_a": len(va),
-                   "n_b": len(vb), "mean_a": float(va.mean()) if len(va) else np.nan,
+            row = {"env": env, "context": context, "measure": m.name, "unit": m.unit,
+                   "higher_is_better": m.higher_is_better, "n_pairs": len(paired),
+                   "n_a": len(va), "n_b": len(vb),
+                   "mean_a": float(va.mean()) if len(va) else np.nan,
                    "mean_b": float(vb.mean()) if len(vb) else np.nan,
                    "diff": np.nan, "diff_low": np.nan, "diff_high": np.nan,
                    "method": "too few"}
-            bounds = _BOUNDS.get(name)
-            diff_bounds = None if bounds is None else (bounds[0] - bounds[1],
-                                                       bounds[1] - bounds[0])
+            span = None if m.bounds is None else (m.bounds[0] - m.bounds[1],
+                                                  m.bounds[1] - m.bounds[0])
             if len(paired) >= min_pairs:
                 xa, xb = va.loc[paired].to_numpy(float), vb.loc[paired].to_numpy(float)
-                if name == "braked":
-                    lo, hi = tango_interval(int(np.sum((xa > 0) & (xb == 0))),
-                                            int(np.sum((xa == 0) & (xb > 0))), len(xa),
-                                            config.level)
+                lo, hi = paired_measure_interval(m, xa, xb, config.level)
+                if m.is_rate:
                     method = "paired by seed (Tango score)"
                 else:
-                    lo, hi = mean_interval(xa - xb, config.level, bounds=diff_bounds)
                     method = "paired by seed (t)" if np.isfinite(lo) else \
                         "paired by seed (every pair differs by the same: no t interval)"
-                    if diff_bounds is not None and np.isfinite(lo):
-                        lo, hi = max(lo, diff_bounds[0]), min(hi, diff_bounds[1])
+                    if span is not None and np.isfinite(lo):
+                        lo, hi = max(lo, span[0]), min(hi, span[1])
                 row.update(diff=float(np.mean(xa - xb)), diff_low=lo, diff_high=hi,
                            method=method, mean_a=float(xa.mean()), mean_b=float(xb.mean()))
             elif len(va) >= min_pairs and len(vb) >= min_pairs:
-                if name == "braked":
-                    lo, hi = newcombe_interval(int(va.sum()), len(va), int(vb.sum()), len(vb),
-                                               config.level)
+                lo, hi = unpaired_measure_interval(m, va.to_numpy(float), vb.to_numpy(float),
+                                                   config.level)
+                if m.is_rate:
                     method = "unpaired (Newcombe score)"
                 else:
-                    lo, hi = welch_interval(va.to_numpy(float), vb.to_numpy(float),
-                                            config.level, bounds=bounds)
                     method = "unpaired (Welch t)"
-                    if diff_bounds is not None and np.isfinite(lo):
-                        lo, hi = max(lo, diff_bounds[0]), min(hi, diff_bounds[1])
+                    if span is not None and np.isfinite(lo):
+                        lo, hi = max(lo, span[0]), min(hi, span[1])
                 row.update(diff=float(va.mean() - vb.mean()), diff_low=lo, diff_high=hi,
                            method=method)
             elif len(va) and len(vb):

@@ -490,7 +490,7 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
             run = run.iloc[np.argsort(seeds_r, kind="stable")]
         why = _why(key, changed_policy, changed_env)
         for metric in gate_metrics():
-            margin = float(config.margins[metric])
+            margin = config.margin(metric)
             name = (key["env"], key["policy"], metric)
             row = {**key, "metric": metric, "test": "paired" if paired else "unpaired",
                    "margin": margin, "forced": False, "note": why}

@@ -22,8 +22,8 @@ a difference of independent means  Welch's t interval
 
 **No interval has zero width unless the value is known exactly.** Score intervals never do
 (0 of 30 gives Wilson [0, 0.114]). A t interval does when every value is equal (a minimum
-time to collision at its 10 s cap on every seed); for a measure with known bounds
-(:data:`MEASURE_BOUNDS`) the interval is then the range the mean can take if a share of
+time to collision at its 10 s cap on every seed); for a measure with known bounds (its
+entry's ``bounds``) the interval is then the range the mean can take if a share of
 episodes up to the Wilson upper limit of "0 of n differ" took any other value in the bounds,
 and for a measure without bounds it is NaN (not estimable), never a point.
 
@@ -36,33 +36,26 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Mapping
 from statistics import NormalDist
 
 import numpy as np
 
-from tap_bench.bench.measures import HEADWAY_CAP_S, TTC_CAP_S
+from tap_bench.bench.measures import Measure
 
 __all__ = [
-    "MEASURE_BOUNDS",
     "mean_interval",
+    "measure_interval",
     "newcombe_interval",
+    "paired_measure_interval",
     "sidak_level",
     "t_quantile",
     "tango_band",
     "tango_interval",
+    "unpaired_measure_interval",
     "welch_interval",
     "wilson_interval",
     "z_value",
 ]
-
-MEASURE_BOUNDS: Mapping[str, tuple[float, float]] = {
-    "crashed": (0.0, 1.0),
-    "min_headway_s": (0.0, HEADWAY_CAP_S),
-    "min_ttc_s": (0.0, TTC_CAP_S),
-}
-"""The values a measure can take, where they are bounded (used only when every value of a
-sample is equal; see the module docstring)."""
 
 
 def z_value(level: float) -> float:
@@ -305,3 +298,57 @@ def welch_interval(a, b, level: float, *, bounds: tuple[float, float] | None = N
     df = (va + vb) ** 2 / (va * va / (na - 1) + vb * vb / (nb - 1))
     half = t_quantile(0.5 + level / 2, max(1, math.floor(df))) * math.sqrt(va + vb)
     return diff - half, diff + half
+
+
+# -- by measure: the interval a measure's entry calls for ---------------------------------------
+
+def measure_interval(measure: Measure, values, level: float) -> tuple[float, float]:
+    """The interval of the mean of one measure over episodes, as its entry says: Wilson's
+    for a rate (values 0 or 1), Student's t bounded by its bounds otherwise.
+
+    Args:
+        measure: the measure's entry (its ``kind`` and ``bounds`` are read).
+        values: (n,) per-episode values (NaN skipped).
+        level: two-sided level.
+    """
+    x = np.asarray(values, dtype=float)
+    x = x[np.isfinite(x)]
+    if measure.is_rate:
+        return wilson_interval(int(x.sum()), len(x), level)
+    return mean_interval(x, level, bounds=measure.bounds)
+
+
+def _span(bounds: tuple[float, float] | None) -> tuple[float, float] | None:
+    """The values a difference of two bounded values can take."""
+    return None if bounds is None else (bounds[0] - bounds[1], bounds[1] - bounds[0])
+
+
+def paired_measure_interval(measure: Measure, a, b, level: float) -> tuple[float, float]:
+    """The interval of the mean paired difference ``a - b`` of one measure (pairs: the same
+    seed): Tango's score interval for a rate, Student's t of the differences otherwise.
+
+    Args:
+        measure: the measure's entry.
+        a, b: (n,) per-pair values, without NaN.
+        level: two-sided level.
+    """
+    va, vb = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if measure.is_rate:
+        return tango_interval(int(((va > 0) & (vb == 0)).sum()),
+                              int(((va == 0) & (vb > 0)).sum()), len(va), level)
+    return mean_interval(va - vb, level, bounds=_span(measure.bounds))
+
+
+def unpaired_measure_interval(measure: Measure, a, b, level: float) -> tuple[float, float]:
+    """The interval of ``mean(a) - mean(b)`` of one measure for independent samples:
+    Newcombe's hybrid score interval for a rate, Welch's t otherwise.
+
+    Args:
+        measure: the measure's entry.
+        a, b: the two samples, without NaN.
+        level: two-sided level.
+    """
+    xa, xb = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if measure.is_rate:
+        return newcombe_interval(int(xa.sum()), len(xa), int(xb.sum()), len(xb), level)
+    return welch_interval(xa, xb, level, bounds=measure.bounds)

@@ -52,14 +52,16 @@ record every vehicle; WOMD every tracked agent): without any, headway and TTC ar
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from tap_bench.errors import RegistrationError, TrajectoryTableError, did_you_mean
+from tap_bench.errors import RegistrationError, TrajectoryTableError
 from tap_bench.pathframe import CORRIDOR_HALF_WIDTH, SAME_DIRECTION, Paths, path_frame
+from tap_bench.registry import Registry
 from tap_bench.trajectories import HZ
 
 __all__ = [
@@ -67,6 +69,7 @@ __all__ = [
     "HEADWAY_CAP_S",
     "LOOKAHEAD",
     "MEASURES",
+    "MEASURE_KINDS",
     "SCENE_MEASURES",
     "SCENE_STEP_COLUMNS",
     "MIN_SPEED_FOR_HEADWAY",
@@ -77,8 +80,10 @@ __all__ = [
     "MeasureRegistry",
     "ego_measures",
     "ego_step_measures",
+    "check_measure",
     "ego_steps",
     "register_measure",
+    "run_measures",
 ]
 
 VEHICLE_LENGTH = 5.0  # [m] highway-env's vehicle length, used where no `length` column is
@@ -184,18 +189,35 @@ class EgoSteps:
 MeasureFunction = Callable[[EgoSteps], np.ndarray]
 
 
+MEASURE_KINDS = ("mean", "rate")
+"""What a measure's per-episode value is: ``"mean"`` (a number; its mean over episodes gets
+Student's t interval, bounded by :attr:`Measure.bounds` where the measure has them) or
+``"rate"`` (0 or 1 per episode; its mean is a proportion: Wilson's interval, Tango's for a
+paired difference, Newcombe's for an unpaired one, and the report shows it in %)."""
+
+
 @dataclass(frozen=True)
 class Measure:
-    """A per-episode measure: how to compute it, its unit, direction and gate margin.
+    """A per-episode measure: everything tap-bench needs to know about it, in one entry.
+
+    Every consumer (the episode table, the intervals, the comparison, power, the gate, the
+    report, the viewer) reads these fields; none looks at the name.
 
     Attributes:
         name: column of the measures table.
-        unit: for axis labels.
+        unit: its unit (``"m/s"``; ``"share"`` for a rate).
         higher_is_better: True for speed, headway, TTC; False for crashes and jerk.
         description: one line for reports.
         margin: the regression gate's default margin: the largest change of the mean
             (absolute, in ``unit``) that is not a regression.
-        function: :class:`EgoSteps` -> (S,) values, one per episode.
+        function: :class:`EgoSteps` -> (S,) values, one per episode (None only for an
+            entry that describes values computed elsewhere, such as the measures inside
+            an interaction context; the registry refuses it).
+        label: the name people read (``"min TTC"``; default: ``name`` with spaces).
+        kind: ``"mean"`` or ``"rate"`` (:data:`MEASURE_KINDS`).
+        bounds: (low, high) the values can take, where bounded (a cap), else None; a rate
+            is bounded by (0, 1).
+        decimals: decimals shown in tables and the viewer (a rate is shown in whole %).
     """
 
     name: str
@@ -203,69 +225,161 @@ class Measure:
     higher_is_better: bool
     description: str
     margin: float
-    function: MeasureFunction
+    function: MeasureFunction | None
+    label: str = ""
+    kind: str = "mean"
+    bounds: tuple[float, float] | None = None
+    decimals: int = 2
+
+    def __post_init__(self) -> None:
+        if not self.label:
+            object.__setattr__(self, "label", str(self.name).replace("_", " "))
+        if self.kind == "rate" and self.bounds is None:
+            object.__setattr__(self, "bounds", (0.0, 1.0))
+        if self.bounds is not None:
+            object.__setattr__(self, "bounds", (float(self.bounds[0]), float(self.bounds[1])))
+
+    @property
+    def is_rate(self) -> bool:
+        """The per-episode value is 0 or 1 and its mean a proportion."""
+        return self.kind == "rate"
+
+    @property
+    def interval_method(self) -> str:
+        """How the interval of its mean is computed, in words."""
+        if self.is_rate:
+            return "Wilson score interval"
+        if self.bounds is not None:
+            return (f"Student's t interval (bounded by [{self.bounds[0]:g}, "
+                    f"{self.bounds[1]:g}] {self.unit} when every value is equal)")
+        return "Student's t interval"
+
+    @property
+    def scale(self) -> float:
+        """Factor from the value to what is shown (100 for a rate, shown in %)."""
+        return 100.0 if self.is_rate else 1.0
+
+    @property
+    def display_unit(self) -> str:
+        """The unit as shown: ``%`` for a rate, ``m/s³`` for ``m/s^3``."""
+        if self.is_rate:
+            return "%"
+        return self.unit.replace("^2", "²").replace("^3", "³")
+
+    @property
+    def cap(self) -> float | None:
+        """The largest value the measure takes (its upper bound), None when unbounded."""
+        return None if self.bounds is None else self.bounds[1]
+
+    def to_dict(self) -> dict[str, object]:
+        """The entry without its function, as JSON data (run folders, the viewer)."""
+        return {"name": self.name, "label": self.label, "unit": self.unit,
+                "display_unit": self.display_unit, "higher_is_better": self.higher_is_better,
+                "description": self.description, "margin": self.margin, "kind": self.kind,
+                "bounds": None if self.bounds is None else list(self.bounds),
+                "decimals": self.decimals, "interval": self.interval_method}
 
 
-class MeasureRegistry:
-    """The measures, in registration (report) order; refuses duplicates and missing margins.
+def run_measures(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The measure entries a run recorded (``summary.json``'s ``measures``: what the report
+    and the viewer describe), else the registry's (a run folder older than the field)."""
+    recorded = summary.get("measures")
+    if isinstance(recorded, list) and recorded:
+        return [dict(e) for e in recorded]
+    return [m.to_dict() for m in MEASURES]
+
+
+def check_measure(measure: Measure) -> None:
+    """Check a measure entry as the registry does, and its function on a hand-built episode.
+
+    The function is called on the ego steps of two short episodes (one of them crashed,
+    with a leader ahead) and must return one finite-or-NaN float per episode, inside the
+    measure's bounds. Like Gymnasium's ``check_env``: run it on your measure in a test.
+
+    Raises:
+        RegistrationError: naming the measure and what is wrong.
+    """
+    _check_entry(measure)
+    steps = ego_steps(_check_table())
+    try:
+        values = np.asarray(measure.function(steps), dtype=float)
+    except Exception as err:  # a measure's own bug, reported with its name
+        raise RegistrationError(f"measure {measure.name!r}: its function failed on two "
+                                f"hand-built episodes: {type(err).__name__}: {err}") from err
+    if values.shape != (steps.n_episodes,):
+        raise RegistrationError(f"measure {measure.name!r}: its function must return one value "
+                                f"per episode, shape ({steps.n_episodes},); got "
+                                f"{values.shape}.")
+    finite = values[np.isfinite(values)]
+    if measure.bounds is not None and len(finite) and (
+            finite.min() < measure.bounds[0] - 1e-9 or finite.max() > measure.bounds[1] + 1e-9):
+        raise RegistrationError(f"measure {measure.name!r}: values {finite.tolist()} fall "
+                                f"outside its bounds {list(measure.bounds)}.")
+    if measure.is_rate and len(finite) and not np.isin(finite, (0.0, 1.0)).all():
+        raise RegistrationError(f"measure {measure.name!r} is a rate: each episode's value "
+                                f"must be 0 or 1, got {finite.tolist()}.")
+
+
+def _check_table() -> pd.DataFrame:
+    """Two hand-built 5 s episodes at 10 Hz for :func:`check_measure`: ``closing`` (the ego
+    at 20 m/s closes in on a leader at 15 m/s, 30 m ahead, and is crashed at its last step)
+    and ``alone`` (the ego at 10 m/s, braking gently, no one else)."""
+    t = np.arange(50) / HZ
+    rows = []
+    for sid, track, x0, v0, dv, ego, crash in (
+            ("closing", "ego", 0.0, 20.0, 0.0, True, True),
+            ("closing", "lead", 30.0, 15.0, 0.0, False, False),
+            ("alone", "ego", 0.0, 10.0, -0.5, True, False)):
+        v = v0 + dv * t
+        x = x0 + v0 * t + 0.5 * dv * t * t
+        crashed = np.zeros(len(t), bool)
+        crashed[-1] = crash
+        rows.append(pd.DataFrame({"scenario_id": sid, "track_id": track, "t": t, "x": x,
+                                  "y": 0.0, "heading": 0.0, "speed": v, "is_ego": ego,
+                                  "crashed": crashed}))
+    return pd.concat(rows, ignore_index=True)
+
+
+def _check_entry(measure: Measure) -> None:
+    """The registry's checks of an entry (raises RegistrationError)."""
+    if not isinstance(measure.name, str) or not measure.name.isidentifier():
+        raise RegistrationError(f"measure name {measure.name!r} must be an identifier "
+                                "(it becomes a column name).")
+    margin = measure.margin
+    if (margin is None or isinstance(margin, bool) or not isinstance(margin, int | float)
+            or not np.isfinite(margin) or margin < 0):
+        raise RegistrationError(
+            f"measure {measure.name!r} needs a gate margin: a finite number >= 0 in "
+            f"{measure.unit} (the largest change that is not a regression), got "
+            f"{margin!r}.")
+    if not callable(measure.function):
+        raise RegistrationError(f"measure {measure.name!r}: function must be callable.")
+    if measure.kind not in MEASURE_KINDS:
+        raise RegistrationError(f"measure {measure.name!r}: kind {measure.kind!r} is not one "
+                                f"of {MEASURE_KINDS}.")
+    if measure.bounds is not None and not (
+            len(measure.bounds) == 2 and measure.bounds[0] < measure.bounds[1]):
+        raise RegistrationError(f"measure {measure.name!r}: bounds {measure.bounds!r} must be "
+                                "(low, high) with low < high, or None.")
+    if isinstance(measure.decimals, bool) or not isinstance(measure.decimals, int) \
+            or not 0 <= measure.decimals <= 6:
+        raise RegistrationError(f"measure {measure.name!r}: decimals {measure.decimals!r} "
+                                "must be an integer from 0 to 6.")
+
+
+class MeasureRegistry(Registry[Measure]):
+    """The measures, in registration (report) order; refuses duplicates, missing margins
+    and entries that do not check (:func:`_check_entry`).
 
     Iterating gives the :class:`Measure` entries; ``registry["min_ttc_s"]`` one of them.
     """
 
     def __init__(self) -> None:
-        self._measures: dict[str, Measure] = {}
-
-    def register(self, measure: Measure) -> Measure:
-        """Add ``measure``.
-
-        Raises:
-            RegistrationError: the name is taken, the margin is missing, not a number or
-                negative, or the function is not callable.
-        """
-        if not isinstance(measure.name, str) or not measure.name.isidentifier():
-            raise RegistrationError(f"measure name {measure.name!r} must be an identifier "
-                                    "(it becomes a column name).")
-        if measure.name in self._measures:
-            raise RegistrationError(f"measure {measure.name!r} is already registered; pick "
-                                    "another name (a measure is registered once).")
-        margin = measure.margin
-        if (margin is None or isinstance(margin, bool) or not isinstance(margin, int | float)
-                or not np.isfinite(margin) or margin < 0):
-            raise RegistrationError(
-                f"measure {measure.name!r} needs a gate margin: a finite number >= 0 in "
-                f"{measure.unit} (the largest change that is not a regression), got "
-                f"{margin!r}.")
-        if not callable(measure.function):
-            raise RegistrationError(f"measure {measure.name!r}: function must be callable.")
-        self._measures[measure.name] = measure
-        return measure
-
-    def unregister(self, name: str) -> None:
-        """Remove a measure (for tests and plug-ins that replace their own)."""
-        del self._measures[self[name].name]
-
-    def __getitem__(self, name: str) -> Measure:
-        try:
-            return self._measures[name]
-        except KeyError:
-            raise did_you_mean("measure", name, self._measures) from None
-
-    def __contains__(self, name: object) -> bool:
-        return name in self._measures
-
-    def __iter__(self) -> Iterator[Measure]:
-        return iter(tuple(self._measures.values()))
-
-    def __len__(self) -> int:
-        return len(self._measures)
-
-    def names(self) -> tuple[str, ...]:
-        """The measure names, in order."""
-        return tuple(self._measures)
+        super().__init__("measure", check=_check_entry)
 
     def margins(self) -> dict[str, float]:
         """name -> default gate margin."""
-        return {m.name: float(m.margin) for m in self._measures.values()}
+        return {m.name: float(m.margin) for m in self}
 
 
 MEASURES = MeasureRegistry()
@@ -273,40 +387,44 @@ MEASURES = MeasureRegistry()
 
 
 def register_measure(name: str, *, unit: str, higher_is_better: bool, margin: float,
-                     description: str, registry: MeasureRegistry = MEASURES
+                     description: str, label: str = "", kind: str = "mean",
+                     bounds: tuple[float, float] | None = None, decimals: int = 2,
+                     registry: MeasureRegistry = MEASURES
                      ) -> Callable[[MeasureFunction], MeasureFunction]:
-    """Decorator: register ``function(steps: EgoSteps) -> (S,) values`` as a measure."""
+    """Decorator: register ``function(steps: EgoSteps) -> (S,) values`` as a measure (the
+    fields are :class:`Measure`'s)."""
 
     def decorate(function: MeasureFunction) -> MeasureFunction:
         registry.register(Measure(name, unit, higher_is_better, description, margin,
-                                  function))
+                                  function, label=label, kind=kind, bounds=bounds,
+                                  decimals=decimals))
         return function
 
     return decorate
 
 
 @register_measure("crashed", unit="share", higher_is_better=False, margin=0.10,
-                  description="collision rate of the ego")
+                  description="collision rate of the ego", label="crash rate", kind="rate")
 def _crashed(steps: EgoSteps) -> np.ndarray:
     return steps.any(steps.crashed)
 
 
 @register_measure("mean_speed", unit="m/s", higher_is_better=True, margin=1.0,
-                  description="mean ego speed")
+                  description="mean ego speed", label="mean speed", decimals=1)
 def _mean_speed(steps: EgoSteps) -> np.ndarray:
     return steps.mean(steps.speed)
 
 
 @register_measure("min_headway_s", unit="s", higher_is_better=True, margin=0.3,
                   description="smallest time headway to the leader along the path (capped "
-                  "10 s; 0 on a crash)")
+                  "10 s; 0 on a crash)", label="min headway", bounds=(0.0, HEADWAY_CAP_S))
 def _min_headway(steps: EgoSteps) -> np.ndarray:
     return _leader_minimum(steps, steps.headway, HEADWAY_CAP_S)
 
 
 @register_measure("min_ttc_s", unit="s", higher_is_better=True, margin=1.0,
                   description="smallest time to collision with the leader along the path "
-                  "(capped 10 s; 0 on a crash)")
+                  "(capped 10 s; 0 on a crash)", label="min TTC", bounds=(0.0, TTC_CAP_S))
 def _min_ttc(steps: EgoSteps) -> np.ndarray:
     return _leader_minimum(steps, steps.ttc, TTC_CAP_S)
 
@@ -320,7 +438,7 @@ def _leader_minimum(steps: EgoSteps, values: np.ndarray, cap: float) -> np.ndarr
 
 
 @register_measure("rms_jerk", unit="m/s^3", higher_is_better=False, margin=1.0,
-                  description="RMS longitudinal jerk of the ego")
+                  description="RMS longitudinal jerk of the ego", label="RMS jerk")
 def _rms_jerk(steps: EgoSteps) -> np.ndarray:
     v = steps.speed
     d2 = (v[2:] - 2 * v[1:-1] + v[:-2]) * HZ * HZ
@@ -351,8 +469,8 @@ def _scene_column(steps: EgoSteps, name: str) -> np.ndarray:
 
 @register_measure("off_road", unit="share", higher_is_better=False, margin=0.10,
                   description="the ego left the road (farther than half its lane's width + "
-                  "0.5 m from every lane centre, or across a road edge)",
-                  registry=SCENE_MEASURES)
+                  "0.5 m from every lane centre, or across a road edge)", label="off road",
+                  kind="rate", registry=SCENE_MEASURES)
 def _off_road(steps: EgoSteps) -> np.ndarray:
     values = _scene_column(steps, "off_road")
     out = steps.any(np.nan_to_num(values) > 0.5).astype(float)
@@ -362,14 +480,14 @@ def _off_road(steps: EgoSteps) -> np.ndarray:
 
 @register_measure("route_progress", unit="share", higher_is_better=True, margin=0.10,
                   description="share of the logged ego's path covered along its route (0-1)",
-                  registry=SCENE_MEASURES)
+                  label="route progress", bounds=(0.0, 1.0), registry=SCENE_MEASURES)
 def _route_progress(steps: EgoSteps) -> np.ndarray:
     return steps.last(_scene_column(steps, "route_progress"))
 
 
 @register_measure("ran_red_light", unit="share", higher_is_better=False, margin=0.10,
                   description="the ego crossed a stop point while its signal was red",
-                  registry=SCENE_MEASURES)
+                  label="ran a red light", kind="rate", registry=SCENE_MEASURES)
 def _ran_red_light(steps: EgoSteps) -> np.ndarray:
     values = _scene_column(steps, "ran_red_light")
     out = steps.any(np.nan_to_num(values) > 0.5).astype(float)
@@ -379,14 +497,14 @@ def _ran_red_light(steps: EgoSteps) -> np.ndarray:
 
 @register_measure("log_ade", unit="m", higher_is_better=False, margin=1.0,
                   description="mean distance to the logged ego over the simulated steps",
-                  registry=SCENE_MEASURES)
+                  label="log ADE", registry=SCENE_MEASURES)
 def _log_ade(steps: EgoSteps) -> np.ndarray:
     return steps.mean(_scene_column(steps, "log_distance"))
 
 
 @register_measure("log_fde", unit="m", higher_is_better=False, margin=2.0,
                   description="distance to the logged ego at the last simulated step",
-                  registry=SCENE_MEASURES)
+                  label="log FDE", registry=SCENE_MEASURES)
 def _log_fde(steps: EgoSteps) -> np.ndarray:
     return steps.last(_scene_column(steps, "log_distance"))
 

@@ -32,6 +32,7 @@ import pandas as pd
 
 from tap_bench.bench.bootstrap import named_rng
 from tap_bench.bench.intervals import z_value
+from tap_bench.bench.measures import MEASURES
 from tap_bench.bench.suite import GateConfig, gate_metrics
 
 __all__ = ["POWER", "power_summary", "power_table"]
@@ -90,7 +91,7 @@ def power_table(episodes: pd.DataFrame, config: GateConfig, *, n_tests: int | No
         sub = ok[(ok["env"] == env) & (ok["policy"] == policy)]
         n = len(sub)
         for metric in gate_metrics():
-            margin = float(config.margins[metric])
+            margin = config.margin(metric)
             row = {"env": env, "policy": policy, "metric": metric, "n": n, "margin": margin}
             if metric == "label_tv":
                 lab = sub["sdl"].fillna("(no label)").astype(str).to_numpy()
@@ -107,7 +108,7 @@ def power_table(episodes: pd.DataFrame, config: GateConfig, *, n_tests: int | No
                 rows.append({**row, "sd": math.nan, "mde": math.nan,
                              "seeds_for_margin": math.nan})
                 continue
-            if metric == "crashed":
+            if MEASURES[metric].is_rate:  # a proportion: its own MDE and sample size
                 p0 = float(x.mean())
                 mde = _crash_mde(p0, len(x), zsum)
                 need = _crash_seeds(p0, margin, zsum)

@@ -24,6 +24,7 @@ from urllib.parse import quote
 
 import pandas as pd
 
+from tap_bench.bench.measures import run_measures
 from tap_bench.bench.power import POWER, power_summary
 from tap_bench.bench.report_figures import TOP_LABELS, write_plots
 from tap_bench.bench.report_tables import (
@@ -41,6 +42,7 @@ from tap_bench.bench.report_tables import (
     _thresholds_text,
     diversity_display,
     html_table,
+    level_text,
     summary_table,
 )
 from tap_bench.bench.scoring import Scores
@@ -138,8 +140,11 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
     """
     folder = Path(folder)
     reference = str(summary.get("reference_policy", ""))
-    plots = {p.stem: p for p in write_plots(scores, folder / "plots", reference=reference)}
     suite = summary.get("suite", {})
+    level = run_level(summary)
+    pct = level_text(level)  # every interval of the run is at the suite's level
+    plots = {p.stem: p for p in write_plots(scores, folder / "plots", reference=reference,
+                                            level=level)}
     run = str(summary.get("run", ""))
     parts = [f"<h1>tap-bench run {html.escape(run)}</h1>",
              f"<p>Suite <b>{html.escape(str(suite.get('name', '')))}</b> "
@@ -159,13 +164,12 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
     parts.append("<h2>Summary: each policy against the reference</h2>")
     parts.append(html_table(
         summary_table(scores, reference), table_id="summary", max_rows=50,
-        caption=f"Env: {pooled_env}. Each cell: the policy's mean over episodes, its 95 % "
+        caption=f"Env: {pooled_env}. Each cell: the policy's mean over episodes, its {pct} "
         "interval in brackets, and its paired difference from the reference policy "
-        f"{reference} on the same seeds: ▲ better or ▼ worse when the difference's 95 % "
-        "interval excludes 0, = no difference otherwise. Crash rate in % of episodes; min "
-        "headway and min TTC are each episode's smallest values (capped at 10 s); coverage: "
-        "share of the reference corpus's labels the policy shows; novel: share of episodes "
-        "whose label the reference never shows."))
+        f"{reference} on the same seeds: ▲ better or ▼ worse when the difference's {pct} "
+        f"interval excludes 0, = no difference otherwise. {_measures_text(summary)}"
+        "Coverage: share of the reference corpus's labels the policy shows; novel: share of "
+        "episodes whose label the reference never shows."))
     if scores.methods:
         parts.append('<details><summary class="note">How the intervals are computed</summary>'
                      "<ul>" + "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>"
@@ -178,7 +182,7 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
         parts.append(img(
             f"measures_{_slug(env)}", f"measures in {env}",
             f"Safety and efficiency in {env}: each policy's mean over its episodes (dot) and "
-            "95 % interval (bar), one panel per measure; the dashed line is the reference "
+            f"{pct} interval (bar), one panel per measure; the dashed line is the reference "
             f"policy {reference}. Read across a panel: a bar that does not reach the dashed "
             "line differs from the reference. Scales are fitted to the values shown."))
         parts.append(img(
@@ -199,37 +203,37 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
         parts.append("<h3>All envs pooled</h3>")
         parts.append(img("measures_all", "measures pooled over envs",
                          "All envs pooled (each env resampled on its own, so each keeps its "
-                         "weight): means and 95 % intervals as above."))
-    parts.append(html_table(_display_measures(scores.measures), table_id="measures",
+                         f"weight): means and {pct} intervals as above."))
+    parts.append(html_table(_display_measures(scores.measures, level), table_id="measures",
                             caption="Every measure per env and policy: mean over episodes and "
-                            "95 % interval, in the measure's unit."))
+                            f"{pct} interval, in the measure's unit."))
 
     # 3. comparisons in detail
     parts.append("<h2>Matched comparison: paired by seed</h2>")
     parts.append('<p class="note">Each policy against the reference on the same initial '
                  "traffic (the same seed).</p>")
-    parts.append(html_table(_display_paired(scores.paired), table_id="paired",
+    parts.append(html_table(_display_paired(scores.paired, level), table_id="paired",
                             caption="Share of seeds on which A's and B's egos carry the same "
                             "label."))
     parts.append(img("improvement", "probability of improvement",
                      "Probability that A does better than B on the same seed (ties count one "
-                     "half), per measure, with 95 % intervals, all envs pooled. 0.5 is no "
+                     f"half), per measure, with {pct} intervals, all envs pooled. 0.5 is no "
                      "difference; right of it A is better."))
-    parts.append(html_table(_display_paired_measures(scores.paired_measures),
+    parts.append(html_table(_display_paired_measures(scores.paired_measures, level),
                             table_id="paired_measures",
                             caption="Measures paired by seed: means of A and B, the mean "
-                            "paired difference A − B in the measure's unit with its 95 % "
+                            f"paired difference A − B in the measure's unit with its {pct} "
                             "interval, and P(A better)."))
     for key in sorted(k for k in plots if k.startswith("forest_")):
         parts.append(img(key, f"forest plot {key}",
                          "Label frequencies paired by seed: for the labels that differ most, "
                          "the share of seeds on which A shows the label minus the share for "
-                         "B, in percentage points (dot, 95 % interval as a bar); the grey "
+                         f"B, in percentage points (dot, {pct} interval as a bar); the grey "
                          "band is the simultaneous band over all labels: a label whose band "
                          "excludes 0 differs even after looking at every label."))
     pl = scores.paired_labels
     parts.append(html_table(
-        _display_paired_labels(pl), table_id="paired_labels", text_columns=("label",),
+        _display_paired_labels(pl, level), table_id="paired_labels", text_columns=("label",),
         caption="Every label's paired frequency difference (share of seeds, percentage "
         "points); replay opens an episode with the label (of A when A shows it, else of B) "
         "beside the other policy on the same seed.",
@@ -241,9 +245,9 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
     parts.append("<h2>Matched comparison: by SDL label</h2>")
     mt = scores.matched
     parts.append(html_table(
-        _display_matched(mt), table_id="matched", text_columns=("label",),
+        _display_matched(mt, level), table_id="matched", text_columns=("label",),
         caption="Inside each group of episodes with the same ego label in one env (both "
-        "policies present): the measures of A and B compared (unpaired, 95 % intervals); "
+        f"policies present): the measures of A and B compared (unpaired, {pct} intervals); "
         "replay opens the group's first episode of A.",
         links=[_replay(viewer, f_env=r.env, f_policy=r.policy_a, f_sdl=r.label,
                        b=r.policy_b) for r in mt.itertuples()] if len(mt) else None))
@@ -262,9 +266,9 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
     parts.append(img("coverage", "coverage",
                      "Coverage, all envs pooled: the share of the reference corpus's labels "
                      "each policy shows (left) and the same weighted by how often the "
-                     "reference shows each label (right), with 95 % intervals; one colour "
+                     f"reference shows each label (right), with {pct} intervals; one colour "
                      "per reference corpus."))
-    parts.append(html_table(_display_coverage(scores.coverage), table_id="coverage",
+    parts.append(html_table(_display_coverage(scores.coverage, level), table_id="coverage",
                             caption="Coverage per env and reference, with the diversity of "
                             "each policy's labels."))
     if not scores.diversity.empty:
@@ -280,9 +284,9 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
     parts.append("<h2>Unique manoeuvres</h2>")
     parts.append(img("novelty", "novelty",
                      "Novelty rate, all envs pooled: the share of each policy's episodes "
-                     "whose ego label the reference corpus never shows, with 95 % "
+                     f"whose ego label the reference corpus never shows, with {pct} "
                      "intervals; one colour per reference."))
-    parts.append(html_table(_display_novelty(scores.novelty), table_id="novelty",
+    parts.append(html_table(_display_novelty(scores.novelty, level), table_id="novelty",
                             caption="Novelty per env and reference."))
     nl = scores.novel_labels
     parts.append(html_table(
@@ -352,3 +356,25 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
     with atomic_path(path) as tmp:
         tmp.write_text(page, encoding="utf-8")
     return path
+
+
+def run_level(summary: dict[str, Any]) -> float:
+    """The interval level of a run (its suite's ``bootstrap.level``; 0.95 for a run folder
+    older than the field)."""
+    bootstrap = (summary.get("suite") or {}).get("bootstrap") or {}
+    return float(bootstrap.get("level", 0.95))
+
+
+def _measures_text(summary: dict[str, Any]) -> str:
+    """What the summary's measure cells mean, from the run's measure entries: rates in % of
+    episodes, and the caps of capped measures."""
+    entries = run_measures(summary)
+    rates = [e["label"] for e in entries if e.get("kind") == "rate"]
+    capped = [e for e in entries if e.get("kind") != "rate" and e.get("bounds")]
+    out = ""
+    if rates:
+        out += f"{', '.join(rates).capitalize()} in % of episodes. "
+    if capped:
+        out += "Capped: " + ", ".join(f"{e['label']} at {e['bounds'][1]:g} {e['unit']}"
+                                      for e in capped) + ". "
+    return out

@@ -22,12 +22,10 @@ import pandas as pd
 
 from tap_bench.bench.measures import MEASURES
 from tap_bench.bench.report_tables import (
-    MEASURE_NAMES,
     _envs,
     _pooled,
-    _scale,
     _slug,
-    _unit_label,
+    interval_heading,
 )
 from tap_bench.bench.scoring import Scores
 
@@ -283,15 +281,16 @@ def _measures_plot(scores: Scores, env: str, reference: str, folder: Path) -> Pa
     _row_labels(svg, left - 8, top_y, policies, row_h)
     for k, meas in enumerate(MEASURES):
         sub = m[m["measure"] == meas.name].set_index("policy").reindex(policies)
-        scale = _scale(meas)
+        scale = meas.scale
         ref = sub.loc[reference, "mean"] * scale if reference in sub.index else np.nan
-        xlim = _fit(sub["low"] * scale, sub["high"] * scale, floor=0.0,
-                    ceil=100.0 if meas.name == "crashed" else None)
+        low, high = meas.bounds if meas.bounds is not None else (None, None)
+        xlim = _fit(sub["low"] * scale, sub["high"] * scale,
+                    floor=None if low is None else low * scale,
+                    ceil=None if high is None else high * scale)
         better = "higher" if meas.higher_is_better else "lower"
-        name = MEASURE_NAMES.get(meas.name, meas.name)
         _panel(svg, left + k * (panel_w + gap), top_y, panel_w, len(policies), row_h,
                [_series(sub, "mean", "low", "high", scale)], xlim,
-               title=f"{name} [{_unit_label(meas)}]\n{better} is better",
+               title=f"{meas.label} [{meas.display_unit}]\n{better} is better",
                vlines=((ref, "#999", "4 3"),))
     return svg.write(folder / f"measures_{_slug(env)}.svg")
 
@@ -327,7 +326,7 @@ def _coverage_plot(scores: Scores, folder: Path) -> Path | None:
     return svg.write(folder / "coverage.svg")
 
 
-def _forest_plots(scores: Scores, folder: Path) -> list[Path]:
+def _forest_plots(scores: Scores, folder: Path, level: float) -> list[Path]:
     labels = scores.paired_labels
     out: list[Path] = []
     if labels.empty:
@@ -351,7 +350,7 @@ def _forest_plots(scores: Scores, folder: Path) -> list[Path]:
                vlines=((0.0, "#000", None),),
                band=((sub["band_low"] * 100).to_numpy(float),
                      (sub["band_high"] * 100).to_numpy(float)))
-        _legend(svg, MAX_WIDTH_PX - 6, top_y, [("95 % interval", COLORS[0]),
+        _legend(svg, MAX_WIDTH_PX - 6, top_y, [(interval_heading(level), COLORS[0]),
                                                ("simultaneous band", "band:#d9d9d9")])
         out.append(svg.write(folder / f"forest_{_slug(a)}_vs_{_slug(b)}.svg"))
     return out
@@ -370,7 +369,8 @@ def _improvement_plot(scores: Scores, folder: Path) -> Path | None:
         for r in sub.itertuples():
             k = len(names)
             est[k], lo[k], hi[k] = r.p_improvement, r.p_low, r.p_high
-            names.append(f"{a} vs {b}: {MEASURE_NAMES.get(r.measure, r.measure)}")
+            meas = MEASURES.get(r.measure)
+            names.append(f"{a} vs {b}: {meas.label if meas is not None else r.measure}")
         series.append({"est": est, "lo": lo, "hi": hi, "color": COLORS[j % len(COLORS)]})
     row_h = 22.0
     left = max(_text_width(n) for n in names) + 14
@@ -411,8 +411,9 @@ def _novelty_plot(scores: Scores, folder: Path) -> Path | None:
 
 
 def write_plots(scores: Scores, folder: str | os.PathLike, *,
-                reference: str | None = None) -> list[Path]:
-    """Write the SVG figures of a scored run into ``folder`` and return their paths.
+                reference: str | None = None, level: float = 0.95) -> list[Path]:
+    """Write the SVG figures of a scored run into ``folder`` and return their paths
+    (``level``: the run's interval level, for the legends).
 
     Per env: ``labels_<env>.svg`` (label heat map) and ``measures_<env>.svg``; pooled:
     ``measures_all.svg``, ``improvement.svg``, ``coverage.svg``, ``forest_<A>_vs_<B>.svg``,
@@ -429,5 +430,5 @@ def write_plots(scores: Scores, folder: str | os.PathLike, *,
     if len(envs) > 1:
         paths.append(_measures_plot(scores, "all", reference, folder))
     paths += [_improvement_plot(scores, folder), _coverage_plot(scores, folder),
-              *_forest_plots(scores, folder), _novelty_plot(scores, folder)]
+              *_forest_plots(scores, folder, level), _novelty_plot(scores, folder)]
     return [p for p in paths if p is not None]

@@ -15,11 +15,17 @@ from tap_bench.bench.measures import MEASURES, Measure
 from tap_bench.bench.scoring import Scores
 
 TABLE_ROWS = 10  # rows shown before "show all" in the HTML (the Parquet files hold all)
-MEASURE_BY_NAME = {m.name: m for m in MEASURES}
-MEASURE_NAMES = {"crashed": "crash rate", "mean_speed": "mean speed",
-                 "min_headway_s": "min headway", "min_ttc_s": "min TTC",
-                 "rms_jerk": "RMS jerk"}
-"""How the report names the measures."""
+
+
+def level_text(level: float) -> str:
+    """An interval's level as the report writes it: ``95 %``, ``80 %``, ``97.5 %``."""
+    pct = float(level) * 100
+    return f"{_num(pct, 0 if abs(pct - round(pct)) < 1e-9 else 1)} %"
+
+
+def interval_heading(level: float) -> str:
+    """The heading of an interval column at ``level``: ``95 % interval``."""
+    return f"{level_text(level)} interval"
 
 
 def _pooled(table: pd.DataFrame) -> pd.DataFrame:
@@ -27,14 +33,6 @@ def _pooled(table: pd.DataFrame) -> pd.DataFrame:
         return table
     env = "all" if (table["env"] == "all").any() else sorted(table["env"].unique())[0]
     return table[table["env"] == env]
-
-
-def _unit_label(m: Measure) -> str:
-    return "%" if m.name == "crashed" else m.unit.replace("^3", "³")
-
-
-def _scale(m: Measure) -> float:
-    return 100.0 if m.name == "crashed" else 1.0
 
 
 def _slug(name: str) -> str:
@@ -72,11 +70,10 @@ def _pct(value: Any, decimals: int = 0) -> str:
 
 
 def _measure_value(m: Measure, value: Any) -> str:
-    """A measure's value in its unit, to its precision (crash rates in %)."""
-    if m.name == "crashed":
+    """A measure's value in its unit, to its entry's precision (a rate in whole %)."""
+    if m.is_rate:
         return _pct(value)
-    decimals = 1 if m.name == "mean_speed" else 2
-    return f"{_num(value, decimals)} {_unit_label(m)}"
+    return f"{_num(value, m.decimals)} {m.display_unit}"
 
 
 def _interval(lo: str, hi: str) -> str:
@@ -84,10 +81,9 @@ def _interval(lo: str, hi: str) -> str:
 
 
 def _measure_interval(m: Measure, lo: Any, hi: Any) -> str:
-    if m.name == "crashed":
+    if m.is_rate:
         return _interval(_pct(lo), _pct(hi))
-    decimals = 1 if m.name == "mean_speed" else 2
-    return _interval(_num(lo, decimals), _num(hi, decimals))
+    return _interval(_num(lo, m.decimals), _num(hi, m.decimals))
 
 
 def _mark(diff_low: Any, diff_high: Any, higher_is_better: bool) -> tuple[str, str]:
@@ -206,7 +202,7 @@ def summary_table(scores: Scores, reference: str) -> pd.DataFrame:
         row: dict[str, Any] = {"policy": (policy + ("\n(reference)" if policy == reference
                                                      else ""), {"class": "l nowrap"})}
         for meas in MEASURES:
-            name = MEASURE_NAMES.get(meas.name, meas.name)
+            name = meas.label
             r = m[(m["policy"] == policy) & (m["measure"] == meas.name)]
             if r.empty:
                 row[name] = ("–", {})
@@ -256,32 +252,32 @@ def summary_table(scores: Scores, reference: str) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _display_measures(table: pd.DataFrame) -> pd.DataFrame:
+def _display_measures(table: pd.DataFrame, level: float) -> pd.DataFrame:
     rows = []
     for r in table.itertuples(index=False):
-        meas = MEASURE_BY_NAME.get(r.measure)
+        meas = MEASURES.get(r.measure)
         if meas is None:
             continue
         rows.append({"env": r.env, "policy": r.policy,
-                     "measure": MEASURE_NAMES.get(meas.name, meas.name),
+                     "measure": meas.label,
                      "n": r.n, "mean": (_measure_value(meas, r.mean), {"v": r.mean}),
-                     "95 % interval": _measure_interval(meas, r.low, r.high)})
+                     interval_heading(level): _measure_interval(meas, r.low, r.high)})
     return pd.DataFrame(rows)
 
 
-def _display_paired_measures(table: pd.DataFrame) -> pd.DataFrame:
+def _display_paired_measures(table: pd.DataFrame, level: float) -> pd.DataFrame:
     rows = []
     for r in table.itertuples(index=False):
-        meas = MEASURE_BY_NAME.get(r.measure)
+        meas = MEASURES.get(r.measure)
         if meas is None:
             continue
         mark, cls = _mark(r.diff_low, r.diff_high, meas.higher_is_better)
         rows.append({"env": r.env, "A": r.policy_a, "B": r.policy_b,
-                     "measure": MEASURE_NAMES.get(meas.name, meas.name),
+                     "measure": meas.label,
                      "pairs": r.n, "mean A": _measure_value(meas, r.mean_a),
                      "mean B": _measure_value(meas, r.mean_b),
                      "A − B": (_measure_value(meas, r.diff), {"v": r.diff}),
-                     "95 % interval": _measure_interval(meas, r.diff_low, r.diff_high),
+                     interval_heading(level): _measure_interval(meas, r.diff_low, r.diff_high),
                      "A vs B": (mark, {"class": cls}),
                      "P(A better)": (f"{_num(r.p_improvement, 2)} "
                                      f"{_interval(_num(r.p_low, 2), _num(r.p_high, 2))}",
@@ -289,15 +285,15 @@ def _display_paired_measures(table: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _display_paired(table: pd.DataFrame) -> pd.DataFrame:
+def _display_paired(table: pd.DataFrame, level: float) -> pd.DataFrame:
     return pd.DataFrame([{
         "env": r.env, "A": r.policy_a, "B": r.policy_b, "pairs": r.n_pairs,
         "dropped": r.n_dropped, "same label": (_pct(r.agreement), {"v": r.agreement}),
-        "95 % interval": _interval(_pct(r.agreement_low), _pct(r.agreement_high))}
+        interval_heading(level): _interval(_pct(r.agreement_low), _pct(r.agreement_high))}
         for r in table.itertuples(index=False)])
 
 
-def _display_paired_labels(table: pd.DataFrame) -> pd.DataFrame:
+def _display_paired_labels(table: pd.DataFrame, level: float) -> pd.DataFrame:
     rows = []
     for r in table.itertuples(index=False):
         mark, cls = _mark(r.diff_low, r.diff_high, True)
@@ -305,17 +301,17 @@ def _display_paired_labels(table: pd.DataFrame) -> pd.DataFrame:
         rows.append({"env": r.env, "A": r.policy_a, "B": r.policy_b, "label": r.label,
                      "share A": _pct(r.freq_a), "share B": _pct(r.freq_b),
                      "A − B [pp]": (_num(r.diff * 100, 1), {"v": r.diff}),
-                     "95 % interval": _interval(_num(r.diff_low * 100, 1),
+                     interval_heading(level): _interval(_num(r.diff_low * 100, 1),
                                                 _num(r.diff_high * 100, 1)),
                      "band": _interval(_num(r.band_low * 100, 1), _num(r.band_high * 100, 1)),
                      "": (mark, {"class": cls})})
     return pd.DataFrame(rows)
 
 
-def _display_matched(table: pd.DataFrame) -> pd.DataFrame:
+def _display_matched(table: pd.DataFrame, level: float) -> pd.DataFrame:
     rows = []
     for r in table.itertuples(index=False):
-        meas = MEASURE_BY_NAME.get(r.measure)
+        meas = MEASURES.get(r.measure)
         if meas is None:  # a group too small to test: listed with its sizes
             if getattr(r, "note", ""):
                 rows.append({"env": r.env, "label": r.label, "A": r.policy_a,
@@ -325,22 +321,23 @@ def _display_matched(table: pd.DataFrame) -> pd.DataFrame:
         mark, cls = _mark(r.diff_low, r.diff_high, meas.higher_is_better)
         rows.append({"env": r.env, "label": r.label, "A": r.policy_a, "B": r.policy_b,
                      "episodes A": r.n_a, "episodes B": r.n_b,
-                     "measure": MEASURE_NAMES.get(meas.name, meas.name),
+                     "measure": meas.label,
                      "mean A": _measure_value(meas, r.mean_a),
                      "mean B": _measure_value(meas, r.mean_b),
                      "A − B": (_measure_value(meas, r.diff), {"v": r.diff}),
-                     "95 % interval": _measure_interval(meas, r.diff_low, r.diff_high),
+                     interval_heading(level): _measure_interval(meas, r.diff_low, r.diff_high),
                      "A vs B": (mark, {"class": cls})})
     return pd.DataFrame(rows)
 
 
-def _display_coverage(table: pd.DataFrame) -> pd.DataFrame:
+def _display_coverage(table: pd.DataFrame, level: float) -> pd.DataFrame:
     rows = []
     for r in table.to_dict("records"):
         row = {"env": r["env"], "policy": r["policy"], "reference": r["reference"],
                "episodes": r["n"],
                "coverage": (_pct(r["coverage"]), {"v": r["coverage"]}),
-               "95 % interval": _interval(_pct(r["coverage_low"]), _pct(r["coverage_high"])),
+               interval_heading(level): _interval(_pct(r["coverage_low"]),
+                                                  _pct(r["coverage_high"])),
                "weighted": (_pct(r["weighted_coverage"]), {"v": r["weighted_coverage"]}),
                "weighted interval": _interval(_pct(r["weighted_low"]), _pct(r["weighted_high"])),
                "distinct labels": r.get("n_distinct")}
@@ -354,11 +351,11 @@ def _display_coverage(table: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _display_novelty(table: pd.DataFrame) -> pd.DataFrame:
+def _display_novelty(table: pd.DataFrame, level: float) -> pd.DataFrame:
     return pd.DataFrame([{
         "env": r.env, "policy": r.policy, "reference": r.reference, "episodes": r.n,
         "novel episodes": r.n_novel, "novelty rate": (_pct(r.novel_rate), {"v": r.novel_rate}),
-        "95 % interval": _interval(_pct(r.novel_low), _pct(r.novel_high)),
+        interval_heading(level): _interval(_pct(r.novel_low), _pct(r.novel_high)),
         "novel labels": r.n_novel_labels, "reference size": r.reference_size}
         for r in table.itertuples(index=False)])
 

@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.bench.report import write_report
+from tap_bench.bench.run_plan import SuitePlan
 from tap_bench.bench.scoring import Scores
 from tap_bench.bench.suite import Suite
 from tap_bench.bench.viewer import write_run_viewer
@@ -69,18 +70,27 @@ def _sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-def provenance(suite: Suite) -> dict[str, Any]:
+def provenance(suite: Suite | SuitePlan) -> dict[str, Any]:
     """What every policy and env of a suite is, in full, so that ``bench check`` can say what
     changed since a baseline.
+
+    Args:
+        suite: the resolved suite of a run (its definitions and scenarios are used as they
+            are), or a suite (they are read).
 
     Returns:
         ``{"policies": {name: {"kind", "params", "model_sha256"?}}, "envs": {name:
         {"highway_env_id", "version", "duration", "lane_change", "config"}}}``; a model
         file's SHA-256 is taken from the file its definition names.
     """
+    if isinstance(suite, SuitePlan):
+        definitions = {d.name: d for d in suite.definitions}
+        scenarios = suite.scenarios
+    else:
+        definitions = {name: get_definition(name) for name in suite.policies}
+        scenarios = {env: suite.scenario(env) for env in suite.envs}
     policies = {}
-    for name in suite.policies:
-        definition = get_definition(name)
+    for name, definition in definitions.items():
         entry: dict[str, Any] = {"kind": definition.kind, "params": dict(definition.params)}
         model = definition.params.get("model")
         if isinstance(model, str):
@@ -90,8 +100,7 @@ def provenance(suite: Suite) -> dict[str, Any]:
             entry["model_sha256"] = _sha256(path) if path.is_file() else "(missing file)"
         policies[name] = json.loads(json.dumps(entry, default=str))
     envs = {}
-    for env in suite.envs:
-        scenario = suite.scenario(env)
+    for env, scenario in scenarios.items():
         envs[env] = json.loads(json.dumps(
             {"highway_env_id": scenario.highway_env_id, "version": scenario.version,
              "duration": scenario.duration, "lane_change": scenario.lane_change,

@@ -5,8 +5,9 @@ policy's definition resolved once, and the estimate of how long the run takes
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -18,11 +19,13 @@ from tap_bench.bench.cache import (
     scenario_fingerprint,
     simulation_fingerprint,
 )
-from tap_bench.bench.suite import Suite
+from tap_bench.bench.measures import MEASURES, Measure
+from tap_bench.bench.suite import Suite, load_suite
+from tap_bench.plugins import load_plugins, merge_plugins
 from tap_bench.sim.policies import PolicyDefinition
 from tap_bench.sim.rollout import resolve_policy
-from tap_bench.sim.suite import Scenario
-from tap_bench.thresholds import Thresholds
+from tap_bench.sim.suite import Scenario, parse_seeds
+from tap_bench.thresholds import Thresholds, resolve_thresholds
 
 
 @dataclass(frozen=True)
@@ -41,14 +44,82 @@ class _Task:
     cache: EpisodeCache | None = None
     key: str | None = None  # None: this episode is not cached (see bench.cache)
     key_doc: Mapping[str, Any] | None = None
+    measures: tuple[str, ...] = ()  # the run's measures: the worker must have each
 
 
-def _tasks(suite: Suite, thresholds: Thresholds, keep: bool, cache: EpisodeCache | None
-           ) -> list[_Task]:
-    scenarios = {env: suite.scenario(env) for env in suite.envs}  # resolved once
-    definitions = [resolve_policy(policy) for policy in suite.policies]  # built once here
+@dataclass(frozen=True)
+class SuitePlan:
+    """A suite resolved once, before a run: what every later step of the run reads, so that
+    no step resolves a scenario, reads a policy file or the thresholds again, and every step
+    sees the same measures.
+
+    Attributes:
+        suite: the suite (its gate margins filled for every measure of the run).
+        scenarios: env -> its :class:`~tap_bench.sim.suite.Scenario`, overrides applied.
+        definitions: each policy's definition, built once (a bad one fails here).
+        thresholds: the TAP thresholds.
+        measures: the run's measure entries, fixed after the plugins, the suite's plugins
+            and the policies' own imports have registered theirs.
+        plugins: the modules every worker imports before its first task (the execution
+            layer carries them): those named on the command line and by the suite, and the
+            modules that define the run's measures outside tap-bench.
+    """
+
+    suite: Suite
+    scenarios: Mapping[str, Scenario]
+    definitions: tuple[PolicyDefinition, ...]
+    thresholds: Thresholds
+    measures: tuple[Measure, ...]
+    plugins: tuple[str, ...]
+
+    @property
+    def measure_names(self) -> tuple[str, ...]:
+        return tuple(m.name for m in self.measures)
+
+    @property
+    def gate_metrics(self) -> tuple[str, ...]:
+        """What the gate checks in this run: every measure and ``label_tv``."""
+        return (*self.measure_names, "label_tv")
+
+
+def plan_suite(suite: Suite | str | os.PathLike, *, plugins: Sequence[str] = (),
+               seeds: str | Sequence[int] | None = None) -> SuitePlan:
+    """Resolve ``suite`` once: import the plugins (``plugins``, then the suite's), read the
+    suite, resolve its scenarios, build its policies' definitions and its thresholds, and fix
+    the set of measures.
+
+    Raises:
+        ParameterError: a plugin cannot be imported, or ``seeds`` is not a seed list.
+        FileFormatError, UnknownNameError: the suite, a scenario or a policy is bad.
+    """
+    load_plugins(plugins)
+    suite = suite if isinstance(suite, Suite) else load_suite(suite)
+    load_plugins(suite.plugins, source=f"suite {suite.name}")
+    if seeds is not None:
+        suite = replace(suite, seeds=tuple(parse_seeds(seeds, source="seeds")))
+    scenarios = {env: suite.scenario(env) for env in suite.envs}
+    definitions = tuple(resolve_policy(policy) for policy in suite.policies)
+    thresholds = resolve_thresholds(suite.thresholds)
+    measures = tuple(MEASURES)  # fixed here: after every import that may register one
+    # margins of measures registered after the suite was read take their entry's default
+    suite = replace(suite, gate=replace(suite.gate, margins={
+        **{m.name: float(m.margin) for m in measures}, **suite.gate.margins}))
+    defined_in = (m.function.__module__ for m in measures if m.function is not None)
+    outside = [name for name in defined_in
+               if name != "__main__" and name.split(".")[0] != "tap_bench"]
+    # recorded as loaded, so that every worker of the execution layer imports them first
+    load_plugins(outside, source="measure")
+    return SuitePlan(suite, scenarios, definitions, thresholds, measures,
+                     merge_plugins(plugins, suite.plugins, outside))
+
+
+def _tasks(plan: SuitePlan, keep: bool, cache: EpisodeCache | None) -> list[_Task]:
+    suite, scenarios, thresholds = plan.suite, plan.scenarios, plan.thresholds
+    definitions = plan.definitions
+    common = {"measures": plan.measure_names}
     if cache is None:
-        return [_Task(env, scenarios[env], d.name, d, seed, thresholds, suite.level, keep)
+        return [_Task(env, scenarios[env], d.name, d, seed, thresholds, suite.level, keep,
+                      **common)
                 for env in suite.envs for d in definitions for seed in suite.seeds]
     versions = simulation_fingerprint()
     envs = {env: scenario_fingerprint(scenarios[env]) for env in suite.envs}
@@ -61,7 +132,7 @@ def _tasks(suite: Suite, thresholds: Thresholds, keep: bool, cache: EpisodeCache
                 if policies[d.name] is not None:
                     key, doc = episode_key(envs[env], policies[d.name], seed, versions)
                 tasks.append(_Task(env, scenarios[env], d.name, d, seed, thresholds,
-                                   suite.level, keep, cache, key, doc))
+                                   suite.level, keep, cache, key, doc, **common))
     return tasks
 
 

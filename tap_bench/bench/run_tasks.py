@@ -20,12 +20,28 @@ from tap_bench.bench.cache import (
     EpisodeCache,
 )
 from tap_bench.bench.episodes import episode_table
-from tap_bench.bench.run_plan import RunPlan, _plan, _Task, _tasks
-from tap_bench.bench.suite import Suite
+from tap_bench.bench.measures import MEASURES
+from tap_bench.bench.run_plan import RunPlan, SuitePlan, _plan, _Task, _tasks
+from tap_bench.errors import RegistrationError
 from tap_bench.execution import Backend
 from tap_bench.labelling import tap
 from tap_bench.sim.rollout import EPISODE_COLUMNS, rollout_episode
-from tap_bench.thresholds import Thresholds
+
+
+def _prepare_worker(task: _Task) -> None:
+    """Check that this worker has every measure the run fixed, so that no episode table
+    lacks one (the execution layer has imported the run's plugins before this task).
+
+    Raises:
+        RegistrationError: a measure of the run is not registered here (naming it and the fix).
+    """
+    missing = [name for name in task.measures if name not in MEASURES]
+    if missing:
+        raise RegistrationError(
+            f"measure(s) {', '.join(missing)} are registered in the process that started the "
+            "run but not in this worker: register them in a module (not in __main__) and name "
+            "it as a plugin (--plugin MODULE, or \"plugins\" in the suite) so that every "
+            "worker imports it.")
 
 
 def _episode(task: _Task) -> tuple[pd.DataFrame, dict[str, Any], bool, float]:
@@ -111,6 +127,7 @@ def _empty(table: pd.DataFrame) -> pd.DataFrame:
 
 def _run_task(task: _Task) -> dict[str, Any]:
     """Roll out (or read from the cache), label and measure one episode (in a worker)."""
+    _prepare_worker(task)
     return _label_together((task,), [_episode(task)])[0]
 
 
@@ -140,6 +157,7 @@ class _Batch:
 
 def _run_batch(batch: _Batch) -> list[dict[str, Any]]:
     """One result per task of ``batch``, equal to what :func:`_run_task` gives for each."""
+    _prepare_worker(batch.tasks[0])
     return _label_together(batch.tasks, [_episode(task) for task in batch.tasks])
 
 
@@ -175,7 +193,7 @@ def _items(tasks: list[_Task], indices: list[int], cached: list[bool], workers: 
     return items
 
 
-def _rollouts(suite: Suite, thresholds: Thresholds, backend: Backend, keep: bool,
+def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
               progress: bool | None, cache: EpisodeCache | None,
               announce: Callable[[str], None] | None
               ) -> tuple[list[dict[str, Any]], RunPlan]:
@@ -183,7 +201,8 @@ def _rollouts(suite: Suite, thresholds: Thresholds, backend: Backend, keep: bool
     whose worker died is tried once more, then recorded as failed), cached episodes read
     rather than simulated. Before the tasks start, ``announce`` gets the run's estimate,
     from the cache's timings or from a first episode of each env without one."""
-    tasks = _tasks(suite, thresholds, keep, cache)
+    tasks = _tasks(suite_plan, keep, cache)
+    suite = suite_plan.suite
     cached = [cache is not None and t.key is not None and cache.contains(t.key)
               for t in tasks]
     known = cache.timings() if cache is not None else {}

@@ -45,7 +45,6 @@ first episode of each env.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import math
 import os
 import time
@@ -68,7 +67,7 @@ from tap_bench.bench.run_folder import (
     run_viewer,
     write_results,
 )
-from tap_bench.bench.run_plan import CACHED_EPISODE_S, RunPlan
+from tap_bench.bench.run_plan import CACHED_EPISODE_S, RunPlan, SuitePlan, plan_suite
 from tap_bench.bench.run_scores import (
     ReferenceSource,
     _describe_source,
@@ -80,7 +79,7 @@ from tap_bench.bench.run_scores import (
 from tap_bench.bench.run_tasks import CACHED_BATCH, _observed_timings, _rollouts
 from tap_bench.bench.scenarios import match_scenarios
 from tap_bench.bench.scoring import Scores, score
-from tap_bench.bench.suite import Suite, gate_metrics, load_suite
+from tap_bench.bench.suite import Suite
 from tap_bench.errors import (
     EpisodesFailedError,
     ParameterError,
@@ -88,10 +87,9 @@ from tap_bench.errors import (
 )
 from tap_bench.execution import Backend, resolve_backend
 from tap_bench.sim.roads import road_table
-from tap_bench.sim.suite import parse_seeds
-from tap_bench.thresholds import resolve_thresholds
 
 __all__ = ["CACHED_BATCH", "CACHED_EPISODE_S", "RunExistsError", "RunPlan", "RunResult",
+           "SuitePlan", "plan_suite",
            "check_output", "package_versions", "provenance", "read_run", "run_suite",
            "run_viewer", "write_results"]
 
@@ -122,7 +120,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
               progress: bool | None = None, report: bool = True,
               backend: Backend | None = None, seeds: str | Sequence[int] | None = None,
               cache: EpisodeCache | str | os.PathLike | None = None,
-              announce: Callable[[str], None] | None = None) -> RunResult:
+              announce: Callable[[str], None] | None = None,
+              plugins: Sequence[str] = ()) -> RunResult:
     """Run a benchmark suite and write its run folder.
 
     Args:
@@ -151,6 +150,9 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
             long the run should take, before the episodes start (the CLI prints it); to
             estimate an env no earlier run timed, its first episode runs first. None: no
             estimate.
+        plugins: modules that register measures, data formats or policy kinds
+            (:mod:`tap_bench.plugins`), imported before the suite is read; with the suite's
+            own ``plugins``, every worker imports them before its first task.
 
     Returns:
         :class:`RunResult`.
@@ -160,14 +162,12 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         EpisodesFailedError: every episode failed (naming the first errors); nothing is
             written.
     """
-    suite = suite if isinstance(suite, Suite) else load_suite(suite)
-    if seeds is not None:
-        suite = dataclasses.replace(suite, seeds=tuple(parse_seeds(seeds, source="seeds")))
+    output = check_output(output, overwrite)
+    plan = plan_suite(suite, plugins=plugins, seeds=seeds)  # the suite, resolved once
+    suite, thresholds = plan.suite, plan.thresholds
     if cache is not None and not isinstance(cache, EpisodeCache):
         cache = EpisodeCache(Path(cache))
-    output = check_output(output, overwrite)
     runner = resolve_backend(backend, workers)
-    thresholds = resolve_thresholds(suite.thresholds)
     timings: dict[str, float] = {}
     t_start = time.perf_counter()
     sources = dict(references or {})
@@ -183,8 +183,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     with_trajectories = any(traj is not None for traj, _ in corpora.values())
 
     t0 = time.perf_counter()
-    results, plan = _rollouts(suite, thresholds, runner,
-                              keep_trajectories or with_trajectories, progress, cache, announce)
+    results, estimate = _rollouts(plan, runner, keep_trajectories or with_trajectories,
+                                  progress, cache, announce)
     timings["rollouts_wall"] = time.perf_counter() - t0
     if not any((r["episodes"]["status"] == "ok").all() for r in results):
         errors = [f"{row.env} {row.policy} seed {row.seed}: {row.error}"
@@ -208,18 +208,27 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         trajectories = pd.concat(frames, ignore_index=True) if frames else None
 
     t0 = time.perf_counter()
-    matches = []
+    matches, unmatched = [], []
     for name, (ref_traj, ref_labels) in corpora.items():
         if ref_traj is not None and len(labels):
+            if "is_ego" not in ref_labels.columns:  # a format without an ego: no scenarios
+                unmatched.append(name)
+                continue
             matches.append(match_scenarios(labels, trajectories, ref_labels, ref_traj,
                                            level=suite.level, top=3).assign(reference=name))
     power = power_table(episodes, suite.gate,
-                        n_tests=len(suite.envs) * len(suite.policies) * len(gate_metrics()))
+                        n_tests=len(suite.envs) * len(suite.policies)
+                        * len(plan.gate_metrics))
     scores = score(episodes, reference_policy=suite.reference, level=suite.level,
                    config=suite.bootstrap,
                    references={name: lab for name, (_, lab) in corpora.items()} or None,
                    scenario_matches=pd.concat(matches, ignore_index=True) if matches else None,
                    gate_power=power)
+    if unmatched:
+        scores.methods["scenario matching skipped"] = (
+            f"{', '.join(unmatched)}: the data marks no ego vehicle (is_ego), so its "
+            "scenarios cannot be matched by what happens around the ego; coverage and "
+            "novelty use all its vehicles")
     scores = _with_gaps(scores, corpora, labels, episodes, suite)
     timings["scoring"] = time.perf_counter() - t0
 
@@ -238,10 +247,12 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "failed": failed[["env", "policy", "seed", "error"]].to_dict("records"),
         "methods": scores.methods,
         "headline": _headline(scores, episodes),
-        "provenance": provenance(suite),
+        "provenance": provenance(plan),
+        "measures": [m.to_dict() for m in plan.measures],
+        "plugins": list(plan.plugins),
         "timings": timings,
-        "estimate": {"seconds": _round(plan.seconds),
-                     "overhead": _round(plan.overhead_seconds), "basis": plan.basis},
+        "estimate": {"seconds": _round(estimate.seconds),
+                     "overhead": _round(estimate.overhead_seconds), "basis": estimate.basis},
         "cache": None if cache is None else {
             "dir": str(cache.root), "cached": sum(r["cached"] for r in results),
             "simulated": sum(not r["cached"] for r in results)},
@@ -249,7 +260,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     t0 = time.perf_counter()
     roads = None
     if keep_trajectories:  # the replay viewer draws them; highway-env's road is seed-free
-        roads = pd.concat([road_table(suite.scenario(env)) for env in suite.envs],
+        roads = pd.concat([road_table(plan.scenarios[env]) for env in suite.envs],
                           ignore_index=True)
     folder = write_results(output, overwrite, summary, episodes, labels, trajectories
                            if keep_trajectories else None, scores, report,

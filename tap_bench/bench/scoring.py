@@ -17,7 +17,7 @@ from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.compare import ALL_ENVS, MIN_GROUP, matched_by_label, paired_comparison
 from tap_bench.bench.coverage import Reference, corpus_reference, coverage, pooled_coverage
 from tap_bench.bench.diversity import MIN_COMPLETENESS, diversity, pooled_diversity
-from tap_bench.bench.intervals import MEASURE_BOUNDS, mean_interval, wilson_interval
+from tap_bench.bench.intervals import measure_interval
 from tap_bench.bench.measures import MEASURES
 from tap_bench.bench.novelty import novelty, pooled_novelty
 from tap_bench.errors import LabelTableError
@@ -89,7 +89,8 @@ def _env_groups(table: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
 
 def policy_measures(episodes: pd.DataFrame, config: BootstrapConfig) -> pd.DataFrame:
     """Mean of each measure per env (and pooled: every episode of the policy) and policy,
-    with Student's t intervals over episodes and Wilson intervals for the crash rate."""
+    with the interval each measure's entry calls for (Student's t over episodes; Wilson's
+    for a rate such as the crash rate)."""
     ok = episodes[episodes["status"] == "ok"]
     rows = []
     for policy, pol in ok.groupby("policy", sort=True):
@@ -98,10 +99,8 @@ def policy_measures(episodes: pd.DataFrame, config: BootstrapConfig) -> pd.DataF
                 x = sub[m.name].to_numpy(float, na_value=np.nan)
                 x = x[np.isfinite(x)]
                 n = len(x)
-                if m.name == "crashed":  # a rate: Wilson, which stays honest at 0 and 1
-                    low, high = wilson_interval(int(x.sum()), n, config.level)
-                else:
-                    low, high = mean_interval(x, config.level, bounds=MEASURE_BOUNDS.get(m.name))
+                # a rate gets Wilson's interval (honest at 0 and 1), a mean Student's t
+                low, high = measure_interval(m, x, config.level)
                 rows.append({"env": env, "policy": policy, "measure": m.name, "n": n,
                              "mean": float(x.mean()) if n else np.nan, "low": low,
                              "high": high})
@@ -276,11 +275,13 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
         nov_parts.append(nov)
         label_parts.append(lab)
     methods = {
-        "measures": f"{config.level:.0%} Student t intervals over episodes; crash rates: "
-                    "Wilson score intervals; 'all' pools every episode of the policy",
+        "measures": f"{config.level:.0%} intervals over episodes, each measure's own: "
+                    + "; ".join(f"{m.label}: {m.interval_method}" for m in MEASURES)
+                    + "; 'all' pools every episode of the policy",
         "paired": method_paired,
-        "matched": (f"{config.level:.0%} Welch t intervals (Newcombe score intervals for the "
-                    "crash rate) between the episodes of each policy in a label group of one "
+        "matched": (f"{config.level:.0%} Welch t intervals (Newcombe score intervals for "
+                    "rates: " + ", ".join(m.label for m in MEASURES if m.is_rate)
+                    + ") between the episodes of each policy in a label group of one "
                     f"env; groups with fewer than {MIN_GROUP} episodes of a policy are listed, "
                     "not tested"),
         "coverage": (f"{config.level:.0%} studentized bootstrap (bootstrap-t) intervals "

@@ -16,11 +16,15 @@ A suite is a JSON file in ``envs/suites/`` (beside the scenario files it names; 
       "env_overrides": {"highway": {"duration": 15, "config": {"vehicles_count": 10}}},
       "bootstrap": {"n_resamples": 2000, "level": 0.95, "seed": 0},
       "gate": {"alpha": 0.05, "n_permutations": 9999, "seed": 0,
-               "margins": {"crashed": 0.1, "mean_speed": 1.0, "label_tv": 0.2}}
+               "margins": {"crashed": 0.1, "mean_speed": 1.0, "label_tv": 0.2}},
+      "plugins": ["my_measures"]                    # modules registering your own measures,
+                                                    # formats or policy kinds (imported first,
+                                                    # and in every worker)
     }
 
 Every field but ``name``, ``envs``, ``policies`` and ``seeds`` has the default shown in
-:class:`Suite`. Unknown fields, envs and policies are refused with "did you mean".
+:class:`Suite` (``plugins``: none). Unknown fields, envs and policies are refused with
+"did you mean".
 """
 
 from __future__ import annotations
@@ -35,11 +39,12 @@ from tap_bench import catalogue, sdl
 from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.measures import MEASURES
 from tap_bench.errors import FileFormatError, ParameterError, UnknownNameError, did_you_mean
+from tap_bench.plugins import load_plugins
 from tap_bench.sim.policies import available_policies
 from tap_bench.sim.scenario_env import get_scenario
 from tap_bench.sim.suite import parse_seeds, read_json, scenario_names
 
-__all__ = ["GATE_METRICS", "GateConfig", "Suite", "available_suites", "default_margins",
+__all__ = ["GateConfig", "Suite", "available_suites", "default_margins",
            "gate_metrics", "load_suite", "suite_from_dict"]
 
 LABEL_TV_MARGIN = 0.20
@@ -58,12 +63,9 @@ def default_margins() -> dict[str, float]:
     return {**MEASURES.margins(), "label_tv": LABEL_TV_MARGIN}
 
 
-GATE_METRICS = gate_metrics()
-"""The gate's metrics when this module was imported (:func:`gate_metrics` is current)."""
-DEFAULT_MARGINS: Mapping[str, float] = default_margins()
 
 _FIELDS = ("name", "version", "description", "envs", "policies", "seeds", "reference_policy",
-           "level", "thresholds", "env_overrides", "bootstrap", "gate")
+           "level", "thresholds", "env_overrides", "bootstrap", "gate", "plugins")
 _OVERRIDE_FIELDS = ("duration", "config", "lane_change")
 _GATE_FIELDS = ("alpha", "n_permutations", "seed", "margins")
 
@@ -117,6 +119,20 @@ class GateConfig:
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ParameterError("gate seed", self.seed, "a non-negative integer")
 
+    def margin(self, metric: str) -> float:
+        """The margin of ``metric``: the one given, else its registered default (a measure
+        registered after this config was made, by a plugin, has its entry's margin).
+
+        Raises:
+            UnknownNameError: ``metric`` is not a gate metric (with "did you mean").
+        """
+        if metric in self.margins:
+            return float(self.margins[metric])
+        defaults = default_margins()
+        if metric not in defaults:
+            raise did_you_mean("gate metric", metric, defaults)
+        return float(defaults[metric])
+
     def to_dict(self) -> dict[str, Any]:
         return {"alpha": self.alpha, "n_permutations": self.n_permutations, "seed": self.seed,
                 "margins": dict(self.margins)}
@@ -138,6 +154,9 @@ class Suite:
         env_overrides: env -> {"duration": s, "config": {...}, "lane_change": name}.
         bootstrap: interval settings.
         gate: regression-gate settings.
+        plugins: modules that register the suite's own measures, data formats or policy
+            kinds (:mod:`tap_bench.plugins`): imported before the suite is checked, and by
+            every worker of a run before its first task.
         path: the file it was read from.
     """
 
@@ -153,6 +172,7 @@ class Suite:
     env_overrides: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     bootstrap: BootstrapConfig = field(default_factory=BootstrapConfig)
     gate: GateConfig = field(default_factory=GateConfig)
+    plugins: tuple[str, ...] = ()
     path: Path | None = field(default=None, compare=False)
 
     @property
@@ -178,7 +198,7 @@ class Suite:
                 "env_overrides": {k: dict(v) for k, v in self.env_overrides.items()},
                 "bootstrap": {"n_resamples": self.bootstrap.n_resamples,
                               "level": self.bootstrap.level, "seed": self.bootstrap.seed},
-                "gate": self.gate.to_dict()}
+                "gate": self.gate.to_dict(), "plugins": list(self.plugins)}
 
 
 def suites_dir() -> Path:
@@ -225,6 +245,14 @@ def suite_from_dict(doc: Any, *, source: str = "suite", path: Path | None = None
     if missing:
         raise FileFormatError(f"{source}: missing field(s) {', '.join(map(repr, missing))}; a "
                               "suite needs name, envs, policies and seeds.")
+    plugins = doc.get("plugins", [])
+    if not isinstance(plugins, list) or not all(isinstance(v, str) for v in plugins):
+        raise FileFormatError(f"{source}: 'plugins' must be a list of module names "
+                              f"(\"my_package.measures\"), got {plugins!r}.")
+    try:  # first: the plugins register the measures the gate margins may name
+        plugins = load_plugins(plugins, source=source)
+    except ParameterError as err:
+        raise FileFormatError(str(err)) from err
     envs = _strings(doc, "envs", source)
     policies = _strings(doc, "policies", source)
     try:
@@ -288,7 +316,8 @@ def suite_from_dict(doc: Any, *, source: str = "suite", path: Path | None = None
     suite = Suite(name=str(doc["name"]), version=version,
                   description=str(doc.get("description", "")), envs=envs, policies=policies,
                   seeds=seeds, reference_policy=reference, level=level, thresholds=thresholds,
-                  env_overrides=overrides, bootstrap=boot, gate=gate, path=path)
+                  env_overrides=overrides, bootstrap=boot, gate=gate, plugins=plugins,
+                  path=path)
     if check_names:
         _check_names(suite, source)
     return suite

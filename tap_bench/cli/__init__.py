@@ -69,6 +69,30 @@ def _command(argv: Sequence[str]) -> str | None:
     return first if first in COMMANDS else None
 
 
+def _plugins(argv: Sequence[str]) -> tuple[list[str], list[str]]:
+    """``argv`` without its ``--plugin MODULE`` options (anywhere: before or after the
+    command), and the modules they name, in order."""
+    rest: list[str] = []
+    plugins: list[str] = []
+    args = iter(argv)
+    for arg in args:
+        if arg == "--":
+            rest += [arg, *args]
+            break
+        if arg == "--plugin":
+            value = next(args, None)
+            if value is None:
+                from tap_bench.errors import ParameterError
+
+                raise ParameterError("--plugin", None, "a module name (--plugin MODULE)")
+            plugins.append(value)
+        elif arg.startswith("--plugin="):
+            plugins.append(arg.partition("=")[2])
+        else:
+            rest.append(arg)
+    return rest, plugins
+
+
 def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     """The ``tap-bench`` parser: the full parser of the command ``argv`` names, one help
     line for every other command (None: the full parser of every command)."""
@@ -80,6 +104,10 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
         "driving behaviour as Scenario Description Language (SDL) labels.",
     )
     parser.add_argument("--version", action="version", version=f"tap-bench {__version__}")
+    parser.add_argument("--plugin", action="append", default=[], metavar="MODULE",
+                        help="import MODULE first: it registers your own measures, data "
+                        "formats or policy kinds (repeatable; also after the command; every "
+                        "worker process imports it too)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     chosen = _command(argv) if argv is not None else None
     for name, (module, help_line) in COMMANDS.items():
@@ -108,8 +136,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     from tap_bench.execution import keep_freed_memory
 
     keep_freed_memory()  # no page faults for every temporary column
+    try:
+        argv, plugins = _plugins(argv)
+        if plugins:  # before the parsers are built: --format choices come from the registry
+            from tap_bench.plugins import load_plugins
+
+            load_plugins(plugins)
+    except TapBenchError as err:
+        print(f"tap-bench: error: {err}", file=sys.stderr)
+        return 2
     parser = build_parser(argv)
     args = parser.parse_args(argv)
+    args.plugin = list(plugins)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -129,7 +129,8 @@ def run_bench(args: argparse.Namespace) -> int:
                            overwrite=args.overwrite,
                            progress=progress_choice(args), backend=backend,
                            seeds=args.seeds, cache=cache,
-                           announce=lambda line: print(line, flush=True))
+                           announce=lambda line: print(line, flush=True),
+                           plugins=getattr(args, "plugin", None) or ())
     finally:
         if backend is not None:
             close_backend(backend)
@@ -153,9 +154,12 @@ def check_bench(args: argparse.Namespace) -> int:
 
     from tap_bench.bench.gate import check, read_baseline, write_baseline
     from tap_bench.bench.runner import read_run
+    from tap_bench.plugins import load_plugins
     from tap_bench.tableio import write_table
 
     summary, episodes = read_run(args.run)
+    # the run's own measures, formats and policy kinds: registered before the gate reads them
+    load_plugins(summary.get("plugins") or (), source=f"run {args.run}")
     baseline_path = Path(args.baseline)
     if args.update_baseline:
         if baseline_path.is_file():

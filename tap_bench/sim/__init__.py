@@ -29,9 +29,10 @@ from typing import Any
 
 _LAZY_MODULES = {
     "tap_bench.sim.policies": ("Policy", "PolicyDefinition", "available_policies",
-                               "load_policy", "register_policy"),
+                               "load_policy", "register_policy", "register_policy_kind"),
     "tap_bench.sim.registration": ("register_scenario", "register_suite", "registered_ids"),
-    "tap_bench.sim.rollout": ("EpisodeFailedWarning", "Rollout", "rollout", "run_episode"),
+    "tap_bench.sim.rollout": ("EpisodeFailedWarning", "Rollout", "check_policy", "rollout",
+                              "run_episode"),
     "tap_bench.sim.suite": ("Scenario", "load_scenario", "parse_seeds", "scenario_names"),
     "tap_bench.sim.scenario_env": ("ScenarioEnv", "episode_trajectories", "get_scenario",
                                    "make_env"),
@@ -58,8 +59,10 @@ __all__ = [
     "Policy",
     "PolicyDefinition",
     "available_policies",
+    "check_policy",
     "load_policy",
     "register_policy",
+    "register_policy_kind",
     # rollouts and wrappers
     "EpisodeFailedWarning",
     "EpisodeLabels",

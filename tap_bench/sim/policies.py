@@ -37,20 +37,30 @@ import gymnasium as gym
 import numpy as np
 
 from tap_bench import catalogue
-from tap_bench.errors import FileFormatError, ParameterError, UnknownNameError, did_you_mean
+from tap_bench.errors import (
+    FileFormatError,
+    ParameterError,
+    RegistrationError,
+    UnknownNameError,
+    did_you_mean,
+)
+from tap_bench.registry import Registry
 from tap_bench.sim.suite import read_json
 
 __all__ = [
     "CHEAP_OBSERVATION",
+    "POLICY_KINDS",
     "LaneKeepingPolicy",
     "LogPolicy",
     "Policy",
     "PolicyDefinition",
+    "PolicyKind",
     "RandomPolicy",
     "available_policies",
     "load_policy",
     "policy_kinds",
     "register_policy",
+    "register_policy_kind",
 ]
 
 CHEAP_OBSERVATION: dict[str, Any] = {"type": "AttributesObservation", "attributes": ["time"]}
@@ -200,14 +210,53 @@ class LogPolicy:
         return self._action
 
 
-_KINDS: dict[str, str] = {
-    "idm": "tap_bench.sim.idm:IDMPolicy",
-    "random": "tap_bench.sim.policies:RandomPolicy",
-    "lane_keeping": "tap_bench.sim.policies:LaneKeepingPolicy",
-    "log": "tap_bench.sim.policies:LogPolicy",
-    "sb3": "tap_bench.sim.sb3:SB3Policy",
-    "import": "tap_bench.sim.policies:import_policy",
-}
+@dataclass(frozen=True)
+class PolicyKind:
+    """What a definition's ``kind`` names: the builder of its policies.
+
+    Attributes:
+        name: the kind (``"idm"``).
+        builder: ``"module:attribute"`` of a callable ``builder(name, **params) -> Policy``
+            (a name, not an object: every worker process imports it by this name).
+        description: one line.
+    """
+
+    name: str
+    builder: str
+    description: str = ""
+
+
+def _check_kind(kind: PolicyKind) -> None:
+    module, sep, attribute = str(kind.builder).partition(":")
+    if not isinstance(kind.name, str) or not kind.name or not sep or not module \
+            or not attribute:
+        raise RegistrationError(f"policy kind {kind.name!r}: builder {kind.builder!r} must be "
+                                "'module:attribute' (a name every worker can import).")
+
+
+POLICY_KINDS: Registry[PolicyKind] = Registry("policy kind", check=_check_kind)
+"""The kinds a policy definition can name (:class:`tap_bench.registry.Registry`)."""
+for _kind in (PolicyKind("idm", "tap_bench.sim.idm:IDMPolicy", "IDM/MOBIL drives the ego"),
+              PolicyKind("random", "tap_bench.sim.policies:RandomPolicy",
+                         "uniform random actions"),
+              PolicyKind("lane_keeping", "tap_bench.sim.policies:LaneKeepingPolicy",
+                         "always keep lane, keep speed"),
+              PolicyKind("log", "tap_bench.sim.policies:LogPolicy",
+                         "the human: replays the recorded ego of a real scene"),
+              PolicyKind("sb3", "tap_bench.sim.sb3:SB3Policy", "a Stable-Baselines3 model"),
+              PolicyKind("import", "tap_bench.sim.policies:import_policy",
+                         "your own class or function, params.factory 'module:name'")):
+    POLICY_KINDS.register(_kind)
+
+
+def register_policy_kind(name: str, builder: str, description: str = "") -> PolicyKind:
+    """Add a policy kind: definition files may then name ``"kind": name``. Register it in a
+    plugin module (:mod:`tap_bench.plugins`) so that every worker knows it.
+
+    Raises:
+        RegistrationError: the name is taken, or ``builder`` is not ``"module:attribute"``.
+    """
+    return POLICY_KINDS.register(PolicyKind(name, builder, description))
 _PYTHON_POLICIES: dict[str, Callable[[], Policy]] = {}
 _PYTHON_DESCRIPTIONS: dict[str, str] = {}
 
@@ -236,13 +285,11 @@ def import_policy(name: str, factory: str, **params: Any) -> Policy:
 
 def policy_kinds() -> list[str]:
     """The kinds a definition file can name."""
-    return sorted(_KINDS)
+    return sorted(POLICY_KINDS.names())
 
 
 def _builder(kind: str) -> Callable[..., Policy]:
-    if kind not in _KINDS:
-        raise did_you_mean("policy kind", kind, _KINDS)
-    module, _, name = _KINDS[kind].partition(":")
+    module, _, name = POLICY_KINDS[kind].builder.partition(":")
     return getattr(importlib.import_module(module), name)
 
 
@@ -276,8 +323,9 @@ def _read_definition(path: Path) -> PolicyDefinition:
     if doc["name"] != path.stem:
         raise FileFormatError(f"{path}: name {doc['name']!r} differs from the file name; rename "
                               f"the file to {doc['name']}.json or fix the name.")
-    if doc["kind"] not in _KINDS:
-        raise FileFormatError(f"{path}: {did_you_mean('policy kind', doc['kind'], _KINDS)}")
+    if doc["kind"] not in POLICY_KINDS:
+        raise FileFormatError(f"{path}: "
+                              f"{did_you_mean('policy kind', doc['kind'], POLICY_KINDS.names())}")
     params = doc.get("params", {})
     if not isinstance(params, dict):
         raise FileFormatError(f"{path}: params must be an object of keyword arguments.")

@@ -24,7 +24,7 @@ import gymnasium as gym
 import numpy as np
 import pandas as pd
 
-from tap_bench.errors import EpisodeFailedWarning, EpisodesFailedError
+from tap_bench.errors import EpisodeFailedWarning, EpisodesFailedError, RegistrationError
 from tap_bench.execution import DEFAULT_RETRIES, Backend, resolve_backend
 from tap_bench.sim.policies import CHEAP_OBSERVATION, Policy, PolicyDefinition, get_definition
 from tap_bench.sim.scenario_env import ScenarioEnv, find_scenario_env, get_scenario
@@ -33,7 +33,7 @@ from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.trajectories import HZ
 
 __all__ = ["EPISODE_COLUMNS", "EpisodeFailedWarning", "EpisodesFailedError", "Rollout",
-           "collect_rollout", "resolve_policy", "resolve_scenario", "rollout",
+           "check_policy", "collect_rollout", "resolve_policy", "resolve_scenario", "rollout",
            "rollout_episode", "run_episode"]
 
 EPISODE_COLUMNS = ("env", "policy", "seed", "return", "length", "duration_s", "crashed",
@@ -287,3 +287,46 @@ def collect_rollout(tables: Sequence[pd.DataFrame], episodes: pd.DataFrame, *,
     kept = [t for t in tables if len(t)]
     trajectories = pd.concat(kept, ignore_index=True) if kept else pd.DataFrame()
     return Rollout(trajectories, episodes)
+
+
+def check_policy(policy: str | os.PathLike | Policy | PolicyDefinition,
+                 scenario: str | os.PathLike | Scenario = "highway", *, seed: int = 0,
+                 duration: float = 2.0) -> pd.DataFrame:
+    """Check a policy as Gymnasium's ``check_env`` checks an env: it builds, has a name,
+    drives two short episodes of ``scenario`` on the same seed without an error, and drives
+    them the same way (a policy must be seeded by ``reset(env, seed=...)``).
+
+    Args:
+        policy: a policy name, definition file, definition or object.
+        scenario: the scenario it drives (a short episode of it).
+        seed: the seed of both episodes.
+        duration: the episodes' length [s].
+
+    Returns:
+        the first episode's trajectory table.
+
+    Raises:
+        RegistrationError: naming the policy and what is wrong.
+    """
+    spec = resolve_policy(policy)
+    built = spec.build() if isinstance(spec, PolicyDefinition) else spec
+    name = getattr(built, "name", None)
+    if not isinstance(built, Policy) or not isinstance(name, str) or not name:
+        raise RegistrationError(f"policy {policy!r} builds {type(built).__name__}, not a Policy: "
+                                "it needs a non-empty name, observation (a config or None), "
+                                "reset(env, *, seed) and act(observation).")
+    short = resolve_scenario(scenario, duration=duration)
+    runs = []
+    for _ in range(2):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            trajectories, row = rollout_episode(short, spec, seed)
+        if row["status"] != "ok":
+            raise RegistrationError(f"policy {name!r} failed an episode of {short.name} "
+                                    f"(seed {seed}): {row['error']}")
+        runs.append(trajectories.reset_index(drop=True))
+    if not runs[0].equals(runs[1]):
+        raise RegistrationError(f"policy {name!r} drove seed {seed} of {short.name} two "
+                                "different ways: seed its randomness in reset(env, seed=...) "
+                                "so that a seed gives one episode.")
+    return runs[0]

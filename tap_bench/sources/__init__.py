@@ -10,8 +10,25 @@ that turns files of any registered format into one trajectory table.
 """
 
 from tap_bench.sources import builtin as _builtin  # noqa: F401 (registers the built-ins)
-from tap_bench.sources.ingest import IngestReport, ingest_womd, iter_womd, read_womd
-from tap_bench.sources.registry import Reader, get_reader, reader_names, readers, register_reader
+from tap_bench.sources.ingest import (
+    IngestReport,
+    check_reader,
+    ingest_driving_data,
+    ingest_womd,
+    iter_driving_data,
+    iter_womd,
+    read_driving_data,
+    read_womd,
+)
+from tap_bench.sources.registry import (
+    READERS,
+    Reader,
+    get_reader,
+    reader_names,
+    readers,
+    register_reader,
+)
 
-__all__ = ["IngestReport", "Reader", "get_reader", "ingest_womd", "iter_womd", "read_womd",
-           "reader_names", "readers", "register_reader"]
+__all__ = ["READERS", "IngestReport", "Reader", "check_reader", "get_reader",
+           "ingest_driving_data", "ingest_womd", "iter_driving_data", "iter_womd",
+           "read_driving_data", "read_womd", "reader_names", "readers", "register_reader"]

@@ -1,9 +1,9 @@
 """Driving-data files in, one trajectory table out: streaming, in worker processes, with a
 report.
 
-:func:`iter_womd` yields one table per scenario and holds one record at a time, so data
-sets larger than memory can be processed scenario by scenario; :func:`read_womd` gathers
-them into one table; :func:`ingest_womd` streams them into a Parquet file, written
+:func:`iter_driving_data` yields one table per scenario and holds one record at a time, so data
+sets larger than memory can be processed scenario by scenario; :func:`read_driving_data` gathers
+them into one table; :func:`ingest_driving_data` streams them into a Parquet file, written
 atomically, decoding batches of records in worker processes.
 
 The input formats are the registered readers (:mod:`tap_bench.sources.registry`), told
@@ -32,15 +32,24 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from tap_bench.errors import FileFormatError, ParameterError, WomdRecordError, did_you_mean
+from tap_bench.errors import (
+    FileFormatError,
+    ParameterError,
+    RegistrationError,
+    TapBenchError,
+    WomdRecordError,
+    did_you_mean,
+)
 from tap_bench.execution import Backend, LocalBackend
 from tap_bench.sources import builtin  # noqa: F401 (the built-in readers are registered)
 from tap_bench.sources.registry import Reader, get_reader, reader_names, readers
 from tap_bench.tableio import atomic_paths, check_outputs
+from tap_bench.trajectories import validate_trajectories
 from tap_bench.womd.scenario import SCENARIO_COLUMNS, normalise_object_types
 from tap_bench.womd.tfrecord import MAX_RECORD_BYTES, Record, iter_records, looks_like_tfrecord
 
-__all__ = ["IngestReport", "expand_paths", "formats", "ingest_womd", "iter_womd", "read_womd",
+__all__ = ["IngestReport", "check_reader", "expand_paths", "formats", "ingest_driving_data",
+           "ingest_womd", "iter_driving_data", "iter_womd", "read_driving_data", "read_womd",
            "record_files"]
 
 ON_ERROR = ("stop", "skip")
@@ -485,12 +494,13 @@ def _lost_batch(batch: _Batch, error: str) -> WomdRecordError:
         "records are not affected with --on-error skip.")
 
 
-def iter_womd(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
+def iter_driving_data(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
               format: str = "auto", object_types: Iterable[str] | str | None = None,
               on_error: str = "stop", check_crc: bool = True,
               report: IngestReport | None = None,
               max_record_bytes: int = MAX_RECORD_BYTES) -> Iterator[pd.DataFrame]:
-    """Yield a trajectory table per scenario, reading one record at a time.
+    """Yield a trajectory table per scenario, reading one record at a time (any registered
+    format; ``iter_womd`` is the same).
 
     Args:
         paths: files, glob patterns or directories (see :func:`expand_paths`).
@@ -522,14 +532,15 @@ def iter_womd(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
         yield table.to_pandas(split_blocks=True)
 
 
-def read_womd(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
+def read_driving_data(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
               format: str = "auto", object_types: Iterable[str] | str | None = None,
               on_error: str = "stop", check_crc: bool = True, workers: int = 1,
               report: IngestReport | None = None,
               max_record_bytes: int = MAX_RECORD_BYTES) -> pd.DataFrame:
-    """Read WOMD files into one trajectory table.
+    """Read driving-data files of any registered format (WOMD TFRecords, ScenarioNet
+    pickles, a plugin's format) into one trajectory table (``read_womd`` is the same).
 
-    Arguments as :func:`iter_womd`, plus ``workers`` decoding processes.
+    Arguments as :func:`iter_driving_data`, plus ``workers`` decoding processes.
 
     Returns:
         One pandas DataFrame with :data:`tap_bench.womd.scenario.SCENARIO_COLUMNS`,
@@ -549,19 +560,20 @@ def _columns() -> tuple[str, ...]:
 
 
 def report_path(output: str | os.PathLike) -> Path:
-    """Where :func:`ingest_womd` writes its report: beside the output, ``.report.json``."""
+    """Where :func:`ingest_driving_data` writes its report: beside the output, ``.report.json``."""
     output = Path(output)
     return output.with_name(output.name + ".report.json")
 
 
-def ingest_womd(paths: str | os.PathLike | Iterable[str | os.PathLike],
+def ingest_driving_data(paths: str | os.PathLike | Iterable[str | os.PathLike],
                 output: str | os.PathLike, *, format: str = "auto",
                 object_types: Iterable[str] | str | None = None, on_error: str = "stop",
                 check_crc: bool = True, workers: int = 1, progress: bool | None = False,
                 log: Callable[[str], None] | None = None,
                 batch_bytes: int = BATCH_BYTES, backend: Backend | None = None,
                 max_record_bytes: int = MAX_RECORD_BYTES) -> IngestReport:
-    """Stream WOMD files into one Parquet trajectory table, atomically.
+    """Stream driving-data files of any registered format into one Parquet trajectory table,
+    atomically (``ingest_womd`` is the same).
 
     The table goes to a temporary file beside ``output``, renamed onto it only when every
     input has been read: an interrupted or failed ingest leaves no output. Memory holds a
@@ -571,7 +583,7 @@ def ingest_womd(paths: str | os.PathLike | Iterable[str | os.PathLike],
 
     Args:
         paths, format, object_types, on_error, check_crc, max_record_bytes: as
-            :func:`iter_womd`.
+            :func:`iter_driving_data`.
         output: the Parquet file to write (not one of the inputs).
         workers: decoding processes (1 decodes in this process).
         backend: decode on this :class:`tap_bench.execution.Backend` instead of
@@ -663,3 +675,56 @@ def ingest_womd(paths: str | os.PathLike | Iterable[str | os.PathLike],
         if bar is not None:
             bar.close()
     return report
+
+
+def check_reader(reader: Reader, sample: str | os.PathLike | None = None) -> pd.DataFrame | None:
+    """Check a data format's entry, and with ``sample``, that it reads a file of its format
+    into a valid trajectory table (Gymnasium's ``check_env`` for readers).
+
+    Args:
+        reader: the :class:`Reader` (registered or not).
+        sample: a file of the format (None: check the entry only).
+
+    Returns:
+        the table read from ``sample`` (None without one).
+
+    Raises:
+        RegistrationError: the entry is unusable (its functions are not importable by name,
+            so workers could not run them) or its table breaks the contract (naming the
+            column and the fix).
+    """
+    for role, fn in (("decode", reader.decode), ("sniff", reader.sniff)):
+        if fn is None:
+            continue
+        module, name = getattr(fn, "__module__", None), getattr(fn, "__qualname__", "")
+        if not module or module == "__main__" or "<" in name or "." in name:
+            raise RegistrationError(
+                f"format {reader.name!r}: its {role} function {name or fn!r} must be a "
+                "module-level function of an importable module (not __main__, not a lambda "
+                "or a nested function): ingest runs it in worker processes.")
+    if sample is None:
+        return None
+    path = Path(sample)
+    if reader.framing == "file" and not path.name.lower().endswith(reader.suffixes):
+        raise RegistrationError(f"format {reader.name!r}: sample {path} does not end with one "
+                                f"of its suffixes {reader.suffixes}.")
+    table = read_driving_data([path], format=reader.name)
+    missing = [c for c in ("scenario_id", "track_id", "t", "x", "y", "heading", "speed")
+               if c not in table.columns]
+    if missing:
+        raise RegistrationError(f"format {reader.name!r}: the table read from {path} lacks "
+                                f"{', '.join(missing)}; decode must return the columns of "
+                                "tap_bench.womd.scenario.SCENARIO_COLUMNS.")
+    if not len(table):
+        raise RegistrationError(f"format {reader.name!r}: read no rows from {path}.")
+    try:
+        validate_trajectories(table, source=f"format {reader.name!r} on {path}")
+    except TapBenchError as err:
+        raise RegistrationError(f"format {reader.name!r} on {path}: {err}") from err
+    return table
+
+
+# The first names, from when WOMD was the only format: kept, the same functions.
+iter_womd = iter_driving_data
+read_womd = read_driving_data
+ingest_womd = ingest_driving_data

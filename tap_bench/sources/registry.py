@@ -23,9 +23,11 @@ from typing import Any
 
 import pyarrow as pa
 
-from tap_bench.errors import ParameterError, TapBenchError, did_you_mean
+from tap_bench.errors import ParameterError, did_you_mean
+from tap_bench.registry import Registry
 
-__all__ = ["FRAMINGS", "Reader", "get_reader", "reader_names", "readers", "register_reader"]
+__all__ = ["FRAMINGS", "READERS", "Reader", "get_reader", "reader_names", "readers",
+           "register_reader"]
 
 FRAMINGS = ("tfrecord", "file")
 
@@ -64,35 +66,36 @@ class Reader:
                                  "at least one file ending for a 'file' reader")
 
 
-_READERS: dict[str, Reader] = {}
+READERS: Registry[Reader] = Registry("format")
+"""The registered data formats, in registration order (:class:`tap_bench.registry.Registry`:
+a name registered twice is refused)."""
 
 
 def register_reader(reader: Reader) -> Reader:
-    """Add a format; a name already taken is refused (readers are global to the process).
+    """Add a format; a name already taken is refused (readers are global to the process:
+    name the module that registers one as a plugin, :mod:`tap_bench.plugins`, to have it on
+    the command line and in every worker).
 
     Raises:
-        TapBenchError: the name is taken.
+        RegistrationError: the name is taken.
     """
-    if reader.name in _READERS:
-        raise TapBenchError(f"a reader named {reader.name!r} is already registered; choose "
-                            "another name.")
-    _READERS[reader.name] = reader
-    return reader
+    if not isinstance(reader, Reader):
+        raise ParameterError("register_reader(reader)", reader, "a tap_bench.sources.Reader")
+    return READERS.register(reader)
 
 
 def readers() -> list[Reader]:
     """The registered readers, in registration order."""
-    return list(_READERS.values())
+    return list(READERS)
 
 
 def reader_names() -> tuple[str, ...]:
     """The registered formats' names."""
-    return tuple(_READERS)
+    return READERS.names()
 
 
 def get_reader(name: str) -> Reader:
     """The reader of format ``name`` (with "did you mean" when unknown)."""
-    try:
-        return _READERS[name]
-    except KeyError:
-        raise did_you_mean("format", name, ("auto", *_READERS)) from None
+    if name not in READERS:
+        raise did_you_mean("format", name, ("auto", *READERS.names()))
+    return READERS[name]

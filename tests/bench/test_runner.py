@@ -126,14 +126,13 @@ def test_a_batch_labels_and_measures_each_episode_as_it_does_alone(env):
     episode's labels, segments and measures equal, float for float, those of the episode
     alone, whatever the batch holds and in whatever order (crashes and lane changes
     included: the random policy crashes, IDM changes lanes)."""
-    from tap_bench.bench.run_plan import _tasks
+    from tap_bench.bench.run_plan import _tasks, plan_suite
     from tap_bench.bench.run_tasks import _Batch, _run_batch, _run_task
-    from tap_bench.thresholds import resolve_thresholds
 
     suite = suite_from_dict({"name": "batch", "envs": [env], "policies": ["idm", "random"],
                              "seeds": "0-3", "env_overrides": {env: {"duration": 10}}},
                             check_names=False)
-    tasks = _tasks(suite, resolve_thresholds(suite.thresholds), True, None)
+    tasks = _tasks(plan_suite(suite), True, None)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         alone = [_run_task(task) for task in tasks]

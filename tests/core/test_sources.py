@@ -12,7 +12,7 @@ import pytest
 import tap_bench
 from tap_bench.errors import ParameterError, TapBenchError
 from tap_bench.sources import Reader, ingest_womd, read_womd, reader_names, register_reader
-from tap_bench.sources.registry import _READERS
+from tap_bench.sources.registry import READERS
 
 PLUGIN = '''
 import os
@@ -42,7 +42,8 @@ def csv_reader(tmp_path, monkeypatch):
     reader = register_reader(Reader("one-csv", "file", module.read_one_csv,
                                     suffixes=(".scn.csv",), description="test format"))
     yield reader
-    _READERS.pop("one-csv", None)
+    if "one-csv" in READERS:
+        READERS.unregister("one-csv")
     sys.modules.pop("my_csv_reader", None)
 
 

@@ -27,6 +27,7 @@ from typing import Any
 import pandas as pd
 
 from tap_bench.bench.episodes import episode_table
+from tap_bench.bench.measures import MEASURES, run_measures
 from tap_bench.bench.suite import suite_from_dict
 from tap_bench.bench.viewer.data import MAP_MARGIN, episode_chunks, episode_index, map_features
 from tap_bench.labelling import tap
@@ -116,7 +117,9 @@ def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
     if roads is None:
         roads = _rebuild_roads(summary, sorted(trajectories["env"].unique()))
     have = set(trajectories["scenario_id"].astype(str).unique())
-    eps, entries = episode_index(episodes, novel_labels=novel_labels, has_replay=have)
+    measures = run_measures(summary)
+    eps, entries = episode_index(episodes, novel_labels=novel_labels, has_replay=have,
+                                 measures=measures)
     chunks = episode_chunks(trajectories, eps, segments)
     boxes = _env_boxes(trajectories, MAP_MARGIN) if "env" in trajectories.columns else {}
     maps = {str(env): map_features(sub, boxes.get(str(env)))
@@ -127,7 +130,8 @@ def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
     index = {"run": {"name": str(summary.get("run", Path(output).parent.name)),
                      "suite": str(suite.get("name", "")), "level": level,
                      "reference": str(summary.get("reference_policy", "")),
-                     "source": "highway-env", "created": str(summary.get("created", ""))},
+                     "source": "highway-env", "created": str(summary.get("created", "")),
+                     "measures": measures},
              "episodes": entries, "maps": maps}
     return write_viewer(output, index, chunks)
 
@@ -192,6 +196,7 @@ def write_womd_viewer(paths: Sequence[str | os.PathLike], output: str | os.PathL
     for entry in entries:
         entry["map"] = None  # carried by the episode itself
     index = {"run": {"name": ", ".join(Path(p).name for p in paths), "suite": "WOMD",
-                     "level": level, "reference": "", "source": "WOMD", "created": ""},
+                     "level": level, "reference": "", "source": "WOMD", "created": "",
+                     "measures": [m.to_dict() for m in MEASURES]},
              "episodes": entries, "maps": {}}
     return write_viewer(output, index, chunks)

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.measures import VEHICLE_LENGTH, ego_step_measures
+from tap_bench.bench.measures import MEASURES, VEHICLE_LENGTH, ego_step_measures
 from tap_bench.errors import TrajectoryTableError
 from tap_bench.trajectories import HZ
 
@@ -316,7 +316,9 @@ def _text(value: Any) -> str:
 
 def episode_index(episodes: pd.DataFrame, *, novel_labels: pd.DataFrame | None = None,
                   chunk_by: Iterable[str] = ("env", "seed"),
-                  has_replay: Iterable[str] = ()) -> tuple[pd.DataFrame, list[dict[str, Any]]]:
+                  has_replay: Iterable[str] = (),
+                  measures: Iterable[Mapping[str, Any]] | None = None
+                  ) -> tuple[pd.DataFrame, list[dict[str, Any]]]:
     """The list entries of the viewer, one per episode.
 
     Args:
@@ -326,6 +328,9 @@ def episode_index(episodes: pd.DataFrame, *, novel_labels: pd.DataFrame | None =
         chunk_by: the columns whose values name an episode's chunk (every policy on one env
             and seed loads together).
         has_replay: scenario ids with trajectories (the others are listed without replay).
+        measures: the measure entries shown (:meth:`~tap_bench.bench.measures.Measure.
+            to_dict`; default: every registered one); each entry's ``measures`` holds their
+            values by name.
 
     Returns:
         the episode table with a ``chunk`` column, and the list entries.
@@ -340,6 +345,8 @@ def episode_index(episodes: pd.DataFrame, *, novel_labels: pd.DataFrame | None =
             novel.setdefault((str(r.env), str(r.policy), str(r.label)), []).append(
                 str(r.reference))
     replay = set(map(str, has_replay))
+    shown = [dict(m) for m in measures] if measures is not None else \
+        [m.to_dict() for m in MEASURES]
     entries = []
     for r in eps.to_dict("records"):
         sdl = _text(r.get("sdl"))
@@ -355,9 +362,8 @@ def episode_index(episodes: pd.DataFrame, *, novel_labels: pd.DataFrame | None =
             "interaction": _text(r.get("interaction")),
             "novel": sorted(set(novel.get((_text(r.get("env")), _text(r.get("policy")), sdl),
                                           []))),
-            "speed": _number(r.get("mean_speed"), 2), "headway": _number(r.get("min_headway_s"),
-                                                                         2),
-            "ttc": _number(r.get("min_ttc_s"), 2), "jerk": _number(r.get("rms_jerk"), 2),
+            "measures": {m["name"]: _number(r.get(m["name"]), int(m.get("decimals", 2)) + 2)
+                         for m in shown},
         }
         entries.append(entry)
     return eps, entries

@@ -260,9 +260,16 @@ const TAPVIEW = (() => {
     root.appendChild(h);
     const facts = document.createElement("p");
     facts.className = "facts";
-    facts.textContent = `SDL: ${e.sdl || "(none)"} · mean speed ${fmt(e.speed, 1, "m/s")} · ` +
-      `min headway ${fmt(e.headway, 2, "s")} · min TTC ${fmt(e.ttc, 2, "s")} · ` +
-      `RMS jerk ${fmt(e.jerk, 2, "m/s³")}`;
+    // every measure of the run, as its entry says: label, unit, decimals (a rate is 0 or 1
+    // per episode and shown as yes / no)
+    const values = (state.index.run.measures || []).map((m) => {
+      const v = (e.measures || {})[m.name];
+      if (m.kind === "rate") {  // the episode's own value: the event happened or not
+        return `${m.name}: ${v === null || v === undefined ? "–" : v > 0 ? "yes" : "no"}`;
+      }
+      return `${m.label} ${fmt(v, m.decimals, m.display_unit)}`;
+    });
+    facts.textContent = [`SDL: ${e.sdl || "(none)"}`, ...values].join(" · ");
     root.appendChild(facts);
     const canvas = document.createElement("canvas");
     canvas.width = 640; canvas.height = 300;
