@@ -39,7 +39,7 @@ from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import RoadObject
 
-__all__ = ["act_all", "array_kernels_agree", "is_plain_idm"]
+__all__ = ["act_all", "array_kernels_agree", "is_plain_idm", "lane_dots"]
 
 _METHODS = ("act", "follow_road", "change_lane_policy", "mobil", "steering_control",
             "acceleration", "desired_gap", "lane_distance_to")
@@ -134,12 +134,14 @@ def _velocity(objects: list[Any]) -> np.ndarray:
     return out
 
 
-def act_all(road: Any) -> None:
+def act_all(road: Any, leaders: Any = None) -> None:
     """highway-env's ``Road.act`` for ``road``: every vehicle decides its action (see the
     module docstring); the same actions, target lanes and timers, bit for bit.
 
     The road's search (``road.neighbour_vehicles``) must not depend on what the vehicles
-    decide (highway-env's does not; tap-bench's FastRoad neither).
+    decide (highway-env's does not; tap-bench's FastRoad neither). ``leaders(vehicles,
+    lane_indices)``, when given, finds the vehicle ahead of each on a lane at once (as
+    ``road.neighbour_vehicles(vehicle, lane_index)[0]`` would).
     """
     network = road.network
     plain = []
@@ -165,7 +167,7 @@ def act_all(road: Any) -> None:
         else:  # highway-env's own arithmetic, after the lane-change policy it already ran
             _act_rest(vehicle)
     if batch:
-        _act_straight(road, batch, lanes, targets)
+        _act_straight(road, batch, lanes, targets, leaders)
 
 
 def _act_rest(vehicle: Any) -> None:
@@ -195,6 +197,15 @@ def _lane_arrays(lanes: list[StraightLane]) -> tuple[np.ndarray, ...]:
     return start, direction, lateral, heading, limit
 
 
+def lane_dots(positions: np.ndarray, lane: StraightLane) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) longitudinal and (n,) lateral coordinates [m] of ``positions`` (n, 2) on a
+    straight ``lane``: ``lane.local_coordinates(p)`` of each, bit for bit."""
+    delta = positions - lane.start
+    n = len(delta)
+    return (_dot(delta, np.broadcast_to(lane.direction, (n, 2))),
+            _dot(delta, np.broadcast_to(lane.direction_lateral, (n, 2))))
+
+
 def _along(position: np.ndarray, start: np.ndarray, direction: np.ndarray) -> np.ndarray:
     """StraightLane.local_coordinates(position)[0] of each row: np.dot(position - start,
     direction)."""
@@ -202,7 +213,7 @@ def _along(position: np.ndarray, start: np.ndarray, direction: np.ndarray) -> np
 
 
 def _act_straight(road: Any, vehicles: list[Any], lanes: list[StraightLane],
-                  targets: list[StraightLane]) -> None:
+                  targets: list[StraightLane], leaders: Any = None) -> None:
     """The steering and IDM part of ``IDMVehicle.act`` for ``vehicles`` (plain IDM, on
     straight ``lanes``, steering to straight ``targets``), all at once."""
     n = len(vehicles)
@@ -251,13 +262,19 @@ def _act_straight(road: Any, vehicles: list[Any], lanes: list[StraightLane],
         out[rows] = out[rows] - comfort_max[rows] * np.power(d_star / _not_zero(d), 2)
         return out
 
-    search = road.neighbour_vehicles
-    acceleration = accelerations([search(v, v.lane_index)[0] for v in vehicles])
+    if leaders is None:
+        def leaders(ask: list[Any], lane_indices: list[Any]) -> list[Any]:
+            return [road.neighbour_vehicles(v, li)[0]
+                    for v, li in zip(ask, lane_indices, strict=True)]
+
+    acceleration = accelerations(leaders(vehicles, [v.lane_index for v in vehicles]))
     changing = [k for k, v in enumerate(vehicles) if v.lane_index != v.target_lane_index]
     if changing:
         fronts: list[Any] = [None] * n
-        for k in changing:
-            fronts[k] = search(vehicles[k], vehicles[k].target_lane_index)[0]
+        found = leaders([vehicles[k] for k in changing],
+                        [vehicles[k].target_lane_index for k in changing])
+        for k, front in zip(changing, found, strict=True):
+            fronts[k] = front
         on_target = accelerations(fronts)
         for k in changing:  # min(a, b): b only when smaller
             if on_target[k] < acceleration[k]:

@@ -102,7 +102,7 @@ def test_the_vehicles_decide_at_once():
 
 
 @pytest.mark.parametrize("mutation", ["steering", "acceleration", "lane coordinate",
-                                      "not zero", "velocity"])
+                                      "not zero", "velocity", "leader"])
 def test_a_changed_formula_is_caught(monkeypatch, mutation):
     """The comparison sees a change of one ulp in any action, or a changed term of the
     vectorised formulas: the bit-for-bit tests can fail."""
@@ -111,8 +111,8 @@ def test_a_changed_formula_is_caught(monkeypatch, mutation):
     if mutation in ("steering", "acceleration"):
         act = fast_idm._act_straight
 
-        def one_ulp_off(road, vehicles, lanes, targets):
-            act(road, vehicles, lanes, targets)
+        def one_ulp_off(road, vehicles, lanes, targets, leaders=None):
+            act(road, vehicles, lanes, targets, leaders)
             for vehicle in vehicles:
                 vehicle.action[mutation] = np.nextafter(vehicle.action[mutation], np.inf)
 
@@ -125,9 +125,17 @@ def test_a_changed_formula_is_caught(monkeypatch, mutation):
         not_zero = fast_idm._not_zero
         monkeypatch.setattr(fast_idm, "_not_zero",
                             lambda x: np.nextafter(not_zero(x), np.inf))
-    else:
+    elif mutation == "velocity":
         velocity = fast_idm._velocity
         monkeypatch.setattr(fast_idm, "_velocity", lambda objects: velocity(objects) * 1.01)
+    else:  # the leaders found at once: one vehicle's leader missed
+        leaders = FastRoad.leaders
+
+        def one_missed(self, vehicles, lane_indices):
+            found = leaders(self, vehicles, lane_indices)
+            return [None, *found[1:]] if found else found
+
+        monkeypatch.setattr(FastRoad, "leaders", one_missed)
     ours = _episodes("highway", fast_road=True, idm_ego=IDMParameters(), seeds=(0,))
     theirs = _episodes("highway", fast_road=False, idm_ego=IDMParameters(), seeds=(0,))
     with pytest.raises(AssertionError):
@@ -373,3 +381,36 @@ def test_either_dot_product_simulates_bit_for_bit(monkeypatch, mul_add):
     ours = _episodes("highway", fast_road=True, idm_ego=IDMParameters(), seeds=(2,))
     theirs = _episodes("highway", fast_road=False, idm_ego=IDMParameters(), seeds=(2,))
     pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
+
+
+@pytest.mark.parametrize("angle", [0.0, 0.3])
+def test_leaders_found_at_once_are_highway_envs_ties_edges_and_objects(angle):
+    """FastRoad.leaders (every vehicle's leader on a lane at once, during Road.act): the
+    objects highway-env's search returns, with ties (the last in road order wins), the
+    lane's edges and ends, an obstacle and a landmark (never returned), on slanted lanes."""
+    half = StraightLane.DEFAULT_WIDTH / 2 + 1.0
+    positions = [(100, 0), (100, 0), (130, 0), (130, 0.5), (70, 0), (70, -0.5),
+                 (160, half), (160.5, half + 1e-9), (40, -half), (100 + 1e-12, 0),
+                 (100 - 1e-12, 4), (-5, 0), (-5 - 1e-9, 0), (505 - 1e-9, 0), (505, 0),
+                 (200, 4), (220, 8), (130, 4), (130, 4.2)]
+    rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    obstacle = Obstacle(None, rotation @ np.array([115.0, 0.0]))
+    landmark = Landmark(None, rotation @ np.array([105.0, 0.0]))
+    road, vehicles = _straight_road(positions, objects=[obstacle, landmark], angle=angle)
+    obstacle.road = landmark.road = road
+    index = FastRoad(road)
+    checked = []
+
+    def ask_all(*args):
+        for lane_index in (("a", "b", 0), ("a", "b", 1), None):
+            lanes = [lane_index] * len(vehicles)
+            expected = [Road.neighbour_vehicles(road, v, lane_index)[0] for v in vehicles]
+            assert index.leaders(vehicles, lanes) == expected
+            checked.extend(expected)
+
+    road.vehicles[0].act = ask_all  # asked while the road acts
+    index.act()
+    assert len(checked) == 3 * len(vehicles)
+    assert any(v is obstacle for v in checked) and not any(v is landmark for v in checked)
+    outside = index.leaders(vehicles, [None] * len(vehicles))  # outside act: one by one
+    assert outside == [Road.neighbour_vehicles(road, v)[0] for v in vehicles]
