@@ -96,11 +96,18 @@ def _dot_is_mul_add() -> bool:
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(n,) ``np.dot(a[k], b[k])`` of (n, 2) rows, bit for bit: with numpy's arithmetic
-    where the BLAS kernel computes ``a0 * b0 + a1 * b1``, else by ``np.dot`` row by row."""
+    """(n,) ``np.dot(a[k], b[k])`` of (n, 2) rows (``b`` may be one (2,) vector for all),
+    bit for bit: with numpy's arithmetic where the BLAS kernel computes
+    ``a0 * b0 + a1 * b1``, else by ``np.dot`` row by row."""
     if _dot_is_mul_add():
+        if b.ndim == 1:
+            return a[:, 0] * b[0] + a[:, 1] * b[1]
         return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]
-    a, b = np.ascontiguousarray(a, dtype=float), np.ascontiguousarray(b, dtype=float)
+    a = np.ascontiguousarray(a, dtype=float)
+    if b.ndim == 1:
+        b = np.ascontiguousarray(b, dtype=float)
+        return np.array([np.dot(u, b) for u in a], dtype=float)
+    b = np.ascontiguousarray(b, dtype=float)
     return np.array([np.dot(u, w) for u, w in zip(a, b, strict=True)], dtype=float)
 
 
@@ -201,9 +208,7 @@ def lane_dots(positions: np.ndarray, lane: StraightLane) -> tuple[np.ndarray, np
     """(n,) longitudinal and (n,) lateral coordinates [m] of ``positions`` (n, 2) on a
     straight ``lane``: ``lane.local_coordinates(p)`` of each, bit for bit."""
     delta = positions - lane.start
-    n = len(delta)
-    return (_dot(delta, np.broadcast_to(lane.direction, (n, 2))),
-            _dot(delta, np.broadcast_to(lane.direction_lateral, (n, 2))))
+    return _dot(delta, lane.direction), _dot(delta, lane.direction_lateral)
 
 
 def _along(position: np.ndarray, start: np.ndarray, direction: np.ndarray) -> np.ndarray:
