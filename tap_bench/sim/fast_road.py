@@ -20,7 +20,9 @@ every vehicle looks up its lane by computing its distance to every lane of the n
   in the last bit (BLAS may fuse the multiply-add), which the tolerance (1 micrometre,
   about 1e9 times that rounding at highway-env's scale) absorbs, so the decisions are
   exactly highway-env's;
-- the IDM/MOBIL vehicles decide their actions all at once (:mod:`tap_bench.sim.fast_idm`);
+- the IDM/MOBIL vehicles decide their actions all at once (:mod:`tap_bench.sim.fast_idm`),
+  their leaders found together (:meth:`FastRoad.leaders`), on roads of at least
+  :data:`AT_ONCE_FROM` vehicles (on smaller ones highway-env's loops cost less);
 - the collision loop skips the pairs in which neither vehicle checks collisions (the first
   thing highway-env's ``handle_collisions`` does for such a pair is return) and the pairs
   farther apart, by more than :data:`TOLERANCE`, than highway-env's spherical pre-check
@@ -50,12 +52,16 @@ from highway_env.vehicle.objects import Landmark
 
 from tap_bench.sim.fast_idm import act_all, array_kernels_agree, lane_dots
 
-__all__ = ["TOLERANCE", "FastRoad", "use_fast_road"]
+__all__ = ["AT_ONCE_FROM", "TOLERANCE", "FastRoad", "use_fast_road"]
 
 TOLERANCE = 1e-6
 """Margin [m] by which a vehicle's numpy projection may be off and still be re-checked."""
 
 _MARGIN = 1.0  # highway-env's on-lane margin in neighbour_vehicles [m]
+AT_ONCE_FROM = 8
+"""Fewest vehicles on a road for which decisions and collision checks are done all at once
+(numpy); on smaller roads highway-env's loops cost less than numpy's fixed costs (the
+answers are the same either way)."""
 
 
 class FastRoad:
@@ -134,7 +140,8 @@ class FastRoad:
         vehicles, objects = self.road.vehicles, self.road.objects
         for vehicle in vehicles:
             vehicle.step(dt)
-        near = _near_pairs(vehicles, objects, dt)
+        near = _near_pairs(vehicles, objects, dt) \
+            if len(vehicles) + len(objects) >= AT_ONCE_FROM else None
         if near is not None:
             everyone = vehicles + objects
             # each vehicle with the vehicles after it, then with every object, in order
@@ -158,7 +165,7 @@ class FastRoad:
         self._count = len(self.road.vehicles) + len(self.road.objects)
         self._others, self._positions = self._snapshot()
         try:
-            if self._decide_at_once:
+            if self._decide_at_once and len(self.road.vehicles) >= AT_ONCE_FROM:
                 act_all(self.road, leaders=self.leaders)
             else:
                 Road.act(self.road)

@@ -45,6 +45,16 @@ def _episodes(name: str, *, fast_road: bool, fast: bool = False, seeds=(0, 1),
     return pd.DataFrame(rows)
 
 
+@pytest.fixture(params=["at once", "default"])
+def _small_roads_at_once(request, monkeypatch):
+    """Every road decides at once (AT_ONCE_FROM = 0), or only those big enough."""
+    from tap_bench.sim import fast_road
+
+    if request.param == "at once":
+        monkeypatch.setattr(fast_road, "AT_ONCE_FROM", 0)
+
+
+@pytest.mark.usefixtures("_small_roads_at_once")
 @pytest.mark.parametrize(("name", "fast", "config"), [
     ("highway", False, {}), ("highway", True, {}),
     ("highway", True, {"vehicles_count": 50, "lanes_count": 4}),
@@ -251,10 +261,17 @@ def test_only_highway_envs_own_road_gets_the_index():
     assert not use_fast_road(intersection)
 
 
-def test_collisions_are_checked_in_highway_envs_order_whoever_checks_them():
+@pytest.mark.parametrize("at_once_from", [0, 100])
+def test_collisions_are_checked_in_highway_envs_order_whoever_checks_them(monkeypatch,
+                                                                         at_once_from):
     """Vehicles that check collisions anywhere in the road's list (an ego entered late, a
-    scripted vehicle): the same crashes and impacts as highway-env's loop over all pairs."""
+    scripted vehicle): the same crashes and impacts as highway-env's loop over all pairs,
+    with the pairs pruned at once (numpy) or not (a small road)."""
     import copy
+
+    from tap_bench.sim import fast_road
+
+    monkeypatch.setattr(fast_road, "AT_ONCE_FROM", at_once_from)
 
     for checks in ([False, True, False, False, True, False], [True] * 6, [False] * 6,
                    [False, False, False, False, False, True]):
