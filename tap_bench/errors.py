@@ -34,6 +34,7 @@ __all__ = [
     "FitWarning",
     "EpisodeFailedWarning",
     "UntrustedModelWarning",
+    "CacheEntryWarning",
     "did_you_mean",
 ]
 
@@ -221,6 +222,11 @@ class EpisodeFailedWarning(UserWarning):
 
 class UntrustedModelWarning(UserWarning):
     """A Stable-Baselines3 model file (pickles) is being loaded: it can run code."""
+
+
+class CacheEntryWarning(UserWarning):
+    """An episode cache entry failed its checks: it was deleted and its episode simulated
+    again (:mod:`tap_bench.bench.cache`)."""
 
 
 def did_you_mean(kind: str, name: str, known: Iterable[str]) -> UnknownNameError:

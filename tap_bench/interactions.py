@@ -39,12 +39,24 @@ other agent) shorter than 1 s then follow stage 2's joining rule: the shortest j
 longer neighbour, taking its relation and agent (Lead Braking's 1 s averaging is stage 2's
 low-pass). Only vehicles and cyclists are others (pedestrians are not followed).
 
-Beyond the ends of the ego's record the path frame is a straight extrapolation: a curving
-road moves away from it, so ``d`` changes there without anyone moving sideways. Cut-ins and
-cut-outs are therefore only detected where the other agent's foot point lies on the
-recorded path, or ahead of its end when the path ends straight at speed (its heading changed
-by at most 0.05 rad over its last 2 s while it drove at least 20 m: an episode that ends in
-a crash during a cut-in on a highway).
+Beyond the ends of the ego's record the path goes on along its lane (with a map) or along
+an arc of its last curvature (:mod:`tap_bench.pathframe`): a leader stopped ahead on a curve
+is still the leader. Where the road bends differently from that arc, ``d`` changes there
+without anyone moving sideways, so cut-ins and cut-outs are only detected where the other
+agent's foot point lies on the recorded path, or ahead of its end when the path ends on a
+steady curve or along a lane of the map (its heading changes over its last two seconds
+differ by at most 0.05 rad while it drove at least 20 m: a straight road or a curve of
+constant radius; an episode that ends in a crash during a cut-in on a highway).
+
+Guards (SPEC 7): Overtaking and Being Overtaken need the other agent to go from at least
+``pass_distance`` (a vehicle length) ahead to that far behind (or back), not a mere sign
+change of ``s`` (a car keeping pace beside the ego on a curve is neither); an ego slower
+than ``min_ego_speed`` over a whole run gets no relation but Free Driving and Following (a
+parked ego is not overtaken, nor does its leader brake for it); a Cut-in needs the agent to
+drive along the ego's path (heading within ``same_direction``) for 1 s after it enters (a
+car crossing an intersection in front of the ego is not a cut-in). The label table's
+``interaction`` sequence names the other agent of each run: ``Following (12) > Following
+(7)``.
 The parameters and the data that justify them: docs/interactions.md.
 """
 
@@ -58,7 +70,13 @@ import pandas as pd
 from tap_bench import sdl
 from tap_bench.errors import TapBenchError
 from tap_bench.kinematics import STEPS_PER_SECOND, Kinematics
-from tap_bench.pathframe import CORRIDOR_HALF_WIDTH, SAME_DIRECTION, Paths, path_frame
+from tap_bench.pathframe import (
+    CORRIDOR_HALF_WIDTH,
+    SAME_DIRECTION,
+    Paths,
+    path_frame,
+    scene_lanes,
+)
 from tap_bench.stages import Runs, find_runs, join_short_runs
 from tap_bench.trajectories import HZ, CheckedTable
 
@@ -81,9 +99,10 @@ RELATIONS = sdl.INTERACTION_NAMES
 FREE_DRIVING, FOLLOWING, CUT_IN, CUT_OUT, OVERTAKING, BEING_OVERTAKEN, LEAD_BRAKING = range(7)
 OTHER_TYPES = ("vehicle", "cyclist")
 """Object types that can be the other agent of a relation."""
-END_STRAIGHT_STEPS = 20  # [steps] a path ends straight when its heading changed by at most
-END_STRAIGHT_RAD = 0.05  # [rad] this over its last 2 s (0.05 rad: a 1 km radius at 25 m/s)
-END_STRAIGHT_DISTANCE = 20.0  # [m] ... while driving at least this far (not parked)
+END_STEADY_STEPS = 20  # [steps] a path ends on a steady curve when its heading changes over
+END_STEADY_RAD = 0.05  # [rad] its last two seconds differ by at most this (0.05 rad: a
+# straight road and a 1 km radius at 25 m/s tell apart, a curve of constant radius does not)
+END_STEADY_DISTANCE = 20.0  # [m] ... while driving at least this far over them (not parked)
 
 
 @dataclass(frozen=True)
@@ -108,6 +127,13 @@ class InteractionConfig:
             crossing still shows the Cut-in).
         pass_length: [m] an overtaken agent is alongside while ``|s| <=`` this.
         min_moving_speed: [m/s] slower agents are not overtaken (parked cars are passed).
+        pass_distance: [m] an agent is overtaken (overtakes) only when it goes from at
+            least this far ahead of the ego to this far behind (or back): one vehicle
+            length (SPEC 7's guard), so a car keeping pace beside the ego, whose ``s``
+            wavers about 0 on a curve, is neither.
+        min_ego_speed: [m/s] an ego slower than this over a whole run gets no relation but
+            Free Driving and Following (SPEC 7: a parked ego is not overtaken, nor does its
+            parked leader brake).
         min_run: [s] the shortest run of one relation (stage 2).
     """
 
@@ -122,12 +148,14 @@ class InteractionConfig:
     cut_in_lead: float = 1.0
     pass_length: float = 5.0
     min_moving_speed: float = 2.0
+    pass_distance: float = 5.0
+    min_ego_speed: float = 1.0
     min_run: float = 1.0
 
     def __post_init__(self) -> None:
         for name in ("corridor", "range_m", "range_s", "same_direction", "band",
                      "approach", "approach_window", "event_duration", "pass_length",
-                     "min_run", "cut_in_lead"):
+                     "min_run", "cut_in_lead", "pass_distance"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
                 raise TapBenchError(f"InteractionConfig.{name} must be a finite number > 0, "
@@ -138,9 +166,11 @@ class InteractionConfig:
         if self.cut_in_lead >= self.event_duration:
             raise TapBenchError(f"InteractionConfig.cut_in_lead ({self.cut_in_lead} s) must be "
                                 f"shorter than event_duration ({self.event_duration} s).")
-        if not self.min_moving_speed >= 0:
-            raise TapBenchError("InteractionConfig.min_moving_speed must be >= 0 m/s, got "
-                                f"{self.min_moving_speed!r}.")
+        for name in ("min_moving_speed", "min_ego_speed"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and value >= 0):
+                raise TapBenchError(f"InteractionConfig.{name} must be >= 0 m/s, got "
+                                    f"{value!r}.")
 
     def steps(self, seconds: float) -> int:
         return max(1, round(seconds * STEPS_PER_SECOND))
@@ -202,7 +232,8 @@ def _paint(relation, other, start, stop, code, row_of):
 
 def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
                       stop: np.ndarray, lateral: np.ndarray, a_dec: float,
-                      config: InteractionConfig | None = None) -> InteractionSteps:
+                      config: InteractionConfig | None = None, *,
+                      map_table: pd.DataFrame | None = None) -> InteractionSteps:
     """The relation of every step of the given ego segments.
 
     Args:
@@ -214,6 +245,9 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
             an ego's lane change from an other agent's.
         a_dec: [m/s^2] the deceleration threshold (TAP's Theta_a, negative).
         config: parameters.
+        map_table: lane centre lines (:mod:`tap_bench.maps`; a scenario's map has its
+            ``scenario_id`` or its ``env`` as ``map_id``): the ego's path goes on along its
+            lane beyond the record. None: along an arc of its last curvature.
     """
     config = config or InteractionConfig()
     idx = kin.index
@@ -234,6 +268,14 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
     if "object_type" in checked:
         kind = pd.Series(checked["object_type"]).take(first_rows).astype(str)
         others &= kind.isin(OTHER_TYPES).to_numpy()[idx.track]
+    lanes = None
+    if map_table is not None:
+        names = pd.Series(checked["scenario_id"]).take(first_rows).to_numpy()
+        scenes = pd.unique(names)
+        table = pd.DataFrame({"scenario_id": names})
+        if "env" in checked:
+            table["env"] = pd.Series(checked["env"]).take(first_rows).to_numpy()
+        lanes = scene_lanes(table, scen_of_track, scenes, map_table)
     paths = Paths(scene=scen.astype(np.int64), key=key, track=idx.track, x=x, y=y,
                   heading=heading, speed=speed,
                   start=np.asarray(start, np.int64), stop=np.asarray(stop, np.int64))
@@ -248,7 +290,7 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
     # cut-outs), the next lanes near the ego (overtaking)
     frame = path_frame(paths, others, ahead=reach, behind=1.0,
                        lateral=config.corridor + config.approach + 0.5,
-                       near=3.0 * config.pass_length, lateral_near=config.band)
+                       near=3.0 * config.pass_length, lateral_near=config.band, lanes=lanes)
     q_step, q_other = frame.step, frame.other
     s, d, hrel = frame.s, frame.d, frame.heading_rel
     track = idx.track[q_other]
@@ -314,21 +356,27 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
             hit |= ego_lateral[k] == want
         return hit
 
-    # the straight extension beyond the record's end is trusted where the path ends straight
+    # the extension beyond the record's end is trusted where the path ends on a steady
+    # curve (the arc then is the road) or along a lane of the map
     h_last = heading[ego_row[path_last]]
-    h_before = heading[ego_row[np.maximum(path_last - END_STRAIGHT_STEPS, path_first)]]
-    back = np.maximum(path_last - END_STRAIGHT_STEPS, path_first)
-    ends_straight = (np.abs(np.angle(np.exp(1j * (h_last - h_before)))) <= END_STRAIGHT_RAD) \
-        & (arc[path_last] - arc[back] >= END_STRAIGHT_DISTANCE)
+    back = np.maximum(path_last - END_STEADY_STEPS, path_first)
+    mid = np.maximum(path_last - END_STEADY_STEPS // 2, path_first)
+    late = np.angle(np.exp(1j * (h_last - heading[ego_row[mid]])))
+    early = np.angle(np.exp(1j * (heading[ego_row[mid]] - heading[ego_row[back]])))
+    ends_steady = (np.abs(late - early) <= END_STEADY_RAD) \
+        & (arc[path_last] - arc[back] >= END_STEADY_DISTANCE)
+    if lanes is not None:
+        ends_steady |= lanes.covers(paths.scene[paths.start]) & (
+            arc[path_last] - arc[back] >= END_STEADY_DISTANCE)
 
     def on_record(pairs: np.ndarray) -> np.ndarray:
-        """The other's foot point lies on the ego's recorded path, or on the straight
-        extension ahead of a path that ends straight (elsewhere the road may curve away from
-        the extension, and d changes without anyone moving sideways)."""
+        """The other's foot point lies on the ego's recorded path, or on the extension ahead
+        of a path that ends on a steady curve (elsewhere the road may bend away from the
+        extension, and d changes without anyone moving sideways)."""
         st = q_step[pairs]
         at = arc[st] + s[pairs]
         path = ego_path[st]
-        return (at >= 0) & ((at <= arc[path_last[path]]) | ends_straight[path])
+        return (at >= 0) & ((at <= arc[path_last[path]]) | ends_steady[path])
 
     def other_moving_sideways(pairs: np.ndarray) -> np.ndarray:
         """The other agent's own lateral label is a turn or a merge within 1 s."""
@@ -341,6 +389,18 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
             hit |= (code > sdl.STRAIGHT)
         return hit
 
+    def drives_along(pairs: np.ndarray) -> np.ndarray:
+        """After it enters, the agent drives along the ego's path for 1 s (heading within
+        ``same_direction`` at every step the ego's path goes on; SPEC 7's guard): a car
+        crossing an intersection in front of the ego is not a cut-in."""
+        ok = along[pairs].copy()
+        last = path_last[ego_path[q_step[pairs]]]
+        for lag in range(1, STEPS_PER_SECOND + 1):
+            q = lagged(pairs, lag)
+            goes_on = q_step[pairs] + lag <= last
+            ok &= ~goes_on | ((q >= 0) & along[np.maximum(q, 0)])
+        return ok
+
     # Cut-in: the new leader was outside the corridor one step before, and far out earlier
     new_lead = leader_pair[has_leader]
     prev = lagged(new_lead, -1)
@@ -349,7 +409,7 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
     out_before = np.abs(d[prev]) > config.corridor
     entering, prev = entering[out_before], prev[out_before]
     ok = (on_record(entering) & reaches(entering, -1) & other_moving_sideways(entering)
-          & ~ego_merging(entering, np.sign(d[prev])))
+          & ~ego_merging(entering, np.sign(d[prev])) & drives_along(entering))
     cut_in = entering[ok]
 
     # Cut-out: the leader of the step before is outside the corridor now, still ahead
@@ -372,8 +432,33 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
     beside = ((np.abs(d[q]) > config.corridor) & (np.abs(d[q]) <= config.band)
               & (np.abs(d[p]) > config.corridor) & along[q]
               & (speed[q_other[q]] >= config.min_moving_speed))
+    # SPEC 7's guard: from a vehicle length ahead to a length behind (or back) in the same
+    # series, not a sign change of s (a car keeping pace beside the ego on a curve)
+    series = np.r_[True, (track[order][1:] != track[order][:-1])
+                   | (ego_path[q_step[order]][1:] != ego_path[q_step[order]][:-1])]
+    series_start = np.maximum.accumulate(np.where(series, np.arange(len(order)), 0))
+    series_stop = np.minimum.accumulate(
+        np.where(np.r_[series[1:], True], np.arange(len(order)), len(order))[::-1])[::-1]
+
+    def seen_before(cond: np.ndarray, at: np.ndarray) -> np.ndarray:
+        """cond (in series order) holds at or before position ``at`` in its series."""
+        last = np.maximum.accumulate(np.where(cond, np.arange(len(order)), -1))
+        return last[at] >= series_start[at]
+
+    def seen_after(cond: np.ndarray, at: np.ndarray) -> np.ndarray:
+        nxt = np.minimum.accumulate(np.where(cond, np.arange(len(order)),
+                                             len(order))[::-1])[::-1]
+        return nxt[at] <= series_stop[at]
+
+    s_sorted = s[order]
+    far_ahead = s_sorted >= config.pass_distance
+    far_behind = s_sorted <= -config.pass_distance
     passing = q[beside & (s[p] > 0) & (s[q] <= 0)]
+    passing = passing[seen_before(far_ahead, pos_in[passing])
+                      & seen_after(far_behind, pos_in[passing])]
     passed_by = q[beside & (s[p] < 0) & (s[q] >= 0)]
+    passed_by = passed_by[seen_before(far_behind, pos_in[passed_by])
+                          & seen_after(far_ahead, pos_in[passed_by])]
 
     relation = np.zeros(m, np.int8)
     other = np.full(m, -1, np.int64)
@@ -415,6 +500,18 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
     seg_first = np.ones(m, bool)
     seg_first[1:] = ego_path[1:] != ego_path[:-1]
     runs = join_short_runs(find_runs(code, ego_path, seg_first), config.steps(config.min_run))
+    # SPEC 7's guard: an ego slower than min_ego_speed over a whole run (parked, waiting)
+    # is neither overtaken nor cut in on; its leader's braking is not its concern
+    top = np.maximum.reduceat(v_e, runs.start) if len(runs.start) else np.zeros(0)
+    still = (top < config.min_ego_speed) & (runs.code // n_tracks > FOLLOWING)
+    if still.any():
+        base = np.where(has_leader, FOLLOWING, FREE_DRIVING).astype(np.int64)
+        base_track = np.where(has_leader, idx.track[np.maximum(leader_row, 0)], -1)
+        step_still = np.repeat(still, runs.length)
+        code = np.repeat(runs.code, runs.length)
+        code[step_still] = (base * n_tracks + base_track + 1)[step_still]
+        runs = join_short_runs(find_runs(code, ego_path, seg_first),
+                               config.steps(config.min_run))
     code = np.repeat(runs.code, runs.length)
     relation = (code // n_tracks).astype(np.int8)
     other_track = code % n_tracks - 1

@@ -174,11 +174,15 @@ class TapResult:
         return runs, (runs.code // n_tracks), runs.code % n_tracks - 1
 
     def _interaction_sequences(self) -> pd.Series:
-        """(len(segments_info),) the relations of each segment joined by ' > ' (NA where the
-        segment is not labelled on the interaction axis)."""
+        """(len(segments_info),) the relations of each segment joined by ' > ', each naming
+        its other agent (``"Following (12) > Following (7)"``; NA where the segment is not
+        labelled on the interaction axis)."""
         out = np.full(len(self.segments_info), None, dtype=object)
-        runs, relation, _ = self._interaction_runs()
-        names = np.asarray(RELATIONS, dtype=object)[relation]
+        runs, relation, other = self._interaction_runs()
+        tracks = self.track_ids[np.maximum(other, 0)]
+        pairs = zip(relation.tolist(), other.tolist(), tracks, strict=True)
+        names = np.array([sdl.with_other(RELATIONS[r], str(t) if o >= 0 else None)
+                          for r, o, t in pairs], dtype=object)
         bounds = np.searchsorted(runs.seg, np.arange(len(self.interaction_segments) + 1))
         for k, seg in enumerate(self.interaction_segments):
             out[seg] = sdl.SEPARATOR.join(names[bounds[k]:bounds[k + 1]])
@@ -290,7 +294,8 @@ def _segment_frame(tracks: pd.DataFrame, kin: Kinematics, index, which: np.ndarr
 def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
         config: StageConfig | None = None, *, plausibility: Plausibility | None = None,
         source: str = "trajectory table", interactions: str | None = None,
-        interaction_config: InteractionConfig | None = None) -> TapResult:
+        interaction_config: InteractionConfig | None = None,
+        map_table: pd.DataFrame | None = None) -> TapResult:
     """Run the Trajectory-to-Action Pipeline on a trajectory table.
 
     Args:
@@ -304,6 +309,8 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
             of every vehicle and cyclist track (``"all"``), or ``"auto"`` (the egos when
             the table has ``is_ego``, else every track); None: not at all.
         interaction_config: parameters of the interaction axis.
+        map_table: lane centre lines (:mod:`tap_bench.maps`) along which an ego's path goes
+            on beyond its record (interaction axis); None: an arc of its last curvature.
 
     Returns:
         A :class:`TapResult`; segments shorter than 1 s are listed in ``short_segments``.
@@ -348,7 +355,7 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
         lateral = np.full(len(kin.t), -1, np.int8)  # every labelled row's lateral code
         lateral[step_rows] = labels.maneuver_lateral
         inter = interaction_steps(checked, kin, starts[chosen], stops[chosen], lateral,
-                                  th.a_dec, interaction_config)
+                                  th.a_dec, interaction_config, map_table=map_table)
         track_ids = np.asarray(tracks["track_id"].to_numpy(object), dtype=object)
         extra = {"interactions": inter, "interaction_segments": chosen,
                  "track_ids": track_ids}

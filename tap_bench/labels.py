@@ -98,18 +98,22 @@ def select_level(labels: pd.DataFrame, level: str | None, source: str = "label t
 
 
 def validate_labels(labels: pd.DataFrame, level: str | None = None, *,
-                    source: str = "label table") -> tuple[pd.DataFrame, str | None, np.ndarray]:
-    """Check a label table and select one level.
+                    source: str = "label table", axes=None
+                    ) -> tuple[pd.DataFrame, str | None, np.ndarray]:
+    """Check a label table and select one level: the one label validator of tap-bench.
 
-    Checks the required columns, that no label is empty and that ``sdl`` is
-    ``lateral | longitudinal`` on every row (one vectorised pass). The SDL tokens are checked
-    against the level's vocabulary by whoever parses them (:func:`tap_bench.sdl.parse_sdl`,
-    once per distinct label).
+    On TAP's two axes (the default) it checks the required columns, that no label is empty
+    and that ``sdl`` is ``lateral | longitudinal`` on every row (one vectorised pass). On
+    other ``axes`` (with ``interaction``) it checks their columns and that no kept row has
+    an empty label; rows of tracks not labelled with interactions are left out. The SDL
+    tokens are checked against the level's vocabulary by whoever parses them
+    (:func:`tap_bench.sdl.parse_sdl`, once per distinct label).
 
     Args:
         labels: a label table (SPEC section 1).
         level: the level to keep (see :func:`select_level`).
         source: the table's name in messages (its path).
+        axes: the label axes to check (:func:`tap_bench.sdl.check_axes`; default TAP's).
 
     Returns:
         (the level's rows with the index reset, the level, (n,) the rows' positions in the
@@ -122,6 +126,9 @@ def validate_labels(labels: pd.DataFrame, level: str | None = None, *,
     if not isinstance(labels, pd.DataFrame):
         raise LabelTableError(f"{source}: expected a label table (pandas DataFrame), got "
                               f"{type(labels).__name__}.")
+    axes = sdl.check_axes(axes)
+    if axes != sdl.AXES:
+        return _on_axes(labels, level, axes, source)
     missing = [c for c in REQUIRED_LABEL_COLUMNS if c not in labels.columns]
     if missing:
         raise LabelTableError(
@@ -155,6 +162,35 @@ def validate_labels(labels: pd.DataFrame, level: str | None = None, *,
             f"{table['sdl'].iloc[pos]!r} is not lateral + {sdl.SDL_SEPARATOR!r} + longitudinal "
             f"({table['lateral'].iloc[pos]!r}, {table['longitudinal'].iloc[pos]!r}). Rebuild "
             "the table with 'tap-bench label'.")
+    return table, level, input_rows
+
+
+def _on_axes(labels: pd.DataFrame, level: str | None, axes: tuple[str, ...],
+             source: str) -> tuple[pd.DataFrame, str | None, np.ndarray]:
+    """:func:`validate_labels` on axes other than TAP's two: the rows of one level that
+    carry a label on every axis (tracks not labelled with interactions are left out)."""
+    missing = [c for c in ("scenario_id", "track_id", *axes) if c not in labels.columns]
+    if missing:
+        raise LabelTableError(f"{source}: {missing_axes(missing)}")
+    table, level = select_level(labels, level, source)
+    input_rows = np.flatnonzero(labels["level"].astype(str).to_numpy() == level) \
+        if "level" in labels.columns else np.arange(len(labels))
+    if "interaction" in axes:
+        on_axis = table["interaction"].notna().to_numpy()
+        if not on_axis.any():
+            raise LabelTableError(f"{source}: no row carries an interaction label; label the "
+                                  "table with --interactions (or --interactions all).")
+        table, input_rows = table.loc[on_axis], input_rows[on_axis]
+    if len(table) == 0:
+        raise LabelTableError(f"{source}: the label table is empty.")
+    table = table.reset_index(drop=True)
+    for col in axes:
+        empty = table[col].isna().to_numpy()
+        if empty.any():
+            pos = int(np.flatnonzero(empty)[0])
+            raise LabelTableError(f"{source}: column {col!r} is empty at row "
+                                  f"{int(input_rows[pos])} ({row_key(table, pos)}); every row "
+                                  "needs a label.")
     return table, level, input_rows
 
 

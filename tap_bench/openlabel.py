@@ -23,6 +23,7 @@ round trip and validates every document against the OpenLABEL JSON schema).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -35,7 +36,7 @@ import pandas as pd
 
 from tap_bench import sdl
 from tap_bench.errors import FileFormatError, LabelTableError
-from tap_bench.tableio import atomic_path
+from tap_bench.tableio import atomic_folder, atomic_path, check_folder_output, check_replace
 from tap_bench.trajectories import HZ
 
 __all__ = ["OPENLABEL_VERSION", "read_openlabel", "to_openlabel", "write_openlabel"]
@@ -154,32 +155,56 @@ def _document(sid: str, scene: pd.DataFrame, level: str | None) -> dict[str, Any
         "objects": objects, "actions": actions, "relations": relations}}
 
 
+MAX_NAME_BYTES = 200
+"""The longest file name made from a scenario id [B] (file systems allow 255): a longer id
+is cut and ends with 16 hex digits of its SHA-256, so distinct ids stay distinct files."""
+
+
 def _file_name(sid: str) -> str:
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", sid) + ".json"
+    """``<scenario_id>.json`` with unsafe characters as ``_``, within :data:`MAX_NAME_BYTES`."""
+    name = re.sub(r"[^A-Za-z0-9._-]+", "_", sid).lstrip(".") or "_"
+    if len(name) > MAX_NAME_BYTES - 5:  # ASCII only by now: characters are bytes
+        digest = hashlib.sha256(sid.encode("utf-8", "surrogatepass")).hexdigest()[:16]
+        name = f"{name[:MAX_NAME_BYTES - 5 - 17]}-{digest}"
+    return name + ".json"
 
 
 def write_openlabel(segments: pd.DataFrame, output: str | os.PathLike, *,
-                    level: str | None = None, source: str = "segment table") -> list[Path]:
+                    level: str | None = None, source: str = "segment table",
+                    overwrite: bool = False) -> list[Path]:
     """Write one OpenLABEL JSON per scenario: a ``.json`` file when the table holds one
-    scenario, else a directory of ``<scenario_id>.json`` (written atomically each)."""
+    scenario, else a new folder of ``<scenario_id>.json`` (built whole beside it and renamed
+    into place, with tap-bench's folder marker; a scenario id too long for a file name is
+    cut and ends with a hash).
+
+    Args:
+        overwrite: replace an existing ``.json`` file, or a folder an earlier export wrote
+            (never one tap-bench did not write, nor one holding files it did not write).
+
+    Raises:
+        RunExistsError: ``output`` exists and ``overwrite`` is False.
+        OutputPathError: ``output`` exists and tap-bench did not write it.
+    """
     docs = to_openlabel(segments, level=level, source=source)
     output = Path(output)
     if output.suffix == ".json":
         if len(docs) != 1:
             raise FileFormatError(f"{output}: the table holds {len(docs)} scenarios and "
                                   "OpenLABEL describes one each; give a directory instead.")
-        targets = {sid: output for sid in docs}
-    else:
-        output.mkdir(parents=True, exist_ok=True)
-        targets = {sid: output / _file_name(sid) for sid in docs}
-        names = [p.name for p in targets.values()]
-        if len(set(names)) != len(names):
-            raise FileFormatError(f"{output}: two scenario ids give one file name; rename "
-                                  "them apart.")
-    for sid, path in targets.items():
-        with atomic_path(path) as tmp:
+        check_replace([output], overwrite)
+        (sid,) = docs
+        with atomic_path(output) as tmp:
             tmp.write_text(json.dumps(docs[sid], indent=1) + "\n")
-    return list(targets.values())
+        return [output]
+    check_folder_output(output, overwrite)
+    names = {sid: _file_name(sid) for sid in docs}
+    if len(set(names.values())) != len(names):
+        raise FileFormatError(f"{output}: two scenario ids give one file name; rename "
+                              "them apart.")
+    with atomic_folder(output, overwrite, kind="openlabel") as tmp:
+        for sid, name in names.items():
+            (tmp / name).write_text(json.dumps(docs[sid], indent=1) + "\n")
+    return [output / name for name in names.values()]
 
 
 def read_openlabel(documents: str | os.PathLike | Mapping[str, Any]

@@ -1,8 +1,25 @@
 """The ego's path as a reference line (SPEC section 7): ``s`` and ``d`` of every other agent.
 
 For one ego path (a valid segment of one track: its positions at consecutive 0.1 s steps)
-the reference line is the polyline of those positions, extended straight along the ego's
-heading at both ends. Every other agent at every step of the path gets
+the reference line is the polyline of those positions, extended beyond both ends of the
+record (SPEC 7):
+
+- along the ego's lane, where a map is given (:class:`LaneMap`: the lane centre lines of a
+  map table, :mod:`tap_bench.maps`): the lane nearest the record's end that runs the ego's
+  way (within :data:`LANE_MATCH_DISTANCE` and :data:`LANE_MATCH_HEADING`), then the lanes
+  that start where it ends (at a branch, the one that stays nearest the arc below);
+- else along a circular arc with the ego's mean curvature over its last (first) second:
+  the heading change over that second divided by the distance driven in it (over the last
+  :data:`CURVATURE_STRETCH` metres driven when it drove less in that second: an ego that
+  stops in a curve; 0 when the whole path drove less than :data:`MIN_CURVATURE_TRAVEL`; at
+  most ``1 / R_MIN``). Where the curvature over that stretch fell below
+  :data:`FADE_RATIO` of the one over the stretch before it (the exit of a turn) it falls
+  on at the same rate to 0 and the line goes straight on. The arc turns at most
+  :data:`MAX_EXTENSION_TURN` and goes straight on from there.
+
+A leader stopped 25 m ahead on a 30 m curve at the end of a record is then still on the
+line (``d`` near 0) at ``s`` = its distance along the curve, as on a straight road. Every
+other agent at every step of the path gets
 
 - ``s`` [m]: its position along the reference line, relative to the ego's own position at
   that step; positive ahead;
@@ -29,16 +46,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tap_bench.trajectories import HZ
+
 __all__ = [
-    "COARSE_SPACING",
     "CORRIDOR_HALF_WIDTH",
+    "CURVATURE_STRETCH",
     "EXTENSION",
+    "LANE_MATCH_DISTANCE",
+    "LANE_MATCH_HEADING",
+    "LaneMap",
+    "MAX_EXTENSION_TURN",
+    "MIN_CURVATURE_TRAVEL",
     "PATH_SPACING",
     "PathFrame",
     "Paths",
     "SAME_DIRECTION",
     "path_frame",
     "scene_keys",
+    "scene_lanes",
 ]
 
 CORRIDOR_HALF_WIDTH = 1.8
@@ -48,13 +73,41 @@ the next lane 3 m or more away (docs/interactions.md)."""
 SAME_DIRECTION = np.pi / 3
 """[rad] an agent whose heading is within this of the path's direction drives along it
 (a leader can be followed); crossing and oncoming agents are not leaders."""
-COARSE_SPACING = 10.0
-"""[m] spacing of the vertices of the straight extensions near the path's ends."""
 PATH_SPACING = 2.0
 """[m] vertices of the reference line are kept about this far apart. The line then departs
 from the recorded path by at most the sagitta c^2 / (8 R): 0.05 m on a 10 m radius turn."""
 EXTENSION = 1000.0
-"""[m] length of the straight extensions at both ends of the line (beyond any reach)."""
+"""[m] length of the extensions at both ends of the line (beyond any reach)."""
+FADE_RATIO = 0.75
+"""A curvature over the last stretch below this share of the one over the stretch before is
+a turn's exit, and the extension's curvature falls on to 0 at that rate; above it, the
+extension is a circular arc (heading noise makes a steady curve's measured curvature waver
+by a few per cent)."""
+STRAIGHT_SPACING = 10.0
+"""[m] vertex spacing of a straight extension (curved ones are denser: a chord stays within
+5 cm of its arc)."""
+MAX_EXTENSION_TURN = np.pi / 2
+"""[rad] the arc beyond an end of the record turns at most this far, then goes straight:
+a curve or an intersection turn seldom continues farther beyond where the record ends, and
+a longer arc would wind back onto the ego's own path (a 30 m radius closes its circle in
+188 m, inside the 100 m look-ahead and its margin)."""
+MIN_CURVATURE_TRAVEL = 2.0
+"""[m] the mean curvature at an end is taken only when the ego drove at least this far over
+it; a parked ego extends straight (its heading change is noise)."""
+CURVATURE_STRETCH = 5.0
+"""[m] the mean curvature at an end is taken over the last (first) second, or, when the ego
+drove less than this in it (it slowed to a stop), over the last (first) this many metres it
+drove: an ego that stops in a curve extends along the curve it drove into the stop."""
+R_MIN = 5.0
+"""[m] the tightest radius an extension arc takes (SPEC 2's R_min)."""
+LANE_MATCH_DISTANCE = 2.0
+"""[m] a lane continues the path when its centre line passes within this of the record's
+end (half a lane and the ego's offset in it)."""
+LANE_MATCH_HEADING = np.pi / 6
+"""[rad] ... and runs within this of the ego's heading there."""
+LANE_JOIN_DISTANCE = 1.5
+"""[m] a lane that starts within this of another's end continues it (the map table has no
+topology; WOMD's and highway-env's connected lanes meet end to start)."""
 
 _TWO_PI = 2.0 * np.pi
 
@@ -145,6 +198,183 @@ class PathFrame:
         return len(self.step)
 
 
+@dataclass(frozen=True)
+class LaneMap:
+    """Lane centre lines per scene: where a path's record ends, its line goes on along them.
+
+    Attributes:
+        scene: (L,) scene code of each lane (the ``scene`` of :class:`Paths`).
+        start, stop: (L,) point range of each lane in ``x``, ``y`` (at least 2 points, in
+            driving order).
+        x, y: (q,) points [m].
+    """
+
+    scene: np.ndarray
+    start: np.ndarray
+    stop: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+
+    @classmethod
+    def from_table(cls, map_table, scene_maps) -> LaneMap:
+        """The lanes of a map table (:mod:`tap_bench.maps`) for each scene.
+
+        Args:
+            map_table: a map table; its ``kind == "lane"`` polylines are used.
+            scene_maps: (S,) the ``map_id`` of each scene code (a WOMD ``scenario_id``, or
+                the env of a highway-env rollout); None where a scene has no map.
+        """
+        lanes = map_table[map_table["kind"] == "lane"]
+        ids = {str(m): k for k, m in enumerate(scene_maps) if m is not None}
+        scene_of = lanes["map_id"].astype(str).map(ids)
+        lanes = lanes[scene_of.notna().to_numpy()]
+        scene_of = scene_of[scene_of.notna()]
+        if not len(lanes):
+            return cls(*(np.zeros(0, np.int64),) * 3, np.zeros(0), np.zeros(0))
+        # one map_id may serve several scenes (every seed of an env drives on one road)
+        groups = {}
+        for k, m in enumerate(scene_maps):
+            if m is not None:
+                groups.setdefault(str(m), []).append(k)
+        feature = lanes["feature_id"].to_numpy(np.int64)
+        mid = lanes["map_id"].astype(str).to_numpy()
+        new = np.r_[True, (feature[1:] != feature[:-1]) | (mid[1:] != mid[:-1])]
+        starts = np.flatnonzero(new)
+        stops = np.r_[starts[1:], len(feature)]
+        lx, ly = lanes["x"].to_numpy(float), lanes["y"].to_numpy(float)
+        xs, ys, sc, st, sp = [], [], [], [], []
+        total = 0
+        for a, b in zip(starts.tolist(), stops.tolist(), strict=False):
+            if b - a < 2:
+                continue
+            for k in groups[mid[a]]:
+                xs.append(lx[a:b])
+                ys.append(ly[a:b])
+                sc.append(k)
+                st.append(total)
+                total += b - a
+                sp.append(total)
+        if not xs:
+            return cls(*(np.zeros(0, np.int64),) * 3, np.zeros(0), np.zeros(0))
+        return cls(np.array(sc, np.int64), np.array(st, np.int64), np.array(sp, np.int64),
+                   np.concatenate(xs), np.concatenate(ys))
+
+    def covers(self, scenes: np.ndarray) -> np.ndarray:
+        """(k,) bool: each scene code has lanes."""
+        return np.isin(np.asarray(scenes), self.scene)
+
+    def _polyline(self, lane: int) -> tuple[np.ndarray, np.ndarray]:
+        return self.x[self.start[lane]:self.stop[lane]], self.y[self.start[lane]:self.stop[lane]]
+
+    def _match(self, scene: int, x0: float, y0: float, h0: float):
+        """(lane, arc length of the foot point along it) of the lane nearest (x0, y0) that
+        runs the ego's way, or None."""
+        best, best_d = None, LANE_MATCH_DISTANCE
+        for lane in np.flatnonzero(self.scene == scene).tolist():
+            lx, ly = self._polyline(lane)
+            ax, ay = lx[:-1], ly[:-1]
+            ux, uy = np.diff(lx), np.diff(ly)
+            len2 = np.maximum(ux * ux + uy * uy, 1e-12)
+            t = np.clip(((x0 - ax) * ux + (y0 - ay) * uy) / len2, 0.0, 1.0)
+            dist = np.hypot(ax + t * ux - x0, ay + t * uy - y0)
+            ok = np.abs(_wrap(np.arctan2(uy, ux) - h0)) <= LANE_MATCH_HEADING
+            if not ok.any():
+                continue
+            j = int(np.flatnonzero(ok)[np.argmin(dist[ok])])
+            if dist[j] <= best_d:
+                seg = np.r_[0.0, np.cumsum(np.sqrt(len2))]
+                best, best_d = (lane, float(seg[j] + t[j] * np.sqrt(len2[j]))), dist[j]
+        return best
+
+    def follow(self, scene: int, x0: float, y0: float, h0: float, kappa: float,
+               u: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Points at distances ``u`` (e,) (all >= 0: ahead along the lane; all <= 0:
+        behind) from the foot point of (x0, y0) on the ego's lane, chaining the lanes that
+        start where one ends (at a branch the one nearest the arc of curvature ``kappa``);
+        straight on past the last lane. None where no lane runs the ego's way there."""
+        forward = bool(np.all(u >= 0))
+        found = self._match(scene, x0, y0, h0)
+        if found is None:
+            return None
+        lane, at = found
+        dist = np.abs(u)
+        need = float(np.sort(dist)[-2]) if len(dist) > 1 else float(dist.max(initial=0.0))
+        lx, ly = self._polyline(lane)
+        seg = np.r_[0.0, np.cumsum(np.hypot(np.diff(lx), np.diff(ly)))]
+        if forward:
+            keep = seg > at
+            px, py = np.r_[np.interp(at, seg, lx), lx[keep]], np.r_[np.interp(at, seg, ly),
+                                                                     ly[keep]]
+        else:
+            keep = seg < at
+            px = np.r_[np.interp(at, seg, lx), lx[keep][::-1]]
+            py = np.r_[np.interp(at, seg, ly), ly[keep][::-1]]
+        chain_x, chain_y = [px], [py]
+        used = {lane}
+        done = float(np.hypot(np.diff(px), np.diff(py)).sum())
+        while done < need:
+            ex, ey = chain_x[-1][-1], chain_y[-1][-1]
+            if len(chain_x[-1]) < 2:
+                break
+            end_h = np.arctan2(chain_y[-1][-1] - chain_y[-1][-2],
+                               chain_x[-1][-1] - chain_x[-1][-2])
+            nxt = self._successor(scene, ex, ey, end_h, forward, used, x0, y0, h0, kappa,
+                                  done)
+            if nxt is None:
+                break
+            used.add(nxt)
+            lx, ly = self._polyline(nxt)
+            if not forward:
+                lx, ly = lx[::-1], ly[::-1]
+            chain_x.append(lx[1:])
+            chain_y.append(ly[1:])
+            done += float(np.hypot(np.diff(lx), np.diff(ly)).sum())
+        cx, cy = np.concatenate(chain_x), np.concatenate(chain_y)
+        cs = np.r_[0.0, np.cumsum(np.hypot(np.diff(cx), np.diff(cy)))]
+        keep = np.r_[True, np.diff(cs) > 1e-9]
+        cx, cy, cs = cx[keep], cy[keep], cs[keep]
+        if len(cs) < 2:
+            return None
+        out_x = np.interp(dist, cs, cx)
+        out_y = np.interp(dist, cs, cy)
+        beyond = dist > cs[-1]  # straight on past the last lane, along its last direction
+        if beyond.any():
+            dx, dy = cx[-1] - cx[-2], cy[-1] - cy[-2]
+            norm = max(np.hypot(dx, dy), 1e-12)
+            extra = dist[beyond] - cs[-1]
+            out_x[beyond] = cx[-1] + extra * dx / norm
+            out_y[beyond] = cy[-1] + extra * dy / norm
+        return out_x, out_y
+
+    def _successor(self, scene, ex, ey, end_h, forward, used, x0, y0, h0, kappa, done):
+        """The lane that starts (forward) or ends (backward) within LANE_JOIN_DISTANCE of
+        (ex, ey) running on in the direction ``end_h``; at a branch the one whose point
+        10 m on lies nearest the ego's arc."""
+        best, best_err = None, np.inf
+        for lane in np.flatnonzero(self.scene == scene).tolist():
+            if lane in used:
+                continue
+            lx, ly = self._polyline(lane)
+            if not forward:
+                lx, ly = lx[::-1], ly[::-1]
+            if np.hypot(lx[0] - ex, ly[0] - ey) > LANE_JOIN_DISTANCE:
+                continue
+            h = np.arctan2(ly[1] - ly[0], lx[1] - lx[0])  # the chain's direction of travel
+            if abs(_wrap(h - end_h)) > np.pi / 4:
+                continue
+            s = np.r_[0.0, np.cumsum(np.hypot(np.diff(lx), np.diff(ly)))]
+            probe = min(10.0, s[-1])
+            px, py = np.interp(probe, s, lx), np.interp(probe, s, ly)
+            ax, ay = _extension_points(np.array([x0]), np.array([y0]),
+                                       np.array([h0 if forward else h0 + np.pi]),
+                                       np.array([kappa if forward else -kappa]),
+                                       np.array([np.inf]), np.array([[done + probe]]))
+            err = float(np.hypot(px - ax[0, 0], py - ay[0, 0]))
+            if err < best_err:
+                best, best_err = lane, err
+        return best
+
+
 def _wrap(angle: np.ndarray) -> np.ndarray:
     return np.pi - np.mod(np.pi - angle, _TWO_PI)
 
@@ -157,13 +387,103 @@ def _ragged(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return group, within
 
 
+_NODES = 64  # integration nodes of an extension's curved stretch (a few cm at most)
+
+
+def _extension_points(x0: np.ndarray, y0: np.ndarray, h0: np.ndarray, kappa: np.ndarray,
+                      fade: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points at distances ``u`` (P, e), >= 0, ahead of (x0, y0) (P,) heading ``h0`` (P,)
+    [rad], along a curve that starts with curvature ``kappa`` (P,) [1/m] and falls linearly
+    to 0 over ``fade`` (P,) metres (inf: a circular arc); it turns at most
+    :data:`MAX_EXTENSION_TURN` and goes straight on from there. Returns (P, e) x and y."""
+    k = np.asarray(kappa, float)
+    fade = np.asarray(fade, float)
+    ak = np.abs(k)
+    # the length of the curved stretch: where the curvature reaches 0, or the turn its cap
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cap = np.where(ak > 1e-9, MAX_EXTENSION_TURN / ak, 0.0)  # constant curvature
+        full_turn = ak * fade / 2  # the whole turn of a fading curve
+        root = fade * (1 - np.sqrt(np.clip(1 - 2 * MAX_EXTENSION_TURN / (ak * fade), 0, 1)))
+    curved = np.where(np.isinf(fade), cap, np.where(full_turn > MAX_EXTENSION_TURN, root, fade))
+    curved = np.where(ak > 1e-9, curved, 0.0)
+    curved = np.minimum(curved, np.max(u, axis=1, initial=0.0))  # no farther than asked
+    g = curved[:, None] * np.linspace(0.0, 1.0, _NODES)[None, :]  # (P, N) nodes
+    f = np.where(fade > 0, fade, np.inf)[:, None]  # a fade of 0 has no curved stretch
+    with np.errstate(invalid="ignore"):
+        turn = k[:, None] * np.where(np.isinf(f), g, g - g * g / (2 * f))
+    head = h0[:, None] + turn
+    dg = np.diff(g, axis=1)
+    mid = 0.5 * (head[:, 1:] + head[:, :-1])  # the midpoint rule on each node interval
+    nx = np.concatenate([np.zeros((len(k), 1)), np.cumsum(dg * np.cos(mid), axis=1)], axis=1)
+    ny = np.concatenate([np.zeros((len(k), 1)), np.cumsum(dg * np.sin(mid), axis=1)], axis=1)
+    # on the curved stretch: between its (uniform) nodes; beyond it: straight on
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pos = np.where(curved[:, None] > 0, u / curved[:, None] * (_NODES - 1), 0.0)
+    pos = np.clip(pos, 0.0, _NODES - 1)
+    i = np.minimum(np.floor(pos).astype(np.int64), _NODES - 2)
+    frac = pos - i
+    rows = np.arange(len(k))[:, None]
+    out_x = nx[rows, i] + frac * (nx[rows, i + 1] - nx[rows, i])
+    out_y = ny[rows, i] + frac * (ny[rows, i + 1] - ny[rows, i])
+    rest = np.maximum(u - curved[:, None], 0.0)
+    out_x = out_x + rest * np.cos(head[:, -1:])
+    out_y = out_y + rest * np.sin(head[:, -1:])
+    return x0[:, None] + out_x, y0[:, None] + out_y
+
+
+def _fading(k_end: np.ndarray, k_before: np.ndarray, ds: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """(curvature at the end [1/m], metres over which it falls to 0) of each path end, from
+    the mean curvature over the last stretch ``k_end`` and over the stretch before it
+    ``k_before``, ``ds`` apart: a curvature that fell below :data:`FADE_RATIO` of the one
+    before (the same sign) falls on at that rate (the exit of a turn, which goes straight
+    on), else it holds (a steady curve whose measured curvature wavers, or a turn still
+    tightening: inf)."""
+    a_end, a_before = np.abs(k_end), np.abs(k_before)
+    falling = (np.sign(k_end) == np.sign(k_before)) & (a_end < FADE_RATIO * a_before) \
+        & (ds > 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rate = np.where(falling, (a_before - a_end) / np.where(ds > 0, ds, 1.0), 0.0)
+        # the mean is the curvature half a stretch back: at the end it has fallen further
+        at_end = np.where(falling, np.maximum(a_end - rate * ds / 2, 0.0), a_end)
+        fade = np.where(falling & (at_end > 0), at_end / np.where(rate > 0, rate, 1.0),
+                        np.inf)
+    return np.sign(k_end) * at_end, fade
+
+
+def _extension_spacing(kappa: np.ndarray, spacing: float) -> np.ndarray:
+    """(P,) [m] vertex spacing of the extensions: a chord departs from an arc of curvature
+    kappa by c^2 |kappa| / 8, kept under 5 cm, between ``spacing`` and
+    :data:`STRAIGHT_SPACING` (a straight extension needs few vertices, and each costs a
+    projection)."""
+    with np.errstate(divide="ignore"):
+        chord = np.sqrt(8 * 0.05 / np.abs(kappa))
+    return np.clip(chord, spacing, STRAIGHT_SPACING)
+
+
+def _end_curvature(h: np.ndarray, arc: np.ndarray, end: np.ndarray, other: np.ndarray
+                   ) -> np.ndarray:
+    """(P,) [1/m] mean curvature between the steps ``other`` and ``end`` (one second apart,
+    or less on a short path): heading change over distance driven; 0 where the ego drove
+    less than :data:`MIN_CURVATURE_TRAVEL` or the heading jumped (a flip is not a turn)."""
+    dh = _wrap(h[end] - h[other])
+    ds = np.abs(arc[end] - arc[other])
+    ok = (ds >= MIN_CURVATURE_TRAVEL) & (np.abs(dh) <= np.pi / 2)
+    kappa = np.where(ok, dh / np.where(ok, ds, 1.0), 0.0)
+    # the end is later (front) or earlier (back): dh / ds is the curvature either way
+    return np.clip(kappa, -1.0 / R_MIN, 1.0 / R_MIN)
+
+
 def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, spacing: float,
-                     coarse: float, reach: float):
+                     reach: float, lanes: LaneMap | None = None):
     """The decimated, extended polylines of every path, laid end to end.
 
-    Each line: the straight back extension (a far vertex at -EXTENSION, then vertices every
-    ``coarse`` metres from ``reach`` to the start), the recorded positions about ``spacing``
-    apart, and the front extension likewise.
+    Each line: the back extension (a far vertex at -EXTENSION, then vertices every
+    ``spacing`` to :data:`STRAIGHT_SPACING` metres (:func:`_extension_spacing`) from
+    ``reach`` or more to the start), the recorded positions about ``spacing`` apart, and
+    the front extension likewise. Extensions follow the ego's lane
+    where ``lanes`` has one, else an arc of the ego's mean curvature over the last (first)
+    second (module docstring).
 
     Returns (vx, vy, vs, first, count, arc): vertex coordinates and arc lengths (q,), the
     first vertex and vertex count of each path (P,), and the arc length of each ego step (m,).
@@ -188,24 +508,73 @@ def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, sp
     kept = np.flatnonzero(keep)
     kept_path = ego_path[kept]
     n_kept = np.bincount(kept_path, minlength=paths.n_paths)
-    n_ext = int(np.ceil(reach / coarse))
-    ext = np.r_[EXTENSION, coarse * np.arange(n_ext, 0, -1)]  # distances from the end
-    count = n_kept + 2 * len(ext)
+    hb, he = h[first_step], h[last_step]
+    # the last (first) second of the record, or of its motion: back (on) until the ego drove
+    # CURVATURE_STRETCH (a path that ends standing still curves as it drove into the stop)
+    second = round(HZ)
+    span = float(arc.max(initial=0.0)) + 10.0
+    arc_global = arc + ego_path * span
+    offset = np.arange(paths.n_paths) * span
+    reach_f = np.maximum(arc[last_step] - arc[np.maximum(last_step - second, first_step)],
+                         CURVATURE_STRETCH)
+    at_f = np.searchsorted(arc_global, arc[last_step] - reach_f + offset, "right") - 1
+    reach_b = np.maximum(arc[np.minimum(first_step + second, last_step)] - arc[first_step],
+                         CURVATURE_STRETCH)
+    at_b = np.searchsorted(arc_global, arc[first_step] + reach_b + offset, "left")
+    at_f = np.clip(at_f, first_step, last_step)
+    at_b = np.clip(at_b, first_step, last_step)
+    # the same stretch once more, farther from the end: is the curvature falling (a turn's
+    # exit)? then it falls on at that rate (to 0: straight on), else it holds (a curve)
+    ds_f = arc[last_step] - arc[at_f]
+    ds_b = arc[at_b] - arc[first_step]
+    at_f0 = np.clip(np.searchsorted(arc_global, arc[at_f] - ds_f + offset, "right") - 1,
+                    first_step, last_step)
+    at_b0 = np.clip(np.searchsorted(arc_global, arc[at_b] + ds_b + offset, "left"),
+                    first_step, last_step)
+    k_front, fade_f = _fading(_end_curvature(h, arc, last_step, at_f),
+                              _end_curvature(h, arc, at_f, at_f0), ds_f)
+    k_back, fade_b = _fading(_end_curvature(h, arc, at_b, first_step),
+                             _end_curvature(h, arc, at_b0, at_b), ds_b)
+    # distances of the extension vertices from each end, (P, e) far to near: the far vertex
+    # at EXTENSION, then every few metres (closer on tighter arcs, or along lanes) to reach
+    mapped = (lanes.covers(paths.scene[paths.start]) if lanes is not None
+              else np.zeros(paths.n_paths, bool))
+    step_f = np.where(mapped, spacing, _extension_spacing(k_front, spacing))
+    step_b = np.where(mapped, spacing, _extension_spacing(k_back, spacing))
+    n_ext = int(np.ceil(reach / spacing)) if paths.n_paths else 0
+    k = np.arange(n_ext, 0, -1)[None, :]
+    far = np.full((paths.n_paths, 1), EXTENSION)
+    ext_f = np.hstack([far, np.minimum(step_f[:, None] * k, EXTENSION / 2)])
+    ext_b = np.hstack([far, np.minimum(step_b[:, None] * k, EXTENSION / 2)])
+    n_e = n_ext + 1
+    count = n_kept + 2 * n_e
     first = np.cumsum(count) - count
     q = int(count.sum())
     vx, vy, vs = np.empty(q), np.empty(q), np.empty(q)
     _, within = _ragged(n_kept)
-    dest = first[kept_path] + len(ext) + within
+    dest = first[kept_path] + n_e + within
     vx[dest], vy[dest], vs[dest] = x[kept], y[kept], arc[kept]
-    hb, he = h[first_step], h[last_step]
-    back = first[:, None] + np.arange(len(ext))[None, :]  # (P, e), far to near
-    vx[back] = x[first_step, None] - ext[None, :] * np.cos(hb)[:, None]
-    vy[back] = y[first_step, None] - ext[None, :] * np.sin(hb)[:, None]
-    vs[back] = -ext[None, :]
-    front = (first + count - 1)[:, None] - np.arange(len(ext))[None, :]  # far to near
-    vx[front] = x[last_step, None] + ext[None, :] * np.cos(he)[:, None]
-    vy[front] = y[last_step, None] + ext[None, :] * np.sin(he)[:, None]
-    vs[front] = arc[last_step, None] + ext[None, :]
+    # the back extension: forwards from the first position, facing backwards, where the
+    # path's curvature has the other sign
+    bx, by = _extension_points(x[first_step], y[first_step], hb + np.pi, -k_back, fade_b,
+                               ext_b)
+    fx, fy = _extension_points(x[last_step], y[last_step], he, k_front, fade_f, ext_f)
+    if lanes is not None and paths.n_paths:
+        for p in range(paths.n_paths):
+            scene = int(paths.scene[paths.start[p]])
+            f, b = last_step[p], first_step[p]
+            along = lanes.follow(scene, x[f], y[f], he[p], k_front[p], ext_f[p])
+            if along is not None:
+                fx[p], fy[p] = along
+            along = lanes.follow(scene, x[b], y[b], hb[p], k_back[p], -ext_b[p])
+            if along is not None:
+                bx[p], by[p] = along
+    back = first[:, None] + np.arange(n_e)[None, :]  # (P, e), far to near
+    vx[back], vy[back] = bx, by
+    vs[back] = -ext_b
+    front = (first + count - 1)[:, None] - np.arange(n_e)[None, :]  # far to near
+    vx[front], vy[front] = fx, fy
+    vs[front] = arc[last_step, None] + ext_f
     return vx, vy, vs, first, count, arc
 
 
@@ -262,8 +631,8 @@ def _cell_key(scene, cx, cy):
 
 def path_frame(paths: Paths, others: np.ndarray | None = None, *,
                ahead: float | np.ndarray = 100.0, behind: float = 30.0, lateral: float = 10.0,
-               near: float = 0.0, lateral_near: float = 0.0, spacing: float = PATH_SPACING
-               ) -> PathFrame:
+               near: float = 0.0, lateral_near: float = 0.0, spacing: float = PATH_SPACING,
+               lanes: LaneMap | None = None) -> PathFrame:
     """Every other agent near each ego step, in the frame of the ego's path.
 
     Kept: agents with ``-behind <= s <= ahead`` and ``|d| <= lateral``, and, when ``near``
@@ -285,15 +654,17 @@ def path_frame(paths: Paths, others: np.ndarray | None = None, *,
         lateral: [m] largest ``|d|`` kept.
         near, lateral_near: [m] the zone beside the ego (0: none).
         spacing: [m] vertex spacing of the reference line.
+        lanes: lane centre lines that continue the line beyond the record's ends (None:
+            arcs of the ego's last and first curvature).
 
     Returns:
         :class:`PathFrame` of the kept (ego step, other) pairs, ordered by ego step.
     """
     if near > 0 and lateral_near > lateral:
         main = path_frame(paths, others, ahead=ahead, behind=behind, lateral=lateral,
-                          spacing=spacing)
+                          spacing=spacing, lanes=lanes)
         side = path_frame(paths, others, ahead=near, behind=near, lateral=lateral_near,
-                          spacing=spacing)
+                          spacing=spacing, lanes=lanes)
         fields = ("step", "other", "s", "d", "heading_rel", "v_along")
         both = {f: np.r_[getattr(main, f), getattr(side, f)] for f in fields}
         order = np.lexsort((both["other"], both["step"]))
@@ -314,7 +685,7 @@ def path_frame(paths: Paths, others: np.ndarray | None = None, *,
     far = float(max(ahead.max(initial=0.0), behind))
     cell = 4.0 / 3.0 * lateral + spacing  # see _line_cells: every point within lateral
     vx, vy, vs, first, count, arc = _reference_lines(paths, ego_row, ego_path, spacing,
-                                                     COARSE_SPACING, far + 2 * cell)
+                                                     far + 2 * cell, lanes)
     empty = np.zeros(0)
     ints = np.zeros(0, np.int64)
     others_rows = np.flatnonzero(np.ones(len(paths.key), bool) if others is None else others)
@@ -387,3 +758,24 @@ def path_frame(paths: Paths, others: np.ndarray | None = None, *,
                      heading_rel=heading_rel,
                      v_along=paths.speed[other] * np.cos(heading_rel), ego_row=ego_row,
                      ego_path=ego_path, arc=arc)
+
+
+def scene_lanes(table, scene_codes: np.ndarray, scenes, map_table) -> LaneMap:
+    """The :class:`LaneMap` of a trajectory table's scenes: a scene's map is the map table's
+    ``map_id`` equal to its ``scenario_id`` (WOMD), else to its ``env`` (highway-env, where
+    every seed drives on the env's road).
+
+    Args:
+        table: the trajectory table (``scenario_id``, optional ``env``).
+        scene_codes: (n,) scene code of each row of ``table``.
+        scenes: the scenario id of each scene code.
+        map_table: a map table (:mod:`tap_bench.maps`).
+    """
+    ids = set(map_table["map_id"].astype(str).unique())
+    maps: list[str | None] = [str(s) if str(s) in ids else None for s in scenes]
+    if "env" in table.columns and any(m is None for m in maps):
+        first = np.unique(np.asarray(scene_codes), return_index=True)[1]
+        env = table["env"].take(first).astype(str).to_numpy()
+        maps = [m if m is not None or env[k] not in ids else env[k]
+                for k, m in enumerate(maps)]
+    return LaneMap.from_table(map_table, maps)

@@ -10,13 +10,14 @@ joined by ``" > "``.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable, Sequence
 
 from tap_bench.errors import LabelTableError, did_you_mean
 
 __all__ = ["AXES", "INTERACTION_NAMES", "LABEL_AXES", "LEVELS", "SDL_SEPARATOR", "SEPARATOR",
-           "check_axes", "check_level", "format_sdl", "join", "levels", "parse_sdl", "split",
-           "tokens", "vocabulary"]
+           "anonymous_others", "check_axes", "check_level", "format_sdl", "join", "levels",
+           "parse_sdl", "split", "tokens", "vocabulary", "with_other"]
 
 LEVELS = ("trace", "trend", "maneuver", "action")
 """Levels from the most abstract to the most detailed."""
@@ -27,6 +28,8 @@ LABEL_AXES = ("lateral", "longitudinal", "interaction")
 INTERACTION_NAMES = ("Free Driving", "Following", "Cut-in", "Cut-out", "Overtaking",
                      "Being Overtaken", "Lead Braking")
 """The interaction vocabulary (:mod:`tap_bench.interactions`), the same at every level."""
+_OTHER = re.compile(r" \(([^()]*)\)(?=\s*(?:>|$|\|))")
+"""The other agent's name after an interaction relation: ``" (12)"``."""
 SEPARATOR = " > "
 """Joins the chronologically ordered labels of one axis."""
 SDL_SEPARATOR = " | "
@@ -137,8 +140,34 @@ def join(labels: Iterable[str]) -> str:
 
 
 def split(text: str) -> tuple[str, ...]:
-    """The labels of one axis's text, in order (spacing around ``>`` tolerated)."""
-    return tuple(tok.strip() for tok in text.split(SEPARATOR.strip()))
+    """The labels of one axis's text, in order (spacing around ``>`` tolerated). An
+    interaction label's other agent (``"Following (12)"``) is left out: ``"Following"``."""
+    return tuple(_OTHER.sub("", tok).strip() for tok in text.split(SEPARATOR.strip()))
+
+
+def with_other(relation: str, other: str | None) -> str:
+    """An interaction label naming its other agent: ``"Following (12)"``; Free Driving
+    (no other agent) stays ``"Free Driving"``."""
+    return relation if other is None else f"{relation} ({other})"
+
+
+def anonymous_others(text: str | None) -> str | None:
+    """An interaction sequence with its other agents renamed A, B, ... in order of first
+    appearance: ``"Following (12) > Cut-in (7) > Following (7)"`` becomes ``"Following (A)
+    > Cut-in (B) > Following (B)"``. Sequences of different scenes then compare by what
+    happened (a change of leader stays a change) rather than by track ids."""
+    if text is None or not isinstance(text, str):
+        return text
+    names: dict[str, str] = {}
+
+    def rename(match) -> str:
+        other = match.group(1)
+        if other not in names:
+            k = len(names)
+            names[other] = chr(0x41 + k % 26) + (str(k // 26) if k >= 26 else "")
+        return f" ({names[other]})"
+
+    return _OTHER.sub(rename, text)
 
 
 def format_sdl(lateral: str | Sequence[str], longitudinal: str | Sequence[str]) -> str:

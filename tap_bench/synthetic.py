@@ -13,7 +13,8 @@ import pandas as pd
 from tap_bench.errors import ParameterError, did_you_mean
 from tap_bench.trajectories import DT
 
-__all__ = ["BEHAVIOURS", "behaviour", "from_controls", "random_trajectories", "sample_table"]
+__all__ = ["BEHAVIOURS", "behaviour", "from_controls", "on_road", "random_trajectories",
+           "road_scene", "sample_table"]
 
 
 def from_controls(speed: np.ndarray, yaw_rate: np.ndarray, *, scenario_id: str = "synthetic",
@@ -252,4 +253,56 @@ def sample_table(n_random: int = 200, seed: int = 0) -> pd.DataFrame:
         frame["object_type"] = "vehicle"
         frame["source"] = "synthetic"
     frames = [*named, random_trajectories(n_random, seed=seed)] if n_random else named
+    return pd.concat(frames, ignore_index=True)
+
+
+def on_road(arc: np.ndarray, radius: float, side: int = 1, *, lateral: float = 0.0
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Positions and headings at arc lengths ``arc`` along a road that starts at the origin
+    heading +x: straight (``radius`` inf) or a circle of ``radius`` [m] turning left
+    (``side`` +1) or right (-1); ``lateral`` [m] to the left of its centre line.
+
+    Returns:
+        (x, y, heading) [m, m, rad], each shaped like ``arc``; the heading is unwrapped.
+    """
+    arc = np.asarray(arc, dtype=np.float64)
+    if not np.isfinite(radius):
+        return arc.copy(), np.full(arc.shape, lateral), np.zeros(arc.shape)
+    theta = arc / radius  # the angle turned, about the centre (0, side * radius)
+    r = radius - side * lateral  # a lane to the left of a left curve is its inner lane
+    return r * np.sin(theta), side * (radius - r * np.cos(theta)), side * theta
+
+
+def road_scene(radius: float, side: int = 1, *, ego_speed: np.ndarray,
+               others: dict[str, tuple[float, np.ndarray, float]] | None = None,
+               scenario_id: str = "road") -> pd.DataFrame:
+    """A scene on one road (:func:`on_road`): the ego and other vehicles by their speed
+    profiles, all at 10 Hz.
+
+    Args:
+        radius, side: the road (inf: straight).
+        ego_speed: (n,) the ego's speed [m/s] at each step; it starts at arc length 0.
+        others: track id -> (arc length at the first step [m], (n,) speed [m/s], lateral
+            offset [m], positive to the left of the road's centre line).
+        scenario_id: the scene's id.
+
+    Returns:
+        A trajectory table with ``is_ego`` and ``object_type`` (the ego's track id is
+        ``ego``), speeds as given and positions integrated from them.
+    """
+    ego_speed = np.asarray(ego_speed, dtype=np.float64)
+    n = len(ego_speed)
+    t = np.arange(n) * DT
+    tracks = {"ego": (0.0, ego_speed, 0.0), **(others or {})}
+    frames = []
+    for track, (s0, speed, lateral) in tracks.items():
+        speed = np.asarray(speed, dtype=np.float64)
+        if len(speed) != n:
+            raise ParameterError(f"others[{track!r}]", len(speed), f"{n} speeds, one per step")
+        arc = s0 + np.concatenate([[0.0], np.cumsum(speed[:-1]) * DT])
+        x, y, heading = on_road(arc, radius, side, lateral=lateral)
+        frames.append(pd.DataFrame({
+            "scenario_id": scenario_id, "track_id": track, "t": t, "x": x, "y": y,
+            "heading": np.angle(np.exp(1j * heading)), "speed": speed,
+            "object_type": "vehicle", "is_ego": track == "ego"}))
     return pd.concat(frames, ignore_index=True)

@@ -8,8 +8,11 @@ every output of tap-bench follows.
   unwritable place fails at once, and they are renamed into place only when all are done.
 - An output is never one of the inputs (:func:`check_outputs`).
 - A folder is replaced only when tap-bench wrote it: :func:`atomic_folder` leaves a marker
-  file (:data:`FOLDER_MARKER`) in every folder it builds and refuses to replace a folder
-  without one, a file or a symbolic link.
+  file (:data:`FOLDER_MARKER`, listing every file it wrote) in every folder it builds and
+  refuses to replace a folder without one, a folder holding anything it did not write
+  (a file added by hand), a file or a symbolic link.
+- A file that exists is replaced only when asked (``--overwrite``,
+  :func:`check_replace`).
 - Files and folders get the usual modes (``0o666`` / ``0o777`` less the umask), not the
   ``0o600`` / ``0o700`` of temporary files.
 """
@@ -21,7 +24,7 @@ import json
 import os
 import shutil
 import tempfile
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 
 import pandas as pd
@@ -29,8 +32,8 @@ import pandas as pd
 from tap_bench.errors import FileFormatError, OutputPathError, RunExistsError
 
 __all__ = ["FOLDER_MARKER", "atomic_folder", "atomic_path", "atomic_paths", "beside",
-           "check_folder_output", "check_outputs", "check_writable", "read_table", "write_table",
-           "write_tables"]
+           "check_folder_output", "check_outputs", "check_replace", "check_writable",
+           "read_table", "write_table", "write_tables"]
 
 FOLDER_MARKER = ".tap-bench-folder"
 """The file tap-bench leaves in every results folder it writes; only a folder holding it may
@@ -249,11 +252,82 @@ def check_folder_output(path: str | os.PathLike, overwrite: bool) -> Path:
         if not overwrite:
             raise RunExistsError(f"{path} exists; choose another folder or pass "
                                     "--overwrite to replace it.")
+        foreign = _not_written_by_tap_bench(path)
+        if foreign:
+            shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more"
+                                              if len(foreign) > 5 else "")
+            raise OutputPathError(
+                f"{path}: holds {shown}, which tap-bench did not write there; --overwrite "
+                "replaces only what tap-bench wrote. Move them out of the folder, or choose "
+                "another folder.")
         if not os.access(path.parent, os.W_OK | os.X_OK):
             raise OutputPathError(f"{path}: cannot replace it, {path.parent} is not "
                                   "writable.")
         return path
     return check_writable(path)
+
+
+def _contents(folder: Path) -> list[str]:
+    """Every file and folder under ``folder``, as sorted relative POSIX paths."""
+    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*"))
+
+
+def _not_written_by_tap_bench(folder: Path, prefix: str = "") -> list[str]:
+    """What ``folder`` holds that its marker does not list; a sub-folder with a marker of
+    its own (a viewer written again) is checked against that one. A folder written before
+    markers listed their files: nothing can be told, nothing is listed."""
+    try:
+        marker = json.loads((folder / FOLDER_MARKER).read_text())
+    except (OSError, ValueError):
+        return [prefix + FOLDER_MARKER + " (damaged)"]
+    listed = marker.get("files") if isinstance(marker, dict) else None
+    if not isinstance(listed, list):
+        return []
+    listed_set = set(map(str, listed))
+    out: list[str] = []
+    for root, dirs, files in os.walk(folder):
+        here = Path(root)
+        for name in list(dirs):
+            sub = here / name
+            rel = sub.relative_to(folder).as_posix()
+            if (sub / FOLDER_MARKER).is_file() and not sub.is_symlink():
+                dirs.remove(name)  # its own marker speaks for it
+                out += _not_written_by_tap_bench(sub, f"{prefix}{rel}/")
+            elif rel not in listed_set:
+                out.append(prefix + rel)
+        for name in files:
+            rel = (here / name).relative_to(folder).as_posix()
+            if rel not in listed_set and rel != FOLDER_MARKER:
+                out.append(prefix + rel)
+    return sorted(out)
+
+
+def check_replace(paths: Iterable[str | os.PathLike], overwrite: bool, *,
+                  ours: Callable[[Path], bool] | None = None) -> list[Path]:
+    """Check, before any work, that the files ``paths`` may be written: a path that exists
+    is replaced only with ``overwrite``, and, when ``ours`` is given, only when ``ours(path)``
+    says tap-bench wrote it.
+
+    Raises:
+        RunExistsError: a path exists and ``overwrite`` is False (naming every one).
+        OutputPathError: a path exists that tap-bench did not write, or is a folder or link.
+    """
+    targets = [Path(p) for p in paths]
+    existing = [p for p in targets if p.exists() or p.is_symlink()]
+    for path in existing:
+        if path.is_symlink() or not path.is_file():
+            raise OutputPathError(f"{path}: is a folder or a link, not a file tap-bench "
+                                  "wrote; choose another output path.")
+    if existing and not overwrite:
+        raise RunExistsError(f"{', '.join(map(str, existing))} exist(s); choose another "
+                             "output path or pass --overwrite to replace them.")
+    if ours is not None:
+        for path in existing:
+            if not ours(path):
+                raise OutputPathError(f"{path}: exists and was not written by tap-bench; it "
+                                      "is never replaced. Choose another output path, or "
+                                      "move the file yourself.")
+    return targets
 
 
 @contextlib.contextmanager
@@ -285,7 +359,8 @@ def atomic_folder(path: str | os.PathLike, overwrite: bool = False,
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700
         yield tmp
         (tmp / FOLDER_MARKER).write_text(json.dumps({"written_by": "tap-bench",
-                                                     "kind": kind}) + "\n")
+                                                     "kind": kind,
+                                                     "files": _contents(tmp)}) + "\n")
         check_folder_output(path, overwrite)
         if path.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old",

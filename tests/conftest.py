@@ -1,12 +1,27 @@
 """Every test session gets its own tap-bench cache folder (episodes of ``bench run``,
 highway-env's defaults): runs in one session never reuse episodes another session, or the
-developer's own runs, left in ``~/.cache/tap-bench``."""
+developer's own runs, left in ``~/.cache/tap-bench``.
+
+The fixtures every test folder shares live here, once: the real WOMD samples
+(``womd_dir``), a small hand-made trajectory table (``two_cars_and_a_walker``) and tiny
+scenario files (``write_scenario``)."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import tempfile
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+PROJECT_ROOT = Path(__file__).resolve().parents[1]
+WOMD_DIR = (PROJECT_ROOT / ".." / "shared" / "data" / "womd").resolve()
+"""The real WOMD samples: read from there, never copied into the project (Waymo's terms)."""
 
 _CACHE = tempfile.mkdtemp(prefix="tap-bench-test-cache-")
 
@@ -17,3 +32,58 @@ def pytest_configure(config) -> None:
 
 def pytest_unconfigure(config) -> None:
     shutil.rmtree(_CACHE, ignore_errors=True)
+
+
+@pytest.fixture(scope="session")
+def womd_dir() -> Path:
+    """The folder of real WOMD samples (``../shared/data/womd``); skips when absent."""
+    if not (WOMD_DIR / "motion_data_one_scenario.tfrecord").is_file():
+        pytest.skip(f"real WOMD samples not found in {WOMD_DIR}")
+    return WOMD_DIR
+
+
+@pytest.fixture
+def two_cars_and_a_walker() -> pd.DataFrame:
+    """Two scenarios of 2 s: in ``s1`` an ego car driving +x at 10 m/s, a car turning left
+    with a 5-step gap, and a pedestrian; in ``s2`` one parked car."""
+    t = np.round(np.arange(20) * 0.1, 10)
+    rows = []
+    for i, tt in enumerate(t):
+        rows.append(("s1", "100", tt, 10 * tt, 0.0, 0.0, 10.0, 0.0, "vehicle", True, True))
+        heading = 0.2 * tt
+        rows.append(("s1", "7", tt, 5 * tt, 3.0 + tt, heading, 5 * np.cos(heading),
+                     5 * np.sin(heading), "vehicle", False, not 5 <= i < 10))
+        rows.append(("s1", "8", tt, 1.0, 1.0 + 1.2 * tt, np.pi / 2, 0.0, 1.2, "pedestrian",
+                     False, True))
+        rows.append(("s2", "1", tt, 2.0, -4.0, -1.0, 0.0, 0.0, "vehicle", False, True))
+    table = pd.DataFrame(rows, columns=["scenario_id", "track_id", "t", "x", "y", "heading",
+                                        "vx", "vy", "object_type", "is_ego", "valid"])
+    table["speed"] = np.hypot(table["vx"], table["vy"])
+    return table
+
+
+@pytest.fixture(autouse=True)
+def _quiet_gymnasium_checker():
+    # The passive checker warns that highway-env's AttributesObservation space is generic.
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*within the observation space.*")
+        warnings.filterwarnings("ignore", message=".*is not within the observation space.*")
+        yield
+
+
+@pytest.fixture
+def write_scenario(tmp_path: Path):
+    """Write a scenario file (a dict, with overrides of a valid highway scenario) and return
+    its path."""
+
+    def write(name: str = "tiny", **fields) -> Path:
+        doc = {"name": name, "version": 0, "highway_env_id": "highway-v0",
+               "description": "test scenario", "duration": 2, "default_seeds": "0-2",
+               "lane_change": "realistic",
+               "config": {"lanes_count": 2, "vehicles_count": 3, "policy_frequency": 1}}
+        doc.update(fields)
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps(doc))
+        return path
+
+    return write

@@ -40,8 +40,8 @@ cache prune --max-size`` prunes by hand.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
-import importlib.util
 import io
 import json
 import math
@@ -62,7 +62,8 @@ from tap_bench._version import __version__
 from tap_bench.errors import ParameterError
 from tap_bench.sim.policies import PolicyDefinition
 from tap_bench.sim.schema import default_config
-from tap_bench.sim.suite import Scenario
+from tap_bench.sim.suite import VEHICLE_TYPE_KEYS, Scenario
+from tap_bench.usercode import TRUSTED_PACKAGES, code_digest
 
 __all__ = ["DEFAULT_MAX_BYTES", "ENTRY_FORMAT", "CachedEpisode",
            "EpisodeCache", "default_cache_dir", "episode_key", "parse_size",
@@ -70,13 +71,26 @@ __all__ = ["DEFAULT_MAX_BYTES", "ENTRY_FORMAT", "CachedEpisode",
 
 DEFAULT_MAX_BYTES = 2 << 30
 """Size the cache is pruned to after a run [B]: ten default suites."""
-ENTRY_FORMAT = 1
+ENTRY_FORMAT = 2
 """Layout of an entry file; raised when it changes (old entries then miss)."""
+SIMULATION_CODE = ("sim", "trajectories.py")
+"""tap-bench's simulation code, relative to the package: every module of :mod:`tap_bench.sim`
+(all of them, so that a module added there is covered without a list to update; an edit to
+one an episode does not use costs only a re-simulation) and the trajectory contract the
+recorder writes to. Labelling and measures are not here: they are keyed by the label cache
+(:data:`LABEL_CODE`), so an edit to them re-labels without re-simulating."""
+
+
 def _simulation_modules() -> list[Path]:
-    """Every module of :mod:`tap_bench.sim`: the code an episode's trajectory table depends
-    on (all of them, so that a module added there is covered without a list to update; an
-    edit to one an episode does not use costs only a re-simulation)."""
-    return sorted((Path(__file__).resolve().parent.parent / "sim").glob("*.py"))
+    """The source files of :data:`SIMULATION_CODE`."""
+    package = Path(__file__).resolve().parent.parent
+    out: list[Path] = []
+    for name in SIMULATION_CODE:
+        path = package / name
+        out += sorted(path.rglob("*.py")) if path.is_dir() else [path]
+    return out
+
+
 _SUFFIX = ".episode"
 _STALE_TMP_S = 3600.0  # a temporary file this old belongs to a writer that died [s]
 _KEY = re.compile(r"^[0-9a-f]{64}$")
@@ -119,59 +133,125 @@ def _version(package: str) -> str:
         return "absent"
 
 
-def simulation_fingerprint() -> dict[str, Any]:
-    """The code and versions every episode's key includes (module docstring)."""
+def simulation_fingerprint(modules: list[Path] | None = None) -> dict[str, Any]:
+    """The code and versions every episode's key includes (module docstring).
+
+    Args:
+        modules: the simulation's source files (default :data:`SIMULATION_CODE`'s).
+    """
     digest = hashlib.sha256()
-    for path in _simulation_modules():
-        digest.update(path.name.encode())
-        digest.update(path.read_bytes())
+    package = Path(__file__).resolve().parent.parent
+    for path in _simulation_modules() if modules is None else modules:
+        name = path.relative_to(package) if path.is_relative_to(package) else path.name
+        digest.update(Path(name).as_posix().encode() + b"\0")
+        digest.update(hashlib.sha256(path.read_bytes()).digest())
     return {"entry_format": ENTRY_FORMAT, "tap-bench": __version__,
             "simulation_code": digest.hexdigest(), "highway-env": _version("highway-env"),
             "gymnasium": _version("gymnasium"), "numpy": _version("numpy")}
 
 
-def scenario_fingerprint(scenario: Scenario) -> dict[str, Any]:
-    """The env part of a key: the highway-env id, its resolved config, lane changes,
-    duration [s] and decisions per episode."""
+def _plain(value: Any) -> Any:
+    """``value`` as JSON-able data: objects with ``to_dict`` (a script) as their dict,
+    tuples as lists, mappings as dicts."""
+    if hasattr(value, "to_dict"):
+        return _plain(value.to_dict())
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    return value
+
+
+def _named_files(doc: Any, base: Path, found: dict[str, str], where: str = "") -> None:
+    """The SHA-256 of every existing file a string of ``doc`` names (relative to ``base``),
+    by where in ``doc`` it is named."""
+    if isinstance(doc, Mapping):
+        for key, value in sorted(doc.items(), key=lambda kv: str(kv[0])):
+            _named_files(value, base, found, f"{where}.{key}" if where else str(key))
+    elif isinstance(doc, list | tuple):
+        for i, value in enumerate(doc):
+            _named_files(value, base, found, f"{where}[{i}]")
+    elif isinstance(doc, str) and doc and len(doc) < 4096 and "\0" not in doc:
+        with contextlib.suppress(OSError, ValueError):
+            path = Path(doc) if Path(doc).is_absolute() else base / doc
+            if path.is_file():
+                found[where] = _sha256_file(path)
+
+
+def _user_code(module: str) -> dict[str, Any] | None:
+    """:func:`tap_bench.usercode.code_digest` of ``module`` ({} for tap-bench's and
+    highway-env's own modules: the versions and simulation code cover them), None when it
+    has no Python source to hash."""
+    if module.split(".")[0] in TRUSTED_PACKAGES:
+        return {}
+    return code_digest(module)
+
+
+def scenario_fingerprint(scenario: Scenario, env: str | None = None) -> dict[str, Any] | None:
+    """The env part of a key, or None when the scenario names code that cannot be hashed
+    (a vehicle class of a module without Python source: never cached).
+
+    It holds the env's name in the suite (``env``, default the scenario's name), every field
+    of the resolved scenario (name, version, script, lane changes, description, the config
+    overrides ...), the highway-env id, its resolved config (highway-env's defaults updated
+    with the overrides), the duration [s] and decisions per episode, the SHA-256 of the
+    scenario file and of every file a field names, and the code of each user vehicle class
+    the config names (:data:`tap_bench.sim.suite.VEHICLE_TYPE_KEYS`, hashed with the
+    modules it loads in the user's package).
+    """
     config = default_config(scenario.highway_env_id)
     config.update(scenario.config)
-    return {"highway_env_id": scenario.highway_env_id, "config": config,
-            "lane_change": scenario.lane_change, "duration": scenario.duration,
-            "max_steps": scenario.max_steps}
+    fields = {f.name: _plain(getattr(scenario, f.name)) for f in dataclasses.fields(scenario)
+              if f.name != "path"}
+    doc: dict[str, Any] = {"env": env if env is not None else scenario.name,
+                           "scenario": fields, "highway_env_id": scenario.highway_env_id,
+                           "config": _plain(config), "lane_change": scenario.lane_change,
+                           "duration": scenario.duration, "max_steps": scenario.max_steps}
+    base = scenario.path.parent if scenario.path is not None else Path.cwd()
+    if scenario.path is not None and scenario.path.is_file():
+        doc["file_sha256"] = _sha256_file(scenario.path)
+    files: dict[str, str] = {}
+    _named_files(fields, base, files)
+    doc["files"] = files
+    vehicles = {}
+    for key in VEHICLE_TYPE_KEYS:
+        if isinstance(config.get(key), str):
+            code = _user_code(config[key].rpartition(".")[0])
+            if code is None:
+                return None
+            vehicles[key] = code
+    doc["vehicle_code"] = vehicles
+    return doc
 
 
 def policy_fingerprint(definition: PolicyDefinition) -> dict[str, Any] | None:
     """The policy part of a key, or None for a policy that cannot be cached (a Python
-    registration: no definition to hash).
+    registration: no definition to hash; an ``import`` factory without Python source).
 
-    Every string parameter naming an existing file (relative to the definition file's
-    folder, as the builders read them) adds that file's SHA-256; kind ``sb3`` adds the
-    versions of Stable-Baselines3 and torch; kind ``import`` adds the SHA-256 of the
-    factory module's source.
+    It holds the definition (name, kind, parameters), the SHA-256 of its file, of every
+    file a string parameter names (relative to the definition file's folder, as the
+    builders read them: an SB3 ``.zip``), for kind ``sb3`` the versions of
+    Stable-Baselines3 and torch, and for kind ``import`` the code of the factory's module
+    and of every module it loads in the user's package (:func:`tap_bench.usercode.
+    code_files`).
     """
     if definition.kind == "python":
         return None
     base = definition.path.parent if definition.path is not None else Path.cwd()
-    files = {}
-    for key, value in sorted(definition.params.items()):
-        if isinstance(value, str) and value:
-            path = Path(value) if Path(value).is_absolute() else base / value
-            if path.is_file():
-                files[key] = _sha256_file(path)
+    files: dict[str, str] = {}
+    _named_files(dict(definition.params), base, files)
     doc: dict[str, Any] = {"name": definition.name, "kind": definition.kind,
-                           "params": dict(definition.params), "files": files}
+                           "params": _plain(definition.params), "files": files}
+    if definition.path is not None and definition.path.is_file():
+        doc["file_sha256"] = _sha256_file(definition.path)
     if definition.kind == "sb3":  # the same weights act otherwise under another torch
         doc["versions"] = {pkg: _version(pkg) for pkg in ("stable-baselines3", "torch")}
     if definition.kind == "import":
         module = str(definition.params.get("factory", "")).partition(":")[0]
-        try:
-            spec = importlib.util.find_spec(module) if module else None
-        except (ImportError, ValueError):
-            spec = None
-        origin = Path(spec.origin) if spec is not None and spec.origin else None
-        if origin is None or not origin.is_file():
+        code = _user_code(module) if module else None
+        if code is None:
             return None  # code we cannot hash is not cached
-        doc["code"] = _sha256_file(origin)
+        doc["code"] = code
     return doc
 
 
@@ -261,20 +341,30 @@ class EpisodeCache:
     def get(self, key: str) -> CachedEpisode | None:
         """The episode of ``key``, or None when it is missing or fails a check (a failing
         entry is deleted, so that the episode is simulated and stored again)."""
+        return self.read(key)[0]
+
+    def read(self, key: str) -> tuple[CachedEpisode | None, str | None]:
+        """(the episode of ``key`` or None, why an entry there was refused or None).
+
+        The whole entry is verified (module docstring): an entry that fails a check is
+        deleted, so that the episode is simulated and stored again, and the reason comes
+        back for the run's notes. A missing entry is (None, None)."""
         path = self.path(key)
         try:
             data = path.read_bytes()
         except OSError:
-            return None
+            return None, None
         try:
             episode = _decode(data, key)
-        except (ValueError, KeyError, TypeError, OSError):  # corrupt or foreign: never used
+        except Exception as err:  # whatever is wrong, the entry is never used
             with contextlib.suppress(OSError):
                 path.unlink()
-            return None
+            reason = str(err) if isinstance(err, _Refused) else \
+                f"unreadable ({type(err).__name__}: {str(err)[:200]})"
+            return None, f"cache entry {path.name} refused and deleted: {reason}"
         with contextlib.suppress(OSError):
             os.utime(path)  # recently used: pruned last
-        return episode
+        return episode, None
 
     def put(self, key: str, doc: Mapping[str, Any], trajectories: pd.DataFrame,
             row: Mapping[str, Any], seconds: float) -> Path:
@@ -285,10 +375,11 @@ class EpisodeCache:
         trajectories.to_parquet(buffer, index=False)
         payload = buffer.getvalue()
         header = {"format": "tap-bench-episode", "format_version": ENTRY_FORMAT, "key": key,
-                  "doc": doc, "row": dict(row), "seconds": float(seconds),
+                  "doc": doc, "row": _plain_row(row), "seconds": float(seconds),
                   "payload_bytes": len(payload),
                   "payload_sha256": hashlib.sha256(payload).hexdigest(),
                   "created": time.strftime("%Y-%m-%d %H:%M:%S")}
+        header["header_sha256"] = hashlib.sha256(_canonical(header)).hexdigest()
         path = self.path(key)
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{key[:16]}.", suffix=".tmp", dir=path.parent)
@@ -392,22 +483,60 @@ def _positive(value: Any) -> bool:
         and math.isfinite(value) and value > 0
 
 
+class _Refused(ValueError):
+    """An entry that fails a check of :func:`_decode`."""
+
+
+MAX_HEADER_BYTES = 1 << 20
+"""The longest header line an entry may have [B] (a real one is about 2 kB)."""
+
+
+def _plain_row(row: Mapping[str, Any]) -> dict[str, Any]:
+    """An episode row with Python scalars (NumPy's as their Python value), as JSON keeps it."""
+    return {str(k): v.item() if hasattr(v, "item") else v for k, v in row.items()}
+
+
 def _decode(data: bytes, key: str) -> CachedEpisode:
-    """An entry's content, or ValueError/KeyError/TypeError naming the failed check."""
+    """An entry's content, verified whole; :class:`_Refused` naming the failed check (other
+    exceptions of a damaged payload are caught by the caller)."""
+    from tap_bench.sim.rollout import EPISODE_COLUMNS
+
     line, sep, payload = data.partition(b"\n")
-    if not sep:
-        raise ValueError("no header line")
-    header = json.loads(line)
+    if not sep or len(line) > MAX_HEADER_BYTES:
+        raise _Refused("no header line (or one longer than 1 MiB)")
+    try:
+        header = json.loads(line)
+    except (ValueError, RecursionError) as err:
+        raise _Refused(f"the header is not JSON ({type(err).__name__})") from None
+    if not isinstance(header, dict):
+        raise _Refused(f"the header is a {type(header).__name__}, not an object")
     if header.get("format") != "tap-bench-episode" \
             or header.get("format_version") != ENTRY_FORMAT:
-        raise ValueError("another entry format")
+        raise _Refused("another entry format")
+    types = {"key": str, "doc": dict, "row": dict, "seconds": int | float,
+             "payload_bytes": int, "payload_sha256": str, "header_sha256": str}
+    wrong = [name for name, kind in types.items() if not isinstance(header.get(name), kind)
+             or isinstance(header.get(name), bool)]
+    if wrong:
+        raise _Refused(f"header field(s) {', '.join(wrong)} missing or of the wrong type")
+    body = {k: v for k, v in header.items() if k != "header_sha256"}
+    if hashlib.sha256(_canonical(body)).hexdigest() != header["header_sha256"]:
+        raise _Refused("the header (episode row included) does not match its checksum")
     if header["key"] != key or hashlib.sha256(_canonical(header["doc"])).hexdigest() != key:
-        raise ValueError("the entry belongs to another key")
-    if len(payload) != header["payload_bytes"] \
+        raise _Refused("the entry belongs to another key")
+    if not header["payload_bytes"] or len(payload) != header["payload_bytes"] \
             or hashlib.sha256(payload).hexdigest() != header["payload_sha256"]:
-        raise ValueError("the payload does not match its hash")
-    trajectories = pd.read_parquet(io.BytesIO(payload))
+        raise _Refused("the payload is empty or does not match its hash")
     row = header["row"]
-    if not isinstance(row, dict) or row.get("status") != "ok":
-        raise ValueError("not a successful episode")
-    return CachedEpisode(trajectories, row, float(header["seconds"]))
+    if set(row) != set(EPISODE_COLUMNS) or row.get("status") != "ok":
+        raise _Refused("not the row of a successful episode")
+    if row.get("seed") != header["doc"].get("seed"):
+        raise _Refused("the episode row's seed is not the key's")
+    seconds = float(header["seconds"])
+    if not math.isfinite(seconds) or seconds < 0:
+        raise _Refused("the rollout time is not a finite number of seconds")
+    trajectories = pd.read_parquet(io.BytesIO(payload))
+    if not len(trajectories) or "scenario_id" not in trajectories.columns \
+            or trajectories["scenario_id"].nunique() != 1:
+        raise _Refused("the trajectory table is empty or not one episode's")
+    return CachedEpisode(trajectories, row, seconds)

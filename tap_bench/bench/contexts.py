@@ -89,6 +89,12 @@ def context_occurrences(trajectories: pd.DataFrame, thresholds: Thresholds | str
         :data:`CONTEXT_MEASURES`.
     """
     th = resolve_thresholds(thresholds)
+    if "is_ego" not in trajectories.columns or not len(trajectories) \
+            or not trajectories["is_ego"].fillna(False).astype(bool).any():
+        raise LabelTableError(f"{source}: no ego (no row with is_ego true); contexts are the "
+                              "interactions of each episode's ego. Give rollouts (a run's "
+                              "trajectories.parquet or 'tap-bench rollout' outputs), or mark "
+                              "the ego of each scenario with is_ego.")
     result = tap(trajectories, th, source=source, interactions="ego")
     segs = result.segments("trend")
     runs = segs[segs["axis"] == "interaction"].reset_index(drop=True)

@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from tap_bench import sdl
 from tap_bench.bench.measures import MEASURES, ego_measures
 from tap_bench.errors import LabelTableError, ParameterError, TrajectoryTableError
 from tap_bench.labelling import tap
@@ -90,7 +91,10 @@ def ego_labels(labels: pd.DataFrame, level: str, *, source: str = "label table"
     table = table.iloc[order].drop_duplicates("scenario_id", keep="first")
     keep = ["scenario_id", *_LABEL_FIELDS, *(c for c in ("interaction", "env", "policy",
                                                         "seed") if c in table.columns)]
-    return table[keep].reset_index(drop=True)
+    out = table[keep].reset_index(drop=True)
+    if "interaction" in out.columns:  # episodes compare by what happened, not by track ids
+        out["interaction"] = out["interaction"].map(sdl.anonymous_others).astype("string")
+    return out
 
 
 def episode_table(*, labels: pd.DataFrame | None = None,

@@ -110,7 +110,7 @@ def label_occurrences(labels: pd.DataFrame, axes) -> tuple[np.ndarray, list[str]
         if axis not in labels.columns:
             raise LabelTableError(f"no {axis!r} column; label with --interactions for the "
                                   "interaction axis.")
-        tokens = labels[axis].astype("string").fillna("").str.split(sdl.SEPARATOR)
+        tokens = labels[axis].astype("string").fillna("").map(sdl.split)
         for tok in dict.fromkeys(t for level in sdl.LEVELS
                                  for t in sdl.vocabulary(level, axis)):
             names.append(f"{axis}: {tok}")

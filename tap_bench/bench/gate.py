@@ -65,6 +65,8 @@ __all__ = ["BASELINE_FORMAT", "EXACT_FLIPS_MAX_SEEDS", "MAX_FAILED_SHARE", "Gate
            "write_baseline"]
 
 BASELINE_FORMAT = "tap-bench-baseline"
+BASELINE_VERSION = 2
+"""The baseline format this code writes and the newest it reads."""
 
 
 def _episode_fields() -> tuple[str, ...]:
@@ -172,12 +174,13 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
     rows = [[_json_value(v) for v in r] for r in ok[list(_episode_fields())].itertuples(
         index=False)]
     gate = run_summary.get("suite", {}).get("gate") or GateConfig().to_dict()
-    doc = {"format": BASELINE_FORMAT, "format_version": 2,
+    doc = {"format": BASELINE_FORMAT, "format_version": BASELINE_VERSION,
            **_identity(run_summary),
            "created": time.strftime("%Y-%m-%d %H:%M:%S"),
            "from_run": run_summary.get("run"), "seeds": run_summary.get("seeds"),
            "versions": run_summary.get("versions", {}), "gate": gate,
            "provenance": run_summary.get("provenance", {}),
+           "cells": sorted([str(e), str(p)] for e, p in done),
            "episodes": {"columns": list(_episode_fields()), "rows": rows}}
     path = Path(path)
     with atomic_path(path) as tmp:
@@ -210,6 +213,15 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
         raise FileFormatError(f"{path}: not a tap-bench baseline (its 'format' is "
                               f"{doc.get('format') if isinstance(doc, dict) else None!r}, "
                               f"expected {BASELINE_FORMAT!r}).")
+    version = doc.get("format_version")
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise FileFormatError(f"{path}: format_version {version!r} is not a baseline format "
+                              "version (an integer); the file was edited or damaged. Re-make "
+                              "it with --update-baseline.")
+    if version > BASELINE_VERSION:
+        raise FileFormatError(f"{path}: baseline format version {version} is newer than "
+                              f"this tap-bench reads ({BASELINE_VERSION}); update tap-bench, "
+                              "or re-make the baseline with --update-baseline.")
     try:
         eps = doc["episodes"]
         rows, columns = eps["rows"], eps["columns"]
@@ -240,7 +252,17 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
                 f"{m.name} = {values.iloc[row]!r}, not a number; a baseline holds numbers "
                 "(or null where a measure is undefined). Re-make it with --update-baseline.")
         table[m.name] = pd.to_numeric(values, errors="coerce").astype(float)
+        infinite = np.isinf(table[m.name].to_numpy())
+        if infinite.any():
+            row = int(np.flatnonzero(infinite)[0])
+            raise BaselineError(
+                f"{path}: episode row {row} ({table['env'].iloc[row]}, "
+                f"{table['policy'].iloc[row]}, seed {table['seed'].iloc[row]}) has "
+                f"{m.name} = {values.iloc[row]!r}, which is infinite (a number too large for "
+                "a float); a measure is finite or null. The baseline was edited or damaged; "
+                "re-make it with --update-baseline.")
     _check_baseline_rows(table, path)
+    _check_baseline_cells(doc, table, path)
     gate = doc.get("gate") or {}
     if not isinstance(gate, dict):
         raise FileFormatError(f"{path}: 'gate' must be an object of gate settings, got "
@@ -253,6 +275,39 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
                               "(envs/suites/*.json) or re-make the baseline with "
                               "--update-baseline.") from None
     return doc, table
+
+
+def _check_baseline_cells(doc: dict[str, Any], table: pd.DataFrame, path: Path) -> None:
+    """No episode twice, and (for baselines that list their ``cells``) every (env, policy)
+    listed holds episodes and no other does: a removed cell would otherwise pass
+    unchecked."""
+    key = table[["env", "policy", "seed"]].astype(str)
+    twice = key.duplicated()
+    if twice.any():
+        row = int(np.flatnonzero(twice.to_numpy())[0])
+        env, policy, seed = key.iloc[row]
+        raise FileFormatError(f"{path}: episode row {row} repeats ({env}, {policy}, seed "
+                              f"{seed}); each episode is one row. The baseline was edited or "
+                              "damaged; re-make it with --update-baseline.")
+    cells = doc.get("cells")
+    if cells is None:
+        return  # written before baselines listed their cells
+    if not isinstance(cells, list) or not all(
+            isinstance(c, list) and len(c) == 2 and all(isinstance(x, str) for x in c)
+            for c in cells):
+        raise FileFormatError(f"{path}: 'cells' must be a list of [env, policy] pairs; the "
+                              "baseline was edited or damaged. Re-make it with "
+                              "--update-baseline.")
+    listed = {tuple(c) for c in cells}
+    present = set(map(tuple, table[["env", "policy"]].astype(str).drop_duplicates()
+                      .to_numpy()))
+    for what, names in (("has no episode rows", sorted(listed - present)),
+                        ("is not among its cells", sorted(present - listed))):
+        if names:
+            shown = ", ".join(f"{e}/{p}" for e, p in names[:5])
+            raise BaselineError(f"{path}: {shown} {what}; the baseline's cells and "
+                                "episodes disagree (edited or damaged). Re-make it with "
+                                "--update-baseline.")
 
 
 def _check_baseline_rows(table: pd.DataFrame, path: Path) -> None:

@@ -251,7 +251,8 @@ def mean_interval(values, level: float, *, bounds: tuple[float, float] | None = 
     Args:
         values: (n,) sample.
         level: two-sided level.
-        bounds: the values a measure can take, for the all-equal case.
+        bounds: the values a measure can take: the interval stays inside them, and gives
+            the all-equal case its width.
 
     Returns:
         (low, high); NaN with fewer than 2 values.
@@ -266,7 +267,17 @@ def mean_interval(values, level: float, *, bounds: tuple[float, float] | None = 
     if sd <= 1e-12 * max(1.0, abs(mean)):
         return _constant_bounds(mean, n, level, bounds)
     half = t_quantile(0.5 + level / 2, n - 1) * sd / math.sqrt(n)
-    return mean - half, mean + half
+    return _inside(mean - half, mean + half, bounds)
+
+
+def _inside(low: float, high: float, bounds: tuple[float, float] | None
+            ) -> tuple[float, float]:
+    """An interval clipped to the values the statistic can take: a mean of a measure in
+    [0, 10] never has an interval reaching 11 (a t interval is symmetric; the mean is not
+    free to go beyond its bounds)."""
+    if bounds is None:
+        return low, high
+    return max(low, bounds[0]), min(high, bounds[1])
 
 
 def welch_interval(a, b, level: float, *, bounds: tuple[float, float] | None = None
@@ -297,7 +308,8 @@ def welch_interval(a, b, level: float, *, bounds: tuple[float, float] | None = N
             if span > 0 else (diff, diff)
     df = (va + vb) ** 2 / (va * va / (na - 1) + vb * vb / (nb - 1))
     half = t_quantile(0.5 + level / 2, max(1, math.floor(df))) * math.sqrt(va + vb)
-    return diff - half, diff + half
+    span = None if bounds is None else (bounds[0] - bounds[1], bounds[1] - bounds[0])
+    return _inside(diff - half, diff + half, span)
 
 
 # -- by measure: the interval a measure's entry calls for ---------------------------------------

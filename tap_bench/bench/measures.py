@@ -22,11 +22,14 @@ column              unit    what
 ``mean_speed``      m/s     mean ego speed over its valid steps
 ``min_headway_s``   s       smallest time headway to the leader: bumper gap / ego speed,
                             over scored steps with a leader and ego speed >= 1 m/s; capped
-                            at :data:`HEADWAY_CAP_S`
+                            at :data:`HEADWAY_CAP_S`; NaN without a leader
 ``min_ttc_s``       s       smallest time to collision with the leader: gap / closing speed
-                            over scored steps where the ego closes in; capped at
-                            :data:`TTC_CAP_S` (no conflict at all gives the cap)
-``rms_jerk``        m/s^3   root mean square of the ego's longitudinal jerk (d^2 v / dt^2)
+                            over scored steps with a leader where the ego closes in; capped
+                            at :data:`TTC_CAP_S` (a leader never closed in on gives the cap);
+                            NaN without a leader
+``rms_jerk``        m/s^3   root mean square of the ego's longitudinal jerk: the second
+                            derivative of the Savitzky-Golay smoothed speed
+                            (:data:`JERK_WINDOW_S`, order :data:`JERK_POLYORDER`)
 ==================  ======  ================================================================
 
 and ``duration_s`` (s), the time the ego was recorded, beside them.
@@ -46,8 +49,30 @@ speed less the leader's velocity along the path.
 policy), except a conflict that leads to a crash: the run of steps, ending at the crash,
 in which the ego closes in on a leader is always scored.
 
+**No leader is not an observation.** An episode with no leader on any scored step (after
+the burn-in; or, for the headway, none while the ego moved at 1 m/s or more) has no minimum
+headway and no minimum TTC: NaN, never the 10 s cap (a 10 s "no leader" value averaged in
+turned aggressive IDM's lower headways into a higher mean). Means and intervals are taken
+over the episodes that have one, and the episodes without are counted
+(:func:`leader_counts`; the benchmark's measures table has ``n_missing``). A leader that
+the ego never closes in on still gives a TTC: the cap.
+
+**Jerk.** Differentiating a 10 Hz speed twice amplifies its noise 100-fold: a real Waymo car
+drove at 13.1 m/s^3 RMS jerk by second differences, 2.8 after 0.5 s of smoothing; IDM in a
+roundabout 11.4. As nuPlan's comfort metrics do (``ego_jerk``: a Savitzky-Golay filter
+before each derivative), the acceleration is the Savitzky-Golay derivative of the speed
+and the jerk the Savitzky-Golay derivative of that acceleration, each a fit of order
+:data:`JERK_POLYORDER` over :data:`JERK_WINDOW_S` (nuPlan's 15 steps and order 2 at its
+10 Hz), over each run of consecutive steps (a run shorter than the window gives no jerk).
+nuPlan's comfort bound is |longitudinal jerk| <= :data:`JERK_COMFORT_BOUND` m/s^3
+(``max_abs_lon_jerk``); the RMS here is a mean over time, so compare it with the bound as a
+typical, not a peak, value.
+
 Surrounding vehicles are only known where the table records them (highway-env rollouts
 record every vehicle; WOMD every tracked agent): without any, headway and TTC are NaN.
+Beyond the end of the ego's record the path goes on along its lane (``map_table``) or along
+an arc of its last curvature (:mod:`tap_bench.pathframe`): a leader stopped ahead on a curve
+is found as on a straight road.
 """
 
 from __future__ import annotations
@@ -60,13 +85,22 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.errors import RegistrationError, TrajectoryTableError
-from tap_bench.pathframe import CORRIDOR_HALF_WIDTH, SAME_DIRECTION, Paths, path_frame
+from tap_bench.pathframe import (
+    CORRIDOR_HALF_WIDTH,
+    SAME_DIRECTION,
+    Paths,
+    path_frame,
+    scene_lanes,
+)
 from tap_bench.registry import Registry
 from tap_bench.trajectories import HZ
 
 __all__ = [
     "BURN_IN_S",
     "HEADWAY_CAP_S",
+    "JERK_COMFORT_BOUND",
+    "JERK_POLYORDER",
+    "JERK_WINDOW_S",
     "LOOKAHEAD",
     "MEASURES",
     "MEASURE_KINDS",
@@ -82,8 +116,11 @@ __all__ = [
     "ego_step_measures",
     "check_measure",
     "ego_steps",
+    "leader_counts",
     "register_measure",
     "run_measures",
+    "savgol_derivative",
+    "smoothed_jerk",
 ]
 
 VEHICLE_LENGTH = 5.0  # [m] highway-env's vehicle length, used where no `length` column is
@@ -91,7 +128,16 @@ LOOKAHEAD = 100.0  # [m] farthest leader considered along the path, centre to ce
 MIN_SPEED_FOR_HEADWAY = 1.0  # [m/s] below this a time headway is not meaningful
 HEADWAY_CAP_S = 10.0  # [s] headways above this count as free driving
 BURN_IN_S = 2.0  # [s] headway and TTC skip the first steps: the scenario sets those gaps
-TTC_CAP_S = 10.0  # [s] times to collision above this (or none) count as no conflict
+TTC_CAP_S = 10.0  # [s] times to collision above this count as no conflict
+JERK_WINDOW_S = 1.5
+"""[s] the Savitzky-Golay window of the jerk: 15 steps at 10 Hz, nuPlan's ``window_length``
+of its comfort metrics (``extract_ego_jerk``) at its 10 Hz simulation rate."""
+JERK_WINDOW_STEPS = round(JERK_WINDOW_S * HZ)
+JERK_POLYORDER = 2
+"""The polynomial order of the Savitzky-Golay fit (nuPlan's: 2)."""
+JERK_COMFORT_BOUND = 4.13
+"""[m/s^3] nuPlan's comfort bound on the ego's longitudinal |jerk| (``max_abs_lon_jerk``;
+its bound on the magnitude, ``max_abs_mag_jerk``, is 8.37)."""
 
 _KEEP = ("env", "policy", "seed", "source")
 
@@ -431,23 +477,79 @@ def _min_ttc(steps: EgoSteps) -> np.ndarray:
 
 def _leader_minimum(steps: EgoSteps, values: np.ndarray, cap: float) -> np.ndarray:
     """Per episode, the smallest of a measure to the leader, capped at ``cap``; NaN in an
-    episode with no other vehicle that did not crash (nothing to measure)."""
+    episode with no value on any scored step (no leader after the burn-in, or none while
+    the ego moved, and no crash): "no leader" has no minimum, it is not a 10 s
+    observation. Such episodes are counted apart (:func:`leader_counts`)."""
     out = steps.minimum(values, cap)
-    out[~steps.has_others & ~steps.any(steps.crashed)] = np.nan
+    out[~steps.any(~np.isnan(values))] = np.nan
     return out
 
 
+def leader_counts(steps: EgoSteps) -> pd.DataFrame:
+    """Per episode: ``scenario_id``, ``leader_steps`` (scored steps with a leader) and
+    ``no_leader`` (True: min headway and min TTC are NaN, not the cap)."""
+    has = (steps.leader_row >= 0) & steps.scored
+    n = np.bincount(steps.episode[has], minlength=steps.n_episodes)
+    return pd.DataFrame({"scenario_id": steps.scenario_id, "leader_steps": n,
+                         "no_leader": (n == 0) & ~steps.any(steps.crashed)})
+
+
 @register_measure("rms_jerk", unit="m/s^3", higher_is_better=False, margin=1.0,
-                  description="RMS longitudinal jerk of the ego", label="RMS jerk")
+                  description="RMS longitudinal jerk of the ego (Savitzky-Golay, 1.5 s, as "
+                  "nuPlan)", label="RMS jerk")
 def _rms_jerk(steps: EgoSteps) -> np.ndarray:
-    v = steps.speed
-    d2 = (v[2:] - 2 * v[1:-1] + v[:-2]) * HZ * HZ
-    ok = steps.consecutive(2)  # a second difference over three consecutive steps
-    ep = steps.episode[2:][ok]
-    sq = np.bincount(ep, weights=d2[ok] ** 2, minlength=steps.n_episodes)
-    n = np.bincount(ep, minlength=steps.n_episodes)
+    jerk = smoothed_jerk(steps)
+    ok = ~np.isnan(jerk)
+    sq = np.bincount(steps.episode[ok], weights=jerk[ok] ** 2, minlength=steps.n_episodes)
+    n = np.bincount(steps.episode[ok], minlength=steps.n_episodes)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.sqrt(sq / n)
+
+
+def smoothed_jerk(steps: EgoSteps) -> np.ndarray:
+    """(m,) [m/s^3] the ego's longitudinal jerk at each step: the Savitzky-Golay derivative
+    (window :data:`JERK_WINDOW_S`, order :data:`JERK_POLYORDER`) of the Savitzky-Golay
+    derivative of the speed, as nuPlan's ``extract_ego_jerk``, over each run of consecutive
+    steps; NaN in runs shorter than the window."""
+    m = len(steps.speed)
+    out = np.full(m, np.nan)
+    if not m:
+        return out
+    run_start = np.ones(m, bool)
+    run_start[1:] = ~steps.consecutive(1)
+    starts = np.flatnonzero(run_start)
+    stops = np.r_[starts[1:], m]
+    for a, b in zip(starts.tolist(), stops.tolist(), strict=False):
+        if b - a >= JERK_WINDOW_STEPS:
+            accel = savgol_derivative(steps.speed[a:b], JERK_WINDOW_STEPS, JERK_POLYORDER,
+                                      1.0 / HZ)
+            out[a:b] = savgol_derivative(accel, JERK_WINDOW_STEPS, JERK_POLYORDER, 1.0 / HZ)
+    return out
+
+
+def savgol_derivative(y: np.ndarray, window: int, order: int, delta: float) -> np.ndarray:
+    """(n,) the first derivative of ``y`` (n,) by a Savitzky-Golay filter: a least-squares
+    polynomial of ``order`` over each ``window`` (odd) samples ``delta`` apart, its slope at
+    the centre; the first and last ``window // 2`` samples take the slope of the first and
+    last window's polynomial at their place (scipy's ``savgol_filter(deriv=1,
+    mode="interp")``, without needing scipy)."""
+    y = np.asarray(y, dtype=np.float64)
+    n = len(y)
+    if window % 2 != 1 or window <= order or n < window:
+        raise ValueError(f"savgol_derivative: window {window} must be odd, above the order "
+                         f"{order} and at most the {n} samples.")
+    half = window // 2
+    x = np.arange(-half, half + 1, dtype=np.float64)
+    fit = np.linalg.pinv(np.vander(x, order + 1, increasing=True))  # (order + 1, window)
+    out = np.empty(n)
+    out[half:n - half] = np.lib.stride_tricks.sliding_window_view(y, window) @ fit[1]
+    powers = np.arange(1, order + 1)
+    for rows, coef in ((slice(0, half), fit @ y[:window]),
+                       (slice(n - half, n), fit @ y[n - window:])):
+        at = x[:half] if rows.start == 0 else x[half + 1:]
+        out[rows] = (powers[None, :] * coef[1:][None, :]
+                     * at[:, None] ** (powers - 1)[None, :]).sum(axis=1)
+    return out / delta
 
 
 SCENE_MEASURES = MeasureRegistry()
@@ -519,13 +621,16 @@ def _require(table: pd.DataFrame) -> None:
                                        column=col)
 
 
-def ego_steps(table: pd.DataFrame) -> EgoSteps:
+def ego_steps(table: pd.DataFrame, map_table: pd.DataFrame | None = None) -> EgoSteps:
     """The ego's steps of every scenario with the leader, headway and TTC along its path.
 
     Args:
         table: trajectory table with ``scenario_id``, ``track_id``, ``t``, ``x``, ``y``,
             ``heading``, ``speed`` and ``is_ego``; optional ``valid``, ``crashed`` and
             ``length`` [m]. Rows of one track must be at distinct 0.1 s steps.
+        map_table: lane centre lines (:mod:`tap_bench.maps`; a scenario's map is the one
+            whose ``map_id`` is its ``scenario_id``, else its ``env``): the ego's path goes
+            on along its lane beyond the record. None: along an arc of its last curvature.
 
     Raises:
         TrajectoryTableError: ``is_ego`` is missing, a scenario has two ego tracks, or an
@@ -576,8 +681,10 @@ def ego_steps(table: pd.DataFrame) -> EgoSteps:
     crashed_all = (table["crashed"].fillna(False).to_numpy(bool) if "crashed" in table.columns
                    else np.zeros(len(table), bool))
 
+    lanes = None if map_table is None else scene_lanes(table, sid_codes, sids, map_table)
     gap, closing, leader = _leaders(key, sid_codes.astype(np.int64), valid & ~is_ego,
-                                    ego_rows, ego_key, seg_sid, x, y, heading, speed, length)
+                                    ego_rows, ego_key, seg_sid, x, y, heading, speed, length,
+                                    lanes)
     v_ego = speed[ego_rows]
     crashed = crashed_all[ego_rows]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -621,7 +728,8 @@ def ego_steps(table: pd.DataFrame) -> EgoSteps:
                     columns=columns)
 
 
-def ego_step_measures(table: pd.DataFrame) -> pd.DataFrame:
+def ego_step_measures(table: pd.DataFrame, map_table: pd.DataFrame | None = None
+                      ) -> pd.DataFrame:
     """The ego's safety measures at every valid step of every scenario (what
     :func:`ego_measures` reduces to one row per episode), for viewers and plots.
 
@@ -636,7 +744,7 @@ def ego_step_measures(table: pd.DataFrame) -> pd.DataFrame:
         below :data:`MIN_SPEED_FOR_HEADWAY`; 0 while crashed), ``scored`` (False where the
         burn-in leaves the step out of the episode minima).
     """
-    steps = ego_steps(table)
+    steps = ego_steps(table, map_table)
     headway, ttc = _unscored(steps)
     return pd.DataFrame({
         "scenario_id": np.repeat(steps.scenario_id, steps.counts), "t": steps.t,
@@ -657,19 +765,20 @@ def _unscored(steps: EgoSteps) -> tuple[np.ndarray, np.ndarray]:
     return headway, ttc
 
 
-def ego_measures(table: pd.DataFrame) -> pd.DataFrame:
+def ego_measures(table: pd.DataFrame, map_table: pd.DataFrame | None = None) -> pd.DataFrame:
     """Safety and efficiency measures of the ego of every scenario of a trajectory table.
 
     Args:
         table: as :func:`ego_steps`; the identifying ``env``, ``policy``, ``seed``,
             ``source`` are carried over.
+        map_table: lane centre lines (:func:`ego_steps`).
 
     Returns:
         one row per scenario with an ego: ``scenario_id``, the identifying columns present,
         one column per registered measure (:data:`MEASURES`, and :data:`SCENE_MEASURES`
         when the table carries :data:`SCENE_STEP_COLUMNS`) and ``duration_s``.
     """
-    steps = ego_steps(table)
+    steps = ego_steps(table, map_table)
     out = pd.DataFrame({"scenario_id": steps.scenario_id})
     for col in _KEEP:
         if col in table.columns:
@@ -703,7 +812,7 @@ def _check_one_ego(ego_sid: np.ndarray, ego_track: np.ndarray, sids) -> None:
 
 
 def _leaders(key, scene, other_mask, ego_rows, ego_key, ego_sid, x, y, heading, speed,
-             length):
+             length, lanes=None):
     """(m,) bumper gap, closing speed and row of the leader along the ego's path at each ego
     step (NaN, NaN, -1: no leader)."""
     m = len(ego_rows)
@@ -723,7 +832,7 @@ def _leaders(key, scene, other_mask, ego_rows, ego_key, ego_sid, x, y, heading, 
     paths = Paths(scene=scene[rows], key=key[rows], track=track, x=x[rows], y=y[rows],
                   heading=heading[rows], speed=speed[rows], start=start, stop=stop)
     frame = path_frame(paths, np.r_[np.zeros(m, bool), np.ones(len(others), bool)],
-                       ahead=LOOKAHEAD, behind=1.0, lateral=CORRIDOR_HALF_WIDTH)
+                       ahead=LOOKAHEAD, behind=1.0, lateral=CORRIDOR_HALF_WIDTH, lanes=lanes)
     ahead = (frame.s > 0) & (np.abs(frame.heading_rel) <= SAME_DIRECTION)
     step, s, other = frame.step[ahead], frame.s[ahead], rows[frame.other[ahead]]
     v_along = frame.v_along[ahead]

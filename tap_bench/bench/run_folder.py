@@ -79,10 +79,18 @@ def provenance(suite: Suite | SuitePlan) -> dict[str, Any]:
             are), or a suite (they are read).
 
     Returns:
-        ``{"policies": {name: {"kind", "params", "model_sha256"?}}, "envs": {name:
-        {"highway_env_id", "version", "duration", "lane_change", "config"}}}``; a model
-        file's SHA-256 is taken from the file its definition names.
+        ``{"policies": {name: {"kind", "params", "model_sha256"?, "code_sha256"?}},
+        "envs": {name: {"highway_env_id", "version", "duration", "lane_change", "config",
+        "script"?, "vehicle_code_sha256"?}}}``; a model file's SHA-256 is taken from the
+        file its definition names; ``code_sha256`` (kind ``import``) and
+        ``vehicle_code_sha256`` (a user class as ``other_vehicles_type``) hash the code they
+        load in the user's package (:func:`tap_bench.usercode.code_digest`); ``script`` is
+        the scenario's scripted event, so that ``bench check`` names an env whose cut-in
+        or braking changed.
     """
+    from tap_bench.sim.suite import VEHICLE_TYPE_KEYS
+    from tap_bench.usercode import TRUSTED_PACKAGES, code_digest
+
     if isinstance(suite, SuitePlan):
         definitions = {d.name: d for d in suite.definitions}
         scenarios = suite.scenarios
@@ -98,13 +106,25 @@ def provenance(suite: Suite | SuitePlan) -> dict[str, Any]:
             if not path.is_absolute() and definition.path is not None:
                 path = definition.path.parent / path
             entry["model_sha256"] = _sha256(path) if path.is_file() else "(missing file)"
+        factory = definition.params.get("factory")
+        if definition.kind == "import" and isinstance(factory, str):
+            code = code_digest(factory.partition(":")[0])
+            entry["code_sha256"] = code["sha256"] if code else "(no Python source)"
         policies[name] = json.loads(json.dumps(entry, default=str))
     envs = {}
     for env, scenario in scenarios.items():
-        envs[env] = json.loads(json.dumps(
-            {"highway_env_id": scenario.highway_env_id, "version": scenario.version,
-             "duration": scenario.duration, "lane_change": scenario.lane_change,
-             "config": scenario.config}, default=str))
+        entry = {"highway_env_id": scenario.highway_env_id, "version": scenario.version,
+                 "duration": scenario.duration, "lane_change": scenario.lane_change,
+                 "config": scenario.config}
+        if scenario.script is not None:
+            entry["script"] = scenario.script.to_dict()
+        for key in VEHICLE_TYPE_KEYS:
+            module = str(scenario.config.get(key, "")).rpartition(".")[0]
+            if module and module.split(".")[0] not in TRUSTED_PACKAGES:
+                code = code_digest(module)
+                entry.setdefault("vehicle_code_sha256", {})[key] = (
+                    code["sha256"] if code else "(no Python source)")
+        envs[env] = json.loads(json.dumps(entry, default=str))
     return {"policies": policies, "envs": envs}
 
 

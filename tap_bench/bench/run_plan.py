@@ -8,6 +8,7 @@ import math
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -24,6 +25,7 @@ from tap_bench.bench.suite import Suite, load_suite
 from tap_bench.plugins import load_plugins, merge_plugins
 from tap_bench.sim.policies import PolicyDefinition
 from tap_bench.sim.rollout import resolve_policy
+from tap_bench.sim.sb3 import warn_untrusted_model
 from tap_bench.sim.suite import Scenario, parse_seeds
 from tap_bench.thresholds import Thresholds, resolve_thresholds
 
@@ -117,19 +119,25 @@ def _tasks(plan: SuitePlan, keep: bool, cache: EpisodeCache | None) -> list[_Tas
     suite, scenarios, thresholds = plan.suite, plan.scenarios, plan.thresholds
     definitions = plan.definitions
     common = {"measures": plan.measure_names}
+    for d in definitions:  # workers load models with warnings off: said here, once each
+        if d.kind == "sb3" and isinstance(d.params.get("model"), str):
+            model = Path(d.params["model"])
+            if not model.is_absolute() and d.path is not None:
+                model = d.path.parent / model
+            warn_untrusted_model(model, stacklevel=4)
     if cache is None:
         return [_Task(env, scenarios[env], d.name, d, seed, thresholds, suite.level, keep,
                       **common)
                 for env in suite.envs for d in definitions for seed in suite.seeds]
     versions = simulation_fingerprint()
-    envs = {env: scenario_fingerprint(scenarios[env]) for env in suite.envs}
+    envs = {env: scenario_fingerprint(scenarios[env], env) for env in suite.envs}
     policies = {d.name: policy_fingerprint(d) for d in definitions}
     tasks = []
     for env in suite.envs:
         for d in definitions:
             for seed in suite.seeds:
                 key = doc = None
-                if policies[d.name] is not None:
+                if policies[d.name] is not None and envs[env] is not None:
                     key, doc = episode_key(envs[env], policies[d.name], seed, versions)
                 tasks.append(_Task(env, scenarios[env], d.name, d, seed, thresholds,
                                    suite.level, keep, cache, key, doc, **common))

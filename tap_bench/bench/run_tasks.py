@@ -44,11 +44,16 @@ def _prepare_worker(task: _Task) -> None:
             "worker imports it.")
 
 
-def _episode(task: _Task) -> tuple[pd.DataFrame, dict[str, Any], bool, float]:
+def _episode(task: _Task, note: str | None = None
+             ) -> tuple[pd.DataFrame, dict[str, Any], bool, float, str | None]:
     """One episode of ``task``: (trajectories, its row of the rollout table, whether it was
-    read from the cache, seconds it took), read from the cache or simulated (in a worker)."""
+    read from the cache, seconds it took, why a cache entry of it was refused), read from
+    the cache or simulated (in a worker). ``note``: why an entry was refused already."""
     t0 = time.perf_counter()
-    cached = task.cache.get(task.key) if task.cache is not None and task.key else None
+    cached = None
+    if task.cache is not None and task.key:
+        cached, refused = task.cache.read(task.key)
+        note = note or refused
     if cached is not None:
         trajectories, row = cached.trajectories, cached.row
     else:
@@ -60,7 +65,7 @@ def _episode(task: _Task) -> tuple[pd.DataFrame, dict[str, Any], bool, float]:
                 task.cache.put(task.key, task.key_doc or {}, trajectories, row,
                                time.perf_counter() - t0)
     return (trajectories.reset_index(drop=True), row, cached is not None,
-            time.perf_counter() - t0)
+            time.perf_counter() - t0, note)
 
 
 def _rows(rows: list[dict[str, Any]]) -> pd.DataFrame:
@@ -70,7 +75,7 @@ def _rows(rows: list[dict[str, Any]]) -> pd.DataFrame:
 
 
 def _label_together(tasks: tuple[_Task, ...],
-                    got: list[tuple[pd.DataFrame, dict[str, Any], bool, float]]
+                    got: list[tuple[pd.DataFrame, dict[str, Any], bool, float, str | None]]
                     ) -> list[dict[str, Any]]:
     """Label and measure the episodes ``got`` of ``tasks`` (one env and policy) as one
     table: one TAP call and one call of the measures for all of them, split back into one
@@ -78,7 +83,7 @@ def _label_together(tasks: tuple[_Task, ...],
     so each result is the one the episode gives alone (tested), at the cost of about one
     call (``tap`` costs mostly per call on small tables) instead of one per episode."""
     first = tasks[0]
-    with_rows = [k for k, (trajectories, _, _, _) in enumerate(got) if len(trajectories)]
+    with_rows = [k for k, (trajectories, *_) in enumerate(got) if len(trajectories)]
     results: list[dict[str, Any]] = [{} for _ in tasks]
     labels = segments = eps = None
     if with_rows:
@@ -100,15 +105,16 @@ def _label_together(tasks: tuple[_Task, ...],
                       for name, table in (("labels", labels), ("segments", segments))}
         eps_by_seed = _split(eps, "seed")
         for k in with_rows:
-            episode_trajectories, _, cached, seconds = got[k]
+            episode_trajectories, _, cached, seconds, note = got[k]
             sid = episode_trajectories["scenario_id"].iat[0]
             results[k] = {
                 "episodes": eps_by_seed[tasks[k].seed],
                 "labels": by_episode["labels"].get(sid, _empty(labels)),
                 "segments": by_episode["segments"].get(sid, _empty(segments)),
                 "trajectories": episode_trajectories if tasks[k].keep_trajectories else None,
-                "timings": {"rollout": seconds, **share}, "cached": cached}
-    for k, (_, row, cached, seconds) in enumerate(got):
+                "timings": {"rollout": seconds, **share}, "cached": cached,
+                "cache_note": note}
+    for k, (_, row, cached, seconds, note) in enumerate(got):
         if k not in with_rows:  # nothing to label (a failed rollout)
             t2 = time.perf_counter()
             eps = episode_table(episodes=_rows([row]), level=tasks[k].level,
@@ -117,7 +123,7 @@ def _label_together(tasks: tuple[_Task, ...],
                           "segments": pd.DataFrame(), "trajectories": None,
                           "timings": {"rollout": seconds,
                                       "measures": time.perf_counter() - t2},
-                          "cached": cached}
+                          "cached": cached, "cache_note": note}
     return results
 
 
@@ -125,10 +131,11 @@ def _empty(table: pd.DataFrame) -> pd.DataFrame:
     return table.iloc[:0].reset_index(drop=True)
 
 
-def _run_task(task: _Task) -> dict[str, Any]:
-    """Roll out (or read from the cache), label and measure one episode (in a worker)."""
+def _run_task(task: _Task, note: str | None = None) -> dict[str, Any]:
+    """Roll out (or read from the cache), label and measure one episode (in a worker).
+    ``note``: why a cache entry of this episode was refused already."""
     _prepare_worker(task)
-    return _label_together((task,), [_episode(task)])[0]
+    return _label_together((task,), [_episode(task, note)])[0]
 
 
 def _failed_task(task: _Task, message: str) -> dict[str, Any]:

@@ -48,6 +48,7 @@ import contextlib
 import math
 import os
 import time
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -81,7 +82,9 @@ from tap_bench.bench.scenarios import match_scenarios
 from tap_bench.bench.scoring import Scores, score
 from tap_bench.bench.suite import Suite
 from tap_bench.errors import (
+    CacheEntryWarning,
     EpisodesFailedError,
+    OutputPathError,
     ParameterError,
     RunExistsError,
 )
@@ -111,6 +114,20 @@ class RunResult:
     episodes: pd.DataFrame
     scores: Scores
     report: Path
+
+
+def _check_apart(output: Path, cache_root: Path) -> None:
+    """The run folder and the episode cache must not hold one another: ``--overwrite``
+    would delete the cache with the run, or the cache's files would fill the run folder.
+
+    Raises:
+        OutputPathError: naming both folders.
+    """
+    out, root = Path(output).resolve(), Path(cache_root).expanduser().resolve()
+    if out == root or root in out.parents or out in root.parents:
+        raise OutputPathError(f"{output}: the run folder and the episode cache ({cache_root}) "
+                              "overlap; give the run folder (-o) and the cache (--cache) "
+                              "separate places.")
 
 
 def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
@@ -167,6 +184,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     suite, thresholds = plan.suite, plan.thresholds
     if cache is not None and not isinstance(cache, EpisodeCache):
         cache = EpisodeCache(Path(cache))
+    if cache is not None:
+        _check_apart(output, cache.root)
     runner = resolve_backend(backend, workers)
     timings: dict[str, float] = {}
     t_start = time.perf_counter()
@@ -191,6 +210,13 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
                   for r in results for row in r["episodes"].itertuples()]
         raise EpisodesFailedError(f"the {len(results)} episode(s) of suite {suite.name}",
                                   errors)
+    refused = [r["cache_note"] for r in results if r.get("cache_note")]
+    for note in refused[:5]:
+        warnings.warn(f"{note}; its episode was simulated again.", CacheEntryWarning,
+                      stacklevel=2)
+    if len(refused) > 5:
+        warnings.warn(f"{len(refused) - 5} more cache entries refused and simulated again "
+                      "(summary.json lists them all).", CacheEntryWarning, stacklevel=2)
     for key in ("rollout", "labelling", "measures"):
         timings[f"{key}_cpu_in_workers"] = sum(r["timings"].get(key, 0.0) for r in results)
     episodes = pd.concat([r["episodes"] for r in results], ignore_index=True)
@@ -255,7 +281,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
                      "overhead": _round(estimate.overhead_seconds), "basis": estimate.basis},
         "cache": None if cache is None else {
             "dir": str(cache.root), "cached": sum(r["cached"] for r in results),
-            "simulated": sum(not r["cached"] for r in results)},
+            "simulated": sum(not r["cached"] for r in results),
+            "refused": refused},
     }
     t0 = time.perf_counter()
     roads = None

@@ -31,8 +31,10 @@ class Scores:
 
     Attributes:
         label_counts: env, policy, sdl, count, share: each policy's ego label distribution.
-        measures: env (and "all"), policy, measure, n, mean, low, high: per-policy means of
-            the safety and efficiency measures (t intervals; Wilson for the crash rate).
+        measures: env (and "all"), policy, measure, n, n_missing, mean, low, high:
+            per-policy means of the safety and efficiency measures over the n episodes that
+            have a value (t intervals inside the measure's bounds; Wilson for the crash
+            rate); n_missing episodes have none (min headway and TTC without a leader).
         paired: env, policy_a, policy_b, n_pairs, n_dropped, agreement (+ interval).
         paired_measures: the paired measure differences and probabilities of improvement.
         paired_labels: the paired per-label frequency differences (per env).
@@ -89,22 +91,26 @@ def _env_groups(table: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
 
 def policy_measures(episodes: pd.DataFrame, config: BootstrapConfig) -> pd.DataFrame:
     """Mean of each measure per env (and pooled: every episode of the policy) and policy,
-    with the interval each measure's entry calls for (Student's t over episodes; Wilson's
-    for a rate such as the crash rate)."""
+    with the interval each measure's entry calls for (Student's t over the episodes that
+    have a value, inside the measure's bounds; Wilson's for a rate such as the crash rate);
+    ``n_missing`` counts the episodes without a value (no leader after the burn-in: no
+    minimum headway or TTC)."""
     ok = episodes[episodes["status"] == "ok"]
     rows = []
     for policy, pol in ok.groupby("policy", sort=True):
         for env, sub in _env_groups(pol):
             for m in MEASURES:
                 x = sub[m.name].to_numpy(float, na_value=np.nan)
+                missing = int((~np.isfinite(x)).sum())  # e.g. no leader: no min headway
                 x = x[np.isfinite(x)]
                 n = len(x)
                 # a rate gets Wilson's interval (honest at 0 and 1), a mean Student's t
                 low, high = measure_interval(m, x, config.level)
                 rows.append({"env": env, "policy": policy, "measure": m.name, "n": n,
-                             "mean": float(x.mean()) if n else np.nan, "low": low,
-                             "high": high})
-    return pd.DataFrame(rows, columns=["env", "policy", "measure", "n", "mean", "low", "high"])
+                             "n_missing": missing, "mean": float(x.mean()) if n else np.nan,
+                             "low": low, "high": high})
+    return pd.DataFrame(rows, columns=["env", "policy", "measure", "n", "n_missing", "mean",
+                                       "low", "high"])
 
 
 def _label_counts(episodes: pd.DataFrame) -> pd.DataFrame:

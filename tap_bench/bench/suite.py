@@ -29,6 +29,7 @@ Every field but ``name``, ``envs``, ``policies`` and ``seeds`` has the default s
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -47,6 +48,8 @@ from tap_bench.sim.suite import parse_seeds, read_json, scenario_names
 __all__ = ["GateConfig", "Suite", "available_suites", "default_margins",
            "gate_metrics", "load_suite", "suite_from_dict"]
 
+MAX_PERMUTATIONS = 100_000
+"""The most permutations the gate's test may ask for (ten times the default 9999)."""
 LABEL_TV_MARGIN = 0.20
 """Default margin of ``label_tv``, the total variation distance of label distributions."""
 
@@ -108,14 +111,21 @@ class GateConfig:
         # every metric has a margin: those not given take their registered default
         object.__setattr__(self, "margins", {**default_margins(), **self.margins})
         for key, value in self.margins.items():
-            if not isinstance(value, int | float) or isinstance(value, bool) or value < 0:
-                raise ParameterError(f"gate margin {key!r}", value, "a number >= 0")
+            if not isinstance(value, int | float) or isinstance(value, bool) \
+                    or not math.isfinite(value) or value < 0:
+                raise ParameterError(f"gate margin {key!r}", value, "a finite number >= 0")
         if isinstance(self.alpha, bool) or not isinstance(self.alpha, int | float) \
                 or not 0 < self.alpha < 1:
             raise ParameterError("gate alpha", self.alpha, "a number in (0, 1)")
         if isinstance(self.n_permutations, bool) or not isinstance(self.n_permutations, int) \
                 or self.n_permutations < 99:
             raise ParameterError("gate n_permutations", self.n_permutations, "an integer >= 99")
+        if self.n_permutations > MAX_PERMUTATIONS:
+            raise ParameterError(
+                "gate n_permutations", self.n_permutations, f"at most {MAX_PERMUTATIONS:,}",
+                message=f"gate n_permutations {self.n_permutations:,} is more than the limit "
+                f"of {MAX_PERMUTATIONS:,} (tap_bench.bench.suite.MAX_PERMUTATIONS): the "
+                "smallest p-value is 1/(n+1) already at 1e-5, and memory grows with n.")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ParameterError("gate seed", self.seed, "a non-negative integer")
 

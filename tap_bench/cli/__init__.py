@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import importlib
 import os
 import signal
@@ -124,6 +125,10 @@ def _terminate(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
+_FULL_OR_READ_ONLY = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS}
+"""Errors of the place written to, not of the input or the code: one message, exit 2."""
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``tap-bench``; returns the process exit code.
 
@@ -168,6 +173,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         with contextlib.suppress(OSError):
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except OSError as err:
+        if err.errno not in _FULL_OR_READ_ONLY:
+            raise
+        where = f" writing {err.filename}" if err.filename else ""
+        print(f"tap-bench {args.command}: error: {os.strerror(err.errno).lower()}{where}; "
+              "nothing partial was left (outputs are written atomically). Free some space, "
+              "or write to another place (-o).", file=sys.stderr)
+        return 2
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)

@@ -7,7 +7,7 @@ import argparse
 from tap_bench.labelling import tap
 from tap_bench.openlabel import write_openlabel
 from tap_bench.sdl import LEVELS
-from tap_bench.tableio import check_outputs, read_table
+from tap_bench.tableio import check_folder_output, check_outputs, check_replace, read_table
 
 FORMATS = ("openlabel",)
 
@@ -26,6 +26,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--format", choices=FORMATS, default="openlabel", help="(openlabel)")
     p.add_argument("-o", "--output", required=True,
                    help="a .json file (one scenario) or a directory (one file per scenario)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the .json file, or the folder an earlier export wrote (a "
+                   "folder holding files tap-bench did not write is never replaced)")
     p.add_argument("--level", default="maneuver", choices=LEVELS,
                    help="SDL level exported (default maneuver)")
     p.add_argument("--thresholds", default="paper",
@@ -37,13 +40,17 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.output.endswith(".json"):  # a directory of documents is made by the writer
-        check_outputs([args.output], [args.input])  # before any work
+    if args.output.endswith(".json"):  # before any work
+        check_outputs([args.output], [args.input])
+        check_replace([args.output], args.overwrite)
+    else:
+        check_folder_output(args.output, args.overwrite)
     table = read_table(args.input)
     if "axis" not in table.columns:  # a trajectory table: label it
         table = tap(table, args.thresholds, source=str(args.input),
                     interactions=args.interactions).segments(args.level)
-    written = write_openlabel(table, args.output, level=args.level, source=str(args.input))
+    written = write_openlabel(table, args.output, level=args.level, source=str(args.input),
+                              overwrite=args.overwrite)
     print(f"wrote {len(written)} OpenLABEL document(s) "
           f"({len(table[table['level'] == args.level]) if 'level' in table else len(table)} "
           f"label runs at level {args.level}) to {args.output}")

@@ -9,6 +9,7 @@ import pandas as pd
 
 from tap_bench.bench.bootstrap import add_bootstrap_arguments, bootstrap_from_args
 from tap_bench.bench.gap import behaviour_gap, labelled_with_speed
+from tap_bench.errors import LabelTableError
 from tap_bench.sdl import LEVELS
 from tap_bench.tableio import beside, check_outputs, read_table, write_tables
 
@@ -49,11 +50,19 @@ def run(args: argparse.Namespace) -> int:
     check_outputs([args.output, labels_path], [args.policy_table, args.reference])
     config = bootstrap_from_args(args)
     table = read_table(args.policy_table)
+    if not len(table):
+        raise LabelTableError(f"{args.policy_table}: the table is empty; gap compares a "
+                              "policy's episodes with the reference. Give a trajectory or "
+                              "label table with rows (a run's trajectories.parquet, a "
+                              "rollout output).")
     ref_table = read_table(args.reference)
     reference = labelled_with_speed(ref_table, args.level, interactions="all",
                                     thresholds=args.thresholds, source=str(args.reference))
     policies = (sorted(table["policy"].dropna().unique()) if "policy" in table.columns
                 else [Path(args.policy_table).name.split(".")[0]])
+    if not policies:
+        raise LabelTableError(f"{args.policy_table}: no row names a policy (the 'policy' "
+                              "column is empty); name the policy of each row.")
     rows, per_label = [], []
     for name in policies:
         mine = table[table["policy"] == name] if "policy" in table.columns else table

@@ -22,6 +22,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     p.add_argument("-o", "--output", required=True,
                    help="model file, e.g. policies/dqn-highway.zip")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the model, definition and curve of an earlier 'tap-bench "
+                   "train' at -o (files it did not write are never replaced)")
     p.add_argument("--n-envs", type=int, default=None,
                    help="training envs in parallel processes (default 2)")
     p.add_argument("--exact", action="store_true",
@@ -79,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
     result = train(args.algo, args.env, timesteps=args.timesteps, seed=args.seed,
                    output=args.output, n_envs=n_envs, fast=not args.exact, curve=curve,
                    log_dir=args.log_dir, verbose=args.verbose, command=command,
-                   keep=args.keep)
+                   keep=args.keep, overwrite=args.overwrite)
     print(f"trained {args.algo} on {args.env} for {result.timesteps} steps in "
           f"{result.train_seconds:.0f} s ({result.steps_per_second:.1f} steps/s, "
           f"{result.episodes} episodes)")

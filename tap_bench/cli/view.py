@@ -9,6 +9,7 @@ from pathlib import Path
 
 from tap_bench.bench.runner import run_viewer
 from tap_bench.bench.viewer import write_womd_viewer
+from tap_bench.bench.viewer.build import DEFAULT_VIEW_SCENARIOS, MAX_VIEW_SCENARIOS
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -29,6 +30,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="WOMD files: TAP thresholds, a preset or JSON file (default paper)")
     p.add_argument("--level", default="maneuver",
                    help="WOMD files: SDL level of the timelines (default maneuver)")
+    p.add_argument("--max-scenarios", type=int, default=DEFAULT_VIEW_SCENARIOS,
+                   help=f"WOMD files: show the first N scenarios, read one record at a time "
+                   f"(default {DEFAULT_VIEW_SCENARIOS}, at most {MAX_VIEW_SCENARIOS}: each "
+                   "costs about 14 MB while the viewer is built)")
     p.add_argument("--rebuild", action="store_true",
                    help="write a run's viewer again even when it exists")
     p.add_argument("--no-open", action="store_true", help="write it, do not open a browser")
@@ -52,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         output = Path(args.output or "womd-viewer")
         page = write_womd_viewer(args.paths, output, thresholds=args.thresholds,
-                                 level=args.level)
+                                 level=args.level, max_scenarios=args.max_scenarios)
         print(f"wrote {output}/ in {time.perf_counter() - start:.1f} s "
               f"({_size(output) / 1e6:.1f} MB)")
     uri = page.resolve().as_uri()

@@ -286,7 +286,7 @@ def plot_curve(curve: pd.DataFrame, path: str | os.PathLike, *, title: str = "",
             textcoords="offset points", ha="right" if right else "left", fontsize=7,
             color="0.3")
     if title:
-        fig.suptitle(title, fontsize=10)
+        fig.suptitle(title, fontsize=10, parse_math=False)  # a model name is not math
     path = Path(path)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=100, bbox_inches="tight", format="png")

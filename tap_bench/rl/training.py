@@ -52,9 +52,9 @@ from tap_bench.sim.sb3 import algorithm_class
 from tap_bench.sim.scenario_env import ScenarioEnv, get_scenario
 from tap_bench.sim.schema import env_class
 from tap_bench.sim.suite import Scenario
-from tap_bench.tableio import atomic_path, write_table
+from tap_bench.tableio import atomic_path, check_replace, write_table
 
-__all__ = ["DEFAULT_N_ENVS", "HYPERPARAMETERS", "TrainingResult", "train"]
+__all__ = ["DEFAULT_N_ENVS", "HYPERPARAMETERS", "MAX_N_ENVS", "TrainingResult", "train"]
 
 HYPERPARAMETERS: dict[str, dict[str, Any]] = {
     # highway-env's published Stable-Baselines3 settings for its highway tasks.
@@ -73,6 +73,9 @@ of all envs together."""
 
 DEFAULT_N_ENVS = 2
 """Training envs stepped in parallel processes by default: one per core of a 2-core machine."""
+MAX_N_ENVS = 64
+"""The most training envs (each a worker process of about 50 MB): more than any machine
+tap-bench is run on has cores to step them."""
 
 
 @dataclass(frozen=True)
@@ -194,7 +197,8 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
           hyperparameters: Mapping[str, Any] | None = None, n_envs: int = DEFAULT_N_ENVS,
           fast: bool = True, curve: CurveConfig | None = None,
           log_dir: str | os.PathLike | None = None, verbose: int = 0,
-          command: str | None = None, keep: str = "last") -> TrainingResult:
+          command: str | None = None, keep: str = "last", overwrite: bool = False
+          ) -> TrainingResult:
     """Train ``algo`` on scenario ``env`` for ``timesteps`` decisions and save it.
 
     Args:
@@ -220,9 +224,14 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
             of the curve's evaluation with the highest mean return, the first of equal
             ones: model selection on the curve's seeds, which the benchmark's evaluation
             seeds 1000+ do not overlap; needs the curve). The definition records which.
+        overwrite: replace an earlier model of ``tap-bench train`` at ``output`` (its
+            ``.zip``, ``.json``, ``.curve.csv`` and ``.curve.png``); files tap-bench did not
+            write are never replaced.
 
     Raises:
         ParameterError: ``timesteps``, ``n_envs``, ``output`` or ``keep`` is not usable.
+        RunExistsError: an output exists and ``overwrite`` is False.
+        OutputPathError: an output exists that ``tap-bench train`` did not write.
     """
     output = Path(output)
     if output.suffix != ".zip":
@@ -232,6 +241,11 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
         raise ParameterError("timesteps", timesteps, "an integer >= 1")
     if isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1:
         raise ParameterError("n_envs", n_envs, "an integer >= 1 (training envs)")
+    if n_envs > MAX_N_ENVS:
+        raise ParameterError("n_envs", n_envs, f"at most {MAX_N_ENVS}", message=(
+            f"n_envs (--n-envs) {n_envs} is more than the limit of {MAX_N_ENVS} "
+            "(tap_bench.rl.training.MAX_N_ENVS): each training env is a process of about "
+            "50 MB; 1000 started 288 processes and 13.5 GB before failing."))
     if keep not in ("last", "best"):
         raise ParameterError("keep", keep, "'last' or 'best'")
     if keep == "best" and curve is None:
@@ -239,6 +253,7 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
             "keeping the best weights needs the learning curve's evaluations: train with a "
             "curve (tap-bench train: drop --no-curve; train(): pass curve=CurveConfig()), "
             "or keep the last weights."))
+    check_replace(training_outputs(output), overwrite, ours=lambda _: _trained_here(output))
     cls = algorithm_class(algo)
     algo = algo.lower()
     import torch
@@ -358,6 +373,29 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
         result = dataclasses.replace(result, curve=table, curve_path=curve_path,
                                      plot_path=plot_path)
     return result
+
+
+def training_outputs(output: str | os.PathLike) -> list[Path]:
+    """The files :func:`train` writes for model ``output``: the model, its definition and
+    its learning curve (table and plot)."""
+    output = Path(output)
+    stem = output.with_suffix("")
+    return [output, output.with_suffix(".json"), Path(f"{stem}.curve.csv"),
+            Path(f"{stem}.curve.png")]
+
+
+def _trained_here(output: Path) -> bool:
+    """Whether the files of model ``output`` are those of an earlier ``tap-bench train``:
+    the definition beside it is one train wrote for that model."""
+    definition = output.with_suffix(".json")
+    try:
+        doc = json.loads(definition.read_text())
+    except (OSError, ValueError):
+        return False
+    params = doc.get("params") if isinstance(doc, dict) else None
+    return isinstance(params, dict) and doc.get("kind") == "sb3" \
+        and params.get("model") == output.name and "command" in params \
+        and "with tap-bench" in str(doc.get("description", ""))
 
 
 def _observation_config(scenario: Scenario) -> dict[str, Any]:

@@ -13,13 +13,18 @@ kind              policy
 ``log``           the human: replays the recorded ego of a real scene (``tap_bench/womd-v0``
                   only), so its trajectory and labels are the log's
 ``sb3``           a Stable-Baselines3 model from a ``.zip`` (:mod:`tap_bench.sim.sb3`)
-``import``        your own class or function, ``params: {"factory": "module:name", ...}``:
-                  called as ``factory(name, **other_params)``; the module must be importable
-                  (on ``PYTHONPATH``), so it also works in worker processes and on Ray
+``import``        your own class, ``params: {"factory": "module:Class", ...}``: built as
+                  ``Class(name, **other_params)``; the module must be importable (on
+                  ``PYTHONPATH``), so it also works in worker processes and on Ray
 ================  ===========================================================================
 
 Policies defined in Python in this process only are added with :func:`register_policy`
 (they run with ``workers=1``; use an ``import`` definition file for parallel runs).
+
+Definition files are code: a file of kind ``import`` runs the module it names, and an
+``sb3`` model file holds pickles. Before anything is called, the factory is checked to be a
+class implementing :class:`Policy` (:mod:`tap_bench.usercode`); use only definition files
+and models you trust.
 """
 
 from __future__ import annotations
@@ -262,23 +267,27 @@ _PYTHON_DESCRIPTIONS: dict[str, str] = {}
 
 
 def import_policy(name: str, factory: str, **params: Any) -> Policy:
-    """The policy that ``factory`` (``"module:attribute"``) builds: ``factory(name, **params)``.
+    """The policy of the class ``factory`` (``"module:Class"``): ``Class(name, **params)``.
+
+    A definition file is code: before anything is called, the module's source must define
+    ``Class`` as a class (read without running it), and, imported, ``Class`` must implement
+    the :class:`Policy` protocol (``reset`` and ``act`` methods); see
+    :mod:`tap_bench.usercode`. So ``"os:system"`` or ``"subprocess:Popen"`` is refused, never
+    run.
 
     Raises:
-        ParameterError: ``factory`` is not ``module:attribute``, or cannot be imported.
+        ParameterError: ``factory`` is not ``module:Class``, cannot be imported, is not a
+            class or does not implement the protocol (nothing of it was called), or the
+            object it built is not a Policy.
     """
-    module_name, _, attribute = str(factory).partition(":")
-    if not module_name or not attribute:
-        raise ParameterError("factory", factory, "'module:attribute' (an importable class or "
-                             "function)")
-    try:
-        target = getattr(importlib.import_module(module_name), attribute)
-    except (ImportError, AttributeError) as err:
-        raise ParameterError("factory", factory, "an importable 'module:attribute'",
-                             hint=f"({err}; is its folder on PYTHONPATH?)") from err
+    from tap_bench.usercode import import_checked_class
+
+    target = import_checked_class(
+        str(factory), "factory", kind="a class implementing the Policy protocol (name, "
+        "observation, reset(env, seed=), act(obs))", methods=("reset", "act"))
     policy = target(name, **params)
     if not isinstance(policy, Policy):
-        raise ParameterError("factory", factory, "a callable returning a Policy (name, "
+        raise ParameterError("factory", factory, "a class whose objects are Policies (name, "
                              "observation, reset(env, seed=), act(obs))")
     return policy
 

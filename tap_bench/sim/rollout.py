@@ -308,7 +308,10 @@ def check_policy(policy: str | os.PathLike | Policy | PolicyDefinition,
     Raises:
         RegistrationError: naming the policy and what is wrong.
     """
-    spec = resolve_policy(policy)
+    if isinstance(policy, str | os.PathLike | PolicyDefinition):
+        spec = resolve_policy(policy)
+    else:
+        spec = policy  # checked as it is
     built = spec.build() if isinstance(spec, PolicyDefinition) else spec
     name = getattr(built, "name", None)
     if not isinstance(built, Policy) or not isinstance(name, str) or not name:

@@ -24,7 +24,8 @@ from tap_bench.errors import (
     did_you_mean,
 )
 
-__all__ = ["ALGORITHMS", "SB3Policy", "UntrustedModelWarning", "load_model"]
+__all__ = ["ALGORITHMS", "SB3Policy", "UntrustedModelWarning", "load_model",
+           "warn_untrusted_model"]
 
 ALGORITHMS = ("a2c", "dqn", "ppo")
 """Stable-Baselines3 algorithms tap-bench can train and load."""
@@ -81,11 +82,18 @@ def load_model(path: str | os.PathLike, algo: str | None = None) -> Any:
         raise FileFormatError(f"{path}: no such model file.")
     algo = algo or _algo_of(path)
     cls = algorithm_class(algo)
+    warn_untrusted_model(path, stacklevel=3)
+    return cls.load(str(path), device="cpu")
+
+
+def warn_untrusted_model(path: str | os.PathLike, *, stacklevel: int = 2) -> None:
+    """Warn (:class:`UntrustedModelWarning`) that loading the model ``path`` can run code
+    from it. ``bench run`` calls it in the parent once per model, before the run: its
+    workers load models with warnings off."""
     warnings.warn(
         f"{path}: Stable-Baselines3 model files contain Python pickles, and loading one can "
         "run code from it. Load only model files you trust.", UntrustedModelWarning,
-        stacklevel=2)
-    return cls.load(str(path), device="cpu")
+        stacklevel=stacklevel + 1)
 
 
 class SB3Policy:

@@ -121,6 +121,7 @@ class ScenarioEnv(gym.Wrapper):
                     f"or {FAST_SIMULATION_FREQUENCY} Hz, or fast=False."))
             config = {**config, "simulation_frequency": FAST_SIMULATION_FREQUENCY}
         cls = env_class(scenario.highway_env_id)
+        _check_vehicle_types(config, scenario)
         # highway-env builds a first scene in its constructor
         with guard_class_attributes(f"building {scenario.env_id}"):
             inner = cls(config=config, render_mode=render_mode)
@@ -210,6 +211,23 @@ class ScenarioEnv(gym.Wrapper):
             **columns: constant columns to add, e.g. ``policy="idm"``.
         """
         return self.recorder.table(**columns)
+
+
+def _check_vehicle_types(config: Mapping[str, Any], scenario: Scenario) -> None:
+    """Each vehicle class the config names, checked as code before highway-env imports and
+    builds it (:mod:`tap_bench.usercode`): defined as a class, a subclass of highway-env's
+    ``Vehicle``."""
+    from highway_env.vehicle.kinematics import Vehicle
+
+    from tap_bench.sim.suite import VEHICLE_TYPE_KEYS
+    from tap_bench.usercode import import_checked_class
+
+    for key in VEHICLE_TYPE_KEYS:
+        if isinstance(config.get(key), str):
+            import_checked_class(config[key], key, separator=".", base=Vehicle,
+                                 kind="a highway-env vehicle class (a subclass of "
+                                 "highway_env.vehicle.kinematics.Vehicle)",
+                                 source=str(scenario.path or scenario.env_id))
 
 
 def make_env(scenario: str | os.PathLike | Scenario, *, config: Mapping[str, Any] | None = None,

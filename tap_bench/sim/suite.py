@@ -40,8 +40,11 @@ from tap_bench.sim.schema import SPACES, default_config, space_parameters
 from tap_bench.sim.vehicles import LANE_CHANGE_SETTINGS
 
 __all__ = [
+    "MAX_DURATION",
     "MAX_SEED",
     "MAX_SEEDS",
+    "SIZE_LIMITS",
+    "VEHICLE_TYPE_KEYS",
     "SIMULATION_FREQUENCY",
     "Scenario",
     "check_config",
@@ -161,6 +164,18 @@ def _too_many(source: str, value: object, count: int) -> ParameterError:
             f"{source}: {count:,} seeds, more than the maximum of {MAX_SEEDS:,} "
             "(tap_bench.sim.suite.MAX_SEEDS) in one list; run the seeds in several lists "
             "(say '0-99999', then '100000-199999')."))
+
+
+MAX_DURATION = 3600.0
+"""The longest episode a scenario may ask for [s] of simulated time: an hour is 36,000 rows
+per vehicle, 120 times the default suite's longest episode (a duration of 1e9 s never
+ended)."""
+SIZE_LIMITS: Mapping[str, int] = {"vehicles_count": 1000, "lanes_count": 50}
+"""The largest value of highway-env config keys that size the scene: each costs time and
+memory at every step (100,000 vehicles hung the simulator in its first reset)."""
+VEHICLE_TYPE_KEYS = ("other_vehicles_type",)
+"""highway-env config keys naming a vehicle class that highway-env imports by name: checked
+as code before any import (:mod:`tap_bench.usercode`)."""
 
 
 _AT_MOST = f"at most {MAX_SEEDS:,} seeds (tap_bench.sim.suite.MAX_SEEDS)"
@@ -320,6 +335,18 @@ def check_config(highway_env_id: str, config: Mapping[str, Any], *, source: str 
             _check_space(key, value, defaults[key], where)
         else:
             _check_value(key, value, defaults[key], where)
+    for key, limit in SIZE_LIMITS.items():
+        value = config.get(key)
+        if isinstance(value, int | float) and not isinstance(value, bool) \
+                and not value <= limit:
+            raise ParameterError(key, value, f"at most {limit:,}", message=(
+                f"{where}: {key} {value!r} is larger than the limit of {limit:,} "
+                f"(tap_bench.sim.suite.SIZE_LIMITS); a scene that size takes hours a step."))
+    for key in VEHICLE_TYPE_KEYS:
+        if isinstance(config.get(key), str):
+            from tap_bench.usercode import check_class_name
+
+            check_class_name(config[key], key, separator=".", source=where)
     freq = config.get("policy_frequency", defaults.get("policy_frequency"))
     if not isinstance(freq, int) or isinstance(freq, bool) or freq <= 0 \
             or SIMULATION_FREQUENCY % freq:
@@ -350,6 +377,10 @@ def _build(doc: Any, *, source: str, path: Path | None) -> Scenario:
             or not math.isfinite(duration) or duration <= 0:
         raise FileFormatError(f"{source}: duration {duration!r} must be a positive number of "
                               "seconds.")
+    if duration > MAX_DURATION:
+        raise ParameterError("duration", duration, f"at most {MAX_DURATION:g} s", message=(
+            f"{source}: duration {duration!r} s is longer than the limit of {MAX_DURATION:g} "
+            "s (tap_bench.sim.suite.MAX_DURATION) of simulated time per episode."))
     lane_change = doc.get("lane_change", "default")
 
     if lane_change not in LANE_CHANGE_SETTINGS:

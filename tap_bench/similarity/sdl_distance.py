@@ -27,7 +27,7 @@ from rapidfuzz.process import cdist
 
 from tap_bench import sdl
 from tap_bench.errors import LabelTableError
-from tap_bench.labels import label_text, missing_axes, row_key, select_level, validate_labels
+from tap_bench.labels import label_text, row_key, validate_labels
 from tap_bench.sdl import parse_sdl
 
 __all__ = [
@@ -186,10 +186,7 @@ def label_set(labels: pd.DataFrame | LabelSet, level: str | None = None, *, axes
             raise LabelTableError(f"{source}: a LabelSet of axes {labels.axes} was given "
                                   f"where axes {axes} were asked for.")
         return labels
-    if axes == sdl.AXES:  # the contract's own check: columns, empty labels, sdl = lat | lon
-        table, level, input_rows = validate_labels(labels, level, source=source)
-    else:
-        table, level, input_rows = _select_on_axes(labels, level, axes, source)
+    table, level, input_rows = validate_labels(labels, level, source=source, axes=axes)
     text = label_text(table, axes).astype(str)
     code, uniques = pd.factorize(text, sort=False)
     uniques = np.asarray(uniques, dtype=object)
@@ -217,38 +214,6 @@ def label_set(labels: pd.DataFrame | LabelSet, level: str | None = None, *, axes
                     labels=uniques, counts=counts, first_row=first_row,
                     axis_index=axis_index, axis_strings=tuple(list(ix) for ix in indexes),
                     n_tokens=n_tokens)
-
-
-def _select_on_axes(labels: pd.DataFrame, level: str | None, axes: tuple[str, ...],
-                    source: str) -> tuple[pd.DataFrame, str | None, np.ndarray]:
-    """The rows of one level that carry a label on every axis of ``axes`` (tracks not
-    labelled with interactions are left out), with their positions in the input."""
-    if not isinstance(labels, pd.DataFrame):
-        raise LabelTableError(f"{source}: expected a label table (pandas DataFrame), got "
-                              f"{type(labels).__name__}.")
-    missing = [c for c in ("scenario_id", "track_id", *axes) if c not in labels.columns]
-    if missing:
-        raise LabelTableError(f"{source}: {missing_axes(missing)}")
-    table, level = select_level(labels, level, source)
-    input_rows = np.flatnonzero(labels["level"].astype(str).to_numpy() == level) \
-        if "level" in labels.columns else np.arange(len(labels))
-    if "interaction" in axes:
-        on_axis = table["interaction"].notna().to_numpy()
-        if not on_axis.any():
-            raise LabelTableError(f"{source}: no row carries an interaction label; label the "
-                                  "table with --interactions (or --interactions all).")
-        table, input_rows = table.loc[on_axis], input_rows[on_axis]
-    if len(table) == 0:
-        raise LabelTableError(f"{source}: the label table is empty.")
-    table = table.reset_index(drop=True)
-    for col in axes:
-        empty = table[col].isna().to_numpy()
-        if empty.any():
-            pos = int(np.flatnonzero(empty)[0])
-            raise LabelTableError(f"{source}: column {col!r} is empty at row "
-                                  f"{int(input_rows[pos])} ({row_key(table, pos)}); every row "
-                                  "needs a label.")
-    return table, level, input_rows
 
 
 def levenshtein_matrix(labels: LabelSet, rows: np.ndarray | None = None,

@@ -37,6 +37,7 @@ from tap_bench.errors import (
     ParameterError,
     RegistrationError,
     TapBenchError,
+    TrajectoryTableError,
     WomdRecordError,
     did_you_mean,
 )
@@ -44,7 +45,7 @@ from tap_bench.execution import Backend, LocalBackend
 from tap_bench.sources import builtin  # noqa: F401 (the built-in readers are registered)
 from tap_bench.sources.registry import Reader, get_reader, reader_names, readers
 from tap_bench.tableio import atomic_paths, check_outputs
-from tap_bench.trajectories import validate_trajectories
+from tap_bench.trajectories import validate_and_index, validate_trajectories
 from tap_bench.womd.scenario import SCENARIO_COLUMNS, normalise_object_types
 from tap_bench.womd.tfrecord import MAX_RECORD_BYTES, Record, iter_records, looks_like_tfrecord
 
@@ -295,6 +296,9 @@ def _decode_records(batch: _Batch, object_types: frozenset[str] | None, skip: bo
             if sid and sid in seen:
                 raise WomdRecordError(batch.path, index, offset, _duplicate(sid, batch.path,
                                                                             seen[sid]), _DUP)
+            problem = _contract_problem(table, sid)
+            if problem:
+                raise WomdRecordError(batch.path, index, offset, problem, _INVALID)
         except WomdRecordError as err:
             if not skip:
                 raise
@@ -323,6 +327,24 @@ _UNDECODABLE = ("The record is damaged or not in the format read; skip it with "
                 "on_error='skip' (--on-error skip) to keep the other records.")
 _DUP = ("Scenario ids must be unique: two records with one id would be merged into one "
         "scenario. Ingest the files apart, or skip the repeat with on_error='skip'.")
+
+
+_INVALID = ("tap-bench labels only tables that keep the trajectory contract (SPEC section 1); "
+            "skip the record with on_error='skip' (--on-error skip) to keep the others.")
+
+
+def _contract_problem(table: pa.Table, sid: str) -> str | None:
+    """Why a decoded scenario breaks the trajectory contract (NaN, duplicate or reversed
+    times, infinite or NaN coordinates on valid rows ...), or None: each scenario is
+    checked where it enters, so that one bad record never reaches label, validate or
+    export (which would refuse the whole table)."""
+    if table.num_rows == 0:
+        return None
+    try:
+        validate_and_index(table.to_pandas(split_blocks=True), source=f"scenario {sid!r}")
+    except TrajectoryTableError as err:
+        return f"breaks the trajectory contract: {err}"
+    return None
 
 
 def _scenario_id(table: pa.Table) -> str:

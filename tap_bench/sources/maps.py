@@ -17,7 +17,7 @@ edges and crosswalks are kept; stop signs, speed bumps and driveways are not dra
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable
+from collections.abc import Container, Iterable
 from pathlib import Path
 
 import numpy as np
@@ -44,11 +44,14 @@ _ROADGRAPH = {1: ("lane", ""), 2: ("lane", ""), 3: ("lane", ""),
 class _Features:
     """Collects features as map-table columns."""
 
-    def __init__(self) -> None:
+    def __init__(self, keep: Container[str] | None = None) -> None:
         self.cols: dict[str, list] = {c: [] for c in MAP_COLUMNS}
         self.next_id = 0
+        self.keep = keep
 
     def add(self, map_id: str, kind: str, style: str, xy: np.ndarray) -> None:
+        if self.keep is not None and map_id not in self.keep:
+            return
         xy = np.asarray(xy, dtype=float).reshape(-1, xy.shape[-1] if xy.ndim > 1 else 2)[:, :2]
         xy = xy[np.isfinite(xy).all(axis=1)]
         if kind == "crosswalk" and len(xy) >= 3:
@@ -145,11 +148,14 @@ _MAP_READERS = {"scenario": _scenario_maps, "tf_example": _tf_example_maps,
 """Reader name (:mod:`tap_bench.sources.registry`) -> how its files carry the map."""
 
 
-def read_maps(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> pd.DataFrame:
+def read_maps(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
+              scenario_ids: Container[str] | None = None) -> pd.DataFrame:
     """The map features of every scenario in driving-data files, as one map table.
 
     Args:
         paths: files, directories or glob patterns, as for :func:`tap_bench.sources.read_womd`.
+        scenario_ids: keep only the maps of these scenarios (the others are read, one
+            record at a time, and dropped); None keeps all.
 
     Returns:
         the map table (``map_id`` is the scenario id); no rows for files without a map.
@@ -158,7 +164,7 @@ def read_maps(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> pd.Data
         WomdRecordError: a record that cannot be read, naming file, record and offset.
     """
 
-    out = _Features()
+    out = _Features(scenario_ids)
     for path in expand_paths(paths):
         read = _MAP_READERS.get(_file_format(path, "auto", True).name)
         if read is not None:

@@ -195,7 +195,7 @@ def test_prune_keeps_the_most_recently_used_entries_within_the_bound(tmp_path):
     keys = []
     for seed in range(4):
         key, doc = episode_key({}, {}, seed, {})
-        cache.put(key, doc, table, row, 1.0)
+        cache.put(key, doc, table, {**row, "seed": seed}, 1.0)
         keys.append(key)
     for age, key in enumerate(keys):  # keys[0] newest ... keys[3] oldest
         os.utime(cache.path(key), (1e9 - age * 100, 1e9 - age * 100))

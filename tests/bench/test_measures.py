@@ -250,3 +250,107 @@ def test_no_crashed_roundabout_episode_keeps_a_capped_ttc():
     assert len(crashed) >= 1, "no crash: the test would not test anything"
     assert (crashed["min_ttc_s"] == 0).all() and (crashed["min_headway_s"] == 0).all()
     assert (m.loc[~m["crashed"].astype(bool), "min_ttc_s"] > 0).all()
+
+
+# -- issue 21: the leader beyond the record, "no leader", jerk ------------------------------
+
+def _road(radius, side, ego_speed, others):
+    from tap_bench.synthetic import road_scene
+    return road_scene(radius, side, ego_speed=ego_speed, others=others)
+
+
+@pytest.mark.parametrize("side", [1, -1], ids=["left", "right"])
+@pytest.mark.parametrize("radius", [30.0, 60.0, 200.0])
+def test_a_car_stopped_25_m_ahead_of_the_records_end_on_a_curve_as_on_a_straight(radius,
+                                                                                   side):
+    # the ego drives at 10 m/s for 9.1 s (91 m); a car stands 25 m beyond its last position
+    # along the road: bumper gap 20 m at the last step, closing at 10 m/s: TTC 2.0 s and
+    # headway 2.0 s, found on the same steps as on a straight road (within 100 m ahead)
+    n = 91
+    v = np.full(n, 10.0)
+    stop = {"lead": (90.0 + 25.0, np.zeros(n), 0.0)}
+    straight = ego_steps(_road(np.inf, side, v, stop))
+    curve_table = _road(radius, side, v, stop)
+    curve = ego_steps(curve_table)
+    m = ego_measures(curve_table).iloc[0]
+    assert m["min_ttc_s"] == pytest.approx(2.0, abs=0.02)
+    assert m["min_headway_s"] == pytest.approx(2.0, abs=0.02)
+    assert ((curve.leader_row >= 0) == (straight.leader_row >= 0)).mean() >= 0.98
+    assert (curve.leader_row >= 0).sum() >= 70
+
+
+@pytest.mark.parametrize("radius", [60.0, np.inf])
+def test_a_leader_braking_on_a_curve_inside_the_record_is_never_lost(radius):
+    # 12.1 s; the leader starts 30 m ahead at 10 m/s and brakes at 2 m/s^2 from 3.5 s to a
+    # stop 90 m on; the ego brakes at 2 m/s^2 from 3 s to a stop 55 m on: 35 m apart,
+    # the leader beyond the end of the ego's record once both stand
+    n = 121
+    t = np.arange(n) / 10
+    ego = np.clip(10 - 2 * np.clip(t - 3, 0, None), 0, None)
+    lead = np.clip(10 - 2 * np.clip(t - 3.5, 0, None), 0, None)
+    steps = ego_steps(_road(radius, 1, ego, {"lead": (30.0, lead, 0.0)}))
+    assert (steps.leader_row >= 0).all()
+
+
+def test_no_leader_is_not_a_10_s_observation():
+    from tap_bench.bench.measures import leader_counts
+    # a car in the next lane only: nobody ahead in the corridor after the burn-in
+    scene = pd.concat([track("s", "ego", 0, 0, 20, ego=True), track("s", "1", 30, 4.0, 20),
+                       track("t", "ego", 0, 0, 20, ego=True), track("t", "1", 30, 0.0, 20)],
+                      ignore_index=True)
+    m = ego_measures(scene).set_index("scenario_id")
+    assert np.isnan(m.loc["s", "min_ttc_s"]) and np.isnan(m.loc["s", "min_headway_s"])
+    # a leader never closed in on: TTC at its cap (an observation), headway 25 m / 20 m/s
+    assert m.loc["t", "min_ttc_s"] == TTC_CAP_S
+    assert m.loc["t", "min_headway_s"] == pytest.approx(25 / 20)
+    counts = leader_counts(ego_steps(scene)).set_index("scenario_id")
+    assert counts.loc["s", "no_leader"] and not counts.loc["t", "no_leader"]
+    assert counts.loc["t", "leader_steps"] == 60 - round(BURN_IN_S * 10)
+
+
+def test_jerk_of_a_hand_worked_speed_profile_and_of_noise():
+    from tap_bench.bench.measures import JERK_WINDOW_STEPS
+    # v = 10 + t^2 / 2: a = t, jerk 1 m/s^3 everywhere; quadratic Savitzky-Golay fits are
+    # exact on it (and on a = t), away from the ends of the run
+    n = 91
+    t = np.arange(n) / 10
+    ego = pd.DataFrame({"scenario_id": "s", "track_id": "ego", "t": t, "x": 10 * t + t ** 3 / 6,
+                        "y": 0.0, "heading": 0.0, "speed": 10 + t ** 2 / 2, "is_ego": True})
+    from tap_bench.bench.measures import smoothed_jerk
+    jerk = smoothed_jerk(ego_steps(ego))
+    assert jerk == pytest.approx(1.0, abs=1e-6)  # the end fits are exact on a quadratic too
+    assert JERK_WINDOW_STEPS == 15
+    # speed quantised to 0.05 m/s at a constant 15 m/s +- noise: second differences give
+    # about 0.05 * sqrt(6) * 100 / 2 = 6 m/s^3; the filter leaves well under 0.5
+    rng = np.random.default_rng(0)
+    noisy = ego.assign(speed=15 + np.round(rng.normal(0, 0.03, n) / 0.05) * 0.05,
+                       x=15 * t)
+    assert ego_measures(noisy)["rms_jerk"].iloc[0] < 0.5
+    # a run shorter than the window has no jerk
+    short = ego.iloc[:10]
+    assert np.isnan(ego_measures(short)["rms_jerk"].iloc[0])
+
+
+@pytest.mark.parametrize("side", [1, -1], ids=["left", "right"])
+@pytest.mark.parametrize("radius", [15.0, 20.0, 30.0])
+def test_a_car_stopped_on_the_road_out_of_a_turn_whose_exit_the_record_cuts(radius, side):
+    # a 90-degree turn: 2 s straight, a circle of `radius`, then the yaw rate falls to 0
+    # over 3 s; the record ends half way through that fall and a car stands 25 m on along
+    # the road (still in the exit). The line's curvature falls on as it fell: the car is the
+    # leader at every step, TTC and headway 2.0 s at the end (a straight road's figures)
+    from tap_bench.synthetic import from_controls
+    v, w0, fall = 10.0, side * 10.0 / radius, 3.0
+    turn_s = (np.pi / 2 - abs(w0) * fall / 2) / abs(w0)
+    t = np.arange(0, 2 + turn_s + fall + 6, 0.1)
+    w = np.where(t < 2, 0, np.where(t < 2 + turn_s, w0, np.where(
+        t < 2 + turn_s + fall, w0 * (1 - (t - 2 - turn_s) / fall), 0)))
+    full = from_controls(np.full(len(t), v), w, track_id="ego")
+    end = round((2 + turn_s + fall / 2) * 10)
+    ego = full.iloc[:end + 1].assign(is_ego=True)
+    car = full.iloc[[end + 25] * len(ego)].assign(
+        t=ego["t"].to_numpy(), speed=0.0, track_id="car", is_ego=False)
+    table = pd.concat([ego, car], ignore_index=True)
+    steps = ego_steps(table)
+    m = ego_measures(table).iloc[0]
+    assert (steps.leader_row >= 0).all()
+    assert m["min_ttc_s"] == pytest.approx(2.0, abs=0.05)

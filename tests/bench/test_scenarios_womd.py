@@ -4,7 +4,6 @@ absent): highway-env episodes beside their nearest WOMD scenarios by scenario-le
 from __future__ import annotations
 
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,15 +11,12 @@ import pytest
 from tap_bench.bench.scenarios import match_scenarios
 from tap_bench.labelling import tap
 
-WOMD_DIR = (Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "womd").resolve()
 pytestmark = pytest.mark.womd
 
 
 @pytest.fixture(scope="module")
-def womd():
-    files = sorted(WOMD_DIR.glob("*.tfrecord")) + sorted(WOMD_DIR.glob("*.pkl"))
-    if not files:
-        pytest.skip(f"real WOMD samples not found in {WOMD_DIR}")
+def womd(womd_dir):
+    files = sorted(womd_dir.glob("*.tfrecord")) + sorted(womd_dir.glob("*.pkl"))
     from tap_bench.sources import read_womd
 
     with warnings.catch_warnings():

@@ -72,7 +72,7 @@ def circle(request) -> bool:
 def test_following_at_constant_gap(circle):
     row, inter = label_scene(vehicle("ego", const(15), flat(0), circle=circle, ego=True),
                              vehicle("lead", const(15, 25), flat(0), circle=circle))
-    assert row["interaction"] == "Following"
+    assert row["interaction"] == "Following (lead)"
     assert runs(inter) == [("Following", "lead")]
     assert inter["t_start"].iloc[0] == 0 and inter["t_end"].iloc[0] == pytest.approx(8.0)
 
@@ -102,7 +102,7 @@ def test_cut_in_20_m_ahead_names_the_agent(circle):
     t_cross = 2 + 3 * np.arccos(-0.1) / np.pi
     assert inter["t_start"].iloc[1] == pytest.approx(t_cross - 1.0, abs=0.15)
     assert inter["t_end"].iloc[1] - inter["t_start"].iloc[1] == pytest.approx(2.0)
-    assert row["interaction"] == "Free Driving > Cut-in > Following"
+    assert row["interaction"] == "Free Driving > Cut-in (cutter) > Following (cutter)"
 
 
 def test_cut_out_of_the_leader(circle):
@@ -191,10 +191,90 @@ def test_cli_label_interactions(tmp_path, capsys):
                  str(seg), "--level", "maneuver"]) == 0
     assert "Cut-in 1" in capsys.readouterr().out
     labels = pd.read_parquet(out).set_index("track_id")
-    assert labels.loc["ego", "interaction"] == "Free Driving > Cut-in > Following"
+    assert labels.loc["ego", "interaction"] == "Free Driving > Cut-in (cutter) > Following (cutter)"
     assert pd.isna(labels.loc["cutter", "interaction"])  # egos only when is_ego is given
     segs = pd.read_parquet(seg)
     cut = segs[(segs["axis"] == "interaction") & (segs["label"] == "Cut-in")]
     assert list(cut["other_track_id"]) == ["cutter"]
     assert main(["label", str(src), "-o", str(out), "--interactions", "all"]) == 0
     assert pd.read_parquet(out)["interaction"].notna().all()
+
+
+# -- SPEC 7's guards (issue 21) --------------------------------------------------------------
+
+def test_sequences_name_the_other_vehicle_when_the_leader_changes():
+    # the first leader (12) turns off into the next lane at 3-5 s; 7, farther ahead in the
+    # lane, then leads: "Following (12) > ... > Following (7)", never "Following > Following"
+    row, _inter = label_scene(vehicle("ego", const(15), flat(0), circle=False, ego=True),
+                             vehicle("12", const(15, 20), lane_offset(3, 5, 0, 4),
+                                     circle=False),
+                             vehicle("7", const(15, 45), flat(0), circle=False))
+    seq = row["interaction"]
+    assert seq.startswith("Following (12)") and seq.endswith("Following (7)")
+    assert "Following > Following" not in seq
+
+
+@pytest.mark.parametrize("side", [1, -1], ids=["left", "right"])
+@pytest.mark.parametrize("radius", [30.0, 60.0, 200.0])
+def test_a_car_keeping_pace_beside_on_a_curve_is_not_overtaken(radius, side):
+    # in the next lane, level with the ego (its s wavers by +-1 m about 0): neither
+    # Overtaking nor Being Overtaken, and the real leader 25 m ahead is followed throughout
+    from tap_bench.synthetic import road_scene
+    n = 80
+    v = np.full(n, 12.0)
+    waver = 12.0 + 1.0 * np.cos(np.arange(n) / 10 * 2.0)  # s = sin(2 t) / 2 about 0
+    table = road_scene(radius, side, ego_speed=v,
+                       others={"beside": (0.0, waver, 3.7 * side),
+                               "lead": (25.0, v, 0.0)})
+    result = tap(table, interactions="ego")
+    labels = result.labels("maneuver").set_index("track_id")
+    assert labels.loc["ego", "interaction"] == "Following (lead)"
+
+
+def test_a_parked_ego_passed_by_a_car_in_the_next_lane_is_not_being_overtaken(circle):
+    row, _inter = label_scene(vehicle("ego", const(0), flat(0), circle=circle, ego=True),
+                             vehicle("passer", const(12, -40), flat(3.7), circle=circle))
+    assert row["interaction"] == "Free Driving"
+
+
+def test_a_parked_ego_behind_a_braking_car_follows_it():
+    # the car ahead brakes; the ego stands: Following, not Lead Braking
+    def braking(t):
+        v = np.clip(8 - 4 * np.clip(t - 2, 0, None), 0, None)
+        return 15 + np.cumsum(v) * 0.1
+    row, _ = label_scene(vehicle("ego", const(0), flat(0), circle=False, ego=True),
+                         vehicle("lead", braking, flat(0), circle=False))
+    assert row["interaction"] == "Following (lead)"
+
+
+def test_the_overtaking_guard_needs_a_vehicle_length_each_side(circle):
+    # a slower car in the next lane goes from 20 m ahead to 20 m behind: Overtaking
+    row, _ = label_scene(vehicle("ego", const(15), flat(0), circle=circle, ego=True),
+                         vehicle("slow", const(10, 20), flat(3.7), circle=circle))
+    assert "Overtaking (slow)" in row["interaction"]
+    # one that only drifts from 3 m ahead to 3 m behind (less than a length each way): not
+    row, _ = label_scene(vehicle("ego", const(15), flat(0), circle=circle, ego=True),
+                         vehicle("level", const(14.25, 3), flat(3.7), circle=circle))
+    assert "Overtak" not in row["interaction"]
+
+
+def test_a_car_crossing_in_front_is_not_a_cut_in():
+    # at an intersection a car crosses the ego's lane 20 m ahead, at right angles
+    ego = vehicle("ego", const(10), flat(0), circle=False, ego=True)
+    cross_t = T
+    y = -20 + 8 * cross_t  # crosses y = 0 at 2.5 s
+    crossing = pd.DataFrame({"scenario_id": "scene", "track_id": "crossing", "t": T,
+                             "x": np.full(len(T), 45.0), "y": y,
+                             "heading": np.full(len(T), np.pi / 2),
+                             "speed": np.full(len(T), 8.0), "object_type": "vehicle",
+                             "is_ego": False})
+    row, _ = label_scene(ego, crossing)
+    assert "Cut-in" not in row["interaction"]
+
+
+def test_a_car_that_turns_into_the_lane_and_drives_on_is_a_cut_in():
+    # the same car turning into the ego's lane 20 m ahead and driving along it: a Cut-in
+    row, _ = label_scene(vehicle("ego", const(15), flat(0), circle=False, ego=True),
+                         vehicle("cutter", const(15, 20), lane_offset(2, 5, 4, 0),
+                                 circle=False))
+    assert "Cut-in (cutter)" in row["interaction"]

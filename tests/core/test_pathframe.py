@@ -92,3 +92,86 @@ def test_stationary_ego_gets_a_line_along_its_heading():
 def test_bad_distances_are_refused():
     with pytest.raises(ValueError, match="ahead"):
         path_frame(scene(straight(0, 0, 0, 20)), ahead=-1)
+
+
+# -- beyond the ends of the record (SPEC 7, issue 21) ----------------------------------------
+
+def _road_paths(table):
+    """Paths of a road_scene table: the ego's rows are the path."""
+    ego = table["is_ego"].to_numpy()
+    order = np.r_[np.flatnonzero(ego), np.flatnonzero(~ego)]
+    t = table.iloc[order]
+    track = pd_codes(t["track_id"])
+    n_ego = int(ego.sum())
+    return Paths(scene=np.zeros(len(t), np.int64), key=np.rint(t["t"].to_numpy() * 10)
+                 .astype(np.int64), track=track, x=t["x"].to_numpy(), y=t["y"].to_numpy(),
+                 heading=t["heading"].to_numpy(), speed=t["speed"].to_numpy(),
+                 start=np.array([0]), stop=np.array([n_ego])), t
+
+
+def pd_codes(values):
+    import pandas as pd
+    return pd.factorize(values)[0].astype(np.int64)
+
+
+@pytest.mark.parametrize("side", [1, -1], ids=["left", "right"])
+@pytest.mark.parametrize("radius", [30.0, 60.0, 200.0, np.inf])
+@pytest.mark.parametrize("speed", [5.0, 10.0, 20.0])
+def test_a_car_stopped_beyond_either_end_of_the_record_lies_on_the_line(radius, side, speed):
+    # the ego drives a curve of `radius` for up to 9.1 s (at most a third of its circle:
+    # a path that comes back over itself has no single foot point); one car stands 25 m
+    # beyond its last position along the road, one 25 m before its first: both on the line
+    # (d ~ 0) at their distance along the road (s), as on a straight road
+    from tap_bench.synthetic import road_scene
+    n = int(min(91, 1 + 10 * radius * 2 * np.pi / 3 / speed))
+    v = np.full(n, speed)
+    travel = speed * (n - 1) / 10
+    table = road_scene(radius, side, ego_speed=v,
+                       others={"ahead": (travel + 25.0, np.zeros(n), 0.0),
+                               "behind": (-25.0, np.zeros(n), 0.0)})
+    paths, t = _road_paths(table)
+    frame = path_frame(paths, ahead=200.0, behind=200.0, lateral=3.0)
+    tracks = t["track_id"].to_numpy()
+    for name, expect_s in (("ahead", lambda step: travel + 25.0 - speed * step / 10),
+                           ("behind", lambda step: -25.0 - speed * step / 10)):
+        mine = tracks[frame.other] == name
+        step = frame.step[mine]
+        # the arc beyond each end turns at most 90 degrees: within reach of that turn
+        near = np.abs(expect_s(step)) <= min(60.0, radius * np.pi / 2)
+        assert near.sum() >= 1, name
+        assert np.abs(frame.d[mine][near]).max() < 0.25, name
+        assert frame.s[mine][near] == pytest.approx(expect_s(step[near]), abs=0.3)
+
+
+def test_the_line_goes_on_along_the_lane_of_a_map():
+    # the road curves (60 m, left) for the record, then goes straight on: with the lane in a
+    # map the line follows it; an arc of the last curvature would leave it
+    from tap_bench.pathframe import LaneMap
+    from tap_bench.synthetic import on_road, road_scene
+    n = 61
+    v = np.full(n, 10.0)
+    travel = 60.0  # the record ends where the curve ends
+    # the lane: the curve, then straight on along its end tangent
+    arc = np.arange(0.0, travel + 0.01, 2.0)
+    cx, cy, ch = on_road(arc, 60.0, 1)
+    straight = np.arange(2.0, 80.0, 2.0)
+    lx = np.r_[cx, cx[-1] + straight * np.cos(ch[-1])]
+    ly = np.r_[cy, cy[-1] + straight * np.sin(ch[-1])]
+    table = road_scene(60.0, 1, ego_speed=v)
+    # a car stopped 40 m on along the straight
+    car = dict(scenario_id="road", track_id="car", t=table["t"][:n].to_numpy(),
+               x=np.full(n, cx[-1] + 40 * np.cos(ch[-1])),
+               y=np.full(n, cy[-1] + 40 * np.sin(ch[-1])), heading=np.full(n, ch[-1]),
+               speed=np.zeros(n), object_type="vehicle", is_ego=False)
+    import pandas as pd
+    table = pd.concat([table, pd.DataFrame(car)], ignore_index=True)
+    paths, _ = _road_paths(table)
+    lanes = LaneMap(scene=np.array([0]), start=np.array([0]), stop=np.array([len(lx)]),
+                    x=lx, y=ly)
+    on_lane = path_frame(paths, ahead=100.0, lateral=3.0, lanes=lanes)
+    last = on_lane.step == n - 1
+    assert on_lane.d[last] == pytest.approx(0.0, abs=0.1)
+    assert on_lane.s[last] == pytest.approx(40.0, abs=0.2)
+    # without the map the arc curves on to the left, and the car lies off the corridor
+    arc_only = path_frame(paths, ahead=100.0, lateral=3.0)
+    assert not np.any(arc_only.step == n - 1) or abs(arc_only.d[arc_only.step == n - 1][0]) > 1.8

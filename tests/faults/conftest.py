@@ -17,7 +17,6 @@ from tap_bench.cli import main
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # for fault_helpers
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
-WOMD_DIR = (PROJECT_ROOT / ".." / "shared" / "data" / "womd").resolve()
 DEBRIS = (".tmp", ".old", ".bak")
 """Name endings of tap-bench's temporary files and folders."""
 
@@ -112,11 +111,3 @@ def cli(capsys):
         return code, out.out, out.err
 
     return run
-
-
-@pytest.fixture
-def womd_dir() -> Path:
-    """The folder of real WOMD samples (``../shared/data/womd``); skips when absent."""
-    if not (WOMD_DIR / "motion_data_one_scenario.tfrecord").is_file():
-        pytest.skip(f"real WOMD samples not found in {WOMD_DIR}")
-    return WOMD_DIR

@@ -113,7 +113,30 @@ BAD_BASELINES = {
         2, 1.5)),
     "policy a number": lambda p: _edit(p, lambda d: d["episodes"]["rows"][1].__setitem__(
         1, 7)),
+    # tampering that once passed silently (issue 23)
+    "a removed cell": lambda p: _edit(p, lambda d: d["episodes"].update(rows=[
+        r for r in d["episodes"]["rows"] if r[1] != "b"])),
+    "a cell added": lambda p: _edit(p, lambda d: d["episodes"]["rows"].append(
+        ["highway", "c", *d["episodes"]["rows"][0][2:]])),
+    "a NaN margin": lambda p: _edit(p, lambda d: d["gate"].setdefault("margins", {}).update(
+        label_tv=float("nan"))),
+    "an infinite margin": lambda p: (
+        _edit(p, lambda d: d["gate"].setdefault("margins", {}).update(label_tv=12345.5)),
+        p.write_text(p.read_text().replace("12345.5", "1e999", 1))),
+    "a measure that overflows to inf": lambda p: _overflow(p),
+    "a future format version": lambda p: _edit(p, lambda d: d.update(format_version=99)),
+    "format_version as text": lambda p: _edit(p, lambda d: d.update(format_version="2")),
+    "duplicated rows": lambda p: _edit(p, lambda d: d["episodes"]["rows"].append(
+        list(d["episodes"]["rows"][0]))),
+    "cells a string": lambda p: _edit(p, lambda d: d.update(cells="all")),
 }
+
+
+def _overflow(path) -> None:
+    doc = json.loads(path.read_text())
+    col = doc["episodes"]["columns"].index("mean_speed")
+    doc["episodes"]["rows"][0][col] = 12345.0
+    path.write_text(json.dumps(doc).replace("12345.0", "1e999", 1))
 
 
 @pytest.mark.parametrize("case", sorted(BAD_BASELINES))

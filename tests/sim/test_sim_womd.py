@@ -24,16 +24,13 @@ from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, lane_points
 from tap_bench.sim.womd_scene import CURRENT_STEP, SceneError, WomdScenes
 from tap_bench.womd.roadmap import Lane, infer_successors, read_road_maps
 
-WOMD_DIR = (Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "womd").resolve()
 FILES = ["motion_data_one_scenario.tfrecord", "womd_scenario_input.tfrecord",
          "motion_data_one_example.tfrecord", "sd_waymo_v1.2_eb4b91b10ca94ff2.pkl"]
 
 
 @pytest.fixture
-def real() -> list[str]:
-    if not (WOMD_DIR / FILES[0]).is_file():
-        pytest.skip(f"real WOMD samples not found in {WOMD_DIR}")
-    return [str(WOMD_DIR / f) for f in FILES]
+def real(womd_dir) -> list[str]:
+    return [str(womd_dir / f) for f in FILES]
 
 
 def run(env: WomdEnv, policy: str, seed: int) -> pd.DataFrame:

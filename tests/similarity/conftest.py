@@ -14,9 +14,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from similarity_helpers import CRUISE, LEFT_MERGE, STOP_AND_GO, label_rows
 
-PROJECT_ROOT = Path(__file__).resolve().parents[2]
-WOMD_DIR = (PROJECT_ROOT / ".." / "shared" / "data" / "womd").resolve()
-
 
 @pytest.fixture
 def small_labels() -> pd.DataFrame:
@@ -25,11 +22,3 @@ def small_labels() -> pd.DataFrame:
         ("s1", "1", CRUISE), ("s1", "2", LEFT_MERGE), ("s1", "3", CRUISE),
         ("s2", "1", LEFT_MERGE), ("s2", "2", STOP_AND_GO), ("s2", "3", CRUISE),
     ])
-
-
-@pytest.fixture
-def womd_dir() -> Path:
-    """The folder of real WOMD samples (``../shared/data/womd``); skips when absent."""
-    if not (WOMD_DIR / "motion_data_one_scenario.tfrecord").is_file():
-        pytest.skip(f"real WOMD samples not found in {WOMD_DIR}")
-    return WOMD_DIR

@@ -22,12 +22,8 @@ pytestmark = pytest.mark.womd
 
 
 @pytest.fixture(scope="module")
-def womd(request):
-    from conftest import WOMD_DIR
-
-    if not (WOMD_DIR / "motion_data_one_scenario.tfrecord").is_file():
-        pytest.skip(f"real WOMD samples not found in {WOMD_DIR}")
-    files = sorted(WOMD_DIR.glob("*.tfrecord")) + sorted(WOMD_DIR.glob("*.pkl"))
+def womd(request, womd_dir):
+    files = sorted(womd_dir.glob("*.tfrecord")) + sorted(womd_dir.glob("*.pkl"))
     table = read_womd(files)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", tb.ShortSegmentWarning)

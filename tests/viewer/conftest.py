@@ -15,8 +15,6 @@ from pathlib import Path
 
 import pytest
 
-PROJECT_ROOT = Path(__file__).resolve().parents[2]
-WOMD_DIR = (PROJECT_ROOT / ".." / "shared" / "data" / "womd").resolve()
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMEDRIVER = shutil.which("chromedriver")
 BROWSER_FLAGS = ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic",
@@ -45,14 +43,6 @@ def tiny_run(tmp_path_factory) -> Path:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return run_suite(suite, folder, workers=1, progress=False).folder
-
-
-@pytest.fixture
-def womd_dir() -> Path:
-    """The folder of real WOMD samples (``../shared/data/womd``); skips when absent."""
-    if not (WOMD_DIR / "motion_data_one_scenario.tfrecord").is_file():
-        pytest.skip(f"real WOMD samples not found in {WOMD_DIR}")
-    return WOMD_DIR
 
 
 @pytest.fixture(scope="session")

@@ -13,14 +13,10 @@ FILES = ("motion_data_one_scenario.tfrecord", "womd_scenario_input.tfrecord",
 
 
 @pytest.fixture(scope="module")
-def relations():
+def relations(womd_dir):
     from tap_bench.sources.ingest import read_womd
 
-    from .conftest import WOMD_DIR
-
-    if not (WOMD_DIR / FILES[0]).is_file():
-        pytest.skip(f"real WOMD samples not found in {WOMD_DIR}")
-    table = read_womd([WOMD_DIR / f for f in FILES])
+    table = read_womd([womd_dir / f for f in FILES])
     segs = tap(table, interactions="all").segments("maneuver")
     return segs[segs["axis"] == "interaction"]
 
@@ -37,7 +33,9 @@ def test_every_vehicle_gets_relations_and_following_is_common(relations):
 
 def test_the_cut_ins_read_by_hand(relations):
     # docs/interactions.md: vehicles 9 then 7 turn left from the north approach into the
-    # road vehicle 63 is turning right into, just ahead of it (a cut-in from a side road)
+    # road vehicle 63 is turning right into, just ahead of it (a cut-in from a side road).
+    # 9 crosses while 63 stands at the junction (under 1 m/s for the whole run): SPEC 7
+    # gives a still ego no Cut-in; 7 comes once 63 moves off
     cut = relations[relations["label"] == "Cut-in"]
     found = set(zip(cut["scenario_id"], cut["track_id"], cut["other_track_id"], strict=True))
-    assert found == {("a3bb37c25ce56418", "63", "9"), ("a3bb37c25ce56418", "63", "7")}
+    assert found == {("a3bb37c25ce56418", "63", "7")}

@@ -30,15 +30,17 @@ from tap_bench.bench.episodes import episode_table
 from tap_bench.bench.measures import MEASURES, run_measures
 from tap_bench.bench.suite import suite_from_dict
 from tap_bench.bench.viewer.data import MAP_MARGIN, episode_chunks, episode_index, map_features
+from tap_bench.errors import ParameterError
 from tap_bench.labelling import tap
 from tap_bench.maps import empty_map
 from tap_bench.sim.roads import road_table
-from tap_bench.sources import read_womd
+from tap_bench.sources import iter_womd, read_womd
 from tap_bench.sources.maps import read_maps
 from tap_bench.tableio import atomic_folder
 from tap_bench.thresholds import Thresholds
 
-__all__ = ["STATIC_FILES", "write_run_viewer", "write_viewer", "write_womd_viewer"]
+__all__ = ["DEFAULT_VIEW_SCENARIOS", "MAX_VIEW_SCENARIOS", "STATIC_FILES", "write_run_viewer",
+           "write_viewer", "write_womd_viewer"]
 
 STATIC_FILES = ("index.html", "viewer.js", "viewer.css")
 """The viewer's own files, package data of :mod:`tap_bench.bench.viewer`."""
@@ -158,24 +160,68 @@ def _rebuild_roads(summary: dict[str, Any], envs: Sequence[str]) -> pd.DataFrame
     return pd.concat(frames, ignore_index=True) if frames else empty_map()
 
 
+DEFAULT_VIEW_SCENARIOS = 100
+"""Scenarios the viewer of WOMD files shows by default: the first ones of the files, read
+one record at a time (a scenario costs about 14 MB while the viewer is built; a whole
+shard of 500 would take 7 GB)."""
+MAX_VIEW_SCENARIOS = 1000
+"""The most scenarios one viewer of WOMD files may show (``max_scenarios``)."""
+
+
+def _first_scenarios(paths: Sequence[str | os.PathLike], max_scenarios: int
+                     ) -> tuple[pd.DataFrame, bool]:
+    """The trajectory tables of the first ``max_scenarios`` scenarios of ``paths``, read
+    one record at a time, and whether the files hold more."""
+    tables, more = [], False
+    records = iter_womd([str(p) for p in paths])
+    for table in records:
+        if len(tables) == max_scenarios:
+            more = True
+            break
+        tables.append(table)
+    records.close()
+    if not tables:
+        return read_womd([]), False
+    return pd.concat(tables, ignore_index=True), more
+
+
 def write_womd_viewer(paths: Sequence[str | os.PathLike], output: str | os.PathLike, *,
-                      thresholds: Any = "paper", level: str = "maneuver") -> Path:
-    """Write the replay viewer of WOMD files: every scenario with its map and the label
-    timelines of every vehicle (the self-driving car is the ego).
+                      thresholds: Any = "paper", level: str = "maneuver",
+                      max_scenarios: int = DEFAULT_VIEW_SCENARIOS) -> Path:
+    """Write the replay viewer of WOMD files: each scenario with its map and the label
+    timelines of every vehicle (the self-driving car is the ego), the first
+    ``max_scenarios`` of the files (read one record at a time, so memory is bounded by
+    ``max_scenarios``, not by the files; a warning says when there were more).
 
     Args:
         paths: WOMD files (Scenario TFRecords, tf.Example TFRecords, ScenarioNet pickles).
         output: the viewer folder.
         thresholds: TAP thresholds (preset name, path or :class:`Thresholds`).
         level: the SDL level of the timelines.
+        max_scenarios: the most scenarios shown, at most :data:`MAX_VIEW_SCENARIOS`.
 
     Returns:
         the path of the viewer's ``index.html``.
+
+    Raises:
+        ParameterError: ``max_scenarios`` is not in [1, :data:`MAX_VIEW_SCENARIOS`].
     """
+    if isinstance(max_scenarios, bool) or not isinstance(max_scenarios, int) \
+            or not 1 <= max_scenarios <= MAX_VIEW_SCENARIOS:
+        raise ParameterError("max_scenarios", max_scenarios,
+                             f"an integer from 1 to {MAX_VIEW_SCENARIOS}", message=(
+                                 f"max_scenarios (--max-scenarios) {max_scenarios!r} must be "
+                                 f"an integer from 1 to the limit of {MAX_VIEW_SCENARIOS} "
+                                 "(tap_bench.bench.viewer.build.MAX_VIEW_SCENARIOS): each "
+                                 "scenario costs about 14 MB while the viewer is built."))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        traj = read_womd([str(p) for p in paths])
+        traj, more = _first_scenarios(paths, max_scenarios)
         result = tap(traj, thresholds, source="WOMD")
+    if more:
+        warnings.warn(f"the viewer shows the first {max_scenarios} scenarios of the files; "
+                      "give max_scenarios (--max-scenarios) to show more, up to "
+                      f"{MAX_VIEW_SCENARIOS}, or view fewer files.", UserWarning, stacklevel=2)
     sids = list(dict.fromkeys(traj["scenario_id"].astype(str)))
     seed_of = {sid: i for i, sid in enumerate(sids)}
     traj = traj.assign(env="WOMD", policy="logged",
@@ -187,7 +233,7 @@ def write_womd_viewer(paths: Sequence[str | os.PathLike], output: str | os.PathL
     segments = result.segments(level)
     eps, entries = episode_index(episodes, chunk_by=("scenario_id",), has_replay=sids)
     chunks = episode_chunks(traj, eps, segments, labelled_tracks="all")
-    maps = read_maps(paths)
+    maps = read_maps(paths, scenario_ids=set(sids))
     by_map = dict(tuple(maps.groupby("map_id", sort=False))) if len(maps) else {}
     for docs in chunks.values():
         for doc in docs:

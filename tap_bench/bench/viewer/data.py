@@ -17,6 +17,7 @@ int16 too, in hundredths. Label timelines are ``[t_start, t_end, label]`` runs.
 from __future__ import annotations
 
 import base64
+import hashlib
 import itertools
 from collections.abc import Iterable, Mapping
 from typing import Any
@@ -337,7 +338,7 @@ def episode_index(episodes: pd.DataFrame, *, novel_labels: pd.DataFrame | None =
     """
     eps = episodes.copy()
     keys = list(chunk_by)
-    eps["chunk"] = ["-".join(_slug(str(v)) for v in vals)
+    eps["chunk"] = [_chunk_name([str(v) for v in vals])
                     for vals in eps[keys].itertuples(index=False)]
     novel: dict[tuple[str, str, str], list[str]] = {}
     if novel_labels is not None and len(novel_labels):
@@ -370,4 +371,21 @@ def episode_index(episodes: pd.DataFrame, *, novel_labels: pd.DataFrame | None =
 
 
 def _slug(text: str) -> str:
-    return "".join(c if c.isalnum() or c in "-_." else "_" for c in text)
+    return "".join(c if c.isascii() and (c.isalnum() or c in "-_.") else "_" for c in text)
+
+
+_MAX_CHUNK_NAME = 100  # bytes of a chunk's file name, ".js" aside (file systems allow 255)
+_RESERVED = {"index"}  # data/index.js is the viewer's own
+
+
+def _chunk_name(values: list[str]) -> str:
+    """The file name (without ``.js``) of the chunk of ``values``: their slugs joined by
+    ``-``; a name that would be too long, reserved (``index``), start with a dot or stand
+    for other text is cut and ends with 16 hex digits of the values' SHA-256, so distinct
+    values never share or overwrite a file."""
+    name = "-".join(_slug(v) for v in values)
+    if len(name) <= _MAX_CHUNK_NAME and name.lower() not in _RESERVED \
+            and not name.startswith(".") and name == "-".join(values):
+        return name
+    digest = hashlib.sha256("\0".join(values).encode("utf-8", "surrogatepass")).hexdigest()
+    return f"{name.lstrip('.')[:_MAX_CHUNK_NAME - 17]}-{digest[:16]}"

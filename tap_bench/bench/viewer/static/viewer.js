@@ -659,13 +659,24 @@ const TAPVIEW = (() => {
   }
 
   // -- the URL hash -------------------------------------------------------------------
+  function decodePart(text) {
+    // decodeURIComponent throws on a malformed escape ("%zz", a lone "%"): such a part of
+    // an edited or truncated URL is dropped instead of stopping the viewer
+    try {
+      return decodeURIComponent(text);
+    } catch (err) {
+      return null;
+    }
+  }
+
   function parseHash() {
     const out = {};
     for (const part of location.hash.replace(/^#/, "").split("&")) {
       if (!part) continue;
       const k = part.indexOf("=");
-      out[decodeURIComponent(k < 0 ? part : part.slice(0, k))] =
-        k < 0 ? "" : decodeURIComponent(part.slice(k + 1));
+      const key = decodePart(k < 0 ? part : part.slice(0, k));
+      const value = k < 0 ? "" : decodePart(part.slice(k + 1));
+      if (key !== null && value !== null) out[key] = value;  // a malformed part is ignored
     }
     return out;
   }

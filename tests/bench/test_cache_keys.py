@@ -1,0 +1,166 @@
+"""The episode key follows every input of an episode: any byte changed in any file an
+episode depends on (the scenario file, the policy definition, a model file it names, the
+factory's module and every module it loads in the user's package, a user vehicle class,
+tap-bench's simulation code) or any version gives another key (property test over
+generated edits)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import string
+import uuid
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+
+from tap_bench.bench import cache as cache_module
+from tap_bench.bench.cache import (
+    episode_key,
+    policy_fingerprint,
+    scenario_fingerprint,
+    simulation_fingerprint,
+)
+from tap_bench.sim.policies import _read_definition
+from tap_bench.sim.scenario_env import get_scenario
+from tap_bench.sim.suite import load_scenario
+
+PACKAGE = f"userpkg_{uuid.uuid4().hex[:8]}"
+SIBLING = f"sibling_{uuid.uuid4().hex[:8]}"
+CARS = f"cars_{uuid.uuid4().hex[:8]}"
+
+SOURCES = {
+    f"{PACKAGE}/__init__.py": "",
+    f"{PACKAGE}/policy.py": (f"from . import helper\nimport {SIBLING}\n\n\n"
+                             "class MyPolicy:\n    observation = None\n\n"
+                             "    def __init__(self, name, gain=1.0):\n"
+                             "        self.name, self.gain = name, gain\n\n"
+                             "    def reset(self, env, *, seed):\n        pass\n\n"
+                             "    def act(self, observation):\n        return helper.ACTION\n"),
+    f"{PACKAGE}/helper.py": "ACTION = 1  # IDLE\n",
+    f"{PACKAGE}/loaded_by_name.py": "SETTING = 3\n",
+    f"{CARS}/__init__.py": "",
+    f"{CARS}/vehicles.py": ("from highway_env.vehicle.behavior import IDMVehicle\n\n\n"
+                               "class MyVehicle(IDMVehicle):\n    TIME_WANTED = 1.2\n"),
+    f"{SIBLING}.py": "SCALE = 2.0\n",
+}
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    """A scenario with a user vehicle class and an ``import`` policy of a user package with
+    a model file: every file an episode of theirs depends on."""
+    root = tmp_path_factory.mktemp("inputs")
+    for name, text in SOURCES.items():
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        (root / name).write_text(text)
+    (root / "weights.bin").write_bytes(bytes(range(64)))
+    (root / "mine.json").write_text(json.dumps({
+        "name": "mine", "kind": "import", "description": "a user policy",
+        "params": {"factory": f"{PACKAGE}.policy:MyPolicy", "gain": 2.5,
+                   "weights": "weights.bin"}}, indent=1))
+    (root / "scene.json").write_text(json.dumps({
+        "name": "scene", "version": 3, "highway_env_id": "highway-v0", "description": "d",
+        "duration": 10, "default_seeds": "0-4", "lane_change": "realistic",
+        "config": {"lanes_count": 2, "vehicles_count": 5,
+                   "other_vehicles_type": f"{CARS}.vehicles.MyVehicle"},
+        "script": {"kind": "cut_in", "at": 3.0, "gap": 25.0}}, indent=1))
+    sim = root / "sim"
+    sim.mkdir()
+    for path in cache_module._simulation_modules()[:3]:
+        shutil.copy(path, sim / path.name)
+    return root
+
+
+def key_of(root: Path, seed: int = 0) -> str:
+    scenario = load_scenario(root / "scene.json")
+    policy = _read_definition(root / "mine.json")
+    versions = simulation_fingerprint(sorted((root / "sim").glob("*.py")))
+    env, pol = scenario_fingerprint(scenario), policy_fingerprint(policy)
+    assert env is not None and pol is not None
+    return episode_key(env, pol, seed, versions)[0]
+
+
+FILES = [*SOURCES, "weights.bin", "mine.json", "scene.json", "sim/0", "sim/1", "sim/2"]
+
+
+def _file(root: Path, name: str) -> Path:
+    if name.startswith("sim/"):
+        return sorted((root / "sim").glob("*.py"))[int(name[4:])]
+    return root / name
+
+
+@settings(max_examples=120, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture,
+                                 HealthCheck.filter_too_much])
+@given(name=st.sampled_from(FILES), where=st.floats(0, 1, exclude_max=True),
+       byte=st.integers(0, 255))
+def test_any_byte_changed_in_any_input_changes_the_key(inputs, monkeypatch, name, where,
+                                                       byte):
+    monkeypatch.syspath_prepend(str(inputs))
+    before = key_of(inputs)
+    path = _file(inputs, name)
+    original = path.read_bytes()
+    data = bytearray(original)
+    if not data:  # an empty file: a byte added is the change
+        data = bytearray([byte])
+    else:
+        i = int(where * len(data))
+        if name.endswith(".json"):  # a change that keeps the file a valid definition
+            assume(chr(data[i]) in string.ascii_letters + string.digits)
+            pool = string.digits if chr(data[i]).isdigit() else string.ascii_letters
+            byte = ord(pool[byte % len(pool)])
+        assume(data[i] != byte)
+        data[i] = byte
+    path.write_bytes(bytes(data))
+    try:
+        try:
+            after = key_of(inputs)
+        except Exception:  # the edit broke the file: not an input any more
+            assume(False)
+        assert after != before, f"{name}: a changed byte left the key as it was"
+    finally:
+        path.write_bytes(original)
+
+
+def test_every_field_of_the_env_and_its_name_are_in_the_key(inputs, monkeypatch):
+    monkeypatch.syspath_prepend(str(inputs))
+    versions = simulation_fingerprint()
+    policy = policy_fingerprint(_read_definition(inputs / "mine.json"))
+    scenario = load_scenario(inputs / "scene.json")
+    base = episode_key(scenario_fingerprint(scenario), policy, 0, versions)[0]
+    script = replace(scenario.script, at=4.0)
+    variants = [replace(scenario, version=4), replace(scenario, script=script),
+                replace(scenario, script=None), replace(scenario, name="other"),
+                replace(scenario, lane_change="default"), replace(scenario, description="e")]
+    keys = {episode_key(scenario_fingerprint(v), policy, 0, versions)[0] for v in variants}
+    keys.add(episode_key(scenario_fingerprint(scenario, env="renamed"), policy, 0,
+                         versions)[0])
+    assert base not in keys and len(keys) == len(variants) + 1
+    # two envs of one config under two names: two keys
+    merge = get_scenario("merge")
+    assert scenario_fingerprint(merge, "a") != scenario_fingerprint(merge, "b")
+
+
+def test_versions_are_in_the_key(monkeypatch):
+    env, policy = {"env": "e"}, {"policy": "p"}
+    base = episode_key(env, policy, 0, simulation_fingerprint())[0]
+    monkeypatch.setattr(cache_module, "_version",
+                        lambda package: "99" if package == "highway-env" else "1")
+    assert episode_key(env, policy, 0, simulation_fingerprint())[0] != base
+
+
+def test_code_loaded_from_the_user_package_is_followed(inputs, monkeypatch):
+    monkeypatch.syspath_prepend(str(inputs))
+    from tap_bench.usercode import code_files
+
+    files = code_files(f"{PACKAGE}.policy")
+    assert {f"{PACKAGE}.policy", f"{PACKAGE}.helper", f"{PACKAGE}.loaded_by_name",
+            SIBLING} <= set(files)
+    assert f"{CARS}.vehicles" not in files
+    # third-party and tap-bench modules are keyed by their versions, not file by file
+    assert not any(name.split(".")[0] in ("highway_env", "tap_bench", "numpy")
+                   for name in files)
