@@ -18,13 +18,14 @@ import time
 from pathlib import Path
 
 import numpy as np
-from machine import report
 from highway_env.road.lane import PolyLaneFixedWidth
 from highway_env.road.road import RoadNetwork
+from machine import report
 
 from tap_bench.labelling import label
 from tap_bench.sim.policies import load_policy
-from tap_bench.sim.womd_env import WomdNetwork, make_womd_env
+from tap_bench.sim.womd_env import make_womd_env
+from tap_bench.sim.womd_road import WomdNetwork
 from tap_bench.sim.womd_lanes import lane_points
 
 DEFAULT = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "womd"
@@ -71,7 +72,7 @@ def main() -> None:
     for seed in range(len(env.catalog)):
         try:
             episode(env, "idm", seed)  # warm-up: compile, decode, cache the scene
-        except Exception as err:  # noqa: BLE001 - a scene that cannot be built is reported
+        except Exception as err:
             figures["scenes"][str(env.catalog[seed])] = {"error": str(err)}
             continue
         scene = env.scene
@@ -112,7 +113,7 @@ def main() -> None:
         for policy in POLICIES:
             try:
                 table, *_ = episode(env, policy, seed)
-            except Exception as err:  # noqa: BLE001
+            except Exception as err:
                 figures["policies"].setdefault(policy, {})[scene.scenario_id] = str(err)
                 continue
             info = env.episode_info()

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from tap_bench.bench.runner import RunResult, run_suite
@@ -36,9 +37,12 @@ def timing_split(result: RunResult) -> dict[str, float]:
 
 
 def run_demo(output: str | os.PathLike = DEMO_OUTPUT, *, workers: int = 2,
-             progress: bool | None = None) -> RunResult:
-    """Run the demo suite into ``output`` (replacing an earlier demo there)."""
+             progress: bool | None = None,
+             announce: Callable[[str], None] | None = None) -> RunResult:
+    """Run the demo suite into ``output`` (replacing an earlier demo there); ``announce``
+    gets a line per phase (the estimate, scoring, writing), terminal or not."""
     start = time.perf_counter()
-    result = run_suite(DEMO_SUITE, output, workers=workers, overwrite=True, progress=progress)
+    result = run_suite(DEMO_SUITE, output, workers=workers, overwrite=True, progress=progress,
+                       announce=announce)
     result.summary["timings"].setdefault("total", time.perf_counter() - start)
     return result

@@ -15,9 +15,17 @@ For a policy (its egos) and a reference corpus of real driving (e.g. WOMD vehicl
   to change to make the policy drive like the reference), with its bootstrap interval.
 
 Finite samples make two draws of the same behaviour differ too, so the gap of a sample is
-biased upwards; ``floor`` is the mean gap between two samples of the reference's own
-distribution of the same sizes (drawn from the reference): a policy's gap is only
-meaningful by how far it stands above its floor.
+biased upwards (the plug-in ``gap``); ``floor`` is the mean gap between two samples of the
+reference's own distribution of the same sizes. Gap minus floor is not a corrected
+distance (the bias shrinks as the true gap grows); the estimate to read is
+``gap_debiased``, the bootstrap bias-corrected gap ``2 gap - mean(gap*)`` (clipped at 0),
+with the basic bootstrap interval ``[2 gap - q_hi, 2 gap - q_lo]`` (clipped at 0), which
+the same correction centres; its lower end is 0 whenever the gap is within what two
+samples of one behaviour show (both sides pooled, the 97.5 % quantile), which the basic
+interval alone misses at a true gap of 0 (the bias is not smooth there). Its coverage,
+and that of the plug-in's percentile interval, is measured by
+``benchmarks/gap_coverage.py`` for samples of the same behaviour (true gap 0) and of
+different behaviour (docs/interactions.md).
 
 **Comparable situations.** The reference is restricted to its vehicles whose mean speed
 over the trajectory lies in the policy's speed range (``min_speed`` .. ``max_speed``,
@@ -40,7 +48,8 @@ from tap_bench.kinematics import compute_kinematics
 from tap_bench.labelling import tap
 from tap_bench.trajectories import validate_and_index
 
-__all__ = ["GapResult", "behaviour_gap", "label_occurrences", "labelled_with_speed"]
+__all__ = ["GapResult", "behaviour_gap", "debias", "label_occurrences", "labelled_with_speed",
+           "track_seconds", "windows"]
 
 
 @dataclass(frozen=True)
@@ -49,8 +58,11 @@ class GapResult:
 
     Attributes:
         policy: the policy's name.
-        gap, gap_low, gap_high: total variation distance of the label shares, interval.
+        gap, gap_low, gap_high: the plug-in total variation distance of the label shares
+            (biased upwards) and its percentile interval.
         floor: mean gap between two samples of the reference of the same sizes.
+        gap_debiased, debiased_low, debiased_high: the bias-corrected gap and its basic
+            bootstrap interval (clipped at 0): the estimate to read.
         n_policy, n_reference: trajectories compared on each side.
         labels: one row per single label: axis, label, share_policy, share_reference,
             diff, diff_low, diff_high; largest |diff| first.
@@ -66,11 +78,44 @@ class GapResult:
     n_reference: int
     labels: pd.DataFrame
     reference: str
+    gap_debiased: float = float("nan")
+    debiased_low: float = float("nan")
+    debiased_high: float = float("nan")
 
     def row(self) -> dict:
-        return {"policy": self.policy, "gap": self.gap, "gap_low": self.gap_low,
+        return {"policy": self.policy, "gap_debiased": self.gap_debiased,
+                "debiased_low": self.debiased_low, "debiased_high": self.debiased_high,
+                "gap": self.gap, "gap_low": self.gap_low,
                 "gap_high": self.gap_high, "floor": self.floor, "n_policy": self.n_policy,
                 "n_reference": self.n_reference, "reference": self.reference}
+
+
+def track_seconds(table: pd.DataFrame) -> float:
+    """The median duration [s] of a trajectory table's tracks (WOMD: 9.1 s)."""
+    t = table.groupby(["scenario_id", "track_id"], sort=False)["t"]
+    return float((t.max() - t.min()).median())
+
+
+def windows(table: pd.DataFrame, seconds: float) -> pd.DataFrame:
+    """A trajectory table cut into consecutive windows of ``seconds`` per scenario (a
+    30 s episode against 9.1 s WOMD tracks: three windows, the rest dropped when shorter
+    than half a window). Each window is its own scenario, ``<scenario_id>#<k>``; ``t``
+    keeps its values.
+
+    Raises:
+        ValueError: ``seconds`` not a positive number.
+    """
+    if not np.isfinite(seconds) or seconds <= 0:
+        raise ValueError(f"window length must be a positive number of seconds, got "
+                         f"{seconds!r}.")
+    t0 = table.groupby("scenario_id", sort=False)["t"].transform("min")
+    k = np.floor((table["t"] - t0 + 1e-9) / seconds).astype(int)
+    ends = (table.assign(_k=k).groupby(["scenario_id", "_k"], sort=False)["t"]
+            .transform(lambda t: t.max() - t.min()))
+    keep = (ends >= seconds / 2 - 1e-9).to_numpy()
+    out = table[keep].copy()
+    out["scenario_id"] = out["scenario_id"].astype(str) + "#" + k[keep].astype(str)
+    return out
 
 
 def labelled_with_speed(table: pd.DataFrame, level: str, *, interactions: str,
@@ -181,6 +226,14 @@ def behaviour_gap(policy: pd.DataFrame, reference: pd.DataFrame, *, name: str = 
     bp, br = wp @ occ_p, wr @ occ_r
     boot_gap = _tv(bp, br)
     g_lo, g_hi = _percentile(boot_gap[:, None], config.level)
+    # the gap two samples of one behaviour (both sides pooled) show: below its upper
+    # quantile the data cannot tell the behaviours apart, and the interval reaches 0
+    pooled = np.vstack([occ_p, occ_r])
+    n_pool = len(pooled)
+    z1 = rng.multinomial(len(occ_p), np.full(n_pool, 1 / n_pool), size=B) @ pooled
+    z2 = rng.multinomial(len(occ_r), np.full(n_pool, 1 / n_pool), size=B) @ pooled
+    same = float(np.quantile(_tv(z1, z2), (1 + config.level) / 2))
+    debiased, d_low, d_high = debias(gap, boot_gap, config.level, same=same)
     diff_boot = (bp / np.maximum(bp.sum(1, keepdims=True), 1e-12)
                  - br / np.maximum(br.sum(1, keepdims=True), 1e-12))
     d_lo, d_hi = _percentile(diff_boot, config.level)
@@ -198,7 +251,33 @@ def behaviour_gap(policy: pd.DataFrame, reference: pd.DataFrame, *, name: str = 
                           .index).reset_index(drop=True)
     return GapResult(policy=name, gap=gap, gap_low=float(g_lo[0]), gap_high=float(g_hi[0]),
                      floor=floor, n_policy=len(pol), n_reference=len(ref), labels=table,
-                     reference=described)
+                     reference=described, gap_debiased=debiased, debiased_low=d_low,
+                     debiased_high=d_high)
+
+
+def debias(gap: float, boot: np.ndarray, level: float, *, same: float | None = None
+           ) -> tuple[float, float, float]:
+    """The bootstrap bias-corrected gap and its basic bootstrap interval, clipped at 0.
+
+    Args:
+        gap: the plug-in statistic.
+        boot: (B,) the statistic on resampled data.
+        level: the interval's level.
+        same: the (1 + level) / 2 quantile of the gap between two samples of one
+            behaviour (both sides pooled); a gap not above it cannot be told from 0, and
+            the interval then starts at 0 (a test of "same behaviour" inverted: the
+            interval holds a true gap of 0 at least (1 + level) / 2 of the time).
+
+    Returns:
+        (2 gap - mean(boot), 2 gap - q_hi, 2 gap - q_lo), each clipped at 0 (a distance).
+    """
+    boot = np.asarray(boot, float)
+    q_lo, q_hi = np.nanquantile(boot, [(1 - level) / 2, (1 + level) / 2])
+    low = max(0.0, 2 * gap - float(q_hi))
+    if same is not None and gap <= same:
+        low = 0.0
+    return (max(0.0, 2 * gap - float(np.nanmean(boot))), low,
+            max(0.0, 2 * gap - float(q_lo)))
 
 
 def _percentile(boot: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray]:

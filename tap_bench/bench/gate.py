@@ -7,27 +7,42 @@ the provenance of the run (each policy's full definition, with the SHA-256 of a 
 file, and each env's resolved config). The gate compares a run's episodes with the
 baseline's, per (env, policy) and metric:
 
-- measures: the change of the mean (run - baseline); label distribution: the total
-  variation distance between the two ego label distributions (``label_tv``, in [0, 1]);
-- **paired** when the run and the baseline have the same seeds (the simulator is
+- measures: the change of the mean (run - baseline), read the worse way by the measure's
+  registered direction (``higher_is_better``); label distribution: the total variation
+  distance between the two ego label distributions (``label_tv``, in [0, 1]; no side);
+- **one-sided tests** of "no change" against "worse":
+  **paired** when the run and the baseline have the same seeds (the simulator is
   deterministic, so an unchanged policy gives the same episode on a seed): a sign-flip
-  permutation test on the per-seed differences (for ``label_tv``, run and baseline labels
-  swapped within seeds), exact over all 2^n flips up to :data:`EXACT_FLIPS_MAX_SEEDS` seeds;
-- **unpaired** otherwise: episodes exchanged between run and baseline;
-- **Holm's correction** over every test of the check, so ``alpha`` bounds the chance that a
-  check of an unchanged suite fires anywhere;
-- a metric **moved** when its change exceeds its margin *and* the Holm-adjusted p-value is
-  below ``alpha``: a change must be both practically and statistically real.
+  permutation test on the per-seed differences, over the seeds that differ only (exact
+  when 2^k flips are no more than the permutations, else ``n_permutations`` random
+  flips), for a rate McNemar's exact test; for ``label_tv`` run and baseline labels
+  swapped within the seeds whose labels differ;
+  **unpaired** otherwise: episodes exchanged between run and baseline; Fisher's exact
+  test for a rate;
+- **the weighted Holm correction** over every test of the check (:func:`weighted_holm`):
+  each metric has a share of alpha in its cell (:attr:`GateConfig.weights`: crash rate
+  0.65, TTC 0.1, headway 0.1, the rest 0.15 shared, the safety family first), and a test
+  whose smallest attainable p-value is above its share is left out of the correction
+  (Tarone): in a paired check an unchanged cell has no seed that differs and costs
+  nothing, so a regression in one cell of a 25-cell suite is tested almost as if alone.
+  The choice was made by simulation (``benchmarks/gate_calibration.py``);
+- a metric **fails** when it moved the worse way by more than its margin *and* its
+  adjusted p-value is below ``alpha``; a move the better way by more than the margin is
+  reported as ``better``, never a failure;
+- each test's **power** against a worsening of ``detect`` margins
+  (:func:`tap_bench.bench.power.rule_power`); a check whose power is below 80 % and below
+  that of a check on the baseline's own seeds (fewer or other seeds) is
+  **underpowered** and says so.
 
-**A gate that can never fire is refused.** With m tests and P permutations no p-value is
-below 1 / (P + 1), and no Holm-adjusted one below m / (P + 1); with n paired seeds no
-sign-flip p-value is below 2 / 2^n. :func:`check` raises :class:`~tap_bench.errors.
-ParameterError` (naming the numbers and what would do) when the smallest attainable
-Holm-adjusted p-value is not below alpha.
+**A gate that can never fire is refused**: :func:`check` raises
+:class:`~tap_bench.errors.ParameterError` (naming the numbers, what would do and the
+definitions that changed) when no test could reach its share of alpha even in the most
+favourable case, and :func:`write_baseline` refuses a baseline whose seeds could never
+let a check fire.
 
 An (env, policy) of the baseline missing from the run, with failed episodes in the run, or
 whose policy or env definition changed since the baseline (named, with what changed),
-moves too. A baseline whose metric is missing or not numeric is an error
+fails too. A baseline whose metric is missing or not numeric is an error
 (:func:`read_baseline`), and a run with no episode, or with more than
 :data:`MAX_FAILED_SHARE` of its episodes failed, cannot become one (:func:`write_baseline`).
 The baseline file changes only through :func:`write_baseline` (``--update-baseline``).
@@ -61,8 +76,8 @@ from tap_bench.errors import (
 from tap_bench.tableio import atomic_path
 
 __all__ = ["BASELINE_FORMAT", "EXACT_FLIPS_MAX_SEEDS", "MAX_FAILED_SHARE", "GateResult",
-           "check", "definition_changes", "holm", "read_baseline", "smallest_p",
-           "write_baseline"]
+           "check", "config_of", "definition_changes", "direction", "firing_floor", "holm",
+           "read_baseline", "smallest_p", "weighted_holm", "write_baseline"]
 
 BASELINE_FORMAT = "tap-bench-baseline"
 BASELINE_VERSION = 2
@@ -73,12 +88,19 @@ def _episode_fields() -> tuple[str, ...]:
     return ("env", "policy", "seed", "sdl", *MEASURES.names())
 
 _IDENTITY = ("suite", "suite_version", "level", "thresholds")
+_GATE_FIELDS = ("alpha", "n_permutations", "seed", "margins", "weights", "detect")
 MAX_FAILED_SHARE = 0.05
 """A run with more than this share of failed episodes cannot become a baseline: the
 baseline would hold a different set of episodes per (env, policy) than the runs checked
 against it, and a failure that is part of the behaviour must be fixed, not frozen."""
 EXACT_FLIPS_MAX_SEEDS = 16
-"""Up to this many paired seeds the sign-flip test enumerates all 2^n flips (exact p)."""
+"""Up to this many differing paired seeds the sign-flip test may enumerate all 2^n flips
+(exact p); it does when 2^n is at most the permutations it would otherwise draw."""
+
+
+def _exact(k: int, config: GateConfig) -> bool:
+    """Enumerate the 2^k flips (else draw ``n_permutations`` of them)."""
+    return k <= EXACT_FLIPS_MAX_SEEDS and 2 ** k <= config.n_permutations + 1
 
 
 @dataclass(frozen=True)
@@ -86,9 +108,15 @@ class GateResult:
     """What :func:`check` found.
 
     Attributes:
-        table: one row per (env, policy, metric): env, policy, metric, n_baseline, n_run,
-            baseline, run, change, margin, p_value, p_holm, moved, note.
-        moved: True when anything moved (the command then exits 1).
+        table: one row per (env, policy, metric): env, policy, metric, direction (which
+            way is better: higher, lower, none), test (paired/unpaired), n_baseline, n_run,
+            baseline, run, change (run - baseline; for label_tv the TV), margin, p_value
+            (one-sided, the worse way; the better way on a row whose verdict is better),
+            p_min (the smallest p-value the test could give
+            on these data), p_adjusted, verdict (worse, changed, better or
+            empty), moved (the row fails the check), power (at the ``detect`` worsening),
+            underpowered, note.
+        moved: True when anything failed (the command then exits 1).
         config: the gate settings used.
     """
 
@@ -97,24 +125,69 @@ class GateResult:
     config: GateConfig
 
     def moved_rows(self) -> pd.DataFrame:
-        """The rows that moved."""
+        """The rows that fail the check."""
         return self.table[self.table["moved"]]
 
+    def better_rows(self) -> pd.DataFrame:
+        """The rows that moved the better way (reported, never a failure)."""
+        return self.table[self.table["verdict"] == "better"]
+
+    def underpowered_rows(self) -> pd.DataFrame:
+        """Rows that did not fail and whose power at the ``detect`` worsening is below
+        :data:`tap_bench.bench.power.POWER` and below the baseline's own design's."""
+        return self.table[self.table["underpowered"].to_numpy(bool)
+                          & ~self.table["moved"].to_numpy(bool)]
+
+    @property
+    def underpowered(self) -> bool:
+        """Some check cannot catch the worsening it is asked to."""
+        return not self.underpowered_rows().empty
+
     def format(self, *, all_rows: bool = False) -> str:
-        """A plain-text table of what moved (or of every check)."""
-        shown = self.table if all_rows else self.moved_rows()
-        kinds = sorted(set(self.table.get("test", pd.Series(dtype=str)).dropna()) - {""})
-        head = (f"gate: {int(self.table['moved'].sum())} of {len(self.table)} checks moved "
-                f"(moved = |change| > margin and Holm-adjusted permutation p < "
-                f"{self.config.alpha:g}; {', '.join(kinds) or 'no'} tests, "
-                f"{self.config.n_permutations} permutations)")
-        if shown.empty:
-            return head
+        """A plain-text verdict: what failed, what improved, what is underpowered (or every
+        check)."""
+        t = self.table
+        kinds = sorted(set(t["test"].dropna()) - {""})
+        head = (f"gate: {int(t['moved'].sum())} of {len(t)} checks failed, "
+                f"{int((t['verdict'] == 'better').sum())} improved (fails = moved the worse "
+                f"way beyond its margin and one-sided p < {self.config.alpha:g} after the "
+                f"weighted Holm correction; {', '.join(kinds) or 'no'} tests)")
         cols = ["env", "policy", "metric", "test", "baseline", "run", "change", "margin",
-                "p_holm", "moved", "note"]
-        text = shown[cols].to_string(index=False, float_format=lambda v: f"{v:.4g}",
-                                     na_rep="-")
-        return f"{head}\n{text}"
+                "p_adjusted", "verdict", "power", "note"]
+        fmt = {"float_format": lambda v: f"{v:.4g}", "na_rep": "-", "index": False}
+        parts = [head]
+        if all_rows:
+            parts.append(t[cols].to_string(**fmt))
+            return "\n".join(parts)
+        for title, rows in (("failed:", self.moved_rows()), ("improved (not a failure):",
+                                                              self.better_rows())):
+            if not rows.empty:
+                parts += [title, rows[cols].to_string(**fmt)]
+        low = self.underpowered_rows()
+        if not low.empty:
+            from tap_bench.bench.power import POWER
+
+            worst = low.sort_values("power").groupby("metric", sort=False).first()
+            lines = [f"  {m}: {int((low['metric'] == m).sum())} cells, weakest "
+                     f"{r['env']}/{r['policy']} power {r['power']:.2f} with {int(r['n_run'])} "
+                     "run episodes" for m, r in worst.iterrows()]
+            parts.append(f"UNDERPOWERED: {len(low)} checks cannot catch a worsening of "
+                         f"{self.config.detect:g} margins with {POWER:.0%} probability, as "
+                         "a check on the baseline's seeds could:")
+            parts += lines
+        return "\n".join(parts)
+
+    def to_json(self) -> dict[str, Any]:
+        """The machine-readable verdict (``bench check --format json``)."""
+        t = self.table
+        status = "fail" if self.moved else ("underpowered" if self.underpowered else "pass")
+        return {"format": "tap-bench-check", "format_version": 1, "status": status,
+                "failed": int(t["moved"].sum()),
+                "improved": int((t["verdict"] == "better").sum()),
+                "underpowered": len(self.underpowered_rows()), "checks": len(t),
+                "gate": self.config.to_dict(),
+                "rows": [{k: _json_value(v) for k, v in r.items()}
+                         for r in t.to_dict(orient="records")]}
 
 
 def _json_value(v: Any) -> Any:
@@ -171,9 +244,23 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
             f"run {run_summary.get('run')!r}: every episode of {listed} failed; the baseline "
             "would not test it. Fix those failures, or drop them from the suite, and run "
             "again.")
+    gate = run_summary.get("suite", {}).get("gate") or GateConfig().to_dict()
+    config = config_of({"gate": gate})
+    n_cells = len(cells)
+    n_seeds = int(ok.groupby(["env", "policy"]).size().min())
+    floor, level = firing_floor(config, cells=n_cells, seeds=n_seeds)
+    if floor > level * (1 + 1e-9):
+        need = next(k for k in range(1, 64)
+                    if firing_floor(config, cells=n_cells, seeds=k)[0] <= level * (1 + 1e-9))
+        raise BaselineError(
+            f"run {run_summary.get('run')!r} has {n_seeds} seeds in its smallest (env, "
+            f"policy) cell: no test of a check on them could give a p-value below "
+            f"{floor:.3g}, above the {level:.3g} its share of alpha {config.alpha:g} allows, "
+            f"so a gate against this baseline could never fire. Run the suite on at least "
+            f"{need} seeds and make the baseline from that run.")
     rows = [[_json_value(v) for v in r] for r in ok[list(_episode_fields())].itertuples(
         index=False)]
-    gate = run_summary.get("suite", {}).get("gate") or GateConfig().to_dict()
+    gate = config.to_dict()
     doc = {"format": BASELINE_FORMAT, "format_version": BASELINE_VERSION,
            **_identity(run_summary),
            "created": time.strftime("%Y-%m-%d %H:%M:%S"),
@@ -268,8 +355,7 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
         raise FileFormatError(f"{path}: 'gate' must be an object of gate settings, got "
                               f"{gate!r}.")
     try:
-        GateConfig(**{k: v for k, v in gate.items()
-                      if k in ("alpha", "n_permutations", "seed", "margins")})
+        GateConfig(**{k: v for k, v in gate.items() if k in _GATE_FIELDS})
     except (TypeError, ValueError, UnknownNameError) as err:
         raise FileFormatError(f"{path}: gate settings: {err} Restore them from the suite "
                               "(envs/suites/*.json) or re-make the baseline with "
@@ -334,58 +420,183 @@ def _check_baseline_rows(table: pd.DataFrame, path: Path) -> None:
 
 def holm(p: np.ndarray) -> np.ndarray:
     """Holm-adjusted p-values (step-down; monotone; capped at 1)."""
+    return weighted_holm(p, np.ones(len(p)))
+
+
+def weighted_holm(p: np.ndarray, weights: np.ndarray, p_min: np.ndarray | None = None,
+                  alpha: float = 0.05) -> np.ndarray:
+    """Weighted Holm adjusted p-values, restricted to the tests that can reach alpha
+    (Tarone's reduction for discrete tests).
+
+    Test i is rejected at family-wise level alpha when its adjusted p-value is below alpha.
+    Step k of the weighted Holm procedure rejects the test of smallest p_i / w_i when p_i <=
+    alpha w_i / W, W the weight of the tests not yet rejected (Holm 1979; closed testing
+    with weighted Bonferroni tests). A test whose smallest attainable p-value ``p_min`` is
+    above its share of alpha can never be rejected; it is left out of W, which raises the
+    others' shares (Tarone 1990). ``p_min`` depends only on what a permutation test
+    conditions on (the seeds that differ, the pooled values), so the family-wise level holds.
+
+    Args:
+        p: (m,) p-values.
+        weights: (m,) positive weights (their scale does not matter).
+        p_min: (m,) smallest attainable p-value of each test; None: every test counts.
+        alpha: the level at which a test's share decides whether it can be rejected.
+
+    Returns:
+        (m,) adjusted p-values in [0, 1]; 1 for a test left out.
+    """
     p = np.asarray(p, float)
+    w = np.asarray(weights, float)
     m = len(p)
     if m == 0:
         return p
-    order = np.argsort(p, kind="stable")
-    adjusted = np.minimum(1.0, np.maximum.accumulate((m - np.arange(m)) * p[order]))
-    out = np.empty(m)
-    out[order] = adjusted
+    keep = _tarone(w, p_min, alpha)
+    out = np.ones(m)
+    idx = np.flatnonzero(keep)
+    if not len(idx):
+        return out
+    pk, wk = p[idx], w[idx]
+    order = np.argsort(pk / wk, kind="stable")
+    remaining = wk[order][::-1].cumsum()[::-1]  # weight of the tests not yet rejected
+    adjusted = np.minimum(1.0, np.maximum.accumulate(pk[order] / wk[order] * remaining))
+    out[idx[order]] = adjusted
     return out
+
+
+def _tarone(w: np.ndarray, p_min: np.ndarray | None, alpha: float) -> np.ndarray:
+    """Which tests stay: starting from those that could reach alpha alone, leave out one at
+    a time the test furthest from its share of alpha over the tests kept (largest p_min /
+    w) until every test kept can reach its share. (Any set chosen from the p_min alone
+    keeps the level; this one leaves out no test that could reach its share.)"""
+    keep = np.ones(len(w), bool)
+    if p_min is None:
+        return keep
+    p_min = np.asarray(p_min, float)
+    keep &= p_min <= alpha + 1e-15
+    ratio = p_min / w
+    while keep.any():
+        share = alpha * w / w[keep].sum()
+        short = keep & (p_min > share + 1e-15)
+        if not short.any():
+            break
+        keep[np.flatnonzero(short)[np.argmax(ratio[short])]] = False
+    return keep
 
 
 def smallest_p(n_permutations: int, *, paired_seeds: int | None = None,
                sizes: tuple[int, int] | None = None) -> float:
-    """The smallest p-value one permutation test can give.
+    """The smallest one-sided p-value one permutation test can give.
 
     Args:
         n_permutations: random permutations P (p >= 1 / (P + 1)).
-        paired_seeds: for a paired test, the seeds n (exact sign flips: p >= 2 / 2^n).
-        sizes: for an unpaired test, the two sample sizes (p >= 2 / C(n1 + n2, n1)).
+        paired_seeds: for a paired test of a mean, the seeds that differ n (p >= 1 / 2^n;
+            a rate's exact test reaches 1 / 2^n whatever P).
+        sizes: for an unpaired test, the two sample sizes (p >= 1 / C(n1 + n2, n1)).
     """
     floor = 1.0 / (n_permutations + 1)
     if paired_seeds is not None:
-        if paired_seeds <= EXACT_FLIPS_MAX_SEEDS:
-            return 2.0 / 2 ** paired_seeds if paired_seeds > 0 else 1.0
-        return max(floor, 2.0 / 2 ** paired_seeds)
+        return max(floor, 1.0 / 2 ** paired_seeds)
     if sizes is not None:
-        return max(floor, min(1.0, 2.0 / math.comb(sum(sizes), sizes[0])))
+        return max(floor, min(1.0, 1.0 / math.comb(sum(sizes), sizes[0])))
     return floor
 
 
-def _flips(n: int, config: GateConfig, key: tuple) -> np.ndarray:
-    """(F, n) of +-1: all 2^n sign patterns (n <= EXACT_FLIPS_MAX_SEEDS), else the identity
-    and P random ones from the stream ``("gate", *key)``."""
-    if n <= EXACT_FLIPS_MAX_SEEDS:
-        return np.array(list(itertools.product((1.0, -1.0), repeat=n))).reshape(-1, n)
+def direction(metric: str) -> int:
+    """+1 when a higher value of ``metric`` is better (speed, TTC), -1 when lower is better
+    (crashes, jerk), 0 for ``label_tv`` (a change of behaviour has no better side); read
+    from the measure's registry entry."""
+    if metric not in MEASURES:
+        return 0
+    return 1 if MEASURES[metric].higher_is_better else -1
+
+
+@dataclass(frozen=True)
+class _Test:
+    """One test's outcome: the change (run - baseline; for label_tv the TV), the one-sided
+    p-values of a change the worse and the better way, and the smallest attainable p."""
+
+    change: float
+    p_worse: float
+    p_better: float
+    p_min: float
+
+
+def _binom_tail(k: int, n: int) -> float:
+    """P(Bin(n, 1/2) >= k)."""
+    if k <= 0:
+        return 1.0
+    return sum(math.comb(n, i) for i in range(k, n + 1)) / 2.0 ** n
+
+
+def _sign_flip_test(d: np.ndarray, sign: int, config: GateConfig, key: tuple) -> _Test:
+    """Paired one-sided test on per-seed differences ``d`` (run - baseline); ``sign`` -1
+    when lower is better. Only the seeds that differ enter (a flip of a 0 changes
+    nothing): exact over all 2^K flips of the K non-zero differences up to
+    :data:`EXACT_FLIPS_MAX_SEEDS`, exact by the binomial when they are all of one size (a
+    rate: McNemar's test), else P random flips from the stream ``("gate", *key)``."""
+    change = float(d.mean()) if len(d) else 0.0
+    worse = -sign * d[d != 0]  # > 0: worse
+    k = len(worse)
+    if k == 0:
+        return _Test(change, 1.0, 1.0, 1.0)
+    size = np.abs(worse)
+    if np.allclose(size, size[0], rtol=1e-12, atol=0):
+        up = int((worse > 0).sum())
+        return _Test(change, _binom_tail(up, k), _binom_tail(k - up, k), 0.5 ** k)
+    observed = float(worse.sum())
+    if _exact(k, config):
+        flips = np.array(list(itertools.product((1.0, -1.0), repeat=k)))
+        stats = flips @ worse
+        n, extra, p_min = len(stats), 0, 0.5 ** k
+    else:
+        rng = named_rng(config.seed, "gate", *key)
+        stats = rng.choice((1.0, -1.0), size=(config.n_permutations, k)) @ worse
+        n, extra, p_min = len(stats) + 1, 1, 1.0 / (config.n_permutations + 1)
+    tol = 1e-9 * float(size.sum())
+    p_worse = (extra + float((stats >= observed - tol).sum())) / n
+    p_better = (extra + float((stats <= observed + tol).sum())) / n
+    return _Test(change, p_worse, p_better, p_min)
+
+
+def _hypergeom_tails(x: int, n_run: int, n_base: int, ones: int
+                     ) -> tuple[float, float, float, float]:
+    """Fisher's exact test: with ``ones`` of n_run + n_base values 1, P(X >= x), P(X <=
+    x), P(X = its largest value) and P(X = its smallest) for X the ones among the run's
+    n_run."""
+    total = math.comb(n_run + n_base, n_run)
+    lo, hi = max(0, ones - n_base), min(ones, n_run)
+    pmf = {k: math.comb(ones, k) * math.comb(n_run + n_base - ones, n_run - k) / total
+           for k in range(lo, hi + 1)}
+    return (sum(v for k, v in pmf.items() if k >= x), sum(v for k, v in pmf.items()
+                                                           if k <= x), pmf[hi], pmf[lo])
+
+
+def _unpaired_test(base: np.ndarray, run: np.ndarray, sign: int, config: GateConfig,
+                   key: tuple) -> _Test:
+    """One-sided test of the change of the mean with episodes exchanged between run and
+    baseline: Fisher's exact test for a rate (values 0 and 1), else P random
+    permutations."""
+    change = float(run.mean() - base.mean())
+    pooled = np.r_[base, run]
+    if np.all(pooled == pooled[0]):
+        return _Test(change, 1.0, 1.0, 1.0)
+    if np.isin(pooled, (0.0, 1.0)).all():
+        up, down, p_top, p_bottom = _hypergeom_tails(int(run.sum()), len(run), len(base),
+                                                     int(pooled.sum()))
+        if sign > 0:  # more ones is better: worse is fewer
+            return _Test(change, down, up, p_bottom)
+        return _Test(change, up, down, p_top)
     rng = named_rng(config.seed, "gate", *key)
-    random = rng.choice((1.0, -1.0), size=(config.n_permutations, n))
-    return np.vstack([np.ones((1, n)), random])
-
-
-def _p_from(perm_stats: np.ndarray, observed: float) -> float:
-    """Share of the flips (the identity among them) whose statistic reaches the observed."""
-    return float((perm_stats >= observed - 1e-12).sum()) / len(perm_stats)
-
-
-def _paired_mean_test(base: np.ndarray, run: np.ndarray, config: GateConfig, key: tuple
-                      ) -> tuple[float, float]:
-    """(mean per-seed change, sign-flip p of |mean change|)."""
-    d = run - base
-    flips = _flips(len(d), config, key)
-    perm = np.abs(flips @ d) / len(d)
-    return float(d.mean()), _p_from(perm, abs(float(d.mean())))
+    perms = np.argsort(rng.random((config.n_permutations, len(pooled))), axis=1)
+    shuffled = pooled[perms]
+    n_b = len(base)
+    perm = shuffled[:, n_b:].mean(axis=1) - shuffled[:, :n_b].mean(axis=1)
+    tol = 1e-9 * max(1.0, float(np.abs(pooled).max()))
+    worse_obs, worse_perm = -sign * change, -sign * perm
+    n = len(perm) + 1
+    return _Test(change, (1 + float((worse_perm >= worse_obs - tol).sum())) / n,
+                 (1 + float((worse_perm <= worse_obs + tol).sum())) / n,
+                 1.0 / (config.n_permutations + 1))
 
 
 def _tv(codes_b: np.ndarray, codes_r: np.ndarray, k: int) -> np.ndarray:
@@ -399,42 +610,45 @@ def _tv(codes_b: np.ndarray, codes_r: np.ndarray, k: int) -> np.ndarray:
 
 
 def _paired_tv_test(base: np.ndarray, run: np.ndarray, config: GateConfig, key: tuple
-                    ) -> tuple[float, float]:
-    """(TV of the label distributions, p with run and baseline labels swapped per seed)."""
+                    ) -> _Test:
+    """TV of the label distributions, p with run and baseline labels swapped per seed
+    (only the seeds whose labels differ; exact up to :data:`EXACT_FLIPS_MAX_SEEDS`)."""
     _, codes = np.unique(np.r_[base, run], return_inverse=True)
     k = int(codes.max()) + 1
     cb, cr = codes[:len(base)], codes[len(base):]
-    flips = _flips(len(base), config, key) > 0
-    perm = _tv(np.where(flips, cb, cr), np.where(flips, cr, cb), k)
     observed = float(_tv(cb[None, :], cr[None, :], k)[0])
-    return observed, _p_from(perm, observed)
+    differ = np.flatnonzero(cb != cr)
+    n_diff = len(differ)
+    if n_diff == 0:
+        return _Test(observed, 1.0, 1.0, 1.0)
+    if _exact(n_diff, config):
+        flips = np.array(list(itertools.product((True, False), repeat=n_diff)))
+        extra, p_min = 0, 0.5 ** n_diff
+    else:
+        rng = named_rng(config.seed, "gate", *key)
+        flips = rng.random((config.n_permutations, n_diff)) < 0.5
+        extra, p_min = 1, 1.0 / (config.n_permutations + 1)
+    full = np.ones((len(flips), len(cb)), bool)
+    full[:, differ] = flips
+    perm = _tv(np.where(full, cb, cr), np.where(full, cr, cb), k)
+    p = (extra + float((perm >= observed - 1e-12).sum())) / (len(perm) + extra)
+    return _Test(observed, p, 1.0, p_min)
 
 
-def _permutations(n: int, config: GateConfig, key: tuple) -> np.ndarray:
-    rng = named_rng(config.seed, "gate", *key)
-    return np.argsort(rng.random((config.n_permutations, n)), axis=1)
-
-
-def _mean_test(base: np.ndarray, run: np.ndarray, perms: np.ndarray) -> tuple[float, float]:
-    """(change of the mean, permutation p of |change|)."""
-    pooled = np.r_[base, run]
-    n_b = len(base)
-    change = run.mean() - base.mean()
-    shuffled = pooled[perms]
-    perm_change = shuffled[:, n_b:].mean(axis=1) - shuffled[:, :n_b].mean(axis=1)
-    exceed = np.abs(perm_change) >= abs(change) - 1e-12
-    return float(change), float((1 + exceed.sum()) / (1 + len(perms)))
-
-
-def _tv_test(base: np.ndarray, run: np.ndarray, perms: np.ndarray) -> tuple[float, float]:
+def _tv_test(base: np.ndarray, run: np.ndarray, config: GateConfig, key: tuple) -> _Test:
     """(total variation distance of the label distributions, permutation p)."""
     _, codes = np.unique(np.r_[base, run], return_inverse=True)
     k = int(codes.max()) + 1
     n_b = len(base)
     observed = float(_tv(codes[None, :n_b], codes[None, n_b:], k)[0])
+    if k == 1:
+        return _Test(observed, 1.0, 1.0, 1.0)
+    rng = named_rng(config.seed, "gate", *key)
+    perms = np.argsort(rng.random((config.n_permutations, len(codes))), axis=1)
     shuffled = codes[perms]
     exceed = _tv(shuffled[:, :n_b], shuffled[:, n_b:], k) >= observed - 1e-12
-    return observed, float((1 + exceed.sum()) / (1 + len(perms)))
+    return _Test(observed, float((1 + exceed.sum()) / (1 + len(perms))), 1.0,
+                 1.0 / (config.n_permutations + 1))
 
 
 def definition_changes(run: dict[str, Any] | None, baseline: dict[str, Any] | None
@@ -477,18 +691,21 @@ def _dict_diff(old: Any, new: Any, prefix: str = "") -> list[str]:
 
 def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
           baseline: dict[str, Any], baseline_episodes: pd.DataFrame,
-          config: GateConfig | None = None) -> GateResult:
+          config: GateConfig | None = None, *, power: bool = True) -> GateResult:
     """Check a run against a baseline (see the module docstring).
 
     Args:
         run_summary, run_episodes: the run's ``summary.json`` and episode table.
         baseline, baseline_episodes: from :func:`read_baseline`.
         config: gate settings; default: the baseline's.
+        power: also compute each test's power at the ``detect`` worsening (the
+            ``underpowered`` verdict); False skips it (calibration studies).
 
     Raises:
         BaselineMismatchError: suite, level or thresholds differ.
         ParameterError: the gate can never fire with these tests, permutations and seeds
-            (the message gives the numbers and what would do).
+            (the message gives the numbers, what would do, and the definitions that
+            changed since the baseline).
     """
     here, there = _identity(run_summary), {k: baseline.get(k) for k in _IDENTITY}
     diff = [k for k in _IDENTITY if here[k] != there[k]]
@@ -498,9 +715,7 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
             f"the run and the baseline differ in {what}. Check against a baseline of the same "
             "suite and settings, or replace it with --update-baseline.")
     if config is None:
-        gate = dict(baseline.get("gate") or {})
-        config = GateConfig(**{k: v for k, v in gate.items()
-                               if k in ("alpha", "n_permutations", "seed", "margins")})
+        config = config_of(baseline)
     rows: list[dict[str, Any]] = []
     changed = definition_changes(run_summary.get("provenance"), baseline.get("provenance"))
     changed_policy = {name: what for kind, name, what in changed if kind == "policy"}
@@ -535,120 +750,243 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
                          "note": "in the baseline, missing from the run", "forced": True})
             continue
         plans.append((key, base, run))
-    _refuse_if_it_cannot_fire(plans, config)
+    try:
+        _refuse_if_it_cannot_fire(plans, config)
+    except ParameterError as err:
+        if changed:
+            listed = "; ".join(f"{kind} {name!r}: {what}" for kind, name, what in changed)
+            raise ParameterError(err.parameter, err.value, err.allowed, hint=(
+                f"{err.hint} Changed since the baseline: {listed}.")) from None
+        raise
     for key, base, run in plans:
-        seeds_b = base["seed"].astype(np.int64).to_numpy()
-        seeds_r = run["seed"].astype(np.int64).to_numpy()
-        paired = len(seeds_b) == len(seeds_r) and set(seeds_b) == set(seeds_r)
+        rows += _test_cell(key, base, run, config, _why(key, changed_policy, changed_env))
+    table = _decide(pd.DataFrame(rows), config)
+    if power:
+        table = _with_power(table, plans, config)
+    else:
+        table["power"] = np.nan
+        table["underpowered"] = False
+    table = table[_COLUMNS]
+    order = table["verdict"].map({"worse": 0, "changed": 0, "better": 1}).fillna(2)
+    table = table.assign(_order=order).sort_values(
+        ["_order", "env", "policy"], kind="stable").drop(columns="_order").reset_index(
+        drop=True)
+    return GateResult(table, bool(table["moved"].any()), config)
+
+
+_COLUMNS = ["env", "policy", "metric", "direction", "test", "n_baseline", "n_run",
+            "baseline", "run", "change", "margin", "p_value", "p_min", "p_adjusted",
+            "verdict", "moved", "power", "underpowered", "note"]
+
+
+def config_of(baseline: dict[str, Any]) -> GateConfig:
+    """The gate settings a baseline was made with (defaults for fields it predates)."""
+    gate = dict(baseline.get("gate") or {})
+    return GateConfig(**{k: v for k, v in gate.items() if k in _GATE_FIELDS})
+
+
+
+def _test_cell(key: dict[str, Any], base: pd.DataFrame, run: pd.DataFrame,
+               config: GateConfig, why: str) -> list[dict[str, Any]]:
+    """The rows of one (env, policy): one test per gate metric."""
+    rows = []
+    seeds_b = base["seed"].astype(np.int64).to_numpy()
+    seeds_r = run["seed"].astype(np.int64).to_numpy()
+    paired = len(seeds_b) == len(seeds_r) and set(seeds_b) == set(seeds_r)
+    if paired:
+        base = base.iloc[np.argsort(seeds_b, kind="stable")]
+        run = run.iloc[np.argsort(seeds_r, kind="stable")]
+        seeds_r = np.sort(seeds_r)
+    for metric in gate_metrics():
+        name = (key["env"], key["policy"], metric)
+        sign = direction(metric)
+        row = {**key, "metric": metric, "test": "paired" if paired else "unpaired",
+               "direction": {1: "higher", -1: "lower", 0: "none"}[sign],
+               "margin": config.margin(metric), "forced": False, "note": why}
+        if metric == "label_tv":
+            b = base["sdl"].fillna(NO_LABEL).astype(str).to_numpy()
+            r = run["sdl"].fillna(NO_LABEL).astype(str).to_numpy()
+            test = (_paired_tv_test(b, r, config, name) if paired
+                    else _tv_test(b, r, config, name))
+            rows.append({**row, "n_baseline": len(b), "n_run": len(r), "baseline": np.nan,
+                         "run": np.nan, **_fields(test)})
+            continue
+        b = pd.to_numeric(base[metric], errors="coerce").to_numpy(float)
+        r = pd.to_numeric(run[metric], errors="coerce").to_numpy(float)
         if paired:
-            base = base.iloc[np.argsort(seeds_b, kind="stable")]
-            run = run.iloc[np.argsort(seeds_r, kind="stable")]
-        why = _why(key, changed_policy, changed_env)
-        for metric in gate_metrics():
-            margin = config.margin(metric)
-            name = (key["env"], key["policy"], metric)
-            row = {**key, "metric": metric, "test": "paired" if paired else "unpaired",
-                   "margin": margin, "forced": False, "note": why}
-            if metric == "label_tv":
-                b = base["sdl"].fillna(NO_LABEL).astype(str).to_numpy()
-                r = run["sdl"].fillna(NO_LABEL).astype(str).to_numpy()
-                if paired:
-                    change, p = _paired_tv_test(b, r, config, name)
-                else:
-                    change, p = _tv_test(b, r, _permutations(len(b) + len(r), config, name))
-                rows.append({**row, "n_baseline": len(b), "n_run": len(r), "baseline": np.nan,
-                             "run": np.nan, "change": change, "p_value": p})
+            one_side = np.isfinite(b) != np.isfinite(r)
+            if one_side.any():
+                rows.append({**row, "n_baseline": int(np.isfinite(b).sum()),
+                             "n_run": int(np.isfinite(r).sum()), "forced": True,
+                             "note": f"defined on {int(one_side.sum())} seeds in only one "
+                             f"of run and baseline (e.g. seed {int(seeds_r[one_side][0])})"})
                 continue
-            b = pd.to_numeric(base[metric], errors="coerce").to_numpy(float)
-            r = pd.to_numeric(run[metric], errors="coerce").to_numpy(float)
-            if paired:
-                one_side = np.isfinite(b) != np.isfinite(r)
-                if one_side.any():
-                    rows.append({**row, "n_baseline": int(np.isfinite(b).sum()),
-                                 "n_run": int(np.isfinite(r).sum()), "forced": True,
-                                 "note": f"defined on {int(one_side.sum())} seeds in only one "
-                                 "of run and baseline (e.g. seed "
-                                 f"{int(seeds_r[np.argsort(seeds_r)][one_side][0])})"})
-                    continue
-                both = np.isfinite(b) & np.isfinite(r)
-                b, r = b[both], r[both]
-            else:
-                b, r = b[np.isfinite(b)], r[np.isfinite(r)]
-            if not len(b) and not len(r):
-                rows.append({**row, "n_baseline": 0, "n_run": 0, "test": "",
-                             "note": "undefined on every episode of both (e.g. no leader "
-                             "ever): nothing to compare"})
-                continue
-            if len(b) < 2 or len(r) < 2:
-                rows.append({**row, "n_baseline": len(b), "n_run": len(r), "forced": True,
-                             "note": "defined on fewer than 2 episodes of one side only"})
-                continue
-            if paired:
-                change, p = _paired_mean_test(b, r, config, name)
-            else:
-                change, p = _mean_test(b, r, _permutations(len(b) + len(r), config, name))
-            rows.append({**row, "n_baseline": len(b), "n_run": len(r),
-                         "baseline": float(b.mean()), "run": float(r.mean()),
-                         "change": change, "p_value": p})
-    table = pd.DataFrame(rows)
-    for col in ("baseline", "run", "change", "margin", "p_value", "n_baseline", "n_run",
-                "test"):
+            both = np.isfinite(b) & np.isfinite(r)
+            b, r = b[both], r[both]
+        else:
+            b, r = b[np.isfinite(b)], r[np.isfinite(r)]
+        if not len(b) and not len(r):
+            rows.append({**row, "n_baseline": 0, "n_run": 0, "test": "",
+                         "note": "undefined on every episode of both (e.g. no leader "
+                         "ever): nothing to compare"})
+            continue
+        if len(b) < 2 or len(r) < 2:
+            rows.append({**row, "n_baseline": len(b), "n_run": len(r), "forced": True,
+                         "note": "defined on fewer than 2 episodes of one side only"})
+            continue
+        test = (_sign_flip_test(r - b, sign, config, name) if paired
+                else _unpaired_test(b, r, sign, config, name))
+        rows.append({**row, "n_baseline": len(b), "n_run": len(r),
+                     "baseline": float(b.mean()), "run": float(r.mean()), **_fields(test)})
+    return rows
+
+
+def _fields(test: _Test) -> dict[str, float]:
+    return {"change": test.change, "p_value": test.p_worse, "p_better": test.p_better,
+            "p_min": test.p_min}
+
+
+def _decide(table: pd.DataFrame, config: GateConfig) -> pd.DataFrame:
+    """Adjusted p-values and the verdict of every row.
+
+    ``p_adjusted``: the weighted Holm procedure over every test of the check, each metric
+    weighted by its share of alpha (:meth:`GateConfig.share`), restricted to the tests that
+    can reach alpha (Tarone). ``verdict``: ``worse`` (the metric moved the worse way by
+    more than its margin and p_adjusted < alpha: the check fails), ``changed`` (label_tv:
+    the label distribution moved), ``better`` (moved the better way beyond the margin,
+    the better-side p-value adjusted alike: reported, never a failure), ``untestable``,
+    or empty."""
+    for col in ("baseline", "run", "change", "margin", "p_value", "p_better", "p_min",
+                "n_baseline", "n_run", "test", "direction"):
         if col not in table.columns:
             table[col] = np.nan
     tested = table["p_value"].notna().to_numpy()
-    table["p_holm"] = np.nan
-    table.loc[tested, "p_holm"] = holm(table.loc[tested, "p_value"].to_numpy(float))
-    significant = table["p_holm"].to_numpy(float) < config.alpha
-    beyond = np.abs(table["change"].to_numpy(float)) > table["margin"].to_numpy(float)
-    table["moved"] = (significant & beyond) | table["forced"].fillna(False).to_numpy(bool)
+    metrics = set(gate_metrics())
+    weights = table["metric"].map(lambda m: config.share(m) if m in metrics
+                                  else np.nan).to_numpy(float)
+    table["p_adjusted"] = np.nan
+    table.loc[tested, "p_adjusted"] = weighted_holm(
+        table.loc[tested, "p_value"].to_numpy(float), weights[tested],
+        table.loc[tested, "p_min"].to_numpy(float), config.alpha)
+    sided = tested & (table["direction"].isin(["higher", "lower"])).to_numpy()
+    better_adj = np.full(len(table), np.nan)
+    better_adj[sided] = weighted_holm(table.loc[sided, "p_better"].to_numpy(float),
+                                      weights[sided], table.loc[sided, "p_min"].to_numpy(float),
+                                      config.alpha)
+    sign = table["direction"].map({"higher": 1.0, "lower": -1.0, "none": 1.0}).to_numpy(float)
+    change = table["change"].to_numpy(float)
+    margin = table["margin"].to_numpy(float)
+    worse_by = np.where(table["direction"] == "none", change, -sign * change)
+    with np.errstate(invalid="ignore"):
+        fails = (table["p_adjusted"].to_numpy(float) < config.alpha) & (worse_by > margin)
+        better = (better_adj < config.alpha) & (-worse_by > margin)
+    forced = table["forced"].fillna(False).to_numpy(bool)
+    verdict = np.where(fails | forced, "worse", np.where(better, "better", ""))
+    verdict = np.where((verdict == "worse") & (table["direction"] == "none").to_numpy()
+                       & ~forced, "changed", verdict)
+    table["verdict"] = verdict
+    table["moved"] = fails | forced
+    # an improvement shows the p-values of its side
+    improved = verdict == "better"
+    table.loc[improved, "p_value"] = table.loc[improved, "p_better"]
+    table.loc[improved, "p_adjusted"] = better_adj[improved]
     table["note"] = table["note"].fillna("")
     table["test"] = table["test"].fillna("")
-    table = table.drop(columns="forced")
-    table = table[["env", "policy", "metric", "test", "n_baseline", "n_run", "baseline", "run",
-                   "change", "margin", "p_value", "p_holm", "moved", "note"]]
-    table = table.sort_values(["moved", "env", "policy"], ascending=[False, True, True],
-                              kind="stable").reset_index(drop=True)
-    return GateResult(table, bool(table["moved"].any()), config)
+    table["direction"] = table["direction"].fillna("")
+    return table.drop(columns=["forced", "p_better"])
+
+
+def _with_power(table: pd.DataFrame, plans: list, config: GateConfig) -> pd.DataFrame:
+    """Each tested row's power at the ``detect`` worsening
+    (:func:`tap_bench.bench.power.rule_power`): one changed cell in play when paired,
+    every cell when the seeds differ. A row is **underpowered** when that power is below
+    :data:`~tap_bench.bench.power.POWER` and below the power of the baseline's own design
+    (a paired check on its seeds): the run has fewer seeds, or other ones. (What the
+    baseline's design itself cannot catch, ``bench check --power`` and the report show.)"""
+    from tap_bench.bench.power import POWER, rule_power
+
+    table = table.copy()
+    table["power"] = np.nan
+    table["underpowered"] = False
+    by_key = {(k["env"], k["policy"]): b for k, b, _ in plans}
+    for i in np.flatnonzero(table["p_value"].notna().to_numpy()):
+        row = table.iloc[i]
+        base = by_key[(row["env"], row["policy"])]
+        paired = row["test"] == "paired"
+        values = (base["sdl"].fillna(NO_LABEL) if row["metric"] == "label_tv"
+                  else base[row["metric"]]).to_numpy()
+        key = (row["env"], row["policy"])
+        power = rule_power(values, row["metric"], config, cells=1 if paired else len(plans),
+                           paired=paired, n_run=int(row["n_run"]), seed_key=key)
+        table.iloc[i, table.columns.get_loc("power")] = power
+        if not np.isfinite(power) or power >= POWER or row["verdict"] == "worse":
+            continue
+        own = power if paired else rule_power(values, row["metric"], config, cells=1,
+                                              paired=True, seed_key=key)
+        if power < own - 0.02:
+            effect = config.detect * float(row["margin"])
+            note = (f"underpowered: a worsening of {effect:g} is caught with probability "
+                    f"{power:.2f} at {int(row['n_run'])} {'paired' if paired else 'unpaired'} "
+                    f"episodes, {own:.2f} on the baseline's seeds")
+            table.iloc[i, table.columns.get_loc("note")] = "; ".join(
+                x for x in (row["note"], note) if x)
+            table.iloc[i, table.columns.get_loc("underpowered")] = True
+    return table
 
 
 def _why(key: dict[str, Any], policies: dict[str, str], envs: dict[str, str]) -> str:
     bits = []
     if key["policy"] in policies:
-        bits.append(f"policy {key['policy']!r} changed: {policies[key['policy']]}")
+        bits.append(f"policy {key['policy']!r} changed (its definition row says how)")
     if key["env"] in envs:
-        bits.append(f"env {key['env']!r} changed: {envs[key['env']]}")
+        bits.append(f"env {key['env']!r} changed (its definition row says how)")
     return "; ".join(bits)
 
 
+def firing_floor(config: GateConfig, *, cells: int, seeds: int | None) -> tuple[float, float]:
+    """(the smallest p-value the most favoured test can give, the level it is tested at)
+    in the most favourable check: paired on ``seeds`` seeds with one changed cell in play,
+    or unpaired (``seeds`` None) with every one of ``cells`` in play. The gate can fire
+    only when the first is at most the second."""
+    metric = max(gate_metrics(), key=config.share)
+    if seeds is None:
+        return 1.0 / (config.n_permutations + 1), config.alpha * config.share(metric) / cells
+    # a rate's paired test is exact (McNemar): 1 / 2^n; a mean's is floored by P
+    best = min(0.5 ** seeds if _is_rate(m) else smallest_p(config.n_permutations,
+                                                            paired_seeds=seeds)
+               for m in gate_metrics() if config.share(m) >= config.share(metric) - 1e-12)
+    return best, config.alpha * config.share(metric)
+
+
+def _is_rate(metric: str) -> bool:
+    return metric in MEASURES and MEASURES[metric].is_rate
+
+
 def _refuse_if_it_cannot_fire(plans: list, config: GateConfig) -> None:
-    """Raise when the smallest attainable Holm-adjusted p-value is not below alpha."""
-    m = len(plans) * len(gate_metrics())
-    if not m:
+    """Raise when no test of the check could ever reach its share of alpha."""
+    if not plans:
         return
-    floor = m / (config.n_permutations + 1)
-    if floor >= config.alpha:
-        need = math.floor(m / config.alpha + 1e-9)  # P + 1 > m / alpha
+    cells = len(plans)
+    paired = [len(b) == len(r) and set(b["seed"].astype(np.int64))
+              == set(r["seed"].astype(np.int64)) for _, b, r in plans]
+    n = min(len(b) for _, b, _ in plans)
+    floor, level = firing_floor(config, cells=cells, seeds=n if all(paired) else None)
+    if floor <= level * (1 + 1e-9):
+        return
+    if all(paired):
+        need = next(k for k in range(1, 64)
+                    if firing_floor(config, cells=cells, seeds=k)[0] <= level * (1 + 1e-9))
         raise ParameterError(
-            "gate n_permutations", config.n_permutations,
-            f"at least {need} for {m} tests at alpha {config.alpha:g}",
-            hint=f"With {config.n_permutations} permutations no p-value is below "
-            f"1/{config.n_permutations + 1}, so the smallest Holm-adjusted p-value is "
-            f"{m}/{config.n_permutations + 1} = {floor:.3g} >= alpha {config.alpha:g}: the "
-            "gate could never fire. Raise gate.n_permutations in the suite (and "
-            "--update-baseline) or check fewer envs and policies.")
-    best = []
-    for _, base, run in plans:
-        sb, sr = set(base["seed"].astype(np.int64)), set(run["seed"].astype(np.int64))
-        if len(base) == len(run) and sb == sr:
-            best.append(smallest_p(config.n_permutations, paired_seeds=len(sb)))
-        else:
-            best.append(smallest_p(config.n_permutations, sizes=(len(base), len(run))))
-    if min(best) * m >= config.alpha:
-        n = min(len(b) for _, b, _ in plans)
-        need = next(k for k in range(1, 64) if 2.0 / 2 ** k * m < config.alpha)
-        raise ParameterError(
-            "seeds", n, f"at least {need} paired seeds for {m} tests at alpha "
-            f"{config.alpha:g}",
-            hint=f"With {n} seeds the smallest p-value of a test is {min(best):.3g}, so the "
-            f"smallest Holm-adjusted one is {min(best) * m:.3g} >= alpha: the gate could "
-            "never fire. Run the suite on more seeds (and --update-baseline).")
+            "seeds", n, f"at least {need} paired seeds at alpha {config.alpha:g}",
+            hint=f"With {n} seeds no test's p-value is below {floor:.3g}, above the "
+            f"{level:.3g} its share of alpha allows even when one cell alone changed: the "
+            "gate could never fire. Run the suite on more seeds (and --update-baseline).")
+    need = math.ceil(1.0 / level - 1 - 1e-9)
+    raise ParameterError(
+        "gate n_permutations", config.n_permutations,
+        f"at least {need} for {cells} cells at alpha {config.alpha:g}",
+        hint=f"The run's seeds differ from the baseline's, so every cell is in play: the "
+        f"most favoured metric is tested at {level:.3g}, below the smallest p-value "
+        f"{floor:.3g} of {config.n_permutations} permutations: the gate could never fire. "
+        "Raise gate.n_permutations in the suite (and --update-baseline), or run the "
+        "baseline's seeds.")

@@ -1,8 +1,10 @@
-"""The run report: SVG figures and one static HTML page (no server, nothing from the network).
+"""The run report: SVG (and two PNG) figures and one static HTML page (no server, nothing
+from the network).
 
-:func:`write_report` writes ``plots/*.svg`` and ``report.html`` into a run folder. The page
-holds its figures inline, so the HTML file alone is the whole report (mail it, open it from
-disk); the SVG files are there for papers and slides. A small inline script sorts
+:func:`write_report` writes ``plots/*.svg``, ``plots/*.png`` and ``report.html`` into a run
+folder. The page holds its figures inline (SVG) or as data URIs (PNG), so the HTML file
+alone is the whole report (mail it, open it from disk); the figure files are there for
+papers and slides. A small inline script sorts
 and searches the long tables; without it the page still reads in full.
 
 The page reads from the top: a summary table of each policy against the reference policy
@@ -16,6 +18,7 @@ that name episodes or labels link to the replay that shows them.
 
 from __future__ import annotations
 
+import base64
 import html
 import os
 from pathlib import Path
@@ -37,6 +40,7 @@ from tap_bench.bench.report_tables import (
     _display_paired_labels,
     _display_paired_measures,
     _envs,
+    _pct,
     _seed_text,
     _slug,
     _thresholds_text,
@@ -72,6 +76,10 @@ figure{margin:.6em 0}img,figure svg{border:1px solid #eee;max-width:100%;height:
 figcaption{font-size:13px;color:#444;max-width:60em}
 .note{color:#555;font-size:13px}.fail{color:#a00}
 a.replay{white-space:nowrap}
+.verdict p{margin:.6em 0 .1em}.verdict ul{margin:.1em 0 .4em;padding-left:1.4em}
+.verdict span.worse{color:#c92a2a;font-weight:700;text-transform:uppercase}
+.verdict span.better{color:#2b8a3e;font-weight:700;text-transform:uppercase}
+.verdict span.same{color:#444;font-weight:600}.note.warning{color:#a05a00}
 """
 
 _SCRIPT = """
@@ -112,10 +120,19 @@ document.querySelectorAll('table.sortable th').forEach(function (th, k) {
 
 
 def _figure(path: Path, alt: str, caption: str) -> str:
-    """An SVG figure inline in the page, with its caption."""
-    svg = path.read_text()
-    svg = svg.replace("<svg ", f'<svg role="img" aria-label="{html.escape(alt)}" ', 1)
-    return f"<figure>{svg}<figcaption>{html.escape(caption)}</figcaption></figure>"
+    """A figure in the page, with its caption: an SVG inline, a PNG as a data URI."""
+    if path.suffix == ".svg":
+        svg = path.read_text()
+        svg = svg.replace("<svg ", f'<svg role="img" aria-label="{html.escape(alt)}" ', 1)
+        return f"<figure>{svg}<figcaption>{html.escape(caption)}</figcaption></figure>"
+    from PIL import Image
+
+    with Image.open(path) as im:
+        width, height = im.size
+    data = base64.b64encode(path.read_bytes()).decode("ascii")
+    return (f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(alt)}" '
+            f'width="{width}" height="{height}"><figcaption>{html.escape(caption)}'
+            "</figcaption></figure>")
 
 
 def _replay(viewer: str | None, **params: Any) -> str | None:
@@ -124,6 +141,53 @@ def _replay(viewer: str | None, **params: Any) -> str | None:
     parts = [f"{k}={quote(str(v), safe='')}" for k, v in params.items()
              if v is not None and v != ""]
     return f"{viewer}#{'&'.join(parts)}"
+
+
+def _against_the_human(episodes: pd.DataFrame, reference: str) -> list[str]:
+    """The section "against the human" of runs on recorded scenes (SPEC section 8): each
+    policy's label agreement with the reference on the same scenes, per axis, and the
+    closed-loop measures beside the human's own. Empty for runs without recorded scenes."""
+    from tap_bench.bench.agreement import agreement_with_reference, scene_summary
+
+    if "route_progress" not in episodes.columns:
+        return []
+    scenes = episodes[episodes["route_progress"].notna()
+                      | episodes.get("log_ade", pd.Series(dtype=float)).notna()]
+    if scenes.empty:
+        return []
+    human = "the human" if reference == "log" else f"the reference policy {reference}"
+    parts = ["<h2>Against the human</h2>",
+             f'<p class="note">Recorded scenes: every policy drove the recorded ego of the '
+             f"same WOMD scenarios from 1.0 s, {human} drove them as logged. Episodes pair "
+             "by scenario.</p>"]
+    agree = agreement_with_reference(scenes, reference)
+    if len(agree):
+        shown = agree.assign(
+            agreement=[f"{a}/{n} = {_pct(sh)} [{_pct(lo)}, {_pct(hi)}]" if n else "–"
+                       for a, n, sh, lo, hi in zip(agree["agree"], agree["pairs"],
+                                                   agree["share"], agree["low"],
+                                                   agree["high"], strict=True)])
+        wide = shown.pivot_table(index=["env", "policy"], columns="axis", values="agreement",
+                                 aggfunc="first").reset_index()
+        wide.columns.name = None
+        parts.append(html_table(
+            wide, table_id="human-agreement",
+            caption=f"Label agreement with {human}: scenes where the policy's ego label on "
+            "an axis equals the human's on the same scene, with its 95 % Wilson interval. "
+            "sdl is lateral and longitudinal together; interaction the relations to others "
+            "(SPEC 7)."))
+    summary = scene_summary(scenes)
+    for col in summary.columns:
+        if col not in ("env", "policy", "episodes"):
+            summary[col] = summary[col].round(3)
+    parts.append(html_table(
+        summary, table_id="human-measures",
+        caption="Closed-loop measures on recorded scenes, mean over scenes: crashed and "
+        "off_road (share), route_progress (share of the human's path covered, 0-1), "
+        "ran_red_light (share), log_ade and log_fde (mean and final distance to the human's "
+        f"ego, m). The {reference} row is the floor: the human's own boxes can overlap "
+        "others' in the log."))
+    return parts
 
 
 def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: pd.DataFrame,
@@ -161,6 +225,41 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
 
     # 1. the summary
     pooled_env = "all" if len(_envs(scores)) > 1 else (_envs(scores) or ["–"])[0]
+    one = summary.get("one_outcome_cells") or []
+    if one:
+        listed = ", ".join(f"{c['env']}/{c['policy']} ({c['n']})" for c in one)
+        parts.append(f'<p class="note warning">One outcome on every seed: {html.escape(listed)}.'
+                     " These episodes are not independent samples (the scene does not vary "
+                     "with its seed for that policy); their intervals, pooled figures and "
+                     "contexts count one episode as many.</p>")
+    verdict = summary.get("verdict") or []
+    if verdict:
+        parts.append(f"<h2>Verdict: each policy against {html.escape(reference)}</h2>")
+        parts.append('<p class="note">Paired by seed, safety first (crash rate, minimum TTC, '
+                     "minimum headway), then efficiency, then behaviour; each claim with its "
+                     f"{pct} interval (crash rate in percentage points). A policy that is less "
+                     "safe is never called better, however fast. Per-env claims are not "
+                     "corrected across envs; the regression gate is.</p>")
+        by_policy: dict[str, list[dict[str, Any]]] = {}
+        for row in verdict:
+            by_policy.setdefault(str(row["policy"]), []).append(row)
+        items = []
+        for policy, rows in by_policy.items():
+            lines = "".join(f"<li><b>{html.escape(str(r['area']))}</b>: "
+                            f"{html.escape(str(r['word']))}"
+                            + (f" <span class=\"note\">({html.escape(str(r['evidence']))})"
+                               "</span>" if r.get("evidence") else "") + "</li>"
+                            for r in rows)
+            word = html.escape(str(rows[0].get("overall", "")))
+            cls = "worse" if word.startswith("less safe") else "better" if \
+                word.startswith("safer") else "same"
+            items.append(f'<div class="verdict"><p><b>{html.escape(policy)}</b>: '
+                         f'<span class="{cls}">{word}</span></p><ul>{lines}</ul></div>')
+        parts.append("".join(items))
+    parts.append(img("tradeoff", "crash rate against mean speed per env",
+                     "Safety against progress, per env: each policy's crash rate "
+                     f"({pct} Wilson interval) against its mean speed ({pct} t interval); the "
+                     "reference is the square. Down is safer, right is faster."))
     parts.append("<h2>Summary: each policy against the reference</h2>")
     parts.append(html_table(
         summary_table(scores, reference), table_id="summary", max_rows=50,
@@ -174,6 +273,8 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
         parts.append('<details><summary class="note">How the intervals are computed</summary>'
                      "<ul>" + "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>"
                                       for k, v in scores.methods.items()) + "</ul></details>")
+
+    parts.extend(_against_the_human(episodes, reference))
 
     # 2. per-env panels
     parts.append("<h2>Per env</h2>")
@@ -306,19 +407,22 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
         parts.append("<h2>Regression gate: power at this seed count</h2>")
         parts.append(html_table(
             power, table_id="gate_power",
-            caption=f"Per metric, the smallest change 'bench check' detects with "
-            f"{POWER:.0%} power (median and worst (env, policy)), and the seeds the worst "
-            "cell needs to detect a change of one margin."))
-        for r in power[power["cells_too_small"] > 0].itertuples():
-            parts.append(f'<p class="note">{html.escape(r.metric)}: {r.cells_too_small} of '
-                         f"{r.cells} (env, policy) cells cannot detect a change of one margin "
-                         f"({r.margin:g}) with {r.n} seeds; up to {r.seeds_for_margin:.0f} "
-                         "seeds needed.</p>")
+            caption="Per metric, the probability that 'bench check' on these seeds fails a "
+            "cell whose metric worsened by 'effect' (the gate's 'detect' margins): the "
+            "gate's own rule (margin and weighted one-sided test), exact for rates, "
+            "simulated for means; median and weakest (env, policy), and the seeds the "
+            f"weakest needs for {POWER:.0%}."))
+        for r in power[power["cells_underpowered"] > 0].itertuples():
+            parts.append(f'<p class="note">{html.escape(r.metric)}: {r.cells_underpowered} '
+                         f"of {r.cells} (env, policy) cells catch a worsening of {r.effect:g} "
+                         f"with less than {POWER:.0%} probability at {r.n} seeds; up to "
+                         f"{r.seeds_for_power:.0f} seeds needed.</p>")
 
     # 4. the run
     parts.append("<h2>The run</h2>")
     facts = pd.DataFrame([
-        ("envs", ", ".join(suite.get("envs", []))),
+        ("envs", ", ".join(e if isinstance(e, str) else str(e.get("name", "womd"))
+                           for e in suite.get("envs", []))),
         ("policies", ", ".join(suite.get("policies", []))),
         ("seeds", _seed_text(summary.get("seeds", []))),
         ("SDL level", summary.get("level", "")),

@@ -218,6 +218,59 @@ def _series(sub: pd.DataFrame, est: str, lo: str, hi: str, scale: float = 1.0, *
             "hi": (sub[hi] * scale).to_numpy(float), "color": color, "offset": offset}
 
 
+# -- the figures still drawn with matplotlib (PNG): forest plots per env, the trade-off view
+
+DPI = 100  # PNG figures are drawn at the size they are shown: 1 pt = 1.39 px
+FONT_PT = 8.5  # smallest text in a PNG figure: 11.8 px
+MAX_WIDTH_IN = 11.0  # widest PNG figure [in]
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    # names in figures are the user's text, never matplotlib math: a policy called
+    # "a$b" or "$\\frac$" once crashed the report after the whole run
+    plt.rcParams.update({"font.size": FONT_PT, "axes.titlesize": FONT_PT + 1,
+                         "xtick.labelsize": FONT_PT, "ytick.labelsize": FONT_PT,
+                         "legend.fontsize": FONT_PT, "text.parse_math": False})
+    return plt
+
+
+def _save(fig, path: Path) -> Path:
+    fig.savefig(path, dpi=DPI)
+    _plt().close(fig)
+    return path
+
+
+def _interval_plot(ax, names, est, lo, hi, *, color="C0", offset=0.0, label=None):
+    y = np.arange(len(names)) + offset
+    est, lo, hi = (np.asarray(v, float) for v in (est, lo, hi))
+    err = np.vstack([np.clip(est - lo, 0, None), np.clip(hi - est, 0, None)])
+    err = np.nan_to_num(err)
+    ax.errorbar(est, y, xerr=err, fmt="o", color=color, capsize=3, label=label, ms=4)
+    ax.set_yticks(np.arange(len(names)), names)
+
+
+def _fit_axes(ax, lo, hi, *, floor: float | None = None, ceil: float | None = None) -> None:
+    """x limits fitted to the intervals shown, with a margin; clipped to [floor, ceil]."""
+    values = np.concatenate([np.asarray(lo, float), np.asarray(hi, float)])
+    values = values[np.isfinite(values)]
+    if not len(values):
+        return
+    a, b = float(values.min()), float(values.max())
+    pad = max((b - a) * 0.08, 1e-3 if b == a else 0)
+    a, b = a - pad, b + pad
+    if floor is not None:
+        a = max(a, floor)
+    if ceil is not None:
+        b = min(b, ceil)
+    if b > a:
+        ax.set_xlim(a, b)
+
+
 def _label_heatmap(counts: pd.DataFrame, env: str, folder: Path) -> Path | None:
     sub = counts[counts["env"] == env]
     if sub.empty:
@@ -327,33 +380,87 @@ def _coverage_plot(scores: Scores, folder: Path) -> Path | None:
 
 
 def _forest_plots(scores: Scores, folder: Path, level: float) -> list[Path]:
+    """Per pair of policies, one figure with a panel per env: the labels whose share of
+    seeds differs most in that env, with their intervals and the simultaneous band."""
     labels = scores.paired_labels
     out: list[Path] = []
     if labels.empty:
         return out
-    for (a, b), sub in labels.groupby(["policy_a", "policy_b"], sort=True):
-        sub = _pooled(sub)
-        sub = sub.reindex(sub["diff"].abs().sort_values(ascending=False).index)[:TOP_LABELS]
-        names = [_wrap(t, 60) for t in sub["label"]]
-        row_h = max(n.count("\n") + 1 for n in names) * _LINE + 10
-        left = max(_text_width(n) for n in names) + 14
-        top_y = _LINE + 14
-        legend_w = 190.0
-        svg = _Svg(MAX_WIDTH_PX, top_y + row_h * len(names) + 44)
-        _row_labels(svg, left - 8, top_y, names, row_h)
-        width = MAX_WIDTH_PX - left - legend_w - 20
-        _panel(svg, left, top_y, width, len(names), row_h,
-               [_series(sub, "diff", "diff_low", "diff_high", 100.0)],
-               _fit(sub["band_low"] * 100, sub["band_high"] * 100, floor=-100, ceil=100),
-               title=f"{a} vs {b}, paired by seed (env: {sub['env'].iloc[0]})",
-               xlabel=f"difference in the share of seeds [percentage points]: {a} minus {b}",
-               vlines=((0.0, "#000", None),),
-               band=((sub["band_low"] * 100).to_numpy(float),
-                     (sub["band_high"] * 100).to_numpy(float)))
-        _legend(svg, MAX_WIDTH_PX - 6, top_y, [(interval_heading(level), COLORS[0]),
-                                               ("simultaneous band", "band:#d9d9d9")])
-        out.append(svg.write(folder / f"forest_{_slug(a)}_vs_{_slug(b)}.svg"))
+    plt = _plt()
+    per_env = max(4, TOP_LABELS // 2)
+    for (a, b), pair in labels.groupby(["policy_a", "policy_b"], sort=True):
+        envs = sorted(pair["env"].unique(), key=str)
+        panels = []
+        for env in envs:
+            sub = pair[pair["env"] == env]
+            sub = sub.reindex(sub["diff"].abs().sort_values(ascending=False).index)[:per_env]
+            panels.append((env, sub, [_wrap(t, 60) for t in sub["label"]]))
+        heights = [1.0 + 0.2 * sum(n.count("\n") + 1 for n in names) + 0.1 * len(sub)
+                   for _, sub, names in panels]
+        fig, axes = plt.subplots(len(panels), 1, figsize=(MAX_WIDTH_IN, 0.6 + sum(heights)),
+                                 layout="constrained", sharex=True,
+                                 gridspec_kw={"height_ratios": heights}, squeeze=False)
+        for ax, (env, sub, names) in zip(axes[:, 0], panels, strict=True):
+            y = np.arange(len(sub))
+            ax.hlines(y, sub["band_low"] * 100, sub["band_high"] * 100, color="0.85", lw=7,
+                      label="simultaneous band")
+            _interval_plot(ax, names, sub["diff"] * 100, sub["diff_low"] * 100,
+                           sub["diff_high"] * 100, label=interval_heading(level))
+            ax.axvline(0, color="k", lw=0.8)
+            ax.invert_yaxis()
+            ax.set_title(f"{env}", loc="left", fontsize="medium")
+        _fit_axes(axes[0, 0], pair["band_low"] * 100, pair["band_high"] * 100, floor=-100, ceil=100)
+        axes[-1, 0].set_xlabel(f"difference in the share of seeds [percentage points]: {a} "
+                               f"minus {b}")
+        axes[0, 0].legend(loc="best", fontsize="small")
+        fig.suptitle(f"{a} vs {b}, paired by seed: the labels that differ most, per env",
+                     x=0.01, ha="left")
+        out.append(_save(fig, folder / f"forest_{_slug(a)}_vs_{_slug(b)}.png"))
     return out
+
+
+def _tradeoff_plot(scores: Scores, reference: str, folder: Path) -> Path | None:
+    """Safety against progress per env: each policy's crash rate (Wilson interval) against
+    its mean speed (t interval); the reference's point marked."""
+    m = scores.measures
+    if m.empty or not {"crashed", "mean_speed"} <= set(m["measure"]):
+        return None
+    plt = _plt()
+    envs = sorted((e for e in m["env"].unique() if e != "all"), key=str)
+    if (m["env"] == "all").any() and len(envs) > 1:
+        envs.append("all")
+    cols = min(3, len(envs))
+    rows = -(-len(envs) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(MAX_WIDTH_IN, 2.6 * rows),
+                             layout="constrained", squeeze=False)
+    policies = sorted(m["policy"].unique())
+    for ax, env in zip(axes.ravel(), envs, strict=False):
+        sub = m[m["env"] == env]
+        for k, policy in enumerate(policies):
+            c = sub[(sub["policy"] == policy) & (sub["measure"] == "crashed")]
+            v = sub[(sub["policy"] == policy) & (sub["measure"] == "mean_speed")]
+            if c.empty or v.empty:
+                continue
+            c, v = c.iloc[0], v.iloc[0]
+            xerr = np.nan_to_num([[max(v["mean"] - v["low"], 0)], [max(v["high"] - v["mean"],
+                                                                       0)]])
+            yerr = np.nan_to_num([[max(c["mean"] - c["low"], 0) * 100],
+                                  [max(c["high"] - c["mean"], 0) * 100]])
+            ax.errorbar(v["mean"], c["mean"] * 100, xerr=xerr, yerr=yerr, fmt="o" if
+                        policy != reference else "s", color=f"C{k}", capsize=2, ms=5,
+                        label=policy)
+        ax.set_title("pooled" if env == "all" else env, loc="left", fontsize="medium")
+        ax.set_ylim(-3, 103)
+        ax.grid(alpha=0.3)
+    for ax in axes.ravel()[len(envs):]:
+        ax.axis("off")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("crash rate [%] (lower is safer)")
+    for ax in axes[-1, :]:
+        ax.set_xlabel("mean speed [m/s] (progress)")
+    handles, names = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, names, loc="outside right upper", fontsize="small")
+    return _save(fig, folder / "tradeoff.png")
 
 
 def _improvement_plot(scores: Scores, folder: Path) -> Path | None:
@@ -416,7 +523,8 @@ def write_plots(scores: Scores, folder: str | os.PathLike, *,
     (``level``: the run's interval level, for the legends).
 
     Per env: ``labels_<env>.svg`` (label heat map) and ``measures_<env>.svg``; pooled:
-    ``measures_all.svg``, ``improvement.svg``, ``coverage.svg``, ``forest_<A>_vs_<B>.svg``,
+    ``measures_all.svg``, ``tradeoff.png`` (crash rate against mean speed, per env),
+    ``improvement.svg``, ``coverage.svg``, ``forest_<A>_vs_<B>.png`` (a panel per env),
     ``novelty.svg``.
     """
     folder = Path(folder)
@@ -429,6 +537,7 @@ def write_plots(scores: Scores, folder: str | os.PathLike, *,
         paths.append(_measures_plot(scores, env, reference, folder))
     if len(envs) > 1:
         paths.append(_measures_plot(scores, "all", reference, folder))
-    paths += [_improvement_plot(scores, folder), _coverage_plot(scores, folder),
+    paths += [_tradeoff_plot(scores, reference, folder), _improvement_plot(scores, folder),
+              _coverage_plot(scores, folder),
               *_forest_plots(scores, folder, level), _novelty_plot(scores, folder)]
     return [p for p in paths if p is not None]

@@ -395,7 +395,9 @@ def diversity_display(table: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _seed_text(seeds: list[int]) -> str:
+def _seed_text(seeds: list[int] | str) -> str:
+    if seeds == "all":
+        return "all (every scenario of the recorded scenes)"
     if not seeds:
         return ""
     if seeds == list(range(seeds[0], seeds[0] + len(seeds))):

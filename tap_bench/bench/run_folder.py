@@ -24,6 +24,7 @@ from tap_bench.errors import (
     FileFormatError,
 )
 from tap_bench.sim.policies import get_definition
+from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.tableio import atomic_folder, atomic_path, check_folder_output
 
 
@@ -113,6 +114,11 @@ def provenance(suite: Suite | SuitePlan) -> dict[str, Any]:
         policies[name] = json.loads(json.dumps(entry, default=str))
     envs = {}
     for env, scenario in scenarios.items():
+        if isinstance(scenario, WomdScenes):  # recorded scenes: files, each scene's hash
+            envs[env] = {"womd": list(scenario.files), "traffic": scenario.traffic,
+                         "ego": scenario.ego, "policy_frequency": scenario.policy_frequency,
+                         "scenarios": {str(ref): ref.digest() for ref in scenario.catalog()}}
+            continue
         entry = {"highway_env_id": scenario.highway_env_id, "version": scenario.version,
                  "duration": scenario.duration, "lane_change": scenario.lane_change,
                  "config": scenario.config}

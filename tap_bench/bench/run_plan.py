@@ -27,6 +27,7 @@ from tap_bench.sim.policies import PolicyDefinition
 from tap_bench.sim.rollout import resolve_policy
 from tap_bench.sim.sb3 import warn_untrusted_model
 from tap_bench.sim.suite import Scenario, parse_seeds
+from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.thresholds import Thresholds, resolve_thresholds
 
 
@@ -57,7 +58,8 @@ class SuitePlan:
 
     Attributes:
         suite: the suite (its gate margins filled for every measure of the run).
-        scenarios: env -> its :class:`~tap_bench.sim.suite.Scenario`, overrides applied.
+        scenarios: env -> its :class:`~tap_bench.sim.suite.Scenario`, overrides applied
+            (recorded scenes: its :class:`~tap_bench.sim.womd_scene.WomdScenes`).
         definitions: each policy's definition, built once (a bad one fails here).
         thresholds: the TAP thresholds.
         measures: the run's measure entries, fixed after the plugins, the suite's plugins
@@ -68,7 +70,7 @@ class SuitePlan:
     """
 
     suite: Suite
-    scenarios: Mapping[str, Scenario]
+    scenarios: Mapping[str, Scenario | WomdScenes]
     definitions: tuple[PolicyDefinition, ...]
     thresholds: Thresholds
     measures: tuple[Measure, ...]
@@ -98,7 +100,8 @@ def plan_suite(suite: Suite | str | os.PathLike, *, plugins: Sequence[str] = (),
     suite = suite if isinstance(suite, Suite) else load_suite(suite)
     load_plugins(suite.plugins, source=f"suite {suite.name}")
     if seeds is not None:
-        suite = replace(suite, seeds=tuple(parse_seeds(seeds, source="seeds")))
+        suite = replace(suite, seeds=tuple(parse_seeds(seeds, source="seeds")),
+                        all_seeds=False)
     scenarios = {env: suite.scenario(env) for env in suite.envs}
     definitions = tuple(resolve_policy(policy) for policy in suite.policies)
     thresholds = resolve_thresholds(suite.thresholds)
@@ -119,6 +122,7 @@ def _tasks(plan: SuitePlan, keep: bool, cache: EpisodeCache | None) -> list[_Tas
     suite, scenarios, thresholds = plan.suite, plan.scenarios, plan.thresholds
     definitions = plan.definitions
     common = {"measures": plan.measure_names}
+    seeds = {env: suite.env_seeds(env) for env in suite.envs}
     for d in definitions:  # workers load models with warnings off: said here, once each
         if d.kind == "sb3" and isinstance(d.params.get("model"), str):
             model = Path(d.params["model"])
@@ -128,20 +132,38 @@ def _tasks(plan: SuitePlan, keep: bool, cache: EpisodeCache | None) -> list[_Tas
     if cache is None:
         return [_Task(env, scenarios[env], d.name, d, seed, thresholds, suite.level, keep,
                       **common)
-                for env in suite.envs for d in definitions for seed in suite.seeds]
+                for env in suite.envs for d in definitions for seed in seeds[env]]
     versions = simulation_fingerprint()
-    envs = {env: scenario_fingerprint(scenarios[env], env) for env in suite.envs}
+    envs = {env: _env_fingerprints(scenarios[env], env, seeds[env]) for env in suite.envs}
     policies = {d.name: policy_fingerprint(d) for d in definitions}
     tasks = []
     for env in suite.envs:
         for d in definitions:
-            for seed in suite.seeds:
+            for seed in seeds[env]:
                 key = doc = None
-                if policies[d.name] is not None and envs[env] is not None:
-                    key, doc = episode_key(envs[env], policies[d.name], seed, versions)
+                if policies[d.name] is not None and envs[env].get(seed) is not None:
+                    key, doc = episode_key(envs[env][seed], policies[d.name], seed, versions)
                 tasks.append(_Task(env, scenarios[env], d.name, d, seed, thresholds,
                                    suite.level, keep, cache, key, doc, **common))
     return tasks
+
+
+def _env_fingerprints(scenario: Scenario | WomdScenes, env: str, seeds: tuple[int, ...]
+                      ) -> dict[int, dict[str, Any] | None]:
+    """seed -> the env part of its episode key (None: not cached): the scenario's
+    (:func:`~tap_bench.bench.cache.scenario_fingerprint`) for a synthetic env, the same for
+    every seed; for recorded scenes, the env's name and each scenario's content hash and
+    settings (a scenario that cannot be read is not cached; its episode reports why)."""
+    if not isinstance(scenario, WomdScenes):
+        return dict.fromkeys(seeds, scenario_fingerprint(scenario, env))
+    catalog = scenario.catalog()
+    out: dict[int, dict[str, Any] | None] = {}
+    for seed in seeds:
+        try:
+            out[seed] = {"env": env, **scenario.fingerprint(catalog[seed])}
+        except (IndexError, OSError, ValueError):
+            out[seed] = None
+    return out
 
 
 CACHED_EPISODE_S = 0.03

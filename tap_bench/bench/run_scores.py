@@ -102,7 +102,8 @@ def _describe_source(source: ReferenceSource) -> Any:
 
 
 def _headline(scores: Scores, episodes: pd.DataFrame) -> dict[str, Any]:
-    """Per policy, pooled over envs: crash rate, mean speed, coverage of the reference."""
+    """Per policy, pooled over envs: each measure's mean with its interval (``<measure>``,
+    ``<measure>_low``, ``<measure>_high``), coverage of the reference."""
     out: dict[str, Any] = {}
     m = scores.measures
     pooled_env = "all" if (m["env"] == "all").any() else m["env"].iloc[0] if len(m) else ""
@@ -111,6 +112,8 @@ def _headline(scores: Scores, episodes: pd.DataFrame) -> dict[str, Any]:
         sub = m[(m["policy"] == policy) & (m["env"] == pooled_env)]
         for r in sub.itertuples():
             row[r.measure] = _round(r.mean)
+            row[f"{r.measure}_low"] = _round(r.low)
+            row[f"{r.measure}_high"] = _round(r.high)
         cov = scores.coverage
         if len(cov):
             c = cov[(cov["policy"] == policy) & (cov["env"] == pooled_env)]

@@ -26,6 +26,7 @@ from tap_bench.errors import RegistrationError
 from tap_bench.execution import Backend
 from tap_bench.labelling import tap
 from tap_bench.sim.rollout import EPISODE_COLUMNS, rollout_episode
+from tap_bench.sim.womd_scene import WomdScenes
 
 
 def _prepare_worker(task: _Task) -> None:
@@ -64,8 +65,18 @@ def _episode(task: _Task, note: str | None = None
             with contextlib.suppress(OSError):  # a full or read-only cache costs only reuse
                 task.cache.put(task.key, task.key_doc or {}, trajectories, row,
                                time.perf_counter() - t0)
-    return (trajectories.reset_index(drop=True), row, cached is not None,
+    return (_run_ids(task, trajectories).reset_index(drop=True), row, cached is not None,
             time.perf_counter() - t0, note)
+
+
+def _run_ids(task: _Task, trajectories: pd.DataFrame) -> pd.DataFrame:
+    """A recorded scene's episode under an id of its own in the run: every policy drives the
+    same WOMD scenario, so its id becomes ``<WOMD id>/<policy>`` (the WOMD id kept in
+    ``womd_scenario_id``); synthetic episodes' ids already name the policy."""
+    if not isinstance(task.scenario, WomdScenes) or not len(trajectories):
+        return trajectories
+    womd = trajectories["scenario_id"].astype(str)
+    return trajectories.assign(scenario_id=womd + "/" + task.policy, womd_scenario_id=womd)
 
 
 def _rows(rows: list[dict[str, Any]]) -> pd.DataFrame:

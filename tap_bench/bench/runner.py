@@ -57,6 +57,7 @@ from typing import Any
 import pandas as pd
 
 from tap_bench.bench.cache import EpisodeCache
+from tap_bench.bench.episodes import one_outcome_cells
 from tap_bench.bench.power import power_table
 from tap_bench.bench.run_folder import (
     _machine,
@@ -81,6 +82,7 @@ from tap_bench.bench.run_tasks import CACHED_BATCH, _observed_timings, _rollouts
 from tap_bench.bench.scenarios import match_scenarios
 from tap_bench.bench.scoring import Scores, score
 from tap_bench.bench.suite import Suite
+from tap_bench.bench.verdict import verdict_table
 from tap_bench.errors import (
     CacheEntryWarning,
     EpisodesFailedError,
@@ -89,7 +91,6 @@ from tap_bench.errors import (
     RunExistsError,
 )
 from tap_bench.execution import Backend, resolve_backend
-from tap_bench.sim.roads import road_table
 
 __all__ = ["CACHED_BATCH", "CACHED_EPISODE_S", "RunExistsError", "RunPlan", "RunResult",
            "SuitePlan", "plan_suite",
@@ -205,6 +206,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     results, estimate = _rollouts(plan, runner, keep_trajectories or with_trajectories,
                                   progress, cache, announce)
     timings["rollouts_wall"] = time.perf_counter() - t0
+    if announce is not None:
+        announce(f"episodes done ({timings['rollouts_wall']:.0f} s); scoring ...")
     if not any((r["episodes"]["status"] == "ok").all() for r in results):
         errors = [f"{row.env} {row.policy} seed {row.seed}: {row.error}"
                   for r in results for row in r["episodes"].itertuples()]
@@ -263,7 +266,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "format": "tap-bench-run", "format_version": 1,
         "run": output.name, "created": time.strftime("%Y-%m-%d %H:%M:%S"),
         "suite": suite.to_dict(), "suite_file": str(suite.path) if suite.path else None,
-        "level": suite.level, "seeds": list(suite.seeds),
+        "level": suite.level,
+        "seeds": "all" if suite.all_seeds else list(suite.seeds),
         "thresholds": thresholds.to_dict() if hasattr(thresholds, "to_dict") else
         str(suite.thresholds),
         "reference_policy": suite.reference,
@@ -273,6 +277,9 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "failed": failed[["env", "policy", "seed", "error"]].to_dict("records"),
         "methods": scores.methods,
         "headline": _headline(scores, episodes),
+        "one_outcome_cells": one_outcome_cells(episodes).to_dict("records"),
+        "verdict": verdict_table(scores.paired_measures, scores.paired,
+                                 scores.paired_labels).to_dict("records"),
         "provenance": provenance(plan),
         "measures": [m.to_dict() for m in plan.measures],
         "plugins": list(plan.plugins),
@@ -284,11 +291,13 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
             "simulated": sum(not r["cached"] for r in results),
             "refused": refused},
     }
+    if announce is not None:
+        announce(f"scored ({timings['scoring']:.1f} s); writing the tables"
+                 + (", plots, report and replay viewer" if report else "") + " ...")
     t0 = time.perf_counter()
     roads = None
     if keep_trajectories:  # the replay viewer draws them; highway-env's road is seed-free
-        roads = pd.concat([road_table(plan.scenarios[env]) for env in suite.envs],
-                          ignore_index=True)
+        roads = pd.concat([suite.road(env) for env in suite.envs], ignore_index=True)
     folder = write_results(output, overwrite, summary, episodes, labels, trajectories
                            if keep_trajectories else None, scores, report,
                            segments=segments, roads=roads)
@@ -303,3 +312,4 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
             cache.record_timings(simulated, cached, overhead)
             cache.prune()
     return RunResult(folder, summary, episodes, scores, folder / "report.html")
+

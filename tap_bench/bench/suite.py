@@ -25,6 +25,19 @@ A suite is a JSON file in ``envs/suites/`` (beside the scenario files it names; 
 Every field but ``name``, ``envs``, ``policies`` and ``seeds`` has the default shown in
 :class:`Suite` (``plugins``: none). Unknown fields, envs and policies are refused with
 "did you mean".
+
+**Recorded scenes.** An entry of ``envs`` may name WOMD data instead of a synthetic scene
+(``tap_bench/womd-v0``, SPEC section 8)::
+
+    "envs": [{"womd": "data/scenes/*.tfrecord", "traffic": "log"}],
+    "policies": ["log", "idm"], "reference_policy": "log", "seeds": "all"
+
+``womd`` is a path, a glob pattern or a list of them (relative to the suite file's folder);
+``traffic`` is ``log`` (default) or ``idm``; ``ego`` ``sdc`` (default) or a track id;
+``name`` the env's name in the tables (default ``womd`` for log traffic, ``womd-idm`` for
+idm). A seed is a scenario's index in the files, so episodes pair by scenario, and
+``"seeds": "all"`` runs every scenario (allowed when every env is recorded scenes). The
+policy ``log`` is the human who drove the scene.
 """
 
 from __future__ import annotations
@@ -44,9 +57,10 @@ from tap_bench.plugins import load_plugins
 from tap_bench.sim.policies import available_policies
 from tap_bench.sim.scenario_env import get_scenario
 from tap_bench.sim.suite import parse_seeds, read_json, scenario_names
+from tap_bench.sim.womd_scene import TRAFFIC, WomdScenes
 
-__all__ = ["GateConfig", "Suite", "available_suites", "default_margins",
-           "gate_metrics", "load_suite", "suite_from_dict"]
+__all__ = ["SAFETY_WEIGHTS", "GateConfig", "Suite", "available_suites", "default_margins",
+           "default_weights", "gate_metrics", "load_suite", "suite_from_dict"]
 
 MAX_PERMUTATIONS = 100_000
 """The most permutations the gate's test may ask for (ten times the default 9999)."""
@@ -66,32 +80,61 @@ def default_margins() -> dict[str, float]:
     return {**MEASURES.margins(), "label_tv": LABEL_TV_MARGIN}
 
 
+SAFETY_WEIGHTS: Mapping[str, float] = {"crashed": 0.65, "min_ttc_s": 0.1, "min_headway_s": 0.1}
+"""The gate's share of alpha per safety metric (of each (env, policy) cell): the safety
+family first, 0.85 of alpha, and the crash rate most of it, since a rate carries the least
+information per seed: its exact paired test reaches 1/2^k when k seeds turn to a crash,
+and 0.65 x 0.05 = 0.0325 lets k = 5 fire (0.6 would need 6). Every other metric shares the
+remaining 0.15 equally; a mean changes on every seed of a changed policy, so its small
+share still fires. Chosen by ``benchmarks/gate_calibration.py`` (docs/benchmark.md,
+"Multiplicity")."""
+
+
+def default_weights() -> dict[str, float]:
+    """metric -> the gate's default weight (share of alpha within a cell): the
+    :data:`SAFETY_WEIGHTS` of the registered safety measures, the rest split equally."""
+    metrics = gate_metrics()
+    safety = {k: v for k, v in SAFETY_WEIGHTS.items() if k in metrics}
+    rest = [m for m in metrics if m not in safety]
+    left = 1.0 - sum(safety.values())
+    return {**safety, **{m: round(left / len(rest), 12) for m in rest}} if rest else safety
+
 
 _FIELDS = ("name", "version", "description", "envs", "policies", "seeds", "reference_policy",
            "level", "thresholds", "env_overrides", "bootstrap", "gate", "plugins")
 _OVERRIDE_FIELDS = ("duration", "config", "lane_change")
-_GATE_FIELDS = ("alpha", "n_permutations", "seed", "margins")
+_SCENE_FIELDS = ("womd", "traffic", "ego", "name", "policy_frequency")
+_GATE_FIELDS = ("alpha", "n_permutations", "seed", "margins", "weights", "detect")
 
 
 @dataclass(frozen=True)
 class GateConfig:
     """How ``bench check`` decides that a metric moved.
 
-    A metric of one (env, policy) moved when its change from the baseline is larger than
-    its margin **and** a permutation test (episodes exchanged between run and baseline)
-    rejects "no change" at ``alpha`` after Holm's correction over every check of the run.
+    A metric of one (env, policy) fails when it moved the worse way (the measure's
+    registered direction; for ``label_tv`` any change) by more than its margin **and** a
+    one-sided permutation test rejects "no change" at ``alpha`` after the weighted Holm
+    correction over every test of the check (:func:`tap_bench.bench.gate.weighted_holm`).
+    A move the better way by more than the margin is reported, never a failure.
 
     Attributes:
-        margins: metric -> largest change tolerated (absolute, in the metric's unit).
+        margins: metric -> largest worsening tolerated (absolute, in the metric's unit).
         alpha: family-wise error rate of the gate.
-        n_permutations: permutations per test (enough that Holm can reach alpha).
+        n_permutations: permutations per test (enough that the correction can reach alpha).
         seed: seed of the permutations.
+        weights: metric -> share of alpha within a cell (:func:`default_weights`; relative,
+            positive).
+        detect: the worsening the gate must catch with 80 % power, in margins (2.5: a crash
+            rate 25 points higher with the 0.10 margin); a check that cannot is
+            underpowered.
     """
 
     margins: Mapping[str, float] = field(default_factory=default_margins)
     alpha: float = 0.05
     n_permutations: int = 9999
     seed: int = 0
+    weights: Mapping[str, float] = field(default_factory=default_weights)
+    detect: float = 2.5
 
     def __post_init__(self) -> None:
         if not isinstance(self.margins, Mapping):
@@ -114,6 +157,21 @@ class GateConfig:
             if not isinstance(value, int | float) or isinstance(value, bool) \
                     or not math.isfinite(value) or value < 0:
                 raise ParameterError(f"gate margin {key!r}", value, "a finite number >= 0")
+        if not isinstance(self.weights, Mapping):
+            raise ValueError(f"gate weights must be an object metric -> weight, got "
+                             f"{self.weights!r}.")
+        for key in self.weights:
+            if key not in metrics:
+                raise did_you_mean("gate metric", key, metrics)
+        object.__setattr__(self, "weights", {**default_weights(), **self.weights})
+        for key, value in self.weights.items():
+            if (not isinstance(value, int | float) or isinstance(value, bool)
+                    or not 0 < value < float("inf")):
+                raise ParameterError(f"gate weight {key!r}", value, "a number > 0 (a metric "
+                                     "with no share of alpha would never be checked)")
+        if (isinstance(self.detect, bool) or not isinstance(self.detect, int | float)
+                or not 1 <= self.detect < float("inf")):
+            raise ParameterError("gate detect", self.detect, "a number of margins >= 1")
         if isinstance(self.alpha, bool) or not isinstance(self.alpha, int | float) \
                 or not 0 < self.alpha < 1:
             raise ParameterError("gate alpha", self.alpha, "a number in (0, 1)")
@@ -145,7 +203,23 @@ class GateConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return {"alpha": self.alpha, "n_permutations": self.n_permutations, "seed": self.seed,
-                "margins": dict(self.margins)}
+                "margins": dict(self.margins), "weights": dict(self.weights),
+                "detect": self.detect}
+
+    def weight(self, metric: str) -> float:
+        """The weight of ``metric``: the one given, else its default (a measure registered
+        after this config was made, by a plugin, shares the non-safety part)."""
+        if metric in self.weights:
+            return float(self.weights[metric])
+        defaults = default_weights()
+        if metric not in defaults:
+            raise did_you_mean("gate metric", metric, defaults)
+        return float(defaults[metric])
+
+    def share(self, metric: str) -> float:
+        """``metric``'s share of alpha within one (env, policy) cell (weights normalised
+        over the gate metrics registered now)."""
+        return self.weight(metric) / sum(self.weight(m) for m in gate_metrics())
 
 
 @dataclass(frozen=True)
@@ -168,6 +242,8 @@ class Suite:
             kinds (:mod:`tap_bench.plugins`): imported before the suite is checked, and by
             every worker of a run before its first task.
         path: the file it was read from.
+        scenes: env name -> recorded WOMD scenes, for the envs that name WOMD data.
+        all_seeds: ``"seeds": "all"``: every scenario of each recorded-scene env.
     """
 
     name: str
@@ -184,6 +260,8 @@ class Suite:
     gate: GateConfig = field(default_factory=GateConfig)
     plugins: tuple[str, ...] = ()
     path: Path | None = field(default=None, compare=False)
+    scenes: Mapping[str, WomdScenes] = field(default_factory=dict)
+    all_seeds: bool = False
 
     @property
     def reference(self) -> str:
@@ -191,7 +269,10 @@ class Suite:
         return self.reference_policy or self.policies[0]
 
     def scenario(self, env: str):
-        """The env's :class:`tap_bench.sim.Scenario` with this suite's overrides."""
+        """The env's :class:`tap_bench.sim.Scenario` with this suite's overrides, or its
+        :class:`~tap_bench.sim.womd_scene.WomdScenes` for recorded scenes."""
+        if env in self.scenes:
+            return self.scenes[env]
         scenario = get_scenario(env)
         over = self.env_overrides.get(env)
         if over:
@@ -199,11 +280,34 @@ class Suite:
                                                lane_change=over.get("lane_change"))
         return scenario
 
+    def road(self, env: str):
+        """The env's map table (:mod:`tap_bench.maps`): highway-env's road (one per env), or
+        the maps of recorded scenes (one per scenario, ``map_id`` its scenario id)."""
+        if env in self.scenes:
+            from tap_bench.sources.maps import read_maps
+
+            return read_maps(self.scenes[env].files)
+        from tap_bench.sim.roads import road_table
+
+        return road_table(self.scenario(env))
+
+    def env_seeds(self, env: str) -> tuple[int, ...]:
+        """The seeds ``env`` runs: the suite's, or with ``"seeds": "all"`` the index of
+        every scenario of its files."""
+        if self.all_seeds and env in self.scenes:
+            return tuple(range(len(self.scenes[env].catalog())))
+        return self.seeds
+
     def to_dict(self) -> dict[str, Any]:
         """The suite as the JSON it was (or could have been) read from, defaults filled."""
+        envs = [{"womd": list(self.scenes[e].files), "traffic": self.scenes[e].traffic,
+                 "ego": self.scenes[e].ego, "name": e,
+                 "policy_frequency": self.scenes[e].policy_frequency}
+                if e in self.scenes else e for e in self.envs]
         return {"name": self.name, "version": self.version, "description": self.description,
-                "envs": list(self.envs), "policies": list(self.policies),
-                "seeds": list(self.seeds), "reference_policy": self.reference,
+                "envs": envs, "policies": list(self.policies),
+                "seeds": "all" if self.all_seeds else list(self.seeds),
+                "reference_policy": self.reference,
                 "level": self.level, "thresholds": self.thresholds,
                 "env_overrides": {k: dict(v) for k, v in self.env_overrides.items()},
                 "bootstrap": {"n_resamples": self.bootstrap.n_resamples,
@@ -263,10 +367,15 @@ def suite_from_dict(doc: Any, *, source: str = "suite", path: Path | None = None
         plugins = load_plugins(plugins, source=source)
     except ParameterError as err:
         raise FileFormatError(str(err)) from err
-    envs = _strings(doc, "envs", source)
+    envs, scenes = _envs(doc, source, path)
     policies = _strings(doc, "policies", source)
+    all_seeds = doc["seeds"] == "all"
+    if all_seeds and len(scenes) < len(envs):
+        raise FileFormatError(f"{source}: seeds 'all' means every scenario of recorded scenes; "
+                              "synthetic envs need seeds such as '0-29'.")
     try:
-        seeds = tuple(parse_seeds(doc["seeds"], source=f"{source}: seeds"))
+        seeds = () if all_seeds else tuple(parse_seeds(doc["seeds"],
+                                                       source=f"{source}: seeds"))
     except ValueError as err:
         raise FileFormatError(str(err)) from err
     level = doc.get("level", "maneuver")
@@ -304,16 +413,19 @@ def suite_from_dict(doc: Any, *, source: str = "suite", path: Path | None = None
         gate = GateConfig(**{**gate_doc, "margins": margins})
     except (TypeError, ValueError, UnknownNameError) as err:
         raise FileFormatError(f"{source}: gate: {err}") from err
-    n_tests = len(envs) * len(policies) * len(gate_metrics())
-    if n_tests / (gate.n_permutations + 1) >= gate.alpha:  # the gate could never fire
-        need = int(n_tests / gate.alpha + 1e-9)  # P + 1 > tests / alpha
+    cells = len(envs) * len(policies)
+    metric = min(gate_metrics(), key=gate.share)
+    reach = gate.alpha * gate.share(metric) / cells  # its level when every cell is tested
+    if 1.0 / (gate.n_permutations + 1) > reach * (1 + 1e-9):  # other seeds: never fires
+        need = math.ceil(1.0 / reach - 1 - 1e-9)
         raise FileFormatError(
-            f"{source}: gate: {len(envs)} envs x {len(policies)} policies x "
-            f"{len(gate_metrics())} metrics = {n_tests} tests with n_permutations "
-            f"{gate.n_permutations}: no p-value is below 1/{gate.n_permutations + 1}, so the "
-            f"smallest Holm-adjusted one is {n_tests / (gate.n_permutations + 1):.3g} >= alpha "
-            f"{gate.alpha:g} and the gate could never fire. Set gate.n_permutations to at "
-            f"least {need}.")
+            f"{source}: gate: {len(envs)} envs x {len(policies)} policies = {cells} cells "
+            f"x {len(gate_metrics())} metrics = {cells * len(gate_metrics())} tests: "
+            f"{metric} (share {gate.share(metric):.3g} of alpha {gate.alpha:g} per cell) "
+            f"is tested at {reach:.3g} when the seeds differ from the baseline's, but with "
+            f"n_permutations {gate.n_permutations} no p-value is below "
+            f"1/{gate.n_permutations + 1} = {1 / (gate.n_permutations + 1):.3g}: that metric "
+            f"could never fire. Set gate.n_permutations to at least {need}.")
     thresholds = doc.get("thresholds", "paper")
     if not isinstance(thresholds, str):
         raise FileFormatError(f"{source}: thresholds must be a preset name or a JSON path.")
@@ -327,15 +439,66 @@ def suite_from_dict(doc: Any, *, source: str = "suite", path: Path | None = None
                   description=str(doc.get("description", "")), envs=envs, policies=policies,
                   seeds=seeds, reference_policy=reference, level=level, thresholds=thresholds,
                   env_overrides=overrides, bootstrap=boot, gate=gate, plugins=plugins,
-                  path=path)
+                  path=path, scenes=scenes, all_seeds=all_seeds)
     if check_names:
         _check_names(suite, source)
     return suite
 
 
+def _envs(doc: Mapping[str, Any], source: str, path: Path | None
+          ) -> tuple[tuple[str, ...], dict[str, WomdScenes]]:
+    """The env names of a suite and the recorded scenes among them (module docstring)."""
+    value = doc["envs"]
+    if not isinstance(value, list) or not value:
+        raise FileFormatError(f"{source}: 'envs' must be a non-empty list of scenario names "
+                              f"or recorded scenes ({{\"womd\": \"PATH\"}}), got {value!r}.")
+    names, scenes = [], {}
+    for k, item in enumerate(value):
+        if isinstance(item, str):
+            names.append(item)
+            continue
+        where = f"{source}: envs[{k}]"
+        if not isinstance(item, dict) or "womd" not in item:
+            raise FileFormatError(f"{where}: an env is a scenario name or an object with "
+                                  f"'womd' (files of recorded scenes), got {item!r}.")
+        for key in item:
+            if key not in _SCENE_FIELDS:
+                raise FileFormatError(f"{where}: {did_you_mean('field', key, _SCENE_FIELDS)}")
+        files = item["womd"] if isinstance(item["womd"], list) else [item["womd"]]
+        if not files or not all(isinstance(f, str) and f for f in files):
+            raise FileFormatError(f"{where}: 'womd' must be a path or pattern (or a list of "
+                                  f"them), got {item['womd']!r}.")
+        if path is not None:
+            files = [f if os.path.isabs(f) else str(path.parent / f) for f in files]
+        traffic = item.get("traffic", "log")
+        if traffic not in TRAFFIC:
+            raise FileFormatError(f"{where}: {did_you_mean('traffic', str(traffic), TRAFFIC)}")
+        name = item.get("name", "womd" if traffic == "log" else f"womd-{traffic}")
+        try:
+            scenes[name] = WomdScenes(tuple(files), traffic=traffic,
+                                      ego=str(item.get("ego", "sdc")),
+                                      policy_frequency=item.get("policy_frequency", 2),
+                                      name=name)
+        except ValueError as err:
+            raise FileFormatError(f"{where}: {err}") from err
+        names.append(name)
+    if len(set(names)) != len(names):
+        dup = next(v for v in names if names.count(v) > 1)
+        raise FileFormatError(f"{source}: 'envs' names {dup!r} twice; give recorded scenes "
+                              "their own \"name\".")
+    return tuple(names), scenes
+
+
 def _check_names(suite: Suite, source: str) -> None:
     known_envs = scenario_names()
     for env in suite.envs:
+        if env in suite.scenes:
+            try:
+                if not suite.scenes[env].catalog():
+                    raise FileFormatError("no scenario in these files")
+            except (FileFormatError, ValueError, OSError) as err:
+                raise FileFormatError(f"{source}: env {env!r}: {err}") from err
+            continue
         if env not in known_envs:
             raise FileFormatError(f"{source}: {did_you_mean('env', env, known_envs)}")
     known = available_policies()

@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 
@@ -59,14 +60,19 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
     c = sub.add_parser("check", help="regression gate: compare a run with a baseline",
                        description="Compare a run with a baseline, per env, policy and metric "
-                       "(measure means and the label distribution). A metric moved when its "
-                       "change exceeds its margin and a permutation test (paired by seed when "
-                       "the run has the baseline's seeds), Holm-corrected over all checks, "
-                       "rejects 'no change'; a policy or env whose definition changed since "
-                       "the baseline is named with what changed. Exits 1 with a table of what "
-                       "moved, 0 when nothing did, 2 when the gate could never fire (too few "
-                       "permutations or seeds). The baseline changes only with "
-                       "--update-baseline.")
+                       "(measure means and the label distribution). A metric fails when it "
+                       "moved the worse way (the measure's direction; for the label "
+                       "distribution any change) by more than its margin and a one-sided "
+                       "permutation test (paired by seed when the run has the baseline's "
+                       "seeds; exact for rates) rejects 'no change' after the weighted Holm "
+                       "correction (safety metrics first); a move the better way is "
+                       "reported, never a failure; a policy or env whose definition changed "
+                       "since the baseline is named with what changed. Exits 1 when "
+                       "something failed, 3 when the check cannot catch a worsening of "
+                       "'detect' margins with 80%% power (too few seeds; "
+                       "--allow-underpowered accepts that), 0 when it passed, 2 when the gate "
+                       "could never fire (too few permutations or seeds). The baseline "
+                       "changes only with --update-baseline.")
     c.add_argument("run", help="run folder written by 'bench run'")
     c.add_argument("--baseline", required=True, help="baseline JSON "
                    "(results/baselines/default.json)")
@@ -74,10 +80,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="replace the baseline with this run (and exit 0)")
     c.add_argument("--all", action="store_true", help="print every check, not only moves")
     c.add_argument("-o", "--output", help="also write the check table (.csv/.parquet)")
+    c.add_argument("--format", choices=("text", "json"), default="text",
+                   help="json: print the verdict as one JSON object (for CI), nothing else")
+    c.add_argument("--allow-underpowered", action="store_true",
+                   help="exit 0 (not 3) when nothing failed but some check cannot catch "
+                   "the worsening it is asked to")
     c.add_argument("--power", action="store_true",
-                   help="also print, per metric, the smallest change the gate detects with 80 "
-                   "%% power at the baseline's seed count and the seeds a change of one margin "
-                   "needs")
+                   help="also print, per metric, the power of the gate's rule against a "
+                   "worsening of 'detect' margins at the run's seed count and the seeds "
+                   "80%% power needs")
     c.set_defaults(func=check_bench)
 
     s = sub.add_parser("suites", help="list the benchmark suites")
@@ -145,6 +156,11 @@ def run_bench(args: argparse.Namespace) -> int:
     for row in s["failed"][:10]:
         print(f"  failed: {row['env']} {row['policy']} seed {row['seed']}: {row['error']}",
               file=sys.stderr)
+    for row in s.get("one_outcome_cells", []):
+        print(f"warning: {row['env']}/{row['policy']}: all {row['n']} episodes have one "
+              "outcome (the same label and measures on every seed): they are not independent "
+              "samples; its intervals, pooled figures and contexts count one episode "
+              f"{row['n']} times.", file=sys.stderr)
     print(f"wrote {result.folder}/ (report: {result.report})")
     return 0
 
@@ -174,21 +190,36 @@ def check_bench(args: argparse.Namespace) -> int:
               f"({int((episodes['status'] == 'ok').sum())} episodes)")
         return 0
     doc, base = read_baseline(baseline_path)
+    as_json = args.format == "json"
     result = check(summary, episodes, doc, base)
-    if not doc.get("provenance"):
-        print(f"note: {baseline_path} records no policy or env definitions (made before "
-              "format 2); changed definitions cannot be named. Re-make it with "
-              "--update-baseline.")
-    print(result.format(all_rows=args.all))
-    if args.power:
-        print_power(base.assign(status="ok"), result.config, len(result.table))
+    if as_json:
+        verdict = result.to_json()
+        verdict.update({"run": str(args.run), "baseline": str(baseline_path),
+                        "allow_underpowered": bool(args.allow_underpowered)})
+        print(json.dumps(verdict, indent=1))
+    else:
+        if not doc.get("provenance"):
+            print(f"note: {baseline_path} records no policy or env definitions (made before "
+                  "format 2); changed definitions cannot be named. Re-make it with "
+                  "--update-baseline.")
+        print(result.format(all_rows=args.all))
+        if args.power:
+            print_power(base.assign(status="ok"), result)
     if args.output:
         write_table(result.table, args.output)
     if result.moved:
-        print(f"FAIL: the run moved against {baseline_path}; if the change is intended, "
-              "accept it with --update-baseline.")
+        if not as_json:
+            print(f"FAIL: the run moved the worse way against {baseline_path}; if the change "
+                  "is intended, accept it with --update-baseline.")
         return 1
-    print(f"OK: nothing moved beyond its margin against {baseline_path}.")
+    if result.underpowered and not args.allow_underpowered:
+        if not as_json:
+            print("UNDERPOWERED: nothing failed, but this check cannot catch the worsening "
+                  "it is asked to (see above); run more seeds (the baseline's), or accept "
+                  "it with --allow-underpowered.")
+        return 3
+    if not as_json:
+        print(f"OK: nothing moved the worse way beyond its margin against {baseline_path}.")
     return 0
 
 
@@ -212,22 +243,28 @@ def cache_command(args: argparse.Namespace) -> int:
     return 0
 
 
-def print_power(episodes, config, n_tests: int) -> None:
-    """The gate's minimum detectable effects per metric, and a warning for each metric whose
-    margin is below what the seeds can detect."""
+def print_power(episodes, result) -> None:
+    """The power of the gate's rule per metric at the check's design (paired or not, the
+    run's episodes), and the seeds 80 % power needs."""
     from tap_bench.bench.power import POWER, power_summary, power_table
 
-    table = power_table(episodes, config, n_tests=n_tests)
+    tested = result.table[result.table["p_value"].notna()]
+    paired = bool(len(tested)) and (tested["test"] == "paired").all()
+    n_run = int(tested["n_run"].min()) if len(tested) else None
+    cells = len(tested[["env", "policy"]].drop_duplicates()) or None
+    table = power_table(episodes, result.config, cells=cells, paired=paired, n_run=n_run)
     summary = power_summary(table)
-    print(f"power: smallest change detected with {POWER:.0%} power over {n_tests} tests at "
-          f"alpha {config.alpha:g} (median and worst (env, policy)), and the seeds the worst "
-          "needs for a change of one margin:")
+    config = result.config
+    print(f"power of the gate's rule against a worsening of {config.detect:g} margins "
+          f"({'paired: one changed cell in play' if paired else f'unpaired: {cells} cells in play'}"
+          f", alpha {config.alpha:g} weighted by metric), median and weakest (env, policy), "
+          f"and the seeds the weakest needs for {POWER:.0%}:")
     print(summary.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     for r in summary.itertuples():
-        if r.cells_too_small:
-            print(f"warning: {r.metric}: {r.cells_too_small} of {r.cells} (env, policy) cells "
-                  f"cannot detect a change of one margin ({r.margin:g}) with {r.n} seeds; "
-                  f"up to {r.seeds_for_margin:.0f} seeds needed.")
+        if r.cells_underpowered:
+            print(f"warning: {r.metric}: {r.cells_underpowered} of {r.cells} (env, policy) "
+                  f"cells catch a worsening of {r.effect:g} with less than {POWER:.0%} "
+                  f"probability at {r.n} seeds; up to {r.seeds_for_power:.0f} seeds needed.")
 
 
 def list_suites(args: argparse.Namespace) -> int:
@@ -235,6 +272,7 @@ def list_suites(args: argparse.Namespace) -> int:
 
     for name in available_suites():
         suite = load_suite(name)
+        seeds = "all" if suite.all_seeds else len(suite.seeds)
         print(f"{name:12s} {len(suite.envs)} envs x {len(suite.policies)} policies x "
-              f"{len(suite.seeds)} seeds, level {suite.level}: {suite.description}")
+              f"{seeds} seeds, level {suite.level}: {suite.description}")
     return 0

@@ -26,11 +26,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import pandas as pd
+
     from tap_bench.bench.demo import run_demo, timing_split
 
     start = time.perf_counter()
     result = run_demo(args.output, workers=args.workers,
-                      progress=progress_choice(args))
+                      progress=progress_choice(args),
+                      announce=lambda line: print(line, flush=True))
     split = timing_split(result)
     summary = result.summary
     print(f"{summary['n_episodes']} episodes ({summary['n_failed']} failed) of "
@@ -38,10 +41,28 @@ def run(args: argparse.Namespace) -> int:
           f"envs; {time.perf_counter() - start:.0f} s (rollouts {split['rollout']:.0f} s, "
           f"labelling {split['labelling']:.0f} s, scoring {split['scoring']:.1f} s, "
           f"report {split['report']:.1f} s)")
+    nan = float("nan")
+
+    def with_interval(row: dict, key: str, fmt: str) -> str:
+        lo, hi = row.get(f"{key}_low"), row.get(f"{key}_high")
+        text = format(row.get(key, nan) if row.get(key) is not None else nan, fmt)
+        if lo is not None and hi is not None:
+            text += f" [{format(lo, fmt)}, {format(hi, fmt)}]"
+        return text
+
+    level = summary.get("suite", {}).get("bootstrap", {}).get("level", 0.95)
+    print(f"per policy, pooled over the envs ({level:.0%} intervals):")
     for policy, row in summary["headline"].items():
-        bits = [f"crash rate {row.get('crashed', float('nan')):.0%}",
-                f"mean speed {row.get('mean_speed', float('nan')):.1f} m/s"]
-        bits += [f"{k} {v:.0%}" for k, v in row.items() if k.startswith("coverage")]
+        bits = [f"crash rate {with_interval(row, 'crashed', '.0%')}",
+                f"mean speed {with_interval(row, 'mean_speed', '.1f')} m/s"]
+        bits += [f"{k} {v:.0%}" for k, v in row.items()
+                 if k.startswith("coverage") and v is not None]
         print(f"  {policy:16s} " + ", ".join(bits))
+    if summary.get("verdict"):
+        from tap_bench.bench.verdict import verdict_lines
+
+        print("against the reference (paired by seed; safety first):")
+        for line in verdict_lines(pd.DataFrame(summary["verdict"])):
+            print(f"  {line}")
     print(f"report: {result.report.resolve()}")
     return 0

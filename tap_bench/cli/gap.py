@@ -8,8 +8,8 @@ from pathlib import Path
 import pandas as pd
 
 from tap_bench.bench.bootstrap import add_bootstrap_arguments, bootstrap_from_args
-from tap_bench.bench.gap import behaviour_gap, labelled_with_speed
-from tap_bench.errors import LabelTableError
+from tap_bench.bench.gap import behaviour_gap, labelled_with_speed, track_seconds, windows
+from tap_bench.errors import LabelTableError, ParameterError
 from tap_bench.sdl import LEVELS
 from tap_bench.tableio import beside, check_outputs, read_table, write_tables
 
@@ -38,11 +38,48 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--max-speed", type=float, help="... and faster than this (default: its "
                    "95 %% quantile)")
     p.add_argument("--thresholds", default="paper", help="TAP thresholds (default paper)")
+    p.add_argument("--window", default="auto",
+                   help="cut the policy's episodes into windows of this many seconds before "
+                   "labelling: 'auto' (default) the reference's median track length (WOMD: "
+                   "9.1 s), so 30 s episodes meet 9 s tracks on equal terms; 'none' whole "
+                   "episodes")
     p.add_argument("--top", type=int, default=8, help="labels printed per policy (8)")
     add_bootstrap_arguments(p)
     p.add_argument("-o", "--output", help="write one row per policy (.csv/.parquet); the "
                    "per-label table goes beside it as <name>.labels.<suffix>")
     p.set_defaults(func=run)
+
+
+def _window(choice: str, reference: pd.DataFrame, table: pd.DataFrame) -> float | None:
+    """The window length [s]: None for 'none'; the reference's median track length for
+    'auto' (None when the reference is a label table: no times)."""
+    if choice == "none":
+        return None
+    if choice == "auto":
+        if "t" not in reference.columns or "t" not in table.columns:
+            return None
+        return track_seconds(reference)
+    try:
+        seconds = float(choice)
+    except ValueError:
+        seconds = float("nan")
+    if not seconds > 0:
+        raise ParameterError("--window", choice, "'auto', 'none' or a number of seconds > 0")
+    return seconds
+
+
+def _crash_rate(table: pd.DataFrame) -> float:
+    """Share of the policy's episodes whose ego crashed (NaN without the columns)."""
+    if "crashed" not in table.columns or "scenario_id" not in table.columns:
+        return float("nan")
+    ego = table[table["is_ego"].fillna(False).astype(bool)] if "is_ego" in table.columns \
+        else table
+    return float(ego.groupby("scenario_id")["crashed"].any().mean()) if len(ego) else \
+        float("nan")
+
+
+def _pct(x: float) -> str:
+    return "unknown" if x != x else f"{x:.0%}"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -58,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
     ref_table = read_table(args.reference)
     reference = labelled_with_speed(ref_table, args.level, interactions="all",
                                     thresholds=args.thresholds, source=str(args.reference))
+    window = _window(args.window, ref_table, table)
     policies = (sorted(table["policy"].dropna().unique()) if "policy" in table.columns
                 else [Path(args.policy_table).name.split(".")[0]])
     if not policies:
@@ -66,6 +104,9 @@ def run(args: argparse.Namespace) -> int:
     rows, per_label = [], []
     for name in policies:
         mine = table[table["policy"] == name] if "policy" in table.columns else table
+        crash = _crash_rate(mine)
+        if window is not None:
+            mine = windows(mine, window)
         labels = labelled_with_speed(mine, args.level, interactions="auto",
                                      thresholds=args.thresholds, source=str(args.policy_table))
         if "is_ego" in labels.columns:
@@ -73,16 +114,22 @@ def run(args: argparse.Namespace) -> int:
         result = behaviour_gap(labels, reference, name=str(name), axes=args.axes,
                                min_speed=args.min_speed, max_speed=args.max_speed,
                                config=config, reference_name=Path(args.reference).name)
-        rows.append(result.row())
+        rows.append({**result.row(), "crash_rate": crash, "window_s": window})
         per_label.append(result.labels.assign(policy=name))
-        print(f"{name}: gap {result.gap:.3f} [{result.gap_low:.3f}, {result.gap_high:.3f}] "
-              f"(floor {result.floor:.3f}; {result.n_policy} episodes against "
-              f"{result.n_reference} trajectories; {result.reference})")
+        unit = f"{window:.1f} s windows" if window is not None else "episodes"
+        print(f"{name}: gap {result.gap_debiased:.3f} [{result.debiased_low:.3f}, "
+              f"{result.debiased_high:.3f}] (debiased; plug-in {result.gap:.3f}, floor "
+              f"{result.floor:.3f}); crash rate {_pct(crash)}; {result.n_policy} {unit} "
+              f"against {result.n_reference} trajectories; {result.reference}")
         for r in result.labels.head(args.top).itertuples():
             print(f"  {r.axis:12s} {r.label:28s} policy {r.share_policy:6.1%}  reference "
                   f"{r.share_reference:6.1%}  diff {r.diff:+6.1%} [{r.diff_low:+.1%}, "
                   f"{r.diff_high:+.1%}]")
-    print(f"({config.describe('trajectories of each side, independently')})")
+    print(f"({config.describe('trajectories of each side, independently')}; the debiased gap "
+          "is the bootstrap bias-corrected total variation distance, its interval the basic "
+          "bootstrap one starting at 0 when two samples of one behaviour could differ as "
+          "much; a low gap from a policy that crashes is no praise: read the crash rate "
+          "beside it)")
     if args.output:
         write_tables({args.output: pd.DataFrame(rows),
                       labels_path: pd.concat(per_label, ignore_index=True)})

@@ -17,7 +17,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "parallel envs; the curve evaluates the agent on the scenario itself. Needs the sb3 "
         "extra (pip install torch==2.13.0, then pip install 'tap-bench[sb3]').")
     p.add_argument("--algo", required=True, help="dqn, ppo or a2c")
-    p.add_argument("--env", required=True, help="scenario name (highway) or id")
+    p.add_argument("--env", required=True,
+                   help="scenario name (highway) or id; 'womd' trains on recorded scenes "
+                   "(--womd FILES)")
+    p.add_argument("--womd", nargs="+", metavar="FILE",
+                   help="with --env womd: WOMD files (Scenario or tf.Example TFRecords, "
+                   "ScenarioNet pickles); the agent drives the recorded ego of each scenario "
+                   "in turn (tap_bench/womd-v0, 10 Hz, no learning curve)")
+    p.add_argument("--traffic", choices=("log", "idm"), default="log",
+                   help="with --env womd: the other agents replay the log (default) or are "
+                   "driven by IDM/MOBIL")
     p.add_argument("--timesteps", type=int, required=True, help="decisions to train for")
     p.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     p.add_argument("-o", "--output", required=True,
@@ -71,15 +80,33 @@ def run(args: argparse.Namespace) -> int:
     from tap_bench.rl.training import DEFAULT_N_ENVS, train
 
     n_envs = DEFAULT_N_ENVS if args.n_envs is None else args.n_envs
+    env = args.env
+    recorded = []
+    if args.env == "womd":
+        from tap_bench.sim.womd_scene import WomdScenes
+
+        if not args.womd:
+            raise SystemExit("tap-bench train: --env womd trains on recorded scenes; name "
+                             "their files with --womd FILES.")
+        env = WomdScenes(tuple(args.womd), traffic=args.traffic)
+        recorded = ["--womd", *args.womd, "--traffic", args.traffic]
+        if not args.no_curve:
+            print("recorded scenes: no learning curve (it evaluates on synthetic seeds); "
+                  "compare the agent with the human afterwards: tap-bench rollout --womd ... "
+                  f"--policy {args.output}")
+            args.no_curve = True
+    elif args.womd:
+        raise SystemExit("tap-bench train: --womd goes with --env womd.")
     command = "tap-bench train " + " ".join(shlex.quote(a) for a in (
-        "--algo", args.algo, "--env", args.env, "--timesteps", str(args.timesteps), "--seed",
+        "--algo", args.algo, "--env", args.env, *recorded, "--timesteps", str(args.timesteps),
+        "--seed",
         str(args.seed), "--n-envs", str(n_envs), *(["--exact"] if args.exact else []),
         *(["--keep", "best"] if args.keep == "best" else []), *_curve_options(args),
         "-o", args.output))
     curve = None if args.no_curve else CurveConfig(
         points=args.curve_points, seeds=args.curve_seeds, reference=args.reference,
         level=args.level)
-    result = train(args.algo, args.env, timesteps=args.timesteps, seed=args.seed,
+    result = train(args.algo, env, timesteps=args.timesteps, seed=args.seed,
                    output=args.output, n_envs=n_envs, fast=not args.exact, curve=curve,
                    log_dir=args.log_dir, verbose=args.verbose, command=command,
                    keep=args.keep, overwrite=args.overwrite)

@@ -52,6 +52,7 @@ from tap_bench.sim.sb3 import algorithm_class
 from tap_bench.sim.scenario_env import ScenarioEnv, get_scenario
 from tap_bench.sim.schema import env_class
 from tap_bench.sim.suite import Scenario
+from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.tableio import atomic_path, check_replace, write_table
 
 __all__ = ["DEFAULT_N_ENVS", "HYPERPARAMETERS", "MAX_N_ENVS", "TrainingResult", "train"]
@@ -127,6 +128,10 @@ def _make_training_env(scenario: Scenario, fast: bool, worker: bool = False) -> 
 
     if worker:  # Ctrl-C stops the training in the main process, which then saves the model
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if isinstance(scenario, WomdScenes):  # recorded scenes, one after the other
+        from tap_bench.sim.womd_env import WomdEnv
+
+        return Monitor(WomdEnv(scenario, record=False, cycle=True))
     return Monitor(ScenarioEnv(scenario, record=False, fast=fast))
 
 
@@ -193,7 +198,7 @@ def _vec_env(scenario: Scenario, *, n_envs: int, fast: bool, seed: int) -> Any:
     return vec
 
 
-def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.PathLike,
+def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output: str | os.PathLike,
           hyperparameters: Mapping[str, Any] | None = None, n_envs: int = DEFAULT_N_ENVS,
           fast: bool = True, curve: CurveConfig | None = None,
           log_dir: str | os.PathLike | None = None, verbose: int = 0,
@@ -203,7 +208,9 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
 
     Args:
         algo: ``"dqn"``, ``"ppo"`` or ``"a2c"``.
-        env: scenario name, id or file.
+        env: scenario name, id or file, or recorded WOMD scenes
+            (:class:`~tap_bench.sim.womd_scene.WomdScenes`: every scenario of the files in
+            turn, 10 Hz, no fast variant and no learning curve).
         timesteps: decisions (env steps, over all envs) to train for. Ctrl-C (SIGINT) stops
             the training early: the model and the curve so far are saved, and the definition
             records the steps trained and ``interrupted_of``.
@@ -261,7 +268,12 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
     from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
     torch.set_num_threads(1)  # a shared CPU; the env workers are the parallelism
-    scenario = get_scenario(env)
+    scenario = env if isinstance(env, WomdScenes) else get_scenario(env)
+    if isinstance(scenario, WomdScenes) and curve is not None:
+        raise ParameterError("curve", curve, "None on recorded scenes", message=(
+            "the learning curve evaluates on synthetic seeds; train on recorded scenes "
+            "without it (tap-bench train --no-curve) and compare the agent with the human "
+            "afterwards (tap-bench rollout --womd ... --policy MODEL.zip)."))
     params = {**HYPERPARAMETERS[algo], **(hyperparameters or {})}
     observation = _observation_config(scenario)
     callbacks = []
@@ -338,6 +350,8 @@ def train(algo: str, env: str, *, timesteps: int, seed: int, output: str | os.Pa
             "model": output.name,
             "algo": algo,
             "env": scenario.env_id,
+            **({"womd": list(scenario.files), "traffic": scenario.traffic}
+               if isinstance(scenario, WomdScenes) else {}),
             "observation": observation,
             "timesteps": trained,
             **({"interrupted_of": timesteps} if interrupted else {}),
@@ -398,9 +412,11 @@ def _trained_here(output: Path) -> bool:
         and "with tap-bench" in str(doc.get("description", ""))
 
 
-def _observation_config(scenario: Scenario) -> dict[str, Any]:
+def _observation_config(scenario: Scenario | WomdScenes) -> dict[str, Any]:
     """The observation config the agent reads: the scenario's, else highway-env's default."""
     config = scenario.config.get("observation")
+    if config is None and isinstance(scenario, WomdScenes):
+        config = {"type": "Kinematics"}
     if config is None:
         config = env_class(scenario.highway_env_id).default_config()["observation"]
     return dict(config)

@@ -12,6 +12,11 @@ Modules, by what they do:
 - :mod:`~tap_bench.sim.policies`, :mod:`~tap_bench.sim.idm`, :mod:`~tap_bench.sim.sb3`:
   the Policy protocol, its registry and the built-ins;
 - :mod:`~tap_bench.sim.rollout`: deterministic, process-parallel rollouts;
+- recorded WOMD scenes in closed loop (``tap_bench/womd-v0``):
+  :mod:`~tap_bench.sim.womd_scene` (a scenario as arrays, :class:`WomdScenes`),
+  :mod:`~tap_bench.sim.womd_lanes` (WOMD lanes as highway-env lanes, the compiled lane
+  lookup), :mod:`~tap_bench.sim.womd_road` (network, vehicles, routes, signals),
+  :mod:`~tap_bench.sim.womd_env` (the env);
 - :mod:`~tap_bench.sim.wrappers`: Gymnasium integration (episode labels).
 
 Training agents and their behaviour-coverage learning curve are :mod:`tap_bench.rl`.
@@ -38,6 +43,8 @@ _LAZY_MODULES = {
                                    "make_env"),
     "tap_bench.sim.wrappers": ("EpisodeLabels",),
     "tap_bench.sim.vehicles": ("LANE_CHANGE_SETTINGS",),
+    "tap_bench.sim.womd_scene": ("WomdScenes",),
+    "tap_bench.sim.womd_env": ("WomdEnv", "make_womd_env"),
 }
 _LAZY = {name: module for module, names in _LAZY_MODULES.items() for name in names}
 
@@ -55,6 +62,10 @@ __all__ = [
     "register_suite",
     "registered_ids",
     "scenario_names",
+    # recorded scenes
+    "WomdEnv",
+    "WomdScenes",
+    "make_womd_env",
     # policies
     "Policy",
     "PolicyDefinition",

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -117,7 +117,8 @@ class SB3Policy:
             fast variant or not; ``interrupted_of``: the timesteps asked for when Ctrl-C
             stopped the training earlier; ``kept``: ``"last"`` or ``"best"``, the weights
             saved, with the steps, return and crash rate of the evaluation they come from;
-            ``curve``: the learning curve's settings, None without one); kept in
+            ``curve``: the learning curve's settings, None without one; ``womd`` and
+            ``traffic``: the recorded scenes it trained on, if any); kept in
             :attr:`training`.
     """
 
@@ -131,7 +132,8 @@ class SB3Policy:
                  interrupted_of: int | None = None, kept: str | None = None,
                  kept_timesteps: int | None = None, kept_eval_return: float | None = None,
                  kept_eval_crash_rate: float | None = None,
-                 curve: Mapping[str, Any] | None = None) -> None:
+                 curve: Mapping[str, Any] | None = None,
+                 womd: Sequence[str] | None = None, traffic: str | None = None) -> None:
         path = Path(model)
         if not path.is_absolute() and base_dir is not None:
             path = Path(base_dir) / path
@@ -153,7 +155,9 @@ class SB3Policy:
                          "kept_timesteps": kept_timesteps,
                          "kept_eval_return": kept_eval_return,
                          "kept_eval_crash_rate": kept_eval_crash_rate,
-                         "curve": dict(curve) if curve is not None else None}
+                         "curve": dict(curve) if curve is not None else None,
+                         "womd": list(womd) if womd is not None else None,
+                         "traffic": traffic}
         self._model: Any = None
 
     def __getstate__(self) -> dict[str, Any]:

@@ -34,7 +34,10 @@ from tap_bench.errors import FileFormatError, did_you_mean
 __all__ = ["SCRIPT_KINDS", "Script", "ScriptedVehicle"]  # noqa: F822 (ScriptedVehicle: __getattr__)
 
 SCRIPT_KINDS = ("cut_in", "lead_braking")
-_FIELDS = ("kind", "at", "gap", "speed_offset", "deceleration", "duration", "clear", "blocker")
+_FIELDS = ("kind", "at", "gap", "speed_offset", "deceleration", "duration", "clear", "blocker",
+           "vary")
+VARIABLE = ("at", "gap", "speed_offset", "deceleration", "duration")
+"""The fields ``vary`` may draw per episode."""
 CLEAR_BEHIND = 20.0  # [m] vehicles this far behind the ego are removed too
 MIN_CUT_IN_GAP = 10.0  # [m] a cut-in waits until the vehicle is this far ahead of the ego
 CLOSE_CUT_IN_GAP = 15.0  # [m] an ego closing in to this gap is cut in on before ``at``
@@ -56,6 +59,8 @@ class Script:
             speed and never changing lanes, so that the ego cannot dodge the cut-in by
             moving into that lane (MOBIL's safety rule forbids it; an ego that swerves away
             never has the cutter on its path, and meets no cut-in).
+        vary: field -> (low, high): drawn uniformly per episode (fields of
+            :data:`VARIABLE`); the fixed value is used when a field is not named.
     """
 
     kind: str
@@ -66,10 +71,31 @@ class Script:
     duration: float = 2.0
     clear: float = 80.0
     blocker: bool = False
+    vary: Mapping[str, tuple[float, float]] | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in SCRIPT_KINDS:
             raise did_you_mean("script kind", self.kind, SCRIPT_KINDS)
+        if self.vary is not None:
+            if not isinstance(self.vary, Mapping):
+                raise FileFormatError(f"script vary must be an object field -> [low, high], "
+                                      f"got {self.vary!r}.")
+            ranges = {}
+            for key, bounds in self.vary.items():
+                if key not in VARIABLE:
+                    raise FileFormatError(f"script vary: "
+                                          f"{did_you_mean('variable field', key, VARIABLE)}")
+                if (not isinstance(bounds, list | tuple) or len(bounds) != 2
+                        or not all(isinstance(b, int | float) and not isinstance(b, bool)
+                                   and np.isfinite(b) for b in bounds)
+                        or bounds[0] > bounds[1]):
+                    raise FileFormatError(f"script vary {key!r} must be [low, high] with "
+                                          f"low <= high, got {bounds!r}.")
+                ranges[key] = (float(bounds[0]), float(bounds[1]))
+                # every value of the range must pass the checks below: check both ends
+                for end in ranges[key]:
+                    Script(**{**asdict(self), "vary": None, key: end})
+            object.__setattr__(self, "vary", ranges or None)
         for name in ("at", "gap", "deceleration", "duration", "clear"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float) \
@@ -105,7 +131,20 @@ class Script:
             raise FileFormatError(f"{source}: {err}") from err
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        out = asdict(self)
+        if self.vary is None:
+            del out["vary"]
+        else:
+            out["vary"] = {k: list(v) for k, v in self.vary.items()}
+        return out
+
+    def drawn(self, rng: np.random.Generator) -> Script:
+        """The script of one episode: every ``vary`` field drawn from ``rng`` (in
+        :data:`VARIABLE` order), the others as they are."""
+        if not self.vary:
+            return self
+        values = {k: float(rng.uniform(*self.vary[k])) for k in VARIABLE if k in self.vary}
+        return Script(**{**asdict(self), "vary": None, **values})
 
     def install(self, env: Any) -> Any:
         """Place the scripted vehicle in a freshly reset highway-env env (``env.unwrapped``)
@@ -114,6 +153,8 @@ class Script:
         Raises:
             FileFormatError: a cut-in on a road where the ego's lane has no neighbour.
         """
+        if self.vary:
+            return self.drawn(env.np_random).install(env)
         road, ego = env.road, env.vehicle
         network = road.network
         ego_lane = network.get_lane(ego.lane_index)

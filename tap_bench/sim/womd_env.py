@@ -44,22 +44,29 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Iterable, Mapping, Sequence
+import warnings
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 import gymnasium as gym
-import numba
 import numpy as np
 import pandas as pd
-from highway_env import utils
 from highway_env.envs.common.abstract import AbstractEnv
-from highway_env.road.road import Road, RoadNetwork
-from highway_env.vehicle.behavior import IDMVehicle
-from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
 from tap_bench.errors import ParameterError
-from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, lane_points
+from tap_bench.sim.womd_road import (
+    ROUTE_CORRIDOR,
+    ROUTE_OFF_MAP,
+    LogVehicle,
+    WomdIDMVehicle,
+    WomdMDPVehicle,
+    WomdNetwork,
+    WomdRoad,
+    logged_route,
+    path_progress,
+    sim_frame,
+)
 from tap_bench.sim.womd_scene import (
     CURRENT_STEP,
     TRAFFIC,
@@ -70,532 +77,13 @@ from tap_bench.sim.womd_scene import (
     load_scene,
 )
 
-__all__ = ["OFF_ROAD_MARGIN", "ROUTE_CORRIDOR", "TRAFFIC", "LogVehicle", "WomdEnv",
-           "WomdIDMVehicle", "WomdNetwork", "WomdRoad", "WomdScenes", "logged_route",
+__all__ = ["PARKED_DISTANCE", "TARGET_SPEEDS", "TRAFFIC", "WomdEnv", "WomdScenes",
            "make_womd_env"]
 
-OFF_ROAD_MARGIN = 0.5  # [m] beyond half the lane's width, from every lane centre: off road
-ROUTE_CORRIDOR = 4.0  # [m] progress counts while the ego is this close to the logged path
-ROUTE_OFF_MAP = 3.0  # [m] a logged position farther than half a lane width + this is off
-STOP_MARGIN = 1.0  # [m] IDM stops its front bumper this far before a red stop point
-STOP_LOOKAHEAD = 60.0  # [m] stop points farther ahead along the route are ignored
 PARKED_DISTANCE = 1.0  # [m] a vehicle that moves less over the record stays parked (replays)
-HIDDEN = 1.0e6  # [m] where an agent waits while the log has no valid state for it
 TARGET_SPEEDS = (0.0, 2.5, 5.0, 7.5, 10.0, 12.5, 15.0, 17.5, 20.0, 25.0, 30.0)
 """Target speeds of the meta-action ego [m/s] (highway-env's default 20-30 m/s is a
 motorway's; these cover a city street too)."""
-
-
-def _sim(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """WOMD (x, y) -> highway-env's mirrored frame."""
-    return np.stack([np.asarray(x, float), -np.asarray(y, float)], axis=-1)
-
-
-# ------------------------------------------------------------------ the road network
-
-
-class WomdNetwork(RoadNetwork):
-    """A highway-env road network of WOMD lanes.
-
-    Lane index of WOMD lane ``k``: ``(str(k), f"{k}>", 0)``. The graph's nodes do not carry
-    the topology; the WOMD exits and neighbours do, through :meth:`next_lane` and
-    :meth:`side_lanes_at`, and :meth:`get_closest_lane_index` is compiled
-    (:class:`~tap_bench.sim.womd_lanes.LaneIndex`).
-
-    Attributes:
-        road_map: the WOMD map.
-        index: WOMD lane id -> lane index.
-        left_out: WOMD lane ids not built (a single distinct point).
-    """
-
-    def __init__(self, road_map: Any) -> None:
-        super().__init__()
-        self.road_map = road_map
-        self.index: dict[int, tuple[str, str, int]] = {}
-        self.left_out: list[int] = []
-        lanes = []
-        for lane in road_map.lanes.values():
-            points = lane_points(lane.centre)
-            if points is None:
-                self.left_out.append(lane.id)
-                continue
-            limit = lane.speed_limit if np.isfinite(lane.speed_limit) else 20.0
-            built = FastPolyLane(_sim(points[:, 0], points[:, 1]).tolist(), lane.width,
-                                 womd_id=lane.id, speed_limit=limit)
-            index = (str(lane.id), f"{lane.id}>", 0)
-            self.add_lane(index[0], index[1], built)
-            self.index[lane.id] = index
-            lanes.append((index, built))
-        self.lookup = LaneIndex(lanes)
-
-    def get_closest_lane_index(self, position: np.ndarray, heading: float | None = None
-                               ) -> tuple[str, str, int]:
-        return self.lookup.closest(position, heading)
-
-    def womd_id(self, lane_index: Any) -> int:
-        """The WOMD id of a lane index."""
-        return int(lane_index[0])
-
-    def successors(self, lane_index: Any) -> list[tuple[str, str, int]]:
-        """Lane indexes of the lane's exits (those built)."""
-        lane = self.road_map.lanes[self.womd_id(lane_index)]
-        return [self.index[i] for i in lane.exit if i in self.index]
-
-    def side_lanes_at(self, lane_index: Any, position: np.ndarray, side: str | None = None
-                      ) -> list[tuple[str, str, int]]:
-        """The map's neighbours of a lane at ``position`` (within their index range):
-        ``side`` ``"left"``, ``"right"`` or None for both."""
-        lane = self.road_map.lanes[self.womd_id(lane_index)]
-        built = self.get_lane(lane_index)
-        lon, _ = built.local_coordinates(position)
-        at = _point_index(lane.centre, lon)
-        out = []
-        for name in ("left", "right"):
-            if side not in (None, name):
-                continue
-            for n in getattr(lane, name):
-                if n.self_start <= at <= n.self_end and n.lane in self.index:
-                    out.append(self.index[n.lane])
-        return out
-
-    def side_lanes(self, lane_index: Any) -> list[tuple[str, str, int]]:
-        """The map's neighbours of a lane anywhere along it (MOBIL then checks that the lane
-        is reachable from where the vehicle is)."""
-        lane = self.road_map.lanes[self.womd_id(lane_index)]
-        return [self.index[n.lane] for n in (*lane.left, *lane.right) if n.lane in self.index]
-
-    def next_lane(self, current_index: Any, route: Any = None, position: np.ndarray = None,
-                  np_random: Any = None) -> Any:
-        """The lane after ``current_index``: the route's next lane when it is an exit of
-        this one, else the exit that continues most straight; the lane itself at a dead
-        end."""
-        exits = self.successors(current_index)
-        if not exits:
-            return current_index
-        if route:
-            for k, index in enumerate(route):
-                if index == current_index:
-                    for later in route[k + 1:k + 4]:
-                        if later in exits:
-                            return later
-                    break
-            for index in route:
-                if index in exits:
-                    return index
-        lane = self.get_lane(current_index)
-        end_heading = lane.heading_at(lane.length)
-        return min(exits, key=lambda i: abs(utils.wrap_to_pi(
-            self.get_lane(i).heading_at(0.0) - end_heading)))
-
-
-def _point_index(centre: np.ndarray, lon: float) -> int:
-    """Index of the centre-line point at arc length ``lon`` [m] (clipped to the line)."""
-    if len(centre) < 2:
-        return 0
-    s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(centre, axis=0).T))]
-    return int(np.clip(np.searchsorted(s, lon), 0, len(centre) - 1))
-
-
-# ------------------------------------------------------------------ vehicles
-
-
-class LogVehicle(Vehicle):
-    """An agent replaying its logged states (sim frame), hidden while the log has none.
-
-    Attributes:
-        row: the track's row in the scene.
-    """
-
-    def __init__(self, road: Road, row: int, states: np.ndarray, valid: np.ndarray,
-                 length: float, width: float, clock: list[int]) -> None:
-        self.states = states  # (T, 4) x, y, heading, speed in the sim frame
-        self.valid_steps = valid
-        self.clock = clock
-        self.row = row
-        self.LENGTH, self.WIDTH = float(length), float(width)
-        x, y, h, v = self._state(clock[0])
-        super().__init__(road, np.array([x, y]), h, v)
-        self.diagonal = math.hypot(self.LENGTH, self.WIDTH)
-        self.check_collisions = False
-        self._place(clock[0])
-
-    def _state(self, k: int) -> tuple[float, float, float, float]:
-        if k < len(self.valid_steps) and self.valid_steps[k]:
-            x, y, h, v = self.states[k]
-            return x, y, h, v
-        return HIDDEN + 10.0 * self.row, HIDDEN, 0.0, 0.0
-
-    def _place(self, k: int) -> None:
-        x, y, h, v = self._state(k)
-        self.position = np.array([x, y])
-        self.heading = h
-        self.speed = v
-        self.collidable = bool(k < len(self.valid_steps) and self.valid_steps[k])
-
-    def act(self, action: Any = None) -> None:
-        """Replaying: no decision."""
-
-    def step(self, dt: float) -> None:
-        """Move to the logged state of the road's current step."""
-        self.impact = None
-        self._place(self.clock[0])
-
-
-class _RouteMixin:
-    """Route following for WOMD vehicles: lane changes the route makes (the logged driver
-    changed lanes there) and the map's neighbours only."""
-
-    route: list
-
-    def _route_change(self) -> Any:
-        """The route's next lane when it is a neighbour of the current one (a logged lane
-        change), else None."""
-        if not self.route or self.lane_index not in self.route:
-            return None
-        k = self.route.index(self.lane_index)
-        if k + 1 < len(self.route):
-            nxt = self.route[k + 1]
-            if nxt in self.road.network.side_lanes_at(self.lane_index, self.position):
-                return nxt
-        return None
-
-
-class WomdMDPVehicle(_RouteMixin, MDPVehicle):
-    """highway-env's meta-action vehicle on a WOMD map: ``LANE_LEFT``/``LANE_RIGHT`` go to
-    the map's neighbour on that side where there is one (else nothing happens)."""
-
-    def act(self, action: Any = None) -> None:
-        if action in ("LANE_LEFT", "LANE_RIGHT"):
-            side = "left" if action == "LANE_LEFT" else "right"
-            for index in self.road.network.side_lanes_at(self.lane_index, self.position,
-                                                         side):
-                if self.road.network.get_lane(index).is_reachable_from(self.position):
-                    self.target_lane_index = index
-                    break
-            action = None
-        super().act(action)
-
-    def step(self, dt: float) -> None:
-        super().step(dt)
-        self.speed = max(self.speed, 0.0)  # highway-env lets a braking vehicle reverse
-
-
-class WomdIDMVehicle(_RouteMixin, IDMVehicle):
-    """IDM/MOBIL on a WOMD map: follows its route (the route's lane changes included), MOBIL
-    only towards the map's neighbours, stops at red (and yellow, when it can) stop points,
-    never reverses."""
-
-    def change_lane_policy(self) -> None:
-        change = self._route_change()
-        if change is not None and self.lane_index == self.target_lane_index:
-            if self.road.network.get_lane(change).is_reachable_from(self.position):
-                self.target_lane_index = change
-                return
-        network = self.road.network
-        side_lanes = network.side_lanes
-        network.side_lanes = lambda index: network.side_lanes_at(index, self.position)
-        try:
-            super().change_lane_policy()
-        finally:
-            network.side_lanes = side_lanes
-
-    def acceleration(self, ego_vehicle: ControlledVehicle, front_vehicle: Vehicle = None,
-                     rear_vehicle: Vehicle = None) -> float:
-        acc = super().acceleration(ego_vehicle, front_vehicle, rear_vehicle)
-        if ego_vehicle is self:
-            stop = getattr(self.road, "stop_distance", None)
-            if stop is not None:
-                d = stop(self)
-                if d is not None:
-                    acc = min(acc, self._stop_acceleration(d))
-        return acc
-
-    def _stop_acceleration(self, distance: float) -> float:
-        """IDM's acceleration towards a standing obstacle placed so that the front bumper
-        stops :data:`STOP_MARGIN` before a stop point ``distance`` [m] ahead (centre)."""
-        v = max(self.speed, 0.0)
-        gap = distance - self.LENGTH / 2 - STOP_MARGIN + self.DISTANCE_WANTED
-        d_star = self.DISTANCE_WANTED + v * self.TIME_WANTED + v * v / (
-            2 * math.sqrt(-self.COMFORT_ACC_MAX * self.COMFORT_ACC_MIN))
-        free = 1 - (v / max(utils.not_zero(self.target_speed), 0.1)) ** self.DELTA
-        return self.COMFORT_ACC_MAX * (free - (d_star / max(gap, 0.1)) ** 2)
-
-    def step(self, dt: float) -> None:
-        super().step(dt)
-        self.speed = max(self.speed, 0.0)  # IDM can ask a stopped vehicle to reverse
-
-
-# ------------------------------------------------------------------ the road
-
-
-@numba.njit(cache=True, nogil=True)
-def _lane_clearance(ax, ay, bx, by, half, owner, x, y):  # pragma: no cover - compiled
-    """min over lanes of (distance to the lane's centre line - half its width) [m]."""
-    best = np.inf
-    for k in range(ax.shape[0]):
-        dx, dy = bx[k] - ax[k], by[k] - ay[k]
-        n2 = dx * dx + dy * dy
-        u = 0.0 if n2 == 0 else ((x - ax[k]) * dx + (y - ay[k]) * dy) / n2
-        u = min(max(u, 0.0), 1.0)
-        d = math.hypot(x - ax[k] - u * dx, y - ay[k] - u * dy) - half[owner[k]]
-        if d < best:
-            best = d
-    return best
-
-
-@numba.njit(cache=True, nogil=True)
-def _crosses(ax, ay, bx, by, px, py, qx, qy):  # pragma: no cover - compiled
-    """Whether the move p -> q crosses any segment a -> b (proper intersection)."""
-    for k in range(ax.shape[0]):
-        d1 = (bx[k] - ax[k]) * (py - ay[k]) - (by[k] - ay[k]) * (px - ax[k])
-        d2 = (bx[k] - ax[k]) * (qy - ay[k]) - (by[k] - ay[k]) * (qx - ax[k])
-        d3 = (qx - px) * (ay[k] - py) - (qy - py) * (ax[k] - px)
-        d4 = (qx - px) * (by[k] - py) - (qy - py) * (bx[k] - px)
-        if d1 * d2 < 0 and d3 * d4 < 0:
-            return True
-    return False
-
-
-def _segments(lines: Sequence[np.ndarray]) -> tuple[np.ndarray, ...]:
-    """(ax, ay, bx, by, owner) of the segments of polylines (sim frame)."""
-    parts = [(np.asarray(p)[:-1], np.asarray(p)[1:], np.full(len(p) - 1, i))
-             for i, p in enumerate(lines) if len(p) >= 2]
-    if not parts:
-        z = np.zeros(0)
-        return z, z, z, z, np.zeros(0, np.int64)
-    a = np.concatenate([p[0] for p in parts])
-    b = np.concatenate([p[1] for p in parts])
-    owner = np.concatenate([p[2] for p in parts]).astype(np.int64)
-    return (np.ascontiguousarray(a[:, 0]), np.ascontiguousarray(a[:, 1]),
-            np.ascontiguousarray(b[:, 0]), np.ascontiguousarray(b[:, 1]), owner)
-
-
-class WomdRoad(Road):
-    """highway-env's road for a WOMD scene: the step counter the log replays read, the
-    neighbour search projected once per step per lane (compiled), collisions checked for the
-    vehicles that check them, signals and off-road geometry.
-
-    Attributes:
-        clock: [k], the record's step the road is at.
-    """
-
-    def __init__(self, network: WomdNetwork, scene: Scene, clock: list[int],
-                 np_random: Any = None) -> None:
-        super().__init__(network=network, vehicles=[], np_random=np_random,
-                         record_history=False)
-        self.scene = scene
-        self.clock = clock
-        road = scene.road
-        lanes = [lane for lane in road.lanes.values() if lane.id in network.index]
-        self._lane_segments = _segments([_sim(*lane.centre.T) for lane in lanes])
-        self._half = np.array([lane.width / 2 for lane in lanes])
-        self._edges = _segments([_sim(*e.T) for e in road.road_edges])
-        self._projections: dict[Any, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-        self._positions: np.ndarray | None = None
-        self._movers: list[Vehicle] = []
-        signals = road.signals
-        self._signal_lanes = [network.index.get(int(i)) for i in signals.lane]
-        self._stop_s = []
-        for k, index in enumerate(self._signal_lanes):
-            if index is None:
-                self._stop_s.append(np.nan)
-                continue
-            p = _sim(*signals.stop_point[k])
-            self._stop_s.append(float(network.get_lane(index).local_coordinates(p)[0]))
-        self._red = signals.red
-        self._red_or_yellow = signals.red_or_yellow
-
-    # the neighbour search, once per lane per step
-    def act(self) -> None:
-        self._projections.clear()
-        self._movers = [v for v in self.vehicles if v.collidable]
-        self._positions = (np.array([v.position for v in self._movers])
-                           if self._movers else np.zeros((0, 2)))
-        for vehicle in self.vehicles:
-            vehicle.act()
-
-    def neighbour_vehicles(self, vehicle: Any, lane_index: Any = None
-                           ) -> tuple[Any | None, Any | None]:
-        lane_index = lane_index or vehicle.lane_index
-        if not lane_index or self._positions is None:
-            return super().neighbour_vehicles(vehicle, lane_index)
-        lane = self.network.get_lane(lane_index)
-        table = self._projections.get(lane_index)
-        if table is None:
-            lon, lat = lane.project(self._positions[:, 0], self._positions[:, 1])
-            on = (np.abs(lat) <= lane.width / 2 + 1.0) & (lon >= -lane.VEHICLE_LENGTH) \
-                & (lon < lane.length + lane.VEHICLE_LENGTH)
-            table = self._projections[lane_index] = (np.flatnonzero(on), lon, lat)
-        members, lon, _ = table
-        s = lane.local_coordinates(vehicle.position)[0]
-        front = rear = None
-        s_front = s_rear = None
-        for i in members:
-            v = self._movers[i]
-            if v is vehicle:
-                continue
-            sv = lon[i]
-            if s <= sv and (s_front is None or sv <= s_front):
-                s_front, front = sv, v
-            if sv < s and (s_rear is None or sv > s_rear):
-                s_rear, rear = sv, v
-        return front, rear
-
-    def step(self, dt: float) -> None:
-        self.clock[0] += 1
-        self._positions = None
-        for vehicle in self.vehicles:
-            vehicle.step(dt)
-        checking = [v for v in self.vehicles if v.check_collisions]
-        for vehicle in checking:
-            for other in self.vehicles:
-                if other is not vehicle and (not other.check_collisions
-                                             or id(other) > id(vehicle)):
-                    vehicle.handle_collisions(other, dt)
-
-    # signals
-    def stop_distance(self, vehicle: Vehicle) -> float | None:
-        """Distance [m] along the vehicle's lanes to the nearest stop point ahead whose signal
-        is red, or yellow and far enough to stop at (comfortable braking); None if none."""
-        k = min(self.clock[0], len(self._red) - 1)
-        if not len(self._signal_lanes) or k < 0:
-            return None
-        active = np.flatnonzero(self._red_or_yellow[k])
-        if not len(active):
-            return None
-        network = self.network
-        lane_index = vehicle.lane_index
-        s = network.get_lane(lane_index).local_coordinates(vehicle.position)[0]
-        ahead = [(lane_index, -s)]
-        route = getattr(vehicle, "route", None)
-        offset = network.get_lane(lane_index).length - s
-        current = lane_index
-        for _ in range(3):
-            if offset > STOP_LOOKAHEAD:
-                break
-            nxt = network.next_lane(current, route=route, position=vehicle.position)
-            if nxt == current:
-                break
-            ahead.append((nxt, offset))
-            offset += network.get_lane(nxt).length
-            current = nxt
-        best = None
-        for j in active:
-            index = self._signal_lanes[j]
-            for lane, base in ahead:
-                if lane != index or not np.isfinite(self._stop_s[j]):
-                    continue
-                d = base + self._stop_s[j]
-                if d < -0.5 or d > STOP_LOOKAHEAD:
-                    continue
-                if not self._red[k, j]:  # yellow: stop only when it can
-                    brake = vehicle.speed ** 2 / max(2 * (d - vehicle.LENGTH / 2), 0.1)
-                    if brake > -getattr(vehicle, "COMFORT_ACC_MIN", -5.0):
-                        continue
-                best = d if best is None else min(best, d)
-        return best
-
-    def crossed_red(self, before: np.ndarray, after: np.ndarray) -> bool:
-        """Whether a move (sim frame) crossed a stop point whose signal is red at the road's
-        step: from before to beyond it along its lane, within the lane's width."""
-        k = min(self.clock[0], len(self._red) - 1)
-        if k < 0 or not len(self._signal_lanes):
-            return False
-        for j in np.flatnonzero(self._red[k]):
-            index = self._signal_lanes[j]
-            if index is None or not np.isfinite(self._stop_s[j]):
-                continue
-            lane = self.network.get_lane(index)
-            s0, d0 = lane.local_coordinates(before)
-            s1, d1 = lane.local_coordinates(after)
-            stop = self._stop_s[j]
-            if s0 < stop <= s1 and max(abs(d0), abs(d1)) <= lane.width / 2 + OFF_ROAD_MARGIN:
-                return True
-        return False
-
-    def off_road(self, before: np.ndarray, after: np.ndarray) -> bool:
-        """SPEC section 8: farther than half the lane's width + :data:`OFF_ROAD_MARGIN` from
-        every lane centre line, or across a road edge on the move ``before -> after``."""
-        ax, ay, bx, by, owner = self._lane_segments
-        clear = _lane_clearance(ax, ay, bx, by, self._half, owner, float(after[0]),
-                                float(after[1]))
-        if clear > OFF_ROAD_MARGIN:
-            return True
-        ex, ey, fx, fy, _ = self._edges
-        return bool(len(ex)) and bool(_crosses(ex, ey, fx, fy, float(before[0]),
-                                               float(before[1]), float(after[0]),
-                                               float(after[1])))
-
-
-# ------------------------------------------------------------------ routes
-
-
-def logged_route(network: WomdNetwork, xy: np.ndarray, heading: np.ndarray
-                 ) -> tuple[list[tuple[str, str, int]], float]:
-    """The lanes a logged path follows (sim frame): the nearest lane by distance and heading
-    at each position, consecutive repeats and one-step flickers removed, gaps between lanes
-    that are neither exits nor neighbours bridged through the graph (up to three lanes).
-
-    Returns:
-        the route (lane indexes, in order) and the share of positions farther than half
-        their lane's width + :data:`ROUTE_OFF_MAP` from it (the path leaves the map there).
-    """
-    seq, off = [], 0
-    for p, h in zip(xy, heading, strict=True):
-        index = network.get_closest_lane_index(p, h)
-        lane = network.get_lane(index)
-        _, lat = lane.local_coordinates(p)
-        if abs(lat) > lane.width / 2 + ROUTE_OFF_MAP:
-            off += 1
-        if not seq or seq[-1] != index:
-            seq.append(index)
-    cleaned: list = []
-    for index in seq:  # A B A -> A
-        if len(cleaned) >= 2 and cleaned[-2] == index:
-            cleaned.pop()
-            continue
-        cleaned.append(index)
-    route = cleaned[:1]
-    for b in cleaned[1:]:
-        a = route[-1]
-        if b in network.successors(a) or b in network.side_lanes(a):
-            route.append(b)
-            continue
-        route.extend(_bridge(network, a, b))
-        route.append(b)
-    return route, off / max(len(xy), 1)
-
-
-def _bridge(network: WomdNetwork, a: Any, b: Any, depth: int = 3) -> list:
-    """Lanes between a and b through the exits (breadth first, up to ``depth``); [] if
-    none."""
-    frontier = [[a]]
-    for _ in range(depth):
-        nxt = []
-        for path in frontier:
-            for s in network.successors(path[-1]):
-                if s == b:
-                    return path[1:]
-                if s not in path:
-                    nxt.append([*path, s])
-        frontier = nxt
-    return []
-
-
-def _path_progress(path: np.ndarray, cum: np.ndarray, p: np.ndarray) -> tuple[float, float]:
-    """(s, distance) [m] of point p projected on a polyline path (n >= 2) with arc lengths
-    ``cum``."""
-    a, b = path[:-1], path[1:]
-    ab = b - a
-    n2 = np.maximum((ab ** 2).sum(axis=1), 1e-12)
-    u = np.clip(((p - a) * ab).sum(axis=1) / n2, 0, 1)
-    q = a + u[:, None] * ab
-    d = np.hypot(*(p - q).T)
-    k = int(np.argmin(d))
-    return float(cum[k] + u[k] * math.sqrt(n2[k])), float(d[k])
-
-
-# ------------------------------------------------------------------ scenes and the env
 
 
 class _WomdHighwayEnv(AbstractEnv):
@@ -633,7 +121,7 @@ class _WomdHighwayEnv(AbstractEnv):
         self.clock[0] = CURRENT_STEP
         network = WomdNetwork(scene.road)
         self.road = WomdRoad(network, scene, self.clock, np_random=self.np_random)
-        sim_xy = _sim(scene.x, scene.y)  # (n, T, 2)
+        sim_xy = sim_frame(scene.x, scene.y)  # (n, T, 2)
         sim_h = -scene.heading
         states = np.concatenate([sim_xy, sim_h[..., None], scene.speed[..., None]], axis=-1)
         self.states = states
@@ -728,7 +216,7 @@ class _WomdHighwayEnv(AbstractEnv):
         red = self.road.crossed_red(self._last_ego, p)
         self._last_ego = p.copy()
         if self.path_length > 0 and len(self.path) >= 2:
-            s, d = _path_progress(self.path, self.path_cum, p)
+            s, d = path_progress(self.path, self.path_cum, p)
             if d <= ROUTE_CORRIDOR:
                 self.progress = max(self.progress, s / self.path_length)
         self.flags["off_road"] |= off
@@ -784,6 +272,8 @@ class WomdEnv(gym.Wrapper):
         scenes: the files and settings.
         record: build the trajectory table (off: faster training).
         render_mode: highway-env's.
+        cycle: for training: a seed past the last scenario wraps around, and a scenario that
+            cannot be built is skipped (with a warning) for the next one.
 
     Attributes:
         scenario: the :class:`WomdScenes` (``scenario.name`` is the ``env`` column).
@@ -792,13 +282,14 @@ class WomdEnv(gym.Wrapper):
     """
 
     def __init__(self, scenes: WomdScenes, *, record: bool = True,
-                 render_mode: str | None = None) -> None:
+                 render_mode: str | None = None, cycle: bool = False) -> None:
         config = {**_WomdHighwayEnv.default_config(), "policy_frequency":
                   scenes.policy_frequency, **dict(scenes.config)}
         inner = _WomdHighwayEnv(config=config, render_mode=render_mode)
         super().__init__(inner)
         self.scenario = scenes
         self.record = record
+        self.cycle = cycle
         self.catalog = scenes.catalog()
         if not self.catalog:
             raise SceneError(f"{', '.join(scenes.files)}: no scenario in these files.")
@@ -845,6 +336,23 @@ class WomdEnv(gym.Wrapper):
             index = int(seed)
         else:
             index = 0 if self._seed is None else (self._seed + 1) % len(self.catalog)
+        if self.cycle:
+            index %= len(self.catalog)
+        for _ in range(len(self.catalog) if self.cycle else 1):
+            try:
+                obs, info = self._start(index, options)
+                break
+            except SceneError as err:
+                if not self.cycle:
+                    raise
+                warnings.warn(f"{err} Skipped.", stacklevel=2)
+                index = (index + 1) % len(self.catalog)
+        else:
+            raise SceneError(f"{', '.join(self.scenario.files)}: no scenario can be built.")
+        self._start_record()
+        return obs, info
+
+    def _start(self, index: int, options: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
         self.scene = self.scene_at(index)
         self._seed = index
         inner = self.env.unwrapped
@@ -854,7 +362,6 @@ class WomdEnv(gym.Wrapper):
         self.max_steps = int(np.ceil((self.scene.n_steps - 1 - CURRENT_STEP)
                                      * inner.config["policy_frequency"]
                                      / inner.config["simulation_frequency"]))
-        self._start_record()
         return obs, info
 
     def _index_of(self, scenario_id: str) -> int:
@@ -872,7 +379,7 @@ class WomdEnv(gym.Wrapper):
                      ("x", "y", "heading", "speed", "vx", "vy", "valid")}
         self._crashed = np.zeros((n, t), bool)
         self._ego_cols = {"off_road": np.zeros(t, bool), "ran_red_light": np.zeros(t, bool),
-                          "route_progress": np.zeros(t),
+                          "route_progress": np.full(t, np.nan),
                           "log_distance": np.full(t, np.nan)}
         self._last_step = CURRENT_STEP
         self.crash_with = ""

@@ -54,6 +54,19 @@ class SceneRef:
         return f"{self.path} record {self.record}" if self.format != "scenarionet" \
             else self.path
 
+    def digest(self) -> str:
+        """SHA-256 of the scenario's bytes (its record, or the whole pickle): the content
+        hash an episode cache keys a recorded scene on."""
+        if self.format == "scenarionet":
+            return hashlib.sha256(Path(self.path).read_bytes()).hexdigest()
+        from tap_bench.womd.tfrecord import iter_records
+
+        for record in iter_records(self.path):
+            if record.index == self.record:
+                return hashlib.sha256(record.data).hexdigest()
+        raise SceneError(f"{self.path}: no record {self.record}; the file changed since it "
+                         "was listed.")
+
 
 @dataclass(frozen=True)
 class Scene:
@@ -285,3 +298,11 @@ class WomdScenes:
     def catalog(self) -> list[SceneRef]:
         """The scenarios, in seed order."""
         return scene_catalog(self.files)
+
+    def fingerprint(self, ref: SceneRef) -> dict[str, Any]:
+        """The env part of an episode-cache key (:func:`tap_bench.bench.cache.episode_key`)
+        for the scenario ``ref``: its content hash and the settings that shape the episode,
+        not its path (a renamed or moved file keeps its episodes)."""
+        return {"womd": ref.digest(), "format": ref.format, "traffic": self.traffic,
+                "ego": self.ego, "policy_frequency": self.policy_frequency,
+                "config": dict(self.config)}

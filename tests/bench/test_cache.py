@@ -238,8 +238,11 @@ def test_seeds_override_the_suite_and_the_estimate_comes_first(cold_and_warm, tm
     assert result.summary["seeds"] == [1, 2]
     assert sorted(result.episodes["seed"].unique()) == [1, 2]
     assert (result.summary["cache"]["cached"], result.summary["cache"]["simulated"]) == (2, 2)
-    assert lines[-1].startswith("suite tiny: 4 episodes (2 cached, 2 to simulate) on 1 "
+    # the estimate, then the phases after the episodes (issue 25: said on any output)
+    assert lines[-3].startswith("suite tiny: 4 episodes (2 cached, 2 to simulate) on 1 "
                                 "worker(s): about ")
+    assert lines[-2].startswith("episodes done (") and lines[-2].endswith("scoring ...")
+    assert lines[-1].startswith("scored (") and "writing the tables" in lines[-1]
     with pytest.raises(ParameterError, match="seeds"):
         run(tiny(), tmp_path / "bad", None, seeds="3-1")
 

@@ -79,3 +79,24 @@ def test_duration_is_one_column_when_both_tables_carry_it():
     eps = episode_table(trajectories=traj, episodes=episodes, level="maneuver")
     assert not {"duration_s_x", "duration_s_y"} & set(eps.columns)
     assert eps["duration_s"].tolist() == pytest.approx([3.0, 1.5])
+
+
+def test_one_outcome_cells_names_cells_whose_seeds_all_give_one_episode():
+    from tap_bench.bench.episodes import one_outcome_cells
+
+    from .conftest import make_episodes
+
+    rows = []
+    for seed in range(4):
+        same = {"sdl": "Straight | Cruise", "crashed": False, "mean_speed": 24.0,
+                "min_ttc_s": 10.0}
+        rows.append({"env": "exit", "policy": "idm", "seed": seed, **same})
+        rows.append({"env": "exit", "policy": "random", "seed": seed, **same,
+                     "mean_speed": 20.0 + seed})  # a measure varies: independent enough
+        rows.append({"env": "highway", "policy": "idm", "seed": seed, **same,
+                     "sdl": "Straight | Cruise" if seed else "Left Lane Change | Cruise"})
+    table = make_episodes(rows)
+    table.loc[(table["env"] == "highway") & (table["seed"] == 3), "status"] = "error"
+    out = one_outcome_cells(table)
+    assert out.to_dict("records") == [{"env": "exit", "policy": "idm", "n": 4}]
+    assert one_outcome_cells(table[table["seed"] == 0]).empty  # one episode: not a sample

@@ -58,3 +58,69 @@ def test_labelled_with_speed_gives_each_trajectorys_mean_speed():
     out = labelled_with_speed(table, "maneuver", interactions="all")
     assert list(out["mean_speed"]) == pytest.approx([10.0, 20.0])
     assert out["interaction"].notna().all()
+
+
+def test_debiased_gap_and_its_interval():
+    from tap_bench.bench.gap import debias
+
+    # by hand: plug-in 0.3, resampled mean 0.35, quantiles 0.2 and 0.5 -> 0.25, [0.1, 0.4]
+    boot = np.r_[np.full(30, 0.2), np.full(40, 0.35), np.full(30, 0.5)]
+    est, lo, hi = debias(0.3, boot, 0.5)
+    assert est == pytest.approx(0.25) and lo == pytest.approx(0.1) and hi == pytest.approx(0.4)
+    assert debias(0.3, boot, 0.5, same=0.35)[1] == 0  # within what one behaviour shows
+    assert debias(0.05, boot, 0.5) == (0.0, 0.0, 0.0)  # clipped: a distance
+    # the same behaviour on both sides: the plug-in gap is above 0, its percentile interval
+    # misses 0; the debiased interval holds it
+    rng = np.random.default_rng(0)
+    rows = [("Straight", "Maintain Speed", "Following"), ("Left Merge", "Accelerate",
+                                                           "Free Driving"),
+            ("Straight", "Decelerate", "Cut-in")]
+    held = 0
+    for rep in range(20):
+        pol = labels([rows[i] for i in rng.integers(0, 3, 30)])
+        ref = labels([rows[i] for i in rng.integers(0, 3, 200)])
+        res = behaviour_gap(pol, ref, config=BootstrapConfig(n_resamples=400, seed=rep))
+        held += res.debiased_low == 0
+        assert res.gap_debiased <= res.gap
+    assert held >= 17
+
+
+def test_windows_cut_episodes_to_the_reference_length():
+    from tap_bench.bench.gap import track_seconds, windows
+
+    t = np.arange(300) / 10  # a 30 s episode at 10 Hz
+    table = pd.DataFrame({"scenario_id": "ep", "track_id": "ego", "t": t, "x": t, "y": 0.0,
+                          "heading": 0.0, "speed": 1.0})
+    ref = pd.DataFrame({"scenario_id": np.repeat(["a", "b", "c"], 92), "track_id": "v",
+                        "t": np.tile(np.arange(92) / 10, 3)})
+    assert track_seconds(ref) == pytest.approx(9.1)
+    cut = windows(table, 9.1)
+    sizes = cut.groupby("scenario_id").size()
+    assert list(sizes.index) == ["ep#0", "ep#1", "ep#2"]  # 2.7 s left over: dropped
+    assert (sizes == 91).all()
+    with pytest.raises(ValueError, match="positive"):
+        windows(table, 0)
+
+
+def test_gap_command_windows_and_crashes(tmp_path, capsys):
+    from tap_bench.cli import main
+
+    t = np.arange(200) / 10
+    rows = []
+    for ep, crashed in (("e1", False), ("e2", True)):
+        rows.append(pd.DataFrame({"scenario_id": ep, "track_id": "ego", "t": t, "x": 20 * t,
+                                  "y": 0.0, "heading": 0.0, "speed": 20.0, "is_ego": True,
+                                  "crashed": np.r_[np.zeros(199, bool), [crashed]],
+                                  "policy": "p"}))
+    pd.concat(rows).to_parquet(tmp_path / "pol.parquet")
+    ref = pd.concat([pd.DataFrame({"scenario_id": f"r{i}", "track_id": "v", "t": t[:91],
+                                   "x": 20 * t[:91], "y": 0.0, "heading": 0.0,
+                                   "speed": 20.0}) for i in range(4)])
+    ref.to_parquet(tmp_path / "ref.parquet")
+    assert main(["gap", str(tmp_path / "pol.parquet"), "--reference",
+                 str(tmp_path / "ref.parquet"), "--resamples", "200",
+                 "-o", str(tmp_path / "gap.csv")]) == 0
+    out = capsys.readouterr().out
+    assert "crash rate 50%" in out and "4 9.0 s windows" in out and "debiased" in out
+    row = pd.read_csv(tmp_path / "gap.csv").iloc[0]
+    assert row["window_s"] == pytest.approx(9.0) and row["crash_rate"] == 0.5

@@ -33,3 +33,41 @@ def test_script_is_checked():
         Script.from_dict({"kind": "cut_in", "at": -1, "gap": 20})
     with pytest.raises(FileFormatError, match="blocker belongs"):
         Script.from_dict({"kind": "lead_braking", "at": 3, "gap": 20, "blocker": True})
+
+
+def test_vary_draws_each_field_per_seed_within_its_range():
+    import numpy as np
+
+    script = Script.from_dict({"kind": "lead_braking", "at": 4, "gap": 30, "clear": 100,
+                               "vary": {"at": [3, 5], "gap": [22, 38],
+                                        "deceleration": [4.5, 7.5]}})
+    draws = [script.drawn(np.random.default_rng(seed)) for seed in range(50)]
+    for name, (lo, hi) in script.vary.items():
+        values = np.array([getattr(d, name) for d in draws])
+        assert (values >= lo).all() and (values <= hi).all()
+        assert values.std() > (hi - lo) / 6  # spread over the range, not one value
+    assert all(d.duration == 2.0 and d.vary is None for d in draws)  # not named: fixed
+    again = script.drawn(np.random.default_rng(7))
+    assert again == draws[7]  # the same seed, the same episode
+    assert Script.from_dict(script.to_dict()) == script  # round trip through the file
+    with pytest.raises(FileFormatError, match=r"(?i)did you mean 'deceleration'"):
+        Script.from_dict({"kind": "lead_braking", "at": 3, "gap": 20,
+                          "vary": {"decel": [1, 2]}})
+    with pytest.raises(FileFormatError, match="low <= high"):
+        Script.from_dict({"kind": "lead_braking", "at": 3, "gap": 20, "vary": {"gap": [30, 20]}})
+    with pytest.raises(FileFormatError, match="at must be"):  # every drawable value checked
+        Script.from_dict({"kind": "lead_braking", "at": 3, "gap": 20, "vary": {"at": [-1, 2]}})
+
+
+@pytest.mark.parametrize("env", ["cut_in", "lead_braking"])
+def test_scripted_scenes_vary_with_their_seed(env):
+    """Issue 25: the shipped interaction scenes gave IDM bit-identical episodes on every
+    seed (the clearing leaves the ego alone with the scripted vehicle)."""
+    from tap_bench.bench.episodes import episode_table, one_outcome_cells
+
+    trajectories, episodes = rollout(env, "idm", [0, 1, 2, 3], progress=False)
+    labels = tap(trajectories, interactions="ego").labels("maneuver")
+    table = episode_table(labels=labels, trajectories=trajectories, episodes=episodes,
+                          level="maneuver", policy="idm")
+    assert one_outcome_cells(table.assign(env=env)).empty
+    assert table["mean_speed"].round(6).nunique() == 4

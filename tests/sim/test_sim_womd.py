@@ -227,7 +227,9 @@ def _find(env):
 def test_the_log_policy_refuses_a_synthetic_scene():
     env = gym.make("tap_bench/highway-v0", duration=1)
     env.reset(seed=0)
-    with pytest.raises(Exception, match="recorded ego"):
+    from tap_bench.errors import ParameterError
+
+    with pytest.raises(ParameterError, match="recorded ego"):
         load_policy("log").reset(env, seed=0)
 
 
@@ -308,3 +310,125 @@ def test_one_bad_scenario_is_reported_and_the_rest_land(tmp_path):
     assert status == {0: "ok", 1: "error"}
     assert "sd_bad" in result.episodes["error"].iloc[1]
     assert set(result.trajectories["scenario_id"]) == {"sd_good"}
+
+
+# ----------------------------------------------------------------- suites on recorded scenes
+
+
+def womd_suite(files: list[str], **extra) -> dict:
+    return {"name": "womd-test", "envs": [{"womd": files, "traffic": "log"}],
+            "policies": ["log", "idm"], "reference_policy": "log", "seeds": "all",
+            "bootstrap": {"n_resamples": 200}, **extra}
+
+
+def test_a_suite_names_recorded_scenes(tmp_path):
+    from tap_bench.bench.suite import suite_from_dict
+
+    good = scenarionet(tmp_path / "sd_good.pkl")
+    suite = suite_from_dict(womd_suite(["sd_*.pkl"]), path=tmp_path / "s.json")
+    assert suite.envs == ("womd",) and suite.env_seeds("womd") == (0,)
+    assert suite.scenes["womd"].files == (str(tmp_path / "sd_*.pkl"),)
+    assert suite.to_dict()["seeds"] == "all"
+    assert suite_from_dict(suite.to_dict()).scenes == suite.scenes
+    from tap_bench.errors import FileFormatError
+
+    bad = {**womd_suite([good]), "envs": [{"womd": good, "trafic": "idm"}]}
+    with pytest.raises(FileFormatError, match="Did you mean 'traffic'"):
+        suite_from_dict(bad)
+    with pytest.raises(FileFormatError, match="seeds 'all'"):
+        suite_from_dict({**womd_suite([good]), "envs": [{"womd": good}, "highway"]})
+    with pytest.raises(FileFormatError, match="twice"):
+        suite_from_dict({**womd_suite([good]), "envs": [{"womd": good}, {"womd": good}]})
+
+
+def test_the_cache_keys_a_scene_on_its_content(tmp_path):
+    import shutil
+
+    from tap_bench.bench.cache import EpisodeCache
+    from tap_bench.bench.run_plan import _tasks, plan_suite
+    from tap_bench.bench.suite import suite_from_dict
+
+    a = scenarionet(tmp_path / "sd_a.pkl")
+    (tmp_path / "moved").mkdir()
+    b = shutil.copy(a, tmp_path / "moved" / "sd_a.pkl")
+    cache = EpisodeCache(tmp_path / "cache")
+
+    def keys(path):
+        plan = plan_suite(suite_from_dict(womd_suite([str(path)])))
+        return [t.key for t in _tasks(plan, False, cache)]
+
+    assert keys(a) == keys(b)  # the same scene under another path
+    scenarionet(tmp_path / "moved" / "sd_a.pkl", ego_y=0.5)  # the content changed
+    assert keys(a) != keys(b)
+    assert all(keys(a)) and len(set(keys(a))) == 2  # one per policy
+
+
+def test_a_womd_suite_runs_against_the_human(real, tmp_path):
+    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.suite import suite_from_dict
+
+    good = scenarionet(tmp_path / "sd_good.pkl")
+    bad = scenarionet(tmp_path / "sd_bad.pkl", sdc=None)
+    suite = suite_from_dict(womd_suite([real[1], good, bad]))
+    result = run_suite(suite, tmp_path / "run", workers=1, progress=False)
+    eps = result.episodes
+    assert sorted(eps.loc[eps["status"] == "ok", "seed"].unique()) == [0, 1]
+    failed = eps[eps["status"] != "ok"]
+    assert set(failed["seed"]) == {2} and failed["error"].str.contains("sd_bad").all()
+    human = eps[(eps["policy"] == "log") & (eps["status"] == "ok")]
+    assert (human["log_ade"] == 0).all()
+    assert set(eps.loc[eps["status"] == "ok", "scenario_id"]) == {
+        "ee519cf571686d19/log", "ee519cf571686d19/idm", "sd_good/log", "sd_good/idm"}
+    page = (tmp_path / "run" / "report.html").read_text()
+    assert "Against the human" in page and "human-agreement" in page
+    roads = pd.read_parquet(tmp_path / "run" / "roads.parquet")
+    assert {"ee519cf571686d19", "sd_good"} <= set(roads["map_id"])
+
+
+def test_an_sb3_agent_trains_on_recorded_scenes_and_drives_them(real, tmp_path):
+    pytest.importorskip("stable_baselines3")
+    from tap_bench.rl.training import train
+
+    scenes = WomdScenes((real[1], scenarionet(tmp_path / "sd_good.pkl")))
+    result = train("ppo", scenes, timesteps=32, seed=0, output=tmp_path / "ppo-womd.zip",
+                   n_envs=1, hyperparameters={"n_steps": 32, "batch_size": 16,
+                                              "n_epochs": 1})
+    doc = result.definition_path.read_text()
+    assert "tap_bench/womd-v0" in doc and "sd_good.pkl" in doc
+    out = rollout(scenes, str(result.model_path), "all")
+    assert list(out.episodes["status"]) == ["ok", "ok"]
+    assert out.episodes["route_progress"].notna().all()
+    from tap_bench.errors import ParameterError
+    from tap_bench.rl.curve import CurveConfig
+
+    with pytest.raises(ParameterError, match="without it"):
+        train("ppo", scenes, timesteps=32, seed=0, output=tmp_path / "x.zip", n_envs=1,
+              curve=CurveConfig())
+
+
+def test_idm_traffic_stops_at_red_lights(real):
+    # 637f20cafde22ff8: a red light holds a queue for the whole record
+    env = make_womd_env(real[0], traffic="idm")
+    policy = load_policy("log")
+    obs, _ = env.reset(seed=0)
+    policy.reset(env, seed=0)
+    inner = env.unwrapped
+    road = inner.road
+    before = {row: v.position.copy() for row, v in inner.simulated.items()}
+    stopping: dict[int, list[float]] = {}
+    done = False
+    while not done:
+        for row, vehicle in inner.simulated.items():
+            d = road.stop_distance(vehicle)
+            if d is not None:
+                stopping.setdefault(row, []).append(d)
+        obs, _, terminated, truncated, _ = env.step(policy.act(obs))
+        for row, vehicle in inner.simulated.items():
+            # nobody crosses a stop point while it is red
+            assert not road.crossed_red(before[row], vehicle.position), row
+            before[row] = vehicle.position.copy()
+        done = terminated or truncated
+    assert stopping, "some idm vehicle meets the red light"
+    for row, distances in stopping.items():
+        assert min(distances) > 0
+        assert inner.simulated[row].speed < 0.5  # it waits

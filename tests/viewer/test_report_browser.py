@@ -30,6 +30,10 @@ def test_report_reads_summary_first_legibly(tiny_run, browser, screenshots):
         "return Array.from(document.querySelectorAll('figure svg')).map(s => "
         "[parseFloat(s.getAttribute('width')), s.getBoundingClientRect().width])")
     assert figures and all(shown >= 0.95 * drawn for drawn, shown in figures)
+    images = browser.execute_script(
+        "return Array.from(document.images).map(i => [i.naturalWidth, "
+        "i.getBoundingClientRect().width])")
+    assert all(shown >= 0.95 * natural for natural, shown in images)
     # no table is wider than the page's column
     wide = browser.execute_script(
         "return Array.from(document.querySelectorAll('.scroll')).filter(d => "

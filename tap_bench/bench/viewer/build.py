@@ -33,7 +33,6 @@ from tap_bench.bench.viewer.data import MAP_MARGIN, episode_chunks, episode_inde
 from tap_bench.errors import ParameterError
 from tap_bench.labelling import tap
 from tap_bench.maps import empty_map
-from tap_bench.sim.roads import road_table
 from tap_bench.sources import iter_womd, read_womd
 from tap_bench.sources.maps import read_maps
 from tap_bench.tableio import atomic_folder
@@ -127,7 +126,11 @@ def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
     maps = {str(env): map_features(sub, boxes.get(str(env)))
             for env, sub in roads.groupby("map_id", sort=True)}
     for entry in entries:
-        entry["map"] = entry["env"] if entry["env"] in maps else None
+        # highway-env: one road per env; recorded scenes: the map of the episode's WOMD
+        # scenario (a run names its episodes "<WOMD id>/<policy>")
+        womd = str(entry["id"]).rpartition("/")[0]
+        entry["map"] = (entry["env"] if entry["env"] in maps else
+                        womd if womd in maps else None)
     suite = summary.get("suite", {})
     index = {"run": {"name": str(summary.get("run", Path(output).parent.name)),
                      "suite": str(suite.get("name", "")), "level": level,
@@ -156,7 +159,7 @@ def _ego_segments(trajectories: pd.DataFrame, thresholds: Any, level: str) -> pd
 
 def _rebuild_roads(summary: dict[str, Any], envs: Sequence[str]) -> pd.DataFrame:
     suite = suite_from_dict(summary.get("suite", {}), source="summary.json")
-    frames = [road_table(suite.scenario(env)) for env in envs if env in suite.envs]
+    frames = [suite.road(env) for env in envs if env in suite.envs]
     return pd.concat(frames, ignore_index=True) if frames else empty_map()
 
 

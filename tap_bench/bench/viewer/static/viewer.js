@@ -479,6 +479,13 @@ const TAPVIEW = (() => {
       const p = pose(ep, tr, tc);
       if (p) drawVehicle(ctx, tr, p, tr.id === ep.focus ? "#f59f00" : "#3b6fb6");
     }
+    // the other pane's ego as a ghost (same env and seed: on recorded scenes, the human
+    // beside the policy that drove in its place)
+    const other = ep === state.a ? state.b : state.a;
+    if (other) {
+      const pg = pose(other, other.ego, Math.min(tc, other.duration));
+      if (pg) drawGhost(ctx, other.ego, pg);
+    }
     const pe = pose(ep, ep.ego, tc) || lastPose(ep, ep.ego);
     const crashed = ep.doc.crash_t !== null && tc >= ep.doc.crash_t - 1e-6;
     if (pe) drawVehicle(ctx, ep.ego, pe, crashed ? "#7a0000" : "#e03131", true);
@@ -551,6 +558,18 @@ const TAPVIEW = (() => {
         ctx.strokeRect(-tr.len / 2, -tr.wid / 2, tr.len, tr.wid);
       }
     }
+    ctx.restore();
+  }
+
+  function drawGhost(ctx, tr, p) {
+    // a dashed outline where the other pane's ego is at this time
+    ctx.save();
+    ctx.translate(p.x, p.y);
+    ctx.rotate(p.h);
+    ctx.setLineDash([0.6, 0.4]);
+    ctx.strokeStyle = "#000";
+    ctx.lineWidth = 0.2;
+    ctx.strokeRect(-tr.len / 2, -tr.wid / 2, tr.len, tr.wid);
     ctx.restore();
   }
 
