@@ -25,8 +25,8 @@ from machine import report
 from tap_bench.labelling import label
 from tap_bench.sim.policies import load_policy
 from tap_bench.sim.womd_env import make_womd_env
-from tap_bench.sim.womd_road import WomdNetwork
 from tap_bench.sim.womd_lanes import lane_points
+from tap_bench.sim.womd_road import WomdNetwork
 
 DEFAULT = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "womd"
 POLICIES = ("log", "idm", "idm-aggressive", "idm-defensive", "lane-keeping", "random",

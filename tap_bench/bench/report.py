@@ -143,7 +143,7 @@ def _replay(viewer: str | None, **params: Any) -> str | None:
     return f"{viewer}#{'&'.join(parts)}"
 
 
-def _against_the_human(episodes: pd.DataFrame, reference: str) -> list[str]:
+def _against_the_human(episodes: pd.DataFrame, reference: str, level: float) -> list[str]:
     """The section "against the human" of runs on recorded scenes (SPEC section 8): each
     policy's label agreement with the reference on the same scenes, per axis, and the
     closed-loop measures beside the human's own. Empty for runs without recorded scenes."""
@@ -160,7 +160,8 @@ def _against_the_human(episodes: pd.DataFrame, reference: str) -> list[str]:
              f'<p class="note">Recorded scenes: every policy drove the recorded ego of the '
              f"same WOMD scenarios from 1.0 s, {human} drove them as logged. Episodes pair "
              "by scenario.</p>"]
-    agree = agreement_with_reference(scenes, reference)
+    agree = agreement_with_reference(scenes, reference, level=level)
+    pct = level_text(level)
     if len(agree):
         shown = agree.assign(
             agreement=[f"{a}/{n} = {_pct(sh)} [{_pct(lo)}, {_pct(hi)}]" if n else "–"
@@ -173,7 +174,7 @@ def _against_the_human(episodes: pd.DataFrame, reference: str) -> list[str]:
         parts.append(html_table(
             wide, table_id="human-agreement",
             caption=f"Label agreement with {human}: scenes where the policy's ego label on "
-            "an axis equals the human's on the same scene, with its 95 % Wilson interval. "
+            f"an axis equals the human's on the same scene, with its {pct} Wilson interval. "
             "sdl is lateral and longitudinal together; interaction the relations to others "
             "(SPEC 7)."))
     summary = scene_summary(scenes)
@@ -274,7 +275,7 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
                      "<ul>" + "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>"
                                       for k, v in scores.methods.items()) + "</ul></details>")
 
-    parts.extend(_against_the_human(episodes, reference))
+    parts.extend(_against_the_human(episodes, reference, level))
 
     # 2. per-env panels
     parts.append("<h2>Per env</h2>")

@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.gap import behaviour_gap, labelled_with_speed
 from tap_bench.bench.scoring import Scores
-from tap_bench.bench.suite import Suite
 from tap_bench.errors import (
     LabelTableError,
     ParameterError,
@@ -24,6 +24,7 @@ from tap_bench.labelling import tap
 from tap_bench.labels import validate_labels
 from tap_bench.sources import read_womd
 from tap_bench.tableio import read_table
+from tap_bench.thresholds import Thresholds
 
 ReferenceSource = pd.DataFrame | str | os.PathLike | Sequence[str | os.PathLike]
 """A coverage reference: a label table, a label file, or driving-data files."""
@@ -31,11 +32,11 @@ ReferenceSource = pd.DataFrame | str | os.PathLike | Sequence[str | os.PathLike]
 _LABEL_SUFFIXES = (".parquet", ".pq", ".csv", ".csv.gz")
 
 
-def _reference(name: str, source: ReferenceSource, suite: Suite
+def _reference(name: str, source: ReferenceSource, level: str, thresholds: Thresholds
                ) -> tuple[pd.DataFrame | None, pd.DataFrame]:
     """(trajectories or None, label table) of one named reference."""
     if isinstance(source, pd.DataFrame):
-        validate_labels(source, suite.level, source=f"reference {name!r}")
+        validate_labels(source, level, source=f"reference {name!r}")
         return None, source
     paths = [source] if isinstance(source, str | os.PathLike) else list(source)
     if not paths:
@@ -43,17 +44,18 @@ def _reference(name: str, source: ReferenceSource, suite: Suite
     if len(paths) == 1 and str(paths[0]).lower().endswith(_LABEL_SUFFIXES):
         table = read_table(paths[0])
         if "sdl" in table.columns:  # a label file
-            validate_labels(table, suite.level, source=str(paths[0]))
+            validate_labels(table, level, source=str(paths[0]))
             return None, table
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         traj = read_womd([str(p) for p in paths])
-        labels = tap(traj, suite.thresholds, source=name).labels("all")
+        labels = tap(traj, thresholds, source=name).labels("all")
     return traj, labels
 
 
 def _with_gaps(scores: Scores, corpora: Mapping[str, tuple[pd.DataFrame | None, pd.DataFrame]],
-               labels: pd.DataFrame, episodes: pd.DataFrame, suite: Suite) -> Scores:
+               labels: pd.DataFrame, episodes: pd.DataFrame, level: str,
+               thresholds: Thresholds, config: BootstrapConfig) -> Scores:
     """``scores`` with the sim-to-real gap of every policy from each reference given as
     driving-data files (:mod:`tap_bench.bench.gap`): the egos' labels at the suite's level,
     lateral, longitudinal and interaction, against the reference's vehicles at the speeds
@@ -61,7 +63,7 @@ def _with_gaps(scores: Scores, corpora: Mapping[str, tuple[pd.DataFrame | None, 
     real = {name: traj for name, (traj, _) in corpora.items() if traj is not None}
     if not real or not len(labels) or "is_ego" not in labels.columns:
         return scores
-    egos = labels[(labels["level"] == suite.level) & labels["is_ego"].fillna(False)]
+    egos = labels[(labels["level"] == level) & labels["is_ego"].fillna(False)]
     speeds = episodes[["env", "policy", "seed", "mean_speed"]]
     egos = egos.drop(columns=["mean_speed"], errors="ignore").merge(
         speeds, on=["env", "policy", "seed"], how="left")
@@ -70,12 +72,12 @@ def _with_gaps(scores: Scores, corpora: Mapping[str, tuple[pd.DataFrame | None, 
     for name, traj in real.items():
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            reference = labelled_with_speed(traj, suite.level, interactions="all",
-                                            thresholds=suite.thresholds, source=name)
+            reference = labelled_with_speed(traj, level, interactions="all",
+                                            thresholds=thresholds, source=name)
         for policy, mine in egos.groupby("policy", sort=True):
             try:
                 gap = behaviour_gap(mine, reference, name=str(policy), axes=axes,
-                                    config=suite.bootstrap, reference_name=name)
+                                    config=config, reference_name=name)
             except LabelTableError as err:  # nothing comparable: said, not scored
                 scores.methods.setdefault("gap skipped", "")
                 scores.methods["gap skipped"] += f"{policy} vs {name}: {err} "
@@ -87,8 +89,8 @@ def _with_gaps(scores: Scores, corpora: Mapping[str, tuple[pd.DataFrame | None, 
     scores.methods["gap"] = (
         "total variation distance between the shares of single labels ("
         + ", ".join(axes) + f") of the policy's egos and of the reference's vehicles at the "
-        f"policy's speeds; {suite.bootstrap.level:.0%} percentile bootstrap "
-        f"({suite.bootstrap.n_resamples} resamples); floor: two samples of the reference")
+        f"policy's speeds; {config.level:.0%} percentile bootstrap "
+        f"({config.n_resamples} resamples); floor: two samples of the reference")
     return dataclasses.replace(scores, gap=pd.DataFrame(rows),
                                gap_labels=pd.concat(per_label, ignore_index=True))
 

@@ -5,9 +5,11 @@ What a run folder holds:
 
 ======================  ====================================================================
 ``summary.json``        suite, seeds, thresholds, level, versions, machine, timings, failed
-                        episodes, the interval methods, headline figures, and the
-                        provenance: each policy's full definition (with the SHA-256 of a
-                        model file) and each env's resolved config
+                        episodes, the interval methods, headline figures, the run's
+                        measure entries and plugins (what the report, the viewer and
+                        ``bench check`` read), and the provenance: each policy's full
+                        definition (with the SHA-256 of a model file) and each env's
+                        resolved config
 ``episodes.parquet``    the episode table (:mod:`tap_bench.bench.episodes`), failed
                         episodes included with their error
 ``labels.parquet``      TAP labels of every track at every level
@@ -197,7 +199,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
                                  "when womd= is given (womd= is references={'WOMD': ...})")
         sources["WOMD"] = list(womd)
     t0 = time.perf_counter()
-    corpora = {name: _reference(name, source, suite) for name, source in sources.items()}
+    corpora = {name: _reference(name, source, suite.level, thresholds)
+               for name, source in sources.items()}
     if corpora:
         timings["references"] = time.perf_counter() - t0
     with_trajectories = any(traj is not None for traj, _ in corpora.values())
@@ -258,7 +261,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
             f"{', '.join(unmatched)}: the data marks no ego vehicle (is_ego), so its "
             "scenarios cannot be matched by what happens around the ego; coverage and "
             "novelty use all its vehicles")
-    scores = _with_gaps(scores, corpora, labels, episodes, suite)
+    scores = _with_gaps(scores, corpora, labels, episodes, suite.level, thresholds,
+                        suite.bootstrap)
     timings["scoring"] = time.perf_counter() - t0
 
     failed = episodes[episodes["status"] != "ok"]

@@ -56,7 +56,7 @@ def _side(row: Any) -> int:
 def _fmt(measure: str, diff: float, lo: float, hi: float) -> str:
     name, unit = _WORDS.get(measure, (measure, MEASURES[measure].unit if measure in MEASURES
                                       else ""))
-    scale = 100.0 if measure == "crashed" else 1.0
+    scale = MEASURES[measure].scale if measure in MEASURES else 1.0  # a rate in points
     if np.isfinite(lo) and np.isfinite(hi):
         interval = f" [{scale * lo:+.2f}, {scale * hi:+.2f}]"
     else:
@@ -94,8 +94,8 @@ def verdict_table(paired_measures: pd.DataFrame, paired: pd.DataFrame | None = N
                 where = "pooled" if r.env == "all" else r.env
                 text = f"{_fmt(measure, r.diff, r.diff_low, r.diff_high)} ({where})"
                 (worse if side < 0 else better if side > 0 else []).append(
-                    (r.env != "all", -abs(float(r.diff)) * (100 if measure == "crashed"
-                                                            else 1), text))
+                    (r.env != "all", -abs(float(r.diff)) * (
+                        MEASURES[measure].scale if measure in MEASURES else 1.0), text))
         if worse:
             word, claims = "less safe", worse
         elif better:

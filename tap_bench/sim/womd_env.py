@@ -77,13 +77,41 @@ from tap_bench.sim.womd_scene import (
     load_scene,
 )
 
-__all__ = ["PARKED_DISTANCE", "TARGET_SPEEDS", "TRAFFIC", "WomdEnv", "WomdScenes",
-           "make_womd_env"]
+__all__ = ["PARKED_DISTANCE", "TARGET_SPEEDS", "TRAFFIC", "MapWarning", "WomdEnv",
+           "WomdScenes", "make_womd_env"]
 
 PARKED_DISTANCE = 1.0  # [m] a vehicle that moves less over the record stays parked (replays)
 TARGET_SPEEDS = (0.0, 2.5, 5.0, 7.5, 10.0, 12.5, 15.0, 17.5, 20.0, 25.0, 30.0)
 """Target speeds of the meta-action ego [m/s] (highway-env's default 20-30 m/s is a
 motorway's; these cover a city street too)."""
+
+
+def _map_note(scene: Scene, network: WomdNetwork) -> str:
+    """What the road network made of the scenario's map, in words (the episode table's
+    ``map``), warned once per scene when it is not the map as given."""
+    road = scene.road
+    parts = [f"{len(network.index)} lanes"]
+    if road.topology == "inferred":
+        parts.append(f"successors inferred from lane ends that meet ({road.inferred_links} "
+                     "links; the data names no entry or exit lanes)")
+    if network.left_out:
+        ids = ", ".join(map(str, network.left_out[:5]))
+        parts.append(f"{len(network.left_out)} lane(s) of a single point left out ({ids}"
+                     f"{' ...' if len(network.left_out) > 5 else ''})")
+    note = "; ".join(parts)
+    if len(parts) > 1 and scene.scenario_id not in _WARNED:
+        _WARNED.add(scene.scenario_id)
+        warnings.warn(f"scenario {scene.scenario_id} ({scene.ref}): {note}.", MapWarning,
+                      stacklevel=4)
+    return note
+
+
+class MapWarning(UserWarning):
+    """A recorded scene's map was completed (successors inferred) or trimmed (lanes of a
+    single point left out)."""
+
+
+_WARNED: set[str] = set()
 
 
 class _WomdHighwayEnv(AbstractEnv):
@@ -120,6 +148,7 @@ class _WomdHighwayEnv(AbstractEnv):
         scene = self.scene
         self.clock[0] = CURRENT_STEP
         network = WomdNetwork(scene.road)
+        self.map_note = _map_note(scene, network)
         self.road = WomdRoad(network, scene, self.clock, np_random=self.np_random)
         sim_xy = sim_frame(scene.x, scene.y)  # (n, T, 2)
         sim_h = -scene.heading
@@ -495,7 +524,8 @@ class WomdEnv(gym.Wrapper):
                 "log_ade": float(dist.mean()) if len(dist) else float("nan"),
                 "log_fde": float(dist[-1]) if len(dist) else float("nan"),
                 "crash_with": self.crash_with,
-                "crash_from_behind_by_log": bool(self.crash_from_behind_by_log)}
+                "crash_from_behind_by_log": bool(self.crash_from_behind_by_log),
+                "map": inner.map_note}
 
 
 def make_womd_env(files: str | os.PathLike | Iterable[str | os.PathLike] | WomdScenes,

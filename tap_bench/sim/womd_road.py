@@ -42,6 +42,7 @@ STOP_MARGIN = 1.0  # [m] IDM stops its front bumper this far before a red stop p
 STOP_LOOKAHEAD = 60.0  # [m] stop points farther ahead along the route are ignored
 HIDDEN = 1.0e6  # [m] where an agent waits while the log has no valid state for it
 
+
 def sim_frame(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """WOMD (x, y) -> highway-env's mirrored frame."""
     return np.stack([np.asarray(x, float), -np.asarray(y, float)], axis=-1)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import time
 import warnings
 
@@ -105,4 +106,8 @@ def test_demo_runs_and_prints_the_report(tmp_path, capsys):
     out = capsys.readouterr().out
     assert f"report: {(tmp_path / 'demo' / 'report.html').resolve()}" in out
     assert "144 episodes" in out
+    # issue 25: phases said off a terminal, intervals in the summary, the verdict printed
+    assert "episodes done (" in out and "writing the tables" in out
+    assert re.search(r"crash rate \d+% \[\d+%, \d+%\]", out)
+    assert "random vs idm: LESS SAFE" in out
     print(f"demo wall time {elapsed:.0f} s")

@@ -131,3 +131,16 @@ def test_an_idm_policy_object_is_accepted_by_rollout():
     policy = IDMPolicy("my-idm", time_wanted=2.0)
     _, episodes = rollout("merge", policy, [3], duration=2, record=False, progress=False)
     assert episodes["policy"].tolist() == ["my-idm"]
+
+
+def test_policies_lists_held_out_figures_only(capsys):
+    """Issue 25: the shipped agents' figures come from held-out seeds, said which; the
+    figures of the seeds their weights were selected on are not shown."""
+    from tap_bench.cli import main
+
+    assert main(["policies"]) == 0
+    out = capsys.readouterr().out
+    assert "kept_eval_crash_rate" not in out and "kept_eval_return" not in out
+    dqn = out[out.index("dqn-highway"):].split("\n")[:4]
+    assert any("held-out seeds 1000-1099 (100 episodes): crash rate 0.16" in line
+               for line in dqn)

@@ -139,6 +139,9 @@ def test_road_maps_keep_the_topology(real):
     assert sum(len(lane.left) for lane in pkl.lanes.values()) > 10
     example = maps["a3bb37c25ce56418"]  # the tf.Example roadgraph has no topology
     assert example.topology == "inferred" and example.inferred_links > 50
+    env = make_womd_env(real[2])
+    run(env, "log", 0)
+    assert "successors inferred" in env.episode_info()["map"]
 
 
 # ----------------------------------------------------------------- the env on real scenes
@@ -259,26 +262,36 @@ def test_the_command_writes_both_tables(real, tmp_path, capsys):
 # ----------------------------------------------------------------- bad scenarios
 
 
-def scenarionet(path: Path, *, sdc: str | None = "ego", lanes: bool = True,
-                one_point: bool = False, ego_y: float = 0.0) -> str:
-    """A ScenarioNet pickle: a 100 m straight lane, the ego driving along it at 10 m/s."""
+def car(x0: float, speed: float, y: float = 0.0) -> dict:
+    """A ScenarioNet track driving +x at ``speed`` from ``x0`` for 9 s."""
     t = np.arange(91) * 0.1
-    ego = {"type": "VEHICLE", "state": {
-        "position": np.c_[10 * t, np.full(91, ego_y), np.zeros(91)],
-        "heading": np.zeros(91), "velocity": np.c_[np.full(91, 10.0), np.zeros(91)],
+    return {"type": "VEHICLE", "state": {
+        "position": np.c_[x0 + speed * t, np.full(91, y), np.zeros(91)],
+        "heading": np.zeros(91), "velocity": np.c_[np.full(91, speed), np.zeros(91)],
         "valid": np.ones(91, bool), "length": np.full(91, 4.5), "width": np.full(91, 2.0)}}
+
+
+def scenarionet(path: Path, *, sdc: str | None = "ego", lanes: bool = True,
+                one_point: bool = False, ego_y: float = 0.0,
+                others: dict | None = None, limit_mph: float | None = None) -> str:
+    """A ScenarioNet pickle: a 130 m straight lane, the ego driving along it at 10 m/s."""
+    t = np.arange(91) * 0.1
+    ego = car(0.0, 10.0, ego_y)
     features = {}
     if lanes:
         features["1"] = {"type": "LANE_SURFACE_STREET",
                          "polyline": np.c_[np.arange(-10, 120, 0.5), np.zeros(260)],
                          "entry_lanes": [], "exit_lanes": []}
+        if limit_mph is not None:
+            features["1"]["speed_limit_mph"] = limit_mph
     if one_point:
         features["2"] = {"type": "LANE_SURFACE_STREET", "polyline": np.array([[5.0, 5.0]])}
     meta = {"scenario_id": path.stem, "ts": t, "dataset": "waymo"}
     if sdc is not None:
         meta["sdc_id"] = sdc
     with path.open("wb") as f:
-        pickle.dump({"metadata": meta, "tracks": {"ego": ego}, "map_features": features,
+        pickle.dump({"metadata": meta, "tracks": {"ego": ego, **(others or {})},
+                     "map_features": features,
                      "dynamic_map_states": {}}, f)
     return str(path)
 
@@ -294,9 +307,13 @@ def test_bad_scenarios_name_the_scenario_and_the_fix(tmp_path):
 
 
 def test_a_one_point_lane_is_left_out_and_the_scene_drives(tmp_path):
+    from tap_bench.sim.womd_env import MapWarning
+
     env = make_womd_env(scenarionet(tmp_path / "sd_one.pkl", one_point=True))
-    table = run(env, "idm", 0)
+    with pytest.warns(MapWarning, match="sd_one.*single point left out"):
+        table = run(env, "idm", 0)
     assert env.unwrapped.road.network.left_out == [2]
+    assert "left out (2)" in env.episode_info()["map"]
     assert env.episode_info()["route_progress"] > 0.9
     assert len(table)
 
@@ -432,3 +449,17 @@ def test_idm_traffic_stops_at_red_lights(real):
     for row, distances in stopping.items():
         assert min(distances) > 0
         assert inner.simulated[row].speed < 0.5  # it waits
+
+
+def test_a_replayed_car_that_runs_into_the_ego_is_marked(tmp_path):
+    # the human and the car 12 m behind both kept 10 m/s; the replayed car cannot yield to
+    # an ego that slows to the lane's 5 m/s (11.2 mph) limit, as lane keeping does
+    scene = scenarionet(tmp_path / "sd_rear.pkl", others={"7": car(-12.0, 10.0)},
+                        limit_mph=11.2)
+    env = make_womd_env(scene)
+    run(env, "lane-keeping", 0)
+    info = env.episode_info()
+    assert env.unwrapped.vehicle.crashed
+    assert info["crash_with"] == "7" and info["crash_from_behind_by_log"]
+    run(env, "log", 0)  # the human is never caught
+    assert not env.unwrapped.vehicle.crashed
