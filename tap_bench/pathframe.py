@@ -387,6 +387,71 @@ def _ragged(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return group, within
 
 
+# Every sum, search and interpolation below stays within one path: no path's numbers depend
+# on the others laid beside it (no running sum across paths, no offsets that scale with the
+# batch), so an episode labelled and measured alone or in a batch of any size gives the
+# same floats, bit for bit (tests/bench/test_rerun.py).
+_PADDED_CELLS = 1 << 24  # at most this many cells in the padded (paths, steps) cumsum
+
+
+def _path_cumsum(values: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """The running sum of ``values`` restarting at each path (paths laid end to end with
+    ``length`` elements each), each path's sum in its own order as ``np.cumsum`` of its
+    values alone gives it."""
+    out = np.empty(len(values))
+    if not len(values):
+        return out
+    widest = int(length.max())
+    if len(length) * widest <= _PADDED_CELLS:
+        path, within = _ragged(length)
+        padded = np.zeros((len(length), widest))
+        padded[path, within] = values
+        np.cumsum(padded, axis=1, out=padded)  # row by row: each path on its own
+        out[:] = padded[path, within]
+        return out
+    start = 0
+    for n in length.tolist():
+        out[start:start + n] = np.cumsum(values[start:start + n])
+        start += n
+    return out
+
+
+def _search_within(values: np.ndarray, count: np.ndarray, path: np.ndarray,
+                   query: np.ndarray, side: str) -> np.ndarray:
+    """``np.searchsorted`` of each ``query`` among the values of its ``path`` (paths laid end
+    to end, ``count`` values each, sorted within each path), as an index into ``values``:
+    exact comparisons of the values themselves, with no per-path offset added."""
+    n = len(values)
+    data_path = np.repeat(np.arange(len(count)), count)
+    is_query = np.r_[np.zeros(n, np.int8), np.ones(len(query), np.int8)]
+    ties = is_query if side == "right" else 1 - is_query  # right: values equal come first
+    order = np.lexsort((ties, np.r_[values, query], np.r_[data_path, path]))
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.arange(len(order))
+    q_rank = rank[n:]
+    return q_rank - np.searchsorted(np.sort(q_rank), q_rank)  # values before each query
+
+
+def _interp_within(x: np.ndarray, path: np.ndarray, xp: np.ndarray, fp: np.ndarray,
+                   first: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """``np.interp(x, xp_path, fp_path)`` of each ``x`` on its ``path``'s polyline (paths laid
+    end to end, ``count`` vertices each from ``first``), with numpy's formula and end
+    rules, computed from that path's numbers only."""
+    lo, hi = first[path], first[path] + count[path] - 1
+    j = np.clip(_search_within(xp, count, path, x, "right") - 1, lo, np.maximum(hi - 1, lo))
+    k = np.minimum(j + 1, hi)
+    x0, x1, f0, f1 = xp[j], xp[k], fp[j], fp[k]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slope = (f1 - f0) / (x1 - x0)
+        out = slope * (x - x0) + f0
+        again = np.isnan(out)
+        out[again] = (slope * (x - x1) + f1)[again]
+    same = np.isnan(out) & (f0 == f1)
+    out[same] = f0[same]
+    out = np.where(x < xp[lo], fp[lo], out)
+    return np.where(x >= xp[hi], fp[hi], out)
+
+
 _NODES = 64  # integration nodes of an extension's curved stretch (a few cm at most)
 
 
@@ -495,7 +560,7 @@ def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, sp
     new_path = np.zeros(len(ego_row), bool)
     new_path[first_step] = True
     step_len = np.where(new_path[1:], 0.0, step_len)
-    arc = _path_arc(step_len, first_step, length)
+    arc = _path_cumsum(np.r_[0.0, step_len] if len(ego_row) else np.zeros(0), length)
     # keep a vertex when its arc length enters a new spacing bin, and every path's ends
     bins = np.floor(arc / spacing)
     keep = np.ones(len(ego_row), bool)
@@ -512,24 +577,22 @@ def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, sp
     # the last (first) second of the record, or of its motion: back (on) until the ego drove
     # CURVATURE_STRETCH (a path that ends standing still curves as it drove into the stop)
     second = round(HZ)
-    span = float(arc.max(initial=0.0)) + 10.0
-    arc_global = arc + ego_path * span
-    offset = np.arange(paths.n_paths) * span
+    every = np.arange(paths.n_paths)
     reach_f = np.maximum(arc[last_step] - arc[np.maximum(last_step - second, first_step)],
                          CURVATURE_STRETCH)
-    at_f = np.searchsorted(arc_global, arc[last_step] - reach_f + offset, "right") - 1
+    at_f = _search_within(arc, length, every, arc[last_step] - reach_f, "right") - 1
     reach_b = np.maximum(arc[np.minimum(first_step + second, last_step)] - arc[first_step],
                          CURVATURE_STRETCH)
-    at_b = np.searchsorted(arc_global, arc[first_step] + reach_b + offset, "left")
+    at_b = _search_within(arc, length, every, arc[first_step] + reach_b, "left")
     at_f = np.clip(at_f, first_step, last_step)
     at_b = np.clip(at_b, first_step, last_step)
     # the same stretch once more, farther from the end: is the curvature falling (a turn's
     # exit)? then it falls on at that rate (to 0: straight on), else it holds (a curve)
     ds_f = arc[last_step] - arc[at_f]
     ds_b = arc[at_b] - arc[first_step]
-    at_f0 = np.clip(np.searchsorted(arc_global, arc[at_f] - ds_f + offset, "right") - 1,
+    at_f0 = np.clip(_search_within(arc, length, every, arc[at_f] - ds_f, "right") - 1,
                     first_step, last_step)
-    at_b0 = np.clip(np.searchsorted(arc_global, arc[at_b] + ds_b + offset, "left"),
+    at_b0 = np.clip(_search_within(arc, length, every, arc[at_b] + ds_b, "left"),
                     first_step, last_step)
     k_front, fade_f = _fading(_end_curvature(h, arc, last_step, at_f),
                               _end_curvature(h, arc, at_f, at_f0), ds_f)
@@ -578,19 +641,6 @@ def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, sp
     return vx, vy, vs, first, count, arc
 
 
-def _path_arc(step_len: np.ndarray, first_step: np.ndarray, length: np.ndarray
-              ) -> np.ndarray:
-    """(m,) arc length [m] of each ego step along its own path: the running sum of
-    ``step_len`` (m - 1,) (the length of the step into each next row) restarted at 0 at
-    every path's first step. Each path is summed on its own, so a path's arc lengths are
-    the same bits whichever paths come before it in the table (a batch of episodes or one)."""
-    arc = np.zeros(int(length.sum()))
-    for first, n in zip(first_step.tolist(), length.tolist(), strict=True):
-        if n > 1:
-            np.cumsum(step_len[first:first + n - 1], out=arc[first + 1:first + n])
-    return arc
-
-
 def _line_cells(vx, vy, vs, first, count, lo_arc, hi_arc, scene, cell):
     """The grid cells near each line: (cell key, path, arc_lo, arc_hi) per (path, cell),
     sorted by cell key. A cell is near a line when one of the line's samples (every half
@@ -604,11 +654,8 @@ def _line_cells(vx, vy, vs, first, count, lo_arc, hi_arc, scene, cell):
     n_samp = np.ceil((hi_arc - lo_arc) / half).astype(np.int64) + 1
     path, k = _ragged(n_samp)
     arc = lo_arc[path] + k * half
-    span = vs.max() - vs.min() + 1.0
-    offset = np.repeat(np.arange(n_paths), count) * span
-    g = vs + offset
-    sx = np.interp(arc + path * span, g, vx)
-    sy = np.interp(arc + path * span, g, vy)
+    sx = _interp_within(arc, path, vs, vx, first, count)
+    sy = _interp_within(arc, path, vs, vy, first, count)
     cx = np.floor(sx / cell).astype(np.int64)
     cy = np.floor(sy / cell).astype(np.int64)
     dx = np.array([-1, -1, -1, 0, 0, 0, 1, 1, 1])
@@ -722,12 +769,10 @@ def path_frame(paths: Paths, others: np.ndarray | None = None, *,
     px, py = paths.x[other], paths.y[other]
 
     # exact projection onto the fine segments of that range
-    span = vs.max() - vs.min() + 1.0
-    global_s = vs + np.repeat(np.arange(len(first)), count) * span
     last = first + count - 1
     # the foot point lies within half a sample spacing of the range (see _line_cells)
-    lo = np.searchsorted(global_s, w_lo - cell / 2 + path * span, "right") - 1
-    hi = np.searchsorted(global_s, w_hi + cell / 2 + path * span, "left")
+    lo = _search_within(vs, count, path, w_lo - cell / 2, "right") - 1
+    hi = _search_within(vs, count, path, w_hi + cell / 2, "left")
     lo = np.clip(lo, first[path], last[path] - 1)
     hi = np.clip(hi, lo + 1, last[path])
     n_seg = hi - lo

@@ -2,32 +2,46 @@
 simulates only the episodes whose inputs changed.
 
 **The key** of an episode is the SHA-256 of a JSON document (:func:`episode_key`) holding
-everything the rollout's trajectory table depends on:
+everything that can change its trajectory table (any byte changed in any input changes it;
+``tests/bench/test_cache_keys.py``):
 
-- the env: the highway-env id and its *resolved* config (highway-env's defaults updated with
-  the scenario's overrides, the suite's overrides, the episode length), the lane-change
-  setting, the duration and the number of decisions;
-- the policy: its full definition (name, kind, parameters), the SHA-256 of every file a
-  parameter names (an SB3 ``.zip``, with the versions of Stable-Baselines3 and torch that
-  run it), and for kind ``import`` the SHA-256 of the factory's module source;
+- the env (:func:`scenario_fingerprint`): its name in the suite, every field of the
+  resolved scenario (name, version, script, lane changes, config overrides ...), the
+  SHA-256 of the scenario file and of every file a field names, the highway-env id and its
+  *resolved* config, the duration and the number of decisions, and the code of a user
+  vehicle class the config names;
+- the policy (:func:`policy_fingerprint`): its full definition and the SHA-256 of its file
+  and of every file a parameter names (an SB3 ``.zip``, with the versions of
+  Stable-Baselines3 and torch), and for kind ``import`` the code of the factory's module,
+  of every module it loads in the user's code and of its whole top-level package
+  (:func:`tap_bench.usercode.code_files`);
 - the seed;
-- the code and versions: the cache entry format, tap-bench's version, the SHA-256 of every
-  module of :mod:`tap_bench.sim` (recorder, scenario env, vehicles, policies, rollout ...;
-  so an edit to the recorder or to IDM invalidates the episodes even when the version
-  number stays), and the versions of highway-env, Gymnasium and NumPy.
+- the code and versions: the cache entry format, tap-bench's version, the SHA-256 of its
+  simulation code (:data:`SIMULATION_CODE`), and the versions of highway-env, Gymnasium
+  and NumPy.
 
-Policies registered in Python with :func:`tap_bench.register_policy` have no definition to
-hash and are never cached; failed episodes are never cached either.
+Policies registered in Python with :func:`tap_bench.register_policy`, code without Python
+source and failed episodes are never cached.
 
 **An entry** is one file ``<dir>/episodes/<key[:2]>/<key>.episode``: one line of JSON (the
 key, its document, the episode-table row, the rollout's wall time, the payload's size and
-SHA-256), then the trajectory table as Parquet. A reader checks the key, the document's
-hash and the payload's hash before using an entry; an entry that fails a check (a torn
-write, a flipped bit, a file copied under the wrong name) is deleted and its episode
-simulated again, never used. Entries are written to a temporary file in the same folder and
-renamed into place, so readers never see half an entry, and concurrent writers of the same
-episode each leave a whole, equal file. Labels and scores are never cached: ``bench run``
-recomputes them from the trajectory tables with the run's thresholds.
+SHA-256, and a checksum of the whole header, the row included), then the trajectory table
+as Parquet. A reader verifies the whole entry before using it (:func:`_decode`: the header
+an object of the expected fields and types, its checksum, the key, the payload, a row of
+one successful episode of the key's seed); an entry that fails (a torn write, a flipped
+bit, an edited row, a header of ``null`` or deep nesting, a file copied under the wrong
+name) is deleted and its episode simulated again, with a note (:meth:`EpisodeCache.read`).
+Entries are written to a temporary file in the same folder and renamed into place, so
+readers never see half an entry, and concurrent writers of the same episode each leave a
+whole, equal file. The checksums catch damage, not intent: a shared cache needs trusted
+writers.
+
+**Labels and measures** of an episode are kept beside it (``<dir>/labels/``,
+:meth:`EpisodeCache.put_labels`), keyed by the episode's key, the thresholds, the level
+and the code of labelling and measures (:func:`label_key`, :func:`label_code`), and
+verified whole in the same way; a re-run reads them and only scores and writes the report.
+Labelling and measuring never depend on the other episodes of a batch, so the tables are
+the same, float for float, whatever the cache holds (``tests/bench/test_rerun.py``).
 
 **Location and size**: ``$TAP_BENCH_CACHE``, else ``$XDG_CACHE_HOME/tap-bench``, else
 ``~/.cache/tap-bench`` (:func:`default_cache_dir`). An entry of the default suite is about
@@ -49,7 +63,7 @@ import os
 import re
 import tempfile
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
@@ -63,7 +77,12 @@ from tap_bench.errors import ParameterError
 from tap_bench.sim.policies import PolicyDefinition
 from tap_bench.sim.schema import default_config
 from tap_bench.sim.suite import VEHICLE_TYPE_KEYS, Scenario
-from tap_bench.usercode import TRUSTED_PACKAGES, code_digest
+from tap_bench.usercode import (
+    TRUSTED_PACKAGES,
+    _source_path,
+    code_digest,
+    find_module_source,
+)
 
 __all__ = ["DEFAULT_MAX_BYTES", "ENTRY_FORMAT", "CachedEpisode",
            "EpisodeCache", "default_cache_dir", "episode_key", "parse_size",
@@ -92,6 +111,7 @@ def _simulation_modules() -> list[Path]:
 
 
 _SUFFIX = ".episode"
+_LABELS_SUFFIX = ".labels"
 _STALE_TMP_S = 3600.0  # a temporary file this old belongs to a writer that died [s]
 _KEY = re.compile(r"^[0-9a-f]{64}$")
 
@@ -255,6 +275,88 @@ def policy_fingerprint(definition: PolicyDefinition) -> dict[str, Any] | None:
     return doc
 
 
+LABELS_FORMAT = 1
+"""Layout of a label entry file; raised when it changes (old entries then miss)."""
+LABEL_CODE = ("tap_bench.labelling", "tap_bench.bench.episodes", "tap_bench.bench.measures")
+"""The modules that make an episode's labels and measures; their code and every module of
+tap-bench they import (followed transitively) key the label cache (:func:`label_code`)."""
+
+
+_IMPORT = re.compile(r"^[ \t]*(?:from[ \t]+(tap_bench[\w.]*)[ \t]+import[ \t]+(\([^)]*\)|[^\n]+)"
+                     r"|import[ \t]+(tap_bench[\w.]*))", re.MULTILINE)
+
+
+def _tap_bench_closure(starts: tuple[str, ...]) -> dict[str, Path]:
+    """The source files of ``starts`` and of every tap-bench module they import (at any
+    depth, function-level imports included; the import lines are read as text, which is
+    twenty times quicker than parsing every module on every run)."""
+    files: dict[str, Path] = {}
+    todo = list(starts)
+    while todo:
+        name = todo.pop()
+        if name in files:
+            continue
+        path = _source_path(find_module_source(name))
+        if path is None:
+            continue
+        files[name] = path
+        named: set[str] = set()
+        for base, names, plain in _IMPORT.findall(path.read_text(errors="replace")):
+            if plain:
+                named.add(plain)
+                continue
+            named.add(base)
+            for part in names.strip("()").replace("\n", ",").split(","):
+                word = part.split("#")[0].split(" as ")[0].strip()
+                if word.isidentifier():
+                    named.add(f"{base}.{word}")
+        todo += [m for m in named if m not in files]
+    return dict(sorted(files.items()))
+
+
+def label_code(measures: Iterable[Any] | None = None) -> dict[str, Any]:
+    """What the labels and measures of an episode depend on besides its trajectories, the
+    thresholds and the level: the code of :data:`LABEL_CODE` (with what it imports in
+    tap-bench), the run's measure entries (every field, the function by name, and the code
+    of those a plug-in adds), the versions of tap-bench, NumPy, pandas, numba and PyArrow.
+
+    Args:
+        measures: the run's measure entries (default: those registered now).
+    """
+    if measures is None:
+        from tap_bench.bench.measures import MEASURES
+
+        measures = MEASURES
+    digest = hashlib.sha256()
+    for name, path in _tap_bench_closure(LABEL_CODE).items():
+        digest.update(name.encode() + b"\0")
+        digest.update(hashlib.sha256(path.read_bytes()).digest())
+    entries = []
+    for m in measures:
+        function = m.function
+        module = getattr(function, "__module__", "") or ""
+        entry = {f.name: _plain(getattr(m, f.name)) for f in dataclasses.fields(m)
+                 if f.name != "function"}
+        entry["function"] = f"{module}:{getattr(function, '__qualname__', repr(function))}"
+        if module and module.split(".")[0] not in TRUSTED_PACKAGES:
+            entry["code"] = code_digest(module)
+        entries.append(entry)
+    return {"labels_format": LABELS_FORMAT, "tap-bench": __version__,
+            "code": digest.hexdigest(), "measures": entries,
+            "versions": {pkg: _version(pkg) for pkg in ("numpy", "pandas", "numba",
+                                                        "pyarrow")}}
+
+
+def label_key(episode: str, thresholds: Mapping[str, Any], level: str,
+              code: Mapping[str, Any]) -> tuple[str, dict[str, Any]]:
+    """The key of an episode's labels and measures and the document it hashes: the
+    episode's key, the thresholds (their JSON document), the level, and
+    :func:`label_code`."""
+    doc = {"episode": episode, "thresholds": _plain(thresholds), "level": level,
+           "code": dict(code)}
+    return hashlib.sha256(_canonical(doc)).hexdigest(), doc
+
+
 def _canonical(doc: Any) -> bytes:
     return json.dumps(doc, sort_keys=True, separators=(",", ":"), default=repr,
                       allow_nan=True).encode()
@@ -394,17 +496,84 @@ class EpisodeCache:
             raise
         return path
 
-    def _entries(self) -> Iterator[tuple[Path, os.stat_result]]:
-        if not self.folder.is_dir():
-            return
-        for path in self.folder.glob(f"*/*{_SUFFIX}"):
+    # -- labels and measures of an episode, for re-runs that redo nothing -------------
+    @property
+    def labels_folder(self) -> Path:
+        """Where the label entries are."""
+        return self.root / "labels"
+
+    def labels_path(self, key: str) -> Path:
+        """The label entry file of ``key`` (a :func:`label_key`)."""
+        if not _KEY.match(key):
+            raise ParameterError("key", key, "64 lower-case hex digits (a SHA-256)")
+        return self.labels_folder / key[:2] / f"{key}{_LABELS_SUFFIX}"
+
+    def put_labels(self, key: str, doc: Mapping[str, Any],
+                   tables: Mapping[str, pd.DataFrame]) -> Path:
+        """Store an episode's labels and measures (``tables``: name -> table) under ``key``
+        (a :func:`label_key` and its document), atomically, verified whole on read."""
+        if hashlib.sha256(_canonical(doc)).hexdigest() != key:
+            raise ParameterError("key", key, "the SHA-256 of doc (label_key)")
+        parts, index = [], []
+        for name, table in tables.items():
+            buffer = io.BytesIO()
+            table.to_parquet(buffer, index=False)
+            data = buffer.getvalue()
+            parts.append(data)
+            index.append({"name": str(name), "bytes": len(data),
+                          "sha256": hashlib.sha256(data).hexdigest()})
+        header = {"format": "tap-bench-labels", "format_version": LABELS_FORMAT, "key": key,
+                  "doc": doc, "tables": index, "created": time.strftime("%Y-%m-%d %H:%M:%S")}
+        header["header_sha256"] = hashlib.sha256(_canonical(header)).hexdigest()
+        return self._write(self.labels_path(key), _canonical(header) + b"\n" + b"".join(parts))
+
+    def read_labels(self, key: str) -> tuple[dict[str, pd.DataFrame] | None, str | None]:
+        """(the tables stored under ``key`` or None, why an entry there was refused or
+        None); a refused entry is deleted, as :meth:`read` does."""
+        path = self.labels_path(key)
+        try:
+            data = path.read_bytes()
+        except OSError:
+            return None, None
+        try:
+            tables = _decode_labels(data, key)
+        except Exception as err:  # whatever is wrong, the entry is never used
             with contextlib.suppress(OSError):
-                yield path, path.stat()
+                path.unlink()
+            reason = str(err) if isinstance(err, _Refused) else \
+                f"unreadable ({type(err).__name__}: {str(err)[:200]})"
+            return None, f"label entry {path.name} refused and deleted: {reason}"
+        with contextlib.suppress(OSError):
+            os.utime(path)
+        return tables, None
+
+    def _write(self, path: Path, data: bytes) -> Path:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name[:16]}.", suffix=".tmp",
+                                   dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as stream:
+                stream.write(data)
+            os.replace(tmp, path)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            raise
+        return path
+
+    def _entries(self) -> Iterator[tuple[Path, os.stat_result]]:
+        for folder, suffix in ((self.folder, _SUFFIX), (self.labels_folder, _LABELS_SUFFIX)):
+            if not folder.is_dir():
+                continue
+            for path in folder.glob(f"*/*{suffix}"):
+                with contextlib.suppress(OSError):
+                    yield path, path.stat()
 
     def size(self) -> tuple[int, int]:
-        """(entries, bytes) in the cache."""
+        """(episodes, bytes) in the cache: the bytes of its label entries included."""
         entries = list(self._entries())
-        return len(entries), sum(st.st_size for _, st in entries)
+        return (sum(path.suffix == _SUFFIX for path, _ in entries),
+                sum(st.st_size for _, st in entries))
 
     def prune(self, max_bytes: int | None = None) -> PruneReport:
         """Delete least recently used entries until the cache holds at most ``max_bytes``
@@ -413,8 +582,10 @@ class EpisodeCache:
         if isinstance(limit, bool) or not isinstance(limit, int) or limit < 0:
             raise ParameterError("max_bytes", limit, "an integer >= 0 (bytes)")
         now = time.time()
-        if self.folder.is_dir():
-            for tmp in self.folder.glob("*/.*.tmp"):
+        for folder in (self.folder, self.labels_folder):
+            if not folder.is_dir():
+                continue
+            for tmp in folder.glob("*/.*.tmp"):
                 with contextlib.suppress(OSError):
                     if now - tmp.stat().st_mtime > _STALE_TMP_S:
                         tmp.unlink()
@@ -540,3 +711,41 @@ def _decode(data: bytes, key: str) -> CachedEpisode:
             or trajectories["scenario_id"].nunique() != 1:
         raise _Refused("the trajectory table is empty or not one episode's")
     return CachedEpisode(trajectories, row, seconds)
+
+
+def _decode_labels(data: bytes, key: str) -> dict[str, pd.DataFrame]:
+    """A label entry's tables, verified whole; :class:`_Refused` naming the failed check."""
+    line, sep, payload = data.partition(b"\n")
+    if not sep or len(line) > MAX_HEADER_BYTES:
+        raise _Refused("no header line (or one longer than 1 MiB)")
+    try:
+        header = json.loads(line)
+    except (ValueError, RecursionError) as err:
+        raise _Refused(f"the header is not JSON ({type(err).__name__})") from None
+    if not isinstance(header, dict):
+        raise _Refused(f"the header is a {type(header).__name__}, not an object")
+    if header.get("format") != "tap-bench-labels" \
+            or header.get("format_version") != LABELS_FORMAT:
+        raise _Refused("another entry format")
+    if not isinstance(header.get("doc"), dict) or not isinstance(header.get("tables"), list) \
+            or not isinstance(header.get("header_sha256"), str):
+        raise _Refused("header fields missing or of the wrong type")
+    body = {k: v for k, v in header.items() if k != "header_sha256"}
+    if hashlib.sha256(_canonical(body)).hexdigest() != header["header_sha256"]:
+        raise _Refused("the header does not match its checksum")
+    if header.get("key") != key or hashlib.sha256(_canonical(header["doc"])).hexdigest() != key:
+        raise _Refused("the entry belongs to another key")
+    tables, at = {}, 0
+    for part in header["tables"]:
+        if not isinstance(part, dict) or not isinstance(part.get("name"), str) \
+                or not isinstance(part.get("bytes"), int) or part["bytes"] <= 0:
+            raise _Refused("a table of the header is malformed")
+        data_part = payload[at:at + part["bytes"]]
+        at += part["bytes"]
+        if len(data_part) != part["bytes"] \
+                or hashlib.sha256(data_part).hexdigest() != part.get("sha256"):
+            raise _Refused(f"table {part['name']!r} does not match its hash")
+        tables[part["name"]] = pd.read_parquet(io.BytesIO(data_part))
+    if at != len(payload):
+        raise _Refused("bytes after the last table")
+    return tables

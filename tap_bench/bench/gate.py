@@ -64,7 +64,9 @@ import pandas as pd
 
 from tap_bench.bench.bootstrap import named_rng
 from tap_bench.bench.compare import NO_LABEL
+from tap_bench.bench.gate_stats import direction, hypergeom_tails, is_rate, tv
 from tap_bench.bench.measures import MEASURES
+from tap_bench.bench.power import POWER, rule_power
 from tap_bench.bench.suite import GateConfig, gate_metrics
 from tap_bench.errors import (
     BaselineError,
@@ -165,8 +167,6 @@ class GateResult:
                 parts += [title, rows[cols].to_string(**fmt)]
         low = self.underpowered_rows()
         if not low.empty:
-            from tap_bench.bench.power import POWER
-
             worst = low.sort_values("power").groupby("metric", sort=False).first()
             lines = [f"  {m}: {int((low['metric'] == m).sum())} cells, weakest "
                      f"{r['env']}/{r['policy']} power {r['power']:.2f} with {int(r['n_run'])} "
@@ -501,15 +501,6 @@ def smallest_p(n_permutations: int, *, paired_seeds: int | None = None,
     return floor
 
 
-def direction(metric: str) -> int:
-    """+1 when a higher value of ``metric`` is better (speed, TTC), -1 when lower is better
-    (crashes, jerk), 0 for ``label_tv`` (a change of behaviour has no better side); read
-    from the measure's registry entry."""
-    if metric not in MEASURES:
-        return 0
-    return 1 if MEASURES[metric].higher_is_better else -1
-
-
 @dataclass(frozen=True)
 class _Test:
     """One test's outcome: the change (run - baseline; for label_tv the TV), the one-sided
@@ -558,19 +549,6 @@ def _sign_flip_test(d: np.ndarray, sign: int, config: GateConfig, key: tuple) ->
     return _Test(change, p_worse, p_better, p_min)
 
 
-def _hypergeom_tails(x: int, n_run: int, n_base: int, ones: int
-                     ) -> tuple[float, float, float, float]:
-    """Fisher's exact test: with ``ones`` of n_run + n_base values 1, P(X >= x), P(X <=
-    x), P(X = its largest value) and P(X = its smallest) for X the ones among the run's
-    n_run."""
-    total = math.comb(n_run + n_base, n_run)
-    lo, hi = max(0, ones - n_base), min(ones, n_run)
-    pmf = {k: math.comb(ones, k) * math.comb(n_run + n_base - ones, n_run - k) / total
-           for k in range(lo, hi + 1)}
-    return (sum(v for k, v in pmf.items() if k >= x), sum(v for k, v in pmf.items()
-                                                           if k <= x), pmf[hi], pmf[lo])
-
-
 def _unpaired_test(base: np.ndarray, run: np.ndarray, sign: int, config: GateConfig,
                    key: tuple) -> _Test:
     """One-sided test of the change of the mean with episodes exchanged between run and
@@ -581,7 +559,7 @@ def _unpaired_test(base: np.ndarray, run: np.ndarray, sign: int, config: GateCon
     if np.all(pooled == pooled[0]):
         return _Test(change, 1.0, 1.0, 1.0)
     if np.isin(pooled, (0.0, 1.0)).all():
-        up, down, p_top, p_bottom = _hypergeom_tails(int(run.sum()), len(run), len(base),
+        up, down, p_top, p_bottom = hypergeom_tails(int(run.sum()), len(run), len(base),
                                                      int(pooled.sum()))
         if sign > 0:  # more ones is better: worse is fewer
             return _Test(change, down, up, p_bottom)
@@ -599,16 +577,6 @@ def _unpaired_test(base: np.ndarray, run: np.ndarray, sign: int, config: GateCon
                  1.0 / (config.n_permutations + 1))
 
 
-def _tv(codes_b: np.ndarray, codes_r: np.ndarray, k: int) -> np.ndarray:
-    """(F,) total variation distance between rows of two (F, n) code matrices."""
-    F, nb = codes_b.shape
-    nr = codes_r.shape[1]
-    offsets = (np.arange(F) * k)[:, None]
-    cb = np.bincount((offsets + codes_b).ravel(), minlength=F * k).reshape(F, k)
-    cr = np.bincount((offsets + codes_r).ravel(), minlength=F * k).reshape(F, k)
-    return 0.5 * np.abs(cb / nb - cr / nr).sum(axis=1)
-
-
 def _paired_tv_test(base: np.ndarray, run: np.ndarray, config: GateConfig, key: tuple
                     ) -> _Test:
     """TV of the label distributions, p with run and baseline labels swapped per seed
@@ -616,7 +584,7 @@ def _paired_tv_test(base: np.ndarray, run: np.ndarray, config: GateConfig, key: 
     _, codes = np.unique(np.r_[base, run], return_inverse=True)
     k = int(codes.max()) + 1
     cb, cr = codes[:len(base)], codes[len(base):]
-    observed = float(_tv(cb[None, :], cr[None, :], k)[0])
+    observed = float(tv(cb[None, :], cr[None, :], k)[0])
     differ = np.flatnonzero(cb != cr)
     n_diff = len(differ)
     if n_diff == 0:
@@ -630,7 +598,7 @@ def _paired_tv_test(base: np.ndarray, run: np.ndarray, config: GateConfig, key: 
         extra, p_min = 1, 1.0 / (config.n_permutations + 1)
     full = np.ones((len(flips), len(cb)), bool)
     full[:, differ] = flips
-    perm = _tv(np.where(full, cb, cr), np.where(full, cr, cb), k)
+    perm = tv(np.where(full, cb, cr), np.where(full, cr, cb), k)
     p = (extra + float((perm >= observed - 1e-12).sum())) / (len(perm) + extra)
     return _Test(observed, p, 1.0, p_min)
 
@@ -640,13 +608,13 @@ def _tv_test(base: np.ndarray, run: np.ndarray, config: GateConfig, key: tuple) 
     _, codes = np.unique(np.r_[base, run], return_inverse=True)
     k = int(codes.max()) + 1
     n_b = len(base)
-    observed = float(_tv(codes[None, :n_b], codes[None, n_b:], k)[0])
+    observed = float(tv(codes[None, :n_b], codes[None, n_b:], k)[0])
     if k == 1:
         return _Test(observed, 1.0, 1.0, 1.0)
     rng = named_rng(config.seed, "gate", *key)
     perms = np.argsort(rng.random((config.n_permutations, len(codes))), axis=1)
     shuffled = codes[perms]
-    exceed = _tv(shuffled[:, :n_b], shuffled[:, n_b:], k) >= observed - 1e-12
+    exceed = tv(shuffled[:, :n_b], shuffled[:, n_b:], k) >= observed - 1e-12
     return _Test(observed, float((1 + exceed.sum()) / (1 + len(perms))), 1.0,
                  1.0 / (config.n_permutations + 1))
 
@@ -903,8 +871,6 @@ def _with_power(table: pd.DataFrame, plans: list, config: GateConfig) -> pd.Data
     :data:`~tap_bench.bench.power.POWER` and below the power of the baseline's own design
     (a paired check on its seeds): the run has fewer seeds, or other ones. (What the
     baseline's design itself cannot catch, ``bench check --power`` and the report show.)"""
-    from tap_bench.bench.power import POWER, rule_power
-
     table = table.copy()
     table["power"] = np.nan
     table["underpowered"] = False
@@ -952,14 +918,10 @@ def firing_floor(config: GateConfig, *, cells: int, seeds: int | None) -> tuple[
     if seeds is None:
         return 1.0 / (config.n_permutations + 1), config.alpha * config.share(metric) / cells
     # a rate's paired test is exact (McNemar): 1 / 2^n; a mean's is floored by P
-    best = min(0.5 ** seeds if _is_rate(m) else smallest_p(config.n_permutations,
+    best = min(0.5 ** seeds if is_rate(m) else smallest_p(config.n_permutations,
                                                             paired_seeds=seeds)
                for m in gate_metrics() if config.share(m) >= config.share(metric) - 1e-12)
     return best, config.alpha * config.share(metric)
-
-
-def _is_rate(metric: str) -> bool:
-    return metric in MEASURES and MEASURES[metric].is_rate
 
 
 def _refuse_if_it_cannot_fire(plans: list, config: GateConfig) -> None:

@@ -44,6 +44,7 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.bench.bootstrap import named_rng
+from tap_bench.bench.gate_stats import direction, hypergeom_tails, is_rate, tv
 from tap_bench.bench.suite import GateConfig, gate_metrics
 
 __all__ = ["DRAWS", "POWER", "power_summary", "power_table", "rule_power"]
@@ -73,8 +74,6 @@ def _binomial_pmf(n: int, p: float) -> np.ndarray:
 def _rate_power(base: np.ndarray, sign: int, effect: float, margin: float, level: float,
                 n_run: int, paired: bool) -> float:
     """Exact power of the gate's rule on a rate (see the module docstring)."""
-    from tap_bench.bench.gate import _hypergeom_tails
-
     worse_is_one = sign < 0  # crashes: a 1 is worse
     b = base if worse_is_one else 1 - base  # now 1 is the worse outcome
     n_b, c0 = len(b), int(b.sum())
@@ -95,7 +94,7 @@ def _rate_power(base: np.ndarray, sign: int, effect: float, margin: float, level
     for x, px in enumerate(_binomial_pmf(n_run, p1)):
         if px < 1e-15 or x / n_run - p0 <= margin:
             continue
-        p = _hypergeom_tails(x, n_run, n_b, x + c0)[0]
+        p = hypergeom_tails(x, n_run, n_b, x + c0)[0]
         if p <= level:
             total += px
     return float(total)
@@ -138,8 +137,6 @@ def _tv_power(labels: np.ndarray, effect: float, margin: float, level: float, n_
               paired: bool, rng: np.random.Generator) -> float:
     """Simulated power of the gate's rule on label_tv (see the module docstring); NaN when
     the level is below what :data:`_TV_PERMUTATIONS` permutations can resolve."""
-    from tap_bench.bench.gate import _tv
-
     if effect > 1 or level < 1.0 / (_TV_PERMUTATIONS + 1):
         return math.nan
     _, codes = np.unique(labels, return_inverse=True)
@@ -152,23 +149,23 @@ def _tv_power(labels: np.ndarray, effect: float, margin: float, level: float, n_
             redraw = rng.random(n_b) < 0.5  # the perturbation of a changed policy
             run[redraw] = rng.choice(codes, size=int(redraw.sum()))
             run[rng.random(n_b) < effect] = k - 1
-            observed = _tv(codes[None, :], run[None, :], k)[0]
+            observed = tv(codes[None, :], run[None, :], k)[0]
             if observed <= margin:
                 continue
             differ = np.flatnonzero(codes != run)
             flips = np.ones((_TV_PERMUTATIONS, n_b), bool)
             flips[:, differ] = rng.random((_TV_PERMUTATIONS, len(differ))) < 0.5
-            perm = _tv(np.where(flips, codes, run), np.where(flips, run, codes), k)
+            perm = tv(np.where(flips, codes, run), np.where(flips, run, codes), k)
         else:
             run = rng.choice(codes, size=n_run)
             run[rng.random(n_run) < effect] = k - 1
-            observed = _tv(codes[None, :], run[None, :], k)[0]
+            observed = tv(codes[None, :], run[None, :], k)[0]
             if observed <= margin:
                 continue
             pooled = np.r_[codes, run]
             shuffled = pooled[np.argsort(rng.random((_TV_PERMUTATIONS, len(pooled))),
                                          axis=1)]
-            perm = _tv(shuffled[:, :n_b], shuffled[:, n_b:], k)
+            perm = tv(shuffled[:, :n_b], shuffled[:, n_b:], k)
         exceed = (perm >= observed - 1e-12).sum()
         fired += (1 + exceed) / (1 + _TV_PERMUTATIONS) <= level
     return fired / _TV_DRAWS
@@ -194,8 +191,6 @@ def rule_power(base: np.ndarray | pd.Series, metric: str, config: GateConfig, *,
         The power in [0, 1]; NaN when the worsening cannot happen (a rate beyond 1) or the
         baseline has fewer than 2 values.
     """
-    from tap_bench.bench.gate import direction
-
     margin = config.margin(metric)
     effect = config.detect * margin if effect is None else float(effect)
     level = config.alpha * config.share(metric) / max(cells, 1)
@@ -213,16 +208,9 @@ def rule_power(base: np.ndarray | pd.Series, metric: str, config: GateConfig, *,
     n_run = n_run or len(x)
     paired = paired and n_run == len(x)
     sign = direction(metric)
-    if _is_rate(metric) and np.isin(x, (0.0, 1.0)).all():
+    if is_rate(metric) and np.isin(x, (0.0, 1.0)).all():
         return _rate_power(x, sign, effect, margin, level, n_run, paired)
     return _mean_power(x, sign, effect, margin, level, n_run, paired, floor, rng)
-
-
-def _is_rate(metric: str) -> bool:
-    """A measure whose values are 0 or 1 (its entry's kind is "rate")."""
-    from tap_bench.bench.measures import MEASURES
-
-    return metric in MEASURES and MEASURES[metric].is_rate
 
 
 def power_table(episodes: pd.DataFrame, config: GateConfig, *, cells: int | None = None,

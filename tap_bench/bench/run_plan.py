@@ -16,6 +16,8 @@ import numpy as np
 from tap_bench.bench.cache import (
     EpisodeCache,
     episode_key,
+    label_code,
+    label_key,
     policy_fingerprint,
     scenario_fingerprint,
     simulation_fingerprint,
@@ -48,6 +50,8 @@ class _Task:
     key: str | None = None  # None: this episode is not cached (see bench.cache)
     key_doc: Mapping[str, Any] | None = None
     measures: tuple[str, ...] = ()  # the run's measures: the worker must have each
+    label_key: str | None = None  # its labels and measures in the cache (bench.cache)
+    label_doc: Mapping[str, Any] | None = None
 
 
 @dataclass(frozen=True)
@@ -136,15 +140,19 @@ def _tasks(plan: SuitePlan, keep: bool, cache: EpisodeCache | None) -> list[_Tas
     versions = simulation_fingerprint()
     envs = {env: _env_fingerprints(scenarios[env], env, seeds[env]) for env in suite.envs}
     policies = {d.name: policy_fingerprint(d) for d in definitions}
+    code = label_code(plan.measures)
+    made_by = thresholds.to_dict()
     tasks = []
     for env in suite.envs:
         for d in definitions:
             for seed in seeds[env]:
-                key = doc = None
+                key = doc = lkey = ldoc = None
                 if policies[d.name] is not None and envs[env].get(seed) is not None:
                     key, doc = episode_key(envs[env][seed], policies[d.name], seed, versions)
+                    lkey, ldoc = label_key(key, made_by, suite.level, code)
                 tasks.append(_Task(env, scenarios[env], d.name, d, seed, thresholds,
-                                   suite.level, keep, cache, key, doc, **common))
+                                   suite.level, keep, cache, key, doc, label_key=lkey,
+                                   label_doc=ldoc, **common))
     return tasks
 
 

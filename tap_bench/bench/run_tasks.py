@@ -69,6 +69,44 @@ def _episode(task: _Task, note: str | None = None
             time.perf_counter() - t0, note)
 
 
+LABEL_TABLES = ("episodes", "labels", "segments")
+"""An episode's tables kept beside it in the cache (:meth:`EpisodeCache.put_labels`): its
+row of the episode table (measures included), its labels at every level and its segments
+at the suite's level."""
+
+
+def _store_labels(task: _Task, eps: pd.DataFrame, labels: pd.DataFrame,
+                  segments: pd.DataFrame) -> None:
+    """Keep one episode's labels and measures in the cache, so that a re-run only scores."""
+    if task.cache is None or not task.label_key:
+        return
+    with contextlib.suppress(OSError):  # a full or read-only cache costs only reuse
+        task.cache.put_labels(task.label_key, task.label_doc or {},
+                              dict(zip(LABEL_TABLES, (eps, labels, segments), strict=True)))
+
+
+def _from_label_cache(task: _Task) -> dict[str, Any] | None:
+    """One episode's result read whole from the cache: its labels and measures and, when the
+    run keeps them, its trajectories; None when any part is missing or refused (then the
+    episode goes the usual way). Equal to what :func:`_run_task` gives."""
+    if task.cache is None or not task.label_key:
+        return None
+    t0 = time.perf_counter()
+    tables, note = task.cache.read_labels(task.label_key)
+    if tables is None or set(tables) != set(LABEL_TABLES):
+        return None if note is None else {"cache_note": note}
+    trajectories = None
+    if task.keep_trajectories:
+        entry, note = task.cache.read(task.key)
+        if entry is None:
+            return None if note is None else {"cache_note": note}
+        trajectories = _run_ids(task, entry.trajectories).reset_index(drop=True)
+    return {"episodes": tables["episodes"], "labels": tables["labels"],
+            "segments": tables["segments"], "trajectories": trajectories,
+            "timings": {"rollout": time.perf_counter() - t0}, "cached": True,
+            "labels_cached": True, "cache_note": None}
+
+
 def _run_ids(task: _Task, trajectories: pd.DataFrame) -> pd.DataFrame:
     """A recorded scene's episode under an id of its own in the run: every policy drives the
     same WOMD scenario, so its id becomes ``<WOMD id>/<policy>`` (the WOMD id kept in
@@ -116,12 +154,15 @@ def _label_together(tasks: tuple[_Task, ...],
                       for name, table in (("labels", labels), ("segments", segments))}
         eps_by_seed = _split(eps, "seed")
         for k in with_rows:
-            episode_trajectories, _, cached, seconds, note = got[k]
+            episode_trajectories, row, cached, seconds, note = got[k]
             sid = episode_trajectories["scenario_id"].iat[0]
+            mine = {"episodes": eps_by_seed[tasks[k].seed],
+                    "labels": by_episode["labels"].get(sid, _empty(labels)),
+                    "segments": by_episode["segments"].get(sid, _empty(segments))}
+            if row["status"] == "ok":
+                _store_labels(tasks[k], mine["episodes"], mine["labels"], mine["segments"])
             results[k] = {
-                "episodes": eps_by_seed[tasks[k].seed],
-                "labels": by_episode["labels"].get(sid, _empty(labels)),
-                "segments": by_episode["segments"].get(sid, _empty(segments)),
+                **mine,
                 "trajectories": episode_trajectories if tasks[k].keep_trajectories else None,
                 "timings": {"rollout": seconds, **share}, "cached": cached,
                 "cache_note": note}
@@ -221,16 +262,25 @@ def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
     from the cache's timings or from a first episode of each env without one."""
     tasks = _tasks(suite_plan, keep, cache)
     suite = suite_plan.suite
-    cached = [cache is not None and t.key is not None and cache.contains(t.key)
-              for t in tasks]
+    results: dict[int, dict[str, Any]] = {}
+    seconds: dict[int, float] = {}
+    notes: dict[int, str] = {}
+    for i, task in enumerate(tasks):  # labelled before: read here, no worker needed
+        t0 = time.perf_counter()
+        hit = _from_label_cache(task)
+        if hit is not None and "episodes" in hit:
+            results[i] = hit
+            seconds[i] = time.perf_counter() - t0
+        elif hit is not None:
+            notes[i] = hit["cache_note"]
+    cached = [i in results or (cache is not None and t.key is not None
+                               and cache.contains(t.key)) for i, t in enumerate(tasks)]
     known = cache.timings() if cache is not None else {}
     probes, seen = [], set(known.get("simulated", {}))
     for i, (task, hit) in enumerate(zip(tasks, cached, strict=True)):
         if announce is not None and not hit and task.env not in seen:  # no one to tell: no probe
             probes.append(i)
             seen.add(task.env)
-    results: dict[int, dict[str, Any]] = {}
-    seconds: dict[int, float] = {}
     measured: dict[str, float] = {}
     if probes:
         if announce is not None:
@@ -247,7 +297,8 @@ def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
     items = _items(tasks, [i for i in range(len(tasks)) if i not in results], cached,
                    backend.workers)
     outcomes = backend.map(_run_item, [item for _, item in items], unit="task",
-                           progress=progress, desc=f"bench {suite.name} ({backend.name})")
+                           progress=progress, desc=f"bench {suite.name} ({backend.name})"
+                           ) if items else []
     alone: list[int] = []  # the episodes of a failed batch, tried again one by one
     for (indices, _), outcome in zip(items, outcomes, strict=True):
         if not outcome.ok and len(indices) > 1:
@@ -268,6 +319,8 @@ def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
     for i, result in enumerate(out):
         result["seconds"] = seconds[i]
         result["env"] = tasks[i].env
+        if i in notes and not result.get("cache_note"):
+            result["cache_note"] = notes[i]
     return out, plan
 
 

@@ -38,8 +38,10 @@ another. A run where every episode
 failed is an error (:class:`~tap_bench.errors.EpisodesFailedError`), not an empty result.
 
 With an episode cache (:mod:`tap_bench.bench.cache`), an episode whose inputs did not change
-is read instead of simulated; labels, measures and scores are always recomputed, so a run
-with the cache gives the same tables as one without. Before the episodes start, the run
+is read instead of simulated, and its labels and measures too when they were made with the
+same thresholds, level and code (those episodes are read in this process: no worker
+starts for them); scores are always recomputed, and a run with the cache gives the same
+tables as one without, float for float. Before the episodes start, the run
 estimates how long it will take, from the cache's timings of earlier runs or by timing a
 first episode of each env.
 """
@@ -293,6 +295,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "cache": None if cache is None else {
             "dir": str(cache.root), "cached": sum(r["cached"] for r in results),
             "simulated": sum(not r["cached"] for r in results),
+            "labelled_before": sum(bool(r.get("labels_cached")) for r in results),
             "refused": refused},
     }
     if announce is not None:

@@ -230,7 +230,7 @@ def cache_command(args: argparse.Namespace) -> int:
     if args.action == "prune":
         limit = parse_size(args.max_size) if args.max_size is not None else cache.max_bytes
         report = cache.prune(limit)
-        print(f"pruned {cache.root}: removed {report.removed} episode(s) "
+        print(f"pruned {cache.root}: removed {report.removed} entries (episodes and their labels) "
               f"({report.freed_bytes / 2**20:.1f} MiB); kept {report.kept} "
               f"({report.kept_bytes / 2**20:.1f} MiB, limit {limit / 2**20:.0f} MiB)")
         return 0

@@ -258,7 +258,7 @@ def test_cli_cache_info_and_prune(cold_and_warm, tmp_path, capsys):
     assert main(["bench", "cache", "info", "--cache", str(root)]) == 0
     assert f"{len(entries)} episode(s)" in capsys.readouterr().out
     assert main(["bench", "cache", "prune", "--cache", str(root), "--max-size", "0"]) == 0
-    assert f"removed {len(entries)} episode(s)" in capsys.readouterr().out
+    assert f"removed {len(entries)} entries" in capsys.readouterr().out
     assert main(["bench", "cache", "prune", "--cache", str(root), "--max-size", "x"]) == 2
     assert "--max-size must be" in capsys.readouterr().err
 

@@ -1,0 +1,145 @@
+"""Re-runs that redo nothing (issue 24 section 3): each episode's labels and measures are
+kept beside it in the cache, keyed by the episode, the thresholds, the level and the code
+of labelling and measures; a re-run reads them and only scores. The results are
+bit-identical whatever the cache holds, the batch size and the number of workers: every
+table of a cold run equals the re-run's, floats compared with ``==``."""
+
+from __future__ import annotations
+
+import shutil
+import warnings
+
+import pandas as pd
+import pytest
+
+from tap_bench.bench import run_tasks
+from tap_bench.bench.cache import EpisodeCache, label_code
+from tap_bench.bench.runner import run_suite
+from tap_bench.bench.suite import suite_from_dict
+
+TABLES = ("episodes", "labels", "segments", "trajectories")
+
+
+def tiny(thresholds="paper"):
+    return suite_from_dict({"name": "tiny", "envs": ["merge", "highway"],
+                            "policies": ["idm", "lane-keeping"], "seeds": "0-2",
+                            "reference_policy": "idm", "thresholds": thresholds,
+                            "env_overrides": {"merge": {"duration": 4},
+                                              "highway": {"duration": 4}},
+                            "bootstrap": {"n_resamples": 200}}, check_names=False)
+
+
+def run(folder, cache, workers=1, suite=None):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return run_suite(suite or tiny(), folder, workers=workers, progress=False,
+                         report=False, cache=cache)
+
+
+def assert_identical(a, b):
+    """Every table of two run results equal, floats with ==."""
+    for name in TABLES:
+        left = pd.read_parquet(a.folder / f"{name}.parquet")
+        right = pd.read_parquet(b.folder / f"{name}.parquet")
+        pd.testing.assert_frame_equal(left, right, check_exact=True, obj=name)
+        assert left.equals(right), name
+    for name, table in a.scores.tables().items():
+        other = b.scores.tables()[name]
+        pd.testing.assert_frame_equal(table, other, check_exact=True, obj=name)
+    assert a.summary["headline"] == b.summary["headline"]
+
+
+def _episodes_only(source: EpisodeCache, target) -> EpisodeCache:
+    shutil.copytree(source.folder, EpisodeCache(target).folder)
+    return EpisodeCache(target)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("rerun")
+    cache = EpisodeCache(root / "cache")
+    cold = run(root / "cold", None)
+    first = run(root / "first", cache, workers=2)
+    again = run(root / "again", cache)
+    return root, cold, first, again, cache
+
+
+def test_a_rerun_reads_labels_and_measures_and_is_identical(runs):
+    _, cold, first, again, cache = runs
+    assert first.summary["cache"]["simulated"] == 12
+    assert first.summary["cache"]["labelled_before"] == 0
+    assert again.summary["cache"]["labelled_before"] == 12
+    assert again.summary["cache"]["simulated"] == 0
+    assert again.summary["timings"]["labelling_cpu_in_workers"] == 0
+    assert len(list(cache.labels_folder.glob("*/*.labels"))) == 12
+    assert_identical(cold, first)
+    assert_identical(cold, again)
+
+
+@pytest.mark.parametrize("batch", [1, 5, 30])
+@pytest.mark.parametrize("workers", [1, 2])
+def test_identical_whatever_the_batch_size_and_workers(runs, tmp_path, monkeypatch, batch,
+                                                       workers):
+    _, cold, _, _, cache = runs
+    monkeypatch.setattr(run_tasks, "CACHED_BATCH", batch)
+    episodes_only = _episodes_only(cache, tmp_path / "cache")  # labelled again in batches
+    result = run(tmp_path / "run", episodes_only, workers=workers)
+    assert result.summary["cache"]["cached"] == 12
+    assert result.summary["cache"]["labelled_before"] == 0
+    assert_identical(cold, result)
+    again = run(tmp_path / "again", episodes_only, workers=workers)
+    assert again.summary["cache"]["labelled_before"] == 12
+    assert_identical(cold, again)
+
+
+def test_identical_whatever_the_cache_holds(runs, tmp_path):
+    _, cold, _, _, cache = runs
+    mixed = EpisodeCache(tmp_path / "cache")
+    shutil.copytree(cache.root, mixed.root)
+    labels = sorted(mixed.labels_folder.glob("*/*.labels"))
+    episodes = sorted(mixed.folder.glob("*/*.episode"))
+    for path in labels[::2]:  # half the labels gone
+        path.unlink()
+    for path in episodes[::3]:  # a third of the episodes gone (some with their labels)
+        path.unlink()
+    labels[1].write_bytes(labels[1].read_bytes()[:-7])  # one label entry torn
+    with warnings.catch_warnings(record=True):
+        warnings.simplefilter("always")
+        result = run(tmp_path / "run", mixed)
+    assert 0 < result.summary["cache"]["labelled_before"] < 12
+    assert any("label entry" in note for note in result.summary["cache"]["refused"])
+    assert_identical(cold, result)
+
+
+def test_other_thresholds_relabel_but_do_not_resimulate(runs, tmp_path):
+    from dataclasses import fields, replace
+
+    from tap_bench.thresholds import PRESETS, save_thresholds
+
+    _, _, _, _, cache = runs
+    paper = PRESETS["paper"]
+    name = next(f.name for f in fields(paper) if isinstance(getattr(paper, f.name), float))
+    other = tmp_path / "other.json"
+    save_thresholds(replace(paper, **{name: getattr(paper, name) * 1.5}), other)
+    cold = run(tmp_path / "cold", None, suite=tiny(str(other)))
+    warm = run(tmp_path / "warm", cache, suite=tiny(str(other)))
+    assert warm.summary["cache"]["simulated"] == 0
+    assert warm.summary["cache"]["labelled_before"] == 0
+    assert_identical(cold, warm)
+
+
+def test_the_label_key_follows_the_code_of_labels_and_measures(monkeypatch):
+    from tap_bench.bench import cache as cache_module
+    from tap_bench.bench.measures import MEASURES, Measure
+
+    base = label_code()
+    extra = Measure("plugin_test_measure", "m", True, "a plug-in's measure", 1.0,
+                    lambda steps: steps.mean(steps.speed))
+    MEASURES.register(extra)
+    try:
+        assert label_code()["measures"] != base["measures"]
+    finally:
+        MEASURES.unregister("plugin_test_measure")
+    assert label_code() == base
+    monkeypatch.setattr(cache_module, "LABEL_CODE", ("tap_bench.labelling",))
+    assert label_code()["code"] != base["code"]
