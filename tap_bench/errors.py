@@ -31,6 +31,7 @@ __all__ = [
     "RegistrationError",
     # warnings
     "ShortSegmentWarning",
+    "ResampledWarning",
     "FitWarning",
     "EpisodeFailedWarning",
     "UntrustedModelWarning",
@@ -82,12 +83,16 @@ class TrajectoryTableError(TapBenchError, ValueError):
     Attributes:
         column: the offending column, when one is to blame.
         row: the 0-based position of the first offending row in the input, when known.
+        rate_hz: the table's sampling rate [Hz] when the error is that it is not 10 Hz
+            (:func:`tap_bench.tap` resamples faster input on entry).
     """
 
-    def __init__(self, message: str, *, column: str | None = None, row: int | None = None):
+    def __init__(self, message: str, *, column: str | None = None, row: int | None = None,
+                 rate_hz: float | None = None):
         super().__init__(message)
         self.column = column
         self.row = row
+        self.rate_hz = rate_hz
 
 
 class LabelTableError(TapBenchError, ValueError):
@@ -210,6 +215,10 @@ class UnknownNameError(TapBenchError, KeyError):
 class FitWarning(UserWarning):
     """A threshold fit to look at: its J far above the grid optimum, or a degenerate band
     (SPEC section 3)."""
+
+
+class ResampledWarning(UserWarning):
+    """A table sampled faster than 10 Hz was resampled to 10 Hz on entry (SPEC 4.7)."""
 
 
 class ShortSegmentWarning(UserWarning):

@@ -28,8 +28,10 @@ were chosen on):
   block means never get ``min_travel`` away from the first one, the yaw rate is 0 (no
   turn, no merge);
 - **reversing**: a moving block whose motion points more than 120 degrees away from the
-  heading at its middle step is reversing; its yaw rate is 0 too, so reversing never reads
-  as a turn the other way. Reversing steps are flagged and counted.
+  heading at its middle step is reversing. Reversing steps are flagged and counted; their
+  yaw rate is kept (SPEC 4.6: the lateral label describes the turn of the path, and the
+  direction of travel, heading + pi, turns as the nose does), while the threshold
+  distributions leave them out (``trusted`` is forward motion only).
 """
 
 from __future__ import annotations
@@ -106,7 +108,8 @@ class Kinematics:
         v: (n_rows,) speed [m/s], speed spikes repaired.
         a: (n_rows,) acceleration [m/s^2], from the repaired speed.
         w: (n_rows,) yaw rate [rad/s], positive counter-clockwise (a left turn), from the
-            repaired heading; 0 where the heading is not trusted.
+            repaired heading; 0 where the heading is not trusted (reversing steps keep it:
+            the path turns as the nose does).
         heading: (n_rows,) repaired heading [rad], unwrapped within each segment.
         x, y: (n_rows,) position [m].
         speed_glitch: (n_rows,) bool, the speed of this row was a spike and was replaced.
@@ -364,7 +367,7 @@ def compute_kinematics(checked: CheckedTable, plausibility: Plausibility | None 
 
     a = _derivative(dv, t, index)
     w = _derivative(dh, t, index)
-    w *= trusted  # 0 where the heading is not trusted
+    w *= trusted | reversing  # 0 where the heading is not trusted (a reversing path turns)
     if not all_valid:
         w[~valid] = np.nan
         v = np.where(valid, v, np.nan)

@@ -18,7 +18,13 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from tap_bench import sdl
-from tap_bench.errors import ShortSegmentWarning, TapBenchError, did_you_mean
+from tap_bench.errors import (
+    ResampledWarning,
+    ShortSegmentWarning,
+    TapBenchError,
+    TrajectoryTableError,
+    did_you_mean,
+)
 from tap_bench.interactions import (
     OTHER_TYPES,
     RELATIONS,
@@ -28,9 +34,10 @@ from tap_bench.interactions import (
 )
 from tap_bench.kinematics import Kinematics, Plausibility, compute_kinematics
 from tap_bench.labels import GLITCH_COLUMNS, LABEL_COLUMNS, SEGMENT_COLUMNS
+from tap_bench.resampling import resample_to_10hz
 from tap_bench.stages import StageConfig, StepLabels, find_runs, run_stages
 from tap_bench.thresholds import Thresholds, resolve_thresholds
-from tap_bench.trajectories import DT, IDENTIFYING_COLUMNS, validate_and_index
+from tap_bench.trajectories import DT, HZ, IDENTIFYING_COLUMNS, validate_and_index
 
 __all__ = ["GLITCH_COLUMNS", "INTERACTION_TRACKS", "LABEL_COLUMNS", "SEGMENT_COLUMNS",
            "TapResult", "label", "tap"]
@@ -322,7 +329,7 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
     th = resolve_thresholds(thresholds)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    checked = validate_and_index(table, source=source)
+    checked = _validated_at_10hz(table, source)
     index = checked.index
     t1 = time.perf_counter()
     kin = compute_kinematics(checked, plausibility)
@@ -344,7 +351,8 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
     step_segment = np.repeat(np.arange(len(starts)), seg_len)
     t3 = time.perf_counter()
     labels = run_stages(kin.w[step_rows], kin.a[step_rows], kin.v[step_rows], seg_len, th,
-                        config, heading=kin.heading, x=kin.x, y=kin.y, rows=step_rows)
+                        config, heading=kin.heading, x=kin.x, y=kin.y, rows=step_rows,
+                        reversing=kin.reversing[step_rows])
     t4 = time.perf_counter()
     timings.update(validate=t1 - t0, kinematics=t2 - t1, layout=t3 - t2, stages=t4 - t3)
     extra = {}
@@ -365,6 +373,25 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
                      kinematics=kin,
                      thresholds=th, config=config, plausibility=plausibility,
                      timings=timings, **extra)
+
+
+def _validated_at_10hz(table: pd.DataFrame, source: str):
+    """The validated table; one sampled faster than 10 Hz (nuPlan 20 Hz, highD 25 Hz) is
+    resampled to 10 Hz first, with a :class:`~tap_bench.errors.ResampledWarning` (SPEC 4.7:
+    positions, heading and speed interpolated onto the multiples of 0.1 s, then the yaw
+    rate and acceleration derived at 10 Hz). Slower input is refused with the fix."""
+    try:
+        return validate_and_index(table, source=source)
+    except TrajectoryTableError as err:
+        if err.rate_hz is None or err.rate_hz <= HZ:
+            raise
+        rate = err.rate_hz
+    resampled = resample_to_10hz(table, source=source, align=True)
+    warnings.warn(f"{source}: sampled at {rate:.3g} Hz; resampled to 10 Hz on entry (linear "
+                  "interpolation of x, y, speed and unwrapped heading onto the multiples of "
+                  f"0.1 s; {len(table)} rows became {len(resampled)}).", ResampledWarning,
+                  stacklevel=3)
+    return validate_and_index(resampled, source=source)
 
 
 def _interaction_segments(info: pd.DataFrame, tracks: str, source: str) -> np.ndarray:

@@ -22,16 +22,19 @@ __all__ = ["resample_to_10hz"]
 _INTERPOLATED = ("x", "y", "speed", "vx", "vy")
 
 
-def resample_to_10hz(table: pd.DataFrame, *, source: str = "trajectory table") -> pd.DataFrame:
+def resample_to_10hz(table: pd.DataFrame, *, source: str = "trajectory table",
+                     align: bool = False) -> pd.DataFrame:
     """Resample every track of ``table`` to 10 Hz by linear interpolation (rule above).
 
     Args:
         table: a trajectory table at any rate; rows of a track in increasing ``t``.
         source: a name for the table in error messages.
+        align: put every track on one grid, the multiples of 0.1 s (from the first at or
+            after its first time): the agents of a scene then share their steps, as the
+            interaction axis needs. False: t0 + 0.1 k from each track's own first time.
 
     Returns:
-        A trajectory table at exactly 10 Hz (t = t0 + 0.1 k per track) with a ``valid``
-        column.
+        A trajectory table at exactly 10 Hz with a ``valid`` column.
     """
     missing = [c for c in REQUIRED_COLUMNS if c not in table.columns
                and not (c == "speed" and {"vx", "vy"} <= set(table.columns))]
@@ -60,16 +63,17 @@ def resample_to_10hz(table: pd.DataFrame, *, source: str = "trajectory table") -
 
     starts = np.flatnonzero(new)
     stops = np.append(starts[1:], len(t))
-    t0, t1 = t[starts], t[stops - 1]
-    n_new = np.floor((t1 - t0) / DT + 1e-6).astype(np.int64) + 1
+    t_first, t1 = t[starts], t[stops - 1]
+    t0 = np.ceil(t_first / DT - 1e-6) * DT if align else t_first
+    n_new = np.maximum(np.floor((t1 - t0) / DT + 1e-6).astype(np.int64) + 1, 0)
     track_of_new = np.repeat(np.arange(len(starts)), n_new)
     k = np.arange(n_new.sum()) - np.repeat(np.cumsum(n_new) - n_new, n_new)
     t_new = t0[track_of_new] + k * DT
     # One monotonic axis for all tracks: shift each track by a multiple of a large span.
     span = float(np.max(t1 - t0)) + 10.0
     track_of_old = np.cumsum(new) - 1
-    axis_old = (t - t0[track_of_old]) + track_of_old * span
-    axis_new = (t_new - t0[track_of_new]) + track_of_new * span
+    axis_old = (t - t_first[track_of_old]) + track_of_old * span
+    axis_new = (t_new - t_first[track_of_new]) + track_of_new * span
 
     valid = (frame["valid"].to_numpy(dtype=bool)[order] if "valid" in frame
              else np.ones(len(t), dtype=bool))

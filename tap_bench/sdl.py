@@ -38,8 +38,8 @@ SDL_SEPARATOR = " | "
 # Codes of the trace, trend and maneuver stages (one name list serves all three).
 STRAIGHT, LEFT, RIGHT, LEFT_MERGE, RIGHT_MERGE = range(5)
 LATERAL_NAMES = ("Straight", "Left Turn", "Right Turn", "Left Merge", "Right Merge")
-MAINTAIN, ACCELERATE, DECELERATE, STOPPED = range(4)
-LONGITUDINAL_NAMES = ("Maintain Speed", "Accelerate", "Decelerate", "Stopped")
+MAINTAIN, ACCELERATE, DECELERATE, STOPPED, REVERSING = range(5)
+LONGITUDINAL_NAMES = ("Maintain Speed", "Accelerate", "Decelerate", "Stopped", "Reversing")
 
 INTENSITIES = ("Gradual", "Medium", "Aggressive")
 """Turn classes by |w| at the action level."""
@@ -56,17 +56,18 @@ def _action_lateral() -> tuple[str, ...]:
 
 
 def _action_longitudinal() -> tuple[str, ...]:
-    # code = 3*base + speed class for Maintain/Accelerate/Decelerate; 9 Stopped
+    # code = 3*base + speed class for Maintain/Accelerate/Decelerate; 9 Stopped; 10 Reversing
     names = []
     for base in ("Maintain", "Accelerate", "Decelerate"):
         names += [f"{base} {s} Speed" for s in SPEEDS]
-    return (*names, "Stopped")
+    return (*names, "Stopped", "Reversing")
 
 
 ACTION_LATERAL_NAMES = _action_lateral()
 ACTION_LONGITUDINAL_NAMES = _action_longitudinal()
 ACTION_STRAIGHT, ACTION_LEFT_MERGE, ACTION_RIGHT_MERGE = 0, 7, 8
 ACTION_STOPPED = 9
+ACTION_REVERSING = 10
 
 _VOCABULARY = {
     ("trace", "lateral"): LATERAL_NAMES[:3],

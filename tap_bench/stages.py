@@ -190,6 +190,26 @@ def _low_pass(codes: np.ndarray, layout: _Layout, classify, min_steps: int) -> n
     return join_short_runs(runs, min_steps).expand(len(codes))
 
 
+def _agree_with_average(codes: np.ndarray, signal: np.ndarray, layout: _Layout, classify,
+                        th: Thresholds, checked: tuple[int, int], fallback: int
+                        ) -> np.ndarray:
+    """SPEC 4.5: a run labelled one of ``checked`` whose mean ``signal`` (its net change
+    over its duration: the mean yaw rate is the heading change over the run, the mean
+    acceleration the speed change) does not itself classify as that label becomes
+    ``fallback`` (Straight; Maintain Speed): a run that crossed the threshold only on
+    noise."""
+    runs = find_runs(codes, layout.seg, layout.seg_first)
+    check = np.isin(runs.code, checked)
+    if not check.any():
+        return codes
+    mean = np.add.reduceat(signal, runs.start) / runs.length
+    wrong = check & (classify(mean, th) != runs.code)
+    if not wrong.any():
+        return codes
+    runs.code[wrong] = fallback
+    return runs.expand(len(codes))
+
+
 @dataclass(frozen=True)
 class _Layout:
     seg: np.ndarray  # (m,) segment of each step
@@ -247,6 +267,30 @@ def _merge_ok(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
             & (excursion <= config.merge_excursion))
 
 
+def _wiggle_ok(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
+               config: StageConfig) -> np.ndarray:
+    """(k,) bool: the steps [a, b) of one segment, turns that start towards ``side`` and
+    alternate, are a wiggle: the heading comes back (net change <= merge_heading, never
+    farther than merge_excursion from the start) while the vehicle never gets as far
+    sideways as a merge moves it (under merge_offset from where it started, across its
+    heading there, at every step): an aborted lane change or a swerve, not turns (SPEC 4.3).
+    Two lane changes in a row (out and back) get a lane width away and stay merges."""
+    out = np.zeros(len(a), dtype=bool)
+    h = path.heading
+    for k, (lo, hi) in enumerate(zip(np.asarray(a).tolist(), np.asarray(b).tolist(),
+                                     strict=True)):
+        rows = path.rows[lo:hi]
+        h0 = h[rows[0]]
+        across = (-(path.x[rows] - path.x[rows[0]]) * np.sin(h0)
+                  + (path.y[rows] - path.y[rows[0]]) * np.cos(h0))
+        turned = np.abs(h[rows] - h0)
+        out[k] = (abs(h[rows[-1]] - h0) <= config.merge_heading
+                  and turned.max() <= config.merge_excursion
+                  and np.abs(across).max() < config.merge_offset)
+    del side
+    return out
+
+
 def _back_at(path: _Path, pos: int, start: int, stop: int, side: int) -> int:
     """The first step of [start, stop) where the heading is back at its value at ``pos``
     (having turned towards ``side``, +1 left), or -1."""
@@ -277,9 +321,21 @@ def _chain(path: _Path, start: np.ndarray, stop: np.ndarray, side: np.ndarray, f
     def merge_code(towards: int) -> int:
         return sdl.LEFT_MERGE if towards > 0 else sdl.RIGHT_MERGE
 
+    def wiggle(a: int, b: int, towards: int) -> bool:
+        return bool(_wiggle_ok(path, np.array([a]), np.array([b]), np.array([towards]),
+                               config)[0])
+
     i, pos = first, int(start[first])
     while i < last:
         nxt_start, nxt_stop = int(start[i + 1]), int(stop[i + 1])
+        # an aborted lane change: out, back, and straightening (three turns) or out and
+        # back (two), never a merge's distance sideways: Straight
+        if i + 2 <= last and wiggle(pos, int(stop[i + 2]), int(side[i])):
+            code[pos:int(stop[i + 2])] = sdl.STRAIGHT
+            i += 3
+            if i <= last:
+                pos = int(start[i])
+            continue
         cut = _back_at(path, pos, nxt_start, nxt_stop, int(side[i]))
         if (i + 1 < last and cut > nxt_start and nxt_stop - cut >= min_steps
                 and ok(pos, cut, int(side[i]))):
@@ -291,6 +347,9 @@ def _chain(path: _Path, start: np.ndarray, stop: np.ndarray, side: np.ndarray, f
                 continue
         if ok(pos, nxt_stop, int(side[i])):
             code[pos:nxt_stop] = merge_code(int(side[i]))
+            i += 2
+        elif wiggle(pos, nxt_stop, int(side[i])):
+            code[pos:nxt_stop] = sdl.STRAIGHT
             i += 2
         else:
             i += 1
@@ -324,11 +383,16 @@ def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int) -> Run
     before = np.r_[False, cand[:-1]]
     after = np.r_[cand[1:], False]
     lone = np.flatnonzero(cand & ~before & ~after)
-    merged = lone[_merge_ok(path, start[lone], stop[lone + 1], side[lone], config)]
+    is_merge = _merge_ok(path, start[lone], stop[lone + 1], side[lone], config)
+    merged = lone[is_merge]
+    rest = lone[~is_merge]
+    wiggles = rest[_wiggle_ok(path, start[rest], stop[rest + 1], side[rest], config)]
 
     code = runs.expand(m).astype(np.int64)
     for i in merged.tolist():
         code[start[i]:stop[i + 1]] = sdl.LEFT_MERGE if side[i] > 0 else sdl.RIGHT_MERGE
+    for i in wiggles.tolist():
+        code[start[i]:stop[i + 1]] = sdl.STRAIGHT
     chain_first = np.flatnonzero(cand & ~before & after)
     for first in chain_first.tolist():
         last = first + 1
@@ -338,6 +402,46 @@ def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int) -> Run
     seg_first = np.zeros(m, dtype=bool)
     seg_first[runs.start[np.r_[True, runs.seg[1:] != runs.seg[:-1]]]] = True
     return find_runs(code, np.repeat(runs.seg, runs.length), seg_first)
+
+
+def _lone_wiggles(runs: Runs, path: _Path, config: StageConfig) -> Runs:
+    """Stage 3, after the merges: a turn run that sub-threshold steering around it undoes
+    is a wiggle (SPEC 4.3). Around the run, up to half ``merge_gap`` each side and no
+    farther than the neighbouring merges, the heading is back where it was (within
+    merge_heading) and the vehicle never gets merge_offset sideways: an aborted lane change
+    whose outward and straightening parts the low-pass left under w_str (out 1 m and back
+    at 25 m/s reads as one Right Turn of the return otherwise), or the correction after a
+    lane change that overshot the lane's centre. A turn next to another turn is left to
+    the pair rules."""
+    turn = np.flatnonzero((runs.code == sdl.LEFT) | (runs.code == sdl.RIGHT))
+    if not len(turn):
+        return runs
+    n_runs = len(runs.start)
+    stop = runs.start + runs.length
+    seg_lo = runs.start[np.searchsorted(runs.seg, runs.seg, "left")]
+    seg_hi = stop[np.searchsorted(runs.seg, runs.seg, "right") - 1]
+    busy = runs.code != sdl.STRAIGHT
+    is_turn = (runs.code == sdl.LEFT) | (runs.code == sdl.RIGHT)
+    gap = config.merge_gap_steps // 2
+    wiggle = []
+    for r in turn.tolist():
+        lo = max(int(runs.start[r]) - gap, int(seg_lo[r]))
+        hi = min(int(stop[r]) + gap, int(seg_hi[r]))
+        if r > 0 and runs.seg[r - 1] == runs.seg[r] and busy[r - 1]:
+            lo = max(lo, int(stop[r - 1]))
+        if r + 1 < n_runs and runs.seg[r + 1] == runs.seg[r] and busy[r + 1]:
+            hi = min(hi, int(runs.start[r + 1]))
+        against_turn = ((r > 0 and runs.seg[r - 1] == runs.seg[r] and is_turn[r - 1])
+                        or (r + 1 < n_runs and runs.seg[r + 1] == runs.seg[r]
+                            and is_turn[r + 1]))
+        if against_turn:
+            continue  # a turn against another: the pair rules decide
+        if bool(_wiggle_ok(path, np.array([lo]), np.array([hi]), np.array([0]), config)[0]):
+            wiggle.append(r)
+    if not wiggle:
+        return runs
+    runs.code[np.array(wiggle)] = sdl.STRAIGHT
+    return coalesce(runs)
 
 
 def _refine(runs: Runs, signal: np.ndarray, classes: np.ndarray, refine: np.ndarray,
@@ -368,7 +472,8 @@ def _refine(runs: Runs, signal: np.ndarray, classes: np.ndarray, refine: np.ndar
 def run_stages(w: np.ndarray, a: np.ndarray, v: np.ndarray, seg_length: np.ndarray,
                thresholds: Thresholds, config: StageConfig = StageConfig(), *,
                heading: np.ndarray, x: np.ndarray, y: np.ndarray,
-               rows: np.ndarray | None = None) -> StepLabels:
+               rows: np.ndarray | None = None,
+               reversing: np.ndarray | None = None) -> StepLabels:
     """Label every step of the given segments at all four levels.
 
     Args:
@@ -384,6 +489,8 @@ def run_stages(w: np.ndarray, a: np.ndarray, v: np.ndarray, seg_length: np.ndarr
         x, y: position [m], like ``heading``.
         rows: (m,) the row of ``heading``, ``x``, ``y`` of each step; the steps of one
             segment must be consecutive rows. Default: the arrays are per step.
+        reversing: (m,) bool, the vehicle moves backwards at that step (SPEC 4.6: a run of
+            1 s or more is labelled Reversing). Default: never.
     """
     m = len(w)
     min_steps = config.min_steps
@@ -402,11 +509,17 @@ def run_stages(w: np.ndarray, a: np.ndarray, v: np.ndarray, seg_length: np.ndarr
     trace_lat = _trace_lateral(w, th).astype(np.int8)
     trace_long = _trace_longitudinal(a, th).astype(np.int8)
 
-    # Stage 2: trend. Stopped steps are Straight; then the low-pass.
+    # Stage 2: trend. Stopped steps are Straight, reversing runs of 1 s or more Reversing;
+    # then the low-pass, and every turn (accelerate, decelerate) run must agree with its own
+    # average (SPEC 4.5)
     stopped = v <= th.v_stop
     w_eff = np.where(stopped, 0.0, w)
     lat = np.where(stopped, sdl.STRAIGHT, trace_lat)
     lon = np.where(stopped, sdl.STOPPED, trace_long)
+    if reversing is not None and np.any(reversing):
+        back = find_runs(np.asarray(reversing, np.int64), seg, seg_first)
+        long_back = np.repeat((back.code == 1) & (back.length >= min_steps), back.length)
+        lon = np.where(long_back & ~stopped, sdl.REVERSING, lon)
 
     def classify_lat(starts):
         return _trace_lateral(window_means(w_eff, starts, min_steps), th)
@@ -416,14 +529,29 @@ def run_stages(w: np.ndarray, a: np.ndarray, v: np.ndarray, seg_length: np.ndarr
         return np.where(mean_v <= th.v_stop, sdl.STOPPED,
                         _trace_longitudinal(window_means(a, starts, min_steps), th))
 
-    trend_lat = _low_pass(lat, layout, classify_lat, min_steps)
-    trend_long = _low_pass(lon, layout, classify_long, min_steps)
+    passed_lat = _low_pass(lat, layout, classify_lat, min_steps)
+    trend_lat = _agree_with_average(passed_lat, w_eff, layout, _trace_lateral, th,
+                                    (sdl.LEFT, sdl.RIGHT), sdl.STRAIGHT)
+    trend_long = _agree_with_average(_low_pass(lon, layout, classify_long, min_steps), a,
+                                     layout, _trace_longitudinal, th,
+                                     (sdl.ACCELERATE, sdl.DECELERATE), sdl.MAINTAIN)
 
     # Stage 3: maneuver.
     path = _Path(heading=np.asarray(heading, dtype=np.float64),
                  x=np.asarray(x, dtype=np.float64), y=np.asarray(y, dtype=np.float64),
                  rows=np.arange(m) if rows is None else np.asarray(rows, dtype=np.int64))
-    lat_runs = _merges(find_runs(trend_lat, seg, seg_first), path, config, min_steps)
+    # The merge rule reads the turn runs as the low-pass left them: a lane change whose
+    # halves the low-pass cut off-centre (each half's mean under w_str: a run joined across
+    # the heading's peak) is still a lateral move of merge_offset that ends parallel, and
+    # stays a merge; the average rule (SPEC 4.5) then straightens the turns no merge or
+    # wiggle claims (docs/tap.md: 94.3 % of completed lane changes were merges with the
+    # average rule applied first, 98.4 % this way, as without it)
+    paired = _merges(find_runs(passed_lat, seg, seg_first), path, config,
+                     min_steps).expand(m)
+    claimed = (paired == sdl.LEFT_MERGE) | (paired == sdl.RIGHT_MERGE) | (
+        (paired == sdl.STRAIGHT) & (passed_lat != sdl.STRAIGHT))
+    lat_runs = _lone_wiggles(find_runs(np.where(claimed, paired, trend_lat), seg, seg_first),
+                             path, config)
     maneuver_lat = lat_runs.expand(m)
 
     # Stage 4: action.
@@ -440,10 +568,10 @@ def run_stages(w: np.ndarray, a: np.ndarray, v: np.ndarray, seg_length: np.ndarr
     )
     long_runs = find_runs(trend_long, seg, seg_first)
     v_class = (v > th.v_slow).astype(np.int8) + (v > th.v_med)
-    moving = long_runs.code != sdl.STOPPED
+    moving = (long_runs.code != sdl.STOPPED) & (long_runs.code != sdl.REVERSING)
     speed = _refine(long_runs, v, v_class, moving, (th.v_slow, th.v_med), min_steps)
-    action_long = np.where(trend_long == sdl.STOPPED, sdl.ACTION_STOPPED,
-                           3 * trend_long + speed)
+    action_long = np.select([trend_long == sdl.STOPPED, trend_long == sdl.REVERSING],
+                            [sdl.ACTION_STOPPED, sdl.ACTION_REVERSING], 3 * trend_long + speed)
 
     i8 = np.int8
     return StepLabels(

@@ -125,8 +125,10 @@ def _plain(value):
     return value.item() if hasattr(value, "item") else value
 
 
-def _fail(message: str, source: str, *, column: str | None = None, row: int | None = None):
-    raise TrajectoryTableError(f"{source}: {message}", column=column, row=row)
+def _fail(message: str, source: str, *, column: str | None = None, row: int | None = None,
+          rate_hz: float | None = None):
+    raise TrajectoryTableError(f"{source}: {message}", column=column, row=row,
+                               rate_hz=rate_hz)
 
 
 def _as_id_strings(col: pd.Series, name: str, source: str) -> pd.Series:
@@ -433,10 +435,17 @@ def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table")
         same_dt = dt[same]
         median = float(np.median(same_dt))
         if abs(median / DT - 1.0) > DT_TOLERANCE:
-            _fail(f"the table is sampled at {1.0 / median:.3g} Hz (median step {median:.4g} s); "
-                  "TAP works at 10 Hz. Resample it with tap_bench.resample_to_10hz(table) "
-                  "(linear interpolation of x, y, speed and unwrapped heading).", source,
-                  column="t")
+            rate = 1.0 / median
+            fix = ("tap_bench.tap() and tap-bench label resample input faster than 10 Hz on "
+                   "entry (SPEC 4.7); tap_bench.resample_to_10hz(table) does it by hand"
+                   if rate > HZ else
+                   "input slower than 10 Hz is refused (SPEC 4.7): resampling it up would "
+                   "invent the motion between samples. Record at 10 Hz or faster, or, if "
+                   "linear interpolation between your samples is acceptable, resample it "
+                   "with tap_bench.resample_to_10hz(table)")
+            _fail(f"the table is sampled at {rate:.3g} Hz (median step {median:.4g} s); TAP "
+                  f"works at 10 Hz: {fix} (linear interpolation of x, y, speed and unwrapped "
+                  "heading).", source, column="t", rate_hz=rate)
     if irregular.any():
         i = int(np.flatnonzero(irregular)[0])
         a, b = (i, i + 1) if order is None else (int(order[i]), int(order[i + 1]))

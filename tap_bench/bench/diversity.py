@@ -67,6 +67,14 @@ A sample whose population has nothing undetected (no label seen once) gives draw
 cannot move; the interval is then +- n u for the Hill numbers and - u for completeness, u
 the Wilson upper limit of 0 of n (at most that share of episodes could show a label not
 seen yet), never a point. Measured coverage: docs/benchmark.md.
+
+**Order.** A distribution's Hill numbers never rise with q (q0 >= q1 >= q2). Their
+estimates can: at m > n a sample with no singletons gets q0 = S_obs while the inverse
+Simpson's unbiased form keeps growing (roundabout IDM: q0 6.1 < q1 7.3 < q2 9.4). An
+estimate at m that breaks the order is flagged (``hill_order_broken``) and the intervals of
+each pair out of order are widened to their union (each then holds the other's estimate:
+the data cannot tell them apart); asymptotes out of order are not reported (NaN, flagged
+``asymptote_order_broken``), since they carry no interval to widen.
 """
 
 from __future__ import annotations
@@ -91,6 +99,7 @@ __all__ = [
     "estimated_population",
     "hill_numbers",
     "hill_variance",
+    "in_order",
     "pooled_diversity",
     "population_hill",
     "studentized_interval",
@@ -441,6 +450,9 @@ class DiversityResult:
         asymptote: (3,) asymptotic Hill numbers, or the sample's values when
             ``asymptote_is_bound``.
         asymptote_is_bound: completeness below :data:`MIN_COMPLETENESS`: "at least".
+        hill_order_broken: the estimates at m rise with q somewhere; the intervals of the
+            pairs out of order are their union (module docstring, Order).
+        asymptote_order_broken: the asymptotes rose with q; those out of order are NaN.
         draws: (B, 4) the bootstrap draws of (q0, q1, q2 at m, completeness's error), for
             pooling.
         centre: (3,) the Hill numbers at m of the bootstrap population (the draws' truth).
@@ -462,6 +474,8 @@ class DiversityResult:
     asymptote: np.ndarray
     asymptote_is_bound: bool
     draws: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 4)))
+    hill_order_broken: bool = False
+    asymptote_order_broken: bool = False
     centre: np.ndarray = field(repr=False, default_factory=lambda: np.full(3, np.nan))
     se: np.ndarray = field(repr=False, default_factory=lambda: np.full(4, np.nan))
     draws_se: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 4)))
@@ -481,7 +495,43 @@ class DiversityResult:
         for j, q in enumerate(ORDERS):
             out[f"asymptote_q{q}"] = float(self.asymptote[j])
         out["asymptote_is_bound"] = self.asymptote_is_bound
+        out["hill_order_broken"] = self.hill_order_broken
+        out["asymptote_order_broken"] = self.asymptote_order_broken
         return out
+
+
+def in_order(hill: np.ndarray, low: np.ndarray, high: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, bool]:
+    """(low, high, broken): Hill-number estimates (q0, q1, q2) that rise with q somewhere
+    (beyond rounding) have the intervals of each pair out of order widened to their union;
+    ``broken`` says so. NaN bounds (a one-sided "at least") are left as they are."""
+    low, high = np.array(low, float), np.array(high, float)
+    broken = False
+    for j in range(len(hill) - 1):
+        if hill[j + 1] > hill[j] * (1 + 1e-9) + 1e-9:
+            broken = True
+            for bound, pick in ((low, np.fmin), (high, np.fmax)):
+                both = pick(bound[j], bound[j + 1])
+                if np.isfinite(bound[j]) and np.isfinite(bound[j + 1]):
+                    bound[j] = bound[j + 1] = both
+            # each interval holds both estimates
+            for k in (j, j + 1):
+                if np.isfinite(low[k]):
+                    low[k] = min(low[k], hill[j], hill[j + 1])
+                if np.isfinite(high[k]):
+                    high[k] = max(high[k], hill[j], hill[j + 1])
+    return low, high, broken
+
+
+def _asymptote_in_order(asym: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Asymptotes with those out of order (rising with q) set to NaN, and whether any was."""
+    asym = np.array(asym, float)
+    bad = np.zeros(len(asym), bool)
+    for j in range(len(asym) - 1):
+        if asym[j + 1] > asym[j] * (1 + 1e-9) + 1e-9:
+            bad[j] = bad[j + 1] = True
+    asym[bad] = np.nan
+    return asym, bool(bad.any())
 
 
 def _empty(size: int) -> DiversityResult:
@@ -545,12 +595,15 @@ def diversity(labels, *, size: int | None = None, config: BootstrapConfig | None
         hill = hill_numbers(counts, n)
         low, high = hill.copy(), np.full(3, np.nan)
     asym = asymptotic_hill(counts) if reliable else hill_numbers(counts, n)
+    low, high, broken = in_order(hill, low, high)
+    asym, asym_broken = _asymptote_in_order(asym) if reliable else (asym, False)
     return DiversityResult(
         n=n, n_distinct=len(counts), size=m, method=method, hill=hill, hill_low=low,
         hill_high=high, hill_is_bound=bool(hill_bound), completeness=comp,
         completeness_low=comp_low, completeness_high=comp_high, asymptote=asym,
         asymptote_is_bound=not reliable, draws=boot, centre=centre,
-        se=se, draws_se=draws_se)
+        se=se, draws_se=draws_se, hill_order_broken=broken,
+        asymptote_order_broken=asym_broken)
 
 
 def pooled_diversity(results: list[DiversityResult], level: float) -> DiversityResult:
@@ -582,12 +635,15 @@ def pooled_diversity(results: list[DiversityResult], level: float) -> DiversityR
     if bound:
         low, high = hill.copy(), np.full(3, np.nan)
     methods = {r.method for r in results}
+    low, high, broken = in_order(hill, np.maximum(low, 0.0), high)
+    asym, asym_broken = _asymptote_in_order(np.mean([r.asymptote for r in results], axis=0))
     return DiversityResult(
         n=sum(r.n for r in results), n_distinct=sum(r.n_distinct for r in results),
         size=round(float(np.mean([r.size for r in results]))),
         method=methods.pop() if len(methods) == 1 else "mixed", hill=hill,
-        hill_low=np.maximum(low, 0.0), hill_high=high, hill_is_bound=bound,
+        hill_low=low, hill_high=high, hill_is_bound=bound,
         completeness=comp, completeness_low=comp_low, completeness_high=comp_high,
-        asymptote=np.mean([r.asymptote for r in results], axis=0),
+        asymptote=asym,
         asymptote_is_bound=any(r.asymptote_is_bound for r in results), draws=draws,
-        centre=centre, se=se, draws_se=draws_se)
+        centre=centre, se=se, draws_se=draws_se, hill_order_broken=broken,
+        asymptote_order_broken=asym_broken or any(r.asymptote_order_broken for r in results))

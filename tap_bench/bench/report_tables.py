@@ -386,9 +386,14 @@ def diversity_display(table: pd.DataFrame) -> pd.DataFrame:
         for q in (0, 1, 2):
             row[f"q{q}"] = _hill_text(r[f"hill_q{q}"], r[f"hill_q{q}_low"],
                                       r[f"hill_q{q}_high"], r["hill_is_bound"])
+        if r.get("hill_order_broken", False):  # estimates rising with q: intervals widened
+            row["q2"] += " (out of order: intervals widened)"
         row["completeness"] = (f"{r['completeness']:.0%} [{r['completeness_low']:.0%}, "
                                f"{r['completeness_high']:.0%}]")
-        asym = ", ".join(f"{r[f'asymptote_q{q}']:.1f}" for q in (0, 1, 2))
+        asym = ", ".join("–" if not np.isfinite(r[f"asymptote_q{q}"]) else
+                         f"{r[f'asymptote_q{q}']:.1f}" for q in (0, 1, 2))
+        if r.get("asymptote_order_broken", False):
+            asym += " (out of order: not reported)"
         row["whole distribution (q0, q1, q2)"] = (f"at least {asym}" if r["asymptote_is_bound"]
                                                   else asym)
         rows.append(row)

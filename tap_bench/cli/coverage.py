@@ -148,7 +148,12 @@ def diversity_text(row) -> str:
     hill = ", ".join(f"q{q} {row[f'hill_q{q}']:.1f}" for q in (0, 1, 2))
     if row["hill_is_bound"]:
         hill = "at least " + hill
-    asym = ", ".join(f"{row[f'asymptote_q{q}']:.1f}" for q in (0, 1, 2))
+    if row.get("hill_order_broken", False):
+        hill += " (estimates rise with q: out of order, intervals widened)"
+    asym = ", ".join("–" if row[f"asymptote_q{q}"] != row[f"asymptote_q{q}"] else
+                     f"{row[f'asymptote_q{q}']:.1f}" for q in (0, 1, 2))
+    if row.get("asymptote_order_broken", False):
+        asym += " (out of order: not reported)"
     asym = f"at least {asym} (completeness too low to estimate)" if row["asymptote_is_bound"] \
         else asym
     return (f"diversity at {at}: {hill}; sample completeness {row['completeness']:.0%}; "

@@ -1,5 +1,7 @@
 """The maps of driving-data files as a map table (:mod:`tap_bench.maps`), one ``map_id`` per
-scenario.
+scenario, for the viewer and reports; and as :class:`~tap_bench.womd.roadmap.RoadMap`
+objects (lanes with their topology, signals, stop signs) for closed-loop simulation
+(:func:`read_road_maps`).
 
 The built-in readers (:mod:`tap_bench.sources.builtin`) carry the map differently; files of
 other registered formats give no map:
@@ -17,22 +19,28 @@ edges and crosswalks are kept; stop signs, speed bumps and driveways are not dra
 from __future__ import annotations
 
 import os
-from collections.abc import Container, Iterable
+from collections.abc import Container, Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 from google.protobuf.message import DecodeError
 
-from tap_bench.errors import WomdRecordError
+from tap_bench.errors import FileFormatError, WomdRecordError
 from tap_bench.maps import MAP_COLUMNS, empty_map
 from tap_bench.sources.ingest import _file_format, expand_paths
 from tap_bench.sources.scenarionet import load_scenarionet
 from tap_bench.womd import proto
+from tap_bench.womd.roadmap import (
+    RoadMap,
+    scenario_road_map,
+    scenarionet_road_map,
+    tf_example_road_map,
+)
 from tap_bench.womd.tf_example import Example
 from tap_bench.womd.tfrecord import iter_records
 
-__all__ = ["read_maps"]
+__all__ = ["iter_road_maps", "read_maps", "read_road_maps"]
 
 _BROKEN_LINES = {1, 4, 5}  # RoadLineType: BROKEN_SINGLE_WHITE, BROKEN_SINGLE/DOUBLE_YELLOW
 # tf.Example roadgraph_samples/type -> (kind, style)
@@ -170,3 +178,39 @@ def read_maps(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
         if read is not None:
             read(path, out)
     return out.table()
+
+
+# ------------------------------------------------------------------ road maps (closed loop)
+
+
+def iter_road_maps(paths: str | os.PathLike | Iterable[str | os.PathLike]
+                   ) -> Iterator[RoadMap]:
+    """The road map of every scenario in driving-data files, in file and record order.
+
+    Args:
+        paths: files, directories or glob patterns (:func:`tap_bench.sources.read_womd`).
+
+    Raises:
+        WomdRecordError / FileFormatError: a record or file that cannot be read, named.
+    """
+    for path in expand_paths(paths):
+        name = _file_format(path, "auto", True).name
+        if name == "scenarionet":
+            yield scenarionet_road_map(load_scenarionet(path), source=str(path))
+        elif name in ("scenario", "tf_example"):
+            for record in iter_records(path):
+                where = f"{path} record {record.index}"
+                try:
+                    road = (scenario_road_map(record.data, source=where) if name == "scenario"
+                            else tf_example_road_map(record.data, source=where))
+                except FileFormatError as err:
+                    raise WomdRecordError(str(path), record.index, record.offset, str(err),
+                                          "Is the file a WOMD scenario file?") from None
+                if road is not None:
+                    yield road
+
+
+def read_road_maps(paths: str | os.PathLike | Iterable[str | os.PathLike]
+                   ) -> dict[str, RoadMap]:
+    """:func:`iter_road_maps` as a dict scenario id -> :class:`~tap_bench.womd.roadmap.RoadMap`."""
+    return {road.scenario_id: road for road in iter_road_maps(paths)}

@@ -32,15 +32,13 @@ Coordinates are WOMD's (y to the left, heading counter-clockwise) [m]; speeds [m
 
 from __future__ import annotations
 
-import os
-from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from google.protobuf.message import DecodeError
 
-from tap_bench.errors import FileFormatError, WomdRecordError
+from tap_bench.errors import FileFormatError
 
 __all__ = [
     "CAUTION_STATES",
@@ -55,8 +53,6 @@ __all__ = [
     "SignalStates",
     "StopSign",
     "infer_successors",
-    "iter_road_maps",
-    "read_road_maps",
 ]
 
 DEFAULT_LANE_WIDTH = 3.7  # [m] width of a lane whose boundaries the data does not give
@@ -582,43 +578,3 @@ def tf_example_road_map(data: bytes, *, source: str = "<record>") -> RoadMap | N
         signals = SignalStates(uniq.astype(np.int64), grid, points)
     return _finish(sid, raw, {}, edges, crosswalks, stops, signals, source,
                    topology_given=False)
-
-
-# ------------------------------------------------------------------ files
-
-
-def iter_road_maps(paths: str | os.PathLike | Iterable[str | os.PathLike]
-                   ) -> Iterator[RoadMap]:
-    """The road map of every scenario in driving-data files, in file and record order.
-
-    Args:
-        paths: files, directories or glob patterns (:func:`tap_bench.sources.read_womd`).
-
-    Raises:
-        WomdRecordError / FileFormatError: a record or file that cannot be read, named.
-    """
-    from tap_bench.sources.ingest import _file_format, expand_paths
-    from tap_bench.sources.scenarionet import load_scenarionet
-    from tap_bench.womd.tfrecord import iter_records
-
-    for path in expand_paths(paths):
-        name = _file_format(path, "auto", True).name
-        if name == "scenarionet":
-            yield scenarionet_road_map(load_scenarionet(path), source=str(path))
-        elif name in ("scenario", "tf_example"):
-            for record in iter_records(path):
-                where = f"{path} record {record.index}"
-                try:
-                    road = (scenario_road_map(record.data, source=where) if name == "scenario"
-                            else tf_example_road_map(record.data, source=where))
-                except FileFormatError as err:
-                    raise WomdRecordError(str(path), record.index, record.offset, str(err),
-                                          "Is the file a WOMD scenario file?") from None
-                if road is not None:
-                    yield road
-
-
-def read_road_maps(paths: str | os.PathLike | Iterable[str | os.PathLike]
-                   ) -> dict[str, RoadMap]:
-    """:func:`iter_road_maps` as a dict scenario id -> :class:`RoadMap`."""
-    return {road.scenario_id: road for road in iter_road_maps(paths)}

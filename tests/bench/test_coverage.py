@@ -61,12 +61,12 @@ def test_full_coverage_and_nothing_missed():
 
 def test_vocabulary_coverage_counts_single_labels_and_matches_the_training_signal():
     ref = vocabulary_reference("maneuver")
-    # maneuver vocabulary: 5 lateral + 4 longitudinal single labels
-    assert len(ref) == 9
+    # maneuver vocabulary: 5 lateral + 5 longitudinal single labels (Reversing, SPEC 4.6)
+    assert len(ref) == 10
     labels = [A, B, "Straight > Left Merge | Maintain Speed > Accelerate"]
     result = coverage(pd.Series(labels), ref)
-    # Straight, Left Merge, Maintain Speed, Accelerate: 4 of 9
-    assert result.coverage == pytest.approx(4 / 9)
+    # Straight, Left Merge, Maintain Speed, Accelerate: 4 of 10
+    assert result.coverage == pytest.approx(4 / 10)
     assert result.coverage == pytest.approx(label_coverage(labels, level="maneuver"))
 
 

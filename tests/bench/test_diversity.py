@@ -188,3 +188,28 @@ def test_pooled_diversity_combines_independent_envs():
     # the mean of two independent envs is known better than either
     assert (pooled.hill_high - pooled.hill_low < one.hill_high - one.hill_low).all()
     assert pooled.completeness_low < pooled.completeness < pooled.completeness_high
+
+
+def test_estimates_that_rise_with_q_are_flagged_and_their_intervals_widened():
+    # no label seen once: q0 at m > n stays S_obs = 6, while the inverse Simpson grows:
+    # 1 / (1/20 + 0.95 * 16 / 156) = 6.78 > 6 (by hand)
+    from tap_bench.bench.diversity import diversity
+    labels = [f"L{i}" for i in range(5) for _ in range(2)] + ["L5"] * 3
+    d = diversity(labels, size=20)
+    assert d.hill[0] == pytest.approx(6.0) and d.hill[2] == pytest.approx(6.78, abs=0.01)
+    assert d.hill_order_broken and d.row()["hill_order_broken"]
+    for j in (0, 2):  # both intervals hold both estimates
+        assert d.hill_low[j] <= min(d.hill[0], d.hill[2])
+        assert d.hill_high[j] >= max(d.hill[0], d.hill[2])
+    # a sample whose estimates are in order is not flagged
+    ok = diversity(["a"] * 5 + ["b"] * 3 + ["c"] * 2 + ["d", "e"])
+    assert not ok.hill_order_broken
+    assert ok.hill[0] >= ok.hill[1] >= ok.hill[2]
+
+
+def test_asymptotes_out_of_order_are_not_reported():
+    from tap_bench.bench.diversity import _asymptote_in_order
+    asym, broken = _asymptote_in_order(np.array([6.1, 7.3, 9.4]))
+    assert broken and np.isnan(asym).all()
+    asym, broken = _asymptote_in_order(np.array([9.0, 7.0, 5.0]))
+    assert not broken and asym.tolist() == [9.0, 7.0, 5.0]

@@ -102,18 +102,40 @@ def test_a_real_speed_change_is_not_a_spike():
     assert np.allclose(kin.v, speed)
 
 
-def test_reversing_car_is_flagged_never_a_turn():
+def test_reversing_car_is_labelled_reversing_and_its_path_turn():
+    # SPEC 4.6: backing up for 1 s or more is Reversing, and the lateral label is the turn
+    # of the path: it travels along a path curving right at 0.2 rad/s (its nose turns the
+    # same way), so Right Turn, as driving forwards along the same path
     table = reversing_car()
     kin = kinematics(table)
     assert kin.reversing.all() and not kin.trusted.any()
-    labels = tb.label(table, level="all")
-    assert set(labels["lateral"]) == {"Straight"}  # not a Right Turn
+    labels = tb.label(table, level="all").set_index("level")
+    assert labels.loc["maneuver", "lateral"] == "Right Turn"
+    assert labels.loc["maneuver", "longitudinal"] == "Reversing"
+    assert labels.loc["action", "sdl"] == "Aggressive Right Turn | Reversing"
     assert labels["reversing_steps"].tolist() == [91] * 4
     steps = tb.tap(table).steps()
     assert steps["reversing"].all() and not steps["heading_trusted"].any()
-    # driving forwards along the same path is a turn (the flag is what changed)
     forwards = from_controls(np.full(91, 3.0), np.full(91, -0.2))
     assert tb.label(forwards, level="maneuver")["lateral"].item() == "Right Turn"
+
+
+@pytest.mark.parametrize("steps_back, expected", [(5, "Maintain Speed"), (9, "Maintain Speed"),
+                                                  (10, "Maintain Speed > Reversing"),
+                                                  (30, "Maintain Speed > Reversing")])
+def test_reversing_needs_1_s(steps_back, expected):
+    # stage 2 on its own: 6 s at 2 m/s, the last `steps_back` steps moving backwards
+    from tap_bench import sdl
+    from tap_bench.stages import run_stages
+    from tap_bench.thresholds import resolve_thresholds
+    n = 60
+    reversing = np.arange(n) >= n - steps_back
+    labels = run_stages(np.zeros(n), np.zeros(n), np.full(n, 2.0), np.array([n]),
+                        resolve_thresholds("paper"), heading=np.zeros(n),
+                        x=np.arange(n) * 0.2, y=np.zeros(n), reversing=reversing)
+    codes = labels.maneuver_longitudinal
+    names = [sdl.LONGITUDINAL_NAMES[c] for c in codes[np.r_[True, codes[1:] != codes[:-1]]]]
+    assert " > ".join(names) == expected
 
 
 def test_heading_glitch_at_the_first_step_of_a_right_turn():
@@ -199,3 +221,13 @@ def test_fit_refuses_an_impossible_speed(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "bad.parquet" in err and "speed is 1e+30 m/s at row 5" in err
     assert not (tmp_path / "th.json").exists()
+
+
+def test_the_reviews_reversing_car_backs_8_8_m_turning_52_degrees():
+    # the review's real case, rebuilt: 1 m/s backwards for 8.8 s along a path turning 52
+    # degrees to the right; labelled Straight | Maintain Speed before SPEC 4.6
+    n = 89
+    table = from_controls(np.full(n, 1.0), np.full(n, -np.radians(52) / 8.8),
+                          heading0=np.pi, track_id="backing")
+    table["heading"] = np.angle(np.exp(1j * (table["heading"] - np.pi)))
+    assert tb.label(table, level="maneuver")["sdl"].item() == "Right Turn | Reversing"

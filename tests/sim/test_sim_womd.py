@@ -22,7 +22,8 @@ from tap_bench.sim.rollout import rollout
 from tap_bench.sim.womd_env import WomdEnv, make_womd_env
 from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, lane_points
 from tap_bench.sim.womd_scene import CURRENT_STEP, SceneError, WomdScenes
-from tap_bench.womd.roadmap import Lane, infer_successors, read_road_maps
+from tap_bench.sources.maps import read_road_maps
+from tap_bench.womd.roadmap import Lane, infer_successors
 
 FILES = ["motion_data_one_scenario.tfrecord", "womd_scenario_input.tfrecord",
          "motion_data_one_example.tfrecord", "sd_waymo_v1.2_eb4b91b10ca94ff2.pkl"]

@@ -49,8 +49,8 @@ def test_label_coverage_by_hand():
               "Straight > Left Merge > Straight | Maintain Fast Speed > Decelerate Fast Speed"]
     # single labels seen: Straight, Left Merge, Maintain Fast Speed, Decelerate Fast Speed
     n_vocabulary = len(coverage.vocabulary_tokens("action"))
-    assert n_vocabulary == 9 + 10
-    assert coverage.label_coverage(labels) == pytest.approx(4 / 19)
+    assert n_vocabulary == 9 + 11  # ... + Stopped and Reversing (SPEC 4.6)
+    assert coverage.label_coverage(labels) == pytest.approx(4 / 20)
     reference = {"Straight | Maintain Fast Speed", "Straight | Stopped"}
     assert coverage.label_coverage(labels, reference) == pytest.approx(1 / 2)
     assert coverage.label_coverage([], reference) == 0.0
