@@ -282,19 +282,20 @@ def _segment_frame(tracks: pd.DataFrame, kin: Kinematics, index, which: np.ndarr
     """One row per valid segment selected by ``which`` (bool, (n_segments,))."""
     rows = index.segment_start[which]
     stops = index.segment_stop[which]
-    frame = tracks.take(index.segment_track[which]).reset_index(drop=True)
-    frame.insert(2, "segment", ordinal[which])
-    frame.insert(3, "t_start", kin.t[rows])
-    frame.insert(4, "t_end", kin.t[stops - 1] + DT if len(rows) else np.zeros(0))
-    frame.insert(5, "n_steps", stops - rows)
+    per_track = tracks.take(index.segment_track[which]).reset_index(drop=True)
+    columns: dict[str, object] = {c: per_track[c] for c in per_track.columns[:2]}
+    columns.update(segment=ordinal[which], t_start=kin.t[rows],
+                   t_end=kin.t[stops - 1] + DT if len(rows) else np.zeros(0),
+                   n_steps=stops - rows)
     counts = {"heading_glitches": kin.heading_glitch, "speed_glitches": kin.speed_glitch,
               "reversing_steps": kin.reversing}
-    for pos, (name, flags) in enumerate(counts.items(), start=6):
+    for name, flags in counts.items():
         flagged = index.segment[np.flatnonzero(flags)]  # flags are rare: count them sparsely
         per_segment = np.bincount(flagged, minlength=index.n_segments)
-        frame.insert(pos, name, per_segment[which].astype(np.int64))
-    frame.insert(9, "travel", kin.travel[which])
-    return frame
+        columns[name] = per_segment[which].astype(np.int64)
+    columns["travel"] = kin.travel[which]
+    columns.update({c: per_track[c] for c in per_track.columns[2:]})
+    return pd.DataFrame(columns)
 
 
 def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
@@ -363,8 +364,7 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
         lateral[step_rows] = labels.maneuver_lateral
         inter = interaction_steps(checked, kin, starts[chosen], stops[chosen], lateral,
                                   th.a_dec, interaction_config, map_table=map_table)
-        track_ids = np.asarray(pd.Series(checked["track_id"]).to_numpy(object)
-                               [index.track_start[:-1]], dtype=object)
+        track_ids = np.asarray(tracks["track_id"].to_numpy(object), dtype=object)
         extra = {"interactions": inter, "interaction_segments": chosen,
                  "track_ids": track_ids}
         timings["interactions"] = time.perf_counter() - t4

@@ -22,7 +22,7 @@ irregular and an error. Data sampled at another rate is refused: resample it fir
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -219,28 +219,45 @@ class CheckedTable:
     Attributes:
         columns: column name -> (n_rows,) numpy array (numeric, bool) or pandas Series
             (strings), rows grouped by (scenario_id, track_id), each track in time order.
+            The string and extra columns are put in that order only when first asked for
+            (``checked[name]``); :meth:`per_track` reads them without reordering them all.
         index: where tracks and valid segments lie.
+        names: every column, in the table's order (the contract's checked columns first).
+        raw: the columns not yet in track order, as in the input.
+        order: input row of each row in track order (None: the input was in that order).
     """
 
     columns: dict[str, np.ndarray | pd.Series]
     index: TrackIndex
+    names: tuple[str, ...] = ()
+    raw: dict[str, np.ndarray | pd.Series] = field(default_factory=dict)
+    order: np.ndarray | None = None
 
     def __getitem__(self, name: str) -> np.ndarray | pd.Series:
+        if name not in self.columns and name in self.raw:
+            self.columns[name] = _take(self.raw[name], self.order)
         return self.columns[name]
 
     def __contains__(self, name: object) -> bool:
-        return name in self.columns
+        return name in self.columns or name in self.raw
 
     def frame(self) -> pd.DataFrame:
         """The columns as a DataFrame (contract columns first)."""
-        ordered = [c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS) if c in self.columns]
-        ordered += [c for c in self.columns if c not in ordered]
-        return pd.DataFrame({c: _values(self.columns[c]) for c in ordered})
+        names = self.names or tuple(self.columns)
+        ordered = [c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS) if c in names]
+        ordered += [c for c in names if c not in ordered]
+        return pd.DataFrame({c: _values(self[c]) for c in ordered})
 
     def per_track(self, names: list[str] | tuple[str, ...]) -> pd.DataFrame:
         """One row per track: the given columns at each track's first row."""
         rows = self.index.track_start[:-1]
-        return pd.DataFrame({c: _take(self.columns[c], rows) for c in names if c in self})
+        out = {}
+        for c in names:
+            if c in self.columns:
+                out[c] = _take(self.columns[c], rows)
+            elif c in self.raw:
+                out[c] = _take(self.raw[c], rows if self.order is None else self.order[rows])
+        return pd.DataFrame(out)
 
 
 def _values(col: np.ndarray | pd.Series):
@@ -274,11 +291,13 @@ def _track_order(scenario: pd.Series, track: pd.Series) -> tuple[np.ndarray | No
 
     change = changes(scenario) | changes(track)
     starts = np.flatnonzero(change)
-    sc_codes, _ = pd.factorize(scenario.take(starts), sort=True)
-    tr_codes, tr_uniques = pd.factorize(track.take(starts), sort=True)
-    block_key = sc_codes.astype(np.int64) * max(len(tr_uniques), 1) + tr_codes
-    if np.all(block_key[1:] > block_key[:-1]):
-        return None, change
+    if len(starts) <= n // 2:  # runs of rows (a track's): check the order of the runs
+        sc_codes, _ = pd.factorize(scenario.take(starts), sort=True)
+        tr_codes, tr_uniques = pd.factorize(track.take(starts), sort=True)
+        block_key = sc_codes.astype(np.int64) * max(len(tr_uniques), 1) + tr_codes
+        if np.all(block_key[1:] > block_key[:-1]):
+            return None, change
+    # interleaved tracks (time-major rows, as simulators write them): sort every row
     sc_codes, _ = pd.factorize(scenario, sort=True)
     tr_codes, tr_uniques = pd.factorize(track, sort=True)
     key = sc_codes.astype(np.int64) * max(len(tr_uniques), 1) + tr_codes
@@ -436,10 +455,11 @@ def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table")
               column="t", row=b)
 
     cols["valid"] = valid
-    for col in table.columns:
-        if col not in cols:
-            cols[col] = table[col]
-    cols = {k: _take(v, order) for k, v in cols.items()}
+    names = (*cols, *(c for c in table.columns if c not in cols))
+    # numbers and flags in track order now; strings and extra columns when asked for
+    raw = {c: cols.get(c, table[c] if c in table.columns else None) for c in names
+           if not isinstance(cols.get(c), np.ndarray)}
+    cols = {k: _take(v, order) for k, v in cols.items() if isinstance(v, np.ndarray)}
 
     track_starts = np.flatnonzero(new_track)
     track = np.cumsum(new_track) - 1
@@ -463,4 +483,4 @@ def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table")
         segment_stop=seg_stop.astype(np.int64),
         segment_track=track[seg_start].astype(np.int64),
     )
-    return CheckedTable(columns=cols, index=index)
+    return CheckedTable(columns=cols, index=index, names=names, raw=raw, order=order)

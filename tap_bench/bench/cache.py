@@ -92,12 +92,14 @@ DEFAULT_MAX_BYTES = 2 << 30
 """Size the cache is pruned to after a run [B]: ten default suites."""
 ENTRY_FORMAT = 2
 """Layout of an entry file; raised when it changes (old entries then miss)."""
-SIMULATION_CODE = ("sim", "trajectories.py")
+SIMULATION_CODE = ("sim", "trajectories.py", "womd", "sources")
 """tap-bench's simulation code, relative to the package: every module of :mod:`tap_bench.sim`
 (all of them, so that a module added there is covered without a list to update; an edit to
-one an episode does not use costs only a re-simulation) and the trajectory contract the
-recorder writes to. Labelling and measures are not here: they are keyed by the label cache
-(:data:`LABEL_CODE`), so an edit to them re-labels without re-simulating."""
+one an episode does not use costs only a re-simulation), the trajectory contract the
+recorder writes to, and the readers recorded scenes are built from (``womd/``: the road
+map, its topology and the record decoders; ``sources/``: the ScenarioNet reader).
+Labelling and measures are not here: they are keyed by the label cache (:data:`LABEL_CODE`),
+so an edit to them re-labels without re-simulating."""
 
 
 def _simulation_modules() -> list[Path]:

@@ -1,14 +1,16 @@
-"""The run report: PNG plots and one static HTML page (no server, nothing from the network).
+"""The run report: SVG (and two PNG) figures and one static HTML page (no server, nothing
+from the network).
 
-:func:`write_report` writes ``plots/*.png`` and ``report.html`` into a run folder. The page
-embeds its images as data URIs, so the HTML file alone is the whole report (mail it, open
-it from disk); the PNG files are there for papers and slides. A small inline script sorts
+:func:`write_report` writes ``plots/*.svg``, ``plots/*.png`` and ``report.html`` into a run
+folder. The page holds its figures inline (SVG) or as data URIs (PNG), so the HTML file
+alone is the whole report (mail it, open it from disk); the figure files are there for
+papers and slides. A small inline script sorts
 and searches the long tables; without it the page still reads in full.
 
 The page reads from the top: a summary table of each policy against the reference policy
 (every measure with its interval and a better / worse / no-difference mark), then one panel
 per env, then the comparisons, coverage and unique manoeuvres in detail. Every figure is
-drawn at the size it is shown (text at least 10 px), its scales fitted to the data, its
+drawn at the size it is shown (text at least 11 px), its scales fitted to the data, its
 labels whole; every table gives units and numbers to their precision, shows its first rows
 and keeps the rest a click away. When the run has a replay viewer (``viewer/``), the rows
 that name episodes or labels link to the replay that shows them.
@@ -70,7 +72,7 @@ td.same{color:#666}td.nowrap{white-space:nowrap}td.ref{color:#666;font-style:ita
 tr.more{display:none}table.open tr.more{display:table-row}tr.hidden{display:none !important}
 .tools{font-size:13px;margin:.3em 0;display:flex;gap:.8em;align-items:center}
 .tools input{font-size:13px;width:18em}
-figure{margin:.6em 0}img{border:1px solid #eee;max-width:100%;height:auto}
+figure{margin:.6em 0}img,figure svg{border:1px solid #eee;max-width:100%;height:auto}
 figcaption{font-size:13px;color:#444;max-width:60em}
 .note{color:#555;font-size:13px}.fail{color:#a00}
 a.replay{white-space:nowrap}
@@ -118,6 +120,11 @@ document.querySelectorAll('table.sortable th').forEach(function (th, k) {
 
 
 def _figure(path: Path, alt: str, caption: str) -> str:
+    """A figure in the page, with its caption: an SVG inline, a PNG as a data URI."""
+    if path.suffix == ".svg":
+        svg = path.read_text()
+        svg = svg.replace("<svg ", f'<svg role="img" aria-label="{html.escape(alt)}" ', 1)
+        return f"<figure>{svg}<figcaption>{html.escape(caption)}</figcaption></figure>"
     from PIL import Image
 
     with Image.open(path) as im:
@@ -186,7 +193,7 @@ def _against_the_human(episodes: pd.DataFrame, reference: str, level: float) -> 
 
 def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: pd.DataFrame,
                  scores: Scores, *, viewer: str | None = None) -> Path:
-    """Write ``plots/*.png`` and ``report.html`` into a run folder; returns the HTML path.
+    """Write ``plots/*.svg`` and ``report.html`` into a run folder; returns the HTML path.
 
     Args:
         folder: the run folder.

@@ -1,9 +1,18 @@
-"""The run report's PNG figures, drawn at the size they are shown (text at least 10 px),
+"""The run report's figures as SVG, drawn at the size they are shown (text at least 11 px),
 scales fitted to the data, labels whole: label heat maps, measures, coverage, forest plots,
-improvement over the reference, novelty (part of :mod:`tap_bench.bench.report`)."""
+improvement over the reference, novelty (part of :mod:`tap_bench.bench.report`).
+
+The figures are written as SVG text directly (dots, bars, lines, cells and text; no
+plotting library): the page embeds them inline, they stay sharp at any zoom, and drawing
+all of a demo's figures costs milliseconds where drawing them with matplotlib cost seconds
+(``benchmarks/bench_demo.py``).
+"""
 
 from __future__ import annotations
 
+import html
+import itertools
+import math
 import os
 import textwrap
 from pathlib import Path
@@ -21,9 +30,199 @@ from tap_bench.bench.report_tables import (
 from tap_bench.bench.scoring import Scores
 
 TOP_LABELS = 12  # labels shown per heat map and forest plot
-DPI = 100  # figures are drawn at the size they are shown: 1 pt = 1.39 px
-FONT_PT = 8.5  # smallest text in a figure: 11.8 px
-MAX_WIDTH_IN = 11.0  # widest figure [in]: 1,100 px, inside the page's 1,200 px column
+FONT_PX = 12  # smallest text in a figure [px]
+MAX_WIDTH_PX = 1100  # widest figure, inside the page's 1,200 px column
+COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
+          "#7f7f7f", "#bcbd22", "#17becf")
+"""The series colours (matplotlib's tab10)."""
+_BLUES = ((0.0, (247, 251, 255)), (0.125, (222, 235, 247)), (0.25, (198, 219, 239)),
+          (0.375, (158, 202, 225)), (0.5, (107, 174, 214)), (0.625, (66, 146, 198)),
+          (0.75, (33, 113, 181)), (0.875, (8, 81, 156)), (1.0, (8, 48, 107)))
+"""The heat maps' colour scale (ColorBrewer's Blues)."""
+_LINE = FONT_PX + 3  # height of a text line [px]
+
+
+def _wrap(label: str, width: int = 48) -> str:
+    """A label wrapped on whole words (never cut): ``A > B > C`` breaks after ``>``."""
+    return "\n".join(textwrap.wrap(str(label), width=width, break_long_words=False,
+                                   break_on_hyphens=False)) or str(label)
+
+
+def _text_width(text: str, size: float = FONT_PX) -> float:
+    """Estimated width of the longest line of ``text`` [px] (sans-serif, 0.58 em a glyph)."""
+    return max((len(line) for line in str(text).split("\n")), default=0) * 0.58 * size
+
+
+def _blue(v: float) -> str:
+    """The colour of ``v`` in [0, 1] on the Blues scale."""
+    v = min(max(float(v), 0.0), 1.0)
+    for (a, ca), (b, cb) in itertools.pairwise(_BLUES):
+        if v <= b:
+            f = (v - a) / (b - a)
+            return "#" + "".join(f"{round(x + f * (y - x)):02x}"
+                                 for x, y in zip(ca, cb, strict=True))
+    return "#08306b"
+
+
+def _nice_ticks(lo: float, hi: float, n: int = 6) -> list[float]:
+    """About ``n`` round tick values within [lo, hi]."""
+    if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
+        return [lo] if math.isfinite(lo) else []
+    raw = (hi - lo) / max(n - 1, 1)
+    mag = 10 ** math.floor(math.log10(raw))
+    step = next(m * mag for m in (1, 2, 2.5, 5, 10) if m * mag >= raw)
+    first = math.ceil(lo / step - 1e-9) * step
+    return [round(first + k * step, 10) for k in range(int((hi - first) / step + 1e-9) + 1)]
+
+
+def _tick_text(v: float) -> str:
+    return f"{v:g}" if abs(v) >= 1e-9 else "0"
+
+
+class _Svg:
+    """An SVG drawing built as text."""
+
+    def __init__(self, width: float, height: float) -> None:
+        self.width, self.height = math.ceil(width), math.ceil(height)
+        self.parts: list[str] = []
+
+    def text(self, x: float, y: float, text: str, *, anchor: str = "start",
+             size: float = FONT_PX, bold: bool = False, fill: str = "#222",
+             rotate: float | None = None) -> None:
+        """``text`` at (x, y) (the middle of its first line); lines split on newlines."""
+        lines = str(text).split("\n")
+        extra = f' transform="rotate({rotate:g} {x:.1f} {y:.1f})"' if rotate else ""
+        weight = ' font-weight="bold"' if bold else ""
+        spans = "".join(f'<tspan x="{x:.1f}" dy="{0 if k == 0 else _LINE}">'
+                        f"{html.escape(line)}</tspan>" for k, line in enumerate(lines))
+        self.parts.append(f'<text x="{x:.1f}" y="{y:.1f}" font-size="{size:g}" '
+                          f'text-anchor="{anchor}" dominant-baseline="central" fill="{fill}"'
+                          f"{weight}{extra}>{spans}</text>")
+
+    def line(self, x1: float, y1: float, x2: float, y2: float, *, stroke: str = "#222",
+             width: float = 1.0, dash: str | None = None) -> None:
+        extra = f' stroke-dasharray="{dash}"' if dash else ""
+        self.parts.append(f'<line x1="{x1:.1f}" y1="{y1:.1f}" x2="{x2:.1f}" y2="{y2:.1f}" '
+                          f'stroke="{stroke}" stroke-width="{width:g}"{extra}/>')
+
+    def rect(self, x: float, y: float, w: float, h: float, *, fill: str,
+             stroke: str | None = None) -> None:
+        extra = f' stroke="{stroke}"' if stroke else ""
+        self.parts.append(f'<rect x="{x:.1f}" y="{y:.1f}" width="{max(w, 0):.1f}" '
+                          f'height="{max(h, 0):.1f}" fill="{fill}"{extra}/>')
+
+    def circle(self, x: float, y: float, r: float, *, fill: str) -> None:
+        self.parts.append(f'<circle cx="{x:.1f}" cy="{y:.1f}" r="{r:g}" fill="{fill}"/>')
+
+    def write(self, path: Path) -> Path:
+        path.write_text(
+            f'<svg xmlns="http://www.w3.org/2000/svg" width="{self.width}" '
+            f'height="{self.height}" viewBox="0 0 {self.width} {self.height}" '
+            'font-family="DejaVu Sans, Helvetica, Arial, sans-serif">'
+            f'<rect width="100%" height="100%" fill="white"/>{"".join(self.parts)}</svg>\n')
+        return path
+
+
+def _fit(lo, hi, *, floor: float | None = None, ceil: float | None = None
+         ) -> tuple[float, float]:
+    """x limits fitted to the intervals shown, with a margin; clipped to [floor, ceil]."""
+    values = np.concatenate([np.asarray(lo, float), np.asarray(hi, float)])
+    values = values[np.isfinite(values)]
+    if not len(values):
+        return (0.0, 1.0)
+    a, b = float(values.min()), float(values.max())
+    pad = max((b - a) * 0.08, 1e-3 if b == a else 0)
+    a, b = a - pad, b + pad
+    if floor is not None:
+        a = max(a, floor)
+    if ceil is not None:
+        b = min(b, ceil)
+    return (a, b) if b > a else (a - 0.5, a + 0.5)
+
+
+def _panel(svg: _Svg, x0: float, y0: float, width: float, n_rows: int, row_h: float,
+           series: list[dict], xlim: tuple[float, float], *, title: str = "",
+           xlabel: str = "", vlines: tuple = (), band: tuple | None = None,
+           grid: bool = True) -> None:
+    """One dot-and-interval panel: ``series`` of dicts with ``est``, ``lo``, ``hi`` (n_rows,)
+    and ``color``, ``offset`` (rows); rows top to bottom from ``y0`` (below the title)."""
+    a, b = xlim
+    height = n_rows * row_h
+
+    def sx(v: float) -> float:
+        return x0 + (min(max(v, a), b) - a) / (b - a) * width
+
+    if title:
+        for k, line in enumerate(title.split("\n")[::-1]):
+            svg.text(x0, y0 - 8 - k * _LINE, line, size=FONT_PX + 1)
+    svg.rect(x0, y0, width, height, fill="none", stroke="#999")
+    for tick in _nice_ticks(a, b):
+        x = sx(tick)
+        if grid:
+            svg.line(x, y0, x, y0 + height, stroke="#e5e5e5")
+        svg.line(x, y0 + height, x, y0 + height + 4, stroke="#555")
+        svg.text(x, y0 + height + 12, _tick_text(tick), anchor="middle")
+    if xlabel:
+        svg.text(x0 + width / 2, y0 + height + 30, xlabel, anchor="middle")
+    if band is not None:
+        for i, (lo, hi) in enumerate(zip(*band, strict=True)):
+            if np.isfinite(lo) and np.isfinite(hi):
+                y = y0 + (i + 0.5) * row_h
+                svg.rect(sx(lo), y - 3.5, sx(hi) - sx(lo), 7, fill="#d9d9d9")
+    for x, color, dash in vlines:
+        if np.isfinite(x) and a <= x <= b:
+            svg.line(sx(x), y0, sx(x), y0 + height, stroke=color, width=1, dash=dash)
+    for s in series:
+        for i, (est, lo, hi) in enumerate(zip(s["est"], s["lo"], s["hi"], strict=True)):
+            y = y0 + (i + 0.5 + s.get("offset", 0.0)) * row_h
+            if np.isfinite(lo) and np.isfinite(hi):
+                lo_x, hi_x = sx(min(lo, est) if np.isfinite(est) else lo), sx(
+                    max(hi, est) if np.isfinite(est) else hi)
+                svg.line(lo_x, y, hi_x, y, stroke=s["color"], width=1.5)
+                svg.line(lo_x, y - 3, lo_x, y + 3, stroke=s["color"], width=1.5)
+                svg.line(hi_x, y - 3, hi_x, y + 3, stroke=s["color"], width=1.5)
+            if np.isfinite(est):
+                svg.circle(sx(est), y, 3.5, fill=s["color"])
+
+
+def _row_labels(svg: _Svg, x: float, y0: float, names: list[str], row_h: float) -> None:
+    for i, name in enumerate(names):
+        lines = str(name).count("\n") + 1
+        svg.text(x, y0 + (i + 0.5) * row_h - (lines - 1) * _LINE / 2, name, anchor="end")
+
+
+def _legend(svg: _Svg, x: float, y: float, entries: list[tuple[str, str]],
+            title: str = "") -> None:
+    """A legend box with its top right corner at (x, y): (label, colour) entries."""
+    width = max([_text_width(t) for t, _ in entries] + [_text_width(title)]) + 34
+    rows = len(entries) + bool(title)
+    svg.rect(x - width, y, width, rows * _LINE + 8, fill="white", stroke="#bbb")
+    k = 0
+    if title:
+        svg.text(x - width + 8, y + 4 + _LINE / 2, title)
+        k = 1
+    for text, color in entries:
+        yy = y + 4 + (k + 0.5) * _LINE
+        if color.startswith("band:"):  # a grey band, as the forest plots draw it
+            svg.rect(x - width + 8, yy - 3.5, 14, 7, fill=color[5:])
+        else:
+            svg.line(x - width + 8, yy, x - width + 22, yy, stroke=color, width=1.5)
+            svg.circle(x - width + 15, yy, 3.5, fill=color)
+        svg.text(x - width + 28, yy, text)
+        k += 1
+
+
+def _series(sub: pd.DataFrame, est: str, lo: str, hi: str, scale: float = 1.0, *,
+            color: str = COLORS[0], offset: float = 0.0) -> dict:
+    return {"est": (sub[est] * scale).to_numpy(float), "lo": (sub[lo] * scale).to_numpy(float),
+            "hi": (sub[hi] * scale).to_numpy(float), "color": color, "offset": offset}
+
+
+# -- the figures still drawn with matplotlib (PNG): forest plots per env, the trade-off view
+
+DPI = 100  # PNG figures are drawn at the size they are shown: 1 pt = 1.39 px
+FONT_PT = 8.5  # smallest text in a PNG figure: 11.8 px
+MAX_WIDTH_IN = 11.0  # widest PNG figure [in]
 
 
 def _plt():
@@ -40,45 +239,10 @@ def _plt():
     return plt
 
 
-def _wrap(label: str, width: int = 48) -> str:
-    """A label wrapped on whole words (never cut): ``A > B > C`` breaks after ``>``."""
-    return "\n".join(textwrap.wrap(str(label), width=width, break_long_words=False,
-                                   break_on_hyphens=False)) or str(label)
-
-
 def _save(fig, path: Path) -> Path:
     fig.savefig(path, dpi=DPI)
     _plt().close(fig)
     return path
-
-
-def _label_heatmap(counts: pd.DataFrame, env: str, folder: Path) -> Path | None:
-    sub = counts[counts["env"] == env]
-    if sub.empty:
-        return None
-    plt = _plt()
-    policies = sorted(sub["policy"].unique())
-    top = sub.groupby("sdl")["share"].sum().sort_values(ascending=False).index[:TOP_LABELS]
-    mat = (sub[sub["sdl"].isin(top)].pivot_table(index="sdl", columns="policy",
-                                                 values="share", fill_value=0.0)
-           .reindex(index=top, columns=policies, fill_value=0.0)).to_numpy()
-    names = [_wrap(t, 52) for t in top]
-    lines = sum(n.count("\n") + 1 for n in names)
-    fig, ax = plt.subplots(figsize=(min(MAX_WIDTH_IN, 5.2 + 1.0 * len(policies)),
-                                    1.4 + 0.19 * lines + 0.12 * len(top)),
-                           layout="constrained")
-    vmax = max(float(mat.max()), 0.05)  # the colour scale is fitted to the shares shown
-    im = ax.imshow(mat, aspect="auto", cmap="Blues", vmin=0, vmax=vmax)
-    ax.set_xticks(range(len(policies)), policies, rotation=20, ha="right")
-    ax.set_yticks(range(len(top)), names)
-    for (i, j), v in np.ndenumerate(mat):
-        if v > 0:
-            ax.text(j, i, f"{v:.0%}", ha="center", va="center",
-                    color="white" if v > 0.6 * vmax else "black")
-    ax.set_title(f"{env}: share of each policy's episodes with each ego label "
-                 f"(top {len(top)})", loc="left")
-    fig.colorbar(im, ax=ax, fraction=0.04, pad=0.01, format=lambda x, _: f"{x:.0%}")
-    return _save(fig, folder / f"labels_{_slug(env)}.png")
 
 
 def _interval_plot(ax, names, est, lo, hi, *, color="C0", offset=0.0, label=None):
@@ -90,7 +254,7 @@ def _interval_plot(ax, names, est, lo, hi, *, color="C0", offset=0.0, label=None
     ax.set_yticks(np.arange(len(names)), names)
 
 
-def _fit(ax, lo, hi, *, floor: float | None = None, ceil: float | None = None) -> None:
+def _fit_axes(ax, lo, hi, *, floor: float | None = None, ceil: float | None = None) -> None:
     """x limits fitted to the intervals shown, with a margin; clipped to [floor, ceil]."""
     values = np.concatenate([np.asarray(lo, float), np.asarray(hi, float)])
     values = values[np.isfinite(values)]
@@ -107,58 +271,112 @@ def _fit(ax, lo, hi, *, floor: float | None = None, ceil: float | None = None) -
         ax.set_xlim(a, b)
 
 
+def _label_heatmap(counts: pd.DataFrame, env: str, folder: Path) -> Path | None:
+    sub = counts[counts["env"] == env]
+    if sub.empty:
+        return None
+    policies = sorted(sub["policy"].unique())
+    top = sub.groupby("sdl")["share"].sum().sort_values(ascending=False).index[:TOP_LABELS]
+    mat = (sub[sub["sdl"].isin(top)].pivot_table(index="sdl", columns="policy",
+                                                 values="share", fill_value=0.0)
+           .reindex(index=top, columns=policies, fill_value=0.0)).to_numpy()
+    names = [_wrap(t, 52) for t in top]
+    row_h = [max(name.count("\n") + 1, 1) * _LINE + 8 for name in names]
+    left = max(_text_width(n) for n in names) + 14
+    cell_w = 84.0
+    top_y = 2 * _LINE + 10
+    plot_h = float(sum(row_h))
+    bottom = max(_text_width(p) for p in policies) * 0.55 + 24
+    svg = _Svg(min(MAX_WIDTH_PX, left + cell_w * len(policies) + 90), top_y + plot_h + bottom)
+    vmax = max(float(mat.max()), 0.05)  # the colour scale is fitted to the shares shown
+    svg.text(4, _LINE, f"{env}: share of each policy's episodes with each ego label "
+             f"(top {len(top)})", size=FONT_PX + 1)
+    y = top_y
+    for i, name in enumerate(names):
+        svg.text(left - 8, y + row_h[i] / 2 - name.count("\n") * _LINE / 2, name,
+                 anchor="end")
+        for j in range(len(policies)):
+            v = float(mat[i, j])
+            x = left + j * cell_w
+            svg.rect(x, y, cell_w, row_h[i], fill=_blue(v / vmax))
+            if v > 0:
+                svg.text(x + cell_w / 2, y + row_h[i] / 2, f"{v:.0%}", anchor="middle",
+                         fill="white" if v > 0.6 * vmax else "black")
+        y += row_h[i]
+    for j, policy in enumerate(policies):
+        x = left + (j + 0.5) * cell_w
+        svg.text(x + 4, top_y + plot_h + 10, policy, anchor="end", rotate=-20)
+    # the colour bar
+    bar_x = left + cell_w * len(policies) + 12
+    steps = 24
+    for k in range(steps):
+        svg.rect(bar_x, top_y + plot_h * (1 - (k + 1) / steps), 12, plot_h / steps + 0.5,
+                 fill=_blue((k + 0.5) / steps))
+    for tick in _nice_ticks(0.0, vmax, 4):
+        yy = top_y + plot_h * (1 - tick / vmax)
+        svg.line(bar_x + 12, yy, bar_x + 16, yy, stroke="#555")
+        svg.text(bar_x + 18, yy, f"{tick:.0%}")
+    return svg.write(folder / f"labels_{_slug(env)}.svg")
+
+
 def _measures_plot(scores: Scores, env: str, reference: str, folder: Path) -> Path | None:
     m = scores.measures[scores.measures["env"] == env] if len(scores.measures) else \
         scores.measures
     if m.empty:
         return None
-    plt = _plt()
     policies = sorted(m["policy"].unique())
-    fig, axes = plt.subplots(1, len(MEASURES), figsize=(MAX_WIDTH_IN, 1.3 + 0.3 * len(policies)),
-                             sharey=True, layout="constrained")
-    for ax, meas in zip(np.atleast_1d(axes), MEASURES, strict=True):
+    row_h = 24.0
+    left = max(_text_width(p) for p in policies) + 14
+    gap = 24.0
+    panel_w = (MAX_WIDTH_PX - left - gap * (len(MEASURES) - 1) - 10) / len(MEASURES)
+    top_y = 2 * _LINE + 14
+    svg = _Svg(MAX_WIDTH_PX, top_y + row_h * len(policies) + 26)
+    _row_labels(svg, left - 8, top_y, policies, row_h)
+    for k, meas in enumerate(MEASURES):
         sub = m[m["measure"] == meas.name].set_index("policy").reindex(policies)
-        k = meas.scale
-        _interval_plot(ax, policies, sub["mean"] * k, sub["low"] * k, sub["high"] * k)
-        ref = sub.loc[reference, "mean"] * k if reference in sub.index else np.nan
-        if np.isfinite(ref):
-            ax.axvline(ref, color="0.6", lw=0.8, ls="--")
+        scale = meas.scale
+        ref = sub.loc[reference, "mean"] * scale if reference in sub.index else np.nan
         low, high = meas.bounds if meas.bounds is not None else (None, None)
-        _fit(ax, sub["low"] * k, sub["high"] * k, floor=None if low is None else low * k,
-             ceil=None if high is None else high * k)
+        xlim = _fit(sub["low"] * scale, sub["high"] * scale,
+                    floor=None if low is None else low * scale,
+                    ceil=None if high is None else high * scale)
         better = "higher" if meas.higher_is_better else "lower"
-        ax.set_title(f"{meas.label} [{meas.display_unit}]\n{better} is better")
-        ax.grid(axis="x", alpha=0.3)
-    np.atleast_1d(axes)[0].invert_yaxis()
-    return _save(fig, folder / f"measures_{_slug(env)}.png")
+        _panel(svg, left + k * (panel_w + gap), top_y, panel_w, len(policies), row_h,
+               [_series(sub, "mean", "low", "high", scale)], xlim,
+               title=f"{meas.label} [{meas.display_unit}]\n{better} is better",
+               vlines=((ref, "#999", "4 3"),))
+    return svg.write(folder / f"measures_{_slug(env)}.svg")
 
 
 def _coverage_plot(scores: Scores, folder: Path) -> Path | None:
     cov = _pooled(scores.coverage)
     if cov.empty:
         return None
-    plt = _plt()
     refs = sorted(cov["reference"].unique())
     policies = sorted(cov["policy"].unique())
-    fig, axes = plt.subplots(1, 2, figsize=(MAX_WIDTH_IN, 1.5 + 0.45 * len(policies)),
-                             sharey=True, layout="constrained")
-    for k, ref in enumerate(refs):
-        sub = cov[cov["reference"] == ref].set_index("policy").reindex(policies)
-        off = (k - (len(refs) - 1) / 2) * 0.25
-        _interval_plot(axes[0], policies, sub["coverage"] * 100, sub["coverage_low"] * 100,
-                       sub["coverage_high"] * 100, color=f"C{k}", offset=off, label=ref)
-        _interval_plot(axes[1], policies, sub["weighted_coverage"] * 100,
-                       sub["weighted_low"] * 100, sub["weighted_high"] * 100, color=f"C{k}",
-                       offset=off, label=ref)
-    axes[0].set_title("coverage [%]: share of the reference's labels shown", loc="left")
-    axes[1].set_title("frequency-weighted coverage [%]", loc="left")
-    _fit(axes[0], cov["coverage_low"] * 100, cov["coverage_high"] * 100, floor=0, ceil=100)
-    _fit(axes[1], cov["weighted_low"] * 100, cov["weighted_high"] * 100, floor=0, ceil=100)
-    for ax in axes:
-        ax.grid(axis="x", alpha=0.3)
-    axes[0].invert_yaxis()
-    axes[1].legend(loc="best", title="reference")
-    return _save(fig, folder / "coverage.png")
+    row_h = 20.0 + 12.0 * len(refs)
+    left = max(_text_width(p) for p in policies) + 14
+    gap = 24.0
+    legend_w = max(_text_width(r) for r in [*refs, "reference"]) + 50
+    panel_w = (MAX_WIDTH_PX - left - gap - legend_w - 20) / 2
+    top_y = _LINE + 14
+    svg = _Svg(MAX_WIDTH_PX, top_y + row_h * len(policies) + 26)
+    _row_labels(svg, left - 8, top_y, policies, row_h)
+    panels = (("coverage", "coverage_low", "coverage_high",
+               "coverage [%]: share of the reference's labels shown"),
+              ("weighted_coverage", "weighted_low", "weighted_high",
+               "frequency-weighted coverage [%]"))
+    for p, (est, lo, hi, title) in enumerate(panels):
+        series = []
+        for k, ref in enumerate(refs):
+            sub = cov[cov["reference"] == ref].set_index("policy").reindex(policies)
+            series.append(_series(sub, est, lo, hi, 100.0, color=COLORS[k % len(COLORS)],
+                                  offset=(k - (len(refs) - 1) / 2) * 0.25))
+        _panel(svg, left + p * (panel_w + gap), top_y, panel_w, len(policies), row_h, series,
+               _fit(cov[lo] * 100, cov[hi] * 100, floor=0, ceil=100), title=title)
+    _legend(svg, MAX_WIDTH_PX - 14, top_y + 4,
+            [(ref, COLORS[k % len(COLORS)]) for k, ref in enumerate(refs)], title="reference")
+    return svg.write(folder / "coverage.svg")
 
 
 def _forest_plots(scores: Scores, folder: Path, level: float) -> list[Path]:
@@ -191,7 +409,7 @@ def _forest_plots(scores: Scores, folder: Path, level: float) -> list[Path]:
             ax.axvline(0, color="k", lw=0.8)
             ax.invert_yaxis()
             ax.set_title(f"{env}", loc="left", fontsize="medium")
-        _fit(axes[0, 0], pair["band_low"] * 100, pair["band_high"] * 100, floor=-100, ceil=100)
+        _fit_axes(axes[0, 0], pair["band_low"] * 100, pair["band_high"] * 100, floor=-100, ceil=100)
         axes[-1, 0].set_xlabel(f"difference in the share of seeds [percentage points]: {a} "
                                f"minus {b}")
         axes[0, 0].legend(loc="best", fontsize="small")
@@ -249,59 +467,65 @@ def _improvement_plot(scores: Scores, folder: Path) -> Path | None:
     pm = _pooled(scores.paired_measures)
     if pm.empty:
         return None
-    plt = _plt()
     pairs = pm[["policy_a", "policy_b"]].drop_duplicates().to_records(index=False)
-    fig, ax = plt.subplots(figsize=(9.5, 1.2 + 0.24 * len(pm)), layout="constrained")
-    names = []
-    k = 0
+    names, series = [], []
     for j, (a, b) in enumerate(pairs):
         sub = pm[(pm["policy_a"] == a) & (pm["policy_b"] == b)]
+        est = np.full(len(pm), np.nan)
+        lo, hi = est.copy(), est.copy()
         for r in sub.itertuples():
-            ax.errorbar(r.p_improvement, k, xerr=[[max(r.p_improvement - r.p_low, 0)],
-                                                  [max(r.p_high - r.p_improvement, 0)]],
-                        fmt="o", color=f"C{j}", capsize=3, ms=4)
+            k = len(names)
+            est[k], lo[k], hi[k] = r.p_improvement, r.p_low, r.p_high
             meas = MEASURES.get(r.measure)
-            name = meas.label if meas is not None else r.measure
-            names.append(f"{a} vs {b}: {name}")
-            k += 1
-    ax.set_yticks(range(len(names)), names)
-    ax.axvline(0.5, color="k", lw=0.8)
-    ax.set_xlim(-0.02, 1.02)
-    ax.invert_yaxis()
-    ax.set_xlabel("P(A better than B on the same seed); ties count 1/2; 0.5: no difference")
-    return _save(fig, folder / "improvement.png")
+            names.append(f"{a} vs {b}: {meas.label if meas is not None else r.measure}")
+        series.append({"est": est, "lo": lo, "hi": hi, "color": COLORS[j % len(COLORS)]})
+    row_h = 22.0
+    left = max(_text_width(n) for n in names) + 14
+    top_y = 14.0
+    svg = _Svg(950, top_y + row_h * len(names) + 44)
+    _row_labels(svg, left - 8, top_y, names, row_h)
+    _panel(svg, left, top_y, 950 - left - 14, len(names), row_h, series, (-0.02, 1.02),
+           xlabel="P(A better than B on the same seed); ties count 1/2; 0.5: no difference",
+           vlines=((0.5, "#000", None),), grid=False)
+    return svg.write(folder / "improvement.svg")
 
 
 def _novelty_plot(scores: Scores, folder: Path) -> Path | None:
     nov = _pooled(scores.novelty)
     if nov.empty:
         return None
-    plt = _plt()
     refs = sorted(nov["reference"].unique())
     policies = sorted(nov["policy"].unique())
-    fig, ax = plt.subplots(figsize=(9.5, 1.3 + 0.45 * len(policies)), layout="constrained")
+    row_h = 20.0 + 12.0 * len(refs)
+    left = max(_text_width(p) for p in policies) + 14
+    top_y = 14.0
+    legend_w = max(_text_width(r) for r in [*refs, "reference"]) + 50
+    svg = _Svg(950, top_y + row_h * len(policies) + 44)
+    _row_labels(svg, left - 8, top_y, policies, row_h)
+    series = []
     for k, ref in enumerate(refs):
         sub = nov[nov["reference"] == ref].set_index("policy").reindex(policies)
-        offset = (k - (len(refs) - 1) / 2) * 0.25
-        _interval_plot(ax, policies, sub["novel_rate"] * 100, sub["novel_low"] * 100,
-                       sub["novel_high"] * 100, color=f"C{k}", offset=offset, label=ref)
-    _fit(ax, nov["novel_low"] * 100, nov["novel_high"] * 100, floor=0, ceil=100)
-    ax.invert_yaxis()
-    ax.set_xlabel("novelty rate [%]: share of episodes whose ego label the reference never shows")
-    ax.legend(loc="best", title="reference")
-    ax.grid(axis="x", alpha=0.3)
-    return _save(fig, folder / "novelty.png")
+        series.append(_series(sub, "novel_rate", "novel_low", "novel_high", 100.0,
+                              color=COLORS[k % len(COLORS)],
+                              offset=(k - (len(refs) - 1) / 2) * 0.25))
+    _panel(svg, left, top_y, 950 - left - legend_w - 20, len(policies), row_h, series,
+           _fit(nov["novel_low"] * 100, nov["novel_high"] * 100, floor=0, ceil=100),
+           xlabel="novelty rate [%]: share of episodes whose ego label the reference "
+           "never shows")
+    _legend(svg, 946, top_y, [(ref, COLORS[k % len(COLORS)]) for k, ref in enumerate(refs)],
+            title="reference")
+    return svg.write(folder / "novelty.svg")
 
 
 def write_plots(scores: Scores, folder: str | os.PathLike, *,
                 reference: str | None = None, level: float = 0.95) -> list[Path]:
-    """Write the PNG plots of a scored run into ``folder`` and return their paths
+    """Write the SVG figures of a scored run into ``folder`` and return their paths
     (``level``: the run's interval level, for the legends).
 
-    Per env: ``labels_<env>.png`` (label heat map) and ``measures_<env>.png``; pooled:
-    ``measures_all.png``, ``tradeoff.png`` (crash rate against mean speed, per env),
-    ``improvement.png``, ``coverage.png``, ``forest_<A>_vs_<B>.png`` (a panel per env),
-    ``novelty.png``.
+    Per env: ``labels_<env>.svg`` (label heat map) and ``measures_<env>.svg``; pooled:
+    ``measures_all.svg``, ``tradeoff.png`` (crash rate against mean speed, per env),
+    ``improvement.svg``, ``coverage.svg``, ``forest_<A>_vs_<B>.png`` (a panel per env),
+    ``novelty.svg``.
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

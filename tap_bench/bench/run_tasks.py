@@ -1,6 +1,6 @@
 """The episodes of a suite run as tasks of :mod:`tap_bench.execution` (local worker processes
-or Ray): roll out (or read from the episode cache), label and measure each episode in a
-worker; cached episodes of one env and policy in batches (part of
+or Ray): episodes of one env and policy in batches, each episode rolled out (or read from
+the episode cache) and the batch labelled and measured as one table in a worker (part of
 :mod:`tap_bench.bench.runner`)."""
 
 from __future__ import annotations
@@ -45,10 +45,11 @@ def _prepare_worker(task: _Task) -> None:
             "worker imports it.")
 
 
-def _run_task(task: _Task, note: str | None = None) -> dict[str, Any]:
-    """Roll out (or read from the cache), label and measure one episode (in a worker).
-    ``note``: why a cache entry of this episode was refused already (in a batch)."""
-    _prepare_worker(task)
+def _episode(task: _Task, note: str | None = None
+             ) -> tuple[pd.DataFrame, dict[str, Any], bool, float, str | None]:
+    """One episode of ``task``: (trajectories, its row of the rollout table, whether it was
+    read from the cache, seconds it took, why a cache entry of it was refused), read from
+    the cache or simulated (in a worker). ``note``: why an entry was refused already."""
     t0 = time.perf_counter()
     cached = None
     if task.cache is not None and task.key:
@@ -64,27 +65,8 @@ def _run_task(task: _Task, note: str | None = None) -> dict[str, Any]:
             with contextlib.suppress(OSError):  # a full or read-only cache costs only reuse
                 task.cache.put(task.key, task.key_doc or {}, trajectories, row,
                                time.perf_counter() - t0)
-    trajectories = _run_ids(task, trajectories).reset_index(drop=True)
-    episodes = pd.DataFrame([row], columns=list(EPISODE_COLUMNS))
-    episodes["seed"] = episodes["seed"].astype(np.int64)
-    t1 = time.perf_counter()
-    labels = segments = pd.DataFrame()
-    if len(trajectories):
-        result = tap(trajectories, task.thresholds, interactions="ego",
-                     source=f"{task.env}/{task.policy} rollout")
-        labels = result.labels("all")
-        segments = result.segments(task.level)
-    t2 = time.perf_counter()
-    eps = episode_table(labels=labels if len(labels) else None,
-                        trajectories=trajectories if len(trajectories) else None,
-                        episodes=episodes, level=task.level, policy=task.policy)
-    t3 = time.perf_counter()
-    if row["status"] == "ok":
-        _store_labels(task, eps, labels, segments)
-    timings = {"rollout": t1 - t0, "labelling": t2 - t1, "measures": t3 - t2}
-    return {"episodes": eps, "labels": labels, "segments": segments,
-            "trajectories": trajectories if task.keep_trajectories else None,
-            "timings": timings, "cached": cached is not None, "cache_note": note}
+    return (_run_ids(task, trajectories).reset_index(drop=True), row, cached is not None,
+            time.perf_counter() - t0, note)
 
 
 LABEL_TABLES = ("episodes", "labels", "segments")
@@ -135,6 +117,79 @@ def _run_ids(task: _Task, trajectories: pd.DataFrame) -> pd.DataFrame:
     return trajectories.assign(scenario_id=womd + "/" + task.policy, womd_scenario_id=womd)
 
 
+def _rows(rows: list[dict[str, Any]]) -> pd.DataFrame:
+    episodes = pd.DataFrame(rows, columns=list(EPISODE_COLUMNS))
+    episodes["seed"] = episodes["seed"].astype(np.int64)
+    return episodes
+
+
+def _label_together(tasks: tuple[_Task, ...],
+                    got: list[tuple[pd.DataFrame, dict[str, Any], bool, float, str | None]]
+                    ) -> list[dict[str, Any]]:
+    """Label and measure the episodes ``got`` of ``tasks`` (one env and policy) as one
+    table: one TAP call and one call of the measures for all of them, split back into one
+    result per task. TAP and the measures treat each episode (its scenario_id) on its own,
+    so each result is the one the episode gives alone (tested), at the cost of about one
+    call (``tap`` costs mostly per call on small tables) instead of one per episode."""
+    first = tasks[0]
+    with_rows = [k for k, (trajectories, *_) in enumerate(got) if len(trajectories)]
+    results: list[dict[str, Any]] = [{} for _ in tasks]
+    labels = segments = eps = None
+    if with_rows:
+        t1 = time.perf_counter()
+        trajectories = pd.concat([got[k][0] for k in with_rows], ignore_index=True) \
+            if len(with_rows) > 1 else got[with_rows[0]][0]
+        result = tap(trajectories, first.thresholds, interactions="ego",
+                     source=f"{first.env}/{first.policy} rollout")
+        labels, segments = result.labels("all"), result.segments(first.level)
+        t2 = time.perf_counter()
+        eps = episode_table(labels=labels if len(labels) else None, trajectories=trajectories,
+                            episodes=_rows([got[k][1] for k in with_rows]),
+                            level=first.level, policy=first.policy)
+        t3 = time.perf_counter()
+        share = {"labelling": (t2 - t1) / len(with_rows),
+                 "measures": (t3 - t2) / len(with_rows)}
+        # one episode's rows, in the order its own tap and episode_table calls give them
+        by_episode = {name: _split(table, "scenario_id")
+                      for name, table in (("labels", labels), ("segments", segments))}
+        eps_by_seed = _split(eps, "seed")
+        for k in with_rows:
+            episode_trajectories, row, cached, seconds, note = got[k]
+            sid = episode_trajectories["scenario_id"].iat[0]
+            mine = {"episodes": eps_by_seed[tasks[k].seed],
+                    "labels": by_episode["labels"].get(sid, _empty(labels)),
+                    "segments": by_episode["segments"].get(sid, _empty(segments))}
+            if row["status"] == "ok":
+                _store_labels(tasks[k], mine["episodes"], mine["labels"], mine["segments"])
+            results[k] = {
+                **mine,
+                "trajectories": episode_trajectories if tasks[k].keep_trajectories else None,
+                "timings": {"rollout": seconds, **share}, "cached": cached,
+                "cache_note": note}
+    for k, (_, row, cached, seconds, note) in enumerate(got):
+        if k not in with_rows:  # nothing to label (a failed rollout)
+            t2 = time.perf_counter()
+            eps = episode_table(episodes=_rows([row]), level=tasks[k].level,
+                                policy=tasks[k].policy)
+            results[k] = {"episodes": eps, "labels": pd.DataFrame(),
+                          "segments": pd.DataFrame(), "trajectories": None,
+                          "timings": {"rollout": seconds,
+                                      "measures": time.perf_counter() - t2},
+                          "cached": cached, "cache_note": note}
+    return results
+
+
+def _empty(table: pd.DataFrame) -> pd.DataFrame:
+    return table.iloc[:0].reset_index(drop=True)
+
+
+def _run_task(task: _Task, note: str | None = None) -> dict[str, Any]:
+    """Roll out (or read from the cache), label and measure one episode (in a worker).
+    ``note``: why a cache entry of this episode was refused already."""
+    _prepare_worker(task)
+    return _label_together((task,), [_episode(task, note)])[0]
+
+
 def _failed_task(task: _Task, message: str) -> dict[str, Any]:
     eps = pd.DataFrame({"env": [task.env], "policy": [task.policy], "seed": [task.seed],
                         "status": ["error"], "error": [message]})
@@ -144,63 +199,25 @@ def _failed_task(task: _Task, message: str) -> dict[str, Any]:
 
 
 CACHED_BATCH = 30
-"""Cached episodes of one env and policy labelled and measured together, in one task: TAP
-and the measures cost mostly per call on tables of one episode (about 0.1 s each), so a
-batch of 30 costs about what three single episodes do. The tables are the same."""
+"""Most episodes of one env and policy in one task (:class:`_Batch`). Cached ones are
+batched up to this many: reading them costs little beside labelling."""
+BATCHES_PER_WORKER = 4
+"""Episodes to simulate are batched so that each worker gets about this many tasks (fewer
+tasks, fewer TAP calls; enough of them to keep every worker busy to the end)."""
 
 
 @dataclass(frozen=True)
-class _CachedBatch:
-    """Cached episodes of one env and policy (``tasks``), read, labelled and measured in
-    one worker call; an entry that fails its checks is simulated there instead."""
+class _Batch:
+    """Episodes of one env and policy (``tasks``), each read from the cache or simulated,
+    then labelled and measured together in one worker call (:func:`_label_together`)."""
 
     tasks: tuple[_Task, ...]
 
 
-def _run_batch(batch: _CachedBatch) -> list[dict[str, Any]]:
+def _run_batch(batch: _Batch) -> list[dict[str, Any]]:
     """One result per task of ``batch``, equal to what :func:`_run_task` gives for each."""
     _prepare_worker(batch.tasks[0])
-    t0 = time.perf_counter()
-    first = batch.tasks[0]
-    read = [task.cache.read(task.key) if task.cache is not None and task.key else (None, None)
-            for task in batch.tasks]
-    notes = {task.seed: note for task, (_, note) in zip(batch.tasks, read, strict=True)}
-    found = [(task, entry) for task, (entry, _) in zip(batch.tasks, read, strict=True)
-             if entry is not None]
-    results: dict[int, dict[str, Any]] = {}
-    if found:
-        tables = [_run_ids(task, e.trajectories) for task, e in found]
-        trajectories = pd.concat(tables, ignore_index=True)
-        rows = pd.DataFrame([e.row for _, e in found], columns=list(EPISODE_COLUMNS))
-        rows["seed"] = rows["seed"].astype(np.int64)
-        t1 = time.perf_counter()
-        result = tap(trajectories, first.thresholds, interactions="ego",
-                     source=f"{first.env}/{first.policy} rollout")
-        labels, segments = result.labels("all"), result.segments(first.level)
-        t2 = time.perf_counter()
-        eps = episode_table(labels=labels, trajectories=trajectories, episodes=rows,
-                            level=first.level, policy=first.policy)
-        t3 = time.perf_counter()
-        share = {"rollout": (t1 - t0) / len(found), "labelling": (t2 - t1) / len(found),
-                 "measures": (t3 - t2) / len(found)}
-        # one episode's rows, in the order its own tap and episode_table calls give them
-        by_episode = {name: _split(table, "scenario_id")
-                      for name, table in (("labels", labels), ("segments", segments),
-                                          ("trajectories", trajectories))}
-        eps_by_seed = _split(eps, "seed")
-        for (task, _), table in zip(found, tables, strict=True):
-            sid = table["scenario_id"].iat[0]
-            mine = {"episodes": eps_by_seed[task.seed],
-                    "labels": by_episode["labels"].get(sid, pd.DataFrame()),
-                    "segments": by_episode["segments"].get(sid, pd.DataFrame())}
-            _store_labels(task, mine["episodes"], mine["labels"], mine["segments"])
-            results[task.seed] = {
-                **mine,
-                "trajectories": by_episode["trajectories"][sid]
-                if task.keep_trajectories else None,
-                "timings": dict(share), "cached": True, "cache_note": None}
-    return [results.get(task.seed) or _run_task(task, notes[task.seed])
-            for task in batch.tasks]
+    return _label_together(batch.tasks, [_episode(task) for task in batch.tasks])
 
 
 def _split(table: pd.DataFrame, column: str) -> dict[Any, pd.DataFrame]:
@@ -209,26 +226,29 @@ def _split(table: pd.DataFrame, column: str) -> dict[Any, pd.DataFrame]:
             for key, part in table.groupby(column, sort=False, observed=True)}
 
 
-def _run_item(item: _Task | _CachedBatch) -> list[dict[str, Any]]:
-    """A task of the backend: one episode, or a batch of cached ones."""
-    return _run_batch(item) if isinstance(item, _CachedBatch) else [_run_task(item)]
+def _run_item(item: _Task | _Batch) -> list[dict[str, Any]]:
+    """A task of the backend: one episode, or a batch of them."""
+    return _run_batch(item) if isinstance(item, _Batch) else [_run_task(item)]
 
 
-def _items(tasks: list[_Task], indices: list[int], cached: list[bool]
-           ) -> list[tuple[list[int], _Task | _CachedBatch]]:
-    """The work items of ``tasks[indices]``: each episode to simulate alone, cached ones
-    of one env and policy in batches of up to :data:`CACHED_BATCH`."""
-    items: list[tuple[list[int], _Task | _CachedBatch]] = []
-    groups: dict[tuple[str, str], list[int]] = {}
+def _items(tasks: list[_Task], indices: list[int], cached: list[bool], workers: int = 1
+           ) -> list[tuple[list[int], _Task | _Batch]]:
+    """The work items of ``tasks[indices]``: the episodes of one env and policy in batches,
+    cached ones up to :data:`CACHED_BATCH` a batch, ones to simulate in batches small
+    enough to give each worker about :data:`BATCHES_PER_WORKER` tasks."""
+    to_simulate = sum(not cached[i] for i in indices)
+    size = {True: CACHED_BATCH,
+            False: max(1, min(CACHED_BATCH,
+                              math.ceil(to_simulate / (BATCHES_PER_WORKER * max(1, workers)))))}
+    groups: dict[tuple[str, str, bool], list[int]] = {}
     for i in indices:
-        if cached[i]:
-            groups.setdefault((tasks[i].env, tasks[i].policy), []).append(i)
-        else:
-            items.append(([i], tasks[i]))
-    for members in groups.values():
-        for start in range(0, len(members), CACHED_BATCH):
-            chunk = members[start:start + CACHED_BATCH]
-            items.append((chunk, _CachedBatch(tuple(tasks[i] for i in chunk))))
+        groups.setdefault((tasks[i].env, tasks[i].policy, cached[i]), []).append(i)
+    items: list[tuple[list[int], _Task | _Batch]] = []
+    for (_, _, hit), members in groups.items():
+        for start in range(0, len(members), size[hit]):
+            chunk = members[start:start + size[hit]]
+            items.append((chunk, _Batch(tuple(tasks[i] for i in chunk)) if len(chunk) > 1
+                          else tasks[chunk[0]]))
     return items
 
 
@@ -274,16 +294,27 @@ def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
     plan = _plan(tasks, cached, backend.workers, known, measured)
     if announce is not None:
         announce(plan.describe(suite.name))
-    items = _items(tasks, [i for i in range(len(tasks)) if i not in results], cached)
+    items = _items(tasks, [i for i in range(len(tasks)) if i not in results], cached,
+                   backend.workers)
     outcomes = backend.map(_run_item, [item for _, item in items], unit="task",
                            progress=progress, desc=f"bench {suite.name} ({backend.name})"
                            ) if items else []
+    alone: list[int] = []  # the episodes of a failed batch, tried again one by one
     for (indices, _), outcome in zip(items, outcomes, strict=True):
+        if not outcome.ok and len(indices) > 1:
+            alone += indices
+            continue
         values = outcome.value if outcome.ok else [
             _failed_task(tasks[i], outcome.error) for i in indices]
         for i, value in zip(indices, values, strict=True):
             results[i] = value
             seconds[i] = outcome.seconds / len(indices)
+    if alone:  # one bad episode does not cost the others of its batch
+        outcomes = backend.map(_run_task, [tasks[i] for i in alone], progress=False)
+        for i, outcome in zip(alone, outcomes, strict=True):
+            results[i] = outcome.value if outcome.ok else _failed_task(tasks[i],
+                                                                       outcome.error)
+            seconds[i] = outcome.seconds
     out = [results[i] for i in range(len(tasks))]
     for i, result in enumerate(out):
         result["seconds"] = seconds[i]

@@ -19,7 +19,7 @@ What a run folder holds:
 ``roads.parquet``       each env's road network as a map table (:mod:`tap_bench.maps`), for
                         the replay viewer (with the trajectories)
 ``<table>.parquet``     every table of :class:`tap_bench.bench.scoring.Scores`
-``plots/*.png``         label distributions, measures, coverage, forest plots, novelty
+``plots/*.svg``         label distributions, measures, coverage, forest plots, novelty
 ``report.html``         the static report (no server, images embedded)
 ``viewer/``             the replay viewer (:mod:`tap_bench.bench.viewer`; with the trajectories)
 ``.tap-bench-folder``   the marker that lets ``--overwrite`` replace the folder
@@ -29,10 +29,12 @@ The folder is built under a temporary name beside the target and renamed into pl
 when complete, so an interrupted run leaves nothing that looks finished; an existing run
 folder is never replaced unless ``overwrite`` is given, and then only when tap-bench wrote
 it (its marker is there): any other folder, a file or a link is refused. Episodes run as
-tasks of :mod:`tap_bench.execution` (local worker processes or Ray), one task per (env,
-policy, seed), each labelling its own episode; an episode that fails is recorded with its
-error and left out of the scores, and an episode whose worker dies is tried once more and
-then recorded as failed: one bad episode never costs another. A run where every episode
+tasks of :mod:`tap_bench.execution` (local worker processes or Ray), the episodes of one
+(env, policy) in batches, each batch labelled and measured as one table (the same labels
+and measures as each episode alone, at a fraction of the cost); an episode that fails is
+recorded with its error and left out of the scores, and the episodes of a batch whose worker
+dies are tried again one by one and then recorded as failed: one bad episode never costs
+another. A run where every episode
 failed is an error (:class:`~tap_bench.errors.EpisodesFailedError`), not an empty result.
 
 With an episode cache (:mod:`tap_bench.bench.cache`), an episode whose inputs did not change

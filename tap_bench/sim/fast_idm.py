@@ -13,9 +13,10 @@ rollout. :func:`act_all` gives every vehicle the same action, bit for bit:
 - the steering command and the IDM accelerations, which read only positions, speeds,
   headings and lanes (none of which change during ``Road.act``) and the vehicle's own target
   lane, are then computed for every plain IDM vehicle at once with numpy, with
-  highway-env's formulas term for term in its order of operations (``np.dot`` of two
-  2-vectors is ``a0 * b0 + a1 * b1``; ``max``, ``min`` and ``np.clip`` keep their NaN and
-  signed-zero behaviour);
+  highway-env's formulas term for term in its order of operations (``max``, ``min`` and
+  ``np.clip`` keep their NaN and signed-zero behaviour; ``np.dot`` of two 2-vectors is
+  ``a0 * b0 + a1 * b1`` where the BLAS kernel computes that, and ``np.dot`` row by row
+  where it fuses the multiply-add);
 - a vehicle on a lane that is not straight, or whose class or instance changes any method
   involved, is left to highway-env's own ``act``.
 
@@ -38,11 +39,14 @@ from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import RoadObject
 
-__all__ = ["act_all", "array_kernels_agree", "is_plain_idm"]
+__all__ = ["act_all", "array_kernels_agree", "is_plain_idm", "lane_dots"]
 
 _METHODS = ("act", "follow_road", "change_lane_policy", "mobil", "steering_control",
             "acceleration", "desired_gap", "lane_distance_to")
 """The methods of IDMVehicle that :func:`act_all` stands in for (or runs)."""
+
+_INSTANCE_OVERRIDES = frozenset(_METHODS) | {"velocity", "direction"}
+"""Attributes that, set on an instance, make it act differently from the class."""
 
 _CONSTANTS = attrgetter("KP_LATERAL", "KP_HEADING", "LENGTH", "MAX_STEERING_ANGLE",
                         "ACC_MAX", "COMFORT_ACC_MAX", "COMFORT_ACC_MIN", "DELTA",
@@ -55,14 +59,16 @@ _EPS = 1e-2  # highway_env.utils.not_zero's epsilon
 
 @functools.cache
 def _plain_class(cls: type) -> bool:
-    return all(getattr(cls, name) is getattr(IDMVehicle, name) for name in _METHODS)
+    return (all(getattr(cls, name) is getattr(IDMVehicle, name) for name in _METHODS)
+            and _standard_velocity(cls))
 
 
 def is_plain_idm(vehicle: Any) -> bool:
     """Whether ``vehicle`` acts exactly as highway-env's IDMVehicle: that class or a subclass
     (with other constants) that changes none of its decision methods, on the class or on the
-    instance."""
-    return _plain_class(type(vehicle)) and not (vars(vehicle).keys() & _METHODS)
+    instance), and whose own ``velocity`` and ``direction`` are highway-env's (``desired_gap``
+    reads them; :func:`act_all` computes them from speed and heading)."""
+    return _plain_class(type(vehicle)) and not (vars(vehicle).keys() & _INSTANCE_OVERRIDES)
 
 
 @functools.cache
@@ -73,7 +79,6 @@ def array_kernels_agree() -> bool:
     x = np.concatenate([rng.uniform(-1, 1, 256), rng.uniform(-50, 50, 256)])
     y = rng.uniform(0.5, 60, 512)
     e = rng.uniform(3.5, 4.5, 512)
-    a, b = rng.uniform(-100, 100, (2, 512, 2))
     checks = [
         (np.arcsin(np.clip(x, -1, 1)), [np.arcsin(np.clip(v, -1, 1)) for v in x]),
         (np.arctan(2 * np.tan(x)), [np.arctan(2 * np.tan(v)) for v in x]),
@@ -81,9 +86,34 @@ def array_kernels_agree() -> bool:
         (np.power(y / 30.0, e), [np.power(v / 30.0, w) for v, w in zip(y, e, strict=True)]),
         (np.power(x, 2), [np.power(v, 2) for v in x]),
         (np.remainder(x + np.pi, 2 * np.pi), [(v + np.pi) % (2 * np.pi) for v in x]),
-        (a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1], [np.dot(u, w) for u, w in zip(a, b, strict=True)]),
     ]
     return all(np.array_equal(got, np.array(want, dtype=float)) for got, want in checks)
+
+
+@functools.cache
+def _dot_is_mul_add() -> bool:
+    """Whether ``np.dot`` of two 2-vectors is ``a0 * b0 + a1 * b1`` here. It depends on the
+    BLAS kernel numpy calls (OpenBLAS picks one per CPU; one with fused multiply-adds
+    rounds differently), so it is checked once per process."""
+    a, b = np.random.default_rng(1).uniform(-100, 100, (2, 512, 2))
+    return np.array_equal(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1],
+                          np.array([np.dot(u, w) for u, w in zip(a, b, strict=True)]))
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(n,) ``np.dot(a[k], b[k])`` of (n, 2) rows (``b`` may be one (2,) vector for all),
+    bit for bit: with numpy's arithmetic where the BLAS kernel computes
+    ``a0 * b0 + a1 * b1``, else by ``np.dot`` row by row."""
+    if _dot_is_mul_add():
+        if b.ndim == 1:
+            return a[:, 0] * b[0] + a[:, 1] * b[1]
+        return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]
+    a = np.ascontiguousarray(a, dtype=float)
+    if b.ndim == 1:
+        b = np.ascontiguousarray(b, dtype=float)
+        return np.array([np.dot(u, b) for u in a], dtype=float)
+    b = np.ascontiguousarray(b, dtype=float)
+    return np.array([np.dot(u, w) for u, w in zip(a, b, strict=True)], dtype=float)
 
 
 def _not_zero(x: np.ndarray) -> np.ndarray:
@@ -116,12 +146,14 @@ def _velocity(objects: list[Any]) -> np.ndarray:
     return out
 
 
-def act_all(road: Any) -> None:
+def act_all(road: Any, leaders: Any = None) -> None:
     """highway-env's ``Road.act`` for ``road``: every vehicle decides its action (see the
     module docstring); the same actions, target lanes and timers, bit for bit.
 
     The road's search (``road.neighbour_vehicles``) must not depend on what the vehicles
-    decide (highway-env's does not; tap-bench's FastRoad neither).
+    decide (highway-env's does not; tap-bench's FastRoad neither). ``leaders(vehicles,
+    lane_indices)``, when given, finds the vehicle ahead of each on a lane at once (as
+    ``road.neighbour_vehicles(vehicle, lane_index)[0]`` would).
     """
     network = road.network
     plain = []
@@ -147,7 +179,7 @@ def act_all(road: Any) -> None:
         else:  # highway-env's own arithmetic, after the lane-change policy it already ran
             _act_rest(vehicle)
     if batch:
-        _act_straight(road, batch, lanes, targets)
+        _act_straight(road, batch, lanes, targets, leaders)
 
 
 def _act_rest(vehicle: Any) -> None:
@@ -177,15 +209,21 @@ def _lane_arrays(lanes: list[StraightLane]) -> tuple[np.ndarray, ...]:
     return start, direction, lateral, heading, limit
 
 
+def lane_dots(positions: np.ndarray, lane: StraightLane) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) longitudinal and (n,) lateral coordinates [m] of ``positions`` (n, 2) on a
+    straight ``lane``: ``lane.local_coordinates(p)`` of each, bit for bit."""
+    delta = positions - lane.start
+    return _dot(delta, lane.direction), _dot(delta, lane.direction_lateral)
+
+
 def _along(position: np.ndarray, start: np.ndarray, direction: np.ndarray) -> np.ndarray:
     """StraightLane.local_coordinates(position)[0] of each row: np.dot(position - start,
     direction)."""
-    delta = position - start
-    return delta[:, 0] * direction[:, 0] + delta[:, 1] * direction[:, 1]
+    return _dot(position - start, direction)
 
 
 def _act_straight(road: Any, vehicles: list[Any], lanes: list[StraightLane],
-                  targets: list[StraightLane]) -> None:
+                  targets: list[StraightLane], leaders: Any = None) -> None:
     """The steering and IDM part of ``IDMVehicle.act`` for ``vehicles`` (plain IDM, on
     straight ``lanes``, steering to straight ``targets``), all at once."""
     n = len(vehicles)
@@ -228,19 +266,25 @@ def _act_straight(road: Any, vehicles: list[Any], lanes: list[StraightLane],
         front_position = np.array([f.position for f in ahead], dtype=float)
         d = _along(front_position, l_start[rows], l_direction[rows]) - own_s[rows]
         dv_vec = velocity[rows] - _velocity(ahead)
-        dv = dv_vec[:, 0] * direction[rows, 0] + dv_vec[:, 1] * direction[rows, 1]
+        dv = _dot(dv_vec, direction[rows])
         s = speed[rows]
         d_star = distance_wanted[rows] + s * time_wanted[rows] + s * dv / gap_scale[rows]
         out[rows] = out[rows] - comfort_max[rows] * np.power(d_star / _not_zero(d), 2)
         return out
 
-    search = road.neighbour_vehicles
-    acceleration = accelerations([search(v, v.lane_index)[0] for v in vehicles])
+    if leaders is None:
+        def leaders(ask: list[Any], lane_indices: list[Any]) -> list[Any]:
+            return [road.neighbour_vehicles(v, li)[0]
+                    for v, li in zip(ask, lane_indices, strict=True)]
+
+    acceleration = accelerations(leaders(vehicles, [v.lane_index for v in vehicles]))
     changing = [k for k, v in enumerate(vehicles) if v.lane_index != v.target_lane_index]
     if changing:
         fronts: list[Any] = [None] * n
-        for k in changing:
-            fronts[k] = search(vehicles[k], vehicles[k].target_lane_index)[0]
+        found = leaders([vehicles[k] for k in changing],
+                        [vehicles[k].target_lane_index for k in changing])
+        for k, front in zip(changing, found, strict=True):
+            fronts[k] = front
         on_target = accelerations(fronts)
         for k in changing:  # min(a, b): b only when smaller
             if on_target[k] < acceleration[k]:

@@ -20,7 +20,9 @@ every vehicle looks up its lane by computing its distance to every lane of the n
   in the last bit (BLAS may fuse the multiply-add), which the tolerance (1 micrometre,
   about 1e9 times that rounding at highway-env's scale) absorbs, so the decisions are
   exactly highway-env's;
-- the IDM/MOBIL vehicles decide their actions all at once (:mod:`tap_bench.sim.fast_idm`);
+- the IDM/MOBIL vehicles decide their actions all at once (:mod:`tap_bench.sim.fast_idm`),
+  their leaders found together (:meth:`FastRoad.leaders`), on roads of at least
+  :data:`AT_ONCE_FROM` vehicles (on smaller ones highway-env's loops cost less);
 - the collision loop skips the pairs in which neither vehicle checks collisions (the first
   thing highway-env's ``handle_collisions`` does for such a pair is return) and the pairs
   farther apart, by more than :data:`TOLERANCE`, than highway-env's spherical pre-check
@@ -46,16 +48,20 @@ from typing import Any
 import numpy as np
 from highway_env.road.lane import StraightLane
 from highway_env.road.road import Road
-from highway_env.vehicle.objects import Landmark
+from highway_env.vehicle.objects import Landmark, RoadObject
 
-from tap_bench.sim.fast_idm import act_all, array_kernels_agree
+from tap_bench.sim.fast_idm import act_all, array_kernels_agree, lane_dots
 
-__all__ = ["TOLERANCE", "FastRoad", "use_fast_road"]
+__all__ = ["AT_ONCE_FROM", "TOLERANCE", "FastRoad", "use_fast_road"]
 
 TOLERANCE = 1e-6
 """Margin [m] by which a vehicle's numpy projection may be off and still be re-checked."""
 
 _MARGIN = 1.0  # highway-env's on-lane margin in neighbour_vehicles [m]
+AT_ONCE_FROM = 8
+"""Fewest vehicles on a road for which decisions and collision checks are done all at once
+(numpy); on smaller roads highway-env's loops cost less than numpy's fixed costs (the
+answers are the same either way)."""
 
 
 class FastRoad:
@@ -77,6 +83,8 @@ class FastRoad:
         self._count = 0
         self._positions: np.ndarray | None = None
         self._lanes: dict[Any, tuple[list[float], list[float], list[int]] | None] = {}
+        self._exact: dict[Any, tuple[np.ndarray, np.ndarray]] = {}
+        self._index_of: dict[int, int] | None = None
         self._flat: list[tuple[Any, ...]] = []
         self._decide_at_once = array_kernels_agree()
 
@@ -130,9 +138,14 @@ class FastRoad:
         """highway-env's ``Road.step``: move every vehicle by ``dt`` [s], then check the
         pairs in which a vehicle checks collisions, in highway-env's order."""
         vehicles, objects = self.road.vehicles, self.road.objects
+        if not all(map(_standard_collisions, vehicles + objects)):
+            # a class with its own collision rule: every pair, as highway-env does
+            Road.step(self.road, dt)
+            return
         for vehicle in vehicles:
             vehicle.step(dt)
-        near = _near_pairs(vehicles, objects, dt)
+        near = _near_pairs(vehicles, objects, dt) \
+            if len(vehicles) + len(objects) >= AT_ONCE_FROM else None
         if near is not None:
             everyone = vehicles + objects
             # each vehicle with the vehicles after it, then with every object, in order
@@ -156,13 +169,15 @@ class FastRoad:
         self._count = len(self.road.vehicles) + len(self.road.objects)
         self._others, self._positions = self._snapshot()
         try:
-            if self._decide_at_once:
-                act_all(self.road)
+            if self._decide_at_once and len(self.road.vehicles) >= AT_ONCE_FROM:
+                act_all(self.road, leaders=self.leaders)
             else:
                 Road.act(self.road)
         finally:
             self._others = self._positions = None
             self._lanes.clear()
+            self._exact.clear()
+            self._index_of = None
 
     def _snapshot(self) -> tuple[list[Any], np.ndarray | None]:
         """The road's vehicles and objects a search may return (not Landmarks), in the
@@ -171,6 +186,60 @@ class FastRoad:
                   if not isinstance(v, Landmark)]
         positions = np.array([v.position for v in others], dtype=float) if others else None
         return others, positions
+
+    def leaders(self, vehicles: list[Any], lane_indices: list[Any]) -> list[Any | None]:
+        """The vehicle ahead of each of ``vehicles`` on its lane of ``lane_indices`` (None:
+        its own): ``neighbour_vehicles(vehicle, lane_index)[0]`` for each, the same objects.
+
+        During ``Road.act``, on straight lanes, every other vehicle's lane coordinates are
+        computed once per lane with highway-env's arithmetic (:func:`fast_idm.lane_dots
+        <tap_bench.sim.fast_idm.lane_dots>`: the bits of its ``np.dot``), and each leader is
+        the nearest on-lane vehicle at or ahead of the querying one, the last in road order
+        among equals, as highway-env's loop keeps it. Otherwise each is asked of
+        :meth:`neighbour_vehicles`.
+        """
+        road = self.road
+        out: list[Any | None] = [None] * len(vehicles)
+        if self._others is None or road.neighbour_vehicles_connected_lanes \
+                or self._count != len(road.vehicles) + len(road.objects) or not self._others:
+            return [self.neighbour_vehicles(v, li)[0] for v, li in
+                    zip(vehicles, lane_indices, strict=True)]
+        if self._index_of is None:
+            self._index_of = {id(v): i for i, v in enumerate(self._others)}
+        groups: dict[Any, list[int]] = {}
+        for k, (vehicle, lane_index) in enumerate(zip(vehicles, lane_indices, strict=True)):
+            lane_index = lane_index or vehicle.lane_index
+            if lane_index:
+                groups.setdefault(lane_index, []).append(k)
+        for lane_index, ks in groups.items():
+            lane = road.network.get_lane(lane_index)
+            if type(lane) is not StraightLane:
+                for k in ks:
+                    out[k] = self.neighbour_vehicles(vehicles[k], lane_index)[0]
+                continue
+            if lane_index not in self._exact:
+                along, across = lane_dots(self._positions, lane)
+                on = (np.abs(across) <= lane.width_at(0.0) / 2 + _MARGIN) \
+                    & (-lane.VEHICLE_LENGTH <= along) \
+                    & (along < lane.length + lane.VEHICLE_LENGTH)
+                self._exact[lane_index] = along, on
+            along, on = self._exact[lane_index]
+            queries = np.array([vehicles[k].position for k in ks], dtype=float)
+            s_q = lane_dots(queries, lane)[0]
+            ahead = on[None, :] & (s_q[:, None] <= along[None, :])
+            me = [(row, self._index_of.get(id(vehicles[k]))) for row, k in enumerate(ks)]
+            me = [(row, i) for row, i in me if i is not None]
+            if me:  # not the vehicle itself
+                rows, cols = zip(*me, strict=True)
+                ahead[list(rows), list(cols)] = False
+            nearest = np.where(ahead, along[None, :], np.inf).min(axis=1)
+            last = ahead & (along[None, :] == nearest[:, None])
+            found = last.any(axis=1)
+            # highway-env keeps the last of equally near ones (in road order)
+            pick = last.shape[1] - 1 - np.argmax(last[:, ::-1], axis=1)
+            for row in np.flatnonzero(found).tolist():
+                out[ks[row]] = self._others[int(pick[row])]
+        return out
 
     def neighbour_vehicles(self, vehicle: Any, lane_index: Any = None
                            ) -> tuple[Any | None, Any | None]:
@@ -224,6 +293,16 @@ class FastRoad:
             if sv < s and (s_rear is None or sv > s_rear):
                 s_rear, v_rear = sv, v
         return v_front, v_rear
+
+
+def _standard_collisions(obj: Any) -> bool:
+    """Whether ``obj`` checks collisions with highway-env's own rule
+    (``RoadObject.handle_collisions`` and ``_is_colliding``, on neither its class nor the
+    instance replaced): the rule the pair pruning of :meth:`FastRoad.step` assumes."""
+    cls = type(obj)
+    return (getattr(cls, "handle_collisions", None) is RoadObject.handle_collisions
+            and getattr(cls, "_is_colliding", None) is RoadObject._is_colliding
+            and not {"handle_collisions", "_is_colliding"} & vars(obj).keys())
 
 
 def _near_pairs(vehicles: list[Any], objects: list[Any], dt: float) -> np.ndarray | None:

@@ -16,17 +16,12 @@ The TAP paper's sections 4.2, 6.3 and 6.4 and the Scenario2Vector scenario dista
 
 from __future__ import annotations
 
+import importlib
+import sys
+import types
+from typing import Any
+
 from tap_bench.sdl import parse_sdl
-from tap_bench.similarity.evaluate import Evaluation, evaluate
-from tap_bench.similarity.figures import write_evaluation
-from tap_bench.similarity.nearest import (
-    Neighbours,
-    ade_nearest,
-    brute_force_nearest,
-    compile_kernels,
-    dtw_nearest,
-    time_comparisons,
-)
 from tap_bench.similarity.scenario_sdl import (
     WEIGHTS,
     ScenarioDescription,
@@ -50,8 +45,40 @@ from tap_bench.similarity.search import (
     search,
     search_like,
 )
-from tap_bench.similarity.shape import Shapes, ade, dtw, normalised_shapes
 from tap_bench.similarity.unique import label_counts, unique_labels
+
+_LAZY = {  # name: module. These need numba and are imported when first used: the runner's
+    # workers and the scoring, which need only the label distances, do not load it
+    "Evaluation": "evaluate", "evaluate": "evaluate", "write_evaluation": "figures",
+    "Neighbours": "nearest", "ade_nearest": "nearest", "brute_force_nearest": "nearest",
+    "compile_kernels": "nearest", "dtw_nearest": "nearest", "time_comparisons": "nearest",
+    "Shapes": "shape", "ade": "shape", "dtw": "shape", "normalised_shapes": "shape",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(importlib.import_module(f"tap_bench.similarity.{_LAZY[name]}"), name)
+    raise AttributeError(f"module 'tap_bench.similarity' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY})
+
+
+class _Package(types.ModuleType):
+    """``tap_bench.similarity.evaluate`` is the function that ``from tap_bench.similarity
+    import evaluate`` promises, also after its submodule has been imported (the import
+    system then sets the package's attribute to the submodule, which is refused here; the
+    submodule stays in ``sys.modules``)."""
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name in _LAZY and isinstance(value, types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
 
 __all__ = [
     # label distances and search

@@ -164,3 +164,11 @@ def test_code_loaded_from_the_user_package_is_followed(inputs, monkeypatch):
     # third-party and tap-bench modules are keyed by their versions, not file by file
     assert not any(name.split(".")[0] in ("highway_env", "tap_bench", "numpy")
                    for name in files)
+
+
+def test_the_simulation_code_holds_what_recorded_scenes_are_built_from():
+    """An edit to the road map of a recorded scene or to a record decoder re-simulates."""
+    package = Path(cache_module.__file__).resolve().parent.parent
+    names = {path.relative_to(package).as_posix() for path in cache_module._simulation_modules()}
+    assert {"womd/roadmap.py", "womd/scenario.py", "womd/tf_example.py",
+            "sources/scenarionet.py", "sim/womd_road.py", "trajectories.py"} <= names

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
+from xml.etree import ElementTree
 
 import numpy as np
 import pandas as pd
@@ -54,9 +55,18 @@ def run_folder(tmp_path_factory) -> Path:
 def test_report_is_written_with_embedded_images(run_folder):
     folder = run_folder
     page = (folder / "report.html").read_text()
+    figures = sorted((folder / "plots").glob("*.svg"))
     pngs = sorted((folder / "plots").glob("*.png"))
-    assert len(pngs) >= 6
+    assert len(figures) >= 6 and pngs  # SVG, and the forest and trade-off views as PNG
+    assert page.count('<svg role="img"') == len(figures)  # every figure inline
     assert page.count("data:image/png;base64,") == len(pngs)
+    for path in figures:  # each well-formed, sized, with text and marks
+        root = ElementTree.fromstring(path.read_text())
+        assert root.tag.endswith("svg") and int(root.get("width")) > 100
+        assert int(root.get("height")) > 50
+        assert root.findall(".//{http://www.w3.org/2000/svg}text")
+        assert root.findall(".//{http://www.w3.org/2000/svg}circle") or \
+            root.findall(".//{http://www.w3.org/2000/svg}rect")
     assert "RuntimeError: boom" in page  # the failed episode is listed
     assert "<script src" not in page and 'src="http' not in page  # nothing from the network
     assert page.index('id="summary"') < page.index('id="paired"')  # the summary comes first
@@ -88,6 +98,11 @@ def test_report_renders_in_headless_chromium(run_folder, tmp_path):
         rows = driver.execute_script(
             "return document.querySelector('#coverage tbody').rows.length")
         assert rows == len(pd.read_parquet(folder / "coverage.parquet"))
+        figures = driver.execute_script(
+            "return Array.from(document.querySelectorAll('figure svg')).map(s => "
+            "s.getBoundingClientRect().width)")
+        assert len(figures) == len(list((folder / "plots").glob("*.svg")))
+        assert all(shown > 100 for shown in figures)
         images = driver.execute_script(
             "return Array.from(document.images).map(i => [i.complete, i.naturalWidth, "
             "i.getBoundingClientRect().width])")

@@ -56,7 +56,7 @@ def test_run_folder_holds_tables_summary_plots_and_report(flaky_run):
                  "paired_measures", "paired_labels", "coverage", "novelty"):
         assert (folder / f"{name}.parquet").is_file(), name
     assert (folder / "report.html").is_file()
-    assert sorted(p.name for p in (folder / "plots").glob("*.png"))
+    assert sorted(p.name for p in (folder / "plots").glob("*.svg"))
     summary = json.loads((folder / "summary.json").read_text())
     assert summary["seeds"] == [0, 1, 2]
     assert summary["level"] == "maneuver"
@@ -118,3 +118,38 @@ def test_a_named_label_table_is_a_reference(tmp_path):
                            progress=False, report=False, references={"my corpus": mine})
     assert "my corpus" in set(result.scores.coverage["reference"])
     assert result.summary["references"] == {"my corpus": f"a label table of {len(mine)} rows"}
+
+
+@pytest.mark.parametrize("env", ["highway", "merge", "roundabout"])
+def test_a_batch_labels_and_measures_each_episode_as_it_does_alone(env):
+    """The runner labels and measures the episodes of one env and policy as one table: each
+    episode's labels, segments and measures equal, float for float, those of the episode
+    alone, whatever the batch holds and in whatever order (crashes and lane changes
+    included: the random policy crashes, IDM changes lanes)."""
+    from tap_bench.bench.run_plan import _tasks, plan_suite
+    from tap_bench.bench.run_tasks import _Batch, _run_batch, _run_task
+
+    suite = suite_from_dict({"name": "batch", "envs": [env], "policies": ["idm", "random"],
+                             "seeds": "0-3", "env_overrides": {env: {"duration": 10}}},
+                            check_names=False)
+    tasks = _tasks(plan_suite(suite), True, None)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        alone = [_run_task(task) for task in tasks]
+        rng = np.random.default_rng(len(env))
+        batches = []
+        for policy in ("idm", "random"):
+            members = [i for i, task in enumerate(tasks) if task.policy == policy]
+            batches.append(members)  # the whole group, in order
+            batches.append(list(rng.permutation(members)[:3]))  # some of it, shuffled
+        for members in batches:
+            together = _run_batch(_Batch(tuple(tasks[i] for i in members)))
+            for i, result in zip(members, together, strict=True):
+                for name in ("episodes", "labels", "segments", "trajectories"):
+                    pd.testing.assert_frame_equal(result[name], alone[i][name],
+                                                  check_exact=True, obj=f"{name} of {i}")
+    crashed = pd.concat([r["episodes"] for r in alone])["crashed"]
+    assert not crashed.all()
+    if env == "highway":  # a crash is compared too
+        assert crashed.any()
+    assert all(len(r["labels"]) for r in alone)

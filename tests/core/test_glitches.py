@@ -221,3 +221,13 @@ def test_fit_refuses_an_impossible_speed(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "bad.parquet" in err and "speed is 1e+30 m/s at row 5" in err
     assert not (tmp_path / "th.json").exists()
+
+
+def test_the_reviews_reversing_car_backs_8_8_m_turning_52_degrees():
+    # the review's real case, rebuilt: 1 m/s backwards for 8.8 s along a path turning 52
+    # degrees to the right; labelled Straight | Maintain Speed before SPEC 4.6
+    n = 89
+    table = from_controls(np.full(n, 1.0), np.full(n, -np.radians(52) / 8.8),
+                          heading0=np.pi, track_id="backing")
+    table["heading"] = np.angle(np.exp(1j * (table["heading"] - np.pi)))
+    assert tb.label(table, level="maneuver")["sdl"].item() == "Right Turn | Reversing"

@@ -16,12 +16,14 @@ import pytest
 
 import tap_bench
 import tap_bench.sim
+import tap_bench.similarity
 from tap_bench.cli import COMMANDS, build_parser, main
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.mark.parametrize("package", [tap_bench, tap_bench.sim], ids=lambda p: p.__name__)
+@pytest.mark.parametrize("package", [tap_bench, tap_bench.sim, tap_bench.similarity],
+                         ids=lambda p: p.__name__)
 def test_every_public_name_resolves(package):
     for name in package.__all__:
         value = getattr(package, name)
@@ -90,3 +92,12 @@ def test_help_lists_every_command_and_a_typo_is_refused(capsys):
         main(["labl", "x"])
     assert exit_.value.code == 2
     assert "invalid choice: 'labl'" in capsys.readouterr().err
+
+
+def test_the_runners_workers_and_scoring_do_not_load_numba(tmp_path):
+    """A worker of ``bench run`` imports the task module (and through it the scoring): the
+    label distances, not the ADE / DTW kernels that need numba."""
+    loaded = _loaded_after("import tap_bench.bench.run_tasks, tap_bench.bench.scoring",
+                           tmp_path)
+    assert "numba" not in loaded
+    assert "numba" in _loaded_after("from tap_bench.similarity import ade_nearest", tmp_path)

@@ -39,7 +39,10 @@ def test_a_policy_name_that_is_invalid_matplotlib_math_gets_its_report(tmp_path)
         warnings.simplefilter("ignore")
         result = run_suite(suite, tmp_path / "run", workers=1, progress=False)
     html = result.report.read_text()
-    assert "idm$^{" in html and list((tmp_path / "run" / "plots").glob("*.png"))
+    figures = list((tmp_path / "run" / "plots").glob("*.svg"))
+    assert "idm$^{" in html and figures
+    assert any("cost $\\frac$ x" in path.read_text() for path in figures)  # drawn as text
+    assert list((tmp_path / "run" / "plots").glob("*.png"))  # the matplotlib ones too
 
 
 def _womd(path, scenario_id: str):

@@ -17,9 +17,11 @@ from tap_bench.sim.idm import IDMParameters, take_over_ego
 
 
 def _episodes(name: str, *, fast_road: bool, fast: bool = False, seeds=(0, 1),
-              idm_ego: IDMParameters | None = None, **config) -> pd.DataFrame:
+              idm_ego: IDMParameters | None = None, others: type | None = None,
+              **config) -> pd.DataFrame:
     """Every vehicle's state after every decision, with the ego's reward and observation
-    (``idm_ego``: the ego is an IDM/MOBIL vehicle with these parameters)."""
+    (``idm_ego``: the ego is an IDM/MOBIL vehicle with these parameters; ``others``: the
+    class the other vehicles are given after the reset)."""
     env = make_env(name, config=config or None, duration=8, record=not fast, fast=fast)
     rows = []
     for seed in seeds:
@@ -27,6 +29,9 @@ def _episodes(name: str, *, fast_road: bool, fast: bool = False, seeds=(0, 1),
         if idm_ego is not None:
             take_over_ego(env, idm_ego)
         road = env.unwrapped.road
+        if others is not None:
+            for vehicle in road.vehicles[1:]:
+                vehicle.__class__ = others
         if not fast_road:  # back to highway-env's own methods
             for method in ("act", "step", "neighbour_vehicles"):
                 vars(road).pop(method, None)
@@ -45,6 +50,16 @@ def _episodes(name: str, *, fast_road: bool, fast: bool = False, seeds=(0, 1),
     return pd.DataFrame(rows)
 
 
+@pytest.fixture(params=["at once", "default"])
+def _small_roads_at_once(request, monkeypatch):
+    """Every road decides at once (AT_ONCE_FROM = 0), or only those big enough."""
+    from tap_bench.sim import fast_road
+
+    if request.param == "at once":
+        monkeypatch.setattr(fast_road, "AT_ONCE_FROM", 0)
+
+
+@pytest.mark.usefixtures("_small_roads_at_once")
 @pytest.mark.parametrize(("name", "fast", "config"), [
     ("highway", False, {}), ("highway", True, {}),
     ("highway", True, {"vehicles_count": 50, "lanes_count": 4}),
@@ -59,6 +74,45 @@ def test_scenarios_simulate_bit_for_bit_as_with_highway_envs_road(name, fast, co
     pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
     if name == "highway" and not fast:
         assert ours[8].any()  # crashes happen in these episodes: collisions are compared
+
+
+class _SlipIDM(IDMVehicle):
+    """A user's vehicle whose velocity has a slip angle (desired_gap reads it)."""
+
+    @property
+    def velocity(self) -> np.ndarray:
+        return self.speed * np.array([np.cos(self.heading + 0.05), np.sin(self.heading + 0.05)])
+
+
+class _TurnedIDM(IDMVehicle):
+    """A user's vehicle whose direction is not its heading's (desired_gap projects on it)."""
+
+    @property
+    def direction(self) -> np.ndarray:
+        return np.array([np.cos(self.heading - 0.1), np.sin(self.heading - 0.1)])
+
+
+class _BubbleIDM(IDMVehicle):
+    """A user's vehicle with its own collision rule: a crash within its length + 6 m."""
+
+    def _is_colliding(self, other, dt):
+        if np.linalg.norm(other.position - self.position) < self.LENGTH + 6:
+            return True, False, np.zeros(2)
+        return False, False, np.zeros(2)
+
+
+@pytest.mark.parametrize("fast", [False, True])
+@pytest.mark.parametrize("others", [_SlipIDM, _TurnedIDM, _BubbleIDM])
+def test_user_vehicle_classes_simulate_as_with_highway_envs_road(others, fast):
+    """A class that changes what the fast paths compute themselves (its own velocity or
+    direction, its own collision rule) is left to highway-env: the same states and crashes."""
+    ours = _episodes("highway", fast_road=True, fast=fast, others=others,
+                     vehicles_count=30)
+    theirs = _episodes("highway", fast_road=False, fast=fast, others=others,
+                       vehicles_count=30)
+    pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
+    if others is _BubbleIDM:
+        assert ours[8].any() and not ours[8].all()
 
 
 @pytest.mark.parametrize(("name", "params"), [
@@ -102,7 +156,7 @@ def test_the_vehicles_decide_at_once():
 
 
 @pytest.mark.parametrize("mutation", ["steering", "acceleration", "lane coordinate",
-                                      "not zero", "velocity"])
+                                      "not zero", "velocity", "leader"])
 def test_a_changed_formula_is_caught(monkeypatch, mutation):
     """The comparison sees a change of one ulp in any action, or a changed term of the
     vectorised formulas: the bit-for-bit tests can fail."""
@@ -111,8 +165,8 @@ def test_a_changed_formula_is_caught(monkeypatch, mutation):
     if mutation in ("steering", "acceleration"):
         act = fast_idm._act_straight
 
-        def one_ulp_off(road, vehicles, lanes, targets):
-            act(road, vehicles, lanes, targets)
+        def one_ulp_off(road, vehicles, lanes, targets, leaders=None):
+            act(road, vehicles, lanes, targets, leaders)
             for vehicle in vehicles:
                 vehicle.action[mutation] = np.nextafter(vehicle.action[mutation], np.inf)
 
@@ -125,9 +179,17 @@ def test_a_changed_formula_is_caught(monkeypatch, mutation):
         not_zero = fast_idm._not_zero
         monkeypatch.setattr(fast_idm, "_not_zero",
                             lambda x: np.nextafter(not_zero(x), np.inf))
-    else:
+    elif mutation == "velocity":
         velocity = fast_idm._velocity
         monkeypatch.setattr(fast_idm, "_velocity", lambda objects: velocity(objects) * 1.01)
+    else:  # the leaders found at once: one vehicle's leader missed
+        leaders = FastRoad.leaders
+
+        def one_missed(self, vehicles, lane_indices):
+            found = leaders(self, vehicles, lane_indices)
+            return [None, *found[1:]] if found else found
+
+        monkeypatch.setattr(FastRoad, "leaders", one_missed)
     ours = _episodes("highway", fast_road=True, idm_ego=IDMParameters(), seeds=(0,))
     theirs = _episodes("highway", fast_road=False, idm_ego=IDMParameters(), seeds=(0,))
     with pytest.raises(AssertionError):
@@ -243,10 +305,17 @@ def test_only_highway_envs_own_road_gets_the_index():
     assert not use_fast_road(intersection)
 
 
-def test_collisions_are_checked_in_highway_envs_order_whoever_checks_them():
+@pytest.mark.parametrize("at_once_from", [0, 100])
+def test_collisions_are_checked_in_highway_envs_order_whoever_checks_them(monkeypatch,
+                                                                         at_once_from):
     """Vehicles that check collisions anywhere in the road's list (an ego entered late, a
-    scripted vehicle): the same crashes and impacts as highway-env's loop over all pairs."""
+    scripted vehicle): the same crashes and impacts as highway-env's loop over all pairs,
+    with the pairs pruned at once (numpy) or not (a small road)."""
     import copy
+
+    from tap_bench.sim import fast_road
+
+    monkeypatch.setattr(fast_road, "AT_ONCE_FROM", at_once_from)
 
     for checks in ([False, True, False, False, True, False], [True] * 6, [False] * 6,
                    [False, False, False, False, False, True]):
@@ -357,3 +426,52 @@ def test_only_straight_networks_get_the_fast_lane_lookup():
     env = make_env("highway", record=False, duration=2)
     env.reset(seed=0)
     assert "get_closest_lane_index" in vars(env.unwrapped.road.network)
+
+
+@pytest.mark.parametrize("mul_add", [True, False])
+def test_either_dot_product_simulates_bit_for_bit(monkeypatch, mul_add):
+    """np.dot of 2-vectors is a0 * b0 + a1 * b1 with some BLAS kernels and a fused
+    multiply-add with others (OpenBLAS picks by CPU): both ways of computing it give
+    highway-env's simulation (run this file with and without OPENBLAS_CORETYPE=Haswell to
+    meet both kernels)."""
+    from tap_bench.sim import fast_idm
+
+    if mul_add and not fast_idm._dot_is_mul_add():
+        pytest.skip("this machine's BLAS fuses the multiply-add")
+    monkeypatch.setattr(fast_idm, "_dot_is_mul_add", lambda: mul_add)
+    ours = _episodes("highway", fast_road=True, idm_ego=IDMParameters(), seeds=(2,))
+    theirs = _episodes("highway", fast_road=False, idm_ego=IDMParameters(), seeds=(2,))
+    pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
+
+
+@pytest.mark.parametrize("angle", [0.0, 0.3])
+def test_leaders_found_at_once_are_highway_envs_ties_edges_and_objects(angle):
+    """FastRoad.leaders (every vehicle's leader on a lane at once, during Road.act): the
+    objects highway-env's search returns, with ties (the last in road order wins), the
+    lane's edges and ends, an obstacle and a landmark (never returned), on slanted lanes."""
+    half = StraightLane.DEFAULT_WIDTH / 2 + 1.0
+    positions = [(100, 0), (100, 0), (130, 0), (130, 0.5), (70, 0), (70, -0.5),
+                 (160, half), (160.5, half + 1e-9), (40, -half), (100 + 1e-12, 0),
+                 (100 - 1e-12, 4), (-5, 0), (-5 - 1e-9, 0), (505 - 1e-9, 0), (505, 0),
+                 (200, 4), (220, 8), (130, 4), (130, 4.2)]
+    rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    obstacle = Obstacle(None, rotation @ np.array([115.0, 0.0]))
+    landmark = Landmark(None, rotation @ np.array([105.0, 0.0]))
+    road, vehicles = _straight_road(positions, objects=[obstacle, landmark], angle=angle)
+    obstacle.road = landmark.road = road
+    index = FastRoad(road)
+    checked = []
+
+    def ask_all(*args):
+        for lane_index in (("a", "b", 0), ("a", "b", 1), None):
+            lanes = [lane_index] * len(vehicles)
+            expected = [Road.neighbour_vehicles(road, v, lane_index)[0] for v in vehicles]
+            assert index.leaders(vehicles, lanes) == expected
+            checked.extend(expected)
+
+    road.vehicles[0].act = ask_all  # asked while the road acts
+    index.act()
+    assert len(checked) == 3 * len(vehicles)
+    assert any(v is obstacle for v in checked) and not any(v is landmark for v in checked)
+    outside = index.leaders(vehicles, [None] * len(vehicles))  # outside act: one by one
+    assert outside == [Road.neighbour_vehicles(road, v)[0] for v in vehicles]

@@ -25,11 +25,15 @@ def test_report_reads_summary_first_legibly(tiny_run, browser, screenshots):
         "n.textContent.trim()) && parseFloat(getComputedStyle(e).fontSize) < 10)"
         ".map(e => e.tagName + ': ' + e.textContent.slice(0, 40))")
     assert small == []
-    # figures are shown at their drawn size (their 8.5 pt text stays about 12 px)
+    # figures (inline SVG) are shown at their drawn size (their 12 px text stays 12 px)
+    figures = browser.execute_script(
+        "return Array.from(document.querySelectorAll('figure svg')).map(s => "
+        "[parseFloat(s.getAttribute('width')), s.getBoundingClientRect().width])")
+    assert figures and all(shown >= 0.95 * drawn for drawn, shown in figures)
     images = browser.execute_script(
         "return Array.from(document.images).map(i => [i.naturalWidth, "
         "i.getBoundingClientRect().width])")
-    assert images and all(shown >= 0.95 * natural for natural, shown in images)
+    assert all(shown >= 0.95 * natural for natural, shown in images)
     # no table is wider than the page's column
     wide = browser.execute_script(
         "return Array.from(document.querySelectorAll('.scroll')).filter(d => "

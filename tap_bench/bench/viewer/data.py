@@ -143,94 +143,117 @@ def _segments_by_track(segments: pd.DataFrame | None) -> dict[tuple[str, str], l
     return out
 
 
-def _track_record(track: pd.DataFrame, step0: int, origin: np.ndarray, step: float,
-                  is_ego: bool) -> dict[str, Any]:
-    steps = np.rint(track["t"].to_numpy(float) * HZ).astype(np.int64) - step0
+def _track_record(cols: Mapping[str, np.ndarray], rows: np.ndarray, step0: int,
+                  origin: np.ndarray, step: float, is_ego: bool) -> dict[str, Any]:
+    """One track (the table's ``rows`` of it, in time order) as the viewer's record."""
+    steps = np.rint(cols["t"][rows] * HZ).astype(np.int64) - step0
     first = int(steps.min())
     n = int(steps.max()) - first + 1
     x = np.full(n, np.nan)
     y = np.full(n, np.nan)
     h = np.full(n, np.nan)
-    valid = np.ones(len(track), bool)
-    if "valid" in track.columns:
-        valid = track["valid"].fillna(False).to_numpy(bool)
+    valid = cols["valid"][rows] if "valid" in cols else np.ones(len(rows), bool)
     idx = steps[valid] - first
-    x[idx] = track["x"].to_numpy(float)[valid] - origin[0]
-    y[idx] = track["y"].to_numpy(float)[valid] - origin[1]
-    h[idx] = track["heading"].to_numpy(float)[valid]
+    kept = rows[valid]
+    x[idx] = cols["x"][kept] - origin[0]
+    y[idx] = cols["y"][kept] - origin[1]
+    h[idx] = cols["heading"][kept]
     h = np.mod(h + np.pi, 2 * np.pi) - np.pi
     qx = _quantise(x, step)
     qy = _quantise(y, step)
     qh = _quantise(h, np.pi / 32767)
     qh[qx == MISSING] = MISSING
-    length = VEHICLE_LENGTH
-    width = VEHICLE_WIDTH
-    for col, default in (("length", VEHICLE_LENGTH), ("width", VEHICLE_WIDTH)):
-        if col in track.columns:
-            v = track[col].to_numpy(float)[valid]
+    size = {"length": VEHICLE_LENGTH, "width": VEHICLE_WIDTH}
+    for col in size:
+        if col in cols:
+            v = cols[col][kept]
             v = v[np.isfinite(v) & (v > 0)]
-            value = float(np.median(v)) if len(v) else default
-            if col == "length":
-                length = value
-            else:
-                width = value
-    kind = "vehicle"
-    if "object_type" in track.columns and len(track):
-        kind = str(track["object_type"].iloc[0])
-    return {"id": str(track["track_id"].iloc[0]), "ego": bool(is_ego),
-            "type": _TYPE_CODES.get(kind, "o"), "len": round(length, 2), "wid": round(width, 2),
-            "s0": first, "n": n, "xyh": encode_int16(np.concatenate([qx, qy, qh]))}
+            if len(v):
+                size[col] = float(np.median(v))
+    kind = str(cols["object_type"][rows[0]]) if "object_type" in cols and len(rows) \
+        else "vehicle"
+    return {"id": str(cols["track_id"][rows[0]]), "ego": bool(is_ego),
+            "type": _TYPE_CODES.get(kind, "o"), "len": round(size["length"], 2),
+            "wid": round(size["width"], 2), "s0": first, "n": n,
+            "xyh": encode_int16(np.concatenate([qx, qy, qh]))}
 
 
-def _episode_record(sid: str, table: pd.DataFrame, steps: pd.DataFrame | None,
+def _episode_record(sid: str, cols: Mapping[str, np.ndarray], tracks: list[np.ndarray],
+                    steps: Mapping[str, np.ndarray] | None,
                     segs: Mapping[tuple[str, str], Mapping[str, list]],
                     labelled_tracks: str) -> dict[str, Any]:
-    """One episode (scenario) as the viewer's document."""
-    t = table["t"].to_numpy(float)
+    """One episode (scenario) as the viewer's document: ``tracks`` are the rows of each of
+    its tracks in the table's columns ``cols``, in order of first appearance."""
+    rows = np.concatenate(tracks)
+    t = cols["t"][rows]
     step0 = int(np.rint(t.min() * HZ))
-    valid = np.isfinite(table["x"].to_numpy(float)) & np.isfinite(table["y"].to_numpy(float))
-    if "valid" in table.columns:
-        valid &= table["valid"].fillna(False).to_numpy(bool)
+    x, y = cols["x"][rows], cols["y"][rows]
+    valid = np.isfinite(x) & np.isfinite(y)
+    if "valid" in cols:
+        valid &= cols["valid"][rows]
     if not valid.any():
         raise TrajectoryTableError(f"scenario {sid!r} has no valid position to show.",
                                    column="valid")
-    xs, ys = table["x"].to_numpy(float)[valid], table["y"].to_numpy(float)[valid]
+    xs, ys = x[valid], y[valid]
     lo = np.array([xs.min(), ys.min()])
     hi = np.array([xs.max(), ys.max()])
     origin = np.round((lo + hi) / 2, 1)
     step = max(POSITION_STEP, float(np.max(hi - lo)) / 2 / 32000)
-    is_ego = table["is_ego"].fillna(False).to_numpy(bool) if "is_ego" in table.columns else \
-        np.zeros(len(table), bool)
-    ego_ids = set(table.loc[is_ego, "track_id"].astype(str))
-    tracks = []
+    is_ego = cols["is_ego"][rows] if "is_ego" in cols else np.zeros(len(rows), bool)
+    ego_ids = {str(v) for v in cols["track_id"][rows[is_ego]]}
+    records = []
     labels: dict[str, Any] = {}
-    for tid, track in table.groupby("track_id", sort=False):
-        tid = str(tid)
+    for track in tracks:
+        tid = str(cols["track_id"][track[0]])
         ego = tid in ego_ids
-        tracks.append(_track_record(track, step0, origin, step, ego))
+        records.append(_track_record(cols, track, step0, origin, step, ego))
         if (ego or labelled_tracks == "all") and (sid, tid) in segs:
             labels[tid] = segs[(sid, tid)]
-    tracks.sort(key=lambda r: not r["ego"])  # the ego first
+    records.sort(key=lambda r: not r["ego"])  # the ego first
     doc: dict[str, Any] = {
         "id": sid, "t0": round(step0 / HZ, 2), "n": int(np.rint(t.max() * HZ)) - step0 + 1,
-        "origin": origin.tolist(), "q": step, "tracks": tracks, "labels": labels,
+        "origin": origin.tolist(), "q": step, "tracks": records, "labels": labels,
         "crash_t": None}
-    if "crashed" in table.columns and ego_ids:
-        crashed = table["crashed"].fillna(False).to_numpy(bool) & is_ego
+    if "crashed" in cols and ego_ids:
+        crashed = cols["crashed"][rows] & is_ego
         if crashed.any():
             doc["crash_t"] = round(float(t[crashed].min()), 2)
-    if steps is not None and len(steps):
-        s = np.rint(steps["t"].to_numpy(float) * HZ).astype(np.int64) - step0
+    if steps is not None and len(steps["t"]):
+        s = np.rint(steps["t"] * HZ).astype(np.int64) - step0
         first, n = int(s.min()), int(s.max() - s.min() + 1)
         measures = {"s0": first, "n": n}
         for key, col in _MEASURE_FIELDS:
             v = np.full(n, np.nan)
-            v[s - first] = steps[col].to_numpy(float)
+            v[s - first] = steps[col]
             measures[key] = encode_int16(_quantise(v, 0.01))
-        scored = steps.loc[steps["scored"], "t"]
+        scored = steps["t"][steps["scored"]]
         measures["scored_from"] = round(float(scored.min()), 2) if len(scored) else None
         doc["measures"] = measures
     return doc
+
+
+def _columns(table: pd.DataFrame) -> dict[str, np.ndarray]:
+    """The columns the viewer reads, as numpy arrays (flags with missing as False)."""
+    cols: dict[str, np.ndarray] = {}
+    for col in ("t", "x", "y", "heading", "length", "width"):
+        if col in table.columns:
+            cols[col] = table[col].to_numpy(float)
+    for col in ("valid", "is_ego", "crashed"):
+        if col in table.columns:
+            cols[col] = table[col].fillna(False).to_numpy(bool)
+    for col in ("track_id", "object_type"):
+        if col in table.columns:
+            cols[col] = table[col].to_numpy(object)
+    return cols
+
+
+def _groups(keys: pd.Series) -> list[np.ndarray]:
+    """The rows of each value of ``keys``, values in order of first appearance, each
+    group's rows in table order (what ``groupby(sort=False)`` gives)."""
+    codes, _ = pd.factorize(keys, sort=False)
+    order = np.argsort(codes, kind="stable")
+    bounds = np.flatnonzero(np.diff(codes[order])) + 1
+    return np.split(order, bounds) if len(order) else []
 
 
 def episode_chunks(trajectories: pd.DataFrame, episodes: pd.DataFrame,
@@ -249,16 +272,32 @@ def episode_chunks(trajectories: pd.DataFrame, episodes: pd.DataFrame,
         chunk name -> list of episode documents.
     """
     chunk_of = dict(zip(episodes["scenario_id"].astype(str), episodes["chunk"], strict=True))
-    steps = ego_step_measures(trajectories) if "is_ego" in trajectories.columns else None
-    steps_by = dict(tuple(steps.groupby("scenario_id", sort=False))) if steps is not None \
-        else {}
+    steps_by: dict[str, dict[str, np.ndarray]] = {}
+    if "is_ego" in trajectories.columns:
+        steps = ego_step_measures(trajectories)
+        fields = {"t": steps["t"].to_numpy(float), "scored": steps["scored"].to_numpy(bool),
+                  **{col: steps[col].to_numpy(float) for _, col in _MEASURE_FIELDS}}
+        sids = steps["scenario_id"].to_numpy(object)
+        for rows in _groups(steps["scenario_id"]):
+            steps_by[str(sids[rows[0]])] = {k: v[rows] for k, v in fields.items()}
     segs = _segments_by_track(segments)
+    cols = _columns(trajectories)
+    scenario = trajectories["scenario_id"]
+    # rows by (scenario, track): scenarios, and tracks within each, in order of first
+    # appearance, rows in table order
+    pair = pd.Series(scenario.astype(str).to_numpy(object)) + "\x00" + \
+        trajectories["track_id"].astype(str).to_numpy(object)
+    tracks = _groups(pair)
+    scenario_of = scenario.to_numpy(object)
+    by_scenario: dict[str, list[np.ndarray]] = {}
+    for rows in tracks:
+        by_scenario.setdefault(str(scenario_of[rows[0]]), []).append(rows)
     chunks: dict[str, list[dict[str, Any]]] = {}
-    for sid, table in trajectories.groupby("scenario_id", sort=False):
-        sid = str(sid)
+    for sid, scenario_tracks in by_scenario.items():
         if sid not in chunk_of:
             continue
-        doc = _episode_record(sid, table, steps_by.get(sid), segs, labelled_tracks)
+        doc = _episode_record(sid, cols, scenario_tracks, steps_by.get(sid), segs,
+                              labelled_tracks)
         chunks.setdefault(chunk_of[sid], []).append(doc)
     return chunks
 
