@@ -23,8 +23,8 @@ from machine import report
 
 from tap_bench.sim import get_scenario, load_policy, make_env, scenario_names
 from tap_bench.sim.policies import CHEAP_OBSERVATION
+from tap_bench.sim.scenario_format import parse_seeds
 from tap_bench.sim.schema import env_class
-from tap_bench.sim.suite import parse_seeds
 
 
 def recording_share(name: str, seeds: list[int]) -> dict:

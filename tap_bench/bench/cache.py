@@ -75,8 +75,8 @@ from tap_bench import catalogue
 from tap_bench._version import __version__
 from tap_bench.errors import ParameterError
 from tap_bench.sim.policies import PolicyDefinition
+from tap_bench.sim.scenario_format import VEHICLE_TYPE_KEYS, Scenario
 from tap_bench.sim.schema import default_config
-from tap_bench.sim.suite import VEHICLE_TYPE_KEYS, Scenario
 from tap_bench.usercode import (
     TRUSTED_PACKAGES,
     _source_path,
@@ -218,7 +218,7 @@ def scenario_fingerprint(scenario: Scenario, env: str | None = None) -> dict[str
     overrides ...), the highway-env id, its resolved config (highway-env's defaults updated
     with the overrides), the duration [s] and decisions per episode, the SHA-256 of the
     scenario file and of every file a field names, and the code of each user vehicle class
-    the config names (:data:`tap_bench.sim.suite.VEHICLE_TYPE_KEYS`, hashed with the
+    the config names (:data:`tap_bench.sim.scenario_format.VEHICLE_TYPE_KEYS`, hashed with the
     modules it loads in the user's package).
     """
     config = default_config(scenario.highway_env_id)

@@ -89,7 +89,7 @@ def provenance(suite: Suite | SuitePlan) -> dict[str, Any]:
         the scenario's scripted event, so that ``bench check`` names an env whose cut-in
         or braking changed.
     """
-    from tap_bench.sim.suite import VEHICLE_TYPE_KEYS
+    from tap_bench.sim.scenario_format import VEHICLE_TYPE_KEYS
     from tap_bench.usercode import TRUSTED_PACKAGES, code_digest
 
     if isinstance(suite, SuitePlan):

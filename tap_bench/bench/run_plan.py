@@ -28,7 +28,7 @@ from tap_bench.plugins import load_plugins, merge_plugins
 from tap_bench.sim.policies import PolicyDefinition
 from tap_bench.sim.rollout import resolve_policy
 from tap_bench.sim.sb3 import warn_untrusted_model
-from tap_bench.sim.suite import Scenario, parse_seeds
+from tap_bench.sim.scenario_format import Scenario, parse_seeds
 from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.thresholds import Thresholds, resolve_thresholds
 
@@ -62,7 +62,7 @@ class SuitePlan:
 
     Attributes:
         suite: the suite (its gate margins filled for every measure of the run).
-        scenarios: env -> its :class:`~tap_bench.sim.suite.Scenario`, overrides applied
+        scenarios: env -> its :class:`~tap_bench.sim.scenario_format.Scenario`, overrides applied
             (recorded scenes: its :class:`~tap_bench.sim.womd_scene.WomdScenes`).
         definitions: each policy's definition, built once (a bad one fails here).
         thresholds: the TAP thresholds.

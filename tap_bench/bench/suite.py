@@ -56,7 +56,7 @@ from tap_bench.errors import FileFormatError, ParameterError, UnknownNameError, 
 from tap_bench.plugins import load_plugins
 from tap_bench.sim.policies import available_policies
 from tap_bench.sim.scenario_env import get_scenario
-from tap_bench.sim.suite import parse_seeds, read_json, scenario_names
+from tap_bench.sim.scenario_format import parse_seeds, read_json, scenario_names
 from tap_bench.sim.womd_scene import TRAFFIC, WomdScenes
 
 __all__ = ["SAFETY_WEIGHTS", "GateConfig", "Suite", "available_suites", "default_margins",

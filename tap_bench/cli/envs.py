@@ -27,8 +27,8 @@ def run(args: argparse.Namespace) -> int:
     # not tap_bench.sim.scenario_env, which imports highway-env: the files and the
     # defaults they are checked against are enough here (tap_bench.sim.schema)
     from tap_bench import catalogue
+    from tap_bench.sim.scenario_format import load_scenario
     from tap_bench.sim.schema import default_config
-    from tap_bench.sim.suite import load_scenario
 
     if args.name:
         from tap_bench.sim.scenario_env import get_scenario

@@ -16,7 +16,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from tap_bench.errors import ParameterError
 from tap_bench.rl.curve import CURVE_COLUMNS, CurveConfig, GreedyModelPolicy, curve_row
-from tap_bench.sim.suite import Scenario
+from tap_bench.sim.scenario_format import Scenario
 
 __all__ = ["CoverageCallback"]
 

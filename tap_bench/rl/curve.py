@@ -63,7 +63,7 @@ from tap_bench.bench.intervals import wilson_interval
 from tap_bench.errors import ParameterError, did_you_mean
 from tap_bench.labelling import tap
 from tap_bench.sim.rollout import rollout
-from tap_bench.sim.suite import Scenario, parse_seeds
+from tap_bench.sim.scenario_format import Scenario, parse_seeds
 from tap_bench.tableio import atomic_path, read_table
 
 __all__ = ["CURVE_COLUMNS", "CurveConfig", "GreedyModelPolicy", "coverage_reference",

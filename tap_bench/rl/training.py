@@ -50,8 +50,8 @@ from tap_bench.errors import ParameterError
 from tap_bench.rl.curve import CurveConfig, coverage_reference, plot_curve
 from tap_bench.sim.sb3 import algorithm_class
 from tap_bench.sim.scenario_env import ScenarioEnv, get_scenario
+from tap_bench.sim.scenario_format import Scenario
 from tap_bench.sim.schema import env_class
-from tap_bench.sim.suite import Scenario
 from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.tableio import atomic_path, check_replace, write_table
 

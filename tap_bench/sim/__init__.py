@@ -2,7 +2,7 @@
 
 Modules, by what they do:
 
-- :mod:`~tap_bench.sim.suite`: scenario files (``envs/``), validated against highway-env;
+- :mod:`~tap_bench.sim.scenario_format`: scenario files (``envs/``), validated against highway-env;
 - :mod:`~tap_bench.sim.registration`: Gymnasium ids ``tap_bench/<name>-vN``;
 - :mod:`~tap_bench.sim.scenario_env`: the env those ids build, recording at 10 Hz;
 - :mod:`~tap_bench.sim.observation`: highway-env's Kinematics observation without pandas;
@@ -38,7 +38,7 @@ _LAZY_MODULES = {
     "tap_bench.sim.registration": ("register_scenario", "register_suite", "registered_ids"),
     "tap_bench.sim.rollout": ("EpisodeFailedWarning", "Rollout", "check_policy", "rollout",
                               "run_episode"),
-    "tap_bench.sim.suite": ("Scenario", "load_scenario", "parse_seeds", "scenario_names"),
+    "tap_bench.sim.scenario_format": ("Scenario", "load_scenario", "parse_seeds", "scenario_names"),
     "tap_bench.sim.scenario_env": ("ScenarioEnv", "episode_trajectories", "get_scenario",
                                    "make_env"),
     "tap_bench.sim.wrappers": ("EpisodeLabels",),

@@ -50,7 +50,7 @@ from tap_bench.errors import (
     did_you_mean,
 )
 from tap_bench.registry import Registry
-from tap_bench.sim.suite import read_json
+from tap_bench.sim.scenario_format import read_json
 
 __all__ = [
     "CHEAP_OBSERVATION",

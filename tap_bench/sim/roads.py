@@ -18,7 +18,7 @@ from highway_env.road.lane import StraightLane
 
 from tap_bench.maps import MAP_COLUMNS, SAMPLE_STEP, empty_map
 from tap_bench.sim.scenario_env import get_scenario, make_env
-from tap_bench.sim.suite import Scenario
+from tap_bench.sim.scenario_format import Scenario
 
 __all__ = ["network_table", "road_table"]
 

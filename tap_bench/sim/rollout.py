@@ -28,7 +28,7 @@ from tap_bench.errors import EpisodeFailedWarning, EpisodesFailedError, Registra
 from tap_bench.execution import DEFAULT_RETRIES, Backend, resolve_backend
 from tap_bench.sim.policies import CHEAP_OBSERVATION, Policy, PolicyDefinition, get_definition
 from tap_bench.sim.scenario_env import ScenarioEnv, find_scenario_env, get_scenario
-from tap_bench.sim.suite import Scenario, parse_seeds
+from tap_bench.sim.scenario_format import Scenario, parse_seeds
 from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.trajectories import HZ
 

@@ -29,13 +29,13 @@ import pandas as pd
 from tap_bench import catalogue
 from tap_bench.errors import FileFormatError, ParameterError, TapBenchError, did_you_mean
 from tap_bench.sim.recorder import TrajectoryRecorder
-from tap_bench.sim.schema import env_class
-from tap_bench.sim.suite import (
+from tap_bench.sim.scenario_format import (
     Scenario,
     check_config,
     load_scenario,
     scenario_names,
 )
+from tap_bench.sim.schema import env_class
 from tap_bench.sim.vehicles import LANE_CHANGE_SETTINGS, apply_lane_change, guard_class_attributes
 
 __all__ = ["FAST_SIMULATION_FREQUENCY", "ScenarioEnv", "episode_trajectories", "get_scenario",
@@ -219,7 +219,7 @@ def _check_vehicle_types(config: Mapping[str, Any], scenario: Scenario) -> None:
     ``Vehicle``."""
     from highway_env.vehicle.kinematics import Vehicle
 
-    from tap_bench.sim.suite import VEHICLE_TYPE_KEYS
+    from tap_bench.sim.scenario_format import VEHICLE_TYPE_KEYS
     from tap_bench.usercode import import_checked_class
 
     for key in VEHICLE_TYPE_KEYS:

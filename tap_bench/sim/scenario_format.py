@@ -162,7 +162,7 @@ def _too_many(source: str, value: object, count: int) -> ParameterError:
     return ParameterError(
         source, value, f"at most {MAX_SEEDS:,} seeds", message=(
             f"{source}: {count:,} seeds, more than the maximum of {MAX_SEEDS:,} "
-            "(tap_bench.sim.suite.MAX_SEEDS) in one list; run the seeds in several lists "
+            "(tap_bench.sim.scenario_format.MAX_SEEDS) in one list; run the seeds in several lists "
             "(say '0-99999', then '100000-199999')."))
 
 
@@ -178,7 +178,7 @@ VEHICLE_TYPE_KEYS = ("other_vehicles_type",)
 as code before any import (:mod:`tap_bench.usercode`)."""
 
 
-_AT_MOST = f"at most {MAX_SEEDS:,} seeds (tap_bench.sim.suite.MAX_SEEDS)"
+_AT_MOST = f"at most {MAX_SEEDS:,} seeds (tap_bench.sim.scenario_format.MAX_SEEDS)"
 _SPLIT = "Run the seeds in several lists (say '0-99999', then '100000-199999')."
 
 
@@ -341,7 +341,8 @@ def check_config(highway_env_id: str, config: Mapping[str, Any], *, source: str 
                 and not value <= limit:
             raise ParameterError(key, value, f"at most {limit:,}", message=(
                 f"{where}: {key} {value!r} is larger than the limit of {limit:,} "
-                f"(tap_bench.sim.suite.SIZE_LIMITS); a scene that size takes hours a step."))
+                "(tap_bench.sim.scenario_format.SIZE_LIMITS); a scene that size takes hours "
+                "a step."))
     for key in VEHICLE_TYPE_KEYS:
         if isinstance(config.get(key), str):
             from tap_bench.usercode import check_class_name
@@ -380,7 +381,7 @@ def _build(doc: Any, *, source: str, path: Path | None) -> Scenario:
     if duration > MAX_DURATION:
         raise ParameterError("duration", duration, f"at most {MAX_DURATION:g} s", message=(
             f"{source}: duration {duration!r} s is longer than the limit of {MAX_DURATION:g} "
-            "s (tap_bench.sim.suite.MAX_DURATION) of simulated time per episode."))
+            "s (tap_bench.sim.scenario_format.MAX_DURATION) of simulated time per episode."))
     lane_change = doc.get("lane_change", "default")
 
     if lane_change not in LANE_CHANGE_SETTINGS:

@@ -26,7 +26,7 @@ from tap_bench.bench.cache import (
 )
 from tap_bench.sim.policies import _read_definition
 from tap_bench.sim.scenario_env import get_scenario
-from tap_bench.sim.suite import load_scenario
+from tap_bench.sim.scenario_format import load_scenario
 
 PACKAGE = f"userpkg_{uuid.uuid4().hex[:8]}"
 SIBLING = f"sibling_{uuid.uuid4().hex[:8]}"

@@ -11,7 +11,7 @@ import pytest
 from tap_bench import catalogue
 from tap_bench.errors import CatalogueError
 from tap_bench.sim.policies import available_policies
-from tap_bench.sim.suite import scenario_names
+from tap_bench.sim.scenario_format import scenario_names
 
 
 def test_the_built_in_catalogue_lists_scenarios_policies_and_suites():

@@ -11,7 +11,7 @@ import pytest
 from fault_helpers import PROJECT_ROOT, label_table, run_process, womd_shard
 
 from tap_bench.errors import ParameterError, UnknownNameError, did_you_mean
-from tap_bench.sim.suite import MAX_SEEDS, parse_seeds
+from tap_bench.sim.scenario_format import MAX_SEEDS, parse_seeds
 
 
 # -- seed ranges ------------------------------------------------------------------------

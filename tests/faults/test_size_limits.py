@@ -14,7 +14,7 @@ from tap_bench.bench.bootstrap import MAX_RESAMPLES, BootstrapConfig
 from tap_bench.bench.suite import MAX_PERMUTATIONS, suite_from_dict
 from tap_bench.errors import ParameterError, TapBenchError
 from tap_bench.sim.scenario_env import get_scenario
-from tap_bench.sim.suite import MAX_DURATION, SIZE_LIMITS
+from tap_bench.sim.scenario_format import MAX_DURATION, SIZE_LIMITS
 
 
 def _named(err: BaseException, parameter: str, value: str, limit: str) -> None:

@@ -14,7 +14,7 @@ from tap_bench.sim import available_policies, load_policy, register_policy, regi
 from tap_bench.sim.idm import IDMPolicy
 from tap_bench.sim.policies import Policy, RandomPolicy, get_definition
 from tap_bench.sim.rollout import rollout
-from tap_bench.sim.suite import suite_dir
+from tap_bench.sim.scenario_format import suite_dir
 
 BUILT_INS = ["idm", "idm-aggressive", "idm-defensive", "random", "lane-keeping"]
 SCENARIOS = [i.removeprefix("tap_bench/").rsplit("-v", 1)[0] for i in registered_ids()]

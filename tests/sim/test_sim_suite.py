@@ -8,7 +8,7 @@ import pytest
 
 from tap_bench.errors import FileFormatError, UnknownNameError
 from tap_bench.sim.scenario_env import get_scenario
-from tap_bench.sim.suite import load_scenario, parse_seeds, scenario_names, suite_dir
+from tap_bench.sim.scenario_format import load_scenario, parse_seeds, scenario_names, suite_dir
 
 
 def test_the_suite_has_the_five_scenarios_simulated_at_10_hz():
@@ -98,3 +98,10 @@ def test_seed_lists(spec, seeds):
 def test_bad_seed_lists_are_refused(spec):
     with pytest.raises(ValueError):
         parse_seeds(spec)
+
+
+def test_the_old_module_name_still_gives_the_scenario_format():
+    from tap_bench.sim import scenario_format, suite
+
+    assert suite.__all__ == scenario_format.__all__
+    assert all(getattr(suite, n) is getattr(scenario_format, n) for n in suite.__all__)
