@@ -418,6 +418,9 @@ class WomdRoad(Road):
         if not len(self._signal_lanes) or k < 0:
             return None
         active = np.flatnonzero(self._red_or_yellow[k])
+        # the yellow lines this vehicle decided to stop at (while they stay yellow or red)
+        held = vehicle.__dict__.setdefault("yellow_stops", set())
+        held.intersection_update(active.tolist())
         if not len(active):
             return None
         network = self.network
@@ -445,10 +448,14 @@ class WomdRoad(Road):
                 d = base + self._stop_s[j]
                 if d < -0.5 or d > STOP_LOOKAHEAD:
                     continue
-                if not self._red[k, j]:  # yellow: stop only when it can
-                    brake = vehicle.speed ** 2 / max(2 * (d - vehicle.LENGTH / 2), 0.1)
-                    if brake > -getattr(vehicle, "COMFORT_ACC_MIN", -5.0):
+                if not self._red[k, j] and j not in held:
+                    # yellow: stop only when the bumper can stop STOP_MARGIN before the line
+                    # braking comfortably; once it stops it keeps stopping (no late dash)
+                    room = d - vehicle.LENGTH / 2 - STOP_MARGIN
+                    brake = vehicle.speed ** 2 / max(2 * room, 1e-3)
+                    if room <= 0 or brake > -getattr(vehicle, "COMFORT_ACC_MIN", -5.0):
                         continue
+                    held.add(int(j))
                 best = d if best is None else min(best, d)
         return best
 

@@ -452,6 +452,88 @@ def test_idm_traffic_stops_at_red_lights(real):
         assert inner.simulated[row].speed < 0.5  # it waits
 
 
+def yellow_scene_env(path: str, traffic: str = "log") -> WomdEnv:
+    """637f20cafde22ff8 with every red state turned yellow (the samples have no yellow)."""
+    from tap_bench.womd.roadmap import STOP_STATES
+
+    env = make_womd_env(path, traffic=traffic)
+    state = env.scene_at(0).road.signals.state
+    state[np.isin(state, list(STOP_STATES))] = 5  # caution
+    assert not env.scene_at(0).road.signals.red.any()
+    return env
+
+
+def test_idm_stops_at_a_yellow_line_only_when_it_can_brake_comfortably(real):
+    from tap_bench.sim.womd_road import STOP_MARGIN, WomdIDMVehicle
+
+    env = yellow_scene_env(real[0], traffic="idm")
+    env.reset(seed=0)
+    road = env.unwrapped.road
+    network = road.network
+    signals = [j for j, index in enumerate(road._signal_lanes)
+               if index is not None and np.isfinite(road._stop_s[j])
+               and road._red_or_yellow[road.clock[0], j]]
+    assert signals, "a yellow stop line on the map"
+    rng = np.random.default_rng(0)
+    seen = {True: 0, False: 0}
+    for j in signals[:4]:
+        index = road._signal_lanes[j]
+        lane = network.get_lane(index)
+        stop = road._stop_s[j]
+        for _ in range(40):
+            # on the line's lane (extended straight back before its start, where WOMD
+            # puts the stop point) d [m] before it, at v [m/s]
+            d = float(rng.uniform(2.0, 55.0))
+            v = float(rng.uniform(0.0, 20.0))
+            vehicle = WomdIDMVehicle(road, lane.position(stop - d, 0.0),
+                                     heading=lane.heading_at(stop - d), speed=v)
+            vehicle.lane_index = vehicle.target_lane_index = index
+            room = d - vehicle.LENGTH / 2 - STOP_MARGIN
+            if abs(room) < 0.01 or abs(v * v / (2 * room) + vehicle.COMFORT_ACC_MIN) < 0.01:
+                continue  # on the boundary (the lanes are float32)
+            can = room > 0 and v * v / (2 * room) <= -vehicle.COMFORT_ACC_MIN
+            got = road.stop_distance(vehicle)
+            assert (got is not None) == can, (j, d, v)
+            if can:
+                seen[True] += 1
+                assert got == pytest.approx(d, abs=1e-3)
+                # IDM brakes for it; at the same speed it keeps stopping once it has decided
+                free = idm_free(vehicle)
+                assert vehicle.acceleration(vehicle) <= free + 1e-9
+                vehicle.speed = 30.0
+                assert road.stop_distance(vehicle) is not None
+            else:
+                seen[False] += 1
+                assert vehicle.acceleration(vehicle) == pytest.approx(idm_free(vehicle))
+    assert seen[True] and seen[False], seen
+    # the same positions at red: it always stops
+    env_red = make_womd_env(real[0], traffic="idm")
+    env_red.reset(seed=0)
+    red = env_red.unwrapped.road
+    j = signals[0]
+    lane = red.network.get_lane(red._signal_lanes[j])
+    fast = WomdIDMVehicle(red, lane.position(red._stop_s[j] - 5.0, 0.0),
+                          heading=lane.heading_at(red._stop_s[j] - 5.0), speed=20.0)
+    fast.lane_index = fast.target_lane_index = red._signal_lanes[j]
+    assert red._red[red.clock[0], j] and red.stop_distance(fast) is not None
+
+
+def idm_free(vehicle) -> float:
+    """IDM's acceleration with nothing ahead (highway-env's own, without stop lines)."""
+    from highway_env.vehicle.behavior import IDMVehicle
+
+    return IDMVehicle.acceleration(vehicle, vehicle, None, None)
+
+
+def test_an_idm_ego_waits_at_a_yellow_light_it_reaches_slowly(real):
+    # the SDC of 637f20cafde22ff8 waits at the line from the start: at yellow it can stop
+    env = yellow_scene_env(real[0], traffic="idm")
+    run(env, "idm", 0)
+    info = env.episode_info()
+    assert not info["off_road"] and info["log_fde"] < 1.0
+    assert env.unwrapped.vehicle.speed < 0.5
+
+
 def test_a_replayed_car_that_runs_into_the_ego_is_marked(tmp_path):
     # the human and the car 12 m behind both kept 10 m/s; the replayed car cannot yield to
     # an ego that slows to the lane's 5 m/s (11.2 mph) limit, as lane keeping does
