@@ -29,8 +29,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="replace the .json file, or the folder an earlier export wrote (a "
                    "folder holding files tap-bench did not write is never replaced)")
-    p.add_argument("--level", default="maneuver", choices=LEVELS,
-                   help="SDL level exported (default maneuver)")
+    p.add_argument("--level", default=None, choices=LEVELS,
+                   help="SDL level exported (default: the segment table's level when it "
+                   "holds one, as 'tap-bench label --segments' writes; else maneuver)")
     p.add_argument("--thresholds", default="paper",
                    help="TAP thresholds for a trajectory table (default paper)")
     p.add_argument("--interactions", default="auto", choices=("auto", "ego", "all"),
@@ -46,6 +47,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         check_folder_output(args.output, args.overwrite)
     table = read_table(args.input)
+    if args.level is None:  # the level 'label' wrote, so label then export agree
+        held = table["level"].dropna().unique() if "level" in table.columns else []
+        args.level = str(held[0]) if len(held) == 1 else "maneuver"
     if "axis" not in table.columns:  # a trajectory table: label it
         table = tap(table, args.thresholds, source=str(args.input),
                     interactions=args.interactions).segments(args.level)

@@ -84,3 +84,22 @@ def test_cli_export_writes_files_and_errors(tmp_path, capsys):
     bad.write_text('{"x": 1}')
     with pytest.raises(FileFormatError, match="not an OpenLABEL"):
         read_openlabel(bad)
+
+
+@pytest.mark.parametrize("level", ["action", "maneuver"])
+def test_cli_export_takes_the_level_label_wrote(tmp_path, capsys, level):
+    """``label --segments`` then ``export`` agree on the level without ``--level``."""
+    src = tmp_path / "t.parquet"
+    cut_in_scene("a").to_parquet(src)
+    seg = tmp_path / "segments.parquet"
+    assert main(["label", str(src), "-o", str(tmp_path / "labels.parquet"), "--level", level,
+                 "--interactions", "all", "--segments", str(seg)]) == 0
+    out = tmp_path / "ol"
+    assert main(["export", str(seg), "--format", "openlabel", "-o", str(out)]) == 0
+    assert f"at level {level}" in capsys.readouterr().out
+    assert set(read_openlabel(out)["level"]) == {level}
+    other = "maneuver" if level == "action" else "action"
+    # asking for a level the table lacks still fails clearly
+    assert main(["export", str(seg), "--format", "openlabel", "-o", str(tmp_path / "o2"),
+                 "--level", other]) == 2
+    assert f"no rows at level '{other}'" in capsys.readouterr().err
