@@ -1,6 +1,7 @@
 """The replay viewer used as a person would, in headless Chromium: it loads without console
 errors, playback moves the time and the label timeline, A and B stay on one clock, filters
-narrow the list, and WOMD scenarios show their map and labels. Each test writes a screenshot.
+narrow the list, WOMD scenarios show their map and labels, and each pane draws the other
+pane's ego as a ghost. Each test writes a screenshot.
 """
 
 from __future__ import annotations
@@ -146,3 +147,43 @@ def test_womd_scenarios_show_their_map_and_labels(womd_dir, tmp_path, browser, s
     now = browser.find_element("css selector", "#pane-a .now").text
     assert now.startswith("now: ") and "(no label)" not in now
     browser.save_screenshot(str(screenshots / "viewer-womd.png"))
+
+
+def test_each_pane_draws_the_other_panes_ego_as_a_ghost(tiny_run, browser, screenshots):
+    sid, b = _paired_seed(tiny_run)
+    open_page(browser, tiny_run / "viewer" / "index.html", f"#ep={sid}&b={b}&t=0")
+    # record the dashed outlines the panes stroke (drawGhost), with the canvas transform
+    browser.execute_script("""
+      window.ghosts = [];
+      const proto = CanvasRenderingContext2D.prototype, raw = proto.strokeRect;
+      proto.strokeRect = function (x, y, w, h) {
+        if (this.getLineDash().length) {
+          const m = this.getTransform();
+          window.ghosts.push({canvas: this.canvas, w, h, e: m.e, f: m.f});
+        }
+        return raw.call(this, x, y, w, h);
+      };""")
+    t = 2.0
+    browser.execute_script(f"window.ghosts = []; TAPVIEW.seek({t});")
+    for me, other in (("a", "b"), ("b", "a")):
+        got = _state(browser, f"""window.ghosts.filter(g => g.canvas ===
+            TAPVIEW.state.{me}.view.canvas).map(g => [g.w, g.h, g.e, g.f])""")
+        assert len(got) == 1, (me, got)  # one ghost a frame
+        w, h, e, f = got[0]
+        # where the other pane's ego is at t, in this pane's pixels
+        want = _state(browser, f"""(() => {{
+            const me = TAPVIEW.state.{me}, o = TAPVIEW.state.{other}, tr = o.ego;
+            const i = Math.round({t} * 10) - tr.s0;
+            const x = tr.x[i] * o.q + o.origin[0], y = tr.y[i] * o.q + o.origin[1];
+            const [s, cx, cy, W, H] = me.view.transform;
+            return [tr.len, tr.wid, W / 2 + s * (x - cx), H / 2 - s * (y - cy)];
+        }})()""")
+        assert [w, h] == pytest.approx(want[:2])
+        assert [e, f] == pytest.approx(want[2:], abs=0.5)
+    # the two egos have parted by then (random against idm): the ghost is not the ego
+    world = ("(() => { const ep = TAPVIEW.state.%s, tr = ep.ego, i = 20 - tr.s0;"
+             " return [tr.x[i] * ep.q + ep.origin[0], tr.y[i] * ep.q + ep.origin[1]]; })()")
+    a_at, b_at = _state(browser, world % "a"), _state(browser, world % "b")
+    assert abs(a_at[0] - b_at[0]) + abs(a_at[1] - b_at[1]) > 0.5
+    assert console_errors(browser) == []
+    browser.save_screenshot(str(screenshots / "viewer-ghost.png"))
