@@ -187,3 +187,42 @@ def test_each_pane_draws_the_other_panes_ego_as_a_ghost(tiny_run, browser, scree
     assert abs(a_at[0] - b_at[0]) + abs(a_at[1] - b_at[1]) > 0.5
     assert console_errors(browser) == []
     browser.save_screenshot(str(screenshots / "viewer-ghost.png"))
+
+
+def test_womd_signals_are_drawn_in_their_state_at_each_step(womd_dir, tmp_path, browser,
+                                                            screenshots):
+    from tap_bench.bench.viewer import write_womd_viewer
+
+    # 637f20cafde22ff8: red lights hold the SDC for the whole record
+    page = write_womd_viewer([womd_dir / "motion_data_one_scenario.tfrecord"],
+                             tmp_path / "womd")
+    open_page(browser, page, "#ep=637f20cafde22ff8&t=0")
+    browser.execute_script("""
+      window.discs = [];
+      const proto = CanvasRenderingContext2D.prototype, arc = proto.arc, fill = proto.fill;
+      proto.arc = function (x, y) {
+        this._disc = [x, y];
+        return arc.apply(this, arguments);
+      };
+      proto.fill = function () {
+        if (this._disc) window.discs.push([...this._disc, this.fillStyle]);
+        this._disc = null;
+        return fill.apply(this, arguments);
+      };""")
+    colour = {"r": "#e03131", "y": "#f5c400", "g": "#2f9e44", "u": "#868e96"}
+    signals = _state(browser, "TAPVIEW.state.a.doc.signals")
+    assert len(signals["points"]) > 0 and len(signals["states"]) == 91
+    for t in (0.0, 4.0, 8.5):
+        browser.execute_script(f"window.discs = []; TAPVIEW.seek({t});")
+        discs = _state(browser, "window.discs.filter(d => true)")
+        now = signals["states"][round(t * 10)]
+        assert _state(browser, f"TAPVIEW.signalsAt(TAPVIEW.state.a, {t})") == now
+        # one disc a stop point, drawn over the map before the vehicles (walkers are discs)
+        n = len(signals["points"])
+        assert len(discs) >= n
+        for (x, y, fill), (px, py), s in zip(discs[:n], signals["points"], now, strict=True):
+            assert (x, y) == pytest.approx((px, py))
+            assert fill == colour[s]
+        assert "r" in now
+    assert console_errors(browser) == []
+    browser.save_screenshot(str(screenshots / "viewer-womd-signals.png"))

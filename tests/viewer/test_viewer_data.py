@@ -143,3 +143,47 @@ def test_womd_maps_belong_to_the_scenarios_read(womd_dir):
         sids = set(read_womd(womd_dir / name)["scenario_id"].astype(str))
         assert set(maps["map_id"]) == sids, name
         assert {"lane", "road_line", "road_edge"} <= set(maps["kind"]), name
+
+
+def test_signal_field_gives_each_stop_point_its_state_per_step():
+    from tap_bench.bench.viewer.data import signal_field
+    from tap_bench.womd.roadmap import LANE_STATES, SignalStates
+
+    states = np.arange(len(LANE_STATES), dtype=np.int8)  # every state number, one a step
+    signals = SignalStates(np.array([11, 12]), np.c_[states, states[::-1]],
+                           np.array([[1.234, -5.0], [7.0, 8.0]]))
+    field = signal_field(signals)
+    assert field["lanes"] == [11, 12] and field["points"] == [[1.23, -5.0], [7.0, 8.0]]
+    want = {"unknown": "u", "arrow_stop": "r", "arrow_caution": "y", "arrow_go": "g",
+            "stop": "r", "caution": "y", "go": "g", "flashing_stop": "r",
+            "flashing_caution": "y"}
+    assert [s[0] for s in field["states"]] == [want[n] for n in LANE_STATES]
+    assert [s[1] for s in field["states"]] == [want[n] for n in LANE_STATES[::-1]]
+    assert signal_field(SignalStates.empty(91)) is None
+
+
+def test_the_womd_viewer_carries_each_scenes_signals(womd_dir, tmp_path, monkeypatch):
+    from tap_bench.bench.viewer import build
+    from tap_bench.sources.maps import read_road_maps
+
+    files = [womd_dir / "motion_data_one_scenario.tfrecord",
+             womd_dir / "sd_waymo_v1.2_eb4b91b10ca94ff2.pkl"]
+    captured = {}
+    monkeypatch.setattr(build, "write_viewer",
+                        lambda output, index, chunks: captured.update(chunks) or output)
+    build.write_womd_viewer(files, tmp_path / "v")
+    docs = {d["id"]: d for docs in captured.values() for d in docs}
+    roads = read_road_maps(files)
+    assert set(docs) == set(roads)
+    for sid, doc in docs.items():
+        signals = roads[sid].signals
+        field = doc["signals"]
+        assert len(field["states"]) == signals.state.shape[0]  # one a record step
+        assert field["lanes"] == signals.lane.tolist()
+        assert np.allclose(field["points"], signals.stop_point, atol=0.01)
+        letters = np.array([list(s) for s in field["states"]])
+        assert ((letters == "r") == np.isin(signals.state, [1, 4, 7])).all()
+        assert ((letters == "y") == np.isin(signals.state, [2, 5, 8])).all()
+        assert ((letters == "g") == np.isin(signals.state, [3, 6])).all()
+    assert (np.array([list(s) for s in docs["637f20cafde22ff8"]["signals"]["states"]])
+            == "r").any()

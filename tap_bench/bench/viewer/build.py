@@ -29,13 +29,19 @@ import pandas as pd
 from tap_bench.bench.episodes import episode_table
 from tap_bench.bench.measures import MEASURES, run_measures
 from tap_bench.bench.suite import suite_from_dict
-from tap_bench.bench.viewer.data import MAP_MARGIN, episode_chunks, episode_index, map_features
+from tap_bench.bench.viewer.data import (
+    MAP_MARGIN,
+    episode_chunks,
+    episode_index,
+    map_features,
+    signal_field,
+)
 from tap_bench.errors import ParameterError
 from tap_bench.labelling import tap
 from tap_bench.maps import empty_map
 from tap_bench.sources import iter_womd, read_womd
 from tap_bench.sources.ingest import record_files
-from tap_bench.sources.maps import read_maps
+from tap_bench.sources.maps import iter_road_maps, read_maps
 from tap_bench.tableio import atomic_folder
 from tap_bench.thresholds import Thresholds
 
@@ -207,6 +213,20 @@ def _first_scenarios(paths: Sequence[str | os.PathLike], max_scenarios: int
     return pd.concat(tables, ignore_index=True), more
 
 
+def _road_maps(paths: Sequence[str | os.PathLike], wanted: set[str]) -> dict[str, Any]:
+    """The road maps (with signal states per step) of the scenarios ``wanted``, reading
+    the files only until they are all found."""
+    found: dict[str, Any] = {}
+    maps = iter_road_maps([str(p) for p in paths])
+    for road in maps:
+        if road.scenario_id in wanted:
+            found[road.scenario_id] = road
+            if len(found) == len(wanted):
+                break
+    getattr(maps, "close", lambda: None)()
+    return found
+
+
 def write_womd_viewer(paths: Sequence[str | os.PathLike], output: str | os.PathLike, *,
                       thresholds: Any = "paper", level: str = "maneuver",
                       max_scenarios: int = DEFAULT_VIEW_SCENARIOS) -> Path:
@@ -260,10 +280,13 @@ def write_womd_viewer(paths: Sequence[str | os.PathLike], output: str | os.PathL
     chunks = episode_chunks(traj, eps, segments, labelled_tracks="all")
     maps = read_maps(paths, scenario_ids=set(sids))
     by_map = dict(tuple(maps.groupby("map_id", sort=False))) if len(maps) else {}
+    roads = _road_maps(paths, set(sids))
     for docs in chunks.values():
         for doc in docs:
             sub = by_map.get(doc["id"])
             doc["map"] = map_features(sub) if sub is not None else []
+            road = roads.get(doc["id"])
+            doc["signals"] = signal_field(road.signals) if road is not None else None
     for entry in entries:
         entry["map"] = None  # carried by the episode itself
     index = {"run": {"name": ", ".join(Path(p).name for p in paths), "suite": "WOMD",

@@ -30,7 +30,7 @@ from tap_bench.errors import TrajectoryTableError
 from tap_bench.trajectories import HZ
 
 __all__ = ["MISSING", "POSITION_STEP", "clip_polyline", "encode_int16", "episode_chunks",
-           "episode_index", "map_features"]
+           "episode_index", "map_features", "signal_field", "SIGNAL_COLOURS"]
 
 POSITION_STEP = 0.1  # [m] quantisation of positions: a 50th of a car's length
 VEHICLE_WIDTH = 2.0  # [m] highway-env's vehicle width; WOMD tracks carry their own
@@ -254,6 +254,32 @@ def _groups(keys: pd.Series) -> list[np.ndarray]:
     order = np.argsort(codes, kind="stable")
     bounds = np.flatnonzero(np.diff(codes[order])) + 1
     return np.split(order, bounds) if len(order) else []
+
+
+SIGNAL_COLOURS = "urygrygry"
+"""Signal state number (:data:`tap_bench.womd.roadmap.LANE_STATES`) -> the viewer's code:
+u unknown, r red (stop, arrow stop, flashing stop), y yellow (caution), g green (go)."""
+
+
+def signal_field(signals: Any) -> dict[str, Any] | None:
+    """A scene's traffic signals as the viewer draws them: one stop point per controlled
+    lane, its state per step as a letter.
+
+    Args:
+        signals: :class:`tap_bench.womd.roadmap.SignalStates` (steps x lanes).
+
+    Returns:
+        ``{"lanes": [lane id], "points": [[x, y]] [m], "states": [str per step]}`` where
+        character j of a step's string is lane j's state (:data:`SIGNAL_COLOURS`: r, y, g,
+        u); None when the scene has no signals.
+    """
+    state = np.asarray(signals.state)
+    if state.ndim != 2 or not state.shape[1]:
+        return None
+    codes = np.array(list(SIGNAL_COLOURS))[np.clip(state, 0, len(SIGNAL_COLOURS) - 1)]
+    return {"lanes": [int(i) for i in signals.lane],
+            "points": np.round(np.asarray(signals.stop_point, float), 2).tolist(),
+            "states": ["".join(row) for row in codes]}
 
 
 def episode_chunks(trajectories: pd.DataFrame, episodes: pd.DataFrame,

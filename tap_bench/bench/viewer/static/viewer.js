@@ -474,6 +474,7 @@ const TAPVIEW = (() => {
     // world (y to the left, i.e. up on screen) to canvas pixels
     ctx.setTransform(scale, 0, 0, -scale, W / 2 - scale * cx, H / 2 + scale * cy);
     drawMap(ctx, mapOf(ep), scale);
+    drawSignals(ctx, ep, tc, scale);
     for (const tr of ep.tracks) {
       if (tr.ego) continue;
       const p = pose(ep, tr, tc);
@@ -559,6 +560,34 @@ const TAPVIEW = (() => {
       }
     }
     ctx.restore();
+  }
+
+  const SIGNAL_FILL = {r: "#e03131", y: "#f5c400", g: "#2f9e44", u: "#868e96"};
+
+  function signalsAt(ep, t) {
+    // the state letter of each stop point at time t (r red, y yellow, g green, u unknown)
+    const sig = ep.doc.signals;
+    if (!sig || !sig.states.length) return "";
+    const k = Math.max(0, Math.min(Math.round(t * HZ), sig.states.length - 1));
+    return sig.states[k];
+  }
+
+  function drawSignals(ctx, ep, t, scale) {
+    // a WOMD scene's traffic signals: a disc at each stop point, coloured by its state
+    const sig = ep.doc.signals;
+    const now = signalsAt(ep, t);
+    if (!now) return;
+    const r = Math.max(0.9, 4 / scale);
+    ctx.setLineDash([]);
+    ctx.lineWidth = Math.max(0.1, 1 / scale);
+    ctx.strokeStyle = "#222";
+    sig.points.forEach(([x, y], j) => {
+      ctx.beginPath();
+      ctx.arc(x, y, r, 0, 2 * Math.PI);
+      ctx.fillStyle = SIGNAL_FILL[now[j]] || SIGNAL_FILL.u;
+      ctx.fill();
+      ctx.stroke();
+    });
   }
 
   function drawGhost(ctx, tr, p) {
@@ -795,5 +824,5 @@ const TAPVIEW = (() => {
     state.ready = applyHash();
   }
 
-  return {index, chunk, state, play, step, seek, openEpisode, labelAt};
+  return {index, chunk, state, play, step, seek, openEpisode, labelAt, signalsAt};
 })();
