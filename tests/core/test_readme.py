@@ -65,7 +65,7 @@ WOMD = {  # quick, and run in README order when the WOMD sample files are presen
 }
 SLOW_WOMD = {  # long, and needing the WOMD files
     "tap-bench coverage dqn.parquet --reference womd_labels.parquet --level maneuver",
-    "tap-bench gap results/inter/trajectories.parquet --reference womd.parquet",
+    "tap-bench gap results/inter/trajectories.parquet --reference womd.parquet --min-speed 5",
 }
 NOT_RUN = {  # command -> why the tests cannot run it as written
     "pip install -e .": "installs the package",
