@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from tap_bench.bench.bootstrap import add_bootstrap_arguments, bootstrap_from_args
 from tap_bench.sdl import LEVELS
@@ -50,6 +52,36 @@ def _name(table, given: str | None, path: str) -> str:
     return Path(path).name.split(".")[0]
 
 
+def read_policies(paths: Sequence[str], names: Sequence[str] | None, *, level: str,
+                  thresholds: str) -> list[tuple[str, Any, Any, Any]]:
+    """Read policies' tables (trajectory or label tables, one policy each) as ``compare``
+    and ``view`` do: each named by ``names``, else its single ``policy`` value, else its file name.
+
+    Returns:
+        per input (name, episode table, label table, trajectory table or None).
+
+    Raises:
+        LabelTableError: two inputs carry one policy name.
+    """
+    from tap_bench.bench.episodes import episodes_from_table
+    from tap_bench.errors import LabelTableError
+    from tap_bench.tableio import read_table
+
+    parts = []
+    for path, given in zip(paths, names or [None] * len(paths), strict=True):
+        table = read_table(path)
+        name = _name(table, given, path)
+        if "policy" in table.columns:
+            table = table.assign(policy=name)
+        parts.append((name, *episodes_from_table(table, level=level, thresholds=thresholds,
+                                                  policy=name, source=str(path))))
+    taken = [part[0] for part in parts]
+    if len(set(taken)) < len(taken):
+        raise LabelTableError(f"the inputs {list(paths)} carry the policy names {taken}; "
+                              "name them apart with --names.")
+    return parts
+
+
 def _warn_if_unpaired(eps_a, eps_b, a: tuple[str, str], b: tuple[str, str]) -> None:
     """Warn (naming both files) when no (env, seed) is in both episode tables: nothing can
     be paired, and only the label-matched comparison and coverage are left."""
@@ -78,28 +110,14 @@ def run(args: argparse.Namespace) -> int:
     import pandas as pd
 
     from tap_bench.bench.compare import matched_by_label
-    from tap_bench.bench.episodes import episodes_from_table
     from tap_bench.bench.runner import check_output, package_versions, write_results
     from tap_bench.bench.scoring import score
-    from tap_bench.errors import LabelTableError
-    from tap_bench.tableio import read_table
+    from tap_bench.bench.viewer.build import env_roads
 
     check_output(args.output, args.overwrite)  # before any work
     config = bootstrap_from_args(args)
-    names = args.names or [None, None]
-    parts = []
-    for path, given in zip((args.a, args.b), names, strict=True):
-        table = read_table(path)
-        name = _name(table, given, path)
-        if "policy" in table.columns:
-            table = table.assign(policy=name)
-        parts.append((name, *episodes_from_table(table, level=args.level,
-                                                  thresholds=args.thresholds, policy=name,
-                                                  source=str(path))))
-    (a, eps_a, lab_a, _), (b, eps_b, lab_b, _) = parts
-    if a == b:
-        raise LabelTableError(f"both inputs are policy {a!r}; name them apart with "
-                              "--names A B.")
+    (a, eps_a, lab_a, traj_a), (b, eps_b, lab_b, traj_b) = read_policies(
+        (args.a, args.b), args.names, level=args.level, thresholds=args.thresholds)
     episodes = pd.concat([eps_a, eps_b], ignore_index=True)
     _warn_if_unpaired(eps_a, eps_b, (a, args.a), (b, args.b))
     scores = score(episodes, reference_policy=b, level=args.level, config=config,
@@ -119,7 +137,13 @@ def run(args: argparse.Namespace) -> int:
                "n_failed": int((episodes["status"] != "ok").sum()),
                "methods": scores.methods, "versions": package_versions()}
     labels = pd.concat([lab_a, lab_b], ignore_index=True)
-    folder = write_results(args.output, args.overwrite, summary, episodes, labels, None, scores)
+    # trajectory tables are kept, so the folder replays in 'tap-bench view' (label tables
+    # have none to replay)
+    replay = (pd.concat([traj_a, traj_b], ignore_index=True)
+              if traj_a is not None and traj_b is not None else None)
+    roads = env_roads(summary["suite"]["envs"]) if replay is not None else None
+    folder = write_results(args.output, args.overwrite, summary, episodes, labels, replay,
+                           scores, roads=roads)
     print(f"A = {a} (evaluated), B = {b} (the reference); differences are A - B")
     for row in scores.paired.itertuples():
         print(f"{row.env}: {row.n_pairs} seeds paired; same ego label on {row.agreement:.0%} "

@@ -41,6 +41,7 @@ from tap_bench.errors import ParameterError, TapBenchError
 from tap_bench.labelling import tap
 from tap_bench.maps import empty_map
 from tap_bench.sources import iter_womd, read_womd
+from tap_bench.sources.ingest import record_files
 from tap_bench.sources.maps import iter_road_maps, read_maps
 from tap_bench.tableio import atomic_folder
 from tap_bench.thresholds import Thresholds
@@ -165,6 +166,24 @@ def _ego_segments(trajectories: pd.DataFrame, thresholds: Any, level: str) -> pd
     return segments.merge(ego, on=["scenario_id", "track_id"])
 
 
+def env_roads(envs: Sequence[str]) -> pd.DataFrame:
+    """The map table of the highway-env scenarios among ``envs`` (one road each, as a run
+    records them); envs that are no scenario of the catalogue (recorded scenes, a table's
+    own env names) get no map."""
+    from tap_bench.errors import UnknownNameError
+    from tap_bench.sim.roads import road_table
+    from tap_bench.sim.scenario_env import get_scenario
+
+    frames = []
+    for env in envs:
+        try:
+            scenario = get_scenario(str(env))
+        except UnknownNameError:
+            continue
+        frames.append(road_table(scenario))
+    return pd.concat(frames, ignore_index=True) if frames else empty_map()
+
+
 def _rebuild_roads(summary: dict[str, Any], envs: Sequence[str]) -> pd.DataFrame:
     suite = suite_from_dict(summary.get("suite", {}), source="summary.json")
     frames = [suite.road(env) for env in envs if env in suite.envs]
@@ -276,6 +295,9 @@ def write_womd_viewer(paths: Sequence[str | os.PathLike], output: str | os.PathL
                                  f"an integer from 1 to the limit of {MAX_VIEW_SCENARIOS} "
                                  "(tap_bench.bench.viewer.build.MAX_VIEW_SCENARIOS): each "
                                  "scenario costs about 14 MB while the viewer is built."))
+    # a README or other non-record file in a folder or glob is left out with a note, as
+    # ingest does (a file named on its own is read, and says what is wrong)
+    paths = record_files(paths)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         traj, more = _first_scenarios(paths, max_scenarios)
