@@ -44,12 +44,15 @@ def _alive(pid: int) -> bool:
 def _start_run(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
     suite = tmp_path / "slow.json"
     suite.write_text(json.dumps({
-        "name": "slow", "envs": ["highway"], "policies": ["idm", "random"], "seeds": "0-19",
-        "env_overrides": {"highway": {"duration": 30}}}))
+        "name": "slow", "envs": ["highway"], "policies": ["idm", "random"], "seeds": "0-199",
+        "env_overrides": {"highway": {"duration": 60}}}))
     out = tmp_path / "runs" / "run"
+    # a cache of its own: episodes an earlier test of the session cached would let the run
+    # finish before the signal (or without starting workers)
+    env = {**os.environ, "TAP_BENCH_CACHE": str(tmp_path / "cache")}
     run = subprocess.Popen(
         [sys.executable, "-m", "tap_bench", "bench", "run", "--suite", str(suite), "-o", str(out),
-         "--workers", "2", "--no-progress"], stderr=subprocess.PIPE, text=True)
+         "--workers", "2", "--no-progress"], stderr=subprocess.PIPE, text=True, env=env)
     deadline = time.time() + 90
     while time.time() < deadline and len(_descendants(run.pid)) < 2:
         time.sleep(0.2)

@@ -546,3 +546,35 @@ def test_a_replayed_car_that_runs_into_the_ego_is_marked(tmp_path):
     assert info["crash_with"] == "7" and info["crash_from_behind_by_log"]
     run(env, "log", 0)  # the human is never caught
     assert not env.unwrapped.vehicle.crashed
+
+
+def test_a_run_viewer_carries_the_signals_of_its_scenes(real, tmp_path, monkeypatch):
+    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.suite import suite_from_dict
+    from tap_bench.bench.viewer import build
+
+    suite = suite_from_dict(womd_suite([real[0]], policies=["log"]))  # 637f: red lights
+    result = run_suite(suite, tmp_path / "run", workers=1, progress=False)
+    captured = {}
+    monkeypatch.setattr(build, "write_viewer",
+                        lambda output, index, chunks: captured.update(chunks) or output)
+    build.write_run_viewer(tmp_path / "v", result.summary, result.episodes,
+                           pd.read_parquet(tmp_path / "run" / "trajectories.parquet"),
+                           roads=pd.read_parquet(tmp_path / "run" / "roads.parquet"))
+    doc = next(d for docs in captured.values() for d in docs)
+    assert doc["id"] == "637f20cafde22ff8/log"
+    signals = read_road_maps([real[0]])["637f20cafde22ff8"].signals
+    field = doc["signals"]
+    assert field["lanes"] == signals.lane.tolist()
+    assert len(field["states"]) == signals.state.shape[0] == 91
+    letters = np.array([list(s) for s in field["states"]])
+    assert ((letters == "r") == np.isin(signals.state, [1, 4, 7])).all()
+    # the files gone: no signals, and a warning says why
+    captured.clear()
+    summary = dict(result.summary, suite=dict(result.summary["suite"],
+                                              envs=[{"womd": [str(tmp_path / "gone.pkl")]}]))
+    with pytest.warns(UserWarning, match="gone.pkl"):
+        build.write_run_viewer(tmp_path / "v", summary, result.episodes,
+                               pd.read_parquet(tmp_path / "run" / "trajectories.parquet"),
+                               roads=pd.read_parquet(tmp_path / "run" / "roads.parquet"))
+    assert "signals" not in next(d for docs in captured.values() for d in docs)

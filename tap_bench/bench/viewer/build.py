@@ -16,6 +16,7 @@ viewer (``TAPVIEW.index(...)``, ``TAPVIEW.chunk(...)``).
 
 from __future__ import annotations
 
+import glob
 import json
 import os
 import warnings
@@ -36,7 +37,7 @@ from tap_bench.bench.viewer.data import (
     map_features,
     signal_field,
 )
-from tap_bench.errors import ParameterError
+from tap_bench.errors import ParameterError, TapBenchError
 from tap_bench.labelling import tap
 from tap_bench.maps import empty_map
 from tap_bench.sources import iter_womd, read_womd
@@ -138,6 +139,7 @@ def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
         womd = str(entry["id"]).rpartition("/")[0]
         entry["map"] = (entry["env"] if entry["env"] in maps else
                         womd if womd in maps else None)
+    _add_run_signals(summary, chunks)
     suite = summary.get("suite", {})
     index = {"run": {"name": str(summary.get("run", Path(output).parent.name)),
                      "suite": str(suite.get("name", "")), "level": level,
@@ -211,6 +213,43 @@ def _first_scenarios(paths: Sequence[str | os.PathLike], max_scenarios: int
     if not tables:
         return read_womd([]), False
     return pd.concat(tables, ignore_index=True), more
+
+
+def _add_run_signals(summary: dict[str, Any], chunks: dict[str, list[dict[str, Any]]]
+                     ) -> None:
+    """Give each recorded-scene episode of a run its traffic signals per step, read again
+    from the suite's WOMD files (the run folder keeps the static map only); without the
+    files (moved, unreadable) the episodes show no signals and a warning says why."""
+    envs = summary.get("suite", {}).get("envs", [])
+    files: list[str] = []
+    for env in envs:
+        if isinstance(env, dict) and "womd" in env:
+            paths = env["womd"] if isinstance(env["womd"], list) else [env["womd"]]
+            files += [str(p) for p in paths]
+    files = list(dict.fromkeys(files))
+    if not files:
+        return
+    found = {f: (sorted(glob.glob(f)) if glob.has_magic(f) else
+                 [f] if Path(f).is_file() else []) for f in files}
+    present = [p for paths in found.values() for p in paths]
+    wanted = {str(doc["id"]).rpartition("/")[0] for docs in chunks.values() for doc in docs}
+    try:
+        roads = _road_maps(present, wanted) if present else {}
+    except (TapBenchError, OSError, ValueError) as err:
+        warnings.warn(f"the viewer shows no traffic signals: the run's WOMD files could not "
+                      f"be read again ({err}).", UserWarning, stacklevel=3)
+        return
+    gone = [f for f, paths in found.items() if not paths]
+    if gone:
+        warnings.warn(f"the viewer shows no traffic signals for the scenes of "
+                      f"{', '.join(gone)}: the files are "
+                      "gone; put them back where the suite names them to see the signals.",
+                      UserWarning, stacklevel=3)
+    for docs in chunks.values():
+        for doc in docs:
+            road = roads.get(str(doc["id"]).rpartition("/")[0])
+            if road is not None:
+                doc["signals"] = signal_field(road.signals)
 
 
 def _road_maps(paths: Sequence[str | os.PathLike], wanted: set[str]) -> dict[str, Any]:
