@@ -669,11 +669,9 @@ def _plain_row(row: Mapping[str, Any]) -> dict[str, Any]:
     return {str(k): v.item() if hasattr(v, "item") else v for k, v in row.items()}
 
 
-def _decode(data: bytes, key: str) -> CachedEpisode:
-    """An entry's content, verified whole; :class:`_Refused` naming the failed check (other
-    exceptions of a damaged payload are caught by the caller)."""
-    from tap_bench.sim.rollout import EPISODE_COLUMNS
-
+def _split_entry(data: bytes, kind: str, version: int) -> tuple[dict, bytes]:
+    """An entry's header (a JSON object of format ``kind`` at ``version``) and its payload;
+    :class:`_Refused` naming the failed check."""
     line, sep, payload = data.partition(b"\n")
     if not sep or len(line) > MAX_HEADER_BYTES:
         raise _Refused("no header line (or one longer than 1 MiB)")
@@ -683,9 +681,17 @@ def _decode(data: bytes, key: str) -> CachedEpisode:
         raise _Refused(f"the header is not JSON ({type(err).__name__})") from None
     if not isinstance(header, dict):
         raise _Refused(f"the header is a {type(header).__name__}, not an object")
-    if header.get("format") != "tap-bench-episode" \
-            or header.get("format_version") != ENTRY_FORMAT:
+    if header.get("format") != kind or header.get("format_version") != version:
         raise _Refused("another entry format")
+    return header, payload
+
+
+def _decode(data: bytes, key: str) -> CachedEpisode:
+    """An entry's content, verified whole; :class:`_Refused` naming the failed check (other
+    exceptions of a damaged payload are caught by the caller)."""
+    from tap_bench.sim.rollout import EPISODE_COLUMNS
+
+    header, payload = _split_entry(data, "tap-bench-episode", ENTRY_FORMAT)
     types = {"key": str, "doc": dict, "row": dict, "seconds": int | float,
              "payload_bytes": int, "payload_sha256": str, "header_sha256": str}
     wrong = [name for name, kind in types.items() if not isinstance(header.get(name), kind)
@@ -717,18 +723,7 @@ def _decode(data: bytes, key: str) -> CachedEpisode:
 
 def _decode_labels(data: bytes, key: str) -> dict[str, pd.DataFrame]:
     """A label entry's tables, verified whole; :class:`_Refused` naming the failed check."""
-    line, sep, payload = data.partition(b"\n")
-    if not sep or len(line) > MAX_HEADER_BYTES:
-        raise _Refused("no header line (or one longer than 1 MiB)")
-    try:
-        header = json.loads(line)
-    except (ValueError, RecursionError) as err:
-        raise _Refused(f"the header is not JSON ({type(err).__name__})") from None
-    if not isinstance(header, dict):
-        raise _Refused(f"the header is a {type(header).__name__}, not an object")
-    if header.get("format") != "tap-bench-labels" \
-            or header.get("format_version") != LABELS_FORMAT:
-        raise _Refused("another entry format")
+    header, payload = _split_entry(data, "tap-bench-labels", LABELS_FORMAT)
     if not isinstance(header.get("doc"), dict) or not isinstance(header.get("tables"), list) \
             or not isinstance(header.get("header_sha256"), str):
         raise _Refused("header fields missing or of the wrong type")
