@@ -1,11 +1,10 @@
-"""The run report: SVG (and two PNG) figures and one static HTML page (no server, nothing
-from the network).
+"""The run report: SVG figures and one static HTML page (no server, nothing from the
+network).
 
-:func:`write_report` writes ``plots/*.svg``, ``plots/*.png`` and ``report.html`` into a run
-folder. The page holds its figures inline (SVG) or as data URIs (PNG), so the HTML file
-alone is the whole report (mail it, open it from disk); the figure files are there for
-papers and slides. A small inline script sorts
-and searches the long tables; without it the page still reads in full.
+:func:`write_report` writes ``plots/*.svg`` and ``report.html`` into a run folder. The page
+holds its figures inline, so the HTML file alone is the whole report (mail it, open it from
+disk); the figure files are there for papers and slides. A small inline script sorts and
+searches the long tables; without it the page still reads in full.
 
 The page reads from the top: a summary table of each policy against the reference policy
 (every measure with its interval and a better / worse / no-difference mark), then one panel
@@ -18,7 +17,6 @@ that name episodes or labels link to the replay that shows them.
 
 from __future__ import annotations
 
-import base64
 import html
 import os
 from pathlib import Path
@@ -120,19 +118,10 @@ document.querySelectorAll('table.sortable th').forEach(function (th, k) {
 
 
 def _figure(path: Path, alt: str, caption: str) -> str:
-    """A figure in the page, with its caption: an SVG inline, a PNG as a data URI."""
-    if path.suffix == ".svg":
-        svg = path.read_text()
-        svg = svg.replace("<svg ", f'<svg role="img" aria-label="{html.escape(alt)}" ', 1)
-        return f"<figure>{svg}<figcaption>{html.escape(caption)}</figcaption></figure>"
-    from PIL import Image
-
-    with Image.open(path) as im:
-        width, height = im.size
-    data = base64.b64encode(path.read_bytes()).decode("ascii")
-    return (f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(alt)}" '
-            f'width="{width}" height="{height}"><figcaption>{html.escape(caption)}'
-            "</figcaption></figure>")
+    """A figure in the page, inline (SVG), with its caption."""
+    svg = path.read_text()
+    svg = svg.replace("<svg ", f'<svg role="img" aria-label="{html.escape(alt)}" ', 1)
+    return f"<figure>{svg}<figcaption>{html.escape(caption)}</figcaption></figure>"
 
 
 def _replay(viewer: str | None, **params: Any) -> str | None:

@@ -145,7 +145,9 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
 
     Returns:
         (coverage rows, novelty rows, novel labels), each with env, policy, reference.
-        Pooled rows (``env == "all"``) aggregate the per-env ones for env-keyed references
+        The novel labels are listed once, under the env whose episodes show them (a pooled
+        label is an (env, label) pair: its rows are the envs' rows). Pooled coverage and
+        novelty rows (``env == "all"``) aggregate the per-env ones for env-keyed references
         (:func:`tap_bench.bench.coverage.pooled_coverage`,
         :func:`tap_bench.bench.novelty.pooled_novelty`) and score all episodes together
         against a reference without envs.
@@ -181,8 +183,9 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
                     env == ALL_ENVS else (reference.get(env) if keyed else reference
                                           ).n_trajectories
                 nov_rows.append({**key, **nv.row(), "reference_size": size})
-                labels = nv.labels if "env" in nv.labels.columns else nv.labels.assign(env=env)
-                nov_labels.append(labels.assign(policy=policy, reference=name))
+                if env != ALL_ENVS:  # pooled: the envs' rows again; each (env, label) once
+                    nov_labels.append(nv.labels.assign(env=env, policy=policy,
+                                                       reference=name))
     cov = pd.DataFrame(cov_rows)
     nov = pd.DataFrame(nov_rows)
     frames = [f for f in nov_labels if len(f)]
