@@ -20,7 +20,7 @@ from __future__ import annotations
 import html
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import quote
 
 import pandas as pd
@@ -49,6 +49,9 @@ from tap_bench.bench.report_tables import (
 )
 from tap_bench.bench.scoring import Scores
 from tap_bench.tableio import atomic_path
+
+if TYPE_CHECKING:
+    from tap_bench.bench.cache import EpisodeCache
 
 __all__ = ["diversity_display", "html_table", "summary_table", "write_plots", "write_report"]
 
@@ -181,7 +184,8 @@ def _against_the_human(episodes: pd.DataFrame, reference: str, level: float) -> 
 
 
 def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: pd.DataFrame,
-                 scores: Scores, *, viewer: str | None = None) -> Path:
+                 scores: Scores, *, viewer: str | None = None,
+                 cache: EpisodeCache | None = None) -> Path:
     """Write ``plots/*.svg`` and ``report.html`` into a run folder; returns the HTML path.
 
     Args:
@@ -191,6 +195,8 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
         scores: the scored tables.
         viewer: the replay viewer's page relative to the report (``viewer/index.html``):
             rows naming episodes or labels link to their replay; None: no links.
+        cache: the episode cache: the figures of unchanged scores are read from it
+            (:func:`write_plots`).
     """
     folder = Path(folder)
     reference = str(summary.get("reference_policy", ""))
@@ -198,7 +204,7 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
     level = run_level(summary)
     pct = level_text(level)  # every interval of the run is at the suite's level
     plots = {p.stem: p for p in write_plots(scores, folder / "plots", reference=reference,
-                                            level=level)}
+                                            level=level, cache=cache)}
     run = str(summary.get("run", ""))
     parts = [f"<h1>tap-bench run {html.escape(run)}</h1>",
              f"<p>Suite <b>{html.escape(str(suite.get('name', '')))}</b> "

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from tap_bench import sdl
 from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.compare import ALL_ENVS, MIN_GROUP, matched_by_label, paired_comparison
 from tap_bench.bench.coverage import (
@@ -29,7 +30,8 @@ from tap_bench.bench.novelty import novelty, pooled_novelty
 from tap_bench.bench.null import SPLITS, pooled_null, same_policy_null
 from tap_bench.errors import LabelTableError
 
-__all__ = ["Scores", "diversity_table", "policy_measures", "reference_scores", "score"]
+__all__ = ["Scores", "diversity_table", "policy_measures", "reference_scores", "score",
+           "scores_from_files", "scores_to_files"]
 
 
 @dataclass(frozen=True)
@@ -87,6 +89,49 @@ class Scores:
     def tables(self) -> dict[str, pd.DataFrame]:
         """name -> table, in report order."""
         return {name: getattr(self, name) for name in self.TABLES}
+
+
+def scores_to_files(scores: Scores) -> dict[str, bytes]:
+    """A :class:`Scores` as files (name -> bytes): each table as Parquet, the methods and
+    references as JSON; :func:`scores_from_files` reads them back, equal value for value
+    (the run keeps the scores of unchanged inputs this way: :func:`~tap_bench.bench.cache.
+    memoised`). Raises what Parquet raises for a column it cannot hold."""
+    import io
+    import json
+
+    files = {}
+    for name, table in scores.tables().items():
+        buffer = io.BytesIO()
+        table.to_parquet(buffer, index=True)
+        files[f"{name}.parquet"] = buffer.getvalue()
+    refs = {name: {"items": [str(v) for v in ref.items],
+                   "weights": [float(w) for w in ref.weights], "kind": ref.kind,
+                   "level": ref.level, "description": ref.description,
+                   "n_trajectories": int(ref.n_trajectories),
+                   "units": [str(u) for u in ref.units], "axes": list(ref.axes),
+                   "seeds": None if ref.seeds is None else [int(x) for x in ref.seeds]}
+            for name, ref in scores.references.items()}
+    # in order: the report lists the methods as scoring wrote them
+    files["meta.json"] = json.dumps({"methods": scores.methods, "references": refs}).encode()
+    return files
+
+
+def scores_from_files(files: Mapping[str, bytes]) -> Scores:
+    """The :class:`Scores` :func:`scores_to_files` wrote."""
+    import io
+    import json
+
+    meta = json.loads(files["meta.json"])
+    refs = {name: Reference(np.array(r["items"], dtype=object),
+                            np.array(r["weights"], dtype=float), r["kind"], r["level"],
+                            r["description"], int(r["n_trajectories"]),
+                            units=np.array(r.get("units", []), dtype=object),
+                            seeds=None if r.get("seeds") is None else np.array(r["seeds"]),
+                            axes=tuple(r.get("axes", sdl.AXES)))
+            for name, r in meta["references"].items()}
+    tables = {name: pd.read_parquet(io.BytesIO(files[f"{name}.parquet"]))
+              for name in Scores.TABLES}
+    return Scores(**tables, references=refs, methods=dict(meta["methods"]))
 
 
 def _env_groups(table: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:

@@ -431,10 +431,14 @@ def _trained_here(output: Path) -> bool:
 
 
 def _observation_config(scenario: Scenario | WomdScenes) -> dict[str, Any]:
-    """The observation config the agent reads: the scenario's, else highway-env's default."""
+    """The observation config the agent reads: the scenario's, else the env's default (on
+    recorded scenes the Kinematics observation with the route:
+    :mod:`tap_bench.sim.womd_observation`)."""
     config = scenario.config.get("observation")
     if config is None and isinstance(scenario, WomdScenes):
-        config = {"type": "Kinematics"}
+        from tap_bench.sim.womd_observation import OBSERVATION_TYPE
+
+        config = {"type": OBSERVATION_TYPE}
     if config is None:
         config = env_class(scenario.highway_env_id).default_config()["observation"]
     return dict(config)
