@@ -20,7 +20,7 @@ from __future__ import annotations
 import html
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import quote
 
 import pandas as pd
@@ -49,6 +49,9 @@ from tap_bench.bench.report_tables import (
 )
 from tap_bench.bench.scoring import Scores
 from tap_bench.tableio import atomic_path
+
+if TYPE_CHECKING:
+    from tap_bench.bench.cache import EpisodeCache
 
 __all__ = ["diversity_display", "html_table", "summary_table", "write_plots", "write_report"]
 
@@ -181,7 +184,8 @@ def _against_the_human(episodes: pd.DataFrame, reference: str, level: float) -> 
 
 
 def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: pd.DataFrame,
-                 scores: Scores, *, viewer: str | None = None) -> Path:
+                 scores: Scores, *, viewer: str | None = None,
+                 cache: EpisodeCache | None = None) -> Path:
     """Write ``plots/*.svg`` and ``report.html`` into a run folder; returns the HTML path.
 
     Args:
@@ -191,6 +195,8 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
         scores: the scored tables.
         viewer: the replay viewer's page relative to the report (``viewer/index.html``):
             rows naming episodes or labels link to their replay; None: no links.
+        cache: the episode cache: the figures of unchanged scores are read from it
+            (:func:`write_plots`).
     """
     folder = Path(folder)
     reference = str(summary.get("reference_policy", ""))
@@ -198,7 +204,7 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
     level = run_level(summary)
     pct = level_text(level)  # every interval of the run is at the suite's level
     plots = {p.stem: p for p in write_plots(scores, folder / "plots", reference=reference,
-                                            level=level)}
+                                            level=level, cache=cache)}
     run = str(summary.get("run", ""))
     parts = [f"<h1>tap-bench run {html.escape(run)}</h1>",
              f"<p>Suite <b>{html.escape(str(suite.get('name', '')))}</b> "
@@ -258,7 +264,11 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
         f"{reference} on the same seeds: ▲ better or ▼ worse when the difference's {pct} "
         f"interval excludes 0, = no difference otherwise. {_measures_text(summary)}"
         "Coverage: share of the reference corpus's labels the policy shows; novel: share of "
-        "episodes whose label the reference never shows."))
+        "episodes whose label the reference never shows; under each, the same-policy figure "
+        "(the reference's episodes split in halves, one held against the other) and the "
+        f"policy's difference from it at those sizes with its {pct} interval (a reference "
+        "never shows everything its own policy does: read the difference, not the figure "
+        "alone)."))
     if scores.methods:
         parts.append('<details><summary class="note">How the intervals are computed</summary>'
                      "<ul>" + "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>"
@@ -360,8 +370,14 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
                      f"reference shows each label (right), with {pct} intervals; one colour "
                      "per reference corpus."))
     parts.append(html_table(_display_coverage(scores.coverage, level), table_id="coverage",
-                            caption="Coverage per env and reference, with the diversity of "
-                            "each policy's labels."))
+                            caption="Coverage per env and reference, scored on whole "
+                            "labels (episodes, or windows of a real corpus's track length) "
+                            "and on the manoeuvres the episodes contain (segments: the labels "
+                            "of their runs, which repeat where whole labels rarely do); "
+                            "beside each, the same-policy figure (the reference split in "
+                            "halves) and the policy's difference from it at those sizes with "
+                            f"its {pct} interval; with the diversity of each policy's "
+                            "labels."))
     if not scores.diversity.empty:
         parts.append("<h2>Behaviour diversity</h2>")
         parts.append(html_table(
@@ -378,12 +394,16 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
                      f"whose ego label the reference corpus never shows, with {pct} "
                      "intervals; one colour per reference."))
     parts.append(html_table(_display_novelty(scores.novelty, level), table_id="novelty",
-                            caption="Novelty per env and reference."))
+                            caption="Novelty per env and reference, on whole labels "
+                            "and on segments (an episode is novel when one of its segments "
+                            "carries a label the reference never shows), beside the "
+                            "same-policy figure and the difference from it."))
     nl = scores.novel_labels
     parts.append(html_table(
         _display_novel_labels(nl), table_id="novel_labels", text_columns=("label", "example"),
-        caption="Novel labels with an example episode; replay opens the example beside the "
-        "reference policy on the same seed.",
+        caption="Novel labels with an example episode, each (env, label) once (the pooled "
+        "figures count these rows); for segments, the segment labels the reference never "
+        "shows; replay opens the example beside the reference policy on the same seed.",
         links=[_replay(viewer, ep=r.example_scenario, b=reference)
                for r in nl.itertuples()] if len(nl) else None))
     if not scores.scenario_matches.empty:

@@ -16,6 +16,7 @@ import math
 import os
 import textwrap
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -28,6 +29,9 @@ from tap_bench.bench.report_tables import (
     interval_heading,
 )
 from tap_bench.bench.scoring import Scores
+
+if TYPE_CHECKING:
+    from tap_bench.bench.cache import EpisodeCache
 
 TOP_LABELS = 12  # labels shown per heat map and forest plot
 FONT_PX = 12  # smallest text in a figure [px]
@@ -114,13 +118,13 @@ class _Svg:
     def circle(self, x: float, y: float, r: float, *, fill: str) -> None:
         self.parts.append(f'<circle cx="{x:.1f}" cy="{y:.1f}" r="{r:g}" fill="{fill}"/>')
 
-    def write(self, path: Path) -> Path:
-        path.write_text(
+    def named(self, name: str) -> tuple[str, str]:
+        """(``name``, the drawing as an SVG document)."""
+        return name, (
             f'<svg xmlns="http://www.w3.org/2000/svg" width="{self.width}" '
             f'height="{self.height}" viewBox="0 0 {self.width} {self.height}" '
             'font-family="DejaVu Sans, Helvetica, Arial, sans-serif">'
             f'<rect width="100%" height="100%" fill="white"/>{"".join(self.parts)}</svg>\n')
-        return path
 
 
 def _fit(lo, hi, *, floor: float | None = None, ceil: float | None = None
@@ -218,7 +222,7 @@ def _series(sub: pd.DataFrame, est: str, lo: str, hi: str, scale: float = 1.0, *
             "hi": (sub[hi] * scale).to_numpy(float), "color": color, "offset": offset}
 
 
-def _label_heatmap(counts: pd.DataFrame, env: str, folder: Path) -> Path | None:
+def _label_heatmap(counts: pd.DataFrame, env: str) -> tuple[str, str] | None:
     sub = counts[counts["env"] == env]
     if sub.empty:
         return None
@@ -263,10 +267,10 @@ def _label_heatmap(counts: pd.DataFrame, env: str, folder: Path) -> Path | None:
         yy = top_y + plot_h * (1 - tick / vmax)
         svg.line(bar_x + 12, yy, bar_x + 16, yy, stroke="#555")
         svg.text(bar_x + 18, yy, f"{tick:.0%}")
-    return svg.write(folder / f"labels_{_slug(env)}.svg")
+    return svg.named(f"labels_{_slug(env)}.svg")
 
 
-def _measures_plot(scores: Scores, env: str, reference: str, folder: Path) -> Path | None:
+def _measures_plot(scores: Scores, env: str, reference: str) -> tuple[str, str] | None:
     m = scores.measures[scores.measures["env"] == env] if len(scores.measures) else \
         scores.measures
     if m.empty:
@@ -292,11 +296,19 @@ def _measures_plot(scores: Scores, env: str, reference: str, folder: Path) -> Pa
                [_series(sub, "mean", "low", "high", scale)], xlim,
                title=f"{meas.label} [{meas.display_unit}]\n{better} is better",
                vlines=((ref, "#999", "4 3"),))
-    return svg.write(folder / f"measures_{_slug(env)}.svg")
+    return svg.named(f"measures_{_slug(env)}.svg")
 
 
-def _coverage_plot(scores: Scores, folder: Path) -> Path | None:
-    cov = _pooled(scores.coverage)
+def _whole_labels(table: pd.DataFrame) -> pd.DataFrame:
+    """The rows scored on whole labels (episodes or windows), not on segments (the
+    coverage and novelty tables give both)."""
+    if table.empty or "unit" not in table.columns:
+        return table
+    return table[~table["unit"].astype(str).str.endswith("segments")]
+
+
+def _coverage_plot(scores: Scores) -> tuple[str, str] | None:
+    cov = _whole_labels(_pooled(scores.coverage))
     if cov.empty:
         return None
     refs = sorted(cov["reference"].unique())
@@ -323,14 +335,14 @@ def _coverage_plot(scores: Scores, folder: Path) -> Path | None:
                _fit(cov[lo] * 100, cov[hi] * 100, floor=0, ceil=100), title=title)
     _legend(svg, MAX_WIDTH_PX - 14, top_y + 4,
             [(ref, COLORS[k % len(COLORS)]) for k, ref in enumerate(refs)], title="reference")
-    return svg.write(folder / "coverage.svg")
+    return svg.named("coverage.svg")
 
 
-def _forest_plots(scores: Scores, folder: Path, level: float) -> list[Path]:
+def _forest_plots(scores: Scores, level: float) -> list[tuple[str, str]]:
     """Per pair of policies, one figure with a panel per env: the labels whose share of
     seeds differs most in that env, with their intervals and the simultaneous band."""
     labels = scores.paired_labels
-    out: list[Path] = []
+    out: list[tuple[str, str]] = []
     if labels.empty:
         return out
     per_env = max(4, TOP_LABELS // 2)
@@ -368,11 +380,11 @@ def _forest_plots(scores: Scores, folder: Path, level: float) -> list[Path]:
         svg.text(left + width / 2, y - panel_gap + 30,
                  f"difference in the share of seeds [percentage points]: {a} minus {b}",
                  anchor="middle")
-        out.append(svg.write(folder / f"forest_{_slug(a)}_vs_{_slug(b)}.svg"))
+        out.append(svg.named(f"forest_{_slug(a)}_vs_{_slug(b)}.svg"))
     return out
 
 
-def _tradeoff_plot(scores: Scores, reference: str, folder: Path) -> Path | None:
+def _tradeoff_plot(scores: Scores, reference: str) -> tuple[str, str] | None:
     """Safety against progress per env: each policy's crash rate (Wilson interval) against
     its mean speed (t interval); the reference's point marked (a square)."""
     m = scores.measures
@@ -455,10 +467,10 @@ def _tradeoff_plot(scores: Scores, reference: str, folder: Path) -> Path | None:
     _legend(svg, MAX_WIDTH_PX - 8, title_h,
             [(p + (" (reference, square)" if p == reference else ""), colors[p])
              for p in policies])
-    return svg.write(folder / "tradeoff.svg")
+    return svg.named("tradeoff.svg")
 
 
-def _improvement_plot(scores: Scores, folder: Path) -> Path | None:
+def _improvement_plot(scores: Scores) -> tuple[str, str] | None:
     pm = _pooled(scores.paired_measures)
     if pm.empty:
         return None
@@ -482,11 +494,11 @@ def _improvement_plot(scores: Scores, folder: Path) -> Path | None:
     _panel(svg, left, top_y, 950 - left - 14, len(names), row_h, series, (-0.02, 1.02),
            xlabel="P(A better than B on the same seed); ties count 1/2; 0.5: no difference",
            vlines=((0.5, "#000", None),), grid=False)
-    return svg.write(folder / "improvement.svg")
+    return svg.named("improvement.svg")
 
 
-def _novelty_plot(scores: Scores, folder: Path) -> Path | None:
-    nov = _pooled(scores.novelty)
+def _novelty_plot(scores: Scores) -> tuple[str, str] | None:
+    nov = _whole_labels(_pooled(scores.novelty))
     if nov.empty:
         return None
     refs = sorted(nov["reference"].unique())
@@ -509,11 +521,12 @@ def _novelty_plot(scores: Scores, folder: Path) -> Path | None:
            "never shows")
     _legend(svg, 946, top_y, [(ref, COLORS[k % len(COLORS)]) for k, ref in enumerate(refs)],
             title="reference")
-    return svg.write(folder / "novelty.svg")
+    return svg.named("novelty.svg")
 
 
 def write_plots(scores: Scores, folder: str | os.PathLike, *,
-                reference: str | None = None, level: float = 0.95) -> list[Path]:
+                reference: str | None = None, level: float = 0.95,
+                cache: EpisodeCache | None = None) -> list[Path]:
     """Write the SVG figures of a scored run into ``folder`` and return their paths
     (``level``: the run's interval level, for the legends).
 
@@ -521,18 +534,35 @@ def write_plots(scores: Scores, folder: str | os.PathLike, *,
     ``measures_all.svg``, ``tradeoff.svg`` (crash rate against mean speed, per env),
     ``improvement.svg``, ``coverage.svg``, ``forest_<A>_vs_<B>.svg`` (a panel per env),
     ``novelty.svg``.
+
+    With a ``cache``, the figures of scores equal to an earlier run's (every table, value
+    for value, the reference, the level and the code) are read from it
+    (:func:`tap_bench.bench.cache.memoised`): the same bytes.
     """
+    from tap_bench.bench.cache import memoised, table_digest
+
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    reference = reference or ""
-    paths: list[Path | None] = []
+    inputs = {"tables": {name: table_digest(t) for name, t in scores.tables().items()},
+              "reference": reference or "", "level": level}
+    figures = memoised(cache, "plots", inputs if cache is not None else None,
+                       lambda: _draw(scores, reference or "", level), dict, dict)
+    paths = []
+    for name, data in figures.items():
+        (folder / name).write_bytes(data)
+        paths.append(folder / name)
+    return paths
+
+
+def _draw(scores: Scores, reference: str, level: float) -> dict[str, bytes]:
+    """Every figure of :func:`write_plots`: file name -> SVG bytes, in report order."""
+    svgs: list[tuple[str, str] | None] = []
     envs = _envs(scores)
     for env in envs:
-        paths.append(_label_heatmap(scores.label_counts, env, folder))
-        paths.append(_measures_plot(scores, env, reference, folder))
+        svgs.append(_label_heatmap(scores.label_counts, env))
+        svgs.append(_measures_plot(scores, env, reference))
     if len(envs) > 1:
-        paths.append(_measures_plot(scores, "all", reference, folder))
-    paths += [_tradeoff_plot(scores, reference, folder), _improvement_plot(scores, folder),
-              _coverage_plot(scores, folder),
-              *_forest_plots(scores, folder, level), _novelty_plot(scores, folder)]
-    return [p for p in paths if p is not None]
+        svgs.append(_measures_plot(scores, "all", reference))
+    svgs += [_tradeoff_plot(scores, reference), _improvement_plot(scores),
+             _coverage_plot(scores), *_forest_plots(scores, level), _novelty_plot(scores)]
+    return {name: text.encode() for name, text in (s for s in svgs if s is not None)}

@@ -46,17 +46,18 @@ def scores(request):
                  config=BootstrapConfig(n_resamples=200))
 
 
-def _root(path):
-    return ElementTree.fromstring(path.read_text())
+def _root(figure):
+    return ElementTree.fromstring(figure[1])
 
 
 def _texts(root) -> list[str]:
     return ["".join(t.itertext()) for t in root.iter(f"{SVG}text")]
 
 
-def test_the_tradeoff_view_draws_each_policy_per_env_where_its_values_are(scores, tmp_path):
-    path = _tradeoff_plot(scores, "idm", tmp_path)
-    root = _root(path)
+def test_the_tradeoff_view_draws_each_policy_per_env_where_its_values_are(scores):
+    figure = _tradeoff_plot(scores, "idm")
+    assert figure[0] == "tradeoff.svg"
+    root = _root(figure)
     m = scores.measures
     envs = sorted(e for e in m["env"].unique() if e != "all")
     panels = envs + (["all"] if len(envs) > 1 else [])
@@ -80,8 +81,8 @@ def test_the_tradeoff_view_draws_each_policy_per_env_where_its_values_are(scores
             assert ys[2 * k] < ys[2 * k + 1]  # up is a higher crash rate
 
 
-def test_the_forest_panels_show_the_labels_that_differ_most_per_env(scores, tmp_path):
-    paths = _forest_plots(scores, tmp_path, level=0.9)
+def test_the_forest_panels_show_the_labels_that_differ_most_per_env(scores):
+    paths = _forest_plots(scores, level=0.9)
     pl = scores.paired_labels
     pairs = pl[["policy_a", "policy_b"]].drop_duplicates()
     assert len(paths) == len(pairs)
@@ -115,9 +116,9 @@ def test_the_forest_panels_show_the_labels_that_differ_most_per_env(scores, tmp_
             len(set(top["diff"])) < len(top)
 
 
-def test_no_figure_without_its_measures(tmp_path):
+def test_no_figure_without_its_measures():
     from tap_bench.bench.scoring import Scores
 
     empty = Scores(**{name: pd.DataFrame() for name in Scores.TABLES})
-    assert _tradeoff_plot(empty, "idm", tmp_path) is None
-    assert _forest_plots(empty, tmp_path, 0.95) == []
+    assert _tradeoff_plot(empty, "idm") is None
+    assert _forest_plots(empty, 0.95) == []
