@@ -268,13 +268,23 @@ def _merge_ok(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
 
 
 def _wiggle_ok(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
-               config: StageConfig) -> np.ndarray:
+               config: StageConfig, *, at_end: bool = False) -> np.ndarray:
     """(k,) bool: the steps [a, b) of one segment, turns that start towards ``side`` and
     alternate, are a wiggle: the heading comes back (net change <= merge_heading, never
     farther than merge_excursion from the start) while the vehicle never gets as far
     sideways as a merge moves it (under merge_offset from where it started, across its
     heading there, at every step): an aborted lane change or a swerve, not turns (SPEC 4.3).
-    Two lane changes in a row (out and back) get a lane width away and stay merges."""
+    Two lane changes in a row (out and back) get a lane width away and stay merges.
+
+    ``at_end``: the sideways move is measured where [a, b) ends, as a merge's is (SPEC
+    4.3): a pair of opposite turns that :func:`_merge_ok` refused, or a lone turn with the
+    sub-threshold steering around it, whose heading comes back and which ends less than
+    merge_offset sideways from where it started moved less than a merge, and is a wiggle
+    however far out it went on the way: an aborted lane change 1.7 m out and on its way
+    back when the turns end (its straightening under w_str). A lane change out and back is
+    four turns (or three, the middle two joined), which :func:`_chain` splits into two
+    merges; its three turns as a whole are checked at every step (``at_end`` False).
+    """
     out = np.zeros(len(a), dtype=bool)
     h = path.heading
     for k, (lo, hi) in enumerate(zip(np.asarray(a).tolist(), np.asarray(b).tolist(),
@@ -284,9 +294,10 @@ def _wiggle_ok(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
         across = (-(path.x[rows] - path.x[rows[0]]) * np.sin(h0)
                   + (path.y[rows] - path.y[rows[0]]) * np.cos(h0))
         turned = np.abs(h[rows] - h0)
+        sideways = abs(across[-1]) if at_end else np.abs(across).max()
         out[k] = (abs(h[rows[-1]] - h0) <= config.merge_heading
                   and turned.max() <= config.merge_excursion
-                  and np.abs(across).max() < config.merge_offset)
+                  and sideways < config.merge_offset)
     del side
     return out
 
@@ -321,9 +332,9 @@ def _chain(path: _Path, start: np.ndarray, stop: np.ndarray, side: np.ndarray, f
     def merge_code(towards: int) -> int:
         return sdl.LEFT_MERGE if towards > 0 else sdl.RIGHT_MERGE
 
-    def wiggle(a: int, b: int, towards: int) -> bool:
+    def wiggle(a: int, b: int, towards: int, at_end: bool = False) -> bool:
         return bool(_wiggle_ok(path, np.array([a]), np.array([b]), np.array([towards]),
-                               config)[0])
+                               config, at_end=at_end)[0])
 
     i, pos = first, int(start[first])
     while i < last:
@@ -348,7 +359,7 @@ def _chain(path: _Path, start: np.ndarray, stop: np.ndarray, side: np.ndarray, f
         if ok(pos, nxt_stop, int(side[i])):
             code[pos:nxt_stop] = merge_code(int(side[i]))
             i += 2
-        elif wiggle(pos, nxt_stop, int(side[i])):
+        elif wiggle(pos, nxt_stop, int(side[i]), at_end=True):
             code[pos:nxt_stop] = sdl.STRAIGHT
             i += 2
         else:
@@ -386,7 +397,8 @@ def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int) -> Run
     is_merge = _merge_ok(path, start[lone], stop[lone + 1], side[lone], config)
     merged = lone[is_merge]
     rest = lone[~is_merge]
-    wiggles = rest[_wiggle_ok(path, start[rest], stop[rest + 1], side[rest], config)]
+    wiggles = rest[_wiggle_ok(path, start[rest], stop[rest + 1], side[rest], config,
+                              at_end=True)]
 
     code = runs.expand(m).astype(np.int64)
     for i in merged.tolist():
@@ -436,7 +448,8 @@ def _lone_wiggles(runs: Runs, path: _Path, config: StageConfig) -> Runs:
                             and is_turn[r + 1]))
         if against_turn:
             continue  # a turn against another: the pair rules decide
-        if bool(_wiggle_ok(path, np.array([lo]), np.array([hi]), np.array([0]), config)[0]):
+        if bool(_wiggle_ok(path, np.array([lo]), np.array([hi]), np.array([0]), config,
+                           at_end=True)[0]):
             wiggle.append(r)
     if not wiggle:
         return runs
