@@ -35,13 +35,17 @@ column              unit    what
 and ``duration_s`` (s), the time the ego was recorded, beside them.
 
 **Along the ego's path** (SPEC sections 6 and 7). The leader at a step is the nearest other
-road user ahead on the ego's own path (:mod:`tap_bench.pathframe`: ``0 < s <=``
-:data:`LOOKAHEAD`), inside its corridor (``|d| <=`` :data:`~tap_bench.pathframe.
-CORRIDOR_HALF_WIDTH`) and driving along it (heading within :data:`~tap_bench.pathframe.
-SAME_DIRECTION` of the path), on straight roads, curves, merges, roundabouts and
-intersections alike. The gap is ``s`` less half of each vehicle's length (the ``length``
-column where the table has one, else :data:`VEHICLE_LENGTH`); the closing speed is the ego's
-speed less the leader's velocity along the path.
+road user ahead on the ego's own path, within its reach (:func:`~tap_bench.pathframe.
+leader_reach`: 60 m, or 4 s at the ego's speed where that is farther; SPEC 7's range),
+inside its corridor (``|d| <=`` :data:`~tap_bench.pathframe.CORRIDOR_HALF_WIDTH`) and
+driving along it (heading within :data:`~tap_bench.pathframe.SAME_DIRECTION` of the path),
+on straight roads, curves, merges, roundabouts and intersections alike: the agent the
+interaction axis says the ego is Following (one rule, :func:`~tap_bench.pathframe.
+nearest_leader`, for both). A headway is then at most max(60 m / v, 4 s) less the bumper
+lengths: a car farther ahead is free driving, not a leader. The gap is ``s`` less half of
+each vehicle's length (the ``length`` column where the table has one, else
+:data:`VEHICLE_LENGTH`); the closing speed is the ego's speed less the leader's velocity
+along the path.
 
 **Collisions and the burn-in.** A step at which the ego is crashed has a TTC and a headway of
 0, so a crashed episode can never look safer than one without a conflict. The first
@@ -87,8 +91,10 @@ import pandas as pd
 from tap_bench.errors import RegistrationError, TrajectoryTableError
 from tap_bench.pathframe import (
     CORRIDOR_HALF_WIDTH,
-    SAME_DIRECTION,
+    LEADER_RANGE_M,
     Paths,
+    leader_reach,
+    nearest_leader,
     path_frame,
     scene_lanes,
 )
@@ -124,7 +130,10 @@ __all__ = [
 ]
 
 VEHICLE_LENGTH = 5.0  # [m] highway-env's vehicle length, used where no `length` column is
-LOOKAHEAD = 100.0  # [m] farthest leader considered along the path, centre to centre
+LOOKAHEAD = LEADER_RANGE_M
+"""[m] kept for old imports: the leader's reach is :func:`tap_bench.pathframe.leader_reach`,
+``LEADER_RANGE_M`` or ``LEADER_RANGE_S`` at the ego's speed, whichever is farther (it was a
+flat 100 m)."""
 MIN_SPEED_FOR_HEADWAY = 1.0  # [m/s] below this a time headway is not meaningful
 HEADWAY_CAP_S = 10.0  # [s] headways above this count as free driving
 BURN_IN_S = 2.0  # [s] headway and TTC skip the first steps: the scenario sets those gaps
@@ -831,19 +840,13 @@ def _leaders(key, scene, other_mask, ego_rows, ego_key, ego_sid, x, y, heading, 
     track = np.r_[np.ones(m, np.int64), np.zeros(len(others), np.int64)]
     paths = Paths(scene=scene[rows], key=key[rows], track=track, x=x[rows], y=y[rows],
                   heading=heading[rows], speed=speed[rows], start=start, stop=stop)
+    reach = leader_reach(speed[ego_rows])  # ego_rows() of these paths is 0 .. m - 1
     frame = path_frame(paths, np.r_[np.zeros(m, bool), np.ones(len(others), bool)],
-                       ahead=LOOKAHEAD, behind=1.0, lateral=CORRIDOR_HALF_WIDTH, lanes=lanes)
-    ahead = (frame.s > 0) & (np.abs(frame.heading_rel) <= SAME_DIRECTION)
-    step, s, other = frame.step[ahead], frame.s[ahead], rows[frame.other[ahead]]
-    v_along = frame.v_along[ahead]
-    if not len(step):
-        return gap, closing, leader
-    nearest = np.full(m, np.inf)
-    np.minimum.at(nearest, step, s)
-    first = s == nearest[step]
-    p, o, va = step[first], other[first], v_along[first]  # a tie keeps one equally near
-    e = ego_rows[p]
-    gap[p] = np.maximum(nearest[p] - 0.5 * (length[e] + length[o]), 0.0)
-    closing[p] = speed[e] - va
+                       ahead=reach, behind=1.0, lateral=CORRIDOR_HALF_WIDTH, lanes=lanes)
+    pair = nearest_leader(frame, reach)
+    p = np.flatnonzero(pair >= 0)
+    o, e = rows[frame.other[pair[p]]], ego_rows[p]
+    gap[p] = np.maximum(frame.s[pair[p]] - 0.5 * (length[e] + length[o]), 0.0)
+    closing[p] = speed[e] - frame.v_along[pair[p]]
     leader[p] = o
     return gap, closing, leader
