@@ -28,6 +28,26 @@ from tap_bench.labelling import tap
 from tap_bench.sim.rollout import EPISODE_COLUMNS, rollout_episode
 from tap_bench.sim.womd_scene import WomdScenes
 
+_ROADS: dict[str, pd.DataFrame] = {}
+"""Per process: each scenario's road as a map table (highway-env builds the same road for
+every seed, so one per scenario serves all its episodes)."""
+
+
+def _road(task: _Task, trajectories: pd.DataFrame) -> pd.DataFrame | None:
+    """The map table the episodes of ``task``'s env are labelled and measured on: the lanes
+    of the scenario's highway-env road (:func:`tap_bench.sim.roads.road_table`), under the
+    ``map_id`` of the episodes' ``env``, so that an ego's path goes on along its lane beyond
+    the end of its record (SPEC 7) rather than along an arc. None for recorded scenes (their
+    maps are per scenario, not passed yet: the arc) and tables without an ``env`` column."""
+    if isinstance(task.scenario, WomdScenes) or "env" not in trajectories.columns:
+        return None
+    key = repr(task.scenario)
+    if key not in _ROADS:
+        from tap_bench.sim.roads import road_table
+
+        _ROADS[key] = road_table(task.scenario)
+    return _ROADS[key].assign(map_id=str(trajectories["env"].iat[0]))
+
 
 def _prepare_worker(task: _Task) -> None:
     """Check that this worker has every measure the run fixed, so that no episode table
@@ -139,13 +159,14 @@ def _label_together(tasks: tuple[_Task, ...],
         t1 = time.perf_counter()
         trajectories = pd.concat([got[k][0] for k in with_rows], ignore_index=True) \
             if len(with_rows) > 1 else got[with_rows[0]][0]
+        road = _road(first, trajectories)
         result = tap(trajectories, first.thresholds, interactions="ego",
-                     source=f"{first.env}/{first.policy} rollout")
+                     source=f"{first.env}/{first.policy} rollout", map_table=road)
         labels, segments = result.labels("all"), result.segments(first.level)
         t2 = time.perf_counter()
         eps = episode_table(labels=labels if len(labels) else None, trajectories=trajectories,
                             episodes=_rows([got[k][1] for k in with_rows]),
-                            level=first.level, policy=first.policy)
+                            level=first.level, policy=first.policy, map_table=road)
         t3 = time.perf_counter()
         share = {"labelling": (t2 - t1) / len(with_rows),
                  "measures": (t3 - t2) / len(with_rows)}
