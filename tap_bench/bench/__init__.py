@@ -19,7 +19,7 @@ Modules, by what they do:
   :mod:`~tap_bench.bench.run_scores` (references, gaps, headline figures),
   :mod:`~tap_bench.bench.run_folder` (write, read, provenance);
 - :mod:`~tap_bench.bench.report`: the report page, with
-  :mod:`~tap_bench.bench.report_figures` (the PNG plots) and
+  :mod:`~tap_bench.bench.report_figures` (the SVG figures) and
   :mod:`~tap_bench.bench.report_tables` (the tables, numbers and HTML tables);
 - :mod:`~tap_bench.bench.gate`: ``bench check``, the regression gate;
 - :mod:`~tap_bench.bench.demo`: ``tap-bench demo``.

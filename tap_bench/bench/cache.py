@@ -43,6 +43,15 @@ verified whole in the same way; a re-run reads them and only scores and writes t
 Labelling and measuring never depend on the other episodes of a batch, so the tables are
 the same, float for float, whatever the cache holds (``tests/bench/test_rerun.py``).
 
+**Derived outputs** of a run whose inputs are unchanged are kept too (``<dir>/derived/``,
+:func:`memoised`): the scores (when the run has no reference corpora or plug-ins), each
+env's road map, the report's figures and the replay viewer's episode data. Each is keyed by
+the content of its inputs (:func:`table_digest` of each input table, the settings that
+matter) and the code of the whole tap-bench package with the versions of NumPy, pandas,
+PyArrow and SciPy (:func:`derived_key`), and verified whole like the other entries, so a
+change of any input or of any tap-bench module makes them again, and what a re-run serves
+is what it would have made.
+
 **Location and size**: ``$TAP_BENCH_CACHE``, else ``$XDG_CACHE_HOME/tap-bench``, else
 ``~/.cache/tap-bench`` (:func:`default_cache_dir`). An entry of the default suite is about
 80 kB (its 750 episodes take about 60 MiB; ``benchmarks/bench_incremental.py`` measures
@@ -63,12 +72,13 @@ import os
 import re
 import tempfile
 import time
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
+import numpy as np
 import pandas as pd
 
 from tap_bench import catalogue
@@ -85,8 +95,11 @@ from tap_bench.usercode import (
 )
 
 __all__ = ["DEFAULT_MAX_BYTES", "ENTRY_FORMAT", "CachedEpisode",
-           "EpisodeCache", "default_cache_dir", "episode_key", "parse_size",
+           "EpisodeCache", "default_cache_dir", "derived_key", "episode_key", "memoised",
+           "package_code", "parse_size", "table_digest",
            "policy_fingerprint", "scenario_fingerprint", "simulation_fingerprint"]
+
+T = TypeVar("T")
 
 DEFAULT_MAX_BYTES = 2 << 30
 """Size the cache is pruned to after a run [B]: ten default suites."""
@@ -114,6 +127,8 @@ def _simulation_modules() -> list[Path]:
 
 _SUFFIX = ".episode"
 _LABELS_SUFFIX = ".labels"
+_DERIVED_SUFFIX = ".derived"
+_FILE_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9._-]{0,199}$")
 _STALE_TMP_S = 3600.0  # a temporary file this old belongs to a writer that died [s]
 _KEY = re.compile(r"^[0-9a-f]{64}$")
 
@@ -368,6 +383,99 @@ def label_key(episode: str, thresholds: Mapping[str, Any], level: str,
     return hashlib.sha256(_canonical(doc)).hexdigest(), doc
 
 
+DERIVED_FORMAT = 1
+"""Layout of a derived-output entry file; raised when it changes (old entries then miss)."""
+DERIVED_KINDS = ("scores", "roads", "plots", "viewer")
+"""The derived outputs kept (:func:`memoised`)."""
+_PACKAGE_CODE: list[str] = []
+
+
+def package_code() -> str:
+    """The SHA-256 of every module of tap-bench (names and bytes), computed once a process:
+    what a derived output is made by (an edit anywhere in the package makes them again)."""
+    if not _PACKAGE_CODE:
+        package = Path(__file__).resolve().parent.parent
+        digest = hashlib.sha256()
+        for path in sorted(package.rglob("*.py")):
+            digest.update(path.relative_to(package).as_posix().encode() + b"\0")
+            digest.update(hashlib.sha256(path.read_bytes()).digest())
+        _PACKAGE_CODE.append(digest.hexdigest())
+    return _PACKAGE_CODE[0]
+
+
+def table_digest(table: pd.DataFrame | None) -> str:
+    """The SHA-256 of a table's content: column names and types, the index and every value
+    bit for bit (numbers as their bytes, so -0.0 and 0.0 or two NaNs differ; other columns
+    through ``pd.util.hash_pandas_object``, 64 bits a cell; cells it cannot hash, such as
+    lists, through the column's Parquet bytes). ``None`` and an empty table differ."""
+    if table is None:
+        return "none"
+    digest = hashlib.sha256()
+    digest.update(_canonical([[str(c), str(t)] for c, t in table.dtypes.items()]))
+    digest.update(f"{len(table)} {type(table.index).__name__} {table.index.dtype}".encode())
+    index = table.index.to_frame(index=False)
+    columns = [*(index.iloc[:, k] for k in range(index.shape[1])),
+               *(table.iloc[:, k] for k in range(table.shape[1]))]
+    for column in columns:
+        if isinstance(column.dtype, np.dtype) and column.dtype.kind in "biufcmM":
+            digest.update(np.ascontiguousarray(column.to_numpy()).tobytes())
+            continue
+        try:
+            digest.update(pd.util.hash_pandas_object(column, index=False).to_numpy().tobytes())
+        except TypeError:  # unhashable cells (lists, dicts)
+            buffer = io.BytesIO()
+            column.to_frame("c").to_parquet(buffer, index=False)
+            digest.update(buffer.getvalue())
+    return digest.hexdigest()
+
+
+def derived_key(kind: str, inputs: Mapping[str, Any]) -> tuple[str, dict[str, Any]]:
+    """The key of a derived output of ``kind`` (one of :data:`DERIVED_KINDS`) and the
+    document it hashes: ``inputs`` (table digests and settings, JSON), the code of the whole
+    package (:func:`package_code`) and the versions of what computes and writes it."""
+    if kind not in DERIVED_KINDS:
+        raise ParameterError("kind", kind, f"one of {', '.join(DERIVED_KINDS)}")
+    doc = {"derived": kind, "format": DERIVED_FORMAT, "tap-bench": __version__,
+           "code": package_code(), "inputs": _plain(dict(inputs)),
+           "versions": {pkg: _version(pkg) for pkg in ("numpy", "pandas", "pyarrow", "scipy")}}
+    return hashlib.sha256(_canonical(doc)).hexdigest(), doc
+
+
+def memoised(cache: EpisodeCache | None, kind: str, inputs: Mapping[str, Any] | None,
+             build: Callable[[], T], encode: Callable[[T], Mapping[str, bytes]],
+             decode: Callable[[dict[str, bytes]], T]) -> T:
+    """``build()``, or what an earlier run stored for the same ``inputs`` (its key:
+    :func:`derived_key`); a new result is stored (atomically). Without a cache or with
+    ``inputs`` None (inputs that cannot be keyed) it is built every time.
+
+    The built value is returned as ``decode(encode(value))``, as a stored one is, so that a
+    run gives the same value whether the entry was there or not (a value ``encode`` cannot
+    hold is returned as built, and not kept); an entry that fails its checks, or that
+    ``decode`` refuses, is deleted and built again.
+    """
+    if cache is None or inputs is None:
+        return build()
+    key, doc = derived_key(kind, inputs)
+    files, _ = cache.read_derived(kind, key)
+    if files is not None:
+        try:
+            return decode(files)
+        except Exception:  # whatever is wrong with it, it is made again
+            with contextlib.suppress(OSError):
+                cache.derived_path(kind, key).unlink()
+    value = build()
+    try:
+        files = dict(encode(value))
+        stored = decode(files)
+    except Exception:  # a value these files cannot hold is not kept
+        return value
+    # the cache is a convenience: the run goes on without it (a full disk, a file name it
+    # does not keep)
+    with contextlib.suppress(OSError, ParameterError):
+        cache.put_derived(kind, key, doc, files)
+    return stored
+
+
 def _canonical(doc: Any) -> bytes:
     return json.dumps(doc, sort_keys=True, separators=(",", ":"), default=repr,
                       allow_nan=True).encode()
@@ -558,6 +666,59 @@ class EpisodeCache:
             os.utime(path)
         return tables, None
 
+    @property
+    def derived_folder(self) -> Path:
+        """Where the derived outputs are (:func:`memoised`)."""
+        return self.root / "derived"
+
+    def derived_path(self, kind: str, key: str) -> Path:
+        """The entry file of a derived output of ``kind`` under ``key``."""
+        if not _KEY.match(key):
+            raise ParameterError("key", key, "64 lower-case hex digits (a SHA-256)")
+        if kind not in DERIVED_KINDS:
+            raise ParameterError("kind", kind, f"one of {', '.join(DERIVED_KINDS)}")
+        return self.derived_folder / kind / key[:2] / f"{key}{_DERIVED_SUFFIX}"
+
+    def put_derived(self, kind: str, key: str, doc: Mapping[str, Any],
+                    files: Mapping[str, bytes]) -> Path:
+        """Store a derived output (``files``: name -> bytes) under ``key`` (a
+        :func:`derived_key` and its document), atomically, verified whole on read."""
+        if hashlib.sha256(_canonical(doc)).hexdigest() != key:
+            raise ParameterError("key", key, "the SHA-256 of doc (derived_key)")
+        index = []
+        for name, data in files.items():
+            if not _FILE_NAME.match(str(name)):
+                raise ParameterError("files", name, "a plain file name (letters, digits, "
+                                     "'.', '_', '-'; at most 200 characters)")
+            index.append({"name": str(name), "bytes": len(data),
+                          "sha256": hashlib.sha256(data).hexdigest()})
+        header = {"format": "tap-bench-derived", "format_version": DERIVED_FORMAT,
+                  "kind": kind, "key": key, "doc": doc, "files": index,
+                  "created": time.strftime("%Y-%m-%d %H:%M:%S")}
+        header["header_sha256"] = hashlib.sha256(_canonical(header)).hexdigest()
+        return self._write(self.derived_path(kind, key),
+                           _canonical(header) + b"\n" + b"".join(files.values()))
+
+    def read_derived(self, kind: str, key: str) -> tuple[dict[str, bytes] | None, str | None]:
+        """(the files stored under ``key`` or None, why an entry there was refused or None);
+        a refused entry is deleted, as :meth:`read` does."""
+        path = self.derived_path(kind, key)
+        try:
+            data = path.read_bytes()
+        except OSError:
+            return None, None
+        try:
+            files = _decode_derived(data, kind, key)
+        except Exception as err:  # whatever is wrong, the entry is never used
+            with contextlib.suppress(OSError):
+                path.unlink()
+            reason = str(err) if isinstance(err, _Refused) else \
+                f"unreadable ({type(err).__name__}: {str(err)[:200]})"
+            return None, f"derived entry {path.name} refused and deleted: {reason}"
+        with contextlib.suppress(OSError):
+            os.utime(path)
+        return files, None
+
     def _write(self, path: Path, data: bytes) -> Path:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name[:16]}.", suffix=".tmp",
@@ -573,10 +734,12 @@ class EpisodeCache:
         return path
 
     def _entries(self) -> Iterator[tuple[Path, os.stat_result]]:
-        for folder, suffix in ((self.folder, _SUFFIX), (self.labels_folder, _LABELS_SUFFIX)):
+        for folder, pattern in ((self.folder, f"*/*{_SUFFIX}"),
+                                (self.labels_folder, f"*/*{_LABELS_SUFFIX}"),
+                                (self.derived_folder, f"*/*/*{_DERIVED_SUFFIX}")):
             if not folder.is_dir():
                 continue
-            for path in folder.glob(f"*/*{suffix}"):
+            for path in folder.glob(pattern):
                 with contextlib.suppress(OSError):
                     yield path, path.stat()
 
@@ -593,10 +756,11 @@ class EpisodeCache:
         if isinstance(limit, bool) or not isinstance(limit, int) or limit < 0:
             raise ParameterError("max_bytes", limit, "an integer >= 0 (bytes)")
         now = time.time()
-        for folder in (self.folder, self.labels_folder):
+        for folder, pattern in ((self.folder, "*/.*.tmp"), (self.labels_folder, "*/.*.tmp"),
+                                (self.derived_folder, "*/*/.*.tmp")):
             if not folder.is_dir():
                 continue
-            for tmp in folder.glob("*/.*.tmp"):
+            for tmp in folder.glob(pattern):
                 with contextlib.suppress(OSError):
                     if now - tmp.stat().st_mtime > _STALE_TMP_S:
                         tmp.unlink()
@@ -755,3 +919,32 @@ def _decode_labels(data: bytes, key: str) -> dict[str, pd.DataFrame]:
     if at != len(payload):
         raise _Refused("bytes after the last table")
     return tables
+
+
+def _decode_derived(data: bytes, kind: str, key: str) -> dict[str, bytes]:
+    """A derived entry's files, verified whole; :class:`_Refused` naming the failed check."""
+    header, payload = _split_entry(data, "tap-bench-derived", DERIVED_FORMAT)
+    if not isinstance(header.get("doc"), dict) or not isinstance(header.get("files"), list) \
+            or not isinstance(header.get("header_sha256"), str):
+        raise _Refused("header fields missing or of the wrong type")
+    body = {k: v for k, v in header.items() if k != "header_sha256"}
+    if hashlib.sha256(_canonical(body)).hexdigest() != header["header_sha256"]:
+        raise _Refused("the header does not match its checksum")
+    if header.get("kind") != kind or header.get("key") != key \
+            or hashlib.sha256(_canonical(header["doc"])).hexdigest() != key:
+        raise _Refused("the entry belongs to another key")
+    files, at = {}, 0
+    for part in header["files"]:
+        if not isinstance(part, dict) or not isinstance(part.get("name"), str) \
+                or not _FILE_NAME.match(part["name"]) or part["name"] in files \
+                or not isinstance(part.get("bytes"), int) or isinstance(part["bytes"], bool) \
+                or part["bytes"] < 0:
+            raise _Refused("a file of the header is malformed")
+        chunk = payload[at:at + part["bytes"]]
+        at += part["bytes"]
+        if len(chunk) != part["bytes"] or hashlib.sha256(chunk).hexdigest() != part.get("sha256"):
+            raise _Refused(f"file {part['name']!r} does not match its hash")
+        files[part["name"]] = chunk
+    if at != len(payload):
+        raise _Refused("bytes after the last file")
+    return files

@@ -1,11 +1,10 @@
-"""The run report: SVG (and two PNG) figures and one static HTML page (no server, nothing
-from the network).
+"""The run report: SVG figures and one static HTML page (no server, nothing from the
+network).
 
-:func:`write_report` writes ``plots/*.svg``, ``plots/*.png`` and ``report.html`` into a run
-folder. The page holds its figures inline (SVG) or as data URIs (PNG), so the HTML file
-alone is the whole report (mail it, open it from disk); the figure files are there for
-papers and slides. A small inline script sorts
-and searches the long tables; without it the page still reads in full.
+:func:`write_report` writes ``plots/*.svg`` and ``report.html`` into a run folder. The page
+holds its figures inline, so the HTML file alone is the whole report (mail it, open it from
+disk); the figure files are there for papers and slides. A small inline script sorts and
+searches the long tables; without it the page still reads in full.
 
 The page reads from the top: a summary table of each policy against the reference policy
 (every measure with its interval and a better / worse / no-difference mark), then one panel
@@ -18,11 +17,10 @@ that name episodes or labels link to the replay that shows them.
 
 from __future__ import annotations
 
-import base64
 import html
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import quote
 
 import pandas as pd
@@ -51,6 +49,9 @@ from tap_bench.bench.report_tables import (
 )
 from tap_bench.bench.scoring import Scores
 from tap_bench.tableio import atomic_path
+
+if TYPE_CHECKING:
+    from tap_bench.bench.cache import EpisodeCache
 
 __all__ = ["diversity_display", "html_table", "summary_table", "write_plots", "write_report"]
 
@@ -120,19 +121,10 @@ document.querySelectorAll('table.sortable th').forEach(function (th, k) {
 
 
 def _figure(path: Path, alt: str, caption: str) -> str:
-    """A figure in the page, with its caption: an SVG inline, a PNG as a data URI."""
-    if path.suffix == ".svg":
-        svg = path.read_text()
-        svg = svg.replace("<svg ", f'<svg role="img" aria-label="{html.escape(alt)}" ', 1)
-        return f"<figure>{svg}<figcaption>{html.escape(caption)}</figcaption></figure>"
-    from PIL import Image
-
-    with Image.open(path) as im:
-        width, height = im.size
-    data = base64.b64encode(path.read_bytes()).decode("ascii")
-    return (f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(alt)}" '
-            f'width="{width}" height="{height}"><figcaption>{html.escape(caption)}'
-            "</figcaption></figure>")
+    """A figure in the page, inline (SVG), with its caption."""
+    svg = path.read_text()
+    svg = svg.replace("<svg ", f'<svg role="img" aria-label="{html.escape(alt)}" ', 1)
+    return f"<figure>{svg}<figcaption>{html.escape(caption)}</figcaption></figure>"
 
 
 def _replay(viewer: str | None, **params: Any) -> str | None:
@@ -192,7 +184,8 @@ def _against_the_human(episodes: pd.DataFrame, reference: str, level: float) -> 
 
 
 def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: pd.DataFrame,
-                 scores: Scores, *, viewer: str | None = None) -> Path:
+                 scores: Scores, *, viewer: str | None = None,
+                 cache: EpisodeCache | None = None) -> Path:
     """Write ``plots/*.svg`` and ``report.html`` into a run folder; returns the HTML path.
 
     Args:
@@ -202,6 +195,8 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
         scores: the scored tables.
         viewer: the replay viewer's page relative to the report (``viewer/index.html``):
             rows naming episodes or labels link to their replay; None: no links.
+        cache: the episode cache: the figures of unchanged scores are read from it
+            (:func:`write_plots`).
     """
     folder = Path(folder)
     reference = str(summary.get("reference_policy", ""))
@@ -209,7 +204,7 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
     level = run_level(summary)
     pct = level_text(level)  # every interval of the run is at the suite's level
     plots = {p.stem: p for p in write_plots(scores, folder / "plots", reference=reference,
-                                            level=level)}
+                                            level=level, cache=cache)}
     run = str(summary.get("run", ""))
     parts = [f"<h1>tap-bench run {html.escape(run)}</h1>",
              f"<p>Suite <b>{html.escape(str(suite.get('name', '')))}</b> "

@@ -16,6 +16,7 @@ import math
 import os
 import textwrap
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -28,6 +29,9 @@ from tap_bench.bench.report_tables import (
     interval_heading,
 )
 from tap_bench.bench.scoring import Scores
+
+if TYPE_CHECKING:
+    from tap_bench.bench.cache import EpisodeCache
 
 TOP_LABELS = 12  # labels shown per heat map and forest plot
 FONT_PX = 12  # smallest text in a figure [px]
@@ -114,13 +118,13 @@ class _Svg:
     def circle(self, x: float, y: float, r: float, *, fill: str) -> None:
         self.parts.append(f'<circle cx="{x:.1f}" cy="{y:.1f}" r="{r:g}" fill="{fill}"/>')
 
-    def write(self, path: Path) -> Path:
-        path.write_text(
+    def named(self, name: str) -> tuple[str, str]:
+        """(``name``, the drawing as an SVG document)."""
+        return name, (
             f'<svg xmlns="http://www.w3.org/2000/svg" width="{self.width}" '
             f'height="{self.height}" viewBox="0 0 {self.width} {self.height}" '
             'font-family="DejaVu Sans, Helvetica, Arial, sans-serif">'
             f'<rect width="100%" height="100%" fill="white"/>{"".join(self.parts)}</svg>\n')
-        return path
 
 
 def _fit(lo, hi, *, floor: float | None = None, ceil: float | None = None
@@ -218,60 +222,7 @@ def _series(sub: pd.DataFrame, est: str, lo: str, hi: str, scale: float = 1.0, *
             "hi": (sub[hi] * scale).to_numpy(float), "color": color, "offset": offset}
 
 
-# -- the figures still drawn with matplotlib (PNG): forest plots per env, the trade-off view
-
-DPI = 100  # PNG figures are drawn at the size they are shown: 1 pt = 1.39 px
-FONT_PT = 8.5  # smallest text in a PNG figure: 11.8 px
-MAX_WIDTH_IN = 11.0  # widest PNG figure [in]
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    # names in figures are the user's text, never matplotlib math: a policy called
-    # "a$b" or "$\\frac$" once crashed the report after the whole run
-    plt.rcParams.update({"font.size": FONT_PT, "axes.titlesize": FONT_PT + 1,
-                         "xtick.labelsize": FONT_PT, "ytick.labelsize": FONT_PT,
-                         "legend.fontsize": FONT_PT, "text.parse_math": False})
-    return plt
-
-
-def _save(fig, path: Path) -> Path:
-    fig.savefig(path, dpi=DPI)
-    _plt().close(fig)
-    return path
-
-
-def _interval_plot(ax, names, est, lo, hi, *, color="C0", offset=0.0, label=None):
-    y = np.arange(len(names)) + offset
-    est, lo, hi = (np.asarray(v, float) for v in (est, lo, hi))
-    err = np.vstack([np.clip(est - lo, 0, None), np.clip(hi - est, 0, None)])
-    err = np.nan_to_num(err)
-    ax.errorbar(est, y, xerr=err, fmt="o", color=color, capsize=3, label=label, ms=4)
-    ax.set_yticks(np.arange(len(names)), names)
-
-
-def _fit_axes(ax, lo, hi, *, floor: float | None = None, ceil: float | None = None) -> None:
-    """x limits fitted to the intervals shown, with a margin; clipped to [floor, ceil]."""
-    values = np.concatenate([np.asarray(lo, float), np.asarray(hi, float)])
-    values = values[np.isfinite(values)]
-    if not len(values):
-        return
-    a, b = float(values.min()), float(values.max())
-    pad = max((b - a) * 0.08, 1e-3 if b == a else 0)
-    a, b = a - pad, b + pad
-    if floor is not None:
-        a = max(a, floor)
-    if ceil is not None:
-        b = min(b, ceil)
-    if b > a:
-        ax.set_xlim(a, b)
-
-
-def _label_heatmap(counts: pd.DataFrame, env: str, folder: Path) -> Path | None:
+def _label_heatmap(counts: pd.DataFrame, env: str) -> tuple[str, str] | None:
     sub = counts[counts["env"] == env]
     if sub.empty:
         return None
@@ -316,10 +267,10 @@ def _label_heatmap(counts: pd.DataFrame, env: str, folder: Path) -> Path | None:
         yy = top_y + plot_h * (1 - tick / vmax)
         svg.line(bar_x + 12, yy, bar_x + 16, yy, stroke="#555")
         svg.text(bar_x + 18, yy, f"{tick:.0%}")
-    return svg.write(folder / f"labels_{_slug(env)}.svg")
+    return svg.named(f"labels_{_slug(env)}.svg")
 
 
-def _measures_plot(scores: Scores, env: str, reference: str, folder: Path) -> Path | None:
+def _measures_plot(scores: Scores, env: str, reference: str) -> tuple[str, str] | None:
     m = scores.measures[scores.measures["env"] == env] if len(scores.measures) else \
         scores.measures
     if m.empty:
@@ -345,10 +296,10 @@ def _measures_plot(scores: Scores, env: str, reference: str, folder: Path) -> Pa
                [_series(sub, "mean", "low", "high", scale)], xlim,
                title=f"{meas.label} [{meas.display_unit}]\n{better} is better",
                vlines=((ref, "#999", "4 3"),))
-    return svg.write(folder / f"measures_{_slug(env)}.svg")
+    return svg.named(f"measures_{_slug(env)}.svg")
 
 
-def _coverage_plot(scores: Scores, folder: Path) -> Path | None:
+def _coverage_plot(scores: Scores) -> tuple[str, str] | None:
     cov = _pooled(scores.coverage)
     if cov.empty:
         return None
@@ -376,94 +327,142 @@ def _coverage_plot(scores: Scores, folder: Path) -> Path | None:
                _fit(cov[lo] * 100, cov[hi] * 100, floor=0, ceil=100), title=title)
     _legend(svg, MAX_WIDTH_PX - 14, top_y + 4,
             [(ref, COLORS[k % len(COLORS)]) for k, ref in enumerate(refs)], title="reference")
-    return svg.write(folder / "coverage.svg")
+    return svg.named("coverage.svg")
 
 
-def _forest_plots(scores: Scores, folder: Path, level: float) -> list[Path]:
+def _forest_plots(scores: Scores, level: float) -> list[tuple[str, str]]:
     """Per pair of policies, one figure with a panel per env: the labels whose share of
     seeds differs most in that env, with their intervals and the simultaneous band."""
     labels = scores.paired_labels
-    out: list[Path] = []
+    out: list[tuple[str, str]] = []
     if labels.empty:
         return out
-    plt = _plt()
     per_env = max(4, TOP_LABELS // 2)
+    heading = interval_heading(level)
     for (a, b), pair in labels.groupby(["policy_a", "policy_b"], sort=True):
         envs = sorted(pair["env"].unique(), key=str)
         panels = []
         for env in envs:
             sub = pair[pair["env"] == env]
             sub = sub.reindex(sub["diff"].abs().sort_values(ascending=False).index)[:per_env]
-            panels.append((env, sub, [_wrap(t, 60) for t in sub["label"]]))
-        heights = [1.0 + 0.2 * sum(n.count("\n") + 1 for n in names) + 0.1 * len(sub)
-                   for _, sub, names in panels]
-        fig, axes = plt.subplots(len(panels), 1, figsize=(MAX_WIDTH_IN, 0.6 + sum(heights)),
-                                 layout="constrained", sharex=True,
-                                 gridspec_kw={"height_ratios": heights}, squeeze=False)
-        for ax, (env, sub, names) in zip(axes[:, 0], panels, strict=True):
-            y = np.arange(len(sub))
-            ax.hlines(y, sub["band_low"] * 100, sub["band_high"] * 100, color="0.85", lw=7,
-                      label="simultaneous band")
-            _interval_plot(ax, names, sub["diff"] * 100, sub["diff_low"] * 100,
-                           sub["diff_high"] * 100, label=interval_heading(level))
-            ax.axvline(0, color="k", lw=0.8)
-            ax.invert_yaxis()
-            ax.set_title(f"{env}", loc="left", fontsize="medium")
-        _fit_axes(axes[0, 0], pair["band_low"] * 100, pair["band_high"] * 100, floor=-100, ceil=100)
-        axes[-1, 0].set_xlabel(f"difference in the share of seeds [percentage points]: {a} "
-                               f"minus {b}")
-        axes[0, 0].legend(loc="best", fontsize="small")
-        fig.suptitle(f"{a} vs {b}, paired by seed: the labels that differ most, per env",
-                     x=0.01, ha="left")
-        out.append(_save(fig, folder / f"forest_{_slug(a)}_vs_{_slug(b)}.png"))
+            names = [_wrap(t, 60) for t in sub["label"]]
+            lines = max((n.count("\n") + 1 for n in names), default=1)
+            panels.append((env, sub, names, lines * _LINE + 9.0))
+        xlim = _fit(pair["band_low"] * 100, pair["band_high"] * 100, floor=-100, ceil=100)
+        left = max(_text_width(n) for _, _, names, _ in panels for n in names) + 14
+        width = MAX_WIDTH_PX - left - 14
+        legend = [("simultaneous band", "band:#d9d9d9"), (heading, COLORS[0])]
+        title = f"{a} vs {b}, paired by seed: the labels that differ most, per env"
+        svg_w = min(MAX_WIDTH_PX, max(left + width + 14, _text_width(title, FONT_PX + 1) + 8))
+        top = _LINE + 8 + len(legend) * _LINE + 16  # the title, then the legend
+        panel_gap = _LINE + 34  # tick labels of a panel and the next panel's title
+        height = top + sum(len(sub) * row_h + panel_gap for _, sub, _, row_h in panels) + 30
+        svg = _Svg(svg_w, height)
+        svg.text(4, _LINE, title, size=FONT_PX + 1)
+        _legend(svg, svg_w - 14, _LINE + 6, legend)
+        y = top + _LINE
+        for env, sub, names, row_h in panels:
+            _row_labels(svg, left - 8, y, names, row_h)
+            _panel(svg, left, y, width, len(sub), row_h,
+                   [_series(sub, "diff", "diff_low", "diff_high", 100.0)], xlim, title=env,
+                   band=((sub["band_low"] * 100).to_numpy(float),
+                         (sub["band_high"] * 100).to_numpy(float)),
+                   vlines=((0.0, "#000", None),))
+            y += len(sub) * row_h + panel_gap
+        svg.text(left + width / 2, y - panel_gap + 30,
+                 f"difference in the share of seeds [percentage points]: {a} minus {b}",
+                 anchor="middle")
+        out.append(svg.named(f"forest_{_slug(a)}_vs_{_slug(b)}.svg"))
     return out
 
 
-def _tradeoff_plot(scores: Scores, reference: str, folder: Path) -> Path | None:
+def _tradeoff_plot(scores: Scores, reference: str) -> tuple[str, str] | None:
     """Safety against progress per env: each policy's crash rate (Wilson interval) against
-    its mean speed (t interval); the reference's point marked."""
+    its mean speed (t interval); the reference's point marked (a square)."""
     m = scores.measures
     if m.empty or not {"crashed", "mean_speed"} <= set(m["measure"]):
         return None
-    plt = _plt()
     envs = sorted((e for e in m["env"].unique() if e != "all"), key=str)
     if (m["env"] == "all").any() and len(envs) > 1:
         envs.append("all")
+    policies = sorted(m["policy"].unique())
+    colors = {p: COLORS[k % len(COLORS)] for k, p in enumerate(policies)}
     cols = min(3, len(envs))
     rows = -(-len(envs) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(MAX_WIDTH_IN, 2.6 * rows),
-                             layout="constrained", squeeze=False)
-    policies = sorted(m["policy"].unique())
-    for ax, env in zip(axes.ravel(), envs, strict=False):
+    legend_w = max(_text_width(p) for p in policies) + 34
+    ylabel_w, tick_w, gap = _LINE + 8, 34.0, 22.0
+    panel_w = (MAX_WIDTH_PX - ylabel_w - legend_w - 24 - cols * tick_w - (cols - 1) * gap) \
+        / cols
+    panel_h, title_h, xlabel_h = 150.0, _LINE + 10, 2 * _LINE + 14
+    svg = _Svg(MAX_WIDTH_PX, rows * (title_h + panel_h + xlabel_h) + 6)
+    y_lo, y_hi = -3.0, 103.0
+    for i, env in enumerate(envs):
+        r, c = divmod(i, cols)
+        x0 = ylabel_w + tick_w + c * (panel_w + tick_w + gap)
+        y0 = r * (title_h + panel_h + xlabel_h) + title_h
         sub = m[m["env"] == env]
-        for k, policy in enumerate(policies):
-            c = sub[(sub["policy"] == policy) & (sub["measure"] == "crashed")]
-            v = sub[(sub["policy"] == policy) & (sub["measure"] == "mean_speed")]
-            if c.empty or v.empty:
+        points = []
+        for policy in policies:
+            crash = sub[(sub["policy"] == policy) & (sub["measure"] == "crashed")]
+            speed = sub[(sub["policy"] == policy) & (sub["measure"] == "mean_speed")]
+            if crash.empty or speed.empty:
                 continue
-            c, v = c.iloc[0], v.iloc[0]
-            xerr = np.nan_to_num([[max(v["mean"] - v["low"], 0)], [max(v["high"] - v["mean"],
-                                                                       0)]])
-            yerr = np.nan_to_num([[max(c["mean"] - c["low"], 0) * 100],
-                                  [max(c["high"] - c["mean"], 0) * 100]])
-            ax.errorbar(v["mean"], c["mean"] * 100, xerr=xerr, yerr=yerr, fmt="o" if
-                        policy != reference else "s", color=f"C{k}", capsize=2, ms=5,
-                        label=policy)
-        ax.set_title("pooled" if env == "all" else env, loc="left", fontsize="medium")
-        ax.set_ylim(-3, 103)
-        ax.grid(alpha=0.3)
-    for ax in axes.ravel()[len(envs):]:
-        ax.axis("off")
-    for ax in axes[:, 0]:
-        ax.set_ylabel("crash rate [%] (lower is safer)")
-    for ax in axes[-1, :]:
-        ax.set_xlabel("mean speed [m/s] (progress)")
-    handles, names = axes[0, 0].get_legend_handles_labels()
-    fig.legend(handles, names, loc="outside right upper", fontsize="small")
-    return _save(fig, folder / "tradeoff.png")
+            points.append((policy, speed.iloc[0], crash.iloc[0]))
+        xlim = _fit([s["low"] for _, s, _ in points] + [s["mean"] for _, s, _ in points],
+                    [s["high"] for _, s, _ in points] + [s["mean"] for _, s, _ in points])
+
+        def sx(v: float, xlim=xlim, x0=x0) -> float:
+            return x0 + (min(max(v, xlim[0]), xlim[1]) - xlim[0]) / (xlim[1] - xlim[0]) \
+                * panel_w
+
+        def sy(v: float, y0=y0) -> float:
+            return y0 + (y_hi - min(max(v, y_lo), y_hi)) / (y_hi - y_lo) * panel_h
+
+        svg.text(x0, y0 - title_h / 2 - 1, "pooled" if env == "all" else str(env),
+                 size=FONT_PX + 1)
+        svg.rect(x0, y0, panel_w, panel_h, fill="none", stroke="#999")
+        for tick in _nice_ticks(*xlim, n=5):
+            svg.line(sx(tick), y0, sx(tick), y0 + panel_h, stroke="#e5e5e5")
+            svg.line(sx(tick), y0 + panel_h, sx(tick), y0 + panel_h + 4, stroke="#555")
+            svg.text(sx(tick), y0 + panel_h + 12, _tick_text(tick), anchor="middle")
+        for tick in (0, 25, 50, 75, 100):
+            svg.line(x0, sy(tick), x0 + panel_w, sy(tick), stroke="#e5e5e5")
+            svg.line(x0 - 4, sy(tick), x0, sy(tick), stroke="#555")
+            svg.text(x0 - 6, sy(tick), f"{tick}", anchor="end")
+        for policy, speed, crash in points:
+            color = colors[policy]
+            x, y = float(speed["mean"]), float(crash["mean"]) * 100
+            if not (np.isfinite(x) and np.isfinite(y)):
+                continue
+            for lo, hi in ((speed["low"], speed["high"]),):
+                if np.isfinite(lo) and np.isfinite(hi):
+                    svg.line(sx(min(lo, x)), sy(y), sx(max(hi, x)), sy(y), stroke=color,
+                             width=1.5)
+                    for v in (min(lo, x), max(hi, x)):
+                        svg.line(sx(v), sy(y) - 3, sx(v), sy(y) + 3, stroke=color, width=1.5)
+            lo, hi = float(crash["low"]) * 100, float(crash["high"]) * 100
+            if np.isfinite(lo) and np.isfinite(hi):
+                svg.line(sx(x), sy(min(lo, y)), sx(x), sy(max(hi, y)), stroke=color,
+                         width=1.5)
+                for v in (min(lo, y), max(hi, y)):
+                    svg.line(sx(x) - 3, sy(v), sx(x) + 3, sy(v), stroke=color, width=1.5)
+            if policy == reference:
+                svg.rect(sx(x) - 4.5, sy(y) - 4.5, 9, 9, fill=color)
+            else:
+                svg.circle(sx(x), sy(y), 4.5, fill=color)
+        if r == rows - 1 or i + cols >= len(envs):
+            svg.text(x0 + panel_w / 2, y0 + panel_h + 30, "mean speed [m/s] (progress)",
+                     anchor="middle")
+        if c == 0:
+            svg.text(_LINE / 2 + 2, y0 + panel_h / 2, "crash rate [%]\n(lower is safer)",
+                     anchor="middle", rotate=-90)
+    _legend(svg, MAX_WIDTH_PX - 8, title_h,
+            [(p + (" (reference, square)" if p == reference else ""), colors[p])
+             for p in policies])
+    return svg.named("tradeoff.svg")
 
 
-def _improvement_plot(scores: Scores, folder: Path) -> Path | None:
+def _improvement_plot(scores: Scores) -> tuple[str, str] | None:
     pm = _pooled(scores.paired_measures)
     if pm.empty:
         return None
@@ -487,10 +486,10 @@ def _improvement_plot(scores: Scores, folder: Path) -> Path | None:
     _panel(svg, left, top_y, 950 - left - 14, len(names), row_h, series, (-0.02, 1.02),
            xlabel="P(A better than B on the same seed); ties count 1/2; 0.5: no difference",
            vlines=((0.5, "#000", None),), grid=False)
-    return svg.write(folder / "improvement.svg")
+    return svg.named("improvement.svg")
 
 
-def _novelty_plot(scores: Scores, folder: Path) -> Path | None:
+def _novelty_plot(scores: Scores) -> tuple[str, str] | None:
     nov = _pooled(scores.novelty)
     if nov.empty:
         return None
@@ -514,30 +513,48 @@ def _novelty_plot(scores: Scores, folder: Path) -> Path | None:
            "never shows")
     _legend(svg, 946, top_y, [(ref, COLORS[k % len(COLORS)]) for k, ref in enumerate(refs)],
             title="reference")
-    return svg.write(folder / "novelty.svg")
+    return svg.named("novelty.svg")
 
 
 def write_plots(scores: Scores, folder: str | os.PathLike, *,
-                reference: str | None = None, level: float = 0.95) -> list[Path]:
+                reference: str | None = None, level: float = 0.95,
+                cache: EpisodeCache | None = None) -> list[Path]:
     """Write the SVG figures of a scored run into ``folder`` and return their paths
     (``level``: the run's interval level, for the legends).
 
     Per env: ``labels_<env>.svg`` (label heat map) and ``measures_<env>.svg``; pooled:
-    ``measures_all.svg``, ``tradeoff.png`` (crash rate against mean speed, per env),
-    ``improvement.svg``, ``coverage.svg``, ``forest_<A>_vs_<B>.png`` (a panel per env),
+    ``measures_all.svg``, ``tradeoff.svg`` (crash rate against mean speed, per env),
+    ``improvement.svg``, ``coverage.svg``, ``forest_<A>_vs_<B>.svg`` (a panel per env),
     ``novelty.svg``.
+
+    With a ``cache``, the figures of scores equal to an earlier run's (every table, value
+    for value, the reference, the level and the code) are read from it
+    (:func:`tap_bench.bench.cache.memoised`): the same bytes.
     """
+    from tap_bench.bench.cache import memoised, table_digest
+
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    reference = reference or ""
-    paths: list[Path | None] = []
+    inputs = {"tables": {name: table_digest(t) for name, t in scores.tables().items()},
+              "reference": reference or "", "level": level}
+    figures = memoised(cache, "plots", inputs if cache is not None else None,
+                       lambda: _draw(scores, reference or "", level), dict, dict)
+    paths = []
+    for name, data in figures.items():
+        (folder / name).write_bytes(data)
+        paths.append(folder / name)
+    return paths
+
+
+def _draw(scores: Scores, reference: str, level: float) -> dict[str, bytes]:
+    """Every figure of :func:`write_plots`: file name -> SVG bytes, in report order."""
+    svgs: list[tuple[str, str] | None] = []
     envs = _envs(scores)
     for env in envs:
-        paths.append(_label_heatmap(scores.label_counts, env, folder))
-        paths.append(_measures_plot(scores, env, reference, folder))
+        svgs.append(_label_heatmap(scores.label_counts, env))
+        svgs.append(_measures_plot(scores, env, reference))
     if len(envs) > 1:
-        paths.append(_measures_plot(scores, "all", reference, folder))
-    paths += [_tradeoff_plot(scores, reference, folder), _improvement_plot(scores, folder),
-              _coverage_plot(scores, folder),
-              *_forest_plots(scores, folder, level), _novelty_plot(scores, folder)]
-    return [p for p in paths if p is not None]
+        svgs.append(_measures_plot(scores, "all", reference))
+    svgs += [_tradeoff_plot(scores, reference), _improvement_plot(scores),
+             _coverage_plot(scores), *_forest_plots(scores, level), _novelty_plot(scores)]
+    return {name: text.encode() for name, text in (s for s in svgs if s is not None)}

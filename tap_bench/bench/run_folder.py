@@ -10,7 +10,7 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -26,6 +26,9 @@ from tap_bench.errors import (
 from tap_bench.sim.policies import get_definition
 from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.tableio import atomic_folder, atomic_path, check_folder_output
+
+if TYPE_CHECKING:
+    from tap_bench.bench.cache import EpisodeCache
 
 
 def check_output(output: str | os.PathLike, overwrite: bool) -> Path:
@@ -154,14 +157,16 @@ def _json_default(value: Any) -> Any:
 def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str, Any],
                   episodes: pd.DataFrame, labels: pd.DataFrame,
                   trajectories: pd.DataFrame | None, scores: Scores, report: bool = True, *,
-                  segments: pd.DataFrame | None = None, roads: pd.DataFrame | None = None
-                  ) -> Path:
+                  segments: pd.DataFrame | None = None, roads: pd.DataFrame | None = None,
+                  cache: EpisodeCache | None = None) -> Path:
     """Write a results folder (tables, ``summary.json``, plots, report, and the replay
     viewer when the trajectories are given) atomically.
 
     The folder is built under a temporary name beside ``output`` and renamed into place
     when complete (:func:`tap_bench.tableio.atomic_folder`); an existing ``output`` is
-    replaced only when ``overwrite`` is True and tap-bench wrote it.
+    replaced only when ``overwrite`` is True and tap-bench wrote it. With a ``cache``, the
+    figures and the viewer's episode data of unchanged inputs are read from it
+    (:func:`tap_bench.bench.cache.memoised`): the files are the same.
 
     Raises:
         RunExistsError: ``output`` exists and ``overwrite`` is False.
@@ -183,10 +188,11 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
         viewer = report and trajectories is not None and len(trajectories) > 0
         if viewer:
             write_run_viewer(tmp / "viewer", summary, episodes, trajectories,
-                             segments=segments, roads=roads, novel_labels=scores.novel_labels)
+                             segments=segments, roads=roads, novel_labels=scores.novel_labels,
+                             cache=cache)
         if report:
             write_report(tmp, summary, episodes, scores, viewer="viewer/index.html"
-                         if viewer else None)
+                         if viewer else None, cache=cache)
     return Path(output)
 
 

@@ -49,6 +49,7 @@ first episode of each env.
 from __future__ import annotations
 
 import contextlib
+import io
 import math
 import os
 import time
@@ -60,7 +61,13 @@ from typing import Any
 
 import pandas as pd
 
-from tap_bench.bench.cache import EpisodeCache
+from tap_bench.bench.cache import (
+    EpisodeCache,
+    memoised,
+    scenario_fingerprint,
+    simulation_fingerprint,
+    table_digest,
+)
 from tap_bench.bench.episodes import one_outcome_cells
 from tap_bench.bench.power import power_table
 from tap_bench.bench.run_folder import (
@@ -84,7 +91,7 @@ from tap_bench.bench.run_scores import (
 )
 from tap_bench.bench.run_tasks import CACHED_BATCH, _observed_timings, _rollouts
 from tap_bench.bench.scenarios import match_scenarios
-from tap_bench.bench.scoring import Scores, score
+from tap_bench.bench.scoring import Scores, score, scores_from_files, scores_to_files
 from tap_bench.bench.suite import Suite
 from tap_bench.bench.verdict import verdict_table
 from tap_bench.errors import (
@@ -133,6 +140,27 @@ def _check_apart(output: Path, cache_root: Path) -> None:
         raise OutputPathError(f"{output}: the run folder and the episode cache ({cache_root}) "
                               "overlap; give the run folder (-o) and the cache (--cache) "
                               "separate places.")
+
+
+def _road(suite: Suite, env: str, cache: EpisodeCache | None) -> pd.DataFrame:
+    """The map table of ``env`` (:meth:`Suite.road`); a highway-env road is kept in the
+    cache, keyed by the scenario and the simulation code, so that a re-run does not import
+    highway-env to draw it again."""
+    fingerprint = None if env in suite.scenes else scenario_fingerprint(suite.scenario(env),
+                                                                       env)
+    return memoised(cache, "roads", None if fingerprint is None else {
+        "env": fingerprint, "simulation": simulation_fingerprint()},
+        lambda: suite.road(env), _table_files, _files_table)
+
+
+def _table_files(table: pd.DataFrame) -> dict[str, bytes]:
+    buffer = io.BytesIO()
+    table.to_parquet(buffer, index=True)
+    return {"table.parquet": buffer.getvalue()}
+
+
+def _files_table(files: Mapping[str, bytes]) -> pd.DataFrame:
+    return pd.read_parquet(io.BytesIO(files["table.parquet"]))
 
 
 def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
@@ -242,29 +270,39 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         trajectories = pd.concat(frames, ignore_index=True) if frames else None
 
     t0 = time.perf_counter()
-    matches, unmatched = [], []
-    for name, (ref_traj, ref_labels) in corpora.items():
-        if ref_traj is not None and len(labels):
-            if "is_ego" not in ref_labels.columns:  # a format without an ego: no scenarios
-                unmatched.append(name)
-                continue
-            matches.append(match_scenarios(labels, trajectories, ref_labels, ref_traj,
-                                           level=suite.level, top=3).assign(reference=name))
-    power = power_table(episodes, suite.gate,
-                        n_tests=len(suite.envs) * len(suite.policies)
-                        * len(plan.gate_metrics))
-    scores = score(episodes, reference_policy=suite.reference, level=suite.level,
-                   config=suite.bootstrap,
-                   references={name: lab for name, (_, lab) in corpora.items()} or None,
-                   scenario_matches=pd.concat(matches, ignore_index=True) if matches else None,
-                   gate_power=power)
-    if unmatched:
-        scores.methods["scenario matching skipped"] = (
-            f"{', '.join(unmatched)}: the data marks no ego vehicle (is_ego), so its "
-            "scenarios cannot be matched by what happens around the ego; coverage and "
-            "novelty use all its vehicles")
-    scores = _with_gaps(scores, corpora, labels, episodes, suite.level, thresholds,
-                        suite.bootstrap)
+
+    def scored() -> Scores:
+        matches, unmatched = [], []
+        for name, (ref_traj, ref_labels) in corpora.items():
+            if ref_traj is not None and len(labels):
+                if "is_ego" not in ref_labels.columns:  # a format without an ego
+                    unmatched.append(name)
+                    continue
+                matches.append(match_scenarios(labels, trajectories, ref_labels, ref_traj,
+                                               level=suite.level, top=3).assign(reference=name))
+        power = power_table(episodes, suite.gate,
+                            n_tests=len(suite.envs) * len(suite.policies)
+                            * len(plan.gate_metrics))
+        scores = score(episodes, reference_policy=suite.reference, level=suite.level,
+                       config=suite.bootstrap,
+                       references={name: lab for name, (_, lab) in corpora.items()} or None,
+                       scenario_matches=pd.concat(matches, ignore_index=True) if matches
+                       else None, gate_power=power)
+        if unmatched:
+            scores.methods["scenario matching skipped"] = (
+                f"{', '.join(unmatched)}: the data marks no ego vehicle (is_ego), so its "
+                "scenarios cannot be matched by what happens around the ego; coverage and "
+                "novelty use all its vehicles")
+        return _with_gaps(scores, corpora, labels, episodes, suite.level, thresholds,
+                          suite.bootstrap)
+
+    # an unchanged run reads its scores back (keyed by the episode table's content and the
+    # suite); runs with reference corpora or plug-ins are scored every time
+    scores = memoised(cache, "scores", None if corpora or plan.plugins else {
+        "episodes": table_digest(episodes), "suite": suite.to_dict(),
+        "gate_metrics": list(plan.gate_metrics),
+        "measures": [m.to_dict() for m in plan.measures]},
+        scored, scores_to_files, scores_from_files)
     timings["scoring"] = time.perf_counter() - t0
 
     failed = episodes[episodes["status"] != "ok"]
@@ -304,10 +342,11 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     t0 = time.perf_counter()
     roads = None
     if keep_trajectories:  # the replay viewer draws them; highway-env's road is seed-free
-        roads = pd.concat([suite.road(env) for env in suite.envs], ignore_index=True)
+        roads = pd.concat([_road(suite, env, cache) for env in suite.envs],
+                          ignore_index=True)
     folder = write_results(output, overwrite, summary, episodes, labels, trajectories
                            if keep_trajectories else None, scores, report,
-                           segments=segments, roads=roads)
+                           segments=segments, roads=roads, cache=cache)
     timings["writing_and_report"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
     _write_json(folder / "summary.json", summary)  # with the final timings

@@ -22,7 +22,8 @@ from tap_bench.bench.measures import MEASURES
 from tap_bench.bench.novelty import novelty, pooled_novelty
 from tap_bench.errors import LabelTableError
 
-__all__ = ["Scores", "diversity_table", "policy_measures", "reference_scores", "score"]
+__all__ = ["Scores", "diversity_table", "policy_measures", "reference_scores", "score",
+           "scores_from_files", "scores_to_files"]
 
 
 @dataclass(frozen=True)
@@ -80,6 +81,44 @@ class Scores:
     def tables(self) -> dict[str, pd.DataFrame]:
         """name -> table, in report order."""
         return {name: getattr(self, name) for name in self.TABLES}
+
+
+def scores_to_files(scores: Scores) -> dict[str, bytes]:
+    """A :class:`Scores` as files (name -> bytes): each table as Parquet, the methods and
+    references as JSON; :func:`scores_from_files` reads them back, equal value for value
+    (the run keeps the scores of unchanged inputs this way: :func:`~tap_bench.bench.cache.
+    memoised`). Raises what Parquet raises for a column it cannot hold."""
+    import io
+    import json
+
+    files = {}
+    for name, table in scores.tables().items():
+        buffer = io.BytesIO()
+        table.to_parquet(buffer, index=True)
+        files[f"{name}.parquet"] = buffer.getvalue()
+    refs = {name: {"items": [str(v) for v in ref.items],
+                   "weights": [float(w) for w in ref.weights], "kind": ref.kind,
+                   "level": ref.level, "description": ref.description,
+                   "n_trajectories": int(ref.n_trajectories)}
+            for name, ref in scores.references.items()}
+    # in order: the report lists the methods as scoring wrote them
+    files["meta.json"] = json.dumps({"methods": scores.methods, "references": refs}).encode()
+    return files
+
+
+def scores_from_files(files: Mapping[str, bytes]) -> Scores:
+    """The :class:`Scores` :func:`scores_to_files` wrote."""
+    import io
+    import json
+
+    meta = json.loads(files["meta.json"])
+    refs = {name: Reference(np.array(r["items"], dtype=object),
+                            np.array(r["weights"], dtype=float), r["kind"], r["level"],
+                            r["description"], int(r["n_trajectories"]))
+            for name, r in meta["references"].items()}
+    tables = {name: pd.read_parquet(io.BytesIO(files[f"{name}.parquet"]))
+              for name in Scores.TABLES}
+    return Scores(**tables, references=refs, methods=dict(meta["methods"]))
 
 
 def _env_groups(table: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
@@ -145,7 +184,9 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
 
     Returns:
         (coverage rows, novelty rows, novel labels), each with env, policy, reference.
-        Pooled rows (``env == "all"``) aggregate the per-env ones for env-keyed references
+        The novel labels are listed once, under the env whose episodes show them (a pooled
+        label is an (env, label) pair: its rows are the envs' rows). Pooled coverage and
+        novelty rows (``env == "all"``) aggregate the per-env ones for env-keyed references
         (:func:`tap_bench.bench.coverage.pooled_coverage`,
         :func:`tap_bench.bench.novelty.pooled_novelty`) and score all episodes together
         against a reference without envs.
@@ -181,8 +222,9 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
                     env == ALL_ENVS else (reference.get(env) if keyed else reference
                                           ).n_trajectories
                 nov_rows.append({**key, **nv.row(), "reference_size": size})
-                labels = nv.labels if "env" in nv.labels.columns else nv.labels.assign(env=env)
-                nov_labels.append(labels.assign(policy=policy, reference=name))
+                if env != ALL_ENVS:  # pooled: the envs' rows again; each (env, label) once
+                    nov_labels.append(nv.labels.assign(env=env, policy=policy,
+                                                       reference=name))
     cov = pd.DataFrame(cov_rows)
     nov = pd.DataFrame(nov_rows)
     frames = [f for f in nov_labels if len(f)]

@@ -125,8 +125,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"  ({config.level:.0%} intervals; coverage and diversity: iNEXT-style augmented "
           f"bootstrap over episodes, {config.n_resamples} draws, seed {config.seed}; "
           "novelty: Wilson)")
-    pooled = "all" if (novel["env"] == "all").any() else None
-    shown = novel[novel["env"] != "all"] if pooled is None else novel
+    shown = novel
     if len(shown):
         print("unique manoeuvres, most frequent first:")
         for r in shown.sort_values("count", ascending=False, kind="stable").head(

@@ -109,7 +109,8 @@ def run(args: argparse.Namespace) -> int:
     result = train(args.algo, env, timesteps=args.timesteps, seed=args.seed,
                    output=args.output, n_envs=n_envs, fast=not args.exact, curve=curve,
                    log_dir=args.log_dir, verbose=args.verbose, command=command,
-                   keep=args.keep, overwrite=args.overwrite)
+                   keep=args.keep, overwrite=args.overwrite,
+                   announce=lambda line: print(line, flush=True))
     print(f"trained {args.algo} on {args.env} for {result.timesteps} steps in "
           f"{result.train_seconds:.0f} s ({result.steps_per_second:.1f} steps/s, "
           f"{result.episodes} episodes)")

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import copy
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -18,7 +18,7 @@ from tap_bench.errors import ParameterError
 from tap_bench.rl.curve import CURVE_COLUMNS, CurveConfig, GreedyModelPolicy, curve_row
 from tap_bench.sim.scenario_format import Scenario
 
-__all__ = ["CoverageCallback"]
+__all__ = ["CoverageCallback", "StepsAnnounced"]
 
 
 class CoverageCallback(BaseCallback):
@@ -45,6 +45,8 @@ class CoverageCallback(BaseCallback):
         name: the agent's name in the rollouts.
         keep_best: also keep a copy of the policy's weights at the evaluation with the
             highest mean return (the first of equal ones), to save instead of the last.
+        announce: called with a line before and after each evaluation (which one, at how
+            many steps, how long it took and its figures), terminal or not.
 
     Attributes:
         rows: the curve so far, one dict per evaluation (:attr:`curve` as a table).
@@ -56,7 +58,7 @@ class CoverageCallback(BaseCallback):
     def __init__(self, scenario: Scenario, reference: Any, config: CurveConfig, *,
                  every: int, observation: Mapping[str, Any], name: str = "agent",
                  keep_best: bool = False, until: int | None = None,
-                 verbose: int = 0) -> None:
+                 verbose: int = 0, announce: Callable[[str], None] | None = None) -> None:
         super().__init__(verbose)
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
             raise ParameterError("every", every, "an integer >= 1 (env steps)")
@@ -74,6 +76,9 @@ class CoverageCallback(BaseCallback):
         self.best_weights: dict[str, Any] | None = None
         self._next = 0
         self._start = 0.0
+        self.announce = announce
+        # evaluations: the untrained agent, ceil(until / every) - 1 during training, the end
+        self._planned = 1 + (-(-until // every) if until is not None else 0)
 
     @property
     def curve(self) -> pd.DataFrame:
@@ -105,6 +110,10 @@ class CoverageCallback(BaseCallback):
 
     def _evaluate(self) -> None:
         began = time.perf_counter()
+        if self.announce is not None:
+            self.announce(f"learning curve: evaluation {len(self.rows) + 1} of "
+                          f"{max(self._planned, len(self.rows) + 1)} at {self.num_timesteps} "
+                          f"steps ({len(self.config.seed_list)} episodes) ...")
         buffer = self.model.ep_info_buffer
         train_return = float(np.mean([e["r"] for e in buffer])) if buffer else float("nan")
         policy = GreedyModelPolicy(self.model, self.name, self.observation)
@@ -125,7 +134,40 @@ class CoverageCallback(BaseCallback):
                            ("eval_return", row["return_mean"])):
             self.logger.record(f"tap/{key}", value)
         self.logger.dump(self.num_timesteps)  # as SB3's EvalCallback: one log row per point
-        if self.verbose:
+        line = (f"{self.num_timesteps} steps: return {row['return_mean']:.2f}, crash rate "
+                f"{row['crash_rate']:.2f}, coverage {row['coverage']:.2f}, diversity "
+                f"{row['diversity']:.2f} labels")
+        if self.announce is not None:
+            self.announce(f"learning curve: {line} ({self.eval_seconds[-1]:.0f} s)")
+        elif self.verbose:
             print(f"{self.num_timesteps} steps: return {row['return_mean']:.2f}, crash rate "
                   f"{row['crash_rate']:.2f}, coverage {row['coverage']:.2f}, diversity "
                   f"{row['diversity']:.2f} labels", flush=True)
+
+
+class StepsAnnounced(BaseCallback):
+    """Announces the training's progress every tenth of ``timesteps`` (steps done, wall
+    time), so a long training says where it is whether or not on a terminal.
+
+    Args:
+        timesteps: the training's length (env steps over all envs).
+        announce: called with one line each time.
+    """
+
+    def __init__(self, timesteps: int, announce: Callable[[str], None]) -> None:
+        super().__init__(0)
+        self.timesteps = timesteps
+        self.announce = announce
+        self._step = max(1, -(-timesteps // 10))
+        self._next = self._step
+        self._start = 0.0
+
+    def _on_training_start(self) -> None:
+        self._start = time.perf_counter()
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps >= self._next and self.num_timesteps < self.timesteps:
+            self.announce(f"trained {self.num_timesteps} of {self.timesteps} steps "
+                          f"({time.perf_counter() - self._start:.0f} s)")
+            self._next = self._step * (self.num_timesteps // self._step + 1)
+        return True

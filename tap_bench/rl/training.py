@@ -38,7 +38,7 @@ import shlex
 import signal
 import sys
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -202,8 +202,8 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
           hyperparameters: Mapping[str, Any] | None = None, n_envs: int = DEFAULT_N_ENVS,
           fast: bool = True, curve: CurveConfig | None = None,
           log_dir: str | os.PathLike | None = None, verbose: int = 0,
-          command: str | None = None, keep: str = "last", overwrite: bool = False
-          ) -> TrainingResult:
+          command: str | None = None, keep: str = "last", overwrite: bool = False,
+          announce: Callable[[str], None] | None = None) -> TrainingResult:
     """Train ``algo`` on scenario ``env`` for ``timesteps`` decisions and save it.
 
     Args:
@@ -234,6 +234,10 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
         overwrite: replace an earlier model of ``tap-bench train`` at ``output`` (its
             ``.zip``, ``.json``, ``.curve.csv`` and ``.curve.png``); files tap-bench did not
             write are never replaced.
+        announce: called with one line per phase (the curve's reference, the envs
+            starting, training progress every tenth of ``timesteps``, each curve
+            evaluation, saving), whether or not on a terminal: ``tap-bench train`` prints
+            them, as ``demo`` and ``bench run`` print theirs.
 
     Raises:
         ParameterError: ``timesteps``, ``n_envs``, ``output`` or ``keep`` is not usable.
@@ -276,19 +280,28 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
             "afterwards (tap-bench rollout --womd ... --policy MODEL.zip)."))
     params = {**HYPERPARAMETERS[algo], **(hyperparameters or {})}
     observation = _observation_config(scenario)
+    say = announce or (lambda line: None)
     callbacks = []
     if curve is not None:
         # callbacks.py subclasses SB3's BaseCallback: imported only where SB3 is installed
         from tap_bench.rl.callbacks import CoverageCallback
 
+        say(f"learning curve: the coverage reference ({curve.reference}, level "
+            f"{curve.level}, seeds {curve.seeds}) ...")
         reference = coverage_reference(curve, scenario)
         callbacks.append(CoverageCallback(
             # ceil: points - 1 evaluations during training, the last one at its end
             scenario, reference, curve, every=max(1, -(-timesteps // curve.points)),
             observation=observation, name=output.stem, keep_best=keep == "best",
-            until=timesteps, verbose=verbose))
+            until=timesteps, verbose=verbose, announce=announce))
+    say(f"starting {n_envs} training env(s) of {scenario.env_id}"
+        + (" (fast variant)" if fast and not isinstance(scenario, WomdScenes) else "") + " ...")
     vec = _vec_env(scenario, n_envs=n_envs, fast=fast, seed=seed)
     learner_env, learn_callbacks = vec, list(callbacks)
+    if announce is not None:
+        from tap_bench.rl.callbacks import StepsAnnounced
+
+        learn_callbacks.append(StepsAnnounced(timesteps, announce))
     try:
         if n_envs > 1 and issubclass(cls, OffPolicyAlgorithm):
             # gradient steps while the workers simulate (overlap.py imports SB3)
@@ -306,6 +319,9 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
         model.set_logger(Logger(str(log_dir) if log_dir else None, outputs))
         start = time.perf_counter()
         interrupted = False
+        say(f"training {algo.upper()} for {timesteps} steps"
+            + (f", {curve.points} learning-curve evaluations on the way" if curve else "")
+            + " ...")
         try:
             model.learn(total_timesteps=timesteps, callback=learn_callbacks or None,
                         progress_bar=False)
@@ -332,6 +348,8 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
     eval_seconds = sum(callbacks[0].eval_seconds) if callbacks else 0.0
 
     trained = int(model.num_timesteps)
+    say(f"trained {trained} steps ({seconds:.0f} s, learning-curve evaluations "
+        f"{eval_seconds:.0f} s of it); saving the model ...")
     kept = callbacks[0].best if keep == "best" else None
     if kept is not None:
         model.policy.load_state_dict(callbacks[0].best_weights)
@@ -413,10 +431,14 @@ def _trained_here(output: Path) -> bool:
 
 
 def _observation_config(scenario: Scenario | WomdScenes) -> dict[str, Any]:
-    """The observation config the agent reads: the scenario's, else highway-env's default."""
+    """The observation config the agent reads: the scenario's, else the env's default (on
+    recorded scenes the Kinematics observation with the route:
+    :mod:`tap_bench.sim.womd_observation`)."""
     config = scenario.config.get("observation")
     if config is None and isinstance(scenario, WomdScenes):
-        config = {"type": "Kinematics"}
+        from tap_bench.sim.womd_observation import OBSERVATION_TYPE
+
+        config = {"type": OBSERVATION_TYPE}
     if config is None:
         config = env_class(scenario.highway_env_id).default_config()["observation"]
     return dict(config)

@@ -22,15 +22,20 @@ Modules, by what they do:
 Training agents and their behaviour-coverage learning curve are :mod:`tap_bench.rl`.
 
 Every name below is imported on first use (``tap_bench.sim.rollout`` imports pandas and the
-execution layer, ``make_env`` highway-env), so ``import tap_bench`` stays fast.
+execution layer, ``make_env`` highway-env), so ``import tap_bench`` stays fast. highway-env
+imports ``matplotlib.pyplot`` for one plotting helper (``highway_env.vehicle.dynamics``),
+0.4 CPU s of each process that simulates; imported through tap-bench, it gets a module that
+imports pyplot when that helper first uses it (:class:`_OnFirstUse`).
 """
 
 from __future__ import annotations
 
 import importlib
+import importlib.abc
+import importlib.util
 import sys
 import types
-from typing import Any
+from typing import Any, ClassVar
 
 _LAZY_MODULES = {
     "tap_bench.sim.policies": ("Policy", "PolicyDefinition", "available_policies",
@@ -107,3 +112,65 @@ class _Package(types.ModuleType):
 
 
 sys.modules[__name__].__class__ = _Package
+
+
+class _OnFirstUse(types.ModuleType):
+    """Stands in for a module (``matplotlib``, ``matplotlib.pyplot``) while highway-env is
+    imported, and imports the real one when an attribute is first asked of it."""
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__"):  # the import system probing a module
+            raise AttributeError(name)
+        _HighwayEnvImport.restore()
+        return getattr(importlib.import_module(self.__name__), name)
+
+
+class _HighwayEnvImport(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """Imports ``highway_env`` (the first time, only while ``matplotlib`` is not imported)
+    with :class:`_OnFirstUse` modules in place of ``matplotlib`` and ``matplotlib.pyplot``,
+    which it removes again from ``sys.modules`` as soon as highway-env is imported: code
+    that imports matplotlib later gets the real one, and highway-env's helper its stand-in,
+    which imports the real pyplot on first use."""
+
+    STANDS_IN = ("matplotlib", "matplotlib.pyplot")
+    placed: ClassVar[list[types.ModuleType]] = []
+
+    def find_spec(self, name: str, path: Any = None, target: Any = None) -> Any:
+        if name != "highway_env" or any(m in sys.modules for m in self.STANDS_IN):
+            return None
+        sys.meta_path.remove(self)  # once, and find the real package below
+        try:
+            spec = importlib.util.find_spec(name)
+        finally:
+            sys.meta_path.insert(0, self)
+        if spec is None or spec.loader is None:
+            return None
+        self.real = spec.loader
+        spec.loader = self
+        return spec
+
+    def create_module(self, spec: Any) -> Any:
+        return self.real.create_module(spec)
+
+    def exec_module(self, module: types.ModuleType) -> None:
+        sys.meta_path.remove(self)
+        plt, mpl = _OnFirstUse("matplotlib.pyplot"), _OnFirstUse("matplotlib")
+        mpl.pyplot = plt
+        type(self).placed = [mpl, plt]
+        sys.modules.update({"matplotlib": mpl, "matplotlib.pyplot": plt})
+        try:
+            self.real.exec_module(module)
+        finally:
+            self.restore()
+
+    @classmethod
+    def restore(cls) -> None:
+        """Take the stand-ins out of ``sys.modules`` (where still there)."""
+        for module in cls.placed:
+            if sys.modules.get(module.__name__) is module:
+                del sys.modules[module.__name__]
+        cls.placed = []
+
+
+if "highway_env" not in sys.modules:
+    sys.meta_path.insert(0, _HighwayEnvImport())

@@ -28,15 +28,17 @@ every vehicle looks up its lane by computing its distance to every lane of the n
   farther apart, by more than :data:`TOLERANCE`, than highway-env's spherical pre-check
   allows (for which it does nothing either; all distances at once with numpy), and calls
   the others in highway-env's order;
-- the lane lookup (``RoadNetwork.get_closest_lane_index``, on networks of straight lanes)
-  estimates each lane's distance in Python floats and computes highway-env's own distance
-  only for the lanes within :data:`TOLERANCE` of the nearest, keeping highway-env's first
-  minimum.
+- the lane lookup (``RoadNetwork.get_closest_lane_index``, on networks of highway-env's
+  straight, sine and circular lanes: highway, merge, roundabout, exit ...) estimates each
+  lane's distance in Python floats and computes highway-env's own distance only for the
+  lanes within :data:`TOLERANCE` of the nearest, keeping highway-env's first minimum.
 
-Lanes that are not straight, and ``neighbour_vehicles_connected_lanes``, go to
-highway-env's methods unchanged. Tested by simulating scenarios both ways and comparing
-every vehicle's state bit for bit, every query of a dense simulation against highway-env's,
-and slanted lanes, ties and lane boundaries.
+In the neighbour search and the decisions, lanes that are not straight, and
+``neighbour_vehicles_connected_lanes``, go to highway-env's methods unchanged; so does the
+lane lookup of a network with a lane of another class. Tested by simulating scenarios
+both ways and comparing every vehicle's state bit for bit, every query of a dense
+simulation against highway-env's, slanted lanes, ties and lane boundaries, and the lane
+lookup on drawn networks of every lane kind (mutations of each formula caught).
 """
 
 from __future__ import annotations
@@ -46,7 +48,7 @@ import math
 from typing import Any
 
 import numpy as np
-from highway_env.road.lane import StraightLane
+from highway_env.road.lane import CircularLane, SineLane, StraightLane
 from highway_env.road.road import Road
 from highway_env.vehicle.objects import Landmark, RoadObject
 
@@ -90,40 +92,34 @@ class FastRoad:
 
     def install(self) -> None:
         """Route the road's ``act``, ``step`` and ``neighbour_vehicles`` through this, and
-        its network's ``get_closest_lane_index`` when every lane is straight."""
+        its network's ``get_closest_lane_index`` when every lane is one of highway-env's
+        straight, sine or circular lanes (see :meth:`closest_lane_index`)."""
         self.road.act = self.act
         self.road.step = self.step
         self.road.neighbour_vehicles = self.neighbour_vehicles
         network = self.road.network
         lanes = [((start, end, i), lane) for start, ends in network.graph.items()
                  for end, row in ends.items() for i, lane in enumerate(row)]
-        if lanes and all(type(lane) is StraightLane for _, lane in lanes) \
+        flat = [_lane_entry(index, lane) for index, lane in lanes]
+        if flat and all(entry is not None for entry in flat) \
                 and "get_closest_lane_index" not in vars(network):
-            self._flat = [(index, lane, float(lane.start[0]), float(lane.start[1]),
-                           float(lane.direction[0]), float(lane.direction[1]),
-                           float(lane.direction_lateral[0]), float(lane.direction_lateral[1]),
-                           float(lane.length), float(lane.heading)) for index, lane in lanes]
+            self._flat = flat
             network.get_closest_lane_index = self.closest_lane_index
 
     def closest_lane_index(self, position: np.ndarray, heading: float | None = None
                            ) -> tuple[str, str, int]:
         """highway-env's ``RoadNetwork.get_closest_lane_index(position, heading)`` on a
-        network of straight lanes, same result: each lane's distance (with heading)
-        estimated in Python floats, then highway-env's own distance computed for the lanes
-        within :data:`TOLERANCE` of the nearest, the first minimum in the network's order.
-        The network's lanes are read at :meth:`install` (highway-env builds a network once
-        per scene and does not change it)."""
+        network of straight, sine and circular lanes, same result: each lane's distance
+        (with heading) estimated in Python floats (:func:`_estimate`, off by far less than
+        :data:`TOLERANCE`), then highway-env's own distance computed for the lanes within
+        :data:`TOLERANCE` of the nearest, the first minimum in the network's order (that of
+        ``np.argmin``). The network's lanes are read at :meth:`install` (highway-env builds
+        a network once per scene and does not change it)."""
         x, y = float(position[0]), float(position[1])
-        estimates = []
-        for _, _, sx, sy, d0, d1, l0, l1, length, lane_heading in self._flat:
-            dx, dy = x - sx, y - sy
-            s = dx * d0 + dy * d1
-            distance = abs(dx * l0 + dy * l1) + max(s - length, 0.0) + max(-s, 0.0)
-            if heading is not None:
-                distance += abs((heading - lane_heading + math.pi) % (2 * math.pi) - math.pi)
-            estimates.append(distance)
+        h = None if heading is None else float(heading)
+        estimates = [_estimate(entry, x, y, h) for entry in self._flat]
         bound = min(estimates) + TOLERANCE
-        if not math.isfinite(bound):  # a position or heading that is not finite
+        if not all(map(math.isfinite, estimates)):  # a position or heading not finite
             return type(self.road.network).get_closest_lane_index(self.road.network,
                                                                   position, heading)
         best = best_index = None
@@ -293,6 +289,66 @@ class FastRoad:
             if sv < s and (s_rear is None or sv > s_rear):
                 s_rear, v_rear = sv, v
         return v_front, v_rear
+
+
+_STRAIGHT, _SINE, _CIRCULAR = 0, 1, 2
+_LANE_KINDS = {StraightLane: _STRAIGHT, SineLane: _SINE, CircularLane: _CIRCULAR}
+_LANE_METHODS = frozenset({"distance_with_heading", "distance", "local_coordinates",
+                           "heading_at", "local_angle"})
+_WRAP_MARGIN = 1e-9
+"""How near [rad] to a circular lane's phase wrap (half a turn from its start) a position
+must be for its distance to be computed exactly rather than estimated (there highway-env's
+``wrap_to_pi`` may jump by a full turn on a rounding difference)."""
+
+
+def _lane_entry(index: Any, lane: Any) -> tuple[Any, ...] | None:
+    """(index, lane, kind, the lane's parameters as Python floats) for
+    :func:`_estimate`; None for a lane of another class, or one that changes how its
+    distance is computed (then the network keeps highway-env's lookup)."""
+    kind = _LANE_KINDS.get(type(lane))
+    if kind is None or _LANE_METHODS & vars(lane).keys():
+        return None
+    if kind == _CIRCULAR:
+        return (index, lane, kind, float(lane.center[0]), float(lane.center[1]),
+                float(lane.radius), float(lane.start_phase), float(lane.direction),
+                float(lane.length))
+    straight = (float(lane.start[0]), float(lane.start[1]), float(lane.direction[0]),
+                float(lane.direction[1]), float(lane.direction_lateral[0]),
+                float(lane.direction_lateral[1]), float(lane.length), float(lane.heading))
+    if kind == _SINE:
+        return (index, lane, kind, *straight, float(lane.amplitude), float(lane.pulsation),
+                float(lane.phase))
+    return (index, lane, kind, *straight)
+
+
+def _estimate(entry: tuple[Any, ...], x: float, y: float, heading: float | None) -> float:
+    """``lane.distance_with_heading((x, y), heading)`` of the lane of ``entry``
+    (:func:`_lane_entry`) in Python floats: highway-env's formula, off from its numpy
+    arithmetic by rounding only (about 1e-12 m at highway-env's scale, far below
+    :data:`TOLERANCE`), or computed exactly where a rounding could change a branch."""
+    kind = entry[2]
+    if kind == _CIRCULAR:
+        _, lane, _, cx, cy, radius, start_phase, direction, length = entry
+        dx, dy = x - cx, y - cy
+        turn = (math.atan2(dy, dx) - start_phase + math.pi) % (2 * math.pi) - math.pi
+        if abs(turn) >= math.pi - _WRAP_MARGIN:
+            return float(lane.distance_with_heading(np.array([x, y]), heading))
+        s = direction * turn * radius
+        r = direction * (radius - math.hypot(dx, dy))
+        lane_heading = direction * s / radius + start_phase + math.pi / 2 * direction
+    else:
+        sx, sy, d0, d1, l0, l1, length, lane_heading = entry[3:11]
+        dx, dy = x - sx, y - sy
+        s = dx * d0 + dy * d1
+        r = dx * l0 + dy * l1
+        if kind == _SINE:
+            amplitude, pulsation, phase = entry[11:]
+            r -= amplitude * math.sin(pulsation * s + phase)
+            lane_heading += math.atan(amplitude * pulsation * math.cos(pulsation * s + phase))
+    distance = abs(r) + max(s - length, 0.0) + max(-s, 0.0)
+    if heading is not None:
+        distance += abs((heading - lane_heading + math.pi) % (2 * math.pi) - math.pi)
+    return distance
 
 
 def _standard_collisions(obj: Any) -> bool:

@@ -21,6 +21,8 @@ observation works on it.
   route; parked vehicles, vehicles that appear later and vehicles whose path leaves the
   lanes replay. Pedestrians and cyclists always replay. IDM (traffic and an IDM ego) stops at
   a stop point whose signal is red, and at a yellow one when it can stop comfortably.
+  idm traffic checks collisions with everyone (highway-env's rule: crashed vehicles brake
+  to a stop); the episode table counts them (``traffic_collisions``).
 - **End.** At the log's end (truncated), on a collision of the ego or when the ego leaves
   the road (terminated). The human (policy ``log``) is never stopped early: its record is
   the reference, and its overlaps with other boxes are counted like anyone's.
@@ -32,12 +34,16 @@ Coordinates: highway-env's y axis points to the driver's right, so the scene is 
 mirrored (y and headings negated) and recorded back in WOMD's axes, as
 :mod:`tap_bench.sim.recorder` does; the driver's left stays the driver's left.
 
-**What an RL agent observes.** The configured highway-env observation (``Kinematics`` by
-default: the ego and the 15 nearest road users, relative, normalised) and the route through
-the dynamics: with meta-actions the low-level controller follows the route's lanes (at a
-lane end it takes the route's next lane), so ``IDLE``, ``FASTER`` and ``SLOWER`` drive along
-the route and ``LANE_LEFT``/``LANE_RIGHT`` move to the map's neighbour on that side. The
-route is not in the observation array.
+**What an RL agent observes.** By default ``{"type": "KinematicsRoute"}``
+(:mod:`tap_bench.sim.womd_observation`): highway-env's Kinematics observation (the ego and
+the 4 nearest road users, relative, normalised) flattened, followed by the route seen from
+the ego: the route's points every 10 m over the next 50 m in the ego's frame, the offset and
+heading to the route lane, the distance and side of the route's next lane change, and
+whether the ego is on a route lane. The route also acts through the dynamics: with
+meta-actions the low-level controller follows the route's lanes (at a lane end it takes the
+route's next lane), and ``LANE_LEFT``/``LANE_RIGHT`` move to the map's neighbour on that
+side. Any highway-env observation can be configured instead (``config={"observation":
+...}``; the shipped highway agents read plain ``Kinematics``).
 """
 
 from __future__ import annotations
@@ -52,9 +58,11 @@ import gymnasium as gym
 import numpy as np
 import pandas as pd
 from highway_env.envs.common.abstract import AbstractEnv
+from highway_env.envs.common.action import action_factory
 from highway_env.vehicle.kinematics import Vehicle
 
 from tap_bench.errors import ParameterError
+from tap_bench.sim.womd_observation import OBSERVATION_TYPE, RouteObservation
 from tap_bench.sim.womd_road import (
     ROUTE_CORRIDOR,
     ROUTE_OFF_MAP,
@@ -121,7 +129,7 @@ class _WomdHighwayEnv(AbstractEnv):
     def default_config(cls) -> dict:
         config = super().default_config()
         config.update({
-            "observation": {"type": "Kinematics"},
+            "observation": {"type": OBSERVATION_TYPE},
             "action": {"type": "DiscreteMetaAction", "target_speeds": list(TARGET_SPEEDS)},
             "simulation_frequency": 10,
             "policy_frequency": 2,
@@ -140,6 +148,18 @@ class _WomdHighwayEnv(AbstractEnv):
 
     idm_vehicle_class = WomdIDMVehicle
     """What :func:`tap_bench.sim.idm.take_over_ego` puts in the ego's place."""
+
+    def define_spaces(self) -> None:
+        """highway-env's, with the route observation (:mod:`tap_bench.sim.womd_observation`)
+        as one more observation type."""
+        config = self.config["observation"]
+        if config.get("type") != OBSERVATION_TYPE:
+            super().define_spaces()
+            return
+        self.observation_type = RouteObservation(self, **config)
+        self.action_type = action_factory(self, self.config["action"])
+        self.observation_space = self.observation_type.space()
+        self.action_space = self.action_type.space()
 
     def _reset(self) -> None:
         if self.scene is None:  # highway-env resets once in its constructor
@@ -189,6 +209,7 @@ class _WomdHighwayEnv(AbstractEnv):
             self.road.vehicles.append(vehicle)
             if not isinstance(vehicle, LogVehicle):
                 self.simulated[row] = vehicle
+        self.road.start_collisions()
         self.replaying_ego = False
         self._last_ego = np.array([x, y])
         self.progress = 0.0
@@ -219,7 +240,7 @@ class _WomdHighwayEnv(AbstractEnv):
                                  route=route)
         vehicle.LENGTH, vehicle.WIDTH = float(scene.length[row]), float(scene.width[row])
         vehicle.diagonal = math.hypot(vehicle.LENGTH, vehicle.WIDTH)
-        vehicle.check_collisions = False  # the ego's collisions are checked (its pairs)
+        vehicle.check_collisions = True  # with everyone (WomdRoad.step)
         vehicle.row = row
         return vehicle
 
@@ -431,6 +452,8 @@ class WomdEnv(gym.Wrapper):
             return
         rec = self._rec
         # the ego as the policy left it (IDM and the log policy put their own in its place)
+        for _, a, b in inner.road.traffic_collisions:  # replayed vehicles hit by traffic
+            self._crashed[[a, b], k] = True
         for row, vehicle in (*inner.simulated.items(), (e, ego)):
             self._crashed[row, k] = vehicle.crashed
             if isinstance(vehicle, LogVehicle):
@@ -456,6 +479,19 @@ class WomdEnv(gym.Wrapper):
         self.crash_with = str(self.scene.track_ids[row]) if row is not None else ""
         ahead = float(np.dot(other.position - ego.position, ego.direction))
         self.crash_from_behind_by_log = isinstance(other, LogVehicle) and ahead < 0
+
+    def _traffic_collided(self) -> str:
+        """The traffic collisions of the episode in words: ``"12 x 34 (log) at 3.4 s; ..."``
+        (track ids, ``(log)`` for a replayed agent; time from the record's start)."""
+        scene = self.scene
+        ids = scene.track_ids
+        simulated = self.env.unwrapped.simulated
+
+        def name(row: int) -> str:
+            return str(ids[row]) if row in simulated else f"{ids[row]} (log)"
+
+        return "; ".join(f"{name(a)} x {name(b)} at {scene.times[k] - scene.times[0]:.1f} s"
+                         for k, a, b in self.env.unwrapped.road.traffic_collisions)
 
     def _intermediate_frame(self) -> None:
         self._frame()
@@ -525,6 +561,11 @@ class WomdEnv(gym.Wrapper):
                 "log_fde": float(dist[-1]) if len(dist) else float("nan"),
                 "crash_with": self.crash_with,
                 "crash_from_behind_by_log": bool(self.crash_from_behind_by_log),
+                "traffic_collisions": len(inner.road.traffic_collisions),
+                "traffic_collisions_with_log": sum(
+                    a not in inner.simulated or b not in inner.simulated
+                    for _, a, b in inner.road.traffic_collisions),
+                "traffic_collided": self._traffic_collided(),
                 "map": inner.map_note}
 
 

@@ -28,6 +28,7 @@ from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
+from tap_bench.sim.fast_road import _near_pairs
 from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, lane_points
 from tap_bench.sim.womd_scene import Scene
 
@@ -256,6 +257,18 @@ class WomdIDMVehicle(_RouteMixin, IDMVehicle):
         finally:
             network.side_lanes = side_lanes
 
+    def mobil(self, lane_index: Any) -> bool:
+        """highway-env's MOBIL without its planned-lane shortcut: that shortcut reads a route
+        as lanes numbered across the road (``route[0][2]``), and every WOMD lane is number 0,
+        so it accepted every safe change and a vehicle went back and forth between
+        neighbours each second. The route's own lane changes are taken in
+        :meth:`change_lane_policy`; MOBIL decides the others on its acceleration gain."""
+        route, self.route = self.route, None
+        try:
+            return super().mobil(lane_index)
+        finally:
+            self.route = route
+
     def acceleration(self, ego_vehicle: ControlledVehicle, front_vehicle: Vehicle = None,
                      rear_vehicle: Vehicle = None) -> float:
         acc = super().acceleration(ego_vehicle, front_vehicle, rear_vehicle)
@@ -311,6 +324,12 @@ def _crosses(ax, ay, bx, by, px, py, qx, qy):  # pragma: no cover - compiled
         if d1 * d2 < 0 and d3 * d4 < 0:
             return True
     return False
+
+
+def _pair(a: Vehicle, b: Vehicle) -> tuple[int, int]:
+    """The two vehicles' scene rows, in order (-1: no row)."""
+    ra, rb = getattr(a, "row", -1), getattr(b, "row", -1)
+    return (ra, rb) if ra <= rb else (rb, ra)
 
 
 def _segments(lines: Sequence[np.ndarray]) -> tuple[np.ndarray, ...]:
@@ -399,16 +418,64 @@ class WomdRoad(Road):
         return front, rear
 
     def step(self, dt: float) -> None:
+        """Move everyone one step, then check collisions: every pair in which a vehicle
+        checks them (the ego; idm traffic), with highway-env's rule (``handle_collisions``:
+        boxes that intersect are both ``crashed``, boxes that will within the step are
+        pushed apart and crashed at the next; a crashed simulated vehicle brakes to a stop,
+        a replayed one keeps to its log). Pairs of traffic (the ego not in them) that
+        collide are added to :attr:`traffic_collisions` as (step at which they are crashed,
+        row, row), once; pairs that already overlap in the log at the current time are not
+        collisions of the simulation (the record's own boxes) and are not checked."""
         self.clock[0] += 1
         self._positions = None
         for vehicle in self.vehicles:
             vehicle.step(dt)
-        checking = [v for v in self.vehicles if v.check_collisions]
-        for vehicle in checking:
-            for other in self.vehicles:
-                if other is not vehicle and (not other.check_collisions
-                                             or id(other) > id(vehicle)):
-                    vehicle.handle_collisions(other, dt)
+        vehicles = [v for v in self.vehicles if v.collidable]
+        near = _near_pairs(vehicles, [], dt)
+        if near is None:
+            return
+        ego = self.vehicles[0]  # the env puts the ego first (a policy's takes its place)
+        for i, j in zip(*np.nonzero(np.triu(near | near.T, 1)), strict=True):
+            a, b = vehicles[i], vehicles[j]
+            if a is ego or b is ego:  # the env names the ego's partner
+                a.handle_collisions(b, dt)
+                continue
+            pair = _pair(a, b)
+            if pair in self.exempt:
+                continue
+            # whether this pair collides: it intersects (both crashed now), or will within
+            # dt (an impact, which crashes a simulated vehicle at its next step)
+            crashed, impact = (a.crashed, b.crashed), (a.impact, b.impact)
+            a.crashed = b.crashed = False
+            a.impact = b.impact = None
+            a.handle_collisions(b, dt)
+            now = a.crashed and b.crashed
+            soon = a.impact is not None or b.impact is not None
+            a.crashed |= crashed[0]
+            b.crashed |= crashed[1]
+            if a.impact is None:  # highway-env's last impact of a step wins
+                a.impact = impact[0]
+            if b.impact is None:
+                b.impact = impact[1]
+            if (now or soon) and pair not in self._pairs:
+                self._pairs.add(pair)
+                self.traffic_collisions.append((self.clock[0] + (0 if now else 1), *pair))
+
+    def start_collisions(self) -> None:
+        """Begin an episode's collision record (the vehicles placed, the ego first): pairs
+        of traffic that overlap already (log states at the current time) are exempt."""
+        self.traffic_collisions: list[tuple[int, int, int]] = []
+        self._pairs: set[tuple[int, int]] = set()
+        self.exempt: set[tuple[int, int]] = set()
+        vehicles = [v for v in self.vehicles[1:] if v.collidable]
+        near = _near_pairs(vehicles, [], 0.0)
+        if near is None:
+            return
+        for i, j in zip(*np.nonzero(np.triu(near | near.T, 1)), strict=True):
+            a, b = vehicles[i], vehicles[j]
+            if utils.are_polygons_intersecting(a.polygon(), b.polygon(), np.zeros(2),
+                                               np.zeros(2))[0]:
+                self.exempt.add(_pair(a, b))
 
     # signals
     def stop_distance(self, vehicle: Vehicle) -> float | None:

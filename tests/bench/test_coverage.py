@@ -143,3 +143,27 @@ def test_coverage_interval_rate_on_a_zipf_label_distribution():
     print(f"coverage interval (augmented bootstrap), K={K}, n={n}: {hits / reps:.3f} "
           "(nominal 0.95)")
     assert 0.90 <= hits / reps <= 0.99
+
+
+@pytest.mark.parametrize("keyed", [True, False])
+def test_novel_labels_are_listed_once_under_their_env(keyed):
+    """Issue 25: the pooled novel-label rows came back under each env's name (every novel
+    label listed twice in the report); each (env, label) is one row, its count the env's."""
+    eps = pd.DataFrame({"env": ["highway"] * 3 + ["merge"] * 3, "policy": "p",
+                        "seed": [0, 1, 2] * 2, "status": "ok",
+                        "scenario_id": [f"s{i}" for i in range(6)],
+                        "sdl": [C, C, A, C, B, B]})
+    ref_rows = pd.DataFrame({"env": ["highway", "merge"], "policy": "r", "sdl": [A, A],
+                             "scenario_id": ["r0", "r1"], "track_id": "1"})
+    reference = ({env: corpus_reference(ref_rows[ref_rows["env"] == env].assign(
+        level="maneuver"), "maneuver", tracks="all") for env in ("highway", "merge")}
+        if keyed else corpus_reference(ref_rows.assign(object_type="vehicle"), "maneuver"))
+    _, nov, labels = reference_scores(eps, reference, "ref", config=BootstrapConfig())
+    assert not labels.duplicated(["env", "policy", "reference", "label"]).any()
+    assert "all" not in set(labels["env"])
+    got = {(r.env, r.label): r.count for r in labels.itertuples()}
+    assert got == {("highway", C): 2, ("merge", C): 1, ("merge", B): 2}
+    pooled = nov.set_index("env").loc["all"]
+    assert pooled["n_novel"] == labels["count"].sum() == 5
+    # distinct novel labels: (env, label) pairs against per-env references, labels else
+    assert pooled["n_novel_labels"] == (3 if keyed else 2)

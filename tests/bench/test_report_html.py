@@ -56,10 +56,11 @@ def test_report_is_written_with_embedded_images(run_folder):
     folder = run_folder
     page = (folder / "report.html").read_text()
     figures = sorted((folder / "plots").glob("*.svg"))
-    pngs = sorted((folder / "plots").glob("*.png"))
-    assert len(figures) >= 6 and pngs  # SVG, and the forest and trade-off views as PNG
+    names = {p.stem for p in figures}
+    assert {"tradeoff", "improvement", "coverage", "novelty", "measures_all"} <= names
+    assert {"forest_idm-aggressive_vs_idm", "forest_random_vs_idm"} <= names
+    assert not list((folder / "plots").glob("*.png"))  # every figure is SVG
     assert page.count('<svg role="img"') == len(figures)  # every figure inline
-    assert page.count("data:image/png;base64,") == len(pngs)
     for path in figures:  # each well-formed, sized, with text and marks
         root = ElementTree.fromstring(path.read_text())
         assert root.tag.endswith("svg") and int(root.get("width")) > 100
@@ -103,11 +104,6 @@ def test_report_renders_in_headless_chromium(run_folder, tmp_path):
             "s.getBoundingClientRect().width)")
         assert len(figures) == len(list((folder / "plots").glob("*.svg")))
         assert all(shown > 100 for shown in figures)
-        images = driver.execute_script(
-            "return Array.from(document.images).map(i => [i.complete, i.naturalWidth, "
-            "i.getBoundingClientRect().width])")
-        assert len(images) == len(list((folder / "plots").glob("*.png")))
-        assert all(done and natural > 100 and shown > 100 for done, natural, shown in images)
         shot = tmp_path / "report.png"
         driver.save_screenshot(str(shot))
         assert shot.stat().st_size > 10_000

@@ -368,3 +368,24 @@ def test_the_recorded_command_repeats_the_curve_options_that_decide_the_model():
     assert _curve_options(args(curve_points=3, reference="vocabulary")) == [
         "--curve-points", "3", "--reference", "vocabulary"]
     assert _curve_options(args(no_curve=True, curve_points=3)) == ["--no-curve"]
+
+
+def test_train_prints_each_phase_when_not_on_a_terminal(tmp_path, write_scenario, capsys):
+    """Issue 25: a 2048-step training was silent for 485 s off a terminal (342 s of it the
+    curve's evaluations); every phase now gets a line, as demo and bench run print theirs."""
+    from tap_bench.cli import main
+
+    short = write_scenario("short", duration=5)
+    code = main(["train", "--algo", "dqn", "--env", str(short), "--timesteps", "20",
+                 "--n-envs", "1", "--curve-points", "2", "--curve-seeds", "500-501",
+                 "--reference", "vocabulary", "-o", str(tmp_path / "tiny.zip")])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    lines = out.splitlines()
+    first = {key: next(i for i, line in enumerate(lines) if key in line) for key in (
+        "the coverage reference", "starting 1 training env", "training DQN for 20 steps",
+        "evaluation 1 of 3 at 0 steps", "trained 10 of 20 steps", "evaluation 3 of 3 at 20",
+        "saving the model", "wrote")}
+    assert list(first) == sorted(first, key=first.get)  # in the order they happen
+    assert sum("learning curve: 0 steps: return" in line for line in lines) == 1
+    assert sum(line.startswith("learning curve: evaluation") for line in lines) == 3

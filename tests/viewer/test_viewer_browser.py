@@ -1,7 +1,8 @@
 """The replay viewer used as a person would, in headless Chromium: it loads without console
 errors, playback moves the time and the label timeline, A and B stay on one clock, filters
 narrow the list, WOMD scenarios show their map and labels, and each pane draws the other
-pane's ego as a ghost. Each test writes a screenshot.
+pane's ego as a ghost (on a highway pair, and the human's beside a policy's on a WOMD run).
+Each test writes a screenshot.
 """
 
 from __future__ import annotations
@@ -149,10 +150,8 @@ def test_womd_scenarios_show_their_map_and_labels(womd_dir, tmp_path, browser, s
     browser.save_screenshot(str(screenshots / "viewer-womd.png"))
 
 
-def test_each_pane_draws_the_other_panes_ego_as_a_ghost(tiny_run, browser, screenshots):
-    sid, b = _paired_seed(tiny_run)
-    open_page(browser, tiny_run / "viewer" / "index.html", f"#ep={sid}&b={b}&t=0")
-    # record the dashed outlines the panes stroke (drawGhost), with the canvas transform
+def _record_ghosts(browser) -> None:
+    """Record the dashed outlines the panes stroke (drawGhost), with the canvas transform."""
     browser.execute_script("""
       window.ghosts = [];
       const proto = CanvasRenderingContext2D.prototype, raw = proto.strokeRect;
@@ -163,7 +162,12 @@ def test_each_pane_draws_the_other_panes_ego_as_a_ghost(tiny_run, browser, scree
         }
         return raw.call(this, x, y, w, h);
       };""")
-    t = 2.0
+
+
+def _check_ghosts(browser, t: float) -> float:
+    """Seek to ``t`` and check that each pane strokes one ghost, the other pane's ego (its
+    size, at its position in this pane's pixels); returns how far apart [m] the two egos
+    are then."""
     browser.execute_script(f"window.ghosts = []; TAPVIEW.seek({t});")
     for me, other in (("a", "b"), ("b", "a")):
         got = _state(browser, f"""window.ghosts.filter(g => g.canvas ===
@@ -180,13 +184,53 @@ def test_each_pane_draws_the_other_panes_ego_as_a_ghost(tiny_run, browser, scree
         }})()""")
         assert [w, h] == pytest.approx(want[:2])
         assert [e, f] == pytest.approx(want[2:], abs=0.5)
-    # the two egos have parted by then (random against idm): the ghost is not the ego
-    world = ("(() => { const ep = TAPVIEW.state.%s, tr = ep.ego, i = 20 - tr.s0;"
+    world = ("(() => { const ep = TAPVIEW.state.%s, tr = ep.ego, i = %d - tr.s0;"
              " return [tr.x[i] * ep.q + ep.origin[0], tr.y[i] * ep.q + ep.origin[1]]; })()")
-    a_at, b_at = _state(browser, world % "a"), _state(browser, world % "b")
-    assert abs(a_at[0] - b_at[0]) + abs(a_at[1] - b_at[1]) > 0.5
+    a_at = _state(browser, world % ("a", round(t * 10)))
+    b_at = _state(browser, world % ("b", round(t * 10)))
+    return abs(a_at[0] - b_at[0]) + abs(a_at[1] - b_at[1])
+
+
+def test_each_pane_draws_the_other_panes_ego_as_a_ghost(tiny_run, browser, screenshots):
+    sid, b = _paired_seed(tiny_run)
+    open_page(browser, tiny_run / "viewer" / "index.html", f"#ep={sid}&b={b}&t=0")
+    _record_ghosts(browser)
+    # the two egos have parted by then (random against idm): the ghost is not the ego
+    assert _check_ghosts(browser, 2.0) > 0.5
     assert console_errors(browser) == []
     browser.save_screenshot(str(screenshots / "viewer-ghost.png"))
+
+
+def test_a_womd_run_draws_the_human_as_the_ghost(womd_dir, tmp_path, browser, screenshots):
+    import warnings
+
+    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.suite import suite_from_dict
+
+    # ee519cf571686d19: the SDC drives ~40 m along a street; IDM drives it ~7 m apart
+    suite = suite_from_dict({
+        "name": "womd-ghost", "envs": [{"womd": [str(womd_dir / "womd_scenario_input.tfrecord")],
+                                        "traffic": "log"}],
+        "policies": ["idm", "log"], "reference_policy": "log", "seeds": "all",
+        "bootstrap": {"n_resamples": 200}}, source="womd-ghost")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        folder = run_suite(suite, tmp_path / "run", workers=1, progress=False).folder
+    open_page(browser, folder / "viewer" / "index.html", "#ep=ee519cf571686d19/idm&b=log&t=0")
+    assert console_errors(browser) == []
+    entries = _state(browser, "[TAPVIEW.state.a.entry, TAPVIEW.state.b.entry].map(e => "
+                              "[e.policy, e.seed])")
+    assert entries == [["idm", 0], ["log", 0]]  # the policy beside the human, one scene
+    lanes = _state(browser, "TAPVIEW.state.index.maps[TAPVIEW.state.a.entry.map]"
+                            ".filter(f => f[0] === 'lane').length")
+    assert lanes > 100  # the scene's WOMD lanes
+    _record_ghosts(browser)
+    # before the current time (1.0 s) both replay the log: the ghost covers the ego
+    assert _check_ghosts(browser, 0.5) < 0.05
+    # later the policy's ego and the human's part: pane A draws the human as its ghost
+    assert _check_ghosts(browser, 7.0) > 2.0
+    assert console_errors(browser) == []
+    browser.save_screenshot(str(screenshots / "viewer-womd-ghost.png"))
 
 
 def test_womd_signals_are_drawn_in_their_state_at_each_step(womd_dir, tmp_path, browser,

@@ -23,10 +23,11 @@ import warnings
 from collections.abc import Sequence
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pandas as pd
 
+from tap_bench.bench.cache import memoised, table_digest
 from tap_bench.bench.episodes import episode_table
 from tap_bench.bench.measures import MEASURES, run_measures
 from tap_bench.bench.suite import suite_from_dict
@@ -45,6 +46,9 @@ from tap_bench.sources.ingest import record_files
 from tap_bench.sources.maps import iter_road_maps, read_maps
 from tap_bench.tableio import atomic_folder
 from tap_bench.thresholds import Thresholds
+
+if TYPE_CHECKING:
+    from tap_bench.bench.cache import EpisodeCache
 
 __all__ = ["DEFAULT_VIEW_SCENARIOS", "MAX_VIEW_SCENARIOS", "STATIC_FILES", "write_run_viewer",
            "write_viewer", "write_womd_viewer"]
@@ -77,6 +81,13 @@ def write_viewer(output: str | os.PathLike, index: dict[str, Any],
         OutputPathError: ``output`` exists and is not a viewer folder tap-bench wrote (a
             file, a link, any other folder: it is never replaced).
     """
+    return _write_viewer(output, index, {name: _script("chunk", name, docs)
+                                         for name, docs in chunks.items()})
+
+
+def _write_viewer(output: str | os.PathLike, index: dict[str, Any],
+                  scripts: dict[str, str]) -> Path:
+    """:func:`write_viewer` with the chunks as their script files' text."""
     output = Path(output)
     static = resources.files("tap_bench.bench.viewer") / "static"
     # built beside the target and moved into place whole; an earlier viewer is replaced
@@ -85,8 +96,8 @@ def write_viewer(output: str | os.PathLike, index: dict[str, Any],
         data.mkdir()
         for name in STATIC_FILES:
             (tmp / name).write_bytes((static / name).read_bytes())
-        for name, docs in chunks.items():
-            (data / f"{name}.js").write_text(_script("chunk", name, docs), encoding="utf-8")
+        for name, text in scripts.items():
+            (data / f"{name}.js").write_text(text, encoding="utf-8")
         (data / "index.js").write_text(_script("index", None, index), encoding="utf-8")
     return output / "index.html"
 
@@ -101,7 +112,8 @@ def _env_boxes(trajectories: pd.DataFrame, margin: float) -> dict[str, tuple]:
 def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
                      episodes: pd.DataFrame, trajectories: pd.DataFrame, *,
                      segments: pd.DataFrame | None = None, roads: pd.DataFrame | None = None,
-                     novel_labels: pd.DataFrame | None = None) -> Path:
+                     novel_labels: pd.DataFrame | None = None,
+                     cache: EpisodeCache | None = None) -> Path:
     """Write the replay viewer of a run (``bench run``, ``demo``).
 
     Args:
@@ -114,6 +126,10 @@ def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
         roads: the map table of the envs' roads; None builds each env's road again from
             the suite.
         novel_labels: the run's ``novel_labels`` table (marks novel episodes).
+        cache: the episode cache: the episode data and maps of unchanged trajectories,
+            segments and roads are read from it (:func:`tap_bench.bench.cache.memoised`;
+            the same bytes), except for recorded scenes (their signals are read again from
+            the WOMD files).
 
     Returns:
         the path of the viewer's ``index.html``.
@@ -129,17 +145,25 @@ def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
     measures = run_measures(summary)
     eps, entries = episode_index(episodes, novel_labels=novel_labels, has_replay=have,
                                  measures=measures)
-    chunks = episode_chunks(trajectories, eps, segments)
     boxes = _env_boxes(trajectories, MAP_MARGIN) if "env" in trajectories.columns else {}
-    maps = {str(env): map_features(sub, boxes.get(str(env)))
-            for env, sub in roads.groupby("map_id", sort=True)}
+
+    def build() -> tuple[dict[str, str], dict[str, Any]]:
+        chunks = episode_chunks(trajectories, eps, segments)
+        _add_run_signals(summary, chunks)
+        maps = {str(env): map_features(sub, boxes.get(str(env)))
+                for env, sub in roads.groupby("map_id", sort=True)}
+        return {name: _script("chunk", name, docs) for name, docs in chunks.items()}, maps
+
+    inputs = None if _run_womd_files(summary) else {
+        "trajectories": table_digest(trajectories), "segments": table_digest(segments),
+        "roads": table_digest(roads), "chunks": table_digest(eps[["scenario_id", "chunk"]])}
+    scripts, maps = memoised(cache, "viewer", inputs, build, _viewer_files, _files_viewer)
     for entry in entries:
         # highway-env: one road per env; recorded scenes: the map of the episode's WOMD
         # scenario (a run names its episodes "<WOMD id>/<policy>")
         womd = str(entry["id"]).rpartition("/")[0]
         entry["map"] = (entry["env"] if entry["env"] in maps else
                         womd if womd in maps else None)
-    _add_run_signals(summary, chunks)
     suite = summary.get("suite", {})
     index = {"run": {"name": str(summary.get("run", Path(output).parent.name)),
                      "suite": str(suite.get("name", "")), "level": level,
@@ -147,7 +171,27 @@ def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
                      "source": "highway-env", "created": str(summary.get("created", "")),
                      "measures": measures},
              "episodes": entries, "maps": maps}
-    return write_viewer(output, index, chunks)
+    return _write_viewer(output, index, scripts)
+
+
+def _viewer_files(built: tuple[dict[str, str], dict[str, Any]]) -> dict[str, bytes]:
+    scripts, maps = built
+    return {"chunks.json": json.dumps(scripts).encode(),
+            "maps.json": json.dumps(maps, allow_nan=False).encode()}
+
+
+def _files_viewer(files: dict[str, bytes]) -> tuple[dict[str, str], dict[str, Any]]:
+    return json.loads(files["chunks.json"]), json.loads(files["maps.json"])
+
+
+def _run_womd_files(summary: dict[str, Any]) -> list[str]:
+    """The WOMD files the suite's recorded scenes come from (their signals per step)."""
+    files: list[str] = []
+    for env in summary.get("suite", {}).get("envs", []):
+        if isinstance(env, dict) and "womd" in env:
+            paths = env["womd"] if isinstance(env["womd"], list) else [env["womd"]]
+            files += [str(p) for p in paths]
+    return list(dict.fromkeys(files))
 
 
 def _ego_segments(trajectories: pd.DataFrame, thresholds: Any, level: str) -> pd.DataFrame:
@@ -220,13 +264,7 @@ def _add_run_signals(summary: dict[str, Any], chunks: dict[str, list[dict[str, A
     """Give each recorded-scene episode of a run its traffic signals per step, read again
     from the suite's WOMD files (the run folder keeps the static map only); without the
     files (moved, unreadable) the episodes show no signals and a warning says why."""
-    envs = summary.get("suite", {}).get("envs", [])
-    files: list[str] = []
-    for env in envs:
-        if isinstance(env, dict) and "womd" in env:
-            paths = env["womd"] if isinstance(env["womd"], list) else [env["womd"]]
-            files += [str(p) for p in paths]
-    files = list(dict.fromkeys(files))
+    files = _run_womd_files(summary)
     if not files:
         return
     found = {f: (sorted(glob.glob(f)) if glob.has_magic(f) else

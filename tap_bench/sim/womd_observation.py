@@ -1,0 +1,226 @@
+"""What an RL agent on ``tap_bench/womd-v0`` observes: the traffic and its route.
+
+``{"type": "KinematicsRoute"}`` (the env's default observation) is highway-env's
+``Kinematics`` observation (the ego and the nearest road users, relative, normalised;
+same parameters, computed as :mod:`tap_bench.sim.observation` does) followed by the
+ego's route, the lanes the logged ego drove (SPEC section 8), seen from the ego. It is one
+flat float32 vector (an SB3 ``MlpPolicy`` reads it as it is):
+
+- ``[0, V*F)``: the Kinematics array (V = ``vehicles_count`` rows of F = ``len(features)``
+  columns), row by row, as highway-env computes it;
+- then :data:`ROUTE_FEATURES` + 2 x ``route_points`` route values, each in [-1, 1]:
+
+  ``route_x_k, route_y_k`` (k = 1 .. ``route_points``): the point of the route
+  ``k * route_spacing`` metres ahead of the ego along the route, in the ego's frame (x
+  forward, y to the driver's left), divided by the horizon ``route_points * route_spacing``
+  [m] and clipped; the route continues straight on past its last lane.
+  ``offset``: the ego's signed distance from its route lane's centre line (positive: the
+  lane centre is to the driver's left), divided by :data:`OFFSET_SCALE` [m], clipped.
+  ``sin_heading, cos_heading``: the route lane's heading at the ego relative to the ego's
+  heading (positive sine: the lane turns to the left).
+  ``change_distance``: the distance along the route to its next lane change (the logged
+  driver changed lanes there), divided by the horizon and clipped (1: none within it).
+  ``change_side``: +1 the next lane change goes left, -1 right, 0 none within the horizon.
+  ``on_route``: 1 when the ego's lane is one of the route's, else 0.
+
+The route lane the ego is on is tracked along the route (never backwards), so a route that
+comes back to a lane is followed in order. Lane changes take place where the map names the
+lanes as neighbours, at the first point of that stretch ahead of the ego (the route's points
+then follow the new lane), as the IDM controller does.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+
+from tap_bench.sim.observation import FastKinematicObservation
+
+__all__ = ["OBSERVATION_TYPE", "OFFSET_SCALE", "ROUTE_FEATURES", "RouteObservation",
+           "route_feature_names"]
+
+OBSERVATION_TYPE = "KinematicsRoute"
+"""The ``observation`` config's ``type`` of :class:`RouteObservation`."""
+
+ROUTE_FEATURES = ("offset", "sin_heading", "cos_heading", "change_distance", "change_side",
+                  "on_route")
+"""The route values after the route points (see the module docstring)."""
+
+OFFSET_SCALE = 5.0  # [m] the lateral offset is divided by this (clipped to [-1, 1])
+
+
+def route_feature_names(route_points: int) -> list[str]:
+    """Names of the route part of the vector, in order."""
+    points = [f"route_{axis}_{k}" for k in range(1, route_points + 1) for axis in "xy"]
+    return [*points, *ROUTE_FEATURES]
+
+
+class RouteObservation(FastKinematicObservation):
+    """highway-env's Kinematics observation (flattened) followed by the ego's route (see the
+    module docstring for the layout).
+
+    Args:
+        env: the ``tap_bench/womd-v0`` highway-env environment (``env.route``: the route's
+            lane indexes).
+        route_points: route points observed ahead (>= 1).
+        route_spacing: metres between them along the route (> 0).
+        **kwargs: highway-env's Kinematics parameters (``vehicles_count``, ``features``...).
+    """
+
+    def __init__(self, env: Any, route_points: int = 5, route_spacing: float = 10.0,
+                 **kwargs: Any) -> None:
+        kwargs.pop("type", None)
+        super().__init__(env, **kwargs)
+        if isinstance(route_points, bool) or not isinstance(route_points, int) \
+                or route_points < 1:
+            raise ValueError(f"KinematicsRoute observation: route_points {route_points!r} "
+                             "must be an integer >= 1 (points observed along the route).")
+        if not isinstance(route_spacing, int | float) or isinstance(route_spacing, bool) \
+                or not math.isfinite(route_spacing) or route_spacing <= 0:
+            raise ValueError(f"KinematicsRoute observation: route_spacing {route_spacing!r} "
+                             "must be a number of metres > 0.")
+        self.route_points = route_points
+        self.route_spacing = float(route_spacing)
+        self.horizon = route_points * self.route_spacing
+        self._at = 0  # the route lane the ego was last on (the route is followed in order)
+
+    @property
+    def kinematics_size(self) -> int:
+        """Values of the Kinematics part (V * F)."""
+        return self.vehicles_count * len(self.features)
+
+    @property
+    def route_size(self) -> int:
+        """Values of the route part."""
+        return 2 * self.route_points + len(ROUTE_FEATURES)
+
+    def space(self) -> spaces.Box:
+        """One float32 vector: the Kinematics part is bounded as highway-env bounds it
+        (unbounded), the route part in [-1, 1]."""
+        low = np.r_[np.full(self.kinematics_size, -np.inf), -np.ones(self.route_size)]
+        return spaces.Box(low=low.astype(np.float32), high=-low.astype(np.float32),
+                          dtype=np.float32)
+
+    def observe(self) -> np.ndarray:
+        """The vector (see the module docstring)."""
+        kinematics = np.asarray(super().observe(), dtype=np.float32).ravel()
+        if not self.env.road or not getattr(self.env, "route", None):
+            return np.r_[kinematics, np.zeros(self.route_size, np.float32)]
+        return np.r_[kinematics, self.route_vector()].astype(np.float32)
+
+    # the route seen from the ego
+    def route_vector(self) -> np.ndarray:
+        """The route part (float32, ``route_size`` values in [-1, 1])."""
+        ego = self.observer_vehicle
+        network = self.env.road.network
+        route = list(self.env.route)
+        p = np.asarray(ego.position, float)
+        k, s, lat = self._locate(network, route, p, ego.lane_index)
+        lane = network.get_lane(route[k])
+        h = float(ego.heading)
+        c, si = math.cos(h), math.sin(h)
+        points, change = self._walk(network, route, k, s)
+        rel = points - p
+        fwd = rel @ np.array([c, si])
+        left = -(rel @ np.array([-si, c]))  # the sim frame's y points to the driver's right
+        xy = np.column_stack([fwd, left]).ravel() / self.horizon
+        dh = -(lane.heading_at(s) - h)  # WOMD axes: counter-clockwise = to the left
+        if change is None:
+            change_distance, change_side = 1.0, 0.0
+        else:
+            change_distance, change_side = change[0] / self.horizon, change[1]
+        values = np.r_[xy, lat / OFFSET_SCALE, math.sin(dh), math.cos(dh), change_distance,
+                       change_side, float(ego.lane_index in route)]
+        return np.clip(values, -1.0, 1.0).astype(np.float32)
+
+    def _locate(self, network: Any, route: list, p: np.ndarray, lane_index: Any
+                ) -> tuple[int, float, float]:
+        """(route position, longitudinal [m] on that lane, offset to its centre [m, + left])
+        of the ego: its own lane when that is on the route at or after the last position,
+        else the route lane whose centre is nearest (beyond a lane's ends counts as far)."""
+        start = min(self._at, len(route) - 1)
+        if lane_index in route[start:]:
+            k = route.index(lane_index, start)
+            s, d = network.get_lane(route[k]).local_coordinates(p)
+        else:
+            best = None
+            for j in range(start, len(route)):
+                lane = network.get_lane(route[j])
+                sj, dj = lane.local_coordinates(p)
+                outside = max(0.0, -sj, sj - lane.length)
+                cost = math.hypot(dj, outside)
+                if best is None or cost < best[0]:
+                    best = (cost, j, sj, dj)
+            _, k, s, d = best
+        self._at = k
+        return k, float(s), -float(d)
+
+    def _walk(self, network: Any, route: list, k: int, s: float
+              ) -> tuple[np.ndarray, tuple[float, float] | None]:
+        """The route's points every ``route_spacing`` m ahead of longitudinal ``s`` on route
+        lane ``k``, and (distance [m], side +1 left / -1 right) of its next lane change within
+        the horizon (None if none)."""
+        targets = self.route_spacing * np.arange(1, self.route_points + 1)
+        points = np.zeros((self.route_points, 2))
+        travelled, j, change = 0.0, 0, None
+        lane = network.get_lane(route[k])
+        while j < self.route_points:
+            nxt = route[k + 1] if k + 1 < len(route) else None
+            side = _side(network, route[k], nxt) if nxt is not None else None
+            if side is not None:  # a lane change: where the map allows it, from here on
+                start = max(s, _neighbour_start(network, route[k], nxt))
+                stop = start
+            elif nxt is not None:  # along to the lane's end, then the next lane
+                stop = max(lane.length, s)
+            else:  # the route's last lane: straight on past its end
+                stop = math.inf
+            while j < self.route_points and travelled + stop - s >= targets[j]:
+                points[j] = lane.position(s + targets[j] - travelled, 0.0)
+                j += 1
+            if j == self.route_points:
+                break
+            travelled += stop - s
+            if side is not None:
+                if change is None:
+                    change = (travelled, side)
+                here = lane.position(stop, 0.0)
+                lane = network.get_lane(nxt)
+                s = float(lane.local_coordinates(here)[0])
+            else:
+                lane = network.get_lane(nxt)
+                s = 0.0
+            k += 1
+        if change is not None and change[0] > self.horizon:
+            change = None
+        return points, change
+
+
+def _side(network: Any, a: Any, b: Any) -> float | None:
+    """+1 when route lane ``b`` is a left neighbour of ``a``, -1 a right one, None when it is
+    not a neighbour (an exit: the route goes on along the lane)."""
+    if b in network.successors(a):
+        return None
+    lane = network.road_map.lanes[network.womd_id(a)]
+    for n in lane.left:
+        if network.index.get(n.lane) == b:
+            return 1.0
+    for n in lane.right:
+        if network.index.get(n.lane) == b:
+            return -1.0
+    return None
+
+
+def _neighbour_start(network: Any, a: Any, b: Any) -> float:
+    """Longitudinal [m] on lane ``a`` where lane ``b`` starts being its neighbour."""
+    lane = network.road_map.lanes[network.womd_id(a)]
+    for n in (*lane.left, *lane.right):
+        if network.index.get(n.lane) == b:
+            centre = np.asarray(lane.centre, float)
+            if len(centre) < 2:
+                return 0.0
+            s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(centre, axis=0).T))]
+            return float(s[min(max(n.self_start, 0), len(s) - 1)])
+    return 0.0

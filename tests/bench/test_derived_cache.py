@@ -1,0 +1,246 @@
+"""Derived outputs kept in the episode cache (issue 24 section 3): a re-run reads the scores,
+the roads, the report's figures and the viewer's episode data of unchanged inputs, and
+serves exactly what it would have made; a change of any input (a value of any table, a
+setting, the code) makes them again; a damaged entry is never used."""
+
+from __future__ import annotations
+
+import re
+import warnings
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tap_bench.bench import cache as cache_module
+from tap_bench.bench.cache import (
+    EpisodeCache,
+    derived_key,
+    memoised,
+    table_digest,
+)
+from tap_bench.bench.report_figures import write_plots
+from tap_bench.bench.runner import run_suite
+from tap_bench.bench.scoring import Scores, scores_from_files, scores_to_files
+from tap_bench.bench.suite import Suite, suite_from_dict
+
+
+def tiny():
+    return suite_from_dict({"name": "tiny", "envs": ["merge", "highway"],
+                            "policies": ["idm", "lane-keeping"], "seeds": "0-2",
+                            "reference_policy": "idm",
+                            "env_overrides": {"merge": {"duration": 4},
+                                              "highway": {"duration": 4}},
+                            "bootstrap": {"n_resamples": 200}}, check_names=False)
+
+
+def run(folder, cache):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return run_suite(tiny(), folder, workers=1, progress=False, cache=cache)
+
+
+def _files(folder, pattern):
+    return {p.relative_to(folder).as_posix(): p.read_bytes()
+            for p in sorted(folder.glob(pattern))}
+
+
+def _index(folder):
+    """The viewer's index without what names the run (its folder and time)."""
+    text = (folder / "viewer" / "data" / "index.js").read_text()
+    text = text.replace(folder.name, "RUN")
+    return re.sub(r'"created":"[^"]*"', '"created":""', text)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("derived")
+    cache = EpisodeCache(root / "cache")
+    cold = run(root / "run-cold", None)
+    first = run(root / "run-first", cache)
+    return root, cold, first, cache
+
+
+def test_a_rerun_serves_the_scores_figures_and_viewer_it_would_make(runs, monkeypatch):
+    root, cold, first, cache = runs
+    kinds = {p.name: len(list(p.glob("*/*.derived"))) for p in cache.derived_folder.iterdir()}
+    assert kinds == {"scores": 1, "roads": 2, "plots": 1, "viewer": 1}
+
+    def fail(*args, **kwargs):
+        raise AssertionError("made again")
+
+    # a re-run makes none of them again: the roads (no highway-env), the scores, the figures
+    # and the viewer's episode data all come from the cache
+    monkeypatch.setattr(Suite, "road", fail)
+    monkeypatch.setattr("tap_bench.bench.runner.score", fail)
+    monkeypatch.setattr("tap_bench.bench.report_figures._draw", fail)
+    monkeypatch.setattr("tap_bench.bench.viewer.build.episode_chunks", fail)
+    again = run(root / "run-again", cache)
+    for result in (first, again):
+        for name in ("plots/*.svg", "viewer/data/*-*.js", "*.parquet"):
+            assert _files(result.folder, name) == _files(cold.folder, name), name
+        assert _index(result.folder) == _index(cold.folder)
+        for name, table in cold.scores.tables().items():
+            pd.testing.assert_frame_equal(table, result.scores.tables()[name],
+                                          check_exact=True, obj=name)
+        assert result.summary["headline"] == cold.summary["headline"]
+        assert result.summary["verdict"] == cold.summary["verdict"]
+        assert list(result.scores.methods.items()) == list(cold.scores.methods.items())
+        report = result.report.read_text().replace(result.folder.name, "RUN")
+        expected = cold.report.read_text().replace(cold.folder.name, "RUN")
+        strip = re.compile(r"<h3>Timings</h3>.*?</table>|\d{4}-\d\d-\d\d \d\d:\d\d:\d\d", re.S)
+        assert strip.sub("", report) == strip.sub("", expected)
+
+
+def test_a_damaged_entry_is_made_again(runs, tmp_path):
+    import shutil
+
+    _, cold, _, cache = runs
+
+    damaged = EpisodeCache(tmp_path / "cache")
+    shutil.copytree(cache.root, damaged.root)
+    entries = sorted(damaged.derived_folder.glob("*/*/*.derived"))
+    for k, path in enumerate(entries):  # each torn, flipped or emptied
+        data = path.read_bytes()
+        path.write_bytes([data[:-5], data[:-3] + bytes([data[-3] ^ 1]) + data[-2:], b""][k % 3])
+    result = run(tmp_path / "run", damaged)
+    for name in ("plots/*.svg", "viewer/data/*-*.js", "*.parquet"):
+        assert _files(result.folder, name) == _files(cold.folder, name), name
+    assert all(p.stat().st_size > 0 for p in damaged.derived_folder.glob("*/*/*.derived"))
+
+
+def _scores(seed: int = 0) -> Scores:
+    from tap_bench.bench.bootstrap import BootstrapConfig
+    from tap_bench.bench.scoring import score
+
+    from .conftest import make_episodes
+
+    rng = np.random.default_rng(seed)
+    labels = ["Straight | Maintain Speed", "Left Merge > Straight | Accelerate",
+              "Right Merge | Decelerate"]
+    rows = [{"env": env, "policy": policy, "seed": s, "scenario_id": f"{env}/{policy}/s{s}",
+             "sdl": labels[rng.integers(3)], "crashed": bool(rng.random() < 0.3),
+             "mean_speed": rng.normal(20, 2), "min_headway_s": rng.normal(2, .3),
+             "min_ttc_s": rng.uniform(2, 9), "rms_jerk": rng.normal(3, 1)}
+            for env in ("highway", "merge") for policy in ("idm", "random")
+            for s in range(8)]
+    return score(make_episodes(rows), reference_policy="idm", level="maneuver",
+                 config=BootstrapConfig(n_resamples=100))
+
+
+def _changed(table: pd.DataFrame, rng: np.random.Generator) -> pd.DataFrame:
+    """``table`` with one value changed: a float nudged by one ulp, an int by one, a
+    string by one character, a bool flipped."""
+    out = table.copy()
+    row = int(rng.integers(len(out)))
+    col = out.columns[int(rng.integers(len(out.columns)))]
+    value = out[col].iloc[row]
+    if isinstance(value, bool | np.bool_):
+        new = not value
+    elif isinstance(value, float | np.floating):
+        new = np.nextafter(value, np.inf) if np.isfinite(value) else 0.0
+    elif isinstance(value, int | np.integer):
+        new = value + 1
+    else:
+        new = f"{value}x"
+    out[col] = out[col].astype(object)
+    out.iloc[row, out.columns.get_loc(col)] = new
+    return out.astype(table.dtypes.to_dict()) if not isinstance(new, str) else out
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_a_change_of_any_value_of_any_scores_table_redraws_the_figures(tmp_path, seed):
+    scores = _scores()
+    cache = EpisodeCache(tmp_path / "cache")
+    write_plots(scores, tmp_path / "a", reference="idm", cache=cache)
+    rng = np.random.default_rng(seed)
+    names = [n for n, t in scores.tables().items() if len(t)]
+    name = names[seed % len(names)]
+    changed = Scores(**{**scores.tables(), name: _changed(getattr(scores, name), rng)},
+                     methods=scores.methods)
+    assert table_digest(getattr(changed, name)) != table_digest(getattr(scores, name))
+    cold = {p.name: p.read_bytes() for p in write_plots(changed, tmp_path / "cold",
+                                                         reference="idm")}
+    warm = {p.name: p.read_bytes() for p in write_plots(changed, tmp_path / "warm",
+                                                         reference="idm", cache=cache)}
+    assert warm == cold
+    # and the settings: another reference or level is drawn again
+    for kwargs in ({"reference": "random"}, {"reference": "idm", "level": 0.9}):
+        cold = {p.name: p.read_bytes() for p in write_plots(scores, tmp_path / "c2", **kwargs)}
+        warm = {p.name: p.read_bytes() for p in write_plots(scores, tmp_path / "w2",
+                                                             cache=cache, **kwargs)}
+        assert warm == cold
+
+
+def test_memoised_builds_on_a_new_key_and_reads_on_the_same(tmp_path, monkeypatch):
+    cache = EpisodeCache(tmp_path / "cache")
+    calls = []
+
+    def build(value):
+        def made():
+            calls.append(value)
+            return {"v.txt": value.encode()}
+        return made
+
+    def get(inputs, value):
+        return memoised(cache, "plots", inputs, build(value), dict, dict)["v.txt"].decode()
+
+    assert get({"a": 1}, "one") == "one"
+    assert get({"a": 1}, "two") == "one" and calls == ["one"]  # read back
+    assert get({"a": 2}, "two") == "two"  # another input
+    assert get(None, "three") == "three" and calls == ["one", "two", "three"]  # not keyed
+    assert memoised(None, "plots", {"a": 1}, build("four"), dict, dict)["v.txt"] == b"four"
+    monkeypatch.setattr(cache_module, "_PACKAGE_CODE", ["other code"])
+    assert get({"a": 1}, "five") == "five"  # the code changed
+    key, _ = derived_key("plots", {"a": 1})
+    path = cache.derived_path("plots", key)
+    # an entry copied under another key, or of another kind, is refused and made again
+    other, _ = derived_key("plots", {"a": 3})
+    cache.derived_path("plots", other).parent.mkdir(parents=True, exist_ok=True)
+    cache.derived_path("plots", other).write_bytes(path.read_bytes())
+    assert get({"a": 3}, "six") == "six"
+    files, note = cache.read_derived("viewer", key)
+    assert files is None and note is None
+
+
+def test_a_value_the_files_cannot_hold_is_built_and_not_kept(tmp_path):
+    cache = EpisodeCache(tmp_path / "cache")
+
+    def encode(value):
+        raise TypeError("cannot hold")
+
+    assert memoised(cache, "plots", {"a": 1}, lambda: 5, encode, dict) == 5
+    assert not cache.derived_folder.exists()
+    # a file name the cache does not keep: built, the run goes on
+    out = memoised(cache, "plots", {"a": 1}, lambda: {"é.svg": b"x"}, dict, dict)
+    assert out == {"é.svg": b"x"}
+
+
+def test_scores_read_back_equal_value_for_value():
+    scores = _scores(3)
+    back = scores_from_files(scores_to_files(scores))
+    for name, table in scores.tables().items():
+        pd.testing.assert_frame_equal(table, getattr(back, name), check_exact=True, obj=name)
+    assert list(back.methods.items()) == list(scores.methods.items())  # in order
+    assert back.references.keys() == scores.references.keys()
+    for name, ref in scores.references.items():
+        other = back.references[name]
+        assert list(ref.items) == list(other.items) and (ref.weights == other.weights).all()
+        assert (ref.kind, ref.level, ref.description, ref.n_trajectories) == \
+            (other.kind, other.level, other.description, other.n_trajectories)
+
+
+def test_table_digest_sees_every_value_bit_and_type():
+    table = pd.DataFrame({"x": [0.0, 1.5, np.nan], "s": ["a", "b", "c"], "b": [True, False,
+                                                                            True]})
+    base = table_digest(table)
+    assert table_digest(table.copy()) == base
+    variants = [table.assign(x=[-0.0, 1.5, np.nan]),
+                table.assign(x=[0.0, np.nextafter(1.5, 2), np.nan]),
+                table.assign(s=["a", "b", "d"]), table.assign(b=[True, True, True]),
+                table.rename(columns={"x": "y"}), table.astype({"x": "float32"}),
+                table.iloc[:2], table.iloc[::-1], table.assign(s=pd.Categorical(table["s"])),
+                table.assign(extra=[[1], [2], [3]])]
+    digests = {table_digest(v) for v in variants}
+    assert base not in digests and len(digests) == len(variants)
+    assert table_digest(None) != table_digest(pd.DataFrame())

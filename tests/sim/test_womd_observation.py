@@ -1,0 +1,201 @@
+"""The route in the RL observation of tap_bench/womd-v0 (``KinematicsRoute``): its values on
+generated two-lane scenes (rotated, both sides, several speeds), the space holding every
+observation on the real files, and an SB3 agent trained on it through the command."""
+
+from __future__ import annotations
+
+import json
+import math
+import pickle
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tap_bench.sim.policies import load_policy
+from tap_bench.sim.womd_env import make_womd_env
+from tap_bench.sim.womd_observation import ROUTE_FEATURES, route_feature_names
+
+FILES = ["motion_data_one_scenario.tfrecord", "womd_scenario_input.tfrecord",
+         "motion_data_one_example.tfrecord", "sd_waymo_v1.2_eb4b91b10ca94ff2.pkl"]
+WIDTH = 3.7
+CHANGE_X = 50.0  # [m] where the second lane becomes the first's neighbour
+
+
+def two_lanes(path: Path, *, theta: float, side: int, speed: float) -> str:
+    """A ScenarioNet pickle: two parallel straight lanes (the second on the ``side`` of the
+    first, +1 left), neighbours from x = 50 m; the ego drives the first at ``speed`` from
+    x = 0 and changes to the second between x = 50 and 60 m; everything rotated by
+    ``theta``."""
+    c, s = math.cos(theta), math.sin(theta)
+
+    def rot(xy: np.ndarray) -> np.ndarray:
+        return np.c_[c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]]
+
+    xs = np.arange(-10.0, 200.0, 0.5)
+    first = rot(np.c_[xs, np.zeros_like(xs)])
+    second = rot(np.c_[xs, np.full_like(xs, side * WIDTH)])
+    start = int(np.searchsorted(xs, CHANGE_X))
+    near = {"feature_id": "2", "self_start_index": start, "self_end_index": len(xs) - 1,
+            "neighbor_start_index": start, "neighbor_end_index": len(xs) - 1}
+    back = {**near, "feature_id": "1"}
+    features = {
+        "1": {"type": "LANE_SURFACE_STREET", "polyline": first, "entry_lanes": [],
+              "exit_lanes": [], "left_neighbor": [near] if side > 0 else [],
+              "right_neighbor": [near] if side < 0 else []},
+        "2": {"type": "LANE_SURFACE_STREET", "polyline": second, "entry_lanes": [],
+              "exit_lanes": [], "left_neighbor": [back] if side < 0 else [],
+              "right_neighbor": [back] if side > 0 else []},
+    }
+    t = np.arange(91) * 0.1
+    x = speed * t
+    y = side * WIDTH * np.clip((x - CHANGE_X) / 10.0, 0.0, 1.0)
+    xy = rot(np.c_[x, y])
+    vel = np.gradient(xy, 0.1, axis=0)
+    heading = np.arctan2(vel[:, 1], vel[:, 0])
+    ego = {"type": "VEHICLE", "state": {
+        "position": np.c_[xy, np.zeros(91)], "heading": heading, "velocity": vel,
+        "valid": np.ones(91, bool), "length": np.full(91, 4.5), "width": np.full(91, 2.0)}}
+    meta = {"scenario_id": path.stem, "ts": t, "dataset": "waymo", "sdc_id": "ego"}
+    with path.open("wb") as f:
+        pickle.dump({"metadata": meta, "tracks": {"ego": ego}, "map_features": features,
+                     "dynamic_map_states": {}}, f)
+    return str(path)
+
+
+def route_part(env, obs: np.ndarray) -> dict[str, np.ndarray | float]:
+    observation = env.unwrapped.observation_type
+    values = obs[observation.kinematics_size:]
+    names = route_feature_names(observation.route_points)
+    assert len(values) == len(names) == observation.route_size
+    named = dict(zip(names, values, strict=True))
+    points = values[:2 * observation.route_points].reshape(-1, 2) * observation.horizon
+    return {"points": points, **{k: named[k] for k in ROUTE_FEATURES}}
+
+
+@pytest.mark.parametrize("theta", [0.0, 0.7, 2.0, -2.6])
+@pytest.mark.parametrize("side", [1, -1])
+@pytest.mark.parametrize("speed", [8.0, 11.0, 14.0])
+def test_the_route_is_observed_from_the_ego(tmp_path, theta, side, speed):
+    env = make_womd_env(two_lanes(tmp_path / "sd_two.pkl", theta=theta, side=side,
+                                  speed=speed))
+    obs, _ = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+    assert env.unwrapped.route == [("1", "1>", 0), ("2", "2>", 0)]
+    route = route_part(env, obs)
+    # the ego is at x = speed (t = 1 s); the route changes lane at x = 50 m, then follows
+    # the second lane: the points 10, 20 ... 50 m ahead, in the ego's frame (y to the left)
+    ahead = 10.0 * np.arange(1, 6)
+    expected = np.c_[ahead, np.where(ahead > CHANGE_X - speed, side * WIDTH, 0.0)]
+    np.testing.assert_allclose(route["points"], expected, atol=0.05)
+    assert route["change_distance"] == pytest.approx((CHANGE_X - speed) / 50.0, abs=1e-3)
+    assert route["change_side"] == side
+    assert route["on_route"] == 1.0
+    assert route["offset"] == pytest.approx(0.0, abs=1e-3)
+    assert route["sin_heading"] == pytest.approx(0.0, abs=1e-3)
+    assert route["cos_heading"] == pytest.approx(1.0, abs=1e-6)
+
+
+@pytest.mark.parametrize("side", [1, -1])
+def test_the_route_follows_the_ego_as_it_drives(tmp_path, side):
+    # the change comes closer as the ego drives; lane keeping stays in the first lane, so
+    # past x = 50 m the change is due at once and the route's points lie in the second
+    # lane; IDM takes the route's lane change and is then on the last route lane
+    env = make_womd_env(two_lanes(tmp_path / "sd_two.pkl", theta=0.4, side=side,
+                                  speed=10.0))
+    for name in ("lane-keeping", "idm"):
+        policy = load_policy(name)
+        obs, _ = env.reset(seed=0)
+        policy.reset(env, seed=0)
+        seen, lanes, done = [], [], False
+        while not done:
+            seen.append(route_part(env, obs))
+            lanes.append(env.unwrapped.vehicle.lane_index[0])
+            assert env.observation_space.contains(obs)
+            obs, _, terminated, truncated, _ = env.step(policy.act(obs))
+            done = terminated or truncated
+        distances = [r["change_distance"] for r in seen]
+        before = [d for d, r in zip(distances, seen, strict=True) if r["change_side"] != 0]
+        assert before == sorted(before, reverse=True) and len(before) >= 3
+        assert all(r["on_route"] == 1.0 for r in seen)
+        last = seen[-1]
+        if name == "lane-keeping":
+            assert last["change_side"] == side and last["change_distance"] == 0.0
+            np.testing.assert_allclose(last["points"][:, 1], side * WIDTH, atol=0.3)
+        else:
+            assert last["change_side"] == 0 and last["change_distance"] == 1.0
+            assert abs(last["offset"]) < 0.1
+            np.testing.assert_allclose(last["points"][:, 1], 0.0, atol=0.3)
+            # once changed it keeps the route's lane (MOBIL does not swing it back)
+            assert lanes[lanes.index("2"):] == ["2"] * (len(lanes) - lanes.index("2"))
+
+
+@pytest.fixture
+def real(womd_dir) -> list[str]:
+    return [str(womd_dir / f) for f in FILES]
+
+
+@pytest.mark.parametrize("traffic", ["log", "idm"])
+def test_the_space_holds_every_observation_of_the_real_scenes(real, traffic):
+    env = make_womd_env(real, traffic=traffic)
+    # highway-env's Kinematics defaults: 5 vehicles x 5 features, then the route
+    assert env.observation_space.shape == (5 * 5 + 2 * 5 + len(ROUTE_FEATURES),)
+    rng = np.random.default_rng(0)
+    for seed in range(len(env.catalog)):
+        for name in ("log", "idm", "random"):
+            policy = load_policy(name)
+            obs, _ = env.reset(seed=seed)
+            policy.reset(env, seed=int(rng.integers(1000)))
+            done = False
+            while not done:
+                assert obs.dtype == np.float32 and env.observation_space.contains(obs)
+                obs, _, terminated, truncated, _ = env.step(policy.act(obs))
+                done = terminated or truncated
+            assert env.observation_space.contains(obs)
+
+
+def test_the_route_points_lie_on_the_logged_path(real):
+    # the human (replayed) at every decision: the route points within its logged path's
+    # reach lie near that path (the route is the lanes it drove)
+    from tap_bench.sim.womd_road import path_progress
+
+    env = make_womd_env(real[:2] + real[3:])  # a3bb's roadgraph misses the SDC's lane
+    policy = load_policy("log")
+    for seed in range(len(env.catalog)):
+        obs, _ = env.reset(seed=seed)
+        policy.reset(env, seed=0)
+        inner = env.unwrapped
+        checked, done = 0, False
+        while not done:
+            ego = inner.vehicle
+            s0, _ = path_progress(inner.path, inner.path_cum, ego.position)
+            c, s = math.cos(ego.heading), math.sin(ego.heading)
+            for k, (fwd, left) in enumerate(route_part(env, obs)["points"], start=1):
+                if s0 + 10.0 * k > inner.path_length - 2.0:
+                    break
+                world = ego.position + fwd * np.array([c, s]) - left * np.array([-s, c])
+                assert path_progress(inner.path, inner.path_cum, world)[1] < 2.5
+                checked += 1
+            obs, _, terminated, truncated, _ = env.step(policy.act(obs))
+            done = terminated or truncated
+        if inner.path_length > 15.0:
+            assert checked
+
+
+def test_the_command_trains_an_agent_on_the_route_observation(real, tmp_path, capsys):
+    pytest.importorskip("stable_baselines3")
+    from tap_bench.cli import main
+    from tap_bench.sim.rollout import rollout
+    from tap_bench.sim.womd_scene import WomdScenes
+
+    out = tmp_path / "ppo-route.zip"
+    assert main(["train", "--algo", "ppo", "--env", "womd", "--womd", real[1],
+                 "--timesteps", "64", "--n-envs", "1", "-o", str(out)]) == 0
+    doc = json.loads(out.with_suffix(".json").read_text())
+    assert doc["params"]["observation"] == {"type": "KinematicsRoute"}
+    from stable_baselines3 import PPO
+
+    model = PPO.load(out, device="cpu")
+    assert model.observation_space.shape == (5 * 5 + 16,)
+    result = rollout(WomdScenes((real[1],)), str(out.with_suffix(".json")), "all")
+    assert list(result.episodes["status"]) == ["ok"]
