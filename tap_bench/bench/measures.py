@@ -81,7 +81,7 @@ is found as on a straight road.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -110,6 +110,7 @@ __all__ = [
     "LOOKAHEAD",
     "MEASURES",
     "MEASURE_KINDS",
+    "MEASURE_ROLES",
     "SCENE_MEASURES",
     "SCENE_STEP_COLUMNS",
     "MIN_SPEED_FOR_HEADWAY",
@@ -123,6 +124,8 @@ __all__ = [
     "check_measure",
     "ego_steps",
     "leader_counts",
+    "measure_entry",
+    "measures_with_role",
     "register_measure",
     "run_measures",
     "savgol_derivative",
@@ -244,6 +247,10 @@ class EgoSteps:
 MeasureFunction = Callable[[EgoSteps], np.ndarray]
 
 
+MEASURE_ROLES = ("safety", "progress", "comfort", "")
+"""What a measure stands for (:attr:`Measure.role`): the verdict reads its safety family
+and its efficiency (progress and comfort) family by role, the report's trade-off view
+draws each safety rate against each progress measure, never a measure picked by name."""
 MEASURE_KINDS = ("mean", "rate")
 """What a measure's per-episode value is: ``"mean"`` (a number; its mean over episodes gets
 Student's t interval, bounded by :attr:`Measure.bounds` where the measure has them) or
@@ -273,6 +280,16 @@ class Measure:
         bounds: (low, high) the values can take, where bounded (a cap), else None; a rate
             is bounded by (0, 1).
         decimals: decimals shown in tables and the viewer (a rate is shown in whole %).
+        role: what the measure stands for where consumers pick measures by what they are,
+            never by name (:data:`MEASURE_ROLES`): ``"safety"`` (the verdict's safety
+            family; a safety *rate* is the trade-off view's vertical axis), ``"progress"``
+            (efficiency; the trade-off view's horizontal axis), ``"comfort"``
+            (efficiency), or ``""`` (none of these).
+        words: (better, worse): how the verdict says a policy differs on it (``("faster",
+            "slower")``); default ``higher <label>`` / ``lower <label>`` by direction.
+        gate_weight: the regression gate's share of alpha within an (env, policy) cell,
+            where the measure has one of its own (the crash rate most of it: see
+            :func:`tap_bench.bench.suite.default_weights`); None: it shares the rest.
     """
 
     name: str
@@ -285,10 +302,18 @@ class Measure:
     kind: str = "mean"
     bounds: tuple[float, float] | None = None
     decimals: int = 2
+    role: str = ""
+    words: tuple[str, str] = ()
+    gate_weight: float | None = None
 
     def __post_init__(self) -> None:
         if not self.label:
             object.__setattr__(self, "label", str(self.name).replace("_", " "))
+        if not self.words:
+            high, low = f"higher {self.label}", f"lower {self.label}"
+            object.__setattr__(self, "words", (high, low) if self.higher_is_better
+                               else (low, high))
+        object.__setattr__(self, "words", tuple(self.words))
         if self.kind == "rate" and self.bounds is None:
             object.__setattr__(self, "bounds", (0.0, 1.0))
         if self.bounds is not None:
@@ -332,7 +357,9 @@ class Measure:
                 "display_unit": self.display_unit, "higher_is_better": self.higher_is_better,
                 "description": self.description, "margin": self.margin, "kind": self.kind,
                 "bounds": None if self.bounds is None else list(self.bounds),
-                "decimals": self.decimals, "interval": self.interval_method}
+                "decimals": self.decimals, "interval": self.interval_method,
+                "role": self.role, "words": list(self.words),
+                "gate_weight": self.gate_weight}
 
 
 def run_measures(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
@@ -420,6 +447,17 @@ def _check_entry(measure: Measure) -> None:
             or not 0 <= measure.decimals <= 6:
         raise RegistrationError(f"measure {measure.name!r}: decimals {measure.decimals!r} "
                                 "must be an integer from 0 to 6.")
+    if measure.role not in MEASURE_ROLES:
+        raise RegistrationError(f"measure {measure.name!r}: role {measure.role!r} is not one "
+                                f"of {', '.join(repr(r) for r in MEASURE_ROLES)}.")
+    if len(measure.words) != 2 or not all(isinstance(w, str) and w for w in measure.words):
+        raise RegistrationError(f"measure {measure.name!r}: words {measure.words!r} must be "
+                                "two words, (better, worse).")
+    weight = measure.gate_weight
+    if weight is not None and (isinstance(weight, bool) or not isinstance(weight, int | float)
+                               or not 0 < weight < 1):
+        raise RegistrationError(f"measure {measure.name!r}: gate_weight {weight!r} must be "
+                                "a share of alpha between 0 and 1, or None.")
 
 
 class MeasureRegistry(Registry[Measure]):
@@ -444,6 +482,8 @@ MEASURES = MeasureRegistry()
 def register_measure(name: str, *, unit: str, higher_is_better: bool, margin: float,
                      description: str, label: str = "", kind: str = "mean",
                      bounds: tuple[float, float] | None = None, decimals: int = 2,
+                     role: str = "", words: tuple[str, str] = (),
+                     gate_weight: float | None = None,
                      registry: MeasureRegistry = MEASURES
                      ) -> Callable[[MeasureFunction], MeasureFunction]:
     """Decorator: register ``function(steps: EgoSteps) -> (S,) values`` as a measure (the
@@ -452,34 +492,59 @@ def register_measure(name: str, *, unit: str, higher_is_better: bool, margin: fl
     def decorate(function: MeasureFunction) -> MeasureFunction:
         registry.register(Measure(name, unit, higher_is_better, description, margin,
                                   function, label=label, kind=kind, bounds=bounds,
-                                  decimals=decimals))
+                                  decimals=decimals, role=role, words=words,
+                                  gate_weight=gate_weight))
         return function
 
     return decorate
 
 
+def measures_with_role(role: str, entries: Iterable[Measure] | None = None
+                       ) -> tuple[Measure, ...]:
+    """The entries of ``role`` (:data:`MEASURE_ROLES`) in registration order: those given,
+    else every registered measure and scene measure (:data:`MEASURES`,
+    :data:`SCENE_MEASURES`)."""
+    if role not in MEASURE_ROLES:
+        raise RegistrationError(f"unknown measure role {role!r}; the roles are "
+                                f"{', '.join(repr(r) for r in MEASURE_ROLES)}.")
+    entries = (*MEASURES, *SCENE_MEASURES) if entries is None else entries
+    return tuple(m for m in entries if m.role == role)
+
+
+def measure_entry(name: str) -> Measure | None:
+    """The registered entry of ``name`` (a measure or a scene measure), None if none."""
+    for registry in (MEASURES, SCENE_MEASURES):
+        if name in registry:
+            return registry[name]
+    return None
+
+
 @register_measure("crashed", unit="share", higher_is_better=False, margin=0.10,
-                  description="collision rate of the ego", label="crash rate", kind="rate")
+                  description="collision rate of the ego", label="crash rate", kind="rate",
+                  role="safety", words=("safer", "less safe"), gate_weight=0.65)
 def _crashed(steps: EgoSteps) -> np.ndarray:
     return steps.any(steps.crashed)
 
 
 @register_measure("mean_speed", unit="m/s", higher_is_better=True, margin=1.0,
-                  description="mean ego speed", label="mean speed", decimals=1)
+                  description="mean ego speed", label="mean speed", decimals=1,
+                  role="progress", words=("faster", "slower"))
 def _mean_speed(steps: EgoSteps) -> np.ndarray:
     return steps.mean(steps.speed)
 
 
 @register_measure("min_headway_s", unit="s", higher_is_better=True, margin=0.3,
                   description="smallest time headway to the leader along the path (capped "
-                  "10 s; 0 on a crash)", label="min headway", bounds=(0.0, HEADWAY_CAP_S))
+                  "10 s; 0 on a crash)", label="min headway", bounds=(0.0, HEADWAY_CAP_S),
+                  role="safety", gate_weight=0.1)
 def _min_headway(steps: EgoSteps) -> np.ndarray:
     return _leader_minimum(steps, steps.headway, HEADWAY_CAP_S)
 
 
 @register_measure("min_ttc_s", unit="s", higher_is_better=True, margin=1.0,
                   description="smallest time to collision with the leader along the path "
-                  "(capped 10 s; 0 on a crash)", label="min TTC", bounds=(0.0, TTC_CAP_S))
+                  "(capped 10 s; 0 on a crash)", label="min TTC", bounds=(0.0, TTC_CAP_S),
+                  role="safety", gate_weight=0.1)
 def _min_ttc(steps: EgoSteps) -> np.ndarray:
     return _leader_minimum(steps, steps.ttc, TTC_CAP_S)
 
@@ -505,7 +570,7 @@ def leader_counts(steps: EgoSteps) -> pd.DataFrame:
 
 @register_measure("rms_jerk", unit="m/s^3", higher_is_better=False, margin=1.0,
                   description="RMS longitudinal jerk of the ego (Savitzky-Golay, 1.5 s, as "
-                  "nuPlan)", label="RMS jerk")
+                  "nuPlan)", label="RMS jerk", role="comfort", words=("smoother", "harsher"))
 def _rms_jerk(steps: EgoSteps) -> np.ndarray:
     jerk = smoothed_jerk(steps)
     ok = ~np.isnan(jerk)
@@ -581,7 +646,7 @@ def _scene_column(steps: EgoSteps, name: str) -> np.ndarray:
 @register_measure("off_road", unit="share", higher_is_better=False, margin=0.10,
                   description="the ego left the road (farther than half its lane's width + "
                   "0.5 m from every lane centre, or across a road edge)", label="off road",
-                  kind="rate", registry=SCENE_MEASURES)
+                  kind="rate", role="safety", registry=SCENE_MEASURES)
 def _off_road(steps: EgoSteps) -> np.ndarray:
     values = _scene_column(steps, "off_road")
     out = steps.any(np.nan_to_num(values) > 0.5).astype(float)
@@ -591,14 +656,16 @@ def _off_road(steps: EgoSteps) -> np.ndarray:
 
 @register_measure("route_progress", unit="share", higher_is_better=True, margin=0.10,
                   description="share of the logged ego's path covered along its route (0-1)",
-                  label="route progress", bounds=(0.0, 1.0), registry=SCENE_MEASURES)
+                  label="route progress", bounds=(0.0, 1.0), role="progress",
+                  registry=SCENE_MEASURES)
 def _route_progress(steps: EgoSteps) -> np.ndarray:
     return steps.last(_scene_column(steps, "route_progress"))
 
 
 @register_measure("ran_red_light", unit="share", higher_is_better=False, margin=0.10,
                   description="the ego crossed a stop point while its signal was red",
-                  label="ran a red light", kind="rate", registry=SCENE_MEASURES)
+                  label="ran a red light", kind="rate", role="safety",
+                  registry=SCENE_MEASURES)
 def _ran_red_light(steps: EgoSteps) -> np.ndarray:
     values = _scene_column(steps, "ran_red_light")
     out = steps.any(np.nan_to_num(values) > 0.5).astype(float)
