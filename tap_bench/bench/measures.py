@@ -841,20 +841,23 @@ def _unscored(steps: EgoSteps) -> tuple[np.ndarray, np.ndarray]:
     return headway, ttc
 
 
-def ego_measures(table: pd.DataFrame, map_table: pd.DataFrame | None = None) -> pd.DataFrame:
+def ego_measures(table: pd.DataFrame, map_table: pd.DataFrame | None = None, *,
+                 steps: EgoSteps | None = None) -> pd.DataFrame:
     """Safety and efficiency measures of the ego of every scenario of a trajectory table.
 
     Args:
         table: as :func:`ego_steps`; the identifying ``env``, ``policy``, ``seed``,
             ``source`` are carried over.
         map_table: lane centre lines (:func:`ego_steps`).
+        steps: :func:`ego_steps` of ``table`` (and ``map_table``) where the caller has them
+            already (the runner shares them with the interaction contexts).
 
     Returns:
         one row per scenario with an ego: ``scenario_id``, the identifying columns present,
         one column per registered measure (:data:`MEASURES`, and :data:`SCENE_MEASURES`
         when the table carries :data:`SCENE_STEP_COLUMNS`) and ``duration_s``.
     """
-    steps = ego_steps(table, map_table)
+    steps = ego_steps(table, map_table) if steps is None else steps
     out = pd.DataFrame({"scenario_id": steps.scenario_id})
     for col in _KEEP:
         if col in table.columns:
