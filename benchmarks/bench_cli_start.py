@@ -1,6 +1,7 @@
 """Start-up of the command line: ``tap-bench --help``, ``tap-bench envs`` and ``tap-bench
-label`` on a small file (issue 16: <= 0.5 s, <= 0.5 s and <= 1 s), and what ``import
-tap_bench`` imports (``python -X importtime``).
+label`` on a small file (issue 16: <= 0.5 s, <= 0.5 s and <= 1 s), ``tap-bench label
+--level all`` on 25,902 trajectories (``tap-bench sample --random 25880``; issue 24: <= 1 s
+CPU), and what ``import tap_bench`` imports (``python -X importtime``).
 
 Each command runs ``--repeats`` times in a fresh interpreter (``python -m tap_bench``, with
 the checkout on ``PYTHONPATH``) after one warm-up run (which fills the OS file cache and
@@ -31,6 +32,8 @@ COMMANDS = {
     "--help": ["--help"],
     "envs": ["envs"],
     "label (18 tracks)": ["label", "small.parquet", "-o", "labels.parquet"],
+    "label (25,902 tracks, all levels)": ["label", "large.parquet", "--level", "all", "-o",
+                                          "labels-large.parquet"],
 }
 
 
@@ -81,18 +84,30 @@ def main() -> None:
 
         sample = pd.read_parquet(cwd / "sample.parquet")
         sample[sample["scenario_id"] == "behaviours"].to_parquet(cwd / "small.parquet")
+        subprocess.run([sys.executable, "-m", "tap_bench", "sample", "--random", "25880", "-o",
+                        "large.parquet"], cwd=cwd, check=True, stdout=subprocess.DEVNULL,
+                       env={**os.environ, "PYTHONPATH": str(trees[-1])})
+        samples: dict = {(str(tree), name): [] for tree in trees for name in COMMANDS}
+        for tree in trees:
+            for command in COMMANDS.values():
+                run(tree, command, cwd)  # warm-up
+        for _ in range(args.repeats):  # the trees alternate: a change of load hits each
+            for tree in trees:
+                for name, command in COMMANDS.items():
+                    samples[(str(tree), name)].append(run(tree, command, cwd))
         for tree in trees:
             per_tree: dict = {}
-            for name, command in COMMANDS.items():
-                run(tree, command, cwd)  # warm-up
-                times = [run(tree, command, cwd) for _ in range(args.repeats)]
+            for name in COMMANDS:
+                times = samples[(str(tree), name)]
                 per_tree[name] = {
                     "wall_median_s": round(statistics.median(w for w, _ in times), 3),
                     "cpu_median_s": round(statistics.median(c for _, c in times), 3),
+                    "cpu_min_s": round(min(c for _, c in times), 3),
                     "wall_min_s": round(min(w for w, _ in times), 3)}
                 print(f"{tree}: {name}: {per_tree[name]}", flush=True)
             per_tree["importtime"] = import_time(tree)
             figures[str(tree)] = per_tree
+        figures["load_1m_end"] = round(os.getloadavg()[0], 2)
         python_only = [run_python(cwd) for _ in range(args.repeats)]
         figures["python -c pass"] = {
             "wall_median_s": round(statistics.median(w for w, _ in python_only), 3),

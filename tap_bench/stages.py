@@ -285,21 +285,30 @@ def _wiggle_ok(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
     four turns (or three, the middle two joined), which :func:`_chain` splits into two
     merges; its three turns as a whole are checked at every step (``at_end`` False).
     """
-    out = np.zeros(len(a), dtype=bool)
-    h = path.heading
-    for k, (lo, hi) in enumerate(zip(np.asarray(a).tolist(), np.asarray(b).tolist(),
-                                     strict=True)):
-        rows = path.rows[lo:hi]
-        h0 = h[rows[0]]
-        across = (-(path.x[rows] - path.x[rows[0]]) * np.sin(h0)
-                  + (path.y[rows] - path.y[rows[0]]) * np.cos(h0))
-        turned = np.abs(h[rows] - h0)
-        sideways = abs(across[-1]) if at_end else np.abs(across).max()
-        out[k] = (abs(h[rows[-1]] - h0) <= config.merge_heading
-                  and turned.max() <= config.merge_excursion
-                  and sideways < config.merge_offset)
     del side
-    return out
+    a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
+    if not len(a):
+        return np.zeros(0, dtype=bool)
+    length = b - a
+    # every candidate's steps at once: the rows of [a, b) for each, one after the other
+    step = np.repeat(a - (np.cumsum(length) - length), length) + np.arange(length.sum())
+    rows = path.rows[step]
+    first = path.rows[a]
+    h = path.heading
+    h0 = h[first]
+    # sin and cos of each start heading one by one, as a scalar (their bits must not
+    # depend on how many candidates there are)
+    sin0 = np.array([np.sin(v) for v in h0])
+    cos0 = np.array([np.cos(v) for v in h0])
+    across = (-(path.x[rows] - np.repeat(path.x[first], length)) * np.repeat(sin0, length)
+              + (path.y[rows] - np.repeat(path.y[first], length)) * np.repeat(cos0, length))
+    turned = np.abs(h[rows] - np.repeat(h0, length))
+    bounds = np.cumsum(length) - length
+    sideways = (np.abs(across[bounds + length - 1]) if at_end
+                else np.maximum.reduceat(np.abs(across), bounds))
+    return ((np.abs(h[path.rows[b - 1]] - h0) <= config.merge_heading)
+            & (np.maximum.reduceat(turned, bounds) <= config.merge_excursion)
+            & (sideways < config.merge_offset))
 
 
 def _back_at(path: _Path, pos: int, start: int, stop: int, side: int) -> int:
@@ -435,25 +444,24 @@ def _lone_wiggles(runs: Runs, path: _Path, config: StageConfig) -> Runs:
     busy = runs.code != sdl.STRAIGHT
     is_turn = (runs.code == sdl.LEFT) | (runs.code == sdl.RIGHT)
     gap = config.merge_gap_steps // 2
-    wiggle = []
-    for r in turn.tolist():
-        lo = max(int(runs.start[r]) - gap, int(seg_lo[r]))
-        hi = min(int(stop[r]) + gap, int(seg_hi[r]))
-        if r > 0 and runs.seg[r - 1] == runs.seg[r] and busy[r - 1]:
-            lo = max(lo, int(stop[r - 1]))
-        if r + 1 < n_runs and runs.seg[r + 1] == runs.seg[r] and busy[r + 1]:
-            hi = min(hi, int(runs.start[r + 1]))
-        against_turn = ((r > 0 and runs.seg[r - 1] == runs.seg[r] and is_turn[r - 1])
-                        or (r + 1 < n_runs and runs.seg[r + 1] == runs.seg[r]
-                            and is_turn[r + 1]))
-        if against_turn:
-            continue  # a turn against another: the pair rules decide
-        if bool(_wiggle_ok(path, np.array([lo]), np.array([hi]), np.array([0]), config,
-                           at_end=True)[0]):
-            wiggle.append(r)
-    if not wiggle:
+    # the neighbours of each turn run in its segment
+    prev_same = np.r_[False, runs.seg[1:] == runs.seg[:-1]][turn]
+    next_same = np.r_[runs.seg[1:] == runs.seg[:-1], False][turn]
+    prev, nxt = np.maximum(turn - 1, 0), np.minimum(turn + 1, n_runs - 1)
+    lo = np.maximum(runs.start[turn] - gap, seg_lo[turn])
+    hi = np.minimum(stop[turn] + gap, seg_hi[turn])
+    lo = np.where(prev_same & busy[prev], np.maximum(lo, stop[prev]), lo)
+    hi = np.where(next_same & busy[nxt], np.minimum(hi, runs.start[nxt]), hi)
+    # a turn against another: the pair rules decide
+    alone = ~((prev_same & is_turn[prev]) | (next_same & is_turn[nxt]))
+    turn, lo, hi = turn[alone], lo[alone], hi[alone]
+    if not len(turn):
         return runs
-    runs.code[np.array(wiggle)] = sdl.STRAIGHT
+    wiggle = turn[_wiggle_ok(path, lo, hi, np.zeros(len(turn), dtype=np.int64), config,
+                             at_end=True)]
+    if not len(wiggle):
+        return runs
+    runs.code[wiggle] = sdl.STRAIGHT
     return coalesce(runs)
 
 

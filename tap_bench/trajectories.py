@@ -297,6 +297,16 @@ def _track_order(scenario: pd.Series, track: pd.Series) -> tuple[np.ndarray | No
         block_key = sc_codes.astype(np.int64) * max(len(tr_uniques), 1) + tr_codes
         if np.all(block_key[1:] > block_key[:-1]):
             return None, change
+        runs = np.argsort(block_key, kind="stable")
+        if np.all(block_key[runs][1:] > block_key[runs][:-1]):
+            # each track one run, the runs out of order: sorting the runs (rows in input
+            # order within each) is the stable sort of every row, without factorising them
+            lengths = np.diff(np.append(starts, n))[runs]
+            begins = np.cumsum(lengths) - lengths  # where each run starts in the new order
+            order = np.repeat(starts[runs] - begins, lengths) + np.arange(n)
+            new_track = np.zeros(n, dtype=bool)
+            new_track[begins] = True
+            return order, new_track
     # interleaved tracks (time-major rows, as simulators write them): sort every row
     sc_codes, _ = pd.factorize(scenario, sort=True)
     tr_codes, tr_uniques = pd.factorize(track, sort=True)

@@ -9,7 +9,13 @@ A **reference** (:class:`Reference`) is a set of items with weights:
   here;
 - the labels of a reference corpus (``corpus_reference``), e.g. WOMD's vehicles or IDM's
   egos: whole SDL labels, weighted by their frequency in the corpus; an episode exhibits
-  its own SDL label.
+  its own SDL label;
+- the **manoeuvres** of a reference corpus (``corpus_reference(..., unit="segments")``):
+  the labels of its segments (the runs of one label on one axis, the rows of TAP's segment
+  table: ``lateral: Left Merge``, ``longitudinal: Accelerate``), weighted by how many
+  segments carry each; an episode exhibits the labels of its segments. Whole-episode
+  labels are near-unique (idm-aggressive: 12 distinct labels in 12 episodes), so their
+  coverage mostly counts coincidences; segments repeat.
 
 For an agent's n episodes, :func:`coverage` reports
 
@@ -75,13 +81,19 @@ from tap_bench.labels import label_text
 from tap_bench.sim.coverage import vocabulary_tokens
 
 __all__ = [
+    "UNITS",
     "CoverageResult",
     "Reference",
     "corpus_reference",
     "coverage",
     "pooled_coverage",
+    "unit_items",
     "vocabulary_reference",
 ]
+
+UNITS = ("episodes", "segments")
+"""What coverage and novelty are scored on: each episode's whole label, or the labels of
+its segments (the manoeuvres it contains)."""
 
 
 @dataclass(frozen=True)
@@ -91,10 +103,16 @@ class Reference:
     Attributes:
         items: (K,) the reference items (single labels or whole SDL labels), sorted.
         weights: (K,) their weights, summing to 1 (corpus frequencies, or 1/K).
-        kind: ``"vocabulary"`` (items are single labels) or ``"corpus"`` (whole labels).
+        kind: ``"vocabulary"`` (items are single labels), ``"corpus"`` (whole labels) or
+            ``"segments"`` (the labels of segments, ``axis: label``).
         level: the SDL level.
         description: one line for reports (what, how many trajectories).
         n_trajectories: trajectories of the corpus (0 for a vocabulary).
+        units: (n_trajectories,) each trajectory's label on ``axes`` (corpora: what the
+            same-policy null splits in halves, :mod:`tap_bench.bench.null`).
+        seeds: (n_trajectories,) each trajectory's seed when the corpus is rollouts (the
+            null then pairs a policy's episodes with the reference's by seed), else None.
+        axes: the axes a label is made of.
     """
 
     items: np.ndarray
@@ -103,13 +121,47 @@ class Reference:
     level: str
     description: str
     n_trajectories: int = 0
+    units: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0, object))
+    seeds: np.ndarray | None = field(repr=False, default=None)
+    axes: tuple[str, ...] = sdl.AXES
 
     def __len__(self) -> int:
         return len(self.items)
 
+    @property
+    def unit(self) -> str:
+        """``"segments"`` for a reference of segment labels, else ``"episodes"``."""
+        return "segments" if self.kind == "segments" else "episodes"
+
     def contains(self, labels: np.ndarray) -> np.ndarray:
-        """(n,) bool: which whole SDL labels the reference shows (corpus references)."""
-        return np.isin(np.asarray(labels, dtype=object), self.items)
+        """(n,) bool: which labels the reference shows: whole SDL labels (corpus references)
+        or, for segment references, labels all of whose segments it shows."""
+        labels = np.asarray(labels, dtype=object)
+        if self.kind != "segments":
+            return np.isin(labels, self.items)
+        known = set(self.items)
+        return np.array([set(items) <= known for items in unit_items(labels, self.axes)],
+                        bool)
+
+
+def unit_items(labels, axes=sdl.AXES) -> list[tuple[str, ...]]:
+    """The segment labels of each label: ``"Straight > Left Merge > Straight | Accelerate"``
+    on the lateral and longitudinal axes gives ``("lateral: Straight", "lateral: Left
+    Merge", "lateral: Straight", "longitudinal: Accelerate")`` (one per segment, in order).
+
+    Args:
+        labels: (n,) label texts on ``axes`` (:func:`tap_bench.labels.label_text`).
+        axes: the axes the texts are made of.
+    """
+    out = []
+    for text in labels:
+        sides = str(text).split(sdl.SDL_SEPARATOR)
+        if len(sides) != len(axes):
+            raise LabelTableError(f"label {text!r} has {len(sides)} axes, not the "
+                                  f"{len(axes)} of {', '.join(axes)}.")
+        out.append(tuple(f"{axis}: {tok}" for axis, side in zip(axes, sides, strict=True)
+                         for tok in sdl.split(side)))
+    return out
 
 
 def vocabulary_reference(level: str = "action", *, axes=None) -> Reference:
@@ -125,7 +177,8 @@ def vocabulary_reference(level: str = "action", *, axes=None) -> Reference:
 
 
 def corpus_reference(labels: pd.DataFrame, level: str, *, tracks: str = "vehicles",
-                     name: str = "reference corpus", axes=None) -> Reference:
+                     name: str = "reference corpus", axes=None,
+                     unit: str = "episodes") -> Reference:
     """The SDL labels of a reference corpus, weighted by their frequency.
 
     Args:
@@ -137,8 +190,12 @@ def corpus_reference(labels: pd.DataFrame, level: str, *, tracks: str = "vehicle
         axes: the axes a label is made of (default lateral and longitudinal: the ``sdl``
             label; :func:`tap_bench.labels.label_text`). Rows without a
             label on an axis (not labelled with interactions) are left out.
+        unit: ``"episodes"`` (whole labels) or ``"segments"`` (the labels of their segments,
+            weighted by how many segments carry each: a ``"segments"`` reference).
     """
 
+    if unit not in UNITS:
+        raise did_you_mean("coverage unit", unit, UNITS)
     if tracks not in ("vehicles", "ego", "all"):
         raise did_you_mean("reference tracks", tracks, ("vehicles", "ego", "all"))
     table = labels
@@ -153,16 +210,29 @@ def corpus_reference(labels: pd.DataFrame, level: str, *, tracks: str = "vehicle
         if "is_ego" not in table.columns:
             raise LabelTableError(f"{name}: tracks='ego' needs an is_ego column.")
         table = table[table["is_ego"].fillna(False).to_numpy(bool)]
-    lab = label_text(table, axes).dropna().to_numpy(str)
+    axes = sdl.check_axes(axes)
+    text = label_text(table, axes)
+    has = text.notna().to_numpy()
+    lab = text[has].to_numpy(str)
     if not len(lab):
         raise LabelTableError(f"{name}: no {tracks} labels at level {level!r}; label it at "
                               f"that level (--level {level} or all).")
+    seeds = table["seed"].to_numpy()[has] if "seed" in table.columns else None
+    whose = {"all": "trajectories (every track)", "ego": "ego trajectories",
+             "vehicles": "vehicle trajectories"}[tracks]
+    if unit == "segments":
+        segs = np.array([i for items in unit_items(lab, axes) for i in items], dtype=object)
+        items, counts = np.unique(segs, return_counts=True)
+        return Reference(items.astype(object), counts / counts.sum(), "segments", level,
+                         f"{name}: {len(items)} distinct {level} segment labels of "
+                         f"{len(segs)} segments of {len(lab)} {whose}",
+                         n_trajectories=len(lab), units=lab.astype(object), seeds=seeds,
+                         axes=axes)
     items, counts = np.unique(lab, return_counts=True)
     return Reference(items.astype(object), counts / counts.sum(), "corpus", level,
-                     f"{name}: {len(items)} distinct {level} labels of {len(lab)} "
-                     + {"all": "trajectories (every track)", "ego": "ego trajectories",
-                        "vehicles": "vehicle trajectories"}[tracks],
-                     n_trajectories=len(lab))
+                     f"{name}: {len(items)} distinct {level} labels of {len(lab)} {whose}",
+                     n_trajectories=len(lab), units=lab.astype(object), seeds=seeds,
+                     axes=axes)
 
 
 @dataclass(frozen=True)
@@ -203,6 +273,8 @@ class CoverageResult:
 def _items_of(labels: np.ndarray, reference: Reference) -> list[set[str]] | np.ndarray:
     if reference.kind == "corpus":
         return labels
+    if reference.kind == "segments":
+        return [set(items) for items in unit_items(labels, reference.axes)]
     out = []
     for text in labels:
         items: set[str] = set()
@@ -304,6 +376,9 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
         c_lo, c_hi = max(0.0, cov - n * u / K), min(1.0, cov + n * u / K)
         step = n * u * float(reference.weights.max())
         w_lo, w_hi = max(0.0, wcov - step), min(1.0, wcov + step)
+    # a studentized interval can miss its own estimate when the draws pile up at 1
+    c_lo, c_hi = min(c_lo, cov), max(c_hi, cov)
+    w_lo, w_hi = min(w_lo, wcov), max(w_hi, wcov)
     return CoverageResult(
         n=n, coverage=cov, coverage_low=c_lo, coverage_high=c_hi, weighted_coverage=wcov,
         weighted_low=w_lo, weighted_high=w_hi, n_distinct=len(names), n_reference=K,

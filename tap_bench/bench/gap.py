@@ -43,13 +43,15 @@ import pandas as pd
 
 from tap_bench import sdl
 from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.errors import LabelTableError
+from tap_bench.errors import LabelTableError, ParameterError
 from tap_bench.kinematics import compute_kinematics
 from tap_bench.labelling import tap
+from tap_bench.thresholds import Thresholds
 from tap_bench.trajectories import validate_and_index
 
 __all__ = ["GapResult", "behaviour_gap", "debias", "label_occurrences", "labelled_with_speed",
-           "track_seconds", "windows"]
+           "number_windows", "track_seconds", "window_episodes", "window_seconds",
+           "windows"]
 
 
 @dataclass(frozen=True)
@@ -116,6 +118,60 @@ def windows(table: pd.DataFrame, seconds: float) -> pd.DataFrame:
     out = table[keep].copy()
     out["scenario_id"] = out["scenario_id"].astype(str) + "#" + k[keep].astype(str)
     return out
+
+
+def window_seconds(choice: str, reference: pd.DataFrame, table: pd.DataFrame) -> float | None:
+    """The window length [s] a ``--window`` choice gives: None for ``"none"``; for
+    ``"auto"`` the reference's median track length (:func:`track_seconds`) when ``table``'s
+    tracks are longer (None when they are not, or when either table has no times, e.g. a
+    label table); else a number of seconds > 0.
+
+    Raises:
+        ParameterError: the choice is none of these.
+    """
+    if choice == "none":
+        return None
+    if choice == "auto":
+        if "t" not in reference.columns or "t" not in table.columns:
+            return None
+        seconds = track_seconds(reference)
+        # tracks no longer than the reference's: windows would change nothing
+        return seconds if track_seconds(table) > 1.05 * seconds else None
+    try:
+        seconds = float(choice)
+    except ValueError:
+        seconds = float("nan")
+    if not seconds > 0:
+        raise ParameterError("--window", choice, "'auto', 'none' or a number of seconds > 0")
+    return seconds
+
+
+def number_windows(table: pd.DataFrame) -> pd.DataFrame:
+    """A windowed table (:func:`windows`) whose ``seed`` numbers the windows (0, 1, ... in
+    order of appearance) and whose ``episode_seed`` keeps the episode's seed: one seed is
+    one episode in the episode table, and windows are not paired with other policies'."""
+    out = table.copy()
+    if "seed" in out.columns:
+        out["episode_seed"] = out["seed"]
+    out["seed"] = pd.factorize(out["scenario_id"])[0]
+    return out
+
+
+def window_episodes(trajectories: pd.DataFrame, seconds: float, level: str, *,
+                    thresholds: str | Thresholds = "paper", source: str = "trajectories"
+                    ) -> pd.DataFrame:
+    """The episode table (:mod:`tap_bench.bench.episodes`) of the egos' :func:`windows`:
+    one row per window (``scenario_id`` ``<episode>#<k>``, the episode's env and policy,
+    ``seed`` numbering the windows: :func:`number_windows`), labelled at ``level``;
+    measures NaN. Coverage and novelty against a corpus of
+    short tracks (WOMD: 9.1 s) score these in place of whole 30 s episodes."""
+    from tap_bench.bench.episodes import episode_table
+
+    ego = trajectories[trajectories["is_ego"].fillna(False).to_numpy(bool)] \
+        if "is_ego" in trajectories.columns else trajectories
+    cut = number_windows(windows(ego, seconds))
+    labels = tap(cut, thresholds, source=source).labels("all")
+    return episode_table(labels=labels, level=level, source=source)
 
 
 def labelled_with_speed(table: pd.DataFrame, level: str, *, interactions: str,

@@ -9,6 +9,11 @@ env's reference (:mod:`tap_bench.bench.scoring`). "Never shows" is relative to a
 corpus: a label absent from a small reference may only be rare; the report states the
 reference's size beside the rate.
 
+Against the manoeuvres of a corpus (a ``"segments"`` reference: the labels of segments,
+:func:`tap_bench.bench.coverage.corpus_reference` with ``unit="segments"``), an episode is
+novel when one of its segments carries a label the reference's segments never show, and
+the novel labels listed are those segment labels (count: the episodes showing them).
+
 This differs from SPEC section 5's *unique* label (no other trajectory of one data set has
 it, :mod:`tap_bench.similarity`): here the agent is held against another corpus.
 """
@@ -21,7 +26,7 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.coverage import Reference
+from tap_bench.bench.coverage import Reference, unit_items
 from tap_bench.bench.intervals import wilson_interval
 from tap_bench.errors import LabelTableError
 from tap_bench.labels import label_text
@@ -66,7 +71,7 @@ def novelty(episodes: pd.DataFrame, reference: Reference, *,
         config: the interval level.
         axes: the axes a label is made of (as the reference's; default the ``sdl`` label).
     """
-    if reference.kind != "corpus":
+    if reference.kind == "vocabulary":
         raise LabelTableError("novelty needs a reference corpus (its whole SDL labels); a "
                               "vocabulary holds every single label, so nothing is novel.")
     config = config or BootstrapConfig()
@@ -84,11 +89,21 @@ def novelty(episodes: pd.DataFrame, reference: Reference, *,
     lo, hi = wilson_interval(int(novel.sum()), n, config.level)
     example = ok["scenario_id"].to_numpy() if "scenario_id" in ok.columns else \
         np.arange(n).astype(str)
-    names, first, counts = np.unique(lab[novel], return_index=True, return_counts=True)
+    if reference.kind == "segments":  # the novel segment labels, once per episode
+        known = set(reference.items)
+        pairs = [(item, j) for j, items in enumerate(unit_items(lab, reference.axes))
+                 for item in dict.fromkeys(items) if item not in known]
+        shown = np.array([p[0] for p in pairs], dtype=object)
+        where = np.array([p[1] for p in pairs], dtype=np.int64)
+    else:
+        shown, where = lab[novel], np.flatnonzero(novel)
+    names, first, counts = np.unique(shown.astype(str), return_index=True,
+                                     return_counts=True)
     order = np.lexsort((names, -counts))
     labels = pd.DataFrame({"label": names[order], "count": counts[order],
                            "share": counts[order] / n,
-                           "example_scenario": example[novel][first[order]]})
+                           "example_scenario": example[where[first[order]]] if len(names)
+                           else np.zeros(0, object)})
     return NoveltyResult(n, int(novel.sum()), float(novel.mean()), float(lo), float(hi), labels)
 
 

@@ -266,7 +266,11 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
         f"{reference} on the same seeds: ▲ better or ▼ worse when the difference's {pct} "
         f"interval excludes 0, = no difference otherwise. {_measures_text(summary)}"
         "Coverage: share of the reference corpus's labels the policy shows; novel: share of "
-        "episodes whose label the reference never shows."))
+        "episodes whose label the reference never shows; under each, the same-policy figure "
+        "(the reference's episodes split in halves, one held against the other) and the "
+        f"policy's difference from it at those sizes with its {pct} interval (a reference "
+        "never shows everything its own policy does: read the difference, not the figure "
+        "alone)."))
     if scores.methods:
         parts.append('<details><summary class="note">How the intervals are computed</summary>'
                      "<ul>" + "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>"
@@ -368,8 +372,14 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
                      f"reference shows each label (right), with {pct} intervals; one colour "
                      "per reference corpus."))
     parts.append(html_table(_display_coverage(scores.coverage, level), table_id="coverage",
-                            caption="Coverage per env and reference, with the diversity of "
-                            "each policy's labels."))
+                            caption="Coverage per env and reference, scored on whole "
+                            "labels (episodes, or windows of a real corpus's track length) "
+                            "and on the manoeuvres the episodes contain (segments: the labels "
+                            "of their runs, which repeat where whole labels rarely do); "
+                            "beside each, the same-policy figure (the reference split in "
+                            "halves) and the policy's difference from it at those sizes with "
+                            f"its {pct} interval; with the diversity of each policy's "
+                            "labels."))
     if not scores.diversity.empty:
         parts.append("<h2>Behaviour diversity</h2>")
         parts.append(html_table(
@@ -386,12 +396,16 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
                      f"whose ego label the reference corpus never shows, with {pct} "
                      "intervals; one colour per reference."))
     parts.append(html_table(_display_novelty(scores.novelty, level), table_id="novelty",
-                            caption="Novelty per env and reference."))
+                            caption="Novelty per env and reference, on whole labels "
+                            "and on segments (an episode is novel when one of its segments "
+                            "carries a label the reference never shows), beside the "
+                            "same-policy figure and the difference from it."))
     nl = scores.novel_labels
     parts.append(html_table(
         _display_novel_labels(nl), table_id="novel_labels", text_columns=("label", "example"),
-        caption="Novel labels with an example episode; replay opens the example beside the "
-        "reference policy on the same seed.",
+        caption="Novel labels with an example episode, each (env, label) once (the pooled "
+        "figures count these rows); for segments, the segment labels the reference never "
+        "shows; replay opens the example beside the reference policy on the same seed.",
         links=[_replay(viewer, ep=r.example_scenario, b=reference)
                for r in nl.itertuples()] if len(nl) else None))
     if not scores.scenario_matches.empty:

@@ -299,8 +299,16 @@ def _measures_plot(scores: Scores, env: str, reference: str) -> tuple[str, str] 
     return svg.named(f"measures_{_slug(env)}.svg")
 
 
+def _whole_labels(table: pd.DataFrame) -> pd.DataFrame:
+    """The rows scored on whole labels (episodes or windows), not on segments (the
+    coverage and novelty tables give both)."""
+    if table.empty or "unit" not in table.columns:
+        return table
+    return table[~table["unit"].astype(str).str.endswith("segments")]
+
+
 def _coverage_plot(scores: Scores) -> tuple[str, str] | None:
-    cov = _pooled(scores.coverage)
+    cov = _whole_labels(_pooled(scores.coverage))
     if cov.empty:
         return None
     refs = sorted(cov["reference"].unique())
@@ -511,7 +519,7 @@ def _improvement_plot(scores: Scores) -> tuple[str, str] | None:
 
 
 def _novelty_plot(scores: Scores) -> tuple[str, str] | None:
-    nov = _pooled(scores.novelty)
+    nov = _whole_labels(_pooled(scores.novelty))
     if nov.empty:
         return None
     refs = sorted(nov["reference"].unique())

@@ -228,12 +228,19 @@ def summary_table(scores: Scores, reference: str) -> pd.DataFrame:
                                           "novel_high")):
             for ref in sorted(table["reference"].unique()) if len(table) else []:
                 c = table[(table["policy"] == policy) & (table["reference"] == ref)]
+                if "unit" in c.columns:  # whole labels here; segments in the detail tables
+                    c = c[~c["unit"].astype(str).str.endswith("segments")]
                 if c.empty:
                     row[f"{what} {ref}"] = ("–", {})
                     continue
                 c = c.iloc[0]
-                row[f"{what} {ref}"] = (f"{_pct(c[est])}\n{_interval(_pct(c[lo]), _pct(c[hi]))}",
-                                        {"v": float(c[est])})
+                text = f"{_pct(c[est])}\n{_interval(_pct(c[lo]), _pct(c[hi]))}"
+                diff = "coverage_diff" if est == "coverage" else "novel_diff"
+                if np.isfinite(c.get(diff, np.nan)):  # beside the same-policy figure
+                    null = "null_coverage" if est == "coverage" else "null_novel_rate"
+                    text += (f"\nsame policy {_pct(c[null])}: {100 * c[diff]:+.0f} pts "
+                             f"[{100 * c[diff + '_low']:+.0f}, {100 * c[diff + '_high']:+.0f}]")
+                row[f"{what} {ref}"] = (text, {"v": float(c[est])})
         gap = scores.gap
         for ref in sorted(gap["reference"].unique()) if len(gap) else []:
             g = gap[(gap["policy"] == policy) & (gap["reference"] == ref)]
@@ -330,21 +337,38 @@ def _display_matched(table: pd.DataFrame, level: float) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+_NULL_COLUMNS = ("null_m", "null_paired", "half_coverage", "null_coverage", "coverage_diff",
+                 "coverage_diff_low", "coverage_diff_high", "half_novel_rate",
+                 "null_novel_rate", "novel_diff", "novel_diff_low", "novel_diff_high")
+
+
+def _null_cells(r: dict, half: str, null: str, diff: str) -> dict:
+    """The same-policy figure and the difference from it, as display cells."""
+    if not np.isfinite(r.get(null, np.nan)):
+        return {"same policy (halves)": "–", "difference at halves": "–"}
+    return {"same policy (halves)": (f"{_pct(r[null])} (policy {_pct(r[half])}, halves of "
+                                     f"{int(r['null_m'])})", {"v": r[null]}),
+            "difference at halves": (f"{100 * r[diff]:+.1f} pts [{100 * r[diff + '_low']:+.1f},"
+                                     f" {100 * r[diff + '_high']:+.1f}]", {"v": r[diff]})}
+
+
 def _display_coverage(table: pd.DataFrame, level: float) -> pd.DataFrame:
     rows = []
     for r in table.to_dict("records"):
         row = {"env": r["env"], "policy": r["policy"], "reference": r["reference"],
-               "episodes": r["n"],
+               "scored on": r.get("unit", "episodes"), "episodes": r["n"],
                "coverage": (_pct(r["coverage"]), {"v": r["coverage"]}),
                interval_heading(level): _interval(_pct(r["coverage_low"]),
                                                   _pct(r["coverage_high"])),
+               **_null_cells(r, "half_coverage", "null_coverage", "coverage_diff"),
                "weighted": (_pct(r["weighted_coverage"]), {"v": r["weighted_coverage"]}),
                "weighted interval": _interval(_pct(r["weighted_low"]), _pct(r["weighted_high"])),
                "distinct labels": r.get("n_distinct")}
         for key in r:  # diversity figures as the scoring gives them (bits, Hill numbers ...)
             if key not in row and key not in ("n", "coverage_low", "coverage_high",
                                               "weighted_coverage", "weighted_low",
-                                              "weighted_high", "n_distinct", "coverage"):
+                                              "weighted_high", "n_distinct", "coverage",
+                                              "unit", *_NULL_COLUMNS):
                 row[key] = (_num(r[key], 2), {"v": r[key]}) if isinstance(
                     r[key], float | np.floating) else r[key]
         rows.append(row)
@@ -353,18 +377,22 @@ def _display_coverage(table: pd.DataFrame, level: float) -> pd.DataFrame:
 
 def _display_novelty(table: pd.DataFrame, level: float) -> pd.DataFrame:
     return pd.DataFrame([{
-        "env": r.env, "policy": r.policy, "reference": r.reference, "episodes": r.n,
-        "novel episodes": r.n_novel, "novelty rate": (_pct(r.novel_rate), {"v": r.novel_rate}),
-        interval_heading(level): _interval(_pct(r.novel_low), _pct(r.novel_high)),
-        "novel labels": r.n_novel_labels, "reference size": r.reference_size}
-        for r in table.itertuples(index=False)])
+        "env": r["env"], "policy": r["policy"], "reference": r["reference"],
+        "scored on": r.get("unit", "episodes"), "episodes": r["n"],
+        "novel episodes": r["n_novel"],
+        "novelty rate": (_pct(r["novel_rate"]), {"v": r["novel_rate"]}),
+        interval_heading(level): _interval(_pct(r["novel_low"]), _pct(r["novel_high"])),
+        **_null_cells(r, "half_novel_rate", "null_novel_rate", "novel_diff"),
+        "novel labels": r["n_novel_labels"], "reference size": r["reference_size"]}
+        for r in table.to_dict("records")])
 
 
 def _display_novel_labels(table: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame([{
-        "env": r.env, "policy": r.policy, "reference": r.reference, "label": r.label,
-        "episodes": r.count, "share": (_pct(r.share, 1), {"v": r.share}),
-        "example": r.example_scenario} for r in table.itertuples(index=False)])
+        "env": r["env"], "policy": r["policy"], "reference": r["reference"],
+        "scored on": r.get("unit", "episodes"), "label": r["label"],
+        "episodes": r["count"], "share": (_pct(r["share"], 1), {"v": r["share"]}),
+        "example": r["example_scenario"]} for r in table.to_dict("records")])
 
 
 def _hill_text(est: float, low: float, high: float, bound: bool) -> str:

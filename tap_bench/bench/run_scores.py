@@ -119,8 +119,15 @@ def _headline(scores: Scores, episodes: pd.DataFrame) -> dict[str, Any]:
         cov = scores.coverage
         if len(cov):
             c = cov[(cov["policy"] == policy) & (cov["env"] == pooled_env)]
-            for r in c.itertuples():
-                row[f"coverage of {r.reference}"] = _round(r.coverage)
+            for r in c.to_dict("records"):
+                seg = str(r.get("unit", "")).endswith("segments")
+                key = f"{'segment ' if seg else ''}coverage of {r['reference']}"
+                row[key] = _round(r["coverage"])
+                if np.isfinite(r.get("coverage_diff", np.nan)):  # the same-policy null
+                    row[f"{key}: same-policy figure"] = _round(r["null_coverage"])
+                    row[f"{key}: difference"] = _round(r["coverage_diff"])
+                    row[f"{key}: difference_low"] = _round(r["coverage_diff_low"])
+                    row[f"{key}: difference_high"] = _round(r["coverage_diff_high"])
         out[policy] = row
     return out
 

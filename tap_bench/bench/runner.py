@@ -72,6 +72,7 @@ from tap_bench.bench.cache import (
 )
 from tap_bench.bench.contexts import context_scores
 from tap_bench.bench.episodes import one_outcome_cells
+from tap_bench.bench.gap import window_episodes, window_seconds
 from tap_bench.bench.power import power_table
 from tap_bench.bench.run_folder import (
     _machine,
@@ -285,6 +286,15 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
                     continue
                 matches.append(match_scenarios(labels, trajectories, ref_labels, ref_traj,
                                                level=suite.level, top=3).assign(reference=name))
+        # coverage and novelty against real driving: windows of its tracks' length
+        cut = {}
+        for name, (ref_traj, _) in corpora.items():
+            if ref_traj is not None and trajectories is not None:
+                seconds = window_seconds("auto", ref_traj, trajectories)
+                if seconds is not None:
+                    cut[name] = (window_episodes(trajectories, seconds, suite.level,
+                                                 thresholds=thresholds, source=name),
+                                 f"{seconds:.1f} s windows")
         power = power_table(episodes, suite.gate,
                             n_tests=len(suite.envs) * len(suite.policies)
                             * len(plan.gate_metrics))
@@ -292,7 +302,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
                        config=suite.bootstrap,
                        references={name: lab for name, (_, lab) in corpora.items()} or None,
                        scenario_matches=pd.concat(matches, ignore_index=True) if matches
-                       else None, gate_power=power)
+                       else None, gate_power=power, windows=cut or None)
         # the interaction contexts, scored as `tap-bench contexts` scores them
         scores = replace(scores, contexts=context_scores(
             occurrences, list(pd.unique(episodes["policy"])), suite.reference,

@@ -13,13 +13,21 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from tap_bench import sdl
 from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.compare import ALL_ENVS, MIN_GROUP, matched_by_label, paired_comparison
-from tap_bench.bench.coverage import Reference, corpus_reference, coverage, pooled_coverage
+from tap_bench.bench.coverage import (
+    UNITS,
+    Reference,
+    corpus_reference,
+    coverage,
+    pooled_coverage,
+)
 from tap_bench.bench.diversity import MIN_COMPLETENESS, diversity, pooled_diversity
 from tap_bench.bench.intervals import measure_interval
 from tap_bench.bench.measures import MEASURES
 from tap_bench.bench.novelty import novelty, pooled_novelty
+from tap_bench.bench.null import SPLITS, pooled_null, same_policy_null
 from tap_bench.errors import LabelTableError
 
 __all__ = ["Scores", "diversity_table", "policy_measures", "reference_scores", "score",
@@ -102,7 +110,9 @@ def scores_to_files(scores: Scores) -> dict[str, bytes]:
     refs = {name: {"items": [str(v) for v in ref.items],
                    "weights": [float(w) for w in ref.weights], "kind": ref.kind,
                    "level": ref.level, "description": ref.description,
-                   "n_trajectories": int(ref.n_trajectories)}
+                   "n_trajectories": int(ref.n_trajectories),
+                   "units": [str(u) for u in ref.units], "axes": list(ref.axes),
+                   "seeds": None if ref.seeds is None else [int(x) for x in ref.seeds]}
             for name, ref in scores.references.items()}
     # in order: the report lists the methods as scoring wrote them
     files["meta.json"] = json.dumps({"methods": scores.methods, "references": refs}).encode()
@@ -117,7 +127,10 @@ def scores_from_files(files: Mapping[str, bytes]) -> Scores:
     meta = json.loads(files["meta.json"])
     refs = {name: Reference(np.array(r["items"], dtype=object),
                             np.array(r["weights"], dtype=float), r["kind"], r["level"],
-                            r["description"], int(r["n_trajectories"]))
+                            r["description"], int(r["n_trajectories"]),
+                            units=np.array(r.get("units", []), dtype=object),
+                            seeds=None if r.get("seeds") is None else np.array(r["seeds"]),
+                            axes=tuple(r.get("axes", sdl.AXES)))
             for name, r in meta["references"].items()}
     tables = {name: pd.read_parquet(io.BytesIO(files[f"{name}.parquet"]))
               for name in Scores.TABLES}
@@ -170,10 +183,13 @@ def _scored(episodes: pd.DataFrame) -> pd.DataFrame:
 
 def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str, Reference],
                      name: str, *, config: BootstrapConfig,
-                     policies: list[str] | None = None
+                     policies: list[str] | None = None, paired: bool = False,
+                     unit: str | None = None
                      ) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
     """Coverage and unique manoeuvres of every policy against one reference, per env and
-    pooled: the one scoring path of ``bench run``, ``compare`` and ``tap-bench coverage``.
+    pooled, each beside the same-policy figure of that reference and the difference from
+    it (:mod:`tap_bench.bench.null`): the one scoring path of ``bench run``, ``compare``
+    and ``tap-bench coverage``.
 
     Args:
         episodes: the episode table (failed and unlabelled episodes are left out).
@@ -184,9 +200,18 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
         config: interval level, resamples and seed; each coverage draws from the stream
             ``("coverage", env, policy, name)``.
         policies: the policies to score (default every policy of ``episodes``).
+        paired: the reference is rollouts of the same seeds (its ``seeds``): the null takes
+            the policy's episodes on the seeds of the reference's probe half.
+        unit: what the rows say they were scored on (default the reference's own unit:
+            ``episodes`` or ``segments``; e.g. ``"9.1 s windows"`` when ``episodes`` are
+            windows of the policy's episodes).
 
     Returns:
-        (coverage rows, novelty rows, novel labels), each with env, policy, reference.
+        (coverage rows, novelty rows, novel labels), each with env, policy, reference,
+        unit. Coverage rows carry the null's ``null_coverage``, ``half_coverage``,
+        ``coverage_diff`` (+ interval), novelty rows ``null_novel_rate``,
+        ``half_novel_rate``, ``novel_diff`` (+ interval), both ``null_m`` (trajectories of
+        a half, the sizes these are taken at) and ``null_paired``.
         The novel labels are listed once, under the env whose episodes show them (a pooled
         label is an (env, label) pair: its rows are the envs' rows). Pooled coverage and
         novelty rows (``env == "all"``) aggregate the per-env ones for env-keyed references
@@ -196,46 +221,60 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
     """
     ok = _scored(episodes)
     keyed = not isinstance(reference, Reference)
+    first = next(iter(reference.values()), None) if keyed else reference
+    unit = unit or (first.unit if first is not None else "episodes")
     cov_rows, nov_rows, nov_labels = [], [], []
     for policy in policies if policies is not None else sorted(ok["policy"].unique()):
         pol = ok[ok["policy"] == policy]
-        per_env_cov, per_env_nov, sizes = [], {}, []
+        per_env_cov, per_env_nov, per_env_null, sizes = [], {}, [], []
         for env, sub in _env_groups(pol):
-            key = {"env": env, "policy": policy, "reference": name}
+            key = {"env": env, "policy": policy, "reference": name, "unit": unit}
             if env == ALL_ENVS and keyed:
                 if not per_env_cov:
                     continue
                 cv = pooled_coverage(per_env_cov, sizes, config.level)
                 nv = pooled_novelty(per_env_nov, config.level) if per_env_nov else None
+                nl = pooled_null(per_env_null, [r.n_reference for r in per_env_cov],
+                                 [r.n for r in per_env_cov], config.level) \
+                    if per_env_null else None
             else:
                 ref = reference.get(env) if keyed else reference
                 if ref is None:
                     continue
                 cv = coverage(sub["sdl"], ref, config=config,
-                              rng=config.rng("coverage", env, policy, name))
-                nv = novelty(sub, ref, config=config) if ref.kind == "corpus" else None
+                              rng=config.rng("coverage", env, policy, name,
+                                             *(() if unit == "episodes" else (unit,))))
+                nv = novelty(sub, ref, config=config) if ref.kind != "vocabulary" else None
+                nl = same_policy_null(
+                    sub["sdl"].to_numpy(object), ref, config=config,
+                    seeds=sub["seed"].to_numpy() if paired and "seed" in sub else None,
+                    rng=config.rng("null", env, policy, name, unit)) \
+                    if ref.kind != "vocabulary" and len(ref.units) else None
                 if keyed:
                     per_env_cov.append(cv)
                     sizes.append(ref.n_trajectories)
                     if nv is not None:
                         per_env_nov[env] = nv
-            cov_rows.append({**key, **cv.row()})
+                    if nl is not None:
+                        per_env_null.append(nl)
+            cov_rows.append({**key, **cv.row(), **(nl.coverage_row() if nl else {})})
             if nv is not None:
                 size = sum(r.n_trajectories for r in reference.values()) if keyed and \
                     env == ALL_ENVS else (reference.get(env) if keyed else reference
                                           ).n_trajectories
-                nov_rows.append({**key, **nv.row(), "reference_size": size})
+                nov_rows.append({**key, **nv.row(), "reference_size": size,
+                                 **(nl.novelty_row() if nl else {})})
                 if env != ALL_ENVS:  # pooled: the envs' rows again; each (env, label) once
                     nov_labels.append(nv.labels.assign(env=env, policy=policy,
-                                                       reference=name))
+                                                       reference=name, unit=unit))
     cov = pd.DataFrame(cov_rows)
     nov = pd.DataFrame(nov_rows)
     frames = [f for f in nov_labels if len(f)]
-    labels = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(
-        columns=["env", "policy", "reference", "label", "count", "share", "example_scenario"])
+    columns = ["env", "policy", "reference", "unit", "label", "count", "share",
+               "example_scenario"]
+    labels = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=columns)
     if len(labels):
-        labels = labels[["env", "policy", "reference", "label", "count", "share",
-                         "example_scenario"]]
+        labels = labels[columns]
     return cov, nov, labels
 
 
@@ -267,7 +306,8 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
           references: dict[str, pd.DataFrame] | None = None,
           comparisons: list[tuple[str, str]] | None = None,
           scenario_matches: pd.DataFrame | None = None,
-          gate_power: pd.DataFrame | None = None) -> Scores:
+          gate_power: pd.DataFrame | None = None,
+          windows: dict[str, tuple[pd.DataFrame, str]] | None = None) -> Scores:
     """Score a run.
 
     Args:
@@ -282,6 +322,10 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
             against the reference policy, as (policy, reference).
         scenario_matches: a precomputed table of cross-data-set scenario matches to carry.
         gate_power: a precomputed power table of the gate to carry.
+        windows: reference name -> (episode table, unit): the policies' episodes cut into
+            windows of that reference's track length (:func:`tap_bench.bench.gap.
+            window_episodes`, e.g. 9.1 s for WOMD), scored against it in place of whole
+            episodes (``unit`` says so: ``"9.1 s windows"``).
 
     Returns:
         :class:`Scores`.
@@ -311,16 +355,27 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
     cov_parts, nov_parts, label_parts = [], [], []
     refs: dict[str, Reference] = {}
     rollouts = f"{reference_policy} rollouts"
-    per_env: dict[str, Reference] = {}
-    for env, sub in ref_eps.groupby("env", sort=True):
-        per_env[str(env)] = corpus_reference(sub.assign(level=level), level, tracks="all",
-                                             name=f"{rollouts} ({env})")
-        refs[f"{rollouts} ({env})"] = per_env[str(env)]
     others = [p for p in policies if p != reference_policy]  # a corpus covers itself
-    parts = [reference_scores(episodes, per_env, rollouts, config=config, policies=others)]
+    parts = []
+    for unit in UNITS:  # whole labels, then the manoeuvres (segments) episodes contain
+        per_env: dict[str, Reference] = {}
+        for env, sub in ref_eps.groupby("env", sort=True):
+            per_env[str(env)] = corpus_reference(sub.assign(level=level), level,
+                                                 tracks="all", name=f"{rollouts} ({env})",
+                                                 unit=unit)
+            refs[f"{rollouts} ({env})" + ("" if unit == "episodes" else f", {unit}")] = \
+                per_env[str(env)]
+        parts.append(reference_scores(episodes, per_env, rollouts, config=config,
+                                      policies=others, paired=True))
     for name, table in (references or {}).items():
-        refs[name] = corpus_reference(table, level, tracks="vehicles", name=name)
-        parts.append(reference_scores(episodes, refs[name], name, config=config))
+        scored, unit_name = (windows or {}).get(name, (episodes, None))
+        for unit in UNITS:
+            ref = corpus_reference(table, level, tracks="vehicles", name=name, unit=unit)
+            refs[name + ("" if unit == "episodes" else f", {unit}")] = ref
+            parts.append(reference_scores(
+                scored, ref, name, config=config,
+                unit=unit if unit_name is None else f"{unit_name}, {unit}"
+                if unit == "segments" else unit_name))
     for cov, nov, lab in parts:
         cov_parts.append(cov)
         nov_parts.append(nov)
@@ -344,6 +399,20 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
                      "('coverage', env, policy, reference)"),
         "novelty": f"{config.level:.0%} Wilson score intervals; 'all' pools the per-env "
                    "counts (each env held against its own reference)",
+        "same-policy null": (
+            "beside each coverage and novelty: the same-policy figure (the reference split "
+            "in random halves, one half held against the other) and the policy at the same "
+            "sizes (its episodes on the probe half's seeds for rollouts of the same seeds, "
+            f"else as many drawn at random), means over {SPLITS} splits; the difference's "
+            f"{config.level:.0%} interval from {config.n_resamples} bootstrap draws (a "
+            "split, each half resampled), re-centred and shrunk by the split-to-split "
+            "spread (coverage measured by benchmarks/null_coverage.py); 'all' pools the "
+            "envs as coverage and novelty are pooled"),
+        "unit": ("episodes: each episode's whole label; segments: the labels of its "
+                 "segments (the runs of one label on one axis: the manoeuvres it contains), "
+                 "an episode novel when one of its segments carries a label the reference "
+                 "never shows; windows: the episodes cut into windows of the reference's "
+                 "median track length before labelling"),
         "diversity": (f"Hill numbers q = 0, 1, 2 at a common sample size per env (the "
                       "smallest episode count of its policies; iNEXT rarefaction/"
                       f"extrapolation), {config.level:.0%} studentized bootstrap "

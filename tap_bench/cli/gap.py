@@ -8,8 +8,8 @@ from pathlib import Path
 import pandas as pd
 
 from tap_bench.bench.bootstrap import add_bootstrap_arguments, bootstrap_from_args
-from tap_bench.bench.gap import behaviour_gap, labelled_with_speed, track_seconds, windows
-from tap_bench.errors import LabelTableError, ParameterError
+from tap_bench.bench.gap import behaviour_gap, labelled_with_speed, window_seconds, windows
+from tap_bench.errors import LabelTableError
 from tap_bench.sdl import LEVELS
 from tap_bench.tableio import beside, check_outputs, read_table, write_tables
 
@@ -50,24 +50,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _window(choice: str, reference: pd.DataFrame, table: pd.DataFrame) -> float | None:
-    """The window length [s]: None for 'none'; the reference's median track length for
-    'auto' (None when the reference is a label table: no times)."""
-    if choice == "none":
-        return None
-    if choice == "auto":
-        if "t" not in reference.columns or "t" not in table.columns:
-            return None
-        return track_seconds(reference)
-    try:
-        seconds = float(choice)
-    except ValueError:
-        seconds = float("nan")
-    if not seconds > 0:
-        raise ParameterError("--window", choice, "'auto', 'none' or a number of seconds > 0")
-    return seconds
-
-
 def _crash_rate(table: pd.DataFrame) -> float:
     """Share of the policy's episodes whose ego crashed (NaN without the columns)."""
     if "crashed" not in table.columns or "scenario_id" not in table.columns:
@@ -95,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     ref_table = read_table(args.reference)
     reference = labelled_with_speed(ref_table, args.level, interactions="all",
                                     thresholds=args.thresholds, source=str(args.reference))
-    window = _window(args.window, ref_table, table)
+    window = window_seconds(args.window, ref_table, table)
     policies = (sorted(table["policy"].dropna().unique()) if "policy" in table.columns
                 else [Path(args.policy_table).name.split(".")[0]])
     if not policies:

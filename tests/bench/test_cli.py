@@ -111,3 +111,32 @@ def test_demo_runs_and_prints_the_report(tmp_path, capsys):
     assert re.search(r"crash rate \d+% \[\d+%, \d+%\]", out)
     assert "random vs idm: LESS SAFE" in out
     print(f"demo wall time {elapsed:.0f} s")
+
+
+def test_coverage_cuts_long_episodes_into_windows_of_the_reference_s_track_length(
+        two_policies, capsys):
+    """Issue 25: against a corpus of short tracks (WOMD: 9.1 s) whole 30 s episodes scored
+    0 % coverage; the episodes are cut into windows of the reference's track length, and
+    every figure stands beside the same-policy one, on whole labels and on segments."""
+    import tap_bench
+    from tap_bench.sim.scenario_env import get_scenario
+
+    folder, paths = two_policies  # 5 s rollouts: the reference's tracks
+    long = folder / "long.parquet"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        traj, _ = tap_bench.rollout(get_scenario("merge").with_overrides(duration=15),
+                                    "idm-aggressive", "0-1", progress=False)
+    traj.to_parquet(long)
+    out = folder / "windows.csv"
+    assert main(["coverage", str(long), "--reference", str(paths["idm"]), "--resamples",
+                 "200", "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "cut into 5.0 s windows" in text and "same-policy coverage" in text
+    rows = pd.read_csv(out).set_index("unit")
+    assert set(rows.index) == {"5.0 s windows", "5.0 s windows, segments"}
+    assert rows.loc["5.0 s windows", "n"] == 6  # 2 episodes of 15 s, 3 windows each
+    assert rows["null_coverage"].notna().all() and rows["coverage_diff_low"].notna().all()
+    assert main(["coverage", str(long), "--reference", str(paths["idm"]), "--resamples",
+                 "200", "--window", "none"]) == 0
+    assert "2 episodes with an ego label" in capsys.readouterr().out

@@ -124,3 +124,30 @@ def test_gap_command_windows_and_crashes(tmp_path, capsys):
     assert "crash rate 50%" in out and "4 9.0 s windows" in out and "debiased" in out
     row = pd.read_csv(tmp_path / "gap.csv").iloc[0]
     assert row["window_s"] == pytest.approx(9.0) and row["crash_rate"] == 0.5
+
+
+def test_window_episodes_label_each_window_of_the_egos_once():
+    """The windows bench run scores against a real corpus: one episode row per window of
+    an ego, numbered seeds (one seed is one episode), the episode's seed kept aside; and
+    'auto' windows only episodes longer than the reference's tracks."""
+    from tap_bench.bench.gap import window_episodes, window_seconds
+
+    t = np.arange(300) / 10
+    rows = []
+    for seed in (3, 4):
+        rows.append(pd.DataFrame({"env": "highway", "policy": "p", "seed": seed,
+                                  "scenario_id": f"ep{seed}", "track_id": "ego", "t": t,
+                                  "x": 20 * t, "y": 0.0, "heading": 0.0, "speed": 20.0,
+                                  "is_ego": True}))
+        rows.append(rows[-1].assign(track_id="other", is_ego=False, y=4.0))
+    table = pd.concat(rows, ignore_index=True)
+    ref = pd.DataFrame({"scenario_id": np.repeat(["a", "b"], 92), "track_id": "v",
+                        "t": np.tile(np.arange(92) / 10, 2)})
+    assert window_seconds("auto", ref, table) == pytest.approx(9.1)
+    assert window_seconds("auto", table, ref) is None  # 9 s tracks need no cutting
+    assert window_seconds("none", ref, table) is None
+    eps = window_episodes(table, 9.1, "maneuver")
+    assert len(eps) == 6 and eps["seed"].is_unique  # 3 windows of each ego only
+    assert set(eps["scenario_id"]) == {f"ep{s}#{k}" for s in (3, 4) for k in range(3)}
+    assert set(eps["env"]) == {"highway"} and set(eps["policy"]) == {"p"}
+    assert eps["sdl"].notna().all()

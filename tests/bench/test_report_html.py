@@ -109,3 +109,22 @@ def test_report_renders_in_headless_chromium(run_folder, tmp_path):
         assert shot.stat().st_size > 10_000
     finally:
         driver.quit()
+
+
+def test_coverage_and_novelty_stand_beside_the_same_policy_figure(run_folder):
+    """Issue 25: every coverage and novelty with the same-policy figure and the difference
+    from it, on whole labels and on segments; the summary gives the difference too; each
+    novel (env, label) listed once."""
+    page = (run_folder / "report.html").read_text()
+    for table in ("coverage", "novelty"):
+        start = page.index(f'id="{table}"')
+        head = page[start:page.index("</thead>", start)]
+        assert "scored on" in head and "same policy (halves)" in head
+        assert "difference at halves" in head
+        body = page[start:page.index("</table>", start)]
+        assert ">segments<" in body and ">episodes<" in body and " pts [" in body
+    start = page.index('id="summary"')
+    assert "same policy" in page[start:page.index("</table>", start)]
+    novel = pd.read_parquet(run_folder / "novel_labels.parquet")
+    assert not novel.duplicated(["env", "policy", "reference", "unit", "label"]).any()
+    assert "all" not in set(novel["env"])

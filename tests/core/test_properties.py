@@ -127,3 +127,31 @@ def test_mirrored_trajectories_swap_left_and_right(table):
     a, b = _label(table), _label(mirrored)
     assert b["lateral"].tolist() == [_swap(x) for x in a["lateral"]]
     assert b["longitudinal"].tolist() == a["longitudinal"].tolist()
+
+
+@SETTINGS
+@given(st.lists(st.tuples(st.sampled_from(["a", "b", "c10", "c9"]),
+                          st.sampled_from(["1", "2", "10", "x"]), st.integers(1, 4)),
+                min_size=1, max_size=25), st.sampled_from(["runs", "time-major"]))
+def test_the_track_order_is_the_stable_sort_of_every_row(runs, layout):
+    """Rows grouped by (scenario_id, track_id), in the order of the sorted ids and stable
+    within a track, however the input lays them out (runs in any order, a track split over
+    several runs, time-major): the same order as a stable sort of every row's key."""
+    from tap_bench.trajectories import _track_order
+
+    if layout == "runs":
+        rows = [(sc, tr) for sc, tr, k in runs for _ in range(k)]
+    else:
+        ids = list(dict.fromkeys((sc, tr) for sc, tr, _ in runs))
+        rows = [i for _ in range(3) for i in ids]
+    scenario = pd.Series([r[0] for r in rows], dtype="str")
+    track = pd.Series([r[1] for r in rows], dtype="str")
+    order, new_track = _track_order(scenario, track)
+    order = np.arange(len(rows)) if order is None else order
+    sc_codes, _ = pd.factorize(scenario, sort=True)
+    tr_codes, tr_uniques = pd.factorize(track, sort=True)
+    key = sc_codes.astype(np.int64) * len(tr_uniques) + tr_codes
+    expected = np.argsort(key, kind="stable")
+    np.testing.assert_array_equal(order, expected)
+    np.testing.assert_array_equal(new_track, np.r_[True, key[expected][1:]
+                                                   != key[expected][:-1]])

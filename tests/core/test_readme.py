@@ -1,14 +1,14 @@
-"""The README's examples run as written, each in a fresh process: every Python block, and
-every command line that needs neither data the README does not make nor a long run (those
-run in the slow test, or are listed with the reason they cannot run here).
-
-Commands run in README order in one folder, so a file one command writes is there for the
-next; the folder starts with ``trajectories.parquet`` (the built-in sample, as ``tap-bench
-sample`` writes it) and ``rollouts.parquet`` (short rollouts of two policies), the files
-the README's examples read, and ``data/training/`` links to the real WOMD sample files
-(``../shared/data/womd``, read there, never copied) so the WOMD examples run as written
-when those files are present. ``tap-bench`` runs as ``python -m tap_bench``, the same entry
-point, so that the checkout under test is the one that runs.
+"""The README's examples run as written and in README order, in one folder, so what an
+example writes is there for the next one and every file an example reads was made by an
+earlier one (``tap-bench sample`` makes ``sample.parquet``; the simulation section's Python
+block makes ``rollouts.parquet``, read by the benchmark's): every Python block (each in a
+fresh process) and every command line that needs neither data the README does not make nor
+a long run (those run in the slow test, again in README order, or are listed with the
+reason they cannot run here). The folder starts empty but for ``data/training/``, which
+links to the real WOMD sample files (``../shared/data/womd``, read there, never copied) so
+the WOMD examples run as written when those files are present. ``tap-bench`` runs as
+``python -m tap_bench``, the same entry point, so that the checkout under test is the one
+that runs.
 """
 
 from __future__ import annotations
@@ -31,8 +31,8 @@ HAVE_WOMD = WOMD_DATA.is_dir() and any(WOMD_DATA.glob("*.tfrecord*"))
 QUICK = {
     "tap-bench sample -o sample.parquet",
     "tap-bench label sample.parquet -o labels.csv --level all --segments segments.csv",
-    "tap-bench fit trajectories.parquet -o thresholds.json",
-    "tap-bench label trajectories.parquet -o labels.parquet --thresholds paper --level action "
+    "tap-bench fit sample.parquet -o thresholds.json",
+    "tap-bench label sample.parquet -o labels.parquet --thresholds paper --level action "
     "--segments segments.parquet",
     "tap-bench envs",
     "tap-bench policies",
@@ -46,7 +46,7 @@ SLOW = {
     "tap-bench demo",  # about 2 min on 2 cores
     "tap-bench rollout --env highway --policy idm --seeds 0-49 -o highway-idm.parquet "
     "--workers 2",
-    "tap-bench evaluate trajectories.parquet --labels labels.parquet -o results/eval/",
+    "tap-bench evaluate sample.parquet --labels labels.parquet -o results/eval/",
     # the shipped DQN agent against IDM on 30 highway seeds (the sb3 extra)
     "tap-bench rollout --env highway --policy dqn-highway --seeds 0-29 -o dqn.parquet",
     "tap-bench rollout --env highway --policy idm --seeds 0-29 -o idm.parquet",
@@ -64,7 +64,7 @@ WOMD = {  # quick, and run in README order when the WOMD sample files are presen
     "tap-bench export womd_segments.parquet --format openlabel -o openlabel/",
 }
 SLOW_WOMD = {  # long, and needing the WOMD files
-    "tap-bench coverage dqn.parquet --reference womd_labels.parquet --level maneuver",
+    "tap-bench coverage dqn.parquet --reference womd.parquet --level maneuver",
     "tap-bench gap results/inter/trajectories.parquet --reference womd.parquet --min-speed 5",
 }
 NOT_RUN = {  # command -> why the tests cannot run it as written
@@ -90,17 +90,37 @@ NOT_RUN = {  # command -> why the tests cannot run it as written
 
 def blocks(language: str) -> list[str]:
     """The README's fenced blocks of ``language``, in order."""
-    return re.findall(rf"```{language}\n(.*?)```", README.read_text(), flags=re.S)
+    return [code for lang, code in steps_of_blocks() if lang == language]
+
+
+def steps_of_blocks() -> list[tuple[str, str]]:
+    """Every fenced block of the README as (language, code), in order."""
+    return re.findall(r"```(\w+)\n(.*?)```", README.read_text(), flags=re.S)
+
+
+def split_commands(block: str) -> list[str]:
+    """The commands of a bash block: continuation lines joined, ``&&`` chains split,
+    trailing comments dropped."""
+    out = []
+    for line in block.replace("\\\n", " ").splitlines():
+        line = re.sub(r"\s+#.*$", "", line).strip()
+        out += [re.sub(r"\s+", " ", part.strip()) for part in line.split("&&") if part]
+    return out
 
 
 def commands() -> list[str]:
-    """Every command of the README's bash blocks: continuation lines joined, ``&&`` chains
-    split, trailing comments dropped."""
+    """Every command of the README's bash blocks, in order."""
+    return [c for block in blocks("bash") for c in split_commands(block)]
+
+
+def steps() -> list[tuple[str, str]]:
+    """The README's examples in order: ("bash", one command) and ("python", one block)."""
     out = []
-    for block in blocks("bash"):
-        for line in block.replace("\\\n", " ").splitlines():
-            line = re.sub(r"\s+#.*$", "", line).strip()
-            out += [re.sub(r"\s+", " ", part.strip()) for part in line.split("&&") if part]
+    for lang, code in steps_of_blocks():
+        if lang == "bash":
+            out += [("bash", c) for c in split_commands(code)]
+        elif lang == "python":
+            out.append(("python", code))
     return out
 
 
@@ -139,19 +159,13 @@ def test_readme_gives_the_real_sample_count():
 
 @pytest.fixture(scope="module")
 def folder(tmp_path_factory) -> Path:
-    """The folder the quick examples run in, with the files the README's examples read."""
+    """The folder the quick examples run in (see the module's docstring)."""
     return make_folder(tmp_path_factory.mktemp("readme"))
 
 
 def make_folder(folder: Path) -> Path:
-    """``folder`` with the files the README's examples read (see the module's docstring)."""
-    from tap_bench.sim.rollout import rollout
-    from tap_bench.synthetic import sample_table
-
-    sample_table().to_parquet(folder / "trajectories.parquet", index=False)
-    tables = [rollout("merge", policy, "0-3", duration=5, progress=False).trajectories
-              for policy in ("idm", "idm-aggressive")]
-    pd.concat(tables, ignore_index=True).to_parquet(folder / "rollouts.parquet", index=False)
+    """``folder`` with ``data/training/`` linking to the WOMD sample files, when present:
+    nothing else; every other file an example reads, an earlier example makes."""
     if HAVE_WOMD:  # linked, never copied (Waymo's terms); README.md is left out by the glob
         (folder / "data" / "training").mkdir(parents=True)
         for path in WOMD_DATA.iterdir():
@@ -165,27 +179,53 @@ def run(args: list[str], folder: Path, timeout: float) -> subprocess.CompletedPr
                            timeout=timeout)
 
 
-def run_commands(selected: set[str], folder: Path, timeout: float) -> None:
-    for command in commands():
-        if command not in selected:
+def run_in_order(selected: set[str], folder: Path, timeout: float) -> list[str]:
+    """Run the README's Python blocks and its ``selected`` commands in README order in
+    ``folder``; return what ran (the commands, and ``python block N``)."""
+    ran = []
+    for n, (kind, code) in enumerate(steps()):
+        if kind == "python":
+            done = run([sys.executable, "-c", code], folder, timeout)
+            assert done.returncode == 0, f"{code}\n{done.stdout[-2000:]}\n{done.stderr[-3000:]}"
+            assert "Traceback" not in done.stderr, done.stderr[-3000:]
+            ran.append(f"python block {n}")
             continue
-        args = shlex.split(command)
+        if code not in selected:
+            continue
+        args = shlex.split(code)
         assert args[0] == "tap-bench"
         done = run([sys.executable, "-m", "tap_bench", *args[1:]], folder, timeout)
-        assert done.returncode == 0, f"{command}\n{done.stdout[-2000:]}\n{done.stderr[-3000:]}"
+        assert done.returncode == 0, f"{code}\n{done.stdout[-2000:]}\n{done.stderr[-3000:]}"
+        ran.append(code)
+    return ran
 
 
-@pytest.mark.parametrize("index", range(len(blocks("python"))))
-def test_python_blocks_run_as_written_in_a_fresh_process(index, folder):
-    code = blocks("python")[index]
-    done = run([sys.executable, "-c", code], folder, timeout=600)
-    assert done.returncode == 0, f"{code}\n{done.stdout[-2000:]}\n{done.stderr[-3000:]}"
-    assert "Traceback" not in done.stderr, done.stderr[-3000:]
+def test_every_file_an_example_reads_an_earlier_example_writes():
+    """The inputs of the quick examples are outputs of earlier ones (or the WOMD files):
+    no file is read before the README has made it."""
+    made: set[str] = set()
+    for kind, code in steps():
+        if kind == "python":
+            read = re.findall(r'read_table\("([^"]+)"\)', code)
+            written = re.findall(r'to_parquet\("([^"]+)"\)', code)
+        else:
+            args = shlex.split(code)
+            written = [args[args.index("-o") + 1]] if "-o" in args else []
+            written += [args[args.index(flag) + 1] for flag in ("--segments",) if flag in args]
+            read = [a for a in args[2:3] if a.endswith((".parquet", ".csv"))]
+            if "--reference" in args:
+                read.append(args[args.index("--reference") + 1])
+        for path in read:
+            assert path in made or path.startswith("results/"), (
+                f"{code!r} reads {path}, which no earlier README example writes")
+        made.update(written)
 
 
-def test_the_quick_commands_run_as_written_in_order(folder):
-    run_commands(QUICK | (WOMD if HAVE_WOMD else set()), folder, timeout=300)
+def test_the_quick_examples_run_as_written_in_order(folder):
+    ran = run_in_order(QUICK | (WOMD if HAVE_WOMD else set()), folder, timeout=600)
+    assert sum(r.startswith("python block") for r in ran) == len(blocks("python"))
     assert (folder / "labels.csv").is_file() and (folder / "unique.parquet").is_file()
+    assert (folder / "rollouts.parquet").is_file()  # made by the README, not by the test
     if HAVE_WOMD:  # label then export agree on the level, and nothing was overwritten
         assert any((folder / "openlabel").glob("*.json"))
         assert len(pd.read_parquet(folder / "labels.parquet")["level"].unique()) == 1
@@ -193,7 +233,7 @@ def test_the_quick_commands_run_as_written_in_order(folder):
 
 @pytest.mark.slow
 def test_the_long_commands_run_as_written_in_order(tmp_path):
-    folder = make_folder(tmp_path)  # fresh: every command writes its output once
+    folder = make_folder(tmp_path)  # fresh: every example writes its output once
     womd = WOMD | SLOW_WOMD if HAVE_WOMD else set()
-    run_commands(QUICK | SLOW | womd, folder, timeout=3600)
+    run_in_order(QUICK | SLOW | womd, folder, timeout=3600)
     assert (folder / "results" / "demo" / "report.html").is_file()

@@ -65,7 +65,7 @@ def test_a_report_row_opens_its_replay(tiny_run, browser, screenshots):
     open_page(browser, tiny_run / "report.html")
     links = browser.execute_script(
         "return Array.from(document.querySelectorAll('#novel_labels a.replay'))"
-        ".map(a => [a.href, a.closest('tr').cells[6].textContent])")
+        ".map(a => [a.href, a.closest('tr').cells[7].textContent])")  # example
     assert links, "the novel-label rows link to their example episode"
     href, example = links[0]
     assert href.split("#")[0].endswith("/viewer/index.html")

@@ -1,0 +1,135 @@
+"""How often the same-policy null's difference intervals hold the true difference, for
+coverage and novelty, whole labels and segments, paired and unpaired.
+
+    PYTHONPATH=$PWD python benchmarks/null_coverage.py [--replications 300]
+
+The data: label distributions of known shape (Zipf over 40 whole labels; for segments,
+each episode 2-4 segments drawn from 12 segment labels). The reference has N trajectories
+(30 rollouts, as a suite's seeds, or 100), the policy 30 episodes. Cases: "same" (the
+policy draws from the reference's distribution: true difference about 0), "different"
+(another distribution), "paired" (rollouts on the same seeds: on each seed the policy
+repeats the reference's label with probability 0.5, else draws from another
+distribution). The true difference is the mean of the estimate over 2000 fresh data sets
+(:func:`tap_bench.bench.null.same_policy_null`'s estimand: the difference at half sizes).
+Each replication runs the null with 1000 draws and records whether each interval method
+holds the truth. Prints a Markdown table (docs/benchmark.md) and writes
+benchmarks/out/null_coverage.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine import report
+
+from tap_bench.bench import null
+from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.coverage import Reference
+
+K_LABELS, K_SEGMENTS = 40, 12
+
+
+def _zipf(k: int, s: float, reverse: bool = False) -> np.ndarray:
+    p = 1 / np.arange(1, k + 1) ** s
+    p = p[::-1] if reverse else p
+    return p / p.sum()
+
+
+def _labels(p: np.ndarray, n: int, rng: np.random.Generator, unit: str) -> np.ndarray:
+    """n labels: whole labels ``L07 | X``, or 2-4 segment labels ``A03 > A07 | X``."""
+    if unit == "episodes":
+        return np.array([f"L{i:02d} | X" for i in rng.choice(len(p), n, p=p)], object)
+    out = []
+    for _ in range(n):
+        k = rng.integers(2, 5)
+        out.append(" > ".join(f"A{i:02d}" for i in rng.choice(len(p), k, p=p)) + " | X")
+    return np.array(out, object)
+
+
+def _reference(units: np.ndarray, unit: str, paired: bool) -> Reference:
+    kind = "segments" if unit == "segments" else "corpus"
+    return Reference(np.zeros(0, object), np.zeros(0), kind, "maneuver", "synthetic",
+                     n_trajectories=len(units), units=units,
+                     seeds=np.arange(len(units)) if paired else None)
+
+
+def _sample(case: dict, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    ref = _labels(case["p_ref"], case["N"], rng, case["unit"])
+    pol = _labels(case["p_pol"], case["n"], rng, case["unit"])
+    if case["paired"]:  # the same seed: the reference's label with probability `repeat`
+        same = rng.random(case["n"]) < case["repeat"]
+        pol = np.where(same, ref[:case["n"]], pol)
+    return ref, pol
+
+
+def _estimate(ref, pol, case, rng, draws: int, splits: int = null.SPLITS):
+    reference = _reference(ref, case["unit"], case["paired"])
+    seeds = np.arange(len(pol)) if case["paired"] else None
+    return null.same_policy_null(pol, reference, seeds=seeds, rng=rng, splits=splits,
+                                 config=BootstrapConfig(n_resamples=draws, seed=0))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--replications", type=int, default=300)
+    parser.add_argument("--truth", type=int, default=2000, help="data sets for the truth")
+    parser.add_argument("--method", default=null.METHOD, choices=("recentred", "shrunk"))
+    args = parser.parse_args()
+    null.METHOD = args.method
+    cases = []
+    for unit, k in (("episodes", K_LABELS), ("segments", K_SEGMENTS)):
+        same, other = _zipf(k, 1.1), _zipf(k, 1.1, reverse=True)
+        for N in (30, 100):
+            cases += [
+                {"unit": unit, "name": "same", "N": N, "n": 30, "paired": False,
+                 "p_ref": same, "p_pol": same, "repeat": 0.0},
+                {"unit": unit, "name": "different", "N": N, "n": 30, "paired": False,
+                 "p_ref": same, "p_pol": 0.5 * same + 0.5 * other, "repeat": 0.0}]
+        cases.append({"unit": unit, "name": "paired", "N": 30, "n": 30, "paired": True,
+                      "p_ref": same, "p_pol": other, "repeat": 0.5})
+    rng = np.random.default_rng(25)
+    rows = []
+    start, cpu = time.perf_counter(), time.process_time()
+    for case in cases:
+        truth = np.mean([[r.coverage_diff, r.novel_diff] for r in (
+            _estimate(*_sample(case, rng), case, rng, draws=100, splits=20)
+            for _ in range(args.truth))], axis=0)
+        hits, widths = np.zeros(2), np.zeros(2)
+        for _ in range(args.replications):
+            r = _estimate(*_sample(case, rng), case, rng, draws=1000)
+            lows = np.array([r.coverage_diff_low, r.novel_diff_low])
+            highs = np.array([r.coverage_diff_high, r.novel_diff_high])
+            hits += (lows <= truth) & (truth <= highs)
+            widths += highs - lows
+        row = {"unit": case["unit"], "case": case["name"], "reference": case["N"],
+               "policy": case["n"], "paired": case["paired"],
+               "true_coverage_diff": round(float(truth[0]), 3),
+               "true_novel_diff": round(float(truth[1]), 3),
+               "coverage_hits": round(float(hits[0] / args.replications), 3),
+               "novel_hits": round(float(hits[1] / args.replications), 3),
+               "coverage_width": round(float(widths[0] / args.replications), 3),
+               "novel_width": round(float(widths[1] / args.replications), 3)}
+        rows.append(row)
+        print(row, flush=True)
+    print("\n| unit | case | reference N | policy n | true coverage diff | interval holds it "
+          "| width | true novelty diff | interval holds it | width |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['unit']} | {r['case']}{' (paired)' if r['paired'] else ''} | "
+              f"{r['reference']} | {r['policy']} | {r['true_coverage_diff']:+.3f} | "
+              f"{r['coverage_hits']:.2f} | {r['coverage_width']:.2f} | "
+              f"{r['true_novel_diff']:+.3f} | {r['novel_hits']:.2f} | {r['novel_width']:.2f} |")
+    report(f"null_coverage_{args.method}", {
+        "method": args.method, "replications": args.replications, "rows": rows,
+        "wall_s": round(time.perf_counter() - start, 1),
+        "cpu_s": round(time.process_time() - cpu, 1)}, seed=25)
+
+
+if __name__ == "__main__":
+    main()

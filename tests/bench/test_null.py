@@ -1,0 +1,171 @@
+"""The same-policy null of coverage and novelty (issue 25): the reference split in halves,
+the policy at the same sizes, the difference with an interval whose coverage is measured;
+scored on whole labels and on segments, per env and pooled, in the scoring path."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.coverage import Reference, corpus_reference, coverage, unit_items
+from tap_bench.bench.novelty import novelty
+from tap_bench.bench.null import same_policy_null
+from tap_bench.bench.scoring import reference_scores, score
+
+A = "Straight | Maintain Speed"
+B = "Straight > Left Merge > Straight | Accelerate"
+C = "Right Turn | Decelerate > Stopped"
+
+
+def rollouts(labels: list[str], policy: str = "idm", env: str = "highway") -> pd.DataFrame:
+    return pd.DataFrame({"env": env, "policy": policy, "seed": np.arange(len(labels)),
+                         "scenario_id": [f"{policy}/{i}" for i in range(len(labels))],
+                         "status": "ok", "sdl": labels})
+
+
+def episode_table(frame: pd.DataFrame) -> pd.DataFrame:
+    """``frame`` with the episode table's other columns (measures made up)."""
+    from tap_bench.bench.measures import MEASURES
+
+    sides = frame["sdl"].str.split(" | ", regex=False)
+    out = frame.assign(lateral=sides.str[0], longitudinal=sides.str[1], error="")
+    for m in MEASURES:
+        out[m.name] = False if m.is_rate else 1.0 + out["seed"] % 3
+    return out.assign(duration_s=8.0)
+
+
+def test_segment_items_and_reference_weights():
+    assert unit_items([B]) == [("lateral: Straight", "lateral: Left Merge", "lateral: Straight",
+                                "longitudinal: Accelerate")]
+    ref = corpus_reference(rollouts([A, B]).assign(level="maneuver"), "maneuver",
+                           tracks="all", unit="segments")
+    # 6 segments: Straight x3, Left Merge, Maintain Speed, Accelerate
+    assert dict(zip(ref.items, ref.weights, strict=True)) == {
+        "lateral: Straight": pytest.approx(3 / 6), "lateral: Left Merge": pytest.approx(1 / 6),
+        "longitudinal: Maintain Speed": pytest.approx(1 / 6),
+        "longitudinal: Accelerate": pytest.approx(1 / 6)}
+    assert ref.unit == "segments" and list(ref.seeds) == [0, 1]
+    # "Straight | Accelerate": a new whole label, but every segment known
+    episodes = rollouts(["Straight | Accelerate", C], policy="p")
+    result = novelty(episodes, ref)
+    assert (result.n, result.n_novel) == (2, 1)
+    assert set(result.labels["label"]) == {"lateral: Right Turn", "longitudinal: Decelerate",
+                                           "longitudinal: Stopped"}
+    cov = coverage(episodes["sdl"], ref)
+    assert cov.coverage == pytest.approx(2 / 4)  # Straight and Accelerate of 4
+    assert cov.weighted_coverage == pytest.approx(4 / 6)
+
+
+def test_a_policy_like_its_reference_sits_on_the_null_and_one_that_differs_does_not():
+    rng = np.random.default_rng(4)
+    p = 1 / np.arange(1, 31) ** 1.1
+    labels = np.array([f"L{i:02d} | X" for i in range(30)], object)
+    ref = corpus_reference(rollouts(list(labels[rng.choice(30, 40, p=p / p.sum())]))
+                           .assign(level="maneuver"), "maneuver", tracks="all")
+    config = BootstrapConfig(n_resamples=500)
+    # the reference policy itself on the same seeds: its halves are the null exactly
+    same = same_policy_null(ref.units, ref, seeds=ref.seeds, config=config)
+    assert same.paired and same.m == 20
+    assert same.coverage == pytest.approx(same.null_coverage)
+    assert same.coverage_diff == pytest.approx(0) and same.novel_diff == pytest.approx(0)
+    assert same.coverage_diff_low < 0 < same.coverage_diff_high  # never zero-width
+    # a policy whose labels the reference never shows
+    new = same_policy_null(np.array(["Z | X"] * 40, object), ref, seeds=ref.seeds,
+                           config=config)
+    assert new.coverage == 0 and new.novel_rate == 1
+    assert new.coverage_diff == pytest.approx(-new.null_coverage)
+    assert new.novel_diff == pytest.approx(1 - new.null_novel_rate)
+    assert new.novel_diff_low > 0 and new.coverage_diff_high < 0
+    assert 0 < new.null_novel_rate < 1  # a finite reference misses some of its own labels
+
+
+def test_unpaired_null_takes_the_policy_at_the_half_size():
+    ref = corpus_reference(rollouts([A] * 10 + [B] * 10).drop(columns="seed")
+                           .assign(level="maneuver"), "maneuver", tracks="all")
+    assert ref.seeds is None
+    result = same_policy_null(np.array([A] * 4, object), ref, seeds=np.arange(4))
+    assert not result.paired and result.m == 4  # 4 episodes: halves of 10 cut to 4
+    assert result.null_novel_rate == 0 and result.novel_rate == 0
+
+
+def test_draws_that_cannot_move_give_a_wilson_wide_interval():
+    ref = corpus_reference(rollouts([A] * 12).assign(level="maneuver"), "maneuver",
+                           tracks="all")
+    result = same_policy_null(np.array([A] * 12, object), ref, seeds=np.arange(12))
+    assert result.coverage_diff == 0 and result.novel_diff == 0
+    assert result.coverage_diff_low < 0 < result.coverage_diff_high
+    assert result.coverage_diff_high == pytest.approx(0.39, abs=0.01)  # Wilson 0 of 6
+
+
+def test_null_interval_holds_the_true_difference_in_simulation():
+    """A small version of benchmarks/null_coverage.py: same label distribution, 30
+    reference rollouts and 30 policy episodes unpaired; the true difference is 0."""
+    K = 25
+    p = 1 / np.arange(1, K + 1) ** 1.1
+    p /= p.sum()
+    names = np.array([f"L{i:02d} | X" for i in range(K)], object)
+    rng = np.random.default_rng(7)
+    hits, reps = 0, 80
+    for r in range(reps):
+        units = names[rng.choice(K, 30, p=p)]
+        ref = Reference(np.zeros(0, object), np.zeros(0), "corpus", "maneuver", "r",
+                        n_trajectories=30, units=units)
+        res = same_policy_null(names[rng.choice(K, 30, p=p)], ref,
+                               config=BootstrapConfig(n_resamples=300, seed=r))
+        hits += res.novel_diff_low <= 0 <= res.novel_diff_high
+    assert hits / reps >= 0.88
+
+
+def test_reference_scores_give_both_units_and_the_null_per_env_and_pooled():
+    eps = pd.concat([rollouts([A, B, A, B, A, B, A, B], "idm", env)
+                     for env in ("highway", "merge")]
+                    + [rollouts([C, B, C, A, C, B, C, A], "random", env)
+                       for env in ("highway", "merge")], ignore_index=True)
+    scores = score(episode_table(eps), reference_policy="idm",
+                   level="maneuver", config=BootstrapConfig(n_resamples=200))
+    cov = scores.coverage.set_index(["env", "unit"])
+    assert set(cov.index) == {(e, u) for e in ("highway", "merge", "all")
+                              for u in ("episodes", "segments")}
+    for column in ("null_coverage", "half_coverage", "coverage_diff", "coverage_diff_low",
+                   "coverage_diff_high"):
+        assert cov[column].notna().all(), column
+    assert cov["null_paired"].all()
+    row = cov.loc[("all", "episodes")]
+    assert row["coverage_diff_low"] <= row["coverage_diff"] <= row["coverage_diff_high"]
+    nov = scores.novelty.set_index(["env", "unit"])
+    # random's C is novel as a whole label and through its segments
+    assert nov.loc[("highway", "episodes"), "novel_rate"] == 0.5
+    assert nov.loc[("highway", "segments"), "novel_rate"] == 0.5
+    assert nov.loc[("all", "episodes"), "novel_diff"] > 0
+    labels = scores.novel_labels
+    assert set(labels["unit"]) == {"episodes", "segments"}
+    assert not labels.duplicated(["env", "policy", "reference", "unit", "label"]).any()
+    assert "same-policy null" in scores.methods
+
+
+def test_windows_replace_whole_episodes_against_a_corpus_of_short_tracks():
+    eps = rollouts([A, B, A, B], "idm")
+    womd = pd.DataFrame({"scenario_id": [f"w{i}" for i in range(8)], "track_id": "1",
+                         "object_type": "vehicle", "sdl": [A, B] * 4})
+    windows = rollouts([A, A, A, B, B, B, A, C], "idm").assign(
+        scenario_id=[f"idm/{i // 2}#{i % 2}" for i in range(8)], seed=[0, 0, 1, 1, 2, 2, 3, 3])
+    scores = score(episode_table(eps), reference_policy="idm",
+                   level="maneuver", config=BootstrapConfig(n_resamples=200),
+                   references={"WOMD": womd},
+                   windows={"WOMD": (episode_table(windows), "9.1 s windows")})
+    real = scores.coverage[scores.coverage["reference"] == "WOMD"].set_index("unit")
+    assert set(real.index) == {"9.1 s windows", "9.1 s windows, segments"}
+    assert real.loc["9.1 s windows", "n"] == 8  # windows, not the 4 episodes
+    nov = scores.novelty[scores.novelty["reference"] == "WOMD"].set_index("unit")
+    assert nov.loc["9.1 s windows", "n_novel"] == 1  # the window showing C
+    assert nov.loc["9.1 s windows", "null_paired"] == False  # noqa: E712 (numpy bool)
+
+
+def test_reference_scores_say_what_they_scored_on():
+    ref = corpus_reference(rollouts([A, B]).assign(level="maneuver"), "maneuver",
+                           tracks="all")
+    cov, nov, _ = reference_scores(rollouts([A, C], "p"), ref, "r",
+                                   config=BootstrapConfig(n_resamples=200), unit="windows")
+    assert set(cov["unit"]) == {"windows"} and set(nov["unit"]) == {"windows"}
