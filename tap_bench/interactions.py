@@ -324,14 +324,24 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
         out[ok] = other[ok]
         return out
 
+    def lagged_all(pairs: np.ndarray, lags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``lagged`` of every lag at once: (pairs, lags) arrays of the pair ``lag`` steps
+        later and whether there is one (where there is not, the pair is arbitrary)."""
+        j = pos_in[pairs][:, None] + lags[None, :]
+        ok = (j >= 0) & (j < len(order))
+        other = order[np.clip(j, 0, len(order) - 1)]
+        ok &= (track[other] == track[pairs][:, None]) \
+            & (q_step[other] - q_step[pairs][:, None] == lags[None, :])
+        ok &= ego_path[q_step[other]] == ego_path[q_step[pairs]][:, None]
+        return other, ok
+
     def reaches(pairs: np.ndarray, direction: int) -> np.ndarray:
         """Within the approach window before (-1) or after (+1): |d| >= corridor + approach."""
-        far = np.zeros(len(pairs), bool)
-        for lag in range(1, config.steps(config.approach_window) + 1):
-            q = lagged(pairs, direction * lag)
-            ok = q >= 0
-            far[ok] |= np.abs(d[q[ok]]) >= config.corridor + config.approach
-        return far
+        lags = direction * np.arange(1, config.steps(config.approach_window) + 1)
+        if not len(pairs) or not len(lags):
+            return np.zeros(len(pairs), bool)
+        other, ok = lagged_all(pairs, lags)
+        return (ok & (np.abs(d[other]) >= config.corridor + config.approach)).any(axis=1)
 
     arc = frame.arc
     # arc length of every ego step, offset per path so one searchsorted serves all paths
@@ -391,13 +401,13 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
         """After it enters, the agent drives along the ego's path for 1 s (heading within
         ``same_direction`` at every step the ego's path goes on; SPEC 7's guard): a car
         crossing an intersection in front of the ego is not a cut-in."""
-        ok = along[pairs].copy()
+        if not len(pairs):
+            return along[pairs].copy()
         last = path_last[ego_path[q_step[pairs]]]
-        for lag in range(1, STEPS_PER_SECOND + 1):
-            q = lagged(pairs, lag)
-            goes_on = q_step[pairs] + lag <= last
-            ok &= ~goes_on | ((q >= 0) & along[np.maximum(q, 0)])
-        return ok
+        lags = np.arange(1, STEPS_PER_SECOND + 1)
+        other, ok = lagged_all(pairs, lags)
+        goes_on = q_step[pairs][:, None] + lags[None, :] <= last[:, None]
+        return along[pairs] & (~goes_on | (ok & along[other])).all(axis=1)
 
     # Cut-in: the new leader was outside the corridor one step before, and far out earlier
     new_lead = leader_pair[has_leader]

@@ -282,8 +282,12 @@ def _segment_frame(tracks: pd.DataFrame, kin: Kinematics, index, which: np.ndarr
     """One row per valid segment selected by ``which`` (bool, (n_segments,))."""
     rows = index.segment_start[which]
     stops = index.segment_stop[which]
-    per_track = tracks.take(index.segment_track[which]).reset_index(drop=True)
-    columns: dict[str, object] = {c: per_track[c] for c in per_track.columns[:2]}
+    # each track's columns at its segments, as arrays (a frame of arrays needs no index
+    # alignment; the columns keep their types)
+    of_track = index.segment_track[which]
+    per_track = {c: tracks[c].array.take(of_track) for c in tracks.columns}
+    names = list(per_track)
+    columns: dict[str, object] = {c: per_track[c] for c in names[:2]}
     columns.update(segment=ordinal[which], t_start=kin.t[rows],
                    t_end=kin.t[stops - 1] + DT if len(rows) else np.zeros(0),
                    n_steps=stops - rows)
@@ -294,7 +298,7 @@ def _segment_frame(tracks: pd.DataFrame, kin: Kinematics, index, which: np.ndarr
         per_segment = np.bincount(flagged, minlength=index.n_segments)
         columns[name] = per_segment[which].astype(np.int64)
     columns["travel"] = kin.travel[which]
-    columns.update({c: per_track[c] for c in per_track.columns[2:]})
+    columns.update({c: per_track[c] for c in names[2:]})
     return pd.DataFrame(columns)
 
 
@@ -405,8 +409,10 @@ def _interaction_segments(info: pd.DataFrame, tracks: str, source: str) -> np.nd
         mask = info["is_ego"].fillna(False).to_numpy(bool)
     else:
         mask = np.ones(len(info), bool)
-    if "object_type" in info.columns:
-        mask = mask & info["object_type"].astype(str).isin(OTHER_TYPES).to_numpy()
+    if "object_type" in info.columns:  # as astype(str).isin: a missing type is no type
+        kinds = info["object_type"].to_numpy(object)
+        mask = mask & np.fromiter((isinstance(k, str) and k in OTHER_TYPES for k in kinds),
+                                  bool, len(kinds))
     return np.flatnonzero(mask)
 
 

@@ -252,11 +252,12 @@ class CheckedTable:
         """One row per track: the given columns at each track's first row."""
         rows = self.index.track_start[:-1]
         out = {}
-        for c in names:
+        for c in names:  # as arrays: a frame of arrays needs no index alignment
             if c in self.columns:
-                out[c] = _take(self.columns[c], rows)
+                out[c] = _take_array(self.columns[c], rows)
             elif c in self.raw:
-                out[c] = _take(self.raw[c], rows if self.order is None else self.order[rows])
+                out[c] = _take_array(self.raw[c],
+                                     rows if self.order is None else self.order[rows])
         return pd.DataFrame(out)
 
 
@@ -270,6 +271,12 @@ def _take(col: np.ndarray | pd.Series, rows: np.ndarray | None):
     if isinstance(col, pd.Series):
         return col.take(rows).reset_index(drop=True)
     return col[rows]
+
+
+def _take_array(col: np.ndarray | pd.Series, rows: np.ndarray):
+    """The values of ``col`` at ``rows`` as an array of its type (:func:`_take` without
+    the Series)."""
+    return col.array.take(rows) if isinstance(col, pd.Series) else col[rows]
 
 
 def _track_order(scenario: pd.Series, track: pd.Series) -> tuple[np.ndarray | None, np.ndarray]:
