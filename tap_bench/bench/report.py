@@ -252,10 +252,12 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
             items.append(f'<div class="verdict"><p><b>{html.escape(policy)}</b>: '
                          f'<span class="{cls}">{word}</span></p><ul>{lines}</ul></div>')
         parts.append("".join(items))
-    parts.append(img("tradeoff", "crash rate against mean speed per env",
-                     "Safety against progress, per env: each policy's crash rate "
-                     f"({pct} Wilson interval) against its mean speed ({pct} t interval); the "
-                     "reference is the square. Down is safer, right is faster."))
+    parts.append(img("tradeoff", "safety rates against progress per env",
+                     "Safety against progress, per env: each policy's safety rate (the "
+                     f"measures of role safety that are rates, the crash rate built in; {pct} "
+                     "Wilson interval) against its progress (role progress, the mean speed "
+                     f"built in; {pct} t interval), a row of panels per pair; the reference "
+                     "is the square. Down is safer, right is more progress."))
     parts.append("<h2>Summary: each policy against the reference</h2>")
     parts.append(html_table(
         summary_table(scores, reference), table_id="summary", max_rows=50,

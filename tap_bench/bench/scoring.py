@@ -61,6 +61,8 @@ class Scores:
             sim-to-real behaviour gap from each reference of real driving given as data
             files (empty otherwise).
         gap_labels: reference, policy and the per-label share differences of each gap.
+        contexts: each policy against the reference inside each interaction context
+            (:func:`tap_bench.bench.contexts.context_scores`; ``bench run`` only).
         references: name -> the :class:`Reference` used.
         methods: table name -> how its intervals were computed.
     """
@@ -79,12 +81,13 @@ class Scores:
     scenario_matches: pd.DataFrame = field(default_factory=pd.DataFrame)
     gap: pd.DataFrame = field(default_factory=pd.DataFrame)
     gap_labels: pd.DataFrame = field(default_factory=pd.DataFrame)
+    contexts: pd.DataFrame = field(default_factory=pd.DataFrame)
     references: dict[str, Reference] = field(default_factory=dict)
     methods: dict[str, str] = field(default_factory=dict)
 
     TABLES = ("label_counts", "measures", "paired", "paired_measures", "paired_labels",
               "matched", "coverage", "novelty", "novel_labels", "diversity", "gate_power",
-              "scenario_matches", "gap", "gap_labels")
+              "scenario_matches", "gap", "gap_labels", "contexts")
 
     def tables(self) -> dict[str, pd.DataFrame]:
         """name -> table, in report order."""
