@@ -1,7 +1,8 @@
 """Closed loop on recorded WOMD scenes (issue 20 section 5): map build time, simulated steps
 per second per core with log and idm traffic, the lane lookup against highway-env's, and,
 on every real scenario, each shipped policy's off-road, collision, route progress and label
-agreement with the human.
+agreement with the human (log and idm traffic, with idm traffic's own collisions), and the
+cost of the RL observation with the route (``KinematicsRoute``).
 
 Each figure is wall time and CPU time (user + sys) of this one process, after one warm-up
 episode (numba kernels compiled and cached). The machine is shared: quote both.
@@ -107,22 +108,42 @@ def main() -> None:
         row["lookup_highway_env_ms"] = round((t1 - t0) / 5 * 1e3, 3)
         row["lookup_compiled_ms"] = round((t2 - t1) / 500 * 1e3, 4)
         figures["scenes"][scene.scenario_id] = row
-        # every shipped policy against the human on this scene
-        human, *_ = episode(env, "log", seed)
-        human_sdl = ego_sdl(human)
-        for policy in POLICIES:
-            try:
-                table, *_ = episode(env, policy, seed)
-            except Exception as err:
-                figures["policies"].setdefault(policy, {})[scene.scenario_id] = str(err)
-                continue
-            info = env.episode_info()
-            figures["policies"].setdefault(policy, {})[scene.scenario_id] = {
-                "crashed": bool(env.unwrapped.vehicle.crashed), "off_road": info["off_road"],
-                "route_progress": None if np.isnan(info["route_progress"])
-                else round(info["route_progress"], 3),
-                "ran_red_light": info["ran_red_light"], "log_ade_m": round(info["log_ade"], 2),
-                "label_equals_human": ego_sdl(table) == human_sdl}
+        # the observation of an RL agent: Kinematics alone, and with the route
+        env.reset(seed=seed)
+        obs_type = env.unwrapped.observation_type
+        t0 = time.perf_counter()
+        for _ in range(200):
+            obs_type.observe()
+        t1 = time.perf_counter()
+        for _ in range(200):
+            obs_type.route_vector()
+        t2 = time.perf_counter()
+        row["observation_ms"] = round((t1 - t0) / 200 * 1e3, 3)
+        row["of_which_route_ms"] = round((t2 - t1) / 200 * 1e3, 3)
+        figures["scenes"][scene.scenario_id] = row
+        # every shipped policy against the human on this scene, log and idm traffic
+        for traffic, e in envs.items():
+            human, *_ = episode(e, "log", seed)
+            human_sdl = ego_sdl(human)
+            for policy in POLICIES:
+                try:
+                    table, *_ = episode(e, policy, seed)
+                except Exception as err:
+                    figures["policies"].setdefault(f"{policy} ({traffic} traffic)", {})[
+                        scene.scenario_id] = str(err)
+                    continue
+                info = e.episode_info()
+                figures["policies"].setdefault(f"{policy} ({traffic} traffic)", {})[
+                    scene.scenario_id] = {
+                    "crashed": bool(e.unwrapped.vehicle.crashed),
+                    "off_road": info["off_road"],
+                    "route_progress": None if np.isnan(info["route_progress"])
+                    else round(info["route_progress"], 3),
+                    "ran_red_light": info["ran_red_light"],
+                    "log_ade_m": round(info["log_ade"], 2),
+                    "label_equals_human": ego_sdl(table) == human_sdl,
+                    "traffic_collisions": info["traffic_collisions"],
+                    "traffic_collisions_with_log": info["traffic_collisions_with_log"]}
     report("womd_closed_loop", figures, files=files)
 
 

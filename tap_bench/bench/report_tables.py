@@ -238,8 +238,9 @@ def summary_table(scores: Scores, reference: str) -> pd.DataFrame:
                 diff = "coverage_diff" if est == "coverage" else "novel_diff"
                 if np.isfinite(c.get(diff, np.nan)):  # beside the same-policy figure
                     null = "null_coverage" if est == "coverage" else "null_novel_rate"
-                    text += (f"\nsame policy {_pct(c[null])}: {100 * c[diff]:+.0f} pts "
-                             f"[{100 * c[diff + '_low']:+.0f}, {100 * c[diff + '_high']:+.0f}]")
+                    pts = [round(100 * c[k]) + 0 for k in (diff, diff + "_low", diff + "_high")]
+                    text += (f"\nsame policy {_pct(c[null])}: {pts[0]:+d} pts "
+                             f"[{pts[1]:+d}, {pts[2]:+d}]")
                 row[f"{what} {ref}"] = (text, {"v": float(c[est])})
         gap = scores.gap
         for ref in sorted(gap["reference"].unique()) if len(gap) else []:

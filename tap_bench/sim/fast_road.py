@@ -22,7 +22,10 @@ every vehicle looks up its lane by computing its distance to every lane of the n
   exactly highway-env's;
 - the IDM/MOBIL vehicles decide their actions all at once (:mod:`tap_bench.sim.fast_idm`),
   their leaders found together (:meth:`FastRoad.leaders`), on roads of at least
-  :data:`AT_ONCE_FROM` vehicles (on smaller ones highway-env's loops cost less);
+  :data:`AT_ONCE_FROM` vehicles; on smaller ones one after the other, with highway-env's
+  formulas in cheaper calls (:func:`fast_idm.act_each <tap_bench.sim.fast_idm.act_each>`);
+- the vehicles move by highway-env's ``Vehicle.step`` lines and, on roads of many
+  (vehicle, lane) pairs, have their lanes looked up together (:meth:`FastRoad.move`);
 - the collision loop skips the pairs in which neither vehicle checks collisions (the first
   thing highway-env's ``handle_collisions`` does for such a pair is return) and the pairs
   farther apart, by more than :data:`TOLERANCE`, than highway-env's spherical pre-check
@@ -44,17 +47,23 @@ lookup on drawn networks of every lane kind (mutations of each formula caught).
 from __future__ import annotations
 
 import bisect
+import functools
+import hashlib
+import inspect
 import math
 from typing import Any
 
 import numpy as np
 from highway_env.road.lane import CircularLane, SineLane, StraightLane
 from highway_env.road.road import Road
+from highway_env.vehicle.behavior import IDMVehicle
+from highway_env.vehicle.controller import ControlledVehicle
+from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import Landmark, RoadObject
 
-from tap_bench.sim.fast_idm import act_all, array_kernels_agree, lane_dots
+from tap_bench.sim.fast_idm import act_all, act_each, array_kernels_agree, lane_dots
 
-__all__ = ["AT_ONCE_FROM", "TOLERANCE", "FastRoad", "use_fast_road"]
+__all__ = ["AT_ONCE_FROM", "MOVE_AT_ONCE_FROM", "TOLERANCE", "FastRoad", "use_fast_road"]
 
 TOLERANCE = 1e-6
 """Margin [m] by which a vehicle's numpy projection may be off and still be re-checked."""
@@ -64,6 +73,10 @@ AT_ONCE_FROM = 8
 """Fewest vehicles on a road for which decisions and collision checks are done all at once
 (numpy); on smaller roads highway-env's loops cost less than numpy's fixed costs (the
 answers are the same either way)."""
+MOVE_AT_ONCE_FROM = 100
+"""Fewest (vehicle, lane) pairs for which the lanes of the moved vehicles are looked up all
+at once (:meth:`FastRoad.move`): the roundabout's 5 vehicles on 32 lanes, a highway of 50
+on 4; below, one vehicle at a time costs less (same answers either way)."""
 
 
 class FastRoad:
@@ -88,6 +101,7 @@ class FastRoad:
         self._exact: dict[Any, tuple[np.ndarray, np.ndarray]] = {}
         self._index_of: dict[int, int] | None = None
         self._flat: list[tuple[Any, ...]] = []
+        self._arrays: dict[str, np.ndarray] = {}
         self._decide_at_once = array_kernels_agree()
 
     def install(self) -> None:
@@ -104,6 +118,7 @@ class FastRoad:
         if flat and all(entry is not None for entry in flat) \
                 and "get_closest_lane_index" not in vars(network):
             self._flat = flat
+            self._arrays = _lane_arrays(flat)
             network.get_closest_lane_index = self.closest_lane_index
 
     def closest_lane_index(self, position: np.ndarray, heading: float | None = None
@@ -113,8 +128,10 @@ class FastRoad:
         (with heading) estimated in Python floats (:func:`_estimate`, off by far less than
         :data:`TOLERANCE`), then highway-env's own distance computed for the lanes within
         :data:`TOLERANCE` of the nearest, the first minimum in the network's order (that of
-        ``np.argmin``). The network's lanes are read at :meth:`install` (highway-env builds
-        a network once per scene and does not change it)."""
+        ``np.argmin``); a lone candidate is the answer as it is (every other lane is farther
+        by more than the estimates' rounding). The network's lanes are read at
+        :meth:`install` (highway-env builds a network once per scene and does not change
+        it)."""
         x, y = float(position[0]), float(position[1])
         h = None if heading is None else float(heading)
         estimates = [_estimate(entry, x, y, h) for entry in self._flat]
@@ -122,24 +139,22 @@ class FastRoad:
         if not all(map(math.isfinite, estimates)):  # a position or heading not finite
             return type(self.road.network).get_closest_lane_index(self.road.network,
                                                                   position, heading)
-        best = best_index = None
-        for (index, lane, *_), estimate in zip(self._flat, estimates, strict=True):
-            if estimate <= bound:  # highway-env's arithmetic on the candidates, in order
-                distance = lane.distance_with_heading(position, heading)
-                if best is None or distance < best:
-                    best, best_index = distance, index
-        return best_index
+        candidates = [entry for entry, estimate in zip(self._flat, estimates, strict=True)
+                      if estimate <= bound]
+        if len(candidates) == 1:  # every other lane is farther by more than the rounding
+            return candidates[0][0]
+        return _first_nearest(candidates, position, heading)
 
     def step(self, dt: float) -> None:
-        """highway-env's ``Road.step``: move every vehicle by ``dt`` [s], then check the
-        pairs in which a vehicle checks collisions, in highway-env's order."""
+        """highway-env's ``Road.step``: move every vehicle by ``dt`` [s] (:meth:`move`),
+        then check the pairs in which a vehicle checks collisions, in highway-env's
+        order."""
         vehicles, objects = self.road.vehicles, self.road.objects
         if not all(map(_standard_collisions, vehicles + objects)):
             # a class with its own collision rule: every pair, as highway-env does
             Road.step(self.road, dt)
             return
-        for vehicle in vehicles:
-            vehicle.step(dt)
+        self.move(dt)
         near = _near_pairs(vehicles, objects, dt) \
             if len(vehicles) + len(objects) >= AT_ONCE_FROM else None
         if near is not None:
@@ -160,6 +175,63 @@ class FastRoad:
             for other in objects:
                 vehicle.handle_collisions(other, dt)
 
+    def move(self, dt: float) -> None:
+        """``vehicle.step(dt)`` of every vehicle, in the road's order, the same states.
+
+        When every vehicle moves by highway-env's own ``Vehicle.step`` (with
+        ``IDMVehicle``'s timer; :func:`_moves_as_highway_env`) on a network whose lane
+        lookup this road does, with at least :data:`MOVE_AT_ONCE_FROM` (vehicle, lane)
+        pairs, each vehicle's kinematics are highway-env's lines, with the
+        same numpy scalar operations, and the lanes of all vehicles are then looked up at
+        once (:meth:`closest_lane_indices`). A vehicle's step reads only its own state and
+        the network, so looking its lane up after the others moved changes nothing."""
+        vehicles = self.road.vehicles
+        if not self._flat or len(vehicles) * len(self._flat) < MOVE_AT_ONCE_FROM \
+                or not all(_moves_as_highway_env(v, self.road) for v in vehicles):
+            for vehicle in vehicles:
+                vehicle.step(dt)
+            return
+        for vehicle in vehicles:
+            _kinematics(vehicle, dt)
+        network, history = self.road.network, self.road.record_history
+        found = self.closest_lane_indices([v.position for v in vehicles],
+                                          [v.heading for v in vehicles])
+        for vehicle, lane_index in zip(vehicles, found, strict=True):  # on_state_update
+            vehicle.lane_index = lane_index
+            vehicle.lane = network.get_lane(lane_index)
+            if history:
+                vehicle.history.appendleft(vehicle.create_from(vehicle))
+
+    def closest_lane_indices(self, positions: list[np.ndarray], headings: list[Any]
+                             ) -> list[tuple[str, str, int]]:
+        """:meth:`closest_lane_index` of each (position, heading), the same answers: every
+        lane's distance to every position estimated at once with numpy
+        (:func:`_estimates`, off by rounding only), then highway-env's own distance on
+        each position's candidates within :data:`TOLERANCE` of its nearest, in the
+        network's order."""
+        if not positions:
+            return []
+        estimates, exact = _estimates(self._arrays, np.array(positions, dtype=float),
+                                      np.array(headings, dtype=float))
+        for k, j in zip(*(a.tolist() for a in np.nonzero(exact)), strict=True):
+            # on a circular lane's phase wrap: that lane's distance exactly
+            estimates[k, j] = self._flat[j][1].distance_with_heading(positions[k], headings[k])
+        finite = np.isfinite(estimates).all(axis=1)
+        candidates = estimates <= estimates.min(axis=1, keepdims=True) + TOLERANCE
+        count, first = candidates.sum(axis=1).tolist(), candidates.argmax(axis=1).tolist()
+        out = []
+        for k, (position, heading) in enumerate(zip(positions, headings, strict=True)):
+            if not finite[k]:  # a position or heading not finite
+                out.append(type(self.road.network).get_closest_lane_index(
+                    self.road.network, position, heading))
+            elif count[k] == 1:  # every other lane is farther by more than the rounding
+                out.append(self._flat[first[k]][0])
+            else:  # highway-env's arithmetic on the candidates, the first minimum
+                out.append(_first_nearest([self._flat[j] for j in
+                                           np.flatnonzero(candidates[k]).tolist()],
+                                          position, heading))
+        return out
+
     def act(self) -> None:
         """highway-env's ``Road.act`` with the projections kept for its duration."""
         self._count = len(self.road.vehicles) + len(self.road.objects)
@@ -167,8 +239,8 @@ class FastRoad:
         try:
             if self._decide_at_once and len(self.road.vehicles) >= AT_ONCE_FROM:
                 act_all(self.road, leaders=self.leaders)
-            else:
-                Road.act(self.road)
+            else:  # one vehicle after the other, as highway-env's Road.act
+                act_each(self.road)
         finally:
             self._others = self._positions = None
             self._lanes.clear()
@@ -349,6 +421,141 @@ def _estimate(entry: tuple[Any, ...], x: float, y: float, heading: float | None)
     if heading is not None:
         distance += abs((heading - lane_heading + math.pi) % (2 * math.pi) - math.pi)
     return distance
+
+
+def _kinematics(vehicle: Any, dt: float) -> None:
+    """highway-env's ``Vehicle.step`` up to ``on_state_update`` (its lines, with
+    ``IDMVehicle.step``'s timer): ``vehicle`` moved by ``dt`` [s], its lane not looked up."""
+    if type(vehicle).step is _HIGHWAY_ENV_MOVE[3]:  # IDMVehicle's: its timer
+        vehicle.timer += dt
+    vehicle.clip_actions()
+    delta_f = vehicle.action["steering"]
+    beta = np.arctan(1 / 2 * np.tan(delta_f))
+    v = vehicle.speed * np.array([np.cos(vehicle.heading + beta),
+                                  np.sin(vehicle.heading + beta)])
+    vehicle.position += v * dt
+    if vehicle.impact is not None:
+        vehicle.position += vehicle.impact
+        vehicle.crashed = True
+        vehicle.impact = None
+    vehicle.heading += vehicle.speed * np.sin(beta) / (vehicle.LENGTH / 2) * dt
+    vehicle.speed += vehicle.action["acceleration"] * dt
+
+
+def _first_nearest(candidates: list[tuple[Any, ...]], position: np.ndarray,
+                   heading: Any) -> tuple[str, str, int]:
+    """The index of the first of ``candidates`` (:func:`_lane_entry`, in the network's
+    order) at the least ``lane.distance_with_heading(position, heading)`` (highway-env's
+    own arithmetic): ``np.argmin``'s choice."""
+    best = best_index = None
+    for index, lane, *_ in candidates:
+        distance = lane.distance_with_heading(position, heading)
+        if best is None or distance < best:
+            best, best_index = distance, index
+    return best_index
+
+
+def _lane_arrays(flat: list[tuple[Any, ...]]) -> dict[str, np.ndarray]:
+    """The parameters of every lane of ``flat`` (:func:`_lane_entry`) as (L,) arrays, for
+    :func:`_estimates` (zeros where a parameter is not the lane kind's)."""
+    n = len(flat)
+    out = {name: np.zeros(n) for name in ("sx", "sy", "d0", "d1", "l0", "l1", "length",
+                                          "heading", "amplitude", "pulsation", "phase",
+                                          "cx", "cy", "radius", "start_phase", "turning")}
+    kind = np.array([entry[2] for entry in flat])
+    for j, entry in enumerate(flat):
+        if entry[2] == _CIRCULAR:
+            values = dict(zip(("cx", "cy", "radius", "start_phase", "turning", "length"),
+                              entry[3:9], strict=True))
+        else:
+            values = dict(zip(("sx", "sy", "d0", "d1", "l0", "l1", "length", "heading",
+                               "amplitude", "pulsation", "phase"), entry[3:], strict=False))
+        for name, value in values.items():
+            out[name][j] = value
+    out["circular"] = kind == _CIRCULAR
+    return out
+
+
+def _estimates(lanes: dict[str, np.ndarray], positions: np.ndarray, headings: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """(N, L) ``lane.distance_with_heading(position, heading)`` of every position (N, 2)
+    [m] and heading (N,) [rad] to every lane of ``lanes`` (:func:`_lane_arrays`), estimated
+    with numpy arrays (as :func:`_estimate`, off by rounding only), and (N, L) bool: the
+    entries on a circular lane's phase wrap, whose estimate must not be used."""
+    x, y = positions[:, 0:1], positions[:, 1:2]
+    dx, dy = x - lanes["sx"], y - lanes["sy"]
+    s = dx * lanes["d0"] + dy * lanes["d1"]
+    r = dx * lanes["l0"] + dy * lanes["l1"]
+    lane_heading = np.broadcast_to(lanes["heading"], s.shape)
+    if lanes["amplitude"].any():  # sine lanes (a straight lane's amplitude is 0)
+        phase = lanes["pulsation"] * s + lanes["phase"]
+        r = r - lanes["amplitude"] * np.sin(phase)
+        lane_heading = lane_heading + np.arctan(lanes["amplitude"] * lanes["pulsation"]
+                                                * np.cos(phase))
+    exact = np.zeros(s.shape, dtype=bool)
+    circular = lanes["circular"]
+    if circular.any():
+        ex, ey = x - lanes["cx"][circular], y - lanes["cy"][circular]
+        turn = np.remainder(np.arctan2(ey, ex) - lanes["start_phase"][circular] + np.pi,
+                            2 * np.pi) - np.pi
+        turning, radius = lanes["turning"][circular], lanes["radius"][circular]
+        s_c = turning * turn * radius
+        s = np.where(circular, 0.0, s)
+        r = np.where(circular, 0.0, r)
+        lane_heading = np.where(circular, 0.0, lane_heading)
+        s[:, circular] = s_c
+        r[:, circular] = turning * (radius - np.hypot(ex, ey))
+        lane_heading[:, circular] = (turning * s_c / radius + lanes["start_phase"][circular]
+                                     + np.pi / 2 * turning)
+        exact[:, circular] = np.abs(turn) >= np.pi - _WRAP_MARGIN
+    distance = (np.abs(r) + np.maximum(s - lanes["length"], 0.0) + np.maximum(-s, 0.0)
+                + np.abs(np.remainder(headings[:, None] - lane_heading + np.pi, 2 * np.pi)
+                         - np.pi))
+    return distance, exact
+
+
+_MOVE_CODE = {  # sha256 of the source of highway-env's methods FastRoad.move stands in for
+    "Vehicle.step": "da2898cee3d632de",
+    "Vehicle.clip_actions": "fe72ee0bf6986dac",
+    "Vehicle.on_state_update": "2335ae4ab21c22c5",
+    "IDMVehicle.step": "0a9d69d92d9e714f",
+}
+
+
+_HIGHWAY_ENV_MOVE = (Vehicle.step, Vehicle.clip_actions, Vehicle.on_state_update,
+                     IDMVehicle.step, Vehicle.create_from.__func__,
+                     IDMVehicle.create_from.__func__, ControlledVehicle.create_from.__func__)
+"""highway-env's own methods, as imported (a process may replace them on the classes)."""
+
+
+@functools.cache
+def _highway_env_moves_as_written() -> bool:
+    """Whether the installed highway-env's ``Vehicle.step`` (and what it calls) is the code
+    :meth:`FastRoad.move` repeats (that of highway-env 1.12); checked once per process."""
+    try:
+        sources = {f.__qualname__: inspect.getsource(f) for f in _HIGHWAY_ENV_MOVE[:4]}
+    except (OSError, TypeError):
+        return False
+    return all(hashlib.sha256(sources.get(name, "").encode()).hexdigest()[:16] == digest
+               for name, digest in _MOVE_CODE.items())
+
+
+@functools.cache
+def _moving_class(cls: type) -> bool:
+    """Whether objects of ``cls`` move by highway-env's own ``Vehicle.step`` (or
+    ``IDMVehicle``'s, which adds its timer) and lane lookup."""
+    step, clip_actions, on_state_update, idm_step, *create_from = _HIGHWAY_ENV_MOVE
+    return (issubclass(cls, Vehicle) and cls.step in (step, idm_step)
+            and cls.clip_actions is clip_actions and cls.on_state_update is on_state_update
+            and cls.create_from.__func__ in create_from
+            and _highway_env_moves_as_written())
+
+
+def _moves_as_highway_env(vehicle: Any, road: Road) -> bool:
+    """Whether :meth:`FastRoad.move` may move ``vehicle`` (on ``road``) itself."""
+    return (_moving_class(type(vehicle)) and vehicle.road is road
+            and not {"step", "clip_actions", "on_state_update", "create_from"}
+            & vars(vehicle).keys())
 
 
 def _standard_collisions(obj: Any) -> bool:

@@ -33,8 +33,8 @@ from tap_bench.errors import ParameterError, RegistrationError
 from tap_bench.registry import Registry
 from tap_bench.sim.registration import WOMD_ENV_ID
 
-__all__ = ["SCENARIO_KINDS", "SPACES", "ScenarioKind", "check_scenario_kind", "default_config",
-           "env_class", "scenario_kinds", "space_parameters"]
+__all__ = ["OWN_KINDS", "SCENARIO_KINDS", "SPACES", "ScenarioKind", "check_scenario_kind",
+           "default_config", "env_class", "scenario_kinds", "space_parameters"]
 
 SPACES = ("observation", "action")
 """The config keys whose value is a highway-env type with parameters."""
@@ -43,7 +43,8 @@ _FILE = "highway-env-schema.json"
 
 @functools.cache
 def _fingerprint() -> str:
-    """Version and source files of the installed highway-env (not imported)."""
+    """Version and source files of the installed highway-env (not imported), and the
+    source of tap-bench's own scenario kinds (:data:`OWN_KINDS`)."""
     digest = hashlib.sha256()
     try:
         digest.update(metadata.version("highway-env").encode())
@@ -55,6 +56,10 @@ def _fingerprint() -> str:
         for path in sorted(root.rglob("*.py")):
             st = path.stat()
             digest.update(f"{path.relative_to(root)}:{st.st_size}:{st.st_mtime_ns};".encode())
+    for entry, _ in OWN_KINDS.values():  # tap-bench's own kinds' code too
+        path = Path(__file__).with_name(entry.partition(":")[0].rpartition(".")[2] + ".py")
+        with contextlib.suppress(OSError):
+            digest.update(f"{path.name}:{path.read_bytes()!r};".encode())
     return digest.hexdigest()
 
 
@@ -102,6 +107,12 @@ def default_config(highway_env_id: str) -> dict[str, Any]:
     Raises:
         UnknownNameError: not a highway-env id (with the closest ids).
     """
+    known = SCENARIO_KINDS[highway_env_id] if highway_env_id in SCENARIO_KINDS else None
+    if highway_env_id not in OWN_KINDS and known is not None \
+            and not known.entry_point.startswith("highway_env"):
+        # plugins' kinds: their code is not in the fingerprint
+        config = env_class(highway_env_id).default_config()
+        return json.loads(json.dumps(config, default=repr))
     schema = _schema()
     config = schema["envs"].get(highway_env_id)
     if config is None:
@@ -208,11 +219,17 @@ SCENARIO_KINDS: Registry[ScenarioKind] = Registry("scenario kind (highway_env_id
 Plugins add their own with ``SCENARIO_KINDS.register(ScenarioKind(...))``."""
 _FILLED = False
 
+OWN_KINDS = {"exit-seeded-v0": ("tap_bench.sim.exit_env:SeededExitEnv",
+                                "tap-bench: highway-env's exit scene drawn from its seed, "
+                                "the IDM ego routed to the exit")}
+"""tap-bench's own scenario kinds: name -> (entry point, description)."""
+
 
 def scenario_kinds() -> Registry[ScenarioKind]:
     """:data:`SCENARIO_KINDS`, first filled with every Gymnasium id whose entry point is in
-    highway-env (importing highway-env: about a second, once per process) and with
-    ``tap_bench/womd-v0`` when it is registered."""
+    highway-env (importing highway-env: about a second, once per process), with
+    ``tap_bench/womd-v0`` when it is registered and with tap-bench's seeded exit scene
+    (:mod:`tap_bench.sim.exit_env`)."""
     global _FILLED
     if not _FILLED:
         import gymnasium
@@ -230,6 +247,9 @@ def scenario_kinds() -> Registry[ScenarioKind]:
                         "recorded WOMD scenes in closed loop take driving-data files, not a "
                         "highway-env config: run them with `tap-bench rollout --womd FILES` or "
                         "a suite's womd scenes, and name a highway-env id here")))
+        for key, (entry, description) in OWN_KINDS.items():
+            if key not in SCENARIO_KINDS:
+                SCENARIO_KINDS.register(ScenarioKind(key, entry, description))
         _FILLED = True
     return SCENARIO_KINDS
 

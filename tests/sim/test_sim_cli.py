@@ -10,8 +10,9 @@ from tap_bench.cli import main
 def test_envs_lists_every_scenario_with_its_settings(capsys):
     assert main(["envs"]) == 0
     out = capsys.readouterr().out
-    for name in ("highway", "merge", "roundabout", "intersection", "exit"):
+    for name in ("highway", "merge", "roundabout", "intersection"):
         assert f"tap_bench/{name}-v0" in out
+    assert "tap_bench/exit-v1" in out and "exit-seeded-v0" in out
     assert "realistic" in out and "10 Hz" in out
 
 

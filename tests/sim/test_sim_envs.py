@@ -20,7 +20,7 @@ IDS = registered_ids()
 
 def test_import_registers_every_scenario_of_the_suite():
     assert {"tap_bench/highway-v0", "tap_bench/merge-v0", "tap_bench/roundabout-v0",
-            "tap_bench/intersection-v0", "tap_bench/exit-v0"} <= set(IDS)
+            "tap_bench/intersection-v0", "tap_bench/exit-v1"} <= set(IDS)
 
 
 @pytest.mark.parametrize("env_id", IDS)
@@ -124,7 +124,7 @@ def test_reset_without_seed_continues_and_is_named_by_episode():
 
 
 def test_truncation_counts_decisions():
-    env = gym.make("tap_bench/exit-v0", duration=3, config={"observation": CHEAP})
+    env = gym.make("tap_bench/exit-v1", duration=3, config={"observation": CHEAP})
     env.reset(seed=0)
     ends = [env.step(1)[3] for _ in range(3)]
     assert ends == [False, False, True]

@@ -52,11 +52,13 @@ def _episodes(name: str, *, fast_road: bool, fast: bool = False, seeds=(0, 1),
 
 @pytest.fixture(params=["at once", "default"])
 def _small_roads_at_once(request, monkeypatch):
-    """Every road decides at once (AT_ONCE_FROM = 0), or only those big enough."""
+    """Every road decides and moves at once (AT_ONCE_FROM = MOVE_AT_ONCE_FROM = 0), or only
+    those big enough."""
     from tap_bench.sim import fast_road
 
     if request.param == "at once":
         monkeypatch.setattr(fast_road, "AT_ONCE_FROM", 0)
+        monkeypatch.setattr(fast_road, "MOVE_AT_ONCE_FROM", 0)
 
 
 @pytest.mark.usefixtures("_small_roads_at_once")
@@ -101,11 +103,31 @@ class _BubbleIDM(IDMVehicle):
         return False, False, np.zeros(2)
 
 
+class _DragIDM(IDMVehicle):
+    """A user's vehicle with its own motion: air drag after highway-env's step."""
+
+    def step(self, dt):
+        super().step(dt)
+        self.speed -= 0.01 * self.speed ** 2 * dt
+
+
+class _SnapIDM(IDMVehicle):
+    """A user's vehicle that looks its lane up its own way: every other step (a slow
+    sensor)."""
+
+    def on_state_update(self):
+        self.updates = getattr(self, "updates", 0) + 1
+        if self.road and self.updates % 2:
+            super().on_state_update()
+
+
+@pytest.mark.usefixtures("_small_roads_at_once")
 @pytest.mark.parametrize("fast", [False, True])
-@pytest.mark.parametrize("others", [_SlipIDM, _TurnedIDM, _BubbleIDM])
+@pytest.mark.parametrize("others", [_SlipIDM, _TurnedIDM, _BubbleIDM, _DragIDM, _SnapIDM])
 def test_user_vehicle_classes_simulate_as_with_highway_envs_road(others, fast):
     """A class that changes what the fast paths compute themselves (its own velocity or
-    direction, its own collision rule) is left to highway-env: the same states and crashes."""
+    direction, its own collision rule, its own motion or lane lookup) is left to
+    highway-env: the same states and crashes."""
     ours = _episodes("highway", fast_road=True, fast=fast, others=others,
                      vehicles_count=30)
     theirs = _episodes("highway", fast_road=False, fast=fast, others=others,
@@ -156,11 +178,14 @@ def test_the_vehicles_decide_at_once():
 
 
 @pytest.mark.parametrize("mutation", ["steering", "acceleration", "lane coordinate",
-                                      "not zero", "velocity", "leader"])
+                                      "not zero", "velocity", "leader", "motion", "timer",
+                                      "lane at once"])
 def test_a_changed_formula_is_caught(monkeypatch, mutation):
-    """The comparison sees a change of one ulp in any action, or a changed term of the
-    vectorised formulas: the bit-for-bit tests can fail."""
-    from tap_bench.sim import fast_idm
+    """The comparison sees a change of one ulp in any action or motion, or a changed term
+    of the vectorised formulas: the bit-for-bit tests can fail."""
+    from tap_bench.sim import fast_idm, fast_road
+
+    monkeypatch.setattr(fast_road, "MOVE_AT_ONCE_FROM", 0)  # every road moves at once
 
     if mutation in ("steering", "acceleration"):
         act = fast_idm._act_straight
@@ -182,6 +207,33 @@ def test_a_changed_formula_is_caught(monkeypatch, mutation):
     elif mutation == "velocity":
         velocity = fast_idm._velocity
         monkeypatch.setattr(fast_idm, "_velocity", lambda objects: velocity(objects) * 1.01)
+    elif mutation == "motion":  # one ulp in the kinematics of the vehicles moved at once
+        kinematics = fast_road._kinematics
+
+        def one_ulp(vehicle, dt):
+            kinematics(vehicle, dt)
+            vehicle.heading = np.nextafter(vehicle.heading, np.inf)
+
+        monkeypatch.setattr(fast_road, "_kinematics", one_ulp)
+    elif mutation == "timer":  # IDMVehicle.step's timer forgotten
+        kinematics = fast_road._kinematics
+
+        def no_timer(vehicle, dt):
+            kinematics(vehicle, dt)
+            if hasattr(vehicle, "timer"):
+                vehicle.timer -= dt
+
+        monkeypatch.setattr(fast_road, "_kinematics", no_timer)
+    elif mutation == "lane at once":  # the lane lookup at once: the last candidate kept
+        estimates = fast_road._estimates
+
+        def blurred(lanes, positions, headings):
+            distance, exact = estimates(lanes, positions, headings)
+            return np.round(distance), exact  # ties within a metre: candidates
+
+        monkeypatch.setattr(fast_road, "_estimates", blurred)
+        monkeypatch.setattr(fast_road, "_first_nearest",
+                            lambda candidates, position, heading: candidates[-1][0])
     else:  # the leaders found at once: one vehicle's leader missed
         leaders = FastRoad.leaders
 
@@ -194,6 +246,54 @@ def test_a_changed_formula_is_caught(monkeypatch, mutation):
     theirs = _episodes("highway", fast_road=False, idm_ego=IDMParameters(), seeds=(0,))
     with pytest.raises(AssertionError):
         pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
+
+
+@pytest.mark.parametrize("mutation", ["steering", "acceleration", "desired gap", "lane"])
+@pytest.mark.parametrize("name", ["merge", "roundabout"])
+def test_a_changed_formula_of_one_vehicle_at_a_time_is_caught(monkeypatch, mutation, name):
+    """Small roads (and curved lanes) decide one vehicle at a time with fast_idm's scalar
+    formulas: one ulp in a steering command, an IDM acceleration, a desired gap or a lane
+    coordinate is seen by the comparison."""
+    from tap_bench.sim import fast_idm
+
+    target = {"steering": "_steering", "acceleration": "_idm", "desired gap": "_desired_gap",
+              "lane": "_local"}[mutation]
+    formula = getattr(fast_idm, target)
+
+    def one_ulp_off(*args):
+        value = formula(*args)
+        if mutation == "lane":
+            return np.nextafter(value[0], np.inf), value[1]
+        return np.nextafter(value, np.inf)
+
+    monkeypatch.setattr(fast_idm, target, one_ulp_off)
+    ours = _episodes(name, fast_road=True, seeds=(0,))
+    theirs = _episodes(name, fast_road=False, seeds=(0,))
+    with pytest.raises(AssertionError):
+        pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
+
+
+def test_one_number_is_clipped_as_numpy_clips_it():
+    """fast_idm._clip against np.clip on numbers, bounds and their ties: signed zeros,
+    infinities, NaN (in the number or a bound), bounds the wrong way round."""
+    from tap_bench.sim.fast_idm import _clip
+
+    rng = np.random.default_rng(0)
+    special = [0.0, -0.0, 1.0, -1.0, np.inf, -np.inf, np.nan, np.pi / 4, -np.pi / 4,
+               np.pi / 3, 6.0, -6.0, 20.0, 5e-324, -5e-324]
+    numbers = special + list(rng.uniform(-30, 30, 40))
+    bounds = [(-1, 1), (0, 20), (0, 20.0), (-np.pi / 4, np.pi / 4), (-np.pi / 3, np.pi / 3),
+              (-6.0, 6.0), (0.0, 0.0), (-0.0, 0.0), (0, -0.0), (-0.0, -0.0), (2.0, 1.0),
+              (np.nan, 1.0), (0.0, np.nan), (-np.inf, np.inf)]
+    checked = 0
+    for x in numbers:
+        for low, high in bounds:
+            want = np.clip(np.float64(x), low, high)
+            for got in (_clip(np.float64(x), low, high), _clip(float(x), low, high)):
+                assert np.array_equal(want, got, equal_nan=True), (x, low, high)
+                assert np.signbit(want) == np.signbit(got), (x, low, high)
+                checked += 1
+    assert checked > 1500
 
 
 def test_machines_whose_array_kernels_differ_simulate_with_highway_envs_act(monkeypatch):
@@ -604,3 +704,35 @@ def test_leaders_found_at_once_are_highway_envs_ties_edges_and_objects(angle):
     assert any(v is obstacle for v in checked) and not any(v is landmark for v in checked)
     outside = index.leaders(vehicles, [None] * len(vehicles))  # outside act: one by one
     assert outside == [Road.neighbour_vehicles(road, v)[0] for v in vehicles]
+
+
+def test_vehicles_move_through_highway_env_when_its_code_is_not_the_one_repeated(monkeypatch):
+    """FastRoad.move repeats highway-env 1.12's Vehicle.step: another version's code (here:
+    a digest that does not match) moves every vehicle by its own step."""
+    from tap_bench.sim import fast_road
+
+    monkeypatch.setattr(fast_road, "MOVE_AT_ONCE_FROM", 0)
+    road, vehicles = _straight_road([(100, 0), (130, 4), (160, 0)])
+    fast = FastRoad(road)
+    fast.install()
+    stepped = []
+    monkeypatch.setattr(IDMVehicle, "step", lambda self, dt: stepped.append(self))
+    fast_road._moving_class.cache_clear()
+    fast.move(0.1)
+    assert stepped == vehicles  # a class whose step is not highway-env's moves itself
+    monkeypatch.undo()
+    monkeypatch.setattr(fast_road, "MOVE_AT_ONCE_FROM", 0)
+    fast_road._highway_env_moves_as_written.cache_clear()
+    fast_road._moving_class.cache_clear()
+    assert fast_road._highway_env_moves_as_written()
+    monkeypatch.setitem(fast_road._MOVE_CODE, "Vehicle.step", "0" * 16)
+    fast_road._highway_env_moves_as_written.cache_clear()
+    fast_road._moving_class.cache_clear()
+    kinematics = []
+    monkeypatch.setattr(fast_road, "_kinematics", lambda v, dt: kinematics.append(v))
+    before = [v.position.copy() for v in vehicles]
+    fast.move(0.1)
+    assert not kinematics and all((v.position != p).any()
+                                  for v, p in zip(vehicles, before, strict=True))
+    fast_road._highway_env_moves_as_written.cache_clear()
+    fast_road._moving_class.cache_clear()

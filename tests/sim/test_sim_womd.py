@@ -556,8 +556,13 @@ def test_a_run_viewer_carries_the_signals_of_its_scenes(real, tmp_path, monkeypa
     suite = suite_from_dict(womd_suite([real[0]], policies=["log"]))  # 637f: red lights
     result = run_suite(suite, tmp_path / "run", workers=1, progress=False)
     captured = {}
-    monkeypatch.setattr(build, "write_viewer",
-                        lambda output, index, chunks: captured.update(chunks) or output)
+    add_signals = build._add_run_signals
+
+    def spy(summary, chunks):  # the episode documents, once their signals are added
+        add_signals(summary, chunks)
+        captured.update(chunks)
+
+    monkeypatch.setattr(build, "_add_run_signals", spy)
     build.write_run_viewer(tmp_path / "v", result.summary, result.episodes,
                            pd.read_parquet(tmp_path / "run" / "trajectories.parquet"),
                            roads=pd.read_parquet(tmp_path / "run" / "roads.parquet"))
