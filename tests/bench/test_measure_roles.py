@@ -150,3 +150,20 @@ def test_no_consumer_names_a_built_in_measure():
             if pattern.search(line):
                 found.append(f"{path.relative_to(ROOT)}:{k}: {line.strip()}")
     assert not found, "\n".join(found)
+
+
+def test_the_against_the_human_summary_reads_safety_rates_by_role():
+    from tap_bench.bench.agreement import SCENE_SUMMARY_MEASURES, scene_summary_measures
+
+    assert scene_summary_measures() == SCENE_SUMMARY_MEASURES == (
+        "crashed", "off_road", "route_progress", "ran_red_light", "log_ade", "log_fde")
+
+    def f(steps):
+        return np.zeros(steps.n_episodes)
+
+    register_measure("hit_kerb", unit="share", higher_is_better=False, margin=0.1,
+                     description="touched a kerb", kind="rate", role="safety")(f)
+    try:
+        assert scene_summary_measures()[:2] == ("crashed", "hit_kerb")
+    finally:
+        MEASURES.unregister("hit_kerb")

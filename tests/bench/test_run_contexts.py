@@ -20,7 +20,7 @@ def test_a_run_scores_contexts_as_the_contexts_command_does(tmp_path):
                              "bootstrap": {"n_resamples": 100}}, check_names=False)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        result = run_suite(suite, tmp_path / "run", workers=1, progress=False, report=False,
+        result = run_suite(suite, tmp_path / "run", workers=1, progress=False, report=True,
                            cache=None)
     run = result.scores.contexts
     assert len(run) and set(run["policy_a"]) == {"idm-aggressive"}
@@ -29,6 +29,8 @@ def test_a_run_scores_contexts_as_the_contexts_command_does(tmp_path):
     folder = result.folder
     assert pd.read_parquet(folder / "contexts.parquet").shape == run.shape
     assert "contexts" in result.summary["methods"]
+    page = (folder / "report.html").read_text()
+    assert 'id="context-comparison"' in page and "idm-aggressive vs idm" in page
     # the command's path on the run's own trajectories and roads gives the same table
     trajectories = pd.read_parquet(folder / "trajectories.parquet")
     roads = pd.read_parquet(folder / "roads.parquet")
