@@ -26,6 +26,7 @@ from tap_bench.bench.run_plan import RunPlan, SuitePlan, _plan, _Task, _tasks
 from tap_bench.errors import RegistrationError
 from tap_bench.execution import Backend
 from tap_bench.labelling import tap
+from tap_bench.pathframe import LaneMap
 from tap_bench.sim.rollout import EPISODE_COLUMNS, rollout_episode
 from tap_bench.sim.womd_scene import WomdScenes
 
@@ -197,15 +198,18 @@ def _label_together(tasks: tuple[_Task, ...],
         trajectories = pd.concat([got[k][0] for k in with_rows], ignore_index=True) \
             if len(with_rows) > 1 else got[with_rows[0]][0]
         road = _road(first, trajectories)
+        # one lane map for the batch: the interaction axis and the measures share its lane
+        # matches and chains (each path end is searched once, not once a call)
+        lanes = None if road is None else LaneMap.of_maps(road)
         source = f"{first.env}/{first.policy} rollout"
         result = tap(trajectories, first.thresholds, interactions="ego", source=source,
-                     map_table=road)
+                     map_table=lanes)
         labels, segments = result.labels("all"), result.segments(first.level)
         t2 = time.perf_counter()
-        steps = ego_steps(trajectories, road)  # the measures' and the contexts'
+        steps = ego_steps(trajectories, lanes)  # the measures' and the contexts'
         eps = episode_table(labels=labels if len(labels) else None, trajectories=trajectories,
                             episodes=_rows([got[k][1] for k in with_rows]),
-                            level=first.level, policy=first.policy, map_table=road,
+                            level=first.level, policy=first.policy, map_table=lanes,
                             steps=steps)
         contexts = occurrences_from(result.segments("trend"), steps, trajectories,
                                     first.thresholds, source=source)
