@@ -1,8 +1,8 @@
 """``tap()`` on one episode (issue 24 section 1: <= 5 ms per single episode, with the ego's
 interactions too): CPU per call, for one or more tap-bench checkouts.
 
-The episode is the demo's first (highway, IDM/MOBIL, seed 0, 40 s: 11 vehicles, about 1,660
-rows, time-major as the simulator writes them), rolled out once with ``tap-bench rollout``.
+The episode is the demo's first (highway, IDM/MOBIL, seed 0, 15 s: 11 vehicles, 1,661 rows,
+time-major as the simulator writes them), rolled out once with ``tap-bench rollout``.
 Each checkout runs in a fresh interpreter with it first on ``PYTHONPATH``: after 20 warm-up
 calls, ``--calls`` calls of ``tap(table)`` and of ``tap(table, interactions="ego")``, each
 timed as CPU (user + sys, ``time.process_time``) and wall; the figure is the median over
@@ -69,7 +69,8 @@ def main() -> None:
         table = Path(tmp) / "trajectories.parquet"
         env = {**os.environ, "PYTHONPATH": str(trees[-1]), "OMP_WAIT_POLICY": "PASSIVE"}
         subprocess.run([sys.executable, "-m", "tap_bench", "rollout", "--env", "highway",
-                        "--policy", "idm", "--seeds", "0", "-o", str(table), "--no-progress"],
+                        "--policy", "idm", "--seeds", "0", "--duration", "15", "-o", str(table),
+                        "--no-progress"],
                        env=env, check=True, stdout=subprocess.DEVNULL)
         import pandas as pd
 

@@ -65,6 +65,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import hashlib
 import io
 import json
@@ -164,7 +165,10 @@ def _sha256_file(path: Path) -> str:
     return digest.hexdigest()
 
 
+@functools.cache
 def _version(package: str) -> str:
+    """An installed package's version (read once a process: each read parses its
+    metadata file)."""
     try:
         return metadata.version(package)
     except metadata.PackageNotFoundError:
