@@ -534,7 +534,21 @@ class WomdRoad(Road):
         walkers = self._walkers
         if walkers is None or not len(walkers[0]):
             return None
+        key = (self.clock[0], vehicle.lane_index)  # MOBIL asks again within a step
+        cached = vehicle.__dict__.get("_walker_distance")
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        best = self._walker_distance(vehicle, walkers)
+        vehicle.__dict__["_walker_distance"] = (key, best)
+        return best
+
+    def _walker_distance(self, vehicle: Vehicle, walkers: tuple[np.ndarray, ...]
+                         ) -> float | None:
         positions, predicted, heading, speed = walkers
+        reach = WALKER_LOOKAHEAD + vehicle.LENGTH + WALKER_HORIZON * float(speed.max())
+        delta = positions - vehicle.position
+        if not (delta[:, 0] ** 2 + delta[:, 1] ** 2 <= reach * reach).any():
+            return None  # nobody within reach of its way (the usual case): no lane walk
         half = vehicle.WIDTH / 2 + WALKER_CLEARANCE
         best = None
         for index, base in self._lanes_ahead(vehicle, WALKER_LOOKAHEAD):
