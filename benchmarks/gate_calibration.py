@@ -59,7 +59,8 @@ from machine import report
 from tap_bench.bench.episodes import episode_table
 from tap_bench.bench.gate import check, direction, weighted_holm
 from tap_bench.bench.intervals import wilson_interval
-from tap_bench.bench.suite import SAFETY_WEIGHTS, GateConfig, gate_metrics
+from tap_bench.bench.measures import MEASURES
+from tap_bench.bench.suite import GateConfig, gate_metrics
 
 OUT = Path(__file__).resolve().parent / "out"
 CACHE = OUT / "gate_calibration_episodes.parquet"
@@ -143,7 +144,8 @@ PROCEDURES = {
                                    "min_headway_s": 0.8 / 3}, True, "holm"),
     "crash-first 0.6, Tarone": ({"crashed": 0.6, "min_ttc_s": 0.1, "min_headway_s": 0.1},
                                 True, "holm"),
-    "crash-first 0.65 (default), Tarone": (dict(SAFETY_WEIGHTS), True, "holm"),
+    "crash-first 0.65 (default), Tarone": ({m.name: m.gate_weight for m in MEASURES
+                                            if m.gate_weight is not None}, True, "holm"),
     "BH (FDR), all tests": (None, False, "bh"),
 }
 

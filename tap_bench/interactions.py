@@ -72,8 +72,12 @@ from tap_bench.errors import TapBenchError
 from tap_bench.kinematics import STEPS_PER_SECOND, Kinematics
 from tap_bench.pathframe import (
     CORRIDOR_HALF_WIDTH,
+    LEADER_RANGE_M,
+    LEADER_RANGE_S,
     SAME_DIRECTION,
     Paths,
+    leader_reach,
+    nearest_leader,
     path_frame,
     scene_lanes,
 )
@@ -138,8 +142,8 @@ class InteractionConfig:
     """
 
     corridor: float = CORRIDOR_HALF_WIDTH
-    range_m: float = 60.0
-    range_s: float = 4.0
+    range_m: float = LEADER_RANGE_M
+    range_s: float = LEADER_RANGE_S
     same_direction: float = SAME_DIRECTION
     band: float = 6.0
     approach: float = 1.0
@@ -285,7 +289,7 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
         raise TapBenchError(f"interaction_steps: {len(lateral)} lateral codes for {n} rows.")
     ego_lateral = lateral[ego_row]
     v_e = speed[ego_row]
-    reach = np.maximum(config.range_m, config.range_s * v_e)
+    reach = leader_reach(v_e, config.range_m, config.range_s)
     # what the relations need: the corridor and its edges far ahead (leaders, cut-ins and
     # cut-outs), the next lanes near the ego (overtaking)
     frame = path_frame(paths, others, ahead=reach, behind=1.0,
@@ -295,17 +299,11 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
     s, d, hrel = frame.s, frame.d, frame.heading_rel
     track = idx.track[q_other]
     along = np.abs(hrel) <= config.same_direction
-    inside = np.abs(d) <= config.corridor
-    ahead_in = (s > 0) & (s <= reach[q_step])
 
     # the leader: the nearest agent driving along the path in the corridor, within range
-    cand = np.flatnonzero(inside & ahead_in & along)
-    leader_pair = np.full(m, -1, np.int64)
-    if len(cand):
-        nearest = np.full(m, np.inf)
-        np.minimum.at(nearest, q_step[cand], s[cand])
-        first = cand[s[cand] == nearest[q_step[cand]]]
-        leader_pair[q_step[first]] = first
+    # (the same rule as the safety measures')
+    leader_pair = nearest_leader(frame, reach, corridor=config.corridor,
+                                 same_direction=config.same_direction)
     has_leader = leader_pair >= 0
     leader_row = np.full(m, -1, np.int64)  # indexed only where there is one: an ego
     leader_row[has_leader] = q_other[leader_pair[has_leader]]  # alone has no pairs at all

@@ -54,6 +54,8 @@ __all__ = [
     "EXTENSION",
     "LANE_MATCH_DISTANCE",
     "LANE_MATCH_HEADING",
+    "LEADER_RANGE_M",
+    "LEADER_RANGE_S",
     "LaneMap",
     "MAX_EXTENSION_TURN",
     "MIN_CURVATURE_TRAVEL",
@@ -61,6 +63,8 @@ __all__ = [
     "PathFrame",
     "Paths",
     "SAME_DIRECTION",
+    "leader_reach",
+    "nearest_leader",
     "path_frame",
     "scene_keys",
     "scene_lanes",
@@ -73,6 +77,13 @@ the next lane 3 m or more away (docs/interactions.md)."""
 SAME_DIRECTION = np.pi / 3
 """[rad] an agent whose heading is within this of the path's direction drives along it
 (a leader can be followed); crossing and oncoming agents are not leaders."""
+LEADER_RANGE_M = 60.0
+"""[m] a leader counts up to this far ahead along the path (SPEC 7: "60 m or 4 s") ..."""
+LEADER_RANGE_S = 4.0
+"""[s] ... or up to this many seconds at the ego's speed, whichever is farther
+(:func:`leader_reach`). On data (docs/interactions.md): 87 % of WOMD's and 99.8 % of
+highway-env's leaders lie within 4 s; beyond it drivers are in the free-flow regime of the
+car-following literature (time headways above 3-4 s)."""
 PATH_SPACING = 2.0
 """[m] vertices of the reference line are kept about this far apart. The line then departs
 from the recorded path by at most the sagitta c^2 / (8 R): 0.05 m on a 10 m radius turn."""
@@ -803,6 +814,65 @@ def path_frame(paths: Paths, others: np.ndarray | None = None, *,
                      heading_rel=heading_rel,
                      v_along=paths.speed[other] * np.cos(heading_rel), ego_row=ego_row,
                      ego_path=ego_path, arc=arc)
+
+
+def leader_reach(speed: np.ndarray | float, range_m: float = LEADER_RANGE_M,
+                 range_s: float = LEADER_RANGE_S) -> np.ndarray:
+    """[m] How far ahead along its path an ego at ``speed`` has a leader: ``range_m``, or
+    ``range_s`` seconds at its speed where that is farther (SPEC 7: "60 m or 4 s").
+
+    The one rule of the safety measures (:mod:`tap_bench.bench.measures`: headway, TTC) and
+    the interaction axis (:mod:`tap_bench.interactions`: Following, Free Driving): the
+    leader a measure is taken to is the agent the ego is Following.
+
+    Args:
+        speed: [m/s] the ego's speed, a number or (m,) one per ego step (a negative or NaN
+            speed counts as 0).
+        range_m: [m] the reach at low speed.
+        range_s: [s] the reach in time at speed.
+
+    Returns:
+        (m,) float reach [m] (a 0-d array for a number).
+    """
+    v = np.nan_to_num(np.asarray(speed, float), nan=0.0)
+    return np.maximum(range_m, range_s * np.maximum(v, 0.0))
+
+
+def nearest_leader(frame: PathFrame, reach: np.ndarray, *,
+                   corridor: float = CORRIDOR_HALF_WIDTH,
+                   same_direction: float = SAME_DIRECTION) -> np.ndarray:
+    """The leader of every ego step: the nearest agent ahead on the path (``0 < s <=
+    reach``), inside the corridor (``|d| <= corridor``) and driving along it (``|heading_rel|
+    <= same_direction``).
+
+    Args:
+        frame: the agents around the ego steps (:func:`path_frame`, with ``ahead`` at least
+            ``reach`` and ``lateral`` at least ``corridor``).
+        reach: (m,) [m] per ego step, how far ahead a leader counts (:func:`leader_reach`).
+        corridor: [m] half width of the corridor.
+        same_direction: [rad] largest heading difference to the path of a leader.
+
+    Returns:
+        (m,) int64 index into the frame's entries of each ego step's leader, -1 where there
+        is none; of two agents equally near, the one of the lower row.
+    """
+    m = len(frame.ego_row)
+    leader = np.full(m, -1, np.int64)
+    reach = np.broadcast_to(np.asarray(reach, float), (m,))
+    cand = np.flatnonzero((frame.s > 0) & (frame.s <= reach[frame.step])
+                          & (np.abs(frame.d) <= corridor)
+                          & (np.abs(frame.heading_rel) <= same_direction))
+    if not len(cand):
+        return leader
+    step = frame.step[cand]
+    nearest = np.full(m, np.inf)
+    np.minimum.at(nearest, step, frame.s[cand])
+    tie = cand[frame.s[cand] == nearest[step]]  # entries of a step are ordered by row
+    first = np.full(m, len(frame.step), np.int64)
+    np.minimum.at(first, frame.step[tie], tie)
+    has = first < len(frame.step)
+    leader[has] = first[has]
+    return leader
 
 
 def scene_lanes(table, scene_codes: np.ndarray, scenes, map_table) -> LaneMap:

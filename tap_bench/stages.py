@@ -268,13 +268,23 @@ def _merge_ok(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
 
 
 def _wiggle_ok(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
-               config: StageConfig) -> np.ndarray:
+               config: StageConfig, *, at_end: bool = False) -> np.ndarray:
     """(k,) bool: the steps [a, b) of one segment, turns that start towards ``side`` and
     alternate, are a wiggle: the heading comes back (net change <= merge_heading, never
     farther than merge_excursion from the start) while the vehicle never gets as far
     sideways as a merge moves it (under merge_offset from where it started, across its
     heading there, at every step): an aborted lane change or a swerve, not turns (SPEC 4.3).
-    Two lane changes in a row (out and back) get a lane width away and stay merges."""
+    Two lane changes in a row (out and back) get a lane width away and stay merges.
+
+    ``at_end``: the sideways move is measured where [a, b) ends, as a merge's is (SPEC
+    4.3): a pair of opposite turns that :func:`_merge_ok` refused, or a lone turn with the
+    sub-threshold steering around it, whose heading comes back and which ends less than
+    merge_offset sideways from where it started moved less than a merge, and is a wiggle
+    however far out it went on the way: an aborted lane change 1.7 m out and on its way
+    back when the turns end (its straightening under w_str). A lane change out and back is
+    four turns (or three, the middle two joined), which :func:`_chain` splits into two
+    merges; its three turns as a whole are checked at every step (``at_end`` False).
+    """
     del side
     a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
     if not len(a):
@@ -294,9 +304,11 @@ def _wiggle_ok(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
               + (path.y[rows] - np.repeat(path.y[first], length)) * np.repeat(cos0, length))
     turned = np.abs(h[rows] - np.repeat(h0, length))
     bounds = np.cumsum(length) - length
+    sideways = (np.abs(across[bounds + length - 1]) if at_end
+                else np.maximum.reduceat(np.abs(across), bounds))
     return ((np.abs(h[path.rows[b - 1]] - h0) <= config.merge_heading)
             & (np.maximum.reduceat(turned, bounds) <= config.merge_excursion)
-            & (np.maximum.reduceat(np.abs(across), bounds) < config.merge_offset))
+            & (sideways < config.merge_offset))
 
 
 def _back_at(path: _Path, pos: int, start: int, stop: int, side: int) -> int:
@@ -329,9 +341,9 @@ def _chain(path: _Path, start: np.ndarray, stop: np.ndarray, side: np.ndarray, f
     def merge_code(towards: int) -> int:
         return sdl.LEFT_MERGE if towards > 0 else sdl.RIGHT_MERGE
 
-    def wiggle(a: int, b: int, towards: int) -> bool:
+    def wiggle(a: int, b: int, towards: int, at_end: bool = False) -> bool:
         return bool(_wiggle_ok(path, np.array([a]), np.array([b]), np.array([towards]),
-                               config)[0])
+                               config, at_end=at_end)[0])
 
     i, pos = first, int(start[first])
     while i < last:
@@ -356,7 +368,7 @@ def _chain(path: _Path, start: np.ndarray, stop: np.ndarray, side: np.ndarray, f
         if ok(pos, nxt_stop, int(side[i])):
             code[pos:nxt_stop] = merge_code(int(side[i]))
             i += 2
-        elif wiggle(pos, nxt_stop, int(side[i])):
+        elif wiggle(pos, nxt_stop, int(side[i]), at_end=True):
             code[pos:nxt_stop] = sdl.STRAIGHT
             i += 2
         else:
@@ -394,7 +406,8 @@ def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int) -> Run
     is_merge = _merge_ok(path, start[lone], stop[lone + 1], side[lone], config)
     merged = lone[is_merge]
     rest = lone[~is_merge]
-    wiggles = rest[_wiggle_ok(path, start[rest], stop[rest + 1], side[rest], config)]
+    wiggles = rest[_wiggle_ok(path, start[rest], stop[rest + 1], side[rest], config,
+                              at_end=True)]
 
     code = runs.expand(m).astype(np.int64)
     for i in merged.tolist():
@@ -444,7 +457,8 @@ def _lone_wiggles(runs: Runs, path: _Path, config: StageConfig) -> Runs:
     turn, lo, hi = turn[alone], lo[alone], hi[alone]
     if not len(turn):
         return runs
-    wiggle = turn[_wiggle_ok(path, lo, hi, np.zeros(len(turn), dtype=np.int64), config)]
+    wiggle = turn[_wiggle_ok(path, lo, hi, np.zeros(len(turn), dtype=np.int64), config,
+                             at_end=True)]
     if not len(wiggle):
         return runs
     runs.code[wiggle] = sdl.STRAIGHT

@@ -21,17 +21,27 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.bench.intervals import wilson_interval
+from tap_bench.bench.measures import MEASURES, SCENE_MEASURES
 
 __all__ = ["AGREEMENT_AXES", "AGREEMENT_COLUMNS", "SCENE_SUMMARY_MEASURES",
-           "agreement_with_reference", "scene_summary"]
+           "agreement_with_reference", "scene_summary", "scene_summary_measures"]
 
 AGREEMENT_AXES = ("lateral", "longitudinal", "interaction", "sdl")
 """The label axes compared, in report order (``sdl`` is lateral and longitudinal together)."""
 AGREEMENT_COLUMNS = ("env", "policy", "axis", "pairs", "agree", "share", "low", "high")
 """Columns of :func:`agreement_with_reference`'s table."""
-SCENE_SUMMARY_MEASURES = ("crashed", "off_road", "route_progress", "ran_red_light",
-                          "log_ade", "log_fde")
-"""Measures :func:`scene_summary` averages per policy (those the episodes carry)."""
+def scene_summary_measures() -> tuple[str, ...]:
+    """Measures :func:`scene_summary` averages per policy (those the episodes carry): the
+    safety rates of :data:`~tap_bench.bench.measures.MEASURES` (the crash rate built in) and
+    every measure of recorded scenes (:data:`~tap_bench.bench.measures.SCENE_MEASURES`),
+    read from the entries, not named here."""
+    return (*(m.name for m in MEASURES if m.role == "safety" and m.is_rate),
+            *(m.name for m in SCENE_MEASURES))
+
+
+SCENE_SUMMARY_MEASURES = scene_summary_measures()
+"""The built-in :func:`scene_summary_measures` (crash rate, off road, route progress, red
+light, log ADE and FDE), kept for old imports; :func:`scene_summary` asks again each call."""
 
 
 def _ok(episodes: pd.DataFrame) -> pd.DataFrame:
@@ -80,9 +90,9 @@ def agreement_with_reference(episodes: pd.DataFrame, reference: str = "log", *,
 
 def scene_summary(episodes: pd.DataFrame) -> pd.DataFrame:
     """Per (env, policy): episodes and the mean of each closed-loop measure of recorded
-    scenes (:data:`SCENE_SUMMARY_MEASURES` present in the table; NaN values left out)."""
+    scenes (:func:`scene_summary_measures` present in the table; NaN values left out)."""
     ok = _ok(episodes)
-    present = [m for m in SCENE_SUMMARY_MEASURES if m in ok.columns]
+    present = [m for m in scene_summary_measures() if m in ok.columns]
     table = ok[["env", "policy", *present]].copy()
     for col in present:
         table[col] = pd.to_numeric(table[col].astype("Float64"), errors="coerce")

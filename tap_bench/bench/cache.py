@@ -366,13 +366,22 @@ def label_code(measures: Iterable[Any] | None = None) -> dict[str, Any]:
                                                         "pyarrow")}}
 
 
+ROAD_MAP = "highway-env road"
+"""The ``map`` of a label key whose episode is labelled and measured along its scenario's
+highway-env road (:func:`tap_bench.bench.run_tasks._road`)."""
+
+
 def label_key(episode: str, thresholds: Mapping[str, Any], level: str,
-              code: Mapping[str, Any]) -> tuple[str, dict[str, Any]]:
+              code: Mapping[str, Any], map_source: str | None = None
+              ) -> tuple[str, dict[str, Any]]:
     """The key of an episode's labels and measures and the document it hashes: the
-    episode's key, the thresholds (their JSON document), the level, and
-    :func:`label_code`."""
+    episode's key, the thresholds (their JSON document), the level, :func:`label_code`,
+    and the map the ego's path goes on along beyond its record (``map_source``:
+    :data:`ROAD_MAP`, or None for the arc). The road itself needs no hash of its own: it is
+    built from the scenario and highway-env, both in the episode's key; the key says that
+    it was used, so that labels made along an arc are never read for a run along the road."""
     doc = {"episode": episode, "thresholds": _plain(thresholds), "level": level,
-           "code": dict(code)}
+           "code": dict(code), "map": map_source}
     return hashlib.sha256(_canonical(doc)).hexdigest(), doc
 
 

@@ -37,6 +37,7 @@ equal gets the bounded-measure interval there, or none).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -44,15 +45,22 @@ import pandas as pd
 
 from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.intervals import paired_measure_interval, unpaired_measure_interval
-from tap_bench.bench.measures import HEADWAY_CAP_S, MEASURES, TTC_CAP_S, Measure, ego_steps
+from tap_bench.bench.measures import (
+    HEADWAY_CAP_S,
+    MEASURES,
+    TTC_CAP_S,
+    EgoSteps,
+    Measure,
+    ego_steps,
+)
 from tap_bench.errors import LabelTableError
 from tap_bench.labelling import tap
 from tap_bench.sdl import INTERACTION_NAMES
 from tap_bench.thresholds import Thresholds, resolve_thresholds
 from tap_bench.trajectories import HZ
 
-__all__ = ["CONTEXT_MEASURES", "REACTION_HORIZON_S", "compare_contexts",
-           "context_occurrences"]
+__all__ = ["CONTEXT_MEASURES", "REACTION_HORIZON_S", "compare_contexts", "context_scores",
+           "context_occurrences", "occurrences_from"]
 
 REACTION_HORIZON_S = 5.0
 """[s] how long after a cut-in starts the ego's first braking is looked for."""
@@ -74,7 +82,8 @@ _IDS = ("env", "policy", "seed")
 
 
 def context_occurrences(trajectories: pd.DataFrame, thresholds: Thresholds | str = "paper",
-                        *, source: str = "trajectory table") -> pd.DataFrame:
+                        *, source: str = "trajectory table",
+                        map_table: pd.DataFrame | None = None) -> pd.DataFrame:
     """Every interaction context each ego meets, with the measures inside it.
 
     Args:
@@ -82,6 +91,8 @@ def context_occurrences(trajectories: pd.DataFrame, thresholds: Thresholds | str
             ``policy``, ``seed`` are carried).
         thresholds: TAP thresholds (``a_dec`` decides braking for the reaction time).
         source: a name for the table in error messages.
+        map_table: lane centre lines along which an ego's path goes on beyond its record
+            (None: an arc).
 
     Returns:
         one row per (episode, run of one relation): scenario_id, env, policy, seed (those
@@ -95,10 +106,29 @@ def context_occurrences(trajectories: pd.DataFrame, thresholds: Thresholds | str
                               "interactions of each episode's ego. Give rollouts (a run's "
                               "trajectories.parquet or 'tap-bench rollout' outputs), or mark "
                               "the ego of each scenario with is_ego.")
-    result = tap(trajectories, th, source=source, interactions="ego")
-    segs = result.segments("trend")
-    runs = segs[segs["axis"] == "interaction"].reset_index(drop=True)
-    steps = ego_steps(trajectories)
+    result = tap(trajectories, th, source=source, interactions="ego", map_table=map_table)
+    return occurrences_from(result.segments("trend"), ego_steps(trajectories, map_table),
+                            trajectories, th, source=source)
+
+
+def occurrences_from(segments: pd.DataFrame, steps: EgoSteps, trajectories: pd.DataFrame,
+                     thresholds: Thresholds, *, source: str = "trajectory table"
+                     ) -> pd.DataFrame:
+    """:func:`context_occurrences` from what a labelling already made: the trend-level
+    segments of a ``tap(..., interactions="ego")`` call and the ego's steps
+    (:func:`~tap_bench.bench.measures.ego_steps`) of the same trajectories. ``bench run``
+    calls it in its workers on the tables it labels and measures anyway, so contexts cost it
+    no second labelling.
+
+    Args:
+        segments: the trend-level segment table (its ``axis == "interaction"`` rows).
+        steps: the ego's steps.
+        trajectories: the trajectory table (its identifying columns are carried).
+        thresholds: TAP thresholds (``a_dec`` decides braking).
+        source: a name for the table in error messages.
+    """
+    th = thresholds
+    runs = segments[segments["axis"] == "interaction"].reset_index(drop=True)
     episode_of = {sid: k for k, sid in enumerate(steps.scenario_id)}
     rows = []
     # per run: the ego's steps inside [t_start, t_end)
@@ -250,3 +280,35 @@ def compare_contexts(occurrences: pd.DataFrame, a: str, b: str, *,
     return pd.DataFrame(rows, columns=["env", "context", "measure", "unit",
                                        "higher_is_better", "n_pairs", "n_a", "n_b", "mean_a",
                                        "mean_b", "diff", "diff_low", "diff_high", "method"])
+
+
+def context_scores(occurrences: pd.DataFrame, policies: Sequence[str], reference: str, *,
+                   config: BootstrapConfig | None = None, min_pairs: int = 5
+                   ) -> pd.DataFrame:
+    """Each of ``policies`` against ``reference`` inside each interaction context: the one
+    scoring of contexts ``tap-bench contexts`` (one policy) and ``bench run`` (every policy
+    of the suite against its reference) share.
+
+    Returns:
+        :func:`compare_contexts`' rows with ``policy_a`` and ``policy_b`` first; empty
+        (those columns) when there are no occurrences; a policy without occurrences (it
+        met no context) is left out.
+    """
+    columns = ["policy_a", "policy_b", "env", "context", "measure", "unit",
+               "higher_is_better", "n_pairs", "n_a", "n_b", "mean_a", "mean_b", "diff",
+               "diff_low", "diff_high", "method"]
+    if occurrences is not None and len(occurrences) and "policy" not in occurrences.columns:
+        compare_contexts(occurrences, reference, reference)  # raises, naming the column
+    if occurrences is None or not len(occurrences) or \
+            not (occurrences["policy"] == reference).any():
+        return pd.DataFrame(columns=columns)
+    tables = []
+    for policy in policies:
+        if policy == reference or not (occurrences["policy"] == policy).any():
+            continue
+        table = compare_contexts(occurrences, policy, reference, config=config,
+                                 min_pairs=min_pairs)
+        tables.append(table.assign(policy_a=policy, policy_b=reference))
+    if not tables:
+        return pd.DataFrame(columns=columns)
+    return pd.concat(tables, ignore_index=True)[columns]

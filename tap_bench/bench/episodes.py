@@ -32,7 +32,7 @@ import numpy as np
 import pandas as pd
 
 from tap_bench import sdl
-from tap_bench.bench.measures import MEASURES, ego_measures
+from tap_bench.bench.measures import MEASURES, EgoSteps, ego_measures
 from tap_bench.errors import LabelTableError, ParameterError, TrajectoryTableError
 from tap_bench.labelling import tap
 
@@ -101,7 +101,9 @@ def ego_labels(labels: pd.DataFrame, level: str, *, source: str = "label table"
 def episode_table(*, labels: pd.DataFrame | None = None,
                   trajectories: pd.DataFrame | None = None,
                   episodes: pd.DataFrame | None = None, level: str = "action",
-                  policy: str | None = None, source: str = "input") -> pd.DataFrame:
+                  policy: str | None = None, source: str = "input",
+                  map_table: pd.DataFrame | None = None,
+                  steps: EgoSteps | None = None) -> pd.DataFrame:
     """Build the episode table from what is at hand.
 
     Args:
@@ -112,6 +114,9 @@ def episode_table(*, labels: pd.DataFrame | None = None,
         level: SDL level of the ego label.
         policy: the policy name when the tables have no ``policy`` column.
         source: a name for error messages (a file path).
+        map_table: lane centre lines along which an ego's path goes on beyond its record
+            for the measures (:func:`~tap_bench.bench.measures.ego_measures`); None: an arc.
+        steps: the ego's steps of ``trajectories`` where the caller has them already.
 
     Returns:
         the episode table (:data:`EPISODE_COLUMNS`), sorted by env, policy and seed.
@@ -125,7 +130,7 @@ def episode_table(*, labels: pd.DataFrame | None = None,
             message="episode_table needs labels, trajectories or episodes.")
     out = None
     if trajectories is not None:
-        out = ego_measures(trajectories)  # every scenario with an ego, labelled or not
+        out = ego_measures(trajectories, map_table, steps=steps)  # every scenario with an ego
     if labels is not None:
         ego = ego_labels(labels, level, source=source)
         if out is None:

@@ -35,13 +35,17 @@ column              unit    what
 and ``duration_s`` (s), the time the ego was recorded, beside them.
 
 **Along the ego's path** (SPEC sections 6 and 7). The leader at a step is the nearest other
-road user ahead on the ego's own path (:mod:`tap_bench.pathframe`: ``0 < s <=``
-:data:`LOOKAHEAD`), inside its corridor (``|d| <=`` :data:`~tap_bench.pathframe.
-CORRIDOR_HALF_WIDTH`) and driving along it (heading within :data:`~tap_bench.pathframe.
-SAME_DIRECTION` of the path), on straight roads, curves, merges, roundabouts and
-intersections alike. The gap is ``s`` less half of each vehicle's length (the ``length``
-column where the table has one, else :data:`VEHICLE_LENGTH`); the closing speed is the ego's
-speed less the leader's velocity along the path.
+road user ahead on the ego's own path, within its reach (:func:`~tap_bench.pathframe.
+leader_reach`: 60 m, or 4 s at the ego's speed where that is farther; SPEC 7's range),
+inside its corridor (``|d| <=`` :data:`~tap_bench.pathframe.CORRIDOR_HALF_WIDTH`) and
+driving along it (heading within :data:`~tap_bench.pathframe.SAME_DIRECTION` of the path),
+on straight roads, curves, merges, roundabouts and intersections alike: the agent the
+interaction axis says the ego is Following (one rule, :func:`~tap_bench.pathframe.
+nearest_leader`, for both). A headway is then at most max(60 m / v, 4 s) less the bumper
+lengths: a car farther ahead is free driving, not a leader. The gap is ``s`` less half of
+each vehicle's length (the ``length`` column where the table has one, else
+:data:`VEHICLE_LENGTH`); the closing speed is the ego's speed less the leader's velocity
+along the path.
 
 **Collisions and the burn-in.** A step at which the ego is crashed has a TTC and a headway of
 0, so a crashed episode can never look safer than one without a conflict. The first
@@ -77,7 +81,7 @@ is found as on a straight road.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -87,8 +91,10 @@ import pandas as pd
 from tap_bench.errors import RegistrationError, TrajectoryTableError
 from tap_bench.pathframe import (
     CORRIDOR_HALF_WIDTH,
-    SAME_DIRECTION,
+    LEADER_RANGE_M,
     Paths,
+    leader_reach,
+    nearest_leader,
     path_frame,
     scene_lanes,
 )
@@ -104,6 +110,7 @@ __all__ = [
     "LOOKAHEAD",
     "MEASURES",
     "MEASURE_KINDS",
+    "MEASURE_ROLES",
     "SCENE_MEASURES",
     "SCENE_STEP_COLUMNS",
     "MIN_SPEED_FOR_HEADWAY",
@@ -117,6 +124,8 @@ __all__ = [
     "check_measure",
     "ego_steps",
     "leader_counts",
+    "measure_entry",
+    "measures_with_role",
     "register_measure",
     "run_measures",
     "savgol_derivative",
@@ -124,7 +133,10 @@ __all__ = [
 ]
 
 VEHICLE_LENGTH = 5.0  # [m] highway-env's vehicle length, used where no `length` column is
-LOOKAHEAD = 100.0  # [m] farthest leader considered along the path, centre to centre
+LOOKAHEAD = LEADER_RANGE_M
+"""[m] kept for old imports: the leader's reach is :func:`tap_bench.pathframe.leader_reach`,
+``LEADER_RANGE_M`` or ``LEADER_RANGE_S`` at the ego's speed, whichever is farther (it was a
+flat 100 m)."""
 MIN_SPEED_FOR_HEADWAY = 1.0  # [m/s] below this a time headway is not meaningful
 HEADWAY_CAP_S = 10.0  # [s] headways above this count as free driving
 BURN_IN_S = 2.0  # [s] headway and TTC skip the first steps: the scenario sets those gaps
@@ -235,6 +247,10 @@ class EgoSteps:
 MeasureFunction = Callable[[EgoSteps], np.ndarray]
 
 
+MEASURE_ROLES = ("safety", "progress", "comfort", "")
+"""What a measure stands for (:attr:`Measure.role`): the verdict reads its safety family
+and its efficiency (progress and comfort) family by role, the report's trade-off view
+draws each safety rate against each progress measure, never a measure picked by name."""
 MEASURE_KINDS = ("mean", "rate")
 """What a measure's per-episode value is: ``"mean"`` (a number; its mean over episodes gets
 Student's t interval, bounded by :attr:`Measure.bounds` where the measure has them) or
@@ -264,6 +280,16 @@ class Measure:
         bounds: (low, high) the values can take, where bounded (a cap), else None; a rate
             is bounded by (0, 1).
         decimals: decimals shown in tables and the viewer (a rate is shown in whole %).
+        role: what the measure stands for where consumers pick measures by what they are,
+            never by name (:data:`MEASURE_ROLES`): ``"safety"`` (the verdict's safety
+            family; a safety *rate* is the trade-off view's vertical axis), ``"progress"``
+            (efficiency; the trade-off view's horizontal axis), ``"comfort"``
+            (efficiency), or ``""`` (none of these).
+        words: (better, worse): how the verdict says a policy differs on it (``("faster",
+            "slower")``); default ``higher <label>`` / ``lower <label>`` by direction.
+        gate_weight: the regression gate's share of alpha within an (env, policy) cell,
+            where the measure has one of its own (the crash rate most of it: see
+            :func:`tap_bench.bench.suite.default_weights`); None: it shares the rest.
     """
 
     name: str
@@ -276,10 +302,18 @@ class Measure:
     kind: str = "mean"
     bounds: tuple[float, float] | None = None
     decimals: int = 2
+    role: str = ""
+    words: tuple[str, str] = ()
+    gate_weight: float | None = None
 
     def __post_init__(self) -> None:
         if not self.label:
             object.__setattr__(self, "label", str(self.name).replace("_", " "))
+        if not self.words:
+            high, low = f"higher {self.label}", f"lower {self.label}"
+            object.__setattr__(self, "words", (high, low) if self.higher_is_better
+                               else (low, high))
+        object.__setattr__(self, "words", tuple(self.words))
         if self.kind == "rate" and self.bounds is None:
             object.__setattr__(self, "bounds", (0.0, 1.0))
         if self.bounds is not None:
@@ -323,7 +357,9 @@ class Measure:
                 "display_unit": self.display_unit, "higher_is_better": self.higher_is_better,
                 "description": self.description, "margin": self.margin, "kind": self.kind,
                 "bounds": None if self.bounds is None else list(self.bounds),
-                "decimals": self.decimals, "interval": self.interval_method}
+                "decimals": self.decimals, "interval": self.interval_method,
+                "role": self.role, "words": list(self.words),
+                "gate_weight": self.gate_weight}
 
 
 def run_measures(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
@@ -411,6 +447,17 @@ def _check_entry(measure: Measure) -> None:
             or not 0 <= measure.decimals <= 6:
         raise RegistrationError(f"measure {measure.name!r}: decimals {measure.decimals!r} "
                                 "must be an integer from 0 to 6.")
+    if measure.role not in MEASURE_ROLES:
+        raise RegistrationError(f"measure {measure.name!r}: role {measure.role!r} is not one "
+                                f"of {', '.join(repr(r) for r in MEASURE_ROLES)}.")
+    if len(measure.words) != 2 or not all(isinstance(w, str) and w for w in measure.words):
+        raise RegistrationError(f"measure {measure.name!r}: words {measure.words!r} must be "
+                                "two words, (better, worse).")
+    weight = measure.gate_weight
+    if weight is not None and (isinstance(weight, bool) or not isinstance(weight, int | float)
+                               or not 0 < weight < 1):
+        raise RegistrationError(f"measure {measure.name!r}: gate_weight {weight!r} must be "
+                                "a share of alpha between 0 and 1, or None.")
 
 
 class MeasureRegistry(Registry[Measure]):
@@ -435,6 +482,8 @@ MEASURES = MeasureRegistry()
 def register_measure(name: str, *, unit: str, higher_is_better: bool, margin: float,
                      description: str, label: str = "", kind: str = "mean",
                      bounds: tuple[float, float] | None = None, decimals: int = 2,
+                     role: str = "", words: tuple[str, str] = (),
+                     gate_weight: float | None = None,
                      registry: MeasureRegistry = MEASURES
                      ) -> Callable[[MeasureFunction], MeasureFunction]:
     """Decorator: register ``function(steps: EgoSteps) -> (S,) values`` as a measure (the
@@ -443,34 +492,59 @@ def register_measure(name: str, *, unit: str, higher_is_better: bool, margin: fl
     def decorate(function: MeasureFunction) -> MeasureFunction:
         registry.register(Measure(name, unit, higher_is_better, description, margin,
                                   function, label=label, kind=kind, bounds=bounds,
-                                  decimals=decimals))
+                                  decimals=decimals, role=role, words=words,
+                                  gate_weight=gate_weight))
         return function
 
     return decorate
 
 
+def measures_with_role(role: str, entries: Iterable[Measure] | None = None
+                       ) -> tuple[Measure, ...]:
+    """The entries of ``role`` (:data:`MEASURE_ROLES`) in registration order: those given,
+    else every registered measure and scene measure (:data:`MEASURES`,
+    :data:`SCENE_MEASURES`)."""
+    if role not in MEASURE_ROLES:
+        raise RegistrationError(f"unknown measure role {role!r}; the roles are "
+                                f"{', '.join(repr(r) for r in MEASURE_ROLES)}.")
+    entries = (*MEASURES, *SCENE_MEASURES) if entries is None else entries
+    return tuple(m for m in entries if m.role == role)
+
+
+def measure_entry(name: str) -> Measure | None:
+    """The registered entry of ``name`` (a measure or a scene measure), None if none."""
+    for registry in (MEASURES, SCENE_MEASURES):
+        if name in registry:
+            return registry[name]
+    return None
+
+
 @register_measure("crashed", unit="share", higher_is_better=False, margin=0.10,
-                  description="collision rate of the ego", label="crash rate", kind="rate")
+                  description="collision rate of the ego", label="crash rate", kind="rate",
+                  role="safety", words=("safer", "less safe"), gate_weight=0.65)
 def _crashed(steps: EgoSteps) -> np.ndarray:
     return steps.any(steps.crashed)
 
 
 @register_measure("mean_speed", unit="m/s", higher_is_better=True, margin=1.0,
-                  description="mean ego speed", label="mean speed", decimals=1)
+                  description="mean ego speed", label="mean speed", decimals=1,
+                  role="progress", words=("faster", "slower"))
 def _mean_speed(steps: EgoSteps) -> np.ndarray:
     return steps.mean(steps.speed)
 
 
 @register_measure("min_headway_s", unit="s", higher_is_better=True, margin=0.3,
                   description="smallest time headway to the leader along the path (capped "
-                  "10 s; 0 on a crash)", label="min headway", bounds=(0.0, HEADWAY_CAP_S))
+                  "10 s; 0 on a crash)", label="min headway", bounds=(0.0, HEADWAY_CAP_S),
+                  role="safety", gate_weight=0.1)
 def _min_headway(steps: EgoSteps) -> np.ndarray:
     return _leader_minimum(steps, steps.headway, HEADWAY_CAP_S)
 
 
 @register_measure("min_ttc_s", unit="s", higher_is_better=True, margin=1.0,
                   description="smallest time to collision with the leader along the path "
-                  "(capped 10 s; 0 on a crash)", label="min TTC", bounds=(0.0, TTC_CAP_S))
+                  "(capped 10 s; 0 on a crash)", label="min TTC", bounds=(0.0, TTC_CAP_S),
+                  role="safety", gate_weight=0.1)
 def _min_ttc(steps: EgoSteps) -> np.ndarray:
     return _leader_minimum(steps, steps.ttc, TTC_CAP_S)
 
@@ -496,7 +570,7 @@ def leader_counts(steps: EgoSteps) -> pd.DataFrame:
 
 @register_measure("rms_jerk", unit="m/s^3", higher_is_better=False, margin=1.0,
                   description="RMS longitudinal jerk of the ego (Savitzky-Golay, 1.5 s, as "
-                  "nuPlan)", label="RMS jerk")
+                  "nuPlan)", label="RMS jerk", role="comfort", words=("smoother", "harsher"))
 def _rms_jerk(steps: EgoSteps) -> np.ndarray:
     jerk = smoothed_jerk(steps)
     ok = ~np.isnan(jerk)
@@ -572,7 +646,7 @@ def _scene_column(steps: EgoSteps, name: str) -> np.ndarray:
 @register_measure("off_road", unit="share", higher_is_better=False, margin=0.10,
                   description="the ego left the road (farther than half its lane's width + "
                   "0.5 m from every lane centre, or across a road edge)", label="off road",
-                  kind="rate", registry=SCENE_MEASURES)
+                  kind="rate", role="safety", registry=SCENE_MEASURES)
 def _off_road(steps: EgoSteps) -> np.ndarray:
     values = _scene_column(steps, "off_road")
     out = steps.any(np.nan_to_num(values) > 0.5).astype(float)
@@ -582,14 +656,16 @@ def _off_road(steps: EgoSteps) -> np.ndarray:
 
 @register_measure("route_progress", unit="share", higher_is_better=True, margin=0.10,
                   description="share of the logged ego's path covered along its route (0-1)",
-                  label="route progress", bounds=(0.0, 1.0), registry=SCENE_MEASURES)
+                  label="route progress", bounds=(0.0, 1.0), role="progress",
+                  registry=SCENE_MEASURES)
 def _route_progress(steps: EgoSteps) -> np.ndarray:
     return steps.last(_scene_column(steps, "route_progress"))
 
 
 @register_measure("ran_red_light", unit="share", higher_is_better=False, margin=0.10,
                   description="the ego crossed a stop point while its signal was red",
-                  label="ran a red light", kind="rate", registry=SCENE_MEASURES)
+                  label="ran a red light", kind="rate", role="safety",
+                  registry=SCENE_MEASURES)
 def _ran_red_light(steps: EgoSteps) -> np.ndarray:
     values = _scene_column(steps, "ran_red_light")
     out = steps.any(np.nan_to_num(values) > 0.5).astype(float)
@@ -765,20 +841,23 @@ def _unscored(steps: EgoSteps) -> tuple[np.ndarray, np.ndarray]:
     return headway, ttc
 
 
-def ego_measures(table: pd.DataFrame, map_table: pd.DataFrame | None = None) -> pd.DataFrame:
+def ego_measures(table: pd.DataFrame, map_table: pd.DataFrame | None = None, *,
+                 steps: EgoSteps | None = None) -> pd.DataFrame:
     """Safety and efficiency measures of the ego of every scenario of a trajectory table.
 
     Args:
         table: as :func:`ego_steps`; the identifying ``env``, ``policy``, ``seed``,
             ``source`` are carried over.
         map_table: lane centre lines (:func:`ego_steps`).
+        steps: :func:`ego_steps` of ``table`` (and ``map_table``) where the caller has them
+            already (the runner shares them with the interaction contexts).
 
     Returns:
         one row per scenario with an ego: ``scenario_id``, the identifying columns present,
         one column per registered measure (:data:`MEASURES`, and :data:`SCENE_MEASURES`
         when the table carries :data:`SCENE_STEP_COLUMNS`) and ``duration_s``.
     """
-    steps = ego_steps(table, map_table)
+    steps = ego_steps(table, map_table) if steps is None else steps
     out = pd.DataFrame({"scenario_id": steps.scenario_id})
     for col in _KEEP:
         if col in table.columns:
@@ -831,19 +910,13 @@ def _leaders(key, scene, other_mask, ego_rows, ego_key, ego_sid, x, y, heading, 
     track = np.r_[np.ones(m, np.int64), np.zeros(len(others), np.int64)]
     paths = Paths(scene=scene[rows], key=key[rows], track=track, x=x[rows], y=y[rows],
                   heading=heading[rows], speed=speed[rows], start=start, stop=stop)
+    reach = leader_reach(speed[ego_rows])  # ego_rows() of these paths is 0 .. m - 1
     frame = path_frame(paths, np.r_[np.zeros(m, bool), np.ones(len(others), bool)],
-                       ahead=LOOKAHEAD, behind=1.0, lateral=CORRIDOR_HALF_WIDTH, lanes=lanes)
-    ahead = (frame.s > 0) & (np.abs(frame.heading_rel) <= SAME_DIRECTION)
-    step, s, other = frame.step[ahead], frame.s[ahead], rows[frame.other[ahead]]
-    v_along = frame.v_along[ahead]
-    if not len(step):
-        return gap, closing, leader
-    nearest = np.full(m, np.inf)
-    np.minimum.at(nearest, step, s)
-    first = s == nearest[step]
-    p, o, va = step[first], other[first], v_along[first]  # a tie keeps one equally near
-    e = ego_rows[p]
-    gap[p] = np.maximum(nearest[p] - 0.5 * (length[e] + length[o]), 0.0)
-    closing[p] = speed[e] - va
+                       ahead=reach, behind=1.0, lateral=CORRIDOR_HALF_WIDTH, lanes=lanes)
+    pair = nearest_leader(frame, reach)
+    p = np.flatnonzero(pair >= 0)
+    o, e = rows[frame.other[pair[p]]], ego_rows[p]
+    gap[p] = np.maximum(frame.s[pair[p]] - 0.5 * (length[e] + length[o]), 0.0)
+    closing[p] = speed[e] - frame.v_along[pair[p]]
     leader[p] = o
     return gap, closing, leader

@@ -42,6 +42,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import pandas as pd
 
 from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.coverage import Reference, unit_items
@@ -198,8 +199,7 @@ def same_policy_null(labels: np.ndarray, reference: Reference, *,
     lab = np.asarray(labels, dtype=object)
     units = np.asarray(reference.units, dtype=object)
     paired = seeds is not None and reference.seeds is not None
-    keep = np.array([x is not None and x == x for x in lab], bool) if len(lab) else \
-        np.zeros(0, bool)
+    keep = pd.notna(lab).astype(bool) if len(lab) else np.zeros(0, bool)
     lab = lab[keep]
     if paired:
         mine = dict(zip(np.asarray(seeds)[keep].tolist(), lab, strict=True))

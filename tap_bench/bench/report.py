@@ -252,10 +252,12 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
             items.append(f'<div class="verdict"><p><b>{html.escape(policy)}</b>: '
                          f'<span class="{cls}">{word}</span></p><ul>{lines}</ul></div>')
         parts.append("".join(items))
-    parts.append(img("tradeoff", "crash rate against mean speed per env",
-                     "Safety against progress, per env: each policy's crash rate "
-                     f"({pct} Wilson interval) against its mean speed ({pct} t interval); the "
-                     "reference is the square. Down is safer, right is faster."))
+    parts.append(img("tradeoff", "safety rates against progress per env",
+                     "Safety against progress, per env: each policy's safety rate (the "
+                     f"measures of role safety that are rates, the crash rate built in; {pct} "
+                     "Wilson interval) against its progress (role progress, the mean speed "
+                     f"built in; {pct} t interval), a row of panels per pair; the reference "
+                     "is the square. Down is safer, right is more progress."))
     parts.append("<h2>Summary: each policy against the reference</h2>")
     parts.append(html_table(
         summary_table(scores, reference), table_id="summary", max_rows=50,
@@ -363,6 +365,7 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
             "policy, with the number of episodes; replay opens the first one.",
             links=[_replay(viewer, f_env=r.env, f_policy=r.policy, f_sdl=r.interaction)
                    for r in ctx.itertuples()]))
+    parts.extend(_context_comparison(scores.contexts, pct))
     parts.append("<h2>Behaviour coverage</h2>")
     parts.append(img("coverage", "coverage",
                      "Coverage, all envs pooled: the share of the reference corpus's labels "
@@ -470,6 +473,39 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
     with atomic_path(path) as tmp:
         tmp.write_text(page, encoding="utf-8")
     return path
+
+
+def _context_comparison(contexts: pd.DataFrame, pct: str) -> list[str]:
+    """The run's contexts table (:func:`tap_bench.bench.contexts.context_scores`): each
+    policy against the reference inside each interaction context, the measures with an
+    interval first; nothing when no context was met by both."""
+    if contexts is None or not len(contexts):
+        return []
+    from tap_bench.bench.contexts import CONTEXT_MEASURES
+
+    entries = {m.name: m for m, _ in CONTEXT_MEASURES}
+    rows = []
+    for r in contexts.itertuples():
+        m = entries.get(r.measure)
+        scale = m.scale if m is not None else 1.0
+        unit = ("points" if m.is_rate else m.display_unit) if m is not None else r.unit
+        diff = f"{scale * r.diff:+.2f} {unit}" if pd.notna(r.diff) else ""
+        interval = (f"[{scale * r.diff_low:+.2f}, {scale * r.diff_high:+.2f}]"
+                    if pd.notna(r.diff_low) and pd.notna(r.diff_high) else "")
+        rows.append({"env": r.env, "context": r.context,
+                     "policy": f"{r.policy_a} vs {r.policy_b}",
+                     "measure": m.label if m is not None else r.measure,
+                     "seeds paired": r.n_pairs, "episodes": f"{r.n_a} / {r.n_b}",
+                     "difference": diff, "interval": interval, "method": r.method})
+    table = pd.DataFrame(rows)
+    table = table.assign(_no=table["interval"] == "").sort_values(
+        ["_no", "env", "context", "policy"], kind="stable").drop(columns="_no")
+    return [html_table(
+        table, table_id="context-comparison",
+        text_columns=("env", "context", "policy", "measure", "method"),
+        caption="Each policy against the reference inside each interaction context (A - B; "
+        f"{pct} intervals): paired by seed where both meet the context, else unpaired, as "
+        "tap-bench contexts compares them (contexts.parquet).")]
 
 
 def run_level(summary: dict[str, Any]) -> float:

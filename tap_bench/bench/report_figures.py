@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.measures import MEASURES
+from tap_bench.bench.measures import MEASURES, Measure, measures_with_role
 from tap_bench.bench.report_tables import (
     _envs,
     _pooled,
@@ -384,11 +384,25 @@ def _forest_plots(scores: Scores, level: float) -> list[tuple[str, str]]:
     return out
 
 
+def _tradeoff_pairs(measures: pd.DataFrame) -> list[tuple[Measure, Measure]]:
+    """(safety rate, progress measure) pairs the trade-off view draws: every registered
+    measure of role ``safety`` that is a rate against every one of role ``progress``, in
+    registration order, those the run scored (the crash rate against the mean speed built
+    in; a user's progress measure adds its own row)."""
+    scored = set(measures["measure"])
+    rates = [m for m in measures_with_role("safety") if m.is_rate and m.name in scored]
+    progress = [m for m in measures_with_role("progress") if m.name in scored]
+    return [(r, p) for r in rates for p in progress]
+
+
 def _tradeoff_plot(scores: Scores, reference: str) -> tuple[str, str] | None:
-    """Safety against progress per env: each policy's crash rate (Wilson interval) against
-    its mean speed (t interval); the reference's point marked (a square)."""
+    """Safety against progress per env: each policy's safety rate (Wilson interval; the
+    crash rate) against its progress (t interval; the mean speed), one row of panels per
+    pair of measures whose entries have those roles (:func:`_tradeoff_pairs`); the
+    reference's point marked (a square)."""
     m = scores.measures
-    if m.empty or not {"crashed", "mean_speed"} <= set(m["measure"]):
+    pairs = [] if m.empty else _tradeoff_pairs(m)
+    if not pairs:
         return None
     envs = sorted((e for e in m["env"].unique() if e != "all"), key=str)
     if (m["env"] == "all").any() and len(envs) > 1:
@@ -396,7 +410,8 @@ def _tradeoff_plot(scores: Scores, reference: str) -> tuple[str, str] | None:
     policies = sorted(m["policy"].unique())
     colors = {p: COLORS[k % len(COLORS)] for k, p in enumerate(policies)}
     cols = min(3, len(envs))
-    rows = -(-len(envs) // cols)
+    env_rows = -(-len(envs) // cols)
+    rows = env_rows * len(pairs)
     legend_w = max(_text_width(p) for p in policies) + 34
     ylabel_w, tick_w, gap = _LINE + 8, 34.0, 22.0
     panel_w = (MAX_WIDTH_PX - ylabel_w - legend_w - 24 - cols * tick_w - (cols - 1) * gap) \
@@ -404,18 +419,20 @@ def _tradeoff_plot(scores: Scores, reference: str) -> tuple[str, str] | None:
     panel_h, title_h, xlabel_h = 150.0, _LINE + 10, 2 * _LINE + 14
     svg = _Svg(MAX_WIDTH_PX, rows * (title_h + panel_h + xlabel_h) + 6)
     y_lo, y_hi = -3.0, 103.0
-    for i, env in enumerate(envs):
-        r, c = divmod(i, cols)
+    for (safety, progress), (k, env) in itertools.product(pairs, enumerate(envs)):
+        pair_row = pairs.index((safety, progress)) * env_rows
+        r, c = divmod(k, cols)
+        r += pair_row
         x0 = ylabel_w + tick_w + c * (panel_w + tick_w + gap)
         y0 = r * (title_h + panel_h + xlabel_h) + title_h
         sub = m[m["env"] == env]
         points = []
         for policy in policies:
-            crash = sub[(sub["policy"] == policy) & (sub["measure"] == "crashed")]
-            speed = sub[(sub["policy"] == policy) & (sub["measure"] == "mean_speed")]
-            if crash.empty or speed.empty:
+            rate = sub[(sub["policy"] == policy) & (sub["measure"] == safety.name)]
+            prog = sub[(sub["policy"] == policy) & (sub["measure"] == progress.name)]
+            if rate.empty or prog.empty:
                 continue
-            points.append((policy, speed.iloc[0], crash.iloc[0]))
+            points.append((policy, prog.iloc[0], rate.iloc[0]))
         xlim = _fit([s["low"] for _, s, _ in points] + [s["mean"] for _, s, _ in points],
                     [s["high"] for _, s, _ in points] + [s["mean"] for _, s, _ in points])
 
@@ -426,8 +443,10 @@ def _tradeoff_plot(scores: Scores, reference: str) -> tuple[str, str] | None:
         def sy(v: float, y0=y0) -> float:
             return y0 + (y_hi - min(max(v, y_lo), y_hi)) / (y_hi - y_lo) * panel_h
 
-        svg.text(x0, y0 - title_h / 2 - 1, "pooled" if env == "all" else str(env),
-                 size=FONT_PX + 1)
+        title = "pooled" if env == "all" else str(env)
+        if len(pairs) > 1:
+            title += f": {safety.label} / {progress.label}"
+        svg.text(x0, y0 - title_h / 2 - 1, title, size=FONT_PX + 1)
         svg.rect(x0, y0, panel_w, panel_h, fill="none", stroke="#999")
         for tick in _nice_ticks(*xlim, n=5):
             svg.line(sx(tick), y0, sx(tick), y0 + panel_h, stroke="#e5e5e5")
@@ -437,18 +456,18 @@ def _tradeoff_plot(scores: Scores, reference: str) -> tuple[str, str] | None:
             svg.line(x0, sy(tick), x0 + panel_w, sy(tick), stroke="#e5e5e5")
             svg.line(x0 - 4, sy(tick), x0, sy(tick), stroke="#555")
             svg.text(x0 - 6, sy(tick), f"{tick}", anchor="end")
-        for policy, speed, crash in points:
+        for policy, prog, rate in points:
             color = colors[policy]
-            x, y = float(speed["mean"]), float(crash["mean"]) * 100
+            x, y = float(prog["mean"]), float(rate["mean"]) * 100
             if not (np.isfinite(x) and np.isfinite(y)):
                 continue
-            for lo, hi in ((speed["low"], speed["high"]),):
+            for lo, hi in ((prog["low"], prog["high"]),):
                 if np.isfinite(lo) and np.isfinite(hi):
                     svg.line(sx(min(lo, x)), sy(y), sx(max(hi, x)), sy(y), stroke=color,
                              width=1.5)
                     for v in (min(lo, x), max(hi, x)):
                         svg.line(sx(v), sy(y) - 3, sx(v), sy(y) + 3, stroke=color, width=1.5)
-            lo, hi = float(crash["low"]) * 100, float(crash["high"]) * 100
+            lo, hi = float(rate["low"]) * 100, float(rate["high"]) * 100
             if np.isfinite(lo) and np.isfinite(hi):
                 svg.line(sx(x), sy(min(lo, y)), sx(x), sy(max(hi, y)), stroke=color,
                          width=1.5)
@@ -458,12 +477,14 @@ def _tradeoff_plot(scores: Scores, reference: str) -> tuple[str, str] | None:
                 svg.rect(sx(x) - 4.5, sy(y) - 4.5, 9, 9, fill=color)
             else:
                 svg.circle(sx(x), sy(y), 4.5, fill=color)
-        if r == rows - 1 or i + cols >= len(envs):
-            svg.text(x0 + panel_w / 2, y0 + panel_h + 30, "mean speed [m/s] (progress)",
+        if r == pair_row + env_rows - 1 or k + cols >= len(envs):
+            svg.text(x0 + panel_w / 2, y0 + panel_h + 30,
+                     f"{progress.label} [{progress.display_unit}] (progress)",
                      anchor="middle")
         if c == 0:
-            svg.text(_LINE / 2 + 2, y0 + panel_h / 2, "crash rate [%]\n(lower is safer)",
-                     anchor="middle", rotate=-90)
+            better = "higher" if safety.higher_is_better else "lower"
+            svg.text(_LINE / 2 + 2, y0 + panel_h / 2,
+                     f"{safety.label} [%]\n({better} is safer)", anchor="middle", rotate=-90)
     _legend(svg, MAX_WIDTH_PX - 8, title_h,
             [(p + (" (reference, square)" if p == reference else ""), colors[p])
              for p in policies])

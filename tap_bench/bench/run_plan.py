@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from tap_bench.bench.cache import (
+    ROAD_MAP,
     EpisodeCache,
     episode_key,
     label_code,
@@ -149,7 +150,9 @@ def _tasks(plan: SuitePlan, keep: bool, cache: EpisodeCache | None) -> list[_Tas
                 key = doc = lkey = ldoc = None
                 if policies[d.name] is not None and envs[env].get(seed) is not None:
                     key, doc = episode_key(envs[env][seed], policies[d.name], seed, versions)
-                    lkey, ldoc = label_key(key, made_by, suite.level, code)
+                    lkey, ldoc = label_key(key, made_by, suite.level, code,
+                                           None if isinstance(scenarios[env], WomdScenes)
+                                           else ROAD_MAP)
                 tasks.append(_Task(env, scenarios[env], d.name, d, seed, thresholds,
                                    suite.level, keep, cache, key, doc, label_key=lkey,
                                    label_doc=ldoc, **common))

@@ -19,14 +19,35 @@ import pandas as pd
 from tap_bench.bench.cache import (
     EpisodeCache,
 )
+from tap_bench.bench.contexts import occurrences_from
 from tap_bench.bench.episodes import episode_table
-from tap_bench.bench.measures import MEASURES
+from tap_bench.bench.measures import MEASURES, ego_steps
 from tap_bench.bench.run_plan import RunPlan, SuitePlan, _plan, _Task, _tasks
 from tap_bench.errors import RegistrationError
 from tap_bench.execution import Backend
 from tap_bench.labelling import tap
 from tap_bench.sim.rollout import EPISODE_COLUMNS, rollout_episode
 from tap_bench.sim.womd_scene import WomdScenes
+
+_ROADS: dict[str, pd.DataFrame] = {}
+"""Per process: each scenario's road as a map table (highway-env builds the same road for
+every seed, so one per scenario serves all its episodes)."""
+
+
+def _road(task: _Task, trajectories: pd.DataFrame) -> pd.DataFrame | None:
+    """The map table the episodes of ``task``'s env are labelled and measured on: the lanes
+    of the scenario's highway-env road (:func:`tap_bench.sim.roads.road_table`), under the
+    ``map_id`` of the episodes' ``env``, so that an ego's path goes on along its lane beyond
+    the end of its record (SPEC 7) rather than along an arc. None for recorded scenes (their
+    maps are per scenario, not passed yet: the arc) and tables without an ``env`` column."""
+    if isinstance(task.scenario, WomdScenes) or "env" not in trajectories.columns:
+        return None
+    key = repr(task.scenario)
+    if key not in _ROADS:
+        from tap_bench.sim.roads import road_table
+
+        _ROADS[key] = road_table(task.scenario)
+    return _ROADS[key].assign(map_id=str(trajectories["env"].iat[0]))
 
 
 def _prepare_worker(task: _Task) -> None:
@@ -69,20 +90,22 @@ def _episode(task: _Task, note: str | None = None
             time.perf_counter() - t0, note)
 
 
-LABEL_TABLES = ("episodes", "labels", "segments")
+LABEL_TABLES = ("episodes", "labels", "segments", "contexts")
 """An episode's tables kept beside it in the cache (:meth:`EpisodeCache.put_labels`): its
-row of the episode table (measures included), its labels at every level and its segments
-at the suite's level."""
+row of the episode table (measures included), its labels at every level, its segments at
+the suite's level and its interaction-context occurrences
+(:func:`~tap_bench.bench.contexts.occurrences_from`)."""
 
 
 def _store_labels(task: _Task, eps: pd.DataFrame, labels: pd.DataFrame,
-                  segments: pd.DataFrame) -> None:
+                  segments: pd.DataFrame, contexts: pd.DataFrame) -> None:
     """Keep one episode's labels and measures in the cache, so that a re-run only scores."""
     if task.cache is None or not task.label_key:
         return
     with contextlib.suppress(OSError):  # a full or read-only cache costs only reuse
         task.cache.put_labels(task.label_key, task.label_doc or {},
-                              dict(zip(LABEL_TABLES, (eps, labels, segments), strict=True)))
+                              dict(zip(LABEL_TABLES, (eps, labels, segments, contexts),
+                                       strict=True)))
 
 
 def _from_label_cache(task: _Task) -> dict[str, Any] | None:
@@ -102,7 +125,8 @@ def _from_label_cache(task: _Task) -> dict[str, Any] | None:
             return None if note is None else {"cache_note": note}
         trajectories = _run_ids(task, entry.trajectories).reset_index(drop=True)
     return {"episodes": tables["episodes"], "labels": tables["labels"],
-            "segments": tables["segments"], "trajectories": trajectories,
+            "segments": tables["segments"], "contexts": tables["contexts"],
+            "trajectories": trajectories,
             "timings": {"rollout": time.perf_counter() - t0}, "cached": True,
             "labels_cached": True, "cache_note": None}
 
@@ -139,28 +163,37 @@ def _label_together(tasks: tuple[_Task, ...],
         t1 = time.perf_counter()
         trajectories = pd.concat([got[k][0] for k in with_rows], ignore_index=True) \
             if len(with_rows) > 1 else got[with_rows[0]][0]
-        result = tap(trajectories, first.thresholds, interactions="ego",
-                     source=f"{first.env}/{first.policy} rollout")
+        road = _road(first, trajectories)
+        source = f"{first.env}/{first.policy} rollout"
+        result = tap(trajectories, first.thresholds, interactions="ego", source=source,
+                     map_table=road)
         labels, segments = result.labels("all"), result.segments(first.level)
         t2 = time.perf_counter()
+        steps = ego_steps(trajectories, road)  # the measures' and the contexts'
         eps = episode_table(labels=labels if len(labels) else None, trajectories=trajectories,
                             episodes=_rows([got[k][1] for k in with_rows]),
-                            level=first.level, policy=first.policy)
+                            level=first.level, policy=first.policy, map_table=road,
+                            steps=steps)
+        contexts = occurrences_from(result.segments("trend"), steps, trajectories,
+                                    first.thresholds, source=source)
         t3 = time.perf_counter()
         share = {"labelling": (t2 - t1) / len(with_rows),
                  "measures": (t3 - t2) / len(with_rows)}
         # one episode's rows, in the order its own tap and episode_table calls give them
         by_episode = {name: _split(table, "scenario_id")
-                      for name, table in (("labels", labels), ("segments", segments))}
+                      for name, table in (("labels", labels), ("segments", segments),
+                                          ("contexts", contexts))}
         eps_by_seed = _split(eps, "seed")
         for k in with_rows:
             episode_trajectories, row, cached, seconds, note = got[k]
             sid = episode_trajectories["scenario_id"].iat[0]
             mine = {"episodes": eps_by_seed[tasks[k].seed],
                     "labels": by_episode["labels"].get(sid, _empty(labels)),
-                    "segments": by_episode["segments"].get(sid, _empty(segments))}
+                    "segments": by_episode["segments"].get(sid, _empty(segments)),
+                    "contexts": by_episode["contexts"].get(sid, _empty(contexts))}
             if row["status"] == "ok":
-                _store_labels(tasks[k], mine["episodes"], mine["labels"], mine["segments"])
+                _store_labels(tasks[k], mine["episodes"], mine["labels"], mine["segments"],
+                              mine["contexts"])
             results[k] = {
                 **mine,
                 "trajectories": episode_trajectories if tasks[k].keep_trajectories else None,
@@ -172,7 +205,8 @@ def _label_together(tasks: tuple[_Task, ...],
             eps = episode_table(episodes=_rows([row]), level=tasks[k].level,
                                 policy=tasks[k].policy)
             results[k] = {"episodes": eps, "labels": pd.DataFrame(),
-                          "segments": pd.DataFrame(), "trajectories": None,
+                          "segments": pd.DataFrame(), "contexts": pd.DataFrame(),
+                          "trajectories": None,
                           "timings": {"rollout": seconds,
                                       "measures": time.perf_counter() - t2},
                           "cached": cached, "cache_note": note}
@@ -194,7 +228,8 @@ def _failed_task(task: _Task, message: str) -> dict[str, Any]:
     eps = pd.DataFrame({"env": [task.env], "policy": [task.policy], "seed": [task.seed],
                         "status": ["error"], "error": [message]})
     return {"episodes": episode_table(episodes=eps, level=task.level),
-            "labels": pd.DataFrame(), "segments": pd.DataFrame(), "trajectories": None,
+            "labels": pd.DataFrame(), "segments": pd.DataFrame(), "contexts": pd.DataFrame(),
+            "trajectories": None,
             "timings": {}, "cached": False}
 
 

@@ -19,6 +19,8 @@ What a run folder holds:
 ``roads.parquet``       each env's road network as a map table (:mod:`tap_bench.maps`), for
                         the replay viewer (with the trajectories)
 ``<table>.parquet``     every table of :class:`tap_bench.bench.scoring.Scores`
+                        (``contexts.parquet``: each policy against the reference inside
+                        each interaction context, scored as ``tap-bench contexts`` does)
 ``plots/*.svg``         label distributions, measures, coverage, forest plots, novelty
 ``report.html``         the static report (no server, images embedded)
 ``viewer/``             the replay viewer (:mod:`tap_bench.bench.viewer`; with the trajectories)
@@ -55,7 +57,7 @@ import os
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -68,6 +70,7 @@ from tap_bench.bench.cache import (
     simulation_fingerprint,
     table_digest,
 )
+from tap_bench.bench.contexts import context_scores
 from tap_bench.bench.episodes import one_outcome_cells
 from tap_bench.bench.gap import window_episodes, window_seconds
 from tap_bench.bench.power import power_table
@@ -264,6 +267,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     segments = pd.concat([r["segments"] for r in results if len(r["segments"])],
                          ignore_index=True) \
         if any(len(r["segments"]) for r in results) else None
+    occurrences = [r["contexts"] for r in results if len(r.get("contexts", ()))]
+    occurrences = pd.concat(occurrences, ignore_index=True) if occurrences else None
     trajectories = None
     if keep_trajectories or with_trajectories:
         frames = [r["trajectories"] for r in results
@@ -298,6 +303,16 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
                        references={name: lab for name, (_, lab) in corpora.items()} or None,
                        scenario_matches=pd.concat(matches, ignore_index=True) if matches
                        else None, gate_power=power, windows=cut or None)
+        # the interaction contexts, scored as `tap-bench contexts` scores them
+        scores = replace(scores, contexts=context_scores(
+            occurrences, list(pd.unique(episodes["policy"])), suite.reference,
+            config=suite.bootstrap))
+        if len(scores.contexts):
+            scores.methods["contexts"] = (
+                "each policy against the reference inside each interaction context (trend "
+                "level): per episode the context's measures reduced over its occurrences, "
+                "then paired by seed (t; Tango for a share) where both meet the context, "
+                "else unpaired (Welch; Newcombe), as tap-bench contexts")
         if unmatched:
             scores.methods["scenario matching skipped"] = (
                 f"{', '.join(unmatched)}: the data marks no ego vehicle (is_ego), so its "
@@ -310,6 +325,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     # suite); runs with reference corpora or plug-ins are scored every time
     scores = memoised(cache, "scores", None if corpora or plan.plugins else {
         "episodes": table_digest(episodes), "suite": suite.to_dict(),
+        "contexts": None if occurrences is None else table_digest(occurrences),
         "gate_metrics": list(plan.gate_metrics),
         "measures": [m.to_dict() for m in plan.measures]},
         scored, scores_to_files, scores_from_files)

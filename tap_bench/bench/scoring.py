@@ -61,6 +61,8 @@ class Scores:
             sim-to-real behaviour gap from each reference of real driving given as data
             files (empty otherwise).
         gap_labels: reference, policy and the per-label share differences of each gap.
+        contexts: each policy against the reference inside each interaction context
+            (:func:`tap_bench.bench.contexts.context_scores`; ``bench run`` only).
         references: name -> the :class:`Reference` used.
         methods: table name -> how its intervals were computed.
     """
@@ -79,12 +81,13 @@ class Scores:
     scenario_matches: pd.DataFrame = field(default_factory=pd.DataFrame)
     gap: pd.DataFrame = field(default_factory=pd.DataFrame)
     gap_labels: pd.DataFrame = field(default_factory=pd.DataFrame)
+    contexts: pd.DataFrame = field(default_factory=pd.DataFrame)
     references: dict[str, Reference] = field(default_factory=dict)
     methods: dict[str, str] = field(default_factory=dict)
 
     TABLES = ("label_counts", "measures", "paired", "paired_measures", "paired_labels",
               "matched", "coverage", "novelty", "novel_labels", "diversity", "gate_power",
-              "scenario_matches", "gap", "gap_labels")
+              "scenario_matches", "gap", "gap_labels", "contexts")
 
     def tables(self) -> dict[str, pd.DataFrame]:
         """name -> table, in report order."""
@@ -231,8 +234,9 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
                     continue
                 cv = pooled_coverage(per_env_cov, sizes, config.level)
                 nv = pooled_novelty(per_env_nov, config.level) if per_env_nov else None
-                nl = pooled_null(per_env_null, [r.n_reference for r in per_env_cov],
-                                 [r.n for r in per_env_cov], config.level) \
+                nl = pooled_null([r for r, _, _ in per_env_null],
+                                 [k for _, k, _ in per_env_null],
+                                 [n for _, _, n in per_env_null], config.level) \
                     if per_env_null else None
             else:
                 ref = reference.get(env) if keyed else reference
@@ -252,8 +256,8 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
                     sizes.append(ref.n_trajectories)
                     if nv is not None:
                         per_env_nov[env] = nv
-                    if nl is not None:
-                        per_env_null.append(nl)
+                    if nl is not None:  # with its env's pooling weights (K, episodes)
+                        per_env_null.append((nl, cv.n_reference, cv.n))
             cov_rows.append({**key, **cv.row(), **(nl.coverage_row() if nl else {})})
             if nv is not None:
                 size = sum(r.n_trajectories for r in reference.values()) if keyed and \

@@ -52,14 +52,20 @@ from typing import Any
 from tap_bench import catalogue, sdl
 from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.measures import MEASURES
-from tap_bench.errors import FileFormatError, ParameterError, UnknownNameError, did_you_mean
+from tap_bench.errors import (
+    FileFormatError,
+    ParameterError,
+    RegistrationError,
+    UnknownNameError,
+    did_you_mean,
+)
 from tap_bench.plugins import load_plugins
 from tap_bench.sim.policies import available_policies
 from tap_bench.sim.scenario_env import get_scenario
 from tap_bench.sim.scenario_format import parse_seeds, read_json, scenario_names
 from tap_bench.sim.womd_scene import TRAFFIC, WomdScenes
 
-__all__ = ["SAFETY_WEIGHTS", "GateConfig", "Suite", "available_suites", "default_margins",
+__all__ = ["GateConfig", "Suite", "available_suites", "default_margins",
            "default_weights", "gate_metrics", "load_suite", "suite_from_dict"]
 
 MAX_PERMUTATIONS = 100_000
@@ -80,24 +86,32 @@ def default_margins() -> dict[str, float]:
     return {**MEASURES.margins(), "label_tv": LABEL_TV_MARGIN}
 
 
-SAFETY_WEIGHTS: Mapping[str, float] = {"crashed": 0.65, "min_ttc_s": 0.1, "min_headway_s": 0.1}
-"""The gate's share of alpha per safety metric (of each (env, policy) cell): the safety
-family first, 0.85 of alpha, and the crash rate most of it, since a rate carries the least
-information per seed: its exact paired test reaches 1/2^k when k seeds turn to a crash,
-and 0.65 x 0.05 = 0.0325 lets k = 5 fire (0.6 would need 6). Every other metric shares the
-remaining 0.15 equally; a mean changes on every seed of a changed policy, so its small
-share still fires. Chosen by ``benchmarks/gate_calibration.py`` (docs/benchmark.md,
-"Multiplicity")."""
-
-
 def default_weights() -> dict[str, float]:
-    """metric -> the gate's default weight (share of alpha within a cell): the
-    :data:`SAFETY_WEIGHTS` of the registered safety measures, the rest split equally."""
+    """metric -> the gate's default weight (share of alpha within a cell): each registered
+    measure's own ``gate_weight`` where it has one, the rest split equally.
+
+    The built-in safety family takes 0.85 of alpha, and the crash rate most of it (0.65;
+    min TTC and min headway 0.1 each), since a rate carries the least information per seed:
+    its exact paired test reaches 1/2^k when k seeds turn to a crash, and 0.65 x 0.05 =
+    0.0325 lets k = 5 fire (0.6 would need 6). Every other metric shares the remaining 0.15
+    equally; a mean changes on every seed of a changed policy, so its small share still
+    fires. Chosen by ``benchmarks/gate_calibration.py`` (docs/benchmark.md,
+    "Multiplicity").
+
+    Raises:
+        RegistrationError: the measures' own weights add up to 1 or more (nothing left
+            for the other metrics).
+    """
     metrics = gate_metrics()
-    safety = {k: v for k, v in SAFETY_WEIGHTS.items() if k in metrics}
-    rest = [m for m in metrics if m not in safety]
-    left = 1.0 - sum(safety.values())
-    return {**safety, **{m: round(left / len(rest), 12) for m in rest}} if rest else safety
+    own = {m.name: float(m.gate_weight) for m in MEASURES
+           if m.gate_weight is not None and m.name in metrics}
+    rest = [m for m in metrics if m not in own]
+    left = 1.0 - sum(own.values())
+    if rest and left <= 0:
+        raise RegistrationError(
+            f"the measures' gate weights ({', '.join(f'{k} {v:g}' for k, v in own.items())}) "
+            "leave no share of alpha for the other metrics; lower a gate_weight.")
+    return {**own, **{m: round(left / len(rest), 12) for m in rest}} if rest else own
 
 
 _FIELDS = ("name", "version", "description", "envs", "policies", "seeds", "reference_policy",

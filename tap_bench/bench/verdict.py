@@ -28,16 +28,22 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.measures import MEASURES
+from tap_bench.bench.measures import MEASURES, SCENE_MEASURES, Measure, measure_entry
 
-__all__ = ["SAFETY", "verdict_lines", "verdict_table"]
+__all__ = ["EFFICIENCY_ROLES", "SAFETY_ROLES", "verdict_lines", "verdict_table"]
 
-SAFETY = ("crashed", "min_ttc_s", "min_headway_s")
-"""The safety measures, in the order the verdict reads them."""
-EFFICIENCY = ("mean_speed", "rms_jerk")
-_WORDS = {"crashed": ("crash rate", "points"), "min_ttc_s": ("minimum TTC", "s"),
-          "min_headway_s": ("minimum headway", "s"), "mean_speed": ("mean speed", "m/s"),
-          "rms_jerk": ("RMS jerk", "m/s^3")}
+SAFETY_ROLES = ("safety",)
+"""The measure roles (:attr:`~tap_bench.bench.measures.Measure.role`) of the safety family:
+the crash rate, min TTC and min headway built in (and off-road and red-light rates of
+recorded scenes), in registration order."""
+EFFICIENCY_ROLES = ("progress", "comfort")
+"""The roles of the efficiency family: mean speed (faster / slower) and RMS jerk (smoother /
+harsher) built in; each entry's ``words`` say how it differs."""
+
+
+def _family(roles: tuple[str, ...]) -> list[Measure]:
+    """The registered entries of ``roles``, in registration order (no name listed here)."""
+    return [m for m in (*MEASURES, *SCENE_MEASURES) if m.role in roles]
 
 
 def _side(row: Any) -> int:
@@ -54,9 +60,12 @@ def _side(row: Any) -> int:
 
 
 def _fmt(measure: str, diff: float, lo: float, hi: float) -> str:
-    name, unit = _WORDS.get(measure, (measure, MEASURES[measure].unit if measure in MEASURES
-                                      else ""))
-    scale = MEASURES[measure].scale if measure in MEASURES else 1.0  # a rate in points
+    entry = measure_entry(measure)
+    if entry is None:
+        name, unit, scale = measure, "", 1.0
+    else:  # a rate's difference in percentage points
+        name, scale = entry.label, entry.scale
+        unit = "points" if entry.is_rate else entry.display_unit
     if np.isfinite(lo) and np.isfinite(hi):
         interval = f" [{scale * lo:+.2f}, {scale * hi:+.2f}]"
     else:
@@ -88,14 +97,15 @@ def verdict_table(paired_measures: pd.DataFrame, paired: pd.DataFrame | None = N
         if not (sub["env"] == "all").any() and sub["env"].nunique() == 1:
             sub = sub.assign(env="all")  # one env: it is the pooled figure
         worse, better = [], []
-        for measure in SAFETY:
+        safety = [m.name for m in _family(SAFETY_ROLES)]
+        for measure in safety:
             for r in sub[sub["measure"] == measure].itertuples():
                 side = _side(r)
                 where = "pooled" if r.env == "all" else r.env
                 text = f"{_fmt(measure, r.diff, r.diff_low, r.diff_high)} ({where})"
                 (worse if side < 0 else better if side > 0 else []).append(
-                    (r.env != "all", -abs(float(r.diff)) * (
-                        MEASURES[measure].scale if measure in MEASURES else 1.0), text))
+                    (r.env != "all", -abs(float(r.diff)) * measure_entry(measure).scale,
+                     text))
         if worse:
             word, claims = "less safe", worse
         elif better:
@@ -104,21 +114,20 @@ def verdict_table(paired_measures: pd.DataFrame, paired: pd.DataFrame | None = N
             word = "no safety difference detected"
             claims = [(False, 0.0, f"{_fmt(r.measure, r.diff, r.diff_low, r.diff_high)} "
                        "(pooled)") for r in sub[(sub["env"] == "all")
-                                                & sub["measure"].isin(SAFETY)].itertuples()]
+                                                & sub["measure"].isin(safety)].itertuples()]
         claims.sort(key=lambda c: (c[0], c[1]))  # pooled first, then the largest
         rows.append({"policy": policy, "reference": reference, "area": "safety",
                      "word": word, "evidence": "; ".join(c[2] for c in claims[:4])})
         eff = []
         words = []
-        for measure in EFFICIENCY:
-            pooled = sub[(sub["env"] == "all") & (sub["measure"] == measure)]
+        for entry in _family(EFFICIENCY_ROLES):
+            pooled = sub[(sub["env"] == "all") & (sub["measure"] == entry.name)]
             for r in pooled.itertuples():
                 side = _side(r)
-                good, bad = (("faster", "slower") if measure == "mean_speed"
-                             else ("smoother", "harsher"))
+                good, bad = entry.words
                 words.append(good if side > 0 else bad if side < 0 else
-                             f"no {_WORDS[measure][0]} difference detected")
-                eff.append(f"{_fmt(measure, r.diff, r.diff_low, r.diff_high)} (pooled)")
+                             f"no {entry.label} difference detected")
+                eff.append(f"{_fmt(entry.name, r.diff, r.diff_low, r.diff_high)} (pooled)")
         rows.append({"policy": policy, "reference": reference, "area": "efficiency",
                      "word": ", ".join(words) or "not measured", "evidence": "; ".join(eff)})
         rows.append({"policy": policy, "reference": reference, "area": "behaviour",

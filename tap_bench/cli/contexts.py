@@ -7,7 +7,7 @@ import argparse
 import pandas as pd
 
 from tap_bench.bench.bootstrap import add_bootstrap_arguments, bootstrap_from_args
-from tap_bench.bench.contexts import compare_contexts, context_occurrences
+from tap_bench.bench.contexts import compare_contexts, context_occurrences, context_scores
 from tap_bench.tableio import beside, check_outputs, read_table, write_tables
 
 
@@ -42,7 +42,10 @@ def run(args: argparse.Namespace) -> int:
         table = table[table["policy"].isin([args.a, args.b])]
     occ = context_occurrences(table, args.thresholds, source=", ".join(args.trajectories))
     config = bootstrap_from_args(args)
-    out = compare_contexts(occ, args.a, args.b, config=config, min_pairs=args.min_pairs)
+    if not (occ["policy"] == args.b).any() or not (occ["policy"] == args.a).any():
+        compare_contexts(occ, args.a, args.b)  # names the policy without occurrences
+    out = context_scores(occ, [args.a], args.b, config=config, min_pairs=args.min_pairs)
+    out = out.drop(columns=["policy_a", "policy_b"])  # this command's table, as before
     print(f"{args.a} against {args.b} (the reference) inside interaction contexts; "
           f"differences {args.a} - {args.b}, {config.describe('seeds (pairs of episodes)')}")
     for (env, context), group in out.groupby(["env", "context"], sort=True):

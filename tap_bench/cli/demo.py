@@ -55,8 +55,15 @@ def run(args: argparse.Namespace) -> int:
     for policy, row in summary["headline"].items():
         bits = [f"crash rate {with_interval(row, 'crashed', '.0%')}",
                 f"mean speed {with_interval(row, 'mean_speed', '.1f')} m/s"]
-        bits += [f"{k} {v:.0%}" for k, v in row.items()
-                 if k.startswith("coverage") and v is not None]
+        for k, v in row.items():  # coverage beside the same-policy figure (halves)
+            if k.startswith("coverage of") and ":" not in k and v is not None:
+                text = f"{k} {v:.0%}"
+                null, diff = row.get(f"{k}: same-policy figure"), row.get(f"{k}: difference")
+                if null is not None and diff is not None:
+                    text += (f" (same policy {null:.0%}: {round(100 * diff) + 0:+d} pts "
+                             f"[{round(100 * row[f'{k}: difference_low']) + 0:+d}, "
+                             f"{round(100 * row[f'{k}: difference_high']) + 0:+d}])")
+                bits.append(text)
         print(f"  {policy:16s} " + ", ".join(bits))
     if summary.get("verdict"):
         from tap_bench.bench.verdict import verdict_lines

@@ -17,8 +17,15 @@ rollout. :func:`act_all` gives every vehicle the same action, bit for bit:
   ``np.clip`` keep their NaN and signed-zero behaviour; ``np.dot`` of two 2-vectors is
   ``a0 * b0 + a1 * b1`` where the BLAS kernel computes that, and ``np.dot`` row by row
   where it fuses the multiply-add);
-- a vehicle on a lane that is not straight, or whose class or instance changes any method
-  involved, is left to highway-env's own ``act``.
+- a vehicle on a lane that is not straight steers and brakes by :func:`_act_rest`, one
+  vehicle at a time, and one whose class or instance changes any method involved is left
+  to highway-env's own ``act``.
+
+On small roads (:func:`act_each`, highway-env's order: each vehicle acts in full before
+the next) the plain IDM vehicles run highway-env's lane-change policy and then
+:func:`_act_rest`: the steering and IDM formulas term for term, in numpy scalars where
+highway-env has them, without the calls that cost more than their arithmetic (``np.clip``
+of one number, the velocity and direction arrays, a straight lane's ``np.dot``).
 
 numpy's array kernels (``arcsin``, ``tan``, ``power`` ...) must give the same bits as its
 scalar ones for this to hold; :func:`array_kernels_agree` checks that on this machine once
@@ -39,7 +46,7 @@ from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import RoadObject
 
-__all__ = ["act_all", "array_kernels_agree", "is_plain_idm", "lane_dots"]
+__all__ = ["act_all", "act_each", "array_kernels_agree", "is_plain_idm", "lane_dots"]
 
 _METHODS = ("act", "follow_road", "change_lane_policy", "mobil", "steering_control",
             "acceleration", "desired_gap", "lane_distance_to")
@@ -183,18 +190,117 @@ def act_all(road: Any, leaders: Any = None) -> None:
 
 
 def _act_rest(vehicle: Any) -> None:
-    """The part of ``IDMVehicle.act`` after the lane-change policy, as highway-env runs it."""
-    action = {"steering": np.clip(vehicle.steering_control(vehicle.target_lane_index),
-                                  -vehicle.MAX_STEERING_ANGLE, vehicle.MAX_STEERING_ANGLE)}
-    front, rear = vehicle.road.neighbour_vehicles(vehicle, vehicle.lane_index)
-    acceleration = vehicle.acceleration(ego_vehicle=vehicle, front_vehicle=front,
-                                        rear_vehicle=rear)
+    """The part of ``IDMVehicle.act`` after the lane-change policy, as highway-env runs it:
+    its steering and IDM formulas term for term, in numpy scalars where highway-env has
+    them (:func:`_steering`, :func:`_idm`), without the calls that cost more than the
+    arithmetic (``np.clip`` of a scalar, the velocity and direction arrays, a straight
+    lane's ``np.dot``), whose results :func:`_clip` and :func:`_local` give bit for bit."""
+    steering = _clip(_steering(vehicle), -vehicle.MAX_STEERING_ANGLE,
+                     vehicle.MAX_STEERING_ANGLE)
+    front = vehicle.road.neighbour_vehicles(vehicle, vehicle.lane_index)[0]
+    acceleration = _idm(vehicle, front)
     if vehicle.lane_index != vehicle.target_lane_index:
-        front, rear = vehicle.road.neighbour_vehicles(vehicle, vehicle.target_lane_index)
-        acceleration = min(acceleration, vehicle.acceleration(
-            ego_vehicle=vehicle, front_vehicle=front, rear_vehicle=rear))
-    action["acceleration"] = np.clip(acceleration, -vehicle.ACC_MAX, vehicle.ACC_MAX)
-    Vehicle.act(vehicle, action)
+        front = vehicle.road.neighbour_vehicles(vehicle, vehicle.target_lane_index)[0]
+        target_acceleration = _idm(vehicle, front)
+        acceleration = min(acceleration, target_acceleration)
+    vehicle.action = {"steering": steering,
+                      "acceleration": _clip(acceleration, -vehicle.ACC_MAX, vehicle.ACC_MAX)}
+
+
+def act_each(road: Any) -> None:
+    """highway-env's ``Road.act``, one vehicle after the other: a plain IDM vehicle (see
+    :func:`is_plain_idm`) acts by highway-env's lane-change policy and then
+    :func:`_act_rest`, any other by its own ``act``; the same actions, target lanes and
+    timers, bit for bit."""
+    for vehicle in road.vehicles:
+        if not is_plain_idm(vehicle):
+            vehicle.act()
+        elif not vehicle.crashed:
+            vehicle.follow_road()
+            if vehicle.enable_lane_change:
+                vehicle.change_lane_policy()
+            _act_rest(vehicle)
+
+
+def _clip(x: Any, low: Any, high: Any) -> Any:
+    """``np.clip(x, low, high)`` of one number, the same value (NaN and signed zeros
+    included: numpy keeps ``x`` when it equals a bound), without numpy's call overhead."""
+    if x != x or low != low or high != high:
+        return np.clip(x, low, high)
+    clipped = x if x >= low else low
+    return clipped if clipped <= high else high
+
+
+def _local(lane: Any, position: np.ndarray) -> tuple[Any, Any]:
+    """``lane.local_coordinates(position)``: a straight lane's two ``np.dot`` as
+    :func:`_dot2` (bit for bit), other lanes' by their own method."""
+    if type(lane) is StraightLane and _dot_is_mul_add():
+        dx, dy = position[0] - lane.start[0], position[1] - lane.start[1]
+        d, lateral = lane.direction, lane.direction_lateral
+        return float(dx * d[0] + dy * d[1]), float(dx * lateral[0] + dy * lateral[1])
+    return lane.local_coordinates(position)
+
+
+def _steering(vehicle: Any) -> float:
+    """``ControlledVehicle.steering_control(vehicle.target_lane_index)``, term for term."""
+    target = vehicle.road.network.get_lane(vehicle.target_lane_index)
+    lane_coords = _local(target, vehicle.position)
+    if type(target) is StraightLane:
+        future_heading = target.heading
+    else:
+        future_heading = target.heading_at(lane_coords[0]
+                                           + vehicle.speed * vehicle.TAU_PURSUIT)
+    lateral_speed_command = -vehicle.KP_LATERAL * lane_coords[1]
+    speed = _not_zero_one(vehicle.speed)
+    heading_command = np.arcsin(_clip(lateral_speed_command / speed, -1, 1))
+    heading_ref = future_heading + _clip(heading_command, -np.pi / 4, np.pi / 4)
+    heading_rate_command = vehicle.KP_HEADING * (((heading_ref - vehicle.heading) + np.pi)
+                                                 % (2 * np.pi) - np.pi)
+    slip_angle = np.arcsin(_clip(vehicle.LENGTH / 2 / speed * heading_rate_command, -1, 1))
+    steering_angle = np.arctan(2 * np.tan(slip_angle))
+    return float(_clip(steering_angle, -vehicle.MAX_STEERING_ANGLE,
+                       vehicle.MAX_STEERING_ANGLE))
+
+
+def _not_zero_one(x: Any, eps: float = _EPS) -> Any:
+    """highway_env.utils.not_zero of one number."""
+    if abs(x) > eps:
+        return x
+    return eps if x >= 0 else -eps
+
+
+def _idm(vehicle: Any, front: Any) -> Any:
+    """``vehicle.acceleration(ego_vehicle=vehicle, front_vehicle=front)``, term for term."""
+    target_speed = getattr(vehicle, "target_speed", 0)
+    lane = vehicle.lane
+    if lane and lane.speed_limit is not None:
+        target_speed = _clip(target_speed, 0, lane.speed_limit)
+    acceleration = vehicle.COMFORT_ACC_MAX * (1 - np.power(
+        max(vehicle.speed, 0) / abs(_not_zero_one(target_speed)), vehicle.DELTA))
+    if front:
+        d = _local(lane, front.position)[0] - _local(lane, vehicle.position)[0]
+        acceleration -= vehicle.COMFORT_ACC_MAX * np.power(
+            _desired_gap(vehicle, front) / _not_zero_one(d), 2)
+    return acceleration
+
+
+def _desired_gap(vehicle: Any, front: Any) -> Any:
+    """``vehicle.desired_gap(vehicle, front)``, term for term (``np.dot`` as
+    :func:`_dot` computes it)."""
+    ab = -vehicle.COMFORT_ACC_MAX * vehicle.COMFORT_ACC_MIN
+    cos, sin = np.cos(vehicle.heading), np.sin(vehicle.heading)
+    if _standard_velocity(type(front)) and not {"velocity", "direction"} & vars(front).keys():
+        front_cos, front_sin = np.cos(front.heading), np.sin(front.heading)
+        dvx = vehicle.speed * cos - front.speed * front_cos
+        dvy = vehicle.speed * sin - front.speed * front_sin
+    else:
+        dvx, dvy = np.array([vehicle.speed * cos, vehicle.speed * sin]) - front.velocity
+    if _dot_is_mul_add():
+        dv = dvx * cos + dvy * sin
+    else:
+        dv = np.dot(np.array([dvx, dvy]), np.array([cos, sin]))
+    return (vehicle.DISTANCE_WANTED + vehicle.speed * vehicle.TIME_WANTED
+            + vehicle.speed * dv / (2 * np.sqrt(ab)))
 
 
 def _lane_arrays(lanes: list[StraightLane]) -> tuple[np.ndarray, ...]:

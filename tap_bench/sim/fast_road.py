@@ -22,7 +22,10 @@ every vehicle looks up its lane by computing its distance to every lane of the n
   exactly highway-env's;
 - the IDM/MOBIL vehicles decide their actions all at once (:mod:`tap_bench.sim.fast_idm`),
   their leaders found together (:meth:`FastRoad.leaders`), on roads of at least
-  :data:`AT_ONCE_FROM` vehicles (on smaller ones highway-env's loops cost less);
+  :data:`AT_ONCE_FROM` vehicles; on smaller ones one after the other, with highway-env's
+  formulas in cheaper calls (:func:`fast_idm.act_each <tap_bench.sim.fast_idm.act_each>`);
+- the vehicles move by highway-env's ``Vehicle.step`` lines and, on roads of many
+  (vehicle, lane) pairs, have their lanes looked up together (:meth:`FastRoad.move`);
 - the collision loop skips the pairs in which neither vehicle checks collisions (the first
   thing highway-env's ``handle_collisions`` does for such a pair is return) and the pairs
   farther apart, by more than :data:`TOLERANCE`, than highway-env's spherical pre-check
@@ -58,7 +61,7 @@ from highway_env.vehicle.controller import ControlledVehicle
 from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import Landmark, RoadObject
 
-from tap_bench.sim.fast_idm import act_all, array_kernels_agree, lane_dots
+from tap_bench.sim.fast_idm import act_all, act_each, array_kernels_agree, lane_dots
 
 __all__ = ["AT_ONCE_FROM", "MOVE_AT_ONCE_FROM", "TOLERANCE", "FastRoad", "use_fast_road"]
 
@@ -236,8 +239,8 @@ class FastRoad:
         try:
             if self._decide_at_once and len(self.road.vehicles) >= AT_ONCE_FROM:
                 act_all(self.road, leaders=self.leaders)
-            else:
-                Road.act(self.road)
+            else:  # one vehicle after the other, as highway-env's Road.act
+                act_each(self.road)
         finally:
             self._others = self._positions = None
             self._lanes.clear()

@@ -110,6 +110,9 @@ def test_demo_runs_and_prints_the_report(tmp_path, capsys):
     assert "episodes done (" in out and "writing the tables" in out
     assert re.search(r"crash rate \d+% \[\d+%, \d+%\]", out)
     assert "random vs idm: LESS SAFE" in out
+    # coverage beside the same-policy figure and the difference from it (issue 25)
+    assert re.search(r"coverage of idm rollouts \d+% \(same policy \d+%: [+-]\d+ pts "
+                     r"\[[+-]\d+, [+-]\d+\]\)", out)
     print(f"demo wall time {elapsed:.0f} s")
 
 

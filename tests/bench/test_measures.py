@@ -46,16 +46,18 @@ def test_following_a_slower_leader_by_hand():
 
 
 def test_step_measures_follow_the_closing_gap_by_hand():
-    # a leader 90 m ahead (inside the 100 m look-ahead) at 10 m/s: at step k the bumper gap
-    # is 85 - k m, closing at 10 m/s, the ego at 20 m/s; the car alongside is never a leader
+    # a leader 90 m ahead at 10 m/s, the ego at 20 m/s: its reach is 4 s x 20 m/s = 80 m, so
+    # the leader counts from t = 1 s (centre 80 m ahead) on; at step k the bumper gap is then
+    # 85 - k m, closing at 10 m/s; the car alongside is never a leader
     scene = pd.concat([track("s", "ego", 0, 0, 20, ego=True), track("s", "1", 90, 0, 10),
                        track("s", "2", 2, 4.0, 20)], ignore_index=True)
     steps = ego_step_measures(scene)
     assert len(steps) == 60 and (steps["scenario_id"] == "s").all()
-    gap = 90 - 10 * steps["t"] - VEHICLE_LENGTH
-    assert np.allclose(steps["gap_m"], gap)
-    assert np.allclose(steps["headway_s"], np.minimum(gap / 20, 10.0))
-    assert np.allclose(steps["ttc_s"], np.minimum(gap / 10, TTC_CAP_S))
+    gap = (90 - 10 * steps["t"] - VEHICLE_LENGTH).where(steps["t"] >= 1.0 - 1e-9)
+    assert np.allclose(steps["gap_m"], gap, equal_nan=True)
+    assert steps["gap_m"].isna().sum() == 10
+    assert np.allclose(steps["headway_s"], np.minimum(gap / 20, 10.0), equal_nan=True)
+    assert np.allclose(steps["ttc_s"], np.minimum(gap / 10, TTC_CAP_S), equal_nan=True)
     assert list(steps["scored"]) == [t >= BURN_IN_S - 1e-9 for t in steps["t"]]
     # the episode minimum is the minimum over the scored steps
     assert ego_measures(scene)["min_ttc_s"].iloc[0] == pytest.approx(
@@ -265,7 +267,8 @@ def test_a_car_stopped_25_m_ahead_of_the_records_end_on_a_curve_as_on_a_straight
                                                                                    side):
     # the ego drives at 10 m/s for 9.1 s (91 m); a car stands 25 m beyond its last position
     # along the road: bumper gap 20 m at the last step, closing at 10 m/s: TTC 2.0 s and
-    # headway 2.0 s, found on the same steps as on a straight road (within 100 m ahead)
+    # headway 2.0 s, found on the same steps as on a straight road: those where it stands
+    # within the ego's reach (60 m at 10 m/s) along the road
     n = 91
     v = np.full(n, 10.0)
     stop = {"lead": (90.0 + 25.0, np.zeros(n), 0.0)}
@@ -276,7 +279,9 @@ def test_a_car_stopped_25_m_ahead_of_the_records_end_on_a_curve_as_on_a_straight
     assert m["min_ttc_s"] == pytest.approx(2.0, abs=0.02)
     assert m["min_headway_s"] == pytest.approx(2.0, abs=0.02)
     assert ((curve.leader_row >= 0) == (straight.leader_row >= 0)).mean() >= 0.98
-    assert (curve.leader_row >= 0).sum() >= 70
+    along = 115.0 - 10.0 * curve.t  # centre to centre along the road
+    assert (curve.leader_row[along <= 59.5] >= 0).all()
+    assert (curve.leader_row[along > 60.5] < 0).all()
 
 
 @pytest.mark.parametrize("radius", [60.0, np.inf])
@@ -337,7 +342,8 @@ def test_a_car_stopped_on_the_road_out_of_a_turn_whose_exit_the_record_cuts(radi
     # a 90-degree turn: 2 s straight, a circle of `radius`, then the yaw rate falls to 0
     # over 3 s; the record ends half way through that fall and a car stands 25 m on along
     # the road (still in the exit). The line's curvature falls on as it fell: the car is the
-    # leader at every step, TTC and headway 2.0 s at the end (a straight road's figures)
+    # leader at every step where it stands within the ego's reach (60 m at 10 m/s) along the
+    # road, TTC and headway 2.0 s at the end (a straight road's figures)
     from tap_bench.synthetic import from_controls
     v, w0, fall = 10.0, side * 10.0 / radius, 3.0
     turn_s = (np.pi / 2 - abs(w0) * fall / 2) / abs(w0)
@@ -352,5 +358,7 @@ def test_a_car_stopped_on_the_road_out_of_a_turn_whose_exit_the_record_cuts(radi
     table = pd.concat([ego, car], ignore_index=True)
     steps = ego_steps(table)
     m = ego_measures(table).iloc[0]
-    assert (steps.leader_row >= 0).all()
+    along = (end + 25 - np.arange(end + 1)) * v / 10  # centre to centre along the road
+    assert (steps.leader_row[along <= 59.5] >= 0).all()
+    assert (steps.leader_row[along > 60.5] < 0).all()
     assert m["min_ttc_s"] == pytest.approx(2.0, abs=0.05)

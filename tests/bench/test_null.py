@@ -169,3 +169,15 @@ def test_reference_scores_say_what_they_scored_on():
     cov, nov, _ = reference_scores(rollouts([A, C], "p"), ref, "r",
                                    config=BootstrapConfig(n_resamples=200), unit="windows")
     assert set(cov["unit"]) == {"windows"} and set(nov["unit"]) == {"windows"}
+
+
+def test_an_env_whose_reference_is_too_small_for_halves_is_left_out_of_the_pooled_null():
+    eps = pd.concat([rollouts([A, B] * 4, "idm", "highway"), rollouts([A, B], "idm", "merge"),
+                     rollouts([C, B] * 4, "random", "highway"),
+                     rollouts([C, B], "random", "merge")], ignore_index=True)
+    scores = score(episode_table(eps), reference_policy="idm", level="maneuver",
+                   config=BootstrapConfig(n_resamples=200))
+    cov = scores.coverage.set_index(["env", "unit"])
+    assert np.isnan(cov.loc[("merge", "episodes"), "null_coverage"])  # 2 rollouts: no halves
+    pooled = cov.loc[("all", "episodes")]
+    assert pooled["null_coverage"] == cov.loc[("highway", "episodes"), "null_coverage"]

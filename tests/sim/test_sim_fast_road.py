@@ -248,6 +248,54 @@ def test_a_changed_formula_is_caught(monkeypatch, mutation):
         pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
 
 
+@pytest.mark.parametrize("mutation", ["steering", "acceleration", "desired gap", "lane"])
+@pytest.mark.parametrize("name", ["merge", "roundabout"])
+def test_a_changed_formula_of_one_vehicle_at_a_time_is_caught(monkeypatch, mutation, name):
+    """Small roads (and curved lanes) decide one vehicle at a time with fast_idm's scalar
+    formulas: one ulp in a steering command, an IDM acceleration, a desired gap or a lane
+    coordinate is seen by the comparison."""
+    from tap_bench.sim import fast_idm
+
+    target = {"steering": "_steering", "acceleration": "_idm", "desired gap": "_desired_gap",
+              "lane": "_local"}[mutation]
+    formula = getattr(fast_idm, target)
+
+    def one_ulp_off(*args):
+        value = formula(*args)
+        if mutation == "lane":
+            return np.nextafter(value[0], np.inf), value[1]
+        return np.nextafter(value, np.inf)
+
+    monkeypatch.setattr(fast_idm, target, one_ulp_off)
+    ours = _episodes(name, fast_road=True, seeds=(0,))
+    theirs = _episodes(name, fast_road=False, seeds=(0,))
+    with pytest.raises(AssertionError):
+        pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
+
+
+def test_one_number_is_clipped_as_numpy_clips_it():
+    """fast_idm._clip against np.clip on numbers, bounds and their ties: signed zeros,
+    infinities, NaN (in the number or a bound), bounds the wrong way round."""
+    from tap_bench.sim.fast_idm import _clip
+
+    rng = np.random.default_rng(0)
+    special = [0.0, -0.0, 1.0, -1.0, np.inf, -np.inf, np.nan, np.pi / 4, -np.pi / 4,
+               np.pi / 3, 6.0, -6.0, 20.0, 5e-324, -5e-324]
+    numbers = special + list(rng.uniform(-30, 30, 40))
+    bounds = [(-1, 1), (0, 20), (0, 20.0), (-np.pi / 4, np.pi / 4), (-np.pi / 3, np.pi / 3),
+              (-6.0, 6.0), (0.0, 0.0), (-0.0, 0.0), (0, -0.0), (-0.0, -0.0), (2.0, 1.0),
+              (np.nan, 1.0), (0.0, np.nan), (-np.inf, np.inf)]
+    checked = 0
+    for x in numbers:
+        for low, high in bounds:
+            want = np.clip(np.float64(x), low, high)
+            for got in (_clip(np.float64(x), low, high), _clip(float(x), low, high)):
+                assert np.array_equal(want, got, equal_nan=True), (x, low, high)
+                assert np.signbit(want) == np.signbit(got), (x, low, high)
+                checked += 1
+    assert checked > 1500
+
+
 def test_machines_whose_array_kernels_differ_simulate_with_highway_envs_act(monkeypatch):
     from tap_bench.sim import fast_idm, fast_road
 
