@@ -296,9 +296,13 @@ def policy_fingerprint(definition: PolicyDefinition) -> dict[str, Any] | None:
 LABELS_FORMAT = 2
 """Layout of a label entry file; raised when it changes (old entries then miss). 2: the
 tables as Arrow IPC streams (a re-run reads them four times quicker than Parquet)."""
-LABEL_CODE = ("tap_bench.labelling", "tap_bench.bench.episodes", "tap_bench.bench.measures")
+LABEL_CODE = ("tap_bench.labelling", "tap_bench.bench.episodes", "tap_bench.bench.measures",
+              "tap_bench.sim.roads")
 """The modules that make an episode's labels and measures; their code and every module of
-tap-bench they import (followed transitively) key the label cache (:func:`label_code`)."""
+tap-bench they import (followed transitively) key the label cache (:func:`label_code`).
+``tap_bench.sim.roads`` builds the map table a highway-env episode is labelled and measured
+along (:data:`ROAD_MAP`); with it come the modules it reads, such as :mod:`tap_bench.maps`
+(its sampling step), which the episode key does not hold."""
 
 
 _IMPORT = re.compile(r"^[ \t]*(?:from[ \t]+(tap_bench[\w.]*)[ \t]+import[ \t]+(\([^)]*\)|[^\n]+)"

@@ -143,3 +143,17 @@ def test_the_label_key_follows_the_code_of_labels_and_measures(monkeypatch):
     assert label_code() == base
     monkeypatch.setattr(cache_module, "LABEL_CODE", ("tap_bench.labelling",))
     assert label_code()["code"] != base["code"]
+
+
+def test_the_label_key_covers_the_code_of_the_road_episodes_are_labelled_along():
+    # a highway-env episode is labelled and measured along its scenario's road
+    # (run_tasks._road -> tap_bench.sim.roads.road_table): every module that code imports must
+    # be in the label key or in the episode key, or an edit to it (the sampling step of
+    # tap_bench.maps) would leave the labels of the old road in the cache
+    from tap_bench.bench.cache import LABEL_CODE, _simulation_modules, _tap_bench_closure
+
+    covered = {p.resolve() for p in _tap_bench_closure(LABEL_CODE).values()} \
+        | {p.resolve() for p in _simulation_modules()}
+    road = _tap_bench_closure(("tap_bench.sim.roads",))
+    assert "tap_bench.maps" in road
+    assert {name for name, path in road.items() if path.resolve() not in covered} == set()
