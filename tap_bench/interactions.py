@@ -75,6 +75,7 @@ from tap_bench.pathframe import (
     LEADER_RANGE_M,
     LEADER_RANGE_S,
     SAME_DIRECTION,
+    LaneMap,
     Paths,
     leader_reach,
     nearest_leader,
@@ -237,7 +238,7 @@ def _paint(relation, other, start, stop, code, row_of):
 def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
                       stop: np.ndarray, lateral: np.ndarray, a_dec: float,
                       config: InteractionConfig | None = None, *,
-                      map_table: pd.DataFrame | None = None) -> InteractionSteps:
+                      map_table: pd.DataFrame | LaneMap | None = None) -> InteractionSteps:
     """The relation of every step of the given ego segments.
 
     Args:
@@ -251,7 +252,9 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
         config: parameters.
         map_table: lane centre lines (:mod:`tap_bench.maps`; a scenario's map has its
             ``scenario_id`` or its ``env`` as ``map_id``): the ego's path goes on along its
-            lane beyond the record. None: along an arc of its last curvature.
+            lane beyond the record; or a :class:`~tap_bench.pathframe.LaneMap` of them
+            shared with other calls (:func:`~tap_bench.pathframe.scene_lanes`). None: along
+            an arc of its last curvature.
     """
     config = config or InteractionConfig()
     idx = kin.index

@@ -34,6 +34,7 @@ from tap_bench.interactions import (
 )
 from tap_bench.kinematics import Kinematics, Plausibility, compute_kinematics
 from tap_bench.labels import GLITCH_COLUMNS, LABEL_COLUMNS, SEGMENT_COLUMNS
+from tap_bench.pathframe import LaneMap
 from tap_bench.resampling import resample_to_10hz
 from tap_bench.stages import StageConfig, StepLabels, find_runs, run_stages
 from tap_bench.thresholds import Thresholds, resolve_thresholds
@@ -306,7 +307,7 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
         config: StageConfig | None = None, *, plausibility: Plausibility | None = None,
         source: str = "trajectory table", interactions: str | None = None,
         interaction_config: InteractionConfig | None = None,
-        map_table: pd.DataFrame | None = None) -> TapResult:
+        map_table: pd.DataFrame | LaneMap | None = None) -> TapResult:
     """Run the Trajectory-to-Action Pipeline on a trajectory table.
 
     Args:
@@ -321,7 +322,10 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
             the table has ``is_ego``, else every track); None: not at all.
         interaction_config: parameters of the interaction axis.
         map_table: lane centre lines (:mod:`tap_bench.maps`) along which an ego's path goes
-            on beyond its record (interaction axis); None: an arc of its last curvature.
+            on beyond its record (interaction axis), or a
+            :class:`~tap_bench.pathframe.LaneMap` made of them that the measures' call
+            shares (:meth:`~tap_bench.pathframe.LaneMap.of_maps`); None: an arc of its last
+            curvature.
 
     Returns:
         A :class:`TapResult`; segments shorter than 1 s are listed in ``short_segments``.

@@ -42,7 +42,7 @@ flat numpy over every path at once.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -120,6 +120,8 @@ LANE_JOIN_DISTANCE = 1.5
 """[m] a lane that starts within this of another's end continues it (the map table has no
 topology; WOMD's and highway-env's connected lanes meet end to start)."""
 
+CHAIN_MEMO = 20_000
+"""Most path ends a :class:`LaneMap` keeps the lane chains of (then it starts afresh)."""
 _TWO_PI = 2.0 * np.pi
 
 
@@ -213,11 +215,21 @@ class PathFrame:
 class LaneMap:
     """Lane centre lines per scene: where a path's record ends, its line goes on along them.
 
+    One lane map can serve several calls on one batch of episodes (the interaction axis and
+    the measures, :func:`scene_lanes`): built once per map table (:meth:`of_maps`), it keeps
+    each lane's segments and every path end's lane match and chain of lanes, so a second
+    call extending the same path end reads them rather than searching the lanes again (the
+    points are the same, bit for bit).
+
     Attributes:
-        scene: (L,) scene code of each lane (the ``scene`` of :class:`Paths`).
+        scene: (L,) code of each lane's map (the ``scene`` of :class:`Paths` when
+            ``scene_map`` is None).
         start, stop: (L,) point range of each lane in ``x``, ``y`` (at least 2 points, in
             driving order).
         x, y: (q,) points [m].
+        scene_map: (S,) the map code of each scene code of the paths (-1: no map); None: a
+            scene's code is its map's.
+        map_ids: the ``map_id`` of each map code (:meth:`of_maps`; empty otherwise).
     """
 
     scene: np.ndarray
@@ -225,6 +237,34 @@ class LaneMap:
     stop: np.ndarray
     x: np.ndarray
     y: np.ndarray
+    scene_map: np.ndarray | None = None
+    map_ids: tuple[str, ...] = ()
+    _memo: dict = field(default_factory=dict, compare=False, repr=False)
+
+    @classmethod
+    def of_maps(cls, map_table) -> LaneMap:
+        """The lanes of every map of a map table (:mod:`tap_bench.maps`; its ``kind ==
+        "lane"`` polylines), each under the code of its ``map_id`` (:attr:`map_ids`): one
+        lane map a batch's calls share (:func:`scene_lanes` gives each its scenes)."""
+        lanes = map_table[map_table["kind"] == "lane"]
+        mid = lanes["map_id"].astype(str).to_numpy()
+        ids = tuple(dict.fromkeys(mid.tolist()))
+        code = {m: k for k, m in enumerate(ids)}
+        feature = lanes["feature_id"].to_numpy(np.int64)
+        new = np.r_[True, (feature[1:] != feature[:-1]) | (mid[1:] != mid[:-1])] \
+            if len(feature) else np.zeros(0, bool)
+        starts = np.flatnonzero(new)
+        stops = np.r_[starts[1:], len(feature)].astype(np.int64)
+        size = stops - starts
+        keep = size >= 2
+        starts, stops, size = starts[keep], stops[keep], size[keep]
+        lx, ly = lanes["x"].to_numpy(float), lanes["y"].to_numpy(float)
+        take = np.concatenate([np.arange(a, b) for a, b in zip(starts.tolist(),
+                                                               stops.tolist(), strict=True)]) \
+            if len(starts) else np.zeros(0, np.int64)
+        stop = np.cumsum(size).astype(np.int64)
+        return cls(np.array([code[m] for m in mid[starts]], np.int64), stop - size, stop,
+                   lx[take], ly[take], None, ids)
 
     @classmethod
     def from_table(cls, map_table, scene_maps) -> LaneMap:
@@ -235,67 +275,144 @@ class LaneMap:
             scene_maps: (S,) the ``map_id`` of each scene code (a WOMD ``scenario_id``, or
                 the env of a highway-env rollout); None where a scene has no map.
         """
-        lanes = map_table[map_table["kind"] == "lane"]
-        ids = {str(m): k for k, m in enumerate(scene_maps) if m is not None}
-        scene_of = lanes["map_id"].astype(str).map(ids)
-        lanes = lanes[scene_of.notna().to_numpy()]
-        scene_of = scene_of[scene_of.notna()]
-        if not len(lanes):
-            return cls(*(np.zeros(0, np.int64),) * 3, np.zeros(0), np.zeros(0))
-        # one map_id may serve several scenes (every seed of an env drives on one road)
-        groups = {}
-        for k, m in enumerate(scene_maps):
-            if m is not None:
-                groups.setdefault(str(m), []).append(k)
-        feature = lanes["feature_id"].to_numpy(np.int64)
-        mid = lanes["map_id"].astype(str).to_numpy()
-        new = np.r_[True, (feature[1:] != feature[:-1]) | (mid[1:] != mid[:-1])]
-        starts = np.flatnonzero(new)
-        stops = np.r_[starts[1:], len(feature)]
-        lx, ly = lanes["x"].to_numpy(float), lanes["y"].to_numpy(float)
-        xs, ys, sc, st, sp = [], [], [], [], []
-        total = 0
-        for a, b in zip(starts.tolist(), stops.tolist(), strict=False):
-            if b - a < 2:
-                continue
-            for k in groups[mid[a]]:
-                xs.append(lx[a:b])
-                ys.append(ly[a:b])
-                sc.append(k)
-                st.append(total)
-                total += b - a
-                sp.append(total)
-        if not xs:
-            return cls(*(np.zeros(0, np.int64),) * 3, np.zeros(0), np.zeros(0))
-        return cls(np.array(sc, np.int64), np.array(st, np.int64), np.array(sp, np.int64),
-                   np.concatenate(xs), np.concatenate(ys))
+        return cls.of_maps(map_table).for_scenes(scene_maps)
+
+    def for_scenes(self, scene_maps) -> LaneMap:
+        """This lane map for paths whose scene codes have the maps ``scene_maps`` (S,) (a
+        ``map_id`` of :attr:`map_ids`, or None: no map), sharing its lanes and what it has
+        matched and chained."""
+        code = {m: k for k, m in enumerate(self.map_ids)}
+        scene_map = np.array([code.get(str(m), -1) if m is not None else -1
+                              for m in scene_maps], np.int64)
+        return LaneMap(self.scene, self.start, self.stop, self.x, self.y, scene_map,
+                       self.map_ids, self._memo)
+
+    def _map(self, scene: int) -> int:
+        if self.scene_map is None:
+            return int(scene)
+        return int(self.scene_map[scene]) if 0 <= scene < len(self.scene_map) else -1
 
     def covers(self, scenes: np.ndarray) -> np.ndarray:
         """(k,) bool: each scene code has lanes."""
-        return np.isin(np.asarray(scenes), self.scene)
+        scenes = np.asarray(scenes, np.int64)
+        if self.scene_map is not None:
+            inside = (scenes >= 0) & (scenes < len(self.scene_map))
+            scenes = np.where(inside, self.scene_map[np.where(inside, scenes, 0)], -1)
+        return np.isin(scenes, self.scene)
 
     def _polyline(self, lane: int) -> tuple[np.ndarray, np.ndarray]:
         return self.x[self.start[lane]:self.stop[lane]], self.y[self.start[lane]:self.stop[lane]]
 
+    def _segments(self, m: int) -> dict:
+        """The segments of map ``m``'s lanes, lane after lane, each computed from its lane
+        alone (as a lane-by-lane search would): start point, direction vector, squared
+        length, heading, arc length at its start and its lane."""
+        key = ("segments", m)
+        if key not in self._memo:
+            parts: dict[str, list] = {k: [] for k in ("ax", "ay", "ux", "uy", "len2", "h",
+                                                      "arc", "root", "lane")}
+            for lane in np.flatnonzero(self.scene == m).tolist():
+                lx, ly = self._polyline(lane)
+                ux, uy = np.diff(lx), np.diff(ly)
+                len2 = np.maximum(ux * ux + uy * uy, 1e-12)
+                root = np.sqrt(len2)
+                for name, value in (("ax", lx[:-1]), ("ay", ly[:-1]), ("ux", ux), ("uy", uy),
+                                    ("len2", len2), ("h", np.arctan2(uy, ux)),
+                                    ("arc", np.r_[0.0, np.cumsum(root)][:-1]),
+                                    ("root", root), ("lane", np.full(len(ux), lane))):
+                    parts[name].append(value)
+            seg = {k: (np.concatenate(v) if v else np.zeros(0)) for k, v in parts.items()}
+            seg["lane"] = seg["lane"].astype(np.int64)
+            seg["first"] = np.flatnonzero(np.r_[True, seg["lane"][1:] != seg["lane"][:-1]]) \
+                if len(seg["lane"]) else np.zeros(0, np.int64)
+            self._memo[key] = seg
+        return self._memo[key]
+
     def _match(self, scene: int, x0: float, y0: float, h0: float):
         """(lane, arc length of the foot point along it) of the lane nearest (x0, y0) that
-        runs the ego's way, or None."""
-        best, best_d = None, LANE_MATCH_DISTANCE
-        for lane in np.flatnonzero(self.scene == scene).tolist():
-            lx, ly = self._polyline(lane)
-            ax, ay = lx[:-1], ly[:-1]
-            ux, uy = np.diff(lx), np.diff(ly)
-            len2 = np.maximum(ux * ux + uy * uy, 1e-12)
-            t = np.clip(((x0 - ax) * ux + (y0 - ay) * uy) / len2, 0.0, 1.0)
-            dist = np.hypot(ax + t * ux - x0, ay + t * uy - y0)
-            ok = np.abs(_wrap(np.arctan2(uy, ux) - h0)) <= LANE_MATCH_HEADING
-            if not ok.any():
-                continue
-            j = int(np.flatnonzero(ok)[np.argmin(dist[ok])])
-            if dist[j] <= best_d:
-                seg = np.r_[0.0, np.cumsum(np.sqrt(len2))]
-                best, best_d = (lane, float(seg[j] + t[j] * np.sqrt(len2[j]))), dist[j]
-        return best
+        runs the ego's way, or None. Of lanes equally near, the last (in map order)."""
+        m = self._map(scene)
+        seg = self._segments(m) if m >= 0 else None
+        if seg is None or not len(seg["lane"]):
+            return None
+        ax, ay, ux, uy, len2 = seg["ax"], seg["ay"], seg["ux"], seg["uy"], seg["len2"]
+        t = np.clip(((x0 - ax) * ux + (y0 - ay) * uy) / len2, 0.0, 1.0)
+        dist = np.where(np.abs(_wrap(seg["h"] - h0)) <= LANE_MATCH_HEADING,
+                        np.hypot(ax + t * ux - x0, ay + t * uy - y0), np.inf)
+        nearest = np.minimum.reduceat(dist, seg["first"])  # per lane, over its segments
+        best = float(nearest.min())
+        if not best <= LANE_MATCH_DISTANCE:
+            return None
+        k = int(np.flatnonzero(nearest == best)[-1])  # the last of equally near lanes
+        lo = seg["first"][k]
+        hi = seg["first"][k + 1] if k + 1 < len(seg["first"]) else len(dist)
+        j = lo + int(np.argmax(dist[lo:hi] == best))  # its first nearest segment
+        return int(seg["lane"][j]), float(seg["arc"][j] + t[j] * seg["root"][j])
+
+    def _chain(self, scene: int, x0: float, y0: float, h0: float, kappa: float,
+               forward: bool, need: float):
+        """The lane chain from the foot point of (x0, y0) as (x, y, arc length) of its
+        points: the fewest lanes from its start that reach ``need`` metres (or all there
+        are), or None without a lane. Kept per path end, so a longer ``need`` later only
+        adds lanes."""
+        key = ("chain", self._map(scene), x0, y0, h0, kappa, forward)
+        state = self._memo.get(key)
+        if state is None:
+            if len(self._memo) > CHAIN_MEMO:
+                segments = {k: v for k, v in self._memo.items() if k[0] == "segments"}
+                self._memo.clear()
+                self._memo.update(segments)
+            found = self._match(scene, x0, y0, h0)
+            if found is None:
+                self._memo[key] = state = {"none": True}
+            else:
+                lane, at = found
+                lx, ly = self._polyline(lane)
+                seg = np.r_[0.0, np.cumsum(np.hypot(np.diff(lx), np.diff(ly)))]
+                if forward:
+                    keep = seg > at
+                    px = np.r_[np.interp(at, seg, lx), lx[keep]]
+                    py = np.r_[np.interp(at, seg, ly), ly[keep]]
+                else:
+                    keep = seg < at
+                    px = np.r_[np.interp(at, seg, lx), lx[keep][::-1]]
+                    py = np.r_[np.interp(at, seg, ly), ly[keep][::-1]]
+                state = {"none": False, "x": [px], "y": [py], "used": {lane},
+                         "done": [float(np.hypot(np.diff(px), np.diff(py)).sum())],
+                         "ended": False}
+                self._memo[key] = state
+        if state["none"]:
+            return None
+        while state["done"][-1] < need and not state["ended"]:
+            chain_x, chain_y = state["x"], state["y"]
+            ex, ey = chain_x[-1][-1], chain_y[-1][-1]
+            if len(chain_x[-1]) < 2:
+                state["ended"] = True
+                break
+            end_h = np.arctan2(chain_y[-1][-1] - chain_y[-1][-2],
+                               chain_x[-1][-1] - chain_x[-1][-2])
+            nxt = self._successor(scene, ex, ey, end_h, forward, state["used"], x0, y0, h0,
+                                  kappa, state["done"][-1])
+            if nxt is None:
+                state["ended"] = True
+                break
+            state["used"].add(nxt)
+            lx, ly = self._polyline(nxt)
+            if not forward:
+                lx, ly = lx[::-1], ly[::-1]
+            chain_x.append(lx[1:])
+            chain_y.append(ly[1:])
+            state["done"].append(state["done"][-1]
+                                 + float(np.hypot(np.diff(lx), np.diff(ly)).sum()))
+        reached = np.flatnonzero(np.asarray(state["done"]) >= need)
+        n = int(reached[0]) + 1 if len(reached) else len(state["done"])
+        lines = state.setdefault("lines", {})
+        if n not in lines:  # the first n pieces as one polyline: points and arc lengths
+            cx, cy = np.concatenate(state["x"][:n]), np.concatenate(state["y"][:n])
+            cs = np.r_[0.0, np.cumsum(np.hypot(np.diff(cx), np.diff(cy)))]
+            keep = np.r_[True, np.diff(cs) > 1e-9]
+            lines[n] = cx[keep], cy[keep], cs[keep]
+        return lines[n]
 
     def follow(self, scene: int, x0: float, y0: float, h0: float, kappa: float,
                u: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -304,46 +421,13 @@ class LaneMap:
         start where one ends (at a branch the one nearest the arc of curvature ``kappa``);
         straight on past the last lane. None where no lane runs the ego's way there."""
         forward = bool(np.all(u >= 0))
-        found = self._match(scene, x0, y0, h0)
-        if found is None:
-            return None
-        lane, at = found
         dist = np.abs(u)
         need = float(np.sort(dist)[-2]) if len(dist) > 1 else float(dist.max(initial=0.0))
-        lx, ly = self._polyline(lane)
-        seg = np.r_[0.0, np.cumsum(np.hypot(np.diff(lx), np.diff(ly)))]
-        if forward:
-            keep = seg > at
-            px, py = np.r_[np.interp(at, seg, lx), lx[keep]], np.r_[np.interp(at, seg, ly),
-                                                                     ly[keep]]
-        else:
-            keep = seg < at
-            px = np.r_[np.interp(at, seg, lx), lx[keep][::-1]]
-            py = np.r_[np.interp(at, seg, ly), ly[keep][::-1]]
-        chain_x, chain_y = [px], [py]
-        used = {lane}
-        done = float(np.hypot(np.diff(px), np.diff(py)).sum())
-        while done < need:
-            ex, ey = chain_x[-1][-1], chain_y[-1][-1]
-            if len(chain_x[-1]) < 2:
-                break
-            end_h = np.arctan2(chain_y[-1][-1] - chain_y[-1][-2],
-                               chain_x[-1][-1] - chain_x[-1][-2])
-            nxt = self._successor(scene, ex, ey, end_h, forward, used, x0, y0, h0, kappa,
-                                  done)
-            if nxt is None:
-                break
-            used.add(nxt)
-            lx, ly = self._polyline(nxt)
-            if not forward:
-                lx, ly = lx[::-1], ly[::-1]
-            chain_x.append(lx[1:])
-            chain_y.append(ly[1:])
-            done += float(np.hypot(np.diff(lx), np.diff(ly)).sum())
-        cx, cy = np.concatenate(chain_x), np.concatenate(chain_y)
-        cs = np.r_[0.0, np.cumsum(np.hypot(np.diff(cx), np.diff(cy)))]
-        keep = np.r_[True, np.diff(cs) > 1e-9]
-        cx, cy, cs = cx[keep], cy[keep], cs[keep]
+        chain = self._chain(scene, float(x0), float(y0), float(h0), float(kappa), forward,
+                            need)
+        if chain is None:
+            return None
+        cx, cy, cs = chain
         if len(cs) < 2:
             return None
         out_x = np.interp(dist, cs, cx)
@@ -362,7 +446,7 @@ class LaneMap:
         (ex, ey) running on in the direction ``end_h``; at a branch the one whose point
         10 m on lies nearest the ego's arc."""
         best, best_err = None, np.inf
-        for lane in np.flatnonzero(self.scene == scene).tolist():
+        for lane in np.flatnonzero(self.scene == self._map(scene)).tolist():
             if lane in used:
                 continue
             lx, ly = self._polyline(lane)
@@ -884,13 +968,19 @@ def scene_lanes(table, scene_codes: np.ndarray, scenes, map_table) -> LaneMap:
         table: the trajectory table (``scenario_id``, optional ``env``).
         scene_codes: (n,) scene code of each row of ``table``.
         scenes: the scenario id of each scene code.
-        map_table: a map table (:mod:`tap_bench.maps`).
+        map_table: a map table (:mod:`tap_bench.maps`), or a :class:`LaneMap` made of one
+            (:meth:`LaneMap.of_maps`) that several calls share: then its lanes are not
+            built again, and what one call matched and chained the next one reads.
     """
-    ids = set(map_table["map_id"].astype(str).unique())
+    shared = map_table if isinstance(map_table, LaneMap) else None
+    ids = set(shared.map_ids) if shared is not None else \
+        set(map_table["map_id"].astype(str).unique())
     maps: list[str | None] = [str(s) if str(s) in ids else None for s in scenes]
     if "env" in table.columns and any(m is None for m in maps):
         first = np.unique(np.asarray(scene_codes), return_index=True)[1]
         env = table["env"].take(first).astype(str).to_numpy()
         maps = [m if m is not None or env[k] not in ids else env[k]
                 for k, m in enumerate(maps)]
+    if shared is not None:
+        return shared.for_scenes(maps)
     return LaneMap.from_table(map_table, maps)

@@ -65,6 +65,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import hashlib
 import io
 import json
@@ -164,7 +165,10 @@ def _sha256_file(path: Path) -> str:
     return digest.hexdigest()
 
 
+@functools.cache
 def _version(package: str) -> str:
+    """An installed package's version (read once a process: each read parses its
+    metadata file)."""
     try:
         return metadata.version(package)
     except metadata.PackageNotFoundError:
@@ -373,6 +377,9 @@ def label_code(measures: Iterable[Any] | None = None) -> dict[str, Any]:
 ROAD_MAP = "highway-env road"
 """The ``map`` of a label key whose episode is labelled and measured along its scenario's
 highway-env road (:func:`tap_bench.bench.run_tasks._road`)."""
+SCENE_MAP = "recorded scene's lanes"
+"""The ``map`` of a label key whose recorded (WOMD) scene is labelled and measured along the
+lanes of its own map (:func:`tap_bench.bench.run_tasks._scene_lanes`)."""
 
 
 def label_key(episode: str, thresholds: Mapping[str, Any], level: str,
@@ -381,9 +388,12 @@ def label_key(episode: str, thresholds: Mapping[str, Any], level: str,
     """The key of an episode's labels and measures and the document it hashes: the
     episode's key, the thresholds (their JSON document), the level, :func:`label_code`,
     and the map the ego's path goes on along beyond its record (``map_source``:
-    :data:`ROAD_MAP`, or None for the arc). The road itself needs no hash of its own: it is
-    built from the scenario and highway-env, both in the episode's key; the key says that
-    it was used, so that labels made along an arc are never read for a run along the road."""
+    :data:`ROAD_MAP`, :data:`SCENE_MAP`, or None for the arc). The map itself needs no hash
+    of its own: a highway-env road is built from the scenario and highway-env, a recorded
+    scene's lanes are read from its record: the record's content hash and the code that
+    builds or reads the map (:data:`SIMULATION_CODE`) are in the episode's key. The key says
+    which map was used, so that labels made along an arc are never read for a run along a
+    map."""
     doc = {"episode": episode, "thresholds": _plain(thresholds), "level": level,
            "code": dict(code), "map": map_source}
     return hashlib.sha256(_canonical(doc)).hexdigest(), doc

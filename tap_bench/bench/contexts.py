@@ -55,6 +55,7 @@ from tap_bench.bench.measures import (
 )
 from tap_bench.errors import LabelTableError
 from tap_bench.labelling import tap
+from tap_bench.pathframe import LaneMap
 from tap_bench.sdl import INTERACTION_NAMES
 from tap_bench.thresholds import Thresholds, resolve_thresholds
 from tap_bench.trajectories import HZ
@@ -83,7 +84,7 @@ _IDS = ("env", "policy", "seed")
 
 def context_occurrences(trajectories: pd.DataFrame, thresholds: Thresholds | str = "paper",
                         *, source: str = "trajectory table",
-                        map_table: pd.DataFrame | None = None) -> pd.DataFrame:
+                        map_table: pd.DataFrame | LaneMap | None = None) -> pd.DataFrame:
     """Every interaction context each ego meets, with the measures inside it.
 
     Args:
@@ -92,7 +93,7 @@ def context_occurrences(trajectories: pd.DataFrame, thresholds: Thresholds | str
         thresholds: TAP thresholds (``a_dec`` decides braking for the reaction time).
         source: a name for the table in error messages.
         map_table: lane centre lines along which an ego's path goes on beyond its record
-            (None: an arc).
+            (None: an arc); one lane map of them serves both the labelling and the measures.
 
     Returns:
         one row per (episode, run of one relation): scenario_id, env, policy, seed (those
@@ -106,8 +107,9 @@ def context_occurrences(trajectories: pd.DataFrame, thresholds: Thresholds | str
                               "interactions of each episode's ego. Give rollouts (a run's "
                               "trajectories.parquet or 'tap-bench rollout' outputs), or mark "
                               "the ego of each scenario with is_ego.")
-    result = tap(trajectories, th, source=source, interactions="ego", map_table=map_table)
-    return occurrences_from(result.segments("trend"), ego_steps(trajectories, map_table),
+    lanes = LaneMap.of_maps(map_table) if isinstance(map_table, pd.DataFrame) else map_table
+    result = tap(trajectories, th, source=source, interactions="ego", map_table=lanes)
+    return occurrences_from(result.segments("trend"), ego_steps(trajectories, lanes),
                             trajectories, th, source=source)
 
 

@@ -35,6 +35,7 @@ from tap_bench import sdl
 from tap_bench.bench.measures import MEASURES, EgoSteps, ego_measures
 from tap_bench.errors import LabelTableError, ParameterError, TrajectoryTableError
 from tap_bench.labelling import tap
+from tap_bench.pathframe import LaneMap
 
 __all__ = ["EPISODE_COLUMNS", "ego_labels", "episode_table", "episodes_from_table",
            "one_outcome_cells"]
@@ -102,7 +103,7 @@ def episode_table(*, labels: pd.DataFrame | None = None,
                   trajectories: pd.DataFrame | None = None,
                   episodes: pd.DataFrame | None = None, level: str = "action",
                   policy: str | None = None, source: str = "input",
-                  map_table: pd.DataFrame | None = None,
+                  map_table: pd.DataFrame | LaneMap | None = None,
                   steps: EgoSteps | None = None) -> pd.DataFrame:
     """Build the episode table from what is at hand.
 

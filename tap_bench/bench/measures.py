@@ -92,6 +92,7 @@ from tap_bench.errors import RegistrationError, TrajectoryTableError
 from tap_bench.pathframe import (
     CORRIDOR_HALF_WIDTH,
     LEADER_RANGE_M,
+    LaneMap,
     Paths,
     leader_reach,
     nearest_leader,
@@ -697,7 +698,8 @@ def _require(table: pd.DataFrame) -> None:
                                        column=col)
 
 
-def ego_steps(table: pd.DataFrame, map_table: pd.DataFrame | None = None) -> EgoSteps:
+def ego_steps(table: pd.DataFrame, map_table: pd.DataFrame | LaneMap | None = None
+              ) -> EgoSteps:
     """The ego's steps of every scenario with the leader, headway and TTC along its path.
 
     Args:
@@ -706,7 +708,9 @@ def ego_steps(table: pd.DataFrame, map_table: pd.DataFrame | None = None) -> Ego
             ``length`` [m]. Rows of one track must be at distinct 0.1 s steps.
         map_table: lane centre lines (:mod:`tap_bench.maps`; a scenario's map is the one
             whose ``map_id`` is its ``scenario_id``, else its ``env``): the ego's path goes
-            on along its lane beyond the record. None: along an arc of its last curvature.
+            on along its lane beyond the record; or a :class:`~tap_bench.pathframe.LaneMap`
+            of them shared with ``tap()``'s call (:func:`~tap_bench.pathframe.scene_lanes`).
+            None: along an arc of its last curvature.
 
     Raises:
         TrajectoryTableError: ``is_ego`` is missing, a scenario has two ego tracks, or an
@@ -804,7 +808,7 @@ def ego_steps(table: pd.DataFrame, map_table: pd.DataFrame | None = None) -> Ego
                     columns=columns)
 
 
-def ego_step_measures(table: pd.DataFrame, map_table: pd.DataFrame | None = None
+def ego_step_measures(table: pd.DataFrame, map_table: pd.DataFrame | LaneMap | None = None
                       ) -> pd.DataFrame:
     """The ego's safety measures at every valid step of every scenario (what
     :func:`ego_measures` reduces to one row per episode), for viewers and plots.
@@ -841,7 +845,7 @@ def _unscored(steps: EgoSteps) -> tuple[np.ndarray, np.ndarray]:
     return headway, ttc
 
 
-def ego_measures(table: pd.DataFrame, map_table: pd.DataFrame | None = None, *,
+def ego_measures(table: pd.DataFrame, map_table: pd.DataFrame | LaneMap | None = None, *,
                  steps: EgoSteps | None = None) -> pd.DataFrame:
     """Safety and efficiency measures of the ego of every scenario of a trajectory table.
 

@@ -185,7 +185,8 @@ def same_policy_null(labels: np.ndarray, reference: Reference, *,
             reference's axes.
         reference: a corpus reference (whole labels or segments) with its ``units``.
         seeds: (n,) the seeds of the policy's episodes; with the reference's ``seeds`` (the
-            reference is rollouts) the two are paired on the seeds both have.
+            reference is rollouts) the two are paired on the seeds both have (unpaired when
+            fewer than 4 are common).
         config: resamples, level and seed.
         rng: the random stream (default ``config.rng("null", reference.description)``).
         splits: random splits averaged for the estimates.
@@ -205,8 +206,11 @@ def same_policy_null(labels: np.ndarray, reference: Reference, *,
         mine = dict(zip(np.asarray(seeds)[keep].tolist(), lab, strict=True))
         theirs = dict(zip(np.asarray(reference.seeds).tolist(), units, strict=True))
         common = sorted(set(mine) & set(theirs))
-        lab = np.array([mine[s] for s in common], dtype=object)
-        units = np.array([theirs[s] for s in common], dtype=object)
+        if len(common) >= 4:
+            lab = np.array([mine[s] for s in common], dtype=object)
+            units = np.array([theirs[s] for s in common], dtype=object)
+        else:  # other seeds than the reference's: nothing to pair
+            paired = False
     if len(units) < 4 or not len(lab):
         return _nan_result(paired)
     items = sorted({x for row in ([(u,) for u in np.r_[units, lab]]

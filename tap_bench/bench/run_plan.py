@@ -15,6 +15,7 @@ import numpy as np
 
 from tap_bench.bench.cache import (
     ROAD_MAP,
+    SCENE_MAP,
     EpisodeCache,
     episode_key,
     label_code,
@@ -151,7 +152,7 @@ def _tasks(plan: SuitePlan, keep: bool, cache: EpisodeCache | None) -> list[_Tas
                 if policies[d.name] is not None and envs[env].get(seed) is not None:
                     key, doc = episode_key(envs[env][seed], policies[d.name], seed, versions)
                     lkey, ldoc = label_key(key, made_by, suite.level, code,
-                                           None if isinstance(scenarios[env], WomdScenes)
+                                           SCENE_MAP if isinstance(scenarios[env], WomdScenes)
                                            else ROAD_MAP)
                 tasks.append(_Task(env, scenarios[env], d.name, d, seed, thresholds,
                                    suite.level, keep, cache, key, doc, label_key=lkey,

@@ -26,28 +26,62 @@ from tap_bench.bench.run_plan import RunPlan, SuitePlan, _plan, _Task, _tasks
 from tap_bench.errors import RegistrationError
 from tap_bench.execution import Backend
 from tap_bench.labelling import tap
+from tap_bench.pathframe import LaneMap
 from tap_bench.sim.rollout import EPISODE_COLUMNS, rollout_episode
 from tap_bench.sim.womd_scene import WomdScenes
 
 _ROADS: dict[str, pd.DataFrame] = {}
 """Per process: each scenario's road as a map table (highway-env builds the same road for
 every seed, so one per scenario serves all its episodes)."""
+_SCENE_LANES: dict[tuple[tuple[str, ...], str], pd.DataFrame] = {}
+"""Per process: the lanes of each recorded scene read so far, by (files, WOMD scenario id)
+(every policy of a run drives the same scenes; at most :data:`SCENE_LANES_KEPT` kept)."""
+SCENE_LANES_KEPT = 256
 
 
 def _road(task: _Task, trajectories: pd.DataFrame) -> pd.DataFrame | None:
-    """The map table the episodes of ``task``'s env are labelled and measured on: the lanes
-    of the scenario's highway-env road (:func:`tap_bench.sim.roads.road_table`), under the
-    ``map_id`` of the episodes' ``env``, so that an ego's path goes on along its lane beyond
-    the end of its record (SPEC 7) rather than along an arc. None for recorded scenes (their
-    maps are per scenario, not passed yet: the arc) and tables without an ``env`` column."""
-    if isinstance(task.scenario, WomdScenes) or "env" not in trajectories.columns:
+    """The map table the episodes of ``task``'s env are labelled and measured on, so that an
+    ego's path goes on along its lane beyond the end of its record (SPEC 7) rather than
+    along an arc: for a highway-env scenario the lanes of its road
+    (:func:`tap_bench.sim.roads.road_table`) under the ``map_id`` of the episodes' ``env``;
+    for recorded scenes the lanes of each scene's own map (:func:`_scene_lanes`). None for
+    tables without an ``env`` column (not a rollout)."""
+    if "env" not in trajectories.columns:
         return None
+    if isinstance(task.scenario, WomdScenes):
+        return _scene_lanes(task.scenario, trajectories)
     key = repr(task.scenario)
     if key not in _ROADS:
         from tap_bench.sim.roads import road_table
 
         _ROADS[key] = road_table(task.scenario)
     return _ROADS[key].assign(map_id=str(trajectories["env"].iat[0]))
+
+
+def _scene_lanes(scenes: WomdScenes, trajectories: pd.DataFrame) -> pd.DataFrame | None:
+    """The lane centre lines of each recorded scene of ``trajectories`` (read from the
+    scenes' files with :func:`tap_bench.sources.maps.read_maps`, the map the viewer draws),
+    under the ``map_id`` of the episode's ``scenario_id`` in the run (``<WOMD id>/<policy>``,
+    :func:`_run_ids`): :func:`tap_bench.pathframe.scene_lanes` then gives each episode its
+    scene's lanes. None when the table has no ``womd_scenario_id``."""
+    if "womd_scenario_id" not in trajectories.columns:
+        return None
+    pairs = trajectories[["womd_scenario_id", "scenario_id"]].drop_duplicates()
+    womd = pairs["womd_scenario_id"].astype(str).tolist()
+    missing = {w for w in womd if (scenes.files, w) not in _SCENE_LANES}
+    if missing:
+        from tap_bench.sources.maps import read_maps
+
+        maps = read_maps(scenes.files, scenario_ids=missing)
+        lanes = maps[maps["kind"] == "lane"]
+        by_scene = dict(tuple(lanes.groupby("map_id", sort=False)))
+        while len(_SCENE_LANES) + len(missing) > SCENE_LANES_KEPT and _SCENE_LANES:
+            del _SCENE_LANES[next(iter(_SCENE_LANES))]
+        for w in missing:
+            _SCENE_LANES[(scenes.files, w)] = by_scene.get(w, lanes.iloc[:0])
+    return pd.concat([_SCENE_LANES[(scenes.files, w)].assign(map_id=str(sid))
+                      for w, sid in zip(womd, pairs["scenario_id"], strict=True)],
+                     ignore_index=True)
 
 
 def _prepare_worker(task: _Task) -> None:
@@ -164,15 +198,18 @@ def _label_together(tasks: tuple[_Task, ...],
         trajectories = pd.concat([got[k][0] for k in with_rows], ignore_index=True) \
             if len(with_rows) > 1 else got[with_rows[0]][0]
         road = _road(first, trajectories)
+        # one lane map for the batch: the interaction axis and the measures share its lane
+        # matches and chains (each path end is searched once, not once a call)
+        lanes = None if road is None else LaneMap.of_maps(road)
         source = f"{first.env}/{first.policy} rollout"
         result = tap(trajectories, first.thresholds, interactions="ego", source=source,
-                     map_table=road)
+                     map_table=lanes)
         labels, segments = result.labels("all"), result.segments(first.level)
         t2 = time.perf_counter()
-        steps = ego_steps(trajectories, road)  # the measures' and the contexts'
+        steps = ego_steps(trajectories, lanes)  # the measures' and the contexts'
         eps = episode_table(labels=labels if len(labels) else None, trajectories=trajectories,
                             episodes=_rows([got[k][1] for k in with_rows]),
-                            level=first.level, policy=first.policy, map_table=road,
+                            level=first.level, policy=first.policy, map_table=lanes,
                             steps=steps)
         contexts = occurrences_from(result.segments("trend"), steps, trajectories,
                                     first.thresholds, source=source)

@@ -146,14 +146,16 @@ def _check_apart(output: Path, cache_root: Path) -> None:
                               "separate places.")
 
 
-def _road(suite: Suite, env: str, cache: EpisodeCache | None) -> pd.DataFrame:
+def _road(suite: Suite, env: str, cache: EpisodeCache | None,
+          simulation: dict[str, Any] | None = None) -> pd.DataFrame:
     """The map table of ``env`` (:meth:`Suite.road`); a highway-env road is kept in the
     cache, keyed by the scenario and the simulation code, so that a re-run does not import
     highway-env to draw it again."""
-    fingerprint = None if env in suite.scenes else scenario_fingerprint(suite.scenario(env),
-                                                                       env)
+    if cache is None or env in suite.scenes:
+        return suite.road(env)
+    fingerprint = scenario_fingerprint(suite.scenario(env), env)
     return memoised(cache, "roads", None if fingerprint is None else {
-        "env": fingerprint, "simulation": simulation_fingerprint()},
+        "env": fingerprint, "simulation": simulation or simulation_fingerprint()},
         lambda: suite.road(env), _table_files, _files_table)
 
 
@@ -368,7 +370,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     t0 = time.perf_counter()
     roads = None
     if keep_trajectories:  # the replay viewer draws them; highway-env's road is seed-free
-        roads = pd.concat([_road(suite, env, cache) for env in suite.envs],
+        simulation = simulation_fingerprint() if cache is not None else None
+        roads = pd.concat([_road(suite, env, cache, simulation) for env in suite.envs],
                           ignore_index=True)
     folder = write_results(output, overwrite, summary, episodes, labels, trajectories
                            if keep_trajectories else None, scores, report,

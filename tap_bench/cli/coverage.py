@@ -155,10 +155,9 @@ def run(args: argparse.Namespace) -> int:
           "novelty: Wilson; the same-policy figure: the reference split in random halves, "
           "one half held against the other, beside the agent at the same sizes, the "
           "difference's interval a bootstrap over splits (docs/benchmark.md))")
-    shown = novel
-    if len(shown):
+    if len(novel):
         print("unique manoeuvres, most frequent first:")
-        for r in shown.sort_values("count", ascending=False, kind="stable").head(
+        for r in novel.sort_values("count", ascending=False, kind="stable").head(
                 args.examples).itertuples():
             print(f"  {r.count:4d}  {(r.env + ': ') if r.env else ''}{r.label} "
                   f"({r.unit})   e.g. {r.example_scenario}")
@@ -172,7 +171,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def null_text(row, what: str, half: str, null: str, diff: str) -> str:
-    """``same policy 21.0 % (halves of 15), agent 12.0 %: -9.0 pts [-20.1, +2.3]``."""
+    """``same-policy coverage 21.0% (halves of 15), agent 12.0%: -9.0 pts [-20.1, +2.3]``:
+    the same-policy figure, the agent at the same sizes, the difference and its interval."""
     return (f"same-policy {what} {row[null]:.1%} (halves of {int(row['null_m'])}), agent "
             f"{row[half]:.1%}: {100 * row[diff]:+.1f} pts [{100 * row[diff + '_low']:+.1f}, "
             f"{100 * row[diff + '_high']:+.1f}]")

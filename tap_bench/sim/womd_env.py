@@ -21,6 +21,9 @@ observation works on it.
   route; parked vehicles, vehicles that appear later and vehicles whose path leaves the
   lanes replay. Pedestrians and cyclists always replay. IDM (traffic and an IDM ego) stops at
   a stop point whose signal is red, and at a yellow one when it can stop comfortably.
+  IDM also yields to pedestrians and cyclists crossing its way ahead
+  (:meth:`~tap_bench.sim.womd_road.WomdRoad.walker_distance`), not to crossing vehicles at
+  unsignalled junctions.
   idm traffic checks collisions with everyone (highway-env's rule: crashed vehicles brake
   to a stop); the episode table counts them (``traffic_collisions``).
 - **End.** At the log's end (truncated), on a collision of the ego or when the ego leaves

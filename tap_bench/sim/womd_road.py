@@ -33,8 +33,9 @@ from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, lane_points
 from tap_bench.sim.womd_scene import Scene
 
 __all__ = ["HIDDEN", "OFF_ROAD_MARGIN", "ROUTE_CORRIDOR", "ROUTE_OFF_MAP", "STOP_LOOKAHEAD",
-           "STOP_MARGIN", "LogVehicle", "WomdIDMVehicle", "WomdMDPVehicle", "WomdNetwork",
-           "WomdRoad", "logged_route", "path_progress", "sim_frame"]
+           "STOP_MARGIN", "WALKER_CLEARANCE", "WALKER_HORIZON", "WALKER_LOOKAHEAD", "LogVehicle",
+           "WomdIDMVehicle", "WomdMDPVehicle", "WomdNetwork", "WomdRoad", "logged_route",
+           "path_progress", "sim_frame"]
 
 OFF_ROAD_MARGIN = 0.5  # [m] beyond half the lane's width, from every lane centre: off road
 ROUTE_CORRIDOR = 4.0  # [m] progress counts while the ego is this close to the logged path
@@ -42,6 +43,12 @@ ROUTE_OFF_MAP = 3.0  # [m] a logged position farther than half a lane width + th
 STOP_MARGIN = 1.0  # [m] IDM stops its front bumper this far before a red stop point
 STOP_LOOKAHEAD = 60.0  # [m] stop points farther ahead along the route are ignored
 HIDDEN = 1.0e6  # [m] where an agent waits while the log has no valid state for it
+WALKER_LOOKAHEAD = 50.0  # [m] IDM yields to pedestrians and cyclists in its way this far ahead
+WALKER_HORIZON = 1.5  # [s] ... where they are now or will be in this time
+WALKER_CLEARANCE = 1.0  # [m] ... within half the vehicle's width + this of the lane centre
+WALKER_RADIUS = 0.5  # [m] IDM stops its front bumper STOP_MARGIN before this around them
+WALKER_STILL = 0.5  # [m/s] slower walkers count as standing in the way
+WALKER_ALONG = math.cos(math.radians(30.0))  # a walker within 30 deg of the lane moves along
 
 
 def sim_frame(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -278,6 +285,11 @@ class WomdIDMVehicle(_RouteMixin, IDMVehicle):
                 d = stop(self)
                 if d is not None:
                     acc = min(acc, self._stop_acceleration(d))
+            walker = getattr(self.road, "walker_distance", None)
+            if walker is not None:
+                d = walker(self)
+                if d is not None:
+                    acc = min(acc, self._stop_acceleration(d - WALKER_RADIUS))
         return acc
 
     def _stop_acceleration(self, distance: float) -> float:
@@ -367,6 +379,9 @@ class WomdRoad(Road):
         self._half = np.array([lane.width / 2 for lane in lanes])
         self._edges = _segments([sim_frame(*e.T) for e in road.road_edges])
         self._projections: dict[Any, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._walker_rows = frozenset(np.flatnonzero(np.isin(scene.object_types,
+                                                             ("pedestrian", "cyclist"))).tolist())
+        self._walkers: tuple[np.ndarray, ...] | None = None
         self._positions: np.ndarray | None = None
         self._movers: list[Vehicle] = []
         signals = road.signals
@@ -387,6 +402,16 @@ class WomdRoad(Road):
         self._movers = [v for v in self.vehicles if v.collidable]
         self._positions = (np.array([v.position for v in self._movers])
                            if self._movers else np.zeros((0, 2)))
+        walkers = [v for v in self._movers if getattr(v, "row", -1) in self._walker_rows]
+        if walkers:
+            xy = np.array([v.position for v in walkers], float)
+            heading = np.array([v.heading for v in walkers], float)
+            speed = np.array([max(float(v.speed), 0.0) for v in walkers])
+            ahead = xy + WALKER_HORIZON * speed[:, None] * np.c_[np.cos(heading),
+                                                                 np.sin(heading)]
+            self._walkers = (xy, ahead, heading, speed)
+        else:
+            self._walkers = None
         for vehicle in self.vehicles:
             vehicle.act()
 
@@ -478,6 +503,68 @@ class WomdRoad(Road):
                 self.exempt.add(_pair(a, b))
 
     # signals
+    def _lanes_ahead(self, vehicle: Vehicle, lookahead: float) -> list[tuple[Any, float]]:
+        """(lane index, where the lane starts [m] along the vehicle's way from its centre) of
+        its lane and the next ones (its route's, else the straightest) up to ``lookahead``
+        [m] (at most three more)."""
+        network = self.network
+        lane_index = vehicle.lane_index
+        s = network.get_lane(lane_index).local_coordinates(vehicle.position)[0]
+        ahead = [(lane_index, -s)]
+        route = getattr(vehicle, "route", None)
+        offset = network.get_lane(lane_index).length - s
+        current = lane_index
+        for _ in range(3):
+            if offset > lookahead:
+                break
+            nxt = network.next_lane(current, route=route, position=vehicle.position)
+            if nxt == current:
+                break
+            ahead.append((nxt, offset))
+            offset += network.get_lane(nxt).length
+            current = nxt
+        return ahead
+
+    def walker_distance(self, vehicle: Vehicle) -> float | None:
+        """Distance [m] along the vehicle's lanes to the nearest pedestrian or cyclist in its
+        way ahead (within :data:`WALKER_LOOKAHEAD`): one whose position now or in
+        :data:`WALKER_HORIZON` s (at its logged velocity) is within half the vehicle's width
+        + :data:`WALKER_CLEARANCE` of the lane's centre line, crossing it or standing (one
+        moving along the lane is a leader IDM follows already); None if none."""
+        walkers = self._walkers
+        if walkers is None or not len(walkers[0]):
+            return None
+        key = (self.clock[0], vehicle.lane_index)  # MOBIL asks again within a step
+        cached = vehicle.__dict__.get("_walker_distance")
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        best = self._walker_distance(vehicle, walkers)
+        vehicle.__dict__["_walker_distance"] = (key, best)
+        return best
+
+    def _walker_distance(self, vehicle: Vehicle, walkers: tuple[np.ndarray, ...]
+                         ) -> float | None:
+        positions, predicted, heading, speed = walkers
+        reach = WALKER_LOOKAHEAD + vehicle.LENGTH + WALKER_HORIZON * float(speed.max())
+        delta = positions - vehicle.position
+        if not (delta[:, 0] ** 2 + delta[:, 1] ** 2 <= reach * reach).any():
+            return None  # nobody within reach of its way (the usual case): no lane walk
+        half = vehicle.WIDTH / 2 + WALKER_CLEARANCE
+        best = None
+        for index, base in self._lanes_ahead(vehicle, WALKER_LOOKAHEAD):
+            lane = self.network.get_lane(index)
+            for points in (positions, predicted):
+                lon, lat = lane.project(points[:, 0], points[:, 1])
+                d = base + lon
+                near = (np.abs(lat) <= half) & (lon >= 0) & (lon <= lane.length) \
+                    & (d > 0) & (d <= WALKER_LOOKAHEAD)
+                for i in np.flatnonzero(near):
+                    along = abs(math.cos(heading[i] - lane.heading_at(lon[i])))
+                    if speed[i] >= WALKER_STILL and along > WALKER_ALONG:
+                        continue
+                    best = d[i] if best is None else min(best, float(d[i]))
+        return best
+
     def stop_distance(self, vehicle: Vehicle) -> float | None:
         """Distance [m] along the vehicle's lanes to the nearest stop point ahead whose signal
         is red, or yellow and far enough to stop at (comfortable braking); None if none."""
@@ -490,22 +577,7 @@ class WomdRoad(Road):
         held.intersection_update(active.tolist())
         if not len(active):
             return None
-        network = self.network
-        lane_index = vehicle.lane_index
-        s = network.get_lane(lane_index).local_coordinates(vehicle.position)[0]
-        ahead = [(lane_index, -s)]
-        route = getattr(vehicle, "route", None)
-        offset = network.get_lane(lane_index).length - s
-        current = lane_index
-        for _ in range(3):
-            if offset > STOP_LOOKAHEAD:
-                break
-            nxt = network.next_lane(current, route=route, position=vehicle.position)
-            if nxt == current:
-                break
-            ahead.append((nxt, offset))
-            offset += network.get_lane(nxt).length
-            current = nxt
+        ahead = self._lanes_ahead(vehicle, STOP_LOOKAHEAD)
         best = None
         for j in active:
             index = self._signal_lanes[j]

@@ -181,3 +181,10 @@ def test_an_env_whose_reference_is_too_small_for_halves_is_left_out_of_the_poole
     assert np.isnan(cov.loc[("merge", "episodes"), "null_coverage"])  # 2 rollouts: no halves
     pooled = cov.loc[("all", "episodes")]
     assert pooled["null_coverage"] == cov.loc[("highway", "episodes"), "null_coverage"]
+
+
+def test_rollouts_on_other_seeds_are_held_against_the_null_unpaired():
+    ref = corpus_reference(rollouts([A, B] * 6).assign(level="maneuver"), "maneuver",
+                           tracks="all")
+    result = same_policy_null(np.array([A, C] * 3, object), ref, seeds=np.arange(100, 106))
+    assert not result.paired and result.m == 6 and np.isfinite(result.novel_diff)

@@ -218,3 +218,103 @@ def test_the_episode_table_counts_traffic_collisions(real):
             <= result.episodes["traffic_collisions"]).all()
     logged = rollout(WomdScenes((real[0],), traffic="log"), "idm", "all").episodes
     assert (logged["traffic_collisions"] == 0).all()
+
+
+# ----------------------------------------------------------------- yielding to walkers
+
+T15 = np.arange(151) * 0.1
+CROSS_X = 75.0  # [m] where the pedestrian crosses, 20 m into the street's second lane
+
+
+def walker_scene(path: Path, *, car_speed: float, walk_speed: float, angle: float,
+                 side: int, offset: float | None = None) -> str:
+    """A 15 s ScenarioNet pickle: car 2 along +x from x = 0 at ``car_speed``; a pedestrian
+    crossing the street at x = :data:`CROSS_X`, heading ``angle`` [rad] to the lane from its
+    ``side`` (+1: from the left), reaching the lane centre when the car would be 15 m short
+    of it (or walking along the lane ``offset`` metres to its side when given)."""
+    def moving(x0, y0, heading, speed, kind, length, width):
+        d = np.array([math.cos(heading), math.sin(heading)])
+        xy = np.array([x0, y0]) + np.outer(speed * T15, d)
+        return {"type": kind, "state": {
+            "position": np.c_[xy, np.zeros(151)], "heading": np.full(151, heading),
+            "velocity": np.tile(speed * d, (151, 1)), "valid": np.ones(151, bool),
+            "length": np.full(151, length), "width": np.full(151, width)}}
+
+    cross_x = CROSS_X
+    if offset is None:
+        heading = -side * angle  # from the left (+y) walking towards -y, or the reverse
+        meet = (cross_x - 15.0) / car_speed  # [s] when it is on the lane centre
+        x0 = cross_x - math.cos(heading) * walk_speed * meet
+        y0 = -math.sin(heading) * walk_speed * meet
+        walker = moving(x0, y0, heading, walk_speed, "PEDESTRIAN", 0.5, 0.5)
+    else:
+        walker = moving(0.0, offset, 0.0, walk_speed, "PEDESTRIAN", 0.5, 0.5)
+    s = np.arange(0.0, 400.0, 0.5)
+    before, after = np.arange(-10.0, 55.0, 0.5), np.arange(55.0, 390.0, 0.5)
+    features = {"1": {"type": "LANE_SURFACE_STREET", "entry_lanes": [], "exit_lanes": [],
+                      "polyline": np.c_[s - 10.0, np.full_like(s, -80.0)]},
+                # the street is two lanes, one after the other: the crossing is on the
+                # second, beyond what a vehicle on the first sees as its leader
+                "2": {"type": "LANE_SURFACE_STREET", "entry_lanes": [], "exit_lanes": ["3"],
+                      "polyline": np.c_[before, np.zeros_like(before)]},
+                "3": {"type": "LANE_SURFACE_STREET", "entry_lanes": ["2"], "exit_lanes": [],
+                      "polyline": np.c_[after, np.zeros_like(after)]}}
+    meta = {"scenario_id": path.stem, "ts": T15, "dataset": "waymo", "sdc_id": "ego"}
+    tracks = {"ego": moving(0.0, -80.0, 0.0, 8.0, "VEHICLE", 4.5, 2.0),
+              "2": moving(0.0, 0.0, 0.0, car_speed, "VEHICLE", 4.5, 2.0), "p": walker}
+    with path.open("wb") as f:
+        pickle.dump({"metadata": meta, "map_features": features, "dynamic_map_states": {},
+                     "tracks": tracks}, f)
+    return str(path)
+
+
+@pytest.mark.parametrize("car_speed", [8.0, 13.0])
+@pytest.mark.parametrize("walk_speed", [1.0, 1.6])
+@pytest.mark.parametrize("angle_deg, side", [(90, 1), (90, -1), (60, 1), (120, -1)])
+def test_idm_traffic_yields_to_a_crossing_pedestrian(tmp_path, car_speed, walk_speed,
+                                                     angle_deg, side):
+    env = make_womd_env(walker_scene(tmp_path / "sd_walk.pkl", car_speed=car_speed,
+                                     walk_speed=walk_speed, angle=math.radians(angle_deg),
+                                     side=side), traffic="idm")
+    table, info = drive(env)
+    assert list(env.unwrapped.simulated) == [1]
+    assert info["traffic_collisions"] == 0, info["traffic_collided"]
+    car = table[table["track_id"] == "2"]
+    walker = table[table["track_id"] == "p"]
+    # it slowed down (or stopped) for the pedestrian before the crossing, braking within
+    # IDM's comfortable 5 m/s^2 (seen only from the crossing's lane, IDM brakes at 5.5-6),
+    # then drove on
+    decel = -np.diff(car["speed"].to_numpy()) / 0.1
+    assert decel.max() < 5.0
+    slowest = car.loc[car["speed"].idxmin()]
+    assert slowest["speed"] < 0.5 * car_speed and slowest["x"] < CROSS_X - 2.25
+    assert car["x"].iloc[-1] > CROSS_X + 5.0
+    gap = np.hypot(car["x"].to_numpy() - walker["x"].to_numpy(),
+                   car["y"].to_numpy() - walker["y"].to_numpy())
+    assert gap.min() > 2.0
+
+
+def test_idm_does_not_yield_to_a_pedestrian_beside_the_lane(tmp_path):
+    # walking along the street 4 m to the side: no slowing down
+    env = make_womd_env(walker_scene(tmp_path / "sd_side.pkl", car_speed=10.0,
+                                     walk_speed=1.4, angle=0.0, side=1, offset=4.0),
+                        traffic="idm")
+    table, _ = drive(env)
+    car = table[(table["track_id"] == "2") & (table["t"] >= 1.0)]
+    assert car["speed"].min() > 9.5
+
+
+
+@pytest.mark.parametrize("traffic", ["log", "idm"])
+def test_an_idm_ego_yields_to_a_crossing_pedestrian(tmp_path, traffic):
+    # car 2 driven as the ego by the idm policy: the same rule
+    env = make_womd_env(walker_scene(tmp_path / "sd_ego.pkl", car_speed=10.0,
+                                     walk_speed=1.4, angle=math.radians(90), side=-1),
+                        ego="2", traffic=traffic)
+    table, _ = drive(env, "idm")
+    assert not env.unwrapped.vehicle.crashed
+    ego = table[table["is_ego"]]
+    assert ego["speed"].min() < 5.0 and ego["x"].iloc[-1] > CROSS_X + 5.0
+    walker = table[table["track_id"] == "p"]
+    assert np.hypot(ego["x"].to_numpy() - walker["x"].to_numpy(),
+                    ego["y"].to_numpy() - walker["y"].to_numpy()).min() > 2.0
