@@ -9,6 +9,9 @@ in each of its worker processes (a ``sitecustomize`` on the ``PYTHONPATH``), so 
 same records hold CPU seconds (user + sys) per phase; the versions need no change for it.
 Totals are measured from outside: wall, and CPU of the run and all its workers
 (``RUSAGE_CHILDREN``). The versions alternate, so a change of the machine's load hits both.
+Both versions must simulate the same episodes: their episode tables (status, crashes,
+lengths, returns) and trajectory tables (every vehicle's state at every step, on the
+columns both write, floats with ``==``) are compared.
 
 Phases: ``rollouts`` (simulating, in the workers), ``labelling`` and ``measures`` (TAP and
 the per-episode measures, in the workers or in the run's process, whichever the version
@@ -32,6 +35,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 from machine import report
 
@@ -68,9 +72,9 @@ def _children_cpu() -> float:
 
 
 def run_demo(tree: Path, clock: str, workers: int, scratch: Path, hook: Path
-             ) -> tuple[dict[str, float], pd.DataFrame]:
+             ) -> tuple[dict[str, float], tuple[pd.DataFrame, pd.DataFrame | None]]:
     """One demo run of the code in ``tree``: its phases [s] on ``clock`` (wall or cpu), its
-    total wall and CPU [s], and its episode table."""
+    total wall and CPU [s], and its episode and trajectory tables (None: not written)."""
     out = Path(tempfile.mkdtemp(prefix="demo-", dir=scratch)) / "run"  # new: never replaced
     cache = Path(tempfile.mkdtemp(prefix="cache-", dir=scratch))
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(hook), str(tree)]),
@@ -85,14 +89,16 @@ def run_demo(tree: Path, clock: str, workers: int, scratch: Path, hook: Path
     timings = json.loads((out / "summary.json").read_text())["timings"]
     phases = {phase: sum(timings.get(k, 0.0) for k in keys) for phase, keys in PHASES.items()}
     phases.update(total_wall=wall, total_cpu=cpu)
-    return phases, pd.read_parquet(out / "episodes.parquet")
+    trajectories = out / "trajectories.parquet"
+    return phases, (pd.read_parquet(out / "episodes.parquet"),
+                    pd.read_parquet(trajectories) if trajectories.exists() else None)
 
 
 def _same_episodes(a: pd.DataFrame, b: pd.DataFrame) -> dict[str, object]:
     """Whether two demo runs simulated the same episodes: the same (env, policy, seed)
-    with the same status, crashes and lengths."""
+    with the same status, crashes, lengths and returns."""
     keys = ["env", "policy", "seed"]
-    cols = [c for c in ("status", "crashed", "length", "terminated", "truncated")
+    cols = [c for c in ("status", "crashed", "length", "terminated", "truncated", "return")
             if c in a.columns and c in b.columns]
     x = a[keys + cols].sort_values(keys).reset_index(drop=True)
     y = b[keys + cols].sort_values(keys).reset_index(drop=True)
@@ -101,6 +107,22 @@ def _same_episodes(a: pd.DataFrame, b: pd.DataFrame) -> dict[str, object]:
             "episodes": [len(a), len(b)],
             "crashes": [int(a["crashed"].fillna(False).astype(bool).sum()),
                         int(b["crashed"].fillna(False).astype(bool).sum())]}
+
+
+def _same_trajectories(a: pd.DataFrame | None, b: pd.DataFrame | None) -> dict[str, object]:
+    """Whether two demo runs wrote the same trajectory tables: every vehicle's state at
+    every step, on the columns both versions write, floats compared with ``==``."""
+    if a is None or b is None:
+        return {"same_trajectories": None, "trajectory_rows": None}
+    keys = [c for c in ("env", "policy", "seed", "track_id", "t") if c in a and c in b]
+    state = [c for c in ("x", "y", "heading", "speed", "vx", "vy", "valid", "is_ego",
+                         "crashed", "lane", "road") if c in a.columns and c in b.columns]
+    x = a[keys + state].sort_values(keys).reset_index(drop=True)
+    y = b[keys + state].sort_values(keys).reset_index(drop=True)
+    same = len(x) == len(y) and all(
+        np.array_equal(x[c].to_numpy(), y[c].to_numpy()) for c in keys + state)
+    return {"same_trajectories": bool(same), "trajectory_rows": [len(a), len(b)],
+            "trajectory_columns_compared": state}
 
 
 def main() -> None:
@@ -127,12 +149,14 @@ def main() -> None:
             runs: dict[str, dict[str, list[dict[str, float]]]] = {
                 "this": {"wall": [], "cpu": []}, "old": {"wall": [], "cpu": []}}
             episodes: dict[str, pd.DataFrame] = {}
+            trajectories: dict[str, pd.DataFrame | None] = {}
             for repeat in range(args.repeats):
                 for clock in ("wall", "cpu"):
                     for name, tree in (("old", old_tree), ("this", ROOT)):
-                        phases, eps = run_demo(tree, clock, args.workers, scratch, hook)
+                        phases, (eps, tracks) = run_demo(tree, clock, args.workers,
+                                                         scratch, hook)
                         runs[name][clock].append(phases)
-                        episodes[name] = eps
+                        episodes[name], trajectories[name] = eps, tracks
                         print(f"repeat {repeat + 1}, {clock} clock, {name}: "
                               + ", ".join(f"{k} {v:.2f}" for k, v in phases.items()),
                               file=sys.stderr, flush=True)
@@ -167,6 +191,7 @@ def main() -> None:
     report("demo_before_after", {
         "old_commit": commit, "this_commit": head, "phases": table,
         **_same_episodes(episodes["old"], episodes["this"]),
+        **_same_trajectories(trajectories["old"], trajectories["this"]),
     }, repeats=args.repeats, workers=args.workers,
         note="phases: median over repeats; cpu = user + sys of the run and its workers "
              "(phases from the run's own records on a CPU clock, total from RUSAGE_CHILDREN)")

@@ -1,15 +1,19 @@
 """``tap()`` on one episode (issue 24 section 1: <= 5 ms per single episode, with the ego's
 interactions too): CPU per call, for one or more tap-bench checkouts.
 
-The episode is the demo's first (highway, IDM/MOBIL, seed 0, 15 s: 11 vehicles, 1,661 rows,
-time-major as the simulator writes them), rolled out once with ``tap-bench rollout``.
+The episode is highway with IDM/MOBIL, seed 0, 15 s (the suite's highway: 3,171 rows,
+time-major as the simulator writes them), rolled out once with ``tap-bench rollout``; or
+one episode of a run folder's ``trajectories.parquet`` (``--run DIR``: the first episode of
+``tap-bench demo``'s run is its highway IDM seed 0, 11 vehicles, 1,661 rows, the episode
+issue 24 quotes).
 Each checkout runs in a fresh interpreter with it first on ``PYTHONPATH``: after 20 warm-up
 calls, ``--calls`` calls of ``tap(table)`` and of ``tap(table, interactions="ego")``, each
 timed as CPU (user + sys, ``time.process_time``) and wall; the figure is the median over
 ``--repeats`` interpreters, the checkouts alternating so that a change of load hits each.
 The machine is shared: read CPU, not wall.
 
-Usage: ``python benchmarks/bench_tap_episode.py [--tree DIR ...] [--calls 200] [--repeats 3]``.
+Usage: ``python benchmarks/bench_tap_episode.py [--run DIR] [--tree DIR ...] [--calls 200]
+[--repeats 3]``.
 """
 
 from __future__ import annotations
@@ -63,16 +67,23 @@ def main() -> None:
                         help="a tap-bench checkout to measure (repeatable; default: this one)")
     parser.add_argument("--calls", type=int, default=200)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--run", type=Path, help="a run folder: time its first episode")
     args = parser.parse_args()
     trees = args.tree or [HERE]
     with tempfile.TemporaryDirectory(prefix="bench-tap-") as tmp:
         table = Path(tmp) / "trajectories.parquet"
-        env = {**os.environ, "PYTHONPATH": str(trees[-1]), "OMP_WAIT_POLICY": "PASSIVE"}
-        subprocess.run([sys.executable, "-m", "tap_bench", "rollout", "--env", "highway",
-                        "--policy", "idm", "--seeds", "0", "--duration", "15", "-o", str(table),
-                        "--no-progress"],
-                       env=env, check=True, stdout=subprocess.DEVNULL)
         import pandas as pd
+
+        if args.run is not None:
+            run = pd.read_parquet(args.run / "trajectories.parquet")
+            first = run[run["scenario_id"] == run["scenario_id"].iloc[0]]
+            first.reset_index(drop=True).to_parquet(table)
+        else:
+            env = {**os.environ, "PYTHONPATH": str(trees[-1]), "OMP_WAIT_POLICY": "PASSIVE"}
+            subprocess.run([sys.executable, "-m", "tap_bench", "rollout", "--env", "highway",
+                            "--policy", "idm", "--seeds", "0", "--duration", "15", "-o",
+                            str(table), "--no-progress"],
+                           env=env, check=True, stdout=subprocess.DEVNULL)
 
         rows = len(pd.read_parquet(table))
         samples: dict[Path, list] = {tree: [] for tree in trees}

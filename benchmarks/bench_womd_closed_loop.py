@@ -69,6 +69,7 @@ def main() -> None:
         "motion_data_one_example.tfrecord", "sd_waymo_v1.2_eb4b91b10ca94ff2.pkl")]
     figures: dict = {"scenes": {}, "policies": {}}
     envs = {traffic: make_womd_env(files, traffic=traffic) for traffic in ("log", "idm")}
+    agents: dict = {}  # envs with the observation a trained agent reads
     env = envs["log"]
     for seed in range(len(env.catalog)):
         try:
@@ -126,16 +127,25 @@ def main() -> None:
             human, *_ = episode(e, "log", seed)
             human_sdl = ego_sdl(human)
             for policy in POLICIES:
+                observation = load_policy(policy).observation
+                if observation is not None:  # the shipped agents read plain Kinematics
+                    key = (traffic, repr(sorted(observation.items())))
+                    if key not in agents:
+                        agents[key] = make_womd_env(files, traffic=traffic,
+                                                    config={"observation": observation})
+                    run_env = agents[key]
+                else:
+                    run_env = e
                 try:
-                    table, *_ = episode(e, policy, seed)
+                    table, *_ = episode(run_env, policy, seed)
                 except Exception as err:
                     figures["policies"].setdefault(f"{policy} ({traffic} traffic)", {})[
                         scene.scenario_id] = str(err)
                     continue
-                info = e.episode_info()
+                info = run_env.episode_info()
                 figures["policies"].setdefault(f"{policy} ({traffic} traffic)", {})[
                     scene.scenario_id] = {
-                    "crashed": bool(e.unwrapped.vehicle.crashed),
+                    "crashed": bool(run_env.unwrapped.vehicle.crashed),
                     "off_road": info["off_road"],
                     "route_progress": None if np.isnan(info["route_progress"])
                     else round(info["route_progress"], 3),

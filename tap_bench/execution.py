@@ -29,6 +29,7 @@ measures, formats and policy kinds) before its first item.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import pickle
 import selectors
@@ -393,17 +394,40 @@ def _worker_main() -> None:
 class LocalBackend:
     """Work in this process (``workers=1``) or in a pool of ``workers`` worker processes.
 
-    Workers start once per :meth:`imap` / :meth:`map` call and are reused for its items, so
-    per-process caches (an env, a policy) pay off across items; each runs one item at a
-    time. Workers are stopped when the call ends, also on an exception, Ctrl-C or SIGTERM
-    (the command line turns SIGTERM into an interrupt).
+    Workers start once per :meth:`imap` / :meth:`map` call (or once per :meth:`kept` block)
+    and are reused for its items, so per-process caches (an env, a policy) pay off across
+    items; each runs one item at a time. Workers are stopped when the call (or block) ends,
+    also on an exception, Ctrl-C or SIGTERM (the command line turns SIGTERM into an
+    interrupt).
     """
 
     processes: int = 1
     name: str = field(default="local", init=False)
+    _kept: tuple[list[_Worker], Any] | None = field(default=None, init=False, repr=False,
+                                                    compare=False)
 
     def __post_init__(self) -> None:
         check_workers(self.processes)
+
+    @contextlib.contextmanager
+    def kept(self) -> Iterator[LocalBackend]:
+        """Within the block, this backend's :meth:`map` and :meth:`imap` calls share their
+        worker processes: started by the first call that needs them, reused by the next,
+        stopped when the block ends. A run that maps twice (its first episodes for the
+        estimate, then the rest) starts its workers once. A worker busy when a call ends
+        early (an error, an interrupt) is stopped, never reused."""
+        if self._kept is not None:  # already kept by an enclosing block
+            yield self
+            return
+        self._kept = ([], selectors.DefaultSelector())
+        try:
+            yield self
+        finally:
+            workers, selector = self._kept
+            self._kept = None
+            for worker in workers:
+                worker.close()
+            selector.close()
 
     @property
     def workers(self) -> int:
@@ -444,8 +468,8 @@ class LocalBackend:
 
     def _pool(self, fn, items, retries, size, bar) -> Iterator[Outcome]:
         window = _Window(items, size, retries, bar)
-        workers: list[_Worker] = []
-        selector = selectors.DefaultSelector()
+        kept = self._kept
+        workers, selector = kept if kept is not None else ([], selectors.DefaultSelector())
         try:
             while True:
                 window.fill()
@@ -489,9 +513,13 @@ class LocalBackend:
                         window.settle(i, payload if status == "ok" else None,
                                       "" if status == "ok" else payload)
         finally:
-            for worker in workers:
-                worker.close()
-            selector.close()
+            if kept is None:
+                for worker in workers:
+                    worker.close()
+                selector.close()
+            else:  # kept for the next call: idle workers only
+                for worker in [w for w in workers if w.running is not None]:
+                    self._retire(worker, workers, selector)
 
     @staticmethod
     def _retire(worker: _Worker, workers: list[_Worker], selector: Any) -> None:

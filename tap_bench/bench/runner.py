@@ -242,8 +242,10 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     with_trajectories = any(traj is not None for traj, _ in corpora.values())
 
     t0 = time.perf_counter()
-    results, estimate = _rollouts(plan, runner, keep_trajectories or with_trajectories,
-                                  progress, cache, announce)
+    kept = getattr(runner, "kept", None)  # the estimate's first episodes and the rest
+    with kept() if kept is not None else contextlib.nullcontext():  # on the same workers
+        results, estimate = _rollouts(plan, runner, keep_trajectories or with_trajectories,
+                                      progress, cache, announce)
     timings["rollouts_wall"] = time.perf_counter() - t0
     if announce is not None:
         announce(f"episodes done ({timings['rollouts_wall']:.0f} s); scoring ...")

@@ -189,3 +189,27 @@ def _alive(pid: int) -> bool:
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
     except OSError:
         return False
+
+
+def test_calls_in_a_kept_block_share_their_workers_and_the_block_stops_them(tmp_path):
+    """Two map calls in one kept() block run on the same two worker processes (the run's
+    estimate and its episodes start the workers once); a worker that dies in the block is
+    replaced; the block's end stops every worker. Outside a block each call has its own."""
+    backend = LocalBackend(2)
+    with backend.kept():
+        first = {o.value for o in backend.map(_pid, list(range(6)), progress=False)}
+        second = {o.value for o in backend.map(_pid, list(range(6)), progress=False)}
+        workers = list(backend._kept[0])
+        assert len(first) == 2 and first == second
+        died = backend.map(_die_if, [0, 1, 2], retries=0, progress=False)
+        assert not died[0].ok and [o.value for o in died[1:]] == [1, 2]
+        after = {o.value for o in backend.map(_pid, list(range(6)), progress=False)}
+        assert len(after) == 2 and len(after & first) == 1  # one replaced, one kept
+    assert backend._kept is None
+    for worker in workers:
+        assert worker.process.wait(timeout=5) is not None  # stopped with the block
+    apart = [{o.value for o in backend.map(_pid, list(range(6)), progress=False)}
+             for _ in range(2)]
+    assert not apart[0] & apart[1]  # outside a block: new workers per call
+    _check_outcomes(backend.map(_square_or_fail, list(range(5)), progress=False),
+                    DEFAULT_RETRIES)
