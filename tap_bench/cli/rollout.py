@@ -94,6 +94,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"off road {ok['off_road'].mean():.1%}, route progress "
               f"{ok['route_progress'].mean():.2f}, red lights run "
               f"{ok['ran_red_light'].mean():.1%}, log ADE {ok['log_ade'].mean():.2f} m")
+        if (ok["traffic"] == "idm").any():  # how clean the reactive traffic was
+            print(f"idm traffic collisions (the ego's aside): "
+                  f"{int(ok['traffic_collisions'].sum())} in "
+                  f"{int((ok['traffic_collisions'] > 0).sum())} of {len(ok)} episodes, "
+                  f"{int(ok['traffic_collisions_with_log'].sum())} with a replayed agent")
     failed = episodes[episodes["status"] != "ok"]
     for row in failed.itertuples():
         print(f"seed {row.seed} failed: {row.error}", file=sys.stderr)

@@ -457,8 +457,8 @@ class WomdRoad(Road):
             vehicle.step(dt)
         vehicles = [v for v in self.vehicles if v.collidable]
         near = _near_pairs(vehicles, [], dt)
-        if near is None:
-            return
+        if near is None:  # an object without position or diagonal: every pair, as highway-env
+            near = np.ones((len(vehicles), len(vehicles)), bool)
         ego = self.vehicles[0]  # the env puts the ego first (a policy's takes its place)
         for i, j in zip(*np.nonzero(np.triu(near | near.T, 1)), strict=True):
             a, b = vehicles[i], vehicles[j]

@@ -10,6 +10,7 @@ import pickle
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from highway_env import utils
 
@@ -318,3 +319,18 @@ def test_an_idm_ego_yields_to_a_crossing_pedestrian(tmp_path, traffic):
     walker = table[table["track_id"] == "p"]
     assert np.hypot(ego["x"].to_numpy() - walker["x"].to_numpy(),
                     ego["y"].to_numpy() - walker["y"].to_numpy()).min() > 2.0
+
+
+def test_the_command_says_how_clean_the_reactive_traffic_was(real, tmp_path, capsys):
+    from tap_bench.cli import main
+
+    out = tmp_path / "log.parquet"
+    assert main(["rollout", "--womd", real[3], "--policy", "log", "--traffic", "idm",
+                 "-o", str(out)]) == 0
+    episodes = pd.read_parquet(tmp_path / "log.episodes.parquet")
+    n, with_log = (int(episodes[c].sum()) for c in ("traffic_collisions",
+                                                    "traffic_collisions_with_log"))
+    assert n > 0  # eb4b91b10ca94ff2: late replayed cars run into idm traffic
+    printed = capsys.readouterr().out
+    assert (f"idm traffic collisions (the ego's aside): {n} in 1 of 1 episodes, "
+            f"{with_log} with a replayed agent") in printed
