@@ -92,7 +92,7 @@ def test_a_leader_in_the_turn_beyond_the_record_is_found_along_the_scenes_lanes(
     assert ego["interaction"].str.contains("Following (car)", regex=False).any()
 
 
-def test_each_episode_gets_its_own_scenes_lanes_under_its_run_id(womd_dir):
+def test_each_episode_gets_its_own_scenes_lanes_under_its_run_id(womd_dir, monkeypatch):
     files = tuple(str(p) for p in sorted(womd_dir.glob("*.tfrecord")))
     scenes = WomdScenes(files)
     table = pd.concat([load_scene(ref).table() for ref in scene_catalog(files)],
@@ -109,6 +109,15 @@ def test_each_episode_gets_its_own_scenes_lanes_under_its_run_id(womd_dir):
         assert len(mine) == len(theirs) > 0
         np.testing.assert_array_equal(mine[["x", "y"]].to_numpy(),
                                       theirs[["x", "y"]].to_numpy())
+    # with room for one scene only, the batch still gets every scene's lanes (the scenes
+    # it needs are never the ones let go)
+    monkeypatch.setattr(run_tasks, "SCENE_LANES_KEPT", 1)
+    run_tasks._SCENE_LANES.clear()
+    two = run["womd_scenario_id"].isin(run["womd_scenario_id"].unique()[:2])
+    run_tasks._road(_task(scenes, "idm"), run[two])  # two scenes read, a third to come
+    again = run_tasks._road(_task(scenes, "idm"), run)
+    cols = ["map_id", "kind", "x", "y"]  # feature ids count the features read together
+    pd.testing.assert_frame_equal(again[cols], road[cols])
     # a table without the WOMD id (not a run of recorded scenes) is measured along the arc
     assert run_tasks._road(_task(scenes), run.drop(columns="womd_scenario_id")) is None
 
