@@ -300,9 +300,15 @@ def policy_fingerprint(definition: PolicyDefinition) -> dict[str, Any] | None:
 LABELS_FORMAT = 2
 """Layout of a label entry file; raised when it changes (old entries then miss). 2: the
 tables as Arrow IPC streams (a re-run reads them four times quicker than Parquet)."""
-LABEL_CODE = ("tap_bench.labelling", "tap_bench.bench.episodes", "tap_bench.bench.measures")
-"""The modules that make an episode's labels and measures; their code and every module of
-tap-bench they import (followed transitively) key the label cache (:func:`label_code`)."""
+LABEL_CODE = ("tap_bench.labelling", "tap_bench.bench.episodes", "tap_bench.bench.measures",
+              "tap_bench.bench.contexts", "tap_bench.sim.roads", "tap_bench.bench.run_tasks")
+"""The modules that make an episode's label entry (labels, measures, segments and context
+occurrences); their code and every module of tap-bench they import (followed transitively)
+key the label cache (:func:`label_code`). ``tap_bench.bench.run_tasks`` chooses the map an
+episode is labelled along and calls the others; ``tap_bench.bench.contexts`` makes the
+occurrences; ``tap_bench.sim.roads`` builds a highway-env episode's map table
+(:data:`ROAD_MAP`) and brings :mod:`tap_bench.maps` (its sampling step), which the episode
+key does not hold."""
 
 
 _IMPORT = re.compile(r"^[ \t]*(?:from[ \t]+(tap_bench[\w.]*)[ \t]+import[ \t]+(\([^)]*\)|[^\n]+)"

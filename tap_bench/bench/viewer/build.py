@@ -135,12 +135,14 @@ def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
         the path of the viewer's ``index.html``.
     """
     level = str(summary.get("level", "maneuver"))
-    if segments is None:
-        segments = _ego_segments(trajectories, summary.get("thresholds", "paper"), level)
-    if "level" in segments.columns:
-        segments = segments[segments["level"] == level]
     if roads is None:
         roads = _rebuild_roads(summary, sorted(trajectories["env"].unique()))
+    if segments is None:
+        # labelled as the run labelled them: along the roads' lanes beyond the record
+        segments = _ego_segments(trajectories, summary.get("thresholds", "paper"), level,
+                                 roads)
+    if "level" in segments.columns:
+        segments = segments[segments["level"] == level]
     have = set(trajectories["scenario_id"].astype(str).unique())
     measures = run_measures(summary)
     eps, entries = episode_index(episodes, novel_labels=novel_labels, has_replay=have,
@@ -194,9 +196,11 @@ def _run_womd_files(summary: dict[str, Any]) -> list[str]:
     return list(dict.fromkeys(files))
 
 
-def _ego_segments(trajectories: pd.DataFrame, thresholds: Any, level: str) -> pd.DataFrame:
+def _ego_segments(trajectories: pd.DataFrame, thresholds: Any, level: str,
+                  roads: pd.DataFrame | None = None) -> pd.DataFrame:
     """The egos' segment table at ``level`` (for run folders written before
-    ``segments.parquet`` existed)."""
+    ``segments.parquet`` existed), along the lanes of ``roads`` (the run's map table) beyond
+    the end of a record, as the runner labels them."""
     if isinstance(thresholds, dict):
         thresholds = Thresholds.from_dict(thresholds, source="summary.json thresholds")
     # the whole scene is labelled (the interaction axis needs the other vehicles), the
@@ -204,7 +208,9 @@ def _ego_segments(trajectories: pd.DataFrame, thresholds: Any, level: str) -> pd
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         segments = tap(trajectories, thresholds, source="run trajectories",
-                       interactions="ego").segments(level)
+                       interactions="ego",
+                       map_table=roads if roads is not None and len(roads) else None
+                       ).segments(level)
     ego = trajectories.loc[trajectories["is_ego"].fillna(False).to_numpy(bool),
                            ["scenario_id", "track_id"]].drop_duplicates()
     return segments.merge(ego, on=["scenario_id", "track_id"])
