@@ -288,3 +288,15 @@ def test_table_digest_sees_every_value_bit_and_type():
     digests = {table_digest(v) for v in variants}
     assert base not in digests and len(digests) == len(variants)
     assert table_digest(None) != table_digest(pd.DataFrame())
+
+
+def test_table_digest_is_the_same_for_equal_content_as_labelled_and_cached():
+    """What a freshly labelled and a cached episode give alike: strings in an object or a
+    str column, NaN with any payload (a cached row's NaN is JSON's)."""
+    payload = np.array([0x7FF8000000000001, 0xFFF8000000000000], dtype="u8").view("f8")
+    fresh = pd.DataFrame({"s": pd.Series(["a", None, "c"], dtype="str"),
+                          "x": [1.0, payload[0], payload[1]]})
+    cached = pd.DataFrame({"s": pd.Series(["a", None, "c"], dtype=object),
+                           "x": [1.0, np.nan, np.nan]})
+    assert table_digest(fresh) == table_digest(cached)
+    assert table_digest(fresh) != table_digest(cached.assign(s=["a", None, "d"]))
