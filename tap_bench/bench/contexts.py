@@ -8,13 +8,16 @@ occurrence of that context, with the measures inside its time span:
 =====================  ======  ==========================================================
 column                 unit    what (over the ego's steps inside the run)
 =====================  ======  ==========================================================
-``min_ttc_s``          s       smallest time to collision along the path (scored steps,
-                               :mod:`tap_bench.bench.measures`: 0 on a crash), capped 10 s
-``min_headway_s``      s       smallest time headway, capped 10 s
+``min_headway_s``      s       every registered measure whose entry has ``in_context``
+``min_ttc_s``          s       (:attr:`~tap_bench.bench.measures.Measure.in_context`): its
+``rms_jerk``           m/s^3   own function over the ego's steps inside the run, as if
+                               the run were an episode (the built-ins: smallest headway
+                               and TTC along the path, capped 10 s, 0 on a crash, NaN
+                               with no leader inside; RMS Savitzky-Golay jerk, NaN in
+                               runs shorter than its 1.5 s window). A user's measure
+                               registered with ``in_context`` gets its column too
 ``peak_decel``         m/s^2   hardest braking: the largest deceleration (0: never slowed;
                                the impact of a crash is not braking and is left out)
-``rms_jerk``           m/s^3   RMS of the second difference of speed (crashed steps left
-                               out)
 ``reaction_time_s``    s       Cut-in only: from the start of the Cut-in run (1 s before
                                the cutter enters the corridor) to the ego's first step
                                decelerating at or below ``a_dec``, looked for up to
@@ -23,22 +26,21 @@ column                 unit    what (over the ego's steps inside the run)
 =====================  ======  ==========================================================
 
 **Comparison** (:func:`compare_contexts`). Per env and context, each episode's occurrences
-are reduced to one value per measure (the smallest TTC and headway, the hardest braking,
-the mean jerk, the first reaction), and policies A and B are compared on the seeds where
-*both* meet the context: the mean paired difference A - B with Student's t interval over
-those seeds (the same initial traffic, so seed noise cancels). Where fewer than
-``min_pairs`` seeds pair up, the episodes of A and of B that meet the context are compared
-unpaired (Welch's t interval) and the row says so; with fewer than ``min_pairs`` episodes
-on a side the row has no interval. ``braked`` is a proportion: its paired difference gets
-Tango's score interval, the unpaired one Newcombe's, which stay honest when every seed
-braked. The intervals are :mod:`tap_bench.bench.intervals`' (a sample whose values are all
-equal gets the bounded-measure interval there, or none).
+are reduced to one value per measure by its entry's ``in_context`` (the smallest TTC and
+headway, the hardest braking, the mean jerk, the first reaction), and policies A and B are
+compared on the seeds where *both* meet the context: the mean paired difference A - B with
+Student's t interval over those seeds (the same initial traffic, so seed noise cancels).
+Where fewer than ``min_pairs`` seeds pair up, the episodes of A and of B that meet the
+context are compared unpaired (Welch's t interval) and the row says so; with fewer than
+``min_pairs`` episodes on a side the row has no interval. ``braked`` is a proportion: its
+paired difference gets Tango's score interval, the unpaired one Newcombe's, which stay
+honest when every seed braked. The intervals are :mod:`tap_bench.bench.intervals`' (a
+sample whose values are all equal gets the bounded-measure interval there, or none).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import replace
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 import pandas as pd
@@ -46,9 +48,7 @@ import pandas as pd
 from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.intervals import paired_measure_interval, unpaired_measure_interval
 from tap_bench.bench.measures import (
-    HEADWAY_CAP_S,
     MEASURES,
-    TTC_CAP_S,
     EgoSteps,
     Measure,
     ego_steps,
@@ -58,27 +58,32 @@ from tap_bench.labelling import tap
 from tap_bench.pathframe import LaneMap
 from tap_bench.sdl import INTERACTION_NAMES
 from tap_bench.thresholds import Thresholds, resolve_thresholds
-from tap_bench.trajectories import HZ
 
-__all__ = ["CONTEXT_MEASURES", "REACTION_HORIZON_S", "compare_contexts", "context_scores",
-           "context_occurrences", "occurrences_from"]
+__all__ = ["CONTEXT_OWN_MEASURES", "REACTION_HORIZON_S", "compare_contexts",
+           "context_measures", "context_occurrences", "context_scores", "occurrences_from"]
 
 REACTION_HORIZON_S = 5.0
 """[s] how long after a cut-in starts the ego's first braking is looked for."""
-CONTEXT_MEASURES: tuple[tuple[Measure, str], ...] = (
-    # the entry (read for unit, direction, kind and bounds), and how one episode's
-    # occurrences are reduced; the values are computed by context_occurrences
-    (replace(MEASURES["min_ttc_s"], function=None), "min"),
-    (replace(MEASURES["min_headway_s"], function=None), "min"),
-    (Measure("peak_decel", "m/s^2", False, "hardest braking inside the context", 0.5, None,
-             label="peak deceleration"), "max"),
-    (replace(MEASURES["rms_jerk"], function=None), "mean"),
-    (Measure("reaction_time_s", "s", False, "cut-in to the ego's first braking", 0.5, None,
-             label="reaction time"), "first"),
-    (Measure("braked", "share", True, "the ego braked within the horizon of a cut-in", 0.1,
-             None, label="braked", kind="rate"), "first"),
+CONTEXT_OWN_MEASURES: tuple[Measure, ...] = (
+    # entries of what only a context has (computed by occurrences_from, no function):
+    # read for unit, direction, kind, bounds and how an episode's occurrences are reduced
+    Measure("peak_decel", "m/s^2", False, "hardest braking inside the context", 0.5, None,
+            label="peak deceleration", in_context="max"),
+    Measure("reaction_time_s", "s", False, "cut-in to the ego's first braking", 0.5, None,
+            label="reaction time", in_context="first"),
+    Measure("braked", "share", True, "the ego braked within the horizon of a cut-in", 0.1,
+            None, label="braked", kind="rate", in_context="first"),
 )
-"""The measures inside a context, with their per-episode reduction."""
+"""The measures only an interaction context has (a reaction needs the context's start)."""
+
+
+def context_measures(entries: Iterable[Measure] | None = None) -> tuple[Measure, ...]:
+    """The measures taken inside interaction contexts: every entry (of ``entries``, default
+    the registered :data:`~tap_bench.bench.measures.MEASURES`) whose ``in_context`` says how,
+    in registration order, then :data:`CONTEXT_OWN_MEASURES`. Picked by the entries' field,
+    never by name: a user's measure registered with ``in_context`` is taken too."""
+    entries = MEASURES if entries is None else entries
+    return (*(m for m in entries if m.in_context), *CONTEXT_OWN_MEASURES)
 _IDS = ("env", "policy", "seed")
 
 
@@ -98,7 +103,7 @@ def context_occurrences(trajectories: pd.DataFrame, thresholds: Thresholds | str
     Returns:
         one row per (episode, run of one relation): scenario_id, env, policy, seed (those
         present), context, other_track_id, t_start, t_end [s], and the columns of
-        :data:`CONTEXT_MEASURES`.
+        :func:`context_measures`.
     """
     th = resolve_thresholds(thresholds)
     if "is_ego" not in trajectories.columns or not len(trajectories) \
@@ -146,22 +151,19 @@ def occurrences_from(segments: pd.DataFrame, steps: EgoSteps, trajectories: pd.D
     crashed = steps.crashed.copy()
     crashed[1:] |= steps.crashed[:-1] & steps.consecutive()
     accel_all[crashed] = np.nan
+    insides = []
     for k, run in enumerate(runs.itertuples(index=False)):
         lo = steps.starts[ep[k]]
         hi = lo + steps.counts[ep[k]]
         inside = np.arange(lo, hi)[(t[lo:hi] >= run.t_start - 1e-9)
                                    & (t[lo:hi] < run.t_end - 1e-9)]
-        ttc, headway = steps.ttc[inside], steps.headway[inside]
+        insides.append(inside)
         accel = accel_all[inside]
-        v = np.where(crashed[inside], np.nan, steps.speed[inside])
         row = {"scenario_id": run.scenario_id, "context": run.label,
                "other_track_id": run.other_track_id, "t_start": run.t_start,
                "t_end": run.t_end,
-               "min_ttc_s": _capped_min(ttc, TTC_CAP_S),
-               "min_headway_s": _capped_min(headway, HEADWAY_CAP_S),
                "peak_decel": float(max(0.0, -np.nanmin(accel))) if np.isfinite(accel).any()
                else np.nan,
-               "rms_jerk": _rms_jerk(v),
                "reaction_time_s": np.nan, "braked": np.nan}
         if run.label == "Cut-in":
             later = np.arange(lo, hi)[(t[lo:hi] >= run.t_start - 1e-9)
@@ -171,8 +173,20 @@ def occurrences_from(segments: pd.DataFrame, steps: EgoSteps, trajectories: pd.D
             if len(brake):
                 row["reaction_time_s"] = float(t[brake[0]] - run.t_start)
         rows.append(row)
+    measured = context_measures()
     out = pd.DataFrame(rows, columns=["scenario_id", "context", "other_track_id", "t_start",
-                                      "t_end", *(m.name for m, _ in CONTEXT_MEASURES)])
+                                      "t_end", *(m.name for m in measured)])
+    # the registered measures, each by its own function over every occurrence's steps
+    counts = np.array([len(i) for i in insides], np.int64)
+    some = np.flatnonzero(counts > 0)
+    window = _occurrence_steps(steps, [insides[k] for k in some], ep[some])
+    for m in measured:
+        if m.function is not None:
+            values = np.full(len(out), np.nan)
+            if len(some):
+                values[some] = np.asarray(m.function(window), float)
+            # one NaN (0 / 0 gives a negative one): the same bits as read back from the cache
+            out[m.name] = np.where(np.isnan(values), np.nan, values)
     ids = [c for c in _IDS if c in trajectories.columns]
     if ids:
         first = trajectories.drop_duplicates("scenario_id")[["scenario_id", *ids]]
@@ -181,22 +195,26 @@ def occurrences_from(segments: pd.DataFrame, steps: EgoSteps, trajectories: pd.D
                                        if c not in ("scenario_id", *ids))]]
 
 
-def _capped_min(values: np.ndarray, cap: float) -> float:
-    finite = values[~np.isnan(values)]
-    return float(min(finite.min(), cap)) if len(finite) else cap
-
-
-def _rms_jerk(v: np.ndarray) -> float:
-    if len(v) < 3:
-        return np.nan
-    d2 = (v[2:] - 2 * v[1:-1] + v[:-2]) * HZ * HZ
-    return float(np.sqrt(np.nanmean(d2 ** 2)))
+def _occurrence_steps(steps: EgoSteps, insides: list[np.ndarray], episode: np.ndarray
+                      ) -> EgoSteps:
+    """The ego's steps of each occurrence (``insides``: its step indices into ``steps``, one
+    or more; ``episode``: its episode), each occurrence an episode of its own: what a
+    measure's function reads when it is taken inside a context."""
+    idx = np.concatenate(insides) if insides else np.zeros(0, np.int64)
+    counts = np.array([len(i) for i in insides], np.int64)
+    step_fields = ("step", "t", "speed", "accel", "crashed", "leader_row", "gap", "closing",
+                   "headway", "ttc", "scored")
+    return EgoSteps(scenario_id=steps.scenario_id[episode], starts=np.cumsum(counts) - counts,
+                    counts=counts, **{f: getattr(steps, f)[idx] for f in step_fields},
+                    has_others=steps.has_others[episode], first_row=steps.first_row[episode],
+                    columns={k: v[idx] for k, v in steps.columns.items()})
 
 
 def _per_episode(occ: pd.DataFrame) -> pd.DataFrame:
     """One row per (env, policy, seed, context): each measure reduced over occurrences."""
     occ = occ.sort_values("t_start", kind="stable")
-    how = {m.name: reduce for m, reduce in CONTEXT_MEASURES}
+    how = {m.name: m.in_context for m in context_measures()
+           if m.name in occ.columns}
     return occ.groupby(["env", "policy", "seed", "context"], sort=True).agg(how).reset_index()
 
 
@@ -239,7 +257,9 @@ def compare_contexts(occurrences: pd.DataFrame, a: str, b: str, *,
         side_a = group[group["policy"] == a].set_index("seed")
         side_b = group[group["policy"] == b].set_index("seed")
         seeds = side_a.index.intersection(side_b.index).sort_values()
-        for m, _ in CONTEXT_MEASURES:
+        for m in context_measures():
+            if m.name not in group.columns:
+                continue
             va, vb = side_a[m.name].dropna(), side_b[m.name].dropna()
             if not len(va) and not len(vb):
                 continue

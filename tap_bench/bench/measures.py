@@ -104,6 +104,7 @@ from tap_bench.trajectories import HZ
 
 __all__ = [
     "BURN_IN_S",
+    "CONTEXT_REDUCTIONS",
     "HEADWAY_CAP_S",
     "JERK_COMFORT_BOUND",
     "JERK_POLYORDER",
@@ -252,6 +253,9 @@ MEASURE_ROLES = ("safety", "progress", "comfort", "")
 """What a measure stands for (:attr:`Measure.role`): the verdict reads its safety family
 and its efficiency (progress and comfort) family by role, the report's trade-off view
 draws each safety rate against each progress measure, never a measure picked by name."""
+CONTEXT_REDUCTIONS = ("min", "max", "mean", "first", "")
+"""How an episode's occurrences of one interaction context are reduced for a measure taken
+inside contexts (:attr:`Measure.in_context`); ``""``: the measure is not taken there."""
 MEASURE_KINDS = ("mean", "rate")
 """What a measure's per-episode value is: ``"mean"`` (a number; its mean over episodes gets
 Student's t interval, bounded by :attr:`Measure.bounds` where the measure has them) or
@@ -291,6 +295,12 @@ class Measure:
         gate_weight: the regression gate's share of alpha within an (env, policy) cell,
             where the measure has one of its own (the crash rate most of it: see
             :func:`tap_bench.bench.suite.default_weights`); None: it shares the rest.
+        in_context: how the measure is taken inside interaction contexts
+            (:mod:`tap_bench.bench.contexts`, :data:`CONTEXT_REDUCTIONS`): its function is
+            evaluated on the ego's steps of each occurrence of a context as if the
+            occurrence were an episode, and an episode's occurrences of one context are
+            reduced by this (``"min"``, ``"max"``, ``"mean"``, ``"first"``); ``""``: not
+            measured inside contexts.
     """
 
     name: str
@@ -306,6 +316,7 @@ class Measure:
     role: str = ""
     words: tuple[str, str] = ()
     gate_weight: float | None = None
+    in_context: str = ""
 
     def __post_init__(self) -> None:
         if not self.label:
@@ -360,7 +371,7 @@ class Measure:
                 "bounds": None if self.bounds is None else list(self.bounds),
                 "decimals": self.decimals, "interval": self.interval_method,
                 "role": self.role, "words": list(self.words),
-                "gate_weight": self.gate_weight}
+                "gate_weight": self.gate_weight, "in_context": self.in_context}
 
 
 def run_measures(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
@@ -454,6 +465,10 @@ def _check_entry(measure: Measure) -> None:
     if len(measure.words) != 2 or not all(isinstance(w, str) and w for w in measure.words):
         raise RegistrationError(f"measure {measure.name!r}: words {measure.words!r} must be "
                                 "two words, (better, worse).")
+    if measure.in_context not in CONTEXT_REDUCTIONS:
+        raise RegistrationError(f"measure {measure.name!r}: in_context {measure.in_context!r} "
+                                f"is not one of {', '.join(map(repr, CONTEXT_REDUCTIONS))} "
+                                "(how an episode's occurrences of a context are reduced).")
     weight = measure.gate_weight
     if weight is not None and (isinstance(weight, bool) or not isinstance(weight, int | float)
                                or not 0 < weight < 1):
@@ -484,7 +499,7 @@ def register_measure(name: str, *, unit: str, higher_is_better: bool, margin: fl
                      description: str, label: str = "", kind: str = "mean",
                      bounds: tuple[float, float] | None = None, decimals: int = 2,
                      role: str = "", words: tuple[str, str] = (),
-                     gate_weight: float | None = None,
+                     gate_weight: float | None = None, in_context: str = "",
                      registry: MeasureRegistry = MEASURES
                      ) -> Callable[[MeasureFunction], MeasureFunction]:
     """Decorator: register ``function(steps: EgoSteps) -> (S,) values`` as a measure (the
@@ -494,7 +509,7 @@ def register_measure(name: str, *, unit: str, higher_is_better: bool, margin: fl
         registry.register(Measure(name, unit, higher_is_better, description, margin,
                                   function, label=label, kind=kind, bounds=bounds,
                                   decimals=decimals, role=role, words=words,
-                                  gate_weight=gate_weight))
+                                  gate_weight=gate_weight, in_context=in_context))
         return function
 
     return decorate
@@ -537,7 +552,7 @@ def _mean_speed(steps: EgoSteps) -> np.ndarray:
 @register_measure("min_headway_s", unit="s", higher_is_better=True, margin=0.3,
                   description="smallest time headway to the leader along the path (capped "
                   "10 s; 0 on a crash)", label="min headway", bounds=(0.0, HEADWAY_CAP_S),
-                  role="safety", gate_weight=0.1)
+                  role="safety", gate_weight=0.1, in_context="min")
 def _min_headway(steps: EgoSteps) -> np.ndarray:
     return _leader_minimum(steps, steps.headway, HEADWAY_CAP_S)
 
@@ -545,7 +560,7 @@ def _min_headway(steps: EgoSteps) -> np.ndarray:
 @register_measure("min_ttc_s", unit="s", higher_is_better=True, margin=1.0,
                   description="smallest time to collision with the leader along the path "
                   "(capped 10 s; 0 on a crash)", label="min TTC", bounds=(0.0, TTC_CAP_S),
-                  role="safety", gate_weight=0.1)
+                  role="safety", gate_weight=0.1, in_context="min")
 def _min_ttc(steps: EgoSteps) -> np.ndarray:
     return _leader_minimum(steps, steps.ttc, TTC_CAP_S)
 
@@ -571,7 +586,8 @@ def leader_counts(steps: EgoSteps) -> pd.DataFrame:
 
 @register_measure("rms_jerk", unit="m/s^3", higher_is_better=False, margin=1.0,
                   description="RMS longitudinal jerk of the ego (Savitzky-Golay, 1.5 s, as "
-                  "nuPlan)", label="RMS jerk", role="comfort", words=("smoother", "harsher"))
+                  "nuPlan)", label="RMS jerk", role="comfort", words=("smoother", "harsher"),
+                  in_context="mean")
 def _rms_jerk(steps: EgoSteps) -> np.ndarray:
     jerk = smoothed_jerk(steps)
     ok = ~np.isnan(jerk)

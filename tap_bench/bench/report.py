@@ -481,9 +481,9 @@ def _context_comparison(contexts: pd.DataFrame, pct: str) -> list[str]:
     interval first; nothing when no context was met by both."""
     if contexts is None or not len(contexts):
         return []
-    from tap_bench.bench.contexts import CONTEXT_MEASURES
+    from tap_bench.bench.contexts import context_measures
 
-    entries = {m.name: m for m, _ in CONTEXT_MEASURES}
+    entries = {m.name: m for m in context_measures()}
     rows = []
     for r in contexts.itertuples():
         m = entries.get(r.measure)

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.measures import MEASURES, Measure, measures_with_role
+from tap_bench.bench.measures import MEASURES, SCENE_MEASURES, Measure, measures_with_role
 from tap_bench.bench.report_tables import (
     _envs,
     _pooled,
@@ -557,15 +557,19 @@ def write_plots(scores: Scores, folder: str | os.PathLike, *,
     ``novelty.svg``.
 
     With a ``cache``, the figures of scores equal to an earlier run's (every table, value
-    for value, the reference, the level and the code) are read from it
+    for value, the reference, the level, the registered measures' entries and the code) are
+    read from it
     (:func:`tap_bench.bench.cache.memoised`): the same bytes.
     """
     from tap_bench.bench.cache import memoised, table_digest
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
+    # the figures draw every registered measure's label, unit, bounds and direction, which
+    # the tables do not hold (a plug-in's measure can change them with the same values)
     inputs = {"tables": {name: table_digest(t) for name, t in scores.tables().items()},
-              "reference": reference or "", "level": level}
+              "reference": reference or "", "level": level,
+              "measures": [m.to_dict() for m in (*MEASURES, *SCENE_MEASURES)]}
     figures = memoised(cache, "plots", inputs if cache is not None else None,
                        lambda: _draw(scores, reference or "", level), dict, dict)
     paths = []

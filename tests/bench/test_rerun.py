@@ -143,3 +143,20 @@ def test_the_label_key_follows_the_code_of_labels_and_measures(monkeypatch):
     assert label_code() == base
     monkeypatch.setattr(cache_module, "LABEL_CODE", ("tap_bench.labelling",))
     assert label_code()["code"] != base["code"]
+
+
+@pytest.mark.parametrize("start", ["tap_bench.bench.run_tasks", "tap_bench.bench.contexts",
+                                   "tap_bench.sim.roads", "tap_bench.sources.maps"])
+def test_the_label_key_covers_the_code_that_makes_a_label_entry(start):
+    # a label entry holds what run_tasks makes: labels and measures along the episode's map
+    # (tap_bench.sim.roads for highway-env, tap_bench.sources.maps for recorded scenes) and
+    # the context occurrences (tap_bench.bench.contexts): every module that code imports must
+    # be in the label key or in the episode key, or an edit to it (the sampling step of
+    # tap_bench.maps, the occurrences' rules) would leave the old entries in the cache
+    from tap_bench.bench.cache import LABEL_CODE, _simulation_modules, _tap_bench_closure
+
+    covered = {p.resolve() for p in _tap_bench_closure(LABEL_CODE).values()} \
+        | {p.resolve() for p in _simulation_modules()}
+    made_by = _tap_bench_closure((start,))
+    assert start in made_by
+    assert {name for name, path in made_by.items() if path.resolve() not in covered} == set()
