@@ -9,7 +9,13 @@ each episode 2-4 segments drawn from 12 segment labels). The reference has N tra
 policy draws from the reference's distribution: true difference about 0), "different"
 (another distribution), "paired" (rollouts on the same seeds: on each seed the policy
 repeats the reference's label with probability 0.5, else draws from another
-distribution). The true difference is the mean of the estimate over 2000 fresh data sets
+distribution), "windows" (the policy's 30 units are 3 windows of each of 10 episodes, as
+`bench run --womd` cuts 30 s episodes against 9.1 s WOMD tracks: each window repeats its
+episode's label with probability 0.8, else draws its own; run once resampled by whole
+episodes, the cluster bootstrap `bench run` uses, and once as if independent, as before).
+For the windows cases the novel rate's Wilson interval is checked too (its truth: the
+probability a window's label is one the data set's reference never shows). The true
+difference is the mean of the estimate over 2000 fresh data sets
 (:func:`tap_bench.bench.null.same_policy_null`'s estimand: the difference at half sizes).
 Each replication runs the null with 1000 draws and records whether each interval method
 holds the truth. Prints a Markdown table (docs/benchmark.md) and writes
@@ -24,6 +30,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import report
@@ -31,6 +38,8 @@ from machine import report
 from tap_bench.bench import null
 from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.coverage import Reference
+from tap_bench.bench.gap import window_episode
+from tap_bench.bench.novelty import novelty
 
 K_LABELS, K_SEGMENTS = 40, 12
 
@@ -62,6 +71,10 @@ def _reference(units: np.ndarray, unit: str, paired: bool) -> Reference:
 def _sample(case: dict, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     ref = _labels(case["p_ref"], case["N"], rng, case["unit"])
     pol = _labels(case["p_pol"], case["n"], rng, case["unit"])
+    if case.get("windows"):  # each episode's windows repeat its label with prob. `rho`
+        w = case["windows"]
+        episode = np.repeat(pol[::w], w)
+        pol = np.where(rng.random(len(pol)) < case["rho"], episode, pol)
     if case["paired"]:  # the same seed: the reference's label with probability `repeat`
         same = rng.random(case["n"]) < case["repeat"]
         pol = np.where(same, ref[:case["n"]], pol)
@@ -71,8 +84,31 @@ def _sample(case: dict, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarra
 def _estimate(ref, pol, case, rng, draws: int, splits: int = null.SPLITS):
     reference = _reference(ref, case["unit"], case["paired"])
     seeds = np.arange(len(pol)) if case["paired"] else None
+    clusters = window_episode(_episodes(case)) if case.get("by_episode") else None
     return null.same_policy_null(pol, reference, seeds=seeds, rng=rng, splits=splits,
+                                 clusters=clusters,
                                  config=BootstrapConfig(n_resamples=draws, seed=0))
+
+
+def _episodes(case: dict) -> np.ndarray:
+    """(n,) each window's scenario id, ``ep<k>#<window>`` (:func:`window_episode`: its
+    episode)."""
+    w = case.get("windows") or 1
+    return np.array([f"ep{i // w}#{i % w}" for i in range(case["n"])], object)
+
+
+def _novel_rate_holds(ref, pol, case) -> tuple[bool, float]:
+    """Whether the novel rate's Wilson interval holds the probability a window is novel
+    against this reference, and its width."""
+    items = np.unique(ref)
+    reference = Reference(items, np.full(len(items), 1 / len(items)), "corpus", "maneuver",
+                          "synthetic", n_trajectories=len(ref), units=ref)
+    names = np.array([f"L{i:02d} | X" for i in range(len(case["p_pol"]))], object)
+    truth = float(case["p_pol"][~np.isin(names, items)].sum())
+    episodes = pd.DataFrame({"sdl": pol, "scenario_id": _episodes(case)})
+    r = novelty(episodes, reference, config=BootstrapConfig(n_resamples=500, seed=0),
+                windowed=bool(case.get("by_episode")))
+    return bool(r.rate_low <= truth <= r.rate_high), r.rate_high - r.rate_low
 
 
 def main() -> None:
@@ -80,6 +116,8 @@ def main() -> None:
     parser.add_argument("--replications", type=int, default=300)
     parser.add_argument("--truth", type=int, default=2000, help="data sets for the truth")
     parser.add_argument("--method", default=null.METHOD, choices=("recentred", "shrunk"))
+    parser.add_argument("--only", choices=("all", "windows"), default="all",
+                        help="run every case, or only the windows cases")
     args = parser.parse_args()
     null.METHOD = args.method
     cases = []
@@ -93,6 +131,12 @@ def main() -> None:
                  "p_ref": same, "p_pol": 0.5 * same + 0.5 * other, "repeat": 0.0}]
         cases.append({"unit": unit, "name": "paired", "N": 30, "n": 30, "paired": True,
                       "p_ref": same, "p_pol": other, "repeat": 0.5})
+    same, other = _zipf(K_LABELS, 1.1), _zipf(K_LABELS, 1.1, reverse=True)
+    windows = [{"unit": "episodes", "name": f"windows, {how}", "N": N, "n": 30,
+                "paired": False, "p_ref": same, "p_pol": 0.5 * same + 0.5 * other,
+                "repeat": 0.0, "windows": 3, "rho": 0.8, "by_episode": how == "by episode"}
+               for N in (30, 100) for how in ("by episode", "as independent")]
+    cases = windows if args.only == "windows" else cases + windows
     rng = np.random.default_rng(25)
     rows = []
     start, cpu = time.perf_counter(), time.process_time()
@@ -101,8 +145,13 @@ def main() -> None:
             _estimate(*_sample(case, rng), case, rng, draws=100, splits=20)
             for _ in range(args.truth))], axis=0)
         hits, widths = np.zeros(2), np.zeros(2)
+        rate_hits, rate_width = 0, 0.0
         for _ in range(args.replications):
-            r = _estimate(*_sample(case, rng), case, rng, draws=1000)
+            data = _sample(case, rng)
+            r = _estimate(*data, case, rng, draws=1000)
+            if case.get("windows"):
+                holds, width = _novel_rate_holds(*data, case)
+                rate_hits, rate_width = rate_hits + holds, rate_width + width
             lows = np.array([r.coverage_diff_low, r.novel_diff_low])
             highs = np.array([r.coverage_diff_high, r.novel_diff_high])
             hits += (lows <= truth) & (truth <= highs)
@@ -115,6 +164,9 @@ def main() -> None:
                "novel_hits": round(float(hits[1] / args.replications), 3),
                "coverage_width": round(float(widths[0] / args.replications), 3),
                "novel_width": round(float(widths[1] / args.replications), 3)}
+        if case.get("windows"):
+            row["novel_rate_hits"] = round(rate_hits / args.replications, 3)
+            row["novel_rate_width"] = round(rate_width / args.replications, 3)
         rows.append(row)
         print(row, flush=True)
     print("\n| unit | case | reference N | policy n | true coverage diff | interval holds it "
@@ -125,7 +177,12 @@ def main() -> None:
               f"{r['reference']} | {r['policy']} | {r['true_coverage_diff']:+.3f} | "
               f"{r['coverage_hits']:.2f} | {r['coverage_width']:.2f} | "
               f"{r['true_novel_diff']:+.3f} | {r['novel_hits']:.2f} | {r['novel_width']:.2f} |")
-    report(f"null_coverage_{args.method}", {
+    for r in rows:
+        if "novel_rate_hits" in r:
+            print(f"{r['case']}, reference N {r['reference']}: the novel rate's Wilson "
+                  "interval holds it "
+                  f"{r['novel_rate_hits']:.2f}, width {r['novel_rate_width']:.2f}")
+    report(f"null_coverage_{args.method}" + ("_windows" if args.only == "windows" else ""), {
         "method": args.method, "replications": args.replications, "rows": rows,
         "wall_s": round(time.perf_counter() - start, 1),
         "cpu_s": round(time.process_time() - cpu, 1)}, seed=25)

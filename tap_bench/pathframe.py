@@ -120,8 +120,9 @@ LANE_JOIN_DISTANCE = 1.5
 """[m] a lane that starts within this of another's end continues it (the map table has no
 topology; WOMD's and highway-env's connected lanes meet end to start)."""
 
-CHAIN_MEMO = 20_000
-"""Most path ends a :class:`LaneMap` keeps the lane chains of (then it starts afresh)."""
+CHAIN_MEMO = 2048
+"""Most path ends a :class:`LaneMap` keeps the lane chains of (then it starts afresh): a
+batch of 30 episodes has a few hundred; a chain of 200 m of WOMD lanes is some 20 kB."""
 _TWO_PI = 2.0 * np.pi
 
 

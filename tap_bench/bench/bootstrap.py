@@ -26,7 +26,8 @@ import numpy as np
 from tap_bench.errors import ParameterError
 
 __all__ = ["MAX_RESAMPLES", "BootstrapConfig", "add_bootstrap_arguments",
-           "bootstrap_from_args", "named_rng", "stream_key"]
+           "bootstrap_from_args", "cluster_indices", "cluster_weights", "named_rng",
+           "stream_key"]
 
 MAX_RESAMPLES = 100_000
 """The most bootstrap resamples an interval may ask for: 50 times the default 2000, past
@@ -94,6 +95,58 @@ class BootstrapConfig:
         """One line for reports: the bootstrap's resamples, what it draws, and the seed."""
         return (f"{self.level:.0%} intervals from {self.n_resamples} bootstrap draws of "
                 f"{what}, seed {self.seed} (streams named by env, policy and reference)")
+
+
+# -- resampling by cluster ----------------------------------------------------------------
+def _cluster_codes(clusters) -> tuple[np.ndarray, int]:
+    """(n,) cluster number of each unit and the number of clusters."""
+    _, inverse = np.unique(np.asarray(clusters).astype(str), return_inverse=True)
+    return inverse.ravel(), int(inverse.max()) + 1 if len(inverse) else 0
+
+
+def cluster_weights(rng: np.random.Generator, clusters, draws: int) -> np.ndarray:
+    """(draws, n) how often each of n units is drawn when whole clusters are resampled.
+
+    The cluster bootstrap: units of one cluster (the windows cut from one episode, which
+    are not independent) are drawn together, as many clusters as there are, with
+    replacement. With every unit its own cluster this is the ordinary bootstrap (the
+    multinomial draw of n units).
+
+    Args:
+        rng: the random stream.
+        clusters: (n,) the cluster of each unit (any values; equal values, one cluster).
+        draws: the number of resamples B.
+    """
+    inverse, c = _cluster_codes(clusters)
+    if not c:
+        return np.zeros((draws, 0), int)
+    return rng.multinomial(c, np.full(c, 1 / c), size=draws)[:, inverse]
+
+
+def cluster_indices(rng: np.random.Generator, clusters, draws: int, m: int) -> np.ndarray:
+    """(draws, m) indices of m units per resample, drawn by whole clusters with
+    replacement (:func:`cluster_weights`' draw for statistics that need indices): clusters
+    are drawn until m units are reached, the last one cut at m.
+
+    Args:
+        rng: the random stream.
+        clusters: (n,) the cluster of each unit.
+        draws: the number of resamples B.
+        m: units per resample (> 0).
+    """
+    inverse, c = _cluster_codes(clusters)
+    members = [np.flatnonzero(inverse == j) for j in range(c)]
+    sizes = np.array([len(x) for x in members])
+    if c == 0 or m <= 0:
+        raise ParameterError("clusters", len(inverse), "at least one unit and m > 0")
+    if (sizes == sizes[0]).all():  # equal clusters (episodes of one length): at once
+        pick = rng.integers(0, c, (draws, -(-m // int(sizes[0]))))
+        return np.stack(members)[pick].reshape(draws, -1)[:, :m]
+    out = np.empty((draws, m), int)
+    per = -(-m // int(sizes.min()))
+    for d in range(draws):
+        out[d] = np.concatenate([members[j] for j in rng.integers(0, c, per)])[:m]
+    return out
 
 
 # -- command line -------------------------------------------------------------------------

@@ -423,20 +423,26 @@ def package_code() -> str:
 
 def table_digest(table: pd.DataFrame | None) -> str:
     """The SHA-256 of a table's content: column names and types, the index and every value
-    bit for bit (numbers as their bytes, so -0.0 and 0.0 or two NaNs differ; other columns
-    through ``pd.util.hash_pandas_object``, 64 bits a cell; cells it cannot hash, such as
-    lists, through the column's Parquet bytes). ``None`` and an empty table differ."""
+    bit for bit (numbers as their bytes, so -0.0 and 0.0 differ, NaN as one NaN whatever
+    its payload; text through ``pd.util.hash_pandas_object``, 64 bits a cell, the same for
+    an ``object`` and a ``str`` column of the same strings, as labelled and cached episodes
+    give them; cells it cannot hash, such as lists, through the column's Parquet bytes).
+    ``None`` and an empty table differ."""
     if table is None:
         return "none"
     digest = hashlib.sha256()
-    digest.update(_canonical([[str(c), str(t)] for c, t in table.dtypes.items()]))
-    digest.update(f"{len(table)} {type(table.index).__name__} {table.index.dtype}".encode())
+    digest.update(_canonical([[str(c), _type_name(t)] for c, t in table.dtypes.items()]))
+    digest.update(f"{len(table)} {type(table.index).__name__} "
+                  f"{_type_name(table.index.dtype)}".encode())
     index = table.index.to_frame(index=False)
     columns = [*(index.iloc[:, k] for k in range(index.shape[1])),
                *(table.iloc[:, k] for k in range(table.shape[1]))]
     for column in columns:
         if isinstance(column.dtype, np.dtype) and column.dtype.kind in "biufcmM":
-            digest.update(np.ascontiguousarray(column.to_numpy()).tobytes())
+            values = np.ascontiguousarray(column.to_numpy())
+            if values.dtype.kind in "fc":
+                values = np.where(np.isnan(values), np.nan, values)  # one NaN
+            digest.update(values.tobytes())
             continue
         try:
             digest.update(pd.util.hash_pandas_object(column, index=False).to_numpy().tobytes())
@@ -445,6 +451,12 @@ def table_digest(table: pd.DataFrame | None) -> str:
             column.to_frame("c").to_parquet(buffer, index=False)
             digest.update(buffer.getvalue())
     return digest.hexdigest()
+
+
+def _type_name(dtype: Any) -> str:
+    """A column type for :func:`table_digest`: ``text`` for object and string columns."""
+    text = isinstance(dtype, pd.StringDtype) or (isinstance(dtype, np.dtype) and dtype.kind == "O")
+    return "text" if text else str(dtype)
 
 
 def derived_key(kind: str, inputs: Mapping[str, Any]) -> tuple[str, dict[str, Any]]:

@@ -9,7 +9,8 @@ For a policy (its egos) and a reference corpus of real driving (e.g. WOMD vehicl
 
 - per label: ``share_policy - share_reference`` (what the policy does more or less often
   than people), with a percentile bootstrap interval (trajectories of each side resampled
-  independently);
+  independently; windows cut from one episode by whole episodes, a cluster bootstrap:
+  ``clusters``);
 - one number, the **gap**: the total variation distance between the two share
   distributions, ``0.5 * sum |difference|`` in [0, 1] (the share of behaviour one would have
   to change to make the policy drive like the reference), with its bootstrap interval.
@@ -42,7 +43,7 @@ import numpy as np
 import pandas as pd
 
 from tap_bench import sdl
-from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.bootstrap import BootstrapConfig, cluster_weights
 from tap_bench.errors import LabelTableError, ParameterError
 from tap_bench.kinematics import compute_kinematics
 from tap_bench.labelling import tap
@@ -50,8 +51,8 @@ from tap_bench.thresholds import Thresholds
 from tap_bench.trajectories import validate_and_index
 
 __all__ = ["GapResult", "behaviour_gap", "debias", "label_occurrences", "labelled_with_speed",
-           "number_windows", "track_seconds", "window_episodes", "window_seconds",
-           "windows"]
+           "number_windows", "track_seconds", "window_episode", "window_episodes",
+           "window_seconds", "windows"]
 
 
 @dataclass(frozen=True)
@@ -118,6 +119,13 @@ def windows(table: pd.DataFrame, seconds: float) -> pd.DataFrame:
     out = table[keep].copy()
     out["scenario_id"] = out["scenario_id"].astype(str) + "#" + k[keep].astype(str)
     return out
+
+
+def window_episode(scenario_ids) -> np.ndarray:
+    """(n,) the episode each window of :func:`windows` was cut from: its ``scenario_id``
+    without the ``#<k>`` suffix (the cluster whose windows are resampled together)."""
+    return np.asarray(pd.Series(np.asarray(scenario_ids, dtype=object)).astype(str)
+                      .str.replace(r"#\d+$", "", regex=True), dtype=object)
 
 
 def window_seconds(choice: str, reference: pd.DataFrame, table: pd.DataFrame) -> float | None:
@@ -229,8 +237,8 @@ def _tv(counts_a: np.ndarray, counts_b: np.ndarray) -> np.ndarray:
 def behaviour_gap(policy: pd.DataFrame, reference: pd.DataFrame, *, name: str = "policy",
                   axes=("lateral", "longitudinal", "interaction"),
                   min_speed: float | None = None, max_speed: float | None = None,
-                  config: BootstrapConfig | None = None, reference_name: str = "reference"
-                  ) -> GapResult:
+                  config: BootstrapConfig | None = None, reference_name: str = "reference",
+                  clusters: str | None = None) -> GapResult:
     """The behaviour gap of a policy's egos from a reference corpus.
 
     Args:
@@ -242,6 +250,10 @@ def behaviour_gap(policy: pd.DataFrame, reference: pd.DataFrame, *, name: str = 
             5 % and 95 % quantiles of the policy's mean speeds).
         config: bootstrap resamples, level and seed.
         reference_name: for reports.
+        clusters: a column of ``policy`` naming the episode of each row (windows:
+            :func:`window_episode`); the policy's rows are then resampled by whole
+            episodes (a cluster bootstrap), since windows of one episode are not
+            independent. None: each row on its own.
     """
     config = config or BootstrapConfig()
     axes = sdl.check_axes(axes)
@@ -277,16 +289,19 @@ def behaviour_gap(policy: pd.DataFrame, reference: pd.DataFrame, *, name: str = 
     rng = config.rng("gap", name, reference_name)
     B = config.n_resamples
     # resampled label counts: multinomial draws of trajectories on each side
-    wp = rng.multinomial(len(occ_p), np.full(len(occ_p), 1 / len(occ_p)), size=B)
+    wp = (cluster_weights(rng, pol[clusters].to_numpy(), B) if clusters is not None
+          else rng.multinomial(len(occ_p), np.full(len(occ_p), 1 / len(occ_p)), size=B))
     wr = rng.multinomial(len(occ_r), np.full(len(occ_r), 1 / len(occ_r)), size=B)
     bp, br = wp @ occ_p, wr @ occ_r
     boot_gap = _tv(bp, br)
     g_lo, g_hi = _percentile(boot_gap[:, None], config.level)
     # the gap two samples of one behaviour (both sides pooled) show: below its upper
-    # quantile the data cannot tell the behaviours apart, and the interval reaches 0
+    # quantile the data cannot tell the behaviours apart, and the interval reaches 0; the
+    # policy's windows carry its episodes' worth of information (one draw an episode)
     pooled = np.vstack([occ_p, occ_r])
     n_pool = len(pooled)
-    z1 = rng.multinomial(len(occ_p), np.full(n_pool, 1 / n_pool), size=B) @ pooled
+    n_pol = len(occ_p) if clusters is None else pol[clusters].astype(str).nunique()
+    z1 = rng.multinomial(n_pol, np.full(n_pool, 1 / n_pool), size=B) @ pooled
     z2 = rng.multinomial(len(occ_r), np.full(n_pool, 1 / n_pool), size=B) @ pooled
     same = float(np.quantile(_tv(z1, z2), (1 + config.level) / 2))
     debiased, d_low, d_high = debias(gap, boot_gap, config.level, same=same)

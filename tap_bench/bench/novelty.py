@@ -9,6 +9,15 @@ env's reference (:mod:`tap_bench.bench.scoring`). "Never shows" is relative to a
 corpus: a label absent from a small reference may only be rare; the report states the
 reference's size beside the rate.
 
+**Windows.** Episodes cut into windows (scored against a corpus of short tracks:
+:func:`tap_bench.bench.gap.window_episodes`) are not independent: the windows of one
+episode share its policy's state and traffic. With ``windowed`` the Wilson interval is
+taken at the effective sample size ``n / deff`` (Rao and Scott's design effect), ``deff``
+the variance of the rate under a cluster bootstrap (whole episodes with their windows,
+:func:`tap_bench.bench.bootstrap.cluster_weights`) over the binomial ``p (1 - p) / n``,
+kept within [1, windows per episode]; with no novel window, or all novel, where no
+variance can be seen, ``deff`` is the windows per episode (the episodes are the sample).
+
 Against the manoeuvres of a corpus (a ``"segments"`` reference: the labels of segments,
 :func:`tap_bench.bench.coverage.corpus_reference` with ``unit="segments"``), an episode is
 novel when one of its segments carries a label the reference's segments never show, and
@@ -25,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.bootstrap import BootstrapConfig, cluster_weights
 from tap_bench.bench.coverage import Reference, unit_items
 from tap_bench.bench.intervals import wilson_interval
 from tap_bench.errors import LabelTableError
@@ -61,7 +70,8 @@ class NoveltyResult:
 
 
 def novelty(episodes: pd.DataFrame, reference: Reference, *,
-            config: BootstrapConfig | None = None, axes=None) -> NoveltyResult:
+            config: BootstrapConfig | None = None, axes=None, windowed: bool = False
+            ) -> NoveltyResult:
     """The agent's labels that ``reference`` never shows, as a rate and examples.
 
     Args:
@@ -70,6 +80,9 @@ def novelty(episodes: pd.DataFrame, reference: Reference, *,
         reference: a corpus reference (whole SDL labels) at the labels' level.
         config: the interval level.
         axes: the axes a label is made of (as the reference's; default the ``sdl`` label).
+        windowed: the rows are windows cut from episodes (``scenario_id``
+            ``<episode>#<k>``): the interval counts whole episodes' worth of information
+            (the design effect of a cluster bootstrap by episode; module docstring).
     """
     if reference.kind == "vocabulary":
         raise LabelTableError("novelty needs a reference corpus (its whole SDL labels); a "
@@ -86,7 +99,8 @@ def novelty(episodes: pd.DataFrame, reference: Reference, *,
     if n == 0:
         empty = pd.DataFrame(columns=["label", "count", "share", "example_scenario"])
         return NoveltyResult(0, 0, float("nan"), float("nan"), float("nan"), empty)
-    lo, hi = wilson_interval(int(novel.sum()), n, config.level)
+    deff = _design_effect(novel, ok["scenario_id"], config) if windowed else 1.0
+    lo, hi = wilson_interval(novel.sum() / deff, n / deff, config.level)
     example = ok["scenario_id"].to_numpy() if "scenario_id" in ok.columns else \
         np.arange(n).astype(str)
     if reference.kind == "segments":  # the novel segment labels, once per episode
@@ -105,6 +119,21 @@ def novelty(episodes: pd.DataFrame, reference: Reference, *,
                            "example_scenario": example[where[first[order]]] if len(names)
                            else np.zeros(0, object)})
     return NoveltyResult(n, int(novel.sum()), float(novel.mean()), float(lo), float(hi), labels)
+
+
+def _design_effect(novel: np.ndarray, scenario_ids, config: BootstrapConfig) -> float:
+    """The variance of the novel share under a cluster bootstrap by episode over the
+    binomial variance, within [1, windows per episode] (module docstring)."""
+    from tap_bench.bench.gap import window_episode
+
+    episodes = window_episode(scenario_ids)
+    n, size = len(novel), len(novel) / len(set(episodes))
+    p = float(novel.mean())
+    if p in (0.0, 1.0):
+        return max(1.0, size)
+    w = cluster_weights(config.rng("novelty", "clusters", n), episodes, config.n_resamples)
+    rates = (w @ novel.astype(float)) / np.maximum(w.sum(axis=1), 1)
+    return float(np.clip(rates.var() / (p * (1 - p) / n), 1.0, max(1.0, size)))
 
 
 def pooled_novelty(results: dict[str, NoveltyResult], level: float) -> NoveltyResult:

@@ -23,7 +23,8 @@ splits.
 
 **Interval.** The difference's interval is a bootstrap: each draw splits the reference at
 random, resamples each half with replacement (and the policy's episodes with the probe
-half, by seed when paired, else on their own) and recomputes the difference. Resampling
+half, by seed when paired, else on their own: by whole episodes when they are windows cut
+from episodes, a cluster bootstrap) and recomputes the difference. Resampling
 repeats trajectories, which lowers the distinct labels a draw can show, so the draws are
 re-centred on the estimate (``estimate + draw - mean(draws)``). One draw is one split,
 while the estimate averages many, so the draws' spread holds the split-to-split spread
@@ -44,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.bootstrap import BootstrapConfig, cluster_indices
 from tap_bench.bench.coverage import Reference, unit_items
 from tap_bench.bench.intervals import wilson_interval, z_value
 
@@ -151,9 +152,11 @@ def _figures(ref: np.ndarray, probe: np.ndarray, probe_idx: np.ndarray,
 
 
 def _draws(ref: np.ndarray, agent: np.ndarray, paired: bool, m: int, D: int,
-           rng: np.random.Generator, resample: bool) -> np.ndarray:
+           rng: np.random.Generator, resample: bool, clusters: np.ndarray | None = None
+           ) -> np.ndarray:
     """(D, 6): per draw, policy coverage, same-policy coverage, policy novel share,
-    same-policy novel share, and the two differences."""
+    same-policy novel share, and the two differences. ``clusters`` (n,): the policy's
+    units resampled by whole clusters (windows of one episode), unpaired only."""
     N, n = len(ref), len(agent)
     half = N // 2
     perm = np.argsort(rng.random((D, N)), axis=1)
@@ -163,6 +166,8 @@ def _draws(ref: np.ndarray, agent: np.ndarray, paired: bool, m: int, D: int,
         p_idx = np.take_along_axis(p_idx, rng.integers(0, m, (D, m)), axis=1)
     if paired:
         a_idx = p_idx
+    elif resample and clusters is not None:
+        a_idx = cluster_indices(rng, clusters, D, m)
     elif resample:
         a_idx = rng.integers(0, n, (D, m))
     else:
@@ -175,6 +180,7 @@ def _draws(ref: np.ndarray, agent: np.ndarray, paired: bool, m: int, D: int,
 
 def same_policy_null(labels: np.ndarray, reference: Reference, *,
                      seeds: np.ndarray | None = None,
+                     clusters: np.ndarray | None = None,
                      config: BootstrapConfig | None = None,
                      rng: np.random.Generator | None = None,
                      splits: int = SPLITS) -> NullResult:
@@ -187,6 +193,11 @@ def same_policy_null(labels: np.ndarray, reference: Reference, *,
         seeds: (n,) the seeds of the policy's episodes; with the reference's ``seeds`` (the
             reference is rollouts) the two are paired on the seeds both have (unpaired when
             fewer than 4 are common).
+        clusters: (n,) the episode each of the policy's units was cut from (windows:
+            :func:`tap_bench.bench.gap.window_episode`); the policy's units are then
+            resampled by whole episodes (a cluster bootstrap), since the windows of one
+            episode are not independent. Unpaired comparisons only (windows are never
+            paired); None: each unit its own episode.
         config: resamples, level and seed.
         rng: the random stream (default ``config.rng("null", reference.description)``).
         splits: random splits averaged for the estimates.
@@ -202,6 +213,8 @@ def same_policy_null(labels: np.ndarray, reference: Reference, *,
     paired = seeds is not None and reference.seeds is not None
     keep = pd.notna(lab).astype(bool) if len(lab) else np.zeros(0, bool)
     lab = lab[keep]
+    if clusters is not None:
+        clusters = np.asarray(clusters, dtype=object)[keep]
     if paired:
         mine = dict(zip(np.asarray(seeds)[keep].tolist(), lab, strict=True))
         theirs = dict(zip(np.asarray(reference.seeds).tolist(), units, strict=True))
@@ -225,7 +238,8 @@ def same_policy_null(labels: np.ndarray, reference: Reference, *,
         m = min(m, len(agent))
     per_split = _draws(ref, agent, paired, m, splits, rng, resample=False)
     point = per_split.mean(axis=0)
-    boot = _draws(ref, agent, paired, m, config.n_resamples, rng, resample=True)[:, 4:6]
+    boot = _draws(ref, agent, paired, m, config.n_resamples, rng, resample=True,
+                  clusters=None if paired else clusters)[:, 4:6]
     centre = boot.mean(axis=0)
     if METHOD == "shrunk":  # one split's own spread is not the estimate's: take it out
         v_boot, v_split = boot.var(axis=0), per_split[:, 4:6].var(axis=0)

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.measures import MEASURES, Measure, measures_with_role
+from tap_bench.bench.measures import MEASURES, SCENE_MEASURES, Measure, measures_with_role
 from tap_bench.bench.report_tables import (
     _envs,
     _pooled,
@@ -569,7 +569,7 @@ def write_plots(scores: Scores, folder: str | os.PathLike, *,
     # the tables do not hold (a plug-in's measure can change them with the same values)
     inputs = {"tables": {name: table_digest(t) for name, t in scores.tables().items()},
               "reference": reference or "", "level": level,
-              "measures": [m.to_dict() for m in MEASURES]}
+              "measures": [m.to_dict() for m in (*MEASURES, *SCENE_MEASURES)]}
     figures = memoised(cache, "plots", inputs if cache is not None else None,
                        lambda: _draw(scores, reference or "", level), dict, dict)
     paths = []

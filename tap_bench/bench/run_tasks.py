@@ -75,8 +75,10 @@ def _scene_lanes(scenes: WomdScenes, trajectories: pd.DataFrame) -> pd.DataFrame
         maps = read_maps(scenes.files, scenario_ids=missing)
         lanes = maps[maps["kind"] == "lane"]
         by_scene = dict(tuple(lanes.groupby("map_id", sort=False)))
-        while len(_SCENE_LANES) + len(missing) > SCENE_LANES_KEPT and _SCENE_LANES:
-            del _SCENE_LANES[next(iter(_SCENE_LANES))]
+        needed = {(scenes.files, w) for w in womd}
+        spare = [key for key in _SCENE_LANES if key not in needed]  # oldest first
+        for key in spare[:max(0, len(_SCENE_LANES) + len(missing) - SCENE_LANES_KEPT)]:
+            del _SCENE_LANES[key]
         for w in missing:
             _SCENE_LANES[(scenes.files, w)] = by_scene.get(w, lanes.iloc[:0])
     return pd.concat([_SCENE_LANES[(scenes.files, w)].assign(map_id=str(sid))

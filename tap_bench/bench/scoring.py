@@ -24,6 +24,7 @@ from tap_bench.bench.coverage import (
     pooled_coverage,
 )
 from tap_bench.bench.diversity import MIN_COMPLETENESS, diversity, pooled_diversity
+from tap_bench.bench.gap import window_episode
 from tap_bench.bench.intervals import measure_interval
 from tap_bench.bench.measures import MEASURES
 from tap_bench.bench.novelty import novelty, pooled_novelty
@@ -184,7 +185,7 @@ def _scored(episodes: pd.DataFrame) -> pd.DataFrame:
 def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str, Reference],
                      name: str, *, config: BootstrapConfig,
                      policies: list[str] | None = None, paired: bool = False,
-                     unit: str | None = None
+                     unit: str | None = None, windowed: bool = False
                      ) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
     """Coverage and unique manoeuvres of every policy against one reference, per env and
     pooled, each beside the same-policy figure of that reference and the difference from
@@ -205,6 +206,11 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
         unit: what the rows say they were scored on (default the reference's own unit:
             ``episodes`` or ``segments``; e.g. ``"9.1 s windows"`` when ``episodes`` are
             windows of the policy's episodes).
+        windowed: ``episodes`` are windows cut from episodes (:func:`tap_bench.bench.gap.
+            window_episodes`, ``scenario_id`` ``<episode>#<k>``): the null's interval
+            resamples them by whole episodes (a cluster bootstrap) and the novelty's
+            Wilson interval is taken at the episodes' worth of information (its design
+            effect), as the windows of one episode are not independent.
 
     Returns:
         (coverage rows, novelty rows, novel labels), each with env, policy, reference,
@@ -245,10 +251,12 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
                 cv = coverage(sub["sdl"], ref, config=config,
                               rng=config.rng("coverage", env, policy, name,
                                              *(() if unit == "episodes" else (unit,))))
-                nv = novelty(sub, ref, config=config) if ref.kind != "vocabulary" else None
+                nv = novelty(sub, ref, config=config, windowed=windowed) \
+                    if ref.kind != "vocabulary" else None
                 nl = same_policy_null(
                     sub["sdl"].to_numpy(object), ref, config=config,
                     seeds=sub["seed"].to_numpy() if paired and "seed" in sub else None,
+                    clusters=window_episode(sub["scenario_id"]) if windowed else None,
                     rng=config.rng("null", env, policy, name, unit)) \
                     if ref.kind != "vocabulary" and len(ref.units) else None
                 if keyed:
@@ -376,7 +384,7 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
             parts.append(reference_scores(
                 scored, ref, name, config=config,
                 unit=unit if unit_name is None else f"{unit_name}, {unit}"
-                if unit == "segments" else unit_name))
+                if unit == "segments" else unit_name, windowed=unit_name is not None))
     for cov, nov, lab in parts:
         cov_parts.append(cov)
         nov_parts.append(nov)

@@ -114,7 +114,8 @@ def run(args: argparse.Namespace) -> int:
         else "segments"
     parts = [reference_scores(
         episodes, ref, ref_name, config=config,
-        unit=unit_of[(next(iter(ref.values())) if isinstance(ref, dict) else ref).unit])
+        unit=unit_of[(next(iter(ref.values())) if isinstance(ref, dict) else ref).unit],
+        windowed=window is not None)
         for ref in references]
     cov, nov, novel = (pd.concat([p[i] for p in parts if len(p[i])], ignore_index=True)
                        if any(len(p[i]) for p in parts) else parts[0][i] for i in range(3))

@@ -8,7 +8,13 @@ from pathlib import Path
 import pandas as pd
 
 from tap_bench.bench.bootstrap import add_bootstrap_arguments, bootstrap_from_args
-from tap_bench.bench.gap import behaviour_gap, labelled_with_speed, window_seconds, windows
+from tap_bench.bench.gap import (
+    behaviour_gap,
+    labelled_with_speed,
+    window_episode,
+    window_seconds,
+    windows,
+)
 from tap_bench.errors import LabelTableError
 from tap_bench.sdl import LEVELS
 from tap_bench.tableio import beside, check_outputs, read_table, write_tables
@@ -93,9 +99,12 @@ def run(args: argparse.Namespace) -> int:
                                      thresholds=args.thresholds, source=str(args.policy_table))
         if "is_ego" in labels.columns:
             labels = labels[labels["is_ego"].fillna(False).astype(bool)]
+        if window is not None:  # windows of one episode are resampled together
+            labels = labels.assign(_episode=window_episode(labels["scenario_id"]))
         result = behaviour_gap(labels, reference, name=str(name), axes=args.axes,
                                min_speed=args.min_speed, max_speed=args.max_speed,
-                               config=config, reference_name=Path(args.reference).name)
+                               config=config, reference_name=Path(args.reference).name,
+                               clusters="_episode" if window is not None else None)
         rows.append({**result.row(), "crash_rate": crash, "window_s": window})
         per_label.append(result.labels.assign(policy=name))
         unit = f"{window:.1f} s windows" if window is not None else "episodes"
@@ -107,7 +116,9 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {r.axis:12s} {r.label:28s} policy {r.share_policy:6.1%}  reference "
                   f"{r.share_reference:6.1%}  diff {r.diff:+6.1%} [{r.diff_low:+.1%}, "
                   f"{r.diff_high:+.1%}]")
-    print(f"({config.describe('trajectories of each side, independently')}; the debiased gap "
+    drawn = ("trajectories of each side, independently" if window is None else
+             "the reference's trajectories and the policy's episodes, each with its windows")
+    print(f"({config.describe(drawn)}; the debiased gap "
           "is the bootstrap bias-corrected total variation distance, its interval the basic "
           "bootstrap one starting at 0 when two samples of one behaviour could differ as "
           "much; a low gap from a policy that crashes is no praise: read the crash rate "

@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from tap_bench.errors import TrajectoryTableError
+from tap_bench.errors import FileFormatError, TrajectoryTableError
 from tap_bench.execution import add_backend_arguments
 from tap_bench.labelling import INTERACTION_TRACKS, tap
 from tap_bench.sdl import LEVELS
@@ -50,21 +50,36 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "else of every track; '--interactions all' labels every vehicle and "
                    "cyclist track. Adds the 'interaction' column and, with --segments, "
                    "axis='interaction' rows naming the other agent (other_track_id)")
+    p.add_argument("--map", nargs="+", metavar="FILE",
+                   help="with --interactions: lane centre lines along which each ego's path "
+                   "goes on beyond the end of its record (SPEC 7), else along an arc of its "
+                   "last curvature: a map table (.parquet/.csv, tap_bench.maps; a run's "
+                   "roads.parquet) or the WOMD/ScenarioNet files the trajectories came from "
+                   "(a scene's map is the one whose map_id is its scenario_id, else its env)")
     add_backend_arguments(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.map and not args.interactions:
+        print("tap-bench label: error: --map extends the egos' paths for the interaction "
+              "axis; add --interactions (or leave --map out).", file=sys.stderr)
+        return 2
     if args.backend != "local" or Path(args.input).is_dir():
+        if args.map:
+            print("tap-bench label: error: --map labels one trajectory file; with a directory "
+                  "input or --backend ray, label without it.", file=sys.stderr)
+            return 2
         return _run_sharded(args)
     # before any work: no output replaces the input, every output can be written
     check_outputs([args.output, args.segments, args.steps, args.report], [args.input])
     t0 = time.perf_counter()
     table = read_table(args.input)
+    lanes = _lanes(args.map) if args.map else None
     t1 = time.perf_counter()
     config = _config(args)
     result = tap(table, args.thresholds, config, source=str(args.input),
-                 interactions=args.interactions)
+                 interactions=args.interactions, map_table=lanes)
     labels = result.labels(args.level)
     short = result.short_segments
     if len(result.segments_info) == 0:
@@ -103,9 +118,41 @@ def run(args: argparse.Namespace) -> int:
         per = relations["label"].value_counts()
         print(f"interaction axis of {len(result.interaction_segments)} segment(s): "
               + ", ".join(f"{name} {n}" for name, n in per.items()) + " run(s)")
+    if lanes is not None:
+        keys = set(table["scenario_id"].astype(str))
+        if "env" in table.columns:
+            keys |= set(table["env"].astype(str))
+        if not keys & set(lanes.map_ids):
+            print(f"warning: no scene of {args.input} has a map in --map (a map's map_id is "
+                  "a scene's scenario_id or env): every path went on along an arc",
+                  file=sys.stderr)
     written = [args.output, args.segments, args.steps, args.report]
     print("wrote " + ", ".join(w for w in written if w))
     return 0
+
+
+def _lanes(paths: list[str]):
+    """The lane map of ``--map``: map tables (Parquet/CSV, checked) or driving-data files
+    whose maps are read (:func:`tap_bench.sources.maps.read_maps`)."""
+    import pandas as pd
+
+    from tap_bench.maps import check_map_table
+    from tap_bench.pathframe import LaneMap
+    from tap_bench.sources.maps import read_maps
+
+    tables = []
+    for path in paths:
+        name = str(path).lower()
+        if name.endswith((".parquet", ".csv", ".csv.gz")):
+            tables.append(check_map_table(read_table(path), source=str(path)))
+        else:
+            tables.append(read_maps(path))
+    maps = pd.concat(tables, ignore_index=True)
+    if not (maps["kind"] == "lane").any():
+        raise FileFormatError(f"--map {' '.join(paths)}: no lane centre lines (kind 'lane') "
+                              "in the map; give a map table with lanes or the WOMD files the "
+                              "trajectories came from.")
+    return LaneMap.of_maps(maps)
 
 
 def _nothing_to_label(table, short, source: str, config: StageConfig) -> str:

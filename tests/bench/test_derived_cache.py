@@ -195,6 +195,27 @@ def test_a_measure_entry_changed_with_the_same_scores_redraws_the_figures(tmp_pa
     assert warm == cold
 
 
+def test_a_scene_measure_entry_is_in_the_figures_key(tmp_path, monkeypatch):
+    # the trade-off view picks its measures by role from the measures and the scene
+    # measures (measures_with_role): a scene measure's entry is part of what is drawn
+    import dataclasses
+
+    from tap_bench.bench import report_figures
+    from tap_bench.bench.measures import SCENE_MEASURES
+
+    scores = _scores()
+    seen = []
+    monkeypatch.setattr(report_figures, "_draw", lambda *a: seen.append(1) or {})
+    cache = EpisodeCache(tmp_path / "cache")
+    write_plots(scores, tmp_path / "a", reference="idm", cache=cache)
+    entries = dict(SCENE_MEASURES._entries)
+    name = next(iter(entries))
+    entries[name] = dataclasses.replace(entries[name], label="another label")
+    monkeypatch.setattr(SCENE_MEASURES, "_entries", entries)
+    write_plots(scores, tmp_path / "b", reference="idm", cache=cache)
+    assert len(seen) == 2
+
+
 def test_memoised_builds_on_a_new_key_and_reads_on_the_same(tmp_path, monkeypatch):
     cache = EpisodeCache(tmp_path / "cache")
     calls = []
@@ -267,3 +288,15 @@ def test_table_digest_sees_every_value_bit_and_type():
     digests = {table_digest(v) for v in variants}
     assert base not in digests and len(digests) == len(variants)
     assert table_digest(None) != table_digest(pd.DataFrame())
+
+
+def test_table_digest_is_the_same_for_equal_content_as_labelled_and_cached():
+    """What a freshly labelled and a cached episode give alike: strings in an object or a
+    str column, NaN with any payload (a cached row's NaN is JSON's)."""
+    payload = np.array([0x7FF8000000000001, 0xFFF8000000000000], dtype="u8").view("f8")
+    fresh = pd.DataFrame({"s": pd.Series(["a", None, "c"], dtype="str"),
+                          "x": [1.0, payload[0], payload[1]]})
+    cached = pd.DataFrame({"s": pd.Series(["a", None, "c"], dtype=object),
+                           "x": [1.0, np.nan, np.nan]})
+    assert table_digest(fresh) == table_digest(cached)
+    assert table_digest(fresh) != table_digest(cached.assign(s=["a", None, "d"]))

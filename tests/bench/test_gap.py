@@ -151,3 +151,33 @@ def test_window_episodes_label_each_window_of_the_egos_once():
     assert set(eps["scenario_id"]) == {f"ep{s}#{k}" for s in (3, 4) for k in range(3)}
     assert set(eps["env"]) == {"highway"} and set(eps["policy"]) == {"p"}
     assert eps["sdl"].notna().all()
+
+
+def test_windows_of_one_episode_are_resampled_together_in_the_gap():
+    # each episode's 4 windows are copies: by whole episodes the intervals must be wider
+    # than resampling the 80 windows as if independent (which 20 episodes cannot give)
+    rng = np.random.default_rng(5)
+    kinds = [("Straight", "Maintain Speed", "Following"), ("Left Merge", "Accelerate",
+                                                            "Free Driving"),
+             ("Straight", "Decelerate", "Following")]
+    episodes = [kinds[i] for i in rng.integers(0, 3, 20)]
+    pol = labels([e for e in episodes for _ in range(4)]).assign(
+        episode=np.repeat(np.arange(20), 4))
+    ref = labels([kinds[i] for i in rng.integers(0, 3, 200)])
+    config = BootstrapConfig(n_resamples=1000)
+    alone = behaviour_gap(pol, ref, config=config)
+    together = behaviour_gap(pol, ref, config=config, clusters="episode")
+    assert together.gap == alone.gap
+    assert (together.gap_high - together.gap_low) > 1.3 * (alone.gap_high - alone.gap_low)
+    wide = (together.labels.set_index("label")["diff_high"]
+            - together.labels.set_index("label")["diff_low"])
+    narrow = (alone.labels.set_index("label")["diff_high"]
+              - alone.labels.set_index("label")["diff_low"])
+    assert (wide > 1.3 * narrow).all()
+
+
+def test_window_episode_strips_the_window_number():
+    from tap_bench.bench.gap import window_episode
+
+    assert list(window_episode(["a/1#0", "a/1#12", "b#x#2", "c"])) == ["a/1", "a/1", "b#x",
+                                                                         "c"]

@@ -10,6 +10,7 @@ import pytest
 
 from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.coverage import Reference, corpus_reference, coverage, unit_items
+from tap_bench.bench.intervals import wilson_interval
 from tap_bench.bench.novelty import novelty
 from tap_bench.bench.null import same_policy_null
 from tap_bench.bench.scoring import reference_scores, score
@@ -188,3 +189,51 @@ def test_rollouts_on_other_seeds_are_held_against_the_null_unpaired():
                            tracks="all")
     result = same_policy_null(np.array([A, C] * 3, object), ref, seeds=np.arange(100, 106))
     assert not result.paired and result.m == 6 and np.isfinite(result.novel_diff)
+
+
+def test_windows_of_one_episode_are_resampled_together():
+    # every episode cut into 3 windows that are copies of each other: 3x the windows but
+    # no more information than the 20 episodes. Resampled as independent units the
+    # interval would be as narrow as 60 episodes'; by whole episodes it must be wider.
+    rng = np.random.default_rng(3)
+    pool = [A, B, C, "Left Turn | Accelerate", "Straight | Decelerate"]
+    ref = Reference(np.zeros(0, object), np.zeros(0), "corpus", "maneuver", "synthetic",
+                    n_trajectories=40, units=np.array(rng.choice(pool[:3], 40), object))
+    episodes = rng.choice(pool, 20)
+    windows = np.repeat(episodes, 3).astype(object)
+    episode_of = np.repeat(np.arange(20), 3)
+    config = BootstrapConfig(n_resamples=1000)
+    alone = same_policy_null(windows, ref, config=config, rng=np.random.default_rng(0))
+    together = same_policy_null(windows, ref, clusters=episode_of, config=config,
+                                rng=np.random.default_rng(0))
+    assert together.novel_diff == alone.novel_diff  # the estimate does not move
+    width = {name: r.novel_diff_high - r.novel_diff_low
+             for name, r in (("alone", alone), ("together", together))}
+    assert width["together"] > 1.2 * width["alone"]
+    # windows that are each their own episode: the ordinary bootstrap's width
+    own = same_policy_null(windows, ref, clusters=np.arange(60), config=config,
+                           rng=np.random.default_rng(0))
+    assert own.novel_diff_high - own.novel_diff_low == pytest.approx(width["alone"], rel=0.15)
+
+
+def test_scoring_windows_resamples_them_by_episode():
+    ref_table = rollouts([A, B, C] * 8, policy="womd").assign(level="maneuver")
+    labels = np.random.default_rng(1).choice([A, B, C, "Left Turn | Accelerate"], 12)
+    windows = episode_table(pd.DataFrame({
+        "env": "highway", "policy": "dqn", "seed": np.arange(36), "status": "ok",
+        "scenario_id": [f"dqn/{i // 3}#{i % 3}" for i in range(36)],
+        "sdl": np.repeat(labels, 3)}))
+    ref = corpus_reference(ref_table, "maneuver", tracks="all", name="womd")
+    config = BootstrapConfig(n_resamples=1000)
+    rows = {w: reference_scores(windows, ref, "womd", config=config, unit="9.0 s windows",
+                                windowed=w)[1].iloc[0]
+            for w in (False, True)}
+    width = {w: r["novel_diff_high"] - r["novel_diff_low"] for w, r in rows.items()}
+    assert width[True] > 1.2 * width[False]
+    # the novel rate's Wilson interval: at 12 episodes' worth, not 36 windows'
+    assert rows[True]["novel_rate"] == rows[False]["novel_rate"]
+    k = rows[True]["novel_rate"] * 12
+    lo, hi = wilson_interval(k, 12, 0.95)
+    assert (rows[True]["novel_low"], rows[True]["novel_high"]) == (
+        pytest.approx(lo, abs=0.03), pytest.approx(hi, abs=0.03))
+    assert rows[False]["novel_high"] - rows[False]["novel_low"] < 0.7 * (hi - lo)

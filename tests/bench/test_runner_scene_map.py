@@ -92,7 +92,7 @@ def test_a_leader_in_the_turn_beyond_the_record_is_found_along_the_scenes_lanes(
     assert ego["interaction"].str.contains("Following (car)", regex=False).any()
 
 
-def test_each_episode_gets_its_own_scenes_lanes_under_its_run_id(womd_dir):
+def test_each_episode_gets_its_own_scenes_lanes_under_its_run_id(womd_dir, monkeypatch):
     files = tuple(str(p) for p in sorted(womd_dir.glob("*.tfrecord")))
     scenes = WomdScenes(files)
     table = pd.concat([load_scene(ref).table() for ref in scene_catalog(files)],
@@ -109,6 +109,15 @@ def test_each_episode_gets_its_own_scenes_lanes_under_its_run_id(womd_dir):
         assert len(mine) == len(theirs) > 0
         np.testing.assert_array_equal(mine[["x", "y"]].to_numpy(),
                                       theirs[["x", "y"]].to_numpy())
+    # with room for one scene only, the batch still gets every scene's lanes (the scenes
+    # it needs are never the ones let go)
+    monkeypatch.setattr(run_tasks, "SCENE_LANES_KEPT", 1)
+    run_tasks._SCENE_LANES.clear()
+    two = run["womd_scenario_id"].isin(run["womd_scenario_id"].unique()[:2])
+    run_tasks._road(_task(scenes, "idm"), run[two])  # two scenes read, a third to come
+    again = run_tasks._road(_task(scenes, "idm"), run)
+    cols = ["map_id", "kind", "x", "y"]  # feature ids count the features read together
+    pd.testing.assert_frame_equal(again[cols], road[cols])
     # a table without the WOMD id (not a run of recorded scenes) is measured along the arc
     assert run_tasks._road(_task(scenes), run.drop(columns="womd_scenario_id")) is None
 
@@ -148,3 +157,38 @@ def test_the_label_cache_key_says_the_scenes_lanes_were_used(womd_dir):
 
     tasks = _tasks(plan_suite(suite), False, _NoCache())
     assert tasks[0].label_doc["map"] == SCENE_MAP
+
+
+@pytest.mark.parametrize("as_table", [False, True])
+def test_the_label_command_labels_along_a_map_it_is_given(womd_dir, tmp_path, capsys,
+                                                          as_table):
+    from tap_bench.cli import main
+
+    name = "womd_scenario_input.tfrecord"
+    scene = load_scene(scene_catalog([str(womd_dir / name)])[0])
+    table, _ = _cut_short(scene, 40, 12.0)
+    table = table.assign(scenario_id=scene.scenario_id).drop(columns="womd_scenario_id")
+    table.to_parquet(tmp_path / "cut.parquet")
+    where = str(womd_dir / name)
+    if as_table:  # a map table (as a run's roads.parquet), not the WOMD file
+        read_maps([where]).to_parquet(tmp_path / "roads.parquet")
+        where = str(tmp_path / "roads.parquet")
+
+    def following(*extra: str) -> bool:
+        out = tmp_path / "labels.parquet"
+        assert main(["label", str(tmp_path / "cut.parquet"), "-o", str(out),
+                     "--interactions", *extra]) == 0
+        labels = pd.read_parquet(out)
+        ego = labels[labels["track_id"].astype(str) == "ego"]
+        return bool(ego["interaction"].str.contains("Following (car)", regex=False).any())
+
+    assert not following()  # along the arc the car in the turn is not ahead
+    assert following("--map", where)
+    capsys.readouterr()
+    # another scene's map: labelled along the arc, and the command says why
+    assert not following("--map", str(womd_dir / "motion_data_one_example.tfrecord"))
+    assert "has a map in --map" in capsys.readouterr().err
+    # the map serves the interaction axis only: without it the command says so
+    assert main(["label", str(tmp_path / "cut.parquet"), "-o", str(tmp_path / "x.parquet"),
+                 "--map", where]) == 2
+    assert "--interactions" in capsys.readouterr().err
