@@ -3,8 +3,13 @@
 Each run is ``python -m tap_bench train --algo A --env highway --timesteps N --seed 0`` in a
 fresh process; env steps per second = N / the training wall time the command records in
 the model's ``.json`` (``train_seconds``: SB3's ``learn``, without the learning curve's
-evaluations, which run between training steps and are timed apart). CPU seconds are those of
-the command and its worker processes.
+evaluations, which run between training steps and are timed apart). CPU seconds (user + sys)
+are those of the command and of every process it starts: the training envs run in
+``SubprocVecEnv`` workers forked by multiprocessing's forkserver, which are not this script's
+children and are not waited for by the command, so this script makes itself a child
+subreaper (Linux ``prctl``): orphaned descendants are re-parented to it and reaped here, and
+their CPU time is counted in ``RUSAGE_CHILDREN``. Where that is not available, ``cpu_s`` says
+``null`` rather than a figure without the workers.
 
 "before" runs the code of a git commit (``--before-ref``, exported to a temporary folder);
 the other runs use this checkout with the settings given: ``n_envs`` training envs in
@@ -17,6 +22,7 @@ Usage: python benchmarks/bench_train_speed.py [--timesteps 2000] [--algos dqn,pp
 from __future__ import annotations
 
 import argparse
+import ctypes
 import json
 import os
 import resource
@@ -48,8 +54,32 @@ def export(ref: str, folder: Path) -> Path:
     return folder
 
 
-def run(source: Path, algo: str, timesteps: int, extra: list[str], out: Path) -> dict:
-    """One training command; its env steps per second and CPU seconds."""
+PR_SET_CHILD_SUBREAPER = 36
+
+
+def become_subreaper() -> bool:
+    """Make this process adopt its orphaned descendants (Linux); True when it worked."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.prctl(PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False
+
+
+def reap_descendants() -> None:
+    """Wait for every child left (adopted workers and forkservers) until none is left."""
+    while True:
+        try:
+            os.waitpid(-1, 0)
+        except ChildProcessError:
+            return
+
+
+def run(source: Path, algo: str, timesteps: int, extra: list[str], out: Path,
+        subreaper: bool) -> dict:
+    """One training command; its env steps per second and CPU seconds (with all workers)."""
     model = out / f"{algo}-{abs(hash(tuple(extra)))}.zip"
     env = {**os.environ, "PYTHONPATH": str(source), "PYTHONWARNINGS": "ignore"}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -58,13 +88,16 @@ def run(source: Path, algo: str, timesteps: int, extra: list[str], out: Path) ->
                     "highway", "--timesteps", str(timesteps), "--seed", "0", "-o", str(model),
                     *extra], env=env, cwd=source, check=True, capture_output=True)
     wall = time.perf_counter() - start
+    if subreaper:
+        reap_descendants()  # the forkserver and its env workers, orphaned when training ends
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     train_seconds = json.loads(model.with_suffix(".json").read_text())["params"][
         "train_seconds"]
     return {"train_seconds": train_seconds, "steps_per_s": round(timesteps / train_seconds, 1),
-            "process_wall_s": round(wall, 1), "cpu_s": round(cpu, 1),
-            "cpu_ms_per_step": round(1000 * cpu / timesteps, 1),
+            "process_wall_s": round(wall, 1),
+            "cpu_s": round(cpu, 1) if subreaper else None,
+            "cpu_ms_per_step": round(1000 * cpu / timesteps, 1) if subreaper else None,
             "load_1m_after": round(os.getloadavg()[0], 2)}
 
 
@@ -78,6 +111,10 @@ def main() -> None:
                         help="comma-separated names of " + ", ".join(VARIANTS))
     parser.add_argument("--repeats", type=int, default=1)
     args = parser.parse_args()
+    subreaper = become_subreaper()
+    if not subreaper:
+        print("cannot adopt the env worker processes here (needs Linux prctl): cpu_s not "
+              "reported", file=sys.stderr)
     figures: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
@@ -88,7 +125,7 @@ def main() -> None:
                 for name in args.variants.split(","):
                     extra = VARIANTS[name]
                     source = before if extra is None else ROOT
-                    result = run(source, algo, args.timesteps, extra or [], out)
+                    result = run(source, algo, args.timesteps, extra or [], out, subreaper)
                     key = f"{algo} / {name}" + (f" / run {repeat}" if args.repeats > 1 else "")
                     figures[key] = result
                     print(key, result, flush=True)
@@ -109,7 +146,7 @@ def main() -> None:
             print(key, row, flush=True)
         figures["summary (median over repeats)"] = summary
     report("train_speed", figures, timesteps=args.timesteps, seed=0, env="highway",
-           before_ref=args.before_ref)
+           before_ref=args.before_ref, cpu_includes_workers=subreaper)
 
 
 if __name__ == "__main__":

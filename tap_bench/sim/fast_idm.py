@@ -21,8 +21,15 @@ rollout. :func:`act_all` gives every vehicle the same action, bit for bit:
   vehicle at a time, and one whose class or instance changes any method involved is left
   to highway-env's own ``act``.
 
+The lane-change policy (MOBIL) is :func:`_change_lane_policy`: highway-env's
+``change_lane_policy`` and ``mobil`` line for line, with the IDM accelerations and desired
+gaps of :func:`_idm` and :func:`_desired_gap` (the same float operations in the same order).
+It is used only where the installed highway-env's source of these methods is the one it
+repeats (:func:`_highway_env_decides_as_written`, highway-env 1.12) and for vehicles whose
+class changes none of them; elsewhere highway-env's own methods run.
+
 On small roads (:func:`act_each`, highway-env's order: each vehicle acts in full before
-the next) the plain IDM vehicles run highway-env's lane-change policy and then
+the next) the plain IDM vehicles run the lane-change policy and then
 :func:`_act_rest`: the steering and IDM formulas term for term, in numpy scalars where
 highway-env has them, without the calls that cost more than their arithmetic (``np.clip``
 of one number, the velocity and direction arrays, a straight lane's ``np.dot``).
@@ -37,12 +44,16 @@ vehicle's state bit for bit (``tests/sim/test_sim_fast_road.py``).
 from __future__ import annotations
 
 import functools
+import hashlib
+import inspect
 from operator import attrgetter
 from typing import Any
 
 import numpy as np
+from highway_env import utils
 from highway_env.road.lane import StraightLane
 from highway_env.vehicle.behavior import IDMVehicle
+from highway_env.vehicle.controller import ControlledVehicle
 from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import RoadObject
 
@@ -172,7 +183,7 @@ def act_all(road: Any, leaders: Any = None) -> None:
             continue
         vehicle.follow_road()
         if vehicle.enable_lane_change:
-            vehicle.change_lane_policy()
+            _change_lane_policy(vehicle)
         plain.append(vehicle)
     if not plain:
         return
@@ -218,7 +229,7 @@ def act_each(road: Any) -> None:
         elif not vehicle.crashed:
             vehicle.follow_road()
             if vehicle.enable_lane_change:
-                vehicle.change_lane_policy()
+                _change_lane_policy(vehicle)
             _act_rest(vehicle)
 
 
@@ -269,38 +280,176 @@ def _not_zero_one(x: Any, eps: float = _EPS) -> Any:
     return eps if x >= 0 else -eps
 
 
-def _idm(vehicle: Any, front: Any) -> Any:
-    """``vehicle.acceleration(ego_vehicle=vehicle, front_vehicle=front)``, term for term."""
-    target_speed = getattr(vehicle, "target_speed", 0)
-    lane = vehicle.lane
+_OWN = object()
+"""The default ``ego`` of :func:`_idm`: the vehicle itself (None is "no vehicle")."""
+
+
+def _idm(vehicle: Any, front: Any, ego: Any = _OWN) -> Any:
+    """``vehicle.acceleration(ego_vehicle=ego, front_vehicle=front)`` (``ego``: ``vehicle``
+    when not given; None or a non-vehicle: 0 as highway-env returns), term for term:
+    ``vehicle``'s IDM constants, ``ego``'s speed, target speed and lane. An ``ego`` whose
+    velocity, direction or ``lane_distance_to`` are not highway-env's is left to
+    ``vehicle.acceleration``."""
+    if ego is _OWN:
+        ego = vehicle
+    elif not ego or not isinstance(ego, Vehicle):
+        return 0
+    elif not _scalar_ego(ego):
+        return vehicle.acceleration(ego_vehicle=ego, front_vehicle=front)
+    target_speed = getattr(ego, "target_speed", 0)
+    lane = ego.lane
     if lane and lane.speed_limit is not None:
         target_speed = _clip(target_speed, 0, lane.speed_limit)
     acceleration = vehicle.COMFORT_ACC_MAX * (1 - np.power(
-        max(vehicle.speed, 0) / abs(_not_zero_one(target_speed)), vehicle.DELTA))
+        max(ego.speed, 0) / abs(_not_zero_one(target_speed)), vehicle.DELTA))
     if front:
-        d = _local(lane, front.position)[0] - _local(lane, vehicle.position)[0]
+        d = _local(lane, front.position)[0] - _local(lane, ego.position)[0]
         acceleration -= vehicle.COMFORT_ACC_MAX * np.power(
-            _desired_gap(vehicle, front) / _not_zero_one(d), 2)
+            _desired_gap(vehicle, front, ego) / _not_zero_one(d), 2)
     return acceleration
 
 
-def _desired_gap(vehicle: Any, front: Any) -> Any:
-    """``vehicle.desired_gap(vehicle, front)``, term for term (``np.dot`` as
-    :func:`_dot` computes it)."""
+def _scalar_ego(obj: Any) -> bool:
+    """Whether :func:`_idm` may compute for ``obj`` as the following vehicle: its velocity,
+    direction and ``lane_distance_to`` are highway-env's (class and instance)."""
+    return (_standard_velocity(type(obj)) and _own_lane_distance(type(obj))
+            and not _EGO_OVERRIDES & vars(obj).keys())
+
+
+_EGO_OVERRIDES = frozenset({"velocity", "direction", "lane_distance_to"})
+
+
+@functools.cache
+def _own_lane_distance(cls: type) -> bool:
+    return getattr(cls, "lane_distance_to", None) is _HIGHWAY_ENV_DECIDE[4]
+
+
+def _desired_gap(vehicle: Any, front: Any, ego: Any = None) -> Any:
+    """``vehicle.desired_gap(ego, front)`` (``ego``: ``vehicle`` when not given), term for
+    term (``np.dot`` as :func:`_dot` computes it); ``ego`` has highway-env's velocity and
+    direction."""
+    if ego is None:
+        ego = vehicle
     ab = -vehicle.COMFORT_ACC_MAX * vehicle.COMFORT_ACC_MIN
-    cos, sin = np.cos(vehicle.heading), np.sin(vehicle.heading)
+    cos, sin = np.cos(ego.heading), np.sin(ego.heading)
     if _standard_velocity(type(front)) and not {"velocity", "direction"} & vars(front).keys():
         front_cos, front_sin = np.cos(front.heading), np.sin(front.heading)
-        dvx = vehicle.speed * cos - front.speed * front_cos
-        dvy = vehicle.speed * sin - front.speed * front_sin
+        dvx = ego.speed * cos - front.speed * front_cos
+        dvy = ego.speed * sin - front.speed * front_sin
     else:
-        dvx, dvy = np.array([vehicle.speed * cos, vehicle.speed * sin]) - front.velocity
+        dvx, dvy = np.array([ego.speed * cos, ego.speed * sin]) - front.velocity
     if _dot_is_mul_add():
         dv = dvx * cos + dvy * sin
     else:
         dv = np.dot(np.array([dvx, dvy]), np.array([cos, sin]))
-    return (vehicle.DISTANCE_WANTED + vehicle.speed * vehicle.TIME_WANTED
-            + vehicle.speed * dv / (2 * np.sqrt(ab)))
+    return (vehicle.DISTANCE_WANTED + ego.speed * vehicle.TIME_WANTED
+            + ego.speed * dv / (2 * np.sqrt(ab)))
+
+
+_HIGHWAY_ENV_DECIDE = (IDMVehicle.change_lane_policy, IDMVehicle.mobil,
+                       IDMVehicle.acceleration, IDMVehicle.desired_gap,
+                       RoadObject.lane_distance_to, utils.do_every)
+"""highway-env's own lane-change methods, as imported (a process may replace them)."""
+
+_DECIDE_CODE = {  # sha256 of the source of the methods _change_lane_policy repeats
+    "IDMVehicle.change_lane_policy": "fd17bcecf4e9a6d3",
+    "IDMVehicle.mobil": "b5735ff10b6cde58",
+    "IDMVehicle.acceleration": "39b9ba61a36409b0",
+    "IDMVehicle.desired_gap": "fe6699a416db83f2",
+    "RoadObject.lane_distance_to": "4db4f2b77cf0bdbe",
+    "do_every": "6bc9a36388d1e424",
+}
+
+
+@functools.cache
+def _highway_env_decides_as_written() -> bool:
+    """Whether the installed highway-env's lane-change policy (``change_lane_policy``,
+    ``mobil`` and what they call) is the code :func:`_change_lane_policy` repeats (that of
+    highway-env 1.12); checked once per process."""
+    try:
+        sources = {f.__qualname__: inspect.getsource(f) for f in _HIGHWAY_ENV_DECIDE}
+    except (OSError, TypeError):
+        return False
+    return all(hashlib.sha256(sources.get(name, "").encode()).hexdigest()[:16] == digest
+               for name, digest in _DECIDE_CODE.items())
+
+
+@functools.cache
+def _decides_as_written(cls: type) -> bool:
+    """Whether vehicles of ``cls`` change lanes by highway-env's own (repeated) code."""
+    names = ("change_lane_policy", "mobil", "acceleration", "desired_gap",
+             "lane_distance_to")
+    return (_highway_env_decides_as_written()
+            and all(getattr(cls, name) is f
+                    for name, f in zip(names, _HIGHWAY_ENV_DECIDE[:5], strict=True))
+            and utils.do_every is _HIGHWAY_ENV_DECIDE[5])
+
+
+def _change_lane_policy(vehicle: Any) -> None:
+    """``vehicle.change_lane_policy()`` (a plain IDM vehicle, see :func:`is_plain_idm`):
+    highway-env's code line for line, with MOBIL's accelerations by :func:`_idm`; the
+    same target lanes and timers, bit for bit. Left to highway-env where its code is not
+    the one repeated here."""
+    if not _decides_as_written(type(vehicle)):
+        vehicle.change_lane_policy()
+        return
+    if vehicle.lane_index != vehicle.target_lane_index:
+        # on the right route in the wrong lane: abort if another vehicle changes into it
+        if vehicle.lane_index[:2] == vehicle.target_lane_index[:2]:
+            lane = vehicle.lane
+            for v in vehicle.road.vehicles:
+                if (v is not vehicle and v.lane_index != vehicle.target_lane_index
+                        and isinstance(v, ControlledVehicle)
+                        and v.target_lane_index == vehicle.target_lane_index):
+                    d = _local(lane, v.position)[0] - _local(lane, vehicle.position)[0]
+                    d_star = _desired_gap(vehicle, v)
+                    if 0 < d < d_star:
+                        vehicle.target_lane_index = vehicle.lane_index
+                        break
+        return
+    if not vehicle.LANE_CHANGE_DELAY < vehicle.timer:  # utils.do_every
+        return
+    vehicle.timer = 0
+    network = vehicle.road.network
+    for lane_index in network.side_lanes(vehicle.lane_index):
+        if not network.get_lane(lane_index).is_reachable_from(vehicle.position):
+            continue
+        if np.abs(vehicle.speed) < 1:  # only a moving vehicle changes lanes
+            continue
+        if _mobil(vehicle, lane_index):
+            vehicle.target_lane_index = lane_index
+
+
+def _mobil(vehicle: Any, lane_index: tuple) -> bool:
+    """``vehicle.mobil(lane_index)``: whether MOBIL changes to ``lane_index``, highway-env's
+    code line for line with :func:`_idm` for its ``acceleration`` calls."""
+    road = vehicle.road
+    # is the manoeuvre unsafe for the new following vehicle?
+    new_preceding, new_following = road.neighbour_vehicles(vehicle, lane_index)
+    new_following_a = _idm(vehicle, new_preceding, new_following)
+    new_following_pred_a = _idm(vehicle, vehicle, new_following)
+    if new_following_pred_a < -vehicle.LANE_CHANGE_MAX_BRAKING_IMPOSED:
+        return False
+    old_preceding, old_following = road.neighbour_vehicles(vehicle)
+    self_pred_a = _idm(vehicle, new_preceding)
+    route = vehicle.route
+    if route and route[0][2] is not None:
+        # a planned lane: wrong direction, or unsafe braking for this vehicle
+        if np.sign(lane_index[2] - vehicle.target_lane_index[2]) != np.sign(
+                route[0][2] - vehicle.target_lane_index[2]):
+            return False
+        elif self_pred_a < -vehicle.LANE_CHANGE_MAX_BRAKING_IMPOSED:
+            return False
+    else:  # an acceleration advantage for this vehicle and/or its followers?
+        self_a = _idm(vehicle, old_preceding)
+        old_following_a = _idm(vehicle, vehicle, old_following)
+        old_following_pred_a = _idm(vehicle, old_preceding, old_following)
+        jerk = (self_pred_a - self_a
+                + vehicle.POLITENESS * (new_following_pred_a - new_following_a
+                                        + old_following_pred_a - old_following_a))
+        if jerk < vehicle.LANE_CHANGE_MIN_ACC_GAIN:
+            return False
+    return True
 
 
 def _lane_arrays(lanes: list[StraightLane]) -> tuple[np.ndarray, ...]:

@@ -736,3 +736,148 @@ def test_vehicles_move_through_highway_env_when_its_code_is_not_the_one_repeated
                                   for v, p in zip(vehicles, before, strict=True))
     fast_road._highway_env_moves_as_written.cache_clear()
     fast_road._moving_class.cache_clear()
+
+
+def _lane_change_mismatches(seeds=(0, 1, 2)) -> dict[str, int]:
+    """fast_idm's lane-change policy against highway-env's on drawn highway states.
+
+    Dense 4-lane highways (every fifth other vehicle a user class with its own velocity or
+    direction, which MOBIL's accelerations of a follower leave to highway-env) are run a few
+    decisions; then each vehicle gets a drawn politeness,
+    minimal gain, braking limit and timer (a due decision), and some an ongoing change to a
+    side lane (so that vehicles change into the same lane and aborts happen). For every
+    vehicle, ``fast_idm._change_lane_policy`` and highway-env's ``change_lane_policy`` run
+    from the same state; their target lanes and timers are compared, and every
+    ``acceleration`` MOBIL asks (each vehicle with each side lane's and its own lane's
+    leader and follower) is compared bit for bit with ``fast_idm._idm``."""
+    from tap_bench.sim import fast_idm
+
+    counts = dict.fromkeys(["decisions", "changes", "aborts", "accelerations",
+                            "user-class accelerations", "decision mismatches",
+                            "acceleration mismatches"], 0)
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        env = make_env("highway", config={"vehicles_count": 40, "lanes_count": 4},
+                       duration=8, record=False, fast=True)
+        env.reset(seed=seed)
+        road = env.unwrapped.road
+        for k, vehicle in enumerate(road.vehicles[1:]):
+            if k % 5 == 4:
+                vehicle.__class__ = (_SlipIDM, _TurnedIDM)[k % 2]
+        for _ in range(5):
+            env.step(1)
+            vehicles = [v for v in road.vehicles if fast_idm.is_plain_idm(v)]
+            for vehicle in vehicles:
+                vehicle.POLITENESS = float(rng.choice([0.0, 0.25, 1.0, rng.uniform(0, 2)]))
+                vehicle.LANE_CHANGE_MIN_ACC_GAIN = float(rng.uniform(-0.5, 0.5))
+                vehicle.LANE_CHANGE_MAX_BRAKING_IMPOSED = float(rng.uniform(0.5, 4))
+                vehicle.timer = float(rng.uniform(0, 2))
+                sides = road.network.side_lanes(vehicle.lane_index)
+                if rng.random() < 0.3 and sides:
+                    vehicle.target_lane_index = sides[int(rng.integers(len(sides)))]
+            for vehicle in vehicles:
+                start = (vehicle.target_lane_index, vehicle.timer)
+                fast_idm._change_lane_policy(vehicle)
+                ours = (vehicle.target_lane_index, vehicle.timer)
+                vehicle.target_lane_index, vehicle.timer = start
+                IDMVehicle.change_lane_policy(vehicle)
+                theirs = (vehicle.target_lane_index, vehicle.timer)
+                vehicle.target_lane_index, vehicle.timer = start
+                counts["decisions"] += 1
+                counts["decision mismatches"] += ours != theirs
+                if start[0] != vehicle.lane_index:
+                    counts["aborts"] += theirs[0] == vehicle.lane_index
+                else:
+                    counts["changes"] += theirs[0] != start[0]
+                for lane_index in [*road.network.side_lanes(vehicle.lane_index), None]:
+                    front, rear = road.neighbour_vehicles(vehicle, lane_index)
+                    for ego, ahead in [(rear, front), (rear, vehicle), (vehicle, front)]:
+                        got = fast_idm._idm(vehicle, ahead, ego) if ego is not vehicle \
+                            else fast_idm._idm(vehicle, ahead)
+                        want = vehicle.acceleration(ego_vehicle=ego, front_vehicle=ahead)
+                        counts["accelerations"] += 1
+                        counts["user-class accelerations"] += isinstance(
+                            ego, _SlipIDM | _TurnedIDM) or isinstance(ahead, _SlipIDM | _TurnedIDM)
+                        counts["acceleration mismatches"] += (  # bits, signed zeros
+                            np.float64(got).tobytes() != np.float64(want).tobytes())
+        env.close()
+    return counts
+
+
+def test_the_lane_change_policy_decides_as_highway_envs_on_drawn_states():
+    counts = _lane_change_mismatches()
+    assert counts["decision mismatches"] == counts["acceleration mismatches"] == 0, counts
+    # both outcomes of every branch are exercised
+    assert counts["changes"] >= 10 and counts["decisions"] - counts["changes"] >= 100, counts
+    assert counts["aborts"] >= 3 and counts["accelerations"] >= 1000, counts
+    assert counts["user-class accelerations"] >= 100, counts
+
+
+def _mutate(monkeypatch, name: str, old: str, new: str) -> None:
+    """Replace fast_idm's function ``name`` by its source with ``old`` made ``new``."""
+    import inspect
+
+    from tap_bench.sim import fast_idm
+
+    source = inspect.getsource(getattr(fast_idm, name))
+    assert old in source  # the mutation applies to the code as it is
+    namespace = dict(vars(fast_idm))
+    exec(compile(source.replace(old, new, 1), fast_idm.__file__, "exec"), namespace)
+    monkeypatch.setattr(fast_idm, name, namespace[name])
+
+
+@pytest.mark.parametrize(("name", "old", "new"), [
+    ("_mobil", "vehicle.POLITENESS *", "2 * vehicle.POLITENESS *"),  # wrong politeness
+    ("_mobil", "self_pred_a - self_a", "self_a - self_pred_a"),  # wrong sign
+    ("_mobil", "new_following_pred_a - new_following_a",
+     "new_following_a - new_following_pred_a"),
+    ("_mobil", "< -vehicle.LANE_CHANGE_MAX_BRAKING_IMPOSED",
+     "< vehicle.LANE_CHANGE_MAX_BRAKING_IMPOSED"),
+    ("_change_lane_policy", "0 < d < d_star", "0 < d < 0.5 * d_star"),  # abort gap
+    ("_change_lane_policy", "vehicle.LANE_CHANGE_DELAY < vehicle.timer",
+     "vehicle.LANE_CHANGE_DELAY <= vehicle.timer + 0.5"),
+    ("_idm", "return acceleration", "return np.nextafter(acceleration, np.inf)"),  # 1 ulp
+    ("_desired_gap", "+ ego.speed * dv", "+ ego.speed * np.nextafter(dv, np.inf)"),
+    ("_idm", "max(ego.speed, 0)", "max(vehicle.speed, 0)"),  # the follower's own speed
+])
+def test_a_changed_lane_change_policy_is_caught(monkeypatch, name, old, new):
+    """A changed term of the lane-change policy (a wrong politeness, a sign, one ulp in an
+    acceleration or desired gap, another vehicle's speed) makes the comparison fail."""
+    _mutate(monkeypatch, name, old, new)
+    counts = _lane_change_mismatches(seeds=(0, 1, 2))
+    assert counts["decision mismatches"] + counts["acceleration mismatches"] > 0, counts
+
+
+def test_lane_changes_go_through_highway_env_when_its_code_is_not_the_one_repeated(
+        monkeypatch):
+    """The lane-change policy repeats highway-env 1.12's: another version's source (a digest
+    that does not match) or a class with its own ``mobil`` decides by highway-env's code."""
+    from tap_bench.sim import fast_idm
+
+    called = []
+
+    class _OwnMobil(IDMVehicle):
+        def mobil(self, lane_index):
+            called.append(self)
+            return False
+
+    _, vehicles = _straight_road([(100, 0), (130, 4), (160, 0)])
+    for vehicle in vehicles:
+        vehicle.timer = 5.0
+    fast_idm._decides_as_written.cache_clear()
+    assert fast_idm._decides_as_written(IDMVehicle)
+    assert not fast_idm._decides_as_written(_OwnMobil)
+    vehicles[0].__class__ = _OwnMobil
+    fast_idm._change_lane_policy(vehicles[0])
+    assert called == [vehicles[0]]
+    monkeypatch.setitem(fast_idm._DECIDE_CODE, "IDMVehicle.mobil", "0" * 16)
+    fast_idm._highway_env_decides_as_written.cache_clear()
+    fast_idm._decides_as_written.cache_clear()
+    asked = []
+    monkeypatch.setattr(IDMVehicle, "change_lane_policy", lambda self: asked.append(self))
+    fast_idm._change_lane_policy(vehicles[1])
+    assert asked == [vehicles[1]]
+    monkeypatch.undo()
+    fast_idm._highway_env_decides_as_written.cache_clear()
+    fast_idm._decides_as_written.cache_clear()
+    assert fast_idm._decides_as_written(IDMVehicle)
