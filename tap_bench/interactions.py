@@ -261,9 +261,9 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
     n = len(kin.t)
     step_no = np.rint(kin.t * HZ).astype(np.int64)
     # per-track columns are read at each track's first row only (strings are slow per row)
-    first_rows = idx.track_start[:-1]
-    scen_of_track, _ = pd.factorize(pd.Series(checked["scenario_id"]).take(first_rows),
-                                    sort=False)
+    # (taken from the input's rows, without putting the whole column in track order)
+    per_track = checked.per_track_arrays(["scenario_id", "object_type", "env"])
+    scen_of_track, _ = pd.factorize(pd.Series(per_track["scenario_id"]), sort=False)
     scen = scen_of_track[idx.track]
     span = int(step_no.max() - step_no.min() + 1) if n else 1
     key = scen.astype(np.int64) * span + (step_no - (step_no.min() if n else 0))
@@ -273,15 +273,15 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
     speed = np.asarray(checked["speed"], float)
     others = idx.segment >= 0
     if "object_type" in checked:
-        kind = pd.Series(checked["object_type"]).take(first_rows).astype(str)
+        kind = pd.Series(per_track["object_type"]).astype(str)
         others &= kind.isin(OTHER_TYPES).to_numpy()[idx.track]
     lanes = None
     if map_table is not None:
-        names = pd.Series(checked["scenario_id"]).take(first_rows).to_numpy()
+        names = pd.Series(per_track["scenario_id"]).to_numpy()
         scenes = pd.unique(names)
         table = pd.DataFrame({"scenario_id": names})
         if "env" in checked:
-            table["env"] = pd.Series(checked["env"]).take(first_rows).to_numpy()
+            table["env"] = pd.Series(per_track["env"]).to_numpy()
         lanes = scene_lanes(table, scen_of_track, scenes, map_table)
     paths = Paths(scene=scen.astype(np.int64), key=key, track=idx.track, x=x, y=y,
                   heading=heading, speed=speed,

@@ -278,15 +278,17 @@ def _strings(values: pa.Array) -> pd.Series:
     return pd.Series(values, dtype=pd.StringDtype("pyarrow", na_value=np.nan))
 
 
-def _segment_frame(tracks: pd.DataFrame, kin: Kinematics, index, which: np.ndarray,
+def _segment_frame(tracks: dict, kin: Kinematics, index, which: np.ndarray,
                    ordinal: np.ndarray) -> pd.DataFrame:
-    """One row per valid segment selected by ``which`` (bool, (n_segments,))."""
+    """One row per valid segment selected by ``which`` (bool, (n_segments,)); ``tracks``:
+    :meth:`~tap_bench.trajectories.CheckedTable.per_track_arrays`."""
     rows = index.segment_start[which]
     stops = index.segment_stop[which]
     # each track's columns at its segments, as arrays (a frame of arrays needs no index
     # alignment; the columns keep their types)
     of_track = index.segment_track[which]
-    per_track = {c: tracks[c].array.take(of_track) for c in tracks.columns}
+    per_track = {c: (v[of_track] if isinstance(v, np.ndarray) else v.take(of_track))
+                 for c, v in tracks.items()}
     names = list(per_track)
     columns: dict[str, object] = {c: per_track[c] for c in names[:2]}
     columns.update(segment=ordinal[which], t_start=kin.t[rows],
@@ -348,7 +350,7 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
     ordinal = np.arange(index.n_segments) - track_first_seg[index.segment_track]
     long_enough = lengths >= config.min_steps
     starts, stops = index.segment_start[long_enough], index.segment_stop[long_enough]
-    tracks = checked.per_track(["scenario_id", "track_id", *IDENTIFYING_COLUMNS])
+    tracks = checked.per_track_arrays(["scenario_id", "track_id", *IDENTIFYING_COLUMNS])
     info = _segment_frame(tracks, kin, index, long_enough, ordinal)
     short = _segment_frame(tracks, kin, index, ~long_enough, ordinal)
 
@@ -372,7 +374,7 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
         lateral[step_rows] = labels.maneuver_lateral
         inter = interaction_steps(checked, kin, starts[chosen], stops[chosen], lateral,
                                   th.a_dec, interaction_config, map_table=map_table)
-        track_ids = np.asarray(tracks["track_id"].to_numpy(object), dtype=object)
+        track_ids = np.asarray(pd.Series(tracks["track_id"]).to_numpy(object), dtype=object)
         extra = {"interactions": inter, "interaction_segments": chosen,
                  "track_ids": track_ids}
         timings["interactions"] = time.perf_counter() - t4

@@ -22,6 +22,7 @@ irregular and an error. Data sampled at another rate is refused: resample it fir
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -180,6 +181,8 @@ def _numeric(table: pd.DataFrame, col: str, source: str) -> np.ndarray:
 
 def _bool_column(table: pd.DataFrame, col: str, source: str) -> np.ndarray:
     series = table[col]
+    if series.dtype == np.bool_:  # numpy's bool holds no missing value
+        return series.to_numpy()
     if pd.api.types.is_bool_dtype(series) and not series.isna().any():
         return series.to_numpy(dtype=bool)
     values = series.to_numpy(dtype=object)
@@ -250,6 +253,11 @@ class CheckedTable:
 
     def per_track(self, names: list[str] | tuple[str, ...]) -> pd.DataFrame:
         """One row per track: the given columns at each track's first row."""
+        return pd.DataFrame(self.per_track_arrays(names))
+
+    def per_track_arrays(self, names: list[str] | tuple[str, ...]) -> dict:
+        """:meth:`per_track` as column name -> (n_tracks,) numpy or pandas extension array
+        (no frame: a small table's columns are then taken without pandas' fixed costs)."""
         rows = self.index.track_start[:-1]
         out = {}
         for c in names:  # as arrays: a frame of arrays needs no index alignment
@@ -258,7 +266,7 @@ class CheckedTable:
             elif c in self.raw:
                 out[c] = _take_array(self.raw[c],
                                      rows if self.order is None else self.order[rows])
-        return pd.DataFrame(out)
+        return out
 
 
 def _values(col: np.ndarray | pd.Series):
@@ -296,9 +304,17 @@ def _track_order(scenario: pd.Series, track: pd.Series) -> tuple[np.ndarray | No
             out[1:] = np.asarray(values[1:] != values[:-1], dtype=bool)
         return out
 
-    change = changes(scenario) | changes(track)
+    new_scenario = changes(scenario)
+    change = new_scenario | changes(track)
     starts = np.flatnonzero(change)
     if len(starts) <= n // 2:  # runs of rows (a track's): check the order of the runs
+        # few runs (an episode's tracks) of strings: check them in Python (code point
+        # order, as Arrow's sort), without pandas' fixed costs
+        if len(starts) <= 1000 and _plain_strings(scenario, track):
+            keys = list(zip(scenario.array.take(starts).tolist(),
+                            track.array.take(starts).tolist(), strict=True))
+            if all(a < b for a, b in itertools.pairwise(keys)):
+                return None, change
         sc_codes, _ = pd.factorize(scenario.take(starts), sort=True)
         tr_codes, tr_uniques = pd.factorize(track.take(starts), sort=True)
         block_key = sc_codes.astype(np.int64) * max(len(tr_uniques), 1) + tr_codes
@@ -314,15 +330,36 @@ def _track_order(scenario: pd.Series, track: pd.Series) -> tuple[np.ndarray | No
             new_track = np.zeros(n, dtype=bool)
             new_track[begins] = True
             return order, new_track
-    # interleaved tracks (time-major rows, as simulators write them): sort every row
-    sc_codes, _ = pd.factorize(scenario, sort=True)
-    tr_codes, tr_uniques = pd.factorize(track, sort=True)
-    key = sc_codes.astype(np.int64) * max(len(tr_uniques), 1) + tr_codes
+    # interleaved tracks (time-major rows, as simulators write them): sort every row (one
+    # scenario, as an episode is, needs no codes of its own)
+    one_scenario = not new_scenario[1:].any()
+    sc_codes = np.zeros(n, np.int64) if one_scenario else _sorted_codes(scenario)[0]
+    tr_codes, n_tracks = _sorted_codes(track)
+    key = sc_codes.astype(np.int64) * max(n_tracks, 1) + tr_codes
     order = np.argsort(key, kind="stable")
     key = key[order]
     new_track = np.ones(n, dtype=bool)
     new_track[1:] = key[1:] != key[:-1]
     return order, new_track
+
+
+def _plain_strings(*cols: pd.Series) -> bool:
+    """Whether every column is of a string dtype (no categorical with an order of its own):
+    then their values sort by code point, in Python as in pandas."""
+    return all(isinstance(c.dtype, pd.StringDtype) for c in cols)
+
+
+def _sorted_codes(col: pd.Series) -> tuple[np.ndarray, int]:
+    """``pd.factorize(col, sort=True)``'s codes and number of values: for strings,
+    factorised in order of appearance, the few values then ranked with the same sort
+    (cheaper than sorting while factorising)."""
+    if not _plain_strings(col):
+        codes, uniques = pd.factorize(col, sort=True)
+        return codes, len(uniques)
+    codes, uniques = pd.factorize(col)
+    rank = np.empty(len(uniques), np.int64)
+    rank[np.asarray(uniques.argsort())] = np.arange(len(uniques))
+    return rank[codes], len(uniques)
 
 
 def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table") -> CheckedTable:

@@ -130,13 +130,16 @@ def test_mirrored_trajectories_swap_left_and_right(table):
 
 
 @SETTINGS
-@given(st.lists(st.tuples(st.sampled_from(["a", "b", "c10", "c9"]),
-                          st.sampled_from(["1", "2", "10", "x"]), st.integers(1, 4)),
-                min_size=1, max_size=25), st.sampled_from(["runs", "time-major"]))
-def test_the_track_order_is_the_stable_sort_of_every_row(runs, layout):
+@given(st.lists(st.tuples(st.sampled_from(["a", "b", "c10", "c9", "é", "Z"]),
+                          st.sampled_from(["1", "2", "10", "x", "ä", "X", "ß"]),
+                          st.integers(1, 4)),
+                min_size=1, max_size=25), st.sampled_from(["runs", "time-major"]),
+       st.sampled_from(["str", "string[python]", "object", "category"]))
+def test_the_track_order_is_the_stable_sort_of_every_row(runs, layout, dtype):
     """Rows grouped by (scenario_id, track_id), in the order of the sorted ids and stable
     within a track, however the input lays them out (runs in any order, a track split over
-    several runs, time-major): the same order as a stable sort of every row's key."""
+    several runs, time-major; one scenario or several; ids beyond ASCII; Arrow, Python,
+    object or categorical strings): the same order as a stable sort of every row's key."""
     from tap_bench.trajectories import _track_order
 
     if layout == "runs":
@@ -144,8 +147,8 @@ def test_the_track_order_is_the_stable_sort_of_every_row(runs, layout):
     else:
         ids = list(dict.fromkeys((sc, tr) for sc, tr, _ in runs))
         rows = [i for _ in range(3) for i in ids]
-    scenario = pd.Series([r[0] for r in rows], dtype="str")
-    track = pd.Series([r[1] for r in rows], dtype="str")
+    scenario = pd.Series([r[0] for r in rows], dtype=dtype)
+    track = pd.Series([r[1] for r in rows], dtype=dtype)
     order, new_track = _track_order(scenario, track)
     order = np.arange(len(rows)) if order is None else order
     sc_codes, _ = pd.factorize(scenario, sort=True)
