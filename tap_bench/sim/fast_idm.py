@@ -39,6 +39,9 @@ scalar ones for this to hold; :func:`array_kernels_agree` checks that on this ma
 per process, and where they do not, :func:`act_all` is not used (``FastRoad`` falls back to
 highway-env's ``Road.act``). Tested by simulating scenarios both ways and comparing every
 vehicle's state bit for bit (``tests/sim/test_sim_fast_road.py``).
+
+Parts of this module re-state highway-env's code (MIT License, Copyright (c) 2018 Edouard
+Leurent, (c) 2023 Farama Foundation): see THIRD_PARTY_NOTICES.md.
 """
 
 from __future__ import annotations

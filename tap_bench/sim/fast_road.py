@@ -42,6 +42,9 @@ lane lookup of a network with a lane of another class. Tested by simulating scen
 both ways and comparing every vehicle's state bit for bit, every query of a dense
 simulation against highway-env's, slanted lanes, ties and lane boundaries, and the lane
 lookup on drawn networks of every lane kind (mutations of each formula caught).
+
+Parts of this module re-state highway-env's code (MIT License, Copyright (c) 2018 Edouard
+Leurent, (c) 2023 Farama Foundation): see THIRD_PARTY_NOTICES.md.
 """
 
 from __future__ import annotations

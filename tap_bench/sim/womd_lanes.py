@@ -18,6 +18,9 @@ in network order. :func:`project_positions` projects many positions on one lane 
 
 Tested against highway-env's own ``PolyLaneFixedWidth`` and ``get_closest_lane_index`` on
 generated lanes (radii, directions, lengths) and on the lanes of the real scenarios.
+
+Parts of this module re-state highway-env's code (MIT License, Copyright (c) 2018 Edouard
+Leurent, (c) 2023 Farama Foundation): see THIRD_PARTY_NOTICES.md.
 """
 
 from __future__ import annotations
