@@ -111,6 +111,17 @@ def _novel_rate_holds(ref, pol, case) -> tuple[bool, float]:
     return bool(r.rate_low <= truth <= r.rate_high), r.rate_high - r.rate_low
 
 
+def holds_and_widths(truth, hits, widths, replications: int) -> dict[str, float]:
+    """The row figures of a study: the true (coverage, novelty) differences, the share of
+    data sets whose interval held each, and each interval's mean width."""
+    return {"true_coverage_diff": round(float(truth[0]), 3),
+            "true_novel_diff": round(float(truth[1]), 3),
+            "coverage_hits": round(float(hits[0] / replications), 3),
+            "novel_hits": round(float(hits[1] / replications), 3),
+            "coverage_width": round(float(widths[0] / replications), 3),
+            "novel_width": round(float(widths[1] / replications), 3)}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--replications", type=int, default=300)
@@ -158,12 +169,7 @@ def main() -> None:
             widths += highs - lows
         row = {"unit": case["unit"], "case": case["name"], "reference": case["N"],
                "policy": case["n"], "paired": case["paired"],
-               "true_coverage_diff": round(float(truth[0]), 3),
-               "true_novel_diff": round(float(truth[1]), 3),
-               "coverage_hits": round(float(hits[0] / args.replications), 3),
-               "novel_hits": round(float(hits[1] / args.replications), 3),
-               "coverage_width": round(float(widths[0] / args.replications), 3),
-               "novel_width": round(float(widths[1] / args.replications), 3)}
+               **holds_and_widths(truth, hits, widths, args.replications)}
         if case.get("windows"):
             row["novel_rate_hits"] = round(rate_hits / args.replications, 3)
             row["novel_rate_width"] = round(rate_width / args.replications, 3)

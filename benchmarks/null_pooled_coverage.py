@@ -84,12 +84,7 @@ def main() -> None:
                 widths += highs - lows
             row = {"unit": unit, "case": "paired" if paired else "different", "envs": 3,
                    "reference": 30, "policy": 30,
-                   "true_coverage_diff": round(float(truth[0]), 3),
-                   "true_novel_diff": round(float(truth[1]), 3),
-                   "coverage_hits": round(float(hits[0] / args.replications), 3),
-                   "novel_hits": round(float(hits[1] / args.replications), 3),
-                   "coverage_width": round(float(widths[0] / args.replications), 3),
-                   "novel_width": round(float(widths[1] / args.replications), 3)}
+                   **single.holds_and_widths(truth, hits, widths, args.replications)}
             rows.append(row)
             print(row, flush=True)
     print("\n| unit | case | true coverage diff | interval holds it | width "

@@ -600,22 +600,7 @@ class EpisodeCache:
         The whole entry is verified (module docstring): an entry that fails a check is
         deleted, so that the episode is simulated and stored again, and the reason comes
         back for the run's notes. A missing entry is (None, None)."""
-        path = self.path(key)
-        try:
-            data = path.read_bytes()
-        except OSError:
-            return None, None
-        try:
-            episode = _decode(data, key)
-        except Exception as err:  # whatever is wrong, the entry is never used
-            with contextlib.suppress(OSError):
-                path.unlink()
-            reason = str(err) if isinstance(err, _Refused) else \
-                f"unreadable ({type(err).__name__}: {str(err)[:200]})"
-            return None, f"cache entry {path.name} refused and deleted: {reason}"
-        with contextlib.suppress(OSError):
-            os.utime(path)  # recently used: pruned last
-        return episode, None
+        return _read_entry(self.path(key), lambda data: _decode(data, key), "cache entry")
 
     def put(self, key: str, doc: Mapping[str, Any], trajectories: pd.DataFrame,
             row: Mapping[str, Any], seconds: float) -> Path:
@@ -631,19 +616,7 @@ class EpisodeCache:
                   "payload_sha256": hashlib.sha256(payload).hexdigest(),
                   "created": time.strftime("%Y-%m-%d %H:%M:%S")}
         header["header_sha256"] = hashlib.sha256(_canonical(header)).hexdigest()
-        path = self.path(key)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{key[:16]}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as stream:
-                stream.write(_canonical(header) + b"\n")
-                stream.write(payload)
-            os.replace(tmp, path)
-        except BaseException:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-            raise
-        return path
+        return self._write(self.path(key), _canonical(header) + b"\n" + payload)
 
     # -- labels and measures of an episode, for re-runs that redo nothing -------------
     @property
@@ -677,22 +650,8 @@ class EpisodeCache:
     def read_labels(self, key: str) -> tuple[dict[str, pd.DataFrame] | None, str | None]:
         """(the tables stored under ``key`` or None, why an entry there was refused or
         None); a refused entry is deleted, as :meth:`read` does."""
-        path = self.labels_path(key)
-        try:
-            data = path.read_bytes()
-        except OSError:
-            return None, None
-        try:
-            tables = _decode_labels(data, key)
-        except Exception as err:  # whatever is wrong, the entry is never used
-            with contextlib.suppress(OSError):
-                path.unlink()
-            reason = str(err) if isinstance(err, _Refused) else \
-                f"unreadable ({type(err).__name__}: {str(err)[:200]})"
-            return None, f"label entry {path.name} refused and deleted: {reason}"
-        with contextlib.suppress(OSError):
-            os.utime(path)
-        return tables, None
+        return _read_entry(self.labels_path(key), lambda data: _decode_labels(data, key),
+                           "label entry")
 
     @property
     def derived_folder(self) -> Path:
@@ -730,24 +689,12 @@ class EpisodeCache:
     def read_derived(self, kind: str, key: str) -> tuple[dict[str, bytes] | None, str | None]:
         """(the files stored under ``key`` or None, why an entry there was refused or None);
         a refused entry is deleted, as :meth:`read` does."""
-        path = self.derived_path(kind, key)
-        try:
-            data = path.read_bytes()
-        except OSError:
-            return None, None
-        try:
-            files = _decode_derived(data, kind, key)
-        except Exception as err:  # whatever is wrong, the entry is never used
-            with contextlib.suppress(OSError):
-                path.unlink()
-            reason = str(err) if isinstance(err, _Refused) else \
-                f"unreadable ({type(err).__name__}: {str(err)[:200]})"
-            return None, f"derived entry {path.name} refused and deleted: {reason}"
-        with contextlib.suppress(OSError):
-            os.utime(path)
-        return files, None
+        return _read_entry(self.derived_path(kind, key),
+                           lambda data: _decode_derived(data, kind, key), "derived entry")
 
     def _write(self, path: Path, data: bytes) -> Path:
+        """Write ``data`` to ``path`` atomically (a temporary file beside it, then a
+        rename): a reader sees the old file or the whole new one, never a part."""
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name[:16]}.", suffix=".tmp",
                                    dir=path.parent)
@@ -840,16 +787,30 @@ class EpisodeCache:
                                              if _positive(v)})
         if overhead is not None and _positive(overhead):
             doc["overhead"] = float(overhead)
-        self.root.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=".timings.", suffix=".tmp", dir=self.root)
-        try:
-            with os.fdopen(fd, "w") as stream:
-                json.dump(doc, stream, indent=1, sort_keys=True)
-            os.replace(tmp, self.timings_path)
-        except BaseException:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-            raise
+        self._write(self.timings_path, json.dumps(doc, indent=1, sort_keys=True).encode())
+
+
+def _read_entry(path: Path, decode: Callable[[bytes], T], what: str
+                ) -> tuple[T | None, str | None]:
+    """(the decoded entry at ``path`` or None, why an entry there was refused or None): a
+    missing file is None without a reason; an entry ``decode`` refuses (or fails on) is
+    deleted, so that it is made and stored again; a used entry's time is touched (the
+    cache is pruned oldest first)."""
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return None, None
+    try:
+        entry = decode(data)
+    except Exception as err:  # whatever is wrong, the entry is never used
+        with contextlib.suppress(OSError):
+            path.unlink()
+        reason = str(err) if isinstance(err, _Refused) else \
+            f"unreadable ({type(err).__name__}: {str(err)[:200]})"
+        return None, f"{what} {path.name} refused and deleted: {reason}"
+    with contextlib.suppress(OSError):
+        os.utime(path)
+    return entry, None
 
 
 def _positive(value: Any) -> bool:

@@ -66,10 +66,10 @@ def crossing(path: Path, angle: float, speed: float, delay: float) -> str:
     return scene(path, tracks, lanes)
 
 
-def drive(env, policy: str = "log"):
+def drive(env, policy: str = "log", seed: int = 0):
     p = load_policy(policy)
-    obs, _ = env.reset(seed=0)
-    p.reset(env, seed=0)
+    obs, _ = env.reset(seed=seed)
+    p.reset(env, seed=seed)
     done = False
     while not done:
         obs, _, terminated, truncated, _ = env.step(p.act(obs))
@@ -161,14 +161,7 @@ def test_traffic_collisions_on_the_real_files_are_the_overlapping_boxes(real):
     env = make_womd_env(real, traffic="idm")
     totals = []
     for seed in range(len(env.catalog)):
-        p = load_policy("log")
-        obs, _ = env.reset(seed=seed)
-        p.reset(env, seed=seed)
-        done = False
-        while not done:
-            obs, _, terminated, truncated, _ = env.step(p.act(obs))
-            done = terminated or truncated
-        table, info = env.trajectories(policy="log"), env.episode_info()
+        table, info = drive(env, "log", seed)
         inner = env.unwrapped
         scene = env.scene
         n = scene.x.shape[0]
