@@ -22,7 +22,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from machine import report
+from machine import export, report
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -40,15 +40,6 @@ print(json.dumps({"simulated_s": float(episodes["duration_s"].sum()), "cpu_s": c
                   "episodes": episodes[["seed", "length", "crashed", "return"]]
                   .astype(float).values.tolist()}))
 """
-
-
-def export(ref: str, folder: Path) -> Path:
-    """The tree of git ``ref`` of this repository, written to ``folder``."""
-    folder.mkdir(parents=True)
-    archive = subprocess.run(["git", "-C", str(ROOT), "archive", ref], check=True,
-                             capture_output=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive, check=True)
-    return folder
 
 
 def run(tree: Path, env: str, policy: str, seeds: str) -> dict:

@@ -33,7 +33,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from machine import report
+from machine import export, report
 
 ROOT = Path(__file__).resolve().parents[1]
 VARIANTS = {  # name: extra arguments of `tap-bench train` (None: the "before" code)
@@ -43,15 +43,6 @@ VARIANTS = {  # name: extra arguments of `tap-bench train` (None: the "before" c
     "2-envs-exact": ["--n-envs", "2", "--exact", "--no-curve"],
     "2-envs-fast": ["--n-envs", "2", "--no-curve"],  # the default of tap-bench train
 }
-
-
-def export(ref: str, folder: Path) -> Path:
-    """The tree of git ``ref`` of this repository, written to ``folder``."""
-    folder.mkdir(parents=True)
-    archive = subprocess.run(["git", "-C", str(ROOT), "archive", ref], check=True,
-                             capture_output=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive, check=True)
-    return folder
 
 
 PR_SET_CHILD_SUBREAPER = 36

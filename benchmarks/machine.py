@@ -14,10 +14,14 @@ from __future__ import annotations
 import json
 import os
 import platform
+import subprocess
 import sys
 import time
 from importlib import metadata
 from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+"""This repository's checkout (the one the benchmarks are in)."""
 
 PACKAGES = ("tap-bench", "numpy", "pandas", "pyarrow", "gymnasium", "highway-env", "protobuf",
             "crc32c", "rapidfuzz", "stable-baselines3", "torch", "numba", "ray")
@@ -67,3 +71,12 @@ def report(name: str, figures: dict, **context) -> dict:
     tmp.write_text(json.dumps(record, indent=2, default=str))
     os.replace(tmp, out / f"{name}.json")
     return record
+
+
+def export(ref: str, folder: Path) -> Path:
+    """The tree of git ``ref`` of this repository, written to ``folder``."""
+    folder.mkdir(parents=True)
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", ref], check=True,
+                             capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive, check=True)
+    return folder
