@@ -27,23 +27,62 @@ Modules, by what they do:
 
 from __future__ import annotations
 
-from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.compare import PairedComparison, matched_by_label, paired_comparison
-from tap_bench.bench.coverage import (
-    CoverageResult,
-    Reference,
-    corpus_reference,
-    coverage,
-    vocabulary_reference,
-)
-from tap_bench.bench.episodes import episode_table, episodes_from_table
-from tap_bench.bench.gate import GateResult, check, read_baseline, write_baseline
-from tap_bench.bench.measures import MEASURES, Measure, ego_measures
-from tap_bench.bench.novelty import NoveltyResult, novelty
-from tap_bench.bench.runner import RunResult, read_run, run_suite
-from tap_bench.bench.scenarios import match_scenarios
-from tap_bench.bench.scoring import Scores, score
-from tap_bench.bench.suite import GateConfig, Suite, available_suites, load_suite
+import importlib
+import importlib.util
+import sys
+import types
+from typing import Any
+
+# The public names by module, imported on first use (as in :mod:`tap_bench`): importing one
+# module of the package, such as the episode cache, does not import every other one (a
+# re-run whose outputs are in the cache never needs pandas' scoring or the report).
+_LAZY_MODULES = {
+    "tap_bench.bench.bootstrap": ("BootstrapConfig",),
+    "tap_bench.bench.compare": ("PairedComparison", "matched_by_label", "paired_comparison"),
+    "tap_bench.bench.coverage": ("CoverageResult", "Reference", "corpus_reference",
+                                 "coverage", "vocabulary_reference"),
+    "tap_bench.bench.episodes": ("episode_table", "episodes_from_table"),
+    "tap_bench.bench.gate": ("GateResult", "check", "read_baseline", "write_baseline"),
+    "tap_bench.bench.measures": ("MEASURES", "Measure", "ego_measures"),
+    "tap_bench.bench.novelty": ("NoveltyResult", "novelty"),
+    "tap_bench.bench.runner": ("RunResult", "read_run", "run_suite"),
+    "tap_bench.bench.scenarios": ("match_scenarios",),
+    "tap_bench.bench.scoring": ("Scores", "score"),
+    "tap_bench.bench.suite": ("GateConfig", "Suite", "available_suites", "load_suite"),
+}
+_LAZY = {name: module for module, names in _LAZY_MODULES.items() for name in names}
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        if not name.startswith("_") and importlib.util.find_spec(f"tap_bench.bench.{name}"):
+            return importlib.import_module(f"tap_bench.bench.{name}")  # a submodule
+        raise AttributeError(f"module 'tap_bench.bench' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # the next access is a plain attribute
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY})
+
+
+class _Package(types.ModuleType):
+    """``tap_bench.bench.coverage`` and ``tap_bench.bench.novelty`` are the functions that
+    ``from tap_bench.bench import coverage`` promises, also after their submodules have been
+    imported (as :mod:`tap_bench.sim` does for ``rollout``): the import system's setting
+    of the package's attribute to the submodule is refused here (the submodule stays in
+    ``sys.modules``, where ``from tap_bench.bench.coverage import X`` finds it)."""
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name in _LAZY and isinstance(value, types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
+
 
 __all__ = [
     # the episode table and its measures
