@@ -9,7 +9,7 @@ from pathlib import Path
 
 from tap_bench.errors import FileFormatError, TrajectoryTableError
 from tap_bench.execution import add_backend_arguments
-from tap_bench.labelling import INTERACTION_TRACKS, tap
+from tap_bench.labelling import INTERACTION_TRACKS, tap_in_parts
 from tap_bench.sdl import LEVELS
 from tap_bench.stages import StageConfig
 from tap_bench.tableio import check_outputs, read_table, write_tables
@@ -78,8 +78,9 @@ def run(args: argparse.Namespace) -> int:
     lanes = _lanes(args.map) if args.map else None
     t1 = time.perf_counter()
     config = _config(args)
-    result = tap(table, args.thresholds, config, source=str(args.input),
-                 interactions=args.interactions, map_table=lanes)
+    # a large table scenario by scenario (the same tables, a fraction of the memory)
+    result = tap_in_parts(table, args.thresholds, config, source=str(args.input),
+                          interactions=args.interactions, map_table=lanes)
     labels = result.labels(args.level)
     short = result.short_segments
     if len(result.segments_info) == 0:
