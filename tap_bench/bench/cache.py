@@ -51,7 +51,9 @@ the content of its inputs (:func:`table_digest` of each input table, the setting
 matter) and the code of the whole tap-bench package with the versions of NumPy, pandas,
 PyArrow and SciPy (:func:`derived_key`), and verified whole like the other entries, so a
 change of any input or of any tap-bench module makes them again, and what a re-run serves
-is what it would have made.
+is what it would have made. A whole run whose every input is unchanged is kept too
+(kind ``runs``: its run folder, served without reading an episode;
+:mod:`tap_bench.bench.run_cache`).
 
 **Location and size**: ``$TAP_BENCH_CACHE``, else ``$XDG_CACHE_HOME/tap-bench``, else
 ``~/.cache/tap-bench`` (:func:`default_cache_dir`). An entry of the default suite is about

@@ -94,7 +94,7 @@ def runs(tmp_path_factory):
 
 def test_an_unchanged_rerun_is_served_whole_and_equal(runs, tmp_path, monkeypatch):
     _, cold, first, cache = runs
-    assert not served(first) and len(list((cache.derived_folder / "runs").glob("*/*"))) == 1
+    assert not served(first) and cache.derived_path("runs", run_key(cache, tiny())).is_file()
     _no_work(monkeypatch)
     again = run(tmp_path / "first", cache)  # the same folder name, another place
     assert served(again)
@@ -231,17 +231,22 @@ def test_every_input_that_changes_an_output_misses(runs, tmp_path, monkeypatch, 
     assert_tables_equal(cold, again)
 
 
-def test_the_key_holds_every_input(runs, monkeypatch):
-    """The keys of runs that differ in one input differ (no run needed)."""
+def run_key(cache, suite, keep=True, report=True, seeds=None):
+    """The key of a run's entry."""
     from tap_bench.bench.run_plan import _tasks, plan_suite
 
-    _, _, _, cache = runs
+    plan = plan_suite(suite, seeds=seeds)
+    inputs = run_cache.run_inputs(plan, _tasks(plan, keep, cache), keep_trajectories=keep,
+                                  report=report)
+    return derived_key("runs", inputs)[0]
 
-    def key(suite, keep=True, report=True, seeds=None):
-        plan = plan_suite(suite, seeds=seeds)
-        inputs = run_cache.run_inputs(plan, _tasks(plan, keep, cache), keep_trajectories=keep,
-                                      report=report)
-        return derived_key("runs", inputs)[0]
+
+def test_the_key_holds_every_input(runs):
+    """The keys of runs that differ in one input differ (no run needed)."""
+    cache = runs[3]
+
+    def key(suite, **kwargs):
+        return run_key(cache, suite, **kwargs)
 
     base = key(tiny())
     assert key(tiny()) == base
@@ -260,7 +265,7 @@ def test_a_damaged_run_entry_is_made_again(runs, tmp_path, damage):
     _, cold, _, cache = runs
     mine = EpisodeCache(tmp_path / "cache")
     shutil.copytree(cache.root, mine.root)
-    (entry,) = (mine.derived_folder / "runs").glob("*/*.derived")
+    entry = mine.derived_path("runs", run_key(mine, tiny()))
     data = entry.read_bytes()
     entry.write_bytes({"torn": data[:-11], "flipped": data[:-9] + bytes([data[-9] ^ 4])
                        + data[-8:], "emptied": b"",
@@ -277,7 +282,7 @@ def test_a_run_entry_that_is_not_a_run_is_made_again(runs, tmp_path):
     _, cold, _, cache = runs
     mine = EpisodeCache(tmp_path / "cache")
     shutil.copytree(cache.root, mine.root)
-    (entry,) = (mine.derived_folder / "runs").glob("*/*.derived")
+    entry = mine.derived_path("runs", run_key(mine, tiny()))
     header = json.loads(entry.read_bytes().partition(b"\n")[0])
     mine.put_derived("runs", header["key"], header["doc"], {"pages.json": b"{}"})
     result = run(tmp_path / "run", mine)
