@@ -28,19 +28,18 @@ Modules, by what they do:
 from __future__ import annotations
 
 import importlib
-import importlib.util
 import sys
 import types
 from typing import Any
 
-# The public names by module, imported on first use (as in :mod:`tap_bench`): importing one
-# module of the package, such as the episode cache, does not import every other one (a
-# re-run whose outputs are in the cache never needs pandas' scoring or the report).
+# Names resolve on first use (PEP 562), so a worker of ``bench run`` that imports
+# ``tap_bench.bench.run_tasks`` loads the task modules, not the runner, the gate, the
+# scoring and the report; ``from tap_bench.bench import Suite`` works as before.
 _LAZY_MODULES = {
     "tap_bench.bench.bootstrap": ("BootstrapConfig",),
     "tap_bench.bench.compare": ("PairedComparison", "matched_by_label", "paired_comparison"),
-    "tap_bench.bench.coverage": ("CoverageResult", "Reference", "corpus_reference",
-                                 "coverage", "vocabulary_reference"),
+    "tap_bench.bench.coverage": ("CoverageResult", "Reference", "corpus_reference", "coverage",
+                                 "vocabulary_reference"),
     "tap_bench.bench.episodes": ("episode_table", "episodes_from_table"),
     "tap_bench.bench.gate": ("GateResult", "check", "read_baseline", "write_baseline"),
     "tap_bench.bench.measures": ("MEASURES", "Measure", "ego_measures"),
@@ -56,8 +55,6 @@ _LAZY = {name: module for module, names in _LAZY_MODULES.items() for name in nam
 def __getattr__(name: str) -> Any:
     module = _LAZY.get(name)
     if module is None:
-        if not name.startswith("_") and importlib.util.find_spec(f"tap_bench.bench.{name}"):
-            return importlib.import_module(f"tap_bench.bench.{name}")  # a submodule
         raise AttributeError(f"module 'tap_bench.bench' has no attribute {name!r}")
     value = getattr(importlib.import_module(module), name)
     globals()[name] = value  # the next access is a plain attribute
@@ -69,11 +66,10 @@ def __dir__() -> list[str]:
 
 
 class _Package(types.ModuleType):
-    """``tap_bench.bench.coverage`` and ``tap_bench.bench.novelty`` are the functions that
-    ``from tap_bench.bench import coverage`` promises, also after their submodules have been
-    imported (as :mod:`tap_bench.sim` does for ``rollout``): the import system's setting
-    of the package's attribute to the submodule is refused here (the submodule stays in
-    ``sys.modules``, where ``from tap_bench.bench.coverage import X`` finds it)."""
+    """``tap_bench.bench.coverage`` (and ``novelty``) is the function ``from tap_bench.bench
+    import coverage`` promises, also after its submodule has been imported: the import
+    system then sets the package's attribute of that name to the submodule, which is
+    refused here, as in :mod:`tap_bench.sim` (the submodule stays in ``sys.modules``)."""
 
     def __setattr__(self, name: str, value: Any) -> None:
         if name in _LAZY and isinstance(value, types.ModuleType):
