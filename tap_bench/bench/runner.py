@@ -44,9 +44,9 @@ is read instead of simulated, and its labels and measures too when they were mad
 same thresholds, level and code (those episodes are read in this process: no worker
 starts for them); the scores, figures and viewer data of unchanged inputs are read too,
 and a run whose every input is unchanged is served whole (:mod:`tap_bench.bench.
-run_cache`). A run with the cache gives the same tables as one without, float for float. Before the episodes start, the run
-estimates how long it will take, from the cache's timings of earlier runs or by timing a
-first episode of each env.
+run_cache`). A run with the cache gives the same tables as one without, float for float.
+Before the episodes start, the run estimates how long it will take, from the cache's
+timings of earlier runs or by timing a first episode of each env.
 """
 
 from __future__ import annotations
