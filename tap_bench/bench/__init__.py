@@ -27,23 +27,58 @@ Modules, by what they do:
 
 from __future__ import annotations
 
-from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.compare import PairedComparison, matched_by_label, paired_comparison
-from tap_bench.bench.coverage import (
-    CoverageResult,
-    Reference,
-    corpus_reference,
-    coverage,
-    vocabulary_reference,
-)
-from tap_bench.bench.episodes import episode_table, episodes_from_table
-from tap_bench.bench.gate import GateResult, check, read_baseline, write_baseline
-from tap_bench.bench.measures import MEASURES, Measure, ego_measures
-from tap_bench.bench.novelty import NoveltyResult, novelty
-from tap_bench.bench.runner import RunResult, read_run, run_suite
-from tap_bench.bench.scenarios import match_scenarios
-from tap_bench.bench.scoring import Scores, score
-from tap_bench.bench.suite import GateConfig, Suite, available_suites, load_suite
+import importlib
+import sys
+import types
+from typing import Any
+
+# Names resolve on first use (PEP 562), so a worker of ``bench run`` that imports
+# ``tap_bench.bench.run_tasks`` loads the task modules, not the runner, the gate, the
+# scoring and the report; ``from tap_bench.bench import Suite`` works as before.
+_LAZY_MODULES = {
+    "tap_bench.bench.bootstrap": ("BootstrapConfig",),
+    "tap_bench.bench.compare": ("PairedComparison", "matched_by_label", "paired_comparison"),
+    "tap_bench.bench.coverage": ("CoverageResult", "Reference", "corpus_reference", "coverage",
+                                 "vocabulary_reference"),
+    "tap_bench.bench.episodes": ("episode_table", "episodes_from_table"),
+    "tap_bench.bench.gate": ("GateResult", "check", "read_baseline", "write_baseline"),
+    "tap_bench.bench.measures": ("MEASURES", "Measure", "ego_measures"),
+    "tap_bench.bench.novelty": ("NoveltyResult", "novelty"),
+    "tap_bench.bench.runner": ("RunResult", "read_run", "run_suite"),
+    "tap_bench.bench.scenarios": ("match_scenarios",),
+    "tap_bench.bench.scoring": ("Scores", "score"),
+    "tap_bench.bench.suite": ("GateConfig", "Suite", "available_suites", "load_suite"),
+}
+_LAZY = {name: module for module, names in _LAZY_MODULES.items() for name in names}
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'tap_bench.bench' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # the next access is a plain attribute
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY})
+
+
+class _Package(types.ModuleType):
+    """``tap_bench.bench.coverage`` (and ``novelty``) is the function ``from tap_bench.bench
+    import coverage`` promises, also after its submodule has been imported: the import
+    system then sets the package's attribute of that name to the submodule, which is
+    refused here, as in :mod:`tap_bench.sim` (the submodule stays in ``sys.modules``)."""
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name in _LAZY and isinstance(value, types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
+
 
 __all__ = [
     # the episode table and its measures

@@ -105,7 +105,10 @@ def _describe_source(source: ReferenceSource) -> Any:
 
 def _headline(scores: Scores, episodes: pd.DataFrame) -> dict[str, Any]:
     """Per policy, pooled over envs: each measure's mean with its interval (``<measure>``,
-    ``<measure>_low``, ``<measure>_high``), coverage of the reference."""
+    ``<measure>_low``, ``<measure>_high``), coverage of the reference and, where the
+    same-policy null was computed, the figures at half sizes it compares (``<coverage
+    key>: same-policy figure``, ``: policy at halves``, ``: difference`` = policy at halves
+    minus same-policy figure, with ``_low`` / ``_high``)."""
     out: dict[str, Any] = {}
     m = scores.measures
     pooled_env = "all" if (m["env"] == "all").any() else m["env"].iloc[0] if len(m) else ""
@@ -125,6 +128,7 @@ def _headline(scores: Scores, episodes: pd.DataFrame) -> dict[str, Any]:
                 row[key] = _round(r["coverage"])
                 if np.isfinite(r.get("coverage_diff", np.nan)):  # the same-policy null
                     row[f"{key}: same-policy figure"] = _round(r["null_coverage"])
+                    row[f"{key}: policy at halves"] = _round(r["half_coverage"])
                     row[f"{key}: difference"] = _round(r["coverage_diff"])
                     row[f"{key}: difference_low"] = _round(r["coverage_diff_low"])
                     row[f"{key}: difference_high"] = _round(r["coverage_diff_high"])

@@ -5,7 +5,9 @@ from __future__ import annotations
 import re
 import time
 import warnings
+from decimal import Decimal
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -110,10 +112,44 @@ def test_demo_runs_and_prints_the_report(tmp_path, capsys):
     assert "episodes done (" in out and "writing the tables" in out
     assert re.search(r"crash rate \d+% \[\d+%, \d+%\]", out)
     assert "random vs idm: LESS SAFE" in out
-    # coverage beside the same-policy figure and the difference from it (issue 25)
-    assert re.search(r"coverage of idm rollouts \d+% \(same policy \d+%: [+-]\d+ pts "
-                     r"\[[+-]\d+, [+-]\d+\]\)", out)
+    # coverage beside the same-policy figure and the difference from it (issue 25), both
+    # at the half sizes the difference is taken at: the shown figures subtract to it
+    found = re.findall(r"coverage of idm rollouts \d+% \(halves: policy ([\d.]+)% vs same "
+                       r"policy ([\d.]+)%: ([+-][\d.]+) pts \[[+-][\d.]+, [+-][\d.]+\]\)", out)
+    assert len(found) == 3  # every policy but the reference
+    for half, null, diff in found:
+        assert Decimal(half) - Decimal(null) == Decimal(diff)
     print(f"demo wall time {elapsed:.0f} s")
+
+
+def test_demo_line_shows_the_half_size_figures_that_subtract_to_the_difference():
+    """The demo's coverage line compares at half sizes: it shows the policy's figure there
+    beside the same-policy one, with as many decimals as the shown figures need to
+    subtract to the shown difference; no "-0"; nothing without the null."""
+    from tap_bench.cli.demo import _halves
+
+    key = "coverage of idm rollouts"
+
+    def row(half, null, diff, low, high):
+        return {key: 0.41, f"{key}: policy at halves": half,
+                f"{key}: same-policy figure": null, f"{key}: difference": diff,
+                f"{key}: difference_low": low, f"{key}: difference_high": high}
+
+    assert _halves(row(0.2833, 0.5012, -0.2179, -0.35, -0.09), key) == (
+        " (halves: policy 28% vs same policy 50%: -22 pts [-35, -9])")
+    # 28 - 51 is not -22: one decimal
+    assert _halves(row(0.2840, 0.5060, -0.2220, -0.3504, -0.0049), key) == (
+        " (halves: policy 28.4% vs same policy 50.6%: -22.2 pts [-35.0, -0.5])")
+    assert _halves(row(0.5, 0.5, -0.002, -0.1, 0.1), key) == (
+        " (halves: policy 50% vs same policy 50%: +0 pts [-10, +10])")
+    gen = np.random.default_rng(5)
+    for _ in range(500):
+        half, null = (round(float(x), 4) for x in gen.random(2))
+        text = _halves(row(half, null, round(half - null, 4), -1.0, 1.0), key)
+        shown = re.fullmatch(r" \(halves: policy ([\d.]+)% vs same policy ([\d.]+)%: "
+                             r"([+-][\d.]+) pts \[.*\]\)", text).groups()
+        assert Decimal(shown[0]) - Decimal(shown[1]) == Decimal(shown[2]), (half, null, text)
+    assert _halves({key: 0.41}, key) == ""
 
 
 def test_coverage_cuts_long_episodes_into_windows_of_the_reference_s_track_length(

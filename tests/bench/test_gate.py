@@ -426,6 +426,68 @@ def test_rate_power_is_the_rule_s_own_firing_rate():
         assert abs(fired / draws - exact) < 3.5 * se + 0.01, (n, c0, exact, fired / draws)
 
 
+def _tv_power_permuting(labels, effect, margin, level, n_run, paired, rng):
+    """label_tv's power as first written: every permutation's code matrices built and
+    their TV computed by gate_stats.tv (the reference the counted version must equal)."""
+    from tap_bench.bench.gate_stats import tv
+    from tap_bench.bench.power import _TV_DRAWS, _TV_PERMUTATIONS
+
+    _, codes = np.unique(labels, return_inverse=True)
+    k = int(codes.max()) + 2
+    n_b = len(codes)
+    fired = 0
+    for _ in range(_TV_DRAWS):
+        assert paired
+        run = codes.copy()
+        redraw = rng.random(n_b) < 0.5
+        run[redraw] = rng.choice(codes, size=int(redraw.sum()))
+        run[rng.random(n_b) < effect] = k - 1
+        observed = tv(codes[None, :], run[None, :], k)[0]
+        if observed <= margin:
+            continue
+        differ = np.flatnonzero(codes != run)
+        flips = np.ones((_TV_PERMUTATIONS, n_b), bool)
+        flips[:, differ] = rng.random((_TV_PERMUTATIONS, len(differ))) < 0.5
+        perm = tv(np.where(flips, codes, run), np.where(flips, run, codes), k)
+        exceed = (perm >= observed - 1e-12).sum()
+        fired += (1 + exceed) / (1 + _TV_PERMUTATIONS) <= level
+    return fired / _TV_DRAWS
+
+
+def test_label_tv_power_counts_the_permutations_as_building_them_would():
+    """The paired label_tv power counts each permutation's labels from the seeds it swaps
+    (a small matrix product, in row blocks) instead of building the permuted code
+    matrices: every permutation's TV equals gate_stats.tv's float for float, and the power
+    (same random stream) is the same, on drawn cells: 1 to 9 labels, 3 to 400 seeds (row
+    blocks), effects, margins and levels of every kind."""
+    from tap_bench.bench.gate_stats import tv
+    from tap_bench.bench.power import _swapped_tv, _tv_power
+
+    gen = np.random.default_rng(11)
+    powers = []
+    for case in range(40):
+        n = int(gen.choice([3, 5, 8, 12, 17, 24, 36, 60])) if case % 10 else 400
+        k = int(gen.integers(1, 10)) + 1
+        codes = gen.integers(0, k - 1, n)
+        run = np.where(gen.random(n) < gen.random(), gen.integers(0, k, n), codes)
+        differ = np.flatnonzero(codes != run)
+        flips = np.ones((999, n), bool)
+        flips[:, differ] = gen.random((999, len(differ))) < 0.5
+        counts = [np.bincount(c, minlength=k) for c in (codes, run)]
+        fast = _swapped_tv(codes[differ], run[differ], ~flips[:, differ], *counts)
+        slow = tv(np.where(flips, codes, run), np.where(flips, run, codes), k)
+        assert (fast == slow).all(), case
+
+        labels = np.array([f"l{j}" for j in codes])
+        effect = float(gen.choice([0.05, 0.2, 0.5, 0.9]))
+        margin, level = 0.3 * float(gen.random()), float(gen.choice([0.002, 0.01, 0.05]))
+        args = (labels, effect, margin, level, n, True)
+        power = _tv_power(*args, np.random.default_rng(case))
+        assert power == _tv_power_permuting(*args, np.random.default_rng(case)), (case, args)
+        powers.append(power)
+    assert 0 < np.mean(powers) < 1 and len(set(powers)) > 10  # cells of every power
+
+
 def test_fewer_seeds_than_the_baseline_is_underpowered_and_exits_3(tmp_path, capsys):
     base = synthetic(0, n=30)
     run_eps = base[base["seed"] % 1000 < 5]  # the first 5 of the baseline's 30 seeds

@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 import tap_bench
+import tap_bench.bench
 import tap_bench.sim
 import tap_bench.similarity
 from tap_bench.cli import COMMANDS, build_parser, main
@@ -22,8 +23,8 @@ from tap_bench.cli import COMMANDS, build_parser, main
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.mark.parametrize("package", [tap_bench, tap_bench.sim, tap_bench.similarity],
-                         ids=lambda p: p.__name__)
+@pytest.mark.parametrize("package", [tap_bench, tap_bench.bench, tap_bench.sim,
+                                     tap_bench.similarity], ids=lambda p: p.__name__)
 def test_every_public_name_resolves(package):
     for name in package.__all__:
         value = getattr(package, name)
@@ -101,3 +102,19 @@ def test_the_runners_workers_and_scoring_do_not_load_numba(tmp_path):
                            tmp_path)
     assert "numba" not in loaded
     assert "numba" in _loaded_after("from tap_bench.similarity import ade_nearest", tmp_path)
+
+
+def test_a_worker_loads_the_task_modules_not_the_runner_gate_or_report(tmp_path):
+    """``tap_bench.bench`` resolves its names lazily: a worker importing the task module
+    loads neither the runner, the gate (and its power) nor the report and viewer."""
+    script = ("import sys\nimport tap_bench.bench.run_tasks\n"
+              "print(sorted(m for m in sys.modules if m.startswith('tap_bench.bench.')))")
+    out = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, check=True,
+                         capture_output=True, text=True,
+                         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
+                              "TAP_BENCH_CACHE": str(tmp_path / "cache")})
+    loaded = set(eval(out.stdout.strip().splitlines()[-1]))
+    assert "tap_bench.bench.run_tasks" in loaded
+    assert not loaded & {"tap_bench.bench.runner", "tap_bench.bench.gate",
+                         "tap_bench.bench.power", "tap_bench.bench.report",
+                         "tap_bench.bench.viewer", "tap_bench.bench.scoring"}
