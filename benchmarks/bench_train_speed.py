@@ -11,12 +11,19 @@ subreaper (Linux ``prctl``): orphaned descendants are re-parented to it and reap
 their CPU time is counted in ``RUSAGE_CHILDREN``. Where that is not available, ``cpu_s`` says
 ``null`` rather than a figure without the workers.
 
-"before" runs the code of a git commit (``--before-ref``, exported to a temporary folder);
-the other runs use this checkout with the settings given: ``n_envs`` training envs in
-parallel processes, on the scenario's fast variant or on the scenario itself (``--exact``).
+"before" runs the code of a git commit (``--before-ref``, exported to a temporary folder)
+with its defaults (from issue 16 on: a learning curve, whose evaluations are not in its
+steps per second but are in its CPU seconds); "before-no-curve" the same code with
+``--no-curve``, the CPU of its training alone: the summary gives each variant's CPU per step
+against it (``cpu_per_step_vs_before_no_curve``), a figure the machine's load moves less
+than steps per second. The other runs use this checkout with the settings given:
+``n_envs`` training envs in parallel processes, on the scenario's fast variant or on the
+scenario itself (``--exact``). CPU seconds include each process's start (imports: about 4
+CPU s of a 2000-step run; an exported tree has no compiled ``.pyc`` where
+``PYTHONDONTWRITEBYTECODE`` is set, and neither does a fresh checkout).
 
 Usage: python benchmarks/bench_train_speed.py [--timesteps 2000] [--algos dqn,ppo]
-       [--before-ref ada5ea7] [--repeats 1]
+       [--before-ref ada5ea7] [--repeats 1] [--variants before,before-no-curve,2-envs-fast]
 """
 
 from __future__ import annotations
@@ -36,8 +43,9 @@ from pathlib import Path
 from machine import export, report
 
 ROOT = Path(__file__).resolve().parents[1]
-VARIANTS = {  # name: extra arguments of `tap-bench train` (None: the "before" code)
-    "before": None,
+VARIANTS = {  # name: extra arguments of `tap-bench train` ("before*": the "before" code)
+    "before": [],  # its defaults: a learning curve, whose evaluations CPU seconds include
+    "before-no-curve": ["--no-curve"],  # the same steps per second, CPU of training alone
     "1-env-exact": ["--n-envs", "1", "--exact", "--no-curve"],
     "1-env-fast": ["--n-envs", "1", "--no-curve"],
     "2-envs-exact": ["--n-envs", "2", "--exact", "--no-curve"],
@@ -114,25 +122,33 @@ def main() -> None:
         for algo in args.algos.split(","):
             for repeat in range(args.repeats):
                 for name in args.variants.split(","):
-                    extra = VARIANTS[name]
-                    source = before if extra is None else ROOT
-                    result = run(source, algo, args.timesteps, extra or [], out, subreaper)
+                    source = before if name.startswith("before") else ROOT
+                    result = run(source, algo, args.timesteps, VARIANTS[name], out, subreaper)
                     key = f"{algo} / {name}" + (f" / run {repeat}" if args.repeats > 1 else "")
                     figures[key] = result
                     print(key, result, flush=True)
         summary: dict[str, dict] = {}
         for algo in args.algos.split(","):
             for name in args.variants.split(","):
-                runs = [r["steps_per_s"] for k, r in figures.items()
-                        if k.split(" / ")[:2] == [algo, name]]
-                summary[f"{algo} / {name}"] = {"median_steps_per_s": statistics.median(runs),
-                                               "runs": runs}
+                runs = [r for k, r in figures.items() if k.split(" / ")[:2] == [algo, name]]
+                cpu = [r["cpu_ms_per_step"] for r in runs]
+                summary[f"{algo} / {name}"] = {
+                    "median_steps_per_s": statistics.median(r["steps_per_s"] for r in runs),
+                    "runs": [r["steps_per_s"] for r in runs],
+                    "median_cpu_ms_per_step": None if None in cpu else statistics.median(cpu)}
             base = summary.get(f"{algo} / before")
-            if base:
-                for key, row in summary.items():
-                    if key.startswith(f"{algo} /"):
-                        row["speedup"] = round(row["median_steps_per_s"]
-                                               / base["median_steps_per_s"], 2)
+            # CPU per step against the before code's training alone (without its curve)
+            cpu_base = summary.get(f"{algo} / before-no-curve")
+            for key, row in summary.items():
+                if not key.startswith(f"{algo} /"):
+                    continue
+                if base:
+                    row["speedup"] = round(row["median_steps_per_s"]
+                                           / base["median_steps_per_s"], 2)
+                if cpu_base and cpu_base["median_cpu_ms_per_step"] \
+                        and row["median_cpu_ms_per_step"] is not None:
+                    row["cpu_per_step_vs_before_no_curve"] = round(
+                        row["median_cpu_ms_per_step"] / cpu_base["median_cpu_ms_per_step"], 2)
         for key, row in summary.items():
             print(key, row, flush=True)
         figures["summary (median over repeats)"] = summary

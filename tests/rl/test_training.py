@@ -389,3 +389,47 @@ def test_train_prints_each_phase_when_not_on_a_terminal(tmp_path, write_scenario
     assert list(first) == sorted(first, key=first.get)  # in the order they happen
     assert sum("learning curve: 0 steps: return" in line for line in lines) == 1
     assert sum(line.startswith("learning curve: evaluation") for line in lines) == 3
+
+
+def test_the_workers_forkserver_preloads_their_modules_and_the_setting_is_restored(
+        monkeypatch):
+    """The forkserver imports what every training env worker needs once, before it forks
+    them (rather than each worker importing torch, SB3 and highway-env), as well as
+    ``__main__``; the preload list is back as it was afterwards, also after an error."""
+    import importlib
+    import multiprocessing.forkserver
+
+    from tap_bench.rl.training import WORKER_MODULES, _workers_preloaded
+    from tap_bench.sim.womd_scene import WomdScenes
+
+    for name in WORKER_MODULES:  # every name is a module that imports
+        importlib.import_module(name)
+    server = multiprocessing.forkserver._forkserver
+    monkeypatch.setattr(server, "_preload_modules", ["__main__", "mine"])
+    with _workers_preloaded(get_scenario("highway")):
+        assert server._preload_modules == ["__main__", "mine", *WORKER_MODULES]
+    assert server._preload_modules == ["__main__", "mine"]
+    scenes = WomdScenes.__new__(WomdScenes)
+    with pytest.raises(KeyError), _workers_preloaded(scenes):
+        assert server._preload_modules[-1] == "tap_bench.sim.womd_env"
+        raise KeyError("inside")
+    assert server._preload_modules == ["__main__", "mine"]
+
+
+def test_a_two_env_training_is_reproducible(tmp_path, write_scenario):
+    """The same seed gives the same weights with the envs in worker processes (DQN's
+    overlapped gradient steps included)."""
+    import torch
+
+    short = write_scenario("short", duration=5)
+    weights = []
+    for k in range(2):
+        from tap_bench.rl.training import train
+
+        result = train("dqn", short, timesteps=60, seed=3, n_envs=2,
+                       hyperparameters=TINY["dqn"], output=tmp_path / f"m{k}.zip")
+        from stable_baselines3 import DQN
+
+        weights.append(DQN.load(result.model_path, device="cpu").policy.state_dict())
+    assert weights[0].keys() == weights[1].keys()
+    assert all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])

@@ -6,6 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from highway_env.envs.common.observation import KinematicObservation
+from highway_env.vehicle.behavior import IDMVehicle
+from highway_env.vehicle.kinematics import Vehicle
+from highway_env.vehicle.objects import Obstacle
 
 from tap_bench.sim import make_env
 from tap_bench.sim.observation import FastKinematicObservation, use_fast_observation
@@ -110,3 +113,204 @@ def test_a_reset_observes_with_the_numpy_observation_from_its_first_observation(
     obs, _ = env.reset(seed=1)
     assert KinematicObservation not in calls
     np.testing.assert_array_equal(obs, original(env.unwrapped.observation_type))
+
+
+# Drawn scenes: the numpy observation against highway-env's own, bit for bit, over every
+# option of the Kinematics observation, vehicles of user classes, obstacles and objects on
+# the perception limit; each formula's mutation is caught.
+
+FEATURE_LISTS = [
+    ["presence", "x", "y", "vx", "vy"],  # highway-env's default (highway, merge ...)
+    ["presence", "x", "y", "vx", "vy", "cos_h", "sin_h"],  # intersection, exit
+    ["presence", "x", "y", "vx", "vy", "cos_h", "sin_h", "heading"],
+    ["x", "vy", "presence"],  # another order
+    ["presence", "x", "y", "vx", "long_off", "lat_off", "ang_off", "cos_d", "sin_d"],
+]
+
+
+def _shifted_to_dict(self, origin_vehicle=None, observe_intentions=True):
+    """A user's ``to_dict``: highway-env's, every position one metre on."""
+    d = Vehicle.to_dict(self, origin_vehicle, observe_intentions)
+    d["x"] += 1.0
+    return d
+
+
+class _OwnDict(IDMVehicle):
+    """A user vehicle class with its own ``to_dict``."""
+
+    to_dict = _shifted_to_dict
+
+
+class _OwnVelocity(IDMVehicle):
+    """A user vehicle class with its own ``velocity`` (a slip angle)."""
+
+    @property
+    def velocity(self):
+        return self.speed * np.array([np.cos(self.heading + 0.1), np.sin(self.heading + 0.1)])
+
+
+def _drawn_scene(rng: np.random.Generator, envs: dict):
+    """A highway road with drawn traffic around the ego: drawn positions (some beyond the
+    perception distance, some exactly on it, behind and ahead), headings of every kind,
+    speeds (negative too), user classes and obstacles."""
+    lanes = int(rng.integers(1, 5))
+    if lanes not in envs:
+        envs[lanes] = make_env("highway", config={"lanes_count": lanes}, record=False,
+                               duration=2)
+    env = envs[lanes]
+    env.reset(seed=int(rng.integers(10_000)))
+    inner = env.unwrapped
+    road, ego = inner.road, inner.vehicle
+    keep = [v for v in road.vehicles[1:] if rng.random() < 0.8][:int(rng.integers(0, 25))]
+    limit = inner.PERCEPTION_DISTANCE
+    for v in keep:
+        kind = rng.random()
+        if kind < 0.1:  # exactly on the perception limit, or just beyond
+            sign = rng.choice([-1.0, 1.0])
+            v.position = ego.position + np.array([sign * limit, 0.0])
+            if rng.random() < 0.5:
+                v.position[0] = np.nextafter(v.position[0], sign * np.inf)
+        else:
+            v.position = ego.position + rng.uniform([-260, -12], [260, 12])
+        v.heading = float(rng.choice([0.0, np.pi, rng.uniform(-np.pi, np.pi)]))
+        v.speed = float(rng.uniform(-5, 40))
+        if rng.random() < 0.15:
+            v.__class__ = _OwnDict if rng.random() < 0.5 else _OwnVelocity
+        v.on_state_update()
+    road.vehicles[:] = [ego, *keep]
+    road.objects[:] = [Obstacle(road, ego.position + rng.uniform([-80, -8], [80, 8]))
+                       for _ in range(int(rng.integers(0, 3)))]
+    if rng.random() < 0.1:  # an ego of a user class
+        ego.__class__ = type("UserEgo", (type(ego),), {"to_dict": _shifted_to_dict})
+    return env
+
+
+def _drawn_config(rng: np.random.Generator) -> dict:
+    config = {"vehicles_count": int(rng.integers(1, 13)),
+              "features": list(FEATURE_LISTS[int(rng.integers(len(FEATURE_LISTS)))]),
+              "absolute": bool(rng.random() < 0.3),
+              "order": "shuffled" if rng.random() < 0.2 else "sorted",
+              "normalize": bool(rng.random() < 0.8), "clip": bool(rng.random() < 0.7),
+              "see_behind": bool(rng.random() < 0.3),
+              "observe_intentions": bool(rng.random() < 0.3),
+              "include_obstacles": bool(rng.random() < 0.8)}
+    if rng.random() < 0.3:  # ranges of the config: integers, presence included
+        config["features_range"] = {"x": [-100, 100], "y": [-12, 12], "vx": [-30.0, 30.0],
+                                    "presence": [0, 2]}
+    return config
+
+
+def _both(env, config: dict, fast_class=FastKinematicObservation):
+    """(numpy, highway-env's) observation of the current scene with ``config``."""
+    inner = env.unwrapped
+    state = inner.np_random.bit_generator.state  # "shuffled" draws from it
+    ours = fast_class(inner, **config).observe()
+    inner.np_random.bit_generator.state = state
+    theirs = KinematicObservation(inner, **config).observe()
+    return ours, theirs
+
+
+def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
+    return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
+
+
+def _drawn_cases(seed: int, n: int):
+    rng = np.random.default_rng(seed)
+    envs: dict = {}
+    for _ in range(n):
+        env = _drawn_scene(rng, envs)
+        for _ in range(3):
+            yield env, _drawn_config(rng)
+
+
+def test_the_fast_observation_is_highway_envs_on_drawn_scenes(monkeypatch):
+    from tap_bench.sim import observation
+
+    paths = {"direct": 0, "dict": 0}
+    for name, key in (("_direct_rows", "direct"), ("_dict_rows", "dict")):
+        original = getattr(FastKinematicObservation, name)
+
+        def counted(self, *args, _original=original, _key=key):
+            paths[_key] += 1
+            return _original(self, *args)
+
+        monkeypatch.setattr(FastKinematicObservation, name, counted)
+    seen = {"rows": set(), "limit": 0, "shuffled": 0, "beyond count": 0}
+    for env, config in _drawn_cases(0, 120):
+        ours, theirs = _both(env, config)
+        assert _same_bits(ours, theirs), config
+        seen["rows"].add(int((theirs[:, config["features"].index("presence")] != 0).sum()))
+        seen["shuffled"] += config["order"] == "shuffled"
+        ego = env.unwrapped.vehicle
+        seen["limit"] += any(np.linalg.norm(v.position - ego.position)
+                             == env.unwrapped.PERCEPTION_DISTANCE
+                             for v in env.unwrapped.road.vehicles)
+        seen["beyond count"] += theirs.shape[0] > config["vehicles_count"]
+    # the draws reach every case: empty and full observations, both row paths, the limit
+    assert {1, 2}.issubset(seen["rows"]) and max(seen["rows"]) >= 10, seen
+    assert paths["direct"] >= 100 and paths["dict"] >= 50, paths
+    assert seen["limit"] >= 20 and seen["shuffled"] >= 20, seen
+    assert observation._highway_env_observes_as_written()
+
+
+@pytest.mark.parametrize(("old", "new"), [
+    ("vehicle.speed * np.cos(heading)", "abs(vehicle.speed) * np.cos(heading)"),  # vx
+    ("out[feature] = np.sin(heading)", "out[feature] = np.cos(heading)"),  # sin_h
+    ("row[key] -= value", "row[key] -= 0 * value"),  # not relative to the ego
+    ("-2 * ego.LENGTH < lane_distance(v)", "-1 * ego.LENGTH < lane_distance(v)"),
+    ("key=lambda o: abs(lane_distance(o))", "key=lambda o: lane_distance(o)"),
+    ("close = close[-self.vehicles_count + 1:]", "close = close[-self.vehicles_count:]"),
+    ("near[k] = bool(np.linalg.norm(objects[k].position - position) < distance)",
+     "near[k] = True"),  # no re-check on the perception limit
+    ("np.clip(columns[feature], -1, 1)", "np.clip(columns[feature], -1, 0.999)"),
+    ("self.env.np_random.shuffle(obs[1:])", "self.env.np_random.shuffle(obs)"),
+    ("if self.absolute:\n            return rows", "if False:\n            return rows"),
+])
+def test_a_changed_formula_of_the_observation_is_caught(old, new):
+    import inspect
+
+    from tap_bench.sim import observation
+
+    source = inspect.getsource(observation)
+    assert old in source  # the mutation applies to the code as it is
+    namespace: dict = {"__name__": "mutated_observation"}
+    exec(compile(source.replace(old, new, 1), observation.__file__, "exec"), namespace)
+    mutated = namespace["FastKinematicObservation"]
+    assert any(not _same_bits(*_both(env, config, mutated))
+               for env, config in _drawn_cases(1, 60))
+
+
+def test_another_highway_env_observes_with_its_own_code(monkeypatch):
+    """Where highway-env's code is not the one repeated here (a digest that does not
+    match), the observation is highway-env's own and envs keep highway-env's class."""
+    from tap_bench.sim import observation
+
+    env = make_env("highway", record=False, duration=2)
+    env.reset(seed=0)
+    inner = env.unwrapped
+    calls = []
+    original = KinematicObservation.observe
+    monkeypatch.setattr(KinematicObservation, "observe",
+                        lambda self: calls.append(self) or original(self))
+    monkeypatch.setitem(observation._OBSERVE_CODE, "Vehicle.to_dict", "0" * 16)
+    observation._highway_env_observes_as_written.cache_clear()
+    try:
+        fast = FastKinematicObservation(inner, **inner.config["observation"])
+        np.testing.assert_array_equal(fast.observe(), original(fast))
+        assert calls == [fast]
+        env.reset(seed=1)
+        assert type(inner.observation_type) is KinematicObservation
+    finally:
+        monkeypatch.undo()
+        observation._highway_env_observes_as_written.cache_clear()
+    assert observation._highway_env_observes_as_written()
+
+
+def test_a_feature_no_vehicle_has_fails_as_in_highway_env():
+    env = make_env("highway", record=False, duration=2)
+    env.reset(seed=0)
+    config = {"features": ["presence", "x", "speed"]}
+    with pytest.raises(KeyError):
+        KinematicObservation(env.unwrapped, **config).observe()
+    with pytest.raises(KeyError):
+        FastKinematicObservation(env.unwrapped, **config).observe()

@@ -199,3 +199,41 @@ def test_the_command_trains_an_agent_on_the_route_observation(real, tmp_path, ca
     assert model.observation_space.shape == (5 * 5 + 16,)
     result = rollout(WomdScenes((real[1],)), str(out.with_suffix(".json")), "all")
     assert list(result.episodes["status"]) == ["ok"]
+
+
+def _kinematics_matches_highway_env(env, policy_names=("log", "idm", "random"), seeds=None):
+    """At every decision, the Kinematics part of the route observation equals highway-env's
+    own Kinematics observation of the scene (pandas), bit for bit; returns the decisions
+    compared."""
+    from highway_env.envs.common.observation import KinematicObservation
+
+    compared = 0
+    for seed in seeds if seeds is not None else range(len(env.catalog)):
+        for name in policy_names:
+            policy = load_policy(name)
+            obs, _ = env.reset(seed=seed)
+            policy.reset(env, seed=seed)
+            observation = env.unwrapped.observation_type
+            config = {k: v for k, v in env.unwrapped.config["observation"].items()
+                      if k not in ("type", "route_points", "route_spacing")}
+            done = False
+            while not done:
+                theirs = KinematicObservation(env.unwrapped, **config).observe().ravel()
+                ours = obs[:observation.kinematics_size]
+                assert ours.tobytes() == theirs.tobytes()
+                compared += 1
+                obs, _, terminated, truncated, _ = env.step(policy.act(obs))
+                done = terminated or truncated
+    return compared
+
+
+@pytest.mark.parametrize("side", [1, -1])
+def test_the_kinematics_part_is_highway_envs_observation(tmp_path, side):
+    env = make_womd_env(two_lanes(tmp_path / "sd_two.pkl", theta=0.4, side=side, speed=10.0))
+    assert _kinematics_matches_highway_env(env, ("idm", "random"), seeds=[0]) > 5
+
+
+@pytest.mark.parametrize("traffic", ["log", "idm"])
+def test_the_kinematics_part_is_highway_envs_observation_on_the_real_scenes(real, traffic):
+    env = make_womd_env(real, traffic=traffic)
+    assert _kinematics_matches_highway_env(env) > 50
