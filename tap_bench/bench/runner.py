@@ -219,11 +219,23 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         timings["references"] = time.perf_counter() - t0
     with_trajectories = any(traj is not None for traj, _ in corpora.values())
 
+    drawn: dict[str, pd.DataFrame] = {}
+    simulation: list[dict[str, Any] | None] = []
+
+    def road(env: str) -> pd.DataFrame:
+        """The env's map table, drawn (or read from the cache) once in this run: the
+        workers label on it and the run folder keeps it."""
+        if env not in drawn:
+            if not simulation:  # the simulation code's fingerprint, once
+                simulation.append(simulation_fingerprint() if cache is not None else None)
+            drawn[env] = _road(suite, env, cache, simulation[0])
+        return drawn[env]
+
     t0 = time.perf_counter()
     kept = getattr(runner, "kept", None)  # the estimate's first episodes and the rest
     with kept() if kept is not None else contextlib.nullcontext():  # on the same workers
         results, estimate = _rollouts(plan, runner, keep_trajectories or with_trajectories,
-                                      progress, cache, announce, tasks)
+                                      progress, cache, announce, road, tasks)
     timings["rollouts_wall"] = time.perf_counter() - t0
     if announce is not None:
         announce(f"episodes done ({timings['rollouts_wall']:.0f} s); scoring ...")
@@ -351,9 +363,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     t0 = time.perf_counter()
     roads = None
     if keep_trajectories:  # the replay viewer draws them; highway-env's road is seed-free
-        simulation = simulation_fingerprint() if cache is not None else None
-        roads = pd.concat([_road(suite, env, cache, simulation) for env in suite.envs],
-                          ignore_index=True)
+        roads = pd.concat([road(env) for env in suite.envs], ignore_index=True)
     # kept whole for an unchanged re-run: every episode made (a failed one is tried again)
     keep = whole is not None and (episodes["status"] == "ok").all()
     pages: dict[str, bytes] | None = {} if keep else None
