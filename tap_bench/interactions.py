@@ -263,7 +263,7 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
     # per-track columns are read at each track's first row only (strings are slow per row)
     # (taken from the input's rows, without putting the whole column in track order)
     per_track = checked.per_track_arrays(["scenario_id", "object_type", "env"])
-    scen_of_track, _ = pd.factorize(pd.Series(per_track["scenario_id"]), sort=False)
+    scen_of_track, _ = pd.factorize(per_track["scenario_id"], sort=False)
     scen = scen_of_track[idx.track]
     span = int(step_no.max() - step_no.min() + 1) if n else 1
     key = scen.astype(np.int64) * span + (step_no - (step_no.min() if n else 0))
@@ -273,8 +273,9 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
     speed = np.asarray(checked["speed"], float)
     others = idx.segment >= 0
     if "object_type" in checked:
-        kind = pd.Series(per_track["object_type"]).astype(str)
-        others &= kind.isin(OTHER_TYPES).to_numpy()[idx.track]
+        # validated: each a str, lower case (a few tracks: no pandas round trip)
+        kinds = per_track["object_type"].tolist()
+        others &= np.fromiter((k in OTHER_TYPES for k in kinds), bool, len(kinds))[idx.track]
     lanes = None
     if map_table is not None:
         names = pd.Series(per_track["scenario_id"]).to_numpy()
@@ -353,6 +354,7 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
     path_first = np.searchsorted(ego_path, np.arange(paths.n_paths))
     path_last = np.r_[path_first[1:], m] - 1
     merge_window = STEPS_PER_SECOND
+    window = np.arange(-merge_window, merge_window + 1)  # the steps within 1 s
 
     def ego_merging(pairs: np.ndarray, side: np.ndarray) -> np.ndarray:
         """The ego merges towards ``side`` (+1 left, -1 right) where its path meets the
@@ -360,12 +362,11 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
         p = ego_path[q_step[pairs]]
         at = np.searchsorted(arc_global, arc[q_step[pairs]] + s[pairs] + p * path_span)
         at = np.clip(at, path_first[p], path_last[p])
-        hit = np.zeros(len(pairs), bool)
         want = np.where(side > 0, sdl.LEFT_MERGE, sdl.RIGHT_MERGE)
-        for off in range(-merge_window, merge_window + 1):
-            k = np.clip(at + off, path_first[p], path_last[p])
-            hit |= ego_lateral[k] == want
-        return hit
+        # every step of the window at once: (pairs, window) steps, kept on the path
+        k = np.clip(at[:, None] + window[None, :], path_first[p][:, None],
+                    path_last[p][:, None])
+        return (ego_lateral[k] == want[:, None]).any(axis=1)
 
     # the extension beyond the record's end is trusted where the path ends on a steady
     # curve (the arc then is the road) or along a lane of the map
@@ -394,11 +395,8 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
         rows = q_other[pairs]
         seg = idx.segment[rows]
         lo, hi = idx.segment_start[seg], idx.segment_stop[seg] - 1
-        hit = np.zeros(len(pairs), bool)
-        for off in range(-merge_window, merge_window + 1):
-            code = lateral[np.clip(rows + off, lo, hi)]
-            hit |= (code > sdl.STRAIGHT)
-        return hit
+        code = lateral[np.clip(rows[:, None] + window[None, :], lo[:, None], hi[:, None])]
+        return (code > sdl.STRAIGHT).any(axis=1)
 
     def drives_along(pairs: np.ndarray) -> np.ndarray:
         """After it enters, the agent drives along the ego's path for 1 s (heading within

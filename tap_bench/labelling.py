@@ -292,8 +292,13 @@ def _segment_frame(tracks: dict, kin: Kinematics, index, which: np.ndarray,
     # each track's columns at its segments, as arrays (a frame of arrays needs no index
     # alignment; the columns keep their types)
     of_track = index.segment_track[which]
-    per_track = {c: (v[of_track] if isinstance(v, np.ndarray) else v.take(of_track))
-                 for c, v in tracks.items()}
+    if len(of_track) == index.n_tracks and (of_track == np.arange(len(of_track))).all():
+        per_track = tracks  # one segment per track: the columns as they are
+    elif not len(of_track):
+        per_track = {c: v[:0] for c, v in tracks.items()}
+    else:
+        per_track = {c: (v[of_track] if isinstance(v, np.ndarray) else v.take(of_track))
+                     for c, v in tracks.items()}
     names = list(per_track)
     columns: dict[str, object] = {c: per_track[c] for c in names[:2]}
     columns.update(segment=ordinal[which], t_start=kin.t[rows],
@@ -356,8 +361,17 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
     long_enough = lengths >= config.min_steps
     starts, stops = index.segment_start[long_enough], index.segment_stop[long_enough]
     tracks = checked.per_track_arrays(["scenario_id", "track_id", *IDENTIFYING_COLUMNS])
-    info = _segment_frame(tracks, kin, index, long_enough, ordinal)
-    short = _segment_frame(tracks, kin, index, ~long_enough, ordinal)
+    # (no segment of one kind: that frame is the other's first none of its rows, the
+    # same columns, without building a frame again)
+    if long_enough.all():
+        info = _segment_frame(tracks, kin, index, long_enough, ordinal)
+        short = info.iloc[:0]
+    elif not long_enough.any():
+        short = _segment_frame(tracks, kin, index, ~long_enough, ordinal)
+        info = short.iloc[:0]
+    else:
+        info = _segment_frame(tracks, kin, index, long_enough, ordinal)
+        short = _segment_frame(tracks, kin, index, ~long_enough, ordinal)
 
     seg_len = stops - starts
     n_steps = int(seg_len.sum())
@@ -417,8 +431,12 @@ class TapParts:
         return self._joined([p.steps() for p in self.parts])
 
     def glitches(self) -> pd.DataFrame:
-        """:meth:`TapResult.glitches` of the whole table."""
-        return self._joined([p.glitches() for p in self.parts])
+        """:meth:`TapResult.glitches` of the whole table (of the joined segment tables: one
+        grouping instead of one a part)."""
+        if len(self.parts) == 1:
+            return self.parts[0].glitches()
+        return dataclasses.replace(self.parts[0], segments_info=self.segments_info,
+                                   short_segments=self.short_segments).glitches()
 
     @property
     def segments_info(self) -> pd.DataFrame:

@@ -638,20 +638,11 @@ def _end_curvature(h: np.ndarray, arc: np.ndarray, end: np.ndarray, other: np.nd
     return np.clip(kappa, -1.0 / R_MIN, 1.0 / R_MIN)
 
 
-def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, spacing: float,
-                     reach: float, lanes: LaneMap | None = None):
-    """The decimated, extended polylines of every path, laid end to end.
-
-    Each line: the back extension (a far vertex at -EXTENSION, then vertices every
-    ``spacing`` to :data:`STRAIGHT_SPACING` metres (:func:`_extension_spacing`) from
-    ``reach`` or more to the start), the recorded positions about ``spacing`` apart, and
-    the front extension likewise. Extensions follow the ego's lane
-    where ``lanes`` has one, else an arc of the ego's mean curvature over the last (first)
-    second (module docstring).
-
-    Returns (vx, vy, vs, first, count, arc): vertex coordinates and arc lengths (q,), the
-    first vertex and vertex count of each path (P,), and the arc length of each ego step (m,).
-    """
+def _line_base(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, spacing: float
+               ) -> tuple:
+    """What :func:`_reference_lines` computes before the reach matters: the ego steps'
+    positions, headings and arc lengths, the vertices kept, and the curvature of each end
+    (two frames of the same paths share it)."""
     x, y, h = paths.x[ego_row], paths.y[ego_row], paths.heading[ego_row]
     length = paths.stop - paths.start
     first_step = np.cumsum(length) - length
@@ -697,6 +688,27 @@ def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, sp
                               _end_curvature(h, arc, at_f, at_f0), ds_f)
     k_back, fade_b = _fading(_end_curvature(h, arc, at_b, first_step),
                              _end_curvature(h, arc, at_b0, at_b), ds_b)
+    return (x, y, first_step, last_step, arc, kept, kept_path, n_kept, hb, he, k_front,
+            fade_f, k_back, fade_b)
+
+
+def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, spacing: float,
+                     reach: float, lanes: LaneMap | None = None, base: tuple | None = None):
+    """The decimated, extended polylines of every path, laid end to end.
+
+    Each line: the back extension (a far vertex at -EXTENSION, then vertices every
+    ``spacing`` to :data:`STRAIGHT_SPACING` metres (:func:`_extension_spacing`) from
+    ``reach`` or more to the start), the recorded positions about ``spacing`` apart, and
+    the front extension likewise. Extensions follow the ego's lane
+    where ``lanes`` has one, else an arc of the ego's mean curvature over the last (first)
+    second (module docstring).
+
+    Returns (vx, vy, vs, first, count, arc): vertex coordinates and arc lengths (q,), the
+    first vertex and vertex count of each path (P,), and the arc length of each ego step (m,).
+    ``base``: :func:`_line_base` of the same paths, spacing (computed when None).
+    """
+    (x, y, first_step, last_step, arc, kept, kept_path, n_kept, hb, he, k_front, fade_f,
+     k_back, fade_b) = _line_base(paths, ego_row, ego_path, spacing) if base is None else base
     # distances of the extension vertices from each end, (P, e) far to near: the far vertex
     # at EXTENSION, then every few metres (closer on tighter arcs, or along lanes) to reach
     mapped = (lanes.covers(paths.scene[paths.start]) if lanes is not None
@@ -807,12 +819,14 @@ def path_frame(paths: Paths, others: np.ndarray | None = None, *,
         :class:`PathFrame` of the kept (ego step, other) pairs, ordered by ego step.
     """
     if near > 0 and lateral_near > lateral:
-        main = path_frame(paths, others, ahead=ahead, behind=behind, lateral=lateral,
-                          spacing=spacing, lanes=lanes)
-        side = path_frame(paths, others, ahead=near, behind=near, lateral=lateral_near,
-                          spacing=spacing, lanes=lanes)
+        _check_distances(behind, lateral, spacing)
+        ego_row, ego_path = paths.ego_rows()
+        base = _line_base(paths, ego_row, ego_path, spacing)  # the same for both frames
+        main = _path_frame(paths, others, ahead, behind, lateral, spacing, lanes, base)
+        _check_distances(near, lateral_near, spacing)
+        side = _path_frame(paths, others, near, near, lateral_near, spacing, lanes, base)
         fields = ("step", "other", "s", "d", "heading_rel", "v_along")
-        both = {f: np.r_[getattr(main, f), getattr(side, f)] for f in fields}
+        both = {f: np.concatenate((getattr(main, f), getattr(side, f))) for f in fields}
         order = np.lexsort((both["other"], both["step"]))
         both = {f: v[order] for f, v in both.items()}
         new = np.ones(len(order), bool)
@@ -820,10 +834,22 @@ def path_frame(paths: Paths, others: np.ndarray | None = None, *,
                                                              != both["other"][:-1])
         return PathFrame(**{f: v[new] for f, v in both.items()}, ego_row=main.ego_row,
                          ego_path=main.ego_path, arc=main.arc)
+    _check_distances(behind, lateral, spacing)
+    return _path_frame(paths, others, ahead, behind, lateral, spacing, lanes)
+
+
+def _check_distances(behind: float, lateral: float, spacing: float) -> None:
     for name, value in (("behind", behind), ("lateral", lateral), ("spacing", spacing)):
         if not (np.isfinite(value) and value > 0):
             raise ValueError(f"path_frame: {name} must be a finite distance > 0 m, got "
                              f"{value!r}.")
+
+
+def _path_frame(paths: Paths, others: np.ndarray | None, ahead: float | np.ndarray,
+                behind: float, lateral: float, spacing: float, lanes: LaneMap | None,
+                base: tuple | None = None) -> PathFrame:
+    """:func:`path_frame` of one zone (``near`` 0); ``base``: :func:`_line_base` of the
+    paths when known."""
     ego_row, ego_path = paths.ego_rows()
     ahead = np.broadcast_to(np.asarray(ahead, float), (len(ego_row),))
     if len(ahead) and not (np.isfinite(ahead).all() and (ahead > 0).all()):
@@ -831,7 +857,7 @@ def path_frame(paths: Paths, others: np.ndarray | None = None, *,
     far = float(max(ahead.max(initial=0.0), behind))
     cell = 4.0 / 3.0 * lateral + spacing  # see _line_cells: every point within lateral
     vx, vy, vs, first, count, arc = _reference_lines(paths, ego_row, ego_path, spacing,
-                                                     far + 2 * cell, lanes)
+                                                     far + 2 * cell, lanes, base)
     empty = np.zeros(0)
     ints = np.zeros(0, np.int64)
     others_rows = np.flatnonzero(np.ones(len(paths.key), bool) if others is None else others)

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
+import pyarrow.compute as pc
 
 from tap_bench.errors import TrajectoryTableError, did_you_mean
 
@@ -134,8 +135,9 @@ def _fail(message: str, source: str, *, column: str | None = None, row: int | No
 
 def _as_id_strings(col: pd.Series, name: str, source: str) -> pd.Series:
     """Identifiers as strings; integral floats (3.0, from a NaN-holding column) become '3'."""
-    if col.isna().any():
-        pos = int(np.flatnonzero(col.isna().to_numpy())[0])
+    missing = col.array.isna()  # of the array: a Series of flags costs more than a check
+    if missing.any():
+        pos = int(np.flatnonzero(missing)[0])
         _fail(f"column {name!r} is empty at row {pos}; every row needs a {name}.", source,
               column=name, row=pos)
     if pd.api.types.is_float_dtype(col):
@@ -145,6 +147,16 @@ def _as_id_strings(col: pd.Series, name: str, source: str) -> pd.Series:
     if pd.api.types.is_string_dtype(col) and not pd.api.types.is_object_dtype(col):
         return col
     return col.astype(str)
+
+
+def _contract_types(col: pd.Series) -> pd.Series | None:
+    """``col`` itself when it is already what lower-casing it as strings gives and holds
+    only the contract's object types (a string column of 'vehicle', 'cyclist' ...: the
+    usual case, checked on its few distinct values instead of every row); else None."""
+    if col.dtype != pd.api.types.pandas_dtype(str):
+        return None
+    values = col.unique()
+    return col if all(isinstance(v, str) and v in OBJECT_TYPES for v in values) else None
 
 
 def _check_columns(table: pd.DataFrame, source: str) -> None:
@@ -165,8 +177,8 @@ def _check_columns(table: pd.DataFrame, source: str) -> None:
           f"{', '.join(map(repr, map(str, table.columns)))}.{fix}", source, column=missing[0])
 
 
-def _numeric(table: pd.DataFrame, col: str, source: str) -> np.ndarray:
-    series = table[col]
+def _numeric(table: pd.DataFrame, col: str, source: str, columns=None) -> np.ndarray:
+    series = table[col] if columns is None else columns[col]
     if pd.api.types.is_bool_dtype(series) or not pd.api.types.is_numeric_dtype(series):
         converted = pd.to_numeric(series, errors="coerce")
         bad = converted.isna().to_numpy() & series.notna().to_numpy()
@@ -179,8 +191,8 @@ def _numeric(table: pd.DataFrame, col: str, source: str) -> np.ndarray:
     return series.to_numpy(dtype=np.float64, na_value=np.nan)
 
 
-def _bool_column(table: pd.DataFrame, col: str, source: str) -> np.ndarray:
-    series = table[col]
+def _bool_column(table: pd.DataFrame, col: str, source: str, columns=None) -> np.ndarray:
+    series = table[col] if columns is None else columns[col]
     if series.dtype == np.bool_:  # numpy's bool holds no missing value
         return series.to_numpy()
     if pd.api.types.is_bool_dtype(series) and not series.isna().any():
@@ -226,20 +238,29 @@ class CheckedTable:
             (``checked[name]``); :meth:`per_track` reads them without reordering them all.
         index: where tracks and valid segments lie.
         names: every column, in the table's order (the contract's checked columns first).
-        raw: the columns not yet in track order, as in the input.
+        raw: the columns not yet in track order, as in the input (None: the input
+            column of that name in ``table``, read when first asked for).
         order: input row of each row in track order (None: the input was in that order).
+        table: the input's columns by name (or the input table, its index reset), which
+            hold the columns not read yet.
     """
 
     columns: dict[str, np.ndarray | pd.Series]
     index: TrackIndex
     names: tuple[str, ...] = ()
-    raw: dict[str, np.ndarray | pd.Series] = field(default_factory=dict)
+    raw: dict[str, np.ndarray | pd.Series | None] = field(default_factory=dict)
     order: np.ndarray | None = None
+    table: pd.DataFrame | dict | None = None
 
     def __getitem__(self, name: str) -> np.ndarray | pd.Series:
         if name not in self.columns and name in self.raw:
-            self.columns[name] = _take(self.raw[name], self.order)
+            self.columns[name] = _take(self._raw(name), self.order)
         return self.columns[name]
+
+    def _raw(self, name: str) -> np.ndarray | pd.Series:
+        if self.raw[name] is None:
+            self.raw[name] = self.table[name]
+        return self.raw[name]
 
     def __contains__(self, name: object) -> bool:
         return name in self.columns or name in self.raw
@@ -264,7 +285,7 @@ class CheckedTable:
             if c in self.columns:
                 out[c] = _take_array(self.columns[c], rows)
             elif c in self.raw:
-                out[c] = _take_array(self.raw[c],
+                out[c] = _take_array(self._raw(c),
                                      rows if self.order is None else self.order[rows])
         return out
 
@@ -296,16 +317,24 @@ def _track_order(scenario: pd.Series, track: pd.Series) -> tuple[np.ndarray | No
         (n_rows,) bool mask of the first row of each track in the grouped order.
     """
     n = len(scenario)
+    # a small table's (an episode's) string ids as codes once: comparing codes costs less
+    # than comparing strings, and the sort below reuses them (a large table's runs are
+    # compared as strings: encoding every row would cost more)
+    small = n <= _ENCODE_ROWS
+    sc_encoded = _arrow_codes(scenario) if small else None
+    tr_encoded = _arrow_codes(track) if small else None
 
-    def changes(col: pd.Series) -> np.ndarray:
-        values = col.array
+    def changes(col: pd.Series, encoded) -> np.ndarray:
         out = np.ones(n, dtype=bool)
-        if n > 1:
+        if n > 1 and encoded is not None:
+            out[1:] = encoded[0][1:] != encoded[0][:-1]  # equal codes: equal strings
+        elif n > 1:
+            values = col.array
             out[1:] = np.asarray(values[1:] != values[:-1], dtype=bool)
         return out
 
-    new_scenario = changes(scenario)
-    change = new_scenario | changes(track)
+    new_scenario = changes(scenario, sc_encoded)
+    change = new_scenario | changes(track, tr_encoded)
     starts = np.flatnonzero(change)
     if len(starts) <= n // 2:  # runs of rows (a track's): check the order of the runs
         # few runs (an episode's tracks) of strings: check them in Python (code point
@@ -333,8 +362,9 @@ def _track_order(scenario: pd.Series, track: pd.Series) -> tuple[np.ndarray | No
     # interleaved tracks (time-major rows, as simulators write them): sort every row (one
     # scenario, as an episode is, needs no codes of its own)
     one_scenario = not new_scenario[1:].any()
-    sc_codes = np.zeros(n, np.int64) if one_scenario else _sorted_codes(scenario)[0]
-    tr_codes, n_tracks = _sorted_codes(track)
+    sc_codes = np.zeros(n, np.int64) if one_scenario else _sorted_codes(scenario,
+                                                                        sc_encoded)[0]
+    tr_codes, n_tracks = _sorted_codes(track, tr_encoded)
     key = sc_codes.astype(np.int64) * max(n_tracks, 1) + tr_codes
     order = np.argsort(key, kind="stable")
     key = key[order]
@@ -349,17 +379,39 @@ def _plain_strings(*cols: pd.Series) -> bool:
     return all(isinstance(c.dtype, pd.StringDtype) for c in cols)
 
 
-def _sorted_codes(col: pd.Series) -> tuple[np.ndarray, int]:
+_ENCODE_ROWS = 100_000
+"""Up to this many rows, :func:`_track_order` compares string ids by their codes."""
+
+
+def _arrow_codes(col: pd.Series):
+    """(codes in order of first appearance, (n,); the distinct values, an Arrow array) of
+    a column of Arrow-backed strings, or None for other columns."""
+    if not (_plain_strings(col) and col.dtype.storage == "pyarrow"):
+        return None
+    values = col.array.__arrow_array__()
+    values = values.combine_chunks() if values.num_chunks != 1 else values.chunk(0)
+    encoded = values.dictionary_encode()
+    return encoded.indices.to_numpy(zero_copy_only=False), encoded.dictionary
+
+
+def _sorted_codes(col: pd.Series, encoded=None) -> tuple[np.ndarray, int]:
     """``pd.factorize(col, sort=True)``'s codes and number of values: for strings,
     factorised in order of appearance, the few values then ranked with the same sort
-    (cheaper than sorting while factorising)."""
+    (cheaper than sorting while factorising). ``encoded``: :func:`_arrow_codes` of the
+    column, when known."""
     if not _plain_strings(col):
         codes, uniques = pd.factorize(col, sort=True)
         return codes, len(uniques)
-    codes, uniques = pd.factorize(col)
-    rank = np.empty(len(uniques), np.int64)
-    rank[np.asarray(uniques.argsort())] = np.arange(len(uniques))
-    return rank[codes], len(uniques)
+    encoded = encoded if encoded is not None else _arrow_codes(col)
+    if encoded is not None:  # Arrow's own encoding: pandas' costs more
+        codes, distinct = encoded
+        order = pc.array_sort_indices(distinct).to_numpy()
+    else:
+        codes, uniques = pd.factorize(col)
+        order = np.asarray(uniques.argsort())
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.arange(len(order))
+    return rank[codes], len(order)
 
 
 def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table") -> CheckedTable:
@@ -371,16 +423,20 @@ def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table")
               "each track.", source)
     table = table.reset_index(drop=True)
     _check_columns(table, source)
+    # every column by name at once (each table[name] costs as much as the work on an
+    # episode's column); a table with repeated names reads them one by one, as before
+    by_name = dict(table.items()) if table.columns.is_unique else table
 
     cols: dict[str, np.ndarray | pd.Series] = {}
     for key in _KEYS:
-        cols[key] = _as_id_strings(table[key], key, source)
+        cols[key] = _as_id_strings(by_name[key], key, source)
     for col in _NUMERIC:
         if col in table.columns:
-            cols[col] = _numeric(table, col, source)
+            cols[col] = _numeric(table, col, source, by_name)
     if "speed" not in table.columns:
         cols["speed"] = np.hypot(cols["vx"], cols["vy"])
-    valid = _bool_column(table, "valid", source) if "valid" in table.columns else None
+    valid = _bool_column(table, "valid", source, by_name) if "valid" in table.columns \
+        else None
 
     # Infinite values are never data; NaN is only allowed on rows marked invalid.
     for col in _NUMERIC:
@@ -442,18 +498,20 @@ def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table")
               column="heading", row=pos)
 
     if "object_type" in table.columns:
-        otype = table["object_type"].astype(str).str.lower()
-        bad = ~otype.isin(OBJECT_TYPES).to_numpy()
-        if bad.any():
-            pos = int(np.flatnonzero(bad)[0])
-            _fail(f"object_type {table['object_type'].iloc[pos]!r} at {_where(table, pos)} is "
-                  f"not one of {', '.join(OBJECT_TYPES)}.", source, column="object_type",
-                  row=pos)
+        otype = _contract_types(by_name["object_type"])
+        if otype is None:  # other spellings: lower-cased, then checked row by row
+            otype = table["object_type"].astype(str).str.lower()
+            bad = ~otype.isin(OBJECT_TYPES).to_numpy()
+            if bad.any():
+                pos = int(np.flatnonzero(bad)[0])
+                _fail(f"object_type {table['object_type'].iloc[pos]!r} at "
+                      f"{_where(table, pos)} is not one of {', '.join(OBJECT_TYPES)}.",
+                      source, column="object_type", row=pos)
         cols["object_type"] = otype
     if "is_ego" in table.columns:
-        cols["is_ego"] = _bool_column(table, "is_ego", source)
+        cols["is_ego"] = _bool_column(table, "is_ego", source, by_name)
     if "crashed" in table.columns:
-        cols["crashed"] = _bool_column(table, "crashed", source)
+        cols["crashed"] = _bool_column(table, "crashed", source, by_name)
 
     # Group rows by track, keeping each track's rows in input order (never sorting by t).
     order, new_track = _track_order(cols["scenario_id"], cols["track_id"])
@@ -511,8 +569,8 @@ def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table")
     cols["valid"] = valid
     names = (*cols, *(c for c in table.columns if c not in cols))
     # numbers and flags in track order now; strings and extra columns when asked for
-    raw = {c: cols.get(c, table[c] if c in table.columns else None) for c in names
-           if not isinstance(cols.get(c), np.ndarray)}
+    # (the input's other columns read only when asked for: each read of a column costs)
+    raw = {c: cols.get(c) for c in names if not isinstance(cols.get(c), np.ndarray)}
     cols = {k: _take(v, order) for k, v in cols.items() if isinstance(v, np.ndarray)}
 
     track_starts = np.flatnonzero(new_track)
@@ -537,4 +595,5 @@ def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table")
         segment_stop=seg_stop.astype(np.int64),
         segment_track=track[seg_start].astype(np.int64),
     )
-    return CheckedTable(columns=cols, index=index, names=names, raw=raw, order=order)
+    return CheckedTable(columns=cols, index=index, names=names, raw=raw, order=order,
+                        table=by_name)

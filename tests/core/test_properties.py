@@ -134,14 +134,25 @@ def test_mirrored_trajectories_swap_left_and_right(table):
                           st.sampled_from(["1", "2", "10", "x", "ä", "X", "ß"]),
                           st.integers(1, 4)),
                 min_size=1, max_size=25), st.sampled_from(["runs", "time-major"]),
-       st.sampled_from(["str", "string[python]", "object", "category"]))
-def test_the_track_order_is_the_stable_sort_of_every_row(runs, layout, dtype):
+       st.sampled_from(["str", "string[python]", "object", "category"]), st.booleans())
+def test_the_track_order_is_the_stable_sort_of_every_row(runs, layout, dtype, encoded):
     """Rows grouped by (scenario_id, track_id), in the order of the sorted ids and stable
     within a track, however the input lays them out (runs in any order, a track split over
     several runs, time-major; one scenario or several; ids beyond ASCII; Arrow, Python,
-    object or categorical strings): the same order as a stable sort of every row's key."""
+    object or categorical strings; a small table's ids compared by their codes, a large
+    one's as strings): the same order as a stable sort of every row's key."""
+    from tap_bench import trajectories
     from tap_bench.trajectories import _track_order
 
+    limit = trajectories._ENCODE_ROWS
+    trajectories._ENCODE_ROWS = limit if encoded else 0
+    try:
+        _check_track_order(_track_order, runs, layout, dtype)
+    finally:
+        trajectories._ENCODE_ROWS = limit
+
+
+def _check_track_order(_track_order, runs, layout, dtype) -> None:
     if layout == "runs":
         rows = [(sc, tr) for sc, tr, k in runs for _ in range(k)]
     else:
@@ -158,3 +169,40 @@ def test_the_track_order_is_the_stable_sort_of_every_row(runs, layout, dtype):
     np.testing.assert_array_equal(order, expected)
     np.testing.assert_array_equal(new_track, np.r_[True, key[expected][1:]
                                                    != key[expected][:-1]])
+
+
+@SETTINGS
+@given(st.lists(st.tuples(st.integers(0, 3), st.integers(0, 12), st.integers(1, 12)),
+                min_size=1, max_size=12, unique_by=lambda r: r[:2]),
+       st.sampled_from(["runs", "time-major"]),
+       st.sampled_from(["int", "str", "object", "category", "category-int"]))
+def test_validation_orders_any_id_type_as_its_strings(tracks_, layout, dtype):
+    """Integer, string, object and categorical ids (one scenario or several, tracks in
+    runs or interleaved): the validated table is the stable sort of the rows by the ids'
+    strings, whatever the column's type, with those strings as the ids."""
+    from tap_bench.trajectories import validate_and_index
+
+    rows = []
+    for sc, tr, n in tracks_:
+        rows += [(sc, tr, k) for k in range(n)]
+    if layout == "time-major":
+        rows.sort(key=lambda r: r[2])
+    frame = pd.DataFrame(rows, columns=["scenario_id", "track_id", "step"])
+    table = pd.DataFrame({"t": frame["step"] * 0.1, "x": frame["step"] * 1.0, "y": 0.0,
+                          "heading": 0.0, "speed": 10.0})
+    for col in ("scenario_id", "track_id"):
+        ids = frame[col]
+        table[col] = {"int": ids, "str": ids.astype(str), "object": ids.astype(str)
+                      .astype(object), "category": ids.astype(str).astype("category"),
+                      "category-int": ids.astype("category")}[dtype]
+    checked = validate_and_index(table)
+    key = frame["scenario_id"].astype(str) + "\0" + frame["track_id"].astype(str)
+    expected = np.argsort(key.to_numpy(dtype=object), kind="stable")
+    got = np.arange(len(table)) if checked.order is None else checked.order
+    np.testing.assert_array_equal(got, expected)
+    out = checked.frame()  # (a categorical of strings stays one)
+    assert out["track_id"].astype(str).tolist() == frame["track_id"].astype(str).to_numpy()[
+        expected].tolist()
+    starts = np.flatnonzero(np.r_[True, key.to_numpy(dtype=object)[expected][1:]
+                                  != key.to_numpy(dtype=object)[expected][:-1]])
+    np.testing.assert_array_equal(checked.index.track_start[:-1], starts)
