@@ -331,15 +331,18 @@ def _items(tasks: list[_Task], indices: list[int], cached: list[bool], workers: 
 def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
               progress: bool | None, cache: EpisodeCache | None,
               announce: Callable[[str], None] | None,
-              road: Callable[[str], pd.DataFrame] | None = None
-              ) -> tuple[list[dict[str, Any]], RunPlan]:
+              road: Callable[[str], pd.DataFrame] | None = None,
+              tasks: list[_Task] | None = None) -> tuple[list[dict[str, Any]], RunPlan]:
     """Every episode of the suite as a task on ``backend`` (one recovery rule: an episode
     whose worker died is tried once more, then recorded as failed), cached episodes read
     rather than simulated. Before the tasks start, ``announce`` gets the run's estimate,
     from the cache's timings or from a first episode of each env without one. ``road``:
     env -> its highway-env road as a map table, drawn here once for the envs with episodes
-    to label and handed to their tasks (None: each worker draws it)."""
-    tasks = _tasks(suite_plan, keep, cache)
+    to label and handed to their tasks (None: each worker draws it). ``tasks``: the run's
+    tasks when made already (:func:`~tap_bench.bench.run_plan._tasks` with the same
+    ``keep`` and ``cache``)."""
+    if tasks is None:
+        tasks = _tasks(suite_plan, keep, cache)
     suite = suite_plan.suite
     results: dict[int, dict[str, Any]] = {}
     seconds: dict[int, float] = {}
