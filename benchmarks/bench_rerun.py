@@ -3,17 +3,19 @@ against its first run, both as a user runs them (``tap-bench bench run`` in a ch
 process, start-up, workers, scoring, the report and the viewer included).
 
 The first run starts from an empty episode cache (a fresh folder); the re-run uses the same
-cache unchanged: its episodes and their labels and measures are read, so scoring and the
-report are its only work. CPU is user + sys of the command and every process it started
-(``RUSAGE_CHILDREN``); wall time beside it; the machine's load is printed (the machine is
-shared). The script checks that the re-run's tables equal the first run's, floats with
-``==``.
+cache unchanged: the whole run is served from its run entry
+(``tap_bench/bench/run_cache.py``), or, with ``--without-run-entry`` (the entry deleted
+before each re-run), its episodes and their labels and measures are read, so scoring and
+the report are its only work. CPU is user + sys of the command and every process it
+started (``RUSAGE_CHILDREN``); wall time beside it; the machine's load is printed (the
+machine is shared). The script checks that the re-run's tables equal the first run's,
+floats with ``==``.
 
 Targets: an unchanged re-run of a 24-episode suite (2 envs x 2 policies x 6 seeds) costs
 <= 10 % of its first run's CPU; of the default suite (750 episodes) <= 3 %.
 
 Usage: ``nice -n 10 python benchmarks/bench_rerun.py [--suite small|default|FILE]
-[--workers 2] [--repeat 1]``.
+[--workers 2] [--repeat 1] [--without-run-entry]``.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import argparse
 import json
 import os
 import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -74,6 +77,9 @@ def main() -> None:
                         help="small (2 envs x 2 policies x 6 seeds), default, or a suite file")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--repeat", type=int, default=1, help="re-runs timed (the median)")
+    parser.add_argument("--without-run-entry", action="store_true",
+                        help="delete the whole run's cache entry before each re-run (the "
+                        "re-run then reads each episode's labels and measures)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench-rerun-") as tmp:
         tmp = Path(tmp)
@@ -94,6 +100,8 @@ def main() -> None:
         print(f"first run: {first}")
         reruns = []
         for i in range(args.repeat):
+            if args.without_run_entry:
+                shutil.rmtree(tmp / "cache" / "derived" / "runs", ignore_errors=True)
             reruns.append(timed_cli([*common, "-o", str(tmp / f"rerun{i}")], env))
             print(f"re-run {i + 1}: {reruns[-1]}")
         rerun = sorted(reruns, key=lambda r: r["cpu_s"])[len(reruns) // 2]
@@ -108,7 +116,10 @@ def main() -> None:
             "rerun_cache": summary["cache"], "rerun_timings": summary["timings"],
             "tables_differing": differ, "load_1m": [first["load_1m"], rerun["load_1m"]],
         }
-        report(f"rerun_{Path(str(args.suite)).stem}", figures, workers=args.workers)
+        figures["run_entry"] = not args.without_run_entry
+        name = f"rerun_{Path(str(args.suite)).stem}" + (
+            "_without_run_entry" if args.without_run_entry else "")
+        report(name, figures, workers=args.workers)
         if differ:
             raise SystemExit(f"the re-run's tables differ from the first run's: {differ}")
 

@@ -51,7 +51,9 @@ the content of its inputs (:func:`table_digest` of each input table, the setting
 matter) and the code of the whole tap-bench package with the versions of NumPy, pandas,
 PyArrow and SciPy (:func:`derived_key`), and verified whole like the other entries, so a
 change of any input or of any tap-bench module makes them again, and what a re-run serves
-is what it would have made.
+is what it would have made. A whole run whose every input is unchanged is kept too
+(kind ``runs``: its run folder, served without reading an episode;
+:mod:`tap_bench.bench.run_cache`).
 
 **Location and size**: ``$TAP_BENCH_CACHE``, else ``$XDG_CACHE_HOME/tap-bench``, else
 ``~/.cache/tap-bench`` (:func:`default_cache_dir`). An entry of the default suite is about
@@ -131,6 +133,20 @@ _SUFFIX = ".episode"
 _LABELS_SUFFIX = ".labels"
 _DERIVED_SUFFIX = ".derived"
 _FILE_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9._-]{0,199}$")
+_PATH_PART = re.compile(r"^(?!\.{1,2}$)[A-Za-z0-9._-]{1,200}$")
+
+
+def _file_name_ok(name: str) -> bool:
+    """Whether ``name`` is a file name a derived entry may hold: a plain name, or (a run's
+    files, :mod:`tap_bench.bench.run_cache`) a relative path of two to eight parts
+    (``viewer/data/index.js``, ``viewer/.tap-bench-folder``; no empty, ``.`` or ``..``
+    part)."""
+    parts = name.split("/")
+    if len(parts) == 1:
+        return bool(_FILE_NAME.match(name))
+    return len(parts) <= 8 and all(_PATH_PART.match(part) for part in parts)
+
+
 _STALE_TMP_S = 3600.0  # a temporary file this old belongs to a writer that died [s]
 _KEY = re.compile(r"^[0-9a-f]{64}$")
 
@@ -403,8 +419,9 @@ def label_key(episode: str, thresholds: Mapping[str, Any], level: str,
 
 DERIVED_FORMAT = 1
 """Layout of a derived-output entry file; raised when it changes (old entries then miss)."""
-DERIVED_KINDS = ("scores", "roads", "plots", "viewer")
-"""The derived outputs kept (:func:`memoised`)."""
+DERIVED_KINDS = ("scores", "roads", "plots", "viewer", "runs")
+"""The derived outputs kept (:func:`memoised`; ``runs``: whole run folders,
+:mod:`tap_bench.bench.run_cache`)."""
 _PACKAGE_CODE: list[str] = []
 
 
@@ -674,9 +691,10 @@ class EpisodeCache:
             raise ParameterError("key", key, "the SHA-256 of doc (derived_key)")
         index = []
         for name, data in files.items():
-            if not _FILE_NAME.match(str(name)):
-                raise ParameterError("files", name, "a plain file name (letters, digits, "
-                                     "'.', '_', '-'; at most 200 characters)")
+            if not _file_name_ok(str(name)):
+                raise ParameterError("files", name, "a plain file name or relative path "
+                                     "(letters, digits, '.', '_', '-' and '/'; parts of at "
+                                     "most 200 characters, none '.' or '..')")
             index.append({"name": str(name), "bytes": len(data),
                           "sha256": hashlib.sha256(data).hexdigest()})
         header = {"format": "tap-bench-derived", "format_version": DERIVED_FORMAT,
@@ -944,7 +962,7 @@ def _decode_derived(data: bytes, kind: str, key: str) -> dict[str, bytes]:
     files, at = {}, 0
     for part in header["files"]:
         if not isinstance(part, dict) or not isinstance(part.get("name"), str) \
-                or not _FILE_NAME.match(part["name"]) or part["name"] in files \
+                or not _file_name_ok(part["name"]) or part["name"] in files \
                 or not isinstance(part.get("bytes"), int) or isinstance(part["bytes"], bool) \
                 or part["bytes"] < 0:
             raise _Refused("a file of the header is malformed")

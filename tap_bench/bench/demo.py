@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from tap_bench.bench.runner import RunResult, run_suite
+from tap_bench.bench.run_cache import RunResult
 
 __all__ = ["DEMO_OUTPUT", "DEMO_SUITE", "run_demo", "timing_split"]
 
@@ -41,6 +41,8 @@ def run_demo(output: str | os.PathLike = DEMO_OUTPUT, *, workers: int = 2,
              announce: Callable[[str], None] | None = None) -> RunResult:
     """Run the demo suite into ``output`` (replacing an earlier demo there); ``announce``
     gets a line per phase (the estimate, scoring, writing), terminal or not."""
+    from tap_bench.bench.runner import run_suite
+
     start = time.perf_counter()
     result = run_suite(DEMO_SUITE, output, workers=workers, overwrite=True, progress=progress,
                        announce=announce)

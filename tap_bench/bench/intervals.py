@@ -178,9 +178,11 @@ def tango_interval(b, c, n, level: float, *, z: float | None = None) -> tuple:
     Returns:
         (low, high) in [-1, 1]; NaN where n is 0.
     """
+    z = z_value(level) if z is None else float(z)
+    if np.ndim(b) == 0 and np.ndim(c) == 0 and np.ndim(n) == 0:  # one table: Python floats
+        return _tango_interval_one(float(b), float(c), float(n), z)
     b_, c_, n_ = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (b, c, n)))
     b_, c_, n_ = (np.atleast_1d(v).astype(float) for v in (b_, c_, n_))
-    z = z_value(level) if z is None else float(z)
     ok = n_ > 0
     safe_n = np.where(ok, n_, 1.0)
     est = (b_ - c_) / safe_n
@@ -199,10 +201,46 @@ def tango_interval(b, c, n, level: float, *, z: float | None = None) -> tuple:
         below = _tango_z(mid, b_, c_, safe_n) < -z
         lo, hi = np.where(below, lo, mid), np.where(below, mid, hi)
     high = np.where(at_edge, 1.0, lo)
-    low, high = np.where(ok, low, np.nan), np.where(ok, high, np.nan)
-    if np.ndim(b) == 0 and np.ndim(c) == 0 and np.ndim(n) == 0:
-        return float(low[0]), float(high[0])
-    return low, high
+    return np.where(ok, low, np.nan), np.where(ok, high, np.nan)
+
+
+def _tango_z_one(delta: float, b: float, c: float, n: float) -> float:
+    """:func:`_tango_z` of one table in Python floats: the same operations in the same
+    order (IEEE doubles both), so the same bits, without numpy's cost per call."""
+    A = 2 * n
+    B = -b - c + (2 * n - b + c) * delta
+    C = -c * delta * (1 - delta)
+    p01 = (math.sqrt(max(B * B - 4 * A * C, 0.0)) - B) / (2 * A)
+    var = n * (2 * p01 + delta * (1 - delta))
+    num = b - c - n * delta
+    if var > 1e-15:
+        return num / math.sqrt(var)
+    return 0.0 if abs(num) < 1e-12 else math.copysign(math.inf, num)
+
+
+def _tango_interval_one(b: float, c: float, n: float, z: float) -> tuple[float, float]:
+    """:func:`tango_interval` of one table (the same bisection, step for step)."""
+    if not n > 0:
+        return math.nan, math.nan
+    est = (b - c) / n
+    lo, hi = -1.0, est
+    at_edge = _tango_z_one(lo, b, c, n) <= z
+    for _ in range(60):
+        mid = (lo + hi) / 2
+        if _tango_z_one(mid, b, c, n) > z:
+            lo = mid
+        else:
+            hi = mid
+    low = -1.0 if at_edge else hi
+    lo, hi = est, 1.0
+    at_edge = _tango_z_one(hi, b, c, n) >= -z
+    for _ in range(60):
+        mid = (lo + hi) / 2
+        if _tango_z_one(mid, b, c, n) < -z:
+            hi = mid
+        else:
+            lo = mid
+    return low, 1.0 if at_edge else lo
 
 
 def tango_band(only_a: np.ndarray, only_b: np.ndarray, level: float,

@@ -83,6 +83,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -630,8 +631,7 @@ def savgol_derivative(y: np.ndarray, window: int, order: int, delta: float) -> n
         raise ValueError(f"savgol_derivative: window {window} must be odd, above the order "
                          f"{order} and at most the {n} samples.")
     half = window // 2
-    x = np.arange(-half, half + 1, dtype=np.float64)
-    fit = np.linalg.pinv(np.vander(x, order + 1, increasing=True))  # (order + 1, window)
+    x, fit = _savgol_fit(window, order)
     out = np.empty(n)
     out[half:n - half] = np.lib.stride_tricks.sliding_window_view(y, window) @ fit[1]
     powers = np.arange(1, order + 1)
@@ -641,6 +641,18 @@ def savgol_derivative(y: np.ndarray, window: int, order: int, delta: float) -> n
         out[rows] = (powers[None, :] * coef[1:][None, :]
                      * at[:, None] ** (powers - 1)[None, :]).sum(axis=1)
     return out / delta
+
+
+@lru_cache(maxsize=16)
+def _savgol_fit(window: int, order: int) -> tuple[np.ndarray, np.ndarray]:
+    """(window,) the sample offsets -half..half and (order + 1, window) the least-squares
+    fit of a polynomial of ``order`` to them, computed once per process (an SVD each call
+    cost more than the filter on an episode's few hundred steps); read-only."""
+    half = window // 2
+    x = np.arange(-half, half + 1, dtype=np.float64)
+    fit = np.linalg.pinv(np.vander(x, order + 1, increasing=True))
+    x.flags.writeable = fit.flags.writeable = False
+    return x, fit
 
 
 SCENE_MEASURES = MeasureRegistry()
@@ -899,6 +911,10 @@ def ego_measures(table: pd.DataFrame, map_table: pd.DataFrame | LaneMap | None =
 
 def _check_one_ego(ego_sid: np.ndarray, ego_track: np.ndarray, sids) -> None:
     if not len(ego_sid):
+        return
+    order = np.argsort(ego_sid, kind="stable")
+    s, k = ego_sid[order], np.asarray(ego_track, dtype=object)[order]
+    if not ((s[1:] == s[:-1]) & (k[1:] != k[:-1])).any():  # one track in every scenario
         return
     pairs = pd.DataFrame({"s": ego_sid, "k": ego_track}).drop_duplicates()
     many = pairs["s"].duplicated(keep=False)

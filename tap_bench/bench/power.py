@@ -154,8 +154,8 @@ def _swapped_tv(base: np.ndarray, run: np.ndarray, swap: np.ndarray,
     # thread (its threads spin between calls and cost more than they save here)
     step = one_hot[run] - one_hot[base]
     rows = max(1, _BLAS_ONE_THREAD // max(step.size, 1))
-    moved = np.concatenate([part.astype(float) @ step for part in
-                            np.split(swap, range(rows, len(swap), rows))])
+    moved = swap.astype(float) @ step if rows >= len(swap) else np.concatenate(
+        [part.astype(float) @ step for part in np.split(swap, range(rows, len(swap), rows))])
     return 0.5 * np.abs((counts_b + moved) / n - (counts_r - moved) / n).sum(axis=1)
 
 
@@ -174,7 +174,8 @@ def _tv_power(labels: np.ndarray, effect: float, margin: float, level: float, n_
         if paired:
             run = codes.copy()
             redraw = rng.random(n_b) < 0.5  # the perturbation of a changed policy
-            run[redraw] = rng.choice(codes, size=int(redraw.sum()))
+            # rng.choice(codes, size) draws these same integers: the same stream
+            run[redraw] = codes[rng.integers(0, n_b, size=int(redraw.sum()))]
             run[rng.random(n_b) < effect] = k - 1
             counts_r = np.bincount(run, minlength=k)
             observed = 0.5 * np.abs(counts_b / n_b - counts_r / n_b).sum()  # tv()
@@ -184,7 +185,7 @@ def _tv_power(labels: np.ndarray, effect: float, margin: float, level: float, n_
             swap = rng.random((_TV_PERMUTATIONS, len(differ))) >= 0.5
             perm = _swapped_tv(codes[differ], run[differ], swap, counts_b, counts_r)
         else:
-            run = rng.choice(codes, size=n_run)
+            run = codes[rng.integers(0, n_b, size=n_run)]
             run[rng.random(n_run) < effect] = k - 1
             observed = tv(codes[None, :], run[None, :], k)[0]
             if observed <= margin:

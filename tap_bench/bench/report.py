@@ -47,6 +47,7 @@ from tap_bench.bench.report_tables import (
     level_text,
     summary_table,
 )
+from tap_bench.bench.run_cache import timings_html
 from tap_bench.bench.scoring import Scores
 from tap_bench.tableio import atomic_path
 
@@ -456,14 +457,7 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
     parts.append(html_table(failed[["env", "policy", "seed", "error"]], table_id="failed",
                             caption="Left out of every score.")
                  if len(failed) else '<p class="note">none</p>')
-    timings = summary.get("timings", {})
-    if timings:
-        parts.append("<h3>Timings</h3>")
-        parts.append(html_table(
-            pd.DataFrame({"stage": list(timings),
-                          "seconds": [f"{v:.1f} s" for v in timings.values()]}),
-            table_id="timings", max_rows=50,
-            caption="Wall time per stage; *_cpu_in_workers add up over the worker processes."))
+    parts.append(timings_html(summary.get("timings", {})))
     page = ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
             "<link rel=\"icon\" href=\"data:,\">"
             f"<title>tap-bench {html.escape(run)}</title>"

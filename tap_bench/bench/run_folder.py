@@ -15,11 +15,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.report import write_report
 from tap_bench.bench.run_plan import SuitePlan
-from tap_bench.bench.scoring import Scores
 from tap_bench.bench.suite import Suite
-from tap_bench.bench.viewer import write_run_viewer
 from tap_bench.errors import (
     FileFormatError,
 )
@@ -29,6 +26,7 @@ from tap_bench.tableio import atomic_folder, atomic_path, check_folder_output
 
 if TYPE_CHECKING:
     from tap_bench.bench.cache import EpisodeCache
+    from tap_bench.bench.scoring import Scores
 
 
 def check_output(output: str | os.PathLike, overwrite: bool) -> Path:
@@ -158,7 +156,8 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
                   episodes: pd.DataFrame, labels: pd.DataFrame,
                   trajectories: pd.DataFrame | None, scores: Scores, report: bool = True, *,
                   segments: pd.DataFrame | None = None, roads: pd.DataFrame | None = None,
-                  cache: EpisodeCache | None = None) -> Path:
+                  cache: EpisodeCache | None = None,
+                  pages: dict[str, bytes] | None = None) -> Path:
     """Write a results folder (tables, ``summary.json``, plots, report, and the replay
     viewer when the trajectories are given) atomically.
 
@@ -168,10 +167,20 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
     figures and the viewer's episode data of unchanged inputs are read from it
     (:func:`tap_bench.bench.cache.memoised`): the files are the same.
 
+    Args:
+        pages: a dict to fill with the pages that name the run (the report and the viewer's
+            index) as templates (:func:`tap_bench.bench.run_cache.page_templates`): the
+            run is kept whole in the cache, and a re-run fills them with its own name, time
+            and timings. The files written are the same either way.
+
     Raises:
         RunExistsError: ``output`` exists and ``overwrite`` is False.
         OutputPathError: ``output`` is a file, a link or a folder tap-bench did not write.
     """
+    from tap_bench.bench.report import write_report
+    from tap_bench.bench.run_cache import page_templates
+    from tap_bench.bench.viewer import write_run_viewer
+
     with atomic_folder(output, overwrite, kind="run") as tmp:
         episodes.to_parquet(tmp / "episodes.parquet", index=False)
         if len(labels):
@@ -185,14 +194,15 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
             if len(table):
                 _parquet_safe(table).to_parquet(tmp / f"{name}.parquet", index=False)
         _write_json(tmp / "summary.json", summary)
-        viewer = report and trajectories is not None and len(trajectories) > 0
-        if viewer:
-            write_run_viewer(tmp / "viewer", summary, episodes, trajectories,
-                             segments=segments, roads=roads, novel_labels=scores.novel_labels,
-                             cache=cache)
-        if report:
-            write_report(tmp, summary, episodes, scores, viewer="viewer/index.html"
-                         if viewer else None, cache=cache)
+        with page_templates(tmp, summary, pages) as shown:  # what the pages say of the run
+            viewer = report and trajectories is not None and len(trajectories) > 0
+            if viewer:
+                write_run_viewer(tmp / "viewer", shown, episodes, trajectories,
+                                 segments=segments, roads=roads,
+                                 novel_labels=scores.novel_labels, cache=cache)
+            if report:
+                write_report(tmp, shown, episodes, scores, viewer="viewer/index.html"
+                             if viewer else None, cache=cache)
     return Path(output)
 
 
@@ -262,6 +272,8 @@ def run_viewer(folder: str | os.PathLike, output: str | os.PathLike | None = Non
     Raises:
         FileFormatError: the folder is not a finished run, or has no trajectories.
     """
+    from tap_bench.bench.viewer import write_run_viewer
+
     folder = Path(folder)
     summary, episodes = read_run(folder)
     traj_path = folder / "trajectories.parquet"

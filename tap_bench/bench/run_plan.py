@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +54,9 @@ class _Task:
     measures: tuple[str, ...] = ()  # the run's measures: the worker must have each
     label_key: str | None = None  # its labels and measures in the cache (bench.cache)
     label_doc: Mapping[str, Any] | None = None
+    # the env's road (highway-env: a map table) as the run's process drew it, so that the
+    # workers do not each build the env again to draw it; None: the worker draws it
+    road: Any = field(default=None, compare=False, repr=False)
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ import math
 import time
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -50,6 +50,8 @@ def _road(task: _Task, trajectories: pd.DataFrame) -> pd.DataFrame | None:
         return None
     if isinstance(task.scenario, WomdScenes):
         return _scene_lanes(task.scenario, trajectories)
+    if task.road is not None:  # drawn once by the run's process
+        return task.road.assign(map_id=str(trajectories["env"].iat[0]))
     key = repr(task.scenario)
     if key not in _ROADS:
         from tap_bench.sim.roads import road_table
@@ -328,13 +330,19 @@ def _items(tasks: list[_Task], indices: list[int], cached: list[bool], workers: 
 
 def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
               progress: bool | None, cache: EpisodeCache | None,
-              announce: Callable[[str], None] | None
-              ) -> tuple[list[dict[str, Any]], RunPlan]:
+              announce: Callable[[str], None] | None,
+              road: Callable[[str], pd.DataFrame] | None = None,
+              tasks: list[_Task] | None = None) -> tuple[list[dict[str, Any]], RunPlan]:
     """Every episode of the suite as a task on ``backend`` (one recovery rule: an episode
     whose worker died is tried once more, then recorded as failed), cached episodes read
     rather than simulated. Before the tasks start, ``announce`` gets the run's estimate,
-    from the cache's timings or from a first episode of each env without one."""
-    tasks = _tasks(suite_plan, keep, cache)
+    from the cache's timings or from a first episode of each env without one. ``road``:
+    env -> its highway-env road as a map table, drawn here once for the envs with episodes
+    to label and handed to their tasks (None: each worker draws it). ``tasks``: the run's
+    tasks when made already (:func:`~tap_bench.bench.run_plan._tasks` with the same
+    ``keep`` and ``cache``)."""
+    if tasks is None:
+        tasks = _tasks(suite_plan, keep, cache)
     suite = suite_plan.suite
     results: dict[int, dict[str, Any]] = {}
     seconds: dict[int, float] = {}
@@ -349,6 +357,16 @@ def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
             notes[i] = hit["cache_note"]
     cached = [i in results or (cache is not None and t.key is not None
                                and cache.contains(t.key)) for i, t in enumerate(tasks)]
+    if road is not None:
+        drawn: dict[str, pd.DataFrame | None] = {}
+        for i, task in enumerate(tasks):
+            if i not in results and not isinstance(task.scenario, WomdScenes):
+                if task.env not in drawn:
+                    try:
+                        drawn[task.env] = road(task.env)
+                    except Exception:  # the workers draw it, and fail per episode as before
+                        drawn[task.env] = None
+                tasks[i] = replace(task, road=drawn[task.env])
     known = cache.timings() if cache is not None else {}
     probes, seen = [], set(known.get("simulated", {}))
     for i, (task, hit) in enumerate(zip(tasks, cached, strict=True)):

@@ -42,10 +42,11 @@ failed is an error (:class:`~tap_bench.errors.EpisodesFailedError`), not an empt
 With an episode cache (:mod:`tap_bench.bench.cache`), an episode whose inputs did not change
 is read instead of simulated, and its labels and measures too when they were made with the
 same thresholds, level and code (those episodes are read in this process: no worker
-starts for them); scores are always recomputed, and a run with the cache gives the same
-tables as one without, float for float. Before the episodes start, the run
-estimates how long it will take, from the cache's timings of earlier runs or by timing a
-first episode of each env.
+starts for them); the scores, figures and viewer data of unchanged inputs are read too,
+and a run whose every input is unchanged is served whole (:mod:`tap_bench.bench.
+run_cache`). A run with the cache gives the same tables as one without, float for float.
+Before the episodes start, the run estimates how long it will take, from the cache's
+timings of earlier runs or by timing a first episode of each env.
 """
 
 from __future__ import annotations
@@ -57,7 +58,7 @@ import os
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -74,8 +75,14 @@ from tap_bench.bench.contexts import context_scores
 from tap_bench.bench.episodes import one_outcome_cells
 from tap_bench.bench.gap import window_episodes, window_seconds
 from tap_bench.bench.power import power_table
+from tap_bench.bench.run_cache import (
+    RunResult,
+    _check_apart,
+    fresh_facts,
+    store_run,
+    try_served,
+)
 from tap_bench.bench.run_folder import (
-    _machine,
     _write_json,
     check_output,
     package_versions,
@@ -101,7 +108,6 @@ from tap_bench.bench.verdict import verdict_table
 from tap_bench.errors import (
     CacheEntryWarning,
     EpisodesFailedError,
-    OutputPathError,
     ParameterError,
     RunExistsError,
 )
@@ -111,39 +117,6 @@ __all__ = ["CACHED_BATCH", "CACHED_EPISODE_S", "RunExistsError", "RunPlan", "Run
            "SuitePlan", "plan_suite",
            "check_output", "package_versions", "provenance", "read_run", "run_suite",
            "run_viewer", "write_results"]
-
-
-@dataclass(frozen=True)
-class RunResult:
-    """What :func:`run_suite` returns.
-
-    Attributes:
-        folder: the run folder written.
-        summary: the content of ``summary.json``.
-        episodes: the episode table.
-        scores: the scored tables.
-        report: path of ``report.html``.
-    """
-
-    folder: Path
-    summary: dict[str, Any]
-    episodes: pd.DataFrame
-    scores: Scores
-    report: Path
-
-
-def _check_apart(output: Path, cache_root: Path) -> None:
-    """The run folder and the episode cache must not hold one another: ``--overwrite``
-    would delete the cache with the run, or the cache's files would fill the run folder.
-
-    Raises:
-        OutputPathError: naming both folders.
-    """
-    out, root = Path(output).resolve(), Path(cache_root).expanduser().resolve()
-    if out == root or root in out.parents or out in root.parents:
-        raise OutputPathError(f"{output}: the run folder and the episode cache ({cache_root}) "
-                              "overlap; give the run folder (-o) and the cache (--cache) "
-                              "separate places.")
 
 
 def _road(suite: Suite, env: str, cache: EpisodeCache | None,
@@ -218,6 +191,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         EpisodesFailedError: every episode failed (naming the first errors); nothing is
             written.
     """
+    t_start = time.perf_counter()
     output = check_output(output, overwrite)
     plan = plan_suite(suite, plugins=plugins, seeds=seeds)  # the suite, resolved once
     suite, thresholds = plan.suite, plan.thresholds
@@ -225,15 +199,19 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         cache = EpisodeCache(Path(cache))
     if cache is not None:
         _check_apart(output, cache.root)
-    runner = resolve_backend(backend, workers)
-    timings: dict[str, float] = {}
-    t_start = time.perf_counter()
     sources = dict(references or {})
     if womd:
         if "WOMD" in sources:
             raise ParameterError("references", sorted(sources), "names other than 'WOMD' "
                                  "when womd= is given (womd= is references={'WOMD': ...})")
         sources["WOMD"] = list(womd)
+    # every input as in an earlier run: its folder comes whole from the cache (run_cache)
+    served, tasks, whole = try_served(plan, cache, output, overwrite, keep_trajectories,
+                                        report, bool(sources), t_start, announce)
+    if served is not None:
+        return served
+    runner = resolve_backend(backend, workers)
+    timings: dict[str, float] = {}
     t0 = time.perf_counter()
     corpora = {name: _reference(name, source, suite.level, thresholds)
                for name, source in sources.items()}
@@ -241,11 +219,23 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         timings["references"] = time.perf_counter() - t0
     with_trajectories = any(traj is not None for traj, _ in corpora.values())
 
+    drawn: dict[str, pd.DataFrame] = {}
+    simulation: list[dict[str, Any] | None] = []
+
+    def road(env: str) -> pd.DataFrame:
+        """The env's map table, drawn (or read from the cache) once in this run: the
+        workers label on it and the run folder keeps it."""
+        if env not in drawn:
+            if not simulation:  # the simulation code's fingerprint, once
+                simulation.append(simulation_fingerprint() if cache is not None else None)
+            drawn[env] = _road(suite, env, cache, simulation[0])
+        return drawn[env]
+
     t0 = time.perf_counter()
     kept = getattr(runner, "kept", None)  # the estimate's first episodes and the rest
     with kept() if kept is not None else contextlib.nullcontext():  # on the same workers
         results, estimate = _rollouts(plan, runner, keep_trajectories or with_trajectories,
-                                      progress, cache, announce)
+                                      progress, cache, announce, road, tasks)
     timings["rollouts_wall"] = time.perf_counter() - t0
     if announce is not None:
         announce(f"episodes done ({timings['rollouts_wall']:.0f} s); scoring ...")
@@ -336,17 +326,18 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     timings["scoring"] = time.perf_counter() - t0
 
     failed = episodes[episodes["status"] != "ok"]
+    facts = fresh_facts(plan, output)
     summary = {
         "format": "tap-bench-run", "format_version": 1,
-        "run": output.name, "created": time.strftime("%Y-%m-%d %H:%M:%S"),
-        "suite": suite.to_dict(), "suite_file": str(suite.path) if suite.path else None,
+        "run": facts["run"], "created": facts["created"],
+        "suite": suite.to_dict(), "suite_file": facts["suite_file"],
         "level": suite.level,
         "seeds": "all" if suite.all_seeds else list(suite.seeds),
         "thresholds": thresholds.to_dict() if hasattr(thresholds, "to_dict") else
         str(suite.thresholds),
         "reference_policy": suite.reference,
         "references": {name: _describe_source(source) for name, source in sources.items()},
-        "versions": package_versions(), "machine": _machine(),
+        "versions": facts["versions"], "machine": facts["machine"],
         "n_episodes": len(episodes), "n_failed": len(failed),
         "failed": failed[["env", "policy", "seed", "error"]].to_dict("records"),
         "methods": scores.methods,
@@ -372,15 +363,18 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     t0 = time.perf_counter()
     roads = None
     if keep_trajectories:  # the replay viewer draws them; highway-env's road is seed-free
-        simulation = simulation_fingerprint() if cache is not None else None
-        roads = pd.concat([_road(suite, env, cache, simulation) for env in suite.envs],
-                          ignore_index=True)
+        roads = pd.concat([road(env) for env in suite.envs], ignore_index=True)
+    # kept whole for an unchanged re-run: every episode made (a failed one is tried again)
+    keep = whole is not None and (episodes["status"] == "ok").all()
+    pages: dict[str, bytes] | None = {} if keep else None
     folder = write_results(output, overwrite, summary, episodes, labels, trajectories
                            if keep_trajectories else None, scores, report,
-                           segments=segments, roads=roads, cache=cache)
+                           segments=segments, roads=roads, cache=cache, pages=pages)
     timings["writing_and_report"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
     _write_json(folder / "summary.json", summary)  # with the final timings
+    if keep and cache is not None and pages is not None:
+        store_run(cache, whole, folder, summary, pages, episodes, scores)
     if cache is not None:
         simulated, cached = _observed_timings(results)
         work = sum(r["seconds"] for r in results if math.isfinite(r["seconds"]))

@@ -128,23 +128,39 @@ def _references(specs: list[str]) -> dict[str, list[str]]:
 def run_bench(args: argparse.Namespace) -> int:
     from tap_bench.bench.cache import EpisodeCache, default_cache_dir
     from tap_bench.bench.demo import timing_split
-    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.run_cache import serve_unchanged
     from tap_bench.execution import backend_from_args, close_backend
 
     cache = None if args.no_cache else EpisodeCache(args.cache or default_cache_dir())
-    backend = backend_from_args(args) if args.backend != "local" or args.address else None
-    try:
-        result = run_suite(args.suite, args.output, workers=args.workers, womd=args.womd,
-                           references=_references(args.reference),
-                           keep_trajectories=not args.no_trajectories,
-                           overwrite=args.overwrite,
-                           progress=progress_choice(args), backend=backend,
-                           seeds=args.seeds, cache=cache,
-                           announce=lambda line: print(line, flush=True),
-                           plugins=getattr(args, "plugin", None) or ())
-    finally:
-        if backend is not None:
-            close_backend(backend)
+    references = _references(args.reference)
+    plugins = getattr(args, "plugin", None) or ()
+
+    def announce(line: str) -> None:
+        print(line, flush=True)
+
+    # an unchanged run is written from the cache before the scoring, the report and the
+    # viewer are even imported
+    result = serve_unchanged(args.suite, args.output, cache=cache,
+                             keep_trajectories=not args.no_trajectories,
+                             overwrite=args.overwrite, seeds=args.seeds,
+                             corpora=bool(references or args.womd), plugins=plugins,
+                             announce=announce)
+    if result is None:
+        from tap_bench.bench.runner import run_suite
+
+        backend = backend_from_args(args) if args.backend != "local" or args.address \
+            else None
+        try:
+            result = run_suite(args.suite, args.output, workers=args.workers,
+                               womd=args.womd, references=references,
+                               keep_trajectories=not args.no_trajectories,
+                               overwrite=args.overwrite,
+                               progress=progress_choice(args), backend=backend,
+                               seeds=args.seeds, cache=cache, announce=announce,
+                               plugins=plugins)
+        finally:
+            if backend is not None:
+                close_backend(backend)
     s = result.summary
     split = timing_split(result)
     print(f"{s['n_episodes']} episodes, {s['n_failed']} failed; {split['total']:.0f} s "
@@ -152,7 +168,9 @@ def run_bench(args: argparse.Namespace) -> int:
           f"{split['scoring']:.1f} s, report {split['report']:.1f} s)")
     if s.get("cache"):
         print(f"episode cache {s['cache']['dir']}: {s['cache']['cached']} read, "
-              f"{s['cache']['simulated']} simulated")
+              f"{s['cache']['simulated']} simulated"
+              + ("; the run served whole (every input unchanged)"
+                 if s["cache"].get("run") == "served whole" else ""))
     for row in s["failed"][:10]:
         print(f"  failed: {row['env']} {row['policy']} seed {row['seed']}: {row['error']}",
               file=sys.stderr)

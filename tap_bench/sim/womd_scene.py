@@ -17,13 +17,15 @@ import os
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
 from tap_bench.errors import ParameterError, TapBenchError
-from tap_bench.womd.roadmap import RoadMap
+
+if TYPE_CHECKING:  # read with a scene only: resolving a suite needs no protobuf
+    from tap_bench.womd.roadmap import RoadMap
 
 __all__ = ["CURRENT_STEP", "TRAFFIC", "Scene", "SceneError", "SceneRef", "WomdScenes",
            "load_scene", "scene_catalog"]
@@ -171,7 +173,8 @@ def _read(ref: SceneRef) -> tuple[pd.DataFrame, RoadMap, str]:
             table = decode_tf_example(record).to_pandas()
             road = roadmap.tf_example_road_map(record.data, source=str(ref))
             if road is None:
-                road = RoadMap(str(table["scenario_id"].iloc[0]), {}, topology="none")
+                road = roadmap.RoadMap(str(table["scenario_id"].iloc[0]), {},
+                                       topology="none")
         return table, road, hashlib.sha256(record.data).hexdigest()
     raise SceneError(f"{ref.path}: no record {ref.record}; the file changed since it was "
                      "listed.")

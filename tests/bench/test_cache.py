@@ -35,6 +35,8 @@ from tap_bench.sim.policies import (
 from tap_bench.sim.rollout import rollout
 from tap_bench.sim.scenario_env import get_scenario
 
+from .conftest import without_runs
+
 TABLES = ("episodes", "labels", "trajectories")
 
 
@@ -102,7 +104,7 @@ def test_a_corrupt_entry_is_simulated_again_never_used(cold_and_warm, tmp_path):
     data[-100] ^= 0xFF  # one flipped bit pattern in the Parquet payload
     entries[0].write_bytes(bytes(data))
     entries[1].write_bytes(entries[1].read_bytes()[:500])  # a torn write
-    again = run(tiny(), tmp_path / "again", cache)
+    again = run(tiny(), tmp_path / "again", without_runs(cache))
     assert (again.summary["cache"]["cached"], again.summary["cache"]["simulated"]) == (2, 2)
     assert_same_results(cold, again)
     key = entries[0].stem
@@ -272,6 +274,6 @@ def test_cached_episodes_labelled_in_batches_equal_single_ones(tmp_path):
     run(suite, tmp_path / "fill", cache)
     entries = sorted(cache.folder.glob("*/*.episode"))
     entries[3].unlink()
-    warm = run(suite, tmp_path / "warm", cache)
+    warm = run(suite, tmp_path / "warm", without_runs(cache))
     assert (warm.summary["cache"]["cached"], warm.summary["cache"]["simulated"]) == (7, 1)
     assert_same_results(cold, warm)

@@ -336,6 +336,25 @@ def test_jerk_of_a_hand_worked_speed_profile_and_of_noise():
     assert np.isnan(ego_measures(short)["rms_jerk"].iloc[0])
 
 
+def test_savgol_derivative_is_scipy_s_and_its_fit_is_computed_once():
+    """The Savitzky-Golay slope equals scipy's savgol_filter(deriv=1, mode="interp") over
+    windows, orders and lengths; its least-squares fit is made once per (window, order) and
+    is read-only, so a caller cannot change the next call's result."""
+    signal = pytest.importorskip("scipy.signal")
+    from tap_bench.bench.measures import _savgol_fit, savgol_derivative
+
+    rng = np.random.default_rng(2)
+    for window, order, n in ((15, 2, 15), (15, 2, 91), (7, 3, 40), (5, 1, 6), (21, 4, 300)):
+        y = np.cumsum(rng.normal(0, 1, n))
+        ours = savgol_derivative(y, window, order, 0.1)
+        assert ours == pytest.approx(signal.savgol_filter(y, window, order, deriv=1,
+                                                          delta=0.1, mode="interp"),
+                                     rel=1e-9, abs=1e-9)
+        assert (savgol_derivative(y, window, order, 0.1) == ours).all()
+    x, fit = _savgol_fit(15, 2)
+    assert _savgol_fit(15, 2)[1] is fit and not fit.flags.writeable and not x.flags.writeable
+
+
 @pytest.mark.parametrize("side", [1, -1], ids=["left", "right"])
 @pytest.mark.parametrize("radius", [15.0, 20.0, 30.0])
 def test_a_car_stopped_on_the_road_out_of_a_turn_whose_exit_the_record_cuts(radius, side):

@@ -17,6 +17,8 @@ from tap_bench.bench.cache import EpisodeCache, label_code
 from tap_bench.bench.runner import run_suite
 from tap_bench.bench.suite import suite_from_dict
 
+from .conftest import without_runs
+
 TABLES = ("episodes", "labels", "segments", "trajectories")
 
 
@@ -60,7 +62,7 @@ def runs(tmp_path_factory):
     cache = EpisodeCache(root / "cache")
     cold = run(root / "cold", None)
     first = run(root / "first", cache, workers=2)
-    again = run(root / "again", cache)
+    again = run(root / "again", without_runs(cache))
     return root, cold, first, again, cache
 
 
@@ -87,7 +89,7 @@ def test_identical_whatever_the_batch_size_and_workers(runs, tmp_path, monkeypat
     assert result.summary["cache"]["cached"] == 12
     assert result.summary["cache"]["labelled_before"] == 0
     assert_identical(cold, result)
-    again = run(tmp_path / "again", episodes_only, workers=workers)
+    again = run(tmp_path / "again", without_runs(episodes_only), workers=workers)
     assert again.summary["cache"]["labelled_before"] == 12
     assert_identical(cold, again)
 
@@ -96,6 +98,7 @@ def test_identical_whatever_the_cache_holds(runs, tmp_path):
     _, cold, _, _, cache = runs
     mixed = EpisodeCache(tmp_path / "cache")
     shutil.copytree(cache.root, mixed.root)
+    without_runs(mixed)
     labels = sorted(mixed.labels_folder.glob("*/*.labels"))
     episodes = sorted(mixed.folder.glob("*/*.episode"))
     for path in labels[::2]:  # half the labels gone

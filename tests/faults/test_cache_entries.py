@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import shutil
 import warnings
 from pathlib import Path
 
@@ -137,6 +138,9 @@ def test_a_refused_entry_is_simulated_again_with_a_note(tmp_path):
     entries = sorted(cache.folder.glob("*/*.episode"))
     entries[0].write_bytes(b"null\n" + entries[0].read_bytes().partition(b"\n")[2])
     entries[1].write_bytes(_edit_row(entries[1].read_bytes(), crashed=True))
+    # without the whole run (served from the cache: tests/bench/test_run_cache.py), the
+    # re-run reads its episodes
+    shutil.rmtree(cache.derived_folder / "runs")
     again, notes = run(tiny(), tmp_path / "again", cache)
     assert (again.summary["cache"]["cached"], again.summary["cache"]["simulated"]) == (0, 2)
     assert len(again.summary["cache"]["refused"]) == 2 and len(notes) == 2

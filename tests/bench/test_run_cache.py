@@ -1,0 +1,380 @@
+"""A run served whole from the cache (issue 24 section 3, :mod:`tap_bench.bench.run_cache`):
+an unchanged re-run writes the earlier run's files, byte for byte, without reading an
+episode or scoring; every input that can change an output makes it miss, and the run made
+instead equals a cold run; a damaged entry is made again; the pages that name the run are
+filled with this run's name, time and timings exactly as a made run writes them."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+import shutil
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from tap_bench.bench import cache as cache_module
+from tap_bench.bench import run_cache
+from tap_bench.bench.cache import EpisodeCache, derived_key
+from tap_bench.bench.run_folder import write_results
+from tap_bench.bench.runner import run_suite
+from tap_bench.bench.suite import suite_from_dict
+from tap_bench.errors import RunExistsError
+
+ROOT = Path(__file__).resolve().parents[2]
+PAGES = {"summary.json", "report.html", "viewer/data/index.js"}
+
+
+def tiny(**changes):
+    doc = {"name": "tiny", "envs": ["merge", "highway"], "policies": ["idm", "lane-keeping"],
+           "seeds": "0-1", "reference_policy": "idm",
+           "env_overrides": {"merge": {"duration": 3}, "highway": {"duration": 3}},
+           "bootstrap": {"n_resamples": 200}}
+    doc.update(changes)
+    return suite_from_dict(doc, check_names=False)
+
+
+def run(folder, cache, suite=None, **kwargs):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return run_suite(suite or tiny(), folder, workers=kwargs.pop("workers", 1),
+                         progress=False, cache=cache, **kwargs)
+
+
+def served(result) -> bool:
+    return (result.summary["cache"] or {}).get("run") == "served whole"
+
+
+def files(folder: Path) -> dict[str, bytes]:
+    """Every file of a run folder by its path (its marker, which lists them, left out)."""
+    return {p.relative_to(folder).as_posix(): p.read_bytes()
+            for p in sorted(folder.rglob("*")) if p.is_file() and p != folder /
+            ".tap-bench-folder"}
+
+
+def assert_tables_equal(a, b):
+    """Every table of two runs equal, column for column, floats with ==; their scores too."""
+    names = sorted(p.name for p in a.folder.glob("*.parquet"))
+    assert names == sorted(p.name for p in b.folder.glob("*.parquet"))
+    for name in names:
+        left, right = pd.read_parquet(a.folder / name), pd.read_parquet(b.folder / name)
+        pd.testing.assert_frame_equal(left, right, check_exact=True, obj=name)
+        assert left.equals(right), name
+    pd.testing.assert_frame_equal(a.episodes, b.episodes, check_exact=True)
+    for name, table in a.scores.tables().items():
+        pd.testing.assert_frame_equal(table, b.scores.tables()[name], check_exact=True,
+                                      obj=name)
+    assert list(a.scores.methods.items()) == list(b.scores.methods.items())
+    for key in ("headline", "verdict", "methods", "provenance", "measures", "suite"):
+        assert a.summary[key] == b.summary[key], key
+
+
+def _no_work(monkeypatch):
+    def fail(*args, **kwargs):
+        raise AssertionError("a served run made something")
+
+    monkeypatch.setattr("tap_bench.bench.runner._rollouts", fail)
+    monkeypatch.setattr("tap_bench.bench.runner.score", fail)
+    monkeypatch.setattr("tap_bench.bench.runner.write_results", fail)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("runcache")
+    cache = EpisodeCache(root / "cache")
+    cold = run(root / "cold", None)
+    first = run(root / "first", cache, workers=2)
+    return root, cold, first, cache
+
+
+def test_an_unchanged_rerun_is_served_whole_and_equal(runs, tmp_path, monkeypatch):
+    _, cold, first, cache = runs
+    assert not served(first) and cache.derived_path("runs", run_key(cache, tiny())).is_file()
+    _no_work(monkeypatch)
+    again = run(tmp_path / "first", cache)  # the same folder name, another place
+    assert served(again)
+    assert again.summary["cache"]["cached"] == again.summary["cache"]["labelled_before"] == 8
+    # every file the earlier run wrote, byte for byte, but those that name the run
+    mine, theirs = files(again.folder), files(first.folder)
+    assert set(mine) == set(theirs)
+    assert {name for name in mine if mine[name] != theirs[name]} <= PAGES
+    # the tables equal a cold run's (floats with ==), whatever the worker count
+    assert_tables_equal(cold, again)
+    assert_tables_equal(first, again)
+    # this run's own facts, honestly: its name, time, timings, and that it was served
+    summary = json.loads((again.folder / "summary.json").read_text())
+    assert summary == json.loads(json.dumps(again.summary, default=str))
+    assert list(summary) == list(first.summary)
+    assert summary["run"] == "first" and summary["cache"]["simulated"] == 0
+    assert set(summary["timings"]) == {"reading_the_run_entry", "total"}
+    assert summary["estimate"]["basis"] == "served whole from the cache"
+    for key in set(summary) - set(run_cache.FRESH):
+        assert summary[key] == json.loads(json.dumps(first.summary[key], default=str)), key
+    page = (again.folder / "report.html").read_text()
+    assert "reading_the_run_entry" in page and "rollouts_wall" not in page
+    assert summary["created"] in page
+    assert "tapbench" not in page and "tapbench" not in (
+        again.folder / "viewer" / "data" / "index.js").read_text()
+
+
+def test_the_pages_filled_are_the_pages_written(runs, tmp_path):
+    """A page kept as a template and filled is byte for byte the page written from the
+    summary itself, whatever the run's name holds."""
+    _, _, first, _ = runs
+    summary = dict(first.summary)
+    for k, name in enumerate(['r&un <b>"x"</b>', "é</script>ü", "plain", "tapbench"]):
+        summary.update(run=name, created=f"2026-01-0{k + 1} 10:00:00",
+                       timings={"a<b>": 1.25, "total": 3.0 + k})
+        made, kept = tmp_path / f"made{k}" / "run", tmp_path / f"kept{k}" / "run"
+        pages: dict[str, bytes] = {}
+        for folder, keep in ((made, None), (kept, pages)):
+            write_results(folder, False, summary, first.episodes,
+                          pd.read_parquet(first.folder / "labels.parquet"),
+                          pd.read_parquet(first.folder / "trajectories.parquet"),
+                          first.scores, segments=pd.read_parquet(first.folder /
+                                                                 "segments.parquet"),
+                          roads=pd.read_parquet(first.folder / "roads.parquet"), pages=keep)
+        assert files(made) == files(kept)
+        assert set(pages) == {"nonce", *run_cache.PAGES}
+        for page in run_cache.PAGES:
+            nonce = pages["nonce"].decode()
+            assert nonce.encode() in pages[page]
+            assert run_cache.fill_page(page, pages[page], nonce, summary) == \
+                (made / page).read_bytes()
+
+
+def test_the_timings_table_is_the_reports_table():
+    from tap_bench.bench.report_tables import html_table
+
+    timings = {"rollouts_wall": 12.345, "a<b>": 0.04, "total": 100.0}
+    table = pd.DataFrame({"stage": list(timings),
+                          "seconds": [f"{v:.1f} s" for v in timings.values()]})
+    assert run_cache.timings_html(timings) == "<h3>Timings</h3>" + html_table(
+        table, table_id="timings", max_rows=50,
+        caption="Wall time per stage; *_cpu_in_workers add up over the worker processes.")
+    assert run_cache.timings_html({}) == ""
+
+
+def _thresholds_file(tmp_path):
+    from tap_bench.thresholds import PRESETS, save_thresholds
+
+    paper = PRESETS["paper"]
+    name = next(f.name for f in dataclasses.fields(paper)
+                if isinstance(getattr(paper, f.name), float))
+    path = tmp_path / "other.json"
+    save_thresholds(dataclasses.replace(paper, **{name: getattr(paper, name) * 1.5}), path)
+    return str(path)
+
+
+def _policy_file(tmp_path):
+    from tap_bench.sim.policies import get_definition
+
+    doc = json.loads(get_definition("idm").path.read_text())
+    doc["params"]["time_wanted"] = 2.0
+    path = tmp_path / "idm.json"
+    path.write_text(json.dumps(doc))
+    return str(path)
+
+
+def _changed_measure(monkeypatch):
+    from tap_bench.bench.measures import MEASURES
+
+    entries = dict(MEASURES._entries)
+    entries["mean_speed"] = dataclasses.replace(entries["mean_speed"], label="fastest")
+    monkeypatch.setattr(MEASURES, "_entries", entries)
+
+
+# each: (what changes, how: a suite and run arguments, or a change of the process)
+CHANGES = {
+    "seeds": lambda tmp, mp: ({"seeds": "0-2"}, {}),
+    "seeds given": lambda tmp, mp: ({}, {"seeds": "1-2"}),
+    "an env's config": lambda tmp, mp: ({"env_overrides": {
+        "merge": {"duration": 3},
+        "highway": {"duration": 3, "config": {"vehicles_count": 12}}}}, {}),
+    "a policy's file": lambda tmp, mp: ({"policies": [_policy_file(tmp), "lane-keeping"],
+                                         "reference_policy": "lane-keeping"}, {}),
+    "the thresholds": lambda tmp, mp: ({"thresholds": _thresholds_file(tmp)}, {}),
+    "the level": lambda tmp, mp: ({"level": "trend"}, {}),
+    "the bootstrap": lambda tmp, mp: ({"bootstrap": {"n_resamples": 300}}, {}),
+    "the gate": lambda tmp, mp: ({"gate": {"margins": {"mean_speed": 0.5}}}, {}),
+    "the reference": lambda tmp, mp: ({"reference_policy": "lane-keeping"}, {}),
+    "the suite's name": lambda tmp, mp: ({"name": "tiny2"}, {}),
+    "no trajectories": lambda tmp, mp: ({}, {"keep_trajectories": False}),
+    "no report": lambda tmp, mp: ({}, {"report": False}),
+    "a measure entry": lambda tmp, mp: (_changed_measure(mp) or {}, {}),
+    "the package code": lambda tmp, mp: (mp.setattr(cache_module, "_PACKAGE_CODE",
+                                                    ["other"]) or {}, {}),
+    "the package data": lambda tmp, mp: (mp.setattr(run_cache, "_PACKAGE_DATA",
+                                                    ["other"]) or {}, {}),
+    "a library version": lambda tmp, mp: (mp.setattr(
+        run_cache, "_version", lambda pkg: "0.0" if pkg == "scipy" else
+        cache_module._version(pkg)) or {}, {}),
+}
+
+
+@pytest.mark.parametrize("change", sorted(CHANGES))
+def test_every_input_that_changes_an_output_misses(runs, tmp_path, monkeypatch, change):
+    cache = runs[3]
+    suite_changes, kwargs = CHANGES[change](tmp_path, monkeypatch)
+    suite = tiny(**suite_changes)
+    warm = run(tmp_path / "warm", cache, suite, **kwargs)
+    assert not served(warm), change
+    cold = run(tmp_path / "cold", None, suite, **kwargs)
+    assert_tables_equal(cold, warm)
+    again = run(tmp_path / "again", cache, suite, **kwargs)  # now kept: served
+    assert served(again)
+    assert_tables_equal(cold, again)
+
+
+def run_key(cache, suite, keep=True, report=True, seeds=None):
+    """The key of a run's entry."""
+    from tap_bench.bench.run_plan import _tasks, plan_suite
+
+    plan = plan_suite(suite, seeds=seeds)
+    inputs = run_cache.run_inputs(plan, _tasks(plan, keep, cache), keep_trajectories=keep,
+                                  report=report)
+    return derived_key("runs", inputs)[0]
+
+
+def test_the_key_holds_every_input(runs):
+    """The keys of runs that differ in one input differ (no run needed)."""
+    cache = runs[3]
+
+    def key(suite, **kwargs):
+        return run_key(cache, suite, **kwargs)
+
+    base = key(tiny())
+    assert key(tiny()) == base
+    variants = [key(tiny(seeds="0-2")), key(tiny(), seeds="1"), key(tiny(level="trend")),
+                key(tiny(reference_policy="lane-keeping")), key(tiny(), keep=False),
+                key(tiny(), report=False), key(tiny(description="other")),
+                key(tiny(bootstrap={"n_resamples": 200, "seed": 7})),
+                key(tiny(envs=["highway", "merge"])),
+                key(tiny(env_overrides={"merge": {"duration": 3},
+                                        "highway": {"duration": 4}}))]
+    assert len({base, *variants}) == len(variants) + 1
+
+
+@pytest.mark.parametrize("damage", ["torn", "flipped", "emptied", "foreign"])
+def test_a_damaged_run_entry_is_made_again(runs, tmp_path, damage):
+    _, cold, _, cache = runs
+    mine = EpisodeCache(tmp_path / "cache")
+    shutil.copytree(cache.root, mine.root)
+    entry = mine.derived_path("runs", run_key(mine, tiny()))
+    data = entry.read_bytes()
+    entry.write_bytes({"torn": data[:-11], "flipped": data[:-9] + bytes([data[-9] ^ 4])
+                       + data[-8:], "emptied": b"",
+                       "foreign": (mine.derived_folder / "scores").glob("*/*").__next__()
+                       .read_bytes()}[damage])
+    result = run(tmp_path / "run", mine)
+    assert not served(result)
+    assert_tables_equal(cold, result)
+    assert run(tmp_path / "again", mine).summary["cache"]["run"] == "served whole"
+
+
+def test_a_run_entry_that_is_not_a_run_is_made_again(runs, tmp_path):
+    """A whole, checksummed entry whose files are not a run's (another version wrote it)."""
+    _, cold, _, cache = runs
+    mine = EpisodeCache(tmp_path / "cache")
+    shutil.copytree(cache.root, mine.root)
+    entry = mine.derived_path("runs", run_key(mine, tiny()))
+    header = json.loads(entry.read_bytes().partition(b"\n")[0])
+    mine.put_derived("runs", header["key"], header["doc"], {"pages.json": b"{}"})
+    result = run(tmp_path / "run", mine)
+    assert not served(result)
+    assert_tables_equal(cold, result)
+
+
+def test_a_served_run_never_replaces_a_folder_unless_asked(runs, tmp_path):
+    from tap_bench.errors import OutputPathError
+
+    _, _, _, cache = runs
+    assert served(run(tmp_path / "run", cache))
+    before = files(tmp_path / "run")
+    with pytest.raises(RunExistsError):
+        run(tmp_path / "run", cache)
+    assert files(tmp_path / "run") == before
+    assert served(run(tmp_path / "run", cache, overwrite=True))
+    (tmp_path / "run" / "mine.txt").write_text("kept")  # not tap-bench's: never deleted
+    with pytest.raises(OutputPathError, match=r"mine\.txt"):
+        run(tmp_path / "run", cache, overwrite=True)
+    assert (tmp_path / "run" / "mine.txt").read_text() == "kept"
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "thesis.tex").write_text("mine")
+    with pytest.raises(OutputPathError, match="not written by tap-bench"):
+        run(tmp_path / "other", cache, overwrite=True)
+    assert (tmp_path / "other" / "thesis.tex").read_text() == "mine"
+
+
+def test_runs_that_cannot_be_keyed_are_never_kept(tmp_path, monkeypatch):
+    from tap_bench.bench import run_tasks
+    from tap_bench.bench.measures import MEASURES
+
+    # an episode failed: tried again next run, never served as failed
+    cache = EpisodeCache(tmp_path / "cache")
+    real = run_tasks.rollout_episode
+
+    def flaky(scenario, definition, seed):
+        if seed == 1:
+            raise RuntimeError("a worker's bad day")
+        return real(scenario, definition, seed)
+
+    monkeypatch.setattr(run_tasks, "rollout_episode", flaky)
+    suite = tiny(envs=["merge"], env_overrides={"merge": {"duration": 3}})
+    result = run(tmp_path / "failed", cache, suite)
+    assert result.summary["n_failed"] > 0
+    assert not (cache.derived_folder / "runs").exists()
+    monkeypatch.setattr(run_tasks, "rollout_episode", real)
+    assert not served(run(tmp_path / "ok", cache, suite))
+    assert served(run(tmp_path / "ok2", cache, suite))
+    # a measure registered by the user's script (not tap-bench's code): never kept whole
+    entry = dataclasses.replace(MEASURES["mean_speed"], name="script_speed")
+    entries = dict(MEASURES._entries)
+    entries["script_speed"] = dataclasses.replace(entry, function=lambda *a: None)
+    monkeypatch.setattr(MEASURES, "_entries", entries)
+    assert run_cache.registered_outside() == [
+        f"measure script_speed ({__name__})"]
+    from tap_bench.bench.run_plan import _tasks, plan_suite
+
+    plan = plan_suite(suite)
+    assert run_cache.run_inputs(plan, _tasks(plan, True, cache), keep_trajectories=True,
+                                report=True) is None
+
+
+def _modules_after(code: str, cache: Path, cwd: Path) -> tuple[set[str], str]:
+    script = (f"import sys\n{code}\nimport json\n"
+              "print(json.dumps(sorted(sys.modules)))")
+    out = subprocess.run([sys.executable, "-c", script], cwd=cwd, check=True,
+                         capture_output=True, text=True,
+                         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
+                              "TAP_BENCH_CACHE": str(cache), "OMP_WAIT_POLICY": "PASSIVE"})
+    lines = out.stdout.strip().splitlines()
+    return set(json.loads(lines[-1])), "\n".join(lines[:-1])
+
+
+def test_the_command_line_serves_without_scoring_report_or_viewer_code(tmp_path):
+    suite = tmp_path / "tiny.json"
+    suite.write_text(json.dumps({
+        "name": "tiny", "envs": ["merge"], "policies": ["idm", "lane-keeping"], "seeds": "0-1",
+        "env_overrides": {"merge": {"duration": 3}}, "bootstrap": {"n_resamples": 200}}))
+    cache = tmp_path / "cache"
+    call = ("from tap_bench.cli import main\n"
+            f"main(['bench', 'run', '--suite', {str(suite)!r}, '-o', {{out!r}}, "
+            "'--no-progress', '--workers', '1'])")
+    _, said = _modules_after(call.format(out=str(tmp_path / "a")), cache, tmp_path)
+    assert "served whole" not in said
+    modules, said = _modules_after(call.format(out=str(tmp_path / "b")), cache, tmp_path)
+    assert "served from the cache" in said and "served whole" in said
+    heavy = {"tap_bench.bench.scoring", "tap_bench.bench.report", "tap_bench.bench.viewer",
+             "tap_bench.bench.runner", "tap_bench.labelling", "highway_env", "scipy",
+             "matplotlib", "numba", "google.protobuf"}
+    assert not modules & heavy
+    assert {p.relative_to(tmp_path / "a").as_posix() for p in (tmp_path / "a").rglob("*")} \
+        == {p.relative_to(tmp_path / "b").as_posix() for p in (tmp_path / "b").rglob("*")}
+    text = (tmp_path / "b" / "report.html").read_text()
+    assert re.search(r"<h1>tap-bench run b</h1>", text)
