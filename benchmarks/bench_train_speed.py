@@ -18,7 +18,10 @@ steps per second but are in its CPU seconds); "before-no-curve" the same code wi
 against it (``cpu_per_step_vs_before_no_curve``), a figure the machine's load moves less
 than steps per second. The other runs use this checkout with the settings given:
 ``n_envs`` training envs in parallel processes, on the scenario's fast variant or on the
-scenario itself (``--exact``). CPU seconds include each process's start (imports: about 4
+scenario itself (``--exact``); "2-envs-in-process" steps the 2 envs one after the other in
+the command's process (``--in-process``, SB3's ``DummyVecEnv``; the same weights) instead
+of one worker process each; "2-envs-fast-curve" is tap-bench train's defaults, learning
+curve included. CPU seconds include each process's start (imports: about 4
 CPU s of a 2000-step run; an exported tree has no compiled ``.pyc`` where
 ``PYTHONDONTWRITEBYTECODE`` is set, and neither does a fresh checkout).
 
@@ -45,11 +48,15 @@ from machine import export, report
 ROOT = Path(__file__).resolve().parents[1]
 VARIANTS = {  # name: extra arguments of `tap-bench train` ("before*": the "before" code)
     "before": [],  # its defaults: a learning curve, whose evaluations CPU seconds include
-    "before-no-curve": ["--no-curve"],  # the same steps per second, CPU of training alone
+    "before-no-curve": ["--no-curve"],  # the training alone (its CPU without evaluations)
     "1-env-exact": ["--n-envs", "1", "--exact", "--no-curve"],
     "1-env-fast": ["--n-envs", "1", "--no-curve"],
     "2-envs-exact": ["--n-envs", "2", "--exact", "--no-curve"],
     "2-envs-fast": ["--n-envs", "2", "--no-curve"],  # the default of tap-bench train
+    "2-envs-fast-curve": [],  # all of tap-bench train's defaults: with the learning curve
+    # the same 2 envs stepped one after the other in the training process (SB3's
+    # DummyVecEnv) instead of in 2 worker processes: the same weights; CPU against speed
+    "2-envs-in-process": ["--n-envs", "2", "--no-curve", "--in-process"],
 }
 
 
@@ -79,6 +86,7 @@ def reap_descendants() -> None:
 def run(source: Path, algo: str, timesteps: int, extra: list[str], out: Path,
         subreaper: bool) -> dict:
     """One training command; its env steps per second and CPU seconds (with all workers)."""
+    out.mkdir(parents=True, exist_ok=True)
     model = out / f"{algo}-{abs(hash(tuple(extra)))}.zip"
     env = {**os.environ, "PYTHONPATH": str(source), "PYTHONWARNINGS": "ignore"}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -123,7 +131,8 @@ def main() -> None:
             for repeat in range(args.repeats):
                 for name in args.variants.split(","):
                     source = before if name.startswith("before") else ROOT
-                    result = run(source, algo, args.timesteps, VARIANTS[name], out, subreaper)
+                    result = run(source, algo, args.timesteps, VARIANTS[name],
+                                 out / f"run{repeat}", subreaper)
                     key = f"{algo} / {name}" + (f" / run {repeat}" if args.repeats > 1 else "")
                     figures[key] = result
                     print(key, result, flush=True)

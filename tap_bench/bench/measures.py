@@ -912,6 +912,10 @@ def ego_measures(table: pd.DataFrame, map_table: pd.DataFrame | LaneMap | None =
 def _check_one_ego(ego_sid: np.ndarray, ego_track: np.ndarray, sids) -> None:
     if not len(ego_sid):
         return
+    order = np.argsort(ego_sid, kind="stable")
+    s, k = ego_sid[order], np.asarray(ego_track, dtype=object)[order]
+    if not ((s[1:] == s[:-1]) & (k[1:] != k[:-1])).any():  # one track in every scenario
+        return
     pairs = pd.DataFrame({"s": ego_sid, "k": ego_track}).drop_duplicates()
     many = pairs["s"].duplicated(keep=False)
     if many.any():

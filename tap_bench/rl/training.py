@@ -19,9 +19,13 @@ per cent. So training runs
 - with highway-env's neighbour search, collision loop and lane lookup computed sooner, the
   same results bit for bit (:mod:`tap_bench.sim.fast_road`, in every scenario env), and
   the Kinematics observation without pandas (:mod:`tap_bench.sim.observation`);
-- on ``n_envs`` envs stepped in parallel worker processes (``SubprocVecEnv``; one env runs
-  in this process), DQN's gradient steps overlapping their simulation
-  (:mod:`tap_bench.rl.overlap`);
+- on ``n_envs`` envs stepped in parallel worker processes (``SubprocVecEnv``; with
+  ``n_envs=1`` the env runs in this process), DQN's gradient steps overlapping their
+  simulation (:mod:`tap_bench.rl.overlap`); the workers are forked from a forkserver that
+  has imported their modules (SB3, torch, highway-env, tap-bench's envs) once
+  (:data:`WORKER_MODULES`). Stepping the 2 envs one after the other in this process
+  (``DummyVecEnv``) was measured slower (``benchmarks/bench_train_speed.py``, variant
+  ``2-envs-in-process``; docs/simulation.md);
 - with one torch thread: the workers are the parallelism, and batches of 32 to 64 rows
   gain nothing from more (two threads made PPO 10 % slower here).
 """
@@ -213,11 +217,12 @@ def _workers_preloaded(scenario: Scenario | WomdScenes) -> Iterator[None]:
         multiprocessing.get_context("forkserver").set_forkserver_preload(previous)
 
 
-def _vec_env(scenario: Scenario, *, n_envs: int, fast: bool, seed: int) -> Any:
+def _vec_env(scenario: Scenario, *, n_envs: int, fast: bool, seed: int,
+             in_process: bool = False) -> Any:
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
-    if n_envs == 1:
-        vec = DummyVecEnv([functools.partial(_make_training_env, scenario, fast)])
+    if n_envs == 1 or in_process:
+        vec = DummyVecEnv([functools.partial(_make_training_env, scenario, fast)] * n_envs)
     else:
         factory = functools.partial(_make_training_env, scenario, fast, worker=True)
         # forkserver: workers start from a clean interpreter, not a copy of this process
@@ -233,7 +238,8 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
           fast: bool = True, curve: CurveConfig | None = None,
           log_dir: str | os.PathLike | None = None, verbose: int = 0,
           command: str | None = None, keep: str = "last", overwrite: bool = False,
-          announce: Callable[[str], None] | None = None) -> TrainingResult:
+          announce: Callable[[str], None] | None = None,
+          in_process: bool = False) -> TrainingResult:
     """Train ``algo`` on scenario ``env`` for ``timesteps`` decisions and save it.
 
     Args:
@@ -268,6 +274,11 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
             starting, training progress every tenth of ``timesteps``, each curve
             evaluation, saving), whether or not on a terminal: ``tap-bench train`` prints
             them, as ``demo`` and ``bench run`` print theirs.
+        in_process: step the ``n_envs`` envs one after the other in this process (SB3's
+            ``DummyVecEnv``) rather than each in a worker process: the same training, bit
+            for bit (the same weights), with less CPU in all (no workers to start, nothing
+            sent between processes), but on one core: faster only when the machine's
+            cores are busy with other work (docs/simulation.md).
 
     Raises:
         ParameterError: ``timesteps``, ``n_envs``, ``output`` or ``keep`` is not usable.
@@ -325,8 +336,9 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
             observation=observation, name=output.stem, keep_best=keep == "best",
             until=timesteps, verbose=verbose, announce=announce))
     say(f"starting {n_envs} training env(s) of {scenario.env_id}"
-        + (" (fast variant)" if fast and not isinstance(scenario, WomdScenes) else "") + " ...")
-    vec = _vec_env(scenario, n_envs=n_envs, fast=fast, seed=seed)
+        + (" (fast variant)" if fast and not isinstance(scenario, WomdScenes) else "")
+        + (" in this process" if in_process and n_envs > 1 else "") + " ...")
+    vec = _vec_env(scenario, n_envs=n_envs, fast=fast, seed=seed, in_process=in_process)
     learner_env, learn_callbacks = vec, list(callbacks)
     if announce is not None:
         from tap_bench.rl.callbacks import StepsAnnounced

@@ -416,20 +416,23 @@ def test_the_workers_forkserver_preloads_their_modules_and_the_setting_is_restor
     assert server._preload_modules == ["__main__", "mine"]
 
 
-def test_a_two_env_training_is_reproducible(tmp_path, write_scenario):
-    """The same seed gives the same weights with the envs in worker processes (DQN's
-    overlapped gradient steps included)."""
+def test_a_two_env_training_is_the_same_in_worker_processes_and_in_this_process(
+        tmp_path, write_scenario):
+    """The same seed gives the same weights with the envs in worker processes and stepped
+    one after the other in this process (``in_process``; DQN's overlapped gradient steps
+    in both): only the speed differs."""
     import torch
+    from stable_baselines3 import DQN
+
+    from tap_bench.rl.training import train
 
     short = write_scenario("short", duration=5)
-    weights = []
-    for k in range(2):
-        from tap_bench.rl.training import train
-
-        result = train("dqn", short, timesteps=60, seed=3, n_envs=2,
-                       hyperparameters=TINY["dqn"], output=tmp_path / f"m{k}.zip")
-        from stable_baselines3 import DQN
-
+    weights, lines = [], []
+    for in_process in (False, True):
+        result = train("dqn", short, timesteps=60, seed=3, n_envs=2, in_process=in_process,
+                       hyperparameters=TINY["dqn"], output=tmp_path / f"m{in_process}.zip",
+                       announce=lines.append)
         weights.append(DQN.load(result.model_path, device="cpu").policy.state_dict())
     assert weights[0].keys() == weights[1].keys()
     assert all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
+    assert sum("training env(s)" in line and "in this process" in line for line in lines) == 1
