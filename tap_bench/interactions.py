@@ -291,6 +291,11 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
     m = len(ego_row)
     if len(lateral) != n:
         raise TapBenchError(f"interaction_steps: {len(lateral)} lateral codes for {n} rows.")
+    if m == 0:  # no ego segment long enough to label: no relation to find
+        none = np.zeros(0, np.int64)
+        return InteractionSteps(relation=np.zeros(0, np.int8), other_row=none,
+                                other_track=none, leader_row=none, cut_in_step=none,
+                                cut_in_track=none, runs=Runs(none, none, none, none))
     ego_lateral = lateral[ego_row]
     v_e = speed[ego_row]
     reach = leader_reach(v_e, config.range_m, config.range_s)

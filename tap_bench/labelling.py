@@ -98,13 +98,7 @@ class TapResult:
     def labels(self, level: str = "action") -> pd.DataFrame:
         """The label table (SPEC section 1) at ``level`` or at ``"all"`` levels."""
         levels = sdl.levels(level)
-        frames = [self._labels_one(lv) for lv in levels]
-        out = pd.concat(frames, ignore_index=True) if len(frames) > 1 else frames[0]
-        if len(levels) > 1:
-            order = np.argsort(np.tile(np.arange(len(self.segments_info)), len(levels)),
-                               kind="stable")
-            out = out.iloc[order].reset_index(drop=True)
-        return out
+        return _by_segment([self._labels_one(lv) for lv in levels], len(self.segments_info))
 
     def segments(self, level: str = "action") -> pd.DataFrame:
         """The segment table (SPEC section 1): one row per run of one label; with
@@ -239,22 +233,10 @@ class TapResult:
                               sdl.SEPARATOR)
 
     def _labels_one(self, level: str) -> pd.DataFrame:
-        info = self.segments_info
-        lat = self._sequences(level, "lateral")
-        lon = self._sequences(level, "longitudinal")
-        sdl_text = pc.binary_join_element_wise(lat, lon, sdl.SDL_SEPARATOR)
-        out = pd.DataFrame({
-            "scenario_id": info["scenario_id"], "track_id": info["track_id"],
-            "segment": info["segment"], "level": level,
-            "lateral": _strings(lat), "longitudinal": _strings(lon), "sdl": _strings(sdl_text),
-            "t_start": info["t_start"], "t_end": info["t_end"],
-        })
-        if self.interactions is not None:
-            out.insert(7, "interaction", self._interaction_sequences())
-        for col in (*GLITCH_COLUMNS, *IDENTIFYING_COLUMNS):
-            if col in info.columns:
-                out[col] = info[col]
-        return out
+        return _label_frame(self.segments_info, level, self._sequences(level, "lateral"),
+                            self._sequences(level, "longitudinal"),
+                            None if self.interactions is None
+                            else self._interaction_sequences())
 
     def _segments_one(self, level: str, axis: str) -> pd.DataFrame:
         info = self.segments_info
@@ -276,6 +258,36 @@ class TapResult:
                 out[col] = per_run[col]
         out["_seg"] = runs.seg
         return out
+
+
+def _label_frame(info: pd.DataFrame, level: str, lat, lon,
+                 interaction: pd.Series | None = None) -> pd.DataFrame:
+    """The label table at one level: a row of ``info`` (segments) each, its lateral and
+    longitudinal sequences (``lat``, ``lon``: Arrow string arrays, (S,)) and, with the
+    interaction axis, its relations."""
+    sdl_text = pc.binary_join_element_wise(lat, lon, sdl.SDL_SEPARATOR)
+    out = pd.DataFrame({
+        "scenario_id": info["scenario_id"], "track_id": info["track_id"],
+        "segment": info["segment"], "level": level,
+        "lateral": _strings(lat), "longitudinal": _strings(lon), "sdl": _strings(sdl_text),
+        "t_start": info["t_start"], "t_end": info["t_end"],
+    })
+    if interaction is not None:
+        out.insert(7, "interaction", interaction)
+    for col in (*GLITCH_COLUMNS, *IDENTIFYING_COLUMNS):
+        if col in info.columns:
+            out[col] = info[col]
+    return out
+
+
+def _by_segment(frames: list[pd.DataFrame], n_segments: int) -> pd.DataFrame:
+    """The label tables of several levels (each a row per segment) as one, the levels of a
+    segment together in the order given."""
+    out = pd.concat(frames, ignore_index=True) if len(frames) > 1 else frames[0]
+    if len(frames) > 1:
+        order = np.argsort(np.tile(np.arange(n_segments), len(frames)), kind="stable")
+        out = out.iloc[order].reset_index(drop=True)
+    return out
 
 
 def _strings(values: pa.Array) -> pd.Series:
@@ -419,8 +431,19 @@ class TapParts:
     parts: tuple[TapResult, ...]
 
     def labels(self, level: str = "action") -> pd.DataFrame:
-        """:meth:`TapResult.labels` of the whole table."""
-        return self._joined([p.labels(level) for p in self.parts])
+        """:meth:`TapResult.labels` of the whole table: without the interaction axis, one
+        frame a level of the parts' label sequences laid end to end (not one a part)."""
+        if len(self.parts) == 1 or self.interactions is not None:
+            return self._joined([p.labels(level) for p in self.parts])
+        info = self.segments_info
+
+        def sequences(lv: str, axis: str) -> pa.ChunkedArray:
+            return pa.chunked_array([p._sequences(lv, axis) for p in self.parts],
+                                    type=pa.string())
+
+        return _by_segment([_label_frame(info, lv, sequences(lv, "lateral"),
+                                         sequences(lv, "longitudinal"))
+                            for lv in sdl.levels(level)], len(info))
 
     def segments(self, level: str = "action") -> pd.DataFrame:
         """:meth:`TapResult.segments` of the whole table."""
@@ -487,10 +510,10 @@ def tap_in_parts(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
 
     A table is cut only where it can be without changing a result: its ``scenario_id`` is
     a string column whose scenarios each lie in one run of rows, in the order the
-    validated table sorts them (TAP labels each scenario on its own), cut between
-    scenarios every ``part_rows`` rows or so. Otherwise, and when any part raises an error
-    or a warning, the whole table is labelled in one call, which gives that error or
-    warning as :func:`tap` does (the row numbers of the whole table).
+    validated table sorts them (TAP labels each scenario on its own), every row is valid,
+    and it is cut between scenarios every ``part_rows`` rows or so. Otherwise, and when
+    any part raises an error or a warning, the whole table is labelled in one call, which
+    gives that error or warning as :func:`tap` does (the row numbers of the whole table).
 
     Args:
         table: a trajectory table (SPEC section 1).
@@ -515,6 +538,11 @@ def tap_in_parts(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
     return TapParts(parts)
 
 
+def _all_true(column: pd.Series) -> bool:
+    values = column.to_numpy()
+    return values.dtype == np.bool_ and bool(values.all())
+
+
 def _without_signals(result: TapResult) -> TapResult:
     """``result`` without the per-row signals of its kinematics (see :class:`TapParts`)."""
     empty = np.zeros(0)
@@ -532,6 +560,11 @@ def _scenario_parts(table: pd.DataFrame, part_rows: int) -> list[int] | None:
     n = len(table)
     column = table["scenario_id"]
     if not isinstance(column.dtype, pd.StringDtype) or column.hasnans:
+        return None
+    # every row valid: a one-second block's mean of positions then sums the same rows in
+    # a part as in the whole table (with invalid rows, the block before them sums their
+    # zeros too, in another order, and its last bits differ from a part's)
+    if "valid" in table.columns and not _all_true(table["valid"]):
         return None
     values = column.array
     change = np.ones(n, dtype=bool)
@@ -576,7 +609,10 @@ def _interaction_segments(info: pd.DataFrame, tracks: str, source: str) -> np.nd
                 f"{source}: interactions='ego' labels the tracks marked by an is_ego column, "
                 "and the table has none; mark the ego, or use interactions='all' (every "
                 "vehicle and cyclist).")
-        mask = info["is_ego"].fillna(False).to_numpy(bool)
+        is_ego = info["is_ego"]
+        # validated: numpy bools, nothing missing (other types as before)
+        mask = is_ego.to_numpy() if is_ego.dtype == np.bool_ else \
+            is_ego.fillna(False).to_numpy(bool)
     else:
         mask = np.ones(len(info), bool)
     if "object_type" in info.columns:  # as astype(str).isin: a missing type is no type

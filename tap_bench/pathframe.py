@@ -560,9 +560,19 @@ def _extension_points(x0: np.ndarray, y0: np.ndarray, h0: np.ndarray, kappa: np.
     [rad], along a curve that starts with curvature ``kappa`` (P,) [1/m] and falls linearly
     to 0 over ``fade`` (P,) metres (inf: a circular arc); it turns at most
     :data:`MAX_EXTENSION_TURN` and goes straight on from there. Returns (P, e) x and y."""
+    return _extension_at(x0, y0, _extension_nodes(h0, kappa, fade, u), u)
+
+
+def _extension_nodes(h0: np.ndarray, kappa: np.ndarray, fade: np.ndarray, u: np.ndarray
+                     ) -> tuple:
+    """The curve of :func:`_extension_points` at its integration nodes, for distances up
+    to the largest of ``u`` on each row: (that largest (P,), the curved stretch's length
+    (P,), node offsets x and y (P, N), cos and sin of the final heading (P, 1)). Two sets of
+    distances with the same largest share them."""
     k = np.asarray(kappa, float)
     fade = np.asarray(fade, float)
     ak = np.abs(k)
+    longest = np.max(u, axis=1, initial=0.0)
     # the length of the curved stretch: where the curvature reaches 0, or the turn its cap
     with np.errstate(divide="ignore", invalid="ignore"):
         cap = np.where(ak > 1e-9, MAX_EXTENSION_TURN / ak, 0.0)  # constant curvature
@@ -570,7 +580,7 @@ def _extension_points(x0: np.ndarray, y0: np.ndarray, h0: np.ndarray, kappa: np.
         root = fade * (1 - np.sqrt(np.clip(1 - 2 * MAX_EXTENSION_TURN / (ak * fade), 0, 1)))
     curved = np.where(np.isinf(fade), cap, np.where(full_turn > MAX_EXTENSION_TURN, root, fade))
     curved = np.where(ak > 1e-9, curved, 0.0)
-    curved = np.minimum(curved, np.max(u, axis=1, initial=0.0))  # no farther than asked
+    curved = np.minimum(curved, longest)  # no farther than asked
     g = curved[:, None] * np.linspace(0.0, 1.0, _NODES)[None, :]  # (P, N) nodes
     f = np.where(fade > 0, fade, np.inf)[:, None]  # a fade of 0 has no curved stretch
     with np.errstate(invalid="ignore"):
@@ -580,18 +590,25 @@ def _extension_points(x0: np.ndarray, y0: np.ndarray, h0: np.ndarray, kappa: np.
     mid = 0.5 * (head[:, 1:] + head[:, :-1])  # the midpoint rule on each node interval
     nx = np.concatenate([np.zeros((len(k), 1)), np.cumsum(dg * np.cos(mid), axis=1)], axis=1)
     ny = np.concatenate([np.zeros((len(k), 1)), np.cumsum(dg * np.sin(mid), axis=1)], axis=1)
+    return longest, curved, nx, ny, np.cos(head[:, -1:]), np.sin(head[:, -1:])
+
+
+def _extension_at(x0: np.ndarray, y0: np.ndarray, nodes: tuple, u: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_extension_points` from the curve's nodes (:func:`_extension_nodes`)."""
+    _, curved, nx, ny, cos_end, sin_end = nodes
     # on the curved stretch: between its (uniform) nodes; beyond it: straight on
     with np.errstate(divide="ignore", invalid="ignore"):
         pos = np.where(curved[:, None] > 0, u / curved[:, None] * (_NODES - 1), 0.0)
     pos = np.clip(pos, 0.0, _NODES - 1)
     i = np.minimum(np.floor(pos).astype(np.int64), _NODES - 2)
     frac = pos - i
-    rows = np.arange(len(k))[:, None]
+    rows = np.arange(len(curved))[:, None]
     out_x = nx[rows, i] + frac * (nx[rows, i + 1] - nx[rows, i])
     out_y = ny[rows, i] + frac * (ny[rows, i + 1] - ny[rows, i])
     rest = np.maximum(u - curved[:, None], 0.0)
-    out_x = out_x + rest * np.cos(head[:, -1:])
-    out_y = out_y + rest * np.sin(head[:, -1:])
+    out_x = out_x + rest * cos_end
+    out_y = out_y + rest * sin_end
     return x0[:, None] + out_x, y0[:, None] + out_y
 
 
@@ -641,8 +658,8 @@ def _end_curvature(h: np.ndarray, arc: np.ndarray, end: np.ndarray, other: np.nd
 def _line_base(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, spacing: float
                ) -> tuple:
     """What :func:`_reference_lines` computes before the reach matters: the ego steps'
-    positions, headings and arc lengths, the vertices kept, and the curvature of each end
-    (two frames of the same paths share it)."""
+    positions, headings and arc lengths, the vertices kept, the curvature of each end, and
+    room for the extensions' nodes (two frames of the same paths share it)."""
     x, y, h = paths.x[ego_row], paths.y[ego_row], paths.heading[ego_row]
     length = paths.stop - paths.start
     first_step = np.cumsum(length) - length
@@ -689,7 +706,7 @@ def _line_base(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, spacing:
     k_back, fade_b = _fading(_end_curvature(h, arc, at_b, first_step),
                              _end_curvature(h, arc, at_b0, at_b), ds_b)
     return (x, y, first_step, last_step, arc, kept, kept_path, n_kept, hb, he, k_front,
-            fade_f, k_back, fade_b)
+            fade_f, k_back, fade_b, {})  # the last: the extensions' nodes, once known
 
 
 def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, spacing: float,
@@ -708,7 +725,8 @@ def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, sp
     ``base``: :func:`_line_base` of the same paths, spacing (computed when None).
     """
     (x, y, first_step, last_step, arc, kept, kept_path, n_kept, hb, he, k_front, fade_f,
-     k_back, fade_b) = _line_base(paths, ego_row, ego_path, spacing) if base is None else base
+     k_back, fade_b, _) = _line_base(paths, ego_row, ego_path, spacing) if base is None \
+        else base
     # distances of the extension vertices from each end, (P, e) far to near: the far vertex
     # at EXTENSION, then every few metres (closer on tighter arcs, or along lanes) to reach
     mapped = (lanes.covers(paths.scene[paths.start]) if lanes is not None
@@ -730,9 +748,16 @@ def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, sp
     vx[dest], vy[dest], vs[dest] = x[kept], y[kept], arc[kept]
     # the back extension: forwards from the first position, facing backwards, where the
     # path's curvature has the other sign
-    bx, by = _extension_points(x[first_step], y[first_step], hb + np.pi, -k_back, fade_b,
-                               ext_b)
-    fx, fy = _extension_points(x[last_step], y[last_step], he, k_front, fade_f, ext_f)
+    # the curve's nodes once for the frames of the same paths (their farthest distance is
+    # the same: EXTENSION), then the points at this reach's distances
+    nodes = base[-1] if base is not None else {}
+    for end, h_end, k_end, fade, ext in (("back", hb + np.pi, -k_back, fade_b, ext_b),
+                                          ("front", he, k_front, fade_f, ext_f)):
+        known = nodes.get(end)
+        if known is None or not np.array_equal(known[0], np.max(ext, axis=1, initial=0.0)):
+            nodes[end] = _extension_nodes(h_end, k_end, fade, ext)
+    bx, by = _extension_at(x[first_step], y[first_step], nodes["back"], ext_b)
+    fx, fy = _extension_at(x[last_step], y[last_step], nodes["front"], ext_f)
     if lanes is not None and paths.n_paths:
         for p in range(paths.n_paths):
             scene = int(paths.scene[paths.start[p]])

@@ -122,6 +122,27 @@ def test_an_unchanged_rerun_is_served_whole_and_equal(runs, tmp_path, monkeypatc
         again.folder / "viewer" / "data" / "index.js").read_text()
 
 
+def test_no_file_of_a_kept_or_served_run_holds_a_placeholder(runs, tmp_path):
+    """The report and the viewer are written from a summary whose name, time and timings
+    are placeholders (page_templates); only the pages kept as templates are filled, so any
+    other file written from that summary would carry a placeholder into the run folder,
+    the entry and every served run (the byte-for-byte comparisons cannot see it: both
+    sides hold the same one)."""
+    _, _, first, cache = runs
+    again = run(tmp_path / "again", cache)
+    assert served(again)
+    mark = re.compile(rb"tapbench(?:run|created|timings)[0-9a-f]{24}")
+    for result in (first, again):
+        for name, data in files(result.folder).items():
+            assert not mark.search(data), name
+    entry = cache.derived_path("runs", run_key(cache, tiny()))
+    assert len(mark.findall(entry.read_bytes())) >= 2  # the templates hold them, and only
+    # the templates: each placeholder found in the entry is inside one of the two pages
+    kept, _ = cache.read_derived("runs", run_key(cache, tiny()))
+    assert {name for name, data in kept.items() if mark.search(data)} == {
+        f"run/{page}" for page in run_cache.PAGES}
+
+
 def test_the_pages_filled_are_the_pages_written(runs, tmp_path):
     """A page kept as a template and filled is byte for byte the page written from the
     summary itself, whatever the run's name holds."""

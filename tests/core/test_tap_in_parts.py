@@ -91,7 +91,7 @@ def test_a_large_table_is_cut_between_scenarios_only():
     _assert_same(parts, tap(table))
 
 
-@pytest.mark.parametrize("case", ["unsorted", "split", "categorical", "small"])
+@pytest.mark.parametrize("case", ["unsorted", "split", "categorical", "small", "invalid"])
 def test_tables_that_cannot_be_cut_are_labelled_whole(case):
     table = random_trajectories(40, 40, seed=2, scenarios=8)
     if case == "unsorted":  # scenarios out of the validated order
@@ -104,6 +104,8 @@ def test_tables_that_cannot_be_cut_are_labelled_whole(case):
                           ignore_index=True)
     elif case == "categorical":
         table["scenario_id"] = table["scenario_id"].astype("category")
+    elif case == "invalid":  # a block's mean sums the zeros of invalid rows after it
+        table["valid"] = np.arange(len(table)) % 37 != 5
     part_rows = len(table) + 1 if case == "small" else 100
     assert _scenario_parts(table, part_rows) is None
     parts = tap_in_parts(table, part_rows=part_rows)
@@ -154,11 +156,23 @@ def test_a_table_faster_than_10_hz_is_resampled_whole():
 
 
 def test_a_part_without_labels_adds_no_rows():
-    """A part whose scenario has no valid row: its empty tables (whose columns may have
-    other dtypes) leave the joined tables as one call's."""
+    """A part whose scenario has only tracks too short to label: its empty tables (whose
+    columns may have other dtypes) leave the joined tables as one call's."""
     table = random_trajectories(30, 40, seed=5, scenarios=6)
-    table["valid"] = table["scenario_id"] != table["scenario_id"].iloc[len(table) // 2]
-    parts = tap_in_parts(table, part_rows=1)
-    assert len(parts.parts) == 6
-    assert any(len(p.glitches()) == 0 for p in parts.parts)
-    _assert_same(parts, tap(table))
+    middle = table["scenario_id"] == table["scenario_id"].iloc[len(table) // 2]
+    table = table[~middle | (table.groupby("track_id").cumcount() < 5)].reset_index(drop=True)
+    for interactions in (None, "all"):
+        parts = tap_in_parts(table, part_rows=1, interactions=interactions)
+        assert len(parts.parts) == 6
+        assert any(len(p.segments_info) == 0 for p in parts.parts)
+        _assert_same(parts, tap(table, interactions=interactions))
+
+
+def test_interactions_of_a_table_with_nothing_long_enough_to_label():
+    """Every track shorter than 1 s: no segment, no relation (it raised an IndexError)."""
+    table = random_trajectories(3, 40, seed=5, scenarios=1)
+    table = table[table.groupby("track_id").cumcount() < 5].reset_index(drop=True)
+    result = tap(table, interactions="all")
+    assert len(result.segments_info) == 0 and len(result.short_segments) == 3
+    assert len(result.labels("all")) == 0 and len(result.steps()) == 0
+    assert (result.segments("all")["axis"] == "interaction").sum() == 0
