@@ -18,10 +18,11 @@ steps per second but are in its CPU seconds); "before-no-curve" the same code wi
 against it (``cpu_per_step_vs_before_no_curve``), a figure the machine's load moves less
 than steps per second. The other runs use this checkout with the settings given:
 ``n_envs`` training envs in parallel processes, on the scenario's fast variant or on the
-scenario itself (``--exact``); "2-envs-in-process" steps the 2 envs one after the other in
-the command's process (``--in-process``, SB3's ``DummyVecEnv``; the same weights) instead
-of one worker process each; "2-envs-fast-curve" is tap-bench train's defaults, learning
-curve included. CPU seconds include each process's start (imports: about 4
+scenario itself (``--exact``); the default (``2-envs-fast``) steps its 2 envs in worker
+processes or, when fewer than 1.5 cores are idle at its start, one after the other in the
+command's process; "2-envs-workers" and "2-envs-in-process" force either
+(``--in-process no|yes``; the same weights); "2-envs-fast-curve" is tap-bench train's
+defaults, learning curve included. CPU seconds include each process's start (imports: about 4
 CPU s of a 2000-step run; an exported tree has no compiled ``.pyc`` where
 ``PYTHONDONTWRITEBYTECODE`` is set, and neither does a fresh checkout).
 
@@ -53,10 +54,11 @@ VARIANTS = {  # name: extra arguments of `tap-bench train` ("before*": the "befo
     "1-env-fast": ["--n-envs", "1", "--no-curve"],
     "2-envs-exact": ["--n-envs", "2", "--exact", "--no-curve"],
     "2-envs-fast": ["--n-envs", "2", "--no-curve"],  # the default of tap-bench train
+    "2-envs-workers": ["--n-envs", "2", "--no-curve", "--in-process", "no"],
     "2-envs-fast-curve": [],  # all of tap-bench train's defaults: with the learning curve
     # the same 2 envs stepped one after the other in the training process (SB3's
     # DummyVecEnv) instead of in 2 worker processes: the same weights; CPU against speed
-    "2-envs-in-process": ["--n-envs", "2", "--no-curve", "--in-process"],
+    "2-envs-in-process": ["--n-envs", "2", "--no-curve", "--in-process", "yes"],
 }
 
 
@@ -91,9 +93,10 @@ def run(source: Path, algo: str, timesteps: int, extra: list[str], out: Path,
     env = {**os.environ, "PYTHONPATH": str(source), "PYTHONWARNINGS": "ignore"}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "tap_bench", "train", "--algo", algo, "--env",
-                    "highway", "--timesteps", str(timesteps), "--seed", "0", "-o", str(model),
-                    *extra], env=env, cwd=source, check=True, capture_output=True)
+    done = subprocess.run([sys.executable, "-m", "tap_bench", "train", "--algo", algo,
+                           "--env", "highway", "--timesteps", str(timesteps), "--seed", "0",
+                           "-o", str(model), *extra], env=env, cwd=source, check=True,
+                          capture_output=True, text=True)
     wall = time.perf_counter() - start
     if subreaper:
         reap_descendants()  # the forkserver and its env workers, orphaned when training ends
@@ -101,7 +104,11 @@ def run(source: Path, algo: str, timesteps: int, extra: list[str], out: Path,
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     train_seconds = json.loads(model.with_suffix(".json").read_text())["params"][
         "train_seconds"]
+    starting = [line for line in done.stdout.splitlines() if "training env(s)" in line]
+    where = ("this process" if "in this process" in "".join(starting) else "workers"
+             if "in worker processes" in "".join(starting) else None)
     return {"train_seconds": train_seconds, "steps_per_s": round(timesteps / train_seconds, 1),
+            "envs_in": where,
             "process_wall_s": round(wall, 1),
             "cpu_s": round(cpu, 1) if subreaper else None,
             "cpu_ms_per_step": round(1000 * cpu / timesteps, 1) if subreaper else None,

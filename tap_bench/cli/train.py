@@ -36,10 +36,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    "train' at -o (files it did not write are never replaced)")
     p.add_argument("--n-envs", type=int, default=None,
                    help="training envs in parallel processes (default 2)")
-    p.add_argument("--in-process", action="store_true",
-                   help="step the training envs one after the other in this process, not "
-                   "each in a worker process: the same training (same weights), less CPU, "
-                   "faster when the machine's cores are busy with other work")
+    p.add_argument("--in-process", choices=("auto", "yes", "no"), default="auto",
+                   help="step the training envs one after the other in this process (yes) "
+                   "or each in a worker process (no): the same training (same weights); "
+                   "this process takes less CPU and is faster when the machine's cores are "
+                   "busy with other work. auto (default): this process when fewer cores "
+                   "than envs are idle at the start")
     p.add_argument("--exact", action="store_true",
                    help="train on the scenario itself (10 Hz, every collision), not its fast "
                    "variant: about twice as slow")
@@ -114,7 +116,8 @@ def run(args: argparse.Namespace) -> int:
                    output=args.output, n_envs=n_envs, fast=not args.exact, curve=curve,
                    log_dir=args.log_dir, verbose=args.verbose, command=command,
                    keep=args.keep, overwrite=args.overwrite,
-                   announce=lambda line: print(line, flush=True), in_process=args.in_process)
+                   announce=lambda line: print(line, flush=True),
+                   in_process={"auto": None, "yes": True, "no": False}[args.in_process])
     print(f"trained {args.algo} on {args.env} for {result.timesteps} steps in "
           f"{result.train_seconds:.0f} s ({result.steps_per_second:.1f} steps/s, "
           f"{result.episodes} episodes)")

@@ -23,8 +23,10 @@ per cent. So training runs
   ``n_envs=1`` the env runs in this process), DQN's gradient steps overlapping their
   simulation (:mod:`tap_bench.rl.overlap`); the workers are forked from a forkserver that
   has imported their modules (SB3, torch, highway-env, tap-bench's envs) once
-  (:data:`WORKER_MODULES`). Stepping the 2 envs one after the other in this process
-  (``DummyVecEnv``) was measured slower (``benchmarks/bench_train_speed.py``, variant
+  (:data:`WORKER_MODULES`); or, when the machine's cores are busy with other work at the
+  start (:func:`idle_cores`), all stepped one after the other in this process
+  (``DummyVecEnv``): the same weights, about a quarter less CPU, and more steps per second
+  on busy cores (``benchmarks/bench_train_speed.py``, variants ``2-envs-workers`` and
   ``2-envs-in-process``; docs/simulation.md);
 - with one torch thread: the workers are the parallelism, and batches of 32 to 64 rows
   gain nothing from more (two threads made PPO 10 % slower here).
@@ -59,7 +61,8 @@ from tap_bench.sim.schema import env_class
 from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.tableio import atomic_path, check_replace, write_table
 
-__all__ = ["DEFAULT_N_ENVS", "HYPERPARAMETERS", "MAX_N_ENVS", "TrainingResult", "train"]
+__all__ = ["DEFAULT_N_ENVS", "HYPERPARAMETERS", "MAX_N_ENVS", "WORKER_MODULES", "TrainingResult",
+           "idle_cores", "train"]
 
 HYPERPARAMETERS: dict[str, dict[str, Any]] = {
     # highway-env's published Stable-Baselines3 settings for its highway tasks.
@@ -217,6 +220,32 @@ def _workers_preloaded(scenario: Scenario | WomdScenes) -> Iterator[None]:
         multiprocessing.get_context("forkserver").set_forkserver_preload(previous)
 
 
+def idle_cores(seconds: float = 0.3) -> float | None:
+    """How many CPU cores were idle, on average, over the next ``seconds`` (Linux: the
+    idle and I/O-wait time of ``/proc/stat``'s all-CPU line; None where it cannot be read).
+
+    Training picks where its envs run by it (``train(in_process=None)``: in this process
+    below ``n_envs - 0.5`` idle cores, half a core of margin for the sample's noise): with
+    fewer idle cores than worker processes, those workers only take turns with other work on
+    the busy cores (measured: 23 to 33 % more CPU per env step, and fewer steps per second
+    in 6 of 6 interleaved pairs, than the envs stepped in the training process, at load 4.6
+    to 9 on 2 cores)."""
+    def read() -> tuple[int, int]:
+        with open("/proc/stat", encoding="ascii") as handle:
+            values = [int(v) for v in handle.readline().split()[1:9]]
+        return values[3] + values[4], sum(values)  # idle + iowait, all (guest in user)
+
+    try:
+        idle0, total0 = read()
+        time.sleep(seconds)
+        idle1, total1 = read()
+    except (OSError, ValueError, IndexError):
+        return None
+    if total1 <= total0:
+        return None
+    return (os.cpu_count() or 1) * (idle1 - idle0) / (total1 - total0)
+
+
 def _vec_env(scenario: Scenario, *, n_envs: int, fast: bool, seed: int,
              in_process: bool = False) -> Any:
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
@@ -239,7 +268,7 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
           log_dir: str | os.PathLike | None = None, verbose: int = 0,
           command: str | None = None, keep: str = "last", overwrite: bool = False,
           announce: Callable[[str], None] | None = None,
-          in_process: bool = False) -> TrainingResult:
+          in_process: bool | None = None) -> TrainingResult:
     """Train ``algo`` on scenario ``env`` for ``timesteps`` decisions and save it.
 
     Args:
@@ -277,8 +306,11 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
         in_process: step the ``n_envs`` envs one after the other in this process (SB3's
             ``DummyVecEnv``) rather than each in a worker process: the same training, bit
             for bit (the same weights), with less CPU in all (no workers to start, nothing
-            sent between processes), but on one core: faster only when the machine's
-            cores are busy with other work (docs/simulation.md).
+            sent between processes, no contention between them), but on one core: faster
+            when the machine's cores are busy with other work, slower when they are free
+            (docs/simulation.md). None (the default): in this process when fewer than
+            ``n_envs - 0.5`` cores are idle at the start (:func:`idle_cores`), else in
+            worker processes.
 
     Raises:
         ParameterError: ``timesteps``, ``n_envs``, ``output`` or ``keep`` is not usable.
@@ -335,10 +367,18 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
             scenario, reference, curve, every=max(1, -(-timesteps // curve.points)),
             observation=observation, name=output.stem, keep_best=keep == "best",
             until=timesteps, verbose=verbose, announce=announce))
+    why = ""
+    if in_process is None and n_envs > 1:
+        idle = idle_cores()
+        in_process = idle is not None and idle < n_envs - 0.5
+        if idle is not None:
+            why = f", {idle:.1f} of {os.cpu_count()} cores idle"
     say(f"starting {n_envs} training env(s) of {scenario.env_id}"
         + (" (fast variant)" if fast and not isinstance(scenario, WomdScenes) else "")
-        + (" in this process" if in_process and n_envs > 1 else "") + " ...")
-    vec = _vec_env(scenario, n_envs=n_envs, fast=fast, seed=seed, in_process=in_process)
+        + ("" if n_envs == 1 else " in this process" if in_process
+           else " in worker processes") + why + " ...")
+    vec = _vec_env(scenario, n_envs=n_envs, fast=fast, seed=seed,
+                   in_process=bool(in_process))
     learner_env, learn_callbacks = vec, list(callbacks)
     if announce is not None:
         from tap_bench.rl.callbacks import StepsAnnounced

@@ -178,7 +178,7 @@ def test_an_output_under_a_file_fails_before_the_work(tmp_path, cli, trajectorie
     calls = []
     import tap_bench.cli.label as label_cli
 
-    monkeypatch.setattr(label_cli, "tap", lambda *a, **k: calls.append(1))
+    monkeypatch.setattr(label_cli, "tap_in_parts", lambda *a, **k: calls.append(1))
     code, _, err = cli("label", trajectories, "-o", tmp_path / "ok.csv", "--segments",
                        tmp_path / "afile" / "s.csv")
     assert code == 2 and "afile is a file" in err and not calls

@@ -436,3 +436,44 @@ def test_a_two_env_training_is_the_same_in_worker_processes_and_in_this_process(
     assert weights[0].keys() == weights[1].keys()
     assert all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
     assert sum("training env(s)" in line and "in this process" in line for line in lines) == 1
+
+
+@pytest.mark.parametrize(("idle", "expected"), [(0.2, True), (1.4, True), (1.6, False),
+                                                (2.0, False), (None, False)])
+def test_by_default_the_envs_run_in_this_process_when_the_cores_are_busy(monkeypatch, tmp_path,
+                                                                        idle, expected):
+    """in_process=None: in this process with fewer than n_envs - 0.5 idle cores, else in
+    worker processes (also where the idle time cannot be read); given, it is obeyed."""
+    from tap_bench.rl import training
+
+    chosen = []
+
+    def vec_env(scenario, *, n_envs, fast, seed, in_process=False):
+        chosen.append(in_process)
+        raise KeyboardInterrupt  # stands for the training: nothing more is needed
+
+    monkeypatch.setattr(training, "idle_cores", lambda: idle)
+    monkeypatch.setattr(training, "_vec_env", vec_env)
+    lines = []
+    for in_process in (None, not expected):
+        with pytest.raises(KeyboardInterrupt):
+            training.train("dqn", "highway", timesteps=10, seed=0, n_envs=2,
+                           in_process=in_process, output=tmp_path / "m.zip",
+                           announce=lines.append)
+    assert chosen == [expected, not expected]
+    starting = [line for line in lines if "training env(s)" in line]
+    assert ("in this process" if expected else "in worker processes") in starting[0]
+    assert (idle is None) == ("cores idle" not in starting[0])
+
+
+def test_idle_cores_reads_the_machines_idle_time():
+    import os
+    import sys
+
+    from tap_bench.rl.training import idle_cores
+
+    idle = idle_cores(0.05)
+    if not sys.platform.startswith("linux"):
+        assert idle is None
+        return
+    assert 0.0 <= idle <= os.cpu_count()
