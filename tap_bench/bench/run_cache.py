@@ -82,8 +82,8 @@ __all__ = ["RUN_FORMAT", "RunResult", "fill_page", "fresh_facts", "page_template
 
 RUN_FORMAT = 1
 """Layout of a run entry's files; raised when it changes (old entries then miss)."""
-VERSIONED = ("numpy", "pandas", "pyarrow", "scipy", "numba", "gymnasium", "highway-env",
-             "matplotlib", "stable-baselines3", "torch", "protobuf")
+VERSIONED = ("tap-bench", "numpy", "pandas", "pyarrow", "scipy", "numba", "gymnasium",
+             "highway-env", "matplotlib", "stable-baselines3", "torch", "protobuf")
 """Packages whose versions key a run entry (those ``summary.json`` records among them)."""
 PAGES = ("report.html", "viewer/data/index.js")
 """The run folder's files that name the run (kept as templates)."""

@@ -43,17 +43,14 @@ def check_output(output: str | os.PathLike, overwrite: bool) -> Path:
 
 
 def package_versions() -> dict[str, str]:
-    """Versions of tap-bench and the packages its results depend on."""
-    from importlib import metadata
+    """Versions of tap-bench and the packages its results depend on (those installed; each
+    read once a process)."""
+    from tap_bench.bench.cache import _version
 
-    out = {}
-    for pkg in ("tap-bench", "numpy", "pandas", "pyarrow", "gymnasium", "highway-env",
-                "matplotlib", "stable-baselines3", "torch"):
-        try:
-            out[pkg] = metadata.version(pkg)
-        except metadata.PackageNotFoundError:
-            continue
-    return out
+    versions = {pkg: _version(pkg) for pkg in (
+        "tap-bench", "numpy", "pandas", "pyarrow", "gymnasium", "highway-env", "matplotlib",
+        "stable-baselines3", "torch")}
+    return {pkg: version for pkg, version in versions.items() if version != "absent"}
 
 
 def _machine() -> dict[str, Any]:

@@ -9,7 +9,7 @@ import contextlib
 import math
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -284,16 +284,29 @@ tasks, fewer TAP calls; enough of them to keep every worker busy to the end)."""
 
 @dataclass(frozen=True)
 class _Batch:
-    """Episodes of one env and policy (``tasks``), each read from the cache or simulated,
-    then labelled and measured together in one worker call (:func:`_label_together`)."""
+    """Episodes of one env and policy (``tasks``), each read from the cache or simulated
+    (or, in ``given``, simulated already: what :func:`_episode` gave, e.g. for the run's
+    estimate), then labelled and measured together in one worker call
+    (:func:`_label_together`)."""
 
     tasks: tuple[_Task, ...]
+    given: tuple[Any, ...] = ()  # per task: its _episode() value, or None
 
 
 def _run_batch(batch: _Batch) -> list[dict[str, Any]]:
     """One result per task of ``batch``, equal to what :func:`_run_task` gives for each."""
     _prepare_worker(batch.tasks[0])
-    return _label_together(batch.tasks, [_episode(task) for task in batch.tasks])
+    given = batch.given or (None,) * len(batch.tasks)
+    return _label_together(batch.tasks, [_episode(task) if got is None else got
+                                         for task, got in zip(batch.tasks, given,
+                                                              strict=True)])
+
+
+def _simulate(task: _Task) -> tuple[pd.DataFrame, dict[str, Any], bool, float, str | None]:
+    """One episode of ``task`` simulated (or read), not yet labelled: the run's first
+    episode of an env, timed for the estimate, is then labelled with its batch."""
+    _prepare_worker(task)
+    return _episode(task)
 
 
 def _split(table: pd.DataFrame, column: str) -> dict[Any, pd.DataFrame]:
@@ -307,11 +320,14 @@ def _run_item(item: _Task | _Batch) -> list[dict[str, Any]]:
     return _run_batch(item) if isinstance(item, _Batch) else [_run_task(item)]
 
 
-def _items(tasks: list[_Task], indices: list[int], cached: list[bool], workers: int = 1
+def _items(tasks: list[_Task], indices: list[int], cached: list[bool], workers: int = 1,
+           given: Mapping[int, Any] | None = None
            ) -> list[tuple[list[int], _Task | _Batch]]:
     """The work items of ``tasks[indices]``: the episodes of one env and policy in batches,
     cached ones up to :data:`CACHED_BATCH` a batch, ones to simulate in batches small
-    enough to give each worker about :data:`BATCHES_PER_WORKER` tasks."""
+    enough to give each worker about :data:`BATCHES_PER_WORKER` tasks. ``given``: episodes
+    simulated already (index -> :func:`_episode`'s value), batched with those to simulate."""
+    given = given or {}
     to_simulate = sum(not cached[i] for i in indices)
     size = {True: CACHED_BATCH,
             False: max(1, min(CACHED_BATCH,
@@ -323,8 +339,9 @@ def _items(tasks: list[_Task], indices: list[int], cached: list[bool], workers: 
     for (_, _, hit), members in groups.items():
         for start in range(0, len(members), size[hit]):
             chunk = members[start:start + size[hit]]
-            items.append((chunk, _Batch(tuple(tasks[i] for i in chunk)) if len(chunk) > 1
-                          else tasks[chunk[0]]))
+            got = tuple(given.get(i) for i in chunk) if any(i in given for i in chunk) else ()
+            items.append((chunk, _Batch(tuple(tasks[i] for i in chunk), got)
+                          if len(chunk) > 1 or got else tasks[chunk[0]]))
     return items
 
 
@@ -368,6 +385,7 @@ def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
                         drawn[task.env] = None
                 tasks[i] = replace(task, road=drawn[task.env])
     known = cache.timings() if cache is not None else {}
+    given: dict[int, Any] = {}  # the estimate's episodes, simulated, not yet labelled
     probes, seen = [], set(known.get("simulated", {}))
     for i, (task, hit) in enumerate(zip(tasks, cached, strict=True)):
         if announce is not None and not hit and task.env not in seen:  # no one to tell: no probe
@@ -377,17 +395,21 @@ def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
     if probes:
         if announce is not None:
             announce(f"timing a first episode of {len(probes)} env(s) for the estimate ...")
-        outcomes = backend.map(_run_task, [tasks[i] for i in probes], progress=False)
+        # simulated only: each is labelled with the other episodes of its env and policy
+        # (one labelling call instead of two; the same labels, as a batch gives each)
+        outcomes = backend.map(_simulate, [tasks[i] for i in probes], progress=False)
         for i, outcome in zip(probes, outcomes, strict=True):
-            results[i] = outcome.value if outcome.ok else _failed_task(tasks[i], outcome.error)
             seconds[i] = outcome.seconds
             if outcome.ok:
+                given[i] = outcome.value
                 measured[tasks[i].env] = outcome.seconds
+            else:
+                results[i] = _failed_task(tasks[i], outcome.error)
     plan = _plan(tasks, cached, backend.workers, known, measured)
     if announce is not None:
         announce(plan.describe(suite.name))
     items = _items(tasks, [i for i in range(len(tasks)) if i not in results], cached,
-                   backend.workers)
+                   backend.workers, given)
     outcomes = backend.map(_run_item, [item for _, item in items], unit="task",
                            progress=progress, desc=f"bench {suite.name} ({backend.name})"
                            ) if items else []

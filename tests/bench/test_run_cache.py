@@ -103,6 +103,9 @@ def test_an_unchanged_rerun_is_served_whole_and_equal(runs, tmp_path, monkeypatc
     mine, theirs = files(again.folder), files(first.folder)
     assert set(mine) == set(theirs)
     assert {name for name in mine if mine[name] != theirs[name]} <= PAGES
+    cold_files = files(cold.folder)  # and a run without a cache wrote the same bytes
+    assert set(cold_files) == set(mine)
+    assert {name for name in mine if mine[name] != cold_files[name]} <= PAGES
     # the tables equal a cold run's (floats with ==), whatever the worker count
     assert_tables_equal(cold, again)
     assert_tables_equal(first, again)

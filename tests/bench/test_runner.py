@@ -106,6 +106,34 @@ def test_workers_give_the_same_episodes(tmp_path):
 
 
 
+def test_the_estimate_s_first_episode_is_labelled_with_its_batch(tmp_path, monkeypatch):
+    """The first episode of an env, simulated alone to time the estimate, is labelled and
+    measured with the other episodes of its env and policy (one labelling call fewer per
+    env), and the run's tables equal a run without an estimate, float for float."""
+    import tap_bench.bench.run_tasks as run_tasks
+
+    calls = []
+    real = run_tasks._label_together
+    monkeypatch.setattr(run_tasks, "_label_together",
+                        lambda tasks, got: calls.append(len(tasks)) or real(tasks, got))
+    suite = tiny(["idm", "lane-keeping"], seeds="0-3")
+    lines: list[str] = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run_suite(suite, tmp_path / "timed", workers=1, progress=False, report=False,
+                  cache=tmp_path / "c1", announce=lines.append)
+        assert any("timing a first episode" in line for line in lines)
+        assert sorted(calls) == [2, 2, 2, 2]  # 8 episodes to simulate: batches of 2
+        calls.clear()
+        run_suite(suite, tmp_path / "plain", workers=1, progress=False, report=False,
+                  cache=tmp_path / "c2")
+    assert sorted(calls) == [2, 2, 2, 2]
+    for name in ("episodes", "labels", "segments"):
+        pd.testing.assert_frame_equal(pd.read_parquet(tmp_path / "timed" / f"{name}.parquet"),
+                                      pd.read_parquet(tmp_path / "plain" / f"{name}.parquet"),
+                                      check_exact=True, obj=name)
+
+
 def test_a_named_label_table_is_a_reference(tmp_path):
     from tap_bench.labelling import label
     from tap_bench.sim.rollout import rollout
