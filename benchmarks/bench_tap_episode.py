@@ -54,17 +54,23 @@ for name, kwargs in (("tap", {}), ("tap_interactions_ego", {"interactions": "ego
         blocks.append((time.process_time() - b0) / (calls // 10) * 1e3)
     out[name] = ((time.process_time() - c0) / calls * 1e3,
                  (time.perf_counter() - w0) / calls * 1e3, min(blocks))
-print(json.dumps(out))
+import tap_bench
+print(json.dumps({"times": out, "tap_bench": tap_bench.__file__}))
 """
 
 
 def measure(tree: Path, table: Path, calls: int) -> dict[str, list[float]]:
     env = {**os.environ, "PYTHONPATH": str(tree), "OMP_WAIT_POLICY": "PASSIVE"}
+    # run in the table's (temporary) folder: ``python -c`` puts the working folder first on
+    # the path, and started inside a checkout every tree would time that checkout's code
     done = subprocess.run([sys.executable, "-c", CHILD, str(table), str(calls)], env=env,
-                          capture_output=True, text=True)
+                          capture_output=True, text=True, cwd=table.parent)
     if done.returncode != 0:
         raise SystemExit(f"{tree}: failed:\n{done.stderr[-3000:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    if not Path(result["tap_bench"]).resolve().is_relative_to(tree.resolve()):
+        raise SystemExit(f"{tree}: the child imported {result['tap_bench']}, not this tree")
+    return result["times"]
 
 
 def main() -> None:

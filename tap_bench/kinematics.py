@@ -265,6 +265,34 @@ def _blocks(index: TrackIndex) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return starts, stops - starts, seg
 
 
+def _block_ends(checked: CheckedTable, starts: np.ndarray) -> np.ndarray:
+    """(nb,) the end of each block's sum: the next block's start, or the end of the
+    block's scenario when that comes first (the last block: the table's end)."""
+    index = checked.index
+    n = len(index.segment)
+    ends = np.append(starts[1:], n)
+    sids = checked.per_track_arrays(["scenario_id"])["scenario_id"]
+    if len(sids) < 2:
+        return ends
+    sids = np.asarray(sids, dtype=object)
+    new_scenario = np.flatnonzero(sids[1:] != sids[:-1]) + 1  # first track of each
+    scenario_end = np.append(index.track_start[new_scenario], n)  # (scenarios,) rows
+    cap = scenario_end[np.searchsorted(scenario_end, starts, side="right")]
+    return np.minimum(ends, cap)
+
+
+def _block_sums(values: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """(nb,) the sum of ``values[starts[i]:ends[i]]``, each range summed as ``reduceat``
+    sums it."""
+    if not len(starts):
+        return np.zeros(0)
+    bounds = np.empty(2 * len(starts), dtype=np.int64)
+    bounds[0::2], bounds[1::2] = starts, ends
+    if bounds[-1] == len(values):  # the table's end: reduceat's last range ends there
+        bounds = bounds[:-1]
+    return np.add.reduceat(values, bounds)[0::2]
+
+
 def compute_kinematics(checked: CheckedTable, plausibility: Plausibility | None = None
                        ) -> Kinematics:
     """Plausible speed, heading, acceleration and yaw rate of every valid row.
@@ -329,9 +357,12 @@ def compute_kinematics(checked: CheckedTable, plausibility: Plausibility | None 
     if all_valid:
         mx = np.add.reduceat(x, starts) / lengths if nb else np.zeros(0)
         my = np.add.reduceat(y, starts) / lengths if nb else np.zeros(0)
-    else:
-        mx = np.add.reduceat(np.where(valid, x, 0.0), starts) / lengths if nb else np.zeros(0)
-        my = np.add.reduceat(np.where(valid, y, 0.0), starts) / lengths if nb else np.zeros(0)
+    else:  # each block's sum ends at the next block or at its scenario's end, whichever
+        # comes first: a table of several scenarios sums each block over the rows it does
+        # alone (the zeros of invalid rows after it, in its own scenario only)
+        ends = _block_ends(checked, starts)
+        mx = _block_sums(np.where(valid, x, 0.0), starts, ends) / lengths
+        my = _block_sums(np.where(valid, y, 0.0), starts, ends) / lengths
     mt = 0.5 * (t[starts] + t[starts + lengths - 1])
     prev = np.arange(nb) - 1
     nxt = np.arange(nb) + 1

@@ -344,9 +344,16 @@ def _track_order(scenario: pd.Series, track: pd.Series) -> tuple[np.ndarray | No
                             track.array.take(starts).tolist(), strict=True))
             if all(a < b for a, b in itertools.pairwise(keys)):
                 return None, change
-        sc_codes, _ = pd.factorize(scenario.take(starts), sort=True)
-        tr_codes, tr_uniques = pd.factorize(track.take(starts), sort=True)
-        block_key = sc_codes.astype(np.int64) * max(len(tr_uniques), 1) + tr_codes
+        if sc_encoded is not None and tr_encoded is not None:
+            # every value starts a run: the ranks of all values are those of the starts'
+            sc_codes = _ranks(sc_encoded[1])[sc_encoded[0][starts]]
+            tr_codes = _ranks(tr_encoded[1])[tr_encoded[0][starts]]
+            n_values = len(tr_encoded[1])
+        else:
+            sc_codes, _ = pd.factorize(scenario.take(starts), sort=True)
+            tr_codes, tr_uniques = pd.factorize(track.take(starts), sort=True)
+            n_values = len(tr_uniques)
+        block_key = sc_codes.astype(np.int64) * max(n_values, 1) + tr_codes
         if np.all(block_key[1:] > block_key[:-1]):
             return None, change
         runs = np.argsort(block_key, kind="stable")
@@ -405,13 +412,21 @@ def _sorted_codes(col: pd.Series, encoded=None) -> tuple[np.ndarray, int]:
     encoded = encoded if encoded is not None else _arrow_codes(col)
     if encoded is not None:  # Arrow's own encoding: pandas' costs more
         codes, distinct = encoded
-        order = pc.array_sort_indices(distinct).to_numpy()
-    else:
-        codes, uniques = pd.factorize(col)
-        order = np.asarray(uniques.argsort())
+        return _ranks(distinct)[codes], len(distinct)
+    codes, uniques = pd.factorize(col)
+    order = np.asarray(uniques.argsort())
     rank = np.empty(len(order), np.int64)
     rank[order] = np.arange(len(order))
     return rank[codes], len(order)
+
+
+def _ranks(distinct) -> np.ndarray:
+    """(k,) int64 rank of each of ``distinct`` (an Arrow string array) in Arrow's sort
+    (code point order, as ``pd.factorize(sort=True)`` ranks strings)."""
+    order = pc.array_sort_indices(distinct).to_numpy()
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.arange(len(order))
+    return rank
 
 
 def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table") -> CheckedTable:
