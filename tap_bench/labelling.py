@@ -510,10 +510,11 @@ def tap_in_parts(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
 
     A table is cut only where it can be without changing a result: its ``scenario_id`` is
     a string column whose scenarios each lie in one run of rows, in the order the
-    validated table sorts them (TAP labels each scenario on its own), every row is valid,
-    and it is cut between scenarios every ``part_rows`` rows or so. Otherwise, and when
-    any part raises an error or a warning, the whole table is labelled in one call, which
-    gives that error or warning as :func:`tap` does (the row numbers of the whole table).
+    validated table sorts them (TAP labels each scenario on its own, and each one-second
+    block's position mean sums its own scenario's rows only), cut between scenarios every
+    ``part_rows`` rows or so. Otherwise, and when any part raises an error or a warning,
+    the whole table is labelled in one call, which gives that error or warning as
+    :func:`tap` does (the row numbers of the whole table).
 
     Args:
         table: a trajectory table (SPEC section 1).
@@ -538,11 +539,6 @@ def tap_in_parts(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
     return TapParts(parts)
 
 
-def _all_true(column: pd.Series) -> bool:
-    values = column.to_numpy()
-    return values.dtype == np.bool_ and bool(values.all())
-
-
 def _without_signals(result: TapResult) -> TapResult:
     """``result`` without the per-row signals of its kinematics (see :class:`TapParts`)."""
     empty = np.zeros(0)
@@ -560,11 +556,6 @@ def _scenario_parts(table: pd.DataFrame, part_rows: int) -> list[int] | None:
     n = len(table)
     column = table["scenario_id"]
     if not isinstance(column.dtype, pd.StringDtype) or column.hasnans:
-        return None
-    # every row valid: a one-second block's mean of positions then sums the same rows in
-    # a part as in the whole table (with invalid rows, the block before them sums their
-    # zeros too, in another order, and its last bits differ from a part's)
-    if "valid" in table.columns and not _all_true(table["valid"]):
         return None
     values = column.array
     change = np.ones(n, dtype=bool)

@@ -152,26 +152,27 @@ def occurrences_from(segments: pd.DataFrame, steps: EgoSteps, trajectories: pd.D
     crashed[1:] |= steps.crashed[:-1] & steps.consecutive()
     accel_all[crashed] = np.nan
     insides = []
-    for k, run in enumerate(runs.itertuples(index=False)):
+    # the runs' fields as lists (the values itertuples gives, without a tuple a run)
+    fields = zip(*(runs[c].tolist() for c in ("scenario_id", "label", "other_track_id",
+                                               "t_start", "t_end")), strict=True)
+    for k, (sid, label, other, t_start, t_end) in enumerate(fields):
         lo = steps.starts[ep[k]]
         hi = lo + steps.counts[ep[k]]
-        inside = np.arange(lo, hi)[(t[lo:hi] >= run.t_start - 1e-9)
-                                   & (t[lo:hi] < run.t_end - 1e-9)]
+        inside = np.arange(lo, hi)[(t[lo:hi] >= t_start - 1e-9) & (t[lo:hi] < t_end - 1e-9)]
         insides.append(inside)
         accel = accel_all[inside]
-        row = {"scenario_id": run.scenario_id, "context": run.label,
-               "other_track_id": run.other_track_id, "t_start": run.t_start,
-               "t_end": run.t_end,
+        row = {"scenario_id": sid, "context": label, "other_track_id": other,
+               "t_start": t_start, "t_end": t_end,
                "peak_decel": float(max(0.0, -np.nanmin(accel))) if np.isfinite(accel).any()
                else np.nan,
                "reaction_time_s": np.nan, "braked": np.nan}
-        if run.label == "Cut-in":
-            later = np.arange(lo, hi)[(t[lo:hi] >= run.t_start - 1e-9)
-                                      & (t[lo:hi] <= run.t_start + REACTION_HORIZON_S)]
+        if label == "Cut-in":
+            later = np.arange(lo, hi)[(t[lo:hi] >= t_start - 1e-9)
+                                      & (t[lo:hi] <= t_start + REACTION_HORIZON_S)]
             brake = later[accel_all[later] <= th.a_dec]
             row["braked"] = float(len(brake) > 0)
             if len(brake):
-                row["reaction_time_s"] = float(t[brake[0]] - run.t_start)
+                row["reaction_time_s"] = float(t[brake[0]] - t_start)
         rows.append(row)
     measured = context_measures()
     out = pd.DataFrame(rows, columns=["scenario_id", "context", "other_track_id", "t_start",
@@ -189,10 +190,28 @@ def occurrences_from(segments: pd.DataFrame, steps: EgoSteps, trajectories: pd.D
             out[m.name] = np.where(np.isnan(values), np.nan, values)
     ids = [c for c in _IDS if c in trajectories.columns]
     if ids:
-        first = trajectories.drop_duplicates("scenario_id")[["scenario_id", *ids]]
-        out = out.merge(first, on="scenario_id", how="left")
+        out = _with_ids(out, trajectories, ids)
     return out[["scenario_id", *ids, *(c for c in out.columns
                                        if c not in ("scenario_id", *ids))]]
+
+
+def _with_ids(out: pd.DataFrame, trajectories: pd.DataFrame, ids: list[str]) -> pd.DataFrame:
+    """``out`` with the columns ``ids`` of the first row of its scenario in
+    ``trajectories`` appended: a left merge with the table's first row of each scenario,
+    taken by position where every scenario of ``out`` is there (no drop_duplicates of the
+    whole trajectory table, no merge); the merge itself otherwise (its NaN, its dtypes)."""
+    codes, uniques = pd.factorize(trajectories["scenario_id"])
+    pos = pd.Index(uniques).get_indexer(out["scenario_id"]) if len(out) else None
+    if pos is None or (codes < 0).any() or (pos < 0).any() \
+            or any(c in out.columns for c in ids):
+        first = trajectories.drop_duplicates("scenario_id")[["scenario_id", *ids]]
+        return out.merge(first, on="scenario_id", how="left")
+    first_row = np.empty(len(uniques), np.int64)
+    first_row[codes[::-1]] = np.arange(len(codes))[::-1]  # the last write is the first row
+    rows = first_row[pos]
+    for c in ids:
+        out[c] = trajectories[c].take(rows).reset_index(drop=True)
+    return out
 
 
 def _occurrence_steps(steps: EgoSteps, insides: list[np.ndarray], episode: np.ndarray

@@ -78,22 +78,29 @@ def ego_labels(labels: pd.DataFrame, level: str, *, source: str = "label table"
     if missing:
         raise LabelTableError(f"{source}: missing column(s) {', '.join(missing)}; a label "
                               "table comes from 'tap-bench label' or tap_bench.label().")
-    table = labels
-    if "level" in table.columns:
-        present = set(table["level"].unique())
-        if level not in present:
+    # the rows taken by position, one frame made at the end (no filtered frame a step)
+    rows = np.arange(len(labels))
+    if "level" in labels.columns:
+        at_level = labels["level"].to_numpy() == level
+        if not at_level.any():
+            present = set(labels["level"].unique())
             raise LabelTableError(f"{source}: no rows at level {level!r}; it holds "
                                   f"{', '.join(sorted(map(str, present)))}. Label it with "
                                   f"--level {level} or --level all.")
-        table = table[table["level"].to_numpy() == level]
-    table = table[_ego_mask(table, source)]
-    duration = (table["t_end"] - table["t_start"]).to_numpy(float) if "t_end" in table else \
-        np.zeros(len(table))
-    order = np.lexsort((-duration,))
-    table = table.iloc[order].drop_duplicates("scenario_id", keep="first")
+        rows = rows[at_level]
+    if "is_ego" in labels.columns:
+        rows = rows[labels["is_ego"].fillna(False).to_numpy(bool)[rows]]
+    else:
+        rows = rows[_ego_mask(labels.iloc[rows], source)]
+    duration = (labels["t_end"].to_numpy(float) - labels["t_start"].to_numpy(float))[rows] \
+        if "t_end" in labels else np.zeros(len(rows))
+    rows = rows[np.lexsort((-duration,))]
+    # the first (longest) row of each scenario, in that order (drop_duplicates keep="first")
+    codes, _ = pd.factorize(labels["scenario_id"].take(rows), use_na_sentinel=False)
+    rows = rows[np.sort(np.unique(codes, return_index=True)[1])]
     keep = ["scenario_id", *_LABEL_FIELDS, *(c for c in ("interaction", "env", "policy",
-                                                        "seed") if c in table.columns)]
-    out = table[keep].reset_index(drop=True)
+                                                        "seed") if c in labels.columns)]
+    out = labels[keep].take(rows).reset_index(drop=True)
     if "interaction" in out.columns:  # episodes compare by what happened, not by track ids
         out["interaction"] = out["interaction"].map(sdl.anonymous_others).astype("string")
     return out
@@ -137,9 +144,8 @@ def episode_table(*, labels: pd.DataFrame | None = None,
         if out is None:
             out = ego
         else:
-            out = out.merge(ego[["scenario_id", *_LABEL_FIELDS,
-                                 *(["interaction"] if "interaction" in ego else [])]],
-                            on="scenario_id", how="left")
+            out = _with_labels(out, ego[["scenario_id", *_LABEL_FIELDS,
+                                         *(["interaction"] if "interaction" in ego else [])]])
     if out is not None:
         out = _fill_ids(out, policy, source)
     if episodes is not None:
@@ -157,7 +163,7 @@ def episode_table(*, labels: pd.DataFrame | None = None,
         if out is None:
             out = eps.rename(columns={f"_{c}": c for c in _SHARED})
         else:
-            out = out.merge(eps, on=["env", "policy", "seed"], how="outer")
+            out = _with_rollout(out, eps)
             for col in _SHARED:
                 if f"_{col}" not in out:
                     continue
@@ -181,6 +187,45 @@ def episode_table(*, labels: pd.DataFrame | None = None,
             "split the tables.")
     out = out[list(EPISODE_COLUMNS) + [c for c in out.columns if c not in EPISODE_COLUMNS]]
     return out.sort_values(["env", "policy", "seed"], kind="stable").reset_index(drop=True)
+
+
+def _with_labels(out: pd.DataFrame, ego: pd.DataFrame) -> pd.DataFrame:
+    """``out.merge(ego, on="scenario_id", how="left")`` (``ego``: one row per scenario):
+    the label columns taken by position where every scenario of ``out`` has its label
+    (the batch's case, without a merge's hashing and copies); the merge itself otherwise
+    (its missing values, its suffixes)."""
+    fields = [c for c in ego.columns if c != "scenario_id"]
+    pos = pd.Index(ego["scenario_id"]).get_indexer(out["scenario_id"]) \
+        if len(out) and ego["scenario_id"].is_unique else None
+    if pos is None or (pos < 0).any() or any(c in out.columns for c in fields):
+        return out.merge(ego, on="scenario_id", how="left")
+    return pd.concat([out, ego[fields].take(pos).reset_index(drop=True)], axis=1)
+
+
+_KEYS = ["env", "policy", "seed"]
+
+
+def _with_rollout(out: pd.DataFrame, eps: pd.DataFrame) -> pd.DataFrame:
+    """``out.merge(eps, on=["env", "policy", "seed"], how="outer")`` up to the order of its
+    rows (the episode table is sorted by these keys afterwards): where both tables hold the
+    same episodes once each under keys of one dtype (a batch's measures and its rollout
+    rows), ``eps``' columns are taken by position, without the merge's hashing, sorting and
+    copies; the merge itself otherwise (its missing values, its dtypes, its suffixes)."""
+    def keys(table: pd.DataFrame) -> list[tuple]:
+        return list(zip(*(table[c].tolist() for c in _KEYS), strict=True))
+
+    fields = [c for c in eps.columns if c not in _KEYS]
+    simple = len(out) == len(eps) > 0 and not any(c in out.columns for c in fields) \
+        and all(out[c].dtype == eps[c].dtype for c in _KEYS) \
+        and not any(out[c].isna().any() or eps[c].isna().any() for c in _KEYS)
+    if simple:
+        position = {key: k for k, key in enumerate(keys(eps))}
+        pos = [position.get(key, -1) for key in keys(out)]
+        simple = len(position) == len(eps) and len(set(pos)) == len(pos) and -1 not in pos
+    if not simple:
+        return out.merge(eps, on=_KEYS, how="outer")
+    taken = eps[fields].take(np.asarray(pos, np.int64)).reset_index(drop=True)
+    return pd.concat([out, taken], axis=1)
 
 
 def _default(col: str):

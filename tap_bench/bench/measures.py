@@ -890,23 +890,25 @@ def ego_measures(table: pd.DataFrame, map_table: pd.DataFrame | LaneMap | None =
         when the table carries :data:`SCENE_STEP_COLUMNS`) and ``duration_s``.
     """
     steps = ego_steps(table, map_table) if steps is None else steps
-    out = pd.DataFrame({"scenario_id": steps.scenario_id})
+    # the columns gathered first and made a frame once (a frame insert per column costs
+    # more than the measures of a small batch)
+    columns: dict[str, Any] = {"scenario_id": steps.scenario_id}
     for col in _KEEP:
         if col in table.columns:
-            out[col] = table[col].take(steps.first_row).to_numpy()
+            columns[col] = table[col].take(steps.first_row).to_numpy()
     scene = [m for m in SCENE_MEASURES if steps.columns]  # recorded scenes only
     for measure in (*MEASURES, *scene):
         values = np.asarray(measure.function(steps))
         if values.shape != (steps.n_episodes,):
             raise RegistrationError(f"measure {measure.name!r} returned shape {values.shape}, "
                                     f"expected ({steps.n_episodes},): one value per episode.")
-        out[measure.name] = values
+        columns[measure.name] = values
     if steps.n_episodes:
         last = steps.starts + steps.counts - 1
-        out["duration_s"] = steps.t[last] - steps.t[steps.starts] + 1.0 / HZ
+        columns["duration_s"] = steps.t[last] - steps.t[steps.starts] + 1.0 / HZ
     else:
-        out["duration_s"] = np.zeros(0)
-    return out
+        columns["duration_s"] = np.zeros(0)
+    return pd.DataFrame(columns)
 
 
 def _check_one_ego(ego_sid: np.ndarray, ego_track: np.ndarray, sids) -> None:

@@ -16,9 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.cache import (
-    EpisodeCache,
-)
+from tap_bench.bench.cache import EpisodeCache, policy_fingerprint
 from tap_bench.bench.contexts import occurrences_from
 from tap_bench.bench.episodes import episode_table
 from tap_bench.bench.measures import MEASURES, ego_steps
@@ -120,12 +118,23 @@ def _episode(task: _Task, note: str | None = None
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             trajectories, row = rollout_episode(task.scenario, task.definition, task.seed)
-        if row["status"] == "ok" and task.cache is not None and task.key:
+        if row["status"] == "ok" and task.cache is not None and task.key \
+                and _key_holds(task):
             with contextlib.suppress(OSError):  # a full or read-only cache costs only reuse
                 task.cache.put(task.key, task.key_doc or {}, trajectories, row,
                                time.perf_counter() - t0)
     return (_run_ids(task, trajectories).reset_index(drop=True), row, cached is not None,
             time.perf_counter() - t0, note)
+
+
+def _key_holds(task: _Task) -> bool:
+    """Whether the policy's files (its definition, model, module) still hash as when the
+    episode's key was made at the start of the run. A model or policy module changed while
+    the run went on may have been loaded by the worker after the change: the episode was
+    then made by other content than its key names, so neither it nor its labels are kept
+    (the next run makes them again under the new content's key)."""
+    doc = task.key_doc or {}
+    return "policy" not in doc or policy_fingerprint(task.definition) == doc["policy"]
 
 
 LABEL_TABLES = ("episodes", "labels", "segments", "contexts")
@@ -138,7 +147,7 @@ the suite's level and its interaction-context occurrences
 def _store_labels(task: _Task, eps: pd.DataFrame, labels: pd.DataFrame,
                   segments: pd.DataFrame, contexts: pd.DataFrame) -> None:
     """Keep one episode's labels and measures in the cache, so that a re-run only scores."""
-    if task.cache is None or not task.label_key:
+    if task.cache is None or not task.label_key or not _key_holds(task):
         return
     with contextlib.suppress(OSError):  # a full or read-only cache costs only reuse
         task.cache.put_labels(task.label_key, task.label_doc or {},

@@ -79,6 +79,7 @@ from tap_bench.bench.run_cache import (
     RunResult,
     _check_apart,
     fresh_facts,
+    run_inputs,
     store_run,
     try_served,
 )
@@ -365,7 +366,11 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     if keep_trajectories:  # the replay viewer draws them; highway-env's road is seed-free
         roads = pd.concat([road(env) for env in suite.envs], ignore_index=True)
     # kept whole for an unchanged re-run: every episode made (a failed one is tried again)
-    keep = whole is not None and (episodes["status"] == "ok").all()
+    # and its inputs as at the start (a policy's model or module changed while it went on
+    # would be kept under the old content's key)
+    keep = whole is not None and (episodes["status"] == "ok").all() and tasks is not None \
+        and run_inputs(plan, tasks, keep_trajectories=keep_trajectories,
+                       report=report) == whole
     pages: dict[str, bytes] | None = {} if keep else None
     folder = write_results(output, overwrite, summary, episodes, labels, trajectories
                            if keep_trajectories else None, scores, report,

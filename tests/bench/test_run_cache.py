@@ -402,3 +402,38 @@ def test_the_command_line_serves_without_scoring_report_or_viewer_code(tmp_path)
         == {p.relative_to(tmp_path / "b").as_posix() for p in (tmp_path / "b").rglob("*")}
     text = (tmp_path / "b" / "report.html").read_text()
     assert re.search(r"<h1>tap-bench run b</h1>", text)
+
+
+def test_a_policy_changed_while_the_run_goes_on_is_not_kept(tmp_path, monkeypatch):
+    """A policy's file changed during a run (a model retrained in place, a module edited):
+    a worker may load the new content, so nothing made after the change is kept under the
+    key of the content the run started with; when the old content comes back (a checkout),
+    the run is made again and equals a cold run, not served from what the new one made."""
+    from tap_bench.bench import run_tasks
+    from tap_bench.bench.run_plan import _tasks, plan_suite
+
+    cache = EpisodeCache(tmp_path / "cache")
+    path = Path(_policy_file(tmp_path))
+    original = path.read_text()
+    suite = tiny(envs=["merge"], env_overrides={"merge": {"duration": 3}},
+                 policies=[str(path), "lane-keeping"], reference_policy="lane-keeping")
+    keys = {(t.policy, t.seed): t.key for t in _tasks(plan_suite(suite), True, cache)}
+    real = run_tasks.rollout_episode
+
+    def retrained(scenario, definition, seed):
+        out = real(scenario, definition, seed)
+        doc = json.loads(original)
+        doc["params"]["time_wanted"] = 0.8
+        path.write_text(json.dumps(doc))
+        return out
+
+    monkeypatch.setattr(run_tasks, "rollout_episode", retrained)
+    run(tmp_path / "during", cache, suite)
+    assert not (cache.derived_folder / "runs").exists()
+    kept = {k: cache.read(key)[0] is not None for k, key in keys.items()}
+    assert kept == {k: k[0] == "lane-keeping" for k in keys}
+    monkeypatch.setattr(run_tasks, "rollout_episode", real)
+    path.write_text(original)  # the old content is back
+    again = run(tmp_path / "again", cache, suite)
+    assert not served(again)
+    assert_tables_equal(run(tmp_path / "cold", None, suite), again)
