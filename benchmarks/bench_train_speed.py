@@ -36,6 +36,7 @@ import argparse
 import ctypes
 import json
 import os
+import re
 import resource
 import statistics
 import subprocess
@@ -107,8 +108,9 @@ def run(source: Path, algo: str, timesteps: int, extra: list[str], out: Path,
     starting = [line for line in done.stdout.splitlines() if "training env(s)" in line]
     where = ("this process" if "in this process" in "".join(starting) else "workers"
              if "in worker processes" in "".join(starting) else None)
+    idle = re.search(r"([0-9.]+) of [0-9]+ cores idle", "".join(starting))
     return {"train_seconds": train_seconds, "steps_per_s": round(timesteps / train_seconds, 1),
-            "envs_in": where,
+            "envs_in": where, "idle_cores_at_start": float(idle.group(1)) if idle else None,
             "process_wall_s": round(wall, 1),
             "cpu_s": round(cpu, 1) if subreaper else None,
             "cpu_ms_per_step": round(1000 * cpu / timesteps, 1) if subreaper else None,
