@@ -47,7 +47,7 @@ from tap_bench.bench.report_tables import (
     level_text,
     summary_table,
 )
-from tap_bench.bench.run_cache import timings_html
+from tap_bench.bench.run_pages import timings_html
 from tap_bench.bench.scoring import Scores
 from tap_bench.tableio import atomic_path
 

@@ -166,7 +166,7 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
 
     Args:
         pages: a dict to fill with the pages that name the run (the report and the viewer's
-            index) as templates (:func:`tap_bench.bench.run_cache.page_templates`): the
+            index) as templates (:func:`tap_bench.bench.run_pages.page_templates`): the
             run is kept whole in the cache, and a re-run fills them with its own name, time
             and timings. The files written are the same either way.
 
@@ -175,7 +175,7 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
         OutputPathError: ``output`` is a file, a link or a folder tap-bench did not write.
     """
     from tap_bench.bench.report import write_report
-    from tap_bench.bench.run_cache import page_templates
+    from tap_bench.bench.run_pages import page_templates
     from tap_bench.bench.viewer import write_run_viewer
 
     with atomic_folder(output, overwrite, kind="run") as tmp:
