@@ -132,9 +132,15 @@ def _key_holds(task: _Task) -> bool:
     episode's key was made at the start of the run. A model or policy module changed while
     the run went on may have been loaded by the worker after the change: the episode was
     then made by other content than its key names, so neither it nor its labels are kept
-    (the next run makes them again under the new content's key)."""
+    (the next run makes them again under the new content's key). A fingerprint that cannot
+    be taken now (a file removed or unreadable) does not hold: it costs only reuse."""
     doc = task.key_doc or {}
-    return "policy" not in doc or policy_fingerprint(task.definition) == doc["policy"]
+    if "policy" not in doc:
+        return True
+    try:
+        return policy_fingerprint(task.definition) == doc["policy"]
+    except Exception:  # files unreadable now: not known to hold; the episode is kept
+        return False   # in the results, only not in the cache
 
 
 LABEL_TABLES = ("episodes", "labels", "segments", "contexts")

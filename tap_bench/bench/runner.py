@@ -133,6 +133,18 @@ def _road(suite: Suite, env: str, cache: EpisodeCache | None,
         lambda: suite.road(env), _table_files, _files_table)
 
 
+def _inputs_hold(plan: SuitePlan, tasks: Sequence[Any], whole: Mapping[str, Any], *,
+                 keep_trajectories: bool, report: bool) -> bool:
+    """Whether the run's inputs are still ``whole``, those it started with (then the run may
+    be kept whole): False too when they cannot be read now (a policy or scenario file
+    removed or unreadable), which costs only reuse, never the run's results."""
+    try:
+        return run_inputs(plan, tasks, keep_trajectories=keep_trajectories,
+                          report=report) == whole
+    except Exception:  # any failure to fingerprint: not kept whole, the results written
+        return False
+
+
 def _table_files(table: pd.DataFrame) -> dict[str, bytes]:
     buffer = io.BytesIO()
     table.to_parquet(buffer, index=True)
@@ -369,8 +381,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     # and its inputs as at the start (a policy's model or module changed while it went on
     # would be kept under the old content's key)
     keep = whole is not None and (episodes["status"] == "ok").all() and tasks is not None \
-        and run_inputs(plan, tasks, keep_trajectories=keep_trajectories,
-                       report=report) == whole
+        and _inputs_hold(plan, tasks, whole, keep_trajectories=keep_trajectories,
+                         report=report)
     pages: dict[str, bytes] | None = {} if keep else None
     folder = write_results(output, overwrite, summary, episodes, labels, trajectories
                            if keep_trajectories else None, scores, report,

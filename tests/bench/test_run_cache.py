@@ -437,3 +437,37 @@ def test_a_policy_changed_while_the_run_goes_on_is_not_kept(tmp_path, monkeypatc
     again = run(tmp_path / "again", cache, suite)
     assert not served(again)
     assert_tables_equal(run(tmp_path / "cold", None, suite), again)
+
+
+def test_a_fingerprint_that_cannot_be_read_at_the_end_costs_only_reuse(tmp_path, monkeypatch):
+    """A policy file that cannot be read any more when the run re-checks its inputs (removed
+    mid-read, permissions changed, a package grown past what is hashed): the run still
+    ends with its tables, equal to a cold run's, and nothing of it is kept in the cache
+    (its content is not known to be the key's); review4."""
+    from tap_bench.bench import run_tasks
+
+    cache = EpisodeCache(tmp_path / "cache")
+    path = Path(_policy_file(tmp_path))
+    suite = tiny(envs=["merge"], env_overrides={"merge": {"duration": 3}},
+                 policies=[str(path), "lane-keeping"], reference_policy="lane-keeping")
+    real_rollout, real_fingerprint = run_tasks.rollout_episode, cache_module.policy_fingerprint
+    unreadable = []
+
+    def fingerprint(definition):
+        if unreadable and definition.path is not None:
+            raise PermissionError(13, "Permission denied", str(definition.path))
+        return real_fingerprint(definition)
+
+    def rollout(scenario, definition, seed):
+        out = real_rollout(scenario, definition, seed)
+        unreadable.append(True)  # from the first rollout on
+        return out
+
+    monkeypatch.setattr(run_tasks, "rollout_episode", rollout)
+    monkeypatch.setattr(run_tasks, "policy_fingerprint", fingerprint)
+    monkeypatch.setattr(run_cache, "policy_fingerprint", fingerprint)
+    during = run(tmp_path / "during", cache, suite)
+    assert (during.episodes["status"] == "ok").all()
+    assert not (cache.derived_folder / "runs").exists()
+    monkeypatch.undo()
+    assert_tables_equal(run(tmp_path / "cold", None, suite), during)
