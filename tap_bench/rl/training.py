@@ -221,8 +221,11 @@ def _workers_preloaded(scenario: Scenario | WomdScenes) -> Iterator[None]:
 
 
 def idle_cores(seconds: float = 0.3) -> float | None:
-    """How many CPU cores were idle, on average, over the next ``seconds`` (Linux: the
-    idle and I/O-wait time of ``/proc/stat``'s all-CPU line; None where it cannot be read).
+    """How many of the CPU cores this process may run on were idle, on average, over the
+    next ``seconds`` (Linux: the idle and I/O-wait time of ``/proc/stat``'s lines of the
+    cores in this process's affinity, ``os.sched_getaffinity``: a job given 2 cores of a
+    64-core node by taskset, a cpuset or a batch scheduler counts its own 2 cores, not the
+    node's idle ones; None where it cannot be read).
 
     Training picks where its envs run by it (``train(in_process=None)``: in this process
     below ``n_envs - 0.5`` idle cores, half a core of margin for the sample's noise): with
@@ -230,10 +233,27 @@ def idle_cores(seconds: float = 0.3) -> float | None:
     the busy cores (measured: 23 to 33 % more CPU per env step, and fewer steps per second
     in 6 of 6 interleaved pairs, than the envs stepped in the training process, at load 4.6
     to 9 on 2 cores)."""
+    try:  # the lines of this process's cores
+        lines = {f"cpu{k}" for k in os.sched_getaffinity(0)}
+        n_cores = len(lines)
+    except (AttributeError, OSError):  # no affinity (not Linux): the all-CPU line
+        lines, n_cores = {"cpu"}, os.cpu_count() or 1
+
     def read() -> tuple[int, int]:
+        idle = total = seen = 0
         with open("/proc/stat", encoding="ascii") as handle:
-            values = [int(v) for v in handle.readline().split()[1:9]]
-        return values[3] + values[4], sum(values)  # idle + iowait, all (guest in user)
+            for line in handle:
+                name, _, rest = line.partition(" ")
+                if name in lines:
+                    values = [int(v) for v in rest.split()[:8]]
+                    idle += values[3] + values[4]  # idle + iowait
+                    total += sum(values)  # all (guest is in user)
+                    seen += 1
+                elif not name.startswith("cpu"):
+                    break
+        if seen != len(lines):
+            raise ValueError("/proc/stat lacks a core's line")
+        return idle, total
 
     try:
         idle0, total0 = read()
@@ -243,7 +263,7 @@ def idle_cores(seconds: float = 0.3) -> float | None:
         return None
     if total1 <= total0:
         return None
-    return (os.cpu_count() or 1) * (idle1 - idle0) / (total1 - total0)
+    return n_cores * (idle1 - idle0) / (total1 - total0)
 
 
 def _vec_env(scenario: Scenario, *, n_envs: int, fast: bool, seed: int,

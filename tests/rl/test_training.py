@@ -477,3 +477,40 @@ def test_idle_cores_reads_the_machines_idle_time():
         assert idle is None
         return
     assert 0.0 <= idle <= os.cpu_count()
+
+
+@pytest.mark.parametrize("affinity", [{1}, {0, 1}, None])
+def test_idle_cores_counts_the_cores_this_process_may_run_on(monkeypatch, affinity):
+    """A process given some cores of a machine (taskset, a cpuset, a batch scheduler's job)
+    counts the idle time of its own cores, not of the machine's: here core 0 stays idle and
+    core 1 busy over the sample; review4. Without an affinity (not Linux) the all-CPU line
+    and every core count."""
+    import io
+
+    from tap_bench.rl import training
+
+    snapshots = iter([
+        "cpu  100 0 100 200 0 0 0 0 0 0\ncpu0 0 0 0 100 0 0 0 0 0 0\n"
+        "cpu1 100 0 100 100 0 0 0 0 0 0\nintr 1 2 3\n",
+        "cpu  150 0 150 300 0 0 0 0 0 0\ncpu0 0 0 0 200 0 0 0 0 0 0\n"
+        "cpu1 150 0 150 100 0 0 0 0 0 0\nintr 1 2 3\n"])
+    monkeypatch.setattr(training, "open", lambda path, encoding=None: io.StringIO(
+        next(snapshots)), raising=False)
+    monkeypatch.setattr(training.time, "sleep", lambda seconds: None)
+    if affinity is None:
+        monkeypatch.delattr(training.os, "sched_getaffinity", raising=False)
+        monkeypatch.setattr(training.os, "cpu_count", lambda: 2)
+    else:
+        monkeypatch.setattr(training.os, "sched_getaffinity", lambda pid: affinity)
+    expected = {frozenset({1}): 0.0, frozenset({0, 1}): 1.0, None: 1.0}
+    assert training.idle_cores() == expected[None if affinity is None else frozenset(affinity)]
+
+
+def test_idle_cores_without_a_readable_stat_file_is_none(monkeypatch):
+    from tap_bench.rl import training
+
+    def missing(path, encoding=None):
+        raise FileNotFoundError(2, "No such file or directory", path)
+
+    monkeypatch.setattr(training, "open", missing, raising=False)
+    assert training.idle_cores(0.0) is None
