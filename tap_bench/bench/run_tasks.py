@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.cache import EpisodeCache, policy_fingerprint
+from tap_bench.bench.cache import EpisodeCache, policy_fingerprint, scenario_fingerprint
 from tap_bench.bench.contexts import occurrences_from
 from tap_bench.bench.episodes import episode_table
 from tap_bench.bench.measures import MEASURES, ego_steps
@@ -128,17 +128,21 @@ def _episode(task: _Task, note: str | None = None
 
 
 def _key_holds(task: _Task) -> bool:
-    """Whether the policy's files (its definition, model, module) still hash as when the
+    """Whether the policy's files (its definition, model, module) and the env's (its
+    scenario file, the files it names, its user vehicle classes) still hash as when the
     episode's key was made at the start of the run. A model or policy module changed while
     the run went on may have been loaded by the worker after the change: the episode was
     then made by other content than its key names, so neither it nor its labels are kept
     (the next run makes them again under the new content's key). A fingerprint that cannot
     be taken now (a file removed or unreadable) does not hold: it costs only reuse."""
     doc = task.key_doc or {}
-    if "policy" not in doc:
-        return True
     try:
-        return policy_fingerprint(task.definition) == doc["policy"]
+        if "policy" in doc and policy_fingerprint(task.definition) != doc["policy"]:
+            return False
+        # a synthetic env's files and user vehicle classes (imported by a worker at its
+        # first episode); a recorded scene's content is read whole when the key is made
+        return "env" not in doc or isinstance(task.scenario, WomdScenes) \
+            or scenario_fingerprint(task.scenario, task.env) == doc["env"]
     except Exception:  # files unreadable now: not known to hold; the episode is kept
         return False   # in the results, only not in the cache
 

@@ -471,3 +471,44 @@ def test_a_fingerprint_that_cannot_be_read_at_the_end_costs_only_reuse(tmp_path,
     assert not (cache.derived_folder / "runs").exists()
     monkeypatch.undo()
     assert_tables_equal(run(tmp_path / "cold", None, suite), during)
+
+
+def test_a_vehicle_class_changed_while_the_run_goes_on_is_not_kept(tmp_path, monkeypatch):
+    """A user vehicle class the scenario names (its module hashed in the episode's key)
+    edited during a run: a worker process imports it at its first episode, maybe after the
+    edit, so no episode or label made after the change is kept under the key of the code
+    the run started with, as for a policy changed mid-run; review4."""
+    import uuid
+
+    from tap_bench.bench import run_tasks
+    from tap_bench.bench.run_plan import _tasks, plan_suite
+
+    package = f"cars_{uuid.uuid4().hex[:8]}"
+    (tmp_path / package).mkdir()
+    (tmp_path / package / "__init__.py").write_text("")
+    module = tmp_path / package / "vehicles.py"
+    module.write_text("from highway_env.vehicle.behavior import IDMVehicle\n\n\n"
+                      "class MyVehicle(IDMVehicle):\n    TIME_WANTED = 1.2\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    scene = tmp_path / "scene.json"
+    scene.write_text(json.dumps({
+        "name": "scene", "version": 1, "highway_env_id": "highway-v0", "description": "d",
+        "duration": 3, "default_seeds": "0-1", "lane_change": "realistic",
+        "config": {"lanes_count": 2, "vehicles_count": 4,
+                   "other_vehicles_type": f"{package}.vehicles.MyVehicle"}}))
+    cache = EpisodeCache(tmp_path / "cache")
+    suite = tiny(envs=[str(scene)], env_overrides={}, policies=["idm", "lane-keeping"],
+                 reference_policy="idm")
+    keys = {(t.policy, t.seed): t.key for t in _tasks(plan_suite(suite), True, cache)}
+    assert all(keys.values())
+    real = run_tasks.rollout_episode
+
+    def edited(scenario, definition, seed):
+        out = real(scenario, definition, seed)
+        module.write_text(module.read_text().replace("1.2", "2.4"))
+        return out
+
+    monkeypatch.setattr(run_tasks, "rollout_episode", edited)
+    run(tmp_path / "during", cache, suite)
+    assert not (cache.derived_folder / "runs").exists()
+    assert not any(cache.read(key)[0] is not None for key in keys.values())
