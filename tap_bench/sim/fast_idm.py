@@ -364,17 +364,26 @@ _DECIDE_CODE = {  # sha256 of the source of the methods _change_lane_policy repe
 }
 
 
+def sources_match(functions: Any, digests: dict[str, str]) -> bool:
+    """Whether the installed source of ``functions`` is the code a fast path of tap-bench
+    repeats: each function's source, by its qualified name, hashes (the first 16 hex digits
+    of its SHA-256) to ``digests[name]``; False where a source cannot be read. The fast
+    paths (this module's decisions, :mod:`tap_bench.sim.fast_road`'s motion,
+    :mod:`tap_bench.sim.observation`'s Kinematics) run only where it holds."""
+    try:
+        sources = {f.__qualname__: inspect.getsource(f) for f in functions}
+    except (OSError, TypeError):
+        return False
+    return all(hashlib.sha256(sources.get(name, "").encode()).hexdigest()[:16] == digest
+               for name, digest in digests.items())
+
+
 @functools.cache
 def _highway_env_decides_as_written() -> bool:
     """Whether the installed highway-env's lane-change policy (``change_lane_policy``,
     ``mobil`` and what they call) is the code :func:`_change_lane_policy` repeats (that of
     highway-env 1.12); checked once per process."""
-    try:
-        sources = {f.__qualname__: inspect.getsource(f) for f in _HIGHWAY_ENV_DECIDE}
-    except (OSError, TypeError):
-        return False
-    return all(hashlib.sha256(sources.get(name, "").encode()).hexdigest()[:16] == digest
-               for name, digest in _DECIDE_CODE.items())
+    return sources_match(_HIGHWAY_ENV_DECIDE, _DECIDE_CODE)
 
 
 @functools.cache

@@ -51,8 +51,6 @@ from __future__ import annotations
 
 import bisect
 import functools
-import hashlib
-import inspect
 import math
 from typing import Any
 
@@ -64,7 +62,13 @@ from highway_env.vehicle.controller import ControlledVehicle
 from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import Landmark, RoadObject
 
-from tap_bench.sim.fast_idm import act_all, act_each, array_kernels_agree, lane_dots
+from tap_bench.sim.fast_idm import (
+    act_all,
+    act_each,
+    array_kernels_agree,
+    lane_dots,
+    sources_match,
+)
 
 __all__ = ["AT_ONCE_FROM", "MOVE_AT_ONCE_FROM", "TOLERANCE", "FastRoad", "use_fast_road"]
 
@@ -535,12 +539,7 @@ _HIGHWAY_ENV_MOVE = (Vehicle.step, Vehicle.clip_actions, Vehicle.on_state_update
 def _highway_env_moves_as_written() -> bool:
     """Whether the installed highway-env's ``Vehicle.step`` (and what it calls) is the code
     :meth:`FastRoad.move` repeats (that of highway-env 1.12); checked once per process."""
-    try:
-        sources = {f.__qualname__: inspect.getsource(f) for f in _HIGHWAY_ENV_MOVE[:4]}
-    except (OSError, TypeError):
-        return False
-    return all(hashlib.sha256(sources.get(name, "").encode()).hexdigest()[:16] == digest
-               for name, digest in _MOVE_CODE.items())
+    return sources_match(_HIGHWAY_ENV_MOVE[:4], _MOVE_CODE)
 
 
 @functools.cache

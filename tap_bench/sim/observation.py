@@ -36,8 +36,6 @@ Leurent, (c) 2023 Farama Foundation): see THIRD_PARTY_NOTICES.md.
 from __future__ import annotations
 
 import functools
-import hashlib
-import inspect
 from typing import Any
 
 import gymnasium as gym
@@ -47,6 +45,8 @@ from highway_env.envs.common.observation import KinematicObservation
 from highway_env.road.road import Road
 from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import RoadObject
+
+from tap_bench.sim.fast_idm import sources_match
 
 __all__ = ["DISTANCE_MARGIN", "FastKinematicObservation", "use_fast_observation"]
 
@@ -83,12 +83,7 @@ _OBSERVE_CODE = {  # sha256 of the source of each, highway-env 1.12
 def _highway_env_observes_as_written() -> bool:
     """Whether the installed highway-env's Kinematics observation (and what it calls) is the
     code this module repeats (that of highway-env 1.12); checked once per process."""
-    try:
-        sources = {f.__qualname__: inspect.getsource(f) for f in _HIGHWAY_ENV_OBSERVE}
-    except (OSError, TypeError):
-        return False
-    return all(hashlib.sha256(sources.get(name, "").encode()).hexdigest()[:16] == digest
-               for name, digest in _OBSERVE_CODE.items())
+    return sources_match(_HIGHWAY_ENV_OBSERVE, _OBSERVE_CODE)
 
 
 @functools.cache
