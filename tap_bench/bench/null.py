@@ -41,6 +41,7 @@ nearly twice the width.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from decimal import Decimal
 
 import numpy as np
 import pandas as pd
@@ -49,10 +50,31 @@ from tap_bench.bench.bootstrap import BootstrapConfig, cluster_indices
 from tap_bench.bench.coverage import Reference, unit_items
 from tap_bench.bench.intervals import wilson_interval, z_value
 
-__all__ = ["NullResult", "pooled_null", "same_policy_null"]
+__all__ = ["NullResult", "halves_text", "pooled_null", "same_policy_null"]
 
 SPLITS = 200
 """Random splits whose mean is the estimate."""
+
+
+def halves_text(half: float, null: float, diff: float, low: float, high: float, *,
+                percent: str = "%") -> str:
+    """``halves: policy 28% vs same policy 50%: -22 pts [-35, -9]``: the policy's and the
+    same-policy figure at the half sizes the difference is taken at (fractions in [0, 1]),
+    and the difference with its interval (fractions). The figures get as many decimals
+    (0, 1 or 2) as it takes for the shown ones to subtract to the shown difference (the
+    figures may be rounded already, so 2 decimals of a percentage can still be 0.01 off).
+    ``percent``: the sign after a percentage (``" %"`` in the report's tables)."""
+
+    def shown(x: float, digits: int, sign: str = "") -> str:
+        return f"{round(100 * x, digits) + 0:{sign}.{digits}f}"  # + 0: no "-0"
+
+    for digits in range(3):  # 28% - 50% = -22 pts, or 28.4% - 50.1% = -21.7 pts
+        if Decimal(shown(half, digits)) - Decimal(shown(null, digits)) \
+                == Decimal(shown(diff, digits)):
+            break
+    return (f"halves: policy {shown(half, digits)}{percent} vs same policy "
+            f"{shown(null, digits)}{percent}: {shown(diff, digits, '+')} pts "
+            f"[{shown(low, digits, '+')}, {shown(high, digits, '+')}]")
 
 METHOD = "shrunk"
 """How the interval is read from the draws: ``"recentred"`` (see the module docstring) or

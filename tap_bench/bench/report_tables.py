@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.bench.measures import MEASURES, Measure
+from tap_bench.bench.null import halves_text
 from tap_bench.bench.scoring import Scores
 
 TABLE_ROWS = 10  # rows shown before "show all" in the HTML (the Parquet files hold all)
@@ -238,9 +239,9 @@ def summary_table(scores: Scores, reference: str) -> pd.DataFrame:
                 diff = "coverage_diff" if est == "coverage" else "novel_diff"
                 if np.isfinite(c.get(diff, np.nan)):  # beside the same-policy figure
                     null = "null_coverage" if est == "coverage" else "null_novel_rate"
-                    pts = [round(100 * c[k]) + 0 for k in (diff, diff + "_low", diff + "_high")]
-                    text += (f"\nsame policy {_pct(c[null])}: {pts[0]:+d} pts "
-                             f"[{pts[1]:+d}, {pts[2]:+d}]")
+                    half = "half_coverage" if est == "coverage" else "half_novel_rate"
+                    text += "\n" + halves_text(c[half], c[null], c[diff], c[diff + "_low"],
+                                               c[diff + "_high"], percent=" %")
                 row[f"{what} {ref}"] = (text, {"v": float(c[est])})
         gap = scores.gap
         for ref in sorted(gap["reference"].unique()) if len(gap) else []:

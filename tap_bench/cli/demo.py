@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import os
 import time
-from decimal import Decimal
 
 from tap_bench.cli.progress import add_progress_arguments, progress_choice
 
@@ -73,22 +72,12 @@ def run(args: argparse.Namespace) -> int:
 def _halves(row: dict, key: str) -> str:
     """`` (halves: policy 28% vs same policy 50%: -22 pts [-35, -9])``: the policy and the
     same-policy figure at the half sizes the difference is taken at, and the difference
-    with its interval; "" without them. The figures get as many decimals (0, 1 or 2) as
-    it takes for the shown ones to subtract to the shown difference (the summary keeps 4
-    decimals of each fraction, so 2 decimals of a percentage can still be 0.01 off)."""
+    with its interval (:func:`tap_bench.bench.null.halves_text`); "" without them."""
     half, null = row.get(f"{key}: policy at halves"), row.get(f"{key}: same-policy figure")
     diff = row.get(f"{key}: difference")
     low, high = row.get(f"{key}: difference_low"), row.get(f"{key}: difference_high")
     if None in (half, null, diff, low, high):
         return ""
+    from tap_bench.bench.null import halves_text
 
-    def shown(x: float, digits: int, sign: str = "") -> str:
-        return f"{round(100 * x, digits) + 0:{sign}.{digits}f}"  # + 0: no "-0"
-
-    for digits in range(3):  # 28% - 50% = -22 pts, or 28.4% - 50.1% = -21.7 pts
-        if Decimal(shown(half, digits)) - Decimal(shown(null, digits)) \
-                == Decimal(shown(diff, digits)):
-            break
-    return (f" (halves: policy {shown(half, digits)}% vs same policy {shown(null, digits)}%: "
-            f"{shown(diff, digits, '+')} pts [{shown(low, digits, '+')}, "
-            f"{shown(high, digits, '+')}])")
+    return f" ({halves_text(half, null, diff, low, high)})"

@@ -3,7 +3,9 @@ its tables and images; it needs no server."""
 
 from __future__ import annotations
 
+import re
 import shutil
+from decimal import Decimal
 from pathlib import Path
 from xml.etree import ElementTree
 
@@ -124,7 +126,15 @@ def test_coverage_and_novelty_stand_beside_the_same_policy_figure(run_folder):
         body = page[start:page.index("</table>", start)]
         assert ">segments<" in body and ">episodes<" in body and " pts [" in body
     start = page.index('id="summary"')
-    assert "same policy" in page[start:page.index("</table>", start)]
+    summary = page[start:page.index("</table>", start)]
+    assert "same policy" in summary
+    # the summary shows the policy's own figure at the halves the difference is taken at,
+    # and the figures shown subtract to the difference shown
+    shown = re.findall(r"halves: policy ([\d.]+) % vs same policy ([\d.]+) %: ([+-][\d.]+) pts",
+                       summary)
+    assert shown
+    for half, null, diff in shown:
+        assert Decimal(half) - Decimal(null) == Decimal(diff)
     novel = pd.read_parquet(run_folder / "novel_labels.parquet")
     assert not novel.duplicated(["env", "policy", "reference", "unit", "label"]).any()
     assert "all" not in set(novel["env"])
