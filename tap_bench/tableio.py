@@ -26,10 +26,12 @@ import shutil
 import tempfile
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
-
-import pandas as pd
+from typing import TYPE_CHECKING
 
 from tap_bench.errors import FileFormatError, OutputPathError, RunExistsError
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = ["FOLDER_MARKER", "atomic_folder", "atomic_path", "atomic_paths", "beside",
            "check_folder_output", "check_outputs", "check_replace", "check_writable",
@@ -59,6 +61,8 @@ def read_table(path: str | os.PathLike) -> pd.DataFrame:
     Raises:
         FileFormatError: the file is missing, has an unknown suffix or cannot be parsed.
     """
+    import pandas as pd
+
     path = Path(path)
     fmt = _format(path)
     if not path.is_file():

@@ -24,12 +24,14 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
-import pyarrow.compute as pc
 
 from tap_bench.errors import TrajectoryTableError, did_you_mean
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = [
     "DT",
@@ -135,6 +137,8 @@ def _fail(message: str, source: str, *, column: str | None = None, row: int | No
 
 def _as_id_strings(col: pd.Series, name: str, source: str) -> pd.Series:
     """Identifiers as strings; integral floats (3.0, from a NaN-holding column) become '3'."""
+    import pandas as pd
+
     missing = col.array.isna()  # of the array: a Series of flags costs more than a check
     if missing.any():
         pos = int(np.flatnonzero(missing)[0])
@@ -154,6 +158,8 @@ def _contract_types(col: pd.Series) -> pd.Series | None:
     only the contract's object types (a string column of 'vehicle', 'cyclist' ...: the
     usual case, checked on its few distinct values instead of every row), a categorical
     of such strings as strings; else None."""
+    import pandas as pd
+
     if isinstance(col.dtype, pd.CategoricalDtype):  # of the contract's words, none missing:
         # its strings, as lower-casing them gives (checked on the categories)
         categories = col.dtype.categories
@@ -193,6 +199,8 @@ def _check_columns(table: pd.DataFrame, source: str) -> None:
 
 
 def _numeric(table: pd.DataFrame, col: str, source: str, columns=None) -> np.ndarray:
+    import pandas as pd
+
     series = table[col] if columns is None else columns[col]
     if pd.api.types.is_bool_dtype(series) or not pd.api.types.is_numeric_dtype(series):
         converted = pd.to_numeric(series, errors="coerce")
@@ -207,6 +215,8 @@ def _numeric(table: pd.DataFrame, col: str, source: str, columns=None) -> np.nda
 
 
 def _bool_column(table: pd.DataFrame, col: str, source: str, columns=None) -> np.ndarray:
+    import pandas as pd
+
     series = table[col] if columns is None else columns[col]
     if series.dtype == np.bool_:  # numpy's bool holds no missing value
         return series.to_numpy()
@@ -282,6 +292,8 @@ class CheckedTable:
 
     def frame(self) -> pd.DataFrame:
         """The columns as a DataFrame (contract columns first)."""
+        import pandas as pd
+
         names = self.names or tuple(self.columns)
         ordered = [c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS) if c in names]
         ordered += [c for c in names if c not in ordered]
@@ -289,6 +301,8 @@ class CheckedTable:
 
     def per_track(self, names: list[str] | tuple[str, ...]) -> pd.DataFrame:
         """One row per track: the given columns at each track's first row."""
+        import pandas as pd
+
         return pd.DataFrame(self.per_track_arrays(names))
 
     def per_track_arrays(self, names: list[str] | tuple[str, ...]) -> dict:
@@ -306,10 +320,14 @@ class CheckedTable:
 
 
 def _values(col: np.ndarray | pd.Series):
+    import pandas as pd
+
     return col.reset_index(drop=True) if isinstance(col, pd.Series) else col
 
 
 def _take(col: np.ndarray | pd.Series, rows: np.ndarray | None):
+    import pandas as pd
+
     if rows is None:
         return col
     if isinstance(col, pd.Series):
@@ -320,6 +338,8 @@ def _take(col: np.ndarray | pd.Series, rows: np.ndarray | None):
 def _take_array(col: np.ndarray | pd.Series, rows: np.ndarray):
     """The values of ``col`` at ``rows`` as an array of its type (:func:`_take` without
     the Series)."""
+    import pandas as pd
+
     return col.array.take(rows) if isinstance(col, pd.Series) else col[rows]
 
 
@@ -331,6 +351,8 @@ def _track_order(scenario: pd.Series, track: pd.Series) -> tuple[np.ndarray | No
         (the common case, detected without factorising every row); ``new_track`` is a
         (n_rows,) bool mask of the first row of each track in the grouped order.
     """
+    import pandas as pd
+
     n = len(scenario)
     # a small table's (an episode's) string ids as codes once: comparing codes costs less
     # than comparing strings, and the sort below reuses them (a large table's runs are
@@ -398,6 +420,8 @@ def _track_order(scenario: pd.Series, track: pd.Series) -> tuple[np.ndarray | No
 def _plain_strings(*cols: pd.Series) -> bool:
     """Whether every column is of a string dtype (no categorical with an order of its own):
     then their values sort by code point, in Python as in pandas."""
+    import pandas as pd
+
     return all(isinstance(c.dtype, pd.StringDtype) for c in cols)
 
 
@@ -421,6 +445,8 @@ def _sorted_codes(col: pd.Series, encoded=None) -> tuple[np.ndarray, int]:
     factorised in order of appearance, the few values then ranked with the same sort
     (cheaper than sorting while factorising). ``encoded``: :func:`_arrow_codes` of the
     column, when known."""
+    import pandas as pd
+
     if not _plain_strings(col):
         codes, uniques = pd.factorize(col, sort=True)
         return codes, len(uniques)
@@ -438,6 +464,8 @@ def _sorted_codes(col: pd.Series, encoded=None) -> tuple[np.ndarray, int]:
 def _ranks(distinct) -> np.ndarray:
     """(k,) int64 rank of each of ``distinct`` (an Arrow string array) in Arrow's sort
     (code point order, as ``pd.factorize(sort=True)`` ranks strings)."""
+    import pyarrow.compute as pc
+
     order = pc.array_sort_indices(distinct).to_numpy()
     rank = np.empty(len(order), np.int64)
     rank[order] = np.arange(len(order))
@@ -446,6 +474,8 @@ def _ranks(distinct) -> np.ndarray:
 
 def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table") -> CheckedTable:
     """:func:`validate_trajectories` without building a DataFrame: columns and index."""
+    import pandas as pd
+
     if not isinstance(table, pd.DataFrame):
         raise TypeError(f"{source}: expected a pandas DataFrame, got {type(table).__name__}")
     if len(table) == 0:

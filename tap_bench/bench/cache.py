@@ -80,10 +80,9 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
-import pandas as pd
 
 from tap_bench import catalogue
 from tap_bench._version import __version__
@@ -97,6 +96,9 @@ from tap_bench.usercode import (
     code_digest,
     find_module_source,
 )
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = ["DEFAULT_MAX_BYTES", "ENTRY_FORMAT", "CachedEpisode",
            "EpisodeCache", "default_cache_dir", "derived_key", "episode_key", "memoised",
@@ -445,6 +447,8 @@ def table_digest(table: pd.DataFrame | None) -> str:
     an ``object`` and a ``str`` column of the same strings, as labelled and cached episodes
     give them; cells it cannot hash, such as lists, through the column's Parquet bytes).
     ``None`` and an empty table differ."""
+    import pandas as pd
+
     if table is None:
         return "none"
     digest = hashlib.sha256()
@@ -472,6 +476,8 @@ def table_digest(table: pd.DataFrame | None) -> str:
 
 def _type_name(dtype: Any) -> str:
     """A column type for :func:`table_digest`: ``text`` for object and string columns."""
+    import pandas as pd
+
     text = isinstance(dtype, pd.StringDtype) or (isinstance(dtype, np.dtype) and dtype.kind == "O")
     return "text" if text else str(dtype)
 
@@ -869,6 +875,8 @@ def _split_entry(data: bytes, kind: str, version: int) -> tuple[dict, bytes]:
 def _decode(data: bytes, key: str) -> CachedEpisode:
     """An entry's content, verified whole; :class:`_Refused` naming the failed check (other
     exceptions of a damaged payload are caught by the caller)."""
+    import pandas as pd
+
     from tap_bench.sim.rollout import EPISODE_COLUMNS
 
     header, payload = _split_entry(data, "tap-bench-episode", ENTRY_FORMAT)

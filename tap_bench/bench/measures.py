@@ -84,10 +84,9 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from tap_bench.errors import RegistrationError, TrajectoryTableError
 from tap_bench.pathframe import (
@@ -102,6 +101,9 @@ from tap_bench.pathframe import (
 )
 from tap_bench.registry import Registry
 from tap_bench.trajectories import HZ
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = [
     "BURN_IN_S",
@@ -419,6 +421,8 @@ def _check_table() -> pd.DataFrame:
     """Two hand-built 5 s episodes at 10 Hz for :func:`check_measure`: ``closing`` (the ego
     at 20 m/s closes in on a leader at 15 m/s, 30 m ahead, and is crashed at its last step)
     and ``alone`` (the ego at 10 m/s, braking gently, no one else)."""
+    import pandas as pd
+
     t = np.arange(50) / HZ
     rows = []
     for sid, track, x0, v0, dv, ego, crash in (
@@ -579,6 +583,8 @@ def _leader_minimum(steps: EgoSteps, values: np.ndarray, cap: float) -> np.ndarr
 def leader_counts(steps: EgoSteps) -> pd.DataFrame:
     """Per episode: ``scenario_id``, ``leader_steps`` (scored steps with a leader) and
     ``no_leader`` (True: min headway and min TTC are NaN, not the cap)."""
+    import pandas as pd
+
     has = (steps.leader_row >= 0) & steps.scored
     n = np.bincount(steps.episode[has], minlength=steps.n_episodes)
     return pd.DataFrame({"scenario_id": steps.scenario_id, "leader_steps": n,
@@ -744,6 +750,8 @@ def ego_steps(table: pd.DataFrame, map_table: pd.DataFrame | LaneMap | None = No
         TrajectoryTableError: ``is_ego`` is missing, a scenario has two ego tracks, or an
             ego has two rows at one step.
     """
+    import pandas as pd
+
     _require(table)
     valid = np.ones(len(table), bool)
     if "valid" in table.columns:
@@ -852,6 +860,8 @@ def ego_step_measures(table: pd.DataFrame, map_table: pd.DataFrame | LaneMap | N
         below :data:`MIN_SPEED_FOR_HEADWAY`; 0 while crashed), ``scored`` (False where the
         burn-in leaves the step out of the episode minima).
     """
+    import pandas as pd
+
     steps = ego_steps(table, map_table)
     headway, ttc = _unscored(steps)
     return pd.DataFrame({
@@ -889,6 +899,8 @@ def ego_measures(table: pd.DataFrame, map_table: pd.DataFrame | LaneMap | None =
         one column per registered measure (:data:`MEASURES`, and :data:`SCENE_MEASURES`
         when the table carries :data:`SCENE_STEP_COLUMNS`) and ``duration_s``.
     """
+    import pandas as pd
+
     steps = ego_steps(table, map_table) if steps is None else steps
     # the columns gathered first and made a frame once (a frame insert per column costs
     # more than the measures of a small batch)
@@ -912,6 +924,8 @@ def ego_measures(table: pd.DataFrame, map_table: pd.DataFrame | LaneMap | None =
 
 
 def _check_one_ego(ego_sid: np.ndarray, ego_track: np.ndarray, sids) -> None:
+    import pandas as pd
+
     if not len(ego_sid):
         return
     order = np.argsort(ego_sid, kind="stable")

@@ -13,7 +13,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from tap_bench.bench.run_plan import SuitePlan
 from tap_bench.bench.suite import Suite
@@ -25,6 +24,8 @@ from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.tableio import atomic_folder, atomic_path, check_folder_output
 
 if TYPE_CHECKING:
+    import pandas as pd
+
     from tap_bench.bench.cache import EpisodeCache
     from tap_bench.bench.scoring import Scores
 
@@ -221,6 +222,8 @@ def read_run(folder: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame]:
         FileFormatError: the folder is not a finished run (no summary or episode table), or
             one of them is damaged: not JSON, not an object, not Parquet, columns missing.
     """
+    import pandas as pd
+
     folder = Path(folder)
     summary_path = folder / "summary.json"
     episodes_path = folder / "episodes.parquet"
@@ -269,6 +272,8 @@ def run_viewer(folder: str | os.PathLike, output: str | os.PathLike | None = Non
     Raises:
         FileFormatError: the folder is not a finished run, or has no trajectories.
     """
+    import pandas as pd
+
     from tap_bench.bench.viewer import write_run_viewer
 
     folder = Path(folder)

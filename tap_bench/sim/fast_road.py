@@ -11,15 +11,19 @@ every vehicle looks up its lane by computing its distance to every lane of the n
 
 :class:`FastRoad` gives the same answers, object for object and bit for bit:
 
-- the neighbour search projects all vehicles on a lane at once with numpy, once per
-  simulated step (positions do not change while the vehicles act), finds the few that can
-  be the answer (those on the lane, or within :data:`TOLERANCE` of it, and no more than
-  :data:`TOLERANCE` farther than the nearest vehicle that surely is on the lane ahead or
-  behind), then runs highway-env's own loop, with highway-env's own arithmetic, on those
-  few, in the road's order. The numpy projection may differ from highway-env's ``np.dot``
-  in the last bit (BLAS may fuse the multiply-add), which the tolerance (1 micrometre,
-  about 1e9 times that rounding at highway-env's scale) absorbs, so the decisions are
-  exactly highway-env's;
+- the neighbour search, while the vehicles act (``Road.act``: positions do not change),
+  projects all vehicles on a lane once per simulated step with highway-env's arithmetic
+  (the bits of its ``np.dot``, :func:`fast_idm.lane_dots
+  <tap_bench.sim.fast_idm.lane_dots>`), keeps those on the lane sorted by their
+  coordinate and road order, and answers each query by bisection with highway-env's rules
+  for ties (:meth:`FastRoad._from_table`). Outside ``Road.act`` it projects all vehicles at
+  once with numpy, finds the few that can be the answer (those on the lane, or within
+  :data:`TOLERANCE` of it, and no more than :data:`TOLERANCE` farther than the nearest
+  vehicle that surely is on the lane ahead or behind), then runs highway-env's own loop,
+  with highway-env's own arithmetic, on those few, in the road's order (the numpy
+  projection may differ from highway-env's ``np.dot`` in the last bit, which the tolerance
+  absorbs). The tables are used only where highway-env's search has the source they repeat
+  (highway-env 1.12's, checked once per process);
 - the IDM/MOBIL vehicles decide their actions all at once (:mod:`tap_bench.sim.fast_idm`),
   their leaders found together (:meth:`FastRoad.leaders`), on roads of at least
   :data:`AT_ONCE_FROM` vehicles; on smaller ones one after the other, with highway-env's
@@ -55,7 +59,7 @@ import math
 from typing import Any
 
 import numpy as np
-from highway_env.road.lane import CircularLane, SineLane, StraightLane
+from highway_env.road.lane import AbstractLane, CircularLane, SineLane, StraightLane
 from highway_env.road.road import Road
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import ControlledVehicle
@@ -70,20 +74,28 @@ from tap_bench.sim.fast_idm import (
     sources_match,
 )
 
-__all__ = ["AT_ONCE_FROM", "MOVE_AT_ONCE_FROM", "TOLERANCE", "FastRoad", "use_fast_road"]
+__all__ = ["AT_ONCE_FROM", "MOVE_AT_ONCE_FROM", "MOVE_VEHICLES_AT_ONCE_FROM", "TOLERANCE",
+           "FastRoad", "use_fast_road"]
 
 TOLERANCE = 1e-6
 """Margin [m] by which a vehicle's numpy projection may be off and still be re-checked."""
 
 _MARGIN = 1.0  # highway-env's on-lane margin in neighbour_vehicles [m]
+_LANE_PROJECTION = frozenset({"local_coordinates", "on_lane", "width_at"})
+"""Methods that, set on a lane instance, change how vehicles are found on it."""
 AT_ONCE_FROM = 8
 """Fewest vehicles on a road for which decisions and collision checks are done all at once
 (numpy); on smaller roads highway-env's loops cost less than numpy's fixed costs (the
 answers are the same either way)."""
 MOVE_AT_ONCE_FROM = 100
-"""Fewest (vehicle, lane) pairs for which the lanes of the moved vehicles are looked up all
-at once (:meth:`FastRoad.move`): the roundabout's 5 vehicles on 32 lanes, a highway of 50
-on 4; below, one vehicle at a time costs less (same answers either way)."""
+"""Fewest (vehicle, lane) pairs for which the vehicles move and have their lanes looked up
+all at once (:meth:`FastRoad.move`): the roundabout's 5 vehicles on 32 lanes, a highway of
+50 on 4; below, one vehicle at a time costs less (same answers either way), unless the
+road has :data:`MOVE_VEHICLES_AT_ONCE_FROM` vehicles."""
+MOVE_VEHICLES_AT_ONCE_FROM = 16
+"""Fewest vehicles for which they move all at once whatever the lanes: the 21 vehicles of
+the highway scenario on its 3 lanes move in 90 instead of 130 us a simulated step; merge's
+5 and cut_in's 10 move faster one at a time (thread CPU, 2026-11)."""
 
 
 class FastRoad:
@@ -91,8 +103,8 @@ class FastRoad:
 
     Positions do not change while the vehicles act (they move in ``Road.step``), so during
     ``Road.act`` every lane's projection of all vehicles is computed once, at its first
-    query, and kept sorted; a query then looks up the candidates and checks them with
-    highway-env's arithmetic. Outside ``Road.act`` each query projects afresh.
+    query, with highway-env's arithmetic, and kept sorted (:meth:`_table`); a query is then
+    a bisection. Outside ``Road.act`` each query projects afresh.
 
     Args:
         road: the highway-env road; :meth:`install` makes it act, step and search through
@@ -104,8 +116,7 @@ class FastRoad:
         self._others: list[Any] | None = None
         self._count = 0
         self._positions: np.ndarray | None = None
-        self._lanes: dict[Any, tuple[list[float], list[float], list[int]] | None] = {}
-        self._exact: dict[Any, tuple[np.ndarray, np.ndarray]] = {}
+        self._lanes: dict[Any, tuple[list[float], list[int], list[float]] | None] = {}
         self._index_of: dict[int, int] | None = None
         self._flat: list[tuple[Any, ...]] = []
         self._arrays: dict[str, np.ndarray] = {}
@@ -188,18 +199,24 @@ class FastRoad:
         When every vehicle moves by highway-env's own ``Vehicle.step`` (with
         ``IDMVehicle``'s timer; :func:`_moves_as_highway_env`) on a network whose lane
         lookup this road does, with at least :data:`MOVE_AT_ONCE_FROM` (vehicle, lane)
-        pairs, each vehicle's kinematics are highway-env's lines, with the
-        same numpy scalar operations, and the lanes of all vehicles are then looked up at
-        once (:meth:`closest_lane_indices`). A vehicle's step reads only its own state and
-        the network, so looking its lane up after the others moved changes nothing."""
+        pairs, the vehicles' kinematics are highway-env's lines, computed for all at once
+        (:func:`_kinematics_at_once`; one at a time, :func:`_kinematics`, where numpy's
+        array kernels do not give its scalar kernels' bits), and the lanes of all vehicles
+        are then looked up at once (:meth:`closest_lane_indices`). A vehicle's step reads
+        only its own state and the network, so looking its lane up after the others moved
+        changes nothing."""
         vehicles = self.road.vehicles
-        if not self._flat or len(vehicles) * len(self._flat) < MOVE_AT_ONCE_FROM \
+        if not self._flat or (len(vehicles) * len(self._flat) < MOVE_AT_ONCE_FROM
+                              and len(vehicles) < MOVE_VEHICLES_AT_ONCE_FROM) \
                 or not all(_moves_as_highway_env(v, self.road) for v in vehicles):
             for vehicle in vehicles:
                 vehicle.step(dt)
             return
-        for vehicle in vehicles:
-            _kinematics(vehicle, dt)
+        if self._decide_at_once:  # numpy's array kernels give its scalar kernels' bits
+            _kinematics_at_once(vehicles, dt)
+        else:
+            for vehicle in vehicles:
+                _kinematics(vehicle, dt)
         network, history = self.road.network, self.road.record_history
         found = self.closest_lane_indices([v.position for v in vehicles],
                                           [v.heading for v in vehicles])
@@ -251,7 +268,6 @@ class FastRoad:
         finally:
             self._others = self._positions = None
             self._lanes.clear()
-            self._exact.clear()
             self._index_of = None
 
     def _snapshot(self) -> tuple[list[Any], np.ndarray | None]:
@@ -264,57 +280,33 @@ class FastRoad:
 
     def leaders(self, vehicles: list[Any], lane_indices: list[Any]) -> list[Any | None]:
         """The vehicle ahead of each of ``vehicles`` on its lane of ``lane_indices`` (None:
-        its own): ``neighbour_vehicles(vehicle, lane_index)[0]`` for each, the same objects.
+        its own): ``neighbour_vehicles(vehicle, lane_index)[0]`` for each, the same objects
+        (during ``Road.act`` from the lane's table, :meth:`_table`)."""
+        return [self.neighbour_vehicles(v, li)[0]
+                for v, li in zip(vehicles, lane_indices, strict=True)]
 
-        During ``Road.act``, on straight lanes, every other vehicle's lane coordinates are
-        computed once per lane with highway-env's arithmetic (:func:`fast_idm.lane_dots
-        <tap_bench.sim.fast_idm.lane_dots>`: the bits of its ``np.dot``), and each leader is
-        the nearest on-lane vehicle at or ahead of the querying one, the last in road order
-        among equals, as highway-env's loop keeps it. Otherwise each is asked of
-        :meth:`neighbour_vehicles`.
-        """
-        road = self.road
-        out: list[Any | None] = [None] * len(vehicles)
-        if self._others is None or road.neighbour_vehicles_connected_lanes \
-                or self._count != len(road.vehicles) + len(road.objects) or not self._others:
-            return [self.neighbour_vehicles(v, li)[0] for v, li in
-                    zip(vehicles, lane_indices, strict=True)]
-        if self._index_of is None:
-            self._index_of = {id(v): i for i, v in enumerate(self._others)}
-        groups: dict[Any, list[int]] = {}
-        for k, (vehicle, lane_index) in enumerate(zip(vehicles, lane_indices, strict=True)):
-            lane_index = lane_index or vehicle.lane_index
-            if lane_index:
-                groups.setdefault(lane_index, []).append(k)
-        for lane_index, ks in groups.items():
-            lane = road.network.get_lane(lane_index)
-            if type(lane) is not StraightLane:
-                for k in ks:
-                    out[k] = self.neighbour_vehicles(vehicles[k], lane_index)[0]
-                continue
-            if lane_index not in self._exact:
+    def _table(self, lane_index: Any, lane: StraightLane
+               ) -> tuple[list[float], list[int], list[float]] | None:
+        """During ``Road.act``: the vehicles and objects on the straight ``lane`` (highway-env's
+        ``on_lane`` with its 1 m margin), sorted by their longitudinal coordinate on it and then
+        by road order, as (coordinates, indices into the road's searchable objects), and every
+        object's coordinate, all with highway-env's arithmetic (:func:`fast_idm.lane_dots
+        <tap_bench.sim.fast_idm.lane_dots>`: the bits of its ``np.dot``); computed at the
+        lane's first query of the step. None for a lane that changes how it projects."""
+        table = self._lanes.get(lane_index)
+        if table is None and lane_index not in self._lanes:
+            if _LANE_PROJECTION & vars(lane).keys() or not _searches_as_written():
+                table = None  # highway-env's own search
+            else:
                 along, across = lane_dots(self._positions, lane)
-                on = (np.abs(across) <= lane.width_at(0.0) / 2 + _MARGIN) \
+                on = (np.abs(across) <= lane.width / 2 + _MARGIN) \
                     & (-lane.VEHICLE_LENGTH <= along) \
                     & (along < lane.length + lane.VEHICLE_LENGTH)
-                self._exact[lane_index] = along, on
-            along, on = self._exact[lane_index]
-            queries = np.array([vehicles[k].position for k in ks], dtype=float)
-            s_q = lane_dots(queries, lane)[0]
-            ahead = on[None, :] & (s_q[:, None] <= along[None, :])
-            me = [(row, self._index_of.get(id(vehicles[k]))) for row, k in enumerate(ks)]
-            me = [(row, i) for row, i in me if i is not None]
-            if me:  # not the vehicle itself
-                rows, cols = zip(*me, strict=True)
-                ahead[list(rows), list(cols)] = False
-            nearest = np.where(ahead, along[None, :], np.inf).min(axis=1)
-            last = ahead & (along[None, :] == nearest[:, None])
-            found = last.any(axis=1)
-            # highway-env keeps the last of equally near ones (in road order)
-            pick = last.shape[1] - 1 - np.argmax(last[:, ::-1], axis=1)
-            for row in np.flatnonzero(found).tolist():
-                out[ks[row]] = self._others[int(pick[row])]
-        return out
+                rows = np.flatnonzero(on)
+                order = rows[np.lexsort((rows, along[rows]))]
+                table = along[order].tolist(), order.tolist(), along.tolist()
+            self._lanes[lane_index] = table
+        return table
 
     def neighbour_vehicles(self, vehicle: Any, lane_index: Any = None
                            ) -> tuple[Any | None, Any | None]:
@@ -332,21 +324,19 @@ class FastRoad:
         lane = road.network.get_lane(lane_index)
         if type(lane) is not StraightLane or road.neighbour_vehicles_connected_lanes:
             return Road.neighbour_vehicles(road, vehicle, lane_index)
-        if self._others is None or self._count != len(road.vehicles) + len(road.objects):
-            # outside Road.act positions may change between queries; inside it a vehicle
-            # may have been added or removed (none of highway-env's does): project afresh
-            others, positions = self._snapshot()
-            if not others:
+        if self._others is not None and self._count == len(road.vehicles) + len(road.objects):
+            if not self._others:
                 return None, None
-            table = _project(lane, positions)
-        else:
-            others = self._others
-            if not others:
-                return None, None
-            if lane_index not in self._lanes:
-                self._lanes[lane_index] = _project(lane, self._positions)
-            table = self._lanes[lane_index]
-        surely, maybe_s, maybe_i = table
+            table = self._table(lane_index, lane)
+            if table is not None:
+                return self._from_table(vehicle, lane, table)
+            return Road.neighbour_vehicles(road, vehicle, lane_index)
+        # outside Road.act positions may change between queries; inside it a vehicle may
+        # have been added or removed (none of highway-env's does): project afresh
+        others, positions = self._snapshot()
+        if not others:
+            return None, None
+        surely, maybe_s, maybe_i = _project(lane, positions)
         s = lane.local_coordinates(vehicle.position)[0]
         k = bisect.bisect_left(surely, s + TOLERANCE)
         front_bound = surely[k] + TOLERANCE if k < len(surely) else np.inf
@@ -368,6 +358,35 @@ class FastRoad:
             if sv < s and (s_rear is None or sv > s_rear):
                 s_rear, v_rear = sv, v
         return v_front, v_rear
+
+    def _from_table(self, vehicle: Any, lane: StraightLane,
+                    table: tuple[list[float], list[int], list[float]]
+                    ) -> tuple[Any | None, Any | None]:
+        """highway-env's answer from a lane's :meth:`_table`: the leader is the nearest
+        object on the lane at or ahead of ``vehicle``'s coordinate ``s`` (``s <= s_v``), the
+        last in road order among equal coordinates (highway-env's loop keeps a later one at
+        ``s_v <= s_front``), ``vehicle`` itself excepted; the follower the nearest behind
+        (``s_v < s``), the first in road order among equals (``s_v > s_rear``)."""
+        keys, rows, along = table
+        if self._index_of is None:
+            self._index_of = {id(v): i for i, v in enumerate(self._others)}
+        me = self._index_of.get(id(vehicle), -1)
+        s = along[me] if me >= 0 else lane.local_coordinates(vehicle.position)[0]
+        if s != s:  # NaN: highway-env's comparisons all fail
+            return None, None
+        start = bisect.bisect_left(keys, s)
+        front = rear = None
+        j = start
+        if j < len(keys) and rows[j] == me:
+            j += 1
+        if j < len(keys):
+            last = bisect.bisect_right(keys, keys[j], j) - 1
+            if rows[last] == me:
+                last -= 1
+            front = self._others[rows[last]]
+        if start > 0:
+            rear = self._others[rows[bisect.bisect_left(keys, keys[start - 1])]]
+        return front, rear
 
 
 _STRAIGHT, _SINE, _CIRCULAR = 0, 1, 2
@@ -449,6 +468,37 @@ def _kinematics(vehicle: Any, dt: float) -> None:
     vehicle.speed += vehicle.action["acceleration"] * dt
 
 
+def _kinematics_at_once(vehicles: list[Any], dt: float) -> None:
+    """:func:`_kinematics` of every one of ``vehicles``, the same states bit for bit: the
+    timers and ``clip_actions`` one vehicle at a time in the road's order, then highway-env's
+    formulas for all at once with numpy (element by element the same operations in the same
+    order; numpy's array ``tan``, ``arctan``, ``cos`` and ``sin`` give its scalar kernels'
+    bits where :func:`fast_idm.array_kernels_agree
+    <tap_bench.sim.fast_idm.array_kernels_agree>` holds), each vehicle's position, heading
+    and speed then updated as ``Vehicle.step`` updates them (in place, the same types)."""
+    idm_step = _HIGHWAY_ENV_MOVE[3]
+    for vehicle in vehicles:
+        if type(vehicle).step is idm_step:  # IDMVehicle's: its timer
+            vehicle.timer += dt
+        vehicle.clip_actions()
+    steering = np.array([v.action["steering"] for v in vehicles], dtype=float)
+    speed = np.array([v.speed for v in vehicles], dtype=float)
+    heading = np.array([v.heading for v in vehicles], dtype=float)
+    half_length = np.array([v.LENGTH for v in vehicles], dtype=float) / 2
+    beta = np.arctan(1 / 2 * np.tan(steering))
+    angle = heading + beta
+    moved = speed[:, None] * np.stack([np.cos(angle), np.sin(angle)], axis=1) * dt
+    turned = speed * np.sin(beta) / half_length * dt
+    for k, vehicle in enumerate(vehicles):
+        vehicle.position += moved[k]
+        if vehicle.impact is not None:
+            vehicle.position += vehicle.impact
+            vehicle.crashed = True
+            vehicle.impact = None
+        vehicle.heading += turned[k]
+        vehicle.speed += vehicle.action["acceleration"] * dt
+
+
 def _first_nearest(candidates: list[tuple[Any, ...]], position: np.ndarray,
                    heading: Any) -> tuple[str, str, int]:
     """The index of the first of ``candidates`` (:func:`_lane_entry`, in the network's
@@ -519,6 +569,33 @@ def _estimates(lanes: dict[str, np.ndarray], positions: np.ndarray, headings: np
                 + np.abs(np.remainder(headings[:, None] - lane_heading + np.pi, 2 * np.pi)
                          - np.pi))
     return distance, exact
+
+
+_SEARCH_CODE = {  # sha256 of the source of the search FastRoad._table and _from_table repeat
+    "Road.neighbour_vehicles": "6401966dd2bc7350",
+    "AbstractLane.on_lane": "737440dd0b30c7fd",
+    "StraightLane.local_coordinates": "cc85099a835712ba",
+    "StraightLane.width_at": "a3f9e9578226633b",
+}
+_HIGHWAY_ENV_SEARCH = (Road.neighbour_vehicles, AbstractLane.on_lane,
+                       StraightLane.local_coordinates, StraightLane.width_at)
+"""highway-env's own search methods, as imported (a process may replace them)."""
+
+
+def _searches_as_written() -> bool:
+    """Whether highway-env's ``Road.neighbour_vehicles`` and the straight lane's methods it
+    calls are, on their classes, the code (highway-env 1.12's) that the lane tables of
+    :class:`FastRoad` repeat; the sources are checked once per process."""
+    return (Road.neighbour_vehicles is _HIGHWAY_ENV_SEARCH[0]
+            and StraightLane.on_lane is _HIGHWAY_ENV_SEARCH[1]
+            and StraightLane.local_coordinates is _HIGHWAY_ENV_SEARCH[2]
+            and StraightLane.width_at is _HIGHWAY_ENV_SEARCH[3]
+            and _search_sources_match())
+
+
+@functools.cache
+def _search_sources_match() -> bool:
+    return sources_match(_HIGHWAY_ENV_SEARCH, _SEARCH_CODE)
 
 
 _MOVE_CODE = {  # sha256 of the source of highway-env's methods FastRoad.move stands in for

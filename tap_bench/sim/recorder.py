@@ -16,11 +16,14 @@ road segment the vehicle is on (highway-env's lane index without the lane, ``"a>
 from __future__ import annotations
 
 from collections.abc import Iterable
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from tap_bench.trajectories import HZ
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = ["EGO_TRACK_ID", "TrajectoryRecorder", "scenario_id"]
 
@@ -112,6 +115,8 @@ class TrajectoryRecorder:
         Args:
             **columns: constant columns to add (``policy="idm"``).
         """
+        import pandas as pd
+
         names = ("step", "code", "x", "y", "heading", "speed", "crashed", "road", "lane")
         if not self._rows:
             data = {n: np.empty(0) for n in names}

@@ -18,11 +18,10 @@ import traceback
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import gymnasium as gym
 import numpy as np
-import pandas as pd
 
 from tap_bench.errors import EpisodeFailedWarning, EpisodesFailedError, RegistrationError
 from tap_bench.execution import DEFAULT_RETRIES, Backend, resolve_backend
@@ -31,6 +30,9 @@ from tap_bench.sim.scenario_env import ScenarioEnv, find_scenario_env, get_scena
 from tap_bench.sim.scenario_format import Scenario, parse_seeds
 from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.trajectories import HZ
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = ["EPISODE_COLUMNS", "EpisodeFailedWarning", "EpisodesFailedError", "Rollout",
            "check_policy", "collect_rollout", "resolve_policy", "resolve_scenario", "rollout",
@@ -81,6 +83,8 @@ def run_episode(env: gym.Env, policy: Policy, seed: int, *, record: bool = True
         the episode's trajectory table (empty when ``record`` is False) and its row of the
         episode table.
     """
+    import pandas as pd
+
     scenario_env = find_scenario_env(env)
     obs, _ = env.reset(seed=seed)
     policy.reset(env, seed=seed)
@@ -119,6 +123,8 @@ def _observation_config(policy: Policy) -> Mapping[str, Any]:
 def _run_task(task: _Task) -> tuple[pd.DataFrame, dict[str, Any]]:
     # Definitions are data with a stable repr: build each once per process. A policy object
     # is used as it came (a copy per task in a worker).
+    import pandas as pd
+
     policy_key = repr(task.policy) if isinstance(task.policy, PolicyDefinition) else None
     env_key = None
     try:
@@ -207,6 +213,8 @@ def rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
     Raises:
         EpisodesFailedError: every episode failed (naming the first errors).
     """
+    import pandas as pd
+
     scenario = resolve_scenario(env, config=config, duration=duration,
                                 lane_change=lane_change)
     if isinstance(scenario, WomdScenes) and (seeds is None or seeds == "all"):
@@ -271,6 +279,8 @@ def collect_rollout(tables: Sequence[pd.DataFrame], episodes: pd.DataFrame, *,
     Raises:
         EpisodesFailedError: every episode failed: an empty result would only hide why.
     """
+    import pandas as pd
+
     episodes = episodes.reset_index(drop=True)
     episodes["seed"] = episodes["seed"].astype(np.int64)
     failed = episodes[episodes["status"] != "ok"]

@@ -21,10 +21,9 @@ import functools
 import os
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
-import pandas as pd
 
 from tap_bench import catalogue
 from tap_bench.errors import FileFormatError, ParameterError, TapBenchError, did_you_mean
@@ -37,6 +36,9 @@ from tap_bench.sim.scenario_format import (
 )
 from tap_bench.sim.schema import env_class
 from tap_bench.sim.vehicles import LANE_CHANGE_SETTINGS, apply_lane_change, guard_class_attributes
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = ["FAST_SIMULATION_FREQUENCY", "ScenarioEnv", "episode_trajectories", "get_scenario",
            "make_env"]

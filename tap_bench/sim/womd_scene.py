@@ -20,9 +20,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from tap_bench.errors import ParameterError, TapBenchError
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 if TYPE_CHECKING:  # read with a scene only: resolving a suite needs no protobuf
     from tap_bench.womd.roadmap import RoadMap
@@ -113,6 +115,8 @@ class Scene:
 
     def table(self) -> pd.DataFrame:
         """The record as a trajectory table (every track, every step, WOMD axes)."""
+        import pandas as pd
+
         n, t = self.x.shape
         return pd.DataFrame({
             "scenario_id": np.full(n * t, self.scenario_id, dtype=object),
@@ -192,6 +196,8 @@ def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:
             record too short for a current time, no lanes; the message names the scenario.
         WomdRecordError: the record cannot be decoded.
     """
+    import pandas as pd
+
     table, road, digest = _read(ref)
     sid = str(table["scenario_id"].iloc[0]) if len(table) else road.scenario_id
     where = f"scenario {sid} ({ref})"

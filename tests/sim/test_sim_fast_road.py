@@ -178,8 +178,9 @@ def test_the_vehicles_decide_at_once():
 
 
 @pytest.mark.parametrize("mutation", ["steering", "acceleration", "lane coordinate",
-                                      "not zero", "velocity", "leader", "motion", "timer",
-                                      "lane at once"])
+                                      "not zero", "velocity", "leader", "motion",
+                                      "motion one at a time", "timer", "speed at once",
+                                      "position at once", "lane at once"])
 def test_a_changed_formula_is_caught(monkeypatch, mutation):
     """The comparison sees a change of one ulp in any action or motion, or a changed term
     of the vectorised formulas: the bit-for-bit tests can fail."""
@@ -207,23 +208,33 @@ def test_a_changed_formula_is_caught(monkeypatch, mutation):
     elif mutation == "velocity":
         velocity = fast_idm._velocity
         monkeypatch.setattr(fast_idm, "_velocity", lambda objects: velocity(objects) * 1.01)
-    elif mutation == "motion":  # one ulp in the kinematics of the vehicles moved at once
-        kinematics = fast_road._kinematics
+    elif mutation in ("motion", "motion one at a time"):  # one ulp in the kinematics
+        one_at_a_time = mutation == "motion one at a time"
+        name = "_kinematics" if one_at_a_time else "_kinematics_at_once"
+        kinematics = getattr(fast_road, name)
+        if one_at_a_time:  # as where numpy's array kernels differ from its scalar ones
+            monkeypatch.setattr(fast_road, "array_kernels_agree", lambda: False)
 
-        def one_ulp(vehicle, dt):
-            kinematics(vehicle, dt)
-            vehicle.heading = np.nextafter(vehicle.heading, np.inf)
+        def one_ulp(moved, dt):
+            kinematics(moved, dt)
+            for vehicle in [moved] if one_at_a_time else moved:
+                vehicle.heading = np.nextafter(vehicle.heading, np.inf)
 
-        monkeypatch.setattr(fast_road, "_kinematics", one_ulp)
-    elif mutation == "timer":  # IDMVehicle.step's timer forgotten
-        kinematics = fast_road._kinematics
+        monkeypatch.setattr(fast_road, name, one_ulp)
+    elif mutation in ("timer", "speed at once", "position at once"):
+        kinematics = fast_road._kinematics_at_once
 
-        def no_timer(vehicle, dt):
-            kinematics(vehicle, dt)
-            if hasattr(vehicle, "timer"):
-                vehicle.timer -= dt
+        def mutated(vehicles, dt):
+            kinematics(vehicles, dt)
+            for vehicle in vehicles:
+                if mutation == "timer" and hasattr(vehicle, "timer"):
+                    vehicle.timer -= dt  # IDMVehicle.step's timer forgotten
+                elif mutation == "speed at once":
+                    vehicle.speed = np.nextafter(vehicle.speed, np.inf)
+                elif mutation == "position at once":
+                    vehicle.position[1] = np.nextafter(vehicle.position[1], -np.inf)
 
-        monkeypatch.setattr(fast_road, "_kinematics", no_timer)
+        monkeypatch.setattr(fast_road, "_kinematics_at_once", mutated)
     elif mutation == "lane at once":  # the lane lookup at once: the last candidate kept
         estimates = fast_road._estimates
 
@@ -730,6 +741,8 @@ def test_vehicles_move_through_highway_env_when_its_code_is_not_the_one_repeated
     fast_road._moving_class.cache_clear()
     kinematics = []
     monkeypatch.setattr(fast_road, "_kinematics", lambda v, dt: kinematics.append(v))
+    monkeypatch.setattr(fast_road, "_kinematics_at_once",
+                        lambda vs, dt: kinematics.extend(vs))
     before = [v.position.copy() for v in vehicles]
     fast.move(0.1)
     assert not kinematics and all((v.position != p).any()
@@ -881,3 +894,169 @@ def test_lane_changes_go_through_highway_env_when_its_code_is_not_the_one_repeat
     fast_idm._highway_env_decides_as_written.cache_clear()
     fast_idm._decides_as_written.cache_clear()
     assert fast_idm._decides_as_written(IDMVehicle)
+
+
+def _table_mismatches(seeds=range(30)) -> dict[str, int]:
+    """Every query of every vehicle on every lane (and on its own), asked while the road
+    acts (FastRoad's lane tables), against highway-env's own search, on drawn straight
+    roads: slanted or not, vehicles drawn from few coordinates (ties in s, equal s on
+    other lanes, -0.0 and 0.0), on the lanes' edges and ends and just beyond them, in road
+    orders unlike their order on the lane, with obstacles, a landmark and sometimes a
+    vehicle whose position is not finite."""
+    half = StraightLane.DEFAULT_WIDTH / 2 + 1.0  # highway-env's on-lane margin is 1 m
+    counts = {"queries": 0, "mismatches": 0, "fronts": 0, "rears": 0, "tied answers": 0,
+              "not finite": 0}
+    lanes = [("a", "b", 0), ("a", "b", 1), ("a", "b", 2), None]
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        angle = float(rng.choice([0.0, 0.3, -2.1, np.pi / 2]))
+        pool_s = np.concatenate([rng.uniform(-10, 510, 6),
+                                 [-5, -5 - 1e-9, 505 - 1e-9, 505, 0.0, -0.0, 100, 100 + 1e-12]])
+        pool_r = [0.0, 0.5, -0.5, half, half + 1e-9, -half, 4.0, 4 + half, 8.0, 2.0, 6.0, 13.0]
+        n = int(rng.integers(3, 30))
+        positions = list(zip(rng.choice(pool_s, n), rng.choice(pool_r, n), strict=True))
+        rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+        objects = [Obstacle(None, rotation @ np.array([rng.choice(pool_s), rng.choice(pool_r)]))
+                   for _ in range(int(rng.integers(0, 3)))]
+        landmark = Landmark(None, rotation @ np.array([rng.choice(pool_s), 0.0]))
+        road, vehicles = _straight_road(positions, objects=[*objects, landmark], lanes=3,
+                                        angle=angle)
+        for obj in [*objects, landmark]:
+            obj.road = road
+        if rng.random() < 0.3:  # a vehicle whose position is not finite
+            vehicles[int(rng.integers(n))].position = np.array([np.nan, 0.0])
+            counts["not finite"] += 1
+        index = FastRoad(road)
+
+        def ask_all(*args, vehicles=vehicles, road=road, index=index):
+            for vehicle in vehicles:
+                for lane_index in lanes:
+                    want = Road.neighbour_vehicles(road, vehicle, lane_index)
+                    got = index.neighbour_vehicles(vehicle, lane_index)
+                    counts["queries"] += 1
+                    counts["mismatches"] += (got[0] is not want[0]) or (got[1] is not want[1])
+                    lane = road.network.get_lane(lane_index or vehicle.lane_index)
+                    s_of = {id(v): lane.local_coordinates(v.position)[0]  # on the lane
+                            for v in road.vehicles + road.objects
+                            if lane.on_lane(v.position, margin=1)}
+                    for answer, key in zip(want, ("fronts", "rears"), strict=True):
+                        if answer is not None:
+                            counts[key] += 1
+                            counts["tied answers"] += sum(
+                                s == s_of[id(answer)] for k, s in s_of.items()
+                                if k not in (id(answer), id(vehicle))) > 0
+
+        road.vehicles[0].act = ask_all  # asked while the road acts
+        index.act()
+    return counts
+
+
+def test_the_lane_tables_answer_as_highway_envs_search_on_drawn_roads():
+    counts = _table_mismatches()
+    assert counts["mismatches"] == 0, counts
+    assert counts["queries"] >= 1500 and counts["fronts"] >= 500 and counts["rears"] >= 500
+    assert counts["tied answers"] >= 50 and counts["not finite"] >= 2, counts
+
+
+@pytest.mark.parametrize(("name", "old", "new"), [
+    ("_from_table", "last = bisect.bisect_right(keys, keys[j], j) - 1", "last = j"),  # ties
+    ("_from_table", "rows[bisect.bisect_left(keys, keys[start - 1])]", "rows[start - 1]"),
+    ("_from_table", "if rows[last] == me:", "if False:"),  # the vehicle itself
+    ("_from_table", "if j < len(keys) and rows[j] == me:", "if False:"),
+    ("_from_table", "start = bisect.bisect_left(keys, s)", "start = bisect.bisect_right(keys, s)"),
+    ("_from_table", "if s != s:", "if False:"),  # a position not finite
+    ("_table", "lane.width / 2 + _MARGIN", "lane.width / 2"),  # the on-lane margin
+    ("_table", "along < lane.length + lane.VEHICLE_LENGTH",
+     "along <= lane.length + lane.VEHICLE_LENGTH"),
+    ("_table", "np.lexsort((rows, along[rows]))", "np.lexsort((-rows, along[rows]))"),
+])
+def test_a_changed_lane_table_is_caught(monkeypatch, name, old, new):
+    """A changed rule of the lane tables (ties kept in the wrong road order, the vehicle
+    itself returned, s < s_v for s <= s_v, a missed margin or end, NaN not handled) makes
+    the drawn comparison fail."""
+    import inspect
+    import textwrap
+
+    from tap_bench.sim import fast_road
+
+    source = textwrap.dedent(inspect.getsource(getattr(FastRoad, name)))
+    assert old in source  # the mutation applies to the code as it is
+    namespace = dict(vars(fast_road))
+    exec(compile(source.replace(old, new, 1), fast_road.__file__, "exec"), namespace)
+    monkeypatch.setattr(FastRoad, name, namespace[name])
+    counts = _table_mismatches()
+    assert counts["mismatches"] > 0, counts
+
+
+def test_the_search_goes_through_highway_env_when_its_code_is_not_the_one_repeated(
+        monkeypatch):
+    """The lane tables repeat highway-env 1.12's search: another version's source (a digest
+    that does not match), a lane with its own projection or a replaced method on the lane
+    class: highway-env's own search answers."""
+    from tap_bench.sim import fast_road
+
+    road, vehicles = _straight_road([(100, 0), (130, 0), (160, 4)])
+    from_table = FastRoad._from_table
+    tabled = []
+
+    def counted(self, *args):
+        tabled.append(args)
+        return from_table(self, *args)
+
+    monkeypatch.setattr(FastRoad, "_from_table", counted)
+
+    def ask() -> int:
+        """How many of the vehicles' queries, asked while the road acts, the tables
+        answered (each answer is highway-env's)."""
+        index = FastRoad(road)
+        answers = []
+        vehicles[0].act = lambda *args: answers.extend(
+            index.neighbour_vehicles(v) for v in vehicles)
+        for vehicle in vehicles[1:]:
+            vehicle.act = lambda *args: None
+        tabled.clear()
+        index.act()
+        assert answers == [Road.neighbour_vehicles(road, v) for v in vehicles]
+        return len(tabled)
+
+    assert ask() == len(vehicles)  # the tables
+    code = fast_road._SEARCH_CODE
+    monkeypatch.setattr(fast_road, "_SEARCH_CODE", {**code, "AbstractLane.on_lane": "0" * 16})
+    fast_road._search_sources_match.cache_clear()
+    try:
+        assert ask() == 0  # another highway-env's source
+    finally:
+        monkeypatch.setattr(fast_road, "_SEARCH_CODE", code)
+        fast_road._search_sources_match.cache_clear()
+    assert ask() == len(vehicles)
+    lane = road.network.get_lane(("a", "b", 0))
+    lane.local_coordinates = lambda position: StraightLane.local_coordinates(lane, position)
+    assert ask() == 1  # the vehicle on the other lane
+    del lane.local_coordinates
+    monkeypatch.setattr(StraightLane, "width_at", lambda self, longitudinal: 3.0)
+    assert ask() == 0
+
+
+@pytest.mark.parametrize(("old", "new"), [
+    ("speed * np.sin(beta) / half_length * dt", "speed * (np.sin(beta) / half_length) * dt"),
+    ("np.stack([np.cos(angle), np.sin(angle)], axis=1) * dt",
+     "(np.stack([np.cos(angle), np.sin(angle)], axis=1) * dt)"),
+    ("angle = heading + beta", "angle = (heading + 2 * beta) - beta"),
+    ("1 / 2 * np.tan(steering)", "np.tan(steering) / 2.0000000001"),
+])
+def test_a_changed_formula_of_the_motion_at_once_is_caught(monkeypatch, old, new):
+    """The kinematics of all vehicles at once with a term reassociated or changed by rounding
+    only: the bit-for-bit comparison of every vehicle's state sees it."""
+    import inspect
+
+    from tap_bench.sim import fast_road
+
+    source = inspect.getsource(fast_road._kinematics_at_once)
+    assert old in source  # the mutation applies to the code as it is
+    namespace = dict(vars(fast_road))
+    exec(compile(source.replace(old, new, 1), fast_road.__file__, "exec"), namespace)
+    monkeypatch.setattr(fast_road, "_kinematics_at_once", namespace["_kinematics_at_once"])
+    ours = _episodes("highway", fast_road=True, fast=True, seeds=(0,))
+    theirs = _episodes("highway", fast_road=False, fast=True, seeds=(0,))
+    with pytest.raises(AssertionError):
+        pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
