@@ -12,9 +12,8 @@ import os
 import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import gymnasium as gym
 import numpy as np
 
 from tap_bench.errors import (
@@ -23,6 +22,9 @@ from tap_bench.errors import (
     UntrustedModelWarning,
     did_you_mean,
 )
+
+if TYPE_CHECKING:
+    import gymnasium as gym
 
 __all__ = ["ALGORITHMS", "SB3Policy", "UntrustedModelWarning", "load_model",
            "warn_untrusted_model"]
@@ -193,6 +195,8 @@ class SB3Policy:
 
 
 def _same_space(a: gym.Space, b: gym.Space) -> bool:
+    import gymnasium as gym
+
     if type(a) is not type(b):
         return False
     if isinstance(a, gym.spaces.Box):
