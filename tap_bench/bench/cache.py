@@ -338,12 +338,13 @@ def _tap_bench_closure(starts: tuple[str, ...]) -> dict[str, Path]:
     depth, function-level imports included; the import lines are read as text, which is
     twenty times quicker than parsing every module on every run)."""
     files: dict[str, Path] = {}
+    specs: dict[str, Any] = {}  # each package looked up once
     todo = list(starts)
     while todo:
         name = todo.pop()
         if name in files:
             continue
-        path = _source_path(find_module_source(name))
+        path = _source_path(find_module_source(name, specs))
         if path is None:
             continue
         files[name] = path
