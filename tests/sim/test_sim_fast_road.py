@@ -178,8 +178,9 @@ def test_the_vehicles_decide_at_once():
 
 
 @pytest.mark.parametrize("mutation", ["steering", "acceleration", "lane coordinate",
-                                      "not zero", "velocity", "leader", "motion", "timer",
-                                      "lane at once"])
+                                      "not zero", "velocity", "leader", "motion",
+                                      "motion one at a time", "timer", "speed at once",
+                                      "position at once", "lane at once"])
 def test_a_changed_formula_is_caught(monkeypatch, mutation):
     """The comparison sees a change of one ulp in any action or motion, or a changed term
     of the vectorised formulas: the bit-for-bit tests can fail."""
@@ -207,23 +208,33 @@ def test_a_changed_formula_is_caught(monkeypatch, mutation):
     elif mutation == "velocity":
         velocity = fast_idm._velocity
         monkeypatch.setattr(fast_idm, "_velocity", lambda objects: velocity(objects) * 1.01)
-    elif mutation == "motion":  # one ulp in the kinematics of the vehicles moved at once
-        kinematics = fast_road._kinematics
+    elif mutation in ("motion", "motion one at a time"):  # one ulp in the kinematics
+        one_at_a_time = mutation == "motion one at a time"
+        name = "_kinematics" if one_at_a_time else "_kinematics_at_once"
+        kinematics = getattr(fast_road, name)
+        if one_at_a_time:  # as where numpy's array kernels differ from its scalar ones
+            monkeypatch.setattr(fast_road, "array_kernels_agree", lambda: False)
 
-        def one_ulp(vehicle, dt):
-            kinematics(vehicle, dt)
-            vehicle.heading = np.nextafter(vehicle.heading, np.inf)
+        def one_ulp(moved, dt):
+            kinematics(moved, dt)
+            for vehicle in [moved] if one_at_a_time else moved:
+                vehicle.heading = np.nextafter(vehicle.heading, np.inf)
 
-        monkeypatch.setattr(fast_road, "_kinematics", one_ulp)
-    elif mutation == "timer":  # IDMVehicle.step's timer forgotten
-        kinematics = fast_road._kinematics
+        monkeypatch.setattr(fast_road, name, one_ulp)
+    elif mutation in ("timer", "speed at once", "position at once"):
+        kinematics = fast_road._kinematics_at_once
 
-        def no_timer(vehicle, dt):
-            kinematics(vehicle, dt)
-            if hasattr(vehicle, "timer"):
-                vehicle.timer -= dt
+        def mutated(vehicles, dt):
+            kinematics(vehicles, dt)
+            for vehicle in vehicles:
+                if mutation == "timer" and hasattr(vehicle, "timer"):
+                    vehicle.timer -= dt  # IDMVehicle.step's timer forgotten
+                elif mutation == "speed at once":
+                    vehicle.speed = np.nextafter(vehicle.speed, np.inf)
+                elif mutation == "position at once":
+                    vehicle.position[1] = np.nextafter(vehicle.position[1], -np.inf)
 
-        monkeypatch.setattr(fast_road, "_kinematics", no_timer)
+        monkeypatch.setattr(fast_road, "_kinematics_at_once", mutated)
     elif mutation == "lane at once":  # the lane lookup at once: the last candidate kept
         estimates = fast_road._estimates
 
@@ -730,6 +741,8 @@ def test_vehicles_move_through_highway_env_when_its_code_is_not_the_one_repeated
     fast_road._moving_class.cache_clear()
     kinematics = []
     monkeypatch.setattr(fast_road, "_kinematics", lambda v, dt: kinematics.append(v))
+    monkeypatch.setattr(fast_road, "_kinematics_at_once",
+                        lambda vs, dt: kinematics.extend(vs))
     before = [v.position.copy() for v in vehicles]
     fast.move(0.1)
     assert not kinematics and all((v.position != p).any()
@@ -1022,3 +1035,28 @@ def test_the_search_goes_through_highway_env_when_its_code_is_not_the_one_repeat
     del lane.local_coordinates
     monkeypatch.setattr(StraightLane, "width_at", lambda self, longitudinal: 3.0)
     assert ask() == 0
+
+
+@pytest.mark.parametrize(("old", "new"), [
+    ("speed * np.sin(beta) / half_length * dt", "speed * (np.sin(beta) / half_length) * dt"),
+    ("np.stack([np.cos(angle), np.sin(angle)], axis=1) * dt",
+     "(np.stack([np.cos(angle), np.sin(angle)], axis=1) * dt)"),
+    ("angle = heading + beta", "angle = (heading + 2 * beta) - beta"),
+    ("1 / 2 * np.tan(steering)", "np.tan(steering) / 2.0000000001"),
+])
+def test_a_changed_formula_of_the_motion_at_once_is_caught(monkeypatch, old, new):
+    """The kinematics of all vehicles at once with a term reassociated or changed by rounding
+    only: the bit-for-bit comparison of every vehicle's state sees it."""
+    import inspect
+
+    from tap_bench.sim import fast_road
+
+    source = inspect.getsource(fast_road._kinematics_at_once)
+    assert old in source  # the mutation applies to the code as it is
+    namespace = dict(vars(fast_road))
+    exec(compile(source.replace(old, new, 1), fast_road.__file__, "exec"), namespace)
+    monkeypatch.setattr(fast_road, "_kinematics_at_once", namespace["_kinematics_at_once"])
+    ours = _episodes("highway", fast_road=True, fast=True, seeds=(0,))
+    theirs = _episodes("highway", fast_road=False, fast=True, seeds=(0,))
+    with pytest.raises(AssertionError):
+        pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
