@@ -156,9 +156,24 @@ def _as_id_strings(col: pd.Series, name: str, source: str) -> pd.Series:
 def _contract_types(col: pd.Series) -> pd.Series | None:
     """``col`` itself when it is already what lower-casing it as strings gives and holds
     only the contract's object types (a string column of 'vehicle', 'cyclist' ...: the
-    usual case, checked on its few distinct values instead of every row); else None."""
+    usual case, checked on its few distinct values instead of every row), a categorical
+    of such strings as strings; else None."""
     import pandas as pd
 
+    if isinstance(col.dtype, pd.CategoricalDtype):  # of the contract's words, none missing:
+        # its strings, as lower-casing them gives (checked on the categories)
+        categories = col.dtype.categories
+        if categories.dtype == pd.api.types.pandas_dtype(str) and \
+                not (col.array.codes < 0).any() and \
+                all(isinstance(v, str) and v in OBJECT_TYPES for v in categories):
+            # (the categories' Arrow strings taken at the codes: astype(str) goes through
+            # a Python string a row)
+            import pyarrow as pa
+
+            strings = categories.array.__arrow_array__().take(pa.array(col.array.codes))
+            return pd.Series(pd.array(strings, dtype=categories.dtype), index=col.index,
+                             name=col.name)
+        return None
     if col.dtype != pd.api.types.pandas_dtype(str):
         return None
     values = col.unique()
