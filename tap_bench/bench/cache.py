@@ -82,8 +82,6 @@ from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
-import numpy as np
-
 from tap_bench import catalogue
 from tap_bench._version import __version__
 from tap_bench.errors import ParameterError
@@ -448,6 +446,7 @@ def table_digest(table: pd.DataFrame | None) -> str:
     an ``object`` and a ``str`` column of the same strings, as labelled and cached episodes
     give them; cells it cannot hash, such as lists, through the column's Parquet bytes).
     ``None`` and an empty table differ."""
+    import numpy as np
     import pandas as pd
 
     if table is None:
@@ -477,6 +476,7 @@ def table_digest(table: pd.DataFrame | None) -> str:
 
 def _type_name(dtype: Any) -> str:
     """A column type for :func:`table_digest`: ``text`` for object and string columns."""
+    import numpy as np
     import pandas as pd
 
     text = isinstance(dtype, pd.StringDtype) or (isinstance(dtype, np.dtype) and dtype.kind == "O")

@@ -38,8 +38,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
-import numpy as np
-
 from tap_bench import catalogue
 from tap_bench.errors import (
     FileFormatError,
@@ -162,6 +160,7 @@ def idle_action(env: gym.Env) -> Any:
     """The action that keeps the lane and the speed: ``IDLE`` of a meta-action space, zero
     acceleration and steering of a continuous one."""
     import gymnasium as gym
+    import numpy as np
 
     action_type = env.unwrapped.action_type
     indexes = getattr(action_type, "actions_indexes", None)

@@ -20,8 +20,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, NamedTuple
 
-import numpy as np
-
 from tap_bench.errors import EpisodeFailedWarning, EpisodesFailedError, RegistrationError
 from tap_bench.execution import DEFAULT_RETRIES, Backend, resolve_backend
 from tap_bench.sim.policies import CHEAP_OBSERVATION, Policy, PolicyDefinition, get_definition
@@ -286,6 +284,7 @@ def collect_rollout(tables: Sequence[pd.DataFrame], episodes: pd.DataFrame, *,
     Raises:
         EpisodesFailedError: every episode failed: an empty result would only hide why.
     """
+    import numpy as np
     import pandas as pd
 
     episodes = episodes.reset_index(drop=True)

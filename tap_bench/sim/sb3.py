@@ -14,8 +14,6 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from tap_bench.errors import (
     FileFormatError,
     TapBenchError,
@@ -186,6 +184,8 @@ class SB3Policy:
         self._model.set_random_seed(int(seed))
 
     def act(self, observation: Any) -> Any:
+        import numpy as np
+
         if self._model is None:
             raise RuntimeError(f"policy {self.name!r}: act before reset.")
         action, _ = self._model.predict(observation, deterministic=self.deterministic)
