@@ -22,7 +22,7 @@ from tap_bench.errors import (
     TrajectoryTableError,
     UnknownNameError,
 )
-from tap_bench.sim.registration import register_suite as _register_suite
+from tap_bench.sim.registration import register_on_import as _register_on_import
 
 # The public API by module, imported on first use: `import tap_bench` (and so every
 # `tap-bench` command) pays only for what it touches, not for pandas, highway-env and numba
@@ -74,8 +74,10 @@ def __dir__() -> list[str]:
     return sorted({*globals(), *_LAZY})
 
 
-# The scenario suite's Gymnasium ids (tap_bench/highway-v0 ...); reads envs/ only, fast.
-_register_suite()
+# The scenario suite's Gymnasium ids (tap_bench/highway-v0 ...): now if Gymnasium is
+# imported, else when it is (so a command that needs no env never imports it); reads envs/
+# only, fast.
+_register_on_import()
 
 __all__ = [
     # errors

@@ -39,6 +39,7 @@ from tap_bench.labels import GLITCH_COLUMNS, LABEL_COLUMNS, SEGMENT_COLUMNS
 from tap_bench.pathframe import LaneMap
 from tap_bench.resampling import resample_to_10hz
 from tap_bench.stages import StageConfig, StepLabels, find_runs, run_stages
+from tap_bench.tableio import EncodedTable
 from tap_bench.thresholds import Thresholds, resolve_thresholds
 from tap_bench.trajectories import DT, HZ, IDENTIFYING_COLUMNS, validate_and_index
 
@@ -500,7 +501,7 @@ class TapParts:
         return pd.concat(kept, ignore_index=True)
 
 
-def tap_in_parts(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
+def tap_in_parts(table: pd.DataFrame | EncodedTable, thresholds: Thresholds | str = "paper",
                  config: StageConfig | None = None, *, part_rows: int = PART_ROWS,
                  **options) -> TapParts:
     """:func:`tap` of a large table, whole scenarios at a time: the same tables, with the
@@ -517,25 +518,36 @@ def tap_in_parts(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
     :func:`tap` does (the row numbers of the whole table).
 
     Args:
-        table: a trajectory table (SPEC section 1).
+        table: a trajectory table (SPEC section 1), or a Parquet file of one read with its
+            strings encoded (:func:`tap_bench.tableio.read_table_encoded`): its parts are
+            labelled with their string columns as categoricals of values sorted as the
+            strings sort (so the tracks' order is the strings'), and the tables give those
+            columns back as the strings :func:`~tap_bench.tableio.read_table` reads, equal
+            to the tables of ``tap(table.frame())``.
         thresholds, config: as :func:`tap`.
         part_rows: rows per part (about; a scenario is never split).
         **options: the keyword arguments of :func:`tap`.
     """
+    encoded = isinstance(table, EncodedTable)
     bounds = _scenario_parts(table, part_rows)
     if bounds is None:
-        return TapParts((tap(table, thresholds, config, **options),))
+        return TapParts((tap(table.frame() if encoded else table, thresholds, config,
+                             **options),))
     thresholds = resolve_thresholds(thresholds)
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            parts = tuple(_without_signals(tap(table.iloc[a:b], thresholds, config,
-                                               **options))
-                          for a, b in itertools.pairwise(bounds))
+            parts = tuple(
+                _without_signals(_decoded(tap(table.part(a, b), thresholds, config,
+                                              **options), table)
+                                 if encoded else tap(table.iloc[a:b], thresholds, config,
+                                                     **options))
+                for a, b in itertools.pairwise(bounds))
     except Exception:  # any error: the whole table's call gives it as tap() does
         caught = [None]
     if caught:
-        return TapParts((tap(table, thresholds, config, **options),))
+        return TapParts((tap(table.frame() if encoded else table, thresholds, config,
+                             **options),))
     return TapParts(parts)
 
 
@@ -547,24 +559,56 @@ def _without_signals(result: TapResult) -> TapResult:
     return dataclasses.replace(result, kinematics=kin)
 
 
-def _scenario_parts(table: pd.DataFrame, part_rows: int) -> list[int] | None:
+def _decoded(result: TapResult, table: EncodedTable) -> TapResult:
+    """``result`` of a part of ``table`` with its segment tables' encoded columns (the
+    categoricals :meth:`EncodedTable.part` made) as the strings they stand for."""
+
+    def strings(frame: pd.DataFrame) -> pd.DataFrame:
+        names = [c for c in frame.columns if c in table.codes
+                 and isinstance(frame[c].dtype, pd.CategoricalDtype)]
+        if not names:
+            return frame
+        frame = frame.copy()
+        for name in names:
+            frame[name] = table.decoded(name, frame[name].array.codes)
+        return frame
+
+    return dataclasses.replace(result, segments_info=strings(result.segments_info),
+                               short_segments=strings(result.short_segments))
+
+
+def _scenario_parts(table: pd.DataFrame | EncodedTable, part_rows: int) -> list[int] | None:
     """Row bounds of the parts of :func:`tap_in_parts` (first row of each part, then the
     number of rows), or None when the table is not to be cut."""
-    if not isinstance(table, pd.DataFrame) or len(table) <= part_rows or \
-            "scenario_id" not in table.columns:
-        return None
-    n = len(table)
-    column = table["scenario_id"]
-    if not isinstance(column.dtype, pd.StringDtype) or column.hasnans:
-        return None
-    values = column.array
-    change = np.ones(n, dtype=bool)
-    change[1:] = np.asarray(values[1:] != values[:-1], dtype=bool)
-    starts = np.flatnonzero(change)
-    names = values.take(starts).tolist()
-    # each scenario one run, the runs in the validated order (code points, as Arrow sorts)
-    if not all(a < b for a, b in itertools.pairwise(names)):
-        return None
+    if isinstance(table, EncodedTable):
+        # codes rank the strings: a run starts where the code changes, and the runs are in
+        # the strings' order when their codes increase
+        n = table.num_rows
+        codes = table.codes.get("scenario_id")
+        if n <= part_rows or codes is None or (codes < 0).any():
+            return None
+        change = np.ones(n, dtype=bool)
+        change[1:] = codes[1:] != codes[:-1]
+        starts = np.flatnonzero(change)
+        if not (np.diff(codes[starts]) > 0).all():
+            return None
+    else:
+        if not isinstance(table, pd.DataFrame) or len(table) <= part_rows or \
+                "scenario_id" not in table.columns:
+            return None
+        n = len(table)
+        column = table["scenario_id"]
+        if not isinstance(column.dtype, pd.StringDtype) or column.hasnans:
+            return None
+        values = column.array
+        change = np.ones(n, dtype=bool)
+        change[1:] = np.asarray(values[1:] != values[:-1], dtype=bool)
+        starts = np.flatnonzero(change)
+        names = values.take(starts).tolist()
+        # each scenario one run, the runs in the validated order (code points, as Arrow
+        # sorts)
+        if not all(a < b for a, b in itertools.pairwise(names)):
+            return None
     bounds = [0]
     for start in starts[1:].tolist():
         if start - bounds[-1] >= part_rows:

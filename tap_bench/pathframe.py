@@ -42,11 +42,14 @@ flat numpy over every path at once.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from tap_bench.trajectories import HZ
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = [
     "CORRIDOR_HALF_WIDTH",
@@ -74,7 +77,7 @@ CORRIDOR_HALF_WIDTH = 1.8
 """[m] the ego's corridor is |d| <= this: half a lane (SPEC 7). Measured on the real WOMD
 samples and highway-env, vehicles in the ego's lane sit within 1 m of its path and those in
 the next lane 3 m or more away (docs/interactions.md)."""
-SAME_DIRECTION = np.pi / 3
+SAME_DIRECTION = math.pi / 3
 """[rad] an agent whose heading is within this of the path's direction drives along it
 (a leader can be followed); crossing and oncoming agents are not leaders."""
 LEADER_RANGE_M = 60.0
@@ -97,7 +100,7 @@ by a few per cent)."""
 STRAIGHT_SPACING = 10.0
 """[m] vertex spacing of a straight extension (curved ones are denser: a chord stays within
 5 cm of its arc)."""
-MAX_EXTENSION_TURN = np.pi / 2
+MAX_EXTENSION_TURN = math.pi / 2
 """[rad] the arc beyond an end of the record turns at most this far, then goes straight:
 a curve or an intersection turn seldom continues farther beyond where the record ends, and
 a longer arc would wind back onto the ego's own path (a 30 m radius closes its circle in
@@ -114,7 +117,7 @@ R_MIN = 5.0
 LANE_MATCH_DISTANCE = 2.0
 """[m] a lane continues the path when its centre line passes within this of the record's
 end (half a lane and the ego's offset in it)."""
-LANE_MATCH_HEADING = np.pi / 6
+LANE_MATCH_HEADING = math.pi / 6
 """[rad] ... and runs within this of the ego's heading there."""
 LANE_JOIN_DISTANCE = 1.5
 """[m] a lane that starts within this of another's end continues it (the map table has no
@@ -123,7 +126,7 @@ topology; WOMD's and highway-env's connected lanes meet end to start)."""
 CHAIN_MEMO = 2048
 """Most path ends a :class:`LaneMap` keeps the lane chains of (then it starts afresh): a
 batch of 30 episodes has a few hundred; a chain of 200 m of WOMD lanes is some 20 kB."""
-_TWO_PI = 2.0 * np.pi
+_TWO_PI = 2.0 * math.pi
 
 
 def scene_keys(scenario_codes: np.ndarray, step: np.ndarray) -> np.ndarray:
@@ -133,6 +136,8 @@ def scene_keys(scenario_codes: np.ndarray, step: np.ndarray) -> np.ndarray:
         scenario_codes: (n,) int scenario index of each row.
         step: (n,) int time step of each row (round(t * 10)).
     """
+    import numpy as np
+
     step = np.asarray(step, np.int64)
     if not len(step):
         return step
@@ -172,6 +177,8 @@ class Paths:
 
     def ego_rows(self) -> tuple[np.ndarray, np.ndarray]:
         """((m,) row of every ego step laid end to end, (m,) its path)."""
+        import numpy as np
+
         length = self.stop - self.start
         m = int(length.sum())
         path = np.repeat(np.arange(self.n_paths), length)
@@ -247,6 +254,8 @@ class LaneMap:
         """The lanes of every map of a map table (:mod:`tap_bench.maps`; its ``kind ==
         "lane"`` polylines), each under the code of its ``map_id`` (:attr:`map_ids`): one
         lane map a batch's calls share (:func:`scene_lanes` gives each its scenes)."""
+        import numpy as np
+
         lanes = map_table[map_table["kind"] == "lane"]
         mid = lanes["map_id"].astype(str).to_numpy()
         ids = tuple(dict.fromkeys(mid.tolist()))
@@ -282,6 +291,8 @@ class LaneMap:
         """This lane map for paths whose scene codes have the maps ``scene_maps`` (S,) (a
         ``map_id`` of :attr:`map_ids`, or None: no map), sharing its lanes and what it has
         matched and chained."""
+        import numpy as np
+
         code = {m: k for k, m in enumerate(self.map_ids)}
         scene_map = np.array([code.get(str(m), -1) if m is not None else -1
                               for m in scene_maps], np.int64)
@@ -295,6 +306,8 @@ class LaneMap:
 
     def covers(self, scenes: np.ndarray) -> np.ndarray:
         """(k,) bool: each scene code has lanes."""
+        import numpy as np
+
         scenes = np.asarray(scenes, np.int64)
         if self.scene_map is not None:
             inside = (scenes >= 0) & (scenes < len(self.scene_map))
@@ -308,6 +321,8 @@ class LaneMap:
         """The segments of map ``m``'s lanes, lane after lane, each computed from its lane
         alone (as a lane-by-lane search would): start point, direction vector, squared
         length, heading, arc length at its start and its lane."""
+        import numpy as np
+
         key = ("segments", m)
         if key not in self._memo:
             parts: dict[str, list] = {k: [] for k in ("ax", "ay", "ux", "uy", "len2", "h",
@@ -332,6 +347,8 @@ class LaneMap:
     def _match(self, scene: int, x0: float, y0: float, h0: float):
         """(lane, arc length of the foot point along it) of the lane nearest (x0, y0) that
         runs the ego's way, or None. Of lanes equally near, the last (in map order)."""
+        import numpy as np
+
         m = self._map(scene)
         seg = self._segments(m) if m >= 0 else None
         if seg is None or not len(seg["lane"]):
@@ -356,6 +373,8 @@ class LaneMap:
         points: the fewest lanes from its start that reach ``need`` metres (or all there
         are), or None without a lane. Kept per path end, so a longer ``need`` later only
         adds lanes."""
+        import numpy as np
+
         key = ("chain", self._map(scene), x0, y0, h0, kappa, forward)
         state = self._memo.get(key)
         if state is None:
@@ -421,6 +440,8 @@ class LaneMap:
         behind) from the foot point of (x0, y0) on the ego's lane, chaining the lanes that
         start where one ends (at a branch the one nearest the arc of curvature ``kappa``);
         straight on past the last lane. None where no lane runs the ego's way there."""
+        import numpy as np
+
         forward = bool(np.all(u >= 0))
         dist = np.abs(u)
         need = float(np.sort(dist)[-2]) if len(dist) > 1 else float(dist.max(initial=0.0))
@@ -446,6 +467,8 @@ class LaneMap:
         """The lane that starts (forward) or ends (backward) within LANE_JOIN_DISTANCE of
         (ex, ey) running on in the direction ``end_h``; at a branch the one whose point
         10 m on lies nearest the ego's arc."""
+        import numpy as np
+
         best, best_err = None, np.inf
         for lane in np.flatnonzero(self.scene == self._map(scene)).tolist():
             if lane in used:
@@ -472,11 +495,15 @@ class LaneMap:
 
 
 def _wrap(angle: np.ndarray) -> np.ndarray:
+    import numpy as np
+
     return np.pi - np.mod(np.pi - angle, _TWO_PI)
 
 
 def _ragged(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(group of each element, position within its group) for groups of ``counts``."""
+    import numpy as np
+
     total = int(counts.sum())
     group = np.repeat(np.arange(len(counts)), counts)
     within = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
@@ -494,6 +521,8 @@ def _path_cumsum(values: np.ndarray, length: np.ndarray) -> np.ndarray:
     """The running sum of ``values`` restarting at each path (paths laid end to end with
     ``length`` elements each), each path's sum in its own order as ``np.cumsum`` of its
     values alone gives it."""
+    import numpy as np
+
     out = np.empty(len(values))
     if not len(values):
         return out
@@ -517,6 +546,8 @@ def _search_within(values: np.ndarray, count: np.ndarray, path: np.ndarray,
     """``np.searchsorted`` of each ``query`` among the values of its ``path`` (paths laid end
     to end, ``count`` values each, sorted within each path), as an index into ``values``:
     exact comparisons of the values themselves, with no per-path offset added."""
+    import numpy as np
+
     n = len(values)
     data_path = np.repeat(np.arange(len(count)), count)
     is_query = np.zeros(n + len(query), np.int8)
@@ -536,6 +567,8 @@ def _interp_within(x: np.ndarray, path: np.ndarray, xp: np.ndarray, fp: np.ndarr
     """``np.interp(x, xp_path, fp_path)`` of each ``x`` on its ``path``'s polyline (paths laid
     end to end, ``count`` vertices each from ``first``), with numpy's formula and end
     rules, computed from that path's numbers only."""
+    import numpy as np
+
     lo, hi = first[path], first[path] + count[path] - 1
     j = np.clip(_search_within(xp, count, path, x, "right") - 1, lo, np.maximum(hi - 1, lo))
     k = np.minimum(j + 1, hi)
@@ -569,6 +602,8 @@ def _extension_nodes(h0: np.ndarray, kappa: np.ndarray, fade: np.ndarray, u: np.
     to the largest of ``u`` on each row: (that largest (P,), the curved stretch's length
     (P,), node offsets x and y (P, N), cos and sin of the final heading (P, 1)). Two sets of
     distances with the same largest share them."""
+    import numpy as np
+
     k = np.asarray(kappa, float)
     fade = np.asarray(fade, float)
     ak = np.abs(k)
@@ -596,6 +631,8 @@ def _extension_nodes(h0: np.ndarray, kappa: np.ndarray, fade: np.ndarray, u: np.
 def _extension_at(x0: np.ndarray, y0: np.ndarray, nodes: tuple, u: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`_extension_points` from the curve's nodes (:func:`_extension_nodes`)."""
+    import numpy as np
+
     _, curved, nx, ny, cos_end, sin_end = nodes
     # on the curved stretch: between its (uniform) nodes; beyond it: straight on
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -620,6 +657,8 @@ def _fading(k_end: np.ndarray, k_before: np.ndarray, ds: np.ndarray
     before (the same sign) falls on at that rate (the exit of a turn, which goes straight
     on), else it holds (a steady curve whose measured curvature wavers, or a turn still
     tightening: inf)."""
+    import numpy as np
+
     a_end, a_before = np.abs(k_end), np.abs(k_before)
     falling = (np.sign(k_end) == np.sign(k_before)) & (a_end < FADE_RATIO * a_before) \
         & (ds > 0)
@@ -637,6 +676,8 @@ def _extension_spacing(kappa: np.ndarray, spacing: float) -> np.ndarray:
     kappa by c^2 |kappa| / 8, kept under 5 cm, between ``spacing`` and
     :data:`STRAIGHT_SPACING` (a straight extension needs few vertices, and each costs a
     projection)."""
+    import numpy as np
+
     with np.errstate(divide="ignore"):
         chord = np.sqrt(8 * 0.05 / np.abs(kappa))
     return np.clip(chord, spacing, STRAIGHT_SPACING)
@@ -647,6 +688,8 @@ def _end_curvature(h: np.ndarray, arc: np.ndarray, end: np.ndarray, other: np.nd
     """(P,) [1/m] mean curvature between the steps ``other`` and ``end`` (one second apart,
     or less on a short path): heading change over distance driven; 0 where the ego drove
     less than :data:`MIN_CURVATURE_TRAVEL` or the heading jumped (a flip is not a turn)."""
+    import numpy as np
+
     dh = _wrap(h[end] - h[other])
     ds = np.abs(arc[end] - arc[other])
     ok = (ds >= MIN_CURVATURE_TRAVEL) & (np.abs(dh) <= np.pi / 2)
@@ -660,6 +703,8 @@ def _line_base(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, spacing:
     """What :func:`_reference_lines` computes before the reach matters: the ego steps'
     positions, headings and arc lengths, the vertices kept, the curvature of each end, and
     room for the extensions' nodes (two frames of the same paths share it)."""
+    import numpy as np
+
     x, y, h = paths.x[ego_row], paths.y[ego_row], paths.heading[ego_row]
     length = paths.stop - paths.start
     first_step = np.cumsum(length) - length
@@ -724,6 +769,8 @@ def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, sp
     first vertex and vertex count of each path (P,), and the arc length of each ego step (m,).
     ``base``: :func:`_line_base` of the same paths, spacing (computed when None).
     """
+    import numpy as np
+
     (x, y, first_step, last_step, arc, kept, kept_path, n_kept, hb, he, k_front, fade_f,
      k_back, fade_b, _) = _line_base(paths, ego_row, ego_path, spacing) if base is None \
         else base
@@ -785,6 +832,8 @@ def _line_cells(vx, vy, vs, first, count, lo_arc, hi_arc, scene, cell):
     has its foot point F within a quarter cell of a sample S, so it is within ``lateral +
     cell / 4 < cell`` of S on each axis: its cell is one of S's 9, and F's arc is within a
     quarter cell of the range."""
+    import numpy as np
+
     n_paths = len(first)
     half = cell / 2
     n_samp = np.ceil((hi_arc - lo_arc) / half).astype(np.int64) + 1
@@ -843,6 +892,8 @@ def path_frame(paths: Paths, others: np.ndarray | None = None, *,
     Returns:
         :class:`PathFrame` of the kept (ego step, other) pairs, ordered by ego step.
     """
+    import numpy as np
+
     if near > 0 and lateral_near > lateral:
         _check_distances(behind, lateral, spacing)
         ego_row, ego_path = paths.ego_rows()
@@ -864,6 +915,8 @@ def path_frame(paths: Paths, others: np.ndarray | None = None, *,
 
 
 def _check_distances(behind: float, lateral: float, spacing: float) -> None:
+    import numpy as np
+
     for name, value in (("behind", behind), ("lateral", lateral), ("spacing", spacing)):
         if not (np.isfinite(value) and value > 0):
             raise ValueError(f"path_frame: {name} must be a finite distance > 0 m, got "
@@ -875,6 +928,8 @@ def _path_frame(paths: Paths, others: np.ndarray | None, ahead: float | np.ndarr
                 base: tuple | None = None) -> PathFrame:
     """:func:`path_frame` of one zone (``near`` 0); ``base``: :func:`_line_base` of the
     paths when known."""
+    import numpy as np
+
     ego_row, ego_path = paths.ego_rows()
     ahead = np.broadcast_to(np.asarray(ahead, float), (len(ego_row),))
     if len(ahead) and not (np.isfinite(ahead).all() and (ahead > 0).all()):
@@ -973,6 +1028,8 @@ def leader_reach(speed: np.ndarray | float, range_m: float = LEADER_RANGE_M,
     Returns:
         (m,) float reach [m] (a 0-d array for a number).
     """
+    import numpy as np
+
     v = np.nan_to_num(np.asarray(speed, float), nan=0.0)
     return np.maximum(range_m, range_s * np.maximum(v, 0.0))
 
@@ -995,6 +1052,8 @@ def nearest_leader(frame: PathFrame, reach: np.ndarray, *,
         (m,) int64 index into the frame's entries of each ego step's leader, -1 where there
         is none; of two agents equally near, the one of the lower row.
     """
+    import numpy as np
+
     m = len(frame.ego_row)
     leader = np.full(m, -1, np.int64)
     reach = np.broadcast_to(np.asarray(reach, float), (m,))
@@ -1027,6 +1086,8 @@ def scene_lanes(table, scene_codes: np.ndarray, scenes, map_table) -> LaneMap:
             (:meth:`LaneMap.of_maps`) that several calls share: then its lanes are not
             built again, and what one call matched and chained the next one reads.
     """
+    import numpy as np
+
     shared = map_table if isinstance(map_table, LaneMap) else None
     ids = set(shared.map_ids) if shared is not None else \
         set(map_table["map_id"].astype(str).unique())

@@ -23,14 +23,14 @@ irregular and an error. Data sampled at another rate is refused: resample it fir
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
-
-import numpy as np
 
 from tap_bench.errors import TrajectoryTableError, did_you_mean
 
 if TYPE_CHECKING:
+    import numpy as np
     import pandas as pd
 
 __all__ = [
@@ -75,7 +75,7 @@ OBJECT_TYPES = ("vehicle", "pedestrian", "cyclist", "other")
 
 _NUMERIC = ("t", "x", "y", "heading", "speed", "vx", "vy")
 _KEYS = ("scenario_id", "track_id")
-_TWO_PI = 2.0 * np.pi
+_TWO_PI = 2.0 * math.pi
 
 
 @dataclass(frozen=True)
@@ -137,6 +137,7 @@ def _fail(message: str, source: str, *, column: str | None = None, row: int | No
 
 def _as_id_strings(col: pd.Series, name: str, source: str) -> pd.Series:
     """Identifiers as strings; integral floats (3.0, from a NaN-holding column) become '3'."""
+    import numpy as np
     import pandas as pd
 
     missing = col.array.isna()  # of the array: a Series of flags costs more than a check
@@ -156,9 +157,24 @@ def _as_id_strings(col: pd.Series, name: str, source: str) -> pd.Series:
 def _contract_types(col: pd.Series) -> pd.Series | None:
     """``col`` itself when it is already what lower-casing it as strings gives and holds
     only the contract's object types (a string column of 'vehicle', 'cyclist' ...: the
-    usual case, checked on its few distinct values instead of every row); else None."""
+    usual case, checked on its few distinct values instead of every row), a categorical
+    of such strings as strings; else None."""
     import pandas as pd
 
+    if isinstance(col.dtype, pd.CategoricalDtype):  # of the contract's words, none missing:
+        # its strings, as lower-casing them gives (checked on the categories)
+        categories = col.dtype.categories
+        if categories.dtype == pd.api.types.pandas_dtype(str) and \
+                not (col.array.codes < 0).any() and \
+                all(isinstance(v, str) and v in OBJECT_TYPES for v in categories):
+            # (the categories' Arrow strings taken at the codes: astype(str) goes through
+            # a Python string a row)
+            import pyarrow as pa
+
+            strings = categories.array.__arrow_array__().take(pa.array(col.array.codes))
+            return pd.Series(pd.array(strings, dtype=categories.dtype), index=col.index,
+                             name=col.name)
+        return None
     if col.dtype != pd.api.types.pandas_dtype(str):
         return None
     values = col.unique()
@@ -184,6 +200,7 @@ def _check_columns(table: pd.DataFrame, source: str) -> None:
 
 
 def _numeric(table: pd.DataFrame, col: str, source: str, columns=None) -> np.ndarray:
+    import numpy as np
     import pandas as pd
 
     series = table[col] if columns is None else columns[col]
@@ -200,6 +217,7 @@ def _numeric(table: pd.DataFrame, col: str, source: str, columns=None) -> np.nda
 
 
 def _bool_column(table: pd.DataFrame, col: str, source: str, columns=None) -> np.ndarray:
+    import numpy as np
     import pandas as pd
 
     series = table[col] if columns is None else columns[col]
@@ -336,6 +354,7 @@ def _track_order(scenario: pd.Series, track: pd.Series) -> tuple[np.ndarray | No
         (the common case, detected without factorising every row); ``new_track`` is a
         (n_rows,) bool mask of the first row of each track in the grouped order.
     """
+    import numpy as np
     import pandas as pd
 
     n = len(scenario)
@@ -430,6 +449,7 @@ def _sorted_codes(col: pd.Series, encoded=None) -> tuple[np.ndarray, int]:
     factorised in order of appearance, the few values then ranked with the same sort
     (cheaper than sorting while factorising). ``encoded``: :func:`_arrow_codes` of the
     column, when known."""
+    import numpy as np
     import pandas as pd
 
     if not _plain_strings(col):
@@ -449,6 +469,7 @@ def _sorted_codes(col: pd.Series, encoded=None) -> tuple[np.ndarray, int]:
 def _ranks(distinct) -> np.ndarray:
     """(k,) int64 rank of each of ``distinct`` (an Arrow string array) in Arrow's sort
     (code point order, as ``pd.factorize(sort=True)`` ranks strings)."""
+    import numpy as np
     import pyarrow.compute as pc
 
     order = pc.array_sort_indices(distinct).to_numpy()
@@ -459,6 +480,7 @@ def _ranks(distinct) -> np.ndarray:
 
 def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table") -> CheckedTable:
     """:func:`validate_trajectories` without building a DataFrame: columns and index."""
+    import numpy as np
     import pandas as pd
 
     if not isinstance(table, pd.DataFrame):

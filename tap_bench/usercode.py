@@ -47,21 +47,32 @@ this is refused rather than hashed file by file on every run."""
 _FOLLOW_DEPTH = 8  # re-exports followed from module to module when looking for a class
 
 
-def find_module_source(module: str) -> ModuleSpec | None:
+def find_module_source(module: str, memo: dict[str, ModuleSpec | None] | None = None
+                       ) -> ModuleSpec | None:
     """The spec of ``module`` found on the import path without running any of its code (nor
-    its parent packages'), or None when there is no such module."""
+    its parent packages'), or None when there is no such module.
+
+    Args:
+        module: the dotted name.
+        memo: specs found so far by name, filled here: a caller looking up many names looks
+            up each package once (the same answers while the files do not change).
+    """
     parts = module.split(".")
     if not all(p.isidentifier() for p in parts):
         return None
-    try:  # the top level through every finder (editable installs add their own) ...
-        spec = importlib.util.find_spec(parts[0])
-    except (ImportError, ValueError):
-        return None
-    for i in range(1, len(parts)):  # ... and each submodule in its parent's folders
-        locations = spec.submodule_search_locations if spec is not None else None
-        if not locations:
-            return None
-        spec = PathFinder.find_spec(".".join(parts[:i + 1]), list(locations))
+    if memo is not None and module in memo:
+        return memo[module]
+    if len(parts) == 1:  # the top level through every finder (editable installs add theirs)
+        try:
+            spec = importlib.util.find_spec(module)
+        except (ImportError, ValueError):
+            spec = None
+    else:  # ... and each submodule in its parent's folders
+        parent = find_module_source(module.rpartition(".")[0], memo)
+        locations = parent.submodule_search_locations if parent is not None else None
+        spec = PathFinder.find_spec(module, list(locations)) if locations else None
+    if memo is not None:
+        memo[module] = spec
     return spec
 
 

@@ -20,10 +20,12 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from tap_bench.errors import ParameterError
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = ["MAX_RESAMPLES", "BootstrapConfig", "add_bootstrap_arguments",
            "bootstrap_from_args", "cluster_indices", "cluster_weights", "named_rng",
@@ -50,6 +52,8 @@ def stream_key(*name: object) -> list[int]:
 
 def named_rng(seed: int, *name: object) -> np.random.Generator:
     """A generator for the stream ``name`` under ``seed`` (see the module docstring)."""
+    import numpy as np
+
     return np.random.default_rng(np.random.SeedSequence([int(seed), *stream_key(*name)]))
 
 
@@ -100,6 +104,8 @@ class BootstrapConfig:
 # -- resampling by cluster ----------------------------------------------------------------
 def _cluster_codes(clusters) -> tuple[np.ndarray, int]:
     """(n,) cluster number of each unit and the number of clusters."""
+    import numpy as np
+
     _, inverse = np.unique(np.asarray(clusters).astype(str), return_inverse=True)
     return inverse.ravel(), int(inverse.max()) + 1 if len(inverse) else 0
 
@@ -117,6 +123,8 @@ def cluster_weights(rng: np.random.Generator, clusters, draws: int) -> np.ndarra
         clusters: (n,) the cluster of each unit (any values; equal values, one cluster).
         draws: the number of resamples B.
     """
+    import numpy as np
+
     inverse, c = _cluster_codes(clusters)
     if not c:
         return np.zeros((draws, 0), int)
@@ -134,6 +142,8 @@ def cluster_indices(rng: np.random.Generator, clusters, draws: int, m: int) -> n
         draws: the number of resamples B.
         m: units per resample (> 0).
     """
+    import numpy as np
+
     inverse, c = _cluster_codes(clusters)
     members = [np.flatnonzero(inverse == j) for j in range(c)]
     sizes = np.array([len(x) for x in members])

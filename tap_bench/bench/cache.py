@@ -82,8 +82,6 @@ from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
-import numpy as np
-
 from tap_bench import catalogue
 from tap_bench._version import __version__
 from tap_bench.errors import ParameterError
@@ -338,12 +336,13 @@ def _tap_bench_closure(starts: tuple[str, ...]) -> dict[str, Path]:
     depth, function-level imports included; the import lines are read as text, which is
     twenty times quicker than parsing every module on every run)."""
     files: dict[str, Path] = {}
+    specs: dict[str, Any] = {}  # each package looked up once
     todo = list(starts)
     while todo:
         name = todo.pop()
         if name in files:
             continue
-        path = _source_path(find_module_source(name))
+        path = _source_path(find_module_source(name, specs))
         if path is None:
             continue
         files[name] = path
@@ -447,6 +446,7 @@ def table_digest(table: pd.DataFrame | None) -> str:
     an ``object`` and a ``str`` column of the same strings, as labelled and cached episodes
     give them; cells it cannot hash, such as lists, through the column's Parquet bytes).
     ``None`` and an empty table differ."""
+    import numpy as np
     import pandas as pd
 
     if table is None:
@@ -476,6 +476,7 @@ def table_digest(table: pd.DataFrame | None) -> str:
 
 def _type_name(dtype: Any) -> str:
     """A column type for :func:`table_digest`: ``text`` for object and string columns."""
+    import numpy as np
     import pandas as pd
 
     text = isinstance(dtype, pd.StringDtype) or (isinstance(dtype, np.dtype) and dtype.kind == "O")

@@ -81,12 +81,11 @@ is found as on a straight road.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import TYPE_CHECKING, Any
-
-import numpy as np
 
 from tap_bench.errors import RegistrationError, TrajectoryTableError
 from tap_bench.pathframe import (
@@ -103,6 +102,7 @@ from tap_bench.registry import Registry
 from tap_bench.trajectories import HZ
 
 if TYPE_CHECKING:
+    import numpy as np
     import pandas as pd
 
 __all__ = [
@@ -210,19 +210,25 @@ class EgoSteps:
     @property
     def episode(self) -> np.ndarray:
         """(m,) the episode of each step."""
+        import numpy as np
+
         return np.repeat(np.arange(self.n_episodes), self.counts)
 
     def mean(self, values: np.ndarray) -> np.ndarray:
         """(S,) per-episode mean of (m,) ``values`` (NaN ignored; NaN when none)."""
+        import numpy as np
+
         ok = ~np.isnan(values)
         total = np.bincount(self.episode[ok], weights=values[ok], minlength=self.n_episodes)
         n = np.bincount(self.episode[ok], minlength=self.n_episodes)
         with np.errstate(invalid="ignore", divide="ignore"):
             return total / n
 
-    def minimum(self, values: np.ndarray, cap: float = np.inf) -> np.ndarray:
+    def minimum(self, values: np.ndarray, cap: float = math.inf) -> np.ndarray:
         """(S,) per-episode minimum of (m,) ``values`` (NaN ignored), capped at ``cap``;
         an episode with no value gets the cap."""
+        import numpy as np
+
         if not self.n_episodes:
             return np.zeros(0)
         filled = np.where(np.isnan(values), np.inf, values)
@@ -230,12 +236,16 @@ class EgoSteps:
 
     def any(self, values: np.ndarray) -> np.ndarray:
         """(S,) bool: the episode has a true step."""
+        import numpy as np
+
         if not self.n_episodes:
             return np.zeros(0, bool)
         return np.logical_or.reduceat(values.astype(bool), self.starts)
 
     def last(self, values: np.ndarray) -> np.ndarray:
         """(S,) per-episode last non-NaN value of (m,) ``values`` (NaN when none)."""
+        import numpy as np
+
         out = np.full(self.n_episodes, np.nan)
         ok = np.flatnonzero(~np.isnan(values))
         if len(ok):
@@ -249,7 +259,7 @@ class EgoSteps:
         return (ep[lag:] == ep[:-lag]) & (self.step[lag:] - self.step[:-lag] == lag)
 
 
-MeasureFunction = Callable[[EgoSteps], np.ndarray]
+MeasureFunction = Callable[[EgoSteps], "np.ndarray"]
 
 
 MEASURE_ROLES = ("safety", "progress", "comfort", "")
@@ -396,6 +406,8 @@ def check_measure(measure: Measure) -> None:
     Raises:
         RegistrationError: naming the measure and what is wrong.
     """
+    import numpy as np
+
     _check_entry(measure)
     steps = ego_steps(_check_table())
     try:
@@ -421,6 +433,7 @@ def _check_table() -> pd.DataFrame:
     """Two hand-built 5 s episodes at 10 Hz for :func:`check_measure`: ``closing`` (the ego
     at 20 m/s closes in on a leader at 15 m/s, 30 m ahead, and is crashed at its last step)
     and ``alone`` (the ego at 10 m/s, braking gently, no one else)."""
+    import numpy as np
     import pandas as pd
 
     t = np.arange(50) / HZ
@@ -446,7 +459,7 @@ def _check_entry(measure: Measure) -> None:
                                 "(it becomes a column name).")
     margin = measure.margin
     if (margin is None or isinstance(margin, bool) or not isinstance(margin, int | float)
-            or not np.isfinite(margin) or margin < 0):
+            or not math.isfinite(margin) or margin < 0):
         raise RegistrationError(
             f"measure {measure.name!r} needs a gate margin: a finite number >= 0 in "
             f"{measure.unit} (the largest change that is not a regression), got "
@@ -575,6 +588,8 @@ def _leader_minimum(steps: EgoSteps, values: np.ndarray, cap: float) -> np.ndarr
     episode with no value on any scored step (no leader after the burn-in, or none while
     the ego moved, and no crash): "no leader" has no minimum, it is not a 10 s
     observation. Such episodes are counted apart (:func:`leader_counts`)."""
+    import numpy as np
+
     out = steps.minimum(values, cap)
     out[~steps.any(~np.isnan(values))] = np.nan
     return out
@@ -583,6 +598,7 @@ def _leader_minimum(steps: EgoSteps, values: np.ndarray, cap: float) -> np.ndarr
 def leader_counts(steps: EgoSteps) -> pd.DataFrame:
     """Per episode: ``scenario_id``, ``leader_steps`` (scored steps with a leader) and
     ``no_leader`` (True: min headway and min TTC are NaN, not the cap)."""
+    import numpy as np
     import pandas as pd
 
     has = (steps.leader_row >= 0) & steps.scored
@@ -596,6 +612,8 @@ def leader_counts(steps: EgoSteps) -> pd.DataFrame:
                   "nuPlan)", label="RMS jerk", role="comfort", words=("smoother", "harsher"),
                   in_context="mean")
 def _rms_jerk(steps: EgoSteps) -> np.ndarray:
+    import numpy as np
+
     jerk = smoothed_jerk(steps)
     ok = ~np.isnan(jerk)
     sq = np.bincount(steps.episode[ok], weights=jerk[ok] ** 2, minlength=steps.n_episodes)
@@ -609,6 +627,8 @@ def smoothed_jerk(steps: EgoSteps) -> np.ndarray:
     (window :data:`JERK_WINDOW_S`, order :data:`JERK_POLYORDER`) of the Savitzky-Golay
     derivative of the speed, as nuPlan's ``extract_ego_jerk``, over each run of consecutive
     steps; NaN in runs shorter than the window."""
+    import numpy as np
+
     m = len(steps.speed)
     out = np.full(m, np.nan)
     if not m:
@@ -631,6 +651,8 @@ def savgol_derivative(y: np.ndarray, window: int, order: int, delta: float) -> n
     the centre; the first and last ``window // 2`` samples take the slope of the first and
     last window's polynomial at their place (scipy's ``savgol_filter(deriv=1,
     mode="interp")``, without needing scipy)."""
+    import numpy as np
+
     y = np.asarray(y, dtype=np.float64)
     n = len(y)
     if window % 2 != 1 or window <= order or n < window:
@@ -654,6 +676,8 @@ def _savgol_fit(window: int, order: int) -> tuple[np.ndarray, np.ndarray]:
     """(window,) the sample offsets -half..half and (order + 1, window) the least-squares
     fit of a polynomial of ``order`` to them, computed once per process (an SVD each call
     cost more than the filter on an episode's few hundred steps); read-only."""
+    import numpy as np
+
     half = window // 2
     x = np.arange(-half, half + 1, dtype=np.float64)
     fit = np.linalg.pinv(np.vander(x, order + 1, increasing=True))
@@ -674,6 +698,8 @@ ego at the same step [m] (NaN before the current time)."""
 
 
 def _scene_column(steps: EgoSteps, name: str) -> np.ndarray:
+    import numpy as np
+
     values = steps.columns.get(name)
     return np.full(len(steps.t), np.nan) if values is None else values
 
@@ -683,6 +709,8 @@ def _scene_column(steps: EgoSteps, name: str) -> np.ndarray:
                   "0.5 m from every lane centre, or across a road edge)", label="off road",
                   kind="rate", role="safety", registry=SCENE_MEASURES)
 def _off_road(steps: EgoSteps) -> np.ndarray:
+    import numpy as np
+
     values = _scene_column(steps, "off_road")
     out = steps.any(np.nan_to_num(values) > 0.5).astype(float)
     out[np.isnan(steps.mean(values))] = np.nan
@@ -702,6 +730,8 @@ def _route_progress(steps: EgoSteps) -> np.ndarray:
                   label="ran a red light", kind="rate", role="safety",
                   registry=SCENE_MEASURES)
 def _ran_red_light(steps: EgoSteps) -> np.ndarray:
+    import numpy as np
+
     values = _scene_column(steps, "ran_red_light")
     out = steps.any(np.nan_to_num(values) > 0.5).astype(float)
     out[np.isnan(steps.mean(values))] = np.nan
@@ -750,6 +780,7 @@ def ego_steps(table: pd.DataFrame, map_table: pd.DataFrame | LaneMap | None = No
         TrajectoryTableError: ``is_ego`` is missing, a scenario has two ego tracks, or an
             ego has two rows at one step.
     """
+    import numpy as np
     import pandas as pd
 
     _require(table)
@@ -860,6 +891,7 @@ def ego_step_measures(table: pd.DataFrame, map_table: pd.DataFrame | LaneMap | N
         below :data:`MIN_SPEED_FOR_HEADWAY`; 0 while crashed), ``scored`` (False where the
         burn-in leaves the step out of the episode minima).
     """
+    import numpy as np
     import pandas as pd
 
     steps = ego_steps(table, map_table)
@@ -873,6 +905,8 @@ def ego_step_measures(table: pd.DataFrame, map_table: pd.DataFrame | LaneMap | N
 
 def _unscored(steps: EgoSteps) -> tuple[np.ndarray, np.ndarray]:
     """(headway, ttc) at every step, the burn-in not applied (0 while crashed)."""
+    import numpy as np
+
     with np.errstate(divide="ignore", invalid="ignore"):
         headway = np.where(steps.speed >= MIN_SPEED_FOR_HEADWAY, steps.gap / steps.speed,
                            np.nan)
@@ -899,6 +933,7 @@ def ego_measures(table: pd.DataFrame, map_table: pd.DataFrame | LaneMap | None =
         one column per registered measure (:data:`MEASURES`, and :data:`SCENE_MEASURES`
         when the table carries :data:`SCENE_STEP_COLUMNS`) and ``duration_s``.
     """
+    import numpy as np
     import pandas as pd
 
     steps = ego_steps(table, map_table) if steps is None else steps
@@ -924,6 +959,7 @@ def ego_measures(table: pd.DataFrame, map_table: pd.DataFrame | LaneMap | None =
 
 
 def _check_one_ego(ego_sid: np.ndarray, ego_track: np.ndarray, sids) -> None:
+    import numpy as np
     import pandas as pd
 
     if not len(ego_sid):
@@ -946,6 +982,8 @@ def _leaders(key, scene, other_mask, ego_rows, ego_key, ego_sid, x, y, heading, 
              length, lanes=None):
     """(m,) bumper gap, closing speed and row of the leader along the ego's path at each ego
     step (NaN, NaN, -1: no leader)."""
+    import numpy as np
+
     m = len(ego_rows)
     gap = np.full(m, np.nan)
     closing = np.full(m, np.nan)

@@ -12,8 +12,6 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from tap_bench.bench.run_plan import SuitePlan
 from tap_bench.bench.suite import Suite
 from tap_bench.errors import (
@@ -139,6 +137,8 @@ def _write_json(path: Path, doc: dict[str, Any]) -> None:
 
 
 def _json_default(value: Any) -> Any:
+    import numpy as np
+
     if isinstance(value, np.integer):
         return int(value)
     if isinstance(value, np.floating):

@@ -11,8 +11,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from tap_bench.bench.cache import (
     ROAD_MAP,
     SCENE_MAP,
@@ -235,6 +233,8 @@ def _duration(seconds: float) -> str:
 
 def _plan(tasks: list[_Task], cached: list[bool], workers: int, known: Mapping[str, Any],
           measured: Mapping[str, float]) -> RunPlan:
+    import numpy as np
+
     simulated = {**known.get("simulated", {}), **measured}
     per_hit = known.get("cached", {})
     fallback_hit = (float(np.mean(list(per_hit.values()))) if per_hit

@@ -61,8 +61,7 @@ from tap_bench.errors import (
 )
 from tap_bench.plugins import load_plugins
 from tap_bench.sim.policies import available_policies
-from tap_bench.sim.scenario_env import get_scenario
-from tap_bench.sim.scenario_format import parse_seeds, read_json, scenario_names
+from tap_bench.sim.scenario_format import get_scenario, parse_seeds, read_json, scenario_names
 from tap_bench.sim.womd_scene import TRAFFIC, WomdScenes
 
 __all__ = ["GateConfig", "Suite", "available_suites", "default_margins",

@@ -9,10 +9,16 @@ from pathlib import Path
 
 from tap_bench.errors import FileFormatError, TrajectoryTableError
 from tap_bench.execution import add_backend_arguments
-from tap_bench.labelling import INTERACTION_TRACKS, tap_in_parts
+from tap_bench.labelling import INTERACTION_TRACKS, PART_ROWS, tap_in_parts
 from tap_bench.sdl import LEVELS
 from tap_bench.stages import StageConfig
-from tap_bench.tableio import check_outputs, read_table, write_tables
+from tap_bench.tableio import (
+    EncodedTable,
+    check_outputs,
+    read_table,
+    read_table_encoded,
+    write_tables,
+)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -74,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
     # before any work: no output replaces the input, every output can be written
     check_outputs([args.output, args.segments, args.steps, args.report], [args.input])
     t0 = time.perf_counter()
-    table = read_table(args.input)
+    # a large Parquet file's strings read as codes: cheaper to read and to label
+    table = read_table_encoded(args.input, PART_ROWS)
     lanes = _lanes(args.map) if args.map else None
     t1 = time.perf_counter()
     config = _config(args)
@@ -84,7 +91,8 @@ def run(args: argparse.Namespace) -> int:
     labels = result.labels(args.level)
     short = result.short_segments
     if len(result.segments_info) == 0:
-        raise TrajectoryTableError(_nothing_to_label(table, short, args.input, config),
+        frame = table.frame() if isinstance(table, EncodedTable) else table
+        raise TrajectoryTableError(_nothing_to_label(frame, short, args.input, config),
                                    column="valid")
     glitches = result.glitches()
     outputs = {args.output: labels}
@@ -120,9 +128,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"interaction axis of {len(result.interaction_segments)} segment(s): "
               + ", ".join(f"{name} {n}" for name, n in per.items()) + " run(s)")
     if lanes is not None:
-        keys = set(table["scenario_id"].astype(str))
-        if "env" in table.columns:
-            keys |= set(table["env"].astype(str))
+        keys = _strings(table, "scenario_id") | _strings(table, "env")
         if not keys & set(lanes.map_ids):
             print(f"warning: no scene of {args.input} has a map in --map (a map's map_id is "
                   "a scene's scenario_id or env): every path went on along an arc",
@@ -130,6 +136,14 @@ def run(args: argparse.Namespace) -> int:
     written = [args.output, args.segments, args.steps, args.report]
     print("wrote " + ", ".join(w for w in written if w))
     return 0
+
+
+def _strings(table, name: str) -> set:
+    """The distinct values of column ``name`` of the input as strings (none: no column)."""
+    if isinstance(table, EncodedTable) and name in table.values:  # (no reading again)
+        return {v for v in table.values[name].to_pylist() if v is not None}
+    frame = table.frame() if isinstance(table, EncodedTable) else table
+    return set(frame[name].astype(str)) if name in frame.columns else set()
 
 
 def _lanes(paths: list[str]):

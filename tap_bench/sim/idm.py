@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any
-
-import gymnasium as gym
+from typing import TYPE_CHECKING, Any
 
 from tap_bench.errors import ParameterError, did_you_mean
 from tap_bench.sim.policies import idle_action
+
+if TYPE_CHECKING:
+    import gymnasium as gym
 
 __all__ = ["IDMParameters", "IDMPolicy", "take_over_ego"]
 

@@ -36,10 +36,7 @@ import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
-
-import gymnasium as gym
-import numpy as np
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 from tap_bench import catalogue
 from tap_bench.errors import (
@@ -51,6 +48,9 @@ from tap_bench.errors import (
 )
 from tap_bench.registry import Registry
 from tap_bench.sim.scenario_format import read_json
+
+if TYPE_CHECKING:
+    import gymnasium as gym
 
 __all__ = [
     "CHEAP_OBSERVATION",
@@ -159,6 +159,9 @@ class RandomPolicy:
 def idle_action(env: gym.Env) -> Any:
     """The action that keeps the lane and the speed: ``IDLE`` of a meta-action space, zero
     acceleration and steering of a continuous one."""
+    import gymnasium as gym
+    import numpy as np
+
     action_type = env.unwrapped.action_type
     indexes = getattr(action_type, "actions_indexes", None)
     if indexes is not None and "IDLE" in indexes:

@@ -1,24 +1,31 @@
 """Gymnasium ids for the scenario suite: ``tap_bench/<name>-v<version>``.
 
-:func:`register_suite` runs on ``import tap_bench``. It reads only the name and version of
-each file in ``envs/`` (so the import stays fast and never imports highway-env); the file is
-fully validated when an environment is made.
+:func:`register_suite` runs when both tap-bench and Gymnasium are imported
+(:func:`register_on_import`, called by ``import tap_bench``): at once when Gymnasium already
+is, else the moment Gymnasium's import finishes, so ``import tap_bench`` does not import
+Gymnasium and NumPy (a run served from the cache never needs them) and
+``gymnasium.make("tap_bench/highway-v0")`` works in either order of the imports. It reads
+only the name and version of each file in ``envs/`` (it never imports highway-env); the file
+is fully validated when an environment is made.
 """
 
 from __future__ import annotations
 
+import importlib.abc
+import importlib.util
 import json
 import os
+import sys
+import types
 import warnings
 from pathlib import Path
-
-import gymnasium as gym
+from typing import Any
 
 from tap_bench import catalogue
 from tap_bench.errors import CatalogueError, SuiteError
 
-__all__ = ["ENTRY_POINT", "WOMD_ENV_ID", "register_scenario", "register_suite",
-           "registered_ids"]
+__all__ = ["ENTRY_POINT", "WOMD_ENV_ID", "register_on_import", "register_scenario",
+           "register_suite", "registered_ids"]
 
 ENTRY_POINT = "tap_bench.sim.scenario_env:make_env"
 WOMD_ENV_ID = "tap_bench/womd-v0"
@@ -32,6 +39,8 @@ def register_scenario(path: str | os.PathLike) -> str:
     Registering the same file again is a no-op; another file under an id already taken is
     an error (Gymnasium ids are global to the process).
     """
+    import gymnasium as gym
+
     path = Path(path).resolve()
     doc = json.loads(path.read_text())
     env_id = f"tap_bench/{doc['name']}-v{int(doc['version'])}"
@@ -52,6 +61,8 @@ def register_suite(folder: str | os.PathLike | None = None) -> list[str]:
     A file that cannot be read is skipped with a warning naming it, so that one broken file
     does not break ``import tap_bench``; making its env reports the full error.
     """
+    import gymnasium as gym
+
     if folder:
         paths = sorted(Path(folder).glob("*.json"))
     else:
@@ -74,4 +85,50 @@ def register_suite(folder: str | os.PathLike | None = None) -> list[str]:
 def registered_ids() -> list[str]:
     """The ids of the synthetic scenarios in Gymnasium's registry (``tap_bench/womd-v0``,
     which needs files to drive in, is :data:`WOMD_ENV_ID`)."""
+    import gymnasium as gym
+
     return sorted(k for k in gym.registry if k.startswith("tap_bench/") and k != WOMD_ENV_ID)
+
+
+class _OnGymnasiumImport(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """Imports ``gymnasium`` as its own finder and loader would, then registers the suite
+    (:func:`register_suite`) and steps aside: the module's loader is Gymnasium's own again
+    and this finder leaves ``sys.meta_path``. An import that fails leaves it in place for
+    the next attempt."""
+
+    def find_spec(self, name: str, path: Any = None, target: Any = None) -> Any:
+        if name != "gymnasium":
+            return None
+        sys.meta_path.remove(self)  # find the real package below this finder
+        try:
+            spec = importlib.util.find_spec(name)
+        finally:
+            sys.meta_path.insert(0, self)
+        if spec is None or spec.loader is None:
+            return None
+        self.real = spec.loader
+        spec.loader = self
+        return spec
+
+    def create_module(self, spec: Any) -> Any:
+        return self.real.create_module(spec)
+
+    def exec_module(self, module: types.ModuleType) -> None:
+        self.real.exec_module(module)
+        module.__loader__ = module.__spec__.loader = self.real
+        if self in sys.meta_path:
+            sys.meta_path.remove(self)
+        try:
+            register_suite()
+        except Exception as err:  # never break `import gymnasium`; making an env says why
+            warnings.warn(f"tap-bench's Gymnasium ids were not registered: {err!r}",
+                          stacklevel=2)
+
+
+def register_on_import() -> None:
+    """Register the suite's ids (:func:`register_suite`) now if Gymnasium is imported, else
+    as soon as it is (``import tap_bench`` calls this)."""
+    if "gymnasium" in sys.modules:
+        register_suite()
+    elif not any(isinstance(f, _OnGymnasiumImport) for f in sys.meta_path):
+        sys.meta_path.insert(0, _OnGymnasiumImport())

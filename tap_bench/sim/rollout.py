@@ -20,18 +20,15 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, NamedTuple
 
-import gymnasium as gym
-import numpy as np
-
 from tap_bench.errors import EpisodeFailedWarning, EpisodesFailedError, RegistrationError
 from tap_bench.execution import DEFAULT_RETRIES, Backend, resolve_backend
 from tap_bench.sim.policies import CHEAP_OBSERVATION, Policy, PolicyDefinition, get_definition
-from tap_bench.sim.scenario_env import ScenarioEnv, find_scenario_env, get_scenario
-from tap_bench.sim.scenario_format import Scenario, parse_seeds
+from tap_bench.sim.scenario_format import Scenario, get_scenario, parse_seeds
 from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.trajectories import HZ
 
 if TYPE_CHECKING:
+    import gymnasium as gym
     import pandas as pd
 
 __all__ = ["EPISODE_COLUMNS", "EpisodeFailedWarning", "EpisodesFailedError", "Rollout",
@@ -85,6 +82,8 @@ def run_episode(env: gym.Env, policy: Policy, seed: int, *, record: bool = True
     """
     import pandas as pd
 
+    from tap_bench.sim.scenario_env import find_scenario_env
+
     scenario_env = find_scenario_env(env)
     obs, _ = env.reset(seed=seed)
     policy.reset(env, seed=seed)
@@ -124,6 +123,8 @@ def _run_task(task: _Task) -> tuple[pd.DataFrame, dict[str, Any]]:
     # Definitions are data with a stable repr: build each once per process. A policy object
     # is used as it came (a copy per task in a worker).
     import pandas as pd
+
+    from tap_bench.sim.scenario_env import ScenarioEnv
 
     policy_key = repr(task.policy) if isinstance(task.policy, PolicyDefinition) else None
     env_key = None
@@ -244,6 +245,10 @@ def resolve_scenario(env: str | os.PathLike | Scenario | WomdScenes | gym.Env, *
         env: scenario name, Gymnasium id, scenario file, :class:`Scenario` or scenario env.
         config, duration, lane_change: as :func:`rollout`.
     """
+    import gymnasium as gym
+
+    from tap_bench.sim.scenario_env import find_scenario_env
+
     if isinstance(env, WomdScenes):
         return env.with_overrides(config) if config else env
     if isinstance(env, gym.Env):
@@ -279,6 +284,7 @@ def collect_rollout(tables: Sequence[pd.DataFrame], episodes: pd.DataFrame, *,
     Raises:
         EpisodesFailedError: every episode failed: an empty result would only hide why.
     """
+    import numpy as np
     import pandas as pd
 
     episodes = episodes.reset_index(drop=True)

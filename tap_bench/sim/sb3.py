@@ -12,10 +12,7 @@ import os
 import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
-
-import gymnasium as gym
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from tap_bench.errors import (
     FileFormatError,
@@ -23,6 +20,9 @@ from tap_bench.errors import (
     UntrustedModelWarning,
     did_you_mean,
 )
+
+if TYPE_CHECKING:
+    import gymnasium as gym
 
 __all__ = ["ALGORITHMS", "SB3Policy", "UntrustedModelWarning", "load_model",
            "warn_untrusted_model"]
@@ -184,6 +184,8 @@ class SB3Policy:
         self._model.set_random_seed(int(seed))
 
     def act(self, observation: Any) -> Any:
+        import numpy as np
+
         if self._model is None:
             raise RuntimeError(f"policy {self.name!r}: act before reset.")
         action, _ = self._model.predict(observation, deterministic=self.deterministic)
@@ -193,6 +195,8 @@ class SB3Policy:
 
 
 def _same_space(a: gym.Space, b: gym.Space) -> bool:
+    import gymnasium as gym
+
     if type(a) is not type(b):
         return False
     if isinstance(a, gym.spaces.Box):

@@ -17,22 +17,18 @@ recording every vehicle at 10 Hz.
 
 from __future__ import annotations
 
-import functools
 import os
 from collections.abc import Mapping
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 
-from tap_bench import catalogue
-from tap_bench.errors import FileFormatError, ParameterError, TapBenchError, did_you_mean
+from tap_bench.errors import ParameterError, TapBenchError
 from tap_bench.sim.recorder import TrajectoryRecorder
-from tap_bench.sim.scenario_format import (
+from tap_bench.sim.scenario_format import (  # get_scenario: defined there, away from Gymnasium
     Scenario,
     check_config,
-    load_scenario,
-    scenario_names,
+    get_scenario,
 )
 from tap_bench.sim.schema import env_class
 from tap_bench.sim.vehicles import LANE_CHANGE_SETTINGS, apply_lane_change, guard_class_attributes
@@ -45,45 +41,6 @@ __all__ = ["FAST_SIMULATION_FREQUENCY", "ScenarioEnv", "episode_trajectories", "
 
 FAST_SIMULATION_FREQUENCY = 5
 """Simulation rate of a ``fast`` scenario env [Hz]: highway-env's ``highway-fast-v0`` rate."""
-
-
-@functools.lru_cache(maxsize=64)
-def _load_cached(path: str, mtime: float) -> Scenario:
-    return load_scenario(path)
-
-
-def get_scenario(name: str | os.PathLike | Scenario) -> Scenario:
-    """A scenario by name (``"highway"``), Gymnasium id (``"tap_bench/highway-v0"``) or the
-    path of a scenario file.
-
-    Raises:
-        UnknownNameError: no such scenario, with the closest names.
-        FileFormatError: the file breaks the scenario format.
-    """
-    if isinstance(name, Scenario):
-        return name
-    text = str(name)
-    path = Path(text)
-    if text.endswith(".json"):
-        if not path.is_file():
-            raise FileFormatError(f"{path}: no such scenario file.")
-    else:
-        short = text.removeprefix("tap_bench/")
-        base, _, version = short.rpartition("-v")
-        if base and version.isdigit():
-            short = base
-        else:
-            version = None
-        known = scenario_names()
-        if short not in known:
-            raise did_you_mean("scenario", text, known)
-        path = catalogue.files("envs")[short]
-        scenario = _load_cached(str(path), path.stat().st_mtime)
-        if version is not None and int(version) != scenario.version:
-            raise TapBenchError(f"scenario {text!r}: the suite has {scenario.env_id}; version "
-                                f"{version} is not available.")
-        return scenario
-    return _load_cached(str(path), path.stat().st_mtime)
 
 
 class ScenarioEnv(gym.Wrapper):

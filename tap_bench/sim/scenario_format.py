@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from tap_bench import catalogue
-from tap_bench.errors import FileFormatError, ParameterError, did_you_mean
+from tap_bench.errors import FileFormatError, ParameterError, TapBenchError, did_you_mean
 from tap_bench.sim.schema import SPACES, default_config, space_parameters
 from tap_bench.sim.vehicles import LANE_CHANGE_SETTINGS
 
@@ -448,3 +448,43 @@ def scenario_names(folder: str | os.PathLike | None = None) -> list[str]:
     if folder:
         return sorted(p.stem for p in Path(folder).glob("*.json"))
     return sorted(catalogue.files("envs"))
+
+
+@functools.lru_cache(maxsize=64)
+def _load_cached(path: str, mtime: float) -> Scenario:
+    return load_scenario(path)
+
+
+def get_scenario(name: str | os.PathLike | Scenario) -> Scenario:
+    """A scenario by name (``"highway"``), Gymnasium id (``"tap_bench/highway-v0"``) or the
+    path of a scenario file (also :func:`tap_bench.sim.scenario_env.get_scenario`; here,
+    away from Gymnasium, so that resolving a suite does not import it).
+
+    Raises:
+        UnknownNameError: no such scenario, with the closest names.
+        FileFormatError: the file breaks the scenario format.
+    """
+    if isinstance(name, Scenario):
+        return name
+    text = str(name)
+    path = Path(text)
+    if text.endswith(".json"):
+        if not path.is_file():
+            raise FileFormatError(f"{path}: no such scenario file.")
+    else:
+        short = text.removeprefix("tap_bench/")
+        base, _, version = short.rpartition("-v")
+        if base and version.isdigit():
+            short = base
+        else:
+            version = None
+        known = scenario_names()
+        if short not in known:
+            raise did_you_mean("scenario", text, known)
+        path = catalogue.files("envs")[short]
+        scenario = _load_cached(str(path), path.stat().st_mtime)
+        if version is not None and int(version) != scenario.version:
+            raise TapBenchError(f"scenario {text!r}: the suite has {scenario.env_id}; version "
+                                f"{version} is not available.")
+        return scenario
+    return _load_cached(str(path), path.stat().st_mtime)

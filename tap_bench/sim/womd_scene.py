@@ -19,11 +19,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from tap_bench.errors import ParameterError, TapBenchError
 
 if TYPE_CHECKING:
+    import numpy as np
     import pandas as pd
 
 if TYPE_CHECKING:  # read with a scene only: resolving a suite needs no protobuf
@@ -115,6 +114,7 @@ class Scene:
 
     def table(self) -> pd.DataFrame:
         """The record as a trajectory table (every track, every step, WOMD axes)."""
+        import numpy as np
         import pandas as pd
 
         n, t = self.x.shape
@@ -196,6 +196,7 @@ def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:
             record too short for a current time, no lanes; the message names the scenario.
         WomdRecordError: the record cannot be decoded.
     """
+    import numpy as np
     import pandas as pd
 
     table, road, digest = _read(ref)

@@ -172,3 +172,64 @@ def test_the_simulation_code_holds_what_recorded_scenes_are_built_from():
     names = {path.relative_to(package).as_posix() for path in cache_module._simulation_modules()}
     assert {"womd/roadmap.py", "womd/scenario.py", "womd/tf_example.py",
             "sources/scenarionet.py", "sim/womd_road.py", "trajectories.py"} <= names
+
+
+def _closure_without_memo(starts: tuple[str, ...]) -> dict[str, Path]:
+    """``_tap_bench_closure`` as it was: each name looked up from the top of the path."""
+    from tap_bench.usercode import _source_path, find_module_source
+
+    files: dict[str, Path] = {}
+    todo = list(starts)
+    while todo:
+        name = todo.pop()
+        if name in files:
+            continue
+        path = _source_path(find_module_source(name))
+        if path is None:
+            continue
+        files[name] = path
+        named: set[str] = set()
+        for base, names, plain in cache_module._IMPORT.findall(path.read_text()):
+            if plain:
+                named.add(plain)
+                continue
+            named.add(base)
+            for part in names.strip("()").replace("\n", ",").split(","):
+                word = part.split("#")[0].split(" as ")[0].strip()
+                if word.isidentifier():
+                    named.add(f"{base}.{word}")
+        todo += [m for m in named if m not in files]
+    return dict(sorted(files.items()))
+
+
+@settings(max_examples=40, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(order=st.randoms(use_true_random=False), extra=st.lists(st.sampled_from([
+    "tap_bench.nothing", "tap_bench.bench.measures.MEASURES", "tap_bench.bench.nothing.deeper",
+    "tap_bench..x", "tap_bench.1x", "numpy", "numpy.linalg", "no_such_top", "json.decoder",
+    "tap_bench.sim", "tap_bench.sim.scenario_env.get_scenario", "tap_bench.bench"]),
+    max_size=6))
+def test_a_module_is_found_as_without_the_memo(inputs, monkeypatch, order, extra):
+    """The label code's closure looks each package up once (a memo of specs): every name
+    gets the spec it gets when looked up alone, whatever was looked up before; the closure
+    is the one looked up name by name."""
+    from tap_bench.usercode import find_module_source
+
+    monkeypatch.syspath_prepend(str(inputs))
+    package = Path(cache_module.__file__).resolve().parent.parent
+    names = [".".join(("tap_bench", *p.relative_to(package).with_suffix("").parts))
+             .removesuffix(".__init__") for p in package.rglob("*.py")][:60]
+    names += [*extra, f"{PACKAGE}.policy", f"{PACKAGE}.helper.ACTION", SIBLING,
+              f"{CARS}.vehicles.MyVehicle"]
+    order.shuffle(names)
+    memo: dict = {}
+    for name in names:
+        alone, memoised = find_module_source(name), find_module_source(name, memo)
+        assert (alone is None) == (memoised is None), name
+        if alone is not None:
+            assert (alone.name, alone.origin, alone.submodule_search_locations) == (
+                memoised.name, memoised.origin, memoised.submodule_search_locations), name
+    starts = tuple(order.sample(names, 3))
+    assert cache_module._tap_bench_closure(starts) == _closure_without_memo(starts)
+    assert cache_module._tap_bench_closure(cache_module.LABEL_CODE) \
+        == _closure_without_memo(cache_module.LABEL_CODE)

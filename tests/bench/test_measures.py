@@ -214,7 +214,7 @@ def test_registry_refuses_duplicates_and_measures_without_margin():
     with pytest.raises(RegistrationError, match="already registered"):
         register_measure("min_ttc_s", unit="s", higher_is_better=True, margin=1.0,
                          description="again")(lambda steps: steps.minimum(steps.ttc))
-    for bad in (None, -1.0, float("nan"), True):
+    for bad in (None, -1.0, float("nan"), float("inf"), np.float64("nan"), -np.inf, True):
         with pytest.raises(RegistrationError, match="needs a gate margin"):
             register_measure("max_decel", unit="m/s^2", higher_is_better=True, margin=bad,
                              description="hardest braking")(lambda steps: steps.t)

@@ -381,7 +381,7 @@ def _modules_after(code: str, cache: Path, cwd: Path) -> tuple[set[str], str]:
     return set(json.loads(lines[-1])), "\n".join(lines[:-1])
 
 
-def test_the_command_line_serves_without_pandas_scoring_report_or_viewer_code(tmp_path):
+def test_the_command_line_serves_without_numpy_pandas_gymnasium_scoring_or_report(tmp_path):
     suite = tmp_path / "tiny.json"
     suite.write_text(json.dumps({
         "name": "tiny", "envs": ["merge"], "policies": ["idm", "lane-keeping"], "seeds": "0-1",
@@ -396,7 +396,7 @@ def test_the_command_line_serves_without_pandas_scoring_report_or_viewer_code(tm
     assert "served from the cache" in said and "served whole" in said
     heavy = {"tap_bench.bench.scoring", "tap_bench.bench.report", "tap_bench.bench.viewer",
              "tap_bench.bench.runner", "tap_bench.labelling", "highway_env", "scipy",
-             "matplotlib", "numba", "google.protobuf", "pandas", "pyarrow"}
+             "matplotlib", "numba", "google.protobuf", "pandas", "pyarrow", "gymnasium", "numpy"}
     assert not modules & heavy, modules & heavy
     assert {p.relative_to(tmp_path / "a").as_posix() for p in (tmp_path / "a").rglob("*")} \
         == {p.relative_to(tmp_path / "b").as_posix() for p in (tmp_path / "b").rglob("*")}

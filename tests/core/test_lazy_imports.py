@@ -118,3 +118,48 @@ def test_a_worker_loads_the_task_modules_not_the_runner_gate_or_report(tmp_path)
     assert not loaded & {"tap_bench.bench.runner", "tap_bench.bench.gate",
                          "tap_bench.bench.power", "tap_bench.bench.report",
                          "tap_bench.bench.viewer", "tap_bench.bench.scoring"}
+
+
+_IDS = ("import json, sys\nimport gymnasium as gym\nfrom tap_bench.sim.registration import "
+        "_OnGymnasiumImport\n"
+        "ids = sorted(k for k in gym.registry if k.startswith('tap_bench/'))\n"
+        "assert not any(isinstance(f, _OnGymnasiumImport) for f in sys.meta_path)\n"
+        "assert not isinstance(gym.__spec__.loader, _OnGymnasiumImport)\n"
+        "assert gym.__loader__ is gym.__spec__.loader\n"
+        "print(json.dumps(ids))")
+
+
+@pytest.mark.parametrize("imports", [
+    "import tap_bench\nimport gymnasium",
+    "import gymnasium\nimport tap_bench",
+    "import tap_bench\nfrom gymnasium.envs.registration import registry",
+    "from gymnasium.envs.registration import registry\nimport tap_bench.sim.registration",
+    "import tap_bench.sim.registration\nimport gymnasium.envs",
+    "import gymnasium\ngymnasium.envs.registration._find_spec('tap_bench:tap_bench/merge-v0')",
+], ids=["tap_bench first", "gymnasium first", "registration module after",
+        "registration module before", "a submodule of each", "module:id syntax"])
+def test_the_env_ids_are_registered_whichever_is_imported_first(imports, tmp_path):
+    """``import tap_bench`` imports neither Gymnasium nor NumPy; the suite's ids are in
+    Gymnasium's registry as soon as both are imported, in either order, and the import hook
+    that registers them steps aside once it has (the module's loader is Gymnasium's own)."""
+    assert not _loaded_after("import tap_bench", tmp_path) & {"gymnasium", "numpy"}
+    out = subprocess.run([sys.executable, "-c", f"{imports}\n{_IDS}"], cwd=tmp_path,
+                         check=True, capture_output=True, text=True,
+                         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
+                              "TAP_BENCH_CACHE": str(tmp_path / "cache")})
+    ids = json.loads(out.stdout.strip().splitlines()[-1])
+    from tap_bench.sim.registration import WOMD_ENV_ID, registered_ids
+
+    assert ids == sorted([*registered_ids(), WOMD_ENV_ID]) and "tap_bench/highway-v0" in ids
+    assert "Warning" not in out.stderr, out.stderr
+
+
+def test_an_env_is_made_by_id_after_import_tap_bench_alone(tmp_path):
+    script = ("import sys\nimport tap_bench\nassert 'gymnasium' not in sys.modules\n"
+              "import gymnasium as gym\nenv = gym.make('tap_bench/merge-v0')\n"
+              "obs, info = env.reset(seed=0)\nprint(type(env.unwrapped).__name__)")
+    out = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, check=True,
+                         capture_output=True, text=True,
+                         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
+                              "TAP_BENCH_CACHE": str(tmp_path / "cache")})
+    assert out.stdout.strip().splitlines()[-1] == "MergeEnv"
