@@ -388,13 +388,19 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
 
     seg_len = stops - starts
     n_steps = int(seg_len.sum())
-    step_rows = np.repeat(starts, seg_len) + (
-        np.arange(n_steps) - np.repeat(np.cumsum(seg_len) - seg_len, seg_len))
     step_segment = np.repeat(np.arange(len(starts)), seg_len)
+    if n_steps == len(kin.t):  # every row labelled (the segments tile the table): the
+        # steps are the rows, and the signals are given as they are
+        step_rows = np.arange(n_steps)
+        w, a, v, reversing = kin.w, kin.a, kin.v, kin.reversing
+    else:
+        step_rows = np.repeat(starts, seg_len) + (
+            np.arange(n_steps) - np.repeat(np.cumsum(seg_len) - seg_len, seg_len))
+        w, a, v = kin.w[step_rows], kin.a[step_rows], kin.v[step_rows]
+        reversing = kin.reversing[step_rows]
     t3 = time.perf_counter()
-    labels = run_stages(kin.w[step_rows], kin.a[step_rows], kin.v[step_rows], seg_len, th,
-                        config, heading=kin.heading, x=kin.x, y=kin.y, rows=step_rows,
-                        reversing=kin.reversing[step_rows])
+    labels = run_stages(w, a, v, seg_len, th, config, heading=kin.heading, x=kin.x, y=kin.y,
+                        rows=step_rows, reversing=reversing)
     t4 = time.perf_counter()
     timings.update(validate=t1 - t0, kinematics=t2 - t1, layout=t3 - t2, stages=t4 - t3)
     extra = {}

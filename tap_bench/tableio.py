@@ -125,10 +125,14 @@ class EncodedTable:
             rank = np.empty(len(order) + 1, code_type)
             rank[order] = np.arange(len(order))
             rank[-1] = -1  # a missing value's code
-            indices = [c.indices.fill_null(-1) if c.null_count else c.indices
-                       for c in column.chunks]
-            self.codes[name] = rank[np.concatenate(
-                [i.to_numpy(zero_copy_only=False) for i in indices])]
+            codes = np.empty(len(column), code_type)
+            start = 0
+            for chunk in column.chunks:  # each chunk's ranks in place (no joined copy)
+                indices = chunk.indices.fill_null(-1) if chunk.null_count else chunk.indices
+                stop = start + len(indices)
+                np.take(rank, indices.to_numpy(zero_copy_only=False), out=codes[start:stop])
+                start = stop
+            self.codes[name] = codes
             self.values[name] = dictionary.take(pa.array(order)).cast(pa.large_string())
             self._dtypes[name] = pd.CategoricalDtype(
                 pd.Index(pd.array(self.values[name], dtype=_str_dtype())), ordered=False)
