@@ -18,7 +18,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pandas.testing import assert_frame_equal
 
-from tap_bench.errors import ResampledWarning, TrajectoryTableError
+from tap_bench.errors import ResampledWarning, TapBenchError, TrajectoryTableError
 from tap_bench.labelling import tap, tap_in_parts
 from tap_bench.synthetic import random_trajectories
 from tap_bench.tableio import EncodedTable, read_table, read_table_encoded
@@ -204,3 +204,26 @@ def test_categorical_object_types_label_as_their_strings(types):
         return
     whole = tap(table, interactions="all")
     _assert_same(tap_in_parts(categorical, interactions="all"), whole)
+
+
+@pytest.mark.parametrize("encoded", [False, True])
+def test_parts_without_per_step_tables_give_the_labels_and_glitches(tmp_path, encoded):
+    """per_step=False (the command line without --segments and --steps): the label tables,
+    glitches and segment lists of one call; the two tables that read the per-step times
+    and rows raise instead of giving wrong ones."""
+    table = random_trajectories(60, 40, seed=9, scenarios=12)
+    table.loc[table.groupby("track_id").cumcount() == 7, "valid"] = False
+    table["valid"] = table["valid"].fillna(True).astype(bool)
+    path = _write(table, tmp_path)
+    source = read_table_encoded(path, 0) if encoded else read_table(path)
+    whole = tap(read_table(path))
+    parts = tap_in_parts(source, part_rows=200, per_step=False)
+    assert len(parts.parts) > 1
+    for level in ("trace", "trend", "maneuver", "action", "all"):
+        assert_frame_equal(parts.labels(level), whole.labels(level), check_exact=True)
+    assert_frame_equal(parts.glitches(), whole.glitches(), check_exact=True)
+    assert_frame_equal(parts.segments_info, whole.segments_info, check_exact=True)
+    assert_frame_equal(parts.short_segments, whole.short_segments, check_exact=True)
+    for table_of in (lambda: parts.segments("all"), parts.steps):
+        with pytest.raises(TapBenchError, match="per_step=True"):
+            table_of()
