@@ -196,13 +196,20 @@ def read_table_encoded(path: str | os.PathLike, min_rows: int,
     except (OSError, ValueError):
         return read_table(path)  # its error
     names = schema.names
-    # only the columns pandas reads as `str` (not those the file's pandas metadata makes
-    # something else), each name once
+    if num_rows <= min_rows:  # not to be cut: as read
+        return read_table(path)
     empty = schema.empty_table().to_pandas()
+    columns = list(empty.columns)
+    if names[:len(columns)] != columns:  # (the file's pandas metadata makes other columns,
+        return read_table(path)  # or an index of columns before the last): as read
+    # only the frame's columns (not those of an index that the file's pandas metadata
+    # makes, which come last) that pandas reads as `str` (not those the metadata makes
+    # something else), each name once
     strings = [f.name for f in schema
                if (pa.types.is_string(f.type) or pa.types.is_large_string(f.type))
-               and names.count(f.name) == 1 and empty[f.name].dtype == _str_dtype()]
-    if num_rows <= min_rows or by not in strings:  # not to be cut: as read
+               and names.count(f.name) == 1 and f.name in columns
+               and empty[f.name].dtype == _str_dtype()]
+    if by not in strings:  # not to be cut: as read
         return read_table(path)
     try:
         # (a ParquetFile reads without loading pyarrow.dataset)
