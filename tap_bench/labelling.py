@@ -388,13 +388,19 @@ def tap(table: pd.DataFrame, thresholds: Thresholds | str = "paper",
 
     seg_len = stops - starts
     n_steps = int(seg_len.sum())
-    step_rows = np.repeat(starts, seg_len) + (
-        np.arange(n_steps) - np.repeat(np.cumsum(seg_len) - seg_len, seg_len))
     step_segment = np.repeat(np.arange(len(starts)), seg_len)
+    if n_steps == len(kin.t):  # every row labelled (the segments tile the table): the
+        # steps are the rows, and the signals are given as they are
+        step_rows = np.arange(n_steps)
+        w, a, v, reversing = kin.w, kin.a, kin.v, kin.reversing
+    else:
+        step_rows = np.repeat(starts, seg_len) + (
+            np.arange(n_steps) - np.repeat(np.cumsum(seg_len) - seg_len, seg_len))
+        w, a, v = kin.w[step_rows], kin.a[step_rows], kin.v[step_rows]
+        reversing = kin.reversing[step_rows]
     t3 = time.perf_counter()
-    labels = run_stages(kin.w[step_rows], kin.a[step_rows], kin.v[step_rows], seg_len, th,
-                        config, heading=kin.heading, x=kin.x, y=kin.y, rows=step_rows,
-                        reversing=kin.reversing[step_rows])
+    labels = run_stages(w, a, v, seg_len, th, config, heading=kin.heading, x=kin.x, y=kin.y,
+                        rows=step_rows, reversing=reversing)
     t4 = time.perf_counter()
     timings.update(validate=t1 - t0, kinematics=t2 - t1, layout=t3 - t2, stages=t4 - t3)
     extra = {}
@@ -427,9 +433,13 @@ class TapParts:
         parts: the result of each part, in order. Their kinematics keep the per-row flags
             and the track index that the tables need; the signals (``t``, ``v``, ``a``,
             ``w``, ``heading``, ``x``, ``y``) are left out (empty) to bound the memory.
+        per_step: the parts keep the per-step times and rows and the per-row flags and
+            track index that :meth:`segments` and :meth:`steps` read (False: left out,
+            and those two raise).
     """
 
     parts: tuple[TapResult, ...]
+    per_step: bool = True
 
     def labels(self, level: str = "action") -> pd.DataFrame:
         """:meth:`TapResult.labels` of the whole table: without the interaction axis, one
@@ -448,11 +458,19 @@ class TapParts:
 
     def segments(self, level: str = "action") -> pd.DataFrame:
         """:meth:`TapResult.segments` of the whole table."""
+        self._need_steps("segments")
         return self._joined([p.segments(level) for p in self.parts])
 
     def steps(self) -> pd.DataFrame:
         """:meth:`TapResult.steps` of the whole table."""
+        self._need_steps("steps")
         return self._joined([p.steps() for p in self.parts])
+
+    def _need_steps(self, table: str) -> None:
+        if not self.per_step:
+            raise TapBenchError(f"the {table} table reads the per-step times and rows, which "
+                                "this table's parts did not keep: label it with "
+                                "tap_in_parts(..., per_step=True).")
 
     def glitches(self) -> pd.DataFrame:
         """:meth:`TapResult.glitches` of the whole table (of the joined segment tables: one
@@ -503,7 +521,7 @@ class TapParts:
 
 def tap_in_parts(table: pd.DataFrame | EncodedTable, thresholds: Thresholds | str = "paper",
                  config: StageConfig | None = None, *, part_rows: int = PART_ROWS,
-                 **options) -> TapParts:
+                 per_step: bool = True, **options) -> TapParts:
     """:func:`tap` of a large table, whole scenarios at a time: the same tables, with the
     memory of one part's temporaries instead of the whole table's (the command line's
     labelling of 25,900 trajectories peaked at 1.1 GB, and the kernel's page faults cost
@@ -526,6 +544,9 @@ def tap_in_parts(table: pd.DataFrame | EncodedTable, thresholds: Thresholds | st
             to the tables of ``tap(table.frame())``.
         thresholds, config: as :func:`tap`.
         part_rows: rows per part (about; a scenario is never split).
+        per_step: keep what the segment and per-step tables need (False: the parts drop
+            the per-step times and rows, the per-row flags and track index as they are
+            labelled, about 36 bytes a row; ``segments()`` and ``steps()`` then raise).
         **options: the keyword arguments of :func:`tap`.
     """
     encoded = isinstance(table, EncodedTable)
@@ -541,22 +562,30 @@ def tap_in_parts(table: pd.DataFrame | EncodedTable, thresholds: Thresholds | st
                 _without_signals(_decoded(tap(table.part(a, b), thresholds, config,
                                               **options), table)
                                  if encoded else tap(table.iloc[a:b], thresholds, config,
-                                                     **options))
+                                                     **options), per_step)
                 for a, b in itertools.pairwise(bounds))
     except Exception:  # any error: the whole table's call gives it as tap() does
         caught = [None]
     if caught:
         return TapParts((tap(table.frame() if encoded else table, thresholds, config,
                              **options),))
-    return TapParts(parts)
+    return TapParts(parts, per_step)
 
 
-def _without_signals(result: TapResult) -> TapResult:
-    """``result`` without the per-row signals of its kinematics (see :class:`TapParts`)."""
+def _without_signals(result: TapResult, per_step: bool = True) -> TapResult:
+    """``result`` without the per-row signals of its kinematics (see :class:`TapParts`);
+    not ``per_step``: without the per-step times and rows, the per-row flags and track
+    index either."""
     empty = np.zeros(0)
     kin = dataclasses.replace(result.kinematics, t=empty, v=empty, a=empty, w=empty,
                               heading=empty, x=empty, y=empty)
-    return dataclasses.replace(result, kinematics=kin)
+    if per_step:
+        return dataclasses.replace(result, kinematics=kin)
+    none, flags = np.zeros(0, np.int64), np.zeros(0, bool)
+    kin = dataclasses.replace(kin, speed_glitch=flags, heading_glitch=flags, trusted=flags,
+                              reversing=flags,
+                              index=dataclasses.replace(kin.index, track=none, segment=none))
+    return dataclasses.replace(result, kinematics=kin, step_t=empty, step_rows=none)
 
 
 def _decoded(result: TapResult, table: EncodedTable) -> TapResult:

@@ -219,12 +219,20 @@ class _Layout:
 
 
 def _trace_lateral(w: np.ndarray, th: Thresholds) -> np.ndarray:
-    return np.where(w > th.w_str, sdl.LEFT, np.where(w < -th.w_str, sdl.RIGHT, sdl.STRAIGHT))
+    """(n,) int8 codes: Left above w_str, else Right below -w_str, else Straight."""
+    out = np.full(np.shape(w), sdl.STRAIGHT, np.int8)
+    out[w < -th.w_str] = sdl.RIGHT
+    out[w > th.w_str] = sdl.LEFT  # (Left first where both hold)
+    return out
 
 
 def _trace_longitudinal(a: np.ndarray, th: Thresholds) -> np.ndarray:
-    return np.where(a > th.a_acc, sdl.ACCELERATE,
-                    np.where(a <= th.a_dec, sdl.DECELERATE, sdl.MAINTAIN))
+    """(n,) int8 codes: Accelerate above a_acc, else Decelerate at a_dec or below, else
+    Maintain."""
+    out = np.full(np.shape(a), sdl.MAINTAIN, np.int8)
+    out[a <= th.a_dec] = sdl.DECELERATE
+    out[a > th.a_acc] = sdl.ACCELERATE  # (Accelerate first where both hold)
+    return out
 
 
 @dataclass(frozen=True)
@@ -490,6 +498,18 @@ def _refine(runs: Runs, signal: np.ndarray, classes: np.ndarray, refine: np.ndar
     return np.where(per_step < 0, classes, per_step)
 
 
+_ACTION_LATERAL_BASE = np.zeros(5, np.int64)
+_ACTION_LATERAL_BASE[[sdl.STRAIGHT, sdl.LEFT, sdl.RIGHT, sdl.LEFT_MERGE, sdl.RIGHT_MERGE]] = [
+    sdl.ACTION_STRAIGHT, 1, 4, sdl.ACTION_LEFT_MERGE, sdl.ACTION_RIGHT_MERGE]
+"""Action-level lateral code of each maneuver code, before a turn's intensity."""
+_ACTION_LONGITUDINAL_BASE = np.zeros(5, np.int64)
+_ACTION_LONGITUDINAL_BASE[[sdl.MAINTAIN, sdl.ACCELERATE, sdl.DECELERATE, sdl.STOPPED,
+                           sdl.REVERSING]] = [3 * sdl.MAINTAIN, 3 * sdl.ACCELERATE,
+                                              3 * sdl.DECELERATE, sdl.ACTION_STOPPED,
+                                              sdl.ACTION_REVERSING]
+"""Action-level longitudinal code of each trend code, before the speed class."""
+
+
 def run_stages(w: np.ndarray, a: np.ndarray, v: np.ndarray, seg_length: np.ndarray,
                thresholds: Thresholds, config: StageConfig = StageConfig(), *,
                heading: np.ndarray, x: np.ndarray, y: np.ndarray,
@@ -527,8 +547,8 @@ def run_stages(w: np.ndarray, a: np.ndarray, v: np.ndarray, seg_length: np.ndarr
     th = thresholds
 
     # Stage 1: trace.
-    trace_lat = _trace_lateral(w, th).astype(np.int8)
-    trace_long = _trace_longitudinal(a, th).astype(np.int8)
+    trace_lat = _trace_lateral(w, th)
+    trace_long = _trace_longitudinal(a, th)
 
     # Stage 2: trend. Stopped steps are Straight, reversing runs of 1 s or more Reversing;
     # then the low-pass, and every turn (accelerate, decelerate) run must agree with its own
@@ -580,19 +600,16 @@ def run_stages(w: np.ndarray, a: np.ndarray, v: np.ndarray, seg_length: np.ndarr
     w_class = (abs_w > th.w_grad).astype(np.int8) + (abs_w > th.w_med)
     is_turn = (lat_runs.code == sdl.LEFT) | (lat_runs.code == sdl.RIGHT)
     intensity = _refine(lat_runs, abs_w, w_class, is_turn, (th.w_grad, th.w_med), min_steps)
-    side = np.where(maneuver_lat == sdl.RIGHT, 1, 0)
-    action_lat = np.select(
-        [maneuver_lat == sdl.STRAIGHT, maneuver_lat == sdl.LEFT_MERGE,
-         maneuver_lat == sdl.RIGHT_MERGE],
-        [sdl.ACTION_STRAIGHT, sdl.ACTION_LEFT_MERGE, sdl.ACTION_RIGHT_MERGE],
-        1 + 3 * side + intensity,
-    )
+    # Straight and the merges their action codes, a turn 1 + 3 * side + its intensity (the
+    # intensity is 0 off the turns: _refine gives the runs not refined 0)
+    action_lat = _ACTION_LATERAL_BASE[maneuver_lat] + intensity
     long_runs = find_runs(trend_long, seg, seg_first)
     v_class = (v > th.v_slow).astype(np.int8) + (v > th.v_med)
     moving = (long_runs.code != sdl.STOPPED) & (long_runs.code != sdl.REVERSING)
     speed = _refine(long_runs, v, v_class, moving, (th.v_slow, th.v_med), min_steps)
-    action_long = np.select([trend_long == sdl.STOPPED, trend_long == sdl.REVERSING],
-                            [sdl.ACTION_STOPPED, sdl.ACTION_REVERSING], 3 * trend_long + speed)
+    # Stopped and Reversing their action codes, the others 3 * code + speed class (0 on
+    # the runs not refined: Stopped, Reversing)
+    action_long = _ACTION_LONGITUDINAL_BASE[trend_long] + speed
 
     i8 = np.int8
     return StepLabels(

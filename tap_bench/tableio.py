@@ -125,10 +125,14 @@ class EncodedTable:
             rank = np.empty(len(order) + 1, code_type)
             rank[order] = np.arange(len(order))
             rank[-1] = -1  # a missing value's code
-            indices = [c.indices.fill_null(-1) if c.null_count else c.indices
-                       for c in column.chunks]
-            self.codes[name] = rank[np.concatenate(
-                [i.to_numpy(zero_copy_only=False) for i in indices])]
+            codes = np.empty(len(column), code_type)
+            start = 0
+            for chunk in column.chunks:  # each chunk's ranks in place (no joined copy)
+                indices = chunk.indices.fill_null(-1) if chunk.null_count else chunk.indices
+                stop = start + len(indices)
+                np.take(rank, indices.to_numpy(zero_copy_only=False), out=codes[start:stop])
+                start = stop
+            self.codes[name] = codes
             self.values[name] = dictionary.take(pa.array(order)).cast(pa.large_string())
             self._dtypes[name] = pd.CategoricalDtype(
                 pd.Index(pd.array(self.values[name], dtype=_str_dtype())), ordered=False)
@@ -192,13 +196,20 @@ def read_table_encoded(path: str | os.PathLike, min_rows: int,
     except (OSError, ValueError):
         return read_table(path)  # its error
     names = schema.names
-    # only the columns pandas reads as `str` (not those the file's pandas metadata makes
-    # something else), each name once
+    if num_rows <= min_rows:  # not to be cut: as read
+        return read_table(path)
     empty = schema.empty_table().to_pandas()
+    columns = list(empty.columns)
+    if names[:len(columns)] != columns:  # (the file's pandas metadata makes other columns,
+        return read_table(path)  # or an index of columns before the last): as read
+    # only the frame's columns (not those of an index that the file's pandas metadata
+    # makes, which come last) that pandas reads as `str` (not those the metadata makes
+    # something else), each name once
     strings = [f.name for f in schema
                if (pa.types.is_string(f.type) or pa.types.is_large_string(f.type))
-               and names.count(f.name) == 1 and empty[f.name].dtype == _str_dtype()]
-    if num_rows <= min_rows or by not in strings:  # not to be cut: as read
+               and names.count(f.name) == 1 and f.name in columns
+               and empty[f.name].dtype == _str_dtype()]
+    if by not in strings:  # not to be cut: as read
         return read_table(path)
     try:
         # (a ParquetFile reads without loading pyarrow.dataset)

@@ -369,6 +369,10 @@ def _track_order(scenario: pd.Series, track: pd.Series) -> tuple[np.ndarray | No
         out = np.ones(n, dtype=bool)
         if n > 1 and encoded is not None:
             out[1:] = encoded[0][1:] != encoded[0][:-1]  # equal codes: equal strings
+        elif n > 1 and isinstance(col.dtype, pd.CategoricalDtype):  # (its codes: no
+            # pandas comparison; a missing value, -1, differs from every value, as there)
+            codes = col.array.codes
+            out[1:] = (codes[1:] != codes[:-1]) | (codes[1:] < 0)
         elif n > 1:
             values = col.array
             out[1:] = np.asarray(values[1:] != values[:-1], dtype=bool)

@@ -86,8 +86,10 @@ def run(args: argparse.Namespace) -> int:
     t1 = time.perf_counter()
     config = _config(args)
     # a large table scenario by scenario (the same tables, a fraction of the memory)
+    # (the per-step times and rows only for the tables that read them)
     result = tap_in_parts(table, args.thresholds, config, source=str(args.input),
-                          interactions=args.interactions, map_table=lanes)
+                          interactions=args.interactions, map_table=lanes,
+                          per_step=bool(args.segments or args.steps or args.interactions))
     labels = result.labels(args.level)
     short = result.short_segments
     if len(result.segments_info) == 0:

@@ -21,8 +21,8 @@ Modules, by what they do:
 
 Training agents and their behaviour-coverage learning curve are :mod:`tap_bench.rl`.
 
-Every name below is imported on first use (``tap_bench.sim.rollout`` imports pandas and the
-execution layer, ``make_env`` highway-env), so ``import tap_bench`` stays fast. highway-env
+Every name below is imported on first use (``tap_bench.sim.rollout`` imports the execution
+layer, ``make_env`` Gymnasium and highway-env), so ``import tap_bench`` stays fast. highway-env
 imports ``matplotlib.pyplot`` for one plotting helper (``highway_env.vehicle.dynamics``),
 0.4 CPU s of each process that simulates; imported through tap-bench, it gets a module that
 imports pyplot when that helper first uses it (:class:`_OnFirstUse`).

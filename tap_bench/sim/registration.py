@@ -128,7 +128,16 @@ class _OnGymnasiumImport(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 def register_on_import() -> None:
     """Register the suite's ids (:func:`register_suite`) now if Gymnasium is imported, else
     as soon as it is (``import tap_bench`` calls this)."""
-    if "gymnasium" in sys.modules:
+    if sys.modules.get("gymnasium") is not None:
         register_suite()
-    elif not any(isinstance(f, _OnGymnasiumImport) for f in sys.meta_path):
+    elif not any(_is_hook(f) for f in sys.meta_path):  # (also while its import is
+        # blocked, None in sys.modules: `import tap_bench` needs no Gymnasium)
         sys.meta_path.insert(0, _OnGymnasiumImport())
+
+
+def _is_hook(finder: Any) -> bool:
+    """Whether ``finder`` is an :class:`_OnGymnasiumImport`, also of this module before an
+    ``importlib.reload`` (a second hook would become Gymnasium's loader)."""
+    kind = type(finder)
+    return kind.__qualname__ == _OnGymnasiumImport.__qualname__ \
+        and kind.__module__ == __name__

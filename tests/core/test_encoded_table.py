@@ -18,7 +18,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pandas.testing import assert_frame_equal
 
-from tap_bench.errors import ResampledWarning, TrajectoryTableError
+from tap_bench.errors import ResampledWarning, TapBenchError, TrajectoryTableError
 from tap_bench.labelling import tap, tap_in_parts
 from tap_bench.synthetic import random_trajectories
 from tap_bench.tableio import EncodedTable, read_table, read_table_encoded
@@ -204,3 +204,65 @@ def test_categorical_object_types_label_as_their_strings(types):
         return
     whole = tap(table, interactions="all")
     _assert_same(tap_in_parts(categorical, interactions="all"), whole)
+
+
+@pytest.mark.parametrize("encoded", [False, True])
+def test_parts_without_per_step_tables_give_the_labels_and_glitches(tmp_path, encoded):
+    """per_step=False (the command line without --segments and --steps): the label tables,
+    glitches and segment lists of one call; the two tables that read the per-step times
+    and rows raise instead of giving wrong ones."""
+    table = random_trajectories(60, 40, seed=9, scenarios=12)
+    table.loc[table.groupby("track_id").cumcount() == 7, "valid"] = False
+    table["valid"] = table["valid"].fillna(True).astype(bool)
+    path = _write(table, tmp_path)
+    source = read_table_encoded(path, 0) if encoded else read_table(path)
+    whole = tap(read_table(path))
+    parts = tap_in_parts(source, part_rows=200, per_step=False)
+    assert len(parts.parts) > 1
+    for level in ("trace", "trend", "maneuver", "action", "all"):
+        assert_frame_equal(parts.labels(level), whole.labels(level), check_exact=True)
+    assert_frame_equal(parts.glitches(), whole.glitches(), check_exact=True)
+    assert_frame_equal(parts.segments_info, whole.segments_info, check_exact=True)
+    assert_frame_equal(parts.short_segments, whole.short_segments, check_exact=True)
+    for table_of in (lambda: parts.segments("all"), parts.steps):
+        with pytest.raises(TapBenchError, match="per_step=True"):
+            table_of()
+
+
+@pytest.mark.parametrize("index", ["strings", "named strings", "scenario_id",
+                                   "scenario_id and track_id", "object_type", "filtered"])
+def test_a_file_with_its_index_stored_is_read_as_read_table_reads_it(tmp_path, index):
+    """A frame written with its index (pandas stores it as the last columns and makes them
+    the index again): a string index was looked up among the frame's columns and the
+    reading raised KeyError, for any size of file; an index of the id columns must give
+    read_table's error naming the missing column (review5)."""
+    table = random_trajectories(30, 40, seed=5, scenarios=6)
+    if index == "strings":
+        table.index = [f"r{i}" for i in range(len(table))]
+    elif index == "named strings":
+        table.index = pd.Index([f"r{i}" for i in range(len(table))], name="row")
+    elif index == "scenario_id":
+        table = table.set_index("scenario_id")
+    elif index == "scenario_id and track_id":
+        table = table.set_index(["scenario_id", "track_id"])
+    elif index == "object_type":
+        table = table.set_index("object_type")
+    else:
+        table = table[table.index % 7 != 3]
+    path = tmp_path / "table.parquet"
+    table.to_parquet(path)
+    for min_rows in (0, len(table)):
+        if index.startswith("scenario_id"):
+            assert _message(lambda m=min_rows: tap_in_parts(read_table_encoded(path, m),
+                                                            part_rows=100)) \
+                == _message(lambda: tap(read_table(path)))
+            continue
+        encoded = read_table_encoded(path, min_rows)
+        if min_rows:
+            assert_frame_equal(encoded, read_table(path), check_exact=True)
+            continue
+        assert isinstance(encoded, EncodedTable)
+        assert set(encoded.codes) <= set(read_table(path).columns)  # not the index
+        parts = tap_in_parts(encoded, part_rows=100)
+        assert len(parts.parts) > 1
+        _assert_same(parts, tap(read_table(path)))

@@ -163,3 +163,27 @@ def test_an_env_is_made_by_id_after_import_tap_bench_alone(tmp_path):
                          env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
                               "TAP_BENCH_CACHE": str(tmp_path / "cache")})
     assert out.stdout.strip().splitlines()[-1] == "MergeEnv"
+
+
+@pytest.mark.parametrize("before", [
+    "import importlib, tap_bench, tap_bench.sim.registration as r\n"
+    "importlib.reload(r)\nimportlib.reload(tap_bench)",
+    "sys.modules['gymnasium'] = None\nimport tap_bench\ndel sys.modules['gymnasium']",
+], ids=["registration module reloaded", "gymnasium blocked at first"])
+def test_the_hook_registers_once_and_steps_aside_after_a_reload_or_a_blocked_import(
+        before, tmp_path):
+    """A reload of the registration module (IPython's autoreload) leaves one hook, not a
+    second that would stay Gymnasium's loader (``pkgutil.get_data`` then finds nothing);
+    ``import tap_bench`` works while Gymnasium's import is blocked (None in
+    ``sys.modules``), and registers the ids once it is not (review5)."""
+    script = (f"import sys\n{before}\n"
+              "import gymnasium as gym, importlib.machinery, pkgutil\n"
+              "assert type(gym.__loader__) is importlib.machinery.SourceFileLoader\n"
+              "assert pkgutil.get_data('gymnasium', '__init__.py')\n"
+              "assert not any('OnGymnasium' in type(f).__name__ for f in sys.meta_path)\n"
+              "import json\nprint(json.dumps(sorted(gym.registry)))")
+    out = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, check=True,
+                         capture_output=True, text=True,
+                         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
+                              "TAP_BENCH_CACHE": str(tmp_path / "cache")})
+    assert "tap_bench/highway-v0" in json.loads(out.stdout.strip().splitlines()[-1])
