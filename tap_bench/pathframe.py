@@ -848,10 +848,22 @@ def _line_cells(vx, vy, vs, first, count, lo_arc, hi_arc, scene, cell):
     keys = _cell_key(scene[path][:, None], cx[:, None] + dx, cy[:, None] + dy).ravel()
     path9 = np.repeat(path, 9)
     arc9 = np.repeat(arc, 9)
-    both = keys * n_paths + path9  # (cell, path) pairs; arc ranges reduced over each
-    order = np.argsort(both, kind="stable")
-    both, arc9 = both[order], arc9[order]
-    start = np.flatnonzero(np.r_[True, both[1:] != both[:-1]])
+    # (cell, path) pairs in order, stable; arc ranges reduced over each. One int64 key of
+    # both while it cannot overflow (keys * n_paths: a table of many scenes and paths, as
+    # interactions='all' of 25,900 tracks, went past 2^63 and the pairs out of order),
+    # else sorted by the two (the same order)
+    if not len(keys) or (int(keys.min()) >= 0 and
+                         int(keys.max()) < np.iinfo(np.int64).max // max(n_paths, 1) - 1):
+        both = keys * n_paths + path9
+        order = np.argsort(both, kind="stable")
+        both = both[order]
+        new = np.r_[True, both[1:] != both[:-1]]
+    else:
+        order = np.lexsort((path9, keys))
+        k, p = keys[order], path9[order]
+        new = np.r_[True, (k[1:] != k[:-1]) | (p[1:] != p[:-1])]
+    arc9 = arc9[order]
+    start = np.flatnonzero(new)
     return (keys[order][start], path9[order][start], np.minimum.reduceat(arc9, start),
             np.maximum.reduceat(arc9, start))
 

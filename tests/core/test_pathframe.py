@@ -175,3 +175,33 @@ def test_the_line_goes_on_along_the_lane_of_a_map():
     # without the map the arc curves on to the left, and the car lies off the corridor
     arc_only = path_frame(paths, ahead=100.0, lateral=3.0)
     assert not np.any(arc_only.step == n - 1) or abs(arc_only.d[arc_only.step == n - 1][0]) > 1.8
+
+
+def test_line_cells_of_many_scenes_and_paths_stay_in_order():
+    """(cell, path) pairs sorted as one int64 key overflowed past 2^63 for a table of
+    many scenes and paths (interactions='all' of 25,900 tracks in one call raised
+    'repeats may not contain negative values'): the pairs of 5,000 lines in scenes 300-599 are
+    those of the same lines 300 scenes lower (no overflow), their keys shifted by 300
+    scenes."""
+    from tap_bench.pathframe import _cell_key, _line_cells
+
+    n = 5000
+    ys = np.arange(n) * 100.0
+    vx = np.tile([0.0, 50.0], n)
+    vy = np.repeat(ys, 2)
+    vs = np.tile([0.0, 50.0], n)
+    first, count = np.arange(n) * 2, np.full(n, 2)
+    lo, hi = np.zeros(n), np.full(n, 50.0)
+    cell = 15.0
+    scenes = np.arange(n) % 300
+    low = _line_cells(vx, vy, vs, first, count, lo, hi, scenes, cell)
+    high = _line_cells(vx, vy, vs, first, count, lo, hi, scenes + 300, cell)
+    shift = _cell_key(300, 0, 0) - _cell_key(0, 0, 0)
+    assert np.all(np.diff(high[0]) >= 0)
+    assert np.array_equal(high[0] - shift, low[0])
+    for a, b in zip(high[1:], low[1:], strict=True):
+        assert np.array_equal(a, b)
+    # the one-key order is the two-key order (lexsort, stable) where it does not overflow
+    keys, paths = low[0], low[1]
+    order = np.lexsort((paths, keys))
+    assert np.array_equal(order, np.arange(len(keys)))
