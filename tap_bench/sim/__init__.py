@@ -162,6 +162,8 @@ class _HighwayEnvImport(importlib.abc.MetaPathFinder, importlib.abc.Loader):
         sys.modules.update({"matplotlib": mpl, "matplotlib.pyplot": plt})
         try:
             self.real.exec_module(module)
+            # highway-env's own loader again (pkgutil.get_data, importlib.resources.files)
+            module.__loader__ = module.__spec__.loader = self.real
         finally:
             self.restore()
 

@@ -230,3 +230,21 @@ def test_an_import_hook_stepping_aside_skips_no_finder_of_a_walk_under_way(
                    capture_output=True, text=True,
                    env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
                         "TAP_BENCH_CACHE": str(tmp_path / "cache")})
+
+
+def test_highway_env_keeps_its_own_loader_after_the_hook(tmp_path):
+    """highway-env imported through sim's hook (matplotlib stood in for) has its own loader
+    afterwards, as Gymnasium has after registration's hook: the hook stayed its loader, so
+    pkgutil.get_data('highway_env', ...) gave None and importlib.resources.files listed
+    nothing (review5)."""
+    script = ("import importlib.machinery, importlib.resources, pkgutil, sys\n"
+              "import tap_bench.sim\nimport highway_env\n"
+              "assert type(highway_env.__loader__) is importlib.machinery.SourceFileLoader\n"
+              "assert highway_env.__spec__.loader is highway_env.__loader__\n"
+              "assert pkgutil.get_data('highway_env', '__init__.py')\n"
+              "assert any(p.name == 'envs' for p in "
+              "importlib.resources.files('highway_env').iterdir())\n")
+    subprocess.run([sys.executable, "-c", script], cwd=tmp_path, check=True,
+                   capture_output=True, text=True,
+                   env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
+                        "TAP_BENCH_CACHE": str(tmp_path / "cache")})
