@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import time
 import warnings
@@ -218,11 +219,16 @@ class TapResult:
         return out
 
     # -- internals -----------------------------------------------------------------------
-    def _runs(self, level: str, axis: str):
-        codes = self.step_labels.codes(level, axis)
-        seg_first = np.ones(len(codes), dtype=bool)
+    @functools.cached_property
+    def _seg_first(self) -> np.ndarray:
+        """(m,) bool, the first step of each segment (once for every level and axis)."""
+        seg_first = np.ones(len(self.step_segment), dtype=bool)
         seg_first[1:] = self.step_segment[1:] != self.step_segment[:-1]
-        return find_runs(codes, self.step_segment, seg_first)
+        return seg_first
+
+    def _runs(self, level: str, axis: str):
+        return find_runs(self.step_labels.codes(level, axis), self.step_segment,
+                         self._seg_first)  # (find_runs writes a copy, not seg_first)
 
     def _sequences(self, level: str, axis: str) -> pa.Array:
         """(S,) the ' > '-joined label sequence of each segment (a pyarrow string array)."""

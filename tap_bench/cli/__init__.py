@@ -138,9 +138,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     SIGTERM).
     """
     argv = sys.argv[1:] if argv is None else list(argv)
-    from tap_bench.execution import keep_freed_memory
+    from tap_bench.execution import idle_threads_sleep, keep_freed_memory
 
     keep_freed_memory()  # no page faults for every temporary column
+    idle_threads_sleep()  # before NumPy's import: no BLAS thread spinning for nothing
     try:
         argv, plugins = _plugins(argv)
         if plugins:  # before the parsers are built: --format choices come from the registry
