@@ -134,15 +134,17 @@ class _HighwayEnvImport(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
     STANDS_IN = ("matplotlib", "matplotlib.pyplot")
     placed: ClassVar[list[types.ModuleType]] = []
+    _finding = False
 
     def find_spec(self, name: str, path: Any = None, target: Any = None) -> Any:
-        if name != "highway_env" or any(m in sys.modules for m in self.STANDS_IN):
+        if name != "highway_env" or self._finding \
+                or any(m in sys.modules for m in self.STANDS_IN):
             return None
-        sys.meta_path.remove(self)  # once, and find the real package below
-        try:
+        self._finding = True  # find the real package (sys.meta_path is never changed in
+        try:  # place: an import walking it would skip a finder; see registration's hook)
             spec = importlib.util.find_spec(name)
         finally:
-            sys.meta_path.insert(0, self)
+            self._finding = False
         if spec is None or spec.loader is None:
             return None
         self.real = spec.loader
@@ -153,13 +155,15 @@ class _HighwayEnvImport(importlib.abc.MetaPathFinder, importlib.abc.Loader):
         return self.real.create_module(spec)
 
     def exec_module(self, module: types.ModuleType) -> None:
-        sys.meta_path.remove(self)
+        sys.meta_path = [f for f in sys.meta_path if f is not self]  # (a new list)
         plt, mpl = _OnFirstUse("matplotlib.pyplot"), _OnFirstUse("matplotlib")
         mpl.pyplot = plt
         type(self).placed = [mpl, plt]
         sys.modules.update({"matplotlib": mpl, "matplotlib.pyplot": plt})
         try:
             self.real.exec_module(module)
+            # highway-env's own loader again (pkgutil.get_data, importlib.resources.files)
+            module.__loader__ = module.__spec__.loader = self.real
         finally:
             self.restore()
 

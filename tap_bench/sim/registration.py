@@ -94,16 +94,24 @@ class _OnGymnasiumImport(importlib.abc.MetaPathFinder, importlib.abc.Loader):
     """Imports ``gymnasium`` as its own finder and loader would, then registers the suite
     (:func:`register_suite`) and steps aside: the module's loader is Gymnasium's own again
     and this finder leaves ``sys.meta_path``. An import that fails leaves it in place for
-    the next attempt."""
+    the next attempt.
+
+    It never changes the list ``sys.meta_path`` in place: an import walks that list while
+    Gymnasium's import may finish (in another thread, or in a finder further down), and a
+    finder removed before the walk's position would make it skip the next one (the module
+    it would have found is then missing). It steps aside by putting a new list in its place
+    and looks below itself with a flag (the import system calls finders under its lock)."""
+
+    _finding = False
 
     def find_spec(self, name: str, path: Any = None, target: Any = None) -> Any:
-        if name != "gymnasium":
+        if name != "gymnasium" or self._finding:
             return None
-        sys.meta_path.remove(self)  # find the real package below this finder
+        self._finding = True  # find the real package: the finders below this one
         try:
             spec = importlib.util.find_spec(name)
         finally:
-            sys.meta_path.insert(0, self)
+            self._finding = False
         if spec is None or spec.loader is None:
             return None
         self.real = spec.loader
@@ -116,8 +124,7 @@ class _OnGymnasiumImport(importlib.abc.MetaPathFinder, importlib.abc.Loader):
     def exec_module(self, module: types.ModuleType) -> None:
         self.real.exec_module(module)
         module.__loader__ = module.__spec__.loader = self.real
-        if self in sys.meta_path:
-            sys.meta_path.remove(self)
+        sys.meta_path = [f for f in sys.meta_path if f is not self]  # (a new list)
         try:
             register_suite()
         except Exception as err:  # never break `import gymnasium`; making an env says why

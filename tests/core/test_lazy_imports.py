@@ -187,3 +187,64 @@ def test_the_hook_registers_once_and_steps_aside_after_a_reload_or_a_blocked_imp
                          env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
                               "TAP_BENCH_CACHE": str(tmp_path / "cache")})
     assert "tap_bench/highway-v0" in json.loads(out.stdout.strip().splitlines()[-1])
+
+
+_WALK = """
+import importlib.abc, importlib.machinery, sys
+import {package}
+
+class Imports(importlib.abc.MetaPathFinder):  # the import finishes during another's walk
+    def find_spec(self, name, path=None, target=None):
+        if name == "probe_mod":
+            import {imported}
+        return None
+
+class Finds(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    def find_spec(self, name, path=None, target=None):
+        return importlib.machinery.ModuleSpec(name, self) if name == "probe_mod" else None
+    def create_module(self, spec):
+        return None
+    def exec_module(self, module):
+        module.found = True
+
+at = next(i for i, f in enumerate(sys.meta_path) if type(f).__name__ == "{hook}")
+sys.meta_path[at + 1:at + 1] = [Imports(), Finds()]
+import probe_mod
+assert probe_mod.found and "{imported}" in sys.modules
+assert not any(type(f).__name__ == "{hook}" for f in sys.meta_path)
+"""
+
+
+@pytest.mark.parametrize(("package", "imported", "hook"), [
+    ("tap_bench", "gymnasium", "_OnGymnasiumImport"),
+    ("tap_bench.sim", "highway_env", "_HighwayEnvImport"),
+])
+def test_an_import_hook_stepping_aside_skips_no_finder_of_a_walk_under_way(
+        package, imported, hook, tmp_path):
+    """The import system walks the list sys.meta_path while another import (another
+    thread's, or one a finder makes) may finish: a hook that removed itself from that list
+    in place shifted it under the walk, which then skipped the next finder and reported an
+    installed module missing (review5)."""
+    script = _WALK.format(package=package, imported=imported, hook=hook)
+    subprocess.run([sys.executable, "-c", script], cwd=tmp_path, check=True,
+                   capture_output=True, text=True,
+                   env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
+                        "TAP_BENCH_CACHE": str(tmp_path / "cache")})
+
+
+def test_highway_env_keeps_its_own_loader_after_the_hook(tmp_path):
+    """highway-env imported through sim's hook (matplotlib stood in for) has its own loader
+    afterwards, as Gymnasium has after registration's hook: the hook stayed its loader, so
+    pkgutil.get_data('highway_env', ...) gave None and importlib.resources.files listed
+    nothing (review5)."""
+    script = ("import importlib.machinery, importlib.resources, pkgutil, sys\n"
+              "import tap_bench.sim\nimport highway_env\n"
+              "assert type(highway_env.__loader__) is importlib.machinery.SourceFileLoader\n"
+              "assert highway_env.__spec__.loader is highway_env.__loader__\n"
+              "assert pkgutil.get_data('highway_env', '__init__.py')\n"
+              "assert any(p.name == 'envs' for p in "
+              "importlib.resources.files('highway_env').iterdir())\n")
+    subprocess.run([sys.executable, "-c", script], cwd=tmp_path, check=True,
+                   capture_output=True, text=True,
+                   env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
+                        "TAP_BENCH_CACHE": str(tmp_path / "cache")})
