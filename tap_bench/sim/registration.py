@@ -99,15 +99,16 @@ class _OnGymnasiumImport(importlib.abc.MetaPathFinder, importlib.abc.Loader):
     It never changes the list ``sys.meta_path`` in place: an import walks that list while
     Gymnasium's import may finish (in another thread, or in a finder further down), and a
     finder removed before the walk's position would make it skip the next one (the module
-    it would have found is then missing). It steps aside by putting a new list in its place
-    and looks below itself with a flag (the import system calls finders under its lock)."""
+    it would have found is then missing). It steps aside by putting a new list in its place,
+    and asks the other finders for the real package with a flag set (the import system
+    calls finders under its lock)."""
 
     _finding = False
 
     def find_spec(self, name: str, path: Any = None, target: Any = None) -> Any:
         if name != "gymnasium" or self._finding:
             return None
-        self._finding = True  # find the real package: the finders below this one
+        self._finding = True  # the real package, as the other finders find it
         try:
             spec = importlib.util.find_spec(name)
         finally:
