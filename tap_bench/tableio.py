@@ -157,7 +157,7 @@ class EncodedTable:
 
         # (one thread: the CPU time counts every thread's, and a part is small)
         out = self._rest.slice(start, stop - start).to_pandas(
-            split_blocks=True, self_destruct=True, use_threads=False)
+            split_blocks=True, use_threads=False)
         for position, name in enumerate(self._names):
             if name in self.codes:
                 out.insert(position, name, pd.Categorical.from_codes(
