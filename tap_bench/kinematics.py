@@ -232,6 +232,54 @@ def _despike(v: np.ndarray, dv: np.ndarray, t: np.ndarray, seg: np.ndarray,
     return (v, replaced) if replaced.any() else (v, None)
 
 
+_SUM_ONE_BY_ONE = 64  # tables of at most this many segments: one np.cumsum each
+
+
+def _segment_cumsum(dh: np.ndarray, index: TrackIndex, n: int) -> np.ndarray:
+    """(n,) the repaired heading changes summed from each valid segment's start: 0 on its
+    first row, then ``dh[start] + ... + dh[row - 1]`` added one after the other, as
+    ``np.cumsum`` of the segment alone adds them; 0 outside the segments.
+
+    Summed within each segment, a track's headings have the bits they have in a table of
+    its own, whatever rows come before it (one running sum over the whole table rounded
+    each track by the sum of the tracks before it). In a large table the segments are
+    summed as the rows of 2-D arrays: one per length that many segments have, and one per
+    power of two of the other lengths, zeros padding each row after its segment.
+    ``np.cumsum`` along a row adds in order, so the padding changes no sum before it.
+
+    Args:
+        dh: (n - 1,) float64, each step's repaired heading change [rad].
+        index: the table's segments (row ranges).
+        n: number of rows of the table.
+    """
+    cum = np.zeros(n)
+    steps = index.segment_length - 1  # changes summed in each segment
+    start = index.segment_start
+    if len(start) <= _SUM_ONE_BY_ONE:
+        for s, k in zip(start.tolist(), steps.tolist(), strict=True):
+            np.cumsum(dh[s:s + k], out=cum[s + 1:s + 1 + k])
+        return cum
+    # Segments of one length in one 2-D array (tracks of a file share a few lengths); the
+    # lengths that few segments have, padded with zeros to a power of two.
+    lengths, count = np.unique(steps, return_counts=True)
+    common = np.isin(steps, lengths[count >= _SUM_ONE_BY_ONE // 4])
+    bucket = np.where(common, steps, -np.frexp(steps.astype(np.float64))[1])
+    order = np.argsort(bucket, kind="stable")
+    cuts = np.flatnonzero(np.diff(bucket[order])) + 1
+    for which in np.split(order, cuts):
+        k = int(steps[which].max())
+        if k == 0:
+            continue
+        rows = start[which, None] + np.arange(k)  # (segments, k)
+        if bool(common[which[0]]):
+            cum[rows + 1] = np.cumsum(dh[rows], axis=1)
+        else:  # beyond a segment: zeros, and rows it does not own, not written
+            inside = rows < (start[which] + steps[which])[:, None]
+            sums = np.cumsum(np.where(inside, dh[np.minimum(rows, n - 2)], 0.0), axis=1)
+            cum[rows[inside] + 1] = sums[inside]
+    return cum
+
+
 def _anchor(heading: np.ndarray, cum: np.ndarray, index: TrackIndex, glitchy: np.ndarray
             ) -> np.ndarray:
     """(n_segments,) the constant that turns the summed repaired changes ``cum`` into
@@ -339,8 +387,7 @@ def compute_kinematics(checked: CheckedTable, plausibility: Plausibility | None 
         step = np.where(np.abs(step) > 0.5 * np.pi, step - np.pi * np.sign(step), step)
         dh[k] = np.clip(step, -bound, bound)
         heading_glitch[k + 1] = True
-    cum = np.zeros(n)
-    np.cumsum(dh, out=cum[1:])
+    cum = _segment_cumsum(dh, index, n)
     glitchy = np.zeros(index.n_segments, dtype=bool)
     glitchy[seg[k + 1]] = True
     anchor = np.repeat(_anchor(raw_heading, cum, index, glitchy), index.segment_length)
