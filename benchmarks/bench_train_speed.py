@@ -90,7 +90,7 @@ def run(source: Path, algo: str, timesteps: int, extra: list[str], out: Path,
         subreaper: bool) -> dict:
     """One training command; its env steps per second and CPU seconds (with all workers)."""
     out.mkdir(parents=True, exist_ok=True)
-    model = out / f"{algo}-{abs(hash(tuple(extra)))}.zip"
+    model = out / f"{algo}.zip"
     env = {**os.environ, "PYTHONPATH": str(source), "PYTHONWARNINGS": "ignore"}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
@@ -141,7 +141,7 @@ def main() -> None:
                 for name in args.variants.split(","):
                     source = before if name.startswith("before") else ROOT
                     result = run(source, algo, args.timesteps, VARIANTS[name],
-                                 out / f"run{repeat}", subreaper)
+                                 out / f"run{repeat}" / name, subreaper)
                     key = f"{algo} / {name}" + (f" / run {repeat}" if args.repeats > 1 else "")
                     figures[key] = result
                     print(key, result, flush=True)
