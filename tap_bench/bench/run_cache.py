@@ -64,6 +64,7 @@ from tap_bench.bench.cache import (
     _arrow_table,
     _version,
     derived_key,
+    package_code_holds,
     policy_fingerprint,
     scenario_fingerprint,
 )
@@ -228,6 +229,8 @@ def store_run(cache: EpisodeCache, inputs: Mapping[str, Any], folder: Path,
     from tap_bench.bench.scoring import scores_to_files
 
     if registered_outside():  # registered while the run went on (a policy's own import)
+        return None
+    if not package_code_holds():  # tap-bench edited while the run went on
         return None
     files: dict[str, bytes] = {}
     for path in sorted(folder.rglob("*")):

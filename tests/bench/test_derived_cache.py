@@ -8,6 +8,7 @@ from __future__ import annotations
 import re
 import shutil
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -236,6 +237,7 @@ def test_memoised_builds_on_a_new_key_and_reads_on_the_same(tmp_path, monkeypatc
     assert get(None, "three") == "three" and calls == ["one", "two", "three"]  # not keyed
     assert memoised(None, "plots", {"a": 1}, build("four"), dict, dict)["v.txt"] == b"four"
     monkeypatch.setattr(cache_module, "_PACKAGE_CODE", ["other code"])
+    monkeypatch.setattr(cache_module, "_package_digest", lambda: "other code")
     assert get({"a": 1}, "five") == "five"  # the code changed
     key, _ = derived_key("plots", {"a": 1})
     path = cache.derived_path("plots", key)
@@ -301,3 +303,42 @@ def test_table_digest_is_the_same_for_equal_content_as_labelled_and_cached():
                            "x": [1.0, np.nan, np.nan]})
     assert table_digest(fresh) == table_digest(cached)
     assert table_digest(fresh) != table_digest(cached.assign(s=["a", None, "d"]))
+
+
+def test_an_output_built_while_the_package_was_edited_is_not_kept(tmp_path, monkeypatch):
+    """The key's code is hashed when the run starts; the report and the viewer are imported
+    later. A module edited in between made the output with the new code under the old
+    code's key, and a checkout back to the old files was served it (review5)."""
+    cache = EpisodeCache(tmp_path / "cache")
+    monkeypatch.setattr(cache_module, "_PACKAGE_CODE", ["code at the start"])
+    now = {"code": "code at the start"}
+    monkeypatch.setattr(cache_module, "_package_digest", lambda: now["code"])
+
+    def edited_while_built():
+        now["code"] = "edited"
+        return {"v.txt": b"new code's output"}
+
+    out = memoised(cache, "plots", {"a": 1}, edited_while_built, dict, dict)
+    assert out == {"v.txt": b"new code's output"}  # returned, written by the run
+    key, _ = derived_key("plots", {"a": 1})
+    assert not cache.derived_path("plots", key).exists()  # not kept under the old key
+    now["code"] = "code at the start"  # back on the files the key names: kept
+    memoised(cache, "plots", {"a": 1}, lambda: {"v.txt": b"old"}, dict, dict)
+    assert cache.derived_path("plots", key).exists()
+
+
+def test_the_package_digest_sees_every_edit_and_only_edits(tmp_path):
+    package = tmp_path / "tap_bench"
+    shutil.copytree(Path(cache_module.__file__).resolve().parents[1], package,
+                    ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+    first = cache_module._package_digest(package)
+    assert cache_module._package_digest(package) == first
+    assert first == cache_module._package_digest()  # the package itself, unchanged
+    module = package / "bench" / "report.py"
+    text = module.read_text()
+    module.write_text(text + "\n")
+    assert cache_module._package_digest(package) != first
+    module.write_text(text)
+    assert cache_module._package_digest(package) == first
+    (package / "bench" / "extra.py").write_text("")
+    assert cache_module._package_digest(package) != first

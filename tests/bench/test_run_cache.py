@@ -231,8 +231,9 @@ CHANGES = {
     "no trajectories": lambda tmp, mp: ({}, {"keep_trajectories": False}),
     "no report": lambda tmp, mp: ({}, {"report": False}),
     "a measure entry": lambda tmp, mp: (_changed_measure(mp) or {}, {}),
-    "the package code": lambda tmp, mp: (mp.setattr(cache_module, "_PACKAGE_CODE",
-                                                    ["other"]) or {}, {}),
+    "the package code": lambda tmp, mp: (mp.setattr(cache_module, "_PACKAGE_CODE", ["other"])
+                                         or mp.setattr(cache_module, "_package_digest",
+                                                       lambda: "other") or {}, {}),
     "the package data": lambda tmp, mp: (mp.setattr(run_cache, "_PACKAGE_DATA",
                                                     ["other"]) or {}, {}),
     "a library version": lambda tmp, mp: (mp.setattr(
@@ -512,3 +513,18 @@ def test_a_vehicle_class_changed_while_the_run_goes_on_is_not_kept(tmp_path, mon
     run(tmp_path / "during", cache, suite)
     assert not (cache.derived_folder / "runs").exists()
     assert not any(cache.read(key)[0] is not None for key in keys.values())
+
+
+def test_tap_bench_edited_while_the_run_goes_on_is_not_kept_whole(tmp_path, monkeypatch):
+    """The run's key holds tap-bench's code as hashed at its start; the report, the viewer
+    and scoring are imported later. Edited in between, the run is written but not kept."""
+    cache = EpisodeCache(tmp_path / "cache")
+    suite = tiny(envs=["merge"], env_overrides={"merge": {"duration": 3}})
+    start = cache_module.package_code()
+    monkeypatch.setattr(cache_module, "_package_digest", lambda: "edited mid-run")
+    result = run(tmp_path / "edited", cache, suite)
+    assert (tmp_path / "edited" / "summary.json").exists() and not served(result)
+    assert not (cache.derived_folder / "runs").exists()
+    monkeypatch.setattr(cache_module, "_package_digest", lambda: start)
+    assert not served(run(tmp_path / "kept", cache, suite))
+    assert served(run(tmp_path / "served", cache, suite))
