@@ -31,11 +31,11 @@ imports pyplot when that helper first uses it (:class:`_OnFirstUse`).
 from __future__ import annotations
 
 import importlib
-import importlib.abc
-import importlib.util
 import sys
 import types
 from typing import Any, ClassVar
+
+from tap_bench.importhooks import AroundImport
 
 _LAZY_MODULES = {
     "tap_bench.sim.policies": ("Policy", "PolicyDefinition", "available_policies",
@@ -125,45 +125,30 @@ class _OnFirstUse(types.ModuleType):
         return getattr(importlib.import_module(self.__name__), name)
 
 
-class _HighwayEnvImport(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+class _HighwayEnvImport(AroundImport):
     """Imports ``highway_env`` (the first time, only while ``matplotlib`` is not imported)
     with :class:`_OnFirstUse` modules in place of ``matplotlib`` and ``matplotlib.pyplot``,
     which it removes again from ``sys.modules`` as soon as highway-env is imported: code
     that imports matplotlib later gets the real one, and highway-env's helper its stand-in,
-    which imports the real pyplot on first use."""
+    which imports the real pyplot on first use. It never changes the list ``sys.meta_path``
+    in place (see :mod:`tap_bench.importhooks`)."""
 
+    target = "highway_env"
     STANDS_IN = ("matplotlib", "matplotlib.pyplot")
     placed: ClassVar[list[types.ModuleType]] = []
-    _finding = False
 
-    def find_spec(self, name: str, path: Any = None, target: Any = None) -> Any:
-        if name != "highway_env" or self._finding \
-                or any(m in sys.modules for m in self.STANDS_IN):
-            return None
-        self._finding = True  # find the real package (sys.meta_path is never changed in
-        try:  # place: an import walking it would skip a finder; see registration's hook)
-            spec = importlib.util.find_spec(name)
-        finally:
-            self._finding = False
-        if spec is None or spec.loader is None:
-            return None
-        self.real = spec.loader
-        spec.loader = self
-        return spec
-
-    def create_module(self, spec: Any) -> Any:
-        return self.real.create_module(spec)
+    def wanted(self) -> bool:
+        return not any(m in sys.modules for m in self.STANDS_IN)
 
     def exec_module(self, module: types.ModuleType) -> None:
-        sys.meta_path = [f for f in sys.meta_path if f is not self]  # (a new list)
+        self.leave_meta_path()
         plt, mpl = _OnFirstUse("matplotlib.pyplot"), _OnFirstUse("matplotlib")
         mpl.pyplot = plt
         type(self).placed = [mpl, plt]
         sys.modules.update({"matplotlib": mpl, "matplotlib.pyplot": plt})
         try:
             self.real.exec_module(module)
-            # highway-env's own loader again (pkgutil.get_data, importlib.resources.files)
-            module.__loader__ = module.__spec__.loader = self.real
+            self.step_aside(module)  # highway-env's own loader again
         finally:
             self.restore()
 

@@ -11,8 +11,6 @@ is fully validated when an environment is made.
 
 from __future__ import annotations
 
-import importlib.abc
-import importlib.util
 import json
 import os
 import sys
@@ -23,6 +21,7 @@ from typing import Any
 
 from tap_bench import catalogue
 from tap_bench.errors import CatalogueError, SuiteError
+from tap_bench.importhooks import AroundImport
 
 __all__ = ["ENTRY_POINT", "WOMD_ENV_ID", "register_on_import", "register_scenario",
            "register_suite", "registered_ids"]
@@ -90,42 +89,19 @@ def registered_ids() -> list[str]:
     return sorted(k for k in gym.registry if k.startswith("tap_bench/") and k != WOMD_ENV_ID)
 
 
-class _OnGymnasiumImport(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+class _OnGymnasiumImport(AroundImport):
     """Imports ``gymnasium`` as its own finder and loader would, then registers the suite
     (:func:`register_suite`) and steps aside: the module's loader is Gymnasium's own again
     and this finder leaves ``sys.meta_path``. An import that fails leaves it in place for
     the next attempt.
 
-    It never changes the list ``sys.meta_path`` in place: an import walks that list while
-    Gymnasium's import may finish (in another thread, or in a finder further down), and a
-    finder removed before the walk's position would make it skip the next one (the module
-    it would have found is then missing). It steps aside by putting a new list in its place,
-    and asks the other finders for the real package with a flag set (the import system
-    calls finders under its lock)."""
+    It never changes the list ``sys.meta_path`` in place (see :mod:`tap_bench.importhooks`)."""
 
-    _finding = False
-
-    def find_spec(self, name: str, path: Any = None, target: Any = None) -> Any:
-        if name != "gymnasium" or self._finding:
-            return None
-        self._finding = True  # the real package, as the other finders find it
-        try:
-            spec = importlib.util.find_spec(name)
-        finally:
-            self._finding = False
-        if spec is None or spec.loader is None:
-            return None
-        self.real = spec.loader
-        spec.loader = self
-        return spec
-
-    def create_module(self, spec: Any) -> Any:
-        return self.real.create_module(spec)
+    target = "gymnasium"
 
     def exec_module(self, module: types.ModuleType) -> None:
         self.real.exec_module(module)
-        module.__loader__ = module.__spec__.loader = self.real
-        sys.meta_path = [f for f in sys.meta_path if f is not self]  # (a new list)
+        self.step_aside(module)
         try:
             register_suite()
         except Exception as err:  # never break `import gymnasium`; making an env says why
