@@ -762,6 +762,19 @@ class EpisodeCache:
                 with contextlib.suppress(OSError):
                     yield path, path.stat()
 
+    def forget_written_since(self, since: float) -> int:
+        """Delete the entries (episodes, labels, derived outputs) written or used at or after
+        ``since`` (``time.time()`` seconds); returns how many. For a run during which
+        tap-bench itself was edited: its workers may have imported the new code after the
+        keys named the old one (:func:`package_code_holds`). It costs only reuse."""
+        removed = 0
+        for path, st in list(self._entries()):
+            if st.st_mtime >= since:
+                with contextlib.suppress(OSError):
+                    path.unlink()
+                    removed += 1
+        return removed
+
     def size(self) -> tuple[int, int]:
         """(episodes, bytes) in the cache: the bytes of its label entries included."""
         entries = list(self._entries())

@@ -67,6 +67,8 @@ import pandas as pd
 from tap_bench.bench.cache import (
     EpisodeCache,
     memoised,
+    package_code,
+    package_code_holds,
     scenario_fingerprint,
     simulation_fingerprint,
     table_digest,
@@ -224,6 +226,9 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     if served is not None:
         return served
     runner = resolve_backend(backend, workers)
+    if cache is not None:  # tap-bench's code as the run's entries are keyed (see the end)
+        package_code()
+        entries_since = time.time()
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     corpora = {name: _reference(name, source, suite.level, thresholds)
@@ -392,6 +397,10 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     _write_json(folder / "summary.json", summary)  # with the final timings
     if keep and cache is not None and pages is not None:
         store_run(cache, whole, folder, summary, pages, episodes, scores)
+    if cache is not None and not package_code_holds():
+        # tap-bench edited while the run went on: a worker may have imported the new code
+        # (labelling, simulation) after the keys named the old, so what it kept is dropped
+        cache.forget_written_since(entries_since)
     if cache is not None:
         simulated, cached = _observed_timings(results)
         work = sum(r["seconds"] for r in results if math.isfinite(r["seconds"]))

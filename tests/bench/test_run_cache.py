@@ -528,3 +528,25 @@ def test_tap_bench_edited_while_the_run_goes_on_is_not_kept_whole(tmp_path, monk
     monkeypatch.setattr(cache_module, "_package_digest", lambda: start)
     assert not served(run(tmp_path / "kept", cache, suite))
     assert served(run(tmp_path / "served", cache, suite))
+
+
+def test_episodes_and_labels_made_while_tap_bench_was_edited_are_not_kept(tmp_path,
+                                                                          monkeypatch):
+    """Workers import the labelling and simulation code at their first episode, perhaps
+    after an edit to tap-bench; their episode and label entries would be kept under keys
+    naming the code as it was when the run started. Edited mid-run, nothing of the run
+    stays in the cache; entries of earlier runs do."""
+    cache = EpisodeCache(tmp_path / "cache")
+    start = cache_module.package_code()
+    before = run(tmp_path / "before", cache, tiny(envs=["merge"], seeds="5",
+                                                  env_overrides={"merge": {"duration": 3}}))
+    kept = {p for p, _ in cache._entries()}
+    assert kept and not served(before)
+    monkeypatch.setattr(cache_module, "_package_digest", lambda: "edited mid-run")
+    suite = tiny(envs=["merge"], env_overrides={"merge": {"duration": 3}})
+    run(tmp_path / "edited", cache, suite)
+    assert (tmp_path / "edited" / "summary.json").exists()
+    assert {p for p, _ in cache._entries()} == kept  # the earlier run's, not this one's
+    monkeypatch.setattr(cache_module, "_package_digest", lambda: start)
+    run(tmp_path / "kept", cache, suite)
+    assert {p for p, _ in cache._entries()} > kept
