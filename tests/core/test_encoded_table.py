@@ -23,7 +23,7 @@ from tap_bench.labelling import tap, tap_in_parts
 from tap_bench.synthetic import random_trajectories
 from tap_bench.tableio import EncodedTable, read_table, read_table_encoded
 
-from .test_tap_in_parts import _assert_same, scenes
+from .test_tap_in_parts import _assert_same, scenes, uncut_table
 
 SETTINGS = settings(max_examples=25, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow])
@@ -113,22 +113,8 @@ def test_the_label_table_is_cut_in_parts(tmp_path):
 
 @pytest.mark.parametrize("case", ["small", "unsorted", "split", "categorical", "int", "csv"])
 def test_files_that_are_not_cut_are_read_as_read_table_reads_them(tmp_path, case):
-    table = random_trajectories(40, 40, seed=2, scenarios=8)
-    min_rows = 0
-    if case == "small":
-        min_rows = len(table)
-    elif case == "unsorted":  # scenarios out of the validated order
-        table = pd.concat([table[table["scenario_id"] == s]
-                           for s in sorted(table["scenario_id"].unique())[::-1]],
-                          ignore_index=True)
-    elif case == "split":  # one scenario in two runs of rows
-        first = table["scenario_id"] == table["scenario_id"].iloc[0]
-        table = pd.concat([table[first].iloc[:30], table[~first], table[first].iloc[30:]],
-                          ignore_index=True)
-    elif case == "categorical":
-        table["scenario_id"] = table["scenario_id"].astype("category")
-    elif case == "int":
-        table["scenario_id"] = pd.factorize(table["scenario_id"])[0]
+    table = uncut_table(case)
+    min_rows = len(table) if case == "small" else 0
     path = _write(table, tmp_path)
     if case == "csv":
         path = tmp_path / "table.csv"

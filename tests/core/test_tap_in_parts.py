@@ -91,19 +91,29 @@ def test_a_large_table_is_cut_between_scenarios_only():
     _assert_same(parts, tap(table))
 
 
-@pytest.mark.parametrize("case", ["unsorted", "split", "categorical", "small"])
-def test_tables_that_cannot_be_cut_are_labelled_whole(case):
+def uncut_table(case: str) -> pd.DataFrame:
+    """A table of 8 scenarios that parts cannot cut (``case``: "unsorted", scenarios out
+    of the validated order; "split", one scenario in two runs of rows; "categorical" ids;
+    "int" ids), or as drawn (any other case)."""
     table = random_trajectories(40, 40, seed=2, scenarios=8)
-    if case == "unsorted":  # scenarios out of the validated order
+    if case == "unsorted":
         table = pd.concat([table[table["scenario_id"] == s]
                            for s in sorted(table["scenario_id"].unique())[::-1]],
                           ignore_index=True)
-    elif case == "split":  # one scenario in two runs of rows
+    elif case == "split":
         first = table["scenario_id"] == table["scenario_id"].iloc[0]
         table = pd.concat([table[first].iloc[:30], table[~first], table[first].iloc[30:]],
                           ignore_index=True)
     elif case == "categorical":
         table["scenario_id"] = table["scenario_id"].astype("category")
+    elif case == "int":
+        table["scenario_id"] = pd.factorize(table["scenario_id"])[0]
+    return table
+
+
+@pytest.mark.parametrize("case", ["unsorted", "split", "categorical", "small"])
+def test_tables_that_cannot_be_cut_are_labelled_whole(case):
+    table = uncut_table(case)
     part_rows = len(table) + 1 if case == "small" else 100
     assert _scenario_parts(table, part_rows) is None
     parts = tap_in_parts(table, part_rows=part_rows)
