@@ -61,18 +61,22 @@ def halves_text(half: float, null: float, diff: float, low: float, high: float, 
     """``halves: policy 28% vs same policy 50%: -22 pts [-35, -9]``: the policy's and the
     same-policy figure at the half sizes the difference is taken at (fractions in [0, 1]),
     and the difference with its interval (fractions). The figures get as many decimals
-    (0, 1 or 2) as it takes for the shown ones to subtract to the shown difference (the
-    figures may be rounded already, so 2 decimals of a percentage can still be 0.01 off).
+    (0, 1 or 2) as it takes for the shown ones to subtract to the shown difference. Where
+    even 2 decimals do not (the policy's figure is the same-policy figure plus the
+    difference, and three roundings need not agree: 38.444 + 20.111 = 58.555), the policy's
+    figure is shown as the sum of the two shown ones, 0.01 points from its own rounding.
     ``percent``: the sign after a percentage (``" %"`` in the report's tables)."""
 
     def shown(x: float, digits: int, sign: str = "") -> str:
         return f"{round(100 * x, digits) + 0:{sign}.{digits}f}"  # + 0: no "-0"
 
     for digits in range(3):  # 28% - 50% = -22 pts, or 28.4% - 50.1% = -21.7 pts
-        if Decimal(shown(half, digits)) - Decimal(shown(null, digits)) \
-                == Decimal(shown(diff, digits)):
+        policy = shown(half, digits)
+        if Decimal(policy) - Decimal(shown(null, digits)) == Decimal(shown(diff, digits)):
             break
-    return (f"halves: policy {shown(half, digits)}{percent} vs same policy "
+    else:  # 2 decimals: the policy's figure from the two shown beside it
+        policy = f"{Decimal(shown(null, digits)) + Decimal(shown(diff, digits)) + 0:.2f}"
+    return (f"halves: policy {policy}{percent} vs same policy "
             f"{shown(null, digits)}{percent}: {shown(diff, digits, '+')} pts "
             f"[{shown(low, digits, '+')}, {shown(high, digits, '+')}]")
 
