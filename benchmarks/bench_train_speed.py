@@ -18,13 +18,15 @@ steps per second but are in its CPU seconds); "before-no-curve" the same code wi
 against it (``cpu_per_step_vs_before_no_curve``), a figure the machine's load moves less
 than steps per second. The other runs use this checkout with the settings given:
 ``n_envs`` training envs in parallel processes, on the scenario's fast variant or on the
-scenario itself (``--exact``); the default (``2-envs-fast``) steps its 2 envs in worker
-processes or, when fewer than 1.5 cores are idle at its start, one after the other in the
-command's process; "2-envs-workers" and "2-envs-in-process" force either
-(``--in-process no|yes``; the same weights); "2-envs-fast-curve" is tap-bench train's
-defaults, learning curve included. CPU seconds include each process's start (imports: about 4
-CPU s of a 2000-step run; an exported tree has no compiled ``.pyc`` where
-``PYTHONDONTWRITEBYTECODE`` is set, and neither does a fresh checkout).
+scenario itself (``--exact``); the default (``2-envs-fast``) picks where its 2 envs run by
+the cores idle at its start: with fewer than 1.5, one after the other in the command's
+process ("2-envs-in-process", ``--in-process yes``); with fewer than 2.5, env 0 in the
+command's process and the other in a worker ("2-envs-one", ``--in-process one``); else each
+in a worker ("2-envs-workers", ``--in-process no``); the same weights in all three.
+"2-envs-fast-curve" is tap-bench train's defaults, learning curve included. CPU seconds
+include each process's start (imports: about 4 CPU s of a 2000-step run; an exported tree
+has no compiled ``.pyc`` where ``PYTHONDONTWRITEBYTECODE`` is set, and neither does a fresh
+checkout).
 
 Usage: python benchmarks/bench_train_speed.py [--timesteps 2000] [--algos dqn,ppo]
        [--before-ref ada5ea7] [--repeats 1] [--variants before,before-no-curve,2-envs-fast]
@@ -60,6 +62,8 @@ VARIANTS = {  # name: extra arguments of `tap-bench train` ("before*": the "befo
     # the same 2 envs stepped one after the other in the training process (SB3's
     # DummyVecEnv) instead of in 2 worker processes: the same weights; CPU against speed
     "2-envs-in-process": ["--n-envs", "2", "--no-curve", "--in-process", "yes"],
+    # env 0 in the training process, the other in a worker: the same weights
+    "2-envs-one": ["--n-envs", "2", "--no-curve", "--in-process", "one"],
 }
 
 
@@ -106,8 +110,10 @@ def run(source: Path, algo: str, timesteps: int, extra: list[str], out: Path,
     train_seconds = json.loads(model.with_suffix(".json").read_text())["params"][
         "train_seconds"]
     starting = [line for line in done.stdout.splitlines() if "training env(s)" in line]
-    where = ("this process" if "in this process" in "".join(starting) else "workers"
-             if "in worker processes" in "".join(starting) else None)
+    text = "".join(starting)
+    where = ("one here" if "one in this process" in text else "this process"
+             if "in this process" in text else "workers" if "in worker processes" in text
+             else None)
     idle = re.search(r"([0-9.]+) of [0-9]+ cores idle", "".join(starting))
     return {"train_seconds": train_seconds, "steps_per_s": round(timesteps / train_seconds, 1),
             "envs_in": where, "idle_cores_at_start": float(idle.group(1)) if idle else None,

@@ -36,12 +36,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    "train' at -o (files it did not write are never replaced)")
     p.add_argument("--n-envs", type=int, default=None,
                    help="training envs in parallel processes (default 2)")
-    p.add_argument("--in-process", choices=("auto", "yes", "no"), default="auto",
-                   help="step the training envs one after the other in this process (yes) "
-                   "or each in a worker process (no): the same training (same weights); "
-                   "this process takes less CPU and is faster when the machine's cores are "
-                   "busy with other work. auto (default): this process when fewer cores "
-                   "than envs are idle at the start")
+    p.add_argument("--in-process", choices=("auto", "yes", "one", "no"), default="auto",
+                   help="where the training envs are stepped; the same training (same "
+                   "weights) at different speeds: one after the other in this process "
+                   "(yes: the least CPU, the fastest when the cores are busy with other "
+                   "work), the first in this process and the others in worker processes "
+                   "(one: the fastest with about as many free cores as envs), or each in a "
+                   "worker process (no: the fastest with a core more). auto (default): "
+                   "chosen by the cores idle at the start")
     p.add_argument("--exact", action="store_true",
                    help="train on the scenario itself (10 Hz, every collision), not its fast "
                    "variant: about twice as slow")
@@ -117,7 +119,8 @@ def run(args: argparse.Namespace) -> int:
                    log_dir=args.log_dir, verbose=args.verbose, command=command,
                    keep=args.keep, overwrite=args.overwrite,
                    announce=lambda line: print(line, flush=True),
-                   in_process={"auto": None, "yes": True, "no": False}[args.in_process])
+                   in_process={"auto": None, "yes": True, "one": "one",
+                               "no": False}[args.in_process])
     print(f"trained {args.algo} on {args.env} for {result.timesteps} steps in "
           f"{result.train_seconds:.0f} s ({result.steps_per_second:.1f} steps/s, "
           f"{result.episodes} episodes)")

@@ -19,15 +19,18 @@ per cent. So training runs
 - with highway-env's neighbour search, collision loop and lane lookup computed sooner, the
   same results bit for bit (:mod:`tap_bench.sim.fast_road`, in every scenario env), and
   the Kinematics observation without pandas (:mod:`tap_bench.sim.observation`);
-- on ``n_envs`` envs stepped in parallel worker processes (``SubprocVecEnv``; with
-  ``n_envs=1`` the env runs in this process), DQN's gradient steps overlapping their
-  simulation (:mod:`tap_bench.rl.overlap`); the workers are forked from a forkserver that
-  has imported their modules (SB3, torch, highway-env, tap-bench's envs) once
-  (:data:`WORKER_MODULES`); or, when the machine's cores are busy with other work at the
-  start (:func:`idle_cores`), all stepped one after the other in this process
-  (``DummyVecEnv``): the same weights, about a quarter less CPU, and more steps per second
-  on busy cores (``benchmarks/bench_train_speed.py``, variants ``2-envs-workers`` and
-  ``2-envs-in-process``; docs/simulation.md);
+- on ``n_envs`` envs stepped in parallel: with about ``n_envs`` free cores (a 2-core
+  machine), env 0 in this process between the learner's steps and the others in worker
+  processes (:mod:`tap_bench.rl.vec_env`: ``n_envs`` busy processes on ``n_envs``
+  cores); with a core more, each in a worker process (``SubprocVecEnv``); with ``n_envs=1``
+  the env runs in this process. DQN's gradient steps overlap the workers' simulation
+  (:mod:`tap_bench.rl.overlap`); the workers are forked from a forkserver that has
+  imported their modules (SB3, torch, highway-env, tap-bench's envs) once
+  (:data:`WORKER_MODULES`). When the machine's cores are busy with other work at the start
+  (:func:`idle_cores`), all are stepped one after the other in this process
+  (``DummyVecEnv``): about a quarter less CPU, and more steps per second on busy cores.
+  The same weights in all three (``benchmarks/bench_train_speed.py``, variants
+  ``2-envs-one``, ``2-envs-workers`` and ``2-envs-in-process``; docs/simulation.md);
 - with one torch thread: the workers are the parallelism, and batches of 32 to 64 rows
   gain nothing from more (two threads made PPO 10 % slower here).
 """
@@ -227,12 +230,12 @@ def idle_cores(seconds: float = 0.3) -> float | None:
     64-core node by taskset, a cpuset or a batch scheduler counts its own 2 cores, not the
     node's idle ones; None where it cannot be read).
 
-    Training picks where its envs run by it (``train(in_process=None)``: in this process
-    below ``n_envs - 0.5`` idle cores, half a core of margin for the sample's noise): with
-    fewer idle cores than worker processes, those workers only take turns with other work on
-    the busy cores (measured: 23 to 33 % more CPU per env step, and fewer steps per second
-    in 6 of 6 interleaved pairs, than the envs stepped in the training process, at load 4.6
-    to 9 on 2 cores)."""
+    Training picks where its envs run by it (``train(in_process=None)``, :func:`envs_where`:
+    in this process below ``n_envs - 0.5`` idle cores, half a core of margin for the
+    sample's noise): with fewer idle cores than worker processes, those workers only take
+    turns with other work on the busy cores (measured: 23 to 33 % more CPU per env step, and
+    fewer steps per second in 6 of 6 interleaved pairs, than the envs stepped in the
+    training process, at load 4.6 to 9 on 2 cores)."""
     try:  # the lines of this process's cores
         lines = {f"cpu{k}" for k in os.sched_getaffinity(0)}
         n_cores = len(lines)
@@ -266,18 +269,43 @@ def idle_cores(seconds: float = 0.3) -> float | None:
     return n_cores * (idle1 - idle0) / (total1 - total0)
 
 
-def _vec_env(scenario: Scenario, *, n_envs: int, fast: bool, seed: int,
-             in_process: bool = False) -> Any:
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+def envs_where(idle: float | None, n_envs: int, cores: int) -> bool | str:
+    """Where ``train(in_process=None)`` steps ``n_envs`` training envs (``n_envs`` > 1):
+    ``True`` (all in this process) with fewer than ``n_envs - 0.5`` idle cores, ``"one"``
+    (env 0 in this process, the others in workers) with fewer than ``n_envs + 0.5``, else
+    ``False`` (each in a worker, the learner on a core of its own). ``idle``: the idle
+    cores measured (:func:`idle_cores`); where unknown (None), the ``cores`` this process
+    may run on are taken as idle. Half a core of margin for the sample's noise."""
+    free = cores if idle is None else idle
+    if free < n_envs - 0.5:
+        return True
+    return "one" if free < n_envs + 0.5 else False
 
-    if n_envs == 1 or in_process:
-        vec = DummyVecEnv([functools.partial(_make_training_env, scenario, fast)] * n_envs)
+
+def _usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity where known)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def _vec_env(scenario: Scenario, *, n_envs: int, fast: bool, seed: int,
+             in_process: bool | str = False) -> Any:
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    here = functools.partial(_make_training_env, scenario, fast)
+    if n_envs == 1 or in_process is True:
+        vec = DummyVecEnv([here] * n_envs)
     else:
+        from tap_bench.rl.vec_env import training_vec_env  # imports SB3
+
         factory = functools.partial(_make_training_env, scenario, fast, worker=True)
         # forkserver: workers start from a clean interpreter, not a copy of this process
         # (which may hold torch's threads and highway-env's shared classes)
         with _main_not_rerun(), _workers_preloaded(scenario):
-            vec = SubprocVecEnv([factory] * n_envs, start_method="forkserver")
+            vec = training_vec_env(here, factory, n_envs, one_here=in_process == "one",
+                                   start_method="forkserver")
     vec.seed(seed)
     return vec
 
@@ -288,7 +316,7 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
           log_dir: str | os.PathLike | None = None, verbose: int = 0,
           command: str | None = None, keep: str = "last", overwrite: bool = False,
           announce: Callable[[str], None] | None = None,
-          in_process: bool | None = None) -> TrainingResult:
+          in_process: bool | str | None = None) -> TrainingResult:
     """Train ``algo`` on scenario ``env`` for ``timesteps`` decisions and save it.
 
     Args:
@@ -323,14 +351,17 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
             starting, training progress every tenth of ``timesteps``, each curve
             evaluation, saving), whether or not on a terminal: ``tap-bench train`` prints
             them, as ``demo`` and ``bench run`` print theirs.
-        in_process: step the ``n_envs`` envs one after the other in this process (SB3's
-            ``DummyVecEnv``) rather than each in a worker process: the same training, bit
-            for bit (the same weights), with less CPU in all (no workers to start, nothing
-            sent between processes, no contention between them), but on one core: faster
-            when the machine's cores are busy with other work, slower when they are free
-            (docs/simulation.md). None (the default): in this process when fewer than
-            ``n_envs - 0.5`` cores are idle at the start (:func:`idle_cores`), else in
-            worker processes.
+        in_process: where the ``n_envs`` envs are stepped; the same training, bit for bit
+            (the same weights), at different speeds (docs/simulation.md). True: one after
+            the other in this process (SB3's ``DummyVecEnv``): the least CPU in all (no
+            workers to start, nothing sent between processes, no contention between them),
+            but on one core, so the fastest only when the machine's cores are busy with
+            other work. ``"one"``: env 0 in this process, between the learner's steps, and
+            each other env in a worker process (:mod:`tap_bench.rl.vec_env`): ``n_envs``
+            busy processes, the fastest when about ``n_envs`` cores are free. False: each
+            env in a worker process, the learner beside them: the fastest with a core more
+            than ``n_envs`` free. None (the default): chosen by the cores idle at the start
+            (:func:`idle_cores`, :func:`envs_where`).
 
     Raises:
         ParameterError: ``timesteps``, ``n_envs``, ``output`` or ``keep`` is not usable.
@@ -352,6 +383,8 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
             "50 MB; 1000 started 288 processes and 13.5 GB before failing."))
     if keep not in ("last", "best"):
         raise ParameterError("keep", keep, "'last' or 'best'")
+    if not (in_process is None or isinstance(in_process, bool) or in_process == "one"):
+        raise ParameterError("in_process", in_process, "True, False, 'one' or None")
     if keep == "best" and curve is None:
         raise ParameterError("keep", keep, "'last' without a learning curve", message=(
             "keeping the best weights needs the learning curve's evaluations: train with a "
@@ -389,16 +422,30 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
             until=timesteps, verbose=verbose, announce=announce))
     why = ""
     if in_process is None and n_envs > 1:
-        idle = idle_cores()
-        in_process = idle is not None and idle < n_envs - 0.5
-        if idle is not None:
-            why = f", {idle:.1f} of {os.cpu_count()} cores idle"
+        idle, cores = idle_cores(), _usable_cores()
+        in_process = envs_where(idle, n_envs, cores)
+        why = (f", {idle:.1f} of {cores} cores idle" if idle is not None
+               else f", {cores} cores (idle time unknown)")
+    if in_process == "one":
+        from tap_bench.rl.vec_env import shared_envs_supported  # imports SB3
+
+        if not shared_envs_supported():
+            in_process = False
+            why += ("; this Stable-Baselines3's worker loop is not the one tap-bench "
+                    "repeats for the env in this process")
+    if n_envs == 1:
+        where = ""
+    elif in_process is True:
+        where = " in this process"
+    elif in_process == "one":
+        where = (f": one in this process, {n_envs - 1} in worker process"
+                 + ("es" if n_envs > 2 else ""))
+    else:
+        where = " in worker processes"
     say(f"starting {n_envs} training env(s) of {scenario.env_id}"
         + (" (fast variant)" if fast and not isinstance(scenario, WomdScenes) else "")
-        + ("" if n_envs == 1 else " in this process" if in_process
-           else " in worker processes") + why + " ...")
-    vec = _vec_env(scenario, n_envs=n_envs, fast=fast, seed=seed,
-                   in_process=bool(in_process))
+        + where + why + " ...")
+    vec = _vec_env(scenario, n_envs=n_envs, fast=fast, seed=seed, in_process=in_process)
     learner_env, learn_callbacks = vec, list(callbacks)
     if announce is not None:
         from tap_bench.rl.callbacks import StepsAnnounced

@@ -416,34 +416,44 @@ def test_the_workers_forkserver_preloads_their_modules_and_the_setting_is_restor
     assert server._preload_modules == ["__main__", "mine"]
 
 
-def test_a_two_env_training_is_the_same_in_worker_processes_and_in_this_process(
-        tmp_path, write_scenario):
-    """The same seed gives the same weights with the envs in worker processes and stepped
-    one after the other in this process (``in_process``; DQN's overlapped gradient steps
-    in both): only the speed differs."""
+@pytest.mark.parametrize(("algo", "n_envs"), [("dqn", 2), ("dqn", 3), ("ppo", 2)])
+def test_a_training_is_the_same_wherever_its_envs_are_stepped(tmp_path, write_scenario, algo,
+                                                             n_envs):
+    """The same seed gives the same weights with the envs in worker processes, stepped one
+    after the other in this process, and env 0 in this process with the others in workers
+    (``in_process`` False, True, "one"; DQN's overlapped gradient steps in all three): only
+    the speed differs."""
     import torch
-    from stable_baselines3 import DQN
+    from stable_baselines3 import DQN, PPO
 
     from tap_bench.rl.training import train
 
     short = write_scenario("short", duration=5)
     weights, lines = [], []
-    for in_process in (False, True):
-        result = train("dqn", short, timesteps=60, seed=3, n_envs=2, in_process=in_process,
-                       hyperparameters=TINY["dqn"], output=tmp_path / f"m{in_process}.zip",
-                       announce=lines.append)
-        weights.append(DQN.load(result.model_path, device="cpu").policy.state_dict())
-    assert weights[0].keys() == weights[1].keys()
-    assert all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
-    assert sum("training env(s)" in line and "in this process" in line for line in lines) == 1
+    for in_process in (False, True, "one"):
+        result = train(algo, short, timesteps=60, seed=3, n_envs=n_envs,
+                       in_process=in_process, hyperparameters=TINY[algo],
+                       output=tmp_path / f"m{in_process}.zip", announce=lines.append)
+        loaded = {"dqn": DQN, "ppo": PPO}[algo].load(result.model_path, device="cpu")
+        weights.append(loaded.policy.state_dict())
+    for other in weights[1:]:
+        assert other.keys() == weights[0].keys()
+        assert all(torch.equal(weights[0][k], other[k]) for k in weights[0])
+    starting = [line for line in lines if "training env(s)" in line]
+    assert "in worker processes" in starting[0]
+    assert "in this process ..." in starting[1]
+    assert f"one in this process, {n_envs - 1} in worker process" in starting[2]
 
 
-@pytest.mark.parametrize(("idle", "expected"), [(0.2, True), (1.4, True), (1.6, False),
-                                                (2.0, False), (None, False)])
-def test_by_default_the_envs_run_in_this_process_when_the_cores_are_busy(monkeypatch, tmp_path,
-                                                                        idle, expected):
-    """in_process=None: in this process with fewer than n_envs - 0.5 idle cores, else in
-    worker processes (also where the idle time cannot be read); given, it is obeyed."""
+@pytest.mark.parametrize(("idle", "cores", "expected"), [
+    (0.2, 2, True), (1.4, 2, True), (1.6, 2, "one"), (2.0, 2, "one"), (2.4, 8, "one"),
+    (2.6, 8, False), (7.9, 8, False), (None, 2, "one"), (None, 8, False), (None, 1, True)])
+def test_by_default_the_envs_run_where_the_idle_cores_make_them_fastest(
+        monkeypatch, tmp_path, idle, cores, expected):
+    """in_process=None, 2 envs: in this process with fewer than 1.5 idle cores, env 0 in
+    this process and the other in a worker with fewer than 2.5, else each in a worker; where
+    the idle time cannot be read, the cores this process may run on count as idle. Given, it
+    is obeyed."""
     from tap_bench.rl import training
 
     chosen = []
@@ -453,17 +463,32 @@ def test_by_default_the_envs_run_in_this_process_when_the_cores_are_busy(monkeyp
         raise KeyboardInterrupt  # stands for the training: nothing more is needed
 
     monkeypatch.setattr(training, "idle_cores", lambda: idle)
+    monkeypatch.setattr(training, "_usable_cores", lambda: cores)
     monkeypatch.setattr(training, "_vec_env", vec_env)
     lines = []
-    for in_process in (None, not expected):
+    given = False if expected is True else True
+    for in_process in (None, given):
         with pytest.raises(KeyboardInterrupt):
             training.train("dqn", "highway", timesteps=10, seed=0, n_envs=2,
                            in_process=in_process, output=tmp_path / "m.zip",
                            announce=lines.append)
-    assert chosen == [expected, not expected]
+    assert chosen == [expected, given]
     starting = [line for line in lines if "training env(s)" in line]
-    assert ("in this process" if expected else "in worker processes") in starting[0]
+    where = {True: " in this process,", "one": ": one in this process, 1 in worker process,",
+             False: " in worker processes,"}[expected]
+    assert where in starting[0]
     assert (idle is None) == ("cores idle" not in starting[0])
+    assert training.envs_where(idle, 2, cores) == expected
+
+
+def test_bad_in_process_values_are_refused(tmp_path):
+    from tap_bench.errors import ParameterError
+    from tap_bench.rl.training import train
+
+    for bad in ("yes", "two", 1, 0.5):
+        with pytest.raises(ParameterError, match="in_process"):
+            train("dqn", "highway", timesteps=10, seed=0, in_process=bad,
+                  output=tmp_path / "m.zip")
 
 
 def test_idle_cores_reads_the_machines_idle_time():

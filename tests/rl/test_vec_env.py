@@ -1,0 +1,159 @@
+"""SharedVecEnv: env 0 stepped in the training process, the others in workers, answering
+every VecEnv call as Stable-Baselines3's SubprocVecEnv does."""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+
+from stable_baselines3.common.vec_env import SubprocVecEnv
+
+from tap_bench.rl import vec_env as shared
+from tap_bench.rl.training import _make_training_env
+from tap_bench.sim.scenario_env import get_scenario
+
+
+def _envs(n_envs: int, one_here: bool) -> SubprocVecEnv:
+    make = functools.partial(_make_training_env, get_scenario("highway"), True)
+    worker = functools.partial(_make_training_env, get_scenario("highway"), True, worker=True)
+    return shared.training_vec_env(make, worker, n_envs, one_here=one_here)
+
+
+def _run(vec: SubprocVecEnv, steps: int, seed: int) -> list:
+    """Everything the learner sees of ``steps`` steps with drawn actions, then of the other
+    VecEnv calls."""
+    rng = np.random.default_rng(seed)
+    vec.seed(seed)
+    # highway-env's reset info holds an action drawn from the unseeded action space
+    seen = [vec.reset(), [{k: v for k, v in info.items() if k != "action"}
+                          for info in vec.reset_infos]]
+    for _ in range(steps):
+        obs, rewards, dones, infos = vec.step(rng.integers(0, 5, vec.num_envs))
+        for info in infos:  # Monitor's episode summary: all but its wall clock ("t")
+            if "episode" in info:
+                info["episode"] = {k: v for k, v in info["episode"].items() if k != "t"}
+        seen.append((obs, rewards, dones, infos))
+    seen.append(vec.get_attr("spec"))
+    seen.append(vec.env_method("get_episode_rewards"))
+    seen.append(vec.env_method("get_episode_lengths", indices=[vec.num_envs - 1]))
+    vec.set_attr("tap_note", "set", indices=[0])
+    seen.append(vec.get_attr("tap_note", indices=[0]))
+    seen.append(vec.has_attr("tap_note"))  # only env 0 has it
+    seen.append(vec.has_attr("spec"))
+    from stable_baselines3.common.monitor import Monitor
+
+    seen.append(vec.env_is_wrapped(Monitor))
+    return seen
+
+
+def _same(a, b) -> bool:
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return (type(a) is type(b) and a.dtype == b.dtype
+                and np.array_equal(a, b, equal_nan=True))
+    if isinstance(a, dict):
+        return (isinstance(b, dict) and list(a) == list(b)
+                and all(_same(a[k], b[k]) for k in a))
+    if isinstance(a, (list, tuple)):
+        return (type(a) is type(b) and len(a) == len(b)
+                and all(_same(x, y) for x, y in zip(a, b, strict=True)))
+    return type(a) is type(b) and (a == b or (a != a and b != b))
+
+
+@pytest.mark.parametrize("n_envs", [2, 3])
+def test_every_call_is_answered_as_by_worker_processes(n_envs):
+    """Observations, rewards, dones, infos (terminal observations, Monitor's episodes),
+    reset infos, attributes and method calls, over 70 steps with episode ends."""
+    results = []
+    for one_here in (False, True):
+        vec = _envs(n_envs, one_here)
+        try:
+            assert isinstance(vec, shared.SharedVecEnv) == one_here
+            assert len(vec.processes) == n_envs - one_here
+            results.append(_run(vec, 70, seed=n_envs))
+        finally:
+            vec.close()
+    workers, mixed = results
+    assert _same(workers, mixed)
+    assert any(info.get("terminal_observation") is not None
+               for step in workers[2:72] for info in step[3])  # episodes ended on the way
+
+
+def test_env_0_answers_with_copies_and_closes_with_the_others():
+    vec = _envs(2, True)
+    local = vec.remotes[0]
+    vec.reset()
+    actions = np.array([1, 1])
+    vec.step_async(actions)
+    actions[:] = 4  # the learner reuses its array: each env got its own copy
+    *_, infos = vec.step_wait()
+    assert [info["action"] for info in infos] == [1, 1]
+    note = {"sent": 1}
+    local.send(("set_attr", ("tap_note", note)))
+    note["sent"] = 2  # the sender keeps its object; the env got a copy, as through a pipe
+    local.recv()
+    assert local.env.get_wrapper_attr("tap_note") == {"sent": 1}
+    local.send(("get_attr", "config"))  # and the answer is a copy too
+    config = local.recv()
+    assert config == local.env.get_wrapper_attr("config")
+    assert config is not local.env.get_wrapper_attr("config")
+    closed = []
+    local.env.close = lambda: closed.append(True)
+    vec.step_async(np.array([1, 1]))  # closed while waiting for a step: still closes
+    vec.close()
+    assert closed == [True]
+    assert vec.closed and not any(p.is_alive() for p in vec.processes)
+    vec.close()  # twice is harmless
+    assert closed == [True]
+
+
+def test_a_failing_env_0_stops_the_workers_and_raises(monkeypatch):
+    def broken():
+        raise ValueError("env 0 cannot be built")
+
+    started = []
+    original = shared.SharedVecEnv.__init__
+
+    def init(self, local_fn, worker_fns, start_method):
+        try:
+            original(self, local_fn, worker_fns, start_method)
+        finally:
+            started.extend(self.processes)
+
+    monkeypatch.setattr(shared.SharedVecEnv, "__init__", init)
+    worker = functools.partial(_make_training_env, get_scenario("highway"), True, worker=True)
+    with pytest.raises(ValueError, match="env 0 cannot be built"):
+        shared.training_vec_env(broken, worker, 2, one_here=True)
+    for process in started:
+        process.join(5)
+    assert len(started) == 1 and not started[0].is_alive()
+
+
+def test_another_sb3_worker_loop_falls_back_to_worker_processes(tmp_path, write_scenario):
+    """Where the installed Stable-Baselines3's ``_worker`` is not the code repeated for env
+    0, every env runs in a worker, and the start line says why."""
+    from tap_bench.rl.training import train
+
+    digests = shared._WORKER_CODE
+    shared._WORKER_CODE = {"_worker": "0" * 16}
+    shared.shared_envs_supported.cache_clear()
+    try:
+        assert not shared.shared_envs_supported()
+        vec = _envs(2, True)
+        try:
+            assert type(vec) is SubprocVecEnv
+        finally:
+            vec.close()
+        lines = []
+        train("dqn", write_scenario("short", duration=5), timesteps=20, seed=0, n_envs=2,
+              in_process="one", hyperparameters={"learning_starts": 10},
+              output=tmp_path / "m.zip", announce=lines.append)
+        starting = next(line for line in lines if "training env(s)" in line)
+        assert "in worker processes" in starting and "worker loop is not" in starting
+    finally:
+        shared._WORKER_CODE = digests
+        shared.shared_envs_supported.cache_clear()
+    assert shared.shared_envs_supported()
