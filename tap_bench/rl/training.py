@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import ast
 import contextlib
+import copy
 import dataclasses
 import functools
 import json
@@ -459,8 +460,10 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
             learner_env = OverlapVecEnv(vec)
             cls = overlapping(cls, learner_env)
             learn_callbacks.insert(0, FlushPendingCallback(learner_env))
+        # a copy: SB3's A2C adds its optimizer (a class) to policy_kwargs in place, which
+        # would change the defaults and the definition's record
         model = cls("MlpPolicy", learner_env, seed=seed, verbose=verbose, device="cpu",
-                    **params)
+                    **copy.deepcopy(params))
         outputs = [HumanOutputFormat(sys.stdout)] if verbose else []
         if log_dir:
             Path(log_dir).mkdir(parents=True, exist_ok=True)

@@ -62,11 +62,20 @@ class _LocalRemote:
     """The training process's end of a "pipe" to the env it steps itself: a command sent
     is answered when its reply is read (so that the workers get their commands first), by
     the code of Stable-Baselines3's ``_worker`` loop; command and reply are copied as a
-    pipe copies them (nothing the env keeps is shared with the learner)."""
+    pipe copies them (nothing the env keeps is shared with the learner).
+
+    Attributes:
+        env: the env.
+        pending: the commands sent and not yet answered, oldest first.
+        reset_info: the info of the env's last reset, which ``_worker`` sends with every
+            step (a local of its loop, kept from one command to the next: a step that ends
+            no episode answers with the info of the last reset, not ``{}``).
+    """
 
     def __init__(self, env: gym.Env) -> None:
         self.env = env
         self.pending: list[tuple[str, Any]] = []
+        self.reset_info: dict[str, Any] | None = {}
 
     def send(self, command: tuple[str, Any]) -> None:
         """Queue ``command`` (answered by the next :meth:`recv`)."""
@@ -94,14 +103,14 @@ class _LocalRemote:
             observation, reward, terminated, truncated, info = env.step(data)
             done = terminated or truncated
             info["TimeLimit.truncated"] = truncated and not terminated
-            reset_info: dict[str, Any] | None = {}
             if done:
                 info["terminal_observation"] = observation
-                observation, reset_info = env.reset()
-            return observation, reward, done, info, reset_info
+                observation, self.reset_info = env.reset()
+            return observation, reward, done, info, self.reset_info
         if cmd == "reset":
             maybe_options = {"options": data[1]} if data[1] else {}
-            return env.reset(seed=data[0], **maybe_options)
+            observation, self.reset_info = env.reset(seed=data[0], **maybe_options)
+            return observation, self.reset_info
         if cmd == "render":
             return env.render()
         if cmd == "get_spaces":

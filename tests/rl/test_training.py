@@ -18,7 +18,7 @@ from tap_bench.sim.scenario_env import get_scenario
 pytest.importorskip("stable_baselines3")
 
 TINY = {"ppo": {"n_steps": 16, "batch_size": 16, "n_epochs": 1},
-        "dqn": {"learning_starts": 8, "buffer_size": 200}}
+        "dqn": {"learning_starts": 8, "buffer_size": 200}, "a2c": {"n_steps": 4}}
 TINY_CURVE = CurveConfig(points=1, seeds="500-501", reference="vocabulary")
 
 
@@ -416,7 +416,7 @@ def test_the_workers_forkserver_preloads_their_modules_and_the_setting_is_restor
     assert server._preload_modules == ["__main__", "mine"]
 
 
-@pytest.mark.parametrize(("algo", "n_envs"), [("dqn", 2), ("dqn", 3), ("ppo", 2)])
+@pytest.mark.parametrize(("algo", "n_envs"), [("dqn", 2), ("dqn", 3), ("ppo", 2), ("a2c", 2)])
 def test_a_training_is_the_same_wherever_its_envs_are_stepped(tmp_path, write_scenario, algo,
                                                              n_envs):
     """The same seed gives the same weights with the envs in worker processes, stepped one
@@ -424,7 +424,7 @@ def test_a_training_is_the_same_wherever_its_envs_are_stepped(tmp_path, write_sc
     (``in_process`` False, True, "one"; DQN's overlapped gradient steps in all three): only
     the speed differs."""
     import torch
-    from stable_baselines3 import DQN, PPO
+    from stable_baselines3 import A2C, DQN, PPO
 
     from tap_bench.rl.training import train
 
@@ -434,7 +434,8 @@ def test_a_training_is_the_same_wherever_its_envs_are_stepped(tmp_path, write_sc
         result = train(algo, short, timesteps=60, seed=3, n_envs=n_envs,
                        in_process=in_process, hyperparameters=TINY[algo],
                        output=tmp_path / f"m{in_process}.zip", announce=lines.append)
-        loaded = {"dqn": DQN, "ppo": PPO}[algo].load(result.model_path, device="cpu")
+        loaded = {"dqn": DQN, "ppo": PPO, "a2c": A2C}[algo].load(result.model_path,
+                                                                 device="cpu")
         weights.append(loaded.policy.state_dict())
     for other in weights[1:]:
         assert other.keys() == weights[0].keys()
@@ -444,6 +445,30 @@ def test_a_training_is_the_same_wherever_its_envs_are_stepped(tmp_path, write_sc
     assert "in this process ..." in starting[1]
     assert f"one in this process, {n_envs - 1} in worker process" in starting[2]
 
+
+
+def test_a2c_trains_and_the_hyperparameters_stay_as_given(tmp_path, write_scenario):
+    """SB3's A2C adds its RMSprop optimizer (a class) to the ``policy_kwargs`` it is given,
+    in place: the model gets a copy, so the defaults and the caller's dict stay as they were
+    and the definition records them as given (it could not be written as JSON)."""
+    import copy
+
+    from stable_baselines3 import A2C
+
+    from tap_bench.rl.training import HYPERPARAMETERS, train
+
+    defaults = copy.deepcopy(HYPERPARAMETERS)
+    short = write_scenario("short", duration=5)
+    given = {"n_steps": 4, "policy_kwargs": {"net_arch": [8]}}
+    for hyperparameters in (TINY["a2c"], given):  # the default policy_kwargs, then the caller's
+        mine = copy.deepcopy(hyperparameters)
+        result = train("a2c", short, timesteps=8, seed=0, n_envs=1,
+                       hyperparameters=hyperparameters, output=tmp_path / "a2c.zip",
+                       overwrite=True)
+        assert hyperparameters == mine and HYPERPARAMETERS == defaults
+        doc = json.loads(result.definition_path.read_text())
+        assert doc["params"]["hyperparameters"] == {**defaults["a2c"], **mine}
+        assert A2C.load(result.model_path, device="cpu").n_steps == 4
 
 @pytest.mark.parametrize(("idle", "cores", "expected"), [
     (0.2, 2, True), (1.4, 2, True), (1.6, 2, "one"), (2.0, 2, "one"), (2.4, 8, "one"),

@@ -36,7 +36,11 @@ def _run(vec: SubprocVecEnv, steps: int, seed: int) -> list:
         for info in infos:  # Monitor's episode summary: all but its wall clock ("t")
             if "episode" in info:
                 info["episode"] = {k: v for k, v in info["episode"].items() if k != "t"}
-        seen.append((obs, rewards, dones, infos))
+        # a worker answers each step with the info of its env's last reset, this step's or
+        # an earlier one's (the action drawn by highway-env's reset left out, as above)
+        reset_infos = [{k: v for k, v in info.items() if k != "action"}
+                       for info in vec.reset_infos]
+        seen.append((obs, rewards, dones, infos, reset_infos))
     seen.append(vec.get_attr("spec"))
     seen.append(vec.env_method("get_episode_rewards"))
     seen.append(vec.env_method("get_episode_lengths", indices=[vec.num_envs - 1]))
@@ -66,7 +70,8 @@ def _same(a, b) -> bool:
 @pytest.mark.parametrize("n_envs", [2, 3])
 def test_every_call_is_answered_as_by_worker_processes(n_envs):
     """Observations, rewards, dones, infos (terminal observations, Monitor's episodes),
-    reset infos, attributes and method calls, over 70 steps with episode ends."""
+    reset infos (after the resets and after every step), attributes and method calls, over
+    70 steps with episode ends."""
     results = []
     for one_here in (False, True):
         vec = _envs(n_envs, one_here)
