@@ -94,7 +94,7 @@ def is_plain_idm(vehicle: Any) -> bool:
     (with other constants) that changes none of its decision methods, on the class or on the
     instance), and whose own ``velocity`` and ``direction`` are highway-env's (``desired_gap``
     reads them; :func:`act_all` computes them from speed and heading)."""
-    return _plain_class(type(vehicle)) and not (vars(vehicle).keys() & _INSTANCE_OVERRIDES)
+    return _plain_class(type(vehicle)) and _INSTANCE_OVERRIDES.isdisjoint(vars(vehicle))
 
 
 @functools.cache
@@ -344,7 +344,7 @@ def _scalar_ego(obj: Any) -> bool:
     """Whether :func:`_idm` may compute for ``obj`` as the following vehicle: its velocity,
     direction and ``lane_distance_to`` are highway-env's (class and instance)."""
     return (_standard_velocity(type(obj)) and _own_lane_distance(type(obj))
-            and not _EGO_OVERRIDES & vars(obj).keys())
+            and _EGO_OVERRIDES.isdisjoint(vars(obj)))
 
 
 _EGO_OVERRIDES = frozenset({"velocity", "direction", "lane_distance_to"})
@@ -539,22 +539,31 @@ def _act_straight(road: Any, vehicles: list[Any], lanes: list[StraightLane],
                          strict=True)) if changing else {}
     mul_add = _dot_is_mul_add()
     geometry: dict[int, tuple] = {}
+    quarter = np.pi / 4
     steering, free_base, deltas, gap_base, rows = [], [], [], [], []
     for k, vehicle in enumerate(vehicles):
         (kp_lateral, kp_heading, length, max_steering, acc_max, comfort_max, comfort_min,
          delta, distance_wanted, time_wanted) = _CONSTANTS(vehicle)
         x, y, speed, heading, cos, sin = state.kinematics(vehicle)
 
-        # steering_control(target_lane_index), then act's clip
+        # steering_control(target_lane_index), then act's clip (each clip of a number
+        # already within its bounds is that number: _clip only for the others)
         target = geometry.get(id(targets[k])) or _geometry(targets[k], geometry)
         lat = _dot2(x - target[0], y - target[1], target[4], target[5], mul_add)
-        nz_speed = _not_zero_one(speed)
-        heading_command = np.arcsin(_clip(-kp_lateral * lat / nz_speed, -1, 1))
-        heading_ref = target[6] + _clip(heading_command, -np.pi / 4, np.pi / 4)
+        nz_speed = speed if abs(speed) > _EPS else _not_zero_one(speed)
+        command = -kp_lateral * lat / nz_speed
+        heading_command = np.arcsin(command if -1 <= command <= 1 else _clip(command, -1, 1))
+        if not -quarter <= heading_command <= quarter:
+            heading_command = _clip(heading_command, -quarter, quarter)
+        heading_ref = target[6] + heading_command
         heading_rate = kp_heading * ((heading_ref - heading + np.pi) % (2 * np.pi) - np.pi)
-        slip = np.arcsin(_clip(length / 2 / nz_speed * heading_rate, -1, 1))
-        steer = _clip(np.arctan(2 * np.tan(slip)), -max_steering, max_steering)
-        steering.append(np.float64(_clip(steer, -max_steering, max_steering)))
+        slip = length / 2 / nz_speed * heading_rate
+        slip = np.arcsin(slip if -1 <= slip <= 1 else _clip(slip, -1, 1))
+        steer = np.arctan(2 * np.tan(slip))
+        if not -max_steering <= steer <= max_steering:  # twice: steering_control and act
+            steer = _clip(_clip(steer, -max_steering, max_steering), -max_steering,
+                          max_steering)
+        steering.append(np.float64(steer))
 
         # acceleration(self, leader on the own lane), and on the target lane when changing
         own = geometry.get(id(lanes[k])) or _geometry(lanes[k], geometry)

@@ -59,6 +59,7 @@ import math
 from typing import Any
 
 import numpy as np
+from highway_env import utils
 from highway_env.road.lane import AbstractLane, CircularLane, SineLane, StraightLane
 from highway_env.road.road import Road
 from highway_env.vehicle.behavior import IDMVehicle
@@ -68,6 +69,7 @@ from highway_env.vehicle.objects import Landmark, RoadObject
 
 from tap_bench.sim.fast_idm import (
     ActState,
+    _standard_velocity,
     act_all,
     act_each,
     array_kernels_agree,
@@ -165,20 +167,22 @@ class FastRoad:
     def step(self, dt: float) -> None:
         """highway-env's ``Road.step``: move every vehicle by ``dt`` [s] (:meth:`move`),
         then check the pairs in which a vehicle checks collisions, in highway-env's
-        order."""
+        order, but those that are surely too far apart for the check to do anything
+        (:func:`_pairs_to_check`, :func:`_apart`)."""
         vehicles, objects = self.road.vehicles, self.road.objects
         if not all(map(_standard_collisions, vehicles + objects)):
             # a class with its own collision rule: every pair, as highway-env does
             Road.step(self.road, dt)
             return
         self.move(dt)
-        near = _near_pairs(vehicles, objects, dt) \
+        pairs = _pairs_to_check(vehicles, objects, dt) \
             if len(vehicles) + len(objects) >= AT_ONCE_FROM else None
-        if near is not None:
+        if pairs is not None:
             everyone = vehicles + objects
             # each vehicle with the vehicles after it, then with every object, in order
-            for i, j in zip(*(k.tolist() for k in np.nonzero(np.triu(near, 1))), strict=True):
-                vehicles[i].handle_collisions(everyone[j], dt)
+            for i, j in pairs:
+                if not _apart(vehicles[i], everyone[j], dt):
+                    vehicles[i].handle_collisions(everyone[j], dt)
             return
         checking = [i for i, vehicle in enumerate(vehicles) if vehicle.check_collisions]
         for i, vehicle in enumerate(vehicles):
@@ -284,8 +288,20 @@ class FastRoad:
         """The vehicle ahead of each of ``vehicles`` on its lane of ``lane_indices`` (None:
         its own): ``neighbour_vehicles(vehicle, lane_index)[0]`` for each, the same objects
         (during ``Road.act`` from the lane's table, :meth:`_table`)."""
-        return [self.neighbour_vehicles(v, li)[0]
-                for v, li in zip(vehicles, lane_indices, strict=True)]
+        road, tables = self.road, self._lanes
+        if self._others is None or road.neighbour_vehicles_connected_lanes \
+                or self._count != len(road.vehicles) + len(road.objects):
+            return [self.neighbour_vehicles(v, li)[0]
+                    for v, li in zip(vehicles, lane_indices, strict=True)]
+        index = self._state.index
+        found = []
+        for vehicle, lane_index in zip(vehicles, lane_indices, strict=True):
+            table = tables.get(lane_index) if lane_index else None
+            if table is None or id(vehicle) not in index:  # not tabled yet: the full query
+                found.append(self.neighbour_vehicles(vehicle, lane_index)[0])
+            else:  # the lane's table, as neighbour_vehicles would answer from it
+                found.append(self._from_table(vehicle, None, table)[0])
+        return found
 
     def _table(self, lane_index: Any, lane: StraightLane
                ) -> tuple[list[float], list[int], list[float]] | None:
@@ -641,8 +657,10 @@ def _moving_class(cls: type) -> bool:
 def _moves_as_highway_env(vehicle: Any, road: Road) -> bool:
     """Whether :meth:`FastRoad.move` may move ``vehicle`` (on ``road``) itself."""
     return (_moving_class(type(vehicle)) and vehicle.road is road
-            and not {"step", "clip_actions", "on_state_update", "create_from"}
-            & vars(vehicle).keys())
+            and _MOVE_OVERRIDES.isdisjoint(vars(vehicle)))
+
+
+_MOVE_OVERRIDES = frozenset({"step", "clip_actions", "on_state_update", "create_from"})
 
 
 def _standard_collisions(obj: Any) -> bool:
@@ -652,7 +670,10 @@ def _standard_collisions(obj: Any) -> bool:
     cls = type(obj)
     return (getattr(cls, "handle_collisions", None) is RoadObject.handle_collisions
             and getattr(cls, "_is_colliding", None) is RoadObject._is_colliding
-            and not {"handle_collisions", "_is_colliding"} & vars(obj).keys())
+            and _COLLISION_OVERRIDES.isdisjoint(vars(obj)))
+
+
+_COLLISION_OVERRIDES = frozenset({"handle_collisions", "_is_colliding"})
 
 
 def _near_pairs(vehicles: list[Any], objects: list[Any], dt: float) -> np.ndarray | None:
@@ -678,6 +699,141 @@ def _near_pairs(vehicles: list[Any], objects: list[Any], dt: float) -> np.ndarra
     bound = (diagonal[:n, None] + diagonal[None, :]) / 2 + speed[:, None] * dt
     near = ~(distance > bound + TOLERANCE)  # NaN: near, highway-env decides
     return near & (checks[:n, None] | checks[None, :])
+
+
+def _pairs_to_check(vehicles: list[Any], objects: list[Any], dt: float
+                    ) -> list[tuple[int, int]] | None:
+    """The pairs (i, j) of :func:`_near_pairs` in highway-env's order (vehicle ``i`` with
+    each vehicle ``j > i``, then with each object, ``j`` counted over the vehicles and then
+    the objects); None where it is None. Where few vehicles and objects check collisions (a
+    fast training env: the ego), only their pairs are measured, in Python floats with the
+    same arithmetic (IEEE operations and a correctly rounded square root); else all pairs
+    at once by :func:`_near_pairs`."""
+    everyone = vehicles + objects
+    n = len(vehicles)
+    try:
+        checks = [bool(o.check_collisions) for o in everyone]
+        position = np.array([o.position for o in everyone], dtype=float)
+        diagonal = np.array([o.diagonal for o in everyone], dtype=float)
+        speed = np.array([v.speed for v in vehicles], dtype=float)
+    except (AttributeError, TypeError, ValueError):
+        return None
+    checkers = [k for k, check in enumerate(checks) if check]
+    if 4 * len(checkers) > len(everyone) or position.shape != (len(everyone), 2) \
+            or diagonal.shape != (len(everyone),) or speed.shape != (n,):
+        near = _near_pairs(vehicles, objects, dt)
+        if near is None:
+            return None
+        return list(zip(*(k.tolist() for k in np.nonzero(np.triu(near, 1))), strict=True))
+    xy, diagonals, reach = position.tolist(), diagonal.tolist(), (speed * dt).tolist()
+    pairs = []
+    for i in range(n):
+        x, y = xy[i]
+        for j in range(i + 1, len(everyone)) if checks[i] else [j for j in checkers if j > i]:
+            dx, dy = xy[j][0] - x, xy[j][1] - y
+            bound = (diagonals[i] + diagonals[j]) / 2 + reach[i]
+            if not math.sqrt(dx * dx + dy * dy) > bound + TOLERANCE:
+                pairs.append((i, j))  # NaN: near, highway-env decides
+    return pairs
+
+
+def _apart(a: Any, b: Any, dt: float) -> bool:
+    """Whether ``a.handle_collisions(b, dt)`` surely does nothing: highway-env's
+    rectangle test (``utils.are_polygons_intersecting`` of their polygons, ``a`` moved by
+    its velocity times ``dt`` relative to ``b``) finds an axis, the normal of a side of
+    either rectangle, on which the two are apart both now and over the step; then it
+    returns "neither intersecting nor about to" and nothing changes.
+
+    The rectangles' projections are estimated in Python floats (the centre's projection
+    plus the half length and half width projected); highway-env's, computed from its
+    polygons' corners, differ by rounding only: under 1e-7 m for positions within
+    :data:`_SAT_EXTENT` of the origin and sides of at least 0.5 m, so an axis is taken
+    only where both gaps exceed :data:`TOLERANCE`. False (highway-env's check runs)
+    wherever that bound does not hold or an object's polygon, velocity or collision code
+    is not highway-env's own (:func:`_rectangle`)."""
+    if not (_rectangle(a) and _rectangle(b)):
+        return False
+    try:
+        ax, ay = map(float, a.position)
+        bx, by = map(float, b.position)
+        values = (ax, ay, bx, by, float(a.heading), float(b.heading), a.LENGTH / 2,
+                  a.WIDTH / 2, b.LENGTH / 2, b.WIDTH / 2, float(a.speed) * dt,
+                  float(b.speed) * dt)
+    except (AttributeError, TypeError, ValueError):
+        return False
+    if not all(abs(v) <= _SAT_EXTENT for v in values) or min(values[6:10]) < 0.25:
+        return False  # far out, tiny, or not finite: highway-env's check
+    ha, hb, la, wa, lb, wb, va, vb = values[4:]
+    ca, sa, cb, sb = math.cos(ha), math.sin(ha), math.cos(hb), math.sin(hb)
+    dx, dy = va * ca - vb * cb, va * sa - vb * sb  # a's displacement relative to b's
+    for nx, ny in ((ca, sa), (-sa, ca), (cb, sb), (-sb, cb)):
+        ra = la * abs(ca * nx + sa * ny) + wa * abs(ca * ny - sa * nx)
+        rb = lb * abs(cb * nx + sb * ny) + wb * abs(cb * ny - sb * nx)
+        pa, pb = ax * nx + ay * ny, bx * nx + by * ny
+        low_a, high_a, low_b, high_b = pa - ra, pa + ra, pb - rb, pb + rb
+        if _interval_distance(low_a, high_a, low_b, high_b) <= TOLERANCE:
+            continue  # they overlap on this axis now
+        moved = dx * nx + dy * ny
+        if moved < 0:
+            low_a += moved
+        else:
+            high_a += moved
+        if _interval_distance(low_a, high_a, low_b, high_b) > TOLERANCE:
+            return True
+    return False
+
+
+def _interval_distance(low_a: float, high_a: float, low_b: float, high_b: float) -> float:
+    """highway-env's ``utils.interval_distance``: the gap between two intervals (negative
+    where they overlap)."""
+    return low_b - high_a if low_a < low_b else low_a - high_b
+
+
+_SAT_EXTENT = 1e4
+"""Largest coordinate, half side and travel in a step [m] for which :func:`_apart` may
+estimate a rectangle test (beyond, highway-env's check runs): there the rounding of
+highway-env's corners and side normals moves a projection by less than 1e-7 m."""
+
+_COLLISION_CODE = {  # sha256 of the source of highway-env's rectangle test, _apart's premise
+    "RoadObject.handle_collisions": "22d09daae961356d",
+    "RoadObject._is_colliding": "0855e4f7e45cfac5",
+    "RoadObject.polygon": "2ff76f380e68c8f9",
+    "are_polygons_intersecting": "4f6d96ef2346ff70",
+    "project_polygon": "da8e377e5dbee0db",
+    "interval_distance": "d2aec181d04d9016",
+    "RoadObject.velocity": "4adf0dc72944ece9",
+    "Vehicle.velocity": "8306b4e7bb130034",
+    "RoadObject.direction": "a4c77726611faa88",
+}
+_HIGHWAY_ENV_COLLIDE = (RoadObject.handle_collisions, RoadObject._is_colliding,
+                        RoadObject.polygon, utils.are_polygons_intersecting,
+                        utils.project_polygon, utils.interval_distance,
+                        RoadObject.velocity.fget, Vehicle.velocity.fget,
+                        RoadObject.direction.fget)
+"""highway-env's own collision code, as imported (a process may replace it)."""
+_RECTANGLE_OVERRIDES = frozenset({"handle_collisions", "_is_colliding", "polygon"})
+
+
+@functools.cache
+def _collides_as_written() -> bool:
+    """Whether the installed highway-env's collision code is the one :func:`_apart`
+    assumes (highway-env 1.12's); checked once per process."""
+    return sources_match(_HIGHWAY_ENV_COLLIDE, _COLLISION_CODE)
+
+
+def _rectangle(obj: Any) -> bool:
+    """Whether ``obj`` collides as highway-env's rectangle of its ``LENGTH`` and ``WIDTH``
+    at its position and heading, moving with highway-env's velocity (class, instance and
+    highway-env's functions as imported)."""
+    cls = type(obj)
+    return (getattr(cls, "polygon", None) is _HIGHWAY_ENV_COLLIDE[2]
+            and getattr(cls, "_is_colliding", None) is _HIGHWAY_ENV_COLLIDE[1]
+            and getattr(cls, "handle_collisions", None) is _HIGHWAY_ENV_COLLIDE[0]
+            and _standard_velocity(cls)
+            and utils.are_polygons_intersecting is _HIGHWAY_ENV_COLLIDE[3]
+            and utils.project_polygon is _HIGHWAY_ENV_COLLIDE[4]
+            and utils.interval_distance is _HIGHWAY_ENV_COLLIDE[5]
+            and _RECTANGLE_OVERRIDES.isdisjoint(vars(obj)) and _collides_as_written())
 
 
 def _project(lane: StraightLane, positions: np.ndarray

@@ -3,6 +3,8 @@ bit for bit as before."""
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -1183,7 +1185,7 @@ def test_vehicles_act_as_with_highway_envs_act_on_drawn_states(monkeypatch, one_
 
 @pytest.mark.parametrize(("name", "old", "new"), [
     ("_act_straight", "heading_ref - heading + np.pi", "heading_ref + np.pi - heading"),
-    ("_act_straight", "-np.pi / 4, np.pi / 4", "-np.pi / 3, np.pi / 3"),  # a wrong clip
+    ("_act_straight", "quarter = np.pi / 4", "quarter = np.pi / 3"),  # a wrong clip
     ("_act_straight", "target_speed = _clip(target_speed, 0, own[7])", "pass"),  # no limit
     ("_act_straight", "abs(_not_zero_one(target_speed))",
      "abs(_not_zero_one(target_speed, 0.02))"),
@@ -1299,3 +1301,200 @@ def test_the_end_of_a_lane_is_highway_envs_when_its_code_is_not_the_one_repeated
     del lane.after_end
     monkeypatch.setattr(IDMVehicle, "follow_road", lambda self: None)
     assert ask() == 1  # a changed follow_road
+
+
+def _highway_gap(a, b, dt: float) -> float:
+    """The widest gap highway-env's rectangle test finds between ``a`` and ``b`` (moving by
+    their velocities times ``dt``): over the normals of both polygons' sides, computed as
+    ``utils.are_polygons_intersecting`` computes them, the larger axis's smaller of the
+    gap now and over the step (> 0: the test returns "apart")."""
+    from highway_env import utils
+
+    pa, pb = a.polygon(), b.polygon()
+    moved = a.velocity * dt - b.velocity * dt
+    best = -np.inf
+    for polygon in (pa, pb):
+        for p1, p2 in itertools.pairwise(polygon):
+            normal = np.array([-p2[1] + p1[1], p2[0] - p1[0]])
+            normal /= np.linalg.norm(normal)
+            min_a, max_a = utils.project_polygon(pa, normal)
+            min_b, max_b = utils.project_polygon(pb, normal)
+            now = utils.interval_distance(min_a, max_a, min_b, max_b)
+            projection = normal.dot(moved)
+            if projection < 0:
+                min_a += projection
+            else:
+                max_a += projection
+            best = max(best, min(now, utils.interval_distance(min_a, max_a, min_b, max_b)))
+    return best
+
+
+def _rectangle_pairs(seed: int) -> list[tuple]:
+    """Drawn pairs of rectangles close enough for highway-env's spherical pre-check to let
+    them through: vehicles of drawn sizes, headings and speeds (some reversing) up to 10 km
+    from the origin, the second one at a drawn offset or side by side with the first at a
+    gap near the tolerance; some obstacles."""
+    from highway_env.vehicle.kinematics import Vehicle
+
+    rng = np.random.default_rng(seed)
+    pairs = []
+    for _ in range(300):
+        centre = rng.uniform(-9000, 9000, 2) * rng.choice([1e-3, 1.0])
+        heading = rng.uniform(-np.pi, np.pi)
+        a = Vehicle(None, centre, heading, rng.uniform(-5, 40))
+        a.LENGTH, a.WIDTH = rng.uniform(0.5, 12), rng.uniform(0.5, 4)
+        dt = float(rng.choice([0.1, 0.2, 1.0]))
+        if rng.random() < 0.3:  # side by side, parallel, at a gap near the tolerance
+            gap = float(rng.choice([0.0, 1e-12, 1e-9, 1e-7, 9e-7, 1.1e-6, 2e-6, 1e-5, 0.01,
+                                    0.3]))
+            side = np.array([-np.sin(heading), np.cos(heading)])
+            b = Vehicle(None, centre + side * (a.WIDTH + gap), heading, a.speed)
+            b.LENGTH, b.WIDTH = a.LENGTH, a.WIDTH
+        else:
+            offset = rng.uniform(-1, 1, 2) * (a.LENGTH + abs(a.speed) * dt + 6)
+            b = (Obstacle(None, centre + offset, rng.uniform(-np.pi, np.pi))
+                 if rng.random() < 0.2 else
+                 Vehicle(None, centre + offset, rng.uniform(-np.pi, np.pi),
+                         rng.uniform(-5, 40)))
+            b.LENGTH, b.WIDTH = rng.uniform(0.5, 12), rng.uniform(0.5, 4)
+        pairs.append((a, b, dt))
+    return pairs
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_pairs_apart_are_those_highway_envs_rectangle_test_finds_apart(seed):
+    """fast_road._apart skips a pair only where highway-env's own test finds it apart by
+    more than the rounding of either computation (so its check does nothing), and finds
+    nearly all the pairs that are apart by more than the tolerance."""
+    from tap_bench.sim.fast_road import _apart
+
+    skipped = apart = 0
+    for a, b, dt in _rectangle_pairs(seed):
+        gap = _highway_gap(a, b, dt)
+        if _apart(a, b, dt):
+            skipped += 1
+            assert gap > TOLERANCE - 1e-7, (gap, a.position, b.position)
+            assert a._is_colliding(b, dt)[:2] == (False, False)
+        else:
+            assert gap <= TOLERANCE + 1e-7, (gap, a.position, b.position)
+        apart += gap > TOLERANCE
+    assert skipped == apart or abs(skipped - apart) <= 2  # gaps within rounding of 1e-6
+    assert skipped >= 60 and len(_rectangle_pairs(seed)) - skipped >= 60
+
+
+@pytest.mark.parametrize(("old", "new"), [
+    ("if moved < 0:", "if moved > 0:"),  # the step's travel on the wrong side
+    ("ra = la * abs(ca * nx + sa * ny) + wa * abs(ca * ny - sa * nx)",
+     "ra = wa * abs(ca * nx + sa * ny) + la * abs(ca * ny - sa * nx)"),  # length and width
+    ("dx, dy = va * ca - vb * cb, va * sa - vb * sb", "dx, dy = va * ca, va * sa"),
+    ("TOLERANCE", "0.0"),  # no margin for the rounding (both gaps)
+    ("pa, pb = ax * nx + ay * ny, bx * nx + by * ny",
+     "pa, pb = ax * nx + ay * ny, bx * nx + by * nx"),
+])
+def test_a_changed_rectangle_test_is_caught(monkeypatch, old, new):
+    import inspect
+
+    from tap_bench.sim import fast_road
+
+    source = inspect.getsource(fast_road._apart)
+    assert old in source  # the mutation applies to the code as it is
+    namespace = dict(vars(fast_road))
+    exec(compile(source.replace(old, new), fast_road.__file__, "exec"), namespace)
+    with pytest.raises(AssertionError):
+        for seed in range(4):
+            for a, b, dt in _rectangle_pairs(seed):
+                gap = _highway_gap(a, b, dt)
+                if namespace["_apart"](a, b, dt):
+                    assert gap > TOLERANCE - 1e-7
+                else:
+                    assert gap <= TOLERANCE + 1e-7
+
+
+def test_rectangles_not_highway_envs_are_checked_by_highway_env(monkeypatch):
+    """A vehicle with its own polygon or collision test, another highway-env's collision
+    code, a position beyond 10 km or a side under 0.5 m: the pair is never skipped."""
+    from highway_env.vehicle.kinematics import Vehicle
+
+    from tap_bench.sim import fast_road
+
+    def pair(**changes):
+        a = Vehicle(None, np.array([100.0, 0.0]), 0.0, 20.0)
+        b = Vehicle(None, np.array([100.0, 4.0]), 0.0, 20.0)
+        for name, value in changes.items():
+            setattr(a, name, value)
+        return a, b
+
+    assert fast_road._apart(*pair(), 0.2)  # side by side, 2 m apart
+    a, b = pair()
+    a.polygon = lambda: _own_polygon(a)
+    assert not fast_road._apart(a, b, 0.2)
+    assert not fast_road._apart(*pair(position=np.array([2e4, 0.0])), 0.2)
+    assert not fast_road._apart(*pair(WIDTH=0.4), 0.2)
+    assert not fast_road._apart(*pair(heading=np.nan), 0.2)
+
+    class _Round(Vehicle):
+        def _is_colliding(self, other, dt):
+            return False, False, None
+
+    a, b = pair()
+    a.__class__ = _Round
+    assert not fast_road._apart(a, b, 0.2)
+    monkeypatch.setitem(fast_road._COLLISION_CODE, "RoadObject.polygon", "0" * 16)
+    fast_road._collides_as_written.cache_clear()
+    try:
+        assert not fast_road._apart(*pair(), 0.2)
+    finally:
+        monkeypatch.undo()
+        fast_road._collides_as_written.cache_clear()
+    assert fast_road._apart(*pair(), 0.2)
+
+
+def _own_polygon(obj):
+    """highway-env's polygon of ``obj``, as a user's own method would return it."""
+    from highway_env.vehicle.objects import RoadObject
+
+    return RoadObject.polygon(obj)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_near_pairs_are_those_highway_envs_pre_check_lets_through(seed):
+    """On drawn roads (vehicles and obstacles close together, NaN positions, none to all of
+    them checking collisions, so both the pairs of the few that check and all pairs at
+    once are measured): the pairs are in highway-env's order, each with one that checks,
+    every pair highway-env's spherical pre-check lets through is among them, and every
+    other is farther than its bound by no more than the tolerance."""
+    from highway_env.vehicle.kinematics import Vehicle
+
+    from tap_bench.sim.fast_road import _pairs_to_check
+
+    rng = np.random.default_rng(seed)
+    kinds = set()
+    for _ in range(40):
+        n, m = int(rng.integers(2, 25)), int(rng.integers(0, 4))
+        vehicles = [Vehicle(None, rng.uniform(0, 60, 2), 0.0, rng.uniform(-5, 30))
+                    for _ in range(n)]
+        objects = [Obstacle(None, rng.uniform(0, 60, 2)) for _ in range(m)]
+        everyone = vehicles + objects
+        share = rng.choice([0.0, 0.05, 0.2, 0.5, 1.0])
+        for obj in everyone:
+            obj.check_collisions = bool(rng.random() < share)
+        if rng.random() < 0.2:
+            vehicles[int(rng.integers(n))].position = np.array([np.nan, 3.0])
+        dt = float(rng.choice([0.1, 0.2]))
+        pairs = _pairs_to_check(vehicles, objects, dt)
+        assert pairs == sorted(pairs) and len(set(pairs)) == len(pairs)
+        checkers = sum(obj.check_collisions for obj in everyone)
+        kinds.add(4 * checkers > len(everyone))
+        for i, a in enumerate(vehicles):
+            for j in range(i + 1, len(everyone)):
+                b = everyone[j]
+                if not (a.check_collisions or b.check_collisions):
+                    assert (i, j) not in pairs
+                    continue
+                distance = np.linalg.norm(b.position - a.position)
+                bound = (a.diagonal + b.diagonal) / 2 + a.speed * dt
+                if not distance > bound:  # highway-env's pre-check lets it through
+                    assert (i, j) in pairs
+                elif (i, j) in pairs:
+                    assert distance <= bound + 2 * TOLERANCE
+    assert kinds == {True, False}  # both ways of measuring
