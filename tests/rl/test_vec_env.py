@@ -17,9 +17,9 @@ from tap_bench.rl.training import _make_training_env
 from tap_bench.sim.scenario_env import get_scenario
 
 
-def _envs(n_envs: int, one_here: bool) -> SubprocVecEnv:
-    make = functools.partial(_make_training_env, get_scenario("highway"), True)
-    worker = functools.partial(_make_training_env, get_scenario("highway"), True, worker=True)
+def _envs(n_envs: int, one_here: bool, scenario: str = "highway") -> SubprocVecEnv:
+    make = functools.partial(_make_training_env, get_scenario(scenario), True)
+    worker = functools.partial(_make_training_env, get_scenario(scenario), True, worker=True)
     return shared.training_vec_env(make, worker, n_envs, one_here=one_here)
 
 
@@ -41,6 +41,9 @@ def _run(vec: SubprocVecEnv, steps: int, seed: int) -> list:
         reset_infos = [{k: v for k, v in info.items() if k != "action"}
                        for info in vec.reset_infos]
         seen.append((obs, rewards, dones, infos, reset_infos))
+    vec.seed(seed + 1)  # a reset with seeds and options (one vehicle fewer), then a step
+    vec.set_options({"config": {"vehicles_count": 2}})
+    seen.append((vec.reset(), vec.step(rng.integers(0, 5, vec.num_envs))[:3]))
     seen.append(vec.get_attr("spec"))
     seen.append(vec.env_method("get_episode_rewards"))
     seen.append(vec.env_method("get_episode_lengths", indices=[vec.num_envs - 1]))
@@ -68,13 +71,14 @@ def _same(a, b) -> bool:
 
 
 @pytest.mark.parametrize("n_envs", [2, 3])
-def test_every_call_is_answered_as_by_worker_processes(n_envs):
+def test_every_call_is_answered_as_by_worker_processes(n_envs, write_scenario):
     """Observations, rewards, dones, infos (terminal observations, Monitor's episodes),
     reset infos (after the resets and after every step), attributes and method calls, over
-    70 steps with episode ends."""
+    70 steps with episode ends, by crashes and by the time limit (8 decisions)."""
+    short = str(write_scenario("short", duration=8))
     results = []
     for one_here in (False, True):
-        vec = _envs(n_envs, one_here)
+        vec = _envs(n_envs, one_here, short)
         try:
             assert isinstance(vec, shared.SharedVecEnv) == one_here
             assert len(vec.processes) == n_envs - one_here
@@ -83,8 +87,11 @@ def test_every_call_is_answered_as_by_worker_processes(n_envs):
             vec.close()
     workers, mixed = results
     assert _same(workers, mixed)
-    assert any(info.get("terminal_observation") is not None
-               for step in workers[2:72] for info in step[3])  # episodes ended on the way
+    ends = [info["TimeLimit.truncated"] for step in workers[2:72]
+            for k, info in enumerate(step[3]) if step[2][k]]
+    assert all(info.get("terminal_observation") is not None
+               for step in workers[2:72] for k, info in enumerate(step[3]) if step[2][k])
+    assert True in ends and False in ends  # episodes ended by the time limit and by crashes
 
 
 def test_env_0_answers_with_copies_and_closes_with_the_others():
