@@ -12,11 +12,16 @@ rollout. :func:`act_all` gives every vehicle the same action, bit for bit:
   that acted before it in the same step, so their order is kept;
 - the steering command and the IDM accelerations, which read only positions, speeds,
   headings and lanes (none of which change during ``Road.act``) and the vehicle's own target
-  lane, are then computed for every plain IDM vehicle at once with numpy, with
-  highway-env's formulas term for term in its order of operations (``max``, ``min`` and
-  ``np.clip`` keep their NaN and signed-zero behaviour; ``np.dot`` of two 2-vectors is
-  ``a0 * b0 + a1 * b1`` where the BLAS kernel computes that, and ``np.dot`` row by row
-  where it fuses the multiply-add);
+  lane, are then computed for every plain IDM vehicle (:func:`_act_straight`), with
+  highway-env's formulas term for term in its order of operations, in Python floats
+  (IEEE ``+ - * /`` give numpy's bits; ``max``, ``min`` and ``np.clip`` keep their NaN and
+  signed-zero behaviour; ``np.dot`` of two 2-vectors is ``a0 * b0 + a1 * b1`` where the
+  BLAS kernel computes that, else ``np.dot``), numpy's own ``arcsin``, ``tan`` and
+  ``arctan`` per vehicle and its ``power`` for all vehicles in one array call;
+- the road's state is read once per ``Road.act`` (:class:`ActState`: positions, speeds,
+  headings as Python floats, the cos and sin of the headings as numpy computes them, each
+  straight lane's coordinates of every object), and the decisions read it rather than
+  the vehicles' numpy arrays;
 - a vehicle on a lane that is not straight steers and brakes by :func:`_act_rest`, one
   vehicle at a time, and one whose class or instance changes any method involved is left
   to highway-env's own ``act``.
@@ -36,9 +41,10 @@ of one number, the velocity and direction arrays, a straight lane's ``np.dot``).
 
 numpy's array kernels (``arcsin``, ``tan``, ``power`` ...) must give the same bits as its
 scalar ones for this to hold; :func:`array_kernels_agree` checks that on this machine once
-per process, and where they do not, :func:`act_all` is not used (``FastRoad`` falls back to
-highway-env's ``Road.act``). Tested by simulating scenarios both ways and comparing every
-vehicle's state bit for bit (``tests/sim/test_sim_fast_road.py``).
+per process, and where they do not, :func:`act_all` is not used (``FastRoad`` decides one
+vehicle at a time, :func:`act_each`, with numpy's scalar kernels). Tested by simulating
+scenarios both ways and comparing every vehicle's state bit for bit, and every action on
+drawn states (``tests/sim/test_sim_fast_road.py``).
 
 Parts of this module re-state highway-env's code (MIT License, Copyright (c) 2018 Edouard
 Leurent, (c) 2023 Farama Foundation): see THIRD_PARTY_NOTICES.md.
@@ -54,13 +60,13 @@ from typing import Any
 
 import numpy as np
 from highway_env import utils
-from highway_env.road.lane import StraightLane
+from highway_env.road.lane import AbstractLane, StraightLane
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import ControlledVehicle
 from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import RoadObject
 
-__all__ = ["act_all", "act_each", "array_kernels_agree", "is_plain_idm", "lane_dots"]
+__all__ = ["ActState", "act_all", "act_each", "array_kernels_agree", "is_plain_idm", "lane_dots"]
 
 _METHODS = ("act", "follow_road", "change_lane_policy", "mobil", "steering_control",
             "acceleration", "desired_gap", "lane_distance_to")
@@ -72,7 +78,6 @@ _INSTANCE_OVERRIDES = frozenset(_METHODS) | {"velocity", "direction"}
 _CONSTANTS = attrgetter("KP_LATERAL", "KP_HEADING", "LENGTH", "MAX_STEERING_ANGLE",
                         "ACC_MAX", "COMFORT_ACC_MAX", "COMFORT_ACC_MIN", "DELTA",
                         "DISTANCE_WANTED", "TIME_WANTED")
-_STATE = attrgetter("speed", "heading")
 _VELOCITY_CLASSES: dict[type, bool] = {}
 
 _EPS = 1e-2  # highway_env.utils.not_zero's epsilon
@@ -137,11 +142,6 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([np.dot(u, w) for u, w in zip(a, b, strict=True)], dtype=float)
 
 
-def _not_zero(x: np.ndarray) -> np.ndarray:
-    """highway_env.utils.not_zero on each element."""
-    return np.where(np.abs(x) > _EPS, x, np.where(x >= 0, _EPS, -_EPS))
-
-
 def _standard_velocity(cls: type) -> bool:
     """Whether objects of ``cls`` have highway-env's ``velocity``: speed times (cos, sin)
     of the heading."""
@@ -151,31 +151,18 @@ def _standard_velocity(cls: type) -> bool:
     return _VELOCITY_CLASSES[cls]
 
 
-def _velocity(objects: list[Any]) -> np.ndarray:
-    """(n, 2) ``velocity`` of each object [m/s] (computed for highway-env's definition,
-    asked of the object otherwise)."""
-    out = np.empty((len(objects), 2))
-    standard = [k for k, obj in enumerate(objects)
-                if _standard_velocity(type(obj)) and "velocity" not in vars(obj)]
-    if len(standard) < len(objects):
-        for k in set(range(len(objects))) - set(standard):
-            out[k] = objects[k].velocity
-    if standard:
-        speed, heading = np.array([_STATE(objects[k]) for k in standard], dtype=float).T
-        out[standard, 0] = speed * np.cos(heading)
-        out[standard, 1] = speed * np.sin(heading)
-    return out
-
-
-def act_all(road: Any, leaders: Any = None) -> None:
+def act_all(road: Any, leaders: Any = None, state: ActState | None = None) -> None:
     """highway-env's ``Road.act`` for ``road``: every vehicle decides its action (see the
     module docstring); the same actions, target lanes and timers, bit for bit.
 
     The road's search (``road.neighbour_vehicles``) must not depend on what the vehicles
     decide (highway-env's does not; tap-bench's FastRoad neither). ``leaders(vehicles,
     lane_indices)``, when given, finds the vehicle ahead of each on a lane at once (as
-    ``road.neighbour_vehicles(vehicle, lane_index)[0]`` would).
+    ``road.neighbour_vehicles(vehicle, lane_index)[0]`` would); ``state``, when given, is
+    the road's :class:`ActState` now (else it is read here).
     """
+    if state is None:
+        state = ActState.of(road)
     network = road.network
     plain = []
     for vehicle in road.vehicles:
@@ -184,9 +171,9 @@ def act_all(road: Any, leaders: Any = None) -> None:
             continue
         if vehicle.crashed:
             continue
-        vehicle.follow_road()
+        _follow_road(vehicle, state)
         if vehicle.enable_lane_change:
-            _change_lane_policy(vehicle)
+            _change_lane_policy(vehicle, state)
         plain.append(vehicle)
     if not plain:
         return
@@ -200,40 +187,77 @@ def act_all(road: Any, leaders: Any = None) -> None:
         else:  # highway-env's own arithmetic, after the lane-change policy it already ran
             _act_rest(vehicle)
     if batch:
-        _act_straight(road, batch, lanes, targets, leaders)
+        _act_straight(road, batch, lanes, targets, leaders, state)
 
 
-def _act_rest(vehicle: Any) -> None:
+def _follow_road(vehicle: Any, state: ActState | None = None) -> None:
+    """``vehicle.follow_road()`` (a plain IDM vehicle): whether it is past the end of its
+    target lane is read from that lane's projection in ``state`` (highway-env's
+    ``after_end``: the lane's ``local_coordinates``, which the projection gives bit for
+    bit), and highway-env's own method runs only where it is (to switch lanes), where
+    there is no projection, or where highway-env's code is not the one repeated here
+    (:func:`_follows_as_written`)."""
+    if state is not None and type(vehicle).follow_road is _FOLLOW_ROAD[0] \
+            and _follows_as_written():
+        lane = vehicle.road.network.get_lane(vehicle.target_lane_index)
+        k = state.index.get(id(vehicle))
+        if k is not None and type(lane).after_end is _FOLLOW_ROAD[1] \
+                and "after_end" not in vars(lane):
+            projection = state.projection(lane)
+            if projection is not None \
+                    and not projection[2][k] > lane.length - lane.VEHICLE_LENGTH / 2:
+                return
+    vehicle.follow_road()
+
+
+_FOLLOW_ROAD = (ControlledVehicle.follow_road, AbstractLane.after_end)
+"""highway-env's own methods :func:`_follow_road` repeats, as imported."""
+
+_FOLLOW_CODE = {  # sha256 of their source (highway-env 1.12)
+    "ControlledVehicle.follow_road": "64dcd58fe8bf5f73",
+    "AbstractLane.after_end": "e3abae0b2fd4d84f",
+}
+
+
+@functools.cache
+def _follows_as_written() -> bool:
+    """Whether the installed highway-env's ``follow_road`` and ``after_end`` are the code
+    :func:`_follow_road` repeats; checked once per process."""
+    return sources_match(_FOLLOW_ROAD, _FOLLOW_CODE)
+
+
+def _act_rest(vehicle: Any, state: ActState | None = None) -> None:
     """The part of ``IDMVehicle.act`` after the lane-change policy, as highway-env runs it:
     its steering and IDM formulas term for term, in numpy scalars where highway-env has
     them (:func:`_steering`, :func:`_idm`), without the calls that cost more than the
     arithmetic (``np.clip`` of a scalar, the velocity and direction arrays, a straight
-    lane's ``np.dot``), whose results :func:`_clip` and :func:`_local` give bit for bit."""
+    lane's ``np.dot``), whose results :func:`_clip` and :func:`_local` give bit for bit
+    (``state``: the road's :class:`ActState`, if at hand)."""
     steering = _clip(_steering(vehicle), -vehicle.MAX_STEERING_ANGLE,
                      vehicle.MAX_STEERING_ANGLE)
     front = vehicle.road.neighbour_vehicles(vehicle, vehicle.lane_index)[0]
-    acceleration = _idm(vehicle, front)
+    acceleration = _idm(vehicle, front, _OWN, state)
     if vehicle.lane_index != vehicle.target_lane_index:
         front = vehicle.road.neighbour_vehicles(vehicle, vehicle.target_lane_index)[0]
-        target_acceleration = _idm(vehicle, front)
+        target_acceleration = _idm(vehicle, front, _OWN, state)
         acceleration = min(acceleration, target_acceleration)
     vehicle.action = {"steering": steering,
                       "acceleration": _clip(acceleration, -vehicle.ACC_MAX, vehicle.ACC_MAX)}
 
 
-def act_each(road: Any) -> None:
+def act_each(road: Any, state: ActState | None = None) -> None:
     """highway-env's ``Road.act``, one vehicle after the other: a plain IDM vehicle (see
     :func:`is_plain_idm`) acts by highway-env's lane-change policy and then
     :func:`_act_rest`, any other by its own ``act``; the same actions, target lanes and
-    timers, bit for bit."""
+    timers, bit for bit (``state``: the road's :class:`ActState`, if at hand)."""
     for vehicle in road.vehicles:
         if not is_plain_idm(vehicle):
             vehicle.act()
         elif not vehicle.crashed:
-            vehicle.follow_road()
+            _follow_road(vehicle, state)
             if vehicle.enable_lane_change:
-                _change_lane_policy(vehicle)
-            _act_rest(vehicle)
+                _change_lane_policy(vehicle, state)
+            _act_rest(vehicle, state)
 
 
 def _clip(x: Any, low: Any, high: Any) -> Any:
@@ -287,12 +311,13 @@ _OWN = object()
 """The default ``ego`` of :func:`_idm`: the vehicle itself (None is "no vehicle")."""
 
 
-def _idm(vehicle: Any, front: Any, ego: Any = _OWN) -> Any:
+def _idm(vehicle: Any, front: Any, ego: Any = _OWN, state: ActState | None = None) -> Any:
     """``vehicle.acceleration(ego_vehicle=ego, front_vehicle=front)`` (``ego``: ``vehicle``
     when not given; None or a non-vehicle: 0 as highway-env returns), term for term:
     ``vehicle``'s IDM constants, ``ego``'s speed, target speed and lane. An ``ego`` whose
     velocity, direction or ``lane_distance_to`` are not highway-env's is left to
-    ``vehicle.acceleration``."""
+    ``vehicle.acceleration``. ``state``: the road's :class:`ActState` during ``Road.act``
+    (speeds, headings and lane coordinates read from it)."""
     if ego is _OWN:
         ego = vehicle
     elif not ego or not isinstance(ego, Vehicle):
@@ -303,12 +328,15 @@ def _idm(vehicle: Any, front: Any, ego: Any = _OWN) -> Any:
     lane = ego.lane
     if lane and lane.speed_limit is not None:
         target_speed = _clip(target_speed, 0, lane.speed_limit)
+    speed = ego.speed if state is None else state.kinematics(ego)[2]
     acceleration = vehicle.COMFORT_ACC_MAX * (1 - np.power(
-        max(ego.speed, 0) / abs(_not_zero_one(target_speed)), vehicle.DELTA))
+        max(speed, 0) / abs(_not_zero_one(target_speed)), vehicle.DELTA))
     if front:
-        d = _local(lane, front.position)[0] - _local(lane, ego.position)[0]
+        d = None if state is None else state.distance(lane, ego, front)
+        if d is None:
+            d = _local(lane, front.position)[0] - _local(lane, ego.position)[0]
         acceleration -= vehicle.COMFORT_ACC_MAX * np.power(
-            _desired_gap(vehicle, front, ego) / _not_zero_one(d), 2)
+            _desired_gap(vehicle, front, ego, state) / _not_zero_one(d), 2)
     return acceleration
 
 
@@ -327,26 +355,31 @@ def _own_lane_distance(cls: type) -> bool:
     return getattr(cls, "lane_distance_to", None) is _HIGHWAY_ENV_DECIDE[4]
 
 
-def _desired_gap(vehicle: Any, front: Any, ego: Any = None) -> Any:
+def _desired_gap(vehicle: Any, front: Any, ego: Any = None,
+                 state: ActState | None = None) -> Any:
     """``vehicle.desired_gap(ego, front)`` (``ego``: ``vehicle`` when not given), term for
     term (``np.dot`` as :func:`_dot` computes it); ``ego`` has highway-env's velocity and
-    direction."""
+    direction. ``state``: the road's :class:`ActState` (speeds, headings, their cos and
+    sin read from it)."""
     if ego is None:
         ego = vehicle
     ab = -vehicle.COMFORT_ACC_MAX * vehicle.COMFORT_ACC_MIN
-    cos, sin = np.cos(ego.heading), np.sin(ego.heading)
-    if _standard_velocity(type(front)) and not {"velocity", "direction"} & vars(front).keys():
-        front_cos, front_sin = np.cos(front.heading), np.sin(front.heading)
-        dvx = ego.speed * cos - front.speed * front_cos
-        dvy = ego.speed * sin - front.speed * front_sin
+    if state is not None:
+        _, _, speed, _, cos, sin = state.kinematics(ego)
+        front_vx, front_vy = state.velocity(front)
+        dvx, dvy = speed * cos - front_vx, speed * sin - front_vy
     else:
-        dvx, dvy = np.array([ego.speed * cos, ego.speed * sin]) - front.velocity
-    if _dot_is_mul_add():
-        dv = dvx * cos + dvy * sin
-    else:
-        dv = np.dot(np.array([dvx, dvy]), np.array([cos, sin]))
-    return (vehicle.DISTANCE_WANTED + ego.speed * vehicle.TIME_WANTED
-            + ego.speed * dv / (2 * np.sqrt(ab)))
+        speed = ego.speed
+        cos, sin = np.cos(ego.heading), np.sin(ego.heading)
+        if _standard_velocity(type(front)) and "velocity" not in vars(front):
+            front_cos, front_sin = np.cos(front.heading), np.sin(front.heading)
+            dvx = speed * cos - front.speed * front_cos
+            dvy = speed * sin - front.speed * front_sin
+        else:
+            dvx, dvy = np.array([speed * cos, speed * sin]) - front.velocity
+    dv = _dot2(dvx, dvy, cos, sin, _dot_is_mul_add())
+    return (vehicle.DISTANCE_WANTED + speed * vehicle.TIME_WANTED
+            + speed * dv / (2 * np.sqrt(ab)))
 
 
 _HIGHWAY_ENV_DECIDE = (IDMVehicle.change_lane_policy, IDMVehicle.mobil,
@@ -397,11 +430,11 @@ def _decides_as_written(cls: type) -> bool:
             and utils.do_every is _HIGHWAY_ENV_DECIDE[5])
 
 
-def _change_lane_policy(vehicle: Any) -> None:
+def _change_lane_policy(vehicle: Any, state: ActState | None = None) -> None:
     """``vehicle.change_lane_policy()`` (a plain IDM vehicle, see :func:`is_plain_idm`):
     highway-env's code line for line, with MOBIL's accelerations by :func:`_idm`; the
     same target lanes and timers, bit for bit. Left to highway-env where its code is not
-    the one repeated here."""
+    the one repeated here. ``state``: the road's :class:`ActState` during ``Road.act``."""
     if not _decides_as_written(type(vehicle)):
         vehicle.change_lane_policy()
         return
@@ -413,8 +446,10 @@ def _change_lane_policy(vehicle: Any) -> None:
                 if (v is not vehicle and v.lane_index != vehicle.target_lane_index
                         and isinstance(v, ControlledVehicle)
                         and v.target_lane_index == vehicle.target_lane_index):
-                    d = _local(lane, v.position)[0] - _local(lane, vehicle.position)[0]
-                    d_star = _desired_gap(vehicle, v)
+                    d = None if state is None else state.distance(lane, vehicle, v)
+                    if d is None:
+                        d = _local(lane, v.position)[0] - _local(lane, vehicle.position)[0]
+                    d_star = _desired_gap(vehicle, v, None, state)
                     if 0 < d < d_star:
                         vehicle.target_lane_index = vehicle.lane_index
                         break
@@ -423,27 +458,35 @@ def _change_lane_policy(vehicle: Any) -> None:
         return
     vehicle.timer = 0
     network = vehicle.road.network
+    own_lane: list[Any] = []  # MOBIL's terms on the own lane, the same for both side lanes
     for lane_index in network.side_lanes(vehicle.lane_index):
         if not network.get_lane(lane_index).is_reachable_from(vehicle.position):
             continue
         if np.abs(vehicle.speed) < 1:  # only a moving vehicle changes lanes
             continue
-        if _mobil(vehicle, lane_index):
+        if _mobil(vehicle, lane_index, state, own_lane):
             vehicle.target_lane_index = lane_index
 
 
-def _mobil(vehicle: Any, lane_index: tuple) -> bool:
+def _mobil(vehicle: Any, lane_index: tuple, state: ActState | None = None,
+           own_lane: list[Any] | None = None) -> bool:
     """``vehicle.mobil(lane_index)``: whether MOBIL changes to ``lane_index``, highway-env's
-    code line for line with :func:`_idm` for its ``acceleration`` calls."""
+    code line for line with :func:`_idm` for its ``acceleration`` calls. ``own_lane``: a
+    list kept between the side lanes of one decision, which holds the accelerations on
+    the vehicle's own lane once computed (they do not depend on the side lane)."""
     road = vehicle.road
     # is the manoeuvre unsafe for the new following vehicle?
     new_preceding, new_following = road.neighbour_vehicles(vehicle, lane_index)
-    new_following_a = _idm(vehicle, new_preceding, new_following)
-    new_following_pred_a = _idm(vehicle, vehicle, new_following)
+    new_following_a = _idm(vehicle, new_preceding, new_following, state)
+    new_following_pred_a = _idm(vehicle, vehicle, new_following, state)
     if new_following_pred_a < -vehicle.LANE_CHANGE_MAX_BRAKING_IMPOSED:
         return False
-    old_preceding, old_following = road.neighbour_vehicles(vehicle)
-    self_pred_a = _idm(vehicle, new_preceding)
+    if own_lane is None:
+        own_lane = []
+    if not own_lane:
+        own_lane.append(road.neighbour_vehicles(vehicle))
+    old_preceding, old_following = own_lane[0]
+    self_pred_a = _idm(vehicle, new_preceding, _OWN, state)
     route = vehicle.route
     if route and route[0][2] is not None:
         # a planned lane: wrong direction, or unsafe braking for this vehicle
@@ -453,27 +496,17 @@ def _mobil(vehicle: Any, lane_index: tuple) -> bool:
         elif self_pred_a < -vehicle.LANE_CHANGE_MAX_BRAKING_IMPOSED:
             return False
     else:  # an acceleration advantage for this vehicle and/or its followers?
-        self_a = _idm(vehicle, old_preceding)
-        old_following_a = _idm(vehicle, vehicle, old_following)
-        old_following_pred_a = _idm(vehicle, old_preceding, old_following)
+        if len(own_lane) == 1:
+            own_lane += [_idm(vehicle, old_preceding, _OWN, state),
+                         _idm(vehicle, vehicle, old_following, state),
+                         _idm(vehicle, old_preceding, old_following, state)]
+        self_a, old_following_a, old_following_pred_a = own_lane[1:]
         jerk = (self_pred_a - self_a
                 + vehicle.POLITENESS * (new_following_pred_a - new_following_a
                                         + old_following_pred_a - old_following_a))
         if jerk < vehicle.LANE_CHANGE_MIN_ACC_GAIN:
             return False
     return True
-
-
-def _lane_arrays(lanes: list[StraightLane]) -> tuple[np.ndarray, ...]:
-    """start (n, 2), direction (n, 2), lateral direction (n, 2), heading (n,), speed limit
-    (n,) (NaN: none) of each lane."""
-    start = np.array([lane.start for lane in lanes], dtype=float)
-    direction = np.array([lane.direction for lane in lanes], dtype=float)
-    lateral = np.array([lane.direction_lateral for lane in lanes], dtype=float)
-    heading = np.array([lane.heading for lane in lanes], dtype=float)
-    limit = np.array([np.nan if lane.speed_limit is None else lane.speed_limit
-                      for lane in lanes], dtype=float)
-    return start, direction, lateral, heading, limit
 
 
 def lane_dots(positions: np.ndarray, lane: StraightLane) -> tuple[np.ndarray, np.ndarray]:
@@ -483,79 +516,202 @@ def lane_dots(positions: np.ndarray, lane: StraightLane) -> tuple[np.ndarray, np
     return _dot(delta, lane.direction), _dot(delta, lane.direction_lateral)
 
 
-def _along(position: np.ndarray, start: np.ndarray, direction: np.ndarray) -> np.ndarray:
-    """StraightLane.local_coordinates(position)[0] of each row: np.dot(position - start,
-    direction)."""
-    return _dot(position - start, direction)
-
-
 def _act_straight(road: Any, vehicles: list[Any], lanes: list[StraightLane],
-                  targets: list[StraightLane], leaders: Any = None) -> None:
+                  targets: list[StraightLane], leaders: Any = None,
+                  state: ActState | None = None) -> None:
     """The steering and IDM part of ``IDMVehicle.act`` for ``vehicles`` (plain IDM, on
-    straight ``lanes``, steering to straight ``targets``), all at once."""
-    n = len(vehicles)
-    (kp_lateral, kp_heading, length, max_steering, acc_max, comfort_max, comfort_min, delta,
-     distance_wanted, time_wanted) = np.array([_CONSTANTS(v) for v in vehicles],
-                                              dtype=float).T
-    speed, heading = np.array([_STATE(v) for v in vehicles], dtype=float).T
-    position = np.array([v.position for v in vehicles], dtype=float)
-    target_speed = np.array([getattr(v, "target_speed", 0) for v in vehicles], dtype=float)
-
-    # steering_control(target_lane_index), then act's clip
-    t_start, _, t_lateral, t_heading, _ = _lane_arrays(targets)
-    lat = _along(position, t_start, t_lateral)
-    nz_speed = _not_zero(speed)
-    heading_command = np.arcsin(np.clip(-kp_lateral * lat / nz_speed, -1, 1))
-    heading_ref = t_heading + np.clip(heading_command, -np.pi / 4, np.pi / 4)
-    heading_rate = kp_heading * (np.remainder(heading_ref - heading + np.pi, 2 * np.pi)
-                                 - np.pi)
-    slip = np.arcsin(np.clip(length / 2 / nz_speed * heading_rate, -1, 1))
-    steering = np.clip(np.arctan(2 * np.tan(slip)), -max_steering, max_steering)
-    steering = np.clip(steering, -max_steering, max_steering)
-
-    # acceleration(self, leader on the own lane), and on the target lane when changing
-    l_start, l_direction, _, _, limit = _lane_arrays(lanes)
-    own_s = _along(position, l_start, l_direction)
-    ego_target = np.where(np.isnan(limit), target_speed, np.clip(target_speed, 0, limit))
-    free = comfort_max * (1 - np.power(np.where(0 > speed, 0.0, speed)
-                                       / np.abs(_not_zero(ego_target)), delta))
-    direction = np.stack([np.cos(heading), np.sin(heading)], axis=1)
-    velocity = speed[:, None] * direction
-    gap_scale = 2 * np.sqrt(-comfort_max * comfort_min)
-
-    def accelerations(fronts: list[Any]) -> np.ndarray:
-        """IDM acceleration of each vehicle behind ``fronts`` (None: a free road)."""
-        out = free.copy()
-        rows = [k for k, front in enumerate(fronts) if front]
-        if not rows:
-            return out
-        ahead = [fronts[k] for k in rows]
-        front_position = np.array([f.position for f in ahead], dtype=float)
-        d = _along(front_position, l_start[rows], l_direction[rows]) - own_s[rows]
-        dv_vec = velocity[rows] - _velocity(ahead)
-        dv = _dot(dv_vec, direction[rows])
-        s = speed[rows]
-        d_star = distance_wanted[rows] + s * time_wanted[rows] + s * dv / gap_scale[rows]
-        out[rows] = out[rows] - comfort_max[rows] * np.power(d_star / _not_zero(d), 2)
-        return out
-
+    straight ``lanes``, steering to straight ``targets``): highway-env's formulas term for
+    term, one vehicle after the other in Python floats (the road's :class:`ActState`:
+    positions, speeds, headings and their cos and sin), numpy's ``arcsin``, ``tan`` and
+    ``arctan`` of each vehicle, and the two ``np.power`` of the IDM accelerations for all
+    vehicles at once (one array call each: numpy's per-call cost was most of this step)."""
+    if state is None:
+        state = ActState.of(road)
     if leaders is None:
         def leaders(ask: list[Any], lane_indices: list[Any]) -> list[Any]:
             return [road.neighbour_vehicles(v, li)[0]
                     for v, li in zip(ask, lane_indices, strict=True)]
 
-    acceleration = accelerations(leaders(vehicles, [v.lane_index for v in vehicles]))
+    fronts = leaders(vehicles, [v.lane_index for v in vehicles])
     changing = [k for k, v in enumerate(vehicles) if v.lane_index != v.target_lane_index]
-    if changing:
-        fronts: list[Any] = [None] * n
-        found = leaders([vehicles[k] for k in changing],
-                        [vehicles[k].target_lane_index for k in changing])
-        for k, front in zip(changing, found, strict=True):
-            fronts[k] = front
-        on_target = accelerations(fronts)
-        for k in changing:  # min(a, b): b only when smaller
-            if on_target[k] < acceleration[k]:
-                acceleration[k] = on_target[k]
-    acceleration = np.clip(acceleration, -acc_max, acc_max)
+    on_target = dict(zip(changing, leaders([vehicles[k] for k in changing],
+                                           [vehicles[k].target_lane_index for k in changing]),
+                         strict=True)) if changing else {}
+    mul_add = _dot_is_mul_add()
+    geometry: dict[int, tuple] = {}
+    steering, free_base, deltas, gap_base, rows = [], [], [], [], []
     for k, vehicle in enumerate(vehicles):
-        vehicle.action = {"steering": steering[k], "acceleration": acceleration[k]}
+        (kp_lateral, kp_heading, length, max_steering, acc_max, comfort_max, comfort_min,
+         delta, distance_wanted, time_wanted) = _CONSTANTS(vehicle)
+        x, y, speed, heading, cos, sin = state.kinematics(vehicle)
+
+        # steering_control(target_lane_index), then act's clip
+        target = geometry.get(id(targets[k])) or _geometry(targets[k], geometry)
+        lat = _dot2(x - target[0], y - target[1], target[4], target[5], mul_add)
+        nz_speed = _not_zero_one(speed)
+        heading_command = np.arcsin(_clip(-kp_lateral * lat / nz_speed, -1, 1))
+        heading_ref = target[6] + _clip(heading_command, -np.pi / 4, np.pi / 4)
+        heading_rate = kp_heading * ((heading_ref - heading + np.pi) % (2 * np.pi) - np.pi)
+        slip = np.arcsin(_clip(length / 2 / nz_speed * heading_rate, -1, 1))
+        steer = _clip(np.arctan(2 * np.tan(slip)), -max_steering, max_steering)
+        steering.append(np.float64(_clip(steer, -max_steering, max_steering)))
+
+        # acceleration(self, leader on the own lane), and on the target lane when changing
+        own = geometry.get(id(lanes[k])) or _geometry(lanes[k], geometry)
+        own_s = _dot2(x - own[0], y - own[1], own[2], own[3], mul_add)
+        target_speed = getattr(vehicle, "target_speed", 0)
+        if own[7] is not None:
+            target_speed = _clip(target_speed, 0, own[7])
+        free_base.append((0.0 if 0 > speed else speed) / abs(_not_zero_one(target_speed)))
+        deltas.append(delta)
+        gaps = []
+        for front in (fronts[k], on_target.get(k)):
+            if not front:
+                gaps.append(None)
+                continue
+            fx, fy = state.position(front)
+            d = _dot2(fx - own[0], fy - own[1], own[2], own[3], mul_add) - own_s
+            fvx, fvy = state.velocity(front)
+            dv = _dot2(speed * cos - fvx, speed * sin - fvy, cos, sin, mul_add)
+            d_star = (distance_wanted + speed * time_wanted
+                      + speed * dv / (2 * np.sqrt(-comfort_max * comfort_min)))
+            gaps.append(len(gap_base))
+            gap_base.append(d_star / _not_zero_one(d))
+        rows.append((comfort_max, acc_max, *gaps))
+    free_power = np.power(np.array(free_base, dtype=float),
+                          np.array(deltas, dtype=float)).tolist()
+    gap_power = np.power(np.array(gap_base, dtype=float), 2).tolist() if gap_base else []
+    for k, vehicle in enumerate(vehicles):
+        comfort_max, acc_max, own_gap, target_gap = rows[k]
+        free = comfort_max * (1 - free_power[k])
+        acceleration = free if own_gap is None else free - comfort_max * gap_power[own_gap]
+        if k in on_target:  # min(a, b): b only when smaller
+            changed = free if target_gap is None else free - comfort_max * gap_power[target_gap]
+            if changed < acceleration:
+                acceleration = changed
+        vehicle.action = {"steering": steering[k],
+                          "acceleration": np.float64(_clip(acceleration, -acc_max, acc_max))}
+
+
+def _geometry(lane: StraightLane, known: dict[int, tuple]) -> tuple:
+    """A straight lane's start (x, y), direction, lateral direction, heading (as the lane
+    has it) and speed limit (None: none), kept in ``known`` by the lane's id."""
+    known[id(lane)] = geometry = (
+        *map(float, lane.start), *map(float, lane.direction),
+        *map(float, lane.direction_lateral), lane.heading, lane.speed_limit)
+    return geometry
+
+
+def _dot2(a0: float, a1: float, b0: float, b1: float, mul_add: bool) -> float:
+    """``np.dot([a0, a1], [b0, b1])``, bit for bit: ``a0 * b0 + a1 * b1`` where the BLAS
+    kernel computes that (``mul_add``, :func:`_dot_is_mul_add`), else ``np.dot``."""
+    if mul_add:
+        return a0 * b0 + a1 * b1
+    return float(np.dot(np.array([a0, a1], dtype=float), np.array([b0, b1], dtype=float)))
+
+
+class ActState:
+    """The road's vehicles and objects as they stand while the vehicles act: during
+    ``Road.act`` nothing moves (positions, speeds, headings and lanes change in
+    ``Road.step``), so each object's position, speed and heading are read once, as Python
+    floats, with the cos and sin of its heading as numpy computes them (for all at once
+    where numpy's array kernels give its scalar kernels' bits, ``at_once``), and each
+    straight lane's coordinates of every object are computed once (:meth:`projection`).
+
+    Args:
+        others: the objects a neighbour search may return (the road's vehicles and objects
+            but Landmarks), in the road's order.
+        positions: (n, 2) their positions [m] (None when there are none).
+        at_once: whether numpy's array kernels agree with its scalar ones
+            (:func:`array_kernels_agree`).
+        projects: whether a lane's coordinates may be computed by :func:`lane_dots` (a
+            straight lane whose projection is highway-env's own); None: never.
+    """
+
+    def __init__(self, others: list[Any], positions: np.ndarray | None, at_once: bool,
+                 projects: Any = None) -> None:
+        self.others = others
+        self.positions = positions
+        self.index = {id(obj): k for k, obj in enumerate(others)}
+        self._projects = projects
+        self._projections: dict[int, tuple[Any, ...]] = {}
+        self._velocities: dict[int, tuple[float, float]] = {}
+        n = len(others)
+        try:
+            speed = np.array([obj.speed for obj in others], dtype=float)
+            heading = np.array([obj.heading for obj in others], dtype=float)
+        except (AttributeError, TypeError, ValueError):
+            speed = heading = None
+        if speed is None or speed.shape != (n,) or heading.shape != (n,) or positions is None:
+            self._rows: list[tuple[float, ...]] | None = None
+            return
+        if at_once:
+            cos, sin = np.cos(heading).tolist(), np.sin(heading).tolist()
+        else:
+            cos = [float(np.cos(h)) for h in heading]
+            sin = [float(np.sin(h)) for h in heading]
+        self._rows = [(*xy, s, h, c, si) for xy, s, h, c, si in zip(
+            positions.tolist(), speed.tolist(), heading.tolist(), cos, sin, strict=True)]
+
+    @classmethod
+    def of(cls, road: Any) -> ActState:
+        """The state of ``road``'s searchable objects now (scalar cos and sin)."""
+        from highway_env.vehicle.objects import Landmark
+
+        others = [v for v in road.vehicles + road.objects if not isinstance(v, Landmark)]
+        positions = np.array([v.position for v in others], dtype=float) if others else None
+        return cls(others, positions, at_once=False)
+
+    def kinematics(self, obj: Any) -> tuple[float, float, float, float, float, float]:
+        """x, y [m], speed [m/s], heading [rad] and its cos and sin (numpy's) of ``obj``."""
+        k = self.index.get(id(obj)) if self._rows is not None else None
+        if k is not None:
+            return self._rows[k]
+        x, y = obj.position
+        return (float(x), float(y), obj.speed, obj.heading, float(np.cos(obj.heading)),
+                float(np.sin(obj.heading)))
+
+    def position(self, obj: Any) -> tuple[float, float]:
+        """x, y [m] of ``obj``."""
+        k = self.index.get(id(obj)) if self._rows is not None else None
+        if k is not None:
+            return self._rows[k][:2]
+        x, y = obj.position
+        return float(x), float(y)
+
+    def velocity(self, obj: Any) -> tuple[float, float]:
+        """``obj.velocity`` [m/s] as two floats: speed times the cos and sin of the heading
+        where it is highway-env's (class and instance), else asked of the object."""
+        if _standard_velocity(type(obj)) and "velocity" not in vars(obj):
+            _, _, speed, _, cos, sin = self.kinematics(obj)
+            return speed * cos, speed * sin
+        vx, vy = np.asarray(obj.velocity, dtype=float)
+        return float(vx), float(vy)
+
+    def distance(self, lane: Any, obj: Any, other: Any) -> float | None:
+        """``obj.lane_distance_to(other, lane)``: ``other``'s longitudinal coordinate on
+        ``lane`` minus ``obj``'s, from the lane's :meth:`projection` (None where there is
+        none, or either object is not one of the road's)."""
+        projection = self.projection(lane)
+        if projection is None:
+            return None
+        k, j = self.index.get(id(obj)), self.index.get(id(other))
+        if k is None or j is None:
+            return None
+        along = projection[2]
+        return along[j] - along[k]
+
+    def projection(self, lane: Any) -> tuple[np.ndarray, np.ndarray, list[float]] | None:
+        """(n,) longitudinal and (n,) lateral coordinates [m] of every object on ``lane``
+        (:func:`lane_dots`: ``lane.local_coordinates`` bit for bit), and the longitudinal
+        ones as a list; None for a lane whose projection is not highway-env's straight
+        lane's (see ``projects``)."""
+        got = self._projections.get(id(lane))
+        if got is None:
+            if self.positions is None or self._projects is None or not self._projects(lane):
+                got = (lane, None)
+            else:
+                along, across = lane_dots(self.positions, lane)
+                got = (lane, (along, across, along.tolist()))
+            self._projections[id(lane)] = got
+        return got[1]

@@ -67,10 +67,10 @@ from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import Landmark, RoadObject
 
 from tap_bench.sim.fast_idm import (
+    ActState,
     act_all,
     act_each,
     array_kernels_agree,
-    lane_dots,
     sources_match,
 )
 
@@ -115,9 +115,8 @@ class FastRoad:
         self.road = road
         self._others: list[Any] | None = None
         self._count = 0
-        self._positions: np.ndarray | None = None
+        self._state: ActState | None = None
         self._lanes: dict[Any, tuple[list[float], list[int], list[float]] | None] = {}
-        self._index_of: dict[int, int] | None = None
         self._flat: list[tuple[Any, ...]] = []
         self._arrays: dict[str, np.ndarray] = {}
         self._decide_at_once = array_kernels_agree()
@@ -257,18 +256,21 @@ class FastRoad:
         return out
 
     def act(self) -> None:
-        """highway-env's ``Road.act`` with the projections kept for its duration."""
+        """highway-env's ``Road.act`` with the road's state (:class:`fast_idm.ActState
+        <tap_bench.sim.fast_idm.ActState>`) and the lanes' projections kept for its
+        duration."""
         self._count = len(self.road.vehicles) + len(self.road.objects)
-        self._others, self._positions = self._snapshot()
+        self._others, positions = self._snapshot()
+        self._state = ActState(self._others, positions, self._decide_at_once,
+                               projects=_projects)
         try:
             if self._decide_at_once and len(self.road.vehicles) >= AT_ONCE_FROM:
-                act_all(self.road, leaders=self.leaders)
+                act_all(self.road, leaders=self.leaders, state=self._state)
             else:  # one vehicle after the other, as highway-env's Road.act
-                act_each(self.road)
+                act_each(self.road, state=self._state)
         finally:
-            self._others = self._positions = None
+            self._others = self._state = None
             self._lanes.clear()
-            self._index_of = None
 
     def _snapshot(self) -> tuple[list[Any], np.ndarray | None]:
         """The road's vehicles and objects a search may return (not Landmarks), in the
@@ -295,16 +297,15 @@ class FastRoad:
         lane's first query of the step. None for a lane that changes how it projects."""
         table = self._lanes.get(lane_index)
         if table is None and lane_index not in self._lanes:
-            if _LANE_PROJECTION & vars(lane).keys() or not _searches_as_written():
-                table = None  # highway-env's own search
-            else:
-                along, across = lane_dots(self._positions, lane)
+            projection = self._state.projection(lane)
+            if projection is not None:
+                along, across, listed = projection
                 on = (np.abs(across) <= lane.width / 2 + _MARGIN) \
                     & (-lane.VEHICLE_LENGTH <= along) \
                     & (along < lane.length + lane.VEHICLE_LENGTH)
                 rows = np.flatnonzero(on)
                 order = rows[np.lexsort((rows, along[rows]))]
-                table = along[order].tolist(), order.tolist(), along.tolist()
+                table = along[order].tolist(), order.tolist(), listed
             self._lanes[lane_index] = table
         return table
 
@@ -368,9 +369,7 @@ class FastRoad:
         ``s_v <= s_front``), ``vehicle`` itself excepted; the follower the nearest behind
         (``s_v < s``), the first in road order among equals (``s_v > s_rear``)."""
         keys, rows, along = table
-        if self._index_of is None:
-            self._index_of = {id(v): i for i, v in enumerate(self._others)}
-        me = self._index_of.get(id(vehicle), -1)
+        me = self._state.index.get(id(vehicle), -1)
         s = along[me] if me >= 0 else lane.local_coordinates(vehicle.position)[0]
         if s != s:  # NaN: highway-env's comparisons all fail
             return None, None
@@ -591,6 +590,15 @@ def _searches_as_written() -> bool:
             and StraightLane.local_coordinates is _HIGHWAY_ENV_SEARCH[2]
             and StraightLane.width_at is _HIGHWAY_ENV_SEARCH[3]
             and _search_sources_match())
+
+
+def _projects(lane: Any) -> bool:
+    """Whether ``lane``'s coordinates of the road's objects may be computed at once by
+    :func:`fast_idm.lane_dots <tap_bench.sim.fast_idm.lane_dots>` (highway-env's straight
+    lane, its projection not changed on the instance, and highway-env's search code the
+    one the lane tables repeat)."""
+    return (type(lane) is StraightLane and not _LANE_PROJECTION & vars(lane).keys()
+            and _searches_as_written())
 
 
 @functools.cache

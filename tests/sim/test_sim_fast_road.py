@@ -191,23 +191,28 @@ def test_a_changed_formula_is_caught(monkeypatch, mutation):
     if mutation in ("steering", "acceleration"):
         act = fast_idm._act_straight
 
-        def one_ulp_off(road, vehicles, lanes, targets, leaders=None):
-            act(road, vehicles, lanes, targets, leaders)
+        def one_ulp_off(road, vehicles, *args):
+            act(road, vehicles, *args)
             for vehicle in vehicles:
                 vehicle.action[mutation] = np.nextafter(vehicle.action[mutation], np.inf)
 
         monkeypatch.setattr(fast_idm, "_act_straight", one_ulp_off)
     elif mutation == "lane coordinate":
-        along = fast_idm._along
-        monkeypatch.setattr(fast_idm, "_along",
-                            lambda p, s, d: np.nextafter(along(p, s, d), np.inf))
+        projection = fast_idm.ActState.projection
+
+        def off(self, lane):
+            got = projection(self, lane)
+            return got and (got[0], got[1], [np.nextafter(s, np.inf) for s in got[2]])
+
+        monkeypatch.setattr(fast_idm.ActState, "projection", off)
     elif mutation == "not zero":
-        not_zero = fast_idm._not_zero
-        monkeypatch.setattr(fast_idm, "_not_zero",
-                            lambda x: np.nextafter(not_zero(x), np.inf))
+        not_zero = fast_idm._not_zero_one
+        monkeypatch.setattr(fast_idm, "_not_zero_one",
+                            lambda x, eps=0.01: np.nextafter(not_zero(x, eps), np.inf))
     elif mutation == "velocity":
-        velocity = fast_idm._velocity
-        monkeypatch.setattr(fast_idm, "_velocity", lambda objects: velocity(objects) * 1.01)
+        velocity = fast_idm.ActState.velocity
+        monkeypatch.setattr(fast_idm.ActState, "velocity",
+                            lambda self, obj: tuple(1.01 * v for v in velocity(self, obj)))
     elif mutation in ("motion", "motion one at a time"):  # one ulp in the kinematics
         one_at_a_time = mutation == "motion one at a time"
         name = "_kinematics" if one_at_a_time else "_kinematics_at_once"
@@ -751,6 +756,15 @@ def test_vehicles_move_through_highway_env_when_its_code_is_not_the_one_repeated
     fast_road._moving_class.cache_clear()
 
 
+def _act_state(road: Road):
+    """The road's state as FastRoad reads it for ``Road.act`` (fast_idm.ActState)."""
+    from tap_bench.sim import fast_idm, fast_road
+
+    others, positions = FastRoad(road)._snapshot()
+    return fast_idm.ActState(others, positions, fast_idm.array_kernels_agree(),
+                             projects=fast_road._projects)
+
+
 def _lane_change_mismatches(seeds=(0, 1, 2)) -> dict[str, int]:
     """fast_idm's lane-change policy against highway-env's on drawn highway states.
 
@@ -788,16 +802,19 @@ def _lane_change_mismatches(seeds=(0, 1, 2)) -> dict[str, int]:
                 sides = road.network.side_lanes(vehicle.lane_index)
                 if rng.random() < 0.3 and sides:
                     vehicle.target_lane_index = sides[int(rng.integers(len(sides)))]
+            state = _act_state(road)
             for vehicle in vehicles:
                 start = (vehicle.target_lane_index, vehicle.timer)
-                fast_idm._change_lane_policy(vehicle)
-                ours = (vehicle.target_lane_index, vehicle.timer)
-                vehicle.target_lane_index, vehicle.timer = start
+                ours = []
+                for read in (None, state):  # the vehicles' own attributes, the road's state
+                    fast_idm._change_lane_policy(vehicle, read)
+                    ours.append((vehicle.target_lane_index, vehicle.timer))
+                    vehicle.target_lane_index, vehicle.timer = start
                 IDMVehicle.change_lane_policy(vehicle)
                 theirs = (vehicle.target_lane_index, vehicle.timer)
                 vehicle.target_lane_index, vehicle.timer = start
                 counts["decisions"] += 1
-                counts["decision mismatches"] += ours != theirs
+                counts["decision mismatches"] += ours != [theirs, theirs]
                 if start[0] != vehicle.lane_index:
                     counts["aborts"] += theirs[0] == vehicle.lane_index
                 else:
@@ -805,14 +822,17 @@ def _lane_change_mismatches(seeds=(0, 1, 2)) -> dict[str, int]:
                 for lane_index in [*road.network.side_lanes(vehicle.lane_index), None]:
                     front, rear = road.neighbour_vehicles(vehicle, lane_index)
                     for ego, ahead in [(rear, front), (rear, vehicle), (vehicle, front)]:
-                        got = fast_idm._idm(vehicle, ahead, ego) if ego is not vehicle \
-                            else fast_idm._idm(vehicle, ahead)
                         want = vehicle.acceleration(ego_vehicle=ego, front_vehicle=ahead)
-                        counts["accelerations"] += 1
-                        counts["user-class accelerations"] += isinstance(
-                            ego, _SlipIDM | _TurnedIDM) or isinstance(ahead, _SlipIDM | _TurnedIDM)
-                        counts["acceleration mismatches"] += (  # bits, signed zeros
-                            np.float64(got).tobytes() != np.float64(want).tobytes())
+                        for read in (None, state):
+                            got = fast_idm._idm(vehicle, ahead, ego, read) \
+                                if ego is not vehicle \
+                                else fast_idm._idm(vehicle, ahead, fast_idm._OWN, read)
+                            counts["accelerations"] += 1
+                            counts["user-class accelerations"] += isinstance(
+                                ego, _SlipIDM | _TurnedIDM) or isinstance(
+                                    ahead, _SlipIDM | _TurnedIDM)
+                            counts["acceleration mismatches"] += (  # bits, signed zeros
+                                np.float64(got).tobytes() != np.float64(want).tobytes())
         env.close()
     return counts
 
@@ -850,12 +870,17 @@ def _mutate(monkeypatch, name: str, old: str, new: str) -> None:
     ("_change_lane_policy", "vehicle.LANE_CHANGE_DELAY < vehicle.timer",
      "vehicle.LANE_CHANGE_DELAY <= vehicle.timer + 0.5"),
     ("_idm", "return acceleration", "return np.nextafter(acceleration, np.inf)"),  # 1 ulp
-    ("_desired_gap", "+ ego.speed * dv", "+ ego.speed * np.nextafter(dv, np.inf)"),
-    ("_idm", "max(ego.speed, 0)", "max(vehicle.speed, 0)"),  # the follower's own speed
+    ("_desired_gap", "+ speed * dv", "+ speed * np.nextafter(dv, np.inf)"),
+    ("_idm", "max(speed, 0)", "max(vehicle.speed, 0)"),  # the follower's own speed
+    ("_mobil", "own_lane.append(road.neighbour_vehicles(vehicle))",  # the own lane's
+     "own_lane.append(road.neighbour_vehicles(vehicle, lane_index))"),  # neighbours
+    ("_mobil", "own_lane[1:]", "own_lane[1:][::-1]"),  # the own lane's terms mixed up
+    ("ActState", "return along[j] - along[k]", "return along[j] - along[k] + 1e-12"),
 ])
 def test_a_changed_lane_change_policy_is_caught(monkeypatch, name, old, new):
     """A changed term of the lane-change policy (a wrong politeness, a sign, one ulp in an
-    acceleration or desired gap, another vehicle's speed) makes the comparison fail."""
+    acceleration, desired gap or lane distance, another vehicle's speed, the own lane's
+    terms kept between the side lanes wrongly) makes the comparison fail."""
     _mutate(monkeypatch, name, old, new)
     counts = _lane_change_mismatches(seeds=(0, 1, 2))
     assert counts["decision mismatches"] + counts["acceleration mismatches"] > 0, counts
@@ -1060,3 +1085,217 @@ def test_a_changed_formula_of_the_motion_at_once_is_caught(monkeypatch, old, new
     theirs = _episodes("highway", fast_road=False, fast=True, seeds=(0,))
     with pytest.raises(AssertionError):
         pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
+
+
+def _act_mismatches(seeds=(0, 1, 2)) -> dict[str, int]:
+    """FastRoad's ``Road.act`` (fast_idm on the road's ActState) against highway-env's own
+    ``Road.act`` (and its own search) on drawn highway states.
+
+    Dense 4-lane highways (every fifth other vehicle a user class whose velocity or
+    direction is not highway-env's) are run a few decisions; then every plain IDM vehicle
+    is moved up to 3 m across its lane and gets a drawn heading (up to 0.8 rad off the
+    road), speed (negative, within ``not_zero``'s 0.01 of zero, or up to 40 m/s), target
+    speed, exponent and timer (a due lane-change decision), some an ongoing change to a
+    side lane, and some lanes a speed limit, so that every clip of the steering and of the
+    acceleration binds. Both run from the same state; every vehicle's action (its bits,
+    signed zeros included), target lane and timer are compared."""
+    from highway_env.vehicle.behavior import IDMVehicle
+
+    from tap_bench.sim import fast_idm
+
+    counts = dict.fromkeys(["vehicles", "steering clipped", "acceleration clipped",
+                            "changing", "limited", "slow", "mismatches"], 0)
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        env = make_env("highway", config={"vehicles_count": 40, "lanes_count": 4},
+                       duration=8, record=False, fast=True)
+        env.reset(seed=seed)
+        road = env.unwrapped.road
+        fast = road.act
+        for k, vehicle in enumerate(road.vehicles[1:]):
+            if k % 5 == 4:
+                vehicle.__class__ = (_SlipIDM, _TurnedIDM)[k % 2]
+        lanes = [road.network.get_lane(("0", "1", i)) for i in range(4)]
+        for _ in range(4):
+            env.step(int(rng.integers(5)))
+            for lane in lanes:
+                lane.speed_limit = float(rng.choice([20.0, 25.0, 30.0])) \
+                    if rng.random() < 0.5 else None
+            for vehicle in road.vehicles:
+                if not fast_idm.is_plain_idm(vehicle):
+                    continue
+                vehicle.position = vehicle.position + np.array([0.0, rng.uniform(-3, 3)])
+                vehicle.heading = float(rng.choice([rng.uniform(-0.8, 0.8), 0.0, -0.0]))
+                vehicle.speed = float(rng.choice([rng.uniform(-3, 0), rng.uniform(-0.01, 0.01),
+                                                  rng.uniform(0, 40), rng.uniform(15, 35)]))
+                vehicle.target_speed = float(rng.choice([rng.uniform(-5, 45), 0.0, -0.0,
+                                                         rng.uniform(-0.01, 0.01)]))
+                vehicle.DELTA = float(rng.uniform(2, 6))
+                vehicle.timer = float(rng.uniform(0, 2))
+                sides = road.network.side_lanes(vehicle.lane_index)
+                if rng.random() < 0.3 and sides:
+                    vehicle.target_lane_index = sides[int(rng.integers(len(sides)))]
+            saved = [(vehicle, dict(vars(vehicle))) for vehicle in road.vehicles]
+            random_state = road.np_random.bit_generator.state
+            outcomes = []
+            for act in (fast, lambda road=road: Road.act(road)):
+                for vehicle, attributes in saved:
+                    vars(vehicle).clear()
+                    vars(vehicle).update(attributes)
+                road.np_random.bit_generator.state = random_state
+                search = vars(road).pop("neighbour_vehicles") if act is not fast else None
+                act()
+                if search is not None:
+                    road.neighbour_vehicles = search
+                outcomes.append([(v.target_lane_index, getattr(v, "timer", None),
+                                  np.float64(v.action["steering"]).tobytes(),
+                                  np.float64(v.action["acceleration"]).tobytes())
+                                 for v in road.vehicles])
+            for vehicle, ours, theirs in zip(road.vehicles, *outcomes, strict=True):
+                if not fast_idm.is_plain_idm(vehicle):
+                    continue
+                counts["vehicles"] += 1
+                counts["mismatches"] += ours != theirs
+                counts["steering clipped"] += abs(vehicle.action["steering"]) \
+                    == vehicle.MAX_STEERING_ANGLE
+                counts["acceleration clipped"] += abs(vehicle.action["acceleration"]) \
+                    == vehicle.ACC_MAX
+                counts["changing"] += vehicle.lane_index != vehicle.target_lane_index
+                counts["limited"] += vehicle.lane.speed_limit is not None
+                counts["slow"] += abs(vehicle.speed) < 0.01
+            assert isinstance(road.vehicles[1], IDMVehicle)
+        env.close()
+    return counts
+
+
+@pytest.mark.parametrize("one_at_a_time", [False, True])
+def test_vehicles_act_as_with_highway_envs_act_on_drawn_states(monkeypatch, one_at_a_time):
+    from tap_bench.sim import fast_road
+
+    if one_at_a_time:
+        monkeypatch.setattr(fast_road, "AT_ONCE_FROM", 10 ** 6)
+    counts = _act_mismatches()
+    assert counts["mismatches"] == 0, counts
+    assert counts["vehicles"] >= 300 and counts["changing"] >= 30, counts
+    assert min(counts["steering clipped"], counts["acceleration clipped"], counts["limited"],
+               counts["slow"]) >= 10, counts
+
+
+@pytest.mark.parametrize(("name", "old", "new"), [
+    ("_act_straight", "heading_ref - heading + np.pi", "heading_ref + np.pi - heading"),
+    ("_act_straight", "-np.pi / 4, np.pi / 4", "-np.pi / 3, np.pi / 3"),  # a wrong clip
+    ("_act_straight", "target_speed = _clip(target_speed, 0, own[7])", "pass"),  # no limit
+    ("_act_straight", "abs(_not_zero_one(target_speed))",
+     "abs(_not_zero_one(target_speed, 0.02))"),
+    ("_act_straight", "if changed < acceleration:", "if True:"),  # min() on the target lane
+    ("_act_straight", "- own_s", "- np.nextafter(own_s, np.inf)"),  # one ulp in a gap
+    ("_act_straight", "(2 * np.sqrt(-comfort_max * comfort_min))",
+     "2 * np.sqrt(-comfort_max * comfort_min)"),
+    ("ActState", "cos, sin = np.cos(heading).tolist(), np.sin(heading).tolist()",
+     "cos, sin = np.cos(heading + 1e-9).tolist(), np.sin(heading).tolist()"),
+    ("ActState", "return speed * cos, speed * sin", "return speed * cos, speed * cos"),
+    ("_dot2", "return a0 * b0 + a1 * b1", "return a0 * (b0 + 1e-12) + a1 * b1"),
+])
+def test_a_changed_formula_of_the_actions_is_caught(monkeypatch, name, old, new):
+    """A changed term of the steering, the IDM accelerations or the road's state (one
+    rounding, a clip, a speed limit, the min of the two lanes' accelerations, a cos) makes
+    the comparison of actions on drawn states fail."""
+    from tap_bench.sim import fast_road
+
+    _mutate(monkeypatch, name, old, new)
+    if name == "ActState":
+        from tap_bench.sim import fast_idm
+
+        monkeypatch.setattr(fast_road, "ActState", fast_idm.ActState)
+    assert _act_mismatches(seeds=(0,))["mismatches"] > 0
+
+
+def _follow_road_outcomes(angle: float) -> tuple[list, list]:
+    """Vehicles at, one ulp around and a little before and past the point where
+    highway-env's ``after_end`` says a straight lane ends (``length - VEHICLE_LENGTH / 2``)
+    on a road turned by ``angle`` [rad], each targeting its own lane: their target lanes
+    after fast_idm's ``_follow_road`` (the road's state) and after highway-env's
+    ``follow_road`` (which switches to the next road's lane past the end)."""
+    from tap_bench.sim import fast_idm
+
+    rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    network = RoadNetwork()
+    for lane in range(2):
+        network.add_lane("a", "b", StraightLane(rotation @ [0, 4 * lane],
+                                                rotation @ [100, 4 * lane]))
+        network.add_lane("b", "c", StraightLane(rotation @ [100, 4 * lane],
+                                                rotation @ [300, 4 * lane]))
+    road = Road(network=network, np_random=np.random.RandomState(0))
+    end = 100 - StraightLane.VEHICLE_LENGTH / 2
+    places = [end, np.nextafter(end, 0), np.nextafter(end, 200), end - 1e-9, end + 1e-9,
+              end - 3, end + 3, 101.0, 99.0, -1.0]
+    for lane in range(2):
+        for s in places:
+            lane_index = ("a", "b", lane)
+            position = network.get_lane(lane_index).position(s, 0.0)
+            vehicle = IDMVehicle(road, position, angle, 20.0, target_lane_index=lane_index)
+            vehicle.lane_index, vehicle.lane = lane_index, network.get_lane(lane_index)
+            road.vehicles.append(vehicle)
+    state = _act_state(road)
+    ours, theirs = [], []
+    for vehicle in road.vehicles:
+        start = vehicle.target_lane_index
+        fast_idm._follow_road(vehicle, state)
+        ours.append(vehicle.target_lane_index)
+        vehicle.target_lane_index = start
+        vehicle.follow_road()
+        theirs.append(vehicle.target_lane_index)
+        vehicle.target_lane_index = start
+    return ours, theirs
+
+
+@pytest.mark.parametrize("angle", [0.0, 0.3, -2.1])
+def test_the_end_of_a_lane_is_seen_as_highway_env_sees_it(angle):
+    ours, theirs = _follow_road_outcomes(angle)
+    assert ours == theirs
+    switched = sum(lane[0] == "b" for lane in theirs)
+    assert 4 <= switched <= len(theirs) - 4  # both outcomes, near the end
+
+
+@pytest.mark.parametrize(("old", "new"), [
+    ("> lane.length - lane.VEHICLE_LENGTH / 2",
+     "> lane.length - lane.VEHICLE_LENGTH / 2 + 1e-12"),
+    ("> lane.length - lane.VEHICLE_LENGTH / 2", "> lane.length - lane.VEHICLE_LENGTH / 3"),
+    ("projection[2][k]", "np.nextafter(projection[2][k], 0)"),
+])
+def test_a_changed_end_of_lane_is_caught(monkeypatch, old, new):
+    _mutate(monkeypatch, "_follow_road", old, new)
+    assert any(ours != theirs for ours, theirs in (_follow_road_outcomes(angle)
+                                                  for angle in (0.0, 0.3)))
+
+
+def test_the_end_of_a_lane_is_highway_envs_when_its_code_is_not_the_one_repeated(monkeypatch):
+    """Another highway-env's ``follow_road`` or ``after_end`` source, or a lane whose
+    ``after_end`` is its own, and highway-env's ``follow_road`` decides."""
+    from tap_bench.sim import fast_idm
+
+    road, vehicles = _straight_road([(100, 0)])
+    state = _act_state(road)
+    asked = []
+    vehicles[0].follow_road = lambda: asked.append(vehicles[0])  # highway-env's, counted
+
+    def ask() -> int:
+        asked.clear()
+        fast_idm._follow_road(vehicles[0], state)
+        return len(asked)
+
+    assert ask() == 0  # read from the road's state
+    monkeypatch.setitem(fast_idm._FOLLOW_CODE, "AbstractLane.after_end", "0" * 16)
+    fast_idm._follows_as_written.cache_clear()
+    try:
+        assert ask() == 1  # another highway-env's source
+    finally:
+        monkeypatch.undo()
+        fast_idm._follows_as_written.cache_clear()
+    assert ask() == 0
+    lane = road.network.get_lane(vehicles[0].target_lane_index)
+    lane.after_end = lambda position, longitudinal=None, lateral=None: False
+    assert ask() == 1  # the lane's own end
+    del lane.after_end
+    monkeypatch.setattr(IDMVehicle, "follow_road", lambda self: None)
+    assert ask() == 1  # a changed follow_road
