@@ -432,8 +432,8 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
 
         if not shared_envs_supported():
             in_process = False
-            why += ("; this Stable-Baselines3's worker loop is not the one tap-bench "
-                    "repeats for the env in this process")
+            why += ("; this Stable-Baselines3's worker loop (SubprocVecEnv, _worker) is "
+                    "not the one tap-bench repeats for the env in this process")
     if n_envs == 1:
         where = ""
     elif in_process is True:

@@ -164,8 +164,24 @@ def test_another_sb3_worker_loop_falls_back_to_worker_processes(tmp_path, write_
               in_process="one", hyperparameters={"learning_starts": 10},
               output=tmp_path / "m.zip", announce=lines.append)
         starting = next(line for line in lines if "training env(s)" in line)
-        assert "in worker processes" in starting and "worker loop is not" in starting
+        assert "in worker processes" in starting
+        assert "worker loop (SubprocVecEnv, _worker) is not" in starting
     finally:
         shared._WORKER_CODE = digests
+        shared.shared_envs_supported.cache_clear()
+    assert shared.shared_envs_supported()
+
+
+def test_the_subprocvecenv_it_restates_is_checked_too(monkeypatch):
+    """SharedVecEnv re-states SubprocVecEnv's ``__init__`` and ``close`` and uses its other
+    methods with env 0's end of a pipe: another SB3 whose ``_worker`` is unchanged but whose
+    SubprocVecEnv differs falls back to worker processes as well."""
+    assert set(shared._WORKER_CODE) == {"_worker", "SubprocVecEnv"}
+    monkeypatch.setattr(shared, "_WORKER_CODE", {**shared._WORKER_CODE, "SubprocVecEnv": "0" * 16})
+    shared.shared_envs_supported.cache_clear()
+    try:
+        assert not shared.shared_envs_supported()
+    finally:
+        monkeypatch.undo()
         shared.shared_envs_supported.cache_clear()
     assert shared.shared_envs_supported()
