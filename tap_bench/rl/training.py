@@ -232,11 +232,11 @@ def idle_cores(seconds: float = 0.3) -> float | None:
     node's idle ones; None where it cannot be read).
 
     Training picks where its envs run by it (``train(in_process=None)``, :func:`envs_where`:
-    in this process below ``n_envs - 0.5`` idle cores, half a core of margin for the
-    sample's noise): with fewer idle cores than worker processes, those workers only take
-    turns with other work on the busy cores (measured: 23 to 33 % more CPU per env step, and
-    fewer steps per second in 6 of 6 interleaved pairs, than the envs stepped in the
-    training process, at load 4.6 to 9 on 2 cores)."""
+    in this process below 1.5 idle cores, half a core of margin for the sample's noise):
+    without a second idle core, worker processes only take turns with other work on the
+    busy cores (measured with 2 envs: 23 to 33 % more CPU per env step, and fewer steps per
+    second in 6 of 6 interleaved pairs, than the envs stepped in the training process, at
+    load 4.6 to 9 on 2 cores)."""
     try:  # the lines of this process's cores
         lines = {f"cpu{k}" for k in os.sched_getaffinity(0)}
         n_cores = len(lines)
@@ -272,13 +272,16 @@ def idle_cores(seconds: float = 0.3) -> float | None:
 
 def envs_where(idle: float | None, n_envs: int, cores: int) -> bool | str:
     """Where ``train(in_process=None)`` steps ``n_envs`` training envs (``n_envs`` > 1):
-    ``True`` (all in this process) with fewer than ``n_envs - 0.5`` idle cores, ``"one"``
-    (env 0 in this process, the others in workers) with fewer than ``n_envs + 0.5``, else
-    ``False`` (each in a worker, the learner on a core of its own). ``idle``: the idle
-    cores measured (:func:`idle_cores`); where unknown (None), the ``cores`` this process
-    may run on are taken as idle. Half a core of margin for the sample's noise."""
+    ``True`` (all in this process, on one core) with fewer than 1.5 idle cores (no second
+    core for a worker), ``"one"`` (env 0 in this process, the others in workers) with fewer
+    than ``n_envs + 0.5``, else ``False`` (each in a worker, the learner on a core of its
+    own). With 2 or more idle cores the envs run in parallel even when there are more envs
+    than idle cores: 16 envs on 14 idle cores take turns on 14 cores, not one after the
+    other on one. ``idle``: the idle cores measured (:func:`idle_cores`); where unknown
+    (None), the ``cores`` this process may run on are taken as idle. Half a core of margin
+    for the sample's noise."""
     free = cores if idle is None else idle
-    if free < n_envs - 0.5:
+    if free < 1.5:
         return True
     return "one" if free < n_envs + 0.5 else False
 

@@ -506,6 +506,21 @@ def test_by_default_the_envs_run_where_the_idle_cores_make_them_fastest(
     assert training.envs_where(idle, 2, cores) == expected
 
 
+
+@pytest.mark.parametrize(("idle", "n_envs", "cores", "expected"), [
+    (1.4, 3, 2, True), (1.4, 16, 64, True), (None, 4, 1, True),  # no second core free
+    (2.0, 3, 2, "one"), (2.0, 4, 4, "one"), (3.4, 4, 4, "one"), (14.0, 16, 64, "one"),
+    (None, 3, 2, "one"), (None, 4, 4, "one"),
+    (4.6, 4, 8, False), (60.0, 16, 64, False), (None, 8, 64, False)])
+def test_with_more_envs_the_default_keeps_the_free_cores_busy(idle, n_envs, cores, expected):
+    """More than 2 envs: all in this process only when no second core is free (the rule of
+    2 envs, below 1.5 idle cores); with 2 or more free, the envs run in parallel, env 0 in
+    this process up to n_envs + 0.5 free cores. 16 envs on 14 idle cores of a 64-core node
+    went one after the other on one core."""
+    from tap_bench.rl.training import envs_where
+
+    assert envs_where(idle, n_envs, cores) == expected
+
 def test_bad_in_process_values_are_refused(tmp_path):
     from tap_bench.errors import ParameterError
     from tap_bench.rl.training import train
