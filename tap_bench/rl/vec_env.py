@@ -181,14 +181,16 @@ class SharedVecEnv(SubprocVecEnv):
             for remote in workers:
                 remote.recv()
             self.waiting = False
-        local.close()
-        for remote in workers:
-            remote.send(("close", None))
-        for process in self.processes:
-            process.join()
-        for remote in workers:
-            remote.close()
-        self.closed = True
+        try:
+            local.close()
+        finally:  # the workers end even when env 0's close fails, as a worker's env may
+            for remote in workers:
+                remote.send(("close", None))
+            for process in self.processes:
+                process.join()
+            for remote in workers:
+                remote.close()
+            self.closed = True
 
 
 def training_vec_env(local_fn: Callable[[], gym.Env], worker_fn: Callable[[], gym.Env],

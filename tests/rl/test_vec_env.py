@@ -185,3 +185,22 @@ def test_the_subprocvecenv_it_restates_is_checked_too(monkeypatch):
         monkeypatch.undo()
         shared.shared_envs_supported.cache_clear()
     assert shared.shared_envs_supported()
+
+
+def test_env_0_failing_to_close_still_closes_the_workers():
+    """An env 0 whose ``close`` raises (as one left broken by an error mid-step may): the
+    error reaches the caller, and the workers are closed and ended all the same, as
+    SubprocVecEnv's workers end whatever their env's ``close`` does."""
+    vec = _envs(3, True)
+    vec.reset()
+
+    def broken() -> None:
+        raise RuntimeError("env 0 cannot close")
+
+    vec.remotes[0].env.close = broken
+    with pytest.raises(RuntimeError, match="env 0 cannot close"):
+        vec.close()
+    for process in vec.processes:
+        process.join(10)
+    assert not any(process.is_alive() for process in vec.processes)
+    assert all(remote.closed for remote in vec.remotes[1:]) and vec.closed
