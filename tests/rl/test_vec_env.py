@@ -50,10 +50,17 @@ def _run(vec: SubprocVecEnv, steps: int, seed: int) -> list:
     vec.set_attr("tap_note", "set", indices=[0])
     seen.append(vec.get_attr("tap_note", indices=[0]))
     seen.append(vec.has_attr("tap_note"))  # only env 0 has it
+    vec.set_attr("tap_other", "set", indices=range(1, vec.num_envs))
+    seen.append(vec.has_attr("tap_other"))  # all but env 0 have it
     seen.append(vec.has_attr("spec"))
+    from gymnasium.wrappers import TimeLimit
     from stable_baselines3.common.monitor import Monitor
 
     seen.append(vec.env_is_wrapped(Monitor))
+    seen.append(vec.env_is_wrapped(TimeLimit))  # not wrapped in it
+    # a method called with keyword arguments: a reset to seed 7
+    obs, info = vec.env_method("reset", seed=7, indices=[0])[0]
+    seen.append((obs, {k: v for k, v in info.items() if k != "action"}))
     return seen
 
 
