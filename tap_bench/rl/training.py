@@ -544,7 +544,7 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
         },
     }
     with atomic_path(definition) as tmp:
-        tmp.write_text(json.dumps(doc, indent=2) + "\n")
+        tmp.write_text(json.dumps(doc, indent=2, default=_json_record) + "\n")
     result = TrainingResult(model_path=output, definition_path=definition,
                             timesteps=trained, seconds=seconds,
                             train_seconds=seconds - eval_seconds, episodes=int(episodes),
@@ -560,6 +560,18 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
         result = dataclasses.replace(result, curve=table, curve_path=curve_path,
                                      plot_path=plot_path)
     return result
+
+
+def _json_record(value: Any) -> Any:
+    """How the definition records a hyperparameter JSON cannot hold (SB3 takes classes and
+    functions, such as an activation or a learning-rate schedule): a numpy number by its
+    value, a class or function by its module and qualified name, anything else by its
+    ``repr``."""
+    if hasattr(value, "item") and hasattr(value, "dtype") and getattr(value, "ndim", 1) == 0:
+        return value.item()
+    if isinstance(value, type) or (callable(value) and hasattr(value, "__qualname__")):
+        return f"{value.__module__}.{value.__qualname__}"
+    return repr(value)
 
 
 def training_outputs(output: str | os.PathLike) -> list[Path]:

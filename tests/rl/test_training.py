@@ -470,6 +470,35 @@ def test_a2c_trains_and_the_hyperparameters_stay_as_given(tmp_path, write_scenar
         assert doc["params"]["hyperparameters"] == {**defaults["a2c"], **mine}
         assert A2C.load(result.model_path, device="cpu").n_steps == 4
 
+
+def test_hyperparameters_json_cannot_hold_are_recorded_by_name(tmp_path, write_scenario):
+    """SB3 takes classes and functions among its hyperparameters (an activation, a learning
+    rate schedule) and numpy numbers: the model is saved and the definition records them
+    by their qualified names and values (writing it failed after the whole training, the
+    model written without its definition, and a re-run then refused the model's name)."""
+    import numpy as np
+    import torch
+    from stable_baselines3 import PPO
+
+    from tap_bench.rl.training import train
+
+    def schedule(progress: float) -> float:
+        return 1e-3 * progress
+
+    result = train("ppo", write_scenario("short", duration=5), timesteps=16, seed=0,
+                   n_envs=1, output=tmp_path / "m.zip",
+                   hyperparameters={**TINY["ppo"], "n_epochs": np.int64(1),
+                                    "learning_rate": schedule,
+                                    "policy_kwargs": {"activation_fn": torch.nn.Tanh,
+                                                      "net_arch": [8]}})
+    recorded = json.loads(result.definition_path.read_text())["params"]["hyperparameters"]
+    assert recorded["policy_kwargs"] == {"activation_fn": "torch.nn.modules.activation.Tanh",
+                                         "net_arch": [8]}
+    assert recorded["learning_rate"] == f"{__name__}.{schedule.__qualname__}"
+    assert recorded["n_epochs"] == 1
+    model = PPO.load(result.model_path, device="cpu")
+    assert model.policy.activation_fn is torch.nn.Tanh
+
 @pytest.mark.parametrize(("idle", "cores", "expected"), [
     (0.2, 2, True), (1.4, 2, True), (1.6, 2, "one"), (2.0, 2, "one"), (2.4, 8, "one"),
     (2.6, 8, False), (7.9, 8, False), (None, 2, "one"), (None, 8, False), (None, 1, True)])
