@@ -450,7 +450,10 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
         + (" (fast variant)" if fast and not isinstance(scenario, WomdScenes) else "")
         + where + why + " ...")
     vec = _vec_env(scenario, n_envs=n_envs, fast=fast, seed=seed, in_process=in_process)
-    learner_env, learn_callbacks = vec, list(callbacks)
+    from tap_bench.rl.callbacks import EpisodesCounted
+
+    counted = EpisodesCounted()  # first: it counts the step a Ctrl-C then interrupts
+    learner_env, learn_callbacks = vec, [counted, *callbacks]
     if announce is not None:
         from tap_bench.rl.callbacks import StepsAnnounced
 
@@ -492,9 +495,9 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
                 process.terminate()
             vec.closed = True
         seconds = time.perf_counter() - start
-        # every training env is a Monitor; after Ctrl-C the workers are gone (SB3's own count
-        # then: off-policy algorithms keep it, on-policy ones do not)
-        episodes = model._episode_num if interrupted else sum(
+        # every training env is a Monitor; after Ctrl-C the workers are gone (the episodes
+        # counted by their dones then)
+        episodes = counted.episodes if interrupted else sum(
             len(r) for r in vec.env_method("get_episode_rewards"))
     finally:
         vec.close()

@@ -85,6 +85,9 @@ def test_ctrl_c_saves_the_model_and_the_curve_trained_so_far(tmp_path, write_sce
     assert doc["params"]["timesteps"] == result.timesteps < 10_000
     assert doc["params"]["interrupted_of"] == 10_000
     assert result.curve["timesteps"].tolist() == [0, result.timesteps]
+    # the episodes ended (5 decisions or fewer each, 2 envs): counted, not SB3's own count,
+    # which on-policy algorithms do not keep (0)
+    assert result.episodes >= result.timesteps // 10
     with pytest.warns(UserWarning, match="pickles"):
         load_policy(result.model_path).reset(
             make_env(short), seed=0)
