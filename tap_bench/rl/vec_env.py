@@ -25,6 +25,7 @@ it is imported only where SB3 is installed.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import multiprocessing as mp
 from collections.abc import Callable
@@ -179,13 +180,17 @@ class SharedVecEnv(SubprocVecEnv):
         if self.waiting:  # a step was sent and not read: the workers' replies are read
             local.discard()
             for remote in workers:
-                remote.recv()
+                # a worker whose env failed has ended (the error that stopped the training,
+                # env 0's or theirs, stays the one the caller sees)
+                with contextlib.suppress(EOFError, ConnectionError):
+                    remote.recv()
             self.waiting = False
         try:
             local.close()
         finally:  # the workers end even when env 0's close fails, as a worker's env may
             for remote in workers:
-                remote.send(("close", None))
+                with contextlib.suppress(ConnectionError):  # ended already
+                    remote.send(("close", None))
             for process in self.processes:
                 process.join()
             for remote in workers:

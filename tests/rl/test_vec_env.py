@@ -211,3 +211,22 @@ def test_env_0_failing_to_close_still_closes_the_workers():
         process.join(10)
     assert not any(process.is_alive() for process in vec.processes)
     assert all(remote.closed for remote in vec.remotes[1:]) and vec.closed
+
+
+def test_a_step_every_env_fails_raises_the_envs_error_and_close_still_closes():
+    """An action no env knows: env 0's error reaches the learner; the workers died of the
+    same error, and close reads no reply from them, closes env 0 and raises nothing, so
+    that the env's error stays the one the caller sees (it was an EOFError from close)."""
+    vec = _envs(3, True)
+    vec.reset()
+    closed = []
+    close = vec.remotes[0].env.close
+    vec.remotes[0].env.close = lambda: (closed.append(True), close())
+    vec.step_async(np.array([99, 99, 99]))
+    with pytest.raises(KeyError):
+        vec.step_wait()
+    vec.close()
+    assert closed == [True] and vec.closed
+    for process in vec.processes:
+        process.join(10)
+    assert not any(process.is_alive() for process in vec.processes)
