@@ -430,7 +430,7 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
         in_process = envs_where(idle, n_envs, cores)
         why = (f", {idle:.1f} of {cores} cores idle" if idle is not None
                else f", {cores} cores (idle time unknown)")
-    if in_process == "one":
+    if in_process == "one" and n_envs > 1:  # one env runs in this process in any case
         from tap_bench.rl.vec_env import shared_envs_supported  # imports SB3
 
         if not shared_envs_supported():

@@ -173,6 +173,12 @@ def test_another_sb3_worker_loop_falls_back_to_worker_processes(tmp_path, write_
         starting = next(line for line in lines if "training env(s)" in line)
         assert "in worker processes" in starting
         assert "worker loop (SubprocVecEnv, _worker) is not" in starting
+        lines = []  # one env runs in this process whatever in_process says: no reason given
+        train("dqn", write_scenario("short", duration=5), timesteps=20, seed=0, n_envs=1,
+              in_process="one", hyperparameters={"learning_starts": 10},
+              output=tmp_path / "m1.zip", announce=lines.append)
+        starting = next(line for line in lines if "training env(s)" in line)
+        assert starting == "starting 1 training env(s) of tap_bench/short-v0 (fast variant) ..."
     finally:
         shared._WORKER_CODE = digests
         shared.shared_envs_supported.cache_clear()
