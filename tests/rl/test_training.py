@@ -611,3 +611,16 @@ def test_idle_cores_without_a_readable_stat_file_is_none(monkeypatch):
 
     monkeypatch.setattr(training, "open", missing, raising=False)
     assert training.idle_cores(0.0) is None
+
+
+def test_the_learning_curve_evaluates_an_agent_trained_on_intersection(tmp_path):
+    """intersection-v0's own observation has a key its class takes through **kwargs
+    ("flatten"); the trained model's definition repeats it and the curve's evaluation applies
+    it: every evaluation episode failed on it ("unknown Kinematics parameter 'flatten'")."""
+    from tap_bench.rl.training import train
+
+    result = train("dqn", "intersection", timesteps=20, seed=0, n_envs=1,
+                   hyperparameters={"learning_starts": 10}, output=tmp_path / "m.zip",
+                   curve=CurveConfig(points=1, seeds="500-501", reference="vocabulary"))
+    assert list(result.curve["timesteps"]) == [0, 20]
+    assert (result.curve["n"] == 2).all()
