@@ -270,7 +270,7 @@ def idle_cores(seconds: float = 0.3) -> float | None:
     return n_cores * (idle1 - idle0) / (total1 - total0)
 
 
-def envs_where(idle: float | None, n_envs: int, cores: int) -> bool | str:
+def envs_where(idle: float | None, n_envs: int, cores: float) -> bool | str:
     """Where ``train(in_process=None)`` steps ``n_envs`` training envs (``n_envs`` > 1):
     ``True`` (all in this process, on one core) with fewer than 1.5 idle cores (no second
     core for a worker), ``"one"`` (env 0 in this process, the others in workers) with fewer
@@ -284,6 +284,55 @@ def envs_where(idle: float | None, n_envs: int, cores: int) -> bool | str:
     if free < 1.5:
         return True
     return "one" if free < n_envs + 0.5 else False
+
+
+def cpu_quota(root: str | os.PathLike = "/sys/fs/cgroup",
+              membership: str | os.PathLike = "/proc/self/cgroup") -> float | None:
+    """The CPU time this process's control group may use, in cores (Linux cgroups: a
+    container started with ``--cpus 2``, a Kubernetes CPU limit, a systemd ``CPUQuota``),
+    the smallest along its path up to the root; None where there is no quota or it cannot
+    be read. ``/proc/stat`` shows the host's idle cores, which such a process cannot use
+    beyond its quota: :func:`train` counts at most this many idle cores.
+
+    Args:
+        root: where the cgroup file systems are mounted.
+        membership: the file listing this process's cgroups (``/proc/self/cgroup``).
+    """
+    root = Path(root)
+    try:
+        lines = Path(membership).read_text(encoding="ascii").splitlines()
+    except (OSError, ValueError):
+        return None
+    quotas = []
+    for line in lines:
+        fields = line.split(":", 2)
+        if len(fields) != 3:
+            continue
+        hierarchy, controllers, path = fields
+        parts = [part for part in path.strip().split("/") if part]
+        if hierarchy == "0" and controllers == "":  # v2: cpu.max "QUOTA PERIOD"/"max PERIOD"
+            dirs, name = [root], ("cpu.max",)
+        elif "cpu" in controllers.split(","):  # cgroup v1: cfs_quota_us (-1: none)
+            dirs, name = [root / controllers, root / "cpu"], ("cpu.cfs_quota_us",
+                                                               "cpu.cfs_period_us")
+        else:
+            continue
+        for base in dirs:
+            for depth in range(len(parts) + 1):
+                folder = base.joinpath(*parts[:depth])
+                try:
+                    values = [(folder / n).read_text(encoding="ascii").split()
+                              for n in name]
+                except OSError:
+                    continue
+                try:
+                    quota, period = (values[0] if len(name) == 1
+                                     else [values[0][0], values[1][0]])
+                    if quota not in ("max", "-1") and float(period) > 0:
+                        quotas.append(float(quota) / float(period))
+                except (ValueError, IndexError):
+                    continue
+    return min(quotas) if quotas else None
 
 
 def _usable_cores() -> int:
@@ -426,10 +475,15 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
             until=timesteps, verbose=verbose, announce=announce))
     why = ""
     if in_process is None and n_envs > 1:
-        idle, cores = idle_cores(), _usable_cores()
+        idle, cores, quota = idle_cores(), _usable_cores(), cpu_quota()
+        if quota is not None and quota < cores:  # a container's CPU limit, say
+            cores = quota
+            idle = None if idle is None else min(idle, quota)
         in_process = envs_where(idle, n_envs, cores)
-        why = (f", {idle:.1f} of {cores} cores idle" if idle is not None
-               else f", {cores} cores (idle time unknown)")
+        why = (f", {idle:.1f} of {cores:g} cores idle" if idle is not None
+               else f", {cores:g} cores (idle time unknown)")
+        if cores == quota:
+            why += " (the CPU quota of its control group)"
     if in_process == "one" and n_envs > 1:  # one env runs in this process in any case
         from tap_bench.rl.vec_env import shared_envs_supported  # imports SB3
 

@@ -520,6 +520,7 @@ def test_by_default_the_envs_run_where_the_idle_cores_make_them_fastest(
         raise KeyboardInterrupt  # stands for the training: nothing more is needed
 
     monkeypatch.setattr(training, "idle_cores", lambda: idle)
+    monkeypatch.setattr(training, "cpu_quota", lambda: None)  # the machine's own quota
     monkeypatch.setattr(training, "_usable_cores", lambda: cores)
     monkeypatch.setattr(training, "_vec_env", vec_env)
     lines = []
@@ -624,3 +625,58 @@ def test_the_learning_curve_evaluates_an_agent_trained_on_intersection(tmp_path)
                    curve=CurveConfig(points=1, seeds="500-501", reference="vocabulary"))
     assert list(result.curve["timesteps"]) == [0, 20]
     assert (result.curve["n"] == 2).all()
+
+
+def test_the_cpu_quota_of_the_control_group_is_read_along_its_path(tmp_path):
+    """cgroup v2: the smallest cpu.max along the process's path ("max" is none); v1: the cpu
+    controller's cfs quota over its period (-1 is none); nothing readable: None."""
+    from tap_bench.rl.training import cpu_quota
+
+    v2 = tmp_path / "v2"
+    (v2 / "a" / "b").mkdir(parents=True)
+    (v2 / "cpu.max").write_text("max 100000\n")
+    (v2 / "a" / "cpu.max").write_text("300000 100000\n")
+    (v2 / "a" / "b" / "cpu.max").write_text("150000 100000\n")
+    membership = tmp_path / "cgroup"
+    membership.write_text("0::/a/b\n")
+    assert cpu_quota(v2, membership) == 1.5
+    membership.write_text("0::/a\n")
+    assert cpu_quota(v2, membership) == 3.0
+    membership.write_text("0::/\n")
+    assert cpu_quota(v2, membership) is None
+
+    v1 = tmp_path / "v1"
+    (v1 / "cpu,cpuacct" / "docker" / "x").mkdir(parents=True)
+    (v1 / "cpu,cpuacct" / "cpu.cfs_quota_us").write_text("-1\n")
+    (v1 / "cpu,cpuacct" / "cpu.cfs_period_us").write_text("100000\n")
+    (v1 / "cpu,cpuacct" / "docker" / "x" / "cpu.cfs_quota_us").write_text("200000\n")
+    (v1 / "cpu,cpuacct" / "docker" / "x" / "cpu.cfs_period_us").write_text("100000\n")
+    membership.write_text("4:memory:/docker/x\n3:cpu,cpuacct:/docker/x\n0::/\n")
+    assert cpu_quota(v1, membership) == 2.0
+    membership.write_text("3:cpu,cpuacct:/docker/y\nnot a cgroup line\n")
+    assert cpu_quota(v1, membership) is None
+    assert cpu_quota(tmp_path / "absent", tmp_path / "absent") is None
+
+
+def test_a_cpu_quota_caps_the_idle_cores_the_default_counts(monkeypatch, tmp_path):
+    """A container limited to 2 CPUs on an idle 16-core host: 2 envs run one here and one in
+    a worker (not 2 workers and the learner on a 2-CPU quota), and the start line says why."""
+    from tap_bench.rl import training
+
+    chosen = []
+
+    def vec_env(scenario, *, n_envs, fast, seed, in_process=False):
+        chosen.append(in_process)
+        raise KeyboardInterrupt  # stands for the training: nothing more is needed
+
+    monkeypatch.setattr(training, "idle_cores", lambda: 15.8)
+    monkeypatch.setattr(training, "_usable_cores", lambda: 16)
+    monkeypatch.setattr(training, "cpu_quota", lambda: 2.0)
+    monkeypatch.setattr(training, "_vec_env", vec_env)
+    lines = []
+    with pytest.raises(KeyboardInterrupt):
+        training.train("dqn", "highway", timesteps=10, seed=0, n_envs=2,
+                       output=tmp_path / "m.zip", announce=lines.append)
+    assert chosen == ["one"]
+    starting = next(line for line in lines if "training env(s)" in line)
+    assert "2.0 of 2 cores idle (the CPU quota of its control group)" in starting
