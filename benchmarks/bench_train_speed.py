@@ -111,9 +111,10 @@ def run(source: Path, algo: str, timesteps: int, extra: list[str], out: Path,
         "train_seconds"]
     starting = [line for line in done.stdout.splitlines() if "training env(s)" in line]
     text = "".join(starting)
-    where = ("one here" if "one in this process" in text else "this process"
-             if "in this process" in text else "workers" if "in worker processes" in text
-             else None)
+    # "in worker processes" first: a fallback's start line also says "in this process"
+    where = ("one here" if "one in this process" in text else "workers"
+             if "in worker processes" in text else "this process"
+             if "in this process" in text else None)
     idle = re.search(r"([0-9.]+) of [0-9]+ cores idle", "".join(starting))
     return {"train_seconds": train_seconds, "steps_per_s": round(timesteps / train_seconds, 1),
             "envs_in": where, "idle_cores_at_start": float(idle.group(1)) if idle else None,

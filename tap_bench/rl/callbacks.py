@@ -18,7 +18,7 @@ from tap_bench.errors import ParameterError
 from tap_bench.rl.curve import CURVE_COLUMNS, CurveConfig, GreedyModelPolicy, curve_row
 from tap_bench.sim.scenario_format import Scenario
 
-__all__ = ["CoverageCallback", "StepsAnnounced"]
+__all__ = ["CoverageCallback", "EpisodesCounted", "StepsAnnounced"]
 
 
 class CoverageCallback(BaseCallback):
@@ -143,6 +143,20 @@ class CoverageCallback(BaseCallback):
             print(f"{self.num_timesteps} steps: return {row['return_mean']:.2f}, crash rate "
                   f"{row['crash_rate']:.2f}, coverage {row['coverage']:.2f}, diversity "
                   f"{row['diversity']:.2f} labels", flush=True)
+
+
+class EpisodesCounted(BaseCallback):
+    """Counts the training episodes that end (the ``dones`` of every step of every env):
+    the count after Ctrl-C, when the envs' Monitors in the stopped workers cannot be asked
+    and SB3's own count is kept by off-policy algorithms only."""
+
+    def __init__(self) -> None:
+        super().__init__(0)
+        self.episodes = 0
+
+    def _on_step(self) -> bool:
+        self.episodes += int(np.count_nonzero(self.locals["dones"]))
+        return True
 
 
 class StepsAnnounced(BaseCallback):

@@ -232,11 +232,11 @@ def idle_cores(seconds: float = 0.3) -> float | None:
     node's idle ones; None where it cannot be read).
 
     Training picks where its envs run by it (``train(in_process=None)``, :func:`envs_where`:
-    in this process below ``n_envs - 0.5`` idle cores, half a core of margin for the
-    sample's noise): with fewer idle cores than worker processes, those workers only take
-    turns with other work on the busy cores (measured: 23 to 33 % more CPU per env step, and
-    fewer steps per second in 6 of 6 interleaved pairs, than the envs stepped in the
-    training process, at load 4.6 to 9 on 2 cores)."""
+    in this process below 1.5 idle cores, half a core of margin for the sample's noise):
+    without a second idle core, worker processes only take turns with other work on the
+    busy cores (measured with 2 envs: 23 to 33 % more CPU per env step, and fewer steps per
+    second in 6 of 6 interleaved pairs, than the envs stepped in the training process, at
+    load 4.6 to 9 on 2 cores)."""
     try:  # the lines of this process's cores
         lines = {f"cpu{k}" for k in os.sched_getaffinity(0)}
         n_cores = len(lines)
@@ -270,17 +270,69 @@ def idle_cores(seconds: float = 0.3) -> float | None:
     return n_cores * (idle1 - idle0) / (total1 - total0)
 
 
-def envs_where(idle: float | None, n_envs: int, cores: int) -> bool | str:
+def envs_where(idle: float | None, n_envs: int, cores: float) -> bool | str:
     """Where ``train(in_process=None)`` steps ``n_envs`` training envs (``n_envs`` > 1):
-    ``True`` (all in this process) with fewer than ``n_envs - 0.5`` idle cores, ``"one"``
-    (env 0 in this process, the others in workers) with fewer than ``n_envs + 0.5``, else
-    ``False`` (each in a worker, the learner on a core of its own). ``idle``: the idle
-    cores measured (:func:`idle_cores`); where unknown (None), the ``cores`` this process
-    may run on are taken as idle. Half a core of margin for the sample's noise."""
+    ``True`` (all in this process, on one core) with fewer than 1.5 idle cores (no second
+    core for a worker), ``"one"`` (env 0 in this process, the others in workers) with fewer
+    than ``n_envs + 0.5``, else ``False`` (each in a worker, the learner on a core of its
+    own). With 2 or more idle cores the envs run in parallel even when there are more envs
+    than idle cores: 16 envs on 14 idle cores take turns on 14 cores, not one after the
+    other on one. ``idle``: the idle cores measured (:func:`idle_cores`); where unknown
+    (None), the ``cores`` this process may run on are taken as idle. Half a core of margin
+    for the sample's noise."""
     free = cores if idle is None else idle
-    if free < n_envs - 0.5:
+    if free < 1.5:
         return True
     return "one" if free < n_envs + 0.5 else False
+
+
+def cpu_quota(root: str | os.PathLike = "/sys/fs/cgroup",
+              membership: str | os.PathLike = "/proc/self/cgroup") -> float | None:
+    """The CPU time this process's control group may use, in cores (Linux cgroups: a
+    container started with ``--cpus 2``, a Kubernetes CPU limit, a systemd ``CPUQuota``),
+    the smallest along its path up to the root; None where there is no quota or it cannot
+    be read. ``/proc/stat`` shows the host's idle cores, which such a process cannot use
+    beyond its quota: :func:`train` counts at most this many idle cores.
+
+    Args:
+        root: where the cgroup file systems are mounted.
+        membership: the file listing this process's cgroups (``/proc/self/cgroup``).
+    """
+    root = Path(root)
+    try:
+        lines = Path(membership).read_text(encoding="ascii").splitlines()
+    except (OSError, ValueError):
+        return None
+    quotas = []
+    for line in lines:
+        fields = line.split(":", 2)
+        if len(fields) != 3:
+            continue
+        hierarchy, controllers, path = fields
+        parts = [part for part in path.strip().split("/") if part]
+        if hierarchy == "0" and controllers == "":  # v2: cpu.max "QUOTA PERIOD"/"max PERIOD"
+            dirs, name = [root], ("cpu.max",)
+        elif "cpu" in controllers.split(","):  # cgroup v1: cfs_quota_us (-1: none)
+            dirs, name = [root / controllers, root / "cpu"], ("cpu.cfs_quota_us",
+                                                               "cpu.cfs_period_us")
+        else:
+            continue
+        for base in dirs:
+            for depth in range(len(parts) + 1):
+                folder = base.joinpath(*parts[:depth])
+                try:
+                    values = [(folder / n).read_text(encoding="ascii").split()
+                              for n in name]
+                except OSError:
+                    continue
+                try:
+                    quota, period = (values[0] if len(name) == 1
+                                     else [values[0][0], values[1][0]])
+                    if quota not in ("max", "-1") and float(period) > 0:
+                        quotas.append(float(quota) / float(period))
+                except (ValueError, IndexError):
+                    continue
+    return min(quotas) if quotas else None
 
 
 def _usable_cores() -> int:
@@ -423,17 +475,22 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
             until=timesteps, verbose=verbose, announce=announce))
     why = ""
     if in_process is None and n_envs > 1:
-        idle, cores = idle_cores(), _usable_cores()
+        idle, cores, quota = idle_cores(), _usable_cores(), cpu_quota()
+        if quota is not None and quota < cores:  # a container's CPU limit, say
+            cores = quota
+            idle = None if idle is None else min(idle, quota)
         in_process = envs_where(idle, n_envs, cores)
-        why = (f", {idle:.1f} of {cores} cores idle" if idle is not None
-               else f", {cores} cores (idle time unknown)")
-    if in_process == "one":
+        why = (f", {idle:.1f} of {cores:g} cores idle" if idle is not None
+               else f", {cores:g} cores (idle time unknown)")
+        if cores == quota:
+            why += " (the CPU quota of its control group)"
+    if in_process == "one" and n_envs > 1:  # one env runs in this process in any case
         from tap_bench.rl.vec_env import shared_envs_supported  # imports SB3
 
         if not shared_envs_supported():
             in_process = False
-            why += ("; this Stable-Baselines3's worker loop is not the one tap-bench "
-                    "repeats for the env in this process")
+            why += ("; this Stable-Baselines3's worker loop (SubprocVecEnv, _worker) is "
+                    "not the one tap-bench repeats for the env in this process")
     if n_envs == 1:
         where = ""
     elif in_process is True:
@@ -447,7 +504,10 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
         + (" (fast variant)" if fast and not isinstance(scenario, WomdScenes) else "")
         + where + why + " ...")
     vec = _vec_env(scenario, n_envs=n_envs, fast=fast, seed=seed, in_process=in_process)
-    learner_env, learn_callbacks = vec, list(callbacks)
+    from tap_bench.rl.callbacks import EpisodesCounted
+
+    counted = EpisodesCounted()  # first: it counts the step a Ctrl-C then interrupts
+    learner_env, learn_callbacks = vec, [counted, *callbacks]
     if announce is not None:
         from tap_bench.rl.callbacks import StepsAnnounced
 
@@ -489,9 +549,9 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
                 process.terminate()
             vec.closed = True
         seconds = time.perf_counter() - start
-        # every training env is a Monitor; after Ctrl-C the workers are gone (SB3's own count
-        # then: off-policy algorithms keep it, on-policy ones do not)
-        episodes = model._episode_num if interrupted else sum(
+        # every training env is a Monitor; after Ctrl-C the workers are gone (the episodes
+        # counted by their dones then)
+        episodes = counted.episodes if interrupted else sum(
             len(r) for r in vec.env_method("get_episode_rewards"))
     finally:
         vec.close()
@@ -541,7 +601,7 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
         },
     }
     with atomic_path(definition) as tmp:
-        tmp.write_text(json.dumps(doc, indent=2) + "\n")
+        tmp.write_text(json.dumps(doc, indent=2, default=_json_record) + "\n")
     result = TrainingResult(model_path=output, definition_path=definition,
                             timesteps=trained, seconds=seconds,
                             train_seconds=seconds - eval_seconds, episodes=int(episodes),
@@ -557,6 +617,18 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
         result = dataclasses.replace(result, curve=table, curve_path=curve_path,
                                      plot_path=plot_path)
     return result
+
+
+def _json_record(value: Any) -> Any:
+    """How the definition records a hyperparameter JSON cannot hold (SB3 takes classes and
+    functions, such as an activation or a learning-rate schedule): a numpy number by its
+    value, a class or function by its module and qualified name, anything else by its
+    ``repr``."""
+    if hasattr(value, "item") and hasattr(value, "dtype") and getattr(value, "ndim", 1) == 0:
+        return value.item()
+    if isinstance(value, type) or (callable(value) and hasattr(value, "__qualname__")):
+        return f"{value.__module__}.{value.__qualname__}"
+    return repr(value)
 
 
 def training_outputs(output: str | os.PathLike) -> list[Path]:

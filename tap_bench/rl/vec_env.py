@@ -15,8 +15,8 @@ the same code (``_worker``'s, repeated for env 0 by :class:`_LocalRemote`), and 
 command and env 0's answer go through a pickle round trip, as a worker's through its pipe:
 the training sees the same observations, rewards, infos and seeds, and trains the same
 weights (tested). The repeated code is that of Stable-Baselines3 2.x's ``_worker``
-(:func:`shared_envs_supported` checks its source): where the installed one differs,
-:func:`training_vec_env` uses ``SubprocVecEnv``.
+(:func:`shared_envs_supported` checks its source and ``SubprocVecEnv``'s): where the
+installed ones differ, :func:`training_vec_env` uses ``SubprocVecEnv``.
 
 Parts of this module re-state Stable-Baselines3's ``_worker`` (MIT License, Copyright (c)
 2019 Antonin Raffin): see THIRD_PARTY_NOTICES.md. It subclasses Stable-Baselines3 classes:
@@ -25,6 +25,7 @@ it is imported only where SB3 is installed.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import multiprocessing as mp
 from collections.abc import Callable
@@ -41,16 +42,19 @@ from tap_bench.sim.fast_idm import sources_match
 
 __all__ = ["SharedVecEnv", "shared_envs_supported", "training_vec_env"]
 
-_WORKER_CODE = {"_worker": "1be31eb7f21f5d1f"}
-"""sha256 (first 16 hex digits) of the source of Stable-Baselines3's ``_worker`` (2.x, as of
-2.9) that :meth:`_LocalRemote._answer` repeats."""
+_WORKER_CODE = {"_worker": "1be31eb7f21f5d1f", "SubprocVecEnv": "ab7a417dc590024c"}
+"""sha256 (first 16 hex digits) of the sources of Stable-Baselines3's ``_worker`` (2.x, as of
+2.9), which :meth:`_LocalRemote._answer` repeats, and of its ``SubprocVecEnv``, whose
+``__init__`` and ``close`` :class:`SharedVecEnv` re-states and whose other methods it runs
+with env 0's end of a "pipe" (:class:`_LocalRemote`: ``send`` and ``recv`` only)."""
 
 
 @functools.cache
 def shared_envs_supported() -> bool:
-    """Whether the installed Stable-Baselines3's ``_worker`` is the code
-    :class:`_LocalRemote` repeats (checked once per process)."""
-    return sources_match([subproc_vec_env._worker], _WORKER_CODE)
+    """Whether the installed Stable-Baselines3's ``_worker`` and ``SubprocVecEnv`` are the
+    code :class:`_LocalRemote` and :class:`SharedVecEnv` repeat and rely on (checked once
+    per process)."""
+    return sources_match([subproc_vec_env._worker, SubprocVecEnv], _WORKER_CODE)
 
 
 def _copy(obj: Any) -> Any:
@@ -176,16 +180,22 @@ class SharedVecEnv(SubprocVecEnv):
         if self.waiting:  # a step was sent and not read: the workers' replies are read
             local.discard()
             for remote in workers:
-                remote.recv()
+                # a worker whose env failed has ended (the error that stopped the training,
+                # env 0's or theirs, stays the one the caller sees)
+                with contextlib.suppress(EOFError, ConnectionError):
+                    remote.recv()
             self.waiting = False
-        local.close()
-        for remote in workers:
-            remote.send(("close", None))
-        for process in self.processes:
-            process.join()
-        for remote in workers:
-            remote.close()
-        self.closed = True
+        try:
+            local.close()
+        finally:  # the workers end even when env 0's close fails, as a worker's env may
+            for remote in workers:
+                with contextlib.suppress(ConnectionError):  # ended already
+                    remote.send(("close", None))
+            for process in self.processes:
+                process.join()
+            for remote in workers:
+                remote.close()
+            self.closed = True
 
 
 def training_vec_env(local_fn: Callable[[], gym.Env], worker_fn: Callable[[], gym.Env],

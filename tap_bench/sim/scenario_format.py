@@ -303,6 +303,10 @@ def _check_space(key: str, value: Any, default: Any, where: str) -> None:
     if kind not in parameters:
         raise FileFormatError(f"{where}: {did_you_mean(f'{key} type', kind, parameters)}")
     allowed = parameters[kind]
+    if isinstance(default, dict) and default.get("type") == kind:
+        # the environment's own default passes keys its class takes through **kwargs
+        # (intersection-v0's Kinematics has "flatten"): they are valid by definition
+        allowed = allowed | set(default)
     for sub in value:
         if sub not in allowed:
             raise FileFormatError(

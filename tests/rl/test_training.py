@@ -85,6 +85,9 @@ def test_ctrl_c_saves_the_model_and_the_curve_trained_so_far(tmp_path, write_sce
     assert doc["params"]["timesteps"] == result.timesteps < 10_000
     assert doc["params"]["interrupted_of"] == 10_000
     assert result.curve["timesteps"].tolist() == [0, result.timesteps]
+    # the episodes ended (5 decisions or fewer each, 2 envs): counted, not SB3's own count,
+    # which on-policy algorithms do not keep (0)
+    assert result.episodes >= result.timesteps // 10
     with pytest.warns(UserWarning, match="pickles"):
         load_policy(result.model_path).reset(
             make_env(short), seed=0)
@@ -470,6 +473,35 @@ def test_a2c_trains_and_the_hyperparameters_stay_as_given(tmp_path, write_scenar
         assert doc["params"]["hyperparameters"] == {**defaults["a2c"], **mine}
         assert A2C.load(result.model_path, device="cpu").n_steps == 4
 
+
+def test_hyperparameters_json_cannot_hold_are_recorded_by_name(tmp_path, write_scenario):
+    """SB3 takes classes and functions among its hyperparameters (an activation, a learning
+    rate schedule) and numpy numbers: the model is saved and the definition records them
+    by their qualified names and values (writing it failed after the whole training, the
+    model written without its definition, and a re-run then refused the model's name)."""
+    import numpy as np
+    import torch
+    from stable_baselines3 import PPO
+
+    from tap_bench.rl.training import train
+
+    def schedule(progress: float) -> float:
+        return 1e-3 * progress
+
+    result = train("ppo", write_scenario("short", duration=5), timesteps=16, seed=0,
+                   n_envs=1, output=tmp_path / "m.zip",
+                   hyperparameters={**TINY["ppo"], "n_epochs": np.int64(1),
+                                    "learning_rate": schedule,
+                                    "policy_kwargs": {"activation_fn": torch.nn.Tanh,
+                                                      "net_arch": [8]}})
+    recorded = json.loads(result.definition_path.read_text())["params"]["hyperparameters"]
+    assert recorded["policy_kwargs"] == {"activation_fn": "torch.nn.modules.activation.Tanh",
+                                         "net_arch": [8]}
+    assert recorded["learning_rate"] == f"{__name__}.{schedule.__qualname__}"
+    assert recorded["n_epochs"] == 1
+    model = PPO.load(result.model_path, device="cpu")
+    assert model.policy.activation_fn is torch.nn.Tanh
+
 @pytest.mark.parametrize(("idle", "cores", "expected"), [
     (0.2, 2, True), (1.4, 2, True), (1.6, 2, "one"), (2.0, 2, "one"), (2.4, 8, "one"),
     (2.6, 8, False), (7.9, 8, False), (None, 2, "one"), (None, 8, False), (None, 1, True)])
@@ -488,6 +520,7 @@ def test_by_default_the_envs_run_where_the_idle_cores_make_them_fastest(
         raise KeyboardInterrupt  # stands for the training: nothing more is needed
 
     monkeypatch.setattr(training, "idle_cores", lambda: idle)
+    monkeypatch.setattr(training, "cpu_quota", lambda: None)  # the machine's own quota
     monkeypatch.setattr(training, "_usable_cores", lambda: cores)
     monkeypatch.setattr(training, "_vec_env", vec_env)
     lines = []
@@ -505,6 +538,21 @@ def test_by_default_the_envs_run_where_the_idle_cores_make_them_fastest(
     assert (idle is None) == ("cores idle" not in starting[0])
     assert training.envs_where(idle, 2, cores) == expected
 
+
+
+@pytest.mark.parametrize(("idle", "n_envs", "cores", "expected"), [
+    (1.4, 3, 2, True), (1.4, 16, 64, True), (None, 4, 1, True),  # no second core free
+    (2.0, 3, 2, "one"), (2.0, 4, 4, "one"), (3.4, 4, 4, "one"), (14.0, 16, 64, "one"),
+    (None, 3, 2, "one"), (None, 4, 4, "one"),
+    (4.6, 4, 8, False), (60.0, 16, 64, False), (None, 8, 64, False)])
+def test_with_more_envs_the_default_keeps_the_free_cores_busy(idle, n_envs, cores, expected):
+    """More than 2 envs: all in this process only when no second core is free (the rule of
+    2 envs, below 1.5 idle cores); with 2 or more free, the envs run in parallel, env 0 in
+    this process up to n_envs + 0.5 free cores. 16 envs on 14 idle cores of a 64-core node
+    went one after the other on one core."""
+    from tap_bench.rl.training import envs_where
+
+    assert envs_where(idle, n_envs, cores) == expected
 
 def test_bad_in_process_values_are_refused(tmp_path):
     from tap_bench.errors import ParameterError
@@ -564,3 +612,71 @@ def test_idle_cores_without_a_readable_stat_file_is_none(monkeypatch):
 
     monkeypatch.setattr(training, "open", missing, raising=False)
     assert training.idle_cores(0.0) is None
+
+
+def test_the_learning_curve_evaluates_an_agent_trained_on_intersection(tmp_path):
+    """intersection-v0's own observation has a key its class takes through **kwargs
+    ("flatten"); the trained model's definition repeats it and the curve's evaluation applies
+    it: every evaluation episode failed on it ("unknown Kinematics parameter 'flatten'")."""
+    from tap_bench.rl.training import train
+
+    result = train("dqn", "intersection", timesteps=20, seed=0, n_envs=1,
+                   hyperparameters={"learning_starts": 10}, output=tmp_path / "m.zip",
+                   curve=CurveConfig(points=1, seeds="500-501", reference="vocabulary"))
+    assert list(result.curve["timesteps"]) == [0, 20]
+    assert (result.curve["n"] == 2).all()
+
+
+def test_the_cpu_quota_of_the_control_group_is_read_along_its_path(tmp_path):
+    """cgroup v2: the smallest cpu.max along the process's path ("max" is none); v1: the cpu
+    controller's cfs quota over its period (-1 is none); nothing readable: None."""
+    from tap_bench.rl.training import cpu_quota
+
+    v2 = tmp_path / "v2"
+    (v2 / "a" / "b").mkdir(parents=True)
+    (v2 / "cpu.max").write_text("max 100000\n")
+    (v2 / "a" / "cpu.max").write_text("300000 100000\n")
+    (v2 / "a" / "b" / "cpu.max").write_text("150000 100000\n")
+    membership = tmp_path / "cgroup"
+    membership.write_text("0::/a/b\n")
+    assert cpu_quota(v2, membership) == 1.5
+    membership.write_text("0::/a\n")
+    assert cpu_quota(v2, membership) == 3.0
+    membership.write_text("0::/\n")
+    assert cpu_quota(v2, membership) is None
+
+    v1 = tmp_path / "v1"
+    (v1 / "cpu,cpuacct" / "docker" / "x").mkdir(parents=True)
+    (v1 / "cpu,cpuacct" / "cpu.cfs_quota_us").write_text("-1\n")
+    (v1 / "cpu,cpuacct" / "cpu.cfs_period_us").write_text("100000\n")
+    (v1 / "cpu,cpuacct" / "docker" / "x" / "cpu.cfs_quota_us").write_text("200000\n")
+    (v1 / "cpu,cpuacct" / "docker" / "x" / "cpu.cfs_period_us").write_text("100000\n")
+    membership.write_text("4:memory:/docker/x\n3:cpu,cpuacct:/docker/x\n0::/\n")
+    assert cpu_quota(v1, membership) == 2.0
+    membership.write_text("3:cpu,cpuacct:/docker/y\nnot a cgroup line\n")
+    assert cpu_quota(v1, membership) is None
+    assert cpu_quota(tmp_path / "absent", tmp_path / "absent") is None
+
+
+def test_a_cpu_quota_caps_the_idle_cores_the_default_counts(monkeypatch, tmp_path):
+    """A container limited to 2 CPUs on an idle 16-core host: 2 envs run one here and one in
+    a worker (not 2 workers and the learner on a 2-CPU quota), and the start line says why."""
+    from tap_bench.rl import training
+
+    chosen = []
+
+    def vec_env(scenario, *, n_envs, fast, seed, in_process=False):
+        chosen.append(in_process)
+        raise KeyboardInterrupt  # stands for the training: nothing more is needed
+
+    monkeypatch.setattr(training, "idle_cores", lambda: 15.8)
+    monkeypatch.setattr(training, "_usable_cores", lambda: 16)
+    monkeypatch.setattr(training, "cpu_quota", lambda: 2.0)
+    monkeypatch.setattr(training, "_vec_env", vec_env)
+    lines = []
+    with pytest.raises(KeyboardInterrupt):
+        training.train("dqn", "highway", timesteps=10, seed=0, n_envs=2,
+                       output=tmp_path / "m.zip", announce=lines.append)
+    assert chosen == ["one"]
+    starting = next(line for line in lines if "training env(s)" in line)
+    assert "2.0 of 2 cores idle (the CPU quota of its control group)" in starting

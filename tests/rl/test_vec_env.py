@@ -17,9 +17,9 @@ from tap_bench.rl.training import _make_training_env
 from tap_bench.sim.scenario_env import get_scenario
 
 
-def _envs(n_envs: int, one_here: bool) -> SubprocVecEnv:
-    make = functools.partial(_make_training_env, get_scenario("highway"), True)
-    worker = functools.partial(_make_training_env, get_scenario("highway"), True, worker=True)
+def _envs(n_envs: int, one_here: bool, scenario: str = "highway") -> SubprocVecEnv:
+    make = functools.partial(_make_training_env, get_scenario(scenario), True)
+    worker = functools.partial(_make_training_env, get_scenario(scenario), True, worker=True)
     return shared.training_vec_env(make, worker, n_envs, one_here=one_here)
 
 
@@ -41,16 +41,26 @@ def _run(vec: SubprocVecEnv, steps: int, seed: int) -> list:
         reset_infos = [{k: v for k, v in info.items() if k != "action"}
                        for info in vec.reset_infos]
         seen.append((obs, rewards, dones, infos, reset_infos))
+    vec.seed(seed + 1)  # a reset with seeds and options (one vehicle fewer), then a step
+    vec.set_options({"config": {"vehicles_count": 2}})
+    seen.append((vec.reset(), vec.step(rng.integers(0, 5, vec.num_envs))[:3]))
     seen.append(vec.get_attr("spec"))
     seen.append(vec.env_method("get_episode_rewards"))
     seen.append(vec.env_method("get_episode_lengths", indices=[vec.num_envs - 1]))
     vec.set_attr("tap_note", "set", indices=[0])
     seen.append(vec.get_attr("tap_note", indices=[0]))
     seen.append(vec.has_attr("tap_note"))  # only env 0 has it
+    vec.set_attr("tap_other", "set", indices=range(1, vec.num_envs))
+    seen.append(vec.has_attr("tap_other"))  # all but env 0 have it
     seen.append(vec.has_attr("spec"))
+    from gymnasium.wrappers import TimeLimit
     from stable_baselines3.common.monitor import Monitor
 
     seen.append(vec.env_is_wrapped(Monitor))
+    seen.append(vec.env_is_wrapped(TimeLimit))  # not wrapped in it
+    # a method called with keyword arguments: a reset to seed 7
+    obs, info = vec.env_method("reset", seed=7, indices=[0])[0]
+    seen.append((obs, {k: v for k, v in info.items() if k != "action"}))
     return seen
 
 
@@ -68,13 +78,14 @@ def _same(a, b) -> bool:
 
 
 @pytest.mark.parametrize("n_envs", [2, 3])
-def test_every_call_is_answered_as_by_worker_processes(n_envs):
+def test_every_call_is_answered_as_by_worker_processes(n_envs, write_scenario):
     """Observations, rewards, dones, infos (terminal observations, Monitor's episodes),
     reset infos (after the resets and after every step), attributes and method calls, over
-    70 steps with episode ends."""
+    70 steps with episode ends, by crashes and by the time limit (8 decisions)."""
+    short = str(write_scenario("short", duration=8))
     results = []
     for one_here in (False, True):
-        vec = _envs(n_envs, one_here)
+        vec = _envs(n_envs, one_here, short)
         try:
             assert isinstance(vec, shared.SharedVecEnv) == one_here
             assert len(vec.processes) == n_envs - one_here
@@ -83,8 +94,11 @@ def test_every_call_is_answered_as_by_worker_processes(n_envs):
             vec.close()
     workers, mixed = results
     assert _same(workers, mixed)
-    assert any(info.get("terminal_observation") is not None
-               for step in workers[2:72] for info in step[3])  # episodes ended on the way
+    ends = [info["TimeLimit.truncated"] for step in workers[2:72]
+            for k, info in enumerate(step[3]) if step[2][k]]
+    assert all(info.get("terminal_observation") is not None
+               for step in workers[2:72] for k, info in enumerate(step[3]) if step[2][k])
+    assert True in ends and False in ends  # episodes ended by the time limit and by crashes
 
 
 def test_env_0_answers_with_copies_and_closes_with_the_others():
@@ -157,8 +171,68 @@ def test_another_sb3_worker_loop_falls_back_to_worker_processes(tmp_path, write_
               in_process="one", hyperparameters={"learning_starts": 10},
               output=tmp_path / "m.zip", announce=lines.append)
         starting = next(line for line in lines if "training env(s)" in line)
-        assert "in worker processes" in starting and "worker loop is not" in starting
+        assert "in worker processes" in starting
+        assert "worker loop (SubprocVecEnv, _worker) is not" in starting
+        lines = []  # one env runs in this process whatever in_process says: no reason given
+        train("dqn", write_scenario("short", duration=5), timesteps=20, seed=0, n_envs=1,
+              in_process="one", hyperparameters={"learning_starts": 10},
+              output=tmp_path / "m1.zip", announce=lines.append)
+        starting = next(line for line in lines if "training env(s)" in line)
+        assert starting == "starting 1 training env(s) of tap_bench/short-v0 (fast variant) ..."
     finally:
         shared._WORKER_CODE = digests
         shared.shared_envs_supported.cache_clear()
     assert shared.shared_envs_supported()
+
+
+def test_the_subprocvecenv_it_restates_is_checked_too(monkeypatch):
+    """SharedVecEnv re-states SubprocVecEnv's ``__init__`` and ``close`` and uses its other
+    methods with env 0's end of a pipe: another SB3 whose ``_worker`` is unchanged but whose
+    SubprocVecEnv differs falls back to worker processes as well."""
+    assert set(shared._WORKER_CODE) == {"_worker", "SubprocVecEnv"}
+    monkeypatch.setattr(shared, "_WORKER_CODE", {**shared._WORKER_CODE, "SubprocVecEnv": "0" * 16})
+    shared.shared_envs_supported.cache_clear()
+    try:
+        assert not shared.shared_envs_supported()
+    finally:
+        monkeypatch.undo()
+        shared.shared_envs_supported.cache_clear()
+    assert shared.shared_envs_supported()
+
+
+def test_env_0_failing_to_close_still_closes_the_workers():
+    """An env 0 whose ``close`` raises (as one left broken by an error mid-step may): the
+    error reaches the caller, and the workers are closed and ended all the same, as
+    SubprocVecEnv's workers end whatever their env's ``close`` does."""
+    vec = _envs(3, True)
+    vec.reset()
+
+    def broken() -> None:
+        raise RuntimeError("env 0 cannot close")
+
+    vec.remotes[0].env.close = broken
+    with pytest.raises(RuntimeError, match="env 0 cannot close"):
+        vec.close()
+    for process in vec.processes:
+        process.join(10)
+    assert not any(process.is_alive() for process in vec.processes)
+    assert all(remote.closed for remote in vec.remotes[1:]) and vec.closed
+
+
+def test_a_step_every_env_fails_raises_the_envs_error_and_close_still_closes():
+    """An action no env knows: env 0's error reaches the learner; the workers died of the
+    same error, and close reads no reply from them, closes env 0 and raises nothing, so
+    that the env's error stays the one the caller sees (it was an EOFError from close)."""
+    vec = _envs(3, True)
+    vec.reset()
+    closed = []
+    close = vec.remotes[0].env.close
+    vec.remotes[0].env.close = lambda: (closed.append(True), close())
+    vec.step_async(np.array([99, 99, 99]))
+    with pytest.raises(KeyError):
+        vec.step_wait()
+    vec.close()
+    assert closed == [True] and vec.closed
+    for process in vec.processes:
+        process.join(10)
+    assert not any(process.is_alive() for process in vec.processes)
