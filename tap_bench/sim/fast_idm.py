@@ -62,7 +62,7 @@ import numpy as np
 from highway_env import utils
 from highway_env.road.lane import AbstractLane, StraightLane
 from highway_env.vehicle.behavior import IDMVehicle
-from highway_env.vehicle.controller import ControlledVehicle
+from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
 from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import RoadObject
 
@@ -167,7 +167,10 @@ def act_all(road: Any, leaders: Any = None, state: ActState | None = None) -> No
     plain = []
     for vehicle in road.vehicles:
         if not is_plain_idm(vehicle):
-            vehicle.act()
+            if _controls_as_written(vehicle):
+                _act_controlled(vehicle, state)
+            else:
+                vehicle.act()
             continue
         if vehicle.crashed:
             continue
@@ -226,6 +229,59 @@ def _follows_as_written() -> bool:
     return sources_match(_FOLLOW_ROAD, _FOLLOW_CODE)
 
 
+def _act_controlled(vehicle: Any, state: ActState | None = None) -> None:
+    """``vehicle.act()`` of a ControlledVehicle or MDPVehicle (the ego of a discrete
+    policy) with no new high-level action, as highway-env runs it: ``follow_road``
+    (:func:`_follow_road`), the steering command (:func:`_steering`, highway-env's terms)
+    clipped as ``np.clip`` clips it, and ``speed_control``'s acceleration. Only for
+    vehicles whose ``act`` and what it calls are highway-env's own
+    (:func:`_controls_as_written`)."""
+    _follow_road(vehicle, state)
+    steering = np.float64(_clip(_steering(vehicle), -vehicle.MAX_STEERING_ANGLE,
+                                vehicle.MAX_STEERING_ANGLE))
+    vehicle.action = {"steering": steering,
+                      "acceleration": vehicle.KP_A * (vehicle.target_speed - vehicle.speed)}
+
+
+_CONTROL = (MDPVehicle.act, ControlledVehicle.act, ControlledVehicle.steering_control,
+            ControlledVehicle.speed_control, Vehicle.act, utils.not_zero, utils.wrap_to_pi)
+"""highway-env's own methods :func:`_act_controlled` repeats, as imported."""
+
+_CONTROL_CODE = {  # sha256 of their source (highway-env 1.12)
+    "MDPVehicle.act": "8641588076a2069d",
+    "ControlledVehicle.act": "0112c74c240362c5",
+    "ControlledVehicle.steering_control": "43c0c692d1dee36c",
+    "ControlledVehicle.speed_control": "7f396ad3b09632bd",
+    "Vehicle.act": "fdb4fe0b64f7e4eb",
+    "not_zero": "f9806f813c24b658",
+    "wrap_to_pi": "603d745ca127a314",
+}
+_CONTROL_OVERRIDES = frozenset({"act", "follow_road", "steering_control", "speed_control"})
+
+
+@functools.cache
+def _control_class(cls: type) -> bool:
+    """Whether ``cls`` acts by highway-env's ``MDPVehicle.act`` or ``ControlledVehicle.act``
+    and their own ``follow_road``, ``steering_control`` and ``speed_control`` (source
+    checked once per process)."""
+    mdp_act, act, steering_control, speed_control, *_ = _CONTROL
+    return (issubclass(cls, ControlledVehicle) and cls.act in (mdp_act, act)
+            and cls.follow_road is _FOLLOW_ROAD[0]
+            and cls.steering_control is steering_control
+            and cls.speed_control is speed_control
+            and super(ControlledVehicle, cls).act is _CONTROL[4]
+            and sources_match(_CONTROL, _CONTROL_CODE))
+
+
+def _controls_as_written(vehicle: Any) -> bool:
+    """Whether ``vehicle.act()`` may be :func:`_act_controlled` (class, instance and
+    highway-env's helpers as imported)."""
+    cls = type(vehicle)
+    return (_control_class(cls) and cls.act in _CONTROL[:2]
+            and utils.not_zero is _CONTROL[5] and utils.wrap_to_pi is _CONTROL[6]
+            and _CONTROL_OVERRIDES.isdisjoint(vars(vehicle)))
+
+
 def _act_rest(vehicle: Any, state: ActState | None = None) -> None:
     """The part of ``IDMVehicle.act`` after the lane-change policy, as highway-env runs it:
     its steering and IDM formulas term for term, in numpy scalars where highway-env has
@@ -252,7 +308,10 @@ def act_each(road: Any, state: ActState | None = None) -> None:
     timers, bit for bit (``state``: the road's :class:`ActState`, if at hand)."""
     for vehicle in road.vehicles:
         if not is_plain_idm(vehicle):
-            vehicle.act()
+            if _controls_as_written(vehicle):
+                _act_controlled(vehicle, state)
+            else:
+                vehicle.act()
         elif not vehicle.crashed:
             _follow_road(vehicle, state)
             if vehicle.enable_lane_change:

@@ -1105,7 +1105,7 @@ def _act_mismatches(seeds=(0, 1, 2)) -> dict[str, int]:
 
     from tap_bench.sim import fast_idm
 
-    counts = dict.fromkeys(["vehicles", "steering clipped", "acceleration clipped",
+    counts = dict.fromkeys(["vehicles", "egos", "steering clipped", "acceleration clipped",
                             "changing", "limited", "slow", "mismatches"], 0)
     for seed in seeds:
         rng = np.random.default_rng(seed)
@@ -1124,8 +1124,8 @@ def _act_mismatches(seeds=(0, 1, 2)) -> dict[str, int]:
                 lane.speed_limit = float(rng.choice([20.0, 25.0, 30.0])) \
                     if rng.random() < 0.5 else None
             for vehicle in road.vehicles:
-                if not fast_idm.is_plain_idm(vehicle):
-                    continue
+                if not (fast_idm.is_plain_idm(vehicle) or vehicle is road.vehicles[0]):
+                    continue  # the plain IDM vehicles and the ego (an MDPVehicle)
                 vehicle.position = vehicle.position + np.array([0.0, rng.uniform(-3, 3)])
                 vehicle.heading = float(rng.choice([rng.uniform(-0.8, 0.8), 0.0, -0.0]))
                 vehicle.speed = float(rng.choice([rng.uniform(-3, 0), rng.uniform(-0.01, 0.01),
@@ -1154,6 +1154,9 @@ def _act_mismatches(seeds=(0, 1, 2)) -> dict[str, int]:
                                   np.float64(v.action["acceleration"]).tobytes())
                                  for v in road.vehicles])
             for vehicle, ours, theirs in zip(road.vehicles, *outcomes, strict=True):
+                if vehicle is road.vehicles[0]:  # the ego: highway-env's act restated
+                    counts["egos"] += fast_idm._controls_as_written(vehicle)
+                    counts["mismatches"] += ours != theirs
                 if not fast_idm.is_plain_idm(vehicle):
                     continue
                 counts["vehicles"] += 1
@@ -1179,6 +1182,7 @@ def test_vehicles_act_as_with_highway_envs_act_on_drawn_states(monkeypatch, one_
     counts = _act_mismatches()
     assert counts["mismatches"] == 0, counts
     assert counts["vehicles"] >= 300 and counts["changing"] >= 30, counts
+    assert counts["egos"] == 12, counts  # 3 seeds x 4 states
     assert min(counts["steering clipped"], counts["acceleration clipped"], counts["limited"],
                counts["slow"]) >= 10, counts
 
@@ -1197,6 +1201,9 @@ def test_vehicles_act_as_with_highway_envs_act_on_drawn_states(monkeypatch, one_
      "cos, sin = np.cos(heading + 1e-9).tolist(), np.sin(heading).tolist()"),
     ("ActState", "return speed * cos, speed * sin", "return speed * cos, speed * cos"),
     ("_dot2", "return a0 * b0 + a1 * b1", "return a0 * (b0 + 1e-12) + a1 * b1"),
+    ("_act_controlled", "(vehicle.target_speed - vehicle.speed)",  # the ego's
+     "(vehicle.target_speed - np.nextafter(vehicle.speed, np.inf))"),  # acceleration
+    ("_act_controlled", "-vehicle.MAX_STEERING_ANGLE,", "-vehicle.MAX_STEERING_ANGLE / 2,"),
 ])
 def test_a_changed_formula_of_the_actions_is_caught(monkeypatch, name, old, new):
     """A changed term of the steering, the IDM accelerations or the road's state (one
@@ -1498,3 +1505,101 @@ def test_the_near_pairs_are_those_highway_envs_pre_check_lets_through(seed):
                 elif (i, j) in pairs:
                     assert distance <= bound + 2 * TOLERANCE
     assert kinds == {True, False}  # both ways of measuring
+
+
+def test_the_ego_acts_by_highway_envs_code_where_it_is_not_the_one_repeated(monkeypatch):
+    """The ego's act (an MDPVehicle's, no new high-level action) is restated only for
+    highway-env's own classes and code: a class with its own steering or speed control, an
+    instance's own act, or another highway-env's source acts by its own ``act``."""
+    from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
+
+    from tap_bench.sim import fast_idm
+
+    env = make_env("highway", record=False, duration=2)
+    env.reset(seed=0)
+    ego = env.unwrapped.vehicle
+    assert type(ego) is MDPVehicle and fast_idm._controls_as_written(ego)
+
+    class _Gentle(MDPVehicle):
+        def speed_control(self, target_speed):
+            return 0.5 * super().speed_control(target_speed)
+
+    class _Own(ControlledVehicle):
+        def act(self, action=None):
+            super().act(action)
+
+    for cls in (_Gentle, _Own):
+        ego.__class__ = cls
+        assert not fast_idm._controls_as_written(ego)
+    ego.__class__ = MDPVehicle
+    ego.act = lambda *args: None
+    assert not fast_idm._controls_as_written(ego)
+    del ego.act
+    monkeypatch.setitem(fast_idm._CONTROL_CODE, "ControlledVehicle.act", "0" * 16)
+    fast_idm._control_class.cache_clear()
+    try:
+        assert not fast_idm._controls_as_written(ego)
+    finally:
+        monkeypatch.undo()
+        fast_idm._control_class.cache_clear()
+    assert fast_idm._controls_as_written(ego)
+
+
+def _ego_outcomes(angle: float) -> tuple[list, list]:
+    """MDPVehicles around the end of a straight lane (as in :func:`_follow_road_outcomes`)
+    on a road turned by ``angle``, at drawn speeds and headings: their target lanes and
+    actions (bits) after fast_idm's ``_act_controlled`` and after highway-env's ``act``."""
+    from highway_env.vehicle.controller import MDPVehicle
+
+    from tap_bench.sim import fast_idm
+
+    rng = np.random.default_rng(0)
+    rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    network = RoadNetwork()
+    for lane in range(2):
+        network.add_lane("a", "b", StraightLane(rotation @ [0, 4 * lane],
+                                                rotation @ [100, 4 * lane]))
+        network.add_lane("b", "c", StraightLane(rotation @ [100, 4 * lane],
+                                                rotation @ [300, 4 * lane]))
+    road = Road(network=network, np_random=np.random.RandomState(0))
+    end = 100 - StraightLane.VEHICLE_LENGTH / 2
+    for lane in range(2):
+        for s in (end, np.nextafter(end, 200), end - 3, end + 3, 50.0):
+            lane_index = ("a", "b", lane)
+            position = network.get_lane(lane_index).position(s, rng.uniform(-2, 2))
+            ego = MDPVehicle(road, position, angle + rng.uniform(-0.5, 0.5),
+                             float(rng.choice([rng.uniform(-0.01, 0.01), 25.0])),
+                             target_lane_index=lane_index)
+            ego.lane_index, ego.lane = lane_index, network.get_lane(lane_index)
+            road.vehicles.append(ego)
+    state = _act_state(road)
+    ours, theirs = [], []
+    for ego in road.vehicles:
+        assert fast_idm._controls_as_written(ego)
+        start = ego.target_lane_index
+        for act, out in ((lambda e=ego: fast_idm._act_controlled(e, state), ours),
+                         (ego.act, theirs)):
+            ego.target_lane_index = start
+            act()
+            out.append((ego.target_lane_index, type(ego.action["steering"]),
+                        np.float64(ego.action["steering"]).tobytes(),
+                        np.float64(ego.action["acceleration"]).tobytes()))
+    return ours, theirs
+
+
+@pytest.mark.parametrize("angle", [0.0, 0.3, -2.1])
+def test_the_ego_acts_as_highway_envs_ego(angle):
+    ours, theirs = _ego_outcomes(angle)
+    assert ours == theirs
+    assert 2 <= sum(target[0] == "b" for target, *_ in theirs) <= len(theirs) - 2
+
+
+@pytest.mark.parametrize(("old", "new"), [
+    ("    _follow_road(vehicle, state)\n", ""),  # the end of the lane not seen
+    ("vehicle.target_speed - vehicle.speed", "vehicle.target_speed - vehicle.speed * 1.0"
+     " - 1e-12"),
+    ("steering = np.float64(", "steering = float("),  # np.clip's type
+])
+def test_a_changed_act_of_the_ego_is_caught(monkeypatch, old, new):
+    _mutate(monkeypatch, "_act_controlled", old, new)
+    assert any(ours != theirs for ours, theirs in (_ego_outcomes(a) for a in (0.0, 0.3)))
