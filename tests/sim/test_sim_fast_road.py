@@ -1219,14 +1219,10 @@ def test_a_changed_formula_of_the_actions_is_caught(monkeypatch, name, old, new)
     assert _act_mismatches(seeds=(0,))["mismatches"] > 0
 
 
-def _follow_road_outcomes(angle: float) -> tuple[list, list]:
-    """Vehicles at, one ulp around and a little before and past the point where
-    highway-env's ``after_end`` says a straight lane ends (``length - VEHICLE_LENGTH / 2``)
-    on a road turned by ``angle`` [rad], each targeting its own lane: their target lanes
-    after fast_idm's ``_follow_road`` (the road's state) and after highway-env's
-    ``follow_road`` (which switches to the next road's lane past the end)."""
-    from tap_bench.sim import fast_idm
-
+def _two_road_chain(angle: float) -> tuple[Road, float]:
+    """Two 2-lane straight roads, a->b (100 m) then b->c (200 m), turned by ``angle``
+    [rad]: the road, and where highway-env's ``after_end`` says the first road's lanes end
+    [m along the lane]."""
     rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
     network = RoadNetwork()
     for lane in range(2):
@@ -1235,7 +1231,19 @@ def _follow_road_outcomes(angle: float) -> tuple[list, list]:
         network.add_lane("b", "c", StraightLane(rotation @ [100, 4 * lane],
                                                 rotation @ [300, 4 * lane]))
     road = Road(network=network, np_random=np.random.RandomState(0))
-    end = 100 - StraightLane.VEHICLE_LENGTH / 2
+    return road, 100 - StraightLane.VEHICLE_LENGTH / 2
+
+
+def _follow_road_outcomes(angle: float) -> tuple[list, list]:
+    """Vehicles at, one ulp around and a little before and past the point where
+    highway-env's ``after_end`` says a straight lane ends (``length - VEHICLE_LENGTH / 2``)
+    on a road turned by ``angle`` [rad], each targeting its own lane: their target lanes
+    after fast_idm's ``_follow_road`` (the road's state) and after highway-env's
+    ``follow_road`` (which switches to the next road's lane past the end)."""
+    from tap_bench.sim import fast_idm
+
+    road, end = _two_road_chain(angle)
+    network = road.network
     places = [end, np.nextafter(end, 0), np.nextafter(end, 200), end - 1e-9, end + 1e-9,
               end - 3, end + 3, 101.0, 99.0, -1.0]
     for lane in range(2):
@@ -1554,15 +1562,8 @@ def _ego_outcomes(angle: float) -> tuple[list, list]:
     from tap_bench.sim import fast_idm
 
     rng = np.random.default_rng(0)
-    rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
-    network = RoadNetwork()
-    for lane in range(2):
-        network.add_lane("a", "b", StraightLane(rotation @ [0, 4 * lane],
-                                                rotation @ [100, 4 * lane]))
-        network.add_lane("b", "c", StraightLane(rotation @ [100, 4 * lane],
-                                                rotation @ [300, 4 * lane]))
-    road = Road(network=network, np_random=np.random.RandomState(0))
-    end = 100 - StraightLane.VEHICLE_LENGTH / 2
+    road, end = _two_road_chain(angle)
+    network = road.network
     for lane in range(2):
         for s in (end, np.nextafter(end, 200), end - 3, end + 3, 50.0):
             lane_index = ("a", "b", lane)
