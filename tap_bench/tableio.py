@@ -74,8 +74,32 @@ def read_table(path: str | os.PathLike) -> pd.DataFrame:
             return pd.read_parquet(path, memory_map=True, to_pandas_kwargs={
                 "split_blocks": True, "self_destruct": True})
         return pd.read_csv(path, dtype={c: str for c in _ID_COLUMNS}, keep_default_na=True)
+    except UnicodeDecodeError as err:
+        raise FileFormatError(_not_utf8(path) or f"{path}: cannot read it as {fmt}: {err}"
+                              ) from err
     except (OSError, ValueError) as err:
         raise FileFormatError(f"{path}: cannot read it as {fmt}: {err}") from err
+
+
+def _not_utf8(path: Path) -> str | None:
+    """Where CSV file ``path`` stops being UTF-8 text, as a message with the fix (None
+    where it cannot be found: the decoder's own message is shown then)."""
+    try:
+        data = path.read_bytes()
+        data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        line = data.count(b"\n", 0, err.start) + 1
+        column = err.start - (data.rfind(b"\n", 0, err.start) + 1) + 1
+        source = ("utf-16" if data[:2] in (b"\xff\xfe", b"\xfe\xff")  # its byte-order mark
+                  else "latin1")
+        return (f"{path}: line {line}, byte {column} is not UTF-8 text (0x{data[err.start]:02x}"
+                f"): tap-bench reads CSV tables as UTF-8. Save the file as UTF-8, e.g. "
+                f"iconv -f {source} -t utf-8 {path.name} > utf8-{path.name}"
+                + (" (it starts as UTF-16 does)." if source == "utf-16"
+                   else " for a Latin-1 file."))
+    except OSError:
+        return None
+    return None
 
 
 def _str_dtype():

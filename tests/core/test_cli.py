@@ -56,6 +56,30 @@ def test_csv_ids_that_look_numeric_stay_strings(tmp_path):
     assert labels[["scenario_id", "track_id"]].iloc[0].tolist() == ["007", "0042"]
 
 
+@pytest.mark.parametrize(("row", "encoding"), [(1, "latin-1"), (7, "cp1252"), (40, "utf-16")])
+def test_a_csv_that_is_not_utf8_names_its_line_and_the_fix(tmp_path, capsys, row, encoding):
+    """A table saved in another encoding (an accented id in Latin-1, a Windows code page,
+    a UTF-16 file): the error names the file, the line and byte where UTF-8 breaks, and how
+    to convert it, not the decoder's position in an internal chunk."""
+    table = tb.behaviour("cruise_slow", scenario_id="s", track_id="t")
+    table["track_id"] = table["track_id"].astype(object)
+    table.loc[row - 1, "track_id"] = "caf\u00e9"
+    path = tmp_path / "t.csv"
+    table.to_csv(path, index=False, encoding=encoding)
+    assert main(["label", str(path), "-o", str(tmp_path / "l.csv")]) == 2
+    err = capsys.readouterr().err
+    data = path.read_bytes()
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError as bad:
+        line = data.count(b"\n", 0, bad.start) + 1
+    assert f"{path}: line {line}, byte " in err and "is not UTF-8 text" in err
+    assert "Save the file as UTF-8" in err
+    if encoding != "utf-16":  # the header is ASCII: the accented id's line (header + row)
+        assert line == row + 1
+    assert ("iconv -f utf-16" in err) == (encoding == "utf-16")
+
+
 def test_fit_then_label_with_the_fitted_thresholds(sample, tmp_path, capsys):
     th = tmp_path / "th.json"
     assert main(["fit", str(sample), "-o", str(th), "--methods", "descent", "grid"]) == 0
