@@ -6,9 +6,11 @@ gradient steps overlap the workers' simulation, :mod:`tap_bench.rl.overlap`) tak
 ``n`` cores, and every step of every env goes through a pipe. :class:`SharedVecEnv` steps
 env 0 in the training process, after the actions of the others are sent, while the workers
 step envs 1 to ``n - 1``: ``n`` busy processes on ``n`` cores, one env fewer through the
-pipes. On 2 free cores of this machine, DQN on highway with 2 envs: 383-403 env steps per
-second against 328-361 with 2 workers, the same weights
-(``benchmarks/bench_train_speed.py``, variants ``2-envs-one`` and ``2-envs-workers``).
+pipes. On 2 free cores of this machine, DQN on highway with 2 envs: 500.0 env steps per
+second against 454.5 with 2 workers (medians of 3 rounds, load 1.0-1.4; 383-403 against
+328-361 before the simulation's last cuts), the same weights
+(``benchmarks/bench_train_speed.py``, variants ``2-envs-one`` and ``2-envs-workers``;
+docs/simulation.md).
 
 Everything else is ``SubprocVecEnv``'s: the same commands, in the same order, answered by
 the same code (``_worker``'s, repeated for env 0 by :class:`_LocalRemote`), and both the
