@@ -4,6 +4,7 @@ bit for bit as before."""
 from __future__ import annotations
 
 import itertools
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -767,6 +768,15 @@ def _act_state(road: Road):
                              projects=fast_road._projects)
 
 
+def _dense_highway(seed: int) -> tuple[Any, Road]:
+    """The fast highway env with 40 vehicles on 4 lanes, reset with ``seed`` (8 s episodes,
+    no recording: many lane changes and close leaders), and its road."""
+    env = make_env("highway", config={"vehicles_count": 40, "lanes_count": 4}, duration=8,
+                   record=False, fast=True)
+    env.reset(seed=seed)
+    return env, env.unwrapped.road
+
+
 def _lane_change_mismatches(seeds=(0, 1, 2)) -> dict[str, int]:
     """fast_idm's lane-change policy against highway-env's on drawn highway states.
 
@@ -786,10 +796,7 @@ def _lane_change_mismatches(seeds=(0, 1, 2)) -> dict[str, int]:
                             "acceleration mismatches"], 0)
     for seed in seeds:
         rng = np.random.default_rng(seed)
-        env = make_env("highway", config={"vehicles_count": 40, "lanes_count": 4},
-                       duration=8, record=False, fast=True)
-        env.reset(seed=seed)
-        road = env.unwrapped.road
+        env, road = _dense_highway(seed)
         for k, vehicle in enumerate(road.vehicles[1:]):
             if k % 5 == 4:
                 vehicle.__class__ = (_SlipIDM, _TurnedIDM)[k % 2]
@@ -1109,10 +1116,7 @@ def _act_mismatches(seeds=(0, 1, 2)) -> dict[str, int]:
                             "changing", "limited", "slow", "mismatches"], 0)
     for seed in seeds:
         rng = np.random.default_rng(seed)
-        env = make_env("highway", config={"vehicles_count": 40, "lanes_count": 4},
-                       duration=8, record=False, fast=True)
-        env.reset(seed=seed)
-        road = env.unwrapped.road
+        env, road = _dense_highway(seed)
         fast = road.act
         for k, vehicle in enumerate(road.vehicles[1:]):
             if k % 5 == 4:
