@@ -680,3 +680,22 @@ def test_a_cpu_quota_caps_the_idle_cores_the_default_counts(monkeypatch, tmp_pat
     assert chosen == ["one"]
     starting = next(line for line in lines if "training env(s)" in line)
     assert "2.0 of 2 cores idle (the CPU quota of its control group)" in starting
+
+
+def test_the_default_place_of_the_envs_over_drawn_machines():
+    """envs_where over 2,000 drawn (idle cores, usable cores, envs): one after the other in
+    this process exactly below 1.5 free cores, each in a worker exactly from n_envs + 0.5,
+    else env 0 here; more free cores never move the envs back towards this process; an
+    unknown idle time counts the usable cores."""
+    from tap_bench.rl.training import envs_where
+
+    order = {True: 0, "one": 1, False: 2}
+    rng = np.random.default_rng(24)
+    for _ in range(2000):
+        n_envs, cores = int(rng.integers(2, 65)), float(rng.integers(1, 129))
+        idle = float(rng.uniform(0, cores))
+        where = envs_where(idle, n_envs, cores)
+        assert where == (True if idle < 1.5 else "one" if idle < n_envs + 0.5 else False)
+        more = envs_where(idle + float(rng.uniform(0, 4)), n_envs, cores)
+        assert order[more] >= order[where]
+        assert envs_where(None, n_envs, cores) == envs_where(cores, n_envs, cores)

@@ -23,27 +23,35 @@ def _envs(n_envs: int, one_here: bool, scenario: str = "highway") -> SubprocVecE
     return shared.training_vec_env(make, worker, n_envs, one_here=one_here)
 
 
-def _run(vec: SubprocVecEnv, steps: int, seed: int) -> list:
+def _reset_info(info: dict) -> dict:
+    """A reset's info without what highway-env derives from the action it draws there from
+    the unseeded action space: the action and its lane-change reward."""
+    out = {k: v for k, v in info.items() if k != "action"}
+    if isinstance(out.get("rewards"), dict):
+        out["rewards"] = {k: v for k, v in out["rewards"].items()
+                          if k != "lane_change_reward"}
+    return out
+
+
+def _run(vec: SubprocVecEnv, steps: int, seed: int,
+         options: dict | None = None) -> list:
     """Everything the learner sees of ``steps`` steps with drawn actions, then of the other
-    VecEnv calls."""
+    VecEnv calls (a reset with ``options``: default one vehicle fewer on highway)."""
     rng = np.random.default_rng(seed)
     vec.seed(seed)
-    # highway-env's reset info holds an action drawn from the unseeded action space
-    seen = [vec.reset(), [{k: v for k, v in info.items() if k != "action"}
-                          for info in vec.reset_infos]]
+    seen = [vec.reset(), [_reset_info(info) for info in vec.reset_infos]]
     for _ in range(steps):
-        obs, rewards, dones, infos = vec.step(rng.integers(0, 5, vec.num_envs))
+        obs, rewards, dones, infos = vec.step(rng.integers(0, vec.action_space.n, vec.num_envs))
         for info in infos:  # Monitor's episode summary: all but its wall clock ("t")
             if "episode" in info:
                 info["episode"] = {k: v for k, v in info["episode"].items() if k != "t"}
         # a worker answers each step with the info of its env's last reset, this step's or
         # an earlier one's (the action drawn by highway-env's reset left out, as above)
-        reset_infos = [{k: v for k, v in info.items() if k != "action"}
-                       for info in vec.reset_infos]
+        reset_infos = [_reset_info(info) for info in vec.reset_infos]
         seen.append((obs, rewards, dones, infos, reset_infos))
-    vec.seed(seed + 1)  # a reset with seeds and options (one vehicle fewer), then a step
-    vec.set_options({"config": {"vehicles_count": 2}})
-    seen.append((vec.reset(), vec.step(rng.integers(0, 5, vec.num_envs))[:3]))
+    vec.seed(seed + 1)  # a reset with seeds and options, then a step
+    vec.set_options(options or {"config": {"vehicles_count": 2}})
+    seen.append((vec.reset(), vec.step(rng.integers(0, vec.action_space.n, vec.num_envs))[:3]))
     seen.append(vec.get_attr("spec"))
     seen.append(vec.env_method("get_episode_rewards"))
     seen.append(vec.env_method("get_episode_lengths", indices=[vec.num_envs - 1]))
@@ -60,7 +68,7 @@ def _run(vec: SubprocVecEnv, steps: int, seed: int) -> list:
     seen.append(vec.env_is_wrapped(TimeLimit))  # not wrapped in it
     # a method called with keyword arguments: a reset to seed 7
     obs, info = vec.env_method("reset", seed=7, indices=[0])[0]
-    seen.append((obs, {k: v for k, v in info.items() if k != "action"}))
+    seen.append((obs, _reset_info(info)))
     return seen
 
 
@@ -236,3 +244,20 @@ def test_a_step_every_env_fails_raises_the_envs_error_and_close_still_closes():
     for process in vec.processes:
         process.join(10)
     assert not any(process.is_alive() for process in vec.processes)
+
+
+@pytest.mark.parametrize(("scenario", "seed"), [("merge", 11), ("roundabout", 12),
+                                                ("intersection", 13), ("exit", 14),
+                                                ("cut_in", 15)])
+def test_other_scenarios_and_seeds_are_answered_as_by_worker_processes(scenario, seed):
+    """The every-call comparison on the other scenarios (their own observations, actions,
+    rewards and episode ends), each with its own seed and drawn actions, 2 envs."""
+    results = []
+    for one_here in (False, True):
+        vec = _envs(2, one_here, scenario)
+        try:
+            results.append(_run(vec, 25, seed=seed,
+                                options={"config": {"collision_reward": -0.5}}))
+        finally:
+            vec.close()
+    assert _same(*results)
