@@ -237,11 +237,9 @@ def idle_cores(seconds: float = 0.3) -> float | None:
     busy cores (measured with 2 envs: 23 to 33 % more CPU per env step, and fewer steps per
     second in 6 of 6 interleaved pairs, than the envs stepped in the training process, at
     load 4.6 to 9 on 2 cores)."""
-    try:  # the lines of this process's cores
-        lines = {f"cpu{k}" for k in os.sched_getaffinity(0)}
-        n_cores = len(lines)
-    except (AttributeError, OSError):  # no affinity (not Linux): the all-CPU line
-        lines, n_cores = {"cpu"}, os.cpu_count() or 1
+    cpus = _affinity()  # the lines of this process's cores; else (not Linux) the all-CPU line
+    lines = {"cpu"} if cpus is None else {f"cpu{k}" for k in cpus}
+    n_cores = _usable_cores()
 
     def read() -> tuple[int, int]:
         idle = total = seen = 0
@@ -335,12 +333,18 @@ def cpu_quota(root: str | os.PathLike = "/sys/fs/cgroup",
     return min(quotas) if quotas else None
 
 
-def _usable_cores() -> int:
-    """The cores this process may run on (its CPU affinity where known)."""
+def _affinity() -> set[int] | None:
+    """The cores this process may run on (its CPU affinity; None where unknown)."""
     try:
-        return len(os.sched_getaffinity(0))
+        return os.sched_getaffinity(0)
     except (AttributeError, OSError):
-        return os.cpu_count() or 1
+        return None
+
+
+def _usable_cores() -> int:
+    """How many cores this process may run on (its CPU affinity where known)."""
+    cpus = _affinity()
+    return (os.cpu_count() or 1) if cpus is None else len(cpus)
 
 
 def _vec_env(scenario: Scenario, *, n_envs: int, fast: bool, seed: int,
