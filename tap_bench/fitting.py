@@ -22,6 +22,9 @@ by minimising J (:mod:`tap_bench.objective`) with four methods:
     evenly spaced over the sorted data for three thresholds, 300 for two), then finer
     local lattices around the best down to single samples. It is the reference the
     others are measured against.
+
+The thresholds are the lowest J evaluated by any of them (``select="best"``), passing over a
+solution with a degenerate band (:func:`fit_report`).
 """
 
 from __future__ import annotations
@@ -162,10 +165,13 @@ def descent(s: SortedSamples, starts: np.ndarray, eps: float, eta: float, epochs
     ``step="paper"``: theta <- theta - eta * grad (halved while infeasible).
     ``step="scaled"``: a move of ``size`` along -grad/|grad|, kept only if J decreases;
     ``size`` starts at 5 % of the data's 1-99 % range, x1.2 on success, x0.5 on failure.
-    Each epoch is one batched evaluation of J for all starts.
+    Each epoch is one batched evaluation of J for all starts. The theta returned is the best
+    one evaluated (the start included): the paper's step can overshoot a minimum and end
+    above a point it passed. The history is J where each epoch ended.
     """
     theta = np.array(starts, dtype=np.float64)
     j, g = _probe(s, theta, eps)
+    best, best_j = theta.copy(), j.copy()
     size = np.full(len(theta), 0.05 * _data_scale(s))
     hist: list[list[float]] = [[] for _ in theta]
     for _ in range(epochs):
@@ -189,9 +195,11 @@ def descent(s: SortedSamples, starts: np.ndarray, eps: float, eta: float, epochs
             better = j_new < j
             theta[better], j[better], g[better] = cand[better], j_new[better], g_new[better]
             size = np.where(better, size * 1.2, size * 0.5)
+        improved = j < best_j
+        best[improved], best_j[improved] = theta[improved], j[improved]
         for k in range(len(theta)):
             hist[k].append(float(j[k]))
-    return [(theta[k].copy(), float(j[k]), hist[k]) for k in range(len(theta))]
+    return [(best[k].copy(), float(best_j[k]), hist[k]) for k in range(len(theta))]
 
 
 def cem(s: SortedSamples, starts: np.ndarray, rng: np.random.Generator, iterations: int = 60,
@@ -339,11 +347,12 @@ def fit_report(data: pd.DataFrame | dict[str, np.ndarray], *,
             :func:`tap_bench.kinematics.one_second_samples`.
         methods: which of :data:`METHODS` to run (the grid is always run when asked for
             and is the reference for distances).
-        select: which run becomes the thresholds. A method name keeps the lowest J of that
-            method's starts; ``"best"`` the lowest J over every method and start. Default:
-            ``"descent"`` (the paper's method) when it is run, else ``"best"``. The paper's
-            local descent from domain-informed starts is the default on purpose: on real
-            data the global minimum of J can be degenerate (docs/thresholds.md).
+        select: which run becomes the thresholds. ``"best"`` (the default): the lowest J
+            evaluated, over every method and start and the grid; a method name: the
+            lowest J of that method's starts. A run with a degenerate band (narrower than
+            :data:`RESOLUTION` of the data's 1-99 % range: on real data the global minimum
+            of J can be one, docs/thresholds.md) is passed over for the lowest J without
+            one, and a FitWarning names both; only when every run has one is it kept.
         dataset: a name for the data, kept in the provenance.
         epochs: descent epochs per start.
         seed: seed of the cross-entropy method's sampling.
@@ -355,7 +364,7 @@ def fit_report(data: pd.DataFrame | dict[str, np.ndarray], *,
         if m not in METHODS:
             raise did_you_mean("fitting method", m, METHODS)
     if select is None:
-        select = "descent" if "descent" in methods else "best"
+        select = "best"
     if select != "best" and select not in methods:
         raise TapBenchError(f"select={select!r} is not among the methods run {methods!r}; "
                             "use 'best' or one of them.")
@@ -406,10 +415,8 @@ def fit_report(data: pd.DataFrame | dict[str, np.ndarray], *,
         pool = [*runs, *([grid] if grid else [])]
         if select != "best":
             pool = [r for r in pool if r.method == select]
-        chosen = min(pool, key=lambda r: r.objective)
-        if not np.isfinite(chosen.objective):
-            raise TapBenchError(f"{dataset}: no feasible thresholds found for {dist}")
-        notes = _fit_warnings(dataset, dist, s, chosen, grid)
+        chosen, refused = _choose(dataset, dist, s, pool)
+        notes = (*refused, *_fit_warnings(dataset, dist, s, chosen, grid))
         for note in notes:
             warnings.warn(note, FitWarning, stacklevel=2)
         fits[dist] = DistributionFit(dist, len(x), tuple(runs), grid, chosen, notes)
@@ -440,15 +447,51 @@ def fit_report(data: pd.DataFrame | dict[str, np.ndarray], *,
 _WHAT = {"w": "turning", "a": "change of speed", "v": "range of speeds"}
 
 
+def _resolution(s: SortedSamples) -> float:
+    """The narrowest band that is not degenerate: RESOLUTION of the 1-99 % range [unit]."""
+    lo, hi = np.quantile(s.x, [0.01, 0.99])
+    return RESOLUTION * float(hi - lo)
+
+
+def _degenerate(s: SortedSamples, run: FitRun) -> bool:
+    return bool(np.any(np.diff(run.theta) < _resolution(s)))
+
+
+def _show(run: FitRun) -> str:
+    theta = ", ".join(f"{v:.4g}" for v in run.theta)
+    return f"{run.method}, ({theta}) {UNITS[run.dist]}, J = {run.objective:.4g}"
+
+
+def _choose(dataset: str, dist: str, s: SortedSamples, pool: list[FitRun]
+            ) -> tuple[FitRun, tuple[str, ...]]:
+    """The run of ``pool`` with the lowest J (the first evaluated on ties) whose bands are
+    not degenerate, and a note when a lower J was passed over for a degenerate band. When
+    every run is degenerate the lowest J is kept (and :func:`_fit_warnings` reports it)."""
+    ranked = sorted((r for r in pool if np.isfinite(r.objective)), key=lambda r: r.objective)
+    if not ranked:
+        raise TapBenchError(f"{dataset}: no feasible thresholds found for {dist}")
+    kept = next((r for r in ranked if not _degenerate(s, r)), ranked[0])
+    if kept is ranked[0]:
+        return kept, ()
+    return kept, (
+        f"{dataset}: {dist}: the lowest J evaluated ({_show(ranked[0])}) has a band "
+        f"narrower than the data's resolution ({RESOLUTION:.0%} of its 1-99 % range, "
+        f"{_resolution(s):.2g} {UNITS[dist]}): a degenerate band, passed over for the lowest J "
+        f"without one ({_show(kept)}). Compare both (tap-bench fit prints every run).",)
+
+
 def _fit_warnings(dataset: str, dist: str, s: SortedSamples, chosen: FitRun,
                   grid: FitRun | None) -> tuple[str, ...]:
-    """Warnings for one distribution's chosen fit, each naming both figures."""
+    """Warnings for one distribution's chosen fit, each naming both figures. A grid optimum
+    with a degenerate band is no reference to be far from (:func:`_choose` says why it was
+    passed over)."""
     unit = UNITS[dist]
     out = []
     theta = ", ".join(f"{v:.4g}" for v in chosen.theta)
     n = len(s.x)
     mu_all = float(np.dot(2.0 * np.arange(n) - n + 1, s.x) / (n * (n - 1) / 2))
-    if (grid is not None and chosen.objective > FAR_ABOVE_GRID * grid.objective
+    if (grid is not None and not _degenerate(s, grid)
+            and chosen.objective > FAR_ABOVE_GRID * grid.objective
             and chosen.objective - grid.objective > J_RESOLUTION * mu_all**2):
         ratio = chosen.objective / grid.objective if grid.objective > 0 else float("inf")
         out.append(
@@ -456,8 +499,7 @@ def _fit_warnings(dataset: str, dist: str, s: SortedSamples, chosen: FitRun,
             f"{chosen.objective:.4g}, {ratio:.3g} times the grid optimum's J = "
             f"{grid.objective:.4g} at ({', '.join(f'{v:.4g}' for v in grid.theta)}) {unit}. "
             "Compare both (tap-bench fit prints every run); --select best takes the lowest J.")
-    lo, hi = np.quantile(s.x, [0.01, 0.99])
-    resolution = RESOLUTION * float(hi - lo)
+    resolution = _resolution(s)
     edges = np.asarray(chosen.theta)
     widths = np.diff(edges)
     names = NAMES[dist] if dist != "v" else NAMES[dist][1:]

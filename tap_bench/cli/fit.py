@@ -31,8 +31,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS,
                    help="methods to run (default: all)")
     p.add_argument("--select", default=None, choices=["best", *METHODS],
-                   help="which run gives the thresholds: a method's lowest J, or 'best' over "
-                   "all (default: descent, the paper's method, when it is run)")
+                   help="which run gives the thresholds: 'best' (default), the lowest J of "
+                   "every method, start and the grid, passing over degenerate bands; or one "
+                   "method's lowest J")
     p.add_argument("--epochs", type=int, default=100, help="descent epochs per start (100)")
     p.add_argument("--seed", type=int, default=0, help="seed of the cross-entropy method")
     add_backend_arguments(p, shards=False)
