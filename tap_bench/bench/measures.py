@@ -705,8 +705,9 @@ def _scene_column(steps: EgoSteps, name: str) -> np.ndarray:
 
 
 @register_measure("off_road", unit="share", higher_is_better=False, margin=0.10,
-                  description="the ego left the road (farther than half its lane's width + "
-                  "0.5 m from every lane centre, or across a road edge)", label="off road",
+                  description="the ego left the road: a corner of its box beyond the road "
+                  "edges (lane centres where no edge is near), not where it started",
+                  label="off road",
                   kind="rate", role="safety", registry=SCENE_MEASURES)
 def _off_road(steps: EgoSteps) -> np.ndarray:
     import numpy as np

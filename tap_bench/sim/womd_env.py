@@ -27,9 +27,13 @@ observation works on it.
   idm traffic checks collisions with everyone (highway-env's rule: crashed vehicles brake
   to a stop); the episode table counts them (``traffic_collisions``).
 - **End.** At the log's end (truncated), on a collision of the ego or when the ego leaves
-  the road (terminated). The human (policy ``log``) is never stopped early: its record is
-  the reference, and its overlaps with other boxes are counted like anyone's.
-- **Measured per step** on the ego's rows: ``off_road``, ``ran_red_light``,
+  the road (terminated): a corner of its box beyond the road edges
+  (:mod:`tap_bench.sim.road_edges`; the lane centres where no edge is near), judged against
+  where it started, so a policy is never ended for a start the human made. The human
+  (policy ``log``) is never stopped early: its record is the reference, and its overlaps
+  with other boxes are counted like anyone's.
+- **Measured per step** on the ego's rows: ``off_road`` (left the road),
+  ``off_road_distance`` [m] (signed, positive off the road), ``ran_red_light``,
   ``route_progress`` (share of the logged path covered so far), ``log_distance`` [m] (to the
   logged ego at the same step); :mod:`tap_bench.bench.measures` reduces them per episode.
 
@@ -213,10 +217,13 @@ class _WomdHighwayEnv(AbstractEnv):
             if not isinstance(vehicle, LogVehicle):
                 self.simulated[row] = vehicle
         self.road.start_collisions()
+        self.road.start_off_road(ego)
         self.replaying_ego = False
         self._last_ego = np.array([x, y])
         self.progress = 0.0
         self.flags = {"off_road": False, "ran_red_light": False}
+        self.off_road_max = float("nan")  # [m] largest signed distance off the road
+        self.off_road_rules: dict[str, int] = {}  # rule -> steps it decided
 
     def _traffic_vehicle(self, network: WomdNetwork, row: int, states: np.ndarray,
                          sim_xy: np.ndarray, sim_h: np.ndarray) -> Vehicle:
@@ -265,7 +272,12 @@ class _WomdHighwayEnv(AbstractEnv):
     def measure_step(self) -> dict[str, float]:
         ego = self.vehicle
         p = np.asarray(ego.position, float)
-        off = self.road.off_road(self._last_ego, p)
+        off, off_distance, rule = self.road.off_road(ego)
+        if np.isfinite(off_distance):
+            self.off_road_max = max(off_distance, self.off_road_max) \
+                if np.isfinite(self.off_road_max) else off_distance
+        if rule != "none":
+            self.off_road_rules[rule] = self.off_road_rules.get(rule, 0) + 1
         red = self.road.crossed_red(self._last_ego, p)
         self._last_ego = p.copy()
         if self.path_length > 0 and len(self.path) >= 2:
@@ -281,7 +293,7 @@ class _WomdHighwayEnv(AbstractEnv):
             log_distance = math.hypot(p[0] - lx, p[1] - ly)
         else:
             log_distance = float("nan")
-        return {"off_road": off, "ran_red_light": red,
+        return {"off_road": off, "off_road_distance": off_distance, "ran_red_light": red,
                 "route_progress": self.route_progress, "log_distance": log_distance}
 
     @property
@@ -431,7 +443,8 @@ class WomdEnv(gym.Wrapper):
         self._rec = {name: getattr(scene, name).copy() for name in
                      ("x", "y", "heading", "speed", "vx", "vy", "valid")}
         self._crashed = np.zeros((n, t), bool)
-        self._ego_cols = {"off_road": np.zeros(t, bool), "ran_red_light": np.zeros(t, bool),
+        self._ego_cols = {"off_road": np.zeros(t, bool), "off_road_distance": np.full(t, np.nan),
+                          "ran_red_light": np.zeros(t, bool),
                           "route_progress": np.full(t, np.nan),
                           "log_distance": np.full(t, np.nan)}
         self._last_step = CURRENT_STEP
@@ -471,6 +484,14 @@ class WomdEnv(gym.Wrapper):
             rec["vx"][row, k] = speed * math.cos(heading)
             rec["vy"][row, k] = speed * math.sin(heading)
             rec["valid"][row, k] = True
+
+    def _off_road_rule(self) -> str:
+        """Which rule decided off-road over the episode's steps: ``"road edge"``, ``"lane
+        centre"``, or both with their step counts (``"road edge 70, lane centre 10"``)."""
+        rules = self.env.unwrapped.off_road_rules
+        if len(rules) <= 1:
+            return next(iter(rules), "none")
+        return ", ".join(f"{rule} {n}" for rule, n in sorted(rules.items(), key=lambda r: -r[1]))
 
     def _crash_partner(self, ego: Vehicle) -> None:
         inner = self.env.unwrapped
@@ -558,6 +579,8 @@ class WomdEnv(gym.Wrapper):
         dist = dist[np.isfinite(dist)]
         return {"scenario_id": self.scene.scenario_id, "traffic": self.scenario.traffic,
                 "off_road": bool(inner.flags["off_road"]),
+                "max_off_road_distance_m": float(inner.off_road_max),
+                "off_road_rule": self._off_road_rule(),
                 "route_progress": inner.route_progress,
                 "ran_red_light": bool(inner.flags["ran_red_light"]),
                 "log_ade": float(dist.mean()) if len(dist) else float("nan"),

@@ -29,6 +29,7 @@ from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
 from tap_bench.sim.fast_road import _near_pairs
+from tap_bench.sim.road_edges import RoadEdges, left_road
 from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, lane_points
 from tap_bench.sim.womd_scene import Scene
 
@@ -325,19 +326,6 @@ def _lane_clearance(ax, ay, bx, by, half, owner, x, y):  # pragma: no cover - co
     return best
 
 
-@numba.njit(cache=True, nogil=True)
-def _crosses(ax, ay, bx, by, px, py, qx, qy):  # pragma: no cover - compiled
-    """Whether the move p -> q crosses any segment a -> b (proper intersection)."""
-    for k in range(ax.shape[0]):
-        d1 = (bx[k] - ax[k]) * (py - ay[k]) - (by[k] - ay[k]) * (px - ax[k])
-        d2 = (bx[k] - ax[k]) * (qy - ay[k]) - (by[k] - ay[k]) * (qx - ax[k])
-        d3 = (qx - px) * (ay[k] - py) - (qy - py) * (ax[k] - px)
-        d4 = (qx - px) * (by[k] - py) - (qy - py) * (bx[k] - px)
-        if d1 * d2 < 0 and d3 * d4 < 0:
-            return True
-    return False
-
-
 def _pair(a: Vehicle, b: Vehicle) -> tuple[int, int]:
     """The two vehicles' scene rows, in order (-1: no row)."""
     ra, rb = getattr(a, "row", -1), getattr(b, "row", -1)
@@ -377,7 +365,8 @@ class WomdRoad(Road):
         lanes = [lane for lane in road.lanes.values() if lane.id in network.index]
         self._lane_segments = _segments([sim_frame(*lane.centre.T) for lane in lanes])
         self._half = np.array([lane.width / 2 for lane in lanes])
-        self._edges = _segments([sim_frame(*e.T) for e in road.road_edges])
+        self.road_edges = RoadEdges.from_polylines(road.road_edges)  # WOMD's axes
+        self.off_road_start: dict[str, float] = {}
         self._projections: dict[Any, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._walker_rows = frozenset(np.flatnonzero(np.isin(scene.object_types,
                                                              ("pedestrian", "cyclist"))).tolist())
@@ -616,18 +605,42 @@ class WomdRoad(Road):
                 return True
         return False
 
-    def off_road(self, before: np.ndarray, after: np.ndarray) -> bool:
-        """SPEC section 8: farther than half the lane's width + :data:`OFF_ROAD_MARGIN` from
-        every lane centre line, or across a road edge on the move ``before -> after``."""
+    def off_road_distance(self, vehicle: Vehicle) -> tuple[float, str]:
+        """(signed distance [m], rule) of a vehicle's box to the drivable area, positive off
+        the road (SPEC section 8): against the road edges (:mod:`tap_bench.sim.road_edges`,
+        rule ``"road edge"``) where one is within
+        :data:`~tap_bench.sim.road_edges.EDGE_REACH` of it, else the centre's distance beyond
+        half the nearest lane's width + :data:`OFF_ROAD_MARGIN` (rule ``"lane centre"``)."""
+        x, y = float(vehicle.position[0]), float(vehicle.position[1])
+        d = self.road_edges.box_distance(x, -y, -float(vehicle.heading),
+                                         float(vehicle.LENGTH), float(vehicle.WIDTH))
+        if np.isfinite(d):
+            return d, "road edge"
         ax, ay, bx, by, owner = self._lane_segments
-        clear = _lane_clearance(ax, ay, bx, by, self._half, owner, float(after[0]),
-                                float(after[1]))
-        if clear > OFF_ROAD_MARGIN:
-            return True
-        ex, ey, fx, fy, _ = self._edges
-        return bool(len(ex)) and bool(_crosses(ex, ey, fx, fy, float(before[0]),
-                                               float(before[1]), float(after[0]),
-                                               float(after[1])))
+        if not len(ax):
+            return float("nan"), "none"
+        return float(_lane_clearance(ax, ay, bx, by, self._half, owner, x, y)
+                     - OFF_ROAD_MARGIN), "lane centre"
+
+    def start_off_road(self, vehicle: Vehicle) -> None:
+        """Record where the ego starts, by each rule (the episode's start is the human's: a
+        policy is judged on leaving the road, never on starting off it)."""
+        x, y = float(vehicle.position[0]), float(vehicle.position[1])
+        ax, ay, bx, by, owner = self._lane_segments
+        lane = (float(_lane_clearance(ax, ay, bx, by, self._half, owner, x, y))
+                - OFF_ROAD_MARGIN) if len(ax) else float("nan")
+        edge = self.road_edges.box_distance(x, -y, -float(vehicle.heading),
+                                            float(vehicle.LENGTH), float(vehicle.WIDTH))
+        self.off_road_start = {"road edge": edge, "lane centre": lane}
+
+    def off_road(self, vehicle: Vehicle) -> tuple[bool, float, str]:
+        """(left the road, signed distance [m], rule) of a vehicle at this step
+        (:meth:`off_road_distance`, :func:`~tap_bench.sim.road_edges.left_road` against the
+        start :meth:`start_off_road` recorded by the same rule)."""
+        if not vehicle.collidable:  # a replayed ego at a step its log does not have
+            return False, float("nan"), "none"
+        d, rule = self.off_road_distance(vehicle)
+        return left_road(d, self.off_road_start.get(rule, float("nan"))), d, rule
 
 
 # ------------------------------------------------------------------ routes
