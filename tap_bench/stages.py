@@ -329,7 +329,8 @@ def _back_at(path: _Path, pos: int, start: int, stop: int, side: int) -> int:
 
 
 def _chain(path: _Path, start: np.ndarray, stop: np.ndarray, side: np.ndarray, first: int,
-           last: int, config: StageConfig, min_steps: int, code: np.ndarray) -> None:
+           last: int, config: StageConfig, min_steps: int, code: np.ndarray,
+           cut_off: np.ndarray) -> None:
     """Merges along turns ``first`` .. ``last`` of one segment, each consecutive pair a
     candidate (opposite sides, close enough): lane changes in a row. Writes merge codes into
     ``code`` (m,).
@@ -339,7 +340,8 @@ def _chain(path: _Path, start: np.ndarray, stop: np.ndarray, side: np.ndarray, f
     the next turn, with 1 s or more of that turn left, and the part up to there is a merge
     whose rest pairs with the turn after it (whole, or split the same way), the next turn
     is split there: its rest starts the next lane change. Otherwise the pair is a merge if
-    it passes whole, else the current turn stays a turn.
+    it passes whole, else the current turn stays a turn. A pair whose second turn is one
+    the data cut off (``cut_off``, (k,) bool) is never a wiggle.
     """
 
     def ok(a: int, b: int, towards: int) -> bool:
@@ -356,6 +358,10 @@ def _chain(path: _Path, start: np.ndarray, stop: np.ndarray, side: np.ndarray, f
     i, pos = first, int(start[first])
     while i < last:
         nxt_start, nxt_stop = int(start[i + 1]), int(stop[i + 1])
+        # the next turn with the turn back the data cut off after it, as one: what the pair
+        # is checked over, as the whole run was before the cut-off part was told apart
+        tail = i + 2 <= last and bool(cut_off[i + 2])
+        nxt_end = int(stop[i + 2]) if tail else nxt_stop
         # an aborted lane change: out, back, and straightening (three turns) or out and
         # back (two), never a merge's distance sideways: Straight
         if i + 2 <= last and wiggle(pos, int(stop[i + 2]), int(side[i])):
@@ -369,23 +375,65 @@ def _chain(path: _Path, start: np.ndarray, stop: np.ndarray, side: np.ndarray, f
                 and ok(pos, cut, int(side[i]))):
             cut2 = _back_at(path, cut, int(start[i + 2]), int(stop[i + 2]), int(side[i + 1]))
             if ok(cut, int(stop[i + 2]), int(side[i + 1])) or (
-                    cut2 > start[i + 2] and ok(cut, cut2, int(side[i + 1]))):
+                    not cut_off[i + 2] and cut2 > start[i + 2]
+                    and ok(cut, cut2, int(side[i + 1]))):
                 code[pos:cut] = merge_code(int(side[i]))
                 i, pos = i + 1, cut
                 continue
-        if ok(pos, nxt_stop, int(side[i])):
-            code[pos:nxt_stop] = merge_code(int(side[i]))
-            i += 2
-        elif wiggle(pos, nxt_stop, int(side[i]), at_end=True):
-            code[pos:nxt_stop] = sdl.STRAIGHT
-            i += 2
+        if ok(pos, nxt_end, int(side[i])):
+            code[pos:nxt_end] = merge_code(int(side[i]))
+            i += 3 if tail else 2
+        elif not cut_off[i + 1] and wiggle(pos, nxt_end, int(side[i]), at_end=True):
+            code[pos:nxt_end] = sdl.STRAIGHT
+            i += 3 if tail else 2
         else:
             i += 1
         if i <= last:
             pos = int(start[i])
 
 
-def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int) -> Runs:
+def _cut_off_returns(runs: Runs, trace: np.ndarray, turn: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """The turn back that the end of the data cut short, of the turn runs ``turn`` (indices
+    into ``runs``).
+
+    A turn run that ends its segment and inside which the trace's last turn goes the other
+    way (straight steps may follow it; at least one of its steps a central difference, not
+    only the segment's last, one-sided step) had begun to turn back when the data ended: the
+    straightening of a lane change cut off, shorter than a run can be, which the low-pass
+    gave to the turn. Returns the indices (into ``turn``) of such runs and, for each, the
+    first step of that last trace run: the turn back, a turn run of its own for the merge
+    rule (SPEC 4.3: a lane change and its partial return on a straight road are merges).
+    """
+    none = np.zeros(0, dtype=np.int64)
+    n_runs = len(runs.start)
+    ends_segment = np.r_[runs.seg[1:] != runs.seg[:-1], True][turn]
+    if not ends_segment.any():
+        return none, none
+    seg_first = np.zeros(len(trace), dtype=bool)
+    seg_first[runs.start[np.r_[True, runs.seg[1:] != runs.seg[:-1]]]] = True
+    step_seg = np.repeat(runs.seg, runs.length)
+    traced = find_runs(trace.astype(np.int64), step_seg, seg_first)
+    turning = np.flatnonzero(traced.code != sdl.STRAIGHT)
+    if not len(turning):
+        return none, none
+    turning = turning[np.r_[traced.seg[turning][1:] != traced.seg[turning][:-1], True]]
+    last_turning = np.full(int(runs.seg[n_runs - 1]) + 1, -1)
+    last_turning[traced.seg[turning]] = turning  # each segment's last turning trace run
+    which = np.flatnonzero(ends_segment)
+    k = last_turning[runs.seg[turn[which]]]
+    kk = np.maximum(k, 0)
+    # the segment's last step reads a one-sided difference (kinematics), the noisiest
+    # yaw rate of all: the turn back must show in a central difference too
+    seg_stop = (runs.start + runs.length)[turn[which]]
+    central = traced.length[kk] - (traced.start[kk] + traced.length[kk] == seg_stop)
+    back = ((k >= 0) & (traced.code[kk] != runs.code[turn[which]])
+            & (traced.start[kk] > runs.start[turn[which]]) & (central >= 1))
+    return which[back], traced.start[k[back]]
+
+
+def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int,
+            trace: np.ndarray | None = None) -> Runs:
     """Stage 3: pairs of opposite turns that form a lateral move become merges.
 
     Turn runs are paired greedily from the start of each segment. A turn and the next one,
@@ -395,15 +443,32 @@ def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int) -> Run
     changes in a row: right, then back left reads Right, Left, Right, the middle turn being
     the end of the first and the start of the second), :func:`_chain` pairs them one by one
     and splits a middle turn where the heading is back.
+
+    ``trace``: the (m,) trace-level lateral codes. A turn that the end of the data cut off
+    while it turned back (:func:`_cut_off_returns`) is paired with that turn back as with a
+    second turn run: a merge when :func:`_merge_ok` holds up to the segment's end. Such a
+    pair is never a wiggle: the data ended before the move could show where it ends.
     """
     m = len(path.rows)
     turn = np.flatnonzero((runs.code == sdl.LEFT) | (runs.code == sdl.RIGHT))
-    if len(turn) < 2:
-        return runs
     start = runs.start[turn]
     stop = start + runs.length[turn]
     side = np.where(runs.code[turn] == sdl.LEFT, 1, -1)
     seg = runs.seg[turn]
+    cut_off = np.zeros(len(turn), dtype=bool)
+    if trace is not None and len(turn):
+        which, back = _cut_off_returns(runs, trace, turn)
+        if len(which):
+            # the turn back becomes a turn run of its own, right after the run it ended
+            at = which + 1
+            start = np.insert(start, at, back)
+            stop = np.insert(stop, at, stop[which])
+            stop[at - 1 + np.arange(len(at))] = back
+            side = np.insert(side, at, -side[which])
+            seg = np.insert(seg, at, seg[which])
+            cut_off = np.insert(cut_off, at, True)
+    if len(start) < 2:
+        return runs
     cand = ((seg[1:] == seg[:-1]) & (side[1:] != side[:-1])
             & (start[1:] - stop[:-1] <= config.merge_gap_steps))
     if not cand.any():
@@ -413,7 +478,7 @@ def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int) -> Run
     lone = np.flatnonzero(cand & ~before & ~after)
     is_merge = _merge_ok(path, start[lone], stop[lone + 1], side[lone], config)
     merged = lone[is_merge]
-    rest = lone[~is_merge]
+    rest = lone[~is_merge & ~cut_off[lone + 1]]
     wiggles = rest[_wiggle_ok(path, start[rest], stop[rest + 1], side[rest], config,
                               at_end=True)]
 
@@ -427,7 +492,7 @@ def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int) -> Run
         last = first + 1
         while last < len(cand) and cand[last]:
             last += 1
-        _chain(path, start, stop, side, first, last, config, min_steps, code)
+        _chain(path, start, stop, side, first, last, config, min_steps, code, cut_off)
     seg_first = np.zeros(m, dtype=bool)
     seg_first[runs.start[np.r_[True, runs.seg[1:] != runs.seg[:-1]]]] = True
     return find_runs(code, np.repeat(runs.seg, runs.length), seg_first)
@@ -588,7 +653,7 @@ def run_stages(w: np.ndarray, a: np.ndarray, v: np.ndarray, seg_length: np.ndarr
     # wiggle claims (docs/tap.md: 94.3 % of completed lane changes were merges with the
     # average rule applied first, 98.4 % this way, as without it)
     paired = _merges(find_runs(passed_lat, seg, seg_first), path, config,
-                     min_steps).expand(m)
+                     min_steps, trace_lat).expand(m)
     claimed = (paired == sdl.LEFT_MERGE) | (paired == sdl.RIGHT_MERGE) | (
         (paired == sdl.STRAIGHT) & (passed_lat != sdl.STRAIGHT))
     lat_runs = _lone_wiggles(find_runs(np.where(claimed, paired, trend_lat), seg, seg_first),

@@ -252,3 +252,87 @@ def test_a_right_lane_change_is_never_a_left_merge():
     table["y"] = -table["y"]  # the car moves right while its heading turns left, then right
     got = tb.label(table, level="maneuver")["lateral"].item()
     assert "Merge" not in got
+
+
+# -- lane changes the end of the data cut off (SPEC 4.3: a lane change and its return on a
+# straight road are merges). At 15 m/s; a turn of yaw w starting at step s reads w/2 at s
+# (Straight when w/2 cancels against the turn before it) and the last step reads a
+# one-sided difference, the yaw commanded the step before it.
+def left_lane_change_with_partial_return(side: int = +1) -> pd.DataFrame:
+    """1 s straight, a lane change towards ``side`` (0.12 rad/s for 1.5 s out, 1.5 s back),
+    3 s straight in the new lane, then the lane change back: 1.5 s at -0.12 and 0.6 s of
+    its straightening at +0.12 when the data ends (9.1 s)."""
+    yaw = side * np.concatenate([np.zeros(10), np.full(15, 0.12), np.full(15, -0.12),
+                                 np.zeros(30), np.full(15, -0.12), np.full(6, 0.12)])
+    return from_controls(np.full(91, 15.0), yaw, track_id="partial_return")
+
+
+def lane_change_and_partial_return_at_once() -> pd.DataFrame:
+    """2 s straight, 1.5 s at +0.12 rad/s, 3 s at -0.12 (the first lane change's
+    straightening and, without a break, the way back), 0.6 s of +0.12 when the data ends
+    (7.1 s)."""
+    yaw = np.concatenate([np.zeros(20), np.full(15, 0.12), np.full(30, -0.12),
+                          np.full(6, 0.12)])
+    return from_controls(np.full(71, 15.0), yaw, track_id="at_once")
+
+
+@pytest.mark.parametrize("side", [+1, -1])
+def test_a_lane_change_and_its_partial_return_are_two_merges(side):
+    """Worked by hand for side +1. Trace: Left 10-24 (step 10 reads 0.06), Straight 25
+    (0.12 - 0.12), Right 26-40 (step 40 reads -0.06), Straight 41-69, Right 70-84, Straight
+    85, Left 86-90 (the last step one-sided, 0.12). Trend: step 25 joins the earlier of its
+    two 15-step neighbours (Left); steps 85-90 (their 1 s window 81-90 means +0.012:
+    Straight, still short) join the Right run: Left 10-25, Right 26-40, Straight, Right
+    70-90. Maneuver: the first pair comes back to heading 0 and moves 4.04 m left (y 0 at
+    step 10 to 4.04 at 40): Left Merge. The last Right run ends the data while its trace
+    turns back (Left 86-90, four of them central differences): that turn back is its
+    second turn. Over 70-90 the heading goes to -0.18 and back to -0.12 rad (net 0.12 <=
+    0.2, never beyond pi/6) and the car moves 3.05 m right (y 4.04 to 0.99, >= 1.5): a Right
+    Merge, not a Turn. 15 m/s: Medium."""
+    table = left_lane_change_with_partial_return(side)
+    if side < 0:
+        first, back = "Right", "Left"
+    else:
+        first, back = "Left", "Right"
+    got = labels_of(table)
+    assert got["trend"] == (f"Straight > {first} Turn > {back} Turn > Straight > {back} Turn"
+                            " | Maintain Speed")
+    assert got["maneuver"] == (f"Straight > {first} Merge > Straight > {back} Merge"
+                               " | Maintain Speed")
+    assert got["action"] == (f"Straight > {first} Merge > Straight > {back} Merge"
+                             " | Maintain Medium Speed")
+
+
+def test_a_lane_change_with_its_partial_return_at_once_is_two_merges():
+    """Trace: Left 20-34, Straight 35, Right 36-64, Straight 65, Left 66-70. Trend: step 35
+    (window 31-40 means -0.012) joins its longer neighbour, the 29-step Right run; steps
+    65-70 (window 61-70, +0.012) join it too: Left 20-34, Right 35-70. Maneuver: with the
+    turn back at 66-70 as its second turn, Left, Right, Left is a chain: the heading is back
+    at 0 half-way through the Right run (at step 50, 1e-17 above it in floats: the first
+    step past it is 51, with 15 steps of the run left), Left 20-50 moves 4.04 m left and
+    Right 51-70 comes back to -0.12 rad and 3.05 m right: two merges. Before,
+    the Left and the whole Right run were one pair that ends 1 m from where it started: a
+    wiggle, and the two lane changes read Straight."""
+    got = labels_of(lane_change_and_partial_return_at_once())
+    assert got["trend"] == "Straight > Left Turn > Right Turn | Maintain Speed"
+    assert got["maneuver"] == "Straight > Left Merge > Right Merge | Maintain Speed"
+
+
+@pytest.mark.parametrize("case, yaw, maneuver", [
+    # the way back cut before it turns back (2.1 s at -0.12, still turning): a turn is all
+    # the data shows
+    ("cut_while_turning", [(10, 0.0), (15, 0.12), (15, -0.12), (30, 0.0), (21, -0.12)],
+     "Straight > Left Merge > Straight > Right Turn"),
+    # the turn back only in the last step, a one-sided difference (step 89 reads
+    # (-0.12 + 0.12) / 2 = 0): not enough to see it turn back
+    ("back_in_the_last_step_only", [(10, 0.0), (15, 0.12), (15, -0.12), (30, 0.0),
+                                     (19, -0.12), (2, 0.12)],
+     "Straight > Left Merge > Straight > Right Turn"),
+    # a 0.48 rad right turn straightening for 0.6 s when the data ends: the heading does not
+    # come back within 0.2 rad
+    ("turn_straightening", [(45, 0.0), (40, -0.12), (6, 0.12)], "Straight > Right Turn"),
+])
+def test_a_turn_the_data_cuts_off_stays_a_turn(case, yaw, maneuver):
+    yaw = np.concatenate([np.full(n, w) for n, w in yaw])
+    got = labels_of(from_controls(np.full(91, 15.0), yaw, track_id=case))
+    assert got["maneuver"] == maneuver + " | Maintain Speed"
