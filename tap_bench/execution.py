@@ -215,10 +215,9 @@ def _check_retries(retries: Any) -> int:
 
 
 def _bar(total: int | None, desc: str, unit: str, progress: bool | None) -> Any:
-    from tqdm.auto import tqdm  # a progress bar only where one is drawn
+    from tap_bench.cli.progress import progress_bar  # a bar, or lines where no terminal
 
-    return tqdm(total=total, desc=desc or None, unit=unit,
-                disable=None if progress is None else not progress)
+    return progress_bar(total, desc, unit, progress)
 
 
 class _Attempts:

@@ -1,14 +1,24 @@
-"""Progress bars of the command line: shown only on a terminal unless asked.
+"""Progress output of long runs: a bar on a terminal, plain lines in a log.
 
-``--progress`` shows the bar whatever stderr is; ``--no-progress`` never shows it; without
-either, the bar is shown only when stderr is a terminal, so pipes and log files get none.
+``--progress`` shows the bar whatever stderr is; ``--no-progress`` shows nothing; without
+either, a terminal gets the bar and anything else (a log file, a pipe, CI) a plain line on
+stderr every :data:`LINE_EVERY` seconds while the work runs (none for work done sooner),
+so a run whose output goes to a file is never silent for minutes.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
+import threading
+import time
+from typing import Any, TextIO
 
-__all__ = ["add_progress_arguments", "progress_choice"]
+__all__ = ["LINE_EVERY", "ProgressLines", "add_progress_arguments", "progress_bar",
+           "progress_choice"]
+
+LINE_EVERY = 5.0
+"""Seconds between two progress lines where stderr is not a terminal [s]."""
 
 
 def add_progress_arguments(parser: argparse.ArgumentParser) -> None:
@@ -17,9 +27,96 @@ def add_progress_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--progress", dest="progress", action="store_true", default=None,
                        help="show a progress bar even when stderr is not a terminal")
     group.add_argument("--no-progress", dest="progress", action="store_false",
-                       help="no progress bar (default: one only on a terminal)")
+                       help="no progress output (default: a bar on a terminal, else a line "
+                       f"on stderr every {LINE_EVERY:g} s)")
 
 
 def progress_choice(args: argparse.Namespace) -> bool | None:
-    """True (``--progress``), False (``--no-progress``) or None (only on a terminal)."""
+    """True (``--progress``), False (``--no-progress``) or None (a bar on a terminal, else
+    lines)."""
     return getattr(args, "progress", None)
+
+
+class ProgressLines:
+    """A progress display for logs, with the part of tqdm's interface the runs use
+    (``update``, ``close``, a context manager): from a background thread, one line
+    ``"<desc>: <done>/<total> <unit>s, <elapsed> s[, about <left> s left]"`` on ``stream``
+    every ``every`` seconds until closed, and a last line on closing if it wrote any.
+
+    Args:
+        total: items to do (None: unknown, no estimate of the time left).
+        desc: what runs (the bar's title).
+        unit: what an item is (``"episode"``, ``"task"``).
+        every: seconds between lines [s] (default: :data:`LINE_EVERY`).
+        stream: where the lines go (default: ``sys.stderr`` when each line is written).
+    """
+
+    def __init__(self, total: int | None = None, desc: str = "", unit: str = "item", *,
+                 every: float | None = None, stream: TextIO | None = None):
+        self.total, self.desc, self.unit = total, desc, unit
+        self.every = LINE_EVERY if every is None else every
+        self.stream = stream
+        self.n = 0
+        self.lines = 0
+        self._start = time.monotonic()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="tap-bench progress",
+                                        daemon=True)
+        self._thread.start()
+
+    def update(self, n: int = 1) -> None:
+        self.n += n
+
+    def line(self) -> str:
+        """The progress line as it stands."""
+        elapsed = time.monotonic() - self._start
+        done = f"{self.n}/{self.total}" if self.total is not None else f"{self.n}"
+        text = f"{self.desc or 'progress'}: {done} {self.unit}s, {elapsed:.0f} s"
+        if self.total and 0 < self.n < self.total:
+            text += f", about {elapsed * (self.total - self.n) / self.n:.0f} s left"
+        return text
+
+    def _write(self, text: str) -> None:
+        stream = self.stream if self.stream is not None else sys.stderr
+        try:
+            print(text, file=stream, flush=True)
+        except (OSError, ValueError):  # a closed stream: progress is not worth an error
+            self._stop.set()
+        self.lines += 1
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.every):
+            self._write(self.line())
+
+    def close(self) -> None:
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        self._thread.join()
+        if self.lines:
+            self._write(self.line())
+
+    def __enter__(self) -> ProgressLines:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _stderr_is_terminal() -> bool:
+    try:
+        return sys.stderr.isatty()
+    except (AttributeError, ValueError):
+        return False
+
+
+def progress_bar(total: int | None, desc: str = "", unit: str = "item",
+                 progress: bool | None = None) -> Any:
+    """What shows a run's progress: a tqdm bar (``progress`` True, or None on a terminal),
+    :class:`ProgressLines` (None anywhere else) or a disabled bar (False)."""
+    if progress is None and not _stderr_is_terminal():
+        return ProgressLines(total, desc, unit)
+    from tqdm.auto import tqdm  # a progress bar only where one is drawn
+
+    return tqdm(total=total, desc=desc or None, unit=unit, disable=not progress
+                if progress is not None else None)

@@ -199,7 +199,8 @@ def rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
         duration: another episode length [s].
         lane_change: another lane-change setting (``"default"``, ``"realistic"``).
         record: build the trajectory table (False: episode table only, faster).
-        progress: show a progress bar (None: only on a terminal).
+        progress: show a progress bar (None: on a terminal; elsewhere a line on stderr
+            every few seconds, tap_bench.cli.progress).
         backend: where the episodes run (:mod:`tap_bench.execution`: local processes or
             a Ray cluster); one task per episode.
         retries: retries of an episode whose worker died (the recovery rule of
