@@ -143,7 +143,14 @@ def _run_task(task: _Task) -> tuple[pd.DataFrame, dict[str, Any]]:
                 env = _ENVS[env_key] = WomdEnv(scenario, record=task.record)
             else:
                 env = _ENVS[env_key] = ScenarioEnv(scenario, record=task.record)
-        return run_episode(env, policy, task.seed, record=task.record)
+        if not isinstance(task.scenario, WomdScenes):
+            return run_episode(env, policy, task.seed, record=task.record)
+        from tap_bench.sim.womd_env import MapWarning
+
+        with warnings.catch_warnings():
+            # each scene's map note is in its episode row: collect_rollout warns once
+            warnings.simplefilter("ignore", MapWarning)
+            return run_episode(env, policy, task.seed, record=task.record)
     except Exception as err:  # one failing episode must not end the rollout
         # an env or policy left in an unknown state is rebuilt for the next episode
         _ENVS.pop(env_key, None)
@@ -303,6 +310,13 @@ def collect_rollout(tables: Sequence[pd.DataFrame], episodes: pd.DataFrame, *,
                       f"{first['env']} failed and were left out of the trajectory table "
                       f"({listed}). The episode table lists them.", EpisodeFailedWarning,
                       stacklevel=stacklevel)
+    if "map" in episodes.columns:  # recorded scenes: one line for all their maps
+        from tap_bench.sim.womd_env import MapWarning, map_summary
+
+        summary = map_summary(episodes["map"].tolist())
+        if summary is not None:
+            warnings.warn(summary[0].upper() + summary[1:] + ".", MapWarning,
+                          stacklevel=stacklevel)
     kept = [t for t in tables if len(t)]
     trajectories = pd.concat(kept, ignore_index=True) if kept else pd.DataFrame()
     return Rollout(trajectories, episodes)

@@ -58,7 +58,7 @@ from __future__ import annotations
 import math
 import os
 import warnings
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -93,7 +93,7 @@ from tap_bench.sim.womd_scene import (
 )
 
 __all__ = ["PARKED_DISTANCE", "TARGET_SPEEDS", "TRAFFIC", "MapWarning", "WomdEnv",
-           "WomdScenes", "make_womd_env"]
+           "WomdScenes", "make_womd_env", "map_summary"]
 
 PARKED_DISTANCE = 1.0  # [m] a vehicle that moves less over the record stays parked (replays)
 TARGET_SPEEDS = (0.0, 2.5, 5.0, 7.5, 10.0, 12.5, 15.0, 17.5, 20.0, 25.0, 30.0)
@@ -124,6 +124,23 @@ def _map_note(scene: Scene, network: WomdNetwork) -> str:
 class MapWarning(UserWarning):
     """A recorded scene's map was completed (successors inferred) or trimmed (lanes of a
     single point left out)."""
+
+
+def map_summary(notes: Sequence[object]) -> str | None:
+    """One line for the map notes (the episode table's ``map``, one per episode) of many
+    scenes: how many maps were completed or trimmed and how, or None when none was. A
+    rollout over a shard warns this once, not once per scene."""
+    given = [n for n in notes if isinstance(n, str) and n]
+    changed = [n for n in given if "; " in n]  # more than the lane count: completed/trimmed
+    if not changed:
+        return None
+    inferred = sum("successors inferred" in n for n in changed)
+    trimmed = sum("left out" in n for n in changed)
+    how = [f"{k} with {what}" for k, what in (
+        (inferred, "successors inferred from lane ends that meet"),
+        (trimmed, "lanes of a single point left out")) if k]
+    return (f"the map of {len(changed)} of {len(given)} recorded scene(s) was completed or "
+            f"trimmed ({', '.join(how)}); the episode table's 'map' column says what for each")
 
 
 _WARNED: set[str] = set()
