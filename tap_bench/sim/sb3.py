@@ -3,11 +3,15 @@
 Stable-Baselines3 (and torch) are imported only when a model is loaded: install them with
 the ``sb3`` extra. A model file is a zip holding Python pickles: loading it can run code
 from the file, so every load warns (:class:`UntrustedModelWarning`) and only files you trust
-should be loaded. The models in ``policies/`` are built by ``tap-bench train``.
+should be loaded. The models in ``policies/`` are built by ``tap-bench train``; their
+SHA-256 digests are known here (:data:`SHIPPED_MODELS`), and loading a file with one of
+those digests, byte for byte the one shipped, does not warn.
 """
 
 from __future__ import annotations
 
+import hashlib
+import io
 import os
 import warnings
 from collections.abc import Mapping, Sequence
@@ -24,11 +28,25 @@ from tap_bench.errors import (
 if TYPE_CHECKING:
     import gymnasium as gym
 
-__all__ = ["ALGORITHMS", "SB3Policy", "UntrustedModelWarning", "load_model",
-           "warn_untrusted_model"]
+__all__ = ["ALGORITHMS", "SHIPPED_MODELS", "SB3Policy", "UntrustedModelWarning", "load_model",
+           "shipped_model", "warn_untrusted_model"]
 
 ALGORITHMS = ("a2c", "dqn", "ppo")
 """Stable-Baselines3 algorithms tap-bench can train and load."""
+
+SHIPPED_MODELS: dict[str, str] = {
+    "437567ecd5d39eb776d2a5ec30d982a36188980b9ae5f9ac0453c74951c917a6": "dqn-highway.zip",
+    "733a5445172dcf7fcf457193bad5779c8e19afc9128173dda6d6df2610dea7fd": "ppo-highway.zip",
+}
+"""SHA-256 digest of each model file shipped in ``policies/`` -> its name. Known in the
+installed code, not beside the file: a digest that a model folder could carry would vouch
+for nothing. A model retrained (``tap-bench train -o policies/...``) gets a new digest, to
+be put here when it ships."""
+
+
+def shipped_model(data: bytes) -> str | None:
+    """The name of the shipped model whose bytes ``data`` are, or None."""
+    return SHIPPED_MODELS.get(hashlib.sha256(data).hexdigest())
 
 
 def algorithm_class(algo: str) -> type:
@@ -82,14 +100,25 @@ def load_model(path: str | os.PathLike, algo: str | None = None) -> Any:
         raise FileFormatError(f"{path}: no such model file.")
     algo = algo or _algo_of(path)
     cls = algorithm_class(algo)
-    warn_untrusted_model(path, stacklevel=3)
-    return cls.load(str(path), device="cpu")
+    data = path.read_bytes()  # what is checked is what is loaded
+    if shipped_model(data) is None:
+        warn_untrusted_model(path, stacklevel=3, known=False)
+    return cls.load(io.BytesIO(data), device="cpu")
 
 
-def warn_untrusted_model(path: str | os.PathLike, *, stacklevel: int = 2) -> None:
+def warn_untrusted_model(path: str | os.PathLike, *, stacklevel: int = 2,
+                         known: bool | None = None) -> None:
     """Warn (:class:`UntrustedModelWarning`) that loading the model ``path`` can run code
-    from it. ``bench run`` calls it in the parent once per model, before the run: its
-    workers load models with warnings off."""
+    from it, unless its bytes are a shipped model's (:data:`SHIPPED_MODELS`; ``known``:
+    whether they are, when the caller has checked already). ``bench run`` calls it in the
+    parent once per model, before the run: its workers load models with warnings off."""
+    if known is None:
+        try:
+            known = shipped_model(Path(path).read_bytes()) is not None
+        except OSError:
+            known = False
+    if known:
+        return
     warnings.warn(
         f"{path}: Stable-Baselines3 model files contain Python pickles, and loading one can "
         "run code from it. Load only model files you trust.", UntrustedModelWarning,

@@ -9,8 +9,10 @@ import json
 import sys
 import uuid
 import warnings
+from pathlib import Path
 
 import pytest
+from fault_helpers import PROJECT_ROOT
 
 from tap_bench.bench.run_plan import _tasks, plan_suite
 from tap_bench.bench.suite import suite_from_dict
@@ -137,14 +139,52 @@ def test_a_user_vehicle_class_works(tmp_path, monkeypatch):
     env.close()
 
 
-def test_the_parent_warns_once_per_sb3_model_before_the_run():
+def _model_definitions(tmp_path: Path, edit: bool) -> list[str]:
+    """dqn-highway and ppo-highway's definitions and models copied to ``tmp_path``, each
+    model's zip comment changed (``edit``: other bytes, the same model) or not."""
+    import shutil
+    import zipfile
+
+    paths = []
+    for name in ("dqn-highway", "ppo-highway"):
+        shutil.copy(PROJECT_ROOT / "policies" / f"{name}.zip", tmp_path / f"{name}.zip")
+        if edit:
+            with zipfile.ZipFile(tmp_path / f"{name}.zip", "a") as archive:
+                archive.comment = b"edited"
+        doc = json.loads((PROJECT_ROOT / "policies" / f"{name}.json").read_text())
+        (tmp_path / f"{name}.json").write_text(json.dumps(doc))
+        paths.append(str(tmp_path / f"{name}.json"))
+    return paths
+
+
+@pytest.mark.parametrize("edit", [False, True])
+def test_the_parent_warns_once_per_unknown_sb3_model_before_the_run(tmp_path, edit):
+    """The shipped models' digests are known: their bytes load without a warning (they
+    warned on every load, 16 times in one benchmark); any other bytes, here the same
+    zip with a comment added, warn once per model before the run."""
     suite = suite_from_dict({"name": "agents", "envs": ["highway"],
-                             "policies": ["dqn-highway", "ppo-highway", "idm"],
+                             "policies": [*_model_definitions(tmp_path, edit), "idm"],
                              "seeds": "0-2", "reference_policy": "idm"})
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         _tasks(plan_suite(suite), False, None)
     untrusted = [str(w.message) for w in caught if w.category is UntrustedModelWarning]
+    if not edit:
+        assert untrusted == []
+        return
     assert len(untrusted) == 2
     assert any("dqn-highway.zip" in m for m in untrusted)
     assert any("ppo-highway.zip" in m for m in untrusted)
+
+
+def test_loading_a_shipped_model_does_not_warn_and_an_edited_one_does(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    from tap_bench.sim.sb3 import load_model
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UntrustedModelWarning)
+        model = load_model(PROJECT_ROOT / "policies" / "dqn-highway.zip")
+    assert type(model).__name__ == "DQN"
+    _model_definitions(tmp_path, edit=True)
+    with pytest.warns(UntrustedModelWarning, match="dqn-highway.zip"):
+        load_model(tmp_path / "dqn-highway.zip")
