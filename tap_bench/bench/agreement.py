@@ -40,8 +40,9 @@ def scene_summary_measures() -> tuple[str, ...]:
 
 
 SCENE_SUMMARY_MEASURES = scene_summary_measures()
-"""The built-in :func:`scene_summary_measures` (crash rate, off road, route progress, red
-light, log ADE and FDE), kept for old imports; :func:`scene_summary` asks again each call."""
+"""The built-in :func:`scene_summary_measures` (crash rate, at-fault crash rate, off road,
+route progress, red light, log ADE and FDE), kept for old imports; :func:`scene_summary`
+asks again each call."""
 
 
 def _ok(episodes: pd.DataFrame) -> pd.DataFrame:

@@ -691,8 +691,10 @@ SCENE_MEASURES = MeasureRegistry()
 (:data:`SCENE_STEP_COLUMNS`); :func:`ego_measures` adds them when a table has those
 columns (a synthetic scenario has no lanes of record, no signals and no human to compare
 with)."""
-SCENE_STEP_COLUMNS = ("off_road", "ran_red_light", "route_progress", "log_distance")
-"""Per-step ego columns of recorded-scene rollouts: off road (bool), crossed a red stop point
+SCENE_STEP_COLUMNS = ("off_road", "crash_at_fault", "ran_red_light", "route_progress",
+                      "log_distance")
+"""Per-step ego columns of recorded-scene rollouts: off road (bool), crashed and at fault
+(bool, SPEC 8's rules: :mod:`tap_bench.sim.collisions`), crossed a red stop point
 at that step (bool), share of the logged path covered so far (0-1), distance to the logged
 ego at the same step [m] (NaN before the current time)."""
 
@@ -702,6 +704,20 @@ def _scene_column(steps: EgoSteps, name: str) -> np.ndarray:
 
     values = steps.columns.get(name)
     return np.full(len(steps.t), np.nan) if values is None else values
+
+
+@register_measure("crashed_at_fault", unit="share", higher_is_better=False, margin=0.10,
+                  description="the ego collided and was at fault (not when it was stopped "
+                  "and hit, hit from behind, or entered by a pedestrian or cyclist while "
+                  "stopped)", label="at-fault crash rate", kind="rate", role="safety",
+                  words=("safer", "less safe"), registry=SCENE_MEASURES)
+def _crashed_at_fault(steps: EgoSteps) -> np.ndarray:
+    import numpy as np
+
+    values = steps.columns.get("crash_at_fault")
+    if values is None:  # a table without the column: every crash counts
+        return steps.any(steps.crashed).astype(float)
+    return steps.any(np.nan_to_num(values) > 0.5).astype(float)
 
 
 @register_measure("off_road", unit="share", higher_is_better=False, margin=0.10,

@@ -88,7 +88,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"{len(ok)}/{len(episodes)} episodes, {len(trajectories)} rows -> "
           f"{output if len(trajectories) else '(no trajectories)'}; episodes -> {episodes_out}")
     if len(ok):
-        print(f"mean return {ok['return'].mean():.3f}, crash rate {ok['crashed'].mean():.1%}, "
+        crashes = f"crash rate {ok['crashed'].mean():.1%}"
+        if "crash_at_fault" in ok.columns:  # real scenes: the ego's fault first (SPEC 8)
+            crashes = (f"at-fault crash rate {ok['crash_at_fault'].astype(bool).mean():.1%} "
+                       f"(all crashes {ok['crashed'].mean():.1%})")
+        print(f"mean return {ok['return'].mean():.3f}, {crashes}, "
               f"mean ego speed {ok['mean_speed'].mean():.2f} m/s")
     if len(ok) and "off_road" in ok.columns:
         print(f"off road {ok['off_road'].mean():.1%}, route progress "

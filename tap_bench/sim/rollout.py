@@ -44,10 +44,12 @@ env, policy: scenario and policy names. seed: int. return: sum of rewards. lengt
 the ego's mean speed over its recorded steps [m/s]. terminated, truncated: how the episode
 ended. status: ``"ok"`` or ``"error"``; error: the exception of a failed episode, else "".
 Recorded scenes (``tap_bench/womd-v0``) add ``scenario_id``, ``traffic``, ``off_road``,
-``route_progress``, ``ran_red_light``, ``log_ade``, ``log_fde``, ``crash_with``,
-``crash_from_behind_by_log``, ``traffic_collisions``, ``traffic_collisions_with_log``,
-``traffic_collided`` (collisions among idm traffic) and ``map`` (what the road network made
-of the map, e.g. successors inferred) (:meth:`tap_bench.sim.womd_env.WomdEnv.episode_info`).
+``max_off_road_distance_m``, ``off_road_rule``, ``route_progress``, ``ran_red_light``,
+``log_ade``, ``log_fde``, ``crash_with`` (the agent whose box overlaps the ego's most),
+``crash_at_fault``, ``crash_fault`` (the rule that decided), ``crash_from_behind_by_log``,
+``traffic_collisions``, ``traffic_collisions_with_log``, ``traffic_collided`` (collisions
+among idm traffic) and ``map`` (what the road network made of the map, e.g. successors
+inferred) (:meth:`tap_bench.sim.womd_env.WomdEnv.episode_info`).
 """
 
 

@@ -69,6 +69,7 @@ from highway_env.envs.common.action import action_factory
 from highway_env.vehicle.kinematics import Vehicle
 
 from tap_bench.errors import ParameterError
+from tap_bench.sim.collisions import Box, collision_partner, fault
 from tap_bench.sim.womd_observation import OBSERVATION_TYPE, RouteObservation
 from tap_bench.sim.womd_road import (
     ROUTE_CORRIDOR,
@@ -461,11 +462,14 @@ class WomdEnv(gym.Wrapper):
                      ("x", "y", "heading", "speed", "vx", "vy", "valid")}
         self._crashed = np.zeros((n, t), bool)
         self._ego_cols = {"off_road": np.zeros(t, bool), "off_road_distance": np.full(t, np.nan),
+                          "crash_at_fault": np.zeros(t, bool),
                           "ran_red_light": np.zeros(t, bool),
                           "route_progress": np.full(t, np.nan),
                           "log_distance": np.full(t, np.nan)}
         self._last_step = CURRENT_STEP
         self.crash_with = ""
+        self.crash_at_fault: bool | None = None
+        self.crash_fault = ""
         self.crash_from_behind_by_log = False
 
     def _frame(self) -> None:
@@ -479,8 +483,9 @@ class WomdEnv(gym.Wrapper):
         for name, value in measured.items():
             self._ego_cols[name][k] = value
         ego = inner.vehicle
-        if ego.crashed and not self._crashed[e, :k].any():
+        if ego.crashed and self.crash_at_fault is None:
             self._crash_partner(ego)
+        self._ego_cols["crash_at_fault"][k] = bool(ego.crashed and self.crash_at_fault)
         if not self.record:
             return
         rec = self._rec
@@ -511,15 +516,32 @@ class WomdEnv(gym.Wrapper):
         return ", ".join(f"{rule} {n}" for rule, n in sorted(rules.items(), key=lambda r: -r[1]))
 
     def _crash_partner(self, ego: Vehicle) -> None:
+        """Name the agent the ego collided with and the ego's fault
+        (:mod:`tap_bench.sim.collisions`: the largest overlap of boxes; SPEC 8's rules)."""
         inner = self.env.unwrapped
-        others = [v for v in inner.road.vehicles if v is not ego and v.collidable]
-        if not others:
+        others = [v for v in inner.road.vehicles if v is not ego and v.collidable
+                  and np.hypot(*(v.position - ego.position))
+                  <= (v.diagonal + ego.diagonal) / 2 + 2.0]
+        boxes = [self._box(v) for v in others]
+        mine = self._box(ego)
+        k = collision_partner(mine, boxes)
+        if k is None:
+            self.crash_at_fault, self.crash_fault = True, "at fault"
             return
-        other = min(others, key=lambda v: float(np.hypot(*(v.position - ego.position))))
+        other = others[k]
         row = getattr(other, "row", None)
         self.crash_with = str(self.scene.track_ids[row]) if row is not None else ""
-        ahead = float(np.dot(other.position - ego.position, ego.direction))
-        self.crash_from_behind_by_log = isinstance(other, LogVehicle) and ahead < 0
+        verdict = fault(mine, boxes[k])
+        self.crash_at_fault, self.crash_fault = verdict.at_fault, verdict.reason
+        self.crash_from_behind_by_log = isinstance(other, LogVehicle) \
+            and verdict.reason == "hit from behind"
+
+    def _box(self, vehicle: Vehicle) -> Box:
+        row = getattr(vehicle, "row", None)
+        kind = str(self.scene.object_types[row]) if row is not None else "vehicle"
+        return Box(float(vehicle.position[0]), float(vehicle.position[1]),
+                   float(vehicle.heading), max(float(vehicle.speed), 0.0),
+                   float(vehicle.LENGTH), float(vehicle.WIDTH), kind)
 
     def _traffic_collided(self) -> str:
         """The traffic collisions of the episode in words: ``"12 x 34 (log) at 3.4 s; ..."``
@@ -603,6 +625,8 @@ class WomdEnv(gym.Wrapper):
                 "log_ade": float(dist.mean()) if len(dist) else float("nan"),
                 "log_fde": float(dist[-1]) if len(dist) else float("nan"),
                 "crash_with": self.crash_with,
+                "crash_at_fault": bool(self.crash_at_fault),
+                "crash_fault": self.crash_fault,
                 "crash_from_behind_by_log": bool(self.crash_from_behind_by_log),
                 "traffic_collisions": len(inner.road.traffic_collisions),
                 "traffic_collisions_with_log": sum(

@@ -326,6 +326,12 @@ def _lane_clearance(ax, ay, bx, by, half, owner, x, y):  # pragma: no cover - co
     return best
 
 
+def _intersecting(a: Vehicle, b: Vehicle) -> bool:
+    """Whether two vehicles' boxes overlap now."""
+    return bool(utils.are_polygons_intersecting(a.polygon(), b.polygon(), np.zeros(2),
+                                                np.zeros(2))[0])
+
+
 def _pair(a: Vehicle, b: Vehicle) -> tuple[int, int]:
     """The two vehicles' scene rows, in order (-1: no row)."""
     ra, rb = getattr(a, "row", -1), getattr(b, "row", -1)
@@ -452,6 +458,12 @@ class WomdRoad(Road):
         for i, j in zip(*np.nonzero(np.triu(near | near.T, 1)), strict=True):
             a, b = vehicles[i], vehicles[j]
             if a is ego or b is ego:  # the env names the ego's partner
+                other = b if a is ego else a
+                row = getattr(other, "row", -1)
+                if row in self.ego_exempt:  # the record's overlap, while it lasts
+                    if _intersecting(ego, other):
+                        continue
+                    self.ego_exempt.discard(row)
                 a.handle_collisions(b, dt)
                 continue
             pair = _pair(a, b)
@@ -477,10 +489,17 @@ class WomdRoad(Road):
 
     def start_collisions(self) -> None:
         """Begin an episode's collision record (the vehicles placed, the ego first): pairs
-        of traffic that overlap already (log states at the current time) are exempt."""
+        of traffic that overlap already (log states at the current time) are exempt, and
+        so are the agents whose boxes overlap the ego's there (:attr:`ego_exempt`, rows),
+        until they come apart: the record's overlaps, not collisions (SPEC section 8)."""
         self.traffic_collisions: list[tuple[int, int, int]] = []
         self._pairs: set[tuple[int, int]] = set()
         self.exempt: set[tuple[int, int]] = set()
+        ego = self.vehicles[0]
+        self.ego_exempt: set[int] = {
+            v.row for v in self.vehicles[1:] if v.collidable and hasattr(v, "row")
+            and np.hypot(*(v.position - ego.position)) <= (v.diagonal + ego.diagonal) / 2
+            and _intersecting(ego, v)}
         vehicles = [v for v in self.vehicles[1:] if v.collidable]
         near = _near_pairs(vehicles, [], 0.0)
         if near is None:

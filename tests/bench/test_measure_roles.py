@@ -156,7 +156,8 @@ def test_the_against_the_human_summary_reads_safety_rates_by_role():
     from tap_bench.bench.agreement import SCENE_SUMMARY_MEASURES, scene_summary_measures
 
     assert scene_summary_measures() == SCENE_SUMMARY_MEASURES == (
-        "crashed", "off_road", "route_progress", "ran_red_light", "log_ade", "log_fde")
+        "crashed", "crashed_at_fault", "off_road", "route_progress", "ran_red_light", "log_ade",
+        "log_fde")
 
     def f(steps):
         return np.zeros(steps.n_episodes)

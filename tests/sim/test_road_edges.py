@@ -112,16 +112,17 @@ def test_leaving_the_road_is_judged_against_where_the_ego_started():
 
 
 def vehicle(xy: np.ndarray, theta: float, *, length: float = 4.6, width: float = 2.0,
-            kind: str = "VEHICLE", valid: np.ndarray | None = None) -> dict:
+            kind: str = "VEHICLE", valid: np.ndarray | None = None, facing: float = 0.0
+            ) -> dict:
     """A ScenarioNet track along positions ``xy`` (91, 2) (headings and velocities from the
-    path), the whole turned by ``theta``."""
+    path; ``facing`` [rad] where it stands still), the whole turned by ``theta``."""
     xy = turn(xy, theta)
     v = np.gradient(xy, T, axis=0)
     speed = np.hypot(v[:, 0], v[:, 1])
     heading = np.unwrap(np.arctan2(v[:, 1], v[:, 0]))
     still = speed < 1e-6
     if still.any():  # a parked car keeps the heading it is given by its first two points
-        heading[still] = theta if not (~still).any() else heading[~still][0]
+        heading[still] = theta + facing if not (~still).any() else heading[~still][0]
     return {"type": kind, "state": {
         "position": np.c_[xy, np.zeros(91)], "heading": heading, "velocity": v,
         "valid": np.ones(91, bool) if valid is None else valid,
