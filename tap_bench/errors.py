@@ -31,6 +31,7 @@ __all__ = [
     "RegistrationError",
     # warnings
     "ShortSegmentWarning",
+    "FewClustersWarning",
     "ResampledWarning",
     "FitWarning",
     "EpisodeFailedWarning",
@@ -219,6 +220,11 @@ class FitWarning(UserWarning):
 
 class ResampledWarning(UserWarning):
     """A table sampled faster than 10 Hz was resampled to 10 Hz on entry (SPEC 4.7)."""
+
+
+class FewClustersWarning(UserWarning):
+    """A bootstrap interval rests on fewer than ten independent units (scenes, episodes)
+    on a side: it covers less than its level (:mod:`tap_bench.bench.bootstrap`)."""
 
 
 class ShortSegmentWarning(UserWarning):

@@ -13,6 +13,16 @@ whichever command asks and whatever else was drawn before it (``tap-bench covera
 ``bench run`` give the same interval for the same episodes), and two names never share
 numbers by accident. The gate's permutations draw from the same kind of stream
 (:func:`named_rng`) under the gate's own seed.
+
+**The unit of resampling is the independent unit, not the row.** The vehicles of one WOMD
+scene share its place, its traffic and its signals; the windows cut from one episode share
+its policy's state. A bootstrap that draws such rows one by one sees far less spread than
+the data has, and its intervals are far too narrow (docs/benchmark.md, "Intervals over
+scenes", measures by how much). :func:`scene_clusters` names each row's independent unit (the scene,
+``scenario_id``; a rollout's episode, whose ``scenario_id`` names env, policy and seed; a
+window's episode), :func:`cluster_weights` and :func:`cluster_indices` draw whole units,
+each side of a comparison on its own (stratified by side), and :func:`cluster_factor`
+corrects the bootstrap's spread for the number of units drawn.
 """
 
 from __future__ import annotations
@@ -27,9 +37,9 @@ from tap_bench.errors import ParameterError
 if TYPE_CHECKING:
     import numpy as np
 
-__all__ = ["MAX_RESAMPLES", "BootstrapConfig", "add_bootstrap_arguments",
-           "bootstrap_from_args", "cluster_indices", "cluster_weights", "named_rng",
-           "stream_key"]
+__all__ = ["FEW_CLUSTERS", "MAX_RESAMPLES", "BootstrapConfig", "add_bootstrap_arguments",
+           "bootstrap_from_args", "cluster_factor", "cluster_indices", "cluster_weights",
+           "few_clusters_note", "named_rng", "scene_clusters", "stream_key"]
 
 MAX_RESAMPLES = 100_000
 """The most bootstrap resamples an interval may ask for: 50 times the default 2000, past
@@ -102,6 +112,62 @@ class BootstrapConfig:
 
 
 # -- resampling by cluster ----------------------------------------------------------------
+FEW_CLUSTERS = 10
+"""Fewer independent units (scenes, episodes) than this on one side of a comparison and its
+bootstrap interval is flagged: the bootstrap sees the spread between units only through
+the units drawn, and with a handful of them an interval covers less than its level even
+with :func:`cluster_factor` (docs/benchmark.md, "Intervals over scenes")."""
+
+
+def scene_clusters(table, column: str | None = "scenario_id") -> np.ndarray:
+    """(n,) the independent unit each row of ``table`` belongs to (the cluster a bootstrap
+    draws whole).
+
+    With ``column="scenario_id"`` (the default): the row's scene (WOMD), its episode
+    (rollouts: ``env/policy/s<seed>``), or, for a window cut from an episode
+    (``<scenario_id>#<k>``, :func:`tap_bench.bench.gap.windows`), that episode. Another
+    column names the units as they are. ``None``, or a table without the column: every row
+    its own unit (the ordinary bootstrap).
+
+    Args:
+        table: a DataFrame (label table rows).
+        column: the column naming each row's unit.
+    """
+    import numpy as np
+
+    if column is None or column not in table.columns:
+        return np.arange(len(table)).astype(str).astype(object)
+    values = table[column].astype("string").fillna("<no id>")
+    if column == "scenario_id":
+        values = values.str.replace(r"#\d+$", "", regex=True)
+    return np.asarray(values.astype(object), dtype=object)
+
+
+def cluster_factor(n_clusters: int) -> float:
+    """``sqrt(G / (G - 1))`` for G clusters: the bootstrap's spread of a mean over G drawn
+    units is ``sqrt((G - 1) / G)`` of the sampling spread (it draws from the G units seen,
+    whose spread is the plug-in variance); draws are scaled about the estimate by this
+    factor so their variance is the unbiased one (the small-sample correction of the
+    cluster-robust variance, CR1). NaN for fewer than 2 clusters (no spread to see)."""
+    g = int(n_clusters)
+    return (g / (g - 1)) ** 0.5 if g >= 2 else float("nan")
+
+
+def few_clusters_note(what: str, sizes: dict[str, int]) -> str | None:
+    """A warning's text when a side has fewer than :data:`FEW_CLUSTERS` units, else None.
+
+    Args:
+        what: the statistic, e.g. ``"gap of idm from womd"``.
+        sizes: units per side, e.g. ``{"policy episodes": 30, "reference scenes": 8}``.
+    """
+    small = {k: v for k, v in sizes.items() if v < FEW_CLUSTERS}
+    if not small:
+        return None
+    return (f"{what}: the interval rests on " + ", ".join(f"{v} {k}" for k, v in
+                                                          sizes.items())
+            + f"; with fewer than {FEW_CLUSTERS} independent units on a side a bootstrap "
+            "interval covers less than its level (its draws can only mix the units seen). "
+            "Read it as rough, and add scenes or seeds.")
 def _cluster_codes(clusters) -> tuple[np.ndarray, int]:
     """(n,) cluster number of each unit and the number of clusters."""
     import numpy as np

@@ -8,25 +8,37 @@ For a policy (its egos) and a reference corpus of real driving (e.g. WOMD vehicl
 **share** of each single label among all label occurrences is compared:
 
 - per label: ``share_policy - share_reference`` (what the policy does more or less often
-  than people), with a percentile bootstrap interval (trajectories of each side resampled
-  independently; windows cut from one episode by whole episodes, a cluster bootstrap:
-  ``clusters``);
+  than people), with a percentile bootstrap interval;
 - one number, the **gap**: the total variation distance between the two share
   distributions, ``0.5 * sum |difference|`` in [0, 1] (the share of behaviour one would have
   to change to make the policy drive like the reference), with its bootstrap interval.
 
+**What is resampled: scenes and episodes, each side on its own.** The vehicles of one
+scene share its place, its traffic and its signals, so they are not independent draws of
+real driving: the unit of independent evidence is the scene (WOMD: ``scenario_id``) and,
+for rollouts, the episode (its ``scenario_id`` names env, policy and seed; a window cut
+from an episode belongs to that episode). Every draw of the bootstrap takes, on each side
+separately (stratified by side), as many whole units as that side has, with replacement
+(:func:`tap_bench.bench.bootstrap.cluster_weights`, units named by
+:func:`tap_bench.bench.bootstrap.scene_clusters`). A draw's label shares are scaled about
+the estimate by ``sqrt(G / (G - 1))`` for the G units of their side
+(:func:`tap_bench.bench.bootstrap.cluster_factor`), since G drawn units show only
+``(G - 1) / G`` of the sampling variance. Drawing rows one by one instead makes the
+intervals and the floor far too narrow, and every policy looks measurably unlike people
+(docs/benchmark.md, "Intervals over scenes").
+
 Finite samples make two draws of the same behaviour differ too, so the gap of a sample is
-biased upwards (the plug-in ``gap``); ``floor`` is the mean gap between two samples of the
-reference's own distribution of the same sizes. Gap minus floor is not a corrected
-distance (the bias shrinks as the true gap grows); the estimate to read is
-``gap_debiased``, the bootstrap bias-corrected gap ``2 gap - mean(gap*)`` (clipped at 0),
-with the basic bootstrap interval ``[2 gap - q_hi, 2 gap - q_lo]`` (clipped at 0), which
-the same correction centres; its lower end is 0 whenever the gap is within what two
-samples of one behaviour show (both sides pooled, the 97.5 % quantile), which the basic
-interval alone misses at a true gap of 0 (the bias is not smooth there). Its coverage,
-and that of the plug-in's percentile interval, is measured by
-``benchmarks/gap_coverage.py`` for samples of the same behaviour (true gap 0) and of
-different behaviour (docs/interactions.md).
+biased upwards (the plug-in ``gap``). The estimate to read is ``gap_debiased``, the
+bootstrap bias-corrected gap ``2 gap - mean(gap*)`` (clipped at 0), with the basic
+bootstrap interval ``[2 gap - q_hi, 2 gap - q_lo]`` (clipped at 0). The basic interval
+alone misses a true gap of 0 (the bias is not smooth there), so its lower end is 0
+whenever the gap is within what **two samples of one behaviour** show: the same draws with
+each side centred on its own estimate (the difference of the two sides' sampling errors,
+``0.5 * sum |(p* - p) - (r* - r)|``, the gap's distribution when the behaviours are equal,
+each side with its own units and its own spread), the upper (1 + level) / 2 quantile. The
+**floor** is the mean of that distribution: the gap two samples of one behaviour of these
+sizes, scenes and episodes would show. Coverage and power are measured by
+``benchmarks/gap_coverage.py`` (docs/benchmark.md and docs/interactions.md).
 
 **Comparable situations.** The reference is restricted to its vehicles whose mean speed
 over the trajectory lies in the policy's speed range (``min_speed`` .. ``max_speed``,
@@ -37,14 +49,21 @@ label table is taken whole (and the result says so).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
 from tap_bench import sdl
-from tap_bench.bench.bootstrap import BootstrapConfig, cluster_weights
-from tap_bench.errors import LabelTableError, ParameterError
+from tap_bench.bench.bootstrap import (
+    BootstrapConfig,
+    cluster_factor,
+    cluster_weights,
+    few_clusters_note,
+    scene_clusters,
+)
+from tap_bench.errors import FewClustersWarning, LabelTableError, ParameterError
 from tap_bench.kinematics import compute_kinematics
 from tap_bench.labelling import tap
 from tap_bench.thresholds import Thresholds
@@ -67,6 +86,8 @@ class GapResult:
         gap_debiased, debiased_low, debiased_high: the bias-corrected gap and its basic
             bootstrap interval (clipped at 0): the estimate to read.
         n_policy, n_reference: trajectories compared on each side.
+        n_policy_units, n_reference_units: the independent units the bootstrap drew on
+            each side (episodes, scenes).
         labels: one row per single label: axis, label, share_policy, share_reference,
             diff, diff_low, diff_high; largest |diff| first.
         reference: how the reference was chosen (for reports).
@@ -84,13 +105,16 @@ class GapResult:
     gap_debiased: float = float("nan")
     debiased_low: float = float("nan")
     debiased_high: float = float("nan")
+    n_policy_units: int = 0
+    n_reference_units: int = 0
 
     def row(self) -> dict:
         return {"policy": self.policy, "gap_debiased": self.gap_debiased,
                 "debiased_low": self.debiased_low, "debiased_high": self.debiased_high,
                 "gap": self.gap, "gap_low": self.gap_low,
                 "gap_high": self.gap_high, "floor": self.floor, "n_policy": self.n_policy,
-                "n_reference": self.n_reference, "reference": self.reference}
+                "n_reference": self.n_reference, "n_policy_units": self.n_policy_units,
+                "n_reference_units": self.n_reference_units, "reference": self.reference}
 
 
 def track_seconds(table: pd.DataFrame) -> float:
@@ -219,12 +243,17 @@ def label_occurrences(labels: pd.DataFrame, axes) -> tuple[np.ndarray, list[str]
         if axis not in labels.columns:
             raise LabelTableError(f"no {axis!r} column; label with --interactions for the "
                                   "interaction axis.")
-        tokens = labels[axis].astype("string").fillna("").map(sdl.split)
-        for tok in dict.fromkeys(t for level in sdl.LEVELS
-                                 for t in sdl.vocabulary(level, axis)):
-            names.append(f"{axis}: {tok}")
-            columns.append(tokens.map(lambda seq, tok=tok: tok in seq).to_numpy(float))
-    return np.column_stack(columns) if columns else np.zeros((len(labels), 0)), names
+        vocab = list(dict.fromkeys(t for level in sdl.LEVELS
+                                   for t in sdl.vocabulary(level, axis)))
+        # each distinct label text split once (a table repeats a few texts many times)
+        codes, texts = pd.factorize(labels[axis].astype("string").fillna(""),
+                                    use_na_sentinel=False)
+        shown = np.array([[tok in seq for tok in vocab]
+                          for seq in map(sdl.split, texts.astype(str))],
+                         dtype=float).reshape(len(texts), len(vocab))
+        names += [f"{axis}: {tok}" for tok in vocab]
+        columns.append(shown[codes])
+    return np.hstack(columns) if columns else np.zeros((len(labels), 0)), names
 
 
 def _tv(counts_a: np.ndarray, counts_b: np.ndarray) -> np.ndarray:
@@ -238,7 +267,8 @@ def behaviour_gap(policy: pd.DataFrame, reference: pd.DataFrame, *, name: str = 
                   axes=("lateral", "longitudinal", "interaction"),
                   min_speed: float | None = None, max_speed: float | None = None,
                   config: BootstrapConfig | None = None, reference_name: str = "reference",
-                  clusters: str | None = None) -> GapResult:
+                  clusters: str | None = "scenario_id",
+                  reference_clusters: str | None = "scenario_id") -> GapResult:
     """The behaviour gap of a policy's egos from a reference corpus.
 
     Args:
@@ -250,10 +280,17 @@ def behaviour_gap(policy: pd.DataFrame, reference: pd.DataFrame, *, name: str = 
             5 % and 95 % quantiles of the policy's mean speeds).
         config: bootstrap resamples, level and seed.
         reference_name: for reports.
-        clusters: a column of ``policy`` naming the episode of each row (windows:
-            :func:`window_episode`); the policy's rows are then resampled by whole
-            episodes (a cluster bootstrap), since windows of one episode are not
-            independent. None: each row on its own.
+        clusters: the column of ``policy`` naming each row's independent unit, drawn
+            whole by the bootstrap (:func:`tap_bench.bench.bootstrap.scene_clusters`):
+            ``scenario_id`` (default) is the episode (rollouts) or the scene (recorded
+            scenes), a window's episode for windows (``<id>#<k>``); None, or a table
+            without the column: each row on its own.
+        reference_clusters: the same for ``reference`` (default ``scenario_id``: WOMD
+            scenes).
+
+    Warns:
+        FewClustersWarning: a side has fewer than
+            :data:`tap_bench.bench.bootstrap.FEW_CLUSTERS` units (its intervals are rough).
     """
     config = config or BootstrapConfig()
     axes = sdl.check_axes(axes)
@@ -286,32 +323,28 @@ def behaviour_gap(policy: pd.DataFrame, reference: pd.DataFrame, *, name: str = 
     share_p = count_p / max(count_p.sum(), 1e-12)
     share_r = count_r / max(count_r.sum(), 1e-12)
     gap = float(_tv(count_p, count_r))
+    units_p, units_r = scene_clusters(pol, clusters), scene_clusters(ref, reference_clusters)
+    g_p, g_r = len(set(units_p)), len(set(units_r))
+    note = few_clusters_note(f"gap of {name} from {reference_name}",
+                             {f"policy {_unit_name(pol, clusters, 'episodes')}": g_p,
+                              f"reference {_unit_name(ref, reference_clusters, 'scenes')}":
+                                  g_r})
+    if note:
+        warnings.warn(note, FewClustersWarning, stacklevel=2)
     rng = config.rng("gap", name, reference_name)
     B = config.n_resamples
-    # resampled label counts: multinomial draws of trajectories on each side
-    wp = (cluster_weights(rng, pol[clusters].to_numpy(), B) if clusters is not None
-          else rng.multinomial(len(occ_p), np.full(len(occ_p), 1 / len(occ_p)), size=B))
-    wr = rng.multinomial(len(occ_r), np.full(len(occ_r), 1 / len(occ_r)), size=B)
-    bp, br = wp @ occ_p, wr @ occ_r
-    boot_gap = _tv(bp, br)
+    # each side's shares in B draws of its own units (stratified by side)
+    dev_p = _share_deviations(rng, occ_p, units_p, B, share_p)
+    dev_r = _share_deviations(rng, occ_r, units_r, B, share_r)
+    diff_boot = (share_p + dev_p) - (share_r + dev_r)
+    boot_gap = 0.5 * np.abs(diff_boot).sum(axis=1)
+    # two samples of one behaviour: each side's sampling error about its own estimate
+    null_gap = 0.5 * np.abs(dev_p - dev_r).sum(axis=1)
     g_lo, g_hi = _percentile(boot_gap[:, None], config.level)
-    # the gap two samples of one behaviour (both sides pooled) show: below its upper
-    # quantile the data cannot tell the behaviours apart, and the interval reaches 0; the
-    # policy's windows carry its episodes' worth of information (one draw an episode)
-    pooled = np.vstack([occ_p, occ_r])
-    n_pool = len(pooled)
-    n_pol = len(occ_p) if clusters is None else pol[clusters].astype(str).nunique()
-    z1 = rng.multinomial(n_pol, np.full(n_pool, 1 / n_pool), size=B) @ pooled
-    z2 = rng.multinomial(len(occ_r), np.full(n_pool, 1 / n_pool), size=B) @ pooled
-    same = float(np.quantile(_tv(z1, z2), (1 + config.level) / 2))
+    same = float(np.quantile(null_gap, (1 + config.level) / 2)) if B else float("nan")
     debiased, d_low, d_high = debias(gap, boot_gap, config.level, same=same)
-    diff_boot = (bp / np.maximum(bp.sum(1, keepdims=True), 1e-12)
-                 - br / np.maximum(br.sum(1, keepdims=True), 1e-12))
     d_lo, d_hi = _percentile(diff_boot, config.level)
-    # the floor: two samples of the reference's own label distribution, of the same sizes
-    w1 = rng.multinomial(len(occ_p), np.full(len(occ_r), 1 / len(occ_r)), size=B)
-    w2 = rng.multinomial(len(occ_r), np.full(len(occ_r), 1 / len(occ_r)), size=B)
-    floor = float(_tv(w1 @ occ_r, w2 @ occ_r).mean())
+    floor = float(null_gap.mean())
     shown = (count_p + count_r) > 0
     table = pd.DataFrame({
         "axis": [n.split(": ", 1)[0] for n in names], "label": [n.split(": ", 1)[1]
@@ -323,7 +356,27 @@ def behaviour_gap(policy: pd.DataFrame, reference: pd.DataFrame, *, name: str = 
     return GapResult(policy=name, gap=gap, gap_low=float(g_lo[0]), gap_high=float(g_hi[0]),
                      floor=floor, n_policy=len(pol), n_reference=len(ref), labels=table,
                      reference=described, gap_debiased=debiased, debiased_low=d_low,
-                     debiased_high=d_high)
+                     debiased_high=d_high, n_policy_units=g_p, n_reference_units=g_r)
+
+
+def _unit_name(table: pd.DataFrame, column: str | None, what: str) -> str:
+    """What a side's units are, for messages: ``what`` (scenes, episodes) when they are
+    its ``scenario_id``, the column's name for another column, ``trajectories`` when every
+    row is its own."""
+    if column is None or column not in table.columns:
+        return "trajectories (no unit column: each its own)"
+    return what if column == "scenario_id" else f"units of {column!r}"
+
+
+def _share_deviations(rng: np.random.Generator, occurrences: np.ndarray, units: np.ndarray,
+                      draws: int, share: np.ndarray) -> np.ndarray:
+    """(draws, K) label shares of one side in bootstrap draws of whole units, less its
+    estimate ``share``, scaled by :func:`tap_bench.bench.bootstrap.cluster_factor` of its
+    number of units (NaN with fewer than 2 units: no spread to see)."""
+    weights = cluster_weights(rng, units, draws)
+    counts = weights @ occurrences
+    drawn = counts / np.maximum(counts.sum(axis=1, keepdims=True), 1e-12)
+    return cluster_factor(len(set(units))) * (drawn - share)
 
 
 def debias(gap: float, boot: np.ndarray, level: float, *, same: float | None = None

@@ -89,8 +89,10 @@ def _with_gaps(scores: Scores, corpora: Mapping[str, tuple[pd.DataFrame | None, 
     scores.methods["gap"] = (
         "total variation distance between the shares of single labels ("
         + ", ".join(axes) + f") of the policy's egos and of the reference's vehicles at the "
-        f"policy's speeds; {config.level:.0%} percentile bootstrap "
-        f"({config.n_resamples} resamples); floor: two samples of the reference")
+        f"policy's speeds; {config.level:.0%} bootstrap of whole episodes of the policy and "
+        f"whole scenes of the reference, each side on its own ({config.n_resamples} "
+        "resamples; the debiased gap with its basic interval); floor: two samples of one "
+        "behaviour with these episodes and scenes")
     return dataclasses.replace(scores, gap=pd.DataFrame(rows),
                                gap_labels=pd.concat(per_label, ignore_index=True))
 

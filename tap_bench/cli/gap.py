@@ -11,7 +11,6 @@ from tap_bench.bench.bootstrap import add_bootstrap_arguments, bootstrap_from_ar
 from tap_bench.bench.gap import (
     behaviour_gap,
     labelled_with_speed,
-    window_episode,
     window_seconds,
     windows,
 )
@@ -99,25 +98,26 @@ def run(args: argparse.Namespace) -> int:
                                      thresholds=args.thresholds, source=str(args.policy_table))
         if "is_ego" in labels.columns:
             labels = labels[labels["is_ego"].fillna(False).astype(bool)]
-        if window is not None:  # windows of one episode are resampled together
-            labels = labels.assign(_episode=window_episode(labels["scenario_id"]))
+        # the bootstrap draws whole episodes (a window's episode) and whole scenes
         result = behaviour_gap(labels, reference, name=str(name), axes=args.axes,
                                min_speed=args.min_speed, max_speed=args.max_speed,
-                               config=config, reference_name=Path(args.reference).name,
-                               clusters="_episode" if window is not None else None)
+                               config=config, reference_name=Path(args.reference).name)
         rows.append({**result.row(), "crash_rate": crash, "window_s": window})
         per_label.append(result.labels.assign(policy=name))
-        unit = f"{window:.1f} s windows" if window is not None else "episodes"
+        unit = (f"{window:.1f} s windows of {result.n_policy_units} episodes"
+                if window is not None else f"trajectories of {result.n_policy_units} "
+                "episodes")
         print(f"{name}: gap {result.gap_debiased:.3f} [{result.debiased_low:.3f}, "
               f"{result.debiased_high:.3f}] (debiased; plug-in {result.gap:.3f}, floor "
               f"{result.floor:.3f}); crash rate {_pct(crash)}; {result.n_policy} {unit} "
-              f"against {result.n_reference} trajectories; {result.reference}")
+              f"against {result.n_reference} trajectories of {result.n_reference_units} "
+              f"scenes; {result.reference}")
         for r in result.labels.head(args.top).itertuples():
             print(f"  {r.axis:12s} {r.label:28s} policy {r.share_policy:6.1%}  reference "
                   f"{r.share_reference:6.1%}  diff {r.diff:+6.1%} [{r.diff_low:+.1%}, "
                   f"{r.diff_high:+.1%}]")
-    drawn = ("trajectories of each side, independently" if window is None else
-             "the reference's trajectories and the policy's episodes, each with its windows")
+    drawn = ("whole scenes of the reference and whole episodes of each policy (windows "
+             "with their episode), each side on its own")
     print(f"({config.describe(drawn)}; the debiased gap "
           "is the bootstrap bias-corrected total variation distance, its interval the basic "
           "bootstrap one starting at 0 when two samples of one behaviour could differ as "

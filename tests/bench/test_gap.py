@@ -181,3 +181,154 @@ def test_window_episode_strips_the_window_number():
 
     assert list(window_episode(["a/1#0", "a/1#12", "b#x#2", "c"])) == ["a/1", "a/1", "b#x",
                                                                          "c"]
+
+
+# -- resampling by scene -----------------------------------------------------------------
+A = ("Straight", "Maintain Speed", "Following")
+B = ("Left Merge", "Accelerate", "Free Driving")
+
+
+def scenes_of(kinds, vehicles: int, prefix: str) -> pd.DataFrame:
+    """One scene per entry of ``kinds``, each of ``vehicles`` vehicles all showing that
+    kind's labels; ``scenario_id`` ``<prefix><k>``."""
+    rows = [kind for kind in kinds for _ in range(vehicles)]
+    return labels(rows).assign(scenario_id=np.repeat([f"{prefix}{k}" for k in
+                                                      range(len(kinds))], vehicles))
+
+
+def test_cluster_draws_hold_whole_scenes_and_as_many_as_there_are():
+    from tap_bench.bench.bootstrap import cluster_weights, scene_clusters
+
+    table = pd.DataFrame({"scenario_id": ["s1", "s1", "s2", "s3", "s3", "s3", "e/p/s4#0",
+                                          "e/p/s4#1"]})
+    units = scene_clusters(table)
+    assert list(units[-2:]) == ["e/p/s4", "e/p/s4"]  # a window belongs to its episode
+    w = cluster_weights(np.random.default_rng(0), units, 500)
+    for scene in ("s1", "s2", "s3", "e/p/s4"):
+        cols = w[:, units == scene]
+        assert (cols == cols[:, :1]).all()  # every vehicle of a scene drawn together
+    # per draw: 4 scenes drawn in all (their counts sum to the number of scenes)
+    per_scene = np.stack([w[:, np.flatnonzero(units == s)[0]]
+                          for s in ("s1", "s2", "s3", "e/p/s4")], axis=1)
+    assert (per_scene.sum(axis=1) == 4).all()
+    assert list(scene_clusters(table.drop(columns="scenario_id"))) == [str(i)
+                                                                       for i in range(8)]
+
+
+def test_a_scene_of_identical_vehicles_carries_the_evidence_of_one():
+    # 20 identical vehicles per scene: the gap, its intervals and its floor equal those of
+    # one vehicle per scene (the same draws of scenes); by rows they would be far narrower
+    pol_kinds, ref_kinds = [A, A, B, A, B, A], [A, B, B, A, B, A, B, B, A, B, A, B]
+    config = BootstrapConfig(n_resamples=800, seed=3)
+    whole = behaviour_gap(scenes_of(pol_kinds, 20, "p"), scenes_of(ref_kinds, 20, "r"),
+                          config=config)
+    one = behaviour_gap(scenes_of(pol_kinds, 1, "p"), scenes_of(ref_kinds, 1, "r"),
+                        config=config)
+    for field in ("gap", "gap_low", "gap_high", "gap_debiased", "debiased_low",
+                  "debiased_high", "floor"):
+        assert getattr(whole, field) == pytest.approx(getattr(one, field)), field
+    assert (whole.n_policy, whole.n_policy_units, whole.n_reference_units) == (120, 6, 12)
+    pd.testing.assert_frame_equal(whole.labels, one.labels)
+    rows = behaviour_gap(scenes_of(pol_kinds, 20, "p"), scenes_of(ref_kinds, 20, "r"),
+                         config=config, clusters=None, reference_clusters=None)
+    assert rows.floor < 0.5 * whole.floor
+    assert rows.gap_high - rows.gap_low < 0.5 * (whole.gap_high - whole.gap_low)
+
+
+def test_each_side_draws_its_own_scenes_by_hand():
+    # policy: scene p0 all A, scene p1 all B (10 vehicles each); reference: 12 scenes all A.
+    # The reference cannot move; each draw takes exactly 2 policy scenes: both p0 (1/4),
+    # one of each (1/2) or both p1 (1/4), so the policy's Left Merge share is 0, 1/6 or
+    # 1/3, scaled about 1/6 by sqrt(2 / 1): the percentile interval of its difference is
+    # [(1 - sqrt 2) / 6, (1 + sqrt 2) / 6]. The floor (two samples of one behaviour): a
+    # draw's policy shares move by sqrt(2) / 6 on all six labels with probability 1/2,
+    # a gap of sqrt(2) / 2, so the floor is sqrt(2) / 4.
+    import warnings
+
+    pol, ref = scenes_of([A, B], 10, "p"), scenes_of([A] * 12, 10, "r")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = behaviour_gap(pol, ref, config=BootstrapConfig(n_resamples=4000, seed=1))
+    merge = res.labels.set_index("label").loc["Left Merge"]
+    assert merge["diff"] == pytest.approx(1 / 6)
+    assert merge["diff_low"] == pytest.approx((1 - np.sqrt(2)) / 6)
+    assert merge["diff_high"] == pytest.approx((1 + np.sqrt(2)) / 6)
+    assert res.floor == pytest.approx(np.sqrt(2) / 4, abs=0.02)
+    # 2 policy episodes: the interval is flagged as resting on too few units
+    from tap_bench.errors import FewClustersWarning
+
+    assert any(issubclass(w.category, FewClustersWarning) and "2 policy episodes" in
+               str(w.message) for w in caught)
+
+
+def scene_effects(n_scenes: int, rng: np.random.Generator, prefix: str, kappa: float = 3.0,
+                  vehicles: int = 15) -> pd.DataFrame:
+    """Scenes with their own label probabilities (Dirichlet(kappa p) per axis around one
+    population's p), vehicles drawing from their scene's."""
+    kinds = [("Straight", "Left Merge", "Left Turn"), ("Maintain Speed", "Accelerate",
+                                                       "Decelerate"),
+             ("Following", "Free Driving", "Cut-in")]
+    p = np.array([0.6, 0.3, 0.1])
+    rows = {"scenario_id": np.repeat([f"{prefix}{s}" for s in range(n_scenes)], vehicles)}
+    for axis, names in zip(("lateral", "longitudinal", "interaction"), kinds, strict=True):
+        probs = rng.dirichlet(kappa * p, n_scenes)
+        rows[axis] = [names[rng.choice(3, p=probs[s])] for s in range(n_scenes)
+                      for _ in range(vehicles)]
+    return pd.DataFrame(rows).assign(mean_speed=np.nan)
+
+
+def test_null_of_scenes_with_shared_effects_is_covered():
+    # two independent sets of 12 scenes from one population: the true gap is 0, and the
+    # interval must reach it about 95 % of the time; drawing vehicles one by one (as the
+    # gap did) reached it in 10 of these 30 data sets
+    rng = np.random.default_rng(38)
+    held = 0
+    for rep in range(30):
+        pol, ref = scene_effects(12, rng, "p"), scene_effects(12, rng, "r")
+        res = behaviour_gap(pol, ref, config=BootstrapConfig(n_resamples=300, seed=rep))
+        held += res.debiased_low == 0
+    assert held >= 26
+
+
+WOMD = [f"../shared/data/womd/{f}" for f in (
+    "motion_data_one_scenario.tfrecord", "motion_data_one_example.tfrecord",
+    "womd_scenario_input.tfrecord", "sd_waymo_v1.2_eb4b91b10ca94ff2.pkl")] + [
+    "../shared/data/womd-dev/dev.tfrecord"]
+
+
+@pytest.mark.slow
+@pytest.mark.womd
+def test_null_study_on_real_scenes_split_in_halves_and_on_many_generated_scenes():
+    """The long null study (benchmarks/gap_coverage.py --only scenes runs it in full): the
+    real scenes split at random into two halves of 8 (both real driving, the true gap is
+    0), and 40 + 40 generated scenes with scene effects."""
+    import warnings
+    from pathlib import Path
+
+    from tap_bench.sources import read_womd
+
+    root = Path(__file__).resolve().parents[2]
+    files = [str(root / f) for f in WOMD if (root / f).exists()]
+    if len(files) < len(WOMD):
+        pytest.skip("the real WOMD files are not in ../shared/data")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        real = labelled_with_speed(read_womd(files), "maneuver", interactions="all")
+        real = real[real["object_type"] == "vehicle"].assign(mean_speed=np.nan)
+        ids = np.array(sorted(real["scenario_id"].unique()), object)
+        assert len(ids) == 16
+        rng = np.random.default_rng(380)
+        held = 0
+        for rep in range(60):
+            first = real["scenario_id"].isin(rng.permutation(ids)[:8]).to_numpy()
+            res = behaviour_gap(real[first], real[~first],
+                                config=BootstrapConfig(n_resamples=500, seed=rep))
+            assert (res.n_policy_units, res.n_reference_units) == (8, 8)
+            held += res.debiased_low == 0
+        assert held >= 54  # 0.90 of splits (the interval's level is 0.95)
+        held = 0
+        for rep in range(60):
+            pol, ref = scene_effects(40, rng, "p"), scene_effects(40, rng, "r")
+            res = behaviour_gap(pol, ref, config=BootstrapConfig(n_resamples=500, seed=rep))
+            held += res.debiased_low == 0
+        assert held >= 54
