@@ -1,4 +1,5 @@
-"""Build step: ship the benchmark's data (``envs/``, ``policies/``) inside the wheel.
+"""Build step: ship the benchmark's data (``envs/``, ``policies/``, the gate's
+``results/baselines/``) inside the wheel.
 
 The scenario, policy and suite files and the trained models stay at the top of the source
 tree (the design's layout); building a wheel copies them to ``tap_bench/_catalogue/``, where
@@ -15,7 +16,7 @@ from setuptools import setup
 from setuptools.command.build_py import build_py
 
 HERE = Path(__file__).resolve().parent
-DATA = ("envs", "policies")
+DATA = ("envs", "policies", "results/baselines")
 
 
 class BuildWithCatalogue(build_py):

@@ -11,8 +11,9 @@ module finds those files, from these folders, first match wins:
    ``policies/`` are copied there at build time), or the ``envs/`` and ``policies/`` folders
    at the top of a source checkout (an editable install).
 
-Each folder may hold ``envs/``, ``policies/`` and ``envs/suites/``; a missing one is
-skipped. When no built-in folder can be found at all, :func:`folders` raises
+Each folder may hold ``envs/``, ``policies/``, ``envs/suites/`` and ``results/baselines/``
+(the gate's baselines, one per suite: ``default.json``); a missing one is skipped. When
+no built-in folder can be found at all, :func:`folders` raises
 :class:`~tap_bench.errors.CatalogueError` naming where it looked and the fix, rather than
 listing nothing.
 """
@@ -27,8 +28,10 @@ from tap_bench.errors import CatalogueError, did_you_mean
 __all__ = ["CACHE_VARIABLE", "KINDS", "PATH_VARIABLE", "REPLACE_VARIABLE", "builtin_root",
            "cache_dir", "files", "find", "folders"]
 
-KINDS = {"envs": "envs", "policies": "policies", "suites": os.path.join("envs", "suites")}
-"""Kind of file -> its folder under a catalogue root."""
+KINDS = {"envs": "envs", "policies": "policies", "suites": os.path.join("envs", "suites"),
+         "baselines": os.path.join("results", "baselines")}
+"""Kind of file -> its folder under a catalogue root (``baselines``: the regression gate's
+baselines, one per suite, named after it)."""
 PATH_VARIABLE = "TAP_BENCH_PATH"
 """Environment variable: more catalogue roots, searched first."""
 REPLACE_VARIABLE = "TAP_BENCH_SUITE"

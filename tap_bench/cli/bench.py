@@ -183,6 +183,22 @@ def run_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _no_baseline(path, summary: dict) -> None:
+    """Raise the error for a missing baseline file, naming the shipped baseline of the run's
+    suite where there is one (``bench check`` run outside the project's root, where the
+    relative ``results/baselines/default.json`` is not)."""
+    from tap_bench import catalogue
+    from tap_bench.errors import FileFormatError
+
+    suite = summary.get("suite")
+    name = suite.get("name") if isinstance(suite, dict) else suite
+    shipped = catalogue.find("baselines", name) if isinstance(name, str) and name else None
+    hint = (f"the shipped baseline of suite '{name}' is {shipped}: give --baseline {shipped}, "
+            "or " if shipped is not None and shipped.resolve() != path.resolve() else "")
+    raise FileFormatError(f"{path}: no baseline file; {hint}make one from a run with "
+                          f"'tap-bench bench check RUN --baseline {path} --update-baseline'.")
+
+
 def check_bench(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -207,6 +223,8 @@ def check_bench(args: argparse.Namespace) -> int:
         print(f"baseline {baseline_path} now holds run {summary.get('run')} "
               f"({int((episodes['status'] == 'ok').sum())} episodes)")
         return 0
+    if not baseline_path.exists():
+        _no_baseline(baseline_path, summary)
     doc, base = read_baseline(baseline_path)
     as_json = args.format == "json"
     result = check(summary, episodes, doc, base)

@@ -179,3 +179,33 @@ def test_a_damaged_run_folder_is_a_named_error(cli, run, baseline, case):
     code, out, err = cli("bench", "check", run, "--baseline", baseline)
     assert code == 2, (out, err)
     assert "Traceback" not in err and str(run) in err
+
+
+def test_no_baseline_file_outside_the_project_points_to_the_shipped_one(
+        cli, run, tmp_path, monkeypatch):
+    """`bench check RUN --baseline results/baselines/default.json` run from another folder
+    said only "no baseline file": it names the shipped baseline of the run's suite."""
+    from fault_helpers import PROJECT_ROOT
+
+    def name_suite(name: str) -> None:
+        summary = json.loads((run / "summary.json").read_text())
+        if isinstance(summary["suite"], dict):
+            summary["suite"]["name"] = name
+        else:
+            summary["suite"] = name
+        (run / "summary.json").write_text(json.dumps(summary))
+
+    name_suite("default")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    code, _, err = cli("bench", "check", run, "--baseline", "results/baselines/default.json")
+    assert code == 2
+    shipped = (PROJECT_ROOT / "results" / "baselines" / "default.json").resolve()
+    assert "results/baselines/default.json: no baseline file" in err
+    assert f"the shipped baseline of suite 'default' is {shipped}" in err
+    assert f"--baseline {shipped}" in err and "--update-baseline" in err
+    # a suite without a shipped baseline: the way to make one, as before
+    name_suite("mine")
+    code, _, err = cli("bench", "check", run, "--baseline", tmp_path / "none.json")
+    assert code == 2 and "no baseline file; make one from a run" in err
