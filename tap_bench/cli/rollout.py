@@ -103,7 +103,10 @@ def run(args: argparse.Namespace) -> int:
                   f"{int(ok['traffic_collisions'].sum())} in "
                   f"{int((ok['traffic_collisions'] > 0).sum())} of {len(ok)} episodes, "
                   f"{int(ok['traffic_collisions_with_log'].sum())} with a replayed agent")
-    failed = episodes[episodes["status"] != "ok"]
+    skipped = episodes[episodes["status"] == "skipped"]
+    if len(skipped):
+        print(f"{len(skipped)} episode(s) skipped (not failures): no route to follow")
+    failed = episodes[~episodes["status"].isin(("ok", "skipped"))]
     for row in failed.itertuples():
         print(f"seed {row.seed} failed: {row.error}", file=sys.stderr)
     return 0  # every episode failed is an EpisodesFailedError, raised by rollout

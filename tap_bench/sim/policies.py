@@ -197,6 +197,7 @@ class LogPolicy:
     reference of every comparison on real scenes. Only recorded scenes have a log."""
 
     observation = None
+    replays_log = True  # needs no route: it runs every recorded scene (SPEC section 8)
 
     def __init__(self, name: str = "log") -> None:
         self.name = name

@@ -202,12 +202,13 @@ class _WomdHighwayEnv(AbstractEnv):
         e = scene.ego
         future = np.flatnonzero(scene.valid[e, CURRENT_STEP:]) + CURRENT_STEP
         self.route, off = logged_route(network, sim_xy[e, future], sim_h[e, future])
+        self.route_missing = ""  # why the scene has no route (the human still replays)
         if off > 0.5:
-            raise SceneError(
+            self.route_missing = (
                 f"scenario {scene.scenario_id}: the logged ego's path leaves the mapped lanes "
                 f"({off:.0%} of its future positions are more than {ROUTE_OFF_MAP} m beyond "
-                "a lane), so it has no route to follow. Drive another track (--ego ID) or "
-                "leave the scenario out.")
+                "a lane), so it has no route to follow: the human (policy log) replays it, a "
+                "policy that drives needs another track (--ego ID) or another scene.")
         path = sim_xy[e, future]
         step_len = np.hypot(*np.diff(path, axis=0).T)
         self.path = path
@@ -316,8 +317,9 @@ class _WomdHighwayEnv(AbstractEnv):
 
     @property
     def route_progress(self) -> float:
-        """Share of the logged ego's path covered so far (NaN when the human moved < 1 m)."""
-        if self.path_length < 1.0:
+        """Share of the logged ego's path covered so far (NaN when the human moved < 1 m or
+        the scene has no route: :attr:`route_missing` says why)."""
+        if self.path_length < 1.0 or self.route_missing:
             return float("nan")
         return float(min(self.progress, 1.0))
 
@@ -442,6 +444,8 @@ class WomdEnv(gym.Wrapper):
         inner.scene = self.scene
         inner.traffic = self.scenario.traffic
         obs, info = self.env.reset(seed=index, options=options or None)
+        if self.cycle and inner.route_missing:  # training: a scene without a route is skipped
+            raise SceneError(inner.route_missing)
         self.max_steps = int(np.ceil((self.scene.n_steps - 1 - CURRENT_STEP)
                                      * inner.config["policy_frequency"]
                                      / inner.config["simulation_frequency"]))
@@ -621,6 +625,7 @@ class WomdEnv(gym.Wrapper):
                 "max_off_road_distance_m": float(inner.off_road_max),
                 "off_road_rule": self._off_road_rule(),
                 "route_progress": inner.route_progress,
+                "route_missing": inner.route_missing,
                 "ran_red_light": bool(inner.flags["ran_red_light"]),
                 "log_ade": float(dist.mean()) if len(dist) else float("nan"),
                 "log_fde": float(dist[-1]) if len(dist) else float("nan"),
