@@ -763,8 +763,9 @@ class EpisodeCache:
                     yield path, path.stat()
 
     def forget_written_since(self, since: float) -> int:
-        """Delete the entries (episodes, labels, derived outputs) written or used at or after
-        ``since`` (``time.time()`` seconds); returns how many. For a run during which
+        """Delete the entries (episodes, labels, derived outputs) written at or after
+        ``since`` (``time.time()`` seconds; their modification time: an entry only read
+        since, made by an earlier run, stays); returns how many. For a run during which
         tap-bench itself was edited: its workers may have imported the new code after the
         keys named the old one (:func:`package_code_holds`). It costs only reuse."""
         removed = 0
@@ -796,7 +797,8 @@ class EpisodeCache:
                 with contextlib.suppress(OSError):
                     if now - tmp.stat().st_mtime > _STALE_TMP_S:
                         tmp.unlink()
-        entries = sorted(self._entries(), key=lambda e: e[1].st_mtime)
+        # least recently used first: written (mtime) or read (atime, set on each use)
+        entries = sorted(self._entries(), key=lambda e: max(e[1].st_mtime, e[1].st_atime))
         total = sum(st.st_size for _, st in entries)
         removed = freed = 0
         for path, st in entries:
@@ -866,7 +868,9 @@ def _read_entry(path: Path, decode: Callable[[bytes], T], what: str
             f"unreadable ({type(err).__name__}: {str(err)[:200]})"
         return None, f"{what} {path.name} refused and deleted: {reason}"
     with contextlib.suppress(OSError):
-        os.utime(path)
+        # used, not written: the access time says when it was last used (pruning), the
+        # modification time stays when it was written (forget_written_since)
+        os.utime(path, ns=(time.time_ns(), path.stat().st_mtime_ns))
     return entry, None
 
 
