@@ -40,6 +40,10 @@ definitions that changed) when no test could reach its share of alpha even in th
 favourable case, and :func:`write_baseline` refuses a baseline whose seeds could never
 let a check fire.
 
+On recorded scenes (episodes with ``crashed_at_fault``) the crash check counts at-fault
+collisions (SPEC section 8, :func:`scene_stand_ins`): a policy hit from behind or while
+stopped is not a regression; the report shows all collisions beside them.
+
 An (env, policy) of the baseline missing from the run, with failed episodes in the run, or
 whose policy or env definition changed since the baseline (named, with what changed),
 fails too. A baseline whose metric is missing or not numeric is an error
@@ -65,7 +69,7 @@ import pandas as pd
 from tap_bench.bench.bootstrap import named_rng
 from tap_bench.bench.compare import NO_LABEL
 from tap_bench.bench.gate_stats import direction, hypergeom_tails, is_rate, tv
-from tap_bench.bench.measures import MEASURES
+from tap_bench.bench.measures import MEASURES, SCENE_STANDS_IN
 from tap_bench.bench.power import POWER, rule_power
 from tap_bench.bench.suite import GateConfig, gate_metrics
 from tap_bench.errors import (
@@ -204,6 +208,22 @@ def _json_value(v: Any) -> Any:
     return str(v)
 
 
+def scene_stand_ins(episodes: pd.DataFrame) -> pd.DataFrame:
+    """The episodes as the gate reads them: on recorded scenes (an episode whose stand-in
+    measure is not NA, :data:`~tap_bench.bench.measures.SCENE_STANDS_IN`) the crash check
+    counts at-fault collisions (SPEC section 8); a baseline stores them so."""
+    out = episodes
+    for measure, stand_in in SCENE_STANDS_IN.items():
+        if stand_in in episodes.columns and measure in episodes.columns:
+            stand = pd.to_numeric(episodes[stand_in], errors="coerce")
+            present = stand.notna()
+            if present.any():
+                if out is episodes:
+                    out = episodes.copy()
+                out[measure] = out[measure].mask(present, stand > 0.5)
+    return out
+
+
 def _identity(summary: dict[str, Any]) -> dict[str, Any]:
     suite = summary.get("suite", {})
     return {"suite": suite.get("name"), "suite_version": suite.get("version"),
@@ -223,6 +243,7 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
         BaselineError: the run has no episode, or an (env, policy) of it has no episode that
             ran to the end: such a baseline would test nothing there.
     """
+    episodes = scene_stand_ins(episodes)
     ok = episodes[episodes["status"] == "ok"]
     n_failed = len(episodes) - len(ok)
     if ok.empty:
@@ -688,6 +709,7 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
     changed = definition_changes(run_summary.get("provenance"), baseline.get("provenance"))
     changed_policy = {name: what for kind, name, what in changed if kind == "policy"}
     changed_env = {name: what for kind, name, what in changed if kind == "env"}
+    run_episodes = scene_stand_ins(run_episodes)
     run_ok = run_episodes[run_episodes["status"] == "ok"]
     run_failed = run_episodes[run_episodes["status"] != "ok"]
     cells = sorted(set(map(tuple, baseline_episodes[["env", "policy"]].drop_duplicates()

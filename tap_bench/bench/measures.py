@@ -117,6 +117,7 @@ __all__ = [
     "MEASURE_KINDS",
     "MEASURE_ROLES",
     "SCENE_MEASURES",
+    "SCENE_STANDS_IN",
     "SCENE_STEP_COLUMNS",
     "MIN_SPEED_FOR_HEADWAY",
     "TTC_CAP_S",
@@ -697,6 +698,12 @@ SCENE_STEP_COLUMNS = ("off_road", "crash_at_fault", "ran_red_light", "route_prog
 (bool, SPEC 8's rules: :mod:`tap_bench.sim.collisions`), crossed a red stop point
 at that step (bool), share of the logged path covered so far (0-1), distance to the logged
 ego at the same step [m] (NaN before the current time)."""
+
+
+SCENE_STANDS_IN = {"crashed": "crashed_at_fault"}
+"""measure -> the scene measure that stands in for it on recorded scenes (SPEC section 8): the
+regression gate's crash check counts at-fault collisions there (an episode whose
+``crashed_at_fault`` is not NA), and the report shows all collisions beside them."""
 
 
 def _scene_column(steps: EgoSteps, name: str) -> np.ndarray:

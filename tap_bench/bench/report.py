@@ -151,8 +151,12 @@ def _against_the_human(episodes: pd.DataFrame, reference: str, level: float) -> 
     human = "the human" if reference == "log" else f"the reference policy {reference}"
     parts = ["<h2>Against the human</h2>",
              f'<p class="note">Recorded scenes: every policy drove the recorded ego of the '
-             f"same WOMD scenarios from 1.0 s, {human} drove them as logged. Episodes pair "
-             "by scenario.</p>"]
+             f"same WOMD scenarios from 1.0 s, {human} drove them as logged. Paired by scene: "
+             "an episode is named by its scenario id, and each policy's is compared with "
+             f"{human}'s on the same scene. Collisions count first where the ego was at "
+             "fault (SPEC 8: not when stopped and hit, hit from behind, or entered by a "
+             "pedestrian or cyclist while stopped), all collisions beside them; the "
+             "regression gate's crash check on these scenes counts at-fault ones.</p>"]
     agree = agreement_with_reference(scenes, reference, level=level)
     pct = level_text(level)
     if len(agree):
@@ -171,16 +175,25 @@ def _against_the_human(episodes: pd.DataFrame, reference: str, level: float) -> 
             "sdl is lateral and longitudinal together; interaction the relations to others "
             "(SPEC 7)."))
     summary = scene_summary(scenes)
+    # at-fault collisions, off-road and route progress first: the measures of recorded
+    # scenes in their registry's order, then the others (all collisions among them)
+    from tap_bench.bench.measures import SCENE_MEASURES
+
+    ids = [c for c in ("env", "policy", "episodes") if c in summary.columns]
+    scene = [m.name for m in SCENE_MEASURES if m.name in summary.columns]
+    summary = summary[[*ids, *scene, *(c for c in summary.columns
+                                        if c not in ids and c not in scene)]]
     for col in summary.columns:
         if col not in ("env", "policy", "episodes"):
             summary[col] = summary[col].round(3)
     parts.append(html_table(
         summary, table_id="human-measures",
-        caption="Closed-loop measures on recorded scenes, mean over scenes: crashed and "
-        "off_road (share), route_progress (share of the human's path covered, 0-1), "
-        "ran_red_light (share), log_ade and log_fde (mean and final distance to the human's "
-        f"ego, m). The {reference} row is the floor: the human's own boxes can overlap "
-        "others' in the log."))
+        caption="Closed-loop measures on recorded scenes, mean over scenes, paired by scene: "
+        "crashed_at_fault (share of scenes where the ego collided at fault), off_road "
+        "(share: left the road edges), route_progress (share of the human's path "
+        "covered, 0-1), crashed (all collisions), ran_red_light (share), log_ade and "
+        f"log_fde (mean and final distance to the human's ego, m). The {reference} row "
+        "is the floor: the human's own boxes can overlap others' in the log."))
     return parts
 
 

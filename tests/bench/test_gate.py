@@ -523,3 +523,28 @@ def test_json_verdict_of_a_failing_check(tmp_path, capsys):
     failed = [r for r in verdict["rows"] if r["moved"]]
     assert {(r["policy"], r["metric"], r["verdict"]) for r in failed} >= {
         ("idm", "crashed", "worse")}
+
+
+def _real_scene_run(seed: int, *, hit: float, fault: float, n: int = 60) -> pd.DataFrame:
+    """Episodes of recorded scenes (a crashed_at_fault column): a share ``hit`` of them
+    crashed, a share ``fault`` of all at fault."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for s in range(n):
+        u = rng.random()
+        rows.append({"env": "womd", "policy": "idm", "seed": s,
+                     "sdl": "Straight | Maintain Speed", "crashed": bool(u < hit),
+                     "crashed_at_fault": float(u < fault), "mean_speed": 8.0,
+                     "min_headway_s": 1.5, "min_ttc_s": 6.0, "rms_jerk": 3.0})
+    return make_episodes(rows)
+
+
+def test_on_real_scenes_the_crash_check_counts_at_fault_collisions(tmp_path):
+    doc, base = baseline_of(_real_scene_run(0, hit=0.05, fault=0.05), tmp_path)
+    # twice the collisions, all of them the other's fault (rear-ends, a stopped ego hit)
+    hit = check(SUMMARY, _real_scene_run(0, hit=0.5, fault=0.05), doc, base)
+    assert not hit.moved, hit.format()
+    # as many collisions, now the ego's fault
+    blamed = check(SUMMARY, _real_scene_run(0, hit=0.5, fault=0.5), doc, base)
+    assert blamed.moved
+    assert blamed.moved_rows()["metric"].tolist() == ["crashed"]

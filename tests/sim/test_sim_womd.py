@@ -409,6 +409,11 @@ def test_a_womd_suite_runs_against_the_human(real, tmp_path):
         "ee519cf571686d19/log", "ee519cf571686d19/idm", "sd_good/log", "sd_good/idm"}
     page = (tmp_path / "run" / "report.html").read_text()
     assert "Against the human" in page and "human-agreement" in page
+    # the verdict on real scenes: paired by scene, at-fault collisions first, all beside
+    assert "Paired by scene" in page and "counts at-fault ones" in page
+    measures = page[page.index('id="human-measures"'):]
+    assert measures.index("crashed_at_fault") < measures.index("off_road") \
+        < measures.index("route_progress") < measures.index(">crashed<")
     roads = pd.read_parquet(tmp_path / "run" / "roads.parquet")
     assert {"ee519cf571686d19", "sd_good"} <= set(roads["map_id"])
 
