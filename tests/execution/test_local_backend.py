@@ -3,7 +3,9 @@ then reported, a dead worker costing only the item it ran, bounded streaming, no
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import subprocess
 import sys
 import textwrap
@@ -168,20 +170,29 @@ def test_a_killed_parent_leaves_no_worker_behind(tmp_path):
         for o in LocalBackend(2).imap(time.sleep, [30] * 4, progress=False):
             pass
     """))
-    parent = subprocess.Popen([sys.executable, str(script)], cwd=tmp_path)
-    deadline = time.time() + 60
-    while time.time() < deadline and len(_children(parent.pid)) < 2:
-        time.sleep(0.2)
-    workers = _children(parent.pid)
-    assert len(workers) == 2
-    parent.kill()  # SIGKILL: no cleanup code runs in the parent
-    parent.wait()
-    deadline = time.time() + 20
-    alive = workers
-    while time.time() < deadline and alive:
-        alive = [w for w in workers if _alive(w)]
-        time.sleep(0.2)
-    assert alive == [], "workers outlived their killed parent"
+    # a process group of its own, killed whatever happens: a test that fails or times out
+    # under load leaves no orphan behind
+    parent = subprocess.Popen([sys.executable, str(script)], cwd=tmp_path,
+                              start_new_session=True)
+    try:
+        deadline = time.time() + 180  # generous under load, bounded
+        while time.time() < deadline and len(_children(parent.pid)) < 2:
+            time.sleep(0.2)
+        workers = _children(parent.pid)
+        assert len(workers) == 2
+        parent.kill()  # SIGKILL: no cleanup code runs in the parent
+        parent.wait(timeout=120)
+        deadline = time.time() + 120
+        alive = workers
+        while time.time() < deadline and alive:
+            alive = [w for w in workers if _alive(w)]
+            time.sleep(0.2)
+        assert alive == [], "workers outlived their killed parent"
+    finally:
+        with contextlib.suppress(OSError):
+            os.killpg(parent.pid, signal.SIGKILL)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            parent.wait(timeout=120)
 
 
 def _alive(pid: int) -> bool:

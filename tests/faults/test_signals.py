@@ -3,12 +3,14 @@ killed by SIGKILL leaves no worker behind either."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -41,7 +43,18 @@ def _alive(pid: int) -> bool:
         return False
 
 
-def _start_run(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
+START_WITHIN = 180.0
+"""Seconds the run may take to start its workers: generous for a loaded machine, bounded."""
+EXIT_WITHIN = 120.0
+"""Seconds the run may take to exit after a signal, and its workers after it."""
+
+
+@contextlib.contextmanager
+def _running(tmp_path: Path) -> Iterator[tuple[subprocess.Popen, Path, list[int]]]:
+    """A long `bench run` with 2 workers, in a process group of its own, once its workers
+    are busy: (the run, its output folder, the workers' pids). Whatever the test does, the
+    group and every worker are killed when it ends: a failed or timed-out test leaves no
+    orphan behind (under load one once did)."""
     suite = tmp_path / "slow.json"
     suite.write_text(json.dumps({
         "name": "slow", "envs": ["highway"], "policies": ["idm", "random"], "seeds": "0-199",
@@ -52,48 +65,57 @@ def _start_run(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
     env = {**os.environ, "TAP_BENCH_CACHE": str(tmp_path / "cache")}
     run = subprocess.Popen(
         [sys.executable, "-m", "tap_bench", "bench", "run", "--suite", str(suite), "-o", str(out),
-         "--workers", "2", "--no-progress"], stderr=subprocess.PIPE, text=True, env=env)
-    deadline = time.time() + 90
-    while time.time() < deadline and len(_descendants(run.pid)) < 2:
+         "--workers", "2", "--no-progress"], stderr=subprocess.PIPE, text=True, env=env,
+        start_new_session=True)
+    try:
+        deadline = time.time() + START_WITHIN
+        while time.time() < deadline and run.poll() is None and len(_descendants(run.pid)) < 2:
+            time.sleep(0.2)
+        time.sleep(1.0)  # workers busy with episodes
+        workers = _descendants(run.pid)
+        assert len(workers) >= 2, f"the run did not start its workers in {START_WITHIN:.0f} s"
+        yield run, out, workers
+    finally:
+        # the run's own group: the run and its workers (which stay in it), orphaned or not
+        with contextlib.suppress(OSError):
+            os.killpg(run.pid, signal.SIGKILL)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            run.communicate(timeout=EXIT_WITHIN)
+
+
+def _gone(workers: list[int]) -> bool:
+    deadline = time.time() + EXIT_WITHIN
+    while time.time() < deadline and any(_alive(w) for w in workers):
         time.sleep(0.2)
-    time.sleep(1.0)  # workers busy with episodes
-    return run, out
+    return not any(_alive(w) for w in workers)
 
 
 @pytest.mark.parametrize("how", ["SIGTERM", "SIGINT"])
 def test_a_terminated_run_exits_cleanly_and_leaves_nothing(tmp_path, how):
-    run, out = _start_run(tmp_path)
-    workers = _descendants(run.pid)
-    assert len(workers) >= 2, "the run did not start its workers"
-    run.send_signal(getattr(signal, how))
-    _, err = run.communicate(timeout=60)
-    assert run.returncode == 130, err
-    assert "interrupted" in err and "Traceback" not in err
-    deadline = time.time() + 20
-    while time.time() < deadline and any(_alive(w) for w in workers):
-        time.sleep(0.2)
-    assert not any(_alive(w) for w in workers), "worker processes outlived the run"
-    assert not out.exists()
-    assert list((tmp_path / "runs").iterdir()) == [] if (tmp_path / "runs").exists() else True
+    with _running(tmp_path) as (run, out, workers):
+        run.send_signal(getattr(signal, how))
+        _, err = run.communicate(timeout=EXIT_WITHIN)
+        assert run.returncode == 130, err
+        assert "interrupted" in err and "Traceback" not in err
+        assert _gone(workers), "worker processes outlived the run"
+        assert not out.exists()
+        assert list((tmp_path / "runs").iterdir()) == [] if (tmp_path / "runs").exists() \
+            else True
 
 
 def test_a_killed_run_leaves_no_worker(tmp_path):
-    run, out = _start_run(tmp_path)
-    workers = _descendants(run.pid)
-    assert len(workers) >= 2
-    run.kill()
-    run.wait(timeout=30)
-    deadline = time.time() + 20
-    while time.time() < deadline and any(_alive(w) for w in workers):
-        time.sleep(0.2)
-    assert not any(_alive(w) for w in workers), "worker processes outlived a SIGKILLed run"
-    assert not out.exists()
+    with _running(tmp_path) as (run, out, workers):
+        run.kill()
+        run.wait(timeout=EXIT_WITHIN)
+        assert _gone(workers), "worker processes outlived a SIGKILLed run"
+        assert not out.exists()
 
 
 def test_no_resource_tracker_or_semaphore_is_left(tmp_path):
     before = set(os.listdir("/dev/shm")) if os.path.isdir("/dev/shm") else set()
-    run, _ = _start_run(tmp_path)
-    run.send_signal(signal.SIGTERM)
-    run.communicate(timeout=60)
+    with _running(tmp_path) as (run, _, workers):
+        run.send_signal(signal.SIGTERM)
+        run.communicate(timeout=EXIT_WITHIN)
+        assert _gone(workers)
     after = set(os.listdir("/dev/shm")) if os.path.isdir("/dev/shm") else set()
     assert {n for n in after - before if "tap-bench" in n or n.startswith("sem.")} == set()
