@@ -45,8 +45,9 @@ EPISODE_COLUMNS = ("env", "policy", "seed", "scenario_id", "status", "error", "s
 """Columns of the episode table, in order."""
 
 _LABEL_FIELDS = ("sdl", "lateral", "longitudinal")
-_SHARED = ("crashed", "mean_speed", "duration_s")
-"""Columns both the ego measures and a rollout's episode table carry."""
+_SHARED = ("crashed", "mean_speed", "duration_s", "scenario_id")
+"""Columns both the ego measures and a rollout's episode table carry (recorded scenes' too
+have a ``scenario_id``: merged on both sides it was suffixed away and read as NA)."""
 
 
 def _ego_mask(table: pd.DataFrame, source: str) -> np.ndarray:

@@ -48,3 +48,17 @@ def test_a_policy_that_needs_a_route_is_skipped_not_failed(tmp_path, theta):
     assert any("skipped" in str(w.message) for w in caught)
     human_table, human = rollout(make_womd_env(path), "log", [0])
     assert human.iloc[0]["status"] == "ok" and len(human_table)
+
+
+def test_the_episode_table_of_a_recorded_scene_keeps_its_scenario_id(tmp_path):
+    from tap_bench.bench.episodes import episode_table
+    from tap_bench.labelling import label
+
+    from .test_road_edges import ROAD_EDGES, straight
+
+    path = write_scene(tmp_path / "kerb.pkl", 0.3, {"ego": vehicle(straight(2.0), 0.3)},
+                       ROAD_LANES, ROAD_EDGES)
+    trajectories, episodes = rollout(make_womd_env(path), "idm", [0])
+    table = episode_table(labels=label(trajectories), trajectories=trajectories,
+                          episodes=episodes)
+    assert table["scenario_id"].tolist() == ["kerb"]
