@@ -17,9 +17,17 @@ Phases: ``rollouts`` (simulating, in the workers), ``labelling`` and ``measures`
 the per-episode measures, in the workers or in the run's process, whichever the version
 does), ``scoring``, ``report`` (tables, figures, HTML and viewer), ``total``.
 
+``--first-run`` measures instead what a new user measures: the demo as the README runs it
+(``tap-bench demo``), once, from a fresh copy of this commit's tree (``git archive``: no
+``__pycache__``, so no compiled bytecode and no numba kernels cached beside the code) with
+a fresh ``HOME`` (no ``~/.cache/tap-bench`` episodes or highway-env schema, no matplotlib
+font cache), then a second run in the same ``HOME`` and tree (caches warm, a new output
+folder) for comparison. Wall, and CPU of the run and its workers.
+
 Usage::
 
     python benchmarks/bench_demo.py [--old 4e8674d] [--repeats 1] [--workers 2]
+    python benchmarks/bench_demo.py --first-run
 """
 
 from __future__ import annotations
@@ -125,13 +133,55 @@ def _same_trajectories(a: pd.DataFrame | None, b: pd.DataFrame | None) -> dict[s
             "trajectory_columns_compared": state}
 
 
+def first_run() -> None:
+    """The demo as a new user runs it first (see the module docstring), then again."""
+    head = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
+                          check=True, capture_output=True, text=True).stdout.strip()
+    with tempfile.TemporaryDirectory(prefix="bench-demo-first-") as tmp:
+        scratch = Path(tmp)
+        tree, home = scratch / "tap-bench", scratch / "home"
+        tree.mkdir()
+        home.mkdir()
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", "HEAD"], check=True,
+                                 capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
+        shared = ROOT.parent / "shared"
+        if shared.is_dir():  # beside the copy as beside a checkout (the README's layout)
+            (scratch / "shared").symlink_to(shared)
+        drop = ("TAP_BENCH_CACHE", "TAP_BENCH_PATH", "TAP_BENCH_SUITE", "XDG_CACHE_HOME",
+                "MPLCONFIGDIR", "NUMBA_CACHE_DIR", "PYTHONDONTWRITEBYTECODE")
+        env = {**{k: v for k, v in os.environ.items() if k not in drop},
+               "HOME": str(home), "PYTHONPATH": str(tree)}
+        runs = {}
+        for name in ("first", "second"):
+            cpu0, wall0 = _children_cpu(), time.perf_counter()
+            done = subprocess.run([sys.executable, "-m", "tap_bench", "demo", "-o",
+                                   str(scratch / f"demo-{name}"), "--no-progress"],
+                                  env=env, cwd=tree, capture_output=True, text=True)
+            wall, cpu = time.perf_counter() - wall0, _children_cpu() - cpu0
+            if done.returncode:
+                raise SystemExit(f"the demo failed ({done.returncode}):\n{done.stderr}")
+            runs[name] = {"wall_s": round(wall, 2), "cpu_s": round(cpu, 2),
+                          "load_after": round(os.getloadavg()[0], 2)}
+            print(f"{name} run: {wall:.1f} s wall, {cpu:.1f} CPU s (user + sys, workers "
+                  f"included), load {os.getloadavg()[0]:.1f}", file=sys.stderr, flush=True)
+    report("demo_first_run", {"commit": head, **runs},
+           note="first: a fresh copy of the tree (no __pycache__, no numba cache) and a "
+                "fresh HOME (no caches); second: the same tree and HOME again")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--old", default="4e8674d", help="the older commit (default 4e8674d)")
     parser.add_argument("--repeats", type=int, default=1, help="runs per version and clock")
     parser.add_argument("--workers", type=int, default=2, help="demo --workers (2)")
+    parser.add_argument("--first-run", action="store_true",
+                        help="measure a new user's first run of the demo instead")
     args = parser.parse_args()
+    if args.first_run:
+        first_run()
+        return
 
     commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", args.old],
                             check=True, capture_output=True, text=True).stdout.strip()
