@@ -9,8 +9,8 @@ and ``<name>.curve.png``; :mod:`tap_bench.rl.curve`).
 
 Where the time goes (``benchmarks/profile_train.py``): almost all of it is highway-env's
 simulation (IDM and MOBIL for every vehicle, neighbour searches and collision checks, at
-every simulated step), then the observation; the gradient steps of the small MLPs are a few
-per cent. So training runs
+every simulated step), then the observation; the gradient steps of the small MLPs are a
+small part (docs/simulation.md, "Speed"). So training runs
 
 - on the scenario's fast variant (``fast=True``: 5 Hz simulation, collisions checked for
   the ego only, as highway-env's ``highway-fast-v0``): half the simulated steps;
@@ -28,11 +28,11 @@ per cent. So training runs
   imported their modules (SB3, torch, highway-env, tap-bench's envs) once
   (:data:`WORKER_MODULES`). When the machine's cores are busy with other work at the start
   (:func:`idle_cores`), all are stepped one after the other in this process
-  (``DummyVecEnv``): about a quarter less CPU, and more steps per second on busy cores.
+  (``DummyVecEnv``): less CPU in all, and more steps per second on busy cores.
   The same weights in all three (``benchmarks/bench_train_speed.py``, variants
   ``2-envs-one``, ``2-envs-workers`` and ``2-envs-in-process``; docs/simulation.md);
 - with one torch thread: the workers are the parallelism, and batches of 32 to 64 rows
-  gain nothing from more (two threads made PPO 10 % slower here).
+  gain nothing from more (more threads compete with the env workers).
 """
 
 from __future__ import annotations
@@ -86,8 +86,8 @@ of all envs together."""
 DEFAULT_N_ENVS = 2
 """Training envs stepped in parallel processes by default: one per core of a 2-core machine."""
 MAX_N_ENVS = 64
-"""The most training envs (each a worker process of about 50 MB): more than any machine
-tap-bench is run on has cores to step them."""
+"""The most training envs (each a worker process, about 50 MB of memory): more than any
+machine tap-bench is run on has cores to step them."""
 
 
 @dataclass(frozen=True)
@@ -195,12 +195,13 @@ def _has_main_guard(main: Any) -> bool:
 
 
 WORKER_MODULES = ("stable_baselines3.common.vec_env.subproc_vec_env",
-                  "stable_baselines3.common.monitor", "highway_env", "tap_bench.rl.training",
-                  "tap_bench.sim.scenario_env", "tap_bench.sim.fast_road",
-                  "tap_bench.sim.observation")
-"""What every training env worker imports (SB3's worker loop and Monitor, which import
-torch; highway-env; tap-bench's env code), imported once in the forkserver the workers are
-forked from rather than once in each worker: about 2 CPU s per worker saved."""
+                  "stable_baselines3.common.monitor", "highway_env", "tap_bench.rl.vec_env",
+                  "tap_bench.rl.training", "tap_bench.sim.scenario_env",
+                  "tap_bench.sim.fast_road", "tap_bench.sim.observation")
+"""What every training env worker imports (the worker loops, SB3's and tap-bench's, and SB3's
+Monitor, which import torch; highway-env; tap-bench's env code), imported once in the
+forkserver the workers are forked from rather than once in each worker (the CPU this saves:
+docs/simulation.md)."""
 
 
 @contextlib.contextmanager
@@ -234,9 +235,8 @@ def idle_cores(seconds: float = 0.3) -> float | None:
     Training picks where its envs run by it (``train(in_process=None)``, :func:`envs_where`:
     in this process below 1.5 idle cores, half a core of margin for the sample's noise):
     without a second idle core, worker processes only take turns with other work on the
-    busy cores (measured with 2 envs: 23 to 33 % more CPU per env step, and fewer steps per
-    second in 6 of 6 interleaved pairs, than the envs stepped in the training process, at
-    load 4.6 to 9 on 2 cores)."""
+    busy cores, for more CPU per env step and fewer steps per second than the envs stepped
+    in the training process (measured: docs/simulation.md)."""
     cpus = _affinity()  # the lines of this process's cores; else (not Linux) the all-CPU line
     lines = {"cpu"} if cpus is None else {f"cpu{k}" for k in cpus}
     n_cores = _usable_cores()
@@ -426,6 +426,66 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
         OutputPathError: an output exists that ``tap-bench train`` did not write.
     """
     output = Path(output)
+    _check_arguments(output, timesteps=timesteps, n_envs=n_envs, keep=keep,
+                     in_process=in_process, curve=curve, overwrite=overwrite)
+    cls = algorithm_class(algo)
+    algo = algo.lower()
+    import torch
+
+    torch.set_num_threads(1)  # a shared CPU; the env workers are the parallelism
+    scenario = _training_scenario(env, curve)
+    params = {**HYPERPARAMETERS[algo], **(hyperparameters or {})}
+    observation = _observation_config(scenario)
+    say = announce or (lambda line: None)
+    curve_callback = _curve_callback(curve, scenario, output, timesteps=timesteps,
+                                     observation=observation, keep=keep, verbose=verbose,
+                                     announce=announce, say=say)
+    in_process, why = _where_envs_run(in_process, n_envs)
+    say(f"starting {n_envs} training env(s) of {scenario.env_id}"
+        + (" (fast variant)" if fast and not isinstance(scenario, WomdScenes) else "")
+        + _where_phrase(n_envs, in_process) + why + " ...")
+    vec = _vec_env(scenario, n_envs=n_envs, fast=fast, seed=seed, in_process=in_process)
+    say(f"training {algo.upper()} for {timesteps} steps"
+        + (f", {curve.points} learning-curve evaluations on the way" if curve else "")
+        + " ...")
+    learned = _learn(cls, vec, params, seed=seed, timesteps=timesteps, verbose=verbose,
+                     log_dir=log_dir, curve_callback=curve_callback, announce=announce)
+    if learned.interrupted and curve_callback is not None:
+        curve_callback.on_training_end()  # the last point of the curve
+    eval_seconds = sum(curve_callback.eval_seconds) if curve_callback is not None else 0.0
+    model = learned.model
+    trained = int(model.num_timesteps)
+    say(f"trained {trained} steps ({learned.seconds:.0f} s, learning-curve evaluations "
+        f"{eval_seconds:.0f} s of it); saving the model ...")
+    kept = curve_callback.best if keep == "best" else None
+    if kept is not None:
+        model.policy.load_state_dict(curve_callback.best_weights)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(output) as tmp, open(tmp, "wb") as handle:
+        model.save(handle)
+    definition = output.with_suffix(".json")
+    doc = _definition(output, algo=algo, scenario=scenario, observation=observation,
+                      trained=trained, asked=timesteps, interrupted=learned.interrupted,
+                      kept=kept, n_envs=n_envs, fast=fast, seed=seed, params=params,
+                      curve=curve, train_seconds=learned.seconds - eval_seconds,
+                      command=command)
+    with atomic_path(definition) as tmp:
+        tmp.write_text(json.dumps(doc, indent=2, default=_json_record) + "\n")
+    result = TrainingResult(model_path=output, definition_path=definition,
+                            timesteps=trained, seconds=learned.seconds,
+                            train_seconds=learned.seconds - eval_seconds,
+                            episodes=learned.episodes,
+                            kept_timesteps=None if kept is None else int(kept["timesteps"]))
+    if curve_callback is not None:
+        result = _write_curve(result, curve_callback, algo=algo, scenario=scenario,
+                              seeds=curve.seeds)
+    return result
+
+
+def _check_arguments(output: Path, *, timesteps: Any, n_envs: Any, keep: Any, in_process: Any,
+                     curve: CurveConfig | None, overwrite: bool) -> None:
+    """Refuse :func:`train`'s arguments that are not usable, before any work (see its
+    Raises)."""
     if output.suffix != ".zip":
         raise ParameterError("output", str(output), "a .zip file (a Stable-Baselines3 model)",
                              hint=f"Name it {output.with_suffix('.zip').name}.")
@@ -437,7 +497,7 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
         raise ParameterError("n_envs", n_envs, f"at most {MAX_N_ENVS}", message=(
             f"n_envs (--n-envs) {n_envs} is more than the limit of {MAX_N_ENVS} "
             "(tap_bench.rl.training.MAX_N_ENVS): each training env is a process of about "
-            "50 MB; 1000 started 288 processes and 13.5 GB before failing."))
+            "50 MB, and more envs than cores only take turns on them."))
     if keep not in ("last", "best"):
         raise ParameterError("keep", keep, "'last' or 'best'")
     if not (in_process is None or isinstance(in_process, bool) or in_process == "one"):
@@ -448,82 +508,106 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
             "curve (tap-bench train: drop --no-curve; train(): pass curve=CurveConfig()), "
             "or keep the last weights."))
     check_replace(training_outputs(output), overwrite, ours=lambda _: _trained_here(output))
-    cls = algorithm_class(algo)
-    algo = algo.lower()
-    import torch
-    from stable_baselines3.common.logger import HumanOutputFormat, Logger, make_output_format
-    from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
-    torch.set_num_threads(1)  # a shared CPU; the env workers are the parallelism
+
+def _training_scenario(env: str | WomdScenes, curve: CurveConfig | None) -> Scenario | WomdScenes:
+    """The scenario (or recorded scenes) ``env`` names; recorded scenes refused with a
+    curve (it evaluates on synthetic seeds)."""
     scenario = env if isinstance(env, WomdScenes) else get_scenario(env)
     if isinstance(scenario, WomdScenes) and curve is not None:
         raise ParameterError("curve", curve, "None on recorded scenes", message=(
             "the learning curve evaluates on synthetic seeds; train on recorded scenes "
             "without it (tap-bench train --no-curve) and compare the agent with the human "
             "afterwards (tap-bench rollout --womd ... --policy MODEL.zip)."))
-    params = {**HYPERPARAMETERS[algo], **(hyperparameters or {})}
-    observation = _observation_config(scenario)
-    say = announce or (lambda line: None)
-    callbacks = []
-    if curve is not None:
-        # callbacks.py subclasses SB3's BaseCallback: imported only where SB3 is installed
-        from tap_bench.rl.callbacks import CoverageCallback
+    return scenario
 
-        say(f"learning curve: the coverage reference ({curve.reference}, level "
-            f"{curve.level}, seeds {curve.seeds}) ...")
-        reference = coverage_reference(curve, scenario)
-        callbacks.append(CoverageCallback(
-            # ceil: points - 1 evaluations during training, the last one at its end
-            scenario, reference, curve, every=max(1, -(-timesteps // curve.points)),
-            observation=observation, name=output.stem, keep_best=keep == "best",
-            until=timesteps, verbose=verbose, announce=announce))
-    why = ""
-    if in_process is None and n_envs > 1:
-        idle, cores, quota = idle_cores(), _usable_cores(), cpu_quota()
-        if quota is not None and quota < cores:  # a container's CPU limit, say
-            cores = quota
-            idle = None if idle is None else min(idle, quota)
-        in_process = envs_where(idle, n_envs, cores)
-        why = (f", {idle:.1f} of {cores:g} cores idle" if idle is not None
-               else f", {cores:g} cores (idle time unknown)")
-        if cores == quota:
-            why += " (the CPU quota of its control group)"
-    if in_process == "one" and n_envs > 1:  # one env runs in this process in any case
-        from tap_bench.rl.vec_env import shared_envs_supported  # imports SB3
 
-        if not shared_envs_supported():
-            in_process = False
-            why += ("; this Stable-Baselines3's worker loop (SubprocVecEnv, _worker) is "
-                    "not the one tap-bench repeats for the env in this process")
+def _curve_callback(curve: CurveConfig | None, scenario: Scenario, output: Path, *,
+                    timesteps: int, observation: dict[str, Any], keep: str, verbose: int,
+                    announce: Callable[[str], None] | None,
+                    say: Callable[[str], None]) -> Any:
+    """The callback that records the learning curve (its reference computed first), or
+    None without a curve."""
+    if curve is None:
+        return None
+    # callbacks.py subclasses SB3's BaseCallback: imported only where SB3 is installed
+    from tap_bench.rl.callbacks import CoverageCallback
+
+    say(f"learning curve: the coverage reference ({curve.reference}, level "
+        f"{curve.level}, seeds {curve.seeds}) ...")
+    reference = coverage_reference(curve, scenario)
+    return CoverageCallback(
+        # ceil: points - 1 evaluations during training, the last one at its end
+        scenario, reference, curve, every=max(1, -(-timesteps // curve.points)),
+        observation=observation, name=output.stem, keep_best=keep == "best",
+        until=timesteps, verbose=verbose, announce=announce)
+
+
+def _where_envs_run(in_process: bool | str | None, n_envs: int) -> tuple[bool | str, str]:
+    """Where the envs are stepped (``in_process``, chosen by the idle cores when None:
+    :func:`envs_where`) and why, as the start line says it (``""`` when given)."""
+    if in_process is not None:
+        return in_process, ""
     if n_envs == 1:
-        where = ""
-    elif in_process is True:
-        where = " in this process"
-    elif in_process == "one":
-        where = (f": one in this process, {n_envs - 1} in worker process"
-                 + ("es" if n_envs > 2 else ""))
-    else:
-        where = " in worker processes"
-    say(f"starting {n_envs} training env(s) of {scenario.env_id}"
-        + (" (fast variant)" if fast and not isinstance(scenario, WomdScenes) else "")
-        + where + why + " ...")
-    vec = _vec_env(scenario, n_envs=n_envs, fast=fast, seed=seed, in_process=in_process)
-    from tap_bench.rl.callbacks import EpisodesCounted
+        return True, ""
+    idle, cores, quota = idle_cores(), _usable_cores(), cpu_quota()
+    if quota is not None and quota < cores:  # a container's CPU limit, say
+        cores = quota
+        idle = None if idle is None else min(idle, quota)
+    why = (f", {idle:.1f} of {cores:g} cores idle" if idle is not None
+           else f", {cores:g} cores (idle time unknown)")
+    if cores == quota:
+        why += " (the CPU quota of its control group)"
+    return envs_where(idle, n_envs, cores), why
+
+
+def _where_phrase(n_envs: int, in_process: bool | str) -> str:
+    """Where the start line says the ``n_envs`` envs run."""
+    if n_envs == 1:
+        return ""
+    if in_process is True:
+        return " in this process"
+    if in_process == "one":
+        return (f": one in this process, {n_envs - 1} in worker process"
+                + ("es" if n_envs > 2 else ""))
+    return " in worker processes"
+
+
+@dataclass(frozen=True)
+class _Learned:
+    """What :func:`_learn` gives back: the model, the wall time of ``learn`` [s], whether
+    Ctrl-C stopped it, and the training episodes finished."""
+
+    model: Any
+    seconds: float
+    interrupted: bool
+    episodes: int
+
+
+def _learn(cls: type, vec: Any, params: dict[str, Any], *, seed: int, timesteps: int,
+           verbose: int, log_dir: str | os.PathLike | None, curve_callback: Any,
+           announce: Callable[[str], None] | None) -> _Learned:
+    """Build the learner on ``vec`` (DQN's gradient steps overlapped with the workers'
+    simulation where there are several envs), run SB3's ``learn`` for ``timesteps`` env
+    steps with the callbacks, keep what was learned on Ctrl-C, and close the envs."""
+    from stable_baselines3.common.logger import HumanOutputFormat, Logger, make_output_format
+    from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+
+    from tap_bench.rl.callbacks import EpisodesCounted, StepsAnnounced
 
     counted = EpisodesCounted()  # first: it counts the step a Ctrl-C then interrupts
-    learner_env, learn_callbacks = vec, [counted, *callbacks]
+    callbacks = [counted, *([curve_callback] if curve_callback is not None else [])]
     if announce is not None:
-        from tap_bench.rl.callbacks import StepsAnnounced
-
-        learn_callbacks.append(StepsAnnounced(timesteps, announce))
+        callbacks.append(StepsAnnounced(timesteps, announce))
+    learner_env = vec
     try:
-        if n_envs > 1 and issubclass(cls, OffPolicyAlgorithm):
+        if vec.num_envs > 1 and issubclass(cls, OffPolicyAlgorithm):
             # gradient steps while the workers simulate (overlap.py imports SB3)
             from tap_bench.rl.overlap import FlushPendingCallback, OverlapVecEnv, overlapping
 
             learner_env = OverlapVecEnv(vec)
             cls = overlapping(cls, learner_env)
-            learn_callbacks.insert(0, FlushPendingCallback(learner_env))
+            callbacks.insert(0, FlushPendingCallback(learner_env))
         # a copy: SB3's A2C adds its optimizer (a class) to policy_kwargs in place, which
         # would change the defaults and the definition's record
         model = cls("MlpPolicy", learner_env, seed=seed, verbose=verbose, device="cpu",
@@ -535,12 +619,8 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
         model.set_logger(Logger(str(log_dir) if log_dir else None, outputs))
         start = time.perf_counter()
         interrupted = False
-        say(f"training {algo.upper()} for {timesteps} steps"
-            + (f", {curve.points} learning-curve evaluations on the way" if curve else "")
-            + " ...")
         try:
-            model.learn(total_timesteps=timesteps, callback=learn_callbacks or None,
-                        progress_bar=False)
+            model.learn(total_timesteps=timesteps, callback=callbacks, progress_bar=False)
         except KeyboardInterrupt:
             # Ctrl-C: keep what was learned. The workers may be half-way through a reply,
             # so they are stopped rather than asked to close.
@@ -559,21 +639,18 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
             len(r) for r in vec.env_method("get_episode_rewards"))
     finally:
         vec.close()
-    if interrupted and callbacks:
-        callbacks[0].on_training_end()  # the last point of the curve
-    eval_seconds = sum(callbacks[0].eval_seconds) if callbacks else 0.0
+    return _Learned(model, seconds, interrupted, int(episodes))
 
-    trained = int(model.num_timesteps)
-    say(f"trained {trained} steps ({seconds:.0f} s, learning-curve evaluations "
-        f"{eval_seconds:.0f} s of it); saving the model ...")
-    kept = callbacks[0].best if keep == "best" else None
-    if kept is not None:
-        model.policy.load_state_dict(callbacks[0].best_weights)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(output) as tmp, open(tmp, "wb") as handle:
-        model.save(handle)
-    definition = output.with_suffix(".json")
-    doc = {
+
+def _definition(output: Path, *, algo: str, scenario: Scenario | WomdScenes,
+                observation: dict[str, Any], trained: int, asked: int, interrupted: bool,
+                kept: dict[str, Any] | None, n_envs: int, fast: bool, seed: int,
+                params: dict[str, Any], curve: CurveConfig | None, train_seconds: float,
+                command: str | None) -> dict[str, Any]:
+    """The policy definition written beside the model (kind ``sb3``): what was trained,
+    how, and the command; ``trained`` env steps of the ``asked`` ones, ``train_seconds``
+    the wall time of the training without the curve's evaluations [s]."""
+    return {
         "name": output.stem,
         "kind": "sb3",
         "description": f"{algo.upper()} trained on {scenario.env_id} for {trained} steps "
@@ -588,7 +665,7 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
                if isinstance(scenario, WomdScenes) else {}),
             "observation": observation,
             "timesteps": trained,
-            **({"interrupted_of": timesteps} if interrupted else {}),
+            **({"interrupted_of": asked} if interrupted else {}),
             **({"kept": "best", "kept_timesteps": int(kept["timesteps"]),
                 "kept_eval_return": round(float(kept["return_mean"]), 3),
                 "kept_eval_crash_rate": float(kept["crash_rate"])}
@@ -600,27 +677,24 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
             "curve": None if curve is None else {
                 "points": curve.points, "seeds": curve.seeds,
                 "reference": str(curve.reference), "level": curve.level},
-            "train_seconds": round(seconds - eval_seconds, 1),
+            "train_seconds": round(train_seconds, 1),
             "command": command or " ".join(shlex.quote(a) for a in sys.argv),
         },
     }
-    with atomic_path(definition) as tmp:
-        tmp.write_text(json.dumps(doc, indent=2, default=_json_record) + "\n")
-    result = TrainingResult(model_path=output, definition_path=definition,
-                            timesteps=trained, seconds=seconds,
-                            train_seconds=seconds - eval_seconds, episodes=int(episodes),
-                            kept_timesteps=None if kept is None else int(kept["timesteps"]))
-    if callbacks:
-        table = callbacks[0].curve
-        stem = output.with_suffix("")
-        curve_path = write_table(table, f"{stem}.curve.csv")
-        plot_path = plot_curve(table, f"{stem}.curve.png", kept=result.kept_timesteps,
-                               title=f"{output.stem}: {algo.upper()} on {scenario.env_id}, "
-                                     f"evaluated on seeds {curve.seeds}; coverage of "
-                                     f"{callbacks[0].reference.description}")
-        result = dataclasses.replace(result, curve=table, curve_path=curve_path,
-                                     plot_path=plot_path)
-    return result
+
+
+def _write_curve(result: TrainingResult, curve_callback: Any, *, algo: str,
+                 scenario: Scenario, seeds: Any) -> TrainingResult:
+    """Write the learning curve's table and plot beside the model; ``result`` with them."""
+    table = curve_callback.curve
+    output = result.model_path
+    stem = output.with_suffix("")
+    curve_path = write_table(table, f"{stem}.curve.csv")
+    plot_path = plot_curve(table, f"{stem}.curve.png", kept=result.kept_timesteps,
+                           title=f"{output.stem}: {algo.upper()} on {scenario.env_id}, "
+                                 f"evaluated on seeds {seeds}; coverage of "
+                                 f"{curve_callback.reference.description}")
+    return dataclasses.replace(result, curve=table, curve_path=curve_path, plot_path=plot_path)
 
 
 def _json_record(value: Any) -> Any:

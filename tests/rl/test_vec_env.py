@@ -1,5 +1,6 @@
 """SharedVecEnv: env 0 stepped in the training process, the others in workers, answering
-every VecEnv call as Stable-Baselines3's SubprocVecEnv does."""
+every VecEnv call as Stable-Baselines3's SubprocVecEnv (and DummyVecEnv) do for the same
+seeds, within a tolerance of 1e-9 on floats."""
 
 from __future__ import annotations
 
@@ -10,14 +11,14 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from stable_baselines3.common.vec_env import SubprocVecEnv
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
 from tap_bench.rl import vec_env as shared
 from tap_bench.rl.training import _make_training_env
 from tap_bench.sim.scenario_env import get_scenario
 
 
-def _envs(n_envs: int, one_here: bool, scenario: str = "highway") -> SubprocVecEnv:
+def _envs(n_envs: int, one_here: bool, scenario: str = "highway") -> VecEnv:
     make = functools.partial(_make_training_env, get_scenario(scenario), True)
     worker = functools.partial(_make_training_env, get_scenario(scenario), True, worker=True)
     return shared.training_vec_env(make, worker, n_envs, one_here=one_here)
@@ -33,7 +34,7 @@ def _reset_info(info: dict) -> dict:
     return out
 
 
-def _run(vec: SubprocVecEnv, steps: int, seed: int,
+def _run(vec: VecEnv, steps: int, seed: int,
          options: dict | None = None) -> list:
     """Everything the learner sees of ``steps`` steps with drawn actions, then of the other
     VecEnv calls (a reset with ``options``: default one vehicle fewer on highway)."""
@@ -42,6 +43,7 @@ def _run(vec: SubprocVecEnv, steps: int, seed: int,
     seen = [vec.reset(), [_reset_info(info) for info in vec.reset_infos]]
     for _ in range(steps):
         obs, rewards, dones, infos = vec.step(rng.integers(0, vec.action_space.n, vec.num_envs))
+        infos = list(infos)  # the VecEnv contract's list (SubprocVecEnv gives a tuple)
         for info in infos:  # Monitor's episode summary: all but its wall clock ("t")
             if "episode" in info:
                 info["episode"] = {k: v for k, v in info["episode"].items() if k != "t"}
@@ -72,24 +74,39 @@ def _run(vec: SubprocVecEnv, steps: int, seed: int,
     return seen
 
 
-def _same(a, b) -> bool:
+def _same(a, b, *, types: bool = True, atol: float = 1e-9) -> bool:
+    """``a`` and ``b`` hold the same values: the same structure and keys, floats within
+    ``atol``, and (``types``) the same types and dtypes."""
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
-        return (type(a) is type(b) and a.dtype == b.dtype
-                and np.array_equal(a, b, equal_nan=True))
+        a_arr, b_arr = np.asarray(a), np.asarray(b)
+        if types and (type(a) is not type(b) or a_arr.dtype != b_arr.dtype):
+            return False
+        if a_arr.shape != b_arr.shape:
+            return False
+        if a_arr.dtype.kind in "fc" or b_arr.dtype.kind in "fc":
+            return bool(np.allclose(a_arr, b_arr, rtol=0, atol=atol, equal_nan=True))
+        return bool(np.array_equal(a_arr, b_arr))
     if isinstance(a, dict):
         return (isinstance(b, dict) and list(a) == list(b)
-                and all(_same(a[k], b[k]) for k in a))
+                and all(_same(a[k], b[k], types=types, atol=atol) for k in a))
     if isinstance(a, (list, tuple)):
-        return (type(a) is type(b) and len(a) == len(b)
-                and all(_same(x, y) for x, y in zip(a, b, strict=True)))
-    return type(a) is type(b) and (a == b or (a != a and b != b))
+        return ((type(a) is type(b) or (not types and isinstance(b, (list, tuple))))
+                and len(a) == len(b)
+                and all(_same(x, y, types=types, atol=atol) for x, y in zip(a, b, strict=True)))
+    if isinstance(a, float) or isinstance(b, float):
+        numbers = (float, int, np.floating)
+        return (isinstance(a, numbers) and isinstance(b, numbers)
+                and (not types or type(a) is type(b))
+                and (abs(a - b) <= atol or (a != a and b != b)))
+    return (not types or type(a) is type(b)) and (a == b or (a != a and b != b))
 
 
 @pytest.mark.parametrize("n_envs", [2, 3])
 def test_every_call_is_answered_as_by_worker_processes(n_envs, write_scenario):
     """Observations, rewards, dones, infos (terminal observations, Monitor's episodes),
     reset infos (after the resets and after every step), attributes and method calls, over
-    70 steps with episode ends, by crashes and by the time limit (8 decisions)."""
+    70 steps with episode ends, by crashes and by the time limit (8 decisions): the same as
+    SB3's SubprocVecEnv's."""
     short = str(write_scenario("short", duration=8))
     results = []
     for one_here in (False, True):
@@ -109,9 +126,25 @@ def test_every_call_is_answered_as_by_worker_processes(n_envs, write_scenario):
     assert True in ends and False in ends  # episodes ended by the time limit and by crashes
 
 
+def test_the_envs_step_as_in_sb3s_dummy_vec_env(write_scenario):
+    """The same values as SB3's DummyVecEnv (all envs in this process) for the same seeds:
+    DummyVecEnv's rewards are float32 (rounded: within 1e-6) and its observations copies in
+    its own buffers, so values are compared, not types."""
+    short = str(write_scenario("short", duration=8))
+    make = functools.partial(_make_training_env, get_scenario(short), True)
+    results = []
+    for vec in (DummyVecEnv([make] * 2), _envs(2, True, short)):
+        try:
+            results.append(_run(vec, 40, seed=5)[:42])  # the steps and resets
+        finally:
+            vec.close()
+    assert _same(*results, types=False, atol=1e-6)
+
+
 def test_env_0_answers_with_copies_and_closes_with_the_others():
+    """env 0 gets and gives copies, as a worker through its pipe: the learner's arrays and
+    objects are never the env's."""
     vec = _envs(2, True)
-    local = vec.remotes[0]
     vec.reset()
     actions = np.array([1, 1])
     vec.step_async(actions)
@@ -119,16 +152,14 @@ def test_env_0_answers_with_copies_and_closes_with_the_others():
     *_, infos = vec.step_wait()
     assert [info["action"] for info in infos] == [1, 1]
     note = {"sent": 1}
-    local.send(("set_attr", ("tap_note", note)))
-    note["sent"] = 2  # the sender keeps its object; the env got a copy, as through a pipe
-    local.recv()
-    assert local.env.get_wrapper_attr("tap_note") == {"sent": 1}
-    local.send(("get_attr", "config"))  # and the answer is a copy too
-    config = local.recv()
-    assert config == local.env.get_wrapper_attr("config")
-    assert config is not local.env.get_wrapper_attr("config")
+    vec.set_attr("tap_note", note, indices=[0])
+    note["sent"] = 2  # the sender keeps its object; the env got a copy
+    assert vec.local.env.get_wrapper_attr("tap_note") == {"sent": 1}
+    config = vec.get_attr("config", indices=[0])[0]  # and the answer is a copy too
+    assert config == vec.local.env.get_wrapper_attr("config")
+    assert config is not vec.local.env.get_wrapper_attr("config")
     closed = []
-    local.env.close = lambda: closed.append(True)
+    vec.local.env.close = lambda: closed.append(True)
     vec.step_async(np.array([1, 1]))  # closed while waiting for a step: still closes
     vec.close()
     assert closed == [True]
@@ -159,83 +190,66 @@ def test_a_failing_env_0_stops_the_workers_and_raises(monkeypatch):
     assert len(started) == 1 and not started[0].is_alive()
 
 
-def test_another_sb3_worker_loop_falls_back_to_worker_processes(tmp_path, write_scenario):
-    """Where the installed Stable-Baselines3's ``_worker`` is not the code repeated for env
-    0, every env runs in a worker, and the start line says why."""
-    from tap_bench.rl.training import train
+def _unbuildable() -> None:
+    raise RuntimeError("no such map")
 
-    digests = shared._WORKER_CODE
-    shared._WORKER_CODE = {"_worker": "0" * 16}
-    shared.shared_envs_supported.cache_clear()
+
+def test_a_worker_whose_env_cannot_be_built_raises_its_error_here():
+    """The worker's error, with its traceback as a note, at construction (not an EOFError
+    at the first step); the other workers end."""
+    make = functools.partial(_make_training_env, get_scenario("highway"), True)
+    worker = functools.partial(_make_training_env, get_scenario("highway"), True, worker=True)
+    with pytest.raises(RuntimeError, match="no such map") as caught:
+        shared.SharedVecEnv(make, [worker, _unbuildable], start_method="forkserver")
+    assert any("worker 2" in note for note in getattr(caught.value, "__notes__", ["worker 2"]))
+
+
+def test_a_workers_error_is_raised_here_and_the_envs_answer_on():
+    """A request a worker's env fails (an attribute it lacks) raises that error here, after
+    every reply is read: the next requests are answered in step."""
+    vec = _envs(3, True)
     try:
-        assert not shared.shared_envs_supported()
-        vec = _envs(2, True)
-        try:
-            assert type(vec) is SubprocVecEnv
-        finally:
-            vec.close()
-        lines = []
-        train("dqn", write_scenario("short", duration=5), timesteps=20, seed=0, n_envs=2,
-              in_process="one", hyperparameters={"learning_starts": 10},
-              output=tmp_path / "m.zip", announce=lines.append)
-        starting = next(line for line in lines if "training env(s)" in line)
-        assert "in worker processes" in starting
-        assert "worker loop (SubprocVecEnv, _worker) is not" in starting
-        lines = []  # one env runs in this process whatever in_process says: no reason given
-        train("dqn", write_scenario("short", duration=5), timesteps=20, seed=0, n_envs=1,
-              in_process="one", hyperparameters={"learning_starts": 10},
-              output=tmp_path / "m1.zip", announce=lines.append)
-        starting = next(line for line in lines if "training env(s)" in line)
-        assert starting == "starting 1 training env(s) of tap_bench/short-v0 (fast variant) ..."
+        vec.reset()
+        vec.set_attr("tap_note", "set", indices=[0, 1])
+        with pytest.raises(AttributeError, match="tap_note") as caught:
+            vec.get_attr("tap_note")
+        notes = getattr(caught.value, "__notes__", None)
+        assert notes is None or any("worker 2" in note for note in notes)
+        assert vec.get_attr("tap_note", indices=[0, 1]) == ["set", "set"]
+        obs, rewards, dones, infos = vec.step(np.array([1, 1, 1]))
+        assert obs.shape[0] == rewards.shape[0] == dones.shape[0] == len(infos) == 3
     finally:
-        shared._WORKER_CODE = digests
-        shared.shared_envs_supported.cache_clear()
-    assert shared.shared_envs_supported()
-
-
-def test_the_subprocvecenv_it_restates_is_checked_too(monkeypatch):
-    """SharedVecEnv re-states SubprocVecEnv's ``__init__`` and ``close`` and uses its other
-    methods with env 0's end of a pipe: another SB3 whose ``_worker`` is unchanged but whose
-    SubprocVecEnv differs falls back to worker processes as well."""
-    assert set(shared._WORKER_CODE) == {"_worker", "SubprocVecEnv"}
-    monkeypatch.setattr(shared, "_WORKER_CODE", {**shared._WORKER_CODE, "SubprocVecEnv": "0" * 16})
-    shared.shared_envs_supported.cache_clear()
-    try:
-        assert not shared.shared_envs_supported()
-    finally:
-        monkeypatch.undo()
-        shared.shared_envs_supported.cache_clear()
-    assert shared.shared_envs_supported()
+        vec.close()
+    assert not any(p.is_alive() for p in vec.processes)
 
 
 def test_env_0_failing_to_close_still_closes_the_workers():
     """An env 0 whose ``close`` raises (as one left broken by an error mid-step may): the
-    error reaches the caller, and the workers are closed and ended all the same, as
-    SubprocVecEnv's workers end whatever their env's ``close`` does."""
+    error reaches the caller, and the workers are closed and ended all the same."""
     vec = _envs(3, True)
     vec.reset()
 
     def broken() -> None:
         raise RuntimeError("env 0 cannot close")
 
-    vec.remotes[0].env.close = broken
+    vec.local.env.close = broken
     with pytest.raises(RuntimeError, match="env 0 cannot close"):
         vec.close()
     for process in vec.processes:
         process.join(10)
     assert not any(process.is_alive() for process in vec.processes)
-    assert all(remote.closed for remote in vec.remotes[1:]) and vec.closed
+    assert all(connection.closed for connection in vec.connections) and vec.closed
 
 
 def test_a_step_every_env_fails_raises_the_envs_error_and_close_still_closes():
-    """An action no env knows: env 0's error reaches the learner; the workers died of the
-    same error, and close reads no reply from them, closes env 0 and raises nothing, so
-    that the env's error stays the one the caller sees (it was an EOFError from close)."""
+    """An action no env knows: env 0's error reaches the learner; close reads the workers'
+    replies (their envs' errors), closes env 0 and raises nothing, so that the env's error
+    stays the one the caller sees."""
     vec = _envs(3, True)
     vec.reset()
     closed = []
-    close = vec.remotes[0].env.close
-    vec.remotes[0].env.close = lambda: (closed.append(True), close())
+    close = vec.local.env.close
+    vec.local.env.close = lambda: (closed.append(True), close())
     vec.step_async(np.array([99, 99, 99]))
     with pytest.raises(KeyError):
         vec.step_wait()
@@ -261,3 +275,13 @@ def test_other_scenarios_and_seeds_are_answered_as_by_worker_processes(scenario,
         finally:
             vec.close()
     assert _same(*results)
+
+
+def test_the_module_restates_no_sb3_worker_loop():
+    """tap-bench's own VecEnv: no request loop of SB3's (``remote.recv()`` / ``send`` per
+    command) nor a digest of SB3's source in the module."""
+    import inspect
+
+    source = inspect.getsource(shared)
+    assert "subproc_vec_env._worker" not in source and "sources_match" not in source
+    assert "_WORKER_CODE" not in source
