@@ -18,7 +18,16 @@ probability a window's label is one the data set's reference never shows). The t
 difference is the mean of the estimate over 2000 fresh data sets
 (:func:`tap_bench.bench.null.same_policy_null`'s estimand: the difference at half sizes).
 Each replication runs the null with 1000 draws and records whether each interval method
-holds the truth. Prints a Markdown table (docs/benchmark.md) and writes
+holds the truth.
+
+"scenes" cases (``--only scenes``): the reference is a corpus like WOMD's vehicles, N
+trajectories in S scenes of equal size, each scene drawing its own label probabilities
+from Dirichlet(kappa p) around the population's (scene random effects); the policy's 30
+episodes are independent (each its own scene: marginally p, "same"; or the "different"
+mixture). Each is run with the reference's scenes known (``Reference.scenes``: the null
+splits and resamples whole scenes) and without them (trajectories split and resampled one
+by one, as before); each against its own estimand (the mean of its estimate over fresh
+data sets, ``--truth`` of them). Prints a Markdown table (docs/benchmark.md) and writes
 benchmarks/out/null_coverage.json.
 """
 
@@ -61,15 +70,31 @@ def _labels(p: np.ndarray, n: int, rng: np.random.Generator, unit: str) -> np.nd
     return np.array(out, object)
 
 
-def _reference(units: np.ndarray, unit: str, paired: bool) -> Reference:
+def _reference(units: np.ndarray, unit: str, paired: bool,
+               scenes: np.ndarray | None = None) -> Reference:
     kind = "segments" if unit == "segments" else "corpus"
     return Reference(np.zeros(0, object), np.zeros(0), kind, "maneuver", "synthetic",
                      n_trajectories=len(units), units=units,
-                     seeds=np.arange(len(units)) if paired else None)
+                     seeds=np.arange(len(units)) if paired else None, scenes=scenes)
+
+
+def _scene_of(case: dict) -> np.ndarray | None:
+    """(N,) the scene of each reference trajectory of a "scenes" case (equal scenes)."""
+    if not case.get("scenes"):
+        return None
+    return np.arange(case["N"]) // (case["N"] // case["scenes"])
 
 
 def _sample(case: dict, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    ref = _labels(case["p_ref"], case["N"], rng, case["unit"])
+    if case.get("scenes"):  # scene random effects: each scene its own probabilities
+        scene = _scene_of(case)
+        probs = rng.dirichlet(case["kappa"] * case["p_ref"], case["scenes"])
+        cum = probs.cumsum(axis=1)[scene]
+        pick = np.minimum((rng.random(len(scene))[:, None] > cum).sum(axis=1),
+                          len(case["p_ref"]) - 1)
+        ref = np.array([f"L{i:02d} | X" for i in pick], object)
+    else:
+        ref = _labels(case["p_ref"], case["N"], rng, case["unit"])
     pol = _labels(case["p_pol"], case["n"], rng, case["unit"])
     if case.get("windows"):  # each episode's windows repeat its label with prob. `rho`
         w = case["windows"]
@@ -82,7 +107,8 @@ def _sample(case: dict, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarra
 
 
 def _estimate(ref, pol, case, rng, draws: int, splits: int = null.SPLITS):
-    reference = _reference(ref, case["unit"], case["paired"])
+    reference = _reference(ref, case["unit"], case["paired"],
+                           _scene_of(case) if case.get("by_scene") else None)
     seeds = np.arange(len(pol)) if case["paired"] else None
     clusters = window_episode(_episodes(case)) if case.get("by_episode") else None
     return null.same_policy_null(pol, reference, seeds=seeds, rng=rng, splits=splits,
@@ -127,8 +153,8 @@ def main() -> None:
     parser.add_argument("--replications", type=int, default=300)
     parser.add_argument("--truth", type=int, default=2000, help="data sets for the truth")
     parser.add_argument("--method", default=null.METHOD, choices=("recentred", "shrunk"))
-    parser.add_argument("--only", choices=("all", "windows"), default="all",
-                        help="run every case, or only the windows cases")
+    parser.add_argument("--only", choices=("all", "windows", "scenes"), default="all",
+                        help="run every case, or only the windows or the scenes cases")
     args = parser.parse_args()
     null.METHOD = args.method
     cases = []
@@ -147,7 +173,14 @@ def main() -> None:
                 "paired": False, "p_ref": same, "p_pol": 0.5 * same + 0.5 * other,
                 "repeat": 0.0, "windows": 3, "rho": 0.8, "by_episode": how == "by episode"}
                for N in (30, 100) for how in ("by episode", "as independent")]
-    cases = windows if args.only == "windows" else cases + windows
+    scene_cases = [{"unit": "episodes", "name": f"{S} scenes, {what}, {how}", "N": N,
+                    "n": 30, "paired": False, "p_ref": same, "p_pol": p_pol, "repeat": 0.0,
+                    "scenes": S, "kappa": 2.0, "by_scene": how == "by scene"}
+                   for N, S in ((300, 10), (600, 40))
+                   for what, p_pol in (("same", same), ("different",
+                                                        0.5 * same + 0.5 * other))
+                   for how in ("by scene", "by trajectory")]
+    cases = {"windows": windows, "scenes": scene_cases}.get(args.only, cases + windows)
     rng = np.random.default_rng(25)
     rows = []
     start, cpu = time.perf_counter(), time.process_time()
@@ -188,7 +221,7 @@ def main() -> None:
             print(f"{r['case']}, reference N {r['reference']}: the novel rate's Wilson "
                   "interval holds it "
                   f"{r['novel_rate_hits']:.2f}, width {r['novel_rate_width']:.2f}")
-    report(f"null_coverage_{args.method}" + ("_windows" if args.only == "windows" else ""), {
+    report(f"null_coverage_{args.method}" + ("" if args.only == "all" else f"_{args.only}"), {
         "method": args.method, "replications": args.replications, "rows": rows,
         "wall_s": round(time.perf_counter() - start, 1),
         "cpu_s": round(time.process_time() - cpu, 1)}, seed=25)

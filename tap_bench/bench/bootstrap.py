@@ -211,17 +211,22 @@ def cluster_indices(rng: np.random.Generator, clusters, draws: int, m: int) -> n
     import numpy as np
 
     inverse, c = _cluster_codes(clusters)
-    members = [np.flatnonzero(inverse == j) for j in range(c)]
-    sizes = np.array([len(x) for x in members])
     if c == 0 or m <= 0:
         raise ParameterError("clusters", len(inverse), "at least one unit and m > 0")
+    order = np.argsort(inverse, kind="stable")  # the members of cluster 0, then 1, ...
+    sizes = np.bincount(inverse, minlength=c)
+    starts = np.cumsum(sizes) - sizes
     if (sizes == sizes[0]).all():  # equal clusters (episodes of one length): at once
         pick = rng.integers(0, c, (draws, -(-m // int(sizes[0]))))
-        return np.stack(members)[pick].reshape(draws, -1)[:, :m]
+        return order.reshape(c, -1)[pick].reshape(draws, -1)[:, :m]
     out = np.empty((draws, m), int)
     per = -(-m // int(sizes.min()))
     for d in range(draws):
-        out[d] = np.concatenate([members[j] for j in rng.integers(0, c, per)])[:m]
+        pick = rng.integers(0, c, per)
+        pick = pick[:int(np.searchsorted(np.cumsum(sizes[pick]), m)) + 1]  # enough for m
+        lens = sizes[pick]
+        within = np.arange(lens.sum()) - np.repeat(np.cumsum(lens) - lens, lens)
+        out[d] = order[np.repeat(starts[pick], lens) + within][:m]
     return out
 
 

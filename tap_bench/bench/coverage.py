@@ -69,7 +69,7 @@ import numpy as np
 import pandas as pd
 
 from tap_bench import sdl
-from tap_bench.bench.bootstrap import BootstrapConfig
+from tap_bench.bench.bootstrap import BootstrapConfig, scene_clusters
 from tap_bench.bench.diversity import (
     distinct_variance,
     estimated_population,
@@ -113,6 +113,10 @@ class Reference:
         seeds: (n_trajectories,) each trajectory's seed when the corpus is rollouts (the
             null then pairs a policy's episodes with the reference's by seed), else None.
         axes: the axes a label is made of.
+        scenes: (n_trajectories,) each trajectory's scene (its independent unit,
+            :func:`tap_bench.bench.bootstrap.scene_clusters`) when some scene holds more
+            than one (WOMD vehicles): the null splits and resamples whole scenes. None:
+            every trajectory its own.
     """
 
     items: np.ndarray
@@ -124,6 +128,7 @@ class Reference:
     units: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0, object))
     seeds: np.ndarray | None = field(repr=False, default=None)
     axes: tuple[str, ...] = sdl.AXES
+    scenes: np.ndarray | None = field(repr=False, default=None)
 
     def __len__(self) -> int:
         return len(self.items)
@@ -218,6 +223,8 @@ def corpus_reference(labels: pd.DataFrame, level: str, *, tracks: str = "vehicle
         raise LabelTableError(f"{name}: no {tracks} labels at level {level!r}; label it at "
                               f"that level (--level {level} or all).")
     seeds = table["seed"].to_numpy()[has] if "seed" in table.columns else None
+    scenes = scene_clusters(table)[has]
+    scenes = scenes if len(set(scenes)) < len(scenes) else None  # one scene, many tracks
     whose = {"all": "trajectories (every track)", "ego": "ego trajectories",
              "vehicles": "vehicle trajectories"}[tracks]
     if unit == "segments":
@@ -227,12 +234,12 @@ def corpus_reference(labels: pd.DataFrame, level: str, *, tracks: str = "vehicle
                          f"{name}: {len(items)} distinct {level} segment labels of "
                          f"{len(segs)} segments of {len(lab)} {whose}",
                          n_trajectories=len(lab), units=lab.astype(object), seeds=seeds,
-                         axes=axes)
+                         axes=axes, scenes=scenes)
     items, counts = np.unique(lab, return_counts=True)
     return Reference(items.astype(object), counts / counts.sum(), "corpus", level,
                      f"{name}: {len(items)} distinct {level} labels of {len(lab)} {whose}",
                      n_trajectories=len(lab), units=lab.astype(object), seeds=seeds,
-                     axes=axes)
+                     axes=axes, scenes=scenes)
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,10 @@ For a policy (its egos) and a reference corpus of real driving (e.g. WOMD vehicl
 **share** of each single label among all label occurrences is compared:
 
 - per label: ``share_policy - share_reference`` (what the policy does more or less often
-  than people), with a percentile bootstrap interval;
+  than people), with a percentile bootstrap interval whose draws are read at Student's t
+  with G - 1 degrees of freedom (G the units of the side with fewer: the draws scaled
+  about the estimate by ``t_{G-1} / z``, 1.21 at 8 units, 1.07 at 20), the small-sample
+  critical value of a mean over few clusters;
 - one number, the **gap**: the total variation distance between the two share
   distributions, ``0.5 * sum |difference|`` in [0, 1] (the share of behaviour one would have
   to change to make the policy drive like the reference), with its bootstrap interval.
@@ -63,6 +66,7 @@ from tap_bench.bench.bootstrap import (
     few_clusters_note,
     scene_clusters,
 )
+from tap_bench.bench.intervals import t_quantile, z_value
 from tap_bench.errors import FewClustersWarning, LabelTableError, ParameterError
 from tap_bench.kinematics import compute_kinematics
 from tap_bench.labelling import tap
@@ -343,7 +347,11 @@ def behaviour_gap(policy: pd.DataFrame, reference: pd.DataFrame, *, name: str = 
     g_lo, g_hi = _percentile(boot_gap[:, None], config.level)
     same = float(np.quantile(null_gap, (1 + config.level) / 2)) if B else float("nan")
     debiased, d_low, d_high = debias(gap, boot_gap, config.level, same=same)
-    d_lo, d_hi = _percentile(diff_boot, config.level)
+    # per label: a smooth statistic with few units, so the draws' spread is read at
+    # Student's t with G - 1 degrees of freedom (G: the side with fewer units)
+    widen = _t_over_z(min(g_p, g_r), config.level)
+    diff = share_p - share_r
+    d_lo, d_hi = _percentile(diff + widen * (diff_boot - diff), config.level)
     floor = float(null_gap.mean())
     shown = (count_p + count_r) > 0
     table = pd.DataFrame({
@@ -357,6 +365,15 @@ def behaviour_gap(policy: pd.DataFrame, reference: pd.DataFrame, *, name: str = 
                      floor=floor, n_policy=len(pol), n_reference=len(ref), labels=table,
                      reference=described, gap_debiased=debiased, debiased_low=d_low,
                      debiased_high=d_high, n_policy_units=g_p, n_reference_units=g_r)
+
+
+def _t_over_z(units: int, level: float) -> float:
+    """Student's t quantile with ``units - 1`` degrees of freedom over the normal one, at
+    ``level`` (1.21 for 8 units, 1.07 for 20, 1.0 for many): how much wider a percentile
+    interval of a mean over few clusters has to be read (NaN with fewer than 2)."""
+    if units < 2:
+        return float("nan")
+    return t_quantile(0.5 + level / 2, units - 1) / z_value(level)
 
 
 def _unit_name(table: pd.DataFrame, column: str | None, what: str) -> str:

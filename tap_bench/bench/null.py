@@ -24,7 +24,12 @@ splits.
 **Interval.** The difference's interval is a bootstrap: each draw splits the reference at
 random, resamples each half with replacement (and the policy's episodes with the probe
 half, by seed when paired, else on their own: by whole episodes when they are windows cut
-from episodes, a cluster bootstrap) and recomputes the difference. Resampling
+from episodes, a cluster bootstrap) and recomputes the difference. A corpus of several
+trajectories a scene (WOMD vehicles: ``Reference.scenes``) is not resampled trajectory by
+trajectory: the vehicles of one scene share its place and traffic, and another corpus
+would hold other scenes. Each draw then builds its corpus from whole scenes drawn with
+replacement (as many trajectories as the reference has, the last scene cut) and splits
+that at random, so the draws carry the spread between scenes. Resampling
 repeats trajectories, which lowers the distinct labels a draw can show, so the draws are
 re-centred on the estimate (``estimate + draw - mean(draws)``). One draw is one split,
 while the estimate averages many, so the draws' spread holds the split-to-split spread
@@ -178,16 +183,23 @@ def _figures(ref: np.ndarray, probe: np.ndarray, probe_idx: np.ndarray,
 
 
 def _draws(ref: np.ndarray, agent: np.ndarray, paired: bool, m: int, D: int,
-           rng: np.random.Generator, resample: bool, clusters: np.ndarray | None = None
-           ) -> np.ndarray:
+           rng: np.random.Generator, resample: bool, clusters: np.ndarray | None = None,
+           scenes: np.ndarray | None = None) -> np.ndarray:
     """(D, 6): per draw, policy coverage, same-policy coverage, policy novel share,
     same-policy novel share, and the two differences. ``clusters`` (n,): the policy's
-    units resampled by whole clusters (windows of one episode), unpaired only."""
+    units resampled by whole clusters (windows of one episode), unpaired only. ``scenes``
+    (N,): the reference's scenes; a resampled draw then builds its corpus from whole
+    scenes drawn with replacement (N trajectories, the last scene cut) before splitting
+    it, where without them each half is resampled trajectory by trajectory."""
     N, n = len(ref), len(agent)
     half = N // 2
     perm = np.argsort(rng.random((D, N)), axis=1)
     r_idx, p_idx = perm[:, :half], perm[:, half:half + m]
-    if resample:
+    if resample and scenes is not None:  # a corpus of whole scenes, split as the data is
+        corpus = cluster_indices(rng, scenes, D, N)
+        r_idx = np.take_along_axis(corpus, r_idx, axis=1)
+        p_idx = np.take_along_axis(corpus, p_idx, axis=1)
+    elif resample:
         r_idx = np.take_along_axis(r_idx, rng.integers(0, half, (D, half)), axis=1)
         p_idx = np.take_along_axis(p_idx, rng.integers(0, m, (D, m)), axis=1)
     if paired:
@@ -252,6 +264,9 @@ def same_policy_null(labels: np.ndarray, reference: Reference, *,
             paired = False
     if len(units) < 4 or not len(lab):
         return _nan_result(paired)
+    # a corpus of several trajectories a scene (WOMD vehicles): the bootstrap draws whole
+    # scenes (rollouts paired by seed: the seeds)
+    scenes = None if paired or reference.scenes is None else np.asarray(reference.scenes)
     items = sorted({x for row in ([(u,) for u in np.r_[units, lab]]
                                   if reference.kind != "segments"
                                   else unit_items(np.r_[units, lab], reference.axes))
@@ -265,7 +280,7 @@ def same_policy_null(labels: np.ndarray, reference: Reference, *,
     per_split = _draws(ref, agent, paired, m, splits, rng, resample=False)
     point = per_split.mean(axis=0)
     boot = _draws(ref, agent, paired, m, config.n_resamples, rng, resample=True,
-                  clusters=None if paired else clusters)[:, 4:6]
+                  clusters=None if paired else clusters, scenes=scenes)[:, 4:6]
     centre = boot.mean(axis=0)
     if METHOD == "shrunk":  # one split's own spread is not the estimate's: take it out
         v_boot, v_split = boot.var(axis=0), per_split[:, 4:6].var(axis=0)

@@ -239,8 +239,9 @@ def test_each_side_draws_its_own_scenes_by_hand():
     # policy: scene p0 all A, scene p1 all B (10 vehicles each); reference: 12 scenes all A.
     # The reference cannot move; each draw takes exactly 2 policy scenes: both p0 (1/4),
     # one of each (1/2) or both p1 (1/4), so the policy's Left Merge share is 0, 1/6 or
-    # 1/3, scaled about 1/6 by sqrt(2 / 1): the percentile interval of its difference is
-    # [(1 - sqrt 2) / 6, (1 + sqrt 2) / 6]. The floor (two samples of one behaviour): a
+    # 1/3, scaled about 1/6 by sqrt(2 / 1) and read at Student's t with 1 degree of
+    # freedom (12.706 / 1.960): the interval of its difference is 1/6 -+ k sqrt(2) / 6 with
+    # k = 12.706 / 1.960. The floor (two samples of one behaviour): a
     # draw's policy shares move by sqrt(2) / 6 on all six labels with probability 1/2,
     # a gap of sqrt(2) / 2, so the floor is sqrt(2) / 4.
     import warnings
@@ -251,8 +252,9 @@ def test_each_side_draws_its_own_scenes_by_hand():
         res = behaviour_gap(pol, ref, config=BootstrapConfig(n_resamples=4000, seed=1))
     merge = res.labels.set_index("label").loc["Left Merge"]
     assert merge["diff"] == pytest.approx(1 / 6)
-    assert merge["diff_low"] == pytest.approx((1 - np.sqrt(2)) / 6)
-    assert merge["diff_high"] == pytest.approx((1 + np.sqrt(2)) / 6)
+    k = 12.7062047 / 1.9599640
+    assert merge["diff_low"] == pytest.approx(1 / 6 - k * np.sqrt(2) / 6)
+    assert merge["diff_high"] == pytest.approx(1 / 6 + k * np.sqrt(2) / 6)
     assert res.floor == pytest.approx(np.sqrt(2) / 4, abs=0.02)
     # 2 policy episodes: the interval is flagged as resting on too few units
     from tap_bench.errors import FewClustersWarning

@@ -265,3 +265,46 @@ def test_the_shown_half_figures_always_subtract_to_the_shown_difference():
     assert seen_sum  # the drawn values reach the case rounding alone gets wrong
     assert halves_text(0.585555, 0.384444, 0.201111, 0.0134, 0.3888) == (
         "halves: policy 58.55% vs same policy 38.44%: +20.11 pts [+1.34, +38.88]")
+
+
+def test_a_corpus_of_scenes_is_resampled_by_whole_scenes():
+    # 4 scenes of 50 vehicles: two show only L0, two only L1; the policy shows L0 30 times.
+    # Split by trajectory, every half shows both labels: the policy covers half of a half,
+    # the same-policy half all of it, -0.5 in every split and every draw by trajectory
+    # (the interval is then +- the Wilson limit of 0 of 30, width 0.23). Another 4 real
+    # scenes could all be L0 scenes (difference 0) or all L1 (-1), 1 in 16 each: drawn by
+    # whole scenes the interval reaches both. The estimate (splits) is the same.
+    # (fails when the corpus is resampled trajectory by trajectory)
+    scenes = np.repeat(["s0", "s1", "s2", "s3"], 50)
+    table = pd.DataFrame({"scenario_id": scenes, "level": "maneuver",
+                          "sdl": np.repeat(["L0 | X", "L0 | X", "L1 | X", "L1 | X"], 50)})
+    ref = corpus_reference(table, "maneuver")
+    assert ref.scenes is not None and set(ref.scenes) == set(scenes)
+    alone = corpus_reference(table.assign(scenario_id=np.arange(200).astype(str)),
+                             "maneuver")
+    assert alone.scenes is None  # one trajectory a scene: nothing to keep together
+    policy = np.full(30, "L0 | X", object)
+    config = BootstrapConfig(n_resamples=1000, seed=0)
+    by_scene = same_policy_null(policy, ref, config=config)
+    by_track = same_policy_null(policy, Reference(**{**ref.__dict__, "scenes": None}),
+                                config=config)
+    assert by_scene.coverage_diff == by_track.coverage_diff == pytest.approx(-0.5)
+    _, u = wilson_interval(0, 30, 0.95)
+    assert (by_track.coverage_diff_low, by_track.coverage_diff_high) == pytest.approx(
+        (-0.5 - u, -0.5 + u))
+    assert (by_scene.coverage_diff_low, by_scene.coverage_diff_high) == pytest.approx(
+        (-1.0, 0.0), abs=0.01)  # the draws are re-centred on the estimate
+
+
+def test_cluster_indices_draw_whole_clusters_until_m():
+    from tap_bench.bench.bootstrap import cluster_indices
+
+    clusters = np.repeat(["a", "b", "c", "d"], [1, 3, 2, 5])
+    idx = cluster_indices(np.random.default_rng(0), clusters, 200, 11)
+    for row in idx:
+        names = clusters[row]
+        starts = np.flatnonzero(np.r_[True, names[1:] != names[:-1]])
+        ends = np.r_[starts[1:], len(row)]
+        for s, e in zip(starts[:-1], ends[:-1], strict=True):  # the last may be cut
+            assert sorted(row[s:e]) == list(np.flatnonzero(clusters == names[s])) or \
+                len(row[s:e]) % (clusters == names[s]).sum() == 0  # a cluster drawn twice
