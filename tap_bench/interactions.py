@@ -63,6 +63,7 @@ The parameters and the data that justify them: docs/interactions.md.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -257,74 +258,99 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
             an arc of its last curvature.
     """
     config = config or InteractionConfig()
-    idx = kin.index
-    n = len(kin.t)
-    step_no = np.rint(kin.t * HZ).astype(np.int64)
-    # per-track columns are read at each track's first row only (strings are slow per row)
-    # (taken from the input's rows, without putting the whole column in track order)
-    per_track = checked.per_track_arrays(["scenario_id", "object_type", "env"])
-    scen_of_track, _ = pd.factorize(per_track["scenario_id"], sort=False)
-    scen = scen_of_track[idx.track]
-    span = int(step_no.max() - step_no.min() + 1) if n else 1
-    key = scen.astype(np.int64) * span + (step_no - (step_no.min() if n else 0))
-    x = np.asarray(checked["x"], float)
-    y = np.asarray(checked["y"], float)
-    heading = np.asarray(checked["heading"], float)
-    speed = np.asarray(checked["speed"], float)
-    others = idx.segment >= 0
-    if "object_type" in checked:
-        # validated: each a str, lower case (a few tracks: no pandas round trip)
-        kinds = per_track["object_type"].tolist()
-        others &= np.fromiter((k in OTHER_TYPES for k in kinds), bool, len(kinds))[idx.track]
-    lanes = None
-    if map_table is not None:
-        names = pd.Series(per_track["scenario_id"]).to_numpy()
-        scenes = pd.unique(names)
-        table = pd.DataFrame({"scenario_id": names})
-        if "env" in checked:
-            table["env"] = pd.Series(per_track["env"]).to_numpy()
-        lanes = scene_lanes(table, scen_of_track, scenes, map_table)
-    paths = Paths(scene=scen.astype(np.int64), key=key, track=idx.track, x=x, y=y,
-                  heading=heading, speed=speed,
+    rows = _Rows.of(checked, kin, map_table)
+    paths = Paths(scene=rows.scene.astype(np.int64), key=rows.key, track=rows.index.track,
+                  x=rows.x, y=rows.y, heading=rows.heading, speed=rows.speed,
                   start=np.asarray(start, np.int64), stop=np.asarray(stop, np.int64))
     ego_row, ego_path = paths.ego_rows()
-    m = len(ego_row)
-    if len(lateral) != n:
-        raise TapBenchError(f"interaction_steps: {len(lateral)} lateral codes for {n} rows.")
-    if m == 0:  # no ego segment long enough to label: no relation to find
+    if len(lateral) != rows.n:
+        raise TapBenchError(f"interaction_steps: {len(lateral)} lateral codes for {rows.n} rows.")
+    if len(ego_row) == 0:  # no ego segment long enough to label: no relation to find
         none = np.zeros(0, np.int64)
         return InteractionSteps(relation=np.zeros(0, np.int8), other_row=none,
                                 other_track=none, leader_row=none, cut_in_step=none,
                                 cut_in_track=none, runs=Runs(none, none, none, none))
-    ego_lateral = lateral[ego_row]
-    v_e = speed[ego_row]
-    reach = leader_reach(v_e, config.range_m, config.range_s)
-    # what the relations need: the corridor and its edges far ahead (leaders, cut-ins and
-    # cut-outs), the next lanes near the ego (overtaking)
-    frame = path_frame(paths, others, ahead=reach, behind=1.0,
-                       lateral=config.corridor + config.approach + 0.5,
-                       near=3.0 * config.pass_length, lateral_near=config.band, lanes=lanes)
-    q_step, q_other = frame.step, frame.other
-    s, d, hrel = frame.s, frame.d, frame.heading_rel
-    track = idx.track[q_other]
-    along = np.abs(hrel) <= config.same_direction
+    scene = _EgoScene(rows, paths, ego_row, ego_path, lateral, config)
+    cut_in = scene.cut_ins()
+    cut_out = scene.cut_outs()
+    passing, passed_by = scene.passes()
+    relation, other = scene.relations(kin, a_dec, cut_in, cut_out, passing, passed_by)
+    return scene.steps(relation, other, cut_in)
 
-    # the leader: the nearest agent driving along the path in the corridor, within range
-    # (the same rule as the safety measures')
-    leader_pair = nearest_leader(frame, reach, corridor=config.corridor,
-                                 same_direction=config.same_direction)
-    has_leader = leader_pair >= 0
-    leader_row = np.full(m, -1, np.int64)  # indexed only where there is one: an ego
-    leader_row[has_leader] = q_other[leader_pair[has_leader]]  # alone has no pairs at all
 
-    # each (ego path, other track) as a time series: the pair one step before and after
-    order = np.lexsort((q_step, track, ego_path[q_step]))
-    pos_in = np.empty(len(order), np.int64)
-    pos_in[order] = np.arange(len(order))
+@dataclass(frozen=True)
+class _Rows:
+    """Per row of the trajectory table (n rows): its kinematics index, its scene (a code
+    per ``scenario_id``), its key (scene and 10 Hz step), position [m], heading [rad],
+    speed [m/s], whether it may be an ego's other agent, and the scenes' lanes (None
+    without a map)."""
 
-    def lagged(pairs: np.ndarray, lag: int) -> np.ndarray:
+    index: Any
+    n: int
+    scene: np.ndarray
+    key: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    heading: np.ndarray
+    speed: np.ndarray
+    others: np.ndarray
+    lanes: LaneMap | None
+
+    @classmethod
+    def of(cls, checked: CheckedTable, kin: Kinematics,
+           map_table: pd.DataFrame | LaneMap | None) -> _Rows:
+        """The rows of ``checked`` (kinematics ``kin``), lanes from ``map_table``."""
+        idx = kin.index
+        n = len(kin.t)
+        step_no = np.rint(kin.t * HZ).astype(np.int64)
+        # per-track columns are read at each track's first row only (strings are slow per
+        # row; taken from the input's rows, without putting the whole column in track order)
+        per_track = checked.per_track_arrays(["scenario_id", "object_type", "env"])
+        scen_of_track, _ = pd.factorize(per_track["scenario_id"], sort=False)
+        scen = scen_of_track[idx.track]
+        span = int(step_no.max() - step_no.min() + 1) if n else 1
+        key = scen.astype(np.int64) * span + (step_no - (step_no.min() if n else 0))
+        others = idx.segment >= 0
+        if "object_type" in checked:
+            # validated: each a str, lower case (a few tracks: no pandas round trip)
+            kinds = per_track["object_type"].tolist()
+            others &= np.fromiter((k in OTHER_TYPES for k in kinds), bool,
+                                  len(kinds))[idx.track]
+        lanes = None
+        if map_table is not None:
+            names = pd.Series(per_track["scenario_id"]).to_numpy()
+            scenes = pd.unique(names)
+            table = pd.DataFrame({"scenario_id": names})
+            if "env" in checked:
+                table["env"] = pd.Series(per_track["env"]).to_numpy()
+            lanes = scene_lanes(table, scen_of_track, scenes, map_table)
+        return cls(index=idx, n=n, scene=scen, key=key,
+                   x=np.asarray(checked["x"], float), y=np.asarray(checked["y"], float),
+                   heading=np.asarray(checked["heading"], float),
+                   speed=np.asarray(checked["speed"], float), others=others, lanes=lanes)
+
+
+class _PairSeries:
+    """The path frame's (ego step, other agent) pairs as time series, one per (ego path,
+    other track), in step order: the pair a few steps before or after, and whether a
+    condition holds earlier or later in the same series."""
+
+    def __init__(self, q_step: np.ndarray, track: np.ndarray, ego_path: np.ndarray) -> None:
+        self.q_step, self.track, self.ego_path = q_step, track, ego_path
+        order = np.lexsort((q_step, track, ego_path[q_step]))
+        self.order = order
+        self.pos_in = np.empty(len(order), np.int64)
+        self.pos_in[order] = np.arange(len(order))
+        series = np.r_[True, (track[order][1:] != track[order][:-1])
+                       | (ego_path[q_step[order]][1:] != ego_path[q_step[order]][:-1])]
+        self.series_start = np.maximum.accumulate(np.where(series, np.arange(len(order)), 0))
+        self.series_stop = np.minimum.accumulate(
+            np.where(np.r_[series[1:], True], np.arange(len(order)), len(order))[::-1])[::-1]
+
+    def lagged(self, pairs: np.ndarray, lag: int) -> np.ndarray:
         """The pair ``lag`` steps later (negative: earlier) in the same series, or -1."""
-        j = pos_in[pairs] + lag
+        order, track, q_step, ego_path = self.order, self.track, self.q_step, self.ego_path
+        j = self.pos_in[pairs] + lag
         ok = (j >= 0) & (j < len(order))
         out = np.full(len(pairs), -1, np.int64)
         other = order[np.clip(j, 0, max(len(order) - 1, 0))]
@@ -333,10 +359,11 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
         out[ok] = other[ok]
         return out
 
-    def lagged_all(pairs: np.ndarray, lags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def lagged_all(self, pairs: np.ndarray, lags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``lagged`` of every lag at once: (pairs, lags) arrays of the pair ``lag`` steps
         later and whether there is one (where there is not, the pair is arbitrary)."""
-        j = pos_in[pairs][:, None] + lags[None, :]
+        order, track, q_step, ego_path = self.order, self.track, self.q_step, self.ego_path
+        j = self.pos_in[pairs][:, None] + lags[None, :]
         ok = (j >= 0) & (j < len(order))
         other = order[np.clip(j, 0, len(order) - 1)]
         ok &= (track[other] == track[pairs][:, None]) \
@@ -344,196 +371,273 @@ def interaction_steps(checked: CheckedTable, kin: Kinematics, start: np.ndarray,
         ok &= ego_path[q_step[other]] == ego_path[q_step[pairs]][:, None]
         return other, ok
 
-    def reaches(pairs: np.ndarray, direction: int) -> np.ndarray:
+    def seen_before(self, cond: np.ndarray, at: np.ndarray) -> np.ndarray:
+        """cond (in series order) holds at or before position ``at`` in its series."""
+        last = np.maximum.accumulate(np.where(cond, np.arange(len(self.order)), -1))
+        return last[at] >= self.series_start[at]
+
+    def seen_after(self, cond: np.ndarray, at: np.ndarray) -> np.ndarray:
+        """cond (in series order) holds at or after position ``at`` in its series."""
+        n = len(self.order)
+        nxt = np.minimum.accumulate(np.where(cond, np.arange(n), n)[::-1])[::-1]
+        return nxt[at] <= self.series_stop[at]
+
+
+class _EgoScene:
+    """The ego paths' m steps, the other agents around them (the path frame's pairs) and
+    their leaders: the events (cut-ins, cut-outs, passes) found on them, then the relation
+    of every step (SPEC 7's rules; the module docstring)."""
+
+    def __init__(self, rows: _Rows, paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray,
+                 lateral: np.ndarray, config: InteractionConfig) -> None:
+        self.rows, self.config, self.lateral = rows, config, lateral
+        self.ego_row, self.ego_path, self.m = ego_row, ego_path, len(ego_row)
+        self.ego_lateral = lateral[ego_row]
+        self.v_e = rows.speed[ego_row]
+        reach = leader_reach(self.v_e, config.range_m, config.range_s)
+        # what the relations need: the corridor and its edges far ahead (leaders, cut-ins
+        # and cut-outs), the next lanes near the ego (overtaking)
+        frame = path_frame(paths, rows.others, ahead=reach, behind=1.0,
+                           lateral=config.corridor + config.approach + 0.5,
+                           near=3.0 * config.pass_length, lateral_near=config.band,
+                           lanes=rows.lanes)
+        self.frame = frame
+        self.q_step, self.q_other = frame.step, frame.other
+        self.s, self.d = frame.s, frame.d
+        self.track = rows.index.track[self.q_other]
+        self.along = np.abs(frame.heading_rel) <= config.same_direction
+        # the leader: the nearest agent driving along the path in the corridor, within
+        # range (the same rule as the safety measures')
+        self.leader_pair = nearest_leader(frame, reach, corridor=config.corridor,
+                                          same_direction=config.same_direction)
+        self.has_leader = self.leader_pair >= 0
+        # indexed only where there is one: an ego alone has no pairs at all
+        self.leader_row = np.full(self.m, -1, np.int64)
+        self.leader_row[self.has_leader] = self.q_other[self.leader_pair[self.has_leader]]
+        self.pairs = _PairSeries(self.q_step, self.track, ego_path)
+        self.arc = arc = frame.arc
+        # arc length of every ego step, offset per path so one searchsorted serves all paths
+        self.path_span = (float(arc.max(initial=0.0)) + 2 * float(reach.max(initial=0.0))
+                          + 10.0)
+        self.arc_global = arc + ego_path * self.path_span
+        self.path_first = np.searchsorted(ego_path, np.arange(paths.n_paths))
+        self.path_last = np.r_[self.path_first[1:], self.m] - 1
+        self.window = np.arange(-STEPS_PER_SECOND, STEPS_PER_SECOND + 1)  # the steps within 1 s
+        self.ends_steady = self._ends_steady(paths)
+
+    def _ends_steady(self, paths: Paths) -> np.ndarray:
+        """(paths,) whether the extension beyond the record's end is trusted: the path ends
+        on a steady curve (the arc then is the road) or along a lane of the map."""
+        heading, ego_row, arc = self.rows.heading, self.ego_row, self.arc
+        path_first, path_last = self.path_first, self.path_last
+        h_last = heading[ego_row[path_last]]
+        back = np.maximum(path_last - END_STEADY_STEPS, path_first)
+        mid = np.maximum(path_last - END_STEADY_STEPS // 2, path_first)
+        late = np.angle(np.exp(1j * (h_last - heading[ego_row[mid]])))
+        early = np.angle(np.exp(1j * (heading[ego_row[mid]] - heading[ego_row[back]])))
+        ends_steady = (np.abs(late - early) <= END_STEADY_RAD) \
+            & (arc[path_last] - arc[back] >= END_STEADY_DISTANCE)
+        if self.rows.lanes is not None:
+            ends_steady |= self.rows.lanes.covers(paths.scene[paths.start]) & (
+                arc[path_last] - arc[back] >= END_STEADY_DISTANCE)
+        return ends_steady
+
+    # -- tests on pairs --------------------------------------------------------------------
+    def reaches(self, pairs: np.ndarray, direction: int) -> np.ndarray:
         """Within the approach window before (-1) or after (+1): |d| >= corridor + approach."""
+        config = self.config
         lags = direction * np.arange(1, config.steps(config.approach_window) + 1)
         if not len(pairs) or not len(lags):
             return np.zeros(len(pairs), bool)
-        other, ok = lagged_all(pairs, lags)
-        return (ok & (np.abs(d[other]) >= config.corridor + config.approach)).any(axis=1)
+        other, ok = self.pairs.lagged_all(pairs, lags)
+        return (ok & (np.abs(self.d[other]) >= config.corridor + config.approach)).any(axis=1)
 
-    arc = frame.arc
-    # arc length of every ego step, offset per path so one searchsorted serves all paths
-    path_span = float(arc.max(initial=0.0)) + 2 * float(reach.max(initial=0.0)) + 10.0
-    arc_global = arc + ego_path * path_span
-    path_first = np.searchsorted(ego_path, np.arange(paths.n_paths))
-    path_last = np.r_[path_first[1:], m] - 1
-    merge_window = STEPS_PER_SECOND
-    window = np.arange(-merge_window, merge_window + 1)  # the steps within 1 s
-
-    def ego_merging(pairs: np.ndarray, side: np.ndarray) -> np.ndarray:
+    def ego_merging(self, pairs: np.ndarray, side: np.ndarray) -> np.ndarray:
         """The ego merges towards ``side`` (+1 left, -1 right) where its path meets the
         other agent of each pair (within 1 s of that point)."""
-        p = ego_path[q_step[pairs]]
-        at = np.searchsorted(arc_global, arc[q_step[pairs]] + s[pairs] + p * path_span)
+        q_step, path_first, path_last = self.q_step, self.path_first, self.path_last
+        p = self.ego_path[q_step[pairs]]
+        at = np.searchsorted(self.arc_global,
+                             self.arc[q_step[pairs]] + self.s[pairs] + p * self.path_span)
         at = np.clip(at, path_first[p], path_last[p])
         want = np.where(side > 0, sdl.LEFT_MERGE, sdl.RIGHT_MERGE)
         # every step of the window at once: (pairs, window) steps, kept on the path
-        k = np.clip(at[:, None] + window[None, :], path_first[p][:, None],
+        k = np.clip(at[:, None] + self.window[None, :], path_first[p][:, None],
                     path_last[p][:, None])
-        return (ego_lateral[k] == want[:, None]).any(axis=1)
+        return (self.ego_lateral[k] == want[:, None]).any(axis=1)
 
-    # the extension beyond the record's end is trusted where the path ends on a steady
-    # curve (the arc then is the road) or along a lane of the map
-    h_last = heading[ego_row[path_last]]
-    back = np.maximum(path_last - END_STEADY_STEPS, path_first)
-    mid = np.maximum(path_last - END_STEADY_STEPS // 2, path_first)
-    late = np.angle(np.exp(1j * (h_last - heading[ego_row[mid]])))
-    early = np.angle(np.exp(1j * (heading[ego_row[mid]] - heading[ego_row[back]])))
-    ends_steady = (np.abs(late - early) <= END_STEADY_RAD) \
-        & (arc[path_last] - arc[back] >= END_STEADY_DISTANCE)
-    if lanes is not None:
-        ends_steady |= lanes.covers(paths.scene[paths.start]) & (
-            arc[path_last] - arc[back] >= END_STEADY_DISTANCE)
-
-    def on_record(pairs: np.ndarray) -> np.ndarray:
+    def on_record(self, pairs: np.ndarray) -> np.ndarray:
         """The other's foot point lies on the ego's recorded path, or on the extension ahead
         of a path that ends on a steady curve (elsewhere the road may bend away from the
         extension, and d changes without anyone moving sideways)."""
-        st = q_step[pairs]
-        at = arc[st] + s[pairs]
-        path = ego_path[st]
-        return (at >= 0) & ((at <= arc[path_last[path]]) | ends_steady[path])
+        st = self.q_step[pairs]
+        at = self.arc[st] + self.s[pairs]
+        path = self.ego_path[st]
+        return (at >= 0) & ((at <= self.arc[self.path_last[path]]) | self.ends_steady[path])
 
-    def other_moving_sideways(pairs: np.ndarray) -> np.ndarray:
+    def other_moving_sideways(self, pairs: np.ndarray) -> np.ndarray:
         """The other agent's own lateral label is a turn or a merge within 1 s."""
-        rows = q_other[pairs]
+        idx = self.rows.index
+        rows = self.q_other[pairs]
         seg = idx.segment[rows]
         lo, hi = idx.segment_start[seg], idx.segment_stop[seg] - 1
-        code = lateral[np.clip(rows[:, None] + window[None, :], lo[:, None], hi[:, None])]
+        code = self.lateral[np.clip(rows[:, None] + self.window[None, :], lo[:, None],
+                                    hi[:, None])]
         return (code > sdl.STRAIGHT).any(axis=1)
 
-    def drives_along(pairs: np.ndarray) -> np.ndarray:
+    def drives_along(self, pairs: np.ndarray) -> np.ndarray:
         """After it enters, the agent drives along the ego's path for 1 s (heading within
         ``same_direction`` at every step the ego's path goes on; SPEC 7's guard): a car
         crossing an intersection in front of the ego is not a cut-in."""
+        along = self.along
         if not len(pairs):
             return along[pairs].copy()
-        last = path_last[ego_path[q_step[pairs]]]
+        last = self.path_last[self.ego_path[self.q_step[pairs]]]
         lags = np.arange(1, STEPS_PER_SECOND + 1)
-        other, ok = lagged_all(pairs, lags)
-        goes_on = q_step[pairs][:, None] + lags[None, :] <= last[:, None]
+        other, ok = self.pairs.lagged_all(pairs, lags)
+        goes_on = self.q_step[pairs][:, None] + lags[None, :] <= last[:, None]
         return along[pairs] & (~goes_on | (ok & along[other])).all(axis=1)
 
-    # Cut-in: the new leader was outside the corridor one step before, and far out earlier
-    new_lead = leader_pair[has_leader]
-    prev = lagged(new_lead, -1)
-    entering = new_lead[(prev >= 0)]
-    prev = prev[prev >= 0]
-    out_before = np.abs(d[prev]) > config.corridor
-    entering, prev = entering[out_before], prev[out_before]
-    ok = (on_record(entering) & reaches(entering, -1) & other_moving_sideways(entering)
-          & ~ego_merging(entering, np.sign(d[prev])) & drives_along(entering))
-    cut_in = entering[ok]
+    # -- events ----------------------------------------------------------------------------
+    def cut_ins(self) -> np.ndarray:
+        """The pairs where an agent cuts in: the new leader was outside the corridor one
+        step before, and far out earlier."""
+        d = self.d
+        new_lead = self.leader_pair[self.has_leader]
+        prev = self.pairs.lagged(new_lead, -1)
+        entering = new_lead[(prev >= 0)]
+        prev = prev[prev >= 0]
+        out_before = np.abs(d[prev]) > self.config.corridor
+        entering, prev = entering[out_before], prev[out_before]
+        ok = (self.on_record(entering) & self.reaches(entering, -1)
+              & self.other_moving_sideways(entering)
+              & ~self.ego_merging(entering, np.sign(d[prev])) & self.drives_along(entering))
+        return entering[ok]
 
-    # Cut-out: the leader of the step before is outside the corridor now, still ahead
-    had = np.flatnonzero(has_leader[:-1]) if m > 1 else np.zeros(0, np.int64)
-    had = had[ego_path[had + 1] == ego_path[had]]
-    nxt = lagged(leader_pair[had], 1)
-    ok = nxt >= 0
-    leaving = nxt[ok]
-    ok = (np.abs(d[leaving]) > config.corridor) & (s[leaving] > 0)
-    leaving = leaving[ok]
-    ok = (on_record(leaving) & reaches(leaving, +1) & other_moving_sideways(leaving)
-          & ~ego_merging(leaving, -np.sign(d[leaving])))
-    cut_out = leaving[ok]
+    def cut_outs(self) -> np.ndarray:
+        """The pairs where the leader of the step before is outside the corridor now,
+        still ahead."""
+        m, d, s, ego_path = self.m, self.d, self.s, self.ego_path
+        had = np.flatnonzero(self.has_leader[:-1]) if m > 1 else np.zeros(0, np.int64)
+        had = had[ego_path[had + 1] == ego_path[had]]
+        nxt = self.pairs.lagged(self.leader_pair[had], 1)
+        ok = nxt >= 0
+        leaving = nxt[ok]
+        ok = (np.abs(d[leaving]) > self.config.corridor) & (s[leaving] > 0)
+        leaving = leaving[ok]
+        ok = (self.on_record(leaving) & self.reaches(leaving, +1)
+              & self.other_moving_sideways(leaving)
+              & ~self.ego_merging(leaving, -np.sign(d[leaving])))
+        return leaving[ok]
 
-    # Overtaking / Being Overtaken: s changes sign beside the corridor
-    prev_all = lagged(np.arange(len(order)), -1)
-    has_prev = prev_all >= 0
-    q = np.flatnonzero(has_prev)
-    p = prev_all[q]
-    beside = ((np.abs(d[q]) > config.corridor) & (np.abs(d[q]) <= config.band)
-              & (np.abs(d[p]) > config.corridor) & along[q]
-              & (speed[q_other[q]] >= config.min_moving_speed))
-    # SPEC 7's guard: from a vehicle length ahead to a length behind (or back) in the same
-    # series, not a sign change of s (a car keeping pace beside the ego on a curve)
-    series = np.r_[True, (track[order][1:] != track[order][:-1])
-                   | (ego_path[q_step[order]][1:] != ego_path[q_step[order]][:-1])]
-    series_start = np.maximum.accumulate(np.where(series, np.arange(len(order)), 0))
-    series_stop = np.minimum.accumulate(
-        np.where(np.r_[series[1:], True], np.arange(len(order)), len(order))[::-1])[::-1]
+    def passes(self) -> tuple[np.ndarray, np.ndarray]:
+        """The pairs where the ego overtakes the other, and where the other overtakes the
+        ego: s changes sign beside the corridor, from a vehicle length ahead to a length
+        behind (or back) in the same series (SPEC 7's guard: not a sign change of s, as of
+        a car keeping pace beside the ego on a curve)."""
+        config, d, s, pairs = self.config, self.d, self.s, self.pairs
+        prev_all = pairs.lagged(np.arange(len(pairs.order)), -1)
+        has_prev = prev_all >= 0
+        q = np.flatnonzero(has_prev)
+        p = prev_all[q]
+        beside = ((np.abs(d[q]) > config.corridor) & (np.abs(d[q]) <= config.band)
+                  & (np.abs(d[p]) > config.corridor) & self.along[q]
+                  & (self.rows.speed[self.q_other[q]] >= config.min_moving_speed))
+        s_sorted = s[pairs.order]
+        far_ahead = s_sorted >= config.pass_distance
+        far_behind = s_sorted <= -config.pass_distance
+        passing = q[beside & (s[p] > 0) & (s[q] <= 0)]
+        passing = passing[pairs.seen_before(far_ahead, pairs.pos_in[passing])
+                          & pairs.seen_after(far_behind, pairs.pos_in[passing])]
+        passed_by = q[beside & (s[p] < 0) & (s[q] >= 0)]
+        passed_by = passed_by[pairs.seen_before(far_behind, pairs.pos_in[passed_by])
+                              & pairs.seen_after(far_ahead, pairs.pos_in[passed_by])]
+        return passing, passed_by
 
-    def seen_before(cond: np.ndarray, at: np.ndarray) -> np.ndarray:
-        """cond (in series order) holds at or before position ``at`` in its series."""
-        last = np.maximum.accumulate(np.where(cond, np.arange(len(order)), -1))
-        return last[at] >= series_start[at]
-
-    def seen_after(cond: np.ndarray, at: np.ndarray) -> np.ndarray:
-        nxt = np.minimum.accumulate(np.where(cond, np.arange(len(order)),
-                                             len(order))[::-1])[::-1]
-        return nxt[at] <= series_stop[at]
-
-    s_sorted = s[order]
-    far_ahead = s_sorted >= config.pass_distance
-    far_behind = s_sorted <= -config.pass_distance
-    passing = q[beside & (s[p] > 0) & (s[q] <= 0)]
-    passing = passing[seen_before(far_ahead, pos_in[passing])
-                      & seen_after(far_behind, pos_in[passing])]
-    passed_by = q[beside & (s[p] < 0) & (s[q] >= 0)]
-    passed_by = passed_by[seen_before(far_behind, pos_in[passed_by])
-                          & seen_after(far_ahead, pos_in[passed_by])]
-
-    relation = np.zeros(m, np.int8)
-    other = np.full(m, -1, np.int64)
-    relation[has_leader] = FOLLOWING
-    other[has_leader] = leader_row[has_leader]
-    last_step = path_last[ego_path]  # (m,) last step of each step's path
-
-    def windows(pairs: np.ndarray, before: np.ndarray, after: np.ndarray):
-        st = q_step[pairs]
-        lo = np.maximum(st - before, path_first[ego_path[st]])
-        hi = np.minimum(st + after, last_step[st] + 1)
+    # -- the relation of every step --------------------------------------------------------
+    def windows(self, pairs: np.ndarray, before: np.ndarray,
+                after: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The ego steps ``before`` to ``after`` around each pair's step, within its path."""
+        st = self.q_step[pairs]
+        lo = np.maximum(st - before, self.path_first[self.ego_path[st]])
+        hi = np.minimum(st + after, self.path_last[self.ego_path][st] + 1)
         return lo, hi
 
-    def pass_half(pairs: np.ndarray) -> np.ndarray:
-        rel = np.abs(v_e[q_step[pairs]] - frame.v_along[pairs])
+    def pass_half(self, pairs: np.ndarray) -> np.ndarray:
+        """Half a pass's steps: a pass length at the speed difference, within bounds."""
+        config = self.config
+        rel = np.abs(self.v_e[self.q_step[pairs]] - self.frame.v_along[pairs])
         h = np.rint(config.pass_length / np.maximum(rel, 0.1) * HZ).astype(np.int64)
         return np.clip(h, config.steps(config.min_run) // 2, 2 * STEPS_PER_SECOND)
 
-    h = pass_half(passed_by)
-    _paint(relation, other, *windows(passed_by, h, h + 1), BEING_OVERTAKEN, q_other[passed_by])
-    h = pass_half(passing)
-    _paint(relation, other, *windows(passing, h, h + 1), OVERTAKING, q_other[passing])
-    # Lead Braking: the leader's acceleration over the centred 1 s window
-    braking = has_leader.copy()
-    braking[has_leader] = _smoothed(kin.a, kin, leader_row[has_leader],
-                                    STEPS_PER_SECOND) <= a_dec
-    relation[braking] = LEAD_BRAKING
-    other[braking] = leader_row[braking]
-    event = config.steps(config.event_duration)
-    zero = np.zeros(len(cut_out), np.int64)
-    _paint(relation, other, *windows(cut_out, zero, zero + event), CUT_OUT, q_other[cut_out])
-    lead = np.full(len(cut_in), config.steps(config.cut_in_lead), np.int64)
-    _paint(relation, other, *windows(cut_in, lead, event - lead), CUT_IN, q_other[cut_in])
+    def relations(self, kin: Kinematics, a_dec: float, cut_in: np.ndarray,
+                  cut_out: np.ndarray, passing: np.ndarray,
+                  passed_by: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(m,) relation code and other agent's row of every ego step: following its
+        leader, then the events painted over it in order of precedence (being overtaken,
+        overtaking, lead braking, cut-out, cut-in)."""
+        config, q_other, has_leader = self.config, self.q_other, self.has_leader
+        leader_row = self.leader_row
+        relation = np.zeros(self.m, np.int8)
+        other = np.full(self.m, -1, np.int64)
+        relation[has_leader] = FOLLOWING
+        other[has_leader] = leader_row[has_leader]
+        h = self.pass_half(passed_by)
+        _paint(relation, other, *self.windows(passed_by, h, h + 1), BEING_OVERTAKEN,
+               q_other[passed_by])
+        h = self.pass_half(passing)
+        _paint(relation, other, *self.windows(passing, h, h + 1), OVERTAKING,
+               q_other[passing])
+        # Lead Braking: the leader's acceleration over the centred 1 s window
+        braking = has_leader.copy()
+        braking[has_leader] = _smoothed(kin.a, kin, leader_row[has_leader],
+                                        STEPS_PER_SECOND) <= a_dec
+        relation[braking] = LEAD_BRAKING
+        other[braking] = leader_row[braking]
+        event = config.steps(config.event_duration)
+        zero = np.zeros(len(cut_out), np.int64)
+        _paint(relation, other, *self.windows(cut_out, zero, zero + event), CUT_OUT,
+               q_other[cut_out])
+        lead = np.full(len(cut_in), config.steps(config.cut_in_lead), np.int64)
+        _paint(relation, other, *self.windows(cut_in, lead, event - lead), CUT_IN,
+               q_other[cut_in])
+        return relation, other
 
-    # runs of one (relation, other agent); stage 2's joining of runs shorter than 1 s
-    other_track = np.where(other >= 0, idx.track[np.maximum(other, 0)], -1)
-    n_tracks = idx.n_tracks + 1
-    code = relation.astype(np.int64) * n_tracks + other_track + 1
-    seg_first = np.ones(m, bool)
-    seg_first[1:] = ego_path[1:] != ego_path[:-1]
-    runs = join_short_runs(find_runs(code, ego_path, seg_first), config.steps(config.min_run))
-    # SPEC 7's guard: an ego slower than min_ego_speed over a whole run (parked, waiting)
-    # is neither overtaken nor cut in on; its leader's braking is not its concern
-    top = np.maximum.reduceat(v_e, runs.start) if len(runs.start) else np.zeros(0)
-    still = (top < config.min_ego_speed) & (runs.code // n_tracks > FOLLOWING)
-    if still.any():
-        base = np.where(has_leader, FOLLOWING, FREE_DRIVING).astype(np.int64)
-        base_track = np.where(has_leader, idx.track[np.maximum(leader_row, 0)], -1)
-        step_still = np.repeat(still, runs.length)
-        code = np.repeat(runs.code, runs.length)
-        code[step_still] = (base * n_tracks + base_track + 1)[step_still]
+    def steps(self, relation: np.ndarray, other: np.ndarray,
+              cut_in: np.ndarray) -> InteractionSteps:
+        """The relations as runs of one (relation, other agent), stage 2's joining of runs
+        shorter than 1 s and SPEC 7's guard for a still ego applied."""
+        config, idx, ego_path = self.config, self.rows.index, self.ego_path
+        has_leader = self.has_leader
+        other_track = np.where(other >= 0, idx.track[np.maximum(other, 0)], -1)
+        n_tracks = idx.n_tracks + 1
+        code = relation.astype(np.int64) * n_tracks + other_track + 1
+        seg_first = np.ones(self.m, bool)
+        seg_first[1:] = ego_path[1:] != ego_path[:-1]
         runs = join_short_runs(find_runs(code, ego_path, seg_first),
                                config.steps(config.min_run))
-    code = np.repeat(runs.code, runs.length)
-    relation = (code // n_tracks).astype(np.int8)
-    other_track = code % n_tracks - 1
-    # the other's row at each step (its track's row at that step; -1 where not recorded)
-    other_row = _row_at(other_track, key[ego_row], idx.track, key)
-    return InteractionSteps(relation=relation, other_row=other_row, other_track=other_track,
-                            leader_row=leader_row, cut_in_step=q_step[cut_in],
-                            cut_in_track=track[cut_in], runs=runs)
+        # SPEC 7's guard: an ego slower than min_ego_speed over a whole run (parked,
+        # waiting) is neither overtaken nor cut in on; its leader's braking is not its concern
+        top = np.maximum.reduceat(self.v_e, runs.start) if len(runs.start) else np.zeros(0)
+        still = (top < config.min_ego_speed) & (runs.code // n_tracks > FOLLOWING)
+        if still.any():
+            base = np.where(has_leader, FOLLOWING, FREE_DRIVING).astype(np.int64)
+            base_track = np.where(has_leader, idx.track[np.maximum(self.leader_row, 0)], -1)
+            step_still = np.repeat(still, runs.length)
+            code = np.repeat(runs.code, runs.length)
+            code[step_still] = (base * n_tracks + base_track + 1)[step_still]
+            runs = join_short_runs(find_runs(code, ego_path, seg_first),
+                                   config.steps(config.min_run))
+        code = np.repeat(runs.code, runs.length)
+        relation = (code // n_tracks).astype(np.int8)
+        other_track = code % n_tracks - 1
+        # the other's row at each step (its track's row at that step; -1 where not recorded)
+        other_row = _row_at(other_track, self.rows.key[self.ego_row], idx.track,
+                            self.rows.key)
+        return InteractionSteps(relation=relation, other_row=other_row,
+                                other_track=other_track, leader_row=self.leader_row,
+                                cut_in_step=self.q_step[cut_in],
+                                cut_in_track=self.track[cut_in], runs=runs)
 
 
 def _row_at(track: np.ndarray, step_key: np.ndarray, row_track: np.ndarray,
