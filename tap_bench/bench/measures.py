@@ -693,11 +693,13 @@ SCENE_MEASURES = MeasureRegistry()
 columns (a synthetic scenario has no lanes of record, no signals and no human to compare
 with)."""
 SCENE_STEP_COLUMNS = ("off_road", "crash_at_fault", "ran_red_light", "route_progress",
-                      "log_distance")
+                      "log_distance", "ended_early")
 """Per-step ego columns of recorded-scene rollouts: off road (bool), crashed and at fault
 (bool, SPEC 8's rules: :mod:`tap_bench.sim.collisions`), crossed a red stop point
 at that step (bool), share of the logged path covered so far (0-1), distance to the logged
-ego at the same step [m] (NaN before the current time)."""
+ego at the same step [m] (NaN before the current time), the episode ended (a collision,
+off the road) before the log's end (bool); ``ran_red_light`` is NA on a scene without
+signal states."""
 
 
 SCENE_STANDS_IN = {"crashed": "crashed_at_fault"}
@@ -762,18 +764,32 @@ def _ran_red_light(steps: EgoSteps) -> np.ndarray:
     return out
 
 
+def _full_episodes(steps: EgoSteps, values: np.ndarray) -> np.ndarray:
+    """Per-episode ``values`` where the episode ran to the log's end, NaN where it ended
+    early: ADE and FDE over the same horizon for every episode (an episode that crashed at
+    1.5 s would otherwise average its distance over 0.5 s and look closer to the human)."""
+    import numpy as np
+
+    early = steps.columns.get("ended_early")
+    if early is None:
+        return values
+    return np.where(steps.any(np.nan_to_num(early) > 0.5), np.nan, values)
+
+
 @register_measure("log_ade", unit="m", higher_is_better=False, margin=1.0,
-                  description="mean distance to the logged ego over the simulated steps",
+                  description="mean distance to the logged ego over the simulated steps, "
+                  "over full episodes (NaN where the episode ended early)",
                   label="log ADE", registry=SCENE_MEASURES)
 def _log_ade(steps: EgoSteps) -> np.ndarray:
-    return steps.mean(_scene_column(steps, "log_distance"))
+    return _full_episodes(steps, steps.mean(_scene_column(steps, "log_distance")))
 
 
 @register_measure("log_fde", unit="m", higher_is_better=False, margin=2.0,
-                  description="distance to the logged ego at the last simulated step",
+                  description="distance to the logged ego at the log's last step, over "
+                  "full episodes (NaN where the episode ended early)",
                   label="log FDE", registry=SCENE_MEASURES)
 def _log_fde(steps: EgoSteps) -> np.ndarray:
-    return steps.last(_scene_column(steps, "log_distance"))
+    return _full_episodes(steps, steps.last(_scene_column(steps, "log_distance")))
 
 
 def _require(table: pd.DataFrame) -> None:

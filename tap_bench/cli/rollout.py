@@ -95,9 +95,17 @@ def run(args: argparse.Namespace) -> int:
         print(f"mean return {ok['return'].mean():.3f}, {crashes}, "
               f"mean ego speed {ok['mean_speed'].mean():.2f} m/s")
     if len(ok) and "off_road" in ok.columns:
+        import pandas as pd
+
+        red = pd.to_numeric(ok["ran_red_light"], errors="coerce")
+        no_signals = int(red.isna().sum())
+        red_text = f"{red.mean():.1%}" if red.notna().any() else "n/a"
+        if no_signals:  # a number only where there is data
+            red_text += f" (no signal states in {no_signals} of {len(ok)} scenes)"
         print(f"off road {ok['off_road'].mean():.1%}, route progress "
-              f"{ok['route_progress'].mean():.2f}, red lights run "
-              f"{ok['ran_red_light'].mean():.1%}, log ADE {ok['log_ade'].mean():.2f} m")
+              f"{ok['route_progress'].mean():.2f}, red lights run {red_text}, log ADE "
+              f"{ok['log_ade'].mean():.2f} m (full episodes: "
+              f"{int(ok['log_ade'].notna().sum())} of {len(ok)})")
         if (ok["traffic"] == "idm").any():  # how clean the reactive traffic was
             print(f"idm traffic collisions (the ego's aside): "
                   f"{int(ok['traffic_collisions'].sum())} in "

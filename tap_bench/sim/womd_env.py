@@ -122,6 +122,10 @@ def _map_note(scene: Scene, network: WomdNetwork) -> str:
     return note
 
 
+_SIGNAL_COLUMNS = ("ran_red_light",)
+"""Per-step ego columns read from signal states: NA on a scene that records none."""
+
+
 class MapWarning(UserWarning):
     """A recorded scene's map was completed (successors inferred) or trimmed (lanes of a
     single point left out)."""
@@ -237,6 +241,7 @@ class _WomdHighwayEnv(AbstractEnv):
                 self.simulated[row] = vehicle
         self.road.start_collisions()
         self.road.start_off_road(ego)
+        self.has_signals = bool(len(scene.road.signals.lane))  # signal states recorded
         self.replaying_ego = False
         self._last_ego = np.array([x, y])
         self.progress = 0.0
@@ -579,6 +584,7 @@ class WomdEnv(gym.Wrapper):
         """
         scene = self.scene
         n, _ = scene.x.shape
+        inner = self.env.unwrapped
         last = self._last_step + 1
         t = last
         rec = self._rec
@@ -606,8 +612,13 @@ class WomdEnv(gym.Wrapper):
             col = np.full((n, t), np.nan if values.dtype.kind == "f" else False,
                           dtype=values.dtype if values.dtype.kind == "f" else object)
             col[scene.ego] = values[:t]
+            if name in _SIGNAL_COLUMNS and not inner.has_signals:
+                col[scene.ego] = None  # no signal states: not a number (NA), not "never"
             data[name] = col.ravel() if values.dtype.kind == "f" else \
                 pd.array(col.ravel(), dtype="boolean")
+        early = np.full((n, t), False, dtype=object)
+        early[scene.ego] = self._ended_early()
+        data["ended_early"] = pd.array(early.ravel(), dtype="boolean")
         data.update({name: np.full(n * t, value, dtype=object) for name, value in
                      columns.items()})
         table = pd.DataFrame(data, copy=False)
@@ -615,18 +626,27 @@ class WomdEnv(gym.Wrapper):
         table.loc[~table["valid"].to_numpy(bool), kin] = np.nan
         return table
 
+    def _ended_early(self) -> bool:
+        """The ego's episode ended (a collision, off the road) before the log's end."""
+        inner = self.env.unwrapped
+        return self._last_step < self.scene.n_steps - 1 and inner._is_terminated()
+
     def episode_info(self) -> dict[str, Any]:
         """The episode's row beyond :data:`~tap_bench.sim.rollout.EPISODE_COLUMNS`."""
         inner = self.env.unwrapped
         dist = self._ego_cols["log_distance"][CURRENT_STEP + 1:self._last_step + 1]
         dist = dist[np.isfinite(dist)]
+        if self._ended_early():  # ADE/FDE over the whole horizon only: full episodes
+            dist = dist[:0]
         return {"scenario_id": self.scene.scenario_id, "traffic": self.scenario.traffic,
                 "off_road": bool(inner.flags["off_road"]),
                 "max_off_road_distance_m": float(inner.off_road_max),
                 "off_road_rule": self._off_road_rule(),
                 "route_progress": inner.route_progress,
                 "route_missing": inner.route_missing,
-                "ran_red_light": bool(inner.flags["ran_red_light"]),
+                "ran_red_light": bool(inner.flags["ran_red_light"]) if inner.has_signals
+                else float("nan"),
+                "signal_states": inner.has_signals,
                 "log_ade": float(dist.mean()) if len(dist) else float("nan"),
                 "log_fde": float(dist[-1]) if len(dist) else float("nan"),
                 "crash_with": self.crash_with,

@@ -143,3 +143,28 @@ def test_boxes_overlapping_in_the_record_at_the_start_are_not_a_collision(tmp_pa
     env, info, terminated = drive(path, "idm")
     assert not terminated and info["crash_with"] == "" and not info["crash_at_fault"]
     assert env.unwrapped.clock[0] == 90
+
+
+def test_an_episode_ended_by_a_crash_has_no_ade_and_a_scene_without_signals_no_red_light(
+        tmp_path):
+    from tap_bench.bench.measures import ego_measures
+    from tap_bench.sim.rollout import rollout
+    from tap_bench.sim.womd_env import make_womd_env
+
+    # a replayed car comes the wrong way down the ego's lane: IDM cannot avoid it
+    tracks = {"ego": vehicle(straight(5.5, speed=8.0), 0.0),
+              "7": vehicle(straight(5.5, speed=-8.0, x0=60.0), 0.0)}
+    path = write_scene(tmp_path / "wrong_way.pkl", 0.0, tracks, ROAD_LANES, ROAD_EDGES)
+    trajectories, episodes = rollout(make_womd_env(path), "idm", [0])
+    row = episodes.iloc[0]
+    assert row["crashed"] and row["terminated"] and row["duration_s"] < 4.0
+    # ADE and FDE over the same horizon for every episode: this one ended early, it has none
+    assert np.isnan(row["log_ade"]) and np.isnan(row["log_fde"])
+    measures = ego_measures(trajectories)
+    assert np.isnan(measures["log_ade"].iloc[0]) and np.isnan(measures["log_fde"].iloc[0])
+    # the scene records no signal states: a red light is not a number, not "never"
+    assert np.isnan(row["ran_red_light"]) and not row["signal_states"]
+    assert np.isnan(measures["ran_red_light"].iloc[0])
+    human_table, human = rollout(make_womd_env(path), "log", [0])
+    assert human.iloc[0]["log_ade"] == 0.0  # the human runs to the end
+    assert ego_measures(human_table)["log_ade"].iloc[0] == 0.0

@@ -190,7 +190,7 @@ def test_an_idm_ego_follows_its_route(real):
     run(env, "idm", 0)
     info = env.episode_info()
     assert info["route_progress"] == pytest.approx(1.0)
-    assert not info["ran_red_light"]
+    assert np.isnan(info["ran_red_light"]) and not info["signal_states"]  # none recorded
     # past the human's end it turns right along its lane, and the rear right corner of its
     # box sweeps 0.43 m over the kerb (highway-env's controller cuts the curve): off the
     # road by the road edges, judged by them, and by no more than that
@@ -224,7 +224,7 @@ def test_every_built_in_policy_drives_and_the_measures_agree(real):
         measures = ego_measures(table)
         info = _find(env).episode_info()
         assert measures["off_road"].iloc[0] == float(info["off_road"])
-        assert measures["log_fde"].iloc[0] == pytest.approx(info["log_fde"])
+        assert measures["log_fde"].iloc[0] == pytest.approx(info["log_fde"], nan_ok=True)
         assert measures["route_progress"].iloc[0] == pytest.approx(info["route_progress"])
 
 
