@@ -5,6 +5,7 @@ setting, the code) makes them again; a damaged entry is never used."""
 
 from __future__ import annotations
 
+import functools
 import re
 import shutil
 import warnings
@@ -111,7 +112,9 @@ def test_a_damaged_entry_is_made_again(runs, tmp_path):
     assert all(p.stat().st_size > 0 for p in damaged.derived_folder.glob("*/*/*.derived"))
 
 
+@functools.cache
 def _scores(seed: int = 0) -> Scores:
+    """Scores of 64 drawn episodes (made once per seed: the tests only read them)."""
     from tap_bench.bench.bootstrap import BootstrapConfig
     from tap_bench.bench.scoring import score
 
@@ -166,7 +169,12 @@ def test_a_change_of_any_value_of_any_scores_table_redraws_the_figures(tmp_path,
     warm = {p.name: p.read_bytes() for p in write_plots(changed, tmp_path / "warm",
                                                          reference="idm", cache=cache)}
     assert warm == cold
-    # and the settings: another reference or level is drawn again
+
+
+def test_another_reference_or_level_redraws_the_figures(tmp_path):
+    scores = _scores()
+    cache = EpisodeCache(tmp_path / "cache")
+    write_plots(scores, tmp_path / "a", reference="idm", cache=cache)
     for kwargs in ({"reference": "random"}, {"reference": "idm", "level": 0.9}):
         cold = {p.name: p.read_bytes() for p in write_plots(scores, tmp_path / "c2", **kwargs)}
         warm = {p.name: p.read_bytes() for p in write_plots(scores, tmp_path / "w2",
