@@ -16,9 +16,9 @@ small part (docs/simulation.md, "Speed"). So training runs
   the ego only, as highway-env's ``highway-fast-v0``): half the simulated steps;
   decisions, observation, actions and reward are the scenario's, and the curve evaluates
   on the scenario itself;
-- with highway-env's neighbour search, collision loop and lane lookup computed sooner, the
-  same results bit for bit (:mod:`tap_bench.sim.fast_road`, in every scenario env), and
-  the Kinematics observation without pandas (:mod:`tap_bench.sim.observation`);
+- with the traffic driven by tap-bench's own vectorised core (:mod:`tap_bench.sim.traffic`,
+  in every scenario env), and the Kinematics observation without pandas
+  (:mod:`tap_bench.sim.observation`);
 - on ``n_envs`` envs stepped in parallel: with about ``n_envs`` free cores (a 2-core
   machine), env 0 in this process between the learner's steps and the others in worker
   processes (:mod:`tap_bench.rl.vec_env`: ``n_envs`` busy processes on ``n_envs``
@@ -197,7 +197,7 @@ def _has_main_guard(main: Any) -> bool:
 WORKER_MODULES = ("stable_baselines3.common.vec_env.subproc_vec_env",
                   "stable_baselines3.common.monitor", "highway_env", "tap_bench.rl.vec_env",
                   "tap_bench.rl.training", "tap_bench.sim.scenario_env",
-                  "tap_bench.sim.fast_road", "tap_bench.sim.observation")
+                  "tap_bench.sim.traffic", "tap_bench.sim.observation")
 """What every training env worker imports (the worker loops, SB3's and tap-bench's, and SB3's
 Monitor, which import torch; highway-env; tap-bench's env code), imported once in the
 forkserver the workers are forked from rather than once in each worker (the CPU this saves:

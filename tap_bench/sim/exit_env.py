@@ -24,8 +24,9 @@ from __future__ import annotations
 import numpy as np
 from highway_env import utils
 from highway_env.envs.exit_env import ExitEnv
-from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.kinematics import Vehicle
+
+from tap_bench.sim.traffic import TrafficVehicle
 
 __all__ = ["KIND", "ExitIDMVehicle", "SeededExitEnv", "exit_route"]
 
@@ -45,7 +46,7 @@ def exit_route(lanes_count: int) -> list[tuple[str, str, int]]:
     return [("0", "1", lanes_count - 1), ("1", "2", lanes_count), ("2", "exit", 0)]
 
 
-class ExitIDMVehicle(IDMVehicle):
+class ExitIDMVehicle(TrafficVehicle):
     """IDM/MOBIL routed to the exit (see the module docstring)."""
 
     @classmethod
@@ -54,7 +55,7 @@ class ExitIDMVehicle(IDMVehicle):
         new.route = exit_route(len(vehicle.road.network.graph["0"]["1"]))
         return new
 
-    def act(self, action: dict | str | None = None) -> None:
+    def prepare_decision(self) -> None:
         route = self.route
         if route and route[0][:2] == ("0", "1") and self.lane_index[:2] == ("0", "1"):
             rightmost = len(self.road.network.graph["0"]["1"]) - 1
@@ -64,7 +65,6 @@ class ExitIDMVehicle(IDMVehicle):
             # far from the exit, MOBIL on its gain alone (a route lane of None)
             wanted = rightmost if to_go <= PREPARE_PER_LANE * (crossing + 1) else None
             route[0] = ("0", "1", wanted)
-        super().act(action)
 
     def follow_road(self) -> None:
         lane = self.road.network.get_lane(self.target_lane_index)

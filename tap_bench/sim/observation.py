@@ -36,6 +36,8 @@ Leurent, (c) 2023 Farama Foundation): see THIRD_PARTY_NOTICES.md.
 from __future__ import annotations
 
 import functools
+import hashlib
+import inspect
 from typing import Any
 
 import gymnasium as gym
@@ -46,9 +48,18 @@ from highway_env.road.road import Road
 from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import RoadObject
 
-from tap_bench.sim.fast_idm import sources_match
-
 __all__ = ["DISTANCE_MARGIN", "FastKinematicObservation", "use_fast_observation"]
+
+
+def sources_match(functions: Any, digests: dict[str, str]) -> bool:
+    """Whether each function's source, by qualified name, hashes (first 16 hex digits of
+    its SHA-256) to ``digests[name]``; False where a source cannot be read."""
+    try:
+        sources = {f.__qualname__: inspect.getsource(f) for f in functions}
+    except (OSError, TypeError):
+        return False
+    return all(hashlib.sha256(sources.get(name, "").encode()).hexdigest()[:16] == digest
+               for name, digest in digests.items())
 
 DISTANCE_MARGIN = 1e-6
 """Objects whose numpy distance to the ego is within this [m] of the perception distance

@@ -79,7 +79,9 @@ class ScenarioEnv(gym.Wrapper):
                     f"not divide the fast simulation's {FAST_SIMULATION_FREQUENCY} Hz; use 1 "
                     f"or {FAST_SIMULATION_FREQUENCY} Hz, or fast=False."))
             config = {**config, "simulation_frequency": FAST_SIMULATION_FREQUENCY}
-        cls = env_class(scenario.highway_env_id)
+        from tap_bench.sim.traffic import traffic_env_class
+
+        cls = traffic_env_class(env_class(scenario.highway_env_id))
         _check_vehicle_types(config, scenario)
         # highway-env builds a first scene in its constructor
         with guard_class_attributes(f"building {scenario.env_id}"):
@@ -134,14 +136,8 @@ class ScenarioEnv(gym.Wrapper):
             self._seed, self._episode = int(seed), 0
         else:
             self._episode += 1
-        # imported here, not at the top: it imports highway-env, which `tap-bench envs` and
-        # `--help` never need
-        from tap_bench.sim.fast_road import use_fast_road
-
         with guard_class_attributes(f"resetting {self.scenario.env_id}"):
             obs, info = self.env.reset(seed=seed, options=options)
-            # the same traffic, simulated sooner (the observation is already the numpy one)
-            use_fast_road(self.env)
             if self.scenario.script is not None:
                 inner = self.env.unwrapped
                 self.scenario.script.install(inner)

@@ -196,9 +196,9 @@ class Script:
 def _scripted_vehicle() -> type:
     """:class:`ScriptedVehicle`, made on first use: reading a scenario file with a script
     (``tap-bench envs``) must not import highway-env, whose vehicle class it extends."""
-    from highway_env.vehicle.behavior import IDMVehicle
+    from tap_bench.sim.traffic import TrafficVehicle
 
-    class ScriptedVehicle(IDMVehicle):
+    class ScriptedVehicle(TrafficVehicle):
         """An IDM vehicle that follows a :class:`Script`: it keeps its lane until the event,
         then cuts into the ego's lane or brakes."""
 
@@ -207,9 +207,8 @@ def _scripted_vehicle() -> type:
         elapsed: float = 0.0
         fired: bool = False
 
-        def act(self, action: dict | str | None = None) -> None:
-            script = self.script
-            if script.kind == "cut_in" and not self.fired \
+        def prepare_decision(self) -> None:
+            if self.script.kind == "cut_in" and not self.fired \
                     and self.ego.lane_index != self.lane_index:
                 lane = self.road.network.get_lane(self.ego.lane_index)
                 ahead = (lane.local_coordinates(self.position)[0]
@@ -218,14 +217,15 @@ def _scripted_vehicle() -> type:
                                                  or ahead <= CLOSE_CUT_IN_GAP):
                     self.target_lane_index = self.ego.lane_index
                     self.fired = True
-            super().act(action)
+
+        def adjust_action(self) -> None:
+            script = self.script
             braking = script.kind == "lead_braking" and \
                 script.at - 1e-9 <= self.elapsed < script.at + script.duration - 1e-9
             if braking and not self.crashed and self.action:
                 self.action["acceleration"] = -script.deceleration if self.speed > 0 else 0.0
 
-        def step(self, dt: float) -> None:
-            super().step(dt)
+        def after_step(self, dt: float) -> None:
             self.elapsed += dt
 
     ScriptedVehicle.__qualname__ = "ScriptedVehicle"  # found by name, as pickle looks it up

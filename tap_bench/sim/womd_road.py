@@ -28,8 +28,8 @@ from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
-from tap_bench.sim.fast_road import _near_pairs
 from tap_bench.sim.road_edges import RoadEdges, left_road
+from tap_bench.sim.traffic import near_pairs
 from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, lane_points
 from tap_bench.sim.womd_scene import Scene
 
@@ -451,7 +451,7 @@ class WomdRoad(Road):
         for vehicle in self.vehicles:
             vehicle.step(dt)
         vehicles = [v for v in self.vehicles if v.collidable]
-        near = _near_pairs(vehicles, [], dt)
+        near = near_pairs(vehicles, [], dt)
         if near is None:  # an object without position or diagonal: every pair, as highway-env
             near = np.ones((len(vehicles), len(vehicles)), bool)
         ego = self.vehicles[0]  # the env puts the ego first (a policy's takes its place)
@@ -501,7 +501,7 @@ class WomdRoad(Road):
             and np.hypot(*(v.position - ego.position)) <= (v.diagonal + ego.diagonal) / 2
             and _intersecting(ego, v)}
         vehicles = [v for v in self.vehicles[1:] if v.collidable]
-        near = _near_pairs(vehicles, [], 0.0)
+        near = near_pairs(vehicles, [], 0.0)
         if near is None:
             return
         for i, j in zip(*np.nonzero(np.triu(near | near.T, 1)), strict=True):

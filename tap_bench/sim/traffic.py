@@ -1,0 +1,569 @@
+"""The traffic core: every IDM/MOBIL vehicle of a highway-env road decided and moved at once.
+
+highway-env builds the scene (road network, vehicles, the ego's action and observation
+types); :class:`TrafficRoad`, a subclass of its ``Road``, then runs each simulated step with
+the whole road as arrays (:class:`RoadState`: positions, headings, speeds, and every lane's
+coordinates of every vehicle, :mod:`tap_bench.sim.lane_frames`):
+
+1. ``act``: in the road's order, each vehicle the core drives follows its route
+   (highway-env's ``follow_road``, the network's routing), keeps or drops a lane change in
+   progress, and, once per ``LANE_CHANGE_DELAY``, asks for a MOBIL decision. The decisions
+   are taken together (:meth:`TrafficRoad._decide`: the six IDM accelerations MOBIL
+   compares for every candidate lane in one array pass); a vehicle's new target lane is
+   set before any later vehicle reads it (a vehicle dropping its lane change looks at who
+   else targets that lane; the core takes the pending decisions first). Then every vehicle
+   gets its steering (lane keeping to its target lane) and its IDM acceleration (towards
+   its leader, and towards the leader on its target lane while changing: the smaller), all
+   at once (:mod:`tap_bench.sim.driver_models`).
+2. ``step``: every vehicle moves by the kinematic bicycle model at once, its lane is looked
+   up (:func:`~tap_bench.sim.lane_frames.closest_lanes`), and the pairs of objects close
+   enough to touch are handed to highway-env's collision check (:func:`near_pairs`).
+
+The core drives highway-env's :class:`~highway_env.vehicle.behavior.IDMVehicle` and its
+subclasses that change only constants (``DISTANCE_WANTED``, ``POLITENESS`` ...), and
+:class:`TrafficVehicle` subclasses, which adjust a decision through its hooks. Any other
+vehicle (the ego of a policy, a user's class with its own ``act``) acts and moves by its
+own methods, in its place in the road's order; for a class that drives itself as traffic
+the run says so once (a warning).
+
+Each model's constants are read from each vehicle (instance first, then class): highway-env's
+names (``COMFORT_ACC_MAX``, ``TIME_WANTED``, ``POLITENESS``, ``LANE_CHANGE_MIN_ACC_GAIN``,
+``LANE_CHANGE_MAX_BRAKING_IMPOSED``, ``LANE_CHANGE_DELAY``, ``KP_LATERAL`` ...).
+"""
+
+from __future__ import annotations
+
+import bisect
+import functools
+import warnings
+from typing import Any
+
+import numpy as np
+from highway_env.road.road import Road
+from highway_env.vehicle.behavior import IDMVehicle
+from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
+from highway_env.vehicle.kinematics import Vehicle
+from highway_env.vehicle.objects import Landmark, RoadObject
+
+from tap_bench.sim.driver_models import (
+    bicycle_step,
+    desired_gap,
+    idm_acceleration,
+    mobil_incentive,
+    steering_angle,
+)
+from tap_bench.sim.lane_frames import closest_lanes, lane_coordinates, lane_heading, lane_widths
+
+__all__ = ["ON_LANE_MARGIN", "TOUCH_MARGIN", "RoadState", "TrafficRoad", "TrafficVehicle",
+           "near_pairs", "traffic_env_class"]
+
+ON_LANE_MARGIN = 1.0
+"""How far [m] beyond half its width a lane's neighbour search still finds a vehicle."""
+TOUCH_MARGIN = 1e-6
+"""Slack [m] of the proximity test of :func:`near_pairs`."""
+_NEAR_END = 1e-6  # [m] slack of the test that a vehicle reached its target lane's end
+
+
+class TrafficVehicle(IDMVehicle):
+    """An IDM/MOBIL vehicle whose decisions a subclass adjusts through three hooks, which
+    the core calls as highway-env's own ``act`` and ``step`` would (off a
+    :class:`TrafficRoad`, this class acts and moves by highway-env's methods, with the
+    same hooks)."""
+
+    def prepare_decision(self) -> None:
+        """Called first in the vehicle's turn, before it follows its route and decides on a
+        lane change (set ``route`` or ``target_lane_index`` here)."""
+
+    def adjust_action(self) -> None:
+        """Called after the vehicle's action is decided (change ``self.action`` here)."""
+
+    def after_step(self, dt: float) -> None:
+        """Called after the vehicle moved by ``dt`` [s]."""
+
+    def act(self, action: dict | str | None = None) -> None:
+        self.prepare_decision()
+        super().act(action)
+        self.adjust_action()
+
+    def step(self, dt: float) -> None:
+        super().step(dt)
+        self.after_step(dt)
+
+
+_DECISION_METHODS = ("change_lane_policy", "mobil", "acceleration", "desired_gap",
+                     "steering_control", "lane_distance_to", "velocity", "direction")
+_MOVE_METHODS = ("clip_actions", "on_state_update")
+
+
+@functools.cache
+def _driven(cls: type) -> str | None:
+    """How the core drives vehicles of ``cls``: ``"idm"`` (highway-env's IDMVehicle model),
+    ``"hooks"`` (a :class:`TrafficVehicle`), or None (the vehicle acts itself)."""
+    if not issubclass(cls, IDMVehicle):
+        return None
+    if any(getattr(cls, name) is not getattr(IDMVehicle, name) for name in _DECISION_METHODS):
+        return None
+    if issubclass(cls, TrafficVehicle):
+        return "hooks" if cls.act is TrafficVehicle.act else None
+    return "idm" if cls.act is IDMVehicle.act else None
+
+
+@functools.cache
+def _moved(cls: type) -> str | None:
+    """How the core moves objects of ``cls``: ``"plain"`` (the bicycle model),
+    ``"timer"`` (and the IDM's decision timer), ``"hooks"`` (and
+    :meth:`TrafficVehicle.after_step`), or None (the object moves itself)."""
+    if not issubclass(cls, Vehicle) or any(getattr(cls, name) is not getattr(Vehicle, name)
+                                           for name in _MOVE_METHODS):
+        return None
+    return {Vehicle.step: "plain", IDMVehicle.step: "timer",
+            TrafficVehicle.step: "hooks"}.get(cls.step)
+
+
+_HIGHWAY_ENV_ACTS = (Vehicle.act, ControlledVehicle.act, MDPVehicle.act)
+_WARNED: set[type] = set()
+
+
+def _warn_self_driven(cls: type) -> None:
+    """Say once per class that highway-env drives vehicles of ``cls`` (a class of traffic
+    with its own behaviour; the egos of highway-env's action types are not meant)."""
+    if cls in _WARNED or (not issubclass(cls, IDMVehicle) and cls.act in _HIGHWAY_ENV_ACTS):
+        return
+    _WARNED.add(cls)
+    own = [name for name in ("act", *_DECISION_METHODS)
+           if issubclass(cls, IDMVehicle) and getattr(cls, name) is not getattr(
+               TrafficVehicle if issubclass(cls, TrafficVehicle) else IDMVehicle, name)]
+    warnings.warn(
+        f"{cls.__module__}.{cls.__qualname__} defines its own "
+        f"{', '.join(own) if own else 'act'}: tap-bench's traffic core does not drive it, "
+        "highway-env does, one vehicle at a time (slower; the same model otherwise). To "
+        "have the core drive it, keep IDMVehicle's methods and change constants, or adjust "
+        "decisions through tap_bench.sim.traffic.TrafficVehicle's hooks.",
+        RuntimeWarning, stacklevel=3)
+
+
+class RoadState:
+    """The road's searchable objects (vehicles and objects but landmarks, in the road's
+    order) as arrays, and each lane's coordinates of all of them, as they stand while the
+    vehicles act (nothing moves in ``act``).
+
+    Attributes:
+        objects: the objects, in order; ``index`` maps ``id(object)`` to its row.
+        x, y, speed, heading, vx, vy: (n,) their state [m, m/s, rad] as Python lists.
+    """
+
+    def __init__(self, road: Road) -> None:
+        self.road = road
+        self.objects = [o for o in road.vehicles + road.objects if not isinstance(o, Landmark)]
+        self.index = {id(o): k for k, o in enumerate(self.objects)}
+        n = len(self.objects)
+        self.positions = np.array([o.position for o in self.objects],
+                                  dtype=float).reshape(n, 2)
+        speed = np.array([o.speed for o in self.objects], dtype=float)
+        heading = np.array([o.heading for o in self.objects], dtype=float)
+        self.cos, self.sin = np.cos(heading).tolist(), np.sin(heading).tolist()
+        self.speed, self.heading = speed.tolist(), heading.tolist()
+        self.x, self.y = self.positions[:, 0].tolist(), self.positions[:, 1].tolist()
+        self.vx = [s * c for s, c in zip(self.speed, self.cos, strict=True)]
+        self.vy = [s * c for s, c in zip(self.speed, self.sin, strict=True)]
+        for k, o in enumerate(self.objects):  # a class with its own velocity
+            if type(o).velocity not in (Vehicle.velocity, RoadObject.velocity):
+                self.vx[k], self.vy[k] = map(float, o.velocity)
+        self._frames: dict[int, tuple[Any, list[float], list[float]]] = {}
+        self._tables: dict[int, tuple[list[float], list[int]]] = {}
+
+    def frame(self, lane: Any) -> tuple[list[float], list[float]]:
+        """Every object's longitudinal and lateral coordinate [m] on ``lane``."""
+        got = self._frames.get(id(lane))
+        if got is None:
+            s, r = lane_coordinates(lane, self.positions)
+            got = self._frames[id(lane)] = (lane, s.tolist(), r.tolist())
+        return got[1], got[2]
+
+    def table(self, lane: Any) -> tuple[list[float], list[int]]:
+        """The objects on ``lane`` (within :data:`ON_LANE_MARGIN` of its sides, from a
+        vehicle length before its start to a vehicle length after its end), sorted by
+        longitudinal coordinate, then row: their coordinates and rows."""
+        got = self._tables.get(id(lane))
+        if got is None:
+            self.frame(lane)
+            s, r = (np.asarray(a) for a in self.frame(lane))
+            half = np.asarray(lane_widths(lane, s)) / 2 + ON_LANE_MARGIN
+            on = np.flatnonzero((np.abs(r) <= half) & (s >= -lane.VEHICLE_LENGTH)
+                                & (s < lane.length + lane.VEHICLE_LENGTH))
+            order = on[np.lexsort((on, s[on]))]
+            got = self._tables[id(lane)] = (s[order].tolist(), order.tolist())
+        return got
+
+    def neighbours(self, lane: Any, k: int) -> tuple[int, int]:
+        """Rows of the objects just ahead of and just behind row ``k`` on ``lane`` (-1:
+        none). Ahead: the smallest coordinate at or beyond ``k``'s (ties: the last in the
+        road's order); behind: the largest below it (ties: the first)."""
+        s_list, rows = self.table(lane)
+        s = self.frame(lane)[0][k]
+        front = -1
+        p = bisect.bisect_left(s_list, s)
+        while p < len(rows):
+            end = bisect.bisect_right(s_list, s_list[p], p)
+            others = [j for j in rows[p:end] if j != k]
+            if others:
+                front = max(others)
+                break
+            p = end
+        rear = -1
+        p = bisect.bisect_left(s_list, s) - 1
+        if p >= 0:
+            rear = min(rows[bisect.bisect_left(s_list, s_list[p]):p + 1])
+        return front, rear
+
+
+class TrafficRoad(Road):
+    """highway-env's road, its vehicles decided and moved by the traffic core (see the
+    module docstring). Build one from a road highway-env made with :meth:`taking_over`."""
+
+    @classmethod
+    def taking_over(cls, road: Road) -> TrafficRoad:
+        """A :class:`TrafficRoad` with ``road``'s network, vehicles, objects, random
+        generator and settings; the vehicles and objects now on it."""
+        new = cls.__new__(cls)
+        new.__dict__.update(vars(road))
+        for obj in new.vehicles + new.objects:
+            if obj.road is road:
+                obj.road = new
+        return new
+
+    def _core_applies(self) -> bool:
+        # the neighbour search over connected lanes (highway-env >= 1.12, off by default)
+        # is highway-env's alone
+        return not getattr(self, "neighbour_vehicles_connected_lanes", False)
+
+    # -- act ---------------------------------------------------------------------------
+    def act(self) -> None:
+        """Every vehicle decides its action (see the module docstring)."""
+        if not self._core_applies():
+            super().act()
+            return
+        state = RoadState(self)
+        network = self.network
+        drivers: list[tuple[Any, str]] = []
+        pending: list[tuple[Any, list[Any]]] = []
+        for vehicle in self.vehicles:
+            how = _driven(type(vehicle))
+            if how is None:
+                _warn_self_driven(type(vehicle))
+                self._decide(pending, state)
+                vehicle.act()
+                continue
+            if how == "hooks":
+                vehicle.prepare_decision()
+            if vehicle.crashed:  # a crashed vehicle keeps its last action
+                if how == "hooks":
+                    vehicle.adjust_action()
+                continue
+            self._follow_road(vehicle, state)
+            drivers.append((vehicle, how))
+            if not vehicle.enable_lane_change:
+                continue
+            if vehicle.lane_index != vehicle.target_lane_index:
+                if vehicle.lane_index[:2] == vehicle.target_lane_index[:2]:
+                    if any(vehicle.target_lane_index in lanes or
+                           vehicle.target_lane_index == v.target_lane_index
+                           for v, lanes in pending):
+                        self._decide(pending, state)
+                    self._keep_or_drop(vehicle, state)
+                continue
+            if not vehicle.LANE_CHANGE_DELAY < vehicle.timer:
+                continue
+            vehicle.timer = 0
+            if abs(state.speed[state.index[id(vehicle)]]) < 1:  # only moving vehicles change
+                continue
+            lanes = [index for index in network.side_lanes(vehicle.lane_index)
+                     if network.get_lane(index).is_reachable_from(vehicle.position)]
+            if lanes:
+                pending.append((vehicle, lanes))
+        self._decide(pending, state)
+        self._drive(drivers, state)
+
+    def _follow_road(self, vehicle: Any, state: RoadState) -> None:
+        """The vehicle's ``follow_road`` (the network's routing to the next lane), called
+        where the vehicle may have reached its target lane's end, or always for a class
+        with its own ``follow_road``."""
+        if type(vehicle).follow_road is ControlledVehicle.follow_road:
+            lane = self.network.get_lane(vehicle.target_lane_index)
+            s = state.frame(lane)[0][state.index[id(vehicle)]]
+            if not s > lane.length - lane.VEHICLE_LENGTH / 2 - _NEAR_END:
+                return
+        vehicle.follow_road()
+
+    def _keep_or_drop(self, vehicle: Any, state: RoadState) -> None:
+        """A vehicle changing lanes drops the change (targets its own lane again) when
+        another controlled vehicle, not on the target lane, also targets it, ahead of it
+        and closer than its desired gap (:func:`desired_gap`)."""
+        target = vehicle.target_lane_index
+        k = state.index[id(vehicle)]
+        s = state.frame(vehicle.lane)[0]
+        for other in self.vehicles:
+            if other is vehicle or other.lane_index == target \
+                    or not isinstance(other, ControlledVehicle) \
+                    or other.target_lane_index != target:
+                continue
+            j = state.index.get(id(other))
+            if j is None:
+                continue
+            gap = s[j] - s[k]
+            approach = ((state.vx[k] - state.vx[j]) * state.cos[k]
+                        + (state.vy[k] - state.vy[j]) * state.sin[k])
+            s_star = desired_gap(np.float64(state.speed[k]), np.float64(approach),
+                                 vehicle.DISTANCE_WANTED, vehicle.TIME_WANTED,
+                                 vehicle.COMFORT_ACC_MAX, -vehicle.COMFORT_ACC_MIN)
+            if 0 < gap < s_star:
+                vehicle.target_lane_index = vehicle.lane_index
+                return
+
+    def _decide(self, pending: list[tuple[Any, list[Any]]], state: RoadState) -> None:
+        """MOBIL for every (vehicle, candidate lane) of ``pending`` at once; each vehicle
+        then targets the last candidate lane (in the network's side-lane order) that is
+        safe for its new follower and worth it; ``pending`` is emptied."""
+        if not pending:
+            return
+        network = self.network
+        rows: list[tuple[Any, int, int]] = []  # (driver, follower row, leader row)
+        for vehicle, lanes in pending:
+            k = state.index[id(vehicle)]
+            old_front, old_rear = state.neighbours(vehicle.lane, k)
+            for lane_index in lanes:
+                new_front, new_rear = state.neighbours(network.get_lane(lane_index), k)
+                rows += [(vehicle, new_rear, new_front), (vehicle, new_rear, k),
+                         (vehicle, k, new_front), (vehicle, k, old_front),
+                         (vehicle, old_rear, k), (vehicle, old_rear, old_front)]
+        a = self._idm(rows, state).reshape(-1, 6)
+        (new_follower, new_follower_after, own_after, own, old_follower,
+         old_follower_after) = a.T
+        politeness = np.array([v.POLITENESS for v, lanes in pending for _ in lanes])
+        incentive = mobil_incentive(own_after - own, new_follower_after - new_follower,
+                                    old_follower_after - old_follower, politeness).tolist()
+        r = 0
+        for vehicle, lanes in pending:
+            limit = -vehicle.LANE_CHANGE_MAX_BRAKING_IMPOSED
+            for lane_index in lanes:
+                if new_follower_after[r] < limit:
+                    pass  # unsafe for the new follower
+                elif vehicle.route and vehicle.route[0][2] is not None:
+                    # a planned lane: towards it, and no hard braking for the driver
+                    if np.sign(lane_index[2] - vehicle.target_lane_index[2]) == np.sign(
+                            vehicle.route[0][2] - vehicle.target_lane_index[2]) \
+                            and not own_after[r] < limit:
+                        vehicle.target_lane_index = lane_index
+                elif not incentive[r] < vehicle.LANE_CHANGE_MIN_ACC_GAIN:
+                    vehicle.target_lane_index = lane_index
+                r += 1
+        pending.clear()
+
+    def _idm(self, rows: list[tuple[Any, int, int]], state: RoadState) -> np.ndarray:
+        """(len(rows),) IDM accelerations [m/s^2] of the follower of each row (its row in
+        ``state``; -1 or an object that is not a vehicle: 0) behind the leader (-1: none),
+        with the IDM constants of the row's driver. The gap is measured along the
+        follower's own lane; its desired speed is its ``target_speed`` within that lane's
+        speed limit."""
+        objects = state.objects
+        n = len(rows)
+        speed, v0, gap, approach = (np.zeros(n) for _ in range(4))
+        valid, leader = np.zeros(n, bool), np.zeros(n, bool)
+        constants = np.empty((n, 5))
+        for i, (driver, k, j) in enumerate(rows):
+            constants[i] = (driver.COMFORT_ACC_MAX, driver.DELTA, driver.DISTANCE_WANTED,
+                            driver.TIME_WANTED, -driver.COMFORT_ACC_MIN)
+            follower = objects[k] if k >= 0 else None
+            if follower is None or not isinstance(follower, Vehicle):
+                continue
+            valid[i] = True
+            speed[i] = state.speed[k]
+            target = getattr(follower, "target_speed", 0)
+            lane = follower.lane
+            if lane and lane.speed_limit is not None:
+                target = min(max(target, 0), lane.speed_limit)
+            v0[i] = target
+            if j >= 0:
+                leader[i] = True
+                s = state.frame(lane)[0]
+                gap[i] = s[j] - s[k]
+                approach[i] = ((state.vx[k] - state.vx[j]) * state.cos[k]
+                               + (state.vy[k] - state.vy[j]) * state.sin[k])
+        a_max, delta, s0, time_gap, b = constants.T
+        s_star = desired_gap(speed, approach, s0, time_gap, a_max, b)
+        out = idm_acceleration(speed, v0, delta, a_max, gap, s_star, leader)
+        return np.where(valid, out, 0.0)
+
+    def _drive(self, drivers: list[tuple[Any, str]], state: RoadState) -> None:
+        """Steering to the target lane and IDM acceleration of every driver at once."""
+        if not drivers:
+            return
+        network = self.network
+        n = len(drivers)
+        rows, ahead_rows, changing = [], [], []
+        lateral, future, lane_heading_now = np.zeros(n), np.zeros(n), np.zeros(n)
+        by_lane: dict[int, tuple[Any, list[int]]] = {}
+        for i, (vehicle, _) in enumerate(drivers):
+            k = state.index[id(vehicle)]
+            target = network.get_lane(vehicle.target_lane_index)
+            s, r = state.frame(target)
+            lateral[i] = r[k]
+            future[i] = s[k] + state.speed[k] * vehicle.TAU_PURSUIT
+            by_lane.setdefault(id(target), (target, []))[1].append(i)
+            rows.append((vehicle, k, state.neighbours(vehicle.lane, k)[0]))
+            if vehicle.lane_index != vehicle.target_lane_index:
+                changing.append(i)
+                ahead_rows.append((vehicle, k, state.neighbours(target, k)[0]))
+        for lane, members in by_lane.values():
+            lane_heading_now[members] = lane_heading(lane, future[members])
+        ks = [state.index[id(v)] for v, _ in drivers]
+        constant = np.array([(v.LENGTH, v.KP_LATERAL, v.KP_HEADING, v.MAX_STEERING_ANGLE,
+                              v.ACC_MAX) for v, _ in drivers], dtype=float)
+        length, kp_lateral, kp_heading, max_angle, acc_max = constant.T
+        steering = steering_angle(lateral, np.array([state.heading[k] for k in ks]),
+                                  lane_heading_now, np.array([state.speed[k] for k in ks]),
+                                  length, kp_lateral, kp_heading, max_angle)
+        acceleration = self._idm(rows + ahead_rows, state)
+        own, on_target = acceleration[:n], acceleration[n:]
+        if changing:
+            own[changing] = np.minimum(own[changing], on_target)
+        acceleration = np.clip(own, -acc_max, acc_max)
+        for (vehicle, how), steer, acc in zip(drivers, steering.tolist(),
+                                              acceleration.tolist(), strict=True):
+            vehicle.action = {"steering": steer, "acceleration": acc}
+            if how == "hooks":
+                vehicle.adjust_action()
+
+    # -- step --------------------------------------------------------------------------
+    def step(self, dt: float) -> None:
+        """Move every vehicle by ``dt`` [s], then check collisions (see the module
+        docstring)."""
+        if not self._core_applies():
+            super().step(dt)
+            return
+        batch: list[tuple[Any, str]] = []
+        for vehicle in self.vehicles:
+            how = _moved(type(vehicle))
+            if how is None:
+                self._move(batch, dt)
+                vehicle.step(dt)
+            else:
+                batch.append((vehicle, how))
+        self._move(batch, dt)
+        self._collide(dt)
+
+    def _lanes(self) -> list[tuple[Any, Any]]:
+        lanes = self.__dict__.get("_lane_list")
+        if lanes is None:
+            lanes = self.__dict__["_lane_list"] = [
+                ((start, end, i), lane) for start, ends in self.network.graph.items()
+                for end, row in ends.items() for i, lane in enumerate(row)]
+        return lanes
+
+    def _move(self, batch: list[tuple[Any, str]], dt: float) -> None:
+        """The kinematic bicycle step of every vehicle of ``batch`` at once (actions
+        clipped as the vehicle's own ``clip_actions`` does: a crashed vehicle stops
+        straight, speeds kept within ``[MIN_SPEED, MAX_SPEED]``), a pending impact added,
+        the lane looked up; ``batch`` is emptied."""
+        if not batch:
+            return
+        vehicles = [v for v, _ in batch]
+        n = len(vehicles)
+        state = np.empty((n, 4))
+        steer, acc = np.empty(n), np.empty(n)
+        for i, v in enumerate(vehicles):
+            action, speed = v.action, float(v.speed)
+            if v.crashed:
+                action["steering"], action["acceleration"] = 0, -1.0 * speed
+            s, a = float(action["steering"]), float(action["acceleration"])
+            if speed > v.MAX_SPEED:
+                a = min(a, 1.0 * (v.MAX_SPEED - speed))
+            elif speed < v.MIN_SPEED:
+                a = max(a, 1.0 * (v.MIN_SPEED - speed))
+            action["steering"], action["acceleration"] = s, a
+            state[i] = (v.position[0], v.position[1], v.heading, speed)
+            steer[i], acc[i] = s, a
+        length = np.array([v.LENGTH for v in vehicles], dtype=float)
+        x, y, heading, speed = bicycle_step(*state.T, steer, acc, length, dt)
+        positions = np.stack([x, y], axis=1)
+        for i, v in enumerate(vehicles):
+            if v.impact is not None:
+                positions[i] += v.impact
+                v.crashed = True
+                v.impact = None
+        found = closest_lanes(self.network, self._lanes(), positions, heading)
+        get_lane, history = self.network.get_lane, self.record_history
+        for i, ((v, how), h, sp, index) in enumerate(zip(batch, heading.tolist(), speed.tolist(),
+                                                         found, strict=True)):
+            if how != "plain":
+                v.timer += dt
+            v.position, v.heading, v.speed = positions[i], h, sp
+            v.lane_index, v.lane = index, get_lane(index)
+            if history:
+                v.history.appendleft(v.create_from(v))
+            if how == "hooks":
+                v.after_step(dt)
+        batch.clear()
+
+    def _collide(self, dt: float) -> None:
+        """highway-env's collision check (``handle_collisions``) on the pairs, in the
+        road's order (each vehicle with the vehicles after it, then with the objects),
+        that :func:`near_pairs` finds close enough to touch within ``dt``."""
+        vehicles, objects = self.vehicles, self.objects
+        near = near_pairs(vehicles, objects, dt)
+        everyone = vehicles + objects
+        if near is None:
+            pairs = [(i, j) for i in range(len(vehicles)) for j in range(i + 1, len(everyone))]
+        else:
+            pairs = list(zip(*(a.tolist() for a in np.nonzero(np.triu(near, 1))), strict=True))
+        for i, j in pairs:
+            vehicles[i].handle_collisions(everyone[j], dt)
+
+
+_STANDARD_COLLISION = (RoadObject.handle_collisions, RoadObject._is_colliding)
+
+
+def near_pairs(vehicles: list[Any], objects: list[Any], dt: float) -> np.ndarray | None:
+    """(n_vehicles, n_vehicles + n_objects) bool: the pairs (vehicle, vehicle or object)
+    whose rectangles can touch within ``dt`` [s] and in which one checks collisions.
+
+    Two rectangles touch only if their centres are at most half the sum of their diagonals
+    apart; within ``dt`` each centre moves at most ``|speed| dt``. Pairs farther apart than
+    that (plus :data:`TOUCH_MARGIN`) are left out, and pairs in which neither object checks
+    collisions or one is not collidable. Objects of a class with its own collision test are
+    in every pair. None when some object lacks a position, diagonal or speed."""
+    everyone = vehicles + objects
+    n = len(vehicles)
+    try:
+        position = np.array([o.position for o in everyone], dtype=float)
+        diagonal = np.array([o.diagonal for o in everyone], dtype=float)
+        reach = np.abs(np.array([o.speed for o in everyone], dtype=float)) * dt
+        checks = np.array([bool(o.check_collisions) for o in everyone])
+        collidable = np.array([bool(o.collidable) for o in everyone])
+    except (AttributeError, TypeError, ValueError):
+        return None
+    if position.shape != (len(everyone), 2) or diagonal.shape != (len(everyone),):
+        return None
+    own_test = np.array([(type(o).handle_collisions, type(o)._is_colliding)
+                         != _STANDARD_COLLISION for o in everyone])
+    delta = position[None, :, :] - position[:n, None, :]
+    distance = np.hypot(delta[..., 0], delta[..., 1])
+    bound = (diagonal[:n, None] + diagonal[None, :]) / 2 + reach[:n, None] + reach[None, :]
+    close = ~(distance > bound + TOUCH_MARGIN)  # NaN: close
+    return ((close & (checks[:n, None] | checks[None, :]) & collidable[:n, None]
+             & collidable[None, :]) | own_test[:n, None] | own_test[None, :])
+
+
+@functools.cache
+def traffic_env_class(cls: type) -> type:
+    """A subclass of the highway-env env class ``cls`` whose road, built at each reset, is
+    a :class:`TrafficRoad` (the same network, vehicles and objects)."""
+
+    def _reset(self: Any) -> None:
+        super(env, self)._reset()
+        if not isinstance(self.road, TrafficRoad):
+            self.road = TrafficRoad.taking_over(self.road)
+
+    env = type(cls.__name__, (cls,), {"_reset": _reset, "__module__": cls.__module__,
+                                      "__doc__": cls.__doc__})
+    return env
