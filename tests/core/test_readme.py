@@ -179,9 +179,16 @@ def run(args: list[str], folder: Path, timeout: float) -> subprocess.CompletedPr
                            timeout=timeout)
 
 
-def run_in_order(selected: set[str], folder: Path, timeout: float) -> list[str]:
+def run_in_order(selected: set[str], folder: Path, timeout: float,
+                 in_process: pytest.MonkeyPatch | None = None) -> list[str]:
     """Run the README's Python blocks and its ``selected`` commands in README order in
-    ``folder``; return what ran (the commands, and ``python block N``)."""
+    ``folder``; return what ran (the commands, and ``python block N``). ``in_process``: the
+    commands run as ``tap_bench.cli.main`` in this process (the same entry point as
+    ``python -m tap_bench``, without a new interpreter's start-up for each), with ``folder``
+    as the working folder and its own cache, set through this MonkeyPatch; the Python
+    blocks always run in a fresh process."""
+    from tap_bench.cli import main
+
     ran = []
     for n, (kind, code) in enumerate(steps()):
         if kind == "python":
@@ -194,8 +201,14 @@ def run_in_order(selected: set[str], folder: Path, timeout: float) -> list[str]:
             continue
         args = shlex.split(code)
         assert args[0] == "tap-bench"
-        done = run([sys.executable, "-m", "tap_bench", *args[1:]], folder, timeout)
-        assert done.returncode == 0, f"{code}\n{done.stdout[-2000:]}\n{done.stderr[-3000:]}"
+        if in_process is not None:
+            in_process.chdir(folder)
+            in_process.setenv("TAP_BENCH_CACHE", str(folder / ".cache"))
+            assert main(args[1:]) == 0, code
+        else:
+            done = run([sys.executable, "-m", "tap_bench", *args[1:]], folder, timeout)
+            assert done.returncode == 0, (f"{code}\n{done.stdout[-2000:]}\n"
+                                          f"{done.stderr[-3000:]}")
         ran.append(code)
     return ran
 
@@ -221,8 +234,10 @@ def test_every_file_an_example_reads_an_earlier_example_writes():
         made.update(written)
 
 
-def test_the_quick_examples_run_as_written_in_order(folder):
-    ran = run_in_order(QUICK | (WOMD if HAVE_WOMD else set()), folder, timeout=600)
+def test_the_quick_examples_run_as_written_in_order(folder, monkeypatch, capsys):
+    ran = run_in_order(QUICK | (WOMD if HAVE_WOMD else set()), folder, timeout=600,
+                       in_process=monkeypatch)
+    assert "Traceback" not in capsys.readouterr().err
     assert sum(r.startswith("python block") for r in ran) == len(blocks("python"))
     assert (folder / "labels.csv").is_file() and (folder / "unique.parquet").is_file()
     assert (folder / "rollouts.parquet").is_file()  # made by the README, not by the test
