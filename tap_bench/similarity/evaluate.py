@@ -24,6 +24,7 @@ import pandas as pd
 from tap_bench.errors import LabelTableError, ParameterError
 from tap_bench.labelling import tap
 from tap_bench.similarity.nearest import (
+    Neighbours,
     ade_nearest,
     compile_kernels,
     dtw_nearest,
@@ -197,6 +198,48 @@ def evaluate(trajectories: pd.DataFrame, labels: pd.DataFrame | None = None, *,
     stationary = np.maximum.reduceat(reach, shapes.offsets[:-1]) < STATIONARY_TRAVEL
 
     keys = ls.table
+    nb_rows, found = _neighbour_table(ls, q, stationary, (ade, dtw))
+
+    unique_rows = np.flatnonzero(ls.counts[ls.code] == 1)
+    unique = unique_labels(ls)
+    label_s, n_timed = _label_timing(trajectories, keys, thresholds, timing_trajectories, 2)
+    timing = _timing(shapes, ls, label_s, n_timed, ade, dtw, kernel_s)
+    lengths = shapes.lengths
+    summary = {
+        "data": {
+            "source": source, "level": ls.level, "trajectories": len(ls),
+            "scenarios": int(keys["scenario_id"].nunique()),
+            "object_types": list(object_types) if object_types else "all",
+            "points_min": int(lengths.min()), "points_max": int(lengths.max()),
+            "distinct_labels": ls.n_labels, "queries": len(q),
+            "sampled": len(q) < len(ls), "seed": seed, "ade_length": ade_length,
+            "segments": segments, "segments_before_selection": n_segments,
+            "stationary_trajectories": int(stationary.sum()),
+            "stationary_queries": int(stationary[q].sum()),
+        },
+        "ade": found["ade"],
+        "dtw": found["dtw"],
+        "sdl_exact": {
+            "queries_with_exact_match": int((nb_rows["n_exact_matches"] > 0).sum()),
+            "unique_labels": len(unique_rows),
+            "share_unique": len(unique_rows) / len(ls),
+        },
+        "timing": timing,
+        "paper": PAPER,
+        "seconds": round(time.perf_counter() - t_start, 2),
+    }
+    ev = Evaluation(summary=summary, neighbours=nb_rows, unique=unique, labels=ls,
+                    shapes=shapes)
+    return ev
+
+
+def _neighbour_table(ls: LabelSet, q: np.ndarray, stationary: np.ndarray,
+                     searches: tuple[Neighbours, ...]) -> tuple[pd.DataFrame, dict[str, dict]]:
+    """One row per query ``q`` (indices into the label set ``ls``): its label, its exact
+    matches and, per nearest-neighbour search of ``searches`` (ADE, DTW), its neighbour, the
+    distance and whether the neighbour's label differs; and per search the counts of the
+    summary (moving and ``stationary`` queries apart)."""
+    keys = ls.table
     lat = keys["lateral"].astype(str).to_numpy()
     lon = keys["longitudinal"].astype(str).to_numpy()
     text = ls.labels[ls.code].astype(str)
@@ -208,7 +251,7 @@ def evaluate(trajectories: pd.DataFrame, labels: pd.DataFrame | None = None, *,
         "stationary": stationary[q],
     })
     found: dict[str, dict] = {}
-    for res in (ade, dtw):
+    for res in searches:
         m = res.metric
         nb = res.neighbour
         has = nb >= 0
@@ -244,10 +287,14 @@ def evaluate(trajectories: pd.DataFrame, labels: pd.DataFrame | None = None, *,
                 "median_distance": (float(np.median(res.distance[has & mask]))
                                     if answered_part else None),
             }
+    return nb_rows, found
 
-    unique_rows = np.flatnonzero(ls.counts[ls.code] == 1)
-    unique = unique_labels(ls)
-    label_s, n_timed = _label_timing(trajectories, keys, thresholds, timing_trajectories, 2)
+
+def _timing(shapes: Shapes, ls: LabelSet, label_s: float, n_timed: int, ade: Neighbours,
+            dtw: Neighbours, kernel_s: float) -> dict[str, float | int]:
+    """Milliseconds per 1000 trajectories of TAP (labelling ``n_timed`` took ``label_s``
+    seconds, then comparing labels) against ADE and DTW (one comparison each, and per
+    comparison in the searches), and the kernels' load time [s]."""
     per_compare = _compare_timing(ls.code)
     timing = {
         "tap_labels_ms_per_1000": round(1000 * 1000 * label_s / max(n_timed, 1), 1),
@@ -261,33 +308,7 @@ def evaluate(trajectories: pd.DataFrame, labels: pd.DataFrame | None = None, *,
     }
     timing["tap_ms_per_1000"] = round(timing["tap_labels_ms_per_1000"]
                                       + timing["tap_compare_ms_per_1000"], 1)
-    lengths = shapes.lengths
-    summary = {
-        "data": {
-            "source": source, "level": ls.level, "trajectories": len(ls),
-            "scenarios": int(keys["scenario_id"].nunique()),
-            "object_types": list(object_types) if object_types else "all",
-            "points_min": int(lengths.min()), "points_max": int(lengths.max()),
-            "distinct_labels": ls.n_labels, "queries": len(q),
-            "sampled": len(q) < len(ls), "seed": seed, "ade_length": ade_length,
-            "segments": segments, "segments_before_selection": n_segments,
-            "stationary_trajectories": int(stationary.sum()),
-            "stationary_queries": int(stationary[q].sum()),
-        },
-        "ade": found["ade"],
-        "dtw": found["dtw"],
-        "sdl_exact": {
-            "queries_with_exact_match": int((nb_rows["n_exact_matches"] > 0).sum()),
-            "unique_labels": len(unique_rows),
-            "share_unique": len(unique_rows) / len(ls),
-        },
-        "timing": timing,
-        "paper": PAPER,
-        "seconds": round(time.perf_counter() - t_start, 2),
-    }
-    ev = Evaluation(summary=summary, neighbours=nb_rows, unique=unique, labels=ls,
-                    shapes=shapes)
-    return ev
+    return timing
 
 
 def _pct(x: float | None) -> str:
