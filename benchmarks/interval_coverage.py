@@ -16,6 +16,11 @@ distributions are Zipf over 30 labels (exponent 0.8, 1.2, 2: from near-uniform t
 dominant label, the range seen between the random policy and IDM) and, for the diversity
 rows, a log-normal over 60 labels.
 
+Proportions of tracks in scenes (agreement of WOMD tracks with Waymo's classifier): the
+"seeds" are scenes of 1 + Poisson(20) tracks, each scene agreeing with its own
+probability (Beta, mean p, intra-scene correlation 0.2); Wilson's interval over the tracks
+as if independent against the clustered one (``clustered_wilson_interval``).
+
 Each interval is held against the quantity it is for: coverage against the expected
 coverage of n episodes, the Hill numbers at m against Chao et al. (2014)'s qD(m) of the
 true distribution (``population_hill``: exact, no simulation; for q = 1, 2 not the mean of
@@ -40,6 +45,7 @@ from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.coverage import Reference, coverage
 from tap_bench.bench.diversity import diversity, population_hill
 from tap_bench.bench.intervals import (
+    clustered_wilson_interval,
     mean_interval,
     tango_band,
     tango_interval,
@@ -55,6 +61,32 @@ def wilson_rate(rng, n, p, reps):
     x = rng.binomial(n, p, reps)
     lo, hi = wilson_interval(x, np.full(reps, n), LEVEL)
     return np.mean((lo <= p) & (p <= hi))
+
+
+def _scene_shares(rng, n, p, reps, icc=0.2, tracks=20):
+    """reps data sets of n scenes of 1 + Poisson(tracks) tracks, each scene agreeing with
+    its own probability, Beta with mean p and intra-scene correlation ``icc``: (x, m) lists
+    of per-scene successes and tracks."""
+    ab = 1 / icc - 1
+    out = []
+    for _ in range(reps):
+        m = 1 + rng.poisson(tracks, n)
+        out.append((rng.binomial(m, rng.beta(p * ab, (1 - p) * ab, n)), m))
+    return out
+
+
+def wilson_tracks_rate(rng, n, p, reps):
+    """Wilson's interval over the tracks, as if independent (tracks of n scenes)."""
+    hits = [(lo <= p <= hi) for lo, hi in (wilson_interval(int(x.sum()), int(m.sum()), LEVEL)
+                                           for x, m in _scene_shares(rng, n, p, reps))]
+    return np.mean(hits)
+
+
+def clustered_wilson_rate(rng, n, p, reps):
+    """Wilson's interval at n / deff over the scenes (clustered_wilson_interval)."""
+    hits = [(lo <= p <= hi) for lo, hi, _ in (clustered_wilson_interval(x, m, LEVEL)
+                                              for x, m in _scene_shares(rng, n, p, reps))]
+    return np.mean(hits)
 
 
 def _paired_binary(rng, n, pa, pb, reps):
@@ -200,6 +232,10 @@ def main() -> None:
             print(rows[-1], flush=True)
 
     add("Wilson: crash / novelty rate, agreement", "p", (0.03, 0.25, 0.5), wilson_rate, reps)
+    add("Wilson over tracks, as if independent: agreement of tracks in scenes (before)",
+        "p (ICC 0.2)", (0.1, 0.5, 0.8), wilson_tracks_rate, reps)
+    add("clustered Wilson (n / deff over scenes): agreement of tracks in scenes", "p (ICC 0.2)",
+        (0.1, 0.5, 0.8), clustered_wilson_rate, reps)
     add("Tango: paired label-frequency / crash-rate difference", "delta", (0.0, 0.1, 0.3),
         tango_rate, reps)
     add("Tango: probability of improvement (20 % ties)", "P", (0.5, 0.7, 0.9),

@@ -16,6 +16,10 @@ many paired differences at once    a simultaneous band over k labels: Tango inte
                                    the pairs (each Z_j Tango's score statistic at the
                                    estimate: a sup-score band); between Tango's own level
                                    and the Sidak level ``level ** (1 / k)``
+a proportion of tracks that come    Wilson's interval at the effective sample size n / deff
+in scenes (agreement of WOMD        (Rao and Scott 1981): ``deff`` the design effect of the
+tracks with Waymo's classifier)     scenes, the ratio estimator's between-scene variance
+                                    over the binomial one; critical value t with G - 1
 a mean, a paired mean difference   Student's t interval
 a difference of independent means  Welch's t interval
 =================================  ===========================================================
@@ -47,6 +51,7 @@ __all__ = [
     "measure_interval",
     "newcombe_interval",
     "paired_measure_interval",
+    "clustered_wilson_interval",
     "sidak_level",
     "t_quantile",
     "tango_band",
@@ -100,20 +105,21 @@ def t_quantile(p: float, df: int) -> float:
     return (lo + hi) / 2
 
 
-def wilson_interval(successes, n, level: float) -> tuple:
+def wilson_interval(successes, n, level: float, *, z: float | None = None) -> tuple:
     """Wilson score interval of a proportion ``successes / n``.
 
     Args:
         successes: count(s) of events (scalar or array).
         n: trials (scalar or array of the same shape).
         level: two-sided level, e.g. 0.95.
+        z: the critical value to use instead of the level's normal quantile.
 
     Returns:
         (low, high) in [0, 1], floats or arrays; NaN where n is 0.
     """
     x = np.asarray(successes, dtype=float)
     m = np.asarray(n, dtype=float)
-    z = z_value(level)
+    z = z_value(level) if z is None else float(z)
     with np.errstate(invalid="ignore", divide="ignore"):
         p = x / m
         centre = (p + z * z / (2 * m)) / (1 + z * z / m)
@@ -126,6 +132,48 @@ def wilson_interval(successes, n, level: float) -> tuple:
     if np.ndim(low) == 0:
         return float(low), float(high)
     return low, high
+
+
+def clustered_wilson_interval(successes, trials, level: float) -> tuple[float, float, float]:
+    """Wilson's interval of a proportion whose trials come in clusters (tracks in scenes).
+
+    The share is ``sum(successes) / sum(trials)`` over the clusters; the tracks of one
+    scene share its place and traffic, so they carry less than one independent trial each.
+    The interval is Wilson's at the effective sample size ``n / deff`` (Rao and Scott
+    1981), ``deff`` the design effect: the ratio estimator's between-cluster variance
+    ``G / (G - 1) * sum (x_g - p n_g)^2 / n^2`` over the binomial ``p (1 - p) / n``, kept
+    within [1, largest cluster]. With every cluster agreeing or every one failing (p 0 or 1,
+    no variance to see) ``deff`` is the mean cluster size (the clusters are the sample).
+    The variance is estimated from G clusters, so the critical value is Student's t with
+    G - 1 degrees of freedom, not the normal one.
+
+    Args:
+        successes: (G,) successes per cluster.
+        trials: (G,) trials per cluster (> 0).
+        level: two-sided level.
+
+    Returns:
+        (low, high, deff); NaN with no trials.
+    """
+    x = np.asarray(successes, dtype=float)
+    m = np.asarray(trials, dtype=float)
+    keep = m > 0
+    x, m = x[keep], m[keep]
+    g, n = len(m), float(m.sum())
+    if not n:
+        return float("nan"), float("nan"), float("nan")
+    p = float(x.sum()) / n
+    if g < 2:
+        deff = n
+    elif 0 < p < 1:
+        between = g / (g - 1) * float(((x - p * m) ** 2).sum()) / n ** 2
+        deff = float(np.clip(between / (p * (1 - p) / n), 1.0, m.max()))
+    else:
+        deff = n / g
+    # few scenes: the variance is estimated from G of them, read at Student's t (G - 1)
+    z = t_quantile(0.5 + level / 2, g - 1) if g >= 2 else z_value(level)
+    low, high = wilson_interval(p * n / deff, n / deff, level, z=z)
+    return float(low), float(high), deff
 
 
 def newcombe_interval(x1, n1, x2, n2, level: float) -> tuple:

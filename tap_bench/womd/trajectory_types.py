@@ -237,21 +237,34 @@ def label_agreement(types: pd.DataFrame, steps: pd.DataFrame, *, level: str = "m
 
 
 def agreement_table(per_track: pd.DataFrame) -> pd.DataFrame:
-    """Per trajectory type (and ``all``): tracks, labelled tracks, and among those the
-    strict lateral agreement, the direction-only agreement and the longitudinal one
-    (counts and shares), with the strict rule in words."""
+    """Per trajectory type (and ``all``): tracks, labelled tracks, the scenes they come
+    from, and among the labelled tracks the strict lateral agreement, the direction-only
+    agreement and the longitudinal one (counts, shares, and each share's 95 % interval
+    ``<name>_low`` / ``<name>_high`` over scenes: the tracks of one scene are not
+    independent, :func:`tap_bench.bench.intervals.clustered_wilson_interval`), with the
+    strict rule in words."""
+    from tap_bench.bench.intervals import clustered_wilson_interval
+
     rows = []
     for kind in (*TRAJECTORY_TYPES, "all"):
         sel = per_track if kind == "all" else per_track[per_track["trajectory_type"] == kind]
         if not len(sel):
             continue
         labelled = int(sel["labelled"].sum())
-        row = {"trajectory_type": kind, "tracks": len(sel), "labelled": labelled}
+        scene = (sel["scenario_id"].astype(str) if "scenario_id" in sel.columns
+                 else pd.Series(np.arange(len(sel)).astype(str), index=sel.index))
+        done = sel["labelled"].astype(bool)
+        row = {"trajectory_type": kind, "tracks": len(sel), "labelled": labelled,
+               "scenes": int(scene[done].nunique())}
         for col in ("strict", "direction", "longitudinal_agrees"):
             agree = int(sel[col].sum())
             name = "longitudinal" if col == "longitudinal_agrees" else col
             row[name] = agree
             row[f"{name}_share"] = round(agree / labelled, 3) if labelled else float("nan")
+            per_scene = sel[done].groupby(scene[done], sort=False)[col].agg(["sum", "size"])
+            low, high, _ = clustered_wilson_interval(per_scene["sum"], per_scene["size"],
+                                                     0.95)
+            row[f"{name}_low"], row[f"{name}_high"] = round(low, 3), round(high, 3)
         row["strict rule"] = "" if kind == "all" else STRICT_RULES[kind][1]
         rows.append(row)
     return pd.DataFrame(rows)

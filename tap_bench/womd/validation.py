@@ -73,10 +73,12 @@ def compare_with_waymo(table: pd.DataFrame, steps: pd.DataFrame, *, level: str =
         "level": level, "start_index": start_index, "tracks": len(per_track),
         "labelled": int(per_track["labelled"].sum()),
     }
+    summary["scenes"] = int(total["scenes"]) if total is not None else 0
     for name in ("strict", "direction", "longitudinal"):
         summary[name] = int(total[name]) if total is not None else 0
-        summary[f"{name}_share"] = (float(total[f"{name}_share"])
-                                    if total is not None else float("nan"))
+        for what in ("share", "low", "high"):
+            summary[f"{name}_{what}"] = (float(total[f"{name}_{what}"])
+                                         if total is not None else float("nan"))
     turns = per_track["trajectory_type"].str.contains("TURN")
     summary["turns"] = int(turns.sum())
     summary["turns_labelled_as_that_turn"] = int((turns & per_track["strict"]).sum())
@@ -125,6 +127,15 @@ def validate_womd(table: pd.DataFrame, thresholds="paper", config=None, plausibi
     return out
 
 
+def _over_scenes(s: dict, name: str) -> str:
+    """``, 95 % interval 61.2-70.4 % over 16 scenes`` (empty without the interval)."""
+    low, high = s.get(f"{name}_low", float("nan")), s.get(f"{name}_high", float("nan"))
+    if not (low == low and high == high):
+        return ""
+    return (f", 95 % interval {100 * low:.1f}-{100 * high:.1f} % over {s.get('scenes', 0)} "
+            "scenes")
+
+
 def markdown(v: WaymoValidation) -> str:
     """The agreement and confusion tables as Markdown, with the summary figures."""
     s = v.summary
@@ -144,11 +155,12 @@ def markdown(v: WaymoValidation) -> str:
         f"(step {s['start_index']} to the last valid step); level {s['level']}.",
         "",
         f"- strict lateral agreement: {s['strict']} of {s['labelled']} "
-        f"({100 * s['strict_share']:.1f} %)",
+        f"({100 * s['strict_share']:.1f} %{_over_scenes(s, 'strict')})",
         f"- direction only: {s['direction']} of {s['labelled']} "
-        f"({100 * s['direction_share']:.1f} %)",
+        f"({100 * s['direction_share']:.1f} %{_over_scenes(s, 'direction')})",
         f"- longitudinal (STATIONARY all Stopped, others not): {s['longitudinal']} of "
-        f"{s['labelled']} ({100 * s['longitudinal_share']:.1f} %)",
+        f"{s['labelled']} ({100 * s['longitudinal_share']:.1f} %"
+        f"{_over_scenes(s, 'longitudinal')})",
         f"- turns and U-turns labelled as a turn that way: {s['turns_labelled_as_that_turn']}"
         f" of {s['turns']}",
     ]

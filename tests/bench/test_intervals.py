@@ -169,3 +169,22 @@ def test_paired_t_covers_a_skewed_difference_at_30_seeds():
     rate = _rate(np.array(hits))
     print(f"paired t, skewed, 30 seeds: {rate:.3f}")
     assert 0.93 <= rate <= 0.97
+
+
+def test_clustered_wilson_counts_scenes_not_tracks_by_hand():
+    from tap_bench.bench.intervals import clustered_wilson_interval
+
+    # read at Student's t with 5 - 1 degrees of freedom (2.776): Wilson's at that level
+    t4 = 2.7764451
+    # 5 scenes of 10 tracks: 2 agree on every track, 3 on none. p = 0.4 of 50; between
+    # scenes 5/4 * (2 * 6^2 + 3 * 4^2) / 50^2 = 0.06, binomial 0.4 * 0.6 / 50 = 0.0048:
+    # deff 12.5, kept at the largest scene (10): Wilson's interval of 2 of 5
+    low, high, deff = clustered_wilson_interval([10, 10, 0, 0, 0], [10] * 5, 0.95)
+    assert deff == 10
+    assert (low, high) == pytest.approx(wilson_interval(2, 5, 0.95, z=t4))
+    # every scene agrees on half its tracks: no excess between scenes, deff 1: 25 of 50
+    low, high, deff = clustered_wilson_interval([5] * 5, [10] * 5, 0.95)
+    assert deff == 1 and (low, high) == pytest.approx(wilson_interval(25, 50, 0.95, z=t4))
+    # all agree: no variance to see, the scenes are the sample (deff = 10 tracks a scene)
+    low, high, deff = clustered_wilson_interval([10] * 5, [10] * 5, 0.95)
+    assert deff == 10 and (low, high) == pytest.approx(wilson_interval(5, 5, 0.95, z=t4))

@@ -166,3 +166,21 @@ def test_validate_command_writes_the_tables(womd_dir, tmp_path, capsys):
                                                "per_track.parquet"}
     text = capsys.readouterr().out
     assert "strict lateral agreement" in text and "Confusion table" in text
+
+
+def test_agreement_shares_have_intervals_over_scenes():
+    from tap_bench.bench.intervals import clustered_wilson_interval, wilson_interval
+
+    # scene a: 10 STRAIGHT tracks that all agree; scene b: 10 that all disagree. Over
+    # tracks 10 of 20 would look like 20 independent tracks; over scenes it is 2 scenes
+    per_track = pd.DataFrame({
+        "scenario_id": np.repeat(["a", "b"], 10), "trajectory_type": "STRAIGHT",
+        "labelled": True, "strict": np.repeat([True, False], 10),
+        "direction": True, "longitudinal_agrees": np.repeat([True, False], 10)})
+    row = agreement_table(per_track).set_index("trajectory_type").loc["all"]
+    assert row["scenes"] == 2 and row["strict_share"] == 0.5
+    low, high, _ = clustered_wilson_interval([10, 0], [10, 10], 0.95)
+    assert (row["strict_low"], row["strict_high"]) == pytest.approx((low, high), abs=5e-4)
+    plain = wilson_interval(10, 20, 0.95)
+    assert row["strict_high"] - row["strict_low"] > 1.5 * (plain[1] - plain[0])
+    assert row["direction_low"] < 1 == row["direction_high"]  # all agree: Wilson's edge
