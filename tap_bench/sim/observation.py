@@ -141,18 +141,37 @@ def _values(vehicle: Any, features: list[str]) -> dict[str, Any]:
 
 class FastKinematicObservation(KinematicObservation):
     """highway-env's :class:`KinematicObservation` without pandas: same parameters, same
-    (vehicles_count, len(features)) float32 array (see the module docstring)."""
+    (vehicles_count, len(features)) float32 array (see the module docstring).
+
+    The observation always has ``vehicles_count`` rows, so it lies in the space: with
+    ``vehicles_count`` 1 the ego's row alone and with 0 no row, where highway-env's own
+    returns the ego and every other vehicle near (a (9, 5) array in a (1, 5) space).
+
+    Raises:
+        ValueError: ``vehicles_count`` is not an integer >= 0.
+    """
+
+    def __init__(self, env: Any, *args: Any, **kwargs: Any) -> None:
+        super().__init__(env, *args, **kwargs)
+        count = self.vehicles_count
+        if isinstance(count, bool) or not isinstance(count, int | np.integer) or count < 0:
+            raise ValueError(f"Kinematics observation: vehicles_count {count!r} must be an "
+                             "integer >= 0 (the rows observed: the ego, then the nearest "
+                             "vehicles).")
 
     def observe(self) -> np.ndarray:
         """The observation: one row per vehicle (the observer first, then the closest ones),
         one column per feature, normalised and clipped as highway-env does; rows of zeros
-        when fewer vehicles are near."""
+        when fewer vehicles are near. ``vehicles_count`` rows (see the class docstring)."""
+        return self._observe()[:self.vehicles_count]
+
+    def _observe(self) -> np.ndarray:
+        if not self.env.road:
+            return np.zeros((self.vehicles_count, len(self.features)), self._dtype())
         if not _highway_env_observes_as_written():
             return KinematicObservation.observe(self)
-        if not self.env.road:
-            return np.zeros(self.space().shape)
         ego = self.observer_vehicle
-        close = self._close_objects(ego)
+        close = self._close_objects(ego) if self.vehicles_count > 1 else []
         features = list(self.features)
         if close:
             close = close[-self.vehicles_count + 1:]
@@ -167,7 +186,6 @@ class FastKinematicObservation(KinematicObservation):
         columns = {f: np.array([row.get(f, np.nan) for row in rows]) for f in features}
         if self.normalize:
             columns = self._normalize(columns)
-        # more records than vehicles_count only with vehicles_count 1 (no count then)
         obs = np.zeros((max(self.vehicles_count, len(rows)), len(features)))
         obs[:len(rows)] = np.column_stack([columns[f] for f in features])
         if self.order == "shuffled":
@@ -274,12 +292,12 @@ def use_fast_observation(env: gym.Env) -> bool:
     Returns:
         whether it was replaced: only an observation of exactly highway-env's
         :class:`KinematicObservation` class is (subclasses such as ``ExitObservation`` add
-        features of their own), and only where the installed highway-env's code is the one
-        repeated (:data:`_OBSERVE_CODE`).
+        features of their own). Where the installed highway-env's code is not the one
+        repeated (:data:`_OBSERVE_CODE`), the replacement observes by highway-env's own code,
+        kept to ``vehicles_count`` rows.
     """
     inner: Any = env.unwrapped
-    if type(inner.observation_type) is not KinematicObservation \
-            or not _highway_env_observes_as_written():
+    if type(inner.observation_type) is not KinematicObservation:
         return False
     inner.observation_type = FastKinematicObservation(inner, **inner.config["observation"])
     return True

@@ -1,7 +1,12 @@
 """``tap_bench/womd-v0``: drive a policy through recorded WOMD scenes (SPEC section 8).
 
-One episode is one recorded scenario (the seed is its index in the files given, in file and
-record order; ``reset(options={"scenario_id": ...})`` picks one by id). Its lanes become a
+One episode is one recorded scenario. **Seeds and scenes**: the N scenarios of the files
+given, in file and record order, are scenes 0 to N-1; ``reset(seed=s)`` starts scene
+``s % N`` (any integer seed is valid, so seeds 0 to N-1 are the N scenes, and a training
+library's seeds wrap around), ``reset(options={"scene": i})`` scene ``i`` and
+``reset(options={"scenario_id": ...})`` the scenario of that id; a reset without either
+starts the scene after the last one. ``env.unwrapped`` (the highway-env environment) picks
+its scenes the same way, so both pass Gymnasium's ``check_env``. Its lanes become a
 highway-env road network (:class:`WomdNetwork`: one :class:`~tap_bench.sim.womd_lanes.
 FastPolyLane` per WOMD lane, 3.7 m wide unless the boundary lines say otherwise, connected by
 WOMD's exit lanes, inferred where the data has none), so every highway-env policy and
@@ -55,10 +60,11 @@ side. Any highway-env observation can be configured instead (``config={"observat
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 import warnings
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -66,6 +72,7 @@ import numpy as np
 import pandas as pd
 from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.envs.common.action import action_factory
+from highway_env.envs.common.observation import observation_factory
 from highway_env.vehicle.kinematics import Vehicle
 
 from tap_bench.errors import ParameterError
@@ -152,7 +159,24 @@ _WARNED: set[str] = set()
 
 
 class _WomdHighwayEnv(AbstractEnv):
-    """The highway-env environment under :class:`WomdEnv` (one scene at a time)."""
+    """The highway-env environment under :class:`WomdEnv` (``env.unwrapped``): it picks the
+    scene of a reset itself, so it is a complete Gymnasium env on its own.
+
+    Args:
+        scenes: the files and settings.
+        config: more highway-env config (over :meth:`default_config`).
+        render_mode: highway-env's.
+
+    Attributes:
+        catalog: the scenarios, in scene-index order (file and record order).
+        scene: the current :class:`~tap_bench.sim.womd_scene.Scene` (None before the first
+            reset).
+        scene_index: its index in :attr:`catalog`.
+        resets: resets so far (a listener knows which episode a frame belongs to).
+        frame_listener: called as ``frame_listener(step, measured)`` after every simulated
+            step (10 Hz) of an episode, with the ego's measures of that step (what
+            :class:`WomdEnv` records); None: nobody listens.
+    """
 
     @classmethod
     def default_config(cls) -> dict:
@@ -168,27 +192,123 @@ class _WomdHighwayEnv(AbstractEnv):
         })
         return config
 
-    def __init__(self, config: dict | None = None, render_mode: str | None = None) -> None:
+    def __init__(self, scenes: WomdScenes, config: dict | None = None,
+                 render_mode: str | None = None) -> None:
+        self.scenes = scenes
+        self.catalog = scenes.catalog()
+        if not self.catalog:
+            raise SceneError(f"{', '.join(scenes.files)}: no scenario in these files.")
         self.scene: Scene | None = None
-        self.traffic = "log"
+        self.scene_index: int | None = None
+        self._cache: dict[SceneRef, Scene] = {}
+        self.traffic = scenes.traffic
         self.clock = [CURRENT_STEP]
         self.replaying_ego = False
-        super().__init__(config=config, render_mode=render_mode)
+        self.resets = 0
+        self.frame_listener: Callable[[int, dict[str, float]], None] | None = None
+        self._measured_step = CURRENT_STEP
+        self._building = True  # highway-env resets once in its constructor: no scene yet
+        super().__init__(config={"policy_frequency": scenes.policy_frequency,
+                                 **dict(config or {})}, render_mode=render_mode)
+        self._building = False
+
+    def render(self) -> np.ndarray | None:
+        """highway-env's rendering of the current scene (None before the first reset: no
+        scene to draw)."""
+        if self.road is None:
+            return None
+        return super().render()
+
+    # the scenes
+    def scene_at(self, index: int) -> Scene:
+        """The scene of index ``index`` in :attr:`catalog` (decoded once, a few kept)."""
+        if isinstance(index, bool) or not isinstance(index, int | np.integer) \
+                or not 0 <= index < len(self.catalog):
+            raise ParameterError("scene", index, f"0 to {len(self.catalog) - 1}: the index "
+                                 f"of a scenario in the {len(self.catalog)} of "
+                                 f"{', '.join(self.scenes.files)}")
+        ref = self.catalog[int(index)]
+        scene = self._cache.get(ref)
+        if scene is None:
+            scene = load_scene(ref, ego=self.scenes.ego)
+            if len(self._cache) >= 4:
+                self._cache.pop(next(iter(self._cache)))
+            self._cache[ref] = scene
+        return scene
+
+    def index_of(self, scenario_id: str) -> int:
+        """The index of the scenario ``scenario_id`` in :attr:`catalog`."""
+        for i in range(len(self.catalog)):
+            if self.scene_at(i).scenario_id == scenario_id:
+                return i
+        raise ParameterError("scenario_id", scenario_id, "the id of a scenario in "
+                             f"{', '.join(self.scenes.files)}")
+
+    def scene_for(self, seed: int | None, options: Mapping[str, Any]) -> int:
+        """The scene index a reset starts (see :meth:`reset`)."""
+        if options.get("scenario_id") is not None:
+            return self.index_of(str(options["scenario_id"]))
+        if options.get("scene") is not None:
+            return options["scene"]  # checked by scene_at
+        if seed is not None:
+            return int(seed) % len(self.catalog)
+        return 0 if self.scene_index is None else (self.scene_index + 1) % len(self.catalog)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[Any, dict[str, Any]]:
+        """Start a recorded scenario: ``options["scenario_id"]`` (a WOMD id), else
+        ``options["scene"]`` (an index in :attr:`catalog`), else the one of ``seed``:
+        scene ``seed % len(catalog)`` (any integer seed is valid; seeds 0 to N-1 are the N
+        scenes in file and record order), else the scene after the last one.
+
+        ``seed`` also seeds the env's random generator (as Gymnasium's ``reset`` does);
+        the other options are highway-env's (``{"config": ...}``; the observation and
+        action spaces stay those of the constructor).
+        """
+        options = dict(options or {})
+        selectors = {key: options.pop(key, None) for key in ("scenario_id", "scene")}
+        if not self._building:
+            index = self.scene_for(seed, selectors)
+            self.scene = self.scene_at(index)
+            self.scene_index = int(index)
+            self.resets += 1
+        return super().reset(seed=seed, options=options or None)
 
     idm_vehicle_class = WomdIDMVehicle
     """What :func:`tap_bench.sim.idm.take_over_ego` puts in the ego's place."""
 
     def define_spaces(self) -> None:
         """highway-env's, with the route observation (:mod:`tap_bench.sim.womd_observation`)
-        as one more observation type."""
+        as one more observation type and highway-env's Kinematics observation computed
+        without pandas (:mod:`tap_bench.sim.observation`).
+
+        The spaces are fixed when the env is built: a reset whose ``config`` option would
+        change them is refused.
+        """
+        from tap_bench.sim.observation import use_fast_observation
+
         config = self.config["observation"]
-        if config.get("type") != OBSERVATION_TYPE:
-            super().define_spaces()
-            return
-        self.observation_type = RouteObservation(self, **config)
+        if config.get("type") == OBSERVATION_TYPE:
+            self.observation_type = RouteObservation(self, **config)
+        else:
+            self.observation_type = observation_factory(self, config)
+            use_fast_observation(self)
         self.action_type = action_factory(self, self.config["action"])
-        self.observation_space = self.observation_type.space()
-        self.action_space = self.action_type.space()
+        settings = {name: copy.deepcopy(dict(self.config[name]))
+                    for name in ("observation", "action")}
+        built = getattr(self, "_space_settings", None)
+        if built is None:  # the constructor: the spaces are fixed here
+            self._space_settings = settings
+            self.observation_space = self.observation_type.space()
+            self.action_space = self.action_type.space()
+            return
+        for name, value in settings.items():
+            if value != built[name]:
+                raise ParameterError(
+                    f"config.{name}", value, "the settings the env was built with",
+                    message=f"tap_bench/womd-v0: the {name} space is fixed when the env is "
+                    f"built ({built[name]}); this reset's config makes it {value}. Build "
+                    f"another env with config={{'{name}': ...}} instead.")
 
     def _reset(self) -> None:
         if self.scene is None:  # highway-env resets once in its constructor
@@ -196,6 +316,7 @@ class _WomdHighwayEnv(AbstractEnv):
             return
         scene = self.scene
         self.clock[0] = CURRENT_STEP
+        self._measured_step = CURRENT_STEP
         network = WomdNetwork(scene.road)
         self.map_note = _map_note(scene, network)
         self.road = WomdRoad(network, scene, self.clock, np_random=self.np_random)
@@ -292,7 +413,27 @@ class _WomdHighwayEnv(AbstractEnv):
         self.controlled_vehicles = [new]
         self.replaying_ego = True
 
-    # per step bookkeeping (called by WomdEnv after every simulated step)
+    # per step bookkeeping: after every simulated step (highway-env calls
+    # _automatic_rendering after each step of a decision but its last)
+    def _automatic_rendering(self) -> None:
+        self._end_frame()
+        super()._automatic_rendering()
+
+    def _simulate(self, action: Any = None) -> None:
+        super()._simulate(action)
+        self._end_frame()
+
+    def _end_frame(self) -> None:
+        """Measure the step just simulated (once per step, inside the record) and tell the
+        listener, before the episode's end is decided."""
+        k = self.clock[0]
+        if self.scene is None or k <= self._measured_step or k >= self.scene.n_steps:
+            return
+        self._measured_step = k
+        measured = self.measure_step()
+        if self.frame_listener is not None:
+            self.frame_listener(k, measured)
+
     def measure_step(self) -> dict[str, float]:
         ego = self.vehicle
         p = np.asarray(ego.position, float)
@@ -362,106 +503,72 @@ class WomdEnv(gym.Wrapper):
         scenes: the files and settings.
         record: build the trajectory table (off: faster training).
         render_mode: highway-env's.
-        cycle: for training: a seed past the last scenario wraps around, and a scenario that
-            cannot be built is skipped (with a warning) for the next one.
+        cycle: for training: a scenario that cannot be built is skipped (with a warning)
+            for the next one.
 
     Attributes:
         scenario: the :class:`WomdScenes` (``scenario.name`` is the ``env`` column).
-        catalog: the scenarios, in seed order.
+        catalog: the scenarios, in scene-index order.
         scene: the current :class:`~tap_bench.sim.womd_scene.Scene`.
+        max_steps: decisions in the current episode when it runs to the log's end.
     """
 
     def __init__(self, scenes: WomdScenes, *, record: bool = True,
                  render_mode: str | None = None, cycle: bool = False) -> None:
-        config = {**_WomdHighwayEnv.default_config(), "policy_frequency":
-                  scenes.policy_frequency, **dict(scenes.config)}
-        inner = _WomdHighwayEnv(config=config, render_mode=render_mode)
+        inner = _WomdHighwayEnv(scenes, config=dict(scenes.config), render_mode=render_mode)
         super().__init__(inner)
         self.scenario = scenes
         self.record = record
         self.cycle = cycle
-        self.catalog = scenes.catalog()
-        if not self.catalog:
-            raise SceneError(f"{', '.join(scenes.files)}: no scenario in these files.")
-        self.scene: Scene | None = None
-        self._cache: dict[SceneRef, Scene] = {}
         self._seed: int | None = None
-        self._render_frame = inner._automatic_rendering
-        inner._automatic_rendering = self._intermediate_frame
-        self._define_spaces = inner.define_spaces
-        inner.define_spaces = self._fast_spaces
+        self._episode = -1  # the inner env's reset this wrapper records
+        inner.frame_listener = self._frame
         self.max_steps = 0
 
-    def _fast_spaces(self) -> None:
-        from tap_bench.sim.observation import use_fast_observation
+    @property
+    def catalog(self) -> list[SceneRef]:
+        """The scenarios, in scene-index order."""
+        return self.env.unwrapped.catalog
 
-        self._define_spaces()
-        if self.env.unwrapped.road is not None:
-            use_fast_observation(self.env)
+    @property
+    def scene(self) -> Scene | None:
+        """The current scene (None before the first reset)."""
+        return self.env.unwrapped.scene
 
     def scene_at(self, index: int) -> Scene:
-        """The scene of seed ``index`` (decoded once, a few kept)."""
-        if not 0 <= index < len(self.catalog):
-            raise ParameterError("seed", index, f"0 to {len(self.catalog) - 1}: the index of "
-                                 f"a scenario in the {len(self.catalog)} of "
-                                 f"{', '.join(self.scenario.files)}")
-        ref = self.catalog[index]
-        scene = self._cache.get(ref)
-        if scene is None:
-            scene = load_scene(ref, ego=self.scenario.ego)
-            if len(self._cache) >= 4:
-                self._cache.pop(next(iter(self._cache)))
-            self._cache[ref] = scene
-        return scene
+        """The scene of index ``index`` (decoded once, a few kept)."""
+        return self.env.unwrapped.scene_at(index)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[Any, dict[str, Any]]:
-        """Start the scenario of ``seed`` (its index in the files) or of
-        ``options["scenario_id"]``; without either, the next one."""
+        """Start a scenario: ``options["scenario_id"]``, else ``options["scene"]`` (its
+        index in :attr:`catalog`), else scene ``seed % len(catalog)``, else the next one
+        (:meth:`_WomdHighwayEnv.reset`). With ``cycle``, a scene that cannot be built is
+        skipped, with a warning, for the next one."""
+        inner = self.env.unwrapped
         options = dict(options or {})
-        wanted = options.pop("scenario_id", None)
-        if wanted is not None:
-            index = self._index_of(str(wanted))
-        elif seed is not None:
-            index = int(seed)
-        else:
-            index = 0 if self._seed is None else (self._seed + 1) % len(self.catalog)
-        if self.cycle:
-            index %= len(self.catalog)
         for _ in range(len(self.catalog) if self.cycle else 1):
             try:
-                obs, info = self._start(index, options)
+                obs, info = self.env.reset(seed=seed, options=options or None)
+                if self.cycle and inner.route_missing:  # training: a scene without a
+                    raise SceneError(inner.route_missing)  # route is skipped
                 break
             except SceneError as err:
                 if not self.cycle:
                     raise
                 warnings.warn(f"{err} Skipped.", stacklevel=2)
-                index = (index + 1) % len(self.catalog)
+                failed = inner.scene_for(seed, options)
+                options = {**options, "scenario_id": None,
+                           "scene": (failed + 1) % len(self.catalog)}
         else:
             raise SceneError(f"{', '.join(self.scenario.files)}: no scenario can be built.")
-        self._start_record()
-        return obs, info
-
-    def _start(self, index: int, options: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
-        self.scene = self.scene_at(index)
-        self._seed = index
-        inner = self.env.unwrapped
-        inner.scene = self.scene
-        inner.traffic = self.scenario.traffic
-        obs, info = self.env.reset(seed=index, options=options or None)
-        if self.cycle and inner.route_missing:  # training: a scene without a route is skipped
-            raise SceneError(inner.route_missing)
+        self._seed = inner.scene_index
+        self._episode = inner.resets
         self.max_steps = int(np.ceil((self.scene.n_steps - 1 - CURRENT_STEP)
                                      * inner.config["policy_frequency"]
                                      / inner.config["simulation_frequency"]))
+        self._start_record()
         return obs, info
-
-    def _index_of(self, scenario_id: str) -> int:
-        for i in range(len(self.catalog)):
-            if self.scene_at(i).scenario_id == scenario_id:
-                return i
-        raise ParameterError("scenario_id", scenario_id, "the id of a scenario in "
-                             f"{', '.join(self.scenario.files)}")
 
     # recording
     def _start_record(self) -> None:
@@ -481,13 +588,12 @@ class WomdEnv(gym.Wrapper):
         self.crash_fault = ""
         self.crash_from_behind_by_log = False
 
-    def _frame(self) -> None:
+    def _frame(self, k: int, measured: dict[str, float]) -> None:
+        """Record simulated step ``k`` (the inner env's :attr:`frame_listener`)."""
         inner = self.env.unwrapped
-        k = inner.clock[0]
-        if k <= self._last_step or k >= self.scene.n_steps:
+        if inner.resets != self._episode:  # an episode this wrapper did not start
             return
         self._last_step = k
-        measured = inner.measure_step()
         e = self.scene.ego
         for name, value in measured.items():
             self._ego_cols[name][k] = value
@@ -565,13 +671,8 @@ class WomdEnv(gym.Wrapper):
         return "; ".join(f"{name(a)} x {name(b)} at {scene.times[k] - scene.times[0]:.1f} s"
                          for k, a, b in self.env.unwrapped.road.traffic_collisions)
 
-    def _intermediate_frame(self) -> None:
-        self._frame()
-        self._render_frame()
-
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)
-        self._frame()
         info = {**info, "scenario_id": self.scene.scenario_id}
         return obs, reward, terminated, truncated and not terminated, info
 

@@ -23,6 +23,7 @@ from typing import Any
 import numba
 import numpy as np
 from highway_env import utils
+from highway_env.road.lane import LineType
 from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
@@ -86,8 +87,11 @@ class WomdNetwork(RoadNetwork):
                 self.left_out.append(lane.id)
                 continue
             limit = lane.speed_limit if np.isfinite(lane.speed_limit) else 20.0
+            # drawn (rgb_array) with a dashed line where the map names a neighbour
+            lines = tuple(LineType.STRIPED if side else LineType.CONTINUOUS
+                          for side in (lane.left, lane.right))
             built = FastPolyLane(sim_frame(points[:, 0], points[:, 1]).tolist(), lane.width,
-                                 womd_id=lane.id, speed_limit=limit)
+                                 womd_id=lane.id, speed_limit=limit, line_types=lines)
             index = (str(lane.id), f"{lane.id}>", 0)
             self.add_lane(index[0], index[1], built)
             self.index[lane.id] = index
