@@ -1,17 +1,20 @@
 """Draws docs/figures/closed_loop.png: one recorded WOMD scene driven by IDM beside the human.
 
-Run from the project root: ``python docs/figures/closed_loop.py [SCENE_FILE]`` (a few
-seconds; default: ``../shared/data/womd/womd_scenario_input.tfrecord``, the real sample
-files are not part of the project). The map (lane centre lines, road edges, crosswalks,
-signals at 1.0 s), the other road users at 1.0 s and their logged paths, the human's path
-(the policy ``log``) and the path IDM/MOBIL drove in its place with the others replaying
-the log, each with its TAP label.
+Run it from anywhere: ``python docs/figures/closed_loop.py [SCENE_FILE] [-o OUT.png]`` (a
+few seconds; default scene: ``womd_scenario_input.tfrecord`` of ``../shared/data/womd``
+beside the project, the real sample files are not part of it; default output: next to this
+script). The map (lane centre lines, road edges, crosswalks, signals at 1.0 s), the other
+road users at 1.0 s and their logged paths, the human's path (the policy ``log``, dashed)
+and the paths IDM/MOBIL and lane keeping drove in its place with the others replaying the
+log (IDM wide and light under lane keeping, so both show where they coincide), each with its
+TAP label. It prints what it drew, the facts the caption in docs/closed_loop.md states.
 """
 
 from __future__ import annotations
 
-import sys
+import argparse
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -45,8 +48,21 @@ def drive(env, policy: str):
     return ego, sdl, env.episode_info()
 
 
-def main() -> None:
-    path = Path(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT
+STYLE = {"log": {"ls": "--", "lw": 2.2, "alpha": 1.0, "zorder": 8},
+         "idm": {"ls": "-", "lw": 5.0, "alpha": 0.45, "zorder": 6},
+         "lane-keeping": {"ls": "-", "lw": 1.6, "alpha": 1.0, "zorder": 7}}
+
+
+def main(argv: list[str] | None = None) -> dict[str, dict[str, Any]]:
+    """Draw the figure; return per policy what it shows (label, mean distance to the human
+    [m], route progress, crashed)."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("scene", nargs="?", type=Path, default=DEFAULT,
+                        help="a WOMD file (its first scenario is drawn)")
+    parser.add_argument("-o", "--output", type=Path, default=Path(__file__).with_suffix(".png"),
+                        help="the PNG to write (default: docs/figures/closed_loop.png)")
+    args = parser.parse_args(argv)
+    path = args.scene
     if not path.is_file():
         raise SystemExit(f"{path}: no such file (the real WOMD samples live outside the "
                          "project, in ../shared/data/womd).")
@@ -86,18 +102,24 @@ def main() -> None:
         if scene.valid[row, CURRENT_STEP]:
             ax.plot(*xy[CURRENT_STEP], "s" if not walker else "o", ms=4,
                     color="tab:green" if walker else "0.4", zorder=4)
+    facts = {}
     for policy, (ego, sdl, info) in runs.items():
         xy = ego[["x", "y"]].to_numpy()
         future = ego["t"].to_numpy() >= CURRENT_STEP / 10 - 1e-9
-        style = "--" if policy == "log" else "-"
         name = "human (log)" if policy == "log" else policy
+        facts[policy] = {"sdl": sdl, "log_ade": info["log_ade"],
+                         "route_progress": info["route_progress"],
+                         "crashed": bool(ego["crashed"].any()),
+                         "off_road": bool(info["off_road"])}
         extra = "" if policy == "log" else (
             f"; ADE {info['log_ade']:.1f} m, progress {info['route_progress']:.2f}"
-            + (", crashed" if ego["crashed"].any() else ""))
-        ax.plot(*xy[future].T, style, color=COLOURS[policy], lw=2.2 if policy == "log" else 1.8,
-                label=f"{name}: {sdl}{extra}", zorder=6)
-        ax.plot(*xy[future][-1], ">", color=COLOURS[policy], ms=7, zorder=7)
-    ax.plot(*ego_xy[CURRENT_STEP], "o", color="crimson", ms=8, zorder=8,
+            + (", crashed" if facts[policy]["crashed"] else "")
+            + (", off road" if facts[policy]["off_road"] else ""))
+        style = STYLE[policy]
+        ax.plot(*xy[future].T, style["ls"], color=COLOURS[policy], lw=style["lw"],
+                alpha=style["alpha"], label=f"{name}: {sdl}{extra}", zorder=style["zorder"])
+        ax.plot(*xy[future][-1], ">", color=COLOURS[policy], ms=7, zorder=9)
+    ax.plot(*ego_xy[CURRENT_STEP], "o", color="crimson", ms=8, zorder=10,
             label="the ego at 1.0 s, where the policy takes over")
     ax.set_xlim(centre[0] - half, centre[0] + half)
     ax.set_ylim(centre[1] - half, centre[1] + half)
@@ -108,9 +130,13 @@ def main() -> None:
                  fontsize=10)
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.09), fontsize=8, frameon=False)
     fig.tight_layout()
-    out = ROOT / "docs" / "figures" / "closed_loop.png"
-    fig.savefig(out, dpi=110)
-    print(f"wrote {out}")
+    fig.savefig(args.output, dpi=110)
+    print(f"wrote {args.output}")
+    for policy, fact in facts.items():
+        print(f"{policy}: {fact['sdl']}; ADE {fact['log_ade']:.1f} m, route progress "
+              f"{fact['route_progress']:.2f}{', crashed' if fact['crashed'] else ''}"
+              f"{', off road' if fact['off_road'] else ''}")
+    return facts
 
 
 if __name__ == "__main__":

@@ -1,6 +1,7 @@
 """Draws docs/figures/interactions.png: the path frame on a curve and a cut-in labelled.
 
-Run from the project root: ``python docs/figures/interactions.py`` (a few seconds).
+Run it from anywhere: ``python docs/figures/interactions.py [-o OUT.png]`` (a few seconds;
+default: next to this script).
 Left: on a 60 m circle the ego's path (blue) is the reference line and its corridor
 (|d| <= 1.8 m, shaded) follows the curve; a car cuts in from the inner lane (red), a car on
 the inner lane stays beside it (grey). Right: the cutter's s and d in the ego's path frame
@@ -9,6 +10,7 @@ and the relations TAP labels per step (Free Driving, Cut-in naming the cutter, F
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 import matplotlib
@@ -35,7 +37,11 @@ def vehicle(tid, s, off, ego=False):
                          "object_type": "vehicle", "is_ego": ego})
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("-o", "--output", type=Path, default=Path(__file__).with_suffix(".png"),
+                        help="the PNG to write (default: docs/figures/interactions.png)")
+    out = parser.parse_args(argv).output
     u = np.clip((T - 2) / 3, 0, 1)
     scene = pd.concat([vehicle("ego", 15 * T, np.zeros_like(T), ego=True),
                        vehicle("cutter", 20 + 15 * T, 2 + 2 * np.cos(np.pi * u)),
@@ -93,7 +99,6 @@ def main() -> None:
     bx.set_xlabel("t [s]")
     bx.set_title("the ego's relations per step (runs >= 1 s)")
     bx.legend(loc="lower right", fontsize=8)
-    out = Path(__file__).with_suffix(".png")
     fig.tight_layout()
     fig.savefig(out, dpi=80)
     print(f"wrote {out}")

@@ -307,8 +307,8 @@ class Suite:
     def env_seeds(self, env: str) -> tuple[int, ...]:
         """The seeds ``env`` runs: the suite's, or with ``"seeds": "all"`` the index of
         every scenario of its files."""
-        if self.all_seeds and env in self.scenes:
-            return tuple(range(len(self.scenes[env].catalog())))
+        if env in self.scenes:  # "all", or seeds within the files
+            return self.scenes[env].seeds("all" if self.all_seeds else list(self.seeds))
         return self.seeds
 
     def to_dict(self) -> dict[str, Any]:
@@ -509,6 +509,7 @@ def _check_names(suite: Suite, source: str) -> None:
             try:
                 if not suite.scenes[env].catalog():
                     raise FileFormatError("no scenario in these files")
+                suite.env_seeds(env)  # seeds beyond the files: refused up front
             except (FileFormatError, ValueError, OSError) as err:
                 raise FileFormatError(f"{source}: env {env!r}: {err}") from err
             continue

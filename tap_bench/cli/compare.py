@@ -67,19 +67,91 @@ def read_policies(paths: Sequence[str], names: Sequence[str] | None, *, level: s
     from tap_bench.errors import LabelTableError
     from tap_bench.tableio import read_table
 
-    parts = []
+    read = []
     for path, given in zip(paths, names or [None] * len(paths), strict=True):
         table = read_table(path)
         name = _name(table, given, path)
         if "policy" in table.columns:
             table = table.assign(policy=name)
-        parts.append((name, *episodes_from_table(table, level=level, thresholds=thresholds,
-                                                  policy=name, source=str(path))))
-    taken = [part[0] for part in parts]
+        read.append((name, table))
+    taken = [name for name, _ in read]
     if len(set(taken)) < len(taken):
         raise LabelTableError(f"the inputs {list(paths)} carry the policy names {taken}; "
                               "name them apart with --names.")
-    return parts
+    tables = pair_recorded_scenes([table for _, table in read], taken,
+                                  [str(p) for p in paths])
+    return [(name, *episodes_from_table(table, level=level, thresholds=thresholds,
+                                        policy=name, source=str(path)))
+            for (name, _), table, path in zip(read, tables, paths, strict=True)]
+
+
+def _recorded(table: Any) -> bool:
+    """Whether ``table`` is a trajectory table of recorded scenes driven in closed loop
+    (``tap-bench rollout --womd``: source ``womd-sim``)."""
+    return "sdl" not in table.columns and "source" in table.columns \
+        and bool((table["source"].astype(str) == "womd-sim").any())
+
+
+def pair_recorded_scenes(tables: Sequence[Any], names: Sequence[str], paths: Sequence[str]
+                         ) -> list[Any]:
+    """Trajectory tables of recorded scenes (``rollout --womd``), one policy each, made
+    ready to compare and view together, paired by scenario id (SPEC section 8).
+
+    Every policy drove the same WOMD scenarios, so each episode gets an id of its own,
+    ``<WOMD id>/<policy>`` (the WOMD id kept in ``womd_scenario_id``), as a bench run names
+    them. Episodes are paired by ``(env, seed)``: where the tables number the scenes alike
+    (each scenario the same seed in every table: the same files in the same order) the
+    seeds stay; else the seeds are numbered again by scenario id (0, 1, ... in the first
+    table's order, then the scenarios only later tables hold), with a warning naming the
+    files. Other tables are returned as they are.
+
+    Raises:
+        TrajectoryTableError: a table gives one scenario two seeds (two rollouts of
+            different files concatenated).
+    """
+    import sys
+    from collections import Counter
+
+    import numpy as np
+
+    from tap_bench.errors import TrajectoryTableError
+
+    recorded = [i for i, table in enumerate(tables) if _recorded(table)]
+    if not recorded:
+        return list(tables)
+    out = list(tables)
+    seeds: list[dict[str, int]] = []
+    for i in recorded:
+        table = tables[i]
+        womd = (table["womd_scenario_id"] if "womd_scenario_id" in table.columns
+                else table["scenario_id"]).astype(str)
+        pairs = list(dict.fromkeys(zip(womd.tolist(), table["seed"].astype(np.int64).tolist(),
+                                       strict=True)))
+        twice = [w for w, n in Counter(w for w, _ in pairs).items() if n > 1]
+        if twice:
+            raise TrajectoryTableError(
+                f"{paths[i]}: scenario {twice[0]} appears under several seeds "
+                f"({sorted(s for w, s in pairs if w == twice[0])}); a rollout table holds "
+                "each recorded scenario once. Compare the tables of one rollout each.")
+        seeds.append(dict(pairs))
+        out[i] = table.assign(womd_scenario_id=womd, scenario_id=womd + "/" + names[i])
+    by_seed = [sorted(mapping.items(), key=lambda item: item[1]) for mapping in seeds]
+    first: dict[str, int] = {}
+    for mapping in by_seed:
+        for womd, seed in mapping:
+            first.setdefault(womd, seed)
+    alike = len(set(first.values())) == len(first) and all(
+        first[w] == s for mapping in seeds for w, s in mapping.items())
+    if alike:
+        return out
+    order = {womd: k for k, womd in enumerate(first)}
+    for i in recorded:
+        out[i] = out[i].assign(seed=out[i]["womd_scenario_id"].map(order).astype(np.int64))
+    listed = ", ".join(paths[i] for i in recorded)
+    print(f"warning: {listed} number the recorded scenes differently (rolled out on other "
+          "files or in another order): the episodes are paired by scenario id, and the "
+          f"seeds numbered again 0-{len(order) - 1} by scenario.", file=sys.stderr)
+    return out
 
 
 def _warn_if_unpaired(eps_a, eps_b, a: tuple[str, str], b: tuple[str, str]) -> None:

@@ -19,9 +19,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--env", help="scenario name (highway) or id")
     p.add_argument("--womd", nargs="+", metavar="FILE",
                    help="recorded WOMD scenes instead of --env: Scenario or tf.Example "
-                   "TFRecords, ScenarioNet pickles, patterns or folders (tap_bench/womd-v0: "
-                   "the policy drives the recorded ego from 1.0 s; a seed is a scenario's "
-                   "index in these files, all of them by default)")
+                   "TFRecords, ScenarioNet pickles, patterns or folders (files in them that "
+                   "are not WOMD records are left out; tap_bench/womd-v0: the policy drives "
+                   "the recorded ego from 1.0 s; a seed is a scenario's index in these "
+                   "files, all of them by default; each scene is checked as ingest checks "
+                   "it, and a bad one fails alone)")
     p.add_argument("--traffic", choices=("log", "idm"), default="log",
                    help="with --womd: the other agents replay the log (log, default) or "
                    "IDM/MOBIL drives the vehicles along their lanes (idm)")
@@ -83,6 +85,10 @@ def run(args: argparse.Namespace) -> int:
     finally:
         close_backend(backend)
     ok = episodes[episodes["status"] == "ok"]
+    if len(trajectories):  # no table leaves that the contract (SPEC section 1) refuses
+        from tap_bench.trajectories import validate_and_index
+
+        validate_and_index(trajectories, source=f"{output} (not written)")
     outputs = {output: trajectories} if len(trajectories) else {}
     write_tables({**outputs, episodes_out: episodes})  # together or not at all
     print(f"{len(ok)}/{len(episodes)} episodes, {len(trajectories)} rows -> "

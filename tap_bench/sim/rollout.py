@@ -238,8 +238,8 @@ def rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
 
     scenario = resolve_scenario(env, config=config, duration=duration,
                                 lane_change=lane_change)
-    if isinstance(scenario, WomdScenes) and (seeds is None or seeds == "all"):
-        seed_list = list(range(len(scenario.catalog())))
+    if isinstance(scenario, WomdScenes):  # "all", or seeds within the files
+        seed_list = list(scenario.seeds(seeds))
     else:
         seed_list = parse_seeds(seeds)
     runner = resolve_backend(backend, workers)

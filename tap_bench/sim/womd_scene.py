@@ -12,8 +12,10 @@ what to do: no SDC, an ego not valid at the current time, no lanes.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
+import warnings
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -134,47 +136,141 @@ class Scene:
 def scene_catalog(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> list[SceneRef]:
     """Every scenario of some files, in file and record order (a seed is an index into it).
 
-    Raises:
-        FileFormatError: a pattern that matches nothing, a file of an unknown format.
-    """
-    from tap_bench.sources.ingest import _file_format, expand_paths
-    from tap_bench.womd.tfrecord import iter_records
+    Files in a folder or matched by a pattern that are not WOMD records (a README, an empty
+    file) are left out with a warning, once per file, as ``tap-bench ingest`` leaves them
+    out (:func:`tap_bench.sources.ingest.record_files`). A scenario id met again (the same
+    scenario in two files, or twice in one) is listed once, where it is first met, with a
+    warning naming both places.
 
-    refs = []
-    for path in expand_paths(paths):
-        name = _file_format(path, "auto", True).name
-        if name == "scenarionet":
-            refs.append(SceneRef(str(path), 0, name))
-        elif name in ("scenario", "tf_example"):
-            refs.extend(SceneRef(str(path), record.index, name)
-                        for record in iter_records(path))
-        else:
-            raise SceneError(f"{path}: format {name!r} carries no map; closed-loop scenes "
-                             "need WOMD Scenario, tf.Example or ScenarioNet files.")
+    Raises:
+        FileFormatError: a pattern that matches nothing (or nothing but files that are not
+            records), a file of an unknown format.
+        SceneError: a file named on its own that holds no scenario (an empty file).
+    """
+    from tap_bench.sources.ingest import record_files
+
+    refs: list[SceneRef] = []
+    first: dict[str, SceneRef] = {}
+    for path in record_files(paths, note=_note_once):
+        listed = _file_scenarios(str(path), *_stamp(path))
+        if not listed:
+            raise SceneError(f"{path}: no scenario in this file (it is empty or holds no "
+                             "records), so there is nothing to drive. Leave the file out.")
+        for ref, sid in listed:
+            if sid and sid in first:
+                _note_once(f"scenario {sid} is in {first[sid]} and again in {ref}: it is "
+                           f"run once, from {first[sid]}. Leave one of the copies out.")
+                continue
+            if sid:
+                first[sid] = ref
+            refs.append(ref)
     return refs
 
 
+def _stamp(path: Path) -> tuple[int, int]:
+    stat = path.stat()
+    return stat.st_size, stat.st_mtime_ns
+
+
+@functools.lru_cache(maxsize=256)
+def _file_scenarios(path: str, size: int, mtime_ns: int) -> tuple[tuple[SceneRef, str], ...]:
+    """The scenarios of one file, each with its scenario id ("" where the id cannot be read
+    without decoding it); cached per file and state (size, modification time)."""
+    from tap_bench.sources.ingest import _file_format
+    from tap_bench.womd.tfrecord import iter_records
+
+    name = _file_format(Path(path), "auto", True).name
+    if name == "scenarionet":
+        return ((SceneRef(path, 0, name), _scenarionet_id(path)),)
+    if name not in ("scenario", "tf_example"):
+        raise SceneError(f"{path}: format {name!r} carries no map; closed-loop scenes "
+                         "need WOMD Scenario, tf.Example or ScenarioNet files.")
+    return tuple((SceneRef(path, record.index, name), _record_id(record.data, name))
+                 for record in iter_records(path))
+
+
+def _record_id(data: bytes, format: str) -> str:
+    """The scenario id a record holds ("" when it cannot be read: decoding says why)."""
+    try:
+        if format == "scenario":
+            from tap_bench.womd.proto import ScenarioView
+
+            return str(ScenarioView.FromString(data).scenario_id)
+        from tap_bench.womd.tf_example import Example
+
+        feature = Example.FromString(data).features.feature.get("scenario/id")
+        values = feature.bytes_list.value if feature is not None else ()
+        return values[0].decode() if len(values) else ""
+    except Exception:  # a damaged record: load_scene names it and what is wrong
+        return ""
+
+
+def _scenarionet_id(path: str) -> str:
+    """The scenario id of a ScenarioNet pickle ("" when it cannot be read)."""
+    try:
+        from tap_bench.sources.scenarionet import load_scenarionet
+
+        scenario = load_scenarionet(path)
+        meta = scenario.get("metadata", {}) or {}
+        return str(meta.get("scenario_id", scenario.get("id", Path(path).stem)))
+    except Exception:  # a damaged pickle: load_scene names it and what is wrong
+        return ""
+
+
+_NOTED: set[str] = set()
+
+
+def _note_once(text: str) -> None:
+    """Warn about a file left out of a catalogue once per process (a catalogue is listed
+    by every env and run that reads the files)."""
+    if text not in _NOTED:
+        _NOTED.add(text)
+        warnings.warn(text, UserWarning, stacklevel=4)
+
+
+_CONTRACT_FIX = ("A closed-loop scene is built only from records that keep the trajectory "
+                 "contract (SPEC section 1), as tap-bench ingest reads them; leave the "
+                 "scenario out (the other scenes still run).")
+
+
 def _read(ref: SceneRef) -> tuple[pd.DataFrame, RoadMap, str]:
+    """Decode ``ref`` into (trajectory table, road map, content hash), its tracks checked
+    as ``tap-bench ingest`` checks each scenario it reads.
+
+    Raises:
+        WomdRecordError: the record cannot be decoded, or its table breaks the trajectory
+            contract (a NaN, infinite or far-off state on a valid row, NaN or backward
+            times ...): the message names the file, the record, the track, the column and
+            the value.
+    """
+    from tap_bench.errors import WomdRecordError
+    from tap_bench.sources.ingest import _contract_problem, _scenario_id
     from tap_bench.sources.scenarionet import decode_scenarionet, load_scenarionet
     from tap_bench.womd import roadmap
     from tap_bench.womd.scenario import decode_scenario
     from tap_bench.womd.tf_example import decode_tf_example
     from tap_bench.womd.tfrecord import iter_records
 
+    def checked(table: Any, record: int, offset: int) -> pd.DataFrame:
+        problem = _contract_problem(table, _scenario_id(table))
+        if problem:
+            raise WomdRecordError(ref.path, record, offset, problem.rstrip("."), _CONTRACT_FIX)
+        return table.to_pandas()
+
     if ref.format == "scenarionet":
         data = Path(ref.path).read_bytes()
         scenario = load_scenarionet(ref.path)
-        table = decode_scenarionet(scenario, path=ref.path).to_pandas()
+        table = checked(decode_scenarionet(scenario, path=ref.path), 0, 0)
         road = roadmap.scenarionet_road_map(scenario, source=ref.path)
         return table, road, hashlib.sha256(data).hexdigest()
     for record in iter_records(ref.path):
         if record.index != ref.record:
             continue
         if ref.format == "scenario":
-            table = decode_scenario(record).to_pandas()
+            table = checked(decode_scenario(record), record.index, record.offset)
             road = roadmap.scenario_road_map(record.data, source=str(ref))
         else:
-            table = decode_tf_example(record).to_pandas()
+            table = checked(decode_tf_example(record), record.index, record.offset)
             road = roadmap.tf_example_road_map(record.data, source=str(ref))
             if road is None:
                 road = roadmap.RoadMap(str(table["scenario_id"].iloc[0]), {},
@@ -234,10 +330,12 @@ def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:
                          "track with --ego, or leave the scenario out.")
     if table["object_type"].to_numpy().reshape(n, t)[row, 0] != "vehicle":
         raise SceneError(f"{where}: the ego (track {tracks[row]}) is not a vehicle.")
-    if not any(len(lane.centre) >= 2 for lane in road.lanes.values()):
-        raise SceneError(f"{where}: the map has no lanes (of two points or more), so there is "
-                         "no road to drive on. Use files with a map (Scenario protos, "
-                         "ScenarioNet pickles, tf.Examples with roadgraph_samples).")
+    from tap_bench.sim.womd_lanes import lane_points
+
+    if not any(lane_points(lane.centre) is not None for lane in road.lanes.values()):
+        raise SceneError(f"{where}: the map has no lanes (of two distinct points or more), so "
+                         "there is no road to drive on. Use files with a map (Scenario "
+                         "protos, ScenarioNet pickles, tf.Examples with roadgraph_samples).")
     x, y = grid("x"), grid("y")
     heading, vx, vy = grid("heading"), grid("vx"), grid("vy")
     speed = grid("speed")
@@ -309,6 +407,30 @@ class WomdScenes:
         """The scenarios, in seed order."""
         return scene_catalog(self.files)
 
+    def seeds(self, spec: str | int | Iterable[int] | None = "all") -> tuple[int, ...]:
+        """The seeds a rollout or suite runs on these scenes: ``"all"`` (or None) is every
+        scenario's index; any other seeds (``"0-4"``, ``[1, 3]``) must name scenarios of
+        the files.
+
+        Raises:
+            ParameterError: a seed beyond the files' scenarios (the env itself maps any
+                seed onto a scene, ``seed % N``; a run names each scene once).
+        """
+        from tap_bench.sim.scenario_format import parse_seeds
+
+        n = len(self.catalog())
+        if spec is None or spec == "all":
+            return tuple(range(n))
+        seeds = tuple(parse_seeds(spec))
+        beyond = [s for s in seeds if not 0 <= s < n]
+        if beyond:
+            raise ParameterError("seeds", beyond[0] if len(beyond) == 1 else beyond,
+                                 f"0 to {n - 1}", message=(
+                                     f"seeds {_listed(beyond)}: beyond the {n} scenario(s) "
+                                     f"of {', '.join(self.files)} (seeds 0 to {n - 1}, one "
+                                     "per scenario). Give seeds within them, or 'all'."))
+        return seeds
+
     def fingerprint(self, ref: SceneRef) -> dict[str, Any]:
         """The env part of an episode-cache key (:func:`tap_bench.bench.cache.episode_key`)
         for the scenario ``ref``: its content hash and the settings that shape the episode,
@@ -316,3 +438,8 @@ class WomdScenes:
         return {"womd": ref.digest(), "format": ref.format, "traffic": self.traffic,
                 "ego": self.ego, "policy_frequency": self.policy_frequency,
                 "config": dict(self.config)}
+
+
+def _listed(values: list[int]) -> str:
+    shown = ", ".join(map(str, values[:5]))
+    return shown + (f" ... ({len(values)} seeds)" if len(values) > 5 else "")

@@ -3,4 +3,9 @@
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import tap_bench  # noqa: F401  (registers the tap_bench/... ids)
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # for womd_records

@@ -24,6 +24,17 @@ def test_envs_shows_one_scenarios_full_config(capsys):
     assert doc["config"]["spawn_probability"] == 0.6  # highway-env's default, filled in
 
 
+def test_envs_lists_the_recorded_scene_env(capsys):
+    assert main(["envs"]) == 0
+    out = capsys.readouterr().out
+    assert "tap_bench/womd-v0" in out and "seed % N" in out and "--womd" in out
+    assert main(["envs", "--json"]) == 0
+    rows = {row["id"]: row for row in json.loads(capsys.readouterr().out)}
+    assert "files=[...]" in rows["tap_bench/womd-v0"]["make"]
+    assert main(["envs", "womd-v0"]) == 0
+    assert json.loads(capsys.readouterr().out)["id"] == "tap_bench/womd-v0"
+
+
 def test_an_unknown_env_is_an_error_with_a_suggestion(capsys):
     assert main(["envs", "roundabot"]) == 2
     assert "Did you mean 'roundabout'" in capsys.readouterr().err

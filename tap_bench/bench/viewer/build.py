@@ -235,6 +235,8 @@ def env_roads(envs: Sequence[str]) -> pd.DataFrame:
 
 
 def _rebuild_roads(summary: dict[str, Any], envs: Sequence[str]) -> pd.DataFrame:
+    if summary.get("format") == "tap-bench-compare":  # two tables, no suite: as compare
+        return env_roads(envs)  # drew them (recorded scenes have no map there)
     suite = suite_from_dict(summary.get("suite", {}), source="summary.json")
     frames = [suite.road(env) for env in envs if env in suite.envs]
     return pd.concat(frames, ignore_index=True) if frames else empty_map()

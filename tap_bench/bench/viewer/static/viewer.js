@@ -475,6 +475,11 @@ const TAPVIEW = (() => {
     ctx.setTransform(scale, 0, 0, -scale, W / 2 - scale * cx, H / 2 + scale * cy);
     drawMap(ctx, mapOf(ep), scale);
     drawSignals(ctx, ep, tc, scale);
+    // the egos' whole paths: the other pane's (on recorded scenes the human, beside the
+    // policy that drove in its place) wide and grey under this pane's
+    const other = ep === state.a ? state.b : state.a;
+    if (other) drawPath(ctx, other, other.ego, "rgba(60,60,60,0.35)", 1.2);
+    drawPath(ctx, ep, ep.ego, "rgba(224,49,49,0.7)", 0.35);
     for (const tr of ep.tracks) {
       if (tr.ego) continue;
       const p = pose(ep, tr, tc);
@@ -482,7 +487,6 @@ const TAPVIEW = (() => {
     }
     // the other pane's ego as a ghost (same env and seed: on recorded scenes, the human
     // beside the policy that drove in its place)
-    const other = ep === state.a ? state.b : state.a;
     if (other) {
       const pg = pose(other, other.ego, Math.min(tc, other.duration));
       if (pg) drawGhost(ctx, other.ego, pg);
@@ -494,6 +498,11 @@ const TAPVIEW = (() => {
     ctx.font = "12px system-ui, sans-serif";
     ctx.fillStyle = "#222";
     ctx.fillText(`t = ${tc.toFixed(1)} s`, 8, 16);
+    if (other) {
+      ctx.fillStyle = "#555";
+      ctx.fillText(`grey: ${other.entry.policy}'s path`, 8, 32);
+      ctx.fillStyle = "#222";
+    }
     const scaleM = 10 ** Math.floor(Math.log10(120 / scale));
     ctx.fillRect(8, H - 12, scaleM * scale, 3);
     ctx.fillText(`${scaleM} m`, 12 + scaleM * scale, H - 8);
@@ -588,6 +597,25 @@ const TAPVIEW = (() => {
       ctx.fill();
       ctx.stroke();
     });
+  }
+
+  function drawPath(ctx, ep, tr, color, width) {
+    // the track's whole recorded path, a line ``width`` metres wide (gaps left open)
+    ctx.save();
+    ctx.strokeStyle = color;
+    ctx.lineWidth = width;
+    ctx.lineCap = "round";
+    ctx.lineJoin = "round";
+    ctx.beginPath();
+    let pen = false;
+    for (let i = 0; i < tr.n; i++) {
+      if (tr.x[i] === MISSING) { pen = false; continue; }
+      const x = tr.x[i] * ep.q + ep.origin[0], y = tr.y[i] * ep.q + ep.origin[1];
+      if (pen) ctx.lineTo(x, y); else ctx.moveTo(x, y);
+      pen = true;
+    }
+    ctx.stroke();
+    ctx.restore();
   }
 
   function drawGhost(ctx, tr, p) {
