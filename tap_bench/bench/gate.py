@@ -224,6 +224,26 @@ def scene_stand_ins(episodes: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
+def _stand_in_notes(table: pd.DataFrame, episodes: pd.DataFrame) -> pd.DataFrame:
+    """Say on each check a stand-in decided that it did, with the measure it stood in for
+    beside it (``crashed``: at-fault collisions, all collisions in the run)."""
+    ok = episodes[episodes["status"] == "ok"]
+    for measure, stand_in in SCENE_STANDS_IN.items():
+        if stand_in not in ok.columns or measure not in ok.columns:
+            continue
+        real = ok[pd.to_numeric(ok[stand_in], errors="coerce").notna()]
+        for (env, policy), group in real.groupby(["env", "policy"], sort=False):
+            at = ((table["env"] == env) & (table["policy"] == policy)
+                  & (table["metric"] == measure)).to_numpy()
+            if at.any():
+                every = pd.to_numeric(group[measure], errors="coerce").astype(float).mean()
+                text = (f"{stand_in} on recorded scenes (SPEC 8); all {measure} in the run: "
+                        f"{every:.3g}")
+                table.loc[at, "note"] = [f"{n}; {text}" if isinstance(n, str) and n
+                                         else text for n in table.loc[at, "note"]]
+    return table
+
+
 def _identity(summary: dict[str, Any]) -> dict[str, Any]:
     suite = summary.get("suite", {})
     return {"suite": suite.get("name"), "suite_version": suite.get("version"),
@@ -709,7 +729,7 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
     changed = definition_changes(run_summary.get("provenance"), baseline.get("provenance"))
     changed_policy = {name: what for kind, name, what in changed if kind == "policy"}
     changed_env = {name: what for kind, name, what in changed if kind == "env"}
-    run_episodes = scene_stand_ins(run_episodes)
+    as_run, run_episodes = run_episodes, scene_stand_ins(run_episodes)
     run_ok = run_episodes[run_episodes["status"] == "ok"]
     run_failed = run_episodes[run_episodes["status"] != "ok"]
     cells = sorted(set(map(tuple, baseline_episodes[["env", "policy"]].drop_duplicates()
@@ -750,7 +770,7 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
         raise
     for key, base, run in plans:
         rows += _test_cell(key, base, run, config, _why(key, changed_policy, changed_env))
-    table = _decide(pd.DataFrame(rows), config)
+    table = _stand_in_notes(_decide(pd.DataFrame(rows), config), as_run)
     if power:
         table = _with_power(table, plans, config)
     else:

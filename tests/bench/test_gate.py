@@ -544,6 +544,10 @@ def test_on_real_scenes_the_crash_check_counts_at_fault_collisions(tmp_path):
     # twice the collisions, all of them the other's fault (rear-ends, a stopped ego hit)
     hit = check(SUMMARY, _real_scene_run(0, hit=0.5, fault=0.05), doc, base)
     assert not hit.moved, hit.format()
+    row = hit.table[hit.table["metric"] == "crashed"].iloc[0]
+    assert row["run"] < 0.2 and "crashed_at_fault on recorded scenes" in row["note"]
+    every = _real_scene_run(0, hit=0.5, fault=0.05)["crashed"].mean()
+    assert f"all crashed in the run: {every:.3g}" in row["note"]  # all collisions beside
     # as many collisions, now the ego's fault
     blamed = check(SUMMARY, _real_scene_run(0, hit=0.5, fault=0.5), doc, base)
     assert blamed.moved
