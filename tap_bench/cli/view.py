@@ -41,6 +41,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help=f"WOMD files: show the first N scenarios, read one record at a time "
                    f"(default {DEFAULT_VIEW_SCENARIOS}, at most {MAX_VIEW_SCENARIOS}: each "
                    "costs about 14 MB while the viewer is built)")
+    p.add_argument("--maps", nargs="+", metavar="WOMD_FILE",
+                   help="trajectory tables of recorded scenes (rollout --womd): the WOMD "
+                   "files they were rolled out on (globs and folders too), whose maps are "
+                   "drawn under the episodes")
     p.add_argument("--rebuild", action="store_true",
                    help="write a run's viewer again even when it exists")
     p.add_argument("--no-open", action="store_true", help="write it, do not open a browser")
@@ -50,11 +54,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 TABLE_SUFFIXES = (".parquet", ".csv")
 
 
-def write_tables_viewer(paths: list[str], output: Path, *, level: str, thresholds: str
-                        ) -> Path:
+def write_tables_viewer(paths: list[str], output: Path, *, level: str, thresholds: str,
+                        maps: list[str] | None = None) -> Path:
     """The replay viewer of trajectory tables (``tap-bench rollout`` output): each table a
-    policy (named as ``compare`` names them), their episodes side by side on one seed, the
-    last table the reference. Returns the path of ``index.html``."""
+    policy (named as ``compare`` names them), their episodes side by side on one seed
+    (recorded scenes: on one scenario), the last table the reference. ``maps``: the WOMD
+    files recorded scenes were rolled out on, whose maps are drawn (the tables do not name
+    their files). Returns the path of ``index.html``."""
     import pandas as pd
 
     parts = read_policies(paths, None, level=level, thresholds=thresholds)
@@ -71,8 +77,15 @@ def write_tables_viewer(paths: list[str], output: Path, *, level: str, threshold
                          "envs": sorted(episodes["env"].astype(str).unique()),
                          "description": ", ".join(f"{n} ({p})" for n, p in
                                                   zip(names, paths, strict=True))}}
-    return write_run_viewer(output, summary, episodes, trajectories,
-                            roads=env_roads(summary["suite"]["envs"]))
+    roads = env_roads(summary["suite"]["envs"])
+    if maps and "womd_scenario_id" in trajectories.columns:
+        from tap_bench.sources.ingest import record_files
+        from tap_bench.sources.maps import read_maps
+
+        ids = set(trajectories["womd_scenario_id"].dropna().astype(str))
+        roads = pd.concat([roads, read_maps(record_files(maps), scenario_ids=ids)],
+                          ignore_index=True)
+    return write_run_viewer(output, summary, episodes, trajectories, roads=roads)
 
 
 def _is_run(path: Path) -> bool:
@@ -93,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
              for p in args.paths):
         output = Path(args.output or "tables-viewer")
         page = write_tables_viewer(args.paths, output, level=args.level,
-                                   thresholds=args.thresholds)
+                                   thresholds=args.thresholds, maps=args.maps)
         print(f"wrote {output}/ in {time.perf_counter() - start:.1f} s "
               f"({_size(output) / 1e6:.1f} MB)")
     else:

@@ -55,6 +55,13 @@ def test_a_policy_and_the_human_compare_and_view_paired_by_scenario(tmp_path, ca
     pairs = {(e["seed"], e["policy"]): e["id"] for e in index["episodes"]}
     for seed in range(3):  # the same seed is the same scenario in both tables
         assert pairs[seed, "log"].split("/")[0] == pairs[seed, "idm"].split("/")[0]
+    assert all(e["map"] is None for e in index["episodes"])  # the tables name no files
+    assert main(["view", human, idm, "-o", str(tmp_path / "tm"), "--no-open",
+                 "--maps", str(tmp_path / "*.tfrecord")]) == 0
+    index = viewer_index(tmp_path / "tm")
+    assert {"s-east", "s-north", "s-west"} <= set(index["maps"])
+    assert all(e["map"] == e["id"].split("/")[0] for e in index["episodes"])
+    assert all(index["maps"][name] for name in ("s-east", "s-north", "s-west"))
     assert main(["view", str(tmp_path / "cmp"), "-o", str(tmp_path / "cv"), "--no-open"]) == 0
 
 
