@@ -48,7 +48,7 @@ from tap_bench.bench.intervals import (
     unpaired_measure_interval,
     wilson_interval,
 )
-from tap_bench.bench.measures import MEASURES, Measure
+from tap_bench.bench.measures import MEASURES, SCENE_MEASURES, Measure
 from tap_bench.errors import LabelTableError, ParameterError, did_you_mean
 from tap_bench.similarity.sdl_distance import label_set, levenshtein_matrix
 
@@ -105,14 +105,16 @@ def _pairs(episodes: pd.DataFrame, a: str, b: str) -> tuple[pd.DataFrame, pd.Ser
 
 def paired_comparison(episodes: pd.DataFrame, a: str, b: str, *,
                       config: BootstrapConfig | None = None,
-                      measures: tuple[Measure, ...] = MEASURES) -> PairedComparison:
+                      measures: tuple[Measure, ...] | None = None) -> PairedComparison:
     """Compare policies ``a`` and ``b`` seed by seed (see the module docstring).
 
     Args:
         episodes: the episode table holding both policies.
         a, b: policy names; B is the reference (differences are A - B).
         config: the interval level (``config.level``).
-        measures: the measures to compare (those absent from the table are skipped).
+        measures: the measures to compare (those absent from the table are skipped);
+            default: every registered measure and every measure of recorded scenes (on
+            real scenes the at-fault crash rate beside all collisions, SPEC section 8).
 
     Returns:
         :class:`PairedComparison`.
@@ -121,6 +123,8 @@ def paired_comparison(episodes: pd.DataFrame, a: str, b: str, *,
         LabelTableError: a policy has no episodes, or A and B share no (env, seed).
     """
     config = config or BootstrapConfig()
+    if measures is None:
+        measures = (*MEASURES, *SCENE_MEASURES)
     pairs, dropped = _pairs(episodes, a, b)
     if pairs.empty:
         raise LabelTableError(

@@ -133,3 +133,19 @@ def test_no_zero_width_interval_on_estimated_paired_quantities(hand_pairs):
     assert crash["diff"] == 0 and crash["diff_low"] < 0 < crash["diff_high"]
     assert crash["p_low"] < 0.5 < crash["p_high"]
     assert (pc.labels["band_high"] > pc.labels["band_low"]).all()
+
+
+def test_on_real_scenes_the_comparison_shows_at_fault_collisions_beside_all():
+    from tap_bench.bench.compare import paired_comparison
+
+    rows = []
+    for seed in range(6):
+        for policy, crashed, fault in (("idm", seed < 4, seed < 1), ("log", False, False)):
+            rows.append({"env": "womd", "policy": policy, "seed": seed, "sdl": "x | s",
+                         "crashed": crashed, "crashed_at_fault": float(fault),
+                         "off_road": 0.0, "route_progress": 1.0})
+    measures = paired_comparison(make_episodes(rows), "idm", "log").measures.set_index(
+        "measure")
+    assert measures.loc["crashed", "mean_a"] == pytest.approx(4 / 6)
+    assert measures.loc["crashed_at_fault", "mean_a"] == pytest.approx(1 / 6)
+    assert {"off_road", "route_progress"} <= set(measures.index)
