@@ -146,7 +146,11 @@ def main() -> None:
                 figures["policies"].setdefault(f"{policy} ({traffic} traffic)", {})[
                     scene.scenario_id] = {
                     "crashed": bool(run_env.unwrapped.vehicle.crashed),
+                    "crash_at_fault": info.get("crash_at_fault"),
+                    "crash_with": info.get("crash_with"),
+                    "crash_fault": info.get("crash_fault"),
                     "off_road": info["off_road"],
+                    "max_off_road_distance_m": info.get("max_off_road_distance_m"),
                     "route_progress": None if np.isnan(info["route_progress"])
                     else round(info["route_progress"], 3),
                     "ran_red_light": info["ran_red_light"],
