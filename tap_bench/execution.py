@@ -39,6 +39,7 @@ import subprocess
 import sys
 import time
 import traceback
+import warnings
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -49,8 +50,9 @@ from tap_bench.plugins import ENV_VAR as PLUGINS_ENV
 from tap_bench.plugins import load_plugins, loaded_plugins
 
 __all__ = ["BACKENDS", "DEFAULT_RETRIES", "Backend", "LocalBackend", "Outcome", "RayBackend",
-           "add_backend_arguments", "backend_from_args", "check_workers", "close_backend",
-           "describe_error", "keep_freed_memory", "make_backend"]
+           "add_backend_arguments", "backend_from_args", "capped_workers", "check_workers",
+           "close_backend", "describe_error", "keep_freed_memory", "make_backend",
+           "usable_cores"]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -205,6 +207,29 @@ def check_workers(workers: Any, name: str = "workers") -> int:
     """``workers`` as a positive int, or a :class:`ParameterError` naming it."""
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ParameterError(name, workers, "a positive integer (processes)")
+    return workers
+
+
+def usable_cores() -> int:
+    """How many cores this process may run on (its CPU affinity where known)."""
+    try:
+        return len(os.sched_getaffinity(0)) or 1
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def capped_workers(workers: Any, name: str = "--workers") -> int:
+    """``workers`` (checked: :func:`check_workers`) capped at :func:`usable_cores`, with a
+    warning when it asked for more: local worker processes beyond the cores only take
+    turns on them (and each holds its own memory)."""
+    workers = check_workers(workers, name)
+    cores = usable_cores()
+    if workers > cores:
+        warnings.warn(f"{name} {workers} is more than the {cores} core(s) this process may "
+                      f"use; running {cores} worker(s) (more would only take turns on the "
+                      "same cores).", UserWarning,
+                      stacklevel=2)
+        return cores
     return workers
 
 
@@ -696,6 +721,8 @@ def backend_from_args(args: Any, workers: int | None = None) -> LocalBackend | R
     """The backend that ``--backend`` and ``--address`` ask for (``workers``: local
     processes, or the CPUs of a local Ray cluster started here)."""
     _check_retries_arg(args.retries)
+    if workers is not None and args.backend == "local":
+        workers = capped_workers(workers)
     return make_backend(args.backend, workers=workers, address=args.address)
 
 

@@ -67,6 +67,8 @@ def read_table(path: str | os.PathLike) -> pd.DataFrame:
     fmt = _format(path)
     if not path.is_file():
         raise FileFormatError(f"{path}: no such file.")
+    if path.name.lower().endswith(".csv"):  # plain text (a .csv.gz is gzip's bytes)
+        _check_csv_text(path)
     try:
         if fmt == "parquet":
             # columns handed over from Arrow one by one, each freed once converted: half
@@ -79,6 +81,35 @@ def read_table(path: str | os.PathLike) -> pd.DataFrame:
                               ) from err
     except (OSError, ValueError) as err:
         raise FileFormatError(f"{path}: cannot read it as {fmt}: {err}") from err
+
+
+_SCAN_BYTES = 1 << 20  # a CSV file is scanned for NUL bytes this much at a time [B]
+
+
+def _check_csv_text(path: Path) -> None:
+    """Refuse, before the parser reads it whole into memory, a CSV file that holds a NUL
+    byte: it is not text (a binary file; a sparse or preallocated file, whose holes read as
+    zeros). The scan reads the file once, a block at a time.
+
+    Raises:
+        FileFormatError: naming the file, the line and byte of the first NUL, and the fix.
+    """
+    line, offset = 1, 0
+    with path.open("rb") as stream:
+        for block in iter(lambda: stream.read(_SCAN_BYTES), b""):
+            at = block.find(b"\0")
+            if at < 0:
+                line += block.count(b"\n")
+                offset = len(block) - block.rfind(b"\n") - 1 if b"\n" in block \
+                    else offset + len(block)
+                continue
+            line += block.count(b"\n", 0, at)
+            start = block.rfind(b"\n", 0, at)
+            column = at - start if start >= 0 else offset + at + 1
+            raise FileFormatError(
+                f"{path}: line {line}, byte {column} is a NUL byte: a CSV table is text, and "
+                "this is a binary file (or one never written: a sparse or preallocated file "
+                "reads as zeros). Give the CSV table itself, or a Parquet file (.parquet).")
 
 
 def _not_utf8(path: Path) -> str | None:

@@ -76,6 +76,7 @@ from tap_bench.errors import (
     BaselineError,
     BaselineMismatchError,
     FileFormatError,
+    OutputPathError,
     ParameterError,
     UnknownNameError,
 )
@@ -83,7 +84,7 @@ from tap_bench.tableio import atomic_path
 
 __all__ = ["BASELINE_FORMAT", "EXACT_FLIPS_MAX_SEEDS", "MAX_FAILED_SHARE", "GateResult",
            "check", "config_of", "definition_changes", "direction", "firing_floor", "holm",
-           "read_baseline", "smallest_p", "weighted_holm", "write_baseline"]
+           "read_baseline", "run_config", "smallest_p", "weighted_holm", "write_baseline"]
 
 BASELINE_FORMAT = "tap-bench-baseline"
 BASELINE_VERSION = 2
@@ -262,7 +263,10 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
     Raises:
         BaselineError: the run has no episode, or an (env, policy) of it has no episode that
             ran to the end: such a baseline would test nothing there.
+        OutputPathError: ``path`` is something other than a tap-bench baseline (a folder,
+            a link, a file of notes): only a baseline or a new path is written.
     """
+    _check_replaceable(Path(path))
     episodes = scene_stand_ins(episodes)
     ok = episodes[episodes["status"] == "ok"]
     n_failed = len(episodes) - len(ok)
@@ -291,8 +295,13 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
     n_seeds = int(ok.groupby(["env", "policy"]).size().min())
     floor, level = firing_floor(config, cells=n_cells, seeds=n_seeds)
     if floor > level * (1 + 1e-9):
-        need = next(k for k in range(1, 64)
-                    if firing_floor(config, cells=n_cells, seeds=k)[0] <= level * (1 + 1e-9))
+        need = _seeds_needed(config, n_cells, level)
+        if need is None:
+            raise BaselineError(
+                f"run {run_summary.get('run')!r}: gate alpha {config.alpha:g} leaves its most "
+                f"favoured test a level of {level:.3g}, which no test of up to 63 seeds can "
+                "reach: a gate against this baseline could never fire. Set gate.alpha in the "
+                "suite (0.05 by default) and run again.")
         raise BaselineError(
             f"run {run_summary.get('run')!r} has {n_seeds} seeds in its smallest (env, "
             f"policy) cell: no test of a check on them could give a p-value below "
@@ -316,6 +325,31 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
     return path
 
 
+def _check_replaceable(path: Path) -> None:
+    """Refuse to write a baseline over anything but a tap-bench baseline (a new path is
+    fine): nothing is deleted that tap-bench did not write."""
+    if not os.path.lexists(path):
+        return
+    what = None
+    if path.is_symlink():
+        what = "a symbolic link"
+    elif path.is_dir():
+        what = "a folder"
+    elif not path.is_file():
+        what = "not a regular file"
+    else:
+        try:
+            doc = json.loads(path.read_bytes().decode("utf-8"))
+        except (OSError, ValueError, RecursionError):
+            doc = None
+        if not isinstance(doc, dict) or doc.get("format") != BASELINE_FORMAT:
+            what = "not a tap-bench baseline"
+    if what is not None:
+        raise OutputPathError(f"{path}: {what}; --update-baseline writes only a new file or "
+                              "over a tap-bench baseline, so nothing else is replaced. Give "
+                              "the baseline another path, or move that file away.")
+
+
 def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame]:
     """The baseline's header and its episode rows.
 
@@ -337,6 +371,10 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
                               "baseline is the JSON written by --update-baseline.") from None
     except json.JSONDecodeError as err:
         raise FileFormatError(f"{path}: not valid JSON: {err}") from err
+    except (ValueError, RecursionError) as err:  # a 5,000-digit number, deep nesting
+        raise FileFormatError(f"{path}: not a baseline's JSON ({type(err).__name__}: "
+                              f"{str(err)[:120]}); the file was edited or damaged. Re-make "
+                              "it with --update-baseline.") from None
     if not isinstance(doc, dict) or doc.get("format") != BASELINE_FORMAT:
         raise FileFormatError(f"{path}: not a tap-bench baseline (its 'format' is "
                               f"{doc.get('format') if isinstance(doc, dict) else None!r}, "
@@ -371,14 +409,16 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
                             "--update-baseline.")
     for m in MEASURES:
         values = table[m.name]
-        bad = values.map(lambda v: v is not None and not isinstance(v, bool | int | float))
+        what = _impossible(m)
+        bad = values.map(lambda v, m=m: v is not None and not _possible(m, v))
         if bad.any():
             row = int(np.flatnonzero(bad.to_numpy())[0])
             raise BaselineError(
                 f"{path}: episode row {row} ({table['env'].iloc[row]}, "
                 f"{table['policy'].iloc[row]}, seed {table['seed'].iloc[row]}) has "
-                f"{m.name} = {values.iloc[row]!r}, not a number; a baseline holds numbers "
-                "(or null where a measure is undefined). Re-make it with --update-baseline.")
+                f"{m.name} = {str(values.iloc[row])[:80]!r}, not {what}; a baseline holds "
+                "what its measures can take (or null where a measure is undefined). The "
+                "baseline was edited or damaged; re-make it with --update-baseline.")
         table[m.name] = pd.to_numeric(values, errors="coerce").astype(float)
         infinite = np.isinf(table[m.name].to_numpy())
         if infinite.any():
@@ -402,6 +442,24 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
                               "(envs/suites/*.json) or re-make the baseline with "
                               "--update-baseline.") from None
     return doc, table
+
+
+def _impossible(m: Any) -> str:
+    """What a baseline value of measure ``m`` must be, in words."""
+    if m.kind == "rate":
+        return "true, false, 0 or 1 (an episode's outcome)"
+    return "a number"
+
+
+def _possible(m: Any, value: Any) -> bool:
+    """Whether ``value`` (not None) is a value measure ``m`` can take in one episode: an
+    outcome (bool, 0 or 1) for a rate, a number (never a bool) otherwise."""
+    if m.kind == "rate":
+        return isinstance(value, bool) or (isinstance(value, int | float)
+                                           and value in (0, 1))
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return False
+    return not (isinstance(value, int) and abs(value) > 2 ** 63)
 
 
 def _check_baseline_cells(doc: dict[str, Any], table: pd.DataFrame, path: Path) -> None:
@@ -454,8 +512,8 @@ def _check_baseline_rows(table: pd.DataFrame, path: Path) -> None:
              "sdl": "text or null"}
     bad("env", lambda v: isinstance(v, str))
     bad("policy", lambda v: isinstance(v, str))
-    bad("seed", lambda v: (isinstance(v, int) and not isinstance(v, bool))
-        or (isinstance(v, str) and v.isdigit()))  # baselines before 0.2 wrote it as text
+    bad("seed", lambda v: (isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 2 ** 63)
+        or (isinstance(v, str) and v.isdigit() and len(v) < 19))  # text: before 0.2
     bad("sdl", lambda v: v is None or isinstance(v, str))
 
 
@@ -706,12 +764,14 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
     Args:
         run_summary, run_episodes: the run's ``summary.json`` and episode table.
         baseline, baseline_episodes: from :func:`read_baseline`.
-        config: gate settings; default: the baseline's.
+        config: gate settings; default: those of the run's suite (:func:`run_config`).
         power: also compute each test's power at the ``detect`` worsening (the
             ``underpowered`` verdict); False skips it (calibration studies).
 
     Raises:
-        BaselineMismatchError: suite, level or thresholds differ.
+        BaselineMismatchError: suite, level, thresholds or gate settings (margins, alpha,
+            weights, permutations, seed, detect) differ: everything that decides the
+            verdict comes from the suite (or the caller), never from the baseline file.
         ParameterError: the gate can never fire with these tests, permutations and seeds
             (the message gives the numbers, what would do, and the definitions that
             changed since the baseline).
@@ -723,9 +783,11 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
         raise BaselineMismatchError(
             f"the run and the baseline differ in {what}. Check against a baseline of the same "
             "suite and settings, or replace it with --update-baseline.")
-    if config is None:
-        config = config_of(baseline)
+    if config is None:  # the suite's; a caller's own config is its decision
+        config = run_config(run_summary)
+        _refuse_other_gate(baseline, config)
     rows: list[dict[str, Any]] = []
+
     changed = definition_changes(run_summary.get("provenance"), baseline.get("provenance"))
     changed_policy = {name: what for kind, name, what in changed if kind == "policy"}
     changed_env = {name: what for kind, name, what in changed if kind == "env"}
@@ -793,6 +855,38 @@ def config_of(baseline: dict[str, Any]) -> GateConfig:
     """The gate settings a baseline was made with (defaults for fields it predates)."""
     gate = dict(baseline.get("gate") or {})
     return GateConfig(**{k: v for k, v in gate.items() if k in _GATE_FIELDS})
+
+
+def _refuse_other_gate(baseline: dict[str, Any], config: GateConfig) -> None:
+    """Raise when the baseline's gate settings are not ``config``'s (the suite's)."""
+    if baseline.get("gate") is None:
+        return  # a baseline written before baselines kept their settings
+    theirs, ours = config_of(baseline).to_dict(), config.to_dict()
+    if theirs != ours:
+        what = "; ".join(_dict_diff(ours, theirs)[:5])
+        raise BaselineMismatchError(
+            f"the baseline's gate settings differ from the run's suite ({what}; suite -> "
+            "baseline). The verdict is decided by the suite's settings: check against a "
+            "baseline made with them, or replace it with --update-baseline.")
+
+
+def run_config(run_summary: dict[str, Any]) -> GateConfig:
+    """The gate settings of the suite a run was made with (``summary.json``'s
+    ``suite.gate``; the defaults for a run without a suite, such as ``tap-bench compare``).
+
+    Raises:
+        FileFormatError: the settings are not valid gate settings.
+    """
+    suite = run_summary.get("suite")
+    gate = (suite.get("gate") if isinstance(suite, dict) else None) or {}
+    if not isinstance(gate, dict):
+        raise FileFormatError(f"run {run_summary.get('run')!r}: summary.json's suite.gate "
+                              f"must be an object of gate settings, got {gate!r}.")
+    try:
+        return config_of({"gate": gate})
+    except (TypeError, ValueError, UnknownNameError) as err:
+        raise FileFormatError(f"run {run_summary.get('run')!r}: summary.json's suite gate "
+                              f"settings: {err}") from None
 
 
 
@@ -966,6 +1060,13 @@ def firing_floor(config: GateConfig, *, cells: int, seeds: int | None) -> tuple[
     return best, config.alpha * config.share(metric)
 
 
+def _seeds_needed(config: GateConfig, cells: int, level: float) -> int | None:
+    """The fewest paired seeds (up to 63) whose best test reaches ``level``, or None."""
+    return next((k for k in range(1, 64)
+                 if firing_floor(config, cells=cells, seeds=k)[0] <= level * (1 + 1e-9)),
+                None)
+
+
 def _refuse_if_it_cannot_fire(plans: list, config: GateConfig) -> None:
     """Raise when no test of the check could ever reach its share of alpha."""
     if not plans:
@@ -978,8 +1079,13 @@ def _refuse_if_it_cannot_fire(plans: list, config: GateConfig) -> None:
     if floor <= level * (1 + 1e-9):
         return
     if all(paired):
-        need = next(k for k in range(1, 64)
-                    if firing_floor(config, cells=cells, seeds=k)[0] <= level * (1 + 1e-9))
+        need = _seeds_needed(config, cells, level)
+        if need is None:
+            raise ParameterError(
+                "gate alpha", config.alpha, f"a level some test can reach (with {n} seeds "
+                f"its share is {level:.3g}; no paired test of up to 63 seeds gives a p-value "
+                "that small)", hint="Set gate.alpha in the suite (0.05 by default) and "
+                "--update-baseline.")
         raise ParameterError(
             "seeds", n, f"at least {need} paired seeds at alpha {config.alpha:g}",
             hint=f"With {n} seeds no test's p-value is below {floor:.3g}, above the "

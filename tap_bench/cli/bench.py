@@ -69,7 +69,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                        "reported, never a failure; a policy or env whose definition changed "
                        "since the baseline is named with what changed. Exits 1 when "
                        "something failed, 3 when the check cannot catch a worsening of "
-                       "'detect' margins with 80%% power (too few seeds; "
+                       "'detect' margins with 80% power (too few seeds; "
                        "--allow-underpowered accepts that), 0 when it passed, 2 when the gate "
                        "could never fire (too few permutations or seeds). The baseline "
                        "changes only with --update-baseline.")
@@ -129,8 +129,10 @@ def run_bench(args: argparse.Namespace) -> int:
     from tap_bench.bench.cache import EpisodeCache, default_cache_dir
     from tap_bench.bench.demo import timing_split
     from tap_bench.bench.run_cache import serve_unchanged
-    from tap_bench.execution import backend_from_args, close_backend
+    from tap_bench.execution import backend_from_args, capped_workers, close_backend
 
+    if args.backend == "local" and not args.address:
+        args.workers = capped_workers(args.workers)
     cache = None if args.no_cache else EpisodeCache(args.cache or default_cache_dir())
     references = _references(args.reference)
     plugins = getattr(args, "plugin", None) or ()
@@ -200,16 +202,35 @@ def _no_baseline(path, summary: dict) -> None:
 
 
 def check_bench(args: argparse.Namespace) -> int:
+    """``bench check``: 0 passed, 1 regressed, 3 underpowered, 2 an error. An error, whatever
+    it is (a damaged file, a setting that breaks the checker), is one line on stderr and
+    exit 2, never 1 (the code of a regression); ``--format json`` writes ``{"status":
+    "error", ...}`` on stdout."""
+    try:
+        return _check_bench(args)
+    except Exception as err:  # every error: one line and exit 2 (Ctrl-C goes on up)
+        from tap_bench.errors import TapBenchError
+
+        message = str(err) if isinstance(err, TapBenchError) else \
+            f"the check could not be made ({type(err).__name__}: {str(err)[:300]})"
+        message = " ".join(message.split())
+        if getattr(args, "format", "text") == "json":
+            print(json.dumps({"format": "tap-bench-check", "format_version": 1,
+                              "status": "error", "error": message, "run": str(args.run),
+                              "baseline": str(args.baseline)}, indent=1))
+        print(f"tap-bench bench check: error: {message}", file=sys.stderr)
+        return 2
+
+
+def _check_bench(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from tap_bench.bench.gate import check, read_baseline, write_baseline
     from tap_bench.bench.runner import read_run
-    from tap_bench.plugins import load_plugins
     from tap_bench.tableio import write_table
 
     summary, episodes = read_run(args.run)
-    # the run's own measures, formats and policy kinds: registered before the gate reads them
-    load_plugins(summary.get("plugins") or (), source=f"run {args.run}")
+    check_run_plugins(summary, args.run)
     baseline_path = Path(args.baseline)
     if args.update_baseline:
         if baseline_path.is_file():
@@ -259,6 +280,37 @@ def check_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def check_run_plugins(summary: dict, run: str) -> None:
+    """A run folder is data: the plugins its ``summary.json`` names are never imported
+    (only those the user names with ``--plugin``). A run whose measures are not registered
+    here is refused with the fix; plugins named but not needed are said on stderr.
+
+    Raises:
+        ParameterError: a measure of the run is not registered in this process.
+    """
+    from tap_bench.bench.measures import MEASURES
+    from tap_bench.errors import ParameterError
+    from tap_bench.plugins import loaded_plugins
+
+    named = summary.get("plugins") or []
+    named = [str(p)[:200] for p in named] if isinstance(named, list) else []
+    missing = [p for p in named if p not in loaded_plugins()]
+    measures = summary.get("measures") or []
+    unknown = [str(m.get("name"))[:100] for m in measures if isinstance(m, dict)
+               and isinstance(m.get("name"), str) and m["name"] not in MEASURES] \
+        if isinstance(measures, list) else []
+    if unknown:
+        raise ParameterError("--plugin", " ".join(missing) or "(none)", "", message=(
+            f"run {run} has measure(s) {', '.join(unknown)}, which no loaded plugin "
+            f"registers. A run folder is data: its plugins ({', '.join(missing) or 'none'}) "
+            "are not imported. If you trust them, name them: tap-bench bench check --plugin "
+            "MODULE ..."))
+    if missing:
+        print(f"note: run {run} was made with plugin(s) {', '.join(missing)}, not imported "
+              "(a run folder is data; --plugin MODULE imports one you trust).",
+              file=sys.stderr)
+
+
 def cache_command(args: argparse.Namespace) -> int:
     from tap_bench.bench.cache import EpisodeCache, default_cache_dir, parse_size
 
@@ -304,11 +356,24 @@ def print_power(episodes, result) -> None:
 
 
 def list_suites(args: argparse.Namespace) -> int:
-    from tap_bench.bench.suite import available_suites, load_suite
+    """List the catalogue's suites from their files, without importing their plugins (a
+    listing runs no code a suite names; ``bench run`` imports them)."""
+    from tap_bench import catalogue
+    from tap_bench.bench.suite import available_suites
+    from tap_bench.errors import TapBenchError
+    from tap_bench.sim.scenario_format import parse_seeds, read_json
 
     for name in available_suites():
-        suite = load_suite(name)
-        seeds = "all" if suite.all_seeds else len(suite.seeds)
-        print(f"{name:12s} {len(suite.envs)} envs x {len(suite.policies)} policies x "
-              f"{seeds} seeds, level {suite.level}: {suite.description}")
+        try:
+            doc = read_json(catalogue.find("suites", name), "suite")
+            seeds = "all" if doc.get("seeds") == "all" else \
+                len(parse_seeds(doc.get("seeds"), source=f"suite {name}: seeds"))
+            plugins = doc.get("plugins") or []
+            print(f"{name:12s} {len(doc['envs'])} envs x {len(doc['policies'])} policies x "
+                  f"{seeds} seeds, level {doc.get('level', 'maneuver')}: "
+                  f"{doc.get('description', '')}"
+                  + (f" (plugins, imported by bench run: {', '.join(map(str, plugins))})"
+                     if plugins else ""))
+        except (TapBenchError, ValueError, TypeError, KeyError, OSError) as err:
+            print(f"{name:12s} (cannot be read: {err})")
     return 0

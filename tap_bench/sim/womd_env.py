@@ -693,7 +693,7 @@ class WomdEnv(gym.Wrapper):
         data = {
             "scenario_id": np.full(n * t, scene.scenario_id, dtype=object),
             "track_id": np.repeat(scene.track_ids.astype(object), t),
-            "t": np.tile(np.round(scene.times[:t] - scene.times[0], 6), n),
+            "t": np.tile(scene.times[:t] - scene.times[0], n),  # as read_womd gives them
             **{name: rec[name][:, :t].ravel() for name in
                ("x", "y", "heading", "speed", "valid", "vx", "vy")},
             "object_type": np.repeat(scene.object_types.astype(object), t),

@@ -21,9 +21,9 @@ import numpy as np
 import pyarrow as pa
 
 from tap_bench.errors import WomdRecordError
-from tap_bench.womd.scenario import trajectory_table
+from tap_bench.womd.scenario import BOX_SIZE_FIX, bad_box_size, trajectory_table
 
-__all__ = ["RestrictedUnpickler", "decode_scenarionet", "load_scenarionet"]
+__all__ = ["ALLOCATION_SLACK", "RestrictedUnpickler", "decode_scenarionet", "load_scenarionet"]
 
 _ALLOWED = {
     ("numpy.core.multiarray", "_reconstruct"), ("numpy._core.multiarray", "_reconstruct"),
@@ -40,15 +40,117 @@ _TYPES = {"VEHICLE": "vehicle", "PEDESTRIAN": "pedestrian", "CYCLIST": "cyclist"
 _SOURCES = {"waymo": "womd"}
 
 
+ALLOCATION_SLACK = 64 << 20
+"""Bytes an unpickled scenario may allocate beyond its file's size [B] (its arrays' data is
+in the file, so a real one needs about the file's size)."""
+
+
+class _UnpickledArray(np.ndarray):
+    """An array being unpickled by :class:`RestrictedUnpickler`: the state numpy would read
+    (its shape, type and data) is checked first, since numpy trusts it (an object array of
+    a large shape and a short list crashes the interpreter). ``np.asarray`` gives the plain
+    array."""
+
+    def __setstate__(self, state: object) -> None:
+        unpickler = getattr(self, "unpickler", None)
+        if not isinstance(state, tuple) or len(state) not in (4, 5):
+            raise pickle.UnpicklingError("an array's state is not numpy's")
+        shape, dtype, _, raw = state[-4:]
+        if not isinstance(dtype, np.dtype):
+            raise pickle.UnpicklingError("an array's state names no numpy dtype")
+        if unpickler is None:
+            raise pickle.UnpicklingError("an array made outside the restricted unpickler")
+        unpickler._array_bytes(shape, dtype, "an array")
+        count = 1
+        for d in shape:
+            count *= d
+        if dtype.hasobject:
+            if not isinstance(raw, list) or len(raw) != count:
+                raise pickle.UnpicklingError(f"an object array of {count} items holds a "
+                                             "list of another length")
+        elif not isinstance(raw, bytes) or len(raw) != count * dtype.itemsize:
+            raise pickle.UnpicklingError(f"an array of {count * dtype.itemsize} bytes holds "
+                                         "data of another size")
+        np.ndarray.__setstate__(self, state)
+
+
 class RestrictedUnpickler(pickle.Unpickler):
-    """An unpickler that builds numpy arrays and plain containers, and nothing else."""
+    """An unpickler that builds numpy arrays and plain containers, and nothing else, and
+    that checks every allocation a call of the pickle asks for (an array's shape and item
+    size, ``bytes(n)``, a scalar's item size) against a budget before anything is
+    allocated: a pickle of a few kB cannot make it take GBs.
+
+    Args:
+        file: the pickle's stream.
+        max_bytes: the budget [B] (default: :data:`ALLOCATION_SLACK`).
+    """
+
+    def __init__(self, file: io.BufferedIOBase, *, max_bytes: int = ALLOCATION_SLACK) -> None:
+        super().__init__(file)
+        self._left = max_bytes
+        self._budget = max_bytes
+
+        def ndarray(shape: object = (), dtype: object = float, *args: object,
+                    **kwargs: object) -> object:
+            self._array_bytes(shape, dtype, "an array")
+            return np.ndarray(shape, dtype, *args, **kwargs)
+
+        self._ndarray = ndarray
+
+    def _charge(self, n_bytes: int, what: str) -> None:
+        if n_bytes > self._left:
+            raise pickle.UnpicklingError(
+                f"{what} would allocate {n_bytes:,} bytes, beyond the {self._budget:,} bytes "
+                "a scenario of this file's size may take (its arrays' data is in the file)")
+        self._left -= n_bytes
+
+    def _array_bytes(self, shape: object, dtype: object, what: str) -> None:
+        dims = shape if isinstance(shape, tuple | list) else (shape,)
+        if not all(isinstance(d, int) and not isinstance(d, bool) and d >= 0 for d in dims):
+            raise pickle.UnpicklingError(f"{what}: shape {str(shape)[:80]} is not a list of "
+                                         "non-negative integers")
+        try:
+            itemsize = np.dtype(dtype).itemsize if dtype is not None else 8
+        except (TypeError, ValueError):
+            itemsize = 1  # numpy refuses the dtype itself
+        total = max(itemsize, 1)
+        for d in dims:
+            total *= d
+            if total > self._left:
+                break
+        self._charge(total, what)
 
     def find_class(self, module: str, name: str) -> object:
-        if (module, name) in _ALLOWED:
-            return super().find_class(module, name)
-        raise pickle.UnpicklingError(
-            f"refused to load {module}.{name}: a ScenarioNet scenario holds only numpy "
-            "arrays and plain containers")
+        if (module, name) not in _ALLOWED:
+            raise pickle.UnpicklingError(
+                f"refused to load {module}.{name}: a ScenarioNet scenario holds only numpy "
+                "arrays and plain containers")
+        target = super().find_class(module, name)
+        if name == "_reconstruct":
+            def reconstruct(subtype: object, shape: object, dtype: object) -> object:
+                self._array_bytes(shape, dtype if not isinstance(dtype, bytes) else "b",
+                                  "an array")
+                if subtype is not self._ndarray and subtype is not np.ndarray:
+                    raise pickle.UnpicklingError("an array of another class")
+                array = target(_UnpickledArray, shape, dtype)
+                array.unpickler = self  # its state is checked against this budget
+                return array
+            return reconstruct
+        if (module, name) == ("numpy", "ndarray"):
+            return self._ndarray  # called: checked; as _reconstruct's class: numpy's
+        if name == "scalar":
+            def scalar(dtype: object, *args: object) -> object:
+                self._array_bytes((), dtype, "a scalar")
+                return target(dtype, *args)
+            return scalar
+        if (module, name) in (("builtins", "bytes"), ("builtins", "str"),
+                              ("builtins", "list"), ("builtins", "tuple")):
+            def sized(*args: object, **kwargs: object) -> object:
+                if args and isinstance(args[0], int) and not isinstance(args[0], bool):
+                    self._charge(args[0], f"{name}({args[0]})")
+                return target(*args, **kwargs)
+            return sized
+        return target
 
 
 def load_scenarionet(path: str | os.PathLike) -> dict:
@@ -60,7 +162,8 @@ def load_scenarionet(path: str | os.PathLike) -> dict:
     """
     data = Path(path).read_bytes()
     try:
-        scenario = RestrictedUnpickler(io.BytesIO(data)).load()
+        scenario = RestrictedUnpickler(io.BytesIO(data), max_bytes=len(data)
+                                       + ALLOCATION_SLACK).load()
     except Exception as err:  # any unpickling failure is a bad file
         raise WomdRecordError(
             str(path), 0, 0, f"cannot be loaded as a ScenarioNet scenario pickle: {err}",
@@ -146,6 +249,10 @@ def decode_scenarionet(scenario: dict, *, path: str = "<scenario>",
         except (TypeError, ValueError, IndexError) as err:
             raise fail(f"track {track_id}: state arrays are not numbers of {n_steps} steps "
                        f"({type(err).__name__}: {err})") from None
+        given = [key for key in sizes if state.get(key) is not None]  # absent: unknown
+        problem = bad_box_size([str(track_id)], n_steps, {"valid": valid, **sizes}, given)
+        if problem is not None:
+            raise WomdRecordError(path, 0, 0, problem, BOX_SIZE_FIX)
         ids.append(str(track_id))
         types.append(kind)
         parts["x"].append(position[:, 0])

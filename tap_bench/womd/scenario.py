@@ -375,11 +375,14 @@ def decode_scenario(record: Record, *, object_types: frozenset[str] | None = Non
                            "is not a WOMD Scenario", _NOT_A_SCENARIO)
     if not view.scenario_id:
         raise record.error("the scenario has no scenario_id", "Every scenario needs its id: "
-                           "without one it would be merged with other scenarios. Skip the "
-                           "record with on_error='skip'.")
+                           "without one it would be merged with other scenarios. `tap-bench "
+                           "ingest --on-error skip` (on_error='skip') keeps the file's other "
+                           "records; a rollout reads whole files: leave this one out.")
     if n_steps == 0:
         raise record.error(f"scenario {view.scenario_id!r} has no timestamps_seconds",
-                           "The scenario is incomplete; skip it with on_error='skip'.")
+                           "The scenario is incomplete. `tap-bench ingest --on-error skip` "
+                           "(on_error='skip') keeps the file's other records; a rollout reads "
+                           "whole files: leave this one out.")
     tracks = view.tracks
     n_tracks = len(tracks)
     sdc = view.sdc_track_index if view.HasField("sdc_track_index") else -1
@@ -443,6 +446,9 @@ def decode_scenario(record: Record, *, object_types: frozenset[str] | None = Non
         track_pos, step = divmod(err.state, n_steps)
         raise record.error(f"track {track_ids[track_pos]} state {step}: {err}",
                            _NOT_A_SCENARIO) from None
+    problem = bad_box_size(track_ids, n_steps, st)
+    if problem is not None:
+        raise record.error(problem, BOX_SIZE_FIX)
     kept_arr = np.asarray(kept, dtype=np.int64)
     womd_ids = np.array([tracks[i].id for i in kept], dtype=np.int64)
     table = trajectory_table(
@@ -493,6 +499,36 @@ def repeated_strings(strings: Sequence[str], repeats: int | Sequence[int]) -> pa
 
 STATE_COLUMNS = ("x", "y", "z", "heading", "vx", "vy", "length", "width", "height")
 """Per-step kinematic columns of :func:`trajectory_table` (NaN on invalid steps)."""
+
+
+BOX_SIZES = ("length", "width", "height")
+"""An agent's box [m]: on a valid step each is a positive, finite length
+(:func:`bad_box_size`)."""
+BOX_SIZE_FIX = ("A box size on a valid step is a positive length in metres; the record was "
+                "damaged or made by a faulty converter. Fix the converter, or leave the "
+                "record out (tap-bench ingest --on-error skip keeps the others).")
+
+
+def bad_box_size(track_ids: Sequence[str], n_steps: int, states: Mapping[str, np.ndarray],
+                 sizes: Sequence[str] = BOX_SIZES) -> str | None:
+    """The first zero, negative or NaN box size on a valid step, in words (track, step,
+    size and value), or None when every one is a positive length.
+
+    Args:
+        track_ids: (n_tracks,) ids; ``states``: (n_tracks * n_steps,) arrays, track by
+            track, ``valid`` and the sizes.
+        sizes: the sizes the record holds (a size it does not hold is not checked).
+    """
+    valid = np.asarray(states["valid"], dtype=bool)
+    for name in sizes:
+        values = np.asarray(states[name], dtype=np.float64)
+        bad = valid & ~(np.isfinite(values) & (values > 0))
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            track, step = divmod(i, n_steps)
+            return (f"track {track_ids[track]} step {step}: {name} {values[i]!r} is not a "
+                    "box size (a positive length in metres)")
+    return None
 
 
 def trajectory_table(scenario_id: str, times: np.ndarray, track_ids: Sequence[str],

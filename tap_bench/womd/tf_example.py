@@ -17,7 +17,7 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from google.protobuf.message import DecodeError
 
 from tap_bench.errors import WomdRecordError
-from tap_bench.womd.scenario import trajectory_table
+from tap_bench.womd.scenario import BOX_SIZE_FIX, bad_box_size, trajectory_table
 from tap_bench.womd.tfrecord import Record
 
 __all__ = ["Example", "decode_tf_example", "is_motion_example"]
@@ -65,7 +65,8 @@ Example = _example_class()
 _PARTS = ("past", "current", "future")
 _TYPES = {1: "vehicle", 2: "pedestrian", 3: "cyclist"}
 _NO_ID = ("Every scenario needs its id: without one it would be merged with other "
-          "scenarios. Skip the record with on_error='skip'.")
+          "scenarios. `tap-bench ingest --on-error skip` (on_error='skip') keeps the file's "
+          "other records; a rollout reads whole files: leave this one out.")
 _FIX = ("Is the file a WOMD tf_example file? A file of Scenario records "
         "(uncompressed/scenario/...) is read with format='scenario'.")
 
@@ -179,6 +180,10 @@ def _decode_features(features, record: Record, object_types: frozenset[str] | No
         ("x", "x"), ("y", "y"), ("z", "z"), ("heading", "bbox_yaw"), ("vx", "velocity_x"),
         ("vy", "velocity_y"), ("length", "length"), ("width", "width"), ("height", "height"))}
     states["valid"] = valid[kept].ravel()
+    track_ids = [str(int(i)) for i in ids[kept]]
+    problem = bad_box_size(track_ids, len(times), states)
+    if problem is not None:
+        raise record.error(problem, BOX_SIZE_FIX)
     return trajectory_table(
         scenario_id, times, [str(int(i)) for i in ids[kept]], list(names[kept]), states,
         is_ego=flags["is_sdc"], object_of_interest=flags["objects_of_interest"],

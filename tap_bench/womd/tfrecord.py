@@ -39,8 +39,9 @@ _SKIP_CHUNK = 1 << 20
 _HEADER = struct.Struct("<QI")
 _CRC = struct.Struct("<I")
 _GZIP_MAGIC = b"\x1f\x8b"
-_DAMAGED = ("The file is damaged (an interrupted download or copy?): fetch it again, or "
-            "ingest with on_error='skip' to go on without it.")
+_DAMAGED = ("The file is damaged (an interrupted download or copy?): fetch it again. "
+            "`tap-bench ingest --on-error skip` (on_error='skip') keeps its other records; a "
+            "rollout reads whole files: leave this one out.")
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,183 @@
+"""Limits that hold before anything is allocated or run: a ScenarioNet pickle cannot make the
+restricted unpickler allocate beyond its size (nor crash numpy); a CSV that is not text
+(a sparse 2 GiB file of NUL bytes) is refused before it is parsed; ``--workers`` is capped
+at the usable cores with a warning; zero, negative or NaN box sizes on valid steps are
+refused naming the track; a ScenarioNet rollout keeps the times ``read_womd`` gives; a
+damaged file's error does not advise ``on_error='skip'`` to a rollout, which has no such
+option."""
+
+from __future__ import annotations
+
+import pickle
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pandas as pd
+import pytest
+from fault_helpers import PROJECT_ROOT, run_process, womd_shard
+
+from tap_bench.errors import FileFormatError, WomdRecordError
+
+HOSTILE = {
+    "ndarray(shape)": "(np.ndarray, ((300_000_000,), np.dtype('f8')))",
+    "_reconstruct(shape)": "(_reconstruct, (np.ndarray, (300_000_000,), b'b'))",
+    "bytes(n)": "(bytes, (3_000_000_000,))",
+    "object array, short list": ("(_reconstruct, (np.ndarray, (0,), b'b'), (1, (30_000_000,),"
+                                 " np.dtype('O'), False, [1, 2]))"),
+    "object array, short list, small": ("(_reconstruct, (np.ndarray, (0,), b'b'), (1, (1000,),"
+                                        " np.dtype('O'), False, [1, 2]))"),
+}
+
+_CHILD = '''
+import io, pickle, resource, sys
+import numpy as np
+from numpy._core.multiarray import _reconstruct
+from tap_bench.sources.scenarionet import load_scenarionet
+
+
+class Hostile:
+    def __reduce__(self):
+        return {reduce}
+
+
+path = sys.argv[1]
+with open(path, "wb") as f:
+    pickle.dump({{"metadata": {{"ts": [0.0]}}, "tracks": {{"a": Hostile()}}}}, f)
+try:
+    load_scenarionet(path)
+    print("LOADED")
+except Exception as err:
+    print(type(err).__name__, err)
+print("MAXRSS_MB", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+'''
+
+
+@pytest.mark.parametrize("case", sorted(HOSTILE))
+def test_a_small_hostile_pickle_allocates_nothing_large(tmp_path, case):
+    """Each in a child process: what it allocates is measured, and a crash of numpy would
+    not take the test run with it."""
+    result = subprocess.run(
+        [sys.executable, "-c", _CHILD.format(reduce=HOSTILE[case]), str(tmp_path / "sd.pkl")],
+        capture_output=True, text=True, timeout=300,
+        env={"PYTHONPATH": str(PROJECT_ROOT), "PATH": "/usr/bin:/bin"})
+    assert result.returncode == 0, (result.returncode, result.stderr[-2000:])
+    assert (tmp_path / "sd.pkl").stat().st_size < 4000
+    assert "WomdRecordError" in result.stdout and "LOADED" not in result.stdout, result.stdout
+    peak = float(result.stdout.split("MAXRSS_MB")[1])
+    assert peak < 400, f"{case}: {peak:.0f} MB before it was refused"
+
+
+def test_a_real_scenarionet_pickle_still_loads(womd_dir):
+    from tap_bench.sources.scenarionet import decode_scenarionet, load_scenarionet
+
+    scenario = load_scenarionet(womd_dir / "sd_waymo_v1.2_eb4b91b10ca94ff2.pkl")
+    table = decode_scenarionet(scenario).to_pandas()
+    assert len(table) and np.isfinite(table.loc[table["valid"], "length"]).all()
+
+
+def test_a_sparse_csv_of_nul_bytes_is_refused_before_it_is_parsed(tmp_path, monkeypatch):
+    from tap_bench.tableio import read_table
+
+    path = tmp_path / "big.csv"
+    with path.open("wb") as f:
+        f.write(b"scenario_id,track_id,t,x,y\n")
+        f.truncate(2 << 30)  # 2 GiB, a hole after the header
+    assert path.stat().st_blocks * 512 < 1 << 20  # sparse: nothing written to disk
+
+    def parse(*args, **kwargs):
+        raise AssertionError("pandas was asked to parse a 2 GiB file of NUL bytes")
+
+    monkeypatch.setattr(pd, "read_csv", parse)
+    with pytest.raises(FileFormatError, match=r"line 2, byte 1 is a NUL byte"):
+        read_table(path)
+
+
+def test_a_text_csv_and_a_gzipped_one_still_read(tmp_path):
+    from tap_bench.tableio import read_table
+
+    table = pd.DataFrame({"scenario_id": ["a", "b"], "x": [1.0, 2.0]})
+    for name in ("t.csv", "t.csv.gz"):
+        table.to_csv(tmp_path / name, index=False)
+        pd.testing.assert_frame_equal(read_table(tmp_path / name), table,
+                                      check_dtype=False)
+
+
+def test_workers_are_capped_at_the_usable_cores_with_a_warning(monkeypatch, tmp_path):
+    from tap_bench.bench import run_cache, runner
+    from tap_bench.cli import main
+    from tap_bench.execution import usable_cores
+
+    asked = {}
+
+    def run_suite(*args, workers, **kwargs):
+        asked["workers"] = workers
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(runner, "run_suite", run_suite)
+    monkeypatch.setattr(run_cache, "serve_unchanged", lambda *a, **k: None)
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        code = main(["bench", "run", "--no-cache", "-o", str(tmp_path / "run"),
+                     "--workers", str(usable_cores() + 10), "--no-progress"])
+    assert code == 130 and asked["workers"] == usable_cores()
+    assert any("core" in str(w.message) and "--workers" in str(w.message) for w in said)
+
+
+def _sized_pickle(path, value) -> str:
+    t = np.arange(20) * 0.1
+    track = {"type": "VEHICLE", "state": {
+        "position": np.c_[t * 10, np.zeros(20)], "velocity": np.c_[np.full(20, 10.0),
+                                                                   np.zeros(20)],
+        "heading": np.zeros(20), "valid": np.ones(20, bool),
+        "length": np.r_[np.full(5, 4.5), value, np.full(14, 4.5)], "width": np.full(20, 2.0),
+        "height": np.full(20, 1.5)}}
+    with path.open("wb") as f:
+        pickle.dump({"metadata": {"scenario_id": "s", "ts": t, "dataset": "waymo",
+                                  "sdc_id": "7"}, "tracks": {"7": track}}, f)
+    return str(path)
+
+
+@pytest.mark.parametrize("value", [0.0, -1.0, float("nan")])
+def test_a_box_size_that_is_not_a_length_is_refused(tmp_path, value):
+    from tap_bench.sources import read_womd
+
+    path = _sized_pickle(tmp_path / "sd_s.pkl", value)
+    with pytest.raises(WomdRecordError, match=r"track 7 step 5: length .* not a box size"):
+        read_womd([path])
+    assert len(read_womd([_sized_pickle(tmp_path / "sd_ok.pkl", 4.4)]))
+
+
+def test_a_scenarionet_rollout_keeps_read_womds_times(womd_dir):
+    from tap_bench.sim.policies import load_policy
+    from tap_bench.sim.womd_env import make_womd_env
+    from tap_bench.sources import read_womd
+
+    path = str(womd_dir / "sd_waymo_v1.2_eb4b91b10ca94ff2.pkl")
+    recorded = read_womd([path])
+    env = make_womd_env(path)
+    policy = load_policy("log")
+    obs, _ = env.reset(seed=0)
+    policy.reset(env, seed=0)
+    for _ in range(6):
+        obs, _, terminated, truncated, _ = env.step(policy.act(obs))
+        if terminated or truncated:
+            break
+    rolled = env.trajectories(policy="log")
+    times = np.sort(recorded["t"].unique())
+    assert not np.allclose(times[1], round(times[1], 6), rtol=0, atol=0)  # 0.10001802
+    assert set(rolled["t"].unique()) <= set(times - times[0])
+
+
+def test_a_damaged_files_rollout_error_does_not_advise_an_option_rollout_lacks(tmp_path):
+    path = womd_shard(tmp_path / "s.tfrecord")
+    data = bytearray(path.read_bytes())
+    data[14] ^= 0xFF  # a byte of the first record's data: its CRC fails
+    path.write_bytes(bytes(data))
+    result = run_process("rollout", "--womd", path, "--policy", "log", "-o",
+                         tmp_path / "out.parquet", cwd=tmp_path)
+    err = result.stderr.decode()
+    assert result.returncode == 2, err
+    assert "on_error='skip' to" not in err and "with on_error='skip'." not in err
+    assert "a rollout reads whole files" in err, err
