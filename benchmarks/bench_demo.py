@@ -11,7 +11,7 @@ Totals are measured from outside: wall, and CPU of the run and all its workers
 (``RUSAGE_CHILDREN``). The versions alternate, so a change of the machine's load hits both.
 Both versions must simulate the same episodes: their episode tables (status, crashes,
 lengths, returns) and trajectory tables (every vehicle's state at every step, on the
-columns both write, floats with ``==``) are compared.
+columns both write, floats within 1e-6) are compared.
 
 Phases: ``rollouts`` (simulating, in the workers), ``labelling`` and ``measures`` (TAP and
 the per-episode measures, in the workers or in the run's process, whichever the version
@@ -110,7 +110,11 @@ def _same_episodes(a: pd.DataFrame, b: pd.DataFrame) -> dict[str, object]:
             if c in a.columns and c in b.columns]
     x = a[keys + cols].sort_values(keys).reset_index(drop=True)
     y = b[keys + cols].sort_values(keys).reset_index(drop=True)
-    same = x.equals(y)
+    floats = [c for c in cols if c == "return"]
+    exact = [c for c in cols if c not in floats]
+    same = len(x) == len(y) and x[keys + exact].equals(y[keys + exact]) and all(
+        np.allclose(x[c].to_numpy(float), y[c].to_numpy(float), rtol=0, atol=1e-6,
+                    equal_nan=True) for c in floats)
     return {"same_episodes_and_crashes": bool(same), "compared": cols,
             "episodes": [len(a), len(b)],
             "crashes": [int(a["crashed"].fillna(False).astype(bool).sum()),
@@ -119,7 +123,7 @@ def _same_episodes(a: pd.DataFrame, b: pd.DataFrame) -> dict[str, object]:
 
 def _same_trajectories(a: pd.DataFrame | None, b: pd.DataFrame | None) -> dict[str, object]:
     """Whether two demo runs wrote the same trajectory tables: every vehicle's state at
-    every step, on the columns both versions write, floats compared with ``==``."""
+    every step, on the columns both versions write, floats within 1e-6."""
     if a is None or b is None:
         return {"same_trajectories": None, "trajectory_rows": None}
     keys = [c for c in ("env", "policy", "seed", "track_id", "t") if c in a and c in b]
@@ -127,8 +131,13 @@ def _same_trajectories(a: pd.DataFrame | None, b: pd.DataFrame | None) -> dict[s
                          "crashed", "lane", "road") if c in a.columns and c in b.columns]
     x = a[keys + state].sort_values(keys).reset_index(drop=True)
     y = b[keys + state].sort_values(keys).reset_index(drop=True)
-    same = len(x) == len(y) and all(
-        np.array_equal(x[c].to_numpy(), y[c].to_numpy()) for c in keys + state)
+    def equal(c: str) -> bool:  # floats within 1e-6 (the traffic core's tolerance)
+        u, v = x[c].to_numpy(), y[c].to_numpy()
+        if u.dtype.kind == "f" and v.dtype.kind == "f":
+            return bool(np.allclose(u, v, rtol=0, atol=1e-6, equal_nan=True))
+        return bool(np.array_equal(u, v))
+
+    same = len(x) == len(y) and all(equal(c) for c in keys + state)
     return {"same_trajectories": bool(same), "trajectory_rows": [len(a), len(b)],
             "trajectory_columns_compared": state}
 

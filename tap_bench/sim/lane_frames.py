@@ -1,4 +1,4 @@
-"""Lane coordinates of many points at once, from the lanes' geometry.
+"""Lane coordinates of many points on many lanes at once, from the lanes' geometry.
 
 A lane's frame gives a point its longitudinal coordinate ``s`` (distance along the lane from
 its start) and lateral offset ``r`` (to the left of its centre line, highway-env's sign).
@@ -12,13 +12,15 @@ For highway-env's three lane shapes the frames follow from the shape's parameter
   point's polar angle relative to the start phase (wrapped to [-pi, pi)) times the radius
   gives ``s``, its distance inside the circle gives ``r``.
 
-Any other lane (a user's class, or one of these whose frame methods a subclass changes) is
-asked point by point through its public ``local_coordinates`` and ``heading_at``.
+Any other lane (a user's class, or one of these whose frame methods a subclass or the
+instance changes) is asked point by point through its public ``local_coordinates``,
+``heading_at`` and ``width_at``.
 
-:func:`closest_lanes` is highway-env's ``RoadNetwork.get_closest_lane_index`` for many
-(position, heading) pairs: each lane's distance (lateral offset, plus how far beyond either
-end, plus the heading's angle to the lane) computed for all pairs at once; where two lanes
-are within :data:`TIE` of each other, the network itself is asked.
+:class:`LaneSet` holds the lanes of a road network as arrays and answers for all (point,
+lane) pairs at once; :meth:`LaneSet.closest` is highway-env's
+``RoadNetwork.get_closest_lane_index`` for many (position, heading) pairs: each lane's
+distance (lateral offset, plus how far beyond either end, plus the heading's angle to the
+lane), where two lanes are within :data:`TIE` of each other the network itself is asked.
 """
 
 from __future__ import annotations
@@ -28,11 +30,14 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["TIE", "closest_lanes", "lane_coordinates", "lane_heading", "lane_shape"]
+__all__ = ["TIE", "LaneSet", "lane_coordinates", "lane_heading", "lane_shape"]
 
 TIE = 1e-9
 """Distance [m + rad] within which two lanes count as equally close (then the network's own
 ``get_closest_lane_index`` decides)."""
+
+_STRAIGHT, _SINE, _CIRCULAR, _OTHER = 0, 1, 2, 3
+_SHAPES = {"straight": _STRAIGHT, "sine": _SINE, "circular": _CIRCULAR, None: _OTHER}
 
 
 @functools.cache
@@ -57,73 +62,118 @@ def lane_shape(lane: Any) -> str | None:
     return shape
 
 
+class LaneSet:
+    """Lanes as arrays: their frames and headings for many points at once.
+
+    Args:
+        lanes: (index, lane) pairs, e.g. every lane of a network in the network's order.
+    """
+
+    def __init__(self, lanes: list[tuple[Any, Any]]) -> None:
+        self.lanes = lanes
+        self.column = {id(lane): j for j, (_, lane) in enumerate(lanes)}
+        m = len(lanes)
+        self.kind = np.array([_SHAPES[lane_shape(lane)] for _, lane in lanes], dtype=int)
+        flat = np.flatnonzero(self.kind <= _SINE)
+        circular = np.flatnonzero(self.kind == _CIRCULAR)
+        self.flat, self.circular = flat, circular
+        self.other = np.flatnonzero(self.kind == _OTHER).tolist()
+        self.sine = np.flatnonzero(self.kind == _SINE)
+        self.straight_only = bool((self.kind == _STRAIGHT).all())
+        p = np.zeros((m, 12))  # the parameters of each shape, 0 where not used
+        for j, (_, lane) in enumerate(lanes):
+            if self.kind[j] <= _SINE:
+                p[j, :7] = (*lane.start, *lane.direction, *lane.direction_lateral, lane.heading)
+                if self.kind[j] == _SINE:
+                    p[j, 7:10] = (lane.amplitude, lane.pulsation, lane.phase)
+            elif self.kind[j] == _CIRCULAR:
+                p[j, :5] = (*lane.center, lane.radius, lane.start_phase, lane.direction)
+        self._p = p
+        self.length = np.array([float(lane.length) for _, lane in lanes])
+        self.width = np.array([float(lane.width) if k != _OTHER else np.nan
+                               for (_, lane), k in zip(lanes, self.kind, strict=True)])
+
+    def coordinates(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(n, m) longitudinal and (n, m) lateral coordinates [m] of ``points`` (n, 2) on
+        every lane."""
+        n, m = len(points), len(self.lanes)
+        s, r = np.empty((n, m)), np.empty((n, m))
+        x, y = points[:, :1], points[:, 1:2]
+        if len(self.flat):
+            p = self._p[self.flat]
+            dx, dy = x - p[:, 0], y - p[:, 1]
+            s[:, self.flat] = dx * p[:, 2] + dy * p[:, 3]
+            r[:, self.flat] = dx * p[:, 4] + dy * p[:, 5]
+            if len(self.sine):
+                q = self._p[self.sine]
+                r[:, self.sine] -= q[:, 7] * np.sin(q[:, 8] * s[:, self.sine] + q[:, 9])
+        if len(self.circular):
+            p = self._p[self.circular]
+            dx, dy = x - p[:, 0], y - p[:, 1]
+            turned = np.remainder(np.arctan2(dy, dx) - p[:, 3] + np.pi, 2 * np.pi) - np.pi
+            s[:, self.circular] = p[:, 4] * turned * p[:, 2]
+            r[:, self.circular] = p[:, 4] * (p[:, 2] - np.hypot(dx, dy))
+        for j in self.other:
+            lane = self.lanes[j][1]
+            sr = np.array([lane.local_coordinates(point) for point in points],
+                          dtype=float).reshape(n, 2)
+            s[:, j], r[:, j] = sr[:, 0], sr[:, 1]
+        return s, r
+
+    def heading(self, columns: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """The heading [rad] of lane ``columns[i]`` at ``s[i]`` (both of one shape, any
+        dimensions)."""
+        if self.straight_only:
+            return self._p[columns, 6] + 0.0 * s
+        kind, p = self.kind[columns], self._p[columns]
+        out = np.where(kind == _CIRCULAR, p[..., 4] * s / np.where(kind == _CIRCULAR,
+                                                                   p[..., 2], 1.0)
+                       + p[..., 3] + np.pi / 2 * p[..., 4], p[..., 6])
+        sine = kind == _SINE
+        if sine.any():
+            out = out + np.where(sine, np.arctan(p[..., 7] * p[..., 8]
+                                                 * np.cos(p[..., 8] * s + p[..., 9])), 0.0)
+        other = kind == _OTHER
+        if other.any():
+            for i in zip(*np.nonzero(other), strict=True):
+                out[i] = self.lanes[int(columns[i])][1].heading_at(float(s[i]))
+        return out
+
+    def widths(self, column: int, s: np.ndarray) -> np.ndarray | float:
+        """Lane ``column``'s width [m] at ``s`` (a number for the three shapes)."""
+        if self.kind[column] != _OTHER:
+            return float(self.width[column])
+        lane = self.lanes[column][1]
+        return np.array([lane.width_at(v) for v in s], dtype=float)
+
+    def closest(self, network: Any, positions: np.ndarray, headings: np.ndarray) -> list[Any]:
+        """The index of the lane closest to each (position, heading), as the network's
+        ``get_closest_lane_index(position, heading)`` answers it (``self``: every lane of
+        ``network`` in its order)."""
+        n = len(positions)
+        if n == 0:
+            return []
+        s, r = self.coordinates(positions)
+        columns = np.broadcast_to(np.arange(len(self.lanes)), s.shape)
+        angle = np.abs(np.remainder(headings[:, None] - self.heading(columns, s) + np.pi,
+                                    2 * np.pi) - np.pi)
+        distance = (np.abs(r) + np.maximum(s - self.length, 0) + np.maximum(-s, 0) + angle)
+        nearest = distance.argmin(axis=1)
+        best = distance[np.arange(n), nearest]
+        ties = ((distance <= best[:, None] + TIE).sum(axis=1) > 1) | ~np.isfinite(best)
+        out = [self.lanes[j][0] for j in nearest.tolist()]
+        for k in np.flatnonzero(ties).tolist():
+            out[k] = network.get_closest_lane_index(positions[k], headings[k])
+        return out
+
+
 def lane_coordinates(lane: Any, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(n,) longitudinal and (n,) lateral coordinates [m] of ``points`` (n, 2) on ``lane``."""
-    shape = lane_shape(lane)
-    if shape == "straight" or shape == "sine":
-        dx = points[:, 0] - lane.start[0]
-        dy = points[:, 1] - lane.start[1]
-        s = dx * lane.direction[0] + dy * lane.direction[1]
-        r = dx * lane.direction_lateral[0] + dy * lane.direction_lateral[1]
-        if shape == "sine":
-            r = r - lane.amplitude * np.sin(lane.pulsation * s + lane.phase)
-        return s, r
-    if shape == "circular":
-        dx = points[:, 0] - lane.center[0]
-        dy = points[:, 1] - lane.center[1]
-        turned = np.remainder(np.arctan2(dy, dx) - lane.start_phase + np.pi, 2 * np.pi) - np.pi
-        return (lane.direction * turned * lane.radius,
-                lane.direction * (lane.radius - np.hypot(dx, dy)))
-    if len(points) == 0:
-        return np.zeros(0), np.zeros(0)
-    sr = np.array([lane.local_coordinates(p) for p in points], dtype=float)
-    return sr[:, 0], sr[:, 1]
+    s, r = LaneSet([(None, lane)]).coordinates(np.asarray(points, dtype=float).reshape(-1, 2))
+    return s[:, 0], r[:, 0]
 
 
 def lane_heading(lane: Any, s: np.ndarray) -> np.ndarray:
     """(n,) the lane's heading [rad] at longitudinal coordinates ``s`` (n,)."""
-    shape = lane_shape(lane)
-    if shape == "straight":
-        return np.full(len(s), float(lane.heading))
-    if shape == "sine":
-        return lane.heading + np.arctan(lane.amplitude * lane.pulsation
-                                        * np.cos(lane.pulsation * s + lane.phase))
-    if shape == "circular":
-        return lane.direction * s / lane.radius + lane.start_phase + np.pi / 2 * lane.direction
-    return np.array([lane.heading_at(v) for v in s], dtype=float)
-
-
-def lane_widths(lane: Any, s: np.ndarray) -> np.ndarray | float:
-    """The lane's width [m] at ``s`` (a number for the three constant-width shapes)."""
-    if lane_shape(lane) is not None:
-        return float(lane.width)
-    return np.array([lane.width_at(v) for v in s], dtype=float)
-
-
-def closest_lanes(network: Any, lanes: list[tuple[Any, Any]], positions: np.ndarray,
-                  headings: np.ndarray) -> list[Any]:
-    """The index of the lane closest to each (position, heading), as the network's
-    ``get_closest_lane_index(position, heading)`` answers it.
-
-    Args:
-        network: the road network (asked where two lanes tie within :data:`TIE`).
-        lanes: (index, lane) of every lane of the network, in the network's order.
-        positions: (n, 2) [m]; headings: (n,) [rad].
-    """
-    n = len(positions)
-    if n == 0:
-        return []
-    distance = np.empty((n, len(lanes)))
-    for j, (_, lane) in enumerate(lanes):
-        s, r = lane_coordinates(lane, positions)
-        angle = np.abs(np.remainder(headings - lane_heading(lane, s) + np.pi, 2 * np.pi)
-                       - np.pi)
-        distance[:, j] = (np.abs(r) + np.maximum(s - lane.length, 0) + np.maximum(-s, 0)
-                          + angle)
-    nearest = distance.argmin(axis=1)
-    best = distance[np.arange(n), nearest]
-    ties = ((distance <= best[:, None] + TIE).sum(axis=1) > 1) | ~np.isfinite(best)
-    out = [lanes[j][0] for j in nearest.tolist()]
-    for k in np.flatnonzero(ties).tolist():
-        out[k] = network.get_closest_lane_index(positions[k], headings[k])
-    return out
+    s = np.asarray(s, dtype=float)
+    return LaneSet([(None, lane)]).heading(np.zeros(len(s), dtype=int), s)

@@ -16,7 +16,7 @@ coordinates of every vehicle, :mod:`tap_bench.sim.lane_frames`):
    its leader, and towards the leader on its target lane while changing: the smaller), all
    at once (:mod:`tap_bench.sim.driver_models`).
 2. ``step``: every vehicle moves by the kinematic bicycle model at once, its lane is looked
-   up (:func:`~tap_bench.sim.lane_frames.closest_lanes`), and the pairs of objects close
+   up (:meth:`~tap_bench.sim.lane_frames.LaneSet.closest`), and the pairs of objects close
    enough to touch are handed to highway-env's collision check (:func:`near_pairs`).
 
 The core drives highway-env's :class:`~highway_env.vehicle.behavior.IDMVehicle` and its
@@ -52,7 +52,7 @@ from tap_bench.sim.driver_models import (
     mobil_incentive,
     steering_angle,
 )
-from tap_bench.sim.lane_frames import closest_lanes, lane_coordinates, lane_heading, lane_widths
+from tap_bench.sim.lane_frames import LaneSet, lane_coordinates
 
 __all__ = ["ON_LANE_MARGIN", "TOUCH_MARGIN", "RoadState", "TrafficRoad", "TrafficVehicle",
            "near_pairs", "traffic_env_class"]
@@ -152,8 +152,9 @@ class RoadState:
         x, y, speed, heading, vx, vy: (n,) their state [m, m/s, rad] as Python lists.
     """
 
-    def __init__(self, road: Road) -> None:
+    def __init__(self, road: TrafficRoad) -> None:
         self.road = road
+        self.lanes = road.lane_set()
         self.objects = [o for o in road.vehicles + road.objects if not isinstance(o, Landmark)]
         self.index = {id(o): k for k, o in enumerate(self.objects)}
         n = len(self.objects)
@@ -161,45 +162,112 @@ class RoadState:
                                   dtype=float).reshape(n, 2)
         speed = np.array([o.speed for o in self.objects], dtype=float)
         heading = np.array([o.heading for o in self.objects], dtype=float)
-        self.cos, self.sin = np.cos(heading).tolist(), np.sin(heading).tolist()
-        self.speed, self.heading = speed.tolist(), heading.tolist()
-        self.x, self.y = self.positions[:, 0].tolist(), self.positions[:, 1].tolist()
-        self.vx = [s * c for s, c in zip(self.speed, self.cos, strict=True)]
-        self.vy = [s * c for s, c in zip(self.speed, self.sin, strict=True)]
+        cos, sin = np.cos(heading), np.sin(heading)
+        vx, vy = speed * cos, speed * sin
         for k, o in enumerate(self.objects):  # a class with its own velocity
             if type(o).velocity not in (Vehicle.velocity, RoadObject.velocity):
-                self.vx[k], self.vy[k] = map(float, o.velocity)
+                vx[k], vy[k] = map(float, o.velocity)
+        self.arrays = (speed, cos, sin, vx, vy)
+        self.cos, self.sin = cos.tolist(), sin.tolist()
+        self.speed, self.heading = speed.tolist(), heading.tolist()
+        self.vx, self.vy = vx.tolist(), vy.tolist()
         self._frames: dict[int, tuple[Any, list[float], list[float]]] = {}
-        self._tables: dict[int, tuple[list[float], list[int]]] = {}
+        self._tables: dict[int, tuple[list[float], list[int], np.ndarray, np.ndarray]] = {}
+        self._s = self._r = None
+        self._constants: dict[int, tuple[float, ...]] = {}
+        self._own: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def matrix(self) -> np.ndarray:
+        """(n, m) every object's longitudinal coordinate [m] on every lane of the road."""
+        if self._s is None:
+            self._s, self._r = self.lanes.coordinates(self.positions)
+        return self._s
+
+    def constants(self, vehicle: Any) -> tuple[float, ...]:
+        """The IDM constants of ``vehicle``: a_max, delta, s0 [m], T [s], b [m/s^2]."""
+        got = self._constants.get(id(vehicle))
+        if got is None:
+            got = self._constants[id(vehicle)] = (
+                vehicle.COMFORT_ACC_MAX, vehicle.DELTA, vehicle.DISTANCE_WANTED,
+                vehicle.TIME_WANTED, -vehicle.COMFORT_ACC_MIN)
+        return got
+
+    def own(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(n,) per object: whether it is a vehicle, the column of its lane in the road's
+        lanes (-1: none or not one of them), its desired speed [m/s] (``target_speed``,
+        0 without one, within its lane's speed limit)."""
+        if self._own is None:
+            column, is_vehicle = self.lanes.column, []
+            columns, desired = [], []
+            for o in self.objects:
+                vehicle = isinstance(o, Vehicle)
+                lane = getattr(o, "lane", None)
+                is_vehicle.append(vehicle)
+                columns.append(column.get(id(lane), -1) if lane is not None else -1)
+                target = getattr(o, "target_speed", 0) if vehicle else 0
+                if vehicle and lane and lane.speed_limit is not None:
+                    target = min(max(target, 0), lane.speed_limit)
+                desired.append(target)
+            self._own = (np.array(is_vehicle, dtype=bool), np.array(columns, dtype=int),
+                         np.array(desired, dtype=float))
+        return self._own
 
     def frame(self, lane: Any) -> tuple[list[float], list[float]]:
         """Every object's longitudinal and lateral coordinate [m] on ``lane``."""
         got = self._frames.get(id(lane))
         if got is None:
-            s, r = lane_coordinates(lane, self.positions)
+            j = self.lanes.column.get(id(lane))
+            if j is None:  # not a lane of the network
+                s, r = lane_coordinates(lane, self.positions)
+            else:
+                self.matrix()  # every lane's frame at once
+                s, r = self._s[:, j], self._r[:, j]
             got = self._frames[id(lane)] = (lane, s.tolist(), r.tolist())
         return got[1], got[2]
 
-    def table(self, lane: Any) -> tuple[list[float], list[int]]:
+    def table(self, lane: Any) -> tuple[list[float], list[int], np.ndarray, np.ndarray]:
         """The objects on ``lane`` (within :data:`ON_LANE_MARGIN` of its sides, from a
         vehicle length before its start to a vehicle length after its end), sorted by
-        longitudinal coordinate, then row: their coordinates and rows."""
+        longitudinal coordinate, then row: their coordinates and rows (lists, then
+        arrays)."""
         got = self._tables.get(id(lane))
         if got is None:
             self.frame(lane)
             s, r = (np.asarray(a) for a in self.frame(lane))
-            half = np.asarray(lane_widths(lane, s)) / 2 + ON_LANE_MARGIN
+            j = self.lanes.column.get(id(lane))
+            width = (self.lanes.widths(j, s) if j is not None
+                     else np.array([lane.width_at(v) for v in s], dtype=float))
+            half = np.asarray(width) / 2 + ON_LANE_MARGIN
             on = np.flatnonzero((np.abs(r) <= half) & (s >= -lane.VEHICLE_LENGTH)
                                 & (s < lane.length + lane.VEHICLE_LENGTH))
             order = on[np.lexsort((on, s[on]))]
-            got = self._tables[id(lane)] = (s[order].tolist(), order.tolist())
+            got = self._tables[id(lane)] = (s[order].tolist(), order.tolist(), s[order], order)
         return got
+
+    def fronts(self, lanes: list[Any], rows: list[int]) -> list[int]:
+        """The row of the object just ahead of each row on each lane (-1: none), as
+        :meth:`neighbours` finds it (which answers where coordinates tie)."""
+        out = []
+        for lane, k in zip(lanes, rows, strict=True):
+            s_list, order, _, _ = self.table(lane)
+            s = self.frame(lane)[0][k]
+            p = bisect.bisect_left(s_list, s)
+            m = len(order)
+            if p < m and order[p] == k:
+                p += 1
+            if p >= m:
+                out.append(-1)
+            elif s_list[p] == s or (p + 1 < m and s_list[p + 1] == s_list[p]):
+                out.append(self.neighbours(lane, k)[0])
+            else:
+                out.append(order[p])
+        return out
 
     def neighbours(self, lane: Any, k: int) -> tuple[int, int]:
         """Rows of the objects just ahead of and just behind row ``k`` on ``lane`` (-1:
         none). Ahead: the smallest coordinate at or beyond ``k``'s (ties: the last in the
         road's order); behind: the largest below it (ties: the first)."""
-        s_list, rows = self.table(lane)
+        s_list, rows, _, _ = self.table(lane)
         s = self.frame(lane)[0][k]
         front = -1
         p = bisect.bisect_left(s_list, s)
@@ -231,6 +299,16 @@ class TrafficRoad(Road):
             if obj.road is road:
                 obj.road = new
         return new
+
+    def lane_set(self) -> LaneSet:
+        """Every lane of the network as a :class:`~tap_bench.sim.lane_frames.LaneSet`, in
+        the network's order (highway-env builds a network once per scene)."""
+        lanes = self.__dict__.get("_lane_set")
+        if lanes is None:
+            lanes = self.__dict__["_lane_set"] = LaneSet([
+                ((start, end, i), lane) for start, ends in self.network.graph.items()
+                for end, row in ends.items() for i, lane in enumerate(row)])
+        return lanes
 
     def _core_applies(self) -> bool:
         # the neighbour search over connected lanes (highway-env >= 1.12, off by default)
@@ -290,7 +368,10 @@ class TrafficRoad(Road):
         with its own ``follow_road``."""
         if type(vehicle).follow_road is ControlledVehicle.follow_road:
             lane = self.network.get_lane(vehicle.target_lane_index)
-            s = state.frame(lane)[0][state.index[id(vehicle)]]
+            j = state.lanes.column.get(id(lane))
+            k = state.index[id(vehicle)]
+            s = state.matrix()[k, j] if j is not None else lane.local_coordinates(
+                vehicle.position)[0]
             if not s > lane.length - lane.VEHICLE_LENGTH / 2 - _NEAR_END:
                 return
         vehicle.follow_road()
@@ -365,33 +446,28 @@ class TrafficRoad(Road):
         with the IDM constants of the row's driver. The gap is measured along the
         follower's own lane; its desired speed is its ``target_speed`` within that lane's
         speed limit."""
-        objects = state.objects
-        n = len(rows)
-        speed, v0, gap, approach = (np.zeros(n) for _ in range(4))
-        valid, leader = np.zeros(n, bool), np.zeros(n, bool)
-        constants = np.empty((n, 5))
-        for i, (driver, k, j) in enumerate(rows):
-            constants[i] = (driver.COMFORT_ACC_MAX, driver.DELTA, driver.DISTANCE_WANTED,
-                            driver.TIME_WANTED, -driver.COMFORT_ACC_MIN)
-            follower = objects[k] if k >= 0 else None
-            if follower is None or not isinstance(follower, Vehicle):
-                continue
-            valid[i] = True
-            speed[i] = state.speed[k]
-            target = getattr(follower, "target_speed", 0)
-            lane = follower.lane
-            if lane and lane.speed_limit is not None:
-                target = min(max(target, 0), lane.speed_limit)
-            v0[i] = target
-            if j >= 0:
-                leader[i] = True
-                s = state.frame(lane)[0]
-                gap[i] = s[j] - s[k]
-                approach[i] = ((state.vx[k] - state.vx[j]) * state.cos[k]
-                               + (state.vy[k] - state.vy[j]) * state.sin[k])
+        if not rows:
+            return np.zeros(0)
+        drivers, k, j = zip(*rows, strict=True)
+        k, j = np.array(k), np.array(j)
+        constants = np.array([state.constants(v) for v in drivers], dtype=float)
+        is_vehicle, column, desired = state.own()
+        speed, cos, sin, vx, vy = state.arrays
+        kk, jj = np.maximum(k, 0), np.maximum(j, 0)
+        valid = (k >= 0) & is_vehicle[kk]
+        leader = valid & (j >= 0)
+        col = column[kk]
+        s = state.matrix()
+        gap = np.where(leader, s[jj, col] - s[kk, col], 1.0)
+        for i in np.flatnonzero(leader & (col < 0)).tolist():  # a lane not of the network
+            follower = state.objects[k[i]]
+            along = state.frame(follower.lane)[0]
+            gap[i] = along[j[i]] - along[k[i]]
+        approach = (vx[kk] - vx[jj]) * cos[kk] + (vy[kk] - vy[jj]) * sin[kk]
+        v = speed[kk]
         a_max, delta, s0, time_gap, b = constants.T
-        s_star = desired_gap(speed, approach, s0, time_gap, a_max, b)
-        out = idm_acceleration(speed, v0, delta, a_max, gap, s_star, leader)
+        s_star = desired_gap(v, approach, s0, time_gap, a_max, b)
+        out = idm_acceleration(v, desired[kk], delta, a_max, gap, s_star, leader)
         return np.where(valid, out, 0.0)
 
     def _drive(self, drivers: list[tuple[Any, str]], state: RoadState) -> None:
@@ -400,30 +476,37 @@ class TrafficRoad(Road):
             return
         network = self.network
         n = len(drivers)
-        rows, ahead_rows, changing = [], [], []
-        lateral, future, lane_heading_now = np.zeros(n), np.zeros(n), np.zeros(n)
-        by_lane: dict[int, tuple[Any, list[int]]] = {}
-        for i, (vehicle, _) in enumerate(drivers):
-            k = state.index[id(vehicle)]
-            target = network.get_lane(vehicle.target_lane_index)
-            s, r = state.frame(target)
-            lateral[i] = r[k]
-            future[i] = s[k] + state.speed[k] * vehicle.TAU_PURSUIT
-            by_lane.setdefault(id(target), (target, []))[1].append(i)
-            rows.append((vehicle, k, state.neighbours(vehicle.lane, k)[0]))
-            if vehicle.lane_index != vehicle.target_lane_index:
-                changing.append(i)
-                ahead_rows.append((vehicle, k, state.neighbours(target, k)[0]))
-        for lane, members in by_lane.values():
-            lane_heading_now[members] = lane_heading(lane, future[members])
-        ks = [state.index[id(v)] for v, _ in drivers]
+        vehicles = [v for v, _ in drivers]
+        ks = [state.index[id(v)] for v in vehicles]
+        targets = [network.get_lane(v.target_lane_index) for v in vehicles]
+        lane_set = state.lanes
+        columns = np.array([lane_set.column.get(id(t), -1) for t in targets])
+        k = np.array(ks)
+        s_all = state.matrix()
+        r_all = state._r
+        known = columns >= 0
+        cc = np.maximum(columns, 0)
+        lateral, along = r_all[k, cc], s_all[k, cc]
+        for i in np.flatnonzero(~known).tolist():
+            along[i], lateral[i] = targets[i].local_coordinates(vehicles[i].position)
         constant = np.array([(v.LENGTH, v.KP_LATERAL, v.KP_HEADING, v.MAX_STEERING_ANGLE,
-                              v.ACC_MAX) for v, _ in drivers], dtype=float)
-        length, kp_lateral, kp_heading, max_angle, acc_max = constant.T
-        steering = steering_angle(lateral, np.array([state.heading[k] for k in ks]),
-                                  lane_heading_now, np.array([state.speed[k] for k in ks]),
-                                  length, kp_lateral, kp_heading, max_angle)
-        acceleration = self._idm(rows + ahead_rows, state)
+                              v.ACC_MAX, v.TAU_PURSUIT) for v in vehicles], dtype=float)
+        length, kp_lateral, kp_heading, max_angle, acc_max, pursuit = constant.T
+        speed = state.arrays[0][k]
+        future = along + speed * pursuit
+        heading_ahead = lane_set.heading(cc, future)
+        for i in np.flatnonzero(~known).tolist():
+            heading_ahead[i] = targets[i].heading_at(future[i])
+        heading = np.array([state.heading[i] for i in ks])
+        steering = steering_angle(lateral, heading, heading_ahead, speed, length, kp_lateral,
+                                  kp_heading, max_angle)
+        changing = [i for i, v in enumerate(vehicles) if v.lane_index != v.target_lane_index]
+        fronts = state.fronts([v.lane for v in vehicles] + [targets[i] for i in changing],
+                              ks + [ks[i] for i in changing])
+        rows = [(v, kv, f) for v, kv, f in zip(vehicles + [vehicles[i] for i in changing],
+                                               ks + [ks[i] for i in changing], fronts,
+                                               strict=True)]
+        acceleration = self._idm(rows, state)
         own, on_target = acceleration[:n], acceleration[n:]
         if changing:
             own[changing] = np.minimum(own[changing], on_target)
@@ -451,14 +534,6 @@ class TrafficRoad(Road):
                 batch.append((vehicle, how))
         self._move(batch, dt)
         self._collide(dt)
-
-    def _lanes(self) -> list[tuple[Any, Any]]:
-        lanes = self.__dict__.get("_lane_list")
-        if lanes is None:
-            lanes = self.__dict__["_lane_list"] = [
-                ((start, end, i), lane) for start, ends in self.network.graph.items()
-                for end, row in ends.items() for i, lane in enumerate(row)]
-        return lanes
 
     def _move(self, batch: list[tuple[Any, str]], dt: float) -> None:
         """The kinematic bicycle step of every vehicle of ``batch`` at once (actions
@@ -491,7 +566,7 @@ class TrafficRoad(Road):
                 positions[i] += v.impact
                 v.crashed = True
                 v.impact = None
-        found = closest_lanes(self.network, self._lanes(), positions, heading)
+        found = self.lane_set().closest(self.network, positions, heading)
         get_lane, history = self.network.get_lane, self.record_history
         for i, ((v, how), h, sp, index) in enumerate(zip(batch, heading.tolist(), speed.tolist(),
                                                          found, strict=True)):
@@ -508,19 +583,48 @@ class TrafficRoad(Road):
     def _collide(self, dt: float) -> None:
         """highway-env's collision check (``handle_collisions``) on the pairs, in the
         road's order (each vehicle with the vehicles after it, then with the objects),
-        that :func:`near_pairs` finds close enough to touch within ``dt``."""
+        that can touch within ``dt``: close enough (:func:`near_pairs`) and not apart on
+        an axis of either rectangle (:func:`_swept_apart`)."""
         vehicles, objects = self.vehicles, self.objects
-        near = near_pairs(vehicles, objects, dt)
         everyone = vehicles + objects
-        if near is None:
+        shapes = _shapes(everyone)
+        if shapes is None:
             pairs = [(i, j) for i in range(len(vehicles)) for j in range(i + 1, len(everyone))]
         else:
-            pairs = list(zip(*(a.tolist() for a in np.nonzero(np.triu(near, 1))), strict=True))
+            i, j = np.nonzero(np.triu(_near(shapes, len(vehicles), dt), 1))
+            keep = ~_swept_apart(shapes, i, j, dt)
+            pairs = list(zip(i[keep].tolist(), j[keep].tolist(), strict=True))
         for i, j in pairs:
             vehicles[i].handle_collisions(everyone[j], dt)
 
 
-_STANDARD_COLLISION = (RoadObject.handle_collisions, RoadObject._is_colliding)
+_STANDARD_SHAPE = (RoadObject.handle_collisions, RoadObject._is_colliding, RoadObject.polygon)
+
+
+def _shapes(everyone: list[Any]) -> dict[str, np.ndarray] | None:
+    """Per object: position (n, 2) [m], diagonal, half length and width [m], heading [rad],
+    velocity (vx, vy) [m/s], whether it checks collisions and is collidable, and whether its
+    class has its own collision test, polygon or velocity (``own``); None when an object
+    lacks one of these."""
+    try:
+        position = np.array([o.position for o in everyone], dtype=float)
+        shape = np.array([(o.diagonal, o.LENGTH / 2, o.WIDTH / 2, o.heading, o.speed)
+                          for o in everyone], dtype=float)
+        flags = np.array([(bool(o.check_collisions), bool(o.collidable)) for o in everyone],
+                         dtype=bool)
+    except (AttributeError, TypeError, ValueError):
+        return None
+    if position.shape != (len(everyone), 2) or shape.shape != (len(everyone), 5):
+        return None
+    own = np.array([(type(o).handle_collisions, type(o)._is_colliding, type(o).polygon)
+                    != _STANDARD_SHAPE or type(o).velocity not in (Vehicle.velocity,
+                                                                    RoadObject.velocity)
+                    for o in everyone], dtype=bool)
+    heading, speed = shape[:, 3], shape[:, 4]
+    return {"position": position, "diagonal": shape[:, 0], "half_length": shape[:, 1],
+            "half_width": shape[:, 2], "heading": heading, "vx": speed * np.cos(heading),
+            "vy": speed * np.sin(heading), "checks": flags[:, 0], "collidable": flags[:, 1],
+            "own": own}
 
 
 def near_pairs(vehicles: list[Any], objects: list[Any], dt: float) -> np.ndarray | None:
@@ -528,30 +632,58 @@ def near_pairs(vehicles: list[Any], objects: list[Any], dt: float) -> np.ndarray
     whose rectangles can touch within ``dt`` [s] and in which one checks collisions.
 
     Two rectangles touch only if their centres are at most half the sum of their diagonals
-    apart; within ``dt`` each centre moves at most ``|speed| dt``. Pairs farther apart than
-    that (plus :data:`TOUCH_MARGIN`) are left out, and pairs in which neither object checks
+    apart; within ``dt`` one moves relative to the other by their velocities' difference
+    times ``dt`` (velocity: speed along the heading). Pairs farther apart than that (plus
+    :data:`TOUCH_MARGIN`) are left out, and pairs in which neither object checks
     collisions or one is not collidable. Objects of a class with its own collision test are
-    in every pair. None when some object lacks a position, diagonal or speed."""
-    everyone = vehicles + objects
-    n = len(vehicles)
-    try:
-        position = np.array([o.position for o in everyone], dtype=float)
-        diagonal = np.array([o.diagonal for o in everyone], dtype=float)
-        reach = np.abs(np.array([o.speed for o in everyone], dtype=float)) * dt
-        checks = np.array([bool(o.check_collisions) for o in everyone])
-        collidable = np.array([bool(o.collidable) for o in everyone])
-    except (AttributeError, TypeError, ValueError):
-        return None
-    if position.shape != (len(everyone), 2) or diagonal.shape != (len(everyone),):
-        return None
-    own_test = np.array([(type(o).handle_collisions, type(o)._is_colliding)
-                         != _STANDARD_COLLISION for o in everyone])
+    in every pair. None when some object lacks a position, diagonal, size or speed."""
+    shapes = _shapes(vehicles + objects)
+    return None if shapes is None else _near(shapes, len(vehicles), dt)
+
+
+def _near(shapes: dict[str, np.ndarray], n: int, dt: float) -> np.ndarray:
+    """:func:`near_pairs` from :func:`_shapes` (the first ``n`` objects the vehicles)."""
+    position, diagonal = shapes["position"], shapes["diagonal"]
+    vx, vy = shapes["vx"], shapes["vy"]
+    checks, collidable, own = shapes["checks"], shapes["collidable"], shapes["own"]
     delta = position[None, :, :] - position[:n, None, :]
     distance = np.hypot(delta[..., 0], delta[..., 1])
-    bound = (diagonal[:n, None] + diagonal[None, :]) / 2 + reach[:n, None] + reach[None, :]
+    relative = np.hypot(vx[:n, None] - vx[None, :], vy[:n, None] - vy[None, :]) * dt
+    bound = (diagonal[:n, None] + diagonal[None, :]) / 2 + relative
     close = ~(distance > bound + TOUCH_MARGIN)  # NaN: close
     return ((close & (checks[:n, None] | checks[None, :]) & collidable[:n, None]
-             & collidable[None, :]) | own_test[:n, None] | own_test[None, :])
+             & collidable[None, :]) | own[:n, None] | own[None, :])
+
+
+def _swept_apart(shapes: dict[str, np.ndarray], i: np.ndarray, j: np.ndarray,
+                 dt: float) -> np.ndarray:
+    """(len(i),) bool: whether rectangle ``i``, swept by its displacement relative to
+    rectangle ``j`` over ``dt`` [s], stays apart from ``j`` by more than
+    :data:`TOUCH_MARGIN` along the axis of a side of one of them (the separating axis
+    theorem: then they neither touch now nor within ``dt``). False for objects with their
+    own test (``own``) and where a value is not finite."""
+    if len(i) == 0:
+        return np.zeros(0, dtype=bool)
+    position, heading = shapes["position"], shapes["heading"]
+    half_length, half_width = shapes["half_length"], shapes["half_width"]
+    dx = (shapes["vx"][i] - shapes["vx"][j]) * dt
+    dy = (shapes["vy"][i] - shapes["vy"][j]) * dt
+    cos_i, sin_i, cos_j, sin_j = (np.cos(heading[i]), np.sin(heading[i]),
+                                  np.cos(heading[j]), np.sin(heading[j]))
+    apart = np.zeros(len(i), dtype=bool)
+    for nx, ny in ((cos_i, sin_i), (-sin_i, cos_i), (cos_j, sin_j), (-sin_j, cos_j)):
+        reach_i = (half_length[i] * np.abs(cos_i * nx + sin_i * ny)
+                   + half_width[i] * np.abs(cos_i * ny - sin_i * nx))
+        reach_j = (half_length[j] * np.abs(cos_j * nx + sin_j * ny)
+                   + half_width[j] * np.abs(cos_j * ny - sin_j * nx))
+        centre_i = position[i, 0] * nx + position[i, 1] * ny
+        centre_j = position[j, 0] * nx + position[j, 1] * ny
+        moved = dx * nx + dy * ny
+        low_i = centre_i - reach_i + np.minimum(moved, 0)
+        high_i = centre_i + reach_i + np.maximum(moved, 0)
+        gap = np.maximum(centre_j - reach_j - high_i, low_i - (centre_j + reach_j))
+        apart |= gap > TOUCH_MARGIN
+    return apart & ~shapes["own"][i] & ~shapes["own"][j]
 
 
 @functools.cache

@@ -24,7 +24,7 @@ from highway_env.vehicle.behavior import IDMVehicle
 
 from tap_bench.sim import driver_models as dm
 from tap_bench.sim.idm import IDMParameters, take_over_ego
-from tap_bench.sim.lane_frames import closest_lanes, lane_coordinates, lane_heading
+from tap_bench.sim.lane_frames import LaneSet, lane_coordinates, lane_heading
 from tap_bench.sim.scenario_env import make_env
 from tap_bench.sim.traffic import TrafficRoad, near_pairs
 
@@ -221,18 +221,23 @@ def test_lane_frames_match_highway_env_lanes(scene):
         np.testing.assert_allclose(r, want[:, 1], atol=1e-9)
         np.testing.assert_allclose(lane_heading(lane, s),
                                    [lane.heading_at(v) for v in s], atol=1e-12)
-    got = closest_lanes(network, lanes, points, headings)
+    got = LaneSet(lanes).closest(network, points, headings)
     assert got == [network.get_closest_lane_index(p, h)
                    for p, h in zip(points, headings, strict=True)]
     env.close()
 
 
 def test_near_pairs_keeps_every_pair_highway_env_finds_touching():
+    """Crowded drawn states: every pair highway-env's own check finds touching now or
+    within the step is near (near_pairs) and not swept apart (the separating-axis test
+    that skips highway-env's check), and the test does skip most pairs that are near."""
+    from tap_bench.sim.traffic import _shapes, _swept_apart
+
     env = make_env("highway", record=False, config={"vehicles_count": 50})
     env.reset(seed=2)
     vehicles = env.unwrapped.road.vehicles
     rng = np.random.default_rng(0)
-    found = 0
+    found = skipped = 0
     for _ in range(30):  # crowd them
         for v in vehicles:
             v.position = rng.uniform(0, 60, 2)
@@ -240,12 +245,16 @@ def test_near_pairs_keeps_every_pair_highway_env_finds_touching():
             v.speed = float(rng.uniform(-5, 30))
             v.check_collisions = bool(rng.random() < 0.7)
         near = near_pairs(vehicles, [], 0.1)
+        i, j = np.nonzero(np.triu(near, 1))
+        apart = dict(zip(zip(i.tolist(), j.tolist(), strict=True),
+                         _swept_apart(_shapes(vehicles), i, j, 0.1).tolist(), strict=True))
+        skipped += sum(apart.values())
         for i, a in enumerate(vehicles):
             for j in range(i + 1, len(vehicles)):
                 b = vehicles[j]
                 touching, will, _ = a._is_colliding(b, 0.1)
                 if (touching or will) and (a.check_collisions or b.check_collisions):
                     found += 1
-                    assert near[i, j], (i, j)
-    assert found > 20
+                    assert near[i, j] and not apart[i, j], (i, j)
+    assert found > 20 and skipped > found
     env.close()
