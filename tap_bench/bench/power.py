@@ -14,11 +14,15 @@ normal approximation of another test:
   ``alpha * share / cells``. This is the first step of the step-down procedure; later
   steps only raise the power, so the figures are lower bounds in that respect.
 - **rates** (values 0 and 1, the crash rate): exact. The baseline's episodes are as
-  recorded; the run's episodes are independent with rate p0 + e (paired: each seed's
-  outcome drawn afresh, so seeds that crashed in the baseline may not crash in the run;
-  a policy change that keeps the old crashes is caught more often). The paired test is
-  McNemar's (the binomial on the seeds that differ), the unpaired one Fisher's exact test,
-  as the gate computes them.
+  recorded. Unpaired: the run's episodes are independent with rate p0 + e. Paired, the
+  verdict's figure assumes **nested** crashes: the run keeps the baseline's crashes and
+  each other seed turns to a crash with the probability that raises the rate by e (a
+  policy change that adds crashes and removes none: the most favourable case).
+  :func:`afresh_rate_power` gives the power when every seed's outcome is drawn **afresh**
+  (independent of the baseline's, rate p0 + e: seeds that crashed may not crash again),
+  lower, since seeds that stop crashing count against the change; ``bench check --power``
+  prints both. The paired test is McNemar's (the binomial on the seeds that differ), the
+  unpaired one Fisher's exact test, as the gate computes them.
 - **means** (speed, headway, TTC, jerk): simulated, ``DRAWS`` draws of the run from the
   baseline's values resampled and shifted by e the worse way, paired at random with the
   baseline's seeds (correlation 0 between run and baseline, which is conservative: a
@@ -47,7 +51,8 @@ from tap_bench.bench.bootstrap import named_rng
 from tap_bench.bench.gate_stats import direction, hypergeom_tails, is_rate, tv
 from tap_bench.bench.suite import GateConfig, gate_metrics
 
-__all__ = ["DRAWS", "POWER", "power_summary", "power_table", "rule_power"]
+__all__ = ["DRAWS", "POWER", "afresh_rate_power", "power_summary", "power_table",
+           "rule_power"]
 
 POWER = 0.8
 """The power a check must have at its ``detect`` worsening."""
@@ -98,6 +103,34 @@ def _rate_power(base: np.ndarray, sign: int, effect: float, margin: float, level
         p = hypergeom_tails(x, n_run, n_b, x + c0)[0]
         if p <= level:
             total += px
+    return float(total)
+
+
+def afresh_rate_power(base: np.ndarray, effect: float, margin: float, level: float) -> float:
+    """Exact power of the gate's paired rule on a rate (1 the worse outcome, e.g. a crash)
+    when the run's outcome on every seed is drawn afresh: independent of the baseline's,
+    1 with probability p0 + ``effect`` (p0 the baseline's rate). The rule fires when
+    (up - down) / n > ``margin`` and McNemar's one-sided p, P(Bin(up + down, 1/2) >= up),
+    is at most ``level`` (up: seeds 0 -> 1, down: 1 -> 0). NaN when p0 + effect > 1."""
+    b = np.asarray(base, float)
+    n, c0 = len(b), int(b.sum())
+    p1 = c0 / n + effect
+    if p1 > 1 + 1e-12:
+        return math.nan
+    p1 = min(p1, 1.0)
+    ups = _binomial_pmf(n - c0, p1)  # baseline 0 -> run 1
+    downs = _binomial_pmf(c0, 1.0 - p1)  # baseline 1 -> run 0
+    total = 0.0
+    for up, pu in enumerate(ups):
+        if pu < 1e-15:
+            continue
+        for down, pdown in enumerate(downs):
+            if pdown < 1e-15 or (up - down) / n <= margin:
+                continue
+            k = up + down
+            p = sum(math.comb(k, i) for i in range(up, k + 1)) / 2.0 ** k
+            if p <= level:
+                total += pu * pdown
     return float(total)
 
 

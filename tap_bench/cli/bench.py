@@ -334,6 +334,10 @@ def cache_command(args: argparse.Namespace) -> int:
 def print_power(episodes, result) -> None:
     """The power of the gate's rule per metric at the check's design (paired or not, the
     run's episodes), and the seeds 80 % power needs."""
+    import numpy as np
+    import pandas as pd
+
+    from tap_bench.bench.gate_stats import direction
     from tap_bench.bench.power import POWER, power_summary, power_table
 
     tested = result.table[result.table["p_value"].notna()]
@@ -348,6 +352,25 @@ def print_power(episodes, result) -> None:
           f", alpha {config.alpha:g} weighted by metric), median and weakest (env, policy), "
           f"and the seeds the weakest needs for {POWER:.0%}:")
     print(summary.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+    if paired:  # rates: the figure above assumes nested crashes; drawn afresh is lower
+        from tap_bench.bench.gate_stats import is_rate
+        from tap_bench.bench.power import afresh_rate_power
+
+        ok = episodes[episodes["status"] == "ok"]
+        for metric in table["metric"].unique():
+            rows = table[table["metric"] == metric]
+            if not is_rate(metric) or rows.empty:
+                continue
+            afresh = []
+            for r in rows.itertuples():
+                values = pd.to_numeric(ok[(ok["env"] == r.env) & (ok["policy"] == r.policy)]
+                                       [metric], errors="coerce").dropna().to_numpy(float)
+                worse = values if direction(metric) < 0 else 1 - values
+                afresh.append(afresh_rate_power(worse, r.effect, r.margin, r.level))
+            print(f"{metric}: the power above assumes the run keeps the baseline's events "
+                  f"and adds new ones (nested); if every seed's outcome is drawn afresh "
+                  f"(not nested) it is {np.nanmedian(afresh):.3g} median, "
+                  f"{np.nanmin(afresh):.3g} weakest.")
     for r in summary.itertuples():
         if r.cells_underpowered:
             print(f"warning: {r.metric}: {r.cells_underpowered} of {r.cells} (env, policy) "

@@ -552,3 +552,26 @@ def test_on_real_scenes_the_crash_check_counts_at_fault_collisions(tmp_path):
     blamed = check(SUMMARY, _real_scene_run(0, hit=0.5, fault=0.5), doc, base)
     assert blamed.moved
     assert blamed.moved_rows()["metric"].tolist() == ["crashed"]
+
+
+def test_power_states_the_nested_model_and_the_power_of_crashes_drawn_afresh(tmp_path,
+                                                                            capsys):
+    episodes = synthetic(1, crash=0.2)
+    run = _write_run(tmp_path / "run", episodes)
+    baseline = tmp_path / "b.json"
+    assert main(["bench", "check", str(run), "--baseline", str(baseline),
+                 "--update-baseline"]) == 0
+    capsys.readouterr()
+    main(["bench", "check", str(run), "--baseline", str(baseline), "--power",
+          "--allow-underpowered"])
+    out = capsys.readouterr().out
+    line = next(x for x in out.splitlines() if x.startswith("crashed: the power above"))
+    assert "(nested)" in line and "drawn afresh (not nested)" in line
+    from tap_bench.bench.power import afresh_rate_power
+    from tap_bench.bench.suite import GateConfig
+
+    config = GateConfig(n_permutations=999)
+    figures = [afresh_rate_power(g["crashed"].to_numpy(float), 2.5 * 0.1, 0.1,
+                                 config.alpha * config.share("crashed"))
+               for _, g in episodes.groupby("policy")]
+    assert f"{np.nanmin(figures):.3g} weakest" in line
