@@ -107,12 +107,16 @@ def main(argv: list[str] | None = None) -> dict[str, dict[str, Any]]:
         xy = ego[["x", "y"]].to_numpy()
         future = ego["t"].to_numpy() >= CURRENT_STEP / 10 - 1e-9
         name = "human (log)" if policy == "log" else policy
-        facts[policy] = {"sdl": sdl, "log_ade": info["log_ade"],
+        # the mean distance to the human over the steps it drove (the episode table's
+        # log_ade is NaN for an episode that ended early: SPEC section 8)
+        facts[policy] = {"sdl": sdl, "distance": float(ego["log_distance"].mean()),
                          "route_progress": info["route_progress"],
                          "crashed": bool(ego["crashed"].any()),
-                         "off_road": bool(info["off_road"])}
+                         "off_road": bool(info["off_road"]),
+                         "ended_early": bool(ego["ended_early"].fillna(False).any())}
         extra = "" if policy == "log" else (
-            f"; ADE {info['log_ade']:.1f} m, progress {info['route_progress']:.2f}"
+            f"; {facts[policy]['distance']:.1f} m from the human's path, progress "
+            f"{info['route_progress']:.2f}"
             + (", crashed" if facts[policy]["crashed"] else "")
             + (", off road" if facts[policy]["off_road"] else ""))
         style = STYLE[policy]
@@ -133,9 +137,10 @@ def main(argv: list[str] | None = None) -> dict[str, dict[str, Any]]:
     fig.savefig(args.output, dpi=110)
     print(f"wrote {args.output}")
     for policy, fact in facts.items():
-        print(f"{policy}: {fact['sdl']}; ADE {fact['log_ade']:.1f} m, route progress "
-              f"{fact['route_progress']:.2f}{', crashed' if fact['crashed'] else ''}"
-              f"{', off road' if fact['off_road'] else ''}")
+        print(f"{policy}: {fact['sdl']}; mean distance {fact['distance']:.1f} m, route "
+              f"progress {fact['route_progress']:.2f}{', crashed' if fact['crashed'] else ''}"
+              f"{', off road' if fact['off_road'] else ''}"
+              f"{', ended early' if fact['ended_early'] else ''}")
     return facts
 
 

@@ -54,7 +54,7 @@ def test_a_figure_script_runs_from_anywhere(script, tmp_path):
         sdl, _, measures = fact.partition("; ")
         assert sdl in caption, (policy, sdl)
         if policy != "log":
-            ade = re.search(r"ADE (\S+) m", measures).group(1)
+            ade = re.search(r"mean distance (\S+) m", measures).group(1)
             progress = re.search(r"route progress (\S+)", measures).group(1).rstrip(",")
             assert f"{policy}" in caption and f"{ade} m" in caption, (policy, measures)
             assert f"route progress {progress}" in caption, (policy, measures)
