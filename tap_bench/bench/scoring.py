@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -343,27 +344,65 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
     policies = sorted(episodes["policy"].unique())
     if comparisons is None:
         comparisons = [(p, reference_policy) for p in policies if p != reference_policy]
-    paired, paired_m, paired_l, matched = [], [], [], []
-    method_paired = ""
-    skipped = []
+    compared = _compare_pairs(episodes, comparisons, config)
+    cov_parts, nov_parts, label_parts, refs = _reference_scores(
+        episodes, reference_policy=reference_policy, level=level, config=config,
+        references=references, windows=windows)
+    methods = _methods(config, compared["method"])
+    if compared["skipped"]:
+        methods["skipped comparisons"] = "; ".join(compared["skipped"])
+    return Scores(
+        label_counts=_label_counts(episodes), measures=policy_measures(episodes, config),
+        paired=_cat(compared["paired"]), paired_measures=_cat(compared["measures"]),
+        paired_labels=_cat(compared["labels"]), matched=_cat(compared["matched"]),
+        coverage=_cat(cov_parts), novelty=_cat(nov_parts),
+        novel_labels=_cat(label_parts), diversity=diversity_table(episodes, config),
+        gate_power=gate_power if gate_power is not None else pd.DataFrame(),
+        scenario_matches=scenario_matches if scenario_matches is not None else pd.DataFrame(),
+        references=refs, methods=methods)
+
+
+def _cat(frames: list[pd.DataFrame]) -> pd.DataFrame:
+    """The non-empty ``frames`` one under the other (an empty frame without any)."""
+    frames = [f for f in frames if len(f)]
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
+def _compare_pairs(episodes: pd.DataFrame, comparisons: list[tuple[str, str]],
+                   config: BootstrapConfig) -> dict[str, Any]:
+    """The paired and label-matched comparisons of each (A, B) pair: lists of tables per
+    pair (``paired``, ``measures``, ``labels``, ``matched``), the paired method, and the
+    pairs ``skipped`` with nothing to pair (why, one string each)."""
+    out: dict[str, Any] = {"paired": [], "measures": [], "labels": [], "matched": [],
+                           "method": "", "skipped": []}
     for a, b in comparisons:
         try:
             pc = paired_comparison(episodes, a, b, config=config)
         except LabelTableError as err:  # nothing to pair (every episode of one failed)
-            skipped.append(f"{a} vs {b}: {err}")
+            out["skipped"].append(f"{a} vs {b}: {err}")
             continue
-        method_paired = pc.method
-        paired.append(pc.summary)
-        paired_m.append(pc.measures.assign(policy_a=a, policy_b=b))
-        paired_l.append(pc.labels.assign(policy_a=a, policy_b=b))
-        matched.append(matched_by_label(episodes, a, b, config=config).assign(policy_a=a,
-                                                                             policy_b=b))
+        out["method"] = pc.method
+        out["paired"].append(pc.summary)
+        out["measures"].append(pc.measures.assign(policy_a=a, policy_b=b))
+        out["labels"].append(pc.labels.assign(policy_a=a, policy_b=b))
+        out["matched"].append(matched_by_label(episodes, a, b, config=config).assign(
+            policy_a=a, policy_b=b))
+    return out
 
+
+def _reference_scores(episodes: pd.DataFrame, *, reference_policy: str, level: str,
+                      config: BootstrapConfig,
+                      references: dict[str, pd.DataFrame] | None,
+                      windows: dict[str, tuple[pd.DataFrame, str]] | None,
+                      ) -> tuple[list, list, list, dict[str, Reference]]:
+    """Coverage, novelty and novel-label tables of every policy against each reference
+    (the reference policy's rollouts per env, then ``references``), per unit
+    (:data:`UNITS`); and the references by name."""
     ok = _scored(episodes)
     ref_eps = ok[ok["policy"] == reference_policy]
-    cov_parts, nov_parts, label_parts = [], [], []
     refs: dict[str, Reference] = {}
     rollouts = f"{reference_policy} rollouts"
+    policies = sorted(episodes["policy"].unique())
     others = [p for p in policies if p != reference_policy]  # a corpus covers itself
     parts = []
     for unit in UNITS:  # whole labels, then the manoeuvres (segments) episodes contain
@@ -385,11 +424,15 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
                 scored, ref, name, config=config,
                 unit=unit if unit_name is None else f"{unit_name}, {unit}"
                 if unit == "segments" else unit_name, windowed=unit_name is not None))
-    for cov, nov, lab in parts:
-        cov_parts.append(cov)
-        nov_parts.append(nov)
-        label_parts.append(lab)
-    methods = {
+    cov_parts = [cov for cov, _, _ in parts]
+    nov_parts = [nov for _, nov, _ in parts]
+    label_parts = [lab for _, _, lab in parts]
+    return cov_parts, nov_parts, label_parts, refs
+
+
+def _methods(config: BootstrapConfig, method_paired: str) -> dict[str, str]:
+    """How each table of a run's scores was computed, as the report states it."""
+    return {
         "measures": f"{config.level:.0%} intervals over episodes, each measure's own: "
                     + "; ".join(f"{m.label}: {m.interval_method}" for m in MEASURES)
                     + "; 'all' pools every episode of the policy",
@@ -431,18 +474,3 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
                       f"'at least' when the sample completeness is below {MIN_COMPLETENESS}; "
                       "'all' is the mean over envs"),
     }
-    if skipped:
-        methods["skipped comparisons"] = "; ".join(skipped)
-
-    def cat(frames: list[pd.DataFrame]) -> pd.DataFrame:
-        frames = [f for f in frames if len(f)]
-        return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
-
-    return Scores(
-        label_counts=_label_counts(episodes), measures=policy_measures(episodes, config),
-        paired=cat(paired), paired_measures=cat(paired_m), paired_labels=cat(paired_l),
-        matched=cat(matched), coverage=cat(cov_parts), novelty=cat(nov_parts),
-        novel_labels=cat(label_parts), diversity=diversity_table(episodes, config),
-        gate_power=gate_power if gate_power is not None else pd.DataFrame(),
-        scenario_matches=scenario_matches if scenario_matches is not None else pd.DataFrame(),
-        references=refs, methods=methods)
