@@ -497,6 +497,31 @@ def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table")
     # every column by name at once (each table[name] costs as much as the work on an
     # episode's column); a table with repeated names reads them one by one, as before
     by_name = dict(table.items()) if table.columns.is_unique else table
+    cols, valid = _read_columns(table, by_name, source)
+    _check_values(table, cols, valid, source)
+    _read_flags(table, by_name, cols, source)
+    # Group rows by track, keeping each track's rows in input order (never sorting by t).
+    order, new_track = _track_order(cols["scenario_id"], cols["track_id"])
+    dt, same = _check_time_order(table, cols["t"], order, new_track, source)
+    gap = _check_time_steps(table, dt, same, order, source)
+
+    cols["valid"] = valid
+    names = (*cols, *(c for c in table.columns if c not in cols))
+    # numbers and flags in track order now; strings and extra columns when asked for
+    # (the input's other columns read only when asked for: each read of a column costs)
+    raw = {c: cols.get(c) for c in names if not isinstance(cols.get(c), np.ndarray)}
+    cols = {k: _take(v, order) for k, v in cols.items() if isinstance(v, np.ndarray)}
+    index = _track_index(new_track, cols["valid"], gap)
+    return CheckedTable(columns=cols, index=index, names=names, raw=raw, order=order,
+                        table=by_name)
+
+
+def _read_columns(table: pd.DataFrame, by_name: dict | pd.DataFrame,
+                  source: str) -> tuple[dict, np.ndarray]:
+    """The key columns as id strings, the numeric ones as float arrays (``speed`` from
+    ``vx``, ``vy`` where absent) and ``valid`` (every row where the table has none);
+    infinite values and NaN on valid rows refused."""
+    import numpy as np
 
     cols: dict[str, np.ndarray | pd.Series] = {}
     for key in _KEYS:
@@ -536,6 +561,14 @@ def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table")
     if valid is None:
         valid = np.ones(len(table), dtype=bool)
 
+    return cols, valid
+
+
+def _check_values(table: pd.DataFrame, cols: dict, valid: np.ndarray, source: str) -> None:
+    """Refuse valid rows whose speed is negative or beyond :data:`MAX_SPEED`, whose
+    position is beyond :data:`MAX_COORDINATE`, or whose heading looks like degrees."""
+    import numpy as np
+
     speed = cols["speed"]
     neg = valid & (speed < 0)
     if neg.any():
@@ -568,6 +601,14 @@ def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table")
               "(-pi, pi].", source,
               column="heading", row=pos)
 
+
+
+def _read_flags(table: pd.DataFrame, by_name: dict | pd.DataFrame, cols: dict,
+                source: str) -> None:
+    """Add ``object_type`` (checked, lower case), ``is_ego`` and ``crashed`` to ``cols``
+    where the table has them."""
+    import numpy as np
+
     if "object_type" in table.columns:
         otype = _contract_types(by_name["object_type"])
         if otype is None:  # other spellings: lower-cased, then checked row by row
@@ -584,9 +625,14 @@ def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table")
     if "crashed" in table.columns:
         cols["crashed"] = _bool_column(table, "crashed", source, by_name)
 
-    # Group rows by track, keeping each track's rows in input order (never sorting by t).
-    order, new_track = _track_order(cols["scenario_id"], cols["track_id"])
-    t = cols["t"] if order is None else cols["t"][order]
+
+def _check_time_order(table: pd.DataFrame, t_input: np.ndarray, order: np.ndarray | None,
+                      new_track: np.ndarray, source: str) -> tuple[np.ndarray, np.ndarray]:
+    """(rows - 1,) time steps [s] in track order and whether each joins two rows of one
+    track; duplicate times and times going back within a track refused."""
+    import numpy as np
+
+    t = t_input if order is None else t_input[order]
     dt = np.diff(t)
     same = ~new_track[1:]
     back = same & (dt <= 0)
@@ -606,6 +652,14 @@ def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table")
               f"t={float(t[i])!r} at row {a}. Rows of one track must be in time order; "
               "tap-bench does not sort them silently: sort by t yourself if the order is only "
               "a storage accident.", source, column="t", row=b)
+    return dt, same
+
+
+def _check_time_steps(table: pd.DataFrame, dt: np.ndarray, same: np.ndarray,
+                      order: np.ndarray | None, source: str) -> np.ndarray:
+    """(rows - 1,) whether each step is a gap of whole missing steps; a table at another
+    rate than 10 Hz, or an irregular step, refused."""
+    import numpy as np
 
     steps = dt / DT
     whole = np.round(steps)
@@ -636,20 +690,20 @@ def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table")
               "steps must be 0.1 s, or a whole number of steps where rows are missing. "
               "Resample the track with tap_bench.resample_to_10hz(table).", source,
               column="t", row=b)
+    return gap
 
-    cols["valid"] = valid
-    names = (*cols, *(c for c in table.columns if c not in cols))
-    # numbers and flags in track order now; strings and extra columns when asked for
-    # (the input's other columns read only when asked for: each read of a column costs)
-    raw = {c: cols.get(c) for c in names if not isinstance(cols.get(c), np.ndarray)}
-    cols = {k: _take(v, order) for k, v in cols.items() if isinstance(v, np.ndarray)}
+
+def _track_index(new_track: np.ndarray, valid: np.ndarray, gap: np.ndarray) -> TrackIndex:
+    """The tracks and their valid segments of rows in track order: a segment starts at
+    every valid row after an invalid row, a gap or the start of its track."""
+    import numpy as np
 
     track_starts = np.flatnonzero(new_track)
     track = np.cumsum(new_track) - 1
     n_rows = len(new_track)
     # A new valid segment starts at every valid row that follows an invalid row, a gap or
     # the start of its track.
-    v = cols["valid"]
+    v = valid
     starts_seg = v.copy()
     starts_seg[1:] &= new_track[1:] | ~v[:-1] | gap
     segment = np.cumsum(starts_seg) - 1
@@ -666,5 +720,5 @@ def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table")
         segment_stop=seg_stop.astype(np.int64),
         segment_track=track[seg_start].astype(np.int64),
     )
-    return CheckedTable(columns=cols, index=index, names=names, raw=raw, order=order,
-                        table=by_name)
+    return index
+
