@@ -155,6 +155,9 @@ def main() -> None:
     parser.add_argument("--method", default=null.METHOD, choices=("recentred", "shrunk"))
     parser.add_argument("--only", choices=("all", "windows", "scenes"), default="all",
                         help="run every case, or only the windows or the scenes cases")
+    parser.add_argument("--scene-methods", nargs="+", default=["by scene", "by trajectory"],
+                        choices=("by scene", "by trajectory"),
+                        help="the scenes cases' resampling (both)")
     args = parser.parse_args()
     null.METHOD = args.method
     cases = []
@@ -179,7 +182,7 @@ def main() -> None:
                    for N, S in ((300, 10), (600, 40))
                    for what, p_pol in (("same", same), ("different",
                                                         0.5 * same + 0.5 * other))
-                   for how in ("by scene", "by trajectory")]
+                   for how in args.scene_methods]
     cases = {"windows": windows, "scenes": scene_cases}.get(args.only, cases + windows)
     rng = np.random.default_rng(25)
     rows = []

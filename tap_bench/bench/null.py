@@ -29,7 +29,10 @@ trajectories a scene (WOMD vehicles: ``Reference.scenes``) is not resampled traj
 trajectory: the vehicles of one scene share its place and traffic, and another corpus
 would hold other scenes. Each draw then builds its corpus from whole scenes drawn with
 replacement (as many trajectories as the reference has, the last scene cut) and splits
-that at random, so the draws carry the spread between scenes. Resampling
+that at random, so the draws carry the spread between scenes; with S scenes the draws are
+then widened about their mean by ``sqrt(S / (S - 1))`` (S drawn from S show
+``(S - 1) / S`` of the variance) and read at Student's t with S - 1 degrees of freedom
+(``t / z``), as the gap's per-label intervals are. Resampling
 repeats trajectories, which lowers the distinct labels a draw can show, so the draws are
 re-centred on the estimate (``estimate + draw - mean(draws)``). One draw is one split,
 while the estimate averages many, so the draws' spread holds the split-to-split spread
@@ -51,9 +54,9 @@ from decimal import Decimal
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.bootstrap import BootstrapConfig, cluster_indices
+from tap_bench.bench.bootstrap import BootstrapConfig, cluster_factor, cluster_indices
 from tap_bench.bench.coverage import Reference, unit_items
-from tap_bench.bench.intervals import wilson_interval, z_value
+from tap_bench.bench.intervals import t_quantile, wilson_interval, z_value
 
 __all__ = ["NullResult", "halves_text", "pooled_null", "same_policy_null"]
 
@@ -286,6 +289,11 @@ def same_policy_null(labels: np.ndarray, reference: Reference, *,
         v_boot, v_split = boot.var(axis=0), per_split[:, 4:6].var(axis=0)
         factor = np.sqrt(np.clip(v_boot - v_split, 0, None) / np.where(v_boot > 0, v_boot, 1))
         boot = centre + (boot - centre) * factor
+    if scenes is not None:  # S scenes drawn from S: CR1 and Student's t with S - 1
+        S = len(set(scenes.tolist()))
+        boot = centre + (boot - centre) * cluster_factor(S) * (
+            t_quantile(0.5 + config.level / 2, S - 1) / z_value(config.level) if S > 1
+            else 1.0)
     alpha = 1 - config.level
     draws = boot - centre + point[4:6]
     lo, hi = np.quantile(draws, [alpha / 2, 1 - alpha / 2], axis=0)
