@@ -310,10 +310,19 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
         crashed = episodes[(episodes["env"] == env) & (episodes["status"] == "ok")
                            & episodes["crashed"].fillna(False).astype(bool)]
         if len(crashed):
+            # recorded scenes: each episode by its scenario id, with whom and whose fault
+            real = [c for c in ("scenario_id", "crash_with", "crash_fault")
+                    if "crash_fault" in crashed and crashed["crash_fault"].notna().any()
+                    and c in crashed]
             parts.append(html_table(
-                crashed[["policy", "seed", "sdl"]].rename(columns={"sdl": "ego label"}),
+                crashed[["policy", "seed", *real, "sdl"]].rename(columns={
+                    "sdl": "ego label", "scenario_id": "scenario", "crash_with": "with",
+                    "crash_fault": "fault"}),
                 table_id=f"crashed-{_slug(env)}", text_columns=("ego label",),
-                caption=f"Crashed episodes in {env}: the ego collided.",
+                caption=f"Crashed episodes in {env}: the ego collided"
+                + (" (recorded scenes: named by scenario id; with: the agent whose box "
+                   "overlapped the ego's most; fault: SPEC 8's rule that decided)."
+                   if real else "."),
                 links=[_replay(viewer, ep=r.scenario_id, b=reference)
                        for r in crashed.itertuples()]))
     if "all" in set(scores.measures.get("env", [])):

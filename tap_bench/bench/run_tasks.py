@@ -25,7 +25,7 @@ from tap_bench.errors import RegistrationError
 from tap_bench.execution import Backend
 from tap_bench.labelling import tap
 from tap_bench.pathframe import LaneMap
-from tap_bench.sim.rollout import EPISODE_COLUMNS, rollout_episode
+from tap_bench.sim.rollout import EPISODE_COLUMNS, RECORDED_CRASH_COLUMNS, rollout_episode
 from tap_bench.sim.womd_scene import WomdScenes
 
 _ROADS: dict[str, pd.DataFrame] = {}
@@ -199,7 +199,9 @@ def _run_ids(task: _Task, trajectories: pd.DataFrame) -> pd.DataFrame:
 
 
 def _rows(rows: list[dict[str, Any]]) -> pd.DataFrame:
-    episodes = pd.DataFrame(rows, columns=list(EPISODE_COLUMNS))
+    # a recorded scene's collision partner and fault go with its row (the report names them)
+    extra = [c for c in RECORDED_CRASH_COLUMNS if any(c in row for row in rows)]
+    episodes = pd.DataFrame(rows, columns=[*EPISODE_COLUMNS, *extra])
     episodes["seed"] = episodes["seed"].astype(np.int64)
     return episodes
 

@@ -31,10 +31,13 @@ if TYPE_CHECKING:
     import gymnasium as gym
     import pandas as pd
 
-__all__ = ["EPISODE_COLUMNS", "EpisodeFailedWarning", "EpisodesFailedError", "Rollout",
-           "check_policy", "collect_rollout", "resolve_policy", "resolve_scenario", "rollout",
-           "rollout_episode", "run_episode"]
+__all__ = ["EPISODE_COLUMNS", "RECORDED_CRASH_COLUMNS", "EpisodeFailedWarning",
+           "EpisodesFailedError", "Rollout", "check_policy", "collect_rollout",
+           "resolve_policy", "resolve_scenario", "rollout", "rollout_episode", "run_episode"]
 
+RECORDED_CRASH_COLUMNS = ("crash_with", "crash_fault")
+"""A recorded scene's collision partner (track id) and the fault rule that decided
+(:mod:`tap_bench.sim.collisions`): kept beside :data:`EPISODE_COLUMNS` in a run's table."""
 EPISODE_COLUMNS = ("env", "policy", "seed", "return", "length", "duration_s", "crashed",
                    "mean_speed", "terminated", "truncated", "status", "error")
 """The episode table: one row per seed.

@@ -168,3 +168,23 @@ def test_an_episode_ended_by_a_crash_has_no_ade_and_a_scene_without_signals_no_r
     human_table, human = rollout(make_womd_env(path), "log", [0])
     assert human.iloc[0]["log_ade"] == 0.0  # the human runs to the end
     assert ego_measures(human_table)["log_ade"].iloc[0] == 0.0
+
+
+def test_a_run_report_names_crashed_real_episodes_by_scene_partner_and_fault(tmp_path):
+    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.suite import suite_from_dict
+
+    tracks = {"ego": vehicle(straight(5.5, speed=8.0), 0.0),
+              "7": vehicle(straight(5.5, speed=-8.0, x0=60.0), 0.0)}
+    path = write_scene(tmp_path / "wrong_way.pkl", 0.0, tracks, ROAD_LANES, ROAD_EDGES)
+    suite = suite_from_dict({"name": "womd-crash", "envs": [{"womd": [path], "traffic": "log"}],
+                             "policies": ["log", "idm"], "reference_policy": "log",
+                             "seeds": "all", "bootstrap": {"n_resamples": 200}})
+    result = run_suite(suite, tmp_path / "run", workers=1, progress=False)
+    # IDM stops for the car coming at it, which runs into it: a crash, not IDM's fault
+    idm = result.episodes[result.episodes["policy"] == "idm"].iloc[0]
+    assert idm["crashed"] and idm["crashed_at_fault"] == 0.0
+    page = (tmp_path / "run" / "report.html").read_text()
+    table = page[page.index('id="crashed-'):]
+    table = table[:table.index("</table>")]
+    assert "wrong_way" in table and ">7<" in table and "hit while stopped" in table
