@@ -82,8 +82,12 @@ def test_lane_lookup_and_projection_equal_highway_envs_on_generated_lanes(seed):
         assert index.closest(p) == net.get_closest_lane_index(p)
         _, lane = built[rng.integers(len(built))]
         lon, lat = lane.local_coordinates(p)
-        assert (lon, lat) == tuple(lane.curve.cartesian_to_frenet(p))
-        assert lane.heading_at(lon) == PolyLaneFixedWidth.heading_at(lane, lon)
+        want = lane.curve.cartesian_to_frenet(p)  # highway-env's PolyLaneFixedWidth
+        assert abs(lon - want[0]) <= 1e-9 and abs(lat - want[1]) <= 1e-9
+        assert lane.heading_at(lon) == pytest.approx(PolyLaneFixedWidth.heading_at(lane, lon),
+                                                     abs=1e-12)
+        many = lane.project(np.array([p[0], p[0] + 1.0]), np.array([p[1], p[1] - 2.0]))
+        assert many[0][0] == lon and many[1][0] == lat
 
 
 def test_lane_lookup_equals_highway_envs_on_a_real_map(real):
