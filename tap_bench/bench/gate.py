@@ -269,7 +269,7 @@ def write_baseline(run_summary: dict[str, Any], episodes: pd.DataFrame,
     _check_replaceable(Path(path))
     episodes = scene_stand_ins(episodes)
     ok = episodes[episodes["status"] == "ok"]
-    n_failed = len(episodes) - len(ok)
+    n_failed = int((~episodes["status"].isin(("ok", "skipped"))).sum())
     if ok.empty:
         raise BaselineError(f"run {run_summary.get('run')!r} has no finished episode "
                             f"({len(episodes)} episodes, {n_failed} failed): it cannot become "
@@ -793,7 +793,8 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
     changed_env = {name: what for kind, name, what in changed if kind == "env"}
     as_run, run_episodes = run_episodes, scene_stand_ins(run_episodes)
     run_ok = run_episodes[run_episodes["status"] == "ok"]
-    run_failed = run_episodes[run_episodes["status"] != "ok"]
+    # skipped: a recorded scene without a route, not a failure (SPEC section 8)
+    run_failed = run_episodes[~run_episodes["status"].isin(("ok", "skipped"))]
     cells = sorted(set(map(tuple, baseline_episodes[["env", "policy"]].drop_duplicates()
                            .to_numpy())) | set(map(tuple, run_episodes[["env", "policy"]]
                                                    .drop_duplicates().to_numpy())))

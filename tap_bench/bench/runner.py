@@ -343,7 +343,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         scored, scores_to_files, scores_from_files)
     timings["scoring"] = time.perf_counter() - t0
 
-    failed = episodes[episodes["status"] != "ok"]
+    failed = episodes[~episodes["status"].isin(("ok", "skipped"))]  # skipped: no route
+    skipped = episodes[episodes["status"] == "skipped"]
     facts = fresh_facts(plan, output)
     summary = {
         "format": "tap-bench-run", "format_version": 1,
@@ -358,6 +359,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "versions": facts["versions"], "machine": facts["machine"],
         "n_episodes": len(episodes), "n_failed": len(failed),
         "failed": failed[["env", "policy", "seed", "error"]].to_dict("records"),
+        "n_skipped": len(skipped),
+        "skipped": skipped[["env", "policy", "seed", "error"]].to_dict("records"),
         "methods": scores.methods,
         "headline": _headline(scores, episodes),
         "one_outcome_cells": one_outcome_cells(episodes).to_dict("records"),

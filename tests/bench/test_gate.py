@@ -575,3 +575,15 @@ def test_power_states_the_nested_model_and_the_power_of_crashes_drawn_afresh(tmp
                                  config.alpha * config.share("crashed"))
                for _, g in episodes.groupby("policy")]
     assert f"{np.nanmin(figures):.3g} weakest" in line
+
+
+def test_a_skipped_episode_is_not_a_failed_one(tmp_path):
+    # a recorded scene without a route: the human replays it, a policy is skipped there
+    doc, base = baseline_of(synthetic(0), tmp_path)
+    run = synthetic(0)
+    run.loc[run.index[0], "status"] = "skipped"
+    run.loc[run.index[0], "error"] = "no route to follow"
+    result = check(SUMMARY, run, doc, base)
+    assert "failed_episodes" not in set(result.table["metric"]), result.format()
+    run.loc[run.index[0], "status"] = "error"
+    assert "failed_episodes" in set(check(SUMMARY, run, doc, base).table["metric"])

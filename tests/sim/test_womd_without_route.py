@@ -62,3 +62,27 @@ def test_the_episode_table_of_a_recorded_scene_keeps_its_scenario_id(tmp_path):
     table = episode_table(labels=label(trajectories), trajectories=trajectories,
                           episodes=episodes)
     assert table["scenario_id"].tolist() == ["kerb"]
+
+
+def test_a_suite_counts_skipped_scenes_apart(tmp_path):
+    import json
+
+    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.suite import suite_from_dict
+
+    from .test_road_edges import ROAD_EDGES, straight
+
+    good = write_scene(tmp_path / "kerb.pkl", 0.0, {"ego": vehicle(straight(5.5), 0.0)},
+                       ROAD_LANES, ROAD_EDGES)
+    park = into_a_car_park(tmp_path, 0.0)
+    suite = suite_from_dict({"name": "womd-skip", "envs": [{"womd": [good, park],
+                                                            "traffic": "log"}],
+                             "policies": ["log", "idm"], "reference_policy": "log",
+                             "seeds": "all", "bootstrap": {"n_resamples": 200}})
+    result = run_suite(suite, tmp_path / "run", workers=1, progress=False)
+    eps = result.episodes
+    status = dict(zip(eps["policy"] + "/" + eps["seed"].astype(str), eps["status"],
+                      strict=True))
+    assert status == {"log/0": "ok", "log/1": "ok", "idm/0": "ok", "idm/1": "skipped"}
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["n_failed"] == 0 and summary["n_skipped"] == 1
