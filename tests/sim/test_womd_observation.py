@@ -137,12 +137,14 @@ def real(womd_dir) -> list[str]:
 
 @pytest.mark.parametrize("traffic", ["log", "idm"])
 def test_the_space_holds_every_observation_of_the_real_scenes(real, traffic):
+    """Every scene, each ego policy under the logged traffic; under IDM traffic (what the
+    parameter varies) the IDM ego alone: the three egos cost three times the CPU there."""
     env = make_womd_env(real, traffic=traffic)
     # highway-env's Kinematics defaults: 5 vehicles x 5 features, then the route
     assert env.observation_space.shape == (5 * 5 + 2 * 5 + len(ROUTE_FEATURES),)
     rng = np.random.default_rng(0)
     for seed in range(len(env.catalog)):
-        for name in ("log", "idm", "random"):
+        for name in ("log", "idm", "random") if traffic == "log" else ("idm",):
             policy = load_policy(name)
             obs, _ = env.reset(seed=seed)
             policy.reset(env, seed=int(rng.integers(1000)))
@@ -235,5 +237,7 @@ def test_the_kinematics_part_is_highway_envs_observation(tmp_path, side):
 
 @pytest.mark.parametrize("traffic", ["log", "idm"])
 def test_the_kinematics_part_is_highway_envs_observation_on_the_real_scenes(real, traffic):
+    # each ego policy under the logged traffic; under IDM traffic the IDM ego (see above)
     env = make_womd_env(real, traffic=traffic)
-    assert _kinematics_matches_highway_env(env) > 50
+    policies = ("log", "idm", "random") if traffic == "log" else ("idm",)
+    assert _kinematics_matches_highway_env(env, policies) > 50
