@@ -28,7 +28,7 @@ from google.protobuf.message import DecodeError
 
 from tap_bench.errors import FileFormatError, WomdRecordError
 from tap_bench.maps import MAP_COLUMNS, empty_map
-from tap_bench.sources.ingest import _file_format, expand_paths
+from tap_bench.sources.ingest import _file_format, record_files
 from tap_bench.sources.scenarionet import load_scenarionet
 from tap_bench.womd import proto
 from tap_bench.womd.roadmap import (
@@ -173,7 +173,7 @@ def read_maps(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
     """
 
     out = _Features(scenario_ids)
-    for path in expand_paths(paths):
+    for path in record_files(paths):  # folders and globs: WOMD files only, as ingest
         read = _MAP_READERS.get(_file_format(path, "auto", True).name)
         if read is not None:
             read(path, out)
@@ -193,7 +193,7 @@ def iter_road_maps(paths: str | os.PathLike | Iterable[str | os.PathLike]
     Raises:
         WomdRecordError / FileFormatError: a record or file that cannot be read, named.
     """
-    for path in expand_paths(paths):
+    for path in record_files(paths):  # folders and globs: WOMD files only, as ingest
         name = _file_format(path, "auto", True).name
         if name == "scenarionet":
             yield scenarionet_road_map(load_scenarionet(path), source=str(path))

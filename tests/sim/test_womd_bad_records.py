@@ -170,3 +170,22 @@ def test_a_folder_leaves_out_what_is_not_womd(tmp_path, capsys):
     empty.write_bytes(b"")
     with pytest.raises(SceneError, match=r"nothing\.tfrecord: no scenario in this file"):
         scene_catalog([str(empty)])
+
+
+def test_a_suite_over_a_folder_leaves_out_what_is_not_womd(tmp_path):
+    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.suite import suite_from_dict
+
+    folder = tmp_path / "data"
+    folder.mkdir()
+    womd_file(folder / "scenes.tfrecord", record(straight_scene("s1")))
+    (folder / "README.md").write_text("# my scenes\n")
+    suite = suite_from_dict({"name": "folder", "envs": [{"womd": str(folder / "*")}],
+                             "policies": ["log", "idm"], "reference_policy": "log",
+                             "seeds": "all", "bootstrap": {"n_resamples": 200}})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = run_suite(suite, tmp_path / "run", workers=1, progress=False)
+    assert (result.episodes["status"] == "ok").all(), result.episodes["error"].tolist()
+    roads = pd.read_parquet(tmp_path / "run" / "roads.parquet")
+    assert set(roads["map_id"]) == {"s1"}

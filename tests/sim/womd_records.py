@@ -28,7 +28,8 @@ def straight_scene(sid: str, *, angle: float = 0.3) -> pd.DataFrame:
         rows.append(pd.DataFrame({
             "scenario_id": sid, "track_id": str(track), "t": T, "x": lon * c, "y": lon * s,
             "heading": angle, "vx": speed * c, "vy": speed * s, "valid": True,
-            "object_type": "vehicle", "is_ego": ego, "length": 4.5, "width": 2.0}))
+            "object_type": "vehicle", "is_ego": ego, "length": 4.5, "width": 2.0,
+            "height": 1.5}))
     return pd.concat(rows, ignore_index=True)
 
 
