@@ -20,9 +20,10 @@ import importlib.abc
 import importlib.util
 import sys
 import types
+from collections.abc import Callable
 from typing import Any, ClassVar
 
-__all__ = ["AroundImport"]
+__all__ = ["AroundImport", "ImportRecorder"]
 
 
 class AroundImport(importlib.abc.MetaPathFinder, importlib.abc.Loader):
@@ -62,3 +63,22 @@ class AroundImport(importlib.abc.MetaPathFinder, importlib.abc.Loader):
         ``importlib.resources.files`` ask it) and leave ``sys.meta_path``."""
         module.__loader__ = module.__spec__.loader = self.real
         self.leave_meta_path()
+
+
+class ImportRecorder(importlib.abc.MetaPathFinder):
+    """A finder that finds nothing and tells ``note`` the name of every module the process
+    imports for the first time while it is first in ``sys.meta_path``: what a policy or a
+    measure loads by name as it runs (``importlib.import_module("helper")``), which no
+    import statement shows (:func:`tap_bench.usercode.recording`)."""
+
+    def __init__(self, note: Callable[[str], None]) -> None:
+        self.note = note
+
+    def find_spec(self, name: str, path: Any = None, target: Any = None) -> None:
+        self.note(name)
+        return None
+
+    def install(self) -> None:
+        """Put this finder first in ``sys.meta_path`` (a new list), once."""
+        if not sys.meta_path or sys.meta_path[0] is not self:
+            sys.meta_path = [self, *(f for f in sys.meta_path if f is not self)]

@@ -25,10 +25,12 @@ episode cache hashes them (:mod:`tap_bench.bench.cache`).
 from __future__ import annotations
 
 import ast
+import contextlib
 import hashlib
 import importlib
 import importlib.util
 import sysconfig
+from collections.abc import Iterator
 from importlib.machinery import ModuleSpec, PathFinder
 from pathlib import Path
 from typing import Any
@@ -36,7 +38,8 @@ from typing import Any
 from tap_bench.errors import ParameterError
 
 __all__ = ["MAX_CODE_FILES", "TRUSTED_PACKAGES", "check_class_name", "code_digest",
-           "code_files", "find_module_source", "import_checked_class"]
+           "code_files", "find_module_source", "import_checked_class", "loaded_user_code",
+           "recording", "user_code_holds"]
 
 TRUSTED_PACKAGES = ("tap_bench", "highway_env")
 """Packages whose classes are imported without the static check (their code ships with the
@@ -318,3 +321,84 @@ def code_digest(module: str) -> dict[str, Any] | None:
         digest.update(name.encode() + b"\0")
         digest.update(hashlib.sha256(path.read_bytes()).digest())
     return {"files": len(files), "sha256": digest.hexdigest()}
+
+
+_RECORDER: list[Any] = []  # this process's ImportRecorder, once installed
+_ACTIVE: list[str] = []  # the runs whose code is being built or run now (a stack)
+_NOTED: dict[str, dict[str, None]] = {}  # run -> modules first imported while it was active
+
+
+def _note(name: str) -> None:
+    if _ACTIVE:
+        _NOTED.setdefault(_ACTIVE[-1], {}).setdefault(name)
+
+
+@contextlib.contextmanager
+def recording(run: str) -> Iterator[None]:
+    """Within the block, note every module this process imports for the first time as the
+    code of run ``run`` (:class:`tap_bench.importhooks.ImportRecorder`): a run builds its
+    policies and scenarios and runs its episodes and measures inside it, so that
+    :func:`loaded_user_code` knows what they loaded by name, which no import statement
+    shows. A module imported earlier in the process (by another run) is not noted again."""
+    from tap_bench.importhooks import ImportRecorder
+
+    if not _RECORDER:
+        _RECORDER.append(ImportRecorder(_note))
+    _RECORDER[0].install()
+    _ACTIVE.append(run)
+    try:
+        yield
+    finally:
+        _ACTIVE.pop()
+
+
+def _is_user_file(name: str, path: Path) -> bool:
+    if name.split(".")[0] in TRUSTED_PACKAGES:
+        return False
+    resolved = path.resolve()
+    return not any(_inside(resolved, root) for root in _excluded_roots())
+
+
+def loaded_user_code(run: str) -> dict[str, dict[str, str]]:
+    """``{module: {"path": ..., "sha256": ...}}`` of every module of the user's code (a
+    Python source outside tap-bench, highway-env, the standard library and site-packages)
+    this process imported while it built or ran the code of run ``run``
+    (:func:`recording`): what an episode or label entry made now may depend on beyond its
+    key (a module loaded by name as the policy or a measure ran). The cache keeps it with
+    the entry and serves the entry only while every file still hashes the same
+    (:func:`user_code_holds`)."""
+    import sys
+
+    out: dict[str, dict[str, str]] = {}
+    for name in list(_NOTED.get(run, ())):
+        path = _source_path(getattr(sys.modules.get(name), "__spec__", None))
+        if path is None or not _is_user_file(name, path):
+            continue
+        try:
+            out[name] = {"path": str(path), "sha256": hashlib.sha256(path.read_bytes())
+                         .hexdigest()}
+        except OSError:
+            continue
+    return dict(sorted(out.items()))
+
+
+def user_code_holds(loaded: Any) -> bool:
+    """Whether every file of ``loaded`` (:func:`loaded_user_code` of an entry) still exists
+    and hashes the same.
+
+    Raises:
+        ValueError: ``loaded`` is not of that shape.
+    """
+    if not isinstance(loaded, dict):
+        raise ValueError("the loaded modules are not an object")
+    for name, info in loaded.items():
+        if not isinstance(info, dict) or not isinstance(info.get("path"), str) \
+                or not isinstance(info.get("sha256"), str):
+            raise ValueError(f"loaded module {str(name)[:80]!r} is malformed")
+        try:
+            data = Path(info["path"]).read_bytes()
+        except (OSError, ValueError):
+            return False
+        if hashlib.sha256(data).hexdigest() != info["sha256"]:
+            return False
+    return True

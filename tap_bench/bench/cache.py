@@ -76,6 +76,7 @@ import os
 import re
 import tempfile
 import time
+import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -85,14 +86,15 @@ from typing import TYPE_CHECKING, Any, TypeVar
 from tap_bench import catalogue
 from tap_bench._version import __version__
 from tap_bench.errors import ParameterError
-from tap_bench.sim.policies import PolicyDefinition
+from tap_bench.sim.policies import POLICY_KINDS, PolicyDefinition
 from tap_bench.sim.scenario_format import VEHICLE_TYPE_KEYS, Scenario
-from tap_bench.sim.schema import default_config
+from tap_bench.sim.schema import SCENARIO_KINDS, default_config
 from tap_bench.usercode import (
     TRUSTED_PACKAGES,
     _source_path,
     code_digest,
     find_module_source,
+    user_code_holds,
 )
 
 if TYPE_CHECKING:
@@ -107,8 +109,9 @@ T = TypeVar("T")
 
 DEFAULT_MAX_BYTES = 2 << 30
 """Size the cache is pruned to after a run [B]: ten default suites."""
-ENTRY_FORMAT = 2
-"""Layout of an entry file; raised when it changes (old entries then miss)."""
+ENTRY_FORMAT = 3
+"""Layout of an entry file; raised when it changes (old entries then miss). 3: the user's
+modules loaded while the episode was made (``loaded``)."""
 SIMULATION_CODE = ("sim", "trajectories.py", "womd", "sources")
 """tap-bench's simulation code, relative to the package: every module of :mod:`tap_bench.sim`
 (all of them, so that a module added there is covered without a list to update; an edit to
@@ -271,6 +274,13 @@ def scenario_fingerprint(scenario: Scenario, env: str | None = None) -> dict[str
     files: dict[str, str] = {}
     _named_files(fields, base, files)
     doc["files"] = files
+    kind = SCENARIO_KINDS.get(scenario.highway_env_id)
+    if kind is not None:  # a plugin's environment class (highway-env's and tap-bench's are
+        code = _user_code(kind.entry_point.partition(":")[0])  # keyed by their versions)
+        if code is None:
+            return None
+        if code:
+            doc["kind"] = {"entry_point": kind.entry_point, "code": code}
     vehicles = {}
     for key in VEHICLE_TYPE_KEYS:
         if isinstance(config.get(key), str):
@@ -302,6 +312,14 @@ def policy_fingerprint(definition: PolicyDefinition) -> dict[str, Any] | None:
                            "params": _plain(definition.params), "files": files}
     if definition.path is not None and definition.path.is_file():
         doc["file_sha256"] = _sha256_file(definition.path)
+    kind = POLICY_KINDS.get(definition.kind)
+    if kind is not None:  # the builder a kind names: a plugin's code is keyed like a factory
+        builder = kind.builder.partition(":")[0]
+        code = _user_code(builder)
+        if code is None:
+            return None
+        if code:
+            doc["builder"] = {"name": kind.builder, "code": code}
     if definition.kind == "sb3":  # the same weights act otherwise under another torch
         doc["versions"] = {pkg: _version(pkg) for pkg in ("stable-baselines3", "torch")}
     if definition.kind == "import":
@@ -313,9 +331,10 @@ def policy_fingerprint(definition: PolicyDefinition) -> dict[str, Any] | None:
     return doc
 
 
-LABELS_FORMAT = 2
+LABELS_FORMAT = 3
 """Layout of a label entry file; raised when it changes (old entries then miss). 2: the
-tables as Arrow IPC streams (a re-run reads them four times quicker than Parquet)."""
+tables as Arrow IPC streams (a re-run reads them four times quicker than Parquet); 3: the
+user's modules loaded while they were made (``loaded``)."""
 LABEL_CODE = ("tap_bench.labelling", "tap_bench.bench.episodes", "tap_bench.bench.measures",
               "tap_bench.bench.contexts", "tap_bench.sim.roads", "tap_bench.bench.run_tasks")
 """The modules that make an episode's label entry (labels, measures, segments and context
@@ -527,13 +546,18 @@ def memoised(cache: EpisodeCache | None, kind: str, inputs: Mapping[str, Any] | 
     if cache is None or inputs is None:
         return build()
     key, doc = derived_key(kind, inputs)
-    files, _ = cache.read_derived(kind, key)
+    files, note = cache.read_derived(kind, key)
+    if note is not None:
+        note_refused(note)
     if files is not None:
         try:
             return decode(files)
-        except Exception:  # whatever is wrong with it, it is made again
+        except Exception as err:  # whatever is wrong with it, it is made again
             with contextlib.suppress(OSError):
                 cache.derived_path(kind, key).unlink()
+            note_refused(f"derived entry {cache.derived_path(kind, key).name} refused and "
+                         f"deleted: its files do not decode ({type(err).__name__}: "
+                         f"{str(err)[:200]})")
     value = build()
     try:
         files = dict(encode(value))
@@ -547,6 +571,27 @@ def memoised(cache: EpisodeCache | None, kind: str, inputs: Mapping[str, Any] | 
     with contextlib.suppress(OSError, ParameterError):
         cache.put_derived(kind, key, doc, files)
     return stored
+
+
+_REFUSED: list[str] = []  # derived entries refused since the last run took them
+
+
+def note_refused(note: str) -> None:
+    """Say that a derived entry was refused (a :class:`~tap_bench.errors.CacheEntryWarning`)
+    and keep the note for the run going on (:func:`take_refused`): a damaged entry is made
+    again, never silently."""
+    from tap_bench.errors import CacheEntryWarning
+
+    _REFUSED.append(note)
+    warnings.warn(f"{note}; it was made again.", CacheEntryWarning, stacklevel=3)
+
+
+def take_refused() -> list[str]:
+    """The derived entries refused in this process since the last call (their notes), for
+    a run's ``summary.json`` (``cache.refused``)."""
+    out = list(_REFUSED)
+    del _REFUSED[:len(out)]
+    return out
 
 
 def _canonical(doc: Any) -> bytes:
@@ -646,8 +691,11 @@ class EpisodeCache:
         return _read_entry(self.path(key), lambda data: _decode(data, key), "cache entry")
 
     def put(self, key: str, doc: Mapping[str, Any], trajectories: pd.DataFrame,
-            row: Mapping[str, Any], seconds: float) -> Path:
-        """Store an episode under ``key`` (atomically; see the module docstring)."""
+            row: Mapping[str, Any], seconds: float,
+            loaded: Mapping[str, Mapping[str, str]] | None = None) -> Path:
+        """Store an episode under ``key`` (atomically; see the module docstring);
+        ``loaded``: the user's modules loaded while it was made
+        (:func:`tap_bench.usercode.loaded_user_code`), checked whenever it is read."""
         if hashlib.sha256(_canonical(doc)).hexdigest() != key:
             raise ParameterError("key", key, "the SHA-256 of doc (episode_key)")
         buffer = io.BytesIO()
@@ -655,6 +703,7 @@ class EpisodeCache:
         payload = buffer.getvalue()
         header = {"format": "tap-bench-episode", "format_version": ENTRY_FORMAT, "key": key,
                   "doc": doc, "row": _plain_row(row), "seconds": float(seconds),
+                  "loaded": _plain(dict(loaded or {})),
                   "payload_bytes": len(payload),
                   "payload_sha256": hashlib.sha256(payload).hexdigest(),
                   "created": time.strftime("%Y-%m-%d %H:%M:%S")}
@@ -674,9 +723,11 @@ class EpisodeCache:
         return self.labels_folder / key[:2] / f"{key}{_LABELS_SUFFIX}"
 
     def put_labels(self, key: str, doc: Mapping[str, Any],
-                   tables: Mapping[str, pd.DataFrame]) -> Path:
+                   tables: Mapping[str, pd.DataFrame],
+                   loaded: Mapping[str, Mapping[str, str]] | None = None) -> Path:
         """Store an episode's labels and measures (``tables``: name -> table) under ``key``
-        (a :func:`label_key` and its document), atomically, verified whole on read."""
+        (a :func:`label_key` and its document), atomically, verified whole on read;
+        ``loaded`` as for :meth:`put`."""
         if hashlib.sha256(_canonical(doc)).hexdigest() != key:
             raise ParameterError("key", key, "the SHA-256 of doc (label_key)")
         parts, index = [], []
@@ -686,7 +737,8 @@ class EpisodeCache:
             index.append({"name": str(name), "bytes": len(data),
                           "sha256": hashlib.sha256(data).hexdigest()})
         header = {"format": "tap-bench-labels", "format_version": LABELS_FORMAT, "key": key,
-                  "doc": doc, "tables": index, "created": time.strftime("%Y-%m-%d %H:%M:%S")}
+                  "doc": doc, "tables": index, "loaded": _plain(dict(loaded or {})),
+                  "created": time.strftime("%Y-%m-%d %H:%M:%S")}
         header["header_sha256"] = hashlib.sha256(_canonical(header)).hexdigest()
         return self._write(self.labels_path(key), _canonical(header) + b"\n" + b"".join(parts))
 
@@ -861,6 +913,8 @@ def _read_entry(path: Path, decode: Callable[[bytes], T], what: str
         return None, None
     try:
         entry = decode(data)
+    except _Stale:  # made with user code edited since: a miss (the new entry replaces it)
+        return None, None
     except Exception as err:  # whatever is wrong, the entry is never used
         with contextlib.suppress(OSError):
             path.unlink()
@@ -881,6 +935,22 @@ def _positive(value: Any) -> bool:
 
 class _Refused(ValueError):
     """An entry that fails a check of :func:`_decode`."""
+
+
+class _Stale(Exception):
+    """A whole entry made with a module of the user's code that has changed since (its
+    ``loaded`` files): not damage, a miss."""
+
+
+def _check_loaded(header: Mapping[str, Any]) -> None:
+    """:class:`_Stale` when a module the entry's maker loaded has changed since (checked
+    after the header's checksum); :class:`_Refused` when ``loaded`` is malformed."""
+    try:
+        holds = user_code_holds(header.get("loaded"))
+    except ValueError as err:
+        raise _Refused(str(err)) from None
+    if not holds:
+        raise _Stale
 
 
 MAX_HEADER_BYTES = 1 << 20
@@ -917,7 +987,7 @@ def _decode(data: bytes, key: str) -> CachedEpisode:
     from tap_bench.sim.rollout import EPISODE_COLUMNS
 
     header, payload = _split_entry(data, "tap-bench-episode", ENTRY_FORMAT)
-    types = {"key": str, "doc": dict, "row": dict, "seconds": int | float,
+    types = {"key": str, "doc": dict, "row": dict, "seconds": int | float, "loaded": dict,
              "payload_bytes": int, "payload_sha256": str, "header_sha256": str}
     wrong = [name for name, kind in types.items() if not isinstance(header.get(name), kind)
              or isinstance(header.get(name), bool)]
@@ -928,11 +998,13 @@ def _decode(data: bytes, key: str) -> CachedEpisode:
         raise _Refused("the header (episode row included) does not match its checksum")
     if header["key"] != key or hashlib.sha256(_canonical(header["doc"])).hexdigest() != key:
         raise _Refused("the entry belongs to another key")
+    _check_loaded(header)
     if not header["payload_bytes"] or len(payload) != header["payload_bytes"] \
             or hashlib.sha256(payload).hexdigest() != header["payload_sha256"]:
         raise _Refused("the payload is empty or does not match its hash")
     row = header["row"]
-    if set(row) != set(EPISODE_COLUMNS) or row.get("status") != "ok":
+    # recorded scenes add their columns to the row (tap_bench.sim.rollout.EPISODE_COLUMNS)
+    if not set(EPISODE_COLUMNS) <= set(row) or row.get("status") != "ok":
         raise _Refused("not the row of a successful episode")
     if row.get("seed") != header["doc"].get("seed"):
         raise _Refused("the episode row's seed is not the key's")
@@ -976,6 +1048,7 @@ def _decode_labels(data: bytes, key: str) -> dict[str, pd.DataFrame]:
         raise _Refused("the header does not match its checksum")
     if header.get("key") != key or hashlib.sha256(_canonical(header["doc"])).hexdigest() != key:
         raise _Refused("the entry belongs to another key")
+    _check_loaded(header)
     tables, at = {}, 0
     for part in header["tables"]:
         if not isinstance(part, dict) or not isinstance(part.get("name"), str) \

@@ -24,7 +24,10 @@ the code of the whole package and the versions of NumPy, pandas, PyArrow and Sci
 A run is never served from, nor kept in, the cache when it has reference corpora (their
 files are read and labelled each run), plug-ins or a measure, scene measure, policy kind or
 scenario kind registered by code outside tap-bench and highway-env (a user's script:
-:func:`registered_outside`; code the key cannot hold), recorded scenes (their maps and
+:func:`registered_outside`; code the key cannot hold), a policy, policy kind, scenario kind
+or vehicle class of the user's code (it may load modules by name as it runs, which only its
+episode and label entries record: :func:`tap_bench.usercode.loaded_user_code`), recorded
+scenes (their maps and
 signals are read from the scenes' files), an episode that cannot be cached (a policy
 registered in Python, code without source), or a failed episode (it is tried again next
 run).
@@ -64,6 +67,7 @@ from tap_bench.bench.cache import (
     _arrow_table,
     _version,
     derived_key,
+    note_refused,
     package_code_holds,
     policy_fingerprint,
     scenario_fingerprint,
@@ -197,6 +201,10 @@ def run_inputs(plan: SuitePlan, tasks: Sequence[_Task], *, keep_trajectories: bo
     policies = {d.name: policy_fingerprint(d) for d in plan.definitions}
     if any(v is None for v in (*envs.values(), *policies.values())):
         return None
+    if any(p.get("code") or p.get("builder") for p in policies.values()) \
+            or any(e.get("kind") or any(e.get("vehicle_code", {}).values())
+                   for e in envs.values()):
+        return None  # the user's code may load modules by name: only its entries know them
     thresholds = plan.thresholds
     return {"format": RUN_FORMAT, "suite": suite.to_dict(), "level": suite.level,
             "thresholds": thresholds.to_dict() if hasattr(thresholds, "to_dict")
@@ -274,7 +282,9 @@ def serve_run(cache: EpisodeCache, inputs: Mapping[str, Any], output: Path, over
 
     t0 = time.perf_counter()
     key, _ = derived_key("runs", inputs)
-    files, _ = cache.read_derived("runs", key)
+    files, note = cache.read_derived("runs", key)
+    if note is not None:
+        note_refused(note)
     if files is None:
         return None
     try:
@@ -283,9 +293,11 @@ def serve_run(cache: EpisodeCache, inputs: Mapping[str, Any], output: Path, over
         if not isinstance(kept, dict) or not isinstance(nonce, str) \
                 or "n_episodes" not in kept or "episodes.arrow" not in files:
             raise ValueError("not a run entry")
-    except (KeyError, ValueError, UnicodeDecodeError):
+    except (KeyError, ValueError, UnicodeDecodeError) as err:
         with contextlib.suppress(OSError):  # whatever is wrong with it, the run is made
             cache.derived_path("runs", key).unlink()
+        note_refused(f"derived entry {cache.derived_path('runs', key).name} refused and "
+                     f"deleted: not a run entry ({type(err).__name__})")
         return None
     if announce is not None:
         announce(f"suite {kept.get('suite', {}).get('name', '')}: every input as in an "
@@ -385,6 +397,7 @@ def serve_unchanged(suite: Any, output: str | Path, *, cache: EpisodeCache | Non
 
     from tap_bench.bench.run_folder import check_output
     from tap_bench.bench.run_plan import plan_suite
+    from tap_bench.errors import CacheEntryWarning
 
     if cache is None or corpora or plugins:
         return None
@@ -396,8 +409,8 @@ def serve_unchanged(suite: Any, output: str | Path, *, cache: EpisodeCache | Non
         _check_apart(output, cache.root)
         served, _, _ = try_served(plan, cache, output, overwrite, keep_trajectories, report,
                                   corpora, started, announce)
-    if served is not None:
-        for warning in said:
+    for warning in said:  # a refused entry is said either way (run_suite lists it)
+        if served is not None or issubclass(warning.category, CacheEntryWarning):
             warnings.warn_explicit(warning.message, warning.category, warning.filename,
                                    warning.lineno)
     return served

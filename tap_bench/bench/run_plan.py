@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import os
+import uuid
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -31,6 +32,7 @@ from tap_bench.sim.sb3 import warn_untrusted_model
 from tap_bench.sim.scenario_format import Scenario, parse_seeds
 from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.thresholds import Thresholds, resolve_thresholds
+from tap_bench.usercode import recording
 
 
 @dataclass(frozen=True)
@@ -52,6 +54,7 @@ class _Task:
     measures: tuple[str, ...] = ()  # the run's measures: the worker must have each
     label_key: str | None = None  # its labels and measures in the cache (bench.cache)
     label_doc: Mapping[str, Any] | None = None
+    run: str = ""  # the run's id: what its code imports is noted under it (usercode)
     # the env's road (highway-env: a map table) as the run's process drew it, so that the
     # workers do not each build the env again to draw it; None: the worker draws it
     road: Any = field(default=None, compare=False, repr=False)
@@ -74,6 +77,9 @@ class SuitePlan:
         plugins: the modules every worker imports before its first task (the execution
             layer carries them): those named on the command line and by the suite, and the
             modules that define the run's measures outside tap-bench.
+        run: the run's id: the modules its policies, scenarios and measures import as
+            they are built and run are noted under it (:func:`tap_bench.usercode.
+            recording`) and kept with its cache entries.
     """
 
     suite: Suite
@@ -82,6 +88,7 @@ class SuitePlan:
     thresholds: Thresholds
     measures: tuple[Measure, ...]
     plugins: tuple[str, ...]
+    run: str = field(default_factory=lambda: uuid.uuid4().hex)
 
     @property
     def measure_names(self) -> tuple[str, ...]:
@@ -109,8 +116,12 @@ def plan_suite(suite: Suite | str | os.PathLike, *, plugins: Sequence[str] = (),
     if seeds is not None:
         suite = replace(suite, seeds=tuple(parse_seeds(seeds, source="seeds")),
                         all_seeds=False)
-    scenarios = {env: suite.scenario(env) for env in suite.envs}
-    definitions = tuple(resolve_policy(policy) for policy in suite.policies)
+    run = uuid.uuid4().hex
+    # what the policies and scenarios import as they are built is noted (the plugins' own
+    # code is keyed by the measures and kinds they register)
+    with recording(run):
+        scenarios = {env: suite.scenario(env) for env in suite.envs}
+        definitions = tuple(resolve_policy(policy) for policy in suite.policies)
     thresholds = resolve_thresholds(suite.thresholds)
     measures = tuple(MEASURES)  # fixed here: after every import that may register one
     # margins of measures registered after the suite was read take their entry's default
@@ -122,13 +133,13 @@ def plan_suite(suite: Suite | str | os.PathLike, *, plugins: Sequence[str] = (),
     # recorded as loaded, so that every worker of the execution layer imports them first
     load_plugins(outside, source="measure")
     return SuitePlan(suite, scenarios, definitions, thresholds, measures,
-                     merge_plugins(plugins, suite.plugins, outside))
+                     merge_plugins(plugins, suite.plugins, outside), run)
 
 
 def _tasks(plan: SuitePlan, keep: bool, cache: EpisodeCache | None) -> list[_Task]:
     suite, scenarios, thresholds = plan.suite, plan.scenarios, plan.thresholds
     definitions = plan.definitions
-    common = {"measures": plan.measure_names}
+    common = {"measures": plan.measure_names, "run": plan.run}
     seeds = {env: suite.env_seeds(env) for env in suite.envs}
     for d in definitions:  # workers load models with warnings off: said here, once each
         if d.kind == "sb3" and isinstance(d.params.get("model"), str):

@@ -27,6 +27,7 @@ from tap_bench.labelling import tap
 from tap_bench.pathframe import LaneMap
 from tap_bench.sim.rollout import EPISODE_COLUMNS, RECORDED_CRASH_COLUMNS, rollout_episode
 from tap_bench.sim.womd_scene import WomdScenes
+from tap_bench.usercode import loaded_user_code, recording
 
 _ROADS: dict[str, pd.DataFrame] = {}
 """Per process: each scenario's road as a map table (highway-env builds the same road for
@@ -122,7 +123,7 @@ def _episode(task: _Task, note: str | None = None
                 and _key_holds(task):
             with contextlib.suppress(OSError):  # a full or read-only cache costs only reuse
                 task.cache.put(task.key, task.key_doc or {}, trajectories, row,
-                               time.perf_counter() - t0)
+                               time.perf_counter() - t0, loaded_user_code(task.run))
     return (_run_ids(task, trajectories).reset_index(drop=True), row, cached is not None,
             time.perf_counter() - t0, note)
 
@@ -162,7 +163,7 @@ def _store_labels(task: _Task, eps: pd.DataFrame, labels: pd.DataFrame,
     with contextlib.suppress(OSError):  # a full or read-only cache costs only reuse
         task.cache.put_labels(task.label_key, task.label_doc or {},
                               dict(zip(LABEL_TABLES, (eps, labels, segments, contexts),
-                                       strict=True)))
+                                       strict=True)), loaded_user_code(task.run))
 
 
 def _from_label_cache(task: _Task) -> dict[str, Any] | None:
@@ -283,7 +284,8 @@ def _run_task(task: _Task, note: str | None = None) -> dict[str, Any]:
     """Roll out (or read from the cache), label and measure one episode (in a worker).
     ``note``: why a cache entry of this episode was refused already."""
     _prepare_worker(task)
-    return _label_together((task,), [_episode(task, note)])[0]
+    with recording(task.run):  # what the policy and measures load (kept with each entry)
+        return _label_together((task,), [_episode(task, note)])[0]
 
 
 def _failed_task(task: _Task, message: str) -> dict[str, Any]:
@@ -318,16 +320,18 @@ def _run_batch(batch: _Batch) -> list[dict[str, Any]]:
     """One result per task of ``batch``, equal to what :func:`_run_task` gives for each."""
     _prepare_worker(batch.tasks[0])
     given = batch.given or (None,) * len(batch.tasks)
-    return _label_together(batch.tasks, [_episode(task) if got is None else got
-                                         for task, got in zip(batch.tasks, given,
-                                                              strict=True)])
+    with recording(batch.tasks[0].run):
+        return _label_together(batch.tasks, [_episode(task) if got is None else got
+                                             for task, got in zip(batch.tasks, given,
+                                                                  strict=True)])
 
 
 def _simulate(task: _Task) -> tuple[pd.DataFrame, dict[str, Any], bool, float, str | None]:
     """One episode of ``task`` simulated (or read), not yet labelled: the run's first
     episode of an env, timed for the estimate, is then labelled with its batch."""
     _prepare_worker(task)
-    return _episode(task)
+    with recording(task.run):
+        return _episode(task)
 
 
 def _split(table: pd.DataFrame, column: str) -> dict[Any, pd.DataFrame]:

@@ -72,6 +72,7 @@ from tap_bench.bench.cache import (
     scenario_fingerprint,
     simulation_fingerprint,
     table_digest,
+    take_refused,
 )
 from tap_bench.bench.contexts import context_scores
 from tap_bench.bench.episodes import one_outcome_cells
@@ -397,6 +398,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
                            segments=segments, roads=roads, cache=cache, pages=pages)
     timings["writing_and_report"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
+    if summary["cache"] is not None:  # derived entries (roads, scores, plots, viewer, run)
+        summary["cache"]["refused"] = [*refused, *take_refused()]
     _write_json(folder / "summary.json", summary)  # with the final timings
     if keep and cache is not None and pages is not None:
         store_run(cache, whole, folder, summary, pages, episodes, scores)

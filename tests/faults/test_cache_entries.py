@@ -195,3 +195,48 @@ def test_an_edited_script_or_version_is_simulated_again_and_named_by_check(tmp_p
 def test_docs_say_a_shared_cache_needs_trusted_writers():
     text = (ROOT / "docs" / "benchmark.md").read_text()
     assert "trusted writers" in text
+
+
+def test_an_episode_row_of_a_recorded_scene_comes_back(entry, tmp_path):
+    """A recorded scene's row holds more columns than EPISODE_COLUMNS (its own measures):
+    it is the row of a successful episode, and its entry is read, not refused."""
+    _, key, data = entry
+    header, payload = _header(data)
+    row = {**header["row"], "scenario_id": "abc", "off_road": False, "log_ade": 1.25,
+           "map": "as recorded"}
+    other = EpisodeCache(tmp_path / "womd")
+    other.put(key, header["doc"], pd.read_parquet(__import__("io").BytesIO(payload)), row,
+              1.0)
+    episode, note = other.read(key)
+    assert note is None and episode is not None and episode.row == row
+
+
+def test_a_recorded_scene_suite_is_read_from_the_cache_on_a_rerun(womd_dir, tmp_path):
+    suite = suite_from_dict({"name": "scene", "policies": ["log"], "seeds": "0",
+                             "reference_policy": "log",
+                             "envs": [{"womd": [str(womd_dir / "womd_scenario_input.tfrecord")],
+                                       "name": "womd"}],
+                             "bootstrap": {"n_resamples": 100}}, check_names=False)
+    cache = EpisodeCache(tmp_path / "cache")
+    first, _ = run(suite, tmp_path / "first", cache)
+    shutil.rmtree(cache.labels_folder)  # the episode itself must come back
+    again, notes = run(suite, tmp_path / "again", cache)
+    assert first.summary["cache"]["simulated"] == 1
+    assert (again.summary["cache"]["cached"], again.summary["cache"]["simulated"]) == (1, 0)
+    assert not notes and not again.summary["cache"]["refused"]
+    pd.testing.assert_frame_equal(first.episodes, again.episodes)
+
+
+def test_a_damaged_derived_entry_is_said_and_listed(tmp_path):
+    cache = EpisodeCache(tmp_path / "cache")
+    run(tiny(seeds="0"), tmp_path / "first", cache)
+    shutil.rmtree(cache.derived_folder / "runs")
+    roads = sorted((cache.derived_folder / "roads").glob("*/*.derived"))
+    assert roads
+    roads[0].write_bytes(roads[0].read_bytes()[:-5])  # torn
+    again, notes = run(tiny(seeds="0"), tmp_path / "again", cache)
+    refused = again.summary["cache"]["refused"]
+    assert any(roads[0].name in note for note in refused), refused
+    assert any(roads[0].name in str(w.message) for w in notes)
+    on_disk = json.loads((tmp_path / "again" / "summary.json").read_text())
+    assert on_disk["cache"]["refused"] == refused

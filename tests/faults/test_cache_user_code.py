@@ -1,0 +1,191 @@
+"""The episode cache follows the user's code an episode or a label entry is made with: the
+builder of a plugin's policy kind, a plugin's environment class (scenario kind), and a module
+that an ``import`` policy or a measure plugin loads by name as it runs
+(``importlib.import_module("helper")`` beside a top-level module). Edit one, and the re-run
+is made fresh (the old entries are not served); edit nothing, and it is read from the cache.
+Each run is a ``tap-bench bench run`` in a child process, as a user runs it, so that the
+edited module is imported afresh."""
+
+from __future__ import annotations
+
+import json
+import uuid
+from pathlib import Path
+
+import pandas as pd
+from fault_helpers import run_process
+
+from tap_bench.sim.scenario_env import get_scenario
+
+TAG = uuid.uuid4().hex[:8]
+
+
+def _suite(folder: Path, policy: str, env: str = "merge", seeds: str = "0") -> Path:
+    path = folder / "suite.json"
+    path.write_text(json.dumps({
+        "name": "usercode", "envs": [env], "policies": [policy], "seeds": seeds,
+        "reference_policy": policy, "env_overrides": {env: {"duration": 3}},
+        "bootstrap": {"n_resamples": 100}}))
+    return path
+
+
+def _run(folder: Path, name: str, *plugins: str) -> tuple[dict, pd.DataFrame]:
+    """``bench run`` of ``folder``'s suite into ``folder/name`` with ``folder/cache``: (the
+    summary, the episode table)."""
+    args = ["bench", "run", "--suite", folder / "suite.json", "-o", folder / name,
+            "--cache", folder / "cache", "--workers", "1", "--no-progress"]
+    for plugin in plugins:
+        args += ["--plugin", plugin]
+    result = run_process(*args, cwd=folder)
+    assert result.returncode == 0, result.stderr.decode()[-3000:]
+    summary = json.loads((folder / name / "summary.json").read_text())
+    return summary, pd.read_parquet(folder / name / "episodes.parquet")
+
+
+def _counts(summary: dict) -> tuple[int, int]:
+    return summary["cache"]["cached"], summary["cache"]["simulated"]
+
+
+CONST = '''
+from tap_bench.sim.policies import register_policy_kind
+
+ACTION = 3  # FASTER
+
+
+class Const:
+    observation = None
+
+    def __init__(self, name):
+        self.name = name
+
+    def reset(self, env, *, seed):
+        pass
+
+    def act(self, observation):
+        return ACTION
+
+
+def build(name, **params):
+    return Const(name)
+
+
+register_policy_kind("const_{tag}", "constplug_{tag}:build")
+'''
+
+
+def test_an_edited_policy_kind_builder_is_simulated_again(tmp_path):
+    module = f"constplug_{TAG}"
+    (tmp_path / f"{module}.py").write_text(CONST.format(tag=TAG))
+    (tmp_path / "const.json").write_text(json.dumps({"name": "const", "kind": f"const_{TAG}",
+                                                     "params": {}}))
+    _suite(tmp_path, str(tmp_path / "const.json"))
+    first, eps1 = _run(tmp_path, "first", module)
+    assert _counts(first) == (0, 1)
+    again, _ = _run(tmp_path, "again", module)
+    assert _counts(again) == (1, 0)  # unchanged: read
+    source = tmp_path / f"{module}.py"
+    source.write_text(source.read_text().replace("ACTION = 3", "ACTION = 4"))  # SLOWER
+    edited, eps2 = _run(tmp_path, "edited", module)
+    assert _counts(edited) == (0, 1)
+    assert eps2["mean_speed"].mean() < eps1["mean_speed"].mean()
+
+
+SCENE = '''
+from highway_env.envs.merge_env import MergeEnv
+
+from tap_bench.sim.schema import SCENARIO_KINDS, ScenarioKind
+
+SPEED = 30.0
+
+
+class SlowStart(MergeEnv):
+    def _make_vehicles(self):
+        super()._make_vehicles()
+        self.vehicle.speed = SPEED
+
+
+SCENARIO_KINDS.register(ScenarioKind("slowstart-{tag}-v0", "sceneplug_{tag}:SlowStart",
+                                     "a test's own merge"))
+'''
+
+
+def test_an_edited_scenario_kind_is_simulated_again(tmp_path, monkeypatch):
+    module = f"sceneplug_{TAG}"
+    (tmp_path / f"{module}.py").write_text(SCENE.format(tag=TAG))
+    doc = json.loads(get_scenario("merge").path.read_text())
+    doc.update(name="slowstart", highway_env_id=f"slowstart-{TAG}-v0")
+    doc.pop("script", None)
+    (tmp_path / "envs").mkdir()
+    (tmp_path / "envs" / "slowstart.json").write_text(json.dumps(doc))
+    monkeypatch.setenv("TAP_BENCH_PATH", str(tmp_path))  # the catalogue: envs/slowstart
+    _suite(tmp_path, "lane-keeping", env="slowstart")
+    first, eps1 = _run(tmp_path, "first", module)
+    assert _counts(first) == (0, 1)
+    source = tmp_path / f"{module}.py"
+    source.write_text(source.read_text().replace("SPEED = 30.0", "SPEED = 15.0"))
+    edited, eps2 = _run(tmp_path, "edited", module)
+    assert _counts(edited) == (0, 1)
+    assert eps2["mean_speed"].mean() < eps1["mean_speed"].mean()
+
+
+BY_NAME = '''
+import importlib
+
+
+class ByName:
+    observation = None
+
+    def __init__(self, name):
+        self.name = name
+
+    def reset(self, env, *, seed):
+        pass
+
+    def act(self, observation):
+        return importlib.import_module("helper_{tag}").ACTION
+'''
+
+
+def test_a_module_an_import_policy_loads_by_name_is_followed(tmp_path):
+    (tmp_path / f"byname_{TAG}.py").write_text(BY_NAME.format(tag=TAG))
+    helper = tmp_path / f"helper_{TAG}.py"
+    helper.write_text("ACTION = 3\n")
+    (tmp_path / "mine.json").write_text(json.dumps({
+        "name": "mine", "kind": "import", "params": {"factory": f"byname_{TAG}:ByName"}}))
+    _suite(tmp_path, str(tmp_path / "mine.json"))
+    first, eps1 = _run(tmp_path, "first")
+    again, _ = _run(tmp_path, "again")
+    assert _counts(first) == (0, 1) and _counts(again) == (1, 0)
+    helper.write_text("ACTION = 4\n")
+    edited, eps2 = _run(tmp_path, "edited")
+    assert _counts(edited) == (0, 1)
+    assert eps2["mean_speed"].mean() < eps1["mean_speed"].mean()
+
+
+MEASURE = '''
+import importlib
+
+import numpy as np
+
+from tap_bench.bench.measures import register_measure
+
+
+@register_measure("offset_{tag}", unit="m", higher_is_better=True, margin=1.0,
+                  description="a value a helper module holds")
+def offset(steps):
+    return np.full(len(steps.starts), importlib.import_module("mhelper_{tag}").OFFSET)
+'''
+
+
+def test_a_module_a_measure_plugin_loads_by_name_is_followed(tmp_path):
+    module = f"measplug_{TAG}"
+    (tmp_path / f"{module}.py").write_text(MEASURE.format(tag=TAG))
+    helper = tmp_path / f"mhelper_{TAG}.py"
+    helper.write_text("OFFSET = -3.07\n")
+    _suite(tmp_path, "lane-keeping")
+    _, eps1 = _run(tmp_path, "first", module)
+    assert (eps1[f"offset_{TAG}"] == -3.07).all()
+    helper.write_text("OFFSET = 96.93\n")
+    edited, eps2 = _run(tmp_path, "edited", module)
+    assert (eps2[f"offset_{TAG}"] == 96.93).all()
+    assert edited["cache"]["labelled_before"] == 0
