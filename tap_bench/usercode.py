@@ -18,8 +18,11 @@ anything such a name points at:
 :func:`code_files` lists the source files an episode depends on through such a name: the
 module, every module it imports transitively inside the user's own code (the folder on the
 import path that holds it, unless that is site-packages or the standard library), and every
-module of its top-level package (so a module loaded by name at run time is covered too). The
-episode cache hashes them (:mod:`tap_bench.bench.cache`).
+module of its top-level package. The episode cache hashes them (:mod:`tap_bench.bench.cache`).
+A module loaded by name as the code runs (``importlib.import_module("helper")``) shows in no
+import statement: :func:`recording` notes what a run imports while it builds and runs its
+policies, scenarios and measures, and :func:`loaded_user_code` gives those of the user's code
+with their files' SHA-256, which the cache keeps with each entry (:func:`user_code_holds`).
 """
 
 from __future__ import annotations

@@ -8,13 +8,15 @@ everything that can change its trajectory table (any byte changed in any input c
 - the env (:func:`scenario_fingerprint`): its name in the suite, every field of the
   resolved scenario (name, version, script, lane changes, config overrides ...), the
   SHA-256 of the scenario file and of every file a field names, the highway-env id and its
-  *resolved* config, the duration and the number of decisions, and the code of a user
-  vehicle class the config names;
+  *resolved* config, the duration and the number of decisions, the code of a user
+  vehicle class the config names, and for a scenario kind a plugin registers its entry
+  point and code;
 - the policy (:func:`policy_fingerprint`): its full definition and the SHA-256 of its file
   and of every file a parameter names (an SB3 ``.zip``, with the versions of
-  Stable-Baselines3 and torch), and for kind ``import`` the code of the factory's module,
-  of every module it loads in the user's code and of its whole top-level package
-  (:func:`tap_bench.usercode.code_files`);
+  Stable-Baselines3 and torch), for kind ``import`` the code of the factory's module, of
+  every module it imports in the user's code and of its whole top-level package
+  (:func:`tap_bench.usercode.code_files`), and for a policy kind a plugin registers the
+  builder's name and code, hashed the same way;
 - the seed;
 - the code and versions: the cache entry format, tap-bench's version, the SHA-256 of its
   simulation code (:data:`SIMULATION_CODE`), and the versions of highway-env, Gymnasium
@@ -22,6 +24,13 @@ everything that can change its trajectory table (any byte changed in any input c
 
 Policies registered in Python with :func:`tap_bench.register_policy`, code without Python
 source and failed episodes are never cached.
+
+**Modules loaded by name** as a policy, a vehicle class or a measure is built or runs
+(``importlib.import_module("helper")``) are in no key: the run notes every module of the
+user's code its processes import for the first time while they do so
+(:func:`tap_bench.usercode.recording`) and each episode and label entry keeps them with
+their files' SHA-256 (``loaded``); an entry is served only while every one still hashes the
+same, else it is a miss (made again, no warning: it is not damaged).
 
 **An entry** is one file ``<dir>/episodes/<key[:2]>/<key>.episode``: one line of JSON (the
 key, its document, the episode-table row, the rollout's wall time, the payload's size and
@@ -51,8 +60,9 @@ the content of its inputs (:func:`table_digest` of each input table, the setting
 matter) and the code of the whole tap-bench package with the versions of NumPy, pandas,
 PyArrow and SciPy (:func:`derived_key`), and verified whole like the other entries, so a
 change of any input or of any tap-bench module makes them again, and what a re-run serves
-is what it would have made. A whole run whose every input is unchanged is kept too
-(kind ``runs``: its run folder, served without reading an episode;
+is what it would have made. A damaged one is made again with a warning and listed in the
+run's ``cache.refused`` (:func:`note_refused`). A whole run whose every input is unchanged
+is kept too (kind ``runs``: its run folder, served without reading an episode;
 :mod:`tap_bench.bench.run_cache`).
 
 **Location and size**: ``$TAP_BENCH_CACHE``, else ``$XDG_CACHE_HOME/tap-bench``, else
