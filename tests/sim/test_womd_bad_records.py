@@ -183,9 +183,12 @@ def test_a_suite_over_a_folder_leaves_out_what_is_not_womd(tmp_path):
     suite = suite_from_dict({"name": "folder", "envs": [{"womd": str(folder / "*")}],
                              "policies": ["log", "idm"], "reference_policy": "log",
                              "seeds": "all", "bootstrap": {"n_resamples": 200}})
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         result = run_suite(suite, tmp_path / "run", workers=1, progress=False)
     assert (result.episodes["status"] == "ok").all(), result.episodes["error"].tolist()
     roads = pd.read_parquet(tmp_path / "run" / "roads.parquet")
     assert set(roads["map_id"]) == {"s1"}
+    assert (tmp_path / "run" / "viewer" / "index.html").is_file()
+    # the viewer reads the files again for the signals, as the run read them
+    assert not [w for w in caught if "could not be read again" in str(w.message)]

@@ -277,7 +277,10 @@ def _add_run_signals(summary: dict[str, Any], chunks: dict[str, list[dict[str, A
         return
     found = {f: (sorted(glob.glob(f)) if glob.has_magic(f) else
                  [f] if Path(f).is_file() else []) for f in files}
-    present = [p for paths in found.values() for p in paths]
+    # as the run read them: folders and globs leave out files that are not records
+    present = [str(p) for p in record_files([f for f, paths in found.items() if paths],
+                                            note=lambda text: None)] \
+        if any(found.values()) else []
     wanted = {str(doc["id"]).rpartition("/")[0] for docs in chunks.values() for doc in docs}
     try:
         roads = _road_maps(present, wanted) if present else {}
