@@ -34,6 +34,7 @@ def test_view_writes_womd_scenarios(womd_dir, tmp_path, capsys):
     files = [str(womd_dir / "womd_scenario_input.tfrecord")]
     assert main(["view", *files, "-o", str(out), "--no-open"]) == 0
     assert (out / "data" / "ee519cf571686d19.js").is_file()
+    assert [e["name"] for e in _index(out)["episodes"]] == ["scenario ee519cf571686d19"]
 
 
 def test_an_older_run_without_segments_or_roads_is_relabelled(tiny_run, tmp_path):
@@ -129,3 +130,69 @@ def test_view_of_a_womd_glob_leaves_a_readme_out(womd_dir, tmp_path, capsys):
     with pytest.warns(UserWarning, match="README.md: skipped"):
         assert main(["view", str(data / "*"), "-o", str(out), "--no-open"]) == 0
     assert (out / "data" / "ee519cf571686d19.js").is_file()
+
+
+def _recorded_tables(two_cars_and_a_walker, tmp_path) -> list[str]:
+    """Two hand-made ``rollout --womd`` tables (source ``womd-sim``), policies ``idm`` and
+    ``log``, each driving the same two scenes under WOMD-like scenario ids, seeds 0 and 1."""
+    table = two_cars_and_a_walker.copy()
+    table.loc[table["scenario_id"] == "s2", "is_ego"] = True  # each scene has its ego
+    womd = {"s1": "a1b2c3d4e5f60718", "s2": "0f1e2d3c4b5a6978"}
+    table["seed"] = table["scenario_id"].map({"s1": 0, "s2": 1})
+    table["scenario_id"] = table["scenario_id"].map(womd)
+    paths = []
+    for policy in ("idm", "log"):
+        path = tmp_path / f"{policy}.parquet"
+        table.assign(env="womd", policy=policy, source="womd-sim").to_parquet(path,
+                                                                              index=False)
+        paths.append(str(path))
+    return paths
+
+
+def test_the_viewer_names_real_scene_episodes_by_scenario_id(two_cars_and_a_walker,
+                                                             tmp_path, capsys):
+    """On real scenes an episode is paired by scenario id (SPEC section 8), so the viewer
+    names it by that id ("scenario <id>", not "womd · seed N"), for rollout tables and for
+    the run folder compare writes of them; the names the page shows come from the index."""
+    a, b = _recorded_tables(two_cars_and_a_walker, tmp_path)
+    out = tmp_path / "tv"
+    assert main(["view", a, b, "-o", str(out), "--no-open"]) == 0
+    cmp = tmp_path / "cmp"
+    assert main(["compare", a, b, "-o", str(cmp)]) == 0
+    assert main(["view", str(cmp), "-o", str(tmp_path / "cv"), "--rebuild",
+                 "--no-open"]) == 0
+    capsys.readouterr()
+    for folder in (out, tmp_path / "cv"):
+        names = {(e["policy"], e["name"]) for e in _index(folder)["episodes"]}
+        assert names == {(policy, f"scenario {sid}") for policy in ("idm", "log")
+                         for sid in ("a1b2c3d4e5f60718", "0f1e2d3c4b5a6978")}
+    script = (out / "viewer.js").read_text()
+    assert "e.name" in script and "seed ${e.seed}" not in script  # the page shows them
+
+
+def test_highway_episodes_keep_env_and_seed_names(tiny_run, tmp_path, capsys):
+    a, b = _rollout_tables(tiny_run, tmp_path)
+    out = tmp_path / "tv"
+    assert main(["view", a, b, "-o", str(out), "--no-open"]) == 0
+    for e in _index(out)["episodes"]:
+        assert e["name"] == f"{e['env']} · seed {e['seed']}"
+
+
+def test_a_womd_suites_run_names_its_episodes_by_scenario_id(womd_dir, tmp_path):
+    """A bench run of a WOMD suite (the run folder the viewer is built from): each policy's
+    episode is named by the real scene's scenario id."""
+    import warnings
+
+    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.suite import suite_from_dict
+
+    suite = suite_from_dict({
+        "name": "womd-names", "envs": [{"womd": [str(womd_dir / "womd_scenario_input.tfrecord")],
+                                        "traffic": "log"}],
+        "policies": ["idm", "log"], "reference_policy": "log", "seeds": "all",
+        "bootstrap": {"n_resamples": 200}}, source="womd-names")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        folder = run_suite(suite, tmp_path / "run", workers=1, progress=False).folder
+    names = {(e["policy"], e["name"]) for e in _index(folder / "viewer")["episodes"]}
+    assert names == {("idm", "scenario ee519cf571686d19"), ("log", "scenario ee519cf571686d19")}

@@ -146,7 +146,7 @@ def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
     have = set(trajectories["scenario_id"].astype(str).unique())
     measures = run_measures(summary)
     eps, entries = episode_index(episodes, novel_labels=novel_labels, has_replay=have,
-                                 measures=measures)
+                                 measures=measures, scenes=_recorded_scenes(trajectories))
     boxes = _env_boxes(trajectories, MAP_MARGIN) if "env" in trajectories.columns else {}
 
     def build() -> tuple[dict[str, str], dict[str, Any]]:
@@ -174,6 +174,16 @@ def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
                      "measures": measures},
              "episodes": entries, "maps": maps}
     return _write_viewer(output, index, scripts)
+
+
+def _recorded_scenes(trajectories: pd.DataFrame) -> dict[str, str]:
+    """Episode ``scenario_id`` -> the WOMD scenario id of the recorded scene it drove (a WOMD
+    suite's run and ``rollout --womd`` tables keep it in ``womd_scenario_id``)."""
+    if "womd_scenario_id" not in trajectories.columns:
+        return {}
+    pairs = trajectories[["scenario_id", "womd_scenario_id"]].dropna().drop_duplicates()
+    return dict(zip(pairs["scenario_id"].astype(str), pairs["womd_scenario_id"].astype(str),
+                    strict=True))
 
 
 def _viewer_files(built: tuple[dict[str, str], dict[str, Any]]) -> dict[str, bytes]:
@@ -364,7 +374,8 @@ def write_womd_viewer(paths: Sequence[str | os.PathLike], output: str | os.PathL
     episodes = episode_table(labels=labels, trajectories=traj, level=level,
                              source="WOMD files")
     segments = result.segments(level)
-    eps, entries = episode_index(episodes, chunk_by=("scenario_id",), has_replay=sids)
+    eps, entries = episode_index(episodes, chunk_by=("scenario_id",), has_replay=sids,
+                                 scenes={sid: sid for sid in sids})
     chunks = episode_chunks(traj, eps, segments, labelled_tracks="all")
     maps = read_maps(paths, scenario_ids=set(sids))
     by_map = dict(tuple(maps.groupby("map_id", sort=False))) if len(maps) else {}

@@ -2,7 +2,7 @@
 
 Tables in (episode, trajectory, segment and map tables), documents out:
 
-- the **index**: one small record per episode (env, policy, seed, crash, labels, novelty,
+- the **index**: one small record per episode (env, policy, seed, name, crash, labels, novelty,
   measures) for the filterable list, the road maps shared by the episodes of an env, and the
   run's facts;
 - the **chunks**: the episodes themselves, grouped so that the episodes a person compares
@@ -30,7 +30,7 @@ from tap_bench.errors import TrajectoryTableError
 from tap_bench.trajectories import HZ
 
 __all__ = ["MISSING", "POSITION_STEP", "clip_polyline", "encode_int16", "episode_chunks",
-           "episode_index", "map_features", "signal_field", "SIGNAL_COLOURS"]
+           "episode_index", "episode_name", "map_features", "signal_field", "SIGNAL_COLOURS"]
 
 POSITION_STEP = 0.1  # [m] quantisation of positions: a 50th of a car's length
 VEHICLE_WIDTH = 2.0  # [m] highway-env's vehicle width; WOMD tracks carry their own
@@ -344,7 +344,8 @@ def _text(value: Any) -> str:
 def episode_index(episodes: pd.DataFrame, *, novel_labels: pd.DataFrame | None = None,
                   chunk_by: Iterable[str] = ("env", "seed"),
                   has_replay: Iterable[str] = (),
-                  measures: Iterable[Mapping[str, Any]] | None = None
+                  measures: Iterable[Mapping[str, Any]] | None = None,
+                  scenes: Mapping[str, str] | None = None
                   ) -> tuple[pd.DataFrame, list[dict[str, Any]]]:
     """The list entries of the viewer, one per episode.
 
@@ -358,9 +359,12 @@ def episode_index(episodes: pd.DataFrame, *, novel_labels: pd.DataFrame | None =
         measures: the measure entries shown (:meth:`~tap_bench.bench.measures.Measure.
             to_dict`; default: every registered one); each entry's ``measures`` holds their
             values by name.
+        scenes: episode ``scenario_id`` -> the scenario id of the recorded (WOMD) scene it
+            drove (a run's ``womd_scenario_id``); those episodes are named by it.
 
     Returns:
-        the episode table with a ``chunk`` column, and the list entries.
+        the episode table with a ``chunk`` column, and the list entries; each entry's
+        ``name`` is how the page names the episode (:func:`episode_name`).
     """
     eps = episodes.copy()
     keys = list(chunk_by)
@@ -381,6 +385,8 @@ def episode_index(episodes: pd.DataFrame, *, novel_labels: pd.DataFrame | None =
             "id": _text(r.get("scenario_id")) or f"{r['env']}/{r['policy']}/s{r['seed']}",
             "env": _text(r.get("env")), "policy": _text(r.get("policy")),
             "seed": int(r["seed"]), "chunk": r["chunk"],
+            "name": episode_name(_text(r.get("env")), int(r["seed"]),
+                                 (scenes or {}).get(_text(r.get("scenario_id")))),
             "ok": r.get("status", "ok") == "ok", "error": _text(r.get("error")),
             "replay": _text(r.get("scenario_id")) in replay,
             "crashed": bool(r.get("crashed")) if not pd.isna(r.get("crashed")) else False,
@@ -394,6 +400,13 @@ def episode_index(episodes: pd.DataFrame, *, novel_labels: pd.DataFrame | None =
         }
         entries.append(entry)
     return eps, entries
+
+
+def episode_name(env: str, seed: int, scene: str | None = None) -> str:
+    """How the viewer names an episode (list, pane titles): a recorded scene's episode by
+    its scenario id, ``"scenario <id>"`` (on real scenes episodes are paired by scenario
+    id, SPEC section 8), a highway-env episode by ``"<env> · seed <N>"``."""
+    return f"scenario {scene}" if scene else f"{env} · seed {seed}"
 
 
 def _slug(text: str) -> str:

@@ -139,8 +139,8 @@ const TAPVIEW = (() => {
       if (!e.ok || !e.replay) li.className = "failed";
       if (state.a && state.a.doc.id === e.id) li.classList.add("active");
       const head = document.createElement("span");
-      head.textContent = state.index.run.source === "WOMD" ? `scenario ${e.id}`
-        : `${e.env} · ${e.policy} · seed ${e.seed}`;
+      // the name the index gives (a real scene's scenario id, else env and seed)
+      head.textContent = `${e.name} · ${e.policy}`;
       li.appendChild(head);
       if (e.crashed) li.appendChild(badge("crash", "crash"));
       if (e.novel.length) {
@@ -253,8 +253,7 @@ const TAPVIEW = (() => {
     root.textContent = "";
     const e = ep.entry;
     const h = document.createElement("h3");
-    h.textContent = state.index.run.source === "WOMD" ? `${tag}: scenario ${e.id}`
-      : `${tag}: ${e.policy} — ${e.env}, seed ${e.seed}`;
+    h.textContent = `${tag}: ${e.policy} — ${e.name}`;
     if (e.crashed) h.appendChild(badge("crash", `crash at ${ep.doc.crash_t ?? "?"} s`));
     if (e.novel.length) h.appendChild(badge("novel", "novel label"));
     root.appendChild(h);
