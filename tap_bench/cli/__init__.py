@@ -50,6 +50,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("tap_bench.cli.bench", "run a benchmark suite; check a run against a baseline"),
     "demo": ("tap_bench.cli.demo",
              "run the demo benchmark (no download) and write its HTML report"),
+    "realism": ("tap_bench.cli.realism",
+                "score simulated traffic against the log (WOSAC 2025 realism, by manoeuvre)"),
     "view": ("tap_bench.cli.view",
              "replay episodes: two policies side by side, with their labels"),
     # similarity: SDL search, unique behaviours, the paper's ADE / DTW experiments

@@ -21,14 +21,18 @@ observation works on it.
   the graph: :func:`logged_route`); the controller follows it at every lane end, and lane
   changes go only to lanes the map names as neighbours at that point.
 - **Traffic.** ``traffic="log"``: every other agent replays the log (non-reactive).
-  ``traffic="idm"``: each vehicle valid at the current time that moves starts from its
-  logged state and is driven by IDM/MOBIL (:class:`WomdIDMVehicle`) along its own logged
-  route; parked vehicles, vehicles that appear later and vehicles whose path leaves the
-  lanes replay. Pedestrians and cyclists always replay. IDM (traffic and an IDM ego) stops at
-  a stop point whose signal is red, and at a yellow one when it can stop comfortably.
-  IDM also yields to pedestrians and cyclists crossing its way ahead
-  (:meth:`~tap_bench.sim.womd_road.WomdRoad.walker_distance`), not to crossing vehicles at
-  unsignalled junctions.
+  ``traffic="idm"``: each vehicle that moves starts from its logged state (at the current
+  time, or where and when it appears later) and is driven by IDM/MOBIL
+  (:class:`WomdIDMVehicle`) along its own logged route; parked vehicles and vehicles whose
+  path leaves the lanes replay. Pedestrians and cyclists always replay. IDM (traffic and
+  an IDM ego) stops at a stop point whose signal is red, and at a yellow one when it can
+  stop comfortably; at stop signs; before pedestrians and cyclists crossing its way ahead
+  (:meth:`~tap_bench.sim.womd_road.WomdRoad.walker_distance`); and it gives way to crossing
+  and merging traffic by gap acceptance (:meth:`~tap_bench.sim.womd_road.WomdRoad.
+  conflict_gap`). Each rollout (reset option ``rollout``) draws every idm vehicle's driver
+  (:func:`~tap_bench.sim.womd_road.draw_driver`; rollout 0: the nominal one).
+  ``traffic="constant-velocity"``: every agent valid at the current time keeps its velocity
+  then (the realism score's floor, docs/realism.md).
   idm traffic checks collisions with everyone (highway-env's rule: crashed vehicles brake
   to a stop); the episode table counts them (``traffic_collisions``).
 - **End.** At the log's end (truncated), on a collision of the ego or when the ego leaves
@@ -75,17 +79,21 @@ from highway_env.envs.common.action import action_factory
 from highway_env.envs.common.observation import observation_factory
 from highway_env.vehicle.kinematics import Vehicle
 
+from tap_bench.bench.bootstrap import named_rng
 from tap_bench.errors import ParameterError
 from tap_bench.sim.collisions import Box, collision_partner, fault
 from tap_bench.sim.womd_observation import OBSERVATION_TYPE, RouteObservation
 from tap_bench.sim.womd_road import (
+    NOMINAL_DRIVER,
     ROUTE_CORRIDOR,
     ROUTE_OFF_MAP,
+    ConstantVelocityVehicle,
     LogVehicle,
     WomdIDMVehicle,
     WomdMDPVehicle,
     WomdNetwork,
     WomdRoad,
+    draw_driver,
     logged_route,
     path_progress,
     sim_frame,
@@ -104,6 +112,8 @@ __all__ = ["PARKED_DISTANCE", "TARGET_SPEEDS", "TRAFFIC", "MapWarning", "WomdEnv
            "WomdScenes", "make_womd_env", "map_summary"]
 
 PARKED_DISTANCE = 1.0  # [m] a vehicle that moves less over the record stays parked (replays)
+LATE_HEADING = math.radians(30.0)  # [rad] a vehicle appearing later more across its lane
+# than this replays
 TARGET_SPEEDS = (0.0, 2.5, 5.0, 7.5, 10.0, 12.5, 15.0, 17.5, 20.0, 25.0, 30.0)
 """Target speeds of the meta-action ego [m/s] (highway-env's default 20-30 m/s is a
 motorway's; these cover a city street too)."""
@@ -202,6 +212,7 @@ class _WomdHighwayEnv(AbstractEnv):
         self.scene_index: int | None = None
         self._cache: dict[SceneRef, Scene] = {}
         self.traffic = scenes.traffic
+        self.rollout = 0  # which draw of stochastic traffic (reset option "rollout")
         self.clock = [CURRENT_STEP]
         self.replaying_ego = False
         self.resets = 0
@@ -260,6 +271,8 @@ class _WomdHighwayEnv(AbstractEnv):
         ``options["scene"]`` (an index in :attr:`catalog`), else the one of ``seed``:
         scene ``seed % len(catalog)`` (any integer seed is valid; seeds 0 to N-1 are the N
         scenes in file and record order), else the scene after the last one.
+        ``options["rollout"]`` (default 0) picks the draw of stochastic traffic (idm
+        traffic's drivers): the same scene and rollout give the same episode.
 
         ``seed`` also seeds the env's random generator (as Gymnasium's ``reset`` does);
         the other options are highway-env's (``{"config": ...}``; the observation and
@@ -267,7 +280,9 @@ class _WomdHighwayEnv(AbstractEnv):
         """
         options = dict(options or {})
         selectors = {key: options.pop(key, None) for key in ("scenario_id", "scene")}
+        rollout = options.pop("rollout", 0)
         if not self._building:
+            self.rollout = int(rollout)
             index = self.scene_for(seed, selectors)
             self.scene = self.scene_at(index)
             self.scene_index = int(index)
@@ -376,27 +391,47 @@ class _WomdHighwayEnv(AbstractEnv):
         valid = scene.valid[row]
         replay = LogVehicle(self.road, row, states[row], valid, scene.length[row],
                             scene.width[row], self.clock)
-        if self.traffic != "idm" or scene.object_types[row] != "vehicle" \
-                or not valid[CURRENT_STEP]:
-            return replay
+        if self.traffic == "constant-velocity" and valid[CURRENT_STEP]:
+            vehicle = ConstantVelocityVehicle(
+                self.road, states[row, CURRENT_STEP],
+                sim_frame(scene.vx[row, CURRENT_STEP], scene.vy[row, CURRENT_STEP]),
+                scene.length[row], scene.width[row], self.clock)
+            vehicle.row = row
+            return vehicle
         steps = np.flatnonzero(valid[CURRENT_STEP:]) + CURRENT_STEP
+        if self.traffic != "idm" or scene.object_types[row] != "vehicle" or not len(steps):
+            return replay
+        first = int(steps[0])  # a vehicle that appears later drives from where it appears
         xy = sim_xy[row, steps]
         if len(xy) < 2 or np.hypot(*(xy[-1] - xy[0])) < PARKED_DISTANCE:
             return replay
         route, off = logged_route(network, xy, sim_h[row, steps])
         if off > 0.25:
             return replay
-        x, y, h, v = states[row, CURRENT_STEP]
+        x, y, h, v = states[row, first]
         lane_index = network.get_closest_lane_index(np.array([x, y]), h)
+        if first > CURRENT_STEP:  # appearing off the lanes or across them (a driveway, a
+            lane = network.get_lane(lane_index)  # car park): replays
+            lon, lat = lane.local_coordinates(np.array([x, y]))
+            turn = (h - lane.heading_at(lon) + math.pi) % (2 * math.pi) - math.pi
+            if abs(lat) > lane.width / 2 or abs(turn) > LATE_HEADING:
+                return replay
+        # rollout 0: the nominal driver; rollout k: drawn from the stream of this scene,
+        # track and rollout (the same k, the same drivers)
+        driver = NOMINAL_DRIVER if self.rollout == 0 else draw_driver(named_rng(
+            self.rollout, "idm traffic", scene.scenario_id, str(scene.track_ids[row])))
+        reference = float(np.nanmax(scene.speed[row, steps]))
         vehicle = WomdIDMVehicle(self.road, np.array([x, y]), heading=h, speed=v,
                                  target_lane_index=lane_index,
-                                 target_speed=max(float(np.nanmax(scene.speed[row, steps])),
-                                                  1.0),
+                                 target_speed=max(reference * driver.speed_factor, 1.0),
                                  route=route)
+        vehicle.set_driver(driver)
         vehicle.LENGTH, vehicle.WIDTH = float(scene.length[row]), float(scene.width[row])
         vehicle.diagonal = math.hypot(vehicle.LENGTH, vehicle.WIDTH)
         vehicle.check_collisions = True  # with everyone (WomdRoad.step)
         vehicle.row = row
+        if first > CURRENT_STEP:
+            vehicle.appear_at(first)
         return vehicle
 
     def replay_ego(self) -> None:
@@ -609,7 +644,7 @@ class WomdEnv(gym.Wrapper):
             self._crashed[[a, b], k] = True
         for row, vehicle in (*inner.simulated.items(), (e, ego)):
             self._crashed[row, k] = vehicle.crashed
-            if isinstance(vehicle, LogVehicle):
+            if isinstance(vehicle, LogVehicle) or getattr(vehicle, "hidden", False):
                 continue
             heading = -vehicle.heading
             heading = math.pi - (math.pi - heading) % (2 * math.pi)
@@ -668,7 +703,9 @@ class WomdEnv(gym.Wrapper):
         def name(row: int) -> str:
             return str(ids[row]) if row in simulated else f"{ids[row]} (log)"
 
-        return "; ".join(f"{name(a)} x {name(b)} at {scene.times[k] - scene.times[0]:.1f} s"
+        last = len(scene.times) - 1  # a pair crashed "at the next step" after the last one
+        return "; ".join(f"{name(a)} x {name(b)} at "
+                         f"{scene.times[min(k, last)] - scene.times[0]:.1f} s"
                          for k, a, b in self.env.unwrapped.road.traffic_collisions)
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
@@ -727,6 +764,18 @@ class WomdEnv(gym.Wrapper):
         table.loc[~table["valid"].to_numpy(bool), kin] = np.nan
         return table
 
+    def recorded_states(self) -> dict[str, np.ndarray]:
+        """The episode's states as (n_tracks, n_steps) arrays in WOMD's axes (``x``, ``y``,
+        ``heading``, ``speed``, ``valid``): the record before the current time, the
+        simulation after it; steps past the episode's end are invalid (NaN)."""
+        last = self._last_step + 1
+        out = {name: self._rec[name].copy() for name in ("x", "y", "heading", "speed",
+                                                          "valid")}
+        out["valid"][:, last:] = False
+        for name in ("x", "y", "heading", "speed"):
+            out[name][~out["valid"]] = np.nan
+        return out
+
     def _ended_early(self) -> bool:
         """The ego's episode ended (a collision, off the road) before the log's end."""
         inner = self.env.unwrapped
@@ -771,7 +820,8 @@ def make_womd_env(files: str | os.PathLike | Iterable[str | os.PathLike] | WomdS
 
     Args:
         files: WOMD files, patterns or folders, or :class:`WomdScenes`.
-        traffic: ``"log"`` (replay, non-reactive) or ``"idm"`` (reactive).
+        traffic: ``"log"`` (replay, non-reactive), ``"idm"`` (reactive) or
+            ``"constant-velocity"`` (the realism floor).
         ego: ``"sdc"`` or a track id.
         policy_frequency: decisions per second (1, 2, 5 or 10).
         config: more highway-env config (observation, action, rewards).

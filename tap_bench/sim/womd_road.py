@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numba
@@ -29,15 +30,18 @@ from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
+from tap_bench.errors import ParameterError
 from tap_bench.sim.road_edges import RoadEdges, left_road
 from tap_bench.sim.traffic import near_pairs
 from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, lane_points
 from tap_bench.sim.womd_scene import Scene
 
 __all__ = ["HIDDEN", "OFF_ROAD_MARGIN", "ROUTE_CORRIDOR", "ROUTE_OFF_MAP", "STOP_LOOKAHEAD",
-           "STOP_MARGIN", "WALKER_CLEARANCE", "WALKER_HORIZON", "WALKER_LOOKAHEAD", "LogVehicle",
-           "WomdIDMVehicle", "WomdMDPVehicle", "WomdNetwork", "WomdRoad", "logged_route",
-           "path_progress", "sim_frame"]
+           "STOP_MARGIN", "WALKER_CLEARANCE", "WALKER_HORIZON", "WALKER_LOOKAHEAD",
+           "NOMINAL_DRIVER", "ConstantVelocityVehicle", "DriverParameters", "LogVehicle",
+           "WomdIDMVehicle", "WomdMDPVehicle",
+           "WomdNetwork", "WomdRoad", "draw_driver", "logged_route", "path_progress",
+           "sim_frame"]
 
 OFF_ROAD_MARGIN = 0.5  # [m] beyond half the lane's width, from every lane centre: off road
 ROUTE_CORRIDOR = 4.0  # [m] progress counts while the ego is this close to the logged path
@@ -51,6 +55,18 @@ WALKER_CLEARANCE = 1.0  # [m] ... within half the vehicle's width + this of the 
 WALKER_RADIUS = 0.5  # [m] IDM stops its front bumper STOP_MARGIN before this around them
 WALKER_STILL = 0.5  # [m/s] slower walkers count as standing in the way
 WALKER_ALONG = math.cos(math.radians(30.0))  # a walker within 30 deg of the lane moves along
+LEADER_LOOKAHEAD = 60.0  # [m] IDM sees a leader on its next lanes this far ahead
+LANES_AHEAD = 60.0  # [m] the lanes ahead of a vehicle are looked up this far once a step
+STOP_SIGN_REACH = 6.0  # [m] a stop sign listing no lane controls the lane ends this close
+STOP_SIGN_SPEED = 1.0  # [m/s] slower than this near the stop point is a stop
+STOP_SIGN_NEAR = 4.0  # [m] ... with the bumper this close to it
+CONFLICT_LOOKAHEAD = 40.0  # [m] IDM looks for crossing and merging traffic this far ahead
+CONFLICT_HORIZON = 8.0  # [s] others reaching the conflict point later are ignored
+CONFLICT_CLEARANCE = 1.0  # [m] beyond the half widths, a box in the conflict zone blocks it
+CONFLICT_TIE = 0.5  # [s] arrivals this close: the lower scene row goes first
+CORRIDOR_MARGIN = 0.3  # [m] beyond half of both widths, a box ahead is out of the way
+CORRIDOR_TIME = 1.5  # [s] IDM sees boxes in its straight way ahead this far in time ...
+CORRIDOR_MIN = 6.0  # [m] ... plus this
 
 
 def sim_frame(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -211,6 +227,45 @@ class LogVehicle(Vehicle):
         self._place(self.clock[0])
 
 
+class ConstantVelocityVehicle(Vehicle):
+    """An agent that keeps its velocity at the current time (position, heading and velocity
+    of the log then, sim frame): the constant-velocity traffic of the realism score's floor.
+    It does not react and is never stopped by a collision.
+
+    Attributes:
+        row: the track's row in the scene (set by the env).
+    """
+
+    def __init__(self, road: Road, state: np.ndarray, velocity: np.ndarray, length: float,
+                 width: float, clock: list[int]) -> None:
+        x, y, h, v = (float(c) for c in state)
+        velocity = np.asarray(velocity, float)
+        if np.isfinite(velocity).all():
+            v = float(np.hypot(*velocity))
+        else:
+            velocity = v * np.array([math.cos(h), math.sin(h)])
+        super().__init__(road, np.array([x, y]), h, v)
+        self.LENGTH, self.WIDTH = float(length), float(width)
+        self.diagonal = math.hypot(self.LENGTH, self.WIDTH)
+        self.origin = np.array([x, y])
+        self.velocity_xy = velocity
+        self.start = clock[0]
+        self.clock = clock
+        self.check_collisions = False
+
+    @property
+    def velocity(self) -> np.ndarray:
+        return self.velocity_xy
+
+    def act(self, action: Any = None) -> None:
+        """No decision."""
+
+    def step(self, dt: float) -> None:
+        """Move to where the velocity takes it by the road's current step."""
+        self.impact = None
+        self.position = self.origin + self.velocity_xy * dt * (self.clock[0] - self.start)
+
+
 class _RouteMixin:
     """Route following for WOMD vehicles: lane changes the route makes (the logged driver
     changed lanes there) and the map's neighbours only."""
@@ -250,10 +305,148 @@ class WomdMDPVehicle(_RouteMixin, MDPVehicle):
         self.speed = max(self.speed, 0.0)  # highway-env lets a braking vehicle reverse
 
 
+@dataclass(frozen=True)
+class DriverParameters:
+    """One IDM/MOBIL driver of idm traffic (SPEC section 8; Treiber & Kesting, *Traffic Flow
+    Dynamics*, 2013, ch. 11: IDM with the constant-acceleration heuristic of its ACC model;
+    Kesting et al. 2007: MOBIL).
+
+    Attributes:
+        speed_factor: desired speed v0 as a multiple of the vehicle's reference speed (the
+            fastest it drove in the log) [-].
+        time_gap: desired time gap T [s].
+        min_gap: jam distance s0, bumper to bumper [m].
+        max_acceleration: a [m/s^2].
+        comfortable_braking: b [m/s^2] (positive): the braking the driver plans with.
+        emergency_braking: the most it brakes at all [m/s^2] (positive).
+        delta: free-road exponent [-].
+        coolness: c of the ACC model: how much the heuristic that the leader keeps its
+            speed softens IDM's braking when the gap is tight but not critical [-].
+        politeness: MOBIL's p [-].
+        lane_change_gain: MOBIL's threshold [m/s^2].
+        safe_braking: MOBIL's most braking imposed on the new follower [m/s^2].
+        critical_gap: gap acceptance at a conflict (a crossing or merging lane): the driver
+            goes when the other reaches the conflict point at least this much later [s].
+    """
+
+    speed_factor: float = 1.0
+    time_gap: float = 1.2
+    min_gap: float = 2.0
+    max_acceleration: float = 1.5
+    comfortable_braking: float = 2.0
+    emergency_braking: float = 8.0
+    delta: float = 4.0
+    coolness: float = 0.99
+    politeness: float = 0.25
+    lane_change_gain: float = 0.2
+    safe_braking: float = 3.0
+    critical_gap: float = 3.0
+
+    def __post_init__(self) -> None:
+        for name in ("speed_factor", "time_gap", "min_gap", "max_acceleration",
+                     "comfortable_braking", "emergency_braking", "delta", "critical_gap"):
+            if not getattr(self, name) > 0:
+                raise ParameterError(name, getattr(self, name), "a positive number")
+        if self.emergency_braking < self.comfortable_braking:
+            raise ParameterError("emergency_braking", self.emergency_braking,
+                                 f"at least comfortable_braking ({self.comfortable_braking})")
+        if not 0 <= self.coolness < 1 or not 0 <= self.politeness <= 1:
+            raise ParameterError("coolness/politeness", (self.coolness, self.politeness),
+                                 "coolness in [0, 1), politeness in [0, 1]")
+
+
+NOMINAL_DRIVER = DriverParameters()
+"""Rollout 0's driver: the medians of :func:`draw_driver`'s distributions."""
+
+
+def draw_driver(rng: np.random.Generator) -> DriverParameters:
+    """A driver drawn for one rollout (medians: :data:`NOMINAL_DRIVER`):
+
+    - desired speed factor: lognormal, median 1, sigma 0.1 (+-10 % around the fastest
+      logged speed), within [0.75, 1.3];
+    - time gap T: lognormal, median 1.2 s, sigma 0.3, within [0.6, 2.5] s;
+    - jam distance s0: uniform 1.5-2.5 m;
+    - acceleration a: lognormal, median 1.5, sigma 0.25, within [0.8, 3.0] m/s^2;
+    - comfortable braking b: lognormal, median 2.0, sigma 0.25, within [1.2, 3.5] m/s^2;
+    - politeness p: uniform 0-0.5; critical gap: uniform 2.5-3.5 s.
+
+    City values of Treiber & Kesting (2013, table 11.2: T 1.0-1.5 s, s0 2 m, a 1.0-1.5,
+    b 1.5-2.0) and Kesting et al. (2007: p 0-0.5).
+    """
+
+    def lognormal(median: float, sigma: float, low: float, high: float) -> float:
+        return float(np.clip(median * math.exp(sigma * rng.standard_normal()), low, high))
+
+    return DriverParameters(
+        speed_factor=lognormal(1.0, 0.1, 0.75, 1.3),
+        time_gap=lognormal(1.2, 0.3, 0.6, 2.5),
+        min_gap=float(rng.uniform(1.5, 2.5)),
+        max_acceleration=lognormal(1.5, 0.25, 0.8, 3.0),
+        comfortable_braking=lognormal(2.0, 0.25, 1.2, 3.5),
+        politeness=float(rng.uniform(0.0, 0.5)),
+        critical_gap=float(rng.uniform(2.5, 3.5)))
+
+
 class WomdIDMVehicle(_RouteMixin, IDMVehicle):
     """IDM/MOBIL on a WOMD map: follows its route (the route's lane changes included), MOBIL
-    only towards the map's neighbours, stops at red (and yellow, when it can) stop points,
-    never reverses."""
+    only towards the map's neighbours, stops at red (and yellow, when it can) stop points and
+    before pedestrians and cyclists in its way, never reverses.
+
+    The longitudinal model is IDM (written from Treiber & Kesting's equations) with the
+    constant-acceleration heuristic of their ACC model: when IDM would brake harder than the
+    situation needs assuming the leader keeps its speed, the braking is blended towards that
+    need (coolness c), so a tight but harmless gap is closed at about the comfortable braking
+    b rather than at IDM's clamp; the braking is limited to the driver's emergency braking.
+    Traffic vehicles carry their own :class:`DriverParameters` (``driver``); a vehicle
+    without one (the IDM ego of the ``idm`` policies) takes its parameters from highway-env's
+    constants set on it (``TIME_WANTED``, ``DISTANCE_WANTED`` front to front,
+    ``COMFORT_ACC_MAX``, ``COMFORT_ACC_MIN``, ``DELTA``, ``POLITENESS``)."""
+
+    driver: DriverParameters | None = None
+    hidden = False  # waiting for the step it appears at (appear_at)
+
+    def appear_at(self, step: int) -> None:
+        """Wait off the road, not collidable, until the road's step ``step``, then drive
+        from where the vehicle was made (its logged state at that step)."""
+        self.hidden = True
+        self.start_step = int(step)
+        self.start_state = (self.position.copy(), float(self.heading), float(self.speed))
+        self.position = np.array([HIDDEN + 10.0 * getattr(self, "row", 0), -HIDDEN])
+        self.collidable = False
+
+    def _appear(self) -> None:
+        position, heading, speed = self.start_state
+        self.position, self.heading, self.speed = position.copy(), heading, speed
+        network = self.road.network
+        self.lane_index = network.get_closest_lane_index(position, heading)
+        self.lane = network.get_lane(self.lane_index)
+        self.target_lane_index = self.lane_index
+        self.hidden = False
+        self.collidable = True
+
+    def act(self, action: Any = None) -> None:
+        if not self.hidden:
+            super().act(action)
+
+    def parameters(self) -> DriverParameters:
+        """This vehicle's driver (see the class docstring)."""
+        if self.driver is not None:
+            return self.driver
+        return DriverParameters(
+            time_gap=float(self.TIME_WANTED),
+            min_gap=max(float(self.DISTANCE_WANTED) - ControlledVehicle.LENGTH, 0.5),
+            max_acceleration=float(self.COMFORT_ACC_MAX),
+            comfortable_braking=float(-self.COMFORT_ACC_MIN),
+            emergency_braking=max(float(self.ACC_MAX), float(-self.COMFORT_ACC_MIN)),
+            delta=float(self.DELTA), politeness=float(self.POLITENESS))
+
+    def set_driver(self, driver: DriverParameters) -> None:
+        """Drive with ``driver`` (MOBIL's constants set on this vehicle too)."""
+        self.driver = driver
+        self.POLITENESS = driver.politeness
+        self.LANE_CHANGE_MIN_ACC_GAIN = driver.lane_change_gain
+        self.LANE_CHANGE_MAX_BRAKING_IMPOSED = driver.safe_braking
+        self.ACC_MAX = driver.emergency_braking
 
     def change_lane_policy(self) -> None:
         change = self._route_change()
@@ -283,33 +476,105 @@ class WomdIDMVehicle(_RouteMixin, IDMVehicle):
 
     def acceleration(self, ego_vehicle: ControlledVehicle, front_vehicle: Vehicle = None,
                      rear_vehicle: Vehicle = None) -> float:
-        acc = super().acceleration(ego_vehicle, front_vehicle, rear_vehicle)
+        """IDM + ACC heuristic acceleration [m/s^2] of ``ego_vehicle`` (this vehicle, or
+        another one MOBIL asks about) behind ``front_vehicle``; for this vehicle also before
+        the stop points, walkers and conflicts ahead."""
+        if not isinstance(ego_vehicle, Vehicle):
+            return 0.0
+        p = ego_vehicle.parameters() if isinstance(ego_vehicle, WomdIDMVehicle) \
+            else self.parameters()
+        v = max(float(ego_vehicle.speed), 0.0)
+        v0 = float(getattr(ego_vehicle, "target_speed", v))
+        lane = getattr(ego_vehicle, "lane", None)
+        if getattr(ego_vehicle, "driver", None) is None and lane is not None \
+                and lane.speed_limit is not None:
+            v0 = min(v0, float(lane.speed_limit))  # the IDM ego keeps to the limit
+        v0 = max(v0, 0.01)  # traffic drives at its own logged pace
+        acc = p.max_acceleration * (1.0 - (v / v0) ** p.delta)
+        if front_vehicle is not None:
+            gap = ego_vehicle.lane_distance_to(front_vehicle) \
+                - (ego_vehicle.LENGTH + front_vehicle.LENGTH) / 2
+            lead = float(np.dot(front_vehicle.velocity, ego_vehicle.direction))
+            acc = _idm_acc(p, v, v0, gap, max(lead, 0.0))
         if ego_vehicle is self:
-            stop = getattr(self.road, "stop_distance", None)
-            if stop is not None:
-                d = stop(self)
-                if d is not None:
-                    acc = min(acc, self._stop_acceleration(d))
-            walker = getattr(self.road, "walker_distance", None)
-            if walker is not None:
-                d = walker(self)
-                if d is not None:
-                    acc = min(acc, self._stop_acceleration(d - WALKER_RADIUS))
-        return acc
+            leader_ahead = getattr(self.road, "leader_ahead", None)
+            if leader_ahead is not None:
+                leader, d = leader_ahead(self)
+                if leader is not None:
+                    lead = float(np.dot(leader.velocity, self.direction))
+                    acc = min(acc, _idm_acc(p, v, v0, d - (self.LENGTH + leader.LENGTH) / 2,
+                                            max(lead, 0.0)))
+            corridor = getattr(self.road, "corridor_leader", None)
+            if corridor is not None:
+                found = corridor(self)
+                if found is not None:
+                    acc = min(acc, _idm_acc(p, v, v0, found[0], max(found[1], 0.0)))
+            for d in self._standing_obstacles():
+                acc = min(acc, _idm_acc(p, v, v0, d, 0.0))
+        return float(max(acc, -p.emergency_braking))
 
-    def _stop_acceleration(self, distance: float) -> float:
-        """IDM's acceleration towards a standing obstacle placed so that the front bumper
-        stops :data:`STOP_MARGIN` before a stop point ``distance`` [m] ahead (centre)."""
-        v = max(self.speed, 0.0)
-        gap = distance - self.LENGTH / 2 - STOP_MARGIN + self.DISTANCE_WANTED
-        d_star = self.DISTANCE_WANTED + v * self.TIME_WANTED + v * v / (
-            2 * math.sqrt(-self.COMFORT_ACC_MAX * self.COMFORT_ACC_MIN))
-        free = 1 - (v / max(utils.not_zero(self.target_speed), 0.1)) ** self.DELTA
-        return self.COMFORT_ACC_MAX * (free - (d_star / max(gap, 0.1)) ** 2)
+    def _standing_obstacles(self) -> list[float]:
+        """Gaps [m] from the front bumper to where it must stop: red stop points and stop
+        signs not yet stopped at (less :data:`STOP_MARGIN`), walkers in its way (less their
+        radius and the margin), conflict zones where it gives way
+        (:meth:`WomdRoad.conflict_gap`)."""
+        out = []
+        road = self.road
+        stop = getattr(road, "stop_distance", None)
+        if stop is not None:
+            d = stop(self)
+            if d is not None:
+                out.append(d - self.LENGTH / 2 - STOP_MARGIN)
+        walker = getattr(road, "walker_distance", None)
+        if walker is not None:
+            d = walker(self)
+            if d is not None:
+                out.append(d - WALKER_RADIUS - self.LENGTH / 2 - STOP_MARGIN)
+        sign = getattr(road, "stop_sign_distance", None)
+        if sign is not None:
+            d = sign(self)
+            if d is not None:
+                out.append(d - self.LENGTH / 2 - STOP_MARGIN)
+        conflict = getattr(road, "conflict_gap", None)
+        if conflict is not None:
+            d = conflict(self)
+            if d is not None:
+                out.append(d)
+        return out
 
     def step(self, dt: float) -> None:
+        if self.hidden:
+            if self.road.clock[0] >= self.start_step:
+                self._appear()
+            return
         super().step(dt)
         self.speed = max(self.speed, 0.0)  # IDM can ask a stopped vehicle to reverse
+
+
+def _idm_acc(p: DriverParameters, v: float, v0: float, gap: float, lead: float) -> float:
+    """IDM with the ACC model's constant-acceleration heuristic (Treiber & Kesting 2013,
+    eqs. 11.3-11.4 and 11.25-11.26, the leader's acceleration taken as 0).
+
+    Args:
+        p: the driver.
+        v: own speed [m/s]; v0: desired speed [m/s].
+        gap: bumper-to-bumper gap to the leader (or standing obstacle) [m].
+        lead: the leader's speed along our heading [m/s].
+    """
+    dv = v - lead
+    s_star = p.min_gap + max(0.0, v * p.time_gap
+                             + v * dv / (2.0 * math.sqrt(p.max_acceleration
+                                                          * p.comfortable_braking)))
+    s = max(gap, 0.01)
+    a_idm = p.max_acceleration * (1.0 - (v / v0) ** p.delta - (s_star / s) ** 2)
+    # what the situation needs if the leader keeps its speed: nothing while it is faster,
+    # else the braking that matches its speed at the bumper
+    a_cah = 0.0 if dv <= 0 else -dv * dv / (2.0 * s)
+    if a_idm >= a_cah:
+        return a_idm
+    b = p.comfortable_braking
+    return (1.0 - p.coolness) * a_idm + p.coolness * (a_cah + b * math.tanh((a_idm - a_cah)
+                                                                            / b))
 
 
 # ------------------------------------------------------------------ the road
@@ -394,6 +659,13 @@ class WomdRoad(Road):
             self._stop_s.append(float(network.get_lane(index).local_coordinates(p)[0]))
         self._red = signals.red
         self._red_or_yellow = signals.red_or_yellow
+        self._lane_list = [network.index[lane.id] for lane in lanes]
+        self._predecessors: dict[Any, list[Any]] = {}
+        for index in self._lane_list:
+            for nxt in network.successors(index):
+                self._predecessors.setdefault(nxt, []).append(index)
+        self._conflicts: dict[Any, list[tuple[Any, float, float]]] = {}
+        self._stop_signs = self._stop_sign_points(network, road)
 
     # the neighbour search, once per lane per step
     def act(self) -> None:
@@ -401,6 +673,8 @@ class WomdRoad(Road):
         self._movers = [v for v in self.vehicles if v.collidable]
         self._positions = (np.array([v.position for v in self._movers])
                            if self._movers else np.zeros((0, 2)))
+        self._boxes = np.array([(v.heading, max(float(v.speed), 0.0), v.LENGTH, v.WIDTH)
+                                for v in self._movers], float).reshape(-1, 4)
         walkers = [v for v in self._movers if getattr(v, "row", -1) in self._walker_rows]
         if walkers:
             xy = np.array([v.position for v in walkers], float)
@@ -514,11 +788,268 @@ class WomdRoad(Road):
                                                np.zeros(2))[0]:
                 self.exempt.add(_pair(a, b))
 
+    # traffic's view ahead: leaders on the next lanes, stop signs, conflicts
+    def _lane_table(self, lane_index: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(members, lon, lat) of this step's movers on a lane (cached per step)."""
+        table = self._projections.get(lane_index)
+        if table is None:
+            lane = self.network.get_lane(lane_index)
+            lon, lat = lane.project(self._positions[:, 0], self._positions[:, 1])
+            on = (np.abs(lat) <= lane.width / 2 + 1.0) & (lon >= -lane.VEHICLE_LENGTH) \
+                & (lon < lane.length + lane.VEHICLE_LENGTH)
+            table = self._projections[lane_index] = (np.flatnonzero(on), lon, lat)
+        return table
+
+    def leader_ahead(self, vehicle: Vehicle) -> tuple[Vehicle | None, float]:
+        """The nearest mover ahead on the vehicle's next lanes (its route's, else the
+        straightest; not its own lane, whose leader :meth:`neighbour_vehicles` finds) within
+        :data:`LEADER_LOOKAHEAD`, and the distance between their centres along the way [m];
+        (None, inf) if none."""
+        if self._positions is None or not len(self._positions):
+            return None, math.inf
+        best, best_d = None, math.inf
+        for index, base in self._lanes_ahead(vehicle, LEADER_LOOKAHEAD)[1:]:
+            members, lon, _ = self._lane_table(index)
+            for i in members:
+                other = self._movers[i]
+                d = base + lon[i]
+                if other is vehicle or d <= 0 or d >= best_d or d > LEADER_LOOKAHEAD:
+                    continue
+                if math.cos(other.heading - vehicle.heading) < 0:  # oncoming on a bend
+                    continue
+                best, best_d = other, d
+            if best is not None:
+                break
+        return best, best_d
+
+    def corridor_leader(self, vehicle: Vehicle) -> tuple[float, float] | None:
+        """The nearest mover whose box is in the vehicle's straight way ahead (the box's
+        extent across the vehicle's axis within its half width + :data:`CORRIDOR_MARGIN`,
+        its centre ahead of the vehicle's, within :data:`CORRIDOR_TIME` s at its speed plus
+        :data:`CORRIDOR_MIN` m), whatever lane it is on: (bumper-to-box gap [m], its speed
+        along the vehicle's heading [m/s]); None if none. The last line of defence where
+        the lanes say nothing (overlapping junction lanes, a car cutting in)."""
+        if self._positions is None or len(self._positions) < 2:
+            return None
+        c, s_ = math.cos(vehicle.heading), math.sin(vehicle.heading)
+        d = self._positions - vehicle.position
+        lon = d[:, 0] * c + d[:, 1] * s_
+        lat = -d[:, 0] * s_ + d[:, 1] * c
+        heading, speed, length, width = self._boxes.T
+        dh = heading - vehicle.heading
+        # the other box's half extent along and across our axis
+        along = np.abs(np.cos(dh)) * length / 2 + np.abs(np.sin(dh)) * width / 2
+        across = np.abs(np.sin(dh)) * length / 2 + np.abs(np.cos(dh)) * width / 2
+        gap = lon - vehicle.LENGTH / 2 - along
+        reach = CORRIDOR_MIN + CORRIDOR_TIME * max(float(vehicle.speed), 0.0)
+        inside = (np.abs(lat) < vehicle.WIDTH / 2 + across + CORRIDOR_MARGIN) \
+            & (lon > 0) & (gap < reach) & (gap > -along)
+        inside &= np.array([m is not vehicle for m in self._movers])
+        if not inside.any():
+            return None
+        k = int(np.flatnonzero(inside)[np.argmin(gap[inside])])
+        return float(gap[k]), float(speed[k] * math.cos(dh[k]))
+
+    @staticmethod
+    def _stop_sign_points(network: WomdNetwork, road: Any) -> dict[Any, list[float]]:
+        """Lane index -> where on the lane [m] its stop signs stand: on the lanes a sign
+        lists, else on the lanes that end within :data:`STOP_SIGN_REACH` of it (the lanes
+        entering the junction it guards)."""
+        out: dict[Any, list[float]] = {}
+        ends = {lane_id: lane.centre[-1] for lane_id, lane in road.lanes.items()
+                if lane_id in network.index and len(lane.centre) and lane.exit}
+        for sign in road.stop_signs:
+            position = np.asarray(sign.position, float)[:2]
+            lanes = [i for i in sign.lanes if i in network.index]
+            if not lanes:
+                lanes = [i for i, end in ends.items()
+                         if math.hypot(*(end[:2] - position)) <= STOP_SIGN_REACH]
+            for lane_id in lanes:
+                index = network.index[lane_id]
+                lane = network.get_lane(index)
+                s_stop = float(lane.local_coordinates(sim_frame(*position))[0])
+                out.setdefault(index, []).append(min(max(s_stop, 0.0), lane.length))
+        return out
+
+    def stop_sign_distance(self, vehicle: Vehicle) -> float | None:
+        """Distance [m] along the vehicle's way (from its centre) to the next stop sign it
+        has not stopped at yet; None if none within :data:`STOP_LOOKAHEAD`. A vehicle has
+        stopped at a sign once it is slower than :data:`STOP_SIGN_SPEED` with its bumper
+        within :data:`STOP_SIGN_NEAR` of it; one that cannot stop there braking comfortably
+        when it first sees the sign (it was already rolling through at the current time)
+        goes on."""
+        if not self._stop_signs:
+            return None
+        served = vehicle.__dict__.setdefault("stop_signs_served", set())
+        braking = vehicle.parameters().comfortable_braking \
+            if hasattr(vehicle, "parameters") else 3.0
+        best = None
+        for index, base in self._lanes_ahead(vehicle, STOP_LOOKAHEAD):
+            for k, s_stop in enumerate(self._stop_signs.get(index, ())):
+                key = (index, k)
+                d = base + s_stop
+                if key in served or d < 0 or d > STOP_LOOKAHEAD:
+                    continue
+                room = d - vehicle.LENGTH / 2
+                if room <= STOP_SIGN_NEAR and vehicle.speed < STOP_SIGN_SPEED:
+                    served.add(key)
+                    continue
+                seen = vehicle.__dict__.setdefault("stop_signs_seen", set())
+                if key not in seen:
+                    seen.add(key)
+                    if vehicle.speed ** 2 > 2 * braking * max(room - STOP_MARGIN, 0.0):
+                        served.add(key)  # too late to stop comfortably: through
+                        continue
+                best = d if best is None else min(best, d)
+        return best
+
+    def conflicts(self, lane_index: Any) -> list[tuple[Any, float, float]]:
+        """(other lane, where the conflict is on this lane [m], ... on the other [m]) for
+        the lanes that cross this one (their centre lines intersect; not lanes joined end to
+        start, leaving the same lane or beside it) and that merge with it (they lead into
+        the same lane: the conflict is at both ends)."""
+        cached = self._conflicts.get(lane_index)
+        if cached is not None:
+            return cached
+        network = self.network
+        lane = network.get_lane(lane_index)
+        out: list[tuple[Any, float, float]] = []
+        successors = set(network.successors(lane_index))
+        predecessors = set(self._predecessors.get(lane_index, ()))
+        siblings = {s for p in predecessors for s in network.successors(p)}
+        beside = set(network.side_lanes(lane_index))
+        for other in {s for p in successors for s in self._predecessors.get(p, ())}:
+            if other != lane_index:
+                out.append((other, lane.length, network.get_lane(other).length))
+        ax, ay, bx, by, owner = self._lane_segments
+        centre = network.road_map.lanes[network.womd_id(lane_index)].centre
+        pts = sim_frame(centre[:, 0], centre[:, 1])
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        near = np.flatnonzero((np.maximum(ax, bx) >= lo[0]) & (np.minimum(ax, bx) <= hi[0])
+                              & (np.maximum(ay, by) >= lo[1]) & (np.minimum(ay, by) <= hi[1]))
+        if len(near) and len(pts) >= 2:
+            ax, ay, bx, by, owner = ax[near], ay[near], bx[near], by[near], owner[near]
+            px, py = pts[:-1, 0:1], pts[:-1, 1:2]  # (m, 1) against (c,)
+            qx, qy = pts[1:, 0:1], pts[1:, 1:2]
+            d1 = (bx - ax) * (py - ay) - (by - ay) * (px - ax)
+            d2 = (bx - ax) * (qy - ay) - (by - ay) * (qx - ax)
+            d3 = (qx - px) * (ay - py) - (qy - py) * (ax - px)
+            d4 = (qx - px) * (by - py) - (qy - py) * (bx - px)
+            # touching counts (lanes sampled through the same point); collinear does not
+            hits = (d1 * d2 <= 0) & (d3 * d4 <= 0) & (d1 != d2) & (d3 != d4)
+            for k, q in zip(*np.nonzero(hits), strict=True):
+                other = self._lane_list[owner[q]]
+                if other == lane_index or other in successors or other in predecessors \
+                        or other in siblings or other in beside:
+                    continue
+                u = d1[k, q] / (d1[k, q] - d2[k, q])  # d1 != d2: not parallel
+                point = pts[k] + u * (pts[k + 1] - pts[k])
+                s_self = float(lane.local_coordinates(point)[0])
+                s_other = float(network.get_lane(other).local_coordinates(point)[0])
+                if any(o == other and abs(a - s_self) < 2.0 for o, a, _ in out):
+                    continue
+                out.append((other, s_self, s_other))
+        self._conflicts[lane_index] = out
+        return out
+
+    def conflict_gap(self, vehicle: Vehicle) -> float | None:
+        """Gap [m] from the bumper to the nearest conflict zone ahead where the vehicle must
+        give way (gap acceptance); None if none.
+
+        At a conflict point on its way (within :data:`CONFLICT_LOOKAHEAD`) the vehicle gives
+        way to another mover approaching it along the other lane (or the lanes into it)
+        that is in the conflict zone now, or that reaches it first, or within the driver's
+        critical gap after it when the other cannot give way (a replayed agent, the ego, or
+        one that cannot stop there braking comfortably); arrivals within
+        :data:`CONFLICT_TIE` s go by scene row. It does not give way once it cannot stop
+        before the zone braking comfortably (it clears it)."""
+        if self._positions is None or not len(self._positions):
+            return None
+        p = vehicle.parameters() if hasattr(vehicle, "parameters") else None
+        braking = p.comfortable_braking if p is not None else 3.0
+        critical = p.critical_gap if p is not None else 3.0
+        v_i = max(float(vehicle.speed), 0.0)
+        best = None
+        for index, base in self._lanes_ahead(vehicle, CONFLICT_LOOKAHEAD):
+            if base > CONFLICT_LOOKAHEAD:
+                break
+            for other_lane, s_self, s_other in self.conflicts(index):
+                d_i = base + s_self
+                if d_i > CONFLICT_LOOKAHEAD:
+                    continue
+                for other, d_j in self._approaching(other_lane, s_other, vehicle):
+                    half = other.WIDTH / 2 + CONFLICT_CLEARANCE
+                    gap_i = d_i - vehicle.LENGTH / 2 - half
+                    if gap_i < -vehicle.LENGTH:
+                        continue  # past it
+                    inside_j = -(other.LENGTH / 2 + vehicle.WIDTH / 2 + CONFLICT_CLEARANCE) \
+                        < d_j <= other.LENGTH / 2 + vehicle.WIDTH / 2 + CONFLICT_CLEARANCE
+                    if gap_i <= 0:
+                        continue  # in the zone itself: clear it
+                    if not inside_j and v_i ** 2 > 2 * braking * gap_i:
+                        continue  # committed: cannot stop before the zone comfortably
+                    if not inside_j:
+                        v_j = max(float(other.speed), 0.0)
+                        t_j = max(d_j - other.LENGTH / 2, 0.0) / max(v_j, 0.1)
+                        if t_j > CONFLICT_HORIZON:
+                            continue
+                        t_i = gap_i / max(v_i, 1.0)
+                        yields = isinstance(other, WomdIDMVehicle) and \
+                            v_j ** 2 <= 2 * other.parameters().comfortable_braking * max(
+                                d_j - other.LENGTH / 2 - vehicle.WIDTH / 2
+                                - CONFLICT_CLEARANCE, 0.0)
+                        if yields:
+                            first = t_j < t_i - CONFLICT_TIE or (
+                                abs(t_j - t_i) <= CONFLICT_TIE
+                                and getattr(other, "row", -1) < getattr(vehicle, "row", -1))
+                            if not first:
+                                continue
+                        elif t_j > t_i + critical:
+                            continue
+                    best = gap_i if best is None else min(best, gap_i)
+        return best
+
+    def _approaching(self, lane_index: Any, s_point: float, vehicle: Vehicle
+                     ) -> list[tuple[Vehicle, float]]:
+        """Movers on a lane (or the lanes into it) moving along it, not yet past a point
+        ``s_point`` [m] on it, with their distance to it (centre; negative: past)."""
+        out = []
+        lanes = [(lane_index, 0.0)] + [(p, self.network.get_lane(p).length)
+                                       for p in self._predecessors.get(lane_index, ())]
+        seen: set[int] = set()
+        for index, offset in lanes:
+            lane = self.network.get_lane(index)
+            members, lon, _ = self._lane_table(index)
+            for i in members:
+                other = self._movers[i]
+                if other is vehicle or id(other) in seen or \
+                        getattr(other, "row", -1) in self._walker_rows:
+                    continue
+                d = s_point + offset - lon[i]
+                if d < -(other.LENGTH + vehicle.WIDTH) or d > CONFLICT_LOOKAHEAD * 2:
+                    continue
+                if math.cos(other.heading - lane.heading_at(lon[i])) < 0.5:
+                    continue
+                seen.add(id(other))
+                out.append((other, d))
+        return out
+
     # signals
     def _lanes_ahead(self, vehicle: Vehicle, lookahead: float) -> list[tuple[Any, float]]:
         """(lane index, where the lane starts [m] along the vehicle's way from its centre) of
         its lane and the next ones (its route's, else the straightest) up to ``lookahead``
-        [m] (at most three more)."""
+        [m] (at most three more). The longest look of a step is kept on the vehicle and cut
+        for shorter ones (the stop points, walkers, conflicts and leaders all ask)."""
+        key = (self.clock[0], vehicle.lane_index, vehicle.position.tobytes())
+        cached = vehicle.__dict__.get("_lanes_ahead_cache")
+        if cached is None or cached[0] != key or cached[1] < lookahead:
+            cached = (key, max(lookahead, LANES_AHEAD), self._lanes_ahead_now(
+                vehicle, max(lookahead, LANES_AHEAD)))
+            vehicle.__dict__["_lanes_ahead_cache"] = cached
+        return [item for k, item in enumerate(cached[2]) if k == 0 or item[1] <= lookahead]
+
+    def _lanes_ahead_now(self, vehicle: Vehicle, lookahead: float) -> list[tuple[Any, float]]:
+        """:meth:`_lanes_ahead`, computed."""
         network = self.network
         lane_index = vehicle.lane_index
         s = network.get_lane(lane_index).local_coordinates(vehicle.position)[0]

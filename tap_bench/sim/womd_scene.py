@@ -33,9 +33,10 @@ if TYPE_CHECKING:  # read with a scene only: resolving a suite needs no protobuf
 __all__ = ["CURRENT_STEP", "TRAFFIC", "Scene", "SceneError", "SceneRef", "WomdScenes",
            "load_scene", "scene_catalog"]
 
-TRAFFIC = ("log", "idm")
+TRAFFIC = ("log", "idm", "constant-velocity")
 """Traffic modes: ``log`` replays every other agent (non-reactive), ``idm`` drives the
-vehicles with IDM/MOBIL along the lanes they drove (reactive)."""
+vehicles with IDM/MOBIL along the lanes they drove (reactive), ``constant-velocity`` moves
+every agent valid at the current time on at its velocity then (the realism score's floor)."""
 
 CURRENT_STEP = 10
 """The current time of a WOMD scenario, as a step (1.0 s at 10 Hz): the policy drives from

@@ -196,10 +196,11 @@ def test_an_idm_ego_follows_its_route(real):
     assert info["route_progress"] == pytest.approx(1.0)
     assert np.isnan(info["ran_red_light"]) and not info["signal_states"]  # none recorded
     # past the human's end it turns right along its lane, and the rear right corner of its
-    # box sweeps 0.43 m over the kerb (highway-env's controller cuts the curve): off the
-    # road by the road edges, judged by them, and by no more than that
+    # box sweeps over the kerb (highway-env's controller cuts the curve: 0.43 m; 0.18 m
+    # since IDM stops at the stop sign and takes the turn slower, issue 33): off the road
+    # by the road edges, judged by them, and by no more than that
     assert info["off_road_rule"] == "road edge"
-    assert 0.3 < info["max_off_road_distance_m"] < 0.5
+    assert 0.1 < info["max_off_road_distance_m"] < 0.5
 
 
 def test_idm_traffic_stays_on_its_lanes(real):
@@ -210,7 +211,7 @@ def test_idm_traffic_stays_on_its_lanes(real):
     network = inner.road.network
     for row in inner.simulated:
         track = table[(table["track_id"] == env.scene.track_ids[row])
-                      & (table["t"] > CURRENT_STEP / 10)]
+                      & (table["t"] > CURRENT_STEP / 10) & table["valid"]]
         for x, y in zip(track["x"], track["y"], strict=True):
             lane = network.get_lane(network.get_closest_lane_index(np.array([x, -y])))
             _, lat = lane.local_coordinates(np.array([x, -y]))
@@ -468,7 +469,13 @@ def test_idm_traffic_stops_at_red_lights(real):
     assert stopping, "some idm vehicle meets the red light"
     for row, distances in stopping.items():
         assert min(distances) > 0
-        assert inner.simulated[row].speed < 0.5  # it waits
+        from tap_bench.sim.womd_road import STOP_MARGIN
+
+        vehicle = inner.simulated[row]
+        # it waits, or (comfortable braking, and vehicles that appear late: issue 33) still
+        # rolls up to the line, slowly, short of it
+        assert vehicle.speed < 0.5 or (vehicle.speed < 3.0 and distances[-1]
+                                       - vehicle.LENGTH / 2 > STOP_MARGIN), row
 
 
 def yellow_scene_env(path: str, traffic: str = "log") -> WomdEnv:

@@ -53,10 +53,10 @@ def scene(path: Path, tracks: dict, lanes: dict) -> str:
     return str(path)
 
 
-def crossing(path: Path, angle: float, speed: float, delay: float) -> str:
+def crossing(path: Path, angle: float, speed: float, delay: float, meet: float = 5.0) -> str:
     """Car 2 along +x and car 3 at ``angle`` both through the origin at ``speed``; car 3
-    reaches it ``delay`` [s] after car 2 (5 s after the start)."""
-    reach = 5.0 * speed
+    reaches it ``delay`` [s] after car 2 (``meet`` s after the start)."""
+    reach = meet * speed
     tracks = {"2": track(-reach, 0.0, 0.0, speed),
               "3": track(-(reach + delay * speed) * math.cos(angle),
                          -(reach + delay * speed) * math.sin(angle), angle, speed)}
@@ -80,14 +80,16 @@ def drive(env, policy: str = "log", seed: int = 0):
 @pytest.mark.parametrize("angle_deg", [60, 90, 125])
 @pytest.mark.parametrize("speed", [6.0, 11.0])
 def test_idm_traffic_that_crosses_collides_and_stops(tmp_path, angle_deg, speed):
+    # they meet 1 s after the current time: too close to stop comfortably, so neither gives
+    # way (test_womd_idm_drivers: with room to stop, one does)
     env = make_womd_env(crossing(tmp_path / "sd_cross.pkl", math.radians(angle_deg), speed,
-                                 0.0), traffic="idm")
+                                 0.0, meet=2.0), traffic="idm")
     table, info = drive(env)
     assert set(env.unwrapped.simulated) == {1, 2}  # rows of tracks 2 and 3
     assert info["traffic_collisions"] == 1 and info["traffic_collisions_with_log"] == 0
     assert info["traffic_collided"].startswith("2 x 3 at ")
     at = float(info["traffic_collided"].split(" at ")[1].rstrip(" s"))
-    assert 4.0 <= at <= 5.2  # IDM keeps their logged speed: they meet near t = 5 s
+    assert 1.0 <= at <= 2.2  # IDM keeps their logged speed: they meet near t = 2 s
     for tid in ("2", "3"):
         rows = table[table["track_id"] == tid]
         crashed = rows["crashed"].to_numpy(bool)
@@ -112,10 +114,11 @@ def test_idm_traffic_that_crosses_apart_does_not_collide(tmp_path, delay):
 
 
 def test_a_late_replayed_car_that_rear_ends_idm_traffic_is_counted(tmp_path):
-    # car 5 appears at 2 s and replays at 12 m/s into car 2 (idm, 8 m/s, its logged
-    # speed): a replayed car cannot yield, the count says so
+    # cyclist 5 appears at 2 s and replays at 12 m/s into car 2 (idm, 8 m/s, its logged
+    # speed): a replayed agent cannot yield, the count says so (a car appearing later is
+    # driven by IDM since issue 33: cyclists still replay)
     tracks = {"2": track(0.0, 0.0, 0.0, 8.0),
-              "5": track(-30.0, 0.0, 0.0, 12.0, valid_from=2.0)}
+              "5": {**track(-30.0, 0.0, 0.0, 12.0, valid_from=2.0), "type": "CYCLIST"}}
     env = make_womd_env(scene(tmp_path / "sd_rear.pkl", tracks, {"2": lane(-60, 0, 0)}),
                         traffic="idm")
     table, info = drive(env)
