@@ -59,6 +59,18 @@ coverage now, are in docs/benchmark.md. When the population has nothing undetect
 ``estimate +- n u / K`` instead, with u the Wilson upper limit of 0 of n: at most that
 share of episodes could show an item not yet seen (never a zero-width interval on an
 estimate).
+
+**Windows are drawn with their episode.** Episodes cut into windows of the reference's
+track length (:func:`tap_bench.bench.gap.window_episodes`) give several labels per
+episode that share its policy's state; drawn as independent episodes they make the
+interval far too narrow (copies of one label count as repeated evidence). With
+``clusters`` (the episode of each window, :func:`tap_bench.bench.gap.window_episode`) the
+sampling unit is the episode: it shows the items of all its windows (incidence data over
+G episodes, Chao2), the detected items are drawn by resampling whole episodes
+(:func:`tap_bench.bench.bootstrap.cluster_weights`) and the undetected ones each per
+episode with its Chao2 probability, as vocabulary items are; the studentizing standard
+errors and the fallback count G episodes. Episodes whose windows all copy one label give
+the interval of one window per episode.
 """
 
 from __future__ import annotations
@@ -69,7 +81,7 @@ import numpy as np
 import pandas as pd
 
 from tap_bench import sdl
-from tap_bench.bench.bootstrap import BootstrapConfig, scene_clusters
+from tap_bench.bench.bootstrap import BootstrapConfig, cluster_weights, scene_clusters
 from tap_bench.bench.diversity import (
     distinct_variance,
     estimated_population,
@@ -293,7 +305,8 @@ def _items_of(labels: np.ndarray, reference: Reference) -> list[set[str]] | np.n
 
 def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
              config: BootstrapConfig | None = None,
-             rng: np.random.Generator | None = None) -> CoverageResult:
+             rng: np.random.Generator | None = None,
+             clusters: np.ndarray | pd.Series | None = None) -> CoverageResult:
     """Coverage of ``reference`` by an agent's ego labels, with intervals.
 
     Args:
@@ -303,12 +316,25 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
         config: bootstrap resamples, level and seed.
         rng: the random stream; default ``config.rng("coverage", reference.description)``
             (callers name it by env, policy and reference).
+        clusters: (n,) the independent unit of each label, e.g. the episode each window
+            was cut from (:func:`tap_bench.bench.gap.window_episode`). Given, the draws
+            resample whole units (:func:`tap_bench.bench.bootstrap.cluster_weights`) and a
+            unit shows the items of all its labels (incidence over units; module
+            docstring). None: every label its own unit.
 
     Returns:
         :class:`CoverageResult`.
     """
     config = config or BootstrapConfig()
-    lab = pd.Series(labels, dtype="string").dropna().to_numpy(str)
+    text = pd.Series(labels, dtype="string")
+    keep = text.notna().to_numpy()
+    lab = text[keep].to_numpy(str)
+    if clusters is not None:
+        clusters = np.asarray(clusters, dtype=object)
+        if len(clusters) != len(keep):
+            raise LabelTableError(f"coverage: {len(clusters)} clusters for {len(keep)} "
+                                  "labels; give the unit (episode) of every label.")
+        clusters = clusters[keep].astype(str)
     n = len(lab)
     K = len(reference)
     if n == 0:
@@ -340,6 +366,11 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
     missed = reference.items[missed_idx[np.argsort(-reference.weights[missed_idx],
                                                    kind="stable")]]
 
+    units = None
+    if clusters is not None:  # incidence over units: which items each unit shows
+        units, first = _unit_incidence(lab, clusters, items, reference)
+        freq = units.sum(axis=0)
+        n = len(units)  # the sampling units from here on
     # augmented population: the detected items and the f0 undetected ones Chao1 (Chao2)
     # predicts; up to as many of them as the reference has unseen items count as its items
     p_adj, p_undetected = estimated_population(freq.astype(float), n)
@@ -348,7 +379,14 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
     w_missed = float(reference.weights[missed_idx].mean()) if len(missed_idx) else 0.0
     rng = rng or config.rng("coverage", reference.description)
     B = config.n_resamples
-    if reference.kind == "corpus":  # one label per episode: multinomial draws
+    if units is not None:  # whole units drawn with their items, undetected ones per unit
+        whole = cluster_weights(rng, clusters, B)[:, first]  # (B, G) draws of each unit
+        in_ref_pop = np.r_[in_ref, np.ones(n_ref_undetected, bool)]
+        prob = np.r_[freq / n, p_undetected[:n_ref_undetected]]
+        draws = np.hstack([whole @ units.astype(np.int64),
+                           rng.binomial(n, np.clip(prob[len(freq):], 0.0, 1.0),
+                                        size=(B, n_ref_undetected))])
+    elif reference.kind == "corpus":  # one label per episode: multinomial draws
         in_ref_pop = np.r_[in_ref, np.arange(f0) < n_ref_undetected]
         prob = np.r_[p_adj, p_undetected]
         prob = prob / prob.sum()
@@ -387,9 +425,28 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
     c_lo, c_hi = min(c_lo, cov), max(c_hi, cov)
     w_lo, w_hi = min(w_lo, wcov), max(w_hi, wcov)
     return CoverageResult(
-        n=n, coverage=cov, coverage_low=c_lo, coverage_high=c_hi, weighted_coverage=wcov,
-        weighted_low=w_lo, weighted_high=w_hi, n_distinct=len(names), n_reference=K,
+        n=len(lab), coverage=cov, coverage_low=c_lo, coverage_high=c_hi,
+        weighted_coverage=wcov, weighted_low=w_lo, weighted_high=w_hi,
+        n_distinct=len(names), n_reference=K,
         covered=tuple(covered), missed=tuple(missed), draws=boot)
+
+
+def _unit_incidence(lab: np.ndarray, clusters: np.ndarray, items: np.ndarray,
+                    reference: Reference) -> tuple[np.ndarray, np.ndarray]:
+    """(G, k) bool: which of the k ``items`` each of G units shows (the items of all its
+    labels), and the index of each unit's first label (G,)."""
+    names, which = np.unique(lab, return_inverse=True)
+    pos = {item: j for j, item in enumerate(items)}
+    per_label = _items_of(names, reference)
+    if reference.kind == "corpus":
+        per_label = [(label,) for label in per_label]
+    _, first, unit_of = np.unique(clusters, return_index=True, return_inverse=True)
+    out = np.zeros((len(first), len(items)), bool)
+    for j, item_set in enumerate(per_label):
+        cols = [pos[i] for i in item_set]
+        if cols:
+            out[np.ix_(np.unique(unit_of.ravel()[which.ravel() == j]), cols)] = True
+    return out, first
 
 
 def _intervals(estimate: np.ndarray, se: np.ndarray, boot: np.ndarray, draws_se: np.ndarray,

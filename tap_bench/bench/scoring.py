@@ -208,10 +208,10 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
             ``episodes`` or ``segments``; e.g. ``"9.1 s windows"`` when ``episodes`` are
             windows of the policy's episodes).
         windowed: ``episodes`` are windows cut from episodes (:func:`tap_bench.bench.gap.
-            window_episodes`, ``scenario_id`` ``<episode>#<k>``): the null's interval
-            resamples them by whole episodes (a cluster bootstrap) and the novelty's
-            Wilson interval is taken at the episodes' worth of information (its design
-            effect), as the windows of one episode are not independent.
+            window_episodes`, ``scenario_id`` ``<episode>#<k>``): the coverage's and the
+            null's intervals resample them by whole episodes (a cluster bootstrap) and
+            the novelty's Wilson interval is taken at the episodes' worth of information
+            (its design effect), as the windows of one episode are not independent.
 
     Returns:
         (coverage rows, novelty rows, novel labels), each with env, policy, reference,
@@ -251,7 +251,9 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
                     continue
                 cv = coverage(sub["sdl"], ref, config=config,
                               rng=config.rng("coverage", env, policy, name,
-                                             *(() if unit == "episodes" else (unit,))))
+                                             *(() if unit == "episodes" else (unit,))),
+                              clusters=window_episode(sub["scenario_id"]) if windowed
+                              else None)
                 nv = novelty(sub, ref, config=config, windowed=windowed) \
                     if ref.kind != "vocabulary" else None
                 nl = same_policy_null(

@@ -167,3 +167,81 @@ def test_novel_labels_are_listed_once_under_their_env(keyed):
     assert pooled["n_novel"] == labels["count"].sum() == 5
     # distinct novel labels: (env, label) pairs against per-env references, labels else
     assert pooled["n_novel_labels"] == (3 if keyed else 2)
+
+
+def _zipf_episodes(G: int, K: int = 30, seed: int = 0):
+    p = 1 / np.arange(1, K + 1) ** 1.2
+    items = np.array([f"L{i:02d}" for i in range(K)], dtype=object)
+    ref = Reference(items, p / p.sum(), "corpus", "maneuver", "synthetic")
+    return ref, items[np.random.default_rng(seed).choice(K, G, p=p / p.sum())]
+
+
+def test_windows_that_copy_their_episode_give_the_episodes_interval():
+    """Issue 38: windows cut from one episode are not independent. When every episode's
+    windows are copies of one label they carry one episode's information: resampled by
+    episode, the interval is the one of one window per episode (each draw holds whole
+    episodes), where drawing the windows as independent gives a narrower one."""
+    G, k = 40, 4
+    ref, one = _zipf_episodes(G)
+    episodes = np.array([f"e{g}" for g in range(G)], dtype=object)
+    copies, of = np.repeat(one, k), np.repeat(episodes, k)
+    config = BootstrapConfig(n_resamples=1000, seed=3)
+    base = coverage(one, ref, config=config, clusters=episodes)
+    windows = coverage(copies, ref, config=config, clusters=of)
+    assert windows.n == G * k and base.n == G
+    assert (windows.coverage, windows.weighted_coverage) == (base.coverage,
+                                                            base.weighted_coverage)
+    for a, b in (("coverage_low", "coverage_high"), ("weighted_low", "weighted_high")):
+        assert (getattr(windows, a), getattr(windows, b)) == (getattr(base, a),
+                                                              getattr(base, b))
+    np.testing.assert_array_equal(windows.draws, base.draws)
+    # as wide as the interval of the G episodes drawn as independent labels (within 25 %)
+    iid = coverage(one, ref, config=config)
+    width = base.coverage_high - base.coverage_low
+    assert width >= 0.75 * (iid.coverage_high - iid.coverage_low)
+    # the windows drawn as independent episodes: too narrow (the old interval)
+    naive = coverage(copies, ref, config=config)
+    assert naive.coverage_high - naive.coverage_low < 0.75 * width
+
+
+def test_windows_of_one_episode_are_drawn_together():
+    """An episode whose two windows show the labels X_g and Y_g: in every draw as many
+    X labels as Y labels are shown (the windows come with their episode)."""
+    G = 30
+    xs = [f"X{g:02d}" for g in range(G)]
+    ys = [f"Y{g:02d}" for g in range(G)]
+    items = np.array(sorted(xs + ys), dtype=object)
+    x_only = Reference(items, np.where(np.char.startswith(items.astype(str), "X"), 1 / G, 0),
+                       "corpus", "maneuver", "x")
+    labels = np.array([v for pair in zip(xs, ys, strict=True) for v in pair], dtype=object)
+    of = np.repeat([f"e{g}" for g in range(G)], 2).astype(object)
+    res = coverage(labels, x_only, config=BootstrapConfig(n_resamples=500), clusters=of)
+    # the coverage draw counts X and Y (1/K each); the weighted one X only (1/G each)
+    shown = res.draws[:, 0] * len(items)
+    x_shown = res.draws[:, 1] * G
+    assert np.allclose(shown, 2 * x_shown)
+    with pytest.raises(LabelTableError, match="clusters"):
+        coverage(labels, x_only, clusters=of[:-1])
+
+
+def test_scoring_windows_resamples_their_episodes():
+    """reference_scores(windowed=True) passes the windows' episodes to the coverage."""
+    G, k = 30, 3
+    ref, one = _zipf_episodes(G, seed=1)
+    eps = pd.DataFrame({"env": "highway", "policy": "p", "status": "ok",
+                        "seed": np.arange(G * k),
+                        "scenario_id": [f"highway/p/s{g}#{j}" for g in range(G)
+                                        for j in range(k)],
+                        "sdl": np.repeat(one, k)})
+    config = BootstrapConfig(n_resamples=500)
+    cov, _, _ = reference_scores(eps, ref, "syn", config=config, windowed=True)
+    row = cov.set_index("env").loc["highway"]
+    want = coverage(eps["sdl"], ref, config=config, rng=config.rng(
+        "coverage", "highway", "p", "syn"), clusters=np.repeat(
+        [f"highway/p/s{g}" for g in range(G)], k))
+    assert (row["coverage_low"], row["coverage_high"]) == pytest.approx(
+        (want.coverage_low, want.coverage_high))
+    flat, _, _ = reference_scores(eps, ref, "syn", config=config, windowed=False)
+    flat_row = flat.set_index("env").loc["highway"]
+    assert flat_row["coverage_high"] - flat_row["coverage_low"] < \
+        row["coverage_high"] - row["coverage_low"]
