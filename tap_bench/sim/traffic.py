@@ -172,7 +172,7 @@ class RoadState:
         self.speed, self.heading = speed.tolist(), heading.tolist()
         self.vx, self.vy = vx.tolist(), vy.tolist()
         self._frames: dict[int, tuple[Any, list[float], list[float]]] = {}
-        self._tables: dict[int, tuple[list[float], list[int], np.ndarray, np.ndarray]] = {}
+        self._tables: dict[int, tuple[list[float], list[int]]] = {}
         self._s = self._r = None
         self._constants: dict[int, tuple[float, ...]] = {}
         self._own: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
@@ -225,23 +225,24 @@ class RoadState:
             got = self._frames[id(lane)] = (lane, s.tolist(), r.tolist())
         return got[1], got[2]
 
-    def table(self, lane: Any) -> tuple[list[float], list[int], np.ndarray, np.ndarray]:
+    def table(self, lane: Any) -> tuple[list[float], list[int]]:
         """The objects on ``lane`` (within :data:`ON_LANE_MARGIN` of its sides, from a
         vehicle length before its start to a vehicle length after its end), sorted by
-        longitudinal coordinate, then row: their coordinates and rows (lists, then
-        arrays)."""
+        longitudinal coordinate, then row: their coordinates and rows."""
         got = self._tables.get(id(lane))
         if got is None:
-            self.frame(lane)
-            s, r = (np.asarray(a) for a in self.frame(lane))
+            s, r = self.frame(lane)
             j = self.lanes.column.get(id(lane))
-            width = (self.lanes.widths(j, s) if j is not None
+            width = (self.lanes.widths(j, np.asarray(s)) if j is not None
                      else np.array([lane.width_at(v) for v in s], dtype=float))
-            half = np.asarray(width) / 2 + ON_LANE_MARGIN
-            on = np.flatnonzero((np.abs(r) <= half) & (s >= -lane.VEHICLE_LENGTH)
-                                & (s < lane.length + lane.VEHICLE_LENGTH))
-            order = on[np.lexsort((on, s[on]))]
-            got = self._tables[id(lane)] = (s[order].tolist(), order.tolist(), s[order], order)
+            if np.ndim(width):
+                half = (np.asarray(width) / 2 + ON_LANE_MARGIN).tolist()
+            else:
+                half = [width / 2 + ON_LANE_MARGIN] * len(s)
+            low, high = -lane.VEHICLE_LENGTH, lane.length + lane.VEHICLE_LENGTH
+            on = sorted((s_k, k) for k, (s_k, r_k, h) in enumerate(zip(s, r, half, strict=True))
+                        if abs(r_k) <= h and low <= s_k < high)
+            got = self._tables[id(lane)] = ([s_k for s_k, _ in on], [k for _, k in on])
         return got
 
     def fronts(self, lanes: list[Any], rows: list[int]) -> list[int]:
@@ -249,7 +250,7 @@ class RoadState:
         :meth:`neighbours` finds it (which answers where coordinates tie)."""
         out = []
         for lane, k in zip(lanes, rows, strict=True):
-            s_list, order, _, _ = self.table(lane)
+            s_list, order = self.table(lane)
             s = self.frame(lane)[0][k]
             p = bisect.bisect_left(s_list, s)
             m = len(order)
@@ -267,7 +268,7 @@ class RoadState:
         """Rows of the objects just ahead of and just behind row ``k`` on ``lane`` (-1:
         none). Ahead: the smallest coordinate at or beyond ``k``'s (ties: the last in the
         road's order); behind: the largest below it (ties: the first)."""
-        s_list, rows, _, _ = self.table(lane)
+        s_list, rows = self.table(lane)
         s = self.frame(lane)[0][k]
         front = -1
         p = bisect.bisect_left(s_list, s)
