@@ -25,6 +25,10 @@ Each interval is held against the quantity it is for: coverage against the expec
 coverage of n episodes, the Hill numbers at m against Chao et al. (2014)'s qD(m) of the
 true distribution (``population_hill``: exact, no simulation; for q = 1, 2 not the mean of
 the sample's own Hill number), completeness against the sample's own coverage.
+Coverage of windows (``--only windows``): each of n episodes is cut into 3 windows, each
+repeating its episode's label with probability 0.8, else drawing its own (as
+``gap_coverage.py``'s windows); the truth is the expected coverage of n such episodes
+(exact: a label is missed when none of an episode's windows shows it).
 ``--only TEXT`` runs only the rows whose interval name contains TEXT (``diversity``,
 ``coverage``). The whole table takes about a minute on 2 cores.
 """
@@ -166,6 +170,41 @@ def coverage_rate(rng, n, exponent, reps):
     return hits / reps
 
 
+def _window_labels(rng, items, p, n, windows=3, repeat=0.8):
+    """n episodes' labels and ``windows`` windows of each: a window repeats its episode's
+    label with probability ``repeat``, else draws its own (``gap_coverage.py``'s windows)."""
+    own = items[rng.choice(len(items), n, p=p)]
+    labels = np.where(rng.random((n, windows)) < repeat, own[:, None],
+                      items[rng.choice(len(items), (n, windows), p=p)])
+    return labels.ravel(), np.repeat(np.arange(n).astype(str), windows).astype(object)
+
+
+def _window_coverage_rate(rng, n, exponent, reps, by_episode):
+    K, windows, repeat = 30, 3, 0.8
+    p = _zipf(exponent, K)
+    items = np.array([f"L{i:02d}" for i in range(K)], dtype=object)
+    ref = Reference(items, np.full(K, 1 / K), "corpus", "maneuver", "synthetic")
+    # an episode misses label i when no window shows it (its own label i or not)
+    missed = (1 - p) * (1 - (1 - repeat) * p) ** windows \
+        + p * ((1 - repeat) * (1 - p)) ** windows
+    truth = np.mean(1 - missed ** n)
+    hits = 0
+    for r in range(reps):
+        labels, episodes = _window_labels(rng, items, p, n, windows, repeat)
+        res = coverage(labels, ref, config=BootstrapConfig(n_resamples=500, seed=r),
+                       rng=rng, clusters=episodes if by_episode else None)
+        hits += res.coverage_low <= truth <= res.coverage_high
+    return hits / reps
+
+
+def window_coverage_rate(rng, n, exponent, reps):
+    return _window_coverage_rate(rng, n, exponent, reps, True)
+
+
+def window_coverage_iid_rate(rng, n, exponent, reps):
+    return _window_coverage_rate(rng, n, exponent, reps, False)
+
+
 def _lognormal(K=60):
     """A log-normal assemblage (sd 1.5 on the log scale) of K labels, fixed by seed 99."""
     p = np.exp(np.random.default_rng(99).normal(0.0, 1.5, K))
@@ -246,6 +285,12 @@ def main() -> None:
         welch_rate, reps)
     add("coverage of 30 reference labels", "Zipf exponent", (0.8, 1.2, 2.0),
         coverage_rate, breps)
+    add("coverage of 30 reference labels, 3 windows an episode (seeds: episodes), "
+        "resampled by episode", "Zipf exponent", (0.8, 1.2, 2.0), window_coverage_rate,
+        breps)
+    add("coverage of 30 reference labels, 3 windows an episode (seeds: episodes), windows "
+        "as independent (before)", "Zipf exponent", (0.8, 1.2, 2.0),
+        window_coverage_iid_rate, breps)
     for name, p in ASSEMBLAGES.items() if wanted("diversity") else ():
         rates = [hill_rates(rng, n, p, breps) for n in SEEDS]
         for j, what in enumerate(("Hill q0", "Hill q1", "Hill q2", "sample completeness")):
