@@ -17,6 +17,7 @@ recording every vehicle at 10 Hz.
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
@@ -79,9 +80,7 @@ class ScenarioEnv(gym.Wrapper):
                     f"not divide the fast simulation's {FAST_SIMULATION_FREQUENCY} Hz; use 1 "
                     f"or {FAST_SIMULATION_FREQUENCY} Hz, or fast=False."))
             config = {**config, "simulation_frequency": FAST_SIMULATION_FREQUENCY}
-        from tap_bench.sim.traffic import traffic_env_class
-
-        cls = traffic_env_class(env_class(scenario.highway_env_id))
+        cls = _scenario_env_class(env_class(scenario.highway_env_id))
         _check_vehicle_types(config, scenario)
         # highway-env builds a first scene in its constructor
         with guard_class_attributes(f"building {scenario.env_id}"):
@@ -96,20 +95,8 @@ class ScenarioEnv(gym.Wrapper):
         self._decisions = 0
         self._seed: int | None = None
         self._episode = -1
-        # highway-env calls _automatic_rendering after each intermediate simulated step of a
-        # decision (it is how its video recorder captures frames): record those steps there.
-        self._render_frame = inner._automatic_rendering
-        inner._automatic_rendering = self._intermediate_frame
-        # highway-env builds a new observation at each reset and observes with it at once:
-        # make it the numpy one before that first observation
-        self._define_spaces = inner.define_spaces
-        inner.define_spaces = self._fast_spaces
-
-    def _fast_spaces(self) -> None:
-        from tap_bench.sim.observation import use_fast_observation
-
-        self._define_spaces()
-        use_fast_observation(self.env)
+        # the intermediate simulated steps of a decision are recorded (see _scenario_env_class)
+        inner.on_intermediate_step = self._frame
 
     def _frame(self) -> None:
         env = self.env.unwrapped
@@ -121,10 +108,6 @@ class ScenarioEnv(gym.Wrapper):
             for vehicle in new:
                 if vehicle is not env.vehicle:
                     vehicle.check_collisions = False
-
-    def _intermediate_frame(self) -> None:
-        self._frame()
-        self._render_frame()
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[Any, dict[str, Any]]:
@@ -166,6 +149,35 @@ class ScenarioEnv(gym.Wrapper):
             **columns: constant columns to add, e.g. ``policy="idm"``.
         """
         return self.recorder.table(**columns)
+
+
+@functools.cache
+def _scenario_env_class(cls: type) -> type:
+    """The env class of a scenario of highway-env kind ``cls``: its road driven by the
+    traffic core (:func:`~tap_bench.sim.traffic.traffic_env_class`), its Kinematics
+    observation computed without pandas from each ``define_spaces`` on (highway-env builds
+    a new observation at each reset and observes with it at once), and a hook,
+    ``on_intermediate_step``, called after each intermediate simulated step of a decision
+    (highway-env calls ``_automatic_rendering`` there; it is how its video recorder
+    captures frames), where :class:`ScenarioEnv` records those steps."""
+    from tap_bench.sim.observation import use_fast_observation
+    from tap_bench.sim.traffic import traffic_env_class
+
+    base = traffic_env_class(cls)
+
+    def define_spaces(self: Any) -> None:
+        base.define_spaces(self)
+        use_fast_observation(self)
+
+    def _automatic_rendering(self: Any) -> None:
+        hook = self.__dict__.get("on_intermediate_step")
+        if hook is not None:
+            hook()
+        base._automatic_rendering(self)
+
+    return type(cls.__name__, (base,), {"define_spaces": define_spaces,
+                                        "_automatic_rendering": _automatic_rendering,
+                                        "__module__": cls.__module__, "__doc__": cls.__doc__})
 
 
 def _check_vehicle_types(config: Mapping[str, Any], scenario: Scenario) -> None:
