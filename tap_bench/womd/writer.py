@@ -9,6 +9,9 @@ file back with :func:`tap_bench.read_womd` gives the same table:
   the proto and come back rounded to float32 (relative error below 6e-8);
 - ``speed`` is not a proto field: it comes back as ``hypot(vx, vy)``. A table without
   ``vx``/``vy`` is written with ``vx = speed cos(heading)``, ``vy = speed sin(heading)``;
+- a table without ``length``, ``width`` or ``height`` (or with NaN there on a valid row)
+  is written with the typical box of its ``object_type`` (:data:`DEFAULT_BOX`), since a
+  valid WOMD state has a positive box and the readers refuse any other;
 - invalid rows (``valid=False``) come back with NaN kinematics, and steps missing from a
   track's rows come back as invalid rows;
 - ``track_id`` that is not a WOMD int32 id, and columns WOMD has no field for (``source``
@@ -38,7 +41,16 @@ from tap_bench.trajectories import validate_trajectories
 from tap_bench.womd import proto
 from tap_bench.womd.tfrecord import TFRecordWriter
 
-__all__ = ["encode_scenarios", "restore_extra_columns", "write_womd"]
+__all__ = ["DEFAULT_BOX", "encode_scenarios", "restore_extra_columns", "write_womd"]
+
+DEFAULT_BOX = {
+    "vehicle": (4.5, 2.0, 1.6),
+    "pedestrian": (0.8, 0.8, 1.7),
+    "cyclist": (1.8, 0.8, 1.7),
+    "other": (1.0, 1.0, 1.0),
+}
+"""(length, width, height) [m] written where a table gives no box size, by object type: a
+passenger car, a walking person, a bicycle with its rider, a small object."""
 
 _TYPE_NUMBERS = {"vehicle": 1, "pedestrian": 2, "cyclist": 3, "other": 4}
 _NATIVE = frozenset({
@@ -207,6 +219,17 @@ def _column(group: pd.DataFrame, name: str, default: float) -> np.ndarray:
     return np.full(len(group), default)
 
 
+def _box_size(group: pd.DataFrame, axis: int, row_types: np.ndarray) -> np.ndarray:
+    """(n_rows,) the box's length (axis 0), width (1) or height (2) [m]: the table's, or
+    :data:`DEFAULT_BOX` of the row's object type where the table has none (column absent or
+    NaN)."""
+    name = ("length", "width", "height")[axis]
+    default = np.array([DEFAULT_BOX.get(t, DEFAULT_BOX["other"])[axis] for t in row_types],
+                       dtype=np.float64)
+    values = _column(group, name, np.nan)
+    return np.where(np.isnan(values), default, values)
+
+
 def _scenario_record(scenario_id: str, group: pd.DataFrame, extras: Sequence[str]) -> bytes:
     times = np.unique(group["t"].to_numpy())
     n_steps = len(times)
@@ -224,13 +247,15 @@ def _scenario_record(scenario_id: str, group: pd.DataFrame, extras: Sequence[str
     else:
         speed = _column(group, "speed", 0.0)
         vx, vy = speed * np.cos(heading), speed * np.sin(heading)
+    row_types = (group["object_type"].astype(str).to_numpy() if "object_type" in group.columns
+                 else np.full(len(group), "vehicle", dtype=object))
     columns = {"valid": valid}
     for name, values in (("center_x", _column(group, "x", 0.0)),
                          ("center_y", _column(group, "y", 0.0)),
                          ("center_z", _column(group, "z", 0.0)),
-                         ("length", _column(group, "length", 0.0)),
-                         ("width", _column(group, "width", 0.0)),
-                         ("height", _column(group, "height", 0.0)),
+                         ("length", _box_size(group, 0, row_types)),
+                         ("width", _box_size(group, 1, row_types)),
+                         ("height", _box_size(group, 2, row_types)),
                          ("heading", heading), ("velocity_x", vx), ("velocity_y", vy)):
         full = np.zeros(n_tracks * n_steps)
         full[flat] = np.where(np.isnan(values), 0.0, values)

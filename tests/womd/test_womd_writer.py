@@ -14,7 +14,7 @@ from tap_bench.sources.ingest import read_womd
 from tap_bench.womd import proto
 from tap_bench.womd.scenario import StateDecodeError, decode_object_states
 from tap_bench.womd.tfrecord import iter_records
-from tap_bench.womd.writer import encode_scenarios, write_womd
+from tap_bench.womd.writer import DEFAULT_BOX, encode_scenarios, write_womd
 
 F32 = st.floats(-1e4, 1e4, allow_nan=False, width=32)
 VELOCITY = st.floats(-70.0, 70.0, allow_nan=False, width=32)
@@ -219,3 +219,18 @@ def _field(number: int, payload: bytes) -> bytes:
                 return bytes(out)
 
     return varint(number << 3 | 2) + varint(len(payload)) + payload
+
+
+def test_a_table_without_box_sizes_reads_back_with_each_types_typical_box(
+        tmp_path, two_cars_and_a_walker):
+    # the readers refuse a valid state without a positive box: the writer gives one
+    table = two_cars_and_a_walker.drop(columns=[c for c in ("length", "width", "height")
+                                                if c in two_cars_and_a_walker.columns])
+    back = read_womd(write_womd(table, tmp_path / "boxes.tfrecord"))
+    valid = back[back["valid"]]
+    for kind, group in valid.groupby("object_type"):
+        length, width, height = DEFAULT_BOX[kind]
+        np.testing.assert_allclose(group["length"], length, rtol=1e-6)
+        np.testing.assert_allclose(group["width"], width, rtol=1e-6)
+        np.testing.assert_allclose(group["height"], height, rtol=1e-6)
+    assert set(valid["object_type"]) >= {"vehicle", "pedestrian"}
