@@ -1,151 +1,72 @@
-"""highway-env's Kinematics observation, computed with numpy instead of pandas.
+"""The Kinematics observation (``{"type": "Kinematics"}``) computed with numpy arrays.
 
-highway-env builds the Kinematics observation (``{"type": "Kinematics"}``, what the trained
-agents read) through a pandas DataFrame at every decision: about 2.5 ms of CPU, more than
-half a fast training step's simulation. :class:`FastKinematicObservation` returns the same
-array, bit for bit, in about 0.1 ms:
+What it observes (highway-env's documented Kinematics observation, whose parameters and
+public attributes it takes over by subclassing its :class:`KinematicObservation`):
 
-- the nearby objects are highway-env's ``Road.close_objects_to`` (same filter, order and
-  count), with each object's distance along the ego's lane computed once instead of twice
-  (filter and sort key) and the distances to the ego computed for all objects at once
-  (numpy); an object within :data:`DISTANCE_MARGIN` of the perception distance is
-  re-checked with highway-env's own ``np.linalg.norm``;
-- the features of highway-env's vehicles (``presence``, ``x``, ``y``, ``vx``, ``vy``,
-  ``heading``, ``cos_h``, ``sin_h``: those of every tap-bench scenario) are read with the
-  operations of ``Vehicle.to_dict`` (``speed * cos(heading)`` ...), without the dictionary
-  of every feature ``to_dict`` builds (lane offsets and destination included); any other
-  feature, and any object whose class or instance has its own ``to_dict``, ``velocity`` or
-  ``direction``, goes through its ``to_dict`` as highway-env does;
-- normalisation and clipping are highway-env's ``lmap`` and ``np.clip`` on the same
-  columns (numpy arrays rather than pandas Series: the same element-wise float
-  operations), and absent vehicles are rows of zeros.
+- an array of ``vehicles_count`` rows by ``len(features)`` columns; row 0 is the observer
+  (the ego), then the objects within the env's ``PERCEPTION_DISTANCE`` [m] of it, nearest
+  first by distance along the ego's lane (``lane_distance_to``); objects more than two ego
+  lengths behind are left out unless ``see_behind`` (obstacles always); obstacles only with
+  ``include_obstacles``; rows of zeros where fewer objects are near;
+- features ``presence`` (1), ``x``, ``y`` [m], ``vx``, ``vy`` [m/s] (the velocity), and
+  ``heading`` [rad], ``cos_h``, ``sin_h``; the other rows' ``x``, ``y``, ``vx``, ``vy``
+  relative to the ego's unless ``absolute``; any other feature, and any object with a
+  ``to_dict`` of its own class or that is not a vehicle, is read from its public
+  ``to_dict`` (a feature one object lacks is NaN in its row, a feature none has a KeyError);
+- with ``normalize``, each feature of ``features_range`` mapped linearly from its
+  ``[min, max]`` to ``[-1, 1]`` (clipped to it with ``clip``); without configured ranges,
+  x in +-5 maximum speeds, y in +-the road's width at the ego, vx and vy in +-2 maximum
+  speeds (set on first use and kept in ``features_range``);
+- ``order`` "shuffled": the rows after the ego's shuffled with the env's ``np_random``.
 
-This repeats highway-env 1.12's code; it is used only where the installed highway-env's
-source of the methods it repeats has the sha256 recorded in :data:`_OBSERVE_CODE` (checked
-once per process): elsewhere :class:`FastKinematicObservation` observes by highway-env's own
-``KinematicObservation.observe``. Scenario envs use it in place of highway-env's whenever the
-configured observation is exactly ``Kinematics`` (:func:`use_fast_observation`); the
-route observation of ``tap_bench/womd-v0`` builds on it. Tested against highway-env's own
-observation on drawn scenes and on every scenario, with mutations of each formula caught
-(``tests/sim/test_sim_observation.py``).
-
-Parts of this module re-state highway-env's code (MIT License, Copyright (c) 2018 Edouard
-Leurent, (c) 2023 Farama Foundation): see THIRD_PARTY_NOTICES.md.
+The positions of all objects are stacked once and their distances to the ego computed at
+once; the direct features of all vehicle rows are read as arrays. Scenario envs use this
+class whenever the configured observation is exactly ``Kinematics``
+(:func:`use_fast_observation`); the route observation of ``tap_bench/womd-v0`` builds on it.
+Equal to highway-env's own observation within 1e-9 (``tests/sim/test_sim_observation.py``).
 """
 
 from __future__ import annotations
 
-import functools
-import hashlib
-import inspect
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from highway_env import utils
 from highway_env.envs.common.observation import KinematicObservation
-from highway_env.road.road import Road
+from highway_env.road.lane import AbstractLane
 from highway_env.vehicle.kinematics import Vehicle
-from highway_env.vehicle.objects import RoadObject
 
-__all__ = ["DISTANCE_MARGIN", "FastKinematicObservation", "use_fast_observation"]
+__all__ = ["DIRECT_FEATURES", "FastKinematicObservation", "use_fast_observation"]
 
+DIRECT_FEATURES = ("presence", "x", "y", "vx", "vy", "heading", "cos_h", "sin_h")
+"""Features read as arrays from the vehicles' public state (the others through ``to_dict``)."""
 
-def sources_match(functions: Any, digests: dict[str, str]) -> bool:
-    """Whether each function's source, by qualified name, hashes (first 16 hex digits of
-    its SHA-256) to ``digests[name]``; False where a source cannot be read."""
-    try:
-        sources = {f.__qualname__: inspect.getsource(f) for f in functions}
-    except (OSError, TypeError):
-        return False
-    return all(hashlib.sha256(sources.get(name, "").encode()).hexdigest()[:16] == digest
-               for name, digest in digests.items())
-
-DISTANCE_MARGIN = 1e-6
-"""Objects whose numpy distance to the ego is within this [m] of the perception distance
-are measured again with highway-env's ``np.linalg.norm`` (the two may differ in the last
-bit)."""
-
-DIRECT_FEATURES = frozenset({"presence", "x", "y", "vx", "vy", "heading", "cos_h", "sin_h"})
-"""Features read directly from a highway-env vehicle (the others through ``to_dict``)."""
-
-_RELATIVE = ("x", "y", "vx", "vy")  # the features to_dict gives relative to an origin
-
-_HIGHWAY_ENV_OBSERVE = (KinematicObservation.observe, KinematicObservation.normalize_obs,
-                        Vehicle.to_dict, Vehicle.velocity.fget, RoadObject.velocity.fget,
-                        RoadObject.direction.fget, RoadObject.lane_distance_to,
-                        Road.close_objects_to, utils.lmap)
-"""highway-env's own code that this module repeats, as imported."""
-
-_OBSERVE_CODE = {  # sha256 of the source of each, highway-env 1.12
-    "KinematicObservation.observe": "bc4a7a71c6c3a8ee",
-    "KinematicObservation.normalize_obs": "81370e6f2cc10bb0",
-    "Vehicle.to_dict": "9196357e8d9ad247",
-    "Vehicle.velocity": "8306b4e7bb130034",
-    "RoadObject.velocity": "4adf0dc72944ece9",
-    "RoadObject.direction": "a4c77726611faa88",
-    "RoadObject.lane_distance_to": "4db4f2b77cf0bdbe",
-    "Road.close_objects_to": "47179eca9acfb7e7",
-    "lmap": "ed6e74b005122a31",
-}
+_OFFSET = ("x", "y", "vx", "vy")  # the features given relative to the ego
 
 
-@functools.cache
-def _highway_env_observes_as_written() -> bool:
-    """Whether the installed highway-env's Kinematics observation (and what it calls) is the
-    code this module repeats (that of highway-env 1.12); checked once per process."""
-    return sources_match(_HIGHWAY_ENV_OBSERVE, _OBSERVE_CODE)
+def _reads_state(obj: Any) -> bool:
+    """Whether ``obj`` is a vehicle whose records are those of the vehicle class (no
+    ``to_dict`` of its own class or instance): its features are read from its state."""
+    return (isinstance(obj, Vehicle) and type(obj).to_dict is Vehicle.to_dict
+            and "to_dict" not in vars(obj))
 
 
-@functools.cache
-def _direct_class(cls: type) -> bool:
-    """Whether objects of ``cls`` have highway-env's ``Vehicle.to_dict``, ``velocity`` and
-    ``direction``: their direct features are read without ``to_dict``."""
-    return (issubclass(cls, Vehicle) and cls.to_dict is Vehicle.to_dict
-            and cls.velocity in (Vehicle.velocity, RoadObject.velocity)
-            and cls.direction is RoadObject.direction)
-
-
-_OWN = frozenset({"to_dict", "velocity", "direction"})
-
-
-def _direct(obj: Any) -> bool:
-    """Whether ``obj``'s direct features may be read without its ``to_dict``."""
-    return _direct_class(type(obj)) and not _OWN & vars(obj).keys()
-
-
-def _values(vehicle: Any, features: list[str]) -> dict[str, Any]:
-    """The direct ``features`` of ``vehicle``, as ``Vehicle.to_dict`` computes them (``vx``
-    is ``velocity[0]``: ``speed * [cos(heading), sin(heading)]``, element 0)."""
-    heading = vehicle.heading
-    out: dict[str, Any] = {}
-    for feature in features:
-        if feature == "presence":
-            out[feature] = 1
-        elif feature == "x":
-            out[feature] = vehicle.position[0]
-        elif feature == "y":
-            out[feature] = vehicle.position[1]
-        elif feature == "vx":
-            out[feature] = vehicle.speed * np.cos(heading)
-        elif feature == "vy":
-            out[feature] = vehicle.speed * np.sin(heading)
-        elif feature == "heading":
-            out[feature] = heading
-        elif feature == "cos_h":
-            out[feature] = np.cos(heading)
-        else:  # "sin_h"
-            out[feature] = np.sin(heading)
-    return out
+def _state_columns(objects: list[Any]) -> dict[str, np.ndarray]:
+    """The direct features of ``objects`` (vehicles), one array of ``len(objects)`` each."""
+    position = np.array([o.position for o in objects], dtype=float).reshape(-1, 2)
+    velocity = np.array([o.velocity for o in objects], dtype=float).reshape(-1, 2)
+    heading = np.array([o.heading for o in objects], dtype=float)
+    return {"presence": np.ones(len(objects)), "x": position[:, 0], "y": position[:, 1],
+            "vx": velocity[:, 0], "vy": velocity[:, 1], "heading": heading,
+            "cos_h": np.cos(heading), "sin_h": np.sin(heading)}
 
 
 class FastKinematicObservation(KinematicObservation):
-    """highway-env's :class:`KinematicObservation` without pandas: same parameters, same
+    """The Kinematics observation as numpy arrays: highway-env's parameters, a
     (vehicles_count, len(features)) float32 array (see the module docstring).
 
-    The observation always has ``vehicles_count`` rows, so it lies in the space: with
-    ``vehicles_count`` 1 the ego's row alone and with 0 no row, where highway-env's own
-    returns the ego and every other vehicle near (a (9, 5) array in a (1, 5) space).
+    Exactly ``vehicles_count`` rows, so it lies in its space: with ``vehicles_count`` 1 the
+    ego's row alone, with 0 no row.
 
     Raises:
         ValueError: ``vehicles_count`` is not an integer >= 0.
@@ -160,129 +81,97 @@ class FastKinematicObservation(KinematicObservation):
                              "vehicles).")
 
     def observe(self) -> np.ndarray:
-        """The observation: one row per vehicle (the observer first, then the closest ones),
-        one column per feature, normalised and clipped as highway-env does; rows of zeros
-        when fewer vehicles are near. ``vehicles_count`` rows (see the class docstring)."""
-        return self._observe()[:self.vehicles_count]
-
-    def _observe(self) -> np.ndarray:
-        if not self.env.road:
-            return np.zeros((self.vehicles_count, len(self.features)), self._dtype())
-        if not _highway_env_observes_as_written():
-            return KinematicObservation.observe(self)
-        ego = self.observer_vehicle
-        close = self._close_objects(ego) if self.vehicles_count > 1 else []
+        """The (vehicles_count, len(features)) float32 observation (module docstring)."""
         features = list(self.features)
-        if close:
-            close = close[-self.vehicles_count + 1:]
-        if DIRECT_FEATURES.issuperset(features) and _direct(ego) \
-                and all(_direct(v) for v in close):
-            rows = self._direct_rows(ego, close, features)
-        else:
-            rows = self._dict_rows(ego, close)
-        if not all(any(f in row for row in rows) for f in features):
-            return KinematicObservation.observe(self)  # a feature no record has: its error
-        # the columns of highway-env's data frame: NaN where a record lacks the feature
-        columns = {f: np.array([row.get(f, np.nan) for row in rows]) for f in features}
+        out = np.zeros((self.vehicles_count, len(features)))
+        if not self.env.road or self.vehicles_count == 0:
+            return out.astype(self._dtype())
+        ego = self.observer_vehicle
+        others = self.nearby_objects(ego)
+        table = self._table(ego, others, features)
         if self.normalize:
-            columns = self._normalize(columns)
-        obs = np.zeros((max(self.vehicles_count, len(rows)), len(features)))
-        obs[:len(rows)] = np.column_stack([columns[f] for f in features])
+            self._normalise(table, features)
+        out[:table.shape[0]] = table
         if self.order == "shuffled":
-            self.env.np_random.shuffle(obs[1:])
-        return obs.astype(self._dtype())
+            self.env.np_random.shuffle(out[1:])
+        return out.astype(self._dtype())
 
     def _dtype(self) -> Any:
+        """The observation's dtype: float32, or that of a subclass's own ``space``."""
         if type(self).space is KinematicObservation.space:
             return np.float32
         return self.space().dtype
 
-    def _dict_rows(self, ego: Any, close: list[Any]) -> list[dict[str, Any]]:
-        """highway-env's records: ``to_dict`` of the observer, then of each object."""
-        rows = [ego.to_dict()]
-        origin = ego if not self.absolute else None
-        rows += [v.to_dict(origin, observe_intentions=self.observe_intentions)
-                 for v in close]
-        return rows
-
-    def _direct_rows(self, ego: Any, close: list[Any], features: list[str]
-                     ) -> list[dict[str, Any]]:
-        """The records of :meth:`_dict_rows`, restricted to ``features`` (all direct, all
-        objects highway-env vehicles): ``to_dict``'s values without ``to_dict``."""
-        own = _values(ego, features)
-        rows = [own]
-        if not close:
-            return rows
-        if self.absolute:
-            return rows + [_values(v, features) for v in close]
-        origin = _values(ego, [f for f in _RELATIVE if f in features])
-        for v in close:
-            row = _values(v, features)
-            for key, value in origin.items():
-                row[key] -= value
-            rows.append(row)
-        return rows
-
-    def _close_objects(self, ego: Any) -> list[Any]:
-        """``road.close_objects_to(ego, ...)`` with this observation's settings: highway-env's
-        filter, sort and count, each object's ``lane_distance_to`` computed once, the
-        distances to the ego at once (re-measured by ``np.linalg.norm`` near the limit)."""
-        road = self.env.road
-        count, see_behind = self.vehicles_count - 1, self.see_behind
-        sort, vehicles_only = self.order == "sorted", not self.include_obstacles
-        distance = self.env.PERCEPTION_DISTANCE
-        if type(road).close_objects_to is not Road.close_objects_to \
-                or "close_objects_to" in vars(road) \
-                or type(ego).lane_distance_to is not RoadObject.lane_distance_to \
-                or "lane_distance_to" in vars(ego):
-            return road.close_objects_to(ego, distance, count=count, see_behind=see_behind,
-                                         sort=sort, vehicles_only=vehicles_only)
-        along: dict[int, Any] = {}
-
-        def lane_distance(obj: Any) -> Any:
-            key = id(obj)
-            if key not in along:
-                along[key] = ego.lane_distance_to(obj)
-            return along[key]
-
-        near_vehicles = self._near(road.vehicles, ego.position, distance)
-        vehicles = [v for v, near in zip(road.vehicles, near_vehicles, strict=True)
-                    if near and v is not ego
-                    and (see_behind or -2 * ego.LENGTH < lane_distance(v))]
-        near_objects = self._near(road.objects, ego.position, distance)
-        obstacles = [o for o, near in zip(road.objects, near_objects, strict=True)
-                     if near and -2 * ego.LENGTH < lane_distance(o)]
-        objects = vehicles if vehicles_only else vehicles + obstacles
-        if sort:
-            objects = sorted(objects, key=lambda o: abs(lane_distance(o)))
-        if count:
-            objects = objects[:count]
-        return objects
-
-    @staticmethod
-    def _near(objects: list[Any], position: np.ndarray, distance: float) -> list[bool]:
-        """``np.linalg.norm(o.position - position) < distance`` of each object."""
-        if not objects:
+    def nearby_objects(self, ego: Any) -> list[Any]:
+        """The objects observed after ``ego``, nearest first along its lane: at most
+        ``vehicles_count - 1`` within the perception distance [m] (see the module docstring)."""
+        wanted = self.vehicles_count - 1
+        if wanted <= 0:
             return []
-        delta = np.array([o.position for o in objects], dtype=float) - position
-        estimate = np.sqrt(delta[:, 0] * delta[:, 0] + delta[:, 1] * delta[:, 1])
-        near = (estimate < distance).tolist()
-        for k in np.flatnonzero(~(np.abs(estimate - distance) > DISTANCE_MARGIN)).tolist():
-            near[k] = bool(np.linalg.norm(objects[k].position - position) < distance)
-        return near
+        road = self.env.road
+        vehicles = [v for v in road.vehicles if v is not ego]
+        obstacles = list(road.objects) if self.include_obstacles else []
+        candidates = vehicles + obstacles
+        if not candidates:
+            return []
+        delta = np.array([c.position for c in candidates], dtype=float) - ego.position
+        within = np.sqrt(np.einsum("ij,ij->i", delta, delta)) < self.env.PERCEPTION_DISTANCE
+        kept, along = [], []
+        behind = -2 * ego.LENGTH
+        for k in np.flatnonzero(within).tolist():
+            obj = candidates[k]
+            d = ego.lane_distance_to(obj)
+            if (k < len(vehicles) and self.see_behind) or d > behind:
+                kept.append(obj)
+                along.append(abs(d))
+        if self.order == "sorted":
+            kept = [kept[k] for k in np.argsort(np.array(along), kind="stable")]
+        return kept[:wanted]
 
-    def _normalize(self, columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """highway-env's ``normalize_obs`` on the columns (its default ranges set on first
-        use, as it does)."""
+    def _table(self, ego: Any, others: list[Any], features: list[str]) -> np.ndarray:
+        """The rows of ``ego`` and ``others`` before normalisation, one column per feature."""
+        rows = [ego, *others]
+        table = np.full((len(rows), len(features)), np.nan)
+        direct = set(features) <= set(DIRECT_FEATURES)
+        by_state = [k for k, o in enumerate(rows) if direct and _reads_state(o)]
+        if by_state:
+            columns = _state_columns([rows[k] for k in by_state])
+            table[by_state] = np.column_stack([columns[f] for f in features])
+        found = set(features) if by_state else set()
+        for k in sorted(set(range(len(rows))) - set(by_state)):
+            if k == 0:
+                record = ego.to_dict()
+            else:
+                record = rows[k].to_dict(None if self.absolute else ego,
+                                         observe_intentions=self.observe_intentions)
+            found |= record.keys()
+            table[k] = [record.get(f, np.nan) for f in features]
+        missing = [f for f in features if f not in found]
+        if missing:
+            raise KeyError(f"Kinematics observation: no observed object has the feature(s) "
+                           f"{missing}")
+        others_by_state = [k for k in by_state if k > 0]
+        if not self.absolute and others_by_state:  # relative to the ego's own record
+            offset = [j for j, f in enumerate(features) if f in _OFFSET]
+            table[np.ix_(others_by_state, offset)] -= table[0, offset]
+        return table
+
+    def _normalise(self, table: np.ndarray, features: list[str]) -> None:
+        """Map each ranged feature's column from ``[min, max]`` to [-1, 1] (clipped with
+        ``clip``), in place; sets the default ranges on first use."""
         if not self.features_range:
-            self.normalize_obs({})
-        for feature, f_range in self.features_range.items():
-            if feature in columns:
-                columns[feature] = utils.lmap(columns[feature], [f_range[0], f_range[1]],
-                                              [-1, 1])
+            lanes = self.env.road.network.all_side_lanes(self.observer_vehicle.lane_index)
+            width = AbstractLane.DEFAULT_WIDTH * len(lanes)
+            self.features_range = {"x": [-5.0 * Vehicle.MAX_SPEED, 5.0 * Vehicle.MAX_SPEED],
+                                   "y": [-width, width],
+                                   "vx": [-2.0 * Vehicle.MAX_SPEED, 2.0 * Vehicle.MAX_SPEED],
+                                   "vy": [-2.0 * Vehicle.MAX_SPEED, 2.0 * Vehicle.MAX_SPEED]}
+        for j, f in enumerate(features):
+            if f in self.features_range:
+                low, high = self.features_range[f]
+                table[:, j] = 2.0 * (table[:, j] - low) / (high - low) - 1.0
                 if self.clip:
-                    columns[feature] = np.clip(columns[feature], -1, 1)
-        return columns
+                    np.clip(table[:, j], -1.0, 1.0, out=table[:, j])
 
 
 def use_fast_observation(env: gym.Env) -> bool:
@@ -292,9 +181,7 @@ def use_fast_observation(env: gym.Env) -> bool:
     Returns:
         whether it was replaced: only an observation of exactly highway-env's
         :class:`KinematicObservation` class is (subclasses such as ``ExitObservation`` add
-        features of their own). Where the installed highway-env's code is not the one
-        repeated (:data:`_OBSERVE_CODE`), the replacement observes by highway-env's own code,
-        kept to ``vehicles_count`` rows.
+        features of their own).
     """
     inner: Any = env.unwrapped
     if type(inner.observation_type) is not KinematicObservation:
