@@ -174,8 +174,10 @@ def test_a_run_report_names_crashed_real_episodes_by_scene_partner_and_fault(tmp
     from tap_bench.bench.runner import run_suite
     from tap_bench.bench.suite import suite_from_dict
 
+    # slow enough, and far enough, that IDM has come to a stop when it is hit (idm's
+    # comfortable braking is still rolling at about 0.5 m/s against a car at 8 m/s from 60 m)
     tracks = {"ego": vehicle(straight(5.5, speed=8.0), 0.0),
-              "7": vehicle(straight(5.5, speed=-8.0, x0=60.0), 0.0)}
+              "7": vehicle(straight(5.5, speed=-4.0, x0=90.0), 0.0)}
     path = write_scene(tmp_path / "wrong_way.pkl", 0.0, tracks, ROAD_LANES, ROAD_EDGES)
     suite = suite_from_dict({"name": "womd-crash", "envs": [{"womd": [path], "traffic": "log"}],
                              "policies": ["log", "idm"], "reference_policy": "log",
