@@ -56,9 +56,10 @@ def tf_example_record(scenario_id: bytes = b"tf-good", n_slots: int = 2) -> byte
     feature["state/id"].float_list.value.extend(range(1, n_slots + 1))
     feature["state/type"].float_list.value.extend([1] * n_slots)
     for part, step in (("past", 0), ("current", 1), ("future", 2)):
-        for name in ("x", "y", "z", "bbox_yaw", "velocity_x", "velocity_y", "length",
-                     "width", "height"):
+        for name in ("x", "y", "z", "bbox_yaw", "velocity_x", "velocity_y"):
             feature[f"state/{part}/{name}"].float_list.value.extend([float(step)] * n_slots)
+        for name, size in (("length", 4.5), ("width", 2.0), ("height", 1.6)):  # a car's box
+            feature[f"state/{part}/{name}"].float_list.value.extend([size] * n_slots)
         feature[f"state/{part}/valid"].int64_list.value.extend([1] * n_slots)
         feature[f"state/{part}/timestamp_micros"].int64_list.value.extend(
             [step * 100_000] * n_slots)
