@@ -96,6 +96,9 @@ def _check_csv_text(path: Path) -> None:
     """
     line, offset = 1, 0
     with path.open("rb") as stream:
+        if stream.read(2) in (b"\xff\xfe", b"\xfe\xff"):
+            return  # UTF-16 text (every other byte NUL): the UTF-8 check names it and the fix
+        stream.seek(0)
         for block in iter(lambda: stream.read(_SCAN_BYTES), b""):
             at = block.find(b"\0")
             if at < 0:
