@@ -1,4 +1,6 @@
-"""The driver models of the traffic core, as array functions: every vehicle at once.
+"""The driver models of the traffic core, as array functions (every vehicle at once) and as
+one-vehicle functions of plain floats (``*_one``, for small roads, where numpy's fixed cost
+per call outweighs its speed per element).
 
 - IDM, the Intelligent Driver Model (Treiber, Hennecke and Helbing 2000): the acceleration
   ``a = a_max [1 - (v / v0)^delta - (s* / s)^2]`` with the desired gap
@@ -17,15 +19,19 @@
   ``heading + beta``, yaw rate ``v sin(beta) / (L / 2)`` (:func:`bicycle_step`).
 
 Arrays are float64, one entry per vehicle (or per vehicle pair); units SI: m, m/s, m/s^2,
-rad, s.
+rad, s. The two forms of each model are the same equations; they agree within float
+rounding (numpy's and the C library's trigonometric functions may differ in the last bit).
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-__all__ = ["MIN_DIVISOR", "bicycle_step", "desired_gap", "idm_acceleration", "mobil_incentive",
-           "safe_divisor", "steering_angle", "wrap_angle"]
+__all__ = ["MIN_DIVISOR", "bicycle_one", "bicycle_step", "desired_gap", "desired_gap_one",
+           "idm_acceleration", "idm_one", "mobil_incentive", "safe_divisor", "safe_divisor_one",
+           "steering_angle", "steering_one", "wrap_angle", "wrap_one"]
 
 MIN_DIVISOR = 1e-2
 """Smallest magnitude a speed or gap takes as a divisor (smaller ones become +-0.01, the
@@ -118,3 +124,59 @@ def bicycle_step(x: np.ndarray, y: np.ndarray, heading: np.ndarray, speed: np.nd
     step = speed * dt
     return (x + step * np.cos(course), y + step * np.sin(course),
             heading + speed * np.sin(slip) / (length / 2) * dt, speed + acceleration * dt)
+
+
+# -- one vehicle, plain floats ---------------------------------------------------------------
+def _clip(x: float, low: float, high: float) -> float:
+    return low if x < low else high if x > high else x
+
+
+def safe_divisor_one(x: float) -> float:
+    """:func:`safe_divisor` of one number."""
+    if abs(x) > MIN_DIVISOR:
+        return x
+    return MIN_DIVISOR if x >= 0 else -MIN_DIVISOR
+
+
+def wrap_one(x: float) -> float:
+    """:func:`wrap_angle` of one angle [rad]."""
+    return (x + math.pi) % (2 * math.pi) - math.pi
+
+
+def desired_gap_one(speed: float, approach: float, s0: float, time_gap: float, a_max: float,
+                    b: float) -> float:
+    """:func:`desired_gap` of one follower [m] (arguments as there, floats)."""
+    return s0 + speed * time_gap + speed * approach / (2 * math.sqrt(a_max * b))
+
+
+def idm_one(speed: float, desired_speed: float, delta: float, a_max: float,
+            gap: float | None = None, s_star: float = 0.0) -> float:
+    """:func:`idm_acceleration` of one follower [m/s^2]; ``gap`` None: no leader."""
+    free = a_max * (1 - (max(speed, 0.0) / abs(safe_divisor_one(desired_speed))) ** delta)
+    if gap is None:
+        return free
+    ratio = s_star / safe_divisor_one(gap)
+    return free - a_max * ratio * ratio
+
+
+def steering_one(lateral_offset: float, heading: float, lane_heading: float, speed: float,
+                 length: float, kp_lateral: float, kp_heading: float,
+                 max_angle: float) -> float:
+    """:func:`steering_angle` of one vehicle [rad] (arguments as there, floats)."""
+    divisor = safe_divisor_one(speed)
+    heading_offset = _clip(math.asin(_clip(-kp_lateral * lateral_offset / divisor, -1, 1)),
+                           -math.pi / 4, math.pi / 4)
+    yaw_rate = kp_heading * wrap_one(lane_heading + heading_offset - heading)
+    slip = math.asin(_clip(length / 2 / divisor * yaw_rate, -1, 1))
+    return _clip(math.atan(2 * math.tan(slip)), -max_angle, max_angle)
+
+
+def bicycle_one(x: float, y: float, heading: float, speed: float, steering: float,
+                acceleration: float, length: float,
+                dt: float) -> tuple[float, float, float, float]:
+    """:func:`bicycle_step` of one vehicle: the new x, y [m], heading [rad], speed [m/s]."""
+    slip = math.atan(0.5 * math.tan(steering))
+    course = heading + slip
+    step = speed * dt
+    return (x + step * math.cos(course), y + step * math.sin(course),
+            heading + speed * math.sin(slip) / (length / 2) * dt, speed + acceleration * dt)

@@ -26,6 +26,7 @@ lane), where two lanes are within :data:`TIE` of each other the network itself i
 from __future__ import annotations
 
 import functools
+import math
 from typing import Any
 
 import numpy as np
@@ -90,6 +91,8 @@ class LaneSet:
                 p[j, :5] = (*lane.center, lane.radius, lane.start_phase, lane.direction)
         self._p = p
         self.length = np.array([float(lane.length) for _, lane in lanes])
+        self._kinds, self._params, self._lengths = (self.kind.tolist(), p.tolist(),
+                                                    self.length.tolist())
         self.width = np.array([float(lane.width) if k != _OTHER else np.nan
                                for (_, lane), k in zip(lanes, self.kind, strict=True)])
 
@@ -165,6 +168,76 @@ class LaneSet:
         for k in np.flatnonzero(ties).tolist():
             out[k] = network.get_closest_lane_index(positions[k], headings[k])
         return out
+
+
+    # -- the same, one lane or one point at a time, in plain floats (small roads) ---------
+    def frame_one(self, column: int, xs: list[float],
+                  ys: list[float]) -> tuple[list[float], list[float]]:
+        """The longitudinal and lateral coordinates [m] of the points ``(xs[i], ys[i])``
+        on lane ``column``, as lists (:meth:`coordinates`' column ``column``)."""
+        kind, p = self._kinds[column], self._params[column]
+        if kind <= _SINE:
+            x0, y0, ux, uy, nx, ny = p[:6]
+            s = [(x - x0) * ux + (y - y0) * uy for x, y in zip(xs, ys, strict=True)]
+            r = [(x - x0) * nx + (y - y0) * ny for x, y in zip(xs, ys, strict=True)]
+            if kind == _SINE:
+                amplitude, pulsation, phase = p[7:10]
+                r = [r_i - amplitude * math.sin(pulsation * s_i + phase)
+                     for s_i, r_i in zip(s, r, strict=True)]
+            return s, r
+        if kind == _CIRCULAR:
+            cx, cy, radius, start, direction = p[:5]
+            s, r = [], []
+            for x, y in zip(xs, ys, strict=True):
+                dx, dy = x - cx, y - cy
+                turned = (math.atan2(dy, dx) - start + math.pi) % (2 * math.pi) - math.pi
+                s.append(direction * turned * radius)
+                r.append(direction * (radius - math.hypot(dx, dy)))
+            return s, r
+        lane = self.lanes[column][1]
+        sr = [lane.local_coordinates(np.array((x, y))) for x, y in zip(xs, ys, strict=True)]
+        return [float(a) for a, _ in sr], [float(b) for _, b in sr]
+
+    def point_frame(self, column: int, x: float, y: float) -> tuple[float, float]:
+        """The longitudinal and lateral coordinate [m] of the point (x, y) on lane
+        ``column``."""
+        kind, p = self._kinds[column], self._params[column]
+        if kind == _STRAIGHT:
+            dx, dy = x - p[0], y - p[1]
+            return dx * p[2] + dy * p[3], dx * p[4] + dy * p[5]
+        (s,), (r,) = self.frame_one(column, [x], [y])
+        return s, r
+
+    def heading_one(self, column: int, s: float) -> float:
+        """:meth:`heading` of one lane at one longitudinal coordinate ``s`` [m]."""
+        kind, p = self._kinds[column], self._params[column]
+        if kind == _STRAIGHT:
+            return p[6]
+        if kind == _CIRCULAR:
+            return p[4] * s / p[2] + p[3] + math.pi / 2 * p[4]
+        if kind == _SINE:
+            return p[6] + math.atan(p[7] * p[8] * math.cos(p[8] * s + p[9]))
+        return float(self.lanes[column][1].heading_at(s))
+
+    def closest_one(self, network: Any, x: float, y: float, heading: float) -> Any:
+        """:meth:`closest` of one (position, heading) [m, rad]."""
+        best = second = math.inf
+        nearest = -1
+        for j in range(len(self.lanes)):
+            s, r = self.point_frame(j, x, y)
+            length = self._lengths[j]
+            angle = abs((heading - self.heading_one(j, s) + math.pi) % (2 * math.pi) - math.pi)
+            distance = abs(r) + max(s - length, 0.0) + max(-s, 0.0) + angle
+            if distance < best:
+                best, second, nearest = distance, best, j
+            elif distance < second:
+                second = distance
+            elif distance != distance:  # NaN
+                best = math.nan
+                break
+        if not second > best + TIE or not math.isfinite(best):
+            return network.get_closest_lane_index(np.array((x, y)), heading)
+        return self.lanes[nearest][0]
 
 
 def lane_coordinates(lane: Any, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

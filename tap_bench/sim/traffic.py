@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import bisect
 import functools
+import math
 import warnings
 from typing import Any
 
@@ -46,22 +47,32 @@ from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import Landmark, RoadObject
 
 from tap_bench.sim.driver_models import (
+    bicycle_one,
     bicycle_step,
     desired_gap,
+    desired_gap_one,
     idm_acceleration,
+    idm_one,
     mobil_incentive,
     steering_angle,
+    steering_one,
 )
 from tap_bench.sim.lane_frames import LaneSet, lane_coordinates
 
-__all__ = ["ON_LANE_MARGIN", "TOUCH_MARGIN", "RoadState", "TrafficRoad", "TrafficVehicle",
-           "near_pairs", "traffic_env_class"]
+__all__ = ["ON_LANE_MARGIN", "SCALAR_MAX_OBJECTS", "TOUCH_MARGIN", "RoadState", "TrafficRoad",
+           "TrafficVehicle", "near_pairs", "traffic_env_class"]
 
 ON_LANE_MARGIN = 1.0
 """How far [m] beyond half its width a lane's neighbour search still finds a vehicle."""
 TOUCH_MARGIN = 1e-6
 """Slack [m] of the proximity test of :func:`near_pairs`."""
 _NEAR_END = 1e-6  # [m] slack of the test that a vehicle reached its target lane's end
+SCALAR_MAX_OBJECTS = 40
+"""Roads with at most this many objects are computed one vehicle at a time in plain floats
+(the ``*_one`` forms of :mod:`tap_bench.sim.driver_models` and
+:class:`~tap_bench.sim.lane_frames.LaneSet`); larger ones as arrays. The same equations:
+on few vehicles numpy's fixed cost per call outweighs its speed per element."""
+_SCALAR_MAX_LANE_PAIRS = 400  # (vehicle, lane) pairs up to which lanes are looked up one by one
 
 
 class TrafficVehicle(IDMVehicle):
@@ -149,7 +160,11 @@ class RoadState:
 
     Attributes:
         objects: the objects, in order; ``index`` maps ``id(object)`` to its row.
-        x, y, speed, heading, vx, vy: (n,) their state [m, m/s, rad] as Python lists.
+        scalar: whether the road is computed one vehicle at a time
+            (:data:`SCALAR_MAX_OBJECTS`), else as arrays.
+        xs, ys, speed, heading, cos, sin, vx, vy: (n,) their state [m, m/s, rad] as
+            Python lists; ``arrays``: (speed, cos, sin, vx, vy) as arrays (None when
+            ``scalar``).
     """
 
     def __init__(self, road: TrafficRoad) -> None:
@@ -158,24 +173,40 @@ class RoadState:
         self.objects = [o for o in road.vehicles + road.objects if not isinstance(o, Landmark)]
         self.index = {id(o): k for k, o in enumerate(self.objects)}
         n = len(self.objects)
-        self.positions = np.array([o.position for o in self.objects],
-                                  dtype=float).reshape(n, 2)
-        speed = np.array([o.speed for o in self.objects], dtype=float)
-        heading = np.array([o.heading for o in self.objects], dtype=float)
-        cos, sin = np.cos(heading), np.sin(heading)
-        vx, vy = speed * cos, speed * sin
+        self.scalar = n <= SCALAR_MAX_OBJECTS
+        if self.scalar:
+            self.positions = None
+            points = [o.position for o in self.objects]
+            self.xs, self.ys = [float(p[0]) for p in points], [float(p[1]) for p in points]
+            self.speed = [float(o.speed) for o in self.objects]
+            self.heading = [float(o.heading) for o in self.objects]
+            self.cos, self.sin = ([math.cos(h) for h in self.heading],
+                                  [math.sin(h) for h in self.heading])
+            self.vx = [v * c for v, c in zip(self.speed, self.cos, strict=True)]
+            self.vy = [v * s for v, s in zip(self.speed, self.sin, strict=True)]
+            self.arrays = None
+        else:
+            self.positions = np.array([o.position for o in self.objects],
+                                      dtype=float).reshape(n, 2)
+            self.xs, self.ys = self.positions[:, 0].tolist(), self.positions[:, 1].tolist()
+            speed = np.array([o.speed for o in self.objects], dtype=float)
+            heading = np.array([o.heading for o in self.objects], dtype=float)
+            cos, sin = np.cos(heading), np.sin(heading)
+            self.arrays = (speed, cos, sin, speed * cos, speed * sin)
+            self.cos, self.sin = cos.tolist(), sin.tolist()
+            self.speed, self.heading = speed.tolist(), heading.tolist()
+            self.vx, self.vy = self.arrays[3].tolist(), self.arrays[4].tolist()
         for k, o in enumerate(self.objects):  # a class with its own velocity
             if type(o).velocity not in (Vehicle.velocity, RoadObject.velocity):
-                vx[k], vy[k] = map(float, o.velocity)
-        self.arrays = (speed, cos, sin, vx, vy)
-        self.cos, self.sin = cos.tolist(), sin.tolist()
-        self.speed, self.heading = speed.tolist(), heading.tolist()
-        self.vx, self.vy = vx.tolist(), vy.tolist()
+                self.vx[k], self.vy[k] = map(float, o.velocity)
+                if self.arrays is not None:
+                    self.arrays[3][k], self.arrays[4][k] = self.vx[k], self.vy[k]
         self._frames: dict[int, tuple[Any, list[float], list[float]]] = {}
         self._tables: dict[int, tuple[list[float], list[int]]] = {}
         self._s = self._r = None
         self._constants: dict[int, tuple[float, ...]] = {}
-        self._own: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._own: tuple[list[bool], list[int], list[float]] | None = None
+        self._own_arrays: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def matrix(self) -> np.ndarray:
         """(n, m) every object's longitudinal coordinate [m] on every lane of the road."""
@@ -196,6 +227,14 @@ class RoadState:
         """(n,) per object: whether it is a vehicle, the column of its lane in the road's
         lanes (-1: none or not one of them), its desired speed [m/s] (``target_speed``,
         0 without one, within its lane's speed limit)."""
+        if self._own_arrays is None:
+            is_vehicle, columns, desired = self.own_lists()
+            self._own_arrays = (np.array(is_vehicle, dtype=bool),
+                                np.array(columns, dtype=int), np.array(desired, dtype=float))
+        return self._own_arrays
+
+    def own_lists(self) -> tuple[list[bool], list[int], list[float]]:
+        """:meth:`own` as lists."""
         if self._own is None:
             column, is_vehicle = self.lanes.column, []
             columns, desired = [], []
@@ -207,9 +246,8 @@ class RoadState:
                 target = getattr(o, "target_speed", 0) if vehicle else 0
                 if vehicle and lane and lane.speed_limit is not None:
                     target = min(max(target, 0), lane.speed_limit)
-                desired.append(target)
-            self._own = (np.array(is_vehicle, dtype=bool), np.array(columns, dtype=int),
-                         np.array(desired, dtype=float))
+                desired.append(float(target))
+            self._own = (is_vehicle, columns, desired)
         return self._own
 
     def frame(self, lane: Any) -> tuple[list[float], list[float]]:
@@ -218,11 +256,15 @@ class RoadState:
         if got is None:
             j = self.lanes.column.get(id(lane))
             if j is None:  # not a lane of the network
-                s, r = lane_coordinates(lane, self.positions)
+                points = self.positions if self.positions is not None else np.array(
+                    [self.xs, self.ys], dtype=float).T.reshape(-1, 2)
+                s, r = (a.tolist() for a in lane_coordinates(lane, points))
+            elif self.scalar:
+                s, r = self.lanes.frame_one(j, self.xs, self.ys)
             else:
                 self.matrix()  # every lane's frame at once
-                s, r = self._s[:, j], self._r[:, j]
-            got = self._frames[id(lane)] = (lane, s.tolist(), r.tolist())
+                s, r = self._s[:, j].tolist(), self._r[:, j].tolist()
+            got = self._frames[id(lane)] = (lane, s, r)
         return got[1], got[2]
 
     def table(self, lane: Any) -> tuple[list[float], list[int]]:
@@ -369,10 +411,7 @@ class TrafficRoad(Road):
         with its own ``follow_road``."""
         if type(vehicle).follow_road is ControlledVehicle.follow_road:
             lane = self.network.get_lane(vehicle.target_lane_index)
-            j = state.lanes.column.get(id(lane))
-            k = state.index[id(vehicle)]
-            s = state.matrix()[k, j] if j is not None else lane.local_coordinates(
-                vehicle.position)[0]
+            s = state.frame(lane)[0][state.index[id(vehicle)]]
             if not s > lane.length - lane.VEHICLE_LENGTH / 2 - _NEAR_END:
                 return
         vehicle.follow_road()
@@ -395,9 +434,9 @@ class TrafficRoad(Road):
             gap = s[j] - s[k]
             approach = ((state.vx[k] - state.vx[j]) * state.cos[k]
                         + (state.vy[k] - state.vy[j]) * state.sin[k])
-            s_star = desired_gap(np.float64(state.speed[k]), np.float64(approach),
-                                 vehicle.DISTANCE_WANTED, vehicle.TIME_WANTED,
-                                 vehicle.COMFORT_ACC_MAX, -vehicle.COMFORT_ACC_MIN)
+            s_star = desired_gap_one(state.speed[k], approach, vehicle.DISTANCE_WANTED,
+                                     vehicle.TIME_WANTED, vehicle.COMFORT_ACC_MAX,
+                                     -vehicle.COMFORT_ACC_MIN)
             if 0 < gap < s_star:
                 vehicle.target_lane_index = vehicle.lane_index
                 return
@@ -418,37 +457,37 @@ class TrafficRoad(Road):
                 rows += [(vehicle, new_rear, new_front), (vehicle, new_rear, k),
                          (vehicle, k, new_front), (vehicle, k, old_front),
                          (vehicle, old_rear, k), (vehicle, old_rear, old_front)]
-        a = self._idm(rows, state).reshape(-1, 6)
-        (new_follower, new_follower_after, own_after, own, old_follower,
-         old_follower_after) = a.T
-        politeness = np.array([v.POLITENESS for v, lanes in pending for _ in lanes])
-        incentive = mobil_incentive(own_after - own, new_follower_after - new_follower,
-                                    old_follower_after - old_follower, politeness).tolist()
+        a = self._idm(rows, state)
         r = 0
         for vehicle, lanes in pending:
             limit = -vehicle.LANE_CHANGE_MAX_BRAKING_IMPOSED
             for lane_index in lanes:
-                if new_follower_after[r] < limit:
-                    pass  # unsafe for the new follower
-                elif vehicle.route and vehicle.route[0][2] is not None:
+                (new_follower, new_follower_after, own_after, own, old_follower,
+                 old_follower_after) = a[r:r + 6]
+                r += 6
+                if new_follower_after < limit:
+                    continue  # unsafe for the new follower
+                if vehicle.route and vehicle.route[0][2] is not None:
                     # a planned lane: towards it, and no hard braking for the driver
                     if np.sign(lane_index[2] - vehicle.target_lane_index[2]) == np.sign(
                             vehicle.route[0][2] - vehicle.target_lane_index[2]) \
-                            and not own_after[r] < limit:
+                            and not own_after < limit:
                         vehicle.target_lane_index = lane_index
-                elif not incentive[r] < vehicle.LANE_CHANGE_MIN_ACC_GAIN:
+                elif not mobil_incentive(own_after - own, new_follower_after - new_follower,
+                                         old_follower_after - old_follower,
+                                         vehicle.POLITENESS) < vehicle.LANE_CHANGE_MIN_ACC_GAIN:
                     vehicle.target_lane_index = lane_index
-                r += 1
         pending.clear()
 
-    def _idm(self, rows: list[tuple[Any, int, int]], state: RoadState) -> np.ndarray:
-        """(len(rows),) IDM accelerations [m/s^2] of the follower of each row (its row in
-        ``state``; -1 or an object that is not a vehicle: 0) behind the leader (-1: none),
-        with the IDM constants of the row's driver. The gap is measured along the
-        follower's own lane; its desired speed is its ``target_speed`` within that lane's
-        speed limit."""
+    def _idm(self, rows: list[tuple[Any, int, int]], state: RoadState) -> list[float]:
+        """IDM accelerations [m/s^2] of the follower of each row (its row in ``state``; -1
+        or an object that is not a vehicle: 0) behind the leader (-1: none), with the IDM
+        constants of the row's driver. The gap is measured along the follower's own lane;
+        its desired speed is its ``target_speed`` within that lane's speed limit."""
         if not rows:
-            return np.zeros(0)
+            return []
+        if state.scalar:
+            return self._idm_one_by_one(rows, state)
         drivers, k, j = zip(*rows, strict=True)
         k, j = np.array(k), np.array(j)
         constants = np.array([state.constants(v) for v in drivers], dtype=float)
@@ -469,7 +508,28 @@ class TrafficRoad(Road):
         a_max, delta, s0, time_gap, b = constants.T
         s_star = desired_gap(v, approach, s0, time_gap, a_max, b)
         out = idm_acceleration(v, desired[kk], delta, a_max, gap, s_star, leader)
-        return np.where(valid, out, 0.0)
+        return np.where(valid, out, 0.0).tolist()
+
+    @staticmethod
+    def _idm_one_by_one(rows: list[tuple[Any, int, int]], state: RoadState) -> list[float]:
+        """:meth:`_idm`, one row at a time in plain floats."""
+        is_vehicle, _, desired = state.own_lists()
+        speed, cos, sin, vx, vy = state.speed, state.cos, state.sin, state.vx, state.vy
+        out = []
+        for driver, k, j in rows:
+            if k < 0 or not is_vehicle[k]:
+                out.append(0.0)
+                continue
+            a_max, delta, s0, time_gap, b = state.constants(driver)
+            v = speed[k]
+            if j < 0:
+                out.append(idm_one(v, desired[k], delta, a_max))
+                continue
+            along = state.frame(state.objects[k].lane)[0]
+            approach = (vx[k] - vx[j]) * cos[k] + (vy[k] - vy[j]) * sin[k]
+            s_star = desired_gap_one(v, approach, s0, time_gap, a_max, b)
+            out.append(idm_one(v, desired[k], delta, a_max, along[j] - along[k], s_star))
+        return out
 
     def _drive(self, drivers: list[tuple[Any, str]], state: RoadState) -> None:
         """Steering to the target lane and IDM acceleration of every driver at once."""
@@ -480,6 +540,29 @@ class TrafficRoad(Road):
         vehicles = [v for v, _ in drivers]
         ks = [state.index[id(v)] for v in vehicles]
         targets = [network.get_lane(v.target_lane_index) for v in vehicles]
+        steering = (self._steer_one_by_one if state.scalar else self._steer)(
+            vehicles, ks, targets, state)
+        changing = [i for i, v in enumerate(vehicles) if v.lane_index != v.target_lane_index]
+        fronts = state.fronts([v.lane for v in vehicles] + [targets[i] for i in changing],
+                              ks + [ks[i] for i in changing])
+        rows = [(v, kv, f) for v, kv, f in zip(vehicles + [vehicles[i] for i in changing],
+                                               ks + [ks[i] for i in changing], fronts,
+                                               strict=True)]
+        acceleration = self._idm(rows, state)
+        for i, on_target in zip(changing, acceleration[n:], strict=True):
+            acceleration[i] = min(acceleration[i], on_target)
+        for (vehicle, how), steer, acc in zip(drivers, steering, acceleration[:n],
+                                              strict=True):
+            limit = vehicle.ACC_MAX
+            vehicle.action = {"steering": steer,
+                              "acceleration": -limit if acc < -limit else min(acc, limit)}
+            if how == "hooks":
+                vehicle.adjust_action()
+
+    @staticmethod
+    def _steer(vehicles: list[Any], ks: list[int], targets: list[Any],
+               state: RoadState) -> list[float]:
+        """Each vehicle's front-wheel angle [rad] towards its target lane, as arrays."""
         lane_set = state.lanes
         columns = np.array([lane_set.column.get(id(t), -1) for t in targets])
         k = np.array(ks)
@@ -491,32 +574,33 @@ class TrafficRoad(Road):
         for i in np.flatnonzero(~known).tolist():
             along[i], lateral[i] = targets[i].local_coordinates(vehicles[i].position)
         constant = np.array([(v.LENGTH, v.KP_LATERAL, v.KP_HEADING, v.MAX_STEERING_ANGLE,
-                              v.ACC_MAX, v.TAU_PURSUIT) for v in vehicles], dtype=float)
-        length, kp_lateral, kp_heading, max_angle, acc_max, pursuit = constant.T
+                              v.TAU_PURSUIT) for v in vehicles], dtype=float)
+        length, kp_lateral, kp_heading, max_angle, pursuit = constant.T
         speed = state.arrays[0][k]
         future = along + speed * pursuit
         heading_ahead = lane_set.heading(cc, future)
         for i in np.flatnonzero(~known).tolist():
             heading_ahead[i] = targets[i].heading_at(future[i])
         heading = np.array([state.heading[i] for i in ks])
-        steering = steering_angle(lateral, heading, heading_ahead, speed, length, kp_lateral,
-                                  kp_heading, max_angle)
-        changing = [i for i, v in enumerate(vehicles) if v.lane_index != v.target_lane_index]
-        fronts = state.fronts([v.lane for v in vehicles] + [targets[i] for i in changing],
-                              ks + [ks[i] for i in changing])
-        rows = [(v, kv, f) for v, kv, f in zip(vehicles + [vehicles[i] for i in changing],
-                                               ks + [ks[i] for i in changing], fronts,
-                                               strict=True)]
-        acceleration = self._idm(rows, state)
-        own, on_target = acceleration[:n], acceleration[n:]
-        if changing:
-            own[changing] = np.minimum(own[changing], on_target)
-        acceleration = np.clip(own, -acc_max, acc_max)
-        for (vehicle, how), steer, acc in zip(drivers, steering.tolist(),
-                                              acceleration.tolist(), strict=True):
-            vehicle.action = {"steering": steer, "acceleration": acc}
-            if how == "hooks":
-                vehicle.adjust_action()
+        return steering_angle(lateral, heading, heading_ahead, speed, length, kp_lateral,
+                              kp_heading, max_angle).tolist()
+
+    @staticmethod
+    def _steer_one_by_one(vehicles: list[Any], ks: list[int], targets: list[Any],
+                          state: RoadState) -> list[float]:
+        """:meth:`_steer`, one vehicle at a time in plain floats."""
+        lane_set = state.lanes
+        out = []
+        for v, k, target in zip(vehicles, ks, targets, strict=True):
+            along, lateral = state.frame(target)
+            speed = state.speed[k]
+            future = along[k] + speed * v.TAU_PURSUIT
+            j = lane_set.column.get(id(target))
+            ahead = (lane_set.heading_one(j, future) if j is not None
+                     else float(target.heading_at(future)))
+            out.append(steering_one(lateral[k], state.heading[k], ahead, speed, v.LENGTH,
+                                    v.KP_LATERAL, v.KP_HEADING, v.MAX_STEERING_ANGLE))
+        return out
 
     # -- step --------------------------------------------------------------------------
     def step(self, dt: float) -> None:
@@ -545,9 +629,8 @@ class TrafficRoad(Road):
             return
         vehicles = [v for v, _ in batch]
         n = len(vehicles)
-        state = np.empty((n, 4))
-        steer, acc = np.empty(n), np.empty(n)
-        for i, v in enumerate(vehicles):
+        rows = []  # (x, y, heading, speed, steering, acceleration, length) per vehicle
+        for v in vehicles:
             action, speed = v.action, float(v.speed)
             if v.crashed:
                 action["steering"], action["acceleration"] = 0, -1.0 * speed
@@ -557,23 +640,33 @@ class TrafficRoad(Road):
             elif speed < v.MIN_SPEED:
                 a = max(a, 1.0 * (v.MIN_SPEED - speed))
             action["steering"], action["acceleration"] = s, a
-            state[i] = (v.position[0], v.position[1], v.heading, speed)
-            steer[i], acc[i] = s, a
-        length = np.array([v.LENGTH for v in vehicles], dtype=float)
-        x, y, heading, speed = bicycle_step(*state.T, steer, acc, length, dt)
-        positions = np.stack([x, y], axis=1)
-        for i, v in enumerate(vehicles):
+            rows.append((float(v.position[0]), float(v.position[1]), float(v.heading), speed,
+                         s, a, float(v.LENGTH)))
+        if n <= SCALAR_MAX_OBJECTS:
+            moved = [bicycle_one(*row, dt) for row in rows]
+        else:
+            moved = list(zip(*(a.tolist() for a in bicycle_step(
+                *np.array(rows, dtype=float).T, dt)), strict=True))
+        positions = []
+        for v, (x, y, _, _) in zip(vehicles, moved, strict=True):
             if v.impact is not None:
-                positions[i] += v.impact
+                x, y = x + float(v.impact[0]), y + float(v.impact[1])
                 v.crashed = True
                 v.impact = None
-        found = self.lane_set().closest(self.network, positions, heading)
+            positions.append((x, y))
+        lane_set = self.lane_set()
+        if n * len(lane_set.lanes) <= _SCALAR_MAX_LANE_PAIRS:
+            found = [lane_set.closest_one(self.network, x, y, m[2])
+                     for (x, y), m in zip(positions, moved, strict=True)]
+        else:
+            found = lane_set.closest(self.network, np.array(positions, dtype=float),
+                                     np.array([m[2] for m in moved], dtype=float))
         get_lane, history = self.network.get_lane, self.record_history
-        for i, ((v, how), h, sp, index) in enumerate(zip(batch, heading.tolist(), speed.tolist(),
-                                                         found, strict=True)):
+        for (v, how), (x, y), (_, _, h, sp), index in zip(batch, positions, moved, found,
+                                                          strict=True):
             if how != "plain":
                 v.timer += dt
-            v.position, v.heading, v.speed = positions[i], h, sp
+            v.position, v.heading, v.speed = np.array((x, y)), h, sp
             v.lane_index, v.lane = index, get_lane(index)
             if history:
                 v.history.appendleft(v.create_from(v))
@@ -588,6 +681,10 @@ class TrafficRoad(Road):
         an axis of either rectangle (:func:`_swept_apart`)."""
         vehicles, objects = self.vehicles, self.objects
         everyone = vehicles + objects
+        if len(everyone) <= SCALAR_MAX_OBJECTS:
+            for i, j in _touching_pairs_one_by_one(everyone, len(vehicles), dt):
+                vehicles[i].handle_collisions(everyone[j], dt)
+            return
         shapes = _shapes(everyone)
         if shapes is None:
             pairs = [(i, j) for i in range(len(vehicles)) for j in range(i + 1, len(everyone))]
@@ -626,6 +723,64 @@ def _shapes(everyone: list[Any]) -> dict[str, np.ndarray] | None:
             "half_width": shape[:, 2], "heading": heading, "vx": speed * np.cos(heading),
             "vy": speed * np.sin(heading), "checks": flags[:, 0], "collidable": flags[:, 1],
             "own": own}
+
+
+def _touching_pairs_one_by_one(everyone: list[Any], n: int,
+                               dt: float) -> list[tuple[int, int]]:
+    """The pairs (i < j, i among the first ``n`` objects, the vehicles) that
+    :meth:`TrafficRoad._collide` checks: near (:func:`near_pairs`) and not swept apart
+    (:func:`_swept_apart`), one pair at a time in plain floats."""
+    try:
+        rows = []
+        for o in everyone:
+            position = o.position
+            if len(position) != 2:
+                raise ValueError
+            heading, speed = float(o.heading), float(o.speed)
+            cos, sin = math.cos(heading), math.sin(heading)
+            rows.append((float(position[0]), float(position[1]), float(o.diagonal),
+                         o.LENGTH / 2, o.WIDTH / 2, cos, sin, speed * cos, speed * sin,
+                         bool(o.check_collisions), bool(o.collidable),
+                         (type(o).handle_collisions, type(o)._is_colliding, type(o).polygon)
+                         != _STANDARD_SHAPE or type(o).velocity not in (Vehicle.velocity,
+                                                                         RoadObject.velocity)))
+    except (AttributeError, TypeError, ValueError):
+        return [(i, j) for i in range(n) for j in range(i + 1, len(everyone))]
+    pairs = []
+    for i in range(n):
+        a = rows[i]
+        xa, ya, da, _, _, _, _, vxa, vya, checks_a, collidable_a, own_a = a
+        for j in range(i + 1, len(rows)):
+            b = rows[j]
+            if own_a or b[11]:
+                pairs.append((i, j))
+                continue
+            if not (collidable_a and b[10] and (checks_a or b[9])):
+                continue
+            bound = (da + b[2]) / 2 + math.hypot(vxa - b[7], vya - b[8]) * dt
+            if math.hypot(b[0] - xa, b[1] - ya) > bound + TOUCH_MARGIN \
+                    or _swept_apart_one(a, b, dt):
+                continue
+            pairs.append((i, j))
+    return pairs
+
+
+def _swept_apart_one(a: tuple, b: tuple, dt: float) -> bool:
+    """:func:`_swept_apart` of one pair, each a row of :func:`_touching_pairs_one_by_one`
+    (x, y, diagonal, half length, half width, cos and sin of the heading, vx, vy, ...)."""
+    xa, ya, _, la, wa, ca, sa, vxa, vya = a[:9]
+    xb, yb, _, lb, wb, cb, sb, vxb, vyb = b[:9]
+    dx, dy = (vxa - vxb) * dt, (vya - vyb) * dt
+    for nx, ny in ((ca, sa), (-sa, ca), (cb, sb), (-sb, cb)):
+        reach_a = la * abs(ca * nx + sa * ny) + wa * abs(ca * ny - sa * nx)
+        reach_b = lb * abs(cb * nx + sb * ny) + wb * abs(cb * ny - sb * nx)
+        centre_a, centre_b = xa * nx + ya * ny, xb * nx + yb * ny
+        moved = dx * nx + dy * ny
+        low_a = centre_a - reach_a + min(moved, 0.0)
+        high_a = centre_a + reach_a + max(moved, 0.0)
+        if max(centre_b - reach_b - high_a, low_a - (centre_b + reach_b)) > TOUCH_MARGIN:
+            return True
+    return False
 
 
 def near_pairs(vehicles: list[Any], objects: list[Any], dt: float) -> np.ndarray | None:

@@ -23,6 +23,7 @@ from highway_env.road.road import Road
 from highway_env.vehicle.behavior import IDMVehicle
 
 from tap_bench.sim import driver_models as dm
+from tap_bench.sim import traffic
 from tap_bench.sim.idm import IDMParameters, take_over_ego
 from tap_bench.sim.lane_frames import LaneSet, lane_coordinates, lane_heading
 from tap_bench.sim.scenario_env import make_env
@@ -88,9 +89,20 @@ def _assert_same(ours: list, theirs: list) -> dict[str, float]:
     return {"worst": worst, "changing": changes}
 
 
+def _force(monkeypatch, path: str) -> None:
+    """Make the core compute every road one vehicle at a time (``"one-by-one"``) or as
+    arrays (``"arrays"``), whatever its size."""
+    big = 10**9 if path == "one-by-one" else -1
+    monkeypatch.setattr(traffic, "SCALAR_MAX_OBJECTS", big)
+    monkeypatch.setattr(traffic, "_SCALAR_MAX_LANE_PAIRS", big)
+
+
+@pytest.mark.parametrize("path", ["one-by-one", "arrays"])
 @pytest.mark.parametrize("scene", SCENES)
-def test_core_drives_every_scene_as_highway_env_does(scene):
-    """IDM ego, one seed, 20 s: same decisions and crashes, positions within 1e-6 m."""
+def test_core_drives_every_scene_as_highway_env_does(scene, path, monkeypatch):
+    """IDM ego, one seed, 20 s, the core's either path: same decisions and crashes,
+    positions within 1e-6 m."""
+    _force(monkeypatch, path)
     ours = _run(scene, 3, core=True, ego="idm")
     theirs = _run(scene, 3, core=False, ego="idm")
     _assert_same(ours, theirs)
@@ -103,9 +115,11 @@ def test_core_with_an_ego_of_drawn_actions(scene):
     _assert_same(ours, theirs)
 
 
-def test_fast_variant_and_dense_traffic():
+@pytest.mark.parametrize("path", ["one-by-one", "arrays"])
+def test_fast_variant_and_dense_traffic(path, monkeypatch):
     """The fast training variant (5 Hz, only the ego checks collisions) with 40 vehicles
-    on 4 lanes, lane changes happening."""
+    on 4 lanes, lane changes happening, the core's either path."""
+    _force(monkeypatch, path)
     config = {"vehicles_count": 40, "lanes_count": 4}
     ours = _run("highway", 5, core=True, ego="drawn", config=config, fast=True)
     theirs = _run("highway", 5, core=False, ego="drawn", config=config, fast=True)
@@ -221,9 +235,83 @@ def test_lane_frames_match_highway_env_lanes(scene):
         np.testing.assert_allclose(r, want[:, 1], atol=1e-9)
         np.testing.assert_allclose(lane_heading(lane, s),
                                    [lane.heading_at(v) for v in s], atol=1e-12)
-    got = LaneSet(lanes).closest(network, points, headings)
-    assert got == [network.get_closest_lane_index(p, h)
-                   for p, h in zip(points, headings, strict=True)]
+    lane_set = LaneSet(lanes)
+    for j, (_, lane) in enumerate(lanes):  # one lane or one point at a time
+        s, r = lane_set.frame_one(j, points[:, 0].tolist(), points[:, 1].tolist())
+        want = np.array([lane.local_coordinates(p) for p in points])
+        np.testing.assert_allclose(s, want[:, 0], atol=1e-9)
+        np.testing.assert_allclose(r, want[:, 1], atol=1e-9)
+        assert np.allclose([lane_set.point_frame(j, *p) for p in points.tolist()], want,
+                           rtol=0, atol=1e-9)
+        np.testing.assert_allclose([lane_set.heading_one(j, v) for v in s],
+                                   [lane.heading_at(v) for v in s], atol=1e-12)
+    want = [network.get_closest_lane_index(p, h) for p, h in zip(points, headings, strict=True)]
+    assert lane_set.closest(network, points, headings) == want
+    assert [lane_set.closest_one(network, *p, h)
+            for p, h in zip(points.tolist(), headings.tolist(), strict=True)] == want
+    env.close()
+
+
+def test_one_vehicle_forms_equal_the_array_forms():
+    """The ``*_one`` driver models give the array forms' values on drawn inputs, standing
+    vehicles and touching gaps included."""
+    rng = np.random.default_rng(5)
+    n = 200
+    speed = np.concatenate([rng.uniform(-2, 40, n - 2), [0.0, 0.005]])
+    approach, gap = rng.uniform(-10, 10, n), np.concatenate([rng.uniform(-1, 80, n - 1), [0]])
+    s0, time_gap, a_max, b = (rng.uniform(1, 10, n), rng.uniform(0.5, 2, n),
+                              rng.uniform(1, 6, n), rng.uniform(1, 6, n))
+    desired, delta = rng.uniform(0, 40, n), np.full(n, 4.0)
+    s_star = dm.desired_gap(speed, approach, s0, time_gap, a_max, b)
+    has_leader = rng.random(n) < 0.7
+    want = dm.idm_acceleration(speed, desired, delta, a_max, gap, s_star, has_leader)
+    for i in range(n):
+        one_star = dm.desired_gap_one(*(float(x[i]) for x in (speed, approach, s0, time_gap,
+                                                              a_max, b)))
+        assert one_star == pytest.approx(s_star[i], rel=1e-12)
+        got = dm.idm_one(float(speed[i]), float(desired[i]), 4.0, float(a_max[i]),
+                         float(gap[i]) if has_leader[i] else None, one_star)
+        assert got == pytest.approx(want[i], rel=1e-9, abs=1e-9)
+    lateral, heading, lane_heading = (rng.uniform(-6, 6, n), rng.uniform(-4, 4, n),
+                                      rng.uniform(-4, 4, n))
+    length, kp, max_angle = rng.uniform(3, 12, n), rng.uniform(0.1, 5, (2, n)), np.full(n, 1.0)
+    want = dm.steering_angle(lateral, heading, lane_heading, speed, length, kp[0], kp[1],
+                             max_angle)
+    got = [dm.steering_one(*(float(x[i]) for x in (lateral, heading, lane_heading, speed,
+                                                   length, kp[0], kp[1], max_angle)))
+           for i in range(n)]
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    steer, acc = rng.uniform(-1, 1, n), rng.uniform(-6, 6, n)
+    x, y = rng.uniform(-100, 100, (2, n))
+    want = np.array(dm.bicycle_step(x, y, heading, speed, steer, acc, length, 0.1)).T
+    got = [dm.bicycle_one(*(float(v[i]) for v in (x, y, heading, speed, steer, acc, length)),
+                          0.1) for i in range(n)]
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+
+
+def test_touching_pairs_one_by_one_equal_the_array_test():
+    """On crowded drawn states the one-pair-at-a-time test keeps exactly the pairs the
+    array test (near, not swept apart) keeps."""
+    from tap_bench.sim.traffic import _near, _shapes, _swept_apart, _touching_pairs_one_by_one
+
+    env = make_env("highway", record=False, config={"vehicles_count": 30})
+    env.reset(seed=4)
+    vehicles = env.unwrapped.road.vehicles
+    rng = np.random.default_rng(3)
+    kept = 0
+    for _ in range(20):
+        for v in vehicles:
+            v.position = rng.uniform(0, 50, 2)
+            v.heading = float(rng.uniform(-np.pi, np.pi))
+            v.speed = float(rng.uniform(-5, 30))
+            v.check_collisions = bool(rng.random() < 0.7)
+        shapes = _shapes(vehicles)
+        i, j = np.nonzero(np.triu(_near(shapes, len(vehicles), 0.1), 1))
+        keep = ~_swept_apart(shapes, i, j, 0.1)
+        want = list(zip(i[keep].tolist(), j[keep].tolist(), strict=True))
+        assert _touching_pairs_one_by_one(vehicles, len(vehicles), 0.1) == want
+        kept += len(want)
+    assert kept > 20
     env.close()
 
 
