@@ -27,6 +27,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--traffic", choices=("log", "idm"), default="log",
                    help="with --env womd: the other agents replay the log (default) or are "
                    "driven by IDM/MOBIL")
+    p.add_argument("--hold-out", metavar="SEEDS",
+                   help="with --env womd: scenes never trained on, by index in the files' "
+                   "scenes (the seeds a rollout or suite names, e.g. 6,9,12,15), to judge "
+                   "the agent on scenes it did not see; the definition records both sets")
     p.add_argument("--timesteps", type=int, required=True, help="decisions to train for")
     p.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     p.add_argument("-o", "--output", required=True,
@@ -63,7 +67,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    "e.g. WOMD), or 'vocabulary'")
     p.add_argument("--level", default="maneuver",
                    help="SDL level of the curve's labels (default maneuver)")
-    p.add_argument("--log-dir", help="write SB3's training log as CSV there")
+    p.add_argument("--log-dir", help="write SB3's training log as CSV there (return and "
+                   "episode length per update: the learning curve on the training scenes), "
+                   "and the weights at every tenth of the training (weights_<steps>_steps.zip)")
     p.add_argument("-v", "--verbose", action="count", default=0, help="SB3 verbosity")
     p.set_defaults(func=run)
 
@@ -97,14 +103,15 @@ def run(args: argparse.Namespace) -> int:
             raise SystemExit("tap-bench train: --env womd trains on recorded scenes; name "
                              "their files with --womd FILES.")
         env = WomdScenes(tuple(args.womd), traffic=args.traffic)
-        recorded = ["--womd", *args.womd, "--traffic", args.traffic]
+        recorded = ["--womd", *args.womd, "--traffic", args.traffic,
+                    *(["--hold-out", args.hold_out] if args.hold_out else [])]
         if not args.no_curve:
             print("recorded scenes: no learning curve (it evaluates on synthetic seeds); "
                   "compare the agent with the human afterwards: tap-bench rollout --womd ... "
                   f"--policy {args.output}")
             args.no_curve = True
-    elif args.womd:
-        raise SystemExit("tap-bench train: --womd goes with --env womd.")
+    elif args.womd or args.hold_out:
+        raise SystemExit("tap-bench train: --womd and --hold-out go with --env womd.")
     command = "tap-bench train " + " ".join(shlex.quote(a) for a in (
         "--algo", args.algo, "--env", args.env, *recorded, "--timesteps", str(args.timesteps),
         "--seed",
@@ -120,7 +127,8 @@ def run(args: argparse.Namespace) -> int:
                    keep=args.keep, overwrite=args.overwrite,
                    announce=lambda line: print(line, flush=True),
                    in_process={"auto": None, "yes": True, "one": "one",
-                               "no": False}[args.in_process])
+                               "no": False}[args.in_process],
+                   hold_out=args.hold_out or None)
     print(f"trained {args.algo} on {args.env} for {result.timesteps} steps in "
           f"{result.train_seconds:.0f} s ({result.steps_per_second:.1f} steps/s, "
           f"{result.episodes} episodes)")

@@ -48,7 +48,7 @@ import shlex
 import signal
 import sys
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -58,6 +58,7 @@ import pandas as pd
 
 from tap_bench.errors import ParameterError
 from tap_bench.rl.curve import CurveConfig, coverage_reference, plot_curve
+from tap_bench.rl.heldout import SceneSplit, SceneSubset, split_scenes
 from tap_bench.sim.sb3 import algorithm_class
 from tap_bench.sim.scenario_env import ScenarioEnv, get_scenario
 from tap_bench.sim.scenario_format import Scenario
@@ -65,8 +66,8 @@ from tap_bench.sim.schema import env_class
 from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.tableio import atomic_path, check_replace, write_table
 
-__all__ = ["DEFAULT_N_ENVS", "HYPERPARAMETERS", "MAX_N_ENVS", "WORKER_MODULES", "TrainingResult",
-           "idle_cores", "train"]
+__all__ = ["CHECKPOINTS", "DEFAULT_N_ENVS", "HYPERPARAMETERS", "MAX_N_ENVS", "WORKER_MODULES",
+           "TrainingResult", "idle_cores", "train"]
 
 HYPERPARAMETERS: dict[str, dict[str, Any]] = {
     # highway-env's published Stable-Baselines3 settings for its highway tasks.
@@ -82,6 +83,10 @@ HYPERPARAMETERS: dict[str, dict[str, Any]] = {
 """Default hyper-parameters per algorithm; ``train(..., hyperparameters=...)`` overrides.
 With several envs, ``n_steps`` (PPO, A2C) is per env and ``train_freq`` (DQN) counts steps
 of all envs together."""
+
+CHECKPOINTS = 10
+"""With a log folder, the weights are saved there this many times during training
+(``weights_<steps>_steps.zip``)."""
 
 DEFAULT_N_ENVS = 2
 """Training envs stepped in parallel processes by default: one per core of a 2-core machine."""
@@ -133,8 +138,10 @@ class TrainingResult:
         return self.timesteps / self.train_seconds
 
 
-def _make_training_env(scenario: Scenario, fast: bool, worker: bool = False) -> gym.Env:
-    """One training env (a module-level function: worker processes build it by name)."""
+def _make_training_env(scenario: Scenario, fast: bool, worker: bool = False,
+                       scenes: tuple[int, ...] | None = None) -> gym.Env:
+    """One training env (a module-level function: worker processes build it by name);
+    on recorded scenes, only the ``scenes`` indexes (None: all)."""
     from stable_baselines3.common.monitor import Monitor
 
     if worker:  # Ctrl-C stops the training in the main process, which then saves the model
@@ -142,7 +149,8 @@ def _make_training_env(scenario: Scenario, fast: bool, worker: bool = False) -> 
     if isinstance(scenario, WomdScenes):  # recorded scenes, one after the other
         from tap_bench.sim.womd_env import WomdEnv
 
-        return Monitor(WomdEnv(scenario, record=False, cycle=True))
+        env = WomdEnv(scenario, record=False, cycle=True)
+        return Monitor(env if scenes is None else SceneSubset(env, scenes))
     return Monitor(ScenarioEnv(scenario, record=False, fast=fast))
 
 
@@ -348,16 +356,17 @@ def _usable_cores() -> int:
 
 
 def _vec_env(scenario: Scenario, *, n_envs: int, fast: bool, seed: int,
-             in_process: bool | str = False) -> Any:
+             in_process: bool | str = False, scenes: tuple[int, ...] | None = None) -> Any:
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    here = functools.partial(_make_training_env, scenario, fast)
+    here = functools.partial(_make_training_env, scenario, fast, scenes=scenes)
     if n_envs == 1 or in_process is True:
         vec = DummyVecEnv([here] * n_envs)
     else:
         from tap_bench.rl.vec_env import training_vec_env  # imports SB3
 
-        factory = functools.partial(_make_training_env, scenario, fast, worker=True)
+        factory = functools.partial(_make_training_env, scenario, fast, worker=True,
+                                    scenes=scenes)
         # forkserver: workers start from a clean interpreter, not a copy of this process
         # (which may hold torch's threads and highway-env's shared classes)
         with _main_not_rerun(), _workers_preloaded(scenario):
@@ -373,7 +382,8 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
           log_dir: str | os.PathLike | None = None, verbose: int = 0,
           command: str | None = None, keep: str = "last", overwrite: bool = False,
           announce: Callable[[str], None] | None = None,
-          in_process: bool | str | None = None) -> TrainingResult:
+          in_process: bool | str | None = None,
+          hold_out: str | Sequence[int] | None = None) -> TrainingResult:
     """Train ``algo`` on scenario ``env`` for ``timesteps`` decisions and save it.
 
     Args:
@@ -419,6 +429,9 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
             env in a worker process, the learner beside them: the fastest with a core more
             than ``n_envs`` free. None (the default): chosen by the cores idle at the start
             (:func:`idle_cores`, :func:`envs_where`).
+        hold_out: on recorded scenes, the scene indexes (seeds) never trained on
+            (:mod:`tap_bench.rl.heldout`), recorded in the definition with the scenes
+            trained on; None: train on every scene.
 
     Raises:
         ParameterError: ``timesteps``, ``n_envs``, ``output`` or ``keep`` is not usable.
@@ -434,6 +447,7 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
 
     torch.set_num_threads(1)  # a shared CPU; the env workers are the parallelism
     scenario = _training_scenario(env, curve)
+    split = _split(scenario, hold_out)
     params = {**HYPERPARAMETERS[algo], **(hyperparameters or {})}
     observation = _observation_config(scenario)
     say = announce or (lambda line: None)
@@ -444,7 +458,8 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
     say(f"starting {n_envs} training env(s) of {scenario.env_id}"
         + (" (fast variant)" if fast and not isinstance(scenario, WomdScenes) else "")
         + _where_phrase(n_envs, in_process) + why + " ...")
-    vec = _vec_env(scenario, n_envs=n_envs, fast=fast, seed=seed, in_process=in_process)
+    vec = _vec_env(scenario, n_envs=n_envs, fast=fast, seed=seed, in_process=in_process,
+                   scenes=None if split is None or not split.held_out else split.train)
     say(f"training {algo.upper()} for {timesteps} steps"
         + (f", {curve.points} learning-curve evaluations on the way" if curve else "")
         + " ...")
@@ -468,7 +483,7 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
                       trained=trained, asked=timesteps, interrupted=learned.interrupted,
                       kept=kept, n_envs=n_envs, fast=fast, seed=seed, params=params,
                       curve=curve, train_seconds=learned.seconds - eval_seconds,
-                      command=command)
+                      command=command, split=split)
     with atomic_path(definition) as tmp:
         tmp.write_text(json.dumps(doc, indent=2, default=_json_record) + "\n")
     result = TrainingResult(model_path=output, definition_path=definition,
@@ -508,6 +523,19 @@ def _check_arguments(output: Path, *, timesteps: Any, n_envs: Any, keep: Any, in
             "curve (tap-bench train: drop --no-curve; train(): pass curve=CurveConfig()), "
             "or keep the last weights."))
     check_replace(training_outputs(output), overwrite, ours=lambda _: _trained_here(output))
+
+
+def _split(scenario: Scenario | WomdScenes, hold_out: str | Sequence[int] | None
+           ) -> SceneSplit | None:
+    """The scenes trained on and held out (None on a synthetic scenario, where ``hold_out``
+    is refused)."""
+    if not isinstance(scenario, WomdScenes):
+        if hold_out is not None:
+            raise ParameterError("hold_out", hold_out, "None on a synthetic scenario",
+                                 message="hold_out (--hold-out) names recorded scenes; a "
+                                 "synthetic scenario's curve evaluates on seeds of its own.")
+        return None
+    return split_scenes(scenario, hold_out)
 
 
 def _training_scenario(env: str | WomdScenes, curve: CurveConfig | None) -> Scenario | WomdScenes:
@@ -617,6 +645,13 @@ def _learn(cls: type, vec: Any, params: dict[str, Any], *, seed: int, timesteps:
             Path(log_dir).mkdir(parents=True, exist_ok=True)
             outputs.append(make_output_format("csv", str(log_dir)))
         model.set_logger(Logger(str(log_dir) if log_dir else None, outputs))
+        if log_dir:  # the weights at every tenth of the training: a learning curve on any
+            # scenes afterwards (recorded scenes have no curve during training)
+            from stable_baselines3.common.callbacks import CheckpointCallback
+
+            callbacks.append(CheckpointCallback(
+                save_freq=max(1, timesteps // (CHECKPOINTS * vec.num_envs)),
+                save_path=str(log_dir), name_prefix="weights"))
         start = time.perf_counter()
         interrupted = False
         try:
@@ -646,7 +681,7 @@ def _definition(output: Path, *, algo: str, scenario: Scenario | WomdScenes,
                 observation: dict[str, Any], trained: int, asked: int, interrupted: bool,
                 kept: dict[str, Any] | None, n_envs: int, fast: bool, seed: int,
                 params: dict[str, Any], curve: CurveConfig | None, train_seconds: float,
-                command: str | None) -> dict[str, Any]:
+                command: str | None, split: SceneSplit | None = None) -> dict[str, Any]:
     """The policy definition written beside the model (kind ``sb3``): what was trained,
     how, and the command; ``trained`` env steps of the ``asked`` ones, ``train_seconds``
     the wall time of the training without the curve's evaluations [s]."""
@@ -663,6 +698,7 @@ def _definition(output: Path, *, algo: str, scenario: Scenario | WomdScenes,
             "env": scenario.env_id,
             **({"womd": list(scenario.files), "traffic": scenario.traffic}
                if isinstance(scenario, WomdScenes) else {}),
+            **(split.record() if split is not None else {}),
             "observation": observation,
             "timesteps": trained,
             **({"interrupted_of": asked} if interrupted else {}),

@@ -203,14 +203,18 @@ class _WomdHighwayEnv(AbstractEnv):
         return config
 
     def __init__(self, scenes: WomdScenes, config: dict | None = None,
-                 render_mode: str | None = None) -> None:
+                 render_mode: str | None = None, keep_scenes: int = 4) -> None:
         self.scenes = scenes
         self.catalog = scenes.catalog()
         if not self.catalog:
             raise SceneError(f"{', '.join(scenes.files)}: no scenario in these files.")
         self.scene: Scene | None = None
         self.scene_index: int | None = None
+        # decoded scenes and their road networks and ego routes, the last keep_scenes used
+        # (training comes back to the same scenes: building a network is most of a reset)
+        self.keep_scenes = max(1, int(keep_scenes))
         self._cache: dict[SceneRef, Scene] = {}
+        self._built: dict[SceneRef, tuple[WomdNetwork, list, float]] = {}
         self.traffic = scenes.traffic
         self.rollout = 0  # which draw of stochastic traffic (reset option "rollout")
         self.clock = [CURRENT_STEP]
@@ -242,8 +246,10 @@ class _WomdHighwayEnv(AbstractEnv):
         scene = self._cache.get(ref)
         if scene is None:
             scene = load_scene(ref, ego=self.scenes.ego)
-            if len(self._cache) >= 4:
-                self._cache.pop(next(iter(self._cache)))
+            if len(self._cache) >= self.keep_scenes:
+                gone = next(iter(self._cache))
+                self._cache.pop(gone)
+                self._built.pop(gone, None)
             self._cache[ref] = scene
         return scene
 
@@ -332,7 +338,9 @@ class _WomdHighwayEnv(AbstractEnv):
         scene = self.scene
         self.clock[0] = CURRENT_STEP
         self._measured_step = CURRENT_STEP
-        network = WomdNetwork(scene.road)
+        ref = self.catalog[self.scene_index]
+        built = self._built.get(ref)
+        network = built[0] if built is not None else WomdNetwork(scene.road)
         self.map_note = _map_note(scene, network)
         self.road = WomdRoad(network, scene, self.clock, np_random=self.np_random)
         sim_xy = sim_frame(scene.x, scene.y)  # (n, T, 2)
@@ -341,7 +349,12 @@ class _WomdHighwayEnv(AbstractEnv):
         self.states = states
         e = scene.ego
         future = np.flatnonzero(scene.valid[e, CURRENT_STEP:]) + CURRENT_STEP
-        self.route, off = logged_route(network, sim_xy[e, future], sim_h[e, future])
+        if built is None:
+            built = (network, *logged_route(network, sim_xy[e, future], sim_h[e, future]))
+            if ref in self._cache:
+                self._built[ref] = built
+        route, off = built[1], built[2]
+        self.route = list(route)
         self.route_missing = ""  # why the scene has no route (the human still replays)
         if off > 0.5:
             self.route_missing = (
@@ -550,7 +563,9 @@ class WomdEnv(gym.Wrapper):
 
     def __init__(self, scenes: WomdScenes, *, record: bool = True,
                  render_mode: str | None = None, cycle: bool = False) -> None:
-        inner = _WomdHighwayEnv(scenes, config=dict(scenes.config), render_mode=render_mode)
+        # cycling (training) comes back to every scene: keep up to 64 built
+        inner = _WomdHighwayEnv(scenes, config=dict(scenes.config), render_mode=render_mode,
+                                keep_scenes=64 if cycle else 4)
         super().__init__(inner)
         self.scenario = scenes
         self.record = record
