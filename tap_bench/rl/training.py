@@ -483,7 +483,7 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
                       trained=trained, asked=timesteps, interrupted=learned.interrupted,
                       kept=kept, n_envs=n_envs, fast=fast, seed=seed, params=params,
                       curve=curve, train_seconds=learned.seconds - eval_seconds,
-                      command=command, split=split)
+                      cpu_seconds=learned.cpu_seconds, command=command, split=split)
     with atomic_path(definition) as tmp:
         tmp.write_text(json.dumps(doc, indent=2, default=_json_record) + "\n")
     result = TrainingResult(model_path=output, definition_path=definition,
@@ -604,12 +604,14 @@ def _where_phrase(n_envs: int, in_process: bool | str) -> str:
 @dataclass(frozen=True)
 class _Learned:
     """What :func:`_learn` gives back: the model, the wall time of ``learn`` [s], whether
-    Ctrl-C stopped it, and the training episodes finished."""
+    Ctrl-C stopped it, the training episodes finished, and the CPU time of ``learn``
+    (user + system, the env workers included) [s]."""
 
     model: Any
     seconds: float
     interrupted: bool
     episodes: int
+    cpu_seconds: float = float("nan")
 
 
 def _learn(cls: type, vec: Any, params: dict[str, Any], *, seed: int, timesteps: int,
@@ -653,6 +655,7 @@ def _learn(cls: type, vec: Any, params: dict[str, Any], *, seed: int, timesteps:
                 save_freq=max(1, timesteps // (CHECKPOINTS * vec.num_envs)),
                 save_path=str(log_dir), name_prefix="weights"))
         start = time.perf_counter()
+        cpu_start = _cpu_seconds()
         interrupted = False
         try:
             model.learn(total_timesteps=timesteps, callback=callbacks, progress_bar=False)
@@ -672,16 +675,34 @@ def _learn(cls: type, vec: Any, params: dict[str, Any], *, seed: int, timesteps:
         # counted by their dones then)
         episodes = counted.episodes if interrupted else sum(
             len(r) for r in vec.env_method("get_episode_rewards"))
+        cpu = _cpu_seconds(vec) - cpu_start  # the workers' too, while they run
     finally:
         vec.close()
-    return _Learned(model, seconds, interrupted, int(episodes))
+    return _Learned(model, seconds, interrupted, int(episodes), cpu)
+
+
+def _cpu_seconds(vec: Any = None) -> float:
+    """CPU time [s] (user + system) of this process and of the env worker processes of
+    ``vec`` still running (read from ``/proc/<pid>/stat``; NaN where it cannot be read)."""
+    import resource
+
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    total = own.ru_utime + own.ru_stime
+    for process in getattr(vec, "processes", ()):
+        try:
+            fields = Path(f"/proc/{process.pid}/stat").read_text().rsplit(")", 1)[1].split()
+            total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        except (OSError, ValueError, IndexError, AttributeError):
+            return float("nan")
+    return total
 
 
 def _definition(output: Path, *, algo: str, scenario: Scenario | WomdScenes,
                 observation: dict[str, Any], trained: int, asked: int, interrupted: bool,
                 kept: dict[str, Any] | None, n_envs: int, fast: bool, seed: int,
                 params: dict[str, Any], curve: CurveConfig | None, train_seconds: float,
-                command: str | None, split: SceneSplit | None = None) -> dict[str, Any]:
+                command: str | None, split: SceneSplit | None = None,
+                cpu_seconds: float = float("nan")) -> dict[str, Any]:
     """The policy definition written beside the model (kind ``sb3``): what was trained,
     how, and the command; ``trained`` env steps of the ``asked`` ones, ``train_seconds``
     the wall time of the training without the curve's evaluations [s]."""
@@ -714,6 +735,8 @@ def _definition(output: Path, *, algo: str, scenario: Scenario | WomdScenes,
                 "points": curve.points, "seeds": curve.seeds,
                 "reference": str(curve.reference), "level": curve.level},
             "train_seconds": round(train_seconds, 1),
+            # the curve's evaluations included (CPU of the training alone is not separable)
+            **({"cpu_seconds": round(cpu_seconds, 1)} if cpu_seconds == cpu_seconds else {}),
             "command": command or " ".join(shlex.quote(a) for a in sys.argv),
         },
     }

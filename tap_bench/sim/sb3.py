@@ -147,8 +147,11 @@ class SB3Policy:
             stopped the training earlier; ``kept``: ``"last"`` or ``"best"``, the weights
             saved, with the steps, return and crash rate of the evaluation they come from;
             ``curve``: the learning curve's settings, None without one; ``womd`` and
-            ``traffic``: the recorded scenes it trained on, if any); kept in
-            :attr:`training`.
+            ``traffic``: the recorded scenes it trained on, if any;
+            ``train_scenes``, ``held_out_scenes``, ``held_out_refs``: the indexes of the
+            scenes trained on and held out, and where the held-out ones are:
+            :mod:`tap_bench.rl.heldout`; ``cpu_seconds``: the CPU time of the training,
+            user + system, its env workers included); kept in :attr:`training`.
     """
 
     def __init__(self, name: str, model: str, algo: str | None = None,
@@ -162,7 +165,11 @@ class SB3Policy:
                  kept_timesteps: int | None = None, kept_eval_return: float | None = None,
                  kept_eval_crash_rate: float | None = None,
                  curve: Mapping[str, Any] | None = None,
-                 womd: Sequence[str] | None = None, traffic: str | None = None) -> None:
+                 womd: Sequence[str] | None = None, traffic: str | None = None,
+                 train_scenes: Sequence[int] | None = None,
+                 held_out_scenes: Sequence[int] | None = None,
+                 held_out_refs: Sequence[str] | None = None,
+                 cpu_seconds: float | None = None) -> None:
         path = Path(model)
         if not path.is_absolute() and base_dir is not None:
             path = Path(base_dir) / path
@@ -186,7 +193,12 @@ class SB3Policy:
                          "kept_eval_crash_rate": kept_eval_crash_rate,
                          "curve": dict(curve) if curve is not None else None,
                          "womd": list(womd) if womd is not None else None,
-                         "traffic": traffic}
+                         "traffic": traffic,
+                         "train_scenes": None if train_scenes is None else list(train_scenes),
+                         "held_out_scenes": (None if held_out_scenes is None
+                                             else list(held_out_scenes)),
+                         "held_out_refs": None if held_out_refs is None else list(held_out_refs),
+                         "cpu_seconds": cpu_seconds}
         self._model: Any = None
 
     def __getstate__(self) -> dict[str, Any]:

@@ -1,0 +1,92 @@
+"""Scenes held out of training on recorded scenes, and the training env's scene cache."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tap_bench.errors import ParameterError
+from tap_bench.rl.heldout import SceneSubset, split_scenes
+from tap_bench.sim.womd_env import WomdEnv
+from tap_bench.sim.womd_scene import WomdScenes
+
+
+@pytest.fixture
+def four(womd_dir) -> WomdScenes:
+    """The four sample files: scenes 0-3 in file order."""
+    return WomdScenes((str(womd_dir),))
+
+
+def test_a_split_names_the_scenes_trained_on_and_held_out(four):
+    split = split_scenes(four, "1,3")
+    assert split.train == (0, 2) and split.held_out == (1, 3)
+    record = split.record()
+    assert record["held_out_scenes"] == [1, 3] and record["train_scenes"] == [0, 2]
+    assert "motion_data_one_scenario" in record["held_out_refs"][0]
+    assert split_scenes(four, None).held_out == ()
+    with pytest.raises(ParameterError, match="none is left to train on"):
+        split_scenes(four, "0-3")
+    with pytest.raises(ParameterError, match="beyond"):
+        split_scenes(four, "7")
+
+
+def test_the_training_env_never_starts_a_held_out_scene(four):
+    env = SceneSubset(WomdEnv(four, record=False, cycle=True), (0, 2))
+    seen = []
+    env.reset(seed=5)  # seed 5 -> the second training scene, as seeds wrap around
+    seen.append(env.unwrapped.scene_index)
+    for _ in range(4):
+        env.reset()
+        seen.append(env.unwrapped.scene_index)
+    assert seen == [2, 0, 2, 0, 2]
+
+
+def test_a_scene_built_again_from_the_cache_gives_the_same_episode(four):
+    cached = WomdEnv(four, record=False, cycle=True)
+    fresh = WomdEnv(four, record=False)
+    runs = []
+    for env, resets in ((cached, 2), (fresh, 1)):
+        for _ in range(resets):  # the cached env builds scene 0, then takes it from its cache
+            obs, _ = env.reset(options={"scene": 0})
+            network = env.unwrapped.road.network
+            trace = [obs]
+            for _ in range(6):
+                obs, reward, terminated, truncated, _ = env.step(3)  # FASTER
+                trace.append(obs)
+                if terminated or truncated:
+                    break
+        runs.append((network, np.array(trace)))
+    assert cached.unwrapped._built, "the cycling env keeps its built scenes"
+    assert runs[0][0] is cached.unwrapped._built[cached.catalog[0]][0]
+    np.testing.assert_allclose(runs[0][1], runs[1][1], atol=1e-6)
+
+
+def test_train_records_the_held_out_scenes_and_never_trains_on_them(four, tmp_path):
+    pytest.importorskip("stable_baselines3")
+    from tap_bench.rl.training import train
+
+    result = train("ppo", four, timesteps=32, seed=0, output=tmp_path / "ppo-womd.zip",
+                   n_envs=1, hold_out="1,3", log_dir=tmp_path / "log",
+                   hyperparameters={"n_steps": 16, "batch_size": 16, "n_epochs": 1})
+    params = json.loads(result.definition_path.read_text())["params"]
+    assert params["held_out_scenes"] == [1, 3] and params["train_scenes"] == [0, 2]
+    assert 0 < params["cpu_seconds"] and params["train_seconds"] > 0
+    assert sorted(p.name for p in (tmp_path / "log").glob("weights_*_steps.zip"))
+    with pytest.raises(ParameterError, match="synthetic"):
+        train("ppo", "highway", timesteps=32, seed=0, output=tmp_path / "x.zip",
+              n_envs=1, hold_out="1")
+
+
+def test_a_definition_with_the_split_and_cpu_time_loads_as_a_policy(four, tmp_path):
+    pytest.importorskip("stable_baselines3")
+    from tap_bench.rl.training import train
+    from tap_bench.sim.policies import load_policy
+
+    result = train("ppo", four, timesteps=16, seed=0, output=tmp_path / "ppo-womd.zip",
+                   n_envs=1, hold_out="3",
+                   hyperparameters={"n_steps": 16, "batch_size": 16, "n_epochs": 1})
+    policy = load_policy(str(result.definition_path))
+    assert policy.training["held_out_scenes"] == [3]
+    assert policy.training["cpu_seconds"] > 0
