@@ -53,7 +53,7 @@ def test_a_scene_built_again_from_the_cache_gives_the_same_episode(four):
             network = env.unwrapped.road.network
             trace = [obs]
             for _ in range(6):
-                obs, reward, terminated, truncated, _ = env.step(3)  # FASTER
+                obs, _reward, terminated, truncated, _ = env.step(3)  # FASTER
                 trace.append(obs)
                 if terminated or truncated:
                     break
