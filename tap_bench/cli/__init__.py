@@ -38,6 +38,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "rollout": ("tap_bench.cli.rollout", "run a policy on a scenario for a set of seeds"),
     "train": ("tap_bench.cli.train",
               "train a Stable-Baselines3 agent (DQN, PPO, A2C) on a scenario"),
+    "agents": ("tap_bench.cli.agents",
+               "judge agents on real scenes over training seeds, against the human"),
     # the benchmark: matched comparison, coverage, suite runs and the regression gate
     "compare": ("tap_bench.cli.compare",
                 "compare two policies: paired by seed and matched by SDL label"),

@@ -39,8 +39,8 @@ import numpy as np
 
 from tap_bench.errors import ParameterError
 
-__all__ = ["Interval", "iqm", "performance_profile", "probability_of_improvement",
-           "stratified_bootstrap", "stratified_resample"]
+__all__ = ["BATCHED", "Interval", "iqm", "mean_score", "performance_profile",
+           "probability_of_improvement", "stratified_bootstrap", "stratified_resample"]
 
 
 @dataclass(frozen=True)
@@ -68,16 +68,35 @@ def _scores(scores: np.ndarray, name: str = "scores") -> np.ndarray:
     return array
 
 
-def iqm(scores: np.ndarray) -> float:
+def iqm(scores: np.ndarray) -> float | np.ndarray:
     """The interquartile mean of the pooled ``(n_runs, n_tasks)`` scores: the mean of the
     middle half, the lowest and highest quarter cut (an end value cut in part counts by the
-    part kept, so it is defined for any number of scores)."""
-    x = np.sort(_scores(scores).ravel())
-    n = len(x)
+    part kept, so it is defined for any number of scores). A stack of shape ``(k, n_runs,
+    n_tasks)`` (bootstrap resamples) gives the ``k`` IQMs."""
+    array = np.asarray(scores, dtype=float)
+    if array.ndim == 3:
+        flat = np.sort(array.reshape(len(array), -1), axis=1)
+    else:
+        flat = np.sort(_scores(array).ravel())[None, :]
+    n = flat.shape[1]
     lo, hi = 0.25 * n, 0.75 * n  # keep the order positions [lo, hi)
     positions = np.arange(n)
     weights = np.clip(np.minimum(positions + 1, hi) - np.maximum(positions, lo), 0.0, 1.0)
-    return float(np.dot(weights, x) / weights.sum())
+    values = flat @ weights / weights.sum()
+    return values if array.ndim == 3 else float(values[0])
+
+
+def mean_score(scores: np.ndarray) -> float | np.ndarray:
+    """The mean of the pooled ``(n_runs, n_tasks)`` scores (of each of a ``(k, n_runs,
+    n_tasks)`` stack): the aggregate of a rate, such as at-fault collisions per episode."""
+    array = np.asarray(scores, dtype=float)
+    if array.ndim == 3:
+        return array.mean(axis=(1, 2))
+    return float(_scores(array).mean())
+
+
+BATCHED = (iqm, mean_score)
+"""Statistics that take a stack of resamples at once (computed in one pass)."""
 
 
 def stratified_resample(rng: np.random.Generator, n_runs: int, n_tasks: int,
@@ -111,20 +130,22 @@ def stratified_bootstrap(scores: np.ndarray, statistic: Callable[[np.ndarray], f
     _check_level(level, n_resamples)
     n_runs, n_tasks = x.shape
     cols = np.arange(n_tasks)
-    boot = np.empty(n_resamples)
-    for b, rows in enumerate(stratified_resample(rng, n_runs, n_tasks, n_resamples)):
-        boot[b] = statistic(x[rows, cols])
+    samples = x[stratified_resample(rng, n_runs, n_tasks, n_resamples), cols]
+    if statistic in BATCHED:
+        boot = np.asarray(statistic(samples), dtype=float)
+    else:
+        boot = np.array([statistic(sample) for sample in samples], dtype=float)
     alpha = (1 - level) / 2
     low, high = np.quantile(boot, [alpha, 1 - alpha])
     return Interval(float(statistic(x)), float(low), float(high), level)
 
 
-def _improvement(x: np.ndarray, y: np.ndarray) -> float:
-    """P(X > Y) of two ``(runs, tasks)`` arrays on the same tasks: per task the share of run
-    pairs where X's score is higher (ties a half), averaged over tasks."""
-    greater = (x[:, None, :] > y[None, :, :]).mean(axis=(0, 1))
-    ties = (x[:, None, :] == y[None, :, :]).mean(axis=(0, 1))
-    return float(np.mean(greater + 0.5 * ties))
+def _improvement(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """P(X > Y) of two ``(..., runs, tasks)`` stacks on the same tasks: per task the share of
+    run pairs where X's score is higher (ties a half), averaged over tasks."""
+    a, b = x[..., :, None, :], y[..., None, :, :]
+    per_task = (a > b).mean(axis=(-3, -2)) + 0.5 * (a == b).mean(axis=(-3, -2))
+    return per_task.mean(axis=-1)
 
 
 def probability_of_improvement(x: np.ndarray, y: np.ndarray, *, rng: np.random.Generator,
@@ -149,11 +170,10 @@ def probability_of_improvement(x: np.ndarray, y: np.ndarray, *, rng: np.random.G
     cols = np.arange(n_tasks)
     rows_x = stratified_resample(rng, x.shape[0], n_tasks, n_resamples)
     rows_y = stratified_resample(rng, y.shape[0], n_tasks, n_resamples)
-    boot = np.array([_improvement(x[rx, cols], y[ry, cols])
-                     for rx, ry in zip(rows_x, rows_y, strict=True)])
+    boot = _improvement(x[rows_x, cols], y[rows_y, cols])
     alpha = (1 - level) / 2
     low, high = np.quantile(boot, [alpha, 1 - alpha])
-    return Interval(_improvement(x, y), float(low), float(high), level)
+    return Interval(float(_improvement(x, y)), float(low), float(high), level)
 
 
 def performance_profile(scores: np.ndarray, thresholds: np.ndarray, *,
@@ -176,10 +196,9 @@ def performance_profile(scores: np.ndarray, thresholds: np.ndarray, *,
     n_runs, n_tasks = x.shape
     cols = np.arange(n_tasks)
 
-    def share(sample: np.ndarray) -> np.ndarray:
-        return (sample.ravel()[:, None] > taus[None, :]).mean(axis=0)
-
-    boot = np.array([share(x[rows, cols])
-                     for rows in stratified_resample(rng, n_runs, n_tasks, n_resamples)])
+    samples = x[stratified_resample(rng, n_runs, n_tasks, n_resamples), cols]
+    flat = samples.reshape(n_resamples, -1)
+    boot = (flat[:, :, None] > taus[None, None, :]).mean(axis=1)
+    share = (x.ravel()[:, None] > taus[None, :]).mean(axis=0)
     alpha = (1 - level) / 2
-    return share(x), np.quantile(boot, alpha, axis=0), np.quantile(boot, 1 - alpha, axis=0)
+    return share, np.quantile(boot, alpha, axis=0), np.quantile(boot, 1 - alpha, axis=0)

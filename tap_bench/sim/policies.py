@@ -254,7 +254,10 @@ for _kind in (PolicyKind("idm", "tap_bench.sim.idm:IDMPolicy", "IDM/MOBIL drives
                          "the human: replays the recorded ego of a real scene"),
               PolicyKind("sb3", "tap_bench.sim.sb3:SB3Policy", "a Stable-Baselines3 model"),
               PolicyKind("import", "tap_bench.sim.policies:import_policy",
-                         "your own class or function, params.factory 'module:name'")):
+                         "your own class or function, params.factory 'module:name'"),
+              PolicyKind("seeds", "tap_bench.rl.agents:seed_group",
+                         "an agent standing for its trained seeds, params.seeds (policy "
+                         "names); tap-bench agents aggregates over them")):
     POLICY_KINDS.register(_kind)
 
 

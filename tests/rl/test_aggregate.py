@@ -28,6 +28,11 @@ def test_the_iqm_is_the_mean_of_the_middle_half():
     assert iqm([[7.0]]) == 7.0
 
 
+def test_a_stack_of_resamples_gives_each_ones_iqm():
+    stack = np.random.default_rng(1).normal(size=(6, 3, 5))
+    np.testing.assert_allclose(iqm(stack), [iqm(m) for m in stack])
+
+
 def test_the_bootstrap_resamples_runs_within_each_scene_only():
     # scene 0 scores in [0, 1], scene 1 in [10, 11]: a resample that mixed scenes would put
     # a column mean outside its scene's range
@@ -73,6 +78,6 @@ def test_bad_scores_and_settings_are_refused():
     with pytest.raises(ParameterError, match="NaN"):
         iqm([[1.0, np.nan]])
     with pytest.raises(ParameterError, match="n_runs, n_tasks"):
-        iqm(np.zeros((2, 2, 2)))
+        iqm(np.zeros((2, 2, 2, 2)))
     with pytest.raises(ParameterError, match="level"):
         stratified_bootstrap([[1.0, 2.0]], rng=rng(), level=0.3)

@@ -1,0 +1,85 @@
+"""``tap-bench agents``: agents on real scenes over training seeds, against the human."""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "agents", help="judge agents on real scenes over training seeds (rliable) and by "
+        "the human behaviour they cover",
+        description="Aggregate the agents of a run on recorded scenes (bench run) over "
+        "training seeds x scenes as rliable recommends: route progress by its interquartile "
+        "mean, at-fault collisions and off-road by their rate, each with its stratified "
+        "bootstrap interval; the probability of improvement of every agent over every "
+        "other; performance profiles (a plot); the share of the human's manoeuvres each "
+        "agent performs in the same scenes, the manoeuvres it adds, and its failures by its "
+        "own label. A policy of kind 'seeds' (policies/ppo-womd.json) stands for its "
+        "trained seeds. With --womd the suite (default womd-agents: the human, IDM, lane "
+        "keeping, random and the shipped agents) is first run on those files into RUN. "
+        "Writes RUN/agents/ (tables as CSV, profiles.png, agents.html).")
+    p.add_argument("run", help="run folder: read, or with --womd written first")
+    p.add_argument("--womd", nargs="+", metavar="FILE",
+                   help="WOMD files, folders or globs: run the suite on every scene of them "
+                   "first (replacing the suite's own scenes)")
+    p.add_argument("--suite", default="womd-agents",
+                   help="with --womd: the suite whose policies run (default womd-agents)")
+    p.add_argument("--traffic", choices=("log", "idm"), default="log",
+                   help="with --womd: the other agents replay the log (default) or drive "
+                   "by IDM/MOBIL")
+    p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                   help="with --womd: rollout processes (default 2)")
+    p.add_argument("--no-cache", action="store_true",
+                   help="with --womd: simulate every episode (no episode cache)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="with --womd: replace an existing run folder")
+    p.add_argument("--level", type=float, default=0.95,
+                   help="two-sided level of every interval (default 0.95)")
+    p.add_argument("--resamples", type=int, default=2000,
+                   help="bootstrap resamples of every interval (default 2000)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the resamples (default 0)")
+    p.add_argument("-o", "--output", help="folder of the figures (default RUN/agents)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from tap_bench.rl.agents import agents_figures, interval_text, seed_groups
+    from tap_bench.rl.agents_page import write_agents_page
+
+    groups = seed_groups()
+    if args.womd:
+        _run_suite(args, groups)
+    result = agents_figures(args.run, groups=groups, level=args.level,
+                            n_resamples=args.resamples, seed=args.seed)
+    output = Path(args.output) if args.output else Path(args.run) / "agents"
+    viewer = os.path.relpath(Path(args.run) / "viewer" / "index.html", output)
+    page = write_agents_page(result, output, viewer=viewer)
+    for row in result.aggregates.to_dict("records"):
+        print(f"{row['agent']:>16}  {row['measure']:<17} {row['aggregate']:<4} "
+              f"{interval_text(row)}  ({row['runs']} run(s) x {row['scenes']} scene(s))")
+    means = result.coverage[result.coverage["run"] == "(mean over runs)"]
+    for row in means.to_dict("records"):
+        print(f"{row['agent']:>16}  covers {row['coverage']:.0%} of the human's manoeuvres")
+    print(f"wrote {page} and its tables")
+    return 0
+
+
+def _run_suite(args: argparse.Namespace, groups: dict[str, tuple[str, ...]]) -> None:
+    """Run the suite's policies (a seed group by its seeds) on the scenes of ``--womd``."""
+    from tap_bench.bench.cache import EpisodeCache, default_cache_dir
+    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.suite import load_suite, suite_from_dict
+
+    suite = load_suite(args.suite)
+    doc = suite.to_dict()
+    doc["envs"] = [{"womd": [os.path.abspath(f) for f in args.womd], "traffic": args.traffic}]
+    doc["seeds"] = "all"
+    doc["policies"] = [seed for p in doc["policies"] for seed in groups.get(p, (p,))]
+    suite = suite_from_dict(doc, source=f"{args.suite} on {' '.join(args.womd)}")
+    cache = None if args.no_cache else EpisodeCache(default_cache_dir())
+    run_suite(suite, args.run, workers=args.workers, overwrite=args.overwrite, cache=cache,
+              announce=lambda line: print(line, flush=True))

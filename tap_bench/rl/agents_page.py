@@ -1,0 +1,136 @@
+"""The page of ``tap-bench agents``: the tables of :mod:`tap_bench.rl.agents` written as
+CSV, the performance profiles as a PNG, and ``agents.html`` with a section per agent (what it
+covers of the human, what it adds, where it fails) whose scenes link to the run's replay
+viewer."""
+
+from __future__ import annotations
+
+import html
+import os
+from pathlib import Path
+from urllib.parse import quote
+
+import pandas as pd
+
+from tap_bench.rl.agents import HUMAN, AgentsResult, interval_text
+from tap_bench.tableio import atomic_path, write_table
+
+__all__ = ["plot_profiles", "write_agents_page"]
+
+_NAMES = {"route_progress": "route progress (IQM)",
+          "crashed_at_fault": "at-fault collisions (rate)", "off_road": "off-road (rate)"}
+
+
+def plot_profiles(profiles: pd.DataFrame, path: str | os.PathLike, *, level: float) -> Path:
+    """The route-progress performance profiles, one line per agent with its band, as PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=100)
+    for agent, rows in profiles.groupby("agent", sort=False):
+        line, = ax.plot(rows["tau"], rows["share"], label=agent, drawstyle="steps-post")
+        ax.fill_between(rows["tau"], rows["low"], rows["high"], step="post", alpha=0.2,
+                        color=line.get_color())
+    ax.set_xlabel("route progress tau")
+    ax.set_ylabel("share of runs x scenes with progress > tau")
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_title(f"Performance profiles ({level:.0%} stratified bootstrap bands)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+    return path
+
+
+def _link(scenario_id: str, viewer: str) -> str:
+    return (f'<a href="{viewer}#ep={quote(scenario_id, safe="")}&amp;b={HUMAN}">'
+            f"{html.escape(scenario_id)}</a>")
+
+
+def _section(agent: str, result: AgentsResult, viewer: str) -> str:
+    """One agent's section: its figures, coverage, unique manoeuvres and failures."""
+    parts = [f"<h2 id=\"agent-{html.escape(agent)}\">{html.escape(agent)}</h2><ul>"]
+    for row in result.aggregates[result.aggregates["agent"] == agent].to_dict("records"):
+        parts.append(f"<li>{_NAMES.get(row['measure'], row['measure'])}: "
+                     f"{interval_text(row)} over {row['runs']} run(s) x {row['scenes']} "
+                     "scene(s)</li>")
+    cover = result.coverage[(result.coverage["agent"] == agent)
+                            & (result.coverage["run"] != "(mean over runs)")]
+    for row in cover.to_dict("records"):
+        parts.append(f"<li>covers {row['covered']:.0f} of the human's "
+                     f"{row['human_manoeuvres']:.0f} manoeuvres in the same scenes "
+                     f"({row['coverage']:.0%}; run {html.escape(str(row['run']))})</li>")
+    parts.append("</ul>")
+    unique = result.unique[result.unique["agent"] == agent]
+    if len(unique):
+        parts.append("<p>What it adds (manoeuvres no human performed in that scene):</p><ul>")
+        for row in unique.to_dict("records"):
+            links = ", ".join(_link(e, viewer) for e in str(row["episodes"]).split(", "))
+            parts.append(f"<li>{html.escape(row['manoeuvre'])} ({row['runs']} run-scene(s)): "
+                         f"{links}</li>")
+        parts.append("</ul>")
+    failing = result.safety[(result.safety["agent"] == agent)
+                            & ((result.safety["at_fault"] > 0) | (result.safety["off_road"] > 0))]
+    if len(failing):
+        parts.append("<p>Where it fails (by its own label when the episode ended):</p><ul>")
+        for row in failing.to_dict("records"):
+            parts.append(f"<li>{html.escape(row['kind'])} {html.escape(row['label'])}: "
+                         f"{row['at_fault']:.0f} at-fault collision(s), {row['off_road']:.0f} "
+                         f"off-road, of {row['episodes']} episode(s) showing it</li>")
+        parts.append("</ul>")
+        ended = result.scores[(result.scores["agent"] == agent)
+                              & ((result.scores["crashed_at_fault"] > 0)
+                                 | (result.scores["off_road"] > 0))]
+        parts.append("<p>Those episodes: " + ", ".join(
+            _link(s, viewer) for s in ended["scenario_id"]) + "</p>")
+    else:
+        parts.append("<p>No at-fault collision and never off the road.</p>")
+    return "\n".join(parts)
+
+
+def write_agents_page(result: AgentsResult, folder: str | os.PathLike, *,
+                      viewer: str = "../viewer/index.html") -> Path:
+    """Write the tables (``<name>.csv``), ``profiles.png`` and ``agents.html`` in ``folder``;
+    ``viewer``: the replay viewer's page relative to ``folder``. Returns the page's path."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, table in result.tables().items():
+        write_table(table, folder / f"{name}.csv")
+    if len(result.profiles):
+        plot_profiles(result.profiles, folder / "profiles.png", level=result.level)
+    agents = list(dict.fromkeys(result.scores["agent"]))
+    improvement = result.improvement.copy()
+    if len(improvement):
+        improvement["P(agent > over)"] = [interval_text(r) for r in improvement.to_dict("records")]
+        improvement = improvement.pivot_table(index=["measure", "agent"], columns="over",
+                                              values="P(agent > over)", aggfunc="first")
+    aggregates = result.aggregates.copy()
+    if len(aggregates):
+        aggregates["figure"] = [interval_text(r) for r in aggregates.to_dict("records")]
+        aggregates = aggregates.pivot_table(index="agent", columns="measure", values="figure",
+                                            aggfunc="first").reindex(agents)
+    body = [
+        "<!doctype html><meta charset=\"utf-8\"><title>Agents on real scenes</title>",
+        "<h1>Agents on real scenes</h1>",
+        f"<p>Figures over training seeds x scenes (rliable): route progress by its "
+        f"interquartile mean, rates by their mean, each with its {result.level:.0%} "
+        f"stratified bootstrap interval ({result.n_resamples} resamples; the runs of each "
+        "scene resampled, the scenes fixed). An agent of one run (IDM, lane keeping, random, "
+        "the human) has no spread over seeds. Measured coverage of these intervals: "
+        "docs/agents.md.</p>",
+        aggregates.to_html(escape=True) if len(aggregates) else "",
+        "<h2>Probability of improvement</h2><p>P(agent > over): a run of the row's agent "
+        "beats a run of the column's on a scene drawn at random (ties a half); at-fault "
+        "collisions: fewer is better.</p>",
+        improvement.to_html(escape=True) if len(improvement) else "",
+        "<h2>Performance profiles</h2><img src=\"profiles.png\" alt=\"performance profiles\">",
+        *[_section(agent, result, viewer) for agent in agents],
+    ]
+    page = folder / "agents.html"
+    with atomic_path(page) as tmp:
+        tmp.write_text("\n".join(body), encoding="utf-8")
+    return page

@@ -1,0 +1,141 @@
+"""Agents over training seeds on real scenes, against the human: a hand-made run folder of
+two scenes whose figures are worked out by hand."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import pandas as pd
+import pytest
+
+from tap_bench.errors import FileFormatError
+from tap_bench.rl.agents import (
+    SeedGroupError,
+    agent_of,
+    agents_figures,
+    seed_group,
+    seed_groups,
+)
+from tap_bench.rl.agents_page import write_agents_page
+
+GROUPS = {"ppo": ("ppo-s0", "ppo-s1")}
+
+# (policy, scene, route progress, at fault, lateral, longitudinal, interaction)
+EPISODES = [
+    ("log", "A", 1.0, 0, ["Left Turn"], ["Maintain Speed"], ["Following (5)"]),
+    ("log", "B", 1.0, 0, ["Straight"], ["Decelerate"], []),
+    ("ppo-s0", "A", 0.4, 1, ["Left Turn"], ["Accelerate"], []),  # adds Accelerate, crashes
+    ("ppo-s0", "B", 1.0, 0, ["Straight"], ["Decelerate"], []),
+    ("ppo-s1", "A", 0.9, 0, ["Left Turn"], ["Maintain Speed"], []),
+    ("ppo-s1", "B", 0.8, 0, ["Straight"], ["Decelerate"], []),
+    ("idm", "A", 1.0, 0, ["Left Turn"], ["Maintain Speed"], ["Following (7)"]),
+    ("idm", "B", 0.5, 0, ["Straight"], ["Maintain Speed"], []),
+]
+
+
+@pytest.fixture
+def run(tmp_path):
+    """A run folder with the episodes and ego segments of :data:`EPISODES`."""
+    episodes, segments = [], []
+    for policy, scene, progress, fault, *axes in EPISODES:
+        sid = f"{scene}/{policy}"
+        episodes.append({"env": "womd", "policy": policy, "seed": "AB".index(scene),
+                         "scenario_id": sid, "status": "ok", "route_progress": progress,
+                         "crashed_at_fault": float(fault), "crashed": float(fault),
+                         "off_road": 0.0})
+        for axis, labels in zip(("lateral", "longitudinal", "interaction"), axes,
+                                strict=True):
+            for label in labels:
+                segments.append({"scenario_id": sid, "is_ego": True, "level": "maneuver",
+                                 "axis": axis, "label": label, "t_start": 0.0, "t_end": 9.0})
+        segments.append({"scenario_id": sid, "is_ego": False, "level": "maneuver",
+                         "axis": "lateral", "label": "U-Turn", "t_start": 0.0, "t_end": 9.0})
+    pd.DataFrame(episodes).to_parquet(tmp_path / "episodes.parquet")
+    pd.DataFrame(segments).to_parquet(tmp_path / "segments.parquet")
+    return tmp_path
+
+
+def row(table: pd.DataFrame, **where) -> dict:
+    mask = pd.Series(True, index=table.index)
+    for key, value in where.items():
+        mask &= table[key] == value
+    assert mask.sum() == 1, where
+    return table[mask].iloc[0].to_dict()
+
+
+def test_a_seed_group_names_its_seeds_and_refuses_to_drive():
+    definitions = {"ppo": SimpleNamespace(kind="seeds", params={"seeds": ["a", "b"]},
+                                          path=None),
+                   "idm": SimpleNamespace(kind="idm", params={}, path=None)}
+    assert seed_groups(definitions) == {"ppo": ("a", "b")}
+    assert agent_of("b", {"ppo": ("a", "b")}) == "ppo" and agent_of("idm", {}) == "idm"
+    with pytest.raises(SeedGroupError, match="stands for 2 trained seeds"):
+        seed_group("ppo", ["a", "b"])
+    bad = {"x": SimpleNamespace(kind="seeds", params={"seeds": []}, path=None)}
+    with pytest.raises(FileFormatError, match="non-empty list"):
+        seed_groups(bad)
+    twice = {**definitions, "dqn": SimpleNamespace(kind="seeds", params={"seeds": ["a"]},
+                                                   path=None)}
+    with pytest.raises(FileFormatError, match="already a seed"):
+        seed_groups(twice)
+
+
+def test_the_shipped_seed_groups_name_policies_that_exist():
+    from tap_bench.sim.policies import available_policies
+
+    known = available_policies()
+    for agent, seeds in seed_groups(known).items():
+        assert all(seed in known and known[seed].kind == "sb3" for seed in seeds), agent
+
+
+def test_figures_over_seeds_and_scenes(run):
+    result = agents_figures(run, groups=GROUPS, n_resamples=200)
+    # route progress IQM of ppo over its 2 runs x 2 scenes: the middle of 0.4 0.8 0.9 1.0
+    ppo = row(result.aggregates, agent="ppo", measure="route_progress")
+    assert ppo["estimate"] == pytest.approx(0.85) and ppo["runs"] == 2
+    assert ppo["low"] <= 0.85 <= ppo["high"]
+    fault = row(result.aggregates, agent="ppo", measure="crashed_at_fault")
+    assert fault["estimate"] == pytest.approx(0.25) and fault["low"] <= fault["high"]
+    # P(ppo > idm) on progress: scene A 0 (0.4, 0.9 < 1.0), scene B 1 (1.0, 0.8 > 0.5)
+    poi = row(result.improvement, agent="ppo", over="idm", measure="route_progress")
+    assert poi["probability"] == pytest.approx(0.5)
+    # at-fault collisions, fewer better: A: one run worse, one tied (1/4); B tied (1/2)
+    poi = row(result.improvement, agent="ppo", over="idm", measure="crashed_at_fault")
+    assert poi["probability"] == pytest.approx(0.375)
+    profile = result.profiles[(result.profiles["agent"] == "ppo")
+                              & (result.profiles["tau"].round(2) == 0.5)]
+    assert profile["share"].iloc[0] == pytest.approx(0.75)
+
+
+def test_coverage_of_the_human_unique_manoeuvres_and_safety_by_own_label(run):
+    result = agents_figures(run, groups=GROUPS, n_resamples=100)
+    cover = result.coverage
+    # the human's 5 manoeuvres: A Left Turn, Maintain Speed, Following; B Straight, Decelerate
+    assert row(cover, agent="ppo", run="ppo-s0")["coverage"] == pytest.approx(3 / 5)
+    assert row(cover, agent="ppo", run="ppo-s1")["coverage"] == pytest.approx(4 / 5)
+    assert row(cover, agent="ppo", run="(mean over runs)")["coverage"] == pytest.approx(0.7)
+    # IDM follows another car on A (the track id is not part of the manoeuvre)
+    assert row(cover, agent="idm", run="idm")["coverage"] == pytest.approx(4 / 5)
+    unique = row(result.unique, agent="ppo", manoeuvre="longitudinal: Accelerate")
+    assert unique["runs"] == 1 and unique["scenes"] == "A"
+    assert unique["episodes"] == "A/ppo-s0"
+    assert set(result.unique["agent"]) == {"ppo", "idm"}  # IDM: Maintain Speed on B
+    crash = row(result.safety, agent="ppo", kind="manoeuvre", label="Left Turn | Accelerate")
+    assert crash["at_fault"] == 1 and crash["episodes"] == 1
+    calm = row(result.safety, agent="ppo", kind="manoeuvre", label="Straight | Decelerate")
+    assert calm["at_fault"] == 0 and calm["episodes"] == 2
+
+
+def test_the_page_links_the_failures_to_the_viewer(run):
+    result = agents_figures(run, groups=GROUPS, n_resamples=100)
+    page = write_agents_page(result, run / "agents").read_text()
+    assert 'href="../viewer/index.html#ep=A%2Fppo-s0&amp;b=log"' in page
+    assert "Left Turn | Accelerate" in page and (run / "agents" / "profiles.png").is_file()
+    assert (run / "agents" / "aggregates.csv").is_file()
+
+
+def test_a_run_without_the_human_is_refused(run):
+    episodes = pd.read_parquet(run / "episodes.parquet")
+    episodes[episodes["policy"] != "log"].to_parquet(run / "episodes.parquet")
+    with pytest.raises(FileFormatError, match="human"):
+        agents_figures(run, groups=GROUPS)
