@@ -93,6 +93,8 @@ class LaneSet:
         self.length = np.array([float(lane.length) for _, lane in lanes])
         self._kinds, self._params, self._lengths = (self.kind.tolist(), p.tolist(),
                                                     self.length.tolist())
+        self._boxes = [_box(kind, params, length) for kind, params, length
+                       in zip(self._kinds, self._params, self._lengths, strict=True)]
         self.width = np.array([float(lane.width) if k != _OTHER else np.nan
                                for (_, lane), k in zip(lanes, self.kind, strict=True)])
 
@@ -205,6 +207,10 @@ class LaneSet:
         if kind == _STRAIGHT:
             dx, dy = x - p[0], y - p[1]
             return dx * p[2] + dy * p[3], dx * p[4] + dy * p[5]
+        if kind == _CIRCULAR:
+            dx, dy = x - p[0], y - p[1]
+            turned = (math.atan2(dy, dx) - p[3] + math.pi) % (2 * math.pi) - math.pi
+            return p[4] * turned * p[2], p[4] * (p[2] - math.hypot(dx, dy))
         (s,), (r,) = self.frame_one(column, [x], [y])
         return s, r
 
@@ -220,14 +226,36 @@ class LaneSet:
         return float(self.lanes[column][1].heading_at(s))
 
     def closest_one(self, network: Any, x: float, y: float, heading: float) -> Any:
-        """:meth:`closest` of one (position, heading) [m, rad]."""
+        """:meth:`closest` of one (position, heading) [m, rad].
+
+        A lane's distance is at least the point's distance to the box around the lane's
+        centre line (:func:`_box`; a lane's distance holds its lateral offset plus how far
+        beyond an end, at least the Euclidean distance to its centre line), so the lanes are
+        taken nearest box first and the search stops at the first box farther than the best
+        distance found plus :data:`TIE`."""
+        if not (math.isfinite(x) and math.isfinite(y)):
+            return network.get_closest_lane_index(np.array((x, y)), heading)
+        bounds = []
+        for x0, x1, y0, y1 in self._boxes:
+            dx = x0 - x if x < x0 else x - x1 if x > x1 else 0.0
+            dy = y0 - y if y < y0 else y - y1 if y > y1 else 0.0
+            bounds.append(math.hypot(dx, dy))
         best = second = math.inf
         nearest = -1
-        for j in range(len(self.lanes)):
-            s, r = self.point_frame(j, x, y)
-            length = self._lengths[j]
-            angle = abs((heading - self.heading_one(j, s) + math.pi) % (2 * math.pi) - math.pi)
-            distance = abs(r) + max(s - length, 0.0) + max(-s, 0.0) + angle
+        kinds, params, lengths = self._kinds, self._params, self._lengths
+        for j in sorted(range(len(bounds)), key=bounds.__getitem__):
+            if bounds[j] > best + TIE:
+                break
+            kind, p, length = kinds[j], params[j], lengths[j]
+            if kind == _STRAIGHT:
+                dx, dy = x - p[0], y - p[1]
+                s, r, lane_heading = dx * p[2] + dy * p[3], dx * p[4] + dy * p[5], p[6]
+            else:
+                s, r = self.point_frame(j, x, y)
+                lane_heading = self.heading_one(j, s)
+            angle = abs((heading - lane_heading + math.pi) % (2 * math.pi) - math.pi)
+            distance = (abs(r) + (s - length if s > length else 0.0) + (-s if s < 0 else 0.0)
+                        + angle)
             if distance < best:
                 best, second, nearest = distance, best, j
             elif distance < second:
@@ -238,6 +266,28 @@ class LaneSet:
         if not second > best + TIE or not math.isfinite(best):
             return network.get_closest_lane_index(np.array((x, y)), heading)
         return self.lanes[nearest][0]
+
+
+def _box(kind: int, p: list[float], length: float) -> tuple[float, float, float, float]:
+    """(x_min, x_max, y_min, y_max) [m] of a box holding every point of a lane's centre
+    line (for a sine lane, of the straight line it winds around, widened by the amplitude;
+    for a circular lane, of 16 chords of its arc, widened by the chords' largest distance to
+    the arc); infinite for a lane of another kind."""
+    if kind <= _SINE:
+        x0, y0, ux, uy = p[:4]
+        xs, ys = [x0, x0 + ux * length], [y0, y0 + uy * length]
+        pad = abs(p[7]) if kind == _SINE else 0.0
+    elif kind == _CIRCULAR:
+        cx, cy, radius, start, direction = p[:5]
+        sweep = length / radius if radius > 0 else 0.0
+        phases = [start + direction * sweep * i / 16 for i in range(17)]
+        xs = [cx + radius * math.cos(phase) for phase in phases]
+        ys = [cy + radius * math.sin(phase) for phase in phases]
+        pad = radius * (1 - math.cos(min(sweep / 32, math.pi / 2)))
+    else:
+        return (-math.inf, math.inf, -math.inf, math.inf)
+    pad += 1e-6 * (1 + max(map(abs, xs + ys)))  # rounding
+    return (min(xs) - pad, max(xs) + pad, min(ys) - pad, max(ys) + pad)
 
 
 def lane_coordinates(lane: Any, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

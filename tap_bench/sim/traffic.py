@@ -67,12 +67,12 @@ ON_LANE_MARGIN = 1.0
 TOUCH_MARGIN = 1e-6
 """Slack [m] of the proximity test of :func:`near_pairs`."""
 _NEAR_END = 1e-6  # [m] slack of the test that a vehicle reached its target lane's end
-SCALAR_MAX_OBJECTS = 40
+SCALAR_MAX_OBJECTS = 400
 """Roads with at most this many objects are computed one vehicle at a time in plain floats
 (the ``*_one`` forms of :mod:`tap_bench.sim.driver_models` and
-:class:`~tap_bench.sim.lane_frames.LaneSet`); larger ones as arrays. The same equations:
-on few vehicles numpy's fixed cost per call outweighs its speed per element."""
-_SCALAR_MAX_LANE_PAIRS = 400  # (vehicle, lane) pairs up to which lanes are looked up one by one
+:class:`~tap_bench.sim.lane_frames.LaneSet`); larger ones as arrays. The same equations;
+numpy's fixed cost per call outweighs its speed per element up to this size at least
+(docs/simulation.md, "The traffic core")."""
 
 
 class TrafficVehicle(IDMVehicle):
@@ -153,6 +153,11 @@ def _warn_self_driven(cls: type) -> None:
         RuntimeWarning, stacklevel=3)
 
 
+@functools.cache
+def _own_velocity(cls: type) -> bool:
+    return cls.velocity not in (Vehicle.velocity, RoadObject.velocity)
+
+
 class RoadState:
     """The road's searchable objects (vehicles and objects but landmarks, in the road's
     order) as arrays, and each lane's coordinates of all of them, as they stand while the
@@ -175,16 +180,20 @@ class RoadState:
         n = len(self.objects)
         self.scalar = n <= SCALAR_MAX_OBJECTS
         if self.scalar:
-            self.positions = None
-            points = [o.position for o in self.objects]
-            self.xs, self.ys = [float(p[0]) for p in points], [float(p[1]) for p in points]
-            self.speed = [float(o.speed) for o in self.objects]
-            self.heading = [float(o.heading) for o in self.objects]
-            self.cos, self.sin = ([math.cos(h) for h in self.heading],
-                                  [math.sin(h) for h in self.heading])
-            self.vx = [v * c for v, c in zip(self.speed, self.cos, strict=True)]
-            self.vy = [v * s for v, s in zip(self.speed, self.sin, strict=True)]
-            self.arrays = None
+            self.positions = self.arrays = None
+            self.xs, self.ys, self.speed, self.heading = [], [], [], []
+            self.cos, self.sin, self.vx, self.vy = [], [], [], []
+            for o in self.objects:
+                position, speed, heading = o.position, float(o.speed), float(o.heading)
+                cos, sin = math.cos(heading), math.sin(heading)
+                self.xs.append(float(position[0]))
+                self.ys.append(float(position[1]))
+                self.speed.append(speed)
+                self.heading.append(heading)
+                self.cos.append(cos)
+                self.sin.append(sin)
+                self.vx.append(speed * cos)
+                self.vy.append(speed * sin)
         else:
             self.positions = np.array([o.position for o in self.objects],
                                       dtype=float).reshape(n, 2)
@@ -197,7 +206,7 @@ class RoadState:
             self.speed, self.heading = speed.tolist(), heading.tolist()
             self.vx, self.vy = self.arrays[3].tolist(), self.arrays[4].tolist()
         for k, o in enumerate(self.objects):  # a class with its own velocity
-            if type(o).velocity not in (Vehicle.velocity, RoadObject.velocity):
+            if _own_velocity(type(o)):
                 self.vx[k], self.vy[k] = map(float, o.velocity)
                 if self.arrays is not None:
                     self.arrays[3][k], self.arrays[4][k] = self.vx[k], self.vy[k]
@@ -655,7 +664,7 @@ class TrafficRoad(Road):
                 v.impact = None
             positions.append((x, y))
         lane_set = self.lane_set()
-        if n * len(lane_set.lanes) <= _SCALAR_MAX_LANE_PAIRS:
+        if n <= SCALAR_MAX_OBJECTS:
             found = [lane_set.closest_one(self.network, x, y, m[2])
                      for (x, y), m in zip(positions, moved, strict=True)]
         else:
@@ -746,23 +755,49 @@ def _touching_pairs_one_by_one(everyone: list[Any], n: int,
                                                                          RoadObject.velocity)))
     except (AttributeError, TypeError, ValueError):
         return [(i, j) for i in range(n) for j in range(i + 1, len(everyone))]
+    m = len(rows)
+    if n == 0:
+        return []
+    # any two rectangles touching within dt have centres closer along x than the largest
+    # diagonal plus twice the largest speed times dt: sweep along x within that reach
+    speeds = [math.hypot(row[7], row[8]) for row in rows]
+    reach = max(row[2] for row in rows) + 2 * dt * max(speeds) + TOUCH_MARGIN
+    if all(math.isfinite(row[0] + row[2]) for row in rows) and all(map(math.isfinite, speeds)):
+        order = sorted(range(m), key=lambda k: rows[k][0])
+        candidates = [(i, j) if i < j else (j, i) for p, i in enumerate(order)
+                      for j in _within(order, rows, p, reach)]
+    else:
+        candidates = [(i, j) for i in range(n) for j in range(i + 1, m)]
+    owned = [k for k in range(m) if rows[k][11]]
+    candidates = set(candidates).union(
+        (min(i, k), max(i, k)) for k in owned for i in range(m) if i != k)
     pairs = []
-    for i in range(n):
-        a = rows[i]
-        xa, ya, da, _, _, _, _, vxa, vya, checks_a, collidable_a, own_a = a
-        for j in range(i + 1, len(rows)):
-            b = rows[j]
-            if own_a or b[11]:
-                pairs.append((i, j))
+    for i, j in sorted(candidates):
+        if i >= n:
+            continue
+        a, b = rows[i], rows[j]
+        if not (a[11] or b[11]):
+            if not (a[10] and b[10] and (a[9] or b[9])):
                 continue
-            if not (collidable_a and b[10] and (checks_a or b[9])):
-                continue
-            bound = (da + b[2]) / 2 + math.hypot(vxa - b[7], vya - b[8]) * dt
-            if math.hypot(b[0] - xa, b[1] - ya) > bound + TOUCH_MARGIN \
+            bound = (a[2] + b[2]) / 2 + math.hypot(a[7] - b[7], a[8] - b[8]) * dt
+            if math.hypot(b[0] - a[0], b[1] - a[1]) > bound + TOUCH_MARGIN \
                     or _swept_apart_one(a, b, dt):
                 continue
-            pairs.append((i, j))
+        pairs.append((i, j))
     return pairs
+
+
+def _within(order: list[int], rows: list[tuple], p: int, reach: float) -> list[int]:
+    """The rows after position ``p`` of ``order`` (rows sorted by x) whose x is within
+    ``reach`` [m] of row ``order[p]``'s."""
+    x = rows[order[p]][0] + reach
+    out = []
+    for q in range(p + 1, len(order)):
+        j = order[q]
+        if rows[j][0] > x:
+            break
+        out.append(j)
+    return out
 
 
 def _swept_apart_one(a: tuple, b: tuple, dt: float) -> bool:

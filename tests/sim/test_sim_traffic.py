@@ -94,7 +94,6 @@ def _force(monkeypatch, path: str) -> None:
     arrays (``"arrays"``), whatever its size."""
     big = 10**9 if path == "one-by-one" else -1
     monkeypatch.setattr(traffic, "SCALAR_MAX_OBJECTS", big)
-    monkeypatch.setattr(traffic, "_SCALAR_MAX_LANE_PAIRS", big)
 
 
 @pytest.mark.parametrize("path", ["one-by-one", "arrays"])
