@@ -11,12 +11,16 @@ a bootstrap stratified by scene does not see). The true values are those of infi
 training seeds on the same scenes (the intervals hold the scenes fixed), computed from
 20,000 simulated seeds. Each setting is repeated ``--trials`` times.
 
+Both resampling units of the bootstrap are measured (``unit="task"``, rliable's stratified
+bootstrap, and ``unit="run"``, whole seeds).
+
 Usage: ``python benchmarks/agents_interval_coverage.py [--trials 200] [--resamples 500]``
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import time
 
 import numpy as np
@@ -54,8 +58,8 @@ def true_improvement(x: np.ndarray, y: np.ndarray) -> float:
     return float(np.mean(per))
 
 
-def setting(runs: int, scenes: int, seed_sd: float, trials: int, resamples: int
-            ) -> dict[str, float]:
+def setting(runs: int, scenes: int, seed_sd: float, trials: int, resamples: int,
+            unit: str = "task") -> dict[str, float]:
     rng = named_rng(0, "agents coverage", runs, scenes, seed_sd)
     mu = rng.uniform(0.3, 0.9, scenes)  # the scenes stay fixed: the intervals condition on them
     big_x = scores(rng, mu, BIG, 0.05, seed_sd)
@@ -68,13 +72,14 @@ def setting(runs: int, scenes: int, seed_sd: float, trials: int, resamples: int
     for _ in range(trials):
         x = scores(rng, mu, runs, 0.05, seed_sd)
         y = scores(rng, mu, runs, 0.0, seed_sd)
-        out = stratified_bootstrap(x, iqm, rng=rng, n_resamples=resamples)
+        out = stratified_bootstrap(x, iqm, rng=rng, n_resamples=resamples, unit=unit)
         hits["iqm"] += out.low <= true_iqm <= out.high
         widths["iqm"].append(out.high - out.low)
-        poi = probability_of_improvement(x, y, rng=rng, n_resamples=resamples)
+        poi = probability_of_improvement(x, y, rng=rng, n_resamples=resamples, unit=unit)
         hits["poi"] += poi.low <= true_poi <= poi.high
         widths["poi"].append(poi.high - poi.low)
-        _, low, high = performance_profile(x, np.array(TAUS), rng=rng, n_resamples=resamples)
+        _, low, high = performance_profile(x, np.array(TAUS), rng=rng,
+                                           n_resamples=resamples, unit=unit)
         for k, t in enumerate(TAUS):
             hits[f"profile_{t}"] += low[k] <= true_profile[k] <= high[k]
     out = {f"coverage_{k}": v / trials for k, v in hits.items()}
@@ -89,17 +94,16 @@ def main() -> None:
     args = parser.parse_args()
     figures: dict[str, float] = {"trials": args.trials, "resamples": args.resamples}
     start = time.process_time()
-    for seed_sd in (0.0, 0.1):
-        for runs in (3, 5, 10):
-            for scenes in (4, 16):
-                got = setting(runs, scenes, seed_sd, args.trials, args.resamples)
-                key = f"sd{seed_sd}_runs{runs}_scenes{scenes}"
-                figures.update({f"{key}_{k}": round(v, 4) for k, v in got.items()})
-                print(f"seed sd {seed_sd:.1f}, {runs:2d} runs x {scenes:2d} scenes: IQM "
-                      f"{got['coverage_iqm']:.3f} (width {got['width_iqm']:.3f}), P(X>Y) "
-                      f"{got['coverage_poi']:.3f} (width {got['width_poi']:.3f}), profile "
-                      + ", ".join(f"tau {t}: {got[f'coverage_profile_{t}']:.3f}"
-                                  for t in TAUS), flush=True)
+    for unit, seed_sd, runs, scenes in itertools.product(("task", "run"), (0.0, 0.1),
+                                                         (3, 5, 10), (4, 16)):
+        got = setting(runs, scenes, seed_sd, args.trials, args.resamples, unit)
+        key = f"{unit}_sd{seed_sd}_runs{runs}_scenes{scenes}"
+        figures.update({f"{key}_{k}": round(v, 4) for k, v in got.items()})
+        print(f"resampling by {unit}, seed sd {seed_sd:.1f}, {runs:2d} runs x {scenes:2d} "
+              f"scenes: IQM {got['coverage_iqm']:.3f} (width {got['width_iqm']:.3f}), "
+              f"P(X>Y) {got['coverage_poi']:.3f} (width {got['width_poi']:.3f}), profile "
+              + ", ".join(f"tau {t}: {got[f'coverage_profile_{t}']:.3f}" for t in TAUS),
+              flush=True)
     figures["cpu_seconds"] = round(time.process_time() - start, 1)
     report("agents_interval_coverage", figures, seed=0)
 

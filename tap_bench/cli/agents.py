@@ -8,8 +8,7 @@ import os
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "agents", help="judge agents on real scenes over training seeds (rliable) and by "
-        "the human behaviour they cover",
+        "agents", help="judge agents on real scenes over training seeds, against the human",
         description="Aggregate the agents of a run on recorded scenes (bench run) over "
         "training seeds x scenes as rliable recommends: route progress by its interquartile "
         "mean, at-fault collisions and off-road by their rate, each with its stratified "
@@ -35,6 +34,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="with --womd: simulate every episode (no episode cache)")
     p.add_argument("--overwrite", action="store_true",
                    help="with --womd: replace an existing run folder")
+    p.add_argument("--scenes", metavar="SEEDS",
+                   help="judge on these scenes only (their index in the files, as "
+                   "'tap-bench train --hold-out' names them: e.g. the scenes an agent never "
+                   "saw); default every scene")
+    p.add_argument("--resample", choices=("run", "task"), default="run",
+                   help="what the bootstrap resamples: whole training seeds (run, the "
+                   "default: one model per seed drives every scene) or the seeds of each "
+                   "scene on their own (task: rliable's stratified bootstrap, for one "
+                   "training per scene); docs/agents.md measures both")
     p.add_argument("--level", type=float, default=0.95,
                    help="two-sided level of every interval (default 0.95)")
     p.add_argument("--resamples", type=int, default=2000,
@@ -53,8 +61,12 @@ def run(args: argparse.Namespace) -> int:
     groups = seed_groups()
     if args.womd:
         _run_suite(args, groups)
+    from tap_bench.sim.scenario_format import parse_seeds
+
+    scenes = None if args.scenes is None else list(parse_seeds(args.scenes))
     result = agents_figures(args.run, groups=groups, level=args.level,
-                            n_resamples=args.resamples, seed=args.seed)
+                            n_resamples=args.resamples, seed=args.seed, scenes=scenes,
+                            unit=args.resample)
     output = Path(args.output) if args.output else Path(args.run) / "agents"
     viewer = os.path.relpath(Path(args.run) / "viewer" / "index.html", output)
     page = write_agents_page(result, output, viewer=viewer)

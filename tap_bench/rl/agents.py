@@ -134,6 +134,7 @@ class AgentsResult:
     safety: pd.DataFrame
     level: float
     n_resamples: int
+    unit: str = "run"
 
     def tables(self) -> dict[str, pd.DataFrame]:
         """name -> table, as written."""
@@ -191,7 +192,7 @@ def _tasks(scores: pd.DataFrame, measure: str) -> list[str]:
 
 
 def _aggregates(scores: pd.DataFrame, agents: Sequence[str], *, seed: int, level: float,
-                n_resamples: int) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
+                n_resamples: int, unit: str) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
     """The aggregates, improvement and profile tables."""
     rows, pairs, profiles = [], [], []
     for measure, (kind, higher) in MEASURES.items():
@@ -202,7 +203,7 @@ def _aggregates(scores: pd.DataFrame, agents: Sequence[str], *, seed: int, level
         for agent in agents:
             m = _matrix(scores, agent, measure, tasks)
             out = stratified_bootstrap(m, stat, rng=named_rng(seed, "agents", measure, agent),
-                                       level=level, n_resamples=n_resamples)
+                                       level=level, n_resamples=n_resamples, unit=unit)
             sign = 1.0 if higher else -1.0
             low, high = sorted((sign * out.low, sign * out.high))
             rows.append({"agent": agent, "measure": measure, "aggregate": kind,
@@ -216,7 +217,7 @@ def _aggregates(scores: pd.DataFrame, agents: Sequence[str], *, seed: int, level
                 out = probability_of_improvement(
                     _matrix(scores, a, measure, tasks), _matrix(scores, b, measure, tasks),
                     rng=named_rng(seed, "improvement", measure, a, b), level=level,
-                    n_resamples=n_resamples)
+                    n_resamples=n_resamples, unit=unit)
                 pairs.append({"agent": a, "over": b, "measure": measure,
                               "probability": out.estimate, "low": out.low, "high": out.high,
                               "scenes": len(tasks)})
@@ -225,7 +226,7 @@ def _aggregates(scores: pd.DataFrame, agents: Sequence[str], *, seed: int, level
                 share, low, high = performance_profile(
                     _matrix(scores, agent, measure, tasks), PROFILE_THRESHOLDS,
                     rng=named_rng(seed, "profile", measure, agent), level=level,
-                    n_resamples=n_resamples)
+                    n_resamples=n_resamples, unit=unit)
                 profiles += [{"agent": agent, "measure": measure, "tau": float(t),
                               "share": float(s), "low": float(lo), "high": float(hi)}
                              for t, s, lo, hi in zip(PROFILE_THRESHOLDS, share, low, high,
@@ -333,8 +334,8 @@ def _safety(episodes: pd.DataFrame, items: pd.DataFrame) -> pd.DataFrame:
 
 
 def agents_figures(run: str | os.PathLike, *, groups: Mapping[str, Sequence[str]] | None = None,
-                   level: float = 0.95, n_resamples: int = 2000, seed: int = 0
-                   ) -> AgentsResult:
+                   level: float = 0.95, n_resamples: int = 2000, seed: int = 0,
+                   scenes: Sequence[int] | None = None, unit: str = "run") -> AgentsResult:
     """Every figure of the module docstring for the run folder ``run``.
 
     Args:
@@ -343,26 +344,37 @@ def agents_figures(run: str | os.PathLike, *, groups: Mapping[str, Sequence[str]
         level: two-sided level of every interval.
         n_resamples: bootstrap resamples of every interval.
         seed: root seed of the named random streams.
+        unit: what the bootstrap resamples (:data:`tap_bench.rl.aggregate.UNITS`): whole
+            runs (default: each trained seed drives every scene) or the runs of each scene
+            on their own (rliable's stratified bootstrap).
+        scenes: only these scenes (their index in the files, the episodes' ``seed``): the
+            scenes an agent was not trained on, say; None: every scene.
 
     Raises:
-        FileFormatError: the folder lacks a table, or the human's episodes.
+        FileFormatError: the folder lacks a table, or the human's episodes, or has no
+            episode on ``scenes``.
     """
     if not 0.5 <= level < 1:
         raise ParameterError("level", level, "a two-sided level in [0.5, 1), e.g. 0.95")
     run = Path(run)
     groups = seed_groups() if groups is None else dict(groups)
     episodes = _episodes(run, groups)
+    if scenes is not None:
+        episodes = episodes[episodes["seed"].isin([int(k) for k in scenes])]
+        if episodes.empty:
+            raise FileFormatError(f"{run}: no episode on scenes {list(scenes)}; the run's "
+                                  "scenes are its episodes' seeds.")
     agents = sorted(set(episodes["agent"]), key=lambda a: (a != HUMAN, a))
     scores = episodes[["agent", "policy", "env", "seed", "scene", "task", "scenario_id",
                        "route_progress", "crashed_at_fault", "crashed", "off_road"]]
     scores = scores.sort_values(["agent", "policy", "task"]).reset_index(drop=True)
     aggregates, improvement, profiles = _aggregates(scores, agents, seed=seed, level=level,
-                                                    n_resamples=n_resamples)
+                                                    n_resamples=n_resamples, unit=unit)
     items = _ego_items(run, episodes)
     coverage, unique = _coverage(episodes, items, agents)
     safety = _safety(episodes, items)
     return AgentsResult(scores, aggregates, improvement, profiles, coverage, unique, safety,
-                        level, n_resamples)
+                        level, n_resamples, unit)
 
 
 def interval_text(row: Mapping[str, float], digits: int = 2) -> str:

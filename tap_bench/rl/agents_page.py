@@ -118,10 +118,11 @@ def write_agents_page(result: AgentsResult, folder: str | os.PathLike, *,
         "<h1>Agents on real scenes</h1>",
         f"<p>Figures over training seeds x scenes (rliable): route progress by its "
         f"interquartile mean, rates by their mean, each with its {result.level:.0%} "
-        f"stratified bootstrap interval ({result.n_resamples} resamples; the runs of each "
-        "scene resampled, the scenes fixed). An agent of one run (IDM, lane keeping, random, "
-        "the human) has no spread over seeds. Measured coverage of these intervals: "
-        "docs/agents.md.</p>",
+        f"bootstrap interval over training seeds ({result.n_resamples} resamples of "
+        + ("whole seeds, every scene of a drawn seed together" if result.unit == "run" else
+           "the seeds of each scene on their own (stratified)")
+        + "; the scenes fixed). An agent of one run (IDM, lane keeping, random, the human) "
+        "has no spread over seeds. Measured coverage of these intervals: docs/agents.md.</p>",
         aggregates.to_html(escape=True) if len(aggregates) else "",
         "<h2>Probability of improvement</h2><p>P(agent > over): a run of the row's agent "
         "beats a run of the column's on a scene drawn at random (ties a half); at-fault "

@@ -18,7 +18,12 @@ for every agent). Which way is better is the caller's: pass scores where higher 
 - :func:`stratified_bootstrap`: the interval of any such statistic: the runs of each task
   are resampled with replacement, each task on its own (stratified by task), the statistic
   recomputed on every resample, and the percentile interval taken. The tasks stay fixed: the
-  interval is over training seeds, for these scenes.
+  interval is over training seeds, for these scenes. rliable's stratification assumes a
+  run of one task is independent of a run of another (Atari: one training per game and
+  seed). An agent trained once per seed on all scenes carries that seed's luck into every
+  scene; ``unit="run"`` resamples whole runs (every scene of a drawn seed together), which
+  holds its level there where the stratified one does not (measured:
+  ``benchmarks/agents_interval_coverage.py``, docs/agents.md).
 - :func:`probability_of_improvement`: P(X > Y), the probability that a run of agent X beats
   a run of Y on a task drawn at random: the Mann-Whitney statistic per task (ties count a
   half), averaged over tasks; with its stratified bootstrap interval (X's and Y's runs
@@ -39,7 +44,7 @@ import numpy as np
 
 from tap_bench.errors import ParameterError
 
-__all__ = ["BATCHED", "Interval", "iqm", "mean_score", "performance_profile",
+__all__ = ["BATCHED", "UNITS", "Interval", "iqm", "mean_score", "performance_profile",
            "probability_of_improvement", "stratified_bootstrap", "stratified_resample"]
 
 
@@ -99,10 +104,24 @@ BATCHED = (iqm, mean_score)
 """Statistics that take a stack of resamples at once (computed in one pass)."""
 
 
+UNITS = ("task", "run")
+"""What the bootstrap resamples: ``"task"``, the runs of each task on their own (rliable's
+stratified bootstrap: a run is one training per task, as on Atari); ``"run"``, whole runs,
+every task of a drawn run together (one trained model per seed drives every scene, so a
+seed's scores on different scenes share that seed's luck)."""
+
+
 def stratified_resample(rng: np.random.Generator, n_runs: int, n_tasks: int,
-                        draws: int) -> np.ndarray:
-    """Row indexes of ``draws`` stratified bootstrap resamples: shape ``(draws, n_runs,
-    n_tasks)``, column ``m`` holding ``n_runs`` runs of task ``m`` drawn with replacement."""
+                        draws: int, unit: str = "task") -> np.ndarray:
+    """Row indexes of ``draws`` bootstrap resamples: shape ``(draws, n_runs, n_tasks)``,
+    column ``m`` holding ``n_runs`` runs of task ``m`` drawn with replacement: each task on
+    its own (``unit="task"``, stratified by task), or the same runs for every task
+    (``unit="run"``: a drawn run brings all its tasks)."""
+    if unit not in UNITS:
+        raise ParameterError("unit", unit, f"one of {UNITS}")
+    if unit == "run":
+        rows = rng.integers(0, n_runs, size=(draws, n_runs, 1))
+        return np.broadcast_to(rows, (draws, n_runs, n_tasks))
     return rng.integers(0, n_runs, size=(draws, n_runs, n_tasks))
 
 
@@ -115,7 +134,7 @@ def _check_level(level: float, n_resamples: int) -> None:
 
 def stratified_bootstrap(scores: np.ndarray, statistic: Callable[[np.ndarray], float] = iqm,
                          *, rng: np.random.Generator, level: float = 0.95,
-                         n_resamples: int = 2000) -> Interval:
+                         n_resamples: int = 2000, unit: str = "task") -> Interval:
     """``statistic`` of ``scores`` (``(n_runs, n_tasks)``) with its stratified bootstrap
     percentile interval (see the module docstring).
 
@@ -125,12 +144,13 @@ def stratified_bootstrap(scores: np.ndarray, statistic: Callable[[np.ndarray], f
         rng: the random stream of the resamples (named by what it draws).
         level: two-sided level.
         n_resamples: bootstrap resamples (>= 100).
+        unit: what is resampled (:data:`UNITS`): ``"task"`` (stratified) or ``"run"``.
     """
     x = _scores(scores)
     _check_level(level, n_resamples)
     n_runs, n_tasks = x.shape
     cols = np.arange(n_tasks)
-    samples = x[stratified_resample(rng, n_runs, n_tasks, n_resamples), cols]
+    samples = x[stratified_resample(rng, n_runs, n_tasks, n_resamples, unit), cols]
     if statistic in BATCHED:
         boot = np.asarray(statistic(samples), dtype=float)
     else:
@@ -149,7 +169,8 @@ def _improvement(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def probability_of_improvement(x: np.ndarray, y: np.ndarray, *, rng: np.random.Generator,
-                               level: float = 0.95, n_resamples: int = 2000) -> Interval:
+                               level: float = 0.95, n_resamples: int = 2000,
+                               unit: str = "task") -> Interval:
     """The probability that agent X improves on agent Y, P(X > Y), with its stratified
     bootstrap interval (each agent's runs resampled on their own, task by task).
 
@@ -159,6 +180,7 @@ def probability_of_improvement(x: np.ndarray, y: np.ndarray, *, rng: np.random.G
         rng: the random stream of the resamples.
         level: two-sided level.
         n_resamples: bootstrap resamples (>= 100).
+        unit: what is resampled (:data:`UNITS`), each agent's runs on their own.
     """
     x, y = _scores(x, "x"), _scores(y, "y")
     if x.shape[1] != y.shape[1]:
@@ -168,8 +190,8 @@ def probability_of_improvement(x: np.ndarray, y: np.ndarray, *, rng: np.random.G
     _check_level(level, n_resamples)
     n_tasks = x.shape[1]
     cols = np.arange(n_tasks)
-    rows_x = stratified_resample(rng, x.shape[0], n_tasks, n_resamples)
-    rows_y = stratified_resample(rng, y.shape[0], n_tasks, n_resamples)
+    rows_x = stratified_resample(rng, x.shape[0], n_tasks, n_resamples, unit)
+    rows_y = stratified_resample(rng, y.shape[0], n_tasks, n_resamples, unit)
     boot = _improvement(x[rows_x, cols], y[rows_y, cols])
     alpha = (1 - level) / 2
     low, high = np.quantile(boot, [alpha, 1 - alpha])
@@ -178,7 +200,8 @@ def probability_of_improvement(x: np.ndarray, y: np.ndarray, *, rng: np.random.G
 
 def performance_profile(scores: np.ndarray, thresholds: np.ndarray, *,
                         rng: np.random.Generator, level: float = 0.95,
-                        n_resamples: int = 2000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                        n_resamples: int = 2000, unit: str = "task"
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The run-score distribution: the share of the ``(n_runs, n_tasks)`` scores above each
     threshold (shape ``(len(thresholds),)``), and its pointwise stratified bootstrap band
     (low, high: the same shape).
@@ -189,6 +212,7 @@ def performance_profile(scores: np.ndarray, thresholds: np.ndarray, *,
         rng: the random stream of the resamples.
         level: two-sided level of each point's band.
         n_resamples: bootstrap resamples (>= 100).
+        unit: what is resampled (:data:`UNITS`).
     """
     x = _scores(scores)
     _check_level(level, n_resamples)
@@ -196,7 +220,7 @@ def performance_profile(scores: np.ndarray, thresholds: np.ndarray, *,
     n_runs, n_tasks = x.shape
     cols = np.arange(n_tasks)
 
-    samples = x[stratified_resample(rng, n_runs, n_tasks, n_resamples), cols]
+    samples = x[stratified_resample(rng, n_runs, n_tasks, n_resamples, unit), cols]
     flat = samples.reshape(n_resamples, -1)
     boot = (flat[:, :, None] > taus[None, None, :]).mean(axis=1)
     share = (x.ravel()[:, None] > taus[None, :]).mean(axis=0)

@@ -139,3 +139,11 @@ def test_a_run_without_the_human_is_refused(run):
     episodes[episodes["policy"] != "log"].to_parquet(run / "episodes.parquet")
     with pytest.raises(FileFormatError, match="human"):
         agents_figures(run, groups=GROUPS)
+
+
+def test_the_figures_on_some_scenes_only(run):
+    result = agents_figures(run, groups=GROUPS, n_resamples=100, scenes=[1])
+    ppo = row(result.aggregates, agent="ppo", measure="route_progress")
+    assert ppo["scenes"] == 1 and ppo["estimate"] == pytest.approx(0.9)  # 1.0 and 0.8
+    with pytest.raises(FileFormatError, match="no episode on scenes"):
+        agents_figures(run, groups=GROUPS, scenes=[7])

@@ -52,6 +52,26 @@ def test_the_bootstrap_resamples_runs_within_each_scene_only():
     assert one.low == one.high == one.estimate
 
 
+def test_resampling_whole_runs_keeps_each_seeds_scenes_together():
+    # seed 0 scores 0 on both scenes, seed 1 scores 1 on both: whole runs resampled give
+    # column means that are equal in every resample; stratified ones need not
+    scores = np.array([[0.0, 0.0], [1.0, 1.0]])
+    seen = []
+
+    def columns(sample: np.ndarray) -> float:
+        seen.append(sample.mean(axis=0))
+        return float(sample.mean())
+
+    stratified_bootstrap(scores, columns, rng=rng(), n_resamples=200, unit="run")
+    means = np.array(seen)
+    assert (means[:, 0] == means[:, 1]).all()
+    seen.clear()
+    stratified_bootstrap(scores, columns, rng=rng(), n_resamples=200, unit="task")
+    assert (np.array(seen)[:, 0] != np.array(seen)[:, 1]).any()
+    with pytest.raises(ParameterError, match="unit"):
+        stratified_bootstrap(scores, rng=rng(), unit="scene")
+
+
 def test_the_probability_of_improvement_counts_ties_as_half():
     # scene 0: 1 > 0; scene 1: a tie
     assert probability_of_improvement([[1, 2]], [[0, 2]], rng=rng(),
