@@ -4,7 +4,13 @@ developer's own runs, left in ``~/.cache/tap-bench``.
 
 The fixtures every test folder shares live here, once: the real WOMD samples
 (``womd_dir``), a small hand-made trajectory table (``two_cars_and_a_walker``) and tiny
-scenario files (``write_scenario``)."""
+scenario files (``write_scenario``).
+
+Property tests (hypothesis) run under the ``ci`` profile unless told otherwise: derandomized,
+so every run of the suite draws the same examples (a failure is the commit's, reproducible,
+never a new draw's) and costs the same CPU, and no example database is written. Each test
+sets its own ``max_examples``. ``pytest --hypothesis-profile=explore`` draws fresh examples
+each run (and keeps failing ones in ``.hypothesis/``), to search further by hand."""
 
 from __future__ import annotations
 
@@ -18,6 +24,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import settings
+
+settings.register_profile("ci", derandomize=True, database=None, print_blob=True)
+settings.register_profile("explore", derandomize=False, print_blob=True)
+settings.load_profile("ci")
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 WOMD_DIR = (PROJECT_ROOT / ".." / "shared" / "data" / "womd").resolve()

@@ -14,7 +14,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from pandas.testing import assert_frame_equal
 
@@ -23,10 +23,13 @@ from tap_bench.labelling import tap, tap_in_parts
 from tap_bench.synthetic import random_trajectories
 from tap_bench.tableio import EncodedTable, read_table, read_table_encoded
 
-from .test_tap_in_parts import _assert_same, scenes, uncut_table
+from .test_tap_in_parts import _assert_same, note_branches, scenes, uncut_table
 
-SETTINGS = settings(max_examples=25, deadline=None,
+SETTINGS = settings(max_examples=12, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow])
+"""12 examples (each writes, reads and labels its table twice, ~1.3 CPU s): the suite's fixed
+(derandomized) draw holds every branch of ``scenes``, every ``interactions`` and every kind
+of track id, extra column and writer (hypothesis events; ``--hypothesis-show-statistics``)."""
 
 
 def _write(table: pd.DataFrame, folder: Path, how: str = "pandas") -> Path:
@@ -59,6 +62,9 @@ def _labelled_alike(path: Path, part_rows: int, interactions=None) -> EncodedTab
        how=st.sampled_from(["pandas", "arrow"]))
 def test_an_encoded_file_gives_the_tables_of_one_call(table, part_rows, interactions, tracks,
                                                       extra, how):
+    note_branches(table, part_rows, interactions)
+    event(f"track ids {tracks}")
+    event(f"extra column {extra}")
     if tracks == "non-ascii":  # code point order: 'B' < 'b' < 'é' < 'ü'
         prefixes = np.array(["ü", "B", "b", "é", "1"], dtype=object)
         codes = pd.factorize(table["track_id"])[0]
@@ -77,6 +83,7 @@ def test_an_encoded_file_gives_the_tables_of_one_call(table, part_rows, interact
         table["object_type"] = np.where(table["is_ego"], "vehicle", "cyclist")
     if how == "arrow" and tracks == "categorical":
         how = "pandas"
+    event(f"written by {how}")
     with tempfile.TemporaryDirectory() as folder:
         _labelled_alike(_write(table, Path(folder), how), part_rows, interactions)
 
