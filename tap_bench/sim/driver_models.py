@@ -127,20 +127,21 @@ def bicycle_step(x: np.ndarray, y: np.ndarray, heading: np.ndarray, speed: np.nd
 
 
 # -- one vehicle, plain floats ---------------------------------------------------------------
-def _clip(x: float, low: float, high: float) -> float:
-    return low if x < low else high if x > high else x
-
-
-def safe_divisor_one(x: float) -> float:
-    """:func:`safe_divisor` of one number."""
-    if abs(x) > MIN_DIVISOR:
-        return x
-    return MIN_DIVISOR if x >= 0 else -MIN_DIVISOR
+_TURN = 2 * math.pi  # [rad]
 
 
 def wrap_one(x: float) -> float:
     """:func:`wrap_angle` of one angle [rad]."""
-    return (x + math.pi) % (2 * math.pi) - math.pi
+    return x - _TURN * math.floor((x + math.pi) / _TURN)
+
+
+def safe_divisor_one(x: float) -> float:
+    """:func:`safe_divisor` of one number."""
+    return x if abs(x) > MIN_DIVISOR else math.copysign(MIN_DIVISOR, 1.0 if x >= 0 else -1.0)
+
+
+def _clip(x: float, low: float, high: float) -> float:
+    return min(max(x, low), high)
 
 
 def desired_gap_one(speed: float, approach: float, s0: float, time_gap: float, a_max: float,
