@@ -22,10 +22,14 @@ observation works on it.
   changes go only to lanes the map names as neighbours at that point.
 - **Traffic.** ``traffic="log"``: every other agent replays the log (non-reactive).
   ``traffic="idm"``: each vehicle that moves starts from its logged state (at the current
-  time, or where and when it appears later) and is driven by IDM/MOBIL
-  (:class:`WomdIDMVehicle`) along its own logged route; parked vehicles and vehicles whose
-  path leaves the lanes replay. Pedestrians and cyclists always replay. IDM (traffic and
-  an IDM ego) stops at a stop point whose signal is red, and at a yellow one when it can
+  time, or where and when it appears later, once its place is free) and drives along its
+  own logged path, IDM deciding its speed (:class:`~tap_bench.sim.womd_road.WomdPathVehicle`:
+  behind whatever box is in the path ahead, before pedestrians and cyclists that will be,
+  giving way where logged paths cross to the vehicle that went first in the log, at red
+  stop points and stop signs); parked vehicles and vehicles whose path leaves the lanes
+  replay; one whose log ends before the record's leaves past its path's end. Pedestrians
+  and cyclists always replay. The IDM ego (:class:`WomdIDMVehicle`, IDM/MOBIL along its
+  route's lanes) stops at a stop point whose signal is red, and at a yellow one when it can
   stop comfortably; at stop signs; before pedestrians and cyclists crossing its way ahead
   (:meth:`~tap_bench.sim.womd_road.WomdRoad.walker_distance`); and it gives way to crossing
   and merging traffic by gap acceptance (:meth:`~tap_bench.sim.womd_road.WomdRoad.
@@ -92,8 +96,10 @@ from tap_bench.sim.womd_road import (
     WomdIDMVehicle,
     WomdMDPVehicle,
     WomdNetwork,
+    WomdPathVehicle,
     WomdRoad,
     draw_driver,
+    logged_path,
     logged_route,
     path_progress,
     sim_frame,
@@ -418,7 +424,7 @@ class _WomdHighwayEnv(AbstractEnv):
         xy = sim_xy[row, steps]
         if len(xy) < 2 or np.hypot(*(xy[-1] - xy[0])) < PARKED_DISTANCE:
             return replay
-        route, off = logged_route(network, xy, sim_h[row, steps])
+        _, off = logged_route(network, xy, sim_h[row, steps])
         if off > 0.25:
             return replay
         x, y, h, v = states[row, first]
@@ -433,16 +439,10 @@ class _WomdHighwayEnv(AbstractEnv):
         # track and rollout (the same k, the same drivers)
         driver = NOMINAL_DRIVER if self.rollout == 0 else draw_driver(named_rng(
             self.rollout, "idm traffic", scene.scenario_id, str(scene.track_ids[row])))
-        reference = float(np.nanmax(scene.speed[row, steps]))
-        vehicle = WomdIDMVehicle(self.road, np.array([x, y]), heading=h, speed=v,
-                                 target_lane_index=lane_index,
-                                 target_speed=max(reference * driver.speed_factor, 1.0),
-                                 route=route)
-        vehicle.set_driver(driver)
-        vehicle.LENGTH, vehicle.WIDTH = float(scene.length[row]), float(scene.width[row])
-        vehicle.diagonal = math.hypot(vehicle.LENGTH, vehicle.WIDTH)
-        vehicle.check_collisions = True  # with everyone (WomdRoad.step)
-        vehicle.row = row
+        vehicle = WomdPathVehicle(
+            self.road, logged_path(xy, sim_h[row, steps], scene.speed[row, steps], steps), v,
+            driver, float(scene.length[row]), float(scene.width[row]), row,
+            last_step=int(steps[-1]))
         if first > CURRENT_STEP:
             vehicle.appear_at(first)
         return vehicle
@@ -659,7 +659,10 @@ class WomdEnv(gym.Wrapper):
             self._crashed[[a, b], k] = True
         for row, vehicle in (*inner.simulated.items(), (e, ego)):
             self._crashed[row, k] = vehicle.crashed
-            if isinstance(vehicle, LogVehicle) or getattr(vehicle, "hidden", False):
+            if isinstance(vehicle, LogVehicle):
+                continue
+            if getattr(vehicle, "hidden", False):  # not on the road (yet, or any more)
+                rec["valid"][row, k] = False
                 continue
             heading = -vehicle.heading
             heading = math.pi - (math.pi - heading) % (2 * math.pi)

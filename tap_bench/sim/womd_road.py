@@ -5,7 +5,8 @@
   lane graph, and the compiled lane lookup;
 - :class:`LogVehicle` (an agent replaying its log), :class:`WomdMDPVehicle` (the
   meta-action ego: lane changes to the map's neighbours), :class:`WomdIDMVehicle` (IDM/MOBIL
-  along a route, stopping at red stop points);
+  along a route, stopping at red stop points: the IDM ego), :class:`WomdPathVehicle` (idm
+  traffic: along its logged path, IDM deciding its speed; :class:`LoggedPath`);
 - :class:`WomdRoad`: the step counter the replays read, the neighbour search (all positions
   projected on a lane at once, once per step), the ego's collisions, signals, off-road;
 - :func:`logged_route`: the lanes a logged path follows.
@@ -36,7 +37,8 @@ from tap_bench.sim.traffic import near_pairs
 from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, lane_points
 from tap_bench.sim.womd_scene import Scene
 
-__all__ = ["HIDDEN", "OFF_ROAD_MARGIN", "ROUTE_CORRIDOR", "ROUTE_OFF_MAP", "STOP_LOOKAHEAD",
+__all__ = ["HIDDEN", "OFF_ROAD_MARGIN", "PATH_EXTENSION", "PATH_SPACING", "LoggedPath",
+           "WomdPathVehicle", "logged_path", "ROUTE_CORRIDOR", "ROUTE_OFF_MAP", "STOP_LOOKAHEAD",
            "STOP_MARGIN", "WALKER_CLEARANCE", "WALKER_HORIZON", "WALKER_LOOKAHEAD",
            "NOMINAL_DRIVER", "ConstantVelocityVehicle", "DriverParameters", "LogVehicle",
            "WomdIDMVehicle", "WomdMDPVehicle",
@@ -577,6 +579,489 @@ def _idm_acc(p: DriverParameters, v: float, v0: float, gap: float, lead: float) 
                                                                             / b))
 
 
+# ------------------------------------------------------------------ driving along the log
+
+
+PATH_SPACING = 0.5  # [m] a logged position this close to the last one kept is dropped
+PATH_EXTENSION = 100.0  # [m] the path goes on straight past its last logged position
+PATH_LOOKAHEAD = 30.0  # [m] a path vehicle looks this far ahead along its path ...
+PATH_TIME = 3.0  # [s] ... plus this long at its speed
+PATH_MARGIN = 0.1  # [m] beyond both half widths: a box this close to the path is in the way
+PATH_PREDICTION = (1.0, 2.0)  # [s] where crossing movers will be (constant velocity)
+PATH_CROSSING = math.cos(math.radians(30.0))  # a mover more across the path than 30 deg
+PATH_ARRIVAL = 1.0  # [s] a predicted blocker counts when we would be there by then + this
+DESIRED_BEHIND = 10.0  # [m] the desired speed is the fastest logged speed from this far back
+DESIRED_AHEAD = 20.0  # [m] ... to this far ahead along the path
+DESIRED_MIN = 1.0  # [m/s] the slowest desired speed
+APPEAR_CLEARANCE = 1.0  # [m] a vehicle appears when its box this much longer at each end is free
+
+
+def _box_polygon(x: float, y: float, heading: float, length: float, width: float
+                 ) -> np.ndarray:
+    """(5, 2) closed polygon of a box (highway-env's polygon convention)."""
+    c, s = math.cos(heading), math.sin(heading)
+    hl, hw = length / 2, width / 2
+    corners = np.array([[-hl, -hw], [-hl, hw], [hl, hw], [hl, -hw]]) @ np.array([[c, s],
+                                                                               [-s, c]])
+    corners += (x, y)
+    return np.vstack([corners, corners[:1]])
+
+
+@dataclass(frozen=True)
+class LoggedPath:
+    """The path a vehicle drove in the log (sim frame), as a polyline by arc length.
+
+    Attributes:
+        points: (n, 2) [m], positions at least :data:`PATH_SPACING` apart (the standstill
+            jitter of the log dropped), then one :data:`PATH_EXTENSION` m further along the
+            last heading.
+        cum: (n,) arc length of each point from the first [m].
+        heading: (n,) the logged heading at each point, unwrapped [rad].
+        reference: (n,) the fastest logged speed within :data:`DESIRED_BEHIND` m behind and
+            :data:`DESIRED_AHEAD` m ahead of each point [m/s] (the desired speed's scale).
+        steps: (n,) the record's step at which the log was at each point (the extension:
+            inf).
+    """
+
+    points: np.ndarray
+    cum: np.ndarray
+    heading: np.ndarray
+    reference: np.ndarray
+    steps: np.ndarray
+
+    def step_at(self, s: float) -> float:
+        """The record's step at which the log reached arc length ``s`` [m] (inf beyond
+        the logged part)."""
+        k = int(np.searchsorted(self.cum, s, side="left"))
+        return float(self.steps[min(k, len(self.steps) - 1)])
+
+    def at(self, s: float) -> tuple[float, float, float]:
+        """(x, y, heading) at arc length ``s`` [m] (clipped to the path)."""
+        cum = self.cum
+        k = int(np.searchsorted(cum, s, side="right")) - 1
+        k = min(max(k, 0), len(cum) - 2)
+        span = cum[k + 1] - cum[k]
+        u = min(max((s - cum[k]) / span, 0.0), 1.0) if span > 0 else 0.0
+        a, b = self.points[k], self.points[k + 1]
+        return (float(a[0] + u * (b[0] - a[0])), float(a[1] + u * (b[1] - a[1])),
+                float(self.heading[k] + u * (self.heading[k + 1] - self.heading[k])))
+
+    @property
+    def length(self) -> float:
+        """Arc length of the logged part [m] (the extension not counted)."""
+        return float(self.cum[-1] - PATH_EXTENSION)
+
+    def reference_at(self, s: float) -> float:
+        """The desired speed's scale at arc length ``s`` [m/s]."""
+        return float(np.interp(s, self.cum, self.reference))
+
+    def project(self, point: np.ndarray) -> tuple[float, float, float]:
+        """(s [m], signed lateral distance [m], the path's direction there [rad]) of a point
+        on the nearest segment of the whole path."""
+        s, d, theta = _project_path(self.points[:, 0], self.points[:, 1], self.cum,
+                                    0.0, float(self.cum[-1]), float(point[0]),
+                                    float(point[1]))
+        return s, d, theta
+
+
+def logged_path(xy: np.ndarray, heading: np.ndarray, speed: np.ndarray,
+                steps: np.ndarray | None = None) -> LoggedPath:
+    """The :class:`LoggedPath` of a vehicle's valid logged states (sim frame), in order.
+
+    Args:
+        xy: (T, 2) positions [m]; heading: (T,) [rad]; speed: (T,) [m/s] (NaN: 0).
+        steps: (T,) the record's step of each state (default 0, 1, ...).
+    """
+    xy = np.asarray(xy, float)
+    if len(xy) == 0:
+        raise ParameterError("xy", "no positions", "at least one valid logged state")
+    heading = np.unwrap(np.asarray(heading, float))
+    speed = np.nan_to_num(np.asarray(speed, float), nan=0.0)
+    keep = [0]
+    for k in range(1, len(xy)):
+        if math.hypot(*(xy[k] - xy[keep[-1]])) >= PATH_SPACING:
+            keep.append(k)
+    points = xy[keep]
+    headings = heading[keep]
+    speeds = speed[keep]
+    at = (np.arange(len(xy)) if steps is None else np.asarray(steps, float))[keep]
+    # the fastest speed of the dropped (standstill) samples is at most the kept one's
+    cum = np.r_[0.0, np.cumsum(np.hypot(*np.diff(points, axis=0).T))] if len(points) > 1 \
+        else np.zeros(1)
+    end = points[-1] + PATH_EXTENSION * np.array([math.cos(headings[-1]),
+                                                  math.sin(headings[-1])])
+    points = np.vstack([points, end])
+    cum = np.r_[cum, cum[-1] + PATH_EXTENSION]
+    headings = np.r_[headings, headings[-1]]
+    speeds = np.r_[speeds, speeds[-1]]
+    at = np.r_[np.asarray(at, float), np.inf]
+    lo = np.searchsorted(cum, cum - DESIRED_BEHIND, side="left")
+    hi = np.searchsorted(cum, cum + DESIRED_AHEAD, side="right")
+    reference = np.array([speeds[a:max(b, a + 1)].max() for a, b in zip(lo, hi, strict=True)])
+    return LoggedPath(points, cum, headings, reference, at)
+
+
+@numba.njit(cache=True, nogil=True)
+def _project_path(px, py, cum, s0, s1, qx, qy):  # pragma: no cover - compiled
+    """(s, signed lateral distance, direction) of point q on the nearest segment of the
+    path with some part in [s0, s1] (s NaN when none)."""
+    best, bs, bd, bt = np.inf, np.nan, np.nan, 0.0
+    for k in range(px.shape[0] - 1):
+        if cum[k + 1] < s0:
+            continue
+        if cum[k] > s1:
+            break
+        dx, dy = px[k + 1] - px[k], py[k + 1] - py[k]
+        n2 = dx * dx + dy * dy
+        if n2 <= 0:
+            continue
+        u = ((qx - px[k]) * dx + (qy - py[k]) * dy) / n2
+        u = min(max(u, 0.0), 1.0)
+        ex, ey = qx - px[k] - u * dx, qy - py[k] - u * dy
+        dist = math.hypot(ex, ey)
+        if dist < best:
+            n = math.sqrt(n2)
+            best = dist
+            bs = cum[k] + u * n
+            bd = (dx * ey - dy * ex) / n
+            bt = math.atan2(dy, dx)
+    return bs, bd, bt
+
+
+@numba.njit(cache=True, nogil=True)
+def _path_blockers(px, py, cum, s0, s1, x0, y0, half_width, half_length, margins,
+                   xs, ys, hs, vs, ls, ws, horizons):  # pragma: no cover - compiled
+    """The movers in a path's way ahead, now and predicted.
+
+    For each mover j (centre xs, ys, heading hs, speed vs, box ls x ws) and each horizon
+    tau (0 first: where it is now; then where it will be at constant velocity, for movers
+    across the path), whether its box is within the half
+    widths + ``margins[j]`` of the path between s0 and s1 with its centre ahead of s0.
+
+    Returns:
+        (m * H, 4): gap from our bumper to its box along the path [m], its speed along the
+        path [m/s], tau [s], j; NaN gap where not in the way.
+    """
+    m, h = xs.shape[0], horizons.shape[0]
+    out = np.full((m * h, 4), np.nan)
+    reach = s1 - s0
+    for j in range(m):
+        for t in range(h):
+            tau = horizons[t]
+            cx = xs[j] + tau * vs[j] * math.cos(hs[j])
+            cy = ys[j] + tau * vs[j] * math.sin(hs[j])
+            if math.hypot(cx - x0, cy - y0) > reach + ls[j] + half_length:
+                continue
+            s, d, theta = _project_path(px, py, cum, s0, s1, cx, cy)
+            if not s > s0:
+                continue
+            c = math.cos(hs[j] - theta)
+            if tau > 0 and abs(c) > PATH_CROSSING and vs[j] > 0.5:
+                continue  # moving along the path: it is a leader now, not a blocker
+            sn = abs(math.sin(hs[j] - theta))
+            across = sn * ls[j] / 2 + abs(c) * ws[j] / 2
+            along = abs(c) * ls[j] / 2 + sn * ws[j] / 2
+            if abs(d) >= half_width + across + margins[j]:
+                continue
+            out[j * h + t, 0] = s - s0 - half_length - along
+            out[j * h + t, 1] = vs[j] * c if tau == 0 else 0.0
+            out[j * h + t, 2] = tau
+            out[j * h + t, 3] = j
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _first_crossing(ax, ay, acum, na, bx, by, bcum, nb, min_sin):  # pragma: no cover
+    """(s on a, s on b) [m] of the first point along polyline a (its first ``na`` points)
+    where it crosses polyline b (its first ``nb``) at more than asin(min_sin); NaN if
+    none."""
+    blo_x, bhi_x = np.min(bx[:nb]), np.max(bx[:nb])
+    blo_y, bhi_y = np.min(by[:nb]), np.max(by[:nb])
+    for k in range(na - 1):
+        px, py, qx, qy = ax[k], ay[k], ax[k + 1], ay[k + 1]
+        if max(px, qx) < blo_x or min(px, qx) > bhi_x or max(py, qy) < blo_y \
+                or min(py, qy) > bhi_y:
+            continue
+        ux, uy = qx - px, qy - py
+        lu = math.hypot(ux, uy)
+        if lu <= 0:
+            continue
+        for q in range(nb - 1):
+            cx, cy, dx, dy = bx[q], by[q], bx[q + 1], by[q + 1]
+            if max(cx, dx) < min(px, qx) or min(cx, dx) > max(px, qx) \
+                    or max(cy, dy) < min(py, qy) or min(cy, dy) > max(py, qy):
+                continue
+            vx, vy = dx - cx, dy - cy
+            lv = math.hypot(vx, vy)
+            if lv <= 0:
+                continue
+            den = ux * vy - uy * vx
+            if abs(den) <= min_sin * lu * lv:
+                continue  # (nearly) parallel: following, not crossing
+            t = ((cx - px) * vy - (cy - py) * vx) / den
+            w = ((cx - px) * uy - (cy - py) * ux) / den
+            if 0.0 <= t <= 1.0 and 0.0 <= w <= 1.0:
+                return acum[k] + t * lu, bcum[q] + w * lv
+    return np.nan, np.nan
+
+
+PATH_CROSSING_MIN = math.sin(math.radians(5.0))  # paths crossing at a smaller angle follow
+
+
+class WomdPathVehicle(Vehicle):
+    """An idm-traffic vehicle that drives along its logged path, IDM (with the ACC model's
+    heuristic, :func:`_idm_acc`) deciding only its speed along it.
+
+    The path (:class:`LoggedPath`) keeps every lane change, turn and lateral offset the driver
+    made; what the vehicle decides is when it gets where: IDM towards a desired speed (the
+    driver's :attr:`DriverParameters.speed_factor` times the fastest logged speed around
+    that point of the path), behind the nearest box in the way ahead (any agent whose box is
+    within both half widths + :data:`PATH_MARGIN` (a pedestrian's or cyclist's:
+    :data:`WALKER_CLEARANCE`) of the path, within
+    :data:`PATH_LOOKAHEAD` m + :data:`PATH_TIME` s at its speed), before a pedestrian or
+    cyclist that will be in the way within :data:`PATH_PREDICTION` s, and before a vehicle
+    crossing the path that will be in the way then when it would be there too (unless it can
+    no longer stop comfortably), where its logged path crosses another path vehicle's that
+    went first in the log (:meth:`_give_way_gap`), at red (and yellow, when it can stop
+    comfortably) stop points and stop signs on its path. It never reverses. A vehicle that
+    appears after the current time waits until its place is free
+    (:meth:`_room_to_appear`); one whose log ends before the record's leaves the scene once
+    past its logged path's end and the log's last step.
+
+    Attributes:
+        row: the track's row in the scene.
+        path: the logged path; s: where it is along it [m].
+        driver: its :class:`DriverParameters`.
+    """
+
+    hidden = False
+
+    def __init__(self, road: Road, path: LoggedPath, speed: float, driver: DriverParameters,
+                 length: float, width: float, row: int, last_step: int = 1 << 30) -> None:
+        x, y, h = path.at(0.0)
+        super().__init__(road, np.array([x, y]), h, max(float(speed), 0.0))
+        self.path = path
+        self.s = 0.0
+        self.last_step = int(last_step)
+        self.driver = driver
+        self.row = row
+        self.LENGTH, self.WIDTH = float(length), float(width)
+        self.diagonal = math.hypot(self.LENGTH, self.WIDTH)
+        self.check_collisions = True
+        self.stops: list[tuple[str, Any, float]] | None = None  # found on the first act
+        self.stop_signs_served: set = set()
+        self.stop_signs_seen: set = set()
+        self.yellow_stops: set = set()
+
+    def parameters(self) -> DriverParameters:
+        """This vehicle's driver."""
+        return self.driver
+
+    def set_driver(self, driver: DriverParameters) -> None:
+        """Drive with ``driver``."""
+        self.driver = driver
+
+    @property
+    def target_speed(self) -> float:
+        """The desired speed here [m/s]."""
+        return max(self.driver.speed_factor * self.path.reference_at(self.s), DESIRED_MIN)
+
+    def appear_at(self, step: int) -> None:
+        """Wait off the road, not collidable, until the road's step ``step``."""
+        self.hidden = True
+        self.start_step = int(step)
+        self.position = np.array([HIDDEN + 10.0 * self.row, -HIDDEN])
+        self.collidable = False
+
+    def _room_to_appear(self) -> bool:
+        """Whether the vehicle's box where it appears, :data:`APPEAR_CLEARANCE` longer at
+        both ends, is clear of every other agent's (the simulated traffic may be where the
+        log's was not: a vehicle that appears waits until there is room)."""
+        x, y, h = self.path.at(self.s)
+        mine = _box_polygon(x, y, h, self.LENGTH + 2 * APPEAR_CLEARANCE, self.WIDTH)
+        reach = self.diagonal / 2 + APPEAR_CLEARANCE
+        for other in self.road.vehicles:
+            if other is self or not other.collidable:
+                continue
+            if math.hypot(other.position[0] - x, other.position[1] - y) > \
+                    reach + getattr(other, "diagonal", 10.0) / 2:
+                continue
+            theirs = _box_polygon(float(other.position[0]), float(other.position[1]),
+                                  float(other.heading), other.LENGTH, other.WIDTH)
+            if utils.are_polygons_intersecting(mine, theirs, np.zeros(2), np.zeros(2))[0]:
+                return False
+        return True
+
+    def act(self, action: Any = None) -> None:
+        if self.hidden:
+            return
+        if self.crashed:  # brake to a stop, as highway-env's crashed vehicles do
+            self.action = {"steering": 0.0, "acceleration": -float(self.speed)}
+            return
+        self.action = {"steering": 0.0, "acceleration": self.path_acceleration()}
+
+    def path_acceleration(self) -> float:
+        """IDM + ACC heuristic acceleration [m/s^2] behind whatever is in the way ahead."""
+        p = self.driver
+        v = max(float(self.speed), 0.0)
+        v0 = self.target_speed
+        acc = p.max_acceleration * (1.0 - (v / v0) ** p.delta)
+        road = self.road
+        positions = getattr(road, "_positions", None)
+        if positions is not None and len(positions):
+            reach = PATH_LOOKAHEAD + PATH_TIME * v
+            boxes = road._boxes
+            found = _path_blockers(
+                self.path.points[:, 0], self.path.points[:, 1], self.path.cum, self.s,
+                self.s + reach, float(self.position[0]), float(self.position[1]),
+                self.WIDTH / 2, self.LENGTH / 2, road._path_margins, positions[:, 0],
+                positions[:, 1], boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3],
+                np.array((0.0, *PATH_PREDICTION)))
+            h = len(PATH_PREDICTION) + 1
+            mine = road._mover_index.get(id(self))
+            if mine is not None:
+                found[mine * h:(mine + 1) * h, 0] = np.nan
+            walkers = road._walker_mask
+            movers = road._movers
+            for gap, lead, tau, j in found[np.isfinite(found[:, 0])]:
+                if tau > 0 and isinstance(movers[int(j)], WomdPathVehicle):
+                    continue  # where logged paths cross, the log's order decides (below)
+                if tau > 0 and not walkers[int(j)]:
+                    # a vehicle later: only if we would be there by then, and can stop
+                    if gap <= 0 or gap / max(v, 0.5) > tau + PATH_ARRIVAL \
+                            or v * v > 2 * p.comfortable_braking * gap:
+                        continue
+                acc = min(acc, _idm_acc(p, v, v0, gap, max(lead, 0.0)))
+        for gap in self._stop_gaps(v):
+            acc = min(acc, _idm_acc(p, v, v0, gap, 0.0))
+        gap = self._give_way_gap(v)
+        if gap is not None:
+            acc = min(acc, _idm_acc(p, v, v0, gap, 0.0))
+        return float(max(acc, -p.emergency_braking))
+
+    def _give_way_gap(self, v: float) -> float | None:
+        """Gap [m] from the bumper to the nearest point where its logged path crosses
+        another path vehicle's that passed there first in the log (ties: the lower scene
+        row first), while that one has not passed and reaches it within the driver's
+        critical gap after us (and :data:`CONFLICT_HORIZON`); not once it can no longer
+        stop comfortably before the crossing (it clears it). None if none."""
+        conflicts = getattr(self.road, "path_conflicts", None)
+        if conflicts is None:
+            return None
+        p = self.driver
+        best = None
+        for other, s_mine, s_other, first in conflicts(self):
+            if first or other.hidden:
+                continue
+            zone_i = other.WIDTH / 2 + CONFLICT_CLEARANCE
+            if self.s - self.LENGTH / 2 > s_mine + zone_i:
+                continue  # we are past it
+            zone_j = other.LENGTH / 2 + self.WIDTH / 2 + CONFLICT_CLEARANCE
+            d_j = s_other - other.s
+            if d_j < -zone_j:
+                continue  # it is past it
+            gap = s_mine - zone_i - self.s - self.LENGTH / 2
+            if gap <= 0 or v * v > 2 * p.comfortable_braking * gap:
+                continue  # in the zone, or committed: clear it
+            if d_j > zone_j:
+                t_j = (d_j - zone_j) / max(float(other.speed), 0.1)
+                if t_j > CONFLICT_HORIZON or t_j > gap / max(v, 1.0) + p.critical_gap:
+                    continue
+            best = gap if best is None else min(best, gap)
+        return best
+
+    def _find_stops(self) -> list[tuple[str, Any, float]]:
+        """The signal stop points and stop signs on the path: (kind, key, s [m]) for those
+        within their lane's half width + 0.5 m of it, the lane within 45 deg of the path."""
+        road = self.road
+        stops: list[tuple[str, Any, float]] = []
+        network = road.network
+        marks = [("signal", j, index, s) for j, (index, s) in
+                 enumerate(zip(getattr(road, "_signal_lanes", ()), getattr(road, "_stop_s", ()),
+                               strict=True)) if index is not None and np.isfinite(s)]
+        marks += [("sign", (index, k), index, s) for index, points in
+                  getattr(road, "_stop_signs", {}).items() for k, s in enumerate(points)]
+        for kind, key, index, s_lane in marks:
+            lane = network.get_lane(index)
+            point = lane.position(s_lane, 0.0)
+            s, d, theta = self.path.project(point)
+            if abs(d) <= lane.width / 2 + 0.5 and \
+                    math.cos(theta - lane.heading_at(s_lane)) > math.cos(math.radians(45)):
+                stops.append((kind, key, s))
+        return stops
+
+    def _stop_gaps(self, v: float) -> list[float]:
+        """Gaps [m] from the bumper to the stop points and stop signs it must stop at."""
+        if self.stops is None:
+            self.stops = self._find_stops()
+        if not self.stops:
+            return []
+        road = self.road
+        k = road.clock[0]
+        p = self.driver
+        out = []
+        red = getattr(road, "_red", None)
+        for kind, key, s_stop in self.stops:
+            d = s_stop - self.s
+            if d < -0.5 or d > STOP_LOOKAHEAD:
+                continue
+            room = d - self.LENGTH / 2
+            if kind == "signal":
+                if red is None or not len(red):
+                    continue
+                step = min(k, len(red) - 1)
+                if red[step, key]:
+                    out.append(room - STOP_MARGIN)
+                elif road._red_or_yellow[step, key]:
+                    if key not in self.yellow_stops:
+                        r = room - STOP_MARGIN
+                        if r <= 0 or v * v > 2 * p.comfortable_braking * r:
+                            continue  # too late to stop comfortably: through
+                        self.yellow_stops.add(key)
+                    out.append(room - STOP_MARGIN)
+                else:
+                    self.yellow_stops.discard(key)
+                continue
+            if key in self.stop_signs_served:
+                continue
+            if room <= STOP_SIGN_NEAR and v < STOP_SIGN_SPEED:
+                self.stop_signs_served.add(key)
+                continue
+            if key not in self.stop_signs_seen:
+                self.stop_signs_seen.add(key)
+                if v * v > 2 * p.comfortable_braking * max(room - STOP_MARGIN, 0.0):
+                    self.stop_signs_served.add(key)  # rolling through already: passes
+                    continue
+            out.append(room - STOP_MARGIN)
+        return out
+
+    def step(self, dt: float) -> None:
+        if self.hidden:
+            if self.road.clock[0] >= self.start_step and self._room_to_appear():
+                self.hidden = False
+                self.collidable = True
+                x, y, h = self.path.at(self.s)
+                self.position = np.array([x, y])
+                self.heading = h
+            return
+        if self.road.clock[0] > self.last_step and self.s >= self.path.length:
+            self.hidden = True  # its log has ended and it is past it: it leaves the scene
+            self.start_step = 1 << 30
+            self.position = np.array([HIDDEN + 10.0 * self.row, -HIDDEN])
+            self.collidable = False
+            return
+        if self.impact is not None:  # a collision: crashed, but it stays on its path
+            self.crashed = True
+            self.impact = None
+        v = float(self.speed)
+        v_next = max(v + float(self.action["acceleration"]) * dt, 0.0)
+        self.s += 0.5 * (v + v_next) * dt
+        self.speed = v_next
+        x, y, h = self.path.at(self.s)
+        self.position = np.array([x, y])
+        self.heading = h
+
+
 # ------------------------------------------------------------------ the road
 
 
@@ -665,7 +1150,34 @@ class WomdRoad(Road):
             for nxt in network.successors(index):
                 self._predecessors.setdefault(nxt, []).append(index)
         self._conflicts: dict[Any, list[tuple[Any, float, float]]] = {}
+        self._crossings: dict[int, list] | None = None
         self._stop_signs = self._stop_sign_points(network, road)
+
+    def path_conflicts(self, vehicle: Vehicle) -> list[tuple[Any, float, float, bool]]:
+        """(other path vehicle, where their logged paths first cross on ours [m], ... on
+        theirs [m], whether ours passed there first in the log) for every path vehicle of
+        the road whose logged path crosses this one's (at more than 5 deg; the extensions
+        beyond the logs not counted). Built for all of them at the first call."""
+        if self._crossings is None:
+            self._crossings = {}
+            paths = [v for v in self.vehicles if isinstance(v, WomdPathVehicle)]
+            for a in paths:
+                self._crossings[id(a)] = []
+            for i, a in enumerate(paths):
+                pa = a.path
+                for b in paths[i + 1:]:
+                    pb = b.path
+                    sa, sb = _first_crossing(
+                        pa.points[:, 0], pa.points[:, 1], pa.cum, len(pa.cum) - 1,
+                        pb.points[:, 0], pb.points[:, 1], pb.cum, len(pb.cum) - 1,
+                        PATH_CROSSING_MIN)
+                    if not np.isfinite(sa):
+                        continue
+                    ta, tb = pa.step_at(sa), pb.step_at(sb)
+                    a_first = ta < tb or (ta == tb and a.row < b.row)
+                    self._crossings[id(a)].append((b, float(sa), float(sb), a_first))
+                    self._crossings[id(b)].append((a, float(sb), float(sa), not a_first))
+        return self._crossings.get(id(vehicle), [])
 
     # the neighbour search, once per lane per step
     def act(self) -> None:
@@ -675,6 +1187,10 @@ class WomdRoad(Road):
                            if self._movers else np.zeros((0, 2)))
         self._boxes = np.array([(v.heading, max(float(v.speed), 0.0), v.LENGTH, v.WIDTH)
                                 for v in self._movers], float).reshape(-1, 4)
+        self._mover_index = {id(v): i for i, v in enumerate(self._movers)}
+        self._walker_mask = np.array([getattr(v, "row", -1) in self._walker_rows
+                                      for v in self._movers], bool)
+        self._path_margins = np.where(self._walker_mask, WALKER_CLEARANCE, PATH_MARGIN)
         walkers = [v for v in self._movers if getattr(v, "row", -1) in self._walker_rows]
         if walkers:
             xy = np.array([v.position for v in walkers], float)
@@ -994,7 +1510,7 @@ class WomdRoad(Road):
                         if t_j > CONFLICT_HORIZON:
                             continue
                         t_i = gap_i / max(v_i, 1.0)
-                        yields = isinstance(other, WomdIDMVehicle) and \
+                        yields = isinstance(other, (WomdIDMVehicle, WomdPathVehicle)) and \
                             v_j ** 2 <= 2 * other.parameters().comfortable_braking * max(
                                 d_j - other.LENGTH / 2 - vehicle.WIDTH / 2
                                 - CONFLICT_CLEARANCE, 0.0)

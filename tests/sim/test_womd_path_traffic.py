@@ -1,0 +1,181 @@
+"""idm traffic along the logged paths: each vehicle drives the path its driver drove, IDM
+deciding only its speed; generated scenes (every heading, curves, rear-ends, a lane change,
+a late vehicle) and hand-worked geometry."""
+
+from __future__ import annotations
+
+import math
+import pickle
+
+import numpy as np
+import pytest
+
+from tap_bench.sim.policies import load_policy
+from tap_bench.sim.womd_env import make_womd_env
+from tap_bench.sim.womd_road import (
+    PATH_EXTENSION,
+    PATH_SPACING,
+    _first_crossing,
+    logged_path,
+    path_progress,
+)
+from tap_bench.sim.womd_scene import CURRENT_STEP
+
+T = np.arange(91) * 0.1
+
+
+def along(points: np.ndarray, speed: np.ndarray | float, *, valid: np.ndarray | None = None
+          ) -> dict:
+    """A ScenarioNet vehicle track along a polyline (n, 2) at ``speed`` [m/s] per step."""
+    speed = np.broadcast_to(np.asarray(speed, float), T.shape)
+    s = np.r_[0.0, np.cumsum(speed[:-1] * 0.1)]
+    cum = np.r_[0.0, np.cumsum(np.hypot(*np.diff(points, axis=0).T))]
+    x, y = np.interp(s, cum, points[:, 0]), np.interp(s, cum, points[:, 1])
+    k = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(points) - 2)
+    d = points[k + 1] - points[k]
+    heading = np.arctan2(d[:, 1], d[:, 0])
+    return {"type": "VEHICLE", "state": {
+        "position": np.c_[x, y, np.zeros(91)], "heading": heading,
+        "velocity": np.c_[speed * np.cos(heading), speed * np.sin(heading)],
+        "valid": np.ones(91, bool) if valid is None else valid,
+        "length": np.full(91, 4.5), "width": np.full(91, 2.0)}}
+
+
+def lane_of(points: np.ndarray) -> dict:
+    return {"type": "LANE_SURFACE_STREET", "entry_lanes": [], "exit_lanes": [],
+            "polyline": points}
+
+
+def scene(path, tracks: dict, lanes: list[np.ndarray]) -> str:
+    meta = {"scenario_id": path.stem, "ts": T, "dataset": "waymo", "sdc_id": "ego"}
+    far = np.c_[np.arange(0.0, 200.0, 0.5) - 10.0, np.full(400, -300.0)]
+    features = {str(k + 2): lane_of(p) for k, p in enumerate(lanes)}
+    with path.open("wb") as f:
+        pickle.dump({"metadata": meta, "map_features": {"1": lane_of(far), **features},
+                     "dynamic_map_states": {},
+                     "tracks": {"ego": along(far, 8.0), **tracks}}, f)
+    return str(path)
+
+
+def rotate(points: np.ndarray, angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return points @ np.array([[c, s], [-s, c]])
+
+
+def bend(angle: float) -> np.ndarray:
+    """40 m straight, a 90 deg left bend of radius 20 m, 60 m straight; rotated by
+    ``angle``."""
+    straight = np.c_[np.arange(-40.0, 0.0, 0.5), np.zeros(80)]
+    a = np.linspace(0.0, math.pi / 2, 63)
+    arc = np.c_[20.0 * np.sin(a), 20.0 * (1 - np.cos(a))]
+    out = np.c_[np.full(120, 20.0), 20.0 + np.arange(0.5, 60.5, 0.5)]
+    return rotate(np.vstack([straight, arc, out]), angle)
+
+
+def drive(env, policy_name: str = "log"):
+    policy = load_policy(policy_name)
+    obs, _ = env.reset(seed=0)
+    policy.reset(env, seed=0)
+    done = False
+    while not done:
+        obs, _, terminated, truncated, _ = env.step(policy.act(obs))
+        done = terminated or truncated
+    return env.recorded_states(), env.episode_info()
+
+
+def test_a_logged_path_drops_the_standstill_jitter_and_goes_on_straight():
+    # 5 samples standing within 0.1 m, then 1 m steps along +x
+    xy = np.array([[0.0, 0.0], [0.05, 0.02], [0.02, -0.03], [0.08, 0.0], [0.1, 0.05],
+                   [1.0, 0.0], [2.0, 0.0], [3.0, 0.0]])
+    path = logged_path(xy, np.zeros(8), np.r_[np.zeros(5), 10.0, 10.0, 10.0],
+                       np.arange(10, 18))
+    # kept: the first, then every point >= 0.5 m from the last kept one, then the extension
+    np.testing.assert_allclose(path.points[:-1], xy[[0, 5, 6, 7]])
+    np.testing.assert_allclose(path.cum, [0.0, 1.0, 2.0, 3.0, 3.0 + PATH_EXTENSION])
+    assert path.length == pytest.approx(3.0)
+    assert path.at(1.5) == pytest.approx((1.5, 0.0, 0.0))
+    assert path.at(13.0) == pytest.approx((13.0, 0.0, 0.0))  # on the extension
+    # the log was at 2 m at step 16, beyond its end never
+    assert path.step_at(2.0) == 16 and path.step_at(1.5) == 16 and path.step_at(50.0) == np.inf
+    # desired speed's scale: the fastest logged speed 10 m behind to 20 m ahead
+    assert path.reference_at(0.0) == pytest.approx(10.0)
+    assert PATH_SPACING == 0.5
+
+
+def test_first_crossing_of_two_paths():
+    a = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]])
+    b = np.array([[14.0, -5.0], [14.0, 5.0]])
+    ca = np.r_[0.0, 10.0, 20.0]
+    cb = np.r_[0.0, 10.0]
+    sa, sb = _first_crossing(a[:, 0], a[:, 1], ca, 3, b[:, 0], b[:, 1], cb, 2, 0.087)
+    assert (sa, sb) == pytest.approx((14.0, 5.0))
+    # parallel (following on the same line) is no crossing
+    c = np.array([[-5.0, 0.0], [30.0, 0.0]])
+    assert np.isnan(_first_crossing(a[:, 0], a[:, 1], ca, 3, c[:, 0], c[:, 1],
+                                    np.r_[0.0, 35.0], 2, 0.087)[0])
+
+
+@pytest.mark.parametrize("angle_deg", [0, 45, 90, 135, 180, 225, 270, 315])
+def test_traffic_drives_its_logged_bend_at_every_heading(tmp_path, angle_deg):
+    # car 2 drove the bend at 8 m/s; the map's lane is 3 m to the side (the path, not the
+    # lane centre, is what it follows): it stays within the jitter of its logged path
+    points = bend(math.radians(angle_deg))
+    normal = rotate(np.array([[0.0, 3.0]]), math.radians(angle_deg))[0]
+    env = make_womd_env(scene(tmp_path / f"sd_bend{angle_deg}.pkl",
+                              {"2": along(points, 8.0)}, [points + normal]), traffic="idm")
+    rec, _ = drive(env)
+    assert list(env.unwrapped.simulated) == [1]
+    logged = np.c_[env.scene.x[1], env.scene.y[1]].astype(float)
+    cum = np.r_[0.0, np.cumsum(np.hypot(*np.diff(logged, axis=0).T))]
+    for k in range(CURRENT_STEP + 1, 91):
+        _, d = path_progress(logged, cum, np.array([rec["x"][1, k], rec["y"][1, k]]))
+        assert d < 0.05
+    # heading along the path (the log's headings), speed near the logged 8 m/s
+    assert np.nanmax(np.abs(np.diff(np.unwrap(rec["heading"][1, CURRENT_STEP:])))) < 0.1
+    assert 7.0 < rec["speed"][1, -1] < 9.0
+
+
+@pytest.mark.parametrize("angle_deg", [0, 90, 200, 300])
+@pytest.mark.parametrize("gap, lead_speed", [(20.0, 4.0), (12.0, 0.0)])
+def test_a_faster_car_behind_on_the_same_path_does_not_rear_end(tmp_path, angle_deg, gap,
+                                                                 lead_speed):
+    # car 3 drove 10 m/s where car 2 (ahead by `gap` m) drove slower (or stood): car 3's
+    # log overlaps car 2's, the simulated car 3 follows and stops behind it
+    points = rotate(np.c_[np.arange(-60.0, 200.0, 0.5), np.zeros(520)],
+                    math.radians(angle_deg))
+    # at 1.0 s car 3 is at x = -40 and car 2 `gap` m ahead
+    xs_lead = np.arange(-40.0 + gap - lead_speed * 1.0, 200.0, 0.5)
+    xs_behind = np.arange(-50.0, 200.0, 0.5)
+    lead = rotate(np.c_[xs_lead, np.zeros(len(xs_lead))], math.radians(angle_deg))
+    behind = rotate(np.c_[xs_behind, np.zeros(len(xs_behind))], math.radians(angle_deg))
+    env = make_womd_env(scene(tmp_path / f"sd_rear{angle_deg}.pkl",
+                              {"2": along(lead, lead_speed), "3": along(behind, 10.0)},
+                              [points]), traffic="idm")
+    rec, info = drive(env)
+    assert info["traffic_collisions"] == 0, info["traffic_collided"]
+    centre = np.hypot(rec["x"][2] - rec["x"][1], rec["y"][2] - rec["y"][1])
+    # bumpers apart (7.5 m at 10 m/s to a standing car is close to an emergency: it stops
+    # about 0.5 m short of it)
+    assert centre[CURRENT_STEP:].min() > 4.5 + 0.2
+    braking = -np.diff(rec["speed"][2, CURRENT_STEP:]) / 0.1
+    assert braking.max() <= 8.0 + 1e-9  # never beyond the emergency braking
+
+
+def test_a_late_vehicle_waits_until_its_place_is_free(tmp_path):
+    # car 2 drove through where car 4 stands (a log that overlaps); simulated, it stops
+    # behind car 4, about x = -16.5. Car 3 appears at 3.0 s at x = -20, where car 2 now
+    # stands: it waits off the road (not recorded) instead of appearing inside car 2
+    line = np.c_[np.arange(-50.0, 200.0, 0.5), np.zeros(500)]
+    late = along(np.c_[np.arange(-20.0, 200.0, 0.5), np.zeros(440)], 5.0)
+    late["state"]["valid"] = T >= 3.0 - 1e-9
+    late["state"]["position"][:, 0] = -20.0 + 0.5 * (np.arange(91) - 30)
+    env = make_womd_env(scene(tmp_path / "sd_late.pkl", {
+        "2": along(np.c_[np.arange(-40.0, 200.0, 0.5), np.zeros(480)], 8.0),
+        "4": along(np.c_[np.arange(-10.0, 200.0, 0.5), np.zeros(420)], 0.0), "3": late},
+        [line]), traffic="idm")
+    rec, info = drive(env)
+    rows = {str(t): k for k, t in enumerate(env.scene.track_ids)}
+    assert rows["3"] in env.unwrapped.simulated
+    assert info["traffic_collisions"] == 0, info["traffic_collided"]
+    assert abs(rec["x"][rows["2"], 60] + 16.5) < 1.0  # car 2 stands behind car 4
+    assert not rec["valid"][rows["3"], 30:].any()  # car 3 never had room
