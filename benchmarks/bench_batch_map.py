@@ -1,5 +1,5 @@
 """CPU of labelling and measuring one batch of episodes along the road's lanes, as ``bench
-run``'s workers do it (:func:`tap_bench.bench.run_tasks._label_together`): ``tap()`` with
+run``'s workers do it (:func:`tap_bench.bench.run.tasks._label_together`): ``tap()`` with
 the interaction axis, then the ego's steps (the measures' and the contexts' leaders), each
 env's 20-episode batch as one table.
 

@@ -34,7 +34,7 @@ import pandas as pd
 from machine import report
 
 from tap_bench.bench.cache import EpisodeCache
-from tap_bench.bench.runner import run_suite
+from tap_bench.bench.run.runner import run_suite
 from tap_bench.bench.suite import load_suite
 from tap_bench.sim.policies import get_definition
 

@@ -22,11 +22,11 @@ import pandas as pd
 from machine import report
 from traffic_realism import real_files
 
-from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.realism.rollouts import SceneStates, agent_manoeuvres, scene_rollouts, score_scene
 from tap_bench.realism.summary import summarise
 from tap_bench.sim.policies import load_policy
 from tap_bench.sim.womd_env import make_womd_env
+from tap_bench.stats.bootstrap import BootstrapConfig
 
 
 def cpu() -> float:

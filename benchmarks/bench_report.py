@@ -3,7 +3,7 @@ replay viewer, figures and ``report.html`` (``write_results``), as ``bench run``
 ``demo`` pay it, for one or more tap-bench checkouts.
 
 Each measurement is a fresh interpreter with the checkout first on ``PYTHONPATH``: it imports
-what a run has imported before its report phase (``tap_bench.bench.runner`` and the scoring),
+what a run has imported before its report phase (``tap_bench.bench.run.runner`` and the scoring),
 reads the run folder's tables back, then times ``write_results`` into a new folder: CPU
 (user + sys of the process, ``time.process_time``) and wall. The first call of a process
 pays the imports the report phase makes on its own (matplotlib, before issue 24's port),
@@ -34,9 +34,9 @@ CHILD = """\
 import json, sys, time
 from pathlib import Path
 import pandas as pd
-import tap_bench.bench.runner  # noqa: F401  (imported by every run before its report)
-from tap_bench.bench.run_folder import write_results
-from tap_bench.bench.scoring import Scores
+import tap_bench.bench.run.runner  # noqa: F401  (imported by every run before its report)
+from tap_bench.bench.run.folder import write_results
+from tap_bench.bench.scores.scoring import Scores
 
 run, out = Path(sys.argv[1]), Path(sys.argv[2])
 summary = json.loads((run / "summary.json").read_text())

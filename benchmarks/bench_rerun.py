@@ -4,7 +4,7 @@ process, start-up, workers, scoring, the report and the viewer included).
 
 The first run starts from an empty episode cache (a fresh folder); the re-run uses the same
 cache unchanged: the whole run is served from its run entry
-(``tap_bench/bench/run_cache.py``), or, with ``--without-run-entry`` (the entry deleted
+(``tap_bench/bench/run/served.py``), or, with ``--without-run-entry`` (the entry deleted
 before each re-run), its episodes and their labels and measures are read, so scoring and
 the report are its only work. CPU is user + sys of the command and every process it
 started (``RUSAGE_CHILDREN``); wall time beside it; the machine's load is printed (the

@@ -12,8 +12,8 @@ import warnings
 
 from machine import report
 
-from tap_bench.bench.intervals import wilson_interval
 from tap_bench.sim import available_policies, rollout
+from tap_bench.stats.intervals import wilson_interval
 
 
 def main() -> None:

@@ -1,6 +1,6 @@
 """Scoring speed: everything after the rollouts of a suite of 10 policies x 5 envs x 100 seeds.
 
-Times :func:`tap_bench.bench.scoring.score` (paired comparisons of 9 policies with the
+Times :func:`tap_bench.bench.scores.scoring.score` (paired comparisons of 9 policies with the
 reference, SDL-matched groups, per-policy measures, coverage and novelty with their
 intervals, 2000 bootstrap resamples) on a synthetic episode table whose ego labels follow
 policy-specific Zipf distributions over 60 maneuver-level labels; then the ego measures
@@ -20,10 +20,10 @@ import numpy as np
 import pandas as pd
 from machine import report
 
-from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.episodes import EPISODE_COLUMNS
 from tap_bench.bench.measures import ego_measures
-from tap_bench.bench.scoring import score
+from tap_bench.bench.scores.scoring import score
+from tap_bench.stats.bootstrap import BootstrapConfig
 
 ENVS = ("highway", "merge", "roundabout", "exit", "intersection")
 POLICIES = tuple(f"policy-{i}" for i in range(10))

@@ -19,7 +19,7 @@ from pathlib import Path
 import pandas as pd
 from machine import report
 
-from tap_bench.bench.runner import run_viewer
+from tap_bench.bench.run.runner import run_viewer
 
 
 def _size(folder: Path) -> int:

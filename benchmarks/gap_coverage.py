@@ -8,7 +8,7 @@ The data: each trajectory shows one lateral, one longitudinal and one interactio
 (WOMD-like), the policy 30 or 100 episodes. "same": the policy draws from the reference's
 distributions; "different": a share of each axis's probability moved to other labels.
 The true gap is the total variation distance of the two populations' label shares
-(exact). Each replication runs :func:`tap_bench.bench.gap.behaviour_gap` (1000
+(exact). Each replication runs :func:`tap_bench.bench.scores.gap.behaviour_gap` (1000
 resamples) and records whether the plug-in's percentile interval (``gap_low``,
 ``gap_high``) and the debiased gap's basic interval (``debiased_low``,
 ``debiased_high``) hold the true gap, and each estimate's mean error. Prints a Markdown
@@ -57,8 +57,8 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import report
 
-from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.gap import behaviour_gap
+from tap_bench.bench.scores.gap import behaviour_gap
+from tap_bench.stats.bootstrap import BootstrapConfig
 
 AXES = {"lateral": (["Straight", "Left Merge", "Right Merge", "Left Turn", "Right Turn"],
                     [0.6, 0.15, 0.15, 0.05, 0.05]),
@@ -119,7 +119,7 @@ def real_scene_labels(root: Path) -> pd.DataFrame | None:
     when the data is absent."""
     import warnings
 
-    from tap_bench.bench.gap import labelled_with_speed
+    from tap_bench.bench.scores.gap import labelled_with_speed
     from tap_bench.sources import read_womd
 
     files = [root / f for f in WOMD_FILES if (root / f).exists()]

@@ -57,10 +57,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import report
 
 from tap_bench.bench.episodes import episode_table
-from tap_bench.bench.gate import check, direction, weighted_holm
-from tap_bench.bench.intervals import wilson_interval
+from tap_bench.bench.gate.regression import check, direction, weighted_holm
 from tap_bench.bench.measures import MEASURES
 from tap_bench.bench.suite import GateConfig, gate_metrics
+from tap_bench.stats.intervals import wilson_interval
 
 OUT = Path(__file__).resolve().parent / "out"
 CACHE = OUT / "gate_calibration_episodes.parquet"

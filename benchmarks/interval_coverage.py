@@ -45,10 +45,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import report
 
-from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.coverage import Reference, coverage
-from tap_bench.bench.diversity import diversity, population_hill
-from tap_bench.bench.intervals import (
+from tap_bench.bench.scores.coverage import Reference, coverage
+from tap_bench.bench.scores.diversity import diversity, population_hill
+from tap_bench.stats.bootstrap import BootstrapConfig
+from tap_bench.stats.intervals import (
     clustered_wilson_interval,
     mean_interval,
     tango_band,

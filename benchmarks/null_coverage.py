@@ -16,7 +16,7 @@ episodes, the cluster bootstrap `bench run` uses, and once as if independent, as
 For the windows cases the novel rate's Wilson interval is checked too (its truth: the
 probability a window's label is one the data set's reference never shows). The true
 difference is the mean of the estimate over 2000 fresh data sets
-(:func:`tap_bench.bench.null.same_policy_null`'s estimand: the difference at half sizes).
+(:func:`tap_bench.bench.scores.null.same_policy_null`'s estimand: the difference at half sizes).
 Each replication runs the null with 1000 draws and records whether each interval method
 holds the truth.
 
@@ -44,11 +44,11 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import report
 
-from tap_bench.bench import null
-from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.coverage import Reference
-from tap_bench.bench.gap import window_episode
-from tap_bench.bench.novelty import novelty
+from tap_bench.bench.scores import null
+from tap_bench.bench.scores.coverage import Reference
+from tap_bench.bench.scores.gap import window_episode
+from tap_bench.bench.scores.novelty import novelty
+from tap_bench.stats.bootstrap import BootstrapConfig
 
 K_LABELS, K_SEGMENTS = 40, 12
 

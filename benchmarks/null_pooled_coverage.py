@@ -1,5 +1,5 @@
 """How often the pooled same-policy null's difference intervals (the "all" rows of
-coverage and novelty: :func:`tap_bench.bench.null.pooled_null`, estimate +- z sd of the
+coverage and novelty: :func:`tap_bench.bench.scores.null.pooled_null`, estimate +- z sd of the
 envs' draws combined as independent) hold the true pooled difference.
 
     PYTHONPATH=$PWD python benchmarks/null_pooled_coverage.py [--replications 300]
@@ -29,8 +29,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import null_coverage as single
 from machine import report
 
-from tap_bench.bench import null
-from tap_bench.bench.coverage import unit_items
+from tap_bench.bench.scores import null
+from tap_bench.bench.scores.coverage import unit_items
 
 SHAPES = (0.8, 1.1, 1.5)
 """Zipf exponents of the three envs' reference distributions."""

@@ -13,8 +13,8 @@ import argparse
 import numpy as np
 from machine import report
 
-from tap_bench.bench.bootstrap import BootstrapConfig, named_rng
 from tap_bench.realism.summary import _interval
+from tap_bench.stats.bootstrap import BootstrapConfig, named_rng
 
 
 def coverage(n: int, mean: float, sd: float, trials: int, resamples: int) -> float:

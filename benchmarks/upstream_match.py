@@ -53,7 +53,7 @@ re-stated text, not borrowed ideas; reading is still needed for what it flags.
 
 Calibration (highway-env 1.12.1, SB3 2.9.2, tap-bench main of 2026-12-01): over the
 ~14,000 statements of tap-bench outside ``sim/`` and ``rl/`` (code never derived from
-either package) one run of 4 pairs counts (``bench/report_figures.py``'s SVG writer against
+either package) one run of 4 pairs counts (``bench/report/figures.py``'s SVG writer against
 SB3's CSV logger: ``self.parts.append(f"...")`` against ``self.file.write(...)``), while
 ``rl/vec_env.py``'s restated ``_worker`` loop (``send`` turned into ``return``, ``elif``
 into ``if``) is one run of 27 pairs. Per-statement matching without runs is no measure:

@@ -224,7 +224,7 @@ class ResampledWarning(UserWarning):
 
 class FewClustersWarning(UserWarning):
     """A bootstrap interval rests on fewer than ten independent units (scenes, episodes)
-    on a side: it covers less than its level (:mod:`tap_bench.bench.bootstrap`)."""
+    on a side: it covers less than its level (:mod:`tap_bench.stats.bootstrap`)."""
 
 
 class ShortSegmentWarning(UserWarning):

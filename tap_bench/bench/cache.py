@@ -63,7 +63,7 @@ change of any input or of any tap-bench module makes them again, and what a re-r
 is what it would have made. A damaged one is made again with a warning and listed in the
 run's ``cache.refused`` (:func:`note_refused`). A whole run whose every input is unchanged
 is kept too (kind ``runs``: its run folder, served without reading an episode;
-:mod:`tap_bench.bench.run_cache`).
+:mod:`tap_bench.bench.run.served`).
 
 **Location and size**: ``$TAP_BENCH_CACHE``, else ``$XDG_CACHE_HOME/tap-bench``, else
 ``~/.cache/tap-bench`` (:func:`default_cache_dir`). An entry of the default suite is about
@@ -151,7 +151,7 @@ _PATH_PART = re.compile(r"^(?!\.{1,2}$)[A-Za-z0-9._-]{1,200}$")
 
 def _file_name_ok(name: str) -> bool:
     """Whether ``name`` is a file name a derived entry may hold: a plain name, or (a run's
-    files, :mod:`tap_bench.bench.run_cache`) a relative path of two to eight parts
+    files, :mod:`tap_bench.bench.run.served`) a relative path of two to eight parts
     (``viewer/data/index.js``, ``viewer/.tap-bench-folder``; no empty, ``.`` or ``..``
     part)."""
     parts = name.split("/")
@@ -346,11 +346,11 @@ LABELS_FORMAT = 3
 tables as Arrow IPC streams (a re-run reads them four times quicker than Parquet); 3: the
 user's modules loaded while they were made (``loaded``)."""
 LABEL_CODE = ("tap_bench.labelling", "tap_bench.bench.episodes", "tap_bench.bench.measures",
-              "tap_bench.bench.contexts", "tap_bench.sim.roads", "tap_bench.bench.run_tasks")
+              "tap_bench.bench.scores.contexts", "tap_bench.sim.roads", "tap_bench.bench.run.tasks")
 """The modules that make an episode's label entry (labels, measures, segments and context
 occurrences); their code and every module of tap-bench they import (followed transitively)
-key the label cache (:func:`label_code`). ``tap_bench.bench.run_tasks`` chooses the map an
-episode is labelled along and calls the others; ``tap_bench.bench.contexts`` makes the
+key the label cache (:func:`label_code`). ``tap_bench.bench.run.tasks`` chooses the map an
+episode is labelled along and calls the others; ``tap_bench.bench.scores.contexts`` makes the
 occurrences; ``tap_bench.sim.roads`` builds a highway-env episode's map table
 (:data:`ROAD_MAP`) and brings :mod:`tap_bench.maps` (its sampling step), which the episode
 key does not hold."""
@@ -424,10 +424,10 @@ def label_code(measures: Iterable[Any] | None = None) -> dict[str, Any]:
 
 ROAD_MAP = "highway-env road"
 """The ``map`` of a label key whose episode is labelled and measured along its scenario's
-highway-env road (:func:`tap_bench.bench.run_tasks._road`)."""
+highway-env road (:func:`tap_bench.bench.run.tasks._road`)."""
 SCENE_MAP = "recorded scene's lanes"
 """The ``map`` of a label key whose recorded (WOMD) scene is labelled and measured along the
-lanes of its own map (:func:`tap_bench.bench.run_tasks._scene_lanes`)."""
+lanes of its own map (:func:`tap_bench.bench.run.tasks._scene_lanes`)."""
 
 
 def label_key(episode: str, thresholds: Mapping[str, Any], level: str,
@@ -451,7 +451,7 @@ DERIVED_FORMAT = 1
 """Layout of a derived-output entry file; raised when it changes (old entries then miss)."""
 DERIVED_KINDS = ("scores", "roads", "plots", "viewer", "runs")
 """The derived outputs kept (:func:`memoised`; ``runs``: whole run folders,
-:mod:`tap_bench.bench.run_cache`)."""
+:mod:`tap_bench.bench.run.served`)."""
 _PACKAGE_CODE: list[str] = []
 
 

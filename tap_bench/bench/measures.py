@@ -310,7 +310,7 @@ class Measure:
             where the measure has one of its own (the crash rate most of it: see
             :func:`tap_bench.bench.suite.default_weights`); None: it shares the rest.
         in_context: how the measure is taken inside interaction contexts
-            (:mod:`tap_bench.bench.contexts`, :data:`CONTEXT_REDUCTIONS`): its function is
+            (:mod:`tap_bench.bench.scores.contexts`, :data:`CONTEXT_REDUCTIONS`): its function is
             evaluated on the ego's steps of each occurrence of a context as if the
             occurrence were an episode, and an episode's occurrences of one context are
             reduced by this (``"min"``, ``"max"``, ``"mean"``, ``"first"``); ``""``: not

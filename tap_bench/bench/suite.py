@@ -50,7 +50,6 @@ from pathlib import Path
 from typing import Any
 
 from tap_bench import catalogue, sdl
-from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.measures import MEASURES
 from tap_bench.errors import (
     FileFormatError,
@@ -63,6 +62,7 @@ from tap_bench.plugins import load_plugins
 from tap_bench.sim.policies import available_policies
 from tap_bench.sim.scenario_format import get_scenario, parse_seeds, read_json, scenario_names
 from tap_bench.sim.womd_scene import TRAFFIC, WomdScenes
+from tap_bench.stats.bootstrap import BootstrapConfig
 
 __all__ = ["GateConfig", "Suite", "available_suites", "default_margins",
            "default_weights", "gate_metrics", "load_suite", "suite_from_dict"]
@@ -127,7 +127,7 @@ class GateConfig:
     A metric of one (env, policy) fails when it moved the worse way (the measure's
     registered direction; for ``label_tv`` any change) by more than its margin **and** a
     one-sided permutation test rejects "no change" at ``alpha`` after the weighted Holm
-    correction over every test of the check (:func:`tap_bench.bench.gate.weighted_holm`).
+    correction over every test of the check (:func:`tap_bench.bench.gate.regression.weighted_holm`).
     A move the better way by more than the margin is reported, never a failure.
 
     Attributes:

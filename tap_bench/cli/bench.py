@@ -127,8 +127,8 @@ def _references(specs: list[str]) -> dict[str, list[str]]:
 
 def run_bench(args: argparse.Namespace) -> int:
     from tap_bench.bench.cache import EpisodeCache, default_cache_dir
-    from tap_bench.bench.demo import timing_split
-    from tap_bench.bench.run_cache import serve_unchanged
+    from tap_bench.bench.run.demo import timing_split
+    from tap_bench.bench.run.served import serve_unchanged
     from tap_bench.execution import backend_from_args, capped_workers, close_backend
 
     if args.backend == "local" and not args.address:
@@ -148,7 +148,7 @@ def run_bench(args: argparse.Namespace) -> int:
                              corpora=bool(references or args.womd), plugins=plugins,
                              announce=announce)
     if result is None:
-        from tap_bench.bench.runner import run_suite
+        from tap_bench.bench.run.runner import run_suite
 
         backend = backend_from_args(args) if args.backend != "local" or args.address \
             else None
@@ -225,8 +225,8 @@ def check_bench(args: argparse.Namespace) -> int:
 def _check_bench(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from tap_bench.bench.gate import check, read_baseline, write_baseline
-    from tap_bench.bench.runner import read_run
+    from tap_bench.bench.gate.regression import check, read_baseline, write_baseline
+    from tap_bench.bench.run.runner import read_run
     from tap_bench.tableio import write_table
 
     summary, episodes = read_run(args.run)
@@ -337,8 +337,8 @@ def print_power(episodes, result) -> None:
     import numpy as np
     import pandas as pd
 
-    from tap_bench.bench.gate_stats import direction
-    from tap_bench.bench.power import POWER, power_summary, power_table
+    from tap_bench.bench.gate.power import POWER, power_summary, power_table
+    from tap_bench.bench.gate.statistics import direction
 
     tested = result.table[result.table["p_value"].notna()]
     paired = bool(len(tested)) and (tested["test"] == "paired").all()
@@ -353,8 +353,8 @@ def print_power(episodes, result) -> None:
           f"and the seeds the weakest needs for {POWER:.0%}:")
     print(summary.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     if paired:  # rates: the figure above assumes nested crashes; drawn afresh is lower
-        from tap_bench.bench.gate_stats import is_rate
-        from tap_bench.bench.power import afresh_rate_power
+        from tap_bench.bench.gate.power import afresh_rate_power
+        from tap_bench.bench.gate.statistics import is_rate
 
         ok = episodes[episodes["status"] == "ok"]
         for metric in table["metric"].unique():

@@ -7,8 +7,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from tap_bench.bench.bootstrap import add_bootstrap_arguments, bootstrap_from_args
 from tap_bench.sdl import LEVELS
+from tap_bench.stats.bootstrap import add_bootstrap_arguments, bootstrap_from_args
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -181,10 +181,10 @@ def run(args: argparse.Namespace) -> int:
 
     import pandas as pd
 
-    from tap_bench.bench.compare import matched_by_label
-    from tap_bench.bench.runner import check_output, package_versions, write_results
-    from tap_bench.bench.scoring import score
-    from tap_bench.bench.viewer.build import env_roads
+    from tap_bench.bench.report.viewer.build import env_roads
+    from tap_bench.bench.run.runner import check_output, package_versions, write_results
+    from tap_bench.bench.scores.compare import matched_by_label
+    from tap_bench.bench.scores.scoring import score
 
     check_output(args.output, args.overwrite)  # before any work
     config = bootstrap_from_args(args)

@@ -6,8 +6,8 @@ import argparse
 
 import pandas as pd
 
-from tap_bench.bench.bootstrap import add_bootstrap_arguments, bootstrap_from_args
-from tap_bench.bench.contexts import compare_contexts, context_occurrences, context_scores
+from tap_bench.bench.scores.contexts import compare_contexts, context_occurrences, context_scores
+from tap_bench.stats.bootstrap import add_bootstrap_arguments, bootstrap_from_args
 from tap_bench.tableio import beside, check_outputs, read_table, write_tables
 
 

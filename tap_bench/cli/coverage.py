@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from tap_bench.bench.bootstrap import add_bootstrap_arguments, bootstrap_from_args
 from tap_bench.sdl import LEVELS
+from tap_bench.stats.bootstrap import add_bootstrap_arguments, bootstrap_from_args
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -58,10 +58,10 @@ def run(args: argparse.Namespace) -> int:
 
     import pandas as pd
 
-    from tap_bench.bench.coverage import UNITS, corpus_reference, vocabulary_reference
     from tap_bench.bench.episodes import episodes_from_table
-    from tap_bench.bench.gap import number_windows, window_seconds, windows
-    from tap_bench.bench.scoring import diversity_table, reference_scores
+    from tap_bench.bench.scores.coverage import UNITS, corpus_reference, vocabulary_reference
+    from tap_bench.bench.scores.gap import number_windows, window_seconds, windows
+    from tap_bench.bench.scores.scoring import diversity_table, reference_scores
     from tap_bench.cli.rollout import episodes_path
     from tap_bench.labelling import tap
     from tap_bench.labels import label_text

@@ -28,7 +28,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import pandas as pd
 
-    from tap_bench.bench.demo import run_demo, timing_split
+    from tap_bench.bench.run.demo import run_demo, timing_split
 
     start = time.perf_counter()
     result = run_demo(args.output, workers=args.workers,
@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
                 bits.append(f"{k} {v:.0%}" + _halves(row, k))
         print(f"  {policy:16s} " + ", ".join(bits))
     if summary.get("verdict"):
-        from tap_bench.bench.verdict import verdict_lines
+        from tap_bench.bench.scores.verdict import verdict_lines
 
         print("against the reference (paired by seed; safety first):")
         for line in verdict_lines(pd.DataFrame(summary["verdict"])):
@@ -72,12 +72,12 @@ def run(args: argparse.Namespace) -> int:
 def _halves(row: dict, key: str) -> str:
     """`` (halves: policy 28% vs same policy 50%: -22 pts [-35, -9])``: the policy and the
     same-policy figure at the half sizes the difference is taken at, and the difference
-    with its interval (:func:`tap_bench.bench.null.halves_text`); "" without them."""
+    with its interval (:func:`tap_bench.bench.scores.null.halves_text`); "" without them."""
     half, null = row.get(f"{key}: policy at halves"), row.get(f"{key}: same-policy figure")
     diff = row.get(f"{key}: difference")
     low, high = row.get(f"{key}: difference_low"), row.get(f"{key}: difference_high")
     if None in (half, null, diff, low, high):
         return ""
-    from tap_bench.bench.null import halves_text
+    from tap_bench.bench.scores.null import halves_text
 
     return f" ({halves_text(half, null, diff, low, high)})"

@@ -7,8 +7,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from tap_bench.bench.bootstrap import add_bootstrap_arguments, bootstrap_from_args
-from tap_bench.bench.gap import (
+from tap_bench.bench.scores.gap import (
     behaviour_gap,
     labelled_with_speed,
     window_seconds,
@@ -16,6 +15,7 @@ from tap_bench.bench.gap import (
 )
 from tap_bench.errors import LabelTableError
 from tap_bench.sdl import LEVELS
+from tap_bench.stats.bootstrap import add_bootstrap_arguments, bootstrap_from_args
 from tap_bench.tableio import beside, check_outputs, read_table, write_tables
 
 

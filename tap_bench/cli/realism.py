@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from tap_bench.bench.bootstrap import add_bootstrap_arguments, bootstrap_from_args
 from tap_bench.sim.womd_scene import TRAFFIC
+from tap_bench.stats.bootstrap import add_bootstrap_arguments, bootstrap_from_args
 
 HELP = "score simulated traffic against the log (WOSAC 2025 realism, by manoeuvre)"
 DETERMINISTIC = ("log", "constant-velocity")

@@ -7,9 +7,13 @@ import time
 import webbrowser
 from pathlib import Path
 
-from tap_bench.bench.runner import run_viewer
-from tap_bench.bench.viewer import write_run_viewer, write_womd_viewer
-from tap_bench.bench.viewer.build import DEFAULT_VIEW_SCENARIOS, MAX_VIEW_SCENARIOS, env_roads
+from tap_bench.bench.report.viewer import write_run_viewer, write_womd_viewer
+from tap_bench.bench.report.viewer.build import (
+    DEFAULT_VIEW_SCENARIOS,
+    MAX_VIEW_SCENARIOS,
+    env_roads,
+)
+from tap_bench.bench.run.runner import run_viewer
 from tap_bench.cli.compare import read_policies
 from tap_bench.errors import FileFormatError
 

@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.realism.score import BERNOULLI_FEATURES, FEATURES, WOSAC_2025, FeatureSpec, pooled
+from tap_bench.stats.bootstrap import BootstrapConfig
 
 __all__ = ["VERSION", "scene_values", "summarise"]
 

@@ -32,9 +32,10 @@ column                  what
                         distribution the evaluation has shown
 ======================  ====================================================================
 
-The intervals are those of the benchmark's measures: :func:`tap_bench.bench.coverage.coverage`,
-:func:`tap_bench.bench.diversity.diversity` (at the sample's own size: every point has the
-same seeds) and :func:`tap_bench.bench.intervals.wilson_interval` (crash rate).
+The intervals are those of the benchmark's measures:
+:func:`tap_bench.bench.scores.coverage.coverage`,
+:func:`tap_bench.bench.scores.diversity.diversity` (at the sample's own size: every point has the
+same seeds) and :func:`tap_bench.stats.intervals.wilson_interval` (crash rate).
 """
 
 from __future__ import annotations
@@ -50,20 +51,20 @@ import numpy as np
 import pandas as pd
 
 from tap_bench import sdl
-from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.coverage import (
+from tap_bench.bench.episodes import ego_labels
+from tap_bench.bench.scores.coverage import (
     Reference,
     corpus_reference,
     coverage,
     vocabulary_reference,
 )
-from tap_bench.bench.diversity import ORDERS, diversity
-from tap_bench.bench.episodes import ego_labels
-from tap_bench.bench.intervals import wilson_interval
+from tap_bench.bench.scores.diversity import ORDERS, diversity
 from tap_bench.errors import ParameterError, did_you_mean
 from tap_bench.labelling import tap
 from tap_bench.sim.rollout import rollout
 from tap_bench.sim.scenario_format import Scenario, parse_seeds
+from tap_bench.stats.bootstrap import BootstrapConfig
+from tap_bench.stats.intervals import wilson_interval
 from tap_bench.tableio import atomic_path, read_table
 
 __all__ = ["CURVE_COLUMNS", "CurveConfig", "GreedyModelPolicy", "coverage_reference",
@@ -119,7 +120,7 @@ class CurveConfig:
         return parse_seeds(self.seeds, source="curve seeds")
 
     def bootstrap(self) -> BootstrapConfig:
-        """The :class:`~tap_bench.bench.bootstrap.BootstrapConfig` of the intervals."""
+        """The :class:`~tap_bench.stats.bootstrap.BootstrapConfig` of the intervals."""
         return BootstrapConfig(n_resamples=self.n_resamples, level=self.level_ci, seed=0)
 
 
@@ -166,7 +167,7 @@ def _ego_sdl(trajectories: pd.DataFrame, config: CurveConfig, source: str) -> pd
 
 
 def coverage_reference(config: CurveConfig, scenario: Scenario) -> Reference:
-    """The reference of the curve's coverage (:class:`tap_bench.bench.coverage.Reference`).
+    """The reference of the curve's coverage (:class:`tap_bench.bench.scores.coverage.Reference`).
 
     ``config.reference`` is ``"vocabulary"``, a policy name (its rollouts on the curve's
     seeds, ego labels) or a label or trajectory table file (every vehicle's labels).

@@ -1,6 +1,6 @@
 """A quick behaviour-coverage signal for training: the share of a reference label set seen.
 
-The benchmark's coverage metric (:mod:`tap_bench.bench.coverage`), frequency-weighted and
+The benchmark's coverage metric (:mod:`tap_bench.bench.scores.coverage`), frequency-weighted and
 with confidence intervals, is the measure of record (the training curve of
 :mod:`tap_bench.rl.curve` uses it); this one is its point estimate against the SDL
 vocabulary, for a quick look at a set of labels.

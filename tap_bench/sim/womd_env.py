@@ -83,7 +83,6 @@ from highway_env.envs.common.action import action_factory
 from highway_env.envs.common.observation import observation_factory
 from highway_env.vehicle.kinematics import Vehicle
 
-from tap_bench.bench.bootstrap import named_rng
 from tap_bench.errors import ParameterError
 from tap_bench.sim.collisions import Box, collision_partner, fault
 from tap_bench.sim.womd_observation import OBSERVATION_TYPE, RouteObservation
@@ -113,6 +112,7 @@ from tap_bench.sim.womd_scene import (
     WomdScenes,
     load_scene,
 )
+from tap_bench.stats.bootstrap import named_rng
 
 __all__ = ["PARKED_DISTANCE", "TARGET_SPEEDS", "TRAFFIC", "MapWarning", "WomdEnv",
            "WomdScenes", "make_womd_env", "map_summary"]

@@ -241,9 +241,9 @@ def agreement_table(per_track: pd.DataFrame) -> pd.DataFrame:
     from, and among the labelled tracks the strict lateral agreement, the direction-only
     agreement and the longitudinal one (counts, shares, and each share's 95 % interval
     ``<name>_low`` / ``<name>_high`` over scenes: the tracks of one scene are not
-    independent, :func:`tap_bench.bench.intervals.clustered_wilson_interval`), with the
+    independent, :func:`tap_bench.stats.intervals.clustered_wilson_interval`), with the
     strict rule in words."""
-    from tap_bench.bench.intervals import clustered_wilson_interval
+    from tap_bench.stats.intervals import clustered_wilson_interval
 
     rows = []
     for kind in (*TRAJECTORY_TYPES, "all"):

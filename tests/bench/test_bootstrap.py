@@ -1,4 +1,4 @@
-"""Resampling by cluster (tap_bench.bench.bootstrap): the windows of one episode are drawn
+"""Resampling by cluster (tap_bench.stats.bootstrap): the windows of one episode are drawn
 together, as whole episodes."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tap_bench.bench.bootstrap import cluster_indices, cluster_weights
+from tap_bench.stats.bootstrap import cluster_indices, cluster_weights
 
 
 def test_cluster_resamples_draw_whole_clusters():

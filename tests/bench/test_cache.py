@@ -21,7 +21,7 @@ from tap_bench.bench.cache import (
     scenario_fingerprint,
     simulation_fingerprint,
 )
-from tap_bench.bench.runner import run_suite
+from tap_bench.bench.run.runner import run_suite
 from tap_bench.bench.suite import suite_from_dict
 from tap_bench.cli import main
 from tap_bench.errors import EpisodesFailedError, ParameterError

@@ -6,9 +6,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.compare import NO_LABEL, matched_by_label, paired_comparison
+from tap_bench.bench.scores.compare import NO_LABEL, matched_by_label, paired_comparison
 from tap_bench.errors import LabelTableError, UnknownNameError
+from tap_bench.stats.bootstrap import BootstrapConfig
 
 from .conftest import make_episodes
 
@@ -136,7 +136,7 @@ def test_no_zero_width_interval_on_estimated_paired_quantities(hand_pairs):
 
 
 def test_on_real_scenes_the_comparison_shows_at_fault_collisions_beside_all():
-    from tap_bench.bench.compare import paired_comparison
+    from tap_bench.bench.scores.compare import paired_comparison
 
     rows = []
     for seed in range(6):

@@ -11,15 +11,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.contexts import (
+from tap_bench.bench.measures import MEASURES, ego_measures, register_measure
+from tap_bench.bench.scores.contexts import (
     CONTEXT_OWN_MEASURES,
     compare_contexts,
     context_measures,
     context_occurrences,
 )
-from tap_bench.bench.measures import MEASURES, ego_measures, register_measure
 from tap_bench.errors import RegistrationError
+from tap_bench.stats.bootstrap import BootstrapConfig
 
 from .test_contexts import cut_in_scene
 
@@ -91,6 +91,6 @@ def test_a_bad_in_context_is_refused():
 def test_the_contexts_name_no_measure():
     # the contexts module reads entries by their in_context field, never a measure by name
     names = "|".join(m.name for m in MEASURES)
-    text = (ROOT / "tap_bench" / "bench" / "contexts.py").read_text()
+    text = (ROOT / "tap_bench" / "bench" / "scores" / "contexts.py").read_text()
     assert not re.search(rf"""MEASURES\[\s*["']({names})["']\s*\]""", text)
     assert all(m.function is None for m in CONTEXT_OWN_MEASURES)

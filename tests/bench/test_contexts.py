@@ -6,8 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.contexts import compare_contexts, context_occurrences
+from tap_bench.bench.scores.contexts import compare_contexts, context_occurrences
+from tap_bench.stats.bootstrap import BootstrapConfig
 
 T = np.round(np.arange(100) / 10, 10)  # 10 s
 

@@ -7,17 +7,17 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.coverage import (
+from tap_bench.bench.scores.coverage import (
     Reference,
     corpus_reference,
     coverage,
     vocabulary_reference,
 )
-from tap_bench.bench.novelty import novelty
-from tap_bench.bench.scoring import reference_scores
+from tap_bench.bench.scores.novelty import novelty
+from tap_bench.bench.scores.scoring import reference_scores
 from tap_bench.errors import LabelTableError
 from tap_bench.sim.coverage import label_coverage
+from tap_bench.stats.bootstrap import BootstrapConfig
 
 A = "Straight | Maintain Speed"
 B = "Left Merge | Accelerate"

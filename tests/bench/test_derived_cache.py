@@ -22,9 +22,9 @@ from tap_bench.bench.cache import (
     memoised,
     table_digest,
 )
-from tap_bench.bench.report_figures import write_plots
-from tap_bench.bench.runner import run_suite
-from tap_bench.bench.scoring import Scores, scores_from_files, scores_to_files
+from tap_bench.bench.report.figures import write_plots
+from tap_bench.bench.run.runner import run_suite
+from tap_bench.bench.scores.scoring import Scores, scores_from_files, scores_to_files
 from tap_bench.bench.suite import Suite, suite_from_dict
 
 
@@ -77,9 +77,9 @@ def test_a_rerun_serves_the_scores_figures_and_viewer_it_would_make(runs, monkey
     # a re-run makes none of them again: the roads (no highway-env), the scores, the figures
     # and the viewer's episode data all come from the cache
     monkeypatch.setattr(Suite, "road", fail)
-    monkeypatch.setattr("tap_bench.bench.runner.score", fail)
-    monkeypatch.setattr("tap_bench.bench.report_figures._draw", fail)
-    monkeypatch.setattr("tap_bench.bench.viewer.build.episode_chunks", fail)
+    monkeypatch.setattr("tap_bench.bench.run.runner.score", fail)
+    monkeypatch.setattr("tap_bench.bench.report.figures._draw", fail)
+    monkeypatch.setattr("tap_bench.bench.report.viewer.build.episode_chunks", fail)
     again = run(root / "run-again", cache)
     for result in (first, again):
         for name in ("plots/*.svg", "viewer/data/*-*.js", "*.parquet"):
@@ -115,8 +115,8 @@ def test_a_damaged_entry_is_made_again(runs, tmp_path):
 @functools.cache
 def _scores(seed: int = 0) -> Scores:
     """Scores of 64 drawn episodes (made once per seed: the tests only read them)."""
-    from tap_bench.bench.bootstrap import BootstrapConfig
-    from tap_bench.bench.scoring import score
+    from tap_bench.bench.scores.scoring import score
+    from tap_bench.stats.bootstrap import BootstrapConfig
 
     from .conftest import make_episodes
 
@@ -210,8 +210,8 @@ def test_a_scene_measure_entry_is_in_the_figures_key(tmp_path, monkeypatch):
     # measures (measures_with_role): a scene measure's entry is part of what is drawn
     import dataclasses
 
-    from tap_bench.bench import report_figures
     from tap_bench.bench.measures import SCENE_MEASURES
+    from tap_bench.bench.report import figures as report_figures
 
     scores = _scores()
     seen = []
@@ -342,7 +342,7 @@ def test_the_package_digest_sees_every_edit_and_only_edits(tmp_path):
     first = cache_module._package_digest(package)
     assert cache_module._package_digest(package) == first
     assert first == cache_module._package_digest()  # the package itself, unchanged
-    module = package / "bench" / "report.py"
+    module = package / "bench" / "report" / "page.py"
     text = module.read_text()
     module.write_text(text + "\n")
     assert cache_module._package_digest(package) != first

@@ -7,8 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.diversity import (
+from tap_bench.bench.scores.diversity import (
     asymptotic_hill,
     completeness,
     completeness_se,
@@ -20,7 +19,8 @@ from tap_bench.bench.diversity import (
     population_hill,
     studentized_interval,
 )
-from tap_bench.bench.scoring import diversity_table
+from tap_bench.bench.scores.scoring import diversity_table
+from tap_bench.stats.bootstrap import BootstrapConfig
 
 # Sackett et al. (2011) spiders, "Girdled" site: iNEXT's example abundance data
 GIRDLED = np.array([46, 22, 17, 15, 15, 9, 8, 6, 6, 4, 2, 2, 2, 2] + [1] * 12)
@@ -193,7 +193,7 @@ def test_pooled_diversity_combines_independent_envs():
 def test_estimates_that_rise_with_q_are_flagged_and_their_intervals_widened():
     # no label seen once: q0 at m > n stays S_obs = 6, while the inverse Simpson grows:
     # 1 / (1/20 + 0.95 * 16 / 156) = 6.78 > 6 (by hand)
-    from tap_bench.bench.diversity import diversity
+    from tap_bench.bench.scores.diversity import diversity
     labels = [f"L{i}" for i in range(5) for _ in range(2)] + ["L5"] * 3
     d = diversity(labels, size=20)
     assert d.hill[0] == pytest.approx(6.0) and d.hill[2] == pytest.approx(6.78, abs=0.01)
@@ -208,7 +208,7 @@ def test_estimates_that_rise_with_q_are_flagged_and_their_intervals_widened():
 
 
 def test_asymptotes_out_of_order_are_not_reported():
-    from tap_bench.bench.diversity import _asymptote_in_order
+    from tap_bench.bench.scores.diversity import _asymptote_in_order
     asym, broken = _asymptote_in_order(np.array([6.1, 7.3, 9.4]))
     assert broken and np.isnan(asym).all()
     asym, broken = _asymptote_in_order(np.array([9.0, 7.0, 5.0]))

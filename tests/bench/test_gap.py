@@ -6,9 +6,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.gap import behaviour_gap, labelled_with_speed
+from tap_bench.bench.scores.gap import behaviour_gap, labelled_with_speed
 from tap_bench.errors import LabelTableError
+from tap_bench.stats.bootstrap import BootstrapConfig
 
 
 def labels(rows, speed=None):
@@ -61,7 +61,7 @@ def test_labelled_with_speed_gives_each_trajectorys_mean_speed():
 
 
 def test_debiased_gap_and_its_interval():
-    from tap_bench.bench.gap import debias
+    from tap_bench.bench.scores.gap import debias
 
     # by hand: plug-in 0.3, resampled mean 0.35, quantiles 0.2 and 0.5 -> 0.25, [0.1, 0.4]
     boot = np.r_[np.full(30, 0.2), np.full(40, 0.35), np.full(30, 0.5)]
@@ -86,7 +86,7 @@ def test_debiased_gap_and_its_interval():
 
 
 def test_windows_cut_episodes_to_the_reference_length():
-    from tap_bench.bench.gap import track_seconds, windows
+    from tap_bench.bench.scores.gap import track_seconds, windows
 
     t = np.arange(300) / 10  # a 30 s episode at 10 Hz
     table = pd.DataFrame({"scenario_id": "ep", "track_id": "ego", "t": t, "x": t, "y": 0.0,
@@ -130,7 +130,7 @@ def test_window_episodes_label_each_window_of_the_egos_once():
     """The windows bench run scores against a real corpus: one episode row per window of
     an ego, numbered seeds (one seed is one episode), the episode's seed kept aside; and
     'auto' windows only episodes longer than the reference's tracks."""
-    from tap_bench.bench.gap import window_episodes, window_seconds
+    from tap_bench.bench.scores.gap import window_episodes, window_seconds
 
     t = np.arange(300) / 10
     rows = []
@@ -177,7 +177,7 @@ def test_windows_of_one_episode_are_resampled_together_in_the_gap():
 
 
 def test_window_episode_strips_the_window_number():
-    from tap_bench.bench.gap import window_episode
+    from tap_bench.bench.scores.gap import window_episode
 
     assert list(window_episode(["a/1#0", "a/1#12", "b#x#2", "c"])) == ["a/1", "a/1", "b#x",
                                                                          "c"]
@@ -197,7 +197,7 @@ def scenes_of(kinds, vehicles: int, prefix: str) -> pd.DataFrame:
 
 
 def test_cluster_draws_hold_whole_scenes_and_as_many_as_there_are():
-    from tap_bench.bench.bootstrap import cluster_weights, scene_clusters
+    from tap_bench.stats.bootstrap import cluster_weights, scene_clusters
 
     table = pd.DataFrame({"scenario_id": ["s1", "s1", "s2", "s3", "s3", "s3", "e/p/s4#0",
                                           "e/p/s4#1"]})

@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench.gate import (
+from tap_bench.bench.gate.regression import (
     BaselineMismatchError,
     check,
     holm,
@@ -168,7 +168,7 @@ def test_gate_on_rollouts_fires_on_changed_idm_parameters_and_not_on_other_seeds
     """The baseline is IDM on seeds 0-9. A re-run of the same IDM on seeds 10-19 stays
     quiet; an 'idm' whose parameters changed (it keeps a 3 s gap and wants 30 % less speed
     than traffic) fires on the same seeds 10-19."""
-    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.run.runner import run_suite
 
     regressed = tmp_path / "policies" / "idm.json"
     regressed.parent.mkdir()
@@ -297,7 +297,7 @@ def test_changed_definitions_are_named(tmp_path):
 
 
 def test_weighted_holm_and_tarone_by_hand():
-    from tap_bench.bench.gate import weighted_holm
+    from tap_bench.bench.gate.regression import weighted_holm
 
     # weights 3:1: thresholds 0.05 * 3/4 and 0.05 * 1/4 at the first step
     adj = weighted_holm(np.array([0.03, 0.02]), np.array([3.0, 1.0]))
@@ -314,7 +314,7 @@ def test_weighted_holm_and_tarone_by_hand():
 def test_paired_rate_test_is_mcnemar_exact(n, up, down):
     from math import comb
 
-    from tap_bench.bench.gate import _sign_flip_test
+    from tap_bench.bench.gate.regression import _sign_flip_test
 
     d = np.zeros(n)
     d[:up], d[up:up + down] = 1.0, -1.0
@@ -329,7 +329,7 @@ def test_paired_rate_test_is_mcnemar_exact(n, up, down):
 def test_unpaired_rate_test_is_fishers_exact(n_b, n_r, c_b, c_r):
     from math import comb
 
-    from tap_bench.bench.gate import _unpaired_test
+    from tap_bench.bench.gate.regression import _unpaired_test
 
     base = np.r_[np.ones(c_b), np.zeros(n_b - c_b)]
     run = np.r_[np.ones(c_r), np.zeros(n_r - c_r)]
@@ -394,7 +394,7 @@ def test_a_crash_rate_rise_in_one_cell_of_a_large_suite_fails_the_check():
 def test_rate_power_is_the_rule_s_own_firing_rate():
     """rule_power's exact figure for a crash rate equals the share of simulated checks
     that fail on it (the run drawn as the power model says)."""
-    from tap_bench.bench.power import rule_power
+    from tap_bench.bench.gate.power import rule_power
 
     config = GateConfig(n_permutations=999)
     rng = np.random.default_rng(3)
@@ -429,8 +429,8 @@ def test_rate_power_is_the_rule_s_own_firing_rate():
 def _tv_power_permuting(labels, effect, margin, level, n_run, paired, rng):
     """label_tv's power as first written: every permutation's code matrices built and
     their TV computed by gate_stats.tv (the reference the counted version must equal)."""
-    from tap_bench.bench.gate_stats import tv
-    from tap_bench.bench.power import _TV_DRAWS, _TV_PERMUTATIONS
+    from tap_bench.bench.gate.power import _TV_DRAWS, _TV_PERMUTATIONS
+    from tap_bench.bench.gate.statistics import tv
 
     _, codes = np.unique(labels, return_inverse=True)
     k = int(codes.max()) + 2
@@ -460,8 +460,8 @@ def test_label_tv_power_counts_the_permutations_as_building_them_would():
     matrices: every permutation's TV equals gate_stats.tv's float for float, and the power
     (same random stream) is the same, on drawn cells: 1 to 9 labels, 3 to 400 seeds (row
     blocks), effects, margins and levels of every kind."""
-    from tap_bench.bench.gate_stats import tv
-    from tap_bench.bench.power import _swapped_tv, _tv_power
+    from tap_bench.bench.gate.power import _swapped_tv, _tv_power
+    from tap_bench.bench.gate.statistics import tv
 
     gen = np.random.default_rng(11)
     powers = []
@@ -567,7 +567,7 @@ def test_power_states_the_nested_model_and_the_power_of_crashes_drawn_afresh(tmp
     out = capsys.readouterr().out
     line = next(x for x in out.splitlines() if x.startswith("crashed: the power above"))
     assert "(nested)" in line and "drawn afresh (not nested)" in line
-    from tap_bench.bench.power import afresh_rate_power
+    from tap_bench.bench.gate.power import afresh_rate_power
     from tap_bench.bench.suite import GateConfig
 
     config = GateConfig(n_permutations=999)

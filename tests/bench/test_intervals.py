@@ -9,8 +9,9 @@ from statistics import NormalDist
 import numpy as np
 import pytest
 
-from tap_bench.bench.bootstrap import BootstrapConfig, named_rng, stream_key
-from tap_bench.bench.intervals import (
+from tap_bench.errors import ParameterError
+from tap_bench.stats.bootstrap import BootstrapConfig, named_rng, stream_key
+from tap_bench.stats.intervals import (
     mean_interval,
     newcombe_interval,
     t_quantile,
@@ -19,7 +20,6 @@ from tap_bench.bench.intervals import (
     welch_interval,
     wilson_interval,
 )
-from tap_bench.errors import ParameterError
 
 REPLICATIONS = 1000  # a rate's standard error is about 0.007 at 0.95
 
@@ -75,7 +75,7 @@ def test_tango_is_a_score_interval_never_degenerate():
     # at its limits the score statistic equals the normal quantile
     b, c, n = 8, 2, 40
     low, high = tango_interval(b, c, n, 0.95)
-    from tap_bench.bench.intervals import _tango_z
+    from tap_bench.stats.intervals import _tango_z
 
     z = NormalDist().inv_cdf(0.975)
     assert _tango_z(np.array(low), b, c, n) == pytest.approx(z, abs=1e-6)
@@ -172,7 +172,7 @@ def test_paired_t_covers_a_skewed_difference_at_30_seeds():
 
 
 def test_clustered_wilson_counts_scenes_not_tracks_by_hand():
-    from tap_bench.bench.intervals import clustered_wilson_interval
+    from tap_bench.stats.intervals import clustered_wilson_interval
 
     # read at Student's t with 5 - 1 degrees of freedom (2.776): Wilson's at that level
     t4 = 2.7764451

@@ -19,7 +19,7 @@ SCRIPT = textwrap.dedent('''
 
     warnings.filterwarnings("ignore")
     from tap_bench.bench.measures import register_measure
-    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.run.runner import run_suite
     from tap_bench.bench.suite import suite_from_dict
 
 

@@ -12,7 +12,6 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.bench.measures import (
     MEASURE_ROLES,
     MEASURES,
@@ -21,11 +20,12 @@ from tap_bench.bench.measures import (
     measures_with_role,
     register_measure,
 )
-from tap_bench.bench.report_figures import _tradeoff_plot
-from tap_bench.bench.scoring import score
+from tap_bench.bench.report.figures import _tradeoff_plot
+from tap_bench.bench.scores.scoring import score
+from tap_bench.bench.scores.verdict import verdict_table
 from tap_bench.bench.suite import default_weights
-from tap_bench.bench.verdict import verdict_table
 from tap_bench.errors import RegistrationError
+from tap_bench.stats.bootstrap import BootstrapConfig
 
 from .conftest import make_episodes
 
@@ -111,7 +111,7 @@ def test_without_a_progress_role_there_is_no_tradeoff_view(monkeypatch):
     # the view reads roles, not names: the built-in mean speed without its role is not drawn
     scores = _scores()
     assert _tradeoff_plot(scores, "idm") is not None
-    from tap_bench.bench import report_figures
+    from tap_bench.bench.report import figures as report_figures
 
     monkeypatch.setattr(report_figures, "measures_with_role",
                         lambda role: () if role == "progress" else measures_with_role(role))
@@ -153,7 +153,7 @@ def test_no_consumer_names_a_built_in_measure():
 
 
 def test_the_against_the_human_summary_reads_safety_rates_by_role():
-    from tap_bench.bench.agreement import SCENE_SUMMARY_MEASURES, scene_summary_measures
+    from tap_bench.bench.scores.agreement import SCENE_SUMMARY_MEASURES, scene_summary_measures
 
     assert scene_summary_measures() == SCENE_SUMMARY_MEASURES == (
         "crashed", "crashed_at_fault", "off_road", "route_progress", "ran_red_light", "log_ade",

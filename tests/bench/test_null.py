@@ -8,12 +8,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.coverage import Reference, corpus_reference, coverage, unit_items
-from tap_bench.bench.intervals import wilson_interval
-from tap_bench.bench.novelty import novelty
-from tap_bench.bench.null import same_policy_null
-from tap_bench.bench.scoring import reference_scores, score
+from tap_bench.bench.scores.coverage import Reference, corpus_reference, coverage, unit_items
+from tap_bench.bench.scores.novelty import novelty
+from tap_bench.bench.scores.null import same_policy_null
+from tap_bench.bench.scores.scoring import reference_scores, score
+from tap_bench.stats.bootstrap import BootstrapConfig
+from tap_bench.stats.intervals import wilson_interval
 
 A = "Straight | Maintain Speed"
 B = "Straight > Left Merge > Straight | Accelerate"
@@ -248,7 +248,7 @@ def test_the_shown_half_figures_always_subtract_to_the_shown_difference():
     import re
     from decimal import Decimal
 
-    from tap_bench.bench.null import halves_text
+    from tap_bench.bench.scores.null import halves_text
 
     gen = np.random.default_rng(11)
     seen_sum = 0
@@ -294,7 +294,7 @@ def test_a_corpus_of_scenes_is_resampled_by_whole_scenes():
         (-0.5 - u, -0.5 + u))
     # ... widened by sqrt(4 / 3) (4 scenes drawn from 4) and read at t with 3 degrees of
     # freedom (3.182 / 1.960): -0.5 -+ 0.5 k, clipped at -1
-    from tap_bench.bench.intervals import t_quantile, z_value
+    from tap_bench.stats.intervals import t_quantile, z_value
 
     k = np.sqrt(4 / 3) * t_quantile(0.975, 3) / z_value(0.95)
     assert (by_scene.coverage_diff_low, by_scene.coverage_diff_high) == pytest.approx(
@@ -302,7 +302,7 @@ def test_a_corpus_of_scenes_is_resampled_by_whole_scenes():
 
 
 def test_cluster_indices_draw_whole_clusters_until_m():
-    from tap_bench.bench.bootstrap import cluster_indices
+    from tap_bench.stats.bootstrap import cluster_indices
 
     clusters = np.repeat(["a", "b", "c", "d"], [1, 3, 2, 5])
     idx = cluster_indices(np.random.default_rng(0), clusters, 200, 11)

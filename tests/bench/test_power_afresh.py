@@ -13,8 +13,8 @@ import pytest
 def test_paired_rate_power_when_crashes_are_drawn_afresh_matches_a_simulation(crashes):
     # a simulation study of the gate's own paired test: the run's outcome on each of 30
     # seeds drawn afresh (independent of the baseline's) at the baseline's rate + 25 points
-    from tap_bench.bench.gate import _sign_flip_test
-    from tap_bench.bench.power import _rate_power, afresh_rate_power
+    from tap_bench.bench.gate.power import _rate_power, afresh_rate_power
+    from tap_bench.bench.gate.regression import _sign_flip_test
     from tap_bench.bench.suite import GateConfig
 
     config = GateConfig()

@@ -11,9 +11,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.report_figures import TOP_LABELS, _forest_plots, _tradeoff_plot
-from tap_bench.bench.scoring import score
+from tap_bench.bench.report.figures import TOP_LABELS, _forest_plots, _tradeoff_plot
+from tap_bench.bench.scores.scoring import score
+from tap_bench.stats.bootstrap import BootstrapConfig
 
 from .conftest import make_episodes
 
@@ -117,7 +117,7 @@ def test_the_forest_panels_show_the_labels_that_differ_most_per_env(scores):
 
 
 def test_no_figure_without_its_measures():
-    from tap_bench.bench.scoring import Scores
+    from tap_bench.bench.scores.scoring import Scores
 
     empty = Scores(**{name: pd.DataFrame() for name in Scores.TABLES})
     assert _tradeoff_plot(empty, "idm") is None

@@ -13,9 +13,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench.bootstrap import BootstrapConfig
-from tap_bench.bench.runner import write_results
-from tap_bench.bench.scoring import score
+from tap_bench.bench.run.runner import write_results
+from tap_bench.bench.scores.scoring import score
+from tap_bench.stats.bootstrap import BootstrapConfig
 
 from .conftest import make_episodes
 

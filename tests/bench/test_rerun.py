@@ -12,9 +12,9 @@ import warnings
 import pandas as pd
 import pytest
 
-from tap_bench.bench import run_tasks
 from tap_bench.bench.cache import EpisodeCache, label_code
-from tap_bench.bench.runner import run_suite
+from tap_bench.bench.run import tasks as run_tasks
+from tap_bench.bench.run.runner import run_suite
 from tap_bench.bench.suite import suite_from_dict
 
 from .conftest import without_runs
@@ -148,12 +148,12 @@ def test_the_label_key_follows_the_code_of_labels_and_measures(monkeypatch):
     assert label_code()["code"] != base["code"]
 
 
-@pytest.mark.parametrize("start", ["tap_bench.bench.run_tasks", "tap_bench.bench.contexts",
+@pytest.mark.parametrize("start", ["tap_bench.bench.run.tasks", "tap_bench.bench.scores.contexts",
                                    "tap_bench.sim.roads", "tap_bench.sources.maps"])
 def test_the_label_key_covers_the_code_that_makes_a_label_entry(start):
     # a label entry holds what run_tasks makes: labels and measures along the episode's map
     # (tap_bench.sim.roads for highway-env, tap_bench.sources.maps for recorded scenes) and
-    # the context occurrences (tap_bench.bench.contexts): every module that code imports must
+    # the context occurrences (tap_bench.bench.scores.contexts): every module that code imports must
     # be in the label key or in the episode key, or an edit to it (the sampling step of
     # tap_bench.maps, the occurrences' rules) would leave the old entries in the cache
     from tap_bench.bench.cache import LABEL_CODE, _simulation_modules, _tap_bench_closure

@@ -1,4 +1,4 @@
-"""A run served whole from the cache (issue 24 section 3, :mod:`tap_bench.bench.run_cache`):
+"""A run served whole from the cache (issue 24 section 3, :mod:`tap_bench.bench.run.served`):
 an unchanged re-run writes the earlier run's files, byte for byte, without reading an
 episode or scoring; every input that can change an output makes it miss, and the run made
 instead equals a cold run; a damaged entry is made again; the pages that name the run are
@@ -19,10 +19,10 @@ import pandas as pd
 import pytest
 
 from tap_bench.bench import cache as cache_module
-from tap_bench.bench import run_cache
 from tap_bench.bench.cache import EpisodeCache, derived_key
-from tap_bench.bench.run_folder import write_results
-from tap_bench.bench.runner import run_suite
+from tap_bench.bench.run import served as run_cache
+from tap_bench.bench.run.folder import write_results
+from tap_bench.bench.run.runner import run_suite
 from tap_bench.bench.suite import suite_from_dict
 from tap_bench.errors import RunExistsError
 
@@ -78,9 +78,9 @@ def _no_work(monkeypatch):
     def fail(*args, **kwargs):
         raise AssertionError("a served run made something")
 
-    monkeypatch.setattr("tap_bench.bench.runner._rollouts", fail)
-    monkeypatch.setattr("tap_bench.bench.runner.score", fail)
-    monkeypatch.setattr("tap_bench.bench.runner.write_results", fail)
+    monkeypatch.setattr("tap_bench.bench.run.runner._rollouts", fail)
+    monkeypatch.setattr("tap_bench.bench.run.runner.score", fail)
+    monkeypatch.setattr("tap_bench.bench.run.runner.write_results", fail)
 
 
 @pytest.fixture(scope="module")
@@ -173,7 +173,7 @@ def test_the_pages_filled_are_the_pages_written(runs, tmp_path):
 
 
 def test_the_timings_table_is_the_reports_table():
-    from tap_bench.bench.report_tables import html_table
+    from tap_bench.bench.report.tables import html_table
 
     timings = {"rollouts_wall": 12.345, "a<b>": 0.04, "total": 100.0}
     table = pd.DataFrame({"stage": list(timings),
@@ -258,7 +258,7 @@ def test_every_input_that_changes_an_output_misses(runs, tmp_path, monkeypatch, 
 
 def run_key(cache, suite, keep=True, report=True, seeds=None):
     """The key of a run's entry."""
-    from tap_bench.bench.run_plan import _tasks, plan_suite
+    from tap_bench.bench.run.plan import _tasks, plan_suite
 
     plan = plan_suite(suite, seeds=seeds)
     inputs = run_cache.run_inputs(plan, _tasks(plan, keep, cache), keep_trajectories=keep,
@@ -337,8 +337,8 @@ def test_a_served_run_never_replaces_a_folder_unless_asked(runs, tmp_path):
 
 
 def test_runs_that_cannot_be_keyed_are_never_kept(tmp_path, monkeypatch):
-    from tap_bench.bench import run_tasks
     from tap_bench.bench.measures import MEASURES
+    from tap_bench.bench.run import tasks as run_tasks
 
     # an episode failed: tried again next run, never served as failed
     cache = EpisodeCache(tmp_path / "cache")
@@ -364,7 +364,7 @@ def test_runs_that_cannot_be_keyed_are_never_kept(tmp_path, monkeypatch):
     monkeypatch.setattr(MEASURES, "_entries", entries)
     assert run_cache.registered_outside() == [
         f"measure script_speed ({__name__})"]
-    from tap_bench.bench.run_plan import _tasks, plan_suite
+    from tap_bench.bench.run.plan import _tasks, plan_suite
 
     plan = plan_suite(suite)
     assert run_cache.run_inputs(plan, _tasks(plan, True, cache), keep_trajectories=True,
@@ -395,8 +395,9 @@ def test_the_command_line_serves_without_numpy_pandas_gymnasium_scoring_or_repor
     assert "served whole" not in said
     modules, said = _modules_after(call.format(out=str(tmp_path / "b")), cache, tmp_path)
     assert "served from the cache" in said and "served whole" in said
-    heavy = {"tap_bench.bench.scoring", "tap_bench.bench.report", "tap_bench.bench.viewer",
-             "tap_bench.bench.runner", "tap_bench.labelling", "highway_env", "scipy",
+    heavy = {"tap_bench.bench.scores.scoring", "tap_bench.bench.report.page",
+             "tap_bench.bench.report.viewer",
+             "tap_bench.bench.run.runner", "tap_bench.labelling", "highway_env", "scipy",
              "matplotlib", "numba", "google.protobuf", "pandas", "pyarrow", "gymnasium", "numpy"}
     assert not modules & heavy, modules & heavy
     assert {p.relative_to(tmp_path / "a").as_posix() for p in (tmp_path / "a").rglob("*")} \
@@ -410,8 +411,8 @@ def test_a_policy_changed_while_the_run_goes_on_is_not_kept(tmp_path, monkeypatc
     a worker may load the new content, so nothing made after the change is kept under the
     key of the content the run started with; when the old content comes back (a checkout),
     the run is made again and equals a cold run, not served from what the new one made."""
-    from tap_bench.bench import run_tasks
-    from tap_bench.bench.run_plan import _tasks, plan_suite
+    from tap_bench.bench.run import tasks as run_tasks
+    from tap_bench.bench.run.plan import _tasks, plan_suite
 
     cache = EpisodeCache(tmp_path / "cache")
     path = Path(_policy_file(tmp_path))
@@ -445,7 +446,7 @@ def test_a_fingerprint_that_cannot_be_read_at_the_end_costs_only_reuse(tmp_path,
     mid-read, permissions changed, a package grown past what is hashed): the run still
     ends with its tables, equal to a cold run's, and nothing of it is kept in the cache
     (its content is not known to be the key's); review4."""
-    from tap_bench.bench import run_tasks
+    from tap_bench.bench.run import tasks as run_tasks
 
     cache = EpisodeCache(tmp_path / "cache")
     path = Path(_policy_file(tmp_path))
@@ -481,8 +482,8 @@ def test_a_vehicle_class_changed_while_the_run_goes_on_is_not_kept(tmp_path, mon
     the run started with, as for a policy changed mid-run; review4."""
     import uuid
 
-    from tap_bench.bench import run_tasks
-    from tap_bench.bench.run_plan import _tasks, plan_suite
+    from tap_bench.bench.run import tasks as run_tasks
+    from tap_bench.bench.run.plan import _tasks, plan_suite
 
     package = f"cars_{uuid.uuid4().hex[:8]}"
     (tmp_path / package).mkdir()

@@ -7,8 +7,8 @@ import warnings
 
 import pandas as pd
 
-from tap_bench.bench.contexts import context_occurrences, context_scores
-from tap_bench.bench.runner import run_suite
+from tap_bench.bench.run.runner import run_suite
+from tap_bench.bench.scores.contexts import context_occurrences, context_scores
 from tap_bench.bench.suite import suite_from_dict
 
 

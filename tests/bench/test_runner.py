@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench.runner import RunExistsError, read_run, run_suite
+from tap_bench.bench.run.runner import RunExistsError, read_run, run_suite
 from tap_bench.bench.suite import suite_from_dict
 from tap_bench.errors import FileFormatError
 from tap_bench.sim.policies import LaneKeepingPolicy, available_policies, register_policy
@@ -110,7 +110,7 @@ def test_the_estimate_s_first_episode_is_labelled_with_its_batch(tmp_path, monke
     """The first episode of an env, simulated alone to time the estimate, is labelled and
     measured with the other episodes of its env and policy (one labelling call fewer per
     env), and the run's tables equal a run without an estimate, float for float."""
-    import tap_bench.bench.run_tasks as run_tasks
+    import tap_bench.bench.run.tasks as run_tasks
 
     calls = []
     real = run_tasks._label_together
@@ -154,8 +154,8 @@ def test_a_batch_labels_and_measures_each_episode_as_it_does_alone(env):
     episode's labels, segments and measures equal, float for float, those of the episode
     alone, whatever the batch holds and in whatever order (crashes and lane changes
     included: the random policy crashes, IDM changes lanes)."""
-    from tap_bench.bench.run_plan import _tasks, plan_suite
-    from tap_bench.bench.run_tasks import _Batch, _run_batch, _run_task
+    from tap_bench.bench.run.plan import _tasks, plan_suite
+    from tap_bench.bench.run.tasks import _Batch, _run_batch, _run_task
 
     suite = suite_from_dict({"name": "batch", "envs": [env], "policies": ["idm", "random"],
                              "seeds": "0-3", "env_overrides": {env: {"duration": 10}}},

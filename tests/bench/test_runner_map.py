@@ -11,10 +11,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench import run_tasks
 from tap_bench.bench.cache import ROAD_MAP, label_key
 from tap_bench.bench.measures import ego_measures
-from tap_bench.bench.run_plan import _Task, _tasks, plan_suite
+from tap_bench.bench.run import tasks as run_tasks
+from tap_bench.bench.run.plan import _Task, _tasks, plan_suite
 from tap_bench.bench.suite import suite_from_dict
 from tap_bench.sim.rollout import resolve_policy
 from tap_bench.sim.scenario_env import make_env

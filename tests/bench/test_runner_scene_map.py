@@ -11,10 +11,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench import run_tasks
 from tap_bench.bench.cache import SCENE_MAP
 from tap_bench.bench.measures import ego_measures
-from tap_bench.bench.run_plan import _Task, _tasks, plan_suite
+from tap_bench.bench.run import tasks as run_tasks
+from tap_bench.bench.run.plan import _Task, _tasks, plan_suite
 from tap_bench.bench.suite import suite_from_dict
 from tap_bench.labelling import tap
 from tap_bench.sim.rollout import resolve_policy, rollout

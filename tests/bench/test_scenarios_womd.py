@@ -8,7 +8,7 @@ import warnings
 import numpy as np
 import pytest
 
-from tap_bench.bench.scenarios import match_scenarios
+from tap_bench.bench.scores.scenarios import match_scenarios
 from tap_bench.labelling import tap
 
 pytestmark = pytest.mark.womd
@@ -75,7 +75,7 @@ def test_highway_episodes_beside_their_nearest_womd_scenarios(womd, highway):
 
 
 def test_bench_run_with_a_womd_reference(womd, tmp_path):
-    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.run.runner import run_suite
     from tap_bench.bench.suite import suite_from_dict
 
     files, _, _ = womd

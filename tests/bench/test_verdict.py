@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from tap_bench.bench.verdict import verdict_lines, verdict_table
+from tap_bench.bench.scores.verdict import verdict_lines, verdict_table
 
 
 def _pm(policy: str, rows: dict[str, tuple[float, float, float]], env: str = "all"):

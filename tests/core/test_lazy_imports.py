@@ -98,7 +98,7 @@ def test_help_lists_every_command_and_a_typo_is_refused(capsys):
 def test_the_runners_workers_and_scoring_do_not_load_numba(tmp_path):
     """A worker of ``bench run`` imports the task module (and through it the scoring): the
     label distances, not the ADE / DTW kernels that need numba."""
-    loaded = _loaded_after("import tap_bench.bench.run_tasks, tap_bench.bench.scoring",
+    loaded = _loaded_after("import tap_bench.bench.run.tasks, tap_bench.bench.scores.scoring",
                            tmp_path)
     assert "numba" not in loaded
     assert "numba" in _loaded_after("from tap_bench.similarity import ade_nearest", tmp_path)
@@ -107,17 +107,17 @@ def test_the_runners_workers_and_scoring_do_not_load_numba(tmp_path):
 def test_a_worker_loads_the_task_modules_not_the_runner_gate_or_report(tmp_path):
     """``tap_bench.bench`` resolves its names lazily: a worker importing the task module
     loads neither the runner, the gate (and its power) nor the report and viewer."""
-    script = ("import sys\nimport tap_bench.bench.run_tasks\n"
+    script = ("import sys\nimport tap_bench.bench.run.tasks\n"
               "print(sorted(m for m in sys.modules if m.startswith('tap_bench.bench.')))")
     out = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, check=True,
                          capture_output=True, text=True,
                          env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
                               "TAP_BENCH_CACHE": str(tmp_path / "cache")})
     loaded = set(eval(out.stdout.strip().splitlines()[-1]))
-    assert "tap_bench.bench.run_tasks" in loaded
-    assert not loaded & {"tap_bench.bench.runner", "tap_bench.bench.gate",
-                         "tap_bench.bench.power", "tap_bench.bench.report",
-                         "tap_bench.bench.viewer", "tap_bench.bench.scoring"}
+    assert "tap_bench.bench.run.tasks" in loaded
+    assert not loaded & {"tap_bench.bench.run.runner", "tap_bench.bench.gate.regression",
+                         "tap_bench.bench.gate.power", "tap_bench.bench.report.page",
+                         "tap_bench.bench.report.viewer", "tap_bench.bench.scores.scoring"}
 
 
 _IDS = ("import json, sys\nimport gymnasium as gym\nfrom tap_bench.sim.registration import "

@@ -8,7 +8,7 @@ import pandas as pd
 
 
 def test_a_suite_run_on_ray_gives_the_episodes_of_a_local_run(ray_backend, tmp_path):
-    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.run.runner import run_suite
     from tap_bench.bench.suite import suite_from_dict
 
     suite = suite_from_dict({"name": "tiny", "envs": ["merge"], "policies": ["idm"],
@@ -25,7 +25,7 @@ def test_a_suite_run_on_ray_gives_the_episodes_of_a_local_run(ray_backend, tmp_p
 
 
 def test_a_suite_of_recorded_scenes_runs_on_ray_as_locally(ray_backend, tmp_path, womd_dir):
-    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.run.runner import run_suite
     from tap_bench.bench.suite import suite_from_dict
 
     suite = suite_from_dict({

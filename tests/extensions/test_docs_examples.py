@@ -107,7 +107,7 @@ def test_a_suite_names_its_plugins_and_a_measure_without_one_is_refused(extensio
 
 
 def test_docs_examples_on_the_ray_backend(extension, ray_backend, tmp_path):
-    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.run.runner import run_suite
 
     folder = tmp_path / "run"
     with warnings.catch_warnings():

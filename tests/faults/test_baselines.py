@@ -70,7 +70,7 @@ def test_a_run_with_a_policy_whose_episodes_all_failed_does_not_become_a_baselin
 def test_one_cell_whose_episodes_all_failed_is_refused_below_the_failure_share(tmp_path):
     """21 (env, policy) cells of one episode, one failed: 1/21 is under the share of
     failures a baseline tolerates, but that cell would go untested."""
-    from tap_bench.bench.gate import write_baseline
+    from tap_bench.bench.gate.regression import write_baseline
     from tap_bench.errors import BaselineError
 
     eps = pd.DataFrame({"env": [f"e{i}" for i in range(21)], "policy": "p", "seed": 0,

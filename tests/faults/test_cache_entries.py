@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 
 from tap_bench.bench.cache import EpisodeCache, _canonical, episode_key
-from tap_bench.bench.runner import run_suite
+from tap_bench.bench.run.runner import run_suite
 from tap_bench.bench.suite import suite_from_dict
 from tap_bench.errors import CacheEntryWarning
 from tap_bench.sim.rollout import rollout

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from fault_helpers import PROJECT_ROOT
 
-from tap_bench.bench.run_plan import _tasks, plan_suite
+from tap_bench.bench.run.plan import _tasks, plan_suite
 from tap_bench.bench.suite import suite_from_dict
 from tap_bench.errors import UntrustedModelWarning
 from tap_bench.sim.scenario_env import get_scenario, make_env

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import warnings
 
-from tap_bench.bench.runner import run_suite
+from tap_bench.bench.run.runner import run_suite
 from tap_bench.bench.suite import suite_from_dict
 
 

@@ -109,7 +109,8 @@ def test_a_text_csv_and_a_gzipped_one_still_read(tmp_path):
 
 
 def test_workers_are_capped_at_the_usable_cores_with_a_warning(monkeypatch, tmp_path):
-    from tap_bench.bench import run_cache, runner
+    from tap_bench.bench.run import runner
+    from tap_bench.bench.run import served as run_cache
     from tap_bench.cli import main
     from tap_bench.execution import usable_cores
 

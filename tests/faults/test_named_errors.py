@@ -17,7 +17,7 @@ import pandas as pd
 import pytest
 from fault_helpers import PROJECT_ROOT
 
-from tap_bench.bench.runner import run_suite
+from tap_bench.bench.run.runner import run_suite
 from tap_bench.bench.suite import suite_from_dict
 from tap_bench.sim.policies import get_definition
 
@@ -157,7 +157,8 @@ def _function(source: str, name: str) -> str:
 
 @pytest.mark.skipif(shutil.which("node") is None, reason="needs node")
 def test_a_malformed_percent_in_the_viewer_url_is_ignored():
-    js = (PROJECT_ROOT / "tap_bench" / "bench" / "viewer" / "static" / "viewer.js").read_text()
+    js = (PROJECT_ROOT / "tap_bench" / "bench" / "report" / "viewer" / "static"
+          / "viewer.js").read_text()
     code = (_function(js, "decodePart") + "\n" + _function(js, "parseHash") + "\n"
             "const location = {hash: '#ep=highway%2Fidm&x=%zz&%=1&seed=%E0%A4%A&env=a%20b'};\n"
             "console.log(JSON.stringify(parseHash()));")

@@ -12,7 +12,7 @@ import pytest
 from fault_helpers import label_table
 
 from tap_bench import tableio
-from tap_bench.bench.runner import RunExistsError, check_output
+from tap_bench.bench.run.runner import RunExistsError, check_output
 from tap_bench.errors import OutputPathError
 from tap_bench.tableio import (
     FOLDER_MARKER,
@@ -188,7 +188,7 @@ def test_an_output_under_a_file_fails_before_the_work(tmp_path, cli, trajectorie
 def test_bench_run_into_an_unwritable_place_fails_before_any_rollout(tmp_path, cli,
                                                                     monkeypatch):
     """`bench run -o ro/run` once failed with a traceback after 9 s of rollouts."""
-    import tap_bench.bench.runner as runner
+    import tap_bench.bench.run.runner as runner
 
     monkeypatch.setattr(runner, "_rollouts", lambda *a, **k: pytest.fail("rolled out"))
     (tmp_path / "afile").write_text("x")
@@ -285,7 +285,7 @@ def test_coverage_and_unique_outputs_land_together(tmp_path, cli, two_policies):
 
 def test_the_viewer_never_deletes_a_folder_it_did_not_write(tmp_path):
     """`tap-bench view … -o FOLDER` removed FOLDER/data before writing."""
-    from tap_bench.bench.viewer import write_viewer
+    from tap_bench.bench.report.viewer import write_viewer
 
     mine = tmp_path / "project"
     (mine / "data").mkdir(parents=True)

@@ -10,11 +10,11 @@ import warnings
 import pytest
 from fault_helpers import label_table
 
-from tap_bench.bench.bootstrap import MAX_RESAMPLES, BootstrapConfig
 from tap_bench.bench.suite import MAX_PERMUTATIONS, suite_from_dict
 from tap_bench.errors import ParameterError, TapBenchError
 from tap_bench.sim.scenario_env import get_scenario
 from tap_bench.sim.scenario_format import MAX_DURATION, SIZE_LIMITS
+from tap_bench.stats.bootstrap import MAX_RESAMPLES, BootstrapConfig
 
 
 def _named(err: BaseException, parameter: str, value: str, limit: str) -> None:
@@ -81,7 +81,7 @@ def test_episode_duration_is_bounded(duration, tmp_path, cli):
 
 def test_the_womd_viewer_reads_only_the_scenarios_it_shows(tmp_path, cli, monkeypatch,
                                                            womd_dir):
-    from tap_bench.bench.viewer import build
+    from tap_bench.bench.report.viewer import build
 
     shards = [womd_dir / "motion_data_one_example.tfrecord",
               womd_dir / "motion_data_one_scenario.tfrecord",

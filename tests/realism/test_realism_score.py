@@ -9,7 +9,6 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench.bootstrap import BootstrapConfig
 from tap_bench.errors import ParameterError
 from tap_bench.realism.score import (
     BERNOULLI_FEATURES,
@@ -23,6 +22,7 @@ from tap_bench.realism.score import (
     pooled,
 )
 from tap_bench.realism.summary import summarise
+from tap_bench.stats.bootstrap import BootstrapConfig
 
 SPEED = WOSAC_2025["linear_speed"]  # 10 bins of 2.5 m/s over [0, 25], pseudocount 0.1
 

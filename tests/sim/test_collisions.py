@@ -171,7 +171,7 @@ def test_an_episode_ended_by_a_crash_has_no_ade_and_a_scene_without_signals_no_r
 
 
 def test_a_run_report_names_crashed_real_episodes_by_scene_partner_and_fault(tmp_path):
-    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.run.runner import run_suite
     from tap_bench.bench.suite import suite_from_dict
 
     # slow enough, and far enough, that IDM has come to a stop when it is hit (idm's

@@ -25,7 +25,7 @@ def _run(code: str, tmp_path: Path) -> dict:
 def test_an_episode_is_simulated_without_matplotlib_torch_or_numba(tmp_path):
     loaded = _run(
         "import sys, json, warnings\nwarnings.simplefilter('ignore')\n"
-        "import tap_bench.bench.run_tasks\n"
+        "import tap_bench.bench.run.tasks\n"
         "from tap_bench.sim.rollout import resolve_policy, rollout_episode\n"
         "from tap_bench.sim.scenario_env import get_scenario\n"
         "for name in ('highway', 'merge', 'roundabout'):\n"

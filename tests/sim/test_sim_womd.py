@@ -393,7 +393,7 @@ def test_the_cache_keys_a_scene_on_its_content(tmp_path):
     import shutil
 
     from tap_bench.bench.cache import EpisodeCache
-    from tap_bench.bench.run_plan import _tasks, plan_suite
+    from tap_bench.bench.run.plan import _tasks, plan_suite
     from tap_bench.bench.suite import suite_from_dict
 
     a = scenarionet(tmp_path / "sd_a.pkl")
@@ -412,7 +412,7 @@ def test_the_cache_keys_a_scene_on_its_content(tmp_path):
 
 
 def test_a_womd_suite_runs_against_the_human(real, tmp_path):
-    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.run.runner import run_suite
     from tap_bench.bench.suite import suite_from_dict
 
     good = scenarionet(tmp_path / "sd_good.pkl")
@@ -590,9 +590,9 @@ def test_a_replayed_car_that_runs_into_the_ego_is_marked(tmp_path):
 
 
 def test_a_run_viewer_carries_the_signals_of_its_scenes(real, tmp_path, monkeypatch):
-    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.report.viewer import build
+    from tap_bench.bench.run.runner import run_suite
     from tap_bench.bench.suite import suite_from_dict
-    from tap_bench.bench.viewer import build
 
     suite = suite_from_dict(womd_suite([real[0]], policies=["log"]))  # 637f: red lights
     result = run_suite(suite, tmp_path / "run", workers=1, progress=False)

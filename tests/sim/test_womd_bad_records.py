@@ -65,7 +65,7 @@ def test_a_bad_record_fails_alone_naming_file_record_track_and_field(tmp_path, c
 
 
 def test_the_bad_records_fail_in_a_suite_and_the_rest_run(tmp_path):
-    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.run.runner import run_suite
     from tap_bench.bench.suite import suite_from_dict
 
     path = womd_file(tmp_path / "scenes.tfrecord", record(straight_scene("good")),
@@ -173,7 +173,7 @@ def test_a_folder_leaves_out_what_is_not_womd(tmp_path, capsys):
 
 
 def test_a_suite_over_a_folder_leaves_out_what_is_not_womd(tmp_path):
-    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.run.runner import run_suite
     from tap_bench.bench.suite import suite_from_dict
 
     folder = tmp_path / "data"

@@ -10,11 +10,11 @@ import pickle
 import numpy as np
 import pytest
 
-from tap_bench.bench.bootstrap import named_rng
 from tap_bench.sim.policies import load_policy
 from tap_bench.sim.womd_env import make_womd_env
 from tap_bench.sim.womd_road import NOMINAL_DRIVER, DriverParameters, _idm_acc, draw_driver
 from tap_bench.sim.womd_scene import CURRENT_STEP
+from tap_bench.stats.bootstrap import named_rng
 
 T = np.arange(91) * 0.1
 

@@ -67,7 +67,7 @@ def test_the_episode_table_of_a_recorded_scene_keeps_its_scenario_id(tmp_path):
 def test_a_suite_counts_skipped_scenes_apart(tmp_path):
     import json
 
-    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.run.runner import run_suite
     from tap_bench.bench.suite import suite_from_dict
 
     from .test_road_edges import ROAD_EDGES, straight

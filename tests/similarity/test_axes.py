@@ -6,8 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench.coverage import corpus_reference, coverage, vocabulary_reference
-from tap_bench.bench.novelty import novelty
+from tap_bench.bench.scores.coverage import corpus_reference, coverage, vocabulary_reference
+from tap_bench.bench.scores.novelty import novelty
 from tap_bench.errors import LabelTableError, UnknownNameError
 from tap_bench.sdl import check_axes
 from tap_bench.similarity import search, unique_labels

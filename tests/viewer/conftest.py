@@ -35,7 +35,7 @@ TINY_SUITE = {
 @pytest.fixture(scope="session")
 def tiny_run(tmp_path_factory) -> Path:
     """A finished run folder of :data:`TINY_SUITE` (report and viewer included)."""
-    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.run.runner import run_suite
     from tap_bench.bench.suite import suite_from_dict
 
     suite = suite_from_dict(TINY_SUITE, source="TINY_SUITE")

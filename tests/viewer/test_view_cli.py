@@ -40,7 +40,7 @@ def test_view_writes_womd_scenarios(womd_dir, tmp_path, capsys):
 def test_an_older_run_without_segments_or_roads_is_relabelled(tiny_run, tmp_path):
     import json
 
-    from tap_bench.bench.runner import run_viewer
+    from tap_bench.bench.run.runner import run_viewer
 
     run = tmp_path / "old"
     shutil.copytree(tiny_run, run, ignore=shutil.ignore_patterns("segments.parquet",
@@ -183,7 +183,7 @@ def test_a_womd_suites_run_names_its_episodes_by_scenario_id(womd_dir, tmp_path)
     episode is named by the real scene's scenario id."""
     import warnings
 
-    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.run.runner import run_suite
     from tap_bench.bench.suite import suite_from_dict
 
     suite = suite_from_dict({

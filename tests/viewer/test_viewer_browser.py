@@ -131,7 +131,7 @@ def test_filters_narrow_the_list(tiny_run, browser, screenshots):
 
 
 def test_womd_scenarios_show_their_map_and_labels(womd_dir, tmp_path, browser, screenshots):
-    from tap_bench.bench.viewer import write_womd_viewer
+    from tap_bench.bench.report.viewer import write_womd_viewer
 
     files = [womd_dir / "motion_data_one_scenario.tfrecord",
              womd_dir / "sd_waymo_v1.2_eb4b91b10ca94ff2.pkl"]
@@ -204,7 +204,7 @@ def test_each_pane_draws_the_other_panes_ego_as_a_ghost(tiny_run, browser, scree
 def test_a_womd_run_draws_the_human_as_the_ghost(womd_dir, tmp_path, browser, screenshots):
     import warnings
 
-    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.run.runner import run_suite
     from tap_bench.bench.suite import suite_from_dict
 
     # ee519cf571686d19: the SDC drives ~40 m along a street; IDM drives it ~7 m apart
@@ -235,7 +235,7 @@ def test_a_womd_run_draws_the_human_as_the_ghost(womd_dir, tmp_path, browser, sc
 
 def test_womd_signals_are_drawn_in_their_state_at_each_step(womd_dir, tmp_path, browser,
                                                             screenshots):
-    from tap_bench.bench.viewer import write_womd_viewer
+    from tap_bench.bench.report.viewer import write_womd_viewer
 
     # 637f20cafde22ff8: red lights hold the SDC for the whole record
     page = write_womd_viewer([womd_dir / "motion_data_one_scenario.tfrecord"],

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench.viewer.data import (
+from tap_bench.bench.report.viewer.data import (
     MISSING,
     clip_polyline,
     encode_int16,
@@ -146,7 +146,7 @@ def test_womd_maps_belong_to_the_scenarios_read(womd_dir):
 
 
 def test_signal_field_gives_each_stop_point_its_state_per_step():
-    from tap_bench.bench.viewer.data import signal_field
+    from tap_bench.bench.report.viewer.data import signal_field
     from tap_bench.womd.roadmap import LANE_STATES, SignalStates
 
     states = np.arange(len(LANE_STATES), dtype=np.int8)  # every state number, one a step
@@ -163,7 +163,7 @@ def test_signal_field_gives_each_stop_point_its_state_per_step():
 
 
 def test_the_womd_viewer_carries_each_scenes_signals(womd_dir, tmp_path, monkeypatch):
-    from tap_bench.bench.viewer import build
+    from tap_bench.bench.report.viewer import build
     from tap_bench.sources.maps import read_road_maps
 
     files = [womd_dir / "motion_data_one_scenario.tfrecord",

@@ -169,7 +169,7 @@ def test_validate_command_writes_the_tables(womd_dir, tmp_path, capsys):
 
 
 def test_agreement_shares_have_intervals_over_scenes():
-    from tap_bench.bench.intervals import clustered_wilson_interval, wilson_interval
+    from tap_bench.stats.intervals import clustered_wilson_interval, wilson_interval
 
     # scene a: 10 STRAIGHT tracks that all agree; scene b: 10 that all disagree. Over
     # tracks 10 of 20 would look like 20 independent tracks; over scenes it is 2 scenes

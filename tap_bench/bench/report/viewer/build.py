@@ -1,0 +1,395 @@
+"""Writing the replay viewer: one folder that opens in a browser from disk.
+
+::
+
+    viewer/
+      index.html        the page (no network, no server: open it from disk)
+      viewer.js         the player, the episode list, the label timelines and the charts
+      viewer.css
+      data/index.js     the episode list, the road maps and the run's facts
+      data/<chunk>.js   the episodes of one env and seed (every policy), loaded on demand
+
+Browsers do not let a page opened from disk read files with ``fetch``; they do run
+``<script>`` files beside it, so every data file is a script that hands its JSON to the
+viewer (``TAPVIEW.index(...)``, ``TAPVIEW.chunk(...)``).
+"""
+
+from __future__ import annotations
+
+import glob
+import json
+import os
+import warnings
+from collections.abc import Sequence
+from importlib import resources
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import pandas as pd
+
+from tap_bench.bench.cache import memoised, table_digest
+from tap_bench.bench.episodes import episode_table
+from tap_bench.bench.measures import MEASURES, run_measures
+from tap_bench.bench.report.viewer.data import (
+    MAP_MARGIN,
+    episode_chunks,
+    episode_index,
+    map_features,
+    signal_field,
+)
+from tap_bench.bench.suite import suite_from_dict
+from tap_bench.errors import ParameterError, TapBenchError
+from tap_bench.labelling import tap
+from tap_bench.maps import empty_map
+from tap_bench.sources import iter_womd, read_womd
+from tap_bench.sources.ingest import record_files
+from tap_bench.sources.maps import iter_road_maps, read_maps
+from tap_bench.tableio import atomic_folder
+from tap_bench.thresholds import Thresholds
+
+if TYPE_CHECKING:
+    from tap_bench.bench.cache import EpisodeCache
+
+__all__ = ["DEFAULT_VIEW_SCENARIOS", "MAX_VIEW_SCENARIOS", "STATIC_FILES", "write_run_viewer",
+           "write_viewer", "write_womd_viewer"]
+
+STATIC_FILES = ("index.html", "viewer.js", "viewer.css")
+"""The viewer's own files, package data of :mod:`tap_bench.bench.report.viewer`."""
+
+
+def _script(call: str, name: str | None, doc: Any) -> str:
+    text = json.dumps(doc, separators=(",", ":"), allow_nan=False)
+    # a "</script>" inside a label must not end a script element that loads the file
+    text = text.replace("</", "<\\/")
+    head = f"{json.dumps(name)}," if name is not None else ""
+    return f"TAPVIEW.{call}({head}{text});\n"
+
+
+def write_viewer(output: str | os.PathLike, index: dict[str, Any],
+                 chunks: dict[str, list[dict[str, Any]]]) -> Path:
+    """Write the viewer folder from its documents (:mod:`tap_bench.bench.report.viewer.data`).
+
+    Args:
+        output: the folder to (re)write.
+        index: the index document (``episodes``, ``maps``, ``run``).
+        chunks: chunk name -> episode documents.
+
+    Returns:
+        the path of ``index.html``.
+
+    Raises:
+        OutputPathError: ``output`` exists and is not a viewer folder tap-bench wrote (a
+            file, a link, any other folder: it is never replaced).
+    """
+    return _write_viewer(output, index, {name: _script("chunk", name, docs)
+                                         for name, docs in chunks.items()})
+
+
+def _write_viewer(output: str | os.PathLike, index: dict[str, Any],
+                  scripts: dict[str, str]) -> Path:
+    """:func:`write_viewer` with the chunks as their script files' text."""
+    output = Path(output)
+    static = resources.files("tap_bench.bench.report.viewer") / "static"
+    # built beside the target and moved into place whole; an earlier viewer is replaced
+    with atomic_folder(output, overwrite=True, kind="viewer") as tmp:
+        data = tmp / "data"
+        data.mkdir()
+        for name in STATIC_FILES:
+            (tmp / name).write_bytes((static / name).read_bytes())
+        for name, text in scripts.items():
+            (data / f"{name}.js").write_text(text, encoding="utf-8")
+        (data / "index.js").write_text(_script("index", None, index), encoding="utf-8")
+    return output / "index.html"
+
+
+def _env_boxes(trajectories: pd.DataFrame, margin: float) -> dict[str, tuple]:
+    box = trajectories.groupby("env")[["x", "y"]].agg(["min", "max"])
+    return {str(env): (r[("x", "min")] - margin, r[("y", "min")] - margin,
+                       r[("x", "max")] + margin, r[("y", "max")] + margin)
+            for env, r in box.iterrows()}
+
+
+def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
+                     episodes: pd.DataFrame, trajectories: pd.DataFrame, *,
+                     segments: pd.DataFrame | None = None, roads: pd.DataFrame | None = None,
+                     novel_labels: pd.DataFrame | None = None,
+                     cache: EpisodeCache | None = None) -> Path:
+    """Write the replay viewer of a run (``bench run``, ``demo``).
+
+    Args:
+        output: the viewer folder (``<run>/viewer``).
+        summary: the run's ``summary.json`` content (level, thresholds, suite, reference).
+        episodes: the episode table.
+        trajectories: the run's trajectory table.
+        segments: the segment table (label timelines); None labels the egos again with the
+            run's thresholds (runs written before ``segments.parquet`` existed).
+        roads: the map table of the envs' roads; None builds each env's road again from
+            the suite.
+        novel_labels: the run's ``novel_labels`` table (marks novel episodes).
+        cache: the episode cache: the episode data and maps of unchanged trajectories,
+            segments and roads are read from it (:func:`tap_bench.bench.cache.memoised`;
+            the same bytes), except for recorded scenes (their signals are read again from
+            the WOMD files).
+
+    Returns:
+        the path of the viewer's ``index.html``.
+    """
+    level = str(summary.get("level", "maneuver"))
+    if roads is None:
+        roads = _rebuild_roads(summary, sorted(trajectories["env"].unique()))
+    if segments is None:
+        # labelled as the run labelled them: along the roads' lanes beyond the record
+        segments = _ego_segments(trajectories, summary.get("thresholds", "paper"), level,
+                                 roads)
+    if "level" in segments.columns:
+        segments = segments[segments["level"] == level]
+    have = set(trajectories["scenario_id"].astype(str).unique())
+    measures = run_measures(summary)
+    eps, entries = episode_index(episodes, novel_labels=novel_labels, has_replay=have,
+                                 measures=measures, scenes=_recorded_scenes(trajectories))
+    boxes = _env_boxes(trajectories, MAP_MARGIN) if "env" in trajectories.columns else {}
+
+    def build() -> tuple[dict[str, str], dict[str, Any]]:
+        chunks = episode_chunks(trajectories, eps, segments)
+        _add_run_signals(summary, chunks)
+        maps = {str(env): map_features(sub, boxes.get(str(env)))
+                for env, sub in roads.groupby("map_id", sort=True)}
+        return {name: _script("chunk", name, docs) for name, docs in chunks.items()}, maps
+
+    inputs = None if _run_womd_files(summary) else {
+        "trajectories": table_digest(trajectories), "segments": table_digest(segments),
+        "roads": table_digest(roads), "chunks": table_digest(eps[["scenario_id", "chunk"]])}
+    scripts, maps = memoised(cache, "viewer", inputs, build, _viewer_files, _files_viewer)
+    for entry in entries:
+        # highway-env: one road per env; recorded scenes: the map of the episode's WOMD
+        # scenario (a run names its episodes "<WOMD id>/<policy>")
+        womd = str(entry["id"]).rpartition("/")[0]
+        entry["map"] = (entry["env"] if entry["env"] in maps else
+                        womd if womd in maps else None)
+    suite = summary.get("suite", {})
+    index = {"run": {"name": str(summary.get("run", Path(output).parent.name)),
+                     "suite": str(suite.get("name", "")), "level": level,
+                     "reference": str(summary.get("reference_policy", "")),
+                     "source": "highway-env", "created": str(summary.get("created", "")),
+                     "measures": measures},
+             "episodes": entries, "maps": maps}
+    return _write_viewer(output, index, scripts)
+
+
+def _recorded_scenes(trajectories: pd.DataFrame) -> dict[str, str]:
+    """Episode ``scenario_id`` -> the WOMD scenario id of the recorded scene it drove (a WOMD
+    suite's run and ``rollout --womd`` tables keep it in ``womd_scenario_id``)."""
+    if "womd_scenario_id" not in trajectories.columns:
+        return {}
+    pairs = trajectories[["scenario_id", "womd_scenario_id"]].dropna().drop_duplicates()
+    return dict(zip(pairs["scenario_id"].astype(str), pairs["womd_scenario_id"].astype(str),
+                    strict=True))
+
+
+def _viewer_files(built: tuple[dict[str, str], dict[str, Any]]) -> dict[str, bytes]:
+    scripts, maps = built
+    return {"chunks.json": json.dumps(scripts).encode(),
+            "maps.json": json.dumps(maps, allow_nan=False).encode()}
+
+
+def _files_viewer(files: dict[str, bytes]) -> tuple[dict[str, str], dict[str, Any]]:
+    return json.loads(files["chunks.json"]), json.loads(files["maps.json"])
+
+
+def _run_womd_files(summary: dict[str, Any]) -> list[str]:
+    """The WOMD files the suite's recorded scenes come from (their signals per step)."""
+    files: list[str] = []
+    for env in summary.get("suite", {}).get("envs", []):
+        if isinstance(env, dict) and "womd" in env:
+            paths = env["womd"] if isinstance(env["womd"], list) else [env["womd"]]
+            files += [str(p) for p in paths]
+    return list(dict.fromkeys(files))
+
+
+def _ego_segments(trajectories: pd.DataFrame, thresholds: Any, level: str,
+                  roads: pd.DataFrame | None = None) -> pd.DataFrame:
+    """The egos' segment table at ``level`` (for run folders written before
+    ``segments.parquet`` existed), along the lanes of ``roads`` (the run's map table) beyond
+    the end of a record, as the runner labels them."""
+    if isinstance(thresholds, dict):
+        thresholds = Thresholds.from_dict(thresholds, source="summary.json thresholds")
+    # the whole scene is labelled (the interaction axis needs the other vehicles), the
+    # egos' segments kept, as the runner writes them
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        segments = tap(trajectories, thresholds, source="run trajectories",
+                       interactions="ego",
+                       map_table=roads if roads is not None and len(roads) else None
+                       ).segments(level)
+    ego = trajectories.loc[trajectories["is_ego"].fillna(False).to_numpy(bool),
+                           ["scenario_id", "track_id"]].drop_duplicates()
+    return segments.merge(ego, on=["scenario_id", "track_id"])
+
+
+def env_roads(envs: Sequence[str]) -> pd.DataFrame:
+    """The map table of the highway-env scenarios among ``envs`` (one road each, as a run
+    records them); envs that are no scenario of the catalogue (recorded scenes, a table's
+    own env names) get no map."""
+    from tap_bench.errors import UnknownNameError
+    from tap_bench.sim.roads import road_table
+    from tap_bench.sim.scenario_env import get_scenario
+
+    frames = []
+    for env in envs:
+        try:
+            scenario = get_scenario(str(env))
+        except UnknownNameError:
+            continue
+        frames.append(road_table(scenario))
+    return pd.concat(frames, ignore_index=True) if frames else empty_map()
+
+
+def _rebuild_roads(summary: dict[str, Any], envs: Sequence[str]) -> pd.DataFrame:
+    if summary.get("format") == "tap-bench-compare":  # two tables, no suite: as compare
+        return env_roads(envs)  # drew them (recorded scenes have no map there)
+    suite = suite_from_dict(summary.get("suite", {}), source="summary.json")
+    frames = [suite.road(env) for env in envs if env in suite.envs]
+    return pd.concat(frames, ignore_index=True) if frames else empty_map()
+
+
+DEFAULT_VIEW_SCENARIOS = 100
+"""Scenarios the viewer of WOMD files shows by default: the first ones of the files, read
+one record at a time (a scenario costs about 14 MB while the viewer is built; a whole
+shard of 500 would take 7 GB)."""
+MAX_VIEW_SCENARIOS = 1000
+"""The most scenarios one viewer of WOMD files may show (``max_scenarios``)."""
+
+
+def _first_scenarios(paths: Sequence[str | os.PathLike], max_scenarios: int
+                     ) -> tuple[pd.DataFrame, bool]:
+    """The trajectory tables of the first ``max_scenarios`` scenarios of ``paths``, read
+    one record at a time, and whether the files hold more."""
+    tables, more = [], False
+    records = iter_womd([str(p) for p in paths])
+    for table in records:
+        if len(tables) == max_scenarios:
+            more = True
+            break
+        tables.append(table)
+    records.close()
+    if not tables:
+        return read_womd([]), False
+    return pd.concat(tables, ignore_index=True), more
+
+
+def _add_run_signals(summary: dict[str, Any], chunks: dict[str, list[dict[str, Any]]]
+                     ) -> None:
+    """Give each recorded-scene episode of a run its traffic signals per step, read again
+    from the suite's WOMD files (the run folder keeps the static map only); without the
+    files (moved, unreadable) the episodes show no signals and a warning says why."""
+    files = _run_womd_files(summary)
+    if not files:
+        return
+    found = {f: (sorted(glob.glob(f)) if glob.has_magic(f) else
+                 [f] if Path(f).is_file() else []) for f in files}
+    # as the run read them: folders and globs leave out files that are not records
+    present = [str(p) for p in record_files([f for f, paths in found.items() if paths],
+                                            note=lambda text: None)] \
+        if any(found.values()) else []
+    wanted = {str(doc["id"]).rpartition("/")[0] for docs in chunks.values() for doc in docs}
+    try:
+        roads = _road_maps(present, wanted) if present else {}
+    except (TapBenchError, OSError, ValueError) as err:
+        warnings.warn(f"the viewer shows no traffic signals: the run's WOMD files could not "
+                      f"be read again ({err}).", UserWarning, stacklevel=3)
+        return
+    gone = [f for f, paths in found.items() if not paths]
+    if gone:
+        warnings.warn(f"the viewer shows no traffic signals for the scenes of "
+                      f"{', '.join(gone)}: the files are "
+                      "gone; put them back where the suite names them to see the signals.",
+                      UserWarning, stacklevel=3)
+    for docs in chunks.values():
+        for doc in docs:
+            road = roads.get(str(doc["id"]).rpartition("/")[0])
+            if road is not None:
+                doc["signals"] = signal_field(road.signals)
+
+
+def _road_maps(paths: Sequence[str | os.PathLike], wanted: set[str]) -> dict[str, Any]:
+    """The road maps (with signal states per step) of the scenarios ``wanted``, reading
+    the files only until they are all found."""
+    found: dict[str, Any] = {}
+    maps = iter_road_maps([str(p) for p in paths])
+    for road in maps:
+        if road.scenario_id in wanted:
+            found[road.scenario_id] = road
+            if len(found) == len(wanted):
+                break
+    getattr(maps, "close", lambda: None)()
+    return found
+
+
+def write_womd_viewer(paths: Sequence[str | os.PathLike], output: str | os.PathLike, *,
+                      thresholds: Any = "paper", level: str = "maneuver",
+                      max_scenarios: int = DEFAULT_VIEW_SCENARIOS) -> Path:
+    """Write the replay viewer of WOMD files: each scenario with its map and the label
+    timelines of every vehicle (the self-driving car is the ego), the first
+    ``max_scenarios`` of the files (read one record at a time, so memory is bounded by
+    ``max_scenarios``, not by the files; a warning says when there were more).
+
+    Args:
+        paths: WOMD files (Scenario TFRecords, tf.Example TFRecords, ScenarioNet pickles).
+        output: the viewer folder.
+        thresholds: TAP thresholds (preset name, path or :class:`Thresholds`).
+        level: the SDL level of the timelines.
+        max_scenarios: the most scenarios shown, at most :data:`MAX_VIEW_SCENARIOS`.
+
+    Returns:
+        the path of the viewer's ``index.html``.
+
+    Raises:
+        ParameterError: ``max_scenarios`` is not in [1, :data:`MAX_VIEW_SCENARIOS`].
+    """
+    if isinstance(max_scenarios, bool) or not isinstance(max_scenarios, int) \
+            or not 1 <= max_scenarios <= MAX_VIEW_SCENARIOS:
+        raise ParameterError("max_scenarios", max_scenarios,
+                             f"an integer from 1 to {MAX_VIEW_SCENARIOS}", message=(
+                                 f"max_scenarios (--max-scenarios) {max_scenarios!r} must be "
+                                 f"an integer from 1 to the limit of {MAX_VIEW_SCENARIOS} "
+                                 "(tap_bench.bench.report.viewer.build.MAX_VIEW_SCENARIOS): each "
+                                 "scenario costs about 14 MB while the viewer is built."))
+    # a README or other non-record file in a folder or glob is left out with a note, as
+    # ingest does (a file named on its own is read, and says what is wrong)
+    paths = record_files(paths)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        traj, more = _first_scenarios(paths, max_scenarios)
+        result = tap(traj, thresholds, source="WOMD")
+    if more:
+        warnings.warn(f"the viewer shows the first {max_scenarios} scenarios of the files; "
+                      "give max_scenarios (--max-scenarios) to show more, up to "
+                      f"{MAX_VIEW_SCENARIOS}, or view fewer files.", UserWarning, stacklevel=2)
+    sids = list(dict.fromkeys(traj["scenario_id"].astype(str)))
+    seed_of = {sid: i for i, sid in enumerate(sids)}
+    traj = traj.assign(env="WOMD", policy="logged",
+                       seed=traj["scenario_id"].astype(str).map(seed_of).astype("int64"))
+    labels = result.labels("all").assign(env="WOMD", policy="logged")
+    labels["seed"] = labels["scenario_id"].astype(str).map(seed_of).astype("int64")
+    episodes = episode_table(labels=labels, trajectories=traj, level=level,
+                             source="WOMD files")
+    segments = result.segments(level)
+    eps, entries = episode_index(episodes, chunk_by=("scenario_id",), has_replay=sids,
+                                 scenes={sid: sid for sid in sids})
+    chunks = episode_chunks(traj, eps, segments, labelled_tracks="all")
+    maps = read_maps(paths, scenario_ids=set(sids))
+    by_map = dict(tuple(maps.groupby("map_id", sort=False))) if len(maps) else {}
+    roads = _road_maps(paths, set(sids))
+    for docs in chunks.values():
+        for doc in docs:
+            sub = by_map.get(doc["id"])
+            doc["map"] = map_features(sub) if sub is not None else []
+            road = roads.get(doc["id"])
+            doc["signals"] = signal_field(road.signals) if road is not None else None
+    for entry in entries:
+        entry["map"] = None  # carried by the episode itself
+    index = {"run": {"name": ", ".join(Path(p).name for p in paths), "suite": "WOMD",
+                     "level": level, "reference": "", "source": "WOMD", "created": "",
+                     "measures": [m.to_dict() for m in MEASURES]},
+             "episodes": entries, "maps": {}}
+    return write_viewer(output, index, chunks)

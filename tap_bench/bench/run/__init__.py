@@ -1,0 +1,11 @@
+"""``bench run``: a suite rolled out, labelled, scored and written to a run folder.
+
+- :mod:`~tap_bench.bench.run.runner`: :func:`~tap_bench.bench.run.runner.run_suite`, the
+  steps in order;
+- :mod:`~tap_bench.bench.run.plan`: what the run will do, and how long it takes;
+- :mod:`~tap_bench.bench.run.tasks`: episodes as tasks of the execution layer, the cache;
+- :mod:`~tap_bench.bench.run.summary`: references, gaps and the headline figures;
+- :mod:`~tap_bench.bench.run.folder`: the run folder: write, read, provenance;
+- :mod:`~tap_bench.bench.run.served`: a run served whole from the episode cache;
+- :mod:`~tap_bench.bench.run.demo`: ``tap-bench demo``.
+"""

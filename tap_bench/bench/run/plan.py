@@ -1,0 +1,275 @@
+"""What a suite run will do: one task per (env, policy, seed), each env's scenario and each
+policy's definition resolved once, and the estimate of how long the run takes
+(:class:`RunPlan`), said before it starts (part of :mod:`tap_bench.bench.run.runner`)."""
+
+from __future__ import annotations
+
+import math
+import os
+import uuid
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from tap_bench.bench.cache import (
+    ROAD_MAP,
+    SCENE_MAP,
+    EpisodeCache,
+    episode_key,
+    label_code,
+    label_key,
+    policy_fingerprint,
+    scenario_fingerprint,
+    simulation_fingerprint,
+)
+from tap_bench.bench.measures import MEASURES, Measure
+from tap_bench.bench.suite import Suite, load_suite
+from tap_bench.plugins import load_plugins, merge_plugins
+from tap_bench.sim.policies import PolicyDefinition
+from tap_bench.sim.rollout import resolve_policy
+from tap_bench.sim.sb3 import warn_untrusted_model
+from tap_bench.sim.scenario_format import Scenario, parse_seeds
+from tap_bench.sim.womd_scene import WomdScenes
+from tap_bench.thresholds import Thresholds, resolve_thresholds
+from tap_bench.usercode import recording
+
+
+@dataclass(frozen=True)
+class _Task:
+    """One episode of a suite run: what a worker needs, and nothing more (the scenario is
+    resolved once, by the caller)."""
+
+    env: str
+    scenario: Scenario
+    policy: str  # the policy's name
+    definition: PolicyDefinition
+    seed: int
+    thresholds: Thresholds
+    level: str
+    keep_trajectories: bool
+    cache: EpisodeCache | None = None
+    key: str | None = None  # None: this episode is not cached (see bench.cache)
+    key_doc: Mapping[str, Any] | None = None
+    measures: tuple[str, ...] = ()  # the run's measures: the worker must have each
+    label_key: str | None = None  # its labels and measures in the cache (bench.cache)
+    label_doc: Mapping[str, Any] | None = None
+    run: str = ""  # the run's id: what its code imports is noted under it (usercode)
+    # the env's road (highway-env: a map table) as the run's process drew it, so that the
+    # workers do not each build the env again to draw it; None: the worker draws it
+    road: Any = field(default=None, compare=False, repr=False)
+
+
+@dataclass(frozen=True)
+class SuitePlan:
+    """A suite resolved once, before a run: what every later step of the run reads, so that
+    no step resolves a scenario, reads a policy file or the thresholds again, and every step
+    sees the same measures.
+
+    Attributes:
+        suite: the suite (its gate margins filled for every measure of the run).
+        scenarios: env -> its :class:`~tap_bench.sim.scenario_format.Scenario`, overrides applied
+            (recorded scenes: its :class:`~tap_bench.sim.womd_scene.WomdScenes`).
+        definitions: each policy's definition, built once (a bad one fails here).
+        thresholds: the TAP thresholds.
+        measures: the run's measure entries, fixed after the plugins, the suite's plugins
+            and the policies' own imports have registered theirs.
+        plugins: the modules every worker imports before its first task (the execution
+            layer carries them): those named on the command line and by the suite, and the
+            modules that define the run's measures outside tap-bench.
+        run: the run's id: the modules its policies, scenarios and measures import as
+            they are built and run are noted under it (:func:`tap_bench.usercode.
+            recording`) and kept with its cache entries.
+    """
+
+    suite: Suite
+    scenarios: Mapping[str, Scenario | WomdScenes]
+    definitions: tuple[PolicyDefinition, ...]
+    thresholds: Thresholds
+    measures: tuple[Measure, ...]
+    plugins: tuple[str, ...]
+    run: str = field(default_factory=lambda: uuid.uuid4().hex)
+
+    @property
+    def measure_names(self) -> tuple[str, ...]:
+        return tuple(m.name for m in self.measures)
+
+    @property
+    def gate_metrics(self) -> tuple[str, ...]:
+        """What the gate checks in this run: every measure and ``label_tv``."""
+        return (*self.measure_names, "label_tv")
+
+
+def plan_suite(suite: Suite | str | os.PathLike, *, plugins: Sequence[str] = (),
+               seeds: str | Sequence[int] | None = None) -> SuitePlan:
+    """Resolve ``suite`` once: import the plugins (``plugins``, then the suite's), read the
+    suite, resolve its scenarios, build its policies' definitions and its thresholds, and fix
+    the set of measures.
+
+    Raises:
+        ParameterError: a plugin cannot be imported, or ``seeds`` is not a seed list.
+        FileFormatError, UnknownNameError: the suite, a scenario or a policy is bad.
+    """
+    load_plugins(plugins)
+    suite = suite if isinstance(suite, Suite) else load_suite(suite)
+    load_plugins(suite.plugins, source=f"suite {suite.name}")
+    if seeds is not None:
+        suite = replace(suite, seeds=tuple(parse_seeds(seeds, source="seeds")),
+                        all_seeds=False)
+    run = uuid.uuid4().hex
+    # what the policies and scenarios import as they are built is noted (the plugins' own
+    # code is keyed by the measures and kinds they register)
+    with recording(run):
+        scenarios = {env: suite.scenario(env) for env in suite.envs}
+        definitions = tuple(resolve_policy(policy) for policy in suite.policies)
+    thresholds = resolve_thresholds(suite.thresholds)
+    measures = tuple(MEASURES)  # fixed here: after every import that may register one
+    # margins of measures registered after the suite was read take their entry's default
+    suite = replace(suite, gate=replace(suite.gate, margins={
+        **{m.name: float(m.margin) for m in measures}, **suite.gate.margins}))
+    defined_in = (m.function.__module__ for m in measures if m.function is not None)
+    outside = [name for name in defined_in
+               if name != "__main__" and name.split(".")[0] != "tap_bench"]
+    # recorded as loaded, so that every worker of the execution layer imports them first
+    load_plugins(outside, source="measure")
+    return SuitePlan(suite, scenarios, definitions, thresholds, measures,
+                     merge_plugins(plugins, suite.plugins, outside), run)
+
+
+def _tasks(plan: SuitePlan, keep: bool, cache: EpisodeCache | None) -> list[_Task]:
+    suite, scenarios, thresholds = plan.suite, plan.scenarios, plan.thresholds
+    definitions = plan.definitions
+    common = {"measures": plan.measure_names, "run": plan.run}
+    seeds = {env: suite.env_seeds(env) for env in suite.envs}
+    for d in definitions:  # workers load models with warnings off: said here, once each
+        if d.kind == "sb3" and isinstance(d.params.get("model"), str):
+            model = Path(d.params["model"])
+            if not model.is_absolute() and d.path is not None:
+                model = d.path.parent / model
+            warn_untrusted_model(model, stacklevel=4)
+    if cache is None:
+        return [_Task(env, scenarios[env], d.name, d, seed, thresholds, suite.level, keep,
+                      **common)
+                for env in suite.envs for d in definitions for seed in seeds[env]]
+    versions = simulation_fingerprint()
+    envs = {env: _env_fingerprints(scenarios[env], env, seeds[env]) for env in suite.envs}
+    policies = {d.name: policy_fingerprint(d) for d in definitions}
+    code = label_code(plan.measures)
+    made_by = thresholds.to_dict()
+    tasks = []
+    for env in suite.envs:
+        for d in definitions:
+            for seed in seeds[env]:
+                key = doc = lkey = ldoc = None
+                if policies[d.name] is not None and envs[env].get(seed) is not None:
+                    key, doc = episode_key(envs[env][seed], policies[d.name], seed, versions)
+                    lkey, ldoc = label_key(key, made_by, suite.level, code,
+                                           SCENE_MAP if isinstance(scenarios[env], WomdScenes)
+                                           else ROAD_MAP)
+                tasks.append(_Task(env, scenarios[env], d.name, d, seed, thresholds,
+                                   suite.level, keep, cache, key, doc, label_key=lkey,
+                                   label_doc=ldoc, **common))
+    return tasks
+
+
+def _env_fingerprints(scenario: Scenario | WomdScenes, env: str, seeds: tuple[int, ...]
+                      ) -> dict[int, dict[str, Any] | None]:
+    """seed -> the env part of its episode key (None: not cached): the scenario's
+    (:func:`~tap_bench.bench.cache.scenario_fingerprint`) for a synthetic env, the same for
+    every seed; for recorded scenes, the env's name and each scenario's content hash and
+    settings (a scenario that cannot be read is not cached; its episode reports why)."""
+    if not isinstance(scenario, WomdScenes):
+        return dict.fromkeys(seeds, scenario_fingerprint(scenario, env))
+    catalog = scenario.catalog()
+    out: dict[int, dict[str, Any] | None] = {}
+    for seed in seeds:
+        try:
+            out[seed] = {"env": env, **scenario.fingerprint(catalog[seed])}
+        except (IndexError, OSError, ValueError):
+            out[seed] = None
+    return out
+
+
+CACHED_EPISODE_S = 0.03
+"""Estimate of a cached episode's worker time (read, verify, label and measure, in batches)
+when no run has measured it yet [s]: 0.028 s in the default suite on the 2-core
+development machine (``benchmarks/bench_incremental.py``)."""
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """What a run will do and how long it should take, said before it starts.
+
+    Attributes:
+        episodes: episodes of the suite.
+        cached: episodes found in the cache (checked when read).
+        simulate: episodes to simulate.
+        workers: processes the episodes are spread over.
+        seconds: estimated wall time of the episodes' work [s] (NaN when unknown).
+        overhead_seconds: estimated rest of the run: worker start-up, scoring, the report
+            [s] (NaN when no run has measured it).
+        basis: where the per-episode times come from, in words.
+    """
+
+    episodes: int
+    cached: int
+    simulate: int
+    workers: int
+    seconds: float
+    overhead_seconds: float
+    basis: str
+
+    def describe(self, suite: str) -> str:
+        """One line for the user: ``suite default: 750 episodes (600 cached, 150 to
+        simulate) on 2 workers: about 4 min (...)``."""
+        if math.isfinite(self.seconds):
+            known = math.isfinite(self.overhead_seconds)
+            total = self.seconds + (self.overhead_seconds if known else 0.0)
+            when = f"about {_duration(total)}" + ("" if known else
+                                                  " plus start-up, scoring and the report")
+        else:
+            when = "no estimate yet"
+        return (f"suite {suite}: {self.episodes} episodes ({self.cached} cached, "
+                f"{self.simulate} to simulate) on {self.workers} worker(s): {when} "
+                f"({self.basis})")
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def _plan(tasks: list[_Task], cached: list[bool], workers: int, known: Mapping[str, Any],
+          measured: Mapping[str, float]) -> RunPlan:
+    import numpy as np
+
+    simulated = {**known.get("simulated", {}), **measured}
+    per_hit = known.get("cached", {})
+    fallback_hit = (float(np.mean(list(per_hit.values()))) if per_hit
+                    else CACHED_EPISODE_S)
+    total, unknown = 0.0, 0
+    for task, hit in zip(tasks, cached, strict=True):
+        if hit:
+            total += per_hit.get(task.env, fallback_hit)
+        elif task.env in simulated:
+            total += simulated[task.env]
+        else:
+            unknown += 1
+    n_hit = sum(cached)
+    if unknown:
+        seconds = float("nan")
+    else:
+        seconds = total / max(1, min(workers, len(tasks)))
+    parts = []
+    if measured:
+        parts.append(f"timed a first episode of {', '.join(sorted(measured))}")
+    if known.get("simulated") or known.get("cached"):
+        parts.append("per-episode times of earlier runs in the cache")
+    if unknown:
+        parts.append(f"{unknown} episode(s) of envs whose first episode failed")
+    return RunPlan(len(tasks), n_hit, len(tasks) - n_hit, workers, seconds,
+                   float(known.get("overhead", float("nan"))),
+                   "; ".join(parts) or "cached episodes only")

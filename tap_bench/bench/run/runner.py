@@ -1,0 +1,418 @@
+"""``bench run``: roll out every policy of a suite in every env over its seeds, label, score,
+and write ``results/<run>/``.
+
+What a run folder holds:
+
+======================  ====================================================================
+``summary.json``        suite, seeds, thresholds, level, versions, machine, timings, failed
+                        episodes, the interval methods, headline figures, the run's
+                        measure entries and plugins (what the report, the viewer and
+                        ``bench check`` read), and the provenance: each policy's full
+                        definition (with the SHA-256 of a model file) and each env's
+                        resolved config
+``episodes.parquet``    the episode table (:mod:`tap_bench.bench.episodes`), failed
+                        episodes included with their error
+``labels.parquet``      TAP labels of every track at every level
+``trajectories.parquet``  the rollouts (unless ``keep_trajectories`` is False)
+``segments.parquet``    the segment table (label timelines) of every track at the suite's
+                        level
+``roads.parquet``       each env's road network as a map table (:mod:`tap_bench.maps`), for
+                        the replay viewer (with the trajectories)
+``<table>.parquet``     every table of :class:`tap_bench.bench.scores.scoring.Scores`
+                        (``contexts.parquet``: each policy against the reference inside
+                        each interaction context, scored as ``tap-bench contexts`` does)
+``plots/*.svg``         label distributions, measures, coverage, forest plots, novelty
+``report.html``         the static report (no server, images embedded)
+``viewer/``             the replay viewer (:mod:`~tap_bench.bench.report.viewer`; with trajectories)
+``.tap-bench-folder``   the marker that lets ``--overwrite`` replace the folder
+======================  ====================================================================
+
+The folder is built under a temporary name beside the target and renamed into place only
+when complete, so an interrupted run leaves nothing that looks finished; an existing run
+folder is never replaced unless ``overwrite`` is given, and then only when tap-bench wrote
+it (its marker is there): any other folder, a file or a link is refused. Episodes run as
+tasks of :mod:`tap_bench.execution` (local worker processes or Ray), the episodes of one
+(env, policy) in batches, each batch labelled and measured as one table (the same labels
+and measures as each episode alone, at a fraction of the cost); an episode that fails is
+recorded with its error and left out of the scores, and the episodes of a batch whose worker
+dies are tried again one by one and then recorded as failed: one bad episode never costs
+another. A run where every episode
+failed is an error (:class:`~tap_bench.errors.EpisodesFailedError`), not an empty result.
+
+With an episode cache (:mod:`tap_bench.bench.cache`), an episode whose inputs did not change
+is read instead of simulated, and its labels and measures too when they were made with the
+same thresholds, level and code (those episodes are read in this process: no worker
+starts for them); the scores, figures and viewer data of unchanged inputs are read too,
+and a run whose every input is unchanged is served whole (:mod:`tap_bench.bench.
+run_cache`). A run with the cache gives the same tables as one without, float for float.
+Before the episodes start, the run estimates how long it will take, from the cache's
+timings of earlier runs or by timing a first episode of each env.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import math
+import os
+import time
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from tap_bench.bench.cache import (
+    EpisodeCache,
+    memoised,
+    package_code,
+    package_code_holds,
+    scenario_fingerprint,
+    simulation_fingerprint,
+    table_digest,
+    take_refused,
+)
+from tap_bench.bench.episodes import one_outcome_cells
+from tap_bench.bench.gate.power import power_table
+from tap_bench.bench.run.folder import (
+    _write_json,
+    check_output,
+    package_versions,
+    provenance,
+    read_run,
+    run_viewer,
+    write_results,
+)
+from tap_bench.bench.run.plan import CACHED_EPISODE_S, RunPlan, SuitePlan, plan_suite
+from tap_bench.bench.run.served import (
+    RunResult,
+    _check_apart,
+    fresh_facts,
+    run_inputs,
+    store_run,
+    try_served,
+)
+from tap_bench.bench.run.summary import (
+    ReferenceSource,
+    _describe_source,
+    _headline,
+    _reference,
+    _round,
+    _with_gaps,
+)
+from tap_bench.bench.run.tasks import CACHED_BATCH, _observed_timings, _rollouts
+from tap_bench.bench.scores.contexts import context_scores
+from tap_bench.bench.scores.gap import window_episodes, window_seconds
+from tap_bench.bench.scores.scenarios import match_scenarios
+from tap_bench.bench.scores.scoring import Scores, score, scores_from_files, scores_to_files
+from tap_bench.bench.scores.verdict import verdict_table
+from tap_bench.bench.suite import Suite
+from tap_bench.errors import (
+    CacheEntryWarning,
+    EpisodesFailedError,
+    ParameterError,
+    RunExistsError,
+)
+from tap_bench.execution import Backend, resolve_backend
+
+__all__ = ["CACHED_BATCH", "CACHED_EPISODE_S", "RunExistsError", "RunPlan", "RunResult",
+           "SuitePlan", "plan_suite",
+           "check_output", "package_versions", "provenance", "read_run", "run_suite",
+           "run_viewer", "write_results"]
+
+
+def _road(suite: Suite, env: str, cache: EpisodeCache | None,
+          simulation: dict[str, Any] | None = None) -> pd.DataFrame:
+    """The map table of ``env`` (:meth:`Suite.road`); a highway-env road is kept in the
+    cache, keyed by the scenario and the simulation code, so that a re-run does not import
+    highway-env to draw it again."""
+    if cache is None or env in suite.scenes:
+        return suite.road(env)
+    fingerprint = scenario_fingerprint(suite.scenario(env), env)
+    return memoised(cache, "roads", None if fingerprint is None else {
+        "env": fingerprint, "simulation": simulation or simulation_fingerprint()},
+        lambda: suite.road(env), _table_files, _files_table)
+
+
+def _inputs_hold(plan: SuitePlan, tasks: Sequence[Any], whole: Mapping[str, Any], *,
+                 keep_trajectories: bool, report: bool) -> bool:
+    """Whether the run's inputs are still ``whole``, those it started with (then the run may
+    be kept whole): False too when they cannot be read now (a policy or scenario file
+    removed or unreadable), which costs only reuse, never the run's results."""
+    try:
+        return run_inputs(plan, tasks, keep_trajectories=keep_trajectories,
+                          report=report) == whole
+    except Exception:  # any failure to fingerprint: not kept whole, the results written
+        return False
+
+
+def _table_files(table: pd.DataFrame) -> dict[str, bytes]:
+    buffer = io.BytesIO()
+    table.to_parquet(buffer, index=True)
+    return {"table.parquet": buffer.getvalue()}
+
+
+def _files_table(files: Mapping[str, bytes]) -> pd.DataFrame:
+    return pd.read_parquet(io.BytesIO(files["table.parquet"]))
+
+
+def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
+              workers: int = 2, womd: Sequence[str | os.PathLike] | None = None,
+              references: Mapping[str, ReferenceSource] | None = None,
+              keep_trajectories: bool = True, overwrite: bool = False,
+              progress: bool | None = None, report: bool = True,
+              backend: Backend | None = None, seeds: str | Sequence[int] | None = None,
+              cache: EpisodeCache | str | os.PathLike | None = None,
+              announce: Callable[[str], None] | None = None,
+              plugins: Sequence[str] = ()) -> RunResult:
+    """Run a benchmark suite and write its run folder.
+
+    Args:
+        suite: a :class:`Suite`, a suite name (``default``) or a suite JSON path.
+        output: the run folder to create (``results/run-001``).
+        workers: rollout processes (1: in this process).
+        womd: WOMD files (TFRecord or ScenarioNet pickles): shorthand for
+            ``references={"WOMD": womd}``.
+        references: more coverage and novelty references, by name: a label table
+            (DataFrame, or a .parquet/.csv label file), or driving-data files of any
+            registered format (a path or a list of paths), which are labelled with the
+            suite's thresholds and also matched scenario by scenario against the episodes.
+        keep_trajectories: also write ``trajectories.parquet``.
+        overwrite: replace an existing run folder.
+        progress: progress bar (None: only on a terminal).
+        report: write the plots and ``report.html``.
+        backend: run the episodes as tasks on this :class:`tap_bench.execution.Backend`
+            (a Ray cluster, say) instead of ``workers`` local processes; the tables are the
+            same.
+        seeds: run these seeds instead of the suite's (``"0-4"``, a list).
+        cache: an :class:`~tap_bench.bench.cache.EpisodeCache` or its folder: episodes
+            found there are read instead of simulated, new ones are stored, and the cache is
+            pruned to its size bound afterwards (None: simulate everything, store nothing).
+            The tables are the same either way.
+        announce: called with one line saying how many episodes will be simulated and how
+            long the run should take, before the episodes start (the CLI prints it); to
+            estimate an env no earlier run timed, its first episode runs first. None: no
+            estimate.
+        plugins: modules that register measures, data formats or policy kinds
+            (:mod:`tap_bench.plugins`), imported before the suite is read; with the suite's
+            own ``plugins``, every worker imports them before its first task.
+
+    Returns:
+        :class:`RunResult`.
+
+    Raises:
+        RunExistsError: ``output`` exists and ``overwrite`` is False.
+        EpisodesFailedError: every episode failed (naming the first errors); nothing is
+            written.
+    """
+    t_start = time.perf_counter()
+    output = check_output(output, overwrite)
+    plan = plan_suite(suite, plugins=plugins, seeds=seeds)  # the suite, resolved once
+    suite, thresholds = plan.suite, plan.thresholds
+    if cache is not None and not isinstance(cache, EpisodeCache):
+        cache = EpisodeCache(Path(cache))
+    if cache is not None:
+        _check_apart(output, cache.root)
+    sources = dict(references or {})
+    if womd:
+        if "WOMD" in sources:
+            raise ParameterError("references", sorted(sources), "names other than 'WOMD' "
+                                 "when womd= is given (womd= is references={'WOMD': ...})")
+        sources["WOMD"] = list(womd)
+    # every input as in an earlier run: its folder comes whole from the cache (run_cache)
+    served, tasks, whole = try_served(plan, cache, output, overwrite, keep_trajectories,
+                                        report, bool(sources), t_start, announce)
+    if served is not None:
+        return served
+    runner = resolve_backend(backend, workers)
+    if cache is not None:  # tap-bench's code as the run's entries are keyed (see the end)
+        package_code()
+        entries_since = time.time()
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    corpora = {name: _reference(name, source, suite.level, thresholds)
+               for name, source in sources.items()}
+    if corpora:
+        timings["references"] = time.perf_counter() - t0
+    with_trajectories = any(traj is not None for traj, _ in corpora.values())
+
+    drawn: dict[str, pd.DataFrame] = {}
+    simulation: list[dict[str, Any] | None] = []
+
+    def road(env: str) -> pd.DataFrame:
+        """The env's map table, drawn (or read from the cache) once in this run: the
+        workers label on it and the run folder keeps it."""
+        if env not in drawn:
+            if not simulation:  # the simulation code's fingerprint, once
+                simulation.append(simulation_fingerprint() if cache is not None else None)
+            drawn[env] = _road(suite, env, cache, simulation[0])
+        return drawn[env]
+
+    t0 = time.perf_counter()
+    kept = getattr(runner, "kept", None)  # the estimate's first episodes and the rest
+    with kept() if kept is not None else contextlib.nullcontext():  # on the same workers
+        results, estimate = _rollouts(plan, runner, keep_trajectories or with_trajectories,
+                                      progress, cache, announce, road, tasks)
+    timings["rollouts_wall"] = time.perf_counter() - t0
+    if announce is not None:
+        announce(f"episodes done ({timings['rollouts_wall']:.0f} s); scoring ...")
+    if not any((r["episodes"]["status"] == "ok").all() for r in results):
+        errors = [f"{row.env} {row.policy} seed {row.seed}: {row.error}"
+                  for r in results for row in r["episodes"].itertuples()]
+        raise EpisodesFailedError(f"the {len(results)} episode(s) of suite {suite.name}",
+                                  errors)
+    refused = [r["cache_note"] for r in results if r.get("cache_note")]
+    for note in refused[:5]:
+        warnings.warn(f"{note}; its episode was simulated again.", CacheEntryWarning,
+                      stacklevel=2)
+    if len(refused) > 5:
+        warnings.warn(f"{len(refused) - 5} more cache entries refused and simulated again "
+                      "(summary.json lists them all).", CacheEntryWarning, stacklevel=2)
+    for key in ("rollout", "labelling", "measures"):
+        timings[f"{key}_cpu_in_workers"] = sum(r["timings"].get(key, 0.0) for r in results)
+    episodes = pd.concat([r["episodes"] for r in results], ignore_index=True)
+    episodes = episodes.sort_values(["env", "policy", "seed"], kind="stable")
+    episodes = episodes.reset_index(drop=True)
+    labels = pd.concat([r["labels"] for r in results if len(r["labels"])], ignore_index=True) \
+        if any(len(r["labels"]) for r in results) else pd.DataFrame()
+    segments = pd.concat([r["segments"] for r in results if len(r["segments"])],
+                         ignore_index=True) \
+        if any(len(r["segments"]) for r in results) else None
+    occurrences = [r["contexts"] for r in results if len(r.get("contexts", ()))]
+    occurrences = pd.concat(occurrences, ignore_index=True) if occurrences else None
+    trajectories = None
+    if keep_trajectories or with_trajectories:
+        frames = [r["trajectories"] for r in results
+                  if r["trajectories"] is not None and len(r["trajectories"])]
+        trajectories = pd.concat(frames, ignore_index=True) if frames else None
+
+    t0 = time.perf_counter()
+
+    def scored() -> Scores:
+        matches, unmatched = [], []
+        for name, (ref_traj, ref_labels) in corpora.items():
+            if ref_traj is not None and len(labels):
+                if "is_ego" not in ref_labels.columns:  # a format without an ego
+                    unmatched.append(name)
+                    continue
+                matches.append(match_scenarios(labels, trajectories, ref_labels, ref_traj,
+                                               level=suite.level, top=3).assign(reference=name))
+        # coverage and novelty against real driving: windows of its tracks' length
+        cut = {}
+        for name, (ref_traj, _) in corpora.items():
+            if ref_traj is not None and trajectories is not None:
+                seconds = window_seconds("auto", ref_traj, trajectories)
+                if seconds is not None:
+                    cut[name] = (window_episodes(trajectories, seconds, suite.level,
+                                                 thresholds=thresholds, source=name),
+                                 f"{seconds:.1f} s windows")
+        power = power_table(episodes, suite.gate,
+                            n_tests=len(suite.envs) * len(suite.policies)
+                            * len(plan.gate_metrics))
+        scores = score(episodes, reference_policy=suite.reference, level=suite.level,
+                       config=suite.bootstrap,
+                       references={name: lab for name, (_, lab) in corpora.items()} or None,
+                       scenario_matches=pd.concat(matches, ignore_index=True) if matches
+                       else None, gate_power=power, windows=cut or None)
+        # the interaction contexts, scored as `tap-bench contexts` scores them
+        scores = replace(scores, contexts=context_scores(
+            occurrences, list(pd.unique(episodes["policy"])), suite.reference,
+            config=suite.bootstrap))
+        if len(scores.contexts):
+            scores.methods["contexts"] = (
+                "each policy against the reference inside each interaction context (trend "
+                "level): per episode the context's measures reduced over its occurrences, "
+                "then paired by seed (t; Tango for a share) where both meet the context, "
+                "else unpaired (Welch; Newcombe), as tap-bench contexts")
+        if unmatched:
+            scores.methods["scenario matching skipped"] = (
+                f"{', '.join(unmatched)}: the data marks no ego vehicle (is_ego), so its "
+                "scenarios cannot be matched by what happens around the ego; coverage and "
+                "novelty use all its vehicles")
+        return _with_gaps(scores, corpora, labels, episodes, suite.level, thresholds,
+                          suite.bootstrap)
+
+    # an unchanged run reads its scores back (keyed by the episode table's content and the
+    # suite); runs with reference corpora or plug-ins are scored every time
+    scores = memoised(cache, "scores", None if corpora or plan.plugins else {
+        "episodes": table_digest(episodes), "suite": suite.to_dict(),
+        "contexts": None if occurrences is None else table_digest(occurrences),
+        "gate_metrics": list(plan.gate_metrics),
+        "measures": [m.to_dict() for m in plan.measures]},
+        scored, scores_to_files, scores_from_files)
+    timings["scoring"] = time.perf_counter() - t0
+
+    failed = episodes[~episodes["status"].isin(("ok", "skipped"))]  # skipped: no route
+    skipped = episodes[episodes["status"] == "skipped"]
+    facts = fresh_facts(plan, output)
+    summary = {
+        "format": "tap-bench-run", "format_version": 1,
+        "run": facts["run"], "created": facts["created"],
+        "suite": suite.to_dict(), "suite_file": facts["suite_file"],
+        "level": suite.level,
+        "seeds": "all" if suite.all_seeds else list(suite.seeds),
+        "thresholds": thresholds.to_dict() if hasattr(thresholds, "to_dict") else
+        str(suite.thresholds),
+        "reference_policy": suite.reference,
+        "references": {name: _describe_source(source) for name, source in sources.items()},
+        "versions": facts["versions"], "machine": facts["machine"],
+        "n_episodes": len(episodes), "n_failed": len(failed),
+        "failed": failed[["env", "policy", "seed", "error"]].to_dict("records"),
+        "n_skipped": len(skipped),
+        "skipped": skipped[["env", "policy", "seed", "error"]].to_dict("records"),
+        "methods": scores.methods,
+        "headline": _headline(scores, episodes),
+        "one_outcome_cells": one_outcome_cells(episodes).to_dict("records"),
+        "verdict": verdict_table(scores.paired_measures, scores.paired,
+                                 scores.paired_labels).to_dict("records"),
+        "provenance": provenance(plan),
+        "measures": [m.to_dict() for m in plan.measures],
+        "plugins": list(plan.plugins),
+        "timings": timings,
+        "estimate": {"seconds": _round(estimate.seconds),
+                     "overhead": _round(estimate.overhead_seconds), "basis": estimate.basis},
+        "cache": None if cache is None else {
+            "dir": str(cache.root), "cached": sum(r["cached"] for r in results),
+            "simulated": sum(not r["cached"] for r in results),
+            "labelled_before": sum(bool(r.get("labels_cached")) for r in results),
+            "refused": refused},
+    }
+    if announce is not None:
+        announce(f"scored ({timings['scoring']:.1f} s); writing the tables"
+                 + (", plots, report and replay viewer" if report else "") + " ...")
+    t0 = time.perf_counter()
+    roads = None
+    if keep_trajectories:  # the replay viewer draws them; highway-env's road is seed-free
+        roads = pd.concat([road(env) for env in suite.envs], ignore_index=True)
+    # kept whole for an unchanged re-run: every episode made (a failed one is tried again)
+    # and its inputs as at the start (a policy's model or module changed while it went on
+    # would be kept under the old content's key)
+    keep = whole is not None and (episodes["status"] == "ok").all() and tasks is not None \
+        and _inputs_hold(plan, tasks, whole, keep_trajectories=keep_trajectories,
+                         report=report)
+    pages: dict[str, bytes] | None = {} if keep else None
+    folder = write_results(output, overwrite, summary, episodes, labels, trajectories
+                           if keep_trajectories else None, scores, report,
+                           segments=segments, roads=roads, cache=cache, pages=pages)
+    timings["writing_and_report"] = time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_start
+    if summary["cache"] is not None:  # derived entries (roads, scores, plots, viewer, run)
+        summary["cache"]["refused"] = [*refused, *take_refused()]
+    _write_json(folder / "summary.json", summary)  # with the final timings
+    if keep and cache is not None and pages is not None:
+        store_run(cache, whole, folder, summary, pages, episodes, scores)
+    if cache is not None and not package_code_holds():
+        # tap-bench edited while the run went on: a worker may have imported the new code
+        # (labelling, simulation) after the keys named the old, so what it kept is dropped
+        cache.forget_written_since(entries_since)
+    if cache is not None:
+        simulated, cached = _observed_timings(results)
+        work = sum(r["seconds"] for r in results if math.isfinite(r["seconds"]))
+        overhead = timings["total"] - work / max(1, min(runner.workers, len(results)))
+        with contextlib.suppress(OSError):  # the run is written; the cache is a convenience
+            cache.record_timings(simulated, cached, overhead)
+            cache.prune()
+    return RunResult(folder, summary, episodes, scores, folder / "report.html")
+
