@@ -26,13 +26,13 @@ import time
 import numpy as np
 from machine import report
 
-from tap_bench.bench.bootstrap import named_rng
 from tap_bench.rl.aggregate import (
     iqm,
     performance_profile,
     probability_of_improvement,
     stratified_bootstrap,
 )
+from tap_bench.stats.bootstrap import named_rng
 
 NOISE_SD = 0.15
 TAUS = (0.4, 0.6, 0.8)

@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
 def _run_suite(args: argparse.Namespace, groups: dict[str, tuple[str, ...]]) -> None:
     """Run the suite's policies (a seed group by its seeds) on the scenes of ``--womd``."""
     from tap_bench.bench.cache import EpisodeCache, default_cache_dir
-    from tap_bench.bench.runner import run_suite
+    from tap_bench.bench.run.runner import run_suite
     from tap_bench.bench.suite import load_suite, suite_from_dict
 
     suite = load_suite(args.suite)

@@ -42,7 +42,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.bootstrap import named_rng
 from tap_bench.errors import FileFormatError, ParameterError, TapBenchError
 from tap_bench.rl.aggregate import (
     Interval,
@@ -52,6 +51,7 @@ from tap_bench.rl.aggregate import (
     probability_of_improvement,
     stratified_bootstrap,
 )
+from tap_bench.stats.bootstrap import named_rng
 
 __all__ = ["HUMAN", "PROFILE_THRESHOLDS", "AgentsResult", "SeedGroupError", "agent_of",
            "agents_figures", "seed_group", "seed_groups"]
