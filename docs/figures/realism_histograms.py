@@ -26,10 +26,10 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from traffic_realism import real_files  # noqa: E402
 
-from tap_bench.realism.features import EdgeIndex  # noqa: E402
 from tap_bench.realism.rollouts import log_states, scene_features, scene_rollouts  # noqa: E402
 from tap_bench.realism.score import HISTOGRAM_FEATURES, WOSAC_2025  # noqa: E402
 from tap_bench.sim.policies import load_policy  # noqa: E402
+from tap_bench.sim.road_edges import RoadEdges  # noqa: E402
 from tap_bench.sim.womd_env import make_womd_env  # noqa: E402
 from tap_bench.sim.womd_scene import CURRENT_STEP  # noqa: E402
 
@@ -46,7 +46,7 @@ def pooled_features(traffic: str, rollouts: int) -> dict[str, np.ndarray]:
         scene = env.scene
         rows = np.flatnonzero(scene.valid[:, CURRENT_STEP] & (np.arange(len(scene.valid))
                                                               != scene.ego))
-        edges = EdgeIndex(scene.road.road_edges)
+        edges = RoadEdges.from_polylines(scene.road.road_edges)
         runs = [log_states(scene)] if traffic == "log" else [states]
         for run in runs:
             for k in range(run.rollouts):

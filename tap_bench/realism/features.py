@@ -17,8 +17,9 @@ written here from those definitions:
   agent's trail sideways, heading within 75 deg, within 10 deg when the overlap is under
   0.5 m) at constant speeds, capped at 5 s (also when nobody is followed or the gap opens);
 - distance to the road edge [m]: the signed distance of the box's most off-road corner to
-  the nearest road edge (WOMD draws edges with the road on their left: negative on the
-  road), :func:`signed_edge_distance`; off-road: above zero;
+  the drivable area (WOMD draws edges with the road on their left: negative on the road;
+  open ends and gaps are road), :class:`tap_bench.sim.road_edges.RoadEdges`, the same rule
+  and index as the ego's off-road measure; off-road: above zero;
 - traffic-light violation: the centre crosses the stop point of a lane whose signal is red,
   moving along that lane.
 """
@@ -28,14 +29,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-import numba
 import numpy as np
 
-__all__ = ["EDGE_CELL", "EDGE_SEARCH", "MAX_TTC", "TTC_HEADING", "TTC_SMALL_OVERLAP",
-           "TTC_SMALL_OVERLAP_HEADING", "EdgeIndex", "box_corners", "box_signed_distance",
+from tap_bench.sim.road_edges import RoadEdges, box_corners
+
+__all__ = ["EDGE_SEARCH", "MAX_TTC", "TTC_HEADING", "TTC_SMALL_OVERLAP",
+           "TTC_SMALL_OVERLAP_HEADING", "box_signed_distance",
            "kinematic_features", "nearest_object_distance", "overlapping_pairs",
-           "red_light_violations", "road_edge_distance", "signed_edge_distance",
-           "time_to_collision"]
+           "red_light_violations", "road_edge_distance", "time_to_collision"]
 
 MAX_TTC = 5.0  # [s] time to collision when nobody is followed, the gap opens, or above it
 TTC_HEADING = np.radians(75.0)  # [rad] widest heading difference to a followed agent
@@ -43,7 +44,6 @@ TTC_SMALL_OVERLAP = 0.5  # [m] below this sideways overlap ...
 TTC_SMALL_OVERLAP_HEADING = np.radians(10.0)  # [rad] ... the heading must be this close
 NEAREST_RANGE = 40.0  # [m] distances beyond this are not computed exactly (histogram top)
 EDGE_SEARCH = 60.0  # [m] road edges farther than this from a point are not searched
-EDGE_CELL = 5.0  # [m] side of the grid cells the edge search buckets segments in
 SIGNAL_LATERAL = 0.5  # [m] beyond half the lane's width, a centre is not on the lane
 SIGNAL_REACH = 10.0  # [m] a crossing of a stop point starts and ends this close to it
 
@@ -93,18 +93,6 @@ def kinematic_features(x: np.ndarray, y: np.ndarray, heading: np.ndarray, valid:
             "linear_acceleration": np.where(v2, accel, np.nan),
             "angular_speed": np.where(v1, dh / dt, np.nan),
             "angular_acceleration": np.where(v2, d2h / dt ** 2, np.nan)}
-
-
-def box_corners(x: np.ndarray, y: np.ndarray, heading: np.ndarray, length: np.ndarray,
-                width: np.ndarray) -> np.ndarray:
-    """Corners of oriented boxes, counter-clockwise from front-left... as (..., 4, 2) [m]."""
-    c, s = np.cos(heading), np.sin(heading)
-    hl, hw = np.asarray(length) / 2.0, np.asarray(width) / 2.0
-    lx, ly = c * hl, s * hl  # half the length along the heading
-    wx, wy = -s * hw, c * hw  # half the width to the left
-    xs = np.stack([x + lx + wx, x - lx + wx, x - lx - wx, x + lx - wx], axis=-1)
-    ys = np.stack([y + ly + wy, y - ly + wy, y - ly - wy, y + ly - wy], axis=-1)
-    return np.stack([xs, ys], axis=-1)
 
 
 def _point_segment(px, py, ax, ay, bx, by):
@@ -301,162 +289,24 @@ def _ttc(x, y, heading, valid, length, width, speed, selves) -> np.ndarray:
     return np.where(valid[selves], np.minimum(ttc, MAX_TTC).T, np.nan)
 
 
-def _edge_segments(edges: Sequence[np.ndarray]) -> tuple[np.ndarray, ...]:
-    """Segments (a, b) of the edges and, per segment, the unit left normals of the segments
-    before and after it on the same polyline (its own where none)."""
-    a_parts, b_parts, prev_parts, next_parts = [], [], [], []
-    for line in edges:
-        line = np.asarray(line, float)[:, :2]
-        if len(line) < 2:
-            continue
-        keep = np.r_[True, np.hypot(*np.diff(line, axis=0).T) > 1e-9]
-        line = line[keep]
-        if len(line) < 2:
-            continue
-        d = np.diff(line, axis=0)
-        normal = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.hypot(d[:, 0], d[:, 1])[:, None]
-        a_parts.append(line[:-1])
-        b_parts.append(line[1:])
-        prev_parts.append(np.vstack([normal[:1], normal[:-1]]))
-        next_parts.append(np.vstack([normal[1:], normal[-1:]]))
-    if not a_parts:
-        z = np.zeros((0, 2))
-        return z, z, z, z
-    return (np.concatenate(a_parts), np.concatenate(b_parts), np.concatenate(prev_parts),
-            np.concatenate(next_parts))
-
-
-class EdgeIndex:
-    """Road edges ready for signed-distance queries (segments bucketed in a grid of
-    :data:`EDGE_CELL` cells); build once per scene.
-
-    Args:
-        edges: road-edge polylines (k_i, 2) [m], the road on their left.
-    """
-
-    def __init__(self, edges: Sequence[np.ndarray]) -> None:
-        self.a, self.b, self.n_prev, self.n_next = _edge_segments(edges)
-        self.empty = len(self.a) == 0
-        if self.empty:
-            return
-        lo_xy = np.minimum(self.a, self.b)
-        hi_xy = np.maximum(self.a, self.b)
-        self.lo = lo_xy.min(axis=0) - EDGE_CELL
-        lo_cell = np.floor((lo_xy - self.lo) / EDGE_CELL).astype(np.int64)
-        hi_cell = np.floor((hi_xy - self.lo) / EDGE_CELL).astype(np.int64)
-        self.shape = (int(hi_cell[:, 0].max()) + 2, int(hi_cell[:, 1].max()) + 2)
-        span = hi_cell - lo_cell + 1
-        count = span[:, 0] * span[:, 1]
-        owner = np.repeat(np.arange(len(self.a)), count)
-        local = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
-        cx = lo_cell[owner, 0] + local // span[owner, 1]
-        cy = lo_cell[owner, 1] + local % span[owner, 1]
-        cell = cx * self.shape[1] + cy
-        order = np.argsort(cell, kind="stable")
-        self.owner = owner[order].astype(np.int64)
-        self.start = np.searchsorted(cell[order], np.arange(self.shape[0] * self.shape[1] + 1)
-                                     ).astype(np.int64)
-
-    def signed_distance(self, points: np.ndarray, search: float = EDGE_SEARCH) -> np.ndarray:
-        """Signed distance of (m, 2) points [m] (:func:`signed_edge_distance`)."""
-        points = np.asarray(points, float).reshape(-1, 2)
-        out = np.full(len(points), np.nan)
-        ok = np.isfinite(points).all(axis=1)
-        if self.empty or not ok.any():
-            return out
-        p = np.ascontiguousarray(points[ok])
-        j, dist = _grid_nearest(p, self.a, self.b, self.owner, self.start, self.lo,
-                                self.shape[0], self.shape[1], float(search))
-        found = j >= 0
-        j, p, dist = j[found], p[found], dist[found]
-        d = self.b[j] - self.a[j]
-        n2 = (d ** 2).sum(axis=1)
-        u_raw = ((p - self.a[j]) * d).sum(axis=1) / n2
-        foot = self.a[j] + np.clip(u_raw, 0.0, 1.0)[:, None] * d
-        own = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.sqrt(n2)[:, None]
-        normal = np.where((u_raw <= 0)[:, None], own + self.n_prev[j],
-                          np.where((u_raw >= 1)[:, None], own + self.n_next[j], own))
-        left = ((p - foot) * normal).sum(axis=1)
-        values = np.full(len(found), np.nan)
-        values[found] = np.where(left > 0, -dist, dist)
-        out[ok] = values
-        return out
-
-
-def signed_edge_distance(points: np.ndarray, edges: Sequence[np.ndarray],
-                         *, search: float = EDGE_SEARCH) -> np.ndarray:
-    """Signed distance of points to the nearest road edge [m]: negative on the road side.
-
-    WOMD draws road edges with the road on their left (SPEC section 8), so a point on the
-    left of its nearest edge segment is on the road. Where the nearest point is a vertex
-    joining two segments, the side is read against the sum of both segments' left normals
-    (the vertex's pseudo-normal), which makes the sign right outside convex and concave
-    corners alike; at a line's open end, against the end segment's own normal.
-
-    Args:
-        points: (m, 2) [m].
-        edges: road-edge polylines (k_i, 2).
-        search: edges farther than this from a point are not searched.
-
-    Returns:
-        (m,) [m]; NaN with no edge within ``search``.
-    """
-    return EdgeIndex(edges).signed_distance(points, search)
-
-
-@numba.njit(cache=True, nogil=True)
-def _grid_nearest(points, a, b, owner, start, lo, nx, ny, search):  # pragma: no cover
-    m = points.shape[0]
-    best_j = np.full(m, -1, np.int64)
-    best_d = np.full(m, np.inf)
-    rings = int(search / EDGE_CELL) + 1
-    for i in range(m):
-        px, py = points[i, 0], points[i, 1]
-        cx = int(np.floor((px - lo[0]) / EDGE_CELL))
-        cy = int(np.floor((py - lo[1]) / EDGE_CELL))
-        bd, bj = np.inf, -1
-        for r in range(rings + 1):
-            if bd <= (r - 1) * EDGE_CELL:
-                break
-            for gx in range(cx - r, cx + r + 1):
-                if gx < 0 or gx >= nx:
-                    continue
-                for gy in range(cy - r, cy + r + 1):
-                    if gy < 0 or gy >= ny:
-                        continue
-                    if max(abs(gx - cx), abs(gy - cy)) != r:
-                        continue
-                    c = gx * ny + gy
-                    for q in range(start[c], start[c + 1]):
-                        k = owner[q]
-                        dx, dy = b[k, 0] - a[k, 0], b[k, 1] - a[k, 1]
-                        n2 = dx * dx + dy * dy
-                        u = ((px - a[k, 0]) * dx + (py - a[k, 1]) * dy) / n2
-                        u = min(max(u, 0.0), 1.0)
-                        d = math.hypot(px - a[k, 0] - u * dx, py - a[k, 1] - u * dy)
-                        if d < bd:
-                            bd, bj = d, k
-        if bd <= search:
-            best_j[i], best_d[i] = bj, bd
-    return best_j, best_d
-
-
 def road_edge_distance(x: np.ndarray, y: np.ndarray, heading: np.ndarray, valid: np.ndarray,
                        length: np.ndarray, width: np.ndarray,
-                       edges: Sequence[np.ndarray] | EdgeIndex) -> np.ndarray:
+                       edges: Sequence[np.ndarray] | RoadEdges) -> np.ndarray:
     """Signed distance to the road edge of each box's most off-road corner [m], (n, T);
-    NaN where the agent is invalid or the scene has no road edge near it.
+    NaN where the agent is invalid or the scene has no road edge within
+    :data:`EDGE_SEARCH` of it.
 
     Args:
-        edges: the road-edge polylines, or their :class:`EdgeIndex`."""
+        edges: the road-edge polylines, or their :class:`~tap_bench.sim.road_edges.RoadEdges`
+            (the scene's, indexed once)."""
     n, t = x.shape
     out = np.full((n, t), np.nan)
-    index = edges if isinstance(edges, EdgeIndex) else EdgeIndex(edges)
-    if index.empty or not valid.any():
+    index = edges if isinstance(edges, RoadEdges) else RoadEdges.from_polylines(edges)
+    if not len(index) or not valid.any():
         return out
     corners = box_corners(x, y, heading, length[:, None], width[:, None])  # (n, T, 4, 2)
     ii, kk = np.nonzero(valid)
-    d = index.signed_distance(corners[ii, kk].reshape(-1, 2)).reshape(-1, 4)
+    d = index.signed_distance(corners[ii, kk].reshape(-1, 2), EDGE_SEARCH).reshape(-1, 4)
     out[ii, kk] = d.max(axis=1)
     return out
 

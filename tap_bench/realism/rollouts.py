@@ -18,7 +18,6 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.realism.features import (
-    EdgeIndex,
     kinematic_features,
     nearest_object_distance,
     red_light_violations,
@@ -26,6 +25,7 @@ from tap_bench.realism.features import (
     time_to_collision,
 )
 from tap_bench.realism.score import WOSAC_2025, agent_log_likelihoods
+from tap_bench.sim.road_edges import RoadEdges
 from tap_bench.sim.womd_scene import CURRENT_STEP, Scene
 
 __all__ = ["MANOEUVRE_MIN", "SceneStates", "agent_manoeuvres", "log_states", "scene_features",
@@ -88,7 +88,7 @@ def scene_rollouts(env: Any, index: int, policy: Any, rollouts: int) -> SceneSta
 
 
 def scene_features(scene: Scene, x: np.ndarray, y: np.ndarray, heading: np.ndarray,
-                   valid: np.ndarray, *, edges: EdgeIndex | None = None,
+                   valid: np.ndarray, *, edges: RoadEdges | None = None,
                    first: int = 0, selves: np.ndarray | None = None
                    ) -> dict[str, np.ndarray]:
     """Every feature of one rollout (or the log) of a scene, (n, T) each (Bernoulli
@@ -125,7 +125,7 @@ def scene_features(scene: Scene, x: np.ndarray, y: np.ndarray, heading: np.ndarr
     out["time_to_collision"] = full(time_to_collision(
         xs, ys, hs, vs, length, width, out["linear_speed"][:, w], selves=selves), np.nan)
     road = scene.road
-    edges = edges if edges is not None else EdgeIndex(road.road_edges)
+    edges = edges if edges is not None else RoadEdges.from_polylines(road.road_edges)
     vehicles = np.asarray(scene.object_types) == "vehicle"
     measured = vehicles.copy()  # walkers and cyclists are off the road by right
     if selves is not None:
@@ -173,7 +173,7 @@ def score_scene(scene: Scene, simulated: SceneStates, *, manoeuvres: pd.Series |
     evaluated = scene.valid[:, CURRENT_STEP].copy()
     evaluated[scene.ego] = False
     rows = np.flatnonzero(evaluated)
-    edges = EdgeIndex(scene.road.road_edges)
+    edges = RoadEdges.from_polylines(scene.road.road_edges)
     first = CURRENT_STEP + 1
 
     def features(states: SceneStates, k: int) -> dict[str, np.ndarray]:

@@ -16,6 +16,11 @@ distance to the nearest edge).
   closed polyline (a median island) has no open end.
 - **Only near edges decide.** A point with no edge within :data:`EDGE_REACH` gets NaN:
   the caller falls back to another rule (the lanes, :mod:`tap_bench.sim.womd_road`).
+- **Indexed once per scene.** The segments are bucketed in a grid of :data:`EDGE_CELL` m
+  cells; a query searches the rings of cells around each point out to its reach (compiled),
+  so a step's query costs the segments near the point, not all of the scene's. The same
+  index answers the ego's off-road measure (:mod:`tap_bench.sim.womd_road`) and the realism
+  score's distance to the road edge (:mod:`tap_bench.realism.features`).
 
 **The box, not the centre.** A vehicle is off the road when any corner of its box is
 (:func:`box_corners`, :meth:`RoadEdges.box_distance` = the largest corner distance): a
@@ -37,18 +42,22 @@ mirrored frame the left of an edge is its right, so callers convert first.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
-__all__ = ["EDGE_REACH", "JOIN_DISTANCE", "LEAVE_MARGIN", "OFF_ROAD_TOLERANCE", "RoadEdges",
-           "box_corners", "left_road"]
+__all__ = ["EDGE_CELL", "EDGE_REACH", "JOIN_DISTANCE", "LEAVE_MARGIN", "OFF_ROAD_TOLERANCE",
+           "RoadEdges", "box_corners", "left_road"]
 
 EDGE_REACH = 15.0  # [m] an edge farther than this from the box's centre does not decide
 JOIN_DISTANCE = 1.0  # [m] an edge end this close to another edge (or its own start) is joined
 OFF_ROAD_TOLERANCE = 0.3  # [m] a box corner this far beyond an edge is still on the road
 LEAVE_MARGIN = 1.0  # [m] started off the road: off only when this much farther out
+EDGE_CELL = 5.0  # [m] side of the grid cells the nearest-segment search buckets segments in
+TIE = 1e-9  # [m] segments this much nearer than the nearest are as near (a shared vertex)
 
 
 def left_road(distance: float, start: float) -> bool:
@@ -83,18 +92,26 @@ def box_corners(x: np.ndarray | float, y: np.ndarray | float, heading: np.ndarra
 
 @dataclass(frozen=True)
 class RoadEdges:
-    """A scene's road edges as segments (see the module docstring).
+    """A scene's road edges as segments, grid-indexed (see the module docstring).
 
     Attributes:
         a, b: (m, 2) segment starts and ends [m], along each edge's direction.
         open_start: (m,) the segment starts an edge whose start is open.
         open_end: (m,) the segment ends an edge whose end is open.
+        owner: (m,) the polyline each segment belongs to.
     """
 
     a: np.ndarray
     b: np.ndarray
     open_start: np.ndarray
     open_end: np.ndarray
+    owner: np.ndarray = field(default=None)  # type: ignore[assignment]
+    _grid: tuple = field(default=(), repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if self.owner is None:
+            object.__setattr__(self, "owner", np.arange(len(self.a), dtype=np.int64))
+        object.__setattr__(self, "_grid", _build_grid(self.a, self.b))
 
     @classmethod
     def from_polylines(cls, lines: Sequence[np.ndarray]) -> RoadEdges:
@@ -111,33 +128,38 @@ class RoadEdges:
                 polys.append(p)
         if not polys:
             z = np.zeros((0, 2))
-            return cls(z, z, np.zeros(0, bool), np.zeros(0, bool))
+            return cls(z, z, np.zeros(0, bool), np.zeros(0, bool), np.zeros(0, np.int64))
         a = np.concatenate([p[:-1] for p in polys])
         b = np.concatenate([p[1:] for p in polys])
-        owner = np.concatenate([np.full(len(p) - 1, i) for i, p in enumerate(polys)])
+        owner = np.concatenate([np.full(len(p) - 1, i) for i, p in enumerate(polys)]
+                               ).astype(np.int64)
         first = np.r_[0, np.cumsum([len(p) - 1 for p in polys])[:-1]]
         last = np.cumsum([len(p) - 1 for p in polys]) - 1
         open_start = np.zeros(len(a), bool)
         open_end = np.zeros(len(a), bool)
+        edges = cls(a, b, open_start, open_end, owner)
+        # an end is open when it meets no other polyline (nor its own start: closed)
+        ends = np.concatenate([np.array([p[0] for p in polys]), np.array([p[-1] for p in polys])])
+        own = np.r_[np.arange(len(polys)), np.arange(len(polys))].astype(np.int64)
+        grid = edges._grid
+        _, dist, _, _ = _grid_nearest(np.ascontiguousarray(ends), own, a, b, owner, *grid,
+                                      JOIN_DISTANCE)
         for i, p in enumerate(polys):
-            closed = np.hypot(*(p[0] - p[-1])) <= JOIN_DISTANCE
-            for end, flags, seg in ((p[0], open_start, first[i]), (p[-1], open_end, last[i])):
-                if closed:
-                    continue
-                others = owner != i
-                if others.any():
-                    d, _, _ = _segment_distance(end[None], a[others], b[others])
-                    if d.min() <= JOIN_DISTANCE:
-                        continue
-                flags[seg] = True
-        return cls(a, b, open_start, open_end)
+            if np.hypot(*(p[0] - p[-1])) <= JOIN_DISTANCE:
+                continue
+            if not dist[i] <= JOIN_DISTANCE:
+                open_start[first[i]] = True
+            if not dist[len(polys) + i] <= JOIN_DISTANCE:
+                open_end[last[i]] = True
+        return edges
 
     def __len__(self) -> int:
         return len(self.a)
 
     def signed_distance(self, points: np.ndarray, reach: float = EDGE_REACH) -> np.ndarray:
         """Signed distance [m] of points to the drivable area: positive off the road
-        (right of the nearest edge), negative on it; NaN where no edge is within ``reach``.
+        (right of the nearest edge), negative on it; NaN where no edge is within ``reach``
+        (or the point is not finite).
 
         Args:
             points: (n, 2) [m].
@@ -148,19 +170,17 @@ class RoadEdges:
         """
         points = np.asarray(points, float).reshape(-1, 2)
         out = np.full(len(points), np.nan)
-        if not len(self.a) or not len(points):
+        ok = np.isfinite(points).all(axis=1)
+        if not len(self.a) or not ok.any():
             return out
-        d, u, cross = _segment_distance(points, self.a, self.b)
-        near = d.min(axis=1)
-        tie = d <= near[:, None] + 1e-9
-        # among the nearest segments, the one whose line the point is farthest from
-        pick = np.argmax(np.where(tie, np.abs(cross), -1.0), axis=1)
-        rows = np.arange(len(points))
-        u_p, side = u[rows, pick], cross[rows, pick]
-        beyond_open = (self.open_start[pick] & (u_p < 0)) | (self.open_end[pick] & (u_p > 1))
+        p = np.ascontiguousarray(points[ok])
+        pick, near, u_p, side = _grid_nearest(p, np.full(len(p), -1, np.int64), self.a,
+                                              self.b, self.owner, *self._grid, float(reach))
+        found = pick >= 0
+        j = np.where(found, pick, 0)
+        beyond_open = (self.open_start[j] & (u_p < 0)) | (self.open_end[j] & (u_p > 1))
         off = (side < 0) & ~beyond_open
-        out = np.where(off, near, -near)
-        out[near > reach] = np.nan
+        out[ok] = np.where(found, np.where(off, near, -near), np.nan)
         return out
 
     def box_distance(self, x: float, y: float, heading: float, length: float, width: float,
@@ -170,29 +190,75 @@ class RoadEdges:
         of the box's centre."""
         if not len(self.a):
             return float("nan")
-        d, _, _ = _segment_distance(np.array([[x, y]], float), self.a, self.b)
-        near = float(d.min())
-        if near > reach:
+        centre = self.signed_distance(np.array([[x, y]], float), reach)
+        if not np.isfinite(centre[0]):
             return float("nan")
-        # a corner's nearest segment is within the centre's nearest + the diagonal
-        subset = np.flatnonzero(d[0] <= near + np.hypot(length, width) + 1e-9)
-        edges = RoadEdges(self.a[subset], self.b[subset], self.open_start[subset],
-                          self.open_end[subset])
         corners = box_corners(x, y, heading, length, width)
-        return float(np.max(edges.signed_distance(corners, reach=np.inf)))
+        return float(np.max(self.signed_distance(corners, reach + math.hypot(length, width))))
 
 
-def _segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(distance, position along, signed distance to the line) of (n, 2) points to (m, 2)
-    segments a -> b: (n, m) each; position along is 0 at a and 1 at b (not clipped); the
-    line distance is positive left of a -> b [m]."""
-    ab = b - a
-    n2 = np.maximum((ab ** 2).sum(axis=1), 1e-12)
-    px = points[:, 0:1] - a[None, :, 0]
-    py = points[:, 1:2] - a[None, :, 1]
-    u = (px * ab[None, :, 0] + py * ab[None, :, 1]) / n2
-    t = np.clip(u, 0.0, 1.0)
-    d = np.hypot(px - t * ab[None, :, 0], py - t * ab[None, :, 1])
-    cross = (ab[None, :, 0] * py - ab[None, :, 1] * px) / np.sqrt(n2)
-    return d, u, cross
+def _build_grid(a: np.ndarray, b: np.ndarray) -> tuple:
+    """(cell start offsets, segment ids by cell, grid origin, nx, ny) of segments a -> b
+    bucketed in :data:`EDGE_CELL` m cells (a segment in every cell its bounding box
+    touches)."""
+    if not len(a):
+        return (np.zeros(2, np.int64), np.zeros(0, np.int64), np.zeros(2), 1, 1)
+    lo_xy, hi_xy = np.minimum(a, b), np.maximum(a, b)
+    lo = lo_xy.min(axis=0) - EDGE_CELL
+    lo_cell = np.floor((lo_xy - lo) / EDGE_CELL).astype(np.int64)
+    hi_cell = np.floor((hi_xy - lo) / EDGE_CELL).astype(np.int64)
+    nx, ny = int(hi_cell[:, 0].max()) + 2, int(hi_cell[:, 1].max()) + 2
+    span = hi_cell - lo_cell + 1
+    count = span[:, 0] * span[:, 1]
+    seg = np.repeat(np.arange(len(a)), count)
+    local = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+    cell = (lo_cell[seg, 0] + local // span[seg, 1]) * ny + lo_cell[seg, 1] \
+        + local % span[seg, 1]
+    order = np.argsort(cell, kind="stable")
+    start = np.searchsorted(cell[order], np.arange(nx * ny + 1)).astype(np.int64)
+    return (start, seg[order].astype(np.int64), lo.astype(float), nx, ny)
+
+
+@numba.njit(cache=True, nogil=True)
+def _grid_nearest(points, skip_owner, a, b, owner, start, segs, lo, nx, ny, reach
+                  ):  # pragma: no cover - compiled
+    """Per point: (nearest segment or -1, its distance, position along it (not clipped),
+    signed distance to its line, positive left) over the segments within ``reach``, not of
+    polyline ``skip_owner[i]``; among segments as near (within :data:`TIE`, a shared
+    vertex) the one whose line the point is farthest from."""
+    m = points.shape[0]
+    best_j = np.full(m, -1, np.int64)
+    best_d = np.full(m, np.inf)
+    best_u = np.zeros(m)
+    best_c = np.zeros(m)
+    rings = int(reach / EDGE_CELL) + 1 if np.isfinite(reach) else max(nx, ny)
+    for i in range(m):
+        px, py = points[i, 0], points[i, 1]
+        cx = int(np.floor((px - lo[0]) / EDGE_CELL))
+        cy = int(np.floor((py - lo[1]) / EDGE_CELL))
+        bd, bj, bu, bc = np.inf, -1, 0.0, 0.0
+        for r in range(rings + 1):
+            if bd < (r - 1) * EDGE_CELL:
+                break  # every unvisited cell is farther than the nearest found
+            for gx in range(cx - r, cx + r + 1):
+                if gx < 0 or gx >= nx:
+                    continue
+                for gy in range(cy - r, cy + r + 1):
+                    if gy < 0 or gy >= ny or max(abs(gx - cx), abs(gy - cy)) != r:
+                        continue
+                    c = gx * ny + gy
+                    for q in range(start[c], start[c + 1]):
+                        k = segs[q]
+                        if owner[k] == skip_owner[i]:
+                            continue
+                        dx, dy = b[k, 0] - a[k, 0], b[k, 1] - a[k, 1]
+                        n2 = max(dx * dx + dy * dy, 1e-12)
+                        u = ((px - a[k, 0]) * dx + (py - a[k, 1]) * dy) / n2
+                        t = min(max(u, 0.0), 1.0)
+                        d = math.hypot(px - a[k, 0] - t * dx, py - a[k, 1] - t * dy)
+                        cr = (dx * (py - a[k, 1]) - dy * (px - a[k, 0])) / math.sqrt(n2)
+                        if d < bd - TIE or (d <= bd + TIE and abs(cr) > abs(bc)):
+                            bd, bj, bu, bc = min(d, bd), k, u, cr
+        if bd <= reach:
+            best_j[i], best_d[i], best_u[i], best_c[i] = bj, bd, bu, bc
+    return best_j, best_d, best_u, best_c

@@ -8,17 +8,17 @@ import numpy as np
 import pytest
 
 from tap_bench.realism.features import (
+    EDGE_SEARCH,
     MAX_TTC,
-    box_corners,
     box_signed_distance,
     kinematic_features,
     nearest_object_distance,
     overlapping_pairs,
     red_light_violations,
     road_edge_distance,
-    signed_edge_distance,
     time_to_collision,
 )
+from tap_bench.sim.road_edges import RoadEdges, box_corners
 
 DT = 0.1
 
@@ -109,6 +109,11 @@ def test_turning_at_a_constant_rate_and_a_gap():
     assert np.isnan(w[[0, 5, 7, 9]]).all()
     assert w[[1, 2, 3, 4, 8]] == pytest.approx(0.5)
     assert feats["angular_acceleration"][0][[2, 3]] == pytest.approx(0.0)
+
+
+def signed_edge_distance(points, edges):
+    """The merged rule's signed distance (road_edges.RoadEdges), as the score reads it."""
+    return RoadEdges.from_polylines(edges).signed_distance(points, EDGE_SEARCH)
 
 
 def test_an_agent_that_crosses_an_edge():
