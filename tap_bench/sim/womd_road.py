@@ -17,6 +17,7 @@ Everything is in highway-env's mirrored frame (``y`` and headings negated, :func
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -115,6 +116,12 @@ class WomdNetwork(RoadNetwork):
             self.index[lane.id] = index
             lanes.append((index, built))
         self.lookup = LaneIndex(lanes)
+
+    @functools.cached_property
+    def road_edges(self) -> RoadEdges:
+        """The road edges of its map, in WOMD's axes (built at the first use, then kept: a
+        network reused for the next episode of its scene reuses them)."""
+        return RoadEdges.from_polylines(self.road_map.road_edges)
 
     def get_closest_lane_index(self, position: np.ndarray, heading: float | None = None
                                ) -> tuple[str, str, int]:
@@ -1125,7 +1132,7 @@ class WomdRoad(Road):
         lanes = [lane for lane in road.lanes.values() if lane.id in network.index]
         self._lane_segments = _segments([sim_frame(*lane.centre.T) for lane in lanes])
         self._half = np.array([lane.width / 2 for lane in lanes])
-        self.road_edges = RoadEdges.from_polylines(road.road_edges)  # WOMD's axes
+        self.road_edges = network.road_edges  # WOMD's axes; built once per network
         self.off_road_start: dict[str, float] = {}
         self._projections: dict[Any, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._walker_rows = frozenset(np.flatnonzero(np.isin(scene.object_types,
