@@ -78,8 +78,14 @@ def test_a_rerun_reads_labels_and_measures_and_is_identical(runs):
     assert_identical(cold, again)
 
 
-@pytest.mark.parametrize("batch", [1, 5, 30])
-@pytest.mark.parametrize("workers", [1, 2])
+FAST_BATCHES = {(1, 2), (5, 2), (30, 1)}
+"""(batch, workers) in the fast suite: each batch size once, batches spread over two workers
+(many, and uneven) and one batch in one process; the rest of the grid in the slow suite."""
+
+
+@pytest.mark.parametrize(("batch", "workers"), [
+    pytest.param(b, w, id=f"{w}-{b}", marks=() if (b, w) in FAST_BATCHES else pytest.mark.slow)
+    for w in (1, 2) for b in (1, 5, 30)])
 def test_identical_whatever_the_batch_size_and_workers(runs, tmp_path, monkeypatch, batch,
                                                        workers):
     _, cold, _, _, cache = runs

@@ -40,6 +40,8 @@ def tiny(**changes):
 
 
 def run(folder, cache, suite=None, **kwargs):
+    """``run_suite`` of ``suite`` (``tiny()``), quietly; ``report=False`` where a test compares
+    tables and keys only (the report costs a tiny run ~3 of its ~4 CPU s)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return run_suite(suite or tiny(), folder, workers=kwargs.pop("workers", 1),
@@ -387,12 +389,12 @@ def test_runs_that_cannot_be_keyed_are_never_kept(tmp_path, monkeypatch):
 
     monkeypatch.setattr(run_tasks, "rollout_episode", flaky)
     suite = tiny(envs=["merge"], env_overrides={"merge": {"duration": 3}})
-    result = run(tmp_path / "failed", cache, suite)
+    result = run(tmp_path / "failed", cache, suite, report=False)
     assert result.summary["n_failed"] > 0
     assert not (cache.derived_folder / "runs").exists()
     monkeypatch.setattr(run_tasks, "rollout_episode", real)
-    assert not served(run(tmp_path / "ok", cache, suite))
-    assert served(run(tmp_path / "ok2", cache, suite))
+    assert not served(run(tmp_path / "ok", cache, suite, report=False))
+    assert served(run(tmp_path / "ok2", cache, suite, report=False))
     # a measure registered by the user's script (not tap-bench's code): never kept whole
     entry = dataclasses.replace(MEASURES["mean_speed"], name="script_speed")
     entries = dict(MEASURES._entries)
@@ -466,15 +468,15 @@ def test_a_policy_changed_while_the_run_goes_on_is_not_kept(tmp_path, monkeypatc
         return out
 
     monkeypatch.setattr(run_tasks, "rollout_episode", retrained)
-    run(tmp_path / "during", cache, suite)
+    run(tmp_path / "during", cache, suite, report=False)
     assert not (cache.derived_folder / "runs").exists()
     kept = {k: cache.read(key)[0] is not None for k, key in keys.items()}
     assert kept == {k: k[0] == "lane-keeping" for k in keys}
     monkeypatch.setattr(run_tasks, "rollout_episode", real)
     path.write_text(original)  # the old content is back
-    again = run(tmp_path / "again", cache, suite)
+    again = run(tmp_path / "again", cache, suite, report=False)
     assert not served(again)
-    assert_tables_equal(run(tmp_path / "cold", None, suite), again)
+    assert_tables_equal(run(tmp_path / "cold", None, suite, report=False), again)
 
 
 def test_a_fingerprint_that_cannot_be_read_at_the_end_costs_only_reuse(tmp_path, monkeypatch):
@@ -504,11 +506,11 @@ def test_a_fingerprint_that_cannot_be_read_at_the_end_costs_only_reuse(tmp_path,
     monkeypatch.setattr(run_tasks, "rollout_episode", rollout)
     monkeypatch.setattr(run_tasks, "policy_fingerprint", fingerprint)
     monkeypatch.setattr(run_cache, "policy_fingerprint", fingerprint)
-    during = run(tmp_path / "during", cache, suite)
+    during = run(tmp_path / "during", cache, suite, report=False)
     assert (during.episodes["status"] == "ok").all()
     assert not (cache.derived_folder / "runs").exists()
     monkeypatch.undo()
-    assert_tables_equal(run(tmp_path / "cold", None, suite), during)
+    assert_tables_equal(run(tmp_path / "cold", None, suite, report=False), during)
 
 
 def test_a_vehicle_class_changed_while_the_run_goes_on_is_not_kept(tmp_path, monkeypatch):
@@ -547,7 +549,7 @@ def test_a_vehicle_class_changed_while_the_run_goes_on_is_not_kept(tmp_path, mon
         return out
 
     monkeypatch.setattr(run_tasks, "rollout_episode", edited)
-    run(tmp_path / "during", cache, suite)
+    run(tmp_path / "during", cache, suite, report=False)
     assert not (cache.derived_folder / "runs").exists()
     assert not any(cache.read(key)[0] is not None for key in keys.values())
 
