@@ -44,8 +44,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tap_bench.bench.bootstrap import cluster_factor
 from tap_bench.errors import ParameterError
+from tap_bench.stats.bootstrap import cluster_factor
 
 __all__ = ["BATCHED", "UNITS", "Interval", "iqm", "mean_score", "performance_profile",
            "probability_of_improvement", "stratified_bootstrap", "stratified_resample"]
@@ -130,7 +130,7 @@ def stratified_resample(rng: np.random.Generator, n_runs: int, n_tasks: int,
 
 def _spread(boot: np.ndarray, estimate: np.ndarray | float, n_units: int) -> np.ndarray:
     """Bootstrap draws scaled about the estimate by ``sqrt(G / (G - 1))`` for G resampled
-    units (:func:`tap_bench.bench.bootstrap.cluster_factor`): a bootstrap over G units
+    units (:func:`tap_bench.stats.bootstrap.cluster_factor`): a bootstrap over G units
     sees ``(G - 1) / G`` of the sampling variance, which with 3 seeds is two thirds of it.
     Unchanged for fewer than 2 units (nothing is resampled)."""
     factor = cluster_factor(n_units)
