@@ -51,6 +51,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="another coverage and novelty reference: a label file (.parquet, "
                    ".csv with an sdl column) or driving-data files of any format 'tap-bench "
                    "ingest' reads; repeatable")
+    r.add_argument("--realism", nargs="+", default=[], metavar="FILE",
+                   help="results of 'tap-bench realism -o FILE' (one per traffic model) for "
+                   "the report's section on the realism of simulated traffic")
     r.add_argument("--no-trajectories", action="store_true",
                    help="do not write trajectories.parquet")
     r.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
@@ -145,7 +148,8 @@ def run_bench(args: argparse.Namespace) -> int:
     result = serve_unchanged(args.suite, args.output, cache=cache,
                              keep_trajectories=not args.no_trajectories,
                              overwrite=args.overwrite, seeds=args.seeds,
-                             corpora=bool(references or args.womd), plugins=plugins,
+                             corpora=bool(references or args.womd or args.realism),
+                             plugins=plugins,
                              announce=announce)
     if result is None:
         from tap_bench.bench.run.runner import run_suite
@@ -159,7 +163,7 @@ def run_bench(args: argparse.Namespace) -> int:
                                overwrite=args.overwrite,
                                progress=progress_choice(args), backend=backend,
                                seeds=args.seeds, cache=cache, announce=announce,
-                               plugins=plugins)
+                               plugins=plugins, realism=args.realism)
         finally:
             if backend is not None:
                 close_backend(backend)

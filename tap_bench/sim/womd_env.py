@@ -424,7 +424,9 @@ class _WomdHighwayEnv(AbstractEnv):
         xy = sim_xy[row, steps]
         if len(xy) < 2 or np.hypot(*(xy[-1] - xy[0])) < PARKED_DISTANCE:
             return replay
-        _, off = logged_route(network, xy, sim_h[row, steps])
+        off = network.path_off_map.get(row)
+        if off is None:
+            off = network.path_off_map[row] = logged_route(network, xy, sim_h[row, steps])[1]
         if off > 0.25:
             return replay
         x, y, h, v = states[row, first]

@@ -99,6 +99,9 @@ class WomdNetwork(RoadNetwork):
         self.road_map = road_map
         self.index: dict[int, tuple[str, str, int]] = {}
         self.left_out: list[int] = []
+        # scene row -> share of its logged path off the lanes (idm traffic's choice of who
+        # drives, the same in every rollout of the scene)
+        self.path_off_map: dict[int, float] = {}
         lanes = []
         for lane in road_map.lanes.values():
             points = lane_points(lane.centre)
@@ -713,9 +716,8 @@ def _project_path(px, py, cum, s0, s1, qx, qy):  # pragma: no cover - compiled
     """(s, signed lateral distance, direction) of point q on the nearest segment of the
     path with some part in [s0, s1] (s NaN when none)."""
     best, bs, bd, bt = np.inf, np.nan, np.nan, 0.0
-    for k in range(px.shape[0] - 1):
-        if cum[k + 1] < s0:
-            continue
+    k0 = max(np.searchsorted(cum, s0, side="right") - 1, 0)
+    for k in range(k0, px.shape[0] - 1):
         if cum[k] > s1:
             break
         dx, dy = px[k + 1] - px[k], py[k + 1] - py[k]
@@ -812,6 +814,7 @@ def _first_crossing(ax, ay, acum, na, bx, by, bcum, nb, min_sin):  # pragma: no 
     return np.nan, np.nan
 
 
+_HORIZONS = np.array((0.0, *PATH_PREDICTION))
 PATH_CROSSING_MIN = math.sin(math.radians(5.0))  # paths crossing at a smaller angle follow
 
 
@@ -923,7 +926,7 @@ class WomdPathVehicle(Vehicle):
                 self.s + reach, float(self.position[0]), float(self.position[1]),
                 self.WIDTH / 2, self.LENGTH / 2, road._path_margins, positions[:, 0],
                 positions[:, 1], boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3],
-                np.array((0.0, *PATH_PREDICTION)))
+                _HORIZONS)
             h = len(PATH_PREDICTION) + 1
             mine = road._mover_index.get(id(self))
             if mine is not None:

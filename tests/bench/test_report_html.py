@@ -49,7 +49,14 @@ def run_folder(tmp_path_factory) -> Path:
     summary = {"run": "html-test", "suite": {"name": "synthetic", "envs": ["highway", "merge"],
                                              "policies": ["idm", "random", "idm-aggressive"]},
                "level": "maneuver", "seeds": list(range(15)), "methods": scores.methods,
-               "n_episodes": len(episodes), "n_failed": 1}
+               "n_episodes": len(episodes), "n_failed": 1,
+               "realism": [{"traffic": "idm", "policy": "log", "rollouts": 8, "scenes": 16,
+                            "agents": 458, "weights": {"collision_indication": 0.25},
+                            "overall": {"meta_metric": {"value": 0.791, "low": 0.726,
+                                                        "high": 0.85},
+                                        "collision_indication": {"value": 0.9}},
+                            "by_manoeuvre": {"Left Turn": {"meta_metric": {"value": 0.7},
+                                                           "agents": 12}}}]}
     return write_results(tmp_path / "run", False, summary, episodes, pd.DataFrame(), None,
                          scores)
 
@@ -138,3 +145,10 @@ def test_coverage_and_novelty_stand_beside_the_same_policy_figure(run_folder):
     novel = pd.read_parquet(run_folder / "novel_labels.parquet")
     assert not novel.duplicated(["env", "policy", "reference", "unit", "label"]).any()
     assert "all" not in set(novel["env"])
+
+
+def test_the_realism_results_a_run_was_given_have_their_section(run_folder):
+    page = (run_folder / "report.html").read_text()
+    section = page[page.index("<h2>Realism of the simulated traffic</h2>"):]
+    assert "0.791 [0.726, 0.850]" in section[:section.index("<h2>", 5)]
+    assert "Left Turn" in section

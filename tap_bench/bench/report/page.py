@@ -29,6 +29,7 @@ from tap_bench.bench.gate.power import POWER, power_summary
 from tap_bench.bench.measures import run_measures
 from tap_bench.bench.report.figures import TOP_LABELS, write_plots
 from tap_bench.bench.report.pages import timings_html
+from tap_bench.bench.report.realism import realism_section
 from tap_bench.bench.report.tables import (
     _display_coverage,
     _display_matched,
@@ -453,6 +454,8 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
                          f"of {r.cells} (env, policy) cells catch a worsening of {r.effect:g} "
                          f"with less than {POWER:.0%} probability at {r.n} seeds; up to "
                          f"{r.seeds_for_power:.0f} seeds needed.</p>")
+
+    parts.extend(realism_section(summary.get("realism") or []))
 
     # 4. the run
     parts.append("<h2>The run</h2>")

@@ -166,7 +166,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
               backend: Backend | None = None, seeds: str | Sequence[int] | None = None,
               cache: EpisodeCache | str | os.PathLike | None = None,
               announce: Callable[[str], None] | None = None,
-              plugins: Sequence[str] = ()) -> RunResult:
+              plugins: Sequence[str] = (),
+              realism: Sequence[str | os.PathLike | Mapping[str, Any]] = ()) -> RunResult:
     """Run a benchmark suite and write its run folder.
 
     Args:
@@ -198,6 +199,9 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         plugins: modules that register measures, data formats or policy kinds
             (:mod:`tap_bench.plugins`), imported before the suite is read; with the suite's
             own ``plugins``, every worker imports them before its first task.
+        realism: results of ``tap-bench realism`` (their JSON files, or the results) shown
+            in the report's realism section and kept in ``summary.json``
+            (:mod:`tap_bench.bench.report.realism`).
 
     Returns:
         :class:`RunResult`.
@@ -221,9 +225,13 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
             raise ParameterError("references", sorted(sources), "names other than 'WOMD' "
                                  "when womd= is given (womd= is references={'WOMD': ...})")
         sources["WOMD"] = list(womd)
+    from tap_bench.bench.report.realism import realism_entries
+
+    shown_realism = realism_entries(realism)  # read (and checked) before the episodes
     # every input as in an earlier run: its folder comes whole from the cache (run_cache)
     served, tasks, whole = try_served(plan, cache, output, overwrite, keep_trajectories,
-                                        report, bool(sources), t_start, announce)
+                                        report, bool(sources) or bool(shown_realism),
+                                        t_start, announce)
     if served is not None:
         return served
     runner = resolve_backend(backend, workers)
@@ -370,6 +378,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "provenance": provenance(plan),
         "measures": [m.to_dict() for m in plan.measures],
         "plugins": list(plan.plugins),
+        "realism": shown_realism,
         "timings": timings,
         "estimate": {"seconds": _round(estimate.seconds),
                      "overhead": _round(estimate.overhead_seconds), "basis": estimate.basis},
