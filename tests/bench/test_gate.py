@@ -395,7 +395,7 @@ def test_a_crash_rate_rise_in_one_cell_of_a_large_suite_fails_the_check():
 def test_rate_power_is_the_rule_s_own_firing_rate(draws):
     """rule_power's exact figure for a crash rate equals the share of simulated checks
     that fail on it (the run drawn as the power model says), within 3.5 standard errors of
-    ``draws`` checks (60 in the fast suite, ~0.07 CPU s a check; 150 in the slow one)."""
+    ``draws`` checks (60 in the fast suite, 150 in the slow one)."""
     from tap_bench.bench.gate.power import rule_power
 
     config = GateConfig(n_permutations=999)

@@ -41,7 +41,7 @@ def tiny(**changes):
 
 def run(folder, cache, suite=None, **kwargs):
     """``run_suite`` of ``suite`` (``tiny()``), quietly; ``report=False`` where a test compares
-    tables and keys only (the report costs a tiny run ~3 of its ~4 CPU s)."""
+    tables and keys only (the report is most of a tiny run's CPU)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return run_suite(suite or tiny(), folder, workers=kwargs.pop("workers", 1),
@@ -247,8 +247,8 @@ CHANGES = {
 @pytest.fixture(scope="module")
 def without_report(runs, tmp_path_factory):
     """A cache holding a run of ``tiny()`` made without its report (the episodes read from
-    ``runs``' cache): the changes below are made against it, since a report costs a run
-    ~3 of its ~4 CPU s and these tests compare the tables and the summary, not the page."""
+    ``runs``' cache): the changes below are made against it, since the report is
+    most of a run's CPU and these tests compare the tables and the summary, not the page."""
     root = tmp_path_factory.mktemp("noreport")
     shutil.copytree(runs[3].root, root / "cache")
     cache = EpisodeCache(root / "cache")

@@ -27,7 +27,7 @@ from .test_tap_in_parts import _assert_same, note_branches, scenes, uncut_table
 
 SETTINGS = settings(max_examples=12, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow])
-"""12 examples (each writes, reads and labels its table twice, ~1.3 CPU s): the suite's fixed
+"""12 examples (each writes, reads and labels its table twice): the suite's fixed
 (derandomized) draw holds every branch of ``scenes``, every ``interactions`` and every kind
 of track id, extra column and writer (hypothesis events; ``--hypothesis-show-statistics``)."""
 

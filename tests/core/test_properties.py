@@ -15,7 +15,7 @@ from tap_bench.synthetic import from_controls
 SETTINGS = settings(max_examples=40, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow])
 LABELLING = settings(SETTINGS, max_examples=20)
-"""For the properties that label whole tables (~0.2 CPU s an example): 20 drawn tables of
+"""For the properties that label whole tables: 20 drawn tables of
 1-4 tracks, with and without gaps and noise, in the suite's fixed (derandomized) draw."""
 
 

@@ -19,7 +19,7 @@ from tap_bench.synthetic import random_trajectories
 
 SETTINGS = settings(max_examples=12, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow])
-"""12 examples (each labels its table twice, ~1.3 CPU s): the suite's fixed (derandomized) draw
+"""12 examples (each labels its table twice): the suite's fixed (derandomized) draw
 holds every branch of ``scenes`` and every ``interactions`` (``note_branches``; see them with
 ``--hypothesis-show-statistics``)."""
 
