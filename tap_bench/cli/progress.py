@@ -14,8 +14,8 @@ import threading
 import time
 from typing import Any, TextIO
 
-__all__ = ["LINE_EVERY", "ProgressLines", "add_progress_arguments", "progress_bar",
-           "progress_choice"]
+__all__ = ["LINE_EVERY", "ProgressLines", "SceneProgress", "add_progress_arguments",
+           "progress_bar", "progress_choice"]
 
 LINE_EVERY = 5.0
 """Seconds between two progress lines where stderr is not a terminal [s]."""
@@ -120,3 +120,92 @@ def progress_bar(total: int | None, desc: str = "", unit: str = "item",
 
     return tqdm(total=total, desc=desc or None, unit=unit, disable=not progress
                 if progress is not None else None)
+
+
+class SceneProgress:
+    """Progress of a run over many scenes, as one line on stderr (terminal or not) and in a
+    log file alike, at most every ``every`` seconds, and a last line when closed::
+
+        idm: 120/245 scenes (20 before), 2 failed, 1 skipped, 0.61 scenes/s, about 205 s left
+
+    The rate counts this run's scenes only (those done before a resume took no time here);
+    the time left is the scenes left at that rate.
+
+    Args:
+        total: scenes of the run.
+        desc: what runs.
+        before: scenes done by an earlier, interrupted run (counted as done).
+        show: write to stderr (the log file is written whatever ``show`` is).
+        log: a file the lines are appended to (None: none).
+        every: seconds between two lines [s] (default :data:`LINE_EVERY`).
+    """
+
+    def __init__(self, total: int, desc: str = "", *, before: int = 0, show: bool = True,
+                 log: str | None = None, every: float | None = None):
+        self.total, self.desc, self.before, self.show = total, desc, before, show
+        self.done = self.failed = self.skipped = 0
+        self.every = LINE_EVERY if every is None else every
+        self.log = open(log, "a", encoding="utf-8") if log else None
+        self._start = time.monotonic()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="tap-bench scenes",
+                                        daemon=True)
+        self._thread.start()
+
+    def update(self, status: str) -> None:
+        """One scene finished with ``status`` (``"ok"``, ``"skipped"`` or a failure)."""
+        with self._lock:
+            self.done += 1
+            if status == "skipped":
+                self.skipped += 1
+            elif status != "ok":
+                self.failed += 1
+
+    def line(self) -> str:
+        """The progress line as it stands."""
+        with self._lock:
+            done, failed, skipped = self.done, self.failed, self.skipped
+        elapsed = max(time.monotonic() - self._start, 1e-9)
+        text = f"{self.desc or 'run'}: {self.before + done}/{self.total} scenes"
+        if self.before:
+            text += f" ({self.before} before)"
+        text += f", {failed} failed, {skipped} skipped"
+        rate = done / elapsed
+        text += f", {rate:.2f} scenes/s" if done else ", starting"
+        left = self.total - self.before - done
+        if done and left > 0:
+            text += f", about {left / rate:.0f} s left"
+        elif left <= 0:
+            text += f", {elapsed:.0f} s"
+        return text
+
+    def _write(self, text: str) -> None:
+        stamp = time.strftime("%Y-%m-%d %H:%M:%S")
+        for stream, prefix in ((sys.stderr if self.show else None, ""),
+                               (self.log, f"{stamp} ")):
+            if stream is None:
+                continue
+            try:
+                print(prefix + text, file=stream, flush=True)
+            except (OSError, ValueError):  # a closed stream: progress is not worth an error
+                pass
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.every):
+            self._write(self.line())
+
+    def close(self) -> None:
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        self._thread.join()
+        self._write(self.line())
+        if self.log is not None:
+            self.log.close()
+
+    def __enter__(self) -> SceneProgress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

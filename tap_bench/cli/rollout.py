@@ -41,6 +41,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--lane-change", choices=("default", "realistic"),
                    help="override the scenario's lane-change setting")
     p.add_argument("--duration", type=float, help="override the episode length [s]")
+    p.add_argument("--resume", action="store_true",
+                   help="continue a run that was killed or interrupted: keep the scenes in "
+                   "<output>.parts/ and run the rest (the tables equal an uninterrupted "
+                   "run's)")
+    p.add_argument("--log", metavar="FILE",
+                   help="append the progress lines (scenes done, failed, skipped, rate, "
+                   "time left) to FILE as well")
     add_progress_arguments(p)
     add_backend_arguments(p, shards=False)
     p.set_defaults(func=run)
@@ -58,15 +65,13 @@ def episodes_path(output: Path) -> Path:
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from tap_bench.sim.rollout import rollout
+    from tap_bench.sim.rollout_stream import stream_rollout
     from tap_bench.sim.scenario_env import get_scenario
-    from tap_bench.tableio import check_outputs, write_tables
 
     output = Path(args.output)
     episodes_out = Path(args.episodes) if args.episodes else episodes_path(output)
     if bool(args.env) == bool(args.womd):
         raise SystemExit("tap-bench rollout: give either --env SCENARIO or --womd FILES.")
-    check_outputs([output, episodes_out])  # before the rollouts
     if args.womd:
         from tap_bench.sim.womd_scene import WomdScenes
 
@@ -75,24 +80,21 @@ def run(args: argparse.Namespace) -> int:
     else:
         env = args.env
         seeds = args.seeds if args.seeds else list(get_scenario(args.env).default_seeds)
-    progress = progress_choice(args)
     workers = args.workers if args.backend == "local" or args.workers != 1 else None
     backend = backend_from_args(args, workers=workers)  # ray default: all the CPUs
-    try:
-        trajectories, episodes = rollout(
-            env, args.policy, seeds, backend=backend, lane_change=args.lane_change,
-            duration=args.duration, retries=args.retries, progress=progress)
+    try:  # each scene's rows go to disk as it ends: memory does not grow with the scenes
+        result = stream_rollout(
+            env, args.policy, seeds, output, episodes_output=episodes_out, backend=backend,
+            lane_change=args.lane_change, duration=args.duration, retries=args.retries,
+            progress=progress_choice(args), resume=args.resume, log=args.log)
     finally:
         close_backend(backend)
+    episodes = result.episodes
+    if result.before:
+        print(f"resumed: {result.before} of {len(episodes)} scenes were done before")
     ok = episodes[episodes["status"] == "ok"]
-    if len(trajectories):  # no table leaves that the contract (SPEC section 1) refuses
-        from tap_bench.trajectories import validate_and_index
-
-        validate_and_index(trajectories, source=f"{output} (not written)")
-    outputs = {output: trajectories} if len(trajectories) else {}
-    write_tables({**outputs, episodes_out: episodes})  # together or not at all
-    print(f"{len(ok)}/{len(episodes)} episodes, {len(trajectories)} rows -> "
-          f"{output if len(trajectories) else '(no trajectories)'}; episodes -> {episodes_out}")
+    print(f"{len(ok)}/{len(episodes)} episodes, {result.rows} rows -> "
+          f"{output if result.output else '(no trajectories)'}; episodes -> {episodes_out}")
     if len(ok):
         crashes = f"crash rate {ok['crashed'].mean():.1%}"
         if "crash_at_fault" in ok.columns:  # real scenes: the ego's fault first (SPEC 8)

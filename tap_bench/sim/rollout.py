@@ -33,7 +33,8 @@ if TYPE_CHECKING:
 
 __all__ = ["EPISODE_COLUMNS", "RECORDED_CRASH_COLUMNS", "EpisodeFailedWarning",
            "EpisodesFailedError", "Rollout", "check_policy", "collect_rollout",
-           "resolve_policy", "resolve_scenario", "rollout", "rollout_episode", "run_episode"]
+           "episode_tasks", "resolve_policy", "resolve_scenario", "rollout", "rollout_episode",
+           "run_episode"]
 
 RECORDED_CRASH_COLUMNS = ("crash_with", "crash_fault")
 """A recorded scene's collision partner (track id) and the fault rule that decided
@@ -75,11 +76,14 @@ class _Task:
     policy: PolicyDefinition | Policy
     seed: int
     record: bool
+    scene: int | None = None  # recorded scenes: the scene's index in the task's files
 
 
-def run_episode(env: gym.Env, policy: Policy, seed: int, *, record: bool = True
+def run_episode(env: gym.Env, policy: Policy, seed: int, *, record: bool = True,
+                options: Mapping[str, Any] | None = None
                 ) -> tuple[pd.DataFrame, dict[str, Any]]:
-    """Run one episode of ``policy`` on a scenario env reset with ``seed``.
+    """Run one episode of ``policy`` on a scenario env reset with ``seed`` (and
+    ``options``: ``{"scene": i}`` picks a recorded scene apart from the seed).
 
     Returns:
         the episode's trajectory table (empty when ``record`` is False) and its row of the
@@ -90,7 +94,7 @@ def run_episode(env: gym.Env, policy: Policy, seed: int, *, record: bool = True
     from tap_bench.sim.scenario_env import find_scenario_env
 
     scenario_env = find_scenario_env(env)
-    obs, _ = env.reset(seed=seed)
+    obs, _ = env.reset(seed=seed, options=dict(options) if options else None)
     missing = getattr(env.unwrapped, "route_missing", "")
     if missing and not getattr(policy, "replays_log", False):
         # a recorded scene without a route: the human replays it, a policy is skipped there
@@ -134,6 +138,12 @@ def _observation_config(policy: Policy) -> Mapping[str, Any]:
     return CHEAP_OBSERVATION if policy.observation is None else policy.observation
 
 
+def _is_womd(env: gym.Env) -> bool:
+    from tap_bench.sim.womd_env import WomdEnv
+
+    return isinstance(env, WomdEnv)
+
+
 def _run_task(task: _Task) -> tuple[pd.DataFrame, dict[str, Any]]:
     # Definitions are data with a stable repr: build each once per process. A policy object
     # is used as it came (a copy per task in a worker).
@@ -151,6 +161,9 @@ def _run_task(task: _Task) -> tuple[pd.DataFrame, dict[str, Any]]:
         env_key = repr((task.scenario, sorted(obs_config.items()), task.record))
         env = _ENVS.get(env_key)
         if env is None:
+            if isinstance(task.scenario, WomdScenes):  # one env per file of a sharded run:
+                for key in [k for k, e in _ENVS.items() if _is_womd(e)][:-1]:  # keep two
+                    _ENVS.pop(key).close()
             scenario = task.scenario.with_overrides({"observation": dict(obs_config)})
             if isinstance(scenario, WomdScenes):
                 from tap_bench.sim.womd_env import WomdEnv
@@ -165,7 +178,8 @@ def _run_task(task: _Task) -> tuple[pd.DataFrame, dict[str, Any]]:
         with warnings.catch_warnings():
             # each scene's map note is in its episode row: collect_rollout warns once
             warnings.simplefilter("ignore", MapWarning)
-            return run_episode(env, policy, task.seed, record=task.record)
+            options = {"scene": task.scene} if task.scene is not None else None
+            return run_episode(env, policy, task.seed, record=task.record, options=options)
     except Exception as err:  # one failing episode must not end the rollout
         # an env or policy left in an unknown state is rebuilt for the next episode
         _ENVS.pop(env_key, None)
@@ -247,7 +261,7 @@ def rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
         seed_list = parse_seeds(seeds)
     runner = resolve_backend(backend, workers)
     spec = resolve_policy(policy)
-    tasks = [_Task(scenario, spec, seed, record) for seed in seed_list]
+    tasks = episode_tasks(scenario, spec, seed_list, record)
     name = getattr(spec, "name", "policy")
     outcomes = runner.map(_run_task, tasks, retries=retries, unit="episode",
                           desc=f"{scenario.name} {name}", progress=progress)
@@ -257,6 +271,33 @@ def rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
     columns = [*EPISODE_COLUMNS, *dict.fromkeys(extra)]  # recorded scenes add their measures
     episodes = pd.DataFrame([row for _, row in results], columns=columns)
     return collect_rollout([table for table, _ in results], episodes, stacklevel=3)
+
+
+def episode_tasks(scenario: Scenario, spec: PolicyDefinition | Policy, seeds: Sequence[int],
+                  record: bool = True) -> list[_Task]:
+    """One task per seed. On recorded scenes each task names only the file its scene is in
+    and the scene's index there (the seed stays the run's): a worker lists and reads the
+    files of the scenes it runs, not every file of the run, so a run over many files
+    shards by file on a cluster, and the tables are the same as one env over all files."""
+    if not isinstance(scenario, WomdScenes):
+        return [_Task(scenario, spec, int(seed), record) for seed in seeds]
+    from tap_bench.sim.womd_scene import scene_catalog
+
+    catalog = scenario.catalog()
+    tasks = []
+    local: dict[str, tuple[WomdScenes, dict]] = {}
+    for seed in seeds:
+        ref = catalog[seed]
+        if ref.path not in local:
+            with warnings.catch_warnings():  # said once already, listing the whole run
+                warnings.simplefilter("ignore")
+                refs = scene_catalog([ref.path])
+            one_file = WomdScenes((ref.path,), scenario.traffic, scenario.ego,
+                                  scenario.policy_frequency, scenario.name, scenario.config)
+            local[ref.path] = (one_file, {r: i for i, r in enumerate(refs)})
+        one_file, index = local[ref.path]
+        tasks.append(_Task(one_file, spec, int(seed), record, index[ref]))
+    return tasks
 
 
 def resolve_scenario(env: str | os.PathLike | Scenario | WomdScenes | gym.Env, *,

@@ -614,7 +614,11 @@ class WomdEnv(gym.Wrapper):
                            "scene": (failed + 1) % len(self.catalog)}
         else:
             raise SceneError(f"{', '.join(self.scenario.files)}: no scenario can be built.")
-        self._seed = inner.scene_index
+        chosen = options.get("scene") is not None or options.get("scenario_id") is not None
+        # the table's seed: the one given where an option chose the scene (a run sharded
+        # by file names each scene by its file's index and keeps the run's seed), else the
+        # scene's index (seed % N)
+        self._seed = int(seed) if seed is not None and chosen else inner.scene_index
         self._episode = inner.resets
         self.max_steps = int(np.ceil((self.scene.n_steps - 1 - CURRENT_STEP)
                                      * inner.config["policy_frequency"]

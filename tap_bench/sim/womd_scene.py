@@ -50,11 +50,13 @@ class SceneError(TapBenchError, ValueError):
 @dataclass(frozen=True)
 class SceneRef:
     """Where one scenario is: a file, the record in it (0 for a one-scenario file), its
-    reader's name."""
+    reader's name, and the byte offset of the record's header (-1: unknown), which lets a
+    scene be read without the records before it."""
 
     path: str
     record: int
     format: str
+    offset: int = field(default=-1, compare=False)
 
     def __str__(self) -> str:
         return f"{self.path} record {self.record}" if self.format != "scenarionet" \
@@ -65,13 +67,20 @@ class SceneRef:
         hash an episode cache keys a recorded scene on."""
         if self.format == "scenarionet":
             return hashlib.sha256(Path(self.path).read_bytes()).hexdigest()
-        from tap_bench.womd.tfrecord import iter_records
+        return hashlib.sha256(_record_of(self).data).hexdigest()
 
-        for record in iter_records(self.path):
-            if record.index == self.record:
-                return hashlib.sha256(record.data).hexdigest()
-        raise SceneError(f"{self.path}: no record {self.record}; the file changed since it "
-                         "was listed.")
+
+def _record_of(ref: SceneRef) -> Any:
+    """The TFRecord record ``ref`` names (read at its offset where known)."""
+    from tap_bench.womd.tfrecord import iter_records, read_record
+
+    if ref.offset >= 0:
+        return read_record(ref.path, ref.record, ref.offset)
+    for record in iter_records(ref.path):
+        if record.index == ref.record:
+            return record
+    raise SceneError(f"{ref.path}: no record {ref.record}; the file changed since it was "
+                     "listed.")
 
 
 @dataclass(frozen=True)
@@ -186,7 +195,8 @@ def _file_scenarios(path: str, size: int, mtime_ns: int) -> tuple[tuple[SceneRef
     if name not in ("scenario", "tf_example"):
         raise SceneError(f"{path}: format {name!r} carries no map; closed-loop scenes "
                          "need WOMD Scenario, tf.Example or ScenarioNet files.")
-    return tuple((SceneRef(path, record.index, name), _record_id(record.data, name))
+    return tuple((SceneRef(path, record.index, name, record.offset),
+                  _record_id(record.data, name))
                  for record in iter_records(path))
 
 
@@ -250,7 +260,6 @@ def _read(ref: SceneRef) -> tuple[pd.DataFrame, RoadMap, str]:
     from tap_bench.womd import roadmap
     from tap_bench.womd.scenario import decode_scenario
     from tap_bench.womd.tf_example import decode_tf_example
-    from tap_bench.womd.tfrecord import iter_records
 
     def checked(table: Any, record: int, offset: int) -> pd.DataFrame:
         problem = _contract_problem(table, _scenario_id(table))
@@ -264,21 +273,16 @@ def _read(ref: SceneRef) -> tuple[pd.DataFrame, RoadMap, str]:
         table = checked(decode_scenarionet(scenario, path=ref.path), 0, 0)
         road = roadmap.scenarionet_road_map(scenario, source=ref.path)
         return table, road, hashlib.sha256(data).hexdigest()
-    for record in iter_records(ref.path):
-        if record.index != ref.record:
-            continue
-        if ref.format == "scenario":
-            table = checked(decode_scenario(record), record.index, record.offset)
-            road = roadmap.scenario_road_map(record.data, source=str(ref))
-        else:
-            table = checked(decode_tf_example(record), record.index, record.offset)
-            road = roadmap.tf_example_road_map(record.data, source=str(ref))
-            if road is None:
-                road = roadmap.RoadMap(str(table["scenario_id"].iloc[0]), {},
-                                       topology="none")
-        return table, road, hashlib.sha256(record.data).hexdigest()
-    raise SceneError(f"{ref.path}: no record {ref.record}; the file changed since it was "
-                     "listed.")
+    record = _record_of(ref)
+    if ref.format == "scenario":
+        table = checked(decode_scenario(record), record.index, record.offset)
+        road = roadmap.scenario_road_map(record.data, source=str(ref))
+    else:
+        table = checked(decode_tf_example(record), record.index, record.offset)
+        road = roadmap.tf_example_road_map(record.data, source=str(ref))
+        if road is None:
+            road = roadmap.RoadMap(str(table["scenario_id"].iloc[0]), {}, topology="none")
+    return table, road, hashlib.sha256(record.data).hexdigest()
 
 
 def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:

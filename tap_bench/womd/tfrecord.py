@@ -29,7 +29,7 @@ from tap_bench.errors import WomdRecordError
 from tap_bench.womd.checksum import masked_crc32c
 
 __all__ = ["MAX_RECORD_BYTES", "Record", "TFRecordWriter", "describe_start", "iter_records",
-           "looks_like_tfrecord"]
+           "looks_like_tfrecord", "read_record"]
 
 MAX_RECORD_BYTES = 64 << 20
 """The longest record read by default [B]; raise it with ``max_record_bytes``
@@ -113,6 +113,34 @@ def iter_records(
         raw.close()
 
 
+def read_record(path: str | os.PathLike, index: int, offset: int, *,
+                check_crc: bool = True, max_record_bytes: int = MAX_RECORD_BYTES) -> Record:
+    """The record ``index`` of a TFRecord file whose header starts at byte ``offset`` (as
+    :func:`iter_records` gave it): one seek in a plain file, so a scene of a large file is
+    read without the records before it; a GZIP file is read from its start (its
+    decompressed offsets cannot be sought).
+
+    Raises:
+        WomdRecordError: a bad CRC or framing at that place (the file changed since its
+            records were listed), naming file, index and offset.
+    """
+    path = str(path)
+    with open(path, "rb") as raw:
+        if raw.peek(2)[:2] == _GZIP_MAGIC:
+            for record in iter_records(path, check_crc=check_crc,
+                                       max_record_bytes=max_record_bytes):
+                if record.index == index:
+                    return record
+        else:
+            size = os.fstat(raw.fileno()).st_size
+            raw.seek(offset)
+            for record in _records(path, raw, check_crc, None, max_record_bytes, size,
+                                   start=(index, offset)):
+                return record
+    raise WomdRecordError(path, index, offset, "no record here: the file is shorter than "
+                          "when its records were listed", "List the file's scenes again.")
+
+
 def looks_like_tfrecord(path: str | os.PathLike) -> bool:
     """Whether a file starts with a TFRecord length header whose CRC matches (plain or
     GZIP); an empty file does not."""
@@ -162,9 +190,8 @@ def _skip(stream: BinaryIO, n: int) -> int:
 
 def _records(path: str, stream: BinaryIO, check_crc: bool,
              on_error: Callable[[WomdRecordError], None] | None, max_record_bytes: int,
-             size: int | None) -> Iterator[Record]:
-    offset = 0
-    index = 0
+             size: int | None, start: tuple[int, int] = (0, 0)) -> Iterator[Record]:
+    index, offset = start
     what = "plain file" if size is not None else "GZIP stream"
     while True:
         try:

@@ -1,0 +1,159 @@
+"""``tap-bench rollout`` streams each scene's rows to disk: the tables equal an in-memory
+rollout's, a killed run resumes to the same files bit for bit and says how many scenes it
+had done, and peak memory does not grow with the number of scenes (measured in a fresh
+subprocess)."""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from scale_scenes import scene_files
+
+from tap_bench.cli import main
+from tap_bench.errors import OutputPathError
+from tap_bench.sim import rollout_stream
+from tap_bench.sim.rollout import rollout
+from tap_bench.sim.womd_scene import WomdScenes
+
+PROJECT_ROOT = Path(__file__).resolve().parents[2]
+
+# a child that runs the command line with parts of one scene each and reports its peak
+# resident memory (VmHWM: this process's own high-water mark, reset at exec)
+CHILD = """
+import json, sys
+from tap_bench.sim import rollout_stream
+rollout_stream.PART_SCENES = int(sys.argv[2])
+from tap_bench.cli import main
+code = main(sys.argv[3:])
+peak = [int(l.split()[1]) for l in open('/proc/self/status') if l.startswith('VmHWM')][0]
+json.dump({"code": code, "peak_kb": peak}, open(sys.argv[1], "w"))
+"""
+
+
+def child(args: list[str], report: Path, part_scenes: int = 1) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(PROJECT_ROOT), os.environ.get("PYTHONPATH", "")]), "OMP_WAIT_POLICY": "PASSIVE"}
+    return subprocess.Popen([sys.executable, "-c", CHILD, str(report), str(part_scenes),
+                             *args], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def rollout_args(files: list[str], out: Path, *more: str) -> list[str]:
+    return ["rollout", "--womd", *files, "--policy", "idm", "-o", str(out), "--no-progress",
+            *more]
+
+
+def test_the_streamed_tables_equal_an_in_memory_rollout(tmp_path, monkeypatch):
+    files = scene_files(tmp_path / "scenes", 7, per_file=3)
+    monkeypatch.setattr(rollout_stream, "PART_SCENES", 2)
+    monkeypatch.setattr(rollout_stream, "ROW_GROUP_ROWS", 1000)  # several row groups
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(rollout_args(files, tmp_path / "out.parquet")) == 0
+        trajectories, episodes = rollout(WomdScenes(tuple(files)), "idm", "all",
+                                         progress=False)
+    from tap_bench.tableio import write_tables
+
+    write_tables({tmp_path / "mem.parquet": trajectories,
+                  tmp_path / "mem.episodes.parquet": episodes})
+    for name in ("out.parquet", "out.episodes.parquet"):
+        pd.testing.assert_frame_equal(pd.read_parquet(tmp_path / name),
+                                      pd.read_parquet(tmp_path / name.replace("out", "mem")))
+    import pyarrow.parquet as pq
+
+    assert pq.ParquetFile(tmp_path / "out.parquet").metadata.num_row_groups > 1
+    assert not rollout_stream.parts_folder(tmp_path / "out.parquet").exists()
+    assert set(pd.read_parquet(tmp_path / "out.parquet")["seed"]) == set(range(7))
+
+
+def _scenes_in(parts: Path) -> int:
+    return sum(len(p.read_text().splitlines()) for p in parts.glob("part-*.episodes.jsonl"))
+
+
+def test_a_killed_run_resumes_to_the_same_files(tmp_path):
+    files = scene_files(tmp_path / "scenes", 8, per_file=3)
+    whole = tmp_path / "whole.parquet"
+    proc = child(rollout_args(files, whole), tmp_path / "whole.json")
+    assert proc.wait() == 0, proc.stderr.read()
+    expected = [whole.read_bytes(), whole.with_name("whole.episodes.parquet").read_bytes()]
+    rng = random.Random(37)
+    resumed_some = False
+    for trial, target in enumerate((0, rng.randint(1, 4), rng.randint(5, 7))):
+        out = tmp_path / f"t{trial}" / "out.parquet"
+        parts = rollout_stream.parts_folder(out)
+        proc = child(rollout_args(files, out), tmp_path / f"k{trial}.json")
+        while proc.poll() is None and _scenes_in(parts) < target:
+            time.sleep(0.02)
+        time.sleep(rng.uniform(0.0, 0.5))  # anywhere in the next scene, or in start-up
+        proc.kill()  # SIGKILL: no cleanup runs
+        proc.wait()
+        if out.exists():  # it finished before the kill
+            continue
+        done = _scenes_in(parts)
+        proc = child(rollout_args(files, out, "--resume"), tmp_path / f"r{trial}.json")
+        stdout, stderr = proc.communicate()
+        assert proc.returncode == 0, stderr
+        if done:
+            resumed_some = True
+            assert f"resumed: {done} of 8 scenes were done before" in stdout
+        assert out.read_bytes() == expected[0]
+        assert out.with_name("out.episodes.parquet").read_bytes() == expected[1]
+        assert not parts.exists()
+    assert resumed_some
+
+
+def test_parts_are_refused_without_resume_and_from_another_run(tmp_path):
+    files = scene_files(tmp_path / "scenes", 3, per_file=3)
+    out = tmp_path / "out.parquet"
+    parts = rollout_stream.parts_folder(out)
+    parts.mkdir()
+    (parts / "run.json").write_text(json.dumps({"scenario": "another", "policy": "",
+                                                "seeds": [], "record": True}))
+    with pytest.raises(OutputPathError, match="--resume"):
+        rollout_stream.stream_rollout(WomdScenes(tuple(files)), "idm", "all", out,
+                                      progress=False)
+    with pytest.raises(OutputPathError, match="another run"):
+        rollout_stream.stream_rollout(WomdScenes(tuple(files)), "idm", "all", out,
+                                      progress=False, resume=True)
+    assert not out.exists()
+
+
+def test_progress_lines_count_scenes_and_go_to_the_log(tmp_path, capsys, monkeypatch):
+    from tap_bench.cli import progress
+
+    files = scene_files(tmp_path / "scenes", 3, per_file=3)
+    monkeypatch.setattr(progress, "LINE_EVERY", 0.01)
+    log = tmp_path / "run.log"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(["rollout", "--womd", *files, "--policy", "idm", "-o",
+                     str(tmp_path / "o.parquet"), "--log", str(log)]) == 0
+    err = capsys.readouterr().err
+    last = log.read_text().splitlines()[-1]
+    assert last.endswith(err.strip().splitlines()[-1])  # the same lines, time-stamped
+    assert "womd idm: 3/3 scenes, 0 failed, 0 skipped" in last
+    assert len(log.read_text().splitlines()) >= 2  # lines while it ran, then the last
+
+
+@pytest.mark.slow
+def test_peak_memory_does_not_grow_with_the_scenes(tmp_path):
+    peaks = {}
+    for n in (4, 40):
+        files = scene_files(tmp_path / f"s{n}", n, per_file=8, parked=150)
+        report = tmp_path / f"m{n}.json"
+        proc = child([*rollout_args(files, tmp_path / f"o{n}.parquet"), "--policy", "log"],
+                     report, part_scenes=4)
+        assert proc.wait() == 0, proc.stderr.read()
+        peaks[n] = json.loads(report.read_text())["peak_kb"]
+        assert len(pd.read_parquet(tmp_path / f"o{n}.episodes.parquet")) == n
+    # 36 more scenes of 13,832 rows: an in-memory run holds ~2.5 MB more each
+    assert peaks[40] <= 1.2 * peaks[4], peaks
