@@ -78,14 +78,15 @@ def run_rollout(folder: Path, out: Path, policy: str, traffic: str, extra: list[
         raise SystemExit(f"rollout failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
     child = json.loads(report_file.read_text())
     episodes = pd.read_parquet(str(out).replace(".parquet", ".episodes.parquet"))
-    steps = int(round((episodes["duration_s"].fillna(0) * 10).sum()))
+    steps = round((episodes["duration_s"].fillna(0) * 10).sum())
     scenes = len(episodes)
     return {"scenes": scenes, "ok": int((episodes["status"] == "ok").sum()),
             "peak_mb": round(child["peak_mb"], 1), "cpu_s": round(child["cpu_s"], 2),
             "wall_s": round(wall, 2), "cpu_s_per_scene": round(child["cpu_s"] / scenes, 4),
             "steps": steps, "steps_per_cpu_s": round(steps / child["cpu_s"], 1),
             "load_before": round(load0, 2), "load_after": round(os.getloadavg()[0], 2),
-            "command": shlex.join(cmd[3:5] + ["FILES..."] + cmd[5 + len(files):])}
+            "command": shlex.join(["tap-bench", "rollout", "--womd", f"{folder}/*",
+                                   *cmd[6 + len(files):]])}
 
 
 def profile(folder: Path, policy: str, traffic: str) -> None:
