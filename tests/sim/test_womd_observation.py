@@ -1,6 +1,8 @@
 """The route in the RL observation of tap_bench/womd-v0 (``KinematicsRoute``): its values on
 generated two-lane scenes (rotated, both sides, several speeds), the space holding every
-observation on the real files, and an SB3 agent trained on it through the command."""
+observation on the real files and their Kinematics part equal to highway-env's (one module
+fixture drives the real scenes for both), and an SB3 agent trained on it through the
+command."""
 
 from __future__ import annotations
 
@@ -135,25 +137,42 @@ def real(womd_dir) -> list[str]:
     return [str(womd_dir / f) for f in FILES]
 
 
-@pytest.mark.parametrize("traffic", ["log", "idm"])
-def test_the_space_holds_every_observation_of_the_real_scenes(real, traffic):
-    """Every scene, each ego policy under the logged traffic; under IDM traffic (what the
-    parameter varies) the IDM ego alone: the three egos cost three times the CPU there."""
-    env = make_womd_env(real, traffic=traffic)
-    # highway-env's Kinematics defaults: 5 vehicles x 5 features, then the route
-    assert env.observation_space.shape == (5 * 5 + 2 * 5 + len(ROUTE_FEATURES),)
-    rng = np.random.default_rng(0)
+@pytest.fixture(scope="module", params=["log", "idm"])
+def real_rollouts(request, womd_dir):
+    """Every real scene driven by each ego policy under the logged traffic, and under IDM
+    traffic (what the parameter varies) by the IDM ego alone (the three egos cost three
+    times the CPU there): the env and, at every decision, the route observation with
+    highway-env's own Kinematics observation of the scene (pandas), then the observation
+    after the last step (with None). The space and the Kinematics tests read the same
+    rollouts."""
+    from highway_env.envs.common.observation import KinematicObservation
+
+    traffic = request.param
+    env = make_womd_env([str(womd_dir / f) for f in FILES], traffic=traffic)
+    seen = []
     for seed in range(len(env.catalog)):
         for name in ("log", "idm", "random") if traffic == "log" else ("idm",):
             policy = load_policy(name)
             obs, _ = env.reset(seed=seed)
-            policy.reset(env, seed=int(rng.integers(1000)))
+            policy.reset(env, seed=seed)
+            config = {k: v for k, v in env.unwrapped.config["observation"].items()
+                      if k not in ("type", "route_points", "route_spacing")}
             done = False
             while not done:
-                assert obs.dtype == np.float32 and env.observation_space.contains(obs)
+                theirs = KinematicObservation(env.unwrapped, **config).observe().ravel()
+                seen.append((obs.copy(), theirs))
                 obs, _, terminated, truncated, _ = env.step(policy.act(obs))
                 done = terminated or truncated
-            assert env.observation_space.contains(obs)
+            seen.append((obs.copy(), None))
+    return env, seen
+
+
+def test_the_space_holds_every_observation_of_the_real_scenes(real_rollouts):
+    env, seen = real_rollouts
+    # highway-env's Kinematics defaults: 5 vehicles x 5 features, then the route
+    assert env.observation_space.shape == (5 * 5 + 2 * 5 + len(ROUTE_FEATURES),)
+    for obs, _ in seen:
+        assert obs.dtype == np.float32 and env.observation_space.contains(obs)
 
 
 def test_the_route_points_lie_on_the_logged_path(real):
@@ -235,9 +254,11 @@ def test_the_kinematics_part_is_highway_envs_observation(tmp_path, side):
     assert _kinematics_matches_highway_env(env, ("idm", "random"), seeds=[0]) > 5
 
 
-@pytest.mark.parametrize("traffic", ["log", "idm"])
-def test_the_kinematics_part_is_highway_envs_observation_on_the_real_scenes(real, traffic):
-    # each ego policy under the logged traffic; under IDM traffic the IDM ego (see above)
-    env = make_womd_env(real, traffic=traffic)
-    policies = ("log", "idm", "random") if traffic == "log" else ("idm",)
-    assert _kinematics_matches_highway_env(env, policies) > 50
+def test_the_kinematics_part_is_highway_envs_observation_on_the_real_scenes(real_rollouts):
+    # at every decision of every real scene's rollouts, bit for bit
+    env, seen = real_rollouts
+    size = env.unwrapped.observation_type.kinematics_size
+    compared = [(obs, theirs) for obs, theirs in seen if theirs is not None]
+    for obs, theirs in compared:
+        assert obs[:size].tobytes() == theirs.tobytes()
+    assert len(compared) > 50
