@@ -708,6 +708,13 @@ class TrafficRoad(Road):
 _STANDARD_SHAPE = (RoadObject.handle_collisions, RoadObject._is_colliding, RoadObject.polygon)
 
 
+@functools.cache
+def _own_shape(cls: type) -> bool:
+    """Whether ``cls`` has its own collision test, polygon or velocity."""
+    return ((cls.handle_collisions, cls._is_colliding, cls.polygon) != _STANDARD_SHAPE
+            or _own_velocity(cls))
+
+
 def _shapes(everyone: list[Any]) -> dict[str, np.ndarray] | None:
     """Per object: position (n, 2) [m], diagonal, half length and width [m], heading [rad],
     velocity (vx, vy) [m/s], whether it checks collisions and is collidable, and whether its
@@ -715,18 +722,14 @@ def _shapes(everyone: list[Any]) -> dict[str, np.ndarray] | None:
     lacks one of these."""
     try:
         position = np.array([o.position for o in everyone], dtype=float)
-        shape = np.array([(o.diagonal, o.LENGTH / 2, o.WIDTH / 2, o.heading, o.speed)
+        shape = np.array([(o.diagonal, o.LENGTH / 2, o.WIDTH / 2, o.heading, o.speed,
+                           bool(o.check_collisions), bool(o.collidable), _own_shape(type(o)))
                           for o in everyone], dtype=float)
-        flags = np.array([(bool(o.check_collisions), bool(o.collidable)) for o in everyone],
-                         dtype=bool)
     except (AttributeError, TypeError, ValueError):
         return None
-    if position.shape != (len(everyone), 2) or shape.shape != (len(everyone), 5):
+    if position.shape != (len(everyone), 2) or shape.shape != (len(everyone), 8):
         return None
-    own = np.array([(type(o).handle_collisions, type(o)._is_colliding, type(o).polygon)
-                    != _STANDARD_SHAPE or type(o).velocity not in (Vehicle.velocity,
-                                                                    RoadObject.velocity)
-                    for o in everyone], dtype=bool)
+    flags, own = shape[:, 5:7] != 0, shape[:, 7] != 0
     heading, speed = shape[:, 3], shape[:, 4]
     return {"position": position, "diagonal": shape[:, 0], "half_length": shape[:, 1],
             "half_width": shape[:, 2], "heading": heading, "vx": speed * np.cos(heading),
@@ -833,7 +836,14 @@ def near_pairs(vehicles: list[Any], objects: list[Any], dt: float) -> np.ndarray
 
 
 def _near(shapes: dict[str, np.ndarray], n: int, dt: float) -> np.ndarray:
-    """:func:`near_pairs` from :func:`_shapes` (the first ``n`` objects the vehicles)."""
+    """:func:`near_pairs` from :func:`_shapes` (the first ``n`` objects the vehicles).
+
+    On many objects only the pairs closer along x than the largest diagonal plus twice the
+    largest speed times ``dt`` are looked at (:func:`_near_swept`)."""
+    if len(shapes["diagonal"]) > _DENSE_MAX_OBJECTS:
+        near = _near_swept(shapes, n, dt)
+        if near is not None:
+            return near
     position, diagonal = shapes["position"], shapes["diagonal"]
     vx, vy = shapes["vx"], shapes["vy"]
     checks, collidable, own = shapes["checks"], shapes["collidable"], shapes["own"]
@@ -844,6 +854,48 @@ def _near(shapes: dict[str, np.ndarray], n: int, dt: float) -> np.ndarray:
     close = ~(distance > bound + TOUCH_MARGIN)  # NaN: close
     return ((close & (checks[:n, None] | checks[None, :]) & collidable[:n, None]
              & collidable[None, :]) | own[:n, None] | own[None, :])
+
+
+_DENSE_MAX_OBJECTS = 150  # objects up to which near pairs are tested all against all
+
+
+def _near_swept(shapes: dict[str, np.ndarray], n: int, dt: float) -> np.ndarray | None:
+    """:func:`_near` by a sweep along x: the pairs closer along x than the largest diagonal
+    plus twice the largest speed times ``dt`` (no other pair can be near) tested, every
+    pair with an object of its own test (``own``) kept; None where a value is not finite
+    (then every pair is tested)."""
+    position, diagonal = shapes["position"], shapes["diagonal"]
+    vx, vy = shapes["vx"], shapes["vy"]
+    count = len(diagonal)
+    speed = np.hypot(vx, vy)
+    reach = diagonal.max() + 2 * dt * speed.max() + TOUCH_MARGIN
+    x = position[:, 0]
+    if not (np.isfinite(reach) and np.isfinite(x).all() and np.isfinite(position).all()):
+        return None
+    order = np.argsort(x, kind="stable")
+    ends = np.searchsorted(x[order], x[order] + reach, side="right")
+    counts = ends - np.arange(count) - 1
+    first = np.repeat(np.arange(count), counts)
+    second = first + 1 + np.arange(len(first)) - np.repeat(np.cumsum(counts) - counts, counts)
+    a, b = order[first], order[second]
+    a, b = np.minimum(a, b), np.maximum(a, b)
+    keep = a < n
+    a, b = a[keep], b[keep]
+    distance = np.hypot(position[b, 0] - position[a, 0], position[b, 1] - position[a, 1])
+    relative = np.hypot(vx[a] - vx[b], vy[a] - vy[b]) * dt
+    checks, collidable, own = shapes["checks"], shapes["collidable"], shapes["own"]
+    close = (~(distance > (diagonal[a] + diagonal[b]) / 2 + relative + TOUCH_MARGIN)
+             & (checks[a] | checks[b]) & collidable[a] & collidable[b])
+    near = np.zeros((n, count), dtype=bool)
+    itself = np.arange(n)
+    near[itself, itself] = checks[:n] & collidable[:n]
+    a, b = a[close], b[close]
+    near[a, b] = True
+    inside = b < n
+    near[b[inside], a[inside]] = True
+    near[own[:n], :] = True
+    near[:, own] = True
+    return near
 
 
 def _swept_apart(shapes: dict[str, np.ndarray], i: np.ndarray, j: np.ndarray,

@@ -314,6 +314,34 @@ def test_touching_pairs_one_by_one_equal_the_array_test():
     env.close()
 
 
+@pytest.mark.parametrize("spread", [30.0, 400.0])
+def test_near_pairs_by_a_sweep_equal_all_against_all(spread, monkeypatch):
+    """On many objects near_pairs sweeps along x: the same matrix as testing every pair,
+    on drawn states packed (30 m) and spread (400 m)."""
+    env = make_env("highway", record=False, config={"vehicles_count": 60})
+    env.reset(seed=6)
+    road = env.unwrapped.road
+    vehicles, objects = road.vehicles[:50], road.vehicles[50:60]
+    monkeypatch.setattr(traffic, "_DENSE_MAX_OBJECTS", 10)
+    rng = np.random.default_rng(8)
+    pairs = 0
+    for _ in range(10):
+        for v in vehicles + objects:
+            v.position = rng.uniform(0, spread, 2)
+            v.heading = float(rng.uniform(-np.pi, np.pi))
+            v.speed = float(rng.uniform(-5, 30))
+            v.check_collisions = bool(rng.random() < 0.7)
+        swept = near_pairs(vehicles, objects, 0.1)
+        monkeypatch.setattr(traffic, "_DENSE_MAX_OBJECTS", 10**9)
+        dense = near_pairs(vehicles, objects, 0.1)
+        monkeypatch.setattr(traffic, "_DENSE_MAX_OBJECTS", 10)
+        assert swept.shape == dense.shape == (50, 60)
+        np.testing.assert_array_equal(swept, dense)
+        pairs += int(np.triu(dense, 1).sum())
+    assert pairs > 10
+    env.close()
+
+
 def test_near_pairs_keeps_every_pair_highway_env_finds_touching():
     """Crowded drawn states: every pair highway-env's own check finds touching now or
     within the step is near (near_pairs) and not swept apart (the separating-axis test
