@@ -83,7 +83,7 @@ def test_a_tracks_heading_has_the_bits_it_has_alone():
     circling tracks that pile up tens of radians, invalid rows, several scenarios."""
     rng = np.random.default_rng(7)
     compared = 0
-    for seed, n_tracks in enumerate([20, 150, 20, 150, 150, 150]):
+    for seed, n_tracks in enumerate([20, 150, 150, 20]):  # each size with, without gaps
         table = tb.random_trajectories(n_tracks, 300, seed=seed, scenarios=3)
         code = pd.factorize(table["track_id"])[0]
         keep = np.where(rng.random(n_tracks) < 0.5, 300, rng.integers(1, 301, n_tracks))
@@ -102,7 +102,7 @@ def test_a_tracks_heading_has_the_bits_it_has_alone():
             np.testing.assert_array_equal(heading, alone[(scenario, track)],
                                           err_msg=f"seed {seed} track {track}")
             compared += 1
-    assert compared > 500
+    assert compared > 300
 
 
 def test_the_sample_changes_lanes_at_one_time_alone_and_in_its_scenario():
