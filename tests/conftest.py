@@ -26,6 +26,11 @@ import pandas as pd
 import pytest
 from hypothesis import settings
 
+# OpenMP's idle threads (torch's, in the in-process training tests) sleep instead of spinning
+# on the other core, in this process and the processes it starts, as tap-bench's own workers
+# and every measurement of the suite's CPU have them (unless the caller set it).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 settings.register_profile("ci", derandomize=True, database=None, print_blob=True)
 settings.register_profile("explore", derandomize=False, print_blob=True)
 settings.load_profile("ci")
