@@ -36,6 +36,18 @@ def checkpoints(log_dir: Path, every: int) -> list[tuple[int, Path]]:
     return found[every - 1::every]
 
 
+def describe_checkpoint(model: Path, definition: Path) -> None:
+    """Write the checkpoint's definition beside it: the final model's (its observation
+    config above all), naming the checkpoint, unless one is there."""
+    beside = model.with_suffix(".json")
+    if beside.exists():
+        return
+    doc = json.loads(definition.read_text())
+    doc["name"] = model.stem
+    doc["params"]["model"] = model.name
+    beside.write_text(json.dumps(doc, indent=2) + "\n")
+
+
 def evaluate(model: Path, scenes: WomdScenes, held_out: set[int]) -> dict[str, float]:
     """The checkpoint's figures on the training and held-out scenes."""
     with warnings.catch_warnings():
@@ -47,7 +59,8 @@ def evaluate(model: Path, scenes: WomdScenes, held_out: set[int]) -> dict[str, f
                        ("held_out", eps["seed"].isin(held_out))):
         rows = eps[mask]
         out[f"{part}_route_progress"] = float(rows["route_progress"].mean())
-        out[f"{part}_at_fault"] = float(rows["crashed_at_fault"].astype(float).mean())
+        # the episode table's crash_fault: "at fault", or why not (SPEC section 8)
+        out[f"{part}_at_fault"] = float((rows["crash_fault"] == "at fault").mean())
         out[f"{part}_off_road"] = float(rows["off_road"].astype(float).mean())
         out[f"{part}_scenes"] = len(rows)
     return out
@@ -88,6 +101,9 @@ def main() -> None:
     parser.add_argument("--log-dirs", nargs="+", required=True,
                         help="the --log-dir of each seed, in the group's seed order")
     parser.add_argument("--every", type=int, default=2, help="every n-th checkpoint")
+    parser.add_argument("--root", help="the folder the training ran in, which its relative "
+                        "--womd paths start from (default: the group's folder's parent, the "
+                        "project root for policies/)")
     args = parser.parse_args()
     group = Path(args.group)
     seeds = json.loads(group.read_text())["params"]["seeds"]
@@ -96,11 +112,13 @@ def main() -> None:
     for name, log_dir in zip(seeds, args.log_dirs, strict=True):
         final = group.parent / f"{name}.zip"
         params = json.loads(final.with_suffix(".json").read_text())["params"]
-        files = [str(Path(args.group).parent.parent / f) if not Path(f).is_absolute() else f
-                 for f in params["womd"]]
+        root = Path(args.root) if args.root else group.parent.parent
+        files = [f if Path(f).is_absolute() else str(root / f) for f in params["womd"]]
         scenes = WomdScenes(tuple(files), traffic=params["traffic"])
         held_out = set(params.get("held_out_scenes", []))
         points = [*checkpoints(Path(log_dir), args.every), (params["timesteps"], final)]
+        for _, model in points[:-1]:  # a checkpoint reads what the model reads
+            describe_checkpoint(model, final.with_suffix(".json"))
         for steps, model in points:
             figures = evaluate(model, scenes, held_out)
             rows.append({"seed": params["seed"], "policy": name, "timesteps": steps,

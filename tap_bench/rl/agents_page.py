@@ -102,7 +102,7 @@ def write_agents_page(result: AgentsResult, folder: str | os.PathLike, *,
         write_table(table, folder / f"{name}.csv")
     if len(result.profiles):
         plot_profiles(result.profiles, folder / "profiles.png", level=result.level)
-    agents = list(dict.fromkeys(result.scores["agent"]))
+    agents = sorted(dict.fromkeys(result.scores["agent"]), key=lambda a: (a != HUMAN, a))
     improvement = result.improvement.copy()
     if len(improvement):
         improvement["P(agent > over)"] = [interval_text(r) for r in improvement.to_dict("records")]
@@ -128,7 +128,10 @@ def write_agents_page(result: AgentsResult, folder: str | os.PathLike, *,
         "beats a run of the column's on a scene drawn at random (ties a half); at-fault "
         "collisions: fewer is better.</p>",
         improvement.to_html(escape=True) if len(improvement) else "",
-        "<h2>Performance profiles</h2><img src=\"profiles.png\" alt=\"performance profiles\">",
+        "<h2>Performance profiles</h2>" + (
+            "<img src=\"profiles.png\" alt=\"performance profiles of route progress\">"
+            if len(result.profiles) else "<p>No scene where the human moved: no route "
+            "progress to profile.</p>"),
         *[_section(agent, result, viewer) for agent in agents],
     ]
     page = folder / "agents.html"
