@@ -179,3 +179,32 @@ def test_a_late_vehicle_waits_until_its_place_is_free(tmp_path):
     assert info["traffic_collisions"] == 0, info["traffic_collided"]
     assert abs(rec["x"][rows["2"], 60] + 16.5) < 1.0  # car 2 stands behind car 4
     assert not rec["valid"][rows["3"], 30:].any()  # car 3 never had room
+
+
+@pytest.mark.parametrize("rotation_deg", [0, 120, 240])
+@pytest.mark.parametrize("late", [0.0, 0.4])
+def test_crossing_paths_go_in_the_log_order_at_every_heading(tmp_path, rotation_deg, late):
+    # car 2 along +x and car 3 along +y (the scene turned by rotation_deg), both logged
+    # through the crossing at 5 s (car 3 `late` s after car 2): car 3 waits, car 2 goes on
+    rot = math.radians(rotation_deg)
+    xs = np.arange(-80.0, 80.0, 0.5)
+    east = rotate(np.c_[xs, np.zeros_like(xs)], rot)
+    north = rotate(np.c_[np.zeros_like(xs), xs], rot)
+    speed = 10.0
+    car2 = along(rotate(np.c_[np.arange(-50.0, 80.0, 0.5), np.zeros(260)], rot), speed)
+    start3 = -50.0 - speed * late  # logged through the crossing `late` s after car 2
+    ys = np.arange(start3, 80.0, 0.5)
+    car3 = along(rotate(np.c_[np.zeros_like(ys), ys], rot), speed)
+    env = make_womd_env(scene(tmp_path / f"sd_x{rotation_deg}_{late}.pkl",
+                              {"2": car2, "3": car3}, [east, north]), traffic="idm")
+    rec, info = drive(env)
+    assert info["traffic_collisions"] == 0, info["traffic_collided"]
+    rows = {str(t): k for k, t in enumerate(env.scene.track_ids)}
+    slowest = {tid: np.nanmin(rec["speed"][rows[tid], CURRENT_STEP + 1:]) for tid in ("2", "3")}
+    assert slowest["2"] > 0.8 * speed  # first in the log: goes
+    assert slowest["3"] < 0.6 * speed  # second: gives way
+    # both are beyond the crossing at the end
+    for tid, axis in (("2", (math.cos(rot), math.sin(rot))),
+                      ("3", (-math.sin(rot), math.cos(rot)))):
+        r = rows[tid]
+        assert rec["x"][r, -1] * axis[0] + rec["y"][r, -1] * axis[1] > 5.0
