@@ -847,6 +847,21 @@ def _near(shapes: dict[str, np.ndarray], n: int, dt: float) -> np.ndarray:
     position, diagonal = shapes["position"], shapes["diagonal"]
     vx, vy = shapes["vx"], shapes["vy"]
     checks, collidable, own = shapes["checks"], shapes["collidable"], shapes["own"]
+    checkers = np.flatnonzero(checks)
+    if 2 * len(checkers) < n:  # few check collisions: only their rows and columns
+        near = np.zeros((n, len(diagonal)), dtype=bool)
+        for k in checkers.tolist():
+            delta = position - position[k]
+            distance = np.hypot(delta[:, 0], delta[:, 1])
+            relative = np.hypot(vx[k] - vx, vy[k] - vy) * dt
+            close = (~(distance > (diagonal[k] + diagonal) / 2 + relative + TOUCH_MARGIN)
+                     & collidable[k] & collidable)
+            if k < n:
+                near[k] |= close
+            near[:, k] |= close[:n]
+        near[own[:n], :] = True
+        near[:, own] = True
+        return near
     delta = position[None, :, :] - position[:n, None, :]
     distance = np.hypot(delta[..., 0], delta[..., 1])
     relative = np.hypot(vx[:n, None] - vx[None, :], vy[:n, None] - vy[None, :]) * dt

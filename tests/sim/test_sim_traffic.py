@@ -314,31 +314,49 @@ def test_touching_pairs_one_by_one_equal_the_array_test():
     env.close()
 
 
+def _near_by_definition(objects: list, n: int, dt: float) -> np.ndarray:
+    """Every (vehicle, object) pair tested: centres at most half the diagonals' sum plus the
+    relative speed times dt (plus TOUCH_MARGIN) apart, one of the two checking collisions,
+    both collidable."""
+    near = np.zeros((n, len(objects)), dtype=bool)
+    for i in range(n):
+        a = objects[i]
+        for j, b in enumerate(objects):
+            relative = np.hypot(*(a.velocity - b.velocity)) * dt
+            bound = (a.diagonal + b.diagonal) / 2 + relative + traffic.TOUCH_MARGIN
+            near[i, j] = (np.hypot(*(a.position - b.position)) <= bound
+                          and (a.check_collisions or b.check_collisions)
+                          and a.collidable and b.collidable)
+    return near
+
+
 @pytest.mark.parametrize("spread", [30.0, 400.0])
-def test_near_pairs_by_a_sweep_equal_all_against_all(spread, monkeypatch):
-    """On many objects near_pairs sweeps along x: the same matrix as testing every pair,
-    on drawn states packed (30 m) and spread (400 m)."""
+@pytest.mark.parametrize("checking", [0.7, 0.05])
+def test_near_pairs_by_a_sweep_and_by_checkers_equal_the_definition(spread, checking,
+                                                                     monkeypatch):
+    """near_pairs all against all, only the rows and columns of the objects that check
+    collisions (when few do), and by a sweep along x (on many objects): each the matrix of
+    the definition, on drawn states packed (30 m) and spread (400 m)."""
     env = make_env("highway", record=False, config={"vehicles_count": 60})
     env.reset(seed=6)
     road = env.unwrapped.road
     vehicles, objects = road.vehicles[:50], road.vehicles[50:60]
-    monkeypatch.setattr(traffic, "_DENSE_MAX_OBJECTS", 10)
     rng = np.random.default_rng(8)
     pairs = 0
-    for _ in range(10):
+    for _ in range(6):
         for v in vehicles + objects:
             v.position = rng.uniform(0, spread, 2)
             v.heading = float(rng.uniform(-np.pi, np.pi))
             v.speed = float(rng.uniform(-5, 30))
-            v.check_collisions = bool(rng.random() < 0.7)
-        swept = near_pairs(vehicles, objects, 0.1)
-        monkeypatch.setattr(traffic, "_DENSE_MAX_OBJECTS", 10**9)
-        dense = near_pairs(vehicles, objects, 0.1)
-        monkeypatch.setattr(traffic, "_DENSE_MAX_OBJECTS", 10)
-        assert swept.shape == dense.shape == (50, 60)
-        np.testing.assert_array_equal(swept, dense)
-        pairs += int(np.triu(dense, 1).sum())
-    assert pairs > 10
+            v.check_collisions = bool(rng.random() < checking)
+        want = _near_by_definition(vehicles + objects, 50, 0.1)
+        for dense_max in (10, 10**9):  # swept; all against all or by checkers
+            monkeypatch.setattr(traffic, "_DENSE_MAX_OBJECTS", dense_max)
+            got = near_pairs(vehicles, objects, 0.1)
+            assert got.shape == (50, 60)
+            np.testing.assert_array_equal(got, want)
+        pairs += int(np.triu(want, 1).sum())
+    assert pairs > 3 or spread > 100  # packed states have near pairs to find
     env.close()
 
 
