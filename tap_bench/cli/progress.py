@@ -180,7 +180,8 @@ class SceneProgress:
             text += f", {elapsed:.0f} s"
         return text
 
-    def _write(self, text: str) -> None:
+    def note(self, text: str) -> None:
+        """Write one line (to stderr when shown, and to the log file)."""
         stamp = time.strftime("%Y-%m-%d %H:%M:%S")
         for stream, prefix in ((sys.stderr if self.show else None, ""),
                                (self.log, f"{stamp} ")):
@@ -193,14 +194,14 @@ class SceneProgress:
 
     def _run(self) -> None:
         while not self._stop.wait(self.every):
-            self._write(self.line())
+            self.note(self.line())
 
     def close(self) -> None:
         if self._stop.is_set():
             return
         self._stop.set()
         self._thread.join()
-        self._write(self.line())
+        self.note(self.line())
         if self.log is not None:
             self.log.close()
 

@@ -289,7 +289,7 @@ def stream_rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
     bar = SceneProgress(len(seed_list), f"{scenario.name} {name}", before=before,
                         show=progress is not False, log=os.fspath(log) if log else None)
     if before:
-        bar._write(f"resuming: {before} of {len(seed_list)} scenes were done before, "
+        bar.note(f"resuming: {before} of {len(seed_list)} scenes were done before, "
                    f"{len(todo)} to run")
     tables: list[pd.DataFrame] = []
     rows: list[dict] = []

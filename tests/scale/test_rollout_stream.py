@@ -157,3 +157,24 @@ def test_peak_memory_does_not_grow_with_the_scenes(tmp_path):
         assert len(pd.read_parquet(tmp_path / f"o{n}.episodes.parquet")) == n
     # 36 more scenes of 13,832 rows: an in-memory run holds ~2.5 MB more each
     assert peaks[40] <= 1.2 * peaks[4], peaks
+
+
+def test_a_progress_line_counts_this_runs_scenes_for_the_rate(tmp_path):
+    import re
+
+    from tap_bench.cli.progress import SceneProgress
+
+    log = tmp_path / "p.log"
+    bar = SceneProgress(10, "womd idm", before=4, show=False, log=str(log), every=1000)
+    bar._start -= 2.0  # two seconds into the run
+    for status in ("ok", "error", "skipped"):
+        bar.update(status)
+    line = bar.line()
+    found = re.fullmatch(r"womd idm: 7/10 scenes \(4 before\), 1 failed, 1 skipped, "
+                         r"([\d.]+) scenes/s, about (\d+) s left", line)
+    assert found, line
+    assert 1.4 <= float(found[1]) <= 1.5  # 3 scenes in 2 s, not 7
+    assert 1 <= int(found[2]) <= 3  # 3 scenes left at that rate
+    bar.close()
+    last = log.read_text().splitlines()[-1]  # time-stamped in the log
+    assert re.match(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d womd idm: 7/10 scenes \(4 before\)", last)
