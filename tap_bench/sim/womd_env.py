@@ -599,6 +599,7 @@ class WomdEnv(gym.Wrapper):
         skipped, with a warning, for the next one."""
         inner = self.env.unwrapped
         options = dict(options or {})
+        chosen = options.get("scene") is not None or options.get("scenario_id") is not None
         for _ in range(len(self.catalog) if self.cycle else 1):
             try:
                 obs, info = self.env.reset(seed=seed, options=options or None)
@@ -614,7 +615,6 @@ class WomdEnv(gym.Wrapper):
                            "scene": (failed + 1) % len(self.catalog)}
         else:
             raise SceneError(f"{', '.join(self.scenario.files)}: no scenario can be built.")
-        chosen = options.get("scene") is not None or options.get("scenario_id") is not None
         # the table's seed: the one given where an option chose the scene (a run sharded
         # by file names each scene by its file's index and keeps the run's seed), else the
         # scene's index (seed % N)
