@@ -147,3 +147,12 @@ def test_the_figures_on_some_scenes_only(run):
     assert ppo["scenes"] == 1 and ppo["estimate"] == pytest.approx(0.9)  # 1.0 and 0.8
     with pytest.raises(FileFormatError, match="no episode on scenes"):
         agents_figures(run, groups=GROUPS, scenes=[7])
+
+
+def test_the_shipped_womd_agents_suite_names_the_human_and_every_seed_of_ppo_womd():
+    from tap_bench.bench.suite import load_suite
+
+    suite = load_suite("womd-agents")
+    groups = seed_groups()
+    assert suite.reference == "log" and suite.all_seeds
+    assert {"log", "idm", "lane-keeping", "random", *groups["ppo-womd"]} <= set(suite.policies)
