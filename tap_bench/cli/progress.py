@@ -136,13 +136,15 @@ class SceneProgress:
         desc: what runs.
         before: scenes done by an earlier, interrupted run (counted as done).
         show: write to stderr (the log file is written whatever ``show`` is).
+        unit: what an item is (``"scene"``; ``"episode"`` for generated scenarios).
         log: a file the lines are appended to (None: none).
         every: seconds between two lines [s] (default :data:`LINE_EVERY`).
     """
 
     def __init__(self, total: int, desc: str = "", *, before: int = 0, show: bool = True,
-                 log: str | None = None, every: float | None = None):
+                 log: str | None = None, every: float | None = None, unit: str = "scene"):
         self.total, self.desc, self.before, self.show = total, desc, before, show
+        self.unit = unit
         self.done = self.failed = self.skipped = 0
         self.every = LINE_EVERY if every is None else every
         self.log = open(log, "a", encoding="utf-8") if log else None
@@ -167,12 +169,12 @@ class SceneProgress:
         with self._lock:
             done, failed, skipped = self.done, self.failed, self.skipped
         elapsed = max(time.monotonic() - self._start, 1e-9)
-        text = f"{self.desc or 'run'}: {self.before + done}/{self.total} scenes"
+        text = f"{self.desc or 'run'}: {self.before + done}/{self.total} {self.unit}s"
         if self.before:
             text += f" ({self.before} before)"
         text += f", {failed} failed, {skipped} skipped"
         rate = done / elapsed
-        text += f", {rate:.2f} scenes/s" if done else ", starting"
+        text += f", {rate:.2f} {self.unit}s/s" if done else ", starting"
         left = self.total - self.before - done
         if done and left > 0:
             text += f", about {left / rate:.0f} s left"

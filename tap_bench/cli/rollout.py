@@ -91,7 +91,8 @@ def run(args: argparse.Namespace) -> int:
         close_backend(backend)
     episodes = result.episodes
     if result.before:
-        print(f"resumed: {result.before} of {len(episodes)} scenes were done before")
+        unit = "scenes" if args.womd else "episodes"
+        print(f"resumed: {result.before} of {len(episodes)} {unit} were done before")
     ok = episodes[episodes["status"] == "ok"]
     print(f"{len(ok)}/{len(episodes)} episodes, {result.rows} rows -> "
           f"{output if result.output else '(no trajectories)'}; episodes -> {episodes_out}")

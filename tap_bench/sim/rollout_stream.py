@@ -287,10 +287,11 @@ def stream_rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
     tasks = episode_tasks(scenario, spec, [seed_list[k] for k in todo])
     runner = resolve_backend(backend, workers)
     bar = SceneProgress(len(seed_list), f"{scenario.name} {name}", before=before,
-                        show=progress is not False, log=os.fspath(log) if log else None)
+                        show=progress is not False, log=os.fspath(log) if log else None,
+                        unit="scene" if isinstance(scenario, WomdScenes) else "episode")
     if before:
-        bar.note(f"resuming: {before} of {len(seed_list)} scenes were done before, "
-                   f"{len(todo)} to run")
+        bar.note(f"resuming: {before} of {len(seed_list)} {bar.unit}s were done before, "
+                 f"{len(todo)} to run")
     tables: list[pd.DataFrame] = []
     rows: list[dict] = []
     first, held, last_write = 0, 0, time.monotonic()
