@@ -9,15 +9,15 @@ import hashlib
 import json
 import os
 import sys
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from tap_bench.bench.run.plan import SuitePlan
-from tap_bench.bench.suite import Suite
 from tap_bench.errors import (
     FileFormatError,
 )
-from tap_bench.sim.policies import get_definition
+from tap_bench.sim.policies import PolicyDefinition
+from tap_bench.sim.scenario_format import Scenario
 from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.tableio import atomic_folder, atomic_path, check_folder_output
 
@@ -68,13 +68,14 @@ def _sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-def provenance(suite: Suite | SuitePlan) -> dict[str, Any]:
-    """What every policy and env of a suite is, in full, so that ``bench check`` can say what
+def provenance(definitions: Sequence[PolicyDefinition],
+               scenarios: Mapping[str, Scenario | WomdScenes]) -> dict[str, Any]:
+    """What every policy and env of a run is, in full, so that ``bench check`` can say what
     changed since a baseline.
 
     Args:
-        suite: the resolved suite of a run (its definitions and scenarios are used as they
-            are), or a suite (they are read).
+        definitions: the run's policy definitions (a run plan's ``definitions``).
+        scenarios: env -> its scenario or recorded scenes (a run plan's ``scenarios``).
 
     Returns:
         ``{"policies": {name: {"kind", "params", "model_sha256"?, "code_sha256"?}},
@@ -89,14 +90,9 @@ def provenance(suite: Suite | SuitePlan) -> dict[str, Any]:
     from tap_bench.sim.scenario_format import VEHICLE_TYPE_KEYS
     from tap_bench.usercode import TRUSTED_PACKAGES, code_digest
 
-    if isinstance(suite, SuitePlan):
-        definitions = {d.name: d for d in suite.definitions}
-        scenarios = suite.scenarios
-    else:
-        definitions = {name: get_definition(name) for name in suite.policies}
-        scenarios = {env: suite.scenario(env) for env in suite.envs}
     policies = {}
-    for name, definition in definitions.items():
+    for definition in definitions:
+        name = definition.name
         entry: dict[str, Any] = {"kind": definition.kind, "params": dict(definition.params)}
         model = definition.params.get("model")
         if isinstance(model, str):

@@ -58,7 +58,7 @@ import os
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -116,6 +116,9 @@ from tap_bench.errors import (
     RunExistsError,
 )
 from tap_bench.execution import Backend, resolve_backend
+from tap_bench.sim.scenario_format import Scenario
+from tap_bench.sim.womd_scene import WomdScenes
+from tap_bench.thresholds import Thresholds
 
 __all__ = ["CACHED_BATCH", "CACHED_EPISODE_S", "RunExistsError", "RunPlan", "RunResult",
            "SuitePlan", "plan_suite",
@@ -123,17 +126,44 @@ __all__ = ["CACHED_BATCH", "CACHED_EPISODE_S", "RunExistsError", "RunPlan", "Run
            "run_viewer", "write_results"]
 
 
-def _road(suite: Suite, env: str, cache: EpisodeCache | None,
-          simulation: dict[str, Any] | None = None) -> pd.DataFrame:
-    """The map table of ``env`` (:meth:`Suite.road`); a highway-env road is kept in the
-    cache, keyed by the scenario and the simulation code, so that a re-run does not import
-    highway-env to draw it again."""
-    if cache is None or env in suite.scenes:
-        return suite.road(env)
-    fingerprint = scenario_fingerprint(suite.scenario(env), env)
-    return memoised(cache, "roads", None if fingerprint is None else {
-        "env": fingerprint, "simulation": simulation or simulation_fingerprint()},
-        lambda: suite.road(env), _table_files, _files_table)
+class _Roads:
+    """Each env's map table, drawn (or read from the cache) once in this run: the workers
+    label on it and the run folder keeps it. A highway-env road is kept in the cache, keyed
+    by the scenario and the simulation code, so that a re-run does not import highway-env
+    to draw it again; recorded scenes' maps are read from their files."""
+
+    def __init__(self, scenarios: Mapping[str, Scenario | WomdScenes],
+                 cache: EpisodeCache | None) -> None:
+        self.scenarios = scenarios
+        self.cache = cache
+        self.drawn: dict[str, pd.DataFrame] = {}
+        self.simulation: dict[str, Any] | None = None  # the code's fingerprint, once
+
+    def __call__(self, env: str) -> pd.DataFrame:
+        if env not in self.drawn:
+            self.drawn[env] = self._draw(env)
+        return self.drawn[env]
+
+    def _draw(self, env: str) -> pd.DataFrame:
+        scenario = self.scenarios[env]
+        if isinstance(scenario, WomdScenes):
+            from tap_bench.sources.maps import read_maps
+
+            return read_maps(scenario.files)
+        from tap_bench.sim.roads import road_table
+
+        fingerprint = None if self.cache is None else scenario_fingerprint(scenario, env)
+        if fingerprint is None:
+            return road_table(scenario)
+        if self.simulation is None:
+            self.simulation = simulation_fingerprint()
+        return memoised(self.cache, "roads", {"env": fingerprint,
+                                              "simulation": self.simulation},
+                        lambda: road_table(scenario), _table_files, _files_table)
+
+    def table(self, envs: Sequence[str]) -> pd.DataFrame:
+        """The map tables of ``envs``, one table."""
+        return pd.concat([self(env) for env in envs], ignore_index=True)
 
 
 def _inputs_hold(plan: SuitePlan, tasks: Sequence[Any], whole: Mapping[str, Any], *,
@@ -213,149 +243,268 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     """
     t_start = time.perf_counter()
     output = check_output(output, overwrite)
-    plan = plan_suite(suite, plugins=plugins, seeds=seeds)  # the suite, resolved once
-    suite, thresholds = plan.suite, plan.thresholds
+    plan = plan_suite(suite, plugins=plugins, seeds=seeds)  # the suite, read once
+    cache = _open_cache(cache, output)
+    sources = _reference_sources(references, womd)
+    from tap_bench.bench.report.realism import realism_entries  # not on the served path
+
+    shown_realism = realism_entries(realism)  # read (and checked) before the episodes
+    # every input as in an earlier run: its folder comes whole from the cache (run.served)
+    served, tasks, whole = try_served(plan, cache, output, overwrite, keep_trajectories,
+                                      report, bool(sources) or bool(shown_realism), t_start,
+                                      announce)
+    if served is not None:
+        return served
+    runner = resolve_backend(backend, workers)
+    if cache is not None:  # tap-bench's code as the run's entries are keyed (see the end)
+        package_code()
+    entries_since = time.time()
+    timings: dict[str, float] = {}
+    corpora = _read_references(sources, plan.suite.level, plan.thresholds, timings)
+    with_trajectories = any(traj is not None for traj, _ in corpora.values())
+    roads = _Roads(plan.scenarios, cache)
+    t0 = time.perf_counter()
+    kept = getattr(runner, "kept", None)  # the estimate's first episodes and the rest
+    with kept() if kept is not None else contextlib.nullcontext():  # on the same workers
+        results, estimate = _rollouts(plan, runner, keep_trajectories or with_trajectories,
+                                      progress, cache, announce, roads, tasks)
+    timings["rollouts_wall"] = time.perf_counter() - t0
+    if announce is not None:
+        announce(f"episodes done ({timings['rollouts_wall']:.0f} s); scoring ...")
+    refused = _check_results(results, plan.suite.name)
+    tables = _RunTables.of(results, keep_trajectories or with_trajectories, timings)
+    t0 = time.perf_counter()
+    scores = _scores(plan, tables, corpora, cache)
+    timings["scoring"] = time.perf_counter() - t0
+    summary = _summary(plan, output, sources, tables, scores, timings, estimate,
+                       _cache_summary(cache, results, refused), shown_realism)
+    if announce is not None:
+        announce(f"scored ({timings['scoring']:.1f} s); writing the tables"
+                 + (", plots, report and replay viewer" if report else "") + " ...")
+    t0 = time.perf_counter()
+    # kept whole for an unchanged re-run: every episode made (a failed one is tried again)
+    # and its inputs as at the start (a policy's model or module changed while it went on
+    # would be kept under the old content's key)
+    keep = whole is not None and (tables.episodes["status"] == "ok").all() \
+        and tasks is not None and _inputs_hold(plan, tasks, whole,
+                                               keep_trajectories=keep_trajectories,
+                                               report=report)
+    pages: dict[str, bytes] | None = {} if keep else None
+    folder = write_results(
+        output, overwrite, summary, tables.episodes, tables.labels,
+        tables.trajectories if keep_trajectories else None, scores, report,
+        segments=tables.segments, cache=cache, pages=pages,
+        # the replay viewer draws the roads; highway-env's road is seed-free
+        roads=roads.table(plan.suite.envs) if keep_trajectories else None)
+    timings["writing_and_report"] = time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_start
+    if summary["cache"] is not None:  # derived entries (roads, scores, plots, viewer, run)
+        summary["cache"]["refused"] = [*refused, *take_refused()]
+    _write_json(folder / "summary.json", summary)  # with the final timings
+    if keep and cache is not None and pages is not None:
+        store_run(cache, whole, folder, summary, pages, tables.episodes, scores)
+    if cache is not None:
+        _tidy_cache(cache, results, timings["total"], runner.workers, entries_since)
+    return RunResult(folder, summary, tables.episodes, scores, folder / "report.html")
+
+
+def _open_cache(cache: EpisodeCache | str | os.PathLike | None, output: Path
+                ) -> EpisodeCache | None:
+    """The run's episode cache (None: none), checked to lie apart from ``output``."""
     if cache is not None and not isinstance(cache, EpisodeCache):
         cache = EpisodeCache(Path(cache))
     if cache is not None:
         _check_apart(output, cache.root)
+    return cache
+
+
+def _reference_sources(references: Mapping[str, ReferenceSource] | None,
+                       womd: Sequence[str | os.PathLike] | None
+                       ) -> dict[str, ReferenceSource]:
+    """The run's references by name: ``references`` and ``womd`` as ``"WOMD"``."""
     sources = dict(references or {})
     if womd:
         if "WOMD" in sources:
             raise ParameterError("references", sorted(sources), "names other than 'WOMD' "
                                  "when womd= is given (womd= is references={'WOMD': ...})")
         sources["WOMD"] = list(womd)
-    from tap_bench.bench.report.realism import realism_entries
+    return sources
 
-    shown_realism = realism_entries(realism)  # read (and checked) before the episodes
-    # every input as in an earlier run: its folder comes whole from the cache (run_cache)
-    served, tasks, whole = try_served(plan, cache, output, overwrite, keep_trajectories,
-                                        report, bool(sources) or bool(shown_realism),
-                                        t_start, announce)
-    if served is not None:
-        return served
-    runner = resolve_backend(backend, workers)
-    if cache is not None:  # tap-bench's code as the run's entries are keyed (see the end)
-        package_code()
-        entries_since = time.time()
-    timings: dict[str, float] = {}
+
+def _read_references(sources: Mapping[str, ReferenceSource], level: str,
+                     thresholds: Thresholds, timings: dict[str, float]
+                     ) -> dict[str, tuple[pd.DataFrame | None, pd.DataFrame]]:
+    """name -> (trajectories or None, label table) of every reference; the time it took
+    goes to ``timings["references"]`` [s]."""
     t0 = time.perf_counter()
-    corpora = {name: _reference(name, source, suite.level, thresholds)
+    corpora = {name: _reference(name, source, level, thresholds)
                for name, source in sources.items()}
     if corpora:
         timings["references"] = time.perf_counter() - t0
-    with_trajectories = any(traj is not None for traj, _ in corpora.values())
+    return corpora
 
-    drawn: dict[str, pd.DataFrame] = {}
-    simulation: list[dict[str, Any] | None] = []
 
-    def road(env: str) -> pd.DataFrame:
-        """The env's map table, drawn (or read from the cache) once in this run: the
-        workers label on it and the run folder keeps it."""
-        if env not in drawn:
-            if not simulation:  # the simulation code's fingerprint, once
-                simulation.append(simulation_fingerprint() if cache is not None else None)
-            drawn[env] = _road(suite, env, cache, simulation[0])
-        return drawn[env]
+def _check_results(results: list[dict[str, Any]], suite_name: str) -> list[str]:
+    """The notes of the cache entries refused (each warned, the first five by name).
 
-    t0 = time.perf_counter()
-    kept = getattr(runner, "kept", None)  # the estimate's first episodes and the rest
-    with kept() if kept is not None else contextlib.nullcontext():  # on the same workers
-        results, estimate = _rollouts(plan, runner, keep_trajectories or with_trajectories,
-                                      progress, cache, announce, road, tasks)
-    timings["rollouts_wall"] = time.perf_counter() - t0
-    if announce is not None:
-        announce(f"episodes done ({timings['rollouts_wall']:.0f} s); scoring ...")
+    Raises:
+        EpisodesFailedError: every episode failed.
+    """
     if not any((r["episodes"]["status"] == "ok").all() for r in results):
         errors = [f"{row.env} {row.policy} seed {row.seed}: {row.error}"
                   for r in results for row in r["episodes"].itertuples()]
-        raise EpisodesFailedError(f"the {len(results)} episode(s) of suite {suite.name}",
+        raise EpisodesFailedError(f"the {len(results)} episode(s) of suite {suite_name}",
                                   errors)
     refused = [r["cache_note"] for r in results if r.get("cache_note")]
     for note in refused[:5]:
         warnings.warn(f"{note}; its episode was simulated again.", CacheEntryWarning,
-                      stacklevel=2)
+                      stacklevel=3)
     if len(refused) > 5:
         warnings.warn(f"{len(refused) - 5} more cache entries refused and simulated again "
-                      "(summary.json lists them all).", CacheEntryWarning, stacklevel=2)
-    for key in ("rollout", "labelling", "measures"):
-        timings[f"{key}_cpu_in_workers"] = sum(r["timings"].get(key, 0.0) for r in results)
-    episodes = pd.concat([r["episodes"] for r in results], ignore_index=True)
-    episodes = episodes.sort_values(["env", "policy", "seed"], kind="stable")
-    episodes = episodes.reset_index(drop=True)
-    labels = pd.concat([r["labels"] for r in results if len(r["labels"])], ignore_index=True) \
-        if any(len(r["labels"]) for r in results) else pd.DataFrame()
-    segments = pd.concat([r["segments"] for r in results if len(r["segments"])],
-                         ignore_index=True) \
-        if any(len(r["segments"]) for r in results) else None
-    occurrences = [r["contexts"] for r in results if len(r.get("contexts", ()))]
-    occurrences = pd.concat(occurrences, ignore_index=True) if occurrences else None
-    trajectories = None
-    if keep_trajectories or with_trajectories:
-        frames = [r["trajectories"] for r in results
-                  if r["trajectories"] is not None and len(r["trajectories"])]
-        trajectories = pd.concat(frames, ignore_index=True) if frames else None
+                      "(summary.json lists them all).", CacheEntryWarning, stacklevel=3)
+    return refused
 
-    t0 = time.perf_counter()
 
-    def scored() -> Scores:
-        matches, unmatched = [], []
-        for name, (ref_traj, ref_labels) in corpora.items():
-            if ref_traj is not None and len(labels):
-                if "is_ego" not in ref_labels.columns:  # a format without an ego
-                    unmatched.append(name)
-                    continue
-                matches.append(match_scenarios(labels, trajectories, ref_labels, ref_traj,
-                                               level=suite.level, top=3).assign(reference=name))
-        # coverage and novelty against real driving: windows of its tracks' length
-        cut = {}
-        for name, (ref_traj, _) in corpora.items():
-            if ref_traj is not None and trajectories is not None:
-                seconds = window_seconds("auto", ref_traj, trajectories)
-                if seconds is not None:
-                    cut[name] = (window_episodes(trajectories, seconds, suite.level,
-                                                 thresholds=thresholds, source=name),
-                                 f"{seconds:.1f} s windows")
-        power = power_table(episodes, suite.gate,
-                            n_tests=len(suite.envs) * len(suite.policies)
-                            * len(plan.gate_metrics))
-        scores = score(episodes, reference_policy=suite.reference, level=suite.level,
-                       config=suite.bootstrap,
-                       references={name: lab for name, (_, lab) in corpora.items()} or None,
-                       scenario_matches=pd.concat(matches, ignore_index=True) if matches
-                       else None, gate_power=power, windows=cut or None)
-        # the interaction contexts, scored as `tap-bench contexts` scores them
-        scores = replace(scores, contexts=context_scores(
-            occurrences, list(pd.unique(episodes["policy"])), suite.reference,
-            config=suite.bootstrap))
-        if len(scores.contexts):
-            scores.methods["contexts"] = (
-                "each policy against the reference inside each interaction context (trend "
-                "level): per episode the context's measures reduced over its occurrences, "
-                "then paired by seed (t; Tango for a share) where both meet the context, "
-                "else unpaired (Welch; Newcombe), as tap-bench contexts")
-        if unmatched:
-            scores.methods["scenario matching skipped"] = (
-                f"{', '.join(unmatched)}: the data marks no ego vehicle (is_ego), so its "
-                "scenarios cannot be matched by what happens around the ego; coverage and "
-                "novelty use all its vehicles")
-        return _with_gaps(scores, corpora, labels, episodes, suite.level, thresholds,
-                          suite.bootstrap)
+@dataclass(frozen=True)
+class _RunTables:
+    """The tables of a run's episodes, gathered from the tasks' results: the episode table
+    (sorted by env, policy, seed), labels, segments (None: none), the interaction contexts'
+    occurrences (None: none) and the trajectories (None: not kept)."""
 
-    # an unchanged run reads its scores back (keyed by the episode table's content and the
-    # suite); runs with reference corpora or plug-ins are scored every time
-    scores = memoised(cache, "scores", None if corpora or plan.plugins else {
-        "episodes": table_digest(episodes), "suite": suite.to_dict(),
-        "contexts": None if occurrences is None else table_digest(occurrences),
+    episodes: pd.DataFrame
+    labels: pd.DataFrame
+    segments: pd.DataFrame | None
+    occurrences: pd.DataFrame | None
+    trajectories: pd.DataFrame | None
+
+    @classmethod
+    def of(cls, results: list[dict[str, Any]], trajectories: bool,
+           timings: dict[str, float]) -> _RunTables:
+        """Gathered from ``results``; the workers' CPU time per stage goes to ``timings``
+        (``<stage>_cpu_in_workers`` [s])."""
+        for key in ("rollout", "labelling", "measures"):
+            timings[f"{key}_cpu_in_workers"] = sum(r["timings"].get(key, 0.0)
+                                                   for r in results)
+        episodes = pd.concat([r["episodes"] for r in results], ignore_index=True)
+        episodes = episodes.sort_values(["env", "policy", "seed"], kind="stable")
+        return cls(episodes.reset_index(drop=True),
+                   _concat([r["labels"] for r in results]) if any(
+                       len(r["labels"]) for r in results) else pd.DataFrame(),
+                   _concat([r["segments"] for r in results]),
+                   _concat([r.get("contexts", ()) for r in results]),
+                   _concat([r["trajectories"] for r in results
+                            if r["trajectories"] is not None]) if trajectories else None)
+
+
+def _concat(frames: Sequence[Any]) -> pd.DataFrame | None:
+    """The non-empty ``frames`` as one table (None: none)."""
+    frames = [f for f in frames if len(f)]
+    return pd.concat(frames, ignore_index=True) if frames else None
+
+
+def _scores(plan: SuitePlan, tables: _RunTables,
+            corpora: Mapping[str, tuple[pd.DataFrame | None, pd.DataFrame]],
+            cache: EpisodeCache | None) -> Scores:
+    """The run's scores. An unchanged run reads them back (keyed by the episode table's
+    content and the suite); runs with reference corpora or plug-ins are scored every
+    time."""
+    return memoised(cache, "scores", None if corpora or plan.plugins else {
+        "episodes": table_digest(tables.episodes), "suite": plan.suite.to_dict(),
+        "contexts": None if tables.occurrences is None
+        else table_digest(tables.occurrences),
         "gate_metrics": list(plan.gate_metrics),
         "measures": [m.to_dict() for m in plan.measures]},
-        scored, scores_to_files, scores_from_files)
-    timings["scoring"] = time.perf_counter() - t0
+        lambda: _score(plan, tables, corpora), scores_to_files, scores_from_files)
 
+
+def _score(plan: SuitePlan, tables: _RunTables,
+           corpora: Mapping[str, tuple[pd.DataFrame | None, pd.DataFrame]]) -> Scores:
+    """Every score of the run (:func:`~tap_bench.bench.scores.scoring.score`), with the
+    scenarios matched to each reference, windows of its tracks' length, the gate's power,
+    the interaction contexts and the sim-to-real gaps."""
+    suite, episodes = plan.suite, tables.episodes
+    matches, unmatched = _scenario_matches(corpora, tables, suite.level)
+    power = power_table(episodes, suite.gate,
+                        n_tests=len(suite.envs) * len(suite.policies)
+                        * len(plan.gate_metrics))
+    scores = score(episodes, reference_policy=suite.reference, level=suite.level,
+                   config=suite.bootstrap,
+                   references={name: lab for name, (_, lab) in corpora.items()} or None,
+                   scenario_matches=matches, gate_power=power,
+                   windows=_windows(corpora, tables.trajectories, suite.level,
+                                    plan.thresholds) or None)
+    # the interaction contexts, scored as `tap-bench contexts` scores them
+    scores = replace(scores, contexts=context_scores(
+        tables.occurrences, list(pd.unique(episodes["policy"])), suite.reference,
+        config=suite.bootstrap))
+    if len(scores.contexts):
+        scores.methods["contexts"] = (
+            "each policy against the reference inside each interaction context (trend "
+            "level): per episode the context's measures reduced over its occurrences, "
+            "then paired by seed (t; Tango for a share) where both meet the context, "
+            "else unpaired (Welch; Newcombe), as tap-bench contexts")
+    if unmatched:
+        scores.methods["scenario matching skipped"] = (
+            f"{', '.join(unmatched)}: the data marks no ego vehicle (is_ego), so its "
+            "scenarios cannot be matched by what happens around the ego; coverage and "
+            "novelty use all its vehicles")
+    return _with_gaps(scores, corpora, tables.labels, episodes, suite.level,
+                      plan.thresholds, suite.bootstrap)
+
+
+def _scenario_matches(corpora: Mapping[str, tuple[pd.DataFrame | None, pd.DataFrame]],
+                      tables: _RunTables, level: str
+                      ) -> tuple[pd.DataFrame | None, list[str]]:
+    """Each episode's best-matching scenarios of every reference with trajectories (None:
+    none), and the references that could not be matched (their data mark no ego)."""
+    matches, unmatched = [], []
+    for name, (ref_traj, ref_labels) in corpora.items():
+        if ref_traj is not None and len(tables.labels):
+            if "is_ego" not in ref_labels.columns:  # a format without an ego
+                unmatched.append(name)
+                continue
+            matches.append(match_scenarios(tables.labels, tables.trajectories, ref_labels,
+                                           ref_traj, level=level, top=3).assign(reference=name))
+    return (pd.concat(matches, ignore_index=True) if matches else None), unmatched
+
+
+def _windows(corpora: Mapping[str, tuple[pd.DataFrame | None, pd.DataFrame]],
+             trajectories: pd.DataFrame | None, level: str, thresholds: Thresholds
+             ) -> dict[str, tuple[pd.DataFrame, str]]:
+    """Coverage and novelty against real driving: the episodes cut in windows of the
+    length of each reference's tracks, by reference name."""
+    cut = {}
+    for name, (ref_traj, _) in corpora.items():
+        if ref_traj is not None and trajectories is not None:
+            seconds = window_seconds("auto", ref_traj, trajectories)
+            if seconds is not None:
+                cut[name] = (window_episodes(trajectories, seconds, level,
+                                             thresholds=thresholds, source=name),
+                             f"{seconds:.1f} s windows")
+    return cut
+
+
+def _cache_summary(cache: EpisodeCache | None, results: list[dict[str, Any]],
+                   refused: list[str]) -> dict[str, Any] | None:
+    """The ``cache`` part of ``summary.json`` (None: the run had no cache)."""
+    if cache is None:
+        return None
+    return {"dir": str(cache.root), "cached": sum(r["cached"] for r in results),
+            "simulated": sum(not r["cached"] for r in results),
+            "labelled_before": sum(bool(r.get("labels_cached")) for r in results),
+            "refused": refused}
+
+
+def _summary(plan: SuitePlan, output: Path, sources: Mapping[str, ReferenceSource],
+             tables: _RunTables, scores: Scores, timings: dict[str, float],
+             estimate: RunPlan, cache: dict[str, Any] | None,
+             realism: list[dict[str, Any]]) -> dict[str, Any]:
+    """``summary.json``: what ran, on what, how it scored, and how long it took."""
+    suite, episodes, thresholds = plan.suite, tables.episodes, plan.thresholds
     failed = episodes[~episodes["status"].isin(("ok", "skipped"))]  # skipped: no route
     skipped = episodes[episodes["status"] == "skipped"]
     facts = fresh_facts(plan, output)
-    summary = {
+    return {
         "format": "tap-bench-run", "format_version": 1,
         "run": facts["run"], "created": facts["created"],
         "suite": suite.to_dict(), "suite_file": facts["suite_file"],
@@ -375,53 +524,28 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         "one_outcome_cells": one_outcome_cells(episodes).to_dict("records"),
         "verdict": verdict_table(scores.paired_measures, scores.paired,
                                  scores.paired_labels).to_dict("records"),
-        "provenance": provenance(plan),
+        "provenance": provenance(plan.definitions, plan.scenarios),
         "measures": [m.to_dict() for m in plan.measures],
         "plugins": list(plan.plugins),
-        "realism": shown_realism,
+        "realism": realism,
         "timings": timings,
         "estimate": {"seconds": _round(estimate.seconds),
                      "overhead": _round(estimate.overhead_seconds), "basis": estimate.basis},
-        "cache": None if cache is None else {
-            "dir": str(cache.root), "cached": sum(r["cached"] for r in results),
-            "simulated": sum(not r["cached"] for r in results),
-            "labelled_before": sum(bool(r.get("labels_cached")) for r in results),
-            "refused": refused},
+        "cache": cache,
     }
-    if announce is not None:
-        announce(f"scored ({timings['scoring']:.1f} s); writing the tables"
-                 + (", plots, report and replay viewer" if report else "") + " ...")
-    t0 = time.perf_counter()
-    roads = None
-    if keep_trajectories:  # the replay viewer draws them; highway-env's road is seed-free
-        roads = pd.concat([road(env) for env in suite.envs], ignore_index=True)
-    # kept whole for an unchanged re-run: every episode made (a failed one is tried again)
-    # and its inputs as at the start (a policy's model or module changed while it went on
-    # would be kept under the old content's key)
-    keep = whole is not None and (episodes["status"] == "ok").all() and tasks is not None \
-        and _inputs_hold(plan, tasks, whole, keep_trajectories=keep_trajectories,
-                         report=report)
-    pages: dict[str, bytes] | None = {} if keep else None
-    folder = write_results(output, overwrite, summary, episodes, labels, trajectories
-                           if keep_trajectories else None, scores, report,
-                           segments=segments, roads=roads, cache=cache, pages=pages)
-    timings["writing_and_report"] = time.perf_counter() - t0
-    timings["total"] = time.perf_counter() - t_start
-    if summary["cache"] is not None:  # derived entries (roads, scores, plots, viewer, run)
-        summary["cache"]["refused"] = [*refused, *take_refused()]
-    _write_json(folder / "summary.json", summary)  # with the final timings
-    if keep and cache is not None and pages is not None:
-        store_run(cache, whole, folder, summary, pages, episodes, scores)
-    if cache is not None and not package_code_holds():
+
+
+def _tidy_cache(cache: EpisodeCache, results: list[dict[str, Any]], total: float,
+                workers: int, entries_since: float) -> None:
+    """After the run: drop what it kept if tap-bench was edited while it ran, record the
+    episodes' timings for the next estimate and prune the cache to its size bound."""
+    if not package_code_holds():
         # tap-bench edited while the run went on: a worker may have imported the new code
         # (labelling, simulation) after the keys named the old, so what it kept is dropped
         cache.forget_written_since(entries_since)
-    if cache is not None:
-        simulated, cached = _observed_timings(results)
-        work = sum(r["seconds"] for r in results if math.isfinite(r["seconds"]))
-        overhead = timings["total"] - work / max(1, min(runner.workers, len(results)))
-        with contextlib.suppress(OSError):  # the run is written; the cache is a convenience
-            cache.record_timings(simulated, cached, overhead)
-            cache.prune()
-    return RunResult(folder, summary, episodes, scores, folder / "report.html")
-
+    simulated, cached = _observed_timings(results)
+    work = sum(r["seconds"] for r in results if math.isfinite(r["seconds"]))
+    overhead = total - work / max(1, min(workers, len(results)))
+    with contextlib.suppress(OSError):  # the run is written; the cache is a convenience
+        cache.record_timings(simulated, cached, overhead)
+        cache.prune()
