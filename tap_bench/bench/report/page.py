@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import html
 import os
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from urllib.parse import quote
@@ -231,10 +233,51 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
                      "policies side by side on the same seed. The ▶ replay links below open "
                      "the episode a row is about.</p>")
 
-    def img(name: str, alt: str, caption: str) -> str:
-        return _figure(plots[name], alt, caption) if name in plots else ""
+    page = _Page(plots, reference, level, pct, viewer)
+    parts.extend(_summary_section(page, summary, episodes, scores))
+    parts.extend(_against_the_human(episodes, reference, level))
+    parts.extend(_env_section(page, summary, episodes, scores))
+    parts.extend(_comparison_section(page, summary, episodes, scores))
+    parts.extend(_coverage_section(page, summary, episodes, scores))
+    parts.extend(_power_section(page, summary, episodes, scores))
+    parts.extend(realism_section(summary.get("realism") or []))
+    parts.extend(_run_section(page, summary, episodes, scores))
+    text = ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
+            "<link rel=\"icon\" href=\"data:,\">"
+            f"<title>tap-bench {html.escape(run)}</title>"
+            f"<style>{_CSS}</style></head><body>{''.join(parts)}"
+            f"<script>{_SCRIPT}</script></body></html>\n")
+    path = folder / "report.html"
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return path
 
-    # 1. the summary
+
+@dataclass(frozen=True)
+class _Page:
+    """What every section of the report reads: the figures written (name -> path), the
+    reference policy, the intervals' level and its text (``95 %``), and the replay viewer's
+    page (None: no replay links)."""
+
+    plots: Mapping[str, Path]
+    reference: str
+    level: float
+    pct: str
+    viewer: str | None
+
+    def img(self, name: str, alt: str, caption: str) -> str:
+        """The figure ``name`` with its caption ("" when it was not drawn)."""
+        return _figure(self.plots[name], alt, caption) if name in self.plots else ""
+
+
+def _summary_section(page: _Page, summary: dict[str, Any], episodes: pd.DataFrame,
+                     scores: Scores) -> list[str]:
+    """The summary: episodes with one outcome, the verdict per policy, the trade-off figure, the
+    summary table against the reference and how the intervals are computed."""
+    reference = page.reference
+    pct = page.pct
+    img = page.img
+    parts: list[str] = []
     pooled_env = "all" if len(_envs(scores)) > 1 else (_envs(scores) or ["–"])[0]
     one = summary.get("one_outcome_cells") or []
     if one:
@@ -291,9 +334,19 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
                      "<ul>" + "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>"
                                       for k, v in scores.methods.items()) + "</ul></details>")
 
-    parts.extend(_against_the_human(episodes, reference, level))
+    return parts
 
-    # 2. per-env panels
+
+def _env_section(page: _Page, summary: dict[str, Any], episodes: pd.DataFrame,
+                 scores: Scores) -> list[str]:
+    """Per env: the measures and labels figures, the crashed episodes, the pooled figure and
+    the table of every measure."""
+    reference = page.reference
+    level = page.level
+    pct = page.pct
+    viewer = page.viewer
+    img = page.img
+    parts: list[str] = []
     parts.append("<h2>Per env</h2>")
     for env in _envs(scores):
         parts.append(f'<h3 id="env-{html.escape(_slug(env))}">{html.escape(env)}</h3>')
@@ -335,7 +388,19 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
                             caption="Every measure per env and policy: mean over episodes and "
                             f"{pct} interval, in the measure's unit."))
 
-    # 3. comparisons in detail
+    return parts
+
+
+def _comparison_section(page: _Page, summary: dict[str, Any], episodes: pd.DataFrame,
+                        scores: Scores) -> list[str]:
+    """The matched comparisons: paired by seed (labels, measures, probability of improvement,
+    forest plots), by SDL label, and by interaction context."""
+    plots = page.plots
+    level = page.level
+    pct = page.pct
+    viewer = page.viewer
+    img = page.img
+    parts: list[str] = []
     parts.append("<h2>Matched comparison: paired by seed</h2>")
     parts.append('<p class="note">Each policy against the reference on the same initial '
                  "traffic (the same seed).</p>")
@@ -390,6 +455,19 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
             links=[_replay(viewer, f_env=r.env, f_policy=r.policy, f_sdl=r.interaction)
                    for r in ctx.itertuples()]))
     parts.extend(_context_comparison(scores.contexts, pct))
+    return parts
+
+
+def _coverage_section(page: _Page, summary: dict[str, Any], episodes: pd.DataFrame,
+                      scores: Scores) -> list[str]:
+    """Coverage of the references, diversity, unique manoeuvres (novelty, novel labels) and the
+    scenarios matched across data sets."""
+    reference = page.reference
+    level = page.level
+    pct = page.pct
+    viewer = page.viewer
+    img = page.img
+    parts: list[str] = []
     parts.append("<h2>Behaviour coverage</h2>")
     parts.append(img("coverage", "coverage",
                      "Coverage, all envs pooled: the share of the reference corpus's labels "
@@ -439,6 +517,13 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
                                 caption="Each simulated episode beside its nearest WOMD "
                                 "scenarios by scenario-level SDL (Scenario2Vector distance)."))
 
+    return parts
+
+
+def _power_section(page: _Page, summary: dict[str, Any], episodes: pd.DataFrame,
+                   scores: Scores) -> list[str]:
+    """The regression gate's power at this run's seed count (empty: no power table)."""
+    parts: list[str] = []
     if not scores.gate_power.empty:
         power = power_summary(scores.gate_power)
         parts.append("<h2>Regression gate: power at this seed count</h2>")
@@ -455,9 +540,16 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
                          f"with less than {POWER:.0%} probability at {r.n} seeds; up to "
                          f"{r.seeds_for_power:.0f} seeds needed.</p>")
 
-    parts.extend(realism_section(summary.get("realism") or []))
+    return parts
 
-    # 4. the run
+
+def _run_section(page: _Page, summary: dict[str, Any], episodes: pd.DataFrame,
+                 scores: Scores) -> list[str]:
+    """The run: its facts (suite, seeds, level, thresholds, references, versions), the failed
+    episodes and the timings."""
+    reference = page.reference
+    suite = summary.get("suite", {})
+    parts: list[str] = []
     parts.append("<h2>The run</h2>")
     facts = pd.DataFrame([
         ("envs", ", ".join(e if isinstance(e, str) else str(e.get("name", "womd"))
@@ -483,15 +575,7 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
                             caption="Left out of every score.")
                  if len(failed) else '<p class="note">none</p>')
     parts.append(timings_html(summary.get("timings", {})))
-    page = ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
-            "<link rel=\"icon\" href=\"data:,\">"
-            f"<title>tap-bench {html.escape(run)}</title>"
-            f"<style>{_CSS}</style></head><body>{''.join(parts)}"
-            f"<script>{_SCRIPT}</script></body></html>\n")
-    path = folder / "report.html"
-    with atomic_path(path) as tmp:
-        tmp.write_text(page, encoding="utf-8")
-    return path
+    return parts
 
 
 def _context_comparison(contexts: pd.DataFrame, pct: str) -> list[str]:
