@@ -240,7 +240,7 @@ def _check_retries(retries: Any) -> int:
 
 
 def _bar(total: int | None, desc: str, unit: str, progress: bool | None) -> Any:
-    from tap_bench.cli.progress import progress_bar  # a bar, or lines where no terminal
+    from tap_bench.progress import progress_bar  # a bar, or lines where no terminal
 
     return progress_bar(total, desc, unit, progress)
 

@@ -9,8 +9,8 @@ import json
 import os
 import sys
 
-from tap_bench.cli.progress import add_progress_arguments, progress_choice
 from tap_bench.execution import add_backend_arguments
+from tap_bench.progress import add_progress_arguments, progress_choice
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

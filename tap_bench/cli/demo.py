@@ -6,7 +6,7 @@ import argparse
 import os
 import time
 
-from tap_bench.cli.progress import add_progress_arguments, progress_choice
+from tap_bench.progress import add_progress_arguments, progress_choice
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

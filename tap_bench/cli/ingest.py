@@ -6,8 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from tap_bench.cli.progress import add_progress_arguments, progress_choice
 from tap_bench.execution import add_backend_arguments
+from tap_bench.progress import add_progress_arguments, progress_choice
 from tap_bench.sources.ingest import ON_ERROR, formats, ingest_womd, report_path
 from tap_bench.womd.tfrecord import MAX_RECORD_BYTES
 

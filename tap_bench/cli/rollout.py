@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from tap_bench.cli.progress import add_progress_arguments, progress_choice
 from tap_bench.execution import add_backend_arguments, backend_from_args, close_backend
+from tap_bench.progress import add_progress_arguments, progress_choice
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

@@ -236,7 +236,7 @@ def rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
         lane_change: another lane-change setting (``"default"``, ``"realistic"``).
         record: build the trajectory table (False: episode table only, faster).
         progress: show a progress bar (None: on a terminal; elsewhere a line on stderr
-            every few seconds, tap_bench.cli.progress).
+            every few seconds, tap_bench.progress).
         backend: where the episodes run (:mod:`tap_bench.execution`: local processes or
             a Ray cluster); one task per episode.
         retries: retries of an episode whose worker died (the recovery rule of

@@ -9,9 +9,9 @@ import time
 
 import pytest
 
-from tap_bench.cli import progress
-from tap_bench.cli.progress import ProgressLines, progress_bar
+from tap_bench import progress
 from tap_bench.execution import LocalBackend
+from tap_bench.progress import ProgressLines, progress_bar
 
 
 def test_lines_every_interval_while_the_work_runs_and_a_last_one():
