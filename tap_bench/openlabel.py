@@ -1,4 +1,4 @@
-"""Labels as ASAM OpenLABEL 1.0.0 JSON, and back (issue 14 part 4).
+"""Labels as ASAM OpenLABEL 1.0.0 JSON, and back.
 
 One OpenLABEL document per scenario, from a segment table (SPEC section 1, one row per run
 of one label; with interactions, ``axis = "interaction"`` rows naming ``other_track_id``):

@@ -74,9 +74,8 @@ __all__ = [
 ]
 
 CORRIDOR_HALF_WIDTH = 1.8
-"""[m] the ego's corridor is |d| <= this: half a lane (SPEC 7). Measured on the real WOMD
-samples and highway-env, vehicles in the ego's lane sit within 1 m of its path and those in
-the next lane 3 m or more away (docs/interactions.md)."""
+"""[m] the ego's corridor is |d| <= this: half a lane (SPEC 7), between the vehicles of the
+ego's lane and those of the next (their measured offsets: docs/interactions.md)."""
 SAME_DIRECTION = math.pi / 3
 """[rad] an agent whose heading is within this of the path's direction drives along it
 (a leader can be followed); crossing and oncoming agents are not leaders."""

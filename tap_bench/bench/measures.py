@@ -61,13 +61,14 @@ over the episodes that have one, and the episodes without are counted
 (:func:`leader_counts`; the benchmark's measures table has ``n_missing``). A leader that
 the ego never closes in on still gives a TTC: the cap.
 
-**Jerk.** Differentiating a 10 Hz speed twice amplifies its noise 100-fold: a real Waymo car
-drove at 13.1 m/s^3 RMS jerk by second differences, 2.8 after 0.5 s of smoothing; IDM in a
-roundabout 11.4. As nuPlan's comfort metrics do (``ego_jerk``: a Savitzky-Golay filter
-before each derivative), the acceleration is the Savitzky-Golay derivative of the speed
-and the jerk the Savitzky-Golay derivative of that acceleration, each a fit of order
-:data:`JERK_POLYORDER` over :data:`JERK_WINDOW_S` (nuPlan's 15 steps and order 2 at its
-10 Hz), over each run of consecutive steps (a run shorter than the window gives no jerk).
+**Jerk.** Differentiating a 10 Hz speed twice amplifies its noise 100-fold (dt^-2): by
+second differences a smooth real drive shows several times the RMS jerk it has after 0.5 s
+of smoothing (docs/benchmark.md). As nuPlan's comfort metrics do (``ego_jerk``: a
+Savitzky-Golay filter before each derivative), the acceleration is the Savitzky-Golay
+derivative of the speed and the jerk the Savitzky-Golay derivative of that acceleration,
+each a fit of order :data:`JERK_POLYORDER` over :data:`JERK_WINDOW_S` (nuPlan's 15 steps
+and order 2 at its 10 Hz), over each run of consecutive steps (a run shorter than the
+window gives no jerk).
 nuPlan's comfort bound is |longitudinal jerk| <= :data:`JERK_COMFORT_BOUND` m/s^3
 (``max_abs_lon_jerk``); the RMS here is a mean over time, so compare it with the bound as a
 typical, not a peak, value.

@@ -1,5 +1,5 @@
 """A collision of the ego with its cause: the agent it hit and whether it was at fault
-(SPEC section 8, issue 32).
+(SPEC section 8).
 
 - **Who.** The agent whose box overlaps the ego's most (:func:`overlap_area`: the
   intersection of two oriented boxes, clipped as convex polygons), not the nearest centre:

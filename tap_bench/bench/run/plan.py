@@ -192,8 +192,8 @@ def _env_fingerprints(scenario: Scenario | WomdScenes, env: str, seeds: tuple[in
 
 CACHED_EPISODE_S = 0.03
 """Estimate of a cached episode's worker time (read, verify, label and measure, in batches)
-when no run has measured it yet [s]: 0.028 s in the default suite on the 2-core
-development machine (``benchmarks/bench_incremental.py``)."""
+when no run has measured it yet [s] (``benchmarks/bench_incremental.py`` measures it;
+docs/benchmark.md, "Incremental runs")."""
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """A run served whole from the episode cache: when every input of a ``bench run`` is the same
 as an earlier run's, its run folder is written from what that run wrote, with no episode
 read, nothing scored, drawn or rendered, and without importing the scoring, the report or
-the replay viewer (issue 24 section 3; part of :mod:`tap_bench.bench.run.runner`).
+the replay viewer (part of :mod:`tap_bench.bench.run.runner`).
 
 **The key** is a :func:`~tap_bench.bench.cache.derived_key` of kind ``runs`` (so it holds
 the code of the whole package and the versions of NumPy, pandas, PyArrow and SciPy) over

@@ -1,4 +1,4 @@
-"""Matched comparison of two policies A and B (SPEC section 6, issue 6 part 1).
+"""Matched comparison of two policies A and B (SPEC section 6).
 
 Both functions read the episode table (:mod:`tap_bench.bench.episodes`). Labels are always
 compared within one env: a label is the pair (env, label), so a roundabout label never

@@ -1,4 +1,4 @@
-"""Behaviour compared by interaction context (issue 14 part 2): how a policy drives *when
+"""Behaviour compared by interaction context: how a policy drives *when
 it follows, is cut in on, or its leader brakes*.
 
 **Occurrences** (:func:`context_occurrences`). Every run of one relation on the ego's

@@ -49,11 +49,11 @@ estimand of 4.32); the intervals are for this estimand.
 probabilities are shrunk and the f0 undetected labels are given the Good-Turing undetected
 mass (:func:`estimated_population`, iNEXT's ``EstiBootComm``); ``n_resamples`` samples of n
 episodes are drawn from it. iNEXT's own interval, ``estimate +- z sd`` over the draws,
-covers 0.73-0.93 at 10 to 100 episodes in ``benchmarks/interval_coverage.py``, for three
-reasons measured there: the sd is too small when the sample shows few singletons, which is
-also when the estimate is low (the correlation of the bootstrap sd with the estimate is
-0.56-0.86 over samples of one distribution, so the misses pile up on one side); the error
-is skewed; and q = 1, 2 are biased at small n. The interval here is the **studentized
+covers less than its level at 10 to 100 episodes (``benchmarks/interval_coverage.py``;
+figures in docs/benchmark.md), for three reasons: the sd is too small when the sample
+shows few singletons, which is also when the estimate is low (the bootstrap sd grows with
+the estimate, so the misses pile up on one side); the error is skewed; and q = 1, 2 are
+biased at small n. The interval here is the **studentized
 bootstrap** (bootstrap-t; Efron & Tibshirani 1993 ch. 12, Davison & Hinkley 1997 5.2.1,
 :func:`studentized_interval`): in each draw the truth is the population's own value
 (:func:`population_hill`; for completeness the draw's coverage), ``t* = (draw - truth) /

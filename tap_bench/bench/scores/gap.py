@@ -1,4 +1,4 @@
-"""The sim-to-real behaviour gap (issue 14 part 3): how far a policy's behaviour is from
+"""The sim-to-real behaviour gap: how far a policy's behaviour is from
 people's, label by label.
 
 A trajectory's behaviour is the single labels it shows on the chosen axes at one level:

@@ -1,5 +1,5 @@
 """Unique manoeuvres: labels an agent produces that the reference corpus never shows
-(issue 6 part 3, SPEC section 6).
+(SPEC section 6).
 
 The **novelty rate** is the share of the agent's episodes whose ego SDL label is absent
 from the reference corpus (:func:`tap_bench.bench.scores.coverage.corpus_reference`), with a

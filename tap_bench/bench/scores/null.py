@@ -1,9 +1,10 @@
-"""The same-policy null of coverage and novelty (issue 25): what a policy that drives like
+"""The same-policy null of coverage and novelty: what a policy that drives like
 the reference would score, and how far a policy is from it.
 
-IDM held against its own rollouts on fresh seeds scores 35 % novel and 21 % coverage: a
-finite reference never shows everything its own policy does. So "idm-defensive 50 % novel"
-means little until it stands beside that figure. The reference's trajectories are split in
+A finite reference never shows everything its own policy does: a policy held against
+rollouts of itself on fresh seeds scores well above 0 % novel and well below 100 %
+coverage (docs/benchmark.md has the figures). So a novelty rate means little until it
+stands beside that figure. The reference's trajectories are split in
 two halves at random: one half is the reference, the other drives like it by construction.
 
 For one split (halves ``R`` and ``P`` of the reference, ``m`` trajectories each):
@@ -42,9 +43,8 @@ the estimate has averaged away: the draws are shrunk about their mean by
 estimate's own splits. The interval is the percentile interval of the shrunk draws; where
 they cannot move (every half shows the same labels) it is the estimate +- the Wilson upper
 limit of 0 of m (what m trajectories could show unseen), never zero-width.
-``benchmarks/null_coverage.py`` measures its coverage (docs/benchmark.md, "The
-same-policy null"): without the shrinking it held the truth in 98-100 % of data sets at
-nearly twice the width.
+``benchmarks/null_coverage.py`` measures its coverage, with and without the shrinking
+(docs/benchmark.md, "The same-policy null").
 """
 
 from __future__ import annotations

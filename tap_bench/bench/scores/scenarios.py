@@ -1,4 +1,4 @@
-"""Scenarios matched across data sets (issue 6 part 1(c)): each highway-env episode beside
+"""Scenarios matched across data sets: each highway-env episode beside
 its nearest WOMD scenarios by scenario-level SDL.
 
 The scenario-level SDL and its distance are :mod:`tap_bench.similarity.scenario_sdl`'s

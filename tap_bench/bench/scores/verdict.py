@@ -14,7 +14,7 @@ Safety first, then efficiency, then behaviour, each claim with its interval:
    labels whose frequency differs most with its interval clear of 0 (``paired_labels``).
 
 A policy that is less safe is never "better": the overall word is **less safe**,
-whatever its speed (a random policy that crashes on 61 % of the seeds is faster than
+whatever its speed (a random policy that crashes on most seeds is faster than
 IDM). The intervals are those of the tables they come from (``methods`` in
 ``summary.json``), each at the run's level on its own: a per-env claim is one of (envs x 3)
 safety intervals, not corrected across them (the regression gate corrects; this is a
