@@ -35,7 +35,8 @@ if TYPE_CHECKING:
 
 __all__ = ["FOLDER_MARKER", "atomic_folder", "atomic_path", "atomic_paths", "beside",
            "check_folder_output", "check_outputs", "check_replace", "check_writable",
-           "EncodedTable", "read_table", "read_table_encoded", "write_table", "write_tables"]
+           "EncodedTable", "episodes_path", "read_table", "read_table_encoded", "write_table",
+           "write_tables"]
 
 FOLDER_MARKER = ".tap-bench-folder"
 """The file tap-bench leaves in every results folder it writes; only a folder holding it may
@@ -626,3 +627,12 @@ def write_tables(tables: Mapping[str | os.PathLike, pd.DataFrame]) -> list[Path]
         for tmp, path, table in zip(temps, paths, tables.values(), strict=True):
             _write(table, tmp, path)
     return paths
+
+
+def episodes_path(output: Path) -> Path:
+    """``idm.parquet`` -> ``idm.episodes.parquet`` (``.csv.gz`` kept whole)."""
+    name = output.name
+    for suffix in (".csv.gz", ".parquet", ".pq", ".csv"):
+        if name.lower().endswith(suffix):
+            return output.with_name(name[: -len(suffix)] + ".episodes" + name[-len(suffix):])
+    return output.with_name(name + ".episodes.parquet")

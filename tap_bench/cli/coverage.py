@@ -62,11 +62,10 @@ def run(args: argparse.Namespace) -> int:
     from tap_bench.bench.scores.coverage import UNITS, corpus_reference, vocabulary_reference
     from tap_bench.bench.scores.gap import number_windows, window_seconds, windows
     from tap_bench.bench.scores.scoring import diversity_table, reference_scores
-    from tap_bench.cli.rollout import episodes_path
     from tap_bench.labelling import tap
     from tap_bench.labels import label_text
     from tap_bench.sdl import check_axes
-    from tap_bench.tableio import check_outputs, read_table, write_tables
+    from tap_bench.tableio import check_outputs, episodes_path, read_table, write_tables
 
     config = bootstrap_from_args(args)
     novel_path = None

@@ -53,20 +53,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def episodes_path(output: Path) -> Path:
-    """``idm.parquet`` -> ``idm.episodes.parquet`` (``.csv.gz`` kept whole)."""
-    name = output.name
-    for suffix in (".csv.gz", ".parquet", ".pq", ".csv"):
-        if name.lower().endswith(suffix):
-            return output.with_name(name[: -len(suffix)] + ".episodes" + name[-len(suffix):])
-    return output.with_name(name + ".episodes.parquet")
-
-
 def run(args: argparse.Namespace) -> int:
     import sys
 
     from tap_bench.sim.rollout_stream import stream_rollout
     from tap_bench.sim.scenario_env import get_scenario
+    from tap_bench.tableio import episodes_path
 
     output = Path(args.output)
     episodes_out = Path(args.episodes) if args.episodes else episodes_path(output)

@@ -63,6 +63,7 @@ PART_SECONDS = 30.0
 """A part is written at least this often while results come [s]."""
 
 
+
 @dataclass(frozen=True)
 class StreamedRollout:
     """What :func:`stream_rollout` did.
@@ -268,9 +269,8 @@ def stream_rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
     """
     import pandas as pd
 
-    from tap_bench.cli.progress import SceneProgress
-    from tap_bench.cli.rollout import episodes_path
-    from tap_bench.tableio import _format, atomic_paths, check_outputs
+    from tap_bench.progress import SceneProgress
+    from tap_bench.tableio import _format, atomic_paths, check_outputs, episodes_path
 
     output = Path(output)
     episodes_out = Path(episodes_output) if episodes_output else episodes_path(output)

@@ -128,7 +128,7 @@ def test_parts_are_refused_without_resume_and_from_another_run(tmp_path):
 
 
 def test_progress_lines_count_scenes_and_go_to_the_log(tmp_path, capsys, monkeypatch):
-    from tap_bench.cli import progress
+    from tap_bench import progress
 
     files = scene_files(tmp_path / "scenes", 3, per_file=3)
     monkeypatch.setattr(progress, "LINE_EVERY", 0.01)
