@@ -162,7 +162,7 @@ def test_peak_memory_does_not_grow_with_the_scenes(tmp_path):
 def test_a_progress_line_counts_this_runs_scenes_for_the_rate(tmp_path):
     import re
 
-    from tap_bench.cli.progress import SceneProgress
+    from tap_bench.progress import SceneProgress
 
     log = tmp_path / "p.log"
     bar = SceneProgress(10, "womd idm", before=4, show=False, log=str(log), every=1000)
