@@ -205,7 +205,9 @@ def _aggregates(scores: pd.DataFrame, agents: Sequence[str], *, seed: int, level
             out = stratified_bootstrap(m, stat, rng=named_rng(seed, "agents", measure, agent),
                                        level=level, n_resamples=n_resamples, unit=unit)
             sign = 1.0 if higher else -1.0
-            low, high = sorted((sign * out.low, sign * out.high))
+            # every measure here is a share in [0, 1]; the widened draws may pass its ends
+            low, high = (min(max(v, 0.0), 1.0)
+                         for v in sorted((sign * out.low, sign * out.high)))
             rows.append({"agent": agent, "measure": measure, "aggregate": kind,
                          "estimate": sign * out.estimate + 0.0, "low": low + 0.0,
                          "high": high + 0.0,
