@@ -283,6 +283,10 @@ def test_every_input_that_changes_an_output_misses(runs, without_report, tmp_pat
         cache = runs[3]
     else:
         cache, kwargs = without_report, {"report": False, **kwargs}
+    # each case on its own copy: a case's kept entry must not serve the next case of the same
+    # change (its cold variant), which must miss as well
+    shutil.copytree(cache.root, tmp_path / "cache")
+    cache = EpisodeCache(tmp_path / "cache")
     suite = tiny(**suite_changes)
     warm = run(tmp_path / "warm", cache, suite, **kwargs)
     assert not served(warm), change
