@@ -23,6 +23,7 @@ compiled pass; where two lanes are within :data:`TOLERANCE`, the lanes' own
 from __future__ import annotations
 
 import bisect
+import functools
 import math
 from collections.abc import Sequence
 from typing import Any
@@ -30,6 +31,7 @@ from typing import Any
 import numba
 import numpy as np
 from highway_env.road.lane import PolyLaneFixedWidth
+from highway_env.road.spline import LinearSpline2D
 
 __all__ = ["MIN_LANE_LENGTH", "TOLERANCE", "FastPolyLane", "LaneIndex", "lane_points",
            "project_positions"]
@@ -121,9 +123,29 @@ def _poses(lane: PolyLaneFixedWidth) -> tuple[np.ndarray, ...]:
             np.asarray(lane.curve.s_samples, dtype=np.float64))
 
 
+def _arc_lengths(points: np.ndarray) -> np.ndarray:
+    """(n,) cumulative arc length [m] at each point of a polyline (n, 2)."""
+    step = np.diff(points, axis=0)
+    return np.concatenate(([0.0], np.cumsum(np.sqrt(step[:, 0] ** 2 + step[:, 1] ** 2))))
+
+
+def _sampled_poses(points: np.ndarray, arc: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(px, py, tx, ty, s): poses every metre of arc length along a polyline (points
+    (n, 2) [m], ``arc`` its cumulative arc length), each with the unit tangent of the chord
+    to the next pose (the last pose keeps the one before it): the poses highway-env's
+    ``PolyLaneFixedWidth`` samples, computed in one vectorised pass."""
+    s = np.arange(0, int(np.floor(arc[-1])) + 1).astype(np.float64)
+    px, py = np.interp(s, arc, points[:, 0]), np.interp(s, arc, points[:, 1])
+    dx, dy = np.diff(px), np.diff(py)
+    dx, dy = np.append(dx, dx[-1]), np.append(dy, dy[-1])
+    norm = np.sqrt(dx ** 2 + dy ** 2)
+    return px, py, dx / norm, dy / norm, s
+
+
 class FastPolyLane(PolyLaneFixedWidth):
-    """highway-env's ``PolyLaneFixedWidth`` with its frame and heading computed from its
-    poses (see the module docstring).
+    """highway-env's ``PolyLaneFixedWidth`` with its poses, frame, heading and positions
+    computed here from the centre line (see the module docstring). highway-env's own curve
+    object (``curve``) is built only when something asks for it.
 
     Attributes:
         womd_id: the WOMD lane id.
@@ -132,12 +154,44 @@ class FastPolyLane(PolyLaneFixedWidth):
     """
 
     def __init__(self, lane_points: Sequence[Sequence[float]], width: float, *,
-                 womd_id: int = -1, speed_limit: float = 20.0, **kwargs: Any) -> None:
-        super().__init__(lane_points, width=width, speed_limit=speed_limit, **kwargs)
+                 womd_id: int = -1, speed_limit: float = 20.0,
+                 line_types: tuple[Any, Any] | None = None, forbidden: bool = False,
+                 priority: int = 0) -> None:
+        self._points = np.asarray(lane_points, dtype=np.float64).reshape(-1, 2)
+        self._arc = _arc_lengths(self._points)
+        self.length = self._arc[-1]
+        self.width = width
+        self.line_types = line_types
+        self.forbidden = forbidden
+        self.speed_limit = speed_limit
+        self.priority = priority
         self.womd_id = int(womd_id)
-        self.arrays = _poses(self)
+        self.arrays = _sampled_poses(self._points, self._arc)
         self._s_list = self.arrays[4].tolist()
         self._headings = np.arctan2(self.arrays[3], self.arrays[2]).tolist()
+
+    @functools.cached_property
+    def curve(self) -> LinearSpline2D:
+        """highway-env's curve of the centre line (built at the first use)."""
+        return LinearSpline2D(self._points.tolist())
+
+    def _along(self, longitudinal: float) -> tuple[float, float]:
+        """The centre line's point [m] at arc length ``longitudinal`` [m], continued
+        straight along the first and last segments beyond the ends."""
+        arc, pts = self._arc, self._points
+        x = float(np.interp(longitudinal, arc, pts[:, 0]))
+        y = float(np.interp(longitudinal, arc, pts[:, 1]))
+        end = 0 if longitudinal < arc[0] else -2 if longitudinal > arc[-1] else None
+        if end is not None:
+            run = arc[end + 1] - arc[end]
+            x = pts[end, 0] + (pts[end + 1, 0] - pts[end, 0]) / run * (longitudinal - arc[end])
+            y = pts[end, 1] + (pts[end + 1, 1] - pts[end, 1]) / run * (longitudinal - arc[end])
+        return x, y
+
+    def position(self, longitudinal: float, lateral: float) -> np.ndarray:
+        x, y = self._along(longitudinal)
+        yaw = self.heading_at(longitudinal)
+        return np.array([x - np.sin(yaw) * lateral, y + np.cos(yaw) * lateral])
 
     def local_coordinates(self, position: np.ndarray) -> tuple[float, float]:
         return _frame(*self.arrays, float(position[0]), float(position[1]))

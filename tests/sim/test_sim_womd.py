@@ -89,6 +89,25 @@ def test_lane_lookup_and_projection_equal_highway_envs_on_generated_lanes(seed):
                                                      abs=1e-12)
         many = lane.project(np.array([p[0], p[0] + 1.0]), np.array([p[1], p[1] - 2.0]))
         assert many[0][0] == lon and many[1][0] == lat
+        lon = rng.uniform(-5.0, lane.length + 5.0)  # within the lane and beyond its ends
+        lat = rng.uniform(-3.0, 3.0)
+        want_xy = PolyLaneFixedWidth.position(lane, lon, lat)  # on highway-env's curve
+        assert np.abs(lane.position(lon, lat) - want_xy).max() <= 1e-9
+
+
+def test_lane_poses_equal_highway_envs_samples():
+    rng = np.random.default_rng(7)
+    for _ in range(40):
+        pts = lane_points(np.cumsum(rng.normal(0.0, 3.0, (rng.integers(2, 30), 2)), axis=0))
+        ours = FastPolyLane(pts.tolist(), 3.7)
+        theirs = PolyLaneFixedWidth(pts.tolist(), width=3.7)
+        assert ours.length == pytest.approx(theirs.length, abs=1e-12)
+        want = (np.array([p.position for p in theirs.curve.poses]),
+                np.array([p.normal for p in theirs.curve.poses]), theirs.curve.s_samples)
+        got = ours.arrays
+        assert np.abs(np.c_[got[0], got[1]] - want[0]).max() <= 1e-9
+        assert np.abs(np.c_[got[2], got[3]] - want[1]).max() <= 1e-12
+        assert np.array_equal(got[4], want[2])
 
 
 def test_lane_lookup_equals_highway_envs_on_a_real_map(real):
