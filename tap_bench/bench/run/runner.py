@@ -178,6 +178,18 @@ def _inputs_hold(plan: SuitePlan, tasks: Sequence[Any], whole: Mapping[str, Any]
         return False
 
 
+def _kept_whole(plan: SuitePlan, tasks: Sequence[Any] | None, whole: Mapping[str, Any] | None,
+                episodes: pd.DataFrame, *, keep_trajectories: bool, report: bool) -> bool:
+    """Whether the run folder is kept whole in the cache for an unchanged re-run: every
+    episode made (a failed one is tried again) and the run's inputs as at the start (a
+    policy's model or module changed while it went on would be kept under the old
+    content's key)."""
+    return whole is not None and tasks is not None \
+        and bool((episodes["status"] == "ok").all()) \
+        and _inputs_hold(plan, tasks, whole, keep_trajectories=keep_trajectories,
+                         report=report)
+
+
 def _table_files(table: pd.DataFrame) -> dict[str, bytes]:
     buffer = io.BytesIO()
     table.to_parquet(buffer, index=True)
@@ -282,13 +294,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         announce(f"scored ({timings['scoring']:.1f} s); writing the tables"
                  + (", plots, report and replay viewer" if report else "") + " ...")
     t0 = time.perf_counter()
-    # kept whole for an unchanged re-run: every episode made (a failed one is tried again)
-    # and its inputs as at the start (a policy's model or module changed while it went on
-    # would be kept under the old content's key)
-    keep = whole is not None and (tables.episodes["status"] == "ok").all() \
-        and tasks is not None and _inputs_hold(plan, tasks, whole,
-                                               keep_trajectories=keep_trajectories,
-                                               report=report)
+    keep = _kept_whole(plan, tasks, whole, tables.episodes,
+                       keep_trajectories=keep_trajectories, report=report)
     pages: dict[str, bytes] | None = {} if keep else None
     folder = write_results(
         output, overwrite, summary, tables.episodes, tables.labels,
