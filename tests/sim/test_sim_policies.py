@@ -117,17 +117,23 @@ def _sb3_models() -> list[str]:
 
 
 @pytest.mark.parametrize("model", _sb3_models())
-def test_shipped_sb3_models_drive_their_scenario_without_a_trust_warning(model):
+def test_shipped_sb3_models_drive_their_scenario_without_a_trust_warning(model, request):
     """The shipped models' digests are known (sim/sb3.SHIPPED_MODELS): loading them does
     not warn that their pickles can run code; any other model file does
-    (tests/faults/test_definitions_are_code.py)."""
+    (tests/faults/test_definitions_are_code.py). A model trained on real scenes drives
+    the first sample scene (skipped where the samples are absent)."""
     import warnings
 
     from tap_bench.errors import UntrustedModelWarning
+    from tap_bench.sim.womd_scene import WomdScenes
 
     pytest.importorskip("stable_baselines3")
     definition = get_definition(model)
     scenario = definition.params["env"]
+    if "womd" in scenario:
+        womd_dir = request.getfixturevalue("womd_dir")
+        scenario = WomdScenes((str(womd_dir / "motion_data_one_scenario.tfrecord"),),
+                              traffic=definition.params.get("traffic", "log"))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         trajectories, episodes = rollout(scenario, model, [0], duration=3, progress=False)
