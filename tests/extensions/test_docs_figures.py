@@ -17,6 +17,10 @@ FIGURES = sorted((ROOT / "docs" / "figures").glob("*.py"))
 WOMD = (ROOT / ".." / "shared" / "data" / "womd").resolve()
 NEEDS = {"closed_loop.py": WOMD / "womd_scenario_input.tfrecord"}
 """Data a script draws, outside the project (skipped when absent)."""
+SLOW = {"realism_histograms.py"}
+"""Scripts that run for minutes (every real scene, rollouts of each traffic): in the slow
+suite. The fast suite runs the other scripts from elsewhere the same way, and
+tests/realism/test_realism_cli.py the realism rollouts and features this one pools."""
 
 
 def run_script(script: Path, out: Path) -> str:
@@ -34,7 +38,9 @@ def test_every_figure_of_the_docs_has_a_script():
         assert png.with_suffix(".py").is_file(), f"{png.name} has no script"
 
 
-@pytest.mark.parametrize("script", FIGURES, ids=[p.stem for p in FIGURES])
+@pytest.mark.parametrize("script", [
+    pytest.param(p, id=p.stem, marks=pytest.mark.slow if p.name in SLOW else ())
+    for p in FIGURES])
 def test_a_figure_script_runs_from_anywhere(script, tmp_path):
     need = NEEDS.get(script.name)
     if need is not None and not need.is_file():
