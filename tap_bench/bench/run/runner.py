@@ -178,16 +178,17 @@ def _inputs_hold(plan: SuitePlan, tasks: Sequence[Any], whole: Mapping[str, Any]
         return False
 
 
-def _kept_whole(plan: SuitePlan, tasks: Sequence[Any] | None, whole: Mapping[str, Any] | None,
-                episodes: pd.DataFrame, *, keep_trajectories: bool, report: bool) -> bool:
+def _kept_whole(plan: SuitePlan, tasks: Sequence[Any] | None,
+                whole: Mapping[str, Any] | None, episodes: pd.DataFrame, *,
+                keep_trajectories: bool, report: bool) -> bool:
     """Whether the run folder is kept whole in the cache for an unchanged re-run: every
     episode made (a failed one is tried again) and the run's inputs as at the start (a
     policy's model or module changed while it went on would be kept under the old
     content's key)."""
-    return whole is not None and tasks is not None \
-        and bool((episodes["status"] == "ok").all()) \
-        and _inputs_hold(plan, tasks, whole, keep_trajectories=keep_trajectories,
-                         report=report)
+    if whole is None or tasks is None or not (episodes["status"] == "ok").all():
+        return False
+    return _inputs_hold(plan, tasks, whole, keep_trajectories=keep_trajectories,
+                        report=report)
 
 
 def _table_files(table: pd.DataFrame) -> dict[str, bytes]:
