@@ -210,6 +210,9 @@ class LogVehicle(Vehicle):
         self.valid_steps = valid
         self.clock = clock
         self.row = row
+        # the same states as Python numbers: a step reads one row without numpy's overhead
+        self._rows = np.asarray(states, dtype=np.float64).tolist()
+        self._valid = np.asarray(valid, dtype=bool).tolist()
         self.LENGTH, self.WIDTH = float(length), float(width)
         x, y, h, v = self._state(clock[0])
         super().__init__(road, np.array([x, y]), h, v)
@@ -218,8 +221,8 @@ class LogVehicle(Vehicle):
         self._place(clock[0])
 
     def _state(self, k: int) -> tuple[float, float, float, float]:
-        if k < len(self.valid_steps) and self.valid_steps[k]:
-            x, y, h, v = self.states[k]
+        if k < len(self._valid) and self._valid[k]:
+            x, y, h, v = self._rows[k]
             return x, y, h, v
         return HIDDEN + 10.0 * self.row, HIDDEN, 0.0, 0.0
 
@@ -228,7 +231,7 @@ class LogVehicle(Vehicle):
         self.position = np.array([x, y])
         self.heading = h
         self.speed = v
-        self.collidable = bool(k < len(self.valid_steps) and self.valid_steps[k])
+        self.collidable = k < len(self._valid) and self._valid[k]
 
     def act(self, action: Any = None) -> None:
         """Replaying: no decision."""
