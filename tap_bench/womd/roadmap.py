@@ -32,9 +32,11 @@ Coordinates are WOMD's (y to the left, heading counter-clockwise) [m]; speeds [m
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numba
 import numpy as np
 from google.protobuf.message import DecodeError
 
@@ -257,13 +259,26 @@ def _segment_distance(points: np.ndarray, line: np.ndarray) -> np.ndarray:
     """(m,) distance [m] from each point to a polyline (k >= 1 points)."""
     if len(line) == 1:
         return np.hypot(*(points - line[0]).T)
-    a, b = line[:-1], line[1:]
-    ab = b - a
-    norm2 = np.maximum((ab ** 2).sum(axis=1), 1e-12)
-    ap = points[:, None, :] - a[None, :, :]
-    u = np.clip((ap * ab[None]).sum(axis=2) / norm2, 0.0, 1.0)
-    closest = a[None] + u[..., None] * ab[None]
-    return np.hypot(*(points[:, None, :] - closest).transpose(2, 0, 1)).min(axis=1)
+    return _polyline_distance(np.ascontiguousarray(points, dtype=np.float64),
+                              np.ascontiguousarray(line, dtype=np.float64))
+
+
+@numba.njit(cache=True, nogil=True)
+def _polyline_distance(points, line):  # pragma: no cover - compiled
+    """(m,) distance [m] from each point (m, 2) to the polyline (k >= 2, 2): to the nearest
+    point of its nearest segment."""
+    out = np.empty(points.shape[0])
+    for i in range(points.shape[0]):
+        px, py = points[i, 0], points[i, 1]
+        best = np.inf
+        for j in range(line.shape[0] - 1):
+            ax, ay = line[j, 0], line[j, 1]
+            abx, aby = line[j + 1, 0] - ax, line[j + 1, 1] - ay
+            norm2 = max(abx * abx + aby * aby, 1e-12)
+            u = min(max(((px - ax) * abx + (py - ay) * aby) / norm2, 0.0), 1.0)
+            best = min(best, math.hypot(px - (ax + u * abx), py - (ay + u * aby)))
+        out[i] = best
+    return out
 
 
 def _side_distance(centre: np.ndarray, segments: list[tuple[int, int, int]],

@@ -643,3 +643,19 @@ def test_a_run_viewer_carries_the_signals_of_its_scenes(real, tmp_path, monkeypa
                                pd.read_parquet(tmp_path / "run" / "trajectories.parquet"),
                                roads=pd.read_parquet(tmp_path / "run" / "roads.parquet"))
     assert "signals" not in next(d for docs in captured.values() for d in docs)
+
+
+def test_point_to_polyline_distance_equals_the_dense_sampled_distance():
+    from tap_bench.womd.roadmap import _segment_distance
+
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        line = np.cumsum(rng.normal(0.0, 4.0, (rng.integers(1, 25), 2)), axis=0)
+        points = rng.uniform(-30.0, 30.0, (rng.integers(1, 20), 2))
+        got = _segment_distance(points, line)
+        # reference: every segment sampled every 1e-4 of its length, plus its vertices
+        t = np.linspace(0.0, 1.0, 10001)[:, None, None]
+        dense = (line[:-1] + t * (line[1:] - line[:-1])).reshape(-1, 2) if len(line) > 1 \
+            else line
+        want = np.hypot(*(points[:, None, :] - dense[None]).transpose(2, 0, 1)).min(axis=1)
+        assert np.all(got <= want + 1e-12) and np.all(want - got <= 1e-2)
