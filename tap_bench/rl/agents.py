@@ -223,7 +223,7 @@ def _aggregates(scores: pd.DataFrame, agents: Sequence[str], *, seed: int, level
                 pairs.append({"agent": a, "over": b, "measure": measure,
                               "probability": out.estimate, "low": out.low, "high": out.high,
                               "scenes": len(tasks)})
-        if measure == "route_progress":
+        if kind == "iqm":  # a score in [0, 1] (route progress): its run-score distribution
             for agent in agents:
                 share, low, high = performance_profile(
                     _matrix(scores, agent, measure, tasks), PROFILE_THRESHOLDS,

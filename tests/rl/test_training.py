@@ -518,7 +518,7 @@ def test_by_default_the_envs_run_where_the_idle_cores_make_them_fastest(
 
     chosen = []
 
-    def vec_env(scenario, *, n_envs, fast, seed, in_process=False):
+    def vec_env(scenario, *, n_envs, fast, seed, in_process=False, scenes=None):
         chosen.append(in_process)
         raise KeyboardInterrupt  # stands for the training: nothing more is needed
 
@@ -668,7 +668,7 @@ def test_a_cpu_quota_caps_the_idle_cores_the_default_counts(monkeypatch, tmp_pat
 
     chosen = []
 
-    def vec_env(scenario, *, n_envs, fast, seed, in_process=False):
+    def vec_env(scenario, *, n_envs, fast, seed, in_process=False, scenes=None):
         chosen.append(in_process)
         raise KeyboardInterrupt  # stands for the training: nothing more is needed
 
