@@ -7,6 +7,7 @@ generated edits)."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import string
 import uuid
@@ -28,9 +29,13 @@ from tap_bench.sim.policies import _read_definition
 from tap_bench.sim.scenario_env import get_scenario
 from tap_bench.sim.scenario_format import load_scenario
 
-PACKAGE = f"userpkg_{uuid.uuid4().hex[:8]}"
-SIBLING = f"sibling_{uuid.uuid4().hex[:8]}"
-CARS = f"cars_{uuid.uuid4().hex[:8]}"
+RUN_TAG = os.environ.get("PYTEST_XDIST_TESTRUNUID", uuid.uuid4().hex)[:8]
+"""A tag of this test run for the user modules written here, the same in every
+pytest-xdist worker (test ids name them, and the workers must collect the same ids)."""
+
+PACKAGE = f"userpkg_{RUN_TAG}"
+SIBLING = f"sibling_{RUN_TAG}"
+CARS = f"cars_{RUN_TAG}"
 
 SOURCES = {
     f"{PACKAGE}/__init__.py": "",

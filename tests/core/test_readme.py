@@ -74,7 +74,7 @@ NOT_RUN = {  # command -> why the tests cannot run it as written
     "pip install -e .": "installs the package",
     "pip install torch==2.13.0": "installs packages",
     'pip install -e ".[dev,sb3,ray]"': "installs packages",
-    'python -m pytest -q -m "not slow"': "is the test suite itself",
+    'python -m pytest -q -m "not slow" -n 2': "is the test suite itself",
     "tap-bench train --algo dqn --env highway --timesteps 30000 --keep best -o "
     "my-dqn.zip": "trains for about 6 minutes (tests/sim trains small agents)",
     "tap-bench bench run --suite default -o results/run-001/":

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import os
 import shutil
 import string
 import sys
@@ -38,7 +39,11 @@ from tap_bench.sim.schema import SCENARIO_KINDS
 from tap_bench.thresholds import PRESETS, load_thresholds
 from tap_bench.usercode import loaded_user_code, recording
 
-TAG = uuid.uuid4().hex[:8]
+RUN_TAG = os.environ.get("PYTEST_XDIST_TESTRUNUID", uuid.uuid4().hex)[:8]
+"""A tag of this test run for the user modules written here, the same in every
+pytest-xdist worker (test ids name them, and the workers must collect the same ids)."""
+
+TAG = RUN_TAG
 PKG, CARS, KINDS, MEAS = f"pkg_{TAG}", f"cars_{TAG}", f"kinds_{TAG}", f"meas_{TAG}"
 BYNAME, MBYNAME = f"byname_{TAG}", f"mbyname_{TAG}"
 

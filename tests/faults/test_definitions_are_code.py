@@ -6,6 +6,7 @@ once per model, before a ``bench run``."""
 from __future__ import annotations
 
 import json
+import os
 import sys
 import uuid
 import warnings
@@ -19,7 +20,11 @@ from tap_bench.bench.suite import suite_from_dict
 from tap_bench.errors import UntrustedModelWarning
 from tap_bench.sim.scenario_env import get_scenario, make_env
 
-MODULE = f"userdefs_{uuid.uuid4().hex[:8]}"
+RUN_TAG = os.environ.get("PYTEST_XDIST_TESTRUNUID", uuid.uuid4().hex)[:8]
+"""A tag of this test run for the user modules written here, the same in every
+pytest-xdist worker (test ids name them, and the workers must collect the same ids)."""
+
+MODULE = f"userdefs_{RUN_TAG}"
 SOURCE = '''
 import pathlib, os
 pathlib.Path(os.environ["TAP_TEST_MARKER"] + ".imported").touch()
