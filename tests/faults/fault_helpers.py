@@ -15,6 +15,10 @@ from pathlib import Path
 import pandas as pd
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
+RUN_TAG = os.environ.get("PYTEST_XDIST_TESTRUNUID", uuid.uuid4().hex)[:8]
+"""A tag of this test run for the user modules the tests write, the same in every
+pytest-xdist worker (test ids name them, and the workers must collect the same ids)."""
+
 
 
 def label_table(policy: str, seeds, label=lambda s: "Straight | Maintain Speed"):

@@ -8,15 +8,14 @@ from __future__ import annotations
 
 import importlib
 import json
-import os
 import shutil
 import string
 import sys
-import uuid
 from pathlib import Path
 
 import pandas as pd
 import pytest
+from fault_helpers import RUN_TAG
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
@@ -38,10 +37,6 @@ from tap_bench.sim.scenario_format import load_scenario
 from tap_bench.sim.schema import SCENARIO_KINDS
 from tap_bench.thresholds import PRESETS, load_thresholds
 from tap_bench.usercode import loaded_user_code, recording
-
-RUN_TAG = os.environ.get("PYTEST_XDIST_TESTRUNUID", uuid.uuid4().hex)[:8]
-"""A tag of this test run for the user modules written here, the same in every
-pytest-xdist worker (test ids name them, and the workers must collect the same ids)."""
 
 TAG = RUN_TAG
 PKG, CARS, KINDS, MEAS = f"pkg_{TAG}", f"cars_{TAG}", f"kinds_{TAG}", f"meas_{TAG}"

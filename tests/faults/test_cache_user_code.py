@@ -9,18 +9,12 @@ edited module is imported afresh."""
 from __future__ import annotations
 
 import json
-import os
-import uuid
 from pathlib import Path
 
 import pandas as pd
-from fault_helpers import run_process
+from fault_helpers import RUN_TAG, run_process
 
 from tap_bench.sim.scenario_env import get_scenario
-
-RUN_TAG = os.environ.get("PYTEST_XDIST_TESTRUNUID", uuid.uuid4().hex)[:8]
-"""A tag of this test run for the user modules written here, the same in every
-pytest-xdist worker (test ids name them, and the workers must collect the same ids)."""
 
 TAG = RUN_TAG
 

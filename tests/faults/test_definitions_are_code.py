@@ -6,23 +6,18 @@ once per model, before a ``bench run``."""
 from __future__ import annotations
 
 import json
-import os
 import sys
 import uuid
 import warnings
 from pathlib import Path
 
 import pytest
-from fault_helpers import PROJECT_ROOT
+from fault_helpers import PROJECT_ROOT, RUN_TAG
 
 from tap_bench.bench.run.plan import _tasks, plan_suite
 from tap_bench.bench.suite import suite_from_dict
 from tap_bench.errors import UntrustedModelWarning
 from tap_bench.sim.scenario_env import get_scenario, make_env
-
-RUN_TAG = os.environ.get("PYTEST_XDIST_TESTRUNUID", uuid.uuid4().hex)[:8]
-"""A tag of this test run for the user modules written here, the same in every
-pytest-xdist worker (test ids name them, and the workers must collect the same ids)."""
 
 MODULE = f"userdefs_{RUN_TAG}"
 SOURCE = '''
