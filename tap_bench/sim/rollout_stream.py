@@ -47,8 +47,8 @@ if TYPE_CHECKING:
     import gymnasium as gym
     import pandas as pd
 
-__all__ = ["PART_ROWS", "PART_SCENES", "ROW_GROUP_ROWS", "StreamedRollout", "parts_folder",
-           "stream_rollout"]
+__all__ = ["PART_ROWS", "PART_SCENES", "ROW_GROUP_ROWS", "StreamedRollout", "ego_rows",
+           "parts_folder", "stream_rollout"]
 
 ROW_GROUP_ROWS = 1 << 16
 """Rows per Parquet row group of the joined output (fixed, so the file does not depend on
@@ -89,11 +89,23 @@ def parts_folder(output: str | os.PathLike) -> Path:
     return output.with_name(output.name + ".parts")
 
 
-def _identity(scenario: Scenario, spec: Any, seeds: Sequence[int], record: bool) -> dict:
+def _identity(scenario: Scenario, spec: Any, seeds: Sequence[int], record: bool,
+              ego_only: bool = False) -> dict:
     policy = repr(spec) if isinstance(spec, PolicyDefinition) else \
         f"{type(spec).__module__}.{type(spec).__qualname__}:{getattr(spec, 'name', '')}"
-    return {"scenario": repr(scenario), "policy": policy, "seeds": [int(s) for s in seeds],
-            "record": bool(record)}
+    identity = {"scenario": repr(scenario), "policy": policy,
+                "seeds": [int(s) for s in seeds], "record": bool(record)}
+    if ego_only:  # absent otherwise: parts of runs before the option still resume
+        identity["ego_only"] = True
+    return identity
+
+
+def ego_rows(table: pd.DataFrame) -> pd.DataFrame:
+    """Only the ego's rows of a trajectory table (``is_ego`` true), index renumbered; the
+    table itself when it has no rows."""
+    if not len(table):
+        return table
+    return table[table["is_ego"].to_numpy(bool)].reset_index(drop=True)
 
 
 def _json_value(value: Any) -> Any:
@@ -115,10 +127,11 @@ class _Parts:
         if folder.exists() and run.exists():
             found = json.loads(run.read_text())
             if found != identity:
-                changed = [k for k in identity if found.get(k) != identity[k]]
+                changed = [k for k in {**found, **identity}
+                           if found.get(k) != identity.get(k)]
                 raise OutputPathError(
                     f"{folder}: the parts are of another run ({', '.join(changed)} differ: "
-                    f"{found.get(changed[0])!r} there, {identity[changed[0]]!r} now). "
+                    f"{found.get(changed[0])!r} there, {identity.get(changed[0])!r} now). "
                     "Give the same command to resume it, or another output.")
         else:
             from tap_bench.tableio import atomic_path
@@ -244,7 +257,8 @@ def stream_rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
                    retries: int = DEFAULT_RETRIES, progress: bool | None = None,
                    log: str | os.PathLike | None = None,
                    config: Mapping[str, Any] | None = None, duration: float | None = None,
-                   lane_change: str | None = None, validate: bool = True) -> StreamedRollout:
+                   lane_change: str | None = None, validate: bool = True,
+                   ego_only: bool = False) -> StreamedRollout:
     """Run ``policy`` on ``env`` once per seed, as :func:`~tap_bench.sim.rollout.rollout`,
     writing the tables to ``output`` and ``episodes_output`` (module docstring).
 
@@ -258,6 +272,9 @@ def stream_rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
         progress: progress lines on stderr (None or True: yes; False: none).
         log: a file the progress lines are appended to as well.
         validate: check each part against the trajectory contract before it is written.
+        ego_only: write only the ego's rows of the trajectory table (``is_ego``), one
+            track of a recorded scene's tens to hundreds (the episode table, made from
+            every agent, is the same).
 
     Returns:
         :class:`StreamedRollout`.
@@ -281,7 +298,8 @@ def stream_rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
         else parse_seeds(seeds)
     spec = resolve_policy(policy)
     name = getattr(spec, "name", "policy")
-    parts = _Parts(parts_folder(output), _identity(scenario, spec, seed_list, True), resume)
+    parts = _Parts(parts_folder(output), _identity(scenario, spec, seed_list, True, ego_only),
+                   resume)
     before = len(parts.rows)
     todo = [k for k in range(len(seed_list)) if k not in parts.rows]
     tasks = episode_tasks(scenario, spec, [seed_list[k] for k in todo])
@@ -301,6 +319,8 @@ def stream_rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
         for task, k, outcome in zip(tasks, todo, outcomes, strict=True):
             table, row = outcome.value if outcome.ok else (pd.DataFrame(),
                                                            _failed_row(task, outcome.error))
+            if ego_only:
+                table = ego_rows(table)
             if validate and len(table):
                 from tap_bench.trajectories import validate_and_index
 

@@ -127,6 +127,33 @@ def test_parts_are_refused_without_resume_and_from_another_run(tmp_path):
     assert not out.exists()
 
 
+def test_ego_only_keeps_the_egos_rows_of_the_full_table(tmp_path, monkeypatch):
+    files = scene_files(tmp_path / "scenes", 5, per_file=3)
+    monkeypatch.setattr(rollout_stream, "PART_SCENES", 2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(rollout_args(files, tmp_path / "all.parquet")) == 0
+        assert main(rollout_args(files, tmp_path / "ego.parquet", "--ego-only")) == 0
+    every = pd.read_parquet(tmp_path / "all.parquet")
+    ego = pd.read_parquet(tmp_path / "ego.parquet")
+    assert ego["is_ego"].all() and len(ego) < len(every)
+    pd.testing.assert_frame_equal(ego, every[every["is_ego"]].reset_index(drop=True))
+    assert sorted(ego["seed"].unique()) == list(range(5))  # one ego per scene
+    assert ego.groupby("seed")["track_id"].nunique().eq(1).all()
+    pd.testing.assert_frame_equal(pd.read_parquet(tmp_path / "ego.episodes.parquet"),
+                                  pd.read_parquet(tmp_path / "all.episodes.parquet"))
+    # the parts of a run of every agent are not resumed as an ego-only run
+    out = tmp_path / "mixed.parquet"
+    parts = rollout_stream.parts_folder(out)
+    parts.mkdir()
+    (parts / "run.json").write_text(json.dumps(rollout_stream._identity(
+        WomdScenes(tuple(files)), rollout_stream.resolve_policy("idm"), list(range(5)),
+        True)))
+    with pytest.raises(OutputPathError, match="ego_only"):
+        rollout_stream.stream_rollout(WomdScenes(tuple(files)), "idm", "all", out,
+                                      progress=False, resume=True, ego_only=True)
+
+
 def test_progress_lines_count_scenes_and_go_to_the_log(tmp_path, capsys, monkeypatch):
     from tap_bench import progress
 
