@@ -6,11 +6,13 @@ import argparse
 import json
 import math
 import os
+import sys
 import time
 from typing import Any
 
 import numpy as np
 
+from tap_bench.progress import add_progress_arguments, progress_choice
 from tap_bench.sim.womd_scene import TRAFFIC
 from tap_bench.stats.bootstrap import add_bootstrap_arguments, bootstrap_from_args
 
@@ -44,6 +46,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="score only these scenario ids")
     add_bootstrap_arguments(p)
     p.add_argument("-o", "--output", help="write the score as JSON")
+    p.add_argument("--log", metavar="FILE",
+                   help="append the progress lines (scenes done, failed, skipped, rate, "
+                   "time left) to FILE as well")
+    add_progress_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -73,16 +79,9 @@ def print_table(result: dict[str, Any]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import pandas as pd
-
     from tap_bench.errors import ParameterError
-    from tap_bench.realism.rollouts import (
-        SceneStates,
-        agent_manoeuvres,
-        scene_rollouts,
-        score_scene,
-    )
-    from tap_bench.realism.summary import summarise
+    from tap_bench.progress import SceneProgress
+    from tap_bench.realism.summary import SceneScores
     from tap_bench.sim.policies import load_policy
     from tap_bench.sim.womd_env import make_womd_env
     from tap_bench.sim.womd_scene import SceneError
@@ -94,36 +93,28 @@ def run(args: argparse.Namespace) -> int:
     config = bootstrap_from_args(args)
     env = make_womd_env(args.womd, traffic=args.traffic)
     policy = load_policy(args.policy)
-    once = args.traffic in DETERMINISTIC and args.policy == "log"
     wanted = set(args.scenario or ())
-    tables, skipped = [], []
+    scores = SceneScores()
+    skipped: list[dict[str, str]] = []
+    failed: list[dict[str, str]] = []
     t0, c0 = time.perf_counter(), os.times()
-    for index in range(len(env.catalog)):
-        try:
-            if wanted:
-                if env.scene_at(index).scenario_id not in wanted:
-                    continue
-            states = scene_rollouts(env, index, policy, 1 if once else args.rollouts)
-        except SceneError as err:  # one scene that cannot be driven does not stop the run
-            skipped.append({"scene": str(env.catalog[index]), "reason": str(err)})
-            print(f"skipped {env.catalog[index]}: {err}")
-            continue
-        if once and args.rollouts > 1:
-            states = SceneStates(*(np.repeat(a, args.rollouts, axis=0) for a in
-                                   (states.x, states.y, states.heading, states.valid)))
-        scene = env.scene
-        tables.append(score_scene(scene, states, manoeuvres=agent_manoeuvres(scene)))
-    if wanted - {t["scenario_id"].iloc[0] for t in tables if len(t)}:
-        missing = sorted(wanted - {t["scenario_id"].iloc[0] for t in tables if len(t)})
-        raise ParameterError("--scenario", " ".join(missing),
+    bar = SceneProgress(len(wanted) or len(env.catalog), f"realism {args.traffic}",
+                        show=progress_choice(args) is not False, log=args.log)
+    try:  # one scene at a time: only its values are kept (memory does not grow with scenes)
+        seen = _score_scenes(env, policy, args, wanted, scores, skipped, failed, bar)
+    finally:
+        bar.close()
+    if wanted - seen:
+        raise ParameterError("--scenario", " ".join(sorted(wanted - seen)),
                              "the ids of scenarios in the files given")
-    if not tables:
-        raise SceneError(f"{', '.join(args.womd)}: no scene could be scored.")
-    agents = pd.concat(tables, ignore_index=True)
+    if not scores.scenes:
+        reasons = "; ".join(f"{s['scene']}: {s['reason']}" for s in (skipped + failed)[:3])
+        raise SceneError(f"{', '.join(args.womd)}: no scene could be scored"
+                         + (f" ({reasons})" if reasons else "") + ".")
     c1 = os.times()
     result = {"traffic": args.traffic, "policy": args.policy, "rollouts": args.rollouts,
-              "files": list(args.womd), **summarise(agents, config), "skipped": skipped,
-              "cpu_seconds": c1.user + c1.system - c0.user - c0.system,
+              "files": list(args.womd), **scores.summary(config), "skipped": skipped,
+              "failed": failed, "cpu_seconds": c1.user + c1.system - c0.user - c0.system,
               "wall_seconds": time.perf_counter() - t0}
     result["meta_metric"] = result["overall"]["meta_metric"]["value"]
     print_table(result)
@@ -132,6 +123,56 @@ def run(args: argparse.Namespace) -> int:
             tmp.write_text(json.dumps(result, indent=1, default=_json_default) + "\n")
         print(f"wrote {args.output}")
     return 0
+
+
+def _score_scenes(env: Any, policy: Any, args: argparse.Namespace, wanted: set[str],
+                  scores: Any, skipped: list[dict[str, str]], failed: list[dict[str, str]],
+                  bar: Any) -> set[str]:
+    """Roll out and score every scene of ``env`` (those of ``wanted`` when given) into
+    ``scores`` (:class:`~tap_bench.realism.summary.SceneScores`), one at a time: a scene
+    that cannot be driven goes to ``skipped``, one whose rollout or score raised to
+    ``failed`` (the run goes on), a scenario id met again is skipped (a scene is scored
+    once). The scenario ids met."""
+    from tap_bench.execution import describe_error
+    from tap_bench.realism.rollouts import (
+        SceneStates,
+        agent_manoeuvres,
+        scene_rollouts,
+        score_scene,
+    )
+    from tap_bench.sim.womd_scene import SceneError
+
+    once = args.traffic in DETERMINISTIC and args.policy == "log"
+    seen: set[str] = set()
+    for index in range(len(env.catalog)):
+        ref = env.catalog[index]
+        try:
+            if wanted and env.scene_at(index).scenario_id not in wanted:
+                continue
+            states = scene_rollouts(env, index, policy, 1 if once else args.rollouts)
+            scene = env.scene
+            if scene.scenario_id in seen:
+                raise SceneError(f"scenario {scene.scenario_id} was scored already from "
+                                 "an earlier file: a scene is scored once")
+            if once and args.rollouts > 1:
+                states = SceneStates(*(np.repeat(a, args.rollouts, axis=0) for a in
+                                       (states.x, states.y, states.heading, states.valid)))
+            table = score_scene(scene, states, manoeuvres=agent_manoeuvres(scene))
+        except SceneError as err:  # one scene that cannot be driven does not stop the run
+            skipped.append({"scene": str(ref), "reason": str(err)})
+            print(f"skipped {ref}: {err}")
+            bar.update("skipped")
+            continue
+        except Exception as err:  # nor one whose rollout or score fails: named, kept
+            failed.append({"scene": str(ref), "reason": describe_error(err)})
+            print(f"failed {ref}: {describe_error(err)}", file=sys.stderr)
+            bar.update("error")
+            continue
+        seen.add(scene.scenario_id)
+        scores.add(table)
+        del states, table
+        bar.update("ok")
+    return seen
 
 
 def _json_default(value: Any) -> Any:
