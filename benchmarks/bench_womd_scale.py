@@ -1,5 +1,5 @@
-"""`tap-bench rollout --womd` over many scenes: peak memory, CPU and wall time per scene,
-simulated steps per CPU second (issue 37).
+"""`tap-bench rollout --womd` (or `tap-bench realism`) over many scenes: peak memory, CPU and
+wall time per scene, simulated steps per CPU second (issue 37).
 
 For each scene count N, files of the sample and development scenes repeated under new ids
 are made in /tmp (``womd_repeat.py``), then the command runs in a fresh subprocess that
@@ -11,6 +11,8 @@ Usage::
     python benchmarks/bench_womd_scale.py 49 245 [--policy idm] [--traffic log]
         [--extra ARGS] [--name NAME]
     python benchmarks/bench_womd_scale.py 49 --profile   # where the time goes, in-process
+    python benchmarks/bench_womd_scale.py 49 245 --command realism --traffic log \
+        --extra "--no-progress --resamples 100"   # the realism score's memory
 
 Figures go to ``benchmarks/out/<name>.json``.
 """
@@ -89,6 +91,32 @@ def run_rollout(folder: Path, out: Path, policy: str, traffic: str, extra: list[
                                    *cmd[6 + len(files):]])}
 
 
+def run_realism(folder: Path, out: Path, policy: str, traffic: str, extra: list[str]
+                ) -> dict:
+    """``tap-bench realism`` in a fresh interpreter: its peak memory, CPU and wall."""
+    report_file = out.with_suffix(".measure.json")
+    files = [str(p) for p in sorted(folder.iterdir()) if not p.name.startswith(".")]
+    cmd = [sys.executable, "-c", _CHILD, str(report_file), "realism", "--womd", *files,
+           "--policy", policy, "--traffic", traffic, "-o", str(out), *extra]
+    env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE"}
+    load0 = os.getloadavg()[0]
+    start = time.perf_counter()
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - start
+    if proc.returncode:
+        raise SystemExit(f"realism failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
+    child = json.loads(report_file.read_text())
+    result = json.loads(out.read_text())
+    scenes = result["scenes"]
+    return {"scenes": scenes, "agents": result["agents"],
+            "meta_metric": result["meta_metric"], "peak_mb": round(child["peak_mb"], 1),
+            "cpu_s": round(child["cpu_s"], 2), "wall_s": round(wall, 2),
+            "cpu_s_per_scene": round(child["cpu_s"] / scenes, 4),
+            "load_before": round(load0, 2), "load_after": round(os.getloadavg()[0], 2),
+            "command": shlex.join(["tap-bench", "realism", "--womd", f"{folder}/*",
+                                   *cmd[6 + len(files):]])}
+
+
 def profile(folder: Path, policy: str, traffic: str) -> None:
     """cProfile of the rollout in this process: the top functions by cumulative and own
     time."""
@@ -121,6 +149,7 @@ def main() -> int:
     parser.add_argument("--root", default=str(Path(tempfile.gettempdir()) / "tap-bench-scale"))
     parser.add_argument("--name", default="womd_scale")
     parser.add_argument("--profile", action="store_true")
+    parser.add_argument("--command", choices=("rollout", "realism"), default="rollout")
     args = parser.parse_args()
     root = Path(args.root)
     root.mkdir(parents=True, exist_ok=True)
@@ -131,12 +160,14 @@ def main() -> int:
     for n in args.counts:
         folder = scenes_folder(n, root)
         with tempfile.TemporaryDirectory(dir=root) as tmp:
-            row = run_rollout(folder, Path(tmp) / "out.parquet", args.policy, args.traffic,
-                              shlex.split(args.extra))
+            run = run_realism if args.command == "realism" else run_rollout
+            row = run(folder, Path(tmp) / ("out.json" if args.command == "realism"
+                                           else "out.parquet"),
+                      args.policy, args.traffic, shlex.split(args.extra))
         print(json.dumps(row), flush=True)
         rows.append(row)
-    report(args.name, {"runs": rows}, policy=args.policy, traffic=args.traffic,
-           extra=args.extra)
+    report(args.name, {"runs": rows}, command=args.command, policy=args.policy,
+           traffic=args.traffic, extra=args.extra)
     return 0
 
 
