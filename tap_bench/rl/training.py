@@ -721,6 +721,8 @@ def _definition(output: Path, *, algo: str, scenario: Scenario | WomdScenes,
                if isinstance(scenario, WomdScenes) else {}),
             **(split.record() if split is not None else {}),
             "observation": observation,
+            **({"reward": _reward_config(scenario)} if isinstance(scenario, WomdScenes)
+               else {}),
             "timesteps": trained,
             **({"interrupted_of": asked} if interrupted else {}),
             **({"kept": "best", "kept_timesteps": int(kept["timesteps"]),
@@ -791,15 +793,24 @@ def _trained_here(output: Path) -> bool:
         and "with tap-bench" in str(doc.get("description", ""))
 
 
+def _reward_config(scenario: WomdScenes) -> dict[str, float]:
+    """The reward settings recorded scenes train with (the env's, over its defaults: the
+    ``*_reward`` keys of :meth:`~tap_bench.sim.womd_env._WomdHighwayEnv.default_config`)."""
+    from tap_bench.sim.womd_env import _WomdHighwayEnv
+
+    config = {**_WomdHighwayEnv.default_config(), **scenario.config}
+    return {key: float(value) for key, value in config.items() if key.endswith("_reward")}
+
+
 def _observation_config(scenario: Scenario | WomdScenes) -> dict[str, Any]:
     """The observation config the agent reads: the scenario's, else the env's default (on
-    recorded scenes the Kinematics observation with the route:
+    recorded scenes the Kinematics observation with the route and the leader:
     :mod:`tap_bench.sim.womd_observation`)."""
     config = scenario.config.get("observation")
     if config is None and isinstance(scenario, WomdScenes):
-        from tap_bench.sim.womd_observation import OBSERVATION_TYPE
+        from tap_bench.sim.womd_env import _WomdHighwayEnv
 
-        config = {"type": OBSERVATION_TYPE}
+        config = _WomdHighwayEnv.default_config()["observation"]
     if config is None:
         config = env_class(scenario.highway_env_id).default_config()["observation"]
     return dict(config)

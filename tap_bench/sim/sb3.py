@@ -154,7 +154,9 @@ class SB3Policy:
             ``train_scenes``, ``held_out_scenes``, ``held_out_refs``: the indexes of the
             scenes trained on and held out, and where the held-out ones are:
             :mod:`tap_bench.rl.heldout`; ``cpu_seconds``: the CPU time of the training,
-            user + system, its env workers included); kept in :attr:`training`.
+            user + system, its env workers included; ``reward``: the reward settings it
+            trained with on recorded scenes, the ``*_reward`` config keys of
+            ``tap_bench/womd-v0``); kept in :attr:`training`.
     """
 
     def __init__(self, name: str, model: str, algo: str | None = None,
@@ -172,7 +174,8 @@ class SB3Policy:
                  train_scenes: Sequence[int] | None = None,
                  held_out_scenes: Sequence[int] | None = None,
                  held_out_refs: Sequence[str] | None = None,
-                 cpu_seconds: float | None = None) -> None:
+                 cpu_seconds: float | None = None,
+                 reward: Mapping[str, float] | None = None) -> None:
         path = Path(model)
         if not path.is_absolute() and base_dir is not None:
             path = Path(base_dir) / path
@@ -197,6 +200,7 @@ class SB3Policy:
                          "curve": dict(curve) if curve is not None else None,
                          "womd": list(womd) if womd is not None else None,
                          "traffic": traffic,
+                         "reward": dict(reward) if reward is not None else None,
                          "train_scenes": None if train_scenes is None else list(train_scenes),
                          "held_out_scenes": (None if held_out_scenes is None
                                              else list(held_out_scenes)),

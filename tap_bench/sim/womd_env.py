@@ -54,16 +54,24 @@ Coordinates: highway-env's y axis points to the driver's right, so the scene is 
 mirrored (y and headings negated) and recorded back in WOMD's axes, as
 :mod:`tap_bench.sim.recorder` does; the driver's left stays the driver's left.
 
-**What an RL agent observes.** By default ``{"type": "KinematicsRoute"}``
+**What an RL agent observes.** By default ``{"type": "KinematicsRoute", "leader": true}``
 (:mod:`tap_bench.sim.womd_observation`): highway-env's Kinematics observation (the ego and
 the 4 nearest road users, relative, normalised) flattened, followed by the route seen from
 the ego: the route's points every 10 m over the next 50 m in the ego's frame, the offset and
 heading to the route lane, the distance and side of the route's next lane change, and
-whether the ego is on a route lane. The route also acts through the dynamics: with
-meta-actions the low-level controller follows the route's lanes (at a lane end it takes the
-route's next lane), and ``LANE_LEFT``/``LANE_RIGHT`` move to the map's neighbour on that
-side. Any highway-env observation can be configured instead (``config={"observation":
-...}``; the shipped highway agents read plain ``Kinematics``).
+whether the ego is on a route lane; then the ego's speed and the gap, closing speed and
+inverse time to collision to the road user in its path ahead (along the route's polyline).
+The route also acts through the dynamics: with meta-actions the low-level controller
+follows the route's lanes (at a lane end it takes the route's next lane), and
+``LANE_LEFT``/``LANE_RIGHT`` move to the map's neighbour on that side. Any highway-env
+observation can be configured instead (``config={"observation": ...}``; the shipped
+highway agents read plain ``Kinematics``).
+
+**Reward** (``collision_reward``, ``off_road_reward``, ``progress_reward``, ``ttc_reward``):
+-1 on a collision or leaving the road (both end the episode), the route progress so far
+divided by the decisions of the scene at each decision, and up to ``ttc_reward`` (-0.05)
+per decision while the time to collision with the road user in the path ahead is below
+:data:`TTC_WARNING` (3 s), linear in 1 - TTC / 3 s (docs/agents.md says why).
 """
 
 from __future__ import annotations
@@ -120,6 +128,10 @@ __all__ = ["PARKED_DISTANCE", "TARGET_SPEEDS", "TRAFFIC", "MapWarning", "WomdEnv
 PARKED_DISTANCE = 1.0  # [m] a vehicle that moves less over the record stays parked (replays)
 LATE_HEADING = math.radians(30.0)  # [rad] a vehicle appearing later more across its lane
 # than this replays
+TTC_WARNING = 3.0  # [s] a time to collision with the leader below this is punished
+TTC_REWARD = -0.05
+"""The reward per decision at a time to collision of 0 with the road user in the ego's path
+ahead (``ttc_reward``), linear in 1 - TTC / :data:`TTC_WARNING` down to 0 at TTC_WARNING."""
 TARGET_SPEEDS = (0.0, 2.5, 5.0, 7.5, 10.0, 12.5, 15.0, 17.5, 20.0, 25.0, 30.0)
 """Target speeds of the meta-action ego [m/s] (highway-env's default 20-30 m/s is a
 motorway's; these cover a city street too)."""
@@ -198,13 +210,14 @@ class _WomdHighwayEnv(AbstractEnv):
     def default_config(cls) -> dict:
         config = super().default_config()
         config.update({
-            "observation": {"type": OBSERVATION_TYPE},
+            "observation": {"type": OBSERVATION_TYPE, "leader": True},
             "action": {"type": "DiscreteMetaAction", "target_speeds": list(TARGET_SPEEDS)},
             "simulation_frequency": 10,
             "policy_frequency": 2,
             "collision_reward": -1.0,
             "progress_reward": 1.0,
             "off_road_reward": -1.0,
+            "ttc_reward": TTC_REWARD,
         })
         return config
 
@@ -317,9 +330,12 @@ class _WomdHighwayEnv(AbstractEnv):
         config = self.config["observation"]
         if config.get("type") == OBSERVATION_TYPE:
             self.observation_type = RouteObservation(self, **config)
+            self._lead_watch = self.observation_type
         else:
             self.observation_type = observation_factory(self, config)
             use_fast_observation(self)
+            # the reward's time to collision needs the leader in the route's path
+            self._lead_watch = RouteObservation(self)
         self.action_type = action_factory(self, self.config["action"])
         settings = {name: copy.deepcopy(dict(self.config[name]))
                     for name in ("observation", "action")}
@@ -526,7 +542,16 @@ class _WomdHighwayEnv(AbstractEnv):
 
     def _reward(self, action: Any) -> float:
         cfg = self.config
+        closing = 0.0
+        if cfg.get("ttc_reward", 0.0):
+            watch = self._lead_watch
+            if watch is not self.observation_type and self.route:
+                watch.route_vector()  # sets watch.lead
+            inverse_ttc = watch.lead.inverse_ttc
+            if inverse_ttc > 0:
+                closing = max(0.0, 1.0 - 1.0 / (inverse_ttc * TTC_WARNING))
         return float(cfg["collision_reward"] * self.vehicle.crashed
+                     + cfg.get("ttc_reward", 0.0) * closing
                      + cfg["off_road_reward"] * self.flags["off_road"]
                      + cfg["progress_reward"] * (0.0 if math.isnan(self.route_progress)
                                                  else self.route_progress)

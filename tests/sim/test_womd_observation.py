@@ -16,7 +16,7 @@ import pytest
 
 from tap_bench.sim.policies import load_policy
 from tap_bench.sim.womd_env import make_womd_env
-from tap_bench.sim.womd_observation import ROUTE_FEATURES, route_feature_names
+from tap_bench.sim.womd_observation import LEADER_FEATURES, ROUTE_FEATURES, route_feature_names
 
 FILES = ["motion_data_one_scenario.tfrecord", "womd_scenario_input.tfrecord",
          "motion_data_one_example.tfrecord", "sd_waymo_v1.2_eb4b91b10ca94ff2.pkl"]
@@ -68,7 +68,7 @@ def two_lanes(path: Path, *, theta: float, side: int, speed: float) -> str:
 def route_part(env, obs: np.ndarray) -> dict[str, np.ndarray | float]:
     observation = env.unwrapped.observation_type
     values = obs[observation.kinematics_size:]
-    names = route_feature_names(observation.route_points)
+    names = route_feature_names(observation.route_points, observation.leader_features)
     assert len(values) == len(names) == observation.route_size
     named = dict(zip(names, values, strict=True))
     points = values[:2 * observation.route_points].reshape(-1, 2) * observation.horizon
@@ -156,7 +156,7 @@ def real_rollouts(request, womd_dir):
             obs, _ = env.reset(seed=seed)
             policy.reset(env, seed=seed)
             config = {k: v for k, v in env.unwrapped.config["observation"].items()
-                      if k not in ("type", "route_points", "route_spacing")}
+                      if k not in ("type", "route_points", "route_spacing", "leader")}
             done = False
             while not done:
                 theirs = KinematicObservation(env.unwrapped, **config).observe().ravel()
@@ -170,7 +170,8 @@ def real_rollouts(request, womd_dir):
 def test_the_space_holds_every_observation_of_the_real_scenes(real_rollouts):
     env, seen = real_rollouts
     # highway-env's Kinematics defaults: 5 vehicles x 5 features, then the route
-    assert env.observation_space.shape == (5 * 5 + 2 * 5 + len(ROUTE_FEATURES),)
+    assert env.observation_space.shape == (5 * 5 + 2 * 5 + len(ROUTE_FEATURES)
+                                          + len(LEADER_FEATURES),)
     for obs, _ in seen:
         assert obs.dtype == np.float32 and env.observation_space.contains(obs)
 
@@ -213,11 +214,13 @@ def test_the_command_trains_an_agent_on_the_route_observation(real, tmp_path, ca
     assert main(["train", "--algo", "ppo", "--env", "womd", "--womd", real[1],
                  "--timesteps", "64", "--n-envs", "1", "-o", str(out)]) == 0
     doc = json.loads(out.with_suffix(".json").read_text())
-    assert doc["params"]["observation"] == {"type": "KinematicsRoute"}
+    assert doc["params"]["observation"] == {"type": "KinematicsRoute", "leader": True}
+    assert doc["params"]["reward"] == {"collision_reward": -1.0, "progress_reward": 1.0,
+                                       "off_road_reward": -1.0, "ttc_reward": -0.05}
     from stable_baselines3 import PPO
 
     model = PPO.load(out, device="cpu")
-    assert model.observation_space.shape == (5 * 5 + 16,)
+    assert model.observation_space.shape == (5 * 5 + 16 + 4,)  # Kinematics, route, leader
     result = rollout(WomdScenes((real[1],)), str(out.with_suffix(".json")), "all")
     assert list(result.episodes["status"]) == ["ok"]
 
@@ -236,7 +239,7 @@ def _kinematics_matches_highway_env(env, policy_names=("log", "idm", "random"), 
             policy.reset(env, seed=seed)
             observation = env.unwrapped.observation_type
             config = {k: v for k, v in env.unwrapped.config["observation"].items()
-                      if k not in ("type", "route_points", "route_spacing")}
+                      if k not in ("type", "route_points", "route_spacing", "leader")}
             done = False
             while not done:
                 theirs = KinematicObservation(env.unwrapped, **config).observe().ravel()
