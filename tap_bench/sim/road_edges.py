@@ -189,12 +189,16 @@ class RoadEdges:
         of the box's centre."""
         if not len(self.a) or not (math.isfinite(x) and math.isfinite(y)):
             return float("nan")
+        far = float(reach + math.hypot(length, width))
+        # numpy's cosine and sine, as box_corners takes them: the same corners to the bit
+        c, s = float(np.cos(heading)), float(np.sin(heading))
+        if math.isfinite(c) and math.isfinite(s) and math.isfinite(far):
+            return float(_box_signed(float(x), float(y), c, s, float(length), float(width),
+                                     float(reach), far, self.a, self.b, self.owner,
+                                     self.open_start, self.open_end, *self._grid))
         if not math.isfinite(self._signed(np.array([[x, y]], float), float(reach))[0]):
             return float("nan")
         corners = box_corners(x, y, heading, length, width)
-        far = float(reach + math.hypot(length, width))
-        if np.isfinite(corners).all():
-            return float(np.max(self._signed(corners, far)))
         return float(np.max(self.signed_distance(corners, far)))
 
 
@@ -281,3 +285,31 @@ def _signed_distances(points, a, b, owner, open_start, open_end, start, segs, lo
         beyond_open = (open_start[j] and u_p[i] < 0) or (open_end[j] and u_p[i] > 1)
         out[i] = near[i] if side[i] < 0 and not beyond_open else -near[i]
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _box_signed(x, y, c, s, length, width, reach, far, a, b, owner, open_start, open_end,
+                start, segs, lo, nx, ny):  # pragma: no cover - compiled
+    """:meth:`RoadEdges.box_distance` of one box whose centre (x, y) [m], cosine and sine
+    of its heading and size [m] are finite: NaN when no edge is within ``reach`` of the
+    centre, else the largest signed distance of its corners (:func:`box_corners`) over
+    the edges within ``far``."""
+    centre = np.empty((1, 2))
+    centre[0, 0], centre[0, 1] = x, y
+    if not np.isfinite(_signed_distances(centre, a, b, owner, open_start, open_end, start,
+                                         segs, lo, nx, ny, reach)[0]):
+        return np.nan
+    lon = (0.5 * length, -0.5 * length, -0.5 * length, 0.5 * length)
+    lat = (0.5 * width, 0.5 * width, -0.5 * width, -0.5 * width)
+    corners = np.empty((4, 2))
+    for i in range(4):
+        corners[i, 0] = x + lon[i] * c - lat[i] * s
+        corners[i, 1] = y + lon[i] * s + lat[i] * c
+    d = _signed_distances(corners, a, b, owner, open_start, open_end, start, segs, lo, nx,
+                          ny, far)
+    best = d[0]
+    for i in range(1, 4):
+        if np.isnan(d[i]) or np.isnan(best):
+            return np.nan
+        best = max(best, d[i])
+    return best

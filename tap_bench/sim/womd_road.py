@@ -121,6 +121,11 @@ class WomdNetwork(RoadNetwork):
         self.lookup = LaneIndex(lanes)
 
     @functools.cached_property
+    def _centre_arcs(self) -> dict[int, np.ndarray]:
+        """WOMD lane id -> arc lengths of its centre line's points [m] (filled as asked)."""
+        return {}
+
+    @functools.cached_property
     def road_edges(self) -> RoadEdges:
         """The road edges of its map, in WOMD's axes (built at the first use, then kept: a
         network reused for the next episode of its scene reuses them)."""
@@ -146,7 +151,11 @@ class WomdNetwork(RoadNetwork):
         lane = self.road_map.lanes[self.womd_id(lane_index)]
         built = self.get_lane(lane_index)
         lon, _ = built.local_coordinates(position)
-        at = _point_index(lane.centre, lon)
+        arcs = self._centre_arcs.get(lane.id)
+        if arcs is None:  # asked every step: the centre line's arc lengths once per lane
+            arcs = self._centre_arcs[lane.id] = _arc_lengths(lane.centre)
+        at = int(np.clip(np.searchsorted(arcs, lon), 0, len(lane.centre) - 1)) \
+            if len(lane.centre) >= 2 else 0
         out = []
         for name in ("left", "right"):
             if side not in (None, name):
@@ -186,12 +195,11 @@ class WomdNetwork(RoadNetwork):
             self.get_lane(i).heading_at(0.0) - end_heading)))
 
 
-def _point_index(centre: np.ndarray, lon: float) -> int:
-    """Index of the centre-line point at arc length ``lon`` [m] (clipped to the line)."""
+def _arc_lengths(centre: np.ndarray) -> np.ndarray:
+    """(n,) arc length [m] of each point of a centre line (n, 2+) from its first."""
     if len(centre) < 2:
-        return 0
-    s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(centre, axis=0).T))]
-    return int(np.clip(np.searchsorted(s, lon), 0, len(centre) - 1))
+        return np.zeros(len(centre))
+    return np.r_[0.0, np.cumsum(np.hypot(*np.diff(centre, axis=0).T))]
 
 
 # ------------------------------------------------------------------ vehicles
@@ -199,6 +207,11 @@ def _point_index(centre: np.ndarray, lon: float) -> int:
 
 class LogVehicle(Vehicle):
     """An agent replaying its logged states (sim frame), hidden while the log has none.
+
+    The log is laid out once, when the vehicle is made: positions as one read-only (T + 1,
+    2) array (the steps without a valid state, and one step past the log's end, at the
+    hidden place), headings, speeds and validity as Python lists; a step only points at
+    its row.
 
     Attributes:
         row: the track's row in the scene.
@@ -210,9 +223,19 @@ class LogVehicle(Vehicle):
         self.valid_steps = valid
         self.clock = clock
         self.row = row
-        # the same states as Python numbers: a step reads one row without numpy's overhead
-        self._rows = np.asarray(states, dtype=np.float64).tolist()
-        self._valid = np.asarray(valid, dtype=bool).tolist()
+        states = np.asarray(states, dtype=np.float64)
+        ok = np.asarray(valid, dtype=bool)
+        n = len(ok)
+        xy = np.empty((n + 1, 2))
+        xy[:n] = states[:, :2]
+        xy[np.flatnonzero(~ok)] = (HIDDEN + 10.0 * row, HIDDEN)
+        xy[n] = (HIDDEN + 10.0 * row, HIDDEN)
+        xy.flags.writeable = False  # a step's position is a view of its row
+        self._xy = xy
+        self._heading = [*np.where(ok, states[:, 2], 0.0).tolist(), 0.0]
+        self._speed = [*np.where(ok, states[:, 3], 0.0).tolist(), 0.0]
+        self._valid = [*ok.tolist(), False]
+        self._end = n  # the hidden row past the log's end
         self.LENGTH, self.WIDTH = float(length), float(width)
         x, y, h, v = self._state(clock[0])
         super().__init__(road, np.array([x, y]), h, v)
@@ -221,17 +244,18 @@ class LogVehicle(Vehicle):
         self._place(clock[0])
 
     def _state(self, k: int) -> tuple[float, float, float, float]:
-        if k < len(self._valid) and self._valid[k]:
-            x, y, h, v = self._rows[k]
-            return x, y, h, v
-        return HIDDEN + 10.0 * self.row, HIDDEN, 0.0, 0.0
+        """(x, y, heading, speed) at the record's step ``k`` (the hidden place and 0, 0
+        where the log has no valid state)."""
+        k = min(k, self._end)
+        x, y = self._xy[k].tolist()
+        return x, y, self._heading[k], self._speed[k]
 
     def _place(self, k: int) -> None:
-        x, y, h, v = self._state(k)
-        self.position = np.array([x, y])
-        self.heading = h
-        self.speed = v
-        self.collidable = k < len(self._valid) and self._valid[k]
+        k = min(k, self._end)
+        self.position = self._xy[k]
+        self.heading = self._heading[k]
+        self.speed = self._speed[k]
+        self.collidable = self._valid[k]
 
     def act(self, action: Any = None) -> None:
         """Replaying: no decision."""
@@ -1093,6 +1117,28 @@ def _lane_clearance(ax, ay, bx, by, half, owner, x, y):  # pragma: no cover - co
     return best
 
 
+@numba.njit(cache=True, nogil=True)
+def _segment_hits(px, py, near, ax, ay, bx, by):  # pragma: no cover - compiled
+    """Where the polyline (px, py) crosses or touches the segments ``near`` of (ax, ay) ->
+    (bx, by) (collinear overlaps do not count): (h, 4) rows (its segment k, the segment q,
+    d1, d2), in (k, q) order, where d1 and d2 are the sides (cross products) of k's ends
+    from q's line (the crossing is at d1 / (d1 - d2) along k)."""
+    rows = []
+    for k in range(px.shape[0] - 1):
+        x0, y0, x1, y1 = px[k], py[k], px[k + 1], py[k + 1]
+        for q in near:
+            d1 = (bx[q] - ax[q]) * (y0 - ay[q]) - (by[q] - ay[q]) * (x0 - ax[q])
+            d2 = (bx[q] - ax[q]) * (y1 - ay[q]) - (by[q] - ay[q]) * (x1 - ax[q])
+            d3 = (x1 - x0) * (ay[q] - y0) - (y1 - y0) * (ax[q] - x0)
+            d4 = (x1 - x0) * (by[q] - y0) - (y1 - y0) * (bx[q] - x0)
+            if d1 * d2 <= 0 and d3 * d4 <= 0 and d1 != d2 and d3 != d4:
+                rows.append((float(k), float(q), d1, d2))
+    out = np.empty((len(rows), 4))
+    for i in range(len(rows)):
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = rows[i]
+    return out
+
+
 def _intersecting(a: Vehicle, b: Vehicle) -> bool:
     """Whether two vehicles' boxes overlap now."""
     return bool(utils.are_polygons_intersecting(a.polygon(), b.polygon(), np.zeros(2),
@@ -1457,21 +1503,15 @@ class WomdRoad(Road):
         near = np.flatnonzero((np.maximum(ax, bx) >= lo[0]) & (np.minimum(ax, bx) <= hi[0])
                               & (np.maximum(ay, by) >= lo[1]) & (np.minimum(ay, by) <= hi[1]))
         if len(near) and len(pts) >= 2:
-            ax, ay, bx, by, owner = ax[near], ay[near], bx[near], by[near], owner[near]
-            px, py = pts[:-1, 0:1], pts[:-1, 1:2]  # (m, 1) against (c,)
-            qx, qy = pts[1:, 0:1], pts[1:, 1:2]
-            d1 = (bx - ax) * (py - ay) - (by - ay) * (px - ax)
-            d2 = (bx - ax) * (qy - ay) - (by - ay) * (qx - ax)
-            d3 = (qx - px) * (ay - py) - (qy - py) * (ax - px)
-            d4 = (qx - px) * (by - py) - (qy - py) * (bx - px)
-            # touching counts (lanes sampled through the same point); collinear does not
-            hits = (d1 * d2 <= 0) & (d3 * d4 <= 0) & (d1 != d2) & (d3 != d4)
-            for k, q in zip(*np.nonzero(hits), strict=True):
-                other = self._lane_list[owner[q]]
+            hits = _segment_hits(np.ascontiguousarray(pts[:, 0]),
+                                 np.ascontiguousarray(pts[:, 1]), near, ax, ay, bx, by)
+            for k, q, d1, d2 in hits.tolist():
+                k = int(k)
+                other = self._lane_list[owner[int(q)]]
                 if other == lane_index or other in successors or other in predecessors \
                         or other in siblings or other in beside:
                     continue
-                u = d1[k, q] / (d1[k, q] - d2[k, q])  # d1 != d2: not parallel
+                u = d1 / (d1 - d2)  # d1 != d2: not parallel
                 point = pts[k] + u * (pts[k + 1] - pts[k])
                 s_self = float(lane.local_coordinates(point)[0])
                 s_other = float(network.get_lane(other).local_coordinates(point)[0])

@@ -99,6 +99,28 @@ def test_a_box_is_off_the_road_when_a_corner_is(theta):
     assert box(0.0, 2.0, heading) == pytest.approx(-c[:, 1].min())
 
 
+@pytest.mark.parametrize("theta", HEADINGS[:3])
+def test_a_box_distance_is_its_largest_corner_distance_everywhere(theta):
+    # a curved kerb with a driveway gap and a closed island: boxes of every size, heading
+    # and place, near and beyond the edges' reach (NaN), against the definition
+    arc = np.linspace(0.0, math.pi / 2, 40)
+    kerb = turn(np.c_[30.0 * np.cos(arc), 30.0 * np.sin(arc)], theta)
+    island = turn([[5.0, 5.0], [5.0, 9.0], [15.0, 9.0], [15.0, 5.0], [5.0, 5.0]], theta)
+    far_kerb = turn([[-40.0, -5.0], [-10.0, -5.0]], theta)
+    edges = RoadEdges.from_polylines([kerb, island, far_kerb])
+    rng = np.random.default_rng(11)
+    for _ in range(400):
+        x, y = rng.uniform(-60.0, 60.0, 2)
+        heading, length, width = rng.uniform(-4.0, 4.0), rng.uniform(0.5, 15.0), \
+            rng.uniform(0.5, 3.0)
+        got = edges.box_distance(x, y, heading, length, width)
+        if np.isnan(edges.signed_distance([[x, y]])[0]):
+            assert np.isnan(got)
+            continue
+        corners = box_corners(x, y, heading, length, width)
+        want = np.max(edges.signed_distance(corners, 15.0 + math.hypot(length, width)))
+        assert got == pytest.approx(want, abs=1e-12)
+
 def test_leaving_the_road_is_judged_against_where_the_ego_started():
     tol, margin = OFF_ROAD_TOLERANCE, LEAVE_MARGIN
     assert not left_road(tol, -2.0) and left_road(tol + 0.01, -2.0)

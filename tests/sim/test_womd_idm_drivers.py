@@ -12,7 +12,13 @@ import pytest
 
 from tap_bench.sim.policies import load_policy
 from tap_bench.sim.womd_env import make_womd_env
-from tap_bench.sim.womd_road import NOMINAL_DRIVER, DriverParameters, _idm_acc, draw_driver
+from tap_bench.sim.womd_road import (
+    NOMINAL_DRIVER,
+    DriverParameters,
+    _idm_acc,
+    _segment_hits,
+    draw_driver,
+)
 from tap_bench.sim.womd_scene import CURRENT_STEP
 from tap_bench.stats.bootstrap import named_rng
 
@@ -83,6 +89,41 @@ def test_drawn_drivers_stay_in_their_ranges_around_the_nominal_one():
     with pytest.raises(ValueError, match="emergency_braking"):
         DriverParameters(comfortable_braking=3.0, emergency_braking=2.0)
 
+
+def crossings(px: np.ndarray, py: np.ndarray, ax, ay, bx, by) -> list[tuple]:
+    """The definition of where a polyline crosses or touches segments (not collinear):
+    (its segment, the segment, d1, d2) for every pair, in order."""
+    out = []
+    for k in range(len(px) - 1):
+        for q in range(len(ax)):
+            d1 = (bx[q] - ax[q]) * (py[k] - ay[q]) - (by[q] - ay[q]) * (px[k] - ax[q])
+            d2 = (bx[q] - ax[q]) * (py[k + 1] - ay[q]) - (by[q] - ay[q]) * (px[k + 1] - ax[q])
+            d3 = (px[k + 1] - px[k]) * (ay[q] - py[k]) - (py[k + 1] - py[k]) * (ax[q] - px[k])
+            d4 = (px[k + 1] - px[k]) * (by[q] - py[k]) - (py[k + 1] - py[k]) * (bx[q] - px[k])
+            if d1 * d2 <= 0 and d3 * d4 <= 0 and d1 != d2 and d3 != d4:
+                out.append((k, q, d1, d2))
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_lane_crossings_are_every_segment_pair_that_crosses_or_touches(seed):
+    rng = np.random.default_rng(seed)
+    line = np.cumsum(rng.normal(0.0, 3.0, (30, 2)), axis=0)
+    a = rng.uniform(line.min(0) - 5, line.max(0) + 5, (200, 2))
+    b = a + rng.normal(0.0, 6.0, (200, 2))
+    # lanes sampled through the same point (touching) and along the same line (collinear)
+    a[:10], b[:10] = line[5:15], line[5:15] + rng.normal(0.0, 2.0, (10, 2))
+    a[10:20], b[10:20] = line[10:20], line[11:21]
+    near = np.arange(200)
+    got = _segment_hits(line[:, 0].copy(), line[:, 1].copy(), near, a[:, 0].copy(),
+                        a[:, 1].copy(), b[:, 0].copy(), b[:, 1].copy())
+    want = crossings(line[:, 0], line[:, 1], a[:, 0], a[:, 1], b[:, 0], b[:, 1])
+    assert len(want) > 20  # touching ones among them
+    assert [(int(k), int(q)) for k, q, *_ in got] == [(k, q) for k, q, *_ in want]
+    np.testing.assert_allclose(got[:, 2:], np.array([w[2:] for w in want]), rtol=1e-12,
+                               atol=1e-12)
+    # collinear overlaps are not crossings
+    assert not any(10 <= q < 20 and k == q for k, q, *_ in want)
 
 def test_a_tight_but_harmless_gap_is_closed_at_comfortable_braking():
     # 10 m/s, 10 m behind a leader at 9 m/s: plain IDM brakes at 1.5 (1 - (10/15)^4 -
