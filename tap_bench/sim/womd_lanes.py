@@ -123,23 +123,72 @@ def _poses(lane: PolyLaneFixedWidth) -> tuple[np.ndarray, ...]:
             np.asarray(lane.curve.s_samples, dtype=np.float64))
 
 
-def _arc_lengths(points: np.ndarray) -> np.ndarray:
-    """(n,) cumulative arc length [m] at each point of a polyline (n, 2)."""
-    step = np.diff(points, axis=0)
-    return np.concatenate(([0.0], np.cumsum(np.sqrt(step[:, 0] ** 2 + step[:, 1] ** 2))))
+@numba.njit(cache=True, nogil=True)
+def _lane_poses(x, y, offsets):  # pragma: no cover - compiled
+    """The arc lengths and the poses of many polylines at once.
+
+    Polyline j is the points ``offsets[j]:offsets[j + 1]`` of ``x``, ``y`` [m] (two or more
+    distinct points). Its poses are every metre of arc length from its start
+    (``s = 0, 1, ... floor(length)``), each point linearly interpolated on the segment it
+    falls on (the end point itself where ``s`` lands on one), with the unit tangent of the
+    chord to the next pose (the last pose keeps the one before it).
+
+    Returns:
+        arc (n_points,) cumulative arc length [m] at each point; starts (n_lanes + 1,) lane
+        j's poses are ``starts[j]:starts[j + 1]`` of px, py (points [m]), tx, ty (unit
+        tangents) and s (arc lengths [m]).
+    """
+    n_lanes = offsets.shape[0] - 1
+    arc = np.empty(x.shape[0])
+    starts = np.zeros(n_lanes + 1, np.int64)
+    for j in range(n_lanes):
+        a, b = offsets[j], offsets[j + 1]
+        arc[a] = 0.0
+        total = 0.0
+        for i in range(a + 1, b):
+            dx, dy = x[i] - x[i - 1], y[i] - y[i - 1]
+            total += np.sqrt(dx * dx + dy * dy)
+            arc[i] = total
+        starts[j + 1] = starts[j] + int(np.floor(total)) + 1
+    px, py = np.empty(starts[n_lanes]), np.empty(starts[n_lanes])
+    tx, ty = np.empty(starts[n_lanes]), np.empty(starts[n_lanes])
+    s = np.empty(starts[n_lanes])
+    for j in range(n_lanes):
+        a, n = offsets[j], offsets[j + 1] - offsets[j]
+        c, m = starts[j], starts[j + 1] - starts[j]
+        k = 0  # the segment [k, k + 1] the pose lies on
+        for i in range(m):
+            at = float(i)
+            while k + 1 < n and arc[a + k + 1] <= at:
+                k += 1
+            s[c + i] = at
+            if k == n - 1 or arc[a + k] == at:
+                px[c + i], py[c + i] = x[a + k], y[a + k]
+            else:
+                run = arc[a + k + 1] - arc[a + k]
+                px[c + i] = (x[a + k + 1] - x[a + k]) / run * (at - arc[a + k]) + x[a + k]
+                py[c + i] = (y[a + k + 1] - y[a + k]) / run * (at - arc[a + k]) + y[a + k]
+        for i in range(m):
+            if m < 2:  # shorter than a metre: no chord (refused by the caller)
+                tx[c + i], ty[c + i] = np.nan, np.nan
+                continue
+            q = c + min(i, m - 2)
+            dx, dy = px[q + 1] - px[q], py[q + 1] - py[q]
+            norm = np.sqrt(dx * dx + dy * dy)
+            tx[c + i], ty[c + i] = dx / norm, dy / norm
+    return arc, starts, px, py, tx, ty, s
 
 
-def _sampled_poses(points: np.ndarray, arc: np.ndarray) -> tuple[np.ndarray, ...]:
-    """(px, py, tx, ty, s): poses every metre of arc length along a polyline (points
-    (n, 2) [m], ``arc`` its cumulative arc length), each with the unit tangent of the chord
-    to the next pose (the last pose keeps the one before it): the poses highway-env's
-    ``PolyLaneFixedWidth`` samples, computed in one vectorised pass."""
-    s = np.arange(0, int(np.floor(arc[-1])) + 1).astype(np.float64)
-    px, py = np.interp(s, arc, points[:, 0]), np.interp(s, arc, points[:, 1])
-    dx, dy = np.diff(px), np.diff(py)
-    dx, dy = np.append(dx, dx[-1]), np.append(dy, dy[-1])
-    norm = np.sqrt(dx ** 2 + dy ** 2)
-    return px, py, dx / norm, dy / norm, s
+def _frames_of(lines: Sequence[np.ndarray]) -> tuple[Any, ...]:
+    """:func:`_lane_poses` of centre lines (n_i, 2) [m]: (arc, offsets, starts, (px, py,
+    tx, ty, s), s as a list, the poses' headings [rad] as a list)."""
+    offsets = np.zeros(len(lines) + 1, dtype=np.int64)
+    np.cumsum([len(points) for points in lines], out=offsets[1:])
+    points = np.concatenate(lines) if len(lines) else np.zeros((0, 2))
+    arc, starts, px, py, tx, ty, s = _lane_poses(np.ascontiguousarray(points[:, 0]),
+                                                 np.ascontiguousarray(points[:, 1]), offsets)
+    return (arc, offsets, starts, (px, py, tx, ty, s), s.tolist(),
+            np.arctan2(ty, tx).tolist())
 
 
 class FastPolyLane(PolyLaneFixedWidth):
@@ -157,8 +206,39 @@ class FastPolyLane(PolyLaneFixedWidth):
                  womd_id: int = -1, speed_limit: float = 20.0,
                  line_types: tuple[Any, Any] | None = None, forbidden: bool = False,
                  priority: int = 0) -> None:
-        self._points = np.asarray(lane_points, dtype=np.float64).reshape(-1, 2)
-        self._arc = _arc_lengths(self._points)
+        points = np.asarray(lane_points, dtype=np.float64).reshape(-1, 2)
+        self._frame_from(points, *_frames_of([points]), 0, width, womd_id, speed_limit,
+                         line_types, forbidden, priority)
+
+    @classmethod
+    def many(cls, lines: Sequence[np.ndarray], widths: Sequence[float], *,
+             womd_ids: Sequence[int], speed_limits: Sequence[float],
+             line_types: Sequence[tuple[Any, Any] | None]) -> list[FastPolyLane]:
+        """One lane per centre line (n_i, 2) [m] (each of two or more distinct points, at
+        least :data:`MIN_LANE_LENGTH` long: :func:`lane_points`), their poses computed in
+        one compiled pass; the other arguments per lane as in the constructor."""
+        frames = _frames_of(lines)
+        out = []
+        for j, points in enumerate(lines):
+            lane = cls.__new__(cls)
+            lane._frame_from(points, *frames, j, widths[j], womd_ids[j], speed_limits[j],
+                             line_types[j], False, 0)
+            out.append(lane)
+        return out
+
+    def _frame_from(self, points: np.ndarray, arc: np.ndarray, offsets: np.ndarray,
+                    starts: np.ndarray, poses: tuple[np.ndarray, ...], s_list: list[float],
+                    headings: list[float], j: int, width: float, womd_id: int,
+                    speed_limit: float, line_types: tuple[Any, Any] | None, forbidden: bool,
+                    priority: int) -> None:
+        """Set the lane from line ``j`` of :func:`_frames_of`'s arrays."""
+        a, b = int(offsets[j]), int(offsets[j + 1])
+        c, d = int(starts[j]), int(starts[j + 1])
+        if d - c < 2:
+            raise ValueError(f"a lane needs a centre line of at least {MIN_LANE_LENGTH} m "
+                             f"of two distinct points; this one is {arc[b - 1]:.3f} m long")
+        self._points = points
+        self._arc = arc[a:b]
         self.length = self._arc[-1]
         self.width = width
         self.line_types = line_types
@@ -166,9 +246,9 @@ class FastPolyLane(PolyLaneFixedWidth):
         self.speed_limit = speed_limit
         self.priority = priority
         self.womd_id = int(womd_id)
-        self.arrays = _sampled_poses(self._points, self._arc)
-        self._s_list = self.arrays[4].tolist()
-        self._headings = np.arctan2(self.arrays[3], self.arrays[2]).tolist()
+        self.arrays = tuple(values[c:d] for values in poses)
+        self._s_list = s_list[c:d]
+        self._headings = headings[c:d]
 
     @functools.cached_property
     def curve(self) -> LinearSpline2D:
@@ -189,9 +269,11 @@ class FastPolyLane(PolyLaneFixedWidth):
         return x, y
 
     def position(self, longitudinal: float, lateral: float) -> np.ndarray:
-        x, y = self._along(longitudinal)
+        """The point [m] ``lateral`` [m] left of the centre line at arc length
+        ``longitudinal`` [m], across the heading of the pose there."""
         yaw = self.heading_at(longitudinal)
-        return np.array([x - np.sin(yaw) * lateral, y + np.cos(yaw) * lateral])
+        left = np.array([-np.sin(yaw), np.cos(yaw)])
+        return np.array(self._along(longitudinal)) + lateral * left
 
     def local_coordinates(self, position: np.ndarray) -> tuple[float, float]:
         return _frame(*self.arrays, float(position[0]), float(position[1]))

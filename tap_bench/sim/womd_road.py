@@ -102,22 +102,27 @@ class WomdNetwork(RoadNetwork):
         # scene row -> share of its logged path off the lanes (idm traffic's choice of who
         # drives, the same in every rollout of the scene)
         self.path_off_map: dict[int, float] = {}
-        lanes = []
+        kept, lines = [], []
         for lane in road_map.lanes.values():
             points = lane_points(lane.centre)
             if points is None:
                 self.left_out.append(lane.id)
                 continue
-            limit = lane.speed_limit if np.isfinite(lane.speed_limit) else 20.0
+            kept.append(lane)
+            lines.append(sim_frame(points[:, 0], points[:, 1]))
+        built = FastPolyLane.many(
+            lines, [lane.width for lane in kept], womd_ids=[lane.id for lane in kept],
+            speed_limits=[lane.speed_limit if np.isfinite(lane.speed_limit) else 20.0
+                          for lane in kept],
             # drawn (rgb_array) with a dashed line where the map names a neighbour
-            lines = tuple(LineType.STRIPED if side else LineType.CONTINUOUS
-                          for side in (lane.left, lane.right))
-            built = FastPolyLane(sim_frame(points[:, 0], points[:, 1]).tolist(), lane.width,
-                                 womd_id=lane.id, speed_limit=limit, line_types=lines)
+            line_types=[tuple(LineType.STRIPED if side else LineType.CONTINUOUS
+                              for side in (lane.left, lane.right)) for lane in kept])
+        lanes = []
+        for lane, fast in zip(kept, built, strict=True):
             index = (str(lane.id), f"{lane.id}>", 0)
-            self.add_lane(index[0], index[1], built)
+            self.add_lane(index[0], index[1], fast)
             self.index[lane.id] = index
-            lanes.append((index, built))
+            lanes.append((index, fast))
         self.lookup = LaneIndex(lanes)
 
     @functools.cached_property

@@ -27,9 +27,11 @@ __all__ = [
     "OBJECT_TYPE_NAMES",
     "TAP_BENCH_COLUMNS_FIELD",
     "TAP_BENCH_TRACK_ID_FIELD",
+    "MapPointView",
     "ObjectState",
     "RequiredPrediction",
     "Scenario",
+    "ScenarioMapPointsView",
     "ScenarioMapView",
     "ScenarioView",
     "Track",
@@ -142,6 +144,32 @@ _VIEW = {
 }
 
 
+_POINT_LISTS = ("LaneCenterView", "LineView", "PolygonView", "MapFeatureView",
+                "ScenarioMapView")
+
+
+def _points_as_bytes(messages: dict) -> dict:
+    """The map's messages again under names ending ``PointsView``, with every list of
+    points (``repeated .MapPointView``) read as ``repeated bytes``: one serialized
+    ``MapPoint`` per item, decoded in bulk (:func:`tap_bench.womd.roadmap.map_points`)."""
+    renamed = {f".{name}": f".{name.removesuffix('View')}PointsView" for name in _POINT_LISTS}
+    out = {}
+    for name in _POINT_LISTS:
+        fields = []
+        for field_name, number, kind in messages[name]:
+            prefix, _, target = kind.rpartition(" ")
+            if target == ".MapPointView" and prefix == "repeated":
+                kind = "repeated bytes"
+            elif target in renamed:
+                kind = f"{prefix} {renamed[target]}".lstrip()
+            fields.append((field_name, number, kind))
+        out[renamed[f".{name}"][1:]] = tuple(fields)
+    return out
+
+
+_VIEW.update(_points_as_bytes(_VIEW))
+
+
 def _file(name: str, package: str, messages: dict,
           enums: dict) -> descriptor_pb2.FileDescriptorProto:
     fd = descriptor_pb2.FileDescriptorProto(name=name, package=package, syntax="proto2")
@@ -192,3 +220,8 @@ ScenarioMapView = _cls("tap_bench.womd.view.ScenarioMapView")
 """A Scenario's id, timestamps, map features (lanes with their topology, road lines, road
 edges, stop signs, crosswalks; WOMD's map.proto field numbers) and traffic-signal states per
 step; the tracks are skipped."""
+ScenarioMapPointsView = _cls("tap_bench.womd.view.ScenarioMapPointsView")
+""":data:`ScenarioMapView` with every list of points (lane centre lines, lines, edges,
+crosswalk polygons) kept as one serialized ``MapPoint`` per item, for decoding in bulk."""
+MapPointView = _cls("tap_bench.womd.view.MapPointView")
+"""One map point (map.proto's ``MapPoint``): x, y, z [m]."""

@@ -33,8 +33,11 @@ Coordinates are WOMD's (y to the left, heading counter-clockwise) [m]; speeds [m
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from itertools import chain
 from pathlib import Path
+from typing import Any
 
 import numba
 import numpy as np
@@ -55,6 +58,8 @@ __all__ = [
     "SignalStates",
     "StopSign",
     "infer_successors",
+    "map_point_lists",
+    "map_points",
 ]
 
 DEFAULT_LANE_WIDTH = 3.7  # [m] width of a lane whose boundaries the data does not give
@@ -334,8 +339,67 @@ def _finish(scenario_id: str, raw: list[dict], lines: dict[int, np.ndarray], edg
 # ------------------------------------------------------------------ Scenario protos
 
 
-def _xy(points) -> np.ndarray:
-    return np.array([(p.x, p.y) for p in points], dtype=float).reshape(-1, 2)
+_POINT_TAGS = {0x09: 0, 0x11: 1, 0x19: 2}
+"""The tag bytes of MapPoint's fields (x 1, y 2, z 3; fixed64) -> their axis."""
+
+
+def map_points(points: Sequence[bytes]) -> np.ndarray:
+    """(n, 2) x, y [m] of serialized ``MapPoint`` messages (map.proto: x 1, y 2, z 3, all
+    double); see :func:`map_point_lists`.
+
+    Raises:
+        DecodeError: a point's bytes are not a MapPoint.
+    """
+    return map_point_lists([points])[0]
+
+
+def map_point_lists(lists: Sequence[Sequence[bytes]]) -> list[np.ndarray]:
+    """The (n_i, 2) x, y [m] of each list of serialized ``MapPoint`` messages (map.proto:
+    x 1, y 2, z 3, all double).
+
+    When every point holds the same fields, each once, in the same order (as WOMD's files
+    do), all lists are read in one numpy pass; otherwise each list is read alone, by
+    protobuf point by point where its points differ, with protobuf's rules (an absent field
+    is 0, a repeated one keeps its last value).
+
+    Raises:
+        DecodeError: a point's bytes are not a MapPoint.
+    """
+    counts = [len(points) for points in lists]
+    flat = list(chain.from_iterable(lists))
+    xy = _uniform_points(flat)
+    if xy is not None:
+        return np.split(xy, np.cumsum(counts)[:-1]) if counts else []
+    if len(lists) > 1:
+        return [map_point_lists([points])[0] for points in lists]
+    from tap_bench.womd.proto import MapPointView
+
+    return [np.array([(p.x, p.y) for p in map(MapPointView.FromString, flat)],
+                     dtype=np.float64).reshape(-1, 2)]
+
+
+def _uniform_points(points: list[bytes]) -> np.ndarray | None:
+    """(n, 2) x, y of serialized MapPoints that all hold the same fields once each in the
+    same order (one tag byte and 8 value bytes per field), else None."""
+    n = len(points)
+    if not n:
+        return np.zeros((0, 2))
+    sizes = np.fromiter(map(len, points), np.int64, n)
+    size = int(sizes[0])
+    fields = size // 9
+    if size != 9 * fields or not 1 <= fields <= 3 or (sizes != size).any():
+        return None
+    cells = np.frombuffer(b"".join(points), np.uint8).reshape(n, fields, 9)
+    tags = cells[0, :, 0].tolist()
+    if len(set(tags)) != fields or not set(tags) <= _POINT_TAGS.keys() \
+            or (cells[:, :, 0] != cells[0, :, 0]).any():
+        return None
+    values = np.ascontiguousarray(cells[:, :, 1:]).view("<f8")[:, :, 0]
+    xy = np.zeros((n, 2))
+    for k, tag in enumerate(tags):
+        if _POINT_TAGS[tag] < 2:
+            xy[:, _POINT_TAGS[tag]] = values[:, k]
+    return xy
 
 
 def _scenario_signals(view, n_steps: int) -> SignalStates:
@@ -377,15 +441,22 @@ def scenario_road_map(data: bytes, *, source: str = "<record>") -> RoadMap:
     from tap_bench.womd import proto
 
     try:
-        view = proto.ScenarioMapView.FromString(data)
+        view = proto.ScenarioMapPointsView.FromString(data)
+        return _scenario_road_map(view, source)
     except DecodeError as err:
         raise FileFormatError(f"{source}: not a serialized WOMD Scenario proto (protobuf: "
                               f"{err}).") from None
-    raw, lines, edges, crosswalks, stops = [], {}, [], [], []
+
+
+def _scenario_road_map(view: Any, source: str) -> RoadMap:
+    """The road map of a parsed :data:`~tap_bench.womd.proto.ScenarioMapPointsView`."""
+    raw, stops = [], []
+    shapes: list[tuple[str, int]] = []  # (kind, feature id) of each list of points
+    point_lists: list = []  # ... decoded all at once
     for f in view.map_features:
         if f.HasField("lane"):
             lane = f.lane
-            raw.append({"id": f.id, "centre": _xy(lane.polyline),
+            raw.append({"id": f.id,
                         "type": LANE_TYPES.get(lane.type, "undefined"),
                         "speed_limit": (lane.speed_limit_mph * MPH
                                         if lane.HasField("speed_limit_mph") else np.nan),
@@ -395,21 +466,33 @@ def scenario_road_map(data: bytes, *, source: str = "<record>") -> RoadMap:
                         "right": _neighbours(lane.right_neighbors),
                         "left_b": _bounds(lane.left_boundaries),
                         "right_b": _bounds(lane.right_boundaries)})
+            shapes.append(("lane", f.id))
+            point_lists.append(lane.polyline)
         elif f.HasField("road_line"):
-            lines[int(f.id)] = _xy(f.road_line.polyline)
+            shapes.append(("road_line", f.id))
+            point_lists.append(f.road_line.polyline)
         elif f.HasField("road_edge"):
-            pts = _xy(f.road_edge.polyline)
-            lines[int(f.id)] = pts
-            if len(pts) >= 2:
-                edges.append(pts)
+            shapes.append(("road_edge", f.id))
+            point_lists.append(f.road_edge.polyline)
         elif f.HasField("crosswalk"):
-            pts = _xy(f.crosswalk.polygon)
-            if len(pts) >= 3:
-                crosswalks.append(pts)
+            shapes.append(("crosswalk", f.id))
+            point_lists.append(f.crosswalk.polygon)
         elif f.HasField("stop_sign"):
             p = f.stop_sign.position
             stops.append(StopSign(int(f.id), np.array([p.x, p.y]),
                                   tuple(int(i) for i in f.stop_sign.lane)))
+    lines, edges, crosswalks = {}, [], []
+    lanes = iter(raw)
+    for (kind, feature_id), pts in zip(shapes, map_point_lists(point_lists), strict=True):
+        if kind == "lane":
+            next(lanes)["centre"] = pts
+        elif kind == "crosswalk":
+            if len(pts) >= 3:
+                crosswalks.append(pts)
+        else:
+            lines[int(feature_id)] = pts
+            if kind == "road_edge" and len(pts) >= 2:
+                edges.append(pts)
     signals = _scenario_signals(view, len(view.timestamps_seconds))
     return _finish(view.scenario_id, raw, lines, edges, crosswalks, stops, signals, source,
                    topology_given=True)

@@ -110,6 +110,22 @@ def test_lane_poses_equal_highway_envs_samples():
         assert np.array_equal(got[4], want[2])
 
 
+def test_lanes_built_together_equal_lanes_built_one_by_one():
+    rng = np.random.default_rng(3)
+    lines = [lane_points(np.cumsum(rng.normal(0.0, 3.0, (rng.integers(2, 30), 2)), axis=0))
+             for _ in range(25)]
+    together = FastPolyLane.many(lines, [3.0 + k / 10 for k in range(25)],
+                                 womd_ids=range(25), speed_limits=[12.0] * 25,
+                                 line_types=[None] * 25)
+    for k, (points, lane) in enumerate(zip(lines, together, strict=True)):
+        alone = FastPolyLane(points.tolist(), 3.0 + k / 10, womd_id=k, speed_limit=12.0)
+        assert (lane.womd_id, lane.width, lane.length) == (k, alone.width, alone.length)
+        for got, want in zip(lane.arrays, alone.arrays, strict=True):
+            assert np.array_equal(got, want)
+        assert lane.heading_at(lane.length / 2) == alone.heading_at(alone.length / 2)
+        assert np.array_equal(lane.position(3.0, 1.0), alone.position(3.0, 1.0))
+
+
 def test_lane_lookup_equals_highway_envs_on_a_real_map(real):
     road = read_road_maps(real[0])["637f20cafde22ff8"]
     net, built = RoadNetwork(), []
@@ -134,6 +150,8 @@ def test_short_and_degenerate_centre_lines():
     short = lane_points(np.array([[0.0, 0.0], [0.3, 0.0]]))
     assert np.hypot(*np.diff(short, axis=0).T).sum() >= 1.0
     FastPolyLane(short.tolist(), 3.7)  # highway-env can build it
+    with pytest.raises(ValueError, match=r"at least 1\.0 m"):
+        FastPolyLane([[0.0, 0.0], [0.3, 0.0]], 3.7)
 
 
 def test_successors_are_inferred_from_lane_ends_that_meet():
