@@ -48,7 +48,7 @@ if TYPE_CHECKING:
     import pandas as pd
 
 __all__ = ["PART_ROWS", "PART_SCENES", "ROW_GROUP_ROWS", "StreamedRollout", "ego_rows",
-           "parts_folder", "stream_rollout"]
+           "join_parquet", "parts_folder", "stream_rollout"]
 
 ROW_GROUP_ROWS = 1 << 16
 """Rows per Parquet row group of the joined output (fixed, so the file does not depend on
@@ -187,7 +187,7 @@ class _Parts:
             pass
 
 
-def _join_parquet(parts: list[Path], out: Path) -> int:
+def join_parquet(parts: list[Path], out: Path) -> int:
     """The parts as one Parquet file at ``out``, row groups of :data:`ROW_GROUP_ROWS` rows;
     one part (and one row group) in memory at a time. The rows written."""
     import pyarrow as pa
@@ -359,7 +359,7 @@ def stream_rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
         _write(episodes, temps[0], episodes_out)
         if table_parts:
             if _format(output) == "parquet":
-                written = _join_parquet(table_parts, temps[1])
+                written = join_parquet(table_parts, temps[1])
             else:
                 written = _join_csv(table_parts, temps[1],
                                     output.name.lower().endswith(".gz"))

@@ -13,6 +13,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from tap_bench.bench.spill import TrajectorySpill
 from tap_bench.errors import (
     FileFormatError,
 )
@@ -148,7 +149,8 @@ def _json_default(value: Any) -> Any:
 
 def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str, Any],
                   episodes: pd.DataFrame, labels: pd.DataFrame,
-                  trajectories: pd.DataFrame | None, scores: Scores, report: bool = True, *,
+                  trajectories: pd.DataFrame | TrajectorySpill | None, scores: Scores,
+                  report: bool = True, *,
                   segments: pd.DataFrame | None = None, roads: pd.DataFrame | None = None,
                   cache: EpisodeCache | None = None,
                   pages: dict[str, bytes] | None = None) -> Path:
@@ -179,7 +181,10 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
         episodes.to_parquet(tmp / "episodes.parquet", index=False)
         if len(labels):
             labels.to_parquet(tmp / "labels.parquet", index=False)
-        if trajectories is not None and len(trajectories):
+        if isinstance(trajectories, TrajectorySpill):  # joined from disk, a part at a time
+            trajectories.write(tmp / "trajectories.parquet")
+            trajectories = trajectories.table() if report else None  # the viewer's
+        elif trajectories is not None and len(trajectories):
             trajectories.to_parquet(tmp / "trajectories.parquet", index=False)
         for name, table in (("segments", segments), ("roads", roads)):
             if table is not None and len(table):

@@ -108,6 +108,7 @@ from tap_bench.bench.scores.gap import window_episodes, window_seconds
 from tap_bench.bench.scores.scenarios import match_scenarios
 from tap_bench.bench.scores.scoring import Scores, score, scores_from_files, scores_to_files
 from tap_bench.bench.scores.verdict import verdict_table
+from tap_bench.bench.spill import TrajectorySpill, spills
 from tap_bench.bench.suite import Suite
 from tap_bench.errors import (
     CacheEntryWarning,
@@ -276,16 +277,21 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     corpora = _read_references(sources, plan.suite.level, plan.thresholds, timings)
     with_trajectories = any(traj is not None for traj, _ in corpora.values())
     roads = _Roads(plan.scenarios, cache)
+    # recorded scenes: each episode's trajectories go to disk as it ends (bench.spill)
+    spill = TrajectorySpill(output) if spills(plan.scenarios) and (
+        keep_trajectories or with_trajectories) else None
     t0 = time.perf_counter()
     kept = getattr(runner, "kept", None)  # the estimate's first episodes and the rest
     with kept() if kept is not None else contextlib.nullcontext():  # on the same workers
         results, estimate = _rollouts(plan, runner, keep_trajectories or with_trajectories,
-                                      progress, cache, announce, roads, tasks)
+                                      progress, cache, announce, roads, tasks,
+                                      keep_result=None if spill is None else spill.keep)
     timings["rollouts_wall"] = time.perf_counter() - t0
     if announce is not None:
         announce(f"episodes done ({timings['rollouts_wall']:.0f} s); scoring ...")
     refused = _check_results(results, plan.suite.name)
-    tables = _RunTables.of(results, keep_trajectories or with_trajectories, timings)
+    tables = _RunTables.of(results, keep_trajectories or with_trajectories, timings,
+                           spill, whole=with_trajectories)
     t0 = time.perf_counter()
     scores = _scores(plan, tables, corpora, cache)
     timings["scoring"] = time.perf_counter() - t0
@@ -306,6 +312,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         roads=roads.table(plan.suite.envs) if keep_trajectories else None)
     timings["writing_and_report"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
+    if spill is not None:
+        spill.close()
     if summary["cache"] is not None:  # derived entries (roads, scores, plots, viewer, run)
         summary["cache"]["refused"] = [*refused, *take_refused()]
     _write_json(folder / "summary.json", summary)  # with the final timings
@@ -383,13 +391,15 @@ class _RunTables:
     labels: pd.DataFrame
     segments: pd.DataFrame | None
     occurrences: pd.DataFrame | None
-    trajectories: pd.DataFrame | None
+    trajectories: pd.DataFrame | TrajectorySpill | None
 
     @classmethod
     def of(cls, results: list[dict[str, Any]], trajectories: bool,
-           timings: dict[str, float]) -> _RunTables:
+           timings: dict[str, float], spill: TrajectorySpill | None = None, *,
+           whole: bool = False) -> _RunTables:
         """Gathered from ``results``; the workers' CPU time per stage goes to ``timings``
-        (``<stage>_cpu_in_workers`` [s])."""
+        (``<stage>_cpu_in_workers`` [s]). With a ``spill``, the trajectories are its parts
+        (read back into one table when ``whole``: the reference matching needs them)."""
         for key in ("rollout", "labelling", "measures"):
             timings[f"{key}_cpu_in_workers"] = sum(r["timings"].get(key, 0.0)
                                                    for r in results)
@@ -400,8 +410,18 @@ class _RunTables:
                        len(r["labels"]) for r in results) else pd.DataFrame(),
                    _concat([r["segments"] for r in results]),
                    _concat([r.get("contexts", ()) for r in results]),
-                   _concat([r["trajectories"] for r in results
-                            if r["trajectories"] is not None]) if trajectories else None)
+                   _trajectories(results, spill, whole) if trajectories else None)
+
+
+def _trajectories(results: list[dict[str, Any]], spill: TrajectorySpill | None, whole: bool
+                  ) -> pd.DataFrame | TrajectorySpill | None:
+    """The run's trajectories: the results' tables as one, or the spill's parts (as one
+    table when ``whole``); None: no rows."""
+    if spill is None:
+        return _concat([r["trajectories"] for r in results if r["trajectories"] is not None])
+    if whole:
+        return spill.table()
+    return spill if len(spill) else None
 
 
 def _concat(frames: Sequence[Any]) -> pd.DataFrame | None:

@@ -374,7 +374,9 @@ def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
               progress: bool | None, cache: EpisodeCache | None,
               announce: Callable[[str], None] | None,
               road: Callable[[str], pd.DataFrame] | None = None,
-              tasks: list[_Task] | None = None) -> tuple[list[dict[str, Any]], RunPlan]:
+              tasks: list[_Task] | None = None,
+              keep_result: Callable[[int, dict[str, Any]], dict[str, Any]] | None = None
+              ) -> tuple[list[dict[str, Any]], RunPlan]:
     """Every episode of the suite as a task on ``backend`` (one recovery rule: an episode
     whose worker died is tried once more, then recorded as failed), cached episodes read
     rather than simulated. Before the tasks start, ``announce`` gets the run's estimate,
@@ -382,7 +384,12 @@ def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
     env -> its highway-env road as a map table, drawn here once for the envs with episodes
     to label and handed to their tasks (None: each worker draws it). ``tasks``: the run's
     tasks when made already (:func:`~tap_bench.bench.run.plan._tasks` with the same
-    ``keep`` and ``cache``)."""
+    ``keep`` and ``cache``). ``keep_result``: (task index, result) -> the result kept,
+    called on each result as it arrives (a :class:`~tap_bench.bench.spill.TrajectorySpill`
+    writes its trajectories to disk and keeps the rest), the tasks' results then taken one
+    by one as they end rather than all at once."""
+    streamed = keep_result is not None
+    keep_result = keep_result if streamed else (lambda _, result: result)
     if tasks is None:
         tasks = _tasks(suite_plan, keep, cache)
     suite = suite_plan.suite
@@ -393,7 +400,7 @@ def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
         t0 = time.perf_counter()
         hit = _from_label_cache(task)
         if hit is not None and "episodes" in hit:
-            results[i] = hit
+            results[i] = keep_result(i, hit)
             seconds[i] = time.perf_counter() - t0
         elif hit is not None:
             notes[i] = hit["cache_note"]
@@ -435,9 +442,10 @@ def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
         announce(plan.describe(suite.name))
     items = _items(tasks, [i for i in range(len(tasks)) if i not in results], cached,
                    backend.workers, given)
-    outcomes = backend.map(_run_item, [item for _, item in items], unit="task",
-                           progress=progress, desc=f"bench {suite.name} ({backend.name})"
-                           ) if items else []
+    each = backend.imap if streamed else backend.map
+    outcomes = each(_run_item, [item for _, item in items], unit="task",
+                    progress=progress, desc=f"bench {suite.name} ({backend.name})"
+                    ) if items else []
     alone: list[int] = []  # the episodes of a failed batch, tried again one by one
     for (indices, _), outcome in zip(items, outcomes, strict=True):
         if not outcome.ok and len(indices) > 1:
@@ -446,13 +454,13 @@ def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
         values = outcome.value if outcome.ok else [
             _failed_task(tasks[i], outcome.error) for i in indices]
         for i, value in zip(indices, values, strict=True):
-            results[i] = value
+            results[i] = keep_result(i, value)
             seconds[i] = outcome.seconds / len(indices)
     if alone:  # one bad episode does not cost the others of its batch
         outcomes = backend.map(_run_task, [tasks[i] for i in alone], progress=False)
         for i, outcome in zip(alone, outcomes, strict=True):
-            results[i] = outcome.value if outcome.ok else _failed_task(tasks[i],
-                                                                       outcome.error)
+            results[i] = keep_result(i, outcome.value if outcome.ok else
+                                     _failed_task(tasks[i], outcome.error))
             seconds[i] = outcome.seconds
     out = [results[i] for i in range(len(tasks))]
     for i, result in enumerate(out):
