@@ -54,7 +54,7 @@ from tap_bench.rl.aggregate import (
 from tap_bench.stats.bootstrap import named_rng
 
 __all__ = ["HUMAN", "PROFILE_THRESHOLDS", "AgentsResult", "SeedGroupError", "agent_of",
-           "agents_figures", "seed_group", "seed_groups"]
+           "agents_figures", "expand_seed_groups", "seed_group", "seed_groups"]
 
 HUMAN = "log"
 """The policy that replays the recorded ego: the human, the reference of coverage."""
@@ -111,6 +111,31 @@ def seed_groups(definitions: Mapping[str, object] | None = None) -> dict[str, tu
             owner[seed] = name
         groups[name] = tuple(seeds)
     return groups
+
+
+def expand_seed_groups(policies: Sequence[object]) -> tuple[object, ...]:
+    """The policies of a suite with every policy of kind ``seeds`` replaced by its training
+    seeds, in order (``["idm", "ppo-womd"]`` -> ``("idm", "ppo-womd-seed0", ...)``); a
+    policy named twice this way is kept once. What ``bench run`` runs, so that a suite can
+    name an agent and ``tap-bench agents`` aggregate its seeds.
+
+    Raises:
+        FileFormatError: a group whose ``seeds`` is not a non-empty list of names.
+    """
+    from tap_bench.sim.policies import get_definition
+
+    out: list[object] = []
+    for policy in policies:
+        names: list[object] = [policy]
+        if isinstance(policy, str | os.PathLike):
+            try:
+                definition = get_definition(policy)
+            except TapBenchError:
+                definition = None  # not a known name: resolving it says why
+            if getattr(definition, "kind", None) == "seeds":
+                names = list(seed_groups({str(policy): definition})[str(policy)])
+        out.extend(n for n in names if n not in out)
+    return tuple(out)
 
 
 def agent_of(policy: str, groups: Mapping[str, Sequence[str]]) -> str:

@@ -13,6 +13,7 @@ from tap_bench.rl.agents import (
     SeedGroupError,
     agent_of,
     agents_figures,
+    expand_seed_groups,
     seed_group,
     seed_groups,
 )
@@ -149,10 +150,27 @@ def test_the_figures_on_some_scenes_only(run):
         agents_figures(run, groups=GROUPS, scenes=[7])
 
 
-def test_the_shipped_womd_agents_suite_names_the_human_and_every_seed_of_ppo_womd():
+def test_the_shipped_womd_agents_suite_names_the_human_and_ppo_womd():
     from tap_bench.bench.suite import load_suite
 
     suite = load_suite("womd-agents")
-    groups = seed_groups()
     assert suite.reference == "log" and suite.all_seeds
-    assert {"log", "idm", "lane-keeping", "random", *groups["ppo-womd"]} <= set(suite.policies)
+    assert {"log", "idm", "lane-keeping", "random", "ppo-womd"} <= set(suite.policies)
+    assert expand_seed_groups(suite.policies)[-3:] == seed_groups()["ppo-womd"]
+
+
+def test_bench_run_plans_every_seed_of_an_agent_the_suite_names(tmp_path):
+    import json
+
+    from tap_bench.bench.run.plan import plan_suite
+
+    group = tmp_path / "two-drivers.json"  # an "agent" whose seeds are two baselines
+    group.write_text(json.dumps({"name": "two-drivers", "kind": "seeds",
+                                 "params": {"seeds": ["idm", "lane-keeping"]}}))
+    suite = tmp_path / "s.json"
+    suite.write_text(json.dumps({"name": "s", "envs": ["highway"], "seeds": "0-1",
+                                 "policies": ["random", str(group), "idm"],
+                                 "reference_policy": "random"}))
+    plan = plan_suite(suite)
+    assert plan.suite.policies == ("random", "idm", "lane-keeping")
+    assert [d.name for d in plan.definitions] == ["random", "idm", "lane-keeping"]

@@ -116,6 +116,10 @@ def plan_suite(suite: Suite | str | os.PathLike, *, plugins: Sequence[str] = (),
     if seeds is not None:
         suite = replace(suite, seeds=tuple(parse_seeds(seeds, source="seeds")),
                         all_seeds=False)
+    # an agent of several training seeds (a policy of kind "seeds") runs as its seeds
+    from tap_bench.rl.agents import expand_seed_groups
+
+    suite = replace(suite, policies=expand_seed_groups(suite.policies))
     run = uuid.uuid4().hex
     # what the policies and scenarios import as they are built is noted (the plugins' own
     # code is keyed by the measures and kinds they register)
