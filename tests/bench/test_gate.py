@@ -5,8 +5,10 @@ seeds."""
 from __future__ import annotations
 
 import json
+import math
 import warnings
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import pandas as pd
@@ -455,38 +457,94 @@ def _tv_power_permuting(labels, effect, margin, level, n_run, paired, rng):
     return fired / _TV_DRAWS
 
 
-def test_label_tv_power_counts_the_permutations_as_building_them_would():
-    """The paired label_tv power counts each permutation's labels from the seeds it swaps
-    (a small matrix product, in row blocks) instead of building the permuted code
-    matrices: every permutation's TV equals gate_stats.tv's float for float, and the power
-    (same random stream) is the same, on drawn cells: 1 to 9 labels, 3 to 400 seeds (row
-    blocks), effects, margins and levels of every kind."""
-    from tap_bench.bench.gate.power import _swapped_tv, _tv_power
+def _all_swaps_share(codes, run, observed, k):
+    """The share of all 2^d trades of the d seeds whose labels differ (each built as code
+    matrices, TV by gate_stats.tv) whose TV reaches ``observed``."""
+    import itertools
+
+    from tap_bench.bench.gate.statistics import tv
+
+    differ = np.flatnonzero(codes != run)
+    flips = np.ones((2 ** len(differ), len(codes)), bool)
+    flips[:, differ] = np.array(list(itertools.product((True, False), repeat=len(differ))))
+    perm = tv(np.where(flips, codes, run), np.where(flips, run, codes), k)
+    return float((perm >= observed - 1e-12).mean())
+
+
+def test_label_tv_power_of_a_drawn_cell_is_the_binomial_law_of_its_permutations():
+    """A drawn paired cell small enough to enumerate: the probability that the test fires
+    over its 999 random permutations is P(Bin(999, q) <= m), q the share of all 2^d trades
+    of its differing seeds (built one by one, as the gate builds them) at least as far
+    apart as observed and m the most exceeding permutations that still fire; a cell too
+    large to enumerate (its permutations drawn) fires as often, within 4 standard errors;
+    a cell within the margin never fires."""
+    from tap_bench.bench.gate.power import _TV_PERMUTATIONS, _swap_fires
     from tap_bench.bench.gate.statistics import tv
 
     gen = np.random.default_rng(11)
-    powers = []
-    for case in range(40):
-        n = int(gen.choice([3, 5, 8, 12, 17, 24, 36, 60])) if case % 10 else 400
-        k = int(gen.integers(1, 10)) + 1
+    P = _TV_PERMUTATIONS
+    exact_seen = 0
+    for case in range(30):
+        n, k = int(gen.integers(3, 12)), int(gen.integers(2, 6))
         codes = gen.integers(0, k - 1, n)
-        run = np.where(gen.random(n) < gen.random(), gen.integers(0, k, n), codes)
-        differ = np.flatnonzero(codes != run)
-        flips = np.ones((999, n), bool)
-        flips[:, differ] = gen.random((999, len(differ))) < 0.5
-        counts = [np.bincount(c, minlength=k) for c in (codes, run)]
-        fast = _swapped_tv(codes[differ], run[differ], ~flips[:, differ], *counts)
-        slow = tv(np.where(flips, codes, run), np.where(flips, run, codes), k)
-        assert (fast == slow).all(), case
+        run = np.where(gen.random(n) < 0.6, gen.integers(0, k, n), codes)
+        pairs = np.bincount(codes * k + run, minlength=k * k).reshape(k, k)
+        observed = float(tv(codes[None, :], run[None, :], k)[0])
+        level = float(gen.choice([0.002, 0.01, 0.05]))
+        margin = 0.1 * float(gen.random())
+        fires = _swap_fires(pairs, k, margin, level, 1, np.random.default_rng(case))
+        if observed <= margin:
+            assert fires == 0.0, case
+            continue
+        q = _all_swaps_share(codes, run, observed, k)
+        m = max(x for x in range(P + 1) if (1 + x) / (1 + P) <= level)
+        expected = sum(math.comb(P, x) * q ** x * (1 - q) ** (P - x) for x in range(m + 1))
+        assert fires == pytest.approx(expected, abs=1e-9), (case, q, m)
+        exact_seen += 0 < expected < 1
+    assert exact_seen >= 3  # cells of every power, not only 0 and 1
 
-        labels = np.array([f"l{j}" for j in codes])
-        effect = float(gen.choice([0.05, 0.2, 0.5, 0.9]))
-        margin, level = 0.3 * float(gen.random()), float(gen.choice([0.002, 0.01, 0.05]))
-        args = (labels, effect, margin, level, n, True)
-        power = _tv_power(*args, np.random.default_rng(case))
-        assert power == _tv_power_permuting(*args, np.random.default_rng(case)), (case, args)
-        powers.append(power)
-    assert 0 < np.mean(powers) < 1 and len(set(powers)) > 10  # cells of every power
+    # 30 seeds of 3 labels against 4, 14 of them differing, 2 of each of 7 label pairs:
+    # 3^7 trade counts, too many to enumerate, so the cell's permutations are drawn; 400
+    # draws of them fire as often as the binomial law of its share q (all 2^14 trades) says,
+    # at a level where the firing is in doubt
+    codes = np.repeat([0, 1, 2], 10)
+    run = codes.copy()
+    for seeds, label in (([0, 1], 1), ([2, 3], 2), ([4, 5], 3), ([10, 11], 0),
+                         ([12, 13], 3), ([20, 21], 0), ([22, 23], 3)):
+        run[seeds] = label
+    k = 4
+    pairs = np.bincount(codes * k + run, minlength=k * k).reshape(k, k)
+    observed = float(tv(codes[None, :], run[None, :], k)[0])
+    q = _all_swaps_share(codes, run, observed, k)
+    m = round(P * q)
+    level = (1 + m) / (1 + P)
+    expected = sum(math.comb(P, x) * q ** x * (1 - q) ** (P - x) for x in range(m + 1))
+    assert 0.2 < expected < 0.8, expected
+    fired = _swap_fires(pairs, k, 0.0, level, 400, np.random.default_rng(6)) / 400
+    assert abs(fired - expected) < 4 * math.sqrt(expected * (1 - expected) / 400)
+
+
+@pytest.mark.parametrize("n, labels, effect, level", [
+    (16, 2, 0.5, 0.0085), (60, 5, 0.2, 0.002),
+    *(pytest.param(*case, marks=pytest.mark.slow) for case in (
+        (12, 4, 0.5, 0.0085), (24, 4, 0.5, 0.01), (120, 5, 0.2, 0.01)))])
+def test_label_tv_power_is_the_firing_rate_of_the_rule_as_first_written(n, labels, effect,
+                                                                        level):
+    """The paired label_tv power (draws counted together, each drawn cell's permutations by
+    their law) against the rule as first written (every draw's 999 permutations built as
+    code matrices, TV by gate_stats.tv, 400 draws): equal within 4 standard errors of the
+    two (cells whose drawn cells are enumerated, 16 seeds, and drawn, 60; three more in the
+    slow suite)."""
+    from tap_bench.bench.gate import power
+
+    gen = np.random.default_rng(n)
+    cell = np.array([f"l{j}" for j in gen.integers(0, labels, n)])
+    args = (cell, effect, 0.2, level, n, True)
+    got = power._tv_power(*args, np.random.default_rng(1))
+    with mock.patch.object(power, "_TV_DRAWS", 400):
+        reference = _tv_power_permuting(*args, np.random.default_rng(2))
+    se = math.sqrt(max(reference * (1 - reference), 0.02) * (1 / 400 + 1 / 100))
+    assert abs(got - reference) < 4 * se, (got, reference)
 
 
 def test_fewer_seeds_than_the_baseline_is_underpowered_and_exits_3(tmp_path, capsys):

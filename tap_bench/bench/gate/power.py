@@ -29,9 +29,13 @@ normal approximation of another test:
   deterministic simulator makes it positive); the permutation tests' p-values by their
   normal approximation (the sign-flip statistic's permutation variance is sum d^2), with
   the floor 1 / (P + 1) of P random permutations.
-- ``label_tv``: simulated: the run's labels drawn from the baseline's distribution with a
-  share e moved to a label it never had (a TV of e), the permutation test with 199
-  permutations per draw.
+- ``label_tv``: simulated: ``_TV_DRAWS`` draws of the run's labels from the baseline's
+  distribution with a share e moved to a label it never had (a TV of e), each tested by
+  the permutation test with ``_TV_PERMUTATIONS`` random permutations. Paired, the share
+  of a draw's permutations that reach its TV is exact where it can be enumerated (seeds
+  with the same pair of labels are exchangeable: a permutation's TV depends only on how
+  many of each pair it trades), and the draw fires with that share's binomial
+  probability; the draws that give the same cell are counted together.
 
 The worsening a check is asked to catch is ``detect`` margins (:class:`GateConfig`,
 default 2.5: a crash rate 25 points higher, with its 0.10 margin). A cell and metric
@@ -167,66 +171,118 @@ def _mean_power(base: np.ndarray, sign: int, effect: float, margin: float, level
     return float(((worse > margin) & (z >= z_level)).mean())
 
 
-def _swapped_tv(base: np.ndarray, run: np.ndarray, swap: np.ndarray,
-                counts_b: np.ndarray, counts_r: np.ndarray) -> np.ndarray:
-    """(P,) label_tv of each permutation of a paired check: ``gate_stats.tv`` of the
-    baseline's and the run's codes after each permutation traded the two sides of the
-    seeds it marks, float for float, without building the (P, n) permuted code matrices.
+def _binomial_cdf_at_most(m: int, n: int, q: float) -> float:
+    """P(Bin(n, q) <= m)."""
+    if m < 0:
+        return 0.0
+    if m >= n or q <= 0:
+        return 1.0
+    if q >= 1:
+        return 0.0
+    x = np.arange(m + 1)
+    logc = np.array([math.lgamma(n + 1) - math.lgamma(i + 1) - math.lgamma(n - i + 1)
+                     for i in range(m + 1)])
+    return float(min(1.0, np.exp(logc + x * math.log(q) + (n - x) * math.log1p(-q)).sum()))
+
+
+def _product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a @ b`` of small integers in floats (exact), in row blocks small enough that BLAS
+    stays on one thread (its threads spin between calls and cost more than they save)."""
+    rows = max(1, _BLAS_ONE_THREAD // max(a.shape[1] * b.shape[1], 1))
+    if rows >= len(a):
+        return a @ b
+    return np.concatenate([part @ b for part in np.split(a, range(rows, len(a), rows))])
+
+
+def _swap_fires(pairs: np.ndarray, k: int, margin: float, level: float, repeats: int,
+                rng: np.random.Generator) -> float:
+    """How many of ``repeats`` draws of one cell the paired label_tv test fires on, in
+    expectation over their random permutations (:data:`_TV_PERMUTATIONS` of them, p =
+    (1 + exceed) / (1 + P), as :func:`_tv_power` models the gate).
+
+    A permutation trades the two sides of each seed with probability 1/2. Seeds with the
+    same (baseline label, run label) pair are exchangeable, so a permutation's TV depends
+    only on how many seeds of each pair it trades (independent binomials). When their
+    joint law has at most P combinations it is enumerated: it gives exactly the share q of
+    permutations at least as far apart as observed, and the test fires when at most m of
+    the P permutations reach it (m the largest count with (1 + m) / (1 + P) <= level), with
+    probability P(Bin(P, q) <= m). Otherwise each draw's P permutations are drawn (a fair
+    coin per seed that differs) and counted, 0 or 1 per draw.
 
     Args:
-        base, run: (d,) the label codes of the seeds whose two sides differ.
-        swap: (P, d) True where a permutation trades that seed's two sides.
-        counts_b, counts_r: (k,) label counts of the whole baseline and run (n seeds each).
+        pairs: (k, k) seed counts by (baseline label, run label).
+        k: labels.
+        margin: the rule's margin on the TV.
+        level: the test's level.
+        repeats: draws that gave this cell.
+        rng: draws the permutations of a cell too large to enumerate.
     """
-    n = int(counts_b.sum())
-    k = len(counts_b)
+    n = int(pairs.sum())
+    counts_b, counts_r = pairs.sum(axis=1), pairs.sum(axis=0)
+    observed = 0.5 * np.abs(counts_b / n - counts_r / n).sum()  # gate_stats.tv
+    if observed <= margin:
+        return 0.0
+    base, run = np.nonzero(pairs * (1 - np.eye(k, dtype=pairs.dtype)))
+    sizes = pairs[base, run]
     one_hot = np.eye(k)
-    # a traded seed moves one count from its baseline label to its run label on the
-    # baseline's side and back on the run's: the moves are one (P, d) @ (d, k) product of
-    # small integers (exact in floats), in row blocks small enough that BLAS stays on one
-    # thread (its threads spin between calls and cost more than they save here)
-    step = one_hot[run] - one_hot[base]
-    rows = max(1, _BLAS_ONE_THREAD // max(step.size, 1))
-    moved = swap.astype(float) @ step if rows >= len(swap) else np.concatenate(
-        [part.astype(float) @ step for part in np.split(swap, range(rows, len(swap), rows))])
-    return 0.5 * np.abs((counts_b + moved) / n - (counts_r - moved) / n).sum(axis=1)
+    step = one_hot[run] - one_hot[base]  # a traded seed's run label joins the baseline's
+    if math.prod(int(c) + 1 for c in sizes) <= _TV_PERMUTATIONS + 1:
+        traded = np.indices(tuple(int(c) + 1 for c in sizes)).reshape(len(sizes), -1).T
+        weight = np.ones(len(traded))
+        for t, c in enumerate(sizes):
+            weight *= _binomial_pmf(int(c), 0.5)[traded[:, t]]
+        moved = _product(traded.astype(float), step)
+        perm = 0.5 * np.abs((counts_b + moved) / n - (counts_r - moved) / n).sum(axis=1)
+        q = float(weight[perm >= observed - 1e-12].sum())
+        m = int(np.count_nonzero((1 + np.arange(_TV_PERMUTATIONS + 1))
+                                 / (1 + _TV_PERMUTATIONS) <= level)) - 1
+        return repeats * _binomial_cdf_at_most(m, _TV_PERMUTATIONS, q)
+    step = np.repeat(step, sizes, axis=0)  # one row per seed that differs
+    # a fair coin per seed and permutation, as random bits (8 per byte drawn)
+    coins = np.unpackbits(rng.integers(0, 256, size=(repeats * _TV_PERMUTATIONS,
+                                                     (len(step) + 7) // 8), dtype=np.uint8),
+                          axis=1, count=len(step))
+    moved = _product(coins.astype(float), step)
+    perm = 0.5 * np.abs((counts_b + moved) / n - (counts_r - moved) / n).sum(axis=1)
+    exceed = (perm >= observed - 1e-12).reshape(repeats, _TV_PERMUTATIONS).sum(axis=1)
+    return float(((1 + exceed) / (1 + _TV_PERMUTATIONS) <= level).sum())
 
 
 def _tv_power(labels: np.ndarray, effect: float, margin: float, level: float, n_run: int,
               paired: bool, rng: np.random.Generator) -> float:
     """Simulated power of the gate's rule on label_tv (see the module docstring); NaN when
-    the level is below what :data:`_TV_PERMUTATIONS` permutations can resolve."""
+    the level is below what :data:`_TV_PERMUTATIONS` permutations can resolve.
+
+    Paired: the :data:`_TV_DRAWS` runs are drawn together; the draws that gave the same
+    cell (its seed counts by baseline and run label) are counted together
+    (:func:`_swap_fires`)."""
     if effect > 1 or level < 1.0 / (_TV_PERMUTATIONS + 1):
         return math.nan
     _, codes = np.unique(labels, return_inverse=True)
     k = int(codes.max()) + 2  # one label the baseline never had
     n_b = len(codes)
-    counts_b = np.bincount(codes, minlength=k)
+    if paired:
+        # the perturbation of a changed policy: half the seeds redrawn from the baseline's
+        # labels, then a share ``effect`` moved to the new label
+        runs = np.where(rng.random((_TV_DRAWS, n_b)) < 0.5,
+                        codes[rng.integers(0, n_b, size=(_TV_DRAWS, n_b))], codes)
+        runs[rng.random((_TV_DRAWS, n_b)) < effect] = k - 1
+        cell = (np.arange(_TV_DRAWS)[:, None] * k * k + codes * k + runs).ravel()
+        pairs = np.bincount(cell, minlength=_TV_DRAWS * k * k).reshape(_TV_DRAWS, k * k)
+        distinct, inverse = np.unique(pairs, axis=0, return_inverse=True)
+        repeats = np.bincount(inverse.ravel(), minlength=len(distinct))
+        return sum(_swap_fires(row.reshape(k, k), k, margin, level, int(r), rng)
+                   for row, r in zip(distinct, repeats, strict=True)) / _TV_DRAWS
     fired = 0
     for _ in range(_TV_DRAWS):
-        if paired:
-            run = codes.copy()
-            redraw = rng.random(n_b) < 0.5  # the perturbation of a changed policy
-            # rng.choice(codes, size) draws these same integers: the same stream
-            run[redraw] = codes[rng.integers(0, n_b, size=int(redraw.sum()))]
-            run[rng.random(n_b) < effect] = k - 1
-            counts_r = np.bincount(run, minlength=k)
-            observed = 0.5 * np.abs(counts_b / n_b - counts_r / n_b).sum()  # tv()
-            if observed <= margin:
-                continue
-            differ = np.flatnonzero(codes != run)
-            swap = rng.random((_TV_PERMUTATIONS, len(differ))) >= 0.5
-            perm = _swapped_tv(codes[differ], run[differ], swap, counts_b, counts_r)
-        else:
-            run = codes[rng.integers(0, n_b, size=n_run)]
-            run[rng.random(n_run) < effect] = k - 1
-            observed = tv(codes[None, :], run[None, :], k)[0]
-            if observed <= margin:
-                continue
-            pooled = np.r_[codes, run]
-            shuffled = pooled[np.argsort(rng.random((_TV_PERMUTATIONS, len(pooled))),
-                                         axis=1)]
-            perm = tv(shuffled[:, :n_b], shuffled[:, n_b:], k)
+        run = codes[rng.integers(0, n_b, size=n_run)]
+        run[rng.random(n_run) < effect] = k - 1
+        observed = tv(codes[None, :], run[None, :], k)[0]
+        if observed <= margin:
+            continue
+        pooled = np.r_[codes, run]
+        shuffled = pooled[np.argsort(rng.random((_TV_PERMUTATIONS, len(pooled))), axis=1)]
+        perm = tv(shuffled[:, :n_b], shuffled[:, n_b:], k)
         exceed = (perm >= observed - 1e-12).sum()
         fired += (1 + exceed) / (1 + _TV_PERMUTATIONS) <= level
     return fired / _TV_DRAWS
