@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
 
     groups = seed_groups()
     if args.womd:
-        _run_suite(args, groups)
+        _run_suite(args)
     from tap_bench.sim.scenario_format import parse_seeds
 
     scenes = None if args.scenes is None else list(parse_seeds(args.scenes))
@@ -80,8 +80,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_suite(args: argparse.Namespace, groups: dict[str, tuple[str, ...]]) -> None:
-    """Run the suite's policies (a seed group by its seeds) on the scenes of ``--womd``."""
+def _run_suite(args: argparse.Namespace) -> None:
+    """Run the suite's policies on the scenes of ``--womd`` (``bench run`` runs a seed group
+    as its seeds)."""
     from tap_bench.bench.cache import EpisodeCache, default_cache_dir
     from tap_bench.bench.run.runner import run_suite
     from tap_bench.bench.suite import load_suite, suite_from_dict
@@ -90,7 +91,6 @@ def _run_suite(args: argparse.Namespace, groups: dict[str, tuple[str, ...]]) -> 
     doc = suite.to_dict()
     doc["envs"] = [{"womd": [os.path.abspath(f) for f in args.womd], "traffic": args.traffic}]
     doc["seeds"] = "all"
-    doc["policies"] = [seed for p in doc["policies"] for seed in groups.get(p, (p,))]
     suite = suite_from_dict(doc, source=f"{args.suite} on {' '.join(args.womd)}")
     cache = None if args.no_cache else EpisodeCache(default_cache_dir())
     run_suite(suite, args.run, workers=args.workers, overwrite=args.overwrite, cache=cache,

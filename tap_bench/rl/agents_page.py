@@ -7,15 +7,17 @@ from __future__ import annotations
 
 import html
 import os
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from urllib.parse import quote
 
 import pandas as pd
 
-from tap_bench.rl.agents import HUMAN, AgentsResult, interval_text
+from tap_bench.errors import FileFormatError
+from tap_bench.rl.agents import HUMAN, AgentsResult, agents_figures, interval_text, seed_groups
 from tap_bench.tableio import atomic_path, write_table
 
-__all__ = ["plot_profiles", "write_agents_page"]
+__all__ = ["agents_report_section", "plot_profiles", "write_agents_page"]
 
 _NAMES = {"route_progress": "route progress (IQM)",
           "crashed_at_fault": "at-fault collisions (rate)", "off_road": "off-road (rate)"}
@@ -138,3 +140,60 @@ def write_agents_page(result: AgentsResult, folder: str | os.PathLike, *,
     with atomic_path(page) as tmp:
         tmp.write_text("\n".join(body), encoding="utf-8")
     return page
+
+
+def agents_report_section(folder: str | os.PathLike, episodes: pd.DataFrame, *,
+                          reference: str, level: float, viewer: str | None,
+                          groups: Mapping[str, Sequence[str]] | None = None) -> list[str]:
+    """The ``bench run`` report's section on agents of several training seeds: when the run
+    is on recorded scenes with the human as its reference and some of its policies are the
+    seeds of an agent (a policy of kind ``seeds``), the figures of ``tap-bench agents`` over
+    the run's scenes (every agent of the run; the seeds gathered into their agent) as a
+    table, the performance profiles, and the whole page written to ``folder/agents/``.
+    Empty otherwise (HTML fragments, in order).
+
+    Args:
+        folder: the run folder being written (its ``episodes`` and ``segments`` tables).
+        episodes: the run's episode table.
+        reference: the run's reference policy (the human: ``log``).
+        level: the run's two-sided interval level.
+        viewer: the replay viewer's page relative to ``folder`` (None: no viewer).
+        groups: agent -> its seed policies (default: every group defined,
+            :func:`~tap_bench.rl.agents.seed_groups`).
+    """
+    if reference != HUMAN or "route_progress" not in episodes.columns:
+        return []
+    policies = set(episodes["policy"].astype(str))
+    groups = {agent: tuple(seeds) for agent, seeds in
+              (seed_groups() if groups is None else groups).items() if policies & set(seeds)}
+    if not groups:
+        return []
+    try:
+        result = agents_figures(folder, groups=groups, level=level)
+    except FileFormatError as err:  # e.g. no segment table: say so, keep the report
+        return ["<h2>Agents over training seeds</h2>",
+                f"<p>Not computed: {html.escape(str(err))}</p>"]
+    page = write_agents_page(result, Path(folder) / "agents",
+                             viewer="../" + (viewer or "viewer/index.html"))
+    agents = sorted(dict.fromkeys(result.scores["agent"]), key=lambda a: (a != HUMAN, a))
+    table = result.aggregates.copy()
+    table["figure"] = [interval_text(r) for r in table.to_dict("records")]
+    table["measure"] = [_NAMES.get(m, m) for m in table["measure"]]
+    wide = table.pivot_table(index="agent", columns="measure", values="figure",
+                             aggfunc="first").reindex(agents)
+    wide.columns.name = None
+    names = ", ".join(f"{html.escape(a)} ({len(s)} seeds)" for a, s in groups.items())
+    return [
+        "<h2>Agents over training seeds</h2>",
+        f"<p class=\"note\">An agent of several training seeds is the set of its seeds "
+        f"(SPEC 10): {names}. Route progress by its interquartile mean over seeds x scenes, "
+        f"rates by their mean, with {level:.0%} bootstrap intervals over whole training "
+        "seeds (docs/agents.md measures how often they cover); the other policies are "
+        "agents of one run. The coverage of the human, unique manoeuvres, safety by the "
+        "agent's own label and the probability of improvement: "
+        f"<a href=\"agents/{page.name}\">agents/{page.name}</a> (as "
+        "<code>tap-bench agents</code> writes it).</p>",
+        wide.to_html(escape=True),
+        *(["<img src=\"agents/profiles.png\" alt=\"performance profiles of route progress\">"]
+          if len(result.profiles) else []),
+    ]

@@ -17,7 +17,7 @@ from tap_bench.rl.agents import (
     seed_group,
     seed_groups,
 )
-from tap_bench.rl.agents_page import write_agents_page
+from tap_bench.rl.agents_page import agents_report_section, write_agents_page
 
 GROUPS = {"ppo": ("ppo-s0", "ppo-s1")}
 
@@ -174,3 +174,21 @@ def test_bench_run_plans_every_seed_of_an_agent_the_suite_names(tmp_path):
     plan = plan_suite(suite)
     assert plan.suite.policies == ("random", "idm", "lane-keeping")
     assert [d.name for d in plan.definitions] == ["random", "idm", "lane-keeping"]
+
+
+def test_the_bench_report_gathers_the_seeds_of_an_agent(run):
+    episodes = pd.read_parquet(run / "episodes.parquet")
+    parts = agents_report_section(run, episodes, reference="log", level=0.95,
+                                  viewer="viewer/index.html", groups=GROUPS)
+    text = "\n".join(parts)
+    assert "Agents over training seeds" in text and "ppo (2 seeds)" in text
+    # ppo's route progress over 2 seeds x 2 scenes: 0.4, 0.8, 0.9, 1.0 -> IQM 0.85
+    assert "0.85 [" in text
+    assert (run / "agents" / "agents.html").is_file()
+    assert "../viewer/index.html" in (run / "agents" / "agents.html").read_text()
+    # no seed of an agent in the run, or another reference: no section
+    assert agents_report_section(run, episodes[episodes["policy"] != "ppo-s0"].iloc[:0],
+                                 reference="log", level=0.95, viewer=None,
+                                 groups=GROUPS) == []
+    assert agents_report_section(run, episodes, reference="idm", level=0.95, viewer=None,
+                                 groups=GROUPS) == []
