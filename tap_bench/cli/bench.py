@@ -56,6 +56,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    "the report's section on the realism of simulated traffic")
     r.add_argument("--no-trajectories", action="store_true",
                    help="do not write trajectories.parquet")
+    r.add_argument("--no-report", action="store_true",
+                   help="write the tables and summary.json only: no plots, report.html or "
+                   "replay viewer (the viewer holds every episode's data; on a suite of "
+                   "many recorded scenes the trajectories are then never one table in "
+                   "memory)")
     r.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
     add_progress_arguments(r)
     add_backend_arguments(r, shards=False)
@@ -147,6 +152,7 @@ def run_bench(args: argparse.Namespace) -> int:
     # viewer are even imported
     result = serve_unchanged(args.suite, args.output, cache=cache,
                              keep_trajectories=not args.no_trajectories,
+                             report=not args.no_report,
                              overwrite=args.overwrite, seeds=args.seeds,
                              corpora=bool(references or args.womd or args.realism),
                              plugins=plugins,
@@ -160,7 +166,7 @@ def run_bench(args: argparse.Namespace) -> int:
             result = run_suite(args.suite, args.output, workers=args.workers,
                                womd=args.womd, references=references,
                                keep_trajectories=not args.no_trajectories,
-                               overwrite=args.overwrite,
+                               overwrite=args.overwrite, report=not args.no_report,
                                progress=progress_choice(args), backend=backend,
                                seeds=args.seeds, cache=cache, announce=announce,
                                plugins=plugins, realism=args.realism)
@@ -185,7 +191,8 @@ def run_bench(args: argparse.Namespace) -> int:
               "outcome (the same label and measures on every seed): they are not independent "
               "samples; its intervals, pooled figures and contexts count one episode "
               f"{row['n']} times.", file=sys.stderr)
-    print(f"wrote {result.folder}/ (report: {result.report})")
+    print(f"wrote {result.folder}/ (report: "
+          f"{result.report if not args.no_report else 'none, --no-report'})")
     return 0
 
 

@@ -14,6 +14,7 @@ import pandas as pd
 from tap_bench.bench import spill as bench_spill
 from tap_bench.bench.run import runner
 from tap_bench.bench.suite import suite_from_dict
+from tap_bench.cli import main
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "scale"))  # scale_scenes
@@ -23,12 +24,16 @@ from scale_scenes import scene_files  # noqa: E402
 
 
 def womd_suite(files: list[str]):
-    return suite_from_dict({
+    return suite_from_dict(suite_doc(files))
+
+
+def suite_doc(files: list[str]) -> dict:
+    return {
         "name": "womd-stream", "version": 0,
         "envs": [{"womd": files, "traffic": "log", "ego": "sdc", "policy_frequency": 2}],
         "policies": ["log", "idm"], "reference_policy": "log", "seeds": "all",
         "level": "maneuver", "thresholds": "paper",
-        "bootstrap": {"n_resamples": 200, "level": 0.95, "seed": 0}})
+        "bootstrap": {"n_resamples": 200, "level": 0.95, "seed": 0}}
 
 
 def _run(suite, out: Path, **options) -> Path:
@@ -79,13 +84,22 @@ def test_a_womd_run_spills_trajectories_and_equals_one_held_in_memory(tmp_path, 
     assert len(pd.read_parquet(streamed / "trajectories.parquet")) == kept[0].rows
 
 
-def test_without_the_report_the_trajectories_are_never_one_table(tmp_path, monkeypatch):
+def test_without_the_report_the_trajectories_are_never_one_table(tmp_path, monkeypatch,
+                                                                   capsys):
     files = scene_files(tmp_path / "scenes", 3, per_file=3)
+    suite = tmp_path / "suite.json"
+    suite.write_text(json.dumps(suite_doc(files)))
     read_whole = []
     monkeypatch.setattr(bench_spill.TrajectorySpill, "table",
                         lambda self: read_whole.append(1))
-    folder = _run(womd_suite(files), tmp_path / "run", report=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(["bench", "run", "--suite", str(suite), "-o", str(tmp_path / "run"),
+                     "--no-report", "--no-cache", "--workers", "1", "--no-progress"]) == 0
     assert not read_whole
+    assert "report: none, --no-report" in capsys.readouterr().out
+    folder = tmp_path / "run"
+    assert not (folder / "report.html").exists() and not (folder / "viewer").exists()
     table = pd.read_parquet(folder / "trajectories.parquet")
     assert sorted(table["policy"].unique()) == ["idm", "log"]
     assert table.groupby("policy")["seed"].nunique().tolist() == [3, 3]
