@@ -835,6 +835,25 @@ def near_pairs(vehicles: list[Any], objects: list[Any], dt: float) -> np.ndarray
     return None if shapes is None else _near(shapes, len(vehicles), dt)
 
 
+def shape_of(obj: Any) -> bool:
+    """Whether ``obj``'s class has its own collision test, polygon or velocity (then
+    :func:`near_pairs_of` puts it in every pair)."""
+    return _own_shape(type(obj))
+
+
+def near_pairs_of(position: np.ndarray, diagonal: np.ndarray, length: np.ndarray,
+                  width: np.ndarray, heading: np.ndarray, speed: np.ndarray,
+                  checks: np.ndarray, own: np.ndarray, n: int, dt: float) -> np.ndarray:
+    """:func:`near_pairs` of collidable objects given as arrays (the first ``n`` the
+    vehicles): positions (m, 2) [m], diagonals, lengths and widths [m], headings [rad],
+    speeds [m/s], whether each checks collisions and has its own test (:func:`shape_of`),
+    all (m,)."""
+    return _near({"position": position, "diagonal": diagonal, "half_length": length / 2,
+                  "half_width": width / 2, "heading": heading, "vx": speed * np.cos(heading),
+                  "vy": speed * np.sin(heading), "checks": checks,
+                  "collidable": np.ones(len(position), bool), "own": own}, n, dt)
+
+
 def _near(shapes: dict[str, np.ndarray], n: int, dt: float) -> np.ndarray:
     """:func:`near_pairs` from :func:`_shapes` (the first ``n`` objects the vehicles).
 

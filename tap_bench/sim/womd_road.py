@@ -34,7 +34,7 @@ from highway_env.vehicle.kinematics import Vehicle
 
 from tap_bench.errors import ParameterError
 from tap_bench.sim.road_edges import RoadEdges, left_road
-from tap_bench.sim.traffic import near_pairs
+from tap_bench.sim.traffic import near_pairs, near_pairs_of, shape_of
 from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, lane_points
 from tap_bench.sim.womd_scene import Scene
 
@@ -1170,6 +1170,73 @@ def _segments(lines: Sequence[np.ndarray]) -> tuple[np.ndarray, ...]:
             np.ascontiguousarray(b[:, 0]), np.ascontiguousarray(b[:, 1]), owner)
 
 
+class _Layout:
+    """A road's vehicles (in the road's order) laid out once so that their states at any
+    step come as arrays: the log vehicles' from their logs in one indexing, the others'
+    from their attributes.
+
+    Attributes:
+        vehicles: the vehicles; acting: those that decide (not the log vehicles).
+        end: the hidden step past the logs' end (the log vehicles' layouts share it).
+        length, width, diagonal: (n,) [m]; walker: (n,) a pedestrian or cyclist;
+        checks: (n,) checks collisions.
+    """
+
+    def __init__(self, vehicles: tuple[Vehicle, ...], walker_rows: frozenset) -> None:
+        self.vehicles = vehicles
+        self.acting = [v for v in vehicles if type(v) is not LogVehicle]
+        logs = [i for i, v in enumerate(vehicles) if type(v) is LogVehicle]
+        self.logs = np.array(logs, np.int64)
+        self.others = [i for i, v in enumerate(vehicles) if type(v) is not LogVehicle]
+        ends = {vehicles[i]._end for i in logs}
+        self.end = ends.pop() if len(ends) == 1 else None
+        if self.end is None:  # logs of different lengths: one by one
+            self.others, self.logs = list(range(len(vehicles))), np.zeros(0, np.int64)
+        else:
+            self.xy = np.stack([vehicles[i]._xy for i in logs], axis=1)  # (T + 1, n_log, 2)
+            self.heading = np.array([vehicles[i]._heading for i in logs]).T.copy()
+            self.speed = np.array([vehicles[i]._speed for i in logs]).T.copy()
+            self.valid = np.array([vehicles[i]._valid for i in logs], bool).T.copy()
+        self.end = self.end if self.end is not None else 1 << 30
+        self.length = np.array([float(v.LENGTH) for v in vehicles])
+        self.width = np.array([float(v.WIDTH) for v in vehicles])
+        self.shaped = all(hasattr(v, "diagonal") and hasattr(v, "check_collisions")
+                          for v in vehicles)  # else every pair is checked
+        self.diagonal = np.array([float(getattr(v, "diagonal", np.nan)) for v in vehicles])
+        self.walker = np.array([getattr(v, "row", -1) in walker_rows for v in vehicles], bool)
+        self.checks = np.array([bool(getattr(v, "check_collisions", False))
+                                for v in vehicles], bool)
+
+    def states(self, step: int) -> dict[str, np.ndarray]:
+        """The vehicles' states at the road's step ``step`` as they stand: ``position``
+        (n, 2) [m], ``heading`` [rad], ``speed`` [m/s], ``collidable`` (n,) and ``own``
+        (n,) whether a vehicle's class has its own collision test (None when a vehicle
+        lacks a diagonal: every pair is then checked), ``checks`` (n,) whether it checks
+        collisions."""
+        n = len(self.vehicles)
+        position = np.empty((n, 2))
+        heading, speed = np.empty(n), np.empty(n)
+        collidable = np.empty(n, bool)
+        checks = self.checks.copy()
+        own = np.zeros(n, bool) if self.shaped else None
+        if len(self.logs):
+            k = min(step, self.end)
+            position[self.logs] = self.xy[k]
+            heading[self.logs] = self.heading[k]
+            speed[self.logs] = self.speed[k]
+            collidable[self.logs] = self.valid[k]
+        for i in self.others:
+            v = self.vehicles[i]
+            position[i] = v.position
+            heading[i], speed[i] = v.heading, v.speed
+            collidable[i] = v.collidable
+            if own is not None:
+                own[i] = shape_of(v)
+                checks[i] = v.check_collisions
+        return {"position": position, "heading": heading, "speed": speed,
+                "collidable": collidable, "own": own, "checks": checks}
+
+
 class WomdRoad(Road):
     """highway-env's road for a WOMD scene: the step counter the log replays read, the
     neighbour search projected once per step per lane (compiled), collisions checked for the
@@ -1243,29 +1310,43 @@ class WomdRoad(Road):
                     self._crossings[id(b)].append((a, float(sb), float(sa), not a_first))
         return self._crossings.get(id(vehicle), [])
 
+    # the vehicles' states as arrays, the log's from its layout
+    def _layout(self) -> _Layout:
+        """The road's vehicles laid out for :meth:`_snapshot` (made again when the list
+        changes: a reset, the policy's ego put in the place of the env's)."""
+        vehicles = tuple(self.vehicles)
+        layout = self.__dict__.get("_vehicle_layout")
+        if layout is None or layout.vehicles != vehicles:
+            layout = self._vehicle_layout = _Layout(vehicles, self._walker_rows)
+        return layout
+
+    def _snapshot(self) -> tuple[_Layout, dict[str, np.ndarray]]:
+        """Every vehicle's state now (:meth:`_Layout.states`)."""
+        layout = self._layout()
+        return layout, layout.states(self.clock[0])
+
     # the neighbour search, once per lane per step
     def act(self) -> None:
         self._projections.clear()
-        self._movers = [v for v in self.vehicles if v.collidable]
-        self._positions = (np.array([v.position for v in self._movers])
-                           if self._movers else np.zeros((0, 2)))
-        self._boxes = np.array([(v.heading, max(float(v.speed), 0.0), v.LENGTH, v.WIDTH)
-                                for v in self._movers], float).reshape(-1, 4)
+        layout, now = self._snapshot()
+        moving = now["collidable"]
+        self._movers = [layout.vehicles[i] for i in np.flatnonzero(moving).tolist()]
+        self._positions = now["position"][moving]
+        self._boxes = np.stack([now["heading"][moving], np.maximum(now["speed"][moving], 0.0),
+                                layout.length[moving], layout.width[moving]], axis=1)
         self._mover_index = {id(v): i for i, v in enumerate(self._movers)}
-        self._walker_mask = np.array([getattr(v, "row", -1) in self._walker_rows
-                                      for v in self._movers], bool)
+        self._walker_mask = layout.walker[moving]
         self._path_margins = np.where(self._walker_mask, WALKER_CLEARANCE, PATH_MARGIN)
-        walkers = [v for v in self._movers if getattr(v, "row", -1) in self._walker_rows]
-        if walkers:
-            xy = np.array([v.position for v in walkers], float)
-            heading = np.array([v.heading for v in walkers], float)
-            speed = np.array([max(float(v.speed), 0.0) for v in walkers])
+        if self._walker_mask.any():
+            xy = self._positions[self._walker_mask]
+            heading = self._boxes[self._walker_mask, 0]
+            speed = self._boxes[self._walker_mask, 1]
             ahead = xy + WALKER_HORIZON * speed[:, None] * np.c_[np.cos(heading),
                                                                  np.sin(heading)]
             self._walkers = (xy, ahead, heading, speed)
         else:
             self._walkers = None
-        for vehicle in self.vehicles:
+        for vehicle in layout.acting:
             vehicle.act()
 
     def neighbour_vehicles(self, vehicle: Any, lane_index: Any = None
@@ -1306,10 +1387,27 @@ class WomdRoad(Road):
         collisions of the simulation (the record's own boxes) and are not checked."""
         self.clock[0] += 1
         self._positions = None
+        layout = self._layout()
+        c = self.clock[0]
         for vehicle in self.vehicles:
-            vehicle.step(dt)
-        vehicles = [v for v in self.vehicles if v.collidable]
-        near = near_pairs(vehicles, [], dt)
+            if type(vehicle) is LogVehicle:  # LogVehicle.step, without the calls
+                k = c if c < vehicle._end else vehicle._end
+                vehicle.impact = None
+                vehicle.position = vehicle._xy[k]
+                vehicle.heading = vehicle._heading[k]
+                vehicle.speed = vehicle._speed[k]
+                vehicle.collidable = vehicle._valid[k]
+            else:
+                vehicle.step(dt)
+        now = layout.states(self.clock[0])
+        moving = now["collidable"]
+        vehicles = [layout.vehicles[i] for i in np.flatnonzero(moving).tolist()]
+        near = None
+        if now["own"] is not None:
+            near = near_pairs_of(now["position"][moving], layout.diagonal[moving],
+                                 layout.length[moving], layout.width[moving],
+                                 now["heading"][moving], now["speed"][moving],
+                                 now["checks"][moving], now["own"][moving], len(vehicles), dt)
         if near is None:  # an object without position or diagonal: every pair, as highway-env
             near = np.ones((len(vehicles), len(vehicles)), bool)
         ego = self.vehicles[0]  # the env puts the ego first (a policy's takes its place)

@@ -16,6 +16,7 @@ from highway_env import utils
 
 from tap_bench.sim.policies import load_policy
 from tap_bench.sim.rollout import rollout
+from tap_bench.sim.traffic import near_pairs, near_pairs_of
 from tap_bench.sim.womd_env import make_womd_env
 from tap_bench.sim.womd_scene import CURRENT_STEP, WomdScenes
 
@@ -332,3 +333,44 @@ def test_the_command_says_how_clean_the_reactive_traffic_was(real, tmp_path, cap
     printed = capsys.readouterr().out
     assert (f"idm traffic collisions (the ego's aside): {n} in 1 of 1 episodes, "
             f"{with_log} with a replayed agent") in printed
+
+
+@pytest.mark.parametrize("traffic", ["log", "idm"])
+@pytest.mark.parametrize("policy", ["log", "idm"])
+def test_the_roads_state_arrays_are_its_vehicles_states(womd_dir, traffic, policy):
+    # the arrays the step reads (the log's laid out once, the others' from their
+    # attributes) against every vehicle's own attributes, and the near pairs they give
+    # against near_pairs of the vehicles, after every simulated step of a busy real scene
+    env = make_womd_env(str(womd_dir / "motion_data_one_example.tfrecord"), traffic=traffic)
+    inner = env.unwrapped
+    checked = []
+
+    def check() -> None:
+        road = inner.road
+        layout, now = road._snapshot()
+        vehicles = list(road.vehicles)
+        assert list(layout.vehicles) == vehicles
+        np.testing.assert_array_equal(now["position"], [v.position for v in vehicles])
+        np.testing.assert_array_equal(now["heading"], [v.heading for v in vehicles])
+        np.testing.assert_array_equal(now["speed"], [v.speed for v in vehicles])
+        np.testing.assert_array_equal(now["collidable"], [v.collidable for v in vehicles])
+        moving = now["collidable"]
+        movers = [v for v in vehicles if v.collidable]
+        got = near_pairs_of(now["position"][moving], layout.diagonal[moving],
+                            layout.length[moving], layout.width[moving],
+                            now["heading"][moving], now["speed"][moving],
+                            now["checks"][moving], now["own"][moving], len(movers), 0.1)
+        np.testing.assert_array_equal(got, near_pairs(movers, [], 0.1))
+        checked.append(len(vehicles))
+
+    p = load_policy(policy)
+    obs, _ = env.reset(seed=0)
+    p.reset(env, seed=0)
+    record = inner.frame_listener
+    inner.frame_listener = lambda k, measured: (check(), record(k, measured))
+    check()
+    done = False
+    while not done:
+        obs, _, terminated, truncated, _ = env.step(p.act(obs))
+        done = terminated or truncated
+    assert len(checked) > 5 and min(checked) > 100
