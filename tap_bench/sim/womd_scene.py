@@ -255,17 +255,18 @@ def _read(ref: SceneRef) -> tuple[pd.DataFrame, RoadMap, str]:
             the value.
     """
     from tap_bench.errors import WomdRecordError
-    from tap_bench.sources.ingest import _contract_problem, _scenario_id
+    from tap_bench.sources.ingest import _frame_contract_problem, _scenario_id
     from tap_bench.sources.scenarionet import decode_scenarionet, load_scenarionet
     from tap_bench.womd import roadmap
     from tap_bench.womd.scenario import decode_scenario
     from tap_bench.womd.tf_example import decode_tf_example
 
     def checked(table: Any, record: int, offset: int) -> pd.DataFrame:
-        problem = _contract_problem(table, _scenario_id(table))
+        frame = table.to_pandas()
+        problem = _frame_contract_problem(frame, _scenario_id(table)) if len(frame) else None
         if problem:
             raise WomdRecordError(ref.path, record, offset, problem.rstrip("."), _CONTRACT_FIX)
-        return table.to_pandas()
+        return frame
 
     if ref.format == "scenarionet":
         data = Path(ref.path).read_bytes()
@@ -347,15 +348,25 @@ def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:
     sizes = {}
     for col, default in (("length", 4.8), ("width", 2.0)):
         values = grid(col) if col in table.columns else np.full((n, t), np.nan)
-        values = np.where(valid & np.isfinite(values) & (values > 0), values, np.nan)
-        with np.errstate(all="ignore"):
-            med = np.nanmedian(np.where(np.isnan(values).all(axis=1)[:, None], default,
-                                        values), axis=1)
-        sizes[col] = med
+        with np.errstate(invalid="ignore"):
+            values = np.where(valid & np.isfinite(values) & (values > 0), values, np.nan)
+        sizes[col] = _row_medians(values, default)
     times = table["t"].to_numpy(float)[:t]
     return Scene(sid, ref, digest, times, tracks.astype(str),
                  table["object_type"].to_numpy().reshape(n, t)[:, 0].astype(str), x, y,
                  heading, vx, vy, speed, valid, sizes["length"], sizes["width"], row, road)
+
+
+def _row_medians(values: np.ndarray, default: float) -> np.ndarray:
+    """(n,) the median of each row of ``values`` (n, T) over its non-NaN entries (the mean
+    of the two middle ones for an even count); ``default`` for a row of NaN only."""
+    import numpy as np
+
+    ordered = np.sort(values, axis=1)  # NaN last
+    count = (~np.isnan(values)).sum(axis=1)
+    rows = np.arange(len(values))
+    lo, hi = ordered[rows, np.maximum(count - 1, 0) // 2], ordered[rows, count // 2]
+    return np.where(count > 0, np.where(count % 2 == 1, lo, (lo + hi) / 2), default)
 
 
 @dataclass(frozen=True)

@@ -340,8 +340,13 @@ def _contract_problem(table: pa.Table, sid: str) -> str | None:
     export (which would refuse the whole table)."""
     if table.num_rows == 0:
         return None
+    return _frame_contract_problem(table.to_pandas(split_blocks=True), sid)
+
+
+def _frame_contract_problem(frame: pd.DataFrame, sid: str) -> str | None:
+    """:func:`_contract_problem` of a scenario already in pandas (not empty)."""
     try:
-        validate_and_index(table.to_pandas(split_blocks=True), source=f"scenario {sid!r}")
+        validate_and_index(frame, source=f"scenario {sid!r}")
     except TrajectoryTableError as err:
         return f"breaks the trajectory contract: {err}"
     return None

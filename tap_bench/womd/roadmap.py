@@ -264,32 +264,87 @@ def _segment_distance(points: np.ndarray, line: np.ndarray) -> np.ndarray:
     """(m,) distance [m] from each point to a polyline (k >= 1 points)."""
     if len(line) == 1:
         return np.hypot(*(points - line[0]).T)
-    return _polyline_distance(np.ascontiguousarray(points, dtype=np.float64),
-                              np.ascontiguousarray(line, dtype=np.float64))
+    points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 2)
+    line = np.ascontiguousarray(line, dtype=np.float64).reshape(-1, 2)
+    return _polyline_distances(points, np.array([0, len(points)]), line,
+                               np.array([0, len(line)]))
+
+
+_CHUNK = 16  # segments of a polyline grouped under one bounding box
 
 
 @numba.njit(cache=True, nogil=True)
-def _polyline_distance(points, line):  # pragma: no cover - compiled
-    """(m,) distance [m] from each point (m, 2) to the polyline (k >= 2, 2): to the nearest
-    point of its nearest segment."""
+def _segment_square(px, py, lines, k):  # pragma: no cover - compiled
+    """(squared distance, dx, dy) from (px, py) to the nearest point of segment k."""
+    ax, ay = lines[k, 0], lines[k, 1]
+    abx, aby = lines[k + 1, 0] - ax, lines[k + 1, 1] - ay
+    norm2 = max(abx * abx + aby * aby, 1e-12)
+    u = min(max(((px - ax) * abx + (py - ay) * aby) / norm2, 0.0), 1.0)
+    dx, dy = px - (ax + u * abx), py - (ay + u * aby)
+    return dx * dx + dy * dy, dx, dy
+
+
+@numba.njit(cache=True, nogil=True)
+def _polyline_distances(points, point_offsets, lines, line_offsets
+                        ):  # pragma: no cover - compiled
+    """Distance [m] from each point to its polyline: points
+    ``point_offsets[j]:point_offsets[j + 1]`` (of (m, 2)) to the polyline
+    ``line_offsets[j]:line_offsets[j + 1]`` (of (k, 2); two points or more): to the
+    nearest point of its nearest segment, ``hypot`` of the offset.
+
+    Segments are grouped by ``_CHUNK`` under bounding boxes, and a group farther than the
+    nearest segment found so far is skipped. The distance is the smallest ``hypot`` over
+    the segments within rounding of the nearest by squared distance, so that it does not
+    depend on how the squares round."""
     out = np.empty(points.shape[0])
-    for i in range(points.shape[0]):
-        px, py = points[i, 0], points[i, 1]
-        best = np.inf
-        for j in range(line.shape[0] - 1):
-            ax, ay = line[j, 0], line[j, 1]
-            abx, aby = line[j + 1, 0] - ax, line[j + 1, 1] - ay
-            norm2 = max(abx * abx + aby * aby, 1e-12)
-            u = min(max(((px - ax) * abx + (py - ay) * aby) / norm2, 0.0), 1.0)
-            best = min(best, math.hypot(px - (ax + u * abx), py - (ay + u * aby)))
-        out[i] = best
+    for j in range(point_offsets.shape[0] - 1):
+        a, b = line_offsets[j], line_offsets[j + 1]
+        n_chunks = (b - a - 1 + _CHUNK - 1) // _CHUNK
+        box = np.empty((n_chunks, 4))  # min x, max x, min y, max y of each group's points
+        for c in range(n_chunks):
+            lo, hi = a + c * _CHUNK, min(a + (c + 1) * _CHUNK, b - 1)
+            box[c, 0] = box[c, 1] = lines[lo, 0]
+            box[c, 2] = box[c, 3] = lines[lo, 1]
+            for k in range(lo + 1, hi + 1):
+                box[c, 0] = min(box[c, 0], lines[k, 0])
+                box[c, 1] = max(box[c, 1], lines[k, 0])
+                box[c, 2] = min(box[c, 2], lines[k, 1])
+                box[c, 3] = max(box[c, 3], lines[k, 1])
+        apart = np.empty(n_chunks)
+        for i in range(point_offsets[j], point_offsets[j + 1]):
+            px, py = points[i, 0], points[i, 1]
+            first = 0
+            for c in range(n_chunks):
+                gx = max(box[c, 0] - px, 0.0, px - box[c, 1])
+                gy = max(box[c, 2] - py, 0.0, py - box[c, 3])
+                apart[c] = gx * gx + gy * gy
+                if apart[c] < apart[first]:
+                    first = c
+            nearest = np.inf
+            for step in range(n_chunks + 1):  # the closest box first, then all in order
+                c = first if step == 0 else step - 1
+                if (step > 0 and c == first) or apart[c] > nearest * (1.0 + 1e-6):
+                    continue
+                for k in range(a + c * _CHUNK, min(a + (c + 1) * _CHUNK, b - 1)):
+                    nearest = min(nearest, _segment_square(px, py, lines, k)[0])
+            reach = nearest * (1.0 + 1e-9) + 1e-300
+            best = np.inf
+            for c in range(n_chunks):
+                if apart[c] > reach * (1.0 + 1e-6):
+                    continue
+                for k in range(a + c * _CHUNK, min(a + (c + 1) * _CHUNK, b - 1)):
+                    square, dx, dy = _segment_square(px, py, lines, k)
+                    if square <= reach:
+                        best = min(best, math.hypot(dx, dy))
+            out[i] = best
     return out
 
 
-def _side_distance(centre: np.ndarray, segments: list[tuple[int, int, int]],
-                   lines: dict[int, np.ndarray]) -> float:
-    """Median distance [m] from the lane's points to the boundary lines of one side."""
-    found = []
+def _side_points(centre: np.ndarray, segments: list[tuple[int, int, int]],
+                 lines: dict[int, np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(points of the lane, boundary line) pairs of one side: ~20 points of the lane along
+    each boundary segment."""
+    pairs = []
     for start, end, line_id in segments:
         line = lines.get(line_id)
         if line is None or len(line) == 0:
@@ -297,18 +352,67 @@ def _side_distance(centre: np.ndarray, segments: list[tuple[int, int, int]],
         lo, hi = max(0, start), min(len(centre) - 1, end)
         if hi < lo:
             continue
-        pts = centre[lo:hi + 1][:: max(1, (hi - lo + 1) // 20)]  # ~20 points are plenty
-        found.append(_segment_distance(pts, line))
-    return float(np.median(np.concatenate(found))) if found else float("nan")
+        pairs.append((centre[lo:hi + 1][:: max(1, (hi - lo + 1) // 20)], line))
+    return pairs
 
 
-def _width(centre: np.ndarray, left, right, lines) -> tuple[float, bool]:
-    sides = [_side_distance(centre, segs, lines) for segs in (left, right)]
-    sides = [d for d in sides if np.isfinite(d) and d > 0]
-    if not sides:
-        return DEFAULT_LANE_WIDTH, False
-    width = sum(sides) if len(sides) == 2 else 2 * sides[0]
-    return float(np.clip(width, MIN_LANE_WIDTH, MAX_LANE_WIDTH)), True
+def _widths(lanes: list[tuple[np.ndarray, list, list]], lines: dict[int, np.ndarray]
+            ) -> list[tuple[float, bool]]:
+    """(width [m], measured) of each lane (centre, left boundaries, right boundaries):
+    twice the median distance from its points to the boundary lines of a side, or the sum
+    of both sides' medians, clipped to [MIN_LANE_WIDTH, MAX_LANE_WIDTH];
+    :data:`DEFAULT_LANE_WIDTH` where neither side gives one. All distances in one compiled
+    pass, all medians in one sort."""
+    sides = [_side_points(centre, segs, lines) for centre, left, right in lanes
+             for segs in (left, right)]
+    pairs = [pair for side in sides for pair in side]
+    distances: list[np.ndarray] = [np.hypot(*(p - line[0]).T) if len(line) == 1 else None
+                                   for p, line in pairs]
+    polylines = [k for k, (_, line) in enumerate(pairs) if len(line) > 1]
+    if polylines:
+        points = np.concatenate([pairs[k][0] for k in polylines])
+        point_offsets = np.zeros(len(polylines) + 1, dtype=np.int64)
+        np.cumsum([len(pairs[k][0]) for k in polylines], out=point_offsets[1:])
+        line_offsets = np.zeros(len(polylines) + 1, dtype=np.int64)
+        np.cumsum([len(pairs[k][1]) for k in polylines], out=line_offsets[1:])
+        flat = _polyline_distances(
+            np.ascontiguousarray(points, dtype=np.float64), point_offsets,
+            np.ascontiguousarray(np.concatenate([pairs[k][1] for k in polylines]),
+                                 dtype=np.float64), line_offsets)
+        for k, values in zip(polylines, np.split(flat, point_offsets[1:-1]), strict=True):
+            distances[k] = values
+    side = np.repeat(np.arange(len(sides)), [len(found) for found in sides])
+    medians = _group_medians(distances, side, len(sides)).reshape(-1, 2)
+    ok = np.isfinite(medians) & (medians > 0)
+    width = np.where(ok.all(axis=1), medians.sum(axis=1, where=ok),
+                     2 * np.where(ok[:, 0], medians[:, 0], medians[:, 1]))
+    with np.errstate(invalid="ignore"):
+        width = np.clip(width, MIN_LANE_WIDTH, MAX_LANE_WIDTH)
+    measured = ok.any(axis=1)
+    return [(float(w), True) if m else (DEFAULT_LANE_WIDTH, False)
+            for w, m in zip(width.tolist(), measured.tolist(), strict=True)]
+
+
+def _group_medians(values: list[np.ndarray], group: np.ndarray, n_groups: int
+                   ) -> np.ndarray:
+    """(n_groups,) the median of the values of each group (``values[i]`` belongs to group
+    ``group[i]``, groups in order): the middle value, or the mean of the two middle ones;
+    NaN for a group with no value or with a NaN (as :func:`numpy.median`)."""
+    out = np.full(n_groups, np.nan)
+    if not len(values):
+        return out
+    flat = np.concatenate(values)
+    member = np.repeat(group, [len(v) for v in values])
+    ordered = flat[np.lexsort((flat, member))]  # by group, then value (NaN last)
+    count = np.bincount(member, minlength=n_groups)
+    start = np.cumsum(count) - count
+    has = count > 0
+    lo = ordered[(start + (count - 1) // 2)[has]]
+    hi = ordered[(start + count // 2)[has]]
+    middle = np.where(count[has] % 2 == 1, lo, (lo + hi) / 2)
+    nan = np.bincount(member, weights=np.isnan(flat), minlength=n_groups) > 0
+    out[has] = np.where(nan[has], np.nan, middle)
+    return out
 
 
 def _finish(scenario_id: str, raw: list[dict], lines: dict[int, np.ndarray], edges, crosswalks,
@@ -316,10 +420,13 @@ def _finish(scenario_id: str, raw: list[dict], lines: dict[int, np.ndarray], edg
     """Build the :class:`RoadMap` from lanes read as dicts (id, centre, type, speed_limit,
     entry, exit, left, right, left_b, right_b)."""
     lanes: dict[int, Lane] = {}
+    centres = []
     for r in raw:
         centre = np.asarray(r["centre"], dtype=float).reshape(-1, 2)
-        centre = centre[np.isfinite(centre).all(axis=1)]
-        width, measured = _width(centre, r.get("left_b", ()), r.get("right_b", ()), lines)
+        centres.append(centre[np.isfinite(centre).all(axis=1)])
+    widths = _widths([(centre, r.get("left_b", ()), r.get("right_b", ()))
+                      for centre, r in zip(centres, raw, strict=True)], lines)
+    for r, centre, (width, measured) in zip(raw, centres, widths, strict=True):
         lanes[int(r["id"])] = Lane(
             id=int(r["id"]), centre=centre, type=r.get("type", "undefined"),
             speed_limit=float(r.get("speed_limit", np.nan)), entry=tuple(r.get("entry", ())),

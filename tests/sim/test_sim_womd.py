@@ -677,3 +677,61 @@ def test_point_to_polyline_distance_equals_the_dense_sampled_distance():
             else line
         want = np.hypot(*(points[:, None, :] - dense[None]).transpose(2, 0, 1)).min(axis=1)
         assert np.all(got <= want + 1e-12) and np.all(want - got <= 1e-2)
+
+
+def test_point_to_polyline_distances_skip_far_groups_but_keep_the_nearest():
+    from tap_bench.womd.roadmap import _CHUNK, _segment_distance
+
+    rng = np.random.default_rng(11)
+    for _ in range(20):  # long lines: many groups of segments, most far from the point
+        line = np.cumsum(rng.normal(0.0, 3.0, (rng.integers(3 * _CHUNK, 8 * _CHUNK), 2)),
+                         axis=0)
+        points = line[rng.integers(len(line), size=15)] + rng.normal(0.0, 2.0, (15, 2))
+        a, b = line[:-1], line[1:]
+        ab = b - a
+        u = np.clip(((points[:, None] - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1),
+                                                                       1e-12), 0.0, 1.0)
+        offset = points[:, None] - (a + u[..., None] * ab)
+        want = np.hypot(offset[..., 0], offset[..., 1]).min(axis=1)  # every segment
+        assert np.array_equal(_segment_distance(points, line), want)
+
+
+def test_lane_widths_are_the_medians_of_each_sides_distances():
+    from tap_bench.womd.roadmap import (
+        DEFAULT_LANE_WIDTH,
+        MAX_LANE_WIDTH,
+        MIN_LANE_WIDTH,
+        _segment_distance,
+        _widths,
+    )
+
+    rng = np.random.default_rng(4)
+    lines = {k: np.c_[np.arange(0.0, 60.0, 3.0), np.full(20, y)]
+             for k, y in ((1, 1.6), (2, -1.9), (3, 2.2), (4, -9.0))}
+    lines[5] = np.array([[10.0, 1.0]])  # a one-point line
+    lines[6] = np.c_[np.arange(0.0, 60.0, 3.0), np.full(20, np.nan)]  # no usable distance
+    lanes, want = [], []
+    for _ in range(40):
+        centre = np.c_[np.sort(rng.uniform(0, 60, 12)), rng.normal(0, 0.2, 12)]
+        sides = [[(int(rng.integers(0, 6)), int(rng.integers(4, 14)), int(line))
+                  for line in rng.choice([1, 3, 5, 6, 99], rng.integers(0, 3))]
+                 for _ in range(2)]
+        lanes.append((centre, *sides))
+        medians = []
+        for segments in sides:  # the definition, side by side
+            found = []
+            for start, end, line in segments:
+                if line not in lines:
+                    continue
+                lo, hi = max(0, start), min(len(centre) - 1, end)
+                if hi >= lo:
+                    pts = centre[lo:hi + 1][:: max(1, (hi - lo + 1) // 20)]
+                    found.append(_segment_distance(pts, lines[line]))
+            medians.append(float(np.median(np.concatenate(found))) if found else np.nan)
+        ok = [m for m in medians if np.isfinite(m) and m > 0]
+        want.append((float(np.clip(sum(ok) if len(ok) == 2 else 2 * ok[0], MIN_LANE_WIDTH,
+                                   MAX_LANE_WIDTH)), True) if ok
+                    else (DEFAULT_LANE_WIDTH, False))
+    assert _widths(lanes, lines) == want
+    assert (DEFAULT_LANE_WIDTH, False) in want and (MAX_LANE_WIDTH, True) in want
+    assert any(measured and MIN_LANE_WIDTH < w < MAX_LANE_WIDTH for w, measured in want)
