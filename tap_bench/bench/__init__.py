@@ -12,7 +12,7 @@ The data a run's jobs share stand at this package's root; each job is a sub-pack
   coverage, novelty, diversity, null, gap, contexts, agreement, verdict);
 - :mod:`tap_bench.bench.gate`: ``bench check``, the regression gate and its power;
 - :mod:`tap_bench.bench.report`: the report page, its figures and tables, the viewer;
-- :mod:`tap_bench.bench.run`: ``bench run`` (plan, tasks, summary, run folder, a run served
+- :mod:`tap_bench.bench.run`: ``bench run`` (plan, tasks, scoring, run folder, a run served
   from the cache) and ``tap-bench demo``.
 
 The statistics (bootstrap, intervals) are :mod:`tap_bench.stats`. Module paths that moved
@@ -61,8 +61,9 @@ def __dir__() -> list[str]:
     return sorted({*globals(), *_LAZY})
 
 
-# Module paths of the flat ``bench/`` (before its split into sub-packages) and where each
-# module is now: importing an old path raises ModuleNotFoundError naming the new one.
+# Module paths of the flat ``bench/`` (before its split into sub-packages), and of modules
+# renamed since, and where each module is now: importing an old path raises
+# ModuleNotFoundError naming the new one.
 MOVED = {
     "tap_bench.bench.agreement": "tap_bench.bench.scores.agreement",
     "tap_bench.bench.bootstrap": "tap_bench.stats.bootstrap",
@@ -79,15 +80,17 @@ MOVED = {
     "tap_bench.bench.power": "tap_bench.bench.gate.power",
     "tap_bench.bench.report_figures": "tap_bench.bench.report.figures",
     "tap_bench.bench.report_tables": "tap_bench.bench.report.tables",
+    "tap_bench.bench.run.summary": "tap_bench.bench.run.scoring",
     "tap_bench.bench.run_cache": "tap_bench.bench.run.served",
     "tap_bench.bench.run_folder": "tap_bench.bench.run.folder",
     "tap_bench.bench.run_pages": "tap_bench.bench.report.pages",
     "tap_bench.bench.run_plan": "tap_bench.bench.run.plan",
-    "tap_bench.bench.run_scores": "tap_bench.bench.run.summary",
+    "tap_bench.bench.run_scores": "tap_bench.bench.run.scoring",
     "tap_bench.bench.run_tasks": "tap_bench.bench.run.tasks",
     "tap_bench.bench.runner": "tap_bench.bench.run.runner",
     "tap_bench.bench.scenarios": "tap_bench.bench.scores.scenarios",
     "tap_bench.bench.scoring": "tap_bench.bench.scores.scoring",
+    "tap_bench.bench.spill": "tap_bench.bench.run.spill",
     "tap_bench.bench.verdict": "tap_bench.bench.scores.verdict",
     "tap_bench.bench.viewer": "tap_bench.bench.report.viewer",
 }
@@ -103,7 +106,7 @@ class _MovedFinder(importlib.abc.MetaPathFinder):
         if new is None:
             return None
         raise ModuleNotFoundError(
-            f"{fullname} moved to {new} when tap_bench.bench was split into sub-packages: "
+            f"{fullname} moved to {new} (tap_bench.bench is in sub-packages by job): "
             f"import {new} instead (the names of tap_bench.bench itself, e.g. "
             f"'from tap_bench.bench import run_suite', are unchanged)", name=fullname)
 

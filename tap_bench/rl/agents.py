@@ -51,6 +51,7 @@ from tap_bench.rl.aggregate import (
     probability_of_improvement,
     stratified_bootstrap,
 )
+from tap_bench.sim.policies import expand_seed_groups, seed_groups
 from tap_bench.stats.bootstrap import named_rng
 
 __all__ = ["HUMAN", "PROFILE_THRESHOLDS", "AgentsResult", "SeedGroupError", "agent_of",
@@ -78,64 +79,6 @@ def seed_group(name: str, seeds: Sequence[str], base_dir: str | os.PathLike | No
         f"policy {name!r} stands for {len(seeds)} trained seeds ({', '.join(seeds)}): roll "
         f"out one of them (--policy {seeds[0] if seeds else name + '-seed0'}), or run them "
         "all in a suite and aggregate them over seeds with 'tap-bench agents'.")
-
-
-def seed_groups(definitions: Mapping[str, object] | None = None) -> dict[str, tuple[str, ...]]:
-    """Agent name -> the policy names of its training seeds, from the definitions of kind
-    ``seeds`` (default: every policy definition found, :func:`tap_bench.sim.policies.
-    available_policies`).
-
-    Raises:
-        FileFormatError: a group whose ``seeds`` is not a non-empty list of names, or a
-            policy that is a seed of two groups.
-    """
-    if definitions is None:
-        from tap_bench.sim.policies import available_policies
-
-        definitions = available_policies()
-    groups: dict[str, tuple[str, ...]] = {}
-    owner: dict[str, str] = {}
-    for name, definition in definitions.items():
-        if getattr(definition, "kind", None) != "seeds":
-            continue
-        seeds = dict(definition.params).get("seeds")
-        where = definition.path or name
-        if not isinstance(seeds, list) or not seeds or not all(
-                isinstance(s, str) and s for s in seeds):
-            raise FileFormatError(f"{where}: params.seeds must be a non-empty list of policy "
-                                  f"names (the trained seeds of {name}), got {seeds!r}.")
-        for seed in seeds:
-            if seed in owner:
-                raise FileFormatError(f"{where}: {seed!r} is already a seed of "
-                                      f"{owner[seed]!r}; a policy is a seed of one agent.")
-            owner[seed] = name
-        groups[name] = tuple(seeds)
-    return groups
-
-
-def expand_seed_groups(policies: Sequence[object]) -> tuple[object, ...]:
-    """The policies of a suite with every policy of kind ``seeds`` replaced by its training
-    seeds, in order (``["idm", "ppo-womd"]`` -> ``("idm", "ppo-womd-seed0", ...)``); a
-    policy named twice this way is kept once. What ``bench run`` runs, so that a suite can
-    name an agent and ``tap-bench agents`` aggregate its seeds.
-
-    Raises:
-        FileFormatError: a group whose ``seeds`` is not a non-empty list of names.
-    """
-    from tap_bench.sim.policies import get_definition
-
-    out: list[object] = []
-    for policy in policies:
-        names: list[object] = [policy]
-        if isinstance(policy, str | os.PathLike):
-            try:
-                definition = get_definition(policy)
-            except TapBenchError:
-                definition = None  # not a known name: resolving it says why
-            if getattr(definition, "kind", None) == "seeds":
-                names = list(seed_groups({str(policy): definition})[str(policy)])
-        out.extend(n for n in names if n not in out)
-    return tuple(out)
 
 
 def agent_of(policy: str, groups: Mapping[str, Sequence[str]]) -> str:

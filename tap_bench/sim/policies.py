@@ -33,7 +33,7 @@ import copy
 import importlib
 import inspect
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
@@ -43,6 +43,7 @@ from tap_bench.errors import (
     FileFormatError,
     ParameterError,
     RegistrationError,
+    TapBenchError,
     UnknownNameError,
     did_you_mean,
 )
@@ -62,10 +63,12 @@ __all__ = [
     "PolicyKind",
     "RandomPolicy",
     "available_policies",
+    "expand_seed_groups",
     "load_policy",
     "policy_kinds",
     "register_policy",
     "register_policy_kind",
+    "seed_groups",
 ]
 
 CHEAP_OBSERVATION: dict[str, Any] = {"type": "AttributesObservation", "attributes": ["time"]}
@@ -421,3 +424,56 @@ def load_policy(name: str | os.PathLike | Policy) -> Policy:
     if isinstance(name, Policy):
         return name
     return get_definition(name).build()
+
+
+def seed_groups(definitions: Mapping[str, object] | None = None) -> dict[str, tuple[str, ...]]:
+    """Agent name -> the policy names of its training seeds, from the definitions of kind
+    ``seeds`` (default: every policy definition found, :func:`available_policies`).
+
+    Raises:
+        FileFormatError: a group whose ``seeds`` is not a non-empty list of names, or a
+            policy that is a seed of two groups.
+    """
+    if definitions is None:
+        definitions = available_policies()
+    groups: dict[str, tuple[str, ...]] = {}
+    owner: dict[str, str] = {}
+    for name, definition in definitions.items():
+        if getattr(definition, "kind", None) != "seeds":
+            continue
+        seeds = dict(definition.params).get("seeds")
+        where = definition.path or name
+        if not isinstance(seeds, list) or not seeds or not all(
+                isinstance(s, str) and s for s in seeds):
+            raise FileFormatError(f"{where}: params.seeds must be a non-empty list of policy "
+                                  f"names (the trained seeds of {name}), got {seeds!r}.")
+        for seed in seeds:
+            if seed in owner:
+                raise FileFormatError(f"{where}: {seed!r} is already a seed of "
+                                      f"{owner[seed]!r}; a policy is a seed of one agent.")
+            owner[seed] = name
+        groups[name] = tuple(seeds)
+    return groups
+
+
+def expand_seed_groups(policies: Sequence[object]) -> tuple[object, ...]:
+    """The policies of a suite with every policy of kind ``seeds`` replaced by its training
+    seeds, in order (``["idm", "ppo-womd"]`` -> ``("idm", "ppo-womd-seed0", ...)``); a
+    policy named twice this way is kept once. What ``bench run`` runs, so that a suite can
+    name an agent and ``tap-bench agents`` aggregate its seeds.
+
+    Raises:
+        FileFormatError: a group whose ``seeds`` is not a non-empty list of names.
+    """
+    out: list[object] = []
+    for policy in policies:
+        names: list[object] = [policy]
+        if isinstance(policy, str | os.PathLike):
+            try:
+                definition = get_definition(policy)
+            except TapBenchError:
+                definition = None  # not a known name: resolving it says why
+            if getattr(definition, "kind", None) == "seeds":
+                names = list(seed_groups({str(policy): definition})[str(policy)])
+        out.extend(n for n in names if n not in out)
+    return tuple(out)

@@ -77,7 +77,7 @@ def test_a_rerun_serves_the_scores_figures_and_viewer_it_would_make(runs, monkey
     # a re-run makes none of them again: the roads (no highway-env), the scores, the figures
     # and the viewer's episode data all come from the cache
     monkeypatch.setattr(Suite, "road", fail)
-    monkeypatch.setattr("tap_bench.bench.run.runner.score", fail)
+    monkeypatch.setattr("tap_bench.bench.run.scoring.score", fail)
     monkeypatch.setattr("tap_bench.bench.report.figures._draw", fail)
     monkeypatch.setattr("tap_bench.bench.report.viewer.build.episode_chunks", fail)
     again = run(root / "run-again", cache)

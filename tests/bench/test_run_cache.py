@@ -81,7 +81,7 @@ def _no_work(monkeypatch):
         raise AssertionError("a served run made something")
 
     monkeypatch.setattr("tap_bench.bench.run.runner._rollouts", fail)
-    monkeypatch.setattr("tap_bench.bench.run.runner.score", fail)
+    monkeypatch.setattr("tap_bench.bench.run.scoring.score", fail)
     monkeypatch.setattr("tap_bench.bench.run.runner.write_results", fail)
 
 

@@ -1,5 +1,5 @@
 """``bench run`` on recorded scenes writes each episode's trajectories to disk as it ends
-(:mod:`tap_bench.bench.spill`) and joins them afterwards: the run folder's tables equal
+(:mod:`tap_bench.bench.run.spill`) and joins them afterwards: the run folder's tables equal
 those of a run that holds every trajectory in memory, and nothing is left beside it."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from tap_bench.bench import spill as bench_spill
 from tap_bench.bench.run import runner
+from tap_bench.bench.run import spill as bench_spill
 from tap_bench.bench.suite import suite_from_dict
 from tap_bench.cli import main
 

@@ -172,7 +172,7 @@ def test_bench_run_plans_every_seed_of_an_agent_the_suite_names(tmp_path):
                                  "policies": ["random", str(group), "idm"],
                                  "reference_policy": "random"}))
     plan = plan_suite(suite)
-    assert plan.suite.policies == ("random", "idm", "lane-keeping")
+    assert plan.document["policies"] == ["random", "idm", "lane-keeping"]
     assert [d.name for d in plan.definitions] == ["random", "idm", "lane-keeping"]
 
 

@@ -309,10 +309,20 @@ def rule_power(base: np.ndarray | pd.Series, metric: str, config: GateConfig, *,
         baseline has fewer than 2 values.
     """
     margin = config.margin(metric)
-    effect = config.detect * margin if effect is None else float(effect)
-    level = config.alpha * config.share(metric) / max(cells, 1)
-    floor = 1.0 / (config.n_permutations + 1)
-    rng = named_rng(config.seed, "gate power", metric, *seed_key)
+    return _power(base, metric, margin=margin,
+                  effect=config.detect * margin if effect is None else float(effect),
+                  level=config.alpha * config.share(metric) / max(cells, 1),
+                  floor=1.0 / (config.n_permutations + 1),
+                  rng=named_rng(config.seed, "gate power", metric, *seed_key),
+                  paired=paired, n_run=n_run)
+
+
+def _power(base: np.ndarray | pd.Series, metric: str, *, margin: float, effect: float,
+           level: float, floor: float, rng: np.random.Generator, paired: bool,
+           n_run: int | None) -> float:
+    """:func:`rule_power` with the gate's figures resolved: ``margin`` and ``effect`` in the
+    metric's unit, ``level`` the test's share of alpha, ``floor`` the smallest p-value of
+    its permutations, ``rng`` the stream of a simulated power."""
     if metric == "label_tv":
         labels = np.asarray(base, dtype=object).astype(str)
         n_run = n_run or len(labels)
@@ -355,17 +365,25 @@ def power_table(episodes: pd.DataFrame, config: GateConfig, *, cells: int | None
     if cells is None:
         cells = n_tests // len(gate_metrics()) if n_tests else len(keys)
     in_play = 1 if paired else max(cells, 1)
+    metrics = gate_metrics()
+    # the gate's figures of each metric, resolved once for every cell
+    margins = {metric: config.margin(metric) for metric in metrics}
+    levels = {metric: config.alpha * config.share(metric) / in_play for metric in metrics}
+    floor = 1.0 / (config.n_permutations + 1)
     rows = []
     for env, policy in keys:
         sub = ok[(ok["env"] == env) & (ok["policy"] == policy)]
-        for metric in gate_metrics():
+        for metric in metrics:
             values = (sub["sdl"].fillna("(no label)") if metric == "label_tv"
-                      else sub[metric])
+                      else sub[metric]).to_numpy()
             n = len(values)
             run_n = n_run or n
-            margin = config.margin(metric)
-            kw = dict(cells=in_play, paired=paired, seed_key=(env, policy))
-            power = rule_power(values.to_numpy(), metric, config, n_run=run_n, **kw)
+            margin, level = margins[metric], levels[metric]
+            effect = config.detect * margin
+            figures = dict(margin=margin, effect=effect, level=level, floor=floor,
+                           paired=paired)
+            stream = (config.seed, "gate power", metric, env, policy)  # afresh each call
+            power = _power(values, metric, rng=named_rng(*stream), n_run=run_n, **figures)
             need = math.nan
             if np.isfinite(power):
                 need = math.inf
@@ -377,17 +395,17 @@ def power_table(episodes: pd.DataFrame, config: GateConfig, *, cells: int | None
                         # more paired seeds: the baseline's values resampled to k seeds
                         idx = named_rng(config.seed, "gate seeds", env, policy, metric,
                                         k).integers(0, n, k)
-                        p = rule_power(values.to_numpy()[idx], metric, config, n_run=k, **kw)
+                        p = _power(values[idx], metric, rng=named_rng(*stream), n_run=k,
+                                   **figures)
                     else:
-                        p = rule_power(values.to_numpy(), metric, config, n_run=k, **kw)
+                        p = _power(values, metric, rng=named_rng(*stream), n_run=k,
+                                   **figures)
                     if p >= POWER:
                         need = float(k)
                         break
             rows.append({"env": env, "policy": policy, "metric": metric, "n": n,
-                         "n_run": run_n, "margin": margin,
-                         "effect": config.detect * margin,
-                         "level": config.alpha * config.share(metric) / in_play,
-                         "power": power, "seeds_for_power": need})
+                         "n_run": run_n, "margin": margin, "effect": effect,
+                         "level": level, "power": power, "seeds_for_power": need})
     out = pd.DataFrame(rows, columns=["env", "policy", "metric", "n", "n_run", "margin",
                                       "effect", "level", "power", "seeds_for_power"])
     out["underpowered"] = (out["power"] < POWER).to_numpy(bool)

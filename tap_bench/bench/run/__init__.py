@@ -4,8 +4,10 @@
   steps in order;
 - :mod:`~tap_bench.bench.run.plan`: what the run will do, and how long it takes;
 - :mod:`~tap_bench.bench.run.tasks`: episodes as tasks of the execution layer, the cache;
-- :mod:`~tap_bench.bench.run.summary`: references, gaps and the headline figures;
-- :mod:`~tap_bench.bench.run.folder`: the run folder: write, read, provenance;
+- :mod:`~tap_bench.bench.run.scoring`: references read once, every score of the run;
+- :mod:`~tap_bench.bench.run.folder`: the run folder: ``summary.json``, write, read,
+  provenance;
+- :mod:`~tap_bench.bench.run.spill`: a run's trajectories on disk, a part per episode;
 - :mod:`~tap_bench.bench.run.served`: a run served whole from the episode cache;
 - :mod:`~tap_bench.bench.run.demo`: ``tap-bench demo``.
 """

@@ -5,15 +5,17 @@ folder's layout is described in :mod:`tap_bench.bench.run.runner`."""
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import os
 import sys
+import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from tap_bench.bench.spill import TrajectorySpill
+from tap_bench.bench.run.spill import TrajectorySpill
 from tap_bench.errors import (
     FileFormatError,
 )
@@ -26,6 +28,7 @@ if TYPE_CHECKING:
     import pandas as pd
 
     from tap_bench.bench.cache import EpisodeCache
+    from tap_bench.bench.run.plan import RunPlan, SuitePlan
     from tap_bench.bench.scores.scoring import Scores
 
 
@@ -126,6 +129,113 @@ def provenance(definitions: Sequence[PolicyDefinition],
                     code["sha256"] if code else "(no Python source)")
         envs[env] = json.loads(json.dumps(entry, default=str))
     return {"policies": policies, "envs": envs}
+
+
+def fresh_facts(plan: SuitePlan, output: Path) -> dict[str, Any]:
+    """The summary fields that name and describe one run: its folder's name, its time, the
+    suite file, the package versions, the machine, and (for a run served from the cache)
+    the estimate."""
+    return {"run": Path(output).name, "created": time.strftime("%Y-%m-%d %H:%M:%S"),
+            "suite_file": plan.suite_file,
+            "versions": package_versions(), "machine": _machine(),
+            "estimate": {"seconds": None, "overhead": None,
+                         "basis": "served whole from the cache"}}
+
+
+def run_summary(plan: SuitePlan, output: Path, sources: Mapping[str, Any],
+                episodes: pd.DataFrame, scores: Scores, timings: dict[str, float],
+                estimate: RunPlan, cache: dict[str, Any] | None,
+                realism: list[dict[str, Any]]) -> dict[str, Any]:
+    """``summary.json``: what ran (the suite, seeds, thresholds, references by name: a label
+    table, a path or a list of paths), on what, how it scored, and how long it took
+    (``timings`` [s], ``estimate``); ``cache``: its part (None: no cache)."""
+    from tap_bench.bench.episodes import one_outcome_cells
+    from tap_bench.bench.scores.verdict import verdict_table
+
+    failed = episodes[~episodes["status"].isin(("ok", "skipped"))]  # skipped: no route
+    skipped = episodes[episodes["status"] == "skipped"]
+    facts = fresh_facts(plan, output)
+    thresholds = plan.thresholds
+    return {
+        "format": "tap-bench-run", "format_version": 1,
+        "run": facts["run"], "created": facts["created"],
+        "suite": copy.deepcopy(dict(plan.document)), "suite_file": facts["suite_file"],
+        "level": plan.level,
+        "seeds": copy.deepcopy(plan.document["seeds"]),
+        "thresholds": thresholds.to_dict() if hasattr(thresholds, "to_dict") else
+        str(plan.document["thresholds"]),
+        "reference_policy": plan.reference,
+        "references": {name: _describe_source(source) for name, source in sources.items()},
+        "versions": facts["versions"], "machine": facts["machine"],
+        "n_episodes": len(episodes), "n_failed": len(failed),
+        "failed": failed[["env", "policy", "seed", "error"]].to_dict("records"),
+        "n_skipped": len(skipped),
+        "skipped": skipped[["env", "policy", "seed", "error"]].to_dict("records"),
+        "methods": scores.methods,
+        "headline": _headline(scores, episodes),
+        "one_outcome_cells": one_outcome_cells(episodes).to_dict("records"),
+        "verdict": verdict_table(scores.paired_measures, scores.paired,
+                                 scores.paired_labels).to_dict("records"),
+        "provenance": provenance(plan.definitions, plan.scenarios),
+        "measures": [m.to_dict() for m in plan.measures],
+        "plugins": list(plan.plugins),
+        "realism": realism,
+        "timings": timings,
+        "estimate": {"seconds": _round(estimate.seconds),
+                     "overhead": _round(estimate.overhead_seconds), "basis": estimate.basis},
+        "cache": cache,
+    }
+
+
+def _describe_source(source: Any) -> Any:
+    import pandas as pd
+
+    if isinstance(source, pd.DataFrame):
+        return f"a label table of {len(source)} rows"
+    if isinstance(source, str | os.PathLike):
+        return str(source)
+    return [str(p) for p in source]
+
+
+def _headline(scores: Scores, episodes: pd.DataFrame) -> dict[str, Any]:
+    """Per policy, pooled over envs: each measure's mean with its interval (``<measure>``,
+    ``<measure>_low``, ``<measure>_high``), coverage of the reference and, where the
+    same-policy null was computed, the figures at half sizes it compares (``<coverage
+    key>: same-policy figure``, ``: policy at halves``, ``: difference`` = policy at halves
+    minus same-policy figure, with ``_low`` / ``_high``)."""
+    import numpy as np
+
+    out: dict[str, Any] = {}
+    m = scores.measures
+    pooled_env = "all" if (m["env"] == "all").any() else m["env"].iloc[0] if len(m) else ""
+    for policy in sorted(episodes["policy"].unique()):
+        row: dict[str, Any] = {}
+        sub = m[(m["policy"] == policy) & (m["env"] == pooled_env)]
+        for r in sub.itertuples():
+            row[r.measure] = _round(r.mean)
+            row[f"{r.measure}_low"] = _round(r.low)
+            row[f"{r.measure}_high"] = _round(r.high)
+        cov = scores.coverage
+        if len(cov):
+            c = cov[(cov["policy"] == policy) & (cov["env"] == pooled_env)]
+            for r in c.to_dict("records"):
+                seg = str(r.get("unit", "")).endswith("segments")
+                key = f"{'segment ' if seg else ''}coverage of {r['reference']}"
+                row[key] = _round(r["coverage"])
+                if np.isfinite(r.get("coverage_diff", np.nan)):  # the same-policy null
+                    row[f"{key}: same-policy figure"] = _round(r["null_coverage"])
+                    row[f"{key}: policy at halves"] = _round(r["half_coverage"])
+                    row[f"{key}: difference"] = _round(r["coverage_diff"])
+                    row[f"{key}: difference_low"] = _round(r["coverage_diff_low"])
+                    row[f"{key}: difference_high"] = _round(r["coverage_diff_high"])
+        out[policy] = row
+    return out
+
+
+def _round(x: float) -> float | None:
+    import numpy as np
+
+    return None if x is None or not np.isfinite(x) else round(float(x), 4)
 
 
 def _write_json(path: Path, doc: dict[str, Any]) -> None:

@@ -24,13 +24,14 @@ from tap_bench.bench.cache import (
     simulation_fingerprint,
 )
 from tap_bench.bench.measures import MEASURES, Measure
-from tap_bench.bench.suite import Suite, load_suite
+from tap_bench.bench.suite import GateConfig, Suite, load_suite
 from tap_bench.plugins import load_plugins, merge_plugins
-from tap_bench.sim.policies import PolicyDefinition
+from tap_bench.sim.policies import PolicyDefinition, expand_seed_groups
 from tap_bench.sim.rollout import resolve_policy
 from tap_bench.sim.sb3 import warn_untrusted_model
 from tap_bench.sim.scenario_format import Scenario, parse_seeds
 from tap_bench.sim.womd_scene import WomdScenes
+from tap_bench.stats.bootstrap import BootstrapConfig
 from tap_bench.thresholds import Thresholds, resolve_thresholds
 from tap_bench.usercode import recording
 
@@ -62,32 +63,51 @@ class _Task:
 
 @dataclass(frozen=True)
 class SuitePlan:
-    """A suite resolved once, before a run: what every later step of the run reads, so that
-    no step resolves a scenario, reads a policy file or the thresholds again, and every step
-    sees the same measures.
+    """A suite read once, before a run, into the plain values every later step of the run
+    reads: no later step sees the suite, resolves a scenario, reads a policy file or the
+    thresholds again, and every step sees the same measures.
 
     Attributes:
-        suite: the suite (its gate margins filled for every measure of the run).
-        scenarios: env -> its :class:`~tap_bench.sim.scenario_format.Scenario`, overrides applied
-            (recorded scenes: its :class:`~tap_bench.sim.womd_scene.WomdScenes`).
+        name: the suite's name.
+        envs: the env names, in the suite's order.
+        scenarios: env -> its :class:`~tap_bench.sim.scenario_format.Scenario`, overrides
+            applied (recorded scenes: its :class:`~tap_bench.sim.womd_scene.WomdScenes`).
+        seeds: env -> the seeds it runs (recorded scenes: scenario indices in its files).
         definitions: each policy's definition, built once (a bad one fails here).
+        reference: the reference policy's name.
+        level: the SDL level scored.
         thresholds: the TAP thresholds.
+        bootstrap: the interval settings.
+        gate: the regression gate's settings, a margin for every measure of the run.
         measures: the run's measure entries, fixed after the plugins, the suite's plugins
             and the policies' own imports have registered theirs.
         plugins: the modules every worker imports before its first task (the execution
             layer carries them): those named on the command line and by the suite, and the
             modules that define the run's measures outside tap-bench.
+        document: the suite as JSON (:meth:`~tap_bench.bench.suite.Suite.to_dict`, its
+            gate margins filled): what ``summary.json`` records and the cache keys hold.
+        suite_file: the file the suite was read from (None: built in Python).
+        recorded: some env is recorded scenes.
         run: the run's id: the modules its policies, scenarios and measures import as
             they are built and run are noted under it (:func:`tap_bench.usercode.
             recording`) and kept with its cache entries.
     """
 
-    suite: Suite
+    name: str
+    envs: tuple[str, ...]
     scenarios: Mapping[str, Scenario | WomdScenes]
+    seeds: Mapping[str, tuple[int, ...]]
     definitions: tuple[PolicyDefinition, ...]
+    reference: str
+    level: str
     thresholds: Thresholds
+    bootstrap: BootstrapConfig
+    gate: GateConfig
     measures: tuple[Measure, ...]
     plugins: tuple[str, ...]
+    document: Mapping[str, Any]
+    suite_file: str | None = None
+    recorded: bool = False
     run: str = field(default_factory=lambda: uuid.uuid4().hex)
 
     @property
@@ -102,9 +122,11 @@ class SuitePlan:
 
 def plan_suite(suite: Suite | str | os.PathLike, *, plugins: Sequence[str] = (),
                seeds: str | Sequence[int] | None = None) -> SuitePlan:
-    """Resolve ``suite`` once: import the plugins (``plugins``, then the suite's), read the
-    suite, resolve its scenarios, build its policies' definitions and its thresholds, and fix
-    the set of measures.
+    """Read ``suite`` once into a :class:`SuitePlan`: import the plugins (``plugins``, then
+    the suite's), read the suite, resolve its scenarios, seeds, policies' definitions and
+    thresholds, and fix the set of measures. A policy's SB3 model file that is not one of
+    the shipped models warns here, once (:func:`tap_bench.sim.sb3.warn_untrusted_model`):
+    the workers load models with warnings off.
 
     Raises:
         ParameterError: a plugin cannot be imported, or ``seeds`` is not a seed list.
@@ -117,8 +139,6 @@ def plan_suite(suite: Suite | str | os.PathLike, *, plugins: Sequence[str] = (),
         suite = replace(suite, seeds=tuple(parse_seeds(seeds, source="seeds")),
                         all_seeds=False)
     # an agent of several training seeds (a policy of kind "seeds") runs as its seeds
-    from tap_bench.rl.agents import expand_seed_groups
-
     suite = replace(suite, policies=expand_seed_groups(suite.policies))
     run = uuid.uuid4().hex
     # what the policies and scenarios import as they are built is noted (the plugins' own
@@ -126,52 +146,57 @@ def plan_suite(suite: Suite | str | os.PathLike, *, plugins: Sequence[str] = (),
     with recording(run):
         scenarios = {env: suite.scenario(env) for env in suite.envs}
         definitions = tuple(resolve_policy(policy) for policy in suite.policies)
-    thresholds = resolve_thresholds(suite.thresholds)
-    measures = tuple(MEASURES)  # fixed here: after every import that may register one
-    # margins of measures registered after the suite was read take their entry's default
-    suite = replace(suite, gate=replace(suite.gate, margins={
-        **{m.name: float(m.margin) for m in measures}, **suite.gate.margins}))
-    defined_in = (m.function.__module__ for m in measures if m.function is not None)
-    outside = [name for name in defined_in
-               if name != "__main__" and name.split(".")[0] != "tap_bench"]
-    # recorded as loaded, so that every worker of the execution layer imports them first
-    load_plugins(outside, source="measure")
-    return SuitePlan(suite, scenarios, definitions, thresholds, measures,
-                     merge_plugins(plugins, suite.plugins, outside), run)
-
-
-def _tasks(plan: SuitePlan, keep: bool, cache: EpisodeCache | None) -> list[_Task]:
-    suite, scenarios, thresholds = plan.suite, plan.scenarios, plan.thresholds
-    definitions = plan.definitions
-    common = {"measures": plan.measure_names, "run": plan.run}
-    seeds = {env: suite.env_seeds(env) for env in suite.envs}
     for d in definitions:  # workers load models with warnings off: said here, once each
         if d.kind == "sb3" and isinstance(d.params.get("model"), str):
             model = Path(d.params["model"])
             if not model.is_absolute() and d.path is not None:
                 model = d.path.parent / model
-            warn_untrusted_model(model, stacklevel=4)
+            warn_untrusted_model(model, stacklevel=3)
+    thresholds = resolve_thresholds(suite.thresholds)
+    measures = tuple(MEASURES)  # fixed here: after every import that may register one
+    # margins of measures registered after the suite was read take their entry's default
+    gate = replace(suite.gate, margins={**{m.name: float(m.margin) for m in measures},
+                                        **suite.gate.margins})
+    suite = replace(suite, gate=gate)
+    defined_in = (m.function.__module__ for m in measures if m.function is not None)
+    outside = [name for name in defined_in
+               if name != "__main__" and name.split(".")[0] != "tap_bench"]
+    # recorded as loaded, so that every worker of the execution layer imports them first
+    load_plugins(outside, source="measure")
+    return SuitePlan(
+        name=suite.name, envs=suite.envs, scenarios=scenarios,
+        seeds={env: suite.env_seeds(env) for env in suite.envs}, definitions=definitions,
+        reference=suite.reference, level=suite.level, thresholds=thresholds,
+        bootstrap=suite.bootstrap, gate=gate, measures=measures,
+        plugins=merge_plugins(plugins, suite.plugins, outside), document=suite.to_dict(),
+        suite_file=str(suite.path) if suite.path else None, recorded=bool(suite.scenes),
+        run=run)
+
+
+def _tasks(plan: SuitePlan, keep: bool, cache: EpisodeCache | None) -> list[_Task]:
+    scenarios, thresholds, definitions = plan.scenarios, plan.thresholds, plan.definitions
+    level, seeds = plan.level, plan.seeds
+    common = {"measures": plan.measure_names, "run": plan.run}
     if cache is None:
-        return [_Task(env, scenarios[env], d.name, d, seed, thresholds, suite.level, keep,
-                      **common)
-                for env in suite.envs for d in definitions for seed in seeds[env]]
+        return [_Task(env, scenarios[env], d.name, d, seed, thresholds, level, keep, **common)
+                for env in plan.envs for d in definitions for seed in seeds[env]]
     versions = simulation_fingerprint()
-    envs = {env: _env_fingerprints(scenarios[env], env, seeds[env]) for env in suite.envs}
+    envs = {env: _env_fingerprints(scenarios[env], env, seeds[env]) for env in plan.envs}
     policies = {d.name: policy_fingerprint(d) for d in definitions}
     code = label_code(plan.measures)
     made_by = thresholds.to_dict()
     tasks = []
-    for env in suite.envs:
+    for env in plan.envs:
         for d in definitions:
             for seed in seeds[env]:
                 key = doc = lkey = ldoc = None
                 if policies[d.name] is not None and envs[env].get(seed) is not None:
                     key, doc = episode_key(envs[env][seed], policies[d.name], seed, versions)
-                    lkey, ldoc = label_key(key, made_by, suite.level, code,
+                    lkey, ldoc = label_key(key, made_by, level, code,
                                            SCENE_MAP if isinstance(scenarios[env], WomdScenes)
                                            else ROAD_MAP)
                 tasks.append(_Task(env, scenarios[env], d.name, d, seed, thresholds,
-                                   suite.level, keep, cache, key, doc, label_key=lkey,
+                                   level, keep, cache, key, doc, label_key=lkey,
                                    label_doc=ldoc, **common))
     return tasks
 

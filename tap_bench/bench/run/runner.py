@@ -43,8 +43,8 @@ With an episode cache (:mod:`tap_bench.bench.cache`), an episode whose inputs di
 is read instead of simulated, and its labels and measures too when they were made with the
 same thresholds, level and code (those episodes are read in this process: no worker
 starts for them); the scores, figures and viewer data of unchanged inputs are read too,
-and a run whose every input is unchanged is served whole (:mod:`tap_bench.bench.
-run_cache`). A run with the cache gives the same tables as one without, float for float.
+and a run whose every input is unchanged is served whole (:mod:`tap_bench.bench.run.
+served`). A run with the cache gives the same tables as one without, float for float.
 Before the episodes start, the run estimates how long it will take, from the cache's
 timings of earlier runs or by timing a first episode of each env.
 """
@@ -58,7 +58,6 @@ import os
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -71,44 +70,29 @@ from tap_bench.bench.cache import (
     package_code_holds,
     scenario_fingerprint,
     simulation_fingerprint,
-    table_digest,
     take_refused,
 )
-from tap_bench.bench.episodes import one_outcome_cells
-from tap_bench.bench.gate.power import power_table
 from tap_bench.bench.run.folder import (
     _write_json,
     check_output,
     package_versions,
     provenance,
     read_run,
+    run_summary,
     run_viewer,
     write_results,
 )
-from tap_bench.bench.run.plan import CACHED_EPISODE_S, RunPlan, SuitePlan, plan_suite
+from tap_bench.bench.run.plan import CACHED_EPISODE_S, RunPlan, SuitePlan, _tasks, plan_suite
+from tap_bench.bench.run.scoring import ReferenceSource, read_references, score_run
 from tap_bench.bench.run.served import (
     RunResult,
     _check_apart,
-    fresh_facts,
-    run_inputs,
+    kept_whole,
     store_run,
     try_served,
 )
-from tap_bench.bench.run.summary import (
-    ReferenceSource,
-    _describe_source,
-    _headline,
-    _reference,
-    _round,
-    _with_gaps,
-)
-from tap_bench.bench.run.tasks import CACHED_BATCH, _observed_timings, _rollouts
-from tap_bench.bench.scores.contexts import context_scores
-from tap_bench.bench.scores.gap import window_episodes, window_seconds
-from tap_bench.bench.scores.scenarios import match_scenarios
-from tap_bench.bench.scores.scoring import Scores, score, scores_from_files, scores_to_files
-from tap_bench.bench.scores.verdict import verdict_table
-from tap_bench.bench.spill import TrajectorySpill, spills
+from tap_bench.bench.run.spill import TrajectorySpill, spills
+from tap_bench.bench.run.tasks import CACHED_BATCH, RunTables, _observed_timings, _rollouts
 from tap_bench.bench.suite import Suite
 from tap_bench.errors import (
     CacheEntryWarning,
@@ -119,7 +103,6 @@ from tap_bench.errors import (
 from tap_bench.execution import Backend, resolve_backend
 from tap_bench.sim.scenario_format import Scenario
 from tap_bench.sim.womd_scene import WomdScenes
-from tap_bench.thresholds import Thresholds
 
 __all__ = ["CACHED_BATCH", "CACHED_EPISODE_S", "RunExistsError", "RunPlan", "RunResult",
            "SuitePlan", "plan_suite",
@@ -165,31 +148,6 @@ class _Roads:
     def table(self, envs: Sequence[str]) -> pd.DataFrame:
         """The map tables of ``envs``, one table."""
         return pd.concat([self(env) for env in envs], ignore_index=True)
-
-
-def _inputs_hold(plan: SuitePlan, tasks: Sequence[Any], whole: Mapping[str, Any], *,
-                 keep_trajectories: bool, report: bool) -> bool:
-    """Whether the run's inputs are still ``whole``, those it started with (then the run may
-    be kept whole): False too when they cannot be read now (a policy or scenario file
-    removed or unreadable), which costs only reuse, never the run's results."""
-    try:
-        return run_inputs(plan, tasks, keep_trajectories=keep_trajectories,
-                          report=report) == whole
-    except Exception:  # any failure to fingerprint: not kept whole, the results written
-        return False
-
-
-def _kept_whole(plan: SuitePlan, tasks: Sequence[Any] | None,
-                whole: Mapping[str, Any] | None, episodes: pd.DataFrame, *,
-                keep_trajectories: bool, report: bool) -> bool:
-    """Whether the run folder is kept whole in the cache for an unchanged re-run: every
-    episode made (a failed one is tried again) and the run's inputs as at the start (a
-    policy's model or module changed while it went on would be kept under the old
-    content's key)."""
-    if whole is None or tasks is None or not (episodes["status"] == "ok").all():
-        return False
-    return _inputs_hold(plan, tasks, whole, keep_trajectories=keep_trajectories,
-                        report=report)
 
 
 def _table_files(table: pd.DataFrame) -> dict[str, bytes]:
@@ -274,42 +232,42 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         package_code()
     entries_since = time.time()
     timings: dict[str, float] = {}
-    corpora = _read_references(sources, plan.suite.level, plan.thresholds, timings)
+    corpora = read_references(sources, plan.level, plan.thresholds, timings)
     with_trajectories = any(traj is not None for traj, _ in corpora.values())
+    keep_tables = keep_trajectories or with_trajectories
+    if tasks is None:  # not made for the served run's key
+        tasks = _tasks(plan, keep_tables, cache)
     roads = _Roads(plan.scenarios, cache)
-    # recorded scenes: each episode's trajectories go to disk as it ends (bench.spill)
-    spill = TrajectorySpill(output) if spills(plan.scenarios) and (
-        keep_trajectories or with_trajectories) else None
+    # recorded scenes: each episode's trajectories go to disk as it ends (run.spill)
+    spill = TrajectorySpill(output) if spills(plan.scenarios) and keep_tables else None
     t0 = time.perf_counter()
     kept = getattr(runner, "kept", None)  # the estimate's first episodes and the rest
     with kept() if kept is not None else contextlib.nullcontext():  # on the same workers
-        results, estimate = _rollouts(plan, runner, keep_trajectories or with_trajectories,
-                                      progress, cache, announce, roads, tasks,
-                                      keep_result=None if spill is None else spill.keep)
+        results, estimate = _rollouts(tasks, plan.name, runner, progress, cache, announce,
+                                      roads, None if spill is None else spill.keep)
     timings["rollouts_wall"] = time.perf_counter() - t0
     if announce is not None:
         announce(f"episodes done ({timings['rollouts_wall']:.0f} s); scoring ...")
-    refused = _check_results(results, plan.suite.name)
-    tables = _RunTables.of(results, keep_trajectories or with_trajectories, timings,
-                           spill, whole=with_trajectories)
+    refused = _check_results(results, plan.name)
+    tables = RunTables.of(results, keep_tables, timings, spill, whole=with_trajectories)
     t0 = time.perf_counter()
-    scores = _scores(plan, tables, corpora, cache)
+    scores = score_run(plan, tables, corpora, cache)
     timings["scoring"] = time.perf_counter() - t0
-    summary = _summary(plan, output, sources, tables, scores, timings, estimate,
-                       _cache_summary(cache, results, refused), shown_realism)
+    summary = run_summary(plan, output, sources, tables.episodes, scores, timings, estimate,
+                          _cache_summary(cache, results, refused), shown_realism)
     if announce is not None:
         announce(f"scored ({timings['scoring']:.1f} s); writing the tables"
                  + (", plots, report and replay viewer" if report else "") + " ...")
     t0 = time.perf_counter()
-    keep = _kept_whole(plan, tasks, whole, tables.episodes,
-                       keep_trajectories=keep_trajectories, report=report)
+    keep = kept_whole(plan, tasks, whole, tables.episodes,
+                      keep_trajectories=keep_trajectories, report=report)
     pages: dict[str, bytes] | None = {} if keep else None
     folder = write_results(
         output, overwrite, summary, tables.episodes, tables.labels,
         tables.trajectories if keep_trajectories else None, scores, report,
         segments=tables.segments, cache=cache, pages=pages,
         # the replay viewer draws the roads; highway-env's road is seed-free
-        roads=roads.table(plan.suite.envs) if keep_trajectories else None)
+        roads=roads.table(plan.envs) if keep_trajectories else None)
     timings["writing_and_report"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
     if spill is not None:
@@ -347,19 +305,6 @@ def _reference_sources(references: Mapping[str, ReferenceSource] | None,
     return sources
 
 
-def _read_references(sources: Mapping[str, ReferenceSource], level: str,
-                     thresholds: Thresholds, timings: dict[str, float]
-                     ) -> dict[str, tuple[pd.DataFrame | None, pd.DataFrame]]:
-    """name -> (trajectories or None, label table) of every reference; the time it took
-    goes to ``timings["references"]`` [s]."""
-    t0 = time.perf_counter()
-    corpora = {name: _reference(name, source, level, thresholds)
-               for name, source in sources.items()}
-    if corpora:
-        timings["references"] = time.perf_counter() - t0
-    return corpora
-
-
 def _check_results(results: list[dict[str, Any]], suite_name: str) -> list[str]:
     """The notes of the cache entries refused (each warned, the first five by name).
 
@@ -381,137 +326,6 @@ def _check_results(results: list[dict[str, Any]], suite_name: str) -> list[str]:
     return refused
 
 
-@dataclass(frozen=True)
-class _RunTables:
-    """The tables of a run's episodes, gathered from the tasks' results: the episode table
-    (sorted by env, policy, seed), labels, segments (None: none), the interaction contexts'
-    occurrences (None: none) and the trajectories (None: not kept)."""
-
-    episodes: pd.DataFrame
-    labels: pd.DataFrame
-    segments: pd.DataFrame | None
-    occurrences: pd.DataFrame | None
-    trajectories: pd.DataFrame | TrajectorySpill | None
-
-    @classmethod
-    def of(cls, results: list[dict[str, Any]], trajectories: bool,
-           timings: dict[str, float], spill: TrajectorySpill | None = None, *,
-           whole: bool = False) -> _RunTables:
-        """Gathered from ``results``; the workers' CPU time per stage goes to ``timings``
-        (``<stage>_cpu_in_workers`` [s]). With a ``spill``, the trajectories are its parts
-        (read back into one table when ``whole``: the reference matching needs them)."""
-        for key in ("rollout", "labelling", "measures"):
-            timings[f"{key}_cpu_in_workers"] = sum(r["timings"].get(key, 0.0)
-                                                   for r in results)
-        episodes = pd.concat([r["episodes"] for r in results], ignore_index=True)
-        episodes = episodes.sort_values(["env", "policy", "seed"], kind="stable")
-        return cls(episodes.reset_index(drop=True),
-                   _concat([r["labels"] for r in results]) if any(
-                       len(r["labels"]) for r in results) else pd.DataFrame(),
-                   _concat([r["segments"] for r in results]),
-                   _concat([r.get("contexts", ()) for r in results]),
-                   _trajectories(results, spill, whole) if trajectories else None)
-
-
-def _trajectories(results: list[dict[str, Any]], spill: TrajectorySpill | None, whole: bool
-                  ) -> pd.DataFrame | TrajectorySpill | None:
-    """The run's trajectories: the results' tables as one, or the spill's parts (as one
-    table when ``whole``); None: no rows."""
-    if spill is None:
-        return _concat([r["trajectories"] for r in results if r["trajectories"] is not None])
-    if whole:
-        return spill.table()
-    return spill if len(spill) else None
-
-
-def _concat(frames: Sequence[Any]) -> pd.DataFrame | None:
-    """The non-empty ``frames`` as one table (None: none)."""
-    frames = [f for f in frames if len(f)]
-    return pd.concat(frames, ignore_index=True) if frames else None
-
-
-def _scores(plan: SuitePlan, tables: _RunTables,
-            corpora: Mapping[str, tuple[pd.DataFrame | None, pd.DataFrame]],
-            cache: EpisodeCache | None) -> Scores:
-    """The run's scores. An unchanged run reads them back (keyed by the episode table's
-    content and the suite); runs with reference corpora or plug-ins are scored every
-    time."""
-    return memoised(cache, "scores", None if corpora or plan.plugins else {
-        "episodes": table_digest(tables.episodes), "suite": plan.suite.to_dict(),
-        "contexts": None if tables.occurrences is None
-        else table_digest(tables.occurrences),
-        "gate_metrics": list(plan.gate_metrics),
-        "measures": [m.to_dict() for m in plan.measures]},
-        lambda: _score(plan, tables, corpora), scores_to_files, scores_from_files)
-
-
-def _score(plan: SuitePlan, tables: _RunTables,
-           corpora: Mapping[str, tuple[pd.DataFrame | None, pd.DataFrame]]) -> Scores:
-    """Every score of the run (:func:`~tap_bench.bench.scores.scoring.score`), with the
-    scenarios matched to each reference, windows of its tracks' length, the gate's power,
-    the interaction contexts and the sim-to-real gaps."""
-    suite, episodes = plan.suite, tables.episodes
-    matches, unmatched = _scenario_matches(corpora, tables, suite.level)
-    power = power_table(episodes, suite.gate,
-                        n_tests=len(suite.envs) * len(suite.policies)
-                        * len(plan.gate_metrics))
-    scores = score(episodes, reference_policy=suite.reference, level=suite.level,
-                   config=suite.bootstrap,
-                   references={name: lab for name, (_, lab) in corpora.items()} or None,
-                   scenario_matches=matches, gate_power=power,
-                   windows=_windows(corpora, tables.trajectories, suite.level,
-                                    plan.thresholds) or None)
-    # the interaction contexts, scored as `tap-bench contexts` scores them
-    scores = replace(scores, contexts=context_scores(
-        tables.occurrences, list(pd.unique(episodes["policy"])), suite.reference,
-        config=suite.bootstrap))
-    if len(scores.contexts):
-        scores.methods["contexts"] = (
-            "each policy against the reference inside each interaction context (trend "
-            "level): per episode the context's measures reduced over its occurrences, "
-            "then paired by seed (t; Tango for a share) where both meet the context, "
-            "else unpaired (Welch; Newcombe), as tap-bench contexts")
-    if unmatched:
-        scores.methods["scenario matching skipped"] = (
-            f"{', '.join(unmatched)}: the data marks no ego vehicle (is_ego), so its "
-            "scenarios cannot be matched by what happens around the ego; coverage and "
-            "novelty use all its vehicles")
-    return _with_gaps(scores, corpora, tables.labels, episodes, suite.level,
-                      plan.thresholds, suite.bootstrap)
-
-
-def _scenario_matches(corpora: Mapping[str, tuple[pd.DataFrame | None, pd.DataFrame]],
-                      tables: _RunTables, level: str
-                      ) -> tuple[pd.DataFrame | None, list[str]]:
-    """Each episode's best-matching scenarios of every reference with trajectories (None:
-    none), and the references that could not be matched (their data mark no ego)."""
-    matches, unmatched = [], []
-    for name, (ref_traj, ref_labels) in corpora.items():
-        if ref_traj is not None and len(tables.labels):
-            if "is_ego" not in ref_labels.columns:  # a format without an ego
-                unmatched.append(name)
-                continue
-            matches.append(match_scenarios(tables.labels, tables.trajectories, ref_labels,
-                                           ref_traj, level=level, top=3).assign(reference=name))
-    return (pd.concat(matches, ignore_index=True) if matches else None), unmatched
-
-
-def _windows(corpora: Mapping[str, tuple[pd.DataFrame | None, pd.DataFrame]],
-             trajectories: pd.DataFrame | None, level: str, thresholds: Thresholds
-             ) -> dict[str, tuple[pd.DataFrame, str]]:
-    """Coverage and novelty against real driving: the episodes cut in windows of the
-    length of each reference's tracks, by reference name."""
-    cut = {}
-    for name, (ref_traj, _) in corpora.items():
-        if ref_traj is not None and trajectories is not None:
-            seconds = window_seconds("auto", ref_traj, trajectories)
-            if seconds is not None:
-                cut[name] = (window_episodes(trajectories, seconds, level,
-                                             thresholds=thresholds, source=name),
-                             f"{seconds:.1f} s windows")
-    return cut
-
-
 def _cache_summary(cache: EpisodeCache | None, results: list[dict[str, Any]],
                    refused: list[str]) -> dict[str, Any] | None:
     """The ``cache`` part of ``summary.json`` (None: the run had no cache)."""
@@ -521,46 +335,6 @@ def _cache_summary(cache: EpisodeCache | None, results: list[dict[str, Any]],
             "simulated": sum(not r["cached"] for r in results),
             "labelled_before": sum(bool(r.get("labels_cached")) for r in results),
             "refused": refused}
-
-
-def _summary(plan: SuitePlan, output: Path, sources: Mapping[str, ReferenceSource],
-             tables: _RunTables, scores: Scores, timings: dict[str, float],
-             estimate: RunPlan, cache: dict[str, Any] | None,
-             realism: list[dict[str, Any]]) -> dict[str, Any]:
-    """``summary.json``: what ran, on what, how it scored, and how long it took."""
-    suite, episodes, thresholds = plan.suite, tables.episodes, plan.thresholds
-    failed = episodes[~episodes["status"].isin(("ok", "skipped"))]  # skipped: no route
-    skipped = episodes[episodes["status"] == "skipped"]
-    facts = fresh_facts(plan, output)
-    return {
-        "format": "tap-bench-run", "format_version": 1,
-        "run": facts["run"], "created": facts["created"],
-        "suite": suite.to_dict(), "suite_file": facts["suite_file"],
-        "level": suite.level,
-        "seeds": "all" if suite.all_seeds else list(suite.seeds),
-        "thresholds": thresholds.to_dict() if hasattr(thresholds, "to_dict") else
-        str(suite.thresholds),
-        "reference_policy": suite.reference,
-        "references": {name: _describe_source(source) for name, source in sources.items()},
-        "versions": facts["versions"], "machine": facts["machine"],
-        "n_episodes": len(episodes), "n_failed": len(failed),
-        "failed": failed[["env", "policy", "seed", "error"]].to_dict("records"),
-        "n_skipped": len(skipped),
-        "skipped": skipped[["env", "policy", "seed", "error"]].to_dict("records"),
-        "methods": scores.methods,
-        "headline": _headline(scores, episodes),
-        "one_outcome_cells": one_outcome_cells(episodes).to_dict("records"),
-        "verdict": verdict_table(scores.paired_measures, scores.paired,
-                                 scores.paired_labels).to_dict("records"),
-        "provenance": provenance(plan.definitions, plan.scenarios),
-        "measures": [m.to_dict() for m in plan.measures],
-        "plugins": list(plan.plugins),
-        "realism": realism,
-        "timings": timings,
-        "estimate": {"seconds": _round(estimate.seconds),
-                     "overhead": _round(estimate.overhead_seconds), "basis": estimate.basis},
-        "cache": cache,
-    }
 
 
 def _tidy_cache(cache: EpisodeCache, results: list[dict[str, Any]], total: float,

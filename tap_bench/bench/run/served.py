@@ -80,8 +80,8 @@ if TYPE_CHECKING:
     from tap_bench.bench.run.plan import SuitePlan, _Task
     from tap_bench.bench.scores.scoring import Scores
 
-__all__ = ["RUN_FORMAT", "RunResult", "fill_page", "fresh_facts", "page_templates",
-           "run_inputs", "serve_run", "serve_unchanged", "store_run", "timings_html",
+__all__ = ["RUN_FORMAT", "RunResult", "fill_page", "page_templates",
+           "kept_whole", "run_inputs", "serve_run", "serve_unchanged", "store_run", "timings_html",
            "try_served"]
 
 RUN_FORMAT = 1
@@ -192,12 +192,11 @@ def run_inputs(plan: SuitePlan, tasks: Sequence[_Task], *, keep_trajectories: bo
         keep_trajectories, report: the outputs asked for.
         corpora: whether the run has reference corpora.
     """
-    suite = plan.suite
-    if corpora or plan.plugins or suite.scenes or not tasks \
-            or any(t.key is None or t.label_key is None for t in tasks) \
-            or registered_outside():
+    if (corpora or plan.plugins or plan.recorded or not tasks
+            or any(t.key is None or t.label_key is None for t in tasks)
+            or registered_outside()):
         return None
-    envs = {env: scenario_fingerprint(plan.scenarios[env], env) for env in suite.envs}
+    envs = {env: scenario_fingerprint(plan.scenarios[env], env) for env in plan.envs}
     policies = {d.name: policy_fingerprint(d) for d in plan.definitions}
     if any(v is None for v in (*envs.values(), *policies.values())):
         return None
@@ -206,7 +205,7 @@ def run_inputs(plan: SuitePlan, tasks: Sequence[_Task], *, keep_trajectories: bo
                    for e in envs.values()):
         return None  # the user's code may load modules by name: only its entries know them
     thresholds = plan.thresholds
-    return {"format": RUN_FORMAT, "suite": suite.to_dict(), "level": suite.level,
+    return {"format": RUN_FORMAT, "suite": dict(plan.document), "level": plan.level,
             "thresholds": thresholds.to_dict() if hasattr(thresholds, "to_dict")
             else str(thresholds),
             "measures": [m.to_dict() for m in plan.measures],
@@ -215,6 +214,32 @@ def run_inputs(plan: SuitePlan, tasks: Sequence[_Task], *, keep_trajectories: bo
             "outputs": {"trajectories": bool(keep_trajectories), "report": bool(report)},
             "versions": {**{pkg: _version(pkg) for pkg in VERSIONED},
                          "python": sys.version}, "package_data": package_data()}
+
+
+def _inputs_hold(plan: SuitePlan, tasks: Sequence[_Task], whole: Mapping[str, Any], *,
+                 keep_trajectories: bool, report: bool) -> bool:
+    """Whether the run's inputs are still ``whole``, those it started with (then the run may
+    be kept whole): False too when they cannot be read now (a policy or scenario file
+    removed or unreadable), which costs only reuse, never the run's results."""
+    try:
+        return run_inputs(plan, tasks, keep_trajectories=keep_trajectories,
+                          report=report) == whole
+    except Exception:  # any failure to fingerprint: not kept whole, the results written
+        return False
+
+
+def kept_whole(plan: SuitePlan, tasks: Sequence[_Task] | None,
+               whole: Mapping[str, Any] | None, episodes: pd.DataFrame, *,
+               keep_trajectories: bool, report: bool) -> bool:
+    """Whether the run folder is kept whole in the cache for an unchanged re-run: the run
+    may be kept (``whole``: its :func:`run_inputs` at the start, None: never kept), every
+    episode was made (a failed one is tried again) and the run's inputs are as at the start
+    (a policy's model or module changed while it went on would be kept under the old
+    content's key)."""
+    if whole is None or tasks is None or not (episodes["status"] == "ok").all():
+        return False
+    return _inputs_hold(plan, tasks, whole, keep_trajectories=keep_trajectories,
+                        report=report)
 
 
 # -- the pages that name the run --------------------------------------------------------
@@ -272,8 +297,8 @@ def serve_run(cache: EpisodeCache, inputs: Mapping[str, Any], output: Path, over
         inputs: :func:`run_inputs` of this run.
         output: the run folder (checked: :func:`tap_bench.tableio.check_folder_output`).
         overwrite: replace an earlier run folder there.
-        fresh: this run's own summary fields (:func:`fresh_facts`; ``timings`` and
-            ``cache`` are filled here).
+        fresh: this run's own summary fields (:func:`~tap_bench.bench.run.folder.
+            fresh_facts`; ``timings`` and ``cache`` are filled here).
         started: :func:`time.perf_counter` at the start of the run [s].
         announce: told that the run is served, and from which entry.
     """
@@ -350,20 +375,6 @@ def _check_apart(output: Path, cache_root: Path) -> None:
                               "separate places.")
 
 
-def fresh_facts(plan: SuitePlan, output: Path) -> dict[str, Any]:
-    """The summary fields that name and describe one run (of :data:`FRESH`): its folder's
-    name, its time, the suite file, the package versions, the machine, and (for a run
-    served from the cache) the estimate."""
-    from tap_bench.bench.run.folder import _machine, package_versions
-
-    suite = plan.suite
-    return {"run": Path(output).name, "created": time.strftime("%Y-%m-%d %H:%M:%S"),
-            "suite_file": str(suite.path) if suite.path else None,
-            "versions": package_versions(), "machine": _machine(),
-            "estimate": {"seconds": None, "overhead": None,
-                         "basis": "served whole from the cache"}}
-
-
 def try_served(plan: SuitePlan, cache: EpisodeCache | None, output: Path, overwrite: bool,
                keep_trajectories: bool, report: bool, corpora: bool, started: float,
                announce: Callable[[str], None] | None = None
@@ -372,8 +383,9 @@ def try_served(plan: SuitePlan, cache: EpisodeCache | None, output: Path, overwr
     :func:`run_inputs` when it may be kept whole): the first step of
     :func:`~tap_bench.bench.run.runner.run_suite`, which goes on with the tasks when nothing
     was served, and keeps the run under these inputs when it is done."""
-    if cache is None or corpora or plan.plugins or plan.suite.scenes:
+    if cache is None or corpora or plan.plugins or plan.recorded:
         return None, None, None
+    from tap_bench.bench.run.folder import fresh_facts
     from tap_bench.bench.run.plan import _tasks
 
     tasks = _tasks(plan, keep_trajectories, cache)

@@ -9,7 +9,7 @@ import contextlib
 import math
 import time
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -19,7 +19,8 @@ import pandas as pd
 from tap_bench.bench.cache import EpisodeCache, policy_fingerprint, scenario_fingerprint
 from tap_bench.bench.episodes import episode_table
 from tap_bench.bench.measures import MEASURES, ego_steps
-from tap_bench.bench.run.plan import RunPlan, SuitePlan, _plan, _Task, _tasks
+from tap_bench.bench.run.plan import RunPlan, _plan, _Task
+from tap_bench.bench.run.spill import TrajectorySpill
 from tap_bench.bench.scores.contexts import occurrences_from
 from tap_bench.errors import RegistrationError
 from tap_bench.execution import Backend
@@ -370,29 +371,24 @@ def _items(tasks: list[_Task], indices: list[int], cached: list[bool], workers: 
     return items
 
 
-def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
-              progress: bool | None, cache: EpisodeCache | None,
-              announce: Callable[[str], None] | None,
+def _rollouts(tasks: list[_Task], name: str, backend: Backend, progress: bool | None,
+              cache: EpisodeCache | None, announce: Callable[[str], None] | None,
               road: Callable[[str], pd.DataFrame] | None = None,
-              tasks: list[_Task] | None = None,
               keep_result: Callable[[int, dict[str, Any]], dict[str, Any]] | None = None
               ) -> tuple[list[dict[str, Any]], RunPlan]:
-    """Every episode of the suite as a task on ``backend`` (one recovery rule: an episode
-    whose worker died is tried once more, then recorded as failed), cached episodes read
-    rather than simulated. Before the tasks start, ``announce`` gets the run's estimate,
-    from the cache's timings or from a first episode of each env without one. ``road``:
-    env -> its highway-env road as a map table, drawn here once for the envs with episodes
-    to label and handed to their tasks (None: each worker draws it). ``tasks``: the run's
-    tasks when made already (:func:`~tap_bench.bench.run.plan._tasks` with the same
-    ``keep`` and ``cache``). ``keep_result``: (task index, result) -> the result kept,
-    called on each result as it arrives (a :class:`~tap_bench.bench.spill.TrajectorySpill`
-    writes its trajectories to disk and keeps the rest), the tasks' results then taken one
-    by one as they end rather than all at once."""
+    """Every episode of ``tasks`` (the suite ``name``'s, :func:`~tap_bench.bench.run.plan.
+    _tasks`) as a task on ``backend`` (one recovery rule: an episode whose worker died is
+    tried once more, then recorded as failed), cached episodes read rather than simulated.
+    Before the tasks start, ``announce`` gets the run's estimate, from the cache's timings
+    or from a first episode of each env without one. ``road``: env -> its highway-env road
+    as a map table, drawn here once for the envs with episodes to label and handed to their
+    tasks (None: each worker draws it). ``keep_result``: (task index, result) -> the result
+    kept, called on each result as it arrives (a :class:`~tap_bench.bench.run.spill.
+    TrajectorySpill` writes its trajectories to disk and keeps the rest), the tasks'
+    results then taken one by one as they end rather than all at once."""
     streamed = keep_result is not None
     keep_result = keep_result if streamed else (lambda _, result: result)
-    if tasks is None:
-        tasks = _tasks(suite_plan, keep, cache)
-    suite = suite_plan.suite
+    tasks = list(tasks)
     results: dict[int, dict[str, Any]] = {}
     seconds: dict[int, float] = {}
     notes: dict[int, str] = {}
@@ -439,12 +435,12 @@ def _rollouts(suite_plan: SuitePlan, backend: Backend, keep: bool,
                 results[i] = _failed_task(tasks[i], outcome.error)
     plan = _plan(tasks, cached, backend.workers, known, measured)
     if announce is not None:
-        announce(plan.describe(suite.name))
+        announce(plan.describe(name))
     items = _items(tasks, [i for i in range(len(tasks)) if i not in results], cached,
                    backend.workers, given)
     each = backend.imap if streamed else backend.map
     outcomes = each(_run_item, [item for _, item in items], unit="task",
-                    progress=progress, desc=f"bench {suite.name} ({backend.name})"
+                    progress=progress, desc=f"bench {name} ({backend.name})"
                     ) if items else []
     alone: list[int] = []  # the episodes of a failed batch, tried again one by one
     for (indices, _), outcome in zip(items, outcomes, strict=True):
@@ -482,3 +478,52 @@ def _observed_timings(results: list[dict[str, Any]]) -> tuple[dict[str, float],
                 r["seconds"])
     return ({env: float(np.mean(v)) for env, v in simulated.items()},
             {env: float(np.mean(v)) for env, v in cached.items()})
+
+
+@dataclass(frozen=True)
+class RunTables:
+    """The tables of a run's episodes, gathered from the tasks' results: the episode table
+    (sorted by env, policy, seed), labels, segments (None: none), the interaction contexts'
+    occurrences (None: none) and the trajectories (None: not kept)."""
+
+    episodes: pd.DataFrame
+    labels: pd.DataFrame
+    segments: pd.DataFrame | None
+    occurrences: pd.DataFrame | None
+    trajectories: pd.DataFrame | TrajectorySpill | None
+
+    @classmethod
+    def of(cls, results: list[dict[str, Any]], trajectories: bool,
+           timings: dict[str, float], spill: TrajectorySpill | None = None, *,
+           whole: bool = False) -> RunTables:
+        """Gathered from ``results``; the workers' CPU time per stage goes to ``timings``
+        (``<stage>_cpu_in_workers`` [s]). With a ``spill``, the trajectories are its parts
+        (read back into one table when ``whole``: the reference matching needs them)."""
+        for key in ("rollout", "labelling", "measures"):
+            timings[f"{key}_cpu_in_workers"] = sum(r["timings"].get(key, 0.0)
+                                                   for r in results)
+        episodes = pd.concat([r["episodes"] for r in results], ignore_index=True)
+        episodes = episodes.sort_values(["env", "policy", "seed"], kind="stable")
+        return cls(episodes.reset_index(drop=True),
+                   _concat([r["labels"] for r in results]) if any(
+                       len(r["labels"]) for r in results) else pd.DataFrame(),
+                   _concat([r["segments"] for r in results]),
+                   _concat([r.get("contexts", ()) for r in results]),
+                   _trajectories(results, spill, whole) if trajectories else None)
+
+
+def _trajectories(results: list[dict[str, Any]], spill: TrajectorySpill | None, whole: bool
+                  ) -> pd.DataFrame | TrajectorySpill | None:
+    """The run's trajectories: the results' tables as one, or the spill's parts (as one
+    table when ``whole``); None: no rows."""
+    if spill is None:
+        return _concat([r["trajectories"] for r in results if r["trajectories"] is not None])
+    if whole:
+        return spill.table()
+    return spill if len(spill) else None
+
+
+def _concat(frames: Sequence[Any]) -> pd.DataFrame | None:
+    """The non-empty ``frames`` as one table (None: none)."""
+    frames = [f for f in frames if len(f)]
+    return pd.concat(frames, ignore_index=True) if frames else None

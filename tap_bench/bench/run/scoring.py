@@ -1,0 +1,200 @@
+"""The scoring of a suite run: its coverage references read (or labelled) once, and every
+score of the run (:func:`score_run`): :func:`tap_bench.bench.scores.scoring.score` with
+each reference's scenarios matched to the episodes, windows of its tracks' length, the
+gate's power, the interaction contexts and the sim-to-real gap of every policy (part of
+:mod:`tap_bench.bench.run.runner`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+import warnings
+from collections.abc import Mapping, Sequence
+
+import pandas as pd
+
+from tap_bench.bench.cache import EpisodeCache, memoised, table_digest
+from tap_bench.bench.gate.power import power_table
+from tap_bench.bench.run.plan import SuitePlan
+from tap_bench.bench.run.tasks import RunTables
+from tap_bench.bench.scores.contexts import context_scores
+from tap_bench.bench.scores.gap import (
+    behaviour_gap,
+    labelled_with_speed,
+    window_episodes,
+    window_seconds,
+)
+from tap_bench.bench.scores.scenarios import match_scenarios
+from tap_bench.bench.scores.scoring import Scores, score, scores_from_files, scores_to_files
+from tap_bench.errors import LabelTableError, ParameterError
+from tap_bench.labelling import tap
+from tap_bench.labels import validate_labels
+from tap_bench.sources import read_womd
+from tap_bench.stats.bootstrap import BootstrapConfig
+from tap_bench.tableio import read_table
+from tap_bench.thresholds import Thresholds
+
+Corpora = Mapping[str, tuple[pd.DataFrame | None, pd.DataFrame]]
+"""The run's references read: name -> (trajectories or None, label table)."""
+
+ReferenceSource = pd.DataFrame | str | os.PathLike | Sequence[str | os.PathLike]
+"""A coverage reference: a label table, a label file, or driving-data files."""
+
+_LABEL_SUFFIXES = (".parquet", ".pq", ".csv", ".csv.gz")
+
+
+def _reference(name: str, source: ReferenceSource, level: str, thresholds: Thresholds
+               ) -> tuple[pd.DataFrame | None, pd.DataFrame]:
+    """(trajectories or None, label table) of one named reference."""
+    if isinstance(source, pd.DataFrame):
+        validate_labels(source, level, source=f"reference {name!r}")
+        return None, source
+    paths = [source] if isinstance(source, str | os.PathLike) else list(source)
+    if not paths:
+        raise ParameterError(f"references[{name!r}]", source, "a label table or data files")
+    if len(paths) == 1 and str(paths[0]).lower().endswith(_LABEL_SUFFIXES):
+        table = read_table(paths[0])
+        if "sdl" in table.columns:  # a label file
+            validate_labels(table, level, source=str(paths[0]))
+            return None, table
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        traj = read_womd([str(p) for p in paths])
+        labels = tap(traj, thresholds, source=name).labels("all")
+    return traj, labels
+
+
+def read_references(sources: Mapping[str, ReferenceSource], level: str,
+                    thresholds: Thresholds, timings: dict[str, float]
+                    ) -> dict[str, tuple[pd.DataFrame | None, pd.DataFrame]]:
+    """name -> (trajectories or None, label table) of every reference: label tables checked
+    at ``level``, driving data labelled with ``thresholds``; the time it took goes to
+    ``timings["references"]`` [s]."""
+    t0 = time.perf_counter()
+    corpora = {name: _reference(name, source, level, thresholds)
+               for name, source in sources.items()}
+    if corpora:
+        timings["references"] = time.perf_counter() - t0
+    return corpora
+
+
+def score_run(plan: SuitePlan, tables: RunTables, corpora: Corpora,
+              cache: EpisodeCache | None) -> Scores:
+    """Every score of the run. An unchanged run reads them back from ``cache`` (keyed by the
+    episode table's content, the suite, its contexts, gate metrics and measures); runs with
+    reference corpora or plug-ins are scored every time."""
+    return memoised(cache, "scores", None if corpora or plan.plugins else {
+        "episodes": table_digest(tables.episodes), "suite": plan.document,
+        "contexts": None if tables.occurrences is None
+        else table_digest(tables.occurrences),
+        "gate_metrics": list(plan.gate_metrics),
+        "measures": [m.to_dict() for m in plan.measures]},
+        lambda: _score(plan, tables, corpora), scores_to_files, scores_from_files)
+
+
+def _score(plan: SuitePlan, tables: RunTables, corpora: Corpora) -> Scores:
+    """:func:`~tap_bench.bench.scores.scoring.score` of the run's episodes, with the
+    scenarios matched to each reference, windows of its tracks' length, the gate's power,
+    the interaction contexts and the sim-to-real gaps."""
+    episodes, level, config = tables.episodes, plan.level, plan.bootstrap
+    matches, unmatched = _scenario_matches(corpora, tables.labels, tables.trajectories,
+                                           level)
+    power = power_table(episodes, plan.gate, cells=len(plan.envs) * len(plan.definitions))
+    scores = score(episodes, reference_policy=plan.reference, level=level, config=config,
+                   references={name: lab for name, (_, lab) in corpora.items()} or None,
+                   scenario_matches=matches, gate_power=power,
+                   windows=_windows(corpora, tables.trajectories, level,
+                                    plan.thresholds) or None)
+    # the interaction contexts, scored as `tap-bench contexts` scores them
+    scores = dataclasses.replace(scores, contexts=context_scores(
+        tables.occurrences, list(pd.unique(episodes["policy"])), plan.reference,
+        config=config))
+    if len(scores.contexts):
+        scores.methods["contexts"] = (
+            "each policy against the reference inside each interaction context (trend "
+            "level): per episode the context's measures reduced over its occurrences, "
+            "then paired by seed (t; Tango for a share) where both meet the context, "
+            "else unpaired (Welch; Newcombe), as tap-bench contexts")
+    if unmatched:
+        scores.methods["scenario matching skipped"] = (
+            f"{', '.join(unmatched)}: the data marks no ego vehicle (is_ego), so its "
+            "scenarios cannot be matched by what happens around the ego; coverage and "
+            "novelty use all its vehicles")
+    return _with_gaps(scores, corpora, tables.labels, episodes, level, plan.thresholds,
+                      config)
+
+
+def _scenario_matches(corpora: Corpora, labels: pd.DataFrame,
+                      trajectories: pd.DataFrame | None, level: str
+                      ) -> tuple[pd.DataFrame | None, list[str]]:
+    """Each episode's best-matching scenarios of every reference with trajectories (None:
+    none), and the references that could not be matched (their data mark no ego)."""
+    matches, unmatched = [], []
+    for name, (ref_traj, ref_labels) in corpora.items():
+        if ref_traj is not None and len(labels):
+            if "is_ego" not in ref_labels.columns:  # a format without an ego
+                unmatched.append(name)
+                continue
+            matches.append(match_scenarios(labels, trajectories, ref_labels, ref_traj,
+                                           level=level, top=3).assign(reference=name))
+    return (pd.concat(matches, ignore_index=True) if matches else None), unmatched
+
+
+def _windows(corpora: Corpora, trajectories: pd.DataFrame | None, level: str,
+             thresholds: Thresholds) -> dict[str, tuple[pd.DataFrame, str]]:
+    """Coverage and novelty against real driving: the episodes cut in windows of the
+    length of each reference's tracks, by reference name."""
+    cut = {}
+    for name, (ref_traj, _) in corpora.items():
+        if ref_traj is not None and trajectories is not None:
+            seconds = window_seconds("auto", ref_traj, trajectories)
+            if seconds is not None:
+                cut[name] = (window_episodes(trajectories, seconds, level,
+                                             thresholds=thresholds, source=name),
+                             f"{seconds:.1f} s windows")
+    return cut
+
+
+def _with_gaps(scores: Scores, corpora: Corpora, labels: pd.DataFrame,
+               episodes: pd.DataFrame, level: str, thresholds: Thresholds,
+               config: BootstrapConfig) -> Scores:
+    """``scores`` with the sim-to-real gap of every policy from each reference given as
+    driving-data files (:mod:`tap_bench.bench.scores.gap`): the egos' labels at the suite's level,
+    lateral, longitudinal and interaction, against the reference's vehicles at the speeds
+    the policy drives."""
+    real = {name: traj for name, (traj, _) in corpora.items() if traj is not None}
+    if not real or not len(labels) or "is_ego" not in labels.columns:
+        return scores
+    egos = labels[(labels["level"] == level) & labels["is_ego"].fillna(False)]
+    speeds = episodes[["env", "policy", "seed", "mean_speed"]]
+    egos = egos.drop(columns=["mean_speed"], errors="ignore").merge(
+        speeds, on=["env", "policy", "seed"], how="left")
+    axes = tuple(a for a in ("lateral", "longitudinal", "interaction") if a in egos.columns)
+    rows, per_label = [], []
+    for name, traj in real.items():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            reference = labelled_with_speed(traj, level, interactions="all",
+                                            thresholds=thresholds, source=name)
+        for policy, mine in egos.groupby("policy", sort=True):
+            try:
+                gap = behaviour_gap(mine, reference, name=str(policy), axes=axes,
+                                    config=config, reference_name=name)
+            except LabelTableError as err:  # nothing comparable: said, not scored
+                scores.methods.setdefault("gap skipped", "")
+                scores.methods["gap skipped"] += f"{policy} vs {name}: {err} "
+                continue
+            rows.append({"reference": name, **gap.row()})
+            per_label.append(gap.labels.assign(reference=name, policy=str(policy)))
+    if not rows:
+        return scores
+    scores.methods["gap"] = (
+        "total variation distance between the shares of single labels ("
+        + ", ".join(axes) + f") of the policy's egos and of the reference's vehicles at the "
+        f"policy's speeds; {config.level:.0%} bootstrap of whole episodes of the policy and "
+        f"whole scenes of the reference, each side on its own ({config.n_resamples} "
+        "resamples; the debiased gap with its basic interval); floor: two samples of one "
+        "behaviour with these episodes and scenes")
+    return dataclasses.replace(scores, gap=pd.DataFrame(rows),
+                               gap_labels=pd.concat(per_label, ignore_index=True))
