@@ -244,21 +244,22 @@ def tango_interval(b, c, n, level: float, *, z: float | None = None) -> tuple:
     ok = n_ > 0
     safe_n = np.where(ok, n_, 1.0)
     est = (b_ - c_) / safe_n
-    # lower: the smallest delta in [-1, est] with Z(delta) <= z (Z decreases in delta)
-    lo, hi = np.full_like(est, -1.0), est.copy()
-    at_edge = _tango_z(lo, b_, c_, safe_n) <= z
+    # both ends in one bisection over the tables twice (Z decreases in delta): the lower end
+    # the smallest delta in [-1, est] with Z(delta) <= z, the upper the largest in [est, 1]
+    # with Z(delta) >= -z; each element's steps are those of a bisection of its end alone
+    m = len(est)
+    b2, c2, n2 = np.r_[b_, b_], np.r_[c_, c_], np.r_[safe_n, safe_n]
+    lower = np.r_[np.ones(m, bool), np.zeros(m, bool)]
+    lo, hi = np.r_[np.full_like(est, -1.0), est], np.r_[est, np.ones_like(est)]
+    ends = _tango_z(np.r_[lo[:m], hi[m:]], b2, c2, n2)
+    at_edge = np.r_[ends[:m] <= z, ends[m:] >= -z]
     for _ in range(60):
         mid = (lo + hi) / 2
-        above = _tango_z(mid, b_, c_, safe_n) > z
-        lo, hi = np.where(above, mid, lo), np.where(above, hi, mid)
-    low = np.where(at_edge, -1.0, hi)
-    lo, hi = est.copy(), np.ones_like(est)
-    at_edge = _tango_z(hi, b_, c_, safe_n) >= -z
-    for _ in range(60):
-        mid = (lo + hi) / 2
-        below = _tango_z(mid, b_, c_, safe_n) < -z
-        lo, hi = np.where(below, lo, mid), np.where(below, mid, hi)
-    high = np.where(at_edge, 1.0, lo)
+        zm = _tango_z(mid, b2, c2, n2)
+        up = np.where(lower, zm > z, ~(zm < -z))  # the end lies above mid
+        lo, hi = np.where(up, mid, lo), np.where(up, hi, mid)
+    low = np.where(at_edge[:m], -1.0, hi[:m])
+    high = np.where(at_edge[m:], 1.0, lo[m:])
     return np.where(ok, low, np.nan), np.where(ok, high, np.nan)
 
 

@@ -127,7 +127,12 @@ def test_tango_paired_label_difference_covers_at_30_seeds():
     assert 0.93 <= rate <= 0.97
 
 
-def test_sidak_band_holds_all_labels_jointly_at_30_seeds():
+@pytest.mark.parametrize(("replications", "window"), [
+    (400, (0.92, 0.98)), pytest.param(REPLICATIONS, (0.93, 0.975), marks=pytest.mark.slow)])
+def test_sidak_band_holds_all_labels_jointly_at_30_seeds(replications, window):
+    """The band over 8 labels holds all 8 jointly 95 % of the time (400 replications in
+    the fast suite, a window of about 2.7 standard errors; 1,000 in the slow one), where
+    the separate intervals hold them less often."""
     K, n = 8, 30
     pa = np.linspace(0.05, 0.2, K)
     pa /= pa.sum()
@@ -135,7 +140,7 @@ def test_sidak_band_holds_all_labels_jointly_at_30_seeds():
     truth = pa - pb
     rng = np.random.default_rng(1)
     joint = pointwise = 0
-    for _ in range(REPLICATIONS):
+    for _ in range(replications):
         la, lb = rng.choice(K, n, p=pa), rng.choice(K, n, p=pb)
         ina = la[:, None] == np.arange(K)
         inb = lb[:, None] == np.arange(K)
@@ -144,9 +149,9 @@ def test_sidak_band_holds_all_labels_jointly_at_30_seeds():
         plo, phi = tango_interval(b_, c_, np.full(K, n), 0.95)
         joint += np.all((lo <= truth) & (truth <= hi))
         pointwise += np.all((plo <= truth) & (truth <= phi))
-    print(f"8 labels jointly, 30 seeds: band {joint / REPLICATIONS:.3f}, separate intervals "
-          f"{pointwise / REPLICATIONS:.3f}")
-    assert 0.93 <= joint / REPLICATIONS <= 0.975
+    print(f"8 labels jointly, 30 seeds: band {joint / replications:.3f}, separate intervals "
+          f"{pointwise / replications:.3f}")
+    assert window[0] <= joint / replications <= window[1]
     assert pointwise < joint
 
 
