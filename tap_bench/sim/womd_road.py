@@ -769,6 +769,66 @@ def _project_path(px, py, cum, s0, s1, qx, qy):  # pragma: no cover - compiled
     return bs, bd, bt
 
 
+CHUNK = 8  # path segments bounded by one circle in the nearest-segment search
+CHUNK_SLACK = 1e-6  # [m] a chunk is skipped only when surely farther than the nearest found
+
+
+@numba.njit(cache=True, nogil=True)
+def _window_chunks(px, py, cum, s0, s1):  # pragma: no cover - compiled
+    """The segments of a path with some part in [s0, s1] (k0 to k1 - 1, as
+    :func:`_project_path` scans them) in chunks of :data:`CHUNK`: each chunk's bounding
+    circle (centres (c, 2), radii (c,)) [m]."""
+    k0 = max(np.searchsorted(cum, s0, side="right") - 1, 0)
+    k1 = k0
+    while k1 < px.shape[0] - 1 and cum[k1] <= s1:
+        k1 += 1
+    count = (k1 - k0 + CHUNK - 1) // CHUNK
+    centres = np.empty((count, 2))
+    radii = np.empty(count)
+    for c in range(count):
+        a = k0 + c * CHUNK
+        b = min(a + CHUNK, k1)  # points a to b (the segments' ends)
+        lo_x, hi_x, lo_y, hi_y = px[a], px[a], py[a], py[a]
+        for k in range(a + 1, b + 1):
+            lo_x, hi_x = min(lo_x, px[k]), max(hi_x, px[k])
+            lo_y, hi_y = min(lo_y, py[k]), max(hi_y, py[k])
+        mx, my = 0.5 * (lo_x + hi_x), 0.5 * (lo_y + hi_y)
+        r = 0.0
+        for k in range(a, b + 1):
+            r = max(r, math.hypot(px[k] - mx, py[k] - my))
+        centres[c, 0], centres[c, 1], radii[c] = mx, my, r
+    return k0, k1, centres, radii
+
+
+@numba.njit(cache=True, nogil=True)
+def _project_window(px, py, cum, k0, k1, centres, radii, qx, qy):  # pragma: no cover
+    """:func:`_project_path` over the segments k0 to k1 - 1 (:func:`_window_chunks`),
+    the same answer: a chunk whose circle is farther than the nearest segment found so far
+    holds no nearer one and is skipped."""
+    best, bs, bd, bt = np.inf, np.nan, np.nan, 0.0
+    for c in range(radii.shape[0]):
+        if math.hypot(qx - centres[c, 0], qy - centres[c, 1]) - radii[c] \
+                > best + CHUNK_SLACK:
+            continue
+        a = k0 + c * CHUNK
+        for k in range(a, min(a + CHUNK, k1)):
+            dx, dy = px[k + 1] - px[k], py[k + 1] - py[k]
+            n2 = dx * dx + dy * dy
+            if n2 <= 0:
+                continue
+            u = ((qx - px[k]) * dx + (qy - py[k]) * dy) / n2
+            u = min(max(u, 0.0), 1.0)
+            ex, ey = qx - px[k] - u * dx, qy - py[k] - u * dy
+            dist = math.hypot(ex, ey)
+            if dist < best:
+                n = math.sqrt(n2)
+                best = dist
+                bs = cum[k] + u * n
+                bd = (dx * ey - dy * ex) / n
+                bt = math.atan2(dy, dx)
+    return bs, bd, bt
+
+
 @numba.njit(cache=True, nogil=True)
 def _path_blockers(px, py, cum, s0, s1, x0, y0, half_width, half_length, margins,
                    xs, ys, hs, vs, ls, ws, horizons):  # pragma: no cover - compiled
@@ -786,6 +846,7 @@ def _path_blockers(px, py, cum, s0, s1, x0, y0, half_width, half_length, margins
     m, h = xs.shape[0], horizons.shape[0]
     out = np.full((m * h, 4), np.nan)
     reach = s1 - s0
+    k0, k1, centres, radii = _window_chunks(px, py, cum, s0, s1)
     for j in range(m):
         for t in range(h):
             tau = horizons[t]
@@ -793,7 +854,7 @@ def _path_blockers(px, py, cum, s0, s1, x0, y0, half_width, half_length, margins
             cy = ys[j] + tau * vs[j] * math.sin(hs[j])
             if math.hypot(cx - x0, cy - y0) > reach + ls[j] + half_length:
                 continue
-            s, d, theta = _project_path(px, py, cum, s0, s1, cx, cy)
+            s, d, theta = _project_window(px, py, cum, k0, k1, centres, radii, cx, cy)
             if not s > s0:
                 continue
             c = math.cos(hs[j] - theta)

@@ -16,6 +16,9 @@ from tap_bench.sim.womd_road import (
     PATH_EXTENSION,
     PATH_SPACING,
     _first_crossing,
+    _project_path,
+    _project_window,
+    _window_chunks,
     logged_path,
     path_progress,
 )
@@ -208,3 +211,25 @@ def test_crossing_paths_go_in_the_log_order_at_every_heading(tmp_path, rotation_
                       ("3", (-math.sin(rot), math.cos(rot)))):
         r = rows[tid]
         assert rec["x"][r, -1] * axis[0] + rec["y"][r, -1] * axis[1] > 5.0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_the_chunked_path_search_finds_the_same_nearest_point(seed):
+    # winding paths (tight turns, spirals back on themselves), windows anywhere along them
+    # and points near, far, beyond the ends and on the path: the same (s, d, direction)
+    rng = np.random.default_rng(seed)
+    turn = np.cumsum(rng.normal(0.0, 0.4, 400))
+    step = rng.uniform(0.0, 1.5, 400)
+    step[::37] = 0.0  # repeated points (zero-length segments)
+    xy = np.cumsum(np.c_[step * np.cos(turn), step * np.sin(turn)], axis=0)
+    px, py = xy[:, 0].copy(), xy[:, 1].copy()
+    cum = np.r_[0.0, np.cumsum(np.hypot(np.diff(px), np.diff(py)))]
+    for _ in range(300):
+        s0 = rng.uniform(-5.0, cum[-1] + 5.0)
+        s1 = s0 + rng.uniform(0.0, 80.0)
+        k0, k1, centres, radii = _window_chunks(px, py, cum, s0, s1)
+        k = rng.integers(len(px))
+        q = xy[k] + rng.normal(0.0, rng.choice([0.0, 1.0, 10.0, 60.0]), 2)
+        want = _project_path(px, py, cum, s0, s1, q[0], q[1])
+        got = _project_window(px, py, cum, k0, k1, centres, radii, q[0], q[1])
+        np.testing.assert_array_equal(got, want)
