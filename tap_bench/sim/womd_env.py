@@ -95,6 +95,7 @@ from tap_bench.errors import ParameterError
 from tap_bench.sim.collisions import Box, collision_partner, fault
 from tap_bench.sim.womd_observation import OBSERVATION_TYPE, RouteObservation
 from tap_bench.sim.womd_road import (
+    HIDDEN,
     NOMINAL_DRIVER,
     ROUTE_CORRIDOR,
     ROUTE_OFF_MAP,
@@ -389,6 +390,13 @@ class _WomdHighwayEnv(AbstractEnv):
         self.path = path
         self.path_cum = np.r_[0.0, np.cumsum(step_len)]
         self.path_length = float(self.path_cum[-1])
+        # every agent's lane where it starts (hidden where the log has no state then),
+        # looked up at once for the vehicles made below
+        rows = np.arange(len(scene.track_ids))
+        start = np.where(scene.valid[:, CURRENT_STEP, None], states[:, CURRENT_STEP, :3],
+                         np.c_[HIDDEN + 10.0 * rows, np.full(len(rows), HIDDEN),
+                               np.zeros(len(rows))])
+        network.look_up_lanes(start)
         x, y, h, v = states[e, CURRENT_STEP]
         lane_index = network.get_closest_lane_index(np.array([x, y]), h)
         limits = [network.get_lane(i).speed_limit for i in self.route]
@@ -410,6 +418,7 @@ class _WomdHighwayEnv(AbstractEnv):
             self.road.vehicles.append(vehicle)
             if not isinstance(vehicle, LogVehicle):
                 self.simulated[row] = vehicle
+        network.forget_lanes()
         self.road.start_collisions()
         self.road.start_off_road(ego)
         self.has_signals = bool(len(scene.road.signals.lane))  # signal states recorded

@@ -34,7 +34,7 @@ from highway_env.road.lane import PolyLaneFixedWidth
 from highway_env.road.spline import LinearSpline2D
 
 __all__ = ["MIN_LANE_LENGTH", "TOLERANCE", "FastPolyLane", "LaneIndex", "lane_points",
-           "project_positions"]
+           "lanes_points", "project_positions"]
 
 MIN_LANE_LENGTH = 1.0
 """[m] highway-env samples a poly lane every metre and cannot build one shorter than this:
@@ -94,6 +94,17 @@ def _lane_distances(offsets, px, py, tx, ty, s, lengths, x, y, heading, use_head
     return out
 
 
+@numba.njit(cache=True, nogil=True)
+def _lane_distances_many(offsets, px, py, tx, ty, s, lengths, xs, ys, headings, use_heading
+                         ):  # pragma: no cover - compiled
+    """(n_points, n_lanes) :func:`_lane_distances` of many points (and headings)."""
+    out = np.empty((xs.shape[0], offsets.shape[0] - 1))
+    for q in range(xs.shape[0]):
+        out[q] = _lane_distances(offsets, px, py, tx, ty, s, lengths, xs[q], ys[q],
+                                 headings[q], use_heading)
+    return out
+
+
 def lane_points(centre: np.ndarray) -> np.ndarray | None:
     """A centre line (n, 2) [m] highway-env can build a lane on: repeated points dropped,
     extended along its last direction to :data:`MIN_LANE_LENGTH` when shorter; None for a
@@ -111,6 +122,32 @@ def lane_points(centre: np.ndarray) -> np.ndarray | None:
         d = d / np.hypot(*d)
         pts = np.vstack([pts, pts[-1] + d * (MIN_LANE_LENGTH + 1e-6 - length)])
     return pts
+
+
+def lanes_points(centres: Sequence[np.ndarray]) -> list[np.ndarray | None]:
+    """:func:`lane_points` of many centre lines (n_i, 2) [m] at once (the same arrays)."""
+    lines = [np.asarray(c, dtype=np.float64).reshape(-1, 2) for c in centres]
+    out: list[np.ndarray | None] = [None] * len(lines)
+    many = [k for k, pts in enumerate(lines) if len(pts) >= 2]
+    if not many:
+        return out
+    sizes = np.array([len(lines[k]) for k in many])
+    starts = np.cumsum(sizes) - sizes
+    points = np.concatenate([lines[k] for k in many])
+    step = np.hypot(*np.diff(points, axis=0).T)
+    keep = np.r_[True, step > 1e-6]
+    keep[starts] = True  # every line's first point (the step before it is another line's)
+    kept = np.add.reduceat(keep, starts)
+    moved = np.where(keep[1:], step, 0.0)
+    moved[starts[1:] - 1] = 0.0  # no step between two lines
+    rough = np.add.reduceat(np.r_[moved, 0.0], starts)  # each line's length, to ~1e-12
+    parts = np.split(points[keep], np.cumsum(kept)[:-1])
+    for k, count, length, pts in zip(many, kept.tolist(), rough.tolist(), parts, strict=True):
+        if count < 2:
+            continue
+        # near or under the shortest lane: the single-line rule decides, exactly
+        out[k] = lane_points(lines[k]) if length < MIN_LANE_LENGTH + 1e-6 else pts
+    return out
 
 
 def _poses(lane: PolyLaneFixedWidth) -> tuple[np.ndarray, ...]:
@@ -320,6 +357,25 @@ class LaneIndex:
         return _lane_distances(self.offsets, self.px, self.py, self.tx, self.ty, self.s,
                                self.lengths, float(position[0]), float(position[1]),
                                0.0 if heading is None else float(heading), heading is not None)
+
+    def closest_many(self, positions: np.ndarray, headings: np.ndarray) -> list[Any]:
+        """:meth:`closest` of many positions (n, 2) [m] with their headings (n,) [rad], the
+        distances in one compiled pass."""
+        positions = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
+        headings = np.asarray(headings, dtype=np.float64).reshape(-1)
+        if not len(self.lanes):
+            return [None] * len(positions)
+        distance = _lane_distances_many(
+            self.offsets, self.px, self.py, self.tx, self.ty, self.s, self.lengths,
+            np.ascontiguousarray(positions[:, 0]), np.ascontiguousarray(positions[:, 1]),
+            headings, True)
+        best = distance.min(axis=1)
+        alone = (distance <= best[:, None] + TOLERANCE).sum(axis=1) == 1
+        nearest = distance.argmin(axis=1)
+        return [None if not math.isfinite(b) else self.indexes[j] if one
+                else self.closest(p, h)  # a tie: the lanes' own distance decides
+                for b, one, j, p, h in zip(best.tolist(), alone.tolist(), nearest.tolist(),
+                                           positions, headings.tolist(), strict=True)]
 
     def closest(self, position: np.ndarray, heading: float | None = None) -> Any:
         """The index of the closest lane (None where no distance is finite)."""

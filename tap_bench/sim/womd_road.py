@@ -35,7 +35,7 @@ from highway_env.vehicle.kinematics import Vehicle
 from tap_bench.errors import ParameterError
 from tap_bench.sim.road_edges import RoadEdges, left_road
 from tap_bench.sim.traffic import near_pairs, near_pairs_of, shape_of
-from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, lane_points
+from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, lanes_points
 from tap_bench.sim.womd_scene import Scene
 
 __all__ = ["HIDDEN", "OFF_ROAD_MARGIN", "PATH_EXTENSION", "PATH_SPACING", "LoggedPath",
@@ -103,13 +103,17 @@ class WomdNetwork(RoadNetwork):
         # drives, the same in every rollout of the scene)
         self.path_off_map: dict[int, float] = {}
         kept, lines = [], []
-        for lane in road_map.lanes.values():
-            points = lane_points(lane.centre)
+        every = list(road_map.lanes.values())
+        for lane, points in zip(every, lanes_points([lane.centre for lane in every]),
+                                strict=True):
             if points is None:
                 self.left_out.append(lane.id)
                 continue
             kept.append(lane)
-            lines.append(sim_frame(points[:, 0], points[:, 1]))
+            lines.append(points)
+        if lines:  # to highway-env's mirrored frame, all at once
+            flat = np.concatenate(lines) * (1.0, -1.0)
+            lines = np.split(flat, np.cumsum([len(points) for points in lines])[:-1])
         built = FastPolyLane.many(
             lines, [lane.width for lane in kept], womd_ids=[lane.id for lane in kept],
             speed_limits=[lane.speed_limit if np.isfinite(lane.speed_limit) else 20.0
@@ -124,6 +128,7 @@ class WomdNetwork(RoadNetwork):
             self.index[lane.id] = index
             lanes.append((index, fast))
         self.lookup = LaneIndex(lanes)
+        self._looked_up: dict[tuple[float, float, float], Any] = {}
 
     @functools.cached_property
     def _centre_arcs(self) -> dict[int, np.ndarray]:
@@ -138,7 +143,25 @@ class WomdNetwork(RoadNetwork):
 
     def get_closest_lane_index(self, position: np.ndarray, heading: float | None = None
                                ) -> tuple[str, str, int]:
+        if self._looked_up and heading is not None:
+            found = self._looked_up.get((float(position[0]), float(position[1]),
+                                         float(heading)))
+            if found is not None:
+                return found
         return self.lookup.closest(position, heading)
+
+    def look_up_lanes(self, states: np.ndarray) -> None:
+        """Find the closest lanes of many (x [m], y [m], heading [rad]) rows (n, 3) at once
+        (:meth:`LaneIndex.closest_many`): :meth:`get_closest_lane_index` answers those
+        exact positions and headings from them until :meth:`forget_lanes`."""
+        states = np.asarray(states, dtype=np.float64).reshape(-1, 3)
+        found = self.lookup.closest_many(states[:, :2], states[:, 2])
+        self._looked_up = {tuple(row): index
+                           for row, index in zip(states.tolist(), found, strict=True)}
+
+    def forget_lanes(self) -> None:
+        """Drop the lanes found by :meth:`look_up_lanes`."""
+        self._looked_up = {}
 
     def womd_id(self, lane_index: Any) -> int:
         """The WOMD id of a lane index."""

@@ -95,6 +95,24 @@ def test_lane_lookup_and_projection_equal_highway_envs_on_generated_lanes(seed):
         assert np.abs(lane.position(lon, lat) - want_xy).max() <= 1e-9
 
 
+def test_many_lookups_at_once_equal_one_by_one_ties_included():
+    rng = np.random.default_rng(12)
+    built = []
+    for k in range(10):
+        pts = lane_points(arc(rng.choice([np.inf, 30.0]), rng.uniform(-np.pi, np.pi), 1,
+                              rng.uniform(5, 60), origin=rng.uniform(-30, 30, 2)))
+        built.append(((str(k), f"{k}>", 0), FastPolyLane(pts.tolist(), 3.7, womd_id=k)))
+    twin = built[3][1]  # the same line twice: every lookup near it is a tie
+    built.append((("twin", "twin>", 0), FastPolyLane(twin._points.tolist(), 3.7)))
+    index = LaneIndex(built)
+    positions = np.r_[rng.uniform(-70, 70, (150, 2)), twin._points[::3] + 0.3]
+    headings = rng.uniform(-np.pi, np.pi, len(positions))
+    want = [index.closest(p, h) for p, h in zip(positions, headings, strict=True)]
+    assert index.closest_many(positions, headings) == want
+    assert ("3", "3>", 0) in want  # ties resolved as one by one (the first smallest)
+    assert LaneIndex([]).closest_many(positions[:2], headings[:2]) == [None, None]
+
+
 def test_lane_poses_equal_highway_envs_samples():
     rng = np.random.default_rng(7)
     for _ in range(40):
@@ -152,6 +170,24 @@ def test_short_and_degenerate_centre_lines():
     FastPolyLane(short.tolist(), 3.7)  # highway-env can build it
     with pytest.raises(ValueError, match=r"at least 1\.0 m"):
         FastPolyLane([[0.0, 0.0], [0.3, 0.0]], 3.7)
+
+
+def test_many_centre_lines_are_cleaned_as_each_one_alone():
+    from tap_bench.sim.womd_lanes import lanes_points
+
+    rng = np.random.default_rng(9)
+    lines = [np.zeros((0, 2)), np.array([[1.0, 2.0]]), np.array([[1.0, 2.0], [1.0, 2.0]]),
+             np.array([[0.0, 0.0], [0.3, 0.0]]), np.array([[0.0, 0.0], [1.0 + 1e-7, 0.0]])]
+    for _ in range(40):
+        pts = np.cumsum(rng.normal(0.0, rng.choice([0.05, 2.0]), (rng.integers(1, 12), 2)),
+                        axis=0)
+        pts = np.repeat(pts, rng.integers(1, 3, len(pts)), axis=0)  # repeated points
+        lines.append(pts)
+    for got, line in zip(lanes_points(lines), lines, strict=True):
+        want = lane_points(line)
+        assert (got is None) == (want is None)
+        if want is not None:
+            assert np.array_equal(got, want)
 
 
 def test_successors_are_inferred_from_lane_ends_that_meet():
