@@ -9,12 +9,32 @@ episode (numba kernels compiled and cached). The machine is shared: quote both.
 
 Usage: ``python benchmarks/bench_womd_closed_loop.py [FILES ...]`` (default: the four
 samples in ../shared/data/womd).
+
+**Speed of the closed loop, trees side by side** (``--speed``): for each checkout given
+(``--trees``, default this one), in fresh interpreters with that tree first on the path,
+alternating tree by tree ``--repeats`` times:
+
+- *whole file*: ``tap-bench rollout --womd FILES --policy idm --traffic log|idm``, start-up,
+  maps and writing included: simulated steps per CPU second (user + sys of the process)
+  beside wall time and the load;
+- *steps only*: each scene's episode once to warm, then again timed from its first step to
+  its last (resets excluded): steps per CPU second by traffic (log, idm) and ego (idm,
+  log), as issue 34's speed table counts them.
+
+Each tree's numba kernels are compiled (one untimed run) before the timed ones. Default
+files for ``--speed``: the four samples and the development file (16 real scenes)::
+
+    python benchmarks/bench_womd_closed_loop.py --speed --trees /tmp/before . --repeats 3
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -60,10 +80,120 @@ def ego_sdl(table) -> str:
     return " ; ".join(labels["sdl"].astype(str))
 
 
+_STEPS_CHILD = """
+import json, os, sys, warnings
+warnings.filterwarnings("ignore")
+from tap_bench.sim.policies import load_policy
+from tap_bench.sim.womd_env import make_womd_env
+files = sys.argv[1:]
+out = {}
+for traffic in ("log", "idm"):
+    env = make_womd_env(files, traffic=traffic)
+    for seed in range(len(env.catalog)):
+        for policy in ("idm", "log"):
+            runs = []
+            for _ in range(2):  # warm, timed
+                p = load_policy(policy)
+                obs, _ = env.reset(seed=seed)
+                p.reset(env, seed=seed)
+                t = os.times()
+                done = False
+                while not done:
+                    obs, _, term, trunc, _ = env.step(p.act(obs))
+                    done = term or trunc
+                u = os.times()
+                runs.append((env.unwrapped.clock[0] - 10, u.user + u.system - t.user - t.system))
+            out[f"{traffic}/{policy}/{seed}"] = runs[-1]
+print(json.dumps(out))
+"""
+
+
+def _child(tree: Path, args: list[str]) -> tuple[subprocess.CompletedProcess, float, float]:
+    """Run ``python args`` with ``tree`` first on the path: (the finished process, its CPU
+    s (user + sys, from this process's reaped children's totals), its wall s)."""
+    import resource
+
+    env = {**os.environ, "PYTHONPATH": str(tree), "OMP_WAIT_POLICY": "PASSIVE",
+           "OMP_NUM_THREADS": "1"}
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    proc = subprocess.run([sys.executable, *args], env=env, cwd=str(tree),
+                          capture_output=True, text=True)
+    wall = time.perf_counter() - start
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+    return proc, cpu, wall
+
+
+def whole_file(tree: Path, files: list[str], traffic: str, out: Path) -> dict:
+    """``tap-bench rollout --womd`` of ``files`` (idm ego) in a fresh process of ``tree``:
+    steps, CPU s (user + sys), wall s, load before and after."""
+    import pandas as pd
+
+    load0 = os.getloadavg()[0]
+    proc, cpu, wall = _child(tree, ["-m", "tap_bench", "rollout", "--womd", *files,
+                                    "--policy", "idm", "--traffic", traffic, "-o", str(out),
+                                    "--no-progress"])
+    if proc.returncode:
+        raise SystemExit(f"{tree}: rollout failed:\n{proc.stderr[-2000:]}")
+    episodes = pd.read_parquet(str(out).replace(".parquet", ".episodes.parquet"))
+    steps = round(float((episodes["duration_s"].fillna(0) * 10).sum()))
+    return {"steps": steps, "cpu_s": round(cpu, 2), "wall_s": round(wall, 2),
+            "steps_per_cpu_s": round(steps / cpu, 1),
+            "load": [round(load0, 1), round(os.getloadavg()[0], 1)]}
+
+
+def steps_only(tree: Path, files: list[str]) -> dict:
+    """Steps per CPU s of the timed episodes (after a warm one) by traffic/ego, and all."""
+    proc, _, _ = _child(tree, ["-c", _STEPS_CHILD, *files])  # CPU: the episodes' own
+    if proc.returncode:
+        raise SystemExit(f"{tree}: episodes failed:\n{proc.stderr[-2000:]}")
+    runs = json.loads(proc.stdout.strip().splitlines()[-1])
+    out: dict = {}
+    for key, (steps, cpu) in runs.items():
+        group = "/".join(key.split("/")[:2])
+        s, c = out.get(group, (0, 0.0))
+        out[group] = (s + steps, c + cpu)
+    return {group: round(s / c, 1) for group, (s, c) in sorted(out.items())}
+
+
+def speed(trees: list[Path], files: list[str], repeats: int) -> None:
+    """The ``--speed`` figures (see the module docstring), printed as they come and
+    reported."""
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for tree in trees:  # compile each tree's numba kernels first (not timed)
+            whole_file(tree, files[:1], "log", Path(tmp) / "warm.parquet")
+        for r in range(repeats):
+            for tree in trees:
+                row = {"tree": str(tree), "repeat": r}
+                for traffic in ("log", "idm"):
+                    row[f"whole_file_{traffic}"] = whole_file(
+                        tree, files, traffic, Path(tmp) / f"{traffic}.parquet")
+                row["steps_only"] = steps_only(tree, files)
+                print(json.dumps(row), flush=True)
+                rows.append(row)
+    report("womd_closed_loop_speed", {"runs": rows}, files=files,
+           trees=[str(t) for t in trees])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("files", nargs="*")
+    parser.add_argument("--speed", action="store_true",
+                        help="only the speed figures, of each tree in --trees")
+    parser.add_argument("--trees", nargs="+", type=Path,
+                        default=[Path(__file__).resolve().parents[1]])
+    parser.add_argument("--repeats", type=int, default=2)
     args = parser.parse_args()
+    if args.speed:
+        files = args.files or [str(DEFAULT / f) for f in (
+            "motion_data_one_scenario.tfrecord", "womd_scenario_input.tfrecord",
+            "motion_data_one_example.tfrecord", "sd_waymo_v1.2_eb4b91b10ca94ff2.pkl")] + [
+            str(p) for p in [DEFAULT.parent / "womd-dev" / "dev.tfrecord"] if p.exists()]
+        speed([t.resolve() for t in args.trees], [str(Path(f).resolve()) for f in files],
+              args.repeats)
+        return
     files = args.files or [str(DEFAULT / f) for f in (
         "motion_data_one_scenario.tfrecord", "womd_scenario_input.tfrecord",
         "motion_data_one_example.tfrecord", "sd_waymo_v1.2_eb4b91b10ca94ff2.pkl")]
