@@ -1254,6 +1254,25 @@ def _segments(lines: Sequence[np.ndarray]) -> tuple[np.ndarray, ...]:
             np.ascontiguousarray(b[:, 0]), np.ascontiguousarray(b[:, 1]), owner)
 
 
+def _centre_segments(centres: Sequence[np.ndarray]) -> tuple[np.ndarray, ...]:
+    """:func:`_segments` of lane centre lines (n_i, 2) in WOMD's axes, mirrored to the sim
+    frame all at once; owner k is the k-th line."""
+    sizes = np.array([len(c) for c in centres], dtype=np.int64)
+    if not len(sizes) or (sizes < 2).all():
+        return _segments([])
+    points = np.concatenate([np.asarray(c, dtype=np.float64).reshape(-1, 2)
+                             for c in centres]) * (1.0, -1.0)
+    ends = np.cumsum(sizes)
+    starts = ends - sizes
+    head, tail = np.ones(len(points), bool), np.ones(len(points), bool)
+    head[ends[sizes > 0] - 1] = False  # a line's last point starts no segment
+    tail[starts[sizes > 0]] = False  # ... its first ends none
+    a, b = points[head], points[tail]
+    owner = np.repeat(np.arange(len(sizes), dtype=np.int64), np.maximum(sizes - 1, 0))
+    return (np.ascontiguousarray(a[:, 0]), np.ascontiguousarray(a[:, 1]),
+            np.ascontiguousarray(b[:, 0]), np.ascontiguousarray(b[:, 1]), owner)
+
+
 class _Layout:
     """A road's vehicles (in the road's order) laid out once so that their states at any
     step come as arrays: the log vehicles' from their logs in one indexing, the others'
@@ -1338,7 +1357,7 @@ class WomdRoad(Road):
         self.clock = clock
         road = scene.road
         lanes = [lane for lane in road.lanes.values() if lane.id in network.index]
-        self._lane_segments = _segments([sim_frame(*lane.centre.T) for lane in lanes])
+        self._lane_segments = _centre_segments([lane.centre for lane in lanes])
         self._half = np.array([lane.width / 2 for lane in lanes])
         self.road_edges = network.road_edges  # WOMD's axes; built once per network
         self.off_road_start: dict[str, float] = {}
@@ -1620,12 +1639,17 @@ class WomdRoad(Road):
         out: dict[Any, list[float]] = {}
         ends = {lane_id: lane.centre[-1] for lane_id, lane in road.lanes.items()
                 if lane_id in network.index and len(lane.centre) and lane.exit}
+        end_ids = list(ends)
+        end_points = np.array([end[:2] for end in ends.values()]).reshape(-1, 2)
         for sign in road.stop_signs:
             position = np.asarray(sign.position, float)[:2]
             lanes = [i for i in sign.lanes if i in network.index]
-            if not lanes:
-                lanes = [i for i, end in ends.items()
-                         if math.hypot(*(end[:2] - position)) <= STOP_SIGN_REACH]
+            if not lanes and ends:
+                # near by numpy's hypot, then each one by the exact rule
+                near = np.flatnonzero(np.hypot(*(end_points - position).T)
+                                      <= STOP_SIGN_REACH + 1e-6)
+                lanes = [end_ids[k] for k in near.tolist()
+                         if math.hypot(*(end_points[k] - position)) <= STOP_SIGN_REACH]
             for lane_id in lanes:
                 index = network.index[lane_id]
                 lane = network.get_lane(index)

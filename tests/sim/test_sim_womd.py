@@ -771,3 +771,14 @@ def test_lane_widths_are_the_medians_of_each_sides_distances():
     assert _widths(lanes, lines) == want
     assert (DEFAULT_LANE_WIDTH, False) in want and (MAX_LANE_WIDTH, True) in want
     assert any(measured and MIN_LANE_WIDTH < w < MAX_LANE_WIDTH for w, measured in want)
+
+
+def test_centre_segments_of_all_lanes_equal_each_lines_mirrored():
+    from tap_bench.sim.womd_road import _centre_segments, _segments, sim_frame
+
+    rng = np.random.default_rng(2)
+    lines = [rng.normal(0, 50, (int(n), 2)) for n in rng.integers(1, 9, 30)]
+    want = _segments([sim_frame(*line.T) for line in lines])
+    for got, expected in zip(_centre_segments(lines), want, strict=True):
+        assert np.array_equal(got, expected) and got.dtype == expected.dtype
+    assert all(len(part) == 0 for part in _centre_segments([np.zeros((1, 2))]))
