@@ -841,17 +841,31 @@ def shape_of(obj: Any) -> bool:
     return _own_shape(type(obj))
 
 
-def near_pairs_of(position: np.ndarray, diagonal: np.ndarray, length: np.ndarray,
-                  width: np.ndarray, heading: np.ndarray, speed: np.ndarray,
-                  checks: np.ndarray, own: np.ndarray, n: int, dt: float) -> np.ndarray:
-    """:func:`near_pairs` of collidable objects given as arrays (the first ``n`` the
-    vehicles): positions (m, 2) [m], diagonals, lengths and widths [m], headings [rad],
-    speeds [m/s], whether each checks collisions and has its own test (:func:`shape_of`),
-    all (m,)."""
-    return _near({"position": position, "diagonal": diagonal, "half_length": length / 2,
-                  "half_width": width / 2, "heading": heading, "vx": speed * np.cos(heading),
-                  "vy": speed * np.sin(heading), "checks": checks,
-                  "collidable": np.ones(len(position), bool), "own": own}, n, dt)
+def shapes_of(position: np.ndarray, diagonal: np.ndarray, length: np.ndarray,
+              width: np.ndarray, heading: np.ndarray, speed: np.ndarray, checks: np.ndarray,
+              own: np.ndarray) -> dict[str, np.ndarray]:
+    """The shapes :func:`near_pairs_of` and :func:`swept_apart` read, of collidable objects
+    given as arrays: positions (m, 2) [m], diagonals, lengths and widths [m], headings
+    [rad], speeds [m/s], whether each checks collisions and has its own test
+    (:func:`shape_of`), all (m,)."""
+    return {"position": position, "diagonal": diagonal, "half_length": length / 2,
+            "half_width": width / 2, "heading": heading, "vx": speed * np.cos(heading),
+            "vy": speed * np.sin(heading), "checks": checks,
+            "collidable": np.ones(len(position), bool), "own": own}
+
+
+def near_pairs_of(shapes: dict[str, np.ndarray], n: int, dt: float) -> np.ndarray:
+    """:func:`near_pairs` of the objects of :func:`shapes_of` (the first ``n`` the
+    vehicles)."""
+    return _near(shapes, n, dt)
+
+
+def swept_apart(shapes: dict[str, np.ndarray], i: np.ndarray, j: np.ndarray, dt: float
+                ) -> np.ndarray:
+    """Whether the pairs (i, j) of the objects of :func:`shapes_of` stay apart over ``dt``
+    [s] (separating axis, :data:`TOUCH_MARGIN`): highway-env's collision test finds them
+    neither intersecting nor about to, so checking them changes nothing."""
+    return _swept_apart(shapes, i, j, dt)
 
 
 def _near(shapes: dict[str, np.ndarray], n: int, dt: float) -> np.ndarray:

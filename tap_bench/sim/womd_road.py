@@ -34,7 +34,7 @@ from highway_env.vehicle.kinematics import Vehicle
 
 from tap_bench.errors import ParameterError
 from tap_bench.sim.road_edges import RoadEdges, left_road
-from tap_bench.sim.traffic import near_pairs, near_pairs_of, shape_of
+from tap_bench.sim.traffic import near_pairs, near_pairs_of, shape_of, shapes_of, swept_apart
 from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, lanes_points
 from tap_bench.sim.womd_scene import Scene
 
@@ -1505,16 +1505,21 @@ class WomdRoad(Road):
         now = layout.states(self.clock[0])
         moving = now["collidable"]
         vehicles = [layout.vehicles[i] for i in np.flatnonzero(moving).tolist()]
-        near = None
+        near = shapes = None
         if now["own"] is not None:
-            near = near_pairs_of(now["position"][moving], layout.diagonal[moving],
-                                 layout.length[moving], layout.width[moving],
-                                 now["heading"][moving], now["speed"][moving],
-                                 now["checks"][moving], now["own"][moving], len(vehicles), dt)
+            shapes = shapes_of(now["position"][moving], layout.diagonal[moving],
+                               layout.length[moving], layout.width[moving],
+                               now["heading"][moving], now["speed"][moving],
+                               now["checks"][moving], now["own"][moving])
+            near = near_pairs_of(shapes, len(vehicles), dt)
         if near is None:  # an object without position or diagonal: every pair, as highway-env
             near = np.ones((len(vehicles), len(vehicles)), bool)
+        first, second = np.nonzero(np.triu(near | near.T, 1))
+        # pairs that stay apart over the step: highway-env's test would change nothing
+        apart = swept_apart(shapes, first, second, dt).tolist() if shapes is not None \
+            else [False] * len(first)
         ego = self.vehicles[0]  # the env puts the ego first (a policy's takes its place)
-        for i, j in zip(*np.nonzero(np.triu(near | near.T, 1)), strict=True):
+        for i, j, far in zip(first.tolist(), second.tolist(), apart, strict=True):
             a, b = vehicles[i], vehicles[j]
             if a is ego or b is ego:  # the env names the ego's partner
                 other = b if a is ego else a
@@ -1523,7 +1528,10 @@ class WomdRoad(Road):
                     if _intersecting(ego, other):
                         continue
                     self.ego_exempt.discard(row)
-                a.handle_collisions(b, dt)
+                if not far:
+                    a.handle_collisions(b, dt)
+                continue
+            if far:
                 continue
             pair = _pair(a, b)
             if pair in self.exempt:
@@ -1625,7 +1633,9 @@ class WomdRoad(Road):
         reach = CORRIDOR_MIN + CORRIDOR_TIME * max(float(vehicle.speed), 0.0)
         inside = (np.abs(lat) < vehicle.WIDTH / 2 + across + CORRIDOR_MARGIN) \
             & (lon > 0) & (gap < reach) & (gap > -along)
-        inside &= np.array([m is not vehicle for m in self._movers])
+        mine = self._mover_index.get(id(vehicle))
+        if mine is not None:
+            inside[mine] = False
         if not inside.any():
             return None
         k = int(np.flatnonzero(inside)[np.argmin(gap[inside])])
