@@ -13,6 +13,8 @@ Usage::
     python benchmarks/bench_womd_scale.py 49 --profile   # where the time goes, in-process
     python benchmarks/bench_womd_scale.py 49 245 --command realism --traffic log \
         --extra "--no-progress --resamples 100"   # the realism score's memory
+    python benchmarks/bench_womd_scale.py 49 --tree BEFORE --tree AFTER --repeats 3
+        # two checkouts, paired: each repeat runs both, in alternating order
 
 Figures go to ``benchmarks/out/<name>.json``.
 """
@@ -62,9 +64,10 @@ def scenes_folder(n: int, root: Path) -> Path:
     return folder
 
 
-def run_rollout(folder: Path, out: Path, policy: str, traffic: str, extra: list[str]
-                ) -> dict:
-    """The rollout in a fresh interpreter: its peak memory, CPU, wall and the steps."""
+def run_rollout(folder: Path, out: Path, policy: str, traffic: str, extra: list[str],
+                tree: str | None = None) -> dict:
+    """The rollout in a fresh interpreter (with the checkout ``tree`` first on its path
+    when given): its peak memory, CPU, wall and the steps."""
     import pandas as pd
 
     report_file = out.with_suffix(".measure.json")
@@ -72,6 +75,8 @@ def run_rollout(folder: Path, out: Path, policy: str, traffic: str, extra: list[
     cmd = [sys.executable, "-c", _CHILD, str(report_file), "rollout", "--womd", *files,
            "--policy", policy, "--traffic", traffic, "-o", str(out), *extra]
     env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE"}
+    if tree:
+        env["PYTHONPATH"] = tree
     load0 = os.getloadavg()[0]
     start = time.perf_counter()
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
@@ -82,7 +87,10 @@ def run_rollout(folder: Path, out: Path, policy: str, traffic: str, extra: list[
     episodes = pd.read_parquet(str(out).replace(".parquet", ".episodes.parquet"))
     steps = round((episodes["duration_s"].fillna(0) * 10).sum())
     scenes = len(episodes)
-    return {"scenes": scenes, "ok": int((episodes["status"] == "ok").sum()),
+    commit = subprocess.run(["git", "-C", tree, "rev-parse", "--short", "HEAD"],
+                            capture_output=True, text=True).stdout.strip() if tree else ""
+    return {**({"tree": tree, "commit": commit} if tree else {}),
+            "scenes": scenes, "ok": int((episodes["status"] == "ok").sum()),
             "peak_mb": round(child["peak_mb"], 1), "cpu_s": round(child["cpu_s"], 2),
             "wall_s": round(wall, 2), "cpu_s_per_scene": round(child["cpu_s"] / scenes, 4),
             "steps": steps, "steps_per_cpu_s": round(steps / child["cpu_s"], 1),
@@ -150,22 +158,34 @@ def main() -> int:
     parser.add_argument("--name", default="womd_scale")
     parser.add_argument("--profile", action="store_true")
     parser.add_argument("--command", choices=("rollout", "realism"), default="rollout")
+    parser.add_argument("--tree", action="append", default=[],
+                        help="a tap-bench checkout to run the rollout from (repeat: before "
+                             "and after, paired, in alternating order from one repeat to "
+                             "the next)")
+    parser.add_argument("--repeats", type=int, default=1)
     args = parser.parse_args()
+    if args.tree and args.command != "rollout":
+        parser.error("--tree compares checkouts on the rollout command only")
     root = Path(args.root)
     root.mkdir(parents=True, exist_ok=True)
     if args.profile:
         profile(scenes_folder(args.counts[0], root), args.policy, args.traffic)
         return 0
     rows = []
+    trees = args.tree or [None]
     for n in args.counts:
         folder = scenes_folder(n, root)
-        with tempfile.TemporaryDirectory(dir=root) as tmp:
-            run = run_realism if args.command == "realism" else run_rollout
-            row = run(folder, Path(tmp) / ("out.json" if args.command == "realism"
-                                           else "out.parquet"),
-                      args.policy, args.traffic, shlex.split(args.extra))
-        print(json.dumps(row), flush=True)
-        rows.append(row)
+        for repeat in range(args.repeats):
+            for tree in trees if repeat % 2 == 0 else trees[::-1]:
+                with tempfile.TemporaryDirectory(dir=root) as tmp:
+                    if args.command == "realism":
+                        row = run_realism(folder, Path(tmp) / "out.json", args.policy,
+                                          args.traffic, shlex.split(args.extra))
+                    else:
+                        row = run_rollout(folder, Path(tmp) / "out.parquet", args.policy,
+                                          args.traffic, shlex.split(args.extra), tree)
+                print(json.dumps(row), flush=True)
+                rows.append(row)
     report(args.name, {"runs": rows}, command=args.command, policy=args.policy,
            traffic=args.traffic, extra=args.extra)
     return 0

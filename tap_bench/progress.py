@@ -14,8 +14,8 @@ import threading
 import time
 from typing import Any, TextIO
 
-__all__ = ["LINE_EVERY", "ProgressLines", "SceneProgress", "add_progress_arguments",
-           "progress_bar", "progress_choice"]
+__all__ = ["LINE_EVERY", "ProgressLines", "SceneProgress", "SilentProgress",
+           "add_progress_arguments", "progress_bar", "progress_choice"]
 
 LINE_EVERY = 5.0
 """Seconds between two progress lines where stderr is not a terminal [s]."""
@@ -103,6 +103,26 @@ class ProgressLines:
         self.close()
 
 
+class SilentProgress:
+    """A progress display that shows nothing, with the part of tqdm's interface the runs
+    use (``update``, ``close``, ``n``, a context manager)."""
+
+    def __init__(self, total: int | None = None) -> None:
+        self.total, self.n = total, 0
+
+    def update(self, n: int = 1) -> None:
+        self.n += n
+
+    def close(self) -> None:
+        """Nothing to close."""
+
+    def __enter__(self) -> SilentProgress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 def _stderr_is_terminal() -> bool:
     try:
         return sys.stderr.isatty()
@@ -114,6 +134,8 @@ def progress_bar(total: int | None, desc: str = "", unit: str = "item",
                  progress: bool | None = None) -> Any:
     """What shows a run's progress: a tqdm bar (``progress`` True, or None on a terminal),
     :class:`ProgressLines` (None anywhere else) or a disabled bar (False)."""
+    if progress is False:  # nothing shown: no tqdm to import
+        return SilentProgress(total)
     if progress is None and not _stderr_is_terminal():
         return ProgressLines(total, desc, unit)
     from tqdm.auto import tqdm  # a progress bar only where one is drawn

@@ -11,7 +11,7 @@ import pytest
 
 from tap_bench import progress
 from tap_bench.execution import LocalBackend
-from tap_bench.progress import ProgressLines, progress_bar
+from tap_bench.progress import ProgressLines, SilentProgress, progress_bar
 
 
 def test_lines_every_interval_while_the_work_runs_and_a_last_one():
@@ -39,8 +39,10 @@ def test_a_bar_on_a_terminal_lines_elsewhere_nothing_when_asked(monkeypatch):
     monkeypatch.setattr(progress, "_stderr_is_terminal", lambda: False)
     with progress_bar(3, "x", "task", None) as bar:
         assert isinstance(bar, ProgressLines)
-    with progress_bar(3, "x", "task", False) as bar:
-        assert isinstance(bar, tqdm) and bar.disable
+    with progress_bar(3, "x", "task", False) as bar:  # nothing drawn, no tqdm imported
+        assert isinstance(bar, SilentProgress)
+        bar.update(2)
+        assert bar.n == 2
     monkeypatch.setattr(progress, "_stderr_is_terminal", lambda: True)
     with progress_bar(3, "x", "task", None) as bar:
         assert isinstance(bar, tqdm)
