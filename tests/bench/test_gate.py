@@ -547,6 +547,51 @@ def test_label_tv_power_is_the_firing_rate_of_the_rule_as_first_written(n, label
     assert abs(got - reference) < 4 * se, (got, reference)
 
 
+def _tv_power_shuffling(labels, effect, margin, level, n_run, rng):
+    """The unpaired label_tv power as first written: every permutation a shuffle of the
+    pooled episodes (argsort of uniforms), TV by gate_stats.tv on the code matrices."""
+    from tap_bench.bench.gate.power import _TV_DRAWS, _TV_PERMUTATIONS
+    from tap_bench.bench.gate.statistics import tv
+
+    _, codes = np.unique(labels, return_inverse=True)
+    k = int(codes.max()) + 2
+    n_b = len(codes)
+    fired = 0
+    for _ in range(_TV_DRAWS):
+        run = codes[rng.integers(0, n_b, size=n_run)]
+        run[rng.random(n_run) < effect] = k - 1
+        observed = tv(codes[None, :], run[None, :], k)[0]
+        if observed <= margin:
+            continue
+        pooled = np.r_[codes, run]
+        shuffled = pooled[np.argsort(rng.random((_TV_PERMUTATIONS, len(pooled))), axis=1)]
+        exceed = (tv(shuffled[:, :n_b], shuffled[:, n_b:], k) >= observed - 1e-12).sum()
+        fired += (1 + exceed) / (1 + _TV_PERMUTATIONS) <= level
+    return fired / _TV_DRAWS
+
+
+@pytest.mark.parametrize("n, n_run, labels, effect, level", [
+    (30, 20, 4, 0.5, 0.01),
+    pytest.param(60, 60, 6, 0.3, 0.002, marks=pytest.mark.slow)])
+def test_unpaired_label_tv_power_is_the_firing_rate_of_the_shuffled_rule(n, n_run, labels,
+                                                                         effect, level):
+    """The unpaired label_tv power (each permutation's label counts drawn from their
+    multivariate hypergeometric law) against every permutation a shuffle of the pooled
+    episodes, 300 draws each: equal within 4 standard errors."""
+    from tap_bench.bench.gate import power
+
+    gen = np.random.default_rng(n)
+    cell = np.array([f"l{j}" for j in gen.integers(0, labels, n)])
+    with mock.patch.object(power, "_TV_DRAWS", 300):
+        got = power._tv_power(cell, effect, 0.2, level, n_run, False,
+                              np.random.default_rng(1))
+        reference = _tv_power_shuffling(cell, effect, 0.2, level, n_run,
+                                        np.random.default_rng(2))
+    se = math.sqrt(max(reference * (1 - reference), 0.02) * 2 / 300)
+    assert 0.1 < reference < 0.9, reference  # a cell whose firing is in doubt
+    assert abs(got - reference) < 4 * se, (got, reference)
+
+
 def test_fewer_seeds_than_the_baseline_is_underpowered_and_exits_3(tmp_path, capsys):
     base = synthetic(0, n=30)
     run_eps = base[base["seed"] % 1000 < 5]  # the first 5 of the baseline's 30 seeds

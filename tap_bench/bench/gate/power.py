@@ -255,7 +255,8 @@ def _tv_power(labels: np.ndarray, effect: float, margin: float, level: float, n_
 
     Paired: the :data:`_TV_DRAWS` runs are drawn together; the draws that gave the same
     cell (its seed counts by baseline and run label) are counted together
-    (:func:`_swap_fires`)."""
+    (:func:`_swap_fires`). Unpaired: each permutation's label counts on the baseline's side
+    drawn from their multivariate hypergeometric law."""
     if effect > 1 or level < 1.0 / (_TV_PERMUTATIONS + 1):
         return math.nan
     _, codes = np.unique(labels, return_inverse=True)
@@ -273,6 +274,7 @@ def _tv_power(labels: np.ndarray, effect: float, margin: float, level: float, n_
         repeats = np.bincount(inverse.ravel(), minlength=len(distinct))
         return sum(_swap_fires(row.reshape(k, k), k, margin, level, int(r), rng)
                    for row, r in zip(distinct, repeats, strict=True)) / _TV_DRAWS
+    counts_b = np.bincount(codes, minlength=k)
     fired = 0
     for _ in range(_TV_DRAWS):
         run = codes[rng.integers(0, n_b, size=n_run)]
@@ -280,9 +282,12 @@ def _tv_power(labels: np.ndarray, effect: float, margin: float, level: float, n_
         observed = tv(codes[None, :], run[None, :], k)[0]
         if observed <= margin:
             continue
-        pooled = np.r_[codes, run]
-        shuffled = pooled[np.argsort(rng.random((_TV_PERMUTATIONS, len(pooled))), axis=1)]
-        perm = tv(shuffled[:, :n_b], shuffled[:, n_b:], k)
+        # a random permutation of the pooled episodes puts a multivariate hypergeometric
+        # draw of the pooled label counts on the baseline's side: drawn as counts, not as
+        # (P, n_b + n_run) shuffled matrices; TV as gate_stats.tv computes it from counts
+        pooled = counts_b + np.bincount(run, minlength=k)
+        side_b = rng.multivariate_hypergeometric(pooled, n_b, size=_TV_PERMUTATIONS)
+        perm = 0.5 * np.abs(side_b / n_b - (pooled - side_b) / n_run).sum(axis=1)
         exceed = (perm >= observed - 1e-12).sum()
         fired += (1 + exceed) / (1 + _TV_PERMUTATIONS) <= level
     return fired / _TV_DRAWS
