@@ -2044,15 +2044,27 @@ def _bridge(network: WomdNetwork, a: Any, b: Any, depth: int = 3) -> list:
 
 def path_progress(path: np.ndarray, cum: np.ndarray, p: np.ndarray) -> tuple[float, float]:
     """(s, distance) [m] of point p projected on a polyline path (n >= 2) with arc lengths
-    ``cum``."""
-    a, b = path[:-1], path[1:]
-    ab = b - a
-    n2 = np.maximum((ab ** 2).sum(axis=1), 1e-12)
-    u = np.clip(((p - a) * ab).sum(axis=1) / n2, 0, 1)
-    q = a + u[:, None] * ab
-    d = np.hypot(*(p - q).T)
-    k = int(np.argmin(d))
-    return float(cum[k] + u[k] * math.sqrt(n2[k])), float(d[k])
+    ``cum``: on its nearest segment (the first of equally near ones)."""
+    path = np.asarray(path, dtype=np.float64)
+    s, d = _path_progress(np.ascontiguousarray(path[:, 0]), np.ascontiguousarray(path[:, 1]),
+                          np.asarray(cum, dtype=np.float64), float(p[0]), float(p[1]))
+    return float(s), float(d)
+
+
+@numba.njit(cache=True, nogil=True)
+def _path_progress(px, py, cum, x, y):  # pragma: no cover - compiled
+    """:func:`path_progress` in one pass (segments of zero length count as 1e-12 m^2)."""
+    best_d, best_s = np.inf, np.nan
+    for k in range(px.shape[0] - 1):
+        abx, aby = px[k + 1] - px[k], py[k + 1] - py[k]
+        n2 = max(abx * abx + aby * aby, 1e-12)
+        u = min(max(((x - px[k]) * abx + (y - py[k]) * aby) / n2, 0.0), 1.0)
+        d = np.hypot(x - (px[k] + u * abx), y - (py[k] + u * aby))
+        if not d == d:  # not a number: the first one wins, as numpy's argmin
+            return cum[k] + u * math.sqrt(n2), d
+        if d < best_d:
+            best_d, best_s = d, cum[k] + u * math.sqrt(n2)
+    return best_s, best_d
 
 
 # ------------------------------------------------------------------ scenes and the env

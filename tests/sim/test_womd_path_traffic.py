@@ -233,3 +233,25 @@ def test_the_chunked_path_search_finds_the_same_nearest_point(seed):
         want = _project_path(px, py, cum, s0, s1, q[0], q[1])
         got = _project_window(px, py, cum, k0, k1, centres, radii, q[0], q[1])
         np.testing.assert_array_equal(got, want)
+
+
+def test_path_progress_is_the_nearest_segments_arc_length():
+    # the definition on every segment at once (numpy), against the one-pass search, on
+    # paths with repeated points, far from the origin, points on, near and far off them
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        m = int(rng.integers(2, 80))
+        path = np.cumsum(rng.normal(0.0, rng.choice([0.1, 1.0, 5.0]), (m, 2)), axis=0) \
+            + rng.uniform(-5000.0, 5000.0, 2)
+        path[int(rng.integers(m))] = path[int(rng.integers(m))]
+        cum = np.r_[0.0, np.cumsum(np.hypot(*np.diff(path, axis=0).T))]
+        a, ab = path[:-1], np.diff(path, axis=0)
+        n2 = np.maximum((ab ** 2).sum(axis=1), 1e-12)
+        for _ in range(10):
+            p = path[int(rng.integers(m))] + rng.normal(0.0, rng.choice([0.0, 0.5, 20.0]), 2)
+            u = np.clip(((p - a) * ab).sum(axis=1) / n2, 0, 1)
+            d = np.hypot(*(p - (a + u[:, None] * ab)).T)
+            k = int(np.argmin(d))
+            s, dist = path_progress(path, cum, p)
+            assert dist == pytest.approx(d[k], abs=1e-9)
+            assert s == pytest.approx(cum[k] + u[k] * math.sqrt(n2[k]), abs=1e-9)
