@@ -181,7 +181,8 @@ def registered_outside() -> list[str]:
 
 
 def run_inputs(plan: SuitePlan, tasks: Sequence[_Task], *, keep_trajectories: bool,
-               report: bool, corpora: bool = False) -> dict[str, Any] | None:
+               report: bool, corpora: bool = False, afresh: bool = False
+               ) -> dict[str, Any] | None:
     """What the outputs of a run depend on besides the code (module docstring), or None for
     a run that is never kept whole.
 
@@ -191,13 +192,19 @@ def run_inputs(plan: SuitePlan, tasks: Sequence[_Task], *, keep_trajectories: bo
             cache).
         keep_trajectories, report: the outputs asked for.
         corpora: whether the run has reference corpora.
+        afresh: take each env's and policy's fingerprint now (at the end of a run: do they
+            still hold?) rather than as the tasks' episode keys took them.
     """
     if (corpora or plan.plugins or plan.recorded or not tasks
             or any(t.key is None or t.label_key is None for t in tasks)
             or registered_outside()):
         return None
-    envs = {env: scenario_fingerprint(plan.scenarios[env], env) for env in plan.envs}
-    policies = {d.name: policy_fingerprint(d) for d in plan.definitions}
+    if afresh:
+        envs = {env: scenario_fingerprint(plan.scenarios[env], env) for env in plan.envs}
+        policies = {d.name: policy_fingerprint(d) for d in plan.definitions}
+    else:  # every task is keyed: its key's document holds both
+        envs = {t.env: (t.key_doc or {})["env"] for t in tasks}
+        policies = {t.policy: (t.key_doc or {})["policy"] for t in tasks}
     if any(v is None for v in (*envs.values(), *policies.values())):
         return None
     if any(p.get("code") or p.get("builder") for p in policies.values()) \
@@ -223,7 +230,7 @@ def _inputs_hold(plan: SuitePlan, tasks: Sequence[_Task], whole: Mapping[str, An
     removed or unreadable), which costs only reuse, never the run's results."""
     try:
         return run_inputs(plan, tasks, keep_trajectories=keep_trajectories,
-                          report=report) == whole
+                          report=report, afresh=True) == whole
     except Exception:  # any failure to fingerprint: not kept whole, the results written
         return False
 
