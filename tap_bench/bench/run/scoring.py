@@ -35,6 +35,8 @@ from tap_bench.stats.bootstrap import BootstrapConfig
 from tap_bench.tableio import read_table
 from tap_bench.thresholds import Thresholds
 
+__all__ = ["Corpora", "ReferenceSource", "read_references", "score_run"]
+
 Corpora = Mapping[str, tuple[pd.DataFrame | None, pd.DataFrame]]
 """The run's references read: name -> (trajectories or None, label table)."""
 
