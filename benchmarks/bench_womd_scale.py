@@ -15,6 +15,8 @@ Usage::
         --extra "--no-progress --resamples 100"   # the realism score's memory
     python benchmarks/bench_womd_scale.py 49 --tree BEFORE --tree AFTER --repeats 3
         # two checkouts, paired: each repeat runs both, in alternating order
+    python benchmarks/bench_womd_scale.py 16 --stages --tree BEFORE --tree AFTER --repeats 3
+        # ... where the CPU goes per scene: imports, decoding and maps, reset, step
 
 Figures go to ``benchmarks/out/<name>.json``.
 """
@@ -49,6 +51,71 @@ json.dump({"code": code, "peak_mb": peak / 1024, "wall_s": time.perf_counter() -
 """
 
 
+_STAGES = """
+import collections, functools, glob, json, sys, time, warnings
+warnings.simplefilter("ignore")
+T = time.process_time
+t0 = T()
+import tap_bench.cli.rollout, tap_bench.sim.rollout_stream, tap_bench.sim.womd_env  # noqa
+imports = T() - t0
+from tap_bench.sim import womd_env
+from tap_bench.sim.womd_scene import WomdScenes
+rollout_module = sys.modules["tap_bench.sim.rollout"]
+spent, calls = collections.defaultdict(float), collections.Counter()
+def timed(owner, name, label):
+    f = getattr(owner, name)
+    @functools.wraps(f)
+    def g(*a, **k):
+        t = T()
+        try:
+            return f(*a, **k)
+        finally:
+            spent[label] += T() - t
+            calls[label] += 1
+    setattr(owner, name, g)
+inner = womd_env._WomdHighwayEnv
+for owner, name, label in ((womd_env, "load_scene", "read and decode a scene, its map"),
+                           (womd_env, "WomdNetwork", "road network"),
+                           (womd_env, "WomdRoad", "road (edges, signals, segments)"),
+                           (inner, "_traffic_vehicle", "agents made"),
+                           (inner, "_reset", "env _reset (network, road, agents, route)"),
+                           (womd_env.WomdEnv, "reset", "env reset (all of it)"),
+                           (womd_env.WomdEnv, "step", "env step"),
+                           (rollout_module, "run_episode", "episode (reset, steps, table)")):
+    timed(owner, name, label)
+files = tuple(sorted(glob.glob(sys.argv[2] + "/*")))
+rollout_module.rollout(WomdScenes(files[:1]), "idm", "0", progress=False)  # warm: numba
+spent.clear(); calls.clear()
+t0 = T()
+_, episodes = rollout_module.rollout(WomdScenes(files, traffic=sys.argv[3]), "idm", "all",
+                                     progress=False)
+total = T() - t0
+n = len(episodes)
+json.dump({"imports_cpu_s": round(imports, 3), "scenes": n, "rollout_cpu_s": round(total, 3),
+           "ms_per_scene": {k: round(1000 * v / n, 2) for k, v in spent.items()}},
+          open(sys.argv[1], "w"))
+"""
+
+
+def run_stages(folder: Path, out: Path, traffic: str, tree: str | None) -> dict:
+    """Where a rollout's CPU goes per scene, in one fresh interpreter (the checkout ``tree``
+    first on its path): the CLI's imports, then a rollout of the folder's scenes in-process
+    after a one-scene warm-up, each stage's CPU [ms per scene] (a stage's figure includes
+    the stages it calls)."""
+    env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE", **({"PYTHONPATH": tree} if tree else {})}
+    load0 = os.getloadavg()[0]
+    proc = subprocess.run([sys.executable, *(["-P"] if tree else []), "-c", _STAGES,
+                           str(out), str(folder), traffic],
+                          env=env, capture_output=True, text=True)
+    if proc.returncode:
+        raise SystemExit(f"stages failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
+    row = json.loads(out.read_text())
+    commit = subprocess.run(["git", "-C", tree, "rev-parse", "--short", "HEAD"],
+                            capture_output=True, text=True).stdout.strip() if tree else ""
+    return {**({"tree": tree, "commit": commit} if tree else {}), **row,
+            "load_before": round(load0, 2), "load_after": round(os.getloadavg()[0], 2)}
+
+
 def scenes_folder(n: int, root: Path) -> Path:
     """The folder of ``n`` repeated scenes under ``root`` (made once, reused)."""
     folder = root / f"womd-{n}"
@@ -72,8 +139,10 @@ def run_rollout(folder: Path, out: Path, policy: str, traffic: str, extra: list[
 
     report_file = out.with_suffix(".measure.json")
     files = [str(p) for p in sorted(folder.iterdir()) if not p.name.startswith(".")]
-    cmd = [sys.executable, "-c", _CHILD, str(report_file), "rollout", "--womd", *files,
-           "--policy", policy, "--traffic", traffic, "-o", str(out), *extra]
+    # -P: the checkout on PYTHONPATH, not the current folder, gives tap_bench
+    cmd = [sys.executable, *(["-P"] if tree else []), "-c", _CHILD, str(report_file),
+           "rollout", "--womd", *files, "--policy", policy, "--traffic", traffic, "-o",
+           str(out), *extra]
     env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE"}
     if tree:
         env["PYTHONPATH"] = tree
@@ -96,7 +165,7 @@ def run_rollout(folder: Path, out: Path, policy: str, traffic: str, extra: list[
             "steps": steps, "steps_per_cpu_s": round(steps / child["cpu_s"], 1),
             "load_before": round(load0, 2), "load_after": round(os.getloadavg()[0], 2),
             "command": shlex.join(["tap-bench", "rollout", "--womd", f"{folder}/*",
-                                   *cmd[6 + len(files):]])}
+                                   *cmd[cmd.index("--womd") + 1 + len(files):]])}
 
 
 def run_realism(folder: Path, out: Path, policy: str, traffic: str, extra: list[str]
@@ -163,6 +232,8 @@ def main() -> int:
                              "and after, paired, in alternating order from one repeat to "
                              "the next)")
     parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--stages", action="store_true",
+                        help="where the CPU goes per scene (in-process, per tree)")
     args = parser.parse_args()
     if args.tree and args.command != "rollout":
         parser.error("--tree compares checkouts on the rollout command only")
@@ -178,7 +249,10 @@ def main() -> int:
         for repeat in range(args.repeats):
             for tree in trees if repeat % 2 == 0 else trees[::-1]:
                 with tempfile.TemporaryDirectory(dir=root) as tmp:
-                    if args.command == "realism":
+                    if args.stages:
+                        row = run_stages(folder, Path(tmp) / "stages.json", args.traffic,
+                                         tree)
+                    elif args.command == "realism":
                         row = run_realism(folder, Path(tmp) / "out.json", args.policy,
                                           args.traffic, shlex.split(args.extra))
                     else:
