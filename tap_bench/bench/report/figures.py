@@ -567,10 +567,11 @@ def write_plots(scores: Scores, folder: str | os.PathLike, *,
     folder.mkdir(parents=True, exist_ok=True)
     # the figures draw every registered measure's label, unit, bounds and direction, which
     # the tables do not hold (a plug-in's measure can change them with the same values)
-    inputs = {"tables": {name: table_digest(t) for name, t in scores.tables().items()},
-              "reference": reference or "", "level": level,
-              "measures": [m.to_dict() for m in (*MEASURES, *SCENE_MEASURES)]}
-    figures = memoised(cache, "plots", inputs if cache is not None else None,
+    inputs = None if cache is None else {
+        "tables": {name: table_digest(t) for name, t in scores.tables().items()},
+        "reference": reference or "", "level": level,
+        "measures": [m.to_dict() for m in (*MEASURES, *SCENE_MEASURES)]}
+    figures = memoised(cache, "plots", inputs,
                        lambda: _draw(scores, reference or "", level), dict, dict)
     paths = []
     for name, data in figures.items():

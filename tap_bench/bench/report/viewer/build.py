@@ -156,7 +156,7 @@ def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
                 for env, sub in roads.groupby("map_id", sort=True)}
         return {name: _script("chunk", name, docs) for name, docs in chunks.items()}, maps
 
-    inputs = None if _run_womd_files(summary) else {
+    inputs = None if cache is None or _run_womd_files(summary) else {
         "trajectories": table_digest(trajectories), "segments": table_digest(segments),
         "roads": table_digest(roads), "chunks": table_digest(eps[["scenario_id", "chunk"]])}
     scripts, maps = memoised(cache, "viewer", inputs, build, _viewer_files, _files_viewer)
