@@ -2,7 +2,8 @@
 
 - :mod:`~tap_bench.bench.run.runner`: :func:`~tap_bench.bench.run.runner.run_suite`, the
   steps in order;
-- :mod:`~tap_bench.bench.run.plan`: what the run will do, and how long it takes;
+- :mod:`~tap_bench.bench.run.plan`: the suite read once into a plan, the run's tasks;
+- :mod:`~tap_bench.bench.run.estimate`: how long the run should take;
 - :mod:`~tap_bench.bench.run.tasks`: episodes as tasks of the execution layer, the cache;
 - :mod:`~tap_bench.bench.run.scoring`: references read once, every score of the run;
 - :mod:`~tap_bench.bench.run.folder`: the run folder: ``summary.json``, write, read,

@@ -28,7 +28,8 @@ if TYPE_CHECKING:
     import pandas as pd
 
     from tap_bench.bench.cache import EpisodeCache
-    from tap_bench.bench.run.plan import RunPlan, SuitePlan
+    from tap_bench.bench.run.estimate import RunPlan
+    from tap_bench.bench.run.plan import SuitePlan
     from tap_bench.bench.scores.scoring import Scores
 
 

@@ -72,6 +72,7 @@ from tap_bench.bench.cache import (
     simulation_fingerprint,
     take_refused,
 )
+from tap_bench.bench.run.estimate import CACHED_EPISODE_S, RunPlan
 from tap_bench.bench.run.folder import (
     _write_json,
     check_output,
@@ -82,7 +83,7 @@ from tap_bench.bench.run.folder import (
     run_viewer,
     write_results,
 )
-from tap_bench.bench.run.plan import CACHED_EPISODE_S, RunPlan, SuitePlan, _tasks, plan_suite
+from tap_bench.bench.run.plan import SuitePlan, _tasks, plan_suite
 from tap_bench.bench.run.scoring import ReferenceSource, read_references, score_run
 from tap_bench.bench.run.served import (
     RunResult,

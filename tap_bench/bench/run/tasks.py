@@ -19,7 +19,8 @@ import pandas as pd
 from tap_bench.bench.cache import EpisodeCache, policy_fingerprint, scenario_fingerprint
 from tap_bench.bench.episodes import episode_table
 from tap_bench.bench.measures import MEASURES, ego_steps
-from tap_bench.bench.run.plan import RunPlan, _plan, _Task
+from tap_bench.bench.run.estimate import RunPlan, estimate
+from tap_bench.bench.run.plan import _Task
 from tap_bench.bench.run.spill import TrajectorySpill
 from tap_bench.bench.scores.contexts import occurrences_from
 from tap_bench.errors import RegistrationError
@@ -433,7 +434,7 @@ def _rollouts(tasks: list[_Task], name: str, backend: Backend, progress: bool | 
                 measured[tasks[i].env] = outcome.seconds
             else:
                 results[i] = _failed_task(tasks[i], outcome.error)
-    plan = _plan(tasks, cached, backend.workers, known, measured)
+    plan = estimate(tasks, cached, backend.workers, known, measured)
     if announce is not None:
         announce(plan.describe(name))
     items = _items(tasks, [i for i in range(len(tasks)) if i not in results], cached,
