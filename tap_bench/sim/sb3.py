@@ -37,9 +37,9 @@ ALGORITHMS = ("a2c", "dqn", "ppo")
 SHIPPED_MODELS: dict[str, str] = {
     "437567ecd5d39eb776d2a5ec30d982a36188980b9ae5f9ac0453c74951c917a6": "dqn-highway.zip",
     "733a5445172dcf7fcf457193bad5779c8e19afc9128173dda6d6df2610dea7fd": "ppo-highway.zip",
-    "e8e94a9ed01017e41bf7b7cad3dde2d1a3e4a60d840cbd4ec77d507800f84769": "ppo-womd-seed0.zip",
-    "3997b9eb4a1635467d2f0c8924948034f471c1ddc91c97486ebfad691e1abd1c": "ppo-womd-seed1.zip",
-    "39f60020b6feab71db14868e4d4621ab41c30af0e47631260daa7645d0176035": "ppo-womd-seed2.zip",
+    "b266b7ba2f3b088b679cdfb765140fd30dbe162f182eff9aa65fb62488cc7bfb": "ppo-womd-seed0.zip",
+    "1e927e0654a9c4530853848f7f65475ee46b184264d16295fda116a7631ea03c": "ppo-womd-seed1.zip",
+    "862e9bd66dcc5bbc6670b6fc1acf2c9d3479cfb3207513064c4d7927f43608ad": "ppo-womd-seed2.zip",
 }
 """SHA-256 digest of each model file shipped in ``policies/`` -> its name. Known in the
 installed code, not beside the file: a digest that a model folder could carry would vouch
