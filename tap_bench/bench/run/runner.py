@@ -219,9 +219,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     plan = plan_suite(suite, plugins=plugins, seeds=seeds)  # the suite, read once
     cache = _open_cache(cache, output)
     sources = _reference_sources(references, womd)
-    from tap_bench.bench.report.realism import realism_entries  # not on the served path
-
-    shown_realism = realism_entries(realism)  # read (and checked) before the episodes
+    shown_realism = _realism_entries(realism)  # read (and checked) before the episodes
     # every input as in an earlier run: its folder comes whole from the cache (run.served)
     served, tasks, whole = try_served(plan, cache, output, overwrite, keep_trajectories,
                                       report, bool(sources) or bool(shown_realism), t_start,
@@ -281,6 +279,16 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     if cache is not None:
         _tidy_cache(cache, results, timings["total"], runner.workers, entries_since)
     return RunResult(folder, summary, tables.episodes, scores, folder / "report.html")
+
+
+def _realism_entries(realism: Sequence[str | os.PathLike | Mapping[str, Any]]
+                     ) -> list[dict[str, Any]]:
+    """The results of ``tap-bench realism`` the report shows, read and checked
+    (:func:`tap_bench.bench.report.realism.realism_entries`; the report is imported here,
+    not on the path of a run served from the cache)."""
+    from tap_bench.bench.report.realism import realism_entries
+
+    return realism_entries(realism)
 
 
 def _open_cache(cache: EpisodeCache | str | os.PathLike | None, output: Path
