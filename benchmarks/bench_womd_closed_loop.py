@@ -21,8 +21,9 @@ alternating tree by tree ``--repeats`` times:
   its last (resets excluded): steps per CPU second by traffic (log, idm) and ego (idm,
   log), as issue 34's speed table counts them.
 
-Each tree's numba kernels are compiled (one untimed run) before the timed ones. Default
-files for ``--speed``: the four samples and the development file (16 real scenes)::
+Each tree's numba kernels are compiled (untimed runs of both traffics) before the timed
+ones. Default files for ``--speed``: the four samples and the development file (16 real
+scenes)::
 
     python benchmarks/bench_womd_closed_loop.py --speed --trees /tmp/before . --repeats 3
 """
@@ -163,7 +164,8 @@ def speed(trees: list[Path], files: list[str], repeats: int) -> None:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for tree in trees:  # compile each tree's numba kernels first (not timed)
-            whole_file(tree, files[:1], "log", Path(tmp) / "warm.parquet")
+            for traffic in ("log", "idm"):
+                whole_file(tree, files, traffic, Path(tmp) / "warm.parquet")
         for r in range(repeats):
             for tree in trees:
                 row = {"tree": str(tree), "repeat": r}
