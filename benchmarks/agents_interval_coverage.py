@@ -1,5 +1,5 @@
 """Coverage of the intervals of agents over training seeds x scenes
-(:mod:`tap_bench.rl.aggregate`): the IQM's stratified bootstrap interval, the probability of
+(:mod:`tap_bench.stats.aggregate`): the IQM's stratified bootstrap interval, the probability of
 improvement's, and the performance profile's pointwise band at three thresholds.
 
 Simulated agents: ``M`` scenes, each with its own difficulty mu_m ~ U(0.3, 0.9); a training
@@ -26,7 +26,7 @@ import time
 import numpy as np
 from machine import report
 
-from tap_bench.rl.aggregate import (
+from tap_bench.stats.aggregate import (
     iqm,
     performance_profile,
     probability_of_improvement,

@@ -55,8 +55,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from tap_bench.rl.agents import agents_figures, interval_text, seed_groups
-    from tap_bench.rl.agents_page import write_agents_page
+    from tap_bench.bench.report.agents import write_agents_page
+    from tap_bench.bench.scores.agents import agents_figures, interval_text, seed_groups
 
     groups = seed_groups()
     if args.womd:

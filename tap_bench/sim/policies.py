@@ -62,12 +62,14 @@ __all__ = [
     "PolicyDefinition",
     "PolicyKind",
     "RandomPolicy",
+    "SeedGroupError",
     "available_policies",
     "expand_seed_groups",
     "load_policy",
     "policy_kinds",
     "register_policy",
     "register_policy_kind",
+    "seed_group",
     "seed_groups",
 ]
 
@@ -258,7 +260,7 @@ for _kind in (PolicyKind("idm", "tap_bench.sim.idm:IDMPolicy", "IDM/MOBIL drives
               PolicyKind("sb3", "tap_bench.sim.sb3:SB3Policy", "a Stable-Baselines3 model"),
               PolicyKind("import", "tap_bench.sim.policies:import_policy",
                          "your own class or function, params.factory 'module:name'"),
-              PolicyKind("seeds", "tap_bench.rl.agents:seed_group",
+              PolicyKind("seeds", "tap_bench.sim.policies:seed_group",
                          "an agent standing for its trained seeds, params.seeds (policy "
                          "names); tap-bench agents aggregates over them")):
     POLICY_KINDS.register(_kind)
@@ -424,6 +426,19 @@ def load_policy(name: str | os.PathLike | Policy) -> Policy:
     if isinstance(name, Policy):
         return name
     return get_definition(name).build()
+
+
+class SeedGroupError(TapBenchError, ValueError):
+    """A policy of kind ``seeds`` was asked to drive: it stands for several trained seeds."""
+
+
+def seed_group(name: str, seeds: Sequence[str], base_dir: str | os.PathLike | None = None
+               ) -> None:
+    """The builder of kind ``seeds``: it refuses to build one policy, and says which."""
+    raise SeedGroupError(
+        f"policy {name!r} stands for {len(seeds)} trained seeds ({', '.join(seeds)}): roll "
+        f"out one of them (--policy {seeds[0] if seeds else name + '-seed0'}), or run them "
+        "all in a suite and aggregate them over seeds with 'tap-bench agents'.")
 
 
 def seed_groups(definitions: Mapping[str, object] | None = None) -> dict[str, tuple[str, ...]]:

@@ -236,7 +236,7 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
     page = _Page(plots, reference, level, pct, viewer)
     parts.extend(_summary_section(page, summary, episodes, scores))
     parts.extend(_against_the_human(episodes, reference, level))
-    from tap_bench.rl.agents_page import agents_report_section  # runs with seed groups only
+    from tap_bench.bench.report.agents import agents_report_section  # runs with seed groups only
 
     parts.extend(agents_report_section(folder, episodes, reference=reference, level=level,
                                        viewer=viewer))

@@ -8,8 +8,8 @@ from types import SimpleNamespace
 import pandas as pd
 import pytest
 
-from tap_bench.errors import FileFormatError
-from tap_bench.rl.agents import (
+from tap_bench.bench.report.agents import agents_report_section, write_agents_page
+from tap_bench.bench.scores.agents import (
     SeedGroupError,
     agent_of,
     agents_figures,
@@ -17,7 +17,7 @@ from tap_bench.rl.agents import (
     seed_group,
     seed_groups,
 )
-from tap_bench.rl.agents_page import agents_report_section, write_agents_page
+from tap_bench.errors import FileFormatError
 
 GROUPS = {"ppo": ("ppo-s0", "ppo-s1")}
 

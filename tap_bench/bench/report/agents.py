@@ -1,4 +1,4 @@
-"""The page of ``tap-bench agents``: the tables of :mod:`tap_bench.rl.agents` written as
+"""The page of ``tap-bench agents``: the tables of :mod:`tap_bench.bench.scores.agents` written as
 CSV, the performance profiles as a PNG, and ``agents.html`` with a section per agent (what it
 covers of the human, what it adds, where it fails) whose scenes link to the run's replay
 viewer."""
@@ -13,8 +13,14 @@ from urllib.parse import quote
 
 import pandas as pd
 
+from tap_bench.bench.scores.agents import (
+    HUMAN,
+    AgentsResult,
+    agents_figures,
+    interval_text,
+    seed_groups,
+)
 from tap_bench.errors import FileFormatError
-from tap_bench.rl.agents import HUMAN, AgentsResult, agents_figures, interval_text, seed_groups
 from tap_bench.tableio import atomic_path, write_table
 
 __all__ = ["agents_report_section", "plot_profiles", "write_agents_page"]
@@ -159,7 +165,7 @@ def agents_report_section(folder: str | os.PathLike, episodes: pd.DataFrame, *,
         level: the run's two-sided interval level.
         viewer: the replay viewer's page relative to ``folder`` (None: no viewer).
         groups: agent -> its seed policies (default: every group defined,
-            :func:`~tap_bench.rl.agents.seed_groups`).
+            :func:`~tap_bench.bench.scores.agents.seed_groups`).
     """
     if reference != HUMAN or "route_progress" not in episodes.columns:
         return []

@@ -14,7 +14,7 @@ that agent; any other policy is an agent of one run (IDM, lane keeping, random, 
   collision, off-road.
 - ``aggregates``: per agent and measure, over runs x scenes: route progress by its
   interquartile mean, the rates (at-fault collisions, off-road) by their mean, each with its
-  stratified bootstrap interval (:mod:`tap_bench.rl.aggregate`). Route progress is taken on
+  stratified bootstrap interval (:mod:`tap_bench.stats.aggregate`). Route progress is taken on
   the scenes where the human moved (it is NaN elsewhere).
 - ``improvement``: P(X > Y) of every agent over every other, on route progress (higher is
   better) and on at-fault collisions (fewer is better), with intervals.
@@ -42,8 +42,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from tap_bench.errors import FileFormatError, ParameterError, TapBenchError
-from tap_bench.rl.aggregate import (
+from tap_bench.errors import FileFormatError, ParameterError
+from tap_bench.sim.policies import SeedGroupError, expand_seed_groups, seed_group, seed_groups
+from tap_bench.stats.aggregate import (
     Interval,
     iqm,
     mean_score,
@@ -51,7 +52,6 @@ from tap_bench.rl.aggregate import (
     probability_of_improvement,
     stratified_bootstrap,
 )
-from tap_bench.sim.policies import expand_seed_groups, seed_groups
 from tap_bench.stats.bootstrap import named_rng
 
 __all__ = ["HUMAN", "PROFILE_THRESHOLDS", "AgentsResult", "SeedGroupError", "agent_of",
@@ -66,19 +66,6 @@ MEASURES = {  # measure -> (aggregate, higher is better)
     "crashed_at_fault": ("mean", False),
     "off_road": ("mean", False),
 }
-
-
-class SeedGroupError(TapBenchError, ValueError):
-    """A policy of kind ``seeds`` was asked to drive: it stands for several trained seeds."""
-
-
-def seed_group(name: str, seeds: Sequence[str], base_dir: str | os.PathLike | None = None
-               ) -> None:
-    """The builder of kind ``seeds``: it refuses to build one policy, and says which."""
-    raise SeedGroupError(
-        f"policy {name!r} stands for {len(seeds)} trained seeds ({', '.join(seeds)}): roll "
-        f"out one of them (--policy {seeds[0] if seeds else name + '-seed0'}), or run them "
-        "all in a suite and aggregate them over seeds with 'tap-bench agents'.")
 
 
 def agent_of(policy: str, groups: Mapping[str, Sequence[str]]) -> str:
@@ -314,7 +301,7 @@ def agents_figures(run: str | os.PathLike, *, groups: Mapping[str, Sequence[str]
         level: two-sided level of every interval.
         n_resamples: bootstrap resamples of every interval.
         seed: root seed of the named random streams.
-        unit: what the bootstrap resamples (:data:`tap_bench.rl.aggregate.UNITS`): whole
+        unit: what the bootstrap resamples (:data:`tap_bench.stats.aggregate.UNITS`): whole
             runs (default: each trained seed drives every scene) or the runs of each scene
             on their own (rliable's stratified bootstrap).
         scenes: only these scenes (their index in the files, the episodes' ``seed``): the
@@ -354,6 +341,6 @@ def interval_text(row: Mapping[str, float], digits: int = 2) -> str:
 
 
 def as_interval(row: Mapping[str, float], level: float) -> Interval:
-    """A table row as an :class:`~tap_bench.rl.aggregate.Interval`."""
+    """A table row as an :class:`~tap_bench.stats.aggregate.Interval`."""
     return Interval(float(row.get("estimate", row.get("probability"))), float(row["low"]),
                     float(row["high"]), level)

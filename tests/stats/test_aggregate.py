@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from tap_bench.errors import ParameterError
-from tap_bench.rl.aggregate import (
+from tap_bench.stats.aggregate import (
     iqm,
     performance_profile,
     probability_of_improvement,
