@@ -2000,13 +2000,19 @@ def logged_route(network: WomdNetwork, xy: np.ndarray, heading: np.ndarray
         the route (lane indexes, in order) and the share of positions farther than half
         their lane's width + :data:`ROUTE_OFF_MAP` from it (the path leaves the map there).
     """
-    seq, off = [], 0
-    for p, h in zip(xy, heading, strict=True):
-        index = network.get_closest_lane_index(p, h)
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    # every position's lane in one compiled pass, then each lane's positions projected at once
+    indexes = network.lookup.closest_many(xy, heading) if len(xy) else []
+    on_lane: dict[Any, list[int]] = {}
+    for k, index in enumerate(indexes):
+        on_lane.setdefault(index, []).append(k)
+    off = 0
+    for index, rows in on_lane.items():
         lane = network.get_lane(index)
-        _, lat = lane.local_coordinates(p)
-        if abs(lat) > lane.width / 2 + ROUTE_OFF_MAP:
-            off += 1
+        _, lat = lane.project(xy[rows, 0], xy[rows, 1])
+        off += int(np.count_nonzero(np.abs(lat) > lane.width / 2 + ROUTE_OFF_MAP))
+    seq: list = []
+    for index in indexes:
         if not seq or seq[-1] != index:
             seq.append(index)
     cleaned: list = []
