@@ -17,9 +17,10 @@ Everything is in highway-env's mirrored frame (``y`` and headings negated, :func
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -129,6 +130,7 @@ class WomdNetwork(RoadNetwork):
             lanes.append((index, fast))
         self.lookup = LaneIndex(lanes)
         self._looked_up: dict[tuple[float, float, float], Any] = {}
+        self._asking_position: np.ndarray | None = None
 
     @functools.cached_property
     def _centre_arcs(self) -> dict[int, np.ndarray]:
@@ -194,10 +196,24 @@ class WomdNetwork(RoadNetwork):
         return out
 
     def side_lanes(self, lane_index: Any) -> list[tuple[str, str, int]]:
-        """The map's neighbours of a lane anywhere along it (MOBIL then checks that the lane
-        is reachable from where the vehicle is)."""
+        """The map's neighbours of a lane: at the position a vehicle deciding a lane change
+        asks from (:meth:`asked_from`, as :meth:`side_lanes_at`), else anywhere along the lane
+        (MOBIL then checks that the lane is reachable from where the vehicle is)."""
+        if self._asking_position is not None:
+            return self.side_lanes_at(lane_index, self._asking_position)
         lane = self.road_map.lanes[self.womd_id(lane_index)]
         return [self.index[n.lane] for n in (*lane.left, *lane.right) if n.lane in self.index]
+
+    @contextlib.contextmanager
+    def asked_from(self, position: np.ndarray) -> Iterator[None]:
+        """Within the block, :meth:`side_lanes` answers for a vehicle at ``position`` (x, y
+        [m], highway-env's frame): highway-env's lane-change policy asks for a lane's
+        neighbours by lane alone, and WOMD neighbours hold over part of a lane only."""
+        before, self._asking_position = self._asking_position, position
+        try:
+            yield
+        finally:
+            self._asking_position = before
 
     def next_lane(self, current_index: Any, route: Any = None, position: np.ndarray = None,
                   np_random: Any = None) -> Any:
@@ -521,13 +537,8 @@ class WomdIDMVehicle(_RouteMixin, IDMVehicle):
             if self.road.network.get_lane(change).is_reachable_from(self.position):
                 self.target_lane_index = change
                 return
-        network = self.road.network
-        side_lanes = network.side_lanes
-        network.side_lanes = lambda index: network.side_lanes_at(index, self.position)
-        try:
+        with self.road.network.asked_from(self.position):
             super().change_lane_policy()
-        finally:
-            network.side_lanes = side_lanes
 
     def mobil(self, lane_index: Any) -> bool:
         """highway-env's MOBIL without its planned-lane shortcut: that shortcut reads a route

@@ -782,3 +782,29 @@ def test_centre_segments_of_all_lanes_equal_each_lines_mirrored():
     for got, expected in zip(_centre_segments(lines), want, strict=True):
         assert np.array_equal(got, expected) and got.dtype == expected.dtype
     assert all(len(part) == 0 for part in _centre_segments([np.zeros((1, 2))]))
+
+
+def test_a_lane_change_asks_for_the_neighbours_where_the_vehicle_is():
+    """WOMD lanes are neighbours over part of their length: highway-env's lane-change policy
+    asks by lane alone, so inside ``asked_from`` the network answers for the asking
+    vehicle's position, and outside it for the whole lane; nothing is set on the instance."""
+    from tap_bench.sim.womd_road import WomdNetwork
+    from tap_bench.womd.roadmap import Neighbour, RoadMap
+
+    x = np.linspace(0.0, 100.0, 11)
+    left = Lane(1, np.column_stack([x, np.full(11, 3.7)]),
+                right=(Neighbour(2, 0, 4, 0, 4),))  # neighbours over the first 40 m only
+    right = Lane(2, np.column_stack([x, np.zeros(11)]), left=(Neighbour(1, 0, 4, 0, 4),))
+    network = WomdNetwork(RoadMap("two lanes", {1: left, 2: right}))
+    lane_1, lane_2 = network.index[1], network.index[2]
+    assert network.side_lanes(lane_1) == [lane_2]  # anywhere along the lane
+    near, far = np.array([20.0, -3.7]), np.array([80.0, -3.7])  # highway-env's mirrored y
+    with network.asked_from(near):
+        assert network.side_lanes(lane_1) == [lane_2]
+    with network.asked_from(far):
+        assert network.side_lanes(lane_1) == []
+        with network.asked_from(near):
+            assert network.side_lanes(lane_1) == [lane_2]
+        assert network.side_lanes(lane_1) == []
+    assert network.side_lanes(lane_1) == [lane_2]
+    assert "side_lanes" not in vars(network)
