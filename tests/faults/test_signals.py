@@ -62,7 +62,9 @@ def _running(tmp_path: Path) -> Iterator[tuple[subprocess.Popen, Path, list[int]
     out = tmp_path / "runs" / "run"
     # a cache of its own: episodes an earlier test of the session cached would let the run
     # finish before the signal (or without starting workers)
-    env = {**os.environ, "TAP_BENCH_CACHE": str(tmp_path / "cache")}
+    # PYTHONFAULTHANDLER: a run that does not exit is sent SIGABRT and prints every thread's
+    # stack (see _exit_or_stacks)
+    env = {**os.environ, "TAP_BENCH_CACHE": str(tmp_path / "cache"), "PYTHONFAULTHANDLER": "1"}
     run = subprocess.Popen(
         [sys.executable, "-m", "tap_bench", "bench", "run", "--suite", str(suite), "-o", str(out),
          "--workers", "2", "--no-progress"], stderr=subprocess.PIPE, text=True, env=env,
@@ -83,6 +85,22 @@ def _running(tmp_path: Path) -> Iterator[tuple[subprocess.Popen, Path, list[int]
             run.communicate(timeout=EXIT_WITHIN)
 
 
+def _exit_or_stacks(run: subprocess.Popen, how: str) -> str:
+    """The run's stderr once it exits; when it has not exited within EXIT_WITHIN, the test
+    fails with the stack of every thread of the run (faulthandler on SIGABRT), so that a
+    rare hang under load says where it waits."""
+    try:
+        return run.communicate(timeout=EXIT_WITHIN)[1]
+    except subprocess.TimeoutExpired:
+        run.send_signal(signal.SIGABRT)
+        try:
+            err = run.communicate(timeout=30)[1]
+        except subprocess.TimeoutExpired:
+            err = "(no output within 30 s of SIGABRT)"
+        pytest.fail(f"the run did not exit within {EXIT_WITHIN:.0f} s of {how}; its threads:\n"
+                    f"{err[-8000:]}")
+
+
 def _gone(workers: list[int]) -> bool:
     deadline = time.time() + EXIT_WITHIN
     while time.time() < deadline and any(_alive(w) for w in workers):
@@ -94,7 +112,7 @@ def _gone(workers: list[int]) -> bool:
 def test_a_terminated_run_exits_cleanly_and_leaves_nothing(tmp_path, how):
     with _running(tmp_path) as (run, out, workers):
         run.send_signal(getattr(signal, how))
-        _, err = run.communicate(timeout=EXIT_WITHIN)
+        err = _exit_or_stacks(run, how)
         assert run.returncode == 130, err
         assert "interrupted" in err and "Traceback" not in err
         assert _gone(workers), "worker processes outlived the run"
