@@ -778,6 +778,31 @@ def logged_path(xy: np.ndarray, heading: np.ndarray, speed: np.ndarray,
 
 
 @numba.njit(cache=True, nogil=True)
+def _to_segment(px, py, k, qx, qy):  # pragma: no cover - compiled
+    """(distance [m], u) from point q to segment k of a path (points k to k + 1), u in
+    [0, 1] the share along the segment of its nearest point; distance inf for a segment
+    of zero length."""
+    dx, dy = px[k + 1] - px[k], py[k + 1] - py[k]
+    n2 = dx * dx + dy * dy
+    if n2 <= 0:
+        return np.inf, 0.0
+    u = ((qx - px[k]) * dx + (qy - py[k]) * dy) / n2
+    u = min(max(u, 0.0), 1.0)
+    return math.hypot(qx - px[k] - u * dx, qy - py[k] - u * dy), u
+
+
+@numba.njit(cache=True, nogil=True)
+def _on_segment(px, py, cum, k, u, qx, qy):  # pragma: no cover - compiled
+    """(s [m] along the path, signed lateral distance [m], direction [rad]) of point q
+    projected at share u of segment k (:func:`_to_segment`); positive lateral: q to the
+    segment's left."""
+    dx, dy = px[k + 1] - px[k], py[k + 1] - py[k]
+    n = math.sqrt(dx * dx + dy * dy)
+    ex, ey = qx - px[k] - u * dx, qy - py[k] - u * dy
+    return cum[k] + u * n, (dx * ey - dy * ex) / n, math.atan2(dy, dx)
+
+
+@numba.njit(cache=True, nogil=True)
 def _project_path(px, py, cum, s0, s1, qx, qy):  # pragma: no cover - compiled
     """(s, signed lateral distance, direction) of point q on the nearest segment of the
     path with some part in [s0, s1] (s NaN when none)."""
@@ -786,20 +811,10 @@ def _project_path(px, py, cum, s0, s1, qx, qy):  # pragma: no cover - compiled
     for k in range(k0, px.shape[0] - 1):
         if cum[k] > s1:
             break
-        dx, dy = px[k + 1] - px[k], py[k + 1] - py[k]
-        n2 = dx * dx + dy * dy
-        if n2 <= 0:
-            continue
-        u = ((qx - px[k]) * dx + (qy - py[k]) * dy) / n2
-        u = min(max(u, 0.0), 1.0)
-        ex, ey = qx - px[k] - u * dx, qy - py[k] - u * dy
-        dist = math.hypot(ex, ey)
+        dist, u = _to_segment(px, py, k, qx, qy)
         if dist < best:
-            n = math.sqrt(n2)
             best = dist
-            bs = cum[k] + u * n
-            bd = (dx * ey - dy * ex) / n
-            bt = math.atan2(dy, dx)
+            bs, bd, bt = _on_segment(px, py, cum, k, u, qx, qy)
     return bs, bd, bt
 
 
@@ -846,20 +861,10 @@ def _project_window(px, py, cum, k0, k1, centres, radii, qx, qy):  # pragma: no 
             continue
         a = k0 + c * CHUNK
         for k in range(a, min(a + CHUNK, k1)):
-            dx, dy = px[k + 1] - px[k], py[k + 1] - py[k]
-            n2 = dx * dx + dy * dy
-            if n2 <= 0:
-                continue
-            u = ((qx - px[k]) * dx + (qy - py[k]) * dy) / n2
-            u = min(max(u, 0.0), 1.0)
-            ex, ey = qx - px[k] - u * dx, qy - py[k] - u * dy
-            dist = math.hypot(ex, ey)
+            dist, u = _to_segment(px, py, k, qx, qy)
             if dist < best:
-                n = math.sqrt(n2)
                 best = dist
-                bs = cum[k] + u * n
-                bd = (dx * ey - dy * ex) / n
-                bt = math.atan2(dy, dx)
+                bs, bd, bt = _on_segment(px, py, cum, k, u, qx, qy)
     return bs, bd, bt
 
 
