@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import tempfile
 import warnings
 from pathlib import Path
@@ -85,6 +86,20 @@ def _quiet_gymnasium_checker():
         warnings.filterwarnings("ignore", message=".*within the observation space.*")
         warnings.filterwarnings("ignore", message=".*is not within the observation space.*")
         yield
+
+
+@pytest.fixture(autouse=True)
+def _sigint_kept(request):
+    """A test that leaves this process's SIGINT handler changed (ignored, say) has it put
+    back, with a warning naming the test: every process started later inherits an ignored
+    SIGINT, and a test of Ctrl-C in a later test of the same pytest worker then fails."""
+    before = signal.getsignal(signal.SIGINT)
+    yield
+    after = signal.getsignal(signal.SIGINT)
+    if after is not before and after != before:
+        signal.signal(signal.SIGINT, before)
+        warnings.warn(f"{request.node.nodeid} left SIGINT's handler {after!r} (was {before!r}); "
+                      "put back", stacklevel=1)
 
 
 @pytest.fixture

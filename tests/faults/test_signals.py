@@ -49,6 +49,13 @@ EXIT_WITHIN = 120.0
 """Seconds the run may take to exit after a signal, and its workers after it."""
 
 
+def _sigint_default() -> None:
+    """In the run's process before it starts: SIGINT's default action, as in a terminal's
+    foreground job. A process whose SIGINT is ignored passes that on to what it starts (a
+    pytest worker where some code ignored it did: the run never saw Ctrl-C)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @contextlib.contextmanager
 def _running(tmp_path: Path) -> Iterator[tuple[subprocess.Popen, Path, list[int]]]:
     """A long `bench run` with 2 workers, in a process group of its own, once its workers
@@ -68,7 +75,7 @@ def _running(tmp_path: Path) -> Iterator[tuple[subprocess.Popen, Path, list[int]
     run = subprocess.Popen(
         [sys.executable, "-m", "tap_bench", "bench", "run", "--suite", str(suite), "-o", str(out),
          "--workers", "2", "--no-progress"], stderr=subprocess.PIPE, text=True, env=env,
-        start_new_session=True)
+        start_new_session=True, preexec_fn=_sigint_default)
     try:
         deadline = time.time() + START_WITHIN
         while time.time() < deadline and run.poll() is None and len(_descendants(run.pid)) < 2:
