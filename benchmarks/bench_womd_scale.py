@@ -131,6 +131,22 @@ def scenes_folder(n: int, root: Path) -> Path:
     return folder
 
 
+def _measured(cmd: list[str], report_file: Path, what: str, tree: str | None = None
+              ) -> tuple[dict, float, float]:
+    """Run ``cmd`` (the measuring child) with ``tree`` first on the path: (the child's
+    report: peak MB and CPU s, wall [s], the load average before)."""
+    env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE"}
+    if tree:
+        env["PYTHONPATH"] = tree
+    load0 = os.getloadavg()[0]
+    start = time.perf_counter()
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - start
+    if proc.returncode:
+        raise SystemExit(f"{what} failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
+    return json.loads(report_file.read_text()), wall, load0
+
+
 def run_rollout(folder: Path, out: Path, policy: str, traffic: str, extra: list[str],
                 tree: str | None = None) -> dict:
     """The rollout in a fresh interpreter (with the checkout ``tree`` first on its path
@@ -143,16 +159,7 @@ def run_rollout(folder: Path, out: Path, policy: str, traffic: str, extra: list[
     cmd = [sys.executable, *(["-P"] if tree else []), "-c", _CHILD, str(report_file),
            "rollout", "--womd", *files, "--policy", policy, "--traffic", traffic, "-o",
            str(out), *extra]
-    env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE"}
-    if tree:
-        env["PYTHONPATH"] = tree
-    load0 = os.getloadavg()[0]
-    start = time.perf_counter()
-    proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
-    wall = time.perf_counter() - start
-    if proc.returncode:
-        raise SystemExit(f"rollout failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
-    child = json.loads(report_file.read_text())
+    child, wall, load0 = _measured(cmd, report_file, "rollout", tree)
     episodes = pd.read_parquet(str(out).replace(".parquet", ".episodes.parquet"))
     steps = round((episodes["duration_s"].fillna(0) * 10).sum())
     scenes = len(episodes)
@@ -175,14 +182,7 @@ def run_realism(folder: Path, out: Path, policy: str, traffic: str, extra: list[
     files = [str(p) for p in sorted(folder.iterdir()) if not p.name.startswith(".")]
     cmd = [sys.executable, "-c", _CHILD, str(report_file), "realism", "--womd", *files,
            "--policy", policy, "--traffic", traffic, "-o", str(out), *extra]
-    env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE"}
-    load0 = os.getloadavg()[0]
-    start = time.perf_counter()
-    proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
-    wall = time.perf_counter() - start
-    if proc.returncode:
-        raise SystemExit(f"realism failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
-    child = json.loads(report_file.read_text())
+    child, wall, load0 = _measured(cmd, report_file, "realism")
     result = json.loads(out.read_text())
     scenes = result["scenes"]
     return {"scenes": scenes, "agents": result["agents"],
