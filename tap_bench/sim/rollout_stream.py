@@ -292,6 +292,7 @@ def stream_rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
     output = Path(output)
     episodes_out = Path(episodes_output) if episodes_output else episodes_path(output)
     check_outputs([output, episodes_out])
+    _format(output), _format(episodes_out)  # a bad table name fails before any scene runs
     scenario = resolve_scenario(env, config=config, duration=duration,
                                 lane_change=lane_change)
     seed_list = list(scenario.seeds(seeds)) if isinstance(scenario, WomdScenes) \

@@ -127,6 +127,22 @@ def test_parts_are_refused_without_resume_and_from_another_run(tmp_path):
     assert not out.exists()
 
 
+def test_an_output_without_a_table_suffix_is_refused_before_any_scene_runs(tmp_path,
+                                                                             monkeypatch):
+    from tap_bench.errors import FileFormatError
+
+    files = scene_files(tmp_path / "scenes", 1, per_file=2)
+    ran = []
+    monkeypatch.setattr(rollout_stream, "episode_tasks",
+                        lambda *a, **k: ran.append(1) or [])
+    for out, episodes in ((tmp_path / "out", None), (tmp_path / "out.parquet",
+                                                     tmp_path / "episodes.txt")):
+        with pytest.raises(FileFormatError, match="unknown table format"):
+            rollout_stream.stream_rollout(WomdScenes(tuple(files)), "idm", "all", out,
+                                          episodes_output=episodes, progress=False)
+    assert not ran and not list(tmp_path.glob("out*"))
+
+
 def test_ego_only_keeps_the_egos_rows_of_the_full_table(tmp_path, monkeypatch):
     files = scene_files(tmp_path / "scenes", 5, per_file=3)
     monkeypatch.setattr(rollout_stream, "PART_SCENES", 2)
