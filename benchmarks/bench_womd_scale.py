@@ -1,10 +1,12 @@
-"""`tap-bench rollout --womd` (or `tap-bench realism`) over many scenes: peak memory, CPU and
-wall time per scene, simulated steps per CPU second (issue 37).
+"""`tap-bench rollout --womd` (or `tap-bench realism`, or `tap-bench bench run` on a suite of
+the scenes) over many scenes: peak memory, CPU and wall time per scene, simulated steps per
+CPU second (issue 37).
 
 For each scene count N, files of the sample and development scenes repeated under new ids
 are made in /tmp (``womd_repeat.py``), then the command runs in a fresh subprocess that
 reports its own peak resident memory (VmHWM, the high-water mark of its own address space,
-reset at exec) and CPU time; wall time, load and versions go beside them.
+reset at exec) and CPU time (its worker processes' included); wall time, load and versions
+go beside them. A child that fails stops the script with its exit code and stderr.
 
 Usage::
 
@@ -13,6 +15,8 @@ Usage::
     python benchmarks/bench_womd_scale.py 49 --profile   # where the time goes, in-process
     python benchmarks/bench_womd_scale.py 49 245 --command realism --traffic log \
         --extra "--no-progress --resamples 100"   # the realism score's memory
+    python benchmarks/bench_womd_scale.py 49 245 --command bench-run \
+        --extra "--no-progress --workers 2"   # a WOMD suite's run (log and --policy)
     python benchmarks/bench_womd_scale.py 49 --tree BEFORE --tree AFTER --repeats 3
         # two checkouts, paired: each repeat runs both, in alternating order
     python benchmarks/bench_womd_scale.py 16 --stages --tree BEFORE --tree AFTER --repeats 3
@@ -48,7 +52,15 @@ t = os.times()
 json.dump({"code": code, "peak_mb": peak / 1024, "wall_s": time.perf_counter() - t0,
            "cpu_s": t.user + t.system + t.children_user + t.children_system},
           open(sys.argv[1], "w"))
+sys.exit(code)
 """
+"""The measuring child: ``python -c _CHILD REPORT ARGS...`` runs ``tap-bench ARGS`` and writes
+its exit code, peak resident memory (VmHWM [MB]), wall and CPU [s] (its worker processes'
+included) to REPORT; it exits with the command's code."""
+
+COMMANDS = ("rollout", "realism", "bench-run")
+"""What the script measures: ``tap-bench rollout --womd``, ``tap-bench realism`` or
+``tap-bench bench run`` on a suite of the scenes (:func:`bench_suite`)."""
 
 
 _STAGES = """
@@ -131,10 +143,55 @@ def scenes_folder(n: int, root: Path) -> Path:
     return folder
 
 
+def scene_files(folder: Path) -> list[str]:
+    """The scene files of ``folder`` (its hidden marker left out), sorted."""
+    return [str(p) for p in sorted(folder.iterdir()) if not p.name.startswith(".")]
+
+
+def bench_suite(files: list[str], policy: str, traffic: str) -> dict:
+    """The suite ``bench-run`` measures: the scenes of ``files`` driven by the human (log,
+    the reference) and by ``policy``, every scene, as ``envs/suites/womd-sample.json``."""
+    policies = ["log"] if policy == "log" else ["log", policy]
+    return {"name": "womd-scale", "version": 0,
+            "envs": [{"womd": files, "traffic": traffic, "ego": "sdc",
+                      "policy_frequency": 2}],
+            "policies": policies, "reference_policy": "log", "seeds": "all",
+            "level": "maneuver", "thresholds": "paper",
+            "bootstrap": {"n_resamples": 200, "level": 0.95, "seed": 0}}
+
+
+def child_command(command: str, files: list[str], out: Path, report_file: Path, *,
+                  policy: str, traffic: str, extra: list[str], tree: str | None = None
+                  ) -> list[str]:
+    """The measuring child's command line (:data:`_CHILD`) for ``command`` (one of
+    :data:`COMMANDS`) over ``files``, writing to ``out`` (the rollout's table, the realism
+    JSON, or the run folder, whose suite is written beside it as ``<out>.suite.json``) and
+    reporting to ``report_file``; ``tree``: a checkout put first on the child's path (then
+    ``-P``: not the current folder)."""
+    head = [sys.executable, *(["-P"] if tree else []), "-c", _CHILD, str(report_file)]
+    if command == "rollout":
+        return [*head, "rollout", "--womd", *files, "--policy", policy, "--traffic", traffic,
+                "-o", str(out), *extra]
+    if command == "realism":
+        return [*head, "realism", "--womd", *files, "--policy", policy, "--traffic",
+                traffic, "-o", str(out), *extra]
+    if command == "bench-run":
+        suite = out.with_name(out.name + ".suite.json")
+        suite.write_text(json.dumps(bench_suite(files, policy, traffic), indent=1))
+        # no cache: every episode simulated, labelled and scored in this run
+        return [*head, "bench", "run", "--suite", str(suite), "-o", str(out), "--no-cache",
+                *extra]
+    raise ValueError(f"command {command!r} is not one of {', '.join(COMMANDS)}")
+
+
 def _measured(cmd: list[str], report_file: Path, what: str, tree: str | None = None
               ) -> tuple[dict, float, float]:
     """Run ``cmd`` (the measuring child) with ``tree`` first on the path: (the child's
-    report: peak MB and CPU s, wall [s], the load average before)."""
+    report: peak MB and CPU s, wall [s], the load average before).
+
+    Raises:
+        SystemExit: the child failed (naming its exit code and the end of its stderr).
+    """
     env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE"}
     if tree:
         env["PYTHONPATH"] = tree
@@ -142,9 +199,27 @@ def _measured(cmd: list[str], report_file: Path, what: str, tree: str | None = N
     start = time.perf_counter()
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - start
-    if proc.returncode:
-        raise SystemExit(f"{what} failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
+    if proc.returncode or not report_file.is_file():
+        raise SystemExit(f"{what} failed (exit code {proc.returncode}):\n"
+                         f"{proc.stderr[-3000:]}")
     return json.loads(report_file.read_text()), wall, load0
+
+
+def _commit(tree: str | None) -> dict:
+    if not tree:
+        return {}
+    commit = subprocess.run(["git", "-C", tree, "rev-parse", "--short", "HEAD"],
+                            capture_output=True, text=True).stdout.strip()
+    return {"tree": tree, "commit": commit}
+
+
+def _shown(folder: Path, cmd: list[str], files: list[str]) -> str:
+    """The child's command as a user types it, the scene files as one glob."""
+    args = cmd[cmd.index(_CHILD) + 2:]
+    if files and files[0] in args:
+        at = args.index(files[0])
+        args[at:at + len(files)] = [f"{folder}/*"]
+    return shlex.join(["tap-bench", *args])
 
 
 def run_rollout(folder: Path, out: Path, policy: str, traffic: str, extra: list[str],
@@ -154,44 +229,64 @@ def run_rollout(folder: Path, out: Path, policy: str, traffic: str, extra: list[
     import pandas as pd
 
     report_file = out.with_suffix(".measure.json")
-    files = [str(p) for p in sorted(folder.iterdir()) if not p.name.startswith(".")]
-    # -P: the checkout on PYTHONPATH, not the current folder, gives tap_bench
-    cmd = [sys.executable, *(["-P"] if tree else []), "-c", _CHILD, str(report_file),
-           "rollout", "--womd", *files, "--policy", policy, "--traffic", traffic, "-o",
-           str(out), *extra]
+    files = scene_files(folder)
+    cmd = child_command("rollout", files, out, report_file, policy=policy, traffic=traffic,
+                        extra=extra, tree=tree)
     child, wall, load0 = _measured(cmd, report_file, "rollout", tree)
     episodes = pd.read_parquet(str(out).replace(".parquet", ".episodes.parquet"))
     steps = round((episodes["duration_s"].fillna(0) * 10).sum())
     scenes = len(episodes)
-    commit = subprocess.run(["git", "-C", tree, "rev-parse", "--short", "HEAD"],
-                            capture_output=True, text=True).stdout.strip() if tree else ""
-    return {**({"tree": tree, "commit": commit} if tree else {}),
+    return {**_commit(tree),
             "scenes": scenes, "ok": int((episodes["status"] == "ok").sum()),
             "peak_mb": round(child["peak_mb"], 1), "cpu_s": round(child["cpu_s"], 2),
             "wall_s": round(wall, 2), "cpu_s_per_scene": round(child["cpu_s"] / scenes, 4),
             "steps": steps, "steps_per_cpu_s": round(steps / child["cpu_s"], 1),
             "load_before": round(load0, 2), "load_after": round(os.getloadavg()[0], 2),
-            "command": shlex.join(["tap-bench", "rollout", "--womd", f"{folder}/*",
-                                   *cmd[cmd.index("--womd") + 1 + len(files):]])}
+            "command": _shown(folder, cmd, files)}
 
 
-def run_realism(folder: Path, out: Path, policy: str, traffic: str, extra: list[str]
-                ) -> dict:
+def run_realism(folder: Path, out: Path, policy: str, traffic: str, extra: list[str],
+                tree: str | None = None) -> dict:
     """``tap-bench realism`` in a fresh interpreter: its peak memory, CPU and wall."""
     report_file = out.with_suffix(".measure.json")
-    files = [str(p) for p in sorted(folder.iterdir()) if not p.name.startswith(".")]
-    cmd = [sys.executable, "-c", _CHILD, str(report_file), "realism", "--womd", *files,
-           "--policy", policy, "--traffic", traffic, "-o", str(out), *extra]
-    child, wall, load0 = _measured(cmd, report_file, "realism")
+    files = scene_files(folder)
+    cmd = child_command("realism", files, out, report_file, policy=policy, traffic=traffic,
+                        extra=extra, tree=tree)
+    child, wall, load0 = _measured(cmd, report_file, "realism", tree)
     result = json.loads(out.read_text())
     scenes = result["scenes"]
-    return {"scenes": scenes, "agents": result["agents"],
+    return {**_commit(tree), "scenes": scenes, "agents": result["agents"],
             "meta_metric": result["meta_metric"], "peak_mb": round(child["peak_mb"], 1),
             "cpu_s": round(child["cpu_s"], 2), "wall_s": round(wall, 2),
             "cpu_s_per_scene": round(child["cpu_s"] / scenes, 4),
             "load_before": round(load0, 2), "load_after": round(os.getloadavg()[0], 2),
-            "command": shlex.join(["tap-bench", "realism", "--womd", f"{folder}/*",
-                                   *cmd[6 + len(files):]])}
+            "command": _shown(folder, cmd, files)}
+
+
+def run_bench(folder: Path, out: Path, policy: str, traffic: str, extra: list[str],
+              tree: str | None = None) -> dict:
+    """``tap-bench bench run`` on a suite of the folder's scenes (:func:`bench_suite`) in a
+    fresh interpreter: the driver's peak memory (its worker processes have their own), the
+    CPU of the driver and its workers, wall, and the run's episodes."""
+    import pandas as pd
+
+    report_file = out.with_name(out.name + ".measure.json")
+    files = scene_files(folder)
+    cmd = child_command("bench-run", files, out, report_file, policy=policy,
+                        traffic=traffic, extra=extra, tree=tree)
+    child, wall, load0 = _measured(cmd, report_file, "bench run", tree)
+    episodes = pd.read_parquet(out / "episodes.parquet")
+    scenes = int(episodes["seed"].nunique())
+    return {**_commit(tree), "scenes": scenes, "episodes": len(episodes),
+            "ok": int((episodes["status"] == "ok").sum()),
+            "peak_mb": round(child["peak_mb"], 1), "cpu_s": round(child["cpu_s"], 2),
+            "wall_s": round(wall, 2), "cpu_s_per_scene": round(child["cpu_s"] / scenes, 4),
+            "load_before": round(load0, 2), "load_after": round(os.getloadavg()[0], 2),
+            "command": _shown(folder, cmd, files)}
+
+
+RUNS = {"rollout": run_rollout, "realism": run_realism, "bench-run": run_bench}
+"""Each command's measured run: (folder, out, policy, traffic, extra, tree) -> its row."""
 
 
 def profile(folder: Path, policy: str, traffic: str) -> None:
@@ -226,7 +321,7 @@ def main() -> int:
     parser.add_argument("--root", default=str(Path(tempfile.gettempdir()) / "tap-bench-scale"))
     parser.add_argument("--name", default="womd_scale")
     parser.add_argument("--profile", action="store_true")
-    parser.add_argument("--command", choices=("rollout", "realism"), default="rollout")
+    parser.add_argument("--command", choices=COMMANDS, default="rollout")
     parser.add_argument("--tree", action="append", default=[],
                         help="a tap-bench checkout to run the rollout from (repeat: before "
                              "and after, paired, in alternating order from one repeat to "
@@ -235,8 +330,6 @@ def main() -> int:
     parser.add_argument("--stages", action="store_true",
                         help="where the CPU goes per scene (in-process, per tree)")
     args = parser.parse_args()
-    if args.tree and args.command != "rollout":
-        parser.error("--tree compares checkouts on the rollout command only")
     root = Path(args.root)
     root.mkdir(parents=True, exist_ok=True)
     if args.profile:
@@ -252,12 +345,11 @@ def main() -> int:
                     if args.stages:
                         row = run_stages(folder, Path(tmp) / "stages.json", args.traffic,
                                          tree)
-                    elif args.command == "realism":
-                        row = run_realism(folder, Path(tmp) / "out.json", args.policy,
-                                          args.traffic, shlex.split(args.extra))
                     else:
-                        row = run_rollout(folder, Path(tmp) / "out.parquet", args.policy,
-                                          args.traffic, shlex.split(args.extra), tree)
+                        out = Path(tmp) / {"rollout": "out.parquet", "realism": "out.json",
+                                           "bench-run": "run"}[args.command]
+                        row = RUNS[args.command](folder, out, args.policy, args.traffic,
+                                                 shlex.split(args.extra), tree)
                 print(json.dumps(row), flush=True)
                 rows.append(row)
     report(args.name, {"runs": rows}, command=args.command, policy=args.policy,
