@@ -19,6 +19,7 @@ import os
 import signal
 import sys
 import threading
+import warnings
 from collections.abc import Sequence
 
 from tap_bench.errors import TapBenchError
@@ -133,6 +134,13 @@ _FULL_OR_READ_ONLY = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS}
 """Errors of the place written to, not of the input or the code: one message, exit 2."""
 
 
+def _one_line_warning(message: Warning | str, category: type[Warning], filename: str,
+                      lineno: int, line: str | None = None) -> str:
+    """A warning as the command line shows it: one line, its kind and message, without the
+    source line of tap-bench's code that raised it (that is for developers, not users)."""
+    return f"tap-bench: {category.__name__}: {message}\n"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``tap-bench``; returns the process exit code.
 
@@ -161,7 +169,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    previous = None
+    previous, formatter = None, warnings.formatwarning
+    warnings.formatwarning = _one_line_warning
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGTERM, _terminate)
     try:
@@ -187,6 +196,7 @@ def main(argv: Sequence[str] | None = None) -> int:
               "or write to another place (-o).", file=sys.stderr)
         return 2
     finally:
+        warnings.formatwarning = formatter
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
 

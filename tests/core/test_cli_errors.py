@@ -59,3 +59,24 @@ def test_parameter_error_names_parameter_value_and_what_is_allowed():
 
     again = pickle.loads(pickle.dumps(err))
     assert str(again) == str(err) and again.parameter == "workers"
+
+
+def test_a_warning_is_one_line_without_the_code_that_raised_it(tmp_path):
+    """A user sees the warning's kind and message, not a line of tap-bench's source."""
+    import os
+    import subprocess
+    import sys
+
+    (tmp_path / "scenes").mkdir()
+    (tmp_path / "scenes" / "README.md").write_text("not a scene\n")
+    env = dict(os.environ, PYTHONWARNINGS="default")
+    out = subprocess.run([sys.executable, "-m", "tap_bench", "rollout", "--womd",
+                          str(tmp_path / "scenes"), "--policy", "idm", "-o",
+                          str(tmp_path / "out.parquet"), "--no-progress"],
+                         capture_output=True, text=True, env=env, cwd=tmp_path, timeout=120)
+    lines = out.stderr.splitlines()
+    assert out.returncode == 2, out.stderr
+    warned = [ln for ln in lines if "README.md: skipped" in ln]
+    assert warned == [f"tap-bench: UserWarning: {tmp_path / 'scenes' / 'README.md'}: skipped, "
+                      "not a TFRecord nor a file a reader claims by its name."], out.stderr
+    assert len(lines) == 2, out.stderr  # the warning and the error, nothing else
