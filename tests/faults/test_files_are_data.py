@@ -86,3 +86,26 @@ def test_bench_suites_imports_no_suite_plugin(tmp_path, monkeypatch):
     assert result.returncode == 0, result.stderr.decode()
     assert not marker.exists(), "bench suites imported a suite's plugin"
     assert "theirs" in out and "default" in out and module in out
+
+
+def test_the_viewer_of_a_run_folder_imports_no_plugin_its_summary_names(tmp_path, monkeypatch):
+    """``tap-bench view RUN`` of a run folder without its map table builds the roads again
+    from the run's suite: the suite's plugins in its ``summary.json`` are not imported."""
+    module, marker = _evil(tmp_path, monkeypatch)
+    suite = tmp_path / "suite.json"
+    suite.write_text(json.dumps({"name": "tiny", "envs": ["merge"], "policies": ["idm"],
+                                 "seeds": "0", "reference_policy": "idm",
+                                 "env_overrides": {"merge": {"duration": 2}},
+                                 "bootstrap": {"n_resamples": 100}}))
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        assert main(["bench", "run", "--suite", str(suite), "-o", str(tmp_path / "run"),
+                     "--workers", "1", "--no-progress", "--no-cache"]) == 0
+    run = tmp_path / "run"
+    (run / "roads.parquet").unlink()
+    summary = json.loads((run / "summary.json").read_text())
+    summary["suite"]["plugins"] = [module]
+    (run / "summary.json").write_text(json.dumps(summary))
+    result = run_process("view", run, "--no-open", "--rebuild", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr.decode()[-2000:]
+    assert not marker.exists(), "tap-bench view imported a plugin the run folder names"
+    assert (run / "viewer" / "index.html").is_file()

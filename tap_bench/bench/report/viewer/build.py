@@ -16,6 +16,7 @@ viewer (``TAPVIEW.index(...)``, ``TAPVIEW.chunk(...)``).
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import json
 import os
@@ -38,7 +39,7 @@ from tap_bench.bench.report.viewer.data import (
     signal_field,
 )
 from tap_bench.bench.suite import suite_from_dict
-from tap_bench.errors import ParameterError, TapBenchError
+from tap_bench.errors import ParameterError, TapBenchError, UnknownNameError
 from tap_bench.labelling import tap
 from tap_bench.maps import empty_map
 from tap_bench.sources import iter_womd, read_womd
@@ -247,8 +248,17 @@ def env_roads(envs: Sequence[str]) -> pd.DataFrame:
 def _rebuild_roads(summary: dict[str, Any], envs: Sequence[str]) -> pd.DataFrame:
     if summary.get("format") == "tap-bench-compare":  # two tables, no suite: as compare
         return env_roads(envs)  # drew them (recorded scenes have no map there)
-    suite = suite_from_dict(summary.get("suite", {}), source="summary.json")
-    frames = [suite.road(env) for env in envs if env in suite.envs]
+    # a run folder is data: the plugins its suite names are not imported (the user names
+    # plugins with --plugin), and an env only a plugin defines gets no map
+    doc = summary.get("suite", {})
+    if isinstance(doc, dict):
+        doc = {k: v for k, v in doc.items() if k not in ("plugins", "gate")}
+    suite = suite_from_dict(doc, source="summary.json", check_names=False)
+    frames = []
+    for env in envs:
+        if env in suite.envs:
+            with contextlib.suppress(UnknownNameError):
+                frames.append(suite.road(env))
     return pd.concat(frames, ignore_index=True) if frames else empty_map()
 
 
