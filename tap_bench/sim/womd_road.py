@@ -887,11 +887,15 @@ def _path_blockers(px, py, cum, s0, s1, x0, y0, half_width, half_length, margins
     reach = s1 - s0
     k0, k1, centres, radii = _window_chunks(px, py, cum, s0, s1)
     for j in range(m):
+        far = reach + ls[j] + half_length
+        cos_j, sin_j = math.cos(hs[j]), math.sin(hs[j])
         for t in range(h):
             tau = horizons[t]
-            cx = xs[j] + tau * vs[j] * math.cos(hs[j])
-            cy = ys[j] + tau * vs[j] * math.sin(hs[j])
-            if math.hypot(cx - x0, cy - y0) > reach + ls[j] + half_length:
+            cx = xs[j] + tau * vs[j] * cos_j
+            cy = ys[j] + tau * vs[j] * sin_j
+            # hypot is at least either side: a side longer than far skips the hypot
+            if abs(cx - x0) > far or abs(cy - y0) > far \
+                    or math.hypot(cx - x0, cy - y0) > far:
                 continue
             s, d, theta = _project_window(px, py, cum, k0, k1, centres, radii, cx, cy)
             if not s > s0:
@@ -908,6 +912,66 @@ def _path_blockers(px, py, cum, s0, s1, x0, y0, half_width, half_length, margins
             out[j * h + t, 1] = vs[j] * c if tau == 0 else 0.0
             out[j * h + t, 2] = tau
             out[j * h + t, 3] = j
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _idm_compiled(v, v0, gap, lead, min_gap, time_gap, a, b, delta, coolness, two
+                  ):  # pragma: no cover - compiled
+    """:func:`_idm_acc` compiled, the same operations in the same order; ``two`` is the
+    square's exponent 2.0 passed at run time, so that the square is the C library's ``pow``
+    as in Python (a constant exponent is compiled to a multiplication, which rounds
+    otherwise in about one case in a thousand)."""
+    dv = v - lead
+    s_star = min_gap + max(0.0, v * time_gap + v * dv / (2.0 * math.sqrt(a * b)))
+    s = max(gap, 0.01)
+    a_idm = a * (1.0 - (v / v0) ** delta - (s_star / s) ** two)
+    a_cah = 0.0 if dv <= 0 else -dv * dv / (2.0 * s)
+    if a_idm >= a_cah:
+        return a_idm
+    return (1.0 - coolness) * a_idm + coolness * (a_cah + b * math.tanh((a_idm - a_cah) / b))
+
+
+@numba.njit(cache=True, nogil=True)
+def _path_ahead(starts, ends, px, py, cum, s0, s1, x0, y0, half_width, half_length, speed, v0,
+                drivers, mine, margins, xs, ys, hs, vs, ls, ws, walker, is_path, horizons,
+                two):  # pragma: no cover - compiled
+    """Every path vehicle's IDM acceleration [m/s^2] behind what is in its way ahead
+    (:meth:`WomdPathVehicle.ahead_acceleration`, for n vehicles at once).
+
+    Path i is points starts[i] to ends[i] - 1 of (px, py, cum); s0, s1: where it is
+    and how far it looks along its path [m]; (x0, y0), half widths and lengths [m], speed
+    and desired speed v0 [m/s]: (n,); drivers: (n, 6) max acceleration, comfortable
+    braking, delta, jam distance, time gap, coolness; mine: its row among the movers (-1:
+    none). The movers (m,): centres, headings, speeds, boxes, ``margins``, pedestrians or
+    cyclists (``walker``), path vehicles (``is_path``)."""
+    n = s0.shape[0]
+    out = np.empty(n)
+    h = horizons.shape[0]
+    for i in range(n):
+        lo, hi = starts[i], ends[i]
+        a, b, delta = drivers[i, 0], drivers[i, 1], drivers[i, 2]
+        v = speed[i]
+        acc = a * (1.0 - (v / v0[i]) ** delta)
+        found = _path_blockers(px[lo:hi], py[lo:hi], cum[lo:hi], s0[i], s1[i], x0[i], y0[i],
+                               half_width[i], half_length[i], margins, xs, ys, hs, vs, ls, ws,
+                               horizons)
+        for r in range(found.shape[0]):
+            gap = found[r, 0]
+            if not np.isfinite(gap) or r // h == mine[i]:
+                continue
+            lead, tau, j = found[r, 1], found[r, 2], int(found[r, 3])
+            if tau > 0 and is_path[j]:
+                continue  # where logged paths cross, the log's order decides
+            if tau > 0 and not walker[j]:
+                if gap <= 0 or gap / (0.5 if 0.5 > v else v) > tau + PATH_ARRIVAL \
+                        or v * v > 2 * b * gap:
+                    continue
+            x = _idm_compiled(v, v0[i], gap, 0.0 if 0.0 > lead else lead, drivers[i, 3],
+                              drivers[i, 4], a, b, delta, drivers[i, 5], two)
+            if x < acc:
+                acc = x
+        out[i] = acc
     return out
 
 
@@ -1043,10 +1107,28 @@ class WomdPathVehicle(Vehicle):
         self.action = {"steering": 0.0, "acceleration": self.path_acceleration()}
 
     def path_acceleration(self) -> float:
-        """IDM + ACC heuristic acceleration [m/s^2] behind whatever is in the way ahead."""
+        """IDM + ACC heuristic acceleration [m/s^2] behind whatever is in the way ahead, the
+        stop points and stop signs and where it gives way (the part ahead computed for all
+        path vehicles of the road at once when the road did, :meth:`WomdRoad.act`)."""
         p = self.driver
         v = max(float(self.speed), 0.0)
-        v0 = self.target_speed
+        ahead = getattr(self.road, "_path_accelerations", {}).get(id(self))
+        if ahead is None:
+            v0 = self.target_speed
+            acc = self.ahead_acceleration(v, v0)
+        else:
+            acc, v0 = ahead
+        for gap in self._stop_gaps(v):
+            acc = min(acc, _idm_acc(p, v, v0, gap, 0.0))
+        gap = self._give_way_gap(v)
+        if gap is not None:
+            acc = min(acc, _idm_acc(p, v, v0, gap, 0.0))
+        return float(max(acc, -p.emergency_braking))
+
+    def ahead_acceleration(self, v: float, v0: float) -> float:
+        """IDM + ACC heuristic acceleration [m/s^2] at speed ``v`` towards the desired speed
+        ``v0`` [m/s], behind the nearest box in the way ahead (see the class docstring)."""
+        p = self.driver
         acc = p.max_acceleration * (1.0 - (v / v0) ** p.delta)
         road = self.road
         positions = getattr(road, "_positions", None)
@@ -1074,12 +1156,7 @@ class WomdPathVehicle(Vehicle):
                             or v * v > 2 * p.comfortable_braking * gap:
                         continue
                 acc = min(acc, _idm_acc(p, v, v0, gap, max(lead, 0.0)))
-        for gap in self._stop_gaps(v):
-            acc = min(acc, _idm_acc(p, v, v0, gap, 0.0))
-        gap = self._give_way_gap(v)
-        if gap is not None:
-            acc = min(acc, _idm_acc(p, v, v0, gap, 0.0))
-        return float(max(acc, -p.emergency_braking))
+        return acc
 
     def _give_way_gap(self, v: float) -> float | None:
         """Gap [m] from the bumper to the nearest point where its logged path crosses
@@ -1325,6 +1402,16 @@ class _Layout:
         self.walker = np.array([getattr(v, "row", -1) in walker_rows for v in vehicles], bool)
         self.checks = np.array([bool(getattr(v, "check_collisions", False))
                                 for v in vehicles], bool)
+        self.path = np.array([isinstance(v, WomdPathVehicle) for v in vehicles], bool)
+        paths = [v.path for v in vehicles if isinstance(v, WomdPathVehicle)]
+        if paths:  # the path vehicles' logged paths end to end
+            self.path_points = np.concatenate([q.points for q in paths])
+            self.path_px = np.ascontiguousarray(self.path_points[:, 0])
+            self.path_py = np.ascontiguousarray(self.path_points[:, 1])
+            self.path_cum = np.concatenate([q.cum for q in paths])
+            sizes = np.array([len(q.cum) for q in paths], np.int64)
+            self.path_ends = np.cumsum(sizes)
+            self.path_starts = self.path_ends - sizes
 
     def states(self, step: int) -> dict[str, np.ndarray]:
         """The vehicles' states at the road's step ``step`` as they stand: ``position``
@@ -1383,6 +1470,7 @@ class WomdRoad(Road):
         self._walkers: tuple[np.ndarray, ...] | None = None
         self._positions: np.ndarray | None = None
         self._movers: list[Vehicle] = []
+        self._path_accelerations: dict[int, tuple[float, float]] = {}
         signals = road.signals
         self._signal_lanes = [network.index.get(int(i)) for i in signals.lane]
         self._stop_s = []
@@ -1455,6 +1543,7 @@ class WomdRoad(Road):
                                 layout.length[moving], layout.width[moving]], axis=1)
         self._mover_index = {id(v): i for i, v in enumerate(self._movers)}
         self._walker_mask = layout.walker[moving]
+        self._path_mask = layout.path[moving]
         self._path_margins = np.where(self._walker_mask, WALKER_CLEARANCE, PATH_MARGIN)
         if self._walker_mask.any():
             xy = self._positions[self._walker_mask]
@@ -1465,8 +1554,49 @@ class WomdRoad(Road):
             self._walkers = (xy, ahead, heading, speed)
         else:
             self._walkers = None
+        self._path_accelerations = self._ahead_of_paths(layout) if layout.path.any() else {}
         for vehicle in layout.acting:
             vehicle.act()
+
+    def _ahead_of_paths(self, layout: _Layout) -> dict[int, tuple[float, float]]:
+        """id -> (:meth:`WomdPathVehicle.ahead_acceleration` [m/s^2], its desired speed
+        [m/s]) of the road's path vehicles that drive this step (not hidden, not crashed),
+        computed for all of them in one compiled call (:func:`_path_ahead`)."""
+        if not len(self._positions):
+            return {}
+        paths = [v for v in layout.vehicles if isinstance(v, WomdPathVehicle)]
+        rows = [k for k, v in enumerate(paths) if not v.hidden and not v.crashed]
+        if not rows:
+            return {}
+        chosen = [paths[k] for k in rows]
+        n = len(chosen)
+        s0, s1, x0, y0 = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+        half_width, half_length, speed, v0 = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+        drivers = np.empty((n, 6))
+        mine = np.empty(n, np.int64)
+        index = self._mover_index
+        for i, vehicle in enumerate(chosen):
+            p = vehicle.driver
+            v = max(float(vehicle.speed), 0.0)
+            s0[i], s1[i] = vehicle.s, vehicle.s + (PATH_LOOKAHEAD + PATH_TIME * v)
+            x0[i], y0[i] = float(vehicle.position[0]), float(vehicle.position[1])
+            half_width[i], half_length[i] = vehicle.WIDTH / 2, vehicle.LENGTH / 2
+            speed[i], v0[i] = v, vehicle.target_speed
+            drivers[i] = (p.max_acceleration, p.comfortable_braking, p.delta, p.min_gap,
+                          p.time_gap, p.coolness)
+            mine[i] = index.get(id(vehicle), -1)
+        rows_ = np.array(rows, np.int64)
+        boxes, positions = self._boxes, self._positions
+        acc = _path_ahead(layout.path_starts[rows_], layout.path_ends[rows_], layout.path_px,
+                          layout.path_py, layout.path_cum, s0, s1, x0, y0, half_width,
+                          half_length, speed, v0, drivers, mine, self._path_margins,
+                          np.ascontiguousarray(positions[:, 0]),
+                          np.ascontiguousarray(positions[:, 1]),
+                          np.ascontiguousarray(boxes[:, 0]), np.ascontiguousarray(boxes[:, 1]),
+                          np.ascontiguousarray(boxes[:, 2]), np.ascontiguousarray(boxes[:, 3]),
+                          self._walker_mask, self._path_mask, _HORIZONS, 2.0)
+        return {id(vehicle): (a, b) for vehicle, a, b in zip(chosen, acc.tolist(), v0.tolist(),
+                                                             strict=True)}
 
     def neighbour_vehicles(self, vehicle: Any, lane_index: Any = None
                            ) -> tuple[Any | None, Any | None]:
@@ -1506,6 +1636,7 @@ class WomdRoad(Road):
         collisions of the simulation (the record's own boxes) and are not checked."""
         self.clock[0] += 1
         self._positions = None
+        self._path_accelerations = {}
         layout = self._layout()
         c = self.clock[0]
         for vehicle in self.vehicles:

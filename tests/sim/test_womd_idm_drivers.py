@@ -16,6 +16,7 @@ from tap_bench.sim.womd_road import (
     NOMINAL_DRIVER,
     DriverParameters,
     _idm_acc,
+    _idm_compiled,
     _segment_hits,
     draw_driver,
 )
@@ -124,6 +125,22 @@ def test_lane_crossings_are_every_segment_pair_that_crosses_or_touches(seed):
                                atol=1e-12)
     # collinear overlaps are not crossings
     assert not any(10 <= q < 20 and k == q for k, q, *_ in want)
+
+def test_compiled_idm_is_the_plain_one_bit_for_bit():
+    # drawn drivers, speeds from standing to fast, gaps from touching to far, leaders slower
+    # and faster (the heuristic's branch and IDM's): the same float every time
+    rng = np.random.default_rng(3)
+    for _ in range(3000):
+        p = draw_driver(rng)
+        v, v0 = rng.uniform(0.0, 30.0), rng.uniform(0.01, 30.0)
+        gap = rng.choice([rng.uniform(-1.0, 0.5), rng.uniform(0.0, 10.0),
+                          rng.uniform(0.0, 200.0)])
+        lead = rng.choice([0.0, rng.uniform(0.0, 30.0), v])
+        want = _idm_acc(p, v, v0, gap, lead)
+        got = _idm_compiled(v, v0, gap, lead, p.min_gap, p.time_gap, p.max_acceleration,
+                            p.comfortable_braking, p.delta, p.coolness, 2.0)
+        assert got == want, (v, v0, gap, lead, p)
+
 
 def test_a_tight_but_harmless_gap_is_closed_at_comfortable_braking():
     # 10 m/s, 10 m behind a leader at 9 m/s: plain IDM brakes at 1.5 (1 - (10/15)^4 -

@@ -255,3 +255,51 @@ def test_path_progress_is_the_nearest_segments_arc_length():
             s, dist = path_progress(path, cum, p)
             assert dist == pytest.approx(d[k], abs=1e-9)
             assert s == pytest.approx(cum[k] + u[k] * math.sqrt(n2[k]), abs=1e-9)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_all_path_vehicles_at_once_equal_each_one_alone(tmp_path, seed):
+    # every heading, bends, cars behind faster cars on one path (rear-ends), crossing
+    # paths, a pedestrian crossing, a car standing at the kerb: at every simulated step the
+    # road's one compiled call gives each path vehicle exactly what its own search gives
+    rng = np.random.default_rng(seed)
+    angle = rng.uniform(0.0, 2 * math.pi)
+    road = bend(angle)
+    tracks = {}
+    cum = np.r_[0.0, np.cumsum(np.hypot(*np.diff(road, axis=0).T))]
+    for k in range(6):  # along the bend, from behind to ahead, faster behind
+        start = rng.uniform(0.0, 60.0)
+        pts = road[np.searchsorted(cum, start):]
+        tracks[str(10 + k)] = along(pts, rng.uniform(0.0, 12.0))
+    across = rotate(np.c_[np.full(200, 10.0), np.arange(-50.0, 50.0, 0.5)], angle)
+    tracks["20"] = along(across, rng.uniform(5.0, 12.0))
+    kerb = rotate(np.c_[np.full(40, -20.0) + np.arange(40) * 0.01, np.full(40, 2.6)], angle)
+    tracks["21"] = along(kerb, 0.0)  # standing at the kerb, half in the lane
+    walk = rotate(np.c_[np.full(40, 0.0), np.linspace(-8.0, 8.0, 40)], angle)
+    tracks["22"] = {**along(walk, 1.4), "type": "PEDESTRIAN"}
+    env = make_womd_env(scene(tmp_path / f"sd_batch{seed}.pkl", tracks,
+                              [road, across]), traffic="idm")
+    policy = load_policy("idm")
+    obs, _ = env.reset(seed=0)
+    policy.reset(env, seed=0)
+    inner = env.unwrapped
+    checked = []
+    batch = inner.road._ahead_of_paths
+
+    def check(layout):
+        got = batch(layout)
+        for vehicle in inner.road.vehicles:
+            if id(vehicle) in got:
+                v = max(float(vehicle.speed), 0.0)
+                v0 = vehicle.target_speed
+                assert got[id(vehicle)] == (vehicle.ahead_acceleration(v, v0), v0)
+                checked.append(got[id(vehicle)][0])
+        return got
+
+    inner.road._ahead_of_paths = check
+    done = False
+    while not done:
+        obs, _, terminated, truncated, _ = env.step(policy.act(obs))
+        done = terminated or truncated
+    assert len(checked) > 300
+    assert min(checked) < -1.0  # some braked behind something in the way
