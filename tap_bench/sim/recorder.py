@@ -15,8 +15,8 @@ road segment the vehicle is on (highway-env's lane index without the lane, ``"a>
 
 from __future__ import annotations
 
-from collections.abc import Iterable
-from typing import TYPE_CHECKING
+from collections.abc import Iterable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -25,10 +25,44 @@ from tap_bench.trajectories import HZ
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["EGO_TRACK_ID", "TrajectoryRecorder", "scenario_id"]
+__all__ = ["EGO_TRACK_ID", "TrajectoryRecorder", "flag_column", "scenario_id", "text_column"]
 
 EGO_TRACK_ID = "ego"
 _TWO_PI = 2.0 * np.pi
+
+
+def text_column(labels: Sequence[str], codes: np.ndarray) -> Any:
+    """A table column of strings, ``labels[codes]``, in the dtype pandas gives a column of
+    Python strings (pandas 3: its Arrow-backed ``str``; earlier: object), built from the few
+    labels without a Python string per row.
+
+    Args:
+        labels: (k,) the distinct strings.
+        codes: (n,) int, indices into ``labels``.
+
+    Returns:
+        (n,) an array a DataFrame takes as the column as it is (no conversion); with no
+        rows, an empty object array (the dtype pandas gives an empty column of objects).
+    """
+    import pandas as pd
+
+    words = np.empty(len(labels), dtype=object)
+    words[:] = list(labels)
+    dtype = pd.Series(np.array(["a"], dtype=object)).dtype
+    if dtype == np.dtype(object) or not len(codes):  # pandas infers nothing from none
+        return words[codes]
+    return pd.array(words, dtype=dtype).take(np.asarray(codes, dtype=np.intp))
+
+
+def flag_column(values: np.ndarray, missing: np.ndarray | None = None) -> Any:
+    """A nullable boolean table column (pandas ``boolean``) of ``values`` (n,) bool, NA
+    where ``missing`` (n,) bool is true (None: nowhere)."""
+    import pandas as pd
+
+    values = np.asarray(values, dtype=bool)
+    mask = np.zeros(len(values), dtype=bool) if missing is None else \
+        np.asarray(missing, dtype=bool)
+    return pd.arrays.BooleanArray(np.where(mask, False, values), mask.copy())
 
 
 def scenario_id(env: str, seed: int | None, episode: int = 0, policy: str | None = None) -> str:

@@ -778,49 +778,60 @@ class WomdEnv(gym.Wrapper):
         Args:
             **columns: constant columns to add (``policy="idm"``).
         """
+        from tap_bench.sim.recorder import flag_column, text_column
+
         scene = self.scene
         n, _ = scene.x.shape
         inner = self.env.unwrapped
-        last = self._last_step + 1
-        t = last
+        t = self._last_step + 1
+        rows = n * t
         rec = self._rec
-        ego_rows = np.arange(n) == scene.ego
+        valid = rec["valid"][:, :t].ravel()
+        track = np.repeat(np.arange(n), t)
+        ego_rows = track == scene.ego
+        ego_at = np.flatnonzero(ego_rows)
+        one = np.zeros(rows, dtype=np.intp)
+
+        def kinematic(name: str) -> np.ndarray:  # NaN where the agent is not on the road
+            return np.where(valid, rec[name][:, :t].ravel(), np.nan)
+
         data = {
-            "scenario_id": np.full(n * t, scene.scenario_id, dtype=object),
-            "track_id": np.repeat(scene.track_ids.astype(object), t),
+            "scenario_id": text_column([scene.scenario_id], one),
+            "track_id": text_column([str(i) for i in scene.track_ids], track),
             "t": np.tile(scene.times[:t] - scene.times[0], n),  # as read_womd gives them
-            **{name: rec[name][:, :t].ravel() for name in
-               ("x", "y", "heading", "speed", "valid", "vx", "vy")},
-            "object_type": np.repeat(scene.object_types.astype(object), t),
-            "is_ego": np.repeat(ego_rows, t),
-            "source": np.full(n * t, "womd-sim", dtype=object),
-            "env": np.full(n * t, self.scenario.name, dtype=object),
+            **{name: kinematic(name) for name in ("x", "y", "heading", "speed")},
+            "valid": valid,
+            **{name: kinematic(name) for name in ("vx", "vy")},
+            "object_type": text_column([str(k) for k in scene.object_types], track),
+            "is_ego": ego_rows,
+            "source": text_column(["womd-sim"], one),
+            "env": text_column([self.scenario.name], one),
         }
         policy = columns.pop("policy", None)
         if policy is not None:
-            data["policy"] = np.full(n * t, policy, dtype=object)
-        data["seed"] = np.full(n * t, self._seed, dtype=np.int64)
-        data["episode"] = np.zeros(n * t, np.int64)
+            data["policy"] = text_column([policy], one) if isinstance(policy, str) \
+                else np.full(rows, policy, dtype=object)
+        data["seed"] = np.full(rows, self._seed, dtype=np.int64)
+        data["episode"] = np.zeros(rows, np.int64)
         data["crashed"] = self._crashed[:, :t].ravel()
         data["length"] = np.repeat(scene.length, t)
         data["width"] = np.repeat(scene.width, t)
         for name, values in self._ego_cols.items():
-            col = np.full((n, t), np.nan if values.dtype.kind == "f" else False,
-                          dtype=values.dtype if values.dtype.kind == "f" else object)
-            col[scene.ego] = values[:t]
-            if name in _SIGNAL_COLUMNS and not inner.has_signals:
-                col[scene.ego] = None  # no signal states: not a number (NA), not "never"
-            data[name] = col.ravel() if values.dtype.kind == "f" else \
-                pd.array(col.ravel(), dtype="boolean")
-        early = np.full((n, t), False, dtype=object)
-        early[scene.ego] = self._ended_early()
-        data["ended_early"] = pd.array(early.ravel(), dtype="boolean")
-        data.update({name: np.full(n * t, value, dtype=object) for name, value in
-                     columns.items()})
-        table = pd.DataFrame(data, copy=False)
-        kin = ["x", "y", "heading", "speed", "vx", "vy"]
-        table.loc[~table["valid"].to_numpy(bool), kin] = np.nan
-        return table
+            if values.dtype.kind == "f":
+                col = np.full(rows, np.nan)
+                col[ego_at] = values[:t]
+                data[name] = col
+                continue
+            flags = np.zeros(rows, dtype=bool)
+            flags[ego_at] = values[:t]
+            # no signal states: not a number (NA), not "never"
+            unknown = ego_rows if name in _SIGNAL_COLUMNS and not inner.has_signals else None
+            data[name] = flag_column(flags, unknown)
+        data["ended_early"] = flag_column(ego_rows & self._ended_early())
+        data.update({name: text_column([value], one) if isinstance(value, str)
+                     else np.full(rows, value, dtype=object)
+                     for name, value in columns.items()})
+        return pd.DataFrame(data, copy=False)
 
     def recorded_states(self) -> dict[str, np.ndarray]:
         """The episode's states as (n_tracks, n_steps) arrays in WOMD's axes (``x``, ``y``,
