@@ -19,7 +19,7 @@ edges and crosswalks are kept; stop signs, speed bumps and driveways are not dra
 from __future__ import annotations
 
 import os
-from collections.abc import Container, Iterable, Iterator
+from collections.abc import Container, Generator, Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +40,7 @@ from tap_bench.womd.roadmap import (
 from tap_bench.womd.tf_example import Example
 from tap_bench.womd.tfrecord import iter_records
 
-__all__ = ["iter_road_maps", "read_maps", "read_road_maps"]
+__all__ = ["iter_maps", "iter_road_maps", "read_maps", "read_road_maps"]
 
 _BROKEN_LINES = {1, 4, 5}  # RoadLineType: BROKEN_SINGLE_WHITE, BROKEN_SINGLE/DOUBLE_YELLOW
 # tf.Example roadgraph_samples/type -> (kind, style)
@@ -83,12 +83,21 @@ class _Features:
         out["feature_id"] = out["feature_id"].astype(np.int64)
         return out
 
+    def take(self) -> pd.DataFrame | None:
+        """The rows collected since the last take (None: none), then forgotten (feature
+        ids go on counting)."""
+        if not self.cols["x"]:
+            return None
+        out = self.table()
+        self.cols = {c: [] for c in MAP_COLUMNS}
+        return out
+
 
 def _points(points) -> np.ndarray:
     return np.array([(p.x, p.y) for p in points], dtype=float).reshape(-1, 2)
 
 
-def _scenario_maps(path: Path, out: _Features) -> None:
+def _scenario_maps(path: Path, out: _Features) -> Generator[None, None, None]:
 
     for record in iter_records(path):
         try:
@@ -107,12 +116,14 @@ def _scenario_maps(path: Path, out: _Features) -> None:
                 out.add(view.scenario_id, "road_edge", "", _points(feature.road_edge.polyline))
             elif feature.HasField("crosswalk"):
                 out.add(view.scenario_id, "crosswalk", "", _points(feature.crosswalk.polygon))
+        yield
 
 
-def _tf_example_maps(path: Path, out: _Features) -> None:
+def _tf_example_maps(path: Path, out: _Features) -> Generator[None, None, None]:
     for record in iter_records(path):
         features = Example.FromString(record.data).features.feature
         if "roadgraph_samples/xyz" not in features:
+            yield
             continue
         sid = (features["scenario/id"].bytes_list.value[0].decode()
                if "scenario/id" in features else f"{record.path}#{record.index}")
@@ -131,9 +142,10 @@ def _tf_example_maps(path: Path, out: _Features) -> None:
             if len(part) and int(kind[part[0]]) in _ROADGRAPH:
                 k, style = _ROADGRAPH[int(kind[part[0]])]
                 out.add(sid, k, style, xyz[part, :2])
+        yield
 
 
-def _scenarionet_maps(path: Path, out: _Features) -> None:
+def _scenarionet_maps(path: Path, out: _Features) -> Generator[None, None, None]:
 
     scenario = load_scenarionet(path)
     meta = scenario.get("metadata", {}) if isinstance(scenario, dict) else {}
@@ -149,6 +161,7 @@ def _scenarionet_maps(path: Path, out: _Features) -> None:
             out.add(sid, "road_edge", "", np.asarray(feature.get("polyline", [])))
         elif kind == "CROSSWALK":
             out.add(sid, "crosswalk", "", np.asarray(feature.get("polygon", [])))
+    yield
 
 
 _MAP_READERS = {"scenario": _scenario_maps, "tf_example": _tf_example_maps,
@@ -176,8 +189,29 @@ def read_maps(paths: str | os.PathLike | Iterable[str | os.PathLike], *,
     for path in record_files(paths):  # folders and globs: WOMD files only, as ingest
         read = _MAP_READERS.get(_file_format(path, "auto", True).name)
         if read is not None:
-            read(path, out)
+            for _ in read(path, out):
+                pass
     return out.table()
+
+
+def iter_maps(paths: str | os.PathLike | Iterable[str | os.PathLike]
+              ) -> Iterator[pd.DataFrame]:
+    """The map table of each scenario of driving-data files with a map, one at a time in
+    file and record order: together, the rows (and feature ids) :func:`read_maps` gives,
+    with one record's map in memory at a time.
+
+    Raises:
+        WomdRecordError: a record that cannot be read, naming file, record and offset.
+    """
+    out = _Features()
+    for path in record_files(paths):
+        read = _MAP_READERS.get(_file_format(path, "auto", True).name)
+        if read is None:
+            continue
+        for _ in read(path, out):
+            table = out.take()
+            if table is not None:
+                yield table
 
 
 # ------------------------------------------------------------------ road maps (closed loop)

@@ -5,6 +5,7 @@ those of a run that holds every trajectory in memory, and nothing is left beside
 from __future__ import annotations
 
 import json
+import re
 import sys
 import warnings
 from pathlib import Path
@@ -42,10 +43,22 @@ def _run(suite, out: Path, **options) -> Path:
         return runner.run_suite(suite, out, workers=1, progress=False, **options).folder
 
 
+def _script(path: Path) -> object:
+    """The JSON a viewer data file hands to the page."""
+    text = path.read_text(encoding="utf-8")
+    found = re.fullmatch(r'TAPVIEW\.(?:chunk\("[^"]*",|index\()(.*)\);\n', text, re.S)
+    assert found, path
+    return json.loads(found[1])
+
+
 def _same_folders(a: Path, b: Path) -> None:
+    """``a`` (streamed) holds the tables, summary and viewer data of ``b`` (held in memory);
+    ``a``'s viewer carries each recorded scene's map with its episodes, ``b``'s in its
+    index."""
     tables = sorted(p.name for p in a.glob("*.parquet"))
     assert tables == sorted(p.name for p in b.glob("*.parquet"))
-    assert "trajectories.parquet" in tables
+    assert {"trajectories.parquet", "labels.parquet", "segments.parquet",
+            "roads.parquet"} <= set(tables)
     for name in tables:
         pd.testing.assert_frame_equal(pd.read_parquet(a / name), pd.read_parquet(b / name),
                                       obj=name)
@@ -53,35 +66,81 @@ def _same_folders(a: Path, b: Path) -> None:
                   if p.is_file() and p.suffix != ".html")
     assert data == sorted(p.relative_to(b) for p in (b / "viewer").rglob("*")
                           if p.is_file() and p.suffix != ".html")
-    for rel in data:  # the index names the run and its time
-        if rel.name != "index.js":
-            assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
-    assert len(data) > 2
+    index_a, index_b = (_script(f / "viewer" / "data" / "index.js") for f in (a, b))
+    map_of = {e["id"]: e["map"] for e in index_b["episodes"]}
+    assert all(e.pop("map") is None for e in index_a["episodes"])
+    for entry in index_b["episodes"]:
+        entry.pop("map")
+    assert index_a["episodes"] == index_b["episodes"]
+    assert index_a["maps"] == {}  # recorded scenes only: their maps go with the episodes
+    chunks = [rel for rel in data if rel.suffix == ".js" and rel.parent.name == "data"
+              and rel.name != "index.js"]
+    for rel in chunks:
+        docs_a, docs_b = _script(a / rel), _script(b / rel)
+        for doc in docs_b:
+            doc["map"] = index_b["maps"][map_of[doc["id"]]]
+        assert docs_a == docs_b, rel
+        assert all(doc["map"] for doc in docs_a)
+    assert len(chunks) > 1
     sa, sb = (json.loads((f / "summary.json").read_text()) for f in (a, b))
     for key in ("headline", "verdict", "n_episodes", "failed", "methods"):
         assert sa[key] == sb[key], key
 
 
-def test_a_womd_run_spills_trajectories_and_equals_one_held_in_memory(tmp_path, monkeypatch):
+def _whole_reads(monkeypatch) -> list[str]:
+    """The spilled tables of every track and step (trajectories, labels, segments) read
+    back as one table, named as it happens."""
+    read_whole = []
+    whole = bench_spill.SpilledTable.table
+
+    def table(self, indices=None):
+        if indices is None and self.name in ("trajectories", "labels", "segments"):
+            read_whole.append(self.name)
+        return whole(self, indices)
+
+    monkeypatch.setattr(bench_spill.SpilledTable, "table", table)
+    return read_whole
+
+
+def test_a_womd_run_spills_its_tables_and_equals_one_held_in_memory(tmp_path, monkeypatch):
     files = scene_files(tmp_path / "scenes", 5, per_file=2, parked=20)
     suite = womd_suite(files)
     kept = []  # the spills made, to see what each held
-    made = bench_spill.TrajectorySpill
+    made = bench_spill.RunSpill
 
     def spill(output):
         kept.append(made(output))
         return kept[-1]
 
-    monkeypatch.setattr(runner, "TrajectorySpill", spill)
+    monkeypatch.setattr(runner, "RunSpill", spill)
+    read_whole = _whole_reads(monkeypatch)
+    gathered = []  # the task results as the run holds them until the scores
+    tables_of = runner.RunTables.of.__func__
+
+    def of(cls, results, *args, **kwargs):
+        gathered.extend(results)
+        return tables_of(cls, results, *args, **kwargs)
+
+    monkeypatch.setattr(runner.RunTables, "of", classmethod(of))
     streamed = _run(suite, tmp_path / "streamed")
-    assert len(kept) == 1 and len(kept[0].parts) == 10  # an episode a part
+    # no table of an episode is held after it arrived, nor read back whole: the viewer
+    # reads a chunk (one scene, every policy) at a time
+    assert len(gathered) == 10 and not read_whole
+    assert not [k for r in gathered for k, v in r.items() if isinstance(v, pd.DataFrame)]
+    assert len(list((tmp_path / "streamed" / "viewer" / "data").glob("*.js"))) == 6
+    monkeypatch.undo()
+    monkeypatch.setattr(runner, "RunSpill", spill)
+    assert len(kept) == 1
+    for name in ("trajectories", "labels", "segments", "episodes"):  # an episode a part
+        assert len(kept[0].parts[name]) == 10, name
     assert not kept[0].folder.exists()  # removed when the run ended
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scenes", "streamed"]
     monkeypatch.setattr(runner, "spills", lambda scenarios: False)
     held = _run(suite, tmp_path / "held")
     assert len(kept) == 1
     _same_folders(streamed, held)
-    assert len(pd.read_parquet(streamed / "trajectories.parquet")) == kept[0].rows
+    for name in ("trajectories", "labels", "segments"):
+        assert len(pd.read_parquet(streamed / f"{name}.parquet")) == kept[0].rows[name]
 
 
 def test_without_the_report_the_trajectories_are_never_one_table(tmp_path, monkeypatch,
@@ -89,9 +148,7 @@ def test_without_the_report_the_trajectories_are_never_one_table(tmp_path, monke
     files = scene_files(tmp_path / "scenes", 3, per_file=3)
     suite = tmp_path / "suite.json"
     suite.write_text(json.dumps(suite_doc(files)))
-    read_whole = []
-    monkeypatch.setattr(bench_spill.TrajectorySpill, "table",
-                        lambda self: read_whole.append(1))
+    read_whole = _whole_reads(monkeypatch)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         assert main(["bench", "run", "--suite", str(suite), "-o", str(tmp_path / "run"),

@@ -15,7 +15,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from tap_bench.bench.run.spill import TrajectorySpill
+from tap_bench.bench.run.spill import SpilledEpisodes, SpilledTable
 from tap_bench.errors import (
     FileFormatError,
 )
@@ -259,10 +259,11 @@ def _json_default(value: Any) -> Any:
 
 
 def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str, Any],
-                  episodes: pd.DataFrame, labels: pd.DataFrame,
-                  trajectories: pd.DataFrame | TrajectorySpill | None, scores: Scores,
+                  episodes: pd.DataFrame, labels: pd.DataFrame | SpilledTable,
+                  trajectories: pd.DataFrame | SpilledTable | None, scores: Scores,
                   report: bool = True, *,
-                  segments: pd.DataFrame | None = None, roads: pd.DataFrame | None = None,
+                  segments: pd.DataFrame | SpilledTable | None = None,
+                  roads: pd.DataFrame | SpilledTable | None = None,
                   cache: EpisodeCache | None = None,
                   pages: dict[str, bytes] | None = None) -> Path:
     """Write a results folder (tables, ``summary.json``, plots, report, and the replay
@@ -272,7 +273,9 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
     when complete (:func:`tap_bench.tableio.atomic_folder`); an existing ``output`` is
     replaced only when ``overwrite`` is True and tap-bench wrote it. With a ``cache``, the
     figures and the viewer's episode data of unchanged inputs are read from it
-    (:func:`tap_bench.bench.cache.memoised`): the files are the same.
+    (:func:`tap_bench.bench.cache.memoised`): the files are the same. Tables of a spilled
+    run (:class:`~tap_bench.bench.run.spill.SpilledTable`) are joined from their parts a
+    row group at a time.
 
     Args:
         pages: a dict to fill with the pages that name the run (the report and the viewer's
@@ -290,22 +293,17 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
 
     with atomic_folder(output, overwrite, kind="run") as tmp:
         episodes.to_parquet(tmp / "episodes.parquet", index=False)
-        if len(labels):
-            labels.to_parquet(tmp / "labels.parquet", index=False)
-        if isinstance(trajectories, TrajectorySpill):  # joined from disk, a part at a time
-            trajectories.write(tmp / "trajectories.parquet")
-            trajectories = trajectories.table() if report else None  # the viewer's
-        elif trajectories is not None and len(trajectories):
-            trajectories.to_parquet(tmp / "trajectories.parquet", index=False)
-        for name, table in (("segments", segments), ("roads", roads)):
-            if table is not None and len(table):
-                table.to_parquet(tmp / f"{name}.parquet", index=False)
+        for name, table in (("labels", labels), ("trajectories", trajectories),
+                            ("segments", segments), ("roads", roads)):
+            _write_table(tmp / f"{name}.parquet", table)
+        viewer = report and trajectories is not None and len(trajectories) > 0
+        if isinstance(trajectories, SpilledTable):  # the viewer reads a chunk at a time
+            trajectories = SpilledEpisodes(trajectories.spill)
         for name, table in scores.tables().items():
             if len(table):
                 _parquet_safe(table).to_parquet(tmp / f"{name}.parquet", index=False)
         _write_json(tmp / "summary.json", summary)
         with page_templates(tmp, summary, pages) as shown:  # what the pages say of the run
-            viewer = report and trajectories is not None and len(trajectories) > 0
             if viewer:
                 write_run_viewer(tmp / "viewer", shown, episodes, trajectories,
                                  segments=segments, roads=roads,
@@ -314,6 +312,17 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
                 write_report(tmp, shown, episodes, scores, viewer="viewer/index.html"
                              if viewer else None, cache=cache)
     return Path(output)
+
+
+def _write_table(path: Path, table: pd.DataFrame | SpilledTable | None) -> None:
+    """``table`` as Parquet at ``path`` (a spilled one joined from its parts); nothing for
+    no rows."""
+    if table is None or not len(table):
+        return
+    if isinstance(table, SpilledTable):
+        table.write(path)
+    else:
+        table.to_parquet(path, index=False)
 
 
 def _parquet_safe(table: pd.DataFrame) -> pd.DataFrame:

@@ -57,7 +57,7 @@ import math
 import os
 import time
 import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -92,8 +92,14 @@ from tap_bench.bench.run.served import (
     store_run,
     try_served,
 )
-from tap_bench.bench.run.spill import TrajectorySpill, spills
-from tap_bench.bench.run.tasks import CACHED_BATCH, RunTables, _observed_timings, _rollouts
+from tap_bench.bench.run.spill import RunSpill, SpilledTable, spills
+from tap_bench.bench.run.tasks import (
+    CACHED_BATCH,
+    RunTables,
+    _observed_timings,
+    _rollouts,
+    result_ok,
+)
 from tap_bench.bench.suite import Suite
 from tap_bench.errors import (
     CacheEntryWarning,
@@ -149,6 +155,24 @@ class _Roads:
     def table(self, envs: Sequence[str]) -> pd.DataFrame:
         """The map tables of ``envs``, one table."""
         return pd.concat([self(env) for env in envs], ignore_index=True)
+
+    def kept(self, envs: Sequence[str], spill: RunSpill | None
+             ) -> pd.DataFrame | SpilledTable:
+        """The map tables of ``envs`` for the run folder: one table, or (a spilled run)
+        written to the spill's parts, a recorded scene's map at a time (the rows
+        :meth:`table` gives)."""
+        if spill is None:
+            return self.table(envs)
+        return spill.keep_maps(table for env in envs for table in self._tables(env))
+
+    def _tables(self, env: str) -> Iterator[pd.DataFrame]:
+        scenario = self.scenarios[env]
+        if isinstance(scenario, WomdScenes) and env not in self.drawn:
+            from tap_bench.sources.maps import iter_maps
+
+            yield from iter_maps(scenario.files)
+        else:
+            yield self(env)
 
 
 def _table_files(table: pd.DataFrame) -> dict[str, bytes]:
@@ -237,8 +261,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     if tasks is None:  # not made for the served run's key
         tasks = _tasks(plan, keep_tables, cache)
     roads = _Roads(plan.scenarios, cache)
-    # recorded scenes: each episode's trajectories go to disk as it ends (run.spill)
-    spill = TrajectorySpill(output) if spills(plan.scenarios) and keep_tables else None
+    # recorded scenes: each episode's tables go to disk as its result arrives (run.spill)
+    spill = RunSpill(output) if spills(plan.scenarios) else None
     t0 = time.perf_counter()
     kept = getattr(runner, "kept", None)  # the estimate's first episodes and the rest
     with kept() if kept is not None else contextlib.nullcontext():  # on the same workers
@@ -247,8 +271,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     timings["rollouts_wall"] = time.perf_counter() - t0
     if announce is not None:
         announce(f"episodes done ({timings['rollouts_wall']:.0f} s); scoring ...")
-    refused = _check_results(results, plan.name)
     tables = RunTables.of(results, keep_tables, timings, spill, whole=with_trajectories)
+    refused = _check_results(results, tables.episodes, plan.name)
     t0 = time.perf_counter()
     scores = score_run(plan, tables, corpora, cache)
     timings["scoring"] = time.perf_counter() - t0
@@ -266,7 +290,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         tables.trajectories if keep_trajectories else None, scores, report,
         segments=tables.segments, cache=cache, pages=pages,
         # the replay viewer draws the roads; highway-env's road is seed-free
-        roads=roads.table(plan.envs) if keep_trajectories else None)
+        roads=roads.kept(plan.envs, spill) if keep_trajectories else None)
     timings["writing_and_report"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
     if spill is not None:
@@ -314,15 +338,17 @@ def _reference_sources(references: Mapping[str, ReferenceSource] | None,
     return sources
 
 
-def _check_results(results: list[dict[str, Any]], suite_name: str) -> list[str]:
-    """The notes of the cache entries refused (each warned, the first five by name).
+def _check_results(results: list[dict[str, Any]], episodes: pd.DataFrame, suite_name: str
+                   ) -> list[str]:
+    """The notes of the cache entries refused (each warned, the first five by name);
+    ``episodes``: the run's episode table.
 
     Raises:
         EpisodesFailedError: every episode failed.
     """
-    if not any((r["episodes"]["status"] == "ok").all() for r in results):
+    if not any(result_ok(r) for r in results):
         errors = [f"{row.env} {row.policy} seed {row.seed}: {row.error}"
-                  for r in results for row in r["episodes"].itertuples()]
+                  for row in episodes.itertuples()]
         raise EpisodesFailedError(f"the {len(results)} episode(s) of suite {suite_name}",
                                   errors)
     refused = [r["cache_note"] for r in results if r.get("cache_note")]

@@ -21,7 +21,7 @@ from tap_bench.bench.episodes import episode_table
 from tap_bench.bench.measures import MEASURES, ego_steps
 from tap_bench.bench.run.estimate import RunPlan, estimate
 from tap_bench.bench.run.plan import _Task
-from tap_bench.bench.run.spill import TrajectorySpill
+from tap_bench.bench.run.spill import RunSpill, SpilledTable
 from tap_bench.bench.scores.contexts import occurrences_from
 from tap_bench.errors import RegistrationError
 from tap_bench.execution import Backend
@@ -305,6 +305,11 @@ batched up to this many: reading them costs little beside labelling."""
 BATCHES_PER_WORKER = 4
 """Episodes to simulate are batched so that each worker gets about this many tasks (fewer
 tasks, fewer TAP calls; enough of them to keep every worker busy to the end)."""
+RECORDED_BATCH = 4
+"""Most episodes of recorded scenes in one task, cached or not: a scene's tables are
+thousands of rows (one TAP call costs little beside them), and a batch's results are held
+whole in its worker and in the run's process until they are written, so a batch that grew
+with the run's scenes would make the run's memory grow with them."""
 
 
 @dataclass(frozen=True)
@@ -352,7 +357,8 @@ def _items(tasks: list[_Task], indices: list[int], cached: list[bool], workers: 
            ) -> list[tuple[list[int], _Task | _Batch]]:
     """The work items of ``tasks[indices]``: the episodes of one env and policy in batches,
     cached ones up to :data:`CACHED_BATCH` a batch, ones to simulate in batches small
-    enough to give each worker about :data:`BATCHES_PER_WORKER` tasks. ``given``: episodes
+    enough to give each worker about :data:`BATCHES_PER_WORKER` tasks; recorded scenes'
+    at most :data:`RECORDED_BATCH` a batch. ``given``: episodes
     simulated already (index -> :func:`_episode`'s value), batched with those to simulate."""
     given = given or {}
     to_simulate = sum(not cached[i] for i in indices)
@@ -364,8 +370,10 @@ def _items(tasks: list[_Task], indices: list[int], cached: list[bool], workers: 
         groups.setdefault((tasks[i].env, tasks[i].policy, cached[i]), []).append(i)
     items: list[tuple[list[int], _Task | _Batch]] = []
     for (_, _, hit), members in groups.items():
-        for start in range(0, len(members), size[hit]):
-            chunk = members[start:start + size[hit]]
+        most = min(size[hit], RECORDED_BATCH) \
+            if isinstance(tasks[members[0]].scenario, WomdScenes) else size[hit]
+        for start in range(0, len(members), most):
+            chunk = members[start:start + most]
             got = tuple(given.get(i) for i in chunk) if any(i in given for i in chunk) else ()
             items.append((chunk, _Batch(tuple(tasks[i] for i in chunk), got)
                           if len(chunk) > 1 or got else tasks[chunk[0]]))
@@ -385,8 +393,8 @@ def _rollouts(tasks: list[_Task], name: str, backend: Backend, progress: bool | 
     as a map table, drawn here once for the envs with episodes to label and handed to their
     tasks (None: each worker draws it). ``keep_result``: (task index, result) -> the result
     kept, called on each result as it arrives (a :class:`~tap_bench.bench.run.spill.
-    TrajectorySpill` writes its trajectories to disk and keeps the rest), the tasks'
-    results then taken one by one as they end rather than all at once."""
+    RunSpill` writes its tables to disk and keeps the rest), the tasks' results then taken
+    one by one as they end rather than all at once."""
     streamed = keep_result is not None
     keep_result = keep_result if streamed else (lambda _, result: result)
     tasks = list(tasks)
@@ -468,41 +476,59 @@ def _rollouts(tasks: list[_Task], name: str, backend: Backend, progress: bool | 
     return out, plan
 
 
+def result_ok(result: dict[str, Any]) -> bool:
+    """Whether the episode of a task result ran: every row of its episode table has status
+    ``ok`` (a spilled result says so in ``ok``, its table being on disk)."""
+    if "ok" in result:
+        return bool(result["ok"])
+    return bool((result["episodes"]["status"] == "ok").all())
+
+
 def _observed_timings(results: list[dict[str, Any]]) -> tuple[dict[str, float],
                                                               dict[str, float]]:
     """Mean wall time per episode by env [s]: (simulated, cached), successful ones only."""
     simulated: dict[str, list[float]] = {}
     cached: dict[str, list[float]] = {}
     for r in results:
-        if (r["episodes"]["status"] == "ok").all() and math.isfinite(r["seconds"]):
+        if result_ok(r) and math.isfinite(r["seconds"]):
             (cached if r["cached"] else simulated).setdefault(r["env"], []).append(
                 r["seconds"])
     return ({env: float(np.mean(v)) for env, v in simulated.items()},
             {env: float(np.mean(v)) for env, v in cached.items()})
 
 
+Spilled = pd.DataFrame | SpilledTable
+"""A table of the run: in memory, or its parts on disk (:mod:`tap_bench.bench.run.spill`)."""
+
+
 @dataclass(frozen=True)
 class RunTables:
     """The tables of a run's episodes, gathered from the tasks' results: the episode table
     (sorted by env, policy, seed), labels, segments (None: none), the interaction contexts'
-    occurrences (None: none) and the trajectories (None: not kept)."""
+    occurrences (None: none) and the trajectories (None: not kept). Labels, segments and
+    trajectories of a spilled run stay on disk (:class:`~tap_bench.bench.run.spill.
+    SpilledTable`) unless read whole."""
 
     episodes: pd.DataFrame
-    labels: pd.DataFrame
-    segments: pd.DataFrame | None
+    labels: Spilled
+    segments: Spilled | None
     occurrences: pd.DataFrame | None
-    trajectories: pd.DataFrame | TrajectorySpill | None
+    trajectories: Spilled | None
 
     @classmethod
     def of(cls, results: list[dict[str, Any]], trajectories: bool,
-           timings: dict[str, float], spill: TrajectorySpill | None = None, *,
+           timings: dict[str, float], spill: RunSpill | None = None, *,
            whole: bool = False) -> RunTables:
         """Gathered from ``results``; the workers' CPU time per stage goes to ``timings``
-        (``<stage>_cpu_in_workers`` [s]). With a ``spill``, the trajectories are its parts
-        (read back into one table when ``whole``: the reference matching needs them)."""
+        (``<stage>_cpu_in_workers`` [s]). With a ``spill``, the tables are read from its
+        parts: the episode table and the occurrences whole (the scores need every row),
+        the labels, segments and trajectories left on disk, or read back whole when
+        ``whole`` (the matching against a reference's scenarios needs them)."""
         for key in ("rollout", "labelling", "measures"):
             timings[f"{key}_cpu_in_workers"] = sum(r["timings"].get(key, 0.0)
                                                    for r in results)
+        if spill is not None:
+            return cls._spilled(spill, trajectories, whole)
         episodes = pd.concat([r["episodes"] for r in results], ignore_index=True)
         episodes = episodes.sort_values(["env", "policy", "seed"], kind="stable")
         return cls(episodes.reset_index(drop=True),
@@ -510,18 +536,25 @@ class RunTables:
                        len(r["labels"]) for r in results) else pd.DataFrame(),
                    _concat([r["segments"] for r in results]),
                    _concat([r.get("contexts", ()) for r in results]),
-                   _trajectories(results, spill, whole) if trajectories else None)
+                   _concat([r["trajectories"] for r in results
+                            if r["trajectories"] is not None]) if trajectories else None)
 
+    @classmethod
+    def _spilled(cls, spill: RunSpill, trajectories: bool, whole: bool) -> RunTables:
+        """The tables of a spilled run (:meth:`of`)."""
+        episodes = spill.table("episodes").table()
+        episodes = episodes.sort_values(["env", "policy", "seed"], kind="stable")
 
-def _trajectories(results: list[dict[str, Any]], spill: TrajectorySpill | None, whole: bool
-                  ) -> pd.DataFrame | TrajectorySpill | None:
-    """The run's trajectories: the results' tables as one, or the spill's parts (as one
-    table when ``whole``); None: no rows."""
-    if spill is None:
-        return _concat([r["trajectories"] for r in results if r["trajectories"] is not None])
-    if whole:
-        return spill.table()
-    return spill if len(spill) else None
+        def kept(name: str) -> Spilled | None:
+            part = spill.table(name)
+            if not len(part):
+                return None
+            return part.table() if whole else part
+
+        return cls(episodes.reset_index(drop=True), kept("labels") if len(
+                   spill.table("labels")) else pd.DataFrame(), kept("segments"),
+                   spill.table("contexts").table(),
+                   kept("trajectories") if trajectories else None)
 
 
 def _concat(frames: Sequence[Any]) -> pd.DataFrame | None:

@@ -21,10 +21,10 @@ import glob
 import json
 import os
 import warnings
-from collections.abc import Sequence
+from collections.abc import Collection, Iterator, Mapping, Sequence
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import pandas as pd
 
@@ -51,8 +51,8 @@ from tap_bench.thresholds import Thresholds
 if TYPE_CHECKING:
     from tap_bench.bench.cache import EpisodeCache
 
-__all__ = ["DEFAULT_VIEW_SCENARIOS", "MAX_VIEW_SCENARIOS", "STATIC_FILES", "write_run_viewer",
-           "write_viewer", "write_womd_viewer"]
+__all__ = ["DEFAULT_VIEW_SCENARIOS", "MAX_VIEW_SCENARIOS", "STATIC_FILES", "EpisodeParts",
+           "write_run_viewer", "write_viewer", "write_womd_viewer"]
 
 STATIC_FILES = ("index.html", "viewer.js", "viewer.css")
 """The viewer's own files, package data of :mod:`tap_bench.bench.report.viewer`."""
@@ -87,8 +87,10 @@ def write_viewer(output: str | os.PathLike, index: dict[str, Any],
 
 
 def _write_viewer(output: str | os.PathLike, index: dict[str, Any],
-                  scripts: dict[str, str]) -> Path:
-    """:func:`write_viewer` with the chunks as their script files' text."""
+                  scripts: Mapping[str, str] | Iterator[tuple[str, str]]) -> Path:
+    """:func:`write_viewer` with the chunks as their script files' text (or as (name,
+    text) pairs made one at a time, each written before the next is made; the index is
+    written after the last, so a generator may still fill it)."""
     output = Path(output)
     static = resources.files("tap_bench.bench.report.viewer") / "static"
     # built beside the target and moved into place whole; an earlier viewer is replaced
@@ -97,7 +99,7 @@ def _write_viewer(output: str | os.PathLike, index: dict[str, Any],
         data.mkdir()
         for name in STATIC_FILES:
             (tmp / name).write_bytes((static / name).read_bytes())
-        for name, text in scripts.items():
+        for name, text in (scripts.items() if isinstance(scripts, Mapping) else scripts):
             (data / f"{name}.js").write_text(text, encoding="utf-8")
         (data / "index.js").write_text(_script("index", None, index), encoding="utf-8")
     return output / "index.html"
@@ -110,8 +112,30 @@ def _env_boxes(trajectories: pd.DataFrame, margin: float) -> dict[str, tuple]:
             for env, r in box.iterrows()}
 
 
+class EpisodeParts(Protocol):
+    """A run's trajectories, segments and maps on disk, read a few episodes at a time
+    (:class:`tap_bench.bench.run.spill.SpilledEpisodes`)."""
+
+    def scenes(self) -> dict[str, str | None]:
+        """Episode ``scenario_id`` -> its recorded scene's WOMD id (None: not recorded),
+        for the episodes with trajectories, in run order."""
+
+    def boxes(self) -> dict[str, tuple[float, float, float, float]]:
+        """env -> (x min, y min, x max, y max) of its trajectories' positions [m]."""
+
+    def episodes(self, scenario_ids: Collection[str]) -> tuple[pd.DataFrame,
+                                                                pd.DataFrame | None]:
+        """The trajectories and segments of these episodes, in run order."""
+
+    def map_of(self, map_id: str) -> pd.DataFrame | None:
+        """The map table of ``map_id`` (None: none)."""
+
+    def map_ids(self) -> list[str]:
+        """Every ``map_id`` with a map, in order."""
+
+
 def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
-                     episodes: pd.DataFrame, trajectories: pd.DataFrame, *,
+                     episodes: pd.DataFrame, trajectories: pd.DataFrame | EpisodeParts, *,
                      segments: pd.DataFrame | None = None, roads: pd.DataFrame | None = None,
                      novel_labels: pd.DataFrame | None = None,
                      cache: EpisodeCache | None = None) -> Path:
@@ -121,7 +145,9 @@ def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
         output: the viewer folder (``<run>/viewer``).
         summary: the run's ``summary.json`` content (level, thresholds, suite, reference).
         episodes: the episode table.
-        trajectories: the run's trajectory table.
+        trajectories: the run's trajectory table, or its episodes on disk
+            (:class:`EpisodeParts`, with their segments and maps): then each chunk is read,
+            made and written before the next (:func:`_write_parts_viewer`).
         segments: the segment table (label timelines); None labels the egos again with the
             run's thresholds (runs written before ``segments.parquet`` existed).
         roads: the map table of the envs' roads; None builds each env's road again from
@@ -135,6 +161,8 @@ def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
     Returns:
         the path of the viewer's ``index.html``.
     """
+    if not isinstance(trajectories, pd.DataFrame):
+        return _write_parts_viewer(output, summary, episodes, trajectories, novel_labels)
     level = str(summary.get("level", "maneuver"))
     if roads is None:
         roads = _rebuild_roads(summary, sorted(trajectories["env"].unique()))
@@ -175,6 +203,112 @@ def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
                      "measures": measures},
              "episodes": entries, "maps": maps}
     return _write_viewer(output, index, scripts)
+
+
+def _write_parts_viewer(output: str | os.PathLike, summary: dict[str, Any],
+                        episodes: pd.DataFrame, parts: EpisodeParts,
+                        novel_labels: pd.DataFrame | None) -> Path:
+    """:func:`write_run_viewer` of a run's episodes on disk, one chunk in memory at a time:
+    each chunk's trajectories and segments read, its documents made (the ones
+    :func:`episode_chunks` makes of the whole table), given their traffic signals (read
+    from the suite's WOMD files in one pass) and written. A recorded scene's map goes with
+    its episodes' documents (``map``), not in the index: the index holds only the maps of
+    the envs' own roads."""
+    level = str(summary.get("level", "maneuver"))
+    scenes = parts.scenes()
+    measures = run_measures(summary)
+    eps, entries = episode_index(episodes, novel_labels=novel_labels, has_replay=scenes,
+                                 measures=measures,
+                                 scenes={s: w for s, w in scenes.items() if w is not None})
+    boxes = {env: (b[0] - MAP_MARGIN, b[1] - MAP_MARGIN, b[2] + MAP_MARGIN,
+                   b[3] + MAP_MARGIN) for env, b in parts.boxes().items()}
+    recorded = {w for w in scenes.values() if w is not None}
+    maps = {m: map_features(parts.map_of(m), boxes.get(m)) for m in parts.map_ids()
+            if m not in recorded}
+    members: dict[str, list[str]] = {}  # chunk -> its episodes with trajectories
+    for sid, chunk in zip(eps["scenario_id"].astype(str), eps["chunk"], strict=True):
+        if sid in scenes:
+            members.setdefault(chunk, []).append(sid)
+    for entry in entries:
+        entry["map"] = entry["env"] if entry["env"] in maps else None
+
+    def chunk_scripts() -> Iterator[tuple[str, str]]:
+        for chunk, road in _chunks_with_roads(summary, members, scenes):
+            trajectories, segments = parts.episodes(members[chunk])
+            if segments is not None and "level" in segments.columns:
+                segments = segments[segments["level"] == level]
+            docs = episode_chunks(trajectories, eps, segments).get(chunk, [])
+            drawn: dict[str, list | None] = {}  # the scene's map, made once for its docs
+            for doc in docs:
+                womd = scenes.get(str(doc["id"]))
+                if road is not None and road.scenario_id == womd:
+                    doc["signals"] = signal_field(road.signals)
+                if womd is not None and womd not in drawn:
+                    table = parts.map_of(womd)
+                    drawn[womd] = None if table is None else map_features(
+                        table, boxes.get(womd))
+                if womd is not None and drawn[womd] is not None:
+                    doc["map"] = drawn[womd]
+            yield chunk, _script("chunk", chunk, docs)
+
+    suite = summary.get("suite", {})
+    index = {"run": {"name": str(summary.get("run", Path(output).parent.name)),
+                     "suite": str(suite.get("name", "")), "level": level,
+                     "reference": str(summary.get("reference_policy", "")),
+                     "source": "highway-env", "created": str(summary.get("created", "")),
+                     "measures": measures},
+             "episodes": entries, "maps": maps}
+    return _write_viewer(output, index, chunk_scripts())
+
+
+def _chunks_with_roads(summary: dict[str, Any], members: Mapping[str, list[str]],
+                       scenes: Mapping[str, str | None]) -> Iterator[tuple[str, Any]]:
+    """Each chunk of ``members`` once, with the road map (and traffic signals) of its
+    recorded scene read again from the suite's WOMD files, or None (not a recorded scene,
+    or its files gone: a warning says which, as :func:`_add_run_signals`). The files are
+    read once, in their order, a record at a time."""
+    by_scene: dict[str, list[str]] = {}
+    for chunk, sids in members.items():
+        womd = scenes.get(sids[0])
+        if womd is not None:
+            by_scene.setdefault(womd, []).append(chunk)
+    done: set[str] = set()
+    present = _present_files(summary) if by_scene else []
+    if present:
+        maps = iter_road_maps(present)
+        try:
+            for road in maps:
+                for chunk in by_scene.pop(road.scenario_id, ()):
+                    done.add(chunk)
+                    yield chunk, road
+                if not by_scene:
+                    break
+        except (TapBenchError, OSError, ValueError) as err:
+            warnings.warn(f"the viewer shows no traffic signals: the run's WOMD files could "
+                          f"not be read again ({err}).", UserWarning, stacklevel=3)
+        finally:
+            getattr(maps, "close", lambda: None)()
+    for chunk in members:
+        if chunk not in done:
+            yield chunk, None
+
+
+def _present_files(summary: dict[str, Any]) -> list[str]:
+    """The suite's WOMD files that are still there, as the run read them (folders and
+    globs leave out files that are not records); a warning names those gone."""
+    files = _run_womd_files(summary)
+    found = {f: (sorted(glob.glob(f)) if glob.has_magic(f) else
+                 [f] if Path(f).is_file() else []) for f in files}
+    gone = [f for f, paths in found.items() if not paths]
+    if gone:
+        warnings.warn(f"the viewer shows no traffic signals for the scenes of "
+                      f"{', '.join(gone)}: the files are "
+                      "gone; put them back where the suite names them to see the signals.",
+                      UserWarning, stacklevel=4)
+    if not any(found.values()):
+        return []
+    return [str(p) for p in record_files([f for f, paths in found.items() if paths],
+                                         note=lambda text: None)]
 
 
 def _recorded_scenes(trajectories: pd.DataFrame) -> dict[str, str]:
