@@ -36,7 +36,7 @@ from highway_env.vehicle.kinematics import Vehicle
 from tap_bench.errors import ParameterError
 from tap_bench.sim.road_edges import RoadEdges, left_road
 from tap_bench.sim.traffic import near_pairs, near_pairs_of, shape_of, shapes_of, swept_apart
-from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, lanes_points
+from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, _frame, lanes_points
 from tap_bench.sim.womd_scene import Scene
 
 __all__ = ["HIDDEN", "OFF_ROAD_MARGIN", "PATH_EXTENSION", "PATH_SPACING", "LoggedPath",
@@ -1321,6 +1321,77 @@ def _segment_hits(px, py, near, ax, ay, bx, by):  # pragma: no cover - compiled
     return out
 
 
+@numba.njit(cache=True, nogil=True)
+def _lane_members(px, py, tx, ty, s, half, lo, hi, xs, ys):  # pragma: no cover - compiled
+    """The points (xs, ys) on a lane (poses px, py, tx, ty, s: ``FastPolyLane.arrays``):
+    (the rows within ``half`` [m] of its centre line with a longitudinal coordinate in
+    [lo, hi) [m], in order; every point's longitudinal coordinate [m])."""
+    lon = np.empty(xs.shape[0])
+    members = np.empty(xs.shape[0], np.int64)
+    n = 0
+    for i in range(xs.shape[0]):
+        lon[i], lat = _frame(px, py, tx, ty, s, xs[i], ys[i])
+        if abs(lat) <= half and lon[i] >= lo and lon[i] < hi:
+            members[n] = i
+            n += 1
+    return members[:n], lon
+
+
+@numba.njit(cache=True, nogil=True)
+def _corridor(xs, ys, hs, vs, ls, ws, x, y, heading, length, width, reach, mine
+              ):  # pragma: no cover - compiled
+    """:meth:`WomdRoad.corridor_leader` over the movers (centres xs, ys, headings hs, speeds
+    vs, boxes ls x ws) of a vehicle at (x, y, heading) with a box length x width and the
+    look ahead ``reach`` [m]; ``mine``: its own row (-1: none). Returns (row, gap [m], the
+    row's speed along the heading [m/s]); row -1 if none."""
+    c, s_ = math.cos(heading), math.sin(heading)
+    best, best_gap = -1, np.inf
+    for j in range(xs.shape[0]):
+        if j == mine:
+            continue
+        dx, dy = xs[j] - x, ys[j] - y
+        lon = dx * c + dy * s_
+        lat = -dx * s_ + dy * c
+        dh = hs[j] - heading
+        along = abs(math.cos(dh)) * ls[j] / 2 + abs(math.sin(dh)) * ws[j] / 2
+        across = abs(math.sin(dh)) * ls[j] / 2 + abs(math.cos(dh)) * ws[j] / 2
+        gap = lon - length / 2 - along
+        if abs(lat) < width / 2 + across + CORRIDOR_MARGIN and lon > 0 and gap < reach \
+                and gap > -along:
+            if not gap == gap:  # not a number: the first one, as numpy's argmin
+                return j, gap, vs[j] * math.cos(dh)
+            if best < 0 or gap < best_gap:
+                best, best_gap = j, gap
+    if best < 0:
+        return -1, np.nan, np.nan
+    return best, best_gap, vs[best] * math.cos(hs[best] - heading)
+
+
+@numba.njit(cache=True, nogil=True)
+def _walkers_on_lane(px, py, tx, ty, s, headings, base, half, length, xs, ys, hs, vs,
+                     best):  # pragma: no cover - compiled
+    """The nearest distance [m] along the way (``base`` + the longitudinal coordinate) to a
+    pedestrian or cyclist (xs, ys, headings hs, speeds vs) on one lane ahead within
+    ``half`` [m] of its centre line, not moving along it (:meth:`WomdRoad.walker_distance`);
+    ``best``: the nearest found before (NaN: none), returned where nothing is nearer."""
+    for i in range(xs.shape[0]):
+        lon, lat = _frame(px, py, tx, ty, s, xs[i], ys[i])
+        d = base + lon
+        if not (abs(lat) <= half and lon >= 0 and lon <= length and d > 0
+                and d <= WALKER_LOOKAHEAD):
+            continue
+        if lon != lon:
+            k = headings.shape[0] - 1
+        else:
+            k = max(np.searchsorted(s, lon, side="right") - 1, 0)
+        along = abs(math.cos(hs[i] - headings[k]))
+        if vs[i] >= WALKER_STILL and along > WALKER_ALONG:
+            continue
+        if best != best or d < best:
+            best = d
+    return best
+
+
 def _intersecting(a: Vehicle, b: Vehicle) -> bool:
     """Whether two vehicles' boxes overlap now."""
     return bool(utils.are_polygons_intersecting(a.polygon(), b.polygon(), np.zeros(2),
@@ -1464,7 +1535,8 @@ class WomdRoad(Road):
         self._half = np.array([lane.width / 2 for lane in lanes])
         self.road_edges = network.road_edges  # WOMD's axes; built once per network
         self.off_road_start: dict[str, float] = {}
-        self._projections: dict[Any, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._projections: dict[Any, tuple[list[int], np.ndarray]] = {}
+        self._headings: dict[Any, np.ndarray] = {}  # lane index -> its poses' headings
         self._walker_rows = frozenset(np.flatnonzero(np.isin(scene.object_types,
                                                              ("pedestrian", "cyclist"))).tolist())
         self._walkers: tuple[np.ndarray, ...] | None = None
@@ -1539,6 +1611,8 @@ class WomdRoad(Road):
         moving = now["collidable"]
         self._movers = [layout.vehicles[i] for i in np.flatnonzero(moving).tolist()]
         self._positions = now["position"][moving]
+        self._xs = np.ascontiguousarray(self._positions[:, 0])
+        self._ys = np.ascontiguousarray(self._positions[:, 1])
         self._boxes = np.stack([now["heading"][moving], np.maximum(now["speed"][moving], 0.0),
                                 layout.length[moving], layout.width[moving]], axis=1)
         self._mover_index = {id(v): i for i, v in enumerate(self._movers)}
@@ -1552,6 +1626,8 @@ class WomdRoad(Road):
             ahead = xy + WALKER_HORIZON * speed[:, None] * np.c_[np.cos(heading),
                                                                  np.sin(heading)]
             self._walkers = (xy, ahead, heading, speed)
+            self._walker_columns = [(np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1]))
+                                    for q in (xy, ahead)]
         else:
             self._walkers = None
         self._path_accelerations = self._ahead_of_paths(layout) if layout.path.any() else {}
@@ -1604,13 +1680,7 @@ class WomdRoad(Road):
         if not lane_index or self._positions is None:
             return super().neighbour_vehicles(vehicle, lane_index)
         lane = self.network.get_lane(lane_index)
-        table = self._projections.get(lane_index)
-        if table is None:
-            lon, lat = lane.project(self._positions[:, 0], self._positions[:, 1])
-            on = (np.abs(lat) <= lane.width / 2 + 1.0) & (lon >= -lane.VEHICLE_LENGTH) \
-                & (lon < lane.length + lane.VEHICLE_LENGTH)
-            table = self._projections[lane_index] = (np.flatnonzero(on), lon, lat)
-        members, lon, _ = table
+        members, lon = self._lane_table(lane_index)
         s = lane.local_coordinates(vehicle.position)[0]
         front = rear = None
         s_front = s_rear = None
@@ -1725,15 +1795,17 @@ class WomdRoad(Road):
                 self.exempt.add(_pair(a, b))
 
     # traffic's view ahead: leaders on the next lanes, stop signs, conflicts
-    def _lane_table(self, lane_index: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(members, lon, lat) of this step's movers on a lane (cached per step)."""
+    def _lane_table(self, lane_index: Any) -> tuple[list[int], np.ndarray]:
+        """(the rows of this step's movers on a lane: within its half width + 1 m, from
+        ``VEHICLE_LENGTH`` before its start to as far past its end; every mover's
+        longitudinal coordinate on it [m]), cached per step."""
         table = self._projections.get(lane_index)
         if table is None:
             lane = self.network.get_lane(lane_index)
-            lon, lat = lane.project(self._positions[:, 0], self._positions[:, 1])
-            on = (np.abs(lat) <= lane.width / 2 + 1.0) & (lon >= -lane.VEHICLE_LENGTH) \
-                & (lon < lane.length + lane.VEHICLE_LENGTH)
-            table = self._projections[lane_index] = (np.flatnonzero(on), lon, lat)
+            members, lon = _lane_members(*lane.arrays, lane.width / 2 + 1.0,
+                                         -lane.VEHICLE_LENGTH,
+                                         lane.length + lane.VEHICLE_LENGTH, self._xs, self._ys)
+            table = self._projections[lane_index] = (members.tolist(), lon)
         return table
 
     def leader_ahead(self, vehicle: Vehicle) -> tuple[Vehicle | None, float]:
@@ -1745,7 +1817,7 @@ class WomdRoad(Road):
             return None, math.inf
         best, best_d = None, math.inf
         for index, base in self._lanes_ahead(vehicle, LEADER_LOOKAHEAD)[1:]:
-            members, lon, _ = self._lane_table(index)
+            members, lon = self._lane_table(index)
             for i in members:
                 other = self._movers[i]
                 d = base + lon[i]
@@ -1767,26 +1839,17 @@ class WomdRoad(Road):
         the lanes say nothing (overlapping junction lanes, a car cutting in)."""
         if self._positions is None or len(self._positions) < 2:
             return None
-        c, s_ = math.cos(vehicle.heading), math.sin(vehicle.heading)
-        d = self._positions - vehicle.position
-        lon = d[:, 0] * c + d[:, 1] * s_
-        lat = -d[:, 0] * s_ + d[:, 1] * c
-        heading, speed, length, width = self._boxes.T
-        dh = heading - vehicle.heading
-        # the other box's half extent along and across our axis
-        along = np.abs(np.cos(dh)) * length / 2 + np.abs(np.sin(dh)) * width / 2
-        across = np.abs(np.sin(dh)) * length / 2 + np.abs(np.cos(dh)) * width / 2
-        gap = lon - vehicle.LENGTH / 2 - along
+        boxes = self._boxes
         reach = CORRIDOR_MIN + CORRIDOR_TIME * max(float(vehicle.speed), 0.0)
-        inside = (np.abs(lat) < vehicle.WIDTH / 2 + across + CORRIDOR_MARGIN) \
-            & (lon > 0) & (gap < reach) & (gap > -along)
-        mine = self._mover_index.get(id(vehicle))
-        if mine is not None:
-            inside[mine] = False
-        if not inside.any():
-            return None
-        k = int(np.flatnonzero(inside)[np.argmin(gap[inside])])
-        return float(gap[k]), float(speed[k] * math.cos(dh[k]))
+        k, gap, speed = _corridor(self._xs, self._ys, np.ascontiguousarray(boxes[:, 0]),
+                                  np.ascontiguousarray(boxes[:, 1]),
+                                  np.ascontiguousarray(boxes[:, 2]),
+                                  np.ascontiguousarray(boxes[:, 3]),
+                                  float(vehicle.position[0]), float(vehicle.position[1]),
+                                  float(vehicle.heading), float(vehicle.LENGTH),
+                                  float(vehicle.WIDTH), reach,
+                                  self._mover_index.get(id(vehicle), -1))
+        return None if k < 0 else (float(gap), float(speed))
 
     @staticmethod
     def _stop_sign_points(network: WomdNetwork, road: Any) -> dict[Any, list[float]]:
@@ -1956,7 +2019,7 @@ class WomdRoad(Road):
         seen: set[int] = set()
         for index, offset in lanes:
             lane = self.network.get_lane(index)
-            members, lon, _ = self._lane_table(index)
+            members, lon = self._lane_table(index)
             for i in members:
                 other = self._movers[i]
                 if other is vehicle or id(other) in seen or \
@@ -2024,26 +2087,27 @@ class WomdRoad(Road):
 
     def _walker_distance(self, vehicle: Vehicle, walkers: tuple[np.ndarray, ...]
                          ) -> float | None:
-        positions, predicted, heading, speed = walkers
+        positions, _, heading, speed = walkers
         reach = WALKER_LOOKAHEAD + vehicle.LENGTH + WALKER_HORIZON * float(speed.max())
         delta = positions - vehicle.position
         if not (delta[:, 0] ** 2 + delta[:, 1] ** 2 <= reach * reach).any():
             return None  # nobody within reach of its way (the usual case): no lane walk
         half = vehicle.WIDTH / 2 + WALKER_CLEARANCE
-        best = None
+        best = math.nan
         for index, base in self._lanes_ahead(vehicle, WALKER_LOOKAHEAD):
             lane = self.network.get_lane(index)
-            for points in (positions, predicted):
-                lon, lat = lane.project(points[:, 0], points[:, 1])
-                d = base + lon
-                near = (np.abs(lat) <= half) & (lon >= 0) & (lon <= lane.length) \
-                    & (d > 0) & (d <= WALKER_LOOKAHEAD)
-                for i in np.flatnonzero(near):
-                    along = abs(math.cos(heading[i] - lane.heading_at(lon[i])))
-                    if speed[i] >= WALKER_STILL and along > WALKER_ALONG:
-                        continue
-                    best = d[i] if best is None else min(best, float(d[i]))
-        return best
+            for xs, ys in self._walker_columns:  # where they are, where they will be
+                best = _walkers_on_lane(*lane.arrays, self._lane_headings(index), base, half,
+                                        lane.length, xs, ys, heading, speed, best)
+        return None if math.isnan(best) else best
+
+    def _lane_headings(self, lane_index: Any) -> np.ndarray:
+        """(n_poses,) the heading [rad] of each pose of a lane (``heading_at``'s)."""
+        out = self._headings.get(lane_index)
+        if out is None:
+            _, _, tx, ty, _ = self.network.get_lane(lane_index).arrays
+            out = self._headings[lane_index] = np.arctan2(ty, tx)
+        return out
 
     def stop_distance(self, vehicle: Vehicle) -> float | None:
         """Distance [m] along the vehicle's lanes to the nearest stop point ahead whose signal

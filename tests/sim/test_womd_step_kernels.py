@@ -1,0 +1,153 @@
+"""The compiled pieces of the WOMD closed-loop step equal their plain definitions (numpy or
+one point at a time, as the step computed them before) on generated inputs: lanes straight
+and curved at every heading, movers ahead, behind, beside and across, at the kerb, far."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from tap_bench.sim.womd_lanes import FastPolyLane
+from tap_bench.sim.womd_road import (
+    CORRIDOR_MARGIN,
+    WALKER_ALONG,
+    WALKER_LOOKAHEAD,
+    WALKER_STILL,
+    _corridor,
+    _lane_members,
+    _walkers_on_lane,
+)
+
+
+def lane(rng: np.random.Generator) -> FastPolyLane:
+    """A lane 5-120 m long, straight or bending either way (up to 180 deg), any heading,
+    anywhere."""
+    n = int(rng.integers(2, 40))
+    length = rng.uniform(5.0, 120.0)
+    turn = rng.choice([0.0, rng.uniform(-math.pi, math.pi)])
+    a = rng.uniform(0.0, 2 * math.pi) + np.linspace(0.0, turn, n)
+    step = length / (n - 1) if n > 1 else length
+    xy = np.cumsum(np.c_[step * np.cos(a), step * np.sin(a)], axis=0) + rng.uniform(-500, 500, 2)
+    return FastPolyLane(xy, rng.uniform(2.5, 4.5))
+
+
+def movers(rng: np.random.Generator, around: np.ndarray, m: int) -> tuple[np.ndarray, ...]:
+    """m movers near points of ``around`` (n, 2): on it, beside, far; any heading; some
+    standing."""
+    at = around[rng.integers(len(around), size=m)]
+    spread = rng.choice([0.0, 1.0, 3.0, 30.0], size=m)
+    xy = at + rng.normal(0.0, 1.0, (m, 2)) * spread[:, None]
+    heading = rng.uniform(-math.pi, math.pi, m)
+    speed = np.where(rng.random(m) < 0.3, 0.0, rng.uniform(0.0, 15.0, m))
+    speed[rng.random(m) < 0.2] = WALKER_STILL  # the boundary of standing
+    length = rng.choice([0.5, 4.5, 12.0], size=m)
+    width = np.where(length < 1.0, 0.5, rng.uniform(1.8, 2.6, m))
+    return xy, heading, speed, length, width
+
+
+def centre(ln: FastPolyLane) -> np.ndarray:
+    px, py, *_ = ln.arrays
+    return np.c_[px, py]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_lane_members_are_highway_envs_on_lane_point_by_point(seed):
+    rng = np.random.default_rng(seed)
+    for _ in range(40):
+        ln = lane(rng)
+        xy, *_ = movers(rng, centre(ln), int(rng.integers(1, 60)))
+        half, lo, hi = ln.width / 2 + 1.0, -ln.VEHICLE_LENGTH, ln.length + ln.VEHICLE_LENGTH
+        members, lon = _lane_members(*ln.arrays, half, lo, hi, np.ascontiguousarray(xy[:, 0]),
+                                     np.ascontiguousarray(xy[:, 1]))
+        want = []
+        for i, p in enumerate(xy):
+            s, d = ln.local_coordinates(p)
+            assert lon[i] == s
+            if ln.on_lane(p, s, d, margin=1):
+                want.append(i)
+        assert members.tolist() == want
+
+
+def corridor_plain(positions, boxes, x, y, heading, length, width, reach, mine):
+    """The corridor's definition in numpy (every mover at once)."""
+    c, s_ = math.cos(heading), math.sin(heading)
+    d = positions - np.array([x, y])
+    lon = d[:, 0] * c + d[:, 1] * s_
+    lat = -d[:, 0] * s_ + d[:, 1] * c
+    hs, vs, ls, ws = boxes.T
+    dh = hs - heading
+    along = np.abs(np.cos(dh)) * ls / 2 + np.abs(np.sin(dh)) * ws / 2
+    across = np.abs(np.sin(dh)) * ls / 2 + np.abs(np.cos(dh)) * ws / 2
+    gap = lon - length / 2 - along
+    inside = (np.abs(lat) < width / 2 + across + CORRIDOR_MARGIN) & (lon > 0) \
+        & (gap < reach) & (gap > -along)
+    if mine >= 0:
+        inside[mine] = False
+    if not inside.any():
+        return None
+    k = int(np.flatnonzero(inside)[np.argmin(gap[inside])])
+    return k, float(gap[k]), float(vs[k] * math.cos(dh[k]))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_corridor_is_its_numpy_definition(seed):
+    rng = np.random.default_rng(10 + seed)
+    found = 0
+    for _ in range(300):
+        x, y = rng.uniform(-500, 500, 2)
+        heading = rng.uniform(-math.pi, math.pi)
+        ahead = np.array([x, y]) + np.outer(np.linspace(-10, 40, 30),
+                                            [math.cos(heading), math.sin(heading)])
+        m = int(rng.integers(1, 40))
+        xy, hs, vs, ls, ws = movers(rng, ahead, m)
+        if rng.random() < 0.2:  # two at the same gap: the first one
+            xy[-1], hs[-1], ls[-1], ws[-1] = xy[0], hs[0], ls[0], ws[0]
+        boxes = np.c_[hs, vs, ls, ws]
+        mine = int(rng.integers(-1, m))
+        length, width = rng.uniform(3.5, 5.5), rng.uniform(1.7, 2.2)
+        reach = 6.0 + 1.5 * rng.uniform(0.0, 20.0)
+        want = corridor_plain(xy, boxes, x, y, heading, length, width, reach, mine)
+        k, gap, speed = _corridor(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]),
+                                  hs, vs, ls, ws, x, y, heading, length, width, reach, mine)
+        assert (None if k < 0 else (k, gap, speed)) == want
+        found += want is not None
+    assert found > 50
+
+
+def walkers_plain(ln, headings_at, base, half, xs, ys, hs, vs):
+    """The walker search's definition on one lane (numpy, then one by one)."""
+    lon, lat = ln.project(xs, ys)
+    d = base + lon
+    near = (np.abs(lat) <= half) & (lon >= 0) & (lon <= ln.length) & (d > 0) \
+        & (d <= WALKER_LOOKAHEAD)
+    best = None
+    for i in np.flatnonzero(near):
+        along = abs(math.cos(hs[i] - headings_at(lon[i])))
+        if vs[i] >= WALKER_STILL and along > WALKER_ALONG:
+            continue
+        best = d[i] if best is None else min(best, float(d[i]))
+    return best
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_walkers_on_a_lane_are_their_definition(seed):
+    rng = np.random.default_rng(20 + seed)
+    found = 0
+    for _ in range(200):
+        ln = lane(rng)
+        xy, hs, vs, *_ = movers(rng, centre(ln), int(rng.integers(1, 20)))
+        # some walk along the lane, some across, some stand
+        _, _, tx, ty, _ = ln.arrays
+        along = rng.random(len(hs)) < 0.4
+        hs[along] = np.arctan2(ty[0], tx[0]) + rng.choice([0.0, math.pi], along.sum())
+        base = rng.uniform(-20.0, 40.0)
+        half = rng.uniform(1.5, 2.5)
+        xs, ys = np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1])
+        want = walkers_plain(ln, ln.heading_at, base, half, xs, ys, hs, vs)
+        got = _walkers_on_lane(*ln.arrays, np.arctan2(ty, tx), base, half, ln.length, xs, ys,
+                               hs, vs, math.nan)
+        assert (None if math.isnan(got) else got) == want
+        found += want is not None
+    assert found > 20
