@@ -42,8 +42,10 @@ def synthetic(seed: int, *, speed: float = 20.0, crash: float = 0.05, n: int = 4
                          "sdl": labels[rng.choice(len(labels), p=p)],
                          "crashed": bool(rng.random() < crash),
                          "mean_speed": rng.normal(speed, 1.5),
-                         "min_headway_s": rng.normal(1.5, 0.3),
-                         "min_ttc_s": rng.normal(6, 2), "rms_jerk": rng.normal(3, 0.5)})
+                         # within the measures' ranges, as a run's values are
+                         "min_headway_s": float(np.clip(rng.normal(1.5, 0.3), 0, 10)),
+                         "min_ttc_s": float(np.clip(rng.normal(6, 2), 0, 10)),
+                         "rms_jerk": rng.normal(3, 0.5)})
     return make_episodes(rows)
 
 

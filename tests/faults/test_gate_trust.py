@@ -95,9 +95,13 @@ def _row(doc, column, value, row=0):
 @pytest.mark.parametrize("column, value", [("crashed", 5), ("crashed", 0.5),
                                            ("crashed", "yes"), ("mean_speed", True),
                                            ("seed", -1), ("seed", 2 ** 70),
-                                           ("seed", int("9" * 4000))],
+                                           ("seed", int("9" * 4000)),
+                                           ("min_ttc_s", -1.0), ("min_headway_s", 11.0),
+                                           ("min_ttc_s", 1e300)],
                          ids=["crashed 5", "crashed 0.5", "crashed text", "mean_speed true",
-                              "seed -1", "seed 2^70", "seed of 4000 digits"])
+                              "seed -1", "seed 2^70", "seed of 4000 digits",
+                              "min TTC -1 s", "min headway above its cap",
+                              "min TTC 1e300 s"])
 def test_impossible_baseline_values_are_refused(cli, run, baseline, column, value):
     edit(baseline, lambda d: _row(d, column, value))
     code, out, err = cli("bench", "check", run, "--baseline", baseline)

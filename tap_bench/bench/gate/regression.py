@@ -448,18 +448,23 @@ def _impossible(m: Any) -> str:
     """What a baseline value of measure ``m`` must be, in words."""
     if m.kind == "rate":
         return "true, false, 0 or 1 (an episode's outcome)"
+    if m.bounds is not None:
+        return f"a number in [{m.bounds[0]:g}, {m.bounds[1]:g}] {m.unit} (the measure's range)"
     return "a number"
 
 
 def _possible(m: Any, value: Any) -> bool:
     """Whether ``value`` (not None) is a value measure ``m`` can take in one episode: an
-    outcome (bool, 0 or 1) for a rate, a number (never a bool) otherwise."""
+    outcome (bool, 0 or 1) for a rate, a number (never a bool) otherwise, within the
+    measure's bounds where it has them."""
     if m.kind == "rate":
         return isinstance(value, bool) or (isinstance(value, int | float)
                                            and value in (0, 1))
     if isinstance(value, bool) or not isinstance(value, int | float):
         return False
-    return not (isinstance(value, int) and abs(value) > 2 ** 63)
+    if isinstance(value, int) and abs(value) > 2 ** 63:
+        return False
+    return m.bounds is None or not value == value or m.bounds[0] <= value <= m.bounds[1]
 
 
 def _check_baseline_cells(doc: dict[str, Any], table: pd.DataFrame, path: Path) -> None:
