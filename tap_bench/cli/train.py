@@ -31,6 +31,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="with --env womd: scenes never trained on, by index in the files' "
                    "scenes (the seeds a rollout or suite names, e.g. 6,9,12,15), to judge "
                    "the agent on scenes it did not see; the definition records both sets")
+    p.add_argument("--egos", choices=("sdc", "all"), default="sdc",
+                   help="with --env womd: drive each scene's ego (sdc, the default), or every "
+                   "vehicle that drives in the training scenes in turn (all: as many "
+                   "situations as the scenes hold drivers)")
     p.add_argument("--timesteps", type=int, required=True, help="decisions to train for")
     p.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     p.add_argument("-o", "--output", required=True,
@@ -104,14 +108,15 @@ def run(args: argparse.Namespace) -> int:
                              "their files with --womd FILES.")
         env = WomdScenes(tuple(args.womd), traffic=args.traffic)
         recorded = ["--womd", *args.womd, "--traffic", args.traffic,
-                    *(["--hold-out", args.hold_out] if args.hold_out else [])]
+                    *(["--hold-out", args.hold_out] if args.hold_out else []),
+                    *(["--egos", args.egos] if args.egos != "sdc" else [])]
         if not args.no_curve:
             print("recorded scenes: no learning curve (it evaluates on synthetic seeds); "
                   "compare the agent with the human afterwards: tap-bench rollout --womd ... "
                   f"--policy {args.output}")
             args.no_curve = True
-    elif args.womd or args.hold_out:
-        raise SystemExit("tap-bench train: --womd and --hold-out go with --env womd.")
+    elif args.womd or args.hold_out or args.egos != "sdc":
+        raise SystemExit("tap-bench train: --womd, --hold-out and --egos go with --env womd.")
     command = "tap-bench train " + " ".join(shlex.quote(a) for a in (
         "--algo", args.algo, "--env", args.env, *recorded, "--timesteps", str(args.timesteps),
         "--seed",
@@ -128,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
                    announce=lambda line: print(line, flush=True),
                    in_process={"auto": None, "yes": True, "one": "one",
                                "no": False}[args.in_process],
-                   hold_out=args.hold_out or None)
+                   hold_out=args.hold_out or None, egos=args.egos)
     print(f"trained {args.algo} on {args.env} for {result.timesteps} steps in "
           f"{result.train_seconds:.0f} s ({result.steps_per_second:.1f} steps/s, "
           f"{result.episodes} episodes)")

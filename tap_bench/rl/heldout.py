@@ -14,11 +14,18 @@ from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 
 from tap_bench.errors import ParameterError
-from tap_bench.sim.womd_scene import WomdScenes
+from tap_bench.sim.womd_scene import CURRENT_STEP, Scene, SceneError, WomdScenes
 
-__all__ = ["SceneSplit", "SceneSubset", "split_scenes"]
+__all__ = ["EGOS", "MIN_TRAVEL", "SceneSplit", "SceneSubset", "drivers", "split_scenes"]
+
+EGOS = ("sdc", "all")
+"""Who the agent drives in a training scene: the scene's ego (``"sdc"``), or every vehicle
+of :func:`drivers` in turn (``"all"``)."""
+
+MIN_TRAVEL = 5.0  # [m] a vehicle that drives less over the future is not a training ego
 
 
 @dataclass(frozen=True)
@@ -67,37 +74,74 @@ def split_scenes(scenes: WomdScenes, hold_out: str | Iterable[int] | None) -> Sc
     return SceneSplit(scenes, train, held, tuple(str(ref) for ref in catalog))
 
 
+def drivers(scene: Scene, min_travel: float = MIN_TRAVEL) -> list[str]:
+    """The track ids of ``scene``'s vehicles an agent can learn to drive: the scene's ego
+    first, then every other vehicle valid from the current time to the record's end that
+    travels at least ``min_travel`` [m] along its log (a parked or waiting car teaches
+    little), in row order. Whether each has a route on the map is known only once the
+    env builds it (:class:`SceneSubset` skips those without)."""
+    valid = scene.valid[:, CURRENT_STEP:].all(axis=1)
+    x, y = scene.x[:, CURRENT_STEP:], scene.y[:, CURRENT_STEP:]
+    with np.errstate(invalid="ignore"):
+        travel = np.nansum(np.hypot(np.diff(x, axis=1), np.diff(y, axis=1)), axis=1)
+    rows = [scene.ego] + [int(r) for r in np.flatnonzero(
+        valid & (scene.object_types == "vehicle") & (travel >= min_travel))
+        if r != scene.ego]
+    return [str(scene.track_ids[r]) for r in rows]
+
+
 class SceneSubset(gym.Wrapper):
     """A :class:`~tap_bench.sim.womd_env.WomdEnv` whose resets go through ``scenes`` only, in
     turn (a reset with a seed starts at ``scenes[seed % len(scenes)]``, as the env maps seeds
     onto its scenes): the training env of a split. A scene that cannot be built is skipped
     (with a warning) for the next one of ``scenes``, never for a held-out one.
 
+    With ``egos="all"`` the k-th visit of a scene drives the k-th of its :func:`drivers`
+    (in turn, starting again after the last): the same scenes teach as many situations as
+    they hold drivers. A driver the env cannot build a route for is dropped, with a
+    warning, and the next one driven.
+
     Args:
         env: the env (``cycle=True``).
         scenes: scene indexes of its catalog to train on (at least one).
+        egos: one of :data:`EGOS`.
     """
 
-    def __init__(self, env: gym.Env, scenes: Sequence[int]) -> None:
+    def __init__(self, env: gym.Env, scenes: Sequence[int], egos: str = "sdc") -> None:
         super().__init__(env)
         if not scenes:
             raise ParameterError("scenes", scenes, "at least one scene index")
+        if egos not in EGOS:
+            raise ParameterError("egos", egos, f"one of {EGOS}")
         self.scenes = tuple(int(i) for i in scenes)
+        self.egos = egos
         self._next = 0
+        self._drivers: dict[int, list[str]] = {}  # scene -> its drivers (egos="all")
+        self._visits: dict[int, int] = {}  # scene -> visits so far
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[Any, dict[str, Any]]:
         """Start the next training scene (see the class docstring)."""
         if seed is not None:
             self._next = int(seed) % len(self.scenes)
+        inner = self.env.unwrapped
         for _ in range(len(self.scenes)):
             wanted = self.scenes[self._next]
             self._next = (self._next + 1) % len(self.scenes)
+            track = self._driver(wanted)
             obs, info = self.env.reset(seed=seed, options={**(options or {}),
-                                                           "scene": wanted})
+                                                           "scene": wanted, "ego": track})
             seed = None
-            if self.env.unwrapped.scene_index == wanted:
+            if inner.scene_index == wanted and (
+                    track is None or str(inner.scene.track_ids[inner.scene.ego]) == track):
                 return obs, info
+            if track is not None:  # that driver has no route (or cannot be driven)
+                warnings.warn(f"training scene {wanted}: track {track} cannot be driven as "
+                              "the ego (no route on the map); not trained on.", stacklevel=2)
+                self._drivers[wanted].remove(track)
+                obs, info = self.env.reset(options={**(options or {}), "scene": wanted})
+                if inner.scene_index == wanted:
+                    return obs, info
             # the env skipped a scene it could not build (and may have gone on to one held
             # out): go on to the next training scene instead
             warnings.warn(f"training scene {wanted} could not be built; skipped.",
@@ -105,3 +149,19 @@ class SceneSubset(gym.Wrapper):
         raise ParameterError("scenes", self.scenes, "scenes that can be built",
                              message=f"none of the training scenes {list(self.scenes)} can "
                              "be built (see the warnings).")
+
+    def _driver(self, scene: int) -> str | None:
+        """The track to drive on this visit of ``scene`` (None: the scene's own ego)."""
+        if self.egos == "sdc":
+            return None
+        names = self._drivers.get(scene)
+        if names is None:
+            try:
+                names = drivers(self.env.unwrapped.scene_at(scene))
+            except SceneError:  # the reset says why (and skips it)
+                return None
+            self._drivers[scene] = names
+        visit = self._visits.get(scene, 0)
+        self._visits[scene] = visit + 1
+        track = names[visit % len(names)]
+        return None if track == names[0] else track

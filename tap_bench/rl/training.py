@@ -58,7 +58,7 @@ import pandas as pd
 
 from tap_bench.errors import ParameterError
 from tap_bench.rl.curve import CurveConfig, coverage_reference, plot_curve
-from tap_bench.rl.heldout import SceneSplit, SceneSubset, split_scenes
+from tap_bench.rl.heldout import EGOS, SceneSplit, SceneSubset, split_scenes
 from tap_bench.sim.sb3 import algorithm_class
 from tap_bench.sim.scenario_env import ScenarioEnv, get_scenario
 from tap_bench.sim.scenario_format import Scenario
@@ -139,9 +139,10 @@ class TrainingResult:
 
 
 def _make_training_env(scenario: Scenario, fast: bool, worker: bool = False,
-                       scenes: tuple[int, ...] | None = None) -> gym.Env:
+                       scenes: tuple[int, ...] | None = None, egos: str = "sdc") -> gym.Env:
     """One training env (a module-level function: worker processes build it by name);
-    on recorded scenes, only the ``scenes`` indexes (None: all)."""
+    on recorded scenes, only the ``scenes`` indexes (None: all), driving their egos or all
+    their drivers (``egos``: :class:`~tap_bench.rl.heldout.SceneSubset`)."""
     from stable_baselines3.common.monitor import Monitor
 
     if worker:  # Ctrl-C stops the training in the main process, which then saves the model
@@ -150,7 +151,9 @@ def _make_training_env(scenario: Scenario, fast: bool, worker: bool = False,
         from tap_bench.sim.womd_env import WomdEnv
 
         env = WomdEnv(scenario, record=False, cycle=True)
-        return Monitor(env if scenes is None else SceneSubset(env, scenes))
+        if scenes is None and egos != "sdc":
+            scenes = tuple(range(len(env.catalog)))
+        return Monitor(env if scenes is None else SceneSubset(env, scenes, egos))
     return Monitor(ScenarioEnv(scenario, record=False, fast=fast))
 
 
@@ -356,17 +359,18 @@ def _usable_cores() -> int:
 
 
 def _vec_env(scenario: Scenario, *, n_envs: int, fast: bool, seed: int,
-             in_process: bool | str = False, scenes: tuple[int, ...] | None = None) -> Any:
+             in_process: bool | str = False, scenes: tuple[int, ...] | None = None,
+             egos: str = "sdc") -> Any:
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    here = functools.partial(_make_training_env, scenario, fast, scenes=scenes)
+    here = functools.partial(_make_training_env, scenario, fast, scenes=scenes, egos=egos)
     if n_envs == 1 or in_process is True:
         vec = DummyVecEnv([here] * n_envs)
     else:
         from tap_bench.rl.vec_env import training_vec_env  # imports SB3
 
         factory = functools.partial(_make_training_env, scenario, fast, worker=True,
-                                    scenes=scenes)
+                                    scenes=scenes, egos=egos)
         # forkserver: workers start from a clean interpreter, not a copy of this process
         # (which may hold torch's threads and highway-env's shared classes)
         with _main_not_rerun(), _workers_preloaded(scenario):
@@ -383,7 +387,7 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
           command: str | None = None, keep: str = "last", overwrite: bool = False,
           announce: Callable[[str], None] | None = None,
           in_process: bool | str | None = None,
-          hold_out: str | Sequence[int] | None = None) -> TrainingResult:
+          hold_out: str | Sequence[int] | None = None, egos: str = "sdc") -> TrainingResult:
     """Train ``algo`` on scenario ``env`` for ``timesteps`` decisions and save it.
 
     Args:
@@ -432,6 +436,9 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
         hold_out: on recorded scenes, the scene indexes (seeds) never trained on
             (:mod:`tap_bench.rl.heldout`), recorded in the definition with the scenes
             trained on; None: train on every scene.
+        egos: on recorded scenes, who the agent drives: ``"sdc"`` (each scene's ego) or
+            ``"all"`` (every vehicle that drives in the training scenes, in turn:
+            :func:`~tap_bench.rl.heldout.drivers`); the definition records it.
 
     Raises:
         ParameterError: ``timesteps``, ``n_envs``, ``output`` or ``keep`` is not usable.
@@ -448,6 +455,9 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
     torch.set_num_threads(1)  # a shared CPU; the env workers are the parallelism
     scenario = _training_scenario(env, curve)
     split = _split(scenario, hold_out)
+    if egos not in EGOS or (egos != "sdc" and not isinstance(scenario, WomdScenes)):
+        raise ParameterError("egos", egos, f"one of {EGOS} (recorded scenes only: a "
+                             "synthetic scenario has one ego)")
     params = {**HYPERPARAMETERS[algo], **(hyperparameters or {})}
     observation = _observation_config(scenario)
     say = announce or (lambda line: None)
@@ -459,7 +469,8 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
         + (" (fast variant)" if fast and not isinstance(scenario, WomdScenes) else "")
         + _where_phrase(n_envs, in_process) + why + " ...")
     vec = _vec_env(scenario, n_envs=n_envs, fast=fast, seed=seed, in_process=in_process,
-                   scenes=None if split is None or not split.held_out else split.train)
+                   scenes=None if split is None or not split.held_out else split.train,
+                   egos=egos)
     say(f"training {algo.upper()} for {timesteps} steps"
         + (f", {curve.points} learning-curve evaluations on the way" if curve else "")
         + " ...")
@@ -483,7 +494,8 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
                       trained=trained, asked=timesteps, interrupted=learned.interrupted,
                       kept=kept, n_envs=n_envs, fast=fast, seed=seed, params=params,
                       curve=curve, train_seconds=learned.seconds - eval_seconds,
-                      cpu_seconds=learned.cpu_seconds, command=command, split=split)
+                      cpu_seconds=learned.cpu_seconds, command=command, split=split,
+                      egos=egos)
     with atomic_path(definition) as tmp:
         tmp.write_text(json.dumps(doc, indent=2, default=_json_record) + "\n")
     result = TrainingResult(model_path=output, definition_path=definition,
@@ -702,7 +714,7 @@ def _definition(output: Path, *, algo: str, scenario: Scenario | WomdScenes,
                 kept: dict[str, Any] | None, n_envs: int, fast: bool, seed: int,
                 params: dict[str, Any], curve: CurveConfig | None, train_seconds: float,
                 command: str | None, split: SceneSplit | None = None,
-                cpu_seconds: float = float("nan")) -> dict[str, Any]:
+                cpu_seconds: float = float("nan"), egos: str = "sdc") -> dict[str, Any]:
     """The policy definition written beside the model (kind ``sb3``): what was trained,
     how, and the command; ``trained`` env steps of the ``asked`` ones, ``train_seconds``
     the wall time of the training without the curve's evaluations [s]."""
@@ -717,7 +729,7 @@ def _definition(output: Path, *, algo: str, scenario: Scenario | WomdScenes,
             "model": output.name,
             "algo": algo,
             "env": scenario.env_id,
-            **({"womd": list(scenario.files), "traffic": scenario.traffic}
+            **({"womd": list(scenario.files), "traffic": scenario.traffic, "egos": egos}
                if isinstance(scenario, WomdScenes) else {}),
             **(split.record() if split is not None else {}),
             "observation": observation,

@@ -150,7 +150,8 @@ class SB3Policy:
             stopped the training earlier; ``kept``: ``"last"`` or ``"best"``, the weights
             saved, with the steps, return and crash rate of the evaluation they come from;
             ``curve``: the learning curve's settings, None without one; ``womd`` and
-            ``traffic``: the recorded scenes it trained on, if any;
+            ``traffic``: the recorded scenes it trained on, if any, and ``egos`` whom
+            it drove there (``"sdc"``: each scene's ego, ``"all"``: every driver in turn);
             ``train_scenes``, ``held_out_scenes``, ``held_out_refs``: the indexes of the
             scenes trained on and held out, and where the held-out ones are:
             :mod:`tap_bench.rl.heldout`; ``cpu_seconds``: the CPU time of the training,
@@ -171,6 +172,7 @@ class SB3Policy:
                  kept_eval_crash_rate: float | None = None,
                  curve: Mapping[str, Any] | None = None,
                  womd: Sequence[str] | None = None, traffic: str | None = None,
+                 egos: str | None = None,
                  train_scenes: Sequence[int] | None = None,
                  held_out_scenes: Sequence[int] | None = None,
                  held_out_refs: Sequence[str] | None = None,
@@ -199,7 +201,7 @@ class SB3Policy:
                          "kept_eval_crash_rate": kept_eval_crash_rate,
                          "curve": dict(curve) if curve is not None else None,
                          "womd": list(womd) if womd is not None else None,
-                         "traffic": traffic,
+                         "traffic": traffic, "egos": egos,
                          "reward": dict(reward) if reward is not None else None,
                          "train_scenes": None if train_scenes is None else list(train_scenes),
                          "held_out_scenes": (None if held_out_scenes is None

@@ -77,6 +77,7 @@ per decision while the time to collision with the road user in the path ahead is
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import os
 import warnings
@@ -124,7 +125,7 @@ from tap_bench.sim.womd_scene import (
 from tap_bench.stats.bootstrap import named_rng
 
 __all__ = ["PARKED_DISTANCE", "TARGET_SPEEDS", "TRAFFIC", "MapWarning", "WomdEnv",
-           "WomdScenes", "make_womd_env", "map_summary"]
+           "WomdScenes", "make_womd_env", "map_summary", "with_ego"]
 
 PARKED_DISTANCE = 1.0  # [m] a vehicle that moves less over the record stays parked (replays)
 LATE_HEADING = math.radians(30.0)  # [rad] a vehicle appearing later more across its lane
@@ -187,6 +188,26 @@ def map_summary(notes: Sequence[object]) -> str | None:
 _WARNED: set[str] = set()
 
 
+def with_ego(scene: Scene, track_id: str | int) -> Scene:
+    """``scene`` with the vehicle of track ``track_id`` as its ego.
+
+    Raises:
+        SceneError: no such track, or it is not a vehicle valid at the current time (the
+            message names the scenario and the track).
+    """
+    rows = np.flatnonzero(scene.track_ids.astype(str) == str(track_id))
+    where = f"scenario {scene.scenario_id} ({scene.ref})"
+    if not len(rows):
+        raise SceneError(f"{where}: no track {track_id!r} to drive as the ego; its tracks "
+                         f"are {', '.join(map(str, scene.track_ids[:10]))}"
+                         f"{' ...' if len(scene.track_ids) > 10 else ''}.")
+    row = int(rows[0])
+    if scene.object_types[row] != "vehicle" or not scene.valid[row, CURRENT_STEP]:
+        raise SceneError(f"{where}: track {track_id} is not a vehicle valid at the current "
+                         "time (1.0 s), so it cannot be driven as the ego; choose another.")
+    return scene if row == scene.ego else dataclasses.replace(scene, ego=row)
+
+
 class _WomdHighwayEnv(AbstractEnv):
     """The highway-env environment under :class:`WomdEnv` (``env.unwrapped``): it picks the
     scene of a reset itself, so it is a complete Gymnasium env on its own.
@@ -234,7 +255,7 @@ class _WomdHighwayEnv(AbstractEnv):
         # (training comes back to the same scenes: building a network is most of a reset)
         self.keep_scenes = max(1, int(keep_scenes))
         self._cache: dict[SceneRef, Scene] = {}
-        self._built: dict[SceneRef, tuple[WomdNetwork, list, float]] = {}
+        self._built: dict[tuple[SceneRef, int], tuple[WomdNetwork, list, float]] = {}
         self.traffic = scenes.traffic
         self.rollout = 0  # which draw of stochastic traffic (reset option "rollout")
         self.clock = [CURRENT_STEP]
@@ -269,7 +290,8 @@ class _WomdHighwayEnv(AbstractEnv):
             if len(self._cache) >= self.keep_scenes:
                 gone = next(iter(self._cache))
                 self._cache.pop(gone)
-                self._built.pop(gone, None)
+                for key in [key for key in self._built if key[0] == gone]:
+                    self._built.pop(key)
             self._cache[ref] = scene
         return scene
 
@@ -299,6 +321,9 @@ class _WomdHighwayEnv(AbstractEnv):
         scenes in file and record order), else the scene after the last one.
         ``options["rollout"]`` (default 0) picks the draw of stochastic traffic (idm
         traffic's drivers): the same scene and rollout give the same episode.
+        ``options["ego"]`` (a track id) drives that vehicle of the scene instead of the
+        env's ego (training on every driver of a scene; the former ego then replays or is
+        traffic like any other track).
 
         ``seed`` also seeds the env's random generator (as Gymnasium's ``reset`` does);
         the other options are highway-env's (``{"config": ...}``; the observation and
@@ -307,10 +332,12 @@ class _WomdHighwayEnv(AbstractEnv):
         options = dict(options or {})
         selectors = {key: options.pop(key, None) for key in ("scenario_id", "scene")}
         rollout = options.pop("rollout", 0)
+        ego = options.pop("ego", None)
         if not self._building:
             self.rollout = int(rollout)
             index = self.scene_for(seed, selectors)
-            self.scene = self.scene_at(index)
+            scene = self.scene_at(index)
+            self.scene = scene if ego is None else with_ego(scene, ego)
             self.scene_index = int(index)
             self.resets += 1
         return super().reset(seed=seed, options=options or None)
@@ -362,8 +389,12 @@ class _WomdHighwayEnv(AbstractEnv):
         self.clock[0] = CURRENT_STEP
         self._measured_step = CURRENT_STEP
         ref = self.catalog[self.scene_index]
-        built = self._built.get(ref)
-        network = built[0] if built is not None else WomdNetwork(scene.road)
+        built = self._built.get((ref, scene.ego))
+        if built is None:  # the network of another ego's episode in this scene
+            other = next((b for key, b in self._built.items() if key[0] == ref), None)
+            network = other[0] if other is not None else WomdNetwork(scene.road)
+        else:
+            network = built[0]
         self.map_note = _map_note(scene, network)
         self.road = WomdRoad(network, scene, self.clock, np_random=self.np_random)
         sim_xy = sim_frame(scene.x, scene.y)  # (n, T, 2)
@@ -375,7 +406,7 @@ class _WomdHighwayEnv(AbstractEnv):
         if built is None:
             built = (network, *logged_route(network, sim_xy[e, future], sim_h[e, future]))
             if ref in self._cache:
-                self._built[ref] = built
+                self._built[ref, scene.ego] = built
         route, off = built[1], built[2]
         self.route = list(route)
         self.route_missing = ""  # why the scene has no route (the human still replays)
@@ -645,7 +676,7 @@ class WomdEnv(gym.Wrapper):
                     raise
                 warnings.warn(f"{err} Skipped.", stacklevel=2)
                 failed = inner.scene_for(seed, options)
-                options = {**options, "scenario_id": None,
+                options = {**options, "scenario_id": None, "ego": None,
                            "scene": (failed + 1) % len(self.catalog)}
         else:
             raise SceneError(f"{', '.join(self.scenario.files)}: no scenario can be built.")

@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
 
 from tap_bench.errors import ParameterError
-from tap_bench.rl.heldout import SceneSubset, split_scenes
+from tap_bench.rl.heldout import MIN_TRAVEL, SceneSubset, drivers, split_scenes
 from tap_bench.sim.womd_env import WomdEnv
-from tap_bench.sim.womd_scene import WomdScenes
+from tap_bench.sim.womd_road import LogVehicle
+from tap_bench.sim.womd_scene import CURRENT_STEP, SceneError, WomdScenes
 
 
 @pytest.fixture
@@ -59,7 +61,7 @@ def test_a_scene_built_again_from_the_cache_gives_the_same_episode(four):
                     break
         runs.append((network, np.array(trace)))
     assert cached.unwrapped._built, "the cycling env keeps its built scenes"
-    assert runs[0][0] is cached.unwrapped._built[cached.catalog[0]][0]
+    assert runs[0][0] is cached.unwrapped._built[cached.catalog[0], cached.scene.ego][0]
     np.testing.assert_allclose(runs[0][1], runs[1][1], atol=1e-6)
 
 
@@ -90,3 +92,59 @@ def test_a_definition_with_the_split_and_cpu_time_loads_as_a_policy(four, tmp_pa
     policy = load_policy(str(result.definition_path))
     assert policy.training["held_out_scenes"] == [3]
     assert policy.training["cpu_seconds"] > 0
+
+
+def test_the_drivers_of_a_scene_are_its_ego_then_every_vehicle_that_drives(four):
+    scene = WomdEnv(four, record=False).scene_at(0)
+    names = drivers(scene)
+    assert names[0] == str(scene.track_ids[scene.ego])
+    assert len(names) > 3 and len(set(names)) == len(names)
+    for name in names[1:]:
+        row = int(np.flatnonzero(scene.track_ids.astype(str) == name)[0])
+        assert scene.object_types[row] == "vehicle"
+        assert scene.valid[row, CURRENT_STEP:].all()
+        travel = np.hypot(np.diff(scene.x[row, CURRENT_STEP:]),
+                          np.diff(scene.y[row, CURRENT_STEP:])).sum()
+        assert travel >= MIN_TRAVEL
+    parked = [str(t) for r, t in enumerate(scene.track_ids) if scene.valid[r].all()
+              and scene.object_types[r] == "vehicle"
+              and np.hypot(np.diff(scene.x[r]), np.diff(scene.y[r])).sum() < 1.0]
+    assert parked and not set(parked) & set(names)
+
+
+def test_an_episode_drives_another_track_and_the_scene_ego_replays(four):
+    env = WomdEnv(four, record=False, cycle=True)
+    scene = env.scene_at(0)
+    track = drivers(scene)[1]
+    env.reset(options={"scene": 0, "ego": track})
+    inner = env.unwrapped
+    row = inner.scene.ego
+    assert str(inner.scene.track_ids[row]) == track and row != scene.ego
+    assert inner.route and np.allclose(inner.vehicle.position,
+                                       [scene.x[row, CURRENT_STEP], -scene.y[row, CURRENT_STEP]])
+    assert any(isinstance(v, LogVehicle) and v.row == scene.ego for v in inner.road.vehicles)
+    own_route = None
+    for ego in (None, track, None):  # the routes of both egos are kept apart
+        env.reset(options={"scene": 0, "ego": ego})
+        if ego is None:
+            own_route = own_route or list(inner.route)
+            assert inner.route == own_route and inner.scene.ego == scene.ego
+    with pytest.raises(SceneError, match="no track 'nobody'"):
+        WomdEnv(four, record=False).reset(options={"scene": 0, "ego": "nobody"})
+
+
+def test_training_on_all_drivers_drives_each_in_turn(four):
+    env = SceneSubset(WomdEnv(four, record=False, cycle=True), (0,), egos="all")
+    names = drivers(env.unwrapped.scene_at(0))
+    seen = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a driver without a route is dropped, warned
+        for _ in range(2 * len(names)):
+            env.reset()
+            inner = env.unwrapped
+            assert inner.scene_index == 0 and inner.route and not inner.route_missing
+            seen.append(str(inner.scene.track_ids[inner.scene.ego]))
+    driven = env._drivers[0]  # those without a route were dropped
+    assert seen[:2] == names[:2] and set(seen) == set(driven) and len(driven) > 3
+    with pytest.raises(ParameterError, match="egos"):
+        SceneSubset(WomdEnv(four, record=False, cycle=True), (0,), egos="everyone")

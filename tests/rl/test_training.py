@@ -208,11 +208,15 @@ def test_a_model_for_another_action_space_is_refused_clearly(tmp_path):
 
 
 def test_overlapped_gradient_steps_run_while_the_envs_simulate_and_none_is_lost(
-        write_scenario):
+        write_scenario, tmp_path, monkeypatch):
     """DQN over several envs takes its gradient steps after the next actions are sent; it
-    takes as many as the plain loop, and the last ones before the training ends."""
+    takes as many as the plain loop, and the last ones before the training ends. SB3's
+    default logger (an empty SB3-<date> folder in the temporary folder) is not used."""
+    import tempfile
+
     from stable_baselines3 import DQN
     from stable_baselines3.common.callbacks import CallbackList
+    from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.vec_env import DummyVecEnv, VecEnvWrapper
 
     from tap_bench.rl.overlap import FlushPendingCallback, OverlapVecEnv, overlapping
@@ -221,6 +225,8 @@ def test_overlapped_gradient_steps_run_while_the_envs_simulate_and_none_is_lost(
 
     scenario = get_scenario(write_scenario("short", duration=5))
     events: list[str] = []
+    monkeypatch.delenv("SB3_LOGDIR", raising=False)
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
 
     class Spy(VecEnvWrapper):  # what the workers are asked, in order
         def reset(self):
@@ -251,6 +257,7 @@ def test_overlapped_gradient_steps_run_while_the_envs_simulate_and_none_is_lost(
             real_train(self, gradient_steps, batch_size)
 
         DQN.train = noted
+        model.set_logger(Logger(None, []))  # no log: SB3's default writes a folder
         try:
             model.learn(total_timesteps=40, callback=CallbackList(callbacks))
         finally:
@@ -268,6 +275,7 @@ def test_overlapped_gradient_steps_run_while_the_envs_simulate_and_none_is_lost(
     assert "sent,train,waited" in ",".join(events)
     assert "waited,train,sent" not in ",".join(events)
     assert events[-1] == "train"
+    assert not list(tmp_path.glob("SB3-*"))
 
 
 def test_a_plain_script_without_a_main_guard_trains_on_two_envs(tmp_path, write_scenario):

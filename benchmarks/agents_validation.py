@@ -1,0 +1,94 @@
+"""Choose an agent's design without the held-out scenes: drive policies on validation scenes
+(training scenes left out of a selection run's training), as every driver of each scene.
+
+Every vehicle of each scene that drives from the current time to the end
+(:func:`tap_bench.rl.heldout.drivers`, the scene's own ego first) is the ego of one episode
+per policy (log traffic, the training setting), so 4 validation scenes give tens of episodes
+instead of 4. Prints, per policy: episodes, route progress (mean and interquartile mean over
+the episodes where the driver moved), at-fault collisions and off-road (rates), and the
+probability that the first policy gets further than each other one on the same episode
+(ties a half); writes every episode to ``--out`` (CSV).
+
+Usage: python benchmarks/agents_validation.py --womd FILES --scenes 2,5,10,14
+       --policies /tmp/sel-all.zip /tmp/sel-sdc.zip lane-keeping random [--out eps.csv]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+import warnings
+
+import numpy as np
+import pandas as pd
+from machine import report
+
+from tap_bench.rl.heldout import drivers
+from tap_bench.sim.policies import load_policy
+from tap_bench.sim.rollout import run_episode
+from tap_bench.sim.womd_env import WomdEnv
+from tap_bench.sim.womd_scene import WomdScenes
+from tap_bench.stats.aggregate import iqm
+
+
+def episodes(files: list[str], scenes: list[int], policies: list[str]) -> pd.DataFrame:
+    """One row per (policy, scene, driver): the episode's measures."""
+    env = WomdEnv(WomdScenes(tuple(files)), record=False)
+    rows = []
+    for name in policies:
+        policy = load_policy(name)
+        for i in scenes:
+            for track in drivers(env.scene_at(i)):
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    _, row = run_episode(env, policy, i, record=False,
+                                         options={"scene": i, "ego": track})
+                rows.append({"policy": name, "scene": i, "track": track,
+                             **{k: row.get(k) for k in (
+                                 "status", "route_progress", "crashed", "crash_at_fault",
+                                 "off_road", "return", "length")}})
+    return pd.DataFrame(rows)
+
+
+def summary(eps: pd.DataFrame, policies: list[str]) -> pd.DataFrame:
+    """Per policy: the figures printed (see the module docstring)."""
+    ok = eps[eps["status"] == "ok"]
+    first = ok[ok["policy"] == policies[0]].set_index(["scene", "track"])["route_progress"]
+    out = []
+    for name in policies:
+        rows = ok[ok["policy"] == name]
+        moved = rows["route_progress"].dropna().to_numpy(float)
+        mine = rows.set_index(["scene", "track"])["route_progress"]
+        both = pd.concat([first, mine], axis=1, keys=["a", "b"]).dropna()
+        p = float(((both["a"] > both["b"]) + 0.5 * (both["a"] == both["b"])).mean())
+        out.append({"policy": name, "episodes": len(rows),
+                    "progress_mean": float(moved.mean()), "progress_iqm": float(iqm(moved)),
+                    "at_fault": float(rows["crash_at_fault"].astype(bool).mean()),
+                    "off_road": float(rows["off_road"].astype(bool).mean()),
+                    f"P({policies[0]} further)": p})
+    return pd.DataFrame(out)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--womd", nargs="+", required=True)
+    parser.add_argument("--scenes", required=True, help="validation scene indexes, 2,5,10")
+    parser.add_argument("--policies", nargs="+", required=True)
+    parser.add_argument("--out", help="write the episodes there (CSV)")
+    args = parser.parse_args()
+    scenes = [int(s) for s in args.scenes.split(",")]
+    start, cpu = time.perf_counter(), time.process_time()
+    eps = episodes(args.womd, scenes, args.policies)
+    table = summary(eps, args.policies)
+    with pd.option_context("display.width", 200, "display.max_columns", 20):
+        print(table.round(3).to_string(index=False))
+    if args.out:
+        eps.to_csv(args.out, index=False)
+    report("agents_validation", {
+        "scenes": scenes, "episodes": len(eps), "wall_s": round(time.perf_counter() - start, 1),
+        "cpu_s": round(time.process_time() - cpu, 1),
+        "summary": table.replace({np.nan: None}).round(4).to_dict("records")})
+
+
+if __name__ == "__main__":
+    main()
