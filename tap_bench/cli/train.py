@@ -35,6 +35,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="with --env womd: drive each scene's ego (sdc, the default), or every "
                    "vehicle that drives in the training scenes in turn (all: as many "
                    "situations as the scenes hold drivers)")
+    p.add_argument("--reward", nargs="+", metavar="KEY=VALUE", default=[],
+                   help="with --env womd: reward settings over the env's defaults (e.g. "
+                   "progress_gain_reward=2 ttc_reward=-0.05; the *_reward keys of "
+                   "tap_bench/womd-v0, docs/closed_loop.md); the definition records them all")
     p.add_argument("--timesteps", type=int, required=True, help="decisions to train for")
     p.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     p.add_argument("-o", "--output", required=True,
@@ -93,6 +97,26 @@ def _curve_options(args: argparse.Namespace) -> list[str]:
     return options
 
 
+def _rewards(items: list[str]) -> dict[str, float]:
+    """``--reward KEY=VALUE ...`` as config: each key one of the env's ``*_reward`` settings,
+    each value a number."""
+    from tap_bench.sim.womd_env import _WomdHighwayEnv
+
+    known = sorted(k for k in _WomdHighwayEnv.default_config() if k.endswith("_reward"))
+    out = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        if key not in known:
+            raise SystemExit(f"tap-bench train: --reward {item}: {key!r} is not a reward "
+                             f"setting; use one of {', '.join(known)} (KEY=VALUE).")
+        try:
+            out[key] = float(value)
+        except ValueError:
+            raise SystemExit(f"tap-bench train: --reward {item}: {value!r} is not a number; "
+                             "write KEY=VALUE, e.g. progress_gain_reward=2.") from None
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     from tap_bench.rl.curve import CurveConfig
     from tap_bench.rl.training import DEFAULT_N_ENVS, train
@@ -107,16 +131,20 @@ def run(args: argparse.Namespace) -> int:
             raise SystemExit("tap-bench train: --env womd trains on recorded scenes; name "
                              "their files with --womd FILES.")
         env = WomdScenes(tuple(args.womd), traffic=args.traffic)
+        if args.reward:
+            env = env.with_overrides(_rewards(args.reward))
         recorded = ["--womd", *args.womd, "--traffic", args.traffic,
                     *(["--hold-out", args.hold_out] if args.hold_out else []),
-                    *(["--egos", args.egos] if args.egos != "sdc" else [])]
+                    *(["--egos", args.egos] if args.egos != "sdc" else []),
+                    *(["--reward", *args.reward] if args.reward else [])]
         if not args.no_curve:
             print("recorded scenes: no learning curve (it evaluates on synthetic seeds); "
                   "compare the agent with the human afterwards: tap-bench rollout --womd ... "
                   f"--policy {args.output}")
             args.no_curve = True
-    elif args.womd or args.hold_out or args.egos != "sdc":
-        raise SystemExit("tap-bench train: --womd, --hold-out and --egos go with --env womd.")
+    elif args.womd or args.hold_out or args.egos != "sdc" or args.reward:
+        raise SystemExit("tap-bench train: --womd, --hold-out, --egos and --reward go with "
+                         "--env womd.")
     command = "tap-bench train " + " ".join(shlex.quote(a) for a in (
         "--algo", args.algo, "--env", args.env, *recorded, "--timesteps", str(args.timesteps),
         "--seed",

@@ -67,9 +67,11 @@ follows the route's lanes (at a lane end it takes the route's next lane), and
 observation can be configured instead (``config={"observation": ...}``; the shipped
 highway agents read plain ``Kinematics``).
 
-**Reward** (``collision_reward``, ``off_road_reward``, ``progress_reward``, ``ttc_reward``):
--1 on a collision or leaving the road (both end the episode), the route progress so far
-divided by the decisions of the scene at each decision, and up to ``ttc_reward`` (-0.05)
+**Reward** (``collision_reward``, ``off_road_reward``, ``progress_reward``,
+``progress_gain_reward``, ``ttc_reward``): -1 on a collision or leaving the road (both end
+the episode), the route progress so far divided by the decisions of the scene at each
+decision, ``progress_gain_reward`` (default 0) times the route progress gained since the
+last decision (a whole route is worth that much), and up to ``ttc_reward`` (-0.05)
 per decision while the time to collision with the road user in the path ahead is below
 :data:`TTC_WARNING` (3 s), linear in 1 - TTC / 3 s (docs/agents.md says why).
 """
@@ -240,6 +242,7 @@ class _WomdHighwayEnv(AbstractEnv):
             "progress_reward": 1.0,
             "off_road_reward": -1.0,
             "ttc_reward": TTC_REWARD,
+            "progress_gain_reward": 0.0,
         })
         return config
 
@@ -456,6 +459,7 @@ class _WomdHighwayEnv(AbstractEnv):
         self.replaying_ego = False
         self._last_ego = np.array([x, y])
         self.progress = 0.0
+        self._rewarded_progress = 0.0  # the route progress at the last decision's reward
         self.flags = {"off_road": False, "ran_red_light": False}
         self.off_road_max = float("nan")  # [m] largest signed distance off the road
         self.off_road_rules: dict[str, int] = {}  # rule -> steps it decided
@@ -590,11 +594,13 @@ class _WomdHighwayEnv(AbstractEnv):
             inverse_ttc = watch.lead.inverse_ttc
             if inverse_ttc > 0:
                 closing = max(0.0, 1.0 - 1.0 / (inverse_ttc * TTC_WARNING))
+        progress = 0.0 if math.isnan(self.route_progress) else self.route_progress
+        gain, self._rewarded_progress = progress - self._rewarded_progress, progress
         return float(cfg["collision_reward"] * self.vehicle.crashed
                      + cfg.get("ttc_reward", 0.0) * closing
+                     + cfg.get("progress_gain_reward", 0.0) * gain
                      + cfg["off_road_reward"] * self.flags["off_road"]
-                     + cfg["progress_reward"] * (0.0 if math.isnan(self.route_progress)
-                                                 else self.route_progress)
+                     + cfg["progress_reward"] * progress
                      / max(1, (self.scene.n_steps - CURRENT_STEP) * cfg["policy_frequency"]
                            / cfg["simulation_frequency"]))
 

@@ -138,3 +138,25 @@ def test_a_leader_setting_that_is_not_a_flag_is_refused(tmp_path):
     with pytest.raises(ValueError, match="leader 'yes' must be true or false"):
         make_womd_env(path, config={"observation": {"type": "KinematicsRoute",
                                                     "leader": "yes"}})
+
+
+def test_the_progress_gain_reward_sums_to_the_route_progress_of_the_episode(tmp_path):
+    # only progress_gain_reward on: the rewards of an episode add up to that times the route
+    # progress it reached, whatever the actions (faster, then slower)
+    path = following(tmp_path / "sd_free.pkl", angle=0.3, lead_at=250.0, lead_speed=10.0,
+                     side=1)
+    env = make_womd_env(path, config={"collision_reward": 0.0, "off_road_reward": 0.0,
+                                      "progress_reward": 0.0, "ttc_reward": 0.0,
+                                      "progress_gain_reward": 2.0})
+    assert make_womd_env(path).unwrapped.config["progress_gain_reward"] == 0.0
+    for actions in ([3] * 40, [4] * 40):  # FASTER, SLOWER
+        env.reset(seed=0)
+        total = 0.0
+        for action in actions:
+            _, reward, terminated, truncated, _ = env.step(action)
+            assert reward >= 0.0
+            total += reward
+            if terminated or truncated:
+                break
+        progress = env.unwrapped.route_progress
+        assert 0.1 < progress and total == pytest.approx(2.0 * progress, abs=1e-9)
