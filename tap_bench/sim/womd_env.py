@@ -71,7 +71,9 @@ highway agents read plain ``Kinematics``).
 ``progress_gain_reward``, ``ttc_reward``): -1 on a collision or leaving the road (both end
 the episode), the route progress so far divided by the decisions of the scene at each
 decision, ``progress_gain_reward`` (default 0) times the route progress gained since the
-last decision (a whole route is worth that much), and up to ``ttc_reward`` (-0.05)
+last decision (a whole route is worth that much), ``at_fault_reward`` (default 0) more on a
+collision that was the ego's fault (SPEC section 8's rules, as the episode table's
+``crash_at_fault``: judged by :class:`WomdEnv`), and up to ``ttc_reward`` (-0.05)
 per decision while the time to collision with the road user in the path ahead is below
 :data:`TTC_WARNING` (3 s), linear in 1 - TTC / 3 s (docs/agents.md says why).
 """
@@ -243,6 +245,7 @@ class _WomdHighwayEnv(AbstractEnv):
             "off_road_reward": -1.0,
             "ttc_reward": TTC_REWARD,
             "progress_gain_reward": 0.0,
+            "at_fault_reward": 0.0,
         })
         return config
 
@@ -460,6 +463,7 @@ class _WomdHighwayEnv(AbstractEnv):
         self._last_ego = np.array([x, y])
         self.progress = 0.0
         self._rewarded_progress = 0.0  # the route progress at the last decision's reward
+        self.ego_at_fault = False  # the ego's collision was its fault (WomdEnv judges it)
         self.flags = {"off_road": False, "ran_red_light": False}
         self.off_road_max = float("nan")  # [m] largest signed distance off the road
         self.off_road_rules: dict[str, int] = {}  # rule -> steps it decided
@@ -599,6 +603,8 @@ class _WomdHighwayEnv(AbstractEnv):
         return float(cfg["collision_reward"] * self.vehicle.crashed
                      + cfg.get("ttc_reward", 0.0) * closing
                      + cfg.get("progress_gain_reward", 0.0) * gain
+                     + cfg.get("at_fault_reward", 0.0) * (self.vehicle.crashed
+                                                          and self.ego_at_fault)
                      + cfg["off_road_reward"] * self.flags["off_road"]
                      + cfg["progress_reward"] * progress
                      / max(1, (self.scene.n_steps - CURRENT_STEP) * cfg["policy_frequency"]
@@ -727,6 +733,7 @@ class WomdEnv(gym.Wrapper):
         ego = inner.vehicle
         if ego.crashed and self.crash_at_fault is None:
             self._crash_partner(ego)
+            inner.ego_at_fault = bool(self.crash_at_fault)  # the reward's at_fault_reward
         self._ego_cols["crash_at_fault"][k] = bool(ego.crashed and self.crash_at_fault)
         if not self.record:
             return

@@ -160,3 +160,24 @@ def test_the_progress_gain_reward_sums_to_the_route_progress_of_the_episode(tmp_
                 break
         progress = env.unwrapped.route_progress
         assert 0.1 < progress and total == pytest.approx(2.0 * progress, abs=1e-9)
+
+
+def test_a_collision_that_is_the_ego_s_fault_costs_the_at_fault_reward_more(tmp_path):
+    # driving into a stopped car: the same episode with and without at_fault_reward; the
+    # rewards differ by it at the collision only
+    path = following(tmp_path / "sd_hit.pkl", angle=-0.4, lead_at=20.0, lead_speed=0.0,
+                     side=1)
+    plain = make_womd_env(path)
+    judged = make_womd_env(path, config={"at_fault_reward": -2.0})
+    plain.reset(seed=0)
+    judged.reset(seed=0)
+    for _ in range(20):
+        _, r0, done0, _, _ = plain.step(3)  # FASTER into the stopped car
+        _, r1, done1, _, _ = judged.step(3)
+        assert done0 == done1
+        if done1:
+            break
+        assert r1 == pytest.approx(r0, abs=1e-12)
+    info = judged.episode_info()
+    assert info["crash_at_fault"] and judged.unwrapped.vehicle.crashed
+    assert r1 - r0 == pytest.approx(-2.0, abs=1e-9)
