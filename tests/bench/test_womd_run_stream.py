@@ -5,12 +5,15 @@ those of a run that holds every trajectory in memory, and nothing is left beside
 from __future__ import annotations
 
 import json
+import os
 import re
+import subprocess
 import sys
 import warnings
 from pathlib import Path
 
 import pandas as pd
+import pytest
 
 from tap_bench.bench.run import runner
 from tap_bench.bench.run import spill as bench_spill
@@ -160,3 +163,42 @@ def test_without_the_report_the_trajectories_are_never_one_table(tmp_path, monke
     table = pd.read_parquet(folder / "trajectories.parquet")
     assert sorted(table["policy"].unique()) == ["idm", "log"]
     assert table.groupby("policy")["seed"].nunique().tolist() == [3, 3]
+
+
+PROJECT_ROOT = HERE.parents[1]
+
+# runs the command line and reports its peak resident memory (VmHWM: this process's own
+# high-water mark, reset at exec)
+CHILD = """
+import json, sys
+from tap_bench.cli import main
+code = main(sys.argv[2:])
+peak = [int(l.split()[1]) for l in open('/proc/self/status') if l.startswith('VmHWM')][0]
+json.dump({"code": code, "peak_kb": peak}, open(sys.argv[1], "w"))
+"""
+
+
+@pytest.mark.slow
+def test_peak_memory_does_not_grow_with_the_scenes(tmp_path):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(PROJECT_ROOT), os.environ.get("PYTHONPATH", "")]), "OMP_WAIT_POLICY": "PASSIVE"}
+    peaks = {}
+    for n in (3, 15):
+        files = scene_files(tmp_path / f"s{n}", n, per_file=5, parked=150)
+        suite = tmp_path / f"suite{n}.json"
+        suite.write_text(json.dumps(suite_doc(files)))
+        report = tmp_path / f"m{n}.json"
+        # in this process (one worker): the labelling and the report are the run's own
+        proc = subprocess.run(
+            [sys.executable, "-c", CHILD, str(report), "bench", "run", "--suite", str(suite),
+             "-o", str(tmp_path / f"run{n}"), "--no-cache", "--workers", "1",
+             "--no-progress"], env=env, capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        result = json.loads(report.read_text())
+        assert result["code"] == 0, proc.stderr[-3000:]
+        peaks[n] = result["peak_kb"]
+        assert len(pd.read_parquet(tmp_path / f"run{n}" / "episodes.parquet")) == 2 * n
+        assert (tmp_path / f"run{n}" / "viewer" / "index.html").is_file()
+    # 12 more scenes of 13,832 rows and two policies: a run that held them would hold
+    # their trajectories, labels of every track and viewer data (tens of MB more)
+    assert peaks[15] <= 1.2 * peaks[3], peaks
