@@ -72,6 +72,23 @@ def _frames(px, py, tx, ty, s, xs, ys):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
+def _pose_at(s, a, b, lon):  # pragma: no cover - compiled
+    """The last pose ``k`` of ``a:b`` with ``s[k] <= lon`` after the first (arc lengths
+    ``s`` non-decreasing; ``a`` when there is none, ``b - 1`` for a NaN ``lon``), by
+    bisection."""
+    if not lon == lon:  # not a number: the last pose
+        return b - 1
+    lo, hi = a + 1, b  # the first pose after a with s > lon is in lo..hi
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if s[mid] <= lon:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo - 1
+
+
+@numba.njit(cache=True, nogil=True)
 def _lane_distances(offsets, px, py, tx, ty, s, lengths, x, y, heading, use_heading
                     ):  # pragma: no cover - compiled
     """Distance of the point to every lane: |lateral| + overshoot beyond either end (+ the
@@ -83,11 +100,7 @@ def _lane_distances(offsets, px, py, tx, ty, s, lengths, x, y, heading, use_head
         lon, lat = _frame(px[a:b], py[a:b], tx[a:b], ty[a:b], s[a:b], x, y)
         d = abs(lat) + max(lon - lengths[j], 0.0) + max(-lon, 0.0)
         if use_heading:
-            k = a
-            while k + 1 < b and s[k + 1] <= lon:
-                k += 1
-            if not lon == lon:  # not a number: the last pose
-                k = b - 1
+            k = _pose_at(s, a, b, lon)
             turn = (heading - math.atan2(ty[k], tx[k]) + math.pi) % (2 * math.pi) - math.pi
             d += abs(turn)
         out[j] = d
@@ -95,13 +108,46 @@ def _lane_distances(offsets, px, py, tx, ty, s, lengths, x, y, heading, use_head
 
 
 @numba.njit(cache=True, nogil=True)
-def _lane_distances_many(offsets, px, py, tx, ty, s, lengths, xs, ys, headings, use_heading
+def _near_lane_distances(offsets, px, py, tx, ty, s, lengths, boxes, reach, xs, ys, headings
                          ):  # pragma: no cover - compiled
-    """(n_points, n_lanes) :func:`_lane_distances` of many points (and headings)."""
-    out = np.empty((xs.shape[0], offsets.shape[0] - 1))
+    """(n_points, n_lanes) :func:`_lane_distances` with the heading, +inf for the lanes
+    that surely cannot be within :data:`TOLERANCE` of the nearest.
+
+    A lane's distance is at least the distance from the point to the bounding box of its
+    poses (``boxes[j]``: x min, y min, x max, y max) minus ``reach[j]`` (the larger of its
+    length and its last arc length; arc lengths start at 0 and do not decrease): the
+    point is ``sqrt(lon'^2 + lateral^2)`` from its pose, ``lon'`` its longitudinal offset
+    there, and whatever of ``lon'`` the lateral part does not cover is overshoot beyond an
+    end, up to ``reach[j]``. A lane whose bound is beyond the nearest distance found so far
+    + TOLERANCE + 1e-6 m (rounding) is not measured; the lane of the smallest bound is
+    measured first."""
+    n_lanes = offsets.shape[0] - 1
+    out = np.full((xs.shape[0], n_lanes), np.inf)
+    bound = np.empty(n_lanes)
     for q in range(xs.shape[0]):
-        out[q] = _lane_distances(offsets, px, py, tx, ty, s, lengths, xs[q], ys[q],
-                                 headings[q], use_heading)
+        x, y = xs[q], ys[q]
+        first = 0
+        for j in range(n_lanes):
+            dx = max(boxes[j, 0] - x, x - boxes[j, 2], 0.0)
+            dy = max(boxes[j, 1] - y, y - boxes[j, 3], 0.0)
+            bound[j] = np.sqrt(dx * dx + dy * dy) - reach[j]
+            if bound[j] < bound[first]:
+                first = j
+        best = np.inf
+        for step in range(n_lanes + 1):
+            j = first if step == 0 else step - 1
+            if (step > 0 and j == first) or bound[j] > best + TOLERANCE + 1e-6:
+                continue
+            a, b = offsets[j], offsets[j + 1]
+            lon, lat = _frame(px[a:b], py[a:b], tx[a:b], ty[a:b], s[a:b], x, y)
+            d = abs(lat) + max(lon - lengths[j], 0.0) + max(-lon, 0.0)
+            k = _pose_at(s, a, b, lon)
+            turn = (headings[q] - math.atan2(ty[k], tx[k]) + math.pi) % (2 * math.pi) \
+                - math.pi
+            d += abs(turn)
+            out[q, j] = d
+            if d < best:
+                best = d
     return out
 
 
@@ -351,6 +397,22 @@ class LaneIndex:
             np.concatenate([a[i] for a in arrays]) if arrays else np.zeros(0)
             for i in range(5))
         self.lengths = np.array([lane.length for lane in self.lanes], dtype=np.float64)
+        # each lane's bounding box of poses and how much its distance can fall short of
+        # the distance to that box (_near_lane_distances); no bound (inf) for arc lengths
+        # that do not start at 0 or that decrease
+        self.boxes = np.zeros((len(self.lanes), 4))
+        self.reach = np.full(len(self.lanes), np.inf)
+        if len(self.lanes):
+            starts = self.offsets[:-1]
+            self.boxes = np.ascontiguousarray(np.c_[
+                np.minimum.reduceat(self.px, starts), np.minimum.reduceat(self.py, starts),
+                np.maximum.reduceat(self.px, starts), np.maximum.reduceat(self.py, starts)])
+            step = np.diff(self.s)
+            step[self.offsets[1:-1] - 1] = 0.0  # from one lane to the next
+            falls = np.add.reduceat(np.r_[step < 0, False], starts) > 0
+            ordered = (self.s[starts] == 0.0) & ~falls
+            last = self.s[self.offsets[1:] - 1]
+            self.reach = np.where(ordered, np.maximum(self.lengths, last), np.inf)
 
     def distances(self, position: np.ndarray, heading: float | None = None) -> np.ndarray:
         """(n_lanes,) each lane's distance [m (+ rad)] to the position (and heading)."""
@@ -365,10 +427,10 @@ class LaneIndex:
         headings = np.asarray(headings, dtype=np.float64).reshape(-1)
         if not len(self.lanes):
             return [None] * len(positions)
-        distance = _lane_distances_many(
+        distance = _near_lane_distances(
             self.offsets, self.px, self.py, self.tx, self.ty, self.s, self.lengths,
-            np.ascontiguousarray(positions[:, 0]), np.ascontiguousarray(positions[:, 1]),
-            headings, True)
+            self.boxes, self.reach, np.ascontiguousarray(positions[:, 0]),
+            np.ascontiguousarray(positions[:, 1]), np.ascontiguousarray(headings))
         best = distance.min(axis=1)
         alone = (distance <= best[:, None] + TOLERANCE).sum(axis=1) == 1
         nearest = distance.argmin(axis=1)
@@ -379,7 +441,13 @@ class LaneIndex:
 
     def closest(self, position: np.ndarray, heading: float | None = None) -> Any:
         """The index of the closest lane (None where no distance is finite)."""
-        distance = self.distances(position, heading)
+        if heading is None or not len(self.lanes):
+            distance = self.distances(position, heading)
+        else:  # the lanes that cannot be the closest not measured
+            distance = _near_lane_distances(
+                self.offsets, self.px, self.py, self.tx, self.ty, self.s, self.lengths,
+                self.boxes, self.reach, np.array([float(position[0])]),
+                np.array([float(position[1])]), np.array([float(heading)]))[0]
         best = float(distance.min()) if len(distance) else math.inf
         if not math.isfinite(best):
             return None

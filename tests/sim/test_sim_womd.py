@@ -21,7 +21,13 @@ from tap_bench.labelling import label
 from tap_bench.sim.policies import load_policy
 from tap_bench.sim.rollout import rollout
 from tap_bench.sim.womd_env import WomdEnv, make_womd_env
-from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, lane_points
+from tap_bench.sim.womd_lanes import (
+    TOLERANCE,
+    FastPolyLane,
+    LaneIndex,
+    _near_lane_distances,
+    lane_points,
+)
 from tap_bench.sim.womd_road import path_progress
 from tap_bench.sim.womd_scene import CURRENT_STEP, SceneError, WomdScenes
 from tap_bench.sources.maps import read_road_maps
@@ -111,6 +117,131 @@ def test_many_lookups_at_once_equal_one_by_one_ties_included():
     assert index.closest_many(positions, headings) == want
     assert ("3", "3>", 0) in want  # ties resolved as one by one (the first smallest)
     assert LaneIndex([]).closest_many(positions[:2], headings[:2]) == [None, None]
+
+
+def _distance_by_definition(lane: FastPolyLane, x: float, y: float, heading: float) -> float:
+    """The lookup's distance of one lane, pose by pose as the module docstring defines it:
+    the point's pose is the last one (after the first) it lies at or beyond, else the
+    first; |lateral| + overshoot beyond either end + the heading's angle to the pose with
+    the last arc length <= longitudinal (the last pose for NaN)."""
+    px, py, tx, ty, s = lane.arrays
+    owner = 0
+    for k in range(1, len(px)):
+        if tx[k] * (x - px[k]) + ty[k] * (y - py[k]) >= 0:
+            owner = k
+    dx, dy = x - px[owner], y - py[owner]
+    lon = s[owner] + tx[owner] * dx + ty[owner] * dy
+    lat = tx[owner] * dy - ty[owner] * dx
+    d = abs(lat) + max(lon - lane.length, 0.0) + max(-lon, 0.0)
+    k = 0
+    while k + 1 < len(s) and s[k + 1] <= lon:
+        k += 1
+    if lon != lon:
+        k = len(s) - 1
+    turn = (heading - np.arctan2(ty[k], tx[k]) + np.pi) % (2 * np.pi) - np.pi
+    return d + abs(turn)
+
+
+def test_lane_distances_equal_the_pose_by_pose_definition():
+    """Poses searched from the lane's end and the heading's pose by bisection give each
+    lane's distance exactly as the definition: straight lanes and curves in every
+    direction, hairpins and zigzags (a point beyond several poses), the shortest lanes,
+    points on, beside and far from the lanes, and NaN."""
+    rng = np.random.default_rng(21)
+    lanes = []
+    for k in range(40):
+        kind = k % 4
+        if kind == 0:  # straight or curved, any heading
+            pts = arc(rng.choice([np.inf, rng.uniform(5, 150)]), rng.uniform(-np.pi, np.pi),
+                      rng.choice([-1, 1]), rng.uniform(0.2, 70), origin=rng.uniform(-50, 50, 2))
+        elif kind == 1:  # a hairpin: out and back within a few metres
+            pts = arc(rng.uniform(1.0, 3.0), rng.uniform(-np.pi, np.pi), rng.choice([-1, 1]),
+                      rng.uniform(6, 12), origin=rng.uniform(-50, 50, 2))
+        elif kind == 2:  # a zigzag of random steps
+            pts = np.cumsum(rng.normal(0.0, 2.0, (rng.integers(2, 25), 2)), axis=0)
+        else:  # the shortest lanes: under a metre, extended to one
+            pts = rng.uniform(-50, 50, 2) + np.outer([0.0, rng.uniform(0.01, 0.9)],
+                                                      [np.cos(k), np.sin(k)])
+        points = lane_points(pts)
+        lanes.append(((str(k), f"{k}>", 0), FastPolyLane(points.tolist(), 3.5, womd_id=k)))
+    index = LaneIndex(lanes)
+    near = np.concatenate([lane._points for _, lane in lanes])
+    points = np.r_[rng.uniform(-120, 120, (120, 2)),
+                   near[rng.choice(len(near), 120)] + rng.normal(0, 1.5, (120, 2)),
+                   [[np.nan, 0.0], [1e5, -1e5]]]
+    headings = rng.uniform(-4.0, 4.0, len(points))
+    for p, h in zip(points, headings, strict=True):
+        want = [_distance_by_definition(lane, p[0], p[1], h) for _, lane in lanes]
+        got = index.distances(p, h)
+        assert np.array_equal(got, want, equal_nan=True)
+        for _, lane in lanes[::7]:
+            owner_lon, owner_lat = lane.local_coordinates(p)
+            px, py, tx, ty, s = lane.arrays
+            k = max([j for j in range(1, len(px)) if tx[j] * (p[0] - px[j])
+                     + ty[j] * (p[1] - py[j]) >= 0], default=0)
+            dx, dy = p[0] - px[k], p[1] - py[k]
+            assert (owner_lon, owner_lat) == (s[k] + tx[k] * dx + ty[k] * dy,
+                                              tx[k] * dy - ty[k] * dx) or np.isnan(owner_lon)
+    many = index.closest_many(points[:-2], headings[:-2])
+    assert many == [index.closest(p, h) for p, h in zip(points[:-2], headings[:-2],
+                                                        strict=True)]
+
+
+def _closest_by_definition(index: LaneIndex, p: np.ndarray, h: float):
+    """The closest lane from every lane's distance: the smallest, ties (within
+    TOLERANCE) to highway-env's distance_with_heading, the first smallest."""
+    distance = index.distances(p, h)
+    if not np.isfinite(distance.min()):
+        return None
+    near = np.flatnonzero(distance <= distance.min() + TOLERANCE)
+    mine = [PolyLaneFixedWidth.distance_with_heading(index.lanes[j], p, h) for j in near]
+    return index.indexes[near[int(np.argmin(mine))]]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_lookup_measuring_only_lanes_that_can_be_closest_equals_measuring_all(seed):
+    """Lanes skipped by the bounding-box bound never change the closest lane: generated
+    scenes of straight, curved, hairpin and shortest lanes (near, crossing, twins: ties),
+    points in and around them, every heading."""
+    rng = np.random.default_rng(seed)
+    lanes = []
+    for k in range(60):
+        pts = arc(rng.choice([np.inf, rng.uniform(1.5, 120)]), rng.uniform(-np.pi, np.pi),
+                  rng.choice([-1, 1]), rng.choice([rng.uniform(0.5, 2.0),
+                                                   rng.uniform(2, 90)]),
+                  origin=rng.uniform(-60, 60, 2))
+        lanes.append(((str(k), f"{k}>", 0), FastPolyLane(lane_points(pts).tolist(), 3.5)))
+    twin = lanes[5][1]
+    lanes.append((("twin", "twin>", 0), FastPolyLane(twin._points.tolist(), 3.5)))
+    index = LaneIndex(lanes)
+    near = np.concatenate([lane._points for _, lane in lanes])
+    points = np.r_[rng.uniform(-150, 150, (150, 2)),
+                   near[rng.choice(len(near), 250)] + rng.normal(0, 2.0, (250, 2))]
+    headings = rng.uniform(-np.pi, np.pi, len(points))
+    want = [_closest_by_definition(index, p, h) for p, h in zip(points, headings, strict=True)]
+    assert [index.closest(p, h) for p, h in zip(points, headings, strict=True)] == want
+    assert index.closest_many(points, headings) == want
+    assert ("twin", "twin>", 0) not in want and ("5", "5>", 0) in want  # ties: the first
+    measured = _near_lane_distances(index.offsets, index.px, index.py, index.tx, index.ty,
+                                    index.s, index.lengths, index.boxes, index.reach,
+                                    points[:, 0].copy(), points[:, 1].copy(), headings)
+    full = np.array([index.distances(p, h) for p, h in zip(points, headings, strict=True)])
+    kept = np.isfinite(measured)
+    assert np.array_equal(measured[kept], full[kept])  # measured lanes: the same distance
+    skipped = full[~kept] - np.repeat(full.min(axis=1), (~kept).sum(axis=1))
+    assert (skipped > TOLERANCE).all() and 0.3 < (~kept).mean() < 1.0  # and some skipped
+
+
+def test_lookup_bound_allows_for_the_overshoot_beyond_the_last_pose():
+    """A point 4.9 m beyond the end of a 10.9 m lane (its last pose at 10 m: 5.8 m from the
+    box of its poses) is that lane's, not the one 5.3 m beside it whose box is nearer."""
+    short = FastPolyLane([[0.0, 0.0], [10.9, 0.0]], 3.5)
+    beside = FastPolyLane([[0.0, 5.3], [30.0, 5.3]], 3.5)
+    index = LaneIndex([(("beside", "b>", 0), beside), (("short", "s>", 0), short)])
+    q = np.array([15.8, 0.0])
+    assert index.distances(q, 0.0).tolist() == pytest.approx([5.3, 4.9])
+    assert index.closest(q, 0.0) == ("short", "s>", 0)
+    assert index.closest_many(q[None], np.array([0.0])) == [("short", "s>", 0)]
 
 
 def test_lane_poses_equal_highway_envs_samples():
