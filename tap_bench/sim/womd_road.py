@@ -35,7 +35,7 @@ from highway_env.vehicle.kinematics import Vehicle
 
 from tap_bench.errors import ParameterError
 from tap_bench.sim.road_edges import RoadEdges, left_road
-from tap_bench.sim.traffic import near_pairs, near_pairs_of, shape_of, shapes_of, swept_apart
+from tap_bench.sim.traffic import TOUCH_MARGIN, near_pairs, shape_of
 from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, _frame, lanes_points
 from tap_bench.sim.womd_scene import Scene
 
@@ -1392,6 +1392,74 @@ def _walkers_on_lane(px, py, tx, ty, s, headings, base, half, length, xs, ys, hs
     return best
 
 
+@numba.njit(cache=True, nogil=True)
+def _apart_along(nx, ny, x_i, y_i, c_i, s_i, hl_i, hw_i, x_j, y_j, c_j, s_j, hl_j, hw_j, dx,
+                 dy):  # pragma: no cover - compiled
+    """Whether box i swept by (dx, dy) stays more than TOUCH_MARGIN from box j along the
+    axis (nx, ny) (:func:`~tap_bench.sim.traffic.swept_apart`'s test on one axis)."""
+    reach_i = hl_i * abs(c_i * nx + s_i * ny) + hw_i * abs(c_i * ny - s_i * nx)
+    reach_j = hl_j * abs(c_j * nx + s_j * ny) + hw_j * abs(c_j * ny - s_j * nx)
+    centre_i = x_i * nx + y_i * ny
+    centre_j = x_j * nx + y_j * ny
+    moved = dx * nx + dy * ny
+    low_i = centre_i - reach_i + min(moved, 0.0)
+    high_i = centre_i + reach_i + max(moved, 0.0)
+    ahead, behind = centre_j - reach_j - high_i, low_i - (centre_j + reach_j)
+    if ahead != ahead or behind != behind:  # not a number: not apart
+        return False
+    return max(ahead, behind) > TOUCH_MARGIN
+
+
+@numba.njit(cache=True, nogil=True)
+def _pairs_to_check(xs, ys, diagonal, length, width, heading, speed, checks, own, dt
+                    ):  # pragma: no cover - compiled
+    """The pairs of movers the collision check looks at, and which of them stay apart.
+
+    Pair (i, j), i < j, in row order, is near when one has its own collision test
+    (``own``), or one checks collisions and their centres are at most half the sum of
+    their diagonals + their relative speed x dt + TOUCH_MARGIN apart (a NaN distance:
+    near), as :func:`~tap_bench.sim.traffic.near_pairs_of`; apart: the boxes swept over dt
+    stay apart along a side's axis (:func:`~tap_bench.sim.traffic.swept_apart`).
+
+    Returns:
+        (first, second, apart), (p,) each."""
+    m = xs.shape[0]
+    vx, vy = np.empty(m), np.empty(m)
+    cos_h, sin_h = np.empty(m), np.empty(m)
+    for k in range(m):
+        cos_h[k], sin_h[k] = math.cos(heading[k]), math.sin(heading[k])
+        vx[k], vy[k] = speed[k] * cos_h[k], speed[k] * sin_h[k]
+    first, second = [], []
+    for i in range(m):
+        for j in range(i + 1, m):
+            if not (own[i] or own[j]):
+                if not (checks[i] or checks[j]):
+                    continue
+                distance = math.hypot(xs[j] - xs[i], ys[j] - ys[i])
+                relative = math.hypot(vx[i] - vx[j], vy[i] - vy[j]) * dt
+                if distance > (diagonal[i] + diagonal[j]) / 2 + relative + TOUCH_MARGIN:
+                    continue
+            first.append(i)
+            second.append(j)
+    p = len(first)
+    a, b = np.empty(p, np.int64), np.empty(p, np.int64)
+    apart = np.zeros(p, np.bool_)
+    for q in range(p):
+        i, j = first[q], second[q]
+        a[q], b[q] = i, j
+        if own[i] or own[j]:
+            continue
+        dx, dy = (vx[i] - vx[j]) * dt, (vy[i] - vy[j]) * dt
+        ci, si, cj, sj = cos_h[i], sin_h[i], cos_h[j], sin_h[j]
+        hl_i, hw_i, hl_j, hw_j = length[i] / 2, width[i] / 2, length[j] / 2, width[j] / 2
+        for nx, ny in ((ci, si), (-si, ci), (cj, sj), (-sj, cj)):
+            if _apart_along(nx, ny, xs[i], ys[i], ci, si, hl_i, hw_i, xs[j], ys[j], cj, sj,
+                            hl_j, hw_j, dx, dy):
+                apart[q] = True
+                break
+    return a, b, apart
+
+
 def _intersecting(a: Vehicle, b: Vehicle) -> bool:
     """Whether two vehicles' boxes overlap now."""
     return bool(utils.are_polygons_intersecting(a.polygon(), b.polygon(), np.zeros(2),
@@ -1537,6 +1605,7 @@ class WomdRoad(Road):
         self.off_road_start: dict[str, float] = {}
         self._projections: dict[Any, tuple[list[int], np.ndarray]] = {}
         self._headings: dict[Any, np.ndarray] = {}  # lane index -> its poses' headings
+        self._everyone: tuple | None = None  # _everyone_on's positions and tables
         self._walker_rows = frozenset(np.flatnonzero(np.isin(scene.object_types,
                                                              ("pedestrian", "cyclist"))).tolist())
         self._walkers: tuple[np.ndarray, ...] | None = None
@@ -1607,6 +1676,7 @@ class WomdRoad(Road):
     # the neighbour search, once per lane per step
     def act(self) -> None:
         self._projections.clear()
+        self._everyone = None
         layout, now = self._snapshot()
         moving = now["collidable"]
         self._movers = [layout.vehicles[i] for i in np.flatnonzero(moving).tolist()]
@@ -1677,15 +1747,20 @@ class WomdRoad(Road):
     def neighbour_vehicles(self, vehicle: Any, lane_index: Any = None
                            ) -> tuple[Any | None, Any | None]:
         lane_index = lane_index or vehicle.lane_index
-        if not lane_index or self._positions is None:
+        if not lane_index or (self._positions is None and self.objects):
             return super().neighbour_vehicles(vehicle, lane_index)
+        if self._positions is None:  # before the road's act (the decision's own act): all
+            members, lon = self._everyone_on(lane_index)  # vehicles, as highway-env
+            candidates = self._everyone[0].vehicles
+        else:
+            members, lon = self._lane_table(lane_index)
+            candidates = self._movers
         lane = self.network.get_lane(lane_index)
-        members, lon = self._lane_table(lane_index)
         s = lane.local_coordinates(vehicle.position)[0]
         front = rear = None
         s_front = s_rear = None
         for i in members:
-            v = self._movers[i]
+            v = candidates[i]
             if v is vehicle:
                 continue
             sv = lon[i]
@@ -1707,6 +1782,7 @@ class WomdRoad(Road):
         self.clock[0] += 1
         self._positions = None
         self._path_accelerations = {}
+        self._everyone = None
         layout = self._layout()
         c = self.clock[0]
         for vehicle in self.vehicles:
@@ -1722,19 +1798,19 @@ class WomdRoad(Road):
         now = layout.states(self.clock[0])
         moving = now["collidable"]
         vehicles = [layout.vehicles[i] for i in np.flatnonzero(moving).tolist()]
-        near = shapes = None
         if now["own"] is not None:
-            shapes = shapes_of(now["position"][moving], layout.diagonal[moving],
-                               layout.length[moving], layout.width[moving],
-                               now["heading"][moving], now["speed"][moving],
-                               now["checks"][moving], now["own"][moving])
-            near = near_pairs_of(shapes, len(vehicles), dt)
-        if near is None:  # an object without position or diagonal: every pair, as highway-env
-            near = np.ones((len(vehicles), len(vehicles)), bool)
-        first, second = np.nonzero(np.triu(near | near.T, 1))
-        # pairs that stay apart over the step: highway-env's test would change nothing
-        apart = swept_apart(shapes, first, second, dt).tolist() if shapes is not None \
-            else [False] * len(first)
+            # the pairs to check and those that stay apart over the step (highway-env's
+            # test would change nothing for them)
+            position = now["position"][moving]
+            first, second, apart = _pairs_to_check(
+                np.ascontiguousarray(position[:, 0]), np.ascontiguousarray(position[:, 1]),
+                layout.diagonal[moving], layout.length[moving], layout.width[moving],
+                now["heading"][moving], now["speed"][moving], now["checks"][moving],
+                now["own"][moving], float(dt))
+            apart = apart.tolist()
+        else:  # an object without position or diagonal: every pair, as highway-env
+            first, second = np.triu_indices(len(vehicles), 1)
+            apart = [False] * len(first)
         ego = self.vehicles[0]  # the env puts the ego first (a policy's takes its place)
         for i, j, far in zip(first.tolist(), second.tolist(), apart, strict=True):
             a, b = vehicles[i], vehicles[j]
@@ -1795,6 +1871,24 @@ class WomdRoad(Road):
                 self.exempt.add(_pair(a, b))
 
     # traffic's view ahead: leaders on the next lanes, stop signs, conflicts
+    def _everyone_on(self, lane_index: Any) -> tuple[list[int], np.ndarray]:
+        """:meth:`_lane_table` of every vehicle of the road (collidable or not) where they
+        are now, in the road's order (cached until the road acts or steps)."""
+        layout = self._layout()
+        if self._everyone is None or self._everyone[0] is not layout:
+            position = layout.states(self.clock[0])["position"]
+            self._everyone = (layout, np.ascontiguousarray(position[:, 0]),
+                              np.ascontiguousarray(position[:, 1]), {})
+        _, xs, ys, tables = self._everyone
+        table = tables.get(lane_index)
+        if table is None:
+            lane = self.network.get_lane(lane_index)
+            members, lon = _lane_members(*lane.arrays, lane.width / 2 + 1.0,
+                                         -lane.VEHICLE_LENGTH,
+                                         lane.length + lane.VEHICLE_LENGTH, xs, ys)
+            table = tables[lane_index] = (members.tolist(), lon)
+        return table
+
     def _lane_table(self, lane_index: Any) -> tuple[list[int], np.ndarray]:
         """(the rows of this step's movers on a lane: within its half width + 1 m, from
         ``VEHICLE_LENGTH`` before its start to as far past its end; every mover's

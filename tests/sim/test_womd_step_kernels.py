@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from tap_bench.sim.traffic import near_pairs_of, shapes_of, swept_apart
 from tap_bench.sim.womd_lanes import FastPolyLane
 from tap_bench.sim.womd_road import (
     CORRIDOR_MARGIN,
@@ -17,6 +18,7 @@ from tap_bench.sim.womd_road import (
     WALKER_STILL,
     _corridor,
     _lane_members,
+    _pairs_to_check,
     _walkers_on_lane,
 )
 
@@ -151,3 +153,30 @@ def test_walkers_on_a_lane_are_their_definition(seed):
         assert (None if math.isnan(got) else got) == want
         found += want is not None
     assert found > 20
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_pairs_to_check_are_the_near_pairs_and_the_swept_apart_ones(seed):
+    # boxes in a crowd, touching, overlapping, far; any heading and speed; few or many
+    # checking collisions; some with their own test; a NaN position now and then
+    rng = np.random.default_rng(30 + seed)
+    for _ in range(60):
+        m = int(rng.integers(2, 200))
+        xy = rng.uniform(-1.0, 1.0, (m, 2)) * rng.choice([5.0, 30.0, 300.0])
+        length, width = rng.uniform(0.5, 12.0, m), rng.uniform(0.5, 2.6, m)
+        heading = rng.uniform(-math.pi, math.pi, m)
+        speed = np.where(rng.random(m) < 0.3, 0.0, rng.uniform(0.0, 30.0, m))
+        checks = rng.random(m) < rng.choice([0.02, 0.3, 1.0])
+        own = rng.random(m) < 0.02
+        if rng.random() < 0.1:
+            xy[int(rng.integers(m))] = np.nan
+        diagonal = np.hypot(length, width)
+        shapes = shapes_of(xy, diagonal, length, width, heading, speed, checks, own)
+        near = near_pairs_of(shapes, m, 0.1)
+        i, j = np.nonzero(np.triu(near | near.T, 1))
+        first, second, apart = _pairs_to_check(
+            np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]), diagonal, length,
+            width, heading, speed, checks, own, 0.1)
+        np.testing.assert_array_equal(first, i)
+        np.testing.assert_array_equal(second, j)
+        np.testing.assert_array_equal(apart, swept_apart(shapes, i, j, 0.1))

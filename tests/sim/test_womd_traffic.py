@@ -13,11 +13,13 @@ import numpy as np
 import pandas as pd
 import pytest
 from highway_env import utils
+from highway_env.road.road import Road
 
 from tap_bench.sim.policies import load_policy
 from tap_bench.sim.rollout import rollout
 from tap_bench.sim.traffic import near_pairs, near_pairs_of, shapes_of, swept_apart
 from tap_bench.sim.womd_env import make_womd_env
+from tap_bench.sim.womd_road import _pairs_to_check
 from tap_bench.sim.womd_scene import CURRENT_STEP, WomdScenes
 
 FILES = ["motion_data_one_scenario.tfrecord", "womd_scenario_input.tfrecord",
@@ -345,6 +347,7 @@ def test_the_roads_state_arrays_are_its_vehicles_states(womd_dir, traffic, polic
     inner = env.unwrapped
     checked = []
     swept = {True: 0, False: 0}
+    neighbours = {True: 0, False: 0}
 
     def check() -> None:
         road = inner.road
@@ -365,6 +368,15 @@ def test_the_roads_state_arrays_are_its_vehicles_states(womd_dir, traffic, polic
         np.testing.assert_array_equal(near, near_pairs(movers, [], 0.1))
         # pairs swept apart over the step: highway-env's test finds nothing there either
         i, j = np.nonzero(np.triu(near | near.T, 1))
+        position = now["position"][moving]
+        got = _pairs_to_check(np.ascontiguousarray(position[:, 0]),
+                              np.ascontiguousarray(position[:, 1]), layout.diagonal[moving],
+                              layout.length[moving], layout.width[moving],
+                              now["heading"][moving], now["speed"][moving],
+                              now["checks"][moving], now["own"][moving], 0.1)
+        np.testing.assert_array_equal(got[0], i)  # the compiled pairs: the same
+        np.testing.assert_array_equal(got[1], j)
+        np.testing.assert_array_equal(got[2], swept_apart(shapes, i, j, 0.1))
         for a, b, far in zip(i, j, swept_apart(shapes, i, j, 0.1), strict=True):
             found = utils.are_polygons_intersecting(
                 movers[a].polygon(), movers[b].polygon(), movers[a].velocity * 0.1,
@@ -372,6 +384,16 @@ def test_the_roads_state_arrays_are_its_vehicles_states(womd_dir, traffic, polic
             if far:
                 assert not found[0] and not found[1]
             swept[bool(far)] += 1
+        # between steps (the decision's own act comes here) the neighbour search runs
+        # over every vehicle's arrays: highway-env's search over the vehicles, the same
+        for vehicle in (inner.vehicle, *vehicles[1::7]):
+            lane_index = getattr(vehicle, "lane_index", None)
+            if not lane_index:
+                continue
+            for index in (lane_index, *road.network.side_lanes(lane_index)):
+                assert road.neighbour_vehicles(vehicle, index) == \
+                    Road.neighbour_vehicles(road, vehicle, index)
+                neighbours[road.neighbour_vehicles(vehicle, index) != (None, None)] += 1
         checked.append(len(vehicles))
 
     p = load_policy(policy)
@@ -385,4 +407,5 @@ def test_the_roads_state_arrays_are_its_vehicles_states(womd_dir, traffic, polic
         obs, _, terminated, truncated, _ = env.step(p.act(obs))
         done = terminated or truncated
     assert len(checked) > 5 and min(checked) > 100
+    assert neighbours[True] > 0  # some have a leader or follower there
     assert swept[True] > 0  # some near pairs are swept apart (and skipped by the step)
