@@ -116,41 +116,47 @@ class RoadEdges:
     @classmethod
     def from_polylines(cls, lines: Sequence[np.ndarray]) -> RoadEdges:
         """Segments of edge polylines ((n_i, 2) each [m], WOMD's axes); repeated points
-        dropped, polylines of one distinct point left out."""
-        polys = []
-        for line in lines:
-            p = np.asarray(line, float)[:, :2]
-            p = p[np.isfinite(p).all(axis=1)]
-            if len(p) >= 2:
-                keep = np.r_[True, np.hypot(*np.diff(p, axis=0).T) > 1e-6]
-                p = p[keep]
-            if len(p) >= 2:
-                polys.append(p)
-        if not polys:
+        dropped, polylines of one distinct point left out. All polylines cleaned at once
+        (the same points as one by one: non-finite points dropped, then each point within
+        1e-6 m of the one before it on its polyline)."""
+        arrays = [np.asarray(line, float)[:, :2] for line in lines]
+        n = len(arrays)
+        pts = np.concatenate(arrays) if n else np.zeros((0, 2))
+        line_of = np.repeat(np.arange(n), [len(p) for p in arrays])
+        finite = np.isfinite(pts).all(axis=1)
+        pts, line_of = pts[finite], line_of[finite]
+        if len(pts):
+            step = np.hypot(*np.diff(pts, axis=0).T)
+            keep = np.r_[True, (step > 1e-6) | (line_of[1:] != line_of[:-1])]
+            pts, line_of = pts[keep], line_of[keep]
+        counts = np.bincount(line_of, minlength=n)
+        good = counts[line_of] >= 2
+        pts, line_of = pts[good], line_of[good]
+        if not len(pts):
             z = np.zeros((0, 2))
             return cls(z, z, np.zeros(0, bool), np.zeros(0, bool), np.zeros(0, np.int64))
-        a = np.concatenate([p[:-1] for p in polys])
-        b = np.concatenate([p[1:] for p in polys])
-        owner = np.concatenate([np.full(len(p) - 1, i) for i, p in enumerate(polys)]
-                               ).astype(np.int64)
-        first = np.r_[0, np.cumsum([len(p) - 1 for p in polys])[:-1]]
-        last = np.cumsum([len(p) - 1 for p in polys]) - 1
+        sizes = counts[counts >= 2]  # points of each polyline kept, in order
+        poly_of = np.repeat(np.arange(len(sizes)), sizes)
+        within = np.flatnonzero(poly_of[1:] == poly_of[:-1])  # segment k: points k, k + 1
+        a, b = pts[within], pts[within + 1]
+        owner = poly_of[within].astype(np.int64)
+        last = np.cumsum(sizes - 1) - 1
+        first = last - (sizes - 1) + 1
         open_start = np.zeros(len(a), bool)
         open_end = np.zeros(len(a), bool)
         edges = cls(a, b, open_start, open_end, owner)
         # an end is open when it meets no other polyline (nor its own start: closed)
-        ends = np.concatenate([np.array([p[0] for p in polys]), np.array([p[-1] for p in polys])])
-        own = np.r_[np.arange(len(polys)), np.arange(len(polys))].astype(np.int64)
+        head = pts[np.cumsum(sizes) - sizes]
+        tail = pts[np.cumsum(sizes) - 1]
+        ends = np.concatenate([head, tail])
+        own = np.r_[np.arange(len(sizes)), np.arange(len(sizes))].astype(np.int64)
         grid = edges._grid
         _, dist, _, _ = _grid_nearest(np.ascontiguousarray(ends), own, a, b, owner, *grid,
                                       JOIN_DISTANCE)
-        for i, p in enumerate(polys):
-            if np.hypot(*(p[0] - p[-1])) <= JOIN_DISTANCE:
-                continue
-            if not dist[i] <= JOIN_DISTANCE:
-                open_start[first[i]] = True
-            if not dist[len(polys) + i] <= JOIN_DISTANCE:
-                open_end[last[i]] = True
+        closed = np.hypot(*(head - tail).T) <= JOIN_DISTANCE
+        m = len(sizes)
+        open_start[first[~closed & ~(dist[:m] <= JOIN_DISTANCE)]] = True
+        open_end[last[~closed & ~(dist[m:] <= JOIN_DISTANCE)]] = True
         return edges
 
     def __len__(self) -> int:

@@ -5,6 +5,7 @@ a scene without edges), each turned to every heading."""
 
 from __future__ import annotations
 
+import itertools
 import math
 import pickle
 from pathlib import Path
@@ -14,6 +15,7 @@ import pytest
 
 from tap_bench.sim.policies import load_policy
 from tap_bench.sim.road_edges import (
+    JOIN_DISTANCE,
     LEAVE_MARGIN,
     OFF_ROAD_TOLERANCE,
     RoadEdges,
@@ -259,3 +261,80 @@ def test_without_edges_the_lanes_decide_and_say_so(tmp_path, theta):
                        ROAD_LANES, [])
     _, human, _ = drive(away, "log")
     assert human["off_road"] and human["off_road_rule"] == "lane centre"
+
+
+def _edges_one_by_one(lines):
+    """RoadEdges of polylines cleaned one polyline at a time (the definition)."""
+    polys = []
+    for line in lines:
+        p = np.asarray(line, float)[:, :2]
+        p = p[np.isfinite(p).all(axis=1)]
+        if len(p) >= 2:
+            p = p[np.r_[True, np.hypot(*np.diff(p, axis=0).T) > 1e-6]]
+        if len(p) >= 2:
+            polys.append(p)
+    if not polys:
+        return None
+    a = np.concatenate([p[:-1] for p in polys])
+    b = np.concatenate([p[1:] for p in polys])
+    owner = np.concatenate([np.full(len(p) - 1, i) for i, p in enumerate(polys)])
+    first = np.r_[0, np.cumsum([len(p) - 1 for p in polys])[:-1]]
+    last = np.cumsum([len(p) - 1 for p in polys]) - 1
+    open_start, open_end = np.zeros(len(a), bool), np.zeros(len(a), bool)
+    for i, p in enumerate(polys):
+        if np.hypot(*(p[0] - p[-1])) <= JOIN_DISTANCE:
+            continue
+        others = [q for j, q in enumerate(polys) if j != i]
+        for end, flags, at in ((p[0], open_start, first[i]), (p[-1], open_end, last[i])):
+            near = min((_segment_distance(end, q) for q in others), default=np.inf)
+            if not near <= JOIN_DISTANCE:
+                flags[at] = True
+    return a, b, owner, open_start, open_end
+
+
+def _segment_distance(point, line):
+    """Distance [m] from a point to a polyline (n, 2), segment by segment."""
+    best = np.inf
+    for p, q in itertools.pairwise(line):
+        d = q - p
+        u = min(max(np.dot(point - p, d) / np.dot(d, d), 0.0), 1.0)
+        best = min(best, float(np.hypot(*(point - p - u * d))))
+    return best
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_edges_of_many_polylines_equal_each_polyline_cleaned_alone(seed):
+    """Edge polylines cleaned together: NaN points, points repeated (in a row, and the
+    next polyline starting on the last point of the one before), polylines of one point
+    or of one repeated point, closed islands, ends that meet another polyline within 1 m
+    and ends that do not."""
+    rng = np.random.default_rng(seed)
+    lines = []
+    for k in range(48):
+        kind = k % 8
+        n = int(rng.integers(2, 15))  # each polyline in its own place, 300 m apart
+        line = np.array([300.0 * k, 0.0]) + np.cumsum(rng.normal(0, 4, (n, 2)), axis=0)
+        if kind == 1:  # NaN points
+            line[rng.integers(0, n, 2)] = np.nan
+        elif kind == 2:  # repeated points (exactly, and within 1e-6 m)
+            line = np.repeat(line, rng.integers(1, 3, n), axis=0)
+            line[1] = line[0] + 3e-7
+        elif kind == 3:  # one point, or one point again and again
+            line = np.repeat(line[:1], int(rng.integers(1, 4)), axis=0)
+        elif kind == 4:  # closed: an island
+            line = np.vstack([line, line[:1]])
+        elif kind == 6:  # starts 0.5 m from where the one before ends
+            line = np.vstack([lines[-1][-1] + [0.3, 0.4], line + lines[-1][-1] - line[0]])
+        elif kind == 7:  # starts exactly where the one before ends
+            line = np.vstack([lines[-1][-1], line + lines[-1][-1] - line[0] + 1.0])
+        lines.append(line)
+    lines.append(np.zeros((0, 2)))
+    lines.append(np.c_[lines[0], np.ones(len(lines[0]))])  # a z column, left out
+    edges = RoadEdges.from_polylines(lines)
+    a, b, owner, open_start, open_end = _edges_one_by_one(lines)
+    assert np.array_equal(edges.a, a) and np.array_equal(edges.b, b)
+    assert np.array_equal(edges.owner, owner)
+    assert np.array_equal(edges.open_start, open_start)
+    assert np.array_equal(edges.open_end, open_end)
+    assert open_start.any() and not open_start.all()
+    assert len(RoadEdges.from_polylines([np.full((3, 2), np.nan), np.ones((2, 2))])) == 0
