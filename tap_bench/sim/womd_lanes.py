@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import bisect
 import functools
+import itertools
 import math
 from collections.abc import Sequence
 from typing import Any
@@ -314,24 +315,44 @@ class FastPolyLane(PolyLaneFixedWidth):
                     headings: list[float], j: int, width: float, womd_id: int,
                     speed_limit: float, line_types: tuple[Any, Any] | None, forbidden: bool,
                     priority: int) -> None:
-        """Set the lane from line ``j`` of :func:`_frames_of`'s arrays."""
+        """Set the lane from line ``j`` of :func:`_frames_of`'s arrays (its own slices of
+        them are taken when first asked for: most lanes of a scene are never asked)."""
         a, b = int(offsets[j]), int(offsets[j + 1])
         c, d = int(starts[j]), int(starts[j + 1])
         if d - c < 2:
             raise ValueError(f"a lane needs a centre line of at least {MIN_LANE_LENGTH} m "
                              f"of two distinct points; this one is {arc[b - 1]:.3f} m long")
         self._points = points
-        self._arc = arc[a:b]
-        self.length = self._arc[-1]
+        self._shared = (arc, poses, s_list, headings, a, b, c, d)
+        self.length = arc[b - 1]
         self.width = width
         self.line_types = line_types
         self.forbidden = forbidden
         self.speed_limit = speed_limit
         self.priority = priority
         self.womd_id = int(womd_id)
-        self.arrays = tuple(values[c:d] for values in poses)
-        self._s_list = s_list[c:d]
-        self._headings = headings[c:d]
+
+    @functools.cached_property
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        """(px, py, tx, ty, s) of the lane's poses: points [m], unit tangents, arc lengths
+        [m]."""
+        _, poses, _, _, _, _, c, d = self._shared
+        return tuple(values[c:d] for values in poses)
+
+    @functools.cached_property
+    def _arc(self) -> np.ndarray:
+        arc, _, _, _, a, b, _, _ = self._shared
+        return arc[a:b]
+
+    @functools.cached_property
+    def _s_list(self) -> list[float]:
+        _, _, s_list, _, _, _, c, d = self._shared
+        return s_list[c:d]
+
+    @functools.cached_property
+    def _headings(self) -> list[float]:
+        _, _, _, headings, _, _, c, d = self._shared
+        return headings[c:d]
 
     @functools.cached_property
     def curve(self) -> LinearSpline2D:
@@ -378,6 +399,23 @@ def project_positions(lane: FastPolyLane, positions: np.ndarray
     return lane.project(positions[:, 0], positions[:, 1])
 
 
+def _shared_poses(lanes: Sequence[Any]) -> tuple[np.ndarray, tuple[np.ndarray, ...]] | None:
+    """(offsets, (px, py, tx, ty, s)) when ``lanes`` are all the lanes of one
+    :meth:`FastPolyLane.many` call, in its order: the arrays they are slices of, equal to
+    their concatenation; else None."""
+    if not lanes or not all(isinstance(lane, FastPolyLane) for lane in lanes):
+        return None
+    first = lanes[0]._shared
+    poses = first[1]
+    ends = [lane._shared[6:8] for lane in lanes]
+    if any(lane._shared[1] is not poses for lane in lanes) or ends[0][0] != 0 \
+            or ends[-1][1] != len(poses[0]) \
+            or any(a[1] != b[0] for a, b in itertools.pairwise(ends)):
+        return None
+    offsets = np.array([0] + [d for _, d in ends], dtype=np.int64)
+    return offsets, tuple(poses)
+
+
 class LaneIndex:
     """The lane closest to a position (and heading) among the lanes of one network.
 
@@ -389,13 +427,17 @@ class LaneIndex:
     def __init__(self, lanes: Sequence[tuple[Any, PolyLaneFixedWidth]]) -> None:
         self.indexes = [index for index, _ in lanes]
         self.lanes = [lane for _, lane in lanes]
-        arrays = [lane.arrays if isinstance(lane, FastPolyLane) else _poses(lane)
-                  for lane in self.lanes]
-        self.offsets = np.zeros(len(arrays) + 1, dtype=np.int64)
-        np.cumsum([len(a[0]) for a in arrays], out=self.offsets[1:])
-        self.px, self.py, self.tx, self.ty, self.s = (
-            np.concatenate([a[i] for a in arrays]) if arrays else np.zeros(0)
-            for i in range(5))
+        shared = _shared_poses(self.lanes)
+        if shared is not None:  # lanes built together, in order: their arrays as they are
+            self.offsets, (self.px, self.py, self.tx, self.ty, self.s) = shared
+        else:
+            arrays = [lane.arrays if isinstance(lane, FastPolyLane) else _poses(lane)
+                      for lane in self.lanes]
+            self.offsets = np.zeros(len(arrays) + 1, dtype=np.int64)
+            np.cumsum([len(a[0]) for a in arrays], out=self.offsets[1:])
+            self.px, self.py, self.tx, self.ty, self.s = (
+                np.concatenate([a[i] for a in arrays]) if arrays else np.zeros(0)
+                for i in range(5))
         self.lengths = np.array([lane.length for lane in self.lanes], dtype=np.float64)
         # each lane's bounding box of poses and how much its distance can fall short of
         # the distance to that box (_near_lane_distances); no bound (inf) for arc lengths
