@@ -870,12 +870,13 @@ def _project_window(px, py, cum, k0, k1, centres, radii, qx, qy):  # pragma: no 
 
 @numba.njit(cache=True, nogil=True)
 def _path_blockers(px, py, cum, s0, s1, x0, y0, half_width, half_length, margins,
-                   xs, ys, hs, vs, ls, ws, horizons):  # pragma: no cover - compiled
+                   xs, ys, hs, vs, ls, ws, horizons, unpredicted
+                   ):  # pragma: no cover - compiled
     """The movers in a path's way ahead, now and predicted.
 
     For each mover j (centre xs, ys, heading hs, speed vs, box ls x ws) and each horizon
     tau (0 first: where it is now; then where it will be at constant velocity, for movers
-    across the path), whether its box is within the half
+    across the path, except those ``unpredicted``), whether its box is within the half
     widths + ``margins[j]`` of the path between s0 and s1 with its centre ahead of s0.
 
     Returns:
@@ -889,15 +890,21 @@ def _path_blockers(px, py, cum, s0, s1, x0, y0, half_width, half_length, margins
     for j in range(m):
         far = reach + ls[j] + half_length
         cos_j, sin_j = math.cos(hs[j]), math.sin(hs[j])
+        s, d, theta = np.nan, np.nan, np.nan
+        x_now, y_now = np.nan, np.nan  # the point projected last (a standing one's again)
         for t in range(h):
             tau = horizons[t]
+            if tau > 0 and unpredicted[j]:
+                continue
             cx = xs[j] + tau * vs[j] * cos_j
             cy = ys[j] + tau * vs[j] * sin_j
             # hypot is at least either side: a side longer than far skips the hypot
             if abs(cx - x0) > far or abs(cy - y0) > far \
                     or math.hypot(cx - x0, cy - y0) > far:
                 continue
-            s, d, theta = _project_window(px, py, cum, k0, k1, centres, radii, cx, cy)
+            if not (cx == x_now and cy == y_now):
+                s, d, theta = _project_window(px, py, cum, k0, k1, centres, radii, cx, cy)
+                x_now, y_now = cx, cy
             if not s > s0:
                 continue
             c = math.cos(hs[j] - theta)
@@ -955,7 +962,7 @@ def _path_ahead(starts, ends, px, py, cum, s0, s1, x0, y0, half_width, half_leng
         acc = a * (1.0 - (v / v0[i]) ** delta)
         found = _path_blockers(px[lo:hi], py[lo:hi], cum[lo:hi], s0[i], s1[i], x0[i], y0[i],
                                half_width[i], half_length[i], margins, xs, ys, hs, vs, ls, ws,
-                               horizons)
+                               horizons, is_path)
         for r in range(found.shape[0]):
             gap = found[r, 0]
             if not np.isfinite(gap) or r // h == mine[i]:
@@ -1140,7 +1147,7 @@ class WomdPathVehicle(Vehicle):
                 self.s + reach, float(self.position[0]), float(self.position[1]),
                 self.WIDTH / 2, self.LENGTH / 2, road._path_margins, positions[:, 0],
                 positions[:, 1], boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3],
-                _HORIZONS)
+                _HORIZONS, road._path_mask)
             h = len(PATH_PREDICTION) + 1
             mine = road._mover_index.get(id(self))
             if mine is not None:
@@ -1533,6 +1540,8 @@ class _Layout:
             self.speed = np.array([vehicles[i]._speed for i in logs]).T.copy()
             self.valid = np.array([vehicles[i]._valid for i in logs], bool).T.copy()
         self.end = self.end if self.end is not None else 1 << 30
+        self.other_vehicles = [vehicles[i] for i in self.others]
+        self.own_others = [shape_of(v) for v in self.other_vehicles]  # by class: fixed
         self.length = np.array([float(v.LENGTH) for v in vehicles])
         self.width = np.array([float(v.WIDTH) for v in vehicles])
         self.shaped = all(hasattr(v, "diagonal") and hasattr(v, "check_collisions")
@@ -1570,14 +1579,15 @@ class _Layout:
             heading[self.logs] = self.heading[k]
             speed[self.logs] = self.speed[k]
             collidable[self.logs] = self.valid[k]
-        for i in self.others:
-            v = self.vehicles[i]
-            position[i] = v.position
-            heading[i], speed[i] = v.heading, v.speed
-            collidable[i] = v.collidable
+        if self.others:
+            rows, others = self.others, self.other_vehicles
+            position[rows] = [v.position for v in others]
+            heading[rows] = [v.heading for v in others]
+            speed[rows] = [v.speed for v in others]
+            collidable[rows] = [v.collidable for v in others]
             if own is not None:
-                own[i] = shape_of(v)
-                checks[i] = v.check_collisions
+                own[rows] = self.own_others
+                checks[rows] = [v.check_collisions for v in others]
         return {"position": position, "heading": heading, "speed": speed,
                 "collidable": collidable, "own": own, "checks": checks}
 
