@@ -34,6 +34,8 @@ import numpy as np
 from highway_env.road.lane import PolyLaneFixedWidth
 from highway_env.road.spline import LinearSpline2D
 
+from tap_bench.womd.roadmap import split_rows
+
 __all__ = ["MIN_LANE_LENGTH", "TOLERANCE", "FastPolyLane", "LaneIndex", "lane_points",
            "lanes_points", "project_positions"]
 
@@ -188,7 +190,7 @@ def lanes_points(centres: Sequence[np.ndarray]) -> list[np.ndarray | None]:
     moved = np.where(keep[1:], step, 0.0)
     moved[starts[1:] - 1] = 0.0  # no step between two lines
     rough = np.add.reduceat(np.r_[moved, 0.0], starts)  # each line's length, to ~1e-12
-    parts = np.split(points[keep], np.cumsum(kept)[:-1])
+    parts = split_rows(points[keep], kept)
     for k, count, length, pts in zip(many, kept.tolist(), rough.tolist(), parts, strict=True):
         if count < 2:
             continue

@@ -38,6 +38,7 @@ from tap_bench.sim.road_edges import RoadEdges, left_road
 from tap_bench.sim.traffic import TOUCH_MARGIN, near_pairs, shape_of
 from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, _frame, lanes_points
 from tap_bench.sim.womd_scene import Scene
+from tap_bench.womd.roadmap import split_rows
 
 __all__ = ["HIDDEN", "OFF_ROAD_MARGIN", "PATH_EXTENSION", "PATH_SPACING", "LoggedPath",
            "WomdPathVehicle", "logged_path", "ROUTE_CORRIDOR", "ROUTE_OFF_MAP", "STOP_LOOKAHEAD",
@@ -114,7 +115,7 @@ class WomdNetwork(RoadNetwork):
             lines.append(points)
         if lines:  # to highway-env's mirrored frame, all at once
             flat = np.concatenate(lines) * (1.0, -1.0)
-            lines = np.split(flat, np.cumsum([len(points) for points in lines])[:-1])
+            lines = split_rows(flat, [len(points) for points in lines])
         built = FastPolyLane.many(
             lines, [lane.width for lane in kept], womd_ids=[lane.id for lane in kept],
             speed_limits=[lane.speed_limit if np.isfinite(lane.speed_limit) else 20.0

@@ -8,7 +8,7 @@ import pytest
 from google.protobuf.message import DecodeError
 
 from tap_bench.womd import proto
-from tap_bench.womd.roadmap import map_point_lists, map_points, scenario_road_map
+from tap_bench.womd.roadmap import map_point_lists, map_points, scenario_road_map, split_rows
 
 
 def _point(x: float, y: float, z: float, order: str = "xyz") -> bytes:
@@ -65,3 +65,14 @@ def test_a_road_map_reads_its_lanes_lines_and_edges_in_bulk():
     assert road.lanes[7].centre.tolist() == [[float(x), 2.0 * x] for x in range(5)]
     assert len(road.road_edges) == 1 and road.road_edges[0][:, 1].tolist() == [-9.0] * 3
     assert road.lanes[7].width_measured
+
+
+@pytest.mark.parametrize("counts", [[], [0], [3], [2, 0, 5, 1], [0, 0], list(range(40))])
+def test_split_rows_is_numpys_split_at_the_counts(counts):
+    values = np.arange(2 * sum(counts), dtype=float).reshape(-1, 2)
+    got = split_rows(values, counts)
+    want = np.split(values, np.cumsum(counts)[:-1]) if counts else []
+    assert len(got) == len(want) == len(counts)
+    for g, w, n in zip(got, want, counts, strict=True):
+        assert g.shape == w.shape == (n, 2) and np.array_equal(g, w)
+        assert g.base is values or g.base is values.base  # views, as numpy's
