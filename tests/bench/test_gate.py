@@ -431,6 +431,27 @@ def test_rate_power_is_the_rule_s_own_firing_rate(draws):
         assert abs(fired / draws - exact) < 3.5 * se + 0.01, (n, c0, exact, fired / draws)
 
 
+def test_the_rate_power_s_fisher_p_is_the_gate_s_own():
+    """The unpaired rate power's Fisher p (the upper tail's terms alone, each from the last
+    by an integer step) is hypergeom_tails' P(X >= x), the gate's figure, to the last bit
+    (the same terms summed in the same order), over every x of a grid of tables: runs
+    shorter and longer than the baseline, no ones, all ones, tails empty and whole."""
+    from tap_bench.bench.gate.power import _fisher_upper
+    from tap_bench.bench.gate.statistics import hypergeom_tails
+
+    checked = 0
+    for n_run in (1, 2, 7, 30, 120):
+        for n_b in (1, 3, 30, 80):
+            comb_total = math.comb(n_run + n_b, n_run)
+            for ones in sorted({0, 1, n_b // 2, n_b, n_run, n_run + n_b // 3,
+                                n_run + n_b}):
+                for x in range(n_run + 1):
+                    assert _fisher_upper(x, n_run, n_b, ones, comb_total) == hypergeom_tails(
+                        x, n_run, n_b, ones)[0], (x, n_run, n_b, ones)
+                    checked += 1
+    assert checked > 1000
+
+
 def _tv_power_permuting(labels, effect, margin, level, n_run, paired, rng):
     """label_tv's power as first written: every permutation's code matrices built and
     their TV computed by gate_stats.tv (the reference the counted version must equal)."""

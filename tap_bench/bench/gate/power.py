@@ -51,7 +51,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.gate.statistics import direction, hypergeom_tails, is_rate, tv
+from tap_bench.bench.gate.statistics import direction, is_rate, tv
 from tap_bench.bench.suite import GateConfig, gate_metrics
 from tap_bench.stats.bootstrap import named_rng
 
@@ -101,13 +101,41 @@ def _rate_power(base: np.ndarray, sign: int, effect: float, margin: float, level
             if pu >= 1e-15 and up / n_b > margin and 0.5 ** up <= level:
                 total += pu
         return float(total)
+    comb_total = math.comb(n_run + n_b, n_run)
     for x, px in enumerate(_binomial_pmf(n_run, p1)):
         if px < 1e-15 or x / n_run - p0 <= margin:
             continue
-        p = hypergeom_tails(x, n_run, n_b, x + c0)[0]
-        if p <= level:
+        if _fisher_upper(x, n_run, n_b, x + c0, comb_total) <= level:
             total += px
     return float(total)
+
+
+def _fisher_upper(x: int, n_run: int, n_b: int, ones: int, comb_total: int) -> float:
+    """Fisher's one-sided p, P(X >= x), as
+    :func:`~tap_bench.bench.gate.statistics.hypergeom_tails` gives it (the same
+    terms, summed in the same order), from the upper tail's terms alone: each term's two
+    binomial coefficients follow from the last one's by one exact integer step.
+
+    Args:
+        x: the run's ones.
+        n_run: the run's values.
+        n_b: the baseline's values.
+        ones: the ones of both together.
+        comb_total: C(n_run + n_b, n_run).
+    """
+    rest = n_run + n_b - ones
+    k, hi = max(x, ones - n_b, 0), min(ones, n_run)
+    if k > hi:
+        return 0
+    a, b = math.comb(ones, k), math.comb(rest, n_run - k)
+    p = 0.0
+    while True:
+        p += a * b / comb_total
+        if k == hi:
+            return p
+        a = a * (ones - k) // (k + 1)  # C(ones, k + 1)
+        b = b * (n_run - k) // (rest - n_run + k + 1)  # C(rest, n_run - k - 1)
+        k += 1
 
 
 def afresh_rate_power(base: np.ndarray, effect: float, margin: float, level: float) -> float:
