@@ -46,6 +46,7 @@ of 0.9 cannot rise 25 points) is not counted.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -68,7 +69,17 @@ _BLAS_ONE_THREAD = 200_000  # (rows, d) @ (d, k) products below this use one thr
 _SEED_GRID = (1, 1.5, 2, 3, 4, 6, 8, 12, 16)  # multiples of n tried for the seeds needed
 
 
+@functools.lru_cache(maxsize=1024)
 def _binomial_pmf(n: int, p: float) -> np.ndarray:
+    """(n + 1,) P(Bin(n, p) = k) for k = 0..n, read-only (kept for the next call with the
+    same n and p: the label_tv power asks for the same small n at p = 1/2 thousands of
+    times)."""
+    pmf = _binomial_pmf_made(n, p)
+    pmf.flags.writeable = False
+    return pmf
+
+
+def _binomial_pmf_made(n: int, p: float) -> np.ndarray:
     k = np.arange(n + 1)
     logc = np.array([math.lgamma(n + 1) - math.lgamma(i + 1) - math.lgamma(n - i + 1)
                      for i in k])
@@ -199,6 +210,14 @@ def _mean_power(base: np.ndarray, sign: int, effect: float, margin: float, level
     return float(((worse > margin) & (z >= z_level)).mean())
 
 
+@functools.lru_cache(maxsize=256)
+def _most_exceeding(level: float) -> int:
+    """The most of :data:`_TV_PERMUTATIONS` permutations that may reach the observed TV
+    for the test to fire at ``level``: the largest m with (1 + m) / (1 + P) <= level."""
+    return int(np.count_nonzero((1 + np.arange(_TV_PERMUTATIONS + 1))
+                                / (1 + _TV_PERMUTATIONS) <= level)) - 1
+
+
 def _binomial_cdf_at_most(m: int, n: int, q: float) -> float:
     """P(Bin(n, q) <= m)."""
     if m < 0:
@@ -262,9 +281,7 @@ def _swap_fires(pairs: np.ndarray, k: int, margin: float, level: float, repeats:
         moved = _product(traded.astype(float), step)
         perm = 0.5 * np.abs((counts_b + moved) / n - (counts_r - moved) / n).sum(axis=1)
         q = float(weight[perm >= observed - 1e-12].sum())
-        m = int(np.count_nonzero((1 + np.arange(_TV_PERMUTATIONS + 1))
-                                 / (1 + _TV_PERMUTATIONS) <= level)) - 1
-        return repeats * _binomial_cdf_at_most(m, _TV_PERMUTATIONS, q)
+        return repeats * _binomial_cdf_at_most(_most_exceeding(level), _TV_PERMUTATIONS, q)
     step = np.repeat(step, sizes, axis=0)  # one row per seed that differs
     # a fair coin per seed and permutation, as random bits (8 per byte drawn)
     coins = np.unpackbits(rng.integers(0, 256, size=(repeats * _TV_PERMUTATIONS,
