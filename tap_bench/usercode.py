@@ -21,7 +21,8 @@ import path that holds it, unless that is site-packages or the standard library)
 module of its top-level package. The episode cache hashes them (:mod:`tap_bench.bench.cache`).
 A module loaded by name as the code runs (``importlib.import_module("helper")``) shows in no
 import statement: :func:`recording` notes what a run imports while it builds and runs its
-policies, scenarios and measures, and :func:`loaded_user_code` gives those of the user's code
+policies, scenarios and measures (and the files of modules run from their path, which no
+import shows either), and :func:`loaded_user_code` gives those of the user's code
 with their files' SHA-256, which the cache keeps with each entry (:func:`user_code_holds`).
 """
 
@@ -29,6 +30,7 @@ from __future__ import annotations
 
 import ast
 import contextlib
+import functools
 import hashlib
 import importlib
 import importlib.util
@@ -329,6 +331,7 @@ def code_digest(module: str) -> dict[str, Any] | None:
 _RECORDER: list[Any] = []  # this process's ImportRecorder, once installed
 _ACTIVE: list[str] = []  # the runs whose code is being built or run now (a stack)
 _NOTED: dict[str, dict[str, None]] = {}  # run -> modules first imported while it was active
+_EXECUTED: dict[str, dict[str, None]] = {}  # run -> source files of code run while active
 
 
 def _note(name: str) -> None:
@@ -336,17 +339,32 @@ def _note(name: str) -> None:
         _NOTED.setdefault(_ACTIVE[-1], {}).setdefault(name)
 
 
+def _executed(event: str, args: tuple[Any, ...]) -> None:
+    """Audit hook (``sys.addaudithook``): the source file of every code object ``exec``
+    runs while a run is active, a module's body among them. A module run from its path
+    (``spec_from_file_location`` and ``exec_module``) passes no finder and enters no
+    ``sys.modules``: only this sees it."""
+    if event == "exec" and _ACTIVE:
+        filename = getattr(args[0], "co_filename", None)
+        if isinstance(filename, str) and filename.endswith(".py"):
+            _EXECUTED.setdefault(_ACTIVE[-1], {}).setdefault(filename)
+
+
 @contextlib.contextmanager
 def recording(run: str) -> Iterator[None]:
     """Within the block, note every module this process imports for the first time as the
-    code of run ``run`` (:class:`tap_bench.importhooks.ImportRecorder`): a run builds its
+    code of run ``run`` (:class:`tap_bench.importhooks.ImportRecorder`), and the source file
+    of every module run from its path (an audit hook on ``exec``): a run builds its
     policies and scenarios and runs its episodes and measures inside it, so that
     :func:`loaded_user_code` knows what they loaded by name, which no import statement
     shows. A module imported earlier in the process (by another run) is not noted again."""
+    import sys
+
     from tap_bench.importhooks import ImportRecorder
 
     if not _RECORDER:
         _RECORDER.append(ImportRecorder(_note))
+        sys.addaudithook(_executed)  # for the life of the process: hooks cannot be removed
     _RECORDER[0].install()
     _ACTIVE.append(run)
     try:
@@ -382,7 +400,33 @@ def loaded_user_code(run: str) -> dict[str, dict[str, str]]:
                          .hexdigest()}
         except OSError:
             continue
+    seen = {info["path"] for info in out.values()}
+    trusted = _trusted_roots()
+    for filename in list(_EXECUTED.get(run, ())):  # modules run from their path
+        path = Path(filename)
+        if filename in seen or not path.is_file() or not _is_user_file("", path) or any(
+                _inside(path.resolve(), root) for root in trusted):
+            continue
+        try:
+            out[f"file:{filename}"] = {"path": filename, "sha256": hashlib.sha256(
+                path.read_bytes()).hexdigest()}
+        except OSError:
+            continue
     return dict(sorted(out.items()))
+
+
+@functools.cache
+def _trusted_roots() -> tuple[Path, ...]:
+    """The folders of :data:`TRUSTED_PACKAGES` (found without importing them)."""
+    roots = []
+    for name in TRUSTED_PACKAGES:
+        try:
+            spec = importlib.util.find_spec(name)
+        except (ImportError, ValueError):
+            continue
+        for location in (spec.submodule_search_locations or []) if spec else []:
+            roots.append(Path(location).resolve())
+    return tuple(roots)
 
 
 def user_code_holds(loaded: Any) -> bool:

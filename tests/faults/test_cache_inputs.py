@@ -7,6 +7,7 @@ are those docs/benchmark.md's cache section lists."""
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import json
 import shutil
 import string
@@ -40,7 +41,7 @@ from tap_bench.usercode import loaded_user_code, recording
 
 TAG = RUN_TAG
 PKG, CARS, KINDS, MEAS = f"pkg_{TAG}", f"cars_{TAG}", f"kinds_{TAG}", f"meas_{TAG}"
-BYNAME, MBYNAME = f"byname_{TAG}", f"mbyname_{TAG}"
+BYNAME, MBYNAME, BYPATH = f"byname_{TAG}", f"mbyname_{TAG}", f"bypath_{TAG}"
 
 SOURCES = {
     f"{PKG}/__init__.py": "",
@@ -60,6 +61,7 @@ SOURCES = {
                    f"    return np.full(len(steps.starts), importlib.import_module("
                    f"'{MBYNAME}').V)\n"),
     f"{MBYNAME}.py": "V = 2.5\n",
+    f"{BYPATH}.py": "C = 7\n",
 }
 ALL, MINE, CONST, LABELS = (0, 1, 2, 3), (0, 1), (2, 3), (1, 3)  # keys of _keys that move
 INPUTS = {  # kind -> (file, the keys its edit moves; None: only the entries know it)
@@ -73,6 +75,7 @@ INPUTS = {  # kind -> (file, the keys its edit moves; None: only the entries kno
     "thresholds file": ("thresholds.json", LABELS), "simulation code": ("sim/0", ALL),
     "module the policy loads by name": (f"{BYNAME}.py", None),
     "module a measure loads by name": (f"{MBYNAME}.py", None),
+    "module a policy runs from its path": (f"{BYPATH}.py", None),
 }
 
 
@@ -109,6 +112,8 @@ def inputs(tmp_path_factory):
     with recording(run):  # what the policy and the measure load as they run
         importlib.import_module(BYNAME)
         importlib.import_module(MBYNAME)
+        spec = importlib.util.spec_from_file_location(BYPATH, root / f"{BYPATH}.py")
+        spec.loader.exec_module(importlib.util.module_from_spec(spec))  # no import
     yield root, run
     MEASURES.unregister(f"m{TAG}")
     POLICY_KINDS.unregister(f"k{TAG}")
@@ -154,7 +159,7 @@ def test_the_docs_list_every_kind_of_input_tested():
     text = " ".join((Path(__file__).resolve().parents[2] / "docs" / "benchmark.md")
                     .read_text().split())
     for phrase in ("loaded by name", "policy kind", "scenario kind", "vehicle class",
-                   "thresholds", "measure"):
+                   "thresholds", "measure", "run from its path", "Not in the key"):
         assert phrase in text
 
 
@@ -165,7 +170,7 @@ def test_the_docs_list_every_kind_of_input_tested():
 @given(where=st.floats(0, 1, exclude_max=True), byte=st.integers(0, 255))
 def test_every_input_edited_makes_the_rerun_fresh(inputs, tmp_path_factory, kind, where,
                                                   byte):
-    """Each kind of input, 4 drawn one-byte edits (56 in all, every kind edited; drawn over
+    """Each kind of input, 4 drawn one-byte edits (60 in all, every kind edited; drawn over
     all kinds at once, as 140 edits were, each kind's share was left to chance)."""
     root, run = inputs
     name, moves = INPUTS[kind]

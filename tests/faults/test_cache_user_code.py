@@ -188,3 +188,45 @@ def test_a_module_a_measure_plugin_loads_by_name_is_followed(tmp_path):
     edited, eps2 = _run(tmp_path, "edited", module)
     assert (eps2[f"offset_{TAG}"] == 96.93).all()
     assert edited["cache"]["labelled_before"] == 0
+
+
+BY_FILE = '''
+import importlib.util
+from pathlib import Path
+
+
+class ByFile:
+    observation = None
+
+    def __init__(self, name):
+        self.name = name
+
+    def reset(self, env, *, seed):
+        where = Path(__file__).with_name("fhelper_{tag}.py")
+        spec = importlib.util.spec_from_file_location("fhelper_{tag}", where)
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)  # run from its path: no import, no sys.modules
+        self.action = module.ACTION
+
+    def act(self, observation):
+        return self.action
+'''
+
+
+def test_a_module_a_policy_runs_from_its_path_is_followed(tmp_path):
+    """A policy that runs a module from its file (``spec_from_file_location`` and
+    ``exec_module``: no import statement, no finder, no ``sys.modules``) is followed as a
+    module loaded by name is."""
+    (tmp_path / f"byfile_{TAG}.py").write_text(BY_FILE.format(tag=TAG))
+    helper = tmp_path / f"fhelper_{TAG}.py"
+    helper.write_text("ACTION = 3\n")
+    (tmp_path / "mine.json").write_text(json.dumps({
+        "name": "mine", "kind": "import", "params": {"factory": f"byfile_{TAG}:ByFile"}}))
+    _suite(tmp_path, str(tmp_path / "mine.json"))
+    first, eps1 = _run(tmp_path, "first")
+    again, _ = _run(tmp_path, "again")
+    assert _counts(first) == (0, 1) and _counts(again) == (1, 0)
+    helper.write_text("ACTION = 4\n")
+    edited, eps2 = _run(tmp_path, "edited")
+    assert _counts(edited) == (0, 1)
+    assert eps2["mean_speed"].mean() < eps1["mean_speed"].mean()
