@@ -225,12 +225,21 @@ def decode_scenarionet(scenario: dict, *, path: str = "<scenario>",
 
     ids, types, parts = [], [], {k: [] for k in ("x", "y", "z", "heading", "vx", "vy", "valid",
                                                   "length", "width", "height")}
+    owner: dict[int, str] = {}  # id of each state array -> the track that holds it
     for track_id, track in tracks.items():
         state = track.get("state", {}) if isinstance(track, dict) else None
         if not isinstance(state, dict):
             raise fail(f"track {track_id}: {'its state' if state is not None else 'it'} is "
                        f"a {type(state if state is not None else track).__name__}, where a "
                        "dict belongs")
+        # a pickle names an object many times at the cost of one: a state array shared by
+        # tracks would be copied once per track, unbounded by the file's size
+        for key, value in state.items():
+            if isinstance(value, np.ndarray | list | tuple) and \
+                    owner.setdefault(id(value), str(track_id)) != str(track_id):
+                raise fail(f"track {track_id}: its state {str(key)[:40]!r} is the same "
+                           f"object as track {owner[id(value)]}'s (a pickle that names one "
+                           "array for several tracks, which a ScenarioNet file never does)")
         kind = _TYPES.get(str(track.get("type", "")).upper(), "other")
         if object_types is not None and kind not in object_types:
             continue

@@ -73,6 +73,56 @@ def test_a_small_hostile_pickle_allocates_nothing_large(tmp_path, case):
     assert peak < 400, f"{case}: {peak:.0f} MB before it was refused"
 
 
+_SHARED = """
+import pickle, resource, sys
+import numpy as np
+
+resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))  # a miss fails, never swaps
+from tap_bench.errors import WomdRecordError
+from tap_bench.sources import read_womd
+
+N = 1_000_000  # steps, its arrays made by ndarray(shape) within the unpickler's budget
+
+
+class Empty:
+    def __init__(self, shape, dtype):
+        self.shape, self.dtype = shape, dtype
+
+    def __reduce__(self):
+        return (np.ndarray, (self.shape, np.dtype(self.dtype)))
+
+
+state = {"position": Empty((N, 2), "f8"), "velocity": Empty((N, 2), "f8"),
+         "heading": Empty((N,), "f8"), "valid": Empty((N,), "?")}
+track = {"type": "VEHICLE", "state": state}  # one object, pickled once, named 2,000 times
+with open(sys.argv[1], "wb") as f:
+    pickle.dump({"metadata": {"ts": Empty((N,), "f8"), "scenario_id": "x"},
+                 "tracks": {f"t{i}": track for i in range(2000)}}, f)
+try:
+    read_womd([sys.argv[1]])
+    print("LOADED")
+except WomdRecordError as err:
+    print("WomdRecordError", err)
+with open("/proc/self/status") as f:
+    hwm = next(int(line.split()[1]) for line in f if line.startswith("VmHWM:"))
+print("MAXRSS_MB", hwm / 1024)
+"""
+
+
+def test_a_pickle_naming_one_track_state_for_many_tracks_is_refused(tmp_path):
+    """A 19 kB pickle whose 2,000 tracks are one memoised object (each array charged once)
+    would be decoded into 2,000 copies (about 160 GB): refused, naming the track, before
+    any copy is made."""
+    result = subprocess.run(
+        [sys.executable, "-c", _SHARED, str(tmp_path / "sd_shared.pkl")],
+        capture_output=True, text=True, timeout=300,
+        env={"PYTHONPATH": str(PROJECT_ROOT), "PATH": "/usr/bin:/bin"})
+    assert result.returncode == 0, (result.returncode, result.stderr[-2000:])
+    assert (tmp_path / "sd_shared.pkl").stat().st_size < 40_000
+    assert "WomdRecordError" in result.stdout and "track t1" in result.stdout, result.stdout
+    assert float(result.stdout.split("MAXRSS_MB")[1]) < 400, result.stdout
+
+
 def test_a_real_scenarionet_pickle_still_loads(womd_dir):
     from tap_bench.sources.scenarionet import decode_scenarionet, load_scenarionet
 
