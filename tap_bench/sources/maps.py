@@ -21,6 +21,7 @@ from __future__ import annotations
 import os
 from collections.abc import Container, Generator, Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -38,9 +39,9 @@ from tap_bench.womd.roadmap import (
     tf_example_road_map,
 )
 from tap_bench.womd.tf_example import Example
-from tap_bench.womd.tfrecord import iter_records
+from tap_bench.womd.tfrecord import iter_records, read_record
 
-__all__ = ["iter_maps", "iter_road_maps", "read_maps", "read_road_maps"]
+__all__ = ["iter_maps", "iter_road_maps", "read_maps", "read_road_maps", "read_scene_maps"]
 
 _BROKEN_LINES = {1, 4, 5}  # RoadLineType: BROKEN_SINGLE_WHITE, BROKEN_SINGLE/DOUBLE_YELLOW
 # tf.Example roadgraph_samples/type -> (kind, style)
@@ -97,9 +98,9 @@ def _points(points) -> np.ndarray:
     return np.array([(p.x, p.y) for p in points], dtype=float).reshape(-1, 2)
 
 
-def _scenario_maps(path: Path, out: _Features) -> Generator[None, None, None]:
-
-    for record in iter_records(path):
+def _scenario_maps(path: Path, out: _Features, records: Iterable[Any] | None = None
+                   ) -> Generator[None, None, None]:
+    for record in iter_records(path) if records is None else records:
         try:
             view = proto.ScenarioMapView.FromString(record.data)
         except DecodeError as err:
@@ -119,8 +120,9 @@ def _scenario_maps(path: Path, out: _Features) -> Generator[None, None, None]:
         yield
 
 
-def _tf_example_maps(path: Path, out: _Features) -> Generator[None, None, None]:
-    for record in iter_records(path):
+def _tf_example_maps(path: Path, out: _Features, records: Iterable[Any] | None = None
+                     ) -> Generator[None, None, None]:
+    for record in iter_records(path) if records is None else records:
         features = Example.FromString(record.data).features.feature
         if "roadgraph_samples/xyz" not in features:
             yield
@@ -145,7 +147,8 @@ def _tf_example_maps(path: Path, out: _Features) -> Generator[None, None, None]:
         yield
 
 
-def _scenarionet_maps(path: Path, out: _Features) -> Generator[None, None, None]:
+def _scenarionet_maps(path: Path, out: _Features, records: Iterable[Any] | None = None
+                      ) -> Generator[None, None, None]:
 
     scenario = load_scenarionet(path)
     meta = scenario.get("metadata", {}) if isinstance(scenario, dict) else {}
@@ -212,6 +215,35 @@ def iter_maps(paths: str | os.PathLike | Iterable[str | os.PathLike]
             table = out.take()
             if table is not None:
                 yield table
+
+
+def read_scene_maps(scenes: Iterable[Any]) -> pd.DataFrame:
+    """The map table of some scenes, each read alone: a record at its byte offset (where
+    known), not by reading its file from the start.
+
+    Args:
+        scenes: where each scene is (:class:`tap_bench.sim.womd_scene.SceneRef`: ``path``,
+            ``record``, ``format``, ``offset``), in the order their rows go.
+
+    Returns:
+        the rows :func:`read_maps` gives for these scenes when they are in file order.
+
+    Raises:
+        WomdRecordError: a record that cannot be read, naming file, record and offset.
+    """
+    out = _Features()
+    for scene in scenes:
+        read = _MAP_READERS.get(scene.format)
+        if read is None:
+            continue
+        records = None
+        if scene.format != "scenarionet":
+            records = [read_record(scene.path, scene.record, scene.offset)] \
+                if scene.offset >= 0 else (r for r in iter_records(scene.path)
+                                           if r.index == scene.record)
+        for _ in read(Path(scene.path), out, records):
+            pass
+    return out.table()
 
 
 # ------------------------------------------------------------------ road maps (closed loop)

@@ -118,6 +118,15 @@ def test_each_episode_gets_its_own_scenes_lanes_under_its_run_id(womd_dir, monke
     again = run_tasks._road(_task(scenes, "idm"), run)
     cols = ["map_id", "kind", "x", "y"]  # feature ids count the features read together
     pd.testing.assert_frame_equal(again[cols], road[cols])
+    # with its seeds (a run's table), each scene's record is read alone: the same lanes
+    run_tasks._SCENE_LANES.clear()
+    seed_of = {sid: k for k, sid in enumerate(table["scenario_id"].unique())}
+    from tap_bench.sources import maps as source_maps
+
+    monkeypatch.setattr(source_maps, "read_maps", None)  # the files are not read through
+    alone = run_tasks._road(_task(scenes, "idm"),
+                            run.assign(seed=table["scenario_id"].map(seed_of)))
+    pd.testing.assert_frame_equal(alone[cols], road[cols])
     # a table without the WOMD id (not a run of recorded scenes) is measured along the arc
     assert run_tasks._road(_task(scenes), run.drop(columns="womd_scenario_id")) is None
 

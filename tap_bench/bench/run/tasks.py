@@ -62,20 +62,20 @@ def _road(task: _Task, trajectories: pd.DataFrame) -> pd.DataFrame | None:
 
 
 def _scene_lanes(scenes: WomdScenes, trajectories: pd.DataFrame) -> pd.DataFrame | None:
-    """The lane centre lines of each recorded scene of ``trajectories`` (read from the
-    scenes' files with :func:`tap_bench.sources.maps.read_maps`, the map the viewer draws),
-    under the ``map_id`` of the episode's ``scenario_id`` in the run (``<WOMD id>/<policy>``,
-    :func:`_run_ids`): :func:`tap_bench.pathframe.scene_lanes` then gives each episode its
-    scene's lanes. None when the table has no ``womd_scenario_id``."""
+    """The lane centre lines of each recorded scene of ``trajectories`` (each scene's record
+    read alone with :func:`tap_bench.sources.maps.read_scene_maps`, the map the viewer
+    draws), under the ``map_id`` of the episode's ``scenario_id`` in the run (``<WOMD
+    id>/<policy>``, :func:`_run_ids`): :func:`tap_bench.pathframe.scene_lanes` then gives
+    each episode its scene's lanes. None when the table has no ``womd_scenario_id``."""
     if "womd_scenario_id" not in trajectories.columns:
         return None
-    pairs = trajectories[["womd_scenario_id", "scenario_id"]].drop_duplicates()
+    columns = ["womd_scenario_id", "scenario_id"]
+    pairs = trajectories[[*columns, *(["seed"] if "seed" in trajectories.columns else [])]
+                         ].drop_duplicates(columns)
     womd = pairs["womd_scenario_id"].astype(str).tolist()
     missing = {w for w in womd if (scenes.files, w) not in _SCENE_LANES}
     if missing:
-        from tap_bench.sources.maps import read_maps
-
-        maps = read_maps(scenes.files, scenario_ids=missing)
+        maps = _missing_maps(scenes, pairs, missing)
         lanes = maps[maps["kind"] == "lane"]
         by_scene = dict(tuple(lanes.groupby("map_id", sort=False)))
         needed = {(scenes.files, w) for w in womd}
@@ -87,6 +87,25 @@ def _scene_lanes(scenes: WomdScenes, trajectories: pd.DataFrame) -> pd.DataFrame
     return pd.concat([_SCENE_LANES[(scenes.files, w)].assign(map_id=str(sid))
                       for w, sid in zip(womd, pairs["scenario_id"], strict=True)],
                      ignore_index=True)
+
+
+def _missing_maps(scenes: WomdScenes, pairs: pd.DataFrame, missing: set[str]
+                  ) -> pd.DataFrame:
+    """The map table of the scenes ``missing`` (WOMD ids): each scene's record read alone,
+    found by its episode's seed (its index in the scenes' catalogue, as the env resets on
+    it); the files read through when a table has no seeds or a seed's record is another
+    scene."""
+    from tap_bench.sources.maps import read_maps, read_scene_maps
+
+    if "seed" in pairs.columns:
+        catalog = scenes.catalog()
+        seeds = sorted({int(seed) % len(catalog) for w, seed in zip(
+            pairs["womd_scenario_id"].astype(str), pairs["seed"], strict=True)
+            if w in missing})
+        maps = read_scene_maps([catalog[seed] for seed in seeds])
+        if set(maps["map_id"].astype(str)) <= missing:
+            return maps
+    return read_maps(scenes.files, scenario_ids=missing)
 
 
 def _prepare_worker(task: _Task) -> None:
