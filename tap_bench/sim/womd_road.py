@@ -1468,6 +1468,36 @@ def _pairs_to_check(xs, ys, diagonal, length, width, heading, speed, checks, own
     return a, b, apart
 
 
+@numba.njit(cache=True, nogil=True)
+def _approach_rows(members, lon, hs, ls, walker, s, headings, s_point, offset, width, mine,
+                   seen):  # pragma: no cover - compiled
+    """The movers of one lane's table (``members``, longitudinal coordinates ``lon`` [m])
+    approaching a point ``s_point`` [m] of the lane they lead into (``offset`` [m]: where
+    this lane starts before it) along the lane, not yet past it: not pedestrians or
+    cyclists (``walker``), not row ``mine`` nor one ``seen`` (marked here), within 30 deg
+    of the lane's heading there (poses ``s``, ``headings``). Returns (rows, distance [m]
+    from each centre to the point) (:meth:`WomdRoad._approaching`)."""
+    rows = np.empty(members.shape[0], np.int64)
+    dist = np.empty(members.shape[0])
+    n = 0
+    for i in members:
+        if i == mine or seen[i] or walker[i]:
+            continue
+        d = s_point + offset - lon[i]
+        if d < -(ls[i] + width) or d > CONFLICT_LOOKAHEAD * 2:
+            continue
+        if lon[i] != lon[i]:
+            k = headings.shape[0] - 1
+        else:
+            k = max(np.searchsorted(s, lon[i], side="right") - 1, 0)
+        if math.cos(hs[i] - headings[k]) < 0.5:
+            continue
+        seen[i] = True
+        rows[n], dist[n] = i, d
+        n += 1
+    return rows[:n], dist[:n]
+
+
 def _intersecting(a: Vehicle, b: Vehicle) -> bool:
     """Whether two vehicles' boxes overlap now."""
     return bool(utils.are_polygons_intersecting(a.polygon(), b.polygon(), np.zeros(2),
@@ -1542,6 +1572,10 @@ class _Layout:
             self.valid = np.array([vehicles[i]._valid for i in logs], bool).T.copy()
         self.end = self.end if self.end is not None else 1 << 30
         self.other_vehicles = [vehicles[i] for i in self.others]
+        logs = self.logs
+        # the log vehicles' rows: a slice where they follow each other (the usual case)
+        self.log_rows = slice(int(logs[0]), int(logs[-1]) + 1) \
+            if len(logs) and logs[-1] - logs[0] + 1 == len(logs) else logs
         self.own_others = [shape_of(v) for v in self.other_vehicles]  # by class: fixed
         self.length = np.array([float(v.LENGTH) for v in vehicles])
         self.width = np.array([float(v.WIDTH) for v in vehicles])
@@ -1576,11 +1610,21 @@ class _Layout:
         own = np.zeros(n, bool) if self.shaped else None
         if len(self.logs):
             k = min(step, self.end)
-            position[self.logs] = self.xy[k]
-            heading[self.logs] = self.heading[k]
-            speed[self.logs] = self.speed[k]
-            collidable[self.logs] = self.valid[k]
-        if self.others:
+            logs = self.log_rows
+            position[logs] = self.xy[k]
+            heading[logs] = self.heading[k]
+            speed[logs] = self.speed[k]
+            collidable[logs] = self.valid[k]
+        if len(self.others) <= 8:  # few: one by one
+            for i, v, mine in zip(self.others, self.other_vehicles, self.own_others,
+                                  strict=True):
+                position[i] = v.position
+                heading[i], speed[i] = v.heading, v.speed
+                collidable[i] = v.collidable
+                if own is not None:
+                    own[i] = mine
+                    checks[i] = v.check_collisions
+        else:  # many (idm traffic): one list each
             rows, others = self.others, self.other_vehicles
             position[rows] = [v.position for v in others]
             heading[rows] = [v.heading for v in others]
@@ -1614,7 +1658,7 @@ class WomdRoad(Road):
         self._half = np.array([lane.width / 2 for lane in lanes])
         self.road_edges = network.road_edges  # WOMD's axes; built once per network
         self.off_road_start: dict[str, float] = {}
-        self._projections: dict[Any, tuple[list[int], np.ndarray]] = {}
+        self._projections: dict[Any, tuple[list[int], np.ndarray, np.ndarray]] = {}
         self._headings: dict[Any, np.ndarray] = {}  # lane index -> its poses' headings
         self._everyone: tuple | None = None  # _everyone_on's positions and tables
         self._walker_rows = frozenset(np.flatnonzero(np.isin(scene.object_types,
@@ -1698,6 +1742,8 @@ class WomdRoad(Road):
                                 layout.length[moving], layout.width[moving]], axis=1)
         self._mover_index = {id(v): i for i, v in enumerate(self._movers)}
         self._walker_mask = layout.walker[moving]
+        self._mover_heading = np.ascontiguousarray(self._boxes[:, 0])
+        self._mover_length = np.ascontiguousarray(self._boxes[:, 2])
         self._path_mask = layout.path[moving]
         self._path_margins = np.where(self._walker_mask, WALKER_CLEARANCE, PATH_MARGIN)
         if self._walker_mask.any():
@@ -1761,10 +1807,10 @@ class WomdRoad(Road):
         if not lane_index or (self._positions is None and self.objects):
             return super().neighbour_vehicles(vehicle, lane_index)
         if self._positions is None:  # before the road's act (the decision's own act): all
-            members, lon = self._everyone_on(lane_index)  # vehicles, as highway-env
+            members, lon, _ = self._everyone_on(lane_index)  # vehicles, as highway-env
             candidates = self._everyone[0].vehicles
         else:
-            members, lon = self._lane_table(lane_index)
+            members, lon, _ = self._lane_table(lane_index)
             candidates = self._movers
         lane = self.network.get_lane(lane_index)
         s = lane.local_coordinates(vehicle.position)[0]
@@ -1882,7 +1928,7 @@ class WomdRoad(Road):
                 self.exempt.add(_pair(a, b))
 
     # traffic's view ahead: leaders on the next lanes, stop signs, conflicts
-    def _everyone_on(self, lane_index: Any) -> tuple[list[int], np.ndarray]:
+    def _everyone_on(self, lane_index: Any) -> tuple[list[int], np.ndarray, np.ndarray]:
         """:meth:`_lane_table` of every vehicle of the road (collidable or not) where they
         are now, in the road's order (cached until the road acts or steps)."""
         layout = self._layout()
@@ -1897,20 +1943,20 @@ class WomdRoad(Road):
             members, lon = _lane_members(*lane.arrays, lane.width / 2 + 1.0,
                                          -lane.VEHICLE_LENGTH,
                                          lane.length + lane.VEHICLE_LENGTH, xs, ys)
-            table = tables[lane_index] = (members.tolist(), lon)
+            table = tables[lane_index] = (members.tolist(), lon, members)
         return table
 
-    def _lane_table(self, lane_index: Any) -> tuple[list[int], np.ndarray]:
+    def _lane_table(self, lane_index: Any) -> tuple[list[int], np.ndarray, np.ndarray]:
         """(the rows of this step's movers on a lane: within its half width + 1 m, from
         ``VEHICLE_LENGTH`` before its start to as far past its end; every mover's
-        longitudinal coordinate on it [m]), cached per step."""
+        longitudinal coordinate on it [m]; the rows as an array), cached per step."""
         table = self._projections.get(lane_index)
         if table is None:
             lane = self.network.get_lane(lane_index)
             members, lon = _lane_members(*lane.arrays, lane.width / 2 + 1.0,
                                          -lane.VEHICLE_LENGTH,
                                          lane.length + lane.VEHICLE_LENGTH, self._xs, self._ys)
-            table = self._projections[lane_index] = (members.tolist(), lon)
+            table = self._projections[lane_index] = (members.tolist(), lon, members)
         return table
 
     def leader_ahead(self, vehicle: Vehicle) -> tuple[Vehicle | None, float]:
@@ -1922,7 +1968,7 @@ class WomdRoad(Road):
             return None, math.inf
         best, best_d = None, math.inf
         for index, base in self._lanes_ahead(vehicle, LEADER_LOOKAHEAD)[1:]:
-            members, lon = self._lane_table(index)
+            members, lon, _ = self._lane_table(index)
             for i in members:
                 other = self._movers[i]
                 d = base + lon[i]
@@ -2119,24 +2165,21 @@ class WomdRoad(Road):
         """Movers on a lane (or the lanes into it) moving along it, not yet past a point
         ``s_point`` [m] on it, with their distance to it (centre; negative: past)."""
         out = []
-        lanes = [(lane_index, 0.0)] + [(p, self.network.get_lane(p).length)
+        network = self.network
+        lanes = [(lane_index, 0.0)] + [(p, network.get_lane(p).length)
                                        for p in self._predecessors.get(lane_index, ())]
-        seen: set[int] = set()
+        seen = np.zeros(len(self._movers), bool)
+        mine = self._mover_index.get(id(vehicle), -1)
+        width = float(vehicle.WIDTH)
+        movers = self._movers
         for index, offset in lanes:
-            lane = self.network.get_lane(index)
-            members, lon = self._lane_table(index)
-            for i in members:
-                other = self._movers[i]
-                if other is vehicle or id(other) in seen or \
-                        getattr(other, "row", -1) in self._walker_rows:
-                    continue
-                d = s_point + offset - lon[i]
-                if d < -(other.LENGTH + vehicle.WIDTH) or d > CONFLICT_LOOKAHEAD * 2:
-                    continue
-                if math.cos(other.heading - lane.heading_at(lon[i])) < 0.5:
-                    continue
-                seen.add(id(other))
-                out.append((other, d))
+            _, lon, members = self._lane_table(index)
+            rows, dist = _approach_rows(members, lon, self._mover_heading, self._mover_length,
+                                        self._walker_mask, network.get_lane(index).arrays[4],
+                                        self._lane_headings(index), float(s_point),
+                                        float(offset), width, mine, seen)
+            out.extend((movers[i], d) for i, d in zip(rows.tolist(), dist.tolist(),
+                                                      strict=True))
         return out
 
     # signals

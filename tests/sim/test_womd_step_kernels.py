@@ -12,10 +12,12 @@ import pytest
 from tap_bench.sim.traffic import near_pairs_of, shapes_of, swept_apart
 from tap_bench.sim.womd_lanes import FastPolyLane
 from tap_bench.sim.womd_road import (
+    CONFLICT_LOOKAHEAD,
     CORRIDOR_MARGIN,
     WALKER_ALONG,
     WALKER_LOOKAHEAD,
     WALKER_STILL,
+    _approach_rows,
     _corridor,
     _lane_members,
     _pairs_to_check,
@@ -180,3 +182,53 @@ def test_pairs_to_check_are_the_near_pairs_and_the_swept_apart_ones(seed):
         np.testing.assert_array_equal(first, i)
         np.testing.assert_array_equal(second, j)
         np.testing.assert_array_equal(apart, swept_apart(shapes, i, j, 0.1))
+
+
+def approaching_plain(ln, members, lon, hs, ls, walker, s_point, offset, width, mine, seen):
+    """Movers approaching a point along a lane, one by one (the definition)."""
+    out = []
+    for i in members:
+        if i == mine or i in seen or walker[i]:
+            continue
+        d = s_point + offset - lon[i]
+        if d < -(ls[i] + width) or d > CONFLICT_LOOKAHEAD * 2:
+            continue
+        if math.cos(hs[i] - ln.heading_at(lon[i])) < 0.5:
+            continue
+        seen.add(i)
+        out.append((i, d))
+    return out
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_movers_approaching_a_conflict_are_their_definition(seed):
+    # lanes bending either way at every heading; movers along the lane, against it, across,
+    # walkers, one already seen on an earlier lane, the vehicle itself
+    rng = np.random.default_rng(40 + seed)
+    found = 0
+    for _ in range(100):
+        ln = lane(rng)
+        xy, hs, _, ls, _ = movers(rng, centre(ln), int(rng.integers(1, 50)))
+        _, _, tx, ty, s = ln.arrays
+        headings = np.arctan2(ty, tx)
+        along = rng.random(len(hs)) < 0.5
+        hs[along] = headings[rng.integers(len(headings), size=along.sum())] \
+            + rng.normal(0.0, 0.3, along.sum())
+        xs, ys = np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1])
+        members, lon = _lane_members(*ln.arrays, ln.width / 2 + 1.0, -ln.VEHICLE_LENGTH,
+                                     ln.length + ln.VEHICLE_LENGTH, xs, ys)
+        walker = rng.random(len(hs)) < 0.1
+        m = len(hs)
+        mine = int(rng.integers(-1, m))
+        seen = np.zeros(m, bool)
+        seen[rng.random(m) < 0.1] = True
+        s_point, offset = rng.uniform(0.0, ln.length), rng.choice([0.0, rng.uniform(5, 60)])
+        width = rng.uniform(1.7, 2.2)
+        want = approaching_plain(ln, members.tolist(), lon, hs, ls, walker, s_point, offset,
+                                 width, mine, set(np.flatnonzero(seen).tolist()))
+        rows, dist = _approach_rows(members, lon, hs, ls, walker, s, headings, s_point,
+                                    offset, width, mine, seen)
+        assert list(zip(rows.tolist(), dist.tolist(), strict=True)) == want
+        assert set(rows.tolist()) <= set(np.flatnonzero(seen).tolist())  # marked seen
+        found += len(want)
+    assert found > 100
