@@ -90,7 +90,8 @@ class Scene:
     Attributes:
         scenario_id: WOMD's id.
         ref: where it came from.
-        digest: SHA-256 of the scenario's bytes (the record or the file).
+        content: the scenario's bytes (the record, or the file of a pickle).
+        digest: SHA-256 of :attr:`content` (hashed when first asked for).
         times: (T,) [s].
         track_ids, object_types: (n,) str.
         x, y, heading, vx, vy, speed: (n, T) in WOMD's axes [m, rad, m/s]; NaN where
@@ -103,7 +104,7 @@ class Scene:
 
     scenario_id: str
     ref: SceneRef
-    digest: str
+    content: bytes = field(repr=False)
     times: np.ndarray
     track_ids: np.ndarray
     object_types: np.ndarray
@@ -118,6 +119,11 @@ class Scene:
     width: np.ndarray
     ego: int
     road: RoadMap
+
+    @functools.cached_property
+    def digest(self) -> str:
+        """SHA-256 of the scenario's bytes (the record or the file), hex."""
+        return hashlib.sha256(self.content).hexdigest()
 
     @property
     def n_steps(self) -> int:
@@ -244,8 +250,8 @@ _CONTRACT_FIX = ("A closed-loop scene is built only from records that keep the t
                  "scenario out (the other scenes still run).")
 
 
-def _read(ref: SceneRef) -> tuple[pd.DataFrame, RoadMap, str]:
-    """Decode ``ref`` into (trajectory table, road map, content hash), its tracks checked
+def _read(ref: SceneRef) -> tuple[pd.DataFrame, RoadMap, bytes]:
+    """Decode ``ref`` into (trajectory table, road map, the bytes read), its tracks checked
     as ``tap-bench ingest`` checks each scenario it reads.
 
     Raises:
@@ -273,7 +279,7 @@ def _read(ref: SceneRef) -> tuple[pd.DataFrame, RoadMap, str]:
         scenario = load_scenarionet(ref.path)
         table = checked(decode_scenarionet(scenario, path=ref.path), 0, 0)
         road = roadmap.scenarionet_road_map(scenario, source=ref.path)
-        return table, road, hashlib.sha256(data).hexdigest()
+        return table, road, data
     record = _record_of(ref)
     if ref.format == "scenario":
         table = checked(decode_scenario(record), record.index, record.offset)
@@ -283,7 +289,7 @@ def _read(ref: SceneRef) -> tuple[pd.DataFrame, RoadMap, str]:
         road = roadmap.tf_example_road_map(record.data, source=str(ref))
         if road is None:
             road = roadmap.RoadMap(str(table["scenario_id"].iloc[0]), {}, topology="none")
-    return table, road, hashlib.sha256(record.data).hexdigest()
+    return table, road, record.data
 
 
 def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:
@@ -301,7 +307,7 @@ def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:
     import numpy as np
     import pandas as pd
 
-    table, road, digest = _read(ref)
+    table, road, content = _read(ref)
     sid = str(table["scenario_id"].iloc[0]) if len(table) else road.scenario_id
     where = f"scenario {sid} ({ref})"
     tracks = pd.unique(table["track_id"])
@@ -352,7 +358,7 @@ def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:
             values = np.where(valid & np.isfinite(values) & (values > 0), values, np.nan)
         sizes[col] = _row_medians(values, default)
     times = table["t"].to_numpy(float)[:t]
-    return Scene(sid, ref, digest, times, tracks.astype(str),
+    return Scene(sid, ref, content, times, tracks.astype(str),
                  table["object_type"].to_numpy().reshape(n, t)[:, 0].astype(str), x, y,
                  heading, vx, vy, speed, valid, sizes["length"], sizes["width"], row, road)
 

@@ -425,15 +425,24 @@ def _group_medians(values: list[np.ndarray], group: np.ndarray, n_groups: int
     return out
 
 
+def _finite_rows(lines: Sequence[Any]) -> list[np.ndarray]:
+    """Each line as (n_i, 2) float points [m] without its points that are not finite (new
+    arrays), all lines at once."""
+    arrays = [np.asarray(line, dtype=float).reshape(-1, 2) for line in lines]
+    if not arrays:
+        return []
+    flat = np.concatenate(arrays)
+    finite = np.isfinite(flat).all(axis=1)
+    owner = np.repeat(np.arange(len(arrays)), [len(a) for a in arrays])
+    return split_rows(flat[finite], np.bincount(owner[finite], minlength=len(arrays)))
+
+
 def _finish(scenario_id: str, raw: list[dict], lines: dict[int, np.ndarray], edges, crosswalks,
             stops, signals: SignalStates, source: str, topology_given: bool) -> RoadMap:
     """Build the :class:`RoadMap` from lanes read as dicts (id, centre, type, speed_limit,
     entry, exit, left, right, left_b, right_b)."""
     lanes: dict[int, Lane] = {}
-    centres = []
-    for r in raw:
-        centre = np.asarray(r["centre"], dtype=float).reshape(-1, 2)
-        centres.append(centre[np.isfinite(centre).all(axis=1)])
+    centres = _finite_rows([r["centre"] for r in raw])
     widths = _widths([(centre, r.get("left_b", ()), r.get("right_b", ()))
                       for centre, r in zip(centres, raw, strict=True)], lines)
     for r, centre, (width, measured) in zip(raw, centres, widths, strict=True):

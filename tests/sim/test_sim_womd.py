@@ -939,3 +939,18 @@ def test_a_lane_change_asks_for_the_neighbours_where_the_vehicle_is():
         assert network.side_lanes(lane_1) == []
     assert network.side_lanes(lane_1) == [lane_2]
     assert "side_lanes" not in vars(network)
+
+
+def test_a_scenes_digest_is_the_sha256_of_its_record_or_pickle(real):
+    """The content hash (the episode cache's key) is hashed when asked for, from the bytes
+    the scene was decoded from: a TFRecord's record, a ScenarioNet pickle's file."""
+    import hashlib
+
+    from tap_bench.sim.womd_scene import load_scene, scene_catalog
+
+    refs = scene_catalog(real)
+    assert {ref.format for ref in refs} == {"scenario", "tf_example", "scenarionet"}
+    for ref in refs:
+        scene = load_scene(ref)
+        assert scene.digest == ref.digest() == hashlib.sha256(scene.content).hexdigest()
+        assert "content=" not in repr(scene)

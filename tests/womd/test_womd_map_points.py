@@ -76,3 +76,23 @@ def test_split_rows_is_numpys_split_at_the_counts(counts):
     for g, w, n in zip(got, want, counts, strict=True):
         assert g.shape == w.shape == (n, 2) and np.array_equal(g, w)
         assert g.base is values or g.base is values.base  # views, as numpy's
+
+
+def test_lane_centres_lose_their_non_finite_points_as_each_alone():
+    from tap_bench.womd.roadmap import _finite_rows
+
+    rng = np.random.default_rng(5)
+    lines = []
+    for k in range(30):
+        line = rng.normal(0, 10, (int(rng.integers(0, 9)), 2))
+        if k % 3 == 0 and len(line):
+            line[rng.integers(0, len(line), 2), rng.integers(0, 2, 2)] = \
+                [np.nan, np.inf][k % 2]
+        lines.append(line.tolist() if k % 4 == 0 else line)
+    lines.append(np.full((3, 2), np.nan))
+    got = _finite_rows(lines)
+    for line, cleaned in zip(lines, got, strict=True):
+        alone = np.asarray(line, dtype=float).reshape(-1, 2)
+        alone = alone[np.isfinite(alone).all(axis=1)]
+        assert cleaned.shape == alone.shape and np.array_equal(cleaned, alone)
+    assert _finite_rows([]) == [] and got[-1].shape == (0, 2)
