@@ -694,8 +694,10 @@ def make_backend(name: str = "local", *, workers: int | None = None,
 
 
 def resolve_backend(backend: Backend | None, workers: int) -> Backend:
-    """``backend`` when given, else a :class:`LocalBackend` of ``workers`` processes."""
-    return backend if backend is not None else LocalBackend(check_workers(workers))
+    """``backend`` when given, else a :class:`LocalBackend` of ``workers`` processes (capped
+    at the usable cores, with a warning: :func:`capped_workers`)."""
+    return backend if backend is not None else LocalBackend(capped_workers(workers,
+                                                                           "workers"))
 
 
 # -- command line -------------------------------------------------------------------------

@@ -20,10 +20,12 @@ every output of tap-bench follows.
 from __future__ import annotations
 
 import contextlib
+import gzip
 import json
 import os
 import shutil
 import tempfile
+import zlib
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -67,9 +69,15 @@ def read_table(path: str | os.PathLike) -> pd.DataFrame:
     path = Path(path)
     fmt = _format(path)
     if not path.is_file():
-        raise FileFormatError(f"{path}: no such file.")
-    if path.name.lower().endswith(".csv"):  # plain text (a .csv.gz is gzip's bytes)
-        _check_csv_text(path)
+        raise FileFormatError(f"{path}: no such file." if not path.exists() else
+                              f"{path}: not a regular file (a folder or a device); give the "
+                              "table's file.")
+    if fmt == "csv":  # plain text, or gzip's bytes decompressed as they are scanned
+        try:
+            _check_csv_text(path)
+        except (OSError, EOFError, zlib.error) as err:  # a damaged or truncated .gz
+            raise FileFormatError(f"{path}: cannot read it as csv ({type(err).__name__}: "
+                                  f"{err}); the file is damaged or cut short.") from None
     try:
         if fmt == "parquet":
             # columns handed over from Arrow one by one, each freed once converted: half
@@ -90,13 +98,15 @@ _SCAN_BYTES = 1 << 20  # a CSV file is scanned for NUL bytes this much at a time
 def _check_csv_text(path: Path) -> None:
     """Refuse, before the parser reads it whole into memory, a CSV file that holds a NUL
     byte: it is not text (a binary file; a sparse or preallocated file, whose holes read as
-    zeros). The scan reads the file once, a block at a time.
+    zeros; such zeros gzipped, a few MB for GBs). The scan reads the file once, a block at
+    a time (a ``.gz`` file decompressed as it goes).
 
     Raises:
         FileFormatError: naming the file, the line and byte of the first NUL, and the fix.
     """
     line, offset = 1, 0
-    with path.open("rb") as stream:
+    opener = gzip.open if path.name.lower().endswith(".gz") else open
+    with opener(path, "rb") as stream:
         if stream.read(2) in (b"\xff\xfe", b"\xfe\xff"):
             return  # UTF-16 text (every other byte NUL): the UTF-8 check names it and the fix
         stream.seek(0)

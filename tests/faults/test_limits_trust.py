@@ -148,6 +148,51 @@ def test_a_sparse_csv_of_nul_bytes_is_refused_before_it_is_parsed(tmp_path, monk
         read_table(path)
 
 
+
+def test_a_gzipped_csv_of_nul_bytes_is_refused_before_it_is_parsed(tmp_path, monkeypatch):
+    """The same zeros behind gzip (64 MiB in a 65 kB file; 2 GiB fit in 2 MB): scanned as
+    they are decompressed, a block at a time, never parsed."""
+    import gzip
+
+    from tap_bench.tableio import read_table
+
+    path = tmp_path / "big.csv.gz"
+    with gzip.open(path, "wb", compresslevel=1) as f:
+        f.write(b"scenario_id,track_id,t,x,y\n")
+        for _ in range(64):
+            f.write(bytes(1 << 20))
+    assert path.stat().st_size < 1 << 20
+
+    def parse(*args, **kwargs):
+        raise AssertionError("pandas was asked to parse 64 MiB of NUL bytes")
+
+    monkeypatch.setattr(pd, "read_csv", parse)
+    with pytest.raises(FileFormatError, match=r"line 2, byte 1 is a NUL byte"):
+        read_table(path)
+
+
+
+def test_a_gzipped_csv_cut_short_is_one_named_error(tmp_path):
+    """A .csv.gz cut short (a download stopped): the file named, no EOFError traceback."""
+    import gzip
+
+    from tap_bench.tableio import read_table
+
+    data = gzip.compress(b"scenario_id,track_id,t,x,y\n" + b"s,1,0.0,1.0,2.0\n" * 5000)
+    (tmp_path / "cut.csv.gz").write_bytes(data[:len(data) // 2])
+    with pytest.raises(FileFormatError, match=r"cut\.csv\.gz: cannot read it as csv"):
+        read_table(tmp_path / "cut.csv.gz")
+
+
+def test_a_csv_name_on_a_device_is_not_read(tmp_path):
+    """A .csv name that is a link to /dev/zero: refused as no regular file, never read."""
+    from tap_bench.tableio import read_table
+
+    (tmp_path / "z.csv").symlink_to("/dev/zero")
+    with pytest.raises(FileFormatError, match="not a regular file"):
+        read_table(tmp_path / "z.csv")
+
+
 def test_a_text_csv_and_a_gzipped_one_still_read(tmp_path):
     from tap_bench.tableio import read_table
 
@@ -178,6 +223,17 @@ def test_workers_are_capped_at_the_usable_cores_with_a_warning(monkeypatch, tmp_
                      "--workers", str(usable_cores() + 10), "--no-progress"])
     assert code == 130 and asked["workers"] == usable_cores()
     assert any("core" in str(w.message) and "--workers" in str(w.message) for w in said)
+
+
+
+def test_workers_asked_of_the_demo_agents_or_run_suite_are_capped_too():
+    """``tap-bench demo``, ``tap-bench agents`` and ``run_suite(workers=...)`` make their
+    pool of local processes here, with the same cap and warning."""
+    from tap_bench.execution import resolve_backend, usable_cores
+
+    with pytest.warns(UserWarning, match=r"more than the \d+ core"):
+        backend = resolve_backend(None, usable_cores() + 10)
+    assert backend.workers == usable_cores()
 
 
 def _sized_pickle(path, value) -> str:
