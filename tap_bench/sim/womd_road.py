@@ -1572,6 +1572,19 @@ class _Layout:
             self.valid = np.array([vehicles[i]._valid for i in logs], bool).T.copy()
         self.end = self.end if self.end is not None else 1 << 30
         self.other_vehicles = [vehicles[i] for i in self.others]
+        # the road's order as runs: (a vehicle that steps itself, None) or (log vehicles
+        # that follow each other, their slice of the log arrays)
+        self.runs: list[tuple[Any, slice | None]] = []
+        column = {int(i): n for n, i in enumerate(self.logs)}
+        for i, v in enumerate(vehicles):
+            if i not in column:
+                self.runs.append((v, None))
+            elif self.runs and self.runs[-1][1] is not None \
+                    and self.runs[-1][1].stop == column[i]:
+                run = self.runs[-1][1]
+                self.runs[-1] = ([*self.runs[-1][0], v], slice(run.start, run.stop + 1))
+            else:
+                self.runs.append(([v], slice(column[i], column[i] + 1)))
         logs = self.logs
         # the log vehicles' rows: a slice where they follow each other (the usual case)
         self.log_rows = slice(int(logs[0]), int(logs[-1]) + 1) \
@@ -1842,16 +1855,18 @@ class WomdRoad(Road):
         self._everyone = None
         layout = self._layout()
         c = self.clock[0]
-        for vehicle in self.vehicles:
-            if type(vehicle) is LogVehicle:  # LogVehicle.step, without the calls
-                k = c if c < vehicle._end else vehicle._end
-                vehicle.impact = None
-                vehicle.position = vehicle._xy[k]
-                vehicle.heading = vehicle._heading[k]
-                vehicle.speed = vehicle._speed[k]
-                vehicle.collidable = vehicle._valid[k]
-            else:
+        k = c if c < layout.end else layout.end
+        for vehicle, run in layout.runs:  # in the road's order
+            if run is None:
                 vehicle.step(dt)
+                continue
+            # a run of log vehicles: LogVehicle.step, without the calls
+            for v, heading, speed, valid in zip(vehicle, layout.heading[k, run].tolist(),
+                                                layout.speed[k, run].tolist(),
+                                                layout.valid[k, run].tolist(), strict=True):
+                v.impact = None
+                v.position = v._xy[k]
+                v.heading, v.speed, v.collidable = heading, speed, valid
         now = layout.states(self.clock[0])
         moving = now["collidable"]
         vehicles = [layout.vehicles[i] for i in np.flatnonzero(moving).tolist()]
