@@ -93,6 +93,7 @@ for owner, name, label in ((womd_env, "load_scene", "read and decode a scene, it
                            (inner, "_reset", "env _reset (network, road, agents, route)"),
                            (womd_env.WomdEnv, "reset", "env reset (all of it)"),
                            (womd_env.WomdEnv, "step", "env step"),
+                           (womd_env.WomdEnv, "trajectories", "trajectory table"),
                            (rollout_module, "run_episode", "episode (reset, steps, table)")):
     timed(owner, name, label)
 files = tuple(sorted(glob.glob(sys.argv[2] + "/*")))

@@ -448,10 +448,11 @@ class _WomdHighwayEnv(AbstractEnv):
         self.road.vehicles.append(ego)
         self.controlled_vehicles = [ego]
         self.simulated: dict[int, Vehicle] = {}  # other simulated agents by row
-        for row in range(len(scene.track_ids)):
-            if row == e:
-                continue
-            vehicle = self._traffic_vehicle(network, row, states, sim_xy, sim_h)
+        others = [row for row in range(len(scene.track_ids)) if row != e]
+        replays = LogVehicle.many(self.road, others, states, scene.valid, scene.length,
+                                  scene.width, self.clock)  # every log laid out at once
+        for row, replay in zip(others, replays, strict=True):
+            vehicle = self._traffic_vehicle(network, row, states, sim_xy, sim_h, replay)
             self.road.vehicles.append(vehicle)
             if not isinstance(vehicle, LogVehicle):
                 self.simulated[row] = vehicle
@@ -469,11 +470,15 @@ class _WomdHighwayEnv(AbstractEnv):
         self.off_road_rules: dict[str, int] = {}  # rule -> steps it decided
 
     def _traffic_vehicle(self, network: WomdNetwork, row: int, states: np.ndarray,
-                         sim_xy: np.ndarray, sim_h: np.ndarray) -> Vehicle:
+                         sim_xy: np.ndarray, sim_h: np.ndarray,
+                         replay: LogVehicle | None = None) -> Vehicle:
+        """The vehicle of scene row ``row``: ``replay`` (its log replayed, made here when
+        None) or, by the traffic mode, a simulated one."""
         scene = self.scene
         valid = scene.valid[row]
-        replay = LogVehicle(self.road, row, states[row], valid, scene.length[row],
-                            scene.width[row], self.clock)
+        if replay is None:
+            replay = LogVehicle(self.road, row, states[row], valid, scene.length[row],
+                                scene.width[row], self.clock)
         if self.traffic == "constant-velocity" and valid[CURRENT_STEP]:
             vehicle = ConstantVelocityVehicle(
                 self.road, states[row, CURRENT_STEP],

@@ -288,6 +288,63 @@ class LogVehicle(Vehicle):
         self.check_collisions = False
         self._place(clock[0])
 
+    @classmethod
+    def many(cls, road: Road, rows: Sequence[int], states: np.ndarray, valid: np.ndarray,
+             length: np.ndarray, width: np.ndarray, clock: list[int]) -> list[LogVehicle]:
+        """One replaying vehicle per row of ``rows``, their logs laid out together (the
+        same vehicles as one by one).
+
+        Args:
+            road, clock: as the constructor.
+            rows: the scene rows to make vehicles of.
+            states: (n, T, 4) every row's x, y, heading, speed in the sim frame.
+            valid: (n, T) bool.
+            length, width: (n,) [m].
+        """
+        rows = np.asarray(rows, dtype=np.int64)
+        given = states
+        states = np.asarray(states, dtype=np.float64)[rows]
+        ok = np.asarray(valid, dtype=bool)[rows]
+        m, n = ok.shape
+        hidden = np.c_[HIDDEN + 10.0 * rows, np.full(m, HIDDEN)]
+        xy = np.empty((m, n + 1, 2))
+        xy[:, :n] = np.where(ok[..., None], states[..., :2], hidden[:, None, :])
+        xy[:, n] = hidden
+        xy.flags.writeable = False  # a step's position is a view of its row
+        end = np.zeros((m, 1))
+        headings = np.c_[np.where(ok, states[..., 2], 0.0), end].tolist()
+        speeds = np.c_[np.where(ok, states[..., 3], 0.0), end].tolist()
+        flags = np.c_[ok, np.zeros((m, 1), bool)].tolist()
+        out = []
+        for i, row in enumerate(rows.tolist()):
+            vehicle = cls.__new__(cls)
+            vehicle._laid_out(road, row, given[row], valid[row], xy[i], headings[i],
+                              speeds[i], flags[i], float(length[row]), float(width[row]),
+                              clock)
+            out.append(vehicle)
+        return out
+
+    def _laid_out(self, road: Road, row: int, states: np.ndarray, valid: np.ndarray,
+                  xy: np.ndarray, headings: list[float], speeds: list[float],
+                  flags: list[bool], length: float, width: float, clock: list[int]) -> None:
+        """Set the vehicle from its log laid out (``xy`` (T + 1, 2) read-only, the lists
+        T + 1 long: the constructor's)."""
+        self.states = states
+        self.valid_steps = valid
+        self.clock = clock
+        self.row = row
+        self._xy = xy
+        self._heading = headings
+        self._speed = speeds
+        self._valid = flags
+        self._end = len(flags) - 1
+        self.LENGTH, self.WIDTH = length, width
+        x, y, h, v = self._state(clock[0])
+        Vehicle.__init__(self, road, np.array([x, y]), h, v)
+        self.diagonal = math.hypot(self.LENGTH, self.WIDTH)
+        self.check_collisions = False
+        self._place(clock[0])
+
     def _state(self, k: int) -> tuple[float, float, float, float]:
         """(x, y, heading, speed) at the record's step ``k`` (the hidden place and 0, 0
         where the log has no valid state)."""

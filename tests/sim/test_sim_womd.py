@@ -954,3 +954,43 @@ def test_a_scenes_digest_is_the_sha256_of_its_record_or_pickle(real):
         scene = load_scene(ref)
         assert scene.digest == ref.digest() == hashlib.sha256(scene.content).hexdigest()
         assert "content=" not in repr(scene)
+
+
+def test_replaying_vehicles_made_together_equal_vehicles_made_one_by_one(real):
+    """LogVehicle.many lays every log out at once: the same vehicles as one by one (where
+    the log has no state, before it starts and after it ends included), step by step."""
+    from tap_bench.sim.womd_road import LogVehicle
+
+    env = make_womd_env(real[0], traffic="log")
+    env.reset(seed=0)
+    inner = env.unwrapped
+    scene, road = inner.scene, inner.road
+    rng = np.random.default_rng(2)
+    valid = scene.valid.copy()
+    valid[rng.random(valid.shape) < 0.2] = False  # gaps, and tracks hidden at the start
+    valid[3] = False  # a track never valid
+    states = inner.states
+    rows = [r for r in range(len(valid)) if r != scene.ego][::-1]
+    together = LogVehicle.many(road, rows, states, valid, scene.length, scene.width,
+                               inner.clock)
+    alone = [LogVehicle(road, r, states[r], valid[r], scene.length[r], scene.width[r],
+                        inner.clock) for r in rows]
+    assert len(together) == len(alone) == len(rows)
+    start = inner.clock[0]
+    for k in range(start, scene.n_steps + 2):
+        inner.clock[0] = k
+        for a, b in zip(together, alone, strict=True):
+            if k > start:
+                a.step(0.1)
+                b.step(0.1)
+            assert (a.row, a.LENGTH, a.WIDTH, a.diagonal) == (b.row, b.LENGTH, b.WIDTH,
+                                                              b.diagonal)
+            assert np.array_equal(a.position, b.position) and not a.position.flags.writeable
+            assert (a.heading, a.speed, a.collidable, a.check_collisions) == \
+                (b.heading, b.speed, b.collidable, b.check_collisions)
+            assert a.lane_index == b.lane_index and a.states is not None
+            assert np.shares_memory(a.states, states)
+            assert np.array_equal(a.states, b.states, equal_nan=True)
+    inner.clock[0] = start
+    assert LogVehicle.many(road, [], states, valid, scene.length, scene.width,
+                           inner.clock) == []
