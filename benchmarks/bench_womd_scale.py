@@ -97,7 +97,8 @@ for owner, name, label in ((womd_env, "load_scene", "read and decode a scene, it
                            (rollout_module, "run_episode", "episode (reset, steps, table)")):
     timed(owner, name, label)
 files = tuple(sorted(glob.glob(sys.argv[2] + "/*")))
-rollout_module.rollout(WomdScenes(files[:1]), "idm", "0", progress=False)  # warm: numba
+rollout_module.rollout(WomdScenes(files[:1], traffic=sys.argv[3]), "idm", "0",
+                       progress=False)  # warm: numba, with the traffic measured
 spent.clear(); calls.clear()
 t0 = T()
 _, episodes = rollout_module.rollout(WomdScenes(files, traffic=sys.argv[3]), "idm", "all",
