@@ -202,3 +202,25 @@ def test_peak_memory_does_not_grow_with_the_scenes(tmp_path):
     # 12 more scenes of 13,832 rows and two policies: a run that held them would hold
     # their trajectories, labels of every track and viewer data (tens of MB more)
     assert peaks[15] <= 1.2 * peaks[3], peaks
+
+
+def test_the_parts_of_a_killed_run_go_with_the_next_run_into_its_output(tmp_path):
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)
+    folders = {}
+    for name, owner in (("dead", dead.stdout), ("live", f"{os.getppid()}\n"),
+                        ("unnamed", None)):
+        folders[name] = tmp_path / f".run.episodes-{name}"
+        folders[name].mkdir()
+        (folders[name] / "part-00000000.parquet").write_bytes(b"")
+        if owner is not None:
+            (folders[name] / "owner").write_text(owner)
+    other = tmp_path / ".other.episodes-dead"  # another output's
+    other.mkdir()
+    (other / "owner").write_text(dead.stdout)
+    spill = bench_spill.RunSpill(tmp_path / "run")
+    assert not folders["dead"].exists()  # its process is gone: a run killed outright
+    assert folders["live"].exists() and folders["unnamed"].exists() and other.exists()
+    assert (spill.folder / "owner").read_text() == f"{os.getpid()}\n"
+    spill.close()
+    assert not spill.folder.exists()

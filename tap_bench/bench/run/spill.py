@@ -13,9 +13,13 @@ occurrences, one row per episode or a few, for the scores); or read a few episod
 (:meth:`SpilledTable.table` with ``indices``: the replay viewer's chunks, the matching of
 one scene against a reference).
 
-The folder is the run's own (a fresh hidden folder beside the output) and is removed when
-the run ends (:meth:`RunSpill.close`), or when the spill is dropped (a run that raised) or
-the interpreter exits.
+The folder is the run's own (a fresh hidden folder beside the output, naming the process
+that made it in its ``owner`` file) and is removed when the run ends
+(:meth:`RunSpill.close`), or when the spill is dropped (a run that raised) or the
+interpreter exits. A run killed outright (``kill -9``, a machine that stopped) cannot
+remove it: the next run into the same output removes the folders of that output whose
+process is gone (the episodes an earlier run finished come back from the episode cache,
+not from these parts).
 """
 
 from __future__ import annotations
@@ -65,8 +69,10 @@ class RunSpill:
     def __init__(self, output: str | os.PathLike) -> None:
         output = Path(output)
         output.parent.mkdir(parents=True, exist_ok=True)
+        _remove_abandoned(output)
         self.folder = Path(tempfile.mkdtemp(prefix=f".{output.name}.episodes-",
                                             dir=output.parent))
+        (self.folder / "owner").write_text(f"{os.getpid()}\n")
         self.parts: dict[str, dict[int, Path]] = {name: {} for name in (*SPILLED, "roads")}
         self.rows: dict[str, int] = dict.fromkeys((*SPILLED, "roads"), 0)
         self.scenes: dict[int, tuple[str, str | None]] = {}
@@ -136,6 +142,24 @@ class RunSpill:
     def close(self) -> None:
         """Remove the parts and their folder (:attr:`parts` still names them)."""
         self._remove()
+
+
+def _remove_abandoned(output: Path) -> None:
+    """Remove the spill folders of ``output`` (``.<name>.episodes-*``, with the ``owner``
+    file a spill writes) whose process is gone; any other folder is left alone."""
+    for folder in output.parent.glob(f".{output.name}.episodes-*"):
+        try:
+            pid = int((folder / "owner").read_text().strip())
+        except (OSError, ValueError):
+            continue  # not one a spill made (or not yet named): left alone
+        if pid == os.getpid():
+            continue
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:  # its run is gone
+            shutil.rmtree(folder, ignore_errors=True)
+        except OSError:  # another user's live process: left alone
+            continue
 
 
 class SpilledTable:
