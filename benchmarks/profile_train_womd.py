@@ -49,9 +49,11 @@ def main() -> None:
     parser.add_argument("--timesteps", type=int, default=1024)
     parser.add_argument("--egos", default="sdc")
     parser.add_argument("--top", type=int, default=30)
+    parser.add_argument("--callers", nargs="*", default=[],
+                        help="also print the callers of these functions (by name)")
     args = parser.parse_args()
     scenes = WomdScenes(tuple(args.womd))
-    profile = cProfile.Profile()
+    profile = cProfile.Profile(time.process_time)  # CPU time: the machine is shared
     with tempfile.TemporaryDirectory() as out, warnings.catch_warnings():
         warnings.simplefilter("ignore")
         start, cpu = time.perf_counter(), time.process_time()
@@ -69,6 +71,10 @@ def main() -> None:
     text = io.StringIO()
     pstats.Stats(profile, stream=text).sort_stats("tottime").print_stats(args.top)
     print(text.getvalue())
+    for name in args.callers:
+        text = io.StringIO()
+        pstats.Stats(profile, stream=text).sort_stats("cumtime").print_callers(name)
+        print(text.getvalue())
     for name, seconds in parts.items():
         print(f"{name:26s} {seconds:8.2f} s  {seconds / total:6.1%}")
     report("profile_train_womd", {"timesteps": args.timesteps, "egos": args.egos,

@@ -167,8 +167,8 @@ class RouteObservation(FastKinematicObservation):
         kinematics = np.asarray(super().observe(), dtype=np.float32).ravel()
         self.lead = NO_LEADER
         if not self.env.road or not getattr(self.env, "route", None):
-            return np.r_[kinematics, np.zeros(self.route_size, np.float32)]
-        return np.r_[kinematics, self.route_vector()].astype(np.float32)
+            return np.concatenate([kinematics, np.zeros(self.route_size, np.float32)])
+        return np.concatenate([kinematics, self.route_vector()])
 
     # the route seen from the ego
     def route_vector(self) -> np.ndarray:
@@ -191,14 +191,16 @@ class RouteObservation(FastKinematicObservation):
             change_distance, change_side = 1.0, 0.0
         else:
             change_distance, change_side = change[0] / self.horizon, change[1]
-        values = np.r_[xy, lat / OFFSET_SCALE, math.sin(dh), math.cos(dh), change_distance,
-                       change_side, float(ego.lane_index in route)]
-        self.lead = self.leader(np.vstack([p, points]))
+        values = np.concatenate([xy, (lat / OFFSET_SCALE, math.sin(dh), math.cos(dh),
+                                      change_distance, change_side,
+                                      float(ego.lane_index in route))])
+        self.lead = self.leader(np.concatenate([p[None], points]))
         if self.leader_features:
             lead = self.lead
             gap = lead.gap / self.horizon if math.isfinite(lead.gap) else 1.0
-            values = np.r_[values, float(ego.speed) / SPEED_SCALE, gap,
-                           lead.closing / CLOSING_SCALE, lead.inverse_ttc / INVERSE_TTC_SCALE]
+            values = np.concatenate([values, (float(ego.speed) / SPEED_SCALE, gap,
+                                              lead.closing / CLOSING_SCALE,
+                                              lead.inverse_ttc / INVERSE_TTC_SCALE)])
         return np.clip(values, -1.0, 1.0).astype(np.float32)
 
     def leader(self, path: np.ndarray) -> Leader:
@@ -224,7 +226,7 @@ class RouteObservation(FastKinematicObservation):
         a, seg, length = a[keep], seg[keep], length[keep]
         if not len(seg):
             return NO_LEADER
-        cum = np.r_[0.0, np.cumsum(length)[:-1]]
+        cum = np.concatenate([(0.0,), np.cumsum(length)[:-1]])
         rel = pos[:, None, :] - a[None, :, :]  # (n, m-1, 2)
         t = np.clip(np.einsum("nmk,mk->nm", rel, seg) / length**2, 0.0, 1.0)
         foot = a[None] + t[..., None] * seg[None]
