@@ -224,3 +224,15 @@ def test_the_parts_of_a_killed_run_go_with_the_next_run_into_its_output(tmp_path
     assert (spill.folder / "owner").read_text() == f"{os.getpid()}\n"
     spill.close()
     assert not spill.folder.exists()
+
+
+def test_a_run_matched_against_a_reference_writes_its_viewer_from_the_parts(tmp_path):
+    files = scene_files(tmp_path / "scenes", 2, per_file=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        folder = runner.run_suite(womd_suite(files), tmp_path / "run", workers=1,
+                                  progress=False, womd=files[:1]).folder
+    assert len(pd.read_parquet(folder / "scenario_matches.parquet"))  # read whole for it
+    docs = [_script(p) for p in (folder / "viewer" / "data").glob("*.js")
+            if p.name != "index.js"]
+    assert len(docs) == 2 and all(doc["map"] for chunk in docs for doc in chunk)

@@ -297,8 +297,10 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
                             ("segments", segments), ("roads", roads)):
             _write_table(tmp / f"{name}.parquet", table)
         viewer = report and trajectories is not None and len(trajectories) > 0
-        if isinstance(trajectories, SpilledTable):  # the viewer reads a chunk at a time
-            trajectories = SpilledEpisodes(trajectories.spill)
+        spilled = next((t.spill for t in (trajectories, roads)
+                        if isinstance(t, SpilledTable)), None)
+        if viewer and spilled is not None:  # the viewer reads a chunk at a time
+            trajectories = SpilledEpisodes(spilled)
         for name, table in scores.tables().items():
             if len(table):
                 _parquet_safe(table).to_parquet(tmp / f"{name}.parquet", index=False)
