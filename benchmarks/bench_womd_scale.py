@@ -21,6 +21,9 @@ Usage::
         # two checkouts, paired: each repeat runs both, in alternating order
     python benchmarks/bench_womd_scale.py 16 --stages --tree BEFORE --tree AFTER --repeats 3
         # ... where the CPU goes per scene: imports, decoding and maps, reset, step
+    python benchmarks/bench_womd_scale.py 49 --sample --tree BEFORE --tree AFTER --repeats 2
+        # ... the whole command sampled (SIGPROF, 2 ms): start-up, reading, reset, step,
+        # tables, writing, in ms CPU per scene
 
 Figures go to ``benchmarks/out/<name>.json``.
 """
@@ -90,6 +93,8 @@ for owner, name, label in ((womd_env, "load_scene", "read and decode a scene, it
                            (womd_env, "WomdNetwork", "road network"),
                            (womd_env, "WomdRoad", "road (edges, signals, segments)"),
                            (inner, "_traffic_vehicle", "agents made"),
+                           *([(womd_env.LogVehicle, "many", "agents made")]
+                             if hasattr(womd_env.LogVehicle, "many") else []),
                            (inner, "_reset", "env _reset (network, road, agents, route)"),
                            (womd_env.WomdEnv, "reset", "env reset (all of it)"),
                            (womd_env.WomdEnv, "step", "env step"),
@@ -109,6 +114,82 @@ json.dump({"imports_cpu_s": round(imports, 3), "scenes": n, "rollout_cpu_s": rou
            "ms_per_scene": {k: round(1000 * v / n, 2) for k, v in spent.items()}},
           open(sys.argv[1], "w"))
 """
+
+
+_SAMPLER = """
+import json, os, signal, sys
+STAGES = (  # (stage, frames that mark it): the outermost stage of a sample's stack wins
+    ("numba: first call, cache loads", ("numba/core/dispatcher.py:_compile_for_args",)),
+    ("imports", ("<frozen importlib._bootstrap>:_find_and_load",)),
+    ("catalogue", ("sim/womd_scene.py:scene_catalog",)),
+    ("read: road map", ("womd/roadmap.py:scenario_road_map",
+                        "womd/roadmap.py:scenarionet_road_map",
+                        "womd/roadmap.py:tf_example_road_map")),
+    ("read: tracks decoded", ("womd/scenario.py:decode_scenario",
+                              "womd/tf_example.py:decode_tf_example",
+                              "sources/scenarionet.py:decode_scenarionet",
+                              "sources/scenarionet.py:load_scenarionet")),
+    ("read: contract check", ("sim/womd_scene.py:checked",)),
+    ("read: the rest", ("sim/womd_scene.py:load_scene",)),
+    ("reset", ("sim/womd_env.py:reset",)),
+    ("step", ("sim/womd_env.py:step",)),
+    ("trajectory table", ("sim/womd_env.py:trajectories",)),
+    ("table checked before writing", ("trajectories.py:validate_and_index",)),
+    ("parts written", ("sim/rollout_stream.py:write",)),
+    ("parts joined", ("sim/rollout_stream.py:join_parquet",)),
+    ("the rest", ()),
+)
+counts = dict.fromkeys(name for name, _ in STAGES) | {"the rest": 0}
+def key(code):
+    name = code.co_filename.replace(os.sep, "/")
+    for cut in ("/site-packages/", "/tap_bench/", "/lib/python"):
+        if cut in name:
+            name = name.split(cut, 1)[1]
+            break
+    return name + ":" + code.co_name
+def sample(signum, frame):
+    names = set()
+    while frame is not None:
+        names.add(key(frame.f_code))
+        frame = frame.f_back
+    for stage, marks in STAGES:
+        if any(m in names for m in marks) or not marks:
+            counts[stage] = (counts[stage] or 0) + 1
+            return
+signal.signal(signal.SIGPROF, sample)
+signal.setitimer(signal.ITIMER_PROF, 0.002, 0.002)
+from tap_bench.cli import main
+code = main(sys.argv[2:])
+signal.setitimer(signal.ITIMER_PROF, 0, 0)
+t = os.times()
+json.dump({"code": code, "cpu_s": t.user + t.system,
+           "samples": {k: v or 0 for k, v in counts.items()}}, open(sys.argv[1], "w"))
+"""
+
+
+def run_sampled(folder: Path, out: Path, policy: str, traffic: str, extra: list[str],
+                tree: str | None) -> dict:
+    """Where the CPU of a whole ``rollout --womd`` goes, start-up included: the command in
+    a fresh interpreter sampled every 2 ms of its CPU (SIGPROF), each sample given to the
+    outermost stage on its stack; ms CPU per scene by stage (the samples' shares of the
+    process's CPU)."""
+    import pandas as pd
+
+    report_file = out.with_suffix(".measure.json")
+    files = [str(p) for p in sorted(folder.iterdir()) if not p.name.startswith(".")]
+    cmd = [sys.executable, *(["-P"] if tree else []), "-c", _SAMPLER, str(report_file),
+           "rollout", "--womd", *files, "--policy", policy, "--traffic", traffic, "-o",
+           str(out), *extra]
+    child, wall, load0 = _measured(cmd, report_file, "rollout", tree)
+    scenes = len(pd.read_parquet(str(out).replace(".parquet", ".episodes.parquet")))
+    total = max(sum(child["samples"].values()), 1)
+    commit = subprocess.run(["git", "-C", tree, "rev-parse", "--short", "HEAD"],
+                            capture_output=True, text=True).stdout.strip() if tree else ""
+    return {**({"tree": tree, "commit": commit} if tree else {}), "scenes": scenes,
+            "cpu_s": round(child["cpu_s"], 2), "wall_s": round(wall, 2), "samples": total,
+            "ms_per_scene": {k: round(1000 * child["cpu_s"] * v / total / scenes, 2)
+                             for k, v in child["samples"].items()},
+            "load_before": round(load0, 2), "load_after": round(os.getloadavg()[0], 2)}
 
 
 def run_stages(folder: Path, out: Path, traffic: str, tree: str | None) -> dict:
@@ -331,6 +412,9 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--stages", action="store_true",
                         help="where the CPU goes per scene (in-process, per tree)")
+    parser.add_argument("--sample", action="store_true",
+                        help="where the CPU of the whole command goes, start-up included "
+                        "(sampled every 2 ms of CPU, per tree)")
     args = parser.parse_args()
     root = Path(args.root)
     root.mkdir(parents=True, exist_ok=True)
@@ -347,6 +431,9 @@ def main() -> int:
                     if args.stages:
                         row = run_stages(folder, Path(tmp) / "stages.json", args.traffic,
                                          tree)
+                    elif args.sample:
+                        row = run_sampled(folder, Path(tmp) / "out.parquet", args.policy,
+                                          args.traffic, shlex.split(args.extra), tree)
                     else:
                         out = Path(tmp) / {"rollout": "out.parquet", "realism": "out.json",
                                            "bench-run": "run"}[args.command]
