@@ -76,9 +76,14 @@ def test_train_records_the_held_out_scenes_and_never_trains_on_them(four, tmp_pa
     assert params["held_out_scenes"] == [1, 3] and params["train_scenes"] == [0, 2]
     assert 0 < params["cpu_seconds"] and params["train_seconds"] > 0
     assert sorted(p.name for p in (tmp_path / "log").glob("weights_*_steps.zip"))
+    assert params["egos"] == "sdc"
     with pytest.raises(ParameterError, match="synthetic"):
         train("ppo", "highway", timesteps=32, seed=0, output=tmp_path / "x.zip",
               n_envs=1, hold_out="1")
+    for bad, where in (("all", "highway"), ("everyone", four)):
+        with pytest.raises(ParameterError, match="egos"):
+            train("ppo", where, timesteps=32, seed=0, output=tmp_path / "y.zip", n_envs=1,
+                  egos=bad)
 
 
 def test_a_definition_with_the_split_and_cpu_time_loads_as_a_policy(four, tmp_path):
