@@ -168,3 +168,17 @@ def test_check_help_prints_a_single_percent_sign(capsys):
         main(["bench", "check", "--help"])
     out = " ".join(capsys.readouterr().out.split())
     assert "80% power" in out and "%%" not in out
+
+
+@pytest.mark.parametrize("column, value", [("crashed", 7), ("crashed", "False"),
+                                           ("min_ttc_s", -1.0), ("mean_speed", "fast")],
+                         ids=["crashed 7", "crashed text", "min TTC -1 s", "speed text"])
+def test_a_run_whose_episodes_hold_impossible_values_is_an_error(cli, run, baseline, column,
+                                                                 value):
+    """The run folder is checked as the baseline is: a value its measure cannot take is
+    one error naming the row, never a verdict."""
+    eps = pd.read_parquet(run / "episodes.parquet")
+    eps[column] = value  # the whole column: Parquet holds one type a column
+    eps.to_parquet(run / "episodes.parquet")
+    code, out, err = cli("bench", "check", run, "--baseline", baseline)
+    one_error(code, out, err, column, "episodes.parquet")

@@ -467,6 +467,28 @@ def _possible(m: Any, value: Any) -> bool:
     return m.bounds is None or not value == value or m.bounds[0] <= value <= m.bounds[1]
 
 
+def _check_run_values(episodes: pd.DataFrame) -> None:
+    """Every measure value of the run's finished episodes is one its measure can take, as a
+    baseline's must be (:func:`_possible`; null or NaN where a measure is undefined): an
+    edited or damaged run folder is an error, never a verdict.
+
+    Raises:
+        FileFormatError: naming the row, the column, the value and the fix.
+    """
+    ok = episodes[episodes["status"] == "ok"]
+    for m in MEASURES:
+        if m.name not in ok.columns:
+            continue
+        for i, value in enumerate(ok[m.name].tolist()):
+            if (pd.api.types.is_scalar(value) and pd.isna(value)) or _possible(m, value):
+                continue
+            row = ok.iloc[i]
+            raise FileFormatError(
+                f"the run's episodes.parquet: row {i} ({row['env']}, {row['policy']}, seed "
+                f"{row['seed']}) has {m.name} = {str(value)[:80]!r}, not {_impossible(m)}. "
+                "The run folder was edited or damaged; run 'tap-bench bench run' again.")
+
+
 def _check_baseline_cells(doc: dict[str, Any], table: pd.DataFrame, path: Path) -> None:
     """No episode twice, and (for baselines that list their ``cells``) every (env, policy)
     listed holds episodes and no other does: a removed cell would otherwise pass
@@ -791,6 +813,7 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
     if config is None:  # the suite's; a caller's own config is its decision
         config = run_config(run_summary)
         _refuse_other_gate(baseline, config)
+    _check_run_values(run_episodes)
     rows: list[dict[str, Any]] = []
 
     changed = definition_changes(run_summary.get("provenance"), baseline.get("provenance"))
