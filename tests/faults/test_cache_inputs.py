@@ -9,6 +9,7 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import json
+import pickle
 import shutil
 import string
 import sys
@@ -36,6 +37,7 @@ from tap_bench.sim.rollout import EPISODE_COLUMNS
 from tap_bench.sim.scenario_env import get_scenario
 from tap_bench.sim.scenario_format import load_scenario
 from tap_bench.sim.schema import SCENARIO_KINDS
+from tap_bench.sim.womd_scene import SceneRef, WomdScenes
 from tap_bench.thresholds import PRESETS, load_thresholds
 from tap_bench.usercode import loaded_user_code, recording
 
@@ -76,6 +78,7 @@ INPUTS = {  # kind -> (file, the keys its edit moves; None: only the entries kno
     "module the policy loads by name": (f"{BYNAME}.py", None),
     "module a measure loads by name": (f"{MBYNAME}.py", None),
     "module a policy runs from its path": (f"{BYPATH}.py", None),
+    "recorded scene file": ("sd_scene.pkl", (4,)),
 }
 
 
@@ -86,6 +89,12 @@ def inputs(tmp_path_factory):
         (root / name).parent.mkdir(parents=True, exist_ok=True)
         (root / name).write_text(text)
     (root / "weights.bin").write_bytes(bytes(range(64)))
+    t = [0.1 * i for i in range(20)]  # a ScenarioNet scene (its key hashes its bytes)
+    (root / "sd_scene.pkl").write_bytes(pickle.dumps({
+        "id": "s", "metadata": {"ts": t, "scenario_id": "s", "sdc_id": "1"},
+        "tracks": {"1": {"type": "VEHICLE", "state": {
+            "position": [[10.0 * x, 0.0, 0.0] for x in t], "heading": [0.0] * 20,
+            "velocity": [[10.0, 0.0]] * 20, "valid": [True] * 20}}}}))
     (root / "mine.json").write_text(json.dumps({
         "name": "mine", "kind": "import", "params": {"factory": f"{PKG}.policy:Mine",
                                                      "weights": "weights.bin"}}))
@@ -129,7 +138,7 @@ def _file(root: Path, name: str) -> Path:
 
 def _keys(root: Path) -> tuple:
     """What decides whether a re-run is served: (mine's episode key, its label key,
-    const's episode key, its label key)."""
+    const's episode key, its label key, mine's episode key in the recorded scene)."""
     scenario = load_scenario(root / "scene.json")
     versions = simulation_fingerprint(sorted((root / "sim").glob("*.py")))
     thresholds = load_thresholds(root / "thresholds.json").to_dict()
@@ -141,6 +150,11 @@ def _keys(root: Path) -> tuple:
         assert env is not None and pol is not None
         key = episode_key(env, pol, 0, versions)[0]
         out += [key, label_key(key, thresholds, "maneuver", code)[0]]
+    scene = WomdScenes((str(root / "sd_scene.pkl"),))
+    recorded = {"env": "womd", **scene.fingerprint(SceneRef(str(root / "sd_scene.pkl"), 0,
+                                                             "scenarionet"))}
+    out.append(episode_key(recorded, policy_fingerprint(_read_definition(root / "mine.json")),
+                           0, versions)[0])
     return tuple(out)
 
 
@@ -170,7 +184,7 @@ def test_the_docs_list_every_kind_of_input_tested():
 @given(where=st.floats(0, 1, exclude_max=True), byte=st.integers(0, 255))
 def test_every_input_edited_makes_the_rerun_fresh(inputs, tmp_path_factory, kind, where,
                                                   byte):
-    """Each kind of input, 4 drawn one-byte edits (60 in all, every kind edited; drawn over
+    """Each kind of input, 4 drawn one-byte edits (64 in all, every kind edited; drawn over
     all kinds at once, as 140 edits were, each kind's share was left to chance)."""
     root, run = inputs
     name, moves = INPUTS[kind]
@@ -202,7 +216,7 @@ def test_every_input_edited_makes_the_rerun_fresh(inputs, tmp_path_factory, kind
             assume(False)
         if kind == "thresholds file":  # the run reads the values, not the file's bytes
             assume(load_thresholds(root / "thresholds.json").to_dict() != read)
-        moved = tuple(i for i in range(4) if before[i] != after[i])
+        moved = tuple(i for i in range(len(before)) if before[i] != after[i])
         assert set(moves) <= set(moved), f"{kind}: a changed byte left a key as it was"
     finally:
         path.write_bytes(original)
