@@ -46,7 +46,7 @@ __all__ = ["HIDDEN", "OFF_ROAD_MARGIN", "PATH_EXTENSION", "PATH_SPACING", "Logge
            "NOMINAL_DRIVER", "ConstantVelocityVehicle", "DriverParameters", "LogVehicle",
            "WomdIDMVehicle", "WomdMDPVehicle",
            "WomdNetwork", "WomdRoad", "draw_driver", "logged_route", "path_progress",
-           "sim_frame"]
+           "sim_frame", "window_max"]
 
 OFF_ROAD_MARGIN = 0.5  # [m] beyond half the lane's width, from every lane centre: off road
 ROUTE_CORRIDOR = 4.0  # [m] progress counts while the ego is this close to the logged path
@@ -798,6 +798,30 @@ class LoggedPath:
         return s, d, theta
 
 
+def window_max(values: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(m,) the largest of ``values[lo[i]:hi[i]]`` for every window i (each non-empty:
+    ``lo < hi``), from a table of the maxima of every run of 2^k values (two overlapping
+    runs cover a window), without a loop over the windows.
+
+    Args:
+        values: (n,) float, no NaN.
+        lo, hi: (m,) int, 0 <= lo < hi <= n.
+    """
+    values = np.asarray(values, dtype=np.float64)
+    lo, hi = np.asarray(lo, dtype=np.int64), np.asarray(hi, dtype=np.int64)
+    runs = [values]  # runs[k][j]: the largest of values[j:j + 2^k]
+    while 2 ** len(runs) <= len(values):
+        half = 2 ** (len(runs) - 1)
+        runs.append(np.maximum(runs[-1][:-half], runs[-1][half:]))
+    table = np.full((len(runs), len(values)), -np.inf)
+    for k, run in enumerate(runs):
+        table[k, :len(run)] = run
+    level = np.zeros(len(lo), dtype=np.int64)  # the largest k with 2^k <= hi - lo
+    while ((2 ** (level + 1)) <= hi - lo).any():
+        level += (2 ** (level + 1)) <= hi - lo
+    return np.maximum(table[level, lo], table[level, hi - 2 ** level])
+
+
 def logged_path(xy: np.ndarray, heading: np.ndarray, speed: np.ndarray,
                 steps: np.ndarray | None = None) -> LoggedPath:
     """The :class:`LoggedPath` of a vehicle's valid logged states (sim frame), in order.
@@ -812,8 +836,10 @@ def logged_path(xy: np.ndarray, heading: np.ndarray, speed: np.ndarray,
     heading = np.unwrap(np.asarray(heading, float))
     speed = np.nan_to_num(np.asarray(speed, float), nan=0.0)
     keep = [0]
+    xs, ys = xy[:, 0].tolist(), xy[:, 1].tolist()  # the same numbers as Python floats
     for k in range(1, len(xy)):
-        if math.hypot(*(xy[k] - xy[keep[-1]])) >= PATH_SPACING:
+        j = keep[-1]
+        if math.hypot(xs[k] - xs[j], ys[k] - ys[j]) >= PATH_SPACING:
             keep.append(k)
     points = xy[keep]
     headings = heading[keep]
@@ -831,7 +857,7 @@ def logged_path(xy: np.ndarray, heading: np.ndarray, speed: np.ndarray,
     at = np.r_[np.asarray(at, float), np.inf]
     lo = np.searchsorted(cum, cum - DESIRED_BEHIND, side="left")
     hi = np.searchsorted(cum, cum + DESIRED_AHEAD, side="right")
-    reference = np.array([speeds[a:max(b, a + 1)].max() for a, b in zip(lo, hi, strict=True)])
+    reference = window_max(speeds, lo, np.maximum(hi, lo + 1))
     return LoggedPath(points, cum, headings, reference, at)
 
 

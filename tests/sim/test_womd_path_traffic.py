@@ -303,3 +303,18 @@ def test_all_path_vehicles_at_once_equal_each_one_alone(tmp_path, seed):
         done = terminated or truncated
     assert len(checked) > 300
     assert min(checked) < -1.0  # some braked behind something in the way
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 7, 64, 91, 200])
+def test_window_maxima_equal_each_windows_max(n):
+    """window_max = numpy's max of each window, for windows of every length and place
+    (monotone ones as a logged path's, and any others)."""
+    from tap_bench.sim.womd_road import window_max
+
+    rng = np.random.default_rng(n)
+    values = np.round(rng.normal(8.0, 5.0, n), 1)  # ties too
+    lo = rng.integers(0, n, 3 * n)
+    hi = np.minimum(lo + rng.integers(1, n + 1, 3 * n), n)
+    lo, hi = np.r_[lo, np.arange(n), 0], np.r_[hi, np.arange(n) + 1, n]
+    want = np.array([values[a:b].max() for a, b in zip(lo, hi, strict=True)])
+    assert np.array_equal(window_max(values, lo, hi), want)
