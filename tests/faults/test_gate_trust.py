@@ -182,3 +182,17 @@ def test_a_run_whose_episodes_hold_impossible_values_is_an_error(cli, run, basel
     eps.to_parquet(run / "episodes.parquet")
     code, out, err = cli("bench", "check", run, "--baseline", baseline)
     one_error(code, out, err, column, "episodes.parquet")
+
+
+@pytest.mark.parametrize("kind", ["folder", "device"])
+def test_a_baseline_path_that_is_no_file_is_named_as_such(cli, run, tmp_path, kind):
+    """A folder (or a device) given as the baseline: said as such, not "no baseline file;
+    make one with --update-baseline", which would then refuse that path."""
+    where = tmp_path / "base"
+    if kind == "folder":
+        where.mkdir()
+    else:
+        where.symlink_to("/dev/null")
+    code, out, err = cli("bench", "check", run, "--baseline", where)
+    one_error(code, out, err, "not a baseline file")
+    assert "--update-baseline" not in err

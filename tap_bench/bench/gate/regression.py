@@ -360,6 +360,10 @@ def read_baseline(path: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame
         BaselineError: a metric missing, or a measure that is not a number.
     """
     path = Path(path)
+    if path.exists() and not path.is_file():
+        raise FileFormatError(f"{path}: not a baseline file ("
+                              f"{'a folder' if path.is_dir() else 'not a regular file'}); "
+                              "give the path of the baseline's JSON file.")
     if not path.is_file():
         raise FileFormatError(f"{path}: no baseline file; make one from a run with "
                               f"'tap-bench bench check RUN --baseline {path} "
