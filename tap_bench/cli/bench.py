@@ -58,9 +58,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="do not write trajectories.parquet")
     r.add_argument("--no-report", action="store_true",
                    help="write the tables and summary.json only: no plots, report.html or "
-                   "replay viewer (the viewer holds every episode's data; on a suite of "
-                   "many recorded scenes the trajectories are then never one table in "
-                   "memory)")
+                   "replay viewer")
+    r.add_argument("--log", metavar="FILE",
+                   help="on recorded scenes, also append the progress lines (episodes done, "
+                   "failed, skipped, rate, time left) to FILE, time-stamped")
     r.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
     add_progress_arguments(r)
     add_backend_arguments(r, shards=False)
@@ -169,7 +170,7 @@ def run_bench(args: argparse.Namespace) -> int:
                                overwrite=args.overwrite, report=not args.no_report,
                                progress=progress_choice(args), backend=backend,
                                seeds=args.seeds, cache=cache, announce=announce,
-                               plugins=plugins, realism=args.realism)
+                               plugins=plugins, realism=args.realism, log=args.log)
         finally:
             if backend is not None:
                 close_backend(backend)

@@ -146,8 +146,8 @@ def test_a_womd_run_spills_its_tables_and_equals_one_held_in_memory(tmp_path, mo
         assert len(pd.read_parquet(streamed / f"{name}.parquet")) == kept[0].rows[name]
 
 
-def test_without_the_report_the_trajectories_are_never_one_table(tmp_path, monkeypatch,
-                                                                   capsys):
+def test_without_the_report_no_table_is_read_whole_and_progress_is_logged(
+        tmp_path, monkeypatch, capsys):
     files = scene_files(tmp_path / "scenes", 3, per_file=3)
     suite = tmp_path / "suite.json"
     suite.write_text(json.dumps(suite_doc(files)))
@@ -155,9 +155,15 @@ def test_without_the_report_the_trajectories_are_never_one_table(tmp_path, monke
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         assert main(["bench", "run", "--suite", str(suite), "-o", str(tmp_path / "run"),
-                     "--no-report", "--no-cache", "--workers", "1", "--no-progress"]) == 0
+                     "--no-report", "--no-cache", "--workers", "1", "--no-progress",
+                     "--log", str(tmp_path / "run.log")]) == 0
     assert not read_whole
-    assert "report: none, --no-report" in capsys.readouterr().out
+    captured = capsys.readouterr()
+    assert "report: none, --no-report" in captured.out
+    assert "episodes" not in captured.err  # --no-progress: no lines on stderr
+    last = (tmp_path / "run.log").read_text().splitlines()[-1]  # but in the log
+    assert re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d bench womd-stream: 6/6 episodes, "
+                        r"0 failed, 0 skipped, [\d.]+ episodes/s, .*", last), last
     folder = tmp_path / "run"
     assert not (folder / "report.html").exists() and not (folder / "viewer").exists()
     table = pd.read_parquet(folder / "trajectories.parquet")

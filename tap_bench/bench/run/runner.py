@@ -193,7 +193,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
               backend: Backend | None = None, seeds: str | Sequence[int] | None = None,
               cache: EpisodeCache | str | os.PathLike | None = None,
               announce: Callable[[str], None] | None = None,
-              plugins: Sequence[str] = (),
+              plugins: Sequence[str] = (), log: str | os.PathLike | None = None,
               realism: Sequence[str | os.PathLike | Mapping[str, Any]] = ()) -> RunResult:
     """Run a benchmark suite and write its run folder.
 
@@ -209,7 +209,8 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
             suite's thresholds and also matched scenario by scenario against the episodes.
         keep_trajectories: also write ``trajectories.parquet``.
         overwrite: replace an existing run folder.
-        progress: progress bar (None: only on a terminal).
+        progress: progress bar (None: only on a terminal); recorded scenes: lines.
+        log: a file the progress lines of recorded scenes also go to (time-stamped).
         report: write the plots and ``report.html``.
         backend: run the episodes as tasks on this :class:`tap_bench.execution.Backend`
             (a Ray cluster, say) instead of ``workers`` local processes; the tables are the
@@ -267,7 +268,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     kept = getattr(runner, "kept", None)  # the estimate's first episodes and the rest
     with kept() if kept is not None else contextlib.nullcontext():  # on the same workers
         results, estimate = _rollouts(tasks, plan.name, runner, progress, cache, announce,
-                                      roads, None if spill is None else spill.keep)
+                                      roads, None if spill is None else spill.keep, log)
     timings["rollouts_wall"] = time.perf_counter() - t0
     if announce is not None:
         announce(f"episodes done ({timings['rollouts_wall']:.0f} s); scoring ...")
@@ -295,14 +296,20 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     timings["total"] = time.perf_counter() - t_start
     if spill is not None:
         spill.close()
-    if summary["cache"] is not None:  # derived entries (roads, scores, plots, viewer, run)
-        summary["cache"]["refused"] = [*refused, *take_refused()]
+    _note_refused(summary, refused)  # with the derived entries refused while writing
     _write_json(folder / "summary.json", summary)  # with the final timings
     if keep and cache is not None and pages is not None:
         store_run(cache, whole, folder, summary, pages, tables.episodes, scores)
     if cache is not None:
         _tidy_cache(cache, results, timings["total"], runner.workers, entries_since)
     return RunResult(folder, summary, tables.episodes, scores, folder / "report.html")
+
+
+def _note_refused(summary: dict[str, Any], refused: list[str]) -> None:
+    """The cache entries refused in the run (``refused``: episodes; then the derived
+    entries: roads, scores, plots, viewer, run) in ``summary``'s cache part, if any."""
+    if summary["cache"] is not None:
+        summary["cache"]["refused"] = [*refused, *take_refused()]
 
 
 def _realism_entries(realism: Sequence[str | os.PathLike | Mapping[str, Any]]

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
@@ -402,8 +403,8 @@ def _items(tasks: list[_Task], indices: list[int], cached: list[bool], workers: 
 def _rollouts(tasks: list[_Task], name: str, backend: Backend, progress: bool | None,
               cache: EpisodeCache | None, announce: Callable[[str], None] | None,
               road: Callable[[str], pd.DataFrame] | None = None,
-              keep_result: Callable[[int, dict[str, Any]], dict[str, Any]] | None = None
-              ) -> tuple[list[dict[str, Any]], RunPlan]:
+              keep_result: Callable[[int, dict[str, Any]], dict[str, Any]] | None = None,
+              log: str | os.PathLike | None = None) -> tuple[list[dict[str, Any]], RunPlan]:
     """Every episode of ``tasks`` (the suite ``name``'s, :func:`~tap_bench.bench.run.plan.
     _tasks`) as a task on ``backend`` (one recovery rule: an episode whose worker died is
     tried once more, then recorded as failed), cached episodes read rather than simulated.
@@ -413,9 +414,47 @@ def _rollouts(tasks: list[_Task], name: str, backend: Backend, progress: bool | 
     tasks (None: each worker draws it). ``keep_result``: (task index, result) -> the result
     kept, called on each result as it arrives (a :class:`~tap_bench.bench.run.spill.
     RunSpill` writes its tables to disk and keeps the rest), the tasks' results then taken
-    one by one as they end rather than all at once."""
+    one by one as they end rather than all at once, and counted in one progress line
+    (episodes done, failed, skipped, rate, time left: :class:`~tap_bench.progress.
+    SceneProgress`) on stderr unless ``progress`` is False and in the file ``log``."""
     streamed = keep_result is not None
-    keep_result = keep_result if streamed else (lambda _, result: result)
+    lines = None
+    if streamed:
+        from tap_bench.progress import SceneProgress
+
+        lines = SceneProgress(len(tasks), f"bench {name}", show=progress is not False,
+                              log=log, unit="episode")
+        keep_result = _counted(keep_result, lines)
+        progress = False  # the lines instead of a bar of tasks
+    else:
+        keep_result = lambda _, result: result  # noqa: E731
+    try:
+        return _run_all(tasks, name, backend, progress, cache, announce, road, keep_result,
+                        streamed)
+    finally:
+        if lines is not None:
+            lines.close()
+
+
+def _counted(keep: Callable[[int, dict[str, Any]], dict[str, Any]], lines: Any
+             ) -> Callable[[int, dict[str, Any]], dict[str, Any]]:
+    """``keep`` that also counts each result's episode in ``lines`` by its status."""
+    def kept(index: int, result: dict[str, Any]) -> dict[str, Any]:
+        episodes = result.get("episodes")
+        lines.update(str(episodes["status"].iat[0]) if episodes is not None
+                     and len(episodes) else "error")
+        return keep(index, result)
+
+    return kept
+
+
+def _run_all(tasks: list[_Task], name: str, backend: Backend, progress: bool | None,
+             cache: EpisodeCache | None, announce: Callable[[str], None] | None,
+             road: Callable[[str], pd.DataFrame] | None,
+             keep_result: Callable[[int, dict[str, Any]], dict[str, Any]], streamed: bool
+             ) -> tuple[list[dict[str, Any]], RunPlan]:
+    """:func:`_rollouts` once its progress is set up: ``streamed``, the results taken one
+    by one as they end (``backend.imap``)."""
     tasks = list(tasks)
     results: dict[int, dict[str, Any]] = {}
     seconds: dict[int, float] = {}
@@ -460,7 +499,7 @@ def _rollouts(tasks: list[_Task], name: str, backend: Backend, progress: bool | 
                 given[i] = outcome.value
                 measured[tasks[i].env] = outcome.seconds
             else:
-                results[i] = _failed_task(tasks[i], outcome.error)
+                results[i] = keep_result(i, _failed_task(tasks[i], outcome.error))
     plan = estimate(tasks, cached, backend.workers, known, measured)
     if announce is not None:
         announce(plan.describe(name))
