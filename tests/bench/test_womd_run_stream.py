@@ -15,7 +15,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from tap_bench.bench.run import runner
+from tap_bench.bench.run import runner, scoring
 from tap_bench.bench.run import spill as bench_spill
 from tap_bench.bench.suite import suite_from_dict
 from tap_bench.cli import main
@@ -232,13 +232,18 @@ def test_the_parts_of_a_killed_run_go_with_the_next_run_into_its_output(tmp_path
     assert not spill.folder.exists()
 
 
-def test_a_run_matched_against_a_reference_writes_its_viewer_from_the_parts(tmp_path):
-    files = scene_files(tmp_path / "scenes", 2, per_file=2)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        folder = runner.run_suite(womd_suite(files), tmp_path / "run", workers=1,
-                                  progress=False, womd=files[:1]).folder
-    assert len(pd.read_parquet(folder / "scenario_matches.parquet"))  # read whole for it
-    docs = [_script(p) for p in (folder / "viewer" / "data").glob("*.js")
+def test_a_run_matched_against_a_reference_reads_a_few_episodes_at_a_time(tmp_path,
+                                                                          monkeypatch):
+    files = scene_files(tmp_path / "scenes", 3, per_file=3)
+    read_whole = _whole_reads(monkeypatch)
+    monkeypatch.setattr(scoring, "EPISODES_AT_ONCE", 4)  # 6 episodes: two groups
+    streamed = _run(womd_suite(files), tmp_path / "streamed", womd=files)
+    assert not read_whole
+    assert len(pd.read_parquet(streamed / "scenario_matches.parquet")) == 6 * 3
+    assert (streamed / "gap.parquet").is_file()
+    docs = [_script(p) for p in (streamed / "viewer" / "data").glob("*.js")
             if p.name != "index.js"]
-    assert len(docs) == 2 and all(doc["map"] for chunk in docs for doc in chunk)
+    assert len(docs) == 3 and all(doc["map"] for chunk in docs for doc in chunk)
+    monkeypatch.setattr(runner, "spills", lambda scenarios: False)
+    held = _run(womd_suite(files), tmp_path / "held", womd=files)
+    _same_folders(streamed, held)

@@ -272,7 +272,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     timings["rollouts_wall"] = time.perf_counter() - t0
     if announce is not None:
         announce(f"episodes done ({timings['rollouts_wall']:.0f} s); scoring ...")
-    tables = RunTables.of(results, keep_tables, timings, spill, whole=with_trajectories)
+    tables = RunTables.of(results, keep_tables, timings, spill)
     refused = _check_results(results, tables.episodes, plan.name)
     t0 = time.perf_counter()
     scores = score_run(plan, tables, corpora, cache)

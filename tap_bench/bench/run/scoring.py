@@ -10,14 +10,15 @@ import dataclasses
 import os
 import time
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 
 import pandas as pd
 
 from tap_bench.bench.cache import EpisodeCache, memoised, table_digest
 from tap_bench.bench.gate.power import power_table
 from tap_bench.bench.run.plan import SuitePlan
-from tap_bench.bench.run.tasks import RunTables
+from tap_bench.bench.run.spill import SpilledTable
+from tap_bench.bench.run.tasks import RunTables, Spilled
 from tap_bench.bench.scores.contexts import context_scores
 from tap_bench.bench.scores.gap import (
     behaviour_gap,
@@ -127,38 +128,79 @@ def _score(plan: SuitePlan, tables: RunTables, corpora: Corpora) -> Scores:
                       config)
 
 
-def _scenario_matches(corpora: Corpora, labels: pd.DataFrame,
-                      trajectories: pd.DataFrame | None, level: str
-                      ) -> tuple[pd.DataFrame | None, list[str]]:
+EPISODES_AT_ONCE = 16
+"""Episodes of a spilled run matched against a reference's scenarios in one call."""
+
+
+def _episode_groups(labels: Spilled, trajectories: Spilled | None
+                    ) -> Iterator[tuple[pd.DataFrame, pd.DataFrame | None]]:
+    """The run's labels and trajectories a few episodes at a time (a spilled run's parts,
+    :data:`EPISODES_AT_ONCE` episodes a group, in run order), or whole."""
+    if not isinstance(labels, SpilledTable):
+        yield labels, trajectories if not isinstance(trajectories, SpilledTable) \
+            else trajectories.table()
+        return
+    indices = sorted(labels.spill.parts["labels"])
+    for start in range(0, len(indices), EPISODES_AT_ONCE):
+        group = indices[start:start + EPISODES_AT_ONCE]
+        yield labels.table(group), trajectories.table(group) \
+            if isinstance(trajectories, SpilledTable) else trajectories
+
+
+def _scenario_matches(corpora: Corpora, labels: Spilled, trajectories: Spilled | None,
+                      level: str) -> tuple[pd.DataFrame | None, list[str]]:
     """Each episode's best-matching scenarios of every reference with trajectories (None:
-    none), and the references that could not be matched (their data mark no ego)."""
+    none), and the references that could not be matched (their data mark no ego). A
+    spilled run's episodes are matched a group at a time (each episode's matches are its
+    own: the rows of one call on every episode)."""
     matches, unmatched = [], []
     for name, (ref_traj, ref_labels) in corpora.items():
         if ref_traj is not None and len(labels):
             if "is_ego" not in ref_labels.columns:  # a format without an ego
                 unmatched.append(name)
                 continue
-            matches.append(match_scenarios(labels, trajectories, ref_labels, ref_traj,
-                                           level=level, top=3).assign(reference=name))
+            found = [match_scenarios(mine, traj, ref_labels, ref_traj, level=level, top=3)
+                     for mine, traj in _episode_groups(labels, trajectories)]
+            table = found[0] if len(found) == 1 else pd.DataFrame(
+                [row for part in found for row in part.to_dict("records")])
+            matches.append(table.assign(reference=name))
     return (pd.concat(matches, ignore_index=True) if matches else None), unmatched
 
 
-def _windows(corpora: Corpora, trajectories: pd.DataFrame | None, level: str,
+def _egos(trajectories: SpilledTable) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(the egos' rows, the first and last time of every track): what the windows need of
+    a spilled run's trajectories, read an episode at a time."""
+    egos, spans = [], []
+    for i in sorted(trajectories.spill.parts["trajectories"]):
+        table = trajectories.table([i])
+        egos.append(table[table["is_ego"].fillna(False).to_numpy(bool)]
+                    if "is_ego" in table.columns else table)
+        by_track = table.groupby(["scenario_id", "track_id"], sort=False)["t"]
+        spans.append(pd.concat([by_track.min(), by_track.max()]).reset_index())
+    return pd.concat(egos, ignore_index=True), pd.concat(spans, ignore_index=True)
+
+
+def _windows(corpora: Corpora, trajectories: Spilled | None, level: str,
              thresholds: Thresholds) -> dict[str, tuple[pd.DataFrame, str]]:
     """Coverage and novelty against real driving: the episodes cut in windows of the
-    length of each reference's tracks, by reference name."""
-    cut = {}
+    length of each reference's tracks, by reference name (only the egos are cut, and
+    only their rows are read together)."""
+    cut: dict[str, tuple[pd.DataFrame, str]] = {}
+    if trajectories is None or not any(t is not None for t, _ in corpora.values()):
+        return cut
+    egos, spans = _egos(trajectories) if isinstance(trajectories, SpilledTable) \
+        else (trajectories, trajectories)
     for name, (ref_traj, _) in corpora.items():
-        if ref_traj is not None and trajectories is not None:
-            seconds = window_seconds("auto", ref_traj, trajectories)
+        if ref_traj is not None:
+            seconds = window_seconds("auto", ref_traj, spans)
             if seconds is not None:
-                cut[name] = (window_episodes(trajectories, seconds, level,
+                cut[name] = (window_episodes(egos, seconds, level,
                                              thresholds=thresholds, source=name),
                              f"{seconds:.1f} s windows")
     return cut
 
 
-def _with_gaps(scores: Scores, corpora: Corpora, labels: pd.DataFrame,
+def _with_gaps(scores: Scores, corpora: Corpora, labels: Spilled,
                episodes: pd.DataFrame, level: str, thresholds: Thresholds,
                config: BootstrapConfig) -> Scores:
     """``scores`` with the sim-to-real gap of every policy from each reference given as
@@ -166,9 +208,11 @@ def _with_gaps(scores: Scores, corpora: Corpora, labels: pd.DataFrame,
     lateral, longitudinal and interaction, against the reference's vehicles at the speeds
     the policy drives."""
     real = {name: traj for name, (traj, _) in corpora.items() if traj is not None}
-    if not real or not len(labels) or "is_ego" not in labels.columns:
+    if not real or not len(labels):
         return scores
-    egos = labels[(labels["level"] == level) & labels["is_ego"].fillna(False)]
+    egos = _ego_labels(labels, level)
+    if egos is None:
+        return scores
     speeds = episodes[["env", "policy", "seed", "mean_speed"]]
     egos = egos.drop(columns=["mean_speed"], errors="ignore").merge(
         speeds, on=["env", "policy", "seed"], how="left")
@@ -200,3 +244,14 @@ def _with_gaps(scores: Scores, corpora: Corpora, labels: pd.DataFrame,
         "behaviour with these episodes and scenes")
     return dataclasses.replace(scores, gap=pd.DataFrame(rows),
                                gap_labels=pd.concat(per_label, ignore_index=True))
+
+
+def _ego_labels(labels: Spilled, level: str) -> pd.DataFrame | None:
+    """The egos' labels at ``level`` (a spilled run's read a group of episodes at a time);
+    None: the labels mark no ego."""
+    mine = []
+    for part, _ in _episode_groups(labels, None):
+        if "is_ego" not in part.columns:
+            return None
+        mine.append(part[(part["level"] == level) & part["is_ego"].fillna(False)])
+    return pd.concat(mine) if len(mine) > 1 else mine[0]

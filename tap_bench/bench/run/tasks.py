@@ -575,18 +575,17 @@ class RunTables:
 
     @classmethod
     def of(cls, results: list[dict[str, Any]], trajectories: bool,
-           timings: dict[str, float], spill: RunSpill | None = None, *,
-           whole: bool = False) -> RunTables:
+           timings: dict[str, float], spill: RunSpill | None = None) -> RunTables:
         """Gathered from ``results``; the workers' CPU time per stage goes to ``timings``
         (``<stage>_cpu_in_workers`` [s]). With a ``spill``, the tables are read from its
         parts: the episode table and the occurrences whole (the scores need every row),
-        the labels, segments and trajectories left on disk, or read back whole when
-        ``whole`` (the matching against a reference's scenarios needs them)."""
+        the labels, segments and trajectories left on disk (the matching against a
+        reference's scenarios reads them a few episodes at a time)."""
         for key in ("rollout", "labelling", "measures"):
             timings[f"{key}_cpu_in_workers"] = sum(r["timings"].get(key, 0.0)
                                                    for r in results)
         if spill is not None:
-            return cls._spilled(spill, trajectories, whole)
+            return cls._spilled(spill, trajectories)
         episodes = pd.concat([r["episodes"] for r in results], ignore_index=True)
         episodes = episodes.sort_values(["env", "policy", "seed"], kind="stable")
         return cls(episodes.reset_index(drop=True),
@@ -598,16 +597,14 @@ class RunTables:
                             if r["trajectories"] is not None]) if trajectories else None)
 
     @classmethod
-    def _spilled(cls, spill: RunSpill, trajectories: bool, whole: bool) -> RunTables:
+    def _spilled(cls, spill: RunSpill, trajectories: bool) -> RunTables:
         """The tables of a spilled run (:meth:`of`)."""
         episodes = spill.table("episodes").table()
         episodes = episodes.sort_values(["env", "policy", "seed"], kind="stable")
 
         def kept(name: str) -> Spilled | None:
             part = spill.table(name)
-            if not len(part):
-                return None
-            return part.table() if whole else part
+            return part if len(part) else None
 
         return cls(episodes.reset_index(drop=True), kept("labels") if len(
                    spill.table("labels")) else pd.DataFrame(), kept("segments"),
