@@ -90,8 +90,7 @@ class Scene:
     Attributes:
         scenario_id: WOMD's id.
         ref: where it came from.
-        content: the scenario's bytes (the record, or the file of a pickle).
-        digest: SHA-256 of :attr:`content` (hashed when first asked for).
+        digest: SHA-256 of the scenario's bytes (the record or the file).
         times: (T,) [s].
         track_ids, object_types: (n,) str.
         x, y, heading, vx, vy, speed: (n, T) in WOMD's axes [m, rad, m/s]; NaN where
@@ -104,7 +103,7 @@ class Scene:
 
     scenario_id: str
     ref: SceneRef
-    content: bytes = field(repr=False)
+    digest: str
     times: np.ndarray
     track_ids: np.ndarray
     object_types: np.ndarray
@@ -119,11 +118,6 @@ class Scene:
     width: np.ndarray
     ego: int
     road: RoadMap
-
-    @functools.cached_property
-    def digest(self) -> str:
-        """SHA-256 of the scenario's bytes (the record or the file), hex."""
-        return hashlib.sha256(self.content).hexdigest()
 
     @property
     def n_steps(self) -> int:
@@ -250,8 +244,8 @@ _CONTRACT_FIX = ("A closed-loop scene is built only from records that keep the t
                  "scenario out (the other scenes still run).")
 
 
-def _read(ref: SceneRef) -> tuple[pd.DataFrame, RoadMap, bytes]:
-    """Decode ``ref`` into (trajectory table, road map, the bytes read), its tracks checked
+def _read(ref: SceneRef) -> tuple[pd.DataFrame, RoadMap, str]:
+    """Decode ``ref`` into (trajectory table, road map, content hash), its tracks checked
     as ``tap-bench ingest`` checks each scenario it reads.
 
     Raises:
@@ -279,7 +273,7 @@ def _read(ref: SceneRef) -> tuple[pd.DataFrame, RoadMap, bytes]:
         scenario = load_scenarionet(ref.path)
         table = checked(decode_scenarionet(scenario, path=ref.path), 0, 0)
         road = roadmap.scenarionet_road_map(scenario, source=ref.path)
-        return table, road, data
+        return table, road, hashlib.sha256(data).hexdigest()
     record = _record_of(ref)
     if ref.format == "scenario":
         table = checked(decode_scenario(record), record.index, record.offset)
@@ -289,7 +283,7 @@ def _read(ref: SceneRef) -> tuple[pd.DataFrame, RoadMap, bytes]:
         road = roadmap.tf_example_road_map(record.data, source=str(ref))
         if road is None:
             road = roadmap.RoadMap(str(table["scenario_id"].iloc[0]), {}, topology="none")
-    return table, road, record.data
+    return table, road, hashlib.sha256(record.data).hexdigest()
 
 
 def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:
@@ -307,7 +301,7 @@ def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:
     import numpy as np
     import pandas as pd
 
-    table, road, content = _read(ref)
+    table, road, digest = _read(ref)
     sid = str(table["scenario_id"].iloc[0]) if len(table) else road.scenario_id
     where = f"scenario {sid} ({ref})"
     tracks = pd.unique(table["track_id"])
@@ -358,7 +352,7 @@ def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:
             values = np.where(valid & np.isfinite(values) & (values > 0), values, np.nan)
         sizes[col] = _row_medians(values, default)
     times = table["t"].to_numpy(float)[:t]
-    return Scene(sid, ref, content, times, tracks.astype(str),
+    return Scene(sid, ref, digest, times, tracks.astype(str),
                  table["object_type"].to_numpy().reshape(n, t)[:, 0].astype(str), x, y,
                  heading, vx, vy, speed, valid, sizes["length"], sizes["width"], row, road)
 

@@ -942,8 +942,8 @@ def test_a_lane_change_asks_for_the_neighbours_where_the_vehicle_is():
 
 
 def test_a_scenes_digest_is_the_sha256_of_its_record_or_pickle(real):
-    """The content hash (the episode cache's key) is hashed when asked for, from the bytes
-    the scene was decoded from: a TFRecord's record, a ScenarioNet pickle's file."""
+    """The content hash (the episode cache's key) is the SHA-256 of the bytes the scene was
+    decoded from: a TFRecord's record, a ScenarioNet pickle's file."""
     import hashlib
 
     from tap_bench.sim.womd_scene import load_scene, scene_catalog
@@ -952,8 +952,9 @@ def test_a_scenes_digest_is_the_sha256_of_its_record_or_pickle(real):
     assert {ref.format for ref in refs} == {"scenario", "tf_example", "scenarionet"}
     for ref in refs:
         scene = load_scene(ref)
-        assert scene.digest == ref.digest() == hashlib.sha256(scene.content).hexdigest()
-        assert "content=" not in repr(scene)
+        data = Path(ref.path).read_bytes() if ref.format == "scenarionet" else None
+        assert scene.digest == ref.digest()
+        assert data is None or scene.digest == hashlib.sha256(data).hexdigest()
 
 
 def test_replaying_vehicles_made_together_equal_vehicles_made_one_by_one(real):
