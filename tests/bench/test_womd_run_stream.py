@@ -247,3 +247,25 @@ def test_a_run_matched_against_a_reference_reads_a_few_episodes_at_a_time(tmp_pa
     monkeypatch.setattr(runner, "spills", lambda scenarios: False)
     held = _run(womd_suite(files), tmp_path / "held", womd=files)
     _same_folders(streamed, held)
+
+
+def test_an_episode_whose_estimate_probe_failed_stays_in_the_spilled_tables(tmp_path,
+                                                                            monkeypatch):
+    from tap_bench.bench.run import tasks as run_tasks
+
+    files = scene_files(tmp_path / "scenes", 2, per_file=2)
+
+    def broken(task):
+        raise RuntimeError("the probe's simulation broke")
+
+    monkeypatch.setattr(run_tasks, "_simulate", broken)  # the first episode, for the estimate
+    said = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = runner.run_suite(womd_suite(files), tmp_path / "run", workers=1,
+                                  progress=False, announce=said.append)
+    assert any("timing a first episode" in line for line in said)
+    episodes = pd.read_parquet(result.folder / "episodes.parquet")
+    assert len(episodes) == 4
+    failed = episodes[episodes["status"] != "ok"]
+    assert len(failed) == 1 and "probe's simulation broke" in failed["error"].iat[0]
