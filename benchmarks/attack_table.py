@@ -61,7 +61,7 @@ F = "tests/faults/"
 CLASSES_36 = {
     "cache: user code an episode is made with (plugin policy kind and scenario kind, "
     "modules loaded by name or run from their path)": [F + "test_cache_user_code.py"],
-    "cache: every kind of input a run reads edited one byte (property test, 16 kinds)": [
+    "cache: every kind of input a run reads edited one byte (property test, 17 kinds)": [
         F + "test_cache_inputs.py"],
     "cache: entries (WOMD rows served, damaged derived entries said, malformed refused)": [
         F + "test_cache_entries.py"],

@@ -392,16 +392,22 @@ def _tap_bench_closure(starts: tuple[str, ...]) -> dict[str, Path]:
 def label_code(measures: Iterable[Any] | None = None) -> dict[str, Any]:
     """What the labels and measures of an episode depend on besides its trajectories, the
     thresholds and the level: the code of :data:`LABEL_CODE` (with what it imports in
-    tap-bench), the run's measure entries (every field, the function by name, and the code
-    of those a plug-in adds), the versions of tap-bench, NumPy, pandas, numba and PyArrow.
+    tap-bench), the run's measure entries and the scene measures registered (every field,
+    the function by name, and the code of those a plug-in adds), the versions of
+    tap-bench, NumPy, pandas, numba and PyArrow.
 
     Args:
-        measures: the run's measure entries (default: those registered now).
+        measures: the run's measure entries (default: those registered now); the scene
+            measures (:data:`~tap_bench.bench.measures.SCENE_MEASURES`, which a recorded
+            scene's episode is measured with) are added to them.
     """
-    if measures is None:
-        from tap_bench.bench.measures import MEASURES
+    from tap_bench.bench.measures import MEASURES, SCENE_MEASURES
 
+    if measures is None:
         measures = MEASURES
+    measures = list(measures)
+    named = {m.name for m in measures}
+    measures += [m for m in SCENE_MEASURES if m.name not in named]
     digest = hashlib.sha256()
     for name, path in _tap_bench_closure(LABEL_CODE).items():
         digest.update(name.encode() + b"\0")

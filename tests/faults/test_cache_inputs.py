@@ -31,7 +31,7 @@ from tap_bench.bench.cache import (
     scenario_fingerprint,
     simulation_fingerprint,
 )
-from tap_bench.bench.measures import MEASURES
+from tap_bench.bench.measures import MEASURES, SCENE_MEASURES
 from tap_bench.sim.policies import POLICY_KINDS, _read_definition
 from tap_bench.sim.rollout import EPISODE_COLUMNS
 from tap_bench.sim.scenario_env import get_scenario
@@ -43,6 +43,7 @@ from tap_bench.usercode import loaded_user_code, recording
 
 TAG = RUN_TAG
 PKG, CARS, KINDS, MEAS = f"pkg_{TAG}", f"cars_{TAG}", f"kinds_{TAG}", f"meas_{TAG}"
+SMEAS = f"smeas_{TAG}"
 BYNAME, MBYNAME, BYPATH = f"byname_{TAG}", f"mbyname_{TAG}", f"bypath_{TAG}"
 
 SOURCES = {
@@ -64,6 +65,8 @@ SOURCES = {
                    f"'{MBYNAME}').V)\n"),
     f"{MBYNAME}.py": "V = 2.5\n",
     f"{BYPATH}.py": "C = 7\n",
+    f"{SMEAS}.py": ("import numpy as np\n\n\ndef value(steps):\n"
+                    "    return np.zeros(len(steps.starts))\n"),
 }
 ALL, MINE, CONST, LABELS = (0, 1, 2, 3), (0, 1), (2, 3), (1, 3)  # keys of _keys that move
 INPUTS = {  # kind -> (file, the keys its edit moves; None: only the entries know it)
@@ -79,6 +82,7 @@ INPUTS = {  # kind -> (file, the keys its edit moves; None: only the entries kno
     "module a measure loads by name": (f"{MBYNAME}.py", None),
     "module a policy runs from its path": (f"{BYPATH}.py", None),
     "recorded scene file": ("sd_scene.pkl", (4,)),
+    "scene measure plugin module": (f"{SMEAS}.py", LABELS),
 }
 
 
@@ -117,6 +121,8 @@ def inputs(tmp_path_factory):
     SCENARIO_KINDS.register(ScenarioKind(f"kind-{TAG}-v0", f"{KINDS}:Env"))
     MEASURES.register(Measure(f"m{TAG}", "m", True, "a plug-in's measure", 1.0,
                               importlib.import_module(MEAS).value))
+    SCENE_MEASURES.register(Measure(f"sm{TAG}", "m", True, "a plug-in's scene measure", 1.0,
+                                    importlib.import_module(SMEAS).value))
     run = f"run-{TAG}"
     with recording(run):  # what the policy and the measure load as they run
         importlib.import_module(BYNAME)
@@ -125,6 +131,7 @@ def inputs(tmp_path_factory):
         spec.loader.exec_module(importlib.util.module_from_spec(spec))  # no import
     yield root, run
     MEASURES.unregister(f"m{TAG}")
+    SCENE_MEASURES.unregister(f"sm{TAG}")
     POLICY_KINDS.unregister(f"k{TAG}")
     SCENARIO_KINDS.unregister(f"kind-{TAG}-v0")
     sys.path.remove(str(root))
@@ -184,7 +191,7 @@ def test_the_docs_list_every_kind_of_input_tested():
 @given(where=st.floats(0, 1, exclude_max=True), byte=st.integers(0, 255))
 def test_every_input_edited_makes_the_rerun_fresh(inputs, tmp_path_factory, kind, where,
                                                   byte):
-    """Each kind of input, 4 drawn one-byte edits (64 in all, every kind edited; drawn over
+    """Each kind of input, 4 drawn one-byte edits (68 in all, every kind edited; drawn over
     all kinds at once, as 140 edits were, each kind's share was left to chance)."""
     root, run = inputs
     name, moves = INPUTS[kind]
