@@ -10,7 +10,7 @@ probability that the first policy gets further than each other one on the same e
 (ties a half); writes every episode to ``--out`` (CSV).
 
 Usage: python benchmarks/agents_validation.py --womd FILES --scenes 2,5,10,14
-       --policies /tmp/sel-all.zip /tmp/sel-sdc.zip lane-keeping random [--out eps.csv]
+       --policies sel-all.zip sel-sdc.zip lane-keeping random [--out eps.csv]
 """
 
 from __future__ import annotations

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import shlex
 
 
@@ -112,8 +113,10 @@ def _rewards(items: list[str]) -> dict[str, float]:
         try:
             out[key] = float(value)
         except ValueError:
-            raise SystemExit(f"tap-bench train: --reward {item}: {value!r} is not a number; "
-                             "write KEY=VALUE, e.g. progress_gain_reward=2.") from None
+            out[key] = math.nan
+        if not math.isfinite(out[key]):
+            raise SystemExit(f"tap-bench train: --reward {item}: {value!r} is not a finite "
+                             "number; write KEY=VALUE, e.g. progress_gain_reward=2.")
     return out
 
 

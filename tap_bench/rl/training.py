@@ -455,9 +455,7 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
     torch.set_num_threads(1)  # a shared CPU; the env workers are the parallelism
     scenario = _training_scenario(env, curve)
     split = _split(scenario, hold_out)
-    if egos not in EGOS or (egos != "sdc" and not isinstance(scenario, WomdScenes)):
-        raise ParameterError("egos", egos, f"one of {EGOS} (recorded scenes only: a "
-                             "synthetic scenario has one ego)")
+    _check_egos(egos, scenario)
     params = {**HYPERPARAMETERS[algo], **(hyperparameters or {})}
     observation = _observation_config(scenario)
     say = announce or (lambda line: None)
@@ -486,18 +484,11 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
     kept = curve_callback.best if keep == "best" else None
     if kept is not None:
         model.policy.load_state_dict(curve_callback.best_weights)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(output) as tmp, open(tmp, "wb") as handle:
-        model.save(handle)
-    definition = output.with_suffix(".json")
-    doc = _definition(output, algo=algo, scenario=scenario, observation=observation,
-                      trained=trained, asked=timesteps, interrupted=learned.interrupted,
-                      kept=kept, n_envs=n_envs, fast=fast, seed=seed, params=params,
-                      curve=curve, train_seconds=learned.seconds - eval_seconds,
-                      cpu_seconds=learned.cpu_seconds, command=command, split=split,
-                      egos=egos)
-    with atomic_path(definition) as tmp:
-        tmp.write_text(json.dumps(doc, indent=2, default=_json_record) + "\n")
+    definition = _write_model(model, output, _definition(
+        output, algo=algo, scenario=scenario, observation=observation, trained=trained,
+        asked=timesteps, interrupted=learned.interrupted, kept=kept, n_envs=n_envs, fast=fast,
+        seed=seed, params=params, curve=curve, train_seconds=learned.seconds - eval_seconds,
+        cpu_seconds=learned.cpu_seconds, command=command, split=split, egos=egos))
     result = TrainingResult(model_path=output, definition_path=definition,
                             timesteps=trained, seconds=learned.seconds,
                             train_seconds=learned.seconds - eval_seconds,
@@ -507,6 +498,26 @@ def train(algo: str, env: str | WomdScenes, *, timesteps: int, seed: int, output
         result = _write_curve(result, curve_callback, algo=algo, scenario=scenario,
                               seeds=curve.seeds)
     return result
+
+
+def _check_egos(egos: str, scenario: Any) -> None:
+    """Refuse an ``egos`` :func:`train` cannot drive: not one of :data:`EGOS`, or not the
+    scene's ego on a synthetic scenario."""
+    if egos not in EGOS or (egos != "sdc" and not isinstance(scenario, WomdScenes)):
+        raise ParameterError("egos", egos, f"one of {EGOS} (recorded scenes only: a "
+                             "synthetic scenario has one ego)")
+
+
+def _write_model(model: Any, output: Path, definition: dict[str, Any]) -> Path:
+    """Write the model's ``.zip`` at ``output`` and its definition beside it (``.json``),
+    each atomically; returns the definition's path."""
+    output.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(output) as tmp, open(tmp, "wb") as handle:
+        model.save(handle)
+    path = output.with_suffix(".json")
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(definition, indent=2, default=_json_record) + "\n")
+    return path
 
 
 def _check_arguments(output: Path, *, timesteps: Any, n_envs: Any, keep: Any, in_process: Any,

@@ -1011,8 +1011,8 @@ def _idm_compiled(v, v0, gap, lead, min_gap, time_gap, a, b, delta, coolness, tw
                   ):  # pragma: no cover - compiled
     """:func:`_idm_acc` compiled, the same operations in the same order; ``two`` is the
     square's exponent 2.0 passed at run time, so that the square is the C library's ``pow``
-    as in Python (a constant exponent is compiled to a multiplication, which rounds
-    otherwise in about one case in a thousand)."""
+    as in Python (a constant exponent is compiled to a multiplication, whose last bit can
+    differ from ``pow``'s)."""
     dv = v - lead
     s_star = min_gap + max(0.0, v * time_gap + v * dv / (2.0 * math.sqrt(a * b)))
     s = max(gap, 0.01)

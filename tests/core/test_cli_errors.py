@@ -80,3 +80,12 @@ def test_a_warning_is_one_line_without_the_code_that_raised_it(tmp_path):
     assert warned == [f"tap-bench: UserWarning: {tmp_path / 'scenes' / 'README.md'}: skipped, "
                       "not a TFRecord nor a file a reader claims by its name."], out.stderr
     assert len(lines) == 2, out.stderr  # the warning and the error, nothing else
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf", "two"])
+def test_a_reward_setting_must_be_a_finite_number(value):
+    from tap_bench.cli.train import _rewards
+
+    assert _rewards(["progress_gain_reward=2"]) == {"progress_gain_reward": 2.0}
+    with pytest.raises(SystemExit, match="is not a finite number"):
+        _rewards([f"progress_gain_reward={value}"])

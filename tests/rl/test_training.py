@@ -526,7 +526,7 @@ def test_by_default_the_envs_run_where_the_idle_cores_make_them_fastest(
 
     chosen = []
 
-    def vec_env(scenario, *, n_envs, fast, seed, in_process=False, scenes=None):
+    def vec_env(scenario, *, n_envs, fast, seed, in_process=False, scenes=None, egos="sdc"):
         chosen.append(in_process)
         raise KeyboardInterrupt  # stands for the training: nothing more is needed
 
@@ -676,7 +676,7 @@ def test_a_cpu_quota_caps_the_idle_cores_the_default_counts(monkeypatch, tmp_pat
 
     chosen = []
 
-    def vec_env(scenario, *, n_envs, fast, seed, in_process=False, scenes=None):
+    def vec_env(scenario, *, n_envs, fast, seed, in_process=False, scenes=None, egos="sdc"):
         chosen.append(in_process)
         raise KeyboardInterrupt  # stands for the training: nothing more is needed
 
