@@ -42,14 +42,16 @@ def _children(pid: int) -> set[int]:
         except OSError:
             continue
         fields = stat.rsplit(")", 1)[-1].split()
-        if fields and fields[0] != "Z" and not any(  # zombies are reaped by their parent
-                h in _cmdline(int(entry.name)) for h in _HELPERS):
+        if fields and fields[0] != "Z":  # zombies are reaped by their parent
             parents[int(entry.name)] = int(fields[1])
     found, todo = set(), [pid]
     while todo:
         p = todo.pop()
         for child, parent in parents.items():
-            if parent == p and child not in found:
+            # a helper and what it started are left out (its command line read only here,
+            # for a descendant, not for every process of the machine)
+            if parent == p and child not in found and not any(
+                    h in _cmdline(child) for h in _HELPERS):
                 found.add(child)
                 todo.append(child)
     return found
