@@ -219,6 +219,7 @@ def import_checked_class(text: str, parameter: str, *, kind: str, separator: str
     return target
 
 
+@functools.cache
 def _excluded_roots() -> tuple[Path, ...]:
     """Folders whose modules are not the user's code: the standard library, site-packages."""
     paths = sysconfig.get_paths()
@@ -373,6 +374,7 @@ def recording(run: str) -> Iterator[None]:
         _ACTIVE.pop()
 
 
+@functools.lru_cache(maxsize=8192)
 def _is_user_file(name: str, path: Path) -> bool:
     if name.split(".")[0] in TRUSTED_PACKAGES:
         return False
@@ -401,11 +403,9 @@ def loaded_user_code(run: str) -> dict[str, dict[str, str]]:
         except OSError:
             continue
     seen = {info["path"] for info in out.values()}
-    trusted = _trusted_roots()
     for filename in list(_EXECUTED.get(run, ())):  # modules run from their path
         path = Path(filename)
-        if filename in seen or not path.is_file() or not _is_user_file("", path) or any(
-                _inside(path.resolve(), root) for root in trusted):
+        if filename in seen or not _run_from_user_file(filename):
             continue
         try:
             out[f"file:{filename}"] = {"path": filename, "sha256": hashlib.sha256(
@@ -413,6 +413,18 @@ def loaded_user_code(run: str) -> dict[str, dict[str, str]]:
         except OSError:
             continue
     return dict(sorted(out.items()))
+
+
+@functools.lru_cache(maxsize=8192)
+def _run_from_user_file(filename: str) -> bool:
+    """Whether a source file that ``exec`` ran is the user's: a file outside tap-bench's
+    trusted packages, the standard library and site-packages (decided once per file name;
+    a run executes the same library files episode after episode)."""
+    path = Path(filename)
+    if not path.is_file() or not _is_user_file("", path):
+        return False
+    resolved = path.resolve()
+    return not any(_inside(resolved, root) for root in _trusted_roots())
 
 
 @functools.cache

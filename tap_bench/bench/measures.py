@@ -389,6 +389,11 @@ class Measure:
                 "gate_weight": self.gate_weight, "in_context": self.in_context}
 
 
+BOUND_TOLERANCE = 1e-9
+"""How far beyond its bounds a measure's value may fall by floating-point rounding and still
+be one the measure can take (its registration check and ``bench check`` use the same)."""
+
+
 def run_measures(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
     """The measure entries a run recorded (``summary.json``'s ``measures``: what the report
     and the viewer describe), else the registry's (a run folder older than the field)."""
@@ -423,7 +428,8 @@ def check_measure(measure: Measure) -> None:
                                 f"{values.shape}.")
     finite = values[np.isfinite(values)]
     if measure.bounds is not None and len(finite) and (
-            finite.min() < measure.bounds[0] - 1e-9 or finite.max() > measure.bounds[1] + 1e-9):
+            finite.min() < measure.bounds[0] - BOUND_TOLERANCE
+            or finite.max() > measure.bounds[1] + BOUND_TOLERANCE):
         raise RegistrationError(f"measure {measure.name!r}: values {finite.tolist()} fall "
                                 f"outside its bounds {list(measure.bounds)}.")
     if measure.is_rate and len(finite) and not np.isin(finite, (0.0, 1.0)).all():

@@ -196,3 +196,26 @@ def test_a_baseline_path_that_is_no_file_is_named_as_such(cli, run, tmp_path, ki
     code, out, err = cli("bench", "check", run, "--baseline", where)
     one_error(code, out, err, "not a baseline file")
     assert "--update-baseline" not in err
+
+
+def test_an_impossible_value_is_named_by_its_row_in_the_file(cli, run, baseline):
+    """Rows of failed episodes before it count: the row named is the file's."""
+    eps = pd.read_parquet(run / "episodes.parquet")
+    eps.loc[0, "status"] = "error"
+    eps.loc[2, "min_ttc_s"] = -1.0
+    eps.to_parquet(run / "episodes.parquet")
+    code, out, err = cli("bench", "check", run, "--baseline", baseline)
+    one_error(code, out, err, "row 2 (", "min_ttc_s")
+
+
+def test_a_value_beyond_its_bound_by_rounding_is_possible():
+    """A measure's registration lets values 1e-9 beyond its bounds pass; bench check
+    takes the same values."""
+    from tap_bench.bench.gate.regression import _possible
+    from tap_bench.bench.measures import BOUND_TOLERANCE, MEASURES
+
+    m = next(m for m in MEASURES if m.kind != "rate" and m.bounds is not None
+             and all(abs(b) < float("inf") for b in m.bounds))
+    assert _possible(m, m.bounds[1] + BOUND_TOLERANCE / 2)
+    assert _possible(m, m.bounds[0] - BOUND_TOLERANCE / 2)
+    assert not _possible(m, m.bounds[1] + 1e-6)

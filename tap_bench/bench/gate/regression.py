@@ -68,7 +68,7 @@ import pandas as pd
 
 from tap_bench.bench.gate.power import POWER, rule_power
 from tap_bench.bench.gate.statistics import direction, hypergeom_tails, is_rate, tv
-from tap_bench.bench.measures import MEASURES, SCENE_STANDS_IN
+from tap_bench.bench.measures import BOUND_TOLERANCE, MEASURES, SCENE_STANDS_IN
 from tap_bench.bench.scores.compare import NO_LABEL
 from tap_bench.bench.suite import GateConfig, gate_metrics
 from tap_bench.errors import (
@@ -468,7 +468,8 @@ def _possible(m: Any, value: Any) -> bool:
         return False
     if isinstance(value, int) and abs(value) > 2 ** 63:
         return False
-    return m.bounds is None or not value == value or m.bounds[0] <= value <= m.bounds[1]
+    return m.bounds is None or not value == value or (
+        m.bounds[0] - BOUND_TOLERANCE <= value <= m.bounds[1] + BOUND_TOLERANCE)
 
 
 def _check_run_values(episodes: pd.DataFrame) -> None:
@@ -479,7 +480,8 @@ def _check_run_values(episodes: pd.DataFrame) -> None:
     Raises:
         FileFormatError: naming the row, the column, the value and the fix.
     """
-    ok = episodes[episodes["status"] == "ok"]
+    rows = np.flatnonzero((episodes["status"] == "ok").to_numpy())  # positions in the file
+    ok = episodes.iloc[rows]
     for m in MEASURES:
         if m.name not in ok.columns:
             continue
@@ -488,7 +490,7 @@ def _check_run_values(episodes: pd.DataFrame) -> None:
                 continue
             row = ok.iloc[i]
             raise FileFormatError(
-                f"the run's episodes.parquet: row {i} ({row['env']}, {row['policy']}, seed "
+                f"the run's episodes.parquet: row {rows[i]} ({row['env']}, {row['policy']}, seed "
                 f"{row['seed']}) has {m.name} = {str(value)[:80]!r}, not {_impossible(m)}. "
                 "The run folder was edited or damaged; run 'tap-bench bench run' again.")
 
