@@ -225,8 +225,11 @@ def test_a_womd_run_draws_the_human_as_the_ghost(womd_dir, tmp_path, browser, sc
     entries = _state(browser, "[TAPVIEW.state.a.entry, TAPVIEW.state.b.entry].map(e => "
                               "[e.policy, e.seed])")
     assert entries == [["idm", 0], ["log", 0]]  # the policy beside the human, one scene
-    lanes = _state(browser, "TAPVIEW.state.index.maps[TAPVIEW.state.a.entry.map]"
-                            ".filter(f => f[0] === 'lane').length")
+    # a recorded scene's map comes with its episode's document (the index's maps are the
+    # synthetic roads'), as the page's own mapOf reads it
+    lanes = _state(browser, "(TAPVIEW.state.a.doc.map || TAPVIEW.state.index.maps["
+                            "TAPVIEW.state.a.entry.map] || []).filter(f => f[0] === 'lane')"
+                            ".length")
     assert lanes > 100  # the scene's WOMD lanes
     _record_ghosts(browser)
     # before the current time (1.0 s) both replay the log: the ghost covers the ego
