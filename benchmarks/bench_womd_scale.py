@@ -400,7 +400,8 @@ def main() -> int:
     parser.add_argument("--policy", default="idm")
     parser.add_argument("--traffic", default="log")
     parser.add_argument("--extra", default="--no-progress",
-                        help="more rollout arguments, one string")
+                        help="more arguments of the command, one string (one option "
+                             "alone as --extra=--OPTION)")
     parser.add_argument("--root", default=str(Path(tempfile.gettempdir()) / "tap-bench-scale"))
     parser.add_argument("--name", default="womd_scale")
     parser.add_argument("--profile", action="store_true")
