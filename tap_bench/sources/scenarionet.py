@@ -172,6 +172,12 @@ def load_scenarionet(path: str | os.PathLike) -> dict:
     return scenario
 
 
+
+def _sized(value: np.ndarray | list | tuple) -> bool:
+    """Whether a state value holds anything: an empty one (``()`` is one object in Python,
+    shared by every track that has it) costs nothing however often a pickle names it."""
+    return bool(value.size if isinstance(value, np.ndarray) else len(value))
+
 def decode_scenarionet(scenario: dict, *, path: str = "<scenario>",
                        object_types: frozenset[str] | None = None) -> pa.Table:
     """Convert a ScenarioNet scenario description into a trajectory table.
@@ -235,7 +241,7 @@ def decode_scenarionet(scenario: dict, *, path: str = "<scenario>",
         # a pickle names an object many times at the cost of one: a state array shared by
         # tracks would be copied once per track, unbounded by the file's size
         for key, value in state.items():
-            if isinstance(value, np.ndarray | list | tuple) and \
+            if isinstance(value, np.ndarray | list | tuple) and _sized(value) and \
                     owner.setdefault(id(value), str(track_id)) != str(track_id):
                 raise fail(f"track {track_id}: its state {str(key)[:40]!r} is the same "
                            f"object as track {owner[id(value)]}'s (a pickle that names one "

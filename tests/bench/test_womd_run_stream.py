@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import socket
 import subprocess
 import sys
 import warnings
@@ -224,10 +225,14 @@ def test_the_parts_of_a_killed_run_go_with_the_next_run_into_its_output(tmp_path
     other = tmp_path / ".other.episodes-dead"  # another output's
     other.mkdir()
     (other / "owner").write_text(dead.stdout)
+    far = tmp_path / ".run.episodes-far"  # a run of another host on a shared file system
+    far.mkdir()
+    (far / "owner").write_text(f"{dead.stdout.strip()} {socket.gethostname()}-other\n")
     spill = bench_spill.RunSpill(tmp_path / "run")
     assert not folders["dead"].exists()  # its process is gone: a run killed outright
     assert folders["live"].exists() and folders["unnamed"].exists() and other.exists()
-    assert (spill.folder / "owner").read_text() == f"{os.getpid()}\n"
+    assert far.exists()
+    assert (spill.folder / "owner").read_text() == f"{os.getpid()} {socket.gethostname()}\n"
     spill.close()
     assert not spill.folder.exists()
 

@@ -394,3 +394,16 @@ def test_a_file_name_with_brackets_is_found(tmp_path, cli):
     assert code == 0, err
     assert pd.read_parquet(tmp_path / "o.parquet")["scenario_id"].unique().tolist() == [
         "bracket"]
+
+
+def test_tracks_sharing_an_empty_value_are_not_one_array_named_twice():
+    """``()`` is one object in Python: two tracks that carry it share nothing to copy."""
+    doc = scenarionet_doc("sn-empty")
+    first = doc["tracks"]["1"]
+    first["state"]["extra"] = ()
+    second = {"type": "VEHICLE", "state": {k: (v.copy() if hasattr(v, "copy") else v)
+                                           for k, v in first["state"].items()}}
+    doc["tracks"]["2"] = second
+    assert second["state"]["extra"] is first["state"]["extra"]
+    table = decode_scenarionet(pickle.loads(pickle.dumps(doc)))
+    assert sorted(set(table.column("track_id").to_pylist())) == ["1", "2"]

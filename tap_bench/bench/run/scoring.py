@@ -161,8 +161,7 @@ def _scenario_matches(corpora: Corpora, labels: Spilled, trajectories: Spilled |
                 continue
             found = [match_scenarios(mine, traj, ref_labels, ref_traj, level=level, top=3)
                      for mine, traj in _episode_groups(labels, trajectories)]
-            table = found[0] if len(found) == 1 else pd.DataFrame(
-                [row for part in found for row in part.to_dict("records")])
+            table = pd.concat([f for f in found if len(f)] or found[:1], ignore_index=True)
             matches.append(table.assign(reference=name))
     return (pd.concat(matches, ignore_index=True) if matches else None), unmatched
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import socket
 import tempfile
 import weakref
 from collections.abc import Iterable
@@ -72,7 +73,7 @@ class RunSpill:
         _remove_abandoned(output)
         self.folder = Path(tempfile.mkdtemp(prefix=f".{output.name}.episodes-",
                                             dir=output.parent))
-        (self.folder / "owner").write_text(f"{os.getpid()}\n")
+        (self.folder / "owner").write_text(f"{os.getpid()} {socket.gethostname()}\n")
         self.parts: dict[str, dict[int, Path]] = {name: {} for name in (*SPILLED, "roads")}
         self.rows: dict[str, int] = dict.fromkeys((*SPILLED, "roads"), 0)
         self.scenes: dict[int, tuple[str, str | None]] = {}
@@ -146,13 +147,16 @@ class RunSpill:
 
 def _remove_abandoned(output: Path) -> None:
     """Remove the spill folders of ``output`` (``.<name>.episodes-*``, with the ``owner``
-    file a spill writes) whose process is gone; any other folder is left alone."""
+    file a spill writes: its process id and host) whose process on this host is gone; any
+    other folder is left alone, a run's of another host on a shared file system among
+    them."""
     for folder in output.parent.glob(f".{output.name}.episodes-*"):
         try:
-            pid = int((folder / "owner").read_text().strip())
+            pid_text, _, host = (folder / "owner").read_text().strip().partition(" ")
+            pid = int(pid_text)
         except (OSError, ValueError):
             continue  # not one a spill made (or not yet named): left alone
-        if pid == os.getpid():
+        if pid == os.getpid() or (host and host != socket.gethostname()):
             continue
         try:
             os.kill(pid, 0)

@@ -104,7 +104,7 @@ def _missing_maps(scenes: WomdScenes, pairs: pd.DataFrame, missing: set[str]
             pairs["womd_scenario_id"].astype(str), pairs["seed"], strict=True)
             if w in missing})
         maps = read_scene_maps([catalog[seed] for seed in seeds])
-        if set(maps["map_id"].astype(str)) <= missing:
+        if set(maps["map_id"].astype(str)) == missing:  # else: a seed named another scene
             return maps
     return read_maps(scenes.files, scenario_ids=missing)
 
