@@ -56,8 +56,8 @@ def pytest_xdist_make_scheduler(config, log):
     """Under pytest-xdist (``-n N``), each test file runs whole in one worker (xdist's
     ``--dist loadfile``) where ``-n`` alone would hand a file's tests to several workers in
     chunks: a file's module fixtures (the runs that many tests of a file compare) are then
-    made once, not once in each worker that got some of its tests. Another ``--dist`` given
-    on the command line is kept."""
+    made once, not once in each worker that got some of its tests. ``--dist load`` (the
+    default ``-n`` implies) becomes loadfile, given or not; any other ``--dist`` is kept."""
     if config.getvalue("dist") != "load":
         return None
     from xdist.scheduler import LoadFileScheduling

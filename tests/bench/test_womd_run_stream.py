@@ -274,3 +274,15 @@ def test_an_episode_whose_estimate_probe_failed_stays_in_the_spilled_tables(tmp_
     assert len(episodes) == 4
     failed = episodes[episodes["status"] != "ok"]
     assert len(failed) == 1 and "probe's simulation broke" in failed["error"].iat[0]
+
+
+def test_a_log_asked_of_a_run_that_writes_none_is_said(tmp_path, monkeypatch):
+    """A suite of synthetic scenarios shows a bar, not log lines: --log is not ignored
+    silently."""
+    from tap_bench.bench.run import tasks as run_tasks
+
+    monkeypatch.setattr(run_tasks, "_run_all", lambda *args: ([], None))
+    with pytest.warns(UserWarning, match="run.log: not written"):
+        run_tasks._rollouts([], "highway-suite", None, False, None, None,
+                            log=tmp_path / "run.log")
+    assert not (tmp_path / "run.log").exists()

@@ -427,6 +427,12 @@ def _rollouts(tasks: list[_Task], name: str, backend: Backend, progress: bool | 
         keep_result = _counted(keep_result, lines)
         progress = False  # the lines instead of a bar of tasks
     else:
+        if log:
+            import warnings
+
+            warnings.warn(f"{log}: not written: the progress lines of a log are those of a "
+                          "suite of recorded scenes; this suite's run shows a progress bar "
+                          "instead", stacklevel=2)
         keep_result = lambda _, result: result  # noqa: E731
     try:
         return _run_all(tasks, name, backend, progress, cache, announce, road, keep_result,
