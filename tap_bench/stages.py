@@ -276,7 +276,8 @@ def _merge_ok(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
 
 
 def _wiggle_ok(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
-               config: StageConfig, *, at_end: bool = False) -> np.ndarray:
+               config: StageConfig, *, at_end: bool = False,
+               along: np.ndarray | None = None) -> np.ndarray:
     """(k,) bool: the steps [a, b) of one segment, turns that start towards ``side`` and
     alternate, are a wiggle: the heading comes back (net change <= merge_heading, never
     farther than merge_excursion from the start) while the vehicle never gets as far
@@ -292,6 +293,12 @@ def _wiggle_ok(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
     back when the turns end (its straightening under w_str). A lane change out and back is
     four turns (or three, the middle two joined), which :func:`_chain` splits into two
     merges; its three turns as a whole are checked at every step (``at_end`` False).
+
+    ``along``: (k,) the step whose heading is the direction the wiggle is measured from
+    (its heading comes back to it, strays from it at most merge_excursion, and the sideways
+    move is taken across it); default ``a``. A turn right after a merge starts where the
+    merge ends, mid-swing when the lane change overshot the lane's centre: its correction
+    is measured from the heading where the merge started, the lane's direction.
     """
     del side
     a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
@@ -303,7 +310,7 @@ def _wiggle_ok(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
     rows = path.rows[step]
     first = path.rows[a]
     h = path.heading
-    h0 = h[first]
+    h0 = h[first if along is None else path.rows[np.asarray(along, dtype=np.int64)]]
     # sin and cos of each start heading one by one, as a scalar (their bits must not
     # depend on how many candidates there are)
     sin0 = np.array([np.sin(v) for v in h0])
@@ -505,8 +512,9 @@ def _lone_wiggles(runs: Runs, path: _Path, config: StageConfig) -> Runs:
     merge_heading) and the vehicle never gets merge_offset sideways: an aborted lane change
     whose outward and straightening parts the low-pass left under w_str (out 1 m and back
     at 25 m/s reads as one Right Turn of the return otherwise), or the correction after a
-    lane change that overshot the lane's centre. A turn next to another turn is left to
-    the pair rules."""
+    lane change that overshot the lane's centre (a turn right after a merge is also
+    measured from the heading where the merge started: the merge ends mid-swing). A turn
+    next to another turn is left to the pair rules."""
     turn = np.flatnonzero((runs.code == sdl.LEFT) | (runs.code == sdl.RIGHT))
     if not len(turn):
         return runs
@@ -525,13 +533,21 @@ def _lone_wiggles(runs: Runs, path: _Path, config: StageConfig) -> Runs:
     hi = np.minimum(stop[turn] + gap, seg_hi[turn])
     lo = np.where(prev_same & busy[prev], np.maximum(lo, stop[prev]), lo)
     hi = np.where(next_same & busy[nxt], np.minimum(hi, runs.start[nxt]), hi)
+    # a turn right after a merge is also measured from the heading where the merge started
+    is_merge = (runs.code == sdl.LEFT_MERGE) | (runs.code == sdl.RIGHT_MERGE)
+    after_merge = prev_same & is_merge[prev]
+    merge_start = runs.start[prev]
     # a turn against another: the pair rules decide
     alone = ~((prev_same & is_turn[prev]) | (next_same & is_turn[nxt]))
     turn, lo, hi = turn[alone], lo[alone], hi[alone]
+    after_merge, merge_start = after_merge[alone], merge_start[alone]
     if not len(turn):
         return runs
-    wiggle = turn[_wiggle_ok(path, lo, hi, np.zeros(len(turn), dtype=np.int64), config,
-                             at_end=True)]
+    ok = _wiggle_ok(path, lo, hi, np.zeros(len(turn), dtype=np.int64), config, at_end=True)
+    redo = np.flatnonzero(~ok & after_merge)
+    ok[redo] = _wiggle_ok(path, lo[redo], hi[redo], np.zeros(len(redo), dtype=np.int64),
+                          config, at_end=True, along=merge_start[redo])
+    wiggle = turn[ok]
     if not len(wiggle):
         return runs
     runs.code[wiggle] = sdl.STRAIGHT

@@ -192,6 +192,51 @@ def test_a_completed_lane_change_stays_a_merge_and_two_in_a_row_two_merges(side)
     assert two.count("Merge") == 2 and "Turn" not in two
 
 
+def overshoot(speed: float, side: int, back: float, settle: float, turn: float = 0.0
+              ) -> pd.DataFrame:
+    """A lane change 4 m out over 2.5 s at `speed` that overshoots: it swings `back` m
+    towards its old lane over 1.5 s, then out again to 4.14 m over `settle` s and settles
+    at 4 m (cosine steps between those points; highway-env's IDM ego of seed 25). With
+    `turn` [rad], the car then turns that far (towards `side`) over 4 s: a lane change
+    before a bend."""
+    t = np.arange(0, 16, 0.1)
+    knots_t = [0.0, 2.0, 4.5, 6.0, 6.0 + settle, 16.0]
+    knots_y = [0.0, 0.0, 4.0, 4.0 - back, 4.14, 4.0]
+    y = np.zeros_like(t)
+    for t0, t1, y0, y1 in zip(knots_t, knots_t[1:], knots_y, knots_y[1:], strict=False):
+        u = np.clip((t - t0) / (t1 - t0), 0, 1)
+        inside = (t >= t0) & (t <= t1)
+        y[inside] = y0 + (y1 - y0) * (1 - np.cos(np.pi * u[inside])) / 2
+    heading = np.arctan2(np.gradient(y, t), np.gradient(speed * t, t))
+    bend = turn * np.clip((t - 6.0 - settle) / 4.0, 0, 1)
+    heading = heading + bend
+    step = np.r_[0.0, np.diff(t)]
+    x = np.cumsum(speed * np.cos(bend) * step)
+    y = y + np.cumsum(speed * np.sin(bend) * step)
+    return pd.DataFrame({"scenario_id": "s", "track_id": "car", "t": t, "x": x,
+                         "y": side * y, "heading": side * heading, "speed": speed})
+
+
+@pytest.mark.parametrize("side", [1, -1], ids=["left", "right"])
+@pytest.mark.parametrize("speed", [15.0, 20.0, 25.0, 30.0])
+@pytest.mark.parametrize("back, settle", [(0.6, 2.5), (1.0, 3.5), (1.3, 2.5), (1.3, 3.5)])
+def test_a_lane_change_that_overshoots_and_settles_is_a_merge(side, speed, back, settle):
+    # the settling turn starts where the merge ends, its heading still off the lane's: it
+    # is a wiggle measured from the heading where the merge started (18 of 48 such lane
+    # changes were "Merge > Turn" when it was measured only from its own start)
+    lateral = tb.label(overshoot(speed, side, back, settle), level="maneuver")["lateral"]
+    assert "Turn" not in lateral.item()
+
+
+@pytest.mark.parametrize("side", [1, -1], ids=["left", "right"])
+@pytest.mark.parametrize("speed", [15.0, 25.0])
+def test_a_lane_change_before_a_bend_keeps_the_bends_turn(side, speed):
+    # the heading does not come back to the lane's direction: a turn, merge or not before
+    table = overshoot(speed, side, 1.0, 3.5, turn=0.5)
+    turn = "Left" if side > 0 else "Right"
+    assert f"{turn} Turn" in tb.label(table, level="maneuver")["lateral"].item()
+
+
 # -- SPEC 4.7: faster input --------------------------------------------------------------------
 
 def same_motion(rate: float, seconds: float = 9.0, seed: int = 0) -> pd.DataFrame:
