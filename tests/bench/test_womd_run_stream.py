@@ -286,3 +286,16 @@ def test_a_log_asked_of_a_run_that_writes_none_is_said(tmp_path, monkeypatch):
         run_tasks._rollouts([], "highway-suite", None, False, None, None,
                             log=tmp_path / "run.log")
     assert not (tmp_path / "run.log").exists()
+
+
+def test_the_index_of_a_run_of_some_scenes_holds_no_map_of_the_others(tmp_path):
+    """Seeds 0-1 of a file of 3 scenes: the scene no episode drove has no map in the
+    viewer's index (nor does any recorded scene: their maps go with their episodes)."""
+    files = scene_files(tmp_path / "scenes", 3, per_file=3)
+    doc = suite_doc(files)
+    doc["seeds"] = "0-1"
+    doc["policies"] = ["log"]
+    folder = _run(suite_from_dict(doc, source="suite"), tmp_path / "run")
+    index = _script(folder / "viewer" / "data" / "index.js")
+    assert index["maps"] == {}
+    assert len(index["episodes"]) == 2

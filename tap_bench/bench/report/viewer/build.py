@@ -224,7 +224,7 @@ def _write_parts_viewer(output: str | os.PathLike, summary: dict[str, Any],
                    b[3] + MAP_MARGIN) for env, b in parts.boxes().items()}
     recorded = {w for w in scenes.values() if w is not None}
     maps = {m: map_features(parts.map_of(m), boxes.get(m)) for m in parts.map_ids()
-            if m not in recorded}
+            if m in boxes and m not in recorded}  # an env's own road, drawn where it drove
     members: dict[str, list[str]] = {}  # chunk -> its episodes with trajectories
     for sid, chunk in zip(eps["scenario_id"].astype(str), eps["chunk"], strict=True):
         if sid in scenes:
