@@ -145,12 +145,17 @@ class ByName:
 '''
 
 
-def test_a_module_an_import_policy_loads_by_name_is_followed(tmp_path):
-    (tmp_path / f"byname_{TAG}.py").write_text(BY_NAME.format(tag=TAG))
-    helper = tmp_path / f"helper_{TAG}.py"
+def _an_edited_helper_is_simulated_again(tmp_path, policy: str, source: str,
+                                         helper_name: str) -> None:
+    """The policy module ``policy`` (``source``, a factory ``module:Class``) reads its
+    action from ``helper_name``: a first run simulates, the same run again is served, and
+    after the helper's ``ACTION`` 3 -> 4 the episode is simulated again, slower."""
+    module, _, _ = policy.partition(":")
+    (tmp_path / f"{module}.py").write_text(source.format(tag=TAG))
+    helper = tmp_path / f"{helper_name}.py"
     helper.write_text("ACTION = 3\n")
     (tmp_path / "mine.json").write_text(json.dumps({
-        "name": "mine", "kind": "import", "params": {"factory": f"byname_{TAG}:ByName"}}))
+        "name": "mine", "kind": "import", "params": {"factory": policy}}))
     _suite(tmp_path, str(tmp_path / "mine.json"))
     first, eps1 = _run(tmp_path, "first")
     again, _ = _run(tmp_path, "again")
@@ -159,6 +164,11 @@ def test_a_module_an_import_policy_loads_by_name_is_followed(tmp_path):
     edited, eps2 = _run(tmp_path, "edited")
     assert _counts(edited) == (0, 1)
     assert eps2["mean_speed"].mean() < eps1["mean_speed"].mean()
+
+
+def test_a_module_an_import_policy_loads_by_name_is_followed(tmp_path):
+    _an_edited_helper_is_simulated_again(tmp_path, f"byname_{TAG}:ByName", BY_NAME,
+                                         f"helper_{TAG}")
 
 
 MEASURE = '''
@@ -217,16 +227,5 @@ def test_a_module_a_policy_runs_from_its_path_is_followed(tmp_path):
     """A policy that runs a module from its file (``spec_from_file_location`` and
     ``exec_module``: no import statement, no finder, no ``sys.modules``) is followed as a
     module loaded by name is."""
-    (tmp_path / f"byfile_{TAG}.py").write_text(BY_FILE.format(tag=TAG))
-    helper = tmp_path / f"fhelper_{TAG}.py"
-    helper.write_text("ACTION = 3\n")
-    (tmp_path / "mine.json").write_text(json.dumps({
-        "name": "mine", "kind": "import", "params": {"factory": f"byfile_{TAG}:ByFile"}}))
-    _suite(tmp_path, str(tmp_path / "mine.json"))
-    first, eps1 = _run(tmp_path, "first")
-    again, _ = _run(tmp_path, "again")
-    assert _counts(first) == (0, 1) and _counts(again) == (1, 0)
-    helper.write_text("ACTION = 4\n")
-    edited, eps2 = _run(tmp_path, "edited")
-    assert _counts(edited) == (0, 1)
-    assert eps2["mean_speed"].mean() < eps1["mean_speed"].mean()
+    _an_edited_helper_is_simulated_again(tmp_path, f"byfile_{TAG}:ByFile", BY_FILE,
+                                         f"fhelper_{TAG}")

@@ -195,14 +195,22 @@ def write_run_viewer(output: str | os.PathLike, summary: dict[str, Any],
         womd = str(entry["id"]).rpartition("/")[0]
         entry["map"] = (entry["env"] if entry["env"] in maps else
                         womd if womd in maps else None)
+    return _write_viewer(output, _index(summary, output, level, measures, entries, maps),
+                         scripts)
+
+
+def _index(summary: dict[str, Any], output: str | os.PathLike, level: str,
+           measures: Any, entries: list[dict[str, Any]], maps: dict[str, Any]
+           ) -> dict[str, Any]:
+    """The viewer's index document of a run: the run (its name, suite, level, reference,
+    creation time, measures), its episodes' entries and the maps the index holds."""
     suite = summary.get("suite", {})
-    index = {"run": {"name": str(summary.get("run", Path(output).parent.name)),
-                     "suite": str(suite.get("name", "")), "level": level,
-                     "reference": str(summary.get("reference_policy", "")),
-                     "source": "highway-env", "created": str(summary.get("created", "")),
-                     "measures": measures},
-             "episodes": entries, "maps": maps}
-    return _write_viewer(output, index, scripts)
+    return {"run": {"name": str(summary.get("run", Path(output).parent.name)),
+                    "suite": str(suite.get("name", "")), "level": level,
+                    "reference": str(summary.get("reference_policy", "")),
+                    "source": "highway-env", "created": str(summary.get("created", "")),
+                    "measures": measures},
+            "episodes": entries, "maps": maps}
 
 
 def _write_parts_viewer(output: str | os.PathLike, summary: dict[str, Any],
@@ -251,14 +259,8 @@ def _write_parts_viewer(output: str | os.PathLike, summary: dict[str, Any],
                     doc["map"] = drawn[womd]
             yield chunk, _script("chunk", chunk, docs)
 
-    suite = summary.get("suite", {})
-    index = {"run": {"name": str(summary.get("run", Path(output).parent.name)),
-                     "suite": str(suite.get("name", "")), "level": level,
-                     "reference": str(summary.get("reference_policy", "")),
-                     "source": "highway-env", "created": str(summary.get("created", "")),
-                     "measures": measures},
-             "episodes": entries, "maps": maps}
-    return _write_viewer(output, index, chunk_scripts())
+    return _write_viewer(output, _index(summary, output, level, measures, entries, maps),
+                         chunk_scripts())
 
 
 def _chunks_with_roads(summary: dict[str, Any], members: Mapping[str, list[str]],
