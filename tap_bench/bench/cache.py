@@ -674,8 +674,8 @@ class EpisodeCache:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "root", Path(self.root).expanduser())
-        if isinstance(self.max_bytes, bool) or not isinstance(self.max_bytes, int) \
-                or self.max_bytes < 0:
+        if (isinstance(self.max_bytes, bool) or not isinstance(self.max_bytes, int)
+                or self.max_bytes < 0):
             raise ParameterError("max_bytes", self.max_bytes, "an integer >= 0 (bytes)")
 
     @property
@@ -934,8 +934,8 @@ def _read_entry(path: Path, decode: Callable[[bytes], T], what: str
     except Exception as err:  # whatever is wrong, the entry is never used
         with contextlib.suppress(OSError):
             path.unlink()
-        reason = str(err) if isinstance(err, _Refused) else \
-            f"unreadable ({type(err).__name__}: {str(err)[:200]})"
+        reason = (str(err) if isinstance(err, _Refused) else
+                  f"unreadable ({type(err).__name__}: {str(err)[:200]})")
         return None, f"{what} {path.name} refused and deleted: {reason}"
     with contextlib.suppress(OSError):
         # used, not written: the access time says when it was last used (pruning), the
@@ -945,8 +945,8 @@ def _read_entry(path: Path, decode: Callable[[bytes], T], what: str
 
 
 def _positive(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) \
-        and math.isfinite(value) and value > 0
+    return (isinstance(value, int | float) and not isinstance(value, bool)
+            and math.isfinite(value) and value > 0)
 
 
 class _Refused(ValueError):
@@ -1015,8 +1015,8 @@ def _decode(data: bytes, key: str) -> CachedEpisode:
     if header["key"] != key or hashlib.sha256(_canonical(header["doc"])).hexdigest() != key:
         raise _Refused("the entry belongs to another key")
     _check_loaded(header)
-    if not header["payload_bytes"] or len(payload) != header["payload_bytes"] \
-            or hashlib.sha256(payload).hexdigest() != header["payload_sha256"]:
+    if (not header["payload_bytes"] or len(payload) != header["payload_bytes"]
+            or hashlib.sha256(payload).hexdigest() != header["payload_sha256"]):
         raise _Refused("the payload is empty or does not match its hash")
     row = header["row"]
     # recorded scenes add their columns to the row (tap_bench.sim.rollout.EPISODE_COLUMNS)
@@ -1028,8 +1028,8 @@ def _decode(data: bytes, key: str) -> CachedEpisode:
     if not math.isfinite(seconds) or seconds < 0:
         raise _Refused("the rollout time is not a finite number of seconds")
     trajectories = pd.read_parquet(io.BytesIO(payload))
-    if not len(trajectories) or "scenario_id" not in trajectories.columns \
-            or trajectories["scenario_id"].nunique() != 1:
+    if (not len(trajectories) or "scenario_id" not in trajectories.columns
+            or trajectories["scenario_id"].nunique() != 1):
         raise _Refused("the trajectory table is empty or not one episode's")
     return CachedEpisode(trajectories, row, seconds)
 
@@ -1056,8 +1056,8 @@ def _arrow_table(data: bytes) -> pd.DataFrame:
 def _decode_labels(data: bytes, key: str) -> dict[str, pd.DataFrame]:
     """A label entry's tables, verified whole; :class:`_Refused` naming the failed check."""
     header, payload = _split_entry(data, "tap-bench-labels", LABELS_FORMAT)
-    if not isinstance(header.get("doc"), dict) or not isinstance(header.get("tables"), list) \
-            or not isinstance(header.get("header_sha256"), str):
+    if (not isinstance(header.get("doc"), dict) or not isinstance(header.get("tables"), list)
+            or not isinstance(header.get("header_sha256"), str)):
         raise _Refused("header fields missing or of the wrong type")
     body = {k: v for k, v in header.items() if k != "header_sha256"}
     if hashlib.sha256(_canonical(body)).hexdigest() != header["header_sha256"]:
@@ -1067,13 +1067,13 @@ def _decode_labels(data: bytes, key: str) -> dict[str, pd.DataFrame]:
     _check_loaded(header)
     tables, at = {}, 0
     for part in header["tables"]:
-        if not isinstance(part, dict) or not isinstance(part.get("name"), str) \
-                or not isinstance(part.get("bytes"), int) or part["bytes"] <= 0:
+        if (not isinstance(part, dict) or not isinstance(part.get("name"), str)
+                or not isinstance(part.get("bytes"), int) or part["bytes"] <= 0):
             raise _Refused("a table of the header is malformed")
         data_part = payload[at:at + part["bytes"]]
         at += part["bytes"]
-        if len(data_part) != part["bytes"] \
-                or hashlib.sha256(data_part).hexdigest() != part.get("sha256"):
+        if (len(data_part) != part["bytes"]
+                or hashlib.sha256(data_part).hexdigest() != part.get("sha256")):
             raise _Refused(f"table {part['name']!r} does not match its hash")
         tables[part["name"]] = _arrow_table(data_part)
     if at != len(payload):
@@ -1084,21 +1084,21 @@ def _decode_labels(data: bytes, key: str) -> dict[str, pd.DataFrame]:
 def _decode_derived(data: bytes, kind: str, key: str) -> dict[str, bytes]:
     """A derived entry's files, verified whole; :class:`_Refused` naming the failed check."""
     header, payload = _split_entry(data, "tap-bench-derived", DERIVED_FORMAT)
-    if not isinstance(header.get("doc"), dict) or not isinstance(header.get("files"), list) \
-            or not isinstance(header.get("header_sha256"), str):
+    if (not isinstance(header.get("doc"), dict) or not isinstance(header.get("files"), list)
+            or not isinstance(header.get("header_sha256"), str)):
         raise _Refused("header fields missing or of the wrong type")
     body = {k: v for k, v in header.items() if k != "header_sha256"}
     if hashlib.sha256(_canonical(body)).hexdigest() != header["header_sha256"]:
         raise _Refused("the header does not match its checksum")
-    if header.get("kind") != kind or header.get("key") != key \
-            or hashlib.sha256(_canonical(header["doc"])).hexdigest() != key:
+    if (header.get("kind") != kind or header.get("key") != key
+            or hashlib.sha256(_canonical(header["doc"])).hexdigest() != key):
         raise _Refused("the entry belongs to another key")
     files, at = {}, 0
     for part in header["files"]:
-        if not isinstance(part, dict) or not isinstance(part.get("name"), str) \
-                or not _file_name_ok(part["name"]) or part["name"] in files \
-                or not isinstance(part.get("bytes"), int) or isinstance(part["bytes"], bool) \
-                or part["bytes"] < 0:
+        if (not isinstance(part, dict) or not isinstance(part.get("name"), str)
+                or not _file_name_ok(part["name"]) or part["name"] in files
+                or not isinstance(part.get("bytes"), int) or isinstance(part["bytes"], bool)
+                or part["bytes"] < 0):
             raise _Refused("a file of the header is malformed")
         chunk = payload[at:at + part["bytes"]]
         at += part["bytes"]

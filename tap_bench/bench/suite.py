@@ -167,8 +167,8 @@ class GateConfig:
         # every metric has a margin: those not given take their registered default
         object.__setattr__(self, "margins", {**default_margins(), **self.margins})
         for key, value in self.margins.items():
-            if not isinstance(value, int | float) or isinstance(value, bool) \
-                    or not math.isfinite(value) or value < 0:
+            if (not isinstance(value, int | float) or isinstance(value, bool)
+                    or not math.isfinite(value) or value < 0):
                 raise ParameterError(f"gate margin {key!r}", value, "a finite number >= 0")
         if not isinstance(self.weights, Mapping):
             raise ValueError(f"gate weights must be an object metric -> weight, got "
@@ -185,11 +185,11 @@ class GateConfig:
         if (isinstance(self.detect, bool) or not isinstance(self.detect, int | float)
                 or not 1 <= self.detect < float("inf")):
             raise ParameterError("gate detect", self.detect, "a number of margins >= 1")
-        if isinstance(self.alpha, bool) or not isinstance(self.alpha, int | float) \
-                or not 0 < self.alpha < 1:
+        if (isinstance(self.alpha, bool) or not isinstance(self.alpha, int | float)
+                or not 0 < self.alpha < 1):
             raise ParameterError("gate alpha", self.alpha, "a number in (0, 1)")
-        if isinstance(self.n_permutations, bool) or not isinstance(self.n_permutations, int) \
-                or self.n_permutations < 99:
+        if (isinstance(self.n_permutations, bool) or not isinstance(self.n_permutations, int)
+                or self.n_permutations < 99):
             raise ParameterError("gate n_permutations", self.n_permutations, "an integer >= 99")
         if self.n_permutations > MAX_PERMUTATIONS:
             raise ParameterError(

@@ -137,14 +137,14 @@ def _episode_groups(labels: Spilled, trajectories: Spilled | None
     """The run's labels and trajectories a few episodes at a time (a spilled run's parts,
     :data:`EPISODES_AT_ONCE` episodes a group, in run order), or whole."""
     if not isinstance(labels, SpilledTable):
-        yield labels, trajectories if not isinstance(trajectories, SpilledTable) \
-            else trajectories.table()
+        yield labels, (trajectories if not isinstance(trajectories, SpilledTable)
+                       else trajectories.table())
         return
     indices = sorted(labels.spill.parts["labels"])
     for start in range(0, len(indices), EPISODES_AT_ONCE):
         group = indices[start:start + EPISODES_AT_ONCE]
-        yield labels.table(group), trajectories.table(group) \
-            if isinstance(trajectories, SpilledTable) else trajectories
+        yield labels.table(group), (trajectories.table(group)
+                                    if isinstance(trajectories, SpilledTable) else trajectories)
 
 
 def _scenario_matches(corpora: Corpora, labels: Spilled, trajectories: Spilled | None,
@@ -187,8 +187,8 @@ def _windows(corpora: Corpora, trajectories: Spilled | None, level: str,
     cut: dict[str, tuple[pd.DataFrame, str]] = {}
     if trajectories is None or not any(t is not None for t, _ in corpora.values()):
         return cut
-    egos, spans = _egos(trajectories) if isinstance(trajectories, SpilledTable) \
-        else (trajectories, trajectories)
+    egos, spans = (_egos(trajectories) if isinstance(trajectories, SpilledTable)
+                   else (trajectories, trajectories))
     for name, (ref_traj, _) in corpora.items():
         if ref_traj is not None:
             seconds = window_seconds("auto", ref_traj, spans)

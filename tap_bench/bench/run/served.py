@@ -142,8 +142,8 @@ def package_data() -> str:
         digest = hashlib.sha256()
         for path in sorted(package.rglob("*")):
             rel = path.relative_to(package)
-            if path.suffix in (".py", ".pyc") or not path.is_file() \
-                    or rel.parts[0] == "_catalogue" or "__pycache__" in rel.parts:
+            if (path.suffix in (".py", ".pyc") or not path.is_file()
+                    or rel.parts[0] == "_catalogue" or "__pycache__" in rel.parts):
                 continue
             digest.update(rel.as_posix().encode() + b"\0")
             digest.update(hashlib.sha256(path.read_bytes()).digest())
@@ -207,9 +207,9 @@ def run_inputs(plan: SuitePlan, tasks: Sequence[_Task], *, keep_trajectories: bo
         policies = {t.policy: (t.key_doc or {})["policy"] for t in tasks}
     if any(v is None for v in (*envs.values(), *policies.values())):
         return None
-    if any(p.get("code") or p.get("builder") for p in policies.values()) \
+    if (any(p.get("code") or p.get("builder") for p in policies.values())
             or any(e.get("kind") or any(e.get("vehicle_code", {}).values())
-                   for e in envs.values()):
+                   for e in envs.values())):
         return None  # the user's code may load modules by name: only its entries know them
     thresholds = plan.thresholds
     return {"format": RUN_FORMAT, "suite": dict(plan.document), "level": plan.level,
@@ -322,8 +322,8 @@ def serve_run(cache: EpisodeCache, inputs: Mapping[str, Any], output: Path, over
     try:
         nonce = json.loads(files["pages.json"])["nonce"]
         kept = json.loads(files["summary.json"])
-        if not isinstance(kept, dict) or not isinstance(nonce, str) \
-                or "n_episodes" not in kept or "episodes.arrow" not in files:
+        if (not isinstance(kept, dict) or not isinstance(nonce, str)
+                or "n_episodes" not in kept or "episodes.arrow" not in files):
             raise ValueError("not a run entry")
     except (KeyError, ValueError, UnicodeDecodeError) as err:
         with contextlib.suppress(OSError):  # whatever is wrong with it, the run is made

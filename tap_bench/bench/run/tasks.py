@@ -141,8 +141,8 @@ def _episode(task: _Task, note: str | None = None
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             trajectories, row = rollout_episode(task.scenario, task.definition, task.seed)
-        if row["status"] == "ok" and task.cache is not None and task.key \
-                and _key_holds(task):
+        if (row["status"] == "ok" and task.cache is not None and task.key
+                and _key_holds(task)):
             with contextlib.suppress(OSError):  # a full or read-only cache costs only reuse
                 task.cache.put(task.key, task.key_doc or {}, trajectories, row,
                                time.perf_counter() - t0, loaded_user_code(task.run))
@@ -164,8 +164,8 @@ def _key_holds(task: _Task) -> bool:
             return False
         # a synthetic env's files and user vehicle classes (imported by a worker at its
         # first episode); a recorded scene's content is read whole when the key is made
-        return "env" not in doc or isinstance(task.scenario, WomdScenes) \
-            or scenario_fingerprint(task.scenario, task.env) == doc["env"]
+        return ("env" not in doc or isinstance(task.scenario, WomdScenes)
+                or scenario_fingerprint(task.scenario, task.env) == doc["env"])
     except Exception:  # files unreadable now: not known to hold; the episode is kept
         return False   # in the results, only not in the cache
 
@@ -243,8 +243,8 @@ def _label_together(tasks: tuple[_Task, ...],
     labels = segments = eps = None
     if with_rows:
         t1 = time.perf_counter()
-        trajectories = pd.concat([got[k][0] for k in with_rows], ignore_index=True) \
-            if len(with_rows) > 1 else got[with_rows[0]][0]
+        trajectories = (pd.concat([got[k][0] for k in with_rows], ignore_index=True)
+                        if len(with_rows) > 1 else got[with_rows[0]][0])
         road = _road(first, trajectories)
         # one lane map for the batch: the interaction axis and the measures share its lane
         # matches and chains (each path end is searched once, not once a call)
@@ -390,8 +390,8 @@ def _items(tasks: list[_Task], indices: list[int], cached: list[bool], workers: 
         groups.setdefault((tasks[i].env, tasks[i].policy, cached[i]), []).append(i)
     items: list[tuple[list[int], _Task | _Batch]] = []
     for (_, _, hit), members in groups.items():
-        most = min(size[hit], RECORDED_BATCH) \
-            if isinstance(tasks[members[0]].scenario, WomdScenes) else size[hit]
+        most = (min(size[hit], RECORDED_BATCH)
+                if isinstance(tasks[members[0]].scenario, WomdScenes) else size[hit])
         for start in range(0, len(members), most):
             chunk = members[start:start + most]
             got = tuple(given.get(i) for i in chunk) if any(i in given for i in chunk) else ()

@@ -241,10 +241,10 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
                     continue
                 cv = pooled_coverage(per_env_cov, sizes, config.level)
                 nv = pooled_novelty(per_env_nov, config.level) if per_env_nov else None
-                nl = pooled_null([r for r, _, _ in per_env_null],
-                                 [k for _, k, _ in per_env_null],
-                                 [n for _, _, n in per_env_null], config.level) \
-                    if per_env_null else None
+                nl = (pooled_null([r for r, _, _ in per_env_null],
+                                  [k for _, k, _ in per_env_null],
+                                  [n for _, _, n in per_env_null], config.level)
+                      if per_env_null else None)
             else:
                 ref = reference.get(env) if keyed else reference
                 if ref is None:
@@ -254,14 +254,14 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
                                              *(() if unit == "episodes" else (unit,))),
                               clusters=window_episode(sub["scenario_id"]) if windowed
                               else None)
-                nv = novelty(sub, ref, config=config, windowed=windowed) \
-                    if ref.kind != "vocabulary" else None
-                nl = same_policy_null(
+                nv = (novelty(sub, ref, config=config, windowed=windowed)
+                      if ref.kind != "vocabulary" else None)
+                nl = (same_policy_null(
                     sub["sdl"].to_numpy(object), ref, config=config,
                     seeds=sub["seed"].to_numpy() if paired and "seed" in sub else None,
                     clusters=window_episode(sub["scenario_id"]) if windowed else None,
-                    rng=config.rng("null", env, policy, name, unit)) \
-                    if ref.kind != "vocabulary" and len(ref.units) else None
+                    rng=config.rng("null", env, policy, name, unit))
+                    if ref.kind != "vocabulary" and len(ref.units) else None)
                 if keyed:
                     per_env_cov.append(cv)
                     sizes.append(ref.n_trajectories)
@@ -271,9 +271,9 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
                         per_env_null.append((nl, cv.n_reference, cv.n))
             cov_rows.append({**key, **cv.row(), **(nl.coverage_row() if nl else {})})
             if nv is not None:
-                size = sum(r.n_trajectories for r in reference.values()) if keyed and \
-                    env == ALL_ENVS else (reference.get(env) if keyed else reference
-                                          ).n_trajectories
+                size = (sum(r.n_trajectories for r in reference.values())
+                        if keyed and env == ALL_ENVS
+                        else (reference.get(env) if keyed else reference).n_trajectories)
                 nov_rows.append({**key, **nv.row(), "reference_size": size,
                                  **(nl.novelty_row() if nl else {})})
                 if env != ALL_ENVS:  # pooled: the envs' rows again; each (env, label) once
@@ -413,8 +413,8 @@ def _reference_scores(episodes: pd.DataFrame, *, reference_policy: str, level: s
             per_env[str(env)] = corpus_reference(sub.assign(level=level), level,
                                                  tracks="all", name=f"{rollouts} ({env})",
                                                  unit=unit)
-            refs[f"{rollouts} ({env})" + ("" if unit == "episodes" else f", {unit}")] = \
-                per_env[str(env)]
+            shown = f"{rollouts} ({env})" + ("" if unit == "episodes" else f", {unit}")
+            refs[shown] = per_env[str(env)]
         parts.append(reference_scores(episodes, per_env, rollouts, config=config,
                                       policies=others, paired=True))
     for name, table in (references or {}).items():
