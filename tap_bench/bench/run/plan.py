@@ -133,44 +133,53 @@ def plan_suite(suite: Suite | str | os.PathLike, *, plugins: Sequence[str] = (),
         FileFormatError, UnknownNameError: the suite, a scenario or a policy is bad.
     """
     load_plugins(plugins)
-    suite = suite if isinstance(suite, Suite) else load_suite(suite)
-    load_plugins(suite.plugins, source=f"suite {suite.name}")
+    if isinstance(suite, Suite):  # built in Python: its plugins are not imported yet
+        load_plugins(suite.plugins, source=f"suite {suite.name}")
+    else:  # a suite file imports its plugins as it is read (they register its measures)
+        suite = load_suite(suite)
     if seeds is not None:
         suite = replace(suite, seeds=tuple(parse_seeds(seeds, source="seeds")),
                         all_seeds=False)
-    # an agent of several training seeds (a policy of kind "seeds") runs as its seeds
-    suite = replace(suite, policies=expand_seed_groups(suite.policies))
     run = uuid.uuid4().hex
-    # what the policies and scenarios import as they are built is noted (the plugins' own
-    # code is keyed by the measures and kinds they register)
+    # everything read from the suite, here and in one go; what the scenarios and policies
+    # import as they are built is noted (the plugins' own code is keyed by the measures
+    # and kinds they register)
     with recording(run):
         scenarios = {env: suite.scenario(env) for env in suite.envs}
-        definitions = tuple(resolve_policy(policy) for policy in suite.policies)
-    for d in definitions:  # workers load models with warnings off: said here, once each
-        if d.kind == "sb3" and isinstance(d.params.get("model"), str):
-            model = Path(d.params["model"])
-            if not model.is_absolute() and d.path is not None:
-                model = d.path.parent / model
-            warn_untrusted_model(model, stacklevel=3)
-    thresholds = resolve_thresholds(suite.thresholds)
+        env_seeds = {env: suite.env_seeds(env) for env in suite.envs}
+        # an agent of several training seeds (a policy of kind "seeds") runs as its seeds
+        policies = expand_seed_groups(suite.policies)
+        definitions = tuple(resolve_policy(policy) for policy in policies)
     measures = tuple(MEASURES)  # fixed here: after every import that may register one
     # margins of measures registered after the suite was read take their entry's default
     gate = replace(suite.gate, margins={**{m.name: float(m.margin) for m in measures},
                                         **suite.gate.margins})
-    suite = replace(suite, gate=gate)
+    document = replace(suite, policies=policies, gate=gate).to_dict()
+    thresholds = resolve_thresholds(suite.thresholds)
+    _warn_untrusted_models(definitions)
     defined_in = (m.function.__module__ for m in measures if m.function is not None)
     outside = [name for name in defined_in
                if name != "__main__" and name.split(".")[0] != "tap_bench"]
     # recorded as loaded, so that every worker of the execution layer imports them first
     load_plugins(outside, source="measure")
     return SuitePlan(
-        name=suite.name, envs=suite.envs, scenarios=scenarios,
-        seeds={env: suite.env_seeds(env) for env in suite.envs}, definitions=definitions,
-        reference=suite.reference, level=suite.level, thresholds=thresholds,
-        bootstrap=suite.bootstrap, gate=gate, measures=measures,
-        plugins=merge_plugins(plugins, suite.plugins, outside), document=suite.to_dict(),
-        suite_file=str(suite.path) if suite.path else None, recorded=bool(suite.scenes),
-        run=run)
+        name=suite.name, envs=suite.envs, scenarios=scenarios, seeds=env_seeds,
+        definitions=definitions, reference=document["reference_policy"],
+        level=suite.level, thresholds=thresholds, bootstrap=suite.bootstrap, gate=gate,
+        measures=measures, plugins=merge_plugins(plugins, suite.plugins, outside),
+        document=document, suite_file=str(suite.path) if suite.path else None,
+        recorded=bool(suite.scenes), run=run)
+
+
+def _warn_untrusted_models(definitions: tuple[PolicyDefinition, ...]) -> None:
+    """Warn, once each, of a policy's SB3 model file that is not one of the shipped models
+    (the workers load models with warnings off)."""
+    for d in definitions:
+        if d.kind == "sb3" and isinstance(d.params.get("model"), str):
+            model = Path(d.params["model"])
+            if not model.is_absolute() and d.path is not None:
+                model = d.path.parent / model
+            warn_untrusted_model(model, stacklevel=4)
 
 
 def _tasks(plan: SuitePlan, keep: bool, cache: EpisodeCache | None) -> list[_Task]:
