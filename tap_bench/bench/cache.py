@@ -917,6 +917,23 @@ class EpisodeCache:
         self._write(self.timings_path, json.dumps(doc, indent=1, sort_keys=True).encode())
 
 
+    def close_run(self, since: float, simulated: Mapping[str, float],
+                  cached: Mapping[str, float], overhead: float) -> None:
+        """After a run that began writing at ``since`` (``time.time()`` seconds): drop what
+        it kept if tap-bench was edited while it ran (:meth:`forget_written_since`),
+        record its timings for the next estimate (:meth:`record_timings`: mean seconds per
+        episode by env, ``overhead`` [s]) and prune to the size bound. A cache that cannot
+        be written costs only reuse: the run is written, the cache is a convenience."""
+        if not package_code_holds():
+            # tap-bench edited while the run went on: a worker may have imported the new
+            # code (labelling, simulation) after the keys named the old, so what it kept
+            # is dropped
+            self.forget_written_since(since)
+        with contextlib.suppress(OSError):
+            self.record_timings(simulated, cached, overhead)
+            self.prune()
+
+
 def _read_entry(path: Path, decode: Callable[[bytes], T], what: str
                 ) -> tuple[T | None, str | None]:
     """(the decoded entry at ``path`` or None, why an entry there was refused or None): a

@@ -80,7 +80,7 @@ def _no_work(monkeypatch):
     def fail(*args, **kwargs):
         raise AssertionError("a served run made something")
 
-    monkeypatch.setattr("tap_bench.bench.run.runner._rollouts", fail)
+    monkeypatch.setattr("tap_bench.bench.run.episodes._rollouts", fail)
     monkeypatch.setattr("tap_bench.bench.run.scoring.score", fail)
     monkeypatch.setattr("tap_bench.bench.run.runner.write_results", fail)
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from tap_bench.bench.run import runner, scoring
+from tap_bench.bench.run import episodes, runner, scoring
 from tap_bench.bench.run import spill as bench_spill
 from tap_bench.bench.suite import suite_from_dict
 from tap_bench.cli import main
@@ -116,16 +116,16 @@ def test_a_womd_run_spills_its_tables_and_equals_one_held_in_memory(tmp_path, mo
         kept.append(made(output))
         return kept[-1]
 
-    monkeypatch.setattr(runner, "RunSpill", spill)
+    monkeypatch.setattr(episodes, "RunSpill", spill)
     read_whole = _whole_reads(monkeypatch)
     gathered = []  # the task results as the run holds them until the scores
-    tables_of = runner.RunTables.of.__func__
+    tables_of = episodes.RunTables.of.__func__
 
     def of(cls, results, *args, **kwargs):
         gathered.extend(results)
         return tables_of(cls, results, *args, **kwargs)
 
-    monkeypatch.setattr(runner.RunTables, "of", classmethod(of))
+    monkeypatch.setattr(episodes.RunTables, "of", classmethod(of))
     streamed = _run(suite, tmp_path / "streamed")
     # no table of an episode is held after it arrived, nor read back whole: the viewer
     # reads a chunk (one scene, every policy) at a time
@@ -133,13 +133,13 @@ def test_a_womd_run_spills_its_tables_and_equals_one_held_in_memory(tmp_path, mo
     assert not [k for r in gathered for k, v in r.items() if isinstance(v, pd.DataFrame)]
     assert len(list((tmp_path / "streamed" / "viewer" / "data").glob("*.js"))) == 6
     monkeypatch.undo()
-    monkeypatch.setattr(runner, "RunSpill", spill)
+    monkeypatch.setattr(episodes, "RunSpill", spill)
     assert len(kept) == 1
     for name in ("trajectories", "labels", "segments", "episodes"):  # an episode a part
         assert len(kept[0].parts[name]) == 10, name
     assert not kept[0].folder.exists()  # removed when the run ended
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scenes", "streamed"]
-    monkeypatch.setattr(runner, "spills", lambda scenarios: False)
+    monkeypatch.setattr(episodes, "RunSpill", lambda output: None)  # held in memory
     held = _run(suite, tmp_path / "held")
     assert len(kept) == 1
     _same_folders(streamed, held)
@@ -249,7 +249,7 @@ def test_a_run_matched_against_a_reference_reads_a_few_episodes_at_a_time(tmp_pa
     docs = [_script(p) for p in (streamed / "viewer" / "data").glob("*.js")
             if p.name != "index.js"]
     assert len(docs) == 3 and all(doc["map"] for chunk in docs for doc in chunk)
-    monkeypatch.setattr(runner, "spills", lambda scenarios: False)
+    monkeypatch.setattr(episodes, "RunSpill", lambda output: None)  # held in memory
     held = _run(womd_suite(files), tmp_path / "held", womd=files)
     _same_folders(streamed, held)
 

@@ -188,9 +188,9 @@ def test_an_output_under_a_file_fails_before_the_work(tmp_path, cli, trajectorie
 def test_bench_run_into_an_unwritable_place_fails_before_any_rollout(tmp_path, cli,
                                                                     monkeypatch):
     """`bench run -o ro/run` once failed with a traceback after 9 s of rollouts."""
-    import tap_bench.bench.run.runner as runner
+    import tap_bench.bench.run.episodes as episodes
 
-    monkeypatch.setattr(runner, "_rollouts", lambda *a, **k: pytest.fail("rolled out"))
+    monkeypatch.setattr(episodes, "_rollouts", lambda *a, **k: pytest.fail("rolled out"))
     (tmp_path / "afile").write_text("x")
     code, _, err = cli("bench", "run", "--suite", "demo", "-o", tmp_path / "afile" / "run",
                        "--workers", "1")

@@ -46,8 +46,10 @@ of 0.9 cannot rise 25 points) is not counted.
 
 from __future__ import annotations
 
+import copy
 import functools
 import math
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -363,16 +365,19 @@ def rule_power(base: np.ndarray | pd.Series, metric: str, config: GateConfig, *,
                   effect=config.detect * margin if effect is None else float(effect),
                   level=config.alpha * config.share(metric) / max(cells, 1),
                   floor=1.0 / (config.n_permutations + 1),
+                  sign=direction(metric), rate=is_rate(metric),
                   rng=named_rng(config.seed, "gate power", metric, *seed_key),
                   paired=paired, n_run=n_run)
 
 
 def _power(base: np.ndarray | pd.Series, metric: str, *, margin: float, effect: float,
-           level: float, floor: float, rng: np.random.Generator, paired: bool,
-           n_run: int | None) -> float:
+           level: float, floor: float, sign: int, rate: bool, rng: np.random.Generator,
+           paired: bool, n_run: int | None) -> float:
     """:func:`rule_power` with the gate's figures resolved: ``margin`` and ``effect`` in the
     metric's unit, ``level`` the test's share of alpha, ``floor`` the smallest p-value of
-    its permutations, ``rng`` the stream of a simulated power."""
+    its permutations, ``sign`` the metric's better direction
+    (:func:`~tap_bench.bench.gate.statistics.direction`), ``rate`` whether it is a rate,
+    ``rng`` the stream of a simulated power."""
     if metric == "label_tv":
         labels = np.asarray(base, dtype=object).astype(str)
         n_run = n_run or len(labels)
@@ -384,8 +389,7 @@ def _power(base: np.ndarray | pd.Series, metric: str, *, margin: float, effect: 
         return math.nan
     n_run = n_run or len(x)
     paired = paired and n_run == len(x)
-    sign = direction(metric)
-    if is_rate(metric) and np.isin(x, (0.0, 1.0)).all():
+    if rate and np.isin(x, (0.0, 1.0)).all():
         return _rate_power(x, sign, effect, margin, level, n_run, paired)
     return _mean_power(x, sign, effect, margin, level, n_run, paired, floor, rng)
 
@@ -412,54 +416,62 @@ def power_table(episodes: pd.DataFrame, config: GateConfig, *, cells: int | None
     """
     ok = episodes[episodes["status"] == "ok"] if "status" in episodes.columns else episodes
     keys = sorted(set(map(tuple, ok[["env", "policy"]].drop_duplicates().to_numpy())))
-    if cells is None:
-        cells = n_tests // len(gate_metrics()) if n_tests else len(keys)
-    in_play = 1 if paired else max(cells, 1)
     metrics = gate_metrics()
+    if cells is None:
+        cells = n_tests // len(metrics) if n_tests else len(keys)
+    in_play = 1 if paired else max(cells, 1)
     # the gate's figures of each metric, resolved once for every cell
-    margins = {metric: config.margin(metric) for metric in metrics}
-    levels = {metric: config.alpha * config.share(metric) / in_play for metric in metrics}
     floor = 1.0 / (config.n_permutations + 1)
+    figures = {metric: dict(margin=config.margin(metric), effect=config.detect
+                            * config.margin(metric), floor=floor, paired=paired,
+                            level=config.alpha * config.share(metric) / in_play)
+               for metric in metrics}
+    for metric in metrics:
+        figures[metric].update(sign=direction(metric), rate=is_rate(metric))
     rows = []
     for env, policy in keys:
         sub = ok[(ok["env"] == env) & (ok["policy"] == policy)]
         for metric in metrics:
             values = (sub["sdl"].fillna("(no label)") if metric == "label_tv"
                       else sub[metric]).to_numpy()
-            n = len(values)
-            run_n = n_run or n
-            margin, level = margins[metric], levels[metric]
-            effect = config.detect * margin
-            figures = dict(margin=margin, effect=effect, level=level, floor=floor,
-                           paired=paired)
-            stream = (config.seed, "gate power", metric, env, policy)  # afresh each call
-            power = _power(values, metric, rng=named_rng(*stream), n_run=run_n, **figures)
-            need = math.nan
-            if np.isfinite(power):
-                need = math.inf
-                for factor in _SEED_GRID:
-                    k = max(2, math.ceil(run_n * factor))
-                    if factor == 1:
-                        p = power
-                    elif paired:
-                        # more paired seeds: the baseline's values resampled to k seeds
-                        idx = named_rng(config.seed, "gate seeds", env, policy, metric,
-                                        k).integers(0, n, k)
-                        p = _power(values[idx], metric, rng=named_rng(*stream), n_run=k,
-                                   **figures)
-                    else:
-                        p = _power(values, metric, rng=named_rng(*stream), n_run=k,
-                                   **figures)
-                    if p >= POWER:
-                        need = float(k)
-                        break
-            rows.append({"env": env, "policy": policy, "metric": metric, "n": n,
-                         "n_run": run_n, "margin": margin, "effect": effect,
-                         "level": level, "power": power, "seeds_for_power": need})
+            run_n = n_run or len(values)
+            # the cell's random streams: the power's (each evaluation starts it afresh)
+            # and, paired, the baseline's values resampled to each multiple of the seeds
+            stream = named_rng(config.seed, "gate power", metric, env, policy)
+            sizes = [max(2, math.ceil(run_n * factor)) for factor in _SEED_GRID[1:]]
+            picks = {k: named_rng(config.seed, "gate seeds", env, policy, metric,
+                                  k).integers(0, len(values), k)
+                     for k in sizes if paired and len(values)}
+            power, need = _seeds_for_power(values, metric, figures[metric], stream, run_n,
+                                           sizes, picks)
+            f = figures[metric]
+            rows.append({"env": env, "policy": policy, "metric": metric, "n": len(values),
+                         "n_run": run_n, "margin": f["margin"], "effect": f["effect"],
+                         "level": f["level"], "power": power, "seeds_for_power": need})
     out = pd.DataFrame(rows, columns=["env", "policy", "metric", "n", "n_run", "margin",
                                       "effect", "level", "power", "seeds_for_power"])
     out["underpowered"] = (out["power"] < POWER).to_numpy(bool)
     return out
+
+
+def _seeds_for_power(values: np.ndarray, metric: str, figures: dict[str, Any],
+                     stream: np.random.Generator, run_n: int, sizes: list[int],
+                     picks: dict[int, np.ndarray]) -> tuple[float, float]:
+    """(the power of one cell and metric with ``run_n`` episodes, the seeds per side that
+    reach :data:`POWER`: the first of ``sizes`` that does, inf when none, NaN when the power
+    is undefined). Each evaluation draws from a fresh copy of ``stream``; paired, the
+    baseline's values are resampled with ``picks`` (size -> indices), unpaired they are
+    kept and only the run grows."""
+    power = _power(values, metric, rng=copy.deepcopy(stream), n_run=run_n, **figures)
+    if not np.isfinite(power):
+        return power, math.nan
+    if power >= POWER:
+        return power, float(max(2, run_n))
+    for k in sizes:
+        base = values[picks[k]] if figures["paired"] else values
+        if _power(base, metric, rng=copy.deepcopy(stream), n_run=k, **figures) >= POWER:
+            return power, float(k)
+    return power, math.inf
 
 
 def power_summary(table: pd.DataFrame) -> pd.DataFrame:

@@ -4,6 +4,8 @@
   steps in order;
 - :mod:`~tap_bench.bench.run.plan`: the suite read once into a plan, the run's tasks;
 - :mod:`~tap_bench.bench.run.estimate`: how long the run should take;
+- :mod:`~tap_bench.bench.run.episodes`: the episodes step: each env's map drawn once,
+  every task run, the run's tables gathered and checked;
 - :mod:`~tap_bench.bench.run.tasks`: episodes as tasks of the execution layer, the cache;
 - :mod:`~tap_bench.bench.run.scoring`: references read once, every score of the run;
 - :mod:`~tap_bench.bench.run.folder`: the run folder: ``summary.json``, write, read,

@@ -156,6 +156,8 @@ def run_summary(plan: SuitePlan, output: Path, sources: Mapping[str, Any],
     failed = episodes[~episodes["status"].isin(("ok", "skipped"))]  # skipped: no route
     skipped = episodes[episodes["status"] == "skipped"]
     facts = fresh_facts(plan, output)
+    described = provenance(plan.definitions, plan.scenarios)
+    headline = _headline(scores, episodes)
     thresholds = plan.thresholds
     return {
         "format": "tap-bench-run", "format_version": 1,
@@ -173,11 +175,11 @@ def run_summary(plan: SuitePlan, output: Path, sources: Mapping[str, Any],
         "n_skipped": len(skipped),
         "skipped": skipped[["env", "policy", "seed", "error"]].to_dict("records"),
         "methods": scores.methods,
-        "headline": _headline(scores, episodes),
+        "headline": headline,
         "one_outcome_cells": one_outcome_cells(episodes).to_dict("records"),
         "verdict": verdict_table(scores.paired_measures, scores.paired,
                                  scores.paired_labels).to_dict("records"),
-        "provenance": provenance(plan.definitions, plan.scenarios),
+        "provenance": described,
         "measures": [m.to_dict() for m in plan.measures],
         "plugins": list(plan.plugins),
         "realism": realism,
@@ -290,21 +292,20 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
     from tap_bench.bench.report.page import write_report
     from tap_bench.bench.report.pages import page_templates
     from tap_bench.bench.report.viewer import write_run_viewer
+    from tap_bench.bench.scores.scoring import write_score_tables
 
     with atomic_folder(output, overwrite, kind="run") as tmp:
         episodes.to_parquet(tmp / "episodes.parquet", index=False)
         for name, table in (("labels", labels), ("trajectories", trajectories),
                             ("segments", segments), ("roads", roads)):
             _write_table(tmp / f"{name}.parquet", table)
+        _write_json(tmp / "summary.json", summary)
+        write_score_tables(scores, tmp)
         viewer = report and trajectories is not None and len(trajectories) > 0
         spilled = next((t.spill for t in (trajectories, roads)
                         if isinstance(t, SpilledTable)), None)
         if viewer and spilled is not None:  # the viewer reads a chunk at a time
             trajectories = SpilledEpisodes(spilled)
-        for name, table in scores.tables().items():
-            if len(table):
-                _parquet_safe(table).to_parquet(tmp / f"{name}.parquet", index=False)
-        _write_json(tmp / "summary.json", summary)
         with page_templates(tmp, summary, pages) as shown:  # what the pages say of the run
             if viewer:
                 write_run_viewer(tmp / "viewer", shown, episodes, trajectories,
@@ -316,6 +317,18 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
     return Path(output)
 
 
+def finish_summary(folder: Path, summary: dict[str, Any], refused: list[str]) -> None:
+    """Write ``summary.json`` of the run folder ``folder`` again, as ``summary`` is at the
+    end of the run (its final timings), with every cache entry refused in its ``cache``
+    part: ``refused`` (the episodes') and the derived entries (roads, scores, plots,
+    viewer, run) refused since (:func:`tap_bench.bench.cache.take_refused`)."""
+    from tap_bench.bench.cache import take_refused
+
+    if summary["cache"] is not None:
+        summary["cache"]["refused"] = [*refused, *take_refused()]
+    _write_json(folder / "summary.json", summary)
+
+
 def _write_table(path: Path, table: pd.DataFrame | SpilledTable | None) -> None:
     """``table`` as Parquet at ``path`` (a spilled one joined from its parts); nothing for
     no rows."""
@@ -325,17 +338,6 @@ def _write_table(path: Path, table: pd.DataFrame | SpilledTable | None) -> None:
         table.write(path)
     else:
         table.to_parquet(path, index=False)
-
-
-def _parquet_safe(table: pd.DataFrame) -> pd.DataFrame:
-    """Object columns holding mixed Python values as strings (Parquet needs one type)."""
-    out = table.copy()
-    for col in out.columns:
-        if out[col].dtype == object:
-            kinds = {type(v) for v in out[col].dropna()}
-            if len(kinds) > 1:
-                out[col] = out[col].astype("string")
-    return out
 
 
 def read_run(folder: str | os.PathLike) -> tuple[dict[str, Any], pd.DataFrame]:

@@ -47,35 +47,32 @@ and a run whose every input is unchanged is served whole (:mod:`tap_bench.bench.
 served`). A run with the cache gives the same tables as one without, float for float.
 Before the episodes start, the run estimates how long it will take, from the cache's
 timings of earlier runs or by timing a first episode of each env.
+
+:func:`run_suite` reads as its steps, each in its own module and given the plain values it
+needs: the suite resolved once into a plan (:func:`~tap_bench.bench.run.plan.plan_suite`),
+the run served whole when nothing changed (:func:`~tap_bench.bench.run.served.try_served`),
+the references read (:func:`~tap_bench.bench.run.scoring.read_references`), the episodes
+run (:func:`~tap_bench.bench.run.episodes.run_episodes`), scored
+(:func:`~tap_bench.bench.run.scoring.score_run`) and written
+(:func:`~tap_bench.bench.run.folder.write_results`), then the cache's part: the run kept
+whole (:func:`~tap_bench.bench.run.served.keep_run`) and the cache closed
+(:meth:`~tap_bench.bench.cache.EpisodeCache.close_run`).
 """
 
 from __future__ import annotations
 
-import contextlib
-import io
-import math
 import os
 import time
-import warnings
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import pandas as pd
-
-from tap_bench.bench.cache import (
-    EpisodeCache,
-    memoised,
-    package_code,
-    package_code_holds,
-    scenario_fingerprint,
-    simulation_fingerprint,
-    take_refused,
-)
+from tap_bench.bench.cache import EpisodeCache, package_code
+from tap_bench.bench.run.episodes import run_episodes
 from tap_bench.bench.run.estimate import CACHED_EPISODE_S, RunPlan
 from tap_bench.bench.run.folder import (
-    _write_json,
     check_output,
+    finish_summary,
     package_versions,
     provenance,
     read_run,
@@ -85,104 +82,16 @@ from tap_bench.bench.run.folder import (
 )
 from tap_bench.bench.run.plan import SuitePlan, _tasks, plan_suite
 from tap_bench.bench.run.scoring import ReferenceSource, read_references, score_run
-from tap_bench.bench.run.served import (
-    RunResult,
-    _check_apart,
-    kept_whole,
-    store_run,
-    try_served,
-)
-from tap_bench.bench.run.spill import RunSpill, SpilledTable, spills
-from tap_bench.bench.run.tasks import (
-    CACHED_BATCH,
-    RunTables,
-    _observed_timings,
-    _rollouts,
-    result_ok,
-)
+from tap_bench.bench.run.served import RunResult, _check_apart, keep_run, try_served
+from tap_bench.bench.run.tasks import CACHED_BATCH
 from tap_bench.bench.suite import Suite
-from tap_bench.errors import (
-    CacheEntryWarning,
-    EpisodesFailedError,
-    ParameterError,
-    RunExistsError,
-)
+from tap_bench.errors import ParameterError, RunExistsError
 from tap_bench.execution import Backend, resolve_backend
-from tap_bench.sim.scenario_format import Scenario
-from tap_bench.sim.womd_scene import WomdScenes
 
 __all__ = ["CACHED_BATCH", "CACHED_EPISODE_S", "RunExistsError", "RunPlan", "RunResult",
            "SuitePlan", "plan_suite",
            "check_output", "package_versions", "provenance", "read_run", "run_suite",
            "run_viewer", "write_results"]
-
-
-class _Roads:
-    """Each env's map table, drawn (or read from the cache) once in this run: the workers
-    label on it and the run folder keeps it. A highway-env road is kept in the cache, keyed
-    by the scenario and the simulation code, so that a re-run does not import highway-env
-    to draw it again; recorded scenes' maps are read from their files."""
-
-    def __init__(self, scenarios: Mapping[str, Scenario | WomdScenes],
-                 cache: EpisodeCache | None) -> None:
-        self.scenarios = scenarios
-        self.cache = cache
-        self.drawn: dict[str, pd.DataFrame] = {}
-        self.simulation: dict[str, Any] | None = None  # the code's fingerprint, once
-
-    def __call__(self, env: str) -> pd.DataFrame:
-        if env not in self.drawn:
-            self.drawn[env] = self._draw(env)
-        return self.drawn[env]
-
-    def _draw(self, env: str) -> pd.DataFrame:
-        scenario = self.scenarios[env]
-        if isinstance(scenario, WomdScenes):
-            from tap_bench.sources.maps import read_maps
-
-            return read_maps(scenario.files)
-        from tap_bench.sim.roads import road_table
-
-        fingerprint = None if self.cache is None else scenario_fingerprint(scenario, env)
-        if fingerprint is None:
-            return road_table(scenario)
-        if self.simulation is None:
-            self.simulation = simulation_fingerprint()
-        return memoised(self.cache, "roads", {"env": fingerprint,
-                                              "simulation": self.simulation},
-                        lambda: road_table(scenario), _table_files, _files_table)
-
-    def table(self, envs: Sequence[str]) -> pd.DataFrame:
-        """The map tables of ``envs``, one table."""
-        return pd.concat([self(env) for env in envs], ignore_index=True)
-
-    def kept(self, envs: Sequence[str], spill: RunSpill | None
-             ) -> pd.DataFrame | SpilledTable:
-        """The map tables of ``envs`` for the run folder: one table, or (a spilled run)
-        written to the spill's parts, a recorded scene's map at a time (the rows
-        :meth:`table` gives)."""
-        if spill is None:
-            return self.table(envs)
-        return spill.keep_maps(table for env in envs for table in self._tables(env))
-
-    def _tables(self, env: str) -> Iterator[pd.DataFrame]:
-        scenario = self.scenarios[env]
-        if isinstance(scenario, WomdScenes) and env not in self.drawn:
-            from tap_bench.sources.maps import iter_maps
-
-            yield from iter_maps(scenario.files)
-        else:
-            yield self(env)
-
-
-def _table_files(table: pd.DataFrame) -> dict[str, bytes]:
-    buffer = io.BytesIO()
-    table.to_parquet(buffer, index=True)
-    return {"table.parquet": buffer.getvalue()}
-
-
-def _files_table(files: Mapping[str, bytes]) -> pd.DataFrame:
-    return pd.read_parquet(io.BytesIO(files["table.parquet"]))
 
 
 def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
@@ -251,65 +160,50 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
                                       announce)
     if served is not None:
         return served
-    runner = resolve_backend(backend, workers)
+    backend = resolve_backend(backend, workers)
     if cache is not None:  # tap-bench's code as the run's entries are keyed (see the end)
         package_code()
     entries_since = time.time()
     timings: dict[str, float] = {}
     corpora = read_references(sources, plan.level, plan.thresholds, timings)
-    with_trajectories = any(traj is not None for traj, _ in corpora.values())
-    keep_tables = keep_trajectories or with_trajectories
+    keep_tables = keep_trajectories or any(traj is not None for traj, _ in corpora.values())
     if tasks is None:  # not made for the served run's key
         tasks = _tasks(plan, keep_tables, cache)
-    roads = _Roads(plan.scenarios, cache)
-    # recorded scenes: each episode's tables go to disk as its result arrives (run.spill)
-    spill = RunSpill(output) if spills(plan.scenarios) else None
-    t0 = time.perf_counter()
-    kept = getattr(runner, "kept", None)  # the estimate's first episodes and the rest
-    with kept() if kept is not None else contextlib.nullcontext():  # on the same workers
-        results, estimate = _rollouts(tasks, plan.name, runner, progress, cache, announce,
-                                      roads, None if spill is None else spill.keep, log)
-    timings["rollouts_wall"] = time.perf_counter() - t0
+    done = run_episodes(tasks, plan.name, plan.scenarios, output, backend=backend,
+                        cache=cache, recorded=plan.recorded, keep_tables=keep_tables,
+                        keep_maps=keep_trajectories,
+                        progress=progress, announce=announce, log=log, timings=timings)
+    tables = done.tables
     if announce is not None:
         announce(f"episodes done ({timings['rollouts_wall']:.0f} s); scoring ...")
-    tables = RunTables.of(results, keep_tables, timings, spill)
-    refused = _check_results(results, tables.episodes, plan.name)
     t0 = time.perf_counter()
     scores = score_run(plan, tables, corpora, cache)
     timings["scoring"] = time.perf_counter() - t0
-    summary = run_summary(plan, output, sources, tables.episodes, scores, timings, estimate,
-                          _cache_summary(cache, results, refused), shown_realism)
+    summary = run_summary(plan, output, sources, tables.episodes, scores, timings,
+                          done.estimate, done.cache, shown_realism)
     if announce is not None:
         announce(f"scored ({timings['scoring']:.1f} s); writing the tables"
                  + (", plots, report and replay viewer" if report else "") + " ...")
     t0 = time.perf_counter()
-    keep = kept_whole(plan, tasks, whole, tables.episodes,
-                      keep_trajectories=keep_trajectories, report=report)
-    pages: dict[str, bytes] | None = {} if keep else None
+    # the pages that name the run as templates when it may be kept whole (run.served)
+    pages: dict[str, bytes] | None = {} if whole is not None else None
     folder = write_results(
         output, overwrite, summary, tables.episodes, tables.labels,
         tables.trajectories if keep_trajectories else None, scores, report,
-        segments=tables.segments, cache=cache, pages=pages,
-        # the replay viewer draws the roads; highway-env's road is seed-free
-        roads=roads.kept(plan.envs, spill) if keep_trajectories else None)
+        segments=tables.segments, cache=cache, pages=pages, roads=done.roads)
     timings["writing_and_report"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
-    if spill is not None:
-        spill.close()
-    _note_refused(summary, refused)  # with the derived entries refused while writing
-    _write_json(folder / "summary.json", summary)  # with the final timings
-    if keep and cache is not None and pages is not None:
-        store_run(cache, whole, folder, summary, pages, tables.episodes, scores)
+    # with the final timings and the derived cache entries refused while writing
+    finish_summary(folder, summary, done.refused)
+    if done.spill is not None:
+        done.spill.close()
+    result = RunResult(folder, summary, tables.episodes, scores, folder / "report.html")
     if cache is not None:
-        _tidy_cache(cache, results, timings["total"], runner.workers, entries_since)
-    return RunResult(folder, summary, tables.episodes, scores, folder / "report.html")
-
-
-def _note_refused(summary: dict[str, Any], refused: list[str]) -> None:
-    """The cache entries refused in the run (``refused``: episodes; then the derived
-    entries: roads, scores, plots, viewer, run) in ``summary``'s cache part, if any."""
-    if summary["cache"] is not None:
-        summary["cache"]["refused"] = [*refused, *take_refused()]
+        keep_run(cache, plan, tasks, whole, result, pages,
+                 keep_trajectories=keep_trajectories, report=report)
+        simulated, cached, work = done.observed
+        cache.close_run(entries_since, simulated, cached, timings["total"] - work)
+    return result
 
 
 def _realism_entries(realism: Sequence[str | os.PathLike | Mapping[str, Any]]
@@ -343,53 +237,3 @@ def _reference_sources(references: Mapping[str, ReferenceSource] | None,
                                  "when womd= is given (womd= is references={'WOMD': ...})")
         sources["WOMD"] = list(womd)
     return sources
-
-
-def _check_results(results: list[dict[str, Any]], episodes: pd.DataFrame, suite_name: str
-                   ) -> list[str]:
-    """The notes of the cache entries refused (each warned, the first five by name);
-    ``episodes``: the run's episode table.
-
-    Raises:
-        EpisodesFailedError: every episode failed.
-    """
-    if not any(result_ok(r) for r in results):
-        errors = [f"{row.env} {row.policy} seed {row.seed}: {row.error}"
-                  for row in episodes.itertuples()]
-        raise EpisodesFailedError(f"the {len(results)} episode(s) of suite {suite_name}",
-                                  errors)
-    refused = [r["cache_note"] for r in results if r.get("cache_note")]
-    for note in refused[:5]:
-        warnings.warn(f"{note}; its episode was simulated again.", CacheEntryWarning,
-                      stacklevel=3)
-    if len(refused) > 5:
-        warnings.warn(f"{len(refused) - 5} more cache entries refused and simulated again "
-                      "(summary.json lists them all).", CacheEntryWarning, stacklevel=3)
-    return refused
-
-
-def _cache_summary(cache: EpisodeCache | None, results: list[dict[str, Any]],
-                   refused: list[str]) -> dict[str, Any] | None:
-    """The ``cache`` part of ``summary.json`` (None: the run had no cache)."""
-    if cache is None:
-        return None
-    return {"dir": str(cache.root), "cached": sum(r["cached"] for r in results),
-            "simulated": sum(not r["cached"] for r in results),
-            "labelled_before": sum(bool(r.get("labels_cached")) for r in results),
-            "refused": refused}
-
-
-def _tidy_cache(cache: EpisodeCache, results: list[dict[str, Any]], total: float,
-                workers: int, entries_since: float) -> None:
-    """After the run: drop what it kept if tap-bench was edited while it ran, record the
-    episodes' timings for the next estimate and prune the cache to its size bound."""
-    if not package_code_holds():
-        # tap-bench edited while the run went on: a worker may have imported the new code
-        # (labelling, simulation) after the keys named the old, so what it kept is dropped
-        cache.forget_written_since(entries_since)
-    simulated, cached = _observed_timings(results)
-    work = sum(r["seconds"] for r in results if math.isfinite(r["seconds"]))
-    overhead = total - work / max(1, min(workers, len(results)))
-    with contextlib.suppress(OSError):  # the run is written; the cache is a convenience
-        cache.record_timings(simulated, cached, overhead)
-        cache.prune()

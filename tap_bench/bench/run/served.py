@@ -81,8 +81,8 @@ if TYPE_CHECKING:
     from tap_bench.bench.scores.scoring import Scores
 
 __all__ = ["RUN_FORMAT", "RunResult", "fill_page", "page_templates",
-           "kept_whole", "run_inputs", "serve_run", "serve_unchanged", "store_run", "timings_html",
-           "try_served"]
+           "keep_run", "kept_whole", "run_inputs", "serve_run", "serve_unchanged",
+           "store_run", "timings_html", "try_served"]
 
 RUN_FORMAT = 1
 """Layout of a run entry's files; raised when it changes (old entries then miss)."""
@@ -181,7 +181,8 @@ def registered_outside() -> list[str]:
 
 
 def run_inputs(plan: SuitePlan, tasks: Sequence[_Task], *, keep_trajectories: bool,
-               report: bool, corpora: bool = False, afresh: bool = False
+               report: bool, corpora: bool = False,
+               fingerprints: tuple[Mapping[str, Any], Mapping[str, Any]] | None = None
                ) -> dict[str, Any] | None:
     """What the outputs of a run depend on besides the code (module docstring), or None for
     a run that is never kept whole.
@@ -192,16 +193,16 @@ def run_inputs(plan: SuitePlan, tasks: Sequence[_Task], *, keep_trajectories: bo
             cache).
         keep_trajectories, report: the outputs asked for.
         corpora: whether the run has reference corpora.
-        afresh: take each env's and policy's fingerprint now (at the end of a run: do they
-            still hold?) rather than as the tasks' episode keys took them.
+        fingerprints: (env -> its fingerprint, policy -> its fingerprint) as taken now (at
+            the end of a run: do they still hold?); None: as the tasks' episode keys took
+            them.
     """
     if (corpora or plan.plugins or plan.recorded or not tasks
             or any(t.key is None or t.label_key is None for t in tasks)
             or registered_outside()):
         return None
-    if afresh:
-        envs = {env: scenario_fingerprint(plan.scenarios[env], env) for env in plan.envs}
-        policies = {d.name: policy_fingerprint(d) for d in plan.definitions}
+    if fingerprints is not None:
+        envs, policies = dict(fingerprints[0]), dict(fingerprints[1])
     else:  # every task is keyed: its key's document holds both
         envs = {t.env: (t.key_doc or {})["env"] for t in tasks}
         policies = {t.policy: (t.key_doc or {})["policy"] for t in tasks}
@@ -229,8 +230,10 @@ def _inputs_hold(plan: SuitePlan, tasks: Sequence[_Task], whole: Mapping[str, An
     be kept whole): False too when they cannot be read now (a policy or scenario file
     removed or unreadable), which costs only reuse, never the run's results."""
     try:
-        return run_inputs(plan, tasks, keep_trajectories=keep_trajectories,
-                          report=report, afresh=True) == whole
+        envs = {env: scenario_fingerprint(plan.scenarios[env], env) for env in plan.envs}
+        policies = {d.name: policy_fingerprint(d) for d in plan.definitions}
+        return run_inputs(plan, tasks, keep_trajectories=keep_trajectories, report=report,
+                          fingerprints=(envs, policies)) == whole
     except Exception:  # any failure to fingerprint: not kept whole, the results written
         return False
 
@@ -249,9 +252,19 @@ def kept_whole(plan: SuitePlan, tasks: Sequence[_Task] | None,
                         report=report)
 
 
-# -- the pages that name the run --------------------------------------------------------
-
 # -- keeping and serving a run -----------------------------------------------------------
+
+def keep_run(cache: EpisodeCache, plan: SuitePlan, tasks: Sequence[_Task] | None,
+             whole: Mapping[str, Any] | None, result: RunResult,
+             pages: Mapping[str, bytes] | None, *, keep_trajectories: bool, report: bool
+             ) -> None:
+    """The cache's part of the end of a run whose folder is written: ``result`` kept whole
+    for an unchanged re-run (:func:`store_run`) when :func:`kept_whole` says so and its
+    page templates were made (``pages``)."""
+    if pages is not None and kept_whole(plan, tasks, whole, result.episodes,
+                                        keep_trajectories=keep_trajectories, report=report):
+        store_run(cache, whole or {}, result.folder, result.summary, pages,
+                  result.episodes, result.scores)
 
 def _plain_json(doc: Any) -> bytes:
     from tap_bench.bench.run.folder import _json_default

@@ -36,19 +36,11 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["SPILLED", "RunSpill", "SpilledEpisodes", "SpilledTable", "spills"]
+__all__ = ["SPILLED", "RunSpill", "SpilledEpisodes", "SpilledTable"]
 
 SPILLED = ("trajectories", "labels", "segments", "contexts", "episodes")
 """The tables of a task result (:func:`tap_bench.bench.run.tasks._label_together`) a spill
 writes to disk."""
-
-
-def spills(scenarios: Any) -> bool:
-    """Whether a run of these scenarios (env name -> scenario) spills its episodes' tables:
-    when any env is recorded scenes (their count has no bound)."""
-    from tap_bench.sim.womd_scene import WomdScenes
-
-    return any(isinstance(s, WomdScenes) for s in scenarios.values())
 
 
 class RunSpill:

@@ -24,7 +24,7 @@ from tap_bench.bench.run.estimate import RunPlan, estimate
 from tap_bench.bench.run.plan import _Task
 from tap_bench.bench.run.spill import RunSpill, SpilledTable
 from tap_bench.bench.scores.contexts import occurrences_from
-from tap_bench.errors import RegistrationError
+from tap_bench.errors import CacheEntryWarning, EpisodesFailedError, RegistrationError
 from tap_bench.execution import Backend
 from tap_bench.labelling import tap
 from tap_bench.pathframe import LaneMap
@@ -548,17 +548,55 @@ def result_ok(result: dict[str, Any]) -> bool:
     return bool((result["episodes"]["status"] == "ok").all())
 
 
-def _observed_timings(results: list[dict[str, Any]]) -> tuple[dict[str, float],
-                                                              dict[str, float]]:
-    """Mean wall time per episode by env [s]: (simulated, cached), successful ones only."""
+def observed_timings(results: list[dict[str, Any]], workers: int
+                     ) -> tuple[dict[str, float], dict[str, float], float]:
+    """What a run of these task results tells the next estimate: the mean wall time per
+    episode by env [s], (simulated, cached), successful ones only, and the wall time its
+    episodes' work takes on ``workers`` workers [s] (the rest of the run is overhead)."""
     simulated: dict[str, list[float]] = {}
     cached: dict[str, list[float]] = {}
     for r in results:
         if result_ok(r) and math.isfinite(r["seconds"]):
             (cached if r["cached"] else simulated).setdefault(r["env"], []).append(
                 r["seconds"])
+    work = sum(r["seconds"] for r in results if math.isfinite(r["seconds"]))
     return ({env: float(np.mean(v)) for env, v in simulated.items()},
-            {env: float(np.mean(v)) for env, v in cached.items()})
+            {env: float(np.mean(v)) for env, v in cached.items()},
+            work / max(1, min(workers, len(results))))
+
+
+def check_results(results: list[dict[str, Any]], episodes: pd.DataFrame, suite_name: str
+                  ) -> list[str]:
+    """The notes of the cache entries refused (each warned, the first five by name);
+    ``episodes``: the run's episode table.
+
+    Raises:
+        EpisodesFailedError: every episode failed.
+    """
+    if not any(result_ok(r) for r in results):
+        errors = [f"{row.env} {row.policy} seed {row.seed}: {row.error}"
+                  for row in episodes.itertuples()]
+        raise EpisodesFailedError(f"the {len(results)} episode(s) of suite {suite_name}",
+                                  errors)
+    refused = [r["cache_note"] for r in results if r.get("cache_note")]
+    for note in refused[:5]:
+        warnings.warn(f"{note}; its episode was simulated again.", CacheEntryWarning,
+                      stacklevel=4)
+    if len(refused) > 5:
+        warnings.warn(f"{len(refused) - 5} more cache entries refused and simulated again "
+                      "(summary.json lists them all).", CacheEntryWarning, stacklevel=4)
+    return refused
+
+
+def cache_facts(cache: EpisodeCache | None, results: list[dict[str, Any]],
+                refused: list[str]) -> dict[str, Any] | None:
+    """The ``cache`` part of ``summary.json`` (None: the run had no cache)."""
+    if cache is None:
+        return None
+    return {"dir": str(cache.root), "cached": sum(r["cached"] for r in results),
+            "simulated": sum(not r["cached"] for r in results),
+            "labelled_before": sum(bool(r.get("labels_cached")) for r in results),
+            "refused": refused}
 
 
 Spilled = pd.DataFrame | SpilledTable

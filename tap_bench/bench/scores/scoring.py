@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -33,7 +34,7 @@ from tap_bench.stats.bootstrap import BootstrapConfig
 from tap_bench.stats.intervals import measure_interval
 
 __all__ = ["Scores", "diversity_table", "policy_measures", "reference_scores", "score",
-           "scores_from_files", "scores_to_files"]
+           "scores_from_files", "scores_to_files", "write_score_tables"]
 
 
 @dataclass(frozen=True)
@@ -119,6 +120,26 @@ def scores_to_files(scores: Scores) -> dict[str, bytes]:
     # in order: the report lists the methods as scoring wrote them
     files["meta.json"] = json.dumps({"methods": scores.methods, "references": refs}).encode()
     return files
+
+
+def write_score_tables(scores: Scores, folder: Path) -> None:
+    """Each table of ``scores`` with rows as ``<folder>/<name>.parquet`` (a run folder's
+    score tables); object columns holding mixed Python values are written as strings
+    (Parquet needs one type a column)."""
+    for name, table in scores.tables().items():
+        if len(table):
+            _parquet_safe(table).to_parquet(folder / f"{name}.parquet", index=False)
+
+
+def _parquet_safe(table: pd.DataFrame) -> pd.DataFrame:
+    """Object columns holding mixed Python values as strings (Parquet needs one type)."""
+    out = table.copy()
+    for col in out.columns:
+        if out[col].dtype == object:
+            kinds = {type(v) for v in out[col].dropna()}
+            if len(kinds) > 1:
+                out[col] = out[col].astype("string")
+    return out
 
 
 def scores_from_files(files: Mapping[str, bytes]) -> Scores:

@@ -1,0 +1,168 @@
+"""The episodes step of a suite run: each env's map drawn once, every task run on the
+backend (:mod:`tap_bench.bench.run.tasks`), the results gathered into the run's tables
+(on disk for recorded scenes: :mod:`tap_bench.bench.run.spill`) and checked (part of
+:mod:`tap_bench.bench.run.runner`)."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from tap_bench.bench.cache import (
+    EpisodeCache,
+    memoised,
+    scenario_fingerprint,
+    simulation_fingerprint,
+)
+from tap_bench.bench.run.estimate import RunPlan
+from tap_bench.bench.run.plan import _Task
+from tap_bench.bench.run.spill import RunSpill, SpilledTable
+from tap_bench.bench.run.tasks import (
+    RunTables,
+    _rollouts,
+    cache_facts,
+    check_results,
+    observed_timings,
+)
+from tap_bench.execution import Backend
+from tap_bench.sim.scenario_format import Scenario
+from tap_bench.sim.womd_scene import WomdScenes
+
+__all__ = ["RunEpisodes", "run_episodes"]
+
+
+class _Roads:
+    """Each env's map table, drawn (or read from the cache) once in this run: the workers
+    label on it and the run folder keeps it. A highway-env road is kept in the cache, keyed
+    by the scenario and the simulation code, so that a re-run does not import highway-env
+    to draw it again; recorded scenes' maps are read from their files."""
+
+    def __init__(self, scenarios: Mapping[str, Scenario | WomdScenes],
+                 cache: EpisodeCache | None) -> None:
+        self.scenarios = scenarios
+        self.cache = cache
+        self.drawn: dict[str, pd.DataFrame] = {}
+        self.simulation: dict[str, Any] | None = None  # the code's fingerprint, once
+
+    def __call__(self, env: str) -> pd.DataFrame:
+        if env not in self.drawn:
+            self.drawn[env] = self._draw(env)
+        return self.drawn[env]
+
+    def _draw(self, env: str) -> pd.DataFrame:
+        scenario = self.scenarios[env]
+        if isinstance(scenario, WomdScenes):
+            from tap_bench.sources.maps import read_maps
+
+            return read_maps(scenario.files)
+        from tap_bench.sim.roads import road_table
+
+        fingerprint = None if self.cache is None else scenario_fingerprint(scenario, env)
+        if fingerprint is None:
+            return road_table(scenario)
+        if self.simulation is None:
+            self.simulation = simulation_fingerprint()
+        return memoised(self.cache, "roads", {"env": fingerprint,
+                                              "simulation": self.simulation},
+                        lambda: road_table(scenario), _table_files, _files_table)
+
+    def kept(self, envs: Sequence[str], spill: RunSpill | None
+             ) -> pd.DataFrame | SpilledTable:
+        """The map tables of ``envs`` for the run folder: one table, or (a spilled run)
+        written to the spill's parts, a recorded scene's map at a time (the same rows)."""
+        if spill is None:
+            return pd.concat([self(env) for env in envs], ignore_index=True)
+        tables = (table for env in envs for table in self._tables(env))  # one at a time
+        return spill.keep_maps(tables)
+
+    def _tables(self, env: str) -> Iterator[pd.DataFrame]:
+        scenario = self.scenarios[env]
+        if isinstance(scenario, WomdScenes) and env not in self.drawn:
+            from tap_bench.sources.maps import iter_maps
+
+            yield from iter_maps(scenario.files)
+        else:
+            yield self(env)
+
+
+def _table_files(table: pd.DataFrame) -> dict[str, bytes]:
+    buffer = io.BytesIO()
+    table.to_parquet(buffer, index=True)
+    return {"table.parquet": buffer.getvalue()}
+
+
+def _files_table(files: Mapping[str, bytes]) -> pd.DataFrame:
+    return pd.read_parquet(io.BytesIO(files["table.parquet"]))
+
+
+@dataclass
+class RunEpisodes:
+    """What the episodes step of a run made.
+
+    Attributes:
+        tables: the run's tables (:class:`~tap_bench.bench.run.tasks.RunTables`).
+        roads: each env's map table for the run folder (None: not kept).
+        estimate: the estimate made before the episodes started.
+        refused: the notes of the episode cache entries refused.
+        cache: the ``cache`` part of ``summary.json`` (None: the run had no cache).
+        spill: the parts on disk of a run of recorded scenes (None: held in memory).
+        observed: what the run tells the next estimate (:func:`~tap_bench.bench.run.
+            tasks.observed_timings`): mean seconds per episode by env, simulated and
+            cached, and the wall time of the episodes' work [s].
+    """
+
+    tables: RunTables
+    roads: pd.DataFrame | SpilledTable | None
+    estimate: RunPlan
+    refused: list[str]
+    cache: dict[str, Any] | None
+    spill: RunSpill | None
+    observed: tuple[dict[str, float], dict[str, float], float]
+
+
+def run_episodes(tasks: list[_Task], name: str, scenarios: Mapping[str, Scenario | WomdScenes],
+                 output: Path, *, backend: Backend, cache: EpisodeCache | None,
+                 recorded: bool, keep_tables: bool, keep_maps: bool, progress: bool | None,
+                 announce: Callable[[str], None] | None, log: Any,
+                 timings: dict[str, float]) -> RunEpisodes:
+    """Run every task of the suite ``name`` on ``backend`` and gather their tables.
+
+    Args:
+        tasks: the run's tasks (:func:`tap_bench.bench.run.plan._tasks`).
+        name: the suite's name (progress, errors).
+        scenarios: env -> its scenario or recorded scenes, in the suite's order.
+        output: the run folder (a run of recorded scenes spills its tables beside it).
+        recorded: some env is recorded scenes: each episode's tables go to disk as its
+            result arrives (:mod:`tap_bench.bench.run.spill`).
+        backend: runs the tasks.
+        cache: the episode cache (None: none).
+        keep_tables: keep each episode's trajectories.
+        keep_maps: keep each env's map table for the run folder's replay viewer.
+        progress, announce, log: as :func:`~tap_bench.bench.run.runner.run_suite`.
+        timings: the wall time of the rollouts [s] goes to ``timings["rollouts_wall"]``,
+            the workers' CPU per stage beside it.
+
+    Raises:
+        EpisodesFailedError: every episode failed.
+    """
+    roads = _Roads(scenarios, cache)
+    spill = RunSpill(output) if recorded else None
+    # the replay viewer draws the roads; highway-env's road is seed-free
+    maps = roads.kept(list(scenarios), spill) if keep_maps else None
+    t0 = time.perf_counter()
+    kept = getattr(backend, "kept", None)  # the estimate's first episodes and the rest
+    with kept() if kept is not None else contextlib.nullcontext():  # on the same workers
+        results, estimate = _rollouts(tasks, name, backend, progress, cache, announce,
+                                      roads, None if spill is None else spill.keep, log)
+    timings["rollouts_wall"] = time.perf_counter() - t0
+    tables = RunTables.of(results, keep_tables, timings, spill)
+    refused = check_results(results, tables.episodes, name)
+    return RunEpisodes(tables, maps, estimate, refused, cache_facts(cache, results, refused),
+                       spill, observed_timings(results, backend.workers))
