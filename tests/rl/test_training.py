@@ -3,6 +3,7 @@ its learning curve (table and plot) beside it; the curve measures what it says."
 
 from __future__ import annotations
 
+import importlib.util
 import json
 
 import numpy as np
@@ -15,7 +16,10 @@ from tap_bench.sim.policies import get_definition, load_policy
 from tap_bench.sim.rollout import rollout
 from tap_bench.sim.scenario_env import get_scenario
 
-pytest.importorskip("stable_baselines3")
+# Stable-Baselines3 (and torch) are imported by the tests that run, not when the suite is
+# collected: a pytest worker that runs none of this file's tests does not pay for them.
+pytestmark = pytest.mark.skipif(importlib.util.find_spec("stable_baselines3") is None,
+                                reason="needs stable-baselines3 (the sb3 extra)")
 
 TINY = {"ppo": {"n_steps": 16, "batch_size": 16, "n_epochs": 1},
         "dqn": {"learning_starts": 8, "buffer_size": 200}, "a2c": {"n_steps": 4}}

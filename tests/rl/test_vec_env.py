@@ -5,23 +5,35 @@ seeds, within a tolerance of 1e-9 on floats."""
 from __future__ import annotations
 
 import functools
+import importlib.util
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
 
-pytest.importorskip("stable_baselines3")
-
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
-
-from tap_bench.rl import vec_env as shared
 from tap_bench.rl.training import _make_training_env
 from tap_bench.sim.scenario_env import get_scenario
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.vec_env import VecEnv
+
+# Stable-Baselines3 (and torch) are imported by the tests that run, not when the suite is
+# collected: a pytest worker that runs none of this file's tests does not pay for them.
+pytestmark = pytest.mark.skipif(importlib.util.find_spec("stable_baselines3") is None,
+                                reason="needs stable-baselines3 (the sb3 extra)")
+
+
+def _shared():
+    """``tap_bench.rl.vec_env`` (it imports Stable-Baselines3), imported on first use."""
+    from tap_bench.rl import vec_env
+
+    return vec_env
 
 
 def _envs(n_envs: int, one_here: bool, scenario: str = "highway") -> VecEnv:
     make = functools.partial(_make_training_env, get_scenario(scenario), True)
     worker = functools.partial(_make_training_env, get_scenario(scenario), True, worker=True)
-    return shared.training_vec_env(make, worker, n_envs, one_here=one_here)
+    return _shared().training_vec_env(make, worker, n_envs, one_here=one_here)
 
 
 def _reset_info(info: dict) -> dict:
@@ -112,7 +124,7 @@ def test_every_call_is_answered_as_by_worker_processes(n_envs, write_scenario):
     for one_here in (False, True):
         vec = _envs(n_envs, one_here, short)
         try:
-            assert isinstance(vec, shared.SharedVecEnv) == one_here
+            assert isinstance(vec, _shared().SharedVecEnv) == one_here
             assert len(vec.processes) == n_envs - one_here
             results.append(_run(vec, 70, seed=n_envs))
         finally:
@@ -130,6 +142,8 @@ def test_the_envs_step_as_in_sb3s_dummy_vec_env(write_scenario):
     """The same values as SB3's DummyVecEnv (all envs in this process) for the same seeds:
     DummyVecEnv's rewards are float32 (rounded: within 1e-6) and its observations copies in
     its own buffers, so values are compared, not types."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
     short = str(write_scenario("short", duration=8))
     make = functools.partial(_make_training_env, get_scenario(short), True)
     results = []
@@ -173,7 +187,7 @@ def test_a_failing_env_0_stops_the_workers_and_raises(monkeypatch):
         raise ValueError("env 0 cannot be built")
 
     started = []
-    original = shared.SharedVecEnv.__init__
+    original = _shared().SharedVecEnv.__init__
 
     def init(self, local_fn, worker_fns, start_method):
         try:
@@ -181,10 +195,10 @@ def test_a_failing_env_0_stops_the_workers_and_raises(monkeypatch):
         finally:
             started.extend(self.processes)
 
-    monkeypatch.setattr(shared.SharedVecEnv, "__init__", init)
+    monkeypatch.setattr(_shared().SharedVecEnv, "__init__", init)
     worker = functools.partial(_make_training_env, get_scenario("highway"), True, worker=True)
     with pytest.raises(ValueError, match="env 0 cannot be built"):
-        shared.training_vec_env(broken, worker, 2, one_here=True)
+        _shared().training_vec_env(broken, worker, 2, one_here=True)
     for process in started:
         process.join(5)
     assert len(started) == 1 and not started[0].is_alive()
@@ -200,7 +214,7 @@ def test_a_worker_whose_env_cannot_be_built_raises_its_error_here():
     make = functools.partial(_make_training_env, get_scenario("highway"), True)
     worker = functools.partial(_make_training_env, get_scenario("highway"), True, worker=True)
     with pytest.raises(RuntimeError, match="no such map") as caught:
-        shared.SharedVecEnv(make, [worker, _unbuildable], start_method="forkserver")
+        _shared().SharedVecEnv(make, [worker, _unbuildable], start_method="forkserver")
     assert any("worker 2" in note for note in getattr(caught.value, "__notes__", ["worker 2"]))
 
 
@@ -260,9 +274,18 @@ def test_a_step_every_env_fails_raises_the_envs_error_and_close_still_closes():
     assert not any(process.is_alive() for process in vec.processes)
 
 
-@pytest.mark.parametrize(("scenario", "seed"), [("merge", 11), ("roundabout", 12),
-                                                ("intersection", 13), ("exit", 14),
-                                                ("cut_in", 15)])
+# Fast: intersection (its own observation features, 3 longitudinal actions, its own episode
+# ends) and exit (its ExitObservation), beside highway in
+# test_every_call_is_answered_as_by_worker_processes. Slow: merge, roundabout and cut_in,
+# each starting worker processes twice (~3-5 s wall each), Kinematics observations and
+# meta-actions as highway's.
+_SLOW = pytest.mark.slow
+
+
+@pytest.mark.parametrize(("scenario", "seed"), [
+    pytest.param("merge", 11, marks=_SLOW), pytest.param("roundabout", 12, marks=_SLOW),
+    ("intersection", 13), ("exit", 14),
+    pytest.param("cut_in", 15, marks=_SLOW)])
 def test_other_scenarios_and_seeds_are_answered_as_by_worker_processes(scenario, seed):
     """The every-call comparison on the other scenarios (their own observations, actions,
     rewards and episode ends), each with its own seed and drawn actions, 2 envs."""
@@ -282,6 +305,8 @@ def test_the_module_restates_no_sb3_worker_loop():
     command) nor a digest of SB3's source in the module."""
     import inspect
 
-    source = inspect.getsource(shared)
+    from tap_bench.rl import vec_env
+
+    source = inspect.getsource(vec_env)
     assert "subproc_vec_env._worker" not in source and "sources_match" not in source
     assert "_WORKER_CODE" not in source
