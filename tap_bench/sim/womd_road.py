@@ -34,6 +34,7 @@ from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
 from tap_bench.errors import ParameterError
+from tap_bench.sim.driver_models import steering_one
 from tap_bench.sim.road_edges import RoadEdges, left_road
 from tap_bench.sim.traffic import TOUCH_MARGIN, near_pairs, shape_of
 from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, _frame, lanes_points
@@ -185,7 +186,7 @@ class WomdNetwork(RoadNetwork):
         arcs = self._centre_arcs.get(lane.id)
         if arcs is None:  # asked every step: the centre line's arc lengths once per lane
             arcs = self._centre_arcs[lane.id] = _arc_lengths(lane.centre)
-        at = int(np.clip(np.searchsorted(arcs, lon), 0, len(lane.centre) - 1)) \
+        at = min(int(np.searchsorted(arcs, lon)), len(lane.centre) - 1) \
             if len(lane.centre) >= 2 else 0
         out = []
         for name in ("left", "right"):
@@ -255,8 +256,11 @@ class LogVehicle(Vehicle):
 
     The log is laid out once, when the vehicle is made: positions as one read-only (T + 1,
     2) array (the steps without a valid state, and one step past the log's end, at the
-    hidden place), headings, speeds and validity as Python lists; a step only points at
-    its row.
+    hidden place), headings, speeds and validity as Python lists. ``position``,
+    ``heading``, ``speed`` and ``collidable`` are read from the row of the road's current
+    step (the shared ``clock``) when asked, so a step costs nothing; setting them changes
+    nothing (the log decides). ``impact`` (set by a collision check) holds for the step it
+    was set in.
 
     Attributes:
         row: the track's row in the scene.
@@ -353,19 +357,63 @@ class LogVehicle(Vehicle):
         return x, y, self._heading[k], self._speed[k]
 
     def _place(self, k: int) -> None:
-        k = min(k, self._end)
-        self.position = self._xy[k]
-        self.heading = self._heading[k]
-        self.speed = self._speed[k]
-        self.collidable = self._valid[k]
+        """Nothing to do: the state is read at the road's step (kept for the makers)."""
+
+    @property
+    def position(self) -> np.ndarray:
+        """(2,) [m] the logged position at the road's step (a read-only view)."""
+        k = self.clock[0]
+        return self._xy[k if k < self._end else self._end]
+
+    @position.setter
+    def position(self, value: Any) -> None:
+        pass  # the log decides
+
+    @property
+    def heading(self) -> float:
+        """[rad] the logged heading at the road's step."""
+        k = self.clock[0]
+        return self._heading[k if k < self._end else self._end]
+
+    @heading.setter
+    def heading(self, value: Any) -> None:
+        pass
+
+    @property
+    def speed(self) -> float:
+        """[m/s] the logged speed at the road's step."""
+        k = self.clock[0]
+        return self._speed[k if k < self._end else self._end]
+
+    @speed.setter
+    def speed(self, value: Any) -> None:
+        pass
+
+    @property
+    def collidable(self) -> bool:
+        """Whether the log has a valid state at the road's step."""
+        k = self.clock[0]
+        return self._valid[k if k < self._end else self._end]
+
+    @collidable.setter
+    def collidable(self, value: Any) -> None:
+        pass
+
+    @property
+    def impact(self) -> np.ndarray | None:
+        """The push a collision check of this step gave (highway-env's), else None."""
+        stamped = self.__dict__.get("_impact")
+        return stamped[1] if stamped is not None and stamped[0] == self.clock[0] else None
+
+    @impact.setter
+    def impact(self, value: np.ndarray | None) -> None:
+        self.__dict__["_impact"] = (self.clock[0], value)
 
     def act(self, action: Any = None) -> None:
         """Replaying: no decision."""
 
     def step(self, dt: float) -> None:
-        """Move to the logged state of the road's current step."""
-        self.impact = None
-        self._place(self.clock[0])
+        """Replaying: the state follows the road's step by itself."""
 
 
 class ConstantVelocityVehicle(Vehicle):
@@ -566,20 +614,58 @@ class WomdIDMVehicle(_RouteMixin, IDMVehicle):
         self.collidable = True
 
     def act(self, action: Any = None) -> None:
-        if not self.hidden:
-            super().act(action)
+        """Decide this step's steering and acceleration (``action`` is ignored): along the
+        road and its route, a lane change by :meth:`change_lane_policy` (MOBIL), steering
+        to the target lane (:meth:`steering_control`), and the IDM acceleration behind the
+        leader on its lane, and on the target lane too while changing (the smaller), within
+        ``ACC_MAX``. A crashed or hidden vehicle keeps its last action."""
+        if self.hidden or self.crashed:
+            return
+        self.follow_road()
+        if self.enable_lane_change:
+            self.change_lane_policy()
+        steering = self.steering_control(self.target_lane_index)
+        road = self.road
+        front, rear = road.neighbour_vehicles(self, self.lane_index)
+        acc = self.acceleration(self, front, rear)
+        if self.lane_index != self.target_lane_index:
+            front, rear = road.neighbour_vehicles(self, self.target_lane_index)
+            acc = min(acc, self.acceleration(self, front, rear))
+        limit = self.ACC_MAX
+        self.action = {"steering": steering,
+                       "acceleration": -limit if acc < -limit else min(acc, limit)}
+
+    def steering_control(self, target_lane_index: Any) -> float:
+        """Front-wheel angle [rad] that keeps the vehicle on the centre of the lane
+        ``target_lane_index``: the lane-keeping cascade of
+        :func:`~tap_bench.sim.driver_models.steering_one` with this vehicle's gains, the
+        lane's heading taken ``TAU_PURSUIT`` s ahead at its speed; within
+        ``+-MAX_STEERING_ANGLE``."""
+        lane = self.road.network.get_lane(target_lane_index)
+        along, lateral = lane.local_coordinates(self.position)
+        speed = float(self.speed)
+        ahead = float(lane.heading_at(along + speed * self.TAU_PURSUIT))
+        return steering_one(float(lateral), float(self.heading), ahead, speed,
+                            float(self.LENGTH), self.KP_LATERAL, self.KP_HEADING,
+                            self.MAX_STEERING_ANGLE)
 
     def parameters(self) -> DriverParameters:
         """This vehicle's driver (see the class docstring)."""
         if self.driver is not None:
             return self.driver
-        return DriverParameters(
-            time_gap=float(self.TIME_WANTED),
-            min_gap=max(float(self.DISTANCE_WANTED) - ControlledVehicle.LENGTH, 0.5),
-            max_acceleration=float(self.COMFORT_ACC_MAX),
-            comfortable_braking=float(-self.COMFORT_ACC_MIN),
-            emergency_braking=max(float(self.ACC_MAX), float(-self.COMFORT_ACC_MIN)),
-            delta=float(self.DELTA), politeness=float(self.POLITENESS))
+        # made once per set of constants (asked several times a step)
+        key = (self.TIME_WANTED, self.DISTANCE_WANTED, self.COMFORT_ACC_MAX,
+               self.COMFORT_ACC_MIN, self.ACC_MAX, self.DELTA, self.POLITENESS)
+        made = self.__dict__.get("_parameters_made")
+        if made is None or made[0] != key:
+            made = self.__dict__["_parameters_made"] = (key, DriverParameters(
+                time_gap=float(self.TIME_WANTED),
+                min_gap=max(float(self.DISTANCE_WANTED) - ControlledVehicle.LENGTH, 0.5),
+                max_acceleration=float(self.COMFORT_ACC_MAX),
+                comfortable_braking=float(-self.COMFORT_ACC_MIN),
+                emergency_braking=max(float(self.ACC_MAX), float(-self.COMFORT_ACC_MIN)),
+                delta=float(self.DELTA), politeness=float(self.POLITENESS)))
+        return made[1]
 
     def set_driver(self, driver: DriverParameters) -> None:
         """Drive with ``driver`` (MOBIL's constants set on this vehicle too)."""
@@ -1655,19 +1741,6 @@ class _Layout:
             self.valid = np.array([vehicles[i]._valid for i in logs], bool).T.copy()
         self.end = self.end if self.end is not None else 1 << 30
         self.other_vehicles = [vehicles[i] for i in self.others]
-        # the road's order as runs: (a vehicle that steps itself, None) or (log vehicles
-        # that follow each other, their slice of the log arrays)
-        self.runs: list[tuple[Any, slice | None]] = []
-        column = {int(i): n for n, i in enumerate(self.logs)}
-        for i, v in enumerate(vehicles):
-            if i not in column:
-                self.runs.append((v, None))
-            elif self.runs and self.runs[-1][1] is not None \
-                    and self.runs[-1][1].stop == column[i]:
-                run = self.runs[-1][1]
-                self.runs[-1] = ([*self.runs[-1][0], v], slice(run.start, run.stop + 1))
-            else:
-                self.runs.append(([v], slice(column[i], column[i] + 1)))
         logs = self.logs
         # the log vehicles' rows: a slice where they follow each other (the usual case)
         self.log_rows = slice(int(logs[0]), int(logs[-1]) + 1) \
@@ -1937,19 +2010,8 @@ class WomdRoad(Road):
         self._path_accelerations = {}
         self._everyone = None
         layout = self._layout()
-        c = self.clock[0]
-        k = c if c < layout.end else layout.end
-        for vehicle, run in layout.runs:  # in the road's order
-            if run is None:
-                vehicle.step(dt)
-                continue
-            # a run of log vehicles: LogVehicle.step, without the calls
-            for v, heading, speed, valid in zip(vehicle, layout.heading[k, run].tolist(),
-                                                layout.speed[k, run].tolist(),
-                                                layout.valid[k, run].tolist(), strict=True):
-                v.impact = None
-                v.position = v._xy[k]
-                v.heading, v.speed, v.collidable = heading, speed, valid
+        for vehicle in layout.acting:  # in the road's order (log vehicles follow the clock)
+            vehicle.step(dt)
         now = layout.states(self.clock[0])
         moving = now["collidable"]
         vehicles = [layout.vehicles[i] for i in np.flatnonzero(moving).tolist()]
