@@ -1853,6 +1853,7 @@ class WomdRoad(Road):
             for nxt in network.successors(index):
                 self._predecessors.setdefault(nxt, []).append(index)
         self._conflicts: dict[Any, list[tuple[Any, float, float]]] = {}
+        self._approach_lanes: dict[Any, list[tuple[Any, float, np.ndarray, np.ndarray]]] = {}
         self._crossings: dict[int, list] | None = None
         self._stop_signs = self._stop_sign_points(network, road)
 
@@ -2325,21 +2326,29 @@ class WomdRoad(Road):
         """Movers on a lane (or the lanes into it) moving along it, not yet past a point
         ``s_point`` [m] on it, with their distance to it (centre; negative: past)."""
         out = []
-        network = self.network
-        lanes = [(lane_index, 0.0)] + [(p, network.get_lane(p).length)
-                                       for p in self._predecessors.get(lane_index, ())]
+        lanes = self._approach_lanes.get(lane_index)
+        if lanes is None:  # (lane, where it starts before this one [m], poses, headings)
+            network = self.network
+            lanes = self._approach_lanes[lane_index] = [
+                (index, offset, network.get_lane(index).arrays[4], self._lane_headings(index))
+                for index, offset in [(lane_index, 0.0)] + [
+                    (p, float(network.get_lane(p).length))
+                    for p in self._predecessors.get(lane_index, ())]]
         seen = np.zeros(len(self._movers), bool)
         mine = self._mover_index.get(id(vehicle), -1)
         width = float(vehicle.WIDTH)
+        s_point = float(s_point)
         movers = self._movers
-        for index, offset in lanes:
+        for index, offset, poses, headings in lanes:
             _, lon, members = self._lane_table(index)
+            if not len(members):
+                continue
             rows, dist = _approach_rows(members, lon, self._mover_heading, self._mover_length,
-                                        self._walker_mask, network.get_lane(index).arrays[4],
-                                        self._lane_headings(index), float(s_point),
-                                        float(offset), width, mine, seen)
-            out.extend((movers[i], d) for i, d in zip(rows.tolist(), dist.tolist(),
-                                                      strict=True))
+                                        self._walker_mask, poses, headings, s_point, offset,
+                                        width, mine, seen)
+            if len(rows):
+                out.extend(zip([movers[i] for i in rows.tolist()], dist.tolist(),
+                               strict=True))
         return out
 
     # signals
