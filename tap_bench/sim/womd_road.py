@@ -34,7 +34,7 @@ from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
 from tap_bench.errors import ParameterError
-from tap_bench.sim.driver_models import steering_one
+from tap_bench.sim.driver_models import bicycle_one, steering_one
 from tap_bench.sim.road_edges import RoadEdges, left_road
 from tap_bench.sim.traffic import TOUCH_MARGIN, near_pairs, shape_of
 from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, _frame, lanes_points
@@ -765,11 +765,34 @@ class WomdIDMVehicle(_RouteMixin, IDMVehicle):
         return out
 
     def step(self, dt: float) -> None:
+        """Move by the kinematic bicycle model (:func:`~tap_bench.sim.driver_models.
+        bicycle_one`) with this step's action, clipped as highway-env's ``clip_actions``
+        does (a crashed vehicle stops straight; speeds within ``[MIN_SPEED, MAX_SPEED]``),
+        add a pending impact (then crashed), look the lane up (``on_state_update``); never
+        reverse. A hidden vehicle waits for its step."""
         if self.hidden:
             if self.road.clock[0] >= self.start_step:
                 self._appear()
             return
-        super().step(dt)
+        action, speed = self.action, float(self.speed)
+        if self.crashed:
+            action["steering"], action["acceleration"] = 0, -1.0 * speed
+        steering, acc = float(action["steering"]), float(action["acceleration"])
+        if speed > self.MAX_SPEED:
+            acc = min(acc, 1.0 * (self.MAX_SPEED - speed))
+        elif speed < self.MIN_SPEED:
+            acc = max(acc, 1.0 * (self.MIN_SPEED - speed))
+        action["steering"], action["acceleration"] = steering, acc
+        x, y, heading, speed = bicycle_one(float(self.position[0]), float(self.position[1]),
+                                           float(self.heading), speed, steering, acc,
+                                           float(self.LENGTH), dt)
+        if self.impact is not None:
+            x, y = x + float(self.impact[0]), y + float(self.impact[1])
+            self.crashed = True
+            self.impact = None
+        self.timer += dt
+        self.position, self.heading, self.speed = np.array((x, y)), heading, speed
+        self.on_state_update()
         self.speed = max(self.speed, 0.0)  # IDM can ask a stopped vehicle to reverse
 
 
