@@ -1931,12 +1931,14 @@ class WomdRoad(Road):
         self._positions = now["position"][moving]
         self._xs = np.ascontiguousarray(self._positions[:, 0])
         self._ys = np.ascontiguousarray(self._positions[:, 1])
-        self._boxes = np.stack([now["heading"][moving], np.maximum(now["speed"][moving], 0.0),
-                                layout.length[moving], layout.width[moving]], axis=1)
+        columns = (now["heading"][moving], np.maximum(now["speed"][moving], 0.0),
+                   layout.length[moving], layout.width[moving])
+        self._box_columns = columns  # heading, speed, length, width: (n,) contiguous each
+        self._boxes = np.stack(columns, axis=1)
         self._mover_index = {id(v): i for i, v in enumerate(self._movers)}
         self._walker_mask = layout.walker[moving]
-        self._mover_heading = np.ascontiguousarray(self._boxes[:, 0])
-        self._mover_length = np.ascontiguousarray(self._boxes[:, 2])
+        self._mover_heading = columns[0]
+        self._mover_length = columns[2]
         self._path_mask = layout.path[moving]
         self._path_margins = np.where(self._walker_mask, WALKER_CLEARANCE, PATH_MARGIN)
         if self._walker_mask.any():
@@ -1982,14 +1984,10 @@ class WomdRoad(Road):
                           p.time_gap, p.coolness)
             mine[i] = index.get(id(vehicle), -1)
         rows_ = np.array(rows, np.int64)
-        boxes, positions = self._boxes, self._positions
         acc = _path_ahead(layout.path_starts[rows_], layout.path_ends[rows_], layout.path_px,
                           layout.path_py, layout.path_cum, s0, s1, x0, y0, half_width,
                           half_length, speed, v0, drivers, mine, self._path_margins,
-                          np.ascontiguousarray(positions[:, 0]),
-                          np.ascontiguousarray(positions[:, 1]),
-                          np.ascontiguousarray(boxes[:, 0]), np.ascontiguousarray(boxes[:, 1]),
-                          np.ascontiguousarray(boxes[:, 2]), np.ascontiguousarray(boxes[:, 3]),
+                          self._xs, self._ys, *self._box_columns,
                           self._walker_mask, self._path_mask, _HORIZONS, 2.0)
         return {id(vehicle): (a, b) for vehicle, a, b in zip(chosen, acc.tolist(), v0.tolist(),
                                                              strict=True)}
@@ -2174,12 +2172,8 @@ class WomdRoad(Road):
         the lanes say nothing (overlapping junction lanes, a car cutting in)."""
         if self._positions is None or len(self._positions) < 2:
             return None
-        boxes = self._boxes
         reach = CORRIDOR_MIN + CORRIDOR_TIME * max(float(vehicle.speed), 0.0)
-        k, gap, speed = _corridor(self._xs, self._ys, np.ascontiguousarray(boxes[:, 0]),
-                                  np.ascontiguousarray(boxes[:, 1]),
-                                  np.ascontiguousarray(boxes[:, 2]),
-                                  np.ascontiguousarray(boxes[:, 3]),
+        k, gap, speed = _corridor(self._xs, self._ys, *self._box_columns,
                                   float(vehicle.position[0]), float(vehicle.position[1]),
                                   float(vehicle.heading), float(vehicle.LENGTH),
                                   float(vehicle.WIDTH), reach,
