@@ -6,11 +6,15 @@ Every vehicle of each scene that drives from the current time to the end
 per policy (log traffic, the training setting), so 4 validation scenes give tens of episodes
 instead of 4. Prints, per policy: episodes, route progress (mean and interquartile mean over
 the episodes where the driver moved), at-fault collisions and off-road (rates), and the
-probability that the first policy gets further than each other one on the same episode
-(ties a half); writes every episode to ``--out`` (CSV).
+probabilities that the first policy gets further than each other one, and that it collides
+at fault less, on the same episode (ties a half); writes every episode to ``--out`` (CSV).
+``--pool NAME=P1,P2,...`` adds a row NAME for the episodes of those policies together (an
+agent's training seeds), compared episode by episode as each seed is (first: the first
+policy is then NAME).
 
 Usage: python benchmarks/agents_validation.py --womd FILES --scenes 2,5,10,14
        --policies sel-all.zip sel-sdc.zip lane-keeping random [--out eps.csv]
+       [--pool ppo-womd=ppo-womd-seed0,ppo-womd-seed1,ppo-womd-seed2]
 """
 
 from __future__ import annotations
@@ -50,22 +54,37 @@ def episodes(files: list[str], scenes: list[int], policies: list[str]) -> pd.Dat
     return pd.DataFrame(rows)
 
 
-def summary(eps: pd.DataFrame, policies: list[str]) -> pd.DataFrame:
-    """Per policy: the figures printed (see the module docstring)."""
-    ok = eps[eps["status"] == "ok"]
-    first = ok[ok["policy"] == policies[0]].set_index(["scene", "track"])["route_progress"]
+def _p_better(first: pd.DataFrame, mine: pd.DataFrame, column: str, sign: float) -> float:
+    """P(a run of ``first`` beats one of ``mine`` on the same episode): ``sign`` * value
+    higher, ties a half; every pair of their runs of an episode (several seeds each)."""
+    pairs = first[["scene", "track", column]].merge(
+        mine[["scene", "track", column]], on=["scene", "track"], suffixes=("_a", "_b"))
+    a = sign * pairs[f"{column}_a"].astype(float)
+    b = sign * pairs[f"{column}_b"].astype(float)
+    keep = a.notna() & b.notna()
+    a, b = a[keep], b[keep]
+    return float(((a > b) + 0.5 * (a == b)).mean()) if len(a) else float("nan")
+
+
+def summary(eps: pd.DataFrame, policies: list[str],
+            pools: dict[str, list[str]] | None = None) -> pd.DataFrame:
+    """Per policy (and per pool of policies): the figures printed (see the module
+    docstring); the first of ``pools`` (else of ``policies``) is compared with the others."""
+    ok = eps[eps["status"] == "ok"].copy()
+    ok["at_fault"] = ok["crash_at_fault"].astype(bool).astype(float)
+    groups = {**{name: [name] for name in policies}, **(pools or {})}
+    lead = next(iter(pools)) if pools else policies[0]
+    first = ok[ok["policy"].isin(groups[lead])]
     out = []
-    for name in policies:
-        rows = ok[ok["policy"] == name]
+    for name, members in groups.items():
+        rows = ok[ok["policy"].isin(members)]
         moved = rows["route_progress"].dropna().to_numpy(float)
-        mine = rows.set_index(["scene", "track"])["route_progress"]
-        both = pd.concat([first, mine], axis=1, keys=["a", "b"]).dropna()
-        p = float(((both["a"] > both["b"]) + 0.5 * (both["a"] == both["b"])).mean())
         out.append({"policy": name, "episodes": len(rows),
                     "progress_mean": float(moved.mean()), "progress_iqm": float(iqm(moved)),
-                    "at_fault": float(rows["crash_at_fault"].astype(bool).mean()),
+                    "at_fault": float(rows["at_fault"].mean()),
                     "off_road": float(rows["off_road"].astype(bool).mean()),
-                    f"P({policies[0]} further)": p})
+                    f"P({lead} further)": _p_better(first, rows, "route_progress", 1.0),
+                    f"P({lead} fewer at fault)": _p_better(first, rows, "at_fault", -1.0)})
     return pd.DataFrame(out)
 
 
@@ -75,11 +94,21 @@ def main() -> None:
     parser.add_argument("--scenes", required=True, help="validation scene indexes, 2,5,10")
     parser.add_argument("--policies", nargs="+", required=True)
     parser.add_argument("--out", help="write the episodes there (CSV)")
+    parser.add_argument("--pool", nargs="+", default=[], metavar="NAME=P1,P2",
+                        help="a row for the episodes of several policies together")
     args = parser.parse_args()
     scenes = [int(s) for s in args.scenes.split(",")]
+    pools = {}
+    for item in args.pool:
+        name, _, members = item.partition("=")
+        pools[name] = members.split(",")
+        unknown = set(pools[name]) - set(args.policies)
+        if not name or unknown:
+            parser.error(f"--pool {item}: write NAME=P1,P2 with policies of --policies "
+                         f"(not in them: {sorted(unknown)})")
     start, cpu = time.perf_counter(), time.process_time()
     eps = episodes(args.womd, scenes, args.policies)
-    table = summary(eps, args.policies)
+    table = summary(eps, args.policies, pools)
     with pd.option_context("display.width", 200, "display.max_columns", 20):
         print(table.round(3).to_string(index=False))
     if args.out:

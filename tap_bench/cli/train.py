@@ -40,6 +40,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="with --env womd: reward settings over the env's defaults (e.g. "
                    "progress_gain_reward=2 ttc_reward=-0.05; the *_reward keys of "
                    "tap_bench/womd-v0, docs/closed_loop.md); the definition records them all")
+    p.add_argument("--observation", nargs="+", metavar="KEY=VALUE", default=[],
+                   help="with --env womd: settings of the agent's observation over the env's "
+                   "default (KinematicsRoute with the leader), as JSON values (e.g. "
+                   "crossing=true: the road users whose way crosses the ego's path; "
+                   "docs/agents.md); the definition records the observation")
     p.add_argument("--timesteps", type=int, required=True, help="decisions to train for")
     p.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     p.add_argument("-o", "--output", required=True,
@@ -120,6 +125,27 @@ def _rewards(items: list[str]) -> dict[str, float]:
     return out
 
 
+def _observation(items: list[str]) -> dict[str, object]:
+    """``--observation KEY=VALUE ...`` as the observation config: the env's default with
+    each KEY set to VALUE read as JSON (true, 5, "Kinematics")."""
+    import json
+
+    from tap_bench.sim.womd_env import _WomdHighwayEnv
+
+    config = dict(_WomdHighwayEnv.default_config()["observation"])
+    for item in items:
+        key, eq, value = item.partition("=")
+        if not key or not eq:
+            raise SystemExit(f"tap-bench train: --observation {item}: write KEY=VALUE, e.g. "
+                             "crossing=true.")
+        try:
+            config[key] = json.loads(value)
+        except ValueError:
+            raise SystemExit(f"tap-bench train: --observation {item}: {value!r} is not a "
+                             "JSON value (true, false, a number, a quoted text).") from None
+    return config
+
+
 def run(args: argparse.Namespace) -> int:
     from tap_bench.rl.curve import CurveConfig
     from tap_bench.rl.training import DEFAULT_N_ENVS, train
@@ -136,18 +162,21 @@ def run(args: argparse.Namespace) -> int:
         env = WomdScenes(tuple(args.womd), traffic=args.traffic)
         if args.reward:
             env = env.with_overrides(_rewards(args.reward))
+        if args.observation:
+            env = env.with_overrides({"observation": _observation(args.observation)})
         recorded = ["--womd", *args.womd, "--traffic", args.traffic,
                     *(["--hold-out", args.hold_out] if args.hold_out else []),
                     *(["--egos", args.egos] if args.egos != "sdc" else []),
-                    *(["--reward", *args.reward] if args.reward else [])]
+                    *(["--reward", *args.reward] if args.reward else []),
+                    *(["--observation", *args.observation] if args.observation else [])]
         if not args.no_curve:
             print("recorded scenes: no learning curve (it evaluates on synthetic seeds); "
                   "compare the agent with the human afterwards: tap-bench rollout --womd ... "
                   f"--policy {args.output}")
             args.no_curve = True
-    elif args.womd or args.hold_out or args.egos != "sdc" or args.reward:
-        raise SystemExit("tap-bench train: --womd, --hold-out, --egos and --reward go with "
-                         "--env womd.")
+    elif args.womd or args.hold_out or args.egos != "sdc" or args.reward or args.observation:
+        raise SystemExit("tap-bench train: --womd, --hold-out, --egos, --reward and "
+                         "--observation go with --env womd.")
     command = "tap-bench train " + " ".join(shlex.quote(a) for a in (
         "--algo", args.algo, "--env", args.env, *recorded, "--timesteps", str(args.timesteps),
         "--seed",

@@ -30,7 +30,10 @@ flat float32 vector (an SB3 ``MlpPolicy`` reads it as it is):
   the ego's path ahead, divided by the horizon and clipped (1: none within it). The path is
   the polyline from the ego through the route's points; a road user is in it when its
   centre is within half the ego's width plus half its own of the polyline (so a car
-  crossing the route ahead counts once it is in the way, a car in the next lane does not).
+  crossing the route ahead counts once it is in the way, a car in the next lane does not);
+  with ``leader_corners`` (off by default) also when a corner of its box is within half the
+  ego's width of the polyline (a car parked half in the lane, a car at an angle: the gap is
+  then to that corner).
   ``lead_closing``: how fast the gap shrinks [m/s] (the ego's speed minus the leader's
   velocity along the path), divided by :data:`CLOSING_SCALE`, clipped; 0 with no leader.
   ``lead_inverse_ttc``: the inverse time to collision, closing speed / gap [1/s] (0 when
@@ -42,6 +45,25 @@ flat float32 vector (an SB3 ``MlpPolicy`` reads it as it is):
   5 m/s moves its row by 0.05 and 0.06: the first agent trained on real scenes kept its
   speed into the car ahead (8 of its 10 at-fault collisions, docs/agents.md). These say it
   in the ego's own terms, at the scale that matters for following.
+
+- with ``crossing`` (off by default), then :data:`CROSSING_COUNT` x :data:`CROSSING_FEATURES`,
+  each in [0, 1], for the road users whose way crosses the ego's path ahead, nearest
+  crossing point first:
+
+  ``cross_distance``: the distance along the path from the ego to the point where the road
+  user's way crosses it, divided by the horizon (1: no such road user).
+  ``cross_ego_time``: the time the ego needs to get its front there at its current speed
+  [s], divided by :data:`CROSS_HORIZON` and clipped (1: not within it, or no road user).
+  ``cross_other_time``: the time the road user needs to get there at its current velocity
+  [s], divided by :data:`CROSS_HORIZON` (1: no road user).
+
+  A road user's way is the straight line it covers at its current velocity in
+  :data:`CROSS_HORIZON` seconds; it crosses the path where that line meets the path at an
+  angle of at least :data:`CROSS_MIN_ANGLE` (a car following the ego or driving beside it
+  along its lane does not cross it). Why: the leader is seen only once it is in the path,
+  and a car crossing the route is in it only a moment before the collision; the second and
+  third agents trained on real scenes drove into such a car on a held-out scene as lane
+  keeping does (docs/agents.md). The two times say who gets there first.
 
 The route lane the ego is on is tracked along the route (never backwards), so a route that
 comes back to a lane is followed in order. Lane changes take place where the map names the
@@ -59,9 +81,10 @@ from gymnasium import spaces
 
 from tap_bench.sim.observation import FastKinematicObservation
 
-__all__ = ["CLOSING_SCALE", "INVERSE_TTC_SCALE", "LEADER_FEATURES", "OBSERVATION_TYPE",
-           "OFFSET_SCALE", "ROUTE_FEATURES", "SPEED_SCALE", "Leader", "RouteObservation",
-           "route_feature_names"]
+__all__ = ["CLOSING_SCALE", "CROSSING_COUNT", "CROSSING_FEATURES", "CROSS_HORIZON",
+           "CROSS_MIN_ANGLE", "INVERSE_TTC_SCALE", "LEADER_FEATURES", "OBSERVATION_TYPE",
+           "OFFSET_SCALE", "ROUTE_FEATURES", "SPEED_SCALE", "Crossing", "Leader",
+           "RouteObservation", "route_feature_names"]
 
 OBSERVATION_TYPE = "KinematicsRoute"
 """The ``observation`` config's ``type`` of :class:`RouteObservation`."""
@@ -78,6 +101,13 @@ LEADER_FEATURES = ("speed", "lead_gap", "lead_closing", "lead_inverse_ttc")
 SPEED_SCALE = 30.0  # [m/s] the ego's speed is divided by this
 CLOSING_SCALE = 10.0  # [m/s] the closing speed to the leader is divided by this
 INVERSE_TTC_SCALE = 2.0  # [1/s] the inverse time to collision is divided by this
+
+CROSSING_FEATURES = ("cross_distance", "cross_ego_time", "cross_other_time")
+"""The values of one crossing road user with ``crossing`` (see the module docstring)."""
+CROSSING_COUNT = 2  # crossing road users observed (nearest crossing point first)
+CROSS_HORIZON = 5.0  # [s] a road user's way: where its velocity takes it in this time
+CROSS_MIN_ANGLE = math.radians(15.0)  # [rad] a way meeting the path at less does not cross
+MIN_CROSS_SPEED = 0.5  # [m/s] a road user slower than this crosses nobody's path
 
 
 class Leader(NamedTuple):
@@ -103,10 +133,30 @@ class Leader(NamedTuple):
 NO_LEADER = Leader(math.inf, 0.0)
 
 
-def route_feature_names(route_points: int, leader: bool = False) -> list[str]:
-    """Names of the route part of the vector (and the leader's, with ``leader``), in order."""
+class Crossing(NamedTuple):
+    """A road user whose way crosses the ego's path ahead (:meth:`RouteObservation.
+    crossings`).
+
+    Attributes:
+        distance: along the path from the ego to the crossing point [m].
+        ego_time: the ego's time to get its front there at its current speed [s] (inf when
+            it stands still).
+        other_time: the road user's time to get there at its current velocity [s].
+    """
+
+    distance: float
+    ego_time: float
+    other_time: float
+
+
+def route_feature_names(route_points: int, leader: bool = False,
+                        crossing: bool = False) -> list[str]:
+    """Names of the route part of the vector (and the leader's, with ``leader``, and the
+    crossing road users', with ``crossing``), in order."""
     points = [f"route_{axis}_{k}" for k in range(1, route_points + 1) for axis in "xy"]
-    return [*points, *ROUTE_FEATURES, *(LEADER_FEATURES if leader else ())]
+    crossers = [f"{name}_{k}" for k in range(1, CROSSING_COUNT + 1)
+                for name in CROSSING_FEATURES] if crossing else []
+    return [*points, *ROUTE_FEATURES, *(LEADER_FEATURES if leader else ()), *crossers]
 
 
 class RouteObservation(FastKinematicObservation):
@@ -119,11 +169,16 @@ class RouteObservation(FastKinematicObservation):
         route_points: route points observed ahead (>= 1).
         route_spacing: metres between them along the route (> 0).
         leader: append :data:`LEADER_FEATURES` (the road user in the ego's path ahead).
+        leader_corners: a road user is also in the path when a corner of its box is within
+            half the ego's width of it (a car parked half in the lane, a car turning in).
+        crossing: append :data:`CROSSING_COUNT` x :data:`CROSSING_FEATURES` (the road users
+            whose way crosses the ego's path ahead).
         **kwargs: highway-env's Kinematics parameters (``vehicles_count``, ``features``...).
     """
 
     def __init__(self, env: Any, route_points: int = 5, route_spacing: float = 10.0,
-                 leader: bool = False, **kwargs: Any) -> None:
+                 leader: bool = False, crossing: bool = False, leader_corners: bool = False,
+                 **kwargs: Any) -> None:
         kwargs.pop("type", None)
         super().__init__(env, **kwargs)
         if isinstance(route_points, bool) or not isinstance(route_points, int) \
@@ -137,7 +192,17 @@ class RouteObservation(FastKinematicObservation):
         if not isinstance(leader, bool):
             raise ValueError(f"KinematicsRoute observation: leader {leader!r} must be true or "
                              "false (observe the road user in the ego's path ahead).")
+        if not isinstance(crossing, bool):
+            raise ValueError(f"KinematicsRoute observation: crossing {crossing!r} must be true "
+                             "or false (observe the road users whose way crosses the ego's "
+                             "path ahead).")
         self.leader_features = leader
+        if not isinstance(leader_corners, bool):
+            raise ValueError(f"KinematicsRoute observation: leader_corners {leader_corners!r} "
+                             "must be true or false (a road user whose box reaches into the "
+                             "path is in it).")
+        self.crossing_features = crossing
+        self.leader_corners = leader_corners
         self.lead = NO_LEADER  # the leader at the last observation (the env's reward reads it)
         self.route_points = route_points
         self.route_spacing = float(route_spacing)
@@ -153,7 +218,8 @@ class RouteObservation(FastKinematicObservation):
     def route_size(self) -> int:
         """Values of the route part (with the leader's)."""
         return 2 * self.route_points + len(ROUTE_FEATURES) \
-            + (len(LEADER_FEATURES) if self.leader_features else 0)
+            + (len(LEADER_FEATURES) if self.leader_features else 0) \
+            + (CROSSING_COUNT * len(CROSSING_FEATURES) if self.crossing_features else 0)
 
     def space(self) -> spaces.Box:
         """One float32 vector: the Kinematics part is bounded as highway-env bounds it
@@ -194,14 +260,73 @@ class RouteObservation(FastKinematicObservation):
         values = np.concatenate([xy, (lat / OFFSET_SCALE, math.sin(dh), math.cos(dh),
                                       change_distance, change_side,
                                       float(ego.lane_index in route))])
-        self.lead = self.leader(np.concatenate([p[None], points]))
+        path = np.concatenate([p[None], points])
+        self.lead = self.leader(path)
         if self.leader_features:
             lead = self.lead
             gap = lead.gap / self.horizon if math.isfinite(lead.gap) else 1.0
             values = np.concatenate([values, (float(ego.speed) / SPEED_SCALE, gap,
                                               lead.closing / CLOSING_SCALE,
                                               lead.inverse_ttc / INVERSE_TTC_SCALE)])
+        if self.crossing_features:
+            values = np.concatenate([values, self.crossing_vector(path)])
         return np.clip(values, -1.0, 1.0).astype(np.float32)
+
+    def crossing_vector(self, path: np.ndarray) -> np.ndarray:
+        """The crossing part (:data:`CROSSING_COUNT` x :data:`CROSSING_FEATURES`, in [0, 1];
+        see the module docstring) along ``path`` ((m, 2) [m, sim frame], from the ego)."""
+        out = np.ones((CROSSING_COUNT, len(CROSSING_FEATURES)))
+        for row, cross in zip(out, self.crossings(path)[:CROSSING_COUNT], strict=False):
+            row[:] = (cross.distance / self.horizon, min(cross.ego_time / CROSS_HORIZON, 1.0),
+                      cross.other_time / CROSS_HORIZON)
+        return out.ravel()
+
+    def crossings(self, path: np.ndarray) -> list[Crossing]:
+        """The road users whose way crosses ``path`` (see the module docstring), nearest
+        crossing point first.
+
+        Args:
+            path: (m, 2) the polyline ahead, from the ego's position on [m, sim frame].
+        """
+        ego = self.observer_vehicle
+        others = [v for v in self.env.road.vehicles if v is not ego
+                  and getattr(v, "collidable", True) and not getattr(v, "hidden", False)]
+        if not others or len(path) < 2:
+            return []
+        pos = np.array([v.position for v in others], dtype=float)  # (n, 2)
+        ray = np.array([v.velocity for v in others], dtype=float) * CROSS_HORIZON
+        reach = np.hypot(*ray.T)  # [m] how far each gets within the horizon
+        keep = (reach >= MIN_CROSS_SPEED * CROSS_HORIZON) \
+            & (np.hypot(*(pos - path[0]).T) <= self.horizon + reach)
+        if not keep.any():
+            return []
+        pos, ray, reach = pos[keep], ray[keep], reach[keep]
+        a, seg = path[:-1], np.diff(path, axis=0)  # (m-1, 2)
+        length = np.hypot(*seg.T)
+        ok = length > 1e-6
+        a, seg, length = a[ok], seg[ok], length[ok]
+        if not len(seg):
+            return []
+        cum = np.concatenate([(0.0,), np.cumsum(length)[:-1]])
+        # a + u * seg = pos + t * ray, u and t in [0, 1]: 2-d cross products
+        denom = seg[None, :, 0] * ray[:, None, 1] - seg[None, :, 1] * ray[:, None, 0]
+        w = pos[:, None, :] - a[None, :, :]  # (n, m-1, 2)
+        steep = np.abs(denom) >= math.sin(CROSS_MIN_ANGLE) * length[None] * reach[:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = (w[..., 0] * ray[:, None, 1] - w[..., 1] * ray[:, None, 0]) / denom
+            t = (w[..., 0] * seg[None, :, 1] - w[..., 1] * seg[None, :, 0]) / denom
+        hit = steep & (u >= 0) & (u <= 1) & (t >= 0) & (t <= 1)
+        along = np.where(hit, cum[None] + u * length[None], np.inf)  # (n, m-1)
+        j = along.argmin(axis=1)
+        rows = np.flatnonzero(np.isfinite(along[np.arange(len(j)), j]))
+        speed = max(float(ego.speed), 0.0)
+        found = []
+        for r in rows:
+            s = float(along[r, j[r]])
+            ahead = max(s - ego.LENGTH / 2, 0.0)
+            ego_time = ahead / speed if speed > 1e-3 else (0.0 if ahead == 0 else math.inf)
+            found.append(Crossing(s, ego_time, float(t[r, j[r]]) * CROSS_HORIZON))
+        return sorted(found)
 
     def leader(self, path: np.ndarray) -> Leader:
         """The nearest road user in the ego's path ahead (see the module docstring).
@@ -227,20 +352,24 @@ class RouteObservation(FastKinematicObservation):
         if not len(seg):
             return NO_LEADER
         cum = np.concatenate([(0.0,), np.cumsum(length)[:-1]])
-        rel = pos[:, None, :] - a[None, :, :]  # (n, m-1, 2)
-        t = np.clip(np.einsum("nmk,mk->nm", rel, seg) / length**2, 0.0, 1.0)
-        foot = a[None] + t[..., None] * seg[None]
-        dist = np.hypot(*(pos[:, None, :] - foot).transpose(2, 0, 1))  # (n, m-1)
-        j = dist.argmin(axis=1)
-        rows = np.arange(len(idx))
-        lateral = dist[rows, j]
-        along = cum[j] + t[rows, j] * length[j]
+        lateral, along, j = _project(pos, a, seg, length, cum)
         widths = np.array([others[i].WIDTH for i in idx], dtype=float)
         lengths = np.array([others[i].LENGTH for i in idx], dtype=float)
         inside = (lateral <= (ego.WIDTH + widths) / 2) & (along > 0) & (along <= self.horizon)
-        if not inside.any():
-            return NO_LEADER
         gaps = np.where(inside, along - (ego.LENGTH + lengths) / 2, np.inf)
+        if self.leader_corners:  # a corner of its box within half the ego's width
+            heading = np.array([others[i].heading for i in idx], dtype=float)
+            fwd = np.column_stack([np.cos(heading), np.sin(heading)])
+            side = np.column_stack([-fwd[:, 1], fwd[:, 0]])
+            corners = np.concatenate([
+                pos + sl * lengths[:, None] / 2 * fwd + sw * widths[:, None] / 2 * side
+                for sl in (1, -1) for sw in (1, -1)])  # (4n, 2), corner-major
+            c_lat, c_along, _ = _project(corners, a, seg, length, cum)
+            c_in = (c_lat <= ego.WIDTH / 2) & (c_along > 0) & (c_along <= self.horizon)
+            c_gap = np.where(c_in, c_along - ego.LENGTH / 2, np.inf).reshape(4, -1).min(axis=0)
+            gaps = np.minimum(gaps, np.maximum(c_gap, 0.0))
+        if not np.isfinite(gaps).any():
+            return NO_LEADER
         k = int(gaps.argmin())
         direction = seg[j[k]] / length[j[k]]
         lead_speed = float(np.dot(others[idx[k]].velocity, direction))
@@ -306,6 +435,20 @@ class RouteObservation(FastKinematicObservation):
         if change is not None and change[0] > self.horizon:
             change = None
         return points, change
+
+
+def _project(points: np.ndarray, a: np.ndarray, seg: np.ndarray, length: np.ndarray,
+             cum: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(distance to the polyline [m], distance along it to the foot [m], segment index) of
+    each of ``points`` (n, 2) on the polyline of segments ``a + u * seg`` (lengths
+    ``length``, starting ``cum`` along it)."""
+    rel = points[:, None, :] - a[None, :, :]  # (n, m-1, 2)
+    t = np.clip(np.einsum("nmk,mk->nm", rel, seg) / length**2, 0.0, 1.0)
+    foot = a[None] + t[..., None] * seg[None]
+    dist = np.hypot(*(points[:, None, :] - foot).transpose(2, 0, 1))  # (n, m-1)
+    j = dist.argmin(axis=1)
+    rows = np.arange(len(points))
+    return dist[rows, j], cum[j] + t[rows, j] * length[j], j
 
 
 def _side(network: Any, a: Any, b: Any) -> float | None:
