@@ -30,6 +30,7 @@ import warnings
 
 import numpy as np
 import pandas as pd
+from agents_validation import policy_env
 from machine import report
 
 from tap_bench.rl.heldout import drivers
@@ -81,11 +82,12 @@ def collisions(files: list[str], scenes: list[int], policies: list[str],
     ``observation``: the env's observation config (the leader judged by it) for policies
     that read none."""
     scenes_ = WomdScenes(tuple(files))
-    env = WomdEnv(scenes_ if observation is None else scenes_.with_overrides(
-        {"observation": observation}), record=False)
     rows = []
     for name in policies:
         policy = load_policy(name)
+        env = WomdEnv(scenes_.with_overrides({"observation": observation}), record=False) \
+            if observation is not None and policy.observation is None \
+            else policy_env(scenes_, policy)
         for i in scenes:
             for track in drivers(env.scene_at(i)):
                 with warnings.catch_warnings():

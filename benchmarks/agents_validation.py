@@ -35,12 +35,20 @@ from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.stats.aggregate import iqm
 
 
+def policy_env(scenes: WomdScenes, policy: object) -> WomdEnv:
+    """The env ``policy`` drives: with the observation it was trained on, if any."""
+    observation = getattr(policy, "observation", None)
+    return WomdEnv(scenes if observation is None else scenes.with_overrides(
+        {"observation": dict(observation)}), record=False)
+
+
 def episodes(files: list[str], scenes: list[int], policies: list[str]) -> pd.DataFrame:
     """One row per (policy, scene, driver): the episode's measures."""
-    env = WomdEnv(WomdScenes(tuple(files)), record=False)
+    scenes_ = WomdScenes(tuple(files))
     rows = []
     for name in policies:
         policy = load_policy(name)
+        env = policy_env(scenes_, policy)
         for i in scenes:
             for track in drivers(env.scene_at(i)):
                 with warnings.catch_warnings():

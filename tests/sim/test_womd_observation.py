@@ -214,20 +214,27 @@ def test_the_command_trains_an_agent_on_the_route_observation(real, tmp_path, ca
     with pytest.raises(SystemExit, match="'speed_reward' is not a reward setting"):
         main(["train", "--algo", "ppo", "--env", "womd", "--womd", real[1], "--reward",
               "speed_reward=1", "--timesteps", "64", "-o", str(out)])
+    with pytest.raises(SystemExit, match="--observation crossing=yes: 'yes' is not a JSON"):
+        main(["train", "--algo", "ppo", "--env", "womd", "--womd", real[1], "--observation",
+              "crossing=yes", "--timesteps", "64", "-o", str(out)])
     assert main(["train", "--algo", "ppo", "--env", "womd", "--womd", real[1],
                  "--egos", "all", "--reward", "progress_gain_reward=2",
+                 "--observation", "crossing=true", "leader_corners=true",
                  "--timesteps", "64", "--n-envs", "1", "-o", str(out)]) == 0
     doc = json.loads(out.with_suffix(".json").read_text())
-    assert doc["params"]["observation"] == {"type": "KinematicsRoute", "leader": True}
+    assert doc["params"]["observation"] == {"type": "KinematicsRoute", "leader": True,
+                                            "crossing": True, "leader_corners": True}
     assert doc["params"]["reward"] == {"collision_reward": -1.0, "progress_reward": 1.0,
                                        "off_road_reward": -1.0, "ttc_reward": -0.05,
                                        "progress_gain_reward": 2.0, "at_fault_reward": 0.0}
     assert doc["params"]["egos"] == "all"
-    assert "--egos all --reward progress_gain_reward=2" in doc["params"]["command"]
+    assert "--egos all --reward progress_gain_reward=2 --observation crossing=true " \
+        "leader_corners=true" in doc["params"]["command"]
     from stable_baselines3 import PPO
 
     model = PPO.load(out, device="cpu")
-    assert model.observation_space.shape == (5 * 5 + 16 + 4,)  # Kinematics, route, leader
+    # Kinematics, route, leader, 2 crossing road users
+    assert model.observation_space.shape == (5 * 5 + 16 + 4 + 2 * 3,)
     result = rollout(WomdScenes((real[1],)), str(out.with_suffix(".json")), "all")
     assert list(result.episodes["status"]) == ["ok"]
 
