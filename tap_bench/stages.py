@@ -275,6 +275,30 @@ def _merge_ok(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
             & (excursion <= config.merge_excursion))
 
 
+def _drove_sideways(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
+                    config: StageConfig) -> np.ndarray:
+    """(k,) bool: over the steps [a, b) of one segment the vehicle moved merge_offset or
+    more towards ``side`` (+1 left) across the heading where they *end*, and its heading
+    drove it there: the sideways move its headings and step lengths make (the sum of
+    sin(heading - heading at a) times each step's length) is merge_offset or more towards
+    ``side`` too. What :func:`_merge_ok` measures across the start heading alone may be
+    the error of a start taken mid-swing; positions that the headings do not drive (a
+    mirrored y axis) move nowhere."""
+    out = np.zeros(len(a), dtype=bool)
+    h, x, y = path.heading, path.x, path.y
+    for k, (first, last, towards) in enumerate(zip(path.rows[a].tolist(),
+                                                   path.rows[b - 1].tolist(),
+                                                   np.asarray(side).tolist(), strict=True)):
+        dx, dy = x[last] - x[first], y[last] - y[first]
+        h1 = float(h[last])
+        at_end = -dx * np.sin(h1) + dy * np.cos(h1)
+        rows = np.arange(first, last + 1)
+        step = np.hypot(np.diff(x[rows]), np.diff(y[rows]))
+        driven = float(np.sum(np.sin(h[rows[:-1]] - h[first]) * step))
+        out[k] = min(towards * at_end, towards * driven) >= config.merge_offset
+    return out
+
+
 def _wiggle_ok(path: _Path, a: np.ndarray, b: np.ndarray, side: np.ndarray,
                config: StageConfig, *, at_end: bool = False,
                along: np.ndarray | None = None) -> np.ndarray:
@@ -378,11 +402,18 @@ def _chain(path: _Path, start: np.ndarray, stop: np.ndarray, side: np.ndarray, f
                 pos = int(start[i])
             continue
         cut = _back_at(path, pos, nxt_start, nxt_stop, int(side[i]))
-        if (i + 1 < last and cut > nxt_start and nxt_stop - cut >= min_steps
-                and ok(pos, cut, int(side[i]))):
+        if i + 1 < last and cut > nxt_start and ok(pos, cut, int(side[i])):
+            # the rest of the next turn and the whole turn after it are the second lane
+            # change (however little of the next turn is left: the lateral move back
+            # starts where the heading is back), or 1 s or more of it is left and pairs
+            # with the turn after it split the same way
+            # (a rest under 1 s only when the pair after it is the whole turn after: what
+            # the next step checks unless a turn back the data cut off follows it)
+            long_rest = nxt_stop - cut >= min_steps
             cut2 = _back_at(path, cut, int(start[i + 2]), int(stop[i + 2]), int(side[i + 1]))
-            if ok(cut, int(stop[i + 2]), int(side[i + 1])) or (
-                    not cut_off[i + 2] and cut2 > start[i + 2]
+            if (ok(cut, int(stop[i + 2]), int(side[i + 1]))
+                    and (long_rest or not (i + 3 <= last and cut_off[i + 3]))) or (
+                    long_rest and not cut_off[i + 2] and cut2 > start[i + 2]
                     and ok(cut, cut2, int(side[i + 1]))):
                 code[pos:cut] = merge_code(int(side[i]))
                 i, pos = i + 1, cut
@@ -390,7 +421,17 @@ def _chain(path: _Path, start: np.ndarray, stop: np.ndarray, side: np.ndarray, f
         if ok(pos, nxt_end, int(side[i])):
             code[pos:nxt_end] = merge_code(int(side[i]))
             i += 3 if tail else 2
-        elif not cut_off[i + 1] and wiggle(pos, nxt_end, int(side[i]), at_end=True):
+        elif (i + 1 < last and cut > nxt_start and wiggle(pos, cut, int(side[i]), at_end=True)
+              and ok(cut, int(stop[i + 2]), int(side[i + 1]))):
+            # the heading is back early in the next turn, which goes on into a lateral
+            # move with the turn after it: a wiggle up to there, then that move
+            code[pos:cut] = sdl.STRAIGHT
+            i, pos = i + 1, cut
+            continue
+        elif (not cut_off[i + 1] and wiggle(pos, nxt_end, int(side[i]), at_end=True)
+              and _back_at(path, pos, int(stop[i]), nxt_start, int(side[i])) < 0):
+            # (not when the heading was back before the next turn began: that turn starts
+            # a move of its own, which may pair with the turn after it)
             code[pos:nxt_end] = sdl.STRAIGHT
             i += 3 if tail else 2
         else:
@@ -439,6 +480,31 @@ def _cut_off_returns(runs: Runs, trace: np.ndarray, turn: np.ndarray
     return which[back], traced.start[k[back]]
 
 
+def _peaked_at_end(runs: Runs, path: _Path, trace: np.ndarray, turn: np.ndarray,
+                   which: np.ndarray, back: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_cut_off_returns`' answer (``which``, ``back``) with the turn runs that end
+    their segment after the heading stopped turning their way and began to turn back, too
+    little for the trace to read a turn (under w_str): the trace no longer turns the run's
+    way at the second and third last steps (central differences), and the heading at the
+    last step is back from its value two steps before. Their turn back starts at the second
+    last step. Returns both, ordered by ``which``."""
+    ends = np.r_[runs.seg[1:] != runs.seg[:-1], True][turn]
+    ends[which] = False
+    cand = np.flatnonzero(ends & (runs.length[turn] >= 3))
+    if not len(cand):
+        return which, back
+    last = runs.start[turn[cand]] + runs.length[turn[cand]] - 1
+    code = runs.code[turn[cand]]
+    towards = np.where(code == sdl.LEFT, 1, -1)
+    h = path.heading
+    turned_back = ((towards * (h[path.rows[last]] - h[path.rows[last - 2]]) < 0)
+                   & (trace[last - 1] != code) & (trace[last - 2] != code))
+    which = np.r_[which, cand[turned_back]]
+    back = np.r_[back, last[turned_back] - 1]
+    order = np.argsort(which, kind="stable")
+    return which[order], back[order]
+
+
 def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int,
             trace: np.ndarray | None = None) -> Runs:
     """Stage 3: pairs of opposite turns that form a lateral move become merges.
@@ -465,6 +531,7 @@ def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int,
     cut_off = np.zeros(len(turn), dtype=bool)
     if trace is not None and len(turn):
         which, back = _cut_off_returns(runs, trace, turn)
+        which, back = _peaked_at_end(runs, path, trace, turn, which, back)
         if len(which):
             # the turn back becomes a turn run of its own, right after the run it ended
             at = which + 1
@@ -484,6 +551,15 @@ def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int,
     after = np.r_[cand[1:], False]
     lone = np.flatnonzero(cand & ~before & ~after)
     is_merge = _merge_ok(path, start[lone], stop[lone + 1], side[lone], config)
+    # a pair whose first turn began the other way (the turn that started the move was cut
+    # off by the start of the data, or the low-pass joined it to the turn after it) moved
+    # towards its second turn's side: a merge of that side, when the move shows across
+    # its start heading, its end heading and in the path its headings drive
+    other = lone[~is_merge]
+    reverse = other[_merge_ok(path, start[other], stop[other + 1], -side[other], config)]
+    reverse = reverse[_drove_sideways(path, start[reverse], stop[reverse + 1],
+                                      -side[reverse], config)]
+    is_merge[np.isin(lone, reverse)] = True
     merged = lone[is_merge]
     rest = lone[~is_merge & ~cut_off[lone + 1]]
     wiggles = rest[_wiggle_ok(path, start[rest], stop[rest + 1], side[rest], config,
@@ -491,7 +567,8 @@ def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int,
 
     code = runs.expand(m).astype(np.int64)
     for i in merged.tolist():
-        code[start[i]:stop[i + 1]] = sdl.LEFT_MERGE if side[i] > 0 else sdl.RIGHT_MERGE
+        towards = -side[i] if i in set(reverse.tolist()) else side[i]
+        code[start[i]:stop[i + 1]] = sdl.LEFT_MERGE if towards > 0 else sdl.RIGHT_MERGE
     for i in wiggles.tolist():
         code[start[i]:stop[i + 1]] = sdl.STRAIGHT
     chain_first = np.flatnonzero(cand & ~before & after)
