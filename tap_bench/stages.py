@@ -624,6 +624,19 @@ def _lone_wiggles(runs: Runs, path: _Path, config: StageConfig) -> Runs:
     redo = np.flatnonzero(~ok & after_merge)
     ok[redo] = _wiggle_ok(path, lo[redo], hi[redo], np.zeros(len(redo), dtype=np.int64),
                           config, at_end=True, along=merge_start[redo])
+    # and from the heading where the window ends, the direction the vehicle settled in,
+    # when the turn came back: the heading where the window starts is that one's (within
+    # merge_heading) and the net change over the window is under half the turn's own (a
+    # bend keeps its heading change: net and turn are one). A window that starts
+    # mid-swing (the lane change before the turn still under way) reads its offset across
+    # a heading off the road's
+    redo = np.flatnonzero(~ok)
+    h = path.heading
+    net = np.abs(h[path.rows[lo[redo]]] - h[path.rows[hi[redo] - 1]])
+    own = np.abs(h[path.rows[stop[turn[redo]] - 1]] - h[path.rows[runs.start[turn[redo]]]])
+    redo = redo[(net <= config.merge_heading) & (2 * net < own)]
+    ok[redo] = _wiggle_ok(path, lo[redo], hi[redo], np.zeros(len(redo), dtype=np.int64),
+                          config, at_end=True, along=hi[redo] - 1)
     wiggle = turn[ok]
     if not len(wiggle):
         return runs
