@@ -610,6 +610,17 @@ def _lone_wiggles(runs: Runs, path: _Path, config: StageConfig) -> Runs:
     hi = np.minimum(stop[turn] + gap, seg_hi[turn])
     lo = np.where(prev_same & busy[prev], np.maximum(lo, stop[prev]), lo)
     hi = np.where(next_same & busy[nxt], np.minimum(hi, runs.start[nxt]), hi)
+    # nor past a merge or turn farther off (with a straight run between)
+    idx = np.arange(n_runs)
+    last_busy = np.maximum.accumulate(np.where(busy, idx, -1))
+    next_busy = np.minimum.accumulate(np.where(busy, idx, n_runs)[::-1])[::-1]
+    before = last_busy[prev]
+    after = next_busy[nxt]
+    far_prev = prev_same & (before >= 0) & (runs.seg[np.maximum(before, 0)] == runs.seg[turn])
+    far_next = next_same & (after < n_runs) & (
+        runs.seg[np.minimum(after, n_runs - 1)] == runs.seg[turn])
+    lo = np.where(far_prev, np.maximum(lo, stop[np.maximum(before, 0)]), lo)
+    hi = np.where(far_next, np.minimum(hi, runs.start[np.minimum(after, n_runs - 1)]), hi)
     # a turn right after a merge is also measured from the heading where the merge started
     is_merge = (runs.code == sdl.LEFT_MERGE) | (runs.code == sdl.RIGHT_MERGE)
     after_merge = prev_same & is_merge[prev]
