@@ -18,7 +18,9 @@ Rules that SPEC leaves open, decided here and documented in docs/tap.md:
   opposite direction that starts at most ``merge_gap`` after the first ends become one
   merge when the heading comes back and the vehicle moved sideways (:func:`_merge_ok`);
   a turn that was paired is not paired again; two lane changes in a row share their
-  middle turn, which is split where the heading is back (:func:`_merges`).
+  middle turn, which is split where the heading is back (:func:`_merges`, :func:`_chain`);
+  a pair that moved the other way than its first turn, measured across both its end
+  headings and in the path its headings drive, is a merge of the side it moved.
 - Action classes inside a turn run use |w| <= w_grad Gradual (|w| under w_str included),
   <= w_med Medium, else Aggressive; inside a moving run v <= v_slow Slow, <= v_med Medium,
   else Fast.
@@ -368,11 +370,15 @@ def _chain(path: _Path, start: np.ndarray, stop: np.ndarray, side: np.ndarray, f
 
     Greedy from the start. The current turn (from ``pos``, which may lie inside a turn run
     after a split) and the next one: if the heading is back at its value at ``pos`` inside
-    the next turn, with 1 s or more of that turn left, and the part up to there is a merge
-    whose rest pairs with the turn after it (whole, or split the same way), the next turn
-    is split there: its rest starts the next lane change. Otherwise the pair is a merge if
-    it passes whole, else the current turn stays a turn. A pair whose second turn is one
-    the data cut off (``cut_off``, (k,) bool) is never a wiggle.
+    the next turn and the part up to there is a merge whose rest pairs with the whole turn
+    after it (however little of the next turn is left), or, with 1 s or more of it left,
+    with the turn after it split the same way, the next turn is split there: its rest
+    starts the next lane change. Otherwise the pair is a merge if it passes whole; else,
+    if the part up to where the heading is back is a wiggle and the rest pairs with the turn
+    after it as a merge, the wiggle ends there; else the pair is a wiggle when it is one and
+    the heading was not back before the next turn began (that turn then starts a move of
+    its own); else the current turn stays a turn. A pair whose second turn is one the data
+    cut off (``cut_off``, (k,) bool) is never a wiggle.
     """
 
     def ok(a: int, b: int, towards: int) -> bool:
@@ -518,9 +524,15 @@ def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int,
     and splits a middle turn where the heading is back.
 
     ``trace``: the (m,) trace-level lateral codes. A turn that the end of the data cut off
-    while it turned back (:func:`_cut_off_returns`) is paired with that turn back as with a
-    second turn run: a merge when :func:`_merge_ok` holds up to the segment's end. Such a
-    pair is never a wiggle: the data ended before the move could show where it ends.
+    while it turned back (:func:`_cut_off_returns`, :func:`_peaked_at_end`) is paired with
+    that turn back as with a second turn run: a merge when :func:`_merge_ok` holds up to
+    the segment's end. Such a pair is never a wiggle: the data ended before the move could
+    show where it ends.
+
+    A lone pair that is no merge towards its first turn's side is one towards its second
+    turn's when :func:`_merge_ok` holds that way and :func:`_drove_sideways` confirms it:
+    the turn that began the move was joined to the next by the low-pass, or cut off by the
+    start of the data.
     """
     m = len(path.rows)
     turn = np.flatnonzero((runs.code == sdl.LEFT) | (runs.code == sdl.RIGHT))
@@ -590,8 +602,12 @@ def _lone_wiggles(runs: Runs, path: _Path, config: StageConfig) -> Runs:
     whose outward and straightening parts the low-pass left under w_str (out 1 m and back
     at 25 m/s reads as one Right Turn of the return otherwise), or the correction after a
     lane change that overshot the lane's centre (a turn right after a merge is also
-    measured from the heading where the merge started: the merge ends mid-swing). A turn
-    next to another turn is left to the pair rules."""
+    measured from the heading where the merge started: the merge ends mid-swing; a turn
+    whose window starts mid-swing is also measured from the heading where the window ends,
+    when the turn came back: the net change over the window within merge_heading and under
+    half the turn's own). The window stops at the merges and turns before and after the run
+    (a straight run between or not). A turn next to another turn is left to the pair
+    rules."""
     turn = np.flatnonzero((runs.code == sdl.LEFT) | (runs.code == sdl.RIGHT))
     if not len(turn):
         return runs

@@ -2,7 +2,12 @@
 correction back are merges, never a Turn. Seeds 5 and 17: a lane change cut off by the end
 of the episode while it turned back. IDM seed 25: the ego changes lane (y -4 -> -7.96 m),
 swings back 1 m and settles (-8.14 -> -8.0 m); the settling turn starts where the merge
-ends, mid-swing, and is a wiggle measured from the heading where the merge started."""
+ends, mid-swing, and is a wiggle measured from the heading where the merge started.
+IDM-aggressive: seed 25, a right lane change from the first step whose first turn the
+low-pass joined to the overshoot after it (a pair that moved the other way than its first
+turn); seeds 0 and 44, a lane change and its return at once (the middle turn back at the
+lane's heading with under 1 s of it left); seed 43, a lane change cut off by the end of the
+episode after its heading peaked. docs/tap.md gives the rules and the figures."""
 
 from __future__ import annotations
 
@@ -32,21 +37,11 @@ def test_an_ego_lane_change_that_overshoots_and_settles_is_a_merge(policy, seed)
     assert _ego_turns([seed], policy) == []
 
 
-# idm-aggressive seeds 25 (a lone turn, no lane change), 43 and 44 (a turn the same way
-# right after a merge) still get a Turn; random egos crash or steer at random
-_AGGRESSIVE_TURNS = (25, 43, 44)
+def test_the_aggressive_egos_that_turned_are_merges():
+    assert _ego_turns([0, 25, 43, 44], "idm-aggressive") == []
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("policy", ["idm", "idm-aggressive"])
+@pytest.mark.parametrize("policy", ["idm", "idm-aggressive", "idm-defensive"])
 def test_no_ego_on_the_straight_highway_turns(policy):
-    seeds = [s for s in range(24, 60)
-             if policy == "idm" or s not in _AGGRESSIVE_TURNS]
-    assert _ego_turns(seeds, policy) == []
-
-
-@pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="a lone turn and a turn the same way right after a "
-                   "merge on a straight road are still labelled Turns")
-def test_the_aggressive_egos_that_still_turn():
-    assert _ego_turns(list(_AGGRESSIVE_TURNS), "idm-aggressive") == []
+    assert _ego_turns(list(range(24, 60)), policy) == []
