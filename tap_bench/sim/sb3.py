@@ -37,9 +37,9 @@ ALGORITHMS = ("a2c", "dqn", "ppo")
 SHIPPED_MODELS: dict[str, str] = {
     "437567ecd5d39eb776d2a5ec30d982a36188980b9ae5f9ac0453c74951c917a6": "dqn-highway.zip",
     "733a5445172dcf7fcf457193bad5779c8e19afc9128173dda6d6df2610dea7fd": "ppo-highway.zip",
-    "e9cfae28ed3780eb5b311ebe1556de5fff4c656b5e8be2b5a713480c67b50853": "ppo-womd-seed0.zip",
-    "60e0470567945c8cff397668b9a48b45e95cbee15c10ee95058ff4b289163c17": "ppo-womd-seed1.zip",
-    "ae8816b509ff978bd7a33e84f34a6b46bd70944fd8e276aa77207ddb144ee3f0": "ppo-womd-seed2.zip",
+    "47da693f2020ea0e65bc555300022ac8bb9240497c1ebb025a97d7dfc26ccf7f": "ppo-womd-seed0.zip",
+    "501d02dad6cf80db02340429891ba3cf6d17784b14af7c960b0c0da868056d77": "ppo-womd-seed1.zip",
+    "bc0507553e25a367b35046d182b820e95ff38b4be47e6c1bde53f0730098513d": "ppo-womd-seed2.zip",
 }
 """SHA-256 digest of each model file shipped in ``policies/`` -> its name. Known in the
 installed code, not beside the file: a digest that a model folder could carry would vouch
