@@ -35,6 +35,7 @@ import hashlib
 import importlib
 import importlib.util
 import sysconfig
+import threading
 from collections.abc import Iterator
 from importlib.machinery import ModuleSpec, PathFinder
 from pathlib import Path
@@ -330,14 +331,30 @@ def code_digest(module: str) -> dict[str, Any] | None:
 
 
 _RECORDER: list[Any] = []  # this process's ImportRecorder, once installed
-_ACTIVE: list[str] = []  # the runs whose code is being built or run now (a stack)
+_THREAD = threading.local()  # .active: the runs this thread is building or running (a stack)
+_RUNNING: dict[str, int] = {}  # run -> the threads building or running its code now
+_RUNNING_LOCK = threading.Lock()
 _NOTED: dict[str, dict[str, None]] = {}  # run -> modules first imported while it was active
 _EXECUTED: dict[str, dict[str, None]] = {}  # run -> source files of code run while active
 
 
+def _active_runs() -> list[str]:
+    """The runs code running in this thread now belongs to: the innermost run this thread
+    entered (:func:`recording`); in a thread that entered none (one a policy started, say)
+    every run active in the process, as any of them may have started it (a module noted
+    for a run it does not belong to only makes that run's cache entries stricter)."""
+    stack = getattr(_THREAD, "active", None)
+    if stack:
+        return [stack[-1]]
+    if not _RUNNING:
+        return []
+    with _RUNNING_LOCK:
+        return list(_RUNNING)
+
+
 def _note(name: str) -> None:
-    if _ACTIVE:
-        _NOTED.setdefault(_ACTIVE[-1], {}).setdefault(name)
+    for run in _active_runs():
+        _NOTED.setdefault(run, {}).setdefault(name)
 
 
 def _executed(event: str, args: tuple[Any, ...]) -> None:
@@ -345,10 +362,11 @@ def _executed(event: str, args: tuple[Any, ...]) -> None:
     runs while a run is active, a module's body among them. A module run from its path
     (``spec_from_file_location`` and ``exec_module``) passes no finder and enters no
     ``sys.modules``: only this sees it."""
-    if event == "exec" and _ACTIVE:
+    if event == "exec" and (_RUNNING or getattr(_THREAD, "active", None)):
         filename = getattr(args[0], "co_filename", None)
         if isinstance(filename, str) and filename.endswith(".py"):
-            _EXECUTED.setdefault(_ACTIVE[-1], {}).setdefault(filename)
+            for run in _active_runs():
+                _EXECUTED.setdefault(run, {}).setdefault(filename)
 
 
 @contextlib.contextmanager
@@ -358,7 +376,9 @@ def recording(run: str) -> Iterator[None]:
     of every module run from its path (an audit hook on ``exec``): a run builds its
     policies and scenarios and runs its episodes and measures inside it, so that
     :func:`loaded_user_code` knows what they loaded by name, which no import statement
-    shows. A module imported earlier in the process (by another run) is not noted again."""
+    shows. A module imported earlier in the process (by another run) is not noted again.
+    Runs in different threads at once are kept apart: what a thread loads is noted for the
+    run it entered last (in a thread that entered none, for every run active then)."""
     import sys
 
     from tap_bench.importhooks import ImportRecorder
@@ -367,11 +387,18 @@ def recording(run: str) -> Iterator[None]:
         _RECORDER.append(ImportRecorder(_note))
         sys.addaudithook(_executed)  # for the life of the process: hooks cannot be removed
     _RECORDER[0].install()
-    _ACTIVE.append(run)
+    stack = _THREAD.__dict__.setdefault("active", [])
+    stack.append(run)
+    with _RUNNING_LOCK:
+        _RUNNING[run] = _RUNNING.get(run, 0) + 1
     try:
         yield
     finally:
-        _ACTIVE.pop()
+        stack.pop()
+        with _RUNNING_LOCK:
+            _RUNNING[run] -= 1
+            if not _RUNNING[run]:
+                del _RUNNING[run]
 
 
 @functools.lru_cache(maxsize=8192)
