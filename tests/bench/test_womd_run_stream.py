@@ -212,10 +212,15 @@ def test_peak_memory_does_not_grow_with_the_scenes(tmp_path):
 
 
 def test_the_parts_of_a_killed_run_go_with_the_next_run_into_its_output(tmp_path):
-    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
-                          capture_output=True, text=True, check=True)
+    # the owner line a spill of a process now gone wrote (with its start: were its id given
+    # to a new process meanwhile, that one started later)
+    dead = subprocess.run([sys.executable, "-c", "import os; from tap_bench.bench.run.spill "
+                           "import _owner; print(_owner(os.getpid()))"],
+                          capture_output=True, text=True, check=True,
+                          env={**os.environ, "PYTHONPATH": str(PROJECT_ROOT)})
     folders = {}
     for name, owner in (("dead", dead.stdout), ("live", f"{os.getppid()}\n"),
+                        ("live-started", bench_spill._owner(os.getppid())),
                         ("unnamed", None)):
         folders[name] = tmp_path / f".run.episodes-{name}"
         folders[name].mkdir()
@@ -227,12 +232,20 @@ def test_the_parts_of_a_killed_run_go_with_the_next_run_into_its_output(tmp_path
     (other / "owner").write_text(dead.stdout)
     far = tmp_path / ".run.episodes-far"  # a run of another host on a shared file system
     far.mkdir()
-    (far / "owner").write_text(f"{dead.stdout.strip()} {socket.gethostname()}-other\n")
+    (far / "owner").write_text(f"{dead.stdout.split()[0]} {socket.gethostname()}-other\n")
+    # a live process's id with another start: the id was given to it after the run's end
+    reused = tmp_path / ".run.episodes-reused"
+    reused.mkdir()
+    (reused / "owner").write_text(f"{os.getppid()} {socket.gethostname()} 1\n")
     spill = bench_spill.RunSpill(tmp_path / "run")
     assert not folders["dead"].exists()  # its process is gone: a run killed outright
     assert folders["live"].exists() and folders["unnamed"].exists() and other.exists()
-    assert far.exists()
-    assert (spill.folder / "owner").read_text() == f"{os.getpid()} {socket.gethostname()}\n"
+    assert folders["live-started"].exists() and far.exists()
+    assert not reused.exists()
+    started = bench_spill._started(os.getpid())
+    assert started is not None  # Linux: /proc names each process's start
+    assert (spill.folder / "owner").read_text() == \
+        f"{os.getpid()} {socket.gethostname()} {started}\n"
     spill.close()
     assert not spill.folder.exists()
 

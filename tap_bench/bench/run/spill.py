@@ -14,7 +14,7 @@ occurrences, one row per episode or a few, for the scores); or read a few episod
 one scene against a reference).
 
 The folder is the run's own (a fresh hidden folder beside the output, naming the process
-that made it in its ``owner`` file) and is removed when the run ends
+that made it in its ``owner`` file: its id, host and start) and is removed when the run ends
 (:meth:`RunSpill.close`), or when the spill is dropped (a run that raised) or the
 interpreter exits. A run killed outright (``kill -9``, a machine that stopped) cannot
 remove it: the next run into the same output removes the folders of that output whose
@@ -65,7 +65,7 @@ class RunSpill:
         _remove_abandoned(output)
         self.folder = Path(tempfile.mkdtemp(prefix=f".{output.name}.episodes-",
                                             dir=output.parent))
-        (self.folder / "owner").write_text(f"{os.getpid()} {socket.gethostname()}\n")
+        (self.folder / "owner").write_text(_owner(os.getpid()) + "\n")
         self.parts: dict[str, dict[int, Path]] = {name: {} for name in (*SPILLED, "roads")}
         self.rows: dict[str, int] = dict.fromkeys((*SPILLED, "roads"), 0)
         self.scenes: dict[int, tuple[str, str | None]] = {}
@@ -137,25 +137,51 @@ class RunSpill:
         self._remove()
 
 
+def _started(pid: int) -> str | None:
+    """When process ``pid`` started (clock ticks since boot, from ``/proc/<pid>/stat``), or
+    None where that cannot be read (no such process, no ``/proc``)."""
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii", errors="replace") as stat:
+            fields = stat.read().rpartition(")")[2].split()
+        return fields[19]  # field 22 of the line, the 20th after the command's name
+    except (OSError, IndexError):
+        return None
+
+
+def _owner(pid: int) -> str:
+    """The ``owner`` line of a spill made by process ``pid`` of this host: its id, the host
+    and, where it can be read, when the process started (so that another process given the
+    same id later is not taken for it)."""
+    started = _started(pid)
+    return f"{pid} {socket.gethostname()}" + ("" if started is None else f" {started}")
+
+
 def _remove_abandoned(output: Path) -> None:
     """Remove the spill folders of ``output`` (``.<name>.episodes-*``, with the ``owner``
-    file a spill writes: its process id and host) whose process on this host is gone; any
-    other folder is left alone, a run's of another host on a shared file system among
-    them."""
+    file a spill writes: its process id, host and start) whose process on this host is gone,
+    or whose process id now names a process that started later; any other folder is left
+    alone, a run's of another host on a shared file system among them."""
     for folder in output.parent.glob(f".{output.name}.episodes-*"):
         try:
-            pid_text, _, host = (folder / "owner").read_text().strip().partition(" ")
-            pid = int(pid_text)
-        except (OSError, ValueError):
+            fields = (folder / "owner").read_text().split()
+            pid = int(fields[0])
+        except (OSError, ValueError, IndexError):
             continue  # not one a spill made (or not yet named): left alone
-        if pid == os.getpid() or (host and host != socket.gethostname()):
+        host, started = [*fields[1:], "", ""][:2]
+        if host and host != socket.gethostname():
             continue
         try:
             os.kill(pid, 0)
         except ProcessLookupError:  # its run is gone
             shutil.rmtree(folder, ignore_errors=True)
-        except OSError:  # another user's live process: left alone
             continue
+        except PermissionError:  # another user's live process: its start tells
+            pass
+        except OSError:
+            continue
+        now = _started(pid)
+        if started and now is not None and now != started:  # the id names another process
+            shutil.rmtree(folder, ignore_errors=True)
 
 
 class SpilledTable:
