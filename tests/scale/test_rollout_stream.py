@@ -189,8 +189,12 @@ def test_progress_lines_count_scenes_and_go_to_the_log(tmp_path, capsys, monkeyp
 
 @pytest.mark.slow
 def test_peak_memory_does_not_grow_with_the_scenes(tmp_path):
+    # measured from 40 scenes: the process's resident memory grows for its first ~50
+    # scenes whatever the rows kept (4, 8, 16, 40, 80 scenes: 303, 312, 330, 371, 387 MB),
+    # as the allocator keeps freed blocks (malloc_trim returns ~100 MB at the end) and the
+    # cyclic garbage of each scene's road waits for a full collection; 4 -> 40 gave 1.22x
     peaks = {}
-    for n in (4, 40):
+    for n in (40, 80):
         files = scene_files(tmp_path / f"s{n}", n, per_file=8, parked=150)
         report = tmp_path / f"m{n}.json"
         proc = child([*rollout_args(files, tmp_path / f"o{n}.parquet"), "--policy", "log"],
@@ -198,8 +202,8 @@ def test_peak_memory_does_not_grow_with_the_scenes(tmp_path):
         assert proc.wait() == 0, proc.stderr.read()
         peaks[n] = json.loads(report.read_text())["peak_kb"]
         assert len(pd.read_parquet(tmp_path / f"o{n}.episodes.parquet")) == n
-    # 36 more scenes of 13,832 rows: an in-memory run holds ~2.5 MB more each
-    assert peaks[40] <= 1.2 * peaks[4], peaks
+    # 40 more scenes of 13,832 rows: an in-memory run holds ~2.5 MB more each
+    assert peaks[80] <= 1.2 * peaks[40], peaks
 
 
 def test_a_progress_line_counts_this_runs_scenes_for_the_rate(tmp_path):
