@@ -73,12 +73,14 @@ then follow the new lane), as the IDM controller does.
 
 from __future__ import annotations
 
+import inspect
 import math
 from typing import Any, NamedTuple
 
 import numpy as np
 from gymnasium import spaces
 
+from tap_bench.errors import did_you_mean
 from tap_bench.sim.observation import FastKinematicObservation
 
 __all__ = ["CLOSING_SCALE", "CROSSING_COUNT", "CROSSING_FEATURES", "CROSS_HORIZON",
@@ -159,6 +161,20 @@ def route_feature_names(route_points: int, leader: bool = False,
     return [*points, *ROUTE_FEATURES, *(LEADER_FEATURES if leader else ()), *crossers]
 
 
+_ROUTE_OPTIONS = ("route_points", "route_spacing", "leader", "crossing", "leader_corners")
+
+
+def _kinematics_options() -> set[str]:
+    """The named parameters of highway-env's Kinematics observation (its ``__init__``)."""
+    names: set[str] = set()
+    for cls in FastKinematicObservation.__mro__:
+        init = cls.__dict__.get("__init__")
+        if init is not None:
+            names |= {p.name for p in inspect.signature(init).parameters.values()
+                      if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+    return names - {"self", "env"}
+
+
 class RouteObservation(FastKinematicObservation):
     """highway-env's Kinematics observation (flattened) followed by the ego's route (see the
     module docstring for the layout).
@@ -180,6 +196,11 @@ class RouteObservation(FastKinematicObservation):
                  leader: bool = False, crossing: bool = False, leader_corners: bool = False,
                  **kwargs: Any) -> None:
         kwargs.pop("type", None)
+        known = _kinematics_options()
+        for key in kwargs:
+            if key not in known:  # highway-env's Kinematics ignores an unknown key silently
+                raise did_you_mean("KinematicsRoute observation option", key,
+                                   known | set(_ROUTE_OPTIONS))
         super().__init__(env, **kwargs)
         if isinstance(route_points, bool) or not isinstance(route_points, int) \
                 or route_points < 1:

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tap_bench.errors import UnknownNameError
 from tap_bench.sim.policies import load_policy
 from tap_bench.sim.womd_env import make_womd_env
 from tap_bench.sim.womd_observation import LEADER_FEATURES, ROUTE_FEATURES, route_feature_names
@@ -279,3 +280,16 @@ def test_the_kinematics_part_is_highway_envs_observation_on_the_real_scenes(real
     for obs, theirs in compared:
         np.testing.assert_allclose(obs[:size], theirs, rtol=0, atol=1e-9)
     assert len(compared) > 50
+
+
+def test_a_misspelt_observation_option_is_refused_with_the_known_ones(tmp_path):
+    # highway-env's Kinematics ignores keys it does not know: "crosing" would train an
+    # agent without the crossing features, and its definition would record the typo
+    path = two_lanes(tmp_path / "sd_two.pkl", theta=0.0, side=1, speed=10.0)
+    config = {"observation": {"type": "KinematicsRoute", "crosing": True}}
+    with pytest.raises(UnknownNameError, match=r"crosing.*crossing"):
+        make_womd_env(path, config=config).reset(seed=0)
+    env = make_womd_env(path, config={"observation": {"type": "KinematicsRoute",
+                                                       "crossing": True, "see_behind": True}})
+    env.reset(seed=0)
+    assert env.unwrapped.observation_type.crossing_features
