@@ -413,14 +413,19 @@ def loaded_user_code(run: str) -> dict[str, dict[str, str]]:
     """``{module: {"path": ..., "sha256": ...}}`` of every module of the user's code (a
     Python source outside tap-bench, highway-env, the standard library and site-packages)
     this process imported while it built or ran the code of run ``run``
-    (:func:`recording`): what an episode or label entry made now may depend on beyond its
-    key (a module loaded by name as the policy or a measure ran). The cache keeps it with
-    the entry and serves the entry only while every file still hashes the same
-    (:func:`user_code_holds`)."""
+    (:func:`recording`), and of every other run of this process: a module imported by an
+    earlier or concurrent run is not imported again, so nothing shows whether run ``run``
+    uses it too, and an entry that names a module it did not need only misses more often.
+    What an episode or label entry made now may depend on beyond its key (a module loaded
+    by name as the policy or a measure ran): the cache keeps it with the entry and serves
+    the entry only while every file still hashes the same (:func:`user_code_holds`)."""
     import sys
 
     out: dict[str, dict[str, str]] = {}
-    for name in list(_NOTED.get(run, ())):
+    noted = {name: None for run_noted in list(_NOTED.values()) for name in list(run_noted)}
+    executed = {f: None for run_executed in list(_EXECUTED.values())
+                for f in list(run_executed)}
+    for name in noted:
         path = _source_path(getattr(sys.modules.get(name), "__spec__", None))
         if path is None or not _is_user_file(name, path):
             continue
@@ -430,7 +435,7 @@ def loaded_user_code(run: str) -> dict[str, dict[str, str]]:
         except OSError:
             continue
     seen = {info["path"] for info in out.values()}
-    for filename in list(_EXECUTED.get(run, ())):  # modules run from their path
+    for filename in executed:  # modules run from their path
         path = Path(filename)
         if filename in seen or not _run_from_user_file(filename):
             continue

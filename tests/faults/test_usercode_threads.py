@@ -1,8 +1,8 @@
-"""The user code a run loads (:func:`tap_bench.usercode.recording`) is noted per thread: two
-runs whose code runs at once in two threads of one process (Ray's local mode, a user's
-thread pool) each get the modules their own thread loaded, whatever the order the threads
-enter and leave; a thread no run entered (one a policy started) notes for every active
-run."""
+"""The user code a run loads (:func:`tap_bench.usercode.recording`): two runs whose code
+runs at once in two threads of one process (Ray's local mode, a user's thread pool), or one
+after the other, each get every module either loaded, whatever the order the threads enter
+and leave (a thread no run entered, one a policy started, included): a module already
+loaded is not imported again, so nothing tells which run uses it."""
 
 from __future__ import annotations
 
@@ -64,6 +64,19 @@ def test_two_runs_in_two_threads_note_their_own_modules(tmp_path, monkeypatch):
     assert not errors, errors
     assert spawned_done.is_set()
     loaded = {role: set(loaded_user_code(run)) for role, run in runs.items()}
-    assert loaded["a"] == {names["a"]}, loaded
-    # the thread b's code started, with no run of its own, counts for the run active then
-    assert loaded["b"] == {names["b"], names["spawned"]}, loaded
+    # every module a thread loaded, the one b's code started with no run of its own among
+    # them, counts for both runs: nothing shows which of them uses a module already loaded
+    every = {names["a"], names["b"], names["spawned"]}
+    assert every <= loaded["a"] and every <= loaded["b"], loaded
+
+
+def test_a_module_an_earlier_run_imported_counts_for_a_later_run(tmp_path, monkeypatch):
+    # run b loads the helper by name after run a imported it: no import happens, yet b's
+    # episodes depend on it, and an edit of it must not serve b's entries
+    names = _modules(tmp_path, monkeypatch, "shared")
+    first, later = (f"run-{uuid.uuid4().hex[:8]}" for _ in range(2))
+    with recording(first):
+        importlib.import_module(names["shared"])
+    with recording(later):
+        importlib.import_module(names["shared"])
+    assert names["shared"] in loaded_user_code(later)
