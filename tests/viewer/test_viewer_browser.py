@@ -52,7 +52,15 @@ def test_playback_advances_time_and_the_label_timeline(tiny_run, browser, screen
     while _state(browser, "TAPVIEW.state.t") <= 0.5 and time.monotonic() < deadline:
         time.sleep(0.05)
     browser.find_element("id", "play").click()  # pause
-    t = _state(browser, "TAPVIEW.state.t")
+    # a starved browser may still be drawing a frame queued before the pause: read the time
+    # once it holds still
+    t, deadline = _state(browser, "TAPVIEW.state.t"), time.monotonic() + 10.0
+    while time.monotonic() < deadline:
+        time.sleep(0.3)
+        now_t = _state(browser, "TAPVIEW.state.t")
+        if now_t == t:
+            break
+        t = now_t
     assert t > 0.5  # playback moved the time
     x1 = float(_state(browser, "TAPVIEW.state.a.view.timeline.playhead.getAttribute('x1')"))
     assert x1 > x0
