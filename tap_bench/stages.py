@@ -486,6 +486,9 @@ def _cut_off_returns(runs: Runs, trace: np.ndarray, turn: np.ndarray
     return which[back], traced.start[k[back]]
 
 
+_TURNED_BACK = 1e-6  # [rad] the least heading change back that counts (not rounding noise)
+
+
 def _peaked_at_end(runs: Runs, path: _Path, trace: np.ndarray, turn: np.ndarray,
                    which: np.ndarray, back: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:func:`_cut_off_returns`' answer (``which``, ``back``) with the turn runs that end
@@ -503,7 +506,7 @@ def _peaked_at_end(runs: Runs, path: _Path, trace: np.ndarray, turn: np.ndarray,
     code = runs.code[turn[cand]]
     towards = np.where(code == sdl.LEFT, 1, -1)
     h = path.heading
-    turned_back = ((towards * (h[path.rows[last]] - h[path.rows[last - 2]]) < 0)
+    turned_back = ((towards * (h[path.rows[last]] - h[path.rows[last - 2]]) < -_TURNED_BACK)
                    & (trace[last - 1] != code) & (trace[last - 2] != code))
     which = np.r_[which, cand[turned_back]]
     back = np.r_[back, last[turned_back] - 1]
