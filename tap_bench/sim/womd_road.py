@@ -290,7 +290,6 @@ class LogVehicle(Vehicle):
         super().__init__(road, np.array([x, y]), h, v)
         self.diagonal = math.hypot(self.LENGTH, self.WIDTH)
         self.check_collisions = False
-        self._place(clock[0])
 
     @classmethod
     def many(cls, road: Road, rows: Sequence[int], states: np.ndarray, valid: np.ndarray,
@@ -347,7 +346,6 @@ class LogVehicle(Vehicle):
         Vehicle.__init__(self, road, np.array([x, y]), h, v)
         self.diagonal = math.hypot(self.LENGTH, self.WIDTH)
         self.check_collisions = False
-        self._place(clock[0])
 
     def _state(self, k: int) -> tuple[float, float, float, float]:
         """(x, y, heading, speed) at the record's step ``k`` (the hidden place and 0, 0
@@ -356,18 +354,18 @@ class LogVehicle(Vehicle):
         x, y = self._xy[k].tolist()
         return x, y, self._heading[k], self._speed[k]
 
-    def _place(self, k: int) -> None:
-        """Nothing to do: the state is read at the road's step (kept for the makers)."""
-
     @property
     def position(self) -> np.ndarray:
         """(2,) [m] the logged position at the road's step (a read-only view)."""
         k = self.clock[0]
         return self._xy[k if k < self._end else self._end]
 
+    # The setters below ignore every write: highway-env's Vehicle.__init__, its collision
+    # handling and a highway-env step assign these, but a replayed vehicle's state is the
+    # log's at the road's step.
     @position.setter
     def position(self, value: Any) -> None:
-        pass  # the log decides
+        pass
 
     @property
     def heading(self) -> float:
