@@ -640,15 +640,8 @@ class TrafficRoad(Road):
         n = len(vehicles)
         rows = []  # (x, y, heading, speed, steering, acceleration, length) per vehicle
         for v in vehicles:
-            action, speed = v.action, float(v.speed)
-            if v.crashed:
-                action["steering"], action["acceleration"] = 0, -1.0 * speed
-            s, a = float(action["steering"]), float(action["acceleration"])
-            if speed > v.MAX_SPEED:
-                a = min(a, 1.0 * (v.MAX_SPEED - speed))
-            elif speed < v.MIN_SPEED:
-                a = max(a, 1.0 * (v.MIN_SPEED - speed))
-            action["steering"], action["acceleration"] = s, a
+            speed = float(v.speed)
+            s, a = limited_action(v)
             rows.append((float(v.position[0]), float(v.position[1]), float(v.heading), speed,
                          s, a, float(v.LENGTH)))
         if n <= SCALAR_MAX_OBJECTS:
@@ -820,6 +813,22 @@ def _swept_apart_one(a: tuple, b: tuple, dt: float) -> bool:
             return True
     return False
 
+
+
+def limited_action(vehicle: Any) -> tuple[float, float]:
+    """The (steering [rad], acceleration [m/s^2]) a vehicle's step moves by, written back
+    to ``vehicle.action``: a crashed vehicle brakes to a stop within a second, straight;
+    a speed above ``MAX_SPEED`` or below ``MIN_SPEED`` is brought back within a second."""
+    action, speed = vehicle.action, float(vehicle.speed)
+    if vehicle.crashed:
+        action["steering"], action["acceleration"] = 0, -1.0 * speed
+    steering, acc = float(action["steering"]), float(action["acceleration"])
+    if speed > vehicle.MAX_SPEED:
+        acc = min(acc, 1.0 * (vehicle.MAX_SPEED - speed))
+    elif speed < vehicle.MIN_SPEED:
+        acc = max(acc, 1.0 * (vehicle.MIN_SPEED - speed))
+    action["steering"], action["acceleration"] = steering, acc
+    return steering, acc
 
 def near_pairs(vehicles: list[Any], objects: list[Any], dt: float) -> np.ndarray | None:
     """(n_vehicles, n_vehicles + n_objects) bool: the pairs (vehicle, vehicle or object)

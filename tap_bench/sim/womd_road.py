@@ -36,7 +36,7 @@ from highway_env.vehicle.kinematics import Vehicle
 from tap_bench.errors import ParameterError
 from tap_bench.sim.driver_models import bicycle_one, steering_one
 from tap_bench.sim.road_edges import RoadEdges, left_road
-from tap_bench.sim.traffic import TOUCH_MARGIN, near_pairs, shape_of
+from tap_bench.sim.traffic import TOUCH_MARGIN, limited_action, near_pairs, shape_of
 from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex, _frame, lanes_points
 from tap_bench.sim.womd_scene import Scene
 from tap_bench.womd.roadmap import split_rows
@@ -772,15 +772,8 @@ class WomdIDMVehicle(_RouteMixin, IDMVehicle):
             if self.road.clock[0] >= self.start_step:
                 self._appear()
             return
-        action, speed = self.action, float(self.speed)
-        if self.crashed:
-            action["steering"], action["acceleration"] = 0, -1.0 * speed
-        steering, acc = float(action["steering"]), float(action["acceleration"])
-        if speed > self.MAX_SPEED:
-            acc = min(acc, 1.0 * (self.MAX_SPEED - speed))
-        elif speed < self.MIN_SPEED:
-            acc = max(acc, 1.0 * (self.MIN_SPEED - speed))
-        action["steering"], action["acceleration"] = steering, acc
+        speed = float(self.speed)
+        steering, acc = limited_action(self)
         x, y, heading, speed = bicycle_one(float(self.position[0]), float(self.position[1]),
                                            float(self.heading), speed, steering, acc,
                                            float(self.LENGTH), dt)
