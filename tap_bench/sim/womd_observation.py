@@ -302,6 +302,12 @@ class RouteObservation(FastKinematicObservation):
                       cross.other_time / CROSS_HORIZON)
         return out.ravel()
 
+    def _road_users(self) -> list[Any]:
+        """The road's vehicles but the ego that can be hit now (collidable, not hidden)."""
+        ego = self.observer_vehicle
+        return [v for v in self.env.road.vehicles if v is not ego
+                and getattr(v, "collidable", True) and not getattr(v, "hidden", False)]
+
     def crossings(self, path: np.ndarray) -> list[Crossing]:
         """The road users whose way crosses ``path`` (see the module docstring), nearest
         crossing point first.
@@ -309,9 +315,7 @@ class RouteObservation(FastKinematicObservation):
         Args:
             path: (m, 2) the polyline ahead, from the ego's position on [m, sim frame].
         """
-        ego = self.observer_vehicle
-        others = [v for v in self.env.road.vehicles if v is not ego
-                  and getattr(v, "collidable", True) and not getattr(v, "hidden", False)]
+        ego, others = self.observer_vehicle, self._road_users()
         if not others or len(path) < 2:
             return []
         pos = np.array([v.position for v in others], dtype=float)  # (n, 2)
@@ -355,9 +359,7 @@ class RouteObservation(FastKinematicObservation):
         Args:
             path: (m, 2) the polyline ahead, from the ego's position on [m, sim frame].
         """
-        ego = self.observer_vehicle
-        others = [v for v in self.env.road.vehicles if v is not ego
-                  and getattr(v, "collidable", True) and not getattr(v, "hidden", False)]
+        ego, others = self.observer_vehicle, self._road_users()
         if not others or len(path) < 2:
             return NO_LEADER
         pos = np.array([v.position for v in others], dtype=float)  # (n, 2)
