@@ -366,8 +366,8 @@ class _PairSeries:
         j = self.pos_in[pairs][:, None] + lags[None, :]
         ok = (j >= 0) & (j < len(order))
         other = order[np.clip(j, 0, len(order) - 1)]
-        ok &= (track[other] == track[pairs][:, None]) \
-            & (q_step[other] - q_step[pairs][:, None] == lags[None, :])
+        ok &= ((track[other] == track[pairs][:, None])
+            & (q_step[other] - q_step[pairs][:, None] == lags[None, :]))
         ok &= ego_path[q_step[other]] == ego_path[q_step[pairs]][:, None]
         return other, ok
 
@@ -435,8 +435,8 @@ class _EgoScene:
         mid = np.maximum(path_last - END_STEADY_STEPS // 2, path_first)
         late = np.angle(np.exp(1j * (h_last - heading[ego_row[mid]])))
         early = np.angle(np.exp(1j * (heading[ego_row[mid]] - heading[ego_row[back]])))
-        ends_steady = (np.abs(late - early) <= END_STEADY_RAD) \
-            & (arc[path_last] - arc[back] >= END_STEADY_DISTANCE)
+        ends_steady = ((np.abs(late - early) <= END_STEADY_RAD)
+            & (arc[path_last] - arc[back] >= END_STEADY_DISTANCE))
         if self.rows.lanes is not None:
             ends_steady |= self.rows.lanes.covers(paths.scene[paths.start]) & (
                 arc[path_last] - arc[back] >= END_STEADY_DISTANCE)

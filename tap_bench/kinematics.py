@@ -425,8 +425,8 @@ def compute_kinematics(checked: CheckedTable, plausibility: Plausibility | None 
         motion = np.where(span > 0, dist / span, 0.0)
         along = np.where(dist > 0, (ux * np.cos(centre) + uy * np.sin(centre)) / dist, 1.0)
     moving = motion >= p.v_heading
-    first_block = np.flatnonzero(np.r_[True, block_seg[1:] != block_seg[:-1]]) if nb else \
-        np.zeros(0, dtype=np.int64)
+    first_block = (np.flatnonzero(np.r_[True, block_seg[1:] != block_seg[:-1]]) if nb else
+        np.zeros(0, dtype=np.int64))
     home = np.repeat(first_block, np.diff(np.r_[first_block, nb]))
     travel = (np.maximum.reduceat(np.hypot(mx - mx[home], my - my[home]), first_block)
               if nb else np.zeros(0))

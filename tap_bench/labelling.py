@@ -628,8 +628,8 @@ def _scenario_parts(table: pd.DataFrame | EncodedTable, part_rows: int) -> list[
         if not (np.diff(codes[starts]) > 0).all():
             return None
     else:
-        if not isinstance(table, pd.DataFrame) or len(table) <= part_rows or \
-                "scenario_id" not in table.columns:
+        if (not isinstance(table, pd.DataFrame) or len(table) <= part_rows or
+                "scenario_id" not in table.columns):
             return None
         n = len(table)
         column = table["scenario_id"]
@@ -681,8 +681,8 @@ def _interaction_segments(info: pd.DataFrame, tracks: str, source: str) -> np.nd
                 "vehicle and cyclist).")
         is_ego = info["is_ego"]
         # validated: numpy bools, nothing missing (other types as before)
-        mask = is_ego.to_numpy() if is_ego.dtype == np.bool_ else \
-            is_ego.fillna(False).to_numpy(bool)
+        mask = (is_ego.to_numpy() if is_ego.dtype == np.bool_ else
+            is_ego.fillna(False).to_numpy(bool))
     else:
         mask = np.ones(len(info), bool)
     if "object_type" in info.columns:  # as astype(str).isin: a missing type is no type

@@ -139,8 +139,8 @@ def validate_labels(labels: pd.DataFrame, level: str | None = None, *,
     if len(table) == 0:
         raise LabelTableError(f"{source}: the label table is empty.")
     table = table.reset_index(drop=True)
-    input_rows = np.flatnonzero(labels["level"].astype(str).to_numpy() == level) \
-        if "level" in labels.columns else np.arange(len(labels))
+    input_rows = (np.flatnonzero(labels["level"].astype(str).to_numpy() == level)
+        if "level" in labels.columns else np.arange(len(labels)))
     for col in ("lateral", "longitudinal", "sdl"):
         empty = table[col].isna().to_numpy()
         if empty.any():
@@ -173,8 +173,8 @@ def _on_axes(labels: pd.DataFrame, level: str | None, axes: tuple[str, ...],
     if missing:
         raise LabelTableError(f"{source}: {missing_axes(missing)}")
     table, level = select_level(labels, level, source)
-    input_rows = np.flatnonzero(labels["level"].astype(str).to_numpy() == level) \
-        if "level" in labels.columns else np.arange(len(labels))
+    input_rows = (np.flatnonzero(labels["level"].astype(str).to_numpy() == level)
+        if "level" in labels.columns else np.arange(len(labels)))
     if "interaction" in axes:
         on_axis = table["interaction"].notna().to_numpy()
         if not on_axis.any():

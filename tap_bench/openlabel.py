@@ -93,8 +93,8 @@ def to_openlabel(segments: pd.DataFrame, *, level: str | None = None,
 
 def _document(sid: str, scene: pd.DataFrame, level: str | None) -> dict[str, Any]:
     tracks = list(dict.fromkeys(scene["track_id"].astype(str)))
-    others = [] if "other_track_id" not in scene.columns else \
-        [str(o) for o in scene["other_track_id"].dropna().astype(str)]
+    others = ([] if "other_track_id" not in scene.columns else
+        [str(o) for o in scene["other_track_id"].dropna().astype(str)])
     for other in others:  # an agent named by a relation is an object too
         if other not in tracks:
             tracks.append(other)

@@ -260,17 +260,17 @@ class LaneMap:
         ids = tuple(dict.fromkeys(mid.tolist()))
         code = {m: k for k, m in enumerate(ids)}
         feature = lanes["feature_id"].to_numpy(np.int64)
-        new = np.r_[True, (feature[1:] != feature[:-1]) | (mid[1:] != mid[:-1])] \
-            if len(feature) else np.zeros(0, bool)
+        new = (np.r_[True, (feature[1:] != feature[:-1]) | (mid[1:] != mid[:-1])]
+            if len(feature) else np.zeros(0, bool))
         starts = np.flatnonzero(new)
         stops = np.r_[starts[1:], len(feature)].astype(np.int64)
         size = stops - starts
         keep = size >= 2
         starts, stops, size = starts[keep], stops[keep], size[keep]
         lx, ly = lanes["x"].to_numpy(float), lanes["y"].to_numpy(float)
-        take = np.concatenate([np.arange(a, b) for a, b in zip(starts.tolist(),
-                                                               stops.tolist(), strict=True)]) \
-            if len(starts) else np.zeros(0, np.int64)
+        take = (np.concatenate([np.arange(a, b) for a, b in zip(starts.tolist(),
+                                                               stops.tolist(), strict=True)])
+            if len(starts) else np.zeros(0, np.int64))
         stop = np.cumsum(size).astype(np.int64)
         return cls(np.array([code[m] for m in mid[starts]], np.int64), stop - size, stop,
                    lx[take], ly[take], None, ids)
@@ -338,8 +338,8 @@ class LaneMap:
                     parts[name].append(value)
             seg = {k: (np.concatenate(v) if v else np.zeros(0)) for k, v in parts.items()}
             seg["lane"] = seg["lane"].astype(np.int64)
-            seg["first"] = np.flatnonzero(np.r_[True, seg["lane"][1:] != seg["lane"][:-1]]) \
-                if len(seg["lane"]) else np.zeros(0, np.int64)
+            seg["first"] = (np.flatnonzero(np.r_[True, seg["lane"][1:] != seg["lane"][:-1]])
+                if len(seg["lane"]) else np.zeros(0, np.int64))
             self._memo[key] = seg
         return self._memo[key]
 
@@ -659,8 +659,8 @@ def _fading(k_end: np.ndarray, k_before: np.ndarray, ds: np.ndarray
     import numpy as np
 
     a_end, a_before = np.abs(k_end), np.abs(k_before)
-    falling = (np.sign(k_end) == np.sign(k_before)) & (a_end < FADE_RATIO * a_before) \
-        & (ds > 0)
+    falling = ((np.sign(k_end) == np.sign(k_before)) & (a_end < FADE_RATIO * a_before)
+        & (ds > 0))
     with np.errstate(divide="ignore", invalid="ignore"):
         rate = np.where(falling, (a_before - a_end) / np.where(ds > 0, ds, 1.0), 0.0)
         # the mean is the curvature half a stretch back: at the end it has fallen further
@@ -771,8 +771,8 @@ def _reference_lines(paths: Paths, ego_row: np.ndarray, ego_path: np.ndarray, sp
     import numpy as np
 
     (x, y, first_step, last_step, arc, kept, kept_path, n_kept, hb, he, k_front, fade_f,
-     k_back, fade_b, _) = _line_base(paths, ego_row, ego_path, spacing) if base is None \
-        else base
+     k_back, fade_b, _) = (_line_base(paths, ego_row, ego_path, spacing) if base is None
+        else base)
     # distances of the extension vertices from each end, (P, e) far to near: the far vertex
     # at EXTENSION, then every few metres (closer on tighter arcs, or along lanes) to reach
     mapped = (lanes.covers(paths.scene[paths.start]) if lanes is not None
@@ -1100,8 +1100,8 @@ def scene_lanes(table, scene_codes: np.ndarray, scenes, map_table) -> LaneMap:
     import numpy as np
 
     shared = map_table if isinstance(map_table, LaneMap) else None
-    ids = set(shared.map_ids) if shared is not None else \
-        set(map_table["map_id"].astype(str).unique())
+    ids = (set(shared.map_ids) if shared is not None else
+        set(map_table["map_id"].astype(str).unique()))
     maps: list[str | None] = [str(s) if str(s) in ids else None for s in scenes]
     if "env" in table.columns and any(m is None for m in maps):
         first = np.unique(np.asarray(scene_codes), return_index=True)[1]

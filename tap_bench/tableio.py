@@ -114,8 +114,8 @@ def _check_csv_text(path: Path) -> None:
             at = block.find(b"\0")
             if at < 0:
                 line += block.count(b"\n")
-                offset = len(block) - block.rfind(b"\n") - 1 if b"\n" in block \
-                    else offset + len(block)
+                offset = (len(block) - block.rfind(b"\n") - 1 if b"\n" in block
+                    else offset + len(block))
                 continue
             line += block.count(b"\n", 0, at)
             start = block.rfind(b"\n", 0, at)

@@ -164,9 +164,9 @@ def _contract_types(col: pd.Series) -> pd.Series | None:
     if isinstance(col.dtype, pd.CategoricalDtype):  # of the contract's words, none missing:
         # its strings, as lower-casing them gives (checked on the categories)
         categories = col.dtype.categories
-        if categories.dtype == pd.api.types.pandas_dtype(str) and \
-                not (col.array.codes < 0).any() and \
-                all(isinstance(v, str) and v in OBJECT_TYPES for v in categories):
+        if (categories.dtype == pd.api.types.pandas_dtype(str) and
+                not (col.array.codes < 0).any() and
+                all(isinstance(v, str) and v in OBJECT_TYPES for v in categories)):
             # (the categories' Arrow strings taken at the codes: astype(str) goes through
             # a Python string a row)
             import pyarrow as pa
@@ -531,8 +531,8 @@ def _read_columns(table: pd.DataFrame, by_name: dict | pd.DataFrame,
             cols[col] = _numeric(table, col, source, by_name)
     if "speed" not in table.columns:
         cols["speed"] = np.hypot(cols["vx"], cols["vy"])
-    valid = _bool_column(table, "valid", source, by_name) if "valid" in table.columns \
-        else None
+    valid = (_bool_column(table, "valid", source, by_name) if "valid" in table.columns
+        else None)
 
     # Infinite values are never data; NaN is only allowed on rows marked invalid.
     for col in _NUMERIC:

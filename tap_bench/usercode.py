@@ -152,8 +152,8 @@ def _split_name(text: str, parameter: str, separator: str) -> tuple[str, str]:
         module, _, attribute = str(text).partition(":")
     else:
         module, _, attribute = str(text).rpartition(".")
-    if not module or not attribute or not attribute.isidentifier() \
-            or not all(p.isidentifier() for p in module.split(".")):
+    if (not module or not attribute or not attribute.isidentifier()
+            or not all(p.isidentifier() for p in module.split("."))):
         shape = "'module:Class'" if separator == ":" else "'package.module.Class'"
         raise ParameterError(parameter, text, f"a class named as {shape}")
     return module, attribute
@@ -210,8 +210,8 @@ def import_checked_class(text: str, parameter: str, *, kind: str, separator: str
         raise ParameterError(parameter, text, "an importable class", message=(
             f"{where}{parameter} {text!r} cannot be imported ({err}).")) from err
     missing = [m for m in methods if not callable(getattr(target, m, None))]
-    if not isinstance(target, type) or (base is not None and not issubclass(target, base)) \
-            or missing:
+    if (not isinstance(target, type) or (base is not None and not issubclass(target, base))
+            or missing):
         what = "not a class" if not isinstance(target, type) else (
             f"no method {', '.join(missing)}" if missing else f"not a subclass of "
             f"{base.__module__}.{base.__qualname__}")
@@ -297,8 +297,8 @@ def code_files(module: str) -> dict[str, Path]:
             continue
         resolved = path.resolve()
         first = name.split(".")[0]
-        if (first in TRUSTED_PACKAGES and top not in TRUSTED_PACKAGES) \
-                or not (_inside(resolved, root) and (followable or first == top)):
+        if ((first in TRUSTED_PACKAGES and top not in TRUSTED_PACKAGES)
+                or not (_inside(resolved, root) and (followable or first == top))):
             continue  # tap-bench's and highway-env's code are keyed by their versions
         files[name] = path
         if len(files) > MAX_CODE_FILES:
@@ -483,8 +483,8 @@ def user_code_holds(loaded: Any) -> bool:
     if not isinstance(loaded, dict):
         raise ValueError("the loaded modules are not an object")
     for name, info in loaded.items():
-        if not isinstance(info, dict) or not isinstance(info.get("path"), str) \
-                or not isinstance(info.get("sha256"), str):
+        if (not isinstance(info, dict) or not isinstance(info.get("path"), str)
+                or not isinstance(info.get("sha256"), str)):
             raise ValueError(f"loaded module {str(name)[:80]!r} is malformed")
         try:
             data = Path(info["path"]).read_bytes()

@@ -93,8 +93,8 @@ def ego_labels(labels: pd.DataFrame, level: str, *, source: str = "label table"
         rows = rows[labels["is_ego"].fillna(False).to_numpy(bool)[rows]]
     else:
         rows = rows[_ego_mask(labels.iloc[rows], source)]
-    duration = (labels["t_end"].to_numpy(float) - labels["t_start"].to_numpy(float))[rows] \
-        if "t_end" in labels else np.zeros(len(rows))
+    duration = ((labels["t_end"].to_numpy(float) - labels["t_start"].to_numpy(float))[rows]
+        if "t_end" in labels else np.zeros(len(rows)))
     rows = rows[np.lexsort((-duration,))]
     # the first (longest) row of each scenario, in that order (drop_duplicates keep="first")
     codes, _ = pd.factorize(labels["scenario_id"].take(rows), use_na_sentinel=False)
@@ -168,8 +168,8 @@ def episode_table(*, labels: pd.DataFrame | None = None,
             for col in _SHARED:
                 if f"_{col}" not in out:
                     continue
-                out[col] = out[col].where(out[col].notna(), out.pop(f"_{col}")) \
-                    if col in out else out.pop(f"_{col}")
+                out[col] = (out[col].where(out[col].notna(), out.pop(f"_{col}"))
+                    if col in out else out.pop(f"_{col}"))
     for col in EPISODE_COLUMNS:
         if col not in out.columns:
             out[col] = _default(col)
@@ -196,8 +196,8 @@ def _with_labels(out: pd.DataFrame, ego: pd.DataFrame) -> pd.DataFrame:
     (the batch's case, without a merge's hashing and copies); the merge itself otherwise
     (its missing values, its suffixes)."""
     fields = [c for c in ego.columns if c != "scenario_id"]
-    pos = pd.Index(ego["scenario_id"]).get_indexer(out["scenario_id"]) \
-        if len(out) and ego["scenario_id"].is_unique else None
+    pos = (pd.Index(ego["scenario_id"]).get_indexer(out["scenario_id"])
+        if len(out) and ego["scenario_id"].is_unique else None)
     if pos is None or (pos < 0).any() or any(c in out.columns for c in fields):
         return out.merge(ego, on="scenario_id", how="left")
     return pd.concat([out, ego[fields].take(pos).reset_index(drop=True)], axis=1)
@@ -216,9 +216,9 @@ def _with_rollout(out: pd.DataFrame, eps: pd.DataFrame) -> pd.DataFrame:
         return list(zip(*(table[c].tolist() for c in _KEYS), strict=True))
 
     fields = [c for c in eps.columns if c not in _KEYS]
-    simple = len(out) == len(eps) > 0 and not any(c in out.columns for c in fields) \
-        and all(out[c].dtype == eps[c].dtype for c in _KEYS) \
-        and not any(out[c].isna().any() or eps[c].isna().any() for c in _KEYS)
+    simple = (len(out) == len(eps) > 0 and not any(c in out.columns for c in fields)
+        and all(out[c].dtype == eps[c].dtype for c in _KEYS)
+        and not any(out[c].isna().any() or eps[c].isna().any() for c in _KEYS))
     if simple:
         position = {key: k for k, key in enumerate(keys(eps))}
         pos = [position.get(key, -1) for key in keys(out)]
@@ -272,8 +272,8 @@ def episodes_from_table(table: pd.DataFrame, *, level: str, thresholds: str = "p
         (episode table, label table, trajectory table or None).
     """
     if "sdl" in table.columns:
-        return episode_table(labels=table, level=level, policy=policy, source=source), \
-            table, None
+        return (episode_table(labels=table, level=level, policy=policy, source=source),
+            table, None)
     labels = tap(table, thresholds, source=source, interactions=interactions).labels("all")
     eps = episode_table(labels=labels, trajectories=table, level=level, policy=policy,
                         source=source)

@@ -481,8 +481,8 @@ def _check_entry(measure: Measure) -> None:
             len(measure.bounds) == 2 and measure.bounds[0] < measure.bounds[1]):
         raise RegistrationError(f"measure {measure.name!r}: bounds {measure.bounds!r} must be "
                                 "(low, high) with low < high, or None.")
-    if isinstance(measure.decimals, bool) or not isinstance(measure.decimals, int) \
-            or not 0 <= measure.decimals <= 6:
+    if (isinstance(measure.decimals, bool) or not isinstance(measure.decimals, int)
+            or not 0 <= measure.decimals <= 6):
         raise RegistrationError(f"measure {measure.name!r}: decimals {measure.decimals!r} "
                                 "must be an integer from 0 to 6.")
     if measure.role not in MEASURE_ROLES:
@@ -859,8 +859,8 @@ def ego_steps(table: pd.DataFrame, map_table: pd.DataFrame | LaneMap | None = No
             f"t = {t[dup]:g} s; each track has one row per 0.1 s step.", column="t", row=int(dup))
     seg_sid = ego_sid[order]
     m = len(ego_rows)
-    starts = np.flatnonzero(np.r_[True, seg_sid[1:] != seg_sid[:-1]]) if m else \
-        np.zeros(0, np.int64)
+    starts = (np.flatnonzero(np.r_[True, seg_sid[1:] != seg_sid[:-1]]) if m else
+        np.zeros(0, np.int64))
     counts = np.diff(np.r_[starts, m]).astype(np.int64)
     scen = seg_sid[starts]
 

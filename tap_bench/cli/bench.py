@@ -161,8 +161,8 @@ def run_bench(args: argparse.Namespace) -> int:
     if result is None:
         from tap_bench.bench.run.runner import run_suite
 
-        backend = backend_from_args(args) if args.backend != "local" or args.address \
-            else None
+        backend = (backend_from_args(args) if args.backend != "local" or args.address
+            else None)
         try:
             result = run_suite(args.suite, args.output, workers=args.workers,
                                womd=args.womd, references=references,
@@ -223,8 +223,8 @@ def check_bench(args: argparse.Namespace) -> int:
     except Exception as err:  # every error: one line and exit 2 (Ctrl-C goes on up)
         from tap_bench.errors import TapBenchError
 
-        message = str(err) if isinstance(err, TapBenchError) else \
-            f"the check could not be made ({type(err).__name__}: {str(err)[:300]})"
+        message = (str(err) if isinstance(err, TapBenchError) else
+            f"the check could not be made ({type(err).__name__}: {str(err)[:300]})")
         message = " ".join(message.split())
         if getattr(args, "format", "text") == "json":
             print(json.dumps({"format": "tap-bench-check", "format_version": 1,
@@ -308,9 +308,9 @@ def check_run_plugins(summary: dict, run: str) -> None:
     named = [str(p)[:200] for p in named] if isinstance(named, list) else []
     missing = [p for p in named if p not in loaded_plugins()]
     measures = summary.get("measures") or []
-    unknown = [str(m.get("name"))[:100] for m in measures if isinstance(m, dict)
-               and isinstance(m.get("name"), str) and m["name"] not in MEASURES] \
-        if isinstance(measures, list) else []
+    unknown = ([str(m.get("name"))[:100] for m in measures if isinstance(m, dict)
+               and isinstance(m.get("name"), str) and m["name"] not in MEASURES]
+        if isinstance(measures, list) else [])
     if unknown:
         raise ParameterError("--plugin", " ".join(missing) or "(none)", "", message=(
             f"run {run} has measure(s) {', '.join(unknown)}, which no loaded plugin "
@@ -401,8 +401,8 @@ def list_suites(args: argparse.Namespace) -> int:
     for name in available_suites():
         try:
             doc = read_json(catalogue.find("suites", name), "suite")
-            seeds = "all" if doc.get("seeds") == "all" else \
-                len(parse_seeds(doc.get("seeds"), source=f"suite {name}: seeds"))
+            seeds = ("all" if doc.get("seeds") == "all" else
+                len(parse_seeds(doc.get("seeds"), source=f"suite {name}: seeds")))
             plugins = doc.get("plugins") or []
             print(f"{name:12s} {len(doc['envs'])} envs x {len(doc['policies'])} policies x "
                   f"{seeds} seeds, level {doc.get('level', 'maneuver')}: "

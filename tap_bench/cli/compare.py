@@ -88,8 +88,8 @@ def read_policies(paths: Sequence[str], names: Sequence[str] | None, *, level: s
 def _recorded(table: Any) -> bool:
     """Whether ``table`` is a trajectory table of recorded scenes driven in closed loop
     (``tap-bench rollout --womd``: source ``womd-sim``)."""
-    return "sdl" not in table.columns and "source" in table.columns \
-        and bool((table["source"].astype(str) == "womd-sim").any())
+    return ("sdl" not in table.columns and "source" in table.columns
+        and bool((table["source"].astype(str) == "womd-sim").any()))
 
 
 def pair_recorded_scenes(tables: Sequence[Any], names: Sequence[str], paths: Sequence[str]

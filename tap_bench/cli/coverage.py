@@ -109,8 +109,8 @@ def run(args: argparse.Namespace) -> int:
                                            name=ref_name, unit=unit)
             for unit in UNITS]
     unit_of = {"episodes": f"{window:.1f} s windows" if window is not None else "episodes"}
-    unit_of["segments"] = f"{unit_of['episodes']}, segments" if window is not None \
-        else "segments"
+    unit_of["segments"] = (f"{unit_of['episodes']}, segments" if window is not None
+        else "segments")
     parts = [reference_scores(
         episodes, ref, ref_name, config=config,
         unit=unit_of[(next(iter(ref.values())) if isinstance(ref, dict) else ref).unit],
@@ -190,7 +190,7 @@ def diversity_text(row) -> str:
                      f"{row[f'asymptote_q{q}']:.1f}" for q in (0, 1, 2))
     if row.get("asymptote_order_broken", False):
         asym += " (out of order: not reported)"
-    asym = f"at least {asym} (completeness too low to estimate)" if row["asymptote_is_bound"] \
-        else asym
+    asym = (f"at least {asym} (completeness too low to estimate)" if row["asymptote_is_bound"]
+        else asym)
     return (f"diversity at {at}: {hill}; sample completeness {row['completeness']:.0%}; "
             f"whole distribution: {asym}")

@@ -43,8 +43,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     trajectories = read_table(args.trajectories)
     labels = read_table(args.labels) if args.labels else None
-    types = None if [t.lower() for t in args.object_types] == ["all"] else \
-        tuple(t.lower() for t in args.object_types)
+    types = (None if [t.lower() for t in args.object_types] == ["all"] else
+        tuple(t.lower() for t in args.object_types))
     length = args.ade_length if args.ade_length == "equal" else int(args.ade_length)
     ev = evaluate(trajectories, labels, level=args.level, thresholds=args.thresholds,
                   queries=args.queries, seed=args.seed, object_types=types, ade_length=length,

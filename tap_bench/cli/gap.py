@@ -59,10 +59,10 @@ def _crash_rate(table: pd.DataFrame) -> float:
     """Share of the policy's episodes whose ego crashed (NaN without the columns)."""
     if "crashed" not in table.columns or "scenario_id" not in table.columns:
         return float("nan")
-    ego = table[table["is_ego"].fillna(False).astype(bool)] if "is_ego" in table.columns \
-        else table
-    return float(ego.groupby("scenario_id")["crashed"].any().mean()) if len(ego) else \
-        float("nan")
+    ego = (table[table["is_ego"].fillna(False).astype(bool)] if "is_ego" in table.columns
+        else table)
+    return (float(ego.groupby("scenario_id")["crashed"].any().mean()) if len(ego) else
+        float("nan"))
 
 
 def _pct(x: float) -> str:

@@ -175,8 +175,8 @@ def _lanes(paths: list[str]):
 def _nothing_to_label(table, short, source: str, config: StageConfig) -> str:
     """Why a table gave no label, for the error: no rows, no valid state, or only short
     stretches."""
-    n_tracks = table[["scenario_id", "track_id"]].drop_duplicates().shape[0] if len(table) \
-        else 0
+    n_tracks = (table[["scenario_id", "track_id"]].drop_duplicates().shape[0] if len(table)
+        else 0)
     valid = int(table["valid"].sum()) if "valid" in table.columns else len(table)
     what = (f"{source}: nothing to label: {len(table)} row(s) of {n_tracks} track(s)")
     if len(table) == 0:

@@ -276,8 +276,8 @@ def _ttc(x, y, heading, valid, length, width, speed, selves) -> np.ndarray:
     gap = lon - length[None, selves, None] / 2 - other_lon
     side = np.abs(lat) - width[None, selves, None] / 2 - other_lat  # < 0: overlaps the trail
     with np.errstate(invalid="ignore"):
-        follow = (gap > 0) & (side < 0) & (dh <= TTC_HEADING) \
-            & ((side < -TTC_SMALL_OVERLAP) | (dh <= TTC_SMALL_OVERLAP_HEADING))
+        follow = ((gap > 0) & (side < 0) & (dh <= TTC_HEADING)
+            & ((side < -TTC_SMALL_OVERLAP) | (dh <= TTC_SMALL_OVERLAP_HEADING)))
     follow &= valid.T[:, None, :]
     follow[:, np.arange(m), selves] = False
     masked = np.where(follow, gap, np.inf)
@@ -347,8 +347,8 @@ def red_light_violations(x: np.ndarray, y: np.ndarray, heading: np.ndarray,
         along = c * dx + s_ * dy
         across = -s_ * dx + c * dy
         with np.errstate(invalid="ignore"):
-            on = (np.abs(across) <= lane_widths[j] / 2 + SIGNAL_LATERAL) & valid \
-                & (np.abs(along) <= SIGNAL_REACH) & (np.cos(heading - lane_h[0]) > 0)
+            on = ((np.abs(across) <= lane_widths[j] / 2 + SIGNAL_LATERAL) & valid
+                & (np.abs(along) <= SIGNAL_REACH) & (np.cos(heading - lane_h[0]) > 0))
             cross = (along[:, :-1] < 0) & (along[:, 1:] >= 0) & on[:, :-1] & on[:, 1:]
         out[:, 1:] |= cross & red[1:, j][None, :]
     return out

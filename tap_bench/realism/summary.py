@@ -50,8 +50,8 @@ def scene_values(agents: pd.DataFrame, specs: Mapping[str, FeatureSpec] = WOSAC_
                                                        "track_id"].nunique())}
         for feature, name in RATES.items():
             at = group["feature"] == feature
-            row[f"simulated_{name}_rate"] = float(group.loc[at, "simulated_rate"].mean()) \
-                if at.any() else float("nan")
+            row[f"simulated_{name}_rate"] = (float(group.loc[at, "simulated_rate"].mean())
+                if at.any() else float("nan"))
         rows.append(row)
     return pd.DataFrame(rows)
 

@@ -298,8 +298,8 @@ def _dtw_features(shapes: Shapes, blocks: int) -> dict[str, np.ndarray]:
     # Block k of row r starts at point ceil(k * n / nb): blocks are contiguous runs of points.
     k = np.arange(blocks)[None, :]
     used = k < n_blocks[:, None]
-    first_point = shapes.offsets[:-1, None] + (k * lengths[:, None] + n_blocks[:, None] - 1) \
-        // n_blocks[:, None]
+    first_point = (shapes.offsets[:-1, None] + (k * lengths[:, None] + n_blocks[:, None] - 1)
+        // n_blocks[:, None])
     starts = first_point[used]
     box = np.zeros((n, blocks, 4))
     x, y = shapes.points[:, 0], shapes.points[:, 1]
@@ -343,8 +343,8 @@ def dtw_nearest(shapes: Shapes, queries: np.ndarray | None = None, *,
             message="every trajectory needs at least 2 points for DTW bounds")
     q_all = _queries(shapes, queries)
     workers = _workers(workers)
-    hints = np.full(len(q_all), -1, dtype=np.int64) if hints is None else \
-        np.asarray(hints, dtype=np.int64)
+    hints = (np.full(len(q_all), -1, dtype=np.int64) if hints is None else
+        np.asarray(hints, dtype=np.int64))
     if hints.shape != q_all.shape:
         raise ParameterError("hints", hints.shape, "",
             message=f"hints must have one row per query ({len(q_all)}), got {hints.shape}")

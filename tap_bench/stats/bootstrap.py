@@ -82,8 +82,8 @@ class BootstrapConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if isinstance(self.n_resamples, bool) or not isinstance(self.n_resamples, int) \
-                or self.n_resamples < 100:
+        if (isinstance(self.n_resamples, bool) or not isinstance(self.n_resamples, int)
+                or self.n_resamples < 100):
             raise ParameterError("n_resamples", self.n_resamples, "an integer >= 100")
         if self.n_resamples > MAX_RESAMPLES:
             raise ParameterError(
@@ -92,8 +92,8 @@ class BootstrapConfig:
                     f"{MAX_RESAMPLES:,} (tap_bench.stats.bootstrap.MAX_RESAMPLES): the "
                     "intervals would not change at the printed digits, and memory grows "
                     "with the resamples."))
-        if isinstance(self.level, bool) or not isinstance(self.level, float | int) \
-                or not 0.5 <= float(self.level) < 1:
+        if (isinstance(self.level, bool) or not isinstance(self.level, float | int)
+                or not 0.5 <= float(self.level) < 1):
             raise ParameterError("level", self.level, "in [0.5, 1), e.g. 0.95")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ParameterError("seed", self.seed, "a non-negative integer")

@@ -401,8 +401,8 @@ def welch_interval(a, b, level: float, *, bounds: tuple[float, float] | None = N
         if bounds is None:
             return float("nan"), float("nan")
         span = bounds[1] - bounds[0]
-        return _constant_bounds(diff, min(na, nb), level, (diff - span, diff + span)) \
-            if span > 0 else (diff, diff)
+        return (_constant_bounds(diff, min(na, nb), level, (diff - span, diff + span))
+            if span > 0 else (diff, diff))
     df = (va + vb) ** 2 / (va * va / (na - 1) + vb * vb / (nb - 1))
     half = t_quantile(0.5 + level / 2, max(1, math.floor(df))) * math.sqrt(va + vb)
     span = None if bounds is None else (bounds[0] - bounds[1], bounds[1] - bounds[0])

@@ -138,8 +138,8 @@ class Lane:
     @property
     def length(self) -> float:
         """Length of the centre line [m]."""
-        return float(np.hypot(*np.diff(self.centre, axis=0).T).sum()) if len(self.centre) > 1 \
-            else 0.0
+        return (float(np.hypot(*np.diff(self.centre, axis=0).T).sum()) if len(self.centre) > 1
+            else 0.0)
 
 
 @dataclass(frozen=True)
@@ -517,8 +517,8 @@ def _uniform_points(points: list[bytes]) -> np.ndarray | None:
         return None
     cells = np.frombuffer(b"".join(points), np.uint8).reshape(n, fields, 9)
     tags = cells[0, :, 0].tolist()
-    if len(set(tags)) != fields or not set(tags) <= _POINT_TAGS.keys() \
-            or (cells[:, :, 0] != cells[0, :, 0]).any():
+    if (len(set(tags)) != fields or not set(tags) <= _POINT_TAGS.keys()
+            or (cells[:, :, 0] != cells[0, :, 0]).any()):
         return None
     values = np.ascontiguousarray(cells[:, :, 1:]).view("<f8")[:, :, 0]
     xy = np.zeros((n, 2))

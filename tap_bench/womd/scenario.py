@@ -134,8 +134,8 @@ def _state_positions(buf: np.ndarray, first: np.ndarray, n_steps: int
     length = buf[first + 1].astype(np.int64)
     stride = np.where(length < 0x80, length + 2, 0)
     grid = np.minimum(first[:, None] + stride[:, None] * np.arange(n_steps), len(buf) - 2)
-    regular = (stride > 0) & (buf[grid] == _STATES_TAG).all(axis=1) \
-        & (buf[grid + 1] == length[:, None]).all(axis=1)
+    regular = ((stride > 0) & (buf[grid] == _STATES_TAG).all(axis=1)
+        & (buf[grid + 1] == length[:, None]).all(axis=1))
     pos = grid + 2
     size = np.broadcast_to(length[:, None], (n_tracks, n_steps)).copy()
     others = np.flatnonzero(~regular)

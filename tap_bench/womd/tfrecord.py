@@ -94,8 +94,8 @@ def iter_records(
             short for a header or a record longer than ``max_record_bytes``, naming the
             file, record and byte offset.
     """
-    if isinstance(max_record_bytes, bool) or not isinstance(max_record_bytes, int) \
-            or max_record_bytes < 1:
+    if (isinstance(max_record_bytes, bool) or not isinstance(max_record_bytes, int)
+            or max_record_bytes < 1):
         raise ValueError(f"max_record_bytes must be a positive integer, got "
                          f"{max_record_bytes!r}.")
     path = str(path)

@@ -106,8 +106,8 @@ def classify_trajectories(table: pd.DataFrame, *, start_index: int = START_INDEX
     keys = ["scenario_id", "track_id"]
     rows = table.reset_index(drop=True)
     rows = rows.assign(_step=_step_index(rows))
-    valid = rows["valid"].to_numpy(dtype=bool) if "valid" in rows.columns else \
-        np.ones(len(rows), dtype=bool)
+    valid = (rows["valid"].to_numpy(dtype=bool) if "valid" in rows.columns else
+        np.ones(len(rows), dtype=bool))
     rows = rows[valid]
     if "vx" not in rows.columns or "vy" not in rows.columns:
         rows = rows.assign(vx=rows["speed"] * np.cos(rows["heading"]),

@@ -271,8 +271,8 @@ def _label_heatmap(counts: pd.DataFrame, env: str) -> tuple[str, str] | None:
 
 
 def _measures_plot(scores: Scores, env: str, reference: str) -> tuple[str, str] | None:
-    m = scores.measures[scores.measures["env"] == env] if len(scores.measures) else \
-        scores.measures
+    m = (scores.measures[scores.measures["env"] == env] if len(scores.measures) else
+        scores.measures)
     if m.empty:
         return None
     policies = sorted(m["policy"].unique())
@@ -414,8 +414,8 @@ def _tradeoff_plot(scores: Scores, reference: str) -> tuple[str, str] | None:
     rows = env_rows * len(pairs)
     legend_w = max(_text_width(p) for p in policies) + 34
     ylabel_w, tick_w, gap = _LINE + 8, 34.0, 22.0
-    panel_w = (MAX_WIDTH_PX - ylabel_w - legend_w - 24 - cols * tick_w - (cols - 1) * gap) \
-        / cols
+    panel_w = ((MAX_WIDTH_PX - ylabel_w - legend_w - 24 - cols * tick_w - (cols - 1) * gap)
+        / cols)
     panel_h, title_h, xlabel_h = 150.0, _LINE + 10, 2 * _LINE + 14
     svg = _Svg(MAX_WIDTH_PX, rows * (title_h + panel_h + xlabel_h) + 6)
     y_lo, y_hi = -3.0, 103.0
@@ -437,8 +437,8 @@ def _tradeoff_plot(scores: Scores, reference: str) -> tuple[str, str] | None:
                     [s["high"] for _, s, _ in points] + [s["mean"] for _, s, _ in points])
 
         def sx(v: float, xlim=xlim, x0=x0) -> float:
-            return x0 + (min(max(v, xlim[0]), xlim[1]) - xlim[0]) / (xlim[1] - xlim[0]) \
-                * panel_w
+            return (x0 + (min(max(v, xlim[0]), xlim[1]) - xlim[0]) / (xlim[1] - xlim[0])
+                * panel_w)
 
         def sy(v: float, y0=y0) -> float:
             return y0 + (y_hi - min(max(v, y_lo), y_hi)) / (y_hi - y_lo) * panel_h

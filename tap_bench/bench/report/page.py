@@ -309,8 +309,8 @@ def _summary_section(page: _Page, summary: dict[str, Any], episodes: pd.DataFram
                                "</span>" if r.get("evidence") else "") + "</li>"
                             for r in rows)
             word = html.escape(str(rows[0].get("overall", "")))
-            cls = "worse" if word.startswith("less safe") else "better" if \
-                word.startswith("safer") else "same"
+            cls = ("worse" if word.startswith("less safe") else "better" if
+                word.startswith("safer") else "same")
             items.append(f'<div class="verdict"><p><b>{html.escape(policy)}</b>: '
                          f'<span class="{cls}">{word}</span></p><ul>{lines}</ul></div>')
         parts.append("".join(items))

@@ -59,8 +59,8 @@ def realism_entries(results: Sequence[str | os.PathLike | Mapping[str, Any]]
 
 
 def _ci(block: Mapping[str, Any] | None) -> str:
-    if not block or not isinstance(block.get("value"), int | float) \
-            or not math.isfinite(block["value"]):
+    if (not block or not isinstance(block.get("value"), int | float)
+            or not math.isfinite(block["value"])):
         return "–"
     lo, hi = block.get("low"), block.get("high")
     if isinstance(lo, int | float) and isinstance(hi, int | float) and math.isfinite(lo):
@@ -83,8 +83,8 @@ def realism_section(entries: Sequence[Mapping[str, Any]]) -> list[str]:
         for f in features:
             block = overall.get(f) or {}
             value = block.get("value")
-            row[f.replace("_", " ")] = f"{value:.3f}" if isinstance(value, int | float) \
-                and math.isfinite(value) else "–"
+            row[f.replace("_", " ")] = (f"{value:.3f}" if isinstance(value, int | float)
+                and math.isfinite(value) else "–")
         rows.append(row)
     manoeuvres = sorted({m for r in entries for m in (r.get("by_manoeuvre") or {})})
     by = []

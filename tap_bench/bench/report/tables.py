@@ -59,8 +59,8 @@ def _num(value: Any, decimals: int) -> str:
     if not np.isfinite(v):
         return "–"
     text = f"{v:.{decimals}f}"
-    return "0" + (f".{'0' * decimals}" if decimals else "") if text.lstrip("-") == \
-        f"{0:.{decimals}f}" else text  # no "-0.00"
+    return ("0" + (f".{'0' * decimals}" if decimals else "") if text.lstrip("-") ==
+        f"{0:.{decimals}f}" else text)  # no "-0.00"
 
 
 def _pct(value: Any, decimals: int = 0) -> str:
@@ -128,8 +128,8 @@ def html_table(table: pd.DataFrame, *, caption: str = "", max_rows: int = TABLE_
     for i, row in enumerate(table.itertuples(index=False)):
         cells = []
         for c, v in zip(cols, row, strict=True):
-            text, attrs = v if isinstance(v, tuple) and len(v) == 2 and isinstance(v[1], dict) \
-                else (_cell_text(v), {})
+            text, attrs = (v if isinstance(v, tuple) and len(v) == 2 and isinstance(v[1], dict)
+                else (_cell_text(v), {}))
             cls = " ".join(x for x in ("l" if c in text_cols else "", attrs.get("class", ""))
                            if x)
             sort = f' data-v="{attrs["v"]}"' if "v" in attrs else _sort_key(v)

@@ -256,8 +256,8 @@ def matched_by_label(episodes: pd.DataFrame, a: str, b: str, *, metric: str = "e
         names, codes = np.unique(lab, return_inverse=True)
         shared = np.intersect1d(codes[is_a], codes[~is_a])
         present = [m for m in measures if m.name in sub.columns]
-        within = np.eye(len(names), dtype=bool) if metric == "exact" else \
-            _levenshtein_within(names, d_sim)
+        within = (np.eye(len(names), dtype=bool) if metric == "exact" else
+            _levenshtein_within(names, d_sim))
         for anchor in shared:
             member = within[anchor][codes]
             ma, mb = member & is_a, member & ~is_a

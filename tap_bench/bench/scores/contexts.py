@@ -106,8 +106,8 @@ def context_occurrences(trajectories: pd.DataFrame, thresholds: Thresholds | str
         :func:`context_measures`.
     """
     th = resolve_thresholds(thresholds)
-    if "is_ego" not in trajectories.columns or not len(trajectories) \
-            or not trajectories["is_ego"].fillna(False).astype(bool).any():
+    if ("is_ego" not in trajectories.columns or not len(trajectories)
+            or not trajectories["is_ego"].fillna(False).astype(bool).any()):
         raise LabelTableError(f"{source}: no ego (no row with is_ego true); contexts are the "
                               "interactions of each episode's ego. Give rollouts (a run's "
                               "trajectories.parquet or 'tap-bench rollout' outputs), or mark "
@@ -202,8 +202,8 @@ def _with_ids(out: pd.DataFrame, trajectories: pd.DataFrame, ids: list[str]) -> 
     whole trajectory table, no merge); the merge itself otherwise (its NaN, its dtypes)."""
     codes, uniques = pd.factorize(trajectories["scenario_id"])
     pos = pd.Index(uniques).get_indexer(out["scenario_id"]) if len(out) else None
-    if pos is None or (codes < 0).any() or (pos < 0).any() \
-            or any(c in out.columns for c in ids):
+    if (pos is None or (codes < 0).any() or (pos < 0).any()
+            or any(c in out.columns for c in ids)):
         first = trajectories.drop_duplicates("scenario_id")[["scenario_id", *ids]]
         return out.merge(first, on="scenario_id", how="left")
     first_row = np.empty(len(uniques), np.int64)
@@ -298,8 +298,8 @@ def compare_contexts(occurrences: pd.DataFrame, a: str, b: str, *,
                 if m.is_rate:
                     method = "paired by seed (Tango score)"
                 else:
-                    method = "paired by seed (t)" if np.isfinite(lo) else \
-                        "paired by seed (every pair differs by the same: no t interval)"
+                    method = ("paired by seed (t)" if np.isfinite(lo) else
+                        "paired by seed (every pair differs by the same: no t interval)")
                     if span is not None and np.isfinite(lo):
                         lo, hi = max(lo, span[0]), min(hi, span[1])
                 row.update(diff=float(np.mean(xa - xb)), diff_low=lo, diff_high=hi,
@@ -340,8 +340,8 @@ def context_scores(occurrences: pd.DataFrame, policies: Sequence[str], reference
                "diff_low", "diff_high", "method"]
     if occurrences is not None and len(occurrences) and "policy" not in occurrences.columns:
         compare_contexts(occurrences, reference, reference)  # raises, naming the column
-    if occurrences is None or not len(occurrences) or \
-            not (occurrences["policy"] == reference).any():
+    if (occurrences is None or not len(occurrences) or
+            not (occurrences["policy"] == reference).any()):
         return pd.DataFrame(columns=columns)
     tables = []
     for policy in policies:

@@ -187,8 +187,8 @@ def vocabulary_reference(level: str = "action", *, axes=None) -> Reference:
     interaction axis adds its relations), equally weighted."""
     sdl.check_level(level)
     axes = sdl.check_axes(axes)
-    tokens = {t for axis in axes for t in sdl.vocabulary(level, axis)} if axes != sdl.AXES \
-        else vocabulary_tokens(level)
+    tokens = ({t for axis in axes for t in sdl.vocabulary(level, axis)} if axes != sdl.AXES
+        else vocabulary_tokens(level))
     items = np.array(sorted(tokens), dtype=object)
     return Reference(items, np.full(len(items), 1.0 / len(items)), "vocabulary", level,
                      f"the {len(items)} single labels of the {level} level")

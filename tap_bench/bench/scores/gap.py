@@ -203,8 +203,8 @@ def window_episodes(trajectories: pd.DataFrame, seconds: float, level: str, *,
     short tracks (WOMD: 9.1 s) score these in place of whole 30 s episodes."""
     from tap_bench.bench.episodes import episode_table
 
-    ego = trajectories[trajectories["is_ego"].fillna(False).to_numpy(bool)] \
-        if "is_ego" in trajectories.columns else trajectories
+    ego = (trajectories[trajectories["is_ego"].fillna(False).to_numpy(bool)]
+        if "is_ego" in trajectories.columns else trajectories)
     cut = number_windows(windows(ego, seconds))
     labels = tap(cut, thresholds, source=source).labels("all")
     return episode_table(labels=labels, level=level, source=source)

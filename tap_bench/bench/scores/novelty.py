@@ -101,8 +101,8 @@ def novelty(episodes: pd.DataFrame, reference: Reference, *,
         return NoveltyResult(0, 0, float("nan"), float("nan"), float("nan"), empty)
     deff = _design_effect(novel, ok["scenario_id"], config) if windowed else 1.0
     lo, hi = wilson_interval(novel.sum() / deff, n / deff, config.level)
-    example = ok["scenario_id"].to_numpy() if "scenario_id" in ok.columns else \
-        np.arange(n).astype(str)
+    example = (ok["scenario_id"].to_numpy() if "scenario_id" in ok.columns else
+        np.arange(n).astype(str))
     if reference.kind == "segments":  # the novel segment labels, once per episode
         known = set(reference.items)
         pairs = [(item, j) for j, items in enumerate(unit_items(lab, reference.axes))
@@ -143,8 +143,8 @@ def pooled_novelty(results: dict[str, NoveltyResult], level: float) -> NoveltyRe
     n = sum(r.n for r in results.values())
     k = sum(r.n_novel for r in results.values())
     frames = [r.labels.assign(env=env) for env, r in results.items() if len(r.labels)]
-    labels = pd.concat(frames, ignore_index=True) if frames else \
-        pd.DataFrame(columns=["label", "count", "share", "example_scenario", "env"])
+    labels = (pd.concat(frames, ignore_index=True) if frames else
+        pd.DataFrame(columns=["label", "count", "share", "example_scenario", "env"]))
     if len(labels):
         labels["share"] = labels["count"] / n
         labels = labels.sort_values(["count", "env", "label"], ascending=[False, True, True],

@@ -77,8 +77,8 @@ def match_scenarios(sim_labels: pd.DataFrame, sim_trajectories: pd.DataFrame | N
         if "is_ego" not in table.columns:
             raise LabelTableError(f"{name} labels need an is_ego column to match scenarios "
                                   "by what happens around the ego.")
-    use_radius = radius if sim_trajectories is not None and womd_trajectories is not None \
-        else None
+    use_radius = (radius if sim_trajectories is not None and womd_trajectories is not None
+        else None)
     sim = scenario_set(sim_labels, sim_trajectories, level=level, radius=use_radius,
                        source="simulated labels")
     womd = scenario_set(womd_labels, womd_trajectories, level=level, radius=use_radius,

@@ -434,9 +434,9 @@ def _add_run_signals(summary: dict[str, Any], chunks: dict[str, list[dict[str, A
     found = {f: (sorted(glob.glob(f)) if glob.has_magic(f) else
                  [f] if Path(f).is_file() else []) for f in files}
     # as the run read them: folders and globs leave out files that are not records
-    present = [str(p) for p in record_files([f for f, paths in found.items() if paths],
-                                            note=lambda text: None)] \
-        if any(found.values()) else []
+    present = ([str(p) for p in record_files([f for f, paths in found.items() if paths],
+                                            note=lambda text: None)]
+        if any(found.values()) else [])
     wanted = {str(doc["id"]).rpartition("/")[0] for docs in chunks.values() for doc in docs}
     try:
         roads = _road_maps(present, wanted) if present else {}
@@ -492,8 +492,8 @@ def write_womd_viewer(paths: Sequence[str | os.PathLike], output: str | os.PathL
     Raises:
         ParameterError: ``max_scenarios`` is not in [1, :data:`MAX_VIEW_SCENARIOS`].
     """
-    if isinstance(max_scenarios, bool) or not isinstance(max_scenarios, int) \
-            or not 1 <= max_scenarios <= MAX_VIEW_SCENARIOS:
+    if (isinstance(max_scenarios, bool) or not isinstance(max_scenarios, int)
+            or not 1 <= max_scenarios <= MAX_VIEW_SCENARIOS):
         raise ParameterError("max_scenarios", max_scenarios,
                              f"an integer from 1 to {MAX_VIEW_SCENARIOS}", message=(
                                  f"max_scenarios (--max-scenarios) {max_scenarios!r} must be "

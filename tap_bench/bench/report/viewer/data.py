@@ -170,8 +170,8 @@ def _track_record(cols: Mapping[str, np.ndarray], rows: np.ndarray, step0: int,
             v = v[np.isfinite(v) & (v > 0)]
             if len(v):
                 size[col] = float(np.median(v))
-    kind = str(cols["object_type"][rows[0]]) if "object_type" in cols and len(rows) \
-        else "vehicle"
+    kind = (str(cols["object_type"][rows[0]]) if "object_type" in cols and len(rows)
+        else "vehicle")
     return {"id": str(cols["track_id"][rows[0]]), "ego": bool(is_ego),
             "type": _TYPE_CODES.get(kind, "o"), "len": round(size["length"], 2),
             "wid": round(size["width"], 2), "s0": first, "n": n,
@@ -311,8 +311,8 @@ def episode_chunks(trajectories: pd.DataFrame, episodes: pd.DataFrame,
     scenario = trajectories["scenario_id"]
     # rows by (scenario, track): scenarios, and tracks within each, in order of first
     # appearance, rows in table order
-    pair = pd.Series(scenario.astype(str).to_numpy(object)) + "\x00" + \
-        trajectories["track_id"].astype(str).to_numpy(object)
+    pair = (pd.Series(scenario.astype(str).to_numpy(object)) + "\x00" +
+        trajectories["track_id"].astype(str).to_numpy(object))
     tracks = _groups(pair)
     scenario_of = scenario.to_numpy(object)
     by_scenario: dict[str, list[np.ndarray]] = {}
@@ -376,8 +376,8 @@ def episode_index(episodes: pd.DataFrame, *, novel_labels: pd.DataFrame | None =
             novel.setdefault((str(r.env), str(r.policy), str(r.label)), []).append(
                 str(r.reference))
     replay = set(map(str, has_replay))
-    shown = [dict(m) for m in measures] if measures is not None else \
-        [m.to_dict() for m in MEASURES]
+    shown = ([dict(m) for m in measures] if measures is not None else
+        [m.to_dict() for m in MEASURES])
     entries = []
     for r in eps.to_dict("records"):
         sdl = _text(r.get("sdl"))
@@ -423,8 +423,8 @@ def _chunk_name(values: list[str]) -> str:
     for other text is cut and ends with 16 hex digits of the values' SHA-256, so distinct
     values never share or overwrite a file."""
     name = "-".join(_slug(v) for v in values)
-    if len(name) <= _MAX_CHUNK_NAME and name.lower() not in _RESERVED \
-            and not name.startswith(".") and name == "-".join(values):
+    if (len(name) <= _MAX_CHUNK_NAME and name.lower() not in _RESERVED
+            and not name.startswith(".") and name == "-".join(values)):
         return name
     digest = hashlib.sha256("\0".join(values).encode("utf-8", "surrogatepass")).hexdigest()
     return f"{name.lstrip('.')[:_MAX_CHUNK_NAME - 17]}-{digest[:16]}"
