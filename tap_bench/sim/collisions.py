@@ -95,8 +95,8 @@ def _clip(subject: np.ndarray, clip: np.ndarray) -> np.ndarray:
             if pin != qin:  # the edge p -> q crosses the clip line a -> b
                 d = q - p
                 denom = (b[0] - a[0]) * d[1] - (b[1] - a[1]) * d[0]
-                t = ((b[0] - a[0]) * (a[1] - p[1]) - (b[1] - a[1]) * (a[0] - p[0])) / denom \
-                    if denom else 0.0
+                t = (((b[0] - a[0]) * (a[1] - p[1]) - (b[1] - a[1]) * (a[0] - p[0])) / denom
+                    if denom else 0.0)
                 points.append(p + t * d)
         out = np.array(points).reshape(-1, 2)
     return out
@@ -169,7 +169,7 @@ def fault(ego: Box, other: Box) -> Fault:
     _, contact = box_gap(ego, other)
     behind = ego.longitudinal(np.array([other.x, other.y])) < 0
     same_way = math.cos(other.heading - ego.heading) >= math.cos(REAR_END_ANGLE)
-    if behind and same_way and ego.longitudinal(contact) < 0 \
-            and other.longitudinal(contact) > 0:
+    if (behind and same_way and ego.longitudinal(contact) < 0
+            and other.longitudinal(contact) > 0):
         return Fault(False, "hit from behind")
     return Fault(True, "at fault")

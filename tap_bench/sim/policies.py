@@ -242,8 +242,8 @@ class PolicyKind:
 
 def _check_kind(kind: PolicyKind) -> None:
     module, sep, attribute = str(kind.builder).partition(":")
-    if not isinstance(kind.name, str) or not kind.name or not sep or not module \
-            or not attribute:
+    if (not isinstance(kind.name, str) or not kind.name or not sep or not module
+            or not attribute):
         raise RegistrationError(f"policy kind {kind.name!r}: builder {kind.builder!r} must be "
                                 "'module:attribute' (a name every worker can import).")
 

@@ -60,8 +60,8 @@ def flag_column(values: np.ndarray, missing: np.ndarray | None = None) -> Any:
     import pandas as pd
 
     values = np.asarray(values, dtype=bool)
-    mask = np.zeros(len(values), dtype=bool) if missing is None else \
-        np.asarray(missing, dtype=bool)
+    mask = (np.zeros(len(values), dtype=bool) if missing is None else
+        np.asarray(missing, dtype=bool))
     return pd.arrays.BooleanArray(np.where(mask, False, values), mask.copy())
 
 

@@ -123,5 +123,5 @@ def _is_hook(finder: Any) -> bool:
     """Whether ``finder`` is an :class:`_OnGymnasiumImport`, also of this module before an
     ``importlib.reload`` (a second hook would become Gymnasium's loader)."""
     kind = type(finder)
-    return kind.__qualname__ == _OnGymnasiumImport.__qualname__ \
-        and kind.__module__ == __name__
+    return (kind.__qualname__ == _OnGymnasiumImport.__qualname__
+        and kind.__module__ == __name__)

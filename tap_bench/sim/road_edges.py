@@ -223,8 +223,8 @@ def _build_grid(a: np.ndarray, b: np.ndarray) -> tuple:
     count = span[:, 0] * span[:, 1]
     seg = np.repeat(np.arange(len(a)), count)
     local = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
-    cell = (lo_cell[seg, 0] + local // span[seg, 1]) * ny + lo_cell[seg, 1] \
-        + local % span[seg, 1]
+    cell = ((lo_cell[seg, 0] + local // span[seg, 1]) * ny + lo_cell[seg, 1]
+        + local % span[seg, 1])
     order = np.argsort(cell, kind="stable")
     start = np.searchsorted(cell[order], np.arange(nx * ny + 1)).astype(np.int64)
     return (start, seg[order].astype(np.int64), lo.astype(float), nx, ny)

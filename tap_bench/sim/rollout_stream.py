@@ -91,8 +91,8 @@ def parts_folder(output: str | os.PathLike) -> Path:
 
 def _identity(scenario: Scenario, spec: Any, seeds: Sequence[int], record: bool,
               ego_only: bool = False) -> dict:
-    policy = repr(spec) if isinstance(spec, PolicyDefinition) else \
-        f"{type(spec).__module__}.{type(spec).__qualname__}:{getattr(spec, 'name', '')}"
+    policy = (repr(spec) if isinstance(spec, PolicyDefinition) else
+        f"{type(spec).__module__}.{type(spec).__qualname__}:{getattr(spec, 'name', '')}")
     identity = {"scenario": repr(scenario), "policy": policy,
                 "seeds": [int(s) for s in seeds], "record": bool(record)}
     if ego_only:  # absent otherwise: parts of runs before the option still resume
@@ -295,8 +295,8 @@ def stream_rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
     _format(output), _format(episodes_out)  # a bad table name fails before any scene runs
     scenario = resolve_scenario(env, config=config, duration=duration,
                                 lane_change=lane_change)
-    seed_list = list(scenario.seeds(seeds)) if isinstance(scenario, WomdScenes) \
-        else parse_seeds(seeds)
+    seed_list = (list(scenario.seeds(seeds)) if isinstance(scenario, WomdScenes)
+        else parse_seeds(seeds))
     spec = resolve_policy(policy)
     name = getattr(spec, "name", "policy")
     parts = _Parts(parts_folder(output), _identity(scenario, spec, seed_list, True, ego_only),
@@ -335,8 +335,8 @@ def stream_rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
             rows.append(row)
             held += len(table)
             bar.update(row["status"])
-            if len(rows) >= PART_SCENES or held >= PART_ROWS \
-                    or time.monotonic() - last_write >= PART_SECONDS:
+            if (len(rows) >= PART_SCENES or held >= PART_ROWS
+                    or time.monotonic() - last_write >= PART_SECONDS):
                 parts.write(first, tables, rows)
                 tables, rows, held, last_write = [], [], 0, time.monotonic()
         if rows:

@@ -245,8 +245,8 @@ class Scenario:
         merged = copy.deepcopy(dict(self.overrides))
         defaults = default_config(self.highway_env_id)
         for key, value in (config or {}).items():
-            if key in ("observation", "action") and isinstance(value, Mapping) \
-                    and "type" not in value:
+            if (key in ("observation", "action") and isinstance(value, Mapping)
+                    and "type" not in value):
                 # highway-env replaces the whole dict: keep the type and the other settings
                 merged[key] = {**(merged.get(key) or defaults[key]), **value}
             else:
@@ -341,8 +341,8 @@ def check_config(highway_env_id: str, config: Mapping[str, Any], *, source: str 
             _check_value(key, value, defaults[key], where)
     for key, limit in SIZE_LIMITS.items():
         value = config.get(key)
-        if isinstance(value, int | float) and not isinstance(value, bool) \
-                and not value <= limit:
+        if (isinstance(value, int | float) and not isinstance(value, bool)
+                and not value <= limit):
             raise ParameterError(key, value, f"at most {limit:,}", message=(
                 f"{where}: {key} {value!r} is larger than the limit of {limit:,} "
                 "(tap_bench.sim.scenario_format.SIZE_LIMITS); a scene that size takes hours "
@@ -353,8 +353,8 @@ def check_config(highway_env_id: str, config: Mapping[str, Any], *, source: str 
 
             check_class_name(config[key], key, separator=".", source=where)
     freq = config.get("policy_frequency", defaults.get("policy_frequency"))
-    if not isinstance(freq, int) or isinstance(freq, bool) or freq <= 0 \
-            or SIMULATION_FREQUENCY % freq:
+    if (not isinstance(freq, int) or isinstance(freq, bool) or freq <= 0
+            or SIMULATION_FREQUENCY % freq):
         raise FileFormatError(f"{where}: policy_frequency {freq!r} must be a whole divisor of "
                               f"the {SIMULATION_FREQUENCY} Hz simulation: 1, 2, 5 or 10.")
 
@@ -378,8 +378,8 @@ def _build(doc: Any, *, source: str, path: Path | None) -> Scenario:
     if not isinstance(version, int) or isinstance(version, bool) or version < 0:
         raise FileFormatError(f"{source}: version {version!r} must be a non-negative integer.")
     duration = doc["duration"]
-    if not isinstance(duration, int | float) or isinstance(duration, bool) \
-            or not math.isfinite(duration) or duration <= 0:
+    if (not isinstance(duration, int | float) or isinstance(duration, bool)
+            or not math.isfinite(duration) or duration <= 0):
         raise FileFormatError(f"{source}: duration {duration!r} must be a positive number of "
                               "seconds.")
     if duration > MAX_DURATION:

@@ -108,8 +108,8 @@ def default_config(highway_env_id: str) -> dict[str, Any]:
         UnknownNameError: not a highway-env id (with the closest ids).
     """
     known = SCENARIO_KINDS[highway_env_id] if highway_env_id in SCENARIO_KINDS else None
-    if highway_env_id not in OWN_KINDS and known is not None \
-            and not known.entry_point.startswith("highway_env"):
+    if (highway_env_id not in OWN_KINDS and known is not None
+            and not known.entry_point.startswith("highway_env")):
         # plugins' kinds: their code is not in the fingerprint
         config = env_class(highway_env_id).default_config()
         return json.loads(json.dumps(config, default=repr))

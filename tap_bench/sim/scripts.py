@@ -98,8 +98,8 @@ class Script:
             object.__setattr__(self, "vary", ranges or None)
         for name in ("at", "gap", "deceleration", "duration", "clear"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int | float) \
-                    or not np.isfinite(value) or value <= 0:
+            if (isinstance(value, bool) or not isinstance(value, int | float)
+                    or not np.isfinite(value) or value <= 0):
                 raise FileFormatError(f"script {name} must be a number > 0, got {value!r}.")
         if isinstance(self.speed_offset, bool) or not isinstance(self.speed_offset,
                                                                  int | float):
@@ -208,8 +208,8 @@ def _scripted_vehicle() -> type:
         fired: bool = False
 
         def prepare_decision(self) -> None:
-            if self.script.kind == "cut_in" and not self.fired \
-                    and self.ego.lane_index != self.lane_index:
+            if (self.script.kind == "cut_in" and not self.fired
+                    and self.ego.lane_index != self.lane_index):
                 lane = self.road.network.get_lane(self.ego.lane_index)
                 ahead = (lane.local_coordinates(self.position)[0]
                          - lane.local_coordinates(self.ego.position)[0])
@@ -220,8 +220,8 @@ def _scripted_vehicle() -> type:
 
         def adjust_action(self) -> None:
             script = self.script
-            braking = script.kind == "lead_braking" and \
-                script.at - 1e-9 <= self.elapsed < script.at + script.duration - 1e-9
+            braking = (script.kind == "lead_braking" and
+                script.at - 1e-9 <= self.elapsed < script.at + script.duration - 1e-9)
             if braking and not self.crashed and self.action:
                 self.action["acceleration"] = -script.deceleration if self.speed > 0 else 0.0
 

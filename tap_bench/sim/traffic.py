@@ -433,9 +433,9 @@ class TrafficRoad(Road):
         k = state.index[id(vehicle)]
         s = state.frame(vehicle.lane)[0]
         for other in self.vehicles:
-            if other is vehicle or other.lane_index == target \
-                    or not isinstance(other, ControlledVehicle) \
-                    or other.target_lane_index != target:
+            if (other is vehicle or other.lane_index == target
+                    or not isinstance(other, ControlledVehicle)
+                    or other.target_lane_index != target):
                 continue
             j = state.index.get(id(other))
             if j is None:
@@ -478,9 +478,9 @@ class TrafficRoad(Road):
                     continue  # unsafe for the new follower
                 if vehicle.route and vehicle.route[0][2] is not None:
                     # a planned lane: towards it, and no hard braking for the driver
-                    if np.sign(lane_index[2] - vehicle.target_lane_index[2]) == np.sign(
-                            vehicle.route[0][2] - vehicle.target_lane_index[2]) \
-                            and not own_after < limit:
+                    if (np.sign(lane_index[2] - vehicle.target_lane_index[2]) == np.sign(
+                            vehicle.route[0][2] - vehicle.target_lane_index[2])
+                            and not own_after < limit):
                         vehicle.target_lane_index = lane_index
                 elif not mobil_incentive(own_after - own, new_follower_after - new_follower,
                                          old_follower_after - old_follower,
@@ -776,8 +776,8 @@ def _touching_pairs_one_by_one(everyone: list[Any], n: int,
             if not (a[10] and b[10] and (a[9] or b[9])):
                 continue
             bound = (a[2] + b[2]) / 2 + math.hypot(a[7] - b[7], a[8] - b[8]) * dt
-            if math.hypot(b[0] - a[0], b[1] - a[1]) > bound + TOUCH_MARGIN \
-                    or _swept_apart_one(a, b, dt):
+            if (math.hypot(b[0] - a[0], b[1] - a[1]) > bound + TOUCH_MARGIN
+                    or _swept_apart_one(a, b, dt)):
                 continue
         pairs.append((i, j))
     return pairs

@@ -284,8 +284,8 @@ class _WomdHighwayEnv(AbstractEnv):
     # the scenes
     def scene_at(self, index: int) -> Scene:
         """The scene of index ``index`` in :attr:`catalog` (decoded once, a few kept)."""
-        if isinstance(index, bool) or not isinstance(index, int | np.integer) \
-                or not 0 <= index < len(self.catalog):
+        if (isinstance(index, bool) or not isinstance(index, int | np.integer)
+                or not 0 <= index < len(self.catalog)):
             raise ParameterError("scene", index, f"0 to {len(self.catalog) - 1}: the index "
                                  f"of a scenario in the {len(self.catalog)} of "
                                  f"{', '.join(self.scenes.files)}")
@@ -558,8 +558,8 @@ class _WomdHighwayEnv(AbstractEnv):
         p = np.asarray(ego.position, float)
         off, off_distance, rule = self.road.off_road(ego)
         if np.isfinite(off_distance):
-            self.off_road_max = max(off_distance, self.off_road_max) \
-                if np.isfinite(self.off_road_max) else off_distance
+            self.off_road_max = (max(off_distance, self.off_road_max)
+                if np.isfinite(self.off_road_max) else off_distance)
         if rule != "none":
             self.off_road_rules[rule] = self.off_road_rules.get(rule, 0) + 1
         red = self.road.crossed_red(self._last_ego, p)
@@ -790,8 +790,8 @@ class WomdEnv(gym.Wrapper):
         self.crash_with = str(self.scene.track_ids[row]) if row is not None else ""
         verdict = fault(mine, boxes[k])
         self.crash_at_fault, self.crash_fault = verdict.at_fault, verdict.reason
-        self.crash_from_behind_by_log = isinstance(other, LogVehicle) \
-            and verdict.reason == "hit from behind"
+        self.crash_from_behind_by_log = (isinstance(other, LogVehicle)
+            and verdict.reason == "hit from behind")
 
     def _box(self, vehicle: Vehicle) -> Box:
         row = getattr(vehicle, "row", None)
@@ -858,8 +858,8 @@ class WomdEnv(gym.Wrapper):
         }
         policy = columns.pop("policy", None)
         if policy is not None:
-            data["policy"] = text_column([policy], one) if isinstance(policy, str) \
-                else np.full(rows, policy, dtype=object)
+            data["policy"] = (text_column([policy], one) if isinstance(policy, str)
+                else np.full(rows, policy, dtype=object))
         data["seed"] = np.full(rows, self._seed, dtype=np.int64)
         data["episode"] = np.zeros(rows, np.int64)
         data["crashed"] = self._crashed[:, :t].ravel()

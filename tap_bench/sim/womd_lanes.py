@@ -145,8 +145,8 @@ def _near_lane_distances(offsets, px, py, tx, ty, s, lengths, boxes, reach, xs, 
             lon, lat = _frame(px[a:b], py[a:b], tx[a:b], ty[a:b], s[a:b], x, y)
             d = abs(lat) + max(lon - lengths[j], 0.0) + max(-lon, 0.0)
             k = _pose_at(s, a, b, lon)
-            turn = (headings[q] - math.atan2(ty[k], tx[k]) + math.pi) % (2 * math.pi) \
-                - math.pi
+            turn = ((headings[q] - math.atan2(ty[k], tx[k]) + math.pi) % (2 * math.pi)
+                - math.pi)
             d += abs(turn)
             out[q, j] = d
             if d < best:
@@ -410,9 +410,9 @@ def _shared_poses(lanes: Sequence[Any]) -> tuple[np.ndarray, tuple[np.ndarray, .
     first = lanes[0]._shared
     poses = first[1]
     ends = [lane._shared[6:8] for lane in lanes]
-    if any(lane._shared[1] is not poses for lane in lanes) or ends[0][0] != 0 \
-            or ends[-1][1] != len(poses[0]) \
-            or any(a[1] != b[0] for a, b in itertools.pairwise(ends)):
+    if (any(lane._shared[1] is not poses for lane in lanes) or ends[0][0] != 0
+            or ends[-1][1] != len(poses[0])
+            or any(a[1] != b[0] for a, b in itertools.pairwise(ends))):
         return None
     offsets = np.array([0] + [d for _, d in ends], dtype=np.int64)
     return offsets, tuple(poses)

@@ -202,12 +202,12 @@ class RouteObservation(FastKinematicObservation):
                 raise did_you_mean("KinematicsRoute observation option", key,
                                    known | set(_ROUTE_OPTIONS))
         super().__init__(env, **kwargs)
-        if isinstance(route_points, bool) or not isinstance(route_points, int) \
-                or route_points < 1:
+        if (isinstance(route_points, bool) or not isinstance(route_points, int)
+                or route_points < 1):
             raise ValueError(f"KinematicsRoute observation: route_points {route_points!r} "
                              "must be an integer >= 1 (points observed along the route).")
-        if not isinstance(route_spacing, int | float) or isinstance(route_spacing, bool) \
-                or not math.isfinite(route_spacing) or route_spacing <= 0:
+        if (not isinstance(route_spacing, int | float) or isinstance(route_spacing, bool)
+                or not math.isfinite(route_spacing) or route_spacing <= 0):
             raise ValueError(f"KinematicsRoute observation: route_spacing {route_spacing!r} "
                              "must be a number of metres > 0.")
         if not isinstance(leader, bool):
@@ -238,9 +238,9 @@ class RouteObservation(FastKinematicObservation):
     @property
     def route_size(self) -> int:
         """Values of the route part (with the leader's)."""
-        return 2 * self.route_points + len(ROUTE_FEATURES) \
-            + (len(LEADER_FEATURES) if self.leader_features else 0) \
-            + (CROSSING_COUNT * len(CROSSING_FEATURES) if self.crossing_features else 0)
+        return (2 * self.route_points + len(ROUTE_FEATURES)
+            + (len(LEADER_FEATURES) if self.leader_features else 0)
+            + (CROSSING_COUNT * len(CROSSING_FEATURES) if self.crossing_features else 0))
 
     def space(self) -> spaces.Box:
         """One float32 vector: the Kinematics part is bounded as highway-env bounds it
@@ -321,8 +321,8 @@ class RouteObservation(FastKinematicObservation):
         pos = np.array([v.position for v in others], dtype=float)  # (n, 2)
         ray = np.array([v.velocity for v in others], dtype=float) * CROSS_HORIZON
         reach = np.hypot(*ray.T)  # [m] how far each gets within the horizon
-        keep = (reach >= MIN_CROSS_SPEED * CROSS_HORIZON) \
-            & (np.hypot(*(pos - path[0]).T) <= self.horizon + reach)
+        keep = ((reach >= MIN_CROSS_SPEED * CROSS_HORIZON)
+            & (np.hypot(*(pos - path[0]).T) <= self.horizon + reach))
         if not keep.any():
             return []
         pos, ray, reach = pos[keep], ray[keep], reach[keep]

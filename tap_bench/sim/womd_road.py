@@ -186,8 +186,8 @@ class WomdNetwork(RoadNetwork):
         arcs = self._centre_arcs.get(lane.id)
         if arcs is None:  # asked every step: the centre line's arc lengths once per lane
             arcs = self._centre_arcs[lane.id] = _arc_lengths(lane.centre)
-        at = min(int(np.searchsorted(arcs, lon)), len(lane.centre) - 1) \
-            if len(lane.centre) >= 2 else 0
+        at = (min(int(np.searchsorted(arcs, lon)), len(lane.centre) - 1)
+            if len(lane.centre) >= 2 else 0)
         out = []
         for name in ("left", "right"):
             if side not in (None, name):
@@ -701,19 +701,19 @@ class WomdIDMVehicle(_RouteMixin, IDMVehicle):
         the stop points, walkers and conflicts ahead."""
         if not isinstance(ego_vehicle, Vehicle):
             return 0.0
-        p = ego_vehicle.parameters() if isinstance(ego_vehicle, WomdIDMVehicle) \
-            else self.parameters()
+        p = (ego_vehicle.parameters() if isinstance(ego_vehicle, WomdIDMVehicle)
+            else self.parameters())
         v = max(float(ego_vehicle.speed), 0.0)
         v0 = float(getattr(ego_vehicle, "target_speed", v))
         lane = getattr(ego_vehicle, "lane", None)
-        if getattr(ego_vehicle, "driver", None) is None and lane is not None \
-                and lane.speed_limit is not None:
+        if (getattr(ego_vehicle, "driver", None) is None and lane is not None
+                and lane.speed_limit is not None):
             v0 = min(v0, float(lane.speed_limit))  # the IDM ego keeps to the limit
         v0 = max(v0, 0.01)  # traffic drives at its own logged pace
         acc = p.max_acceleration * (1.0 - (v / v0) ** p.delta)
         if front_vehicle is not None:
-            gap = ego_vehicle.lane_distance_to(front_vehicle) \
-                - (ego_vehicle.LENGTH + front_vehicle.LENGTH) / 2
+            gap = (ego_vehicle.lane_distance_to(front_vehicle)
+                - (ego_vehicle.LENGTH + front_vehicle.LENGTH) / 2)
             lead = float(np.dot(front_vehicle.velocity, ego_vehicle.direction))
             acc = _idm_acc(p, v, v0, gap, max(lead, 0.0))
         if ego_vehicle is self:
@@ -946,8 +946,8 @@ def logged_path(xy: np.ndarray, heading: np.ndarray, speed: np.ndarray,
     speeds = speed[keep]
     at = (np.arange(len(xy)) if steps is None else np.asarray(steps, float))[keep]
     # the fastest speed of the dropped (standstill) samples is at most the kept one's
-    cum = np.r_[0.0, np.cumsum(np.hypot(*np.diff(points, axis=0).T))] if len(points) > 1 \
-        else np.zeros(1)
+    cum = (np.r_[0.0, np.cumsum(np.hypot(*np.diff(points, axis=0).T))] if len(points) > 1
+        else np.zeros(1))
     end = points[-1] + PATH_EXTENSION * np.array([math.cos(headings[-1]),
                                                   math.sin(headings[-1])])
     points = np.vstack([points, end])
@@ -1040,8 +1040,8 @@ def _project_window(px, py, cum, k0, k1, centres, radii, qx, qy):  # pragma: no 
     holds no nearer one and is skipped."""
     best, bs, bd, bt = np.inf, np.nan, np.nan, 0.0
     for c in range(radii.shape[0]):
-        if math.hypot(qx - centres[c, 0], qy - centres[c, 1]) - radii[c] \
-                > best + CHUNK_SLACK:
+        if (math.hypot(qx - centres[c, 0], qy - centres[c, 1]) - radii[c]
+                > best + CHUNK_SLACK):
             continue
         a = k0 + c * CHUNK
         for k in range(a, min(a + CHUNK, k1)):
@@ -1083,8 +1083,8 @@ def _path_blockers(px, py, cum, s0, s1, x0, y0, half_width, half_length, margins
             cx = xs[j] + tau * vs[j] * cos_j
             cy = ys[j] + tau * vs[j] * sin_j
             # hypot is at least either side: a side longer than far skips the hypot
-            if abs(cx - x0) > far or abs(cy - y0) > far \
-                    or math.hypot(cx - x0, cy - y0) > far:
+            if (abs(cx - x0) > far or abs(cy - y0) > far
+                    or math.hypot(cx - x0, cy - y0) > far):
                 continue
             if not (cx == x_now and cy == y_now):
                 s, d, theta = _project_window(px, py, cum, k0, k1, centres, radii, cx, cy)
@@ -1155,8 +1155,8 @@ def _path_ahead(starts, ends, px, py, cum, s0, s1, x0, y0, half_width, half_leng
             if tau > 0 and is_path[j]:
                 continue  # where logged paths cross, the log's order decides
             if tau > 0 and not walker[j]:
-                if gap <= 0 or gap / (0.5 if 0.5 > v else v) > tau + PATH_ARRIVAL \
-                        or v * v > 2 * b * gap:
+                if (gap <= 0 or gap / (0.5 if 0.5 > v else v) > tau + PATH_ARRIVAL
+                        or v * v > 2 * b * gap):
                     continue
             x = _idm_compiled(v, v0[i], gap, 0.0 if 0.0 > lead else lead, drivers[i, 3],
                               drivers[i, 4], a, b, delta, drivers[i, 5], two)
@@ -1175,8 +1175,8 @@ def _first_crossing(ax, ay, acum, na, bx, by, bcum, nb, min_sin):  # pragma: no 
     blo_y, bhi_y = np.min(by[:nb]), np.max(by[:nb])
     for k in range(na - 1):
         px, py, qx, qy = ax[k], ay[k], ax[k + 1], ay[k + 1]
-        if max(px, qx) < blo_x or min(px, qx) > bhi_x or max(py, qy) < blo_y \
-                or min(py, qy) > bhi_y:
+        if (max(px, qx) < blo_x or min(px, qx) > bhi_x or max(py, qy) < blo_y
+                or min(py, qy) > bhi_y):
             continue
         ux, uy = qx - px, qy - py
         lu = math.hypot(ux, uy)
@@ -1184,8 +1184,8 @@ def _first_crossing(ax, ay, acum, na, bx, by, bcum, nb, min_sin):  # pragma: no 
             continue
         for q in range(nb - 1):
             cx, cy, dx, dy = bx[q], by[q], bx[q + 1], by[q + 1]
-            if max(cx, dx) < min(px, qx) or min(cx, dx) > max(px, qx) \
-                    or max(cy, dy) < min(py, qy) or min(cy, dy) > max(py, qy):
+            if (max(cx, dx) < min(px, qx) or min(cx, dx) > max(px, qx)
+                    or max(cy, dy) < min(py, qy) or min(cy, dy) > max(py, qy)):
                 continue
             vx, vy = dx - cx, dy - cy
             lv = math.hypot(vx, vy)
@@ -1280,8 +1280,8 @@ class WomdPathVehicle(Vehicle):
         for other in self.road.vehicles:
             if other is self or not other.collidable:
                 continue
-            if math.hypot(other.position[0] - x, other.position[1] - y) > \
-                    reach + getattr(other, "diagonal", 10.0) / 2:
+            if (math.hypot(other.position[0] - x, other.position[1] - y) >
+                    reach + getattr(other, "diagonal", 10.0) / 2):
                 continue
             theirs = _box_polygon(float(other.position[0]), float(other.position[1]),
                                   float(other.heading), other.LENGTH, other.WIDTH)
@@ -1343,8 +1343,8 @@ class WomdPathVehicle(Vehicle):
                     continue  # where logged paths cross, the log's order decides (below)
                 if tau > 0 and not walkers[int(j)]:
                     # a vehicle later: only if we would be there by then, and can stop
-                    if gap <= 0 or gap / max(v, 0.5) > tau + PATH_ARRIVAL \
-                            or v * v > 2 * p.comfortable_braking * gap:
+                    if (gap <= 0 or gap / max(v, 0.5) > tau + PATH_ARRIVAL
+                            or v * v > 2 * p.comfortable_braking * gap):
                         continue
                 acc = min(acc, _idm_acc(p, v, v0, gap, max(lead, 0.0)))
         return acc
@@ -1395,8 +1395,8 @@ class WomdPathVehicle(Vehicle):
             lane = network.get_lane(index)
             point = lane.position(s_lane, 0.0)
             s, d, theta = self.path.project(point)
-            if abs(d) <= lane.width / 2 + 0.5 and \
-                    math.cos(theta - lane.heading_at(s_lane)) > math.cos(math.radians(45)):
+            if (abs(d) <= lane.width / 2 + 0.5 and
+                    math.cos(theta - lane.heading_at(s_lane)) > math.cos(math.radians(45))):
                 stops.append((kind, key, s))
         return stops
 
@@ -1547,8 +1547,8 @@ def _corridor(xs, ys, hs, vs, ls, ws, x, y, heading, length, width, reach, mine
         along = abs(math.cos(dh)) * ls[j] / 2 + abs(math.sin(dh)) * ws[j] / 2
         across = abs(math.sin(dh)) * ls[j] / 2 + abs(math.cos(dh)) * ws[j] / 2
         gap = lon - length / 2 - along
-        if abs(lat) < width / 2 + across + CORRIDOR_MARGIN and lon > 0 and gap < reach \
-                and gap > -along:
+        if (abs(lat) < width / 2 + across + CORRIDOR_MARGIN and lon > 0 and gap < reach
+                and gap > -along):
             if not gap == gap:  # not a number: the first one, as numpy's argmin
                 return j, gap, vs[j] * math.cos(dh)
             if best < 0 or gap < best_gap:
@@ -1757,8 +1757,8 @@ class _Layout:
         self.other_vehicles = [vehicles[i] for i in self.others]
         logs = self.logs
         # the log vehicles' rows: a slice where they follow each other (the usual case)
-        self.log_rows = slice(int(logs[0]), int(logs[-1]) + 1) \
-            if len(logs) and logs[-1] - logs[0] + 1 == len(logs) else logs
+        self.log_rows = (slice(int(logs[0]), int(logs[-1]) + 1)
+            if len(logs) and logs[-1] - logs[0] + 1 == len(logs) else logs)
         self.own_others = [shape_of(v) for v in self.other_vehicles]  # by class: fixed
         self.length = np.array([float(v.LENGTH) for v in vehicles])
         self.width = np.array([float(v.WIDTH) for v in vehicles])
@@ -2207,8 +2207,8 @@ class WomdRoad(Road):
         if not self._stop_signs:
             return None
         served = vehicle.__dict__.setdefault("stop_signs_served", set())
-        braking = vehicle.parameters().comfortable_braking \
-            if hasattr(vehicle, "parameters") else 3.0
+        braking = (vehicle.parameters().comfortable_braking
+            if hasattr(vehicle, "parameters") else 3.0)
         best = None
         for index, base in self._lanes_ahead(vehicle, STOP_LOOKAHEAD):
             for k, s_stop in enumerate(self._stop_signs.get(index, ())):
@@ -2259,8 +2259,8 @@ class WomdRoad(Road):
             for k, q, d1, d2 in hits.tolist():
                 k = int(k)
                 other = self._lane_list[owner[int(q)]]
-                if other == lane_index or other in successors or other in predecessors \
-                        or other in siblings or other in beside:
+                if (other == lane_index or other in successors or other in predecessors
+                        or other in siblings or other in beside):
                     continue
                 u = d1 / (d1 - d2)  # d1 != d2: not parallel
                 point = pts[k] + u * (pts[k + 1] - pts[k])
@@ -2302,8 +2302,8 @@ class WomdRoad(Road):
                     gap_i = d_i - vehicle.LENGTH / 2 - half
                     if gap_i < -vehicle.LENGTH:
                         continue  # past it
-                    inside_j = -(other.LENGTH / 2 + vehicle.WIDTH / 2 + CONFLICT_CLEARANCE) \
-                        < d_j <= other.LENGTH / 2 + vehicle.WIDTH / 2 + CONFLICT_CLEARANCE
+                    inside_j = (-(other.LENGTH / 2 + vehicle.WIDTH / 2 + CONFLICT_CLEARANCE)
+                        < d_j <= other.LENGTH / 2 + vehicle.WIDTH / 2 + CONFLICT_CLEARANCE)
                     if gap_i <= 0:
                         continue  # in the zone itself: clear it
                     if not inside_j and v_i ** 2 > 2 * braking * gap_i:
@@ -2314,10 +2314,10 @@ class WomdRoad(Road):
                         if t_j > CONFLICT_HORIZON:
                             continue
                         t_i = gap_i / max(v_i, 1.0)
-                        yields = isinstance(other, (WomdIDMVehicle, WomdPathVehicle)) and \
+                        yields = (isinstance(other, (WomdIDMVehicle, WomdPathVehicle)) and
                             v_j ** 2 <= 2 * other.parameters().comfortable_braking * max(
                                 d_j - other.LENGTH / 2 - vehicle.WIDTH / 2
-                                - CONFLICT_CLEARANCE, 0.0)
+                                - CONFLICT_CLEARANCE, 0.0))
                         if yields:
                             first = t_j < t_i - CONFLICT_TIE or (
                                 abs(t_j - t_i) <= CONFLICT_TIE

@@ -59,8 +59,8 @@ class SceneRef:
     offset: int = field(default=-1, compare=False)
 
     def __str__(self) -> str:
-        return f"{self.path} record {self.record}" if self.format != "scenarionet" \
-            else self.path
+        return (f"{self.path} record {self.record}" if self.format != "scenarionet"
+            else self.path)
 
     def digest(self) -> str:
         """SHA-256 of the scenario's bytes (its record, or the whole pickle): the content
@@ -398,8 +398,8 @@ class WomdScenes:
             raise ParameterError("files", self.files, "at least one WOMD file or pattern")
         if self.traffic not in TRAFFIC:
             raise ParameterError("traffic", self.traffic, f"one of {TRAFFIC}")
-        if not isinstance(self.policy_frequency, int) or self.policy_frequency <= 0 \
-                or 10 % self.policy_frequency:
+        if (not isinstance(self.policy_frequency, int) or self.policy_frequency <= 0
+                or 10 % self.policy_frequency):
             raise ParameterError("policy_frequency", self.policy_frequency,
                                  "a divisor of 10 Hz (1, 2, 5 or 10)")
         if not str(self.ego):

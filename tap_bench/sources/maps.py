@@ -238,9 +238,9 @@ def read_scene_maps(scenes: Iterable[Any]) -> pd.DataFrame:
             continue
         records = None
         if scene.format != "scenarionet":
-            records = [read_record(scene.path, scene.record, scene.offset)] \
+            records = ([read_record(scene.path, scene.record, scene.offset)]
                 if scene.offset >= 0 else (r for r in iter_records(scene.path)
-                                           if r.index == scene.record)
+                                           if r.index == scene.record))
         for _ in read(Path(scene.path), out, records):
             pass
     return out.table()

@@ -241,8 +241,8 @@ def decode_scenarionet(scenario: dict, *, path: str = "<scenario>",
         # a pickle names an object many times at the cost of one: a state array shared by
         # tracks would be copied once per track, unbounded by the file's size
         for key, value in state.items():
-            if isinstance(value, np.ndarray | list | tuple) and _sized(value) and \
-                    owner.setdefault(id(value), str(track_id)) != str(track_id):
+            if (isinstance(value, np.ndarray | list | tuple) and _sized(value) and
+                    owner.setdefault(id(value), str(track_id)) != str(track_id)):
                 raise fail(f"track {track_id}: its state {str(key)[:40]!r} is the same "
                            f"object as track {owner[id(value)]}'s (a pickle that names one "
                            "array for several tracks, which a ScenarioNet file never does)")
