@@ -105,8 +105,8 @@ class CurveConfig:
     n_resamples: int = 1000
 
     def __post_init__(self) -> None:
-        if isinstance(self.points, bool) or not isinstance(self.points, int) \
-                or self.points < 1:
+        if (isinstance(self.points, bool) or not isinstance(self.points, int)
+                or self.points < 1):
             raise ParameterError("points", self.points, "an integer >= 1 (evaluations; "
                                  "tap-bench train --curve-points)")
         if len(parse_seeds(self.seeds, source="curve seeds")) < 2:

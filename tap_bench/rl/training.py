@@ -195,8 +195,8 @@ def _has_main_guard(main: Any) -> bool:
     except (OSError, SyntaxError, UnicodeDecodeError, ValueError):
         return True
     for node in tree.body:
-        if isinstance(node, ast.If) and isinstance(node.test, ast.Compare) \
-                and len(node.test.ops) == 1 and isinstance(node.test.ops[0], ast.Eq):
+        if (isinstance(node, ast.If) and isinstance(node.test, ast.Compare)
+                and len(node.test.ops) == 1 and isinstance(node.test.ops[0], ast.Eq)):
             sides = [node.test.left, *node.test.comparators]
             names = [s.id for s in sides if isinstance(s, ast.Name)]
             constants = [s.value for s in sides if isinstance(s, ast.Constant)]
@@ -811,9 +811,9 @@ def _trained_here(output: Path) -> bool:
     except (OSError, ValueError):
         return False
     params = doc.get("params") if isinstance(doc, dict) else None
-    return isinstance(params, dict) and doc.get("kind") == "sb3" \
-        and params.get("model") == output.name and "command" in params \
-        and "with tap-bench" in str(doc.get("description", ""))
+    return (isinstance(params, dict) and doc.get("kind") == "sb3"
+        and params.get("model") == output.name and "command" in params
+        and "with tap-bench" in str(doc.get("description", "")))
 
 
 def _reward_config(scenario: WomdScenes) -> dict[str, float]:
