@@ -307,8 +307,10 @@ def _whole_labels(table: pd.DataFrame) -> pd.DataFrame:
     return table[~table["unit"].astype(str).str.endswith("segments")]
 
 
-def _coverage_plot(scores: Scores) -> tuple[str, str] | None:
-    cov = _whole_labels(_pooled(scores.coverage))
+def _coverage_plot(coverage: pd.DataFrame) -> tuple[str, str] | None:
+    """Coverage of each reference per policy, whole labels (``coverage``: the pooled rows
+    of the coverage table)."""
+    cov = _whole_labels(coverage)
     if cov.empty:
         return None
     refs = sorted(cov["reference"].unique())
@@ -491,8 +493,9 @@ def _tradeoff_plot(scores: Scores, reference: str) -> tuple[str, str] | None:
     return svg.named("tradeoff.svg")
 
 
-def _improvement_plot(scores: Scores) -> tuple[str, str] | None:
-    pm = _pooled(scores.paired_measures)
+def _improvement_plot(pm: pd.DataFrame) -> tuple[str, str] | None:
+    """P(A better than B) per pair and measure (``pm``: the pooled rows of the paired
+    measures)."""
     if pm.empty:
         return None
     pairs = pm[["policy_a", "policy_b"]].drop_duplicates().to_records(index=False)
@@ -518,8 +521,10 @@ def _improvement_plot(scores: Scores) -> tuple[str, str] | None:
     return svg.named("improvement.svg")
 
 
-def _novelty_plot(scores: Scores) -> tuple[str, str] | None:
-    nov = _whole_labels(_pooled(scores.novelty))
+def _novelty_plot(novelty: pd.DataFrame) -> tuple[str, str] | None:
+    """The novelty rate against each reference per policy, whole labels (``novelty``: the
+    pooled rows of the novelty table)."""
+    nov = _whole_labels(novelty)
     if nov.empty:
         return None
     refs = sorted(nov["reference"].unique())
@@ -584,11 +589,14 @@ def _draw(scores: Scores, reference: str, level: float) -> dict[str, bytes]:
     """Every figure of :func:`write_plots`: file name -> SVG bytes, in report order."""
     svgs: list[tuple[str, str] | None] = []
     envs = _envs(scores)
+    # the pooled figures draw the rows of all envs (or of the one env)
+    pm, cov, nov = (_pooled(t) for t in (scores.paired_measures, scores.coverage,
+                                         scores.novelty))
     for env in envs:
         svgs.append(_label_heatmap(scores.label_counts, env))
         svgs.append(_measures_plot(scores, env, reference))
     if len(envs) > 1:
         svgs.append(_measures_plot(scores, "all", reference))
-    svgs += [_tradeoff_plot(scores, reference), _improvement_plot(scores),
-             _coverage_plot(scores), *_forest_plots(scores, level), _novelty_plot(scores)]
+    svgs += [_tradeoff_plot(scores, reference), _improvement_plot(pm), _coverage_plot(cov),
+             *_forest_plots(scores, level), _novelty_plot(nov)]
     return {name: text.encode() for name, text in (s for s in svgs if s is not None)}

@@ -1,17 +1,21 @@
 """The run report's tables: numbers to their precision and unit, the summary of each policy
-against the reference, the display forms of the scored tables, and the escaped HTML table
-with its "show all", search and sort (part of :mod:`tap_bench.bench.report.page`)."""
+against the reference, the display forms of the scored tables, the escaped HTML table with
+its "show all", search and sort, and every table of the page with its caption and replay
+links (:func:`page_tables`, which :mod:`tap_bench.bench.report.page` places)."""
 
 from __future__ import annotations
 
 import html
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.measures import MEASURES, Measure
+from tap_bench.bench.gate.power import POWER, power_summary
+from tap_bench.bench.measures import MEASURES, SCENE_MEASURES, Measure, run_measures
 from tap_bench.bench.scores.null import halves_text
 from tap_bench.bench.scores.scoring import Scores
 
@@ -447,3 +451,337 @@ def _thresholds_text(th: Any) -> str:
             f"{dist} ({units.get(dist, '')}): " + ", ".join(f"{k} {v:g}" for k, v in vals.items())
             for dist, vals in th["thresholds"].items())
     return str(th)
+
+
+# -- the page's tables -----------------------------------------------------------------------
+
+def page_tables(summary: dict[str, Any], episodes: pd.DataFrame, scores: Scores, *,
+                reference: str, level: float, viewer: str | None) -> dict[str, str]:
+    """Every table of the report page as escaped HTML with its caption (:func:`html_table`),
+    by the id the page places it under. A table the run has nothing for is left out: the
+    recorded scenes' tables, the interaction contexts, diversity, the scenario matches and
+    the gate's power.
+
+    Args:
+        summary: the run's ``summary.json`` content.
+        episodes: the episode table.
+        scores: the scored tables.
+        reference: the reference policy.
+        level: the intervals' level (0.95).
+        viewer: the replay viewer's page relative to the report (``viewer/index.html``):
+            rows that name episodes or labels link to their replay; None: no links.
+    """
+    pct = level_text(level)
+    return {**_human_tables(episodes, reference, level),
+            **_summary_tables(summary, scores, reference, pct),
+            **_env_tables(episodes, scores, reference, level, pct, viewer),
+            **_comparison_tables(episodes, scores, level, pct, viewer),
+            **_coverage_tables(scores, reference, level, pct, viewer),
+            **_power_tables(scores),
+            **_run_tables(summary, episodes, reference)}
+
+
+def _replay(viewer: str | None, **params: Any) -> str | None:
+    """The replay viewer's address showing what ``params`` name (None: no viewer)."""
+    if viewer is None:
+        return None
+    parts = [f"{k}={quote(str(v), safe='')}" for k, v in params.items()
+             if v is not None and v != ""]
+    return f"{viewer}#{'&'.join(parts)}"
+
+
+def human_of(reference: str) -> str:
+    """Who drove the recorded scenes as logged, as the page names it."""
+    return "the human" if reference == "log" else f"the reference policy {reference}"
+
+
+def _human_tables(episodes: pd.DataFrame, reference: str, level: float) -> dict[str, str]:
+    """Runs on recorded scenes (SPEC section 8): each policy's label agreement with the
+    reference on the same scenes, per axis (``human-agreement``), and the closed-loop
+    measures beside the human's own (``human-measures``); none for runs without recorded
+    scenes."""
+    from tap_bench.bench.scores.agreement import agreement_with_reference, scene_summary
+
+    if "route_progress" not in episodes.columns:
+        return {}
+    scenes = episodes[episodes["route_progress"].notna()
+                      | episodes.get("log_ade", pd.Series(dtype=float)).notna()]
+    if scenes.empty:
+        return {}
+    human = human_of(reference)
+    tables = {}
+    agree = agreement_with_reference(scenes, reference, level=level)
+    pct = level_text(level)
+    if len(agree):
+        shown = agree.assign(
+            agreement=[f"{a}/{n} = {_pct(sh)} [{_pct(lo)}, {_pct(hi)}]" if n else "–"
+                       for a, n, sh, lo, hi in zip(agree["agree"], agree["pairs"],
+                                                   agree["share"], agree["low"],
+                                                   agree["high"], strict=True)])
+        wide = shown.pivot_table(index=["env", "policy"], columns="axis", values="agreement",
+                                 aggfunc="first").reset_index()
+        wide.columns.name = None
+        tables["human-agreement"] = html_table(
+            wide, table_id="human-agreement",
+            caption=f"Label agreement with {human}: scenes where the policy's ego label on "
+            f"an axis equals the human's on the same scene, with its {pct} Wilson interval. "
+            "sdl is lateral and longitudinal together; interaction the relations to others "
+            "(SPEC 7).")
+    summary = scene_summary(scenes)
+    # at-fault collisions, off-road and route progress first: the measures of recorded
+    # scenes in their registry's order, then the others (all collisions among them)
+    ids = [c for c in ("env", "policy", "episodes") if c in summary.columns]
+    scene = [m.name for m in SCENE_MEASURES if m.name in summary.columns]
+    summary = summary[[*ids, *scene, *(c for c in summary.columns
+                                        if c not in ids and c not in scene)]]
+    for col in summary.columns:
+        if col not in ("env", "policy", "episodes"):
+            summary[col] = summary[col].round(3)
+    tables["human-measures"] = html_table(
+        summary, table_id="human-measures",
+        caption="Closed-loop measures on recorded scenes, mean over scenes, paired by scene: "
+        "crashed_at_fault (share of scenes where the ego collided at fault), off_road "
+        "(share: left the road edges), route_progress (share of the human's path "
+        "covered, 0-1), crashed (all collisions), ran_red_light (share), log_ade and "
+        f"log_fde (mean and final distance to the human's ego, m). The {reference} row "
+        "is the floor: the human's own boxes can overlap others' in the log.")
+    return tables
+
+
+def _summary_tables(summary: dict[str, Any], scores: Scores, reference: str, pct: str
+                    ) -> dict[str, str]:
+    """The summary table: each policy against the reference (:func:`summary_table`)."""
+    envs = _envs(scores)
+    pooled_env = "all" if len(envs) > 1 else (envs or ["–"])[0]
+    return {"summary": html_table(
+        summary_table(scores, reference), table_id="summary", max_rows=50,
+        caption=f"Env: {pooled_env}. Each cell: the policy's mean over episodes, its {pct} "
+        "interval in brackets, and its paired difference from the reference policy "
+        f"{reference} on the same seeds: ▲ better or ▼ worse when the difference's {pct} "
+        f"interval excludes 0, = no difference otherwise. {_measures_text(summary)}"
+        "Coverage: share of the reference corpus's labels the policy shows; novel: share of "
+        "episodes whose label the reference never shows; under each, the same-policy figure "
+        "(the reference's episodes split in halves, one held against the other) and the "
+        f"policy's difference from it at those sizes with its {pct} interval (a reference "
+        "never shows everything its own policy does: read the difference, not the figure "
+        "alone).")}
+
+
+def _measures_text(summary: dict[str, Any]) -> str:
+    """What the summary's measure cells mean, from the run's measure entries: rates in % of
+    episodes, and the caps of capped measures."""
+    entries = run_measures(summary)
+    rates = [e["label"] for e in entries if e.get("kind") == "rate"]
+    capped = [e for e in entries if e.get("kind") != "rate" and e.get("bounds")]
+    out = ""
+    if rates:
+        out += f"{', '.join(rates).capitalize()} in % of episodes. "
+    if capped:
+        out += "Capped: " + ", ".join(f"{e['label']} at {e['bounds'][1]:g} {e['unit']}"
+                                      for e in capped) + ". "
+    return out
+
+
+def _env_tables(episodes: pd.DataFrame, scores: Scores, reference: str, level: float,
+                pct: str, viewer: str | None) -> dict[str, str]:
+    """Per env, its crashed episodes (``crashed-<env>``, where any crashed); every measure per
+    env and policy (``measures``)."""
+    tables = {}
+    for env in _envs(scores):
+        crashed = episodes[(episodes["env"] == env) & (episodes["status"] == "ok")
+                           & episodes["crashed"].fillna(False).astype(bool)]
+        if len(crashed):
+            # recorded scenes: each episode by its scenario id, with whom and whose fault
+            real = [c for c in ("scenario_id", "crash_with", "crash_fault")
+                    if "crash_fault" in crashed and crashed["crash_fault"].notna().any()
+                    and c in crashed]
+            tables[f"crashed-{_slug(env)}"] = html_table(
+                crashed[["policy", "seed", *real, "sdl"]].rename(columns={
+                    "sdl": "ego label", "scenario_id": "scenario", "crash_with": "with",
+                    "crash_fault": "fault"}),
+                table_id=f"crashed-{_slug(env)}", text_columns=("ego label",),
+                caption=f"Crashed episodes in {env}: the ego collided"
+                + (" (recorded scenes: named by scenario id; with: the agent whose box "
+                   "overlapped the ego's most; fault: SPEC 8's rule that decided)."
+                   if real else "."),
+                links=[_replay(viewer, ep=r.scenario_id, b=reference)
+                       for r in crashed.itertuples()])
+    tables["measures"] = html_table(_display_measures(scores.measures, level),
+                                    table_id="measures",
+                                    caption="Every measure per env and policy: mean over "
+                                    f"episodes and {pct} interval, in the measure's unit.")
+    return tables
+
+
+def _comparison_tables(episodes: pd.DataFrame, scores: Scores, level: float, pct: str,
+                       viewer: str | None) -> dict[str, str]:
+    """The matched comparisons: paired by seed (``paired``, ``paired_measures``,
+    ``paired_labels``), by SDL label (``matched``), the interaction contexts met
+    (``interactions``) and each policy against the reference inside them
+    (``context-comparison``)."""
+    pl, mt = scores.paired_labels, scores.matched
+    tables = {
+        "paired": html_table(_display_paired(scores.paired, level), table_id="paired",
+                             caption="Share of seeds on which A's and B's egos carry the "
+                             "same label."),
+        "paired_measures": html_table(
+            _display_paired_measures(scores.paired_measures, level),
+            table_id="paired_measures",
+            caption="Measures paired by seed: means of A and B, the mean paired difference "
+            f"A − B in the measure's unit with its {pct} interval, and P(A better)."),
+        "paired_labels": html_table(
+            _display_paired_labels(pl, level), table_id="paired_labels",
+            text_columns=("label",),
+            caption="Every label's paired frequency difference (share of seeds, percentage "
+            "points); replay opens an episode with the label (of A when A shows it, else of "
+            "B) beside the other policy on the same seed.",
+            links=[_replay(viewer, f_env=r.env if r.env != "all" else "",
+                           # the policy that shows the label plays as A, the other beside it
+                           f_policy=r.policy_a if r.freq_a > 0 else r.policy_b,
+                           f_sdl=r.label, b=r.policy_b if r.freq_a > 0 else r.policy_a)
+                   for r in pl.itertuples()] if len(pl) else None),
+        "matched": html_table(
+            _display_matched(mt, level), table_id="matched", text_columns=("label",),
+            caption="Inside each group of episodes with the same ego label in one env (both "
+            f"policies present): the measures of A and B compared (unpaired, {pct} "
+            "intervals); replay opens the group's first episode of A.",
+            links=[_replay(viewer, f_env=r.env, f_policy=r.policy_a, f_sdl=r.label,
+                           b=r.policy_b) for r in mt.itertuples()] if len(mt) else None)}
+    if "interaction" in episodes.columns and episodes["interaction"].notna().any():
+        ctx = (episodes[episodes["status"] == "ok"].dropna(subset=["interaction"])
+               .groupby(["env", "policy", "interaction"]).size().rename("episodes")
+               .reset_index().sort_values(["env", "episodes"], ascending=[True, False]))
+        tables["interactions"] = html_table(
+            ctx, table_id="interactions", text_columns=("interaction",),
+            caption="The ego's interaction labels (what it did around others) per env and "
+            "policy, with the number of episodes; replay opens the first one.",
+            links=[_replay(viewer, f_env=r.env, f_policy=r.policy, f_sdl=r.interaction)
+                   for r in ctx.itertuples()])
+    if scores.contexts is not None and len(scores.contexts):
+        tables["context-comparison"] = _context_table(scores.contexts, pct)
+    return tables
+
+
+def _context_table(contexts: pd.DataFrame, pct: str) -> str:
+    """The run's contexts table (:func:`tap_bench.bench.scores.contexts.context_scores`): each
+    policy against the reference inside each interaction context, the measures with an
+    interval first."""
+    from tap_bench.bench.scores.contexts import context_measures
+
+    entries = {m.name: m for m in context_measures()}
+    rows = []
+    for r in contexts.itertuples():
+        m = entries.get(r.measure)
+        scale = m.scale if m is not None else 1.0
+        unit = ("points" if m.is_rate else m.display_unit) if m is not None else r.unit
+        diff = f"{scale * r.diff:+.2f} {unit}" if pd.notna(r.diff) else ""
+        interval = (f"[{scale * r.diff_low:+.2f}, {scale * r.diff_high:+.2f}]"
+                    if pd.notna(r.diff_low) and pd.notna(r.diff_high) else "")
+        rows.append({"env": r.env, "context": r.context,
+                     "policy": f"{r.policy_a} vs {r.policy_b}",
+                     "measure": m.label if m is not None else r.measure,
+                     "seeds paired": r.n_pairs, "episodes": f"{r.n_a} / {r.n_b}",
+                     "difference": diff, "interval": interval, "method": r.method})
+    table = pd.DataFrame(rows)
+    table = table.assign(_no=table["interval"] == "").sort_values(
+        ["_no", "env", "context", "policy"], kind="stable").drop(columns="_no")
+    return html_table(
+        table, table_id="context-comparison",
+        text_columns=("env", "context", "policy", "measure", "method"),
+        caption="Each policy against the reference inside each interaction context (A - B; "
+        f"{pct} intervals): paired by seed where both meet the context, else unpaired, as "
+        "tap-bench contexts compares them (contexts.parquet).")
+
+
+def _coverage_tables(scores: Scores, reference: str, level: float, pct: str,
+                     viewer: str | None) -> dict[str, str]:
+    """Coverage of the references (``coverage``), diversity (``diversity``), novelty
+    (``novelty``, ``novel_labels``) and the scenarios matched across data sets
+    (``scenario_matches``)."""
+    nl = scores.novel_labels
+    tables = {"coverage": html_table(
+        _display_coverage(scores.coverage, level), table_id="coverage",
+        caption="Coverage per env and reference, scored on whole labels (episodes, or windows "
+        "of a real corpus's track length) and on the manoeuvres the episodes contain "
+        "(segments: the labels of their runs, which repeat where whole labels rarely do); "
+        "beside each, the same-policy figure (the reference split in halves) and the "
+        f"policy's difference from it at those sizes with its {pct} interval; with the "
+        "diversity of each policy's labels.")}
+    if not scores.diversity.empty:
+        tables["diversity"] = html_table(
+            diversity_display(scores.diversity), table_id="diversity",
+            caption="Hill numbers of each policy's ego labels (q0: distinct labels, q1: "
+            "exp(Shannon entropy), q2: inverse Simpson) at a common number of episodes per "
+            "env, with the sample completeness (the share of the policy's label distribution "
+            "the episodes have shown); 'whole distribution' is the asymptotic estimate, "
+            "'at least' where the completeness is too low to estimate it; 'all' is the mean "
+            "over envs.")
+    tables["novelty"] = html_table(
+        _display_novelty(scores.novelty, level), table_id="novelty",
+        caption="Novelty per env and reference, on whole labels and on segments (an episode "
+        "is novel when one of its segments carries a label the reference never shows), "
+        "beside the same-policy figure and the difference from it.")
+    tables["novel_labels"] = html_table(
+        _display_novel_labels(nl), table_id="novel_labels", text_columns=("label", "example"),
+        caption="Novel labels with an example episode, each (env, label) once (the pooled "
+        "figures count these rows); for segments, the segment labels the reference never "
+        "shows; replay opens the example beside the reference policy on the same seed.",
+        links=[_replay(viewer, ep=r.example_scenario, b=reference)
+               for r in nl.itertuples()] if len(nl) else None)
+    if not scores.scenario_matches.empty:
+        tables["scenario_matches"] = html_table(
+            scores.scenario_matches, table_id="scenario_matches",
+            caption="Each simulated episode beside its nearest WOMD scenarios by "
+            "scenario-level SDL (Scenario2Vector distance).")
+    return tables
+
+
+def _power_tables(scores: Scores) -> dict[str, str]:
+    """The regression gate's power at the run's seed count (``gate_power``), with a note per
+    metric that some cells catch with less than :data:`~tap_bench.bench.gate.power.POWER`
+    probability; none without a power table."""
+    if scores.gate_power.empty:
+        return {}
+    power = power_summary(scores.gate_power)
+    parts = [html_table(
+        power, table_id="gate_power",
+        caption="Per metric, the probability that 'bench check' on these seeds fails a "
+        "cell whose metric worsened by 'effect' (the gate's 'detect' margins): the "
+        "gate's own rule (margin and weighted one-sided test), exact for rates, "
+        "simulated for means; median and weakest (env, policy), and the seeds the "
+        f"weakest needs for {POWER:.0%}.")]
+    for r in power[power["cells_underpowered"] > 0].itertuples():
+        parts.append(f'<p class="note">{html.escape(r.metric)}: {r.cells_underpowered} '
+                     f"of {r.cells} (env, policy) cells catch a worsening of {r.effect:g} "
+                     f"with less than {POWER:.0%} probability at {r.n} seeds; up to "
+                     f"{r.seeds_for_power:.0f} seeds needed.</p>")
+    return {"gate_power": "".join(parts)}
+
+
+def _run_tables(summary: dict[str, Any], episodes: pd.DataFrame, reference: str
+                ) -> dict[str, str]:
+    """The run's facts (``facts``: suite, seeds, level, thresholds, references, versions)
+    and its failed episodes (``failed``; a note when none failed)."""
+    suite = summary.get("suite", {})
+    facts = pd.DataFrame([
+        ("envs", ", ".join(e if isinstance(e, str) else str(e.get("name", "womd"))
+                           for e in suite.get("envs", []))),
+        ("policies", ", ".join(suite.get("policies", []))),
+        ("seeds", _seed_text(summary.get("seeds", []))),
+        ("SDL level", summary.get("level", "")),
+        ("thresholds", _thresholds_text(summary.get("thresholds"))),
+        ("reference policy", reference),
+        ("references", "; ".join(
+            f"{name}: " + (", ".join(Path(p).name for p in src) if isinstance(src, list)
+                           else Path(str(src)).name)
+            for name, src in summary.get("references", {}).items()) or "–"),
+        ("episodes", f"{summary.get('n_episodes', len(episodes))} "
+                     f"({summary.get('n_failed', 0)} failed)"),
+        ("created", summary.get("created", "")),
+        ("versions", ", ".join(f"{k} {v}" for k, v in summary.get("versions", {}).items())),
+    ], columns=["what", "value"])
+    failed = episodes[episodes["status"] != "ok"]
+    return {"facts": html_table(facts, table_id="facts", max_rows=50),
+            "failed": html_table(failed[["env", "policy", "seed", "error"]], table_id="failed",
+                                 caption="Left out of every score.")
+            if len(failed) else '<p class="note">none</p>'}
