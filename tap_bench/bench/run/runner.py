@@ -50,8 +50,9 @@ timings of earlier runs or by timing a first episode of each env.
 
 :func:`run_suite` reads as its steps, each in its own module and given the plain values it
 needs: the suite resolved once into a plan (:func:`~tap_bench.bench.run.plan.plan_suite`),
-the run served whole when nothing changed (:func:`~tap_bench.bench.run.served.try_served`),
-the references read (:func:`~tap_bench.bench.run.scoring.read_references`), the episodes
+the references read (:func:`~tap_bench.bench.run.scoring.read_references`), the episodes'
+tasks made (:func:`~tap_bench.bench.run.plan._tasks`, keyed for the cache), the run served
+whole when nothing changed (:func:`~tap_bench.bench.run.served.try_served`), the episodes
 run (:func:`~tap_bench.bench.run.episodes.run_episodes`), scored
 (:func:`~tap_bench.bench.run.scoring.score_run`) and written
 (:func:`~tap_bench.bench.run.folder.write_results`), then the cache's part: the run kept
@@ -154,21 +155,20 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     cache = _open_cache(cache, output)
     sources = _reference_sources(references, womd)
     shown_realism = _realism_entries(realism)  # read (and checked) before the episodes
+    timings: dict[str, float] = {}
+    corpora = read_references(sources, plan.level, plan.thresholds, timings)
+    keep_tables = keep_trajectories or any(traj is not None for traj, _ in corpora.values())
+    tasks = _tasks(plan, keep_tables, cache)  # keyed for the cache when there is one
     # every input as in an earlier run: its folder comes whole from the cache (run.served)
-    served, tasks, whole = try_served(plan, cache, output, overwrite, keep_trajectories,
-                                      report, bool(sources) or bool(shown_realism), t_start,
-                                      announce)
+    served, whole = try_served(plan, tasks, cache, output, overwrite, keep_trajectories,
+                               report, bool(sources) or bool(shown_realism), t_start,
+                               announce)
     if served is not None:
         return served
     backend = resolve_backend(backend, workers)
     if cache is not None:  # tap-bench's code as the run's entries are keyed (see the end)
         package_code()
     entries_since = time.time()
-    timings: dict[str, float] = {}
-    corpora = read_references(sources, plan.level, plan.thresholds, timings)
-    keep_tables = keep_trajectories or any(traj is not None for traj, _ in corpora.values())
-    if tasks is None:  # not made for the served run's key
-        tasks = _tasks(plan, keep_tables, cache)
     done = run_episodes(tasks, plan.name, plan.scenarios, output, backend=backend,
                         cache=cache, recorded=plan.recorded, keep_tables=keep_tables,
                         keep_maps=keep_trajectories,

@@ -395,25 +395,23 @@ def _check_apart(output: Path, cache_root: Path) -> None:
                               "separate places.")
 
 
-def try_served(plan: SuitePlan, cache: EpisodeCache | None, output: Path, overwrite: bool,
-               keep_trajectories: bool, report: bool, corpora: bool, started: float,
-               announce: Callable[[str], None] | None = None
-               ) -> tuple[RunResult | None, list[_Task] | None, dict[str, Any] | None]:
-    """(the run served whole from ``cache`` or None, the run's tasks when made, its
-    :func:`run_inputs` when it may be kept whole): the first step of
-    :func:`~tap_bench.bench.run.runner.run_suite`, which goes on with the tasks when nothing
-    was served, and keeps the run under these inputs when it is done."""
+def try_served(plan: SuitePlan, tasks: Sequence[_Task], cache: EpisodeCache | None,
+               output: Path, overwrite: bool, keep_trajectories: bool, report: bool,
+               corpora: bool, started: float, announce: Callable[[str], None] | None = None
+               ) -> tuple[RunResult | None, dict[str, Any] | None]:
+    """(the run served whole from ``cache`` or None, its :func:`run_inputs` when it may be
+    kept whole): the step of :func:`~tap_bench.bench.run.runner.run_suite` after its tasks
+    are made (``tasks``, :func:`tap_bench.bench.run.plan._tasks`), which goes on with them
+    when nothing was served, and keeps the run under these inputs when it is done."""
     if cache is None or corpora or plan.plugins or plan.recorded:
-        return None, None, None
+        return None, None
     from tap_bench.bench.run.folder import fresh_facts
-    from tap_bench.bench.run.plan import _tasks
 
-    tasks = _tasks(plan, keep_trajectories, cache)
     inputs = run_inputs(plan, tasks, keep_trajectories=keep_trajectories, report=report)
     if inputs is None:
-        return None, tasks, None
+        return None, None
     return (serve_run(cache, inputs, output, overwrite, fresh_facts(plan, output), started,
-                      announce), tasks, inputs)
+                      announce), inputs)
 
 
 def serve_unchanged(suite: Any, output: str | Path, *, cache: EpisodeCache | None,
@@ -428,7 +426,7 @@ def serve_unchanged(suite: Any, output: str | Path, *, cache: EpisodeCache | Non
     import warnings
 
     from tap_bench.bench.run.folder import check_output
-    from tap_bench.bench.run.plan import plan_suite
+    from tap_bench.bench.run.plan import _tasks, plan_suite
     from tap_bench.errors import CacheEntryWarning
 
     if cache is None or corpora or plugins:
@@ -439,8 +437,11 @@ def serve_unchanged(suite: Any, output: str | Path, *, cache: EpisodeCache | Non
         warnings.simplefilter("always")
         plan = plan_suite(suite, plugins=plugins, seeds=seeds)
         _check_apart(output, cache.root)
-        served, _, _ = try_served(plan, cache, output, overwrite, keep_trajectories, report,
-                                  corpora, started, announce)
+        if plan.plugins or plan.recorded:  # never served: no tasks made for it
+            return None
+        served, _ = try_served(plan, _tasks(plan, keep_trajectories, cache), cache, output,
+                               overwrite, keep_trajectories, report, corpora, started,
+                               announce)
     for warning in said:  # a refused entry is said either way (run_suite lists it)
         if served is not None or issubclass(warning.category, CacheEntryWarning):
             warnings.warn_explicit(warning.message, warning.category, warning.filename,
