@@ -117,6 +117,7 @@ from tap_bench.sim.womd_road import (
     path_progress,
     sim_frame,
 )
+from tap_bench.sim.womd_safety import safety_layer
 from tap_bench.sim.womd_scene import (
     CURRENT_STEP,
     TRAFFIC,
@@ -445,6 +446,7 @@ class _WomdHighwayEnv(AbstractEnv):
                              route=list(self.route))
         ego.LENGTH, ego.WIDTH = float(scene.length[e]), float(scene.width[e])
         ego.diagonal = math.hypot(ego.LENGTH, ego.WIDTH)
+        ego.safety = safety_layer(self.config["action"].get("safety_layer"))
         self.road.vehicles.append(ego)
         self.controlled_vehicles = [ego]
         self.simulated: dict[int, Vehicle] = {}  # other simulated agents by row

@@ -33,7 +33,11 @@ flat float32 vector (an SB3 ``MlpPolicy`` reads it as it is):
   crossing the route ahead counts once it is in the way, a car in the next lane does not);
   with ``leader_corners`` (off by default) also when a corner of its box is within half the
   ego's width of the polyline (a car parked half in the lane, a car at an angle: the gap is
-  then to that corner).
+  then to that corner); with ``leader_swept`` (off by default) also the nearest road user
+  in the ego's own swept box (:func:`swept_leader`: where the ego's box goes over the next
+  :data:`SWEPT_HORIZON` seconds from its heading, speed and steering, whatever the route
+  says), the nearer of the two: a car standing beside the route where the ego, off the
+  route's centre after a turn, is heading, a car cutting in.
   ``lead_closing``: how fast the gap shrinks [m/s] (the ego's speed minus the leader's
   velocity along the path), divided by :data:`CLOSING_SCALE`, clipped; 0 with no leader.
   ``lead_inverse_ttc``: the inverse time to collision, closing speed / gap [1/s] (0 when
@@ -85,8 +89,8 @@ from tap_bench.sim.observation import FastKinematicObservation
 
 __all__ = ["CLOSING_SCALE", "CROSSING_COUNT", "CROSSING_FEATURES", "CROSS_HORIZON",
            "CROSS_MIN_ANGLE", "INVERSE_TTC_SCALE", "LEADER_FEATURES", "OBSERVATION_TYPE",
-           "OFFSET_SCALE", "ROUTE_FEATURES", "SPEED_SCALE", "Crossing", "Leader",
-           "RouteObservation", "route_feature_names"]
+           "OFFSET_SCALE", "ROUTE_FEATURES", "SPEED_SCALE", "SWEPT_HORIZON", "SWEPT_MARGIN",
+           "Crossing", "Leader", "RouteObservation", "route_feature_names", "swept_leader"]
 
 OBSERVATION_TYPE = "KinematicsRoute"
 """The ``observation`` config's ``type`` of :class:`RouteObservation`."""
@@ -110,6 +114,12 @@ CROSSING_COUNT = 2  # crossing road users observed (nearest crossing point first
 CROSS_HORIZON = 5.0  # [s] a road user's way: where its velocity takes it in this time
 CROSS_MIN_ANGLE = math.radians(15.0)  # [rad] a way meeting the path at less does not cross
 MIN_CROSS_SPEED = 0.5  # [m/s] a road user slower than this crosses nobody's path
+
+SWEPT_HORIZON = 3.0  # [s] the ego's swept box: where it goes in this time at its speed
+SWEPT_MIN_DISTANCE = 10.0  # [m] ... and at least this far (a slow or standing ego)
+SWEPT_STEP = 0.5  # [m] the swept box is the ego's box placed every this many metres
+SWEPT_MARGIN = 0.25  # [m] the swept box is this much wider than the ego on each side
+SWEPT_MAX_TURN = math.pi / 2  # [rad] the ego's turn is followed this far, then straight on
 
 
 class Leader(NamedTuple):
@@ -161,7 +171,8 @@ def route_feature_names(route_points: int, leader: bool = False,
     return [*points, *ROUTE_FEATURES, *(LEADER_FEATURES if leader else ()), *crossers]
 
 
-_ROUTE_OPTIONS = ("route_points", "route_spacing", "leader", "crossing", "leader_corners")
+_ROUTE_OPTIONS = ("route_points", "route_spacing", "leader", "crossing", "leader_corners",
+                  "leader_swept")
 
 
 def _kinematics_options() -> set[str]:
@@ -189,12 +200,14 @@ class RouteObservation(FastKinematicObservation):
             half the ego's width of it (a car parked half in the lane, a car turning in).
         crossing: append :data:`CROSSING_COUNT` x :data:`CROSSING_FEATURES` (the road users
             whose way crosses the ego's path ahead).
+        leader_swept: the leader is the nearer of the route path's and the ego's own swept
+            box's (:func:`swept_leader`).
         **kwargs: highway-env's Kinematics parameters (``vehicles_count``, ``features``...).
     """
 
     def __init__(self, env: Any, route_points: int = 5, route_spacing: float = 10.0,
                  leader: bool = False, crossing: bool = False, leader_corners: bool = False,
-                 **kwargs: Any) -> None:
+                 leader_swept: bool = False, **kwargs: Any) -> None:
         kwargs.pop("type", None)
         known = _kinematics_options()
         for key in kwargs:
@@ -222,8 +235,13 @@ class RouteObservation(FastKinematicObservation):
             raise ValueError(f"KinematicsRoute observation: leader_corners {leader_corners!r} "
                              "must be true or false (a road user whose box reaches into the "
                              "path is in it).")
+        if not isinstance(leader_swept, bool):
+            raise ValueError(f"KinematicsRoute observation: leader_swept {leader_swept!r} must "
+                             "be true or false (a road user in the ego's own swept box is a "
+                             "leader).")
         self.crossing_features = crossing
         self.leader_corners = leader_corners
+        self.leader_swept = leader_swept
         self.lead = NO_LEADER  # the leader at the last observation (the env's reward reads it)
         self.route_points = route_points
         self.route_spacing = float(route_spacing)
@@ -283,6 +301,10 @@ class RouteObservation(FastKinematicObservation):
                                       float(ego.lane_index in route))])
         path = np.concatenate([p[None], points])
         self.lead = self.leader(path)
+        if self.leader_swept:
+            swept = swept_leader(ego, self._road_users())
+            if swept.gap < self.lead.gap:
+                self.lead = swept
         if self.leader_features:
             lead = self.lead
             gap = lead.gap / self.horizon if math.isfinite(lead.gap) else 1.0
@@ -458,6 +480,99 @@ class RouteObservation(FastKinematicObservation):
         if change is not None and change[0] > self.horizon:
             change = None
         return points, change
+
+
+def swept_poses(ego: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the ego's centre goes: (s, xy, heading) at every :data:`SWEPT_STEP` metres
+    along its way over :data:`SWEPT_HORIZON` seconds at its speed (at least
+    :data:`SWEPT_MIN_DISTANCE` m), s from 0 [m]; (k,), (k, 2) [m, sim frame], (k,) [rad].
+
+    The way is an arc of the curvature its steering gives (highway-env's bicycle model:
+    heading rate = speed sin(beta) / (length / 2), beta = arctan(tan(steering) / 2)), followed
+    for :data:`SWEPT_MAX_TURN` of turn, then straight on; when the ego steers, the poses
+    straight on along its heading follow (the same s again): the steering of a slow ego
+    swings from lock to lock from one step to the next, and a car right ahead must not drop
+    out of the box for a step."""
+    speed = max(float(ego.speed), 0.0)
+    distance = max(speed * SWEPT_HORIZON, SWEPT_MIN_DISTANCE)
+    s = np.arange(0.0, distance + 1e-9, SWEPT_STEP)
+    action = getattr(ego, "action", None) or {}
+    steering = float(action.get("steering", 0.0))
+    beta = math.atan(0.5 * math.tan(steering))
+    kappa = math.sin(beta) / (float(ego.LENGTH) / 2)  # [1/m] heading change per metre
+    h0 = float(ego.heading) + beta  # the velocity's direction
+    turn = np.clip(kappa * s, -SWEPT_MAX_TURN, SWEPT_MAX_TURN)
+    heading = h0 + turn
+    if abs(kappa) < 1e-6:
+        xy = s[:, None] * np.array([math.cos(h0), math.sin(h0)])
+    else:
+        arc = np.minimum(s, abs(SWEPT_MAX_TURN / kappa))  # the part driven while turning
+        on_arc = np.column_stack([np.sin(h0 + kappa * arc) - math.sin(h0),
+                                  math.cos(h0) - np.cos(h0 + kappa * arc)]) / kappa
+        xy = on_arc + (s - arc)[:, None] * np.column_stack([np.cos(heading), np.sin(heading)])
+        h = float(ego.heading)
+        xy = np.concatenate([xy, s[:, None] * np.array([math.cos(h), math.sin(h)])])
+        s, heading = np.concatenate([s, s]), np.concatenate([heading, np.full(len(s), h)])
+    return s, np.asarray(ego.position, float) + xy, heading
+
+
+def swept_leader(ego: Any, others: list[Any], margin: float = SWEPT_MARGIN) -> Leader:
+    """The nearest road user the ego's swept box meets: the ego's box (``margin`` m wider
+    on each side) placed along :func:`swept_poses` is tested against each road user's box
+    where it is now (separating axes); the first pose that overlaps gives the gap, the
+    distance the ego's centre goes before it (less one :data:`SWEPT_STEP`: never more than
+    the true gap). Road users whose centre is not ahead of the ego's (along its heading) are
+    left out (those beside and behind). The closing speed is the ego's speed minus the
+    other's velocity along the ego's heading at that pose.
+
+    Args:
+        ego: the ego vehicle (``position``, ``heading``, ``speed``, ``LENGTH``, ``WIDTH``,
+            ``action["steering"]``; highway-env's sim frame).
+        others: the road users (``position``, ``heading``, ``velocity``, ``LENGTH``,
+            ``WIDTH``).
+        margin: [m] added to the ego's half width.
+    """
+    if not others:
+        return NO_LEADER
+    s, xy, heading = swept_poses(ego)
+    p = np.asarray(ego.position, float)
+    pos = np.array([v.position for v in others], dtype=float)  # (n, 2)
+    h = float(ego.heading)
+    ahead = (pos - p) @ np.array([math.cos(h), math.sin(h)]) > 0
+    ahead &= np.hypot(*(pos - p).T) <= s[-1] + 10.0 + float(ego.LENGTH)
+    if not ahead.any():
+        return NO_LEADER
+    idx = np.flatnonzero(ahead)
+    pos = pos[idx]
+    oh = np.array([others[i].heading for i in idx], dtype=float)
+    half_l = np.array([others[i].LENGTH for i in idx], dtype=float) / 2
+    half_w = np.array([others[i].WIDTH for i in idx], dtype=float) / 2
+    eu = np.column_stack([np.cos(heading), np.sin(heading)])[:, None, :]  # (k, 1, 2)
+    ew = np.column_stack([-np.sin(heading), np.cos(heading)])[:, None, :]
+    ou = np.column_stack([np.cos(oh), np.sin(oh)])[None]  # (1, n, 2)
+    ow = np.column_stack([-np.sin(oh), np.cos(oh)])[None]
+    d = pos[None] - xy[:, None, :]  # (k, n, 2)
+    el, ewid = float(ego.LENGTH) / 2, float(ego.WIDTH) / 2 + margin
+
+    def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return (a * b).sum(axis=-1)
+
+    overlap = np.ones(d.shape[:2], bool)
+    for axis in (eu, ew, ou, ow):
+        reach = (el * np.abs(dot(eu, axis)) + ewid * np.abs(dot(ew, axis))
+                 + half_l * np.abs(dot(ou, axis)) + half_w * np.abs(dot(ow, axis)))
+        overlap &= np.abs(dot(d, axis)) <= reach
+    hit = overlap.any(axis=0)
+    if not hit.any():
+        return NO_LEADER
+    along = np.where(overlap, s[:, None], np.inf)  # (k, n)
+    first = along.argmin(axis=0)  # (n,) each road user's first pose that overlaps
+    k = int(np.argmin(along[first, np.arange(len(first))]))
+    pose = int(first[k])
+    gap = max(float(s[pose]) - SWEPT_STEP, 0.0)
+    direction = np.array([math.cos(heading[pose]), math.sin(heading[pose])])
+    lead_speed = float(np.dot(others[idx[k]].velocity, direction))
+    return Leader(gap, max(float(ego.speed), 0.0) - lead_speed)
 
 
 def _project(points: np.ndarray, a: np.ndarray, seg: np.ndarray, length: np.ndarray,

@@ -474,7 +474,11 @@ class _RouteMixin:
 
 class WomdMDPVehicle(_RouteMixin, MDPVehicle):
     """highway-env's meta-action vehicle on a WOMD map: ``LANE_LEFT``/``LANE_RIGHT`` go to
-    the map's neighbour on that side where there is one (else nothing happens)."""
+    the map's neighbour on that side where there is one (else nothing happens). With a
+    :attr:`safety` layer (:mod:`tap_bench.sim.womd_safety`, an agent's action config asks
+    for it) its controller's acceleration is capped at every step."""
+
+    safety: Any = None
 
     def act(self, action: Any = None) -> None:
         if action in ("LANE_LEFT", "LANE_RIGHT"):
@@ -486,6 +490,11 @@ class WomdMDPVehicle(_RouteMixin, MDPVehicle):
                     break
             action = None
         super().act(action)
+        if self.safety is not None and not self.crashed:
+            others = [v for v in self.road.vehicles if v is not self
+                      and getattr(v, "collidable", True) and not getattr(v, "hidden", False)]
+            clock = getattr(self.road, "clock", None)
+            self.safety.apply(self, others, clock[0] if clock else None)
 
     def step(self, dt: float) -> None:
         super().step(dt)
