@@ -45,6 +45,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    "default (KinematicsRoute with the leader), as JSON values (e.g. "
                    "crossing=true: the road users whose way crosses the ego's path; "
                    "docs/agents.md); the definition records the observation")
+    p.add_argument("--action", nargs="+", metavar="KEY=VALUE", default=[],
+                   help="with --env womd: settings of the agent's action over the env's "
+                   "default (DiscreteMetaAction), as JSON values (e.g. safety_layer=true: "
+                   "its acceleration capped by IDM's braking for the road user in its swept "
+                   "box, docs/agents.md); the definition records the action")
     p.add_argument("--timesteps", type=int, required=True, help="decisions to train for")
     p.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     p.add_argument("-o", "--output", required=True,
@@ -125,23 +130,25 @@ def _rewards(items: list[str]) -> dict[str, float]:
     return out
 
 
-def _observation(items: list[str]) -> dict[str, object]:
-    """``--observation KEY=VALUE ...`` as the observation config: the env's default with
-    each KEY set to VALUE read as JSON (true, 5, "Kinematics")."""
+def _observation(items: list[str], part: str = "observation",
+                 example: str = "crossing=true") -> dict[str, object]:
+    """``--observation KEY=VALUE ...`` (or ``--action``, ``part``) as the observation (or
+    action) config: the env's default with each KEY set to VALUE read as JSON (true, 5,
+    "Kinematics")."""
     import json
 
     from tap_bench.sim.womd_env import _WomdHighwayEnv
 
-    config = dict(_WomdHighwayEnv.default_config()["observation"])
+    config = dict(_WomdHighwayEnv.default_config()[part])
     for item in items:
         key, eq, value = item.partition("=")
         if not key or not eq:
-            raise SystemExit(f"tap-bench train: --observation {item}: write KEY=VALUE, e.g. "
-                             "crossing=true.")
+            raise SystemExit(f"tap-bench train: --{part} {item}: write KEY=VALUE, e.g. "
+                             f"{example}.")
         try:
             config[key] = json.loads(value)
         except ValueError:
-            raise SystemExit(f"tap-bench train: --observation {item}: {value!r} is not a "
+            raise SystemExit(f"tap-bench train: --{part} {item}: {value!r} is not a "
                              "JSON value (true, false, a number, a quoted text).") from None
     return config
 
@@ -164,19 +171,30 @@ def run(args: argparse.Namespace) -> int:
             env = env.with_overrides(_rewards(args.reward))
         if args.observation:
             env = env.with_overrides({"observation": _observation(args.observation)})
+        if args.action:
+            from tap_bench.sim.womd_safety import safety_layer
+
+            action = _observation(args.action, "action", "safety_layer=true")
+            try:
+                safety_layer(action.get("safety_layer"))
+            except ValueError as err:
+                raise SystemExit(f"tap-bench train: --action: {err}") from None
+            env = env.with_overrides({"action": action})
         recorded = ["--womd", *args.womd, "--traffic", args.traffic,
                     *(["--hold-out", args.hold_out] if args.hold_out else []),
                     *(["--egos", args.egos] if args.egos != "sdc" else []),
                     *(["--reward", *args.reward] if args.reward else []),
-                    *(["--observation", *args.observation] if args.observation else [])]
+                    *(["--observation", *args.observation] if args.observation else []),
+                    *(["--action", *args.action] if args.action else [])]
         if not args.no_curve:
             print("recorded scenes: no learning curve (it evaluates on synthetic seeds); "
                   "compare the agent with the human afterwards: tap-bench rollout --womd ... "
                   f"--policy {args.output}")
             args.no_curve = True
-    elif args.womd or args.hold_out or args.egos != "sdc" or args.reward or args.observation:
-        raise SystemExit("tap-bench train: --womd, --hold-out, --egos, --reward and "
-                         "--observation go with --env womd.")
+    elif (args.womd or args.hold_out or args.egos != "sdc" or args.reward or args.observation
+          or args.action):
+        raise SystemExit("tap-bench train: --womd, --hold-out, --egos, --reward, "
+                         "--observation and --action go with --env womd.")
     command = "tap-bench train " + " ".join(shlex.quote(a) for a in (
         "--algo", args.algo, "--env", args.env, *recorded, "--timesteps", str(args.timesteps),
         "--seed",

@@ -744,6 +744,9 @@ def _definition(output: Path, *, algo: str, scenario: Scenario | WomdScenes,
                if isinstance(scenario, WomdScenes) else {}),
             **(split.record() if split is not None else {}),
             "observation": observation,
+            # an action config of its own (a safety layer): rollouts drive it with that
+            **({"action": dict(scenario.config["action"])} if isinstance(scenario, WomdScenes)
+               and scenario.config.get("action") is not None else {}),
             **({"reward": _reward_config(scenario)} if isinstance(scenario, WomdScenes)
                else {}),
             "timesteps": trained,

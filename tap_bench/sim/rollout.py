@@ -138,6 +138,15 @@ def _observation_config(policy: Policy) -> Mapping[str, Any]:
     return CHEAP_OBSERVATION if policy.observation is None else policy.observation
 
 
+def policy_overrides(policy: Policy) -> dict[str, Any]:
+    """The env config a policy drives with: its observation (:data:`CHEAP_OBSERVATION`
+    for one that reads none) and, for a trained agent whose action config is its own (a
+    safety layer: :mod:`tap_bench.sim.womd_safety`), that action config."""
+    action = getattr(policy, "action", None)
+    return {"observation": dict(_observation_config(policy)),
+            **({"action": dict(action)} if action is not None else {})}
+
+
 def _is_womd(env: gym.Env) -> bool:
     from tap_bench.sim.womd_env import WomdEnv
 
@@ -157,14 +166,15 @@ def _run_task(task: _Task) -> tuple[pd.DataFrame, dict[str, Any]]:
         policy = _POLICIES.get(policy_key) if policy_key else task.policy
         if policy is None:
             policy = _POLICIES[policy_key] = task.policy.build()
-        obs_config = _observation_config(policy)
-        env_key = repr((task.scenario, sorted(obs_config.items()), task.record))
+        overrides = policy_overrides(policy)
+        env_key = repr((task.scenario, sorted((k, sorted(v.items()))
+                                              for k, v in overrides.items()), task.record))
         env = _ENVS.get(env_key)
         if env is None:
             if isinstance(task.scenario, WomdScenes):  # one env per file of a sharded run:
                 for key in [k for k, e in _ENVS.items() if _is_womd(e)][:-1]:  # keep two
                     _ENVS.pop(key).close()
-            scenario = task.scenario.with_overrides({"observation": dict(obs_config)})
+            scenario = task.scenario.with_overrides(overrides)
             if isinstance(scenario, WomdScenes):
                 from tap_bench.sim.womd_env import WomdEnv
 

@@ -140,6 +140,9 @@ class SB3Policy:
         algo: ``"dqn"``, ``"ppo"``, ``"a2c"``; read from the file when None.
         observation: the highway-env observation config the model was trained on; rollouts
             build the env with it. None keeps the scenario's own.
+        action: the action config it was trained with when that is not the env's default
+            (a safety layer: :mod:`tap_bench.sim.womd_safety`); rollouts build the env with
+            it. None keeps the scenario's own.
         env: the scenario the model was trained on (information only).
         deterministic: act greedily (True) or sample from the policy.
         base_dir: folder of the definition file.
@@ -177,7 +180,8 @@ class SB3Policy:
                  held_out_scenes: Sequence[int] | None = None,
                  held_out_refs: Sequence[str] | None = None,
                  cpu_seconds: float | None = None,
-                 reward: Mapping[str, float] | None = None) -> None:
+                 reward: Mapping[str, float] | None = None,
+                 action: Mapping[str, Any] | None = None) -> None:
         path = Path(model)
         if not path.is_absolute() and base_dir is not None:
             path = Path(base_dir) / path
@@ -190,6 +194,7 @@ class SB3Policy:
         self.path = path
         self.algo = algo.lower() if algo else None
         self.observation = dict(observation) if observation is not None else None
+        self.action = dict(action) if action is not None else None
         self.env = env
         self.deterministic = deterministic
         self.training = {"timesteps": timesteps, "seed": seed,

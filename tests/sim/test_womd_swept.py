@@ -5,6 +5,7 @@ by hand."""
 
 from __future__ import annotations
 
+import json
 import math
 from types import SimpleNamespace
 
@@ -230,3 +231,40 @@ def test_the_safety_layer_stops_the_ego_before_the_car_in_its_swept_box(tmp_path
     assert not unhit["crash_at_fault"] and unhit["crash_fault"] == ""
     layer = results[True][1]
     assert layer.steps == 80 and layer.braked > 0 and layer.capped >= layer.braked
+
+
+def test_an_agent_trained_with_the_layer_drives_with_it_wherever_it_is_rolled_out(
+        womd_dir, tmp_path):
+    """``tap-bench train --action safety_layer=true`` records the action config in the
+    definition; a rollout of that definition builds the env with it (the layer judges the
+    ego's steps); a bad setting is refused before any work."""
+    pytest.importorskip("stable_baselines3")
+    import importlib
+
+    from tap_bench.cli import main
+    from tap_bench.sim.policies import load_policy
+    from tap_bench.sim.womd_scene import WomdScenes
+
+    rollouts = importlib.import_module("tap_bench.sim.rollout")  # the module, not the function
+    files = str(womd_dir / "womd_scenario_input.tfrecord")
+    out = tmp_path / "ppo-layer.zip"
+    with pytest.raises(SystemExit, match="safety_layer"):
+        main(["train", "--algo", "ppo", "--env", "womd", "--womd", files, "--action",
+              'safety_layer={"gap": 1}', "--timesteps", "64", "-o", str(out)])
+    assert main(["train", "--algo", "ppo", "--env", "womd", "--womd", files, "--observation",
+                 "leader_swept=true", "--action", "safety_layer=true", "--timesteps", "64",
+                 "--n-envs", "1", "-o", str(out)]) == 0
+    doc = json.loads(out.with_suffix(".json").read_text())
+    assert doc["params"]["action"]["safety_layer"] is True
+    assert doc["params"]["observation"]["leader_swept"] is True
+    assert "--action safety_layer=true" in doc["params"]["command"]
+    policy = load_policy(str(out.with_suffix(".json")))
+    assert rollouts.policy_overrides(policy)["action"]["safety_layer"] is True
+    assert "action" not in rollouts.policy_overrides(load_policy("lane-keeping"))
+    rollouts._ENVS.clear()
+    result = rollouts.rollout(WomdScenes((files,)), str(out.with_suffix(".json")), "all",
+                              workers=1)
+    assert list(result.episodes["status"]) == ["ok"]
+    (env,) = [e for e in rollouts._ENVS.values()]
+    assert env.unwrapped.config["action"]["safety_layer"] is True
+    assert env.unwrapped.vehicle.safety is not None and env.unwrapped.vehicle.safety.steps > 0
