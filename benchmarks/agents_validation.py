@@ -7,7 +7,10 @@ per policy (log traffic, the training setting), so 4 validation scenes give tens
 instead of 4. Prints, per policy: episodes, route progress (mean and interquartile mean over
 the episodes where the driver moved), at-fault collisions and off-road (rates), and the
 probabilities that the first policy gets further than each other one, and that it collides
-at fault less, on the same episode (ties a half); writes every episode to ``--out`` (CSV).
+at fault less, on the same episode (ties a half); for an agent with a safety layer
+(:mod:`tap_bench.sim.womd_safety`) the share of its simulated steps in which the layer
+lowered the agent's acceleration (``layer_capped``) and made it brake where the agent did
+not (``layer_braked``); writes every episode to ``--out`` (CSV).
 ``--pool NAME=P1,P2,...`` adds a row NAME for the episodes of those policies together (an
 agent's training seeds), compared episode by episode as each seed is (first: the first
 policy is then NAME).
@@ -29,17 +32,19 @@ from machine import report
 
 from tap_bench.rl.heldout import drivers
 from tap_bench.sim.policies import load_policy
-from tap_bench.sim.rollout import run_episode
+from tap_bench.sim.rollout import policy_overrides, run_episode
 from tap_bench.sim.womd_env import WomdEnv
 from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.stats.aggregate import iqm
 
 
 def policy_env(scenes: WomdScenes, policy: object) -> WomdEnv:
-    """The env ``policy`` drives: with the observation it was trained on, if any."""
-    observation = getattr(policy, "observation", None)
-    return WomdEnv(scenes if observation is None else scenes.with_overrides(
-        {"observation": dict(observation)}), record=False)
+    """The env ``policy`` drives: with the observation it was trained on, if any, and its
+    own action config (a safety layer), if any."""
+    overrides = policy_overrides(policy)
+    if getattr(policy, "observation", None) is None:  # the scenes' own observation
+        overrides.pop("observation")
+    return WomdEnv(scenes.with_overrides(overrides), record=False)
 
 
 def episodes(files: list[str], scenes: list[int], policies: list[str]) -> pd.DataFrame:
@@ -55,10 +60,15 @@ def episodes(files: list[str], scenes: list[int], policies: list[str]) -> pd.Dat
                     warnings.simplefilter("ignore")
                     _, row = run_episode(env, policy, i, record=False,
                                          options={"scene": i, "ego": track})
+                layer = getattr(env.unwrapped.vehicle, "safety", None)
                 rows.append({"policy": name, "scene": i, "track": track,
                              **{k: row.get(k) for k in (
                                  "status", "route_progress", "crashed", "crash_at_fault",
-                                 "off_road", "return", "length")}})
+                                 "off_road", "return", "length")},
+                             # the agent's safety layer: simulated steps it judged, lowered
+                             # the policy's acceleration in, made it brake in
+                             **({"layer_steps": layer.steps, "layer_capped": layer.capped,
+                                 "layer_braked": layer.braked} if layer is not None else {})})
     return pd.DataFrame(rows)
 
 
@@ -87,7 +97,12 @@ def summary(eps: pd.DataFrame, policies: list[str],
     for name, members in groups.items():
         rows = ok[ok["policy"].isin(members)]
         moved = rows["route_progress"].dropna().to_numpy(float)
-        out.append({"policy": name, "episodes": len(rows),
+        layer = {}
+        if "layer_steps" in rows and rows["layer_steps"].notna().any():
+            steps = rows["layer_steps"].sum()
+            layer = {"layer_capped": float(rows["layer_capped"].sum() / steps),
+                     "layer_braked": float(rows["layer_braked"].sum() / steps)}
+        out.append({"policy": name, "episodes": len(rows), **layer,
                     "progress_mean": float(moved.mean()), "progress_iqm": float(iqm(moved)),
                     "at_fault": float(rows["at_fault"].mean()),
                     "off_road": float(rows["off_road"].astype(bool).mean()),
