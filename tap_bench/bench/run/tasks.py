@@ -460,84 +460,135 @@ def _run_all(tasks: list[_Task], name: str, backend: Backend, progress: bool | N
              keep_result: Callable[[int, dict[str, Any]], dict[str, Any]], streamed: bool
              ) -> tuple[list[dict[str, Any]], RunPlan]:
     """:func:`_rollouts` once its progress is set up: ``streamed``, the results taken one
-    by one as they end (``backend.imap``)."""
-    tasks = list(tasks)
-    results: dict[int, dict[str, Any]] = {}
-    seconds: dict[int, float] = {}
-    notes: dict[int, str] = {}
-    for i, task in enumerate(tasks):  # labelled before: read here, no worker needed
-        t0 = time.perf_counter()
-        hit = _from_label_cache(task)
-        if hit is not None and "episodes" in hit:
-            results[i] = keep_result(i, hit)
-            seconds[i] = time.perf_counter() - t0
-        elif hit is not None:
-            notes[i] = hit["cache_note"]
-    cached = [i in results or (cache is not None and t.key is not None
-                               and cache.contains(t.key)) for i, t in enumerate(tasks)]
+    by one as they end (``backend.imap``). In steps: what the cache holds read (earlier
+    runs' timings, the labelled episodes, which are cached), each env's road handed to its
+    tasks, a first episode of each env the cache has no timing of
+    simulated for the estimate, the estimate announced, the other episodes run."""
+    done = _Done(keep_result)
+    known = cache.timings() if cache is not None else {}  # earlier runs', for the estimate
+    notes = done.read_labelled(tasks)  # labelled before: read here, no worker needed
+    cached = [i in done.results or (cache is not None and t.key is not None
+                                    and cache.contains(t.key)) for i, t in enumerate(tasks)]
     if road is not None:
-        drawn: dict[str, pd.DataFrame | None] = {}
-        for i, task in enumerate(tasks):
-            if i not in results and not isinstance(task.scenario, WomdScenes):
-                if task.env not in drawn:
-                    try:
-                        drawn[task.env] = road(task.env)
-                    except Exception:  # the workers draw it, and fail per episode as before
-                        drawn[task.env] = None
-                tasks[i] = replace(task, road=drawn[task.env])
-    known = cache.timings() if cache is not None else {}
-    given: dict[int, Any] = {}  # the estimate's episodes, simulated, not yet labelled
+        tasks = _with_roads(tasks, done.results, road)
+    probes = _probes(tasks, cached, known) if announce is not None else []  # no one to tell
+    given, measured = done.timed_first(tasks, probes, backend, announce)
+    plan = estimate(tasks, cached, backend.workers, known, measured)
+    if announce is not None:
+        announce(plan.describe(name))
+    done.run_items(tasks, _items(tasks, [i for i in range(len(tasks)) if i not in done.results],
+                                 cached, backend.workers, given),
+                   backend, progress, f"bench {name} ({backend.name})", streamed)
+    out = [done.results[i] for i in range(len(tasks))]
+    for i, result in enumerate(out):
+        result["seconds"] = done.seconds[i]
+        result["env"] = tasks[i].env
+        if i in notes and not result.get("cache_note"):
+            result["cache_note"] = notes[i]
+    return out, plan
+
+
+def _probes(tasks: list[_Task], cached: list[bool], known: Mapping[str, Any]) -> list[int]:
+    """The tasks timed for the estimate: the first episode to simulate of each env that the
+    cache's timings (``known``) do not hold."""
     probes, seen = [], set(known.get("simulated", {}))
     for i, (task, hit) in enumerate(zip(tasks, cached, strict=True)):
-        if announce is not None and not hit and task.env not in seen:  # no one to tell: no probe
+        if not hit and task.env not in seen:
             probes.append(i)
             seen.add(task.env)
-    measured: dict[str, float] = {}
-    if probes:
+    return probes
+
+
+def _with_roads(tasks: list[_Task], results: Mapping[int, Any],
+                road: Callable[[str], pd.DataFrame]) -> list[_Task]:
+    """``tasks``, those of synthetic envs still to run handed their env's road (``road``:
+    env -> its map table, drawn once per env); an env whose road cannot be drawn here is
+    drawn by its workers, which fail per episode as before."""
+    drawn: dict[str, pd.DataFrame | None] = {}
+    out = list(tasks)
+    for i, task in enumerate(tasks):
+        if i not in results and not isinstance(task.scenario, WomdScenes):
+            if task.env not in drawn:
+                try:
+                    drawn[task.env] = road(task.env)
+                except Exception:  # the workers draw it, and fail per episode as before
+                    drawn[task.env] = None
+            out[i] = replace(task, road=drawn[task.env])
+    return out
+
+
+class _Done:
+    """The results of a run's tasks as they come in, by task index, each passed through
+    ``keep_result`` (:func:`_rollouts`), with the seconds each took."""
+
+    def __init__(self, keep_result: Callable[[int, dict[str, Any]], dict[str, Any]]) -> None:
+        self.keep_result = keep_result
+        self.results: dict[int, dict[str, Any]] = {}
+        self.seconds: dict[int, float] = {}
+
+    def read_labelled(self, tasks: list[_Task]) -> dict[int, str]:
+        """The episodes the cache holds labelled, read whole (:func:`_from_label_cache`);
+        returns the notes of the entries refused, by task index."""
+        notes: dict[int, str] = {}
+        for i, task in enumerate(tasks):
+            t0 = time.perf_counter()
+            hit = _from_label_cache(task)
+            if hit is not None and "episodes" in hit:
+                self.results[i] = self.keep_result(i, hit)
+                self.seconds[i] = time.perf_counter() - t0
+            elif hit is not None:
+                notes[i] = hit["cache_note"]
+        return notes
+
+    def timed_first(self, tasks: list[_Task], probes: list[int], backend: Backend,
+                    announce: Callable[[str], None] | None
+                    ) -> tuple[dict[int, Any], dict[str, float]]:
+        """The ``probes`` (a first episode of each env without a timing) simulated, not yet
+        labelled: (task index -> the episode, for its batch; env -> its seconds), a failed
+        one's result kept."""
+        given: dict[int, Any] = {}
+        measured: dict[str, float] = {}
+        if not probes:
+            return given, measured
         if announce is not None:
             announce(f"timing a first episode of {len(probes)} env(s) for the estimate ...")
         # simulated only: each is labelled with the other episodes of its env and policy
         # (one labelling call instead of two; the same labels, as a batch gives each)
         outcomes = backend.map(_simulate, [tasks[i] for i in probes], progress=False)
         for i, outcome in zip(probes, outcomes, strict=True):
-            seconds[i] = outcome.seconds
+            self.seconds[i] = outcome.seconds
             if outcome.ok:
                 given[i] = outcome.value
                 measured[tasks[i].env] = outcome.seconds
             else:
-                results[i] = keep_result(i, _failed_task(tasks[i], outcome.error))
-    plan = estimate(tasks, cached, backend.workers, known, measured)
-    if announce is not None:
-        announce(plan.describe(name))
-    items = _items(tasks, [i for i in range(len(tasks)) if i not in results], cached,
-                   backend.workers, given)
-    each = backend.imap if streamed else backend.map
-    outcomes = each(_run_item, [item for _, item in items], unit="task",
-                    progress=progress, desc=f"bench {name} ({backend.name})"
-                    ) if items else []
-    alone: list[int] = []  # the episodes of a failed batch, tried again one by one
-    for (indices, _), outcome in zip(items, outcomes, strict=True):
-        if not outcome.ok and len(indices) > 1:
-            alone += indices
-            continue
-        values = outcome.value if outcome.ok else [
-            _failed_task(tasks[i], outcome.error) for i in indices]
-        for i, value in zip(indices, values, strict=True):
-            results[i] = keep_result(i, value)
-            seconds[i] = outcome.seconds / len(indices)
-    if alone:  # one bad episode does not cost the others of its batch
-        outcomes = backend.map(_run_task, [tasks[i] for i in alone], progress=False)
-        for i, outcome in zip(alone, outcomes, strict=True):
-            results[i] = keep_result(i, outcome.value if outcome.ok else
-                                     _failed_task(tasks[i], outcome.error))
-            seconds[i] = outcome.seconds
-    out = [results[i] for i in range(len(tasks))]
-    for i, result in enumerate(out):
-        result["seconds"] = seconds[i]
-        result["env"] = tasks[i].env
-        if i in notes and not result.get("cache_note"):
-            result["cache_note"] = notes[i]
-    return out, plan
+                self.results[i] = self.keep_result(i, _failed_task(tasks[i], outcome.error))
+        return given, measured
+
+    def run_items(self, tasks: list[_Task], items: list[tuple[list[int], _Task | _Batch]],
+                  backend: Backend, progress: bool | None, desc: str, streamed: bool
+                  ) -> None:
+        """The work ``items`` run on ``backend`` (streamed: taken as they end); the
+        episodes of a batch that failed tried again one by one (one bad episode does not
+        cost the others), then recorded as failed."""
+        each = backend.imap if streamed else backend.map
+        outcomes = each(_run_item, [item for _, item in items], unit="task",
+                        progress=progress, desc=desc) if items else []
+        alone: list[int] = []  # the episodes of a failed batch, tried again one by one
+        for (indices, _), outcome in zip(items, outcomes, strict=True):
+            if not outcome.ok and len(indices) > 1:
+                alone += indices
+                continue
+            values = outcome.value if outcome.ok else [
+                _failed_task(tasks[i], outcome.error) for i in indices]
+            for i, value in zip(indices, values, strict=True):
+                self.results[i] = self.keep_result(i, value)
+                self.seconds[i] = outcome.seconds / len(indices)
+        if alone:
+            outcomes = backend.map(_run_task, [tasks[i] for i in alone], progress=False)
+            for i, outcome in zip(alone, outcomes, strict=True):
+                self.results[i] = self.keep_result(i, outcome.value if outcome.ok else
+                                                   _failed_task(tasks[i], outcome.error))
+                self.seconds[i] = outcome.seconds
 
 
 def result_ok(result: dict[str, Any]) -> bool:
