@@ -22,6 +22,8 @@ tracks with Waymo's classifier)     scenes, the ratio estimator's between-scene 
                                     over the binomial one; critical value t with G - 1
 a mean, a paired mean difference   Student's t interval
 a difference of independent means  Welch's t interval
+a statistic whose value in the      the studentized bootstrap (bootstrap-t) interval: Hill
+bootstrap population is known       numbers, sample completeness, coverage shares
 =================================  ===========================================================
 
 **No interval has zero width unless the value is known exactly.** Score intervals never do
@@ -63,6 +65,7 @@ __all__ = [
     "paired_measure_interval",
     "clustered_wilson_interval",
     "sidak_level",
+    "studentized_interval",
     "t_quantile",
     "tango_band",
     "tango_interval",
@@ -461,3 +464,37 @@ def unpaired_measure_interval(measure: Measure, a, b, level: float) -> tuple[flo
     if measure.is_rate:
         return newcombe_interval(int(xa.sum()), len(xa), int(xb.sum()), len(xb), level)
     return welch_interval(xa, xb, level, bounds=measure.bounds)
+
+
+def studentized_interval(estimate: np.ndarray, se: np.ndarray, draws: np.ndarray,
+                         draw_se: np.ndarray, centre: np.ndarray, level: float
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """The studentized bootstrap (bootstrap-t) interval (Efron & Tibshirani 1993 ch. 12;
+    Davison & Hinkley 1997 section 5.2.1).
+
+    In each draw from the bootstrap population the truth is known (``centre``, e.g. the
+    population's Hill numbers, :func:`~tap_bench.bench.scores.diversity.population_hill`),
+    so ``t* = (draw - centre) / draw_se`` is a draw of the estimator's studentized error;
+    the interval is ``estimate - t*_(1-a/2) se .. estimate - t*_(a/2) se``. Unlike
+    ``estimate +- z sd`` it follows an error whose spread grows with the estimate (few
+    singletons: a low richness with a narrow bootstrap spread), a skewed error, and the
+    estimator's bias (the Jensen bias of q = 1, 2 at small n; the population's own value
+    differs from the sample's).
+
+    Args:
+        estimate, se: (k,) the sample's values and standard errors.
+        draws, draw_se: (B, k) the statistic and its standard error in each draw.
+        centre: (k,) the statistic's value in the population.
+        level: two-sided level.
+
+    Returns:
+        (low (k,), high (k,)); NaN where a standard error is 0 or not finite.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (np.asarray(draws, float) - centre) / draw_se
+    alpha = 1 - level
+    ok = np.isfinite(se) & (se > 0)
+    t = np.nan_to_num(t, nan=0.0, posinf=1e6, neginf=-1e6)  # a draw with se 0: extreme
+    lo_q, hi_q = np.quantile(t, [alpha / 2, 1 - alpha / 2], axis=0)
+    return (np.where(ok, estimate - hi_q * se, np.nan),
+            np.where(ok, estimate - lo_q * se, np.nan))

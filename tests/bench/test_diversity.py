@@ -17,10 +17,10 @@ from tap_bench.bench.scores.diversity import (
     hill_numbers,
     pooled_diversity,
     population_hill,
-    studentized_interval,
 )
 from tap_bench.bench.scores.scoring import diversity_table
 from tap_bench.stats.bootstrap import BootstrapConfig
+from tap_bench.stats.intervals import studentized_interval
 
 # Sackett et al. (2011) spiders, "Girdled" site: iNEXT's example abundance data
 GIRDLED = np.array([46, 22, 17, 15, 15, 9, 8, 6, 6, 4, 2, 2, 2, 2] + [1] * 12)

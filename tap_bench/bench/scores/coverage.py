@@ -48,7 +48,7 @@ items count as reference items, which widens the interval: the conservative choi
 Episodes are drawn from it (multinomially for whole labels, independently per item for
 vocabulary items) and the interval is the **studentized bootstrap** of
 :mod:`~tap_bench.bench.scores.diversity`
-(:func:`~tap_bench.bench.scores.diversity.studentized_interval`):
+(:func:`~tap_bench.stats.intervals.studentized_interval`):
 each draw's coverage minus the population's own expected coverage, over the draw's own
 standard error (:func:`~tap_bench.bench.scores.diversity.distinct_variance`: the variance of the
 count of reference items shown under that draw's population, its undetected items counted
@@ -82,16 +82,12 @@ import numpy as np
 import pandas as pd
 
 from tap_bench import sdl
-from tap_bench.bench.scores.diversity import (
-    distinct_variance,
-    estimated_population,
-    studentized_interval,
-)
+from tap_bench.bench.scores.diversity import distinct_variance, estimated_population
 from tap_bench.errors import LabelTableError, did_you_mean
 from tap_bench.labels import label_text
 from tap_bench.sim.coverage import vocabulary_tokens
 from tap_bench.stats.bootstrap import BootstrapConfig, cluster_weights, scene_clusters
-from tap_bench.stats.intervals import wilson_interval, z_value
+from tap_bench.stats.intervals import studentized_interval, wilson_interval, z_value
 
 __all__ = [
     "UNITS",
@@ -491,7 +487,7 @@ def _unit_incidence(lab: np.ndarray, clusters: np.ndarray, items: np.ndarray,
 
 def _intervals(estimate: np.ndarray, se: np.ndarray, boot: np.ndarray, draws_se: np.ndarray,
                centre: np.ndarray, level: float) -> list[tuple[float, float]]:
-    """The studentized bootstrap interval of each share (:func:`tap_bench.bench.scores.diversity.
+    """The studentized bootstrap interval of each share (:func:`tap_bench.stats.intervals.
     studentized_interval`), clipped to [0, 1]; where a standard error is 0 (nothing seen
     once: no undetected item), the draws' percentile interval widened to hold the
     estimate."""

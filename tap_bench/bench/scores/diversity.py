@@ -53,16 +53,17 @@ covers less than its level at 10 to 100 episodes (``benchmarks/interval_coverage
 figures in docs/benchmark.md), for three reasons: the sd is too small when the sample
 shows few singletons, which is also when the estimate is low (the bootstrap sd grows with
 the estimate, so the misses pile up on one side); the error is skewed; and q = 1, 2 are
-biased at small n. The interval here is the **studentized
-bootstrap** (bootstrap-t; Efron & Tibshirani 1993 ch. 12, Davison & Hinkley 1997 5.2.1,
-:func:`studentized_interval`): in each draw the truth is the population's own value
-(:func:`population_hill`; for completeness the draw's coverage), ``t* = (draw - truth) /
-se*`` with se* the draw's own standard error, and the interval is ``estimate - t*_hi se ..
-estimate - t*_lo se``. The standard errors (:func:`hill_variance`, :func:`completeness_se`):
-for q = 0 the variance of the distinct count under the sample's own iNEXT population
-(:func:`distinct_variance`), for q = 1, 2 the delta method's, for completeness Esty's
-(1983), each floored at one episode's worth. Hill-number intervals are clipped to [1, m],
-completeness to [0, 1]; a bias-corrected interval need not be centred on the estimate.
+biased at small n. The interval here is the **studentized bootstrap** (bootstrap-t; Efron &
+Tibshirani 1993 ch. 12, Davison & Hinkley 1997 5.2.1,
+:func:`~tap_bench.stats.intervals.studentized_interval`): in each draw the truth is the
+population's own value (:func:`population_hill`; for completeness the draw's coverage),
+``t* = (draw - truth) / se*`` with se* the draw's own standard error, and the interval is
+``estimate - t*_hi se .. estimate - t*_lo se``. The standard errors (:func:`hill_variance`,
+:func:`completeness_se`): for q = 0 the variance of the distinct count under the sample's
+own iNEXT population (:func:`distinct_variance`), for q = 1, 2 the delta method's, for
+completeness Esty's (1983), each floored at one episode's worth. Hill-number intervals are
+clipped to [1, m], completeness to [0, 1]; a bias-corrected interval need not be centred
+on the estimate.
 A sample whose population has nothing undetected (no label seen once) gives draws that
 cannot move; the interval is then +- n u for the Hill numbers and - u for completeness, u
 the Wilson upper limit of 0 of n (at most that share of episodes could show a label not
@@ -86,7 +87,7 @@ import numpy as np
 
 from tap_bench.errors import ParameterError
 from tap_bench.stats.bootstrap import BootstrapConfig
-from tap_bench.stats.intervals import wilson_interval, z_value
+from tap_bench.stats.intervals import studentized_interval, wilson_interval, z_value
 
 __all__ = [
     "MIN_COMPLETENESS",
@@ -102,7 +103,6 @@ __all__ = [
     "in_order",
     "pooled_diversity",
     "population_hill",
-    "studentized_interval",
 ]
 
 MIN_COMPLETENESS = 0.5
@@ -380,39 +380,6 @@ def hill_variance(counts: np.ndarray, n: int, hill: np.ndarray) -> np.ndarray:
     return var if np.ndim(counts) == 2 else var[0]
 
 
-def studentized_interval(estimate: np.ndarray, se: np.ndarray, draws: np.ndarray,
-                         draw_se: np.ndarray, centre: np.ndarray, level: float
-                         ) -> tuple[np.ndarray, np.ndarray]:
-    """The studentized bootstrap (bootstrap-t) interval (Efron & Tibshirani 1993 ch. 12;
-    Davison & Hinkley 1997 section 5.2.1).
-
-    In each draw from the bootstrap population the truth is known (``centre``, e.g.
-    :func:`population_hill` of the population), so ``t* = (draw - centre) / draw_se`` is a
-    draw of the estimator's studentized error; the interval is ``estimate - t*_(1-a/2) se
-    .. estimate - t*_(a/2) se``. Unlike ``estimate +- z sd`` it follows an error whose
-    spread grows with the estimate (few singletons: a low richness with a narrow bootstrap
-    spread), a skewed error, and the estimator's bias (the Jensen bias of q = 1, 2 at
-    small n; the population's own value differs from the sample's).
-
-    Args:
-        estimate, se: (k,) the sample's values and standard errors.
-        draws, draw_se: (B, k) the statistic and its standard error in each draw.
-        centre: (k,) the statistic's value in the population.
-        level: two-sided level.
-
-    Returns:
-        (low (k,), high (k,)); NaN where a standard error is 0 or not finite.
-    """
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (np.asarray(draws, float) - centre) / draw_se
-    alpha = 1 - level
-    ok = np.isfinite(se) & (se > 0)
-    t = np.nan_to_num(t, nan=0.0, posinf=1e6, neginf=-1e6)  # a draw with se 0: extreme
-    lo_q, hi_q = np.quantile(t, [alpha / 2, 1 - alpha / 2], axis=0)
-    return (np.where(ok, estimate - hi_q * se, np.nan),
-            np.where(ok, estimate - lo_q * se, np.nan))
-
-
 def completeness_se(counts: np.ndarray) -> np.ndarray | float:
     """Esty's (1983) standard error of the sample completeness's error Ĉ - C, from his
     normal limit law for the Good-Turing coverage estimator (C is the sample's own
@@ -609,10 +576,10 @@ def diversity(labels, *, size: int | None = None, config: BootstrapConfig | None
 def pooled_diversity(results: list[DiversityResult], level: float) -> DiversityResult:
     """The mean over envs of per-env diversities (each env's figures at its own common
     size). Hill-number intervals: the studentized bootstrap
-    (:func:`studentized_interval`) of the per-draw means of the envs' draws against the
-    mean of their populations' values, with the envs' standard errors combined as for
-    independent envs (``sqrt(sum se^2) / E``, per draw likewise); completeness: Esty's
-    standard errors combined the same way."""
+    (:func:`~tap_bench.stats.intervals.studentized_interval`) of the per-draw means of the
+    envs' draws against the mean of their populations' values, with the envs' standard
+    errors combined as for independent envs (``sqrt(sum se^2) / E``, per draw likewise);
+    completeness: Esty's standard errors combined the same way."""
     results = [r for r in results if r.n > 0]
     if not results:
         return _empty(0)

@@ -270,18 +270,18 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
                 ref = reference.get(env) if keyed else reference
                 if ref is None:
                     continue
+                # windows are resampled by the episode each was cut from
+                clusters = window_episode(sub["scenario_id"]) if windowed else None
                 cv = coverage(sub["sdl"], ref, config=config,
                               rng=config.rng("coverage", env, policy, name,
                                              *(() if unit == "episodes" else (unit,))),
-                              clusters=window_episode(sub["scenario_id"]) if windowed
-                              else None)
+                              clusters=clusters)
                 nv = (novelty(sub, ref, config=config, windowed=windowed)
                       if ref.kind != "vocabulary" else None)
                 nl = (same_policy_null(
                     sub["sdl"].to_numpy(object), ref, config=config,
                     seeds=sub["seed"].to_numpy() if paired and "seed" in sub else None,
-                    clusters=window_episode(sub["scenario_id"]) if windowed else None,
-                    rng=config.rng("null", env, policy, name, unit))
+                    clusters=clusters, rng=config.rng("null", env, policy, name, unit))
                     if ref.kind != "vocabulary" and len(ref.units) else None)
                 if keyed:
                     per_env_cov.append(cv)
