@@ -170,18 +170,25 @@ def test_lane_distances_equal_the_pose_by_pose_definition():
                    near[rng.choice(len(near), 120)] + rng.normal(0, 1.5, (120, 2)),
                    [[np.nan, 0.0], [1e5, -1e5]]]
     headings = rng.uniform(-4.0, 4.0, len(points))
+    # The compiled lookup and this definition round differently: the compiled code's
+    # atan2 is the C library's, numpy's arctan2 its own vectorised one (they differ by an
+    # ulp on some CPUs), and a compiler may fuse a multiply and an add. Each distance is a
+    # sum of a few terms no larger than the coordinates (up to 1.4e5 m here) and an angle,
+    # so the two agree to a few ulps of that: 1e-12 relative, 1e-12 m near zero. A wrong
+    # pose, end or heading moves a distance by millimetres at least.
     for p, h in zip(points, headings, strict=True):
         want = [_distance_by_definition(lane, p[0], p[1], h) for _, lane in lanes]
         got = index.distances(p, h)
-        assert np.array_equal(got, want, equal_nan=True)
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12, equal_nan=True)
         for _, lane in lanes[::7]:
             owner_lon, owner_lat = lane.local_coordinates(p)
             px, py, tx, ty, s = lane.arrays
             k = max([j for j in range(1, len(px)) if tx[j] * (p[0] - px[j])
                      + ty[j] * (p[1] - py[j]) >= 0], default=0)
             dx, dy = p[0] - px[k], p[1] - py[k]
-            assert (owner_lon, owner_lat) == (s[k] + tx[k] * dx + ty[k] * dy,
-                                              tx[k] * dy - ty[k] * dx) or np.isnan(owner_lon)
+            np.testing.assert_allclose(
+                [owner_lon, owner_lat], [s[k] + tx[k] * dx + ty[k] * dy,
+                                         tx[k] * dy - ty[k] * dx], rtol=1e-12, atol=1e-12)
     many = index.closest_many(points[:-2], headings[:-2])
     assert many == [index.closest(p, h) for p, h in zip(points[:-2], headings[:-2],
                                                         strict=True)]
