@@ -1,5 +1,5 @@
-"""``tap-bench bench run`` on recorded scenes killed outright (SIGKILL, at seeded random
-points) and run again with the same command and ``--cache``: the episodes the killed run
+"""``tap-bench bench run`` on recorded scenes killed outright (SIGKILL, after a seeded
+number of episodes) and run again with the same command and ``--cache``: the episodes the killed run
 finished are read from the cache, the run says how many ("N read, M simulated"), and the
 run folder's tables equal those of a run never interrupted, float for float (the same code
 ran)."""
@@ -7,17 +7,16 @@ ran)."""
 from __future__ import annotations
 
 import json
-import os
 import random
 import re
 import subprocess
 import sys
-import time
 import warnings
 from pathlib import Path
 
 import pandas as pd
 import pytest
+from kill_points import child_env, run_killed
 from scale_scenes import scene_files
 
 from tap_bench.cli import main
@@ -42,10 +41,8 @@ def _args(suite: Path, out: Path, cache: Path) -> list[str]:
 
 
 def _bench_run(suite: Path, out: Path, cache: Path) -> subprocess.Popen:
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
-        [str(PROJECT_ROOT), os.environ.get("PYTHONPATH", "")]), "OMP_WAIT_POLICY": "PASSIVE"}
     return subprocess.Popen([sys.executable, "-m", "tap_bench", *_args(suite, out, cache)],
-                            env=env, cwd=suite.parent, stdout=subprocess.PIPE,
+                            env=child_env(), cwd=suite.parent, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
 
 
@@ -72,12 +69,12 @@ def _same_tables(a: Path, b: Path) -> None:
 
 
 def _kill_and_resume(tmp_path: Path, suite: Path, n_episodes: int, kill_points: int,
-                     seed: int, max_delay: float = 1.0) -> list[int]:
+                     seed: int) -> list[int]:
     """Run ``suite`` whole, then ``kill_points`` times: start it into a fresh folder and
-    cache, SIGKILL it once the cache holds a drawn number of episodes, at least one (plus a
-    drawn delay of up to ``max_delay`` s: anywhere in the next episode or the writing), run
-    the same command again and compare;
-    the episodes each killed run had finished (-1: it had finished the whole run)."""
+    cache, SIGKILL it just after it stored a drawn number of episodes in the cache, at
+    least one (kill_points: by progress, so mid-run on any machine; the next episode not
+    begun), run the same command again and compare; the episodes each killed run had
+    finished."""
     whole = tmp_path / "whole"
     with warnings.catch_warnings():  # in this process: the same code as the children's
         warnings.simplefilter("ignore")
@@ -87,16 +84,10 @@ def _kill_and_resume(tmp_path: Path, suite: Path, n_episodes: int, kill_points: 
     done_before = []
     for trial, target in enumerate(targets):
         out, cache = tmp_path / f"t{trial}" / "run", tmp_path / f"t{trial}" / "cache"
-        proc = _bench_run(suite, out, cache)
-        while proc.poll() is None and _cached(cache) < target:
-            time.sleep(0.02)
-        time.sleep(rng.uniform(0.0, max_delay))
-        proc.kill()  # SIGKILL: no cleanup runs
-        proc.communicate()
-        if out.exists():  # it finished before the kill
-            done_before.append(-1)
-            continue
+        run_killed(_args(suite, out, cache), "tap_bench.bench.cache:EpisodeCache.put",
+                   "after", target, cwd=suite.parent)
         done = _cached(cache)
+        assert not out.exists() and done == target, (target, done)
         proc = _bench_run(suite, out, cache)
         stdout, stderr = proc.communicate()
         assert proc.returncode == 0, stderr[-3000:]
@@ -116,9 +107,8 @@ def _kill_and_resume(tmp_path: Path, suite: Path, n_episodes: int, kill_points: 
 def test_a_killed_bench_run_resumes_from_the_cache_to_the_same_tables(tmp_path):
     files = scene_files(tmp_path / "scenes", 1, per_file=1)
     suite = _suite(tmp_path / "suite.json", files, "all")
-    # killed as soon as the first episode is in the cache: the second is still running
-    done = _kill_and_resume(tmp_path, suite, 2, kill_points=1, seed=37, max_delay=0.0)
-    assert done[0] > 0, done
+    # killed as soon as the first episode is in the cache: the second not yet run
+    assert _kill_and_resume(tmp_path, suite, 2, kill_points=1, seed=37) == [1]
 
 
 @pytest.mark.slow
@@ -128,4 +118,4 @@ def test_a_killed_bench_run_of_real_scenes_resumes_to_the_same_tables(tmp_path):
     files = [str(DATA / "womd" / "*.tfrecord"), str(DATA / "womd-dev" / "*.tfrecord")]
     suite = _suite(tmp_path / "suite.json", files, "0-3")
     done = _kill_and_resume(tmp_path, suite, 8, kill_points=3, seed=2026)
-    assert [d for d in done if d > 0], done  # at least one run resumed some episodes
+    assert all(d > 0 for d in done), done  # every run resumed some episodes

@@ -10,12 +10,12 @@ import os
 import random
 import subprocess
 import sys
-import time
 import warnings
 from pathlib import Path
 
 import pandas as pd
 import pytest
+from kill_points import run_killed
 from scale_scenes import scene_files
 
 from tap_bench.cli import main
@@ -79,36 +79,44 @@ def _scenes_in(parts: Path) -> int:
     return sum(len(p.read_text().splitlines()) for p in parts.glob("part-*.episodes.jsonl"))
 
 
-def test_a_killed_run_resumes_to_the_same_files(tmp_path):
+def test_a_killed_run_resumes_to_the_same_files(tmp_path, monkeypatch):
+    """Killed (SIGKILL) at a point of every state a run leaves on disk, drawn where there
+    are several: in its start-up (run.json half written), after k scenes' parts (anywhere
+    in the next scene), while a part is written, while the output is written. Each resumed
+    run says how many scenes were done and writes the files of a run never interrupted,
+    bit for bit (the same code). The kills come by progress (kill_points), so every run is
+    killed mid-way on any machine."""
     files = scene_files(tmp_path / "scenes", 8, per_file=3)
     whole = tmp_path / "whole.parquet"
-    proc = child(rollout_args(files, whole), tmp_path / "whole.json")
-    assert proc.wait() == 0, proc.stderr.read()
+    monkeypatch.setattr(rollout_stream, "PART_SCENES", 1)  # as the children have it
+    with warnings.catch_warnings():  # in this process: the same code as the children's
+        warnings.simplefilter("ignore")
+        assert main(rollout_args(files, whole)) == 0
     expected = [whole.read_bytes(), whole.with_name("whole.episodes.parquet").read_bytes()]
     rng = random.Random(37)
-    resumed_some = False
-    for trial, target in enumerate((0, rng.randint(1, 4), rng.randint(5, 7))):
+    after, torn = rng.randint(1, 7), rng.randint(1, 7)
+    # (function, before/after its n-th call, the scenes done then); a run commits its
+    # files in this order: run.json, one part per scene (PART_SCENES = 1), the output
+    points = [("tap_bench.tableio:_commit", "before", 1, 0),
+              ("tap_bench.sim.rollout_stream:_Parts.write", "after", after, after),
+              ("tap_bench.tableio:_commit", "before", 2 + torn, torn),
+              ("tap_bench.tableio:_commit", "before", 10, 8)]
+    setup = "from tap_bench.sim import rollout_stream; rollout_stream.PART_SCENES = 1"
+    for trial, (target, when, n, done) in enumerate(points):
         out = tmp_path / f"t{trial}" / "out.parquet"
         parts = rollout_stream.parts_folder(out)
-        proc = child(rollout_args(files, out), tmp_path / f"k{trial}.json")
-        while proc.poll() is None and _scenes_in(parts) < target:
-            time.sleep(0.02)
-        time.sleep(rng.uniform(0.0, 0.5))  # anywhere in the next scene, or in start-up
-        proc.kill()  # SIGKILL: no cleanup runs
-        proc.wait()
-        if out.exists():  # it finished before the kill
-            continue
-        done = _scenes_in(parts)
+        run_killed(rollout_args(files, out), target, when, n, setup)
+        assert not out.exists() and _scenes_in(parts) == done, (trial, _scenes_in(parts))
         proc = child(rollout_args(files, out, "--resume"), tmp_path / f"r{trial}.json")
         stdout, stderr = proc.communicate()
         assert proc.returncode == 0, stderr
         if done:
-            resumed_some = True
             assert f"resumed: {done} of 8 scenes were done before" in stdout
+        else:
+            assert "resumed" not in stdout
         assert out.read_bytes() == expected[0]
         assert out.with_name("out.episodes.parquet").read_bytes() == expected[1]
         assert not parts.exists()
-    assert resumed_some
 
 
 def test_parts_are_refused_without_resume_and_from_another_run(tmp_path):
