@@ -157,6 +157,10 @@ def run_summary(plan: SuitePlan, output: Path, sources: Mapping[str, Any],
     skipped = episodes[episodes["status"] == "skipped"]
     facts = fresh_facts(plan, output)
     described = provenance(plan.definitions, plan.scenarios)
+    # what the scores say: the cells with one outcome, the verdict, the headline figures
+    one_outcome = one_outcome_cells(episodes).to_dict("records")
+    verdict = verdict_table(scores.paired_measures, scores.paired,
+                            scores.paired_labels).to_dict("records")
     headline = _headline(scores, episodes)
     thresholds = plan.thresholds
     return {
@@ -176,9 +180,8 @@ def run_summary(plan: SuitePlan, output: Path, sources: Mapping[str, Any],
         "skipped": skipped[["env", "policy", "seed", "error"]].to_dict("records"),
         "methods": scores.methods,
         "headline": headline,
-        "one_outcome_cells": one_outcome_cells(episodes).to_dict("records"),
-        "verdict": verdict_table(scores.paired_measures, scores.paired,
-                                 scores.paired_labels).to_dict("records"),
+        "one_outcome_cells": one_outcome,
+        "verdict": verdict,
         "provenance": described,
         "measures": [m.to_dict() for m in plan.measures],
         "plugins": list(plan.plugins),
