@@ -103,12 +103,11 @@ def _score(plan: SuitePlan, tables: RunTables, corpora: Corpora) -> Scores:
     episodes, level, config = tables.episodes, plan.level, plan.bootstrap
     matches, unmatched = _scenario_matches(corpora, tables.labels, tables.trajectories,
                                            level)
+    windows = _windows(corpora, tables.trajectories, level, plan.thresholds)
     power = power_table(episodes, plan.gate, cells=len(plan.envs) * len(plan.definitions))
     scores = score(episodes, reference_policy=plan.reference, level=level, config=config,
                    references={name: lab for name, (_, lab) in corpora.items()} or None,
-                   scenario_matches=matches, gate_power=power,
-                   windows=_windows(corpora, tables.trajectories, level,
-                                    plan.thresholds) or None)
+                   scenario_matches=matches, gate_power=power, windows=windows or None)
     # the interaction contexts, scored as `tap-bench contexts` scores them
     scores = dataclasses.replace(scores, contexts=context_scores(
         tables.occurrences, list(pd.unique(episodes["policy"])), plan.reference,
