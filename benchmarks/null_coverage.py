@@ -46,8 +46,8 @@ from machine import report
 
 from tap_bench.bench.scores import null
 from tap_bench.bench.scores.coverage import Reference
-from tap_bench.bench.scores.gap import window_episode
 from tap_bench.bench.scores.novelty import novelty
+from tap_bench.bench.scores.windows import window_episode
 from tap_bench.stats.bootstrap import BootstrapConfig
 
 K_LABELS, K_SEGMENTS = 40, 12

@@ -60,8 +60,8 @@ def run(args: argparse.Namespace) -> int:
 
     from tap_bench.bench.episodes import episodes_from_table
     from tap_bench.bench.scores.coverage import UNITS, corpus_reference, vocabulary_reference
-    from tap_bench.bench.scores.gap import number_windows, window_seconds, windows
     from tap_bench.bench.scores.scoring import diversity_table, reference_scores
+    from tap_bench.bench.scores.windows import number_windows, window_seconds, windows
     from tap_bench.labelling import tap
     from tap_bench.labels import label_text
     from tap_bench.sdl import check_axes

@@ -7,12 +7,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from tap_bench.bench.scores.gap import (
-    behaviour_gap,
-    labelled_with_speed,
-    window_seconds,
-    windows,
-)
+from tap_bench.bench.scores.gap import behaviour_gap, labelled_with_speed
+from tap_bench.bench.scores.windows import window_seconds, windows
 from tap_bench.errors import LabelTableError
 from tap_bench.sdl import LEVELS
 from tap_bench.stats.bootstrap import add_bootstrap_arguments, bootstrap_from_args

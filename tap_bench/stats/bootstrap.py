@@ -125,7 +125,7 @@ def scene_clusters(table, column: str | None = "scenario_id") -> np.ndarray:
 
     With ``column="scenario_id"`` (the default): the row's scene (WOMD), its episode
     (rollouts: ``env/policy/s<seed>``), or, for a window cut from an episode
-    (``<scenario_id>#<k>``, :func:`tap_bench.bench.scores.gap.windows`), that episode. Another
+    (``<scenario_id>#<k>``, :func:`tap_bench.bench.scores.windows.windows`), that episode. Another
     column names the units as they are. ``None``, or a table without the column: every row
     its own unit (the ordinary bootstrap).
 

@@ -86,7 +86,7 @@ def test_debiased_gap_and_its_interval():
 
 
 def test_windows_cut_episodes_to_the_reference_length():
-    from tap_bench.bench.scores.gap import track_seconds, windows
+    from tap_bench.bench.scores.windows import track_seconds, windows
 
     t = np.arange(300) / 10  # a 30 s episode at 10 Hz
     table = pd.DataFrame({"scenario_id": "ep", "track_id": "ego", "t": t, "x": t, "y": 0.0,
@@ -130,7 +130,7 @@ def test_window_episodes_label_each_window_of_the_egos_once():
     """The windows bench run scores against a real corpus: one episode row per window of
     an ego, numbered seeds (one seed is one episode), the episode's seed kept aside; and
     'auto' windows only episodes longer than the reference's tracks."""
-    from tap_bench.bench.scores.gap import window_episodes, window_seconds
+    from tap_bench.bench.scores.windows import window_episodes, window_seconds
 
     t = np.arange(300) / 10
     rows = []
@@ -177,7 +177,7 @@ def test_windows_of_one_episode_are_resampled_together_in_the_gap():
 
 
 def test_window_episode_strips_the_window_number():
-    from tap_bench.bench.scores.gap import window_episode
+    from tap_bench.bench.scores.windows import window_episode
 
     assert list(window_episode(["a/1#0", "a/1#12", "b#x#2", "c"])) == ["a/1", "a/1", "b#x",
                                                                          "c"]

@@ -20,14 +20,10 @@ from tap_bench.bench.run.plan import SuitePlan
 from tap_bench.bench.run.spill import SpilledTable
 from tap_bench.bench.run.tasks import RunTables, Spilled
 from tap_bench.bench.scores.contexts import context_scores
-from tap_bench.bench.scores.gap import (
-    behaviour_gap,
-    labelled_with_speed,
-    window_episodes,
-    window_seconds,
-)
+from tap_bench.bench.scores.gap import behaviour_gap, labelled_with_speed
 from tap_bench.bench.scores.scenarios import match_scenarios
 from tap_bench.bench.scores.scoring import Scores, score, scores_from_files, scores_to_files
+from tap_bench.bench.scores.windows import window_episodes, window_seconds
 from tap_bench.errors import LabelTableError, ParameterError
 from tap_bench.labelling import tap
 from tap_bench.labels import validate_labels

@@ -62,10 +62,10 @@ share of episodes could show an item not yet seen (never a zero-width interval o
 estimate).
 
 **Windows are drawn with their episode.** Episodes cut into windows of the reference's
-track length (:func:`tap_bench.bench.scores.gap.window_episodes`) give several labels per
+track length (:func:`tap_bench.bench.scores.windows.window_episodes`) give several labels per
 episode that share its policy's state; drawn as independent episodes they make the
 interval far too narrow (copies of one label count as repeated evidence). With
-``clusters`` (the episode of each window, :func:`tap_bench.bench.scores.gap.window_episode`) the
+``clusters`` (the episode of each window, :func:`tap_bench.bench.scores.windows.window_episode`) the
 sampling unit is the episode: it shows the items of all its windows (incidence data over
 G episodes, Chao2), the detected items are drawn by resampling whole episodes
 (:func:`tap_bench.stats.bootstrap.cluster_weights`) and the undetected ones each per
@@ -314,7 +314,7 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
         rng: the random stream; default ``config.rng("coverage", reference.description)``
             (callers name it by env, policy and reference).
         clusters: (n,) the independent unit of each label, e.g. the episode each window
-            was cut from (:func:`tap_bench.bench.scores.gap.window_episode`). Given, the draws
+            was cut from (:func:`tap_bench.bench.scores.windows.window_episode`). Given, the draws
             resample whole units (:func:`tap_bench.stats.bootstrap.cluster_weights`) and a
             unit shows the items of all its labels (incidence over units; module
             docstring). None: every label its own unit.

@@ -10,7 +10,7 @@ corpus: a label absent from a small reference may only be rare; the report state
 reference's size beside the rate.
 
 **Windows.** Episodes cut into windows (scored against a corpus of short tracks:
-:func:`tap_bench.bench.scores.gap.window_episodes`) are not independent: the windows of one
+:func:`tap_bench.bench.scores.windows.window_episodes`) are not independent: the windows of one
 episode share its policy's state and traffic. With ``windowed`` the Wilson interval is
 taken at the effective sample size ``n / deff`` (Rao and Scott's design effect), ``deff``
 the variance of the rate under a cluster bootstrap (whole episodes with their windows,
@@ -124,7 +124,7 @@ def novelty(episodes: pd.DataFrame, reference: Reference, *,
 def _design_effect(novel: np.ndarray, scenario_ids, config: BootstrapConfig) -> float:
     """The variance of the novel share under a cluster bootstrap by episode over the
     binomial variance, within [1, windows per episode] (module docstring)."""
-    from tap_bench.bench.scores.gap import window_episode
+    from tap_bench.bench.scores.windows import window_episode
 
     episodes = window_episode(scenario_ids)
     n, size = len(novel), len(novel) / len(set(episodes))

@@ -236,7 +236,7 @@ def same_policy_null(labels: np.ndarray, reference: Reference, *,
             reference is rollouts) the two are paired on the seeds both have (unpaired when
             fewer than 4 are common).
         clusters: (n,) the episode each of the policy's units was cut from (windows:
-            :func:`tap_bench.bench.scores.gap.window_episode`); the policy's units are then
+            :func:`tap_bench.bench.scores.windows.window_episode`); the policy's units are then
             resampled by whole episodes (a cluster bootstrap), since the windows of one
             episode are not independent. Unpaired comparisons only (windows are never
             paired); None: each unit its own episode.

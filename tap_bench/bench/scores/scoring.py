@@ -26,9 +26,9 @@ from tap_bench.bench.scores.coverage import (
     pooled_coverage,
 )
 from tap_bench.bench.scores.diversity import MIN_COMPLETENESS, diversity, pooled_diversity
-from tap_bench.bench.scores.gap import window_episode
 from tap_bench.bench.scores.novelty import novelty, pooled_novelty
 from tap_bench.bench.scores.null import SPLITS, pooled_null, same_policy_null
+from tap_bench.bench.scores.windows import window_episode
 from tap_bench.errors import LabelTableError
 from tap_bench.stats.bootstrap import BootstrapConfig
 from tap_bench.stats.intervals import measure_interval
@@ -228,7 +228,7 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
         unit: what the rows say they were scored on (default the reference's own unit:
             ``episodes`` or ``segments``; e.g. ``"9.1 s windows"`` when ``episodes`` are
             windows of the policy's episodes).
-        windowed: ``episodes`` are windows cut from episodes (:func:`tap_bench.bench.scores.gap.
+        windowed: ``episodes`` are windows cut from episodes (:func:`tap_bench.bench.scores.windows.
             window_episodes`, ``scenario_id`` ``<episode>#<k>``): the coverage's and the
             null's intervals resample them by whole episodes (a cluster bootstrap) and
             the novelty's Wilson interval is taken at the episodes' worth of information
@@ -356,7 +356,7 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
         scenario_matches: a precomputed table of cross-data-set scenario matches to carry.
         gate_power: a precomputed power table of the gate to carry.
         windows: reference name -> (episode table, unit): the policies' episodes cut into
-            windows of that reference's track length (:func:`tap_bench.bench.scores.gap.
+            windows of that reference's track length (:func:`tap_bench.bench.scores.windows.
             window_episodes`, e.g. 9.1 s for WOMD), scored against it in place of whole
             episodes (``unit`` says so: ``"9.1 s windows"``).
 
