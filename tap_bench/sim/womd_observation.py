@@ -77,6 +77,7 @@ then follow the new lane), as the IDM controller does.
 
 from __future__ import annotations
 
+import functools
 import inspect
 import math
 from typing import Any, NamedTuple
@@ -175,15 +176,17 @@ _ROUTE_OPTIONS = ("route_points", "route_spacing", "leader", "crossing", "leader
                   "leader_swept")
 
 
-def _kinematics_options() -> set[str]:
-    """The named parameters of highway-env's Kinematics observation (its ``__init__``)."""
+@functools.cache
+def _kinematics_options() -> frozenset[str]:
+    """The named parameters of highway-env's Kinematics observation (its ``__init__``), read
+    once per process (the signatures do not change)."""
     names: set[str] = set()
     for cls in FastKinematicObservation.__mro__:
         init = cls.__dict__.get("__init__")
         if init is not None:
             names |= {p.name for p in inspect.signature(init).parameters.values()
                       if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
-    return names - {"self", "env"}
+    return frozenset(names - {"self", "env"})
 
 
 class RouteObservation(FastKinematicObservation):

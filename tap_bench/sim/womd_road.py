@@ -625,12 +625,22 @@ class WomdIDMVehicle(_RouteMixin, IDMVehicle):
         road and its route, a lane change by :meth:`change_lane_policy` (MOBIL), steering
         to the target lane (:meth:`steering_control`), and the IDM acceleration behind the
         leader on its lane, and on the target lane too while changing (the smaller), within
-        ``ACC_MAX``. A crashed or hidden vehicle keeps its last action."""
+        ``ACC_MAX``. A crashed or hidden vehicle keeps its last action.
+
+        Asked before the road has acted in this step (highway-env acts the controlled
+        vehicle at each decision, then the road acts every vehicle), it follows the road and
+        its lane changes, and asks about the standing obstacles for what they remember (the
+        yellow lines held, the stop signs served, the walkers seen at this step), but leaves
+        the steering and acceleration to the road's act, which decides them again with this
+        step's movers."""
         if self.hidden or self.crashed:
             return
         self.follow_road()
         if self.enable_lane_change:
             self.change_lane_policy()
+        if getattr(self.road, "acted", True) is False:
+            self._standing_obstacles()
+            return
         steering = self.steering_control(self.target_lane_index)
         road = self.road
         front, rear = road.neighbour_vehicles(self, self.lane_index)
@@ -1915,6 +1925,11 @@ class WomdRoad(Road):
         if layout is None or layout.vehicles != vehicles:
             layout = self._vehicle_layout = _Layout(vehicles, self._walker_rows)
         return layout
+
+    @property
+    def acted(self) -> bool:
+        """Whether the road has acted in this step (its movers are laid out)."""
+        return self._positions is not None
 
     def _snapshot(self) -> tuple[_Layout, dict[str, np.ndarray]]:
         """Every vehicle's state now (:meth:`_Layout.states`)."""
