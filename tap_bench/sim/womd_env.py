@@ -601,7 +601,7 @@ class _WomdHighwayEnv(AbstractEnv):
         if cfg.get("ttc_reward", 0.0):
             watch = self._lead_watch
             if watch is not self.observation_type and self.route:
-                watch.route_vector()  # sets watch.lead
+                watch.update_lead()
             inverse_ttc = watch.lead.inverse_ttc
             if inverse_ttc > 0:
                 closing = max(0.0, 1.0 - 1.0 / (inverse_ttc * TTC_WARNING))

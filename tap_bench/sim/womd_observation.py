@@ -284,12 +284,10 @@ class RouteObservation(FastKinematicObservation):
         ego = self.observer_vehicle
         network = self.env.road.network
         route = list(self.env.route)
-        p = np.asarray(ego.position, float)
-        k, s, lat = self._locate(network, route, p, ego.lane_index)
+        p, k, s, lat, points, change = self._ahead(network, route)
         lane = network.get_lane(route[k])
         h = float(ego.heading)
         c, si = math.cos(h), math.sin(h)
-        points, change = self._walk(network, route, k, s)
         rel = points - p
         fwd = rel @ np.array([c, si])
         left = -(rel @ np.array([-si, c]))  # the sim frame's y points to the driver's right
@@ -317,6 +315,25 @@ class RouteObservation(FastKinematicObservation):
         if self.crossing_features:
             values = np.concatenate([values, self.crossing_vector(path)])
         return np.clip(values, -1.0, 1.0).astype(np.float32)
+
+    def _ahead(self, network: Any, route: list) -> tuple[np.ndarray, int, float, float,
+                                                         np.ndarray, Any]:
+        """(the ego's position (2,) [m], its route position, longitudinal and offset on that
+        lane (:meth:`_locate`), the route's points ahead and its next lane change
+        (:meth:`_walk`))."""
+        ego = self.observer_vehicle
+        p = np.asarray(ego.position, float)
+        k, s, lat = self._locate(network, route, p, ego.lane_index)
+        points, change = self._walk(network, route, k, s)
+        return p, k, s, lat, points, change
+
+    def update_lead(self) -> Leader:
+        """Set and return :attr:`lead`, the leader in the route's path ahead, as
+        :meth:`route_vector` sets it, without the rest of the vector (the env's reward
+        reads it)."""
+        p, _, _, _, points, _ = self._ahead(self.env.road.network, list(self.env.route))
+        self.lead = self.leader(np.concatenate([p[None], points]))
+        return self.lead
 
     def crossing_vector(self, path: np.ndarray) -> np.ndarray:
         """The crossing part (:data:`CROSSING_COUNT` x :data:`CROSSING_FEATURES`, in [0, 1];
@@ -378,16 +395,40 @@ class RouteObservation(FastKinematicObservation):
             found.append(Crossing(s, ego_time, float(t[r, j[r]]) * CROSS_HORIZON))
         return sorted(found)
 
+    def _road_user_states(self) -> tuple[list[Any], np.ndarray, np.ndarray]:
+        """(the road users of :meth:`_road_users`, their positions (n, 2) [m, sim frame], the
+        road's vehicle rows they are), from the road's states laid out at once where the
+        road lays them out (:class:`~tap_bench.sim.womd_road.WomdRoad`)."""
+        road = self.env.road
+        snapshot = getattr(road, "_snapshot", None)
+        if snapshot is None:
+            others = self._road_users()
+            return others, np.array([v.position for v in others], dtype=float).reshape(-1, 2), \
+                np.arange(len(others))
+        layout, now = snapshot()
+        users = now["collidable"].copy()
+        ego = self.observer_vehicle
+        vehicles = layout.vehicles
+        for i in layout.others:  # the simulated ones may wait hidden
+            if getattr(vehicles[i], "hidden", False):
+                users[i] = False
+        # the env puts the ego first (a policy's takes its place)
+        for i in [0] if vehicles and vehicles[0] is ego else range(len(vehicles)):
+            if vehicles[i] is ego:
+                users[i] = False
+        rows = np.flatnonzero(users)
+        return [vehicles[i] for i in rows.tolist()], now["position"][rows], rows
+
     def leader(self, path: np.ndarray) -> Leader:
         """The nearest road user in the ego's path ahead (see the module docstring).
 
         Args:
             path: (m, 2) the polyline ahead, from the ego's position on [m, sim frame].
         """
-        ego, others = self.observer_vehicle, self._road_users()
+        ego = self.observer_vehicle
+        others, pos, _ = self._road_user_states()
         if not others or len(path) < 2:
             return NO_LEADER
-        pos = np.array([v.position for v in others], dtype=float)  # (n, 2)
         near = np.hypot(*(pos - path[0]).T) <= self.horizon + 10.0
         if not near.any():
             return NO_LEADER
