@@ -49,12 +49,13 @@ TOLERANCE = 1e-6
 
 @numba.njit(cache=True, nogil=True)
 def _owner(px, py, tx, ty, x, y):  # pragma: no cover - compiled
-    """The pose the point (x, y) belongs to (see the module docstring)."""
-    owner = 0
-    for k in range(1, px.shape[0]):
+    """The pose the point (x, y) belongs to (see the module docstring): the last one after
+    the first whose normal line it is on or ahead of, else the first (looked for from the
+    end)."""
+    for k in range(px.shape[0] - 1, 0, -1):
         if tx[k] * (x - px[k]) + ty[k] * (y - py[k]) >= 0:
-            owner = k
-    return owner
+            return k
+    return 0
 
 
 @numba.njit(cache=True, nogil=True)
