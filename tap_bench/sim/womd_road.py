@@ -1941,30 +1941,29 @@ class WomdRoad(Road):
         self._projections.clear()
         self._everyone = None
         layout, now = self._snapshot()
-        moving = now["collidable"]
-        self._movers = [layout.vehicles[i] for i in np.flatnonzero(moving).tolist()]
-        self._positions = now["position"][moving]
-        self._xs = np.ascontiguousarray(self._positions[:, 0])
-        self._ys = np.ascontiguousarray(self._positions[:, 1])
-        columns = (now["heading"][moving], np.maximum(now["speed"][moving], 0.0),
-                   layout.length[moving], layout.width[moving])
+        rows = np.flatnonzero(now["collidable"])  # the movers
+        self._movers = [layout.vehicles[i] for i in rows.tolist()]
+        positions = self._positions = now["position"][rows]
+        self._xs = positions[:, 0].copy()  # contiguous
+        self._ys = positions[:, 1].copy()
+        columns = (now["heading"][rows], np.maximum(now["speed"][rows], 0.0),
+                   layout.length[rows], layout.width[rows])
         self._box_columns = columns  # heading, speed, length, width: (n,) contiguous each
         self._boxes = np.stack(columns, axis=1)
         self._mover_index = {id(v): i for i, v in enumerate(self._movers)}
-        self._walker_mask = layout.walker[moving]
+        walker = self._walker_mask = layout.walker[rows]
         self._mover_heading = columns[0]
         self._mover_length = columns[2]
-        self._path_mask = layout.path[moving]
-        self._path_margins = np.where(self._walker_mask, WALKER_CLEARANCE, PATH_MARGIN)
-        if self._walker_mask.any():
-            xy = self._positions[self._walker_mask]
-            heading = self._boxes[self._walker_mask, 0]
-            speed = self._boxes[self._walker_mask, 1]
-            ahead = xy + WALKER_HORIZON * speed[:, None] * np.c_[np.cos(heading),
-                                                                 np.sin(heading)]
+        self._path_mask = layout.path[rows]
+        self._path_margins = np.where(walker, WALKER_CLEARANCE, PATH_MARGIN)
+        if walker.any():
+            xy = positions[walker]
+            heading, speed = columns[0][walker], columns[1][walker]
+            ahead = xy + WALKER_HORIZON * speed[:, None] * np.stack((np.cos(heading),
+                                                                     np.sin(heading)), axis=1)
             self._walkers = (xy, ahead, heading, speed)
-            self._walker_columns = [(np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1]))
-                                    for q in (xy, ahead)]
+            self._walker_columns = [(xy[:, 0].copy(), xy[:, 1].copy()),
+                                    (ahead[:, 0].copy(), ahead[:, 1].copy())]
         else:
             self._walkers = None
         self._path_accelerations = self._ahead_of_paths(layout) if layout.path.any() else {}
