@@ -25,13 +25,22 @@ from tap_bench.trajectories import HZ
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["EGO_TRACK_ID", "TrajectoryRecorder", "flag_column", "scenario_id", "text_column"]
+__all__ = ["EGO_TRACK_ID", "TrajectoryRecorder", "flag_column", "scenario_id", "string_dtype",
+           "text_column"]
 
 EGO_TRACK_ID = "ego"
 _TWO_PI = 2.0 * np.pi
 
 
-def text_column(labels: Sequence[str], codes: np.ndarray) -> Any:
+def string_dtype() -> Any:
+    """The dtype pandas gives a column of Python strings now (pandas 3: its Arrow-backed
+    ``str``, unless its ``future.infer_string`` option is off; earlier: object)."""
+    import pandas as pd
+
+    return pd.Series(np.array(["a"], dtype=object)).dtype
+
+
+def text_column(labels: Sequence[str], codes: np.ndarray, *, dtype: Any = None) -> Any:
     """A table column of strings, ``labels[codes]``, in the dtype pandas gives a column of
     Python strings (pandas 3: its Arrow-backed ``str``; earlier: object), built from the few
     labels without a Python string per row.
@@ -39,6 +48,8 @@ def text_column(labels: Sequence[str], codes: np.ndarray) -> Any:
     Args:
         labels: (k,) the distinct strings.
         codes: (n,) int, indices into ``labels``.
+        dtype: :func:`string_dtype`, when the caller has asked for it already (building
+            several columns); None: asked here.
 
     Returns:
         (n,) an array a DataFrame takes as the column as it is (no conversion); with no
@@ -48,7 +59,8 @@ def text_column(labels: Sequence[str], codes: np.ndarray) -> Any:
 
     words = np.empty(len(labels), dtype=object)
     words[:] = list(labels)
-    dtype = pd.Series(np.array(["a"], dtype=object)).dtype
+    if dtype is None:
+        dtype = string_dtype()
     if dtype == np.dtype(object) or not len(codes):  # pandas infers nothing from none
         return words[codes]
     return pd.array(words, dtype=dtype).take(np.asarray(codes, dtype=np.intp))

@@ -829,7 +829,12 @@ class WomdEnv(gym.Wrapper):
         Args:
             **columns: constant columns to add (``policy="idm"``).
         """
-        from tap_bench.sim.recorder import flag_column, text_column
+        from functools import partial
+
+        from tap_bench.sim.recorder import flag_column, string_dtype
+        from tap_bench.sim.recorder import text_column as column
+
+        text_column = partial(column, dtype=string_dtype())  # asked once for the table
 
         scene = self.scene
         n, _ = scene.x.shape
