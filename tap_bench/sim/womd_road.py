@@ -1678,7 +1678,7 @@ def _approach_rows(members, lon, hs, ls, walker, s, headings, s_point, offset, w
     this lane starts before it) along the lane, not yet past it: not pedestrians or
     cyclists (``walker``), not row ``mine`` nor one ``seen`` (marked here), within 30 deg
     of the lane's heading there (poses ``s``, ``headings``). Returns (rows, distance [m]
-    from each centre to the point) (:meth:`WomdRoad._approaching`)."""
+    from each centre to the point) (:func:`_conflict_gap_on`)."""
     rows = np.empty(members.shape[0], np.int64)
     dist = np.empty(members.shape[0])
     n = 0
@@ -1698,6 +1698,79 @@ def _approach_rows(members, lon, hs, ls, walker, s, headings, s_point, offset, w
         rows[n], dist[n] = i, d
         n += 1
     return rows[:n], dist[:n]
+
+
+@numba.njit(cache=True, nogil=True)
+def _conflict_gap_on(d_ahead, conf, at, approach, offsets, lanes, px, py, tx, ty, s, hd,
+                     xs, ys, hs, ls, ws, vs, walker, yielder, braking_j, row_j, mine, row,
+                     length, width, v_i, braking, critical):  # pragma: no cover - compiled
+    """:meth:`WomdRoad.conflict_gap` over the conflicts of one lane of a vehicle's way.
+
+    Conflict q is at ``d_ahead + conf[q, 0]`` [m] along the way and at ``conf[q, 1]`` [m]
+    on the other lane; the lanes approaching it are rows ``at[q]:at[q + 1]`` of
+    ``approach`` (a row of ``lanes``: poses ``c:d`` of the pose arrays px, py, tx, ty, s,
+    headings hd, a mover's half-width reach, and its longitudinal range [lo, hi)) and
+    ``offsets`` (where that lane starts before the other one [m]). The movers: centres xs,
+    ys, headings hs, lengths ls, widths ws, speeds vs, walker, yielder (gives way: its
+    comfortable braking braking_j), scene row row_j; the vehicle: mover ``mine``, scene
+    ``row``, its box length x width, speed v_i, comfortable braking and critical gap.
+    Returns the smallest gap [m] to a conflict zone where it gives way, NaN if none."""
+    n = xs.shape[0]
+    m = lanes.shape[0]
+    lon = np.empty((m, n))  # the lanes' tables (_lane_members), made when first needed
+    members = np.empty((m, n), np.int64)
+    count = np.full(m, -1)
+    seen = np.zeros(n, np.bool_)
+    best = np.nan
+    for q in range(conf.shape[0]):
+        d_i = d_ahead + conf[q, 0]
+        if d_i > CONFLICT_LOOKAHEAD:
+            continue
+        seen[:] = False
+        for r in range(at[q], at[q + 1]):
+            u = approach[r]
+            c, d = int(lanes[u, 0]), int(lanes[u, 1])
+            if count[u] < 0:
+                found, along = _lane_members(px[c:d], py[c:d], tx[c:d], ty[c:d], s[c:d],
+                                             lanes[u, 2], lanes[u, 3], lanes[u, 4], xs, ys)
+                lon[u, :] = along
+                count[u] = found.shape[0]
+                members[u, :count[u]] = found
+            if count[u] == 0:
+                continue
+            rows, dist = _approach_rows(members[u, :count[u]], lon[u], hs, ls, walker,
+                                        s[c:d], hd[c:d], conf[q, 1], offsets[r], width,
+                                        mine, seen)
+            for j in range(rows.shape[0]):
+                i, d_j = rows[j], dist[j]
+                # whether the vehicle gives way to it: as WomdRoad.conflict_gap
+                half = ws[i] / 2 + CONFLICT_CLEARANCE
+                gap_i = d_i - length / 2 - half
+                if gap_i < -length:
+                    continue
+                inside_j = (-(ls[i] / 2 + width / 2 + CONFLICT_CLEARANCE) < d_j
+                            <= ls[i] / 2 + width / 2 + CONFLICT_CLEARANCE)
+                if gap_i <= 0:
+                    continue
+                if not inside_j and v_i ** 2.0 > 2 * braking * gap_i:
+                    continue
+                if not inside_j:
+                    v_j = vs[i]
+                    t_j = max(d_j - ls[i] / 2, 0.0) / max(v_j, 0.1)
+                    if t_j > CONFLICT_HORIZON:
+                        continue
+                    t_i = gap_i / max(v_i, 1.0)
+                    yields = yielder[i] and v_j ** 2.0 <= 2 * braking_j[i] * max(
+                        d_j - ls[i] / 2 - width / 2 - CONFLICT_CLEARANCE, 0.0)
+                    if yields:
+                        first = t_j < t_i - CONFLICT_TIE or (
+                            abs(t_j - t_i) <= CONFLICT_TIE and row_j[i] < row)
+                        if not first:
+                            continue
+                    elif t_j > t_i + critical:
+                        continue
+                best = gap_i if best != best else min(best, gap_i)
+    return best
 
 
 def _intersecting(a: Vehicle, b: Vehicle) -> bool:
@@ -1788,6 +1861,10 @@ class _Layout:
         self.checks = np.array([bool(getattr(v, "check_collisions", False))
                                 for v in vehicles], bool)
         self.path = np.array([isinstance(v, WomdPathVehicle) for v in vehicles], bool)
+        # gives way at conflicts (WomdRoad.conflict_gap); scene rows (-1: none)
+        self.yielder = np.array([isinstance(v, WomdIDMVehicle | WomdPathVehicle)
+                                 for v in vehicles], bool)
+        self.row = np.array([getattr(v, "row", -1) for v in vehicles], np.int64)
         paths = [v.path for v in vehicles if isinstance(v, WomdPathVehicle)]
         if paths:  # the path vehicles' logged paths end to end
             self.path_points = np.concatenate([q.points for q in paths])
@@ -1886,7 +1963,9 @@ class WomdRoad(Road):
             for nxt in network.successors(index):
                 self._predecessors.setdefault(nxt, []).append(index)
         self._conflicts: dict[Any, list[tuple[Any, float, float]]] = {}
-        self._approach_lanes: dict[Any, list[tuple[Any, float, np.ndarray, np.ndarray]]] = {}
+        self._conflict_tables: dict[Any, tuple[np.ndarray, ...]] = {}
+        self._poses: tuple[np.ndarray, ...] | None = None  # _pose_arrays
+        self._mover_conflict: tuple[np.ndarray, ...] | None = None  # _conflict_movers
         self._crossings: dict[int, list] | None = None
         self._stop_signs = self._stop_sign_points(network, road)
 
@@ -1941,7 +2020,8 @@ class WomdRoad(Road):
         self._projections.clear()
         self._everyone = None
         layout, now = self._snapshot()
-        rows = np.flatnonzero(now["collidable"])  # the movers
+        rows = self._mover_rows = np.flatnonzero(now["collidable"])  # the movers
+        self._mover_conflict = None
         self._movers = [layout.vehicles[i] for i in rows.tolist()]
         positions = self._positions = now["position"][rows]
         self._xs = positions[:, 0].copy()  # contiguous
@@ -2312,75 +2392,86 @@ class WomdRoad(Road):
         braking = p.comfortable_braking if p is not None else 3.0
         critical = p.critical_gap if p is not None else 3.0
         v_i = max(float(vehicle.speed), 0.0)
+        yielder, braking_j, row_j = self._conflict_movers()
+        px, py, tx, ty, s, hd = self._pose_arrays()
+        heading, speed, length, width = self._box_columns
+        mine = self._mover_index.get(id(vehicle), -1)
+        row = getattr(vehicle, "row", -1)
         best = None
         for index, base in self._lanes_ahead(vehicle, CONFLICT_LOOKAHEAD):
             if base > CONFLICT_LOOKAHEAD:
                 break
-            for other_lane, s_self, s_other in self.conflicts(index):
-                d_i = base + s_self
-                if d_i > CONFLICT_LOOKAHEAD:
-                    continue
-                for other, d_j in self._approaching(other_lane, s_other, vehicle):
-                    half = other.WIDTH / 2 + CONFLICT_CLEARANCE
-                    gap_i = d_i - vehicle.LENGTH / 2 - half
-                    if gap_i < -vehicle.LENGTH:
-                        continue  # past it
-                    inside_j = (-(other.LENGTH / 2 + vehicle.WIDTH / 2 + CONFLICT_CLEARANCE)
-                        < d_j <= other.LENGTH / 2 + vehicle.WIDTH / 2 + CONFLICT_CLEARANCE)
-                    if gap_i <= 0:
-                        continue  # in the zone itself: clear it
-                    if not inside_j and v_i ** 2 > 2 * braking * gap_i:
-                        continue  # committed: cannot stop before the zone comfortably
-                    if not inside_j:
-                        v_j = max(float(other.speed), 0.0)
-                        t_j = max(d_j - other.LENGTH / 2, 0.0) / max(v_j, 0.1)
-                        if t_j > CONFLICT_HORIZON:
-                            continue
-                        t_i = gap_i / max(v_i, 1.0)
-                        yields = (isinstance(other, (WomdIDMVehicle, WomdPathVehicle)) and
-                            v_j ** 2 <= 2 * other.parameters().comfortable_braking * max(
-                                d_j - other.LENGTH / 2 - vehicle.WIDTH / 2
-                                - CONFLICT_CLEARANCE, 0.0))
-                        if yields:
-                            first = t_j < t_i - CONFLICT_TIE or (
-                                abs(t_j - t_i) <= CONFLICT_TIE
-                                and getattr(other, "row", -1) < getattr(vehicle, "row", -1))
-                            if not first:
-                                continue
-                        elif t_j > t_i + critical:
-                            continue
-                    best = gap_i if best is None else min(best, gap_i)
+            conf, at, approach, offsets, lanes = self._conflict_table(index)
+            if not len(conf):
+                continue
+            gap = _conflict_gap_on(
+                float(base), conf, at, approach, offsets, lanes, px, py, tx, ty, s, hd,
+                self._xs, self._ys, heading, length, width, speed, self._walker_mask,
+                yielder, braking_j, row_j, mine, row, float(vehicle.LENGTH),
+                float(vehicle.WIDTH), v_i, float(braking), float(critical))
+            if gap == gap:
+                best = gap if best is None else min(best, gap)
         return best
 
-    def _approaching(self, lane_index: Any, s_point: float, vehicle: Vehicle
-                     ) -> list[tuple[Vehicle, float]]:
-        """Movers on a lane (or the lanes into it) moving along it, not yet past a point
-        ``s_point`` [m] on it, with their distance to it (centre; negative: past)."""
-        out = []
-        lanes = self._approach_lanes.get(lane_index)
-        if lanes is None:  # (lane, where it starts before this one [m], poses, headings)
-            network = self.network
-            lanes = self._approach_lanes[lane_index] = [
-                (index, offset, network.get_lane(index).arrays[4], self._lane_headings(index))
-                for index, offset in [(lane_index, 0.0)] + [
+    def _conflict_movers(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(whether each of this step's movers gives way at conflicts (an IDM or path
+        vehicle), its comfortable braking [m/s^2] (NaN for the others), its scene row (-1:
+        none)), made once per step."""
+        if self._mover_conflict is None:
+            layout = self._layout()
+            rows = self._mover_rows
+            yielder = layout.yielder[rows]
+            braking = np.full(len(rows), np.nan)
+            for i in np.flatnonzero(yielder).tolist():
+                braking[i] = self._movers[i].parameters().comfortable_braking
+            self._mover_conflict = (yielder, braking, layout.row[rows])
+        return self._mover_conflict
+
+    def _pose_arrays(self) -> tuple[np.ndarray, ...]:
+        """(px, py, tx, ty, s, heading) of every pose of the network's lanes (the arrays
+        their lanes are slices of; heading [rad] as :meth:`_lane_headings`)."""
+        if self._poses is None:
+            # WomdNetwork builds its lanes together (FastPolyLane.many): one set of arrays
+            shared = {id(poses): poses for poses in (
+                self.network.get_lane(i)._shared[1] for i in self._lane_list)}
+            if len(shared) != 1:
+                raise ValueError(f"the lanes of the road's network have {len(shared)} sets "
+                                 "of pose arrays; WomdNetwork builds them as one")
+            px, py, tx, ty, s = next(iter(shared.values()))
+            self._poses = (px, py, tx, ty, s, np.arctan2(ty, tx))
+        return self._poses
+
+    def _conflict_table(self, lane_index: Any) -> tuple[np.ndarray, ...]:
+        """The conflicts of a lane (:meth:`conflicts`) as arrays for
+        :func:`_conflict_gap_on`: (conf (m, 2) where each is on this lane and on the other
+        [m], at (m + 1,) its approaching lanes' rows, approach (k,) each row's lane in
+        ``lanes``, offsets (k,) where that lane starts before the other one [m], lanes (u,
+        5) each lane's poses c, d, the mover's reach across it, its longitudinal range
+        [lo, hi) [m] (:meth:`_lane_table`'s)); built once per lane."""
+        table = self._conflict_tables.get(lane_index)
+        if table is not None:
+            return table
+        network = self.network
+        conflicts = self.conflicts(lane_index)
+        at, approach, offsets, lanes, slot = [0], [], [], [], {}
+        for other_lane, _, _ in conflicts:
+            for index, offset in [(other_lane, 0.0)] + [
                     (p, float(network.get_lane(p).length))
-                    for p in self._predecessors.get(lane_index, ())]]
-        seen = np.zeros(len(self._movers), bool)
-        mine = self._mover_index.get(id(vehicle), -1)
-        width = float(vehicle.WIDTH)
-        s_point = float(s_point)
-        movers = self._movers
-        for index, offset, poses, headings in lanes:
-            _, lon, members = self._lane_table(index)
-            if not len(members):
-                continue
-            rows, dist = _approach_rows(members, lon, self._mover_heading, self._mover_length,
-                                        self._walker_mask, poses, headings, s_point, offset,
-                                        width, mine, seen)
-            if len(rows):
-                out.extend(zip([movers[i] for i in rows.tolist()], dist.tolist(),
-                               strict=True))
-        return out
+                    for p in self._predecessors.get(other_lane, ())]:
+                if index not in slot:
+                    lane = network.get_lane(index)
+                    c, d = lane._shared[6:8]
+                    slot[index] = len(lanes)
+                    lanes.append((c, d, lane.width / 2 + 1.0, -lane.VEHICLE_LENGTH,
+                                  lane.length + lane.VEHICLE_LENGTH))
+                approach.append(slot[index])
+                offsets.append(offset)
+            at.append(len(approach))
+        table = self._conflict_tables[lane_index] = (
+            np.array([(a, b) for _, a, b in conflicts], dtype=np.float64).reshape(-1, 2),
+            np.array(at, np.int64), np.array(approach, np.int64),
+            np.array(offsets, np.float64), np.array(lanes, np.float64).reshape(-1, 5))
+        return table
 
     # signals
     def _lanes_ahead(self, vehicle: Vehicle, lookahead: float) -> list[tuple[Any, float]]:
