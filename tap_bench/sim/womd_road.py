@@ -2129,17 +2129,16 @@ class WomdRoad(Road):
         for vehicle in layout.acting:  # in the road's order (log vehicles follow the clock)
             vehicle.step(dt)
         now = layout.states(self.clock[0])
-        moving = now["collidable"]
-        vehicles = [layout.vehicles[i] for i in np.flatnonzero(moving).tolist()]
+        moving = np.flatnonzero(now["collidable"])  # their rows
+        vehicles = [layout.vehicles[i] for i in moving.tolist()]
         if now["own"] is not None:
             # the pairs to check and those that stay apart over the step (highway-env's
             # test would change nothing for them)
             position = now["position"][moving]
             first, second, apart = _pairs_to_check(
-                np.ascontiguousarray(position[:, 0]), np.ascontiguousarray(position[:, 1]),
-                layout.diagonal[moving], layout.length[moving], layout.width[moving],
-                now["heading"][moving], now["speed"][moving], now["checks"][moving],
-                now["own"][moving], float(dt))
+                position[:, 0].copy(), position[:, 1].copy(), layout.diagonal[moving],
+                layout.length[moving], layout.width[moving], now["heading"][moving],
+                now["speed"][moving], now["checks"][moving], now["own"][moving], float(dt))
             apart = apart.tolist()
         else:  # an object without position or diagonal: every pair, as highway-env
             first, second = np.triu_indices(len(vehicles), 1)
