@@ -403,8 +403,8 @@ class RouteObservation(FastKinematicObservation):
         snapshot = getattr(road, "_snapshot", None)
         if snapshot is None:
             others = self._road_users()
-            return others, np.array([v.position for v in others], dtype=float).reshape(-1, 2), \
-                np.arange(len(others))
+            positions = np.array([v.position for v in others], dtype=float).reshape(-1, 2)
+            return others, positions, np.arange(len(others))
         layout, now = snapshot()
         users = now["collidable"].copy()
         ego = self.observer_vehicle
