@@ -115,8 +115,14 @@ def _gone(workers: list[int]) -> bool:
     return not any(_alive(w) for w in workers)
 
 
+def _shared_memory() -> set[str]:
+    return set(os.listdir("/dev/shm")) if os.path.isdir("/dev/shm") else set()
+
+
 @pytest.mark.parametrize("how", ["SIGTERM", "SIGINT"])
 def test_a_terminated_run_exits_cleanly_and_leaves_nothing(tmp_path, how):
+    """No output, no worker, no resource tracker's semaphore left in /dev/shm."""
+    before = _shared_memory()
     with _running(tmp_path) as (run, out, workers):
         run.send_signal(getattr(signal, how))
         err = _exit_or_stacks(run, how)
@@ -126,6 +132,8 @@ def test_a_terminated_run_exits_cleanly_and_leaves_nothing(tmp_path, how):
         assert not out.exists()
         assert list((tmp_path / "runs").iterdir()) == [] if (tmp_path / "runs").exists() \
             else True
+    left = _shared_memory() - before
+    assert {n for n in left if "tap-bench" in n or n.startswith("sem.")} == set()
 
 
 def test_a_killed_run_leaves_no_worker(tmp_path):
@@ -134,13 +142,3 @@ def test_a_killed_run_leaves_no_worker(tmp_path):
         run.wait(timeout=EXIT_WITHIN)
         assert _gone(workers), "worker processes outlived a SIGKILLed run"
         assert not out.exists()
-
-
-def test_no_resource_tracker_or_semaphore_is_left(tmp_path):
-    before = set(os.listdir("/dev/shm")) if os.path.isdir("/dev/shm") else set()
-    with _running(tmp_path) as (run, _, workers):
-        run.send_signal(signal.SIGTERM)
-        run.communicate(timeout=EXIT_WITHIN)
-        assert _gone(workers)
-    after = set(os.listdir("/dev/shm")) if os.path.isdir("/dev/shm") else set()
-    assert {n for n in after - before if "tap-bench" in n or n.startswith("sem.")} == set()

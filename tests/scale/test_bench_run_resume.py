@@ -9,14 +9,12 @@ from __future__ import annotations
 import json
 import random
 import re
-import subprocess
-import sys
 import warnings
 from pathlib import Path
 
 import pandas as pd
 import pytest
-from kill_points import child_env, run_killed
+from kill_points import run_killed
 from scale_scenes import scene_files
 
 from tap_bench.cli import main
@@ -38,12 +36,6 @@ def _suite(path: Path, files: list[str], seeds: str) -> Path:
 def _args(suite: Path, out: Path, cache: Path) -> list[str]:
     return ["bench", "run", "--suite", str(suite), "-o", str(out), "--cache", str(cache),
             "--workers", "1", "--no-progress", "--no-report"]
-
-
-def _bench_run(suite: Path, out: Path, cache: Path) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "tap_bench", *_args(suite, out, cache)],
-                            env=child_env(), cwd=suite.parent, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
 
 
 def _cached(cache: Path) -> int:
@@ -68,13 +60,13 @@ def _same_tables(a: Path, b: Path) -> None:
         assert sa[key] == sb[key], key
 
 
-def _kill_and_resume(tmp_path: Path, suite: Path, n_episodes: int, kill_points: int,
-                     seed: int) -> list[int]:
+def _kill_and_resume(tmp_path: Path, capsys, suite: Path, n_episodes: int,
+                     kill_points: int, seed: int) -> list[int]:
     """Run ``suite`` whole, then ``kill_points`` times: start it into a fresh folder and
     cache, SIGKILL it just after it stored a drawn number of episodes in the cache, at
     least one (kill_points: by progress, so mid-run on any machine; the next episode not
-    begun), run the same command again and compare; the episodes each killed run had
-    finished."""
+    begun), run the same command again (in this process) and compare; the episodes each
+    killed run had finished."""
     whole = tmp_path / "whole"
     with warnings.catch_warnings():  # in this process: the same code as the children's
         warnings.simplefilter("ignore")
@@ -88,9 +80,12 @@ def _kill_and_resume(tmp_path: Path, suite: Path, n_episodes: int, kill_points: 
                    "after", target, cwd=suite.parent)
         done = _cached(cache)
         assert not out.exists() and done == target, (target, done)
-        proc = _bench_run(suite, out, cache)
-        stdout, stderr = proc.communicate()
-        assert proc.returncode == 0, stderr[-3000:]
+        capsys.readouterr()
+        with warnings.catch_warnings():  # the same command again, in this process
+            warnings.simplefilter("ignore")
+            code = main(_args(suite, out, cache))
+        stdout = capsys.readouterr().out
+        assert code == 0, stdout[-3000:]
         said = re.search(r"episode cache .*: (\d+) read, (\d+) simulated", stdout)
         assert said, stdout
         assert (int(said[1]), int(said[2])) == (done, n_episodes - done), stdout
@@ -104,18 +99,18 @@ def _kill_and_resume(tmp_path: Path, suite: Path, n_episodes: int, kill_points: 
     return done_before
 
 
-def test_a_killed_bench_run_resumes_from_the_cache_to_the_same_tables(tmp_path):
+def test_a_killed_bench_run_resumes_from_the_cache_to_the_same_tables(tmp_path, capsys):
     files = scene_files(tmp_path / "scenes", 1, per_file=1)
     suite = _suite(tmp_path / "suite.json", files, "all")
     # killed as soon as the first episode is in the cache: the second not yet run
-    assert _kill_and_resume(tmp_path, suite, 2, kill_points=1, seed=37) == [1]
+    assert _kill_and_resume(tmp_path, capsys, suite, 2, kill_points=1, seed=37) == [1]
 
 
 @pytest.mark.slow
-def test_a_killed_bench_run_of_real_scenes_resumes_to_the_same_tables(tmp_path):
+def test_a_killed_bench_run_of_real_scenes_resumes_to_the_same_tables(tmp_path, capsys):
     if not (DATA / "womd" / "motion_data_one_scenario.tfrecord").is_file():
         pytest.skip(f"real WOMD samples not found in {DATA / 'womd'}")
     files = [str(DATA / "womd" / "*.tfrecord"), str(DATA / "womd-dev" / "*.tfrecord")]
     suite = _suite(tmp_path / "suite.json", files, "0-3")
-    done = _kill_and_resume(tmp_path, suite, 8, kill_points=3, seed=2026)
+    done = _kill_and_resume(tmp_path, capsys, suite, 8, kill_points=3, seed=2026)
     assert all(d > 0 for d in done), done  # every run resumed some episodes

@@ -79,37 +79,35 @@ def _scenes_in(parts: Path) -> int:
     return sum(len(p.read_text().splitlines()) for p in parts.glob("part-*.episodes.jsonl"))
 
 
-def test_a_killed_run_resumes_to_the_same_files(tmp_path, monkeypatch):
-    """Killed (SIGKILL) at a point of every state a run leaves on disk, drawn where there
-    are several: in its start-up (run.json half written), after k scenes' parts (anywhere
-    in the next scene), while a part is written, while the output is written. Each resumed
-    run says how many scenes were done and writes the files of a run never interrupted,
-    bit for bit (the same code). The kills come by progress (kill_points), so every run is
-    killed mid-way on any machine."""
+def test_a_killed_run_resumes_to_the_same_files(tmp_path, monkeypatch, capsys):
+    """Killed (SIGKILL) at a point of every state a run leaves on disk: in its start-up
+    (run.json half written), after a drawn number of scenes' parts with the next part half
+    written, and while the output is written. Each resumed run says how many scenes were
+    done and writes the files of a run never interrupted, bit for bit (the same code). The
+    kills come by progress (kill_points), so every run is killed mid-way on any machine;
+    the uninterrupted run and the resumed ones run in this process."""
     files = scene_files(tmp_path / "scenes", 8, per_file=3)
     whole = tmp_path / "whole.parquet"
-    monkeypatch.setattr(rollout_stream, "PART_SCENES", 1)  # as the children have it
-    with warnings.catch_warnings():  # in this process: the same code as the children's
+    monkeypatch.setattr(rollout_stream, "PART_SCENES", 1)  # as the killed children have it
+    with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         assert main(rollout_args(files, whole)) == 0
     expected = [whole.read_bytes(), whole.with_name("whole.episodes.parquet").read_bytes()]
-    rng = random.Random(37)
-    after, torn = rng.randint(1, 7), rng.randint(1, 7)
-    # (function, before/after its n-th call, the scenes done then); a run commits its
-    # files in this order: run.json, one part per scene (PART_SCENES = 1), the output
-    points = [("tap_bench.tableio:_commit", "before", 1, 0),
-              ("tap_bench.sim.rollout_stream:_Parts.write", "after", after, after),
-              ("tap_bench.tableio:_commit", "before", 2 + torn, torn),
-              ("tap_bench.tableio:_commit", "before", 10, 8)]
+    torn = random.Random(37).randint(1, 7)
+    # (killed before this call of tableio._commit, the scenes done then): a run commits
+    # run.json, then one part per scene (PART_SCENES = 1), then the output
+    points = [(1, 0), (2 + torn, torn), (10, 8)]
     setup = "from tap_bench.sim import rollout_stream; rollout_stream.PART_SCENES = 1"
-    for trial, (target, when, n, done) in enumerate(points):
+    for trial, (n, done) in enumerate(points):
         out = tmp_path / f"t{trial}" / "out.parquet"
         parts = rollout_stream.parts_folder(out)
-        run_killed(rollout_args(files, out), target, when, n, setup)
+        run_killed(rollout_args(files, out), "tap_bench.tableio:_commit", "before", n, setup)
         assert not out.exists() and _scenes_in(parts) == done, (trial, _scenes_in(parts))
-        proc = child(rollout_args(files, out, "--resume"), tmp_path / f"r{trial}.json")
-        stdout, stderr = proc.communicate()
-        assert proc.returncode == 0, stderr
+        capsys.readouterr()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            assert main(rollout_args(files, out, "--resume")) == 0
+        stdout = capsys.readouterr().out
         if done:
             assert f"resumed: {done} of 8 scenes were done before" in stdout
         else:
