@@ -12,6 +12,7 @@ import json
 from pathlib import Path
 
 import pandas as pd
+import pytest
 from fault_helpers import RUN_TAG, run_process
 
 from tap_bench.sim.scenario_env import get_scenario
@@ -108,6 +109,9 @@ SCENARIO_KINDS.register(ScenarioKind("slowstart-{tag}-v0", "sceneplug_{tag}:Slow
 '''
 
 
+@pytest.mark.slow  # 5 CPU s of child runs. Fast: test_cache_inputs.py::
+# test_every_input_edited_makes_the_rerun_fresh[scenario kind's module] (the key), and a
+# plugin's kind edited end to end: test_an_edited_policy_kind_builder_is_simulated_again
 def test_an_edited_scenario_kind_is_simulated_again(tmp_path, monkeypatch):
     module = f"sceneplug_{TAG}"
     (tmp_path / f"{module}.py").write_text(SCENE.format(tag=TAG))
@@ -223,6 +227,10 @@ class ByFile:
 '''
 
 
+@pytest.mark.slow  # 7 CPU s of child runs. Fast: test_cache_inputs.py::
+# test_every_input_edited_makes_the_rerun_fresh[module a policy runs from its path] (the
+# entry), and the same three runs end to end for a helper loaded by name:
+# test_a_module_an_import_policy_loads_by_name_is_followed
 def test_a_module_a_policy_runs_from_its_path_is_followed(tmp_path):
     """A policy that runs a module from its file (``spec_from_file_location`` and
     ``exec_module``: no import statement, no finder, no ``sys.modules``) is followed as a

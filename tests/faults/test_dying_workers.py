@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 import warnings
 
+import pytest
+
 from tap_bench.bench.run.runner import run_suite
 from tap_bench.bench.suite import suite_from_dict
 
@@ -34,6 +36,10 @@ class KillsOnSeed(LaneKeepingPolicy):
 '''
 
 
+@pytest.mark.slow  # 13 CPU s: four worker processes start (two for the retries). Fast:
+# tests/execution/test_local_backend.py::test_a_worker_that_always_dies_costs_only_its_own_item
+# (the killer first, the backend every run uses) and tests/sim/test_sim_rollout.py::
+# test_a_dying_worker_loses_only_its_episode (an episode whose worker dies is its error row)
 def test_a_policy_that_kills_its_worker_costs_only_its_own_episodes(tmp_path, monkeypatch):
     # The killer is listed first: under the old pool every pending episode failed with it,
     # healthy IDM ones included.
