@@ -37,9 +37,9 @@ ALGORITHMS = ("a2c", "dqn", "ppo")
 SHIPPED_MODELS: dict[str, str] = {
     "437567ecd5d39eb776d2a5ec30d982a36188980b9ae5f9ac0453c74951c917a6": "dqn-highway.zip",
     "733a5445172dcf7fcf457193bad5779c8e19afc9128173dda6d6df2610dea7fd": "ppo-highway.zip",
-    "47da693f2020ea0e65bc555300022ac8bb9240497c1ebb025a97d7dfc26ccf7f": "ppo-womd-seed0.zip",
-    "501d02dad6cf80db02340429891ba3cf6d17784b14af7c960b0c0da868056d77": "ppo-womd-seed1.zip",
-    "bc0507553e25a367b35046d182b820e95ff38b4be47e6c1bde53f0730098513d": "ppo-womd-seed2.zip",
+    "af4708a821d67b682d22caf6382089f02c43ee1b928363eef72d2fac8fc0f4c6": "ppo-womd-seed0.zip",
+    "1802eca4b4f2fb173c1094eee21b6995c89a28588febcc02d46e01ea6caecad8": "ppo-womd-seed1.zip",
+    "1c3dc89098a257f2e5d7a6bb68150e2377f864ca0fbd64f78dee2575408727c3": "ppo-womd-seed2.zip",
 }
 """SHA-256 digest of each model file shipped in ``policies/`` -> its name. Known in the
 installed code, not beside the file: a digest that a model folder could carry would vouch
