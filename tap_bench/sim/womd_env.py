@@ -63,7 +63,9 @@ whether the ego is on a route lane; then the ego's speed and the gap, closing sp
 inverse time to collision to the road user in its path ahead (along the route's polyline).
 The route also acts through the dynamics: with meta-actions the low-level controller
 follows the route's lanes (at a lane end it takes the route's next lane), and
-``LANE_LEFT``/``LANE_RIGHT`` move to the map's neighbour on that side. Any highway-env
+``LANE_LEFT``/``LANE_RIGHT`` move to the map's neighbour on that side; an action config
+with ``safety_layer`` caps the ego's acceleration at every step by IDM's braking for the road
+user in its swept box (:mod:`tap_bench.sim.womd_safety`; off by default). Any highway-env
 observation can be configured instead (``config={"observation": ...}``; the shipped
 highway agents read plain ``Kinematics``).
 
