@@ -82,6 +82,7 @@ import inspect
 import math
 from typing import Any, NamedTuple
 
+import numba
 import numpy as np
 from gymnasium import spaces
 
@@ -426,43 +427,25 @@ class RouteObservation(FastKinematicObservation):
             path: (m, 2) the polyline ahead, from the ego's position on [m, sim frame].
         """
         ego = self.observer_vehicle
-        others, pos, _ = self._road_user_states()
+        others, pos, rows = self._road_user_states()
         if not others or len(path) < 2:
             return NO_LEADER
-        near = np.hypot(*(pos - path[0]).T) <= self.horizon + 10.0
-        if not near.any():
+        layout = getattr(self.env.road, "_vehicle_layout", None)
+        if layout is not None and len(rows) and layout.vehicles[rows[0]] is others[0]:
+            widths, lengths = layout.width[rows], layout.length[rows]
+        else:
+            widths = np.array([v.WIDTH for v in others], dtype=float)
+            lengths = np.array([v.LENGTH for v in others], dtype=float)
+        headings = (np.array([v.heading for v in others], dtype=float)
+                    if self.leader_corners else np.zeros(len(others)))
+        k, gap, dx, dy = _path_leader(
+            np.ascontiguousarray(path, dtype=float), np.ascontiguousarray(pos, dtype=float),
+            widths, lengths, headings, float(ego.WIDTH), float(ego.LENGTH),
+            float(self.horizon), self.leader_corners)
+        if k < 0:
             return NO_LEADER
-        idx = np.flatnonzero(near)
-        pos = pos[idx]
-        a, seg = path[:-1], np.diff(path, axis=0)  # (m-1, 2)
-        length = np.hypot(*seg.T)
-        keep = length > 1e-6
-        a, seg, length = a[keep], seg[keep], length[keep]
-        if not len(seg):
-            return NO_LEADER
-        cum = np.concatenate([(0.0,), np.cumsum(length)[:-1]])
-        lateral, along, j = _project(pos, a, seg, length, cum)
-        widths = np.array([others[i].WIDTH for i in idx], dtype=float)
-        lengths = np.array([others[i].LENGTH for i in idx], dtype=float)
-        inside = (lateral <= (ego.WIDTH + widths) / 2) & (along > 0) & (along <= self.horizon)
-        gaps = np.where(inside, along - (ego.LENGTH + lengths) / 2, np.inf)
-        if self.leader_corners:  # a corner of its box within half the ego's width
-            heading = np.array([others[i].heading for i in idx], dtype=float)
-            fwd = np.column_stack([np.cos(heading), np.sin(heading)])
-            side = np.column_stack([-fwd[:, 1], fwd[:, 0]])
-            corners = np.concatenate([
-                pos + sl * lengths[:, None] / 2 * fwd + sw * widths[:, None] / 2 * side
-                for sl in (1, -1) for sw in (1, -1)])  # (4n, 2), corner-major
-            c_lat, c_along, _ = _project(corners, a, seg, length, cum)
-            c_in = (c_lat <= ego.WIDTH / 2) & (c_along > 0) & (c_along <= self.horizon)
-            c_gap = np.where(c_in, c_along - ego.LENGTH / 2, np.inf).reshape(4, -1).min(axis=0)
-            gaps = np.minimum(gaps, np.maximum(c_gap, 0.0))
-        if not np.isfinite(gaps).any():
-            return NO_LEADER
-        k = int(gaps.argmin())
-        direction = seg[j[k]] / length[j[k]]
-        lead_speed = float(np.dot(others[idx[k]].velocity, direction))
-        return Leader(float(gaps[k]), float(ego.speed) - lead_speed)
+        lead_speed = float(np.dot(others[k].velocity, np.array([dx, dy])))
+        return Leader(float(gap), float(ego.speed) - lead_speed)
 
     def _locate(self, network: Any, route: list, p: np.ndarray, lane_index: Any
                 ) -> tuple[int, float, float]:
@@ -619,18 +602,67 @@ def swept_leader(ego: Any, others: list[Any], margin: float = SWEPT_MARGIN) -> L
     return Leader(gap, max(float(ego.speed), 0.0) - lead_speed)
 
 
-def _project(points: np.ndarray, a: np.ndarray, seg: np.ndarray, length: np.ndarray,
-             cum: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(distance to the polyline [m], distance along it to the foot [m], segment index) of
-    each of ``points`` (n, 2) on the polyline of segments ``a + u * seg`` (lengths
-    ``length``, starting ``cum`` along it)."""
-    rel = points[:, None, :] - a[None, :, :]  # (n, m-1, 2)
-    t = np.clip(np.einsum("nmk,mk->nm", rel, seg) / length**2, 0.0, 1.0)
-    foot = a[None] + t[..., None] * seg[None]
-    dist = np.hypot(*(points[:, None, :] - foot).transpose(2, 0, 1))  # (n, m-1)
-    j = dist.argmin(axis=1)
-    rows = np.arange(len(points))
-    return dist[rows, j], cum[j] + t[rows, j] * length[j], j
+@numba.njit(cache=True, nogil=True)
+def _foot(x, y, ax, ay, sx, sy, length, cum):  # pragma: no cover - compiled
+    """(distance [m] from (x, y) to the polyline of segments ``a + u * s`` (lengths
+    ``length``, starting ``cum`` along it), distance along it to the foot [m], the nearest
+    segment (the first of the nearest))."""
+    best, along, j = np.inf, 0.0, -1
+    for m in range(ax.shape[0]):
+        rx, ry = x - ax[m], y - ay[m]
+        t = min(max((rx * sx[m] + ry * sy[m]) / length[m] ** 2, 0.0), 1.0)
+        d = math.hypot(x - (ax[m] + t * sx[m]), y - (ay[m] + t * sy[m]))
+        if d < best:
+            best, along, j = d, cum[m] + t * length[m], m
+    return best, along, j
+
+
+@numba.njit(cache=True, nogil=True)
+def _path_leader(path, pos, widths, lengths, headings, ego_width, ego_length, horizon,
+                 corners):  # pragma: no cover - compiled
+    """:meth:`RouteObservation.leader` over road users at ``pos`` (n, 2) with boxes
+    ``lengths`` x ``widths`` [m] (and ``headings`` [rad] when their ``corners`` count) along
+    ``path`` (m, 2) [m]: (the nearest in the path ahead, -1 if none; its gap [m]; the unit
+    direction of the path's segment it is on)."""
+    n_seg = path.shape[0] - 1
+    ax, ay = np.empty(n_seg), np.empty(n_seg)
+    sx, sy, length = np.empty(n_seg), np.empty(n_seg), np.empty(n_seg)
+    m = 0
+    for q in range(n_seg):  # the segments longer than 1e-6 m
+        dx, dy = path[q + 1, 0] - path[q, 0], path[q + 1, 1] - path[q, 1]
+        d = math.hypot(dx, dy)
+        if d > 1e-6:
+            ax[m], ay[m], sx[m], sy[m], length[m] = path[q, 0], path[q, 1], dx, dy, d
+            m += 1
+    if m == 0:
+        return -1, np.inf, 0.0, 0.0
+    ax, ay, sx, sy, length = ax[:m], ay[:m], sx[:m], sy[:m], length[:m]
+    cum = np.zeros(m)
+    for q in range(1, m):
+        cum[q] = cum[q - 1] + length[q - 1]
+    best, best_k, best_j = np.inf, -1, -1
+    for i in range(pos.shape[0]):
+        x, y = pos[i, 0], pos[i, 1]
+        if not math.hypot(x - path[0, 0], y - path[0, 1]) <= horizon + 10.0:
+            continue
+        lateral, along, j = _foot(x, y, ax, ay, sx, sy, length, cum)
+        gap = np.inf
+        if lateral <= (ego_width + widths[i]) / 2 and along > 0 and along <= horizon:
+            gap = along - (ego_length + lengths[i]) / 2
+        if corners:  # a corner of its box within half the ego's width
+            fx, fy = math.cos(headings[i]), math.sin(headings[i])
+            for sl in (1, -1):
+                for sw in (1, -1):
+                    cx = x + sl * lengths[i] / 2 * fx + sw * widths[i] / 2 * -fy
+                    cy = y + sl * lengths[i] / 2 * fy + sw * widths[i] / 2 * fx
+                    c_lat, c_along, _ = _foot(cx, cy, ax, ay, sx, sy, length, cum)
+                    if c_lat <= ego_width / 2 and c_along > 0 and c_along <= horizon:
+                        gap = min(gap, max(c_along - ego_length / 2, 0.0))
+        if gap < best:
+            best, best_k, best_j = gap, i, j
+    if best_k < 0:
+        return -1, np.inf, 0.0, 0.0
+    return best_k, best, sx[best_j] / length[best_j], sy[best_j] / length[best_j]
 
 
 def _side(network: Any, a: Any, b: Any) -> float | None:
