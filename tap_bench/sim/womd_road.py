@@ -1830,7 +1830,10 @@ class _Layout:
         checks: (n,) checks collisions.
     """
 
-    def __init__(self, vehicles: tuple[Vehicle, ...], walker_rows: frozenset) -> None:
+    def __init__(self, vehicles: tuple[Vehicle, ...], walker_rows: frozenset,
+                 previous: _Layout | None = None) -> None:
+        """``previous``: the road's layout before, whose logs are taken as they are when
+        its log vehicles are these (the policy's ego put in the place of the env's)."""
         self.vehicles = vehicles
         self.acting = [v for v in vehicles if type(v) is not LogVehicle]
         logs = [i for i, v in enumerate(vehicles) if type(v) is LogVehicle]
@@ -1841,10 +1844,17 @@ class _Layout:
         if self.end is None:  # logs of different lengths: one by one
             self.others, self.logs = list(range(len(vehicles))), np.zeros(0, np.int64)
         else:
-            self.xy = np.stack([vehicles[i]._xy for i in logs], axis=1)  # (T + 1, n_log, 2)
-            self.heading = np.array([vehicles[i]._heading for i in logs]).T.copy()
-            self.speed = np.array([vehicles[i]._speed for i in logs]).T.copy()
-            self.valid = np.array([vehicles[i]._valid for i in logs], bool).T.copy()
+            self.log_vehicles = [vehicles[i] for i in logs]
+            before = getattr(previous, "log_vehicles", None)
+            if before is not None and len(before) == len(logs) and all(
+                    a is b for a, b in zip(before, self.log_vehicles, strict=True)):
+                self.xy, self.heading = previous.xy, previous.heading
+                self.speed, self.valid = previous.speed, previous.valid
+            else:
+                self.xy = np.stack([v._xy for v in self.log_vehicles], axis=1)  # (T + 1, n, 2)
+                self.heading = np.array([v._heading for v in self.log_vehicles]).T.copy()
+                self.speed = np.array([v._speed for v in self.log_vehicles]).T.copy()
+                self.valid = np.array([v._valid for v in self.log_vehicles], bool).T.copy()
         self.end = self.end if self.end is not None else 1 << 30
         self.other_vehicles = [vehicles[i] for i in self.others]
         logs = self.logs
@@ -2002,7 +2012,7 @@ class WomdRoad(Road):
         vehicles = tuple(self.vehicles)
         layout = self.__dict__.get("_vehicle_layout")
         if layout is None or layout.vehicles != vehicles:
-            layout = self._vehicle_layout = _Layout(vehicles, self._walker_rows)
+            layout = self._vehicle_layout = _Layout(vehicles, self._walker_rows, layout)
         return layout
 
     @property
@@ -2417,7 +2427,7 @@ class WomdRoad(Road):
         vehicle), its comfortable braking [m/s^2] (NaN for the others), its scene row (-1:
         none)), made once per step."""
         if self._mover_conflict is None:
-            layout = self._layout()
+            layout = self._vehicle_layout  # the act's
             rows = self._mover_rows
             yielder = layout.yielder[rows]
             braking = np.full(len(rows), np.nan)
