@@ -1976,6 +1976,7 @@ class WomdRoad(Road):
         self._conflict_tables: dict[Any, tuple[np.ndarray, ...]] = {}
         self._poses: tuple[np.ndarray, ...] | None = None  # _pose_arrays
         self._mover_conflict: tuple[np.ndarray, ...] | None = None  # _conflict_movers
+        self._states_at: tuple[int, _Layout, dict] | None = None  # _snapshot's
         self._crossings: dict[int, list] | None = None
         self._stop_signs = self._stop_sign_points(network, road)
 
@@ -2021,9 +2022,16 @@ class WomdRoad(Road):
         return self._positions is not None
 
     def _snapshot(self) -> tuple[_Layout, dict[str, np.ndarray]]:
-        """Every vehicle's state now (:meth:`_Layout.states`)."""
+        """Every vehicle's state now (:meth:`_Layout.states`), laid out once per step of
+        the road and layout (vehicles move only in the road's step, which lays out the
+        states it checks collisions with; the next step's act and the env's measures
+        between them read those)."""
         layout = self._layout()
-        return layout, layout.states(self.clock[0])
+        k = self.clock[0]
+        laid = self._states_at
+        if laid is None or laid[0] != k or laid[1] is not layout:
+            laid = self._states_at = (k, layout, layout.states(k))
+        return layout, laid[2]
 
     # the neighbour search, once per lane per step
     def act(self) -> None:
@@ -2139,6 +2147,7 @@ class WomdRoad(Road):
         for vehicle in layout.acting:  # in the road's order (log vehicles follow the clock)
             vehicle.step(dt)
         now = layout.states(self.clock[0])
+        self._states_at = (self.clock[0], layout, now)  # read by _snapshot until it moves
         moving = np.flatnonzero(now["collidable"])  # their rows
         vehicles = [layout.vehicles[i] for i in moving.tolist()]
         if now["own"] is not None:
@@ -2218,7 +2227,7 @@ class WomdRoad(Road):
         are now, in the road's order (cached until the road acts or steps)."""
         layout = self._layout()
         if self._everyone is None or self._everyone[0] is not layout:
-            position = layout.states(self.clock[0])["position"]
+            position = self._snapshot()[1]["position"]
             self._everyone = (layout, np.ascontiguousarray(position[:, 0]),
                               np.ascontiguousarray(position[:, 1]), {})
         _, xs, ys, tables = self._everyone
