@@ -195,12 +195,6 @@ def test_every_input_edited_makes_the_rerun_fresh(inputs, tmp_path_factory, kind
     all kinds at once, as 140 edits were, each kind's share was left to chance)."""
     root, run = inputs
     name, moves = INPUTS[kind]
-    cache = EpisodeCache(tmp_path_factory.mktemp("cache"))
-    key = _entry(cache, run)
-    lkey = label_key(key, {}, "maneuver", {})[0]
-    assert cache.read(key)[0] is not None and cache.read_labels(lkey)[0] is not None
-    before = _keys(root)
-    read = load_thresholds(root / "thresholds.json").to_dict()
     path = _file(root, name)
     original = path.read_bytes()
     data = bytearray(original)
@@ -209,7 +203,13 @@ def test_every_input_edited_makes_the_rerun_fresh(inputs, tmp_path_factory, kind
         assume(chr(data[i]) in string.ascii_letters + string.digits)
         pool = string.digits if chr(data[i]).isdigit() else string.ascii_letters
         byte = ord(pool[byte % len(pool)])
-    assume(data[i] != byte)
+    assume(data[i] != byte)  # the edits drawn and refused before any work
+    cache = EpisodeCache(tmp_path_factory.mktemp("cache"))
+    key = _entry(cache, run)
+    lkey = label_key(key, {}, "maneuver", {})[0]
+    assert cache.read(key)[0] is not None and cache.read_labels(lkey)[0] is not None
+    before = _keys(root)
+    read = load_thresholds(root / "thresholds.json").to_dict()
     data[i] = byte
     path.write_bytes(bytes(data))
     try:
