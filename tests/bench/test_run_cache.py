@@ -264,12 +264,20 @@ again, other outputs. Every change's missed run is compared with a cold one in t
 suite."""
 
 
+KEY_IN_THE_FAST_SUITE = {"seeds given", "the level", "the reference", "an env's config"}
+"""The changes whose runs are in the slow suite only: the fast suite checks that each moves
+the run's key (test_the_key_holds_every_input, no run), and a missed and served run of the
+same kind of change (a suite field, the seeds, the env) runs there ("seeds", "the
+thresholds", "the suite's name")."""
+
+
 def _change_cases():
     for change in sorted(CHANGES):
         if change in COLD_IN_THE_FAST_SUITE:
             yield pytest.param(change, True, id=change)
         else:
-            yield pytest.param(change, False, id=change)
+            slow = (pytest.mark.slow,) if change in KEY_IN_THE_FAST_SUITE else ()
+            yield pytest.param(change, False, id=change, marks=slow)
             yield pytest.param(change, True, id=f"{change}, cold", marks=pytest.mark.slow)
 
 
