@@ -22,7 +22,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -249,27 +249,6 @@ def _join_csv(parts: list[Path], out: Path, gz: bool) -> int:
     return rows
 
 
-def _frozen_after_first(outcomes: Iterator[Any]) -> Iterator[Any]:
-    """``outcomes`` as they come; from the second on, what lived after the first (the
-    modules imported, the compiled kernels loaded) is frozen out of the cyclic garbage
-    collector's scans (:func:`gc.freeze`) until the last, so that the full collections a long
-    run triggers scan only what the episodes make. Left alone when something froze objects
-    before."""
-    import gc
-
-    frozen = False
-    try:
-        for k, outcome in enumerate(outcomes):
-            yield outcome
-            if k == 0 and not gc.get_freeze_count():
-                gc.collect()
-                gc.freeze()
-                frozen = True
-    finally:
-        if frozen:
-            gc.unfreeze()
-
-
 def stream_rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
                    policy: str | os.PathLike | Policy | PolicyDefinition,
                    seeds: str | int | Sequence[int], output: str | os.PathLike, *,
@@ -336,8 +315,8 @@ def stream_rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
     rows: list[dict] = []
     first, held, last_write = 0, 0, time.monotonic()
     try:
-        outcomes = _frozen_after_first(runner.imap(_run_task, tasks, retries=retries,
-                                                   progress=False, total=len(tasks)))
+        outcomes = runner.imap(_run_task, tasks, retries=retries, progress=False,
+                               total=len(tasks))
         for task, k, outcome in zip(tasks, todo, outcomes, strict=True):
             table, row = outcome.value if outcome.ok else (pd.DataFrame(),
                                                            _failed_row(task, outcome.error))
