@@ -24,6 +24,7 @@ import gzip
 import json
 import os
 import shutil
+import socket
 import tempfile
 import zlib
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -35,14 +36,20 @@ from tap_bench.errors import FileFormatError, OutputPathError, RunExistsError
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["FOLDER_MARKER", "atomic_folder", "atomic_path", "atomic_paths", "beside",
+__all__ = ["FOLDER_MARKER", "OWNER_FILE", "atomic_folder", "atomic_path", "atomic_paths", "beside",
            "check_folder_output", "check_outputs", "check_replace", "check_writable",
-           "EncodedTable", "episodes_path", "read_table", "read_table_encoded", "write_table",
-           "write_tables"]
+           "EncodedTable", "episodes_path", "owner_gone", "owner_line", "read_table",
+           "read_table_encoded", "remove_abandoned", "write_table", "write_tables"]
 
 FOLDER_MARKER = ".tap-bench-folder"
 """The file tap-bench leaves in every results folder it writes; only a folder holding it may
 be replaced (``--overwrite``)."""
+
+OWNER_FILE = ".tap-bench-owner"
+"""The file naming the process that is building a folder under its temporary name
+(:func:`owner_line`), so that a later run can tell the folder of a process that was killed
+from one still being written (:func:`remove_abandoned`); removed before the folder is renamed
+into place."""
 
 _ID_COLUMNS = ("scenario_id", "track_id")
 _SUFFIXES = {".parquet": "parquet", ".pq": "parquet", ".csv": "csv", ".csv.gz": "csv"}
@@ -554,12 +561,82 @@ def check_replace(paths: Iterable[str | os.PathLike], overwrite: bool, *,
     return targets
 
 
+def process_started(pid: int) -> str | None:
+    """When process ``pid`` started (clock ticks since boot, from ``/proc/<pid>/stat``), or
+    None where that cannot be read (no such process, no ``/proc``)."""
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii", errors="replace") as stat:
+            fields = stat.read().rpartition(")")[2].split()
+        return fields[19]  # field 22 of the line, the 20th after the command's name
+    except (OSError, IndexError):
+        return None
+
+
+def owner_line(pid: int) -> str:
+    """The line naming process ``pid`` of this host as the owner of a folder it is writing:
+    its id, the host and, where it can be read, when the process started (so that another
+    process given the same id later is not taken for it)."""
+    started = process_started(pid)
+    return f"{pid} {socket.gethostname()}" + ("" if started is None else f" {started}")
+
+
+def owner_gone(line: str) -> bool:
+    """Whether the process an :func:`owner_line` names is provably gone: a process of this
+    host whose id names no process, or names one that started at another time. False for
+    anything else (a live process, another host's, a line that is not an owner line)."""
+    fields = line.split()
+    try:
+        pid = int(fields[0])
+    except (ValueError, IndexError):
+        return False
+    host, started = [*fields[1:], "", ""][:2]
+    if host and host != socket.gethostname():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:  # another user's live process: its start tells
+        pass
+    except OSError:
+        return False
+    now = process_started(pid)
+    return bool(started) and now is not None and now != started
+
+
+def remove_abandoned(path: str | os.PathLike) -> list[Path]:
+    """Remove the temporary folders :func:`atomic_folder` left beside ``path`` when its
+    process was killed (``.<name>.*.tmp`` holding an :data:`OWNER_FILE` whose process is
+    gone, :func:`owner_gone`); the folders removed. Anything else is left alone: a folder
+    of a live process or of another host, one without an owner file (an older tap-bench's,
+    or not tap-bench's at all), a file."""
+    path = Path(path)
+    removed = []
+    try:
+        candidates = sorted(path.parent.glob(f".{path.name}.*.tmp"))
+    except OSError:
+        return []
+    for folder in candidates:
+        if folder.is_symlink() or not folder.is_dir():
+            continue
+        try:
+            owner = (folder / OWNER_FILE).read_text()
+        except (OSError, UnicodeDecodeError):
+            continue
+        if owner_gone(owner):
+            shutil.rmtree(folder, ignore_errors=True)
+            removed.append(folder)
+    return removed
+
+
 @contextlib.contextmanager
 def atomic_folder(path: str | os.PathLike, overwrite: bool = False,
                   kind: str = "results") -> Iterator[Path]:
     """Yield a temporary folder beside ``path``; move it onto ``path`` on success only.
 
-    The folder gets :data:`FOLDER_MARKER` and the usual mode. An existing ``path`` is
+    The folder gets :data:`FOLDER_MARKER` and the usual mode; while it is written it holds
+    :data:`OWNER_FILE`, so that the folder of a process killed meanwhile can be told and
+    removed later (:func:`remove_abandoned`). An existing ``path`` is
     replaced only as :func:`check_folder_output` allows; it is checked again at the end,
     as something may have appeared meanwhile.
 
@@ -581,7 +658,9 @@ def atomic_folder(path: str | os.PathLike, overwrite: bool = False,
     old: Path | None = None
     try:
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700
+        (tmp / OWNER_FILE).write_text(owner_line(os.getpid()) + "\n")
         yield tmp
+        (tmp / OWNER_FILE).unlink(missing_ok=True)
         (tmp / FOLDER_MARKER).write_text(json.dumps({"written_by": "tap-bench",
                                                      "kind": kind,
                                                      "files": _contents(tmp)}) + "\n")

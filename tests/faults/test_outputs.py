@@ -4,7 +4,11 @@ fail before the work when their place is not writable, and land together or not 
 from __future__ import annotations
 
 import os
+import shutil
 import stat
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -124,6 +128,40 @@ def test_a_failure_inside_the_folder_leaves_the_old_run_and_no_debris(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
     with pytest.raises(RunExistsError):
         check_output(out, overwrite=False)
+
+
+def test_a_run_removes_the_folders_killed_runs_left_and_nothing_else(tmp_path):
+    from tap_bench.bench.run.runner import run_suite
+    from tap_bench.bench.suite import suite_from_dict
+
+    out = tmp_path / "run"
+    # a run killed while it wrote its folder (the process ends inside atomic_folder)
+    killed = subprocess.run(
+        [sys.executable, "-c", "import os, sys; from tap_bench.tableio import atomic_folder\n"
+         "with atomic_folder(sys.argv[1], kind='run') as tmp:\n"
+         "    (tmp / 'episodes.parquet').write_bytes(b'half')\n    os._exit(9)", str(out)],
+        cwd=Path(tableio.__file__).parents[1])
+    assert killed.returncode == 9
+    (dead,) = tmp_path.glob(".run.*.tmp")
+    live = tmp_path / ".run.live.tmp"  # a run writing it now
+    live.mkdir()
+    (live / tableio.OWNER_FILE).write_text(tableio.owner_line(os.getpid()) + "\n")
+    foreign = tmp_path / ".run.mine.tmp"  # tap-bench's naming, but not its folder
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("precious\n")
+    said = []
+    suite = suite_from_dict({"name": "tiny", "envs": ["merge"], "policies": ["idm"],
+                             "seeds": "0", "env_overrides": {"merge": {"duration": 1}}},
+                            check_names=False)
+    run_suite(suite, out, workers=1, progress=False, report=False,
+              keep_trajectories=False, announce=said.append)
+    assert not dead.exists()
+    assert live.is_dir() and (foreign / "notes.txt").read_text() == "precious\n"
+    assert [line for line in said if "killed runs" in line] == [
+        f"removed 1 folder(s) that killed runs left beside {out}: {dead.name}"]
+    assert not list(out.rglob(tableio.OWNER_FILE))  # the finished folder does not name it
+    for folder in (live, foreign):  # this test's own, not debris of the run
+        shutil.rmtree(folder)
 
 
 # -- outputs that are inputs ------------------------------------------------------------

@@ -11,7 +11,7 @@ import json
 import os
 import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -22,7 +22,12 @@ from tap_bench.errors import (
 from tap_bench.sim.policies import PolicyDefinition
 from tap_bench.sim.scenario_format import Scenario
 from tap_bench.sim.womd_scene import WomdScenes
-from tap_bench.tableio import atomic_folder, atomic_path, check_folder_output
+from tap_bench.tableio import (
+    atomic_folder,
+    atomic_path,
+    check_folder_output,
+    remove_abandoned,
+)
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -33,17 +38,25 @@ if TYPE_CHECKING:
     from tap_bench.bench.scores.scoring import Scores
 
 
-def check_output(output: str | os.PathLike, overwrite: bool) -> Path:
+def check_output(output: str | os.PathLike, overwrite: bool,
+                 announce: Callable[[str], None] | None = None) -> Path:
     """``output`` as a Path, checked before any work (:func:`tap_bench.tableio.
     check_folder_output`): a new folder in a writable place, or, with ``overwrite``, a run
-    folder tap-bench wrote.
+    folder tap-bench wrote. The temporary folders that runs into ``output`` killed while
+    writing it left beside it are removed (:func:`tap_bench.tableio.remove_abandoned`: only
+    those whose owner process is provably gone), and ``announce`` told so in one line.
 
     Raises:
         RunExistsError: naming the folder and the flag that replaces it.
         OutputPathError: the place is not writable, or ``output`` is a file, a link or a
             folder tap-bench did not write.
     """
-    return check_folder_output(output, overwrite)
+    path = check_folder_output(output, overwrite)
+    removed = remove_abandoned(path)
+    if removed and announce is not None:
+        announce(f"removed {len(removed)} folder(s) that killed runs left beside {path}: "
+                 + ", ".join(folder.name for folder in removed))
+    return path
 
 
 def package_versions() -> dict[str, str]:

@@ -150,7 +150,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
             written.
     """
     t_start = time.perf_counter()
-    output = check_output(output, overwrite)
+    output = check_output(output, overwrite, announce)
     plan = plan_suite(suite, plugins=plugins, seeds=seeds)  # the suite, read once
     cache = _open_cache(cache, output)
     sources = _reference_sources(references, womd)

@@ -432,7 +432,7 @@ def serve_unchanged(suite: Any, output: str | Path, *, cache: EpisodeCache | Non
     if cache is None or corpora or plugins:
         return None
     started = time.perf_counter()
-    output = check_output(output, overwrite)
+    output = check_output(output, overwrite, announce)
     with warnings.catch_warnings(record=True) as said:  # run_suite says them if it runs
         warnings.simplefilter("always")
         plan = plan_suite(suite, plugins=plugins, seeds=seeds)

@@ -26,12 +26,15 @@ from __future__ import annotations
 
 import os
 import shutil
-import socket
 import tempfile
 import weakref
 from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+from tap_bench.tableio import owner_gone
+from tap_bench.tableio import owner_line as _owner
+from tap_bench.tableio import process_started as _started  # noqa: F401 (its tests read it)
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -137,50 +140,18 @@ class RunSpill:
         self._remove()
 
 
-def _started(pid: int) -> str | None:
-    """When process ``pid`` started (clock ticks since boot, from ``/proc/<pid>/stat``), or
-    None where that cannot be read (no such process, no ``/proc``)."""
-    try:
-        with open(f"/proc/{pid}/stat", encoding="ascii", errors="replace") as stat:
-            fields = stat.read().rpartition(")")[2].split()
-        return fields[19]  # field 22 of the line, the 20th after the command's name
-    except (OSError, IndexError):
-        return None
-
-
-def _owner(pid: int) -> str:
-    """The ``owner`` line of a spill made by process ``pid`` of this host: its id, the host
-    and, where it can be read, when the process started (so that another process given the
-    same id later is not taken for it)."""
-    started = _started(pid)
-    return f"{pid} {socket.gethostname()}" + ("" if started is None else f" {started}")
-
-
 def _remove_abandoned(output: Path) -> None:
     """Remove the spill folders of ``output`` (``.<name>.episodes-*``, with the ``owner``
     file a spill writes: its process id, host and start) whose process on this host is gone,
-    or whose process id now names a process that started later; any other folder is left
-    alone, a run's of another host on a shared file system among them."""
+    or whose process id now names a process that started later
+    (:func:`tap_bench.tableio.owner_gone`); any other folder is left alone, a run's of
+    another host on a shared file system among them."""
     for folder in output.parent.glob(f".{output.name}.episodes-*"):
         try:
-            fields = (folder / "owner").read_text().split()
-            pid = int(fields[0])
-        except (OSError, ValueError, IndexError):
+            owner = (folder / "owner").read_text()
+        except (OSError, UnicodeDecodeError):
             continue  # not one a spill made (or not yet named): left alone
-        host, started = [*fields[1:], "", ""][:2]
-        if host and host != socket.gethostname():
-            continue
-        try:
-            os.kill(pid, 0)
-        except ProcessLookupError:  # its run is gone
-            shutil.rmtree(folder, ignore_errors=True)
-            continue
-        except PermissionError:  # another user's live process: its start tells
-            pass
-        except OSError:
-            continue
-        now = _started(pid)
-        if started and now is not None and now != started:  # the id names another process
+        if owner_gone(owner):
             shutil.rmtree(folder, ignore_errors=True)
 
 
