@@ -139,8 +139,9 @@ def run_episodes(tasks: list[_Task], name: str, scenarios: Mapping[str, Scenario
         name: the suite's name (progress, errors).
         scenarios: env -> its scenario or recorded scenes, in the suite's order.
         output: the run folder (a run of recorded scenes spills its tables beside it).
-        recorded: some env is recorded scenes: each episode's tables go to disk as its
-            result arrives (:mod:`tap_bench.bench.run.spill`).
+        recorded: some env is recorded scenes (the plan's :attr:`~tap_bench.bench.run.
+            plan.SuitePlan.recorded`): each episode's tables go to disk as its result
+            arrives (:mod:`tap_bench.bench.run.spill`).
         backend: runs the tasks.
         cache: the episode cache (None: none).
         keep_tables: keep each episode's trajectories.

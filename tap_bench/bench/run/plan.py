@@ -87,7 +87,6 @@ class SuitePlan:
         document: the suite as JSON (:meth:`~tap_bench.bench.suite.Suite.to_dict`, its
             gate margins filled): what ``summary.json`` records and the cache keys hold.
         suite_file: the file the suite was read from (None: built in Python).
-        recorded: some env is recorded scenes.
         run: the run's id: the modules its policies, scenarios and measures import as
             they are built and run are noted under it (:func:`tap_bench.usercode.
             recording`) and kept with its cache entries.
@@ -107,8 +106,16 @@ class SuitePlan:
     plugins: tuple[str, ...]
     document: Mapping[str, Any]
     suite_file: str | None = None
-    recorded: bool = False
     run: str = field(default_factory=lambda: uuid.uuid4().hex)
+
+    @property
+    def recorded(self) -> bool:
+        """Whether some env is recorded scenes (its scenario a :class:`~tap_bench.sim.
+        womd_scene.WomdScenes`): the run spills its episodes' tables to disk and is never
+        served whole from the cache. Read from the scenarios, as every step that reads an
+        env's maps or keys its episodes tells recorded scenes, so that no flag can say
+        otherwise."""
+        return any(isinstance(s, WomdScenes) for s in self.scenarios.values())
 
     @property
     def measure_names(self) -> tuple[str, ...]:
@@ -167,8 +174,7 @@ def plan_suite(suite: Suite | str | os.PathLike, *, plugins: Sequence[str] = (),
         definitions=definitions, reference=document["reference_policy"],
         level=suite.level, thresholds=thresholds, bootstrap=suite.bootstrap, gate=gate,
         measures=measures, plugins=merge_plugins(plugins, suite.plugins, outside),
-        document=document, suite_file=str(suite.path) if suite.path else None,
-        recorded=bool(suite.scenes), run=run)
+        document=document, suite_file=str(suite.path) if suite.path else None, run=run)
 
 
 def _warn_untrusted_models(definitions: tuple[PolicyDefinition, ...]) -> None:
