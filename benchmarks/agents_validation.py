@@ -9,8 +9,9 @@ the episodes where the driver moved), at-fault collisions and off-road (rates), 
 probabilities that the first policy gets further than each other one, and that it collides
 at fault less, on the same episode (ties a half); for an agent with a safety layer
 (:mod:`tap_bench.sim.womd_safety`) the share of its simulated steps in which the layer
-lowered the agent's acceleration (``layer_capped``) and made it brake where the agent did
-not (``layer_braked``); writes every episode to ``--out`` (CSV).
+lowered the agent's acceleration (``layer_capped``), made it brake where the agent did
+not (``layer_braked``) and capped it for a predicted conflict (``layer_foreseen``, a layer
+with ``predicted``); writes every episode to ``--out`` (CSV).
 ``--pool NAME=P1,P2,...`` adds a row NAME for the episodes of those policies together (an
 agent's training seeds), compared episode by episode as each seed is (first: the first
 policy is then NAME).
@@ -68,7 +69,9 @@ def episodes(files: list[str], scenes: list[int], policies: list[str]) -> pd.Dat
                              # the agent's safety layer: simulated steps it judged, lowered
                              # the policy's acceleration in, made it brake in
                              **({"layer_steps": layer.steps, "layer_capped": layer.capped,
-                                 "layer_braked": layer.braked} if layer is not None else {})})
+                                 "layer_braked": layer.braked,
+                                 "layer_foreseen": layer.foreseen}
+                                if layer is not None else {})})
     return pd.DataFrame(rows)
 
 
@@ -101,7 +104,8 @@ def summary(eps: pd.DataFrame, policies: list[str],
         if "layer_steps" in rows and rows["layer_steps"].notna().any():
             steps = rows["layer_steps"].sum()
             layer = {"layer_capped": float(rows["layer_capped"].sum() / steps),
-                     "layer_braked": float(rows["layer_braked"].sum() / steps)}
+                     "layer_braked": float(rows["layer_braked"].sum() / steps),
+                     "layer_foreseen": float(rows["layer_foreseen"].sum() / steps)}
         out.append({"policy": name, "episodes": len(rows), **layer,
                     "progress_mean": float(moved.mean()), "progress_iqm": float(iqm(moved)),
                     "at_fault": float(rows["at_fault"].mean()),

@@ -91,8 +91,9 @@ from tap_bench.sim.observation import FastKinematicObservation
 
 __all__ = ["CLOSING_SCALE", "CROSSING_COUNT", "CROSSING_FEATURES", "CROSS_HORIZON",
            "CROSS_MIN_ANGLE", "INVERSE_TTC_SCALE", "LEADER_FEATURES", "OBSERVATION_TYPE",
-           "OFFSET_SCALE", "ROUTE_FEATURES", "SPEED_SCALE", "SWEPT_HORIZON", "SWEPT_MARGIN",
-           "Crossing", "Leader", "RouteObservation", "route_feature_names", "swept_leader"]
+           "OFFSET_SCALE", "PREDICT_TOLERANCE", "ROUTE_FEATURES", "SPEED_SCALE",
+           "SWEPT_HORIZON", "SWEPT_MARGIN", "Crossing", "Leader", "RouteObservation",
+           "predicted_conflict", "route_feature_names", "swept_leader"]
 
 OBSERVATION_TYPE = "KinematicsRoute"
 """The ``observation`` config's ``type`` of :class:`RouteObservation`."""
@@ -122,6 +123,8 @@ SWEPT_MIN_DISTANCE = 10.0  # [m] ... and at least this far (a slow or standing e
 SWEPT_STEP = 0.5  # [m] the swept box is the ego's box placed every this many metres
 SWEPT_MARGIN = 0.25  # [m] the swept box is this much wider than the ego on each side
 SWEPT_MAX_TURN = math.pi / 2  # [rad] the ego's turn is followed this far, then straight on
+PREDICT_TOLERANCE = 1.0  # [s] a predicted meeting counts this much earlier or later
+PREDICT_STEP = 0.1  # [s] the ego's predicted motion is stepped by this
 
 
 class Leader(NamedTuple):
@@ -574,21 +577,8 @@ def swept_leader(ego: Any, others: list[Any], margin: float = SWEPT_MARGIN) -> L
     oh = np.array([others[i].heading for i in idx], dtype=float)
     half_l = np.array([others[i].LENGTH for i in idx], dtype=float) / 2
     half_w = np.array([others[i].WIDTH for i in idx], dtype=float) / 2
-    eu = np.column_stack([np.cos(heading), np.sin(heading)])[:, None, :]  # (k, 1, 2)
-    ew = np.column_stack([-np.sin(heading), np.cos(heading)])[:, None, :]
-    ou = np.column_stack([np.cos(oh), np.sin(oh)])[None]  # (1, n, 2)
-    ow = np.column_stack([-np.sin(oh), np.cos(oh)])[None]
-    d = pos[None] - xy[:, None, :]  # (k, n, 2)
-    el, ewid = float(ego.LENGTH) / 2, float(ego.WIDTH) / 2 + margin
-
-    def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        return (a * b).sum(axis=-1)
-
-    overlap = np.ones(d.shape[:2], bool)
-    for axis in (eu, ew, ou, ow):
-        reach = (el * np.abs(dot(eu, axis)) + ewid * np.abs(dot(ew, axis))
-                 + half_l * np.abs(dot(ou, axis)) + half_w * np.abs(dot(ow, axis)))
-        overlap &= np.abs(dot(d, axis)) <= reach
+    overlap = _boxes_overlap(xy, heading, float(ego.LENGTH) / 2,
+                             float(ego.WIDTH) / 2 + margin, pos[None], oh, half_l, half_w)
     hit = overlap.any(axis=0)
     if not hit.any():
         return NO_LEADER
@@ -600,6 +590,117 @@ def swept_leader(ego: Any, others: list[Any], margin: float = SWEPT_MARGIN) -> L
     direction = np.array([math.cos(heading[pose]), math.sin(heading[pose])])
     lead_speed = float(np.dot(others[idx[k]].velocity, direction))
     return Leader(gap, max(float(ego.speed), 0.0) - lead_speed)
+
+
+def predicted_conflict(ego: Any, others: list[Any], acceleration: float = 0.0,
+                       tolerance: float = PREDICT_TOLERANCE, horizon: float = SWEPT_HORIZON,
+                       max_acceleration: float = 3.0, margin: float = SWEPT_MARGIN) -> Leader:
+    """The nearest place on the ego's way where a road user's own predicted motion meets it:
+    both advanced over the same ``horizon`` and compared at matched times.
+
+    The ego's box goes along :func:`swept_poses` at the speed its ``acceleration`` gives
+    (clipped to [-8, ``max_acceleration``] m/s^2, never reversing, never faster than its
+    ``target_speed`` when it has one, else its speed or what the acceleration gives): pose k
+    is reached at time t_k (the first 0.1 s step at which the distance covered reaches
+    it). Each road user moving at :data:`MIN_CROSS_SPEED` or more whose heading is at least
+    :data:`CROSS_MIN_ANGLE` off the ego's (crossing or oncoming traffic: road users going
+    the ego's way are the swept box's, :func:`swept_leader`) goes on at its velocity and
+    heading; its box at t_k, stretched along its heading by its speed times ``tolerance``
+    [s] at both ends (it may come that much earlier or later), is tested against the ego's
+    box at pose k (``margin`` m wider on each side; separating axes). Where they overlap
+    within ``horizon`` the ego must give way before the road user's *zone*, the ground its
+    box covers from ``tolerance`` s before now to ``horizon`` + ``tolerance`` s: the gap is
+    the distance the ego's centre goes to the first pose whose box meets the zone (less
+    one :data:`SWEPT_STEP`), and the zone stands still (closing = the ego's speed). A road
+    user whose zone already meets the ego's box where it is now is left out: braking
+    cannot clear that one (a car behind, one in the ego's way already).
+
+    Args:
+        ego: the ego vehicle (as :func:`swept_leader`'s; ``target_speed`` if it has one).
+        others: the road users (``position``, ``heading``, ``velocity``, ``LENGTH``,
+            ``WIDTH``).
+        acceleration: [m/s^2] the ego's asked-for acceleration (its controller's this step).
+        tolerance: [s] the time margin on each side of a matched time.
+        horizon: [s] how far ahead in time both are advanced.
+        max_acceleration: [m/s^2] the most acceleration the ego's prediction takes.
+        margin: [m] added to the ego's half width.
+
+    Returns:
+        The zone's gap and closing speed; :data:`NO_LEADER` with no conflict.
+    """
+    if not others:
+        return NO_LEADER
+    s, xy, heading = swept_poses(ego)
+    p = np.asarray(ego.position, float)
+    h = float(ego.heading)
+    vel = np.array([np.asarray(v.velocity, float) for v in others]).reshape(-1, 2)
+    speed = np.hypot(vel[:, 0], vel[:, 1])
+    oh = np.array([float(v.heading) for v in others])
+    half_l = np.array([float(v.LENGTH) for v in others]) / 2
+    half_w = np.array([float(v.WIDTH) for v in others]) / 2
+    pos = np.array([np.asarray(v.position, float) for v in others]).reshape(-1, 2)
+    off = np.abs((oh - h + np.pi) % (2 * np.pi) - np.pi)
+    reach = (float(s[-1]) + speed * (horizon + tolerance) + half_l + half_w
+             + float(ego.LENGTH) / 2 + float(ego.WIDTH) / 2 + margin)
+    keep = ((speed >= MIN_CROSS_SPEED) & (off >= CROSS_MIN_ANGLE)
+            & (np.hypot(*(pos - p).T) <= reach))
+    if not keep.any():
+        return NO_LEADER
+    vel, speed, oh, half_l, half_w, pos = (a[keep] for a in (vel, speed, oh, half_l, half_w,
+                                                              pos))
+    # the ego's distance covered on a 0.1 s grid, and when it reaches each pose
+    v = max(float(ego.speed), 0.0)
+    a = min(max(float(acceleration), -8.0), max_acceleration)
+    top = float(getattr(ego, "target_speed", math.inf))
+    top = max(v, top) if a > 0 else v
+    t = np.arange(0.0, horizon + 1e-9, PREDICT_STEP)
+    speeds = np.clip(v + a * t, 0.0, top)
+    covered = np.concatenate([[0.0], np.cumsum(0.5 * (speeds[1:] + speeds[:-1])
+                                                * PREDICT_STEP)])
+    at = np.searchsorted(covered, s - 1e-9)  # the first step that reaches each pose
+    reached = at < len(t)
+    t_pose = np.where(reached, t[np.minimum(at, len(t) - 1)], 0.0)  # (k,)
+    el, ew = float(ego.LENGTH) / 2, float(ego.WIDTH) / 2 + margin
+    moved = pos[None] + t_pose[:, None, None] * vel[None]  # (k, n, 2)
+    matched = _boxes_overlap(xy, heading, el, ew, moved, oh, half_l + speed * tolerance,
+                             half_w) & reached[:, None]
+    meets = matched.any(axis=0)
+    if not meets.any():
+        return NO_LEADER
+    centre = pos + 0.5 * horizon * vel  # the zone: from -tolerance to horizon + tolerance
+    zone = _boxes_overlap(xy, heading, el, ew, centre[None], oh,
+                          half_l + speed * (0.5 * horizon + tolerance), half_w)
+    along = np.where(zone, s[:, None], np.inf)  # (k, n)
+    entry = along.min(axis=0)  # (n,) where the ego's way enters each zone [m]
+    entry = np.where(meets & (entry > 0.0), entry, np.inf)
+    if not np.isfinite(entry).any():
+        return NO_LEADER
+    return Leader(max(float(entry.min()) - SWEPT_STEP, 0.0), v)
+
+
+def _boxes_overlap(xy: np.ndarray, heading: np.ndarray, half_length: float, half_width: float,
+                   pos: np.ndarray, oh: np.ndarray, half_l: np.ndarray, half_w: np.ndarray
+                   ) -> np.ndarray:
+    """(k, n) bool: whether the ego's box at pose k (centre ``xy`` (k, 2) [m], ``heading``
+    (k,) [rad], half sizes [m]) overlaps road user n's box (centre ``pos`` (k or 1, n, 2)
+    [m], heading ``oh`` (n,) [rad], half sizes ``half_l``, ``half_w`` (n,) [m]): separating
+    axes, touching counts."""
+    eu = np.column_stack([np.cos(heading), np.sin(heading)])[:, None, :]  # (k, 1, 2)
+    ew = np.column_stack([-np.sin(heading), np.cos(heading)])[:, None, :]
+    ou = np.column_stack([np.cos(oh), np.sin(oh)])[None]  # (1, n, 2)
+    ow = np.column_stack([-np.sin(oh), np.cos(oh)])[None]
+    d = pos - xy[:, None, :]  # (k, n, 2)
+    el, ewid = half_length, half_width
+
+    def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return (a * b).sum(axis=-1)
+
+    overlap = np.ones(d.shape[:2], bool)
+    for axis in (eu, ew, ou, ow):
+        reach = (el * np.abs(dot(eu, axis)) + ewid * np.abs(dot(ew, axis))
+                 + half_l * np.abs(dot(ou, axis)) + half_w * np.abs(dot(ow, axis)))
+        overlap &= np.abs(dot(d, axis)) <= reach
+    return overlap
 
 
 @numba.njit(cache=True, nogil=True)

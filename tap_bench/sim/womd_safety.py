@@ -16,6 +16,15 @@ with s the gap [m], v the ego's speed and dv the closing speed [m/s]; IDM's free
 is left to the policy. The cap never asks for more braking than ``emergency_braking``. With
 no road user in the swept box the policy's acceleration goes through.
 
+With ``predicted`` (off by default: the fifth ``ppo-womd`` trained without it) the layer
+also caps for the road users whose own predicted motion meets the ego's way
+(:func:`~tap_bench.sim.womd_observation.predicted_conflict`: the ego's box along its swept
+poses at the speed the policy's acceleration gives, each crossing or oncoming road user's
+box at its velocity and heading, compared at matched times within ``tolerance`` s over the
+same 3 s): the same IDM term for a standing obstacle at the edge of that road user's zone
+(a car turning across the ego's lane, or the ego turning across oncoming traffic). The
+smaller of the two caps applies.
+
 It is part of an agent's action space, chosen by the agent's own action config
 (``{"type": "DiscreteMetaAction", ..., "safety_layer": true}``, or a mapping of
 :class:`SafetyLayer`'s fields), trained and evaluated with it; the env's default action has
@@ -32,6 +41,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from tap_bench.errors import ParameterError
+from tap_bench.sim.womd_observation import PREDICT_TOLERANCE
 
 __all__ = ["SafetyLayer", "safety_layer"]
 
@@ -46,6 +56,9 @@ class SafetyLayer:
         emergency_braking: the most braking the cap asks for [m/s^2] (positive).
         time_gap: IDM's T [s].
         min_gap: IDM's s0, bumper to bumper [m].
+        predicted: also cap for the road users whose predicted motion meets the ego's way.
+        tolerance: with ``predicted``, how much earlier or later [s] a road user may reach
+            the place the ego is at and still count.
         steps: simulated steps the layer judged (an episode's, since :meth:`reset`).
         capped: steps in which it lowered the policy's acceleration.
         braked: steps in which it made the ego brake (the cap < 0) where the policy asked
@@ -57,13 +70,18 @@ class SafetyLayer:
     emergency_braking: float = 8.0
     time_gap: float = 1.0
     min_gap: float = 2.0
+    predicted: bool = False
+    tolerance: float = PREDICT_TOLERANCE
     steps: int = dataclasses.field(default=0, compare=False)
     capped: int = dataclasses.field(default=0, compare=False)
     braked: int = dataclasses.field(default=0, compare=False)
+    foreseen: int = dataclasses.field(default=0, compare=False)
 
     def __post_init__(self) -> None:
+        if not isinstance(self.predicted, bool):
+            raise ParameterError("safety_layer.predicted", self.predicted, "true or false")
         for field in ("max_acceleration", "comfortable_braking", "emergency_braking",
-                      "time_gap", "min_gap"):
+                      "time_gap", "min_gap", "tolerance"):
             value = getattr(self, field)
             if (isinstance(value, bool) or not isinstance(value, int | float)
                     or not math.isfinite(value) or value <= 0):
@@ -72,7 +90,7 @@ class SafetyLayer:
 
     def reset(self) -> None:
         """Zero the counts (a new episode)."""
-        self.steps = self.capped = self.braked = 0
+        self.steps = self.capped = self.braked = self.foreseen = 0
         self._last = None
 
     def cap(self, speed: float, gap: float, closing: float) -> float:
@@ -87,13 +105,21 @@ class SafetyLayer:
 
     def apply(self, ego: Any, others: list[Any], step: int | None = None) -> None:
         """Cap ``ego.action["acceleration"]`` (set by its controller this step) for the
-        nearest of ``others`` in its swept box; count the step once (``step``: the road's
-        clock, a decision's two acts in one step count once)."""
-        from tap_bench.sim.womd_observation import swept_leader
+        nearest of ``others`` in its swept box (and, with :attr:`predicted`, for the nearest
+        predicted conflict); count the step once (``step``: the road's clock, a decision's
+        two acts in one step count once)."""
+        from tap_bench.sim.womd_observation import predicted_conflict, swept_leader
 
         lead = swept_leader(ego, others)
         limit = self.cap(float(ego.speed), lead.gap, lead.closing)
         wanted = float(ego.action["acceleration"])
+        foreseen = False
+        if self.predicted:
+            conflict = predicted_conflict(ego, others, wanted, self.tolerance,
+                                          max_acceleration=self.max_acceleration)
+            ahead = self.cap(float(ego.speed), conflict.gap, conflict.closing)
+            foreseen = ahead < min(limit, wanted)
+            limit = min(limit, ahead)
         new = step is None or step != self._last
         self._last = step
         if new:
@@ -103,6 +129,7 @@ class SafetyLayer:
             if new:
                 self.capped += 1
                 self.braked += bool(limit < 0 <= wanted)
+                self.foreseen += foreseen
 
 
 def safety_layer(setting: Any) -> SafetyLayer | None:
@@ -117,7 +144,7 @@ def safety_layer(setting: Any) -> SafetyLayer | None:
     if setting is True:
         return SafetyLayer()
     fields = [f.name for f in dataclasses.fields(SafetyLayer)
-              if f.name not in ("steps", "capped", "braked")]
+              if f.name not in ("steps", "capped", "braked", "foreseen")]
     if not isinstance(setting, Mapping) or any(key not in fields for key in setting):
         raise ParameterError("action.safety_layer", setting,
                              f"true, false or a mapping of {', '.join(fields)}")
