@@ -32,20 +32,18 @@ import pandas as pd
 from machine import report
 
 from tap_bench.rl.heldout import drivers
-from tap_bench.sim.policies import load_policy
+from tap_bench.sim.policies import Policy, load_policy
 from tap_bench.sim.rollout import policy_overrides, run_episode
 from tap_bench.sim.womd_env import WomdEnv
 from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.stats.aggregate import iqm
 
 
-def policy_env(scenes: WomdScenes, policy: object) -> WomdEnv:
-    """The env ``policy`` drives: with the observation it was trained on, if any, and its
-    own action config (a safety layer), if any."""
-    overrides = policy_overrides(policy)
-    if getattr(policy, "observation", None) is None:  # the scenes' own observation
-        overrides.pop("observation")
-    return WomdEnv(scenes.with_overrides(overrides), record=False)
+def policy_env(scenes: WomdScenes, policy: Policy) -> WomdEnv:
+    """The env ``policy`` drives, configured as a bench run configures it
+    (:func:`tap_bench.sim.rollout.policy_overrides`: the observation it reads, its own
+    action config, a safety layer, if any)."""
+    return WomdEnv(scenes.with_overrides(policy_overrides(policy)), record=False)
 
 
 def episodes(files: list[str], scenes: list[int], policies: list[str]) -> pd.DataFrame:
