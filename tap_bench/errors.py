@@ -8,6 +8,9 @@ error is also a :class:`ValueError` (or :class:`KeyError`) so generic handlers k
 from __future__ import annotations
 
 import difflib
+import os
+import sys
+import warnings
 from collections.abc import Iterable
 
 __all__ = [
@@ -38,6 +41,7 @@ __all__ = [
     "UntrustedModelWarning",
     "CacheEntryWarning",
     "did_you_mean",
+    "warn_caller",
 ]
 
 
@@ -268,3 +272,19 @@ def did_you_mean(kind: str, name: str, known: Iterable[str]) -> UnknownNameError
 class RegistrationError(TapBenchError, ValueError):
     """A registry entry that is refused: a name registered twice, or an entry that lacks a
     required field (a measure without a gate margin)."""
+
+
+_PACKAGE = os.path.dirname(os.path.abspath(__file__)) + os.sep
+
+
+def warn_caller(message: str, category: type[Warning] = UserWarning) -> None:
+    """Warn ``message``, attributed to the first caller outside tap-bench (the user's line
+    that called into it, however deep the call that warns): ``skip_file_prefixes`` of
+    :func:`warnings.warn` (Python 3.12+), the frames counted on older versions."""
+    if sys.version_info >= (3, 12):
+        warnings.warn(message, category, skip_file_prefixes=(_PACKAGE,))
+        return
+    level, frame = 2, sys._getframe(1)  # 2: this function's caller
+    while frame is not None and frame.f_code.co_filename.startswith(_PACKAGE):
+        level, frame = level + 1, frame.f_back
+    warnings.warn(message, category, stacklevel=level)

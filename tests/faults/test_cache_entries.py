@@ -145,9 +145,21 @@ def test_a_refused_entry_is_simulated_again_with_a_note(tmp_path):
     assert (again.summary["cache"]["cached"], again.summary["cache"]["simulated"]) == (0, 2)
     assert len(again.summary["cache"]["refused"]) == 2 and len(notes) == 2
     assert "simulated again" in str(notes[0].message)
+    assert {w.filename for w in notes} == {__file__}  # the user's call of run_suite
     pd.testing.assert_frame_equal(cold.episodes, again.episodes)
     assert sorted(cache.folder.glob("*/*.episode")) == entries  # stored again, whole
     assert all(cache.read(p.stem)[0] is not None for p in entries)
+
+
+def test_a_refused_entry_is_said_at_the_users_line_however_deep_the_check():
+    from tap_bench.bench.run.tasks import check_results
+
+    results = [{"ok": True, "cache_note": f"entry {i} refused"} for i in range(6)]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_results(results, pd.DataFrame(), "tiny")  # called here: said here
+    assert len(caught) == 6
+    assert {w.filename for w in caught} == {__file__}
 
 
 def test_two_envs_of_one_config_under_two_names_do_not_share_episodes(tmp_path):

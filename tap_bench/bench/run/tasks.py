@@ -24,7 +24,12 @@ from tap_bench.bench.run.estimate import RunPlan, estimate
 from tap_bench.bench.run.plan import _Task
 from tap_bench.bench.run.spill import RunSpill, SpilledTable
 from tap_bench.bench.scores.contexts import occurrences_from
-from tap_bench.errors import CacheEntryWarning, EpisodesFailedError, RegistrationError
+from tap_bench.errors import (
+    CacheEntryWarning,
+    EpisodesFailedError,
+    RegistrationError,
+    warn_caller,
+)
 from tap_bench.execution import Backend
 from tap_bench.labelling import tap
 from tap_bench.pathframe import LaneMap
@@ -630,12 +635,11 @@ def check_results(results: list[dict[str, Any]], episodes: pd.DataFrame, suite_n
         raise EpisodesFailedError(f"the {len(results)} episode(s) of suite {suite_name}",
                                   errors)
     refused = [r["cache_note"] for r in results if r.get("cache_note")]
-    for note in refused[:5]:
-        warnings.warn(f"{note}; its episode was simulated again.", CacheEntryWarning,
-                      stacklevel=4)
+    for note in refused[:5]:  # said at the user's call, whatever called this
+        warn_caller(f"{note}; its episode was simulated again.", CacheEntryWarning)
     if len(refused) > 5:
-        warnings.warn(f"{len(refused) - 5} more cache entries refused and simulated again "
-                      "(summary.json lists them all).", CacheEntryWarning, stacklevel=4)
+        warn_caller(f"{len(refused) - 5} more cache entries refused and simulated again "
+                    "(summary.json lists them all).", CacheEntryWarning)
     return refused
 
 
