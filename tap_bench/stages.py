@@ -581,8 +581,9 @@ def _merges(runs: Runs, path: _Path, config: StageConfig, min_steps: int,
                               at_end=True)]
 
     code = runs.expand(m).astype(np.int64)
+    reverse_ids = set(reverse.tolist())  # once, not per merge
     for i in merged.tolist():
-        towards = -side[i] if i in set(reverse.tolist()) else side[i]
+        towards = -side[i] if i in reverse_ids else side[i]
         code[start[i]:stop[i + 1]] = sdl.LEFT_MERGE if towards > 0 else sdl.RIGHT_MERGE
     for i in wiggles.tolist():
         code[start[i]:stop[i + 1]] = sdl.STRAIGHT

@@ -422,12 +422,12 @@ def power_table(episodes: pd.DataFrame, config: GateConfig, *, cells: int | None
     in_play = 1 if paired else max(cells, 1)
     # the gate's figures of each metric, resolved once for every cell
     floor = 1.0 / (config.n_permutations + 1)
-    figures = {metric: dict(margin=config.margin(metric), effect=config.detect
-                            * config.margin(metric), floor=floor, paired=paired,
+    margins = {metric: config.margin(metric) for metric in metrics}
+    figures = {metric: dict(margin=margins[metric], effect=config.detect * margins[metric],
+                            floor=floor, paired=paired, sign=direction(metric),
+                            rate=is_rate(metric),
                             level=config.alpha * config.share(metric) / in_play)
                for metric in metrics}
-    for metric in metrics:
-        figures[metric].update(sign=direction(metric), rate=is_rate(metric))
     rows = []
     for env, policy in keys:
         sub = ok[(ok["env"] == env) & (ok["policy"] == policy)]
