@@ -244,9 +244,9 @@ _CONTRACT_FIX = ("A closed-loop scene is built only from records that keep the t
                  "scenario out (the other scenes still run).")
 
 
-def _read(ref: SceneRef) -> tuple[pd.DataFrame, RoadMap, str]:
-    """Decode ``ref`` into (trajectory table, road map, content hash), its tracks checked
-    as ``tap-bench ingest`` checks each scenario it reads.
+def _read(ref: SceneRef) -> tuple[_Columns, RoadMap, str]:
+    """Decode ``ref`` into (its trajectory table's columns, road map, content hash), its
+    tracks checked as ``tap-bench ingest`` checks each scenario it reads.
 
     Raises:
         WomdRecordError: the record cannot be decoded, or its table breaks the trajectory
@@ -261,12 +261,14 @@ def _read(ref: SceneRef) -> tuple[pd.DataFrame, RoadMap, str]:
     from tap_bench.womd.scenario import decode_scenario
     from tap_bench.womd.tf_example import decode_tf_example
 
-    def checked(table: Any, record: int, offset: int) -> pd.DataFrame:
+    def checked(table: Any, record: int, offset: int) -> _Columns:
+        if _keeps_contract(table):  # seen on its arrays: no pandas table needed
+            return _ArrowColumns(table)
         frame = table.to_pandas()
         problem = _frame_contract_problem(frame, _scenario_id(table)) if len(frame) else None
         if problem:
             raise WomdRecordError(ref.path, record, offset, problem.rstrip("."), _CONTRACT_FIX)
-        return frame
+        return _FrameColumns(frame)
 
     if ref.format == "scenarionet":
         data = Path(ref.path).read_bytes()
@@ -282,7 +284,7 @@ def _read(ref: SceneRef) -> tuple[pd.DataFrame, RoadMap, str]:
         table = checked(decode_tf_example(record), record.index, record.offset)
         road = roadmap.tf_example_road_map(record.data, source=str(ref))
         if road is None:
-            road = roadmap.RoadMap(str(table["scenario_id"].iloc[0]), {}, topology="none")
+            road = roadmap.RoadMap(str(table.first("scenario_id")), {}, topology="none")
     return table, road, hashlib.sha256(record.data).hexdigest()
 
 
@@ -299,12 +301,11 @@ def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:
         WomdRecordError: the record cannot be decoded.
     """
     import numpy as np
-    import pandas as pd
 
     table, road, digest = _read(ref)
-    sid = str(table["scenario_id"].iloc[0]) if len(table) else road.scenario_id
+    sid = str(table.first("scenario_id")) if len(table) else road.scenario_id
     where = f"scenario {sid} ({ref})"
-    tracks = pd.unique(table["track_id"])
+    tracks = table.tracks()
     n = len(tracks)
     if n == 0:
         raise SceneError(f"{where}: no tracks.")
@@ -314,10 +315,10 @@ def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:
                          f"{CURRENT_STEP + 1} (1.0 s of history, then the future). Leave it out.")
 
     def grid(col: str) -> np.ndarray:
-        return table[col].to_numpy(float).reshape(n, t)
+        return table.values(col, float).reshape(n, t)
 
-    valid = table["valid"].to_numpy(bool).reshape(n, t)
-    is_ego = table["is_ego"].to_numpy(bool).reshape(n, t)[:, 0]
+    valid = table.values("valid", bool).reshape(n, t)
+    is_ego = table.values("is_ego", bool).reshape(n, t)[:, 0]
     if ego == "sdc":
         rows = np.flatnonzero(is_ego)
         if not len(rows):
@@ -334,7 +335,8 @@ def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:
         raise SceneError(f"{where}: the ego (track {tracks[row]}) is not valid at the current "
                          "time (1.0 s), so nothing can take it over there. Choose another "
                          "track with --ego, or leave the scenario out.")
-    if table["object_type"].to_numpy().reshape(n, t)[row, 0] != "vehicle":
+    object_types = table.per_track("object_type", n, t)
+    if object_types[row] != "vehicle":
         raise SceneError(f"{where}: the ego (track {tracks[row]}) is not a vehicle.")
     from tap_bench.sim.womd_lanes import lane_points
 
@@ -347,14 +349,169 @@ def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:
     speed = grid("speed")
     sizes = {}
     for col, default in (("length", 4.8), ("width", 2.0)):
-        values = grid(col) if col in table.columns else np.full((n, t), np.nan)
+        values = grid(col) if col in table.names else np.full((n, t), np.nan)
         with np.errstate(invalid="ignore"):
             values = np.where(valid & np.isfinite(values) & (values > 0), values, np.nan)
         sizes[col] = _row_medians(values, default)
-    times = table["t"].to_numpy(float)[:t]
-    return Scene(sid, ref, digest, times, tracks.astype(str),
-                 table["object_type"].to_numpy().reshape(n, t)[:, 0].astype(str), x, y,
+    times = table.values("t", float)[:t]
+    return Scene(sid, ref, digest, times, tracks.astype(str), object_types.astype(str), x, y,
                  heading, vx, vy, speed, valid, sizes["length"], sizes["width"], row, road)
+
+
+class _Columns:
+    """The reads :func:`load_scene` makes of a decoded scenario's trajectory table (one
+    row per track per step, track by track)."""
+
+    names: tuple[str, ...]
+
+    def __len__(self) -> int:
+        raise NotImplementedError
+
+    def first(self, name: str) -> Any:
+        """The column's value on the first row."""
+        raise NotImplementedError
+
+    def tracks(self) -> Any:
+        """The track ids in the order first met (``pandas.unique``)."""
+        raise NotImplementedError
+
+    def values(self, name: str, dtype: type) -> np.ndarray:
+        """(rows,) the column as ``dtype``."""
+        raise NotImplementedError
+
+    def per_track(self, name: str, n: int, t: int) -> np.ndarray:
+        """(n,) the column on each track's first row (n tracks of t rows each)."""
+        raise NotImplementedError
+
+
+class _FrameColumns(_Columns):
+    """A table checked through pandas (:func:`tap_bench.trajectories.validate_and_index`)."""
+
+    def __init__(self, frame: pd.DataFrame) -> None:
+        self.frame = frame
+        self.names = tuple(frame.columns)
+
+    def __len__(self) -> int:
+        return len(self.frame)
+
+    def first(self, name: str) -> Any:
+        return self.frame[name].iloc[0]
+
+    def tracks(self) -> Any:
+        import pandas as pd
+
+        return pd.unique(self.frame["track_id"])
+
+    def values(self, name: str, dtype: type) -> np.ndarray:
+        return self.frame[name].to_numpy(dtype)
+
+    def per_track(self, name: str, n: int, t: int) -> np.ndarray:
+        return self.frame[name].to_numpy().reshape(n, t)[:, 0]
+
+
+class _ArrowColumns(_Columns):
+    """A decoded Arrow table :func:`_keeps_contract` passed: its columns read as arrays."""
+
+    def __init__(self, table: Any) -> None:
+        self.table = table
+        self.names = tuple(table.column_names)
+
+    def __len__(self) -> int:
+        return self.table.num_rows
+
+    def first(self, name: str) -> Any:
+        return self.table.column(name)[0].as_py()
+
+    def tracks(self) -> Any:
+        import pandas as pd
+        import pyarrow.compute as pc
+
+        # as pandas.unique gives them of the column pandas makes of Arrow strings
+        return pd.array(pc.unique(self.table.column("track_id")),
+                        dtype=pd.api.types.pandas_dtype(str))
+
+    def values(self, name: str, dtype: type) -> np.ndarray:
+        import numpy as np
+
+        return np.asarray(self.table.column(name).to_numpy(), dtype=dtype)
+
+    def per_track(self, name: str, n: int, t: int) -> np.ndarray:
+        import numpy as np
+
+        column = self.table.column(name).take(np.arange(n, dtype=np.int64) * t)
+        return column.to_numpy(zero_copy_only=False)
+
+
+_FLOAT_COLUMNS = ("t", "x", "y", "heading", "speed", "vx", "vy", "length", "width")
+_FLAG_COLUMNS = ("valid", "is_ego")
+_TEXT_COLUMNS = ("scenario_id", "track_id", "object_type")
+
+
+def _keeps_contract(table: Any) -> bool:
+    """Whether a decoded scenario's Arrow table keeps the trajectory contract on sight of
+    its arrays: one scenario, each track's rows together, float kinematics without
+    infinities, no NaN on a valid row where the contract refuses one, speeds, positions and
+    headings within the contract's bounds, regular 0.1 s steps, the contract's object types.
+
+    A table that passes keeps :func:`tap_bench.trajectories.validate_and_index`'s contract;
+    one that does not may keep it still (gaps of whole steps, other column types ...):
+    pandas then checks it and names what is wrong."""
+    import numpy as np
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    from tap_bench.trajectories import (
+        DT,
+        DT_TOLERANCE,
+        MAX_COORDINATE,
+        MAX_SPEED,
+        OBJECT_TYPES,
+    )
+
+    rows = table.num_rows
+    schema = table.schema
+    if not rows or "crashed" in schema.names or len(set(schema.names)) != len(schema.names):
+        return False
+    for names, kind in ((_FLOAT_COLUMNS, pa.float64()), (_FLAG_COLUMNS, pa.bool_()),
+                        (_TEXT_COLUMNS, pa.string())):
+        for name in names:
+            if (name not in schema.names or schema.field(name).type != kind
+                    or table.column(name).null_count):
+                return False
+    if pc.count_distinct(table.column("scenario_id")).as_py() != 1:
+        return False
+    kinds = pc.unique(table.column("object_type")).to_pylist()
+    if not all(kind in OBJECT_TYPES for kind in kinds):
+        return False
+    encoded = pc.dictionary_encode(table.column("track_id")).combine_chunks()
+    n = len(encoded.dictionary)
+    if rows % n:
+        return False
+    t = rows // n
+    codes = encoded.indices.to_numpy()
+    if not np.array_equal(codes, np.repeat(np.arange(n, dtype=codes.dtype), t)):
+        return False
+    valid = table.column("valid").to_numpy()
+    columns = {name: table.column(name).to_numpy() for name in _FLOAT_COLUMNS[:7]}
+    with np.errstate(invalid="ignore"):
+        for values in columns.values():
+            if np.isinf(values).any():
+                return False
+        if np.isnan(columns["t"]).any():
+            return False
+        for name in ("x", "y", "heading", "speed"):
+            if (np.isnan(columns[name]) & valid).any():
+                return False
+        speed = columns["speed"]
+        if (valid & ((speed < 0) | (speed > MAX_SPEED))).any():
+            return False
+        if (valid & ((np.abs(columns["x"]) > MAX_COORDINATE)
+                     | (np.abs(columns["y"]) > MAX_COORDINATE))).any():
+            return False
+        if (valid & (np.abs(columns["heading"]) > 2.0 * np.pi + 1e-6)).any():
+            return False
+        steps = np.diff(columns["t"].reshape(n, t), axis=1) / DT
+        return bool((np.abs(steps - 1.0) <= DT_TOLERANCE).all())
 
 
 def _row_medians(values: np.ndarray, default: float) -> np.ndarray:

@@ -565,13 +565,73 @@ def scenario_road_map(data: bytes, *, source: str = "<record>") -> RoadMap:
         FileFormatError: the bytes are not a Scenario.
     """
     from tap_bench.womd import proto
+    from tap_bench.womd.map_wire import read_map_wire
 
-    try:
+    wire = read_map_wire(data)
+    if wire is not None:
+        return _wire_road_map(wire, source)
+    try:  # what the compiled reader leaves to protobuf (malformed bytes among them)
         view = proto.ScenarioMapPointsView.FromString(data)
         return _scenario_road_map(view, source)
     except DecodeError as err:
         raise FileFormatError(f"{source}: not a serialized WOMD Scenario proto (protobuf: "
                               f"{err}).") from None
+
+
+def _wire_road_map(wire: Any, source: str) -> RoadMap:
+    """The road map of a Scenario's map read from its wire format
+    (:class:`tap_bench.womd.map_wire.MapWire`): what :func:`_scenario_road_map` makes of
+    the same record read by protobuf."""
+    ids = wire.ids.tolist()
+    neighbours = [Neighbour(*row) for row in wire.neighbours.tolist()]
+    bounds = [tuple(row) for row in wire.boundaries.tolist()]
+    speeds = wire.speed_limit_mph.tolist()
+    points = wire.points
+    raw, stops, lines, edges, crosswalks = [], [], {}, [], []
+    for k, (fid, kind, p0, p1, lane_type, has_speed, e0, e1, x0, x1, l0, l1, r0, r1, lb0,
+            lb1, rb0, rb1, s0, s1) in enumerate(wire.features.tolist()):
+        if kind == 1:  # a lane
+            raw.append({"id": fid, "type": LANE_TYPES.get(lane_type, "undefined"),
+                        "speed_limit": speeds[k] * MPH if has_speed else np.nan,
+                        "entry": tuple(ids[e0:e1]), "exit": tuple(ids[x0:x1]),
+                        "left": tuple(neighbours[l0:l1]), "right": tuple(neighbours[r0:r1]),
+                        "left_b": bounds[lb0:lb1], "right_b": bounds[rb0:rb1],
+                        "centre": points[p0:p1]})
+        elif kind in (2, 3):  # a road line, a road edge
+            pts = points[p0:p1]
+            lines[fid] = pts
+            if kind == 3 and len(pts) >= 2:
+                edges.append(pts)
+        elif kind == 4:  # a crosswalk
+            if p1 - p0 >= 3:
+                crosswalks.append(points[p0:p1])
+        elif kind == 5:  # a stop sign
+            stops.append(StopSign(fid, wire.stop_position[k].copy(), tuple(ids[s0:s1])))
+    signals = _wire_signals(wire)
+    return _finish(wire.scenario_id, raw, lines, edges, crosswalks, stops, signals, source,
+                   topology_given=True)
+
+
+def _wire_signals(wire: Any) -> SignalStates:
+    """:func:`_scenario_signals` of a map read from its wire format: the lanes in the order
+    first met, each one's first stop point, a step's last state of a lane kept."""
+    lane, step = wire.signal_lane, wire.signal_step
+    values, first, which = np.unique(lane, return_index=True, return_inverse=True)
+    order = np.argsort(first, kind="stable")  # lanes in the order first met
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.arange(len(order))
+    column = rank[which]
+    state = np.where((wire.signal_state >= 0) & (wire.signal_state < len(LANE_STATES)),
+                     wire.signal_state, 0).astype(np.int8)
+    grid = np.zeros((max(wire.n_timestamps, wire.n_map_states), len(values)), np.int8)
+    cell = step * max(len(values), 1) + column
+    if len(np.unique(cell)) == len(cell):
+        grid[step, column] = state
+    else:  # a lane reported twice in a step: its last state, as read one by one
+        for i, k, value in zip(step.tolist(), column.tolist(), state.tolist(), strict=True):
+            grid[i, k] = value
+    return SignalStates(values[order].astype(np.int64), grid,
+                        wire.signal_stop[first[order]].reshape(-1, 2))
 
 
 def _scenario_road_map(view: Any, source: str) -> RoadMap:
