@@ -21,6 +21,13 @@ maneuver level) and the script counts:
     python benchmarks/bench_lane_change_merges.py [--seeds 0-99] [--workers 2] [--save FILE]
         [--policies idm,idm-aggressive,idm-defensive]
     python benchmarks/bench_lane_change_merges.py --load FILE   # score a saved rollout again
+
+``--every-vehicle`` counts instead, per policy, the vehicles (the ego and the traffic) of
+the highway seeds whose maneuver-level lateral labels have a Turn (docs/tap.md's table of
+the lane-change rules):
+
+    python benchmarks/bench_lane_change_merges.py --seeds 0-59 \\
+        --policies idm,idm-aggressive,idm-defensive --every-vehicle
 """
 
 from __future__ import annotations
@@ -99,6 +106,34 @@ def turn_shares(egos: pd.DataFrame) -> dict:
     return out
 
 
+def vehicles_with_a_turn(labels: pd.DataFrame) -> dict:
+    """Of a label table (:meth:`tap_bench.TapResult.labels`, one row per segment of each
+    vehicle): the vehicles (``scenario_id``, ``track_id``), those with a Turn in any
+    ``lateral`` label, the egos among both, and which vehicles have a Turn (``seed s vehicle
+    k``, ``(ego)`` for the ego)."""
+    turn = labels["lateral"].str.contains("Turn").groupby(
+        [labels["scenario_id"], labels["track_id"]], sort=True).any()
+    ego = labels.groupby(["scenario_id", "track_id"], sort=True)["is_ego"].first()
+    seed = labels.groupby(["scenario_id", "track_id"], sort=True)["seed"].first()
+    which = [f"seed {seed[key]} vehicle {key[1]}" + (" (ego)" if ego[key] else "")
+             for key in turn.index[turn.to_numpy()]]
+    return {"vehicles": len(turn), "with_a_turn": int(turn.sum()),
+            "egos": int(ego.sum()), "egos_with_a_turn": int((turn & ego).sum()),
+            "which": which}
+
+
+def every_vehicle(policies: list[str], seeds: str, workers: int) -> dict:
+    """Per policy (and ``all``): :func:`vehicles_with_a_turn` of every vehicle of its
+    highway rollout of ``seeds`` (paper thresholds, maneuver level)."""
+    figures: dict = {}
+    for policy in policies:
+        table, _ = rollout("highway", policy, seeds, workers=workers, progress=False)
+        figures[policy] = vehicles_with_a_turn(tb.tap(table, "paper").labels("maneuver"))
+    figures["all"] = {key: sum(f[key] for f in figures.values())
+                      for key in ("vehicles", "with_a_turn", "egos", "egos_with_a_turn")}
+    return figures
+
+
 def _found(changes: pd.DataFrame, runs: pd.DataFrame) -> dict:
     """How many of ``changes`` fall in a merge run of their side, and what the others got."""
     found, wrong_side, other = 0, 0, {}
@@ -130,9 +165,17 @@ def main() -> None:
     parser.add_argument("--policies", default="idm",
                         help="comma-separated policies whose Turn-label share is given "
                         "(the first, idm, is the one whose lane changes are scored)")
+    parser.add_argument("--every-vehicle", action="store_true",
+                        help="count, per policy, the vehicles (ego and traffic) of the "
+                        "highway seeds whose labels have a Turn, instead")
     args = parser.parse_args()
     warnings.filterwarnings("ignore")
     policies = [p.strip() for p in args.policies.split(",") if p.strip()]
+    if args.every_vehicle:
+        report("lane_change_turns_every_vehicle",
+               every_vehicle(policies, args.seeds, args.workers), seeds=args.seeds,
+               env="highway", policies=policies, thresholds="paper", level="maneuver")
+        return
     figures, egos, every = {}, [], []
     if args.load:
         loaded = tb.read_table(args.load)
