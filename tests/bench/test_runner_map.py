@@ -126,3 +126,31 @@ def test_the_label_cache_key_says_the_road_was_used():
 
     tasks = _tasks(plan_suite(suite), False, _NoCache())
     assert tasks[0].label_doc["map"] == ROAD_MAP
+
+
+def test_an_env_whose_road_cannot_be_drawn_fails_its_episodes_not_the_run(tmp_path,
+                                                                          monkeypatch):
+    from tap_bench.bench.run.runner import run_suite
+    from tap_bench.sim import roads
+
+    drawn = roads.road_table
+
+    def no_merge_road(scenario):
+        if scenario.name == "merge":
+            raise RuntimeError("no road for merge")
+        return drawn(scenario)
+
+    monkeypatch.setattr(roads, "road_table", no_merge_road)
+    suite = suite_from_dict({"name": "tiny", "envs": ["merge", "highway"],
+                             "policies": ["idm"], "seeds": "0",
+                             "env_overrides": {"merge": {"duration": 1},
+                                               "highway": {"duration": 1}}},
+                            check_names=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = run_suite(suite, tmp_path / "run", workers=1, progress=False, report=False)
+    status = result.episodes.set_index("env")["status"]
+    assert status["highway"] == "ok" and status["merge"] != "ok"
+    assert "no road for merge" in result.episodes.set_index("env")["error"]["merge"]
+    maps = pd.read_parquet(tmp_path / "run" / "roads.parquet")
+    assert set(maps["map_id"].astype(str)) == {"highway"}

@@ -1,6 +1,7 @@
-"""The episodes step of a suite run: each env's map drawn once, every task run on the
-backend (:mod:`tap_bench.bench.run.tasks`), the results gathered into the run's tables
-(on disk for recorded scenes: :mod:`tap_bench.bench.run.spill`) and checked (part of
+"""The episodes step of a suite run: every task run on the backend
+(:mod:`tap_bench.bench.run.tasks`; each env's road drawn once, for its tasks), the results
+gathered into the run's tables (on disk for recorded scenes: :mod:`tap_bench.bench.run.
+spill`) and checked, then each env's map kept for the run folder (part of
 :mod:`tap_bench.bench.run.runner`)."""
 
 from __future__ import annotations
@@ -76,9 +77,12 @@ class _Roads:
     def kept(self, envs: Sequence[str], spill: RunSpill | None
              ) -> pd.DataFrame | SpilledTable:
         """The map tables of ``envs`` for the run folder: one table, or (a spilled run)
-        written to the spill's parts, a recorded scene's map at a time (the same rows)."""
+        written to the spill's parts, a recorded scene's map at a time (the same rows). A
+        highway-env road that cannot be drawn is left out: its env's episodes failed on it
+        and name the error (:func:`~tap_bench.bench.run.tasks._with_roads`)."""
         if spill is None:
-            return pd.concat([self(env) for env in envs], ignore_index=True)
+            return pd.concat([table for env in envs for table in self._tables(env)],
+                             ignore_index=True)
         tables = (table for env in envs for table in self._tables(env))  # one at a time
         return spill.keep_maps(tables)
 
@@ -88,8 +92,12 @@ class _Roads:
             from tap_bench.sources.maps import iter_maps
 
             yield from iter_maps(scenario.files)
-        else:
-            yield self(env)
+            return
+        try:
+            table = self(env)
+        except Exception:  # the episodes failed on it and say why
+            return
+        yield table
 
 
 def _table_files(table: pd.DataFrame) -> dict[str, bytes]:
@@ -155,8 +163,6 @@ def run_episodes(tasks: list[_Task], name: str, scenarios: Mapping[str, Scenario
     """
     roads = _Roads(scenarios, cache)
     spill = RunSpill(output) if recorded else None
-    # the replay viewer draws the roads; highway-env's road is seed-free
-    maps = roads.kept(list(scenarios), spill) if keep_maps else None
     t0 = time.perf_counter()
     kept = getattr(backend, "kept", None)  # the estimate's first episodes and the rest
     with kept() if kept is not None else contextlib.nullcontext():  # on the same workers
@@ -165,5 +171,9 @@ def run_episodes(tasks: list[_Task], name: str, scenarios: Mapping[str, Scenario
     timings["rollouts_wall"] = time.perf_counter() - t0
     tables = RunTables.of(results, keep_tables, timings, spill)
     refused = check_results(results, tables.episodes, name)
+    # the maps for the run folder (the replay viewer draws them, tap-bench label reads
+    # them), every env's, once some episode ran: a road the rollouts drew is not drawn
+    # again (highway-env's road is seed-free); recorded scenes' are read from their files
+    maps = roads.kept(list(scenarios), spill) if keep_maps else None
     return RunEpisodes(tables, maps, estimate, refused, cache_facts(cache, results, refused),
                        spill, observed_timings(results, backend.workers))
