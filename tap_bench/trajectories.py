@@ -32,6 +32,7 @@ from tap_bench.errors import TrajectoryTableError, did_you_mean
 if TYPE_CHECKING:
     import numpy as np
     import pandas as pd
+    import pyarrow as pa
 
 __all__ = [
     "DT",
@@ -40,6 +41,7 @@ __all__ = [
     "OBJECT_TYPES",
     "OPTIONAL_COLUMNS",
     "REQUIRED_COLUMNS",
+    "plainly_valid",
     "validate_trajectories",
 ]
 
@@ -480,6 +482,104 @@ def _ranks(distinct) -> np.ndarray:
     rank = np.empty(len(order), np.int64)
     rank[order] = np.arange(len(order))
     return rank
+
+
+_PLAIN_FLOATS = ("t", "x", "y", "heading", "speed", "vx", "vy")
+_PLAIN_FLAGS = ("valid", "is_ego", "crashed")
+_PLAIN_TEXT = ("scenario_id", "track_id", "object_type")
+
+
+def plainly_valid(table: pd.DataFrame | pa.Table, *, floats: tuple[str, ...] = ()) -> bool:
+    """Whether a one-scenario table (a pandas DataFrame or an Arrow table) keeps the
+    contract on sight of its arrays, without :func:`validate_and_index`'s pandas work: its
+    columns named once each, ``t``, ``x``, ``y``, ``heading``, ``speed``, ``vx``, ``vy``
+    (and ``floats``) float64, ``valid`` (and ``is_ego``, ``crashed`` where present) bool,
+    ``scenario_id``, ``track_id`` (and ``object_type`` where present) Arrow-backed strings,
+    none missing; one scenario, each track's rows together and of one length; nothing
+    infinite, no NaN time, no NaN position, heading or speed on a valid row, speeds,
+    positions and headings within the contract's bounds, every step a regular 0.1 s, the
+    contract's object types.
+
+    A table that passes keeps the contract (:func:`validate_and_index` accepts it); one that
+    does not may keep it still (gaps of whole steps, tracks interleaved, other column
+    types ...): :func:`validate_and_index` then decides and names what is wrong."""
+    import numpy as np
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    if isinstance(table, pa.Table):
+        names = table.schema.names
+        rows = table.num_rows
+    else:
+        names = [str(c) for c in table.columns]
+        rows = len(table)
+    present = set(names)
+    if (not rows or len(present) != len(names)
+            or not {*_PLAIN_FLOATS, *floats, "valid", "scenario_id", "track_id"} <= present):
+        return False
+    arrays: dict[str, np.ndarray] = {}
+    text: dict[str, pa.ChunkedArray] = {}
+    for name in (*_PLAIN_FLOATS, *floats, *_PLAIN_FLAGS, *_PLAIN_TEXT):
+        if name not in present:
+            continue
+        kind = (np.float64 if name in _PLAIN_FLOATS or name in floats
+                else np.bool_ if name in _PLAIN_FLAGS else str)
+        if isinstance(table, pa.Table):
+            column = table.column(name)
+            expected = {np.float64: pa.float64(), np.bool_: pa.bool_(), str: pa.string()}
+            if column.type != expected[kind] or column.null_count:
+                return False
+            if kind is str:
+                text[name] = column
+            else:
+                arrays[name] = column.to_numpy()
+            continue
+        column = table[name]
+        if kind is str:
+            if not (_plain_strings(column) and column.dtype.storage == "pyarrow"):
+                return False
+            values = column.array.__arrow_array__()
+            if values.null_count:
+                return False
+            text[name] = values if isinstance(values, pa.ChunkedArray) else (
+                pa.chunked_array([values]))
+        elif column.dtype != kind:
+            return False
+        else:
+            arrays[name] = column.to_numpy()
+    if pc.count_distinct(text["scenario_id"]).as_py() != 1:
+        return False
+    if "object_type" in text and not all(
+            kind in OBJECT_TYPES for kind in pc.unique(text["object_type"]).to_pylist()):
+        return False
+    encoded = pc.dictionary_encode(text["track_id"]).combine_chunks()
+    n = len(encoded.dictionary)
+    if rows % n:
+        return False
+    steps = rows // n
+    codes = encoded.indices.to_numpy()
+    if not np.array_equal(codes, np.repeat(np.arange(n, dtype=codes.dtype), steps)):
+        return False
+    valid = arrays["valid"]
+    with np.errstate(invalid="ignore"):
+        for name in _PLAIN_FLOATS:
+            if np.isinf(arrays[name]).any():
+                return False
+        if np.isnan(arrays["t"]).any():
+            return False
+        for name in ("x", "y", "heading", "speed"):
+            if (np.isnan(arrays[name]) & valid).any():
+                return False
+        speed = arrays["speed"]
+        if (valid & ((speed < 0) | (speed > MAX_SPEED))).any():
+            return False
+        if (valid & ((np.abs(arrays["x"]) > MAX_COORDINATE)
+                     | (np.abs(arrays["y"]) > MAX_COORDINATE))).any():
+            return False
+        if (valid & (np.abs(arrays["heading"]) > _TWO_PI + 1e-6)).any():
+            return False
+        dt = np.diff(arrays["t"].reshape(n, steps), axis=1) / DT
+        return bool((np.abs(dt - 1.0) <= DT_TOLERANCE).all())
 
 
 def validate_and_index(table: pd.DataFrame, *, source: str = "trajectory table") -> CheckedTable:

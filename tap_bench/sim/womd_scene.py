@@ -442,76 +442,14 @@ class _ArrowColumns(_Columns):
         return column.to_numpy(zero_copy_only=False)
 
 
-_FLOAT_COLUMNS = ("t", "x", "y", "heading", "speed", "vx", "vy", "length", "width")
-_FLAG_COLUMNS = ("valid", "is_ego")
-_TEXT_COLUMNS = ("scenario_id", "track_id", "object_type")
-
-
 def _keeps_contract(table: Any) -> bool:
     """Whether a decoded scenario's Arrow table keeps the trajectory contract on sight of
-    its arrays: one scenario, each track's rows together, float kinematics without
-    infinities, no NaN on a valid row where the contract refuses one, speeds, positions and
-    headings within the contract's bounds, regular 0.1 s steps, the contract's object types.
+    its arrays, its kinematics and sizes float64 (:func:`tap_bench.trajectories.
+    plainly_valid`); one that does not goes through pandas' check, which names what is
+    wrong."""
+    from tap_bench.trajectories import plainly_valid
 
-    A table that passes keeps :func:`tap_bench.trajectories.validate_and_index`'s contract;
-    one that does not may keep it still (gaps of whole steps, other column types ...):
-    pandas then checks it and names what is wrong."""
-    import numpy as np
-    import pyarrow as pa
-    import pyarrow.compute as pc
-
-    from tap_bench.trajectories import (
-        DT,
-        DT_TOLERANCE,
-        MAX_COORDINATE,
-        MAX_SPEED,
-        OBJECT_TYPES,
-    )
-
-    rows = table.num_rows
-    schema = table.schema
-    if not rows or "crashed" in schema.names or len(set(schema.names)) != len(schema.names):
-        return False
-    for names, kind in ((_FLOAT_COLUMNS, pa.float64()), (_FLAG_COLUMNS, pa.bool_()),
-                        (_TEXT_COLUMNS, pa.string())):
-        for name in names:
-            if (name not in schema.names or schema.field(name).type != kind
-                    or table.column(name).null_count):
-                return False
-    if pc.count_distinct(table.column("scenario_id")).as_py() != 1:
-        return False
-    kinds = pc.unique(table.column("object_type")).to_pylist()
-    if not all(kind in OBJECT_TYPES for kind in kinds):
-        return False
-    encoded = pc.dictionary_encode(table.column("track_id")).combine_chunks()
-    n = len(encoded.dictionary)
-    if rows % n:
-        return False
-    t = rows // n
-    codes = encoded.indices.to_numpy()
-    if not np.array_equal(codes, np.repeat(np.arange(n, dtype=codes.dtype), t)):
-        return False
-    valid = table.column("valid").to_numpy()
-    columns = {name: table.column(name).to_numpy() for name in _FLOAT_COLUMNS[:7]}
-    with np.errstate(invalid="ignore"):
-        for values in columns.values():
-            if np.isinf(values).any():
-                return False
-        if np.isnan(columns["t"]).any():
-            return False
-        for name in ("x", "y", "heading", "speed"):
-            if (np.isnan(columns[name]) & valid).any():
-                return False
-        speed = columns["speed"]
-        if (valid & ((speed < 0) | (speed > MAX_SPEED))).any():
-            return False
-        if (valid & ((np.abs(columns["x"]) > MAX_COORDINATE)
-                     | (np.abs(columns["y"]) > MAX_COORDINATE))).any():
-            return False
-        if (valid & (np.abs(columns["heading"]) > 2.0 * np.pi + 1e-6)).any():
-            return False
-        steps = np.diff(columns["t"].reshape(n, t), axis=1) / DT
-        return bool((np.abs(steps - 1.0) <= DT_TOLERANCE).all())
+    return plainly_valid(table, floats=("length", "width"))
 
 
 def _row_medians(values: np.ndarray, default: float) -> np.ndarray:

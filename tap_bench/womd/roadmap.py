@@ -441,16 +441,51 @@ def _finish(scenario_id: str, raw: list[dict], lines: dict[int, np.ndarray], edg
             stops, signals: SignalStates, source: str, topology_given: bool) -> RoadMap:
     """Build the :class:`RoadMap` from lanes read as dicts (id, centre, type, speed_limit,
     entry, exit, left, right, left_b, right_b)."""
-    lanes: dict[int, Lane] = {}
+    columns = _LaneColumns(
+        ids=[int(r["id"]) for r in raw], types=[r.get("type", "undefined") for r in raw],
+        speed_limits=[float(r.get("speed_limit", np.nan)) for r in raw],
+        entries=[tuple(r.get("entry", ())) for r in raw],
+        exits=[tuple(r.get("exit", ())) for r in raw],
+        lefts=[tuple(r.get("left", ())) for r in raw],
+        rights=[tuple(r.get("right", ())) for r in raw],
+        left_bounds=[r.get("left_b", ()) for r in raw],
+        right_bounds=[r.get("right_b", ()) for r in raw])
     centres = _finite_rows([r["centre"] for r in raw])
-    widths = _widths([(centre, r.get("left_b", ()), r.get("right_b", ()))
-                      for centre, r in zip(centres, raw, strict=True)], lines)
-    for r, centre, (width, measured) in zip(raw, centres, widths, strict=True):
-        lanes[int(r["id"])] = Lane(
-            id=int(r["id"]), centre=centre, type=r.get("type", "undefined"),
-            speed_limit=float(r.get("speed_limit", np.nan)), entry=tuple(r.get("entry", ())),
-            exit=tuple(r.get("exit", ())), left=tuple(r.get("left", ())),
-            right=tuple(r.get("right", ())), width=width, width_measured=measured)
+    return _finish_columns(scenario_id, columns, centres, lines, edges, crosswalks, stops,
+                           signals, source, topology_given)
+
+
+@dataclass
+class _LaneColumns:
+    """A map's lanes as lists, one item per lane: ids, types, speed limits [m/s], entry and
+    exit ids (tuples), left and right neighbours (tuples of :class:`Neighbour`), left and
+    right boundary segments ((start, end, line id) each)."""
+
+    ids: list[int]
+    types: list[str]
+    speed_limits: list[float]
+    entries: list[tuple[int, ...]]
+    exits: list[tuple[int, ...]]
+    lefts: list[tuple[Neighbour, ...]]
+    rights: list[tuple[Neighbour, ...]]
+    left_bounds: list
+    right_bounds: list
+
+
+def _finish_columns(scenario_id: str, raw: _LaneColumns, centres: list[np.ndarray],
+                    lines: dict[int, np.ndarray], edges, crosswalks, stops,
+                    signals: SignalStates, source: str, topology_given: bool) -> RoadMap:
+    """:func:`_finish` of lanes as columns, their centre lines already without points that
+    are not finite."""
+    lanes: dict[int, Lane] = {}
+    widths = _widths(list(zip(centres, raw.left_bounds, raw.right_bounds, strict=True)),
+                     lines)
+    for (lane_id, centre, lane_type, speed, entry, exit_, left, right,
+         (width, measured)) in zip(raw.ids, centres, raw.types, raw.speed_limits, raw.entries,
+                                   raw.exits, raw.lefts, raw.rights, widths, strict=True):
+        lanes[lane_id] = Lane(id=lane_id, centre=centre, type=lane_type, speed_limit=speed,
+                              entry=entry, exit=exit_, left=left, right=right, width=width,
+                              width_measured=measured)
     has_links = any(lane.entry or lane.exit for lane in lanes.values())
     topology, added = "given", 0
     if not lanes:
@@ -585,31 +620,53 @@ def _wire_road_map(wire: Any, source: str) -> RoadMap:
     ids = wire.ids.tolist()
     neighbours = [Neighbour(*row) for row in wire.neighbours.tolist()]
     bounds = [tuple(row) for row in wire.boundaries.tolist()]
-    speeds = wire.speed_limit_mph.tolist()
+    features = wire.features
+    kind = features[:, 1]
+    lane_rows = np.flatnonzero(kind == 1)
+    (lane_ids, p0, p1, lane_types, has_speed, e0, e1, x0, x1, l0, l1, r0, r1, lb0, lb1, rb0,
+     rb1) = features[lane_rows][:, [0, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16,
+                                    17]].T.tolist()
+    mph = (wire.speed_limit_mph[lane_rows] * MPH).tolist()
+    columns = _LaneColumns(
+        ids=lane_ids, types=[LANE_TYPES.get(k, "undefined") for k in lane_types],
+        speed_limits=[v if has else np.nan for v, has in zip(mph, has_speed, strict=True)],
+        entries=[tuple(ids[a:b]) for a, b in zip(e0, e1, strict=True)],
+        exits=[tuple(ids[a:b]) for a, b in zip(x0, x1, strict=True)],
+        lefts=[tuple(neighbours[a:b]) for a, b in zip(l0, l1, strict=True)],
+        rights=[tuple(neighbours[a:b]) for a, b in zip(r0, r1, strict=True)],
+        left_bounds=[bounds[a:b] for a, b in zip(lb0, lb1, strict=True)],
+        right_bounds=[bounds[a:b] for a, b in zip(rb0, rb1, strict=True)])
+    centres = _finite_slices(wire.points, np.asarray(p0, np.int64), np.asarray(p1, np.int64))
     points = wire.points
-    raw, stops, lines, edges, crosswalks = [], [], {}, [], []
-    for k, (fid, kind, p0, p1, lane_type, has_speed, e0, e1, x0, x1, l0, l1, r0, r1, lb0,
-            lb1, rb0, rb1, s0, s1) in enumerate(wire.features.tolist()):
-        if kind == 1:  # a lane
-            raw.append({"id": fid, "type": LANE_TYPES.get(lane_type, "undefined"),
-                        "speed_limit": speeds[k] * MPH if has_speed else np.nan,
-                        "entry": tuple(ids[e0:e1]), "exit": tuple(ids[x0:x1]),
-                        "left": tuple(neighbours[l0:l1]), "right": tuple(neighbours[r0:r1]),
-                        "left_b": bounds[lb0:lb1], "right_b": bounds[rb0:rb1],
-                        "centre": points[p0:p1]})
-        elif kind in (2, 3):  # a road line, a road edge
-            pts = points[p0:p1]
+    lines, edges, crosswalks, stops = {}, [], [], []
+    for k, (fid, kind_k, a, b) in enumerate(features[:, :4].tolist()):
+        if kind_k in (2, 3):  # a road line, a road edge
+            pts = points[a:b]
             lines[fid] = pts
-            if kind == 3 and len(pts) >= 2:
+            if kind_k == 3 and len(pts) >= 2:
                 edges.append(pts)
-        elif kind == 4:  # a crosswalk
-            if p1 - p0 >= 3:
-                crosswalks.append(points[p0:p1])
-        elif kind == 5:  # a stop sign
+        elif kind_k == 4:  # a crosswalk
+            if b - a >= 3:
+                crosswalks.append(points[a:b])
+        elif kind_k == 5:  # a stop sign
+            s0, s1 = int(features[k, 18]), int(features[k, 19])
             stops.append(StopSign(fid, wire.stop_position[k].copy(), tuple(ids[s0:s1])))
-    signals = _wire_signals(wire)
-    return _finish(wire.scenario_id, raw, lines, edges, crosswalks, stops, signals, source,
-                   topology_given=True)
+    return _finish_columns(wire.scenario_id, columns, centres, lines, edges, crosswalks,
+                           stops, _wire_signals(wire), source, topology_given=True)
+
+
+def _finite_slices(points: np.ndarray, starts: np.ndarray, ends: np.ndarray
+                   ) -> list[np.ndarray]:
+    """:func:`_finite_rows` of ``points[starts[i]:ends[i]]`` for each i, all at once."""
+    counts = ends - starts
+    total = int(counts.sum())
+    at = np.repeat(starts - (np.cumsum(counts) - counts), counts) + np.arange(total)
+    flat = points[at]
+    finite = np.isfinite(flat).all(axis=1)
+    if finite.all():
+        return split_rows(flat, counts)
+    owner = np.repeat(np.arange(len(counts)), counts)
+    return split_rows(flat[finite], np.bincount(owner[finite], minlength=len(counts)))
 
 
 def _wire_signals(wire: Any) -> SignalStates:

@@ -14,7 +14,7 @@ import pytest
 from tap_bench.errors import TrajectoryTableError
 from tap_bench.sim import womd_scene
 from tap_bench.sim.womd_scene import load_scene, scene_catalog
-from tap_bench.trajectories import validate_and_index
+from tap_bench.trajectories import plainly_valid, validate_and_index
 from tap_bench.womd.scenario import trajectory_table
 
 N_TRACKS, N_STEPS = 3, 20
@@ -85,9 +85,33 @@ def test_what_the_arrays_pass_keeps_the_contract(case):
         keeps = True
     except TrajectoryTableError:
         keeps = False
-    if womd_scene._keeps_contract(table):
-        assert keeps, case
-    assert keeps or not womd_scene._keeps_contract(table)
+    for passed in (womd_scene._keeps_contract(table), plainly_valid(table),
+                   plainly_valid(table.to_pandas())):
+        assert keeps or not passed, case
+
+
+def test_a_frame_of_other_column_types_goes_through_pandas():
+    frame = _table().to_pandas()
+    assert plainly_valid(frame)
+    assert not plainly_valid(frame.astype({"track_id": object}))
+    assert not plainly_valid(frame.astype({"x": "float32"}))
+    assert not plainly_valid(frame.astype({"valid": "boolean"}))
+    assert not plainly_valid(frame.rename(columns={"y": "x"}))
+    assert not plainly_valid(frame.drop(columns="valid"))
+    assert not plainly_valid(frame.iloc[:0])
+    assert plainly_valid(frame.drop(columns=["object_type", "is_ego"]))
+
+
+@pytest.mark.womd
+def test_a_rollouts_episode_tables_are_read_from_their_arrays(tmp_path):
+    dev = next(r.path for r in _real_refs() if r.path.endswith("dev.tfrecord"))
+    from tap_bench.sim.rollout import rollout
+
+    tables, _ = rollout(womd_scene.WomdScenes(dev), "idm", "0-1", progress=False)
+    for _, table in tables.groupby("seed"):
+        table = table.reset_index(drop=True)
+        assert plainly_valid(table)
+        validate_and_index(table)
 
 
 def test_a_table_with_nulls_or_other_types_goes_through_pandas():
@@ -139,3 +163,25 @@ def test_real_scenes_from_arrays_equal_the_scenes_through_pandas(monkeypatch):
         slow = load_scene(ref)
         object.__setattr__(slow, "road", scene.road)  # the maps are compared elsewhere
         _assert_same_scene(scene, slow)
+
+
+@pytest.mark.womd
+def test_a_streamed_episode_table_that_breaks_the_contract_is_not_written(tmp_path,
+                                                                         monkeypatch):
+    from tap_bench.sim import womd_env
+    from tap_bench.sim.rollout_stream import stream_rollout
+
+    dev = next(r.path for r in _real_refs() if r.path.endswith("dev.tfrecord"))
+    made = womd_env.WomdEnv.trajectories
+
+    def spoilt(self, **columns):
+        table = made(self, **columns)
+        row = int(np.flatnonzero(table["valid"].to_numpy())[3])
+        table.loc[row, "heading"] = 9.0  # beyond 2 pi on a valid row
+        assert not plainly_valid(table)
+        return table
+
+    monkeypatch.setattr(womd_env.WomdEnv, "trajectories", spoilt)
+    with pytest.raises(TrajectoryTableError, match=r"seed 0, not written.*heading 9\.0"):
+        stream_rollout(womd_scene.WomdScenes(dev), "idm", "0", tmp_path / "out.parquet",
+                       progress=False)
