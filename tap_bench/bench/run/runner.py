@@ -28,7 +28,10 @@ What a run folder holds:
 ======================  ====================================================================
 
 The folder is built under a temporary name beside the target and renamed into place only
-when complete, so an interrupted run leaves nothing that looks finished; an existing run
+when complete, so an interrupted run leaves nothing that looks finished (the temporary
+folder of a run killed outright names its process, and the next run into the same output
+removes it once that process is gone, saying so: :func:`tap_bench.tableio.
+remove_abandoned`); an existing run
 folder is never replaced unless ``overwrite`` is given, and then only when tap-bench wrote
 it (its marker is there): any other folder, a file or a link is refused. Episodes run as
 tasks of :mod:`tap_bench.execution` (local worker processes or Ray), the episodes of one
