@@ -437,11 +437,16 @@ def decode_scenario(record: Record, *, object_types: frozenset[str] | None = Non
         chunks.append(serialized)
     try:
         buf = np.frombuffer(b"".join(chunks) + bytes(_PAD), dtype=np.uint8)
-        pos, lengths = _state_positions(buf, np.array(first, dtype=np.int64), n_steps)
-        if (pos + lengths > len(buf) - _PAD).any():
-            raise StateDecodeError("a state runs past the end of its track",
-                                   int(np.flatnonzero(pos + lengths > len(buf) - _PAD)[0]))
-        st = _decode_states_at(buf, pos, lengths)
+        from tap_bench.womd.state_wire import decode_track_states
+
+        st = decode_track_states(buf, np.array(first, dtype=np.int64), n_steps,
+                                 len(buf) - _PAD)
+        if st is None:  # not well formed: the numpy walk finds and names the fault
+            pos, lengths = _state_positions(buf, np.array(first, dtype=np.int64), n_steps)
+            if (pos + lengths > len(buf) - _PAD).any():
+                raise StateDecodeError("a state runs past the end of its track",
+                                       int(np.flatnonzero(pos + lengths > len(buf) - _PAD)[0]))
+            st = _decode_states_at(buf, pos, lengths)
     except StateDecodeError as err:
         track_pos, step = divmod(err.state, n_steps)
         raise record.error(f"track {track_ids[track_pos]} state {step}: {err}",
