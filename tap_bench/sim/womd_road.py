@@ -1352,7 +1352,7 @@ class WomdPathVehicle(Vehicle):
                 positions[:, 1], boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3],
                 _HORIZONS, road._path_mask)
             h = len(PATH_PREDICTION) + 1
-            mine = road._mover_index.get(id(self))
+            mine = road._movers.index_of(self)
             if mine is not None:
                 found[mine * h:(mine + 1) * h, 0] = np.nan
             walkers = road._walker_mask
@@ -1818,6 +1818,30 @@ def _centre_segments(centres: Sequence[np.ndarray]) -> tuple[np.ndarray, ...]:
             np.ascontiguousarray(b[:, 0]), np.ascontiguousarray(b[:, 1]), owner)
 
 
+class _Movers:
+    """A step's movers: the vehicles of a layout at ``rows`` (sorted), read by index as a
+    list of them would be, without the list or an index of them made each step."""
+
+    __slots__ = ("layout", "rows")
+
+    def __init__(self, layout: _Layout, rows: np.ndarray) -> None:
+        self.layout, self.rows = layout, rows
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __getitem__(self, i: int) -> Vehicle:
+        return self.layout.vehicles[self.rows[i]]
+
+    def index_of(self, vehicle: Vehicle, default: int | None = None) -> int | None:
+        """The vehicle's index among the movers (``default`` when it is not one)."""
+        row = self.layout.row_of.get(id(vehicle))
+        if row is None:
+            return default
+        k = int(np.searchsorted(self.rows, row))
+        return k if k < len(self.rows) and self.rows[k] == row else default
+
+
 class _Layout:
     """A road's vehicles (in the road's order) laid out once so that their states at any
     step come as arrays: the log vehicles' from their logs in one indexing, the others'
@@ -1835,6 +1859,7 @@ class _Layout:
         """``previous``: the road's layout before, whose logs are taken as they are when
         its log vehicles are these (the policy's ego put in the place of the env's)."""
         self.vehicles = vehicles
+        self.row_of = {id(v): i for i, v in enumerate(vehicles)}  # id -> place in vehicles
         self.acting = [v for v in vehicles if type(v) is not LogVehicle]
         logs = [i for i, v in enumerate(vehicles) if type(v) is LogVehicle]
         self.logs = np.array(logs, np.int64)
@@ -1954,7 +1979,7 @@ class WomdRoad(Road):
                                                              ("pedestrian", "cyclist"))).tolist())
         self._walkers: tuple[np.ndarray, ...] | None = None
         self._positions: np.ndarray | None = None
-        self._movers: list[Vehicle] = []
+        self._movers: _Movers | list[Vehicle] = []  # this step's (act)
         self._path_accelerations: dict[int, tuple[float, float]] = {}
         signals = road.signals
         self._signal_lanes = [network.index.get(int(i)) for i in signals.lane]
@@ -2040,7 +2065,7 @@ class WomdRoad(Road):
         layout, now = self._snapshot()
         rows = self._mover_rows = np.flatnonzero(now["collidable"])  # the movers
         self._mover_conflict = None
-        self._movers = [layout.vehicles[i] for i in rows.tolist()]
+        self._movers = _Movers(layout, rows)
         positions = self._positions = now["position"][rows]
         self._xs = positions[:, 0].copy()  # contiguous
         self._ys = positions[:, 1].copy()
@@ -2048,7 +2073,6 @@ class WomdRoad(Road):
                    layout.length[rows], layout.width[rows])
         self._box_columns = columns  # heading, speed, length, width: (n,) contiguous each
         self._boxes = np.stack(columns, axis=1)
-        self._mover_index = {id(v): i for i, v in enumerate(self._movers)}
         walker = self._walker_mask = layout.walker[rows]
         self._mover_heading = columns[0]
         self._mover_length = columns[2]
@@ -2084,7 +2108,7 @@ class WomdRoad(Road):
         half_width, half_length, speed, v0 = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
         drivers = np.empty((n, 6))
         mine = np.empty(n, np.int64)
-        index = self._mover_index
+        movers = self._movers
         for i, vehicle in enumerate(chosen):
             p = vehicle.driver
             v = max(float(vehicle.speed), 0.0)
@@ -2094,7 +2118,7 @@ class WomdRoad(Road):
             speed[i], v0[i] = v, vehicle.target_speed
             drivers[i] = (p.max_acceleration, p.comfortable_braking, p.delta, p.min_gap,
                           p.time_gap, p.coolness)
-            mine[i] = index.get(id(vehicle), -1)
+            mine[i] = movers.index_of(vehicle, -1)
         rows_ = np.array(rows, np.int64)
         acc = _path_ahead(layout.path_starts[rows_], layout.path_ends[rows_], layout.path_px,
                           layout.path_py, layout.path_cum, s0, s1, x0, y0, half_width,
@@ -2289,7 +2313,7 @@ class WomdRoad(Road):
                                   float(vehicle.position[0]), float(vehicle.position[1]),
                                   float(vehicle.heading), float(vehicle.LENGTH),
                                   float(vehicle.WIDTH), reach,
-                                  self._mover_index.get(id(vehicle), -1))
+                                  self._movers.index_of(vehicle, -1))
         return None if k < 0 else (float(gap), float(speed))
 
     @staticmethod
@@ -2413,7 +2437,7 @@ class WomdRoad(Road):
         yielder, braking_j, row_j = self._conflict_movers()
         px, py, tx, ty, s, hd = self._pose_arrays()
         heading, speed, length, width = self._box_columns
-        mine = self._mover_index.get(id(vehicle), -1)
+        mine = self._movers.index_of(vehicle, -1)
         row = getattr(vehicle, "row", -1)
         best = None
         for index, base in self._lanes_ahead(vehicle, CONFLICT_LOOKAHEAD):
