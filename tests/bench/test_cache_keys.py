@@ -236,5 +236,10 @@ def test_a_module_is_found_as_without_the_memo(inputs, monkeypatch, order, extra
                 memoised.name, memoised.origin, memoised.submodule_search_locations), name
     starts = tuple(order.sample(names, 3))
     assert cache_module._tap_bench_closure(starts) == _closure_without_memo(starts)
+
+
+def test_the_label_codes_closure_is_the_one_looked_up_name_by_name():
+    """The label code's closure (what the label key hashes) is the one looked up name by
+    name. It draws nothing, so it runs once, not in each example above."""
     assert cache_module._tap_bench_closure(cache_module.LABEL_CODE) \
         == _closure_without_memo(cache_module.LABEL_CODE)
