@@ -23,11 +23,12 @@ TABLES = ("episodes", "labels", "segments", "trajectories")
 
 
 def tiny(thresholds="paper"):
-    return suite_from_dict({"name": "tiny", "envs": ["merge", "highway"],
+    """One env, two policies, three seeds: 6 episodes of 4 s (what is kept and read per
+    episode does not depend on how many envs the run has)."""
+    return suite_from_dict({"name": "tiny", "envs": ["highway"],
                             "policies": ["idm", "lane-keeping"], "seeds": "0-2",
                             "reference_policy": "idm", "thresholds": thresholds,
-                            "env_overrides": {"merge": {"duration": 4},
-                                              "highway": {"duration": 4}},
+                            "env_overrides": {"highway": {"duration": 4}},
                             "bootstrap": {"n_resamples": 200}}, check_names=False)
 
 
@@ -68,19 +69,19 @@ def runs(tmp_path_factory):
 
 def test_a_rerun_reads_labels_and_measures_and_is_identical(runs):
     _, cold, first, again, cache = runs
-    assert first.summary["cache"]["simulated"] == 12
+    assert first.summary["cache"]["simulated"] == 6
     assert first.summary["cache"]["labelled_before"] == 0
-    assert again.summary["cache"]["labelled_before"] == 12
+    assert again.summary["cache"]["labelled_before"] == 6
     assert again.summary["cache"]["simulated"] == 0
     assert again.summary["timings"]["labelling_cpu_in_workers"] == 0
-    assert len(list(cache.labels_folder.glob("*/*.labels"))) == 12
+    assert len(list(cache.labels_folder.glob("*/*.labels"))) == 6
     assert_identical(cold, first)
     assert_identical(cold, again)
 
 
 FAST_BATCHES = {(1, 1), (5, 2), (30, 1)}
 """(batch, workers) in the fast suite: each batch size once, batches spread over two workers
-(5: three uneven batches of 12 episodes; the module's first run simulates with two workers
+(5: two uneven batches of 6 episodes; the module's first run simulates with two workers
 too), many batches (1) and one batch (30) in one process; the rest of the grid in the slow
 suite (1 over two workers starts two more worker processes twice for what 5 over two
 covers)."""
@@ -95,11 +96,11 @@ def test_identical_whatever_the_batch_size_and_workers(runs, tmp_path, monkeypat
     monkeypatch.setattr(run_tasks, "CACHED_BATCH", batch)
     episodes_only = _episodes_only(cache, tmp_path / "cache")  # labelled again in batches
     result = run(tmp_path / "run", episodes_only, workers=workers)
-    assert result.summary["cache"]["cached"] == 12
+    assert result.summary["cache"]["cached"] == 6
     assert result.summary["cache"]["labelled_before"] == 0
     assert_identical(cold, result)
     again = run(tmp_path / "again", without_runs(episodes_only), workers=workers)
-    assert again.summary["cache"]["labelled_before"] == 12
+    assert again.summary["cache"]["labelled_before"] == 6
     assert_identical(cold, again)
 
 
@@ -118,7 +119,7 @@ def test_identical_whatever_the_cache_holds(runs, tmp_path):
     with warnings.catch_warnings(record=True):
         warnings.simplefilter("always")
         result = run(tmp_path / "run", mixed)
-    assert 0 < result.summary["cache"]["labelled_before"] < 12
+    assert 0 < result.summary["cache"]["labelled_before"] < 6
     assert any("label entry" in note for note in result.summary["cache"]["refused"])
     assert_identical(cold, result)
 
