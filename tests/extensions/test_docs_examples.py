@@ -115,8 +115,10 @@ def test_docs_examples_on_the_ray_backend(extension, ray_backend, tmp_path):
         run_suite(_suite(tmp_path), folder, backend=ray_backend, progress=False,
                   plugins=extension["modules"],
                   references={"my drives": [str(p) for p in extension["drives"]]})
+    # the measure and the format in every table, as a local run writes them; bench check of
+    # a run folder in a fresh process (two more processes) is the local test's, the folder
+    # being the same files whatever backend made it
     _assert_everywhere(folder, extension)
-    _check_in_a_fresh_process(folder, tmp_path)
 
 
 @pytest.mark.parametrize("where", ["cli", "suite"])
