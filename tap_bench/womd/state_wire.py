@@ -18,7 +18,7 @@ import numpy as np
 from numba.core import types
 from numba.extending import intrinsic
 
-from tap_bench.womd.map_wire import _as_double, _varint
+from tap_bench.womd.map_wire import _double, _varint
 
 __all__ = ["decode_track_states"]
 
@@ -95,16 +95,12 @@ def _decode(buf, first, n_steps, end):  # pragma: no cover - compiled
                 elif wire == 1:
                     if pos + 8 > stop:
                         return False, x, y, z, sizes, valid
-                    if 2 <= field <= 4:
-                        bits = np.uint64(0)
-                        for k in range(8):
-                            bits |= np.uint64(buf[pos + k]) << np.uint64(8 * k)
-                        if field == 2:
-                            x[i] = _as_double(bits)
-                        elif field == 3:
-                            y[i] = _as_double(bits)
-                        else:
-                            z[i] = _as_double(bits)
+                    if field == 2:
+                        x[i] = _double(buf, pos)
+                    elif field == 3:
+                        y[i] = _double(buf, pos)
+                    elif field == 4:
+                        z[i] = _double(buf, pos)
                     pos += 8
                 elif wire == 5:
                     if pos + 4 > stop:
