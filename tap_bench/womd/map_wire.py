@@ -141,13 +141,22 @@ def _int32(value):  # pragma: no cover - compiled
     return low - (np.int64(1) << 32) if low >= (np.int64(1) << 31) else low
 
 
-@intrinsic
-def _as_double(typingctx, bits):  # pragma: no cover - compiled
-    """The double whose IEEE 754 bits are the uint64 ``bits``."""
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], context.get_value_type(types.float64))
+_BITS_OF_FLOAT = {types.float64: types.uint64, types.float32: types.uint32}
+"""The unsigned integer type as wide as each IEEE 754 float type (:func:`_as_float`)."""
 
-    return types.float64(types.uint64), codegen
+
+@intrinsic
+def _as_float(typingctx, bits, kind):  # pragma: no cover - compiled
+    """The float of type ``kind`` (``np.float64`` or ``np.float32``) whose IEEE 754 bits are
+    ``bits`` (an integer, taken as the unsigned integer as wide as ``kind``)."""
+    result = getattr(kind, "instance_type", None)
+    if result not in _BITS_OF_FLOAT:
+        return None
+
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], context.get_value_type(result))
+
+    return result(_BITS_OF_FLOAT[result], kind), codegen
 
 
 @numba.njit(cache=True, nogil=True)
@@ -156,7 +165,7 @@ def _double(buf, pos):  # pragma: no cover - compiled
     bits = np.uint64(0)
     for k in range(8):
         bits |= np.uint64(buf[pos + k]) << np.uint64(8 * k)
-    return _as_double(bits)
+    return _as_float(bits, np.float64)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -269,6 +278,26 @@ def _ints(buf, pos, end, numbers64, row, table, k):  # pragma: no cover - compil
     for i in range(len(row)):
         table[k, i] = row[i]
     return True
+
+
+@numba.njit(cache=True, nogil=True)
+def _append_message(buf, pos, end, wire, lists, col, numbers64, row, table, n
+                    ):  # pragma: no cover - compiled
+    """Append the message of varint fields at ``pos`` (wire type ``wire``; read by
+    :func:`_ints` with ``numbers64`` and ``row``) as row ``n`` of ``table``, extending the
+    feature's list [``lists[col]``, ``lists[col + 1]``) over it; (position after it, the
+    table, made larger where needed, the new count), position -1 when malformed or when
+    the list was split by another field."""
+    if lists[col + 1] == 0 and lists[col] == 0:
+        lists[col] = lists[col + 1] = n
+    a, b = _length(buf, pos, end) if wire == 2 else (-1, -1)
+    if a < 0 or lists[col + 1] != n:
+        return -1, table, n
+    table = _room2(table, n + 1)
+    if not _ints(buf, a, b, numbers64, row, table, n):
+        return -1, table, n
+    lists[col + 1] = n + 1
+    return b, table, n + 1
 
 
 @numba.njit(cache=True, nogil=True)
@@ -575,36 +604,15 @@ def _read(buf):  # pragma: no cover - compiled
                             c, n_ids = _append_ids(buf, c, d, w3, ids, n_ids)
                             features[k, col + 1] = n_ids
                         elif kind == _LANE and (f3 == 11 or f3 == 12):
-                            col = _F_LEFT0 if f3 == 11 else _F_RIGHT0
-                            if features[k, col + 1] == 0 and features[k, col] == 0:
-                                features[k, col] = features[k, col + 1] = n_nb
-                            e, g = _length(buf, c, d) if w3 == 2 else (-1, -1)
-                            if e < 0 or features[k, col + 1] != n_nb:
-                                bad = True
-                                break
-                            neighbours = _room2(neighbours, n_nb + 1)
-                            if not _ints(buf, e, g, nb_64, row5, neighbours, n_nb):
-                                bad = True
-                                break
-                            n_nb += 1
-                            features[k, col + 1] = n_nb
-                            c = g
+                            c, neighbours, n_nb = _append_message(
+                                buf, c, d, w3, features[k],
+                                _F_LEFT0 if f3 == 11 else _F_RIGHT0, nb_64, row5,
+                                neighbours, n_nb)
                         elif kind == _LANE and (f3 == 13 or f3 == 14):
-                            col = _F_LB0 if f3 == 13 else _F_RB0
-                            if features[k, col + 1] == 0 and features[k, col] == 0:
-                                features[k, col] = features[k, col + 1] = n_bd
-                            e, g = _length(buf, c, d) if w3 == 2 else (-1, -1)
-                            if e < 0 or features[k, col + 1] != n_bd:
-                                bad = True
-                                break
-                            boundaries = _room2(boundaries, n_bd + 1)
-                            if not _ints(buf, e, g, bd_64, row4, boundaries, n_bd):
-                                bad = True
-                                break
-                            # (start, end, feature id): the type is not kept
-                            n_bd += 1
-                            features[k, col + 1] = n_bd
-                            c = g
+                            # (start, end, feature id): the type is read, not kept
+                            c, boundaries, n_bd = _append_message(
+                                buf, c, d, w3, features[k], _F_LB0 if f3 == 13 else _F_RB0,
+                                bd_64, row4, boundaries, n_bd)
                         elif kind == _STOP_SIGN and f3 == 2:
                             if w3 != 2 or seen_position:
                                 bad = True

@@ -15,10 +15,8 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from numba.core import types
-from numba.extending import intrinsic
 
-from tap_bench.womd.map_wire import _double, _varint
+from tap_bench.womd.map_wire import _as_float, _double, _varint
 
 __all__ = ["decode_track_states"]
 
@@ -46,15 +44,6 @@ def decode_track_states(buf: np.ndarray, first: np.ndarray, n_steps: int, end: i
     names = ("length", "width", "height", "heading", "vx", "vy")
     return {"x": x, "y": y, "z": z, **{name: sizes[:, k].copy()
                                        for k, name in enumerate(names)}, "valid": valid}
-
-
-@intrinsic
-def _as_float(typingctx, bits):  # pragma: no cover - compiled
-    """The float32 whose IEEE 754 bits are the uint32 ``bits``."""
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], context.get_value_type(types.float32))
-
-    return types.float32(types.uint32), codegen
 
 
 @numba.njit(cache=True, nogil=True)
@@ -109,7 +98,7 @@ def _decode(buf, first, n_steps, end):  # pragma: no cover - compiled
                         bits32 = np.uint32(0)
                         for k in range(4):
                             bits32 |= np.uint32(buf[pos + k]) << np.uint32(8 * k)
-                        sizes[i, field - 5] = _as_float(bits32)
+                        sizes[i, field - 5] = _as_float(bits32, np.float32)
                     pos += 4
                 elif wire == 2:
                     length, pos = _varint(buf, pos, stop)

@@ -203,6 +203,14 @@ LEFT_TO_PROTOBUF = {
     "entry lanes split by exit lanes": _f(1, 1) + _f(3, _line(STRAIGHT, field=8) + _f(9, 2)
                                                   + _f(10, 3) + _f(9, 4)),
     "a type as a double": _f(1, 1) + _f(3, _f(2, 1.0, wire=1) + _line(STRAIGHT, field=8)),
+    "left neighbours split by a right one": _f(1, 1) + _f(3, _line(STRAIGHT, field=8)
+                                                       + _f(11, _neighbour(2, 0, 11, 0, 11))
+                                                       + _f(12, _neighbour(2, 0, 11, 0, 11))
+                                                       + _f(11, _neighbour(2, 0, 11, 0, 11))),
+    "left boundaries split by a right one": _f(1, 1) + _f(3, _line(STRAIGHT, field=8)
+                                                       + _f(13, _boundary(0, 5, 30))
+                                                       + _f(14, _boundary(0, 11, 31))
+                                                       + _f(13, _boundary(5, 11, 32))),
 }
 
 
