@@ -93,7 +93,7 @@ __all__ = ["CLOSING_SCALE", "CROSSING_COUNT", "CROSSING_FEATURES", "CROSS_HORIZO
            "CROSS_MIN_ANGLE", "INVERSE_TTC_SCALE", "LEADER_FEATURES", "OBSERVATION_TYPE",
            "OFFSET_SCALE", "PREDICT_TOLERANCE", "ROUTE_FEATURES", "SPEED_SCALE",
            "SWEPT_HORIZON", "SWEPT_MARGIN", "Crossing", "Leader", "RouteObservation",
-           "predicted_conflict", "route_feature_names", "swept_leader"]
+           "pose_times", "predicted_conflict", "route_feature_names", "swept_leader"]
 
 OBSERVATION_TYPE = "KinematicsRoute"
 """The ``observation`` config's ``type`` of :class:`RouteObservation`."""
@@ -648,18 +648,8 @@ def predicted_conflict(ego: Any, others: list[Any], acceleration: float = 0.0,
         return NO_LEADER
     vel, speed, oh, half_l, half_w, pos = (a[keep] for a in (vel, speed, oh, half_l, half_w,
                                                               pos))
-    # the ego's distance covered on a 0.1 s grid, and when it reaches each pose
     v = max(float(ego.speed), 0.0)
-    a = min(max(float(acceleration), -8.0), max_acceleration)
-    top = float(getattr(ego, "target_speed", math.inf))
-    top = max(v, top) if a > 0 else v
-    t = np.arange(0.0, horizon + 1e-9, PREDICT_STEP)
-    speeds = np.clip(v + a * t, 0.0, top)
-    covered = np.concatenate([[0.0], np.cumsum(0.5 * (speeds[1:] + speeds[:-1])
-                                                * PREDICT_STEP)])
-    at = np.searchsorted(covered, s - 1e-9)  # the first step that reaches each pose
-    reached = at < len(t)
-    t_pose = np.where(reached, t[np.minimum(at, len(t) - 1)], 0.0)  # (k,)
+    t_pose, reached = pose_times(ego, s, acceleration, horizon, max_acceleration)
     el, ew = float(ego.LENGTH) / 2, float(ego.WIDTH) / 2 + margin
     moved = pos[None] + t_pose[:, None, None] * vel[None]  # (k, n, 2)
     matched = _boxes_overlap(xy, heading, el, ew, moved, oh, half_l + speed * tolerance,
@@ -676,6 +666,26 @@ def predicted_conflict(ego: Any, others: list[Any], acceleration: float = 0.0,
     if not np.isfinite(entry).any():
         return NO_LEADER
     return Leader(max(float(entry.min()) - SWEPT_STEP, 0.0), v)
+
+
+def pose_times(ego: Any, s: np.ndarray, acceleration: float, horizon: float = SWEPT_HORIZON,
+               max_acceleration: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
+    """When the ego's centre reaches each of its swept poses ``s`` (k,) [m]: its speed
+    changes by ``acceleration`` [m/s^2] (clipped to [-8, ``max_acceleration``], never
+    reversing, never above its ``target_speed`` when it has one, else its speed), stepped by
+    :data:`PREDICT_STEP` s; a pose is reached at the first step whose distance covered
+    reaches it. Returns (t (k,) [s], reached within ``horizon`` (k,) bool; t 0 where not)."""
+    v = max(float(ego.speed), 0.0)
+    a = min(max(float(acceleration), -8.0), max_acceleration)
+    top = float(getattr(ego, "target_speed", math.inf))
+    top = max(v, top) if a > 0 else v
+    t = np.arange(0.0, horizon + 1e-9, PREDICT_STEP)
+    speeds = np.clip(v + a * t, 0.0, top)
+    covered = np.concatenate([[0.0], np.cumsum(0.5 * (speeds[1:] + speeds[:-1])
+                                                * PREDICT_STEP)])
+    at = np.searchsorted(covered, s - 1e-9)  # the first step that reaches each pose
+    reached = at < len(t)
+    return np.where(reached, t[np.minimum(at, len(t) - 1)], 0.0), reached
 
 
 def _boxes_overlap(xy: np.ndarray, heading: np.ndarray, half_length: float, half_width: float,

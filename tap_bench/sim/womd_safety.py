@@ -23,7 +23,10 @@ poses at the speed the policy's acceleration gives, each crossing or oncoming ro
 box at its velocity and heading, compared at matched times within ``tolerance`` s over the
 same 3 s): the same IDM term for a standing obstacle at the edge of that road user's zone
 (a car turning across the ego's lane, or the ego turning across oncoming traffic). The
-smaller of the two caps applies.
+smaller of the two caps applies. With ``lanes`` too, road users are predicted along the
+map's lanes under them and every branch of their successors, at their speed or up to
+``other_acceleration`` faster (:func:`lane_conflict`), instead of at their velocity and
+heading: a car whose lane turns across the ego's way is braked for before it turns.
 
 It is part of an agent's action space, chosen by the agent's own action config
 (``{"type": "DiscreteMetaAction", ..., "safety_layer": true}``, or a mapping of
@@ -40,10 +43,33 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from tap_bench.errors import ParameterError
-from tap_bench.sim.womd_observation import PREDICT_TOLERANCE
+import numpy as np
 
-__all__ = ["SafetyLayer", "safety_layer"]
+from tap_bench.errors import ParameterError
+from tap_bench.sim.womd_observation import (
+    CROSS_MIN_ANGLE,
+    MIN_CROSS_SPEED,
+    NO_LEADER,
+    PREDICT_TOLERANCE,
+    SWEPT_HORIZON,
+    SWEPT_MARGIN,
+    SWEPT_STEP,
+    Leader,
+    _boxes_overlap,
+    pose_times,
+    swept_poses,
+)
+
+__all__ = ["LANE_ACCELERATION", "LANE_ANGLE", "LANE_BRANCHES", "LANE_OFF", "LANE_SAMPLE",
+           "SafetyLayer", "lane_conflict", "lane_paths", "safety_layer"]
+
+LANE_ACCELERATION = 1.0  # [m/s^2] a road user's predicted speed may grow this fast
+LANE_SAMPLE = 1.0  # [m] a road user's predicted path is sampled this often
+LANE_OFF = 1.0  # [m] beyond half its lane's width from the centre a road user is off it
+LANE_ANGLE = math.radians(45.0)  # [rad] heading this far off its lane's: not following it
+LANE_BRANCHES = 8  # at most this many branches of successor lanes per road user
+LANE_DEPTH = 6  # ... each at most this many lanes on from the one under it
+LANE_BLEND = 5.0  # [m] a road user off its lane's centre joins it over this distance
 
 
 @dataclasses.dataclass
@@ -59,6 +85,11 @@ class SafetyLayer:
         predicted: also cap for the road users whose predicted motion meets the ego's way.
         tolerance: with ``predicted``, how much earlier or later [s] a road user may reach
             the place the ego is at and still count.
+        lanes: with ``predicted``, road users are predicted along the map's lanes under
+            them and every branch of their successors (:func:`lane_conflict`), not at
+            their velocity and heading.
+        other_acceleration: with ``lanes``, how fast [m/s^2] a road user's speed may grow
+            (0: at its speed).
         steps: simulated steps the layer judged (an episode's, since :meth:`reset`).
         capped: steps in which it lowered the policy's acceleration.
         braked: steps in which it made the ego brake (the cap < 0) where the policy asked
@@ -72,14 +103,22 @@ class SafetyLayer:
     min_gap: float = 2.0
     predicted: bool = False
     tolerance: float = PREDICT_TOLERANCE
+    lanes: bool = False
+    other_acceleration: float = LANE_ACCELERATION
     steps: int = dataclasses.field(default=0, compare=False)
     capped: int = dataclasses.field(default=0, compare=False)
     braked: int = dataclasses.field(default=0, compare=False)
     foreseen: int = dataclasses.field(default=0, compare=False)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.predicted, bool):
-            raise ParameterError("safety_layer.predicted", self.predicted, "true or false")
+        for flag in ("predicted", "lanes"):
+            if not isinstance(getattr(self, flag), bool):
+                raise ParameterError(f"safety_layer.{flag}", getattr(self, flag),
+                                     "true or false")
+        value = self.other_acceleration
+        if (isinstance(value, bool) or not isinstance(value, int | float)
+                or not math.isfinite(value) or value < 0):
+            raise ParameterError("safety_layer.other_acceleration", value, "a number >= 0")
         for field in ("max_acceleration", "comfortable_braking", "emergency_braking",
                       "time_gap", "min_gap", "tolerance"):
             value = getattr(self, field)
@@ -114,9 +153,15 @@ class SafetyLayer:
         limit = self.cap(float(ego.speed), lead.gap, lead.closing)
         wanted = float(ego.action["acceleration"])
         foreseen = False
-        if self.predicted:
+        if self.predicted and self.lanes:
+            road = getattr(ego, "road", None)
+            conflict = lane_conflict(ego, others, getattr(road, "network", None), wanted,
+                                     self.tolerance, max_acceleration=self.max_acceleration,
+                                     other_acceleration=self.other_acceleration)
+        elif self.predicted:
             conflict = predicted_conflict(ego, others, wanted, self.tolerance,
                                           max_acceleration=self.max_acceleration)
+        if self.predicted:
             ahead = self.cap(float(ego.speed), conflict.gap, conflict.closing)
             foreseen = ahead < min(limit, wanted)
             limit = min(limit, ahead)
@@ -130,6 +175,215 @@ class SafetyLayer:
                 self.capped += 1
                 self.braked += bool(limit < 0 <= wanted)
                 self.foreseen += foreseen
+
+
+def lane_paths(network: Any, position: np.ndarray, heading: float, length: float
+               ) -> list[np.ndarray]:
+    """Where a road user at ``position`` (x, y [m]) heading ``heading`` [rad] goes along the
+    map: one polyline (m, 2) [m] per branch, from its position along the lane under it and
+    on through every branch of that lane's successors (:data:`LANE_BRANCHES` at most,
+    :data:`LANE_DEPTH` lanes on), each at least ``length`` m long (continued straight past a
+    dead end); it joins the centre line :data:`LANE_BLEND` m on. A road user on no lane
+    (none in ``network``, farther than half the lane's width + :data:`LANE_OFF` from its
+    centre, or heading more than :data:`LANE_ANGLE` off it) goes straight on along its
+    heading.
+
+    ``network`` answers ``get_closest_lane_index(position, heading)``, ``get_lane(index)``
+    (lanes with ``arrays`` (px, py, tx, ty, s), ``width``, ``length``,
+    ``local_coordinates``, ``heading_at``) and ``successors(index)``
+    (:class:`~tap_bench.sim.womd_road.WomdNetwork`); None: straight on."""
+    p = np.asarray(position, dtype=float)[:2]
+    ahead = np.array([math.cos(heading), math.sin(heading)])
+    straight = [np.array([p, p + max(length, 1.0) * ahead])]
+    if network is None or not hasattr(network, "successors"):
+        return straight
+    index = network.get_closest_lane_index(p, heading)
+    if index is None:
+        return straight
+    lane = network.get_lane(index)
+    lon, lat = lane.local_coordinates(p)
+    off = abs((lane.heading_at(lon) - heading + math.pi) % (2 * math.pi) - math.pi)
+    if abs(lat) > lane.width / 2 + LANE_OFF or off > LANE_ANGLE or lon > lane.length + LANE_OFF:
+        return straight
+    paths: list[np.ndarray] = []
+    # lane, from [m along it], pieces, length, depth; from its position the path joins the
+    # lane's centre LANE_BLEND m on
+    stack = [(index, lon + LANE_BLEND, [p[None]], LANE_BLEND, 0)]
+    while stack:
+        index, start, pieces, done, depth = stack.pop()
+        lane = network.get_lane(index)
+        px, py, _, _, s = lane.arrays
+        beyond = s > start + 1e-6
+        pieces = [*pieces, np.column_stack([px[beyond], py[beyond]])]
+        done += max(float(lane.length) - start, 0.0)
+        exits = network.successors(index) if done < length and depth < LANE_DEPTH else []
+        room = LANE_BRANCHES - len(paths) - len(stack)
+        if exits and room > 0:
+            for nxt in exits[:room]:
+                stack.append((nxt, 0.0, pieces, done, depth + 1))
+            continue
+        line = np.concatenate(pieces)
+        step = np.hypot(*np.diff(line, axis=0).T)
+        line = line[np.r_[True, step > 1e-6]]  # a lane's end and the next's start once
+        if len(line) < 2:
+            line = straight[0]
+        run = float(np.hypot(*np.diff(line, axis=0).T).sum())
+        if run < length:  # a dead end: straight on along its last segment
+            d = line[-1] - line[-2]
+            line = np.vstack([line, line[-1] + d / np.hypot(*d) * (length - run)])
+        paths.append(line)
+    return paths
+
+
+_CACHE_SIZE = 20_000  # road users' predicted samples kept per network
+
+
+def _samples(network: Any, position: np.ndarray, heading: float, speed: float,
+             length: float, width: float, tolerance: float, acceleration: float, span: float
+             ) -> tuple[Any, ...]:
+    """A road user's boxes along its :func:`lane_paths` (see :func:`lane_conflict`): (pos
+    (J, 2) [m], heading (J,) [rad], half length, half width (J,) [m], earliest and latest
+    time there (J,) [s], the number of samples of each branch). Kept on the network by the
+    road user's state: a logged road user is at the same place in every episode of its
+    scene."""
+    key = (float(position[0]), float(position[1]), heading, speed, length, width, tolerance,
+           acceleration, span)
+    cache = None
+    if network is not None:
+        cache = network.__dict__.setdefault("_lane_samples", {})
+        found = cache.get(key)
+        if found is not None:
+            return found
+    o = np.asarray(position, float)
+    a = acceleration
+    far = speed * span + 0.5 * a * span**2
+    d = np.arange(-speed * tolerance, far + 1e-9, LANE_SAMPLE)  # (j,) arc lengths [m]
+    if a > 0:
+        early = (np.sqrt(np.maximum(speed**2 + 2 * a * d, 0.0)) - speed) / a
+        early = np.where(d < 0, d / speed, early)
+    else:
+        early = d / speed
+    lo, hi = early - tolerance, d / speed + tolerance
+    back_of = d < 0  # behind its position: straight back along its heading
+    pos, head = [], []
+    lines = lane_paths(network, o, heading, far)
+    for line in lines:
+        seg = np.diff(line, axis=0)
+        run = np.concatenate([[0.0], np.cumsum(np.hypot(*seg.T))])
+        k = np.clip(np.searchsorted(run, d, side="right") - 1, 0, len(seg) - 1)
+        u = seg[k] / np.hypot(*seg[k].T)[:, None]
+        u[back_of] = (math.cos(heading), math.sin(heading))
+        pos.append(np.where(back_of[:, None], o + d[:, None] * u,
+                            line[k] + (d - run[k])[:, None] * u))
+        head.append(np.arctan2(u[:, 1], u[:, 0]))
+    n = len(lines) * len(d)
+    found = (np.concatenate(pos), np.concatenate(head),
+             np.full(n, length / 2 + LANE_SAMPLE / 2), np.full(n, width / 2),
+             np.tile(lo, len(lines)), np.tile(hi, len(lines)), [len(d)] * len(lines))
+    if cache is not None:
+        if len(cache) >= _CACHE_SIZE:
+            cache.clear()
+        cache[key] = found
+    return found
+
+
+def lane_conflict(ego: Any, others: list[Any], network: Any, acceleration: float = 0.0,
+                  tolerance: float = PREDICT_TOLERANCE, horizon: float = SWEPT_HORIZON,
+                  max_acceleration: float = 3.0,
+                  other_acceleration: float = LANE_ACCELERATION,
+                  margin: float = SWEPT_MARGIN) -> Leader:
+    """The nearest place on the ego's way where a road user predicted along the map's lanes
+    meets it at a matched time (the seventh ``ppo-womd``'s safety layer).
+
+    The ego's box goes along its swept poses (:func:`~tap_bench.sim.womd_observation.
+    swept_poses`) at the speed its ``acceleration`` gives (:func:`~tap_bench.sim.
+    womd_observation.pose_times`). Each road user moving at :data:`~tap_bench.sim.
+    womd_observation.MIN_CROSS_SPEED` or more whose heading is at least
+    :data:`~tap_bench.sim.womd_observation.CROSS_MIN_ANGLE` off the ego's (those going the
+    ego's way are the swept box's) goes along each of its :func:`lane_paths`: its box is
+    placed every :data:`LANE_SAMPLE` m along the branch (heading along it, half a sample
+    longer at each end), from ``tolerance`` s of its speed behind it to as far as it can go
+    in ``horizon`` + ``tolerance`` s. Its centre is at arc length ``d`` between the time at
+    its speed ``v`` with ``other_acceleration`` a (``(sqrt(v^2 + 2 a d) - v) / a``) less
+    ``tolerance`` and ``d / v`` plus ``tolerance``. A branch conflicts when one of its boxes
+    overlaps the ego's box (``margin`` m wider on each side) at a pose the ego reaches
+    within ``horizon`` at a time within that interval. The ego must then stay out of the
+    whole branch's ground (its zone): the gap is the distance its centre goes to the first
+    pose whose box meets that zone (less one :data:`~tap_bench.sim.womd_observation.
+    SWEPT_STEP`), the zone standing still (closing = the ego's speed). A branch whose zone
+    already meets the ego's box where it is now is left out (braking cannot clear it).
+
+    Args:
+        ego: the ego vehicle (as :func:`~tap_bench.sim.womd_observation.predicted_conflict`'s).
+        others: the road users (``position``, ``heading``, ``velocity``, ``LENGTH``,
+            ``WIDTH``).
+        network: the map's lanes (see :func:`lane_paths`); None: straight on.
+        acceleration: [m/s^2] the ego's asked-for acceleration.
+        tolerance: [s] the time margin on each side of a matched time.
+        horizon: [s] how far ahead in time the ego is advanced.
+        max_acceleration: [m/s^2] the most acceleration the ego's prediction takes.
+        other_acceleration: [m/s^2] the most a road user's speed grows (>= 0).
+        margin: [m] added to the ego's half width.
+
+    Returns:
+        The zone's gap and closing speed; ``NO_LEADER`` with no conflict.
+    """
+    if not others:
+        return NO_LEADER
+    s, xy, heading = swept_poses(ego)
+    p = np.asarray(ego.position, float)
+    h = float(ego.heading)
+    v_ego = max(float(ego.speed), 0.0)
+    el, ew = float(ego.LENGTH) / 2, float(ego.WIDTH) / 2 + margin
+    a = float(other_acceleration)
+    span = horizon + tolerance
+    vel = np.array([np.asarray(v.velocity, float) for v in others]).reshape(-1, 2)
+    speed = np.hypot(vel[:, 0], vel[:, 1])
+    oh = np.array([float(v.heading) for v in others])
+    length = np.array([float(v.LENGTH) for v in others])
+    width = np.array([float(v.WIDTH) for v in others])
+    at = np.array([np.asarray(v.position, float)[:2] for v in others]).reshape(-1, 2)
+    off = np.abs((oh - h + np.pi) % (2 * np.pi) - np.pi)
+    far = speed * span + 0.5 * a * span**2  # [m] the farthest each can go
+    reach = float(s[-1]) + far + length + width + 2 * (el + ew)
+    keep = np.flatnonzero((speed >= MIN_CROSS_SPEED) & (off >= CROSS_MIN_ANGLE)
+                          & (np.hypot(*(at - p).T) <= reach))
+    if not len(keep):
+        return NO_LEADER
+    found = [_samples(network, at[i], float(oh[i]), float(speed[i]), float(length[i]),
+                      float(width[i]), tolerance, a, span) for i in keep.tolist()]
+    groups = [n for one in found for n in one[-1]]
+    pos, head, half_l, half_w, t_lo, t_hi = (np.concatenate([one[j] for one in found])
+                                             for j in range(6))
+    # broad phase: samples outside the ego's poses' bounds, then those whose centre comes
+    # near no ego pose, cannot overlap
+    radius = math.hypot(el, ew) + np.hypot(half_l, half_w) + SWEPT_STEP
+    lo_xy, hi_xy = xy.min(axis=0), xy.max(axis=0)
+    inside = np.flatnonzero(((pos >= lo_xy - radius[:, None])
+                             & (pos <= hi_xy + radius[:, None])).all(axis=1))
+    if not len(inside):
+        return NO_LEADER
+    near = (((pos[inside][None] - xy[:, None]) ** 2).sum(axis=-1)
+            <= radius[inside] ** 2).any(axis=0)
+    if not near.any():
+        return NO_LEADER
+    cols = inside[near]
+    overlap = _boxes_overlap(xy, heading, el, ew, pos[cols][None], head[cols], half_l[cols],
+                             half_w[cols])  # (k, J')
+    t_pose, reached = pose_times(ego, s, acceleration, horizon, max_acceleration)
+    matched = (overlap & reached[:, None] & (t_pose[:, None] >= t_lo[cols])
+               & (t_pose[:, None] <= t_hi[cols])).any(axis=0)  # (J',)
+    first = np.where(overlap, s[:, None], np.inf).min(axis=0)  # (J',) the ego meets it [m]
+    group = np.repeat(np.arange(len(groups)), groups)[cols]
+    n = len(groups)
+    meets = np.zeros(n, bool)
+    np.logical_or.at(meets, group, matched)
+    entry = np.full(n, np.inf)
+    np.minimum.at(entry, group, first)
+    entry = np.where(meets & (entry > 0.0), entry, np.inf)
+    if not np.isfinite(entry).any():
+        return NO_LEADER
+    return Leader(max(float(entry.min()) - SWEPT_STEP, 0.0), v_ego)
 
 
 def safety_layer(setting: Any) -> SafetyLayer | None:

@@ -182,14 +182,114 @@ def test_through_rollout_the_new_layer_lets_the_cutting_car_pass_and_the_old_one
 
     scenes = WomdScenes((_cut_across(tmp_path / "sd_cut.pkl"),))
     rows = {}
-    for layer in (False, True, {"predicted": True}):
+    lanes = {"predicted": True, "lanes": True}
+    for layer in (False, True, {"predicted": True}, lanes):
         rollouts._ENVS.clear()
         result = rollouts.rollout(scenes, KeepSpeed(layer), "all", record=False)
         (env,) = rollouts._ENVS.values()
         rows[str(layer)] = (result.episodes.iloc[0], env.unwrapped.vehicle.safety)
     for layer in ("False", "True"):
         assert rows[layer][0]["status"] == "ok" and rows[layer][0]["crashed"]
-    row, safety = rows[str({"predicted": True})]
-    assert row["status"] == "ok" and not row["crashed"]
-    assert safety.foreseen > 0 and safety.braked > 0
-    assert row["route_progress"] > 0.5  # it drove on once the car had passed
+    for layer in ({"predicted": True}, lanes):  # on no lane, the car goes straight on
+        row, safety = rows[str(layer)]
+        assert row["status"] == "ok" and not row["crashed"]
+        assert safety.foreseen > 0 and safety.braked > 0
+        assert row["route_progress"] > 0.5  # it drove on once the car had passed
+
+
+class Lanes:
+    """A map of hand-drawn lanes (highway-env's frame): what :func:`lane_paths` asks of a
+    network (the closest lane, a lane, its successors)."""
+
+    def __init__(self, lines: dict[int, np.ndarray], exits: dict[int, list[int]]) -> None:
+        from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex
+
+        self.lanes = {k: FastPolyLane(points, 3.5) for k, points in lines.items()}
+        self.exits = exits
+        self.lookup = LaneIndex(list(self.lanes.items()))
+
+    def get_closest_lane_index(self, position, heading=None):
+        return self.lookup.closest(position, heading)
+
+    def get_lane(self, index):
+        return self.lanes[index]
+
+    def successors(self, index):
+        return self.exits.get(index, [])
+
+
+def _arc(centre, radius, start, stop, then):
+    """Points of a quarter turn about ``centre`` from angle ``start`` to ``stop`` [deg],
+    then straight to ``then``."""
+    theta = np.radians(np.linspace(start, stop, 16))
+    points = np.c_[centre[0] + radius * np.cos(theta), centre[1] + radius * np.sin(theta)]
+    return np.vstack([points, then])
+
+
+def junction(turns: tuple[int, ...]) -> Lanes:
+    """An oncoming lane (1) at y = 8, westbound from x = 60 to 35, where it branches: 2 turns
+    left (south) across the ego's line y = 0 at x = 27 (a quarter circle of 8 m about
+    (35, 0)), 3 goes straight on west, 4 turns right (north, away from the ego)."""
+    lines = {1: np.array([[60.0, 8.0], [35.0, 8.0]]),
+             2: _arc((35.0, 0.0), 8.0, 90.0, 180.0, [[27.0, -30.0]]),
+             3: np.array([[35.0, 8.0], [0.0, 8.0]]),
+             4: _arc((35.0, 16.0), 8.0, -90.0, -180.0, [[27.0, 46.0]])}
+    return Lanes(lines, {1: list(turns)})
+
+
+def test_lane_paths_follow_every_branch_of_the_lane_under_a_road_user():
+    from tap_bench.sim.womd_safety import lane_paths
+
+    paths = lane_paths(junction((2, 3, 4)), np.array([40.0, 8.0]), math.pi, 20.0)
+    ends = np.array(sorted(tuple(line[-1]) for line in paths))  # sampled every metre
+    assert ends.ravel() == pytest.approx([0.0, 8.0, 27.0, -30.0, 27.0, 46.0], abs=1.0)
+    for line in paths:  # from its position, each at least 20 m long
+        assert tuple(line[0]) == (40.0, 8.0)
+        assert np.hypot(*np.diff(line, axis=0).T).sum() >= 20.0
+    # off every lane (12 m from lane 1's centre): straight on along its heading
+    (line,) = lane_paths(junction((2,)), np.array([40.0, 20.0]), math.pi, 20.0)
+    assert line[-1] == pytest.approx([20.0, 20.0])
+
+
+def test_a_car_whose_next_lane_turns_across_the_ego_s_way_is_braked_for():
+    """The ego at 10 m/s along y = 0; an oncoming car at (40, 8) at 5 m/s on lane 1, whose
+    successor 2 turns left across the ego's line at x = 27: along that lane it gets there
+    (about 17.6 m on) between 2.7 s (at 1 m/s^2 more speed each second) and 3.5 s, less or
+    more the 1 s tolerance, when the ego's front does (2.5 s). At its velocity and heading
+    (the sixth version's prediction) it goes on west at y = 8 and meets nothing. The gap is
+    to where the ego's box first meets the turning lane's ground: before the ego's centre
+    reaches x = 27 - 1 - 2.25 (the car's half width, the ego's half length)."""
+    from tap_bench.sim.womd_safety import lane_conflict
+
+    ego = car(0.0, 0.0, speed=10.0)
+    turning = car(40.0, 8.0, heading=math.pi, speed=5.0)
+    assert not math.isfinite(predicted_conflict(ego, [turning]).gap)
+    conflict = lane_conflict(ego, [turning], junction((2, 3, 4)))
+    assert 15.0 < conflict.gap < 27.0 - 1.0 - 2.25
+    assert conflict.closing == pytest.approx(10.0)
+    # through the layer: braked for with lanes, not with the velocity-and-heading prediction
+    for lanes in (False, True):
+        layer = SafetyLayer(predicted=True, lanes=lanes)
+        ego = car(0.0, 0.0, speed=10.0)
+        ego.road = SimpleNamespace(network=junction((2, 3, 4)))
+        ego.action["acceleration"] = 1.0
+        layer.apply(ego, [turning], step=1)
+        assert (ego.action["acceleration"] < 0) is lanes
+        assert (layer.capped, layer.foreseen) == ((1, 1) if lanes else (0, 0))
+
+
+def test_a_car_whose_lanes_never_meet_the_ego_s_way_is_not_braked_for():
+    """The same car where lane 1 goes on only straight west (3) or turns right, away from
+    the ego (4); and with the turn across, a car that gets there well after the ego (at
+    1 m/s, 17 s away)."""
+    from tap_bench.sim.womd_safety import lane_conflict
+
+    ego = car(0.0, 0.0, speed=10.0)
+    assert not math.isfinite(lane_conflict(
+        ego, [car(40.0, 8.0, heading=math.pi, speed=5.0)], junction((3, 4))).gap)
+    assert not math.isfinite(lane_conflict(
+        ego, [car(40.0, 8.0, heading=math.pi, speed=1.0)], junction((2, 3, 4)),
+        other_acceleration=0.0).gap)
+    with pytest.raises(ParameterError, match="other_acceleration"):
+        safety_layer({"predicted": True, "lanes": True, "other_acceleration": -1.0})
+    assert safety_layer({"predicted": True, "lanes": True}).lanes is True
