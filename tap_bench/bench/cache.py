@@ -87,7 +87,7 @@ import re
 import tempfile
 import time
 import warnings
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
@@ -649,6 +649,29 @@ class CachedEpisode:
 
 
 @dataclass(frozen=True)
+class Recalled:
+    """What the cache holds for the episodes of a run, read in one pass
+    (:meth:`EpisodeCache.recall`).
+
+    Attributes:
+        timings: what earlier runs measured (:meth:`EpisodeCache.timings`).
+        labelled: episode index -> (its label entry's tables, its trajectories or None when
+            not asked for), the episodes held whole, labels and measures included.
+        seconds: episode index -> the wall time reading its entries took [s] (labelled
+            ones).
+        notes: episode index -> why an entry of it was refused (it was deleted).
+        stored: per episode, whether it needs no rollout: held whole, or an episode entry
+            file exists for its key (unverified until read).
+    """
+
+    timings: dict[str, Any]
+    labelled: dict[int, tuple[dict[str, pd.DataFrame], pd.DataFrame | None]]
+    seconds: dict[int, float]
+    notes: dict[int, str]
+    stored: list[bool]
+
+
+@dataclass(frozen=True)
 class PruneReport:
     """What :meth:`EpisodeCache.prune` did: entries and bytes removed and kept."""
 
@@ -763,6 +786,35 @@ class EpisodeCache:
         None); a refused entry is deleted, as :meth:`read` does."""
         return _read_entry(self.labels_path(key), lambda data: _decode_labels(data, key),
                            "label entry")
+
+    def recall(self, episodes: Sequence[tuple[str | None, str | None, bool]],
+               tables: Sequence[str]) -> Recalled:
+        """What the cache holds for a run's ``episodes``, read in one pass: each given as
+        (its label key, its episode key, whether its trajectories are wanted), a None key
+        for one that is not cached. An episode is held whole when its label entry holds
+        every one of ``tables`` and, when wanted, its episode entry its trajectories; a
+        refused entry is deleted and its note kept (:meth:`read`)."""
+        labelled: dict[int, tuple[dict[str, pd.DataFrame], pd.DataFrame | None]] = {}
+        seconds: dict[int, float] = {}
+        notes: dict[int, str] = {}
+        for i, (label, key, with_trajectories) in enumerate(episodes):
+            if not label:
+                continue
+            t0 = time.perf_counter()
+            found, note = self.read_labels(label)
+            if found is not None and set(found) == set(tables):
+                entry = None
+                if with_trajectories and key:
+                    entry, note = self.read(key)
+                if entry is not None or not with_trajectories:
+                    labelled[i] = (found, None if entry is None else entry.trajectories)
+                    seconds[i] = time.perf_counter() - t0
+                    continue
+            if note is not None:
+                notes[i] = note
+        stored = [i in labelled or (key is not None and self.contains(key))
+                  for i, (_, key, _) in enumerate(episodes)]
+        return Recalled(self.timings(), labelled, seconds, notes, stored)
 
     @property
     def derived_folder(self) -> Path:

@@ -171,9 +171,10 @@ def run_episodes(tasks: list[_Task], name: str, scenarios: Mapping[str, Scenario
     timings["rollouts_wall"] = time.perf_counter() - t0
     tables = RunTables.of(results, keep_tables, timings, spill)
     refused = check_results(results, tables.episodes, name)
+    facts = cache_facts(cache, results, refused)
+    observed = observed_timings(results, backend.workers)
     # the maps for the run folder (the replay viewer draws them, tap-bench label reads
     # them), every env's, once some episode ran: a road the rollouts drew is not drawn
     # again (highway-env's road is seed-free); recorded scenes' are read from their files
     maps = roads.kept(list(scenarios), spill) if keep_maps else None
-    return RunEpisodes(tables, maps, estimate, refused, cache_facts(cache, results, refused),
-                       spill, observed_timings(results, backend.workers))
+    return RunEpisodes(tables, maps, estimate, refused, facts, spill, observed)

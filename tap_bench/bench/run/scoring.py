@@ -6,7 +6,6 @@ gate's power, the interaction contexts and the sim-to-real gap of every policy (
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import time
 import warnings
@@ -93,34 +92,36 @@ def score_run(plan: SuitePlan, tables: RunTables, corpora: Corpora,
 
 
 def _score(plan: SuitePlan, tables: RunTables, corpora: Corpora) -> Scores:
-    """:func:`~tap_bench.bench.scores.scoring.score` of the run's episodes, with the
-    scenarios matched to each reference, windows of its tracks' length, the gate's power,
-    the interaction contexts and the sim-to-real gaps."""
+    """:func:`~tap_bench.bench.scores.scoring.score` of the run's episodes, given what the
+    run adds to it: the scenarios matched to each reference, windows of its tracks'
+    length, the gate's power, the interaction contexts and the sim-to-real gaps."""
     episodes, level, config = tables.episodes, plan.level, plan.bootstrap
     matches, unmatched = _scenario_matches(corpora, tables.labels, tables.trajectories,
                                            level)
     windows = _windows(corpora, tables.trajectories, level, plan.thresholds)
     power = power_table(episodes, plan.gate, cells=len(plan.envs) * len(plan.definitions))
-    scores = score(episodes, reference_policy=plan.reference, level=level, config=config,
-                   references={name: lab for name, (_, lab) in corpora.items()} or None,
-                   scenario_matches=matches, gate_power=power, windows=windows or None)
     # the interaction contexts, scored as `tap-bench contexts` scores them
-    scores = dataclasses.replace(scores, contexts=context_scores(
-        tables.occurrences, list(pd.unique(episodes["policy"])), plan.reference,
-        config=config))
-    if len(scores.contexts):
-        scores.methods["contexts"] = (
+    contexts = context_scores(tables.occurrences, list(pd.unique(episodes["policy"])),
+                              plan.reference, config=config)
+    gap, gap_labels, gap_methods = _gaps(corpora, tables.labels, episodes, level,
+                                         plan.thresholds, config)
+    methods = {}  # how these were made, after the methods of score's own tables
+    if len(contexts):
+        methods["contexts"] = (
             "each policy against the reference inside each interaction context (trend "
             "level): per episode the context's measures reduced over its occurrences, "
             "then paired by seed (t; Tango for a share) where both meet the context, "
             "else unpaired (Welch; Newcombe), as tap-bench contexts")
     if unmatched:
-        scores.methods["scenario matching skipped"] = (
+        methods["scenario matching skipped"] = (
             f"{', '.join(unmatched)}: the data marks no ego vehicle (is_ego), so its "
             "scenarios cannot be matched by what happens around the ego; coverage and "
             "novelty use all its vehicles")
-    return _with_gaps(scores, corpora, tables.labels, episodes, level, plan.thresholds,
-                      config)
+    return score(episodes, reference_policy=plan.reference, level=level, config=config,
+                 references={name: lab for name, (_, lab) in corpora.items()} or None,
+                 scenario_matches=matches, gate_power=power, windows=windows or None,
+                 contexts=contexts, gap=gap, gap_labels=gap_labels,
+                 methods={**methods, **gap_methods})
 
 
 EPISODES_AT_ONCE = 16
@@ -194,19 +195,21 @@ def _windows(corpora: Corpora, trajectories: Spilled | None, level: str,
     return cut
 
 
-def _with_gaps(scores: Scores, corpora: Corpora, labels: Spilled,
-               episodes: pd.DataFrame, level: str, thresholds: Thresholds,
-               config: BootstrapConfig) -> Scores:
-    """``scores`` with the sim-to-real gap of every policy from each reference given as
-    driving-data files (:mod:`tap_bench.bench.scores.gap`): the egos' labels at the suite's level,
-    lateral, longitudinal and interaction, against the reference's vehicles at the speeds
-    the policy drives."""
+def _gaps(corpora: Corpora, labels: Spilled, episodes: pd.DataFrame, level: str,
+          thresholds: Thresholds, config: BootstrapConfig
+          ) -> tuple[pd.DataFrame | None, pd.DataFrame | None, dict[str, str]]:
+    """(gap rows, per-label rows, how they were made: table name -> text) of the sim-to-real
+    gap of every policy from each reference given as driving-data files
+    (:mod:`tap_bench.bench.scores.gap`): the egos' labels at the suite's level, lateral,
+    longitudinal and interaction, against the reference's vehicles at the speeds the
+    policy drives; (None, None, ...) when there is none."""
     real = {name: traj for name, (traj, _) in corpora.items() if traj is not None}
+    methods: dict[str, str] = {}
     if not real or not len(labels):
-        return scores
+        return None, None, methods
     egos = _ego_labels(labels, level)
     if egos is None:
-        return scores
+        return None, None, methods
     speeds = episodes[["env", "policy", "seed", "mean_speed"]]
     egos = egos.drop(columns=["mean_speed"], errors="ignore").merge(
         speeds, on=["env", "policy", "seed"], how="left")
@@ -222,22 +225,21 @@ def _with_gaps(scores: Scores, corpora: Corpora, labels: Spilled,
                 gap = behaviour_gap(mine, reference, name=str(policy), axes=axes,
                                     config=config, reference_name=name)
             except LabelTableError as err:  # nothing comparable: said, not scored
-                scores.methods.setdefault("gap skipped", "")
-                scores.methods["gap skipped"] += f"{policy} vs {name}: {err} "
+                methods.setdefault("gap skipped", "")
+                methods["gap skipped"] += f"{policy} vs {name}: {err} "
                 continue
             rows.append({"reference": name, **gap.row()})
             per_label.append(gap.labels.assign(reference=name, policy=str(policy)))
     if not rows:
-        return scores
-    scores.methods["gap"] = (
+        return None, None, methods
+    methods["gap"] = (
         "total variation distance between the shares of single labels ("
         + ", ".join(axes) + f") of the policy's egos and of the reference's vehicles at the "
         f"policy's speeds; {config.level:.0%} bootstrap of whole episodes of the policy and "
         f"whole scenes of the reference, each side on its own ({config.n_resamples} "
         "resamples; the debiased gap with its basic interval); floor: two samples of one "
         "behaviour with these episodes and scenes")
-    return dataclasses.replace(scores, gap=pd.DataFrame(rows),
-                               gap_labels=pd.concat(per_label, ignore_index=True))
+    return pd.DataFrame(rows), pd.concat(per_label, ignore_index=True), methods
 
 
 def _ego_labels(labels: Spilled, level: str) -> pd.DataFrame | None:

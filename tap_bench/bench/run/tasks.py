@@ -17,7 +17,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.cache import EpisodeCache, policy_fingerprint, scenario_fingerprint
+from tap_bench.bench.cache import (
+    EpisodeCache,
+    Recalled,
+    policy_fingerprint,
+    scenario_fingerprint,
+)
 from tap_bench.bench.episodes import episode_table
 from tap_bench.bench.measures import MEASURES, ego_steps
 from tap_bench.bench.run.estimate import RunPlan, estimate
@@ -193,26 +198,16 @@ def _store_labels(task: _Task, eps: pd.DataFrame, labels: pd.DataFrame,
                                        strict=True)), loaded_user_code(task.run))
 
 
-def _from_label_cache(task: _Task) -> dict[str, Any] | None:
-    """One episode's result read whole from the cache: its labels and measures and, when the
-    run keeps them, its trajectories; None when any part is missing or refused (then the
-    episode goes the usual way). Equal to what :func:`_run_task` gives."""
-    if task.cache is None or not task.label_key:
-        return None
-    t0 = time.perf_counter()
-    tables, note = task.cache.read_labels(task.label_key)
-    if tables is None or set(tables) != set(LABEL_TABLES):
-        return None if note is None else {"cache_note": note}
-    trajectories = None
-    if task.keep_trajectories:
-        entry, note = task.cache.read(task.key)
-        if entry is None:
-            return None if note is None else {"cache_note": note}
-        trajectories = _run_ids(task, entry.trajectories).reset_index(drop=True)
+def _labelled_result(task: _Task, tables: Mapping[str, pd.DataFrame],
+                     trajectories: pd.DataFrame | None, seconds: float) -> dict[str, Any]:
+    """One episode's result from what the cache held of it whole (its label entry's
+    ``tables`` and, when the run keeps them, its ``trajectories``; ``seconds`` the reading
+    took): equal to what :func:`_run_task` gives."""
     return {"episodes": tables["episodes"], "labels": tables["labels"],
             "segments": tables["segments"], "contexts": tables["contexts"],
-            "trajectories": trajectories,
-            "timings": {"rollout": time.perf_counter() - t0}, "cached": True,
+            "trajectories": None if trajectories is None
+            else _run_ids(task, trajectories).reset_index(drop=True),
+            "timings": {"rollout": seconds}, "cached": True,
             "labels_cached": True, "cache_note": None}
 
 
@@ -470,10 +465,13 @@ def _run_all(tasks: list[_Task], name: str, backend: Backend, progress: bool | N
     tasks, a first episode of each env the cache has no timing of
     simulated for the estimate, the estimate announced, the other episodes run."""
     done = _Done(keep_result)
-    known = cache.timings() if cache is not None else {}  # earlier runs', for the estimate
-    notes = done.read_labelled(tasks)  # labelled before: read here, no worker needed
-    cached = [i in done.results or (cache is not None and t.key is not None
-                                    and cache.contains(t.key)) for i, t in enumerate(tasks)]
+    # what the cache holds, in one pass: earlier runs' timings (for the estimate), the
+    # episodes labelled before (read here, no worker needed), those stored
+    recalled = None if cache is None else cache.recall(
+        [(t.label_key, t.key, t.keep_trajectories) for t in tasks], LABEL_TABLES)
+    known = {} if recalled is None else recalled.timings
+    notes = {} if recalled is None else done.take_labelled(tasks, recalled)
+    cached = [False] * len(tasks) if recalled is None else recalled.stored
     if road is not None:
         tasks = _with_roads(tasks, done.results, road)
     probes = _probes(tasks, cached, known) if announce is not None else []  # no one to tell
@@ -531,19 +529,14 @@ class _Done:
         self.results: dict[int, dict[str, Any]] = {}
         self.seconds: dict[int, float] = {}
 
-    def read_labelled(self, tasks: list[_Task]) -> dict[int, str]:
-        """The episodes the cache holds labelled, read whole (:func:`_from_label_cache`);
-        returns the notes of the entries refused, by task index."""
-        notes: dict[int, str] = {}
-        for i, task in enumerate(tasks):
-            t0 = time.perf_counter()
-            hit = _from_label_cache(task)
-            if hit is not None and "episodes" in hit:
-                self.results[i] = self.keep_result(i, hit)
-                self.seconds[i] = time.perf_counter() - t0
-            elif hit is not None:
-                notes[i] = hit["cache_note"]
-        return notes
+    def take_labelled(self, tasks: list[_Task], recalled: Recalled) -> dict[int, str]:
+        """The episodes the cache held whole (``recalled``) taken as results; returns the
+        notes of the entries refused, by task index."""
+        for i, (tables, trajectories) in recalled.labelled.items():
+            self.results[i] = self.keep_result(i, _labelled_result(
+                tasks[i], tables, trajectories, recalled.seconds[i]))
+            self.seconds[i] = recalled.seconds[i]
+        return dict(recalled.notes)
 
     def timed_first(self, tasks: list[_Task], probes: list[int], backend: Backend,
                     announce: Callable[[str], None] | None

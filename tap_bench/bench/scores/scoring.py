@@ -340,7 +340,10 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
           comparisons: list[tuple[str, str]] | None = None,
           scenario_matches: pd.DataFrame | None = None,
           gate_power: pd.DataFrame | None = None,
-          windows: dict[str, tuple[pd.DataFrame, str]] | None = None) -> Scores:
+          windows: dict[str, tuple[pd.DataFrame, str]] | None = None,
+          contexts: pd.DataFrame | None = None, gap: pd.DataFrame | None = None,
+          gap_labels: pd.DataFrame | None = None,
+          methods: Mapping[str, str] | None = None) -> Scores:
     """Score a run.
 
     Args:
@@ -359,6 +362,12 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
             windows of that reference's track length (:func:`tap_bench.bench.scores.windows.
             window_episodes`, e.g. 9.1 s for WOMD), scored against it in place of whole
             episodes (``unit`` says so: ``"9.1 s windows"``).
+        contexts: a precomputed table of the interaction contexts' scores to carry
+            (:func:`tap_bench.bench.scores.contexts.context_scores`).
+        gap, gap_labels: precomputed sim-to-real gap tables to carry
+            (:mod:`tap_bench.bench.scores.gap`).
+        methods: how the carried tables were made (table name -> text), listed after the
+            methods of the tables scored here.
 
     Returns:
         :class:`Scores`.
@@ -371,18 +380,25 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
     cov_parts, nov_parts, label_parts, refs = _reference_scores(
         episodes, reference_policy=reference_policy, level=level, config=config,
         references=references, windows=windows)
+    carried = dict(methods or {})
     methods = _methods(config, compared["method"])
     if compared["skipped"]:
         methods["skipped comparisons"] = "; ".join(compared["skipped"])
+    methods.update(carried)
     return Scores(
         label_counts=_label_counts(episodes), measures=policy_measures(episodes, config),
         paired=_cat(compared["paired"]), paired_measures=_cat(compared["measures"]),
         paired_labels=_cat(compared["labels"]), matched=_cat(compared["matched"]),
         coverage=_cat(cov_parts), novelty=_cat(nov_parts),
         novel_labels=_cat(label_parts), diversity=diversity_table(episodes, config),
-        gate_power=gate_power if gate_power is not None else pd.DataFrame(),
-        scenario_matches=scenario_matches if scenario_matches is not None else pd.DataFrame(),
+        gate_power=_carried(gate_power), scenario_matches=_carried(scenario_matches),
+        gap=_carried(gap), gap_labels=_carried(gap_labels), contexts=_carried(contexts),
         references=refs, methods=methods)
+
+
+def _carried(table: pd.DataFrame | None) -> pd.DataFrame:
+    """A precomputed table :func:`score` carries (an empty one for None)."""
+    return table if table is not None else pd.DataFrame()
 
 
 def _cat(frames: list[pd.DataFrame]) -> pd.DataFrame:
