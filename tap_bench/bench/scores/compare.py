@@ -135,23 +135,25 @@ def paired_comparison(episodes: pd.DataFrame, a: str, b: str, *,
     groups = [(env, env_of == env) for env in envs]
     if len(envs) > 1:
         groups.append((ALL_ENVS, np.ones(len(pairs), bool)))
-    summary, measure_rows, label_rows = [], [], []
+    summary, agreed, measure_rows, label_rows = [], [], [], []
     for env, mask in groups:
         sub = pairs[mask]
         lab_a = sub["sdl_a"].fillna(NO_LABEL).to_numpy(str)
         lab_b = sub["sdl_b"].fillna(NO_LABEL).to_numpy(str)
-        n_agree = int((lab_a == lab_b).sum())
-        lo, hi = wilson_interval(n_agree, len(sub), config.level)
+        agreed.append(int((lab_a == lab_b).sum()))
         n_drop = int(dropped.sum()) if env == ALL_ENVS else int(dropped.get(env, 0))
         summary.append({"env": env, "policy_a": a, "policy_b": b, "n_pairs": len(sub),
-                        "n_dropped": n_drop, "agreement": n_agree / len(sub),
-                        "agreement_low": lo, "agreement_high": hi})
+                        "n_dropped": n_drop, "agreement": agreed[-1] / len(sub)})
         measure_rows += _measure_rows(env, sub, measures, config.level)
         if env != ALL_ENVS:  # a label is (env, label): no pooled label rows
             label_rows += _label_rows(env, lab_a, lab_b, config,
                                       config.rng("paired band", env, a, b))
+    summary_table = pd.DataFrame(summary)
+    # the agreements' Wilson intervals, every group's in one call
+    summary_table["agreement_low"], summary_table["agreement_high"] = wilson_interval(
+        np.array(agreed), summary_table["n_pairs"].to_numpy(), config.level)
     return PairedComparison(
-        summary=pd.DataFrame(summary), measures=pd.DataFrame(measure_rows),
+        summary=summary_table, measures=pd.DataFrame(measure_rows),
         labels=pd.DataFrame(label_rows),
         method=(f"{config.level:.0%} intervals over pairs of episodes (A and B on one seed); "
                 "agreement: Wilson; label frequency differences, crash-rate differences and "
