@@ -155,6 +155,31 @@ def _near_lane_distances(offsets, px, py, tx, ty, s, lengths, boxes, reach, xs, 
     return out
 
 
+@numba.njit(cache=True, nogil=True)
+def _nearest_lane(offsets, px, py, tx, ty, s, lengths, boxes, reach, x, y, heading
+                  ):  # pragma: no cover - compiled
+    """(the lane of the smallest :func:`_near_lane_distances` of the point (x, y) and
+    heading, the first such; how many lanes are within :data:`TOLERANCE` of it), or (-1, 0)
+    where no distance is finite or one is NaN."""
+    d = _near_lane_distances(offsets, px, py, tx, ty, s, lengths, boxes, reach,
+                             np.full(1, x), np.full(1, y), np.full(1, heading))[0]
+    best = np.inf
+    j = -1
+    for k in range(d.shape[0]):
+        if d[k] != d[k]:
+            return -1, 0
+        if d[k] < best:
+            best = d[k]
+            j = k
+    if j < 0:
+        return -1, 0
+    n = 0
+    for k in range(d.shape[0]):
+        if d[k] <= best + TOLERANCE:
+            n += 1
+    return j, n
+
+
 def lane_points(centre: np.ndarray) -> np.ndarray | None:
     """A centre line (n, 2) [m] highway-env can build a lane on: repeated points dropped,
     extended along its last direction to :data:`MIN_LANE_LENGTH` when shorter; None for a
@@ -489,6 +514,13 @@ class LaneIndex:
         if heading is None or not len(self.lanes):
             distance = self.distances(position, heading)
         else:  # the lanes that cannot be the closest not measured
+            j, near = _nearest_lane(self.offsets, self.px, self.py, self.tx, self.ty,
+                                    self.s, self.lengths, self.boxes, self.reach,
+                                    float(position[0]), float(position[1]), float(heading))
+            if near == 1:  # one nearest (the usual case): no tie to break
+                return self.indexes[j]
+            if j < 0:
+                return None
             distance = _near_lane_distances(
                 self.offsets, self.px, self.py, self.tx, self.ty, self.s, self.lengths,
                 self.boxes, self.reach, np.array([float(position[0])]),

@@ -1671,6 +1671,34 @@ def _pairs_to_check(xs, ys, diagonal, length, width, heading, speed, checks, own
 
 
 @numba.njit(cache=True, nogil=True)
+def _pairs_of_movers(collidable, position, diagonal, length, width, heading, speed, checks,
+                     own, dt):  # pragma: no cover - compiled
+    """(the rows of the movers, those whose ``collidable`` is set; :func:`_pairs_to_check`
+    of their columns: first, second, apart) of a road's vehicles, (n,) columns each
+    (``position`` (n, 2))."""
+    m = 0
+    for i in range(collidable.shape[0]):
+        if collidable[i]:
+            m += 1
+    rows = np.empty(m, np.int64)
+    xs, ys, ds, ls, ws, hs, vs = (np.empty(m), np.empty(m), np.empty(m), np.empty(m),
+                                  np.empty(m), np.empty(m), np.empty(m))
+    cs, os_ = np.empty(m, np.bool_), np.empty(m, np.bool_)
+    k = 0
+    for i in range(collidable.shape[0]):
+        if not collidable[i]:
+            continue
+        rows[k] = i
+        xs[k], ys[k] = position[i, 0], position[i, 1]
+        ds[k], ls[k], ws[k] = diagonal[i], length[i], width[i]
+        hs[k], vs[k] = heading[i], speed[i]
+        cs[k], os_[k] = checks[i], own[i]
+        k += 1
+    first, second, apart = _pairs_to_check(xs, ys, ds, ls, ws, hs, vs, cs, os_, dt)
+    return rows, first, second, apart
+
+
+@numba.njit(cache=True, nogil=True)
 def _approach_rows(members, lon, hs, ls, walker, s, headings, s_point, offset, width, mine,
                    seen):  # pragma: no cover - compiled
     """The movers of one lane's table (``members``, longitudinal coordinates ``lon`` [m])
@@ -1816,6 +1844,45 @@ def _centre_segments(centres: Sequence[np.ndarray]) -> tuple[np.ndarray, ...]:
     owner = np.repeat(np.arange(len(sizes), dtype=np.int64), np.maximum(sizes - 1, 0))
     return (np.ascontiguousarray(a[:, 0]), np.ascontiguousarray(a[:, 1]),
             np.ascontiguousarray(b[:, 0]), np.ascontiguousarray(b[:, 1]), owner)
+
+
+@numba.njit(cache=True, nogil=True)
+def _movers_now(collidable, position, heading, speed, length, width, walker, path,
+                walker_clearance, path_margin):  # pragma: no cover - compiled
+    """A step's movers, the vehicles whose ``collidable`` is set: (their rows, positions (n,
+    2) [m], x, y, heading [rad], speed (not below 0, as ``np.maximum``) [m/s], length,
+    width [m], the four as a box (n, 4), walker, path vehicle, margin to a path (the
+    walker's clearance or the path margin) [m], how many are walkers); each (n,) column
+    contiguous."""
+    n = 0
+    for i in range(collidable.shape[0]):
+        if collidable[i]:
+            n += 1
+    rows = np.empty(n, np.int64)
+    xy = np.empty((n, 2))
+    xs, ys, hs, vs = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    ls, ws, boxes = np.empty(n), np.empty(n), np.empty((n, 4))
+    walkers, paths, margins = np.empty(n, np.bool_), np.empty(n, np.bool_), np.empty(n)
+    k = 0
+    n_walkers = 0
+    for i in range(collidable.shape[0]):
+        if not collidable[i]:
+            continue
+        rows[k] = i
+        xy[k, 0] = xs[k] = position[i, 0]
+        xy[k, 1] = ys[k] = position[i, 1]
+        v = speed[i]
+        v = v if v > 0.0 or v != v else 0.0  # as np.maximum(v, 0.0): -0.0 -> 0.0
+        boxes[k, 0] = hs[k] = heading[i]
+        boxes[k, 1] = vs[k] = v
+        boxes[k, 2] = ls[k] = length[i]
+        boxes[k, 3] = ws[k] = width[i]
+        walkers[k] = walker[i]
+        paths[k] = path[i]
+        margins[k] = walker_clearance if walker[i] else path_margin
+        n_walkers += walker[i]
+        k += 1
+    return rows, xy, xs, ys, hs, vs, ls, ws, boxes, walkers, paths, margins, n_walkers
 
 
 class _Movers:
@@ -2063,22 +2130,19 @@ class WomdRoad(Road):
         self._projections.clear()
         self._everyone = None
         layout, now = self._snapshot()
-        rows = self._mover_rows = np.flatnonzero(now["collidable"])  # the movers
+        # the movers (the collidable vehicles) and their columns, in one compiled pass
+        (rows, positions, self._xs, self._ys, heading, speed, length, width, self._boxes,
+         walker, self._path_mask, self._path_margins, walkers) = _movers_now(
+            now["collidable"], now["position"], now["heading"], now["speed"], layout.length,
+            layout.width, layout.walker, layout.path, WALKER_CLEARANCE, PATH_MARGIN)
+        self._mover_rows = rows
         self._mover_conflict = None
         self._movers = _Movers(layout, rows)
-        positions = self._positions = now["position"][rows]
-        self._xs = positions[:, 0].copy()  # contiguous
-        self._ys = positions[:, 1].copy()
-        columns = (now["heading"][rows], np.maximum(now["speed"][rows], 0.0),
-                   layout.length[rows], layout.width[rows])
+        self._positions = positions
+        columns = (heading, speed, length, width)
         self._box_columns = columns  # heading, speed, length, width: (n,) contiguous each
-        self._boxes = np.stack(columns, axis=1)
-        walker = self._walker_mask = layout.walker[rows]
-        self._mover_heading = columns[0]
-        self._mover_length = columns[2]
-        self._path_mask = layout.path[rows]
-        self._path_margins = np.where(walker, WALKER_CLEARANCE, PATH_MARGIN)
-        if walker.any():
+        self._walker_mask = walker
+        if walkers:
             xy = positions[walker]
             heading, speed = columns[0][walker], columns[1][walker]
             ahead = xy + WALKER_HORIZON * speed[:, None] * np.stack((np.cos(heading),
@@ -2172,18 +2236,18 @@ class WomdRoad(Road):
             vehicle.step(dt)
         now = layout.states(self.clock[0])
         self._states_at = (self.clock[0], layout, now)  # read by _snapshot until it moves
-        moving = np.flatnonzero(now["collidable"])  # their rows
-        vehicles = [layout.vehicles[i] for i in moving.tolist()]
         if now["own"] is not None:
-            # the pairs to check and those that stay apart over the step (highway-env's
-            # test would change nothing for them)
-            position = now["position"][moving]
-            first, second, apart = _pairs_to_check(
-                position[:, 0].copy(), position[:, 1].copy(), layout.diagonal[moving],
-                layout.length[moving], layout.width[moving], now["heading"][moving],
-                now["speed"][moving], now["checks"][moving], now["own"][moving], float(dt))
+            # the movers' rows, the pairs to check and those that stay apart over the step
+            # (highway-env's test would change nothing for them)
+            moving, first, second, apart = _pairs_of_movers(
+                now["collidable"], now["position"], layout.diagonal, layout.length,
+                layout.width, now["heading"], now["speed"], now["checks"], now["own"],
+                float(dt))
+            vehicles = [layout.vehicles[i] for i in moving.tolist()]
             apart = apart.tolist()
         else:  # an object without position or diagonal: every pair, as highway-env
+            moving = np.flatnonzero(now["collidable"])  # their rows
+            vehicles = [layout.vehicles[i] for i in moving.tolist()]
             first, second = np.triu_indices(len(vehicles), 1)
             apart = [False] * len(first)
         ego = self.vehicles[0]  # the env puts the ego first (a policy's takes its place)

@@ -26,6 +26,7 @@ from tap_bench.sim.womd_lanes import (
     FastPolyLane,
     LaneIndex,
     _near_lane_distances,
+    _nearest_lane,
     lane_points,
 )
 from tap_bench.sim.womd_road import path_progress
@@ -237,6 +238,16 @@ def test_lookup_measuring_only_lanes_that_can_be_closest_equals_measuring_all(se
     assert np.array_equal(measured[kept], full[kept])  # measured lanes: the same distance
     skipped = full[~kept] - np.repeat(full.min(axis=1), (~kept).sum(axis=1))
     assert (skipped > TOLERANCE).all() and 0.3 < (~kept).mean() < 1.0  # and some skipped
+    # one point's lookup in one compiled pass: the first smallest distance and how many
+    # are within TOLERANCE of it (closest breaks the ties), (-1, 0) for no finite one
+    columns = (index.offsets, index.px, index.py, index.tx, index.ty, index.s, index.lengths,
+               index.boxes, index.reach)
+    for q, (p, h) in enumerate(zip(points, headings, strict=True)):
+        j, n = _nearest_lane(*columns, float(p[0]), float(p[1]), float(h))
+        row = measured[q]
+        assert (j, n) == (int(np.argmin(row)), int((row <= row.min() + TOLERANCE).sum()))
+    assert _nearest_lane(*columns, np.nan, 0.0, 0.0) == (-1, 0)
+    assert index.closest(np.array([np.nan, 0.0]), 0.0) is None
 
 
 def test_lookup_bound_allows_for_the_overshoot_beyond_the_last_pose():

@@ -14,12 +14,16 @@ from tap_bench.sim.womd_lanes import FastPolyLane
 from tap_bench.sim.womd_road import (
     CONFLICT_LOOKAHEAD,
     CORRIDOR_MARGIN,
+    PATH_MARGIN,
     WALKER_ALONG,
+    WALKER_CLEARANCE,
     WALKER_LOOKAHEAD,
     WALKER_STILL,
     _approach_rows,
     _corridor,
     _lane_members,
+    _movers_now,
+    _pairs_of_movers,
     _pairs_to_check,
     _walkers_on_lane,
 )
@@ -232,3 +236,60 @@ def test_movers_approaching_a_conflict_are_their_definition(seed):
         assert set(rows.tolist()) <= set(np.flatnonzero(seen).tolist())  # marked seen
         found += len(want)
     assert found > 100
+
+
+def road_columns(rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
+    """A road's n vehicles as the step lays them out: some not collidable, speeds that are
+    negative, -0.0 or NaN among them."""
+    xy = rng.uniform(-50.0, 50.0, (n, 2))
+    speed = rng.choice([-1.0, -0.0, 0.0, np.nan, 3.0, 12.0], size=n)
+    length = rng.choice([0.5, 4.5, 12.0], size=n)
+    return {"collidable": rng.random(n) < 0.7, "position": xy,
+            "heading": rng.uniform(-math.pi, math.pi, n), "speed": speed, "length": length,
+            "width": np.where(length < 1.0, 0.5, 2.0), "walker": rng.random(n) < 0.2,
+            "path": rng.random(n) < 0.3, "diagonal": np.hypot(length, 2.0),
+            "checks": rng.random(n) < 0.3, "own": rng.random(n) < 0.1}
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_movers_now_are_the_collidable_rows_columns(seed):
+    """The act's movers in one pass: the rows, columns and margins numpy took one by one
+    (speed as np.maximum(speed, 0): NaN kept, -0.0 kept, negatives 0)."""
+    rng = np.random.default_rng(seed)
+    c = road_columns(rng, int(rng.integers(0, 30)))
+    (rows, xy, xs, ys, heading, speed, length, width, boxes, walker, path, margins,
+     walkers) = _movers_now(c["collidable"], c["position"], c["heading"], c["speed"],
+                            c["length"], c["width"], c["walker"], c["path"],
+                            WALKER_CLEARANCE, PATH_MARGIN)
+    want = np.flatnonzero(c["collidable"])
+    assert rows.tolist() == want.tolist()
+    columns = (c["heading"][want], np.maximum(c["speed"][want], 0.0), c["length"][want],
+               c["width"][want])
+    for got, expected in ((xy, c["position"][want]), (xs, c["position"][want, 0]),
+                          (ys, c["position"][want, 1]), (heading, columns[0]),
+                          (speed, columns[1]), (length, columns[2]), (width, columns[3]),
+                          (boxes, np.stack(columns, axis=1)), (walker, c["walker"][want]),
+                          (path, c["path"][want]),
+                          (margins, np.where(c["walker"][want], WALKER_CLEARANCE,
+                                             PATH_MARGIN))):
+        assert got.dtype == expected.dtype and got.shape == expected.shape
+        assert got.tobytes() == expected.tobytes()  # copies and comparisons: exact
+    assert walkers == int(c["walker"][want].sum())
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_pairs_of_movers_are_the_pairs_of_their_columns(seed):
+    """The road step's pairs in one pass: the collidable rows, and _pairs_to_check of their
+    columns taken by numpy."""
+    rng = np.random.default_rng(seed)
+    c = road_columns(rng, int(rng.integers(0, 30)))
+    rows, first, second, apart = _pairs_of_movers(
+        c["collidable"], c["position"], c["diagonal"], c["length"], c["width"], c["heading"],
+        c["speed"], c["checks"], c["own"], 0.1)
+    m = np.flatnonzero(c["collidable"])
+    want = _pairs_to_check(c["position"][m, 0].copy(), c["position"][m, 1].copy(),
+                           c["diagonal"][m], c["length"][m], c["width"][m], c["heading"][m],
+                           c["speed"][m], c["checks"][m], c["own"][m], 0.1)
+    assert rows.tolist() == m.tolist()
+    for got, expected in zip((first, second, apart), want, strict=True):
+        assert got.tolist() == expected.tolist()
