@@ -90,7 +90,6 @@ class Scene:
     Attributes:
         scenario_id: WOMD's id.
         ref: where it came from.
-        digest: SHA-256 of the scenario's bytes (the record or the file).
         times: (T,) [s].
         track_ids, object_types: (n,) str.
         x, y, heading, vx, vy, speed: (n, T) in WOMD's axes [m, rad, m/s]; NaN where
@@ -103,7 +102,6 @@ class Scene:
 
     scenario_id: str
     ref: SceneRef
-    digest: str
     times: np.ndarray
     track_ids: np.ndarray
     object_types: np.ndarray
@@ -118,6 +116,13 @@ class Scene:
     width: np.ndarray
     ego: int
     road: RoadMap
+
+    @property
+    def digest(self) -> str:
+        """SHA-256 of the scenario's bytes (the record or the file), read again from
+        :attr:`ref` when asked (:meth:`SceneRef.digest`): a rollout never asks, and keeping
+        the bytes for it would hold them as long as the scene."""
+        return self.ref.digest()
 
     @property
     def n_steps(self) -> int:
@@ -244,8 +249,8 @@ _CONTRACT_FIX = ("A closed-loop scene is built only from records that keep the t
                  "scenario out (the other scenes still run).")
 
 
-def _read(ref: SceneRef) -> tuple[_Columns, RoadMap, str]:
-    """Decode ``ref`` into (its trajectory table's columns, road map, content hash), its
+def _read(ref: SceneRef) -> tuple[_Columns, RoadMap]:
+    """Decode ``ref`` into (its trajectory table's columns, road map), its
     tracks checked as ``tap-bench ingest`` checks each scenario it reads.
 
     Raises:
@@ -271,11 +276,10 @@ def _read(ref: SceneRef) -> tuple[_Columns, RoadMap, str]:
         return _FrameColumns(frame)
 
     if ref.format == "scenarionet":
-        data = Path(ref.path).read_bytes()
         scenario = load_scenarionet(ref.path)
         table = checked(decode_scenarionet(scenario, path=ref.path), 0, 0)
         road = roadmap.scenarionet_road_map(scenario, source=ref.path)
-        return table, road, hashlib.sha256(data).hexdigest()
+        return table, road
     record = _record_of(ref)
     if ref.format == "scenario":
         table = checked(decode_scenario(record), record.index, record.offset)
@@ -285,7 +289,7 @@ def _read(ref: SceneRef) -> tuple[_Columns, RoadMap, str]:
         road = roadmap.tf_example_road_map(record.data, source=str(ref))
         if road is None:
             road = roadmap.RoadMap(str(table.first("scenario_id")), {}, topology="none")
-    return table, road, hashlib.sha256(record.data).hexdigest()
+    return table, road
 
 
 def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:
@@ -302,7 +306,7 @@ def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:
     """
     import numpy as np
 
-    table, road, digest = _read(ref)
+    table, road = _read(ref)
     sid = str(table.first("scenario_id")) if len(table) else road.scenario_id
     where = f"scenario {sid} ({ref})"
     tracks = table.tracks()
@@ -354,7 +358,7 @@ def load_scene(ref: SceneRef, *, ego: str = "sdc") -> Scene:
             values = np.where(valid & np.isfinite(values) & (values > 0), values, np.nan)
         sizes[col] = _row_medians(values, default)
     times = table.values("t", float)[:t]
-    return Scene(sid, ref, digest, times, tracks.astype(str), object_types.astype(str), x, y,
+    return Scene(sid, ref, times, tracks.astype(str), object_types.astype(str), x, y,
                  heading, vx, vy, speed, valid, sizes["length"], sizes["width"], row, road)
 
 
