@@ -117,6 +117,42 @@ def test_a_killed_run_resumes_to_the_same_files(tmp_path, monkeypatch, capsys):
         assert not parts.exists()
 
 
+def test_parts_are_arrow_files_and_parquet_parts_of_earlier_versions_resume(tmp_path,
+                                                                            monkeypatch):
+    """A part's rows are an Arrow IPC file (text dictionary-encoded) that reads back as the
+    table pandas' Parquet writer made; a run resumed from Parquet parts (as earlier
+    versions wrote them) joins them into the same files, bit for bit."""
+    import pyarrow as pa
+    import pyarrow.feather as feather
+
+    files = scene_files(tmp_path / "scenes", 3, per_file=3)
+    monkeypatch.setattr(rollout_stream, "PART_SCENES", 1)
+    whole, out = tmp_path / "whole.parquet", tmp_path / "out.parquet"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(rollout_args(files, whole)) == 0
+        monkeypatch.setattr(rollout_stream._Parts, "remove", lambda self: None)
+        assert main(rollout_args(files, out)) == 0  # its parts left behind
+        monkeypatch.undo()
+        monkeypatch.setattr(rollout_stream, "PART_SCENES", 1)
+        parts = rollout_stream.parts_folder(out)
+        arrows = sorted(parts.glob("part-*.arrow"))
+        assert len(arrows) == 3 and not list(parts.glob("part-*.parquet"))
+        dtypes = pd.read_parquet(whole).dtypes
+        for path in arrows:
+            assert pa.types.is_dictionary(feather.read_table(path).schema.field(
+                "scenario_id").type)
+            frame = pa.Table.from_batches(list(rollout_stream._part_batches(path))).to_pandas()
+            assert frame.dtypes.equals(dtypes)
+            frame.to_parquet(path.with_suffix(".parquet"), index=False)  # as before
+            path.unlink()
+        out.unlink()
+        out.with_name("out.episodes.parquet").unlink()
+        assert main(rollout_args(files, out, "--resume")) == 0
+    assert out.read_bytes() == whole.read_bytes()
+    assert not parts.exists()
+
+
 def test_parts_are_refused_without_resume_and_from_another_run(tmp_path):
     files = scene_files(tmp_path / "scenes", 3, per_file=3)
     out = tmp_path / "out.parquet"
