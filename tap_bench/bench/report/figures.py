@@ -576,8 +576,9 @@ def write_plots(scores: Scores, folder: str | os.PathLike, *,
         "tables": {name: table_digest(t) for name, t in scores.tables().items()},
         "reference": reference or "", "level": level,
         "measures": [m.to_dict() for m in (*MEASURES, *SCENE_MEASURES)]}
+    envs = _envs(scores)  # a label heat map and a measures plot each
     figures = memoised(cache, "plots", inputs,
-                       lambda: _draw(scores, reference or "", level), dict, dict)
+                       lambda: _draw(scores, envs, reference or "", level), dict, dict)
     paths = []
     for name, data in figures.items():
         (folder / name).write_bytes(data)
@@ -585,10 +586,11 @@ def write_plots(scores: Scores, folder: str | os.PathLike, *,
     return paths
 
 
-def _draw(scores: Scores, reference: str, level: float) -> dict[str, bytes]:
-    """Every figure of :func:`write_plots`: file name -> SVG bytes, in report order."""
+def _draw(scores: Scores, envs: list[str], reference: str, level: float
+          ) -> dict[str, bytes]:
+    """Every figure of :func:`write_plots` (``envs``: the envs of the scores): file name ->
+    SVG bytes, in report order."""
     svgs: list[tuple[str, str] | None] = []
-    envs = _envs(scores)
     # the pooled figures draw the rows of all envs (or of the one env)
     pm, cov, nov = (_pooled(t) for t in (scores.paired_measures, scores.coverage,
                                          scores.novelty))

@@ -124,9 +124,10 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
                  cache: EpisodeCache | None = None) -> Path:
     """Write ``plots/*.svg`` and ``report.html`` into a run folder; returns the HTML path.
 
-    The page is made in steps: its figures drawn (:func:`write_plots`), its tables made
-    (:func:`~tap_bench.bench.report.tables.page_tables`), then each section's headings and
-    text placed around them, top to bottom.
+    The page is made in steps: its figures drawn (:func:`write_plots`), the agents'
+    section made (:mod:`~tap_bench.bench.report.agents`, runs with seed groups), its tables
+    made (:func:`~tap_bench.bench.report.tables.page_tables`), then each section's headings
+    and text placed around them, top to bottom.
 
     Args:
         folder: the run folder.
@@ -144,6 +145,10 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
     level = run_level(summary)
     plots = {p.stem: p for p in write_plots(scores, folder / "plots", reference=reference,
                                             level=level, cache=cache)}
+    from tap_bench.bench.report.agents import agents_report_section  # runs with seed groups only
+
+    agents = agents_report_section(folder, episodes, reference=reference, level=level,
+                                   viewer=viewer)
     page = _Page(plots, page_tables(summary, episodes, scores, reference=reference,
                                     level=level, viewer=viewer),
                  _envs(scores), reference, human_of(reference),
@@ -160,10 +165,7 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
                      "the episode a row is about.</p>")
     parts.extend(_summary_section(page, summary, scores))
     parts.extend(_human_section(page))
-    from tap_bench.bench.report.agents import agents_report_section  # runs with seed groups only
-
-    parts.extend(agents_report_section(folder, episodes, reference=reference, level=level,
-                                       viewer=viewer))
+    parts.extend(agents)
     parts.extend(_env_section(page, scores))
     parts.extend(_comparison_section(page))
     parts.extend(_coverage_section(page))

@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from tap_bench.bench.run.served import RunResult
+from tap_bench.bench.run.folder import RunResult
 
 __all__ = ["DEMO_OUTPUT", "DEMO_SUITE", "run_demo", "timing_split"]
 

@@ -38,6 +38,44 @@ if TYPE_CHECKING:
     from tap_bench.bench.scores.scoring import Scores
 
 
+class RunResult:
+    """What :func:`~tap_bench.bench.run.runner.run_suite` returns.
+
+    Attributes:
+        folder: the run folder written.
+        summary: the content of ``summary.json``.
+        episodes: the episode table.
+        scores: the scored tables.
+        report: path of ``report.html``.
+
+    A run served from the cache (:func:`~tap_bench.bench.run.served.serve_run`) reads its
+    episode table and scores from the cache entry when first asked for them.
+    """
+
+    __slots__ = ("_episodes", "_scores", "folder", "report", "summary")
+
+    def __init__(self, folder: Path, summary: dict[str, Any],
+                 episodes: pd.DataFrame | Callable[[], pd.DataFrame],
+                 scores: Scores | Callable[[], Scores], report: Path) -> None:
+        self.folder, self.summary, self.report = folder, summary, report
+        self._episodes, self._scores = episodes, scores
+
+    @property
+    def episodes(self) -> pd.DataFrame:
+        if callable(self._episodes):
+            self._episodes = self._episodes()
+        return self._episodes
+
+    @property
+    def scores(self) -> Scores:
+        if callable(self._scores):
+            self._scores = self._scores()
+        return self._scores
+
+    def __repr__(self) -> str:
+        return f"RunResult(folder={str(self.folder)!r}, report={str(self.report)!r})"
+
+
 def check_output(output: str | os.PathLike, overwrite: bool,
                  announce: Callable[[str], None] | None = None) -> Path:
     """``output`` as a Path, checked before any work (:func:`tap_bench.tableio.

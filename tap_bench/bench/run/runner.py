@@ -75,6 +75,7 @@ from tap_bench.bench.cache import EpisodeCache, package_code
 from tap_bench.bench.run.episodes import run_episodes
 from tap_bench.bench.run.estimate import CACHED_EPISODE_S, RunPlan
 from tap_bench.bench.run.folder import (
+    RunResult,
     check_output,
     finish_summary,
     package_versions,
@@ -86,7 +87,7 @@ from tap_bench.bench.run.folder import (
 )
 from tap_bench.bench.run.plan import SuitePlan, _tasks, plan_suite
 from tap_bench.bench.run.scoring import ReferenceSource, read_references, score_run
-from tap_bench.bench.run.served import RunResult, _check_apart, keep_run, try_served
+from tap_bench.bench.run.served import _check_apart, keep_run, try_served
 from tap_bench.bench.run.tasks import CACHED_BATCH
 from tap_bench.bench.suite import Suite
 from tap_bench.errors import ParameterError, RunExistsError

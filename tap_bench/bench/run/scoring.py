@@ -19,15 +19,14 @@ from tap_bench.bench.run.plan import SuitePlan
 from tap_bench.bench.run.spill import SpilledTable
 from tap_bench.bench.run.tasks import RunTables, Spilled
 from tap_bench.bench.scores.contexts import context_scores
-from tap_bench.bench.scores.gap import behaviour_gap, labelled_with_speed
+from tap_bench.bench.scores.gap import gap_scores
 from tap_bench.bench.scores.scenarios import match_scenarios
 from tap_bench.bench.scores.scoring import Scores, score, scores_from_files, scores_to_files
 from tap_bench.bench.scores.windows import window_episodes, window_seconds
-from tap_bench.errors import LabelTableError, ParameterError
+from tap_bench.errors import ParameterError
 from tap_bench.labelling import tap
 from tap_bench.labels import validate_labels
 from tap_bench.sources import read_womd
-from tap_bench.stats.bootstrap import BootstrapConfig
 from tap_bench.tableio import read_table
 from tap_bench.thresholds import Thresholds
 
@@ -98,13 +97,17 @@ def _score(plan: SuitePlan, tables: RunTables, corpora: Corpora) -> Scores:
     episodes, level, config = tables.episodes, plan.level, plan.bootstrap
     matches, unmatched = _scenario_matches(corpora, tables.labels, tables.trajectories,
                                            level)
+    egos = _gap_egos(corpora, tables.labels, episodes, level)
     windows = _windows(corpora, tables.trajectories, level, plan.thresholds)
     power = power_table(episodes, plan.gate, cells=len(plan.envs) * len(plan.definitions))
     # the interaction contexts, scored as `tap-bench contexts` scores them
     contexts = context_scores(tables.occurrences, list(pd.unique(episodes["policy"])),
                               plan.reference, config=config)
-    gap, gap_labels, gap_methods = _gaps(corpora, tables.labels, episodes, level,
-                                         plan.thresholds, config)
+    gap = gap_labels = None
+    gap_methods: dict[str, str] = {}
+    if egos is not None:  # the sim-to-real gap of every policy from each data reference
+        real = {name: traj for name, (traj, _) in corpora.items() if traj is not None}
+        gap, gap_labels, gap_methods = gap_scores(egos, real, level, plan.thresholds, config)
     methods = {}  # how these were made, after the methods of score's own tables
     if len(contexts):
         methods["contexts"] = (
@@ -195,51 +198,19 @@ def _windows(corpora: Corpora, trajectories: Spilled | None, level: str,
     return cut
 
 
-def _gaps(corpora: Corpora, labels: Spilled, episodes: pd.DataFrame, level: str,
-          thresholds: Thresholds, config: BootstrapConfig
-          ) -> tuple[pd.DataFrame | None, pd.DataFrame | None, dict[str, str]]:
-    """(gap rows, per-label rows, how they were made: table name -> text) of the sim-to-real
-    gap of every policy from each reference given as driving-data files
-    (:mod:`tap_bench.bench.scores.gap`): the egos' labels at the suite's level, lateral,
-    longitudinal and interaction, against the reference's vehicles at the speeds the
-    policy drives; (None, None, ...) when there is none."""
-    real = {name: traj for name, (traj, _) in corpora.items() if traj is not None}
-    methods: dict[str, str] = {}
-    if not real or not len(labels):
-        return None, None, methods
+def _gap_egos(corpora: Corpora, labels: Spilled, episodes: pd.DataFrame, level: str
+              ) -> pd.DataFrame | None:
+    """What the sim-to-real gaps compare with each reference given as driving-data files:
+    the egos' labels at the suite's level with each episode's ``mean_speed``; None when
+    there is no such reference or the labels mark no ego."""
+    if not any(traj is not None for traj, _ in corpora.values()) or not len(labels):
+        return None
     egos = _ego_labels(labels, level)
     if egos is None:
-        return None, None, methods
+        return None
     speeds = episodes[["env", "policy", "seed", "mean_speed"]]
-    egos = egos.drop(columns=["mean_speed"], errors="ignore").merge(
+    return egos.drop(columns=["mean_speed"], errors="ignore").merge(
         speeds, on=["env", "policy", "seed"], how="left")
-    axes = tuple(a for a in ("lateral", "longitudinal", "interaction") if a in egos.columns)
-    rows, per_label = [], []
-    for name, traj in real.items():
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            reference = labelled_with_speed(traj, level, interactions="all",
-                                            thresholds=thresholds, source=name)
-        for policy, mine in egos.groupby("policy", sort=True):
-            try:
-                gap = behaviour_gap(mine, reference, name=str(policy), axes=axes,
-                                    config=config, reference_name=name)
-            except LabelTableError as err:  # nothing comparable: said, not scored
-                methods.setdefault("gap skipped", "")
-                methods["gap skipped"] += f"{policy} vs {name}: {err} "
-                continue
-            rows.append({"reference": name, **gap.row()})
-            per_label.append(gap.labels.assign(reference=name, policy=str(policy)))
-    if not rows:
-        return None, None, methods
-    methods["gap"] = (
-        "total variation distance between the shares of single labels ("
-        + ", ".join(axes) + f") of the policy's egos and of the reference's vehicles at the "
-        f"policy's speeds; {config.level:.0%} bootstrap of whole episodes of the policy and "
-        f"whole scenes of the reference, each side on its own ({config.n_resamples} "
-        "resamples; the debiased gap with its basic interval); floor: two samples of one "
-        "behaviour with these episodes and scenes")
-    return pd.DataFrame(rows), pd.concat(per_label, ignore_index=True), methods
 
 
 def _ego_labels(labels: Spilled, level: str) -> pd.DataFrame | None:

@@ -73,6 +73,7 @@ from tap_bench.bench.cache import (
     scenario_fingerprint,
 )
 from tap_bench.bench.report.pages import PAGES, fill_page, page_templates, timings_html
+from tap_bench.bench.run.folder import RunResult
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -80,7 +81,7 @@ if TYPE_CHECKING:
     from tap_bench.bench.run.plan import SuitePlan, _Task
     from tap_bench.bench.scores.scoring import Scores
 
-__all__ = ["RUN_FORMAT", "RunResult", "fill_page", "page_templates",
+__all__ = ["RUN_FORMAT", "fill_page", "page_templates",
            "keep_run", "kept_whole", "run_inputs", "serve_run", "serve_unchanged",
            "store_run", "timings_html", "try_served"]
 
@@ -93,44 +94,6 @@ FRESH = ("run", "created", "suite_file", "versions", "machine", "timings", "esti
 """The summary fields a served run writes afresh: what names and describes this run."""
 _FOLDER_FILES = ("summary.json", ".tap-bench-folder")
 _PACKAGE_DATA: list[str] = []
-
-
-class RunResult:
-    """What :func:`~tap_bench.bench.run.runner.run_suite` returns.
-
-    Attributes:
-        folder: the run folder written.
-        summary: the content of ``summary.json``.
-        episodes: the episode table.
-        scores: the scored tables.
-        report: path of ``report.html``.
-
-    A run served from the cache (:func:`serve_run`) reads its episode table and scores
-    from the cache entry when first asked for them.
-    """
-
-    __slots__ = ("_episodes", "_scores", "folder", "report", "summary")
-
-    def __init__(self, folder: Path, summary: dict[str, Any],
-                 episodes: pd.DataFrame | Callable[[], pd.DataFrame],
-                 scores: Scores | Callable[[], Scores], report: Path) -> None:
-        self.folder, self.summary, self.report = folder, summary, report
-        self._episodes, self._scores = episodes, scores
-
-    @property
-    def episodes(self) -> pd.DataFrame:
-        if callable(self._episodes):
-            self._episodes = self._episodes()
-        return self._episodes
-
-    @property
-    def scores(self) -> Scores:
-        if callable(self._scores):
-            self._scores = self._scores()
-        return self._scores
-
-    def __repr__(self) -> str:
-        return f"RunResult(folder={str(self.folder)!r}, report={str(self.report)!r})"
 
 
 def package_data() -> str:

@@ -53,6 +53,7 @@ label table is taken whole (and the result says so).
 from __future__ import annotations
 
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -70,9 +71,11 @@ from tap_bench.stats.bootstrap import (
     scene_clusters,
 )
 from tap_bench.stats.intervals import t_quantile, z_value
+from tap_bench.thresholds import Thresholds
 from tap_bench.trajectories import validate_and_index
 
-__all__ = ["GapResult", "behaviour_gap", "debias", "label_occurrences", "labelled_with_speed"]
+__all__ = ["GapResult", "behaviour_gap", "debias", "gap_scores", "label_occurrences",
+           "labelled_with_speed"]
 
 
 @dataclass(frozen=True)
@@ -273,6 +276,56 @@ def behaviour_gap(policy: pd.DataFrame, reference: pd.DataFrame, *, name: str = 
                      floor=floor, n_policy=len(pol), n_reference=len(ref), labels=table,
                      reference=described, gap_debiased=debiased, debiased_low=d_low,
                      debiased_high=d_high, n_policy_units=g_p, n_reference_units=g_r)
+
+
+def gap_scores(egos: pd.DataFrame, real: Mapping[str, pd.DataFrame], level: str,
+               thresholds: str | Thresholds, config: BootstrapConfig
+               ) -> tuple[pd.DataFrame | None, pd.DataFrame | None, dict[str, str]]:
+    """The sim-to-real gap of every policy from each reference of real driving.
+
+    Args:
+        egos: the policies' egos' labels at ``level`` (env, policy, seed, ``mean_speed``
+            of the episode, the label axes).
+        real: reference name -> its trajectory table, labelled here at ``level`` with
+            ``thresholds`` (:func:`labelled_with_speed`).
+        level: the SDL level compared.
+        thresholds: the TAP thresholds of the run.
+        config: interval level, resamples and seed.
+
+    Returns:
+        (gap rows: reference and :meth:`GapResult.row` per policy, per-label rows:
+        reference, policy and :attr:`GapResult.labels`, how they were made: table name
+        -> text), the tables None when no policy had anything comparable (said in the
+        ``gap skipped`` text).
+    """
+    axes = tuple(a for a in ("lateral", "longitudinal", "interaction") if a in egos.columns)
+    methods: dict[str, str] = {}
+    rows, per_label = [], []
+    for name, traj in real.items():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            reference = labelled_with_speed(traj, level, interactions="all",
+                                            thresholds=thresholds, source=name)
+        for policy, mine in egos.groupby("policy", sort=True):
+            try:
+                gap = behaviour_gap(mine, reference, name=str(policy), axes=axes,
+                                    config=config, reference_name=name)
+            except LabelTableError as err:  # nothing comparable: said, not scored
+                methods.setdefault("gap skipped", "")
+                methods["gap skipped"] += f"{policy} vs {name}: {err} "
+                continue
+            rows.append({"reference": name, **gap.row()})
+            per_label.append(gap.labels.assign(reference=name, policy=str(policy)))
+    if not rows:
+        return None, None, methods
+    methods["gap"] = (
+        "total variation distance between the shares of single labels ("
+        + ", ".join(axes) + f") of the policy's egos and of the reference's vehicles at the "
+        f"policy's speeds; {config.level:.0%} bootstrap of whole episodes of the policy and "
+        f"whole scenes of the reference, each side on its own ({config.n_resamples} "
+        "resamples; the debiased gap with its basic interval); floor: two samples of one "
+        "behaviour with these episodes and scenes")
+    return pd.DataFrame(rows), pd.concat(per_label, ignore_index=True), methods
 
 
 def _t_over_z(units: int, level: float) -> float:
