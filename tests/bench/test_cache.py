@@ -277,3 +277,34 @@ def test_cached_episodes_labelled_in_batches_equal_single_ones(tmp_path):
     warm = run(suite, tmp_path / "warm", without_runs(cache))
     assert (warm.summary["cache"]["cached"], warm.summary["cache"]["simulated"]) == (7, 1)
     assert_same_results(cold, warm)
+
+
+def test_recall_reads_what_the_cache_holds_for_a_run_in_one_pass(tmp_path):
+    cache = EpisodeCache(tmp_path)
+    trajectories, episodes = rollout("merge", "lane-keeping", [0], duration=2, progress=False)
+    trajectories = trajectories.reset_index(drop=True)
+    row = episodes.iloc[0].to_dict()
+    names = ("episodes", "labels")
+    keys = [episode_key({"env": "merge"}, {"policy": "idm"}, seed, {}) for seed in range(3)]
+    labels = [episode_key({"labels": seed}, {}, seed, {}) for seed in range(3)]
+    for (key, doc), (label, label_doc) in zip(keys, labels, strict=True):
+        cache.put(key, doc, trajectories, row, 1.0)
+        cache.put_labels(label, label_doc, {"episodes": episodes,
+                                            "labels": pd.DataFrame({"sdl": ["a"]})})
+    cache.labels_path(labels[1][0]).write_bytes(b"damaged")
+    cache.record_timings({"merge": 2.0}, {})
+    recalled = cache.recall([(labels[0][0], keys[0][0], True),  # held whole
+                             (labels[1][0], keys[1][0], False),  # its label entry damaged
+                             (labels[2][0], keys[2][0], False),  # held without trajectories
+                             (None, None, True)], names)  # not cached
+    assert sorted(recalled.labelled) == [0, 2]
+    tables, kept = recalled.labelled[0]
+    assert set(tables) == set(names) and tables["labels"]["sdl"].tolist() == ["a"]
+    pd.testing.assert_frame_equal(kept, trajectories)
+    assert recalled.labelled[2][1] is None
+    assert list(recalled.notes) == [1] and "refused and deleted" in recalled.notes[1]
+    assert not cache.labels_path(labels[1][0]).exists()
+    assert recalled.stored == [True, True, True, False]  # episode 1: its rollout is stored
+    assert recalled.timings["simulated"] == {"merge": 2.0}
+    # a label entry without every table asked for is no hit
+    assert not cache.recall([(labels[0][0], keys[0][0], True)], (*names, "segments")).labelled
