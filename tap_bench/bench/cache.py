@@ -66,9 +66,9 @@ is kept too (kind ``runs``: its run folder, served without reading an episode;
 :mod:`tap_bench.bench.run.served`).
 
 **Location and size**: ``$TAP_BENCH_CACHE``, else ``$XDG_CACHE_HOME/tap-bench``, else
-``~/.cache/tap-bench`` (:func:`default_cache_dir`). An entry of the default suite is about
-80 kB (its 750 episodes take about 60 MiB; ``benchmarks/bench_incremental.py`` measures
-it). After each run the cache is pruned to ``max_bytes`` (:data:`DEFAULT_MAX_BYTES`),
+``~/.cache/tap-bench`` (:func:`default_cache_dir`); how much an episode takes is measured
+by ``benchmarks/bench_incremental.py`` (docs/benchmark.md, "Incremental runs"). After each
+run the cache is pruned to ``max_bytes`` (:data:`DEFAULT_MAX_BYTES`),
 least recently used entries first (a hit refreshes an entry's time); ``tap-bench bench
 cache prune --max-size`` prunes by hand.
 """
