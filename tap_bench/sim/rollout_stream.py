@@ -346,7 +346,7 @@ def stream_rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
     import pandas as pd
 
     from tap_bench.progress import SceneProgress
-    from tap_bench.tableio import _format, atomic_paths, check_outputs, episodes_path
+    from tap_bench.tableio import _format, check_outputs, episodes_path
 
     output = Path(output)
     episodes_out = Path(episodes_output) if episodes_output else episodes_path(output)
@@ -409,15 +409,28 @@ def stream_rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
             parts.write(first, tables, rows)
         raise
     bar.close()
-    ordered = [parts.rows[k] for k in range(len(seed_list))]
+    episodes, written, joined = _join_parts(parts, len(seed_list), output, episodes_out)
+    result = collect_rollout([], episodes, stacklevel=3)  # warnings; all failed raises
+    return StreamedRollout(output if joined else None, episodes_out, result.episodes,
+                           written, before)
+
+
+def _join_parts(parts: _Parts, n: int, output: Path, episodes_out: Path
+                ) -> tuple[pd.DataFrame, int, bool]:
+    """The parts of a streamed rollout of ``n`` episodes joined into its outputs, both
+    written atomically, and the parts removed: (the episode table, the trajectory rows
+    written, whether a trajectory table was written: not when no episode has rows)."""
+    import pandas as pd
+
+    from tap_bench.tableio import _format, _write, atomic_paths
+
+    ordered = [parts.rows[k] for k in range(n)]
     extra = [key for row in ordered for key in row if key not in EPISODE_COLUMNS]
     episodes = pd.DataFrame(ordered, columns=[*EPISODE_COLUMNS, *dict.fromkeys(extra)])
     table_parts = [p for _, p in sorted(parts.trajectory_parts)]
     written = 0
     targets = [episodes_out] + ([output] if table_parts else [])
     with atomic_paths(targets) as temps:
-        from tap_bench.tableio import _write
-
         _write(episodes, temps[0], episodes_out)
         if table_parts:
             if _format(output) == "parquet":
@@ -426,6 +439,4 @@ def stream_rollout(env: str | os.PathLike | Scenario | WomdScenes | gym.Env,
                 written = _join_csv(table_parts, temps[1],
                                     output.name.lower().endswith(".gz"))
     parts.remove()
-    result = collect_rollout([], episodes, stacklevel=3)  # warnings; all failed raises
-    return StreamedRollout(output if table_parts else None, episodes_out, result.episodes,
-                           written, before)
+    return episodes, written, bool(table_parts)
