@@ -9,7 +9,7 @@
 - :mod:`~tap_bench.bench.run.tasks`: episodes as tasks of the execution layer, the cache;
 - :mod:`~tap_bench.bench.run.scoring`: references read once, every score of the run;
 - :mod:`~tap_bench.bench.run.folder`: the run folder: ``summary.json``, write, read,
-  provenance;
+  provenance, and what a run returns (:class:`~tap_bench.bench.run.folder.RunResult`);
 - :mod:`~tap_bench.bench.run.spill`: a run's trajectories on disk, a part per episode;
 - :mod:`~tap_bench.bench.run.served`: a run served whole from the episode cache;
 - :mod:`~tap_bench.bench.run.demo`: ``tap-bench demo``.
