@@ -1516,9 +1516,22 @@ def _segment_hits(px, py, near, ax, ay, bx, by):  # pragma: no cover - compiled
     d1, d2), in (k, q) order, where d1 and d2 are the sides (cross products) of k's ends
     from q's line (the crossing is at d1 / (d1 - d2) along k)."""
     rows = []
+    m = near.shape[0]
+    lo_x, hi_x, lo_y, hi_y = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+    for i in range(m):
+        q = near[i]
+        lo_x[i], hi_x[i] = min(ax[q], bx[q]), max(ax[q], bx[q])
+        lo_y[i], hi_y[i] = min(ay[q], by[q]), max(ay[q], by[q])
     for k in range(px.shape[0] - 1):
         x0, y0, x1, y1 = px[k], py[k], px[k + 1], py[k + 1]
-        for q in near:
+        k_lo_x, k_hi_x = min(x0, x1), max(x0, x1)
+        k_lo_y, k_hi_y = min(y0, y1), max(y0, y1)
+        for i in range(m):
+            # boxes apart: the segments neither cross nor touch (skipped unmeasured)
+            if (hi_x[i] < k_lo_x or lo_x[i] > k_hi_x or hi_y[i] < k_lo_y
+                    or lo_y[i] > k_hi_y):
+                continue
+            q = near[i]
             d1 = (bx[q] - ax[q]) * (y0 - ay[q]) - (by[q] - ay[q]) * (x0 - ax[q])
             d2 = (bx[q] - ax[q]) * (y1 - ay[q]) - (by[q] - ay[q]) * (x1 - ax[q])
             d3 = (x1 - x0) * (ay[q] - y0) - (y1 - y0) * (ax[q] - x0)
@@ -1889,10 +1902,11 @@ class _Movers:
     """A step's movers: the vehicles of a layout at ``rows`` (sorted), read by index as a
     list of them would be, without the list or an index of them made each step."""
 
-    __slots__ = ("layout", "rows")
+    __slots__ = ("found", "layout", "rows")
 
     def __init__(self, layout: _Layout, rows: np.ndarray) -> None:
         self.layout, self.rows = layout, rows
+        self.found: dict[int, int | None] = {}  # index_of's answers, by the vehicle's id
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -1902,11 +1916,17 @@ class _Movers:
 
     def index_of(self, vehicle: Vehicle, default: int | None = None) -> int | None:
         """The vehicle's index among the movers (``default`` when it is not one)."""
-        row = self.layout.row_of.get(id(vehicle))
-        if row is None:
-            return default
-        k = int(np.searchsorted(self.rows, row))
-        return k if k < len(self.rows) and self.rows[k] == row else default
+        key = id(vehicle)
+        if key in self.found:
+            k = self.found[key]
+            return default if k is None else k
+        row = self.layout.row_of.get(key)
+        k = None
+        if row is not None:
+            k = int(np.searchsorted(self.rows, row))
+            k = k if k < len(self.rows) and self.rows[k] == row else None
+        self.found[key] = k
+        return default if k is None else k
 
 
 class _Layout:
@@ -2584,14 +2604,19 @@ class WomdRoad(Road):
         """(lane index, where the lane starts [m] along the vehicle's way from its centre) of
         its lane and the next ones (its route's, else the straightest) up to ``lookahead``
         [m] (at most three more). The longest look of a step is kept on the vehicle and cut
-        for shorter ones (the stop points, walkers, conflicts and leaders all ask)."""
+        for shorter ones (the stop points, walkers, conflicts and leaders all ask), each
+        cut kept too: the list is shared, read it without changing it."""
         key = (self.clock[0], vehicle.lane_index, vehicle.position.tobytes())
         cached = vehicle.__dict__.get("_lanes_ahead_cache")
         if cached is None or cached[0] != key or cached[1] < lookahead:
             cached = (key, max(lookahead, LANES_AHEAD), self._lanes_ahead_now(
-                vehicle, max(lookahead, LANES_AHEAD)))
+                vehicle, max(lookahead, LANES_AHEAD)), {})
             vehicle.__dict__["_lanes_ahead_cache"] = cached
-        return [item for k, item in enumerate(cached[2]) if k == 0 or item[1] <= lookahead]
+        cut = cached[3].get(lookahead)  # each look's lanes, kept with the step's
+        if cut is None:
+            cut = cached[3][lookahead] = [item for k, item in enumerate(cached[2])
+                                          if k == 0 or item[1] <= lookahead]
+        return cut
 
     def _lanes_ahead_now(self, vehicle: Vehicle, lookahead: float) -> list[tuple[Any, float]]:
         """:meth:`_lanes_ahead`, computed."""

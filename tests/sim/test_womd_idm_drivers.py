@@ -115,6 +115,10 @@ def test_lane_crossings_are_every_segment_pair_that_crosses_or_touches(seed):
     # lanes sampled through the same point (touching) and along the same line (collinear)
     a[:10], b[:10] = line[5:15], line[5:15] + rng.normal(0.0, 2.0, (10, 2))
     a[10:20], b[10:20] = line[10:20], line[11:21]
+    # level and upright segments through its points (flat boxes), and ones ending on them
+    level, upright = np.array([3.0, 0.0]), np.array([0.0, 3.0])
+    a[20:30], b[20:30] = line[0:10] - level, line[0:10] + level
+    a[30:40], b[30:40] = line[0:10] - upright, line[0:10]
     near = np.arange(200)
     got = _segment_hits(line[:, 0].copy(), line[:, 1].copy(), near, a[:, 0].copy(),
                         a[:, 1].copy(), b[:, 0].copy(), b[:, 1].copy())
