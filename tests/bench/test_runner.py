@@ -94,7 +94,12 @@ def test_read_run(flaky_run, tmp_path):
         read_run(tmp_path)
 
 
+@pytest.mark.slow
 def test_workers_give_the_same_episodes(tmp_path):
+    """Slow: one worker and two give the same episodes. Fast: tests/bench/test_rerun.py::
+    test_a_rerun_reads_labels_and_measures_and_is_identical compares every table of a run
+    on one worker with one on two workers (floats with ==), as test_run_cache.py::
+    test_an_unchanged_rerun_is_served_whole_and_equal does for a run with its report."""
     suite = tiny(["idm", "idm-aggressive"], seeds="0-1")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
