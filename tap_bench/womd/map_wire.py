@@ -386,6 +386,200 @@ def _point_run(buf, pos, end, key, points, n_points):  # pragma: no cover - comp
 
 
 @numba.njit(cache=True, nogil=True)
+def _signal_step(buf, a, b, step, row3, ls_64, s_step, s_lane, s_state, s_stop,
+                 n_ls):  # pragma: no cover - compiled
+    """Append the lane states of one step's signal message ``buf[a:b]`` (step ``step``) to
+    the state lists: (bad, n_ls, s_step, s_lane, s_state, s_stop), bad where protobuf must
+    read it."""
+    bad = False
+    while not bad and a < b:
+        f2, w2, a = _tag(buf, a, b)
+        if f2 < 0:
+            bad = True
+        elif f2 == 1:  # a lane state
+            if w2 != 2:
+                bad = True
+                break
+            c, d = _length(buf, a, b)
+            if c < 0:
+                bad = True
+                break
+            a = d
+            row3[0] = row3[1] = 0
+            has_stop = False
+            x = y = 0.0
+            while c < d:
+                f3, w3, c = _tag(buf, c, d)
+                if f3 < 0:
+                    bad = True
+                    break
+                if f3 == 1 or f3 == 2:
+                    if w3 != 0:
+                        bad = True
+                        break
+                    value, c = _varint(buf, c, d)
+                    if c < 0:
+                        bad = True
+                        break
+                    row3[f3 - 1] = (_int64(value) if ls_64[f3 - 1]
+                                    else _int32(value))
+                elif f3 == 3:
+                    if w3 != 2 or has_stop:
+                        bad = True
+                        break
+                    has_stop = True
+                    e, g = _length(buf, c, d)
+                    if e < 0:
+                        bad = True
+                        break
+                    ok, x, y = _point(buf, e, g)
+                    if not ok:
+                        bad = True
+                        break
+                    c = g
+                else:
+                    c = _skip(buf, c, d, w3)
+                    if c < 0:
+                        bad = True
+                        break
+            s_step = _room1(s_step, n_ls + 1)
+            s_lane = _room1(s_lane, n_ls + 1)
+            s_state = _room1(s_state, n_ls + 1)
+            s_stop = _room2(s_stop, n_ls + 1)
+            s_step[n_ls] = step
+            s_lane[n_ls] = row3[0]
+            s_state[n_ls] = row3[1]
+            s_stop[n_ls, 0] = x
+            s_stop[n_ls, 1] = y
+            n_ls += 1
+        else:
+            a = _skip(buf, a, b, w2)
+            bad = a < 0
+    return bad, n_ls, s_step, s_lane, s_state, s_stop
+
+
+@numba.njit(cache=True, nogil=True)
+def _feature(buf, a, b, feature, speed, stop, row5, row4, nb_64, bd_64, points, ids,
+             neighbours, boundaries, n_pts, n_ids, n_nb,
+             n_bd):  # pragma: no cover - compiled
+    """Read one map feature's message ``buf[a:b]`` into its row ``feature`` (columns
+    ``_F_*``), its speed limit (``speed[0]``), its stop position (``stop``) and the lists
+    it adds to: (bad, points, ids, neighbours, boundaries, n_pts, n_ids, n_nb, n_bd), bad
+    where protobuf must read it."""
+    bad = False
+    kinds = 0
+    while not bad and a < b:
+        f2, w2, a = _tag(buf, a, b)
+        if f2 < 0:
+            bad = True
+            break
+        if f2 == 1:
+            if w2 != 0:
+                bad = True
+                break
+            value, a = _varint(buf, a, b)
+            bad = a < 0
+            feature[_F_ID] = _int64(value)
+            continue
+        kind = (_LANE if f2 == 3 else _ROAD_LINE if f2 == 4 else _ROAD_EDGE
+                if f2 == 5 else _STOP_SIGN if f2 == 7 else _CROSSWALK if f2 == 8
+                else 0)
+        if kind == 0:
+            a = _skip(buf, a, b, w2)
+            bad = a < 0
+            continue
+        if w2 != 2 or kinds:  # a second kind, or one kind twice: protobuf
+            bad = True
+            break
+        kinds += 1
+        feature[_F_KIND] = kind
+        c, d = _length(buf, a, b)
+        if c < 0:
+            bad = True
+            break
+        a = d
+        feature[_F_PTS0] = feature[_F_PTS1] = n_pts
+        # each list's [start, end) column, its items at the end of its array
+        points_field = (8 if kind == _LANE else 2 if kind <= _ROAD_EDGE
+                        else 1 if kind == _CROSSWALK else -1)
+        seen_position = False
+        while c < d:
+            f3, w3, c = _tag(buf, c, d)
+            if f3 < 0:
+                bad = True
+                break
+            if f3 == points_field:
+                if w3 != 2 or feature[_F_PTS1] != n_pts:
+                    bad = True
+                    break
+                c, n_pts, points = _point_run(buf, c, d, points_field << 3 | 2,
+                                              points, n_pts)
+                feature[_F_PTS1] = n_pts
+            elif kind == _LANE and f3 == 1:
+                if w3 != 1 or c + 8 > d:
+                    bad = True
+                    break
+                speed[0] = _double(buf, c)
+                feature[_F_HAS_SPEED] = 1
+                c += 8
+            elif kind == _LANE and (f3 == 2 or f3 == 3):
+                if w3 != 0:
+                    bad = True
+                    break
+                value, c = _varint(buf, c, d)
+                if f3 == 2 and c >= 0:
+                    feature[_F_TYPE] = _int32(value)
+            elif (kind == _LANE and (f3 == 9 or f3 == 10)) or (
+                    kind == _STOP_SIGN and f3 == 1):
+                col = _F_ENTRY0 if f3 == 9 else _F_EXIT0 if f3 == 10 else _F_STOP0
+                if feature[col + 1] == 0 and feature[col] == 0:
+                    feature[col] = feature[col + 1] = n_ids
+                if feature[col + 1] != n_ids:
+                    bad = True
+                    break
+                ids = _room1(ids, n_ids + d - c)  # an id takes a byte or more
+                c, n_ids = _append_ids(buf, c, d, w3, ids, n_ids)
+                feature[col + 1] = n_ids
+            elif kind == _LANE and (f3 == 11 or f3 == 12):
+                c, neighbours, n_nb = _append_message(
+                    buf, c, d, w3, feature,
+                    _F_LEFT0 if f3 == 11 else _F_RIGHT0, nb_64, row5,
+                    neighbours, n_nb)
+            elif kind == _LANE and (f3 == 13 or f3 == 14):
+                # (start, end, feature id): the type is read, not kept
+                c, boundaries, n_bd = _append_message(
+                    buf, c, d, w3, feature, _F_LB0 if f3 == 13 else _F_RB0,
+                    bd_64, row4, boundaries, n_bd)
+            elif kind == _STOP_SIGN and f3 == 2:
+                if w3 != 2 or seen_position:
+                    bad = True
+                    break
+                seen_position = True
+                e, g = _length(buf, c, d)
+                if e < 0:
+                    bad = True
+                    break
+                ok, x, y = _point(buf, e, g)
+                if not ok:
+                    bad = True
+                    break
+                stop[0] = x
+                stop[1] = y
+                c = g
+            elif (kind <= _ROAD_EDGE and kind != _LANE and f3 == 1):
+                if w3 != 0:
+                    bad = True
+                    break
+                c = _varint(buf, c, d)[1]
+            else:
+                c = _skip(buf, c, d, w3)
+            if c < 0:
+                bad = True
+                break
+    return bad, points, ids, neighbours, boundaries, n_pts, n_ids, n_nb, n_bd
+
+
+@numba.njit(cache=True, nogil=True)
 def _read(buf):  # pragma: no cover - compiled
     """Read the map of the Scenario in ``buf`` (see :class:`MapWire`): (head, features,
     speed limits, stop positions, points, ids, neighbours, boundaries, signal steps, lanes,
@@ -457,69 +651,10 @@ def _read(buf):  # pragma: no cover - compiled
                 a, b = _length(buf, pos, n)
                 bad = a < 0
                 pos = b
-                while not bad and a < b:
-                    f2, w2, a = _tag(buf, a, b)
-                    if f2 < 0:
-                        bad = True
-                    elif f2 == 1:  # a lane state
-                        if w2 != 2:
-                            bad = True
-                            break
-                        c, d = _length(buf, a, b)
-                        if c < 0:
-                            bad = True
-                            break
-                        a = d
-                        row3[0] = row3[1] = 0
-                        has_stop = False
-                        x = y = 0.0
-                        while c < d:
-                            f3, w3, c = _tag(buf, c, d)
-                            if f3 < 0:
-                                bad = True
-                                break
-                            if f3 == 1 or f3 == 2:
-                                if w3 != 0:
-                                    bad = True
-                                    break
-                                value, c = _varint(buf, c, d)
-                                if c < 0:
-                                    bad = True
-                                    break
-                                row3[f3 - 1] = (_int64(value) if ls_64[f3 - 1]
-                                                else _int32(value))
-                            elif f3 == 3:
-                                if w3 != 2 or has_stop:
-                                    bad = True
-                                    break
-                                has_stop = True
-                                e, g = _length(buf, c, d)
-                                if e < 0:
-                                    bad = True
-                                    break
-                                ok, x, y = _point(buf, e, g)
-                                if not ok:
-                                    bad = True
-                                    break
-                                c = g
-                            else:
-                                c = _skip(buf, c, d, w3)
-                                if c < 0:
-                                    bad = True
-                                    break
-                        s_step = _room1(s_step, n_ls + 1)
-                        s_lane = _room1(s_lane, n_ls + 1)
-                        s_state = _room1(s_state, n_ls + 1)
-                        s_stop = _room2(s_stop, n_ls + 1)
-                        s_step[n_ls] = n_states
-                        s_lane[n_ls] = row3[0]
-                        s_state[n_ls] = row3[1]
-                        s_stop[n_ls, 0] = x
-                        s_stop[n_ls, 1] = y
-                        n_ls += 1
-                    else:
-                        a = _skip(buf, a, b, w2)
-                        bad = a < 0
+                if not bad:
+                    bad, n_ls, s_step, s_lane, s_state, s_stop = _signal_step(
+                        buf, a, b, n_states, row3, ls_64, s_step, s_lane, s_state,
+                        s_stop, n_ls)
                 n_states += 1
         elif field == 8:  # a map feature
             if wire != 2:
@@ -530,115 +665,11 @@ def _read(buf):  # pragma: no cover - compiled
                 pos = b
                 k = n_f
                 n_f += 1
-                kinds = 0
-                while not bad and a < b:
-                    f2, w2, a = _tag(buf, a, b)
-                    if f2 < 0:
-                        bad = True
-                        break
-                    if f2 == 1:
-                        if w2 != 0:
-                            bad = True
-                            break
-                        value, a = _varint(buf, a, b)
-                        bad = a < 0
-                        features[k, _F_ID] = _int64(value)
-                        continue
-                    kind = (_LANE if f2 == 3 else _ROAD_LINE if f2 == 4 else _ROAD_EDGE
-                            if f2 == 5 else _STOP_SIGN if f2 == 7 else _CROSSWALK if f2 == 8
-                            else 0)
-                    if kind == 0:
-                        a = _skip(buf, a, b, w2)
-                        bad = a < 0
-                        continue
-                    if w2 != 2 or kinds:  # a second kind, or one kind twice: protobuf
-                        bad = True
-                        break
-                    kinds += 1
-                    features[k, _F_KIND] = kind
-                    c, d = _length(buf, a, b)
-                    if c < 0:
-                        bad = True
-                        break
-                    a = d
-                    features[k, _F_PTS0] = features[k, _F_PTS1] = n_pts
-                    # each list's [start, end) column, its items at the end of its array
-                    points_field = (8 if kind == _LANE else 2 if kind <= _ROAD_EDGE
-                                    else 1 if kind == _CROSSWALK else -1)
-                    seen_position = False
-                    while c < d:
-                        f3, w3, c = _tag(buf, c, d)
-                        if f3 < 0:
-                            bad = True
-                            break
-                        if f3 == points_field:
-                            if w3 != 2 or features[k, _F_PTS1] != n_pts:
-                                bad = True
-                                break
-                            c, n_pts, points = _point_run(buf, c, d, points_field << 3 | 2,
-                                                          points, n_pts)
-                            features[k, _F_PTS1] = n_pts
-                        elif kind == _LANE and f3 == 1:
-                            if w3 != 1 or c + 8 > d:
-                                bad = True
-                                break
-                            speed[k] = _double(buf, c)
-                            features[k, _F_HAS_SPEED] = 1
-                            c += 8
-                        elif kind == _LANE and (f3 == 2 or f3 == 3):
-                            if w3 != 0:
-                                bad = True
-                                break
-                            value, c = _varint(buf, c, d)
-                            if f3 == 2 and c >= 0:
-                                features[k, _F_TYPE] = _int32(value)
-                        elif (kind == _LANE and (f3 == 9 or f3 == 10)) or (
-                                kind == _STOP_SIGN and f3 == 1):
-                            col = _F_ENTRY0 if f3 == 9 else _F_EXIT0 if f3 == 10 else _F_STOP0
-                            if features[k, col + 1] == 0 and features[k, col] == 0:
-                                features[k, col] = features[k, col + 1] = n_ids
-                            if features[k, col + 1] != n_ids:
-                                bad = True
-                                break
-                            ids = _room1(ids, n_ids + d - c)  # an id takes a byte or more
-                            c, n_ids = _append_ids(buf, c, d, w3, ids, n_ids)
-                            features[k, col + 1] = n_ids
-                        elif kind == _LANE and (f3 == 11 or f3 == 12):
-                            c, neighbours, n_nb = _append_message(
-                                buf, c, d, w3, features[k],
-                                _F_LEFT0 if f3 == 11 else _F_RIGHT0, nb_64, row5,
-                                neighbours, n_nb)
-                        elif kind == _LANE and (f3 == 13 or f3 == 14):
-                            # (start, end, feature id): the type is read, not kept
-                            c, boundaries, n_bd = _append_message(
-                                buf, c, d, w3, features[k], _F_LB0 if f3 == 13 else _F_RB0,
-                                bd_64, row4, boundaries, n_bd)
-                        elif kind == _STOP_SIGN and f3 == 2:
-                            if w3 != 2 or seen_position:
-                                bad = True
-                                break
-                            seen_position = True
-                            e, g = _length(buf, c, d)
-                            if e < 0:
-                                bad = True
-                                break
-                            ok, x, y = _point(buf, e, g)
-                            if not ok:
-                                bad = True
-                                break
-                            stop[k, 0] = x
-                            stop[k, 1] = y
-                            c = g
-                        elif (kind <= _ROAD_EDGE and kind != _LANE and f3 == 1):
-                            if w3 != 0:
-                                bad = True
-                                break
-                            c = _varint(buf, c, d)[1]
-                        else:
-                            c = _skip(buf, c, d, w3)
-                        if c < 0:
-                            bad = True
-                            break
+                if not bad:
+                    (bad, points, ids, neighbours, boundaries, n_pts, n_ids, n_nb,
+                     n_bd) = _feature(buf, a, b, features[k], speed[k:k + 1], stop[k],
+                                      row5, row4, nb_64, bd_64, points, ids,
+                                      neighbours, boundaries, n_pts, n_ids, n_nb, n_bd)
         else:
             pos = _skip(buf, pos, n, wire)
             bad = pos < 0

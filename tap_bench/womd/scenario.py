@@ -344,6 +344,42 @@ def normalise_object_types(object_types: Iterable[str] | str | None) -> frozense
     return frozenset(names)
 
 
+def _kept_states(record: Record, chunks: list[bytes], first: list[int], n_steps: int,
+                 track_ids: list[str]) -> dict[str, np.ndarray]:
+    """The kept tracks' states, decoded from their serialized ``Track`` messages.
+
+    Args:
+        record: the record (names it in errors).
+        chunks: each kept track's serialized message, in order.
+        first: where each kept track's first state starts in the joined messages [bytes].
+        n_steps: states per track.
+        track_ids: the kept tracks' ids (name a faulty state's track).
+
+    Returns:
+        The state columns, each an array of n_tracks * n_steps values, track by track.
+
+    Raises:
+        WomdRecordError: a state is not well formed (its track and step named).
+    """
+    try:
+        buf = np.frombuffer(b"".join(chunks) + bytes(_PAD), dtype=np.uint8)
+        from tap_bench.womd.state_wire import decode_track_states
+
+        st = decode_track_states(buf, np.array(first, dtype=np.int64), n_steps,
+                                 len(buf) - _PAD)
+        if st is None:  # not well formed: the numpy walk finds and names the fault
+            pos, lengths = _state_positions(buf, np.array(first, dtype=np.int64), n_steps)
+            if (pos + lengths > len(buf) - _PAD).any():
+                raise StateDecodeError("a state runs past the end of its track",
+                                       int(np.flatnonzero(pos + lengths > len(buf) - _PAD)[0]))
+            st = _decode_states_at(buf, pos, lengths)
+    except StateDecodeError as err:
+        track_pos, step = divmod(err.state, n_steps)
+        raise record.error(f"track {track_ids[track_pos]} state {step}: {err}",
+                           _NOT_A_SCENARIO) from None
+    return st
+
+
 def decode_scenario(record: Record, *, object_types: frozenset[str] | None = None,
                     source: str = "womd") -> pa.Table:
     """Decode one ``Scenario`` record into a trajectory table (Arrow; ``.to_pandas()``).
@@ -435,22 +471,7 @@ def decode_scenario(record: Record, *, object_types: frozenset[str] | None = Non
         first.append(offset + _header_size(serialized))
         offset += len(serialized)
         chunks.append(serialized)
-    try:
-        buf = np.frombuffer(b"".join(chunks) + bytes(_PAD), dtype=np.uint8)
-        from tap_bench.womd.state_wire import decode_track_states
-
-        st = decode_track_states(buf, np.array(first, dtype=np.int64), n_steps,
-                                 len(buf) - _PAD)
-        if st is None:  # not well formed: the numpy walk finds and names the fault
-            pos, lengths = _state_positions(buf, np.array(first, dtype=np.int64), n_steps)
-            if (pos + lengths > len(buf) - _PAD).any():
-                raise StateDecodeError("a state runs past the end of its track",
-                                       int(np.flatnonzero(pos + lengths > len(buf) - _PAD)[0]))
-            st = _decode_states_at(buf, pos, lengths)
-    except StateDecodeError as err:
-        track_pos, step = divmod(err.state, n_steps)
-        raise record.error(f"track {track_ids[track_pos]} state {step}: {err}",
-                           _NOT_A_SCENARIO) from None
+    st = _kept_states(record, chunks, first, n_steps, track_ids)
     problem = bad_box_size(track_ids, n_steps, st)
     if problem is not None:
         raise record.error(problem, BOX_SIZE_FIX)
