@@ -90,10 +90,11 @@ from tap_bench.errors import did_you_mean
 from tap_bench.sim.observation import FastKinematicObservation
 
 __all__ = ["CLOSING_SCALE", "CROSSING_COUNT", "CROSSING_FEATURES", "CROSS_HORIZON",
-           "CROSS_MIN_ANGLE", "INVERSE_TTC_SCALE", "LEADER_FEATURES", "OBSERVATION_TYPE",
-           "OFFSET_SCALE", "PREDICT_TOLERANCE", "ROUTE_FEATURES", "SPEED_SCALE",
-           "SWEPT_HORIZON", "SWEPT_MARGIN", "Crossing", "Leader", "RouteObservation",
-           "pose_times", "predicted_conflict", "route_feature_names", "swept_leader"]
+           "CROSS_MIN_ANGLE", "Crossing", "INVERSE_TTC_SCALE", "LEADER_FEATURES", "Leader",
+           "MIN_CROSS_SPEED", "NO_LEADER", "OBSERVATION_TYPE", "OFFSET_SCALE",
+           "PREDICT_TOLERANCE", "ROUTE_FEATURES", "RouteObservation", "SPEED_SCALE",
+           "SWEPT_HORIZON", "SWEPT_MARGIN", "SWEPT_STEP", "boxes_overlap", "pose_times",
+           "predicted_conflict", "route_feature_names", "swept_leader", "swept_poses"]
 
 OBSERVATION_TYPE = "KinematicsRoute"
 """The ``observation`` config's ``type`` of :class:`RouteObservation`."""
@@ -577,7 +578,7 @@ def swept_leader(ego: Any, others: list[Any], margin: float = SWEPT_MARGIN) -> L
     oh = np.array([others[i].heading for i in idx], dtype=float)
     half_l = np.array([others[i].LENGTH for i in idx], dtype=float) / 2
     half_w = np.array([others[i].WIDTH for i in idx], dtype=float) / 2
-    overlap = _boxes_overlap(xy, heading, float(ego.LENGTH) / 2,
+    overlap = boxes_overlap(xy, heading, float(ego.LENGTH) / 2,
                              float(ego.WIDTH) / 2 + margin, pos[None], oh, half_l, half_w)
     hit = overlap.any(axis=0)
     if not hit.any():
@@ -652,13 +653,13 @@ def predicted_conflict(ego: Any, others: list[Any], acceleration: float = 0.0,
     t_pose, reached = pose_times(ego, s, acceleration, horizon, max_acceleration)
     el, ew = float(ego.LENGTH) / 2, float(ego.WIDTH) / 2 + margin
     moved = pos[None] + t_pose[:, None, None] * vel[None]  # (k, n, 2)
-    matched = _boxes_overlap(xy, heading, el, ew, moved, oh, half_l + speed * tolerance,
+    matched = boxes_overlap(xy, heading, el, ew, moved, oh, half_l + speed * tolerance,
                              half_w) & reached[:, None]
     meets = matched.any(axis=0)
     if not meets.any():
         return NO_LEADER
     centre = pos + 0.5 * horizon * vel  # the zone: from -tolerance to horizon + tolerance
-    zone = _boxes_overlap(xy, heading, el, ew, centre[None], oh,
+    zone = boxes_overlap(xy, heading, el, ew, centre[None], oh,
                           half_l + speed * (0.5 * horizon + tolerance), half_w)
     along = np.where(zone, s[:, None], np.inf)  # (k, n)
     entry = along.min(axis=0)  # (n,) where the ego's way enters each zone [m]
@@ -688,7 +689,7 @@ def pose_times(ego: Any, s: np.ndarray, acceleration: float, horizon: float = SW
     return np.where(reached, t[np.minimum(at, len(t) - 1)], 0.0), reached
 
 
-def _boxes_overlap(xy: np.ndarray, heading: np.ndarray, half_length: float, half_width: float,
+def boxes_overlap(xy: np.ndarray, heading: np.ndarray, half_length: float, half_width: float,
                    pos: np.ndarray, oh: np.ndarray, half_l: np.ndarray, half_w: np.ndarray
                    ) -> np.ndarray:
     """(k, n) bool: whether the ego's box at pose k (centre ``xy`` (k, 2) [m], ``heading``

@@ -55,7 +55,7 @@ from tap_bench.sim.womd_observation import (
     SWEPT_MARGIN,
     SWEPT_STEP,
     Leader,
-    _boxes_overlap,
+    boxes_overlap,
     pose_times,
     swept_poses,
 )
@@ -368,7 +368,7 @@ def lane_conflict(ego: Any, others: list[Any], network: Any, acceleration: float
     if not near.any():
         return NO_LEADER
     cols = inside[near]
-    overlap = _boxes_overlap(xy, heading, el, ew, pos[cols][None], head[cols], half_l[cols],
+    overlap = boxes_overlap(xy, heading, el, ew, pos[cols][None], head[cols], half_l[cols],
                              half_w[cols])  # (k, J')
     t_pose, reached = pose_times(ego, s, acceleration, horizon, max_acceleration)
     matched = (overlap & reached[:, None] & (t_pose[:, None] >= t_lo[cols])
