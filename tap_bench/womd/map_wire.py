@@ -386,6 +386,20 @@ def _point_run(buf, pos, end, key, points, n_points):  # pragma: no cover - comp
 
 
 @numba.njit(cache=True, nogil=True)
+def _point_message(buf, pos, end, wire, seen):  # pragma: no cover - compiled
+    """(position after it, x, y) of the MapPoint field at ``buf[pos:end]`` sent with wire
+    type ``wire``; the position is -1 where protobuf must read it (not a message, a point
+    ``seen`` already, a bad length or point)."""
+    if wire != 2 or seen:
+        return -1, 0.0, 0.0
+    a, b = _length(buf, pos, end)
+    if a < 0:
+        return -1, 0.0, 0.0
+    ok, x, y = _point(buf, a, b)
+    return (b if ok else -1), x, y
+
+
+@numba.njit(cache=True, nogil=True)
 def _signal_step(buf, a, b, step, row3, ls_64, s_step, s_lane, s_state, s_stop,
                  n_ls):  # pragma: no cover - compiled
     """Append the lane states of one step's signal message ``buf[a:b]`` (step ``step``) to
@@ -424,19 +438,11 @@ def _signal_step(buf, a, b, step, row3, ls_64, s_step, s_lane, s_state, s_stop,
                     row3[f3 - 1] = (_int64(value) if ls_64[f3 - 1]
                                     else _int32(value))
                 elif f3 == 3:
-                    if w3 != 2 or has_stop:
-                        bad = True
-                        break
+                    c, x, y = _point_message(buf, c, d, w3, has_stop)
                     has_stop = True
-                    e, g = _length(buf, c, d)
-                    if e < 0:
+                    if c < 0:
                         bad = True
                         break
-                    ok, x, y = _point(buf, e, g)
-                    if not ok:
-                        bad = True
-                        break
-                    c = g
                 else:
                     c = _skip(buf, c, d, w3)
                     if c < 0:
@@ -551,21 +557,13 @@ def _feature(buf, a, b, feature, speed, stop, row5, row4, nb_64, bd_64, points, 
                     buf, c, d, w3, feature, _F_LB0 if f3 == 13 else _F_RB0,
                     bd_64, row4, boundaries, n_bd)
             elif kind == _STOP_SIGN and f3 == 2:
-                if w3 != 2 or seen_position:
-                    bad = True
-                    break
+                c, x, y = _point_message(buf, c, d, w3, seen_position)
                 seen_position = True
-                e, g = _length(buf, c, d)
-                if e < 0:
-                    bad = True
-                    break
-                ok, x, y = _point(buf, e, g)
-                if not ok:
+                if c < 0:
                     bad = True
                     break
                 stop[0] = x
                 stop[1] = y
-                c = g
             elif (kind <= _ROAD_EDGE and kind != _LANE and f3 == 1):
                 if w3 != 0:
                     bad = True
