@@ -1561,6 +1561,46 @@ def _lane_members(px, py, tx, ty, s, half, lo, hi, xs, ys):  # pragma: no cover 
 
 
 @numba.njit(cache=True, nogil=True)
+def _front_rear(members, lon, s, mine):  # pragma: no cover - compiled
+    """The nearest movers on a lane ahead of and behind the longitudinal coordinate ``s``
+    [m] (:meth:`WomdRoad.neighbour_vehicles`): among ``members`` (their rows, in order;
+    ``lon`` every mover's longitudinal coordinate [m]), ``mine`` left out (-1: none): (the
+    front's row, with lon >= s, the last of equal ones; the rear's, lon < s, the first of
+    equal ones), -1 where none."""
+    front = rear = -1
+    s_front = s_rear = 0.0
+    for i in members:
+        if i == mine:
+            continue
+        sv = lon[i]
+        if s <= sv and (front < 0 or sv <= s_front):
+            s_front, front = sv, i
+        if sv < s and (rear < 0 or sv > s_rear):
+            s_rear, rear = sv, i
+    return front, rear
+
+
+@numba.njit(cache=True, nogil=True)
+def _leader_on(members, lon, hs, base, mine, heading, best_d, reach
+               ):  # pragma: no cover - compiled
+    """The nearest mover ahead on one of the next lanes (:meth:`WomdRoad.leader_ahead`):
+    among ``members`` (rows, in order; ``lon`` every mover's longitudinal coordinate on the
+    lane [m], ``hs`` its heading [rad]) the first whose distance ``base + lon`` [m] is in
+    (0, min(best_d, reach + 0)) (not beyond ``reach``, below ``best_d``), not ``mine`` and
+    not oncoming (cos of the heading difference not below 0, ``heading`` [rad] the
+    vehicle's): (its row or -1, its distance or ``best_d``)."""
+    best = -1
+    for i in members:
+        d = base + lon[i]
+        if i == mine or d <= 0 or d >= best_d or d > reach:
+            continue
+        if math.cos(hs[i] - heading) < 0:
+            continue
+        best, best_d = i, d
+    return best, best_d
+
+
+@numba.njit(cache=True, nogil=True)
 def _corridor(xs, ys, hs, vs, ls, ws, x, y, heading, length, width, reach, mine
               ):  # pragma: no cover - compiled
     """:meth:`WomdRoad.corridor_leader` over the movers (centres xs, ys, headings hs, speeds
@@ -2080,6 +2120,8 @@ class WomdRoad(Road):
         self._red = signals.red
         self._red_or_yellow = signals.red_or_yellow
         self._lane_list = [network.index[lane.id] for lane in lanes]
+        self._lane_slot = {index: k for k, index in enumerate(self._lane_list)}
+        self._segment_boxes: tuple[np.ndarray, ...] | None = None  # conflicts' boxes
         self._predecessors: dict[Any, list[Any]] = {}
         for index in self._lane_list:
             for nxt in network.successors(index):
@@ -2218,25 +2260,18 @@ class WomdRoad(Road):
         if not lane_index or (self._positions is None and self.objects):
             return super().neighbour_vehicles(vehicle, lane_index)
         if self._positions is None:  # before the road's act (the decision's own act): all
-            members, lon, _ = self._everyone_on(lane_index)  # vehicles, as highway-env
+            _, lon, rows = self._everyone_on(lane_index)  # vehicles, as highway-env
             candidates = self._everyone[0].vehicles
+            mine = self._everyone[0].row_of.get(id(vehicle), -1)
         else:
-            members, lon, _ = self._lane_table(lane_index)
+            _, lon, rows = self._lane_table(lane_index)
             candidates = self._movers
+            mine = candidates.index_of(vehicle, -1)
         lane = self.network.get_lane(lane_index)
         s = lane.local_coordinates(vehicle.position)[0]
-        front = rear = None
-        s_front = s_rear = None
-        for i in members:
-            v = candidates[i]
-            if v is vehicle:
-                continue
-            sv = lon[i]
-            if s <= sv and (s_front is None or sv <= s_front):
-                s_front, front = sv, v
-            if sv < s and (s_rear is None or sv > s_rear):
-                s_rear, rear = sv, v
-        return front, rear
+        front, rear = _front_rear(rows, lon, float(s), mine)
+        return (None if front < 0 else candidates[front],
+                None if rear < 0 else candidates[rear])
 
     def step(self, dt: float) -> None:
         """Move everyone one step, then check collisions: every pair in which a vehicle
@@ -2368,20 +2403,17 @@ class WomdRoad(Road):
         (None, inf) if none."""
         if self._positions is None or not len(self._positions):
             return None, math.inf
-        best, best_d = None, math.inf
+        best_d = math.inf
+        mine = self._movers.index_of(vehicle, -1)
+        heading = float(vehicle.heading)
+        hs = self._box_columns[0]
         for index, base in self._lanes_ahead(vehicle, LEADER_LOOKAHEAD)[1:]:
-            members, lon, _ = self._lane_table(index)
-            for i in members:
-                other = self._movers[i]
-                d = base + lon[i]
-                if other is vehicle or d <= 0 or d >= best_d or d > LEADER_LOOKAHEAD:
-                    continue
-                if math.cos(other.heading - vehicle.heading) < 0:  # oncoming on a bend
-                    continue
-                best, best_d = other, d
-            if best is not None:
-                break
-        return best, best_d
+            _, lon, rows = self._lane_table(index)
+            best, best_d = _leader_on(rows, lon, hs, float(base), mine, heading, best_d,
+                                      LEADER_LOOKAHEAD)
+            if best >= 0:
+                return self._movers[best], best_d
+        return None, best_d
 
     def corridor_leader(self, vehicle: Vehicle) -> tuple[float, float] | None:
         """The nearest mover whose box is in the vehicle's straight way ahead (the box's
@@ -2480,8 +2512,19 @@ class WomdRoad(Road):
         centre = network.road_map.lanes[network.womd_id(lane_index)].centre
         pts = sim_frame(centre[:, 0], centre[:, 1])
         lo, hi = pts.min(axis=0), pts.max(axis=0)
-        near = np.flatnonzero((np.maximum(ax, bx) >= lo[0]) & (np.minimum(ax, bx) <= hi[0])
-                              & (np.maximum(ay, by) >= lo[1]) & (np.minimum(ay, by) <= hi[1]))
+        if self._segment_boxes is None:
+            self._segment_boxes = (np.maximum(ax, bx), np.minimum(ax, bx),
+                                   np.maximum(ay, by), np.minimum(ay, by))
+        hi_x, lo_x, hi_y, lo_y = self._segment_boxes
+        near = np.flatnonzero((hi_x >= lo[0]) & (lo_x <= hi[0]) & (hi_y >= lo[1])
+                              & (lo_y <= hi[1]))
+        # the segments of the lanes it meets end to end or runs beside are never conflicts
+        skip = np.zeros(len(self._lane_list), bool)
+        for other in (lane_index, *successors, *predecessors, *siblings, *beside):
+            k = self._lane_slot.get(other)
+            if k is not None:
+                skip[k] = True
+        near = near[~skip[owner[near]]]
         if len(near) and len(pts) >= 2:
             hits = _segment_hits(np.ascontiguousarray(pts[:, 0]),
                                  np.ascontiguousarray(pts[:, 1]), near, ax, ay, bx, by)

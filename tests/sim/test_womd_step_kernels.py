@@ -21,7 +21,9 @@ from tap_bench.sim.womd_road import (
     WALKER_STILL,
     _approach_rows,
     _corridor,
+    _front_rear,
     _lane_members,
+    _leader_on,
     _movers_now,
     _pairs_of_movers,
     _pairs_to_check,
@@ -293,3 +295,84 @@ def test_pairs_of_movers_are_the_pairs_of_their_columns(seed):
     assert rows.tolist() == m.tolist()
     for got, expected in zip((first, second, apart), want, strict=True):
         assert got.tolist() == expected.tolist()
+
+
+def lane_table(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(members: sorted rows of n movers, lon: every mover's coordinate [m]) with ties,
+    -0.0 beside 0.0, NaN, and sometimes no member."""
+    lon = rng.uniform(-20.0, 80.0, n)
+    special = rng.random(n) < 0.45
+    lon[special] = rng.choice([0.0, -0.0, 5.0, 5.0, np.nan], size=int(special.sum()))
+    members = np.flatnonzero(rng.random(n) < rng.choice([0.0, 0.5, 1.0]))
+    return members.astype(np.int64), lon
+
+
+def front_rear_plain(members, lon, s, mine):
+    """:meth:`WomdRoad.neighbour_vehicles`' search as it was written over a list."""
+    front = rear = None
+    s_front = s_rear = None
+    for i in members.tolist():
+        if i == mine:
+            continue
+        sv = lon[i]
+        if s <= sv and (s_front is None or sv <= s_front):
+            s_front, front = sv, i
+        if sv < s and (s_rear is None or sv > s_rear):
+            s_rear, rear = sv, i
+    return (-1 if front is None else front), (-1 if rear is None else rear)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_front_and_rear_are_the_list_search(seed):
+    rng = np.random.default_rng(40 + seed)
+    found = 0
+    for _ in range(400):
+        n = int(rng.integers(0, 12))
+        members, lon = lane_table(rng, n)
+        s = float(rng.choice([rng.uniform(-10.0, 60.0), 0.0, -0.0, 5.0, np.nan]))
+        mine = int(rng.integers(-1, n)) if n else -1
+        want = front_rear_plain(members, lon, s, mine)
+        assert _front_rear(members, lon, s, mine) == want
+        found += want != (-1, -1)
+    assert found > 100
+
+
+def leader_plain(tables, hs, mine, heading, reach):
+    """:meth:`WomdRoad.leader_ahead`'s search over the next lanes as it was written (one
+    mover at a time, the first lane with a leader ends it)."""
+    best, best_d = None, math.inf
+    for members, lon, base in tables:
+        for i in members.tolist():
+            d = base + lon[i]
+            if i == mine or d <= 0 or d >= best_d or d > reach:
+                continue
+            if math.cos(hs[i] - heading) < 0:
+                continue
+            best, best_d = i, d
+        if best is not None:
+            break
+    return (-1 if best is None else best), best_d
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_leader_on_the_next_lanes_is_the_one_by_one_search(seed):
+    rng = np.random.default_rng(50 + seed)
+    found = 0
+    for _ in range(300):
+        n = int(rng.integers(0, 12))
+        hs = rng.choice([rng.uniform(-math.pi, math.pi), math.pi / 2, 0.0], size=n)
+        hs = np.where(rng.random(n) < 0.7, rng.uniform(-math.pi, math.pi, n), hs)
+        heading = float(rng.choice([0.0, rng.uniform(-math.pi, math.pi)]))
+        tables = [(*lane_table(rng, n), float(rng.choice([-5.0, 0.0, 20.0, 59.0])))
+                  for _ in range(int(rng.integers(0, 4)))]
+        mine = int(rng.integers(-1, n)) if n else -1
+        want = leader_plain(tables, hs, mine, heading, 60.0)
+        best, best_d = -1, math.inf
+        for members, lon, base in tables:
+            best, best_d = _leader_on(members, lon, hs, base, mine, heading, best_d, 60.0)
+            if best >= 0:
+                break
+        assert best == want[0]
+        assert best_d == want[1] or (math.isnan(best_d) and math.isnan(want[1]))
+        found += want[0] >= 0
+    assert found > 50
