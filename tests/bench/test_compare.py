@@ -149,3 +149,19 @@ def test_on_real_scenes_the_comparison_shows_at_fault_collisions_beside_all():
     assert measures.loc["crashed", "mean_a"] == pytest.approx(4 / 6)
     assert measures.loc["crashed_at_fault", "mean_a"] == pytest.approx(1 / 6)
     assert {"off_road", "route_progress"} <= set(measures.index)
+
+
+def test_compare_policies_stacks_every_pair_and_lists_a_pair_with_nothing_to_pair(hand_pairs):
+    """The run's comparison tables: A vs B as paired_comparison gives it, with the pair's
+    names; C (every episode failed) is skipped with the reason, and has no rows."""
+    from tap_bench.bench.scores.compare import compare_policies
+
+    failed = hand_pairs[hand_pairs["policy"] == "B"].assign(policy="C", status="error")
+    eps = pd.concat([hand_pairs, failed], ignore_index=True)
+    config = BootstrapConfig()
+    out = compare_policies(eps, [("A", "B"), ("C", "B")], config)
+    alone = paired_comparison(eps, "A", "B", config=config)
+    pd.testing.assert_frame_equal(out.paired, alone.summary)
+    assert set(out.measures["policy_a"]) == {"A"} and set(out.labels["policy_b"]) == {"B"}
+    assert out.method == alone.method
+    assert len(out.skipped) == 1 and out.skipped[0].startswith("C vs B: ")

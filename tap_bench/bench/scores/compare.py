@@ -1,8 +1,10 @@
 """Matched comparison of two policies A and B (SPEC section 6).
 
-Both functions read the episode table (:mod:`tap_bench.bench.episodes`). Labels are always
-compared within one env: a label is the pair (env, label), so a roundabout label never
-matches a highway one. The intervals are those of :mod:`tap_bench.stats.intervals`.
+:func:`compare_policies` makes the run's comparison tables, every (A, B) pair of policies
+at once, with both kinds below. Both kinds read the episode table
+(:mod:`tap_bench.bench.episodes`). Labels are always compared within one env: a label is
+the pair (env, label), so a roundabout label never matches a highway one. The intervals
+are those of :mod:`tap_bench.stats.intervals`.
 
 **Paired by seed** (:func:`paired_comparison`). A seed is the same initial traffic for every
 policy, so A's and B's episodes on one (env, seed) form a pair. Reported per env, and pooled
@@ -52,8 +54,8 @@ from tap_bench.stats.intervals import (
     wilson_interval,
 )
 
-__all__ = ["MIN_GROUP", "NO_LABEL", "PairedComparison", "matched_by_label",
-           "paired_comparison"]
+__all__ = ["MIN_GROUP", "NO_LABEL", "Comparisons", "PairedComparison", "compare_policies",
+           "matched_by_label", "paired_comparison"]
 
 NO_LABEL = "(no label)"
 """The label of an episode whose ego carries none (a record shorter than 1 s)."""
@@ -84,6 +86,59 @@ class PairedComparison:
     measures: pd.DataFrame
     labels: pd.DataFrame
     method: str
+
+
+@dataclass(frozen=True)
+class Comparisons:
+    """The comparison tables of a run (:func:`compare_policies`), every pair's rows one
+    under the other, each with ``policy_a`` and ``policy_b``.
+
+    Attributes:
+        paired: :attr:`PairedComparison.summary` of each pair.
+        measures: :attr:`PairedComparison.measures` of each pair.
+        labels: :attr:`PairedComparison.labels` of each pair.
+        matched: :func:`matched_by_label` of each pair.
+        method: how the paired intervals were made ("" when no pair was compared).
+        skipped: the pairs with nothing to pair, and why (one line each).
+    """
+
+    paired: pd.DataFrame
+    measures: pd.DataFrame
+    labels: pd.DataFrame
+    matched: pd.DataFrame
+    method: str
+    skipped: tuple[str, ...]
+
+
+def compare_policies(episodes: pd.DataFrame, comparisons: list[tuple[str, str]],
+                     config: BootstrapConfig) -> Comparisons:
+    """Every (A, B) pair of ``comparisons`` matched by label (:func:`matched_by_label`) and
+    paired by seed (:func:`paired_comparison`), as one table of each kind; a pair with
+    nothing to pair (every episode of one policy failed) is listed in ``skipped`` and has
+    no rows (its label-matched rows neither)."""
+    parts: dict[str, list[pd.DataFrame]] = {"paired": [], "measures": [], "labels": [],
+                                            "matched": []}
+    method, skipped = "", []
+    for a, b in comparisons:
+        try:
+            matched = matched_by_label(episodes, a, b, config=config)
+            pc = paired_comparison(episodes, a, b, config=config)
+        except LabelTableError as err:
+            skipped.append(f"{a} vs {b}: {err}")
+            continue
+        method = pc.method
+        parts["paired"].append(pc.summary)
+        parts["measures"].append(pc.measures.assign(policy_a=a, policy_b=b))
+        parts["labels"].append(pc.labels.assign(policy_a=a, policy_b=b))
+        parts["matched"].append(matched.assign(policy_a=a, policy_b=b))
+    return Comparisons(**{kind: _stacked(frames) for kind, frames in parts.items()},
+                       method=method, skipped=tuple(skipped))
+
+
+def _stacked(frames: list[pd.DataFrame]) -> pd.DataFrame:
+    """The non-empty ``frames`` one under the other (an empty frame without any)."""
+    frames = [f for f in frames if len(f)]
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 
 def _pairs(episodes: pd.DataFrame, a: str, b: str) -> tuple[pd.DataFrame, pd.Series]:

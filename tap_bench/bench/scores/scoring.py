@@ -10,14 +10,13 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from tap_bench import sdl
 from tap_bench.bench.measures import MEASURES
-from tap_bench.bench.scores.compare import ALL_ENVS, MIN_GROUP, matched_by_label, paired_comparison
+from tap_bench.bench.scores.compare import ALL_ENVS, MIN_GROUP, compare_policies
 from tap_bench.bench.scores.coverage import (
     UNITS,
     Reference,
@@ -29,7 +28,6 @@ from tap_bench.bench.scores.diversity import MIN_COMPLETENESS, diversity, pooled
 from tap_bench.bench.scores.novelty import novelty, pooled_novelty
 from tap_bench.bench.scores.null import SPLITS, pooled_null, same_policy_null
 from tap_bench.bench.scores.windows import window_episode
-from tap_bench.errors import LabelTableError
 from tap_bench.stats.bootstrap import BootstrapConfig
 from tap_bench.stats.intervals import measure_interval
 
@@ -376,19 +374,19 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
     policies = sorted(episodes["policy"].unique())
     if comparisons is None:
         comparisons = [(p, reference_policy) for p in policies if p != reference_policy]
-    compared = _compare_pairs(episodes, comparisons, config)
+    compared = compare_policies(episodes, comparisons, config)
     cov_parts, nov_parts, label_parts, refs = _reference_scores(
         episodes, reference_policy=reference_policy, level=level, config=config,
         references=references, windows=windows)
     carried = dict(methods or {})
-    methods = _methods(config, compared["method"])
-    if compared["skipped"]:
-        methods["skipped comparisons"] = "; ".join(compared["skipped"])
+    methods = _methods(config, compared.method)
+    if compared.skipped:
+        methods["skipped comparisons"] = "; ".join(compared.skipped)
     methods.update(carried)
     return Scores(
         label_counts=_label_counts(episodes), measures=policy_measures(episodes, config),
-        paired=_cat(compared["paired"]), paired_measures=_cat(compared["measures"]),
-        paired_labels=_cat(compared["labels"]), matched=_cat(compared["matched"]),
+        paired=compared.paired, paired_measures=compared.measures,
+        paired_labels=compared.labels, matched=compared.matched,
         coverage=_cat(cov_parts), novelty=_cat(nov_parts),
         novel_labels=_cat(label_parts), diversity=diversity_table(episodes, config),
         gate_power=_carried(gate_power), scenario_matches=_carried(scenario_matches),
@@ -405,28 +403,6 @@ def _cat(frames: list[pd.DataFrame]) -> pd.DataFrame:
     """The non-empty ``frames`` one under the other (an empty frame without any)."""
     frames = [f for f in frames if len(f)]
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
-
-
-def _compare_pairs(episodes: pd.DataFrame, comparisons: list[tuple[str, str]],
-                   config: BootstrapConfig) -> dict[str, Any]:
-    """The paired and label-matched comparisons of each (A, B) pair: lists of tables per
-    pair (``paired``, ``measures``, ``labels``, ``matched``), the paired method, and the
-    pairs ``skipped`` with nothing to pair (why, one string each)."""
-    out: dict[str, Any] = {"paired": [], "measures": [], "labels": [], "matched": [],
-                           "method": "", "skipped": []}
-    for a, b in comparisons:
-        try:
-            pc = paired_comparison(episodes, a, b, config=config)
-        except LabelTableError as err:  # nothing to pair (every episode of one failed)
-            out["skipped"].append(f"{a} vs {b}: {err}")
-            continue
-        out["method"] = pc.method
-        out["paired"].append(pc.summary)
-        out["measures"].append(pc.measures.assign(policy_a=a, policy_b=b))
-        out["labels"].append(pc.labels.assign(policy_a=a, policy_b=b))
-        out["matched"].append(matched_by_label(episodes, a, b, config=config).assign(
-            policy_a=a, policy_b=b))
-    return out
 
 
 def _reference_scores(episodes: pd.DataFrame, *, reference_policy: str, level: str,
