@@ -26,6 +26,7 @@ from tap_bench.bench.run.estimate import RunPlan
 from tap_bench.bench.run.plan import _Task
 from tap_bench.bench.run.spill import RunSpill, SpilledTable
 from tap_bench.bench.run.tasks import (
+    LABEL_TABLES,
     RunTables,
     _rollouts,
     cache_facts,
@@ -164,9 +165,13 @@ def run_episodes(tasks: list[_Task], name: str, scenarios: Mapping[str, Scenario
     roads = _Roads(scenarios, cache)
     spill = RunSpill(output) if recorded else None
     t0 = time.perf_counter()
+    # what the cache holds, in one pass: earlier runs' timings (for the estimate), the
+    # episodes labelled before (read here, no worker needed), those stored
+    recalled = None if cache is None else cache.recall(
+        [(t.label_key, t.key, t.keep_trajectories) for t in tasks], LABEL_TABLES)
     kept = getattr(backend, "kept", None)  # the estimate's first episodes and the rest
     with kept() if kept is not None else contextlib.nullcontext():  # on the same workers
-        results, estimate = _rollouts(tasks, name, backend, progress, cache, announce,
+        results, estimate = _rollouts(tasks, name, backend, progress, recalled, announce,
                                       roads, None if spill is None else spill.keep, log)
     timings["rollouts_wall"] = time.perf_counter() - t0
     tables = RunTables.of(results, keep_tables, timings, spill)

@@ -401,13 +401,15 @@ def _items(tasks: list[_Task], indices: list[int], cached: list[bool], workers: 
 
 
 def _rollouts(tasks: list[_Task], name: str, backend: Backend, progress: bool | None,
-              cache: EpisodeCache | None, announce: Callable[[str], None] | None,
+              recalled: Recalled | None, announce: Callable[[str], None] | None,
               road: Callable[[str], pd.DataFrame] | None = None,
               keep_result: Callable[[int, dict[str, Any]], dict[str, Any]] | None = None,
               log: str | os.PathLike | None = None) -> tuple[list[dict[str, Any]], RunPlan]:
     """Every episode of ``tasks`` (the suite ``name``'s, :func:`~tap_bench.bench.run.plan.
     _tasks`) as a task on ``backend`` (one recovery rule: an episode whose worker died is
-    tried once more, then recorded as failed), cached episodes read rather than simulated.
+    tried once more, then recorded as failed), the episodes the cache held read rather
+    than simulated (``recalled``: :meth:`~tap_bench.bench.cache.EpisodeCache.recall` of the
+    tasks' keys; None: no cache).
     Before the tasks start, ``announce`` gets the run's estimate, from the cache's timings
     or from a first episode of each env without one. ``road``: env -> its highway-env road
     as a map table, drawn here once for the envs with episodes to label and handed to their
@@ -435,7 +437,7 @@ def _rollouts(tasks: list[_Task], name: str, backend: Backend, progress: bool | 
                           "instead", stacklevel=2)
         keep_result = lambda _, result: result  # noqa: E731
     try:
-        return _run_all(tasks, name, backend, progress, cache, announce, road, keep_result,
+        return _run_all(tasks, name, backend, progress, recalled, announce, road, keep_result,
                         streamed)
     finally:
         if lines is not None:
@@ -455,20 +457,16 @@ def _counted(keep: Callable[[int, dict[str, Any]], dict[str, Any]], lines: Any
 
 
 def _run_all(tasks: list[_Task], name: str, backend: Backend, progress: bool | None,
-             cache: EpisodeCache | None, announce: Callable[[str], None] | None,
+             recalled: Recalled | None, announce: Callable[[str], None] | None,
              road: Callable[[str], pd.DataFrame] | None,
              keep_result: Callable[[int, dict[str, Any]], dict[str, Any]], streamed: bool
              ) -> tuple[list[dict[str, Any]], RunPlan]:
     """:func:`_rollouts` once its progress is set up: ``streamed``, the results taken one
-    by one as they end (``backend.imap``). In steps: what the cache holds read (earlier
-    runs' timings, the labelled episodes, which are cached), each env's road handed to its
-    tasks, a first episode of each env the cache has no timing of
+    by one as they end (``backend.imap``). In steps: what the cache holds taken (earlier
+    runs' timings, the labelled episodes as results, which are cached), each env's road
+    handed to its tasks, a first episode of each env the cache has no timing of
     simulated for the estimate, the estimate announced, the other episodes run."""
     done = _Done(keep_result)
-    # what the cache holds, in one pass: earlier runs' timings (for the estimate), the
-    # episodes labelled before (read here, no worker needed), those stored
-    recalled = None if cache is None else cache.recall(
-        [(t.label_key, t.key, t.keep_trajectories) for t in tasks], LABEL_TABLES)
     known = {} if recalled is None else recalled.timings
     notes = {} if recalled is None else done.take_labelled(tasks, recalled)
     cached = [False] * len(tasks) if recalled is None else recalled.stored
