@@ -1561,6 +1561,18 @@ def _lane_members(px, py, tx, ty, s, half, lo, hi, xs, ys):  # pragma: no cover 
 
 
 @numba.njit(cache=True, nogil=True)
+def _lane_members_into(px, py, tx, ty, s, half, lo, hi, xs, ys, members, lon
+                       ):  # pragma: no cover - compiled
+    """:func:`_lane_members` written into ``members`` and ``lon`` (n,) each, made by the
+    caller (each array a compiled function returns costs a few microseconds): returns how
+    many members (the first ones of ``members``)."""
+    found, along = _lane_members(px, py, tx, ty, s, half, lo, hi, xs, ys)
+    members[:found.shape[0]] = found
+    lon[:] = along
+    return found.shape[0]
+
+
+@numba.njit(cache=True, nogil=True)
 def _front_rear(members, lon, s, mine):  # pragma: no cover - compiled
     """The nearest movers on a lane ahead of and behind the longitudinal coordinate ``s``
     [m] (:meth:`WomdRoad.neighbour_vehicles`): among ``members`` (their rows, in order;
@@ -1752,6 +1764,24 @@ def _pairs_of_movers(collidable, position, diagonal, length, width, heading, spe
 
 
 @numba.njit(cache=True, nogil=True)
+def _pairs_packed(collidable, position, diagonal, length, width, heading, speed, checks,
+                  own, dt):  # pragma: no cover - compiled
+    """:func:`_pairs_of_movers` as one array, which Python receives in one piece (each
+    array a compiled function returns costs a few microseconds): (rows (m,), first (p,),
+    second (p,), apart (p,) as 0/1, end to end; m; p)."""
+    rows, first, second, apart = _pairs_of_movers(collidable, position, diagonal, length,
+                                                  width, heading, speed, checks, own, dt)
+    m, p = rows.shape[0], first.shape[0]
+    out = np.empty(m + 3 * p, np.int64)
+    out[:m] = rows
+    out[m:m + p] = first
+    out[m + p:m + 2 * p] = second
+    for q in range(p):
+        out[m + 2 * p + q] = 1 if apart[q] else 0
+    return out, m, p
+
+
+@numba.njit(cache=True, nogil=True)
 def _approach_rows(members, lon, hs, ls, walker, s, headings, s_point, offset, width, mine,
                    seen):  # pragma: no cover - compiled
     """The movers of one lane's table (``members``, longitudinal coordinates ``lon`` [m])
@@ -1938,6 +1968,27 @@ def _movers_now(collidable, position, heading, speed, length, width, walker, pat
     return rows, xy, xs, ys, hs, vs, ls, ws, boxes, walkers, paths, margins, n_walkers
 
 
+@numba.njit(cache=True, nogil=True)
+def _movers_into(collidable, position, heading, speed, length, width, walker, path,
+                 walker_clearance, path_margin, rows, xy, columns, boxes, flags
+                 ):  # pragma: no cover - compiled
+    """:func:`_movers_now` written into arrays the caller made for the n movers (each array
+    a compiled function returns costs a few microseconds): rows (n,), xy (n, 2), columns
+    (7, n) x, y, heading, speed, length, width, margin; boxes (n, 4); flags (2, n) walker,
+    path vehicle. Returns how many are walkers."""
+    (rows_, xy_, xs, ys, hs, vs, ls, ws, boxes_, walkers, paths, margins,
+     n_walkers) = _movers_now(collidable, position, heading, speed, length, width, walker,
+                              path, walker_clearance, path_margin)
+    rows[:] = rows_
+    xy[:, :] = xy_
+    boxes[:, :] = boxes_
+    for j, column in enumerate((xs, ys, hs, vs, ls, ws, margins)):
+        columns[j, :] = column
+    flags[0, :] = walkers
+    flags[1, :] = paths
+    return n_walkers
+
+
 class _Movers:
     """A step's movers: the vehicles of a layout at ``rows`` (sorted), read by index as a
     list of them would be, without the list or an index of them made each step."""
@@ -2099,7 +2150,7 @@ class WomdRoad(Road):
         self._half = np.array([lane.width / 2 for lane in lanes])
         self.road_edges = network.road_edges  # WOMD's axes; built once per network
         self.off_road_start: dict[str, float] = {}
-        self._projections: dict[Any, tuple[list[int], np.ndarray, np.ndarray]] = {}
+        self._projections: dict[Any, tuple[np.ndarray, np.ndarray]] = {}
         self._headings: dict[Any, np.ndarray] = {}  # lane index -> its poses' headings
         self._everyone: tuple | None = None  # _everyone_on's positions and tables
         self._walker_rows = frozenset(np.flatnonzero(np.isin(scene.object_types,
@@ -2193,10 +2244,16 @@ class WomdRoad(Road):
         self._everyone = None
         layout, now = self._snapshot()
         # the movers (the collidable vehicles) and their columns, in one compiled pass
-        (rows, positions, self._xs, self._ys, heading, speed, length, width, self._boxes,
-         walker, self._path_mask, self._path_margins, walkers) = _movers_now(
-            now["collidable"], now["position"], now["heading"], now["speed"], layout.length,
-            layout.width, layout.walker, layout.path, WALKER_CLEARANCE, PATH_MARGIN)
+        collidable = now["collidable"]
+        n = int(np.count_nonzero(collidable))
+        rows, positions = np.empty(n, np.int64), np.empty((n, 2))
+        columns, self._boxes, flags = np.empty((7, n)), np.empty((n, 4)), np.empty((2, n), bool)
+        walkers = _movers_into(collidable, now["position"], now["heading"], now["speed"],
+                               layout.length, layout.width, layout.walker, layout.path,
+                               WALKER_CLEARANCE, PATH_MARGIN, rows, positions, columns,
+                               self._boxes, flags)
+        self._xs, self._ys, heading, speed, length, width, self._path_margins = columns
+        walker, self._path_mask = flags
         self._mover_rows = rows
         self._mover_conflict = None
         self._movers = _Movers(layout, rows)
@@ -2260,11 +2317,11 @@ class WomdRoad(Road):
         if not lane_index or (self._positions is None and self.objects):
             return super().neighbour_vehicles(vehicle, lane_index)
         if self._positions is None:  # before the road's act (the decision's own act): all
-            _, lon, rows = self._everyone_on(lane_index)  # vehicles, as highway-env
+            lon, rows = self._everyone_on(lane_index)  # vehicles, as highway-env
             candidates = self._everyone[0].vehicles
             mine = self._everyone[0].row_of.get(id(vehicle), -1)
         else:
-            _, lon, rows = self._lane_table(lane_index)
+            lon, rows = self._lane_table(lane_index)
             candidates = self._movers
             mine = candidates.index_of(vehicle, -1)
         lane = self.network.get_lane(lane_index)
@@ -2294,19 +2351,21 @@ class WomdRoad(Road):
         if now["own"] is not None:
             # the movers' rows, the pairs to check and those that stay apart over the step
             # (highway-env's test would change nothing for them)
-            moving, first, second, apart = _pairs_of_movers(
+            packed, m, p = _pairs_packed(
                 now["collidable"], now["position"], layout.diagonal, layout.length,
                 layout.width, now["heading"], now["speed"], now["checks"], now["own"],
                 float(dt))
-            vehicles = [layout.vehicles[i] for i in moving.tolist()]
-            apart = apart.tolist()
+            packed = packed.tolist()
+            vehicles = [layout.vehicles[i] for i in packed[:m]]
+            first, second, apart = (packed[m:m + p], packed[m + p:m + 2 * p],
+                                    packed[m + 2 * p:])
         else:  # an object without position or diagonal: every pair, as highway-env
             moving = np.flatnonzero(now["collidable"])  # their rows
             vehicles = [layout.vehicles[i] for i in moving.tolist()]
-            first, second = np.triu_indices(len(vehicles), 1)
+            first, second = (k.tolist() for k in np.triu_indices(len(vehicles), 1))
             apart = [False] * len(first)
         ego = self.vehicles[0]  # the env puts the ego first (a policy's takes its place)
-        for i, j, far in zip(first.tolist(), second.tolist(), apart, strict=True):
+        for i, j, far in zip(first, second, apart, strict=True):
             a, b = vehicles[i], vehicles[j]
             if a is ego or b is ego:  # the env names the ego's partner
                 other = b if a is ego else a
@@ -2365,7 +2424,7 @@ class WomdRoad(Road):
                 self.exempt.add(_pair(a, b))
 
     # traffic's view ahead: leaders on the next lanes, stop signs, conflicts
-    def _everyone_on(self, lane_index: Any) -> tuple[list[int], np.ndarray, np.ndarray]:
+    def _everyone_on(self, lane_index: Any) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`_lane_table` of every vehicle of the road (collidable or not) where they
         are now, in the road's order (cached until the road acts or steps)."""
         layout = self._layout()
@@ -2377,23 +2436,28 @@ class WomdRoad(Road):
         table = tables.get(lane_index)
         if table is None:
             lane = self.network.get_lane(lane_index)
-            members, lon = _lane_members(*lane.arrays, lane.width / 2 + 1.0,
-                                         -lane.VEHICLE_LENGTH,
-                                         lane.length + lane.VEHICLE_LENGTH, xs, ys)
-            table = tables[lane_index] = (members.tolist(), lon, members)
+            n = len(xs)
+            members, lon = np.empty(n, np.int64), np.empty(n)
+            n = _lane_members_into(*lane.arrays, lane.width / 2 + 1.0, -lane.VEHICLE_LENGTH,
+                                   lane.length + lane.VEHICLE_LENGTH, xs, ys, members, lon)
+            members = members[:n]
+            table = tables[lane_index] = (lon, members)
         return table
 
-    def _lane_table(self, lane_index: Any) -> tuple[list[int], np.ndarray, np.ndarray]:
-        """(the rows of this step's movers on a lane: within its half width + 1 m, from
-        ``VEHICLE_LENGTH`` before its start to as far past its end; every mover's
-        longitudinal coordinate on it [m]; the rows as an array), cached per step."""
+    def _lane_table(self, lane_index: Any) -> tuple[np.ndarray, np.ndarray]:
+        """(every one of this step's movers' longitudinal coordinate on a lane [m] (n,); the
+        rows of those on it, in order: within its half width + 1 m, from ``VEHICLE_LENGTH``
+        before its start to as far past its end), cached per step."""
         table = self._projections.get(lane_index)
         if table is None:
             lane = self.network.get_lane(lane_index)
-            members, lon = _lane_members(*lane.arrays, lane.width / 2 + 1.0,
-                                         -lane.VEHICLE_LENGTH,
-                                         lane.length + lane.VEHICLE_LENGTH, self._xs, self._ys)
-            table = self._projections[lane_index] = (members.tolist(), lon, members)
+            n = len(self._xs)
+            members, lon = np.empty(n, np.int64), np.empty(n)
+            n = _lane_members_into(*lane.arrays, lane.width / 2 + 1.0, -lane.VEHICLE_LENGTH,
+                                   lane.length + lane.VEHICLE_LENGTH, self._xs, self._ys,
+                                   members, lon)
+            members = members[:n]
+            table = self._projections[lane_index] = (lon, members)
         return table
 
     def leader_ahead(self, vehicle: Vehicle) -> tuple[Vehicle | None, float]:
@@ -2408,7 +2472,7 @@ class WomdRoad(Road):
         heading = float(vehicle.heading)
         hs = self._box_columns[0]
         for index, base in self._lanes_ahead(vehicle, LEADER_LOOKAHEAD)[1:]:
-            _, lon, rows = self._lane_table(index)
+            lon, rows = self._lane_table(index)
             best, best_d = _leader_on(rows, lon, hs, float(base), mine, heading, best_d,
                                       LEADER_LOOKAHEAD)
             if best >= 0:

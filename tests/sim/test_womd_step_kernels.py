@@ -23,9 +23,12 @@ from tap_bench.sim.womd_road import (
     _corridor,
     _front_rear,
     _lane_members,
+    _lane_members_into,
     _leader_on,
+    _movers_into,
     _movers_now,
     _pairs_of_movers,
+    _pairs_packed,
     _pairs_to_check,
     _walkers_on_lane,
 )
@@ -376,3 +379,52 @@ def test_leader_on_the_next_lanes_is_the_one_by_one_search(seed):
         assert best_d == want[1] or (math.isnan(best_d) and math.isnan(want[1]))
         found += want[0] >= 0
     assert found > 50
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_kernels_writing_into_arrays_give_what_their_definitions_return(seed):
+    """_movers_into, _pairs_packed and _lane_members_into: the same rows and columns, to the
+    bit, as _movers_now, _pairs_of_movers and _lane_members (NaN, -0.0 and negative speeds,
+    nobody collidable, nobody on the lane among them)."""
+    rng = np.random.default_rng(60 + seed)
+    on_lanes = 0
+    for n in (0, 1, *rng.integers(2, 40, 6).tolist()):
+        c = road_columns(rng, n)
+        if rng.random() < 0.2:
+            c["collidable"][:] = False
+        args = (c["collidable"], c["position"], c["heading"], c["speed"], c["length"],
+                c["width"], c["walker"], c["path"], WALKER_CLEARANCE, PATH_MARGIN)
+        want = _movers_now(*args)
+        m = int(np.count_nonzero(c["collidable"]))
+        rows, xy, columns = np.empty(m, np.int64), np.empty((m, 2)), np.empty((7, m))
+        boxes, flags = np.empty((m, 4)), np.empty((2, m), bool)
+        walkers = _movers_into(*args, rows, xy, columns, boxes, flags)
+        got = (rows, xy, *columns[:6], boxes, flags[0], flags[1], columns[6])
+        assert walkers == want[-1]
+        for a, b in zip(got, want[:-1], strict=True):
+            assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+
+        pairs = _pairs_of_movers(c["collidable"], c["position"], c["diagonal"], c["length"],
+                                 c["width"], c["heading"], c["speed"], c["checks"], c["own"],
+                                 0.1)
+        packed, m, p = _pairs_packed(c["collidable"], c["position"], c["diagonal"],
+                                     c["length"], c["width"], c["heading"], c["speed"],
+                                     c["checks"], c["own"], 0.1)
+        assert (m, p) == (len(pairs[0]), len(pairs[1]))
+        parts = (packed[:m], packed[m:m + p], packed[m + p:m + 2 * p], packed[m + 2 * p:])
+        assert len(packed) == m + 3 * p
+        for a, b in zip(parts, pairs, strict=True):
+            assert a.tolist() == b.astype(np.int64).tolist()
+
+        ln = lane(rng)
+        near, *_ = movers(rng, centre(ln), n)
+        xs, ys = np.ascontiguousarray(near[:, 0]), np.ascontiguousarray(near[:, 1])
+        xs[rng.random(n) < 0.1] = np.nan
+        limits = (ln.width / 2 + 1.0, -ln.VEHICLE_LENGTH, ln.length + ln.VEHICLE_LENGTH)
+        members, lon = _lane_members(*ln.arrays, *limits, xs, ys)
+        got_members, got_lon = np.full(n, -7, np.int64), np.full(n, 7.0)
+        k = _lane_members_into(*ln.arrays, *limits, xs, ys, got_members, got_lon)
+        assert got_members[:k].tolist() == members.tolist()
+        assert got_lon.tobytes() == lon.tobytes()
+        on_lanes += k
+    assert on_lanes > 20
