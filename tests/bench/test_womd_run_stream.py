@@ -292,12 +292,12 @@ def test_an_episode_whose_estimate_probe_failed_stays_in_the_spilled_tables(tmp_
 def test_a_log_asked_of_a_run_that_writes_none_is_said(tmp_path, monkeypatch):
     """A suite of synthetic scenarios shows a bar, not log lines: --log is not ignored
     silently."""
-    from tap_bench.bench.run import tasks as run_tasks
+    from tap_bench.bench.run import episodes as run_episodes
 
-    monkeypatch.setattr(run_tasks, "_run_all", lambda *args: ([], None))
+    monkeypatch.setattr(run_episodes, "_run_all", lambda *args: ([], None))
     with pytest.warns(UserWarning, match="run.log: not written"):
-        run_tasks._rollouts([], "highway-suite", None, False, None, None,
-                            log=tmp_path / "run.log")
+        run_episodes._rollouts([], "highway-suite", None, False, None, None,
+                               log=tmp_path / "run.log")
     assert not (tmp_path / "run.log").exists()
 
 

@@ -1,5 +1,7 @@
 """The episodes step of a suite run: every task run on the backend
-(:mod:`tap_bench.bench.run.tasks`; each env's road drawn once, for its tasks), the results
+(:mod:`tap_bench.bench.run.tasks`; each env's road drawn once, for its tasks, what the
+episode cache holds read first, a run of recorded scenes counted in one progress line as
+its results arrive), the results
 gathered into the run's tables (on disk for recorded scenes: :mod:`tap_bench.bench.run.
 spill`) and checked, then each env's map kept for the run folder (part of
 :mod:`tap_bench.bench.run.runner`)."""
@@ -8,7 +10,9 @@ from __future__ import annotations
 
 import contextlib
 import io
+import os
 import time
+import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,7 +32,7 @@ from tap_bench.bench.run.spill import RunSpill, SpilledTable
 from tap_bench.bench.run.tasks import (
     LABEL_TABLES,
     RunTables,
-    _rollouts,
+    _run_all,
     cache_facts,
     check_results,
     observed_timings,
@@ -101,6 +105,62 @@ class _Roads:
         yield table
 
 
+def _rollouts(tasks: list[_Task], name: str, backend: Backend, progress: bool | None,
+              cache: EpisodeCache | None, announce: Callable[[str], None] | None,
+              road: Callable[[str], pd.DataFrame] | None = None,
+              keep_result: Callable[[int, dict[str, Any]], dict[str, Any]] | None = None,
+              log: str | os.PathLike | None = None) -> tuple[list[dict[str, Any]], RunPlan]:
+    """Every episode of ``tasks`` (the suite ``name``'s, :func:`~tap_bench.bench.run.plan.
+    _tasks`) as a task on ``backend`` (one recovery rule: an episode whose worker died is
+    tried once more, then recorded as failed), cached episodes read rather than simulated.
+    Before the tasks start, ``announce`` gets the run's estimate, from the cache's timings
+    or from a first episode of each env without one. ``road``: env -> its highway-env road
+    as a map table, drawn here once for the envs with episodes to label and handed to their
+    tasks (None: each worker draws it). ``keep_result``: (task index, result) -> the result
+    kept, called on each result as it arrives (a :class:`~tap_bench.bench.run.spill.
+    RunSpill` writes its tables to disk and keeps the rest), the tasks' results then taken
+    one by one as they end rather than all at once, and counted in one progress line
+    (episodes done, failed, skipped, rate, time left: :class:`~tap_bench.progress.
+    SceneProgress`) on stderr unless ``progress`` is False and in the file ``log``."""
+    streamed = keep_result is not None
+    lines = None
+    if streamed:
+        from tap_bench.progress import SceneProgress
+
+        lines = SceneProgress(len(tasks), f"bench {name}", show=progress is not False,
+                              log=log, unit="episode")
+        keep_result = _counted(keep_result, lines)
+        progress = False  # the lines instead of a bar of tasks
+    else:
+        if log:
+            warnings.warn(f"{log}: not written: the progress lines of a log are those of a "
+                          "suite of recorded scenes; this suite's run shows a progress bar "
+                          "instead", stacklevel=2)
+        keep_result = lambda _, result: result  # noqa: E731
+    try:
+        # what the cache holds, in one pass: earlier runs' timings (for the estimate), the
+        # episodes labelled before (read here, no worker needed), those stored
+        recalled = None if cache is None else cache.recall(
+            [(t.label_key, t.key, t.keep_trajectories) for t in tasks], LABEL_TABLES)
+        return _run_all(tasks, name, backend, progress, recalled, announce, road, keep_result,
+                        streamed)
+    finally:
+        if lines is not None:
+            lines.close()
+
+
+def _counted(keep: Callable[[int, dict[str, Any]], dict[str, Any]], lines: Any
+             ) -> Callable[[int, dict[str, Any]], dict[str, Any]]:
+    """``keep`` that also counts each result's episode in ``lines`` by its status."""
+    def kept(index: int, result: dict[str, Any]) -> dict[str, Any]:
+        episodes = result.get("episodes")
+        lines.update(str(episodes["status"].iat[0]) if episodes is not None
+                     and len(episodes) else "error")
+        return keep(index, result)
+
+    return kept
+
+
 def _table_files(table: pd.DataFrame) -> dict[str, bytes]:
     buffer = io.BytesIO()
     table.to_parquet(buffer, index=True)
@@ -165,13 +225,9 @@ def run_episodes(tasks: list[_Task], name: str, scenarios: Mapping[str, Scenario
     roads = _Roads(scenarios, cache)
     spill = RunSpill(output) if recorded else None
     t0 = time.perf_counter()
-    # what the cache holds, in one pass: earlier runs' timings (for the estimate), the
-    # episodes labelled before (read here, no worker needed), those stored
-    recalled = None if cache is None else cache.recall(
-        [(t.label_key, t.key, t.keep_trajectories) for t in tasks], LABEL_TABLES)
     kept = getattr(backend, "kept", None)  # the estimate's first episodes and the rest
     with kept() if kept is not None else contextlib.nullcontext():  # on the same workers
-        results, estimate = _rollouts(tasks, name, backend, progress, recalled, announce,
+        results, estimate = _rollouts(tasks, name, backend, progress, cache, announce,
                                       roads, None if spill is None else spill.keep, log)
     timings["rollouts_wall"] = time.perf_counter() - t0
     tables = RunTables.of(results, keep_tables, timings, spill)

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import os
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
@@ -400,68 +399,13 @@ def _items(tasks: list[_Task], indices: list[int], cached: list[bool], workers: 
     return items
 
 
-def _rollouts(tasks: list[_Task], name: str, backend: Backend, progress: bool | None,
-              recalled: Recalled | None, announce: Callable[[str], None] | None,
-              road: Callable[[str], pd.DataFrame] | None = None,
-              keep_result: Callable[[int, dict[str, Any]], dict[str, Any]] | None = None,
-              log: str | os.PathLike | None = None) -> tuple[list[dict[str, Any]], RunPlan]:
-    """Every episode of ``tasks`` (the suite ``name``'s, :func:`~tap_bench.bench.run.plan.
-    _tasks`) as a task on ``backend`` (one recovery rule: an episode whose worker died is
-    tried once more, then recorded as failed), the episodes the cache held read rather
-    than simulated (``recalled``: :meth:`~tap_bench.bench.cache.EpisodeCache.recall` of the
-    tasks' keys; None: no cache).
-    Before the tasks start, ``announce`` gets the run's estimate, from the cache's timings
-    or from a first episode of each env without one. ``road``: env -> its highway-env road
-    as a map table, drawn here once for the envs with episodes to label and handed to their
-    tasks (None: each worker draws it). ``keep_result``: (task index, result) -> the result
-    kept, called on each result as it arrives (a :class:`~tap_bench.bench.run.spill.
-    RunSpill` writes its tables to disk and keeps the rest), the tasks' results then taken
-    one by one as they end rather than all at once, and counted in one progress line
-    (episodes done, failed, skipped, rate, time left: :class:`~tap_bench.progress.
-    SceneProgress`) on stderr unless ``progress`` is False and in the file ``log``."""
-    streamed = keep_result is not None
-    lines = None
-    if streamed:
-        from tap_bench.progress import SceneProgress
-
-        lines = SceneProgress(len(tasks), f"bench {name}", show=progress is not False,
-                              log=log, unit="episode")
-        keep_result = _counted(keep_result, lines)
-        progress = False  # the lines instead of a bar of tasks
-    else:
-        if log:
-            import warnings
-
-            warnings.warn(f"{log}: not written: the progress lines of a log are those of a "
-                          "suite of recorded scenes; this suite's run shows a progress bar "
-                          "instead", stacklevel=2)
-        keep_result = lambda _, result: result  # noqa: E731
-    try:
-        return _run_all(tasks, name, backend, progress, recalled, announce, road, keep_result,
-                        streamed)
-    finally:
-        if lines is not None:
-            lines.close()
-
-
-def _counted(keep: Callable[[int, dict[str, Any]], dict[str, Any]], lines: Any
-             ) -> Callable[[int, dict[str, Any]], dict[str, Any]]:
-    """``keep`` that also counts each result's episode in ``lines`` by its status."""
-    def kept(index: int, result: dict[str, Any]) -> dict[str, Any]:
-        episodes = result.get("episodes")
-        lines.update(str(episodes["status"].iat[0]) if episodes is not None
-                     and len(episodes) else "error")
-        return keep(index, result)
-
-    return kept
-
-
 def _run_all(tasks: list[_Task], name: str, backend: Backend, progress: bool | None,
              recalled: Recalled | None, announce: Callable[[str], None] | None,
              road: Callable[[str], pd.DataFrame] | None,
              keep_result: Callable[[int, dict[str, Any]], dict[str, Any]], streamed: bool
              ) -> tuple[list[dict[str, Any]], RunPlan]:
-    """:func:`_rollouts` once its progress is set up: ``streamed``, the results taken one
+    """The tasks run (:func:`~tap_bench.bench.run.episodes._rollouts` once its progress is set
+    up and the cache read): ``streamed``, the results taken one
     by one as they end (``backend.imap``). In steps: what the cache holds taken (earlier
     runs' timings, the labelled episodes as results, which are cached), each env's road
     handed to its tasks, a first episode of each env the cache has no timing of
@@ -520,7 +464,8 @@ def _with_roads(tasks: list[_Task], results: Mapping[int, Any],
 
 class _Done:
     """The results of a run's tasks as they come in, by task index, each passed through
-    ``keep_result`` (:func:`_rollouts`), with the seconds each took."""
+    ``keep_result`` (:func:`~tap_bench.bench.run.episodes._rollouts`), with the seconds each
+    took."""
 
     def __init__(self, keep_result: Callable[[int, dict[str, Any]], dict[str, Any]]) -> None:
         self.keep_result = keep_result
