@@ -53,7 +53,7 @@ timings of earlier runs or by timing a first episode of each env.
 
 :func:`run_suite` reads as its steps, each in its own module and given the plain values it
 needs: the suite resolved once into a plan (:func:`~tap_bench.bench.run.plan.plan_suite`),
-the references read (:func:`~tap_bench.bench.run.scoring.read_references`), the episodes'
+the references read (:func:`~tap_bench.bench.run.references.read_references`), the episodes'
 tasks made (:func:`~tap_bench.bench.run.plan._tasks`, keyed for the cache), the run served
 whole when nothing changed (:func:`~tap_bench.bench.run.served.try_served`), the episodes
 run (:func:`~tap_bench.bench.run.episodes.run_episodes`), scored
@@ -86,7 +86,8 @@ from tap_bench.bench.run.folder import (
     write_results,
 )
 from tap_bench.bench.run.plan import SuitePlan, _tasks, plan_suite
-from tap_bench.bench.run.scoring import ReferenceSource, read_references, score_run
+from tap_bench.bench.run.references import ReferenceSource, read_references
+from tap_bench.bench.run.scoring import score_run
 from tap_bench.bench.run.served import _check_apart, keep_run, try_served
 from tap_bench.bench.run.tasks import CACHED_BATCH
 from tap_bench.bench.suite import Suite

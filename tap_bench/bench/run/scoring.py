@@ -1,21 +1,19 @@
-"""The scoring of a suite run: its coverage references read (or labelled) once, and every
-score of the run (:func:`score_run`): :func:`tap_bench.bench.scores.scoring.score` with
-each reference's scenarios matched to the episodes, windows of its tracks' length, the
-gate's power, the interaction contexts and the sim-to-real gap of every policy (part of
-:mod:`tap_bench.bench.run.runner`)."""
+"""The scoring of a suite run, every score of the run in one call (:func:`score_run`):
+:func:`tap_bench.bench.scores.scoring.score` with each reference's scenarios matched to the
+episodes (the references as :mod:`~tap_bench.bench.run.references` read them), windows of
+its tracks' length, the gate's power, the interaction contexts and the sim-to-real gap of
+every policy (part of :mod:`tap_bench.bench.run.runner`)."""
 
 from __future__ import annotations
 
-import os
-import time
-import warnings
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterator
 
 import pandas as pd
 
 from tap_bench.bench.cache import EpisodeCache, memoised, table_digest
 from tap_bench.bench.gate.power import power_table
 from tap_bench.bench.run.plan import SuitePlan
+from tap_bench.bench.run.references import Corpora
 from tap_bench.bench.run.spill import SpilledTable
 from tap_bench.bench.run.tasks import RunTables, Spilled
 from tap_bench.bench.scores.contexts import context_scores
@@ -23,58 +21,9 @@ from tap_bench.bench.scores.gap import gap_scores
 from tap_bench.bench.scores.scenarios import match_scenarios
 from tap_bench.bench.scores.scoring import Scores, score, scores_from_files, scores_to_files
 from tap_bench.bench.scores.windows import window_episodes, window_seconds
-from tap_bench.errors import ParameterError
-from tap_bench.labelling import tap
-from tap_bench.labels import validate_labels
-from tap_bench.sources import read_womd
-from tap_bench.tableio import read_table
 from tap_bench.thresholds import Thresholds
 
-__all__ = ["Corpora", "ReferenceSource", "read_references", "score_run"]
-
-Corpora = Mapping[str, tuple[pd.DataFrame | None, pd.DataFrame]]
-"""The run's references read: name -> (trajectories or None, label table)."""
-
-ReferenceSource = pd.DataFrame | str | os.PathLike | Sequence[str | os.PathLike]
-"""A coverage reference: a label table, a label file, or driving-data files."""
-
-_LABEL_SUFFIXES = (".parquet", ".pq", ".csv", ".csv.gz")
-
-
-def _reference(name: str, source: ReferenceSource, level: str, thresholds: Thresholds
-               ) -> tuple[pd.DataFrame | None, pd.DataFrame]:
-    """(trajectories or None, label table) of one named reference."""
-    if isinstance(source, pd.DataFrame):
-        validate_labels(source, level, source=f"reference {name!r}")
-        return None, source
-    paths = [source] if isinstance(source, str | os.PathLike) else list(source)
-    if not paths:
-        raise ParameterError(f"references[{name!r}]", source, "a label table or data files")
-    if len(paths) == 1 and str(paths[0]).lower().endswith(_LABEL_SUFFIXES):
-        table = read_table(paths[0])
-        if "sdl" in table.columns:  # a label file
-            validate_labels(table, level, source=str(paths[0]))
-            return None, table
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        traj = read_womd([str(p) for p in paths])
-        labels = tap(traj, thresholds, source=name).labels("all")
-    return traj, labels
-
-
-def read_references(sources: Mapping[str, ReferenceSource], level: str,
-                    thresholds: Thresholds, timings: dict[str, float]
-                    ) -> dict[str, tuple[pd.DataFrame | None, pd.DataFrame]]:
-    """name -> (trajectories or None, label table) of every reference: label tables checked
-    at ``level``, driving data labelled with ``thresholds``; the time it took goes to
-    ``timings["references"]`` [s]."""
-    t0 = time.perf_counter()
-    corpora = {name: _reference(name, source, level, thresholds)
-               for name, source in sources.items()}
-    if corpora:
-        timings["references"] = time.perf_counter() - t0
-    return corpora
-
+__all__ = ["score_run"]
 
 def score_run(plan: SuitePlan, tables: RunTables, corpora: Corpora,
               cache: EpisodeCache | None) -> Scores:
