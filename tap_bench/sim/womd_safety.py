@@ -26,7 +26,10 @@ same 3 s): the same IDM term for a standing obstacle at the edge of that road us
 smaller of the two caps applies. With ``lanes`` too, road users are predicted along the
 map's lanes under them and every branch of their successors, at their speed or up to
 ``other_acceleration`` faster (:func:`lane_conflict`), instead of at their velocity and
-heading: a car whose lane turns across the ego's way is braked for before it turns.
+heading: a car whose lane turns across the ego's way is braked for before it turns. With
+``hold`` too (off by default), a road user so found stays braked for until it has passed or
+left the ego's way, stands clear of it, or is too near for the ego to stop before its ground
+(:meth:`SafetyLayer.held_conflict`), not only while the predicted times match.
 
 It is part of an agent's action space, chosen by the agent's own action config
 (``{"type": "DiscreteMetaAction", ..., "safety_layer": true}``, or a mapping of
@@ -60,8 +63,9 @@ from tap_bench.sim.womd_observation import (
     swept_poses,
 )
 
-__all__ = ["LANE_ACCELERATION", "LANE_ANGLE", "LANE_BRANCHES", "LANE_OFF", "LANE_SAMPLE",
-           "SafetyLayer", "lane_conflict", "lane_paths", "safety_layer"]
+__all__ = ["HOLD_MISSES", "LANE_ACCELERATION", "LANE_ANGLE", "LANE_BRANCHES", "LANE_OFF",
+           "LANE_SAMPLE", "SafetyLayer", "lane_conflict", "lane_meetings", "lane_paths",
+           "safety_layer"]
 
 LANE_ACCELERATION = 1.0  # [m/s^2] a road user's predicted speed may grow this fast
 LANE_SAMPLE = 1.0  # [m] a road user's predicted path is sampled this often
@@ -70,6 +74,7 @@ LANE_ANGLE = math.radians(45.0)  # [rad] heading this far off its lane's: not fo
 LANE_BRANCHES = 8  # at most this many branches of successor lanes per road user
 LANE_DEPTH = 6  # ... each at most this many lanes on from the one under it
 LANE_BLEND = 5.0  # [m] a road user off its lane's centre joins it over this distance
+HOLD_MISSES = 5  # simulated steps a held road user's lanes miss the ego's way: released
 
 
 @dataclasses.dataclass
@@ -90,6 +95,9 @@ class SafetyLayer:
             their velocity and heading.
         other_acceleration: with ``lanes``, how fast [m/s^2] a road user's speed may grow
             (0: at its speed).
+        hold: with ``lanes``, a road user once braked for stays a conflict until it has
+            passed or left the ego's way (:meth:`held_conflict`), not only while the
+            predicted times match.
         steps: simulated steps the layer judged (an episode's, since :meth:`reset`).
         capped: steps in which it lowered the policy's acceleration.
         braked: steps in which it made the ego brake (the cap < 0) where the policy asked
@@ -105,13 +113,14 @@ class SafetyLayer:
     tolerance: float = PREDICT_TOLERANCE
     lanes: bool = False
     other_acceleration: float = LANE_ACCELERATION
+    hold: bool = False
     steps: int = dataclasses.field(default=0, compare=False)
     capped: int = dataclasses.field(default=0, compare=False)
     braked: int = dataclasses.field(default=0, compare=False)
     foreseen: int = dataclasses.field(default=0, compare=False)
 
     def __post_init__(self) -> None:
-        for flag in ("predicted", "lanes"):
+        for flag in ("predicted", "lanes", "hold"):
             if not isinstance(getattr(self, flag), bool):
                 raise ParameterError(f"safety_layer.{flag}", getattr(self, flag),
                                      "true or false")
@@ -125,12 +134,20 @@ class SafetyLayer:
             if (isinstance(value, bool) or not isinstance(value, int | float)
                     or not math.isfinite(value) or value <= 0):
                 raise ParameterError(f"safety_layer.{field}", value, "a number > 0")
+        if self.hold and not (self.predicted and self.lanes):
+            raise ParameterError("safety_layer.hold", self.hold,
+                                 "false, or true with predicted and lanes true")
         self._last = None  # the simulated step last judged (a decision acts twice in it)
+        # id() of the road users held: (simulated steps since their lanes last met the
+        # ego's way, where the ego would stop for them then (x, y) [m])
+        self._held: dict[int, tuple[int, np.ndarray]] = {}
+        self._passing: set[int] = set()  # id() of those the ego can no longer stop for
 
     def reset(self) -> None:
         """Zero the counts (a new episode)."""
         self.steps = self.capped = self.braked = self.foreseen = 0
         self._last = None
+        self._held, self._passing = {}, set()
 
     def cap(self, speed: float, gap: float, closing: float) -> float:
         """The most acceleration [m/s^2] allowed at ``speed`` [m/s] with a road user
@@ -153,7 +170,11 @@ class SafetyLayer:
         limit = self.cap(float(ego.speed), lead.gap, lead.closing)
         wanted = float(ego.action["acceleration"])
         foreseen = False
-        if self.predicted and self.lanes:
+        if self.hold:
+            road = getattr(ego, "road", None)
+            conflict = self.held_conflict(ego, others, getattr(road, "network", None), wanted,
+                                          step is None or step != self._last)
+        elif self.predicted and self.lanes:
             road = getattr(ego, "road", None)
             conflict = lane_conflict(ego, others, getattr(road, "network", None), wanted,
                                      self.tolerance, max_acceleration=self.max_acceleration,
@@ -175,6 +196,83 @@ class SafetyLayer:
                 self.capped += 1
                 self.braked += bool(limit < 0 <= wanted)
                 self.foreseen += foreseen
+
+    def held_conflict(self, ego: Any, others: list[Any], network: Any,
+                      acceleration: float, new: bool = True) -> Leader:
+        """The nearest conflict to brake for with :attr:`hold` (gap [m], closing [m/s];
+        ``new``: a new simulated step, not a decision's second act in the same one).
+
+        A road user whose lanes meet the ego's way at a matched time (:func:`lane_conflict`)
+        is held: from then on it is braked for (IDM's term for a standing obstacle where
+        the ego's way first meets the ground its box covers from where it is now on along
+        its branches, :func:`lane_meetings`' ``way``), whether or not the times still
+        match, until it is released: it is gone (not in ``others``), its branches have not
+        met the ego's way for :data:`HOLD_MISSES` simulated steps (it has passed the
+        crossing, or taken a branch away from it; meanwhile the ego stops where it would
+        have stopped for it, projected on its heading), it heads within
+        :data:`~tap_bench.sim.womd_observation.CROSS_MIN_ANGLE` of the ego's way (the swept
+        box's), or it stands (slower than :data:`~tap_bench.sim.womd_observation.
+        MIN_CROSS_SPEED`) with its box at least :attr:`min_gap` clear of the ego's way. A
+        road user, held or newly found, that the ego can no longer stop for (its ground
+        within the ego's stopping distance at :attr:`emergency_braking`, or already meeting
+        the ego's box) is not braked for while it stays in the ego's way: braking would stop
+        the ego in the crossing."""
+        index = {id(other): i for i, other in enumerate(others)}
+        watched = [index[key] for key in [*self._held, *self._passing] if key in index]
+        timed, way = lane_meetings(ego, others, network, acceleration, self.tolerance,
+                                   max_acceleration=self.max_acceleration,
+                                   other_acceleration=self.other_acceleration,
+                                   watched=watched)
+        v = max(float(ego.speed), 0.0)
+        stop = v * v / (2 * self.emergency_braking)  # [m] the ego's shortest stop
+        p = np.asarray(ego.position, float)[:2]
+        u = np.array([math.cos(float(ego.heading)), math.sin(float(ego.heading))])
+        held: dict[int, tuple[int, np.ndarray]] = {}
+        passing: set[int] = set()
+        gap = math.inf
+        for i, other in enumerate(others):
+            key = id(other)
+            if key in self._passing:
+                if math.isfinite(timed[i]) or math.isfinite(way[i]):
+                    passing.add(key)
+                continue
+            misses = 0
+            if key in self._held and not _released(ego, other, self.min_gap):
+                entry = float(way[i])
+                if not math.isfinite(entry):
+                    misses, point = self._held[key]
+                    misses += new
+                    entry = float((point - p) @ u) if misses < HOLD_MISSES else math.inf
+            else:
+                entry = float(timed[i])
+            if not math.isfinite(entry):
+                continue
+            if entry <= 0.0 or entry - SWEPT_STEP < stop:
+                passing.add(key)
+                continue
+            held[key] = (misses, p + entry * u if misses == 0 else self._held[key][1])
+            gap = min(gap, entry - SWEPT_STEP)
+        self._held, self._passing = held, passing
+        return Leader(gap, v) if math.isfinite(gap) else NO_LEADER
+
+
+def _released(ego: Any, other: Any, clear: float) -> bool:
+    """Whether a held road user ``other`` goes the ego's way (heading within
+    :data:`~tap_bench.sim.womd_observation.CROSS_MIN_ANGLE` of the ego's) or stands
+    (slower than :data:`~tap_bench.sim.womd_observation.MIN_CROSS_SPEED`) with its box,
+    ``clear`` m larger on each side, off the ego's swept box (``SWEPT_MARGIN`` wider)."""
+    off = abs((float(other.heading) - float(ego.heading) + math.pi) % (2 * math.pi) - math.pi)
+    if off < CROSS_MIN_ANGLE:
+        return True
+    if float(np.hypot(*np.asarray(other.velocity, float)[:2])) >= MIN_CROSS_SPEED:
+        return False
+    _, xy, heading = swept_poses(ego)
+    where = np.asarray(other.position, float)[:2][None, None]
+    return not boxes_overlap(xy, heading, float(ego.LENGTH) / 2,
+                             float(ego.WIDTH) / 2 + SWEPT_MARGIN, where,
+                             np.array([float(other.heading)]),
+                             np.array([float(other.LENGTH) / 2 + clear]),
+                             np.array([float(other.WIDTH) / 2 + clear])).any()
 
 
 def lane_paths(network: Any, position: np.ndarray, heading: float, length: float
@@ -243,7 +341,8 @@ def _samples(network: Any, position: np.ndarray, heading: float, speed: float,
              ) -> tuple[Any, ...]:
     """A road user's boxes along its :func:`lane_paths` (see :func:`lane_conflict`): (pos
     (J, 2) [m], heading (J,) [rad], half length, half width (J,) [m], earliest and latest
-    time there (J,) [s], the number of samples of each branch). Kept on the network by the
+    time there (J,) [s], arc length from its position (J,) [m], the number of samples of
+    each branch). Kept on the network by the
     road user's state: a logged road user is at the same place in every episode of its
     scene."""
     key = (float(position[0]), float(position[1]), heading, speed, length, width, tolerance,
@@ -279,7 +378,8 @@ def _samples(network: Any, position: np.ndarray, heading: float, speed: float,
     n = len(lines) * len(d)
     found = (np.concatenate(pos), np.concatenate(head),
              np.full(n, length / 2 + LANE_SAMPLE / 2), np.full(n, width / 2),
-             np.tile(lo, len(lines)), np.tile(hi, len(lines)), [len(d)] * len(lines))
+             np.tile(lo, len(lines)), np.tile(hi, len(lines)), np.tile(d, len(lines)),
+             [len(d)] * len(lines))
     if cache is not None:
         if len(cache) >= _CACHE_SIZE:
             cache.clear()
@@ -328,12 +428,41 @@ def lane_conflict(ego: Any, others: list[Any], network: Any, acceleration: float
     Returns:
         The zone's gap and closing speed; ``NO_LEADER`` with no conflict.
     """
-    if not others:
+    timed, _ = lane_meetings(ego, others, network, acceleration, tolerance, horizon,
+                             max_acceleration, other_acceleration, margin)
+    if not np.isfinite(timed).any():
         return NO_LEADER
+    return Leader(max(float(timed.min()) - SWEPT_STEP, 0.0), max(float(ego.speed), 0.0))
+
+
+def lane_meetings(ego: Any, others: list[Any], network: Any, acceleration: float = 0.0,
+                  tolerance: float = PREDICT_TOLERANCE, horizon: float = SWEPT_HORIZON,
+                  max_acceleration: float = 3.0,
+                  other_acceleration: float = LANE_ACCELERATION,
+                  margin: float = SWEPT_MARGIN, watched: Any = ()
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Where each road user's lanes meet the ego's way (:func:`lane_conflict`'s test, per
+    road user).
+
+    Returns (timed, way), each (len(others),) [m along the ego's way, from its centre]:
+    ``timed`` the ego's distance to the first of its poses whose box meets the ground of a
+    branch that meets it at a matched time (:func:`lane_conflict`: road users that cross or
+    come the other way, at :data:`~tap_bench.sim.womd_observation.MIN_CROSS_SPEED` or more;
+    inf where none; a branch whose ground already meets the ego's box is left out); ``way``,
+    for the road users of ``watched`` (indexes into ``others``; others inf), the same
+    distance to the ground its box covers from where it is now on along any of its branches,
+    at any time (0: that ground meets the ego's box where it is now; inf: none of it meets
+    the ego's way within :data:`~tap_bench.sim.womd_observation.SWEPT_HORIZON` s of the
+    ego's speed, or :data:`~tap_bench.sim.womd_observation.SWEPT_MIN_DISTANCE` m). A watched
+    road user slower than ``MIN_CROSS_SPEED`` is placed along its branches as far as one at
+    that speed goes. The other arguments are :func:`lane_conflict`'s."""
+    n = len(others)
+    timed, way = np.full(n, np.inf), np.full(n, np.inf)
+    if not n:
+        return timed, way
     s, xy, heading = swept_poses(ego)
     p = np.asarray(ego.position, float)
     h = float(ego.heading)
-    v_ego = max(float(ego.speed), 0.0)
     el, ew = float(ego.LENGTH) / 2, float(ego.WIDTH) / 2 + margin
     a = float(other_acceleration)
     span = horizon + tolerance
@@ -344,17 +473,22 @@ def lane_conflict(ego: Any, others: list[Any], network: Any, acceleration: float
     width = np.array([float(v.WIDTH) for v in others])
     at = np.array([np.asarray(v.position, float)[:2] for v in others]).reshape(-1, 2)
     off = np.abs((oh - h + np.pi) % (2 * np.pi) - np.pi)
-    far = speed * span + 0.5 * a * span**2  # [m] the farthest each can go
-    reach = float(s[-1]) + far + length + width + 2 * (el + ew)
-    keep = np.flatnonzero((speed >= MIN_CROSS_SPEED) & (off >= CROSS_MIN_ANGLE)
-                          & (np.hypot(*(at - p).T) <= reach))
+    placed = np.maximum(speed, MIN_CROSS_SPEED)  # a watched road user standing: placed so
+    far = placed * span + 0.5 * a * span**2  # [m] the farthest each can go
+    near_ego = np.hypot(*(at - p).T) <= float(s[-1]) + far + length + width + 2 * (el + ew)
+    fresh = (speed >= MIN_CROSS_SPEED) & (off >= CROSS_MIN_ANGLE) & near_ego
+    watch = np.zeros(n, bool)
+    watch[np.asarray(list(watched), int)] = True
+    watch &= near_ego
+    keep = np.flatnonzero(fresh | watch)
     if not len(keep):
-        return NO_LEADER
-    found = [_samples(network, at[i], float(oh[i]), float(speed[i]), float(length[i]),
+        return timed, way
+    found = [_samples(network, at[i], float(oh[i]), float(placed[i]), float(length[i]),
                       float(width[i]), tolerance, a, span) for i in keep.tolist()]
     groups = [n for one in found for n in one[-1]]
-    pos, head, half_l, half_w, t_lo, t_hi = (np.concatenate([one[j] for one in found])
-                                             for j in range(6))
+    owner = np.repeat(keep, [len(one[-1]) for one in found])  # (G,) each branch's road user
+    pos, head, half_l, half_w, t_lo, t_hi, arc = (np.concatenate([one[j] for one in found])
+                                                  for j in range(7))
     # broad phase: samples outside the ego's poses' bounds, then those whose centre comes
     # near no ego pose, cannot overlap
     radius = math.hypot(el, ew) + np.hypot(half_l, half_w) + SWEPT_STEP
@@ -362,11 +496,11 @@ def lane_conflict(ego: Any, others: list[Any], network: Any, acceleration: float
     inside = np.flatnonzero(((pos >= lo_xy - radius[:, None])
                              & (pos <= hi_xy + radius[:, None])).all(axis=1))
     if not len(inside):
-        return NO_LEADER
+        return timed, way
     near = (((pos[inside][None] - xy[:, None]) ** 2).sum(axis=-1)
             <= radius[inside] ** 2).any(axis=0)
     if not near.any():
-        return NO_LEADER
+        return timed, way
     cols = inside[near]
     overlap = boxes_overlap(xy, heading, el, ew, pos[cols][None], head[cols], half_l[cols],
                              half_w[cols])  # (k, J')
@@ -375,15 +509,17 @@ def lane_conflict(ego: Any, others: list[Any], network: Any, acceleration: float
                & (t_pose[:, None] <= t_hi[cols])).any(axis=0)  # (J',)
     first = np.where(overlap, s[:, None], np.inf).min(axis=0)  # (J',) the ego meets it [m]
     group = np.repeat(np.arange(len(groups)), groups)[cols]
-    n = len(groups)
-    meets = np.zeros(n, bool)
+    g = len(groups)
+    meets = np.zeros(g, bool)
     np.logical_or.at(meets, group, matched)
-    entry = np.full(n, np.inf)
+    entry = np.full(g, np.inf)
     np.minimum.at(entry, group, first)
-    entry = np.where(meets & (entry > 0.0), entry, np.inf)
-    if not np.isfinite(entry).any():
-        return NO_LEADER
-    return Leader(max(float(entry.min()) - SWEPT_STEP, 0.0), v_ego)
+    entry = np.where(meets & (entry > 0.0) & fresh[owner], entry, np.inf)
+    np.minimum.at(timed, owner, entry)
+    ahead = np.full(g, np.inf)  # from where it is now on, at any time
+    np.minimum.at(ahead, group, np.where(arc[cols] >= 0.0, first, np.inf))
+    np.minimum.at(way, owner, np.where(watch[owner], ahead, np.inf))
+    return timed, way
 
 
 def safety_layer(setting: Any) -> SafetyLayer | None:
