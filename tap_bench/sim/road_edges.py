@@ -211,7 +211,7 @@ class RoadEdges:
 def _build_grid(a: np.ndarray, b: np.ndarray) -> tuple:
     """(cell start offsets, segment ids by cell, grid origin, nx, ny) of segments a -> b
     bucketed in :data:`EDGE_CELL` m cells (a segment in every cell its bounding box
-    touches)."""
+    touches; in a cell, by segment id)."""
     if not len(a):
         return (np.zeros(2, np.int64), np.zeros(0, np.int64), np.zeros(2), 1, 1)
     lo_xy, hi_xy = np.minimum(a, b), np.maximum(a, b)
@@ -219,15 +219,32 @@ def _build_grid(a: np.ndarray, b: np.ndarray) -> tuple:
     lo_cell = np.floor((lo_xy - lo) / EDGE_CELL).astype(np.int64)
     hi_cell = np.floor((hi_xy - lo) / EDGE_CELL).astype(np.int64)
     nx, ny = int(hi_cell[:, 0].max()) + 2, int(hi_cell[:, 1].max()) + 2
-    span = hi_cell - lo_cell + 1
-    count = span[:, 0] * span[:, 1]
-    seg = np.repeat(np.arange(len(a)), count)
-    local = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
-    cell = ((lo_cell[seg, 0] + local // span[seg, 1]) * ny + lo_cell[seg, 1]
-        + local % span[seg, 1])
-    order = np.argsort(cell, kind="stable")
-    start = np.searchsorted(cell[order], np.arange(nx * ny + 1)).astype(np.int64)
-    return (start, seg[order].astype(np.int64), lo.astype(float), nx, ny)
+    start, segs = _cells_by_count(lo_cell, hi_cell, nx, ny)
+    return (start, segs, lo.astype(float), nx, ny)
+
+
+@numba.njit(cache=True, nogil=True)
+def _cells_by_count(lo_cell, hi_cell, nx, ny):  # pragma: no cover - compiled
+    """The grid's buckets by a counting sort: segment k lies in the cells (cx, cy) of
+    ``lo_cell[k] <= (cx, cy) <= hi_cell[k]`` ((m, 2) int each), cell number cx * ny + cy.
+    Returns (start (nx * ny + 1,): where each cell's entries begin, segs: the segment ids,
+    cell by cell, in id order within a cell)."""
+    start = np.zeros(nx * ny + 1, np.int64)
+    for k in range(lo_cell.shape[0]):
+        for cx in range(lo_cell[k, 0], hi_cell[k, 0] + 1):
+            for cy in range(lo_cell[k, 1], hi_cell[k, 1] + 1):
+                start[cx * ny + cy + 1] += 1
+    for c in range(nx * ny):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    segs = np.empty(start[nx * ny], np.int64)
+    for k in range(lo_cell.shape[0]):
+        for cx in range(lo_cell[k, 0], hi_cell[k, 0] + 1):
+            for cy in range(lo_cell[k, 1], hi_cell[k, 1] + 1):
+                c = cx * ny + cy
+                segs[fill[c]] = k
+                fill[c] += 1
+    return start, segs
 
 
 @numba.njit(cache=True, nogil=True)

@@ -338,3 +338,46 @@ def test_edges_of_many_polylines_equal_each_polyline_cleaned_alone(seed):
     assert np.array_equal(edges.open_end, open_end)
     assert open_start.any() and not open_start.all()
     assert len(RoadEdges.from_polylines([np.full((3, 2), np.nan), np.ones((2, 2))])) == 0
+
+
+def grid_by_sorting(a: np.ndarray, b: np.ndarray) -> tuple:
+    """The edge grid as numpy built it before the counting sort (every (segment, cell) entry
+    listed, sorted stably by cell, each cell's start found by searchsorted)."""
+    from tap_bench.sim.road_edges import EDGE_CELL
+
+    lo_xy, hi_xy = np.minimum(a, b), np.maximum(a, b)
+    lo = lo_xy.min(axis=0) - EDGE_CELL
+    lo_cell = np.floor((lo_xy - lo) / EDGE_CELL).astype(np.int64)
+    hi_cell = np.floor((hi_xy - lo) / EDGE_CELL).astype(np.int64)
+    nx, ny = int(hi_cell[:, 0].max()) + 2, int(hi_cell[:, 1].max()) + 2
+    span = hi_cell - lo_cell + 1
+    count = span[:, 0] * span[:, 1]
+    seg = np.repeat(np.arange(len(a)), count)
+    local = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+    cell = ((lo_cell[seg, 0] + local // span[seg, 1]) * ny + lo_cell[seg, 1]
+            + local % span[seg, 1])
+    order = np.argsort(cell, kind="stable")
+    start = np.searchsorted(cell[order], np.arange(nx * ny + 1)).astype(np.int64)
+    return (start, seg[order].astype(np.int64), lo.astype(float), nx, ny)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_edge_grid_is_the_sorted_one(seed):
+    """The grid's buckets (a counting sort) are those of sorting every (segment, cell) pair
+    by cell: the same offsets and segment ids, ids in order within a cell; segments long
+    and short, on cell lines, of one point, one segment alone."""
+    from tap_bench.sim.road_edges import EDGE_CELL, _build_grid
+
+    rng = np.random.default_rng(seed)
+    for m in (1, 2, 7, 300):
+        a = rng.uniform(-200.0, 200.0, (m, 2))
+        b = a + rng.normal(0.0, rng.choice([0.5, 5.0, 40.0]), (m, 2))
+        snap = rng.random(m) < 0.2
+        a[snap] = np.round(a[snap] / EDGE_CELL) * EDGE_CELL  # on the cell lines
+        point = rng.random(m) < 0.1
+        b[point] = a[point]  # a segment of one point
+        got, want = _build_grid(a, b), grid_by_sorting(a, b)
+        assert got[0].dtype == want[0].dtype and got[1].dtype == want[1].dtype
+        assert got[0].tolist() == want[0].tolist()
+        assert got[1].tolist() == want[1].tolist()
+        assert got[2].tobytes() == want[2].tobytes() and got[3:] == want[3:]
