@@ -736,21 +736,45 @@ class WomdIDMVehicle(_RouteMixin, IDMVehicle):
             lead = float(np.dot(front_vehicle.velocity, ego_vehicle.direction))
             acc = _idm_acc(p, v, v0, gap, max(lead, 0.0))
         if ego_vehicle is self:
-            leader_ahead = getattr(self.road, "leader_ahead", None)
-            if leader_ahead is not None:
-                leader, d = leader_ahead(self)
-                if leader is not None:
-                    lead = float(np.dot(leader.velocity, self.direction))
-                    acc = min(acc, _idm_acc(p, v, v0, d - (self.LENGTH + leader.LENGTH) / 2,
-                                            max(lead, 0.0)))
-            corridor = getattr(self.road, "corridor_leader", None)
-            if corridor is not None:
-                found = corridor(self)
-                if found is not None:
-                    acc = min(acc, _idm_acc(p, v, v0, found[0], max(found[1], 0.0)))
-            for d in self._standing_obstacles():
-                acc = min(acc, _idm_acc(p, v, v0, d, 0.0))
+            for limit in self._obstacle_accelerations(p, v, v0):
+                acc = min(acc, limit)
         return float(max(acc, -p.emergency_braking))
+
+    def _obstacle_accelerations(self, p: DriverParameters, v: float, v0: float
+                                ) -> tuple[float, ...]:
+        """This vehicle's IDM accelerations [m/s^2] (driver ``p``, speed ``v`` and desired
+        speed ``v0`` [m/s]) behind what it finds on its way beyond its own lane's leader, in
+        the order :meth:`acceleration` takes their minimum: the leader on its next lanes,
+        the corridor's leader, then each standing obstacle (:meth:`_standing_obstacles`).
+
+        Asked again within a step of the road for the same state (a lane change's second
+        lane, MOBIL's questions), it answers from the first time: the searches read the
+        step's movers, and what the stop points and signs remember changes only at the
+        first asking."""
+        road = self.road
+        key = (getattr(road, "clock", (None,))[0], getattr(road, "_positions", None) is None,
+               id(getattr(road, "_movers", None)), id(self.route), self.lane_index,
+               self.position.tobytes(), self.heading, self.speed, v, v0)
+        memo = self.__dict__.get("_obstacle_memo")
+        if memo is not None and memo[1] is p and memo[0] == key:
+            return memo[2]
+        out = []
+        leader_ahead = getattr(road, "leader_ahead", None)
+        if leader_ahead is not None:
+            leader, d = leader_ahead(self)
+            if leader is not None:
+                lead = float(np.dot(leader.velocity, self.direction))
+                out.append(_idm_acc(p, v, v0, d - (self.LENGTH + leader.LENGTH) / 2,
+                                    max(lead, 0.0)))
+        corridor = getattr(road, "corridor_leader", None)
+        if corridor is not None:
+            found = corridor(self)
+            if found is not None:
+                out.append(_idm_acc(p, v, v0, found[0], max(found[1], 0.0)))
+        for d in self._standing_obstacles():
+            out.append(_idm_acc(p, v, v0, d, 0.0))
+        self.__dict__["_obstacle_memo"] = (key, p, tuple(out))
+        return self.__dict__["_obstacle_memo"][2]
 
     def _standing_obstacles(self) -> list[float]:
         """Gaps [m] from the front bumper to where it must stop: red stop points and stop

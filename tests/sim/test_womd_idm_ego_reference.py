@@ -93,3 +93,29 @@ def test_the_idm_egos_own_act_and_step_equal_highway_envs(womd_dir, scenes, traf
         assert np.nanmax(np.abs(ours[column].to_numpy() - theirs[column].to_numpy())) < 1e-6
     assert np.nanmax(np.abs(np.angle(np.exp(1j * (ours["heading"].to_numpy()
                                                   - theirs["heading"].to_numpy()))))) < 1e-6
+
+
+def test_the_obstacles_asked_again_within_a_step_are_those_computed_afresh(womd_dir,
+                                                                           monkeypatch):
+    """The IDM ego's accelerations behind what it finds on its way are computed once per
+    step and state (``_obstacle_accelerations``' memo); every answer, the memo's included,
+    equals the searches run again from nothing (stop points and signs remember what they
+    decided the first time, so running them again answers the same)."""
+    own = WomdIDMVehicle._obstacle_accelerations
+    asked = {"calls": 0, "again": 0}
+
+    def checked(self, p, v, v0):
+        again = self.__dict__.get("_obstacle_memo") is not None
+        got = own(self, p, v, v0)
+        self.__dict__.pop("_obstacle_memo")
+        fresh = own(self, p, v, v0)
+        assert len(got) == len(fresh)
+        assert all(a == b or (a != a and b != b) for a, b in zip(got, fresh, strict=True))
+        asked["calls"] += 1
+        asked["again"] += again
+        return got
+
+    monkeypatch.setattr(WomdIDMVehicle, "_obstacle_accelerations", checked)
+    files = [str(womd_dir / f) for f in SAMPLES[:2]]
+    _drive(files, "log")
+    assert asked["calls"] > 100 and asked["again"] > 50
