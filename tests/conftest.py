@@ -81,22 +81,31 @@ def _rewrite_test_modules(config) -> None:
     about 14 CPU s of a worker's 20 s of collection. pytest reads such bytecode whatever
     that setting, and rewrites a module edited since. Nothing here can fail the session
     (pytest's own rewriting is the fallback), and nothing is written where the tree is
-    read-only."""
+    read-only.
+
+    The same for the modules pytest rewrote in this process outside the suite: the packages
+    of pytest plugins installed by their distributions (hypothesis, pytest-xdist,
+    pytest-benchmark: about 95 modules, 2-3 CPU s in each process that starts pytest, the
+    controller and each worker alike), written beside their installed source as pytest
+    writes them when bytecode may be written."""
     if config.getoption("assertmode", "rewrite") != "rewrite":
         return
     try:
         from _pytest.assertion import rewrite
 
         state = config.stash[rewrite.assertstate_key]
-        for source in sorted(Path(__file__).parent.rglob("*.py")):
-            if not (source.name.startswith("test_") or source.name == "conftest.py"):
-                continue
+        suite = [source for source in sorted(Path(__file__).parent.rglob("*.py"))
+                 if source.name.startswith("test_") or source.name == "conftest.py"]
+        hook = getattr(state, "hook", None)
+        plugins = sorted({Path(path) for path in getattr(hook, "_rewritten_names", {}).values()}
+                         - set(suite))
+        for source in suite + plugins:
             folder = rewrite.get_cache_dir(source)
             pyc = folder / (source.name[:-3] + rewrite.PYC_TAIL)
-            if rewrite._read_pyc(source, pyc) is not None:
+            if not source.is_file() or rewrite._read_pyc(source, pyc) is not None:
                 continue
             if not rewrite.try_makedirs(folder):
-                return
+                continue
             stat, code = rewrite._rewrite_test(source, config)
             rewrite._write_pyc(state, code, stat, pyc)
     except Exception:  # another pytest's internals: its workers rewrite as before
@@ -152,6 +161,37 @@ def pytest_configure(config) -> None:
 
 def pytest_unconfigure(config) -> None:
     shutil.rmtree(_CACHE, ignore_errors=True)
+
+
+_CPU_RECORD = os.environ.get("TAP_BENCH_TEST_CPU")
+"""A folder: when set, each process of the suite appends one JSON line per test to
+``<folder>/<pid>.jsonl`` (the test's id, its CPU seconds in this process, those of the child
+processes it reaped, and wall seconds, setup and teardown included), to see where the
+suite's CPU goes. Processes that a test's children start and reap themselves count in
+those children; Ray's processes, not children of the test's process, count nowhere."""
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    if not _CPU_RECORD:
+        yield
+        return
+    import resource
+    import time
+
+    def cpu(who: int) -> float:
+        usage = resource.getrusage(who)
+        return usage.ru_utime + usage.ru_stime
+
+    own, children = cpu(resource.RUSAGE_SELF), cpu(resource.RUSAGE_CHILDREN)
+    wall = time.perf_counter()
+    yield
+    line = {"id": item.nodeid, "self": cpu(resource.RUSAGE_SELF) - own,
+            "child": cpu(resource.RUSAGE_CHILDREN) - children,
+            "wall": time.perf_counter() - wall}
+    os.makedirs(_CPU_RECORD, exist_ok=True)
+    with open(os.path.join(_CPU_RECORD, f"{os.getpid()}.jsonl"), "a") as stream:
+        stream.write(json.dumps(line) + "\n")
 
 
 @pytest.hookimpl(optionalhook=True)
