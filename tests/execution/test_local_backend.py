@@ -17,34 +17,11 @@ import pytest
 from tap_bench.errors import ParameterError, TapBenchError, UnknownNameError
 from tap_bench.execution import DEFAULT_RETRIES, LocalBackend, make_backend
 
-
-def _square_or_fail(x: int) -> int:
-    if x == 3:
-        raise ValueError(f"item {x} is bad")
-    return x * x
-
-
-def _die_once(marker: str) -> int:
-    """Kills its own worker process on the first attempt; returns the attempt count after."""
-    path = Path(marker)
-    attempts = int(path.read_text()) + 1 if path.exists() else 1
-    path.write_text(str(attempts))
-    if attempts == 1:
-        os._exit(1)  # a worker killed mid-task: no exception, the process is gone
-    return attempts
-
-
-def _die_if(x: int) -> int:
-    """Kills its worker on item 0, every time; returns the item for the others."""
-    if x == 0:
-        os._exit(3)
-    time.sleep(0.05)
-    return x
-
-
-def _pid(_: int) -> int:
-    time.sleep(0.1)
-    return os.getpid()
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # for backend_tasks, in the workers too
+from backend_tasks import die_if as _die_if
+from backend_tasks import die_once as _die_once
+from backend_tasks import pid as _pid
+from backend_tasks import square_or_fail as _square_or_fail
 
 
 def _check_outcomes(outcomes, retries: int) -> None:
