@@ -133,6 +133,7 @@ class WomdNetwork(RoadNetwork):
         self.lookup = LaneIndex(lanes)
         self._looked_up: dict[tuple[float, float, float], Any] = {}
         self._asking_position: np.ndarray | None = None
+        self._next_lanes: dict[tuple, Any] = {}  # next_lane's answers by lane and route
 
     @functools.cached_property
     def _centre_arcs(self) -> dict[int, np.ndarray]:
@@ -221,7 +222,19 @@ class WomdNetwork(RoadNetwork):
                   np_random: Any = None) -> Any:
         """The lane after ``current_index``: the route's next lane when it is an exit of
         this one, else the exit that continues most straight; the lane itself at a dead
-        end."""
+        end (``position`` and ``np_random`` do not matter). Each lane's answer for a route
+        is kept (by the route's lanes, not the list)."""
+        try:
+            key = (current_index, tuple(route) if route else None)
+            found = self._next_lanes.get(key)
+        except TypeError:  # a route of unhashable items: asked each time
+            return self._next_lane(current_index, route)
+        if found is None:
+            found = self._next_lanes[key] = self._next_lane(current_index, route)
+        return found
+
+    def _next_lane(self, current_index: Any, route: Any) -> Any:
+        """:meth:`next_lane`, found."""
         exits = self.successors(current_index)
         if not exits:
             return current_index

@@ -1013,3 +1013,41 @@ def test_replaying_vehicles_made_together_equal_vehicles_made_one_by_one(real):
     inner.clock[0] = start
     assert LogVehicle.many(road, [], states, valid, scene.length, scene.width,
                            inner.clock) == []
+
+
+def test_the_next_lane_kept_per_lane_and_route_is_the_one_found_again(womd_dir):
+    """``WomdNetwork.next_lane`` keeps its answers by lane and the route's lanes: for every
+    lane of a real map, with no route, the logged ego's route, a route that skips lanes and
+    one changed in place between two askings, the answer is the one found afresh."""
+    env = make_womd_env([str(womd_dir / "motion_data_one_scenario.tfrecord")])
+    env.reset(seed=0)
+    network = env.unwrapped.road.network
+    lanes = list(network.index.values())
+    rng = np.random.default_rng(0)
+
+    def onward(lane):  # its last exit, else its first neighbour, else itself
+        exits, sides = network.successors(lane), network.side_lanes(lane)
+        return exits[-1] if exits else sides[0] if sides else lane
+
+    route = list(env.unwrapped.route)  # the logged ego's, then on from lanes drawn at random
+    for lane in [lanes[k] for k in rng.choice(len(lanes), 6).tolist()]:
+        route.append(lane)
+        for _ in range(3):
+            route.append(onward(route[-1]))
+    assert len(lanes) > 50 and len(set(route)) > 10
+    skipping = route[::3]
+    routes = [None, [], route, skipping, list(reversed(route))]
+    changed = 0
+    for _ in range(2):  # the second time from what was kept
+        for lane in lanes:
+            for r in routes:
+                assert network.next_lane(lane, route=r) == network._next_lane(lane, r)
+        # the same list changed in place: its new lanes decide
+        moving = routes[2]
+        before = [network.next_lane(lane, route=moving) for lane in lanes]
+        moving.reverse()
+        after = [network.next_lane(lane, route=moving) for lane in lanes]
+        assert after == [network._next_lane(lane, moving) for lane in lanes]
+        changed += before != after
+    assert changed
+    env.close()
