@@ -98,7 +98,7 @@ from tap_bench._version import __version__
 from tap_bench.errors import ParameterError
 from tap_bench.sim.policies import POLICY_KINDS, PolicyDefinition
 from tap_bench.sim.scenario_format import VEHICLE_TYPE_KEYS, Scenario
-from tap_bench.sim.schema import SCENARIO_KINDS, default_config
+from tap_bench.sim.schema import SCENARIO_KINDS
 from tap_bench.usercode import (
     TRUSTED_PACKAGES,
     _source_path,
@@ -270,8 +270,7 @@ def scenario_fingerprint(scenario: Scenario, env: str | None = None) -> dict[str
     the config names (:data:`tap_bench.sim.scenario_format.VEHICLE_TYPE_KEYS`, hashed with the
     modules it loads in the user's package).
     """
-    config = default_config(scenario.highway_env_id)
-    config.update(scenario.config)
+    config = scenario.env_config
     fields = {f.name: _plain(getattr(scenario, f.name)) for f in dataclasses.fields(scenario)
               if f.name != "path"}
     doc: dict[str, Any] = {"env": env if env is not None else scenario.name,

@@ -53,7 +53,6 @@ def run(args: argparse.Namespace) -> int:
     # defaults they are checked against are enough here (tap_bench.sim.schema)
     from tap_bench import catalogue
     from tap_bench.sim.scenario_format import load_scenario
-    from tap_bench.sim.schema import default_config
 
     if args.name in WOMD_NAMES:
         print(json.dumps(womd_row(), indent=2))
@@ -71,9 +70,7 @@ def run(args: argparse.Namespace) -> int:
         "overrides": dict(s.overrides), "description": s.description,
     } for s in scenarios]
     if args.name:
-        full = default_config(scenarios[0].highway_env_id)
-        full.update(scenarios[0].config)
-        rows[0]["config"] = full
+        rows[0]["config"] = scenarios[0].env_config
     if args.json or args.name:
         print(json.dumps(rows[0] if args.name else [*rows, womd_row()], indent=2,
                          default=str))

@@ -228,6 +228,14 @@ class Scenario:
         return full
 
     @property
+    def env_config(self) -> dict[str, Any]:
+        """The config the env runs with: highway-env's defaults of :attr:`highway_env_id`
+        updated with :attr:`config` (a fresh dict)."""
+        full = default_config(self.highway_env_id)
+        full.update(self.config)
+        return full
+
+    @property
     def policy_frequency(self) -> int:
         """Decisions per simulated second [Hz]."""
         return int(self.config["policy_frequency"])

@@ -21,6 +21,21 @@ def test_the_suite_has_the_five_scenarios_simulated_at_10_hz():
         assert scenario.max_steps == round(scenario.duration * scenario.policy_frequency)
 
 
+def test_a_scenarios_env_config_is_highway_envs_defaults_with_its_overrides():
+    """env_config: the whole config the env runs with (the cache's key and ``tap-bench envs
+    NAME`` read it): every default key of its highway-env id, the scenario's own values
+    over them."""
+    from tap_bench.sim.schema import default_config
+
+    scenario = load_scenario(suite_dir("envs") / "merge.json")
+    full = scenario.env_config
+    assert set(full) >= set(default_config(scenario.highway_env_id))
+    assert {k: full[k] for k in scenario.config} == scenario.config
+    assert full["simulation_frequency"] == 10 and full["duration"] == scenario.duration
+    full["duration"] = -1.0  # a fresh dict each time
+    assert scenario.env_config["duration"] == scenario.duration
+
+
 def test_a_misspelled_config_key_names_the_file_and_the_right_key(write_scenario):
     path = write_scenario(config={"vehicle_count": 3})
     with pytest.raises(FileFormatError) as err:
