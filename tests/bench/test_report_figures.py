@@ -122,3 +122,13 @@ def test_no_figure_without_its_measures():
     empty = Scores(**{name: pd.DataFrame() for name in Scores.TABLES})
     assert _tradeoff_plot(empty, "idm") is None
     assert _forest_plots(empty, 0.95) == []
+
+
+def test_the_envs_of_a_scored_run_are_its_per_env_rows_without_the_pooled_one(scores):
+    """Scores.envs: the envs each get a heat map and a measures plot (the pooled "all" rows
+    of a run of several envs are no env of their own); none in scores without rows."""
+    from tap_bench.bench.scores.scoring import Scores
+
+    envs = sorted(set(scores.measures["env"]) - {"all"})
+    assert scores.envs == envs and "all" not in scores.envs
+    assert Scores(**{name: pd.DataFrame() for name in Scores.TABLES}).envs == []

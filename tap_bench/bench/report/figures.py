@@ -23,7 +23,6 @@ import pandas as pd
 
 from tap_bench.bench.measures import MEASURES, SCENE_MEASURES, Measure, measures_with_role
 from tap_bench.bench.report.tables import (
-    _envs,
     _pooled,
     _slug,
     interval_heading,
@@ -576,7 +575,7 @@ def write_plots(scores: Scores, folder: str | os.PathLike, *,
         "tables": {name: table_digest(t) for name, t in scores.tables().items()},
         "reference": reference or "", "level": level,
         "measures": [m.to_dict() for m in (*MEASURES, *SCENE_MEASURES)]}
-    envs = _envs(scores)  # a label heat map and a measures plot each
+    envs = scores.envs  # a label heat map and a measures plot each
     figures = memoised(cache, "plots", inputs,
                        lambda: _draw(scores, envs, reference or "", level), dict, dict)
     paths = []

@@ -30,7 +30,6 @@ from tap_bench.bench.report.figures import TOP_LABELS, write_plots
 from tap_bench.bench.report.pages import timings_html
 from tap_bench.bench.report.realism import realism_section
 from tap_bench.bench.report.tables import (
-    _envs,
     _slug,
     diversity_display,
     html_table,
@@ -151,7 +150,7 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
                                    viewer=viewer)
     page = _Page(plots, page_tables(summary, episodes, scores, reference=reference,
                                     level=level, viewer=viewer),
-                 _envs(scores), reference, human_of(reference),
+                 scores.envs, reference, human_of(reference),
                  level_text(level))  # every interval of the run is at the suite's level
     run = str(summary.get("run", ""))
     parts = [f"<h1>tap-bench run {html.escape(run)}</h1>",

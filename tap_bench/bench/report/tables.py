@@ -44,15 +44,6 @@ def _slug(name: str) -> str:
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in str(name))
 
 
-def _envs(scores: Scores) -> list[str]:
-    envs = set()
-    for table in (scores.measures, scores.label_counts):
-        if len(table) and "env" in table.columns:
-            envs |= set(map(str, table["env"].unique()))
-    envs.discard("all")
-    return sorted(envs)
-
-
 # -- numbers --------------------------------------------------------------------------------
 
 def _num(value: Any, decimals: int) -> str:
@@ -551,7 +542,7 @@ def _human_tables(episodes: pd.DataFrame, reference: str, level: float) -> dict[
 def _summary_tables(summary: dict[str, Any], scores: Scores, reference: str, pct: str
                     ) -> dict[str, str]:
     """The summary table: each policy against the reference (:func:`summary_table`)."""
-    envs = _envs(scores)
+    envs = scores.envs
     pooled_env = "all" if len(envs) > 1 else (envs or ["–"])[0]
     return {"summary": html_table(
         summary_table(scores, reference), table_id="summary", max_rows=50,
@@ -587,7 +578,7 @@ def _env_tables(episodes: pd.DataFrame, scores: Scores, reference: str, level: f
     """Per env, its crashed episodes (``crashed-<env>``, where any crashed); every measure per
     env and policy (``measures``)."""
     tables = {}
-    for env in _envs(scores):
+    for env in scores.envs:
         crashed = episodes[(episodes["env"] == env) & (episodes["status"] == "ok")
                            & episodes["crashed"].fillna(False).astype(bool)]
         if len(crashed):

@@ -94,6 +94,18 @@ class Scores:
         """name -> table, in report order."""
         return {name: getattr(self, name) for name in self.TABLES}
 
+    @property
+    def envs(self) -> list[str]:
+        """The envs the run was scored in, sorted: those of the measures' and label counts'
+        rows, the pooled ``"all"`` left out (each env has a label heat map, a measures plot
+        and its tables in the report)."""
+        envs: set[str] = set()
+        for table in (self.measures, self.label_counts):
+            if len(table) and "env" in table.columns:
+                envs |= set(map(str, table["env"].unique()))
+        envs.discard(ALL_ENVS)
+        return sorted(envs)
+
 
 def scores_to_files(scores: Scores) -> dict[str, bytes]:
     """A :class:`Scores` as files (name -> bytes): each table as Parquet, the methods and
