@@ -98,6 +98,10 @@ class SafetyLayer:
         hold: with ``lanes``, a road user once braked for stays a conflict until it has
             passed or left the ego's way (:meth:`held_conflict`), not only while the
             predicted times match.
+        hold_point: with ``hold``, a held road user is braked for where the ego would have
+            stopped for it when it was found (or nearer, where the ground of its lanes now
+            meets the ego's way nearer and the ego can still stop before it), not where
+            the nearest of all its lanes' ground meets the ego's way.
         steps: simulated steps the layer judged (an episode's, since :meth:`reset`).
         capped: steps in which it lowered the policy's acceleration.
         braked: steps in which it made the ego brake (the cap < 0) where the policy asked
@@ -114,13 +118,14 @@ class SafetyLayer:
     lanes: bool = False
     other_acceleration: float = LANE_ACCELERATION
     hold: bool = False
+    hold_point: bool = False
     steps: int = dataclasses.field(default=0, compare=False)
     capped: int = dataclasses.field(default=0, compare=False)
     braked: int = dataclasses.field(default=0, compare=False)
     foreseen: int = dataclasses.field(default=0, compare=False)
 
     def __post_init__(self) -> None:
-        for flag in ("predicted", "lanes", "hold"):
+        for flag in ("predicted", "lanes", "hold", "hold_point"):
             if not isinstance(getattr(self, flag), bool):
                 raise ParameterError(f"safety_layer.{flag}", getattr(self, flag),
                                      "true or false")
@@ -137,6 +142,9 @@ class SafetyLayer:
         if self.hold and not (self.predicted and self.lanes):
             raise ParameterError("safety_layer.hold", self.hold,
                                  "false, or true with predicted and lanes true")
+        if self.hold_point and not self.hold:
+            raise ParameterError("safety_layer.hold_point", self.hold_point,
+                                 "false, or true with hold true")
         self._last = None  # the simulated step last judged (a decision acts twice in it)
         # id() of the road users held: (simulated steps since their lanes last met the
         # ego's way, where the ego would stop for them then (x, y) [m])
@@ -216,7 +224,9 @@ class SafetyLayer:
         road user, held or newly found, that the ego can no longer stop for (its ground
         within the ego's stopping distance at :attr:`emergency_braking`, or already meeting
         the ego's box) is not braked for while it stays in the ego's way: braking would stop
-        the ego in the crossing."""
+        the ego in the crossing. With :attr:`hold_point` a held road user is braked for
+        where the ego would have stopped for it when it was found, unless its ground now
+        meets the ego's way nearer and the ego can still stop before that."""
         index = {id(other): i for i, other in enumerate(others)}
         watched = [index[key] for key in [*self._held, *self._passing] if key in index]
         timed, way = lane_meetings(ego, others, network, acceleration, self.tolerance,
@@ -239,18 +249,26 @@ class SafetyLayer:
             misses = 0
             if key in self._held and not _released(ego, other, self.min_gap):
                 entry = float(way[i])
+                misses, point = self._held[key]
+                kept = float((point - p) @ u)  # [m] to where it would have stopped
                 if not math.isfinite(entry):
-                    misses, point = self._held[key]
                     misses += new
-                    entry = float((point - p) @ u) if misses < HOLD_MISSES else math.inf
+                    entry = kept if misses < HOLD_MISSES else math.inf
+                else:
+                    misses = 0
+                    if not self.hold_point:
+                        point = p + entry * u
+                    elif entry > kept or entry - SWEPT_STEP < stop:
+                        entry = kept
             else:
                 entry = float(timed[i])
+                point = p + entry * u
             if not math.isfinite(entry):
                 continue
             if entry <= 0.0 or entry - SWEPT_STEP < stop:
                 passing.add(key)
                 continue
-            held[key] = (misses, p + entry * u if misses == 0 else self._held[key][1])
+            held[key] = (misses, point)
             gap = min(gap, entry - SWEPT_STEP)
         self._held, self._passing = held, passing
         return Leader(gap, v) if math.isfinite(gap) else NO_LEADER

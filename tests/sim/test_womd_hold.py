@@ -75,8 +75,9 @@ def test_an_oncoming_left_turner_is_held_where_the_lanes_layer_lets_go_and_is_hi
     held, the ego waits until the car has crossed and drives on past the junction."""
     hit, _ = _left_turn(LANES)
     assert hit is not None
-    hit, x = _left_turn(HOLD)
-    assert hit is None and x > 60.0
+    for hold in (HOLD, {**HOLD, "hold_point": True}):
+        hit, x = _left_turn(hold)
+        assert hit is None and x > 60.0
 
 
 def _rotate(points: np.ndarray, angle: float) -> np.ndarray:
@@ -204,3 +205,49 @@ def test_the_hold_setting_needs_the_lanes_prediction():
         safety_layer({"predicted": True, "hold": True})
     with pytest.raises(ParameterError, match="hold"):
         safety_layer({**LANES, "hold": 1})
+    assert safety_layer({**HOLD, "hold_point": True}).hold_point is True
+    with pytest.raises(ParameterError, match="hold_point"):
+        safety_layer({**LANES, "hold_point": True})
+
+
+def _two_turns() -> Lanes:
+    """:func:`junction`'s oncoming lane 1 (y = 8, westbound to x = 35), branching into 2
+    (the left turn across the ego's line at x = 27), 3 (straight on west) and 5 (west to
+    x = 20, then a left turn across the ego's line at x = 12)."""
+    lines = {1: np.array([[60.0, 8.0], [35.0, 8.0]]),
+             2: np.vstack([_quarter((35.0, 0.0)), [[27.0, -30.0]]]),
+             3: np.array([[35.0, 8.0], [0.0, 8.0]]),
+             5: np.vstack([[[35.0, 8.0]], _quarter((20.0, 0.0)), [[12.0, -30.0]]])}
+    return Lanes(lines, {1: [2, 3, 5]})
+
+
+def _quarter(centre: tuple[float, float]) -> np.ndarray:
+    theta = np.radians(np.linspace(90.0, 180.0, 16))
+    return np.c_[centre[0] + 8.0 * np.cos(theta), centre[1] + 8.0 * np.sin(theta)]
+
+
+@pytest.mark.parametrize("hold_point", [False, True])
+def test_a_nearer_branch_not_matched_in_time_lets_the_plain_hold_go(hold_point):
+    """The ego at 12 m/s (a 9 m stop at 8 m/s^2) asking for 1 m/s^2; the oncoming car at
+    (40, 8) at 8 m/s: its left turn at x = 27 meets the ego's way at a matched time and it
+    is held. A step later the ground of all its branches is taken: the turn at x = 12 (not
+    matched: the ego is there first) meets the ego's way within its stopping distance, and
+    the plain hold counts the ego as unable to stop for the car and lets its acceleration
+    through; with ``hold_point`` it brakes where it would have stopped for the turn at 27."""
+    from tap_bench.sim.womd_safety import lane_meetings
+
+    network = _two_turns()
+    layer = SafetyLayer(**HOLD, hold_point=hold_point)
+    other = car(40.0, 8.0, heading=math.pi, speed=8.0)
+    asked = []
+    for step in range(2):
+        ego = car(1.2 * step, 0.0, speed=12.0)
+        ego.road = Road(network)
+        ego.action["acceleration"] = 1.0
+        if step == 1:  # the premise: all branches' ground nearer than the stop, timed not
+            timed, way = lane_meetings(ego, [other], network, 1.0, watched=[0])
+            assert way[0] - 0.5 < 12.0**2 / 16 < timed[0] - 0.5
+        layer.apply(ego, [other], step=step)
+        asked.append(ego.action["acceleration"])
+    assert asked[0] < 0
+    assert (asked[1] < 0) is hold_point
