@@ -115,10 +115,12 @@ def default_config(highway_env_id: str) -> dict[str, Any]:
         return json.loads(json.dumps(config, default=repr))
     schema = _schema()
     config = schema["envs"].get(highway_env_id)
-    if config is None:
-
-        config = env_class(highway_env_id).default_config()
-        schema["envs"][highway_env_id] = json.loads(json.dumps(config, default=repr))
+    if config is None:  # read from highway-env once, and answered as the file keeps it
+        # (JSON values, keys sorted): the same dict as every later process reads, whose
+        # order the cache's keys hash
+        config = json.loads(json.dumps(env_class(highway_env_id).default_config(),
+                                       default=repr, sort_keys=True))
+        schema["envs"][highway_env_id] = config
         _save({"fingerprint": schema["fingerprint"], "envs": schema["envs"],
                "spaces": schema["spaces"]})
     return copy.deepcopy(config)

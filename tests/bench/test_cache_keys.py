@@ -243,3 +243,21 @@ def test_the_label_codes_closure_is_the_one_looked_up_name_by_name():
     name. It draws nothing, so it runs once, not in each example above."""
     assert cache_module._tap_bench_closure(cache_module.LABEL_CODE) \
         == _closure_without_memo(cache_module.LABEL_CODE)
+
+
+def test_an_envs_key_is_the_same_in_the_process_that_first_reads_highway_envs_defaults(
+        tmp_path, monkeypatch):
+    """highway-env's defaults are read once per installation and kept in a file; the process
+    that reads them (a new highway-env, an edited scenario kind) must key its episodes as
+    every later process, which reads the file, does: same values, same key order. Else the
+    first run's cached episodes are never found again."""
+    from tap_bench.sim import schema
+    from tap_bench.sim.scenario_format import load_scenario, suite_dir
+
+    monkeypatch.setenv("TAP_BENCH_CACHE", str(tmp_path))
+    monkeypatch.setattr(schema, "_MEMORY", {})
+    scenario = load_scenario(suite_dir("envs") / "merge.json")
+    first = scenario_fingerprint(scenario)  # highway-env's defaults read and kept
+    schema._MEMORY.clear()  # a later process: the defaults come from the file
+    later = scenario_fingerprint(scenario)
+    assert json.dumps(first) == json.dumps(later)
