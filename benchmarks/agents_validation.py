@@ -18,7 +18,7 @@ policy is then NAME).
 
 Usage: python benchmarks/agents_validation.py --womd FILES --scenes 2,5,10,14
        --policies sel-all.zip sel-sdc.zip lane-keeping random [--out eps.csv]
-       [--pool ppo-womd=ppo-womd-seed0,ppo-womd-seed1,ppo-womd-seed2]
+       [--pool ppo-womd=ppo-womd-hold-seed0,ppo-womd-hold-seed1,ppo-womd-hold-seed2]
 """
 
 from __future__ import annotations

@@ -159,6 +159,22 @@ def test_the_shipped_womd_agents_suite_names_the_human_and_ppo_womd():
     assert expand_seed_groups(suite.policies)[-3:] == seed_groups()["ppo-womd"]
 
 
+def test_the_lines_that_quote_the_shipped_agents_seeds_name_the_shipped_ones():
+    """Docstrings and usage lines that spell out ``ppo-womd``'s seeds name those its
+    definition names (policies/ppo-womd.json), not an earlier group's."""
+    from pathlib import Path
+
+    from tap_bench.bench.scores import agents as agents_module
+    from tap_bench.sim.policies import expand_seed_groups as expand
+
+    seeds = seed_groups()["ppo-womd"]
+    quoted = ", ".join(f'"{seed}"' for seed in seeds)
+    assert f'{{"seeds": [{quoted}]}}' in " ".join(agents_module.__doc__.split())
+    assert f'("idm", "{seeds[0]}", ...)' in expand.__doc__
+    script = Path(__file__).resolve().parents[2] / "benchmarks" / "agents_validation.py"
+    assert f"--pool ppo-womd={','.join(seeds)}" in script.read_text()
+
+
 def test_bench_run_plans_every_seed_of_an_agent_the_suite_names(tmp_path):
     import json
 

@@ -3,10 +3,10 @@
 
 **Agents and their runs.** A policy definition of kind ``seeds`` names a policy that stands
 for several trained seeds (``policies/ppo-womd.json``: ``{"kind": "seeds", "params":
-{"seeds": ["ppo-womd-seed0", "ppo-womd-seed1", "ppo-womd-seed2"]}}``). In a run folder
-(``bench run`` on recorded scenes) every policy that is a seed of such a group is a run of
-that agent; any other policy is an agent of one run (IDM, lane keeping, random, the human
-``log``: one episode per scene). A task is a scene (env and scene index).
+{"seeds": ["ppo-womd-hold-seed0", "ppo-womd-hold-seed1", "ppo-womd-hold-seed2"]}}``). In a
+run folder (``bench run`` on recorded scenes) every policy that is a seed of such a group is
+a run of that agent; any other policy is an agent of one run (IDM, lane keeping, random,
+the human ``log``: one episode per scene). A task is a scene (env and scene index).
 
 **Figures**, from the run's ``episodes.parquet`` and ``segments.parquet``:
 
