@@ -248,9 +248,10 @@ def test_the_label_codes_closure_is_the_one_looked_up_name_by_name():
 def test_an_envs_key_is_the_same_in_the_process_that_first_reads_highway_envs_defaults(
         tmp_path, monkeypatch):
     """highway-env's defaults are read once per installation and kept in a file; the process
-    that reads them (a new highway-env, an edited scenario kind) must key its episodes as
-    every later process, which reads the file, does: same values, same key order. Else the
-    first run's cached episodes are never found again."""
+    that reads them (a new highway-env, an edited scenario kind) answers them as every later
+    process, which reads the file, does: same values, same key order (``tap-bench envs NAME``
+    prints them in that order). The episode keys hash the fingerprint with its keys sorted,
+    so they are the same in both either way."""
     from tap_bench.sim import schema
     from tap_bench.sim.scenario_format import load_scenario, suite_dir
 
@@ -261,3 +262,4 @@ def test_an_envs_key_is_the_same_in_the_process_that_first_reads_highway_envs_de
     schema._MEMORY.clear()  # a later process: the defaults come from the file
     later = scenario_fingerprint(scenario)
     assert json.dumps(first) == json.dumps(later)
+    assert cache_module._canonical(first) == cache_module._canonical(later)
