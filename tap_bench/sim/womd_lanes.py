@@ -407,6 +407,18 @@ class FastPolyLane(PolyLaneFixedWidth):
         left = np.array([-np.sin(yaw), np.cos(yaw)])
         return np.array(self._along(longitudinal)) + lateral * left
 
+    def centre_points(self, longitudinals: np.ndarray) -> np.ndarray:
+        """(k, 2) :meth:`position` (lateral 0) of each of ``longitudinals`` (k,) [m], the
+        same values to the bit, the centre line interpolated for all of them at once."""
+        arc, pts = self._arc, self._points
+        along = np.asarray(longitudinals, dtype=np.float64).reshape(-1)
+        x, y = np.interp(along, arc, pts[:, 0]), np.interp(along, arc, pts[:, 1])
+        for i in np.flatnonzero((along < arc[0]) | (along > arc[-1])).tolist():
+            x[i], y[i] = self._along(float(along[i]))  # beyond an end: straight on
+        yaw = np.array([self.heading_at(value) for value in along.tolist()], dtype=np.float64)
+        # + 0 x the left normal, as position adds it (the sign of a zero coordinate)
+        return np.stack([x + 0.0 * -np.sin(yaw), y + 0.0 * np.cos(yaw)], axis=1)
+
     def local_coordinates(self, position: np.ndarray) -> tuple[float, float]:
         return _frame(*self.arrays, float(position[0]), float(position[1]))
 

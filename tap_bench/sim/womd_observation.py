@@ -492,9 +492,13 @@ class RouteObservation(FastKinematicObservation):
                 stop = max(lane.length, s)
             else:  # the route's last lane: straight on past its end
                 stop = math.inf
+            first = j
             while j < self.route_points and travelled + stop - s >= targets[j]:
-                points[j] = lane.position(s + targets[j] - travelled, 0.0)
                 j += 1
+            if j > first:  # the points on this lane, at once
+                along = s + targets[first:j] - travelled
+                points[first:j] = (lane.centre_points(along) if hasattr(lane, "centre_points")
+                                   else [lane.position(a, 0.0) for a in along])
             if j == self.route_points:
                 break
             travelled += stop - s

@@ -1051,3 +1051,25 @@ def test_the_next_lane_kept_per_lane_and_route_is_the_one_found_again(womd_dir):
         changed += before != after
     assert changed
     env.close()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_lanes_centre_points_at_once_are_its_positions_one_by_one(seed):
+    """``FastPolyLane.centre_points`` gives ``position(s, 0.0)`` of each s to the bit: on
+    straight and bending lanes, before the start and past the end (straight on), at the
+    ends and poses exactly, at -0.0 and NaN, a coordinate of exactly 0 among them."""
+    rng = np.random.default_rng(seed)
+    for _ in range(30):
+        n = int(rng.integers(2, 30))
+        a = rng.uniform(0.0, 2 * np.pi) + np.linspace(0.0, rng.uniform(-3.0, 3.0), n)
+        xy = np.cumsum(np.c_[np.cos(a), np.sin(a)] * rng.uniform(1.5, 8.0), axis=0)
+        if rng.random() < 0.5:  # a pose at the origin: coordinates of 0 and -0
+            k = int(rng.integers(n))
+            xy -= xy[k]
+            xy[k] = -0.0
+        lane = FastPolyLane(xy, 3.5)
+        along = np.r_[rng.uniform(-20.0, lane.length + 20.0, 12), 0.0, -0.0, lane.length,
+                      lane._arc[int(rng.integers(len(lane._arc)))], np.nan]
+        want = np.array([lane.position(s, 0.0) for s in along])
+        got = lane.centre_points(along)
+        assert got.shape == want.shape and got.tobytes() == want.tobytes()
