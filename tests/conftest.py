@@ -81,13 +81,8 @@ def _rewrite_test_modules(config) -> None:
     about 14 CPU s of a worker's 20 s of collection. pytest reads such bytecode whatever
     that setting, and rewrites a module edited since. Nothing here can fail the session
     (pytest's own rewriting is the fallback), and nothing is written where the tree is
-    read-only.
-
-    The same for the modules pytest rewrote in this process outside the suite: the packages
-    of pytest plugins installed by their distributions (hypothesis, pytest-xdist,
-    pytest-benchmark: about 95 modules, 2-3 CPU s in each process that starts pytest, the
-    controller and each worker alike), written beside their installed source as pytest
-    writes them when bytecode may be written."""
+    read-only. Only the suite's own tree is written: the installed packages of pytest's
+    plugins are left as the setting asks (pytest rewrites them in each process)."""
     if config.getoption("assertmode", "rewrite") != "rewrite":
         return
     try:
@@ -96,10 +91,7 @@ def _rewrite_test_modules(config) -> None:
         state = config.stash[rewrite.assertstate_key]
         suite = [source for source in sorted(Path(__file__).parent.rglob("*.py"))
                  if source.name.startswith("test_") or source.name == "conftest.py"]
-        hook = getattr(state, "hook", None)
-        plugins = sorted({Path(path) for path in getattr(hook, "_rewritten_names", {}).values()}
-                         - set(suite))
-        for source in suite + plugins:
+        for source in suite:
             folder = rewrite.get_cache_dir(source)
             pyc = folder / (source.name[:-3] + rewrite.PYC_TAIL)
             if not source.is_file() or rewrite._read_pyc(source, pyc) is not None:

@@ -33,8 +33,9 @@ left the ego's way, stands clear of it, or is too near for the ego to stop befor
 
 It is part of an agent's action space, chosen by the agent's own action config
 (``{"type": "DiscreteMetaAction", ..., "safety_layer": true}``, or a mapping of
-:class:`SafetyLayer`'s fields), trained and evaluated with it; the env's default action has
-none, and no other policy's ego gets one. :attr:`SafetyLayer.capped` and
+:class:`SafetyLayer`'s fields); an agent may drive with options it was not trained with (the
+shipped ``ppo-womd`` seeds trained with the swept-box cap and drive with ``hold`` too). The
+env's default action has none, and no other policy's ego gets one. :attr:`SafetyLayer.capped` and
 :attr:`SafetyLayer.braked` count the simulated steps in which it changed the policy's
 acceleration (and made it brake where the policy did not).
 """
@@ -262,7 +263,7 @@ class SafetyLayer:
                         entry = kept
             else:
                 entry = float(timed[i])
-                point = p + entry * u
+                point = p + entry * u if math.isfinite(entry) else p
             if not math.isfinite(entry):
                 continue
             if entry <= 0.0 or entry - SWEPT_STEP < stop:

@@ -14,6 +14,10 @@ from tap_bench.errors import ParameterError
 from tap_bench.sim.womd_observation import boxes_overlap
 from tap_bench.sim.womd_safety import HOLD_MISSES, SafetyLayer, lane_conflict, safety_layer
 
+# A road user with no meeting has an infinite entry: no arithmetic may be done on it (inf * 0
+# is NaN, with a RuntimeWarning on an ego that points along an axis).
+pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
+
 LANES = {"predicted": True, "lanes": True}
 HOLD = {**LANES, "hold": True}
 
