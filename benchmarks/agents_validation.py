@@ -15,6 +15,12 @@ with ``predicted``); writes every episode to ``--out`` (CSV).
 ``--pool NAME=P1,P2,...`` adds a row NAME for the episodes of those policies together (an
 agent's training seeds), compared episode by episode as each seed is (first: the first
 policy is then NAME).
+``--intervals`` adds 95% intervals (2,000 resamples, a fixed stream): the first pool's route
+progress IQM and at-fault rate over its seeds (rliable's stratified bootstrap, drivers as
+tasks, and whole seeds resampled), and, for every policy and for the first's difference from
+each, over the scenes (whole scenes with all their drivers and seeds resampled, the same draws
+for every policy, widened by sqrt(G / (G - 1)) for G scenes): whether the scenes driven
+separate the policies.
 
 Usage: python benchmarks/agents_validation.py --womd FILES --scenes 2,5,10,14
        --policies sel-all.zip sel-sdc.zip lane-keeping random [--out eps.csv]
@@ -36,7 +42,8 @@ from tap_bench.sim.policies import Policy, load_policy
 from tap_bench.sim.rollout import policy_overrides, run_episode
 from tap_bench.sim.womd_env import WomdEnv
 from tap_bench.sim.womd_scene import WomdScenes
-from tap_bench.stats.aggregate import iqm
+from tap_bench.stats.aggregate import iqm, mean_score, stratified_bootstrap
+from tap_bench.stats.bootstrap import cluster_factor, named_rng
 
 
 def policy_env(scenes: WomdScenes, policy: Policy) -> WomdEnv:
@@ -89,8 +96,7 @@ def summary(eps: pd.DataFrame, policies: list[str],
             pools: dict[str, list[str]] | None = None) -> pd.DataFrame:
     """Per policy (and per pool of policies): the figures printed (see the module
     docstring); the first of ``pools`` (else of ``policies``) is compared with the others."""
-    ok = eps[eps["status"] == "ok"].copy()
-    ok["at_fault"] = ok["crash_at_fault"].astype(bool).astype(float)
+    ok = _judged(eps)
     groups = {**{name: [name] for name in policies}, **(pools or {})}
     lead = next(iter(pools)) if pools else policies[0]
     first = ok[ok["policy"].isin(groups[lead])]
@@ -107,10 +113,93 @@ def summary(eps: pd.DataFrame, policies: list[str],
         out.append({"policy": name, "episodes": len(rows), **layer,
                     "progress_mean": float(moved.mean()), "progress_iqm": float(iqm(moved)),
                     "at_fault": float(rows["at_fault"].mean()),
+                    "at_fault_n": int(rows["at_fault"].sum()),
                     "off_road": float(rows["off_road"].astype(bool).mean()),
+                    "off_road_n": int(rows["off_road"].astype(bool).sum()),
                     f"P({lead} further)": _p_better(first, rows, "route_progress", 1.0),
                     f"P({lead} fewer at fault)": _p_better(first, rows, "at_fault", -1.0)})
     return pd.DataFrame(out)
+
+
+def _judged(eps: pd.DataFrame) -> pd.DataFrame:
+    """The episodes that ended as episodes do (status ok), with ``at_fault`` as 0/1."""
+    ok = eps[eps["status"] == "ok"].copy()
+    ok["at_fault"] = ok["crash_at_fault"].astype(bool).astype(float)
+    return ok
+
+
+def seed_intervals(eps: pd.DataFrame, members: list[str], *, n_resamples: int = 2000,
+                   level: float = 0.95, seed: int = 0) -> dict[str, float]:
+    """An agent's route progress IQM and at-fault rate over its seeds ``members`` (runs) x
+    the drivers every seed drove (tasks; for progress, those who moved in every seed's
+    episode), with percentile intervals at ``level``: ``*_task`` rliable's stratified
+    bootstrap, ``*_run`` whole seeds resampled (:func:`stratified_bootstrap`)."""
+    ok = _judged(eps)
+    ok = ok[ok["policy"].isin(members)]
+    out: dict[str, float] = {}
+    for column, statistic, key in (("route_progress", iqm, "iqm"),
+                                   ("at_fault", mean_score, "at_fault")):
+        table = ok.pivot_table(index=["scene", "track"], columns="policy", values=column,
+                               aggfunc="first", dropna=False)
+        scores = table.reindex(columns=members).dropna().to_numpy(float).T
+        for unit in ("task", "run"):
+            interval = stratified_bootstrap(
+                scores, statistic, rng=named_rng(seed, "agents_validation", key, unit),
+                level=level, n_resamples=n_resamples, unit=unit)
+            out[key] = interval.estimate
+            out[f"{key}_low_{unit}"], out[f"{key}_high_{unit}"] = interval.low, interval.high
+    return out
+
+
+def scene_intervals(eps: pd.DataFrame, groups: dict[str, list[str]], lead: str, *,
+                    n_resamples: int = 2000, level: float = 0.95,
+                    seed: int = 0) -> pd.DataFrame:
+    """Per group of ``groups`` (name: its policies): route progress IQM (episodes where the
+    driver moved) and at-fault rate with percentile intervals at ``level`` over the scenes,
+    and ``lead``'s difference from it (``d_iqm``: lead's IQM less the group's; ``d_at_fault``
+    likewise) with its interval. Every resample draws G of the G scenes with replacement,
+    each with all its drivers and all seeds, the same draws for every group (paired); the
+    draws are widened about the estimate by sqrt(G / (G - 1))."""
+    ok = _judged(eps)
+    scenes = sorted(ok["scene"].unique())
+    g = len(scenes)
+    draws = named_rng(seed, "agents_validation", "scenes").integers(0, g, (n_resamples, g))
+
+    def figures(rows: pd.DataFrame) -> tuple[float, float, np.ndarray, np.ndarray]:
+        by = {s: rows[rows["scene"] == s] for s in scenes}
+        prog = [by[s]["route_progress"].dropna().to_numpy(float) for s in scenes]
+        fault = [by[s]["at_fault"].to_numpy(float) for s in scenes]
+        boot_iqm, boot_fault = np.empty(n_resamples), np.empty(n_resamples)
+        for k, draw in enumerate(draws):
+            p = np.concatenate([prog[i] for i in draw])
+            f = np.concatenate([fault[i] for i in draw])
+            boot_iqm[k] = iqm(p) if len(p) else np.nan
+            boot_fault[k] = f.mean() if len(f) else np.nan
+        return (float(iqm(np.concatenate(prog))), float(np.concatenate(fault).mean()),
+                boot_iqm, boot_fault)
+
+    def interval(estimate: float, boot: np.ndarray) -> tuple[float, float]:
+        boot = estimate + cluster_factor(g) * (boot[np.isfinite(boot)] - estimate)
+        low, high = np.quantile(boot, [(1 - level) / 2, (1 + level) / 2])
+        return float(low), float(high)
+
+    done = {name: figures(ok[ok["policy"].isin(members)]) for name, members in groups.items()}
+    lead_iqm, lead_fault, lead_boot_iqm, lead_boot_fault = done[lead]
+    rows = []
+    for name, (est_iqm, est_fault, boot_iqm, boot_fault) in done.items():
+        row = {"policy": name, "iqm": est_iqm}
+        row["iqm_low"], row["iqm_high"] = interval(est_iqm, boot_iqm)
+        row["at_fault"] = est_fault
+        row["at_fault_low"], row["at_fault_high"] = interval(est_fault, boot_fault)
+        if name != lead:
+            row["d_iqm"] = lead_iqm - est_iqm
+            row["d_iqm_low"], row["d_iqm_high"] = interval(row["d_iqm"],
+                                                           lead_boot_iqm - boot_iqm)
+            row["d_at_fault"] = lead_fault - est_fault
+            row["d_at_fault_low"], row["d_at_fault_high"] = interval(
+                row["d_at_fault"], lead_boot_fault - boot_fault)
+        rows.append(row)
+    return pd.DataFrame(rows)
 
 
 def main() -> None:
@@ -121,6 +210,8 @@ def main() -> None:
     parser.add_argument("--out", help="write the episodes there (CSV)")
     parser.add_argument("--pool", nargs="+", default=[], metavar="NAME=P1,P2",
                         help="a row for the episodes of several policies together")
+    parser.add_argument("--intervals", action="store_true",
+                        help="95%% intervals over the first pool's seeds and over the scenes")
     args = parser.parse_args()
     scenes = [int(s) for s in args.scenes.split(",")]
     pools = {}
@@ -136,9 +227,22 @@ def main() -> None:
     table = summary(eps, args.policies, pools)
     with pd.option_context("display.width", 200, "display.max_columns", 20):
         print(table.round(3).to_string(index=False))
+    extra = {}
+    if args.intervals:
+        groups = {**pools, **{name: [name] for name in args.policies}}
+        lead = next(iter(pools)) if pools else args.policies[0]
+        seeds = seed_intervals(eps, groups[lead])
+        scenes_table = scene_intervals(eps, groups, lead)
+        with pd.option_context("display.width", 250, "display.max_columns", 20):
+            print(f"{lead} over its seeds:", {k: round(v, 3) for k, v in seeds.items()})
+            print(f"over the {len(scenes)} scenes ({lead}'s differences from each: d_):")
+            print(scenes_table.round(3).to_string(index=False))
+        extra = {"seed_intervals": seeds,
+                 "scene_intervals": scenes_table.replace({np.nan: None}).round(4)
+                 .to_dict("records")}
     if args.out:
         eps.to_csv(args.out, index=False)
-    report("agents_validation", {
+    report("agents_validation", {**extra,
         "scenes": scenes, "episodes": len(eps), "wall_s": round(time.perf_counter() - start, 1),
         "cpu_s": round(time.process_time() - cpu, 1),
         "summary": table.replace({np.nan: None}).round(4).to_dict("records")})

@@ -42,3 +42,42 @@ def test_every_vehicle_counts_each_vehicle_with_a_turn_once():
     figures = bench_lane_change_merges.vehicles_with_a_turn(labels)
     assert figures == {"vehicles": 4, "with_a_turn": 2, "egos": 2, "egos_with_a_turn": 1,
                        "which": ["seed 0 vehicle 2", "seed 1 vehicle 1 (ego)"]}
+
+
+def _validation_episodes(fault_b: dict[int, list[int]]) -> pd.DataFrame:
+    """Two drivers in each of 4 scenes: agent ``a`` (two seeds) never at fault, progress 0.8;
+    ``b`` (one run) at fault on the drivers ``fault_b`` names per scene, progress 0.4."""
+    rows = []
+    for scene in range(4):
+        for track in ("1", "2"):
+            for policy, progress in (("a0", 0.8), ("a1", 0.8), ("b", 0.4)):
+                fault = policy == "b" and int(track) in fault_b.get(scene, [])
+                rows.append({"policy": policy, "scene": scene, "track": track,
+                             "status": "ok", "route_progress": progress,
+                             "crash_at_fault": fault, "off_road": False})
+    return pd.DataFrame(rows)
+
+
+def test_scene_intervals_separate_only_what_more_than_one_scene_shows():
+    groups = {"a": ["a0", "a1"], "b": ["b"]}
+    everywhere = agents_validation.scene_intervals(
+        _validation_episodes({s: [1, 2] for s in range(4)}), groups, "a", n_resamples=200)
+    b = everywhere.set_index("policy").loc["b"]
+    assert b["d_at_fault"] == -1.0 and b["d_at_fault_high"] == -1.0
+    assert b["d_iqm"] == pytest.approx(0.4) and b["d_iqm_low"] == pytest.approx(0.4)
+    # b at fault in one scene only: a draw without that scene ties, so 0 stays inside
+    one_scene = agents_validation.scene_intervals(
+        _validation_episodes({0: [1, 2]}), groups, "a", n_resamples=200)
+    b = one_scene.set_index("policy").loc["b"]
+    assert b["d_at_fault"] == pytest.approx(-0.25)
+    assert b["d_at_fault_low"] < -0.25 and b["d_at_fault_high"] == pytest.approx(0.0, abs=0.1)
+    assert b["at_fault_low"] <= 0.0 + 0.1 and b["at_fault_high"] > 0.25
+
+
+def test_seed_intervals_pool_the_seeds_over_the_drivers_each_seed_drove():
+    eps = _validation_episodes({})
+    eps.loc[eps["policy"] == "a1", "route_progress"] = 0.6
+    out = agents_validation.seed_intervals(eps, ["a0", "a1"], n_resamples=200)
+    assert out["iqm"] == pytest.approx(0.7) and out["at_fault"] == 0.0
+    assert out["iqm_low_run"] < 0.7 < out["iqm_high_run"]
+    assert out["iqm_low_task"] < 0.7 < out["iqm_high_task"]
