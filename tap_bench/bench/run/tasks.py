@@ -508,28 +508,25 @@ class _Done:
     def run_items(self, tasks: list[_Task], items: list[tuple[list[int], _Task | _Batch]],
                   backend: Backend, progress: bool | None, desc: str, streamed: bool
                   ) -> None:
-        """The work ``items`` run on ``backend`` (streamed: taken as they end); the
-        episodes of a batch that failed tried again one by one (one bad episode does not
-        cost the others), then recorded as failed."""
+        """The work ``items`` run on ``backend`` (streamed: taken as they end), in rounds:
+        the episodes of a batch that failed are the next round's items, one by one (one bad
+        episode does not cost the others), and recorded as failed when they fail alone."""
         each = backend.imap if streamed else backend.map
-        outcomes = each(_run_item, [item for _, item in items], unit="task",
-                        progress=progress, desc=desc) if items else []
-        alone: list[int] = []  # the episodes of a failed batch, tried again one by one
-        for (indices, _), outcome in zip(items, outcomes, strict=True):
-            if not outcome.ok and len(indices) > 1:
-                alone += indices
-                continue
-            values = outcome.value if outcome.ok else [
-                _failed_task(tasks[i], outcome.error) for i in indices]
-            for i, value in zip(indices, values, strict=True):
-                self.results[i] = self.keep_result(i, value)
-                self.seconds[i] = outcome.seconds / len(indices)
-        if alone:
-            outcomes = backend.map(_run_task, [tasks[i] for i in alone], progress=False)
-            for i, outcome in zip(alone, outcomes, strict=True):
-                self.results[i] = self.keep_result(i, outcome.value if outcome.ok else
-                                                   _failed_task(tasks[i], outcome.error))
-                self.seconds[i] = outcome.seconds
+        shown = progress  # the first round's bar; a retry round runs quietly
+        while items:
+            outcomes = each(_run_item, [item for _, item in items], unit="task",
+                            progress=shown, desc=desc)
+            alone: list[tuple[list[int], _Task | _Batch]] = []
+            for (indices, _), outcome in zip(items, outcomes, strict=True):
+                if not outcome.ok and len(indices) > 1:
+                    alone += [([i], tasks[i]) for i in indices]
+                    continue
+                values = outcome.value if outcome.ok else [
+                    _failed_task(tasks[i], outcome.error) for i in indices]
+                for i, value in zip(indices, values, strict=True):
+                    self.results[i] = self.keep_result(i, value)
+                    self.seconds[i] = outcome.seconds / len(indices)
+            items, shown = alone, False
 
 
 def result_ok(result: dict[str, Any]) -> bool:
