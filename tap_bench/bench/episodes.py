@@ -37,8 +37,7 @@ from tap_bench.errors import LabelTableError, ParameterError, TrajectoryTableErr
 from tap_bench.labelling import tap
 from tap_bench.pathframe import LaneMap
 
-__all__ = ["EPISODE_COLUMNS", "ego_labels", "episode_table", "episodes_from_table",
-           "one_outcome_cells"]
+__all__ = ["EPISODE_COLUMNS", "ego_labels", "episode_table", "episodes_from_table"]
 
 EPISODE_COLUMNS = ("env", "policy", "seed", "scenario_id", "status", "error", "sdl", "lateral",
                    "longitudinal", "return", *(m.name for m in MEASURES), "duration_s")
@@ -278,28 +277,3 @@ def episodes_from_table(table: pd.DataFrame, *, level: str, thresholds: str = "p
     eps = episode_table(labels=labels, trajectories=table, level=level, policy=policy,
                         source=source)
     return eps, labels, table
-
-
-def one_outcome_cells(episodes: pd.DataFrame) -> pd.DataFrame:
-    """The (env, policy) cells whose finished episodes all have one outcome: the same
-    label and the same measures (to 1e-9) on every seed, so the seeds are not independent
-    samples (a scene that does not vary with its seed, or a policy that ignores it).
-
-    Args:
-        episodes: an episode table (:data:`EPISODE_COLUMNS`).
-
-    Returns:
-        env, policy, n (finished episodes, at least 2), one row per such cell.
-    """
-    ok = episodes[episodes["status"] == "ok"] if "status" in episodes.columns else episodes
-    cols = ["sdl", *(m.name for m in MEASURES if m.name in ok.columns)]
-    rows = []
-    for (env, policy), sub in ok.groupby(["env", "policy"], sort=True):
-        if len(sub) < 2:
-            continue
-        key = pd.DataFrame({c: (sub[c].astype("string").fillna("<NA>") if c == "sdl" else
-                                pd.to_numeric(sub[c], errors="coerce").round(9)
-                                .astype("string").fillna("<NA>")) for c in cols})
-        if len(key.drop_duplicates()) == 1:
-            rows.append({"env": env, "policy": policy, "n": len(sub)})
-    return pd.DataFrame(rows, columns=["env", "policy", "n"])

@@ -82,7 +82,7 @@ def test_duration_is_one_column_when_both_tables_carry_it():
 
 
 def test_one_outcome_cells_names_cells_whose_seeds_all_give_one_episode():
-    from tap_bench.bench.episodes import one_outcome_cells
+    from tap_bench.bench.scores.verdict import one_outcome_cells
 
     from .conftest import make_episodes
 

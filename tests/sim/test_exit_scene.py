@@ -11,7 +11,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.bench.episodes import episode_table, one_outcome_cells
+from tap_bench.bench.episodes import episode_table
+from tap_bench.bench.scores.verdict import one_outcome_cells
 from tap_bench.labelling import tap
 from tap_bench.sim.policies import load_policy
 from tap_bench.sim.rollout import rollout

@@ -63,7 +63,8 @@ def test_vary_draws_each_field_per_seed_within_its_range():
 def test_scripted_scenes_vary_with_their_seed(env):
     """Issue 25: the shipped interaction scenes gave IDM bit-identical episodes on every
     seed (the clearing leaves the ego alone with the scripted vehicle)."""
-    from tap_bench.bench.episodes import episode_table, one_outcome_cells
+    from tap_bench.bench.episodes import episode_table
+    from tap_bench.bench.scores.verdict import one_outcome_cells
 
     trajectories, episodes = rollout(env, "idm", [0, 1, 2, 3], progress=False)
     labels = tap(trajectories, interactions="ego").labels("maneuver")

@@ -201,8 +201,7 @@ def run_summary(plan: SuitePlan, output: Path, sources: Mapping[str, Any],
     """``summary.json``: what ran (the suite, seeds, thresholds, references by name: a label
     table, a path or a list of paths), on what, how it scored, and how long it took
     (``timings`` [s], ``estimate``); ``cache``: its part (None: no cache)."""
-    from tap_bench.bench.episodes import one_outcome_cells
-    from tap_bench.bench.scores.verdict import verdict_table
+    from tap_bench.bench.scores.verdict import one_outcome_cells, verdict_table
 
     failed = episodes[~episodes["status"].isin(("ok", "skipped"))]  # skipped: no route
     skipped = episodes[episodes["status"] == "skipped"]

@@ -19,6 +19,9 @@ IDM). The intervals are those of the tables they come from (``methods`` in
 ``summary.json``), each at the run's level on its own: a per-env claim is one of (envs x 3)
 safety intervals, not corrected across them (the regression gate corrects; this is a
 reading of the run). This module adds no statistics, so it costs nothing to build.
+
+Beside the verdict, :func:`one_outcome_cells` names the (env, policy) cells whose seeds all
+gave one outcome: their intervals do not come from independent samples.
 """
 
 from __future__ import annotations
@@ -30,7 +33,8 @@ import pandas as pd
 
 from tap_bench.bench.measures import MEASURES, SCENE_MEASURES, Measure, measure_entry
 
-__all__ = ["EFFICIENCY_ROLES", "SAFETY_ROLES", "verdict_lines", "verdict_table"]
+__all__ = ["EFFICIENCY_ROLES", "SAFETY_ROLES", "one_outcome_cells", "verdict_lines",
+           "verdict_table"]
 
 SAFETY_ROLES = ("safety",)
 """The measure roles (:attr:`~tap_bench.bench.measures.Measure.role`) of the safety family:
@@ -173,6 +177,31 @@ def _behaviour(policy: str, reference: str, paired: pd.DataFrame | None,
             bits += [f"'{r.label}' {100 * r.diff:+.0f} points [{100 * r.diff_low:+.0f}, "
                      f"{100 * r.diff_high:+.0f}] ({r.env})" for r in top.itertuples()]
     return {"word": word, "evidence": "; ".join(bits)}
+
+
+def one_outcome_cells(episodes: pd.DataFrame) -> pd.DataFrame:
+    """The (env, policy) cells whose finished episodes all have one outcome: the same
+    label and the same measures (to 1e-9) on every seed, so the seeds are not independent
+    samples (a scene that does not vary with its seed, or a policy that ignores it).
+
+    Args:
+        episodes: an episode table (:data:`tap_bench.bench.episodes.EPISODE_COLUMNS`).
+
+    Returns:
+        env, policy, n (finished episodes, at least 2), one row per such cell.
+    """
+    ok = episodes[episodes["status"] == "ok"] if "status" in episodes.columns else episodes
+    cols = ["sdl", *(m.name for m in MEASURES if m.name in ok.columns)]
+    rows = []
+    for (env, policy), sub in ok.groupby(["env", "policy"], sort=True):
+        if len(sub) < 2:
+            continue
+        key = pd.DataFrame({c: (sub[c].astype("string").fillna("<NA>") if c == "sdl" else
+                                pd.to_numeric(sub[c], errors="coerce").round(9)
+                                .astype("string").fillna("<NA>")) for c in cols})
+        if len(key.drop_duplicates()) == 1:
+            rows.append({"env": env, "policy": policy, "n": len(sub)})
+    return pd.DataFrame(rows, columns=["env", "policy", "n"])
 
 
 def verdict_lines(table: pd.DataFrame) -> list[str]:
