@@ -60,6 +60,20 @@ def test_labelled_with_speed_gives_each_trajectorys_mean_speed():
     assert out["interaction"].notna().all()
 
 
+def test_a_reference_faster_than_10_hz_gets_the_mean_speeds_of_its_labelled_rows():
+    """20 Hz driving data is labelled on its 10 Hz resampling, and the mean speeds are taken
+    from those rows (the speeds were taken from the 20 Hz table, which raised)."""
+    from tap_bench.errors import ResampledWarning
+
+    t = np.arange(60) / 20
+    table = pd.DataFrame({"scenario_id": "s", "track_id": np.repeat(["a", "b"], 60),
+                          "t": np.tile(t, 2), "x": np.r_[10 * t, 20 * t], "y": 0.0,
+                          "heading": 0.0, "speed": np.repeat([10.0, 20.0], 60)})
+    with pytest.warns(ResampledWarning):
+        out = labelled_with_speed(table, "maneuver", interactions="all")
+    assert list(out["mean_speed"]) == pytest.approx([10.0, 20.0])
+
+
 def test_debiased_gap_and_its_interval():
     from tap_bench.bench.scores.gap import debias
 

@@ -61,8 +61,7 @@ import pandas as pd
 
 from tap_bench import sdl
 from tap_bench.errors import FewClustersWarning, LabelTableError
-from tap_bench.kinematics import compute_kinematics
-from tap_bench.labelling import tap
+from tap_bench.labelling import TapResult, tap
 from tap_bench.stats.bootstrap import (
     BootstrapConfig,
     cluster_factor,
@@ -72,7 +71,6 @@ from tap_bench.stats.bootstrap import (
 )
 from tap_bench.stats.intervals import t_quantile, z_value
 from tap_bench.thresholds import Thresholds
-from tap_bench.trajectories import validate_and_index
 
 __all__ = ["GapResult", "behaviour_gap", "debias", "gap_scores", "label_occurrences",
            "labelled_with_speed"]
@@ -130,12 +128,13 @@ def labelled_with_speed(table: pd.DataFrame, level: str, *, interactions: str,
         out = table[table["level"] == level] if "level" in table.columns else table
         return out.assign(mean_speed=np.nan)
     result = tap(table, thresholds, source=source, interactions=interactions)
-    return result.labels(level).assign(mean_speed=_segment_mean_speed(result, table, source))
+    return result.labels(level).assign(mean_speed=_segment_mean_speed(result, source))
 
 
-def _segment_mean_speed(result, table: pd.DataFrame, source: str) -> np.ndarray:
-    """(segments,) mean speed of each labelled segment [m/s]."""
-    kin = compute_kinematics(validate_and_index(table, source=source))
+def _segment_mean_speed(result: TapResult, source: str) -> np.ndarray:
+    """(segments,) mean speed of each labelled segment [m/s], from the speeds the labelling
+    computed (``result.kinematics``: the rows it labelled, resampled to 10 Hz if need be)."""
+    kin = result.kinematics
     idx = kin.index
     info = result.segments_info
     # the labelled segments are the valid segments of at least min_steps, in order
