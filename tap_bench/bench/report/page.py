@@ -150,8 +150,9 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
                                    viewer=viewer)
     page = _Page(plots, page_tables(summary, episodes, scores, reference=reference,
                                     level=level, viewer=viewer),
-                 scores.envs, reference, human_of(reference),
-                 level_text(level))  # every interval of the run is at the suite's level
+                 scores.envs, "all" in set(scores.measures.get("env", [])), reference,
+                 human_of(reference), level_text(level),  # every interval at the suite's level
+                 scores.methods)
     run = str(summary.get("run", ""))
     parts = [f"<h1>tap-bench run {html.escape(run)}</h1>",
              f"<p>Suite <b>{html.escape(str(suite.get('name', '')))}</b> "
@@ -162,10 +163,10 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
                      "viewer</a>: every episode as a top-down animation with its labels, two "
                      "policies side by side on the same seed. The ▶ replay links below open "
                      "the episode a row is about.</p>")
-    parts.extend(_summary_section(page, summary, scores))
+    parts.extend(_summary_section(page, summary))
     parts.extend(_human_section(page))
     parts.extend(agents)
-    parts.extend(_env_section(page, scores))
+    parts.extend(_env_section(page))
     parts.extend(_comparison_section(page))
     parts.extend(_coverage_section(page))
     parts.extend(_power_section(page))
@@ -184,23 +185,27 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
 
 @dataclass(frozen=True)
 class _Page:
-    """What every section of the report reads: the figures written (name -> path), the
-    tables made (id -> HTML), the envs scored, the reference policy, who drove the recorded
-    scenes as logged, and the intervals' level as text (``95 %``)."""
+    """What every section of the report reads, made from the scores before the sections:
+    the figures written (name -> path), the tables made (id -> HTML), the envs scored,
+    whether the measures are pooled over them too (an ``"all"`` env), the reference
+    policy, who drove the recorded scenes as logged, the intervals' level as text
+    (``95 %``) and how each table's intervals were computed (table -> text)."""
 
     plots: Mapping[str, Path]
     tables: Mapping[str, str]
     envs: list[str]
+    pooled: bool
     reference: str
     human: str
     pct: str
+    methods: Mapping[str, str]
 
     def img(self, name: str, alt: str, caption: str) -> str:
         """The figure ``name`` with its caption ("" when it was not drawn)."""
         return _figure(self.plots[name], alt, caption) if name in self.plots else ""
 
 
-def _summary_section(page: _Page, summary: dict[str, Any], scores: Scores) -> list[str]:
+def _summary_section(page: _Page, summary: dict[str, Any]) -> list[str]:
     """The summary: episodes with one outcome, the verdict per policy, the trade-off figure, the
     summary table against the reference and how the intervals are computed."""
     reference = page.reference
@@ -231,10 +236,10 @@ def _summary_section(page: _Page, summary: dict[str, Any], scores: Scores) -> li
                           "progress."))
     parts.append("<h2>Summary: each policy against the reference</h2>")
     parts.append(page.tables["summary"])
-    if scores.methods:
+    if page.methods:
         parts.append('<details><summary class="note">How the intervals are computed</summary>'
                      "<ul>" + "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>"
-                                      for k, v in scores.methods.items()) + "</ul></details>")
+                                      for k, v in page.methods.items()) + "</ul></details>")
     return parts
 
 
@@ -277,7 +282,7 @@ def _human_section(page: _Page) -> list[str]:
             page.tables.get("human-agreement", ""), page.tables["human-measures"]]
 
 
-def _env_section(page: _Page, scores: Scores) -> list[str]:
+def _env_section(page: _Page) -> list[str]:
     """Per env: the measures and labels figures, the crashed episodes, the pooled figure and
     the table of every measure."""
     reference = page.reference
@@ -299,7 +304,7 @@ def _env_section(page: _Page, scores: Scores) -> list[str]:
             f"SDL label (rows, most frequent first, at most {TOP_LABELS}); darker is more "
             "frequent, the colour scale runs from 0 to the largest share shown."))
         parts.append(page.tables.get(f"crashed-{_slug(env)}", ""))
-    if "all" in set(scores.measures.get("env", [])):
+    if page.pooled:
         parts.append("<h3>All envs pooled</h3>")
         parts.append(img("measures_all", "measures pooled over envs",
                          "All envs pooled (each env resampled on its own, so each keeps its "
