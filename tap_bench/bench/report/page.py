@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import pandas as pd
 
+from tap_bench.bench.gate.power import power_summary
 from tap_bench.bench.report.figures import TOP_LABELS, write_plots
 from tap_bench.bench.report.pages import timings_html
 from tap_bench.bench.report.realism import realism_section
@@ -124,9 +125,10 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
     """Write ``plots/*.svg`` and ``report.html`` into a run folder; returns the HTML path.
 
     The page is made in steps: its figures drawn (:func:`write_plots`), the agents'
-    section made (:mod:`~tap_bench.bench.report.agents`, runs with seed groups), its tables
-    made (:func:`~tap_bench.bench.report.tables.page_tables`), then each section's headings
-    and text placed around them, top to bottom.
+    section made (:mod:`~tap_bench.bench.report.agents`, runs with seed groups), the gate's
+    power summed up per metric (:func:`~tap_bench.bench.gate.power.power_summary`), its
+    tables made (:func:`~tap_bench.bench.report.tables.page_tables`), then each section's
+    headings and text placed around them, top to bottom.
 
     Args:
         folder: the run folder.
@@ -148,7 +150,8 @@ def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: p
 
     agents = agents_report_section(folder, episodes, reference=reference, level=level,
                                    viewer=viewer)
-    page = _Page(plots, page_tables(summary, episodes, scores, reference=reference,
+    power = power_summary(scores.gate_power)  # the gate's power per metric
+    page = _Page(plots, page_tables(summary, episodes, scores, power, reference=reference,
                                     level=level, viewer=viewer),
                  scores.envs, "all" in set(scores.measures.get("env", [])), reference,
                  human_of(reference), level_text(level),  # every interval at the suite's level

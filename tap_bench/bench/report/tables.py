@@ -14,7 +14,7 @@ from urllib.parse import quote
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.gate.power import POWER, power_summary
+from tap_bench.bench.gate.power import POWER
 from tap_bench.bench.measures import MEASURES, SCENE_MEASURES, Measure, run_measures
 from tap_bench.bench.scores.null import halves_text
 from tap_bench.bench.scores.scoring import Scores
@@ -446,8 +446,9 @@ def _thresholds_text(th: Any) -> str:
 
 # -- the page's tables -----------------------------------------------------------------------
 
-def page_tables(summary: dict[str, Any], episodes: pd.DataFrame, scores: Scores, *,
-                reference: str, level: float, viewer: str | None) -> dict[str, str]:
+def page_tables(summary: dict[str, Any], episodes: pd.DataFrame, scores: Scores,
+                power: pd.DataFrame, *, reference: str, level: float, viewer: str | None
+                ) -> dict[str, str]:
     """Every table of the report page as escaped HTML with its caption (:func:`html_table`),
     by the id the page places it under. A table the run has nothing for is left out: the
     recorded scenes' tables, the interaction contexts, diversity, the scenario matches and
@@ -457,6 +458,8 @@ def page_tables(summary: dict[str, Any], episodes: pd.DataFrame, scores: Scores,
         summary: the run's ``summary.json`` content.
         episodes: the episode table.
         scores: the scored tables.
+        power: the gate's power per metric (:func:`~tap_bench.bench.gate.power.
+            power_summary` of ``scores.gate_power``; empty without a power table).
         reference: the reference policy.
         level: the intervals' level (0.95).
         viewer: the replay viewer's page relative to the report (``viewer/index.html``):
@@ -468,7 +471,7 @@ def page_tables(summary: dict[str, Any], episodes: pd.DataFrame, scores: Scores,
             **_env_tables(episodes, scores, reference, level, pct, viewer),
             **_comparison_tables(episodes, scores, level, pct, viewer),
             **_coverage_tables(scores, reference, level, pct, viewer),
-            **_power_tables(scores),
+            **_power_tables(power),
             **_run_tables(summary, episodes, reference)}
 
 
@@ -727,13 +730,13 @@ def _coverage_tables(scores: Scores, reference: str, level: float, pct: str,
     return tables
 
 
-def _power_tables(scores: Scores) -> dict[str, str]:
-    """The regression gate's power at the run's seed count (``gate_power``), with a note per
-    metric that some cells catch with less than :data:`~tap_bench.bench.gate.power.POWER`
-    probability; none without a power table."""
-    if scores.gate_power.empty:
+def _power_tables(power: pd.DataFrame) -> dict[str, str]:
+    """The regression gate's power at the run's seed count per metric (``power``:
+    :func:`~tap_bench.bench.gate.power.power_summary`), with a note per metric that some
+    cells catch with less than :data:`~tap_bench.bench.gate.power.POWER` probability; none
+    without a power table."""
+    if power.empty:
         return {}
-    power = power_summary(scores.gate_power)
     parts = [html_table(
         power, table_id="gate_power",
         caption="Per metric, the probability that 'bench check' on these seeds fails a "
