@@ -85,10 +85,9 @@ class _Roads:
         written to the spill's parts, a recorded scene's map at a time (the same rows). A
         highway-env road that cannot be drawn is left out: its env's episodes failed on it
         and name the error (:func:`~tap_bench.bench.run.tasks._with_roads`)."""
-        if spill is None:
-            return pd.concat([table for env in envs for table in self._tables(env)],
-                             ignore_index=True)
         tables = (table for env in envs for table in self._tables(env))  # one at a time
+        if spill is None:
+            return pd.concat(list(tables), ignore_index=True)
         return spill.keep_maps(tables)
 
     def _tables(self, env: str) -> Iterator[pd.DataFrame]:
