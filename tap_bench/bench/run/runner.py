@@ -57,7 +57,9 @@ the references read (:func:`~tap_bench.bench.run.references.read_references`), t
 tasks made (:func:`~tap_bench.bench.run.plan._tasks`, keyed for the cache), the run served
 whole when nothing changed (:func:`~tap_bench.bench.run.served.try_served`), the episodes
 run (:func:`~tap_bench.bench.run.episodes.run_episodes`), scored
-(:func:`~tap_bench.bench.run.scoring.score_run`) and written
+(:func:`~tap_bench.bench.run.scoring.score_run`, a pure function of the run's tables; the
+scores of unchanged inputs read back from the cache, :func:`~tap_bench.bench.cache.
+memoised`) and written
 (:func:`~tap_bench.bench.run.folder.write_results`), then the cache's part: the run kept
 whole (:func:`~tap_bench.bench.run.served.keep_run`) and the cache closed
 (:meth:`~tap_bench.bench.cache.EpisodeCache.close_run`).
@@ -71,7 +73,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from tap_bench.bench.cache import EpisodeCache, package_code
+from tap_bench.bench.cache import EpisodeCache, memoised, package_code, table_digest
 from tap_bench.bench.run.episodes import run_episodes
 from tap_bench.bench.run.estimate import CACHED_EPISODE_S, RunPlan
 from tap_bench.bench.run.folder import (
@@ -90,6 +92,7 @@ from tap_bench.bench.run.references import ReferenceSource, read_references
 from tap_bench.bench.run.scoring import score_run
 from tap_bench.bench.run.served import _check_apart, keep_run, try_served
 from tap_bench.bench.run.tasks import CACHED_BATCH
+from tap_bench.bench.scores.scoring import scores_from_files, scores_to_files
 from tap_bench.bench.suite import Suite
 from tap_bench.errors import ParameterError, RunExistsError
 from tap_bench.execution import Backend, resolve_backend
@@ -182,7 +185,15 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
     if announce is not None:
         announce(f"episodes done ({timings['rollouts_wall']:.0f} s); scoring ...")
     t0 = time.perf_counter()
-    scores = score_run(plan, tables, corpora, cache)
+    # the scores of unchanged episodes, suite, contexts, gate metrics and measures are read
+    # back from the cache; runs with reference corpora or plug-ins are scored every time
+    key = None if corpora or plan.plugins else {
+        "episodes": table_digest(tables.episodes), "suite": plan.document,
+        "contexts": None if tables.occurrences is None else table_digest(tables.occurrences),
+        "gate_metrics": list(plan.gate_metrics),
+        "measures": [m.to_dict() for m in plan.measures]}
+    scores = memoised(cache, "scores", key, lambda: score_run(plan, tables, corpora),
+                      scores_to_files, scores_from_files)
     timings["scoring"] = time.perf_counter() - t0
     summary = run_summary(plan, output, sources, tables.episodes, scores, timings,
                           done.estimate, done.cache, shown_realism)

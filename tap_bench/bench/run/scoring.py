@@ -10,7 +10,6 @@ from collections.abc import Iterator
 
 import pandas as pd
 
-from tap_bench.bench.cache import EpisodeCache, memoised, table_digest
 from tap_bench.bench.gate.power import power_table
 from tap_bench.bench.run.plan import SuitePlan
 from tap_bench.bench.run.references import Corpora
@@ -19,30 +18,19 @@ from tap_bench.bench.run.tasks import RunTables, Spilled
 from tap_bench.bench.scores.contexts import context_scores
 from tap_bench.bench.scores.gap import gap_scores
 from tap_bench.bench.scores.scenarios import match_scenarios
-from tap_bench.bench.scores.scoring import Scores, score, scores_from_files, scores_to_files
+from tap_bench.bench.scores.scoring import Scores, score
 from tap_bench.bench.scores.windows import window_episodes, window_seconds
 from tap_bench.thresholds import Thresholds
 
 __all__ = ["score_run"]
 
-def score_run(plan: SuitePlan, tables: RunTables, corpora: Corpora,
-              cache: EpisodeCache | None) -> Scores:
-    """Every score of the run. An unchanged run reads them back from ``cache`` (keyed by the
-    episode table's content, the suite, its contexts, gate metrics and measures); runs with
-    reference corpora or plug-ins are scored every time."""
-    return memoised(cache, "scores", None if corpora or plan.plugins else {
-        "episodes": table_digest(tables.episodes), "suite": plan.document,
-        "contexts": None if tables.occurrences is None
-        else table_digest(tables.occurrences),
-        "gate_metrics": list(plan.gate_metrics),
-        "measures": [m.to_dict() for m in plan.measures]},
-        lambda: _score(plan, tables, corpora), scores_to_files, scores_from_files)
 
-
-def _score(plan: SuitePlan, tables: RunTables, corpora: Corpora) -> Scores:
-    """:func:`~tap_bench.bench.scores.scoring.score` of the run's episodes, given what the
-    run adds to it: the scenarios matched to each reference, windows of its tracks'
-    length, the gate's power, the interaction contexts and the sim-to-real gaps."""
+def score_run(plan: SuitePlan, tables: RunTables, corpora: Corpora) -> Scores:
+    """Every score of the run: :func:`~tap_bench.bench.scores.scoring.score` of its
+    episodes, given what the run adds to it: the scenarios matched to each reference,
+    windows of its tracks' length, the gate's power, the interaction contexts and the
+    sim-to-real gaps. A pure function of the run's tables (the runner reads the scores of
+    an unchanged run back from the cache instead)."""
     episodes, level, config = tables.episodes, plan.level, plan.bootstrap
     matches, unmatched = _scenario_matches(corpora, tables.labels, tables.trajectories,
                                            level)
