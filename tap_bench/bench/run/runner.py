@@ -215,8 +215,7 @@ def run_suite(suite: Suite | str | os.PathLike, output: str | os.PathLike, *,
         done.spill.close()
     result = RunResult(folder, summary, tables.episodes, scores, folder / "report.html")
     if cache is not None:
-        keep_run(cache, plan, tasks, whole, result, pages,
-                 keep_trajectories=keep_trajectories, report=report)
+        keep_run(cache, plan, tasks, whole, result, pages)
         simulated, cached, work = done.observed
         cache.close_run(entries_since, simulated, cached, timings["total"] - work)
     return result

@@ -82,8 +82,8 @@ if TYPE_CHECKING:
     from tap_bench.bench.scores.scoring import Scores
 
 __all__ = ["RUN_FORMAT", "fill_page", "page_templates",
-           "keep_run", "kept_whole", "run_inputs", "serve_run", "serve_unchanged",
-           "store_run", "timings_html", "try_served"]
+           "keep_run", "run_files", "run_inputs", "serve_run", "serve_unchanged",
+           "timings_html", "try_served"]
 
 RUN_FORMAT = 1
 """Layout of a run entry's files; raised when it changes (old entries then miss)."""
@@ -144,9 +144,7 @@ def registered_outside() -> list[str]:
 
 
 def run_inputs(plan: SuitePlan, tasks: Sequence[_Task], *, keep_trajectories: bool,
-               report: bool, corpora: bool = False,
-               fingerprints: tuple[Mapping[str, Any], Mapping[str, Any]] | None = None
-               ) -> dict[str, Any] | None:
+               report: bool, corpora: bool = False) -> dict[str, Any] | None:
     """What the outputs of a run depend on besides the code (module docstring), or None for
     a run that is never kept whole.
 
@@ -156,19 +154,14 @@ def run_inputs(plan: SuitePlan, tasks: Sequence[_Task], *, keep_trajectories: bo
             cache).
         keep_trajectories, report: the outputs asked for.
         corpora: whether the run has reference corpora.
-        fingerprints: (env -> its fingerprint, policy -> its fingerprint) as taken now (at
-            the end of a run: do they still hold?); None: as the tasks' episode keys took
-            them.
     """
     if (corpora or plan.plugins or plan.recorded or not tasks
             or any(t.key is None or t.label_key is None for t in tasks)
             or registered_outside()):
         return None
-    if fingerprints is not None:
-        envs, policies = dict(fingerprints[0]), dict(fingerprints[1])
-    else:  # every task is keyed: its key's document holds both
-        envs = {t.env: (t.key_doc or {})["env"] for t in tasks}
-        policies = {t.policy: (t.key_doc or {})["policy"] for t in tasks}
+    # every task is keyed: its key's document holds both fingerprints
+    envs = {t.env: (t.key_doc or {})["env"] for t in tasks}
+    policies = {t.policy: (t.key_doc or {})["policy"] for t in tasks}
     if any(v is None for v in (*envs.values(), *policies.values())):
         return None
     if (any(p.get("code") or p.get("builder") for p in policies.values())
@@ -187,47 +180,43 @@ def run_inputs(plan: SuitePlan, tasks: Sequence[_Task], *, keep_trajectories: bo
                          "python": sys.version}, "package_data": package_data()}
 
 
-def _inputs_hold(plan: SuitePlan, tasks: Sequence[_Task], whole: Mapping[str, Any], *,
-                 keep_trajectories: bool, report: bool) -> bool:
-    """Whether the run's inputs are still ``whole``, those it started with (then the run may
-    be kept whole): False too when they cannot be read now (a policy or scenario file
-    removed or unreadable), which costs only reuse, never the run's results."""
+def _inputs_hold(plan: SuitePlan, whole: Mapping[str, Any]) -> bool:
+    """Whether the run's scenarios and policies are still as its inputs ``whole`` (those it
+    started with, :func:`run_inputs`) hold them, their fingerprints taken again: a policy's
+    model or module changed while the run went on would be kept under the old content's
+    key. False too when they cannot be read now (a policy or scenario file removed or
+    unreadable), which costs only reuse, never the run's results. The other inputs are read
+    once a process (the versions, the package's data files) or checked as the run is kept
+    (what is registered outside tap-bench, tap-bench's code: :func:`run_files`)."""
     try:
         envs = {env: scenario_fingerprint(plan.scenarios[env], env) for env in plan.envs}
         policies = {d.name: policy_fingerprint(d) for d in plan.definitions}
-        return run_inputs(plan, tasks, keep_trajectories=keep_trajectories, report=report,
-                          fingerprints=(envs, policies)) == whole
     except Exception:  # any failure to fingerprint: not kept whole, the results written
         return False
-
-
-def kept_whole(plan: SuitePlan, tasks: Sequence[_Task] | None,
-               whole: Mapping[str, Any] | None, episodes: pd.DataFrame, *,
-               keep_trajectories: bool, report: bool) -> bool:
-    """Whether the run folder is kept whole in the cache for an unchanged re-run: the run
-    may be kept (``whole``: its :func:`run_inputs` at the start, None: never kept), every
-    episode was made (a failed one is tried again) and the run's inputs are as at the start
-    (a policy's model or module changed while it went on would be kept under the old
-    content's key)."""
-    if whole is None or tasks is None or not (episodes["status"] == "ok").all():
-        return False
-    return _inputs_hold(plan, tasks, whole, keep_trajectories=keep_trajectories,
-                        report=report)
+    return envs == whole["envs"] and policies == whole["policies"]
 
 
 # -- keeping and serving a run -----------------------------------------------------------
 
 def keep_run(cache: EpisodeCache, plan: SuitePlan, tasks: Sequence[_Task] | None,
              whole: Mapping[str, Any] | None, result: RunResult,
-             pages: Mapping[str, bytes] | None, *, keep_trajectories: bool, report: bool
-             ) -> None:
+             pages: Mapping[str, bytes] | None) -> None:
     """The cache's part of the end of a run whose folder is written: ``result`` kept whole
-    for an unchanged re-run (:func:`store_run`) when :func:`kept_whole` says so and its
-    page templates were made (``pages``)."""
-    if pages is not None and kept_whole(plan, tasks, whole, result.episodes,
-                                        keep_trajectories=keep_trajectories, report=report):
-        store_run(cache, whole or {}, result.folder, result.summary, pages,
-                  result.episodes, result.scores)
+    for an unchanged re-run when it may be (``whole``: its :func:`run_inputs` at the start,
+    None: never kept), its page templates were made (``pages``), every episode was made (a
+    failed one is tried again) and its inputs still hold (:func:`_inputs_hold`); its files
+    (:func:`run_files`) are stored atomically under ``whole``'s key, nothing when they
+    cannot be (a full disk: the run is written, the cache is a convenience)."""
+    if (pages is None or whole is None or tasks is None
+            or not (result.episodes["status"] == "ok").all()):
+        return
+    files = run_files(result.folder, result.summary, pages, result.episodes, result.scores)
+    if files is None or not _inputs_hold(plan, whole):
+        return
+    key, doc = derived_key("runs", whole)
+    with contextlib.suppress(OSError, ValueError):
+        cache.put_derived("runs", key, doc, files)
+
 
 def _plain_json(doc: Any) -> bytes:
     from tap_bench.bench.run.folder import _json_default
@@ -235,13 +224,13 @@ def _plain_json(doc: Any) -> bytes:
     return json.dumps(doc, default=_json_default).encode()
 
 
-def store_run(cache: EpisodeCache, inputs: Mapping[str, Any], folder: Path,
-              summary: Mapping[str, Any], pages: Mapping[str, bytes],
-              episodes: pd.DataFrame, scores: Scores) -> Path | None:
-    """Keep the run written to ``folder`` whole in ``cache`` under ``inputs``
-    (:func:`run_inputs`), atomically; ``pages``: its page templates
-    (:func:`page_templates`). None when it cannot be kept (a full disk): the run is written,
-    the cache is a convenience."""
+def run_files(folder: Path, summary: Mapping[str, Any], pages: Mapping[str, bytes],
+              episodes: pd.DataFrame, scores: Scores) -> dict[str, bytes] | None:
+    """What keeps the run written to ``folder`` whole in the cache (name -> bytes, the
+    entry's files: module docstring); ``pages``: its page templates
+    (:func:`page_templates`). None when it cannot be kept: something was registered
+    outside tap-bench or tap-bench's code was edited while the run went on, or a page
+    that names the run has no template."""
     from tap_bench.bench.scores.scoring import scores_to_files
 
     if registered_outside():  # registered while the run went on (a policy's own import)
@@ -262,11 +251,7 @@ def store_run(cache: EpisodeCache, inputs: Mapping[str, Any], folder: Path,
                                          for k, v in summary.items()})
     files["episodes.arrow"] = _arrow_bytes(episodes)
     files.update({f"scores/{name}": data for name, data in scores_to_files(scores).items()})
-    key, doc = derived_key("runs", inputs)
-    try:
-        return cache.put_derived("runs", key, doc, files)
-    except (OSError, ValueError):
-        return None
+    return files
 
 
 def serve_run(cache: EpisodeCache, inputs: Mapping[str, Any], output: Path, overwrite: bool,
