@@ -100,18 +100,33 @@ class TapResult:
     def labels(self, level: str = "action") -> pd.DataFrame:
         """The label table (SPEC section 1) at ``level`` or at ``"all"`` levels."""
         levels = sdl.levels(level)
-        return _by_segment([self._labels_one(lv) for lv in levels], len(self.segments_info))
+        if len(levels) == 1:
+            return self._labels_one(levels[0])
+        return _label_table(self.segments_info, levels,
+                            [self._sequences(lv, "lateral") for lv in levels],
+                            [self._sequences(lv, "longitudinal") for lv in levels],
+                            None if self.interactions is None
+                            else self._interaction_sequences())
 
     def segments(self, level: str = "action") -> pd.DataFrame:
         """The segment table (SPEC section 1): one row per run of one label; with
         interactions, the ``axis = "interaction"`` runs too (at every level asked for)."""
-        frames = [self._segments_one(lv, axis) for lv in sdl.levels(level) for axis in sdl.AXES]
+        levels = sdl.levels(level)
+        runs = []  # (segment, first step, last step, level, axis, labels, other track)
+        for lv in levels:
+            for axis in sdl.AXES:
+                run = self._runs(lv, axis)
+                runs.append((run.seg, run.start, run.start + run.length - 1, lv, axis,
+                             pa.array(sdl.code_names(lv, axis)).take(pa.array(run.code)),
+                             None))
         if self.interactions is not None:
-            frames += [self._interaction_segments(lv) for lv in sdl.levels(level)]
-        out = pd.concat(frames, ignore_index=True)
-        key = out.pop("_seg").to_numpy()
-        order = np.argsort(key, kind="stable")
-        return out.iloc[order].reset_index(drop=True)
+            run, relation, other = self._interaction_runs()
+            rows = self._interaction_step_rows()
+            names = pa.array(np.asarray(RELATIONS, dtype=object)[relation], pa.string())
+            runs += [(self.interaction_segments[run.seg], rows[run.start],
+                      rows[run.start + run.length - 1], lv, "interaction", names, other)
+                     for lv in levels]
+        return self._segment_table(runs)
 
     def steps(self) -> pd.DataFrame:
         """Per-step labels: scenario_id, track_id, segment, t, one column per level and
@@ -197,27 +212,6 @@ class TapResult:
             out[seg] = sdl.SEPARATOR.join(names[bounds[k]:bounds[k + 1]])
         return pd.Series(out, dtype=pd.StringDtype("pyarrow", na_value=np.nan))
 
-    def _interaction_segments(self, level: str) -> pd.DataFrame:
-        runs, relation, other = self._interaction_runs()
-        info = self.segments_info.take(self.interaction_segments[runs.seg]).reset_index(
-            drop=True)
-        step_rows = self._interaction_step_rows()
-        first = step_rows[runs.start]
-        last = step_rows[runs.start + runs.length - 1]
-        out = pd.DataFrame({
-            "scenario_id": info["scenario_id"], "track_id": info["track_id"],
-            "segment": info["segment"], "level": level, "axis": "interaction",
-            "label": pd.Series(np.asarray(RELATIONS, dtype=object)[relation],
-                               dtype=pd.StringDtype("pyarrow", na_value=np.nan)),
-            "t_start": self.step_t[first], "t_end": self.step_t[last] + DT,
-            "other_track_id": self._track_names(other),
-        })
-        for col in info.columns:
-            if col in IDENTIFYING_COLUMNS:
-                out[col] = info[col]
-        out["_seg"] = self.interaction_segments[runs.seg]
-        return out
-
     # -- internals -----------------------------------------------------------------------
     @functools.cached_property
     def _seg_first(self) -> np.ndarray:
@@ -239,32 +233,41 @@ class TapResult:
                               if len(offsets) else pa.array([], pa.list_(pa.string())),
                               sdl.SEPARATOR)
 
+    def _segment_table(self, runs: list[tuple]) -> pd.DataFrame:
+        """The segment table of ``runs`` (each: segment (k,), first and last step rows (k,),
+        level, axis, labels (Arrow strings, (k,)), other track (k,) or None), one frame
+        built once: the runs of a segment together, in the order given (stable)."""
+        info = self.segments_info
+        seg = np.concatenate([r[0] for r in runs])
+        order = np.argsort(seg, kind="stable")
+        counts = [len(r[0]) for r in runs]
+        per_run = info[["scenario_id", "track_id", "segment"]
+                       + [c for c in info.columns if c in IDENTIFYING_COLUMNS]].take(
+            seg[order]).reset_index(drop=True)
+        columns: dict[str, object] = {
+            "scenario_id": per_run["scenario_id"], "track_id": per_run["track_id"],
+            "segment": per_run["segment"],
+            "level": _texts(np.repeat(np.asarray([r[3] for r in runs], dtype=object),
+                                      counts)[order]),
+            "axis": _texts(np.repeat(np.asarray([r[4] for r in runs], dtype=object),
+                                     counts)[order]),
+            "label": _strings(pa.concat_arrays([r[5] for r in runs]).take(pa.array(order))),
+            "t_start": self.step_t[np.concatenate([r[1] for r in runs])[order]],
+            "t_end": self.step_t[np.concatenate([r[2] for r in runs])[order]] + DT,
+        }
+        if self.interactions is not None:
+            other = np.concatenate([np.full(len(r[0]), -1, np.int64) if r[6] is None
+                                    else r[6] for r in runs])[order]
+            columns["other_track_id"] = self._track_names(other)
+        for col in per_run.columns[3:]:
+            columns[col] = per_run[col]
+        return pd.DataFrame(columns)
+
     def _labels_one(self, level: str) -> pd.DataFrame:
         return _label_frame(self.segments_info, level, self._sequences(level, "lateral"),
                             self._sequences(level, "longitudinal"),
                             None if self.interactions is None
                             else self._interaction_sequences())
-
-    def _segments_one(self, level: str, axis: str) -> pd.DataFrame:
-        info = self.segments_info
-        runs = self._runs(level, axis)
-        names = pa.array(sdl.code_names(level, axis))
-        last = runs.start + runs.length - 1
-        per_run = info.take(runs.seg).reset_index(drop=True)
-        out = pd.DataFrame({
-            "scenario_id": per_run["scenario_id"], "track_id": per_run["track_id"],
-            "segment": per_run["segment"], "level": level, "axis": axis,
-            "label": _strings(names.take(pa.array(runs.code))),
-            "t_start": self.step_t[runs.start], "t_end": self.step_t[last] + DT,
-        })
-        if self.interactions is not None:
-            out["other_track_id"] = pd.Series(pd.NA, index=out.index,
-                                              dtype=pd.StringDtype("pyarrow", na_value=np.nan))
-        for col in info.columns:
-            if col in IDENTIFYING_COLUMNS:
-                out[col] = per_run[col]
-        out["_seg"] = runs.seg
-        return out
 
 
 def _label_frame(info: pd.DataFrame, level: str, lat, lon,
@@ -287,14 +290,46 @@ def _label_frame(info: pd.DataFrame, level: str, lat, lon,
     return out
 
 
-def _by_segment(frames: list[pd.DataFrame], n_segments: int) -> pd.DataFrame:
-    """The label tables of several levels (each a row per segment) as one, the levels of a
-    segment together in the order given."""
-    out = pd.concat(frames, ignore_index=True) if len(frames) > 1 else frames[0]
-    if len(frames) > 1:
-        order = np.argsort(np.tile(np.arange(n_segments), len(frames)), kind="stable")
-        out = out.iloc[order].reset_index(drop=True)
-    return out
+def _label_table(info: pd.DataFrame, levels: tuple[str, ...], lat: list, lon: list,
+                 interaction: pd.Series | None = None) -> pd.DataFrame:
+    """The label tables of several ``levels`` as one, built once: :func:`_label_frame` of
+    each level (``lat``, ``lon``: each level's sequences, Arrow string arrays (S,)), the
+    levels of a segment together in the order given."""
+    n, k = len(info), len(levels)
+    order = pa.array((np.arange(k)[None, :] * n + np.arange(n)[:, None]).ravel())
+    rows = np.repeat(np.arange(n), k)
+
+    def joined(sequences: list) -> pa.ChunkedArray:
+        chunks = [c for a in sequences
+                  for c in (a.chunks if isinstance(a, pa.ChunkedArray) else [a])]
+        return pa.chunked_array(chunks, type=pa.string()).take(order)
+
+    lateral, longitudinal = joined(lat), joined(lon)
+    sdl_text = pc.binary_join_element_wise(lateral, longitudinal, sdl.SDL_SEPARATOR)
+    per_row = info.take(rows).reset_index(drop=True)
+    columns: dict[str, object] = {
+        "scenario_id": per_row["scenario_id"], "track_id": per_row["track_id"],
+        "segment": per_row["segment"],
+        "level": _texts(np.tile(np.asarray(levels, dtype=object), n)),
+        "lateral": _strings(lateral), "longitudinal": _strings(longitudinal),
+        "sdl": _strings(sdl_text),
+    }
+    if interaction is not None:
+        columns["interaction"] = interaction.take(rows).reset_index(drop=True)
+    columns.update(t_start=per_row["t_start"], t_end=per_row["t_end"])
+    for col in (*GLITCH_COLUMNS, *IDENTIFYING_COLUMNS):
+        if col in info.columns:
+            columns[col] = per_row[col]
+    return pd.DataFrame(columns)
+
+
+_TEXT = pd.Series(["level"]).dtype
+"""The dtype pandas gives a column of one string broadcast (``"level": "trace"``)."""
+
+
+def _texts(values: np.ndarray) -> pd.api.extensions.ExtensionArray:
+    """(n,) Python strings as a column of :data:`_TEXT` (an empty one too)."""
+    return pd.array(values, dtype=_TEXT)
 
 
 def _strings(values: pa.Array) -> pd.Series:
@@ -458,9 +493,12 @@ class TapParts:
             return pa.chunked_array([p._sequences(lv, axis) for p in self.parts],
                                     type=pa.string())
 
-        return _by_segment([_label_frame(info, lv, sequences(lv, "lateral"),
-                                         sequences(lv, "longitudinal"))
-                            for lv in sdl.levels(level)], len(info))
+        levels = sdl.levels(level)
+        if len(levels) == 1:
+            return _label_frame(info, levels[0], sequences(levels[0], "lateral"),
+                                sequences(levels[0], "longitudinal"))
+        return _label_table(info, levels, [sequences(lv, "lateral") for lv in levels],
+                            [sequences(lv, "longitudinal") for lv in levels])
 
     def segments(self, level: str = "action") -> pd.DataFrame:
         """:meth:`TapResult.segments` of the whole table."""
