@@ -40,6 +40,11 @@ SHIPPED_MODELS: dict[str, str] = {
     "af4708a821d67b682d22caf6382089f02c43ee1b928363eef72d2fac8fc0f4c6": "ppo-womd-seed0.zip",
     "1802eca4b4f2fb173c1094eee21b6995c89a28588febcc02d46e01ea6caecad8": "ppo-womd-seed1.zip",
     "1c3dc89098a257f2e5d7a6bb68150e2377f864ca0fbd64f78dee2575408727c3": "ppo-womd-seed2.zip",
+    "56273c16893b0544e24540c29de7e7c681aae25dab4f97db1ed4aa9a15329792": "ppo-womd-split-seed0.zip",
+    "bc015e39831778bd15ce7cf89a91fed51717b2c972067355e679db70055b35d5": "ppo-womd-split-seed1.zip",
+    "012a3275f1fec0c792f31b018f01b2095fac3d07649e907ad39dd182e75a14b6": "ppo-womd-split-seed2.zip",
+    "f03bd390802de26cb7a081df232d81f88dd4dc7f701292b5ac9eb07748ca3ac2": "ppo-womd-split-seed3.zip",
+    "11b55d007efa088943a77b0a2d88b96c89cdf269720f39d2f98c5d8b468108b9": "ppo-womd-split-seed4.zip",
 }
 """SHA-256 digest of each model file shipped in ``policies/`` -> its name. Known in the
 installed code, not beside the file: a digest that a model folder could carry would vouch
