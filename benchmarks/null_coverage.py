@@ -131,7 +131,8 @@ def _novel_rate_holds(ref, pol, case) -> tuple[bool, float]:
                           "synthetic", n_trajectories=len(ref), units=ref)
     names = np.array([f"L{i:02d} | X" for i in range(len(case["p_pol"]))], object)
     truth = float(case["p_pol"][~np.isin(names, items)].sum())
-    episodes = pd.DataFrame({"sdl": pol, "scenario_id": _episodes(case)})
+    episodes = pd.DataFrame({"sdl": pol, "scenario_id": _episodes(case),
+                             "cut_from": window_episode(_episodes(case))})
     r = novelty(episodes, reference, config=BootstrapConfig(n_resamples=500, seed=0),
                 windowed=bool(case.get("by_episode")))
     return bool(r.rate_low <= truth <= r.rate_high), r.rate_high - r.rate_low

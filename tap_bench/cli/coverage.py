@@ -61,7 +61,13 @@ def run(args: argparse.Namespace) -> int:
     from tap_bench.bench.episodes import episodes_from_table
     from tap_bench.bench.scores.coverage import UNITS, corpus_reference, vocabulary_reference
     from tap_bench.bench.scores.scoring import diversity_table, reference_scores
-    from tap_bench.bench.scores.windows import number_windows, window_seconds, windows
+    from tap_bench.bench.scores.windows import (
+        CUT_FROM,
+        number_windows,
+        window_episode,
+        window_seconds,
+        windows,
+    )
     from tap_bench.labelling import tap
     from tap_bench.labels import label_text
     from tap_bench.sdl import check_axes
@@ -89,6 +95,8 @@ def run(args: argparse.Namespace) -> int:
                                          thresholds=args.thresholds, policy=name,
                                          source=str(args.agent), interactions=inter)
     episodes = episodes.assign(sdl=label_text(episodes, axes))  # the label on the axes
+    if window is not None:  # the episode each window was cut from: resampled whole
+        episodes[CUT_FROM] = window_episode(episodes["scenario_id"])
     agent_envs = sorted(set(episodes["env"]))
     if args.vocabulary:
         references = [vocabulary_reference(args.level, axes=axes)]

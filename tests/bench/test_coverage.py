@@ -232,7 +232,8 @@ def test_scoring_windows_resamples_their_episodes():
                         "seed": np.arange(G * k),
                         "scenario_id": [f"highway/p/s{g}#{j}" for g in range(G)
                                         for j in range(k)],
-                        "sdl": np.repeat(one, k)})
+                        "sdl": np.repeat(one, k),
+                        "cut_from": [f"highway/p/s{g}" for g in range(G) for j in range(k)]})
     config = BootstrapConfig(n_resamples=500)
     cov, _, _ = reference_scores(eps, ref, "syn", config=config, windowed=True)
     row = cov.set_index("env").loc["highway"]

@@ -151,7 +151,8 @@ def test_windows_replace_whole_episodes_against_a_corpus_of_short_tracks():
     womd = pd.DataFrame({"scenario_id": [f"w{i}" for i in range(8)], "track_id": "1",
                          "object_type": "vehicle", "sdl": [A, B] * 4})
     windows = rollouts([A, A, A, B, B, B, A, C], "idm").assign(
-        scenario_id=[f"idm/{i // 2}#{i % 2}" for i in range(8)], seed=[0, 0, 1, 1, 2, 2, 3, 3])
+        scenario_id=[f"idm/{i // 2}#{i % 2}" for i in range(8)], seed=[0, 0, 1, 1, 2, 2, 3, 3],
+        cut_from=[f"idm/{i // 2}" for i in range(8)])
     scores = score(episode_table(eps), reference_policy="idm",
                    level="maneuver", config=BootstrapConfig(n_resamples=200),
                    references={"WOMD": womd},
@@ -222,7 +223,7 @@ def test_scoring_windows_resamples_them_by_episode():
     windows = episode_table(pd.DataFrame({
         "env": "highway", "policy": "dqn", "seed": np.arange(36), "status": "ok",
         "scenario_id": [f"dqn/{i // 3}#{i % 3}" for i in range(36)],
-        "sdl": np.repeat(labels, 3)}))
+        "sdl": np.repeat(labels, 3)})).assign(cut_from=[f"dqn/{i // 3}" for i in range(36)])
     ref = corpus_reference(ref_table, "maneuver", tracks="all", name="womd")
     config = BootstrapConfig(n_resamples=1000)
     rows = {w: reference_scores(windows, ref, "womd", config=config, unit="9.0 s windows",

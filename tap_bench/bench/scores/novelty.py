@@ -35,6 +35,7 @@ import numpy as np
 import pandas as pd
 
 from tap_bench.bench.scores.coverage import Reference, unit_items
+from tap_bench.bench.scores.windows import CUT_FROM
 from tap_bench.errors import LabelTableError
 from tap_bench.labels import label_text
 from tap_bench.stats.bootstrap import BootstrapConfig, cluster_weights
@@ -80,9 +81,10 @@ def novelty(episodes: pd.DataFrame, reference: Reference, *,
         reference: a corpus reference (whole SDL labels) at the labels' level.
         config: the interval level.
         axes: the axes a label is made of (as the reference's; default the ``sdl`` label).
-        windowed: the rows are windows cut from episodes (``scenario_id``
-            ``<episode>#<k>``): the interval counts whole episodes' worth of information
-            (the design effect of a cluster bootstrap by episode; module docstring).
+        windowed: the rows are windows cut from episodes, each one's episode in the
+            :data:`~tap_bench.bench.scores.windows.CUT_FROM` column: the interval counts
+            whole episodes' worth of information (the design effect of a cluster bootstrap
+            by episode; module docstring).
     """
     if reference.kind == "vocabulary":
         raise LabelTableError("novelty needs a reference corpus (its whole SDL labels); a "
@@ -99,7 +101,7 @@ def novelty(episodes: pd.DataFrame, reference: Reference, *,
     if n == 0:
         empty = pd.DataFrame(columns=["label", "count", "share", "example_scenario"])
         return NoveltyResult(0, 0, float("nan"), float("nan"), float("nan"), empty)
-    deff = _design_effect(novel, ok["scenario_id"], config) if windowed else 1.0
+    deff = _design_effect(novel, ok[CUT_FROM], config) if windowed else 1.0
     lo, hi = wilson_interval(novel.sum() / deff, n / deff, config.level)
     example = (ok["scenario_id"].to_numpy() if "scenario_id" in ok.columns else
         np.arange(n).astype(str))
@@ -121,12 +123,12 @@ def novelty(episodes: pd.DataFrame, reference: Reference, *,
     return NoveltyResult(n, int(novel.sum()), float(novel.mean()), float(lo), float(hi), labels)
 
 
-def _design_effect(novel: np.ndarray, scenario_ids, config: BootstrapConfig) -> float:
-    """The variance of the novel share under a cluster bootstrap by episode over the
-    binomial variance, within [1, windows per episode] (module docstring)."""
-    from tap_bench.bench.scores.windows import window_episode
-
-    episodes = window_episode(scenario_ids)
+def _design_effect(novel: np.ndarray, cut_from: pd.Series, config: BootstrapConfig
+                   ) -> float:
+    """The variance of the novel share under a cluster bootstrap by episode (``cut_from``:
+    (n,) each window's episode) over the binomial variance, within [1, windows per
+    episode] (module docstring)."""
+    episodes = cut_from.to_numpy(object)
     n, size = len(novel), len(novel) / len(set(episodes))
     p = float(novel.mean())
     if p in (0.0, 1.0):

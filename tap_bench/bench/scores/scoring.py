@@ -27,7 +27,7 @@ from tap_bench.bench.scores.coverage import (
 from tap_bench.bench.scores.diversity import MIN_COMPLETENESS, diversity, pooled_diversity
 from tap_bench.bench.scores.novelty import novelty, pooled_novelty
 from tap_bench.bench.scores.null import SPLITS, pooled_null, same_policy_null
-from tap_bench.bench.scores.windows import window_episode
+from tap_bench.bench.scores.windows import CUT_FROM
 from tap_bench.stats.bootstrap import BootstrapConfig
 from tap_bench.stats.intervals import measure_interval
 
@@ -239,7 +239,8 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
             ``episodes`` or ``segments``; e.g. ``"9.1 s windows"`` when ``episodes`` are
             windows of the policy's episodes).
         windowed: ``episodes`` are windows cut from episodes (:func:`tap_bench.bench.scores.windows.
-            window_episodes`, ``scenario_id`` ``<episode>#<k>``): the coverage's and the
+            window_episodes`), each one's episode in the :data:`~tap_bench.bench.scores.
+            windows.CUT_FROM` column: the coverage's and the
             null's intervals resample them by whole episodes (a cluster bootstrap) and
             the novelty's Wilson interval is taken at the episodes' worth of information
             (its design effect), as the windows of one episode are not independent.
@@ -281,7 +282,7 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
                 if ref is None:
                     continue
                 # windows are resampled by the episode each was cut from
-                clusters = window_episode(sub["scenario_id"]) if windowed else None
+                clusters = sub[CUT_FROM].to_numpy(object) if windowed else None
                 cv = coverage(sub["sdl"], ref, config=config,
                               rng=config.rng("coverage", env, policy, name,
                                              *(() if unit == "episodes" else (unit,))),
@@ -370,8 +371,9 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
         gate_power: a precomputed power table of the gate to carry.
         windows: reference name -> (episode table, unit): the policies' episodes cut into
             windows of that reference's track length (:func:`tap_bench.bench.scores.windows.
-            window_episodes`, e.g. 9.1 s for WOMD), scored against it in place of whole
-            episodes (``unit`` says so: ``"9.1 s windows"``).
+            window_episodes`, e.g. 9.1 s for WOMD; each window's episode in its
+            :data:`~tap_bench.bench.scores.windows.CUT_FROM` column), scored against it in
+            place of whole episodes (``unit`` says so: ``"9.1 s windows"``).
         contexts: a precomputed table of the interaction contexts' scores to carry
             (:func:`tap_bench.bench.scores.contexts.context_scores`).
         gap, gap_labels: precomputed sim-to-real gap tables to carry

@@ -8,7 +8,9 @@ novelty compare behaviour over the same span of time on both sides.
   ``<scenario_id>#<k>``; :func:`number_windows` numbers them as seeds;
 - :func:`window_episodes`: the egos' windows labelled, as an episode table;
 - :func:`window_episode`: the episode each window was cut from, the cluster a bootstrap
-  resamples whole (the windows of one episode are not independent).
+  resamples whole (the windows of one episode are not independent); the episode table of
+  windows carries it as its :data:`CUT_FROM` column, which the coverage, the novelty and
+  the same-policy null read.
 """
 
 from __future__ import annotations
@@ -20,8 +22,12 @@ from tap_bench.errors import ParameterError
 from tap_bench.labelling import tap
 from tap_bench.thresholds import Thresholds
 
-__all__ = ["number_windows", "track_seconds", "window_episode", "window_episodes",
-           "window_seconds", "windows"]
+__all__ = ["CUT_FROM", "number_windows", "track_seconds", "window_episode",
+           "window_episodes", "window_seconds", "windows"]
+
+CUT_FROM = "cut_from"
+"""The column of an episode table of windows naming the episode (``scenario_id``) each
+window was cut from (:func:`window_episode`)."""
 
 
 def track_seconds(table: pd.DataFrame) -> float:
@@ -101,13 +107,14 @@ def window_episodes(trajectories: pd.DataFrame, seconds: float, level: str, *,
                     ) -> pd.DataFrame:
     """The episode table (:mod:`tap_bench.bench.episodes`) of the egos' :func:`windows`:
     one row per window (``scenario_id`` ``<episode>#<k>``, the episode's env and policy,
-    ``seed`` numbering the windows: :func:`number_windows`), labelled at ``level``;
-    measures NaN. Coverage and novelty against a corpus of
-    short tracks (WOMD: 9.1 s) score these in place of whole 30 s episodes."""
+    ``seed`` numbering the windows: :func:`number_windows`, :data:`CUT_FROM` the episode
+    it was cut from), labelled at ``level``; measures NaN. Coverage and novelty against a
+    corpus of short tracks (WOMD: 9.1 s) score these in place of whole 30 s episodes."""
     from tap_bench.bench.episodes import episode_table
 
     ego = (trajectories[trajectories["is_ego"].fillna(False).to_numpy(bool)]
         if "is_ego" in trajectories.columns else trajectories)
     cut = number_windows(windows(ego, seconds))
     labels = tap(cut, thresholds, source=source).labels("all")
-    return episode_table(labels=labels, level=level, source=source)
+    table = episode_table(labels=labels, level=level, source=source)
+    return table.assign(**{CUT_FROM: window_episode(table["scenario_id"])})
