@@ -30,7 +30,6 @@ measures, formats and policy kinds) before its first item.
 from __future__ import annotations
 
 import contextlib
-import gc
 import os
 import pickle
 import selectors
@@ -87,37 +86,6 @@ def idle_threads_sleep() -> None:
     Read by OpenBLAS when NumPy is first imported: call it before.
     """
     os.environ.setdefault("OPENBLAS_THREAD_TIMEOUT", "4")
-
-
-_COLLECTIONS_HELD = [False, False]  # [held now, held before in this process]
-
-
-def hold_collections() -> None:
-    """Turn Python's cyclic garbage collector off for a command's start-up, until
-    :func:`release_collections`.
-
-    Importing pandas, gymnasium, highway-env and numba (and numba's first kernel loads)
-    makes some 200,000 objects that live as long as the process; the collector walks all
-    of them in each full collection, during the start-up and after it, for nothing:
-    about a twentieth of ``rollout --womd``'s CPU on 49 scenes. Once per process (a
-    process that calls the command line again, such as a test run, starts up once);
-    nothing happens when the collector is off already.
-    """
-    if gc.isenabled() and not _COLLECTIONS_HELD[1]:
-        gc.disable()
-        _COLLECTIONS_HELD[0] = _COLLECTIONS_HELD[1] = True
-
-
-def release_collections() -> None:
-    """End :func:`hold_collections`: every object made so far is kept out of later
-    collections (``gc.freeze``: the modules, classes and caches of the start-up), and the
-    collector runs again, so garbage made from now on is collected as before. A no-op
-    when nothing is held (called at the end of every in-process task: the first one
-    ends a command's start-up)."""
-    if _COLLECTIONS_HELD[0]:
-        _COLLECTIONS_HELD[0] = False
-        gc.freeze()
-        gc.enable()
 
 
 def keep_freed_memory() -> bool:
@@ -219,10 +187,7 @@ def describe_error(err: BaseException) -> str:
 def _timed(fn: Callable[[T], R], item: T) -> tuple[R, float, float]:
     """``fn(item)``, its wall time and the CPU time of this process meanwhile [s]."""
     start, cpu = time.perf_counter(), time.process_time()
-    try:
-        value = fn(item)
-    finally:
-        release_collections()  # the first task ends the start-up (hold_collections)
+    value = fn(item)
     return value, time.perf_counter() - start, time.process_time() - cpu
 
 

@@ -150,26 +150,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     SIGTERM).
     """
     argv = sys.argv[1:] if argv is None else list(argv)
-    from tap_bench.execution import (
-        hold_collections,
-        idle_threads_sleep,
-        keep_freed_memory,
-        release_collections,
-    )
+    from tap_bench.execution import idle_threads_sleep, keep_freed_memory
 
     keep_freed_memory()  # no page faults for every temporary column
     idle_threads_sleep()  # before NumPy's import: no BLAS thread spinning for nothing
-    hold_collections()  # until the start-up is done (released below at the latest)
-    try:
-        return _main(argv)
-    finally:
-        release_collections()
-
-
-def _main(argv: list[str]) -> int:
-    """:func:`main` after the process's settings."""
-    from tap_bench.execution import release_collections
-
     try:
         argv, plugins = _plugins(argv)
         if plugins:  # before the parsers are built: --format choices come from the registry
@@ -189,8 +173,6 @@ def _main(argv: list[str]) -> int:
     warnings.formatwarning = _one_line_warning
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGTERM, _terminate)
-    if not getattr(args, "start_up_in_first_task", False):
-        release_collections()  # a command that runs no task in this process
     try:
         return int(args.func(args) or 0)
     except TapBenchError as err:

@@ -5,13 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from tap_bench.execution import (
-    LocalBackend,
-    add_backend_arguments,
-    backend_from_args,
-    close_backend,
-    release_collections,
-)
+from tap_bench.execution import add_backend_arguments, backend_from_args, close_backend
 from tap_bench.progress import add_progress_arguments, progress_choice
 
 
@@ -60,9 +54,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    "time left) to FILE as well")
     add_progress_arguments(p)
     add_backend_arguments(p, shards=False)
-    # the collector stays off through the imports and the first scene's start-up, until
-    # the first in-process task ends (tap_bench.execution.hold_collections)
-    p.set_defaults(func=run, start_up_in_first_task=True)
+    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -86,8 +78,6 @@ def run(args: argparse.Namespace) -> int:
         seeds = args.seeds if args.seeds else list(get_scenario(args.env).default_seeds)
     workers = args.workers if args.backend == "local" or args.workers != 1 else None
     backend = backend_from_args(args, workers=workers)  # ray default: all the CPUs
-    if not (isinstance(backend, LocalBackend) and backend.workers == 1):
-        release_collections()  # no task runs in this process
     try:  # each scene's rows go to disk as it ends: memory does not grow with the scenes
         result = stream_rollout(
             env, args.policy, seeds, output, episodes_output=episodes_out, backend=backend,
