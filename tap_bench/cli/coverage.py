@@ -59,15 +59,9 @@ def run(args: argparse.Namespace) -> int:
     import pandas as pd
 
     from tap_bench.bench.episodes import episodes_from_table
+    from tap_bench.bench.scores import windows as win
     from tap_bench.bench.scores.coverage import UNITS, corpus_reference, vocabulary_reference
     from tap_bench.bench.scores.scoring import diversity_table, reference_scores
-    from tap_bench.bench.scores.windows import (
-        CUT_FROM,
-        number_windows,
-        window_episode,
-        window_seconds,
-        windows,
-    )
     from tap_bench.labelling import tap
     from tap_bench.labels import label_text
     from tap_bench.sdl import check_axes
@@ -88,15 +82,15 @@ def run(args: argparse.Namespace) -> int:
     axes = check_axes(args.axes)
     inter = "auto" if "interaction" in axes else None
     ref_table = None if args.vocabulary else read_table(args.reference)
-    window = None if ref_table is None else window_seconds(args.window, ref_table, table)
+    window = None if ref_table is None else win.window_seconds(args.window, ref_table, table)
     if window is not None:  # the agent's episodes cut to the reference's track length
-        table = number_windows(windows(table, window))
+        table = win.number_windows(win.windows(table, window))
     episodes, _, _ = episodes_from_table(table.assign(policy=name), level=args.level,
                                          thresholds=args.thresholds, policy=name,
                                          source=str(args.agent), interactions=inter)
     episodes = episodes.assign(sdl=label_text(episodes, axes))  # the label on the axes
     if window is not None:  # the episode each window was cut from: resampled whole
-        episodes[CUT_FROM] = window_episode(episodes["scenario_id"])
+        episodes[win.CUT_FROM] = win.window_episode(episodes["scenario_id"])
     agent_envs = sorted(set(episodes["env"]))
     if args.vocabulary:
         references = [vocabulary_reference(args.level, axes=axes)]
