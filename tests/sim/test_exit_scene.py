@@ -49,9 +49,11 @@ def test_the_seed_draws_the_egos_lane_place_and_speed_and_room_ahead():
 
 
 def test_an_idm_ego_is_routed_to_the_exit_and_changes_one_lane_at_a_time():
+    """Whole episodes (18 s) of the first 6 seeds: one misses the exit (seed 0), five take
+    it, three of them after changes across four lanes."""
     env = make_env("exit", record=False)
     took = 0
-    for seed in SEEDS:
+    for seed in SEEDS[:6]:
         policy = load_policy("idm")
         obs, _ = env.reset(seed=seed)
         policy.reset(env, seed=seed)
@@ -74,7 +76,7 @@ def test_an_idm_ego_is_routed_to_the_exit_and_changes_one_lane_at_a_time():
             assert ("1", "2", 5) not in after[k:]
         else:  # a missed exit goes on straight, never across lanes at the node
             assert all(i[2] == through[-1] and i[1] != "exit" for i in after)
-    assert 0 < took < len(SEEDS)
+    assert 0 < took < 6
 
 
 def test_the_scene_no_longer_gives_one_outcome_per_policy():
