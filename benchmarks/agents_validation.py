@@ -24,8 +24,9 @@ separate the policies.
 
 Usage: python benchmarks/agents_validation.py --womd FILES --scenes 2,5,10,14
        --policies sel-all.zip sel-sdc.zip lane-keeping random [--out eps.csv]
-       [--pool ppo-womd=ppo-womd-hold-seed0,ppo-womd-hold-seed1,ppo-womd-hold-seed2]
-"""
+       [--intervals]
+       [--pool ppo-womd=ppo-womd-split-seed0,ppo-womd-split-seed1,ppo-womd-split-seed2,ppo-womd-split-seed3,ppo-womd-split-seed4]
+"""  # noqa: E501
 
 from __future__ import annotations
 

@@ -66,8 +66,8 @@ WOMD = {  # quick, and run in README order when the WOMD sample files are presen
 SLOW_WOMD = {  # long, and needing the WOMD files
     "tap-bench coverage dqn.parquet --reference womd.parquet --level maneuver",
     "tap-bench gap results/inter/trajectories.parquet --reference womd.parquet --min-speed 5",
-    # 28 episodes (the human, IDM, lane keeping, random and ppo-womd's 3 seeds on the 4
-    # sample scenes), scored, with the report and viewer: about 1.5 CPU min
+    # 36 episodes (the human, IDM, lane keeping, random and ppo-womd's 5 seeds on the 4
+    # sample scenes), scored, with the report and viewer: about 2 CPU min
     "tap-bench agents results/womd-agents/ --womd 'data/training/*'",
 }
 NOT_RUN = {  # command -> why the tests cannot run it as written
