@@ -412,12 +412,21 @@ class FastPolyLane(PolyLaneFixedWidth):
         same values to the bit, the centre line interpolated for all of them at once."""
         arc, pts = self._arc, self._points
         along = np.asarray(longitudinals, dtype=np.float64).reshape(-1)
-        x, y = np.interp(along, arc, pts[:, 0]), np.interp(along, arc, pts[:, 1])
-        for i in np.flatnonzero((along < arc[0]) | (along > arc[-1])).tolist():
-            x[i], y[i] = self._along(float(along[i]))  # beyond an end: straight on
-        yaw = np.array([self.heading_at(value) for value in along.tolist()], dtype=np.float64)
-        # + 0 x the left normal, as position adds it (the sign of a zero coordinate)
-        return np.stack([x + 0.0 * -np.sin(yaw), y + 0.0 * np.cos(yaw)], axis=1)
+        out = np.empty((len(along), 2))
+        x, y = out[:, 0], out[:, 1]
+        x[:], y[:] = np.interp(along, arc, pts[:, 0]), np.interp(along, arc, pts[:, 1])
+        first, last = float(arc[0]), float(arc[-1])
+        values = along.tolist()
+        for i, value in enumerate(values):
+            if value < first or value > last:
+                x[i], y[i] = self._along(value)  # beyond an end: straight on
+        # position adds 0 x the left normal: it changes nothing but the sign of a zero
+        # coordinate (-0.0 + 0.0 is 0.0), so only there is the heading looked up
+        for i in np.flatnonzero((x == 0.0) | (y == 0.0)).tolist():
+            yaw = np.array([self.heading_at(values[i])], dtype=np.float64)
+            x[i] = (x[i:i + 1] + 0.0 * -np.sin(yaw))[0]
+            y[i] = (y[i:i + 1] + 0.0 * np.cos(yaw))[0]
+        return out
 
     def local_coordinates(self, position: np.ndarray) -> tuple[float, float]:
         return _frame(*self.arrays, float(position[0]), float(position[1]))
