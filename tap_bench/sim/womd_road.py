@@ -1093,8 +1093,9 @@ def _window_chunks(px, py, cum, s0, s1):  # pragma: no cover - compiled
 def _project_window(px, py, cum, k0, k1, centres, radii, qx, qy):  # pragma: no cover
     """:func:`_project_path` over the segments k0 to k1 - 1 (:func:`_window_chunks`),
     the same answer: a chunk whose circle is farther than the nearest segment found so far
-    holds no nearer one and is skipped."""
-    best, bs, bd, bt = np.inf, np.nan, np.nan, 0.0
+    holds no nearer one and is skipped; the point is placed on the nearest segment once,
+    at the end (the same segment and share as :func:`_project_path` places it on)."""
+    best, best_k, best_u = np.inf, -1, 0.0
     for c in range(radii.shape[0]):
         if (math.hypot(qx - centres[c, 0], qy - centres[c, 1]) - radii[c]
                 > best + CHUNK_SLACK):
@@ -1103,9 +1104,10 @@ def _project_window(px, py, cum, k0, k1, centres, radii, qx, qy):  # pragma: no 
         for k in range(a, min(a + CHUNK, k1)):
             dist, u = _to_segment(px, py, k, qx, qy)
             if dist < best:
-                best = dist
-                bs, bd, bt = _on_segment(px, py, cum, k, u, qx, qy)
-    return bs, bd, bt
+                best, best_k, best_u = dist, k, u
+    if best_k < 0:
+        return np.nan, np.nan, 0.0
+    return _on_segment(px, py, cum, best_k, best_u, qx, qy)
 
 
 @numba.njit(cache=True, nogil=True)
