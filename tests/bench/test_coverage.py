@@ -246,3 +246,19 @@ def test_scoring_windows_resamples_their_episodes():
     flat_row = flat.set_index("env").loc["highway"]
     assert flat_row["coverage_high"] - flat_row["coverage_low"] < \
         row["coverage_high"] - row["coverage_low"]
+
+
+@pytest.mark.parametrize("scorer", ["reference_scores", "novelty"])
+def test_windowed_scoring_names_the_missing_cut_from_column(scorer):
+    """A windows table without the column naming each window's episode is refused with
+    the column's name and where it comes from, not a bare KeyError."""
+    ref = corpus_reference(ref_table([A, B]), "maneuver")
+    eps = pd.DataFrame({"env": "highway", "policy": "p", "status": "ok", "seed": [0, 1],
+                        "scenario_id": ["highway/p/s0#0", "highway/p/s0#1"],
+                        "sdl": [A, C]})
+    with pytest.raises(LabelTableError, match=r"'cut_from'.*window_episodes"):
+        if scorer == "novelty":
+            novelty(eps, ref, windowed=True)
+        else:
+            reference_scores(eps, ref, "syn", config=BootstrapConfig(n_resamples=100),
+                             windowed=True)

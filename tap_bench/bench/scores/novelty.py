@@ -85,10 +85,19 @@ def novelty(episodes: pd.DataFrame, reference: Reference, *,
             :data:`~tap_bench.bench.scores.windows.CUT_FROM` column: the interval counts
             whole episodes' worth of information (the design effect of a cluster bootstrap
             by episode; module docstring).
+
+    Raises:
+        LabelTableError: ``reference`` is a vocabulary, or ``windowed`` and ``episodes``
+            without the ``CUT_FROM`` column.
     """
     if reference.kind == "vocabulary":
         raise LabelTableError("novelty needs a reference corpus (its whole SDL labels); a "
                               "vocabulary holds every single label, so nothing is novel.")
+    if windowed and CUT_FROM not in episodes.columns:
+        raise LabelTableError(
+            f"novelty(windowed=True) needs the {CUT_FROM!r} column of a table of windows "
+            f"(the episode each window was cut from); window_episodes adds it, or add it "
+            f"as window_episode(table['scenario_id']).")
     config = config or BootstrapConfig()
     ok = episodes
     if "status" in ok.columns:

@@ -28,6 +28,7 @@ from tap_bench.bench.scores.diversity import MIN_COMPLETENESS, diversity, pooled
 from tap_bench.bench.scores.novelty import novelty, pooled_novelty
 from tap_bench.bench.scores.null import SPLITS, pooled_null, same_policy_null
 from tap_bench.bench.scores.windows import CUT_FROM
+from tap_bench.errors import LabelTableError
 from tap_bench.stats.bootstrap import BootstrapConfig
 from tap_bench.stats.intervals import measure_interval
 
@@ -257,7 +258,15 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
         (:func:`tap_bench.bench.scores.coverage.pooled_coverage`,
         :func:`tap_bench.bench.scores.novelty.pooled_novelty`) and score all episodes together
         against a reference without envs.
+
+    Raises:
+        LabelTableError: ``windowed`` and ``episodes`` without the ``CUT_FROM`` column.
     """
+    if windowed and CUT_FROM not in episodes.columns:
+        raise LabelTableError(
+            f"reference_scores(windowed=True) needs the {CUT_FROM!r} column of a table of "
+            f"windows (the episode each window was cut from, resampled whole); "
+            f"window_episodes adds it, or add it as window_episode(table['scenario_id']).")
     ok = _scored(episodes)
     keyed = not isinstance(reference, Reference)
     first = next(iter(reference.values()), None) if keyed else reference
