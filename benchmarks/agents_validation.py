@@ -160,7 +160,8 @@ def scene_intervals(eps: pd.DataFrame, groups: dict[str, list[str]], lead: str, 
     and ``lead``'s difference from it (``d_iqm``: lead's IQM less the group's; ``d_at_fault``
     likewise) with its interval. Every resample draws G of the G scenes with replacement,
     each with all its drivers and all seeds, the same draws for every group (paired); the
-    draws are widened about the estimate by sqrt(G / (G - 1))."""
+    draws are widened about the estimate by sqrt(G / (G - 1)), and an at-fault rate's
+    interval is kept within [0, 1]."""
     ok = _judged(eps)
     scenes = sorted(ok["scene"].unique())
     g = len(scenes)
@@ -179,9 +180,12 @@ def scene_intervals(eps: pd.DataFrame, groups: dict[str, list[str]], lead: str, 
         return (float(iqm(np.concatenate(prog))), float(np.concatenate(fault).mean()),
                 boot_iqm, boot_fault)
 
-    def interval(estimate: float, boot: np.ndarray) -> tuple[float, float]:
+    def interval(estimate: float, boot: np.ndarray, rate: bool = False
+                 ) -> tuple[float, float]:
         boot = estimate + cluster_factor(g) * (boot[np.isfinite(boot)] - estimate)
         low, high = np.quantile(boot, [(1 - level) / 2, (1 + level) / 2])
+        if rate:  # the widening can carry a rate's draws past 0 or 1, which no rate is
+            low, high = max(low, 0.0), min(high, 1.0)
         return float(low), float(high)
 
     done = {name: figures(ok[ok["policy"].isin(members)]) for name, members in groups.items()}
@@ -191,7 +195,8 @@ def scene_intervals(eps: pd.DataFrame, groups: dict[str, list[str]], lead: str, 
         row = {"policy": name, "iqm": est_iqm}
         row["iqm_low"], row["iqm_high"] = interval(est_iqm, boot_iqm)
         row["at_fault"] = est_fault
-        row["at_fault_low"], row["at_fault_high"] = interval(est_fault, boot_fault)
+        row["at_fault_low"], row["at_fault_high"] = interval(est_fault, boot_fault,
+                                                             rate=True)
         if name != lead:
             row["d_iqm"] = lead_iqm - est_iqm
             row["d_iqm_low"], row["d_iqm_high"] = interval(row["d_iqm"],

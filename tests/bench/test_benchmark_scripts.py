@@ -81,3 +81,14 @@ def test_seed_intervals_pool_the_seeds_over_the_drivers_each_seed_drove():
     assert out["iqm"] == pytest.approx(0.7) and out["at_fault"] == 0.0
     assert out["iqm_low_run"] < 0.7 < out["iqm_high_run"]
     assert out["iqm_low_task"] < 0.7 < out["iqm_high_task"]
+
+
+def test_scene_intervals_of_an_at_fault_rate_stay_within_0_and_1():
+    """The draws widened by sqrt(G / (G - 1)) about a small rate go below 0 (one scene of 4
+    at fault: -0.019 before); a rate's interval is cut at 0 and 1, a difference's is not."""
+    groups = {"a": ["a0", "a1"], "b": ["b"]}
+    table = agents_validation.scene_intervals(
+        _validation_episodes({0: [1]}), groups, "a", n_resamples=200).set_index("policy")
+    assert (table["at_fault_low"] >= 0.0).all() and (table["at_fault_high"] <= 1.0).all()
+    assert table.loc["b", "at_fault_high"] > 0.125 > table.loc["b", "at_fault_low"]
+    assert table.loc["b", "d_at_fault_low"] < -0.125 < table.loc["b", "d_at_fault_high"]
