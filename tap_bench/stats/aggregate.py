@@ -159,6 +159,11 @@ def stratified_bootstrap(scores: np.ndarray, statistic: Callable[[np.ndarray], f
         level: two-sided level.
         n_resamples: bootstrap resamples (>= 100).
         unit: what is resampled (:data:`UNITS`): ``"task"`` (stratified) or ``"run"``.
+
+    The draws are widened about the estimate for the few units resampled (``_spread``);
+    for the batched statistics (:data:`BATCHED`, means of some of the scores) the widened
+    draws are kept within the scores' range, so an at-fault rate's interval never goes
+    below 0.
     """
     x = _scores(scores)
     _check_level(level, n_resamples)
@@ -171,7 +176,10 @@ def stratified_bootstrap(scores: np.ndarray, statistic: Callable[[np.ndarray], f
         boot = np.array([statistic(sample) for sample in samples], dtype=float)
     estimate = float(statistic(x))
     alpha = (1 - level) / 2
-    low, high = np.quantile(_spread(boot, estimate, n_runs), [alpha, 1 - alpha])
+    spread = _spread(boot, estimate, n_runs)
+    if statistic in BATCHED:  # a mean of some of the scores: never beyond their range
+        spread = np.clip(spread, x.min(), x.max())
+    low, high = np.quantile(spread, [alpha, 1 - alpha])
     return Interval(estimate, float(low), float(high), level)
 
 

@@ -9,6 +9,7 @@ import pytest
 from tap_bench.errors import ParameterError
 from tap_bench.stats.aggregate import (
     iqm,
+    mean_score,
     performance_profile,
     probability_of_improvement,
     stratified_bootstrap,
@@ -101,3 +102,16 @@ def test_bad_scores_and_settings_are_refused():
         iqm(np.zeros((2, 2, 2, 2)))
     with pytest.raises(ParameterError, match="level"):
         stratified_bootstrap([[1.0, 2.0]], rng=rng(), level=0.3)
+
+
+def test_a_widened_interval_of_a_rate_stays_within_the_scores_range():
+    # one at-fault collision in 24 episodes (3 seeds x 8 scenes): the draws widened for
+    # 3 resampled seeds went below 0 (lower bound -0.009) before they were kept in range
+    scores = np.zeros((3, 8))
+    scores[0, 0] = 1.0
+    for unit in ("task", "run"):
+        for statistic in (iqm, mean_score):
+            interval = stratified_bootstrap(scores, statistic, rng=rng(), unit=unit)
+            assert 0.0 <= interval.low <= interval.estimate <= interval.high <= 1.0
+    out = stratified_bootstrap(scores, mean_score, rng=rng(), unit="run")
+    assert out.low == 0.0 and out.high > out.estimate
