@@ -597,6 +597,23 @@ def test_tap_bench_edited_while_the_run_goes_on_is_not_kept_whole(tmp_path, monk
     assert served(run(tmp_path / "served", cache, suite))
 
 
+def test_the_viewers_files_edited_while_the_run_goes_on_are_not_kept_whole(tmp_path,
+                                                                          monkeypatch):
+    """The package's data files (the viewer's page, script, style) are hashed into the run's
+    key at its start and the viewer is written at its end: edited in between, the run is
+    written but not kept, so a later run on the old files is not served the new ones."""
+    cache = EpisodeCache(tmp_path / "cache")
+    suite = tiny(envs=["merge"], env_overrides={"merge": {"duration": 3}})
+    # the digest taken at the start differs from the files at the end
+    monkeypatch.setattr(run_cache, "_PACKAGE_DATA", ["the files at the start"])
+    result = run(tmp_path / "edited", cache, suite)
+    assert (tmp_path / "edited" / "summary.json").exists() and not served(result)
+    assert not (cache.derived_folder / "runs").exists()
+    monkeypatch.setattr(run_cache, "_PACKAGE_DATA", [])  # unchanged from start to end
+    assert not served(run(tmp_path / "kept", cache, suite))
+    assert served(run(tmp_path / "served", cache, suite))
+
+
 def test_episodes_and_labels_made_while_tap_bench_was_edited_are_not_kept(tmp_path,
                                                                           monkeypatch):
     """Workers import the labelling and simulation code at their first episode, perhaps

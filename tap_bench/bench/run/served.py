@@ -101,17 +101,30 @@ def package_data() -> str:
     and bytes; caches and a wheel's copied catalogue, which the fingerprints hash, left
     out), once a process."""
     if not _PACKAGE_DATA:
-        package = Path(__file__).resolve().parent.parent
-        digest = hashlib.sha256()
-        for path in sorted(package.rglob("*")):
-            rel = path.relative_to(package)
-            if (path.suffix in (".py", ".pyc") or not path.is_file()
-                    or rel.parts[0] == "_catalogue" or "__pycache__" in rel.parts):
-                continue
-            digest.update(rel.as_posix().encode() + b"\0")
-            digest.update(hashlib.sha256(path.read_bytes()).digest())
-        _PACKAGE_DATA.append(digest.hexdigest())
+        _PACKAGE_DATA.append(_package_data_digest())
     return _PACKAGE_DATA[0]
+
+
+def package_data_holds() -> bool:
+    """Whether the package's data files (the viewer's page, script and style, the report's
+    templates) still hash as :func:`package_data` found them: a run whose viewer was made
+    from files edited while it went on is not kept under the key of the files it started
+    with (as :func:`tap_bench.bench.cache.package_code_holds` for the modules)."""
+    return not _PACKAGE_DATA or _package_data_digest() == _PACKAGE_DATA[0]
+
+
+def _package_data_digest() -> str:
+    """SHA-256 of the names and bytes of tap-bench's files that are not Python source."""
+    package = Path(__file__).resolve().parent.parent
+    digest = hashlib.sha256()
+    for path in sorted(package.rglob("*")):
+        rel = path.relative_to(package)
+        if (path.suffix in (".py", ".pyc") or not path.is_file()
+                or rel.parts[0] == "_catalogue" or "__pycache__" in rel.parts):
+            continue
+        digest.update(rel.as_posix().encode() + b"\0")
+        digest.update(hashlib.sha256(path.read_bytes()).digest())
+    return digest.hexdigest()
 
 
 _ENTRY_POINT = re.compile(r"^([A-Za-z_][\w.]*):[\w.]+$")
@@ -229,13 +242,13 @@ def run_files(folder: Path, summary: Mapping[str, Any], pages: Mapping[str, byte
     """What keeps the run written to ``folder`` whole in the cache (name -> bytes, the
     entry's files: module docstring); ``pages``: its page templates
     (:func:`page_templates`). None when it cannot be kept: something was registered
-    outside tap-bench or tap-bench's code was edited while the run went on, or a page
-    that names the run has no template."""
+    outside tap-bench or tap-bench's code or data files were edited while the run went on,
+    or a page that names the run has no template."""
     from tap_bench.bench.scores.scoring import scores_to_files
 
     if registered_outside():  # registered while the run went on (a policy's own import)
         return None
-    if not package_code_holds():  # tap-bench edited while the run went on
+    if not package_code_holds() or not package_data_holds():  # edited while the run went on
         return None
     files: dict[str, bytes] = {}
     for path in sorted(folder.rglob("*")):
