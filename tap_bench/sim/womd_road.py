@@ -1112,7 +1112,7 @@ def _project_window(px, py, cum, k0, k1, centres, radii, qx, qy):  # pragma: no 
 
 @numba.njit(cache=True, nogil=True)
 def _path_blockers(px, py, cum, s0, s1, x0, y0, half_width, half_length, margins,
-                   xs, ys, hs, vs, ls, ws, horizons, unpredicted
+                   xs, ys, hs, vs, ls, ws, horizons, unpredicted, skip
                    ):  # pragma: no cover - compiled
     """The movers in a path's way ahead, now and predicted.
 
@@ -1120,6 +1120,7 @@ def _path_blockers(px, py, cum, s0, s1, x0, y0, half_width, half_length, margins
     tau (0 first: where it is now; then where it will be at constant velocity, for movers
     across the path, except those ``unpredicted``), whether its box is within the half
     widths + ``margins[j]`` of the path between s0 and s1 with its centre ahead of s0.
+    Mover ``skip`` (the path's own vehicle; -1: none) is not looked at (NaN gaps).
 
     Returns:
         (m * H, 4): gap from our bumper to its box along the path [m], its speed along the
@@ -1130,6 +1131,8 @@ def _path_blockers(px, py, cum, s0, s1, x0, y0, half_width, half_length, margins
     reach = s1 - s0
     k0, k1, centres, radii = _window_chunks(px, py, cum, s0, s1)
     for j in range(m):
+        if j == skip:
+            continue
         far = reach + ls[j] + half_length
         cos_j, sin_j = math.cos(hs[j]), math.sin(hs[j])
         s, d, theta = np.nan, np.nan, np.nan
@@ -1204,7 +1207,7 @@ def _path_ahead(starts, ends, px, py, cum, s0, s1, x0, y0, half_width, half_leng
         acc = a * (1.0 - (v / v0[i]) ** delta)
         found = _path_blockers(px[lo:hi], py[lo:hi], cum[lo:hi], s0[i], s1[i], x0[i], y0[i],
                                half_width[i], half_length[i], margins, xs, ys, hs, vs, ls, ws,
-                               horizons, is_path)
+                               horizons, is_path, mine[i])
         for r in range(found.shape[0]):
             gap = found[r, 0]
             if not np.isfinite(gap) or r // h == mine[i]:
@@ -1384,16 +1387,13 @@ class WomdPathVehicle(Vehicle):
         if positions is not None and len(positions):
             reach = PATH_LOOKAHEAD + PATH_TIME * v
             boxes = road._boxes
+            mine = road._movers.index_of(self)  # itself: not looked at
             found = _path_blockers(
                 self.path.points[:, 0], self.path.points[:, 1], self.path.cum, self.s,
                 self.s + reach, float(self.position[0]), float(self.position[1]),
                 self.WIDTH / 2, self.LENGTH / 2, road._path_margins, positions[:, 0],
                 positions[:, 1], boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3],
-                _HORIZONS, road._path_mask)
-            h = len(PATH_PREDICTION) + 1
-            mine = road._movers.index_of(self)
-            if mine is not None:
-                found[mine * h:(mine + 1) * h, 0] = np.nan
+                _HORIZONS, road._path_mask, -1 if mine is None else int(mine))
             walkers = road._walker_mask
             movers = road._movers
             for gap, lead, tau, j in found[np.isfinite(found[:, 0])]:

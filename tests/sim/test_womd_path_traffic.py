@@ -16,6 +16,7 @@ from tap_bench.sim.womd_road import (
     PATH_EXTENSION,
     PATH_SPACING,
     _first_crossing,
+    _path_blockers,
     _project_path,
     _project_window,
     _window_chunks,
@@ -233,6 +234,31 @@ def test_the_chunked_path_search_finds_the_same_nearest_point(seed):
         want = _project_path(px, py, cum, s0, s1, q[0], q[1])
         got = _project_window(px, py, cum, k0, k1, centres, radii, q[0], q[1])
         np.testing.assert_array_equal(got, want)
+
+
+def test_the_path_blockers_leave_out_the_paths_own_vehicle():
+    # a mover skipped (the path's own vehicle) has NaN rows, the others the rows they have
+    # when nobody is skipped; each skipped mover is in the way when not skipped
+    rng = np.random.default_rng(7)
+    px = np.linspace(0.0, 100.0, 201)
+    py = 0.3 * np.sin(px / 10.0)
+    cum = np.r_[0.0, np.cumsum(np.hypot(np.diff(px), np.diff(py)))]
+    m = 12
+    xs, ys = rng.uniform(2.0, 60.0, m), rng.normal(0.0, 2.0, m)
+    hs, vs = rng.uniform(-np.pi, np.pi, m), rng.uniform(0.0, 10.0, m)
+    ls, ws = rng.uniform(3.5, 5.0, m), rng.uniform(1.6, 2.1, m)
+    margins = np.full(m, 0.1)
+    horizons = np.array([0.0, 1.0, 2.0])
+    unpredicted = rng.random(m) < 0.3
+    args = (px, py, cum, 0.0, 50.0, 0.0, 0.0, 1.0, 2.3, margins, xs, ys, hs, vs, ls, ws,
+            horizons, unpredicted)
+    everyone = _path_blockers(*args, -1)
+    in_way = np.flatnonzero(np.isfinite(everyone[:, 0])) // len(horizons)
+    assert len(set(in_way.tolist())) >= 3
+    for j in sorted(set(in_way.tolist())):
+        want = everyone.copy()
+        want[j * 3:(j + 1) * 3] = np.nan
+        np.testing.assert_array_equal(_path_blockers(*args, j), want)
 
 
 def test_path_progress_is_the_nearest_segments_arc_length():
