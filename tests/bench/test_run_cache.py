@@ -241,8 +241,9 @@ CHANGES = {
     "the package code": lambda tmp, mp: (mp.setattr(cache_module, "_PACKAGE_CODE", ["other"])
                                          or mp.setattr(cache_module, "_package_digest",
                                                        lambda: "other") or {}, {}),
-    "the package data": lambda tmp, mp: (mp.setattr(run_cache, "_PACKAGE_DATA",
-                                                    ["other"]) or {}, {}),
+    "the package data": lambda tmp, mp: (mp.setattr(run_cache, "_PACKAGE_DATA", ["other"])
+                                         or mp.setattr(run_cache, "_package_data_digest",
+                                                       lambda: "other") or {}, {}),
     "a library version": lambda tmp, mp: (mp.setattr(
         run_cache, "_version", lambda pkg: "0.0" if pkg == "scipy" else
         cache_module._version(pkg)) or {}, {}),
