@@ -100,8 +100,6 @@ class TapResult:
     def labels(self, level: str = "action") -> pd.DataFrame:
         """The label table (SPEC section 1) at ``level`` or at ``"all"`` levels."""
         levels = sdl.levels(level)
-        if len(levels) == 1:
-            return self._labels_one(levels[0])
         return _label_table(self.segments_info, levels,
                             [self._sequences(lv, "lateral") for lv in levels],
                             [self._sequences(lv, "longitudinal") for lv in levels],
@@ -263,50 +261,27 @@ class TapResult:
             columns[col] = per_run[col]
         return pd.DataFrame(columns)
 
-    def _labels_one(self, level: str) -> pd.DataFrame:
-        return _label_frame(self.segments_info, level, self._sequences(level, "lateral"),
-                            self._sequences(level, "longitudinal"),
-                            None if self.interactions is None
-                            else self._interaction_sequences())
-
-
-def _label_frame(info: pd.DataFrame, level: str, lat, lon,
-                 interaction: pd.Series | None = None) -> pd.DataFrame:
-    """The label table at one level: a row of ``info`` (segments) each, its lateral and
-    longitudinal sequences (``lat``, ``lon``: Arrow string arrays, (S,)) and, with the
-    interaction axis, its relations."""
-    sdl_text = pc.binary_join_element_wise(lat, lon, sdl.SDL_SEPARATOR)
-    out = pd.DataFrame({
-        "scenario_id": info["scenario_id"], "track_id": info["track_id"],
-        "segment": info["segment"], "level": level,
-        "lateral": _strings(lat), "longitudinal": _strings(lon), "sdl": _strings(sdl_text),
-        "t_start": info["t_start"], "t_end": info["t_end"],
-    })
-    if interaction is not None:
-        out.insert(7, "interaction", interaction)
-    for col in (*GLITCH_COLUMNS, *IDENTIFYING_COLUMNS):
-        if col in info.columns:
-            out[col] = info[col]
-    return out
-
 
 def _label_table(info: pd.DataFrame, levels: tuple[str, ...], lat: list, lon: list,
                  interaction: pd.Series | None = None) -> pd.DataFrame:
-    """The label tables of several ``levels`` as one, built once: :func:`_label_frame` of
-    each level (``lat``, ``lon``: each level's sequences, Arrow string arrays (S,)), the
-    levels of a segment together in the order given."""
+    """The label table (SPEC section 1) at one or more ``levels``, built once: a row per
+    segment of ``info`` and level (the levels of a segment together, in the order given),
+    its lateral and longitudinal sequences (``lat``, ``lon``: each level's Arrow string
+    arrays, (S,)) and, with the interaction axis, its relations."""
     n, k = len(info), len(levels)
-    order = pa.array((np.arange(k)[None, :] * n + np.arange(n)[:, None]).ravel())
-    rows = np.repeat(np.arange(n), k)
 
-    def joined(sequences: list) -> pa.ChunkedArray:
+    def joined(sequences: list) -> pa.Array | pa.ChunkedArray:
+        if k == 1:
+            return sequences[0]
         chunks = [c for a in sequences
                   for c in (a.chunks if isinstance(a, pa.ChunkedArray) else [a])]
+        order = pa.array((np.arange(k)[None, :] * n + np.arange(n)[:, None]).ravel())
         return pa.chunked_array(chunks, type=pa.string()).take(order)
 
     lateral, longitudinal = joined(lat), joined(lon)
     sdl_text = pc.binary_join_element_wise(lateral, longitudinal, sdl.SDL_SEPARATOR)
-    per_row = info.take(rows).reset_index(drop=True)
+    rows = np.repeat(np.arange(n), k)
+    per_row = info if k == 1 else info.take(rows).reset_index(drop=True)
     columns: dict[str, object] = {
         "scenario_id": per_row["scenario_id"], "track_id": per_row["track_id"],
         "segment": per_row["segment"],
@@ -315,7 +290,8 @@ def _label_table(info: pd.DataFrame, levels: tuple[str, ...], lat: list, lon: li
         "sdl": _strings(sdl_text),
     }
     if interaction is not None:
-        columns["interaction"] = interaction.take(rows).reset_index(drop=True)
+        columns["interaction"] = (interaction if k == 1
+                                  else interaction.take(rows).reset_index(drop=True))
     columns.update(t_start=per_row["t_start"], t_end=per_row["t_end"])
     for col in (*GLITCH_COLUMNS, *IDENTIFYING_COLUMNS):
         if col in info.columns:
@@ -494,9 +470,6 @@ class TapParts:
                                     type=pa.string())
 
         levels = sdl.levels(level)
-        if len(levels) == 1:
-            return _label_frame(info, levels[0], sequences(levels[0], "lateral"),
-                                sequences(levels[0], "longitudinal"))
         return _label_table(info, levels, [sequences(lv, "lateral") for lv in levels],
                             [sequences(lv, "longitudinal") for lv in levels])
 
