@@ -115,3 +115,20 @@ def test_a_widened_interval_of_a_rate_stays_within_the_scores_range():
             assert 0.0 <= interval.low <= interval.estimate <= interval.high <= 1.0
     out = stratified_bootstrap(scores, mean_score, rng=rng(), unit="run")
     assert out.low == 0.0 and out.high > out.estimate
+
+
+def test_intervals_of_generated_scores_stay_within_their_range():
+    # generated agents: 2-6 seeds x 1-10 scenes, rare and common at-fault rates (0/1 scores)
+    # and progress-like scores in [0, 1], both resampling units, both batched statistics
+    gen = np.random.default_rng(7)
+    for case in range(40):
+        shape = (int(gen.integers(2, 7)), int(gen.integers(1, 11)))
+        if case % 2:
+            scores = (gen.random(shape) < gen.choice([0.02, 0.1, 0.5, 0.95])).astype(float)
+        else:
+            scores = np.clip(gen.normal(gen.random(), 0.3, shape), 0.0, 1.0)
+        for unit in ("task", "run"):
+            for statistic in (iqm, mean_score):
+                out = stratified_bootstrap(scores, statistic, rng=np.random.default_rng(case),
+                                           n_resamples=200, unit=unit)
+                assert scores.min() <= out.low <= out.high <= scores.max(), (case, unit)
