@@ -21,11 +21,19 @@ tasks, and whole seeds resampled), and, for every policy and for the first's dif
 each, over the scenes (whole scenes with all their drivers and seeds resampled, the same draws
 for every policy, widened by sqrt(G / (G - 1)) for G scenes): whether the scenes driven
 separate the policies.
+``--episodes CSV ...`` reads the episodes of earlier runs (their ``--out`` tables, joined)
+in place of driving (``--womd`` is then not needed, ``--scenes`` keeps some scenes only).
+``--cross NAME=A0,A1+B0,B1`` pools a cross-fitted agent: each fold (``+`` between folds,
+its seeds in order) drove only the scenes it did not train on; run k of NAME is the k-th
+seed of every fold, relabelled ``NAME#k``, and NAME is the first pool (:func:`cross_fitted`).
 
 Usage: python benchmarks/agents_validation.py --womd FILES --scenes 2,5,10,14
        --policies sel-all.zip sel-sdc.zip lane-keeping random [--out eps.csv]
        [--intervals]
        [--pool ppo-womd=ppo-womd-split-seed0,ppo-womd-split-seed1,ppo-womd-split-seed2,ppo-womd-split-seed3,ppo-womd-split-seed4]
+       python benchmarks/agents_validation.py --episodes folda.csv foldb.csv
+       --policies lane-keeping random idm --intervals
+       --cross ppo-womd-xfit=ppo-womd-split-seed0,ppo-womd-split-seed1+ppo-womd-foldb-seed0,ppo-womd-foldb-seed1
 """  # noqa: E501
 
 from __future__ import annotations
@@ -39,7 +47,7 @@ import pandas as pd
 from machine import report
 
 from tap_bench.rl.heldout import drivers
-from tap_bench.sim.policies import Policy, load_policy
+from tap_bench.sim.policies import Policy, get_definition, load_policy
 from tap_bench.sim.rollout import policy_overrides, run_episode
 from tap_bench.sim.womd_env import WomdEnv
 from tap_bench.sim.womd_scene import WomdScenes
@@ -79,6 +87,54 @@ def episodes(files: list[str], scenes: list[int], policies: list[str]) -> pd.Dat
                                  "layer_foreseen": layer.foreseen}
                                 if layer is not None else {})})
     return pd.DataFrame(rows)
+
+
+def read_episodes(paths: list[str], scenes: list[int] | None = None) -> pd.DataFrame:
+    """The episode tables ``paths`` (this script's ``--out``) joined, on ``scenes`` only if
+    given; refuses a (policy, scene, track) episode found twice."""
+    eps = pd.concat([pd.read_csv(p, dtype={"track": str}) for p in paths], ignore_index=True)
+    if scenes is not None:
+        eps = eps[eps["scene"].isin(scenes)].reset_index(drop=True)
+    twice = eps.duplicated(["policy", "scene", "track"])
+    if twice.any():
+        first = eps[twice].iloc[0]
+        raise ValueError(f"{first['policy']} drove scene {first['scene']}, track "
+                         f"{first['track']} more than once in {paths}")
+    return eps
+
+
+def cross_fitted(eps: pd.DataFrame, name: str, folds: list[list[str]],
+                 held_out: dict[str, list[int]] | None = None
+                 ) -> tuple[pd.DataFrame, list[str]]:
+    """``eps`` with the runs of a cross-fitted agent added: run k (policy ``name#k``) is
+    the episodes of the k-th policy of every fold of ``folds`` (each fold: one model per
+    training seed, in seed order), and the run names. Each fold's policies must have driven
+    the same scenes and no other fold's (a driver is driven once per run), and, where
+    ``held_out`` gives a policy's held-out scenes, none of the scenes it trained on."""
+    if len({len(fold) for fold in folds}) != 1:
+        raise ValueError(f"--cross {name}: the folds have {[len(f) for f in folds]} seeds; "
+                         "give each fold the same number")
+    seen: dict[int, int] = {}
+    for f, fold in enumerate(folds):
+        driven = [set(eps.loc[eps["policy"] == p, "scene"]) for p in fold]
+        if not driven[0] or any(d != driven[0] for d in driven):
+            raise ValueError(f"--cross {name}: the seeds of fold {f} ({fold}) did not all "
+                             f"drive the same scenes: {[sorted(d) for d in driven]}")
+        for policy in fold:
+            seen_here = set(eps.loc[eps["policy"] == policy, "scene"])
+            trained = seen_here - set((held_out or {}).get(policy, seen_here))
+            if trained:
+                raise ValueError(f"--cross {name}: {policy} drove scenes it trained on: "
+                                 f"{sorted(trained)}")
+        both = {s: seen[s] for s in driven[0] if s in seen}
+        if both:
+            raise ValueError(f"--cross {name}: scenes {sorted(both)} driven by folds "
+                             f"{sorted(set(both.values()))} and {f}")
+        seen.update(dict.fromkeys(driven[0], f))
+    runs = [f"{name}#{k}" for k in range(len(folds[0]))]
+    added = [eps[eps["policy"].isin([fold[k] for fold in folds])].assign(policy=run)
+             for k, run in enumerate(runs)]
+    return pd.concat([eps, *added], ignore_index=True), runs
 
 
 def _p_better(first: pd.DataFrame, mine: pd.DataFrame, column: str, sign: float) -> float:
@@ -210,16 +266,23 @@ def scene_intervals(eps: pd.DataFrame, groups: dict[str, list[str]], lead: str, 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--womd", nargs="+", required=True)
-    parser.add_argument("--scenes", required=True, help="validation scene indexes, 2,5,10")
+    parser.add_argument("--womd", nargs="+")
+    parser.add_argument("--scenes", help="validation scene indexes, 2,5,10 (with "
+                        "--episodes: all the tables' scenes if not given)")
     parser.add_argument("--policies", nargs="+", required=True)
+    parser.add_argument("--episodes", nargs="+", metavar="CSV",
+                        help="read these runs' episode tables (--out) instead of driving")
+    parser.add_argument("--cross", nargs="+", default=[], metavar="NAME=A0,A1+B0,B1",
+                        help="a cross-fitted agent: folds by +, each fold's seeds by ,")
     parser.add_argument("--out", help="write the episodes there (CSV)")
     parser.add_argument("--pool", nargs="+", default=[], metavar="NAME=P1,P2",
                         help="a row for the episodes of several policies together")
     parser.add_argument("--intervals", action="store_true",
                         help="95%% intervals over the first pool's seeds and over the scenes")
     args = parser.parse_args()
-    scenes = [int(s) for s in args.scenes.split(",")]
+    if not args.episodes and not (args.womd and args.scenes):
+        parser.error("give --womd and --scenes to drive, or --episodes to read runs")
+    scenes = [int(s) for s in args.scenes.split(",")] if args.scenes else None
     pools = {}
     for item in args.pool:
         name, _, members = item.partition("=")
@@ -229,16 +292,33 @@ def main() -> None:
             parser.error(f"--pool {item}: write NAME=P1,P2 with policies of --policies "
                          f"(not in them: {sorted(unknown)})")
     start, cpu = time.perf_counter(), time.process_time()
-    eps = episodes(args.womd, scenes, args.policies)
-    table = summary(eps, args.policies, pools)
+    if args.episodes:
+        eps = read_episodes(args.episodes, scenes)
+        scenes = sorted(int(s) for s in eps["scene"].unique())
+        missing = set(args.policies) - set(eps["policy"])
+        if missing:
+            parser.error(f"--policies {sorted(missing)} not in the tables {args.episodes}")
+    else:
+        eps = episodes(args.womd, scenes, args.policies)
+    judged, runs, crossed = eps, [], {}
+    for item in args.cross:
+        name, _, spec = item.partition("=")
+        folds = [fold.split(",") for fold in spec.split("+")]
+        held_out = {p: list(get_definition(p).params.get("held_out_scenes") or scenes)
+                    for fold in folds for p in fold}
+        judged, named = cross_fitted(judged, name, folds, held_out)
+        crossed[name] = named
+        runs += named
+    pools = {**crossed, **pools}
+    table = summary(judged, args.policies + runs, pools)
     with pd.option_context("display.width", 200, "display.max_columns", 20):
         print(table.round(3).to_string(index=False))
     extra = {}
     if args.intervals:
         groups = {**pools, **{name: [name] for name in args.policies}}
         lead = next(iter(pools)) if pools else args.policies[0]
-        seeds = seed_intervals(eps, groups[lead])
-        scenes_table = scene_intervals(eps, groups, lead)
+        seeds = seed_intervals(judged, groups[lead])
+        scenes_table = scene_intervals(judged, groups, lead)
         with pd.option_context("display.width", 250, "display.max_columns", 20):
             print(f"{lead} over its seeds:", {k: round(v, 3) for k, v in seeds.items()})
             print(f"over the {len(scenes)} scenes ({lead}'s differences from each: d_):")

@@ -92,3 +92,80 @@ def test_scene_intervals_of_an_at_fault_rate_stay_within_0_and_1():
     assert (table["at_fault_low"] >= 0.0).all() and (table["at_fault_high"] <= 1.0).all()
     assert table.loc["b", "at_fault_high"] > 0.125 > table.loc["b", "at_fault_low"]
     assert table.loc["b", "d_at_fault_low"] < -0.125 < table.loc["b", "d_at_fault_high"]
+
+
+def _fold_episodes() -> pd.DataFrame:
+    """Fold A's seeds a0, a1 on scenes 0, 1, fold B's b0, b1 on scenes 2, 3, baseline ``c``
+    on all four; two drivers a scene; progress 0.9 / 0.7 (a), 0.5 / 0.3 (b), 0.2 (c)."""
+    rows = []
+    for scene in range(4):
+        fold = ("a0", "a1") if scene < 2 else ("b0", "b1")
+        progress = (0.9, 0.7) if scene < 2 else (0.5, 0.3)
+        for track in ("1", "2"):
+            for policy, value in (*zip(fold, progress, strict=True), ("c", 0.2)):
+                rows.append({"policy": policy, "scene": scene, "track": track, "status": "ok",
+                             "route_progress": value, "crash_at_fault": policy == "c",
+                             "off_road": False})
+    return pd.DataFrame(rows)
+
+
+def test_a_cross_fitted_run_is_the_same_seed_of_every_fold_on_its_held_out_scenes():
+    eps, runs = agents_validation.cross_fitted(_fold_episodes(), "x", [["a0", "a1"],
+                                                                       ["b0", "b1"]])
+    assert runs == ["x#0", "x#1"]
+    run0 = eps[eps["policy"] == "x#0"]
+    assert sorted(run0["scene"]) == [0, 0, 1, 1, 2, 2, 3, 3]
+    assert sorted(run0["route_progress"]) == [0.5] * 4 + [0.9] * 4
+    table = agents_validation.summary(eps, ["c", *runs], {"x": runs}).set_index("policy")
+    assert table.loc["x", "episodes"] == 16 and table.loc["c", "P(x further)"] == 1.0
+    assert table.loc["c", "P(x fewer at fault)"] == 1.0
+    seeds = agents_validation.seed_intervals(eps, runs, n_resamples=100)
+    assert seeds["iqm"] == pytest.approx(0.6)  # 0.3, 0.5, 0.7, 0.9 over 16: the middle half
+
+
+@pytest.mark.parametrize("folds, held_out, message", [
+    ([["a0", "a1"], ["b0"]], None, "same number"),
+    ([["a0", "b1"], ["b0", "a1"]], None, "did not all drive the same scenes"),
+    ([["a0", "a1"], ["c", "c"]], None, "driven by folds"),
+    ([["a0", "a1"], ["b0", "b1"]], {"a1": [1, 2]}, "drove scenes it trained on: [0]"),
+])
+def test_cross_fitting_refuses_a_driver_seen_twice_or_by_a_model_trained_on_it(
+        folds, held_out, message):
+    with pytest.raises(ValueError, match=message.replace("[", r"\[").replace("]", r"\]")):
+        agents_validation.cross_fitted(_fold_episodes(), "x", folds, held_out)
+
+
+def test_runs_read_back_from_their_tables_join_and_refuse_an_episode_twice(tmp_path):
+    eps = _fold_episodes()
+    eps.iloc[:12].to_csv(tmp_path / "one.csv", index=False)
+    eps.iloc[12:].to_csv(tmp_path / "two.csv", index=False)
+    joined = agents_validation.read_episodes([str(tmp_path / "one.csv"),
+                                              str(tmp_path / "two.csv")])
+    pd.testing.assert_frame_equal(joined, eps)
+    assert set(agents_validation.read_episodes([str(tmp_path / "two.csv")], [3])["scene"]) == {3}
+    with pytest.raises(ValueError, match="more than once"):
+        agents_validation.read_episodes([str(tmp_path / "one.csv")] * 2)
+
+
+def test_the_cross_fitted_verdict_reads_tables_and_the_models_held_out_scenes(
+        tmp_path, monkeypatch, capsys):
+    """From the command line: the folds' held-out scenes come from their definitions
+    (ppo-womd-split-seed*: held out 1, 2, ...; ppo-womd-seed*: 6, 9, ...)."""
+    eps = _fold_episodes().replace({"a0": "ppo-womd-split-seed0", "a1": "ppo-womd-split-seed1",
+                                    "b0": "ppo-womd-seed0", "b1": "ppo-womd-seed1"})
+    eps["scene"] = eps["scene"].map({0: 1, 1: 2, 2: 6, 3: 9})
+    eps.to_csv(tmp_path / "eps.csv", index=False)
+    reported = {}
+    monkeypatch.setattr(agents_validation, "report", lambda name, figures: reported.update(figures))
+    cross = ("x=ppo-womd-split-seed0,ppo-womd-split-seed1+ppo-womd-seed0,ppo-womd-seed1")
+    monkeypatch.setattr(sys, "argv", ["agents_validation.py", "--episodes",
+                                      str(tmp_path / "eps.csv"), "--policies", "c",
+                                      "--cross", cross, "--intervals"])
+    agents_validation.main()
+    assert reported["scenes"] == [1, 2, 6, 9] and "over the 4 scenes" in capsys.readouterr().out
+    rows = {row["policy"]: row for row in reported["scene_intervals"]}
+    assert rows["x"]["iqm"] == pytest.approx(0.6) and rows["c"]["d_at_fault"] == -1.0
+    eps.loc[eps["scene"] == 1, "scene"] = 0  # a scene the split seeds trained on
+    eps.to_csv(tmp_path / "eps.csv", index=False)
+    with pytest.raises(ValueError, match="trained on: \\[0\\]"):
+        agents_validation.main()
