@@ -24,6 +24,11 @@ B = "Left Merge | Accelerate"
 C = "Right Turn | Decelerate > Stopped"
 
 
+def _coverage_stream(reference, config=None):
+    """coverage()'s stream in these tests: ("coverage", the reference's description)."""
+    return (config or BootstrapConfig()).rng("coverage", reference.description)
+
+
 def ref_table(labels: list[str]) -> pd.DataFrame:
     return pd.DataFrame({"scenario_id": [f"s{i}" for i in range(len(labels))],
                          "track_id": "1", "sdl": labels, "object_type": "vehicle"})
@@ -45,7 +50,7 @@ def test_corpus_reference_keeps_vehicles_only():
 def test_coverage_by_hand():
     # reference A x3, B x1; the agent shows A once and C twice
     ref = corpus_reference(ref_table([A, A, A, B]), "maneuver")
-    result = coverage(pd.Series([A, C, C]), ref)
+    result = coverage(pd.Series([A, C, C]), ref, rng=_coverage_stream(ref))
     assert result.coverage == pytest.approx(1 / 2)  # A of {A, B}
     assert result.weighted_coverage == pytest.approx(0.75)  # A's weight
     assert result.covered == (A,) and result.missed == (B,)
@@ -55,7 +60,7 @@ def test_coverage_by_hand():
 
 def test_full_coverage_and_nothing_missed():
     ref = corpus_reference(ref_table([A, B]), "maneuver")
-    result = coverage(pd.Series([A, B, A, B]), ref)
+    result = coverage(pd.Series([A, B, A, B]), ref, rng=_coverage_stream(ref))
     assert result.coverage == 1.0 and result.weighted_coverage == 1.0 and result.missed == ()
 
 
@@ -64,7 +69,7 @@ def test_vocabulary_coverage_counts_single_labels_and_matches_the_training_signa
     # maneuver vocabulary: 5 lateral + 5 longitudinal single labels (Reversing, SPEC 4.6)
     assert len(ref) == 10
     labels = [A, B, "Straight > Left Merge | Maintain Speed > Accelerate"]
-    result = coverage(pd.Series(labels), ref)
+    result = coverage(pd.Series(labels), ref, rng=_coverage_stream(ref))
     # Straight, Left Merge, Maintain Speed, Accelerate: 4 of 10
     assert result.coverage == pytest.approx(4 / 10)
     assert result.coverage == pytest.approx(label_coverage(labels, level="maneuver"))
@@ -138,7 +143,8 @@ def test_coverage_interval_rate_on_a_zipf_label_distribution():
     for r in range(reps):
         rng = np.random.default_rng(r)
         labels = items[rng.choice(K, n, p=p)]
-        res = coverage(labels, ref, config=BootstrapConfig(n_resamples=500, seed=r))
+        res = coverage(labels, ref, config=BootstrapConfig(n_resamples=500, seed=r),
+                       rng=_coverage_stream(ref, BootstrapConfig(seed=r)))
         hits += res.coverage_low <= truth <= res.coverage_high
     print(f"coverage interval (augmented bootstrap), K={K}, n={n}: {hits / reps:.3f} "
           "(nominal 0.95)")
@@ -186,8 +192,8 @@ def test_windows_that_copy_their_episode_give_the_episodes_interval():
     episodes = np.array([f"e{g}" for g in range(G)], dtype=object)
     copies, of = np.repeat(one, k), np.repeat(episodes, k)
     config = BootstrapConfig(n_resamples=1000, seed=3)
-    base = coverage(one, ref, config=config, clusters=episodes)
-    windows = coverage(copies, ref, config=config, clusters=of)
+    base = coverage(one, ref, config=config, clusters=episodes, rng=_coverage_stream(ref, config))
+    windows = coverage(copies, ref, config=config, clusters=of, rng=_coverage_stream(ref, config))
     assert windows.n == G * k and base.n == G
     assert (windows.coverage, windows.weighted_coverage) == (base.coverage,
                                                             base.weighted_coverage)
@@ -196,11 +202,11 @@ def test_windows_that_copy_their_episode_give_the_episodes_interval():
                                                               getattr(base, b))
     np.testing.assert_array_equal(windows.draws, base.draws)
     # as wide as the interval of the G episodes drawn as independent labels (within 25 %)
-    iid = coverage(one, ref, config=config)
+    iid = coverage(one, ref, config=config, rng=_coverage_stream(ref, config))
     width = base.coverage_high - base.coverage_low
     assert width >= 0.75 * (iid.coverage_high - iid.coverage_low)
     # the windows drawn as independent episodes: too narrow (the old interval)
-    naive = coverage(copies, ref, config=config)
+    naive = coverage(copies, ref, config=config, rng=_coverage_stream(ref, config))
     assert naive.coverage_high - naive.coverage_low < 0.75 * width
 
 
@@ -215,13 +221,14 @@ def test_windows_of_one_episode_are_drawn_together():
                        "corpus", "maneuver", "x")
     labels = np.array([v for pair in zip(xs, ys, strict=True) for v in pair], dtype=object)
     of = np.repeat([f"e{g}" for g in range(G)], 2).astype(object)
-    res = coverage(labels, x_only, config=BootstrapConfig(n_resamples=500), clusters=of)
+    res = coverage(labels, x_only, config=BootstrapConfig(n_resamples=500), clusters=of,
+                   rng=_coverage_stream(x_only))
     # the coverage draw counts X and Y (1/K each); the weighted one X only (1/G each)
     shown = res.draws[:, 0] * len(items)
     x_shown = res.draws[:, 1] * G
     assert np.allclose(shown, 2 * x_shown)
     with pytest.raises(LabelTableError, match="clusters"):
-        coverage(labels, x_only, clusters=of[:-1])
+        coverage(labels, x_only, clusters=of[:-1], rng=_coverage_stream(x_only))
 
 
 def test_scoring_windows_resamples_their_episodes():
@@ -262,3 +269,19 @@ def test_windowed_scoring_names_the_missing_cut_from_column(scorer):
         else:
             reference_scores(eps, ref, "syn", config=BootstrapConfig(n_resamples=100),
                              windowed=True)
+
+
+def test_coverage_diversity_and_the_null_draw_from_the_stream_their_caller_names():
+    """No default stream: the caller names each one (``("coverage", env, policy,
+    reference)``), so a metric never draws from a stream named for it elsewhere."""
+    import inspect
+
+    from tap_bench.bench.scores.diversity import diversity
+    from tap_bench.bench.scores.null import same_policy_null
+
+    for metric in (coverage, diversity, same_policy_null):
+        rng = inspect.signature(metric).parameters["rng"]
+        assert rng.default is inspect.Parameter.empty and rng.kind is rng.KEYWORD_ONLY
+    ref = corpus_reference(ref_table([A, B]), "maneuver")
+    with pytest.raises(TypeError, match="rng"):
+        coverage(pd.Series([A]), ref)

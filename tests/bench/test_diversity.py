@@ -26,6 +26,11 @@ from tap_bench.stats.intervals import studentized_interval
 GIRDLED = np.array([46, 22, 17, 15, 15, 9, 8, 6, 6, 4, 2, 2, 2, 2] + [1] * 12)
 
 
+def _diversity_stream(config=None):
+    """diversity()'s stream in these tests: ("diversity",)."""
+    return (config or BootstrapConfig()).rng("diversity")
+
+
 def test_girdled_matches_inext_published_values():
     # iNEXT (Hsieh, Ma & Chao 2016) README, AsyEst and DataInfo of spider$Girdled:
     # n 168, S.obs 26, SC 0.9289; richness 26 -> 43.893, Shannon 12.060 -> 13.826,
@@ -70,7 +75,8 @@ def test_incidence_population_uses_singletons_over_sampling_units():
 
 def test_all_distinct_labels_are_at_least_not_a_number():
     # 12 distinct of 12: the old Chao-Shen printed 7.45 bits; completeness 0.016 here
-    d = diversity([f"L{i}" for i in range(12)], config=BootstrapConfig(n_resamples=200))
+    d = diversity([f"L{i}" for i in range(12)], config=BootstrapConfig(n_resamples=200),
+                  rng=_diversity_stream())
     assert d.completeness < 0.05 and d.asymptote_is_bound
     assert d.asymptote == pytest.approx([12, 12, 12])  # "at least" the sample's
     assert d.hill == pytest.approx([12, 12, 12])
@@ -78,7 +84,8 @@ def test_all_distinct_labels_are_at_least_not_a_number():
 
 
 def test_extrapolating_far_beyond_the_sample_is_a_lower_bound():
-    d = diversity(["a", "a", "b", "c"], size=20, config=BootstrapConfig(n_resamples=200))
+    d = diversity(["a", "a", "b", "c"], size=20, config=BootstrapConfig(n_resamples=200),
+                  rng=_diversity_stream())
     assert d.method == "extrapolated" and d.hill_is_bound
     assert d.hill == pytest.approx(hill_numbers(np.array([2, 1, 1]), 4))
     assert np.isnan(d.hill_high).all()
@@ -97,7 +104,7 @@ def test_policies_compare_at_a_common_size():
 
 
 def test_one_label_only_still_has_an_interval():
-    d = diversity(["a"] * 30, config=BootstrapConfig(n_resamples=200))
+    d = diversity(["a"] * 30, config=BootstrapConfig(n_resamples=200), rng=_diversity_stream())
     assert d.hill == pytest.approx([1, 1, 1]) and d.completeness == 1.0
     assert (d.hill_high > d.hill).all() and d.completeness_low < 1.0
 
@@ -163,7 +170,7 @@ def test_completeness_standard_error_is_estys():
     assert completeness_se(np.array([[6, 4, 3, 2, 2, 1, 1, 1], [10, 5, 5, 0, 0, 0, 0, 0]])
                            ) == pytest.approx([completeness_se(counts), 1 / 20])
     labels = [f"L{i}" for i, c in enumerate(counts) for _ in range(c)]
-    d = diversity(labels, config=BootstrapConfig(n_resamples=500))
+    d = diversity(labels, config=BootstrapConfig(n_resamples=500), rng=_diversity_stream())
     assert 0 <= d.completeness_low < d.completeness < d.completeness_high <= 1
 
 
@@ -171,7 +178,7 @@ def test_hill_intervals_are_not_symmetric_and_stay_in_range():
     # studentized: the interval follows the skew of the error (q2 = 1 / concentration is
     # right-skewed), never the symmetric +- z sd of iNEXT, and stays within [1, m]
     labels = ["a"] * 4 + ["b"] * 3 + ["c"] * 2 + ["d", "e", "f"]
-    d = diversity(labels, config=BootstrapConfig(n_resamples=2000))
+    d = diversity(labels, config=BootstrapConfig(n_resamples=2000), rng=_diversity_stream())
     assert (d.hill_low < d.hill).all() and (d.hill < d.hill_high).all()
     assert d.hill_high[2] - d.hill[2] > 1.2 * (d.hill[2] - d.hill_low[2])
     assert (d.hill_high <= len(labels)).all() and (d.hill_low >= 1).all()
@@ -195,14 +202,14 @@ def test_estimates_that_rise_with_q_are_flagged_and_their_intervals_widened():
     # 1 / (1/20 + 0.95 * 16 / 156) = 6.78 > 6 (by hand)
     from tap_bench.bench.scores.diversity import diversity
     labels = [f"L{i}" for i in range(5) for _ in range(2)] + ["L5"] * 3
-    d = diversity(labels, size=20)
+    d = diversity(labels, size=20, rng=_diversity_stream())
     assert d.hill[0] == pytest.approx(6.0) and d.hill[2] == pytest.approx(6.78, abs=0.01)
     assert d.hill_order_broken and d.row()["hill_order_broken"]
     for j in (0, 2):  # both intervals hold both estimates
         assert d.hill_low[j] <= min(d.hill[0], d.hill[2])
         assert d.hill_high[j] >= max(d.hill[0], d.hill[2])
     # a sample whose estimates are in order is not flagged
-    ok = diversity(["a"] * 5 + ["b"] * 3 + ["c"] * 2 + ["d", "e"])
+    ok = diversity(["a"] * 5 + ["b"] * 3 + ["c"] * 2 + ["d", "e"], rng=_diversity_stream())
     assert not ok.hill_order_broken
     assert ok.hill[0] >= ok.hill[1] >= ok.hill[2]
 

@@ -20,6 +20,16 @@ B = "Straight > Left Merge > Straight | Accelerate"
 C = "Right Turn | Decelerate > Stopped"
 
 
+def _coverage_stream(reference, config=None):
+    """coverage()'s stream in these tests: ("coverage", the reference's description)."""
+    return (config or BootstrapConfig()).rng("coverage", reference.description)
+
+
+def _null_stream(reference, config=None):
+    """same_policy_null()'s stream in these tests: ("null", the reference's description)."""
+    return (config or BootstrapConfig()).rng("null", reference.description)
+
+
 def rollouts(labels: list[str], policy: str = "idm", env: str = "highway") -> pd.DataFrame:
     return pd.DataFrame({"env": env, "policy": policy, "seed": np.arange(len(labels)),
                          "scenario_id": [f"{policy}/{i}" for i in range(len(labels))],
@@ -54,7 +64,7 @@ def test_segment_items_and_reference_weights():
     assert (result.n, result.n_novel) == (2, 1)
     assert set(result.labels["label"]) == {"lateral: Right Turn", "longitudinal: Decelerate",
                                            "longitudinal: Stopped"}
-    cov = coverage(episodes["sdl"], ref)
+    cov = coverage(episodes["sdl"], ref, rng=_coverage_stream(ref))
     assert cov.coverage == pytest.approx(2 / 4)  # Straight and Accelerate of 4
     assert cov.weighted_coverage == pytest.approx(4 / 6)
 
@@ -67,14 +77,15 @@ def test_a_policy_like_its_reference_sits_on_the_null_and_one_that_differs_does_
                            .assign(level="maneuver"), "maneuver", tracks="all")
     config = BootstrapConfig(n_resamples=500)
     # the reference policy itself on the same seeds: its halves are the null exactly
-    same = same_policy_null(ref.units, ref, seeds=ref.seeds, config=config)
+    same = same_policy_null(ref.units, ref, seeds=ref.seeds, config=config,
+                            rng=_null_stream(ref, config))
     assert same.paired and same.m == 20
     assert same.coverage == pytest.approx(same.null_coverage)
     assert same.coverage_diff == pytest.approx(0) and same.novel_diff == pytest.approx(0)
     assert same.coverage_diff_low < 0 < same.coverage_diff_high  # never zero-width
     # a policy whose labels the reference never shows
     new = same_policy_null(np.array(["Z | X"] * 40, object), ref, seeds=ref.seeds,
-                           config=config)
+                           config=config, rng=_null_stream(ref, config))
     assert new.coverage == 0 and new.novel_rate == 1
     assert new.coverage_diff == pytest.approx(-new.null_coverage)
     assert new.novel_diff == pytest.approx(1 - new.null_novel_rate)
@@ -86,7 +97,8 @@ def test_unpaired_null_takes_the_policy_at_the_half_size():
     ref = corpus_reference(rollouts([A] * 10 + [B] * 10).drop(columns="seed")
                            .assign(level="maneuver"), "maneuver", tracks="all")
     assert ref.seeds is None
-    result = same_policy_null(np.array([A] * 4, object), ref, seeds=np.arange(4))
+    result = same_policy_null(np.array([A] * 4, object), ref, seeds=np.arange(4),
+                              rng=_null_stream(ref))
     assert not result.paired and result.m == 4  # 4 episodes: halves of 10 cut to 4
     assert result.null_novel_rate == 0 and result.novel_rate == 0
 
@@ -94,7 +106,8 @@ def test_unpaired_null_takes_the_policy_at_the_half_size():
 def test_draws_that_cannot_move_give_a_wilson_wide_interval():
     ref = corpus_reference(rollouts([A] * 12).assign(level="maneuver"), "maneuver",
                            tracks="all")
-    result = same_policy_null(np.array([A] * 12, object), ref, seeds=np.arange(12))
+    result = same_policy_null(np.array([A] * 12, object), ref, seeds=np.arange(12),
+                              rng=_null_stream(ref))
     assert result.coverage_diff == 0 and result.novel_diff == 0
     assert result.coverage_diff_low < 0 < result.coverage_diff_high
     assert result.coverage_diff_high == pytest.approx(0.39, abs=0.01)  # Wilson 0 of 6
@@ -114,7 +127,8 @@ def test_null_interval_holds_the_true_difference_in_simulation():
         ref = Reference(np.zeros(0, object), np.zeros(0), "corpus", "maneuver", "r",
                         n_trajectories=30, units=units)
         res = same_policy_null(names[rng.choice(K, 30, p=p)], ref,
-                               config=BootstrapConfig(n_resamples=300, seed=r))
+                               config=BootstrapConfig(n_resamples=300, seed=r),
+                               rng=_null_stream(ref, BootstrapConfig(seed=r)))
         hits += res.novel_diff_low <= 0 <= res.novel_diff_high
     assert hits / reps >= 0.88
 
@@ -188,7 +202,8 @@ def test_an_env_whose_reference_is_too_small_for_halves_is_left_out_of_the_poole
 def test_rollouts_on_other_seeds_are_held_against_the_null_unpaired():
     ref = corpus_reference(rollouts([A, B] * 6).assign(level="maneuver"), "maneuver",
                            tracks="all")
-    result = same_policy_null(np.array([A, C] * 3, object), ref, seeds=np.arange(100, 106))
+    result = same_policy_null(np.array([A, C] * 3, object), ref, seeds=np.arange(100, 106),
+                              rng=_null_stream(ref))
     assert not result.paired and result.m == 6 and np.isfinite(result.novel_diff)
 
 
@@ -286,9 +301,9 @@ def test_a_corpus_of_scenes_is_resampled_by_whole_scenes():
     assert alone.scenes is None  # one trajectory a scene: nothing to keep together
     policy = np.full(30, "L0 | X", object)
     config = BootstrapConfig(n_resamples=1000, seed=0)
-    by_scene = same_policy_null(policy, ref, config=config)
+    by_scene = same_policy_null(policy, ref, config=config, rng=_null_stream(ref, config))
     by_track = same_policy_null(policy, Reference(**{**ref.__dict__, "scenes": None}),
-                                config=config)
+                                config=config, rng=_null_stream(ref, config))
     assert by_scene.coverage_diff == by_track.coverage_diff == pytest.approx(-0.5)
     _, u = wilson_interval(0, 30, 0.95)
     assert (by_track.coverage_diff_low, by_track.coverage_diff_high) == pytest.approx(

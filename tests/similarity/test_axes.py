@@ -86,8 +86,10 @@ def test_coverage_and_novelty_on_the_interaction_axis():
                           "sdl": "Straight | Maintain Speed", "env": "e",
                           "scenario_id": ["a", "b", "c"]})
     from tap_bench.labels import label_text
+    from tap_bench.stats.bootstrap import BootstrapConfig
 
-    cv = coverage(label_text(agent, axes), ref)
+    cv = coverage(label_text(agent, axes), ref,
+                  rng=BootstrapConfig().rng("coverage", ref.description))
     assert cv.coverage == pytest.approx(2 / 3)
     nv = novelty(agent, ref, axes=axes)
     assert nv.n_novel == 1 and list(nv.labels["label"]) == [

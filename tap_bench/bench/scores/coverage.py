@@ -301,8 +301,7 @@ def _items_of(labels: np.ndarray, reference: Reference) -> list[set[str]] | np.n
 
 
 def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
-             config: BootstrapConfig | None = None,
-             rng: np.random.Generator | None = None,
+             rng: np.random.Generator, config: BootstrapConfig | None = None,
              clusters: np.ndarray | pd.Series | None = None) -> CoverageResult:
     """Coverage of ``reference`` by an agent's ego labels, with intervals.
 
@@ -310,9 +309,9 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
         labels: (n,) the agent's SDL labels, one per episode (NA labels are dropped), all
             from the env(s) the reference stands for.
         reference: a :class:`Reference` at the labels' level.
-        config: bootstrap resamples, level and seed.
-        rng: the random stream; default ``config.rng("coverage", reference.description)``
-            (callers name it by env, policy and reference).
+        config: bootstrap resamples and level.
+        rng: the random stream the draws come from, named by the caller
+            (``config.rng("coverage", env, policy, reference)``).
         clusters: (n,) the independent unit of each label, e.g. the episode each window
             was cut from (:func:`tap_bench.bench.scores.windows.window_episode`). Given, the draws
             resample whole units (:func:`tap_bench.stats.bootstrap.cluster_weights`) and a
@@ -364,7 +363,6 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
     f0 = len(p_undetected)
     n_ref_undetected = min(f0, len(missed_idx))
     w_missed = float(reference.weights[missed_idx].mean()) if len(missed_idx) else 0.0
-    rng = rng or config.rng("coverage", reference.description)
     # with units: the stream's first draws pick whole units (a cluster bootstrap), (B, G)
     picked = (None if units is None
               else cluster_weights(rng, clusters, config.n_resamples)[:, first])

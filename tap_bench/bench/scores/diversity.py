@@ -507,8 +507,8 @@ def _empty(size: int) -> DiversityResult:
                            float("nan"), float("nan"), nan3, True, np.full((0, 4), np.nan))
 
 
-def diversity(labels, *, size: int | None = None, config: BootstrapConfig | None = None,
-              rng: np.random.Generator | None = None) -> DiversityResult:
+def diversity(labels, *, rng: np.random.Generator, size: int | None = None,
+              config: BootstrapConfig | None = None) -> DiversityResult:
     """Hill numbers q = 0, 1, 2 of a policy's labels at a common sample size, completeness,
     asymptotes and intervals (module docstring).
 
@@ -516,7 +516,8 @@ def diversity(labels, *, size: int | None = None, config: BootstrapConfig | None
         labels: (n,) the policy's ego SDL labels, one per episode (NA dropped).
         size: the common sample size m; default n (the sample's own values).
         config: the level and bootstrap resamples.
-        rng: the random stream (default ``config.rng("diversity")``).
+        rng: the random stream the draws come from, named by the caller
+            (``config.rng("diversity", env, policy)``).
 
     Returns:
         :class:`DiversityResult`.
@@ -533,7 +534,6 @@ def diversity(labels, *, size: int | None = None, config: BootstrapConfig | None
     _, counts = np.unique(lab.astype(str), return_counts=True)
     hill = hill_numbers(counts, m)
     comp = float(completeness(counts))
-    rng = rng or config.rng("diversity")
     p_det, p_und = estimated_population(counts, n)
     prob = np.r_[p_det, p_und]
     prob = prob / prob.sum()

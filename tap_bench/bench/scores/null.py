@@ -223,8 +223,7 @@ def _draws(ref: np.ndarray, agent: np.ndarray, paired: bool, m: int, D: int,
 def same_policy_null(labels: np.ndarray, reference: Reference, *,
                      seeds: np.ndarray | None = None,
                      clusters: np.ndarray | None = None,
-                     config: BootstrapConfig | None = None,
-                     rng: np.random.Generator | None = None,
+                     rng: np.random.Generator, config: BootstrapConfig | None = None,
                      splits: int = SPLITS) -> NullResult:
     """A policy's coverage and novelty beside the same-policy figure of ``reference``.
 
@@ -240,8 +239,9 @@ def same_policy_null(labels: np.ndarray, reference: Reference, *,
             resampled by whole episodes (a cluster bootstrap), since the windows of one
             episode are not independent. Unpaired comparisons only (windows are never
             paired); None: each unit its own episode.
-        config: resamples, level and seed.
-        rng: the random stream (default ``config.rng("null", reference.description)``).
+        config: resamples and level.
+        rng: the random stream the splits and draws come from, named by the caller
+            (``config.rng("null", env, policy, reference, unit)``).
         splits: random splits averaged for the estimates.
 
     Returns:
@@ -249,7 +249,6 @@ def same_policy_null(labels: np.ndarray, reference: Reference, *,
         or the policy none).
     """
     config = config or BootstrapConfig()
-    rng = rng or config.rng("null", reference.description)
     lab = np.asarray(labels, dtype=object)
     units = np.asarray(reference.units, dtype=object)
     paired = seeds is not None and reference.seeds is not None
