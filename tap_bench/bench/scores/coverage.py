@@ -363,12 +363,9 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
     f0 = len(p_undetected)
     n_ref_undetected = min(f0, len(missed_idx))
     w_missed = float(reference.weights[missed_idx].mean()) if len(missed_idx) else 0.0
-    # with units: the stream's first draws pick whole units (a cluster bootstrap), (B, G)
-    picked = (None if units is None
-              else cluster_weights(rng, clusters, config.n_resamples)[:, first])
     in_ref_pop, prob, draws = _draw_population(
         rng, config.n_resamples, n, freq, in_ref, p_adj, p_undetected, n_ref_undetected,
-        reference.kind, None if units is None else (units, picked))
+        reference.kind, None if units is None else (units, clusters, first))
     w_pop = np.where(in_ref_pop, np.r_[w_item, np.full(len(prob) - len(w_item), w_missed)],
                      0.0)
     seen = draws > 0
@@ -427,7 +424,7 @@ def _shown_items(names: np.ndarray, counts: np.ndarray, reference: Reference
 def _draw_population(rng: np.random.Generator, B: int, n: int, freq: np.ndarray,
                      in_ref: np.ndarray, p_adj: np.ndarray, p_undetected: np.ndarray,
                      n_ref_undetected: int, kind: str,
-                     units: tuple[np.ndarray, np.ndarray] | None
+                     units: tuple[np.ndarray, np.ndarray, np.ndarray] | None
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``B`` samples of ``n`` units from the augmented population (the detected items and
     the undetected ones Chao1/Chao2 predicts).
@@ -442,16 +439,18 @@ def _draw_population(rng: np.random.Generator, B: int, n: int, freq: np.ndarray,
         n_ref_undetected: how many undetected items count as reference items.
         kind: the reference's kind (``corpus``: one label per episode, multinomial draws;
             else vocabulary items shown independently, binomial draws).
-        units: (incidence (G, m), (B, G) draws of each unit, :func:`tap_bench.stats.
-            bootstrap.cluster_weights`) when whole units are drawn with their items; None:
-            labels are units.
+        units: (incidence (G, m), the unit of each label (n_labels,), the index of each
+            unit's first label (G,)) when whole units are drawn with their items (a cluster
+            bootstrap, :func:`tap_bench.stats.bootstrap.cluster_weights`: the stream's first
+            draws); None: labels are units.
 
     Returns:
         (in_ref_pop, prob, draws): whether each population item is a reference item, its
         probability, and the (B, items) counts of units showing it.
     """
     if units is not None:  # whole units drawn with their items, undetected ones per unit
-        incidence, whole = units
+        incidence, clusters, first = units
+        whole = cluster_weights(rng, clusters, B)[:, first]  # (B, G) draws of each unit
         prob = np.r_[freq / n, p_undetected[:n_ref_undetected]]
         draws = np.hstack([whole @ incidence.astype(np.int64),
                            rng.binomial(n, np.clip(prob[len(freq):], 0.0, 1.0),
