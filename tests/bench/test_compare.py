@@ -165,3 +165,23 @@ def test_compare_policies_stacks_every_pair_and_lists_a_pair_with_nothing_to_pai
     assert set(out.measures["policy_a"]) == {"A"} and set(out.labels["policy_b"]) == {"B"}
     assert out.method == alone.method
     assert len(out.skipped) == 1 and out.skipped[0].startswith("C vs B: ")
+
+
+def test_scores_list_the_methods_in_report_order_the_comparisons_text_in_its_place(hand_pairs):
+    """The methods come in the report's order whichever step makes them: the paired
+    comparisons' text second (theirs, "" when nothing was compared), skipped pairs and the
+    carried tables' methods after score's own."""
+    from tap_bench.bench.scores.scoring import score
+
+    config = BootstrapConfig(n_resamples=100)
+    failed = hand_pairs[hand_pairs["policy"] == "B"].assign(policy="C", status="error")
+    eps = pd.concat([hand_pairs, failed], ignore_index=True)
+    both = score(eps, reference_policy="B", level="maneuver", config=config,
+                 methods={"contexts": "carried"})
+    alone = score(hand_pairs[hand_pairs["policy"] == "B"], reference_policy="B",
+                  level="maneuver", config=config)
+    order = ["measures", "paired", "matched", "coverage", "novelty", "same-policy null",
+             "unit", "diversity"]
+    assert list(both.methods) == [*order, "skipped comparisons", "contexts"]
+    assert both.methods["paired"] == paired_comparison(eps, "A", "B", config=config).method
+    assert list(alone.methods) == order and alone.methods["paired"] == ""

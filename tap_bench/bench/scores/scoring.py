@@ -397,29 +397,27 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
     policies = sorted(episodes["policy"].unique())
     if comparisons is None:
         comparisons = [(p, reference_policy) for p in policies if p != reference_policy]
-    compared = compare_policies(episodes, comparisons, config)
-    cov_parts, nov_parts, label_parts, refs = _reference_scores(
+    # in steps: each policy's own tables, each policy against each reference corpus, the
+    # methods, each policy's diversity, the policies against one another
+    label_counts, measures = _label_counts(episodes), policy_measures(episodes, config)
+    cov, nov, novel_labels, refs = _reference_scores(
         episodes, reference_policy=reference_policy, level=level, config=config,
         references=references, windows=windows)
-    carried = dict(methods or {})
-    methods = _methods(config, compared.method)
+    carried_methods, methods = dict(methods or {}), _methods(config)
+    diversity = diversity_table(episodes, config)
+    compared = compare_policies(episodes, comparisons, config)
+    methods["paired"] = compared.method  # in the place _methods keeps for it
     if compared.skipped:
         methods["skipped comparisons"] = "; ".join(compared.skipped)
-    methods.update(carried)
+    methods.update(carried_methods)
+    carried = {"gate_power": gate_power, "scenario_matches": scenario_matches, "gap": gap,
+               "gap_labels": gap_labels, "contexts": contexts}
     return Scores(
-        label_counts=_label_counts(episodes), measures=policy_measures(episodes, config),
-        paired=compared.paired, paired_measures=compared.measures,
-        paired_labels=compared.labels, matched=compared.matched,
-        coverage=_cat(cov_parts), novelty=_cat(nov_parts),
-        novel_labels=_cat(label_parts), diversity=diversity_table(episodes, config),
-        gate_power=_carried(gate_power), scenario_matches=_carried(scenario_matches),
-        gap=_carried(gap), gap_labels=_carried(gap_labels), contexts=_carried(contexts),
-        references=refs, methods=methods)
-
-
-def _carried(table: pd.DataFrame | None) -> pd.DataFrame:
-    """A precomputed table :func:`score` carries (an empty one for None)."""
-    return table if table is not None else pd.DataFrame()
+        label_counts=label_counts, measures=measures, paired=compared.paired,
+        paired_measures=compared.measures, paired_labels=compared.labels,
+        matched=compared.matched, coverage=cov, novelty=nov, novel_labels=novel_labels,
+        diversity=diversity, references=refs, methods=methods,
+        **{name: table for name, table in carried.items() if table is not None})
 
 
 def _cat(frames: list[pd.DataFrame]) -> pd.DataFrame:
@@ -432,10 +430,11 @@ def _reference_scores(episodes: pd.DataFrame, *, reference_policy: str, level: s
                       config: BootstrapConfig,
                       references: dict[str, pd.DataFrame] | None,
                       windows: dict[str, tuple[pd.DataFrame, str]] | None,
-                      ) -> tuple[list, list, list, dict[str, Reference]]:
-    """Coverage, novelty and novel-label tables of every policy against each reference
+                      ) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame,
+                                 dict[str, Reference]]:
+    """The coverage, novelty and novel-label tables of every policy against each reference
     (the reference policy's rollouts per env, then ``references``), per unit
-    (:data:`UNITS`); and the references by name."""
+    (:data:`UNITS`), each one under the other; and the references by name."""
     ok = _scored(episodes)
     ref_eps = ok[ok["policy"] == reference_policy]
     refs: dict[str, Reference] = {}
@@ -462,19 +461,20 @@ def _reference_scores(episodes: pd.DataFrame, *, reference_policy: str, level: s
                 scored, ref, name, config=config,
                 unit=unit if unit_name is None else f"{unit_name}, {unit}"
                 if unit == "segments" else unit_name, windowed=unit_name is not None))
-    cov_parts = [cov for cov, _, _ in parts]
-    nov_parts = [nov for _, nov, _ in parts]
-    label_parts = [lab for _, _, lab in parts]
-    return cov_parts, nov_parts, label_parts, refs
+    return (_cat([cov for cov, _, _ in parts]), _cat([nov for _, nov, _ in parts]),
+            _cat([lab for _, _, lab in parts]), refs)
 
 
-def _methods(config: BootstrapConfig, method_paired: str) -> dict[str, str]:
-    """How each table of a run's scores was computed, as the report states it."""
+def _methods(config: BootstrapConfig) -> dict[str, str]:
+    """How each table of a run's scores was computed, as the report states it, in its
+    order; the paired comparisons' text (``"paired"``) is theirs
+    (:attr:`~tap_bench.bench.scores.compare.Comparisons.method`): "" here, set by
+    :func:`score` once they are made."""
     return {
         "measures": f"{config.level:.0%} intervals over episodes, each measure's own: "
                     + "; ".join(f"{m.label}: {m.interval_method}" for m in MEASURES)
                     + "; 'all' pools every episode of the policy",
-        "paired": method_paired,
+        "paired": "",
         "matched": (f"{config.level:.0%} Welch t intervals (Newcombe score intervals for "
                     "rates: " + ", ".join(m.label for m in MEASURES if m.is_rate)
                     + ") between the episodes of each policy in a label group of one "
