@@ -61,7 +61,8 @@ def run(args: argparse.Namespace) -> int:
     from tap_bench.bench.episodes import episodes_from_table
     from tap_bench.bench.scores import windows as win
     from tap_bench.bench.scores.coverage import UNITS, corpus_reference, vocabulary_reference
-    from tap_bench.bench.scores.scoring import diversity_table, reference_scores
+    from tap_bench.bench.scores.diversity import diversity_table
+    from tap_bench.bench.scores.scoring import reference_scores
     from tap_bench.labelling import tap
     from tap_bench.labels import label_text
     from tap_bench.sdl import check_axes

@@ -13,12 +13,12 @@ from tap_bench.bench.scores.diversity import (
     completeness_se,
     distinct_variance,
     diversity,
+    diversity_table,
     estimated_population,
     hill_numbers,
     pooled_diversity,
     population_hill,
 )
-from tap_bench.bench.scores.scoring import diversity_table
 from tap_bench.stats.bootstrap import BootstrapConfig
 from tap_bench.stats.intervals import studentized_interval
 

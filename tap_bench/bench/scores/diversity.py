@@ -82,12 +82,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from tap_bench.errors import ParameterError
 from tap_bench.stats.bootstrap import BootstrapConfig
 from tap_bench.stats.intervals import studentized_interval, wilson_interval, z_value
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = [
     "MIN_COMPLETENESS",
@@ -97,6 +101,7 @@ __all__ = [
     "completeness_se",
     "distinct_variance",
     "diversity",
+    "diversity_table",
     "estimated_population",
     "hill_numbers",
     "hill_variance",
@@ -614,3 +619,37 @@ def pooled_diversity(results: list[DiversityResult], level: float) -> DiversityR
         asymptote_is_bound=any(r.asymptote_is_bound for r in results), draws=draws,
         centre=centre, se=se, draws_se=draws_se, hill_order_broken=broken,
         asymptote_order_broken=asym_broken or any(r.asymptote_order_broken for r in results))
+
+
+def diversity_table(episodes: pd.DataFrame, config: BootstrapConfig,
+                    size: int | None = None) -> pd.DataFrame:
+    """Hill numbers of every policy's ego labels per env, at the env's common sample size
+    (default: the smallest number of labelled episodes among the env's policies), and pooled
+    (``env == "all"``: the mean of the per-env figures): a row of
+    :meth:`DiversityResult.row` each, with env and policy. Streams ``("diversity", env,
+    policy)``.
+
+    Args:
+        episodes: the episode table (failed and unlabelled episodes are left out).
+        config: the level, resamples and seed.
+        size: the common sample size of every env (default: as above).
+    """
+    import pandas as pd
+
+    from tap_bench.bench.scores.compare import ALL_ENVS
+
+    ok = episodes[(episodes["status"] == "ok") & episodes["sdl"].notna()]
+    rows, per_policy = [], {}
+    for env, sub in ok.groupby("env", sort=True):
+        n_of = sub.groupby("policy").size()
+        m = size if size is not None else int(n_of.min())
+        for policy in sorted(n_of.index):
+            d = diversity(sub.loc[sub["policy"] == policy, "sdl"].to_numpy(object), size=m,
+                          config=config, rng=config.rng("diversity", env, policy))
+            per_policy.setdefault(policy, []).append(d)
+            rows.append({"env": str(env), "policy": policy, **d.row()})
+    if ok["env"].nunique() > 1:
+        for policy, results in sorted(per_policy.items()):
+            rows.append({"env": ALL_ENVS, "policy": policy,
+                         **pooled_diversity(results, config.level).row()})
+    return pd.DataFrame(rows)

@@ -24,7 +24,7 @@ from tap_bench.bench.scores.coverage import (
     coverage,
     pooled_coverage,
 )
-from tap_bench.bench.scores.diversity import MIN_COMPLETENESS, diversity, pooled_diversity
+from tap_bench.bench.scores.diversity import MIN_COMPLETENESS, diversity_table
 from tap_bench.bench.scores.novelty import novelty, pooled_novelty
 from tap_bench.bench.scores.null import SPLITS, pooled_null, same_policy_null
 from tap_bench.bench.scores.windows import CUT_FROM
@@ -32,7 +32,7 @@ from tap_bench.errors import LabelTableError
 from tap_bench.stats.bootstrap import BootstrapConfig
 from tap_bench.stats.intervals import measure_interval
 
-__all__ = ["Scores", "diversity_table", "policy_measures", "reference_scores", "score",
+__all__ = ["Scores", "policy_measures", "reference_scores", "score",
            "scores_from_files", "scores_to_files", "write_score_tables"]
 
 
@@ -331,29 +331,6 @@ def reference_scores(episodes: pd.DataFrame, reference: Reference | Mapping[str,
     return cov, nov, labels
 
 
-def diversity_table(episodes: pd.DataFrame, config: BootstrapConfig,
-                    size: int | None = None) -> pd.DataFrame:
-    """Hill numbers of every policy's ego labels per env, at the env's common sample size
-    (default: the smallest number of labelled episodes among the env's policies), and pooled
-    (``env == "all"``: the mean of the per-env figures). Streams ``("diversity", env,
-    policy)``."""
-    ok = _scored(episodes)
-    rows, per_policy = [], {}
-    for env, sub in ok.groupby("env", sort=True):
-        n_of = sub.groupby("policy").size()
-        m = size if size is not None else int(n_of.min())
-        for policy in sorted(n_of.index):
-            d = diversity(sub.loc[sub["policy"] == policy, "sdl"].to_numpy(object), size=m,
-                          config=config, rng=config.rng("diversity", env, policy))
-            per_policy.setdefault(policy, []).append(d)
-            rows.append({"env": str(env), "policy": policy, **d.row()})
-    if ok["env"].nunique() > 1:
-        for policy, results in sorted(per_policy.items()):
-            rows.append({"env": ALL_ENVS, "policy": policy,
-                         **pooled_diversity(results, config.level).row()})
-    return pd.DataFrame(rows)
-
-
 def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
           config: BootstrapConfig | None = None,
           references: dict[str, pd.DataFrame] | None = None,
@@ -397,13 +374,13 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
     policies = sorted(episodes["policy"].unique())
     if comparisons is None:
         comparisons = [(p, reference_policy) for p in policies if p != reference_policy]
-    # in steps: each policy's own tables, each policy against each reference corpus, the
-    # methods, each policy's diversity, the policies against one another
+    # in steps: the methods, each policy's own tables, each policy against each reference
+    # corpus, each policy's diversity, the policies against one another
+    carried_methods, methods = dict(methods or {}), _methods(config)
     label_counts, measures = _label_counts(episodes), policy_measures(episodes, config)
     cov, nov, novel_labels, refs = _reference_scores(
         episodes, reference_policy=reference_policy, level=level, config=config,
         references=references, windows=windows)
-    carried_methods, methods = dict(methods or {}), _methods(config)
     diversity = diversity_table(episodes, config)
     compared = compare_policies(episodes, comparisons, config)
     methods["paired"] = compared.method  # in the place _methods keeps for it
@@ -418,12 +395,6 @@ def score(episodes: pd.DataFrame, *, reference_policy: str, level: str,
         matched=compared.matched, coverage=cov, novelty=nov, novel_labels=novel_labels,
         diversity=diversity, references=refs, methods=methods,
         **{name: table for name, table in carried.items() if table is not None})
-
-
-def _cat(frames: list[pd.DataFrame]) -> pd.DataFrame:
-    """The non-empty ``frames`` one under the other (an empty frame without any)."""
-    frames = [f for f in frames if len(f)]
-    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 
 def _reference_scores(episodes: pd.DataFrame, *, reference_policy: str, level: str,
@@ -441,7 +412,9 @@ def _reference_scores(episodes: pd.DataFrame, *, reference_policy: str, level: s
     rollouts = f"{reference_policy} rollouts"
     policies = sorted(episodes["policy"].unique())
     others = [p for p in policies if p != reference_policy]  # a corpus covers itself
-    parts = []
+    # every reference (the rollouts per env, then each corpus; both units), then every
+    # policy scored against each in that order
+    against: list[tuple[pd.DataFrame, Reference | dict[str, Reference], str, dict]] = []
     for unit in UNITS:  # whole labels, then the manoeuvres (segments) episodes contain
         per_env: dict[str, Reference] = {}
         for env, sub in ref_eps.groupby("env", sort=True):
@@ -450,19 +423,22 @@ def _reference_scores(episodes: pd.DataFrame, *, reference_policy: str, level: s
                                                  unit=unit)
             shown = f"{rollouts} ({env})" + ("" if unit == "episodes" else f", {unit}")
             refs[shown] = per_env[str(env)]
-        parts.append(reference_scores(episodes, per_env, rollouts, config=config,
-                                      policies=others, paired=True))
+        against.append((episodes, per_env, rollouts, {"policies": others, "paired": True}))
     for name, table in (references or {}).items():
         scored, unit_name = (windows or {}).get(name, (episodes, None))
         for unit in UNITS:
             ref = corpus_reference(table, level, tracks="vehicles", name=name, unit=unit)
             refs[name + ("" if unit == "episodes" else f", {unit}")] = ref
-            parts.append(reference_scores(
-                scored, ref, name, config=config,
-                unit=unit if unit_name is None else f"{unit_name}, {unit}"
-                if unit == "segments" else unit_name, windowed=unit_name is not None))
-    return (_cat([cov for cov, _, _ in parts]), _cat([nov for _, nov, _ in parts]),
-            _cat([lab for _, _, lab in parts]), refs)
+            against.append((scored, ref, name, {
+                "unit": unit if unit_name is None else f"{unit_name}, {unit}"
+                if unit == "segments" else unit_name, "windowed": unit_name is not None}))
+    parts = [reference_scores(scored, ref, name, config=config, **how)
+             for scored, ref, name, how in against]
+    # each kind (coverage, novelty, novel labels): its non-empty tables one under the other
+    kinds = [[t for t in kind if len(t)] for kind in zip(*parts, strict=True)]
+    cov, nov, labels = (pd.concat(k, ignore_index=True) if k else pd.DataFrame()
+                        for k in kinds)
+    return cov, nov, labels, refs
 
 
 def _methods(config: BootstrapConfig) -> dict[str, str]:
