@@ -45,6 +45,11 @@ SHIPPED_MODELS: dict[str, str] = {
     "012a3275f1fec0c792f31b018f01b2095fac3d07649e907ad39dd182e75a14b6": "ppo-womd-split-seed2.zip",
     "f03bd390802de26cb7a081df232d81f88dd4dc7f701292b5ac9eb07748ca3ac2": "ppo-womd-split-seed3.zip",
     "11b55d007efa088943a77b0a2d88b96c89cdf269720f39d2f98c5d8b468108b9": "ppo-womd-split-seed4.zip",
+    "8cd46404dcd0a156b09028dc901e2a9b8e72f2dbe13f156491c9d5aea47b7941": "ppo-womd-foldb-seed0.zip",
+    "e00df63f56723516f4057f5e94b8f5e3813c96d94cd891f4b06421e041938366": "ppo-womd-foldb-seed1.zip",
+    "8d14ab45db0a85ed2ad7e5c5b211c2ba480136c4782d97c7d4ddcd1834046606": "ppo-womd-foldb-seed2.zip",
+    "e8cff1eeb05ae124f39653cac7c1f598173e5750fc33749a4217c2befe99e4a3": "ppo-womd-foldb-seed3.zip",
+    "096318283b363966f2ca0241f11b9c4a26f1ee04eafe92547f2d99db6f070714": "ppo-womd-foldb-seed4.zip",
 }
 """SHA-256 digest of each model file shipped in ``policies/`` -> its name. Known in the
 installed code, not beside the file: a digest that a model folder could carry would vouch
