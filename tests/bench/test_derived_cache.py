@@ -22,7 +22,7 @@ from tap_bench.bench.cache import (
     memoised,
     table_digest,
 )
-from tap_bench.bench.report.figures import write_plots
+from tap_bench.bench.report.page import write_plots
 from tap_bench.bench.run.runner import run_suite
 from tap_bench.bench.scores.scoring import Scores, scores_from_files, scores_to_files
 from tap_bench.bench.suite import Suite, suite_from_dict
@@ -78,7 +78,7 @@ def test_a_rerun_serves_the_scores_figures_and_viewer_it_would_make(runs, monkey
     # and the viewer's episode data all come from the cache
     monkeypatch.setattr(Suite, "road", fail)
     monkeypatch.setattr("tap_bench.bench.run.scoring.score", fail)
-    monkeypatch.setattr("tap_bench.bench.report.figures._draw", fail)
+    monkeypatch.setattr("tap_bench.bench.report.page.draw_figures", fail)
     monkeypatch.setattr("tap_bench.bench.report.viewer.build.episode_chunks", fail)
     again = run(root / "run-again", cache)
     for result in (first, again):
@@ -211,11 +211,11 @@ def test_a_scene_measure_entry_is_in_the_figures_key(tmp_path, monkeypatch):
     import dataclasses
 
     from tap_bench.bench.measures import SCENE_MEASURES
-    from tap_bench.bench.report import figures as report_figures
+    from tap_bench.bench.report import page as report_page
 
     scores = _scores()
     seen = []
-    monkeypatch.setattr(report_figures, "_draw", lambda *a: seen.append(1) or {})
+    monkeypatch.setattr(report_page, "draw_figures", lambda *a: seen.append(1) or {})
     cache = EpisodeCache(tmp_path / "cache")
     write_plots(scores, tmp_path / "a", reference="idm", cache=cache)
     entries = dict(SCENE_MEASURES._entries)

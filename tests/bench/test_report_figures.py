@@ -132,3 +132,16 @@ def test_the_envs_of_a_scored_run_are_its_per_env_rows_without_the_pooled_one(sc
     envs = sorted(set(scores.measures["env"]) - {"all"})
     assert scores.envs == envs and "all" not in scores.envs
     assert Scores(**{name: pd.DataFrame() for name in Scores.TABLES}).envs == []
+
+
+def test_the_figures_are_drawn_from_the_scores_alone_and_the_page_writes_them(scores, tmp_path):
+    """draw_figures is a pure function of the scores (name -> SVG bytes, a heat map and a
+    measures plot per env): the same bytes twice, and the files write_plots writes."""
+    from tap_bench.bench.report.figures import draw_figures
+    from tap_bench.bench.report.page import write_plots
+
+    drawn = draw_figures(scores, scores.envs, "idm", 0.95)
+    assert drawn == draw_figures(scores, scores.envs, "idm", 0.95)
+    assert {f"labels_{env}.svg" for env in scores.envs} <= set(drawn)
+    written = write_plots(scores, tmp_path, reference="idm", level=0.95)
+    assert {p.name: p.read_bytes() for p in written} == drawn

@@ -1,6 +1,8 @@
 """The run report's figures as SVG, drawn at the size they are shown (text at least 11 px),
 scales fitted to the data, labels whole: label heat maps, measures, coverage, forest plots,
-improvement over the reference, novelty (part of :mod:`tap_bench.bench.report.page`).
+improvement over the reference, novelty, drawn from the scores alone
+(:func:`draw_figures`: file name -> SVG bytes); the page writes them beside ``report.html``
+(:func:`tap_bench.bench.report.page.write_plots`).
 
 The figures are written as SVG text directly (dots, bars, lines, cells and text; no
 plotting library): the page embeds them inline, they stay sharp at any zoom, and drawing
@@ -13,24 +15,18 @@ from __future__ import annotations
 import html
 import itertools
 import math
-import os
 import textwrap
-from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
-from tap_bench.bench.measures import MEASURES, SCENE_MEASURES, Measure, measures_with_role
+from tap_bench.bench.measures import MEASURES, Measure, measures_with_role
 from tap_bench.bench.report.tables import (
     _pooled,
     _slug,
     interval_heading,
 )
 from tap_bench.bench.scores.scoring import Scores
-
-if TYPE_CHECKING:
-    from tap_bench.bench.cache import EpisodeCache
 
 TOP_LABELS = 12  # labels shown per heat map and forest plot
 FONT_PX = 12  # smallest text in a figure [px]
@@ -549,46 +545,18 @@ def _novelty_plot(novelty: pd.DataFrame) -> tuple[str, str] | None:
     return svg.named("novelty.svg")
 
 
-def write_plots(scores: Scores, folder: str | os.PathLike, *,
-                reference: str | None = None, level: float = 0.95,
-                cache: EpisodeCache | None = None) -> list[Path]:
-    """Write the SVG figures of a scored run into ``folder`` and return their paths
-    (``level``: the run's interval level, for the legends).
+def draw_figures(scores: Scores, envs: list[str], reference: str, level: float
+                 ) -> dict[str, bytes]:
+    """Every figure of the report: file name -> SVG bytes, in report order (the names
+    :func:`tap_bench.bench.report.page.write_plots` lists).
 
-    Per env: ``labels_<env>.svg`` (label heat map) and ``measures_<env>.svg``; pooled:
-    ``measures_all.svg``, ``tradeoff.svg`` (crash rate against mean speed, per env),
-    ``improvement.svg``, ``coverage.svg``, ``forest_<A>_vs_<B>.svg`` (a panel per env),
-    ``novelty.svg``.
-
-    With a ``cache``, the figures of scores equal to an earlier run's (every table, value
-    for value, the reference, the level, the registered measures' entries and the code) are
-    read from it
-    (:func:`tap_bench.bench.cache.memoised`): the same bytes.
+    Args:
+        scores: the run's scores.
+        envs: the envs of the scores (:attr:`~tap_bench.bench.scores.scoring.Scores.envs`):
+            a label heat map and a measures plot each.
+        reference: the reference policy ("" for none).
+        level: the run's interval level, for the legends.
     """
-    from tap_bench.bench.cache import memoised, table_digest
-
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    # the figures draw every registered measure's label, unit, bounds and direction, which
-    # the tables do not hold (a plug-in's measure can change them with the same values)
-    inputs = None if cache is None else {
-        "tables": {name: table_digest(t) for name, t in scores.tables().items()},
-        "reference": reference or "", "level": level,
-        "measures": [m.to_dict() for m in (*MEASURES, *SCENE_MEASURES)]}
-    envs = scores.envs  # a label heat map and a measures plot each
-    figures = memoised(cache, "plots", inputs,
-                       lambda: _draw(scores, envs, reference or "", level), dict, dict)
-    paths = []
-    for name, data in figures.items():
-        (folder / name).write_bytes(data)
-        paths.append(folder / name)
-    return paths
-
-
-def _draw(scores: Scores, envs: list[str], reference: str, level: float
-          ) -> dict[str, bytes]:
-    """Every figure of :func:`write_plots` (``envs``: the envs of the scores): file name ->
-    SVG bytes, in report order."""
     svgs: list[tuple[str, str] | None] = []
     # the pooled figures draw the rows of all envs (or of the one env)
     pm, cov, nov = (_pooled(t) for t in (scores.paired_measures, scores.coverage,

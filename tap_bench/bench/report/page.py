@@ -27,7 +27,8 @@ from typing import TYPE_CHECKING, Any
 import pandas as pd
 
 from tap_bench.bench.gate.power import power_summary
-from tap_bench.bench.report.figures import TOP_LABELS, write_plots
+from tap_bench.bench.measures import MEASURES, SCENE_MEASURES
+from tap_bench.bench.report.figures import TOP_LABELS, draw_figures
 from tap_bench.bench.report.pages import timings_html
 from tap_bench.bench.report.realism import realism_section
 from tap_bench.bench.report.tables import (
@@ -117,6 +118,42 @@ def _figure(path: Path, alt: str, caption: str) -> str:
     svg = path.read_text()
     svg = svg.replace("<svg ", f'<svg role="img" aria-label="{html.escape(alt)}" ', 1)
     return f"<figure>{svg}<figcaption>{html.escape(caption)}</figcaption></figure>"
+
+
+def write_plots(scores: Scores, folder: str | os.PathLike, *,
+                reference: str | None = None, level: float = 0.95,
+                cache: EpisodeCache | None = None) -> list[Path]:
+    """Write the SVG figures of a scored run into ``folder`` and return their paths
+    (``level``: the run's interval level, for the legends).
+
+    Per env: ``labels_<env>.svg`` (label heat map) and ``measures_<env>.svg``; pooled:
+    ``measures_all.svg``, ``tradeoff.svg`` (crash rate against mean speed, per env),
+    ``improvement.svg``, ``coverage.svg``, ``forest_<A>_vs_<B>.svg`` (a panel per env),
+    ``novelty.svg``.
+
+    The figures are drawn by :func:`tap_bench.bench.report.figures.draw_figures`; with a
+    ``cache``, those of scores equal to an earlier run's (every table, value for value, the
+    reference, the level, the registered measures' entries and the code) are read from it
+    (:func:`tap_bench.bench.cache.memoised`): the same bytes.
+    """
+    from tap_bench.bench.cache import memoised, table_digest
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    # the figures draw every registered measure's label, unit, bounds and direction, which
+    # the tables do not hold (a plug-in's measure can change them with the same values)
+    inputs = None if cache is None else {
+        "tables": {name: table_digest(t) for name, t in scores.tables().items()},
+        "reference": reference or "", "level": level,
+        "measures": [m.to_dict() for m in (*MEASURES, *SCENE_MEASURES)]}
+    envs = scores.envs  # a label heat map and a measures plot each
+    figures = memoised(cache, "plots", inputs,
+                       lambda: draw_figures(scores, envs, reference or "", level), dict, dict)
+    paths = []
+    for name, data in figures.items():
+        (folder / name).write_bytes(data)
+        paths.append(folder / name)
+    return paths
 
 
 def write_report(folder: str | os.PathLike, summary: dict[str, Any], episodes: pd.DataFrame,
