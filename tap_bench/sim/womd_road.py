@@ -17,6 +17,7 @@ Everything is in highway-env's mirrored frame (``y`` and headings negated, :func
 
 from __future__ import annotations
 
+import bisect
 import contextlib
 import functools
 import math
@@ -136,7 +137,7 @@ class WomdNetwork(RoadNetwork):
         self._next_lanes: dict[tuple, Any] = {}  # next_lane's answers by lane and route
 
     @functools.cached_property
-    def _centre_arcs(self) -> dict[int, np.ndarray]:
+    def _centre_arcs(self) -> dict[int, list[float]]:
         """WOMD lane id -> arc lengths of its centre line's points [m] (filled as asked)."""
         return {}
 
@@ -186,9 +187,12 @@ class WomdNetwork(RoadNetwork):
         lon, _ = built.local_coordinates(position)
         arcs = self._centre_arcs.get(lane.id)
         if arcs is None:  # asked every step: the centre line's arc lengths once per lane
-            arcs = self._centre_arcs[lane.id] = _arc_lengths(lane.centre)
-        at = (min(int(np.searchsorted(arcs, lon)), len(lane.centre) - 1)
-            if len(lane.centre) >= 2 else 0)
+            arcs = self._centre_arcs[lane.id] = _arc_lengths(lane.centre).tolist()
+        if len(lane.centre) < 2:
+            at = 0
+        else:  # numpy's searchsorted (left) of a sorted list; a NaN goes past the end
+            at = min(bisect.bisect_left(arcs, lon) if lon == lon else len(arcs),
+                     len(lane.centre) - 1)
         out = []
         for name in ("left", "right"):
             if side not in (None, name):
@@ -711,8 +715,14 @@ class WomdIDMVehicle(_RouteMixin, IDMVehicle):
             if self.road.network.get_lane(change).is_reachable_from(self.position):
                 self.target_lane_index = change
                 return
-        with self.road.network.asked_from(self.position):
+        # asked_from's block, without a generator's context manager at every step (the
+        # policy usually returns at once: a lane change is decided once a second)
+        network = self.road.network
+        before, network._asking_position = network._asking_position, self.position
+        try:
             super().change_lane_policy()
+        finally:
+            network._asking_position = before
 
     def mobil(self, lane_index: Any) -> bool:
         """highway-env's MOBIL without its planned-lane shortcut: that shortcut reads a route
@@ -1682,6 +1692,17 @@ def _corridor(xs, ys, hs, vs, ls, ws, x, y, heading, length, width, reach, mine
 
 
 @numba.njit(cache=True, nogil=True)
+def _any_within(xs, ys, x, y, r2):  # pragma: no cover - compiled
+    """Whether a point (xs, ys) is within sqrt(``r2``) [m] of (x, y): its squared distance,
+    x then y, at most ``r2``."""
+    for i in range(xs.shape[0]):
+        dx, dy = xs[i] - x, ys[i] - y
+        if dx * dx + dy * dy <= r2:
+            return True
+    return False
+
+
+@numba.njit(cache=True, nogil=True)
 def _walkers_on_lane(px, py, tx, ty, s, headings, base, half, length, xs, ys, hs, vs,
                      best):  # pragma: no cover - compiled
     """The nearest distance [m] along the way (``base`` + the longitudinal coordinate) to a
@@ -2113,6 +2134,7 @@ class _Layout:
         self.checks = np.array([bool(getattr(v, "check_collisions", False))
                                 for v in vehicles], bool)
         self.path = np.array([isinstance(v, WomdPathVehicle) for v in vehicles], bool)
+        self.any_path = bool(self.path.any())
         # gives way at conflicts (WomdRoad.conflict_gap); scene rows (-1: none)
         self.yielder = np.array([isinstance(v, WomdIDMVehicle | WomdPathVehicle)
                                  for v in vehicles], bool)
@@ -2306,11 +2328,12 @@ class WomdRoad(Road):
             ahead = xy + WALKER_HORIZON * speed[:, None] * np.stack((np.cos(heading),
                                                                      np.sin(heading)), axis=1)
             self._walkers = (xy, ahead, heading, speed)
+            self._walker_fastest = float(speed.max())
             self._walker_columns = [(xy[:, 0].copy(), xy[:, 1].copy()),
                                     (ahead[:, 0].copy(), ahead[:, 1].copy())]
         else:
             self._walkers = None
-        self._path_accelerations = self._ahead_of_paths(layout) if layout.path.any() else {}
+        self._path_accelerations = self._ahead_of_paths(layout) if layout.any_path else {}
         for vehicle in layout.acting:
             vehicle.act()
 
@@ -2803,10 +2826,11 @@ class WomdRoad(Road):
 
     def _walker_distance(self, vehicle: Vehicle, walkers: tuple[np.ndarray, ...]
                          ) -> float | None:
-        positions, _, heading, speed = walkers
-        reach = WALKER_LOOKAHEAD + vehicle.LENGTH + WALKER_HORIZON * float(speed.max())
-        delta = positions - vehicle.position
-        if not (delta[:, 0] ** 2 + delta[:, 1] ** 2 <= reach * reach).any():
+        _, _, heading, speed = walkers
+        reach = WALKER_LOOKAHEAD + vehicle.LENGTH + WALKER_HORIZON * self._walker_fastest
+        xs, ys = self._walker_columns[0]
+        if not _any_within(xs, ys, float(vehicle.position[0]), float(vehicle.position[1]),
+                           reach * reach):
             return None  # nobody within reach of its way (the usual case): no lane walk
         half = vehicle.WIDTH / 2 + WALKER_CLEARANCE
         best = math.nan
