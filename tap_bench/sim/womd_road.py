@@ -134,6 +134,7 @@ class WomdNetwork(RoadNetwork):
         self.lookup = LaneIndex(lanes)
         self._looked_up: dict[tuple[float, float, float], Any] = {}
         self._asking_position: np.ndarray | None = None
+        self._neighbours: dict[Any, frozenset] = {}
         self._next_lanes: dict[tuple, Any] = {}  # next_lane's answers by lane and route
 
     @functools.cached_property
@@ -210,6 +211,15 @@ class WomdNetwork(RoadNetwork):
             return self.side_lanes_at(lane_index, self._asking_position)
         lane = self.road_map.lanes[self.womd_id(lane_index)]
         return [self.index[n.lane] for n in (*lane.left, *lane.right) if n.lane in self.index]
+
+    def neighbours(self, lane_index: Any) -> frozenset:
+        """The map's neighbours of a lane anywhere along it, either side (kept by lane)."""
+        found = self._neighbours.get(lane_index)
+        if found is None:
+            lane = self.road_map.lanes[self.womd_id(lane_index)]
+            found = self._neighbours[lane_index] = frozenset(
+                self.index[n.lane] for n in (*lane.left, *lane.right) if n.lane in self.index)
+        return found
 
     @contextlib.contextmanager
     def asked_from(self, position: np.ndarray) -> Iterator[None]:
@@ -484,7 +494,10 @@ class _RouteMixin:
         k = self.route.index(self.lane_index)
         if k + 1 < len(self.route):
             nxt = self.route[k + 1]
-            if nxt in self.road.network.side_lanes_at(self.lane_index, self.position):
+            network = self.road.network
+            # not a neighbour anywhere along the lane (the usual case): not one here
+            if (nxt in network.neighbours(self.lane_index)
+                    and nxt in network.side_lanes_at(self.lane_index, self.position)):
                 return nxt
         return None
 
