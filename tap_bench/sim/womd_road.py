@@ -2087,8 +2087,9 @@ class _Movers:
         row = self.layout.row_of.get(key)
         k = None
         if row is not None:
-            k = int(np.searchsorted(self.rows, row))
-            k = k if k < len(self.rows) and self.rows[k] == row else None
+            rows = self.rows.tolist()
+            k = bisect.bisect_left(rows, row)
+            k = k if k < len(rows) and rows[k] == row else None
         self.found[key] = k
         return default if k is None else k
 
