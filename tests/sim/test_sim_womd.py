@@ -959,6 +959,43 @@ def test_a_lane_change_asks_for_the_neighbours_where_the_vehicle_is():
     assert "side_lanes" not in vars(network)
 
 
+def test_neighbours_where_the_vehicle_is_follow_numpys_search_of_the_centre_line():
+    """side_lanes_at finds the centre line's point by bisecting its arc lengths: the
+    neighbours at points on the line, between them, before its start, past its end and at a
+    position that is not a number are those numpy's search of the arc lengths gives; each
+    lies among the lane's neighbours anywhere along it (:meth:`WomdNetwork.neighbours`)."""
+    from tap_bench.sim.womd_road import WomdNetwork, _arc_lengths
+    from tap_bench.womd.roadmap import Neighbour, RoadMap
+
+    x = np.r_[0.0, np.cumsum(np.linspace(2.0, 12.0, 10))]
+    left = Lane(1, np.column_stack([x, np.full(11, 3.7)]),
+                right=(Neighbour(2, 2, 4, 2, 4), Neighbour(3, 6, 9, 6, 9)))
+    right = Lane(2, np.column_stack([x, np.zeros(11)]), left=(Neighbour(1, 2, 4, 2, 4),))
+    other = Lane(3, np.column_stack([x, np.full(11, -3.7)]), left=(Neighbour(1, 6, 9, 6, 9),))
+    network = WomdNetwork(RoadMap("three lanes", {1: left, 2: right, 3: other}))
+    lane_1 = network.index[1]
+    arcs = _arc_lengths(left.centre)
+
+    def by_numpy(position: np.ndarray) -> list:
+        lon, _ = network.get_lane(lane_1).local_coordinates(position)
+        at = min(int(np.searchsorted(arcs, lon)), len(arcs) - 1)
+        return [network.index[n.lane] for n in (*left.left, *left.right)
+                if n.self_start <= at <= n.self_end]
+
+    along = np.r_[-5.0, arcs, (arcs[:-1] + arcs[1:]) / 2, arcs[-1] + 5.0]
+    found = set()
+    for s in along:
+        position = np.array([s, -3.7])
+        got = network.side_lanes_at(lane_1, position)
+        assert got == by_numpy(position)
+        assert set(got) <= network.neighbours(lane_1)
+        found.update(got)
+    assert found == {network.index[2], network.index[3]}
+    nowhere = np.array([np.nan, np.nan])
+    assert network.side_lanes_at(lane_1, nowhere) == by_numpy(nowhere)
+    assert network.neighbours(lane_1) == {network.index[2], network.index[3]}
+
+
 def test_a_scenes_digest_is_the_sha256_of_its_record_or_pickle(real):
     """The content hash (the episode cache's key) is the SHA-256 of the bytes the scene was
     decoded from: a TFRecord's record, a ScenarioNet pickle's file."""

@@ -19,8 +19,10 @@ from tap_bench.sim.womd_road import (
     WALKER_CLEARANCE,
     WALKER_LOOKAHEAD,
     WALKER_STILL,
+    _any_within,
     _approach_rows,
     _corridor,
+    _Movers,
     _front_rear,
     _lane_members,
     _lane_members_into,
@@ -428,3 +430,55 @@ def test_the_kernels_writing_into_arrays_give_what_their_definitions_return(seed
         assert got_lon.tobytes() == lon.tobytes()
         on_lanes += k
     assert on_lanes > 20
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_walkers_within_reach_is_the_numpy_test(seed):
+    """The walkers' reach test (one compiled pass) answers as the numpy expression it
+    replaced: points on the circle's edge (their squared distance as the reach), inside,
+    outside, not a number, none."""
+    rng = np.random.default_rng(70 + seed)
+    seen = set()
+    for _ in range(400):
+        m = int(rng.integers(0, 12))
+        x, y = rng.uniform(-300, 300, 2)
+        xy = np.array([x, y]) + rng.normal(0.0, 1.0, (m, 2)) * rng.choice([1.0, 20.0, 80.0])
+        xy[rng.random(m) < 0.1] = np.nan
+        if m and rng.random() < 0.5:  # the reach exactly at one of them
+            k = int(rng.integers(m))
+            d = xy[k] - (x, y)
+            r2 = d[0] ** 2 + d[1] ** 2
+        else:
+            r2 = rng.uniform(0.0, 60.0) ** 2
+        position = np.array([x, y])
+        delta = xy - position
+        want = bool((delta[:, 0] ** 2 + delta[:, 1] ** 2 <= r2).any())
+        got = _any_within(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]),
+                          float(x), float(y), float(r2))
+        assert got == want
+        seen.add(want)
+    assert seen == {True, False}
+
+
+def test_a_movers_index_is_the_sorted_search_of_its_row():
+    """_Movers.index_of (a bisection of the rows as a list) finds a vehicle's place as
+    numpy's search of the sorted rows did: the movers' index of its layout row, ``default``
+    for a vehicle of the layout that is not a mover or not of the layout, each answer kept."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        n = int(rng.integers(0, 30))
+        vehicles = tuple(object() for _ in range(n))
+        layout = SimpleNamespace(vehicles=vehicles,
+                                 row_of={id(v): i for i, v in enumerate(vehicles)})
+        rows = np.flatnonzero(rng.random(n) < 0.6).astype(np.int64)
+        movers = _Movers(layout, rows)
+        for v in (*vehicles, object()):
+            row = layout.row_of.get(id(v))
+            k = int(np.searchsorted(rows, row)) if row is not None else None
+            want = k if k is not None and k < len(rows) and rows[k] == row else None
+            assert movers.index_of(v, -1) == (-1 if want is None else want)
+            assert movers.index_of(v) == want  # kept: the same again
+            if want is not None:
+                assert movers[want] is v
