@@ -25,7 +25,9 @@ Usage::
         # ... the whole command sampled (SIGPROF, 2 ms): start-up, reading, reset, step,
         # tables, writing, in ms CPU per scene
 
-Figures go to ``benchmarks/out/<name>.json``.
+Figures go to ``benchmarks/out/<name>.json``. The last lines printed sum the runs up per
+scene count and tree (simulated steps per CPU s of each run and their median, CPU s a
+scene, peak memory, load) and, with two trees, each repeat's CPU ratio (second / first).
 """
 
 from __future__ import annotations
@@ -395,6 +397,56 @@ def profile(folder: Path, policy: str, traffic: str) -> None:
     stats.sort_stats("tottime").print_stats(30)
 
 
+def summary(rows: list[dict]) -> list[dict]:
+    """Per scene count and tree (the runs of a whole command): the runs' simulated steps per
+    CPU s, their median, CPU s a scene (median), peak memory and load (ranges); with two
+    trees, each repeat's CPU ratio (second tree / first, paired in that repeat) and their
+    median."""
+    import statistics
+
+    out = []
+    groups: dict[tuple, list[dict]] = {}
+    for row in rows:
+        if "steps_per_cpu_s" in row:
+            groups.setdefault((row["scenes"], row.get("tree")), []).append(row)
+    for (scenes, tree), runs in groups.items():
+        rates = [r["steps_per_cpu_s"] for r in runs]
+        loads = [x for r in runs for x in (r["load_before"], r["load_after"])]
+        out.append({"scenes": scenes, "tree": tree, "commit": runs[0].get("commit"),
+                    "runs": len(runs), "steps_per_cpu_s": rates,
+                    "median_steps_per_cpu_s": round(statistics.median(rates), 1),
+                    "median_cpu_s_per_scene": round(statistics.median(
+                        r["cpu_s_per_scene"] for r in runs), 4),
+                    "peak_mb": [min(r["peak_mb"] for r in runs),
+                                max(r["peak_mb"] for r in runs)],
+                    "load": [min(loads), max(loads)]})
+    trees = list(dict.fromkeys(t for _, t in groups))
+    if len(trees) == 2:
+        for scenes in dict.fromkeys(n for n, _ in groups):
+            a, b = groups.get((scenes, trees[0]), []), groups.get((scenes, trees[1]), [])
+            ratios = [round(y["cpu_s"] / x["cpu_s"], 3) for x, y in zip(a, b, strict=False)]
+            if ratios:
+                out.append({"scenes": scenes, "pairs": f"{trees[1]} / {trees[0]} (CPU s)",
+                            "ratios": ratios,
+                            "median_ratio": round(statistics.median(ratios), 3)})
+    return out
+
+
+def print_summary(lines: list[dict]) -> None:
+    """The summary's lines as text (stderr stays free for the children's)."""
+    for line in lines:
+        if "ratios" in line:
+            print(f"{line['scenes']} scenes, pairs {line['pairs']}: "
+                  f"{', '.join(map(str, line['ratios']))} (median {line['median_ratio']})")
+            continue
+        print(f"{line['scenes']} scenes, {line['tree'] or 'this tree'} "
+              f"({line['commit'] or '-'}): steps per CPU s "
+              f"{', '.join(f'{x:,.0f}' for x in line['steps_per_cpu_s'])} (median "
+              f"{line['median_steps_per_cpu_s']:,.0f}; {line['median_cpu_s_per_scene']:.4f} "
+              f"CPU s a scene), peak {line['peak_mb'][0]:.1f}-{line['peak_mb'][1]:.1f} MB, "
+              f"load {line['load'][0]:.2f}-{line['load'][1]:.2f}")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("counts", nargs="+", type=int)
@@ -443,8 +495,10 @@ def main() -> int:
                                                  shlex.split(args.extra), tree)
                 print(json.dumps(row), flush=True)
                 rows.append(row)
-    report(args.name, {"runs": rows}, command=args.command, policy=args.policy,
-           traffic=args.traffic, extra=args.extra)
+    lines = summary(rows)
+    report(args.name, {"runs": rows, "summary": lines}, command=args.command,
+           policy=args.policy, traffic=args.traffic, extra=args.extra)
+    print_summary(lines)
     return 0
 
 
