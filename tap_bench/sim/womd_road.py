@@ -1675,6 +1675,26 @@ def _leader_on(members, lon, hs, base, mine, heading, best_d, reach
 
 
 @numba.njit(cache=True, nogil=True)
+def _leader_ahead_on(px, py, tx, ty, s, lanes, bases, xs, ys, hs, mine, heading, reach
+                     ):  # pragma: no cover - compiled
+    """:meth:`WomdRoad.leader_ahead` over its next lanes in one pass: for each lane (a row
+    of ``lanes``: its poses c:d of the network's pose arrays px, py, tx, ty, s, then the
+    half width, lo and hi of :func:`_lane_members`), starting ``bases`` [m] along the way,
+    the movers on it (:func:`_lane_members` of xs, ys) searched by :func:`_leader_on`
+    (headings ``hs``); the first lane with a leader ends the search: (its row or -1, its
+    distance [m] or inf)."""
+    best_d = np.inf
+    for j in range(lanes.shape[0]):
+        c, d = int(lanes[j, 0]), int(lanes[j, 1])
+        members, lon = _lane_members(px[c:d], py[c:d], tx[c:d], ty[c:d], s[c:d], lanes[j, 2],
+                                     lanes[j, 3], lanes[j, 4], xs, ys)
+        best, best_d = _leader_on(members, lon, hs, bases[j], mine, heading, best_d, reach)
+        if best >= 0:
+            return best, best_d
+    return -1, best_d
+
+
+@numba.njit(cache=True, nogil=True)
 def _corridor(xs, ys, hs, vs, ls, ws, x, y, heading, length, width, reach, mine
               ):  # pragma: no cover - compiled
     """:meth:`WomdRoad.corridor_leader` over the movers (centres xs, ys, headings hs, speeds
@@ -2255,6 +2275,7 @@ class WomdRoad(Road):
         self._conflicts: dict[Any, list[tuple[Any, float, float]]] = {}
         self._conflict_tables: dict[Any, tuple[np.ndarray, ...]] = {}
         self._poses: tuple[np.ndarray, ...] | None = None  # _pose_arrays
+        self._lane_limits: dict[Any, tuple[float, ...]] = {}  # leader_ahead's, by lane
         self._mover_conflict: tuple[np.ndarray, ...] | None = None  # _conflict_movers
         self._states_at: tuple[int, _Layout, dict] | None = None  # _snapshot's
         self._crossings: dict[int, list] | None = None
@@ -2543,17 +2564,25 @@ class WomdRoad(Road):
         (None, inf) if none."""
         if self._positions is None or not len(self._positions):
             return None, math.inf
-        best_d = math.inf
-        mine = self._movers.index_of(vehicle, -1)
-        heading = float(vehicle.heading)
-        hs = self._box_columns[0]
-        for index, base in self._lanes_ahead(vehicle, LEADER_LOOKAHEAD)[1:]:
-            lon, rows = self._lane_table(index)
-            best, best_d = _leader_on(rows, lon, hs, float(base), mine, heading, best_d,
-                                      LEADER_LOOKAHEAD)
-            if best >= 0:
-                return self._movers[best], best_d
-        return None, best_d
+        ahead = self._lanes_ahead(vehicle, LEADER_LOOKAHEAD)[1:]
+        if not ahead:
+            return None, math.inf
+        # the lanes one after the other in one compiled pass (each lane's table as
+        # _lane_table makes it, the search as _leader_on)
+        limits = self._lane_limits
+        for index, _ in ahead:
+            if index not in limits:
+                lane = self.network.get_lane(index)
+                c, d = lane._shared[6:8]
+                limits[index] = (float(c), float(d), lane.width / 2 + 1.0,
+                                 -lane.VEHICLE_LENGTH, lane.length + lane.VEHICLE_LENGTH)
+        px, py, tx, ty, s, _ = self._pose_arrays()
+        best, best_d = _leader_ahead_on(
+            px, py, tx, ty, s, np.array([limits[index] for index, _ in ahead]),
+            np.array([float(base) for _, base in ahead]), self._xs, self._ys,
+            self._box_columns[0], self._movers.index_of(vehicle, -1), float(vehicle.heading),
+            LEADER_LOOKAHEAD)
+        return (self._movers[best], best_d) if best >= 0 else (None, best_d)
 
     def corridor_leader(self, vehicle: Vehicle) -> tuple[float, float] | None:
         """The nearest mover whose box is in the vehicle's straight way ahead (the box's

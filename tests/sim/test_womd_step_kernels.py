@@ -25,6 +25,7 @@ from tap_bench.sim.womd_road import (
     _front_rear,
     _lane_members,
     _lane_members_into,
+    _leader_ahead_on,
     _leader_on,
     _Movers,
     _movers_into,
@@ -482,3 +483,42 @@ def test_a_movers_index_is_the_sorted_search_of_its_row():
             assert movers.index_of(v) == want  # kept: the same again
             if want is not None:
                 assert movers[want] is v
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_the_leader_over_the_next_lanes_in_one_pass_is_the_lane_by_lane_search(seed):
+    """_leader_ahead_on (the lanes' tables and searches in one compiled pass over the
+    network's pose arrays) finds the leader and distance that each lane's _lane_members and
+    _leader_on, lane after lane until one has a leader, found: lanes of every shape, movers
+    on them, beside and far, oncoming, the vehicle among them or not, no lane."""
+    rng = np.random.default_rng(90 + seed)
+    found = 0
+    for _ in range(150):
+        lanes = [lane(rng) for _ in range(int(rng.integers(0, 4)))]
+        around = np.concatenate([centre(ln) for ln in lanes]) if lanes else np.zeros((1, 2))
+        n = int(rng.integers(0, 15))
+        xy, hs, *_ = movers(rng, around, n)
+        xs, ys = np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1])
+        xs[rng.random(n) < 0.05] = np.nan
+        heading = float(rng.uniform(-math.pi, math.pi))
+        mine = int(rng.integers(-1, n)) if n else -1
+        bases = np.sort(rng.uniform(-5.0, 70.0, len(lanes)))
+        reach = float(rng.choice([30.0, 60.0]))
+        want, want_d = -1, math.inf
+        for ln, base in zip(lanes, bases, strict=True):
+            limits = (ln.width / 2 + 1.0, -ln.VEHICLE_LENGTH, ln.length + ln.VEHICLE_LENGTH)
+            members, lon = _lane_members(*ln.arrays, *limits, xs, ys)
+            want, want_d = _leader_on(members, lon, hs, float(base), mine, heading, want_d,
+                                      reach)
+            if want >= 0:
+                break
+        poses = [np.concatenate([ln.arrays[k] for ln in lanes]) if lanes else np.zeros(0)
+                 for k in range(5)]
+        ends = np.cumsum([0] + [len(ln.arrays[0]) for ln in lanes])
+        table = np.array([(float(ends[j]), float(ends[j + 1]), ln.width / 2 + 1.0,
+                           -ln.VEHICLE_LENGTH, ln.length + ln.VEHICLE_LENGTH)
+                          for j, ln in enumerate(lanes)]).reshape(-1, 5)
+        got, got_d = _leader_ahead_on(*poses, table, bases, xs, ys, hs, mine, heading, reach)
+        assert (got, got_d) == (want, want_d)
+        found += want >= 0
+    assert found > 20
