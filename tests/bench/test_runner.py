@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import warnings
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -114,7 +115,9 @@ def test_workers_give_the_same_episodes(tmp_path):
 def test_the_estimate_s_first_episode_is_labelled_with_its_batch(tmp_path, monkeypatch):
     """The first episode of an env, simulated alone to time the estimate, is labelled and
     measured with the other episodes of its env and policy (one labelling call fewer per
-    env), and the run's tables equal a run without an estimate, float for float."""
+    env), and the run's tables equal a run without an estimate, float for float. In this
+    process (one worker) a few episodes of an env and policy are labelled in one call
+    (IN_PROCESS_BATCH), where worker processes get tasks of one episode each."""
     import tap_bench.bench.run.tasks as run_tasks
 
     calls = []
@@ -128,11 +131,18 @@ def test_the_estimate_s_first_episode_is_labelled_with_its_batch(tmp_path, monke
         run_suite(suite, tmp_path / "timed", workers=1, progress=False, report=False,
                   cache=tmp_path / "c1", announce=lines.append)
         assert any("timing a first episode" in line for line in lines)
-        assert sorted(calls) == [2, 2, 2, 2]  # 8 episodes to simulate: batches of 2
+        assert sorted(calls) == [4, 4]  # 8 episodes in this process: one batch a policy
         calls.clear()
         run_suite(suite, tmp_path / "plain", workers=1, progress=False, report=False,
                   cache=tmp_path / "c2")
-    assert sorted(calls) == [2, 2, 2, 2]
+    assert sorted(calls) == [4, 4]
+    # on two workers the same 8 episodes are 8 tasks, to keep both workers busy to the end
+    stand_ins = [SimpleNamespace(env="merge", policy=policy, scenario=None)
+                 for policy in ("idm", "lane-keeping") for _ in range(4)]
+    items = run_tasks._items(stand_ins, list(range(8)), [False] * 8, workers=2)
+    assert [members for members, _ in items] == [[i] for i in range(8)]
+    items = run_tasks._items(stand_ins, list(range(8)), [False] * 8, workers=1)
+    assert [members for members, _ in items] == [[0, 1, 2, 3], [4, 5, 6, 7]]
     for name in ("episodes", "labels", "segments"):
         pd.testing.assert_frame_equal(pd.read_parquet(tmp_path / "timed" / f"{name}.parquet"),
                                       pd.read_parquet(tmp_path / "plain" / f"{name}.parquet"),

@@ -324,6 +324,11 @@ batched up to this many: reading them costs little beside labelling."""
 BATCHES_PER_WORKER = 4
 """Episodes to simulate are batched so that each worker gets about this many tasks (fewer
 tasks, fewer TAP calls; enough of them to keep every worker busy to the end)."""
+IN_PROCESS_BATCH = 4
+"""Fewest episodes to simulate in one task of a run in this process (one worker), where
+no other worker is kept busy by smaller tasks: TAP and the measures cost mostly per call
+on small tables, so a run of a few seeds labels each env and policy in one call, not one
+call per episode, and a long run still reports progress every few episodes."""
 RECORDED_BATCH = 4
 """Most episodes of recorded scenes in one task, cached or not: a scene's tables are
 thousands of rows (one TAP call costs little beside them), and a batch's results are held
@@ -376,14 +381,15 @@ def _items(tasks: list[_Task], indices: list[int], cached: list[bool], workers: 
            ) -> list[tuple[list[int], _Task | _Batch]]:
     """The work items of ``tasks[indices]``: the episodes of one env and policy in batches,
     cached ones up to :data:`CACHED_BATCH` a batch, ones to simulate in batches small
-    enough to give each worker about :data:`BATCHES_PER_WORKER` tasks; recorded scenes'
+    enough to give each worker about :data:`BATCHES_PER_WORKER` tasks (in this process, at
+    least :data:`IN_PROCESS_BATCH` a batch); recorded scenes'
     at most :data:`RECORDED_BATCH` a batch. ``given``: episodes
     simulated already (index -> :func:`_episode`'s value), batched with those to simulate."""
     given = given or {}
     to_simulate = sum(not cached[i] for i in indices)
-    size = {True: CACHED_BATCH,
-            False: max(1, min(CACHED_BATCH,
-                              math.ceil(to_simulate / (BATCHES_PER_WORKER * max(1, workers)))))}
+    per_worker = math.ceil(to_simulate / (BATCHES_PER_WORKER * max(1, workers)))
+    fewest = IN_PROCESS_BATCH if workers <= 1 else 1
+    size = {True: CACHED_BATCH, False: max(fewest, min(CACHED_BATCH, per_worker))}
     groups: dict[tuple[str, str, bool], list[int]] = {}
     for i in indices:
         groups.setdefault((tasks[i].env, tasks[i].policy, cached[i]), []).append(i)
