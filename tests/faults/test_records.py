@@ -20,6 +20,7 @@ import pandas as pd
 import pytest
 
 from tap_bench.errors import WomdRecordError
+from tap_bench.execution import LocalBackend
 from tap_bench.sources.ingest import IngestReport, ingest_womd, read_womd
 from tap_bench.sources.scenarionet import decode_scenarionet
 from tap_bench.womd import proto
@@ -252,10 +253,13 @@ def test_a_record_error_from_a_worker_process_names_the_record(tmp_path):
     path = shard(tmp_path / "w.tfrecord", [scenario_record("first"),
                                            _with_columns("[1]"), scenario_record("last")])
     out = tmp_path / "w.parquet"
-    report = ingest_womd(path, out, on_error="skip", workers=2, batch_bytes=1)
-    assert report.scenarios == 2 and [s["record"] for s in report.skipped] == [1]
-    with pytest.raises(WomdRecordError, match="record 1"):
-        ingest_womd(path, tmp_path / "w2.parquet", workers=2, batch_bytes=1)
+    backend = LocalBackend(2)
+    with backend.kept():  # both ingests on the same two worker processes
+        report = ingest_womd(path, out, on_error="skip", backend=backend, batch_bytes=1)
+        assert report.scenarios == 2 and [s["record"] for s in report.skipped] == [1]
+        assert len(backend._kept[0]) == 2  # the records were read in worker processes
+        with pytest.raises(WomdRecordError, match="record 1"):
+            ingest_womd(path, tmp_path / "w2.parquet", backend=backend, batch_bytes=1)
     assert not (tmp_path / "w2.parquet").exists()
 
 
