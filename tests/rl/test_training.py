@@ -282,8 +282,14 @@ def test_overlapped_gradient_steps_run_while_the_envs_simulate_and_none_is_lost(
     assert not list(tmp_path.glob("SB3-*"))
 
 
+@pytest.mark.slow
 def test_a_plain_script_without_a_main_guard_trains_on_two_envs(tmp_path, write_scenario):
-    """The worker processes do not run the caller's script again."""
+    """The worker processes do not run the caller's script again. Slow (a fresh interpreter
+    importing torch and SB3, and a forkserver preloading them: about 6 CPU s); the fast
+    suite checks the parts: test_only_a_script_without_a_main_guard_is_hidden_from_the_workers
+    (what hides an unguarded script from the workers, which train wraps the workers' start
+    in) and test_a_training_is_the_same_wherever_its_envs_are_stepped (training with envs in
+    worker processes)."""
     import os
     import subprocess
     import sys
