@@ -271,17 +271,25 @@ def test_windowed_scoring_names_the_missing_cut_from_column(scorer):
                              windowed=True)
 
 
-def test_coverage_diversity_and_the_null_draw_from_the_stream_their_caller_names():
-    """No default stream: the caller names each one (``("coverage", env, policy,
-    reference)``), so a metric never draws from a stream named for it elsewhere."""
-    import inspect
-
+def test_coverage_diversity_and_the_null_draw_from_the_stream_they_are_given():
+    """A given stream is the one drawn from (the run names each by env, policy and
+    reference); without one, each draws from its documented default stream, so a user's
+    call ``coverage(labels, reference)`` is reproducible and needs no stream."""
     from tap_bench.bench.scores.diversity import diversity
     from tap_bench.bench.scores.null import same_policy_null
 
-    for metric in (coverage, diversity, same_policy_null):
-        rng = inspect.signature(metric).parameters["rng"]
-        assert rng.default is inspect.Parameter.empty and rng.kind is rng.KEYWORD_ONLY
-    ref = corpus_reference(ref_table([A, B]), "maneuver")
-    with pytest.raises(TypeError, match="rng"):
-        coverage(pd.Series([A]), ref)
+    config = BootstrapConfig(n_resamples=100)
+    ref = corpus_reference(ref_table([A, A, B, C, C, C, A, B]), "maneuver")
+    labels = np.array([A, B, B, C, A, A, C, B, A, C], dtype=object)
+    cases = [
+        (lambda **kw: coverage(labels, ref, config=config, **kw).draws,
+         config.rng("coverage", ref.description)),
+        (lambda **kw: diversity(labels, config=config, **kw).draws, config.rng("diversity")),
+        (lambda **kw: same_policy_null(labels, ref, config=config, **kw).draws,
+         config.rng("null", ref.description)),
+    ]
+    for draws_of, default_stream in cases:
+        default = draws_of()
+        np.testing.assert_array_equal(default, draws_of(rng=default_stream))
+        other = draws_of(rng=config.rng("coverage", "syn", "idm", ref.description))
+        assert default.shape == other.shape and not np.array_equal(default, other)

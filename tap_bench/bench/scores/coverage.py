@@ -301,7 +301,8 @@ def _items_of(labels: np.ndarray, reference: Reference) -> list[set[str]] | np.n
 
 
 def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
-             rng: np.random.Generator, config: BootstrapConfig | None = None,
+             rng: np.random.Generator | None = None,
+             config: BootstrapConfig | None = None,
              clusters: np.ndarray | pd.Series | None = None) -> CoverageResult:
     """Coverage of ``reference`` by an agent's ego labels, with intervals.
 
@@ -311,7 +312,8 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
         reference: a :class:`Reference` at the labels' level.
         config: bootstrap resamples and level.
         rng: the random stream the draws come from, named by the caller
-            (``config.rng("coverage", env, policy, reference)``).
+            (``config.rng("coverage", env, policy, reference)``);
+            default ``config.rng("coverage", reference.description)``.
         clusters: (n,) the independent unit of each label, e.g. the episode each window
             was cut from (:func:`tap_bench.bench.scores.windows.window_episode`). Given, the draws
             resample whole units (:func:`tap_bench.stats.bootstrap.cluster_weights`) and a
@@ -322,6 +324,7 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
         :class:`CoverageResult`.
     """
     config = config or BootstrapConfig()
+    rng = config.rng("coverage", reference.description) if rng is None else rng
     text = pd.Series(labels, dtype="string")
     keep = text.notna().to_numpy()
     lab = text[keep].to_numpy(str)

@@ -512,7 +512,7 @@ def _empty(size: int) -> DiversityResult:
                            float("nan"), float("nan"), nan3, True, np.full((0, 4), np.nan))
 
 
-def diversity(labels, *, rng: np.random.Generator, size: int | None = None,
+def diversity(labels, *, rng: np.random.Generator | None = None, size: int | None = None,
               config: BootstrapConfig | None = None) -> DiversityResult:
     """Hill numbers q = 0, 1, 2 of a policy's labels at a common sample size, completeness,
     asymptotes and intervals (module docstring).
@@ -522,12 +522,14 @@ def diversity(labels, *, rng: np.random.Generator, size: int | None = None,
         size: the common sample size m; default n (the sample's own values).
         config: the level and bootstrap resamples.
         rng: the random stream the draws come from, named by the caller
-            (``config.rng("diversity", env, policy)``).
+            (``config.rng("diversity", env, policy)``);
+            default ``config.rng("diversity")``.
 
     Returns:
         :class:`DiversityResult`.
     """
     config = config or BootstrapConfig()
+    rng = config.rng("diversity") if rng is None else rng
     lab = np.asarray([v for v in labels if isinstance(v, str)], dtype=object)
     n = len(lab)
     if size is not None and (isinstance(size, bool) or not isinstance(size, int | np.integer)

@@ -223,7 +223,8 @@ def _draws(ref: np.ndarray, agent: np.ndarray, paired: bool, m: int, D: int,
 def same_policy_null(labels: np.ndarray, reference: Reference, *,
                      seeds: np.ndarray | None = None,
                      clusters: np.ndarray | None = None,
-                     rng: np.random.Generator, config: BootstrapConfig | None = None,
+                     rng: np.random.Generator | None = None,
+                     config: BootstrapConfig | None = None,
                      splits: int = SPLITS) -> NullResult:
     """A policy's coverage and novelty beside the same-policy figure of ``reference``.
 
@@ -241,7 +242,8 @@ def same_policy_null(labels: np.ndarray, reference: Reference, *,
             paired); None: each unit its own episode.
         config: resamples and level.
         rng: the random stream the splits and draws come from, named by the caller
-            (``config.rng("null", env, policy, reference, unit)``).
+            (``config.rng("null", env, policy, reference, unit)``);
+            default ``config.rng("null", reference.description)``.
         splits: random splits averaged for the estimates.
 
     Returns:
@@ -249,6 +251,7 @@ def same_policy_null(labels: np.ndarray, reference: Reference, *,
         or the policy none).
     """
     config = config or BootstrapConfig()
+    rng = config.rng("null", reference.description) if rng is None else rng
     lab = np.asarray(labels, dtype=object)
     units = np.asarray(reference.units, dtype=object)
     paired = seeds is not None and reference.seeds is not None
