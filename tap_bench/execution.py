@@ -79,9 +79,8 @@ def idle_threads_sleep() -> None:
 
     NumPy's OpenBLAS starts a worker thread per core when NumPy is imported, and each
     spins for 2^28 cycles (about 0.1 s) after it starts and after each BLAS call before it
-    sleeps: on an idle 2-core machine about 0.05 CPU s of every command that imports
-    NumPy (``tap-bench label`` on 25,900 trajectories: 1.11 -> 1.06 CPU s, median of 5),
-    for no work. ``OPENBLAS_THREAD_TIMEOUT=4`` (2^4 cycles, OpenBLAS's least) unless set;
+    sleeps: CPU time of every command that imports NumPy, for no work (docs/tap.md).
+    ``OPENBLAS_THREAD_TIMEOUT=4`` (2^4 cycles, OpenBLAS's least) unless set;
     the number of threads, and so how BLAS splits its work and every result, is unchanged.
     Read by OpenBLAS when NumPy is first imported: call it before.
     """
