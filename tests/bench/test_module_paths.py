@@ -55,6 +55,17 @@ def test_the_former_gate_and_report_modules_names_still_resolve() -> None:
         from tap_bench.bench.gate import no_such_name  # noqa: F401
 
 
+def test_a_name_moved_between_modules_is_refused_with_its_new_module() -> None:
+    from tap_bench.bench.report import figures, page
+    with pytest.raises(ImportError, match=re.escape(
+            "write_plots moved from tap_bench.bench.report.figures to "
+            "tap_bench.bench.report.page")):
+        from tap_bench.bench.report.figures import write_plots  # noqa: F401
+    assert callable(page.write_plots) and "write_plots" in figures.MOVED_NAMES
+    with pytest.raises(AttributeError):
+        figures.no_such_name  # noqa: B018
+
+
 def test_no_module_of_bench_is_left_at_an_old_path() -> None:
     import pkgutil
     names = {m.name for m in pkgutil.iter_modules(bench.__path__, "tap_bench.bench.")}

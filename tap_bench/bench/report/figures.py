@@ -41,6 +41,18 @@ _BLUES = ((0.0, (247, 251, 255)), (0.125, (222, 235, 247)), (0.25, (198, 219, 23
 _LINE = FONT_PX + 3  # height of a text line [px]
 
 
+MOVED_NAMES = {"write_plots": "tap_bench.bench.report.page"}
+"""Names that left this module, and the module each is in now."""
+
+
+def __getattr__(name: str):
+    """An import of a name that moved out of this module names where it is now."""
+    if name in MOVED_NAMES:
+        raise ImportError(f"{name} moved from {__name__} to {MOVED_NAMES[name]}: "
+                          f"from {MOVED_NAMES[name]} import {name}", name=__name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 def _wrap(label: str, width: int = 48) -> str:
     """A label wrapped on whole words (never cut): ``A > B > C`` breaks after ``>``."""
     return "\n".join(textwrap.wrap(str(label), width=width, break_long_words=False,

@@ -310,7 +310,7 @@ def coverage(labels: pd.Series | np.ndarray, reference: Reference, *,
         labels: (n,) the agent's SDL labels, one per episode (NA labels are dropped), all
             from the env(s) the reference stands for.
         reference: a :class:`Reference` at the labels' level.
-        config: bootstrap resamples and level.
+        config: bootstrap resamples and level (and the seed of the default stream).
         rng: the random stream the draws come from, named by the caller
             (``config.rng("coverage", env, policy, reference)``);
             default ``config.rng("coverage", reference.description)``.

@@ -520,7 +520,7 @@ def diversity(labels, *, rng: np.random.Generator | None = None, size: int | Non
     Args:
         labels: (n,) the policy's ego SDL labels, one per episode (NA dropped).
         size: the common sample size m; default n (the sample's own values).
-        config: the level and bootstrap resamples.
+        config: the level and bootstrap resamples (and the seed of the default stream).
         rng: the random stream the draws come from, named by the caller
             (``config.rng("diversity", env, policy)``);
             default ``config.rng("diversity")``.

@@ -240,7 +240,7 @@ def same_policy_null(labels: np.ndarray, reference: Reference, *,
             resampled by whole episodes (a cluster bootstrap), since the windows of one
             episode are not independent. Unpaired comparisons only (windows are never
             paired); None: each unit its own episode.
-        config: resamples and level.
+        config: resamples and level (and the seed of the default stream).
         rng: the random stream the splits and draws come from, named by the caller
             (``config.rng("null", env, policy, reference, unit)``);
             default ``config.rng("null", reference.description)``.
