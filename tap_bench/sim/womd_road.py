@@ -2173,6 +2173,8 @@ class _Layout:
         self.yielder = np.array([isinstance(v, WomdIDMVehicle | WomdPathVehicle)
                                  for v in vehicles], bool)
         self.row = np.array([getattr(v, "row", -1) for v in vehicles], np.int64)
+        self.yielder_rows = np.flatnonzero(self.yielder).tolist()
+        self._braking: tuple[list, np.ndarray] | None = None  # conflict_braking's
         paths = [v.path for v in vehicles if isinstance(v, WomdPathVehicle)]
         if paths:  # the path vehicles' logged paths end to end
             self.path_points = np.concatenate([q.points for q in paths])
@@ -2182,6 +2184,19 @@ class _Layout:
             sizes = np.array([len(q.cum) for q in paths], np.int64)
             self.path_ends = np.cumsum(sizes)
             self.path_starts = self.path_ends - sizes
+
+    def conflict_braking(self) -> np.ndarray:
+        """(n,) each vehicle's comfortable braking [m/s^2] as its driver's parameters give it
+        now (NaN for those that do not give way at conflicts), made again when a driver
+        changes."""
+        drivers = [self.vehicles[r].parameters() for r in self.yielder_rows]
+        made = self._braking
+        if made is None or any(a is not b for a, b in zip(made[0], drivers, strict=True)):
+            braking = np.full(len(self.vehicles), np.nan)
+            for r, p in zip(self.yielder_rows, drivers, strict=True):
+                braking[r] = p.comfortable_braking
+            made = self._braking = (drivers, braking)
+        return made[1]
 
     def states(self, step: int) -> dict[str, np.ndarray]:
         """The vehicles' states at the road's step ``step`` as they stand: ``position``
@@ -2758,11 +2773,8 @@ class WomdRoad(Road):
         if self._mover_conflict is None:
             layout = self._vehicle_layout  # the act's
             rows = self._mover_rows
-            yielder = layout.yielder[rows]
-            braking = np.full(len(rows), np.nan)
-            for i in np.flatnonzero(yielder).tolist():
-                braking[i] = self._movers[i].parameters().comfortable_braking
-            self._mover_conflict = (yielder, braking, layout.row[rows])
+            self._mover_conflict = (layout.yielder[rows], layout.conflict_braking()[rows],
+                                    layout.row[rows])
         return self._mover_conflict
 
     def _pose_arrays(self) -> tuple[np.ndarray, ...]:

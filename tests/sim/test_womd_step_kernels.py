@@ -25,6 +25,7 @@ from tap_bench.sim.womd_road import (
     _front_rear,
     _lane_members,
     _lane_members_into,
+    _Layout,
     _leader_ahead_on,
     _leader_on,
     _Movers,
@@ -522,3 +523,23 @@ def test_the_leader_over_the_next_lanes_in_one_pass_is_the_lane_by_lane_search(s
         assert (got, got_d) == (want, want_d)
         found += want >= 0
     assert found > 20
+
+
+def test_the_comfortable_braking_at_conflicts_follows_each_drivers_parameters():
+    """_Layout.conflict_braking: each yielding vehicle's comfortable braking from its
+    driver's parameters as they are when asked (kept while every driver is the same object,
+    made again when one changes), NaN for the others."""
+    from types import SimpleNamespace
+
+    from tap_bench.sim.womd_road import DriverParameters
+
+    soft, firm = DriverParameters(comfortable_braking=1.5), DriverParameters()
+    cars = [SimpleNamespace(parameters=lambda p=p: p) for p in (soft, firm, soft)]
+    layout = SimpleNamespace(vehicles=(cars[0], object(), cars[1], cars[2]),
+                             yielder_rows=[0, 2, 3], _braking=None)
+    want = [1.5, math.nan, 2.0, 1.5]
+    got = _Layout.conflict_braking(layout)
+    np.testing.assert_array_equal(got, want)
+    assert _Layout.conflict_braking(layout) is got  # the same drivers: kept
+    cars[1].parameters = lambda: soft
+    np.testing.assert_array_equal(_Layout.conflict_braking(layout), [1.5, math.nan, 1.5, 1.5])
