@@ -24,8 +24,10 @@ separate the policies.
 ``--episodes CSV ...`` reads the episodes of earlier runs (their ``--out`` tables, joined)
 in place of driving (``--womd`` is then not needed, ``--scenes`` keeps some scenes only).
 ``--cross NAME=A0,A1+B0,B1`` pools a cross-fitted agent: each fold (``+`` between folds,
-its seeds in order) drove only the scenes it did not train on; run k of NAME is the k-th
-seed of every fold, relabelled ``NAME#k``, and NAME is the first pool (:func:`cross_fitted`).
+its models by ``,``) drove only scenes its definitions record as held out, and the folds
+together drove every driver the other policies drove; run s of NAME is every fold's model
+of training seed s (the definitions' ``seed``), relabelled ``NAME#s``, and NAME is the first
+pool (:func:`cross_fitted`); its seed intervals resample seeds within each fold.
 
 Usage: python benchmarks/agents_validation.py --womd FILES --scenes 2,5,10,14
        --policies sel-all.zip sel-sdc.zip lane-keeping random [--out eps.csv]
@@ -41,6 +43,9 @@ from __future__ import annotations
 import argparse
 import time
 import warnings
+from collections.abc import Callable, Collection, Mapping
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -51,7 +56,7 @@ from tap_bench.sim.policies import Policy, get_definition, load_policy
 from tap_bench.sim.rollout import policy_overrides, run_episode
 from tap_bench.sim.womd_env import WomdEnv
 from tap_bench.sim.womd_scene import WomdScenes
-from tap_bench.stats.aggregate import iqm, mean_score, stratified_bootstrap
+from tap_bench.stats.aggregate import BATCHED, Interval, iqm, mean_score, stratified_bootstrap
 from tap_bench.stats.bootstrap import cluster_factor, named_rng
 
 
@@ -63,8 +68,10 @@ def policy_env(scenes: WomdScenes, policy: Policy) -> WomdEnv:
 
 
 def episodes(files: list[str], scenes: list[int], policies: list[str]) -> pd.DataFrame:
-    """One row per (policy, scene, driver): the episode's measures."""
+    """One row per (policy, scene, driver): the episode's measures, and the scene's file and
+    record (``scene_ref``, as a policy definition's ``held_out_refs`` names it)."""
     scenes_ = WomdScenes(tuple(files))
+    refs = scenes_.catalog()
     rows = []
     for name in policies:
         policy = load_policy(name)
@@ -76,7 +83,8 @@ def episodes(files: list[str], scenes: list[int], policies: list[str]) -> pd.Dat
                     _, row = run_episode(env, policy, i, record=False,
                                          options={"scene": i, "ego": track})
                 layer = getattr(env.unwrapped.vehicle, "safety", None)
-                rows.append({"policy": name, "scene": i, "track": track,
+                rows.append({"policy": name, "scene": i, "scene_ref": str(refs[i]),
+                             "track": track,
                              **{k: row.get(k) for k in (
                                  "status", "route_progress", "crashed", "crash_at_fault",
                                  "off_road", "return", "length")},
@@ -91,8 +99,26 @@ def episodes(files: list[str], scenes: list[int], policies: list[str]) -> pd.Dat
 
 def read_episodes(paths: list[str], scenes: list[int] | None = None) -> pd.DataFrame:
     """The episode tables ``paths`` (this script's ``--out``) joined, on ``scenes`` only if
-    given; refuses a (policy, scene, track) episode found twice."""
-    eps = pd.concat([pd.read_csv(p, dtype={"track": str}) for p in paths], ignore_index=True)
+    given; refuses a (policy, scene, track) episode found twice, and an episode that ended
+    as episodes do (status ok) without its ``crash_at_fault`` or ``off_road`` (a blank
+    would read as True)."""
+    tables = []
+    for path in paths:
+        table = pd.read_csv(path, dtype={"track": str})
+        ok = table["status"] == "ok"
+        for column in ("crash_at_fault", "off_road"):
+            if column not in table:
+                raise ValueError(f"{path}: no column {column}")
+            blank = ok & table[column].isna()
+            if blank.any():
+                row = int(np.flatnonzero(blank.to_numpy())[0])
+                raise ValueError(
+                    f"{path}: row {row} (line {row + 2}), an episode with status ok "
+                    f"({table['policy'].iloc[row]}, scene {table['scene'].iloc[row]}, track "
+                    f"{table['track'].iloc[row]}), has no {column}; a blank is not False: "
+                    "drive that episode again or mark the row's status")
+        tables.append(table)
+    eps = pd.concat(tables, ignore_index=True)
     if scenes is not None:
         eps = eps[eps["scene"].isin(scenes)].reset_index(drop=True)
     twice = eps.duplicated(["policy", "scene", "track"])
@@ -103,37 +129,142 @@ def read_episodes(paths: list[str], scenes: list[int] | None = None) -> pd.DataF
     return eps
 
 
+@dataclass(frozen=True)
+class Trained:
+    """What a trained model's definition records of its training (:func:`trained`).
+
+    Attributes:
+        seed: the training seed (``params.seed``).
+        train: scene indexes trained on (``train_scenes``); None: not recorded.
+        held_out: scene indexes held out (``held_out_scenes``); None: not recorded.
+        held_out_refs: the held-out scenes' ``"file record k"`` (``held_out_refs``, in
+            ``held_out``'s order); None: not recorded.
+    """
+
+    seed: int
+    train: tuple[int, ...] | None
+    held_out: tuple[int, ...] | None
+    held_out_refs: tuple[str, ...] | None = None
+
+    def may_drive(self, scene: int) -> bool:
+        """Whether the model never trained on ``scene``: not among its training scenes and,
+        where its held-out scenes are recorded, among them."""
+        return ((self.train is None or scene not in self.train)
+                and (self.held_out is None or scene in self.held_out))
+
+
+def trained(policy: str) -> Trained:
+    """The training record of ``policy``'s definition.
+
+    Raises:
+        ValueError: the definition records no seed, or neither its held-out nor its
+            training scenes (its training scenes are then unknown).
+    """
+    params = get_definition(policy).params
+    train, held = params.get("train_scenes"), params.get("held_out_scenes")
+    if train is None and held is None:
+        raise ValueError(
+            f"{policy}: its definition records neither held_out_scenes nor train_scenes, so "
+            "the scenes it trained on are unknown; cross-fit models trained on recorded "
+            "scenes with --hold-out (tap-bench train --env womd --hold-out SCENES), whose "
+            "definitions record both")
+    if params.get("seed") is None:
+        raise ValueError(f"{policy}: its definition records no training seed (params "
+                         "seed), by which the folds' runs are paired; retrain with --seed")
+    refs = params.get("held_out_refs")
+    return Trained(int(params["seed"]), None if train is None else tuple(train),
+                   None if held is None else tuple(held), None if refs is None else tuple(refs))
+
+
+def _ref_key(ref: str) -> tuple[str, str]:
+    """A scene ref (``"dir/file record k"``, or a one-scene file) by file name and record,
+    so the same scene named from another directory matches."""
+    path, _, record = str(ref).partition(" record ")
+    return Path(path).name, record
+
+
 def cross_fitted(eps: pd.DataFrame, name: str, folds: list[list[str]],
-                 held_out: dict[str, list[int]] | None = None
+                 models: Mapping[str, Trained], baselines: list[str] | None = None
                  ) -> tuple[pd.DataFrame, list[str]]:
-    """``eps`` with the runs of a cross-fitted agent added: run k (policy ``name#k``) is
-    the episodes of the k-th policy of every fold of ``folds`` (each fold: one model per
-    training seed, in seed order), and the run names. Each fold's policies must have driven
-    the same scenes and no other fold's (a driver is driven once per run), and, where
-    ``held_out`` gives a policy's held-out scenes, none of the scenes it trained on."""
-    if len({len(fold) for fold in folds}) != 1:
-        raise ValueError(f"--cross {name}: the folds have {[len(f) for f in folds]} seeds; "
-                         "give each fold the same number")
+    """``eps`` with the runs of a cross-fitted agent added, and the run names: run s (policy
+    ``name#s``) is the episodes of every fold's model of training seed s (``models``: each
+    policy's :class:`Trained`).
+
+    Refuses: an empty ``name``, fewer than two folds, a model named twice, a model not in
+    ``eps``, folds whose seeds differ; a fold whose models did not all drive the same drivers;
+    a model on a scene it may have trained on (:meth:`Trained.may_drive`; where ``eps`` has
+    ``scene_ref``, also a scene whose ref is not the one the model held out as that index);
+    a scene driven by two folds; and folds that together did not drive exactly the drivers
+    (scene, track) that ``baselines`` (default: every other policy of ``eps``) drove.
+    """
+    where = f"--cross {name}"
+    if not name:
+        raise ValueError("--cross: the cross-fitted agent needs a name (NAME=A0,A1+B0,B1)")
+    if len(folds) < 2:
+        raise ValueError(f"{where}: {len(folds)} fold; cross-fitting pools two or more "
+                         "(folds by +)")
+    flat = [p for fold in folds for p in fold]
+    twice = sorted({p for p in flat if flat.count(p) > 1})
+    if twice:
+        raise ValueError(f"{where}: {twice} named more than once; each model is one seed "
+                         "of one fold")
+    absent = sorted(set(flat) - set(eps["policy"]))
+    if absent:
+        raise ValueError(f"{where}: {absent} not in the episode table")
+    unknown = sorted(set(flat) - set(models))
+    if unknown:
+        raise ValueError(f"{where}: no training record for {unknown}")
+    by_seed = [{models[p].seed: p for p in fold} for fold in folds]
+    seeds = [sorted(models[p].seed for p in fold) for fold in folds]
+    if any(len(set(s)) != len(s) or s != seeds[0] for s in seeds):
+        raise ValueError(f"{where}: the folds' training seeds {seeds} differ (or repeat "
+                         "within a fold); every fold needs one model of each seed")
+    keys = ["scene", "track"]
+    drove = {p: set(map(tuple, eps.loc[eps["policy"] == p, keys].to_numpy().tolist()))
+             for p in flat}
     seen: dict[int, int] = {}
     for f, fold in enumerate(folds):
-        driven = [set(eps.loc[eps["policy"] == p, "scene"]) for p in fold]
-        if not driven[0] or any(d != driven[0] for d in driven):
-            raise ValueError(f"--cross {name}: the seeds of fold {f} ({fold}) did not all "
-                             f"drive the same scenes: {[sorted(d) for d in driven]}")
+        driven = [drove[p] for p in fold]
+        if any(d != driven[0] for d in driven):
+            raise ValueError(f"{where}: the seeds of fold {f} ({fold}) did not all drive the "
+                             "same scenes: "
+                             f"{[sorted({s for s, _ in d}) for d in driven]}")
         for policy in fold:
-            seen_here = set(eps.loc[eps["policy"] == policy, "scene"])
-            trained = seen_here - set((held_out or {}).get(policy, seen_here))
-            if trained:
-                raise ValueError(f"--cross {name}: {policy} drove scenes it trained on: "
-                                 f"{sorted(trained)}")
-        both = {s: seen[s] for s in driven[0] if s in seen}
+            model = models[policy]
+            rows = eps[eps["policy"] == policy]
+            bad = sorted(int(s) for s in set(rows["scene"]) if not model.may_drive(int(s)))
+            if bad:
+                raise ValueError(f"{where}: {policy} drove scenes it trained on: {bad} (its "
+                                 f"definition: train_scenes {list(model.train or [])}, "
+                                 f"held_out_scenes {list(model.held_out or [])})")
+            if "scene_ref" in rows and model.held_out is not None and model.held_out_refs:
+                held = dict(zip(model.held_out, model.held_out_refs, strict=True))
+                for scene, ref in rows[["scene", "scene_ref"]].drop_duplicates().to_numpy():
+                    if pd.notna(ref) and _ref_key(ref) != _ref_key(held[int(scene)]):
+                        raise ValueError(
+                            f"{where}: the table's scene {scene} is {ref}, but {policy} held "
+                            f"out {held[int(scene)]} as scene {scene}: the table was driven "
+                            "on the files in another order than the model's training")
+        scenes = {int(s) for s, _ in driven[0]}
+        both = {s: seen[s] for s in scenes if s in seen}
         if both:
-            raise ValueError(f"--cross {name}: scenes {sorted(both)} driven by folds "
+            raise ValueError(f"{where}: scenes {sorted(both)} driven by folds "
                              f"{sorted(set(both.values()))} and {f}")
-        seen.update(dict.fromkeys(driven[0], f))
-    runs = [f"{name}#{k}" for k in range(len(folds[0]))]
-    added = [eps[eps["policy"].isin([fold[k] for fold in folds])].assign(policy=run)
-             for k, run in enumerate(runs)]
+        seen.update(dict.fromkeys(scenes, f))
+    others = eps[eps["policy"].isin(baselines) if baselines is not None
+                 else ~eps["policy"].isin(flat)]
+    if len(others):
+        expected = set(map(tuple, others[keys].to_numpy().tolist()))
+        covered = set().union(*(drove[fold[0]] for fold in folds))
+        if covered != expected:
+            missing, extra = sorted(expected - covered), sorted(covered - expected)
+            raise ValueError(f"{where}: the folds did not drive the drivers the other "
+                             f"policies drove: {len(missing)} (scene, track) not driven by "
+                             f"any fold {missing[:5]}, {len(extra)} driven by a fold only "
+                             f"{extra[:5]}")
+    runs = [f"{name}#{s}" for s in seeds[0]]
+    added = [eps[eps["policy"].isin([fold[s] for fold in by_seed])].assign(policy=run)
+             for s, run in zip(seeds[0], runs, strict=True)]
     return pd.concat([eps, *added], ignore_index=True), runs
 
 
@@ -185,12 +316,19 @@ def _judged(eps: pd.DataFrame) -> pd.DataFrame:
     return ok
 
 
-def seed_intervals(eps: pd.DataFrame, members: list[str], *, n_resamples: int = 2000,
+def seed_intervals(eps: pd.DataFrame, members: list[str], *,
+                   strata: list[Collection[int]] | None = None, n_resamples: int = 2000,
                    level: float = 0.95, seed: int = 0) -> dict[str, float]:
     """An agent's route progress IQM and at-fault rate over its seeds ``members`` (runs) x
     the drivers every seed drove (tasks; for progress, those who moved in every seed's
     episode), with percentile intervals at ``level``: ``*_task`` rliable's stratified
-    bootstrap, ``*_run`` whole seeds resampled (:func:`stratified_bootstrap`)."""
+    bootstrap, ``*_run`` whole seeds resampled (:func:`stratified_bootstrap`).
+
+    ``strata`` (a cross-fitted agent: each fold's scenes) resamples the seeds within each
+    fold on its own: a draw takes, for each fold's drivers, that many of the fold's seeds
+    with replacement, independently of the other folds (:func:`_fold_run_bootstrap`), so
+    the interval does not depend on which seed of one fold a run pairs with which of
+    another."""
     ok = _judged(eps)
     ok = ok[ok["policy"].isin(members)]
     out: dict[str, float] = {}
@@ -198,14 +336,50 @@ def seed_intervals(eps: pd.DataFrame, members: list[str], *, n_resamples: int = 
                                    ("at_fault", mean_score, "at_fault")):
         table = ok.pivot_table(index=["scene", "track"], columns="policy", values=column,
                                aggfunc="first", dropna=False)
-        scores = table.reindex(columns=members).dropna().to_numpy(float).T
+        table = table.reindex(columns=members).dropna()
+        scores = table.to_numpy(float).T
         for unit in ("task", "run"):
-            interval = stratified_bootstrap(
-                scores, statistic, rng=named_rng(seed, "agents_validation", key, unit),
-                level=level, n_resamples=n_resamples, unit=unit)
+            rng = named_rng(seed, "agents_validation", key, unit)
+            if unit == "run" and strata is not None and len(strata) > 1:
+                scene = table.index.get_level_values("scene").to_numpy()
+                blocks = [np.flatnonzero(np.isin(scene, list(s))) for s in strata]
+                interval = _fold_run_bootstrap(scores, statistic, blocks, rng=rng,
+                                               level=level, n_resamples=n_resamples)
+            else:
+                interval = stratified_bootstrap(scores, statistic, rng=rng, level=level,
+                                                n_resamples=n_resamples, unit=unit)
             out[key] = interval.estimate
             out[f"{key}_low_{unit}"], out[f"{key}_high_{unit}"] = interval.low, interval.high
     return out
+
+
+def _fold_run_bootstrap(scores: np.ndarray, statistic: Callable[[np.ndarray], float],
+                        blocks: list[np.ndarray], *, rng: np.random.Generator, level: float,
+                        n_resamples: int) -> Interval:
+    """:func:`stratified_bootstrap`'s whole-run resampling of ``scores`` (runs x tasks),
+    stratified by fold: the task columns of each of ``blocks`` get runs drawn on their own
+    (every fold's seeds resampled independently); the draws widened by sqrt(n / (n - 1))
+    for n runs and, for a mean, kept within the scores' range."""
+    n_runs, n_tasks = scores.shape
+    covered = np.sort(np.concatenate(blocks)) if blocks else np.array([], int)
+    if not np.array_equal(covered, np.arange(n_tasks)):
+        raise ValueError("the folds' scenes do not split the drivers into one fold each")
+    rows = np.empty((n_resamples, n_runs, n_tasks), dtype=int)
+    for block in blocks:
+        rows[:, :, block] = rng.integers(0, n_runs, size=(n_resamples, n_runs, 1))
+    samples = scores[rows, np.arange(n_tasks)]
+    if statistic in BATCHED:
+        boot = np.asarray(statistic(samples), dtype=float)
+    else:
+        boot = np.array([statistic(sample) for sample in samples], dtype=float)
+    estimate = float(statistic(scores))
+    factor = cluster_factor(n_runs)
+    spread = boot if not np.isfinite(factor) else estimate + factor * (boot - estimate)
+    if statistic in BATCHED:
+        spread = np.clip(spread, scores.min(), scores.max())
+    alpha = (1 - level) / 2
+    low, high = np.quantile(spread, [alpha, 1 - alpha])
+    return Interval(estimate, float(low), float(high), level)
 
 
 def scene_intervals(eps: pd.DataFrame, groups: dict[str, list[str]], lead: str, *,
@@ -291,6 +465,14 @@ def main() -> None:
         if not name or unknown:
             parser.error(f"--pool {item}: write NAME=P1,P2 with policies of --policies "
                          f"(not in them: {sorted(unknown)})")
+    crosses = {}
+    for item in args.cross:
+        name, eq, spec = item.partition("=")
+        folds = [fold.split(",") for fold in spec.split("+")]
+        if not eq or not name or len(folds) < 2 or not all(all(fold) for fold in folds):
+            parser.error(f"--cross {item}: write NAME=A0,A1+B0,B1 (a name, then two or more "
+                         "folds by +, each fold's models by ,)")
+        crosses[name] = folds
     start, cpu = time.perf_counter(), time.process_time()
     if args.episodes:
         eps = read_episodes(args.episodes, scenes)
@@ -300,14 +482,20 @@ def main() -> None:
             parser.error(f"--policies {sorted(missing)} not in the tables {args.episodes}")
     else:
         eps = episodes(args.womd, scenes, args.policies)
-    judged, runs, crossed = eps, [], {}
-    for item in args.cross:
-        name, _, spec = item.partition("=")
-        folds = [fold.split(",") for fold in spec.split("+")]
-        held_out = {p: list(get_definition(p).params.get("held_out_scenes") or scenes)
-                    for fold in folds for p in fold}
-        judged, named = cross_fitted(judged, name, folds, held_out)
+    judged, runs, crossed, strata = eps, [], {}, {}
+    for name, folds in crosses.items():
+        flat = [p for fold in folds for p in fold]
+        absent = sorted(set(flat) - set(eps["policy"]))
+        if absent:
+            parser.error(f"--cross {name}: {absent} not in the tables --episodes read "
+                         f"({', '.join(args.episodes)})" if args.episodes else
+                         f"--cross {name}: {absent} not among the --policies driven")
+        models = {p: trained(p) for p in flat}
+        judged, named = cross_fitted(judged, name, folds, models,
+                                     [p for p in args.policies if p not in flat])
         crossed[name] = named
+        strata[name] = [sorted(set(eps.loc[eps["policy"] == fold[0], "scene"]))
+                        for fold in folds]
         runs += named
     pools = {**crossed, **pools}
     table = summary(judged, args.policies + runs, pools)
@@ -317,7 +505,7 @@ def main() -> None:
     if args.intervals:
         groups = {**pools, **{name: [name] for name in args.policies}}
         lead = next(iter(pools)) if pools else args.policies[0]
-        seeds = seed_intervals(judged, groups[lead])
+        seeds = seed_intervals(judged, groups[lead], strata=strata.get(lead))
         scenes_table = scene_intervals(judged, groups, lead)
         with pd.option_context("display.width", 250, "display.max_columns", 20):
             print(f"{lead} over its seeds:", {k: round(v, 3) for k, v in seeds.items()})

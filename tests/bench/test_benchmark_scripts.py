@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -109,9 +110,19 @@ def _fold_episodes() -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def _fold_models(**changes) -> dict:
+    """The training records of ``_fold_episodes``' models: a0, a1 (seeds 0, 1) trained on
+    scenes 2, 3 and held out 0, 1; b0, b1 the other way round; ``changes`` replace some."""
+    trained = agents_validation.Trained
+    models = {f"a{k}": trained(k, (2, 3), (0, 1)) for k in range(2)}
+    models.update({f"b{k}": trained(k, (0, 1), (2, 3)) for k in range(2)})
+    return {**models, **changes}
+
+
 def test_a_cross_fitted_run_is_the_same_seed_of_every_fold_on_its_held_out_scenes():
     eps, runs = agents_validation.cross_fitted(_fold_episodes(), "x", [["a0", "a1"],
-                                                                       ["b0", "b1"]])
+                                                                       ["b0", "b1"]],
+                                               _fold_models())
     assert runs == ["x#0", "x#1"]
     run0 = eps[eps["policy"] == "x#0"]
     assert sorted(run0["scene"]) == [0, 0, 1, 1, 2, 2, 3, 3]
@@ -123,16 +134,121 @@ def test_a_cross_fitted_run_is_the_same_seed_of_every_fold_on_its_held_out_scene
     assert seeds["iqm"] == pytest.approx(0.6)  # 0.3, 0.5, 0.7, 0.9 over 16: the middle half
 
 
-@pytest.mark.parametrize("folds, held_out, message", [
-    ([["a0", "a1"], ["b0"]], None, "same number"),
-    ([["a0", "b1"], ["b0", "a1"]], None, "did not all drive the same scenes"),
-    ([["a0", "a1"], ["c", "c"]], None, "driven by folds"),
-    ([["a0", "a1"], ["b0", "b1"]], {"a1": [1, 2]}, "drove scenes it trained on: [0]"),
+def test_a_cross_fitted_run_pairs_the_folds_models_by_their_training_seed():
+    """Fold B named in another order: run 0 is still a0 with b0 (by position it was b1)."""
+    eps, runs = agents_validation.cross_fitted(_fold_episodes(), "x", [["a0", "a1"],
+                                                                       ["b1", "b0"]],
+                                               _fold_models())
+    assert runs == ["x#0", "x#1"]
+    run0 = eps[eps["policy"] == "x#0"]
+    assert sorted(set(run0["route_progress"])) == [0.5, 0.9]
+
+
+def _trained(seed, train, held_out, refs=None):
+    return agents_validation.Trained(seed, train, held_out, refs)
+
+
+@pytest.mark.parametrize("name, folds, models, message", [
+    ("x", [["a0", "a1"], ["b0"]], {}, "seeds"),
+    ("x", [["a0", "b1"], ["b0", "a1"]], {"a1": _trained(1, (), (0, 1, 2, 3)),
+                                          "b1": _trained(1, (), (0, 1, 2, 3))},
+     "did not all drive the same scenes"),
+    ("x", [["a0", "a1"], ["b0", "b1"]], {"a1": _trained(1, (0, 3), (1, 2))},
+     "drove scenes it trained on: [0]"),
+    # trained with no --hold-out: every scene a training scene, none held out
+    ("x", [["a0", "a1"], ["b0", "b1"]], {"a1": _trained(1, (0, 1, 2, 3), ())},
+     "drove scenes it trained on: [0, 1]"),
+    ("x", [["a0", "a1"], ["b0", "b1"]], {"a1": _trained(1, None, ())},
+     "drove scenes it trained on: [0, 1]"),
+    ("x", [["a0", "a1"], ["b0", "b0"]], {}, "['b0'] named more than once"),
+    ("x", [["a0", "a1"], ["b0", "b1"]], {"b1": _trained(2, (0, 1), (2, 3))},
+     "training seeds [[0, 1], [0, 2]] differ"),
+    ("x", [["a0", "a1"]], {}, "two or more"),
+    ("", [["a0", "a1"], ["b0", "b1"]], {}, "needs a name"),
+    ("x", [["a0", "a1"], ["b0", "typo"]], {}, "['typo'] not in the episode table"),
 ])
 def test_cross_fitting_refuses_a_driver_seen_twice_or_by_a_model_trained_on_it(
-        folds, held_out, message):
+        name, folds, models, message):
     with pytest.raises(ValueError, match=message.replace("[", r"\[").replace("]", r"\]")):
-        agents_validation.cross_fitted(_fold_episodes(), "x", folds, held_out)
+        agents_validation.cross_fitted(_fold_episodes(), name, folds, _fold_models(**models))
+
+
+def test_cross_fitting_refuses_folds_that_miss_drivers_the_baselines_drove():
+    eps = _fold_episodes()
+    without = eps[~((eps["scene"] == 3) & eps["policy"].isin(["b0", "b1"]))]
+    with pytest.raises(ValueError, match=r"2 \(scene, track\) not driven by any fold"):
+        agents_validation.cross_fitted(without, "x", [["a0", "a1"], ["b0", "b1"]],
+                                       _fold_models(**{f"b{k}": _trained(k, (0, 1), (2, 3))
+                                                       for k in range(2)}))
+    # another policy, on a driver no other drove: a baseline by default, not if not named
+    extra = pd.concat([eps, eps.iloc[:1].assign(policy="e", track="9")], ignore_index=True)
+    with pytest.raises(ValueError, match=r"1 \(scene, track\) not driven by any fold"):
+        agents_validation.cross_fitted(extra, "x", [["a0", "a1"], ["b0", "b1"]],
+                                       _fold_models())
+    _, runs = agents_validation.cross_fitted(extra, "x", [["a0", "a1"], ["b0", "b1"]],
+                                             _fold_models(), baselines=["c"])
+    assert runs == ["x#0", "x#1"]
+    # a scene driven twice by the folds
+    twice = pd.concat([eps, eps[eps["policy"] == "c"].assign(policy="d")],
+                      ignore_index=True)
+    models = _fold_models(c=_trained(0, (), (0, 1, 2, 3)), d=_trained(1, (), (0, 1, 2, 3)))
+    with pytest.raises(ValueError, match="driven by folds"):
+        agents_validation.cross_fitted(twice, "x", [["a0", "a1"], ["c", "d"]], models)
+
+
+def test_cross_fitting_checks_the_tables_scenes_by_the_files_the_model_held_out():
+    """A table that carries each scene's file and record: scene 1 of files read in another
+    order is not the scene the model held out as 1."""
+    eps = _fold_episodes()
+    eps["scene_ref"] = "data/other/f.tfrecord record " + eps["scene"].astype(str)
+    refs = ("/data/f.tfrecord record 0", "/data/f.tfrecord record 1")
+    models = _fold_models(**{f"a{k}": _trained(k, (2, 3), (0, 1), refs) for k in range(2)})
+    _, runs = agents_validation.cross_fitted(eps, "x", [["a0", "a1"], ["b0", "b1"]], models)
+    assert runs == ["x#0", "x#1"]  # the same file, named from another folder
+    eps.loc[eps["scene"] == 1, "scene_ref"] = "data/other/f.tfrecord record 7"
+    with pytest.raises(ValueError, match=r"scene 1 is data/other/f\.tfrecord record 7, but a0"):
+        agents_validation.cross_fitted(eps, "x", [["a0", "a1"], ["b0", "b1"]], models)
+
+
+def test_a_model_whose_definition_records_no_training_scenes_is_refused():
+    with pytest.raises(ValueError, match=r"ppo-highway: its definition records neither "
+                                         r"held_out_scenes nor train_scenes.*--hold-out"):
+        agents_validation.trained("ppo-highway")
+    model = agents_validation.trained("ppo-womd-foldb-seed3")
+    assert model.seed == 3 and model.held_out == (0, 3, 4, 6, 7, 8, 10, 11)
+    assert not model.may_drive(1) and model.may_drive(0)
+
+
+def test_the_cross_fitted_seed_interval_does_not_depend_on_how_the_folds_seeds_pair():
+    """Each fold's seeds resampled on their own: fold B's seeds relabelled (seed k of fold A
+    with another seed of fold B) leave the whole-seeds interval as it is. Paired by run, it
+    was [0.374, 0.641] with fold B in seed order and [0.502, 0.545] reversed."""
+    rng = np.random.default_rng(1)
+    rows = []
+    means = {"a": [0.3, 0.5, 0.7, 0.4, 0.6], "b": [0.35, 0.65, 0.45, 0.55, 0.75]}
+    for scene in range(8):
+        fold = "a" if scene < 4 else "b"
+        for track in range(6):
+            for k, mean in enumerate(means[fold]):
+                rows.append({"policy": f"{fold}{k}", "scene": scene, "track": str(track),
+                             "status": "ok", "crash_at_fault": False, "off_road": False,
+                             "route_progress": float(np.clip(
+                                 mean + 0.1 * rng.standard_normal(), 0, 1))})
+    eps = pd.DataFrame(rows)
+    folds = [[f"a{k}" for k in range(5)], [f"b{k}" for k in range(5)]]
+    trained = agents_validation.Trained
+    figures = []
+    for order in ([0, 1, 2, 3, 4], [4, 3, 2, 1, 0]):
+        models = {f"a{k}": trained(k, (4, 5, 6, 7), (0, 1, 2, 3)) for k in range(5)}
+        models.update({f"b{k}": trained(s, (0, 1, 2, 3), (4, 5, 6, 7))
+                       for k, s in enumerate(order)})
+        crossed, runs = agents_validation.cross_fitted(eps, "x", folds, models)
+        figures.append(agents_validation.seed_intervals(
+            crossed, runs, strata=[range(4), range(4, 8)], n_resamples=400))
+    assert figures[0]["iqm"] == pytest.approx(figures[1]["iqm"])
+    assert figures[0]["iqm_low_run"] == pytest.approx(figures[1]["iqm_low_run"], abs=0.01)
+    assert figures[0]["iqm_high_run"] == pytest.approx(figures[1]["iqm_high_run"], abs=0.01)
+    assert figures[0]["iqm_low_run"] < figures[0]["iqm"] - 0.02
 
 
 def test_runs_read_back_from_their_tables_join_and_refuse_an_episode_twice(tmp_path):
@@ -145,6 +261,21 @@ def test_runs_read_back_from_their_tables_join_and_refuse_an_episode_twice(tmp_p
     assert set(agents_validation.read_episodes([str(tmp_path / "two.csv")], [3])["scene"]) == {3}
     with pytest.raises(ValueError, match="more than once"):
         agents_validation.read_episodes([str(tmp_path / "one.csv")] * 2)
+
+
+def test_an_episode_read_back_without_its_at_fault_or_off_road_is_refused(tmp_path):
+    """A blank read back from a table counted as True (at fault, off road) where the episode
+    in memory had counted as False; an error row may leave them blank."""
+    eps = _fold_episodes().astype({"crash_at_fault": object, "off_road": object})
+    eps.loc[3, "status"] = "error"
+    eps.loc[3, ["route_progress", "crash_at_fault", "off_road"]] = None
+    eps.to_csv(tmp_path / "eps.csv", index=False)
+    read = agents_validation.read_episodes([str(tmp_path / "eps.csv")])
+    assert agents_validation.summary(read, ["a0"])["at_fault_n"].item() == 0
+    eps.loc[5, "off_road"] = None
+    eps.to_csv(tmp_path / "eps.csv", index=False)
+    with pytest.raises(ValueError, match=r"eps.csv: row 5 \(line 7\).*has no off_road"):
+        agents_validation.read_episodes([str(tmp_path / "eps.csv")])
 
 
 def test_the_cross_fitted_verdict_reads_tables_and_the_models_held_out_scenes(
@@ -169,3 +300,23 @@ def test_the_cross_fitted_verdict_reads_tables_and_the_models_held_out_scenes(
     eps.to_csv(tmp_path / "eps.csv", index=False)
     with pytest.raises(ValueError, match="trained on: \\[0\\]"):
         agents_validation.main()
+
+
+@pytest.mark.parametrize("cross, message", [
+    ("x", "write NAME=A0,A1"), ("=a0,a1+b0,b1", "write NAME=A0,A1"),
+    ("x=a0,a1", "write NAME=A0,A1"), ("x=a0,a1+b0,", "write NAME=A0,A1"),
+    ("x=ppo-womd-split-seed0+ppo-womd-seed0", "not in the tables --episodes read"),
+])
+def test_the_command_line_refuses_a_cross_it_cannot_read(tmp_path, monkeypatch, capsys,
+                                                          cross, message):
+    _fold_episodes().to_csv(tmp_path / "eps.csv", index=False)
+    monkeypatch.setattr(agents_validation, "report", lambda name, figures: None)
+    monkeypatch.setattr(sys, "argv", ["agents_validation.py", "--episodes",
+                                      str(tmp_path / "eps.csv"), "--policies", "c",
+                                      "--cross", cross])
+    with pytest.raises(SystemExit):
+        agents_validation.main()
+    err = capsys.readouterr().err
+    assert message in err
+    if cross.startswith("x=p"):  # the missing models and the tables read, by name
+        assert "ppo-womd-seed0" in err and "eps.csv" in err
