@@ -143,6 +143,9 @@ def test_the_estimate_s_first_episode_is_labelled_with_its_batch(tmp_path, monke
     assert [members for members, _ in items] == [[i] for i in range(8)]
     items = run_tasks._items(stand_ins, list(range(8)), [False] * 8, workers=1)
     assert [members for members, _ in items] == [[0, 1, 2, 3], [4, 5, 6, 7]]
+    monkeypatch.setattr(run_tasks, "CACHED_BATCH", 3)  # still the most a task holds
+    items = run_tasks._items(stand_ins, list(range(8)), [False] * 8, workers=1)
+    assert [members for members, _ in items] == [[0, 1, 2], [3], [4, 5, 6], [7]]
     for name in ("episodes", "labels", "segments"):
         pd.testing.assert_frame_equal(pd.read_parquet(tmp_path / "timed" / f"{name}.parquet"),
                                       pd.read_parquet(tmp_path / "plain" / f"{name}.parquet"),

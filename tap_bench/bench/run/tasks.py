@@ -389,7 +389,7 @@ def _items(tasks: list[_Task], indices: list[int], cached: list[bool], workers: 
     to_simulate = sum(not cached[i] for i in indices)
     per_worker = math.ceil(to_simulate / (BATCHES_PER_WORKER * max(1, workers)))
     fewest = IN_PROCESS_BATCH if workers <= 1 else 1
-    size = {True: CACHED_BATCH, False: max(fewest, min(CACHED_BATCH, per_worker))}
+    size = {True: CACHED_BATCH, False: max(1, min(CACHED_BATCH, max(fewest, per_worker)))}
     groups: dict[tuple[str, str, bool], list[int]] = {}
     for i in indices:
         groups.setdefault((tasks[i].env, tasks[i].policy, cached[i]), []).append(i)
