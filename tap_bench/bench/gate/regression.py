@@ -837,12 +837,14 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
                      else "", "metric": "definition", "test": "", "forced": True,
                      "note": f"{kind} {name!r} changed since the baseline: {what}"})
     plans = []  # (key, base, run) of the cells to test
+    # each table split by cell once (rows in table order, as a mask per cell selects them)
+    base_cells, run_cells = _by_cell(baseline_episodes), _by_cell(run_ok)
+    failed_cells = {cell: len(part) for cell, part in _by_cell(run_failed).items()}
     for env, policy in cells:
-        base = baseline_episodes[(baseline_episodes["env"] == env)
-                                 & (baseline_episodes["policy"] == policy)]
-        run = run_ok[(run_ok["env"] == env) & (run_ok["policy"] == policy)]
+        base = base_cells.get((env, policy), baseline_episodes.iloc[:0])
+        run = run_cells.get((env, policy), run_ok.iloc[:0])
         key = {"env": env, "policy": policy}
-        n_failed = int(((run_failed["env"] == env) & (run_failed["policy"] == policy)).sum())
+        n_failed = failed_cells.get((env, policy), 0)
         if n_failed:
             rows.append({**key, "metric": "failed_episodes", "n_baseline": len(base),
                          "n_run": len(run), "baseline": 0.0, "run": float(n_failed),
@@ -879,6 +881,17 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
         ["_order", "env", "policy"], kind="stable").drop(columns="_order").reset_index(
         drop=True)
     return GateResult(table, bool(table["moved"].any()), config)
+
+
+def _by_cell(episodes: pd.DataFrame) -> dict[tuple[Any, Any], pd.DataFrame]:
+    """``episodes``' rows by (env, policy), each part in table order with its index."""
+    if not len(episodes):
+        return {}
+    env, policy = episodes["env"].to_numpy(), episodes["policy"].to_numpy()
+    if (env == env[0]).all() and (policy == policy[0]).all():  # one cell: the table
+        return {(env[0], policy[0]): episodes}
+    return {cell: part for cell, part in episodes.groupby(["env", "policy"], sort=False,
+                                                          observed=True)}
 
 
 _COLUMNS = ["env", "policy", "metric", "direction", "test", "n_baseline", "n_run",
