@@ -186,6 +186,23 @@ def pytest_runtest_protocol(item, nextitem):
         stream.write(json.dumps(line) + "\n")
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _plugins_loaded_by_this_module_only():
+    """The plugins a test module loaded (:func:`tap_bench.plugins.load_plugins`; a suite
+    planned while a test module's own function was a registered measure records that test
+    module as one) are forgotten when the module ends: every worker process the execution
+    layer starts imports the loaded plugins first, so a test module recorded once made every
+    later worker of that pytest process import it (pytest and much of tap-bench: about 1
+    CPU s a worker; tests/execution's 20 worker starts took 40 CPU s in the suite against 4
+    alone). What was imported stays imported in this process."""
+    from tap_bench import plugins
+
+    before = dict(plugins._LOADED)
+    yield
+    plugins._LOADED.clear()
+    plugins._LOADED.update(before)
+
+
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config, log):
     """Under pytest-xdist (``-n N``), each test file runs whole in one worker (xdist's
