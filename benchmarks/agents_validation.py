@@ -28,10 +28,16 @@ its models by ``,``) drove only scenes its definitions record as held out, and t
 together drove every driver the other policies drove; run s of NAME is every fold's model
 of training seed s (the definitions' ``seed``), relabelled ``NAME#s``, and NAME is the first
 pool (:func:`cross_fitted`); its seed intervals resample seeds within each fold.
+``--layer JSON`` drives every policy of ``--policies`` that drives with a safety layer (a
+trained agent whose action config has ``safety_layer``) with this one in its place (a
+mapping of :class:`tap_bench.sim.womd_safety.SafetyLayer`'s fields, ``true`` or ``false``);
+the other policies drive as defined, and each episode's ``layer`` column says which layer
+its ego drove with (compact JSON; blank: none of its own).
 
 Usage: python benchmarks/agents_validation.py --womd FILES --scenes 2,5,10,14
        --policies sel-all.zip sel-sdc.zip lane-keeping random [--out eps.csv]
        [--intervals]
+       [--layer '{"predicted": true, "lanes": true, "tolerance": 0.5, "hold": true}']
        [--pool ppo-womd=ppo-womd-split-seed0,ppo-womd-split-seed1,ppo-womd-split-seed2,ppo-womd-split-seed3,ppo-womd-split-seed4]
        python benchmarks/agents_validation.py --episodes folda.csv foldb.csv
        --policies lane-keeping random idm --intervals
@@ -41,20 +47,24 @@ Usage: python benchmarks/agents_validation.py --womd FILES --scenes 2,5,10,14
 from __future__ import annotations
 
 import argparse
+import json
 import time
 import warnings
 from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
 from machine import report
 
+from tap_bench.errors import ParameterError
 from tap_bench.rl.heldout import drivers
 from tap_bench.sim.policies import Policy, get_definition, load_policy
 from tap_bench.sim.rollout import policy_overrides, run_episode
 from tap_bench.sim.womd_env import WomdEnv
+from tap_bench.sim.womd_safety import safety_layer
 from tap_bench.sim.womd_scene import WomdScenes
 from tap_bench.stats.aggregate import BATCHED, Interval, iqm, mean_score, stratified_bootstrap
 from tap_bench.stats.bootstrap import cluster_factor, named_rng
@@ -67,14 +77,63 @@ def policy_env(scenes: WomdScenes, policy: Policy) -> WomdEnv:
     return WomdEnv(scenes.with_overrides(policy_overrides(policy)), record=False)
 
 
-def episodes(files: list[str], scenes: list[int], policies: list[str]) -> pd.DataFrame:
+def parse_layer(text: str) -> Any:
+    """The safety layer ``--layer`` asks for: ``text`` as JSON, ``true``, ``false`` or a
+    mapping of :class:`~tap_bench.sim.womd_safety.SafetyLayer`'s fields, checked as a
+    policy's action config is (:func:`~tap_bench.sim.womd_safety.safety_layer`).
+
+    Raises:
+        ValueError: not JSON, or not a layer (says why, with the fields it takes).
+    """
+    try:
+        setting = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise ValueError(f"--layer {text}: not JSON ({error}); write true, false or a "
+                         'mapping such as \'{"predicted": true, "lanes": true, '
+                         '"tolerance": 0.5, "hold": true}\'') from None
+    try:
+        safety_layer(setting)
+    except ParameterError as error:
+        raise ValueError(f"--layer {text}: {error}") from None
+    return setting
+
+
+def layered(policies: list[str]) -> list[str]:
+    """Those of ``policies`` whose definitions drive with a safety layer (their action
+    config has ``safety_layer``): the ones ``--layer`` changes."""
+    out = []
+    for name in policies:
+        action = get_definition(name).params.get("action")
+        if isinstance(action, Mapping) and "safety_layer" in action:
+            out.append(name)
+    return out
+
+
+def with_layer(policy: Policy, layer: Any) -> bool:
+    """Make ``policy`` drive with the safety layer ``layer`` (a ``safety_layer`` setting)
+    in place of its own, if it drives with one; returns whether it does."""
+    action = getattr(policy, "action", None)
+    if not isinstance(action, Mapping) or "safety_layer" not in action:
+        return False
+    policy.action = {**action, "safety_layer": layer}
+    return True
+
+
+_OWN = object()  # episodes(): every policy drives with its own layer
+
+
+def episodes(files: list[str], scenes: list[int], policies: list[str],
+             layer: Any = _OWN) -> pd.DataFrame:
     """One row per (policy, scene, driver): the episode's measures, and the scene's file and
-    record (``scene_ref``, as a policy definition's ``held_out_refs`` names it)."""
+    record (``scene_ref``, as a policy definition's ``held_out_refs`` names it); with
+    ``layer`` (a ``safety_layer`` setting) the policies that drive with a safety layer drive
+    with that one (:func:`with_layer`), and ``layer`` says so (compact JSON)."""
     scenes_ = WomdScenes(tuple(files))
     refs = scenes_.catalog()
     rows = []
     for name in policies:
         policy = load_policy(name)
+        changed = layer is not _OWN and with_layer(policy, layer)
         env = policy_env(scenes_, policy)
         for i in scenes:
             for track in drivers(env.scene_at(i)):
@@ -82,18 +141,21 @@ def episodes(files: list[str], scenes: list[int], policies: list[str]) -> pd.Dat
                     warnings.simplefilter("ignore")
                     _, row = run_episode(env, policy, i, record=False,
                                          options={"scene": i, "ego": track})
-                layer = getattr(env.unwrapped.vehicle, "safety", None)
+                layer_ = getattr(env.unwrapped.vehicle, "safety", None)
                 rows.append({"policy": name, "scene": i, "scene_ref": str(refs[i]),
                              "track": track,
                              **{k: row.get(k) for k in (
                                  "status", "route_progress", "crashed", "crash_at_fault",
                                  "off_road", "return", "length")},
+                             **({"layer": json.dumps(layer, sort_keys=True,
+                                                     separators=(",", ":"))}
+                                if changed else {}),
                              # the agent's safety layer: simulated steps it judged, lowered
                              # the policy's acceleration in, made it brake in
-                             **({"layer_steps": layer.steps, "layer_capped": layer.capped,
-                                 "layer_braked": layer.braked,
-                                 "layer_foreseen": layer.foreseen}
-                                if layer is not None else {})})
+                             **({"layer_steps": layer_.steps, "layer_capped": layer_.capped,
+                                 "layer_braked": layer_.braked,
+                                 "layer_foreseen": layer_.foreseen}
+                                if layer_ is not None else {})})
     return pd.DataFrame(rows)
 
 
@@ -299,7 +361,9 @@ def summary(eps: pd.DataFrame, policies: list[str],
                      "layer_braked": float(rows["layer_braked"].sum() / steps),
                      "layer_foreseen": float(rows["layer_foreseen"].sum() / steps)}
         out.append({"policy": name, "episodes": len(rows), **layer,
-                    "progress_mean": float(moved.mean()), "progress_iqm": float(iqm(moved)),
+                    # nan where no driver moved (no route progress to average)
+                    "progress_mean": float(moved.mean()) if len(moved) else float("nan"),
+                    "progress_iqm": float(iqm(moved)) if len(moved) else float("nan"),
                     "at_fault": float(rows["at_fault"].mean()),
                     "at_fault_n": int(rows["at_fault"].sum()),
                     "off_road": float(rows["off_road"].astype(bool).mean()),
@@ -451,12 +515,28 @@ def main() -> None:
     parser.add_argument("--out", help="write the episodes there (CSV)")
     parser.add_argument("--pool", nargs="+", default=[], metavar="NAME=P1,P2",
                         help="a row for the episodes of several policies together")
+    parser.add_argument("--layer", metavar="JSON",
+                        help="drive the policies that drive with a safety layer with this "
+                        "one instead (true, false or a mapping of the layer's fields)")
     parser.add_argument("--intervals", action="store_true",
                         help="95%% intervals over the first pool's seeds and over the scenes")
     args = parser.parse_args()
     if not args.episodes and not (args.womd and args.scenes):
         parser.error("give --womd and --scenes to drive, or --episodes to read runs")
     scenes = [int(s) for s in args.scenes.split(",")] if args.scenes else None
+    layer = _OWN
+    if args.layer is not None:
+        if args.episodes:
+            parser.error("--layer drives with another safety layer: it needs --womd and "
+                         "--scenes, not --episodes (the tables' layer column says what "
+                         "each episode drove with)")
+        try:
+            layer = parse_layer(args.layer)
+        except ValueError as error:
+            parser.error(str(error))
+        if not layered(args.policies):
+            parser.error(f"--layer: none of --policies {args.policies} drives with a safety "
+                         "layer (a trained agent whose action config has safety_layer)")
     pools = {}
     for item in args.pool:
         name, _, members = item.partition("=")
@@ -481,7 +561,7 @@ def main() -> None:
         if missing:
             parser.error(f"--policies {sorted(missing)} not in the tables {args.episodes}")
     else:
-        eps = episodes(args.womd, scenes, args.policies)
+        eps = episodes(args.womd, scenes, args.policies, layer)
     judged, runs, crossed, strata = eps, [], {}, {}
     for name, folds in crosses.items():
         flat = [p for fold in folds for p in fold]

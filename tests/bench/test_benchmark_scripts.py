@@ -320,3 +320,99 @@ def test_the_command_line_refuses_a_cross_it_cannot_read(tmp_path, monkeypatch, 
     assert message in err
     if cross.startswith("x=p"):  # the missing models and the tables read, by name
         assert "ppo-womd-seed0" in err and "eps.csv" in err
+
+
+HOLD_HALF = {"predicted": True, "lanes": True, "tolerance": 0.5, "hold": True}
+
+
+def test_a_layer_given_replaces_only_an_agents_own_layer():
+    from tap_bench.sim.policies import load_policy
+    from tap_bench.sim.rollout import policy_overrides
+
+    agent, lane_keeping = load_policy("ppo-womd-split-seed0"), load_policy("lane-keeping")
+    own = dict(agent.action)
+    assert agents_validation.with_layer(agent, HOLD_HALF)
+    assert not agents_validation.with_layer(lane_keeping, HOLD_HALF)
+    action = policy_overrides(agent)["action"]
+    assert action["safety_layer"] == HOLD_HALF
+    assert {k: v for k, v in action.items() if k != "safety_layer"} == {
+        k: v for k, v in own.items() if k != "safety_layer"}
+    assert "action" not in policy_overrides(lane_keeping)
+    assert load_policy("ppo-womd-split-seed0").action == own  # the definition is unchanged
+    assert agents_validation.layered(["lane-keeping", "ppo-womd-split-seed0", "idm"]) == [
+        "ppo-womd-split-seed0"]
+
+
+@pytest.mark.parametrize("text, setting", [
+    ('{"predicted": true, "lanes": true, "tolerance": 0.5, "hold": true}', HOLD_HALF),
+    ("true", True), ("false", False), ('{"time_gap": 0.5}', {"time_gap": 0.5})])
+def test_a_layer_is_read_as_json(text, setting):
+    assert agents_validation.parse_layer(text) == setting
+
+
+@pytest.mark.parametrize("text, message", [
+    ("{tolerance: 0.5}", "not JSON"), ('{"tolerence": 0.5}', "a mapping of max_acceleration"),
+    ('{"hold": true}', "with predicted and lanes true"), ('{"tolerance": -1}', "> 0"),
+    ("3", "true, false or a mapping")])
+def test_a_bad_layer_is_refused_with_the_reason(text, message):
+    with pytest.raises(ValueError, match="--layer") as error:
+        agents_validation.parse_layer(text)
+    assert message in str(error.value)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--womd", "x.tfrecord", "--scenes", "0", "--policies", "ppo-womd-split-seed0",
+      "--layer", '{"tolerence": 0.5}'], "a mapping of max_acceleration"),
+    (["--womd", "x.tfrecord", "--scenes", "0", "--policies", "lane-keeping", "random",
+      "--layer", "true"], "none of --policies"),
+    (["--episodes", "eps.csv", "--policies", "c", "--layer", "true"], "not --episodes"),
+])
+def test_the_command_line_refuses_a_layer_it_cannot_drive(monkeypatch, capsys, argv, message):
+    monkeypatch.setattr(agents_validation, "episodes", lambda *a: pytest.fail("drove"))
+    monkeypatch.setattr(sys, "argv", ["agents_validation.py", *argv])
+    with pytest.raises(SystemExit):
+        agents_validation.main()
+    assert message in capsys.readouterr().err
+
+
+def test_the_episodes_say_which_layer_their_agent_drove_with(monkeypatch):
+    """One episode per policy on a stand-in env: the agent's row records the layer given
+    (compact JSON) and its env is built with it; lane keeping's has none."""
+    built = []
+
+    class Env:
+        def __init__(self, scenes, record):
+            built.append(scenes.config["action"].get("safety_layer")
+                         if "action" in scenes.config else None)
+            self.unwrapped, self.vehicle = self, None
+
+        def scene_at(self, i):
+            return i
+
+    monkeypatch.setattr(agents_validation, "WomdEnv", Env)
+    monkeypatch.setattr(agents_validation.WomdScenes, "catalog", lambda self: ["f record 0"])
+    monkeypatch.setattr(agents_validation, "drivers", lambda scene: ["7"])
+    monkeypatch.setattr(agents_validation, "run_episode",
+                        lambda env, policy, i, record, options: (None, {"status": "ok"}))
+    eps = agents_validation.episodes(["scenes.tfrecord"], [0],
+                                     ["ppo-womd-split-seed0", "lane-keeping"], HOLD_HALF)
+    assert built == [HOLD_HALF, None]
+    assert eps["layer"].tolist()[0] == (
+        '{"hold":true,"lanes":true,"predicted":true,"tolerance":0.5}')
+    assert pd.isna(eps["layer"].tolist()[1])
+    own = agents_validation.episodes(["scenes.tfrecord"], [0], ["ppo-womd-split-seed0"])
+    assert "layer" not in own and built[-1] == load_layer("ppo-womd-split-seed0")
+
+
+def load_layer(name):
+    from tap_bench.sim.policies import load_policy
+
+    return load_policy(name).action["safety_layer"]
+
+
+def test_a_policy_whose_drivers_never_moved_has_no_progress_figure():
+    eps = _validation_episodes({0: [1]})
+    eps.loc[eps["policy"] == "b", "route_progress"] = np.nan
+    table = agents_validation.summary(eps, ["a0", "b"]).set_index("policy")
+    assert np.isnan(table.loc["b", "progress_iqm"]) and np.isnan(table.loc["b", "progress_mean"])
+    assert table.loc["b", "at_fault_n"] == 1 and table.loc["a0", "progress_iqm"] == 0.8
