@@ -15,6 +15,7 @@ road segment the vehicle is on (highway-env's lane index without the lane, ``"a>
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterable, Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -35,6 +36,17 @@ _TWO_PI = 2.0 * np.pi
 def string_dtype() -> Any:
     """The dtype pandas gives a column of Python strings now (pandas 3: its Arrow-backed
     ``str``, unless its ``future.infer_string`` option is off; earlier: object)."""
+    try:  # pandas' own switch, read without the option's deprecation warning
+        from pandas._config import using_string_dtype
+    except ImportError:  # a pandas without it: asked every time
+        return _string_dtype.__wrapped__(None)
+    return _string_dtype(bool(using_string_dtype()))
+
+
+@functools.lru_cache(maxsize=4)
+def _string_dtype(infer: bool | None) -> Any:
+    """:func:`string_dtype` as pandas infers it, kept per state of its string inference
+    (``infer``)."""
     import pandas as pd
 
     return pd.Series(np.array(["a"], dtype=object)).dtype
@@ -46,8 +58,8 @@ def text_column(labels: Sequence[str], codes: np.ndarray, *, dtype: Any = None) 
     labels without a Python string per row.
 
     Args:
-        labels: (k,) the distinct strings.
-        codes: (n,) int, indices into ``labels``.
+        labels: (k,) the distinct strings (a list, or a numpy or pandas array of them).
+        codes: (n,) int in 0 .. k - 1, indices into ``labels``.
         dtype: :func:`string_dtype`, when the caller has asked for it already (building
             several columns); None: asked here.
 
@@ -57,13 +69,41 @@ def text_column(labels: Sequence[str], codes: np.ndarray, *, dtype: Any = None) 
     """
     import pandas as pd
 
-    words = np.empty(len(labels), dtype=object)
-    words[:] = list(labels)
     if dtype is None:
         dtype = string_dtype()
     if dtype == np.dtype(object) or not len(codes):  # pandas infers nothing from none
+        words = np.empty(len(labels), dtype=object)
+        words[:] = [str(label) for label in labels]
         return words[codes]
-    return pd.array(words, dtype=dtype).take(np.asarray(codes, dtype=np.intp))
+    codes = np.asarray(codes, dtype=np.intp)
+    if getattr(dtype, "storage", None) in ("pyarrow", "pyarrow_numpy"):
+        return pd.array(_arrow_strings(labels, codes), dtype=dtype)
+    words = np.empty(len(labels), dtype=object)
+    words[:] = [str(label) for label in labels]
+    return pd.array(words, dtype=dtype).take(codes)
+
+
+def _arrow_strings(labels: Sequence[str], codes: np.ndarray) -> Any:
+    """``labels[codes]`` as an Arrow ``large_string`` array: one label's bytes repeated
+    (its offsets a multiple of its length), or Arrow's take of the labels."""
+    import pandas as pd
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    if len(labels) == 1 and not codes.any():
+        word = str(labels[0]).encode()
+        n = len(codes)
+        offsets = np.arange(n + 1, dtype=np.int64) * len(word)
+        return pa.LargeStringArray.from_buffers(n, pa.py_buffer(offsets),
+                                                pa.py_buffer(word * n))
+    words = None
+    if ((isinstance(labels, np.ndarray) and labels.dtype.kind == "U")
+            or (isinstance(labels, pd.api.extensions.ExtensionArray)
+                and pd.api.types.is_string_dtype(labels.dtype))):  # strings as they are
+        words = pa.array(labels, pa.large_string())
+    if words is None or words.null_count:
+        words = pa.array([str(label) for label in labels], pa.large_string())
+    return pc.take(words, pa.array(codes))
 
 
 def flag_column(values: np.ndarray, missing: np.ndarray | None = None) -> Any:

@@ -855,12 +855,12 @@ class WomdEnv(gym.Wrapper):
 
         data = {
             "scenario_id": text_column([scene.scenario_id], one),
-            "track_id": text_column([str(i) for i in scene.track_ids], track),
+            "track_id": text_column(scene.track_ids, track),
             "t": np.tile(scene.times[:t] - scene.times[0], n),  # as read_womd gives them
             **{name: kinematic(name) for name in ("x", "y", "heading", "speed")},
             "valid": valid,
             **{name: kinematic(name) for name in ("vx", "vy")},
-            "object_type": text_column([str(k) for k in scene.object_types], track),
+            "object_type": text_column(scene.object_types, track),
             "is_ego": ego_rows,
             "source": text_column(["womd-sim"], one),
             "env": text_column([self.scenario.name], one),

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tap_bench.sim.recorder import flag_column, text_column
+from tap_bench.sim.recorder import flag_column, string_dtype, text_column
 
 LABELS = (["womd-sim"], ["a", "", "é 1", "a b", "123", "x" * 40], [str(i) for i in range(300)])
 
@@ -39,6 +39,24 @@ def test_text_column_is_the_column_of_one_string_per_row(labels, n, infer):
                              copy=False)
         pd.testing.assert_frame_equal(built, per_row, check_exact=True)
         assert built["c"].tolist() == [labels[k] for k in codes]
+
+
+@pytest.mark.parametrize("infer", [True, False])
+def test_text_column_takes_labels_as_arrays_and_the_dtype_follows_pandas_option(infer):
+    labels = ["7", "é 1", "", "12"]
+    codes = np.array([3, 0, 0, 1, 2, 3, 3])
+    with _infer_string(infer), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert string_dtype() == pd.Series(np.array(["a"], dtype=object)).dtype
+        per_row = pd.Series(np.array([labels[k] for k in codes], dtype=object))
+        for given in (labels, np.array(labels), pd.array(labels, dtype=string_dtype()),
+                      np.array(labels, dtype=object)):
+            built = pd.Series(text_column(given, codes))
+            pd.testing.assert_series_equal(built, per_row, check_exact=True)
+            assert all(type(v) is str for v in built.tolist())
+        # one label: the same column whatever the route
+        pd.testing.assert_series_equal(pd.Series(text_column(["é"], np.zeros(3, int))),
+                                       pd.Series(np.array(["é"] * 3, dtype=object)))
 
 
 @pytest.mark.parametrize("n", [0, 1, 9, 4000])
