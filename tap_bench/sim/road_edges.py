@@ -122,39 +122,23 @@ class RoadEdges:
         arrays = [np.asarray(line, float)[:, :2] for line in lines]
         n = len(arrays)
         pts = np.concatenate(arrays) if n else np.zeros((0, 2))
-        line_of = np.repeat(np.arange(n), [len(p) for p in arrays])
-        finite = np.isfinite(pts).all(axis=1)
-        pts, line_of = pts[finite], line_of[finite]
-        if len(pts):
-            step = np.hypot(*np.diff(pts, axis=0).T)
-            keep = np.r_[True, (step > 1e-6) | (line_of[1:] != line_of[:-1])]
-            pts, line_of = pts[keep], line_of[keep]
-        counts = np.bincount(line_of, minlength=n)
-        good = counts[line_of] >= 2
-        pts, line_of = pts[good], line_of[good]
-        if not len(pts):
+        line_of = np.repeat(np.arange(n, dtype=np.int64), [len(p) for p in arrays])
+        a, b, owner, first, last, head, tail = _segments_of(
+            np.ascontiguousarray(pts), line_of, n)
+        if not len(a):
             z = np.zeros((0, 2))
             return cls(z, z, np.zeros(0, bool), np.zeros(0, bool), np.zeros(0, np.int64))
-        sizes = counts[counts >= 2]  # points of each polyline kept, in order
-        poly_of = np.repeat(np.arange(len(sizes)), sizes)
-        within = np.flatnonzero(poly_of[1:] == poly_of[:-1])  # segment k: points k, k + 1
-        a, b = pts[within], pts[within + 1]
-        owner = poly_of[within].astype(np.int64)
-        last = np.cumsum(sizes - 1) - 1
-        first = last - (sizes - 1) + 1
         open_start = np.zeros(len(a), bool)
         open_end = np.zeros(len(a), bool)
         edges = cls(a, b, open_start, open_end, owner)
         # an end is open when it meets no other polyline (nor its own start: closed)
-        head = pts[np.cumsum(sizes) - sizes]
-        tail = pts[np.cumsum(sizes) - 1]
         ends = np.concatenate([head, tail])
-        own = np.r_[np.arange(len(sizes)), np.arange(len(sizes))].astype(np.int64)
+        own = np.r_[np.arange(len(head)), np.arange(len(head))].astype(np.int64)
         grid = edges._grid
         _, dist, _, _ = _grid_nearest(np.ascontiguousarray(ends), own, a, b, owner, *grid,
                                       JOIN_DISTANCE)
         closed = np.hypot(*(head - tail).T) <= JOIN_DISTANCE
-        m = len(sizes)
+        m = len(head)
         open_start[first[~closed & ~(dist[:m] <= JOIN_DISTANCE)]] = True
         open_end[last[~closed & ~(dist[m:] <= JOIN_DISTANCE)]] = True
         return edges
@@ -208,19 +192,107 @@ class RoadEdges:
         return float(np.max(self.signed_distance(corners, far)))
 
 
+@numba.njit(cache=True, nogil=True)
+def _segments_of(pts, line_of, n):  # pragma: no cover - compiled
+    """The segments of ``n`` polylines whose points ``pts`` (m, 2) [m] are concatenated
+    (point i of polyline ``line_of[i]``), cleaned as :meth:`RoadEdges.from_polylines` says:
+    non-finite points dropped, then each point within 1e-6 m of the (finite) point before
+    it on its polyline, then the polylines of fewer than two points left.
+
+    Returns:
+        (a, b) (s, 2) segment starts and ends, owner (s,) its polyline's number among those
+        kept, first and last (p,) each kept polyline's first and last segment, head and
+        tail (p, 2) its first and last point.
+    """
+    m = pts.shape[0]
+    keep = np.zeros(m, np.bool_)
+    counts = np.zeros(n, np.int64)
+    prev = -1  # the finite point before
+    for i in range(m):
+        x, y = pts[i, 0], pts[i, 1]
+        if not (np.isfinite(x) and np.isfinite(y)):
+            continue
+        if (prev < 0 or line_of[i] != line_of[prev]
+                or math.hypot(x - pts[prev, 0], y - pts[prev, 1]) > 1e-6):
+            keep[i] = True
+            counts[line_of[i]] += 1
+        prev = i
+    poly = np.full(n, -1, np.int64)
+    n_poly = 0
+    n_seg = 0
+    for j in range(n):
+        if counts[j] >= 2:
+            poly[j] = n_poly
+            n_poly += 1
+            n_seg += counts[j] - 1
+    a = np.empty((n_seg, 2))
+    b = np.empty((n_seg, 2))
+    owner = np.empty(n_seg, np.int64)
+    first = np.empty(n_poly, np.int64)
+    last = np.empty(n_poly, np.int64)
+    head = np.empty((n_poly, 2))
+    tail = np.empty((n_poly, 2))
+    k = 0
+    before = -1  # the kept point before, on a kept polyline
+    for i in range(m):
+        if not keep[i] or poly[line_of[i]] < 0:
+            continue
+        p = poly[line_of[i]]
+        if before >= 0 and poly[line_of[before]] == p:
+            a[k, 0], a[k, 1] = pts[before, 0], pts[before, 1]
+            b[k, 0], b[k, 1] = pts[i, 0], pts[i, 1]
+            owner[k] = p
+            k += 1
+        else:
+            head[p, 0], head[p, 1] = pts[i, 0], pts[i, 1]
+            first[p] = k
+        tail[p, 0], tail[p, 1] = pts[i, 0], pts[i, 1]
+        last[p] = k - 1
+        before = i
+    return a, b, owner, first, last, head, tail
+
+
 def _build_grid(a: np.ndarray, b: np.ndarray) -> tuple:
     """(cell start offsets, segment ids by cell, grid origin, nx, ny) of segments a -> b
     bucketed in :data:`EDGE_CELL` m cells (a segment in every cell its bounding box
     touches; in a cell, by segment id)."""
     if not len(a):
         return (np.zeros(2, np.int64), np.zeros(0, np.int64), np.zeros(2), 1, 1)
-    lo_xy, hi_xy = np.minimum(a, b), np.maximum(a, b)
-    lo = lo_xy.min(axis=0) - EDGE_CELL
-    lo_cell = np.floor((lo_xy - lo) / EDGE_CELL).astype(np.int64)
-    hi_cell = np.floor((hi_xy - lo) / EDGE_CELL).astype(np.int64)
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    found = _cell_ranges(a, b) if a.ndim == 2 and a.shape[1] == 2 and a.shape == b.shape else None
+    if found is not None and found[0]:  # finite segments: in one compiled pass
+        _, lo, lo_cell, hi_cell = found
+    else:
+        lo_xy, hi_xy = np.minimum(a, b), np.maximum(a, b)
+        lo = lo_xy.min(axis=0) - EDGE_CELL
+        lo_cell = np.floor((lo_xy - lo) / EDGE_CELL).astype(np.int64)
+        hi_cell = np.floor((hi_xy - lo) / EDGE_CELL).astype(np.int64)
     nx, ny = int(hi_cell[:, 0].max()) + 2, int(hi_cell[:, 1].max()) + 2
     start, segs = _cells_by_count(lo_cell, hi_cell, nx, ny)
     return (start, segs, lo.astype(float), nx, ny)
+
+
+@numba.njit(cache=True, nogil=True)
+def _cell_ranges(a, b):  # pragma: no cover - compiled
+    """(finite, grid origin (2,), lowest and highest cell (m, 2) int of each segment's
+    bounding box) of segments a -> b ((m, 2) each, m >= 1), as :func:`_build_grid`
+    computes them with numpy; finite False (the rest not to be used) where a coordinate is
+    not finite."""
+    m = a.shape[0]
+    lo = np.empty(2)
+    lo_cell = np.empty((m, 2), np.int64)
+    hi_cell = np.empty((m, 2), np.int64)
+    for d in range(2):
+        low = np.inf
+        for k in range(m):
+            if not (np.isfinite(a[k, d]) and np.isfinite(b[k, d])):
+                return False, lo, lo_cell, hi_cell
+            low = min(low, a[k, d], b[k, d])
+        lo[d] = low - EDGE_CELL
+        for k in range(m):
+            lo_cell[k, d] = int(np.floor((min(a[k, d], b[k, d]) - lo[d]) / EDGE_CELL))
+            hi_cell[k, d] = int(np.floor((max(a[k, d], b[k, d]) - lo[d]) / EDGE_CELL))
+    return True, lo, lo_cell, hi_cell
 
 
 @numba.njit(cache=True, nogil=True)
