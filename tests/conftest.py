@@ -14,6 +14,7 @@ each run (and keeps failing ones in ``.hypothesis/``), to search further by hand
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import shutil
@@ -203,18 +204,92 @@ def _plugins_loaded_by_this_module_only():
     plugins._LOADED.update(before)
 
 
+_RAY_FIXTURES = ("ray_backend", "ray_cluster")
+
+
+@functools.cache
+def uses_ray(test_file: str) -> bool:
+    """Whether the test file ``test_file`` (a path from the project root, as in a test's
+    node id) asks for the suite's Ray cluster (names the fixture ``ray_backend`` or
+    ``ray_cluster``)."""
+    try:
+        source = (PROJECT_ROOT / test_file).read_text(encoding="utf-8")
+    except OSError:
+        return False
+    return any(name in source for name in _RAY_FIXTURES)
+
+
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config, log):
     """Under pytest-xdist (``-n N``), each test file runs whole in one worker (xdist's
     ``--dist loadfile``) where ``-n`` alone would hand a file's tests to several workers in
     chunks: a file's module fixtures (the runs that many tests of a file compare) are then
-    made once, not once in each worker that got some of its tests. ``--dist load`` (the
-    default ``-n`` implies) becomes loadfile, given or not; any other ``--dist`` is kept."""
+    made once, not once in each worker that got some of its tests. The files that use the
+    Ray cluster (:func:`uses_ray`) run together, one after the other in one worker, so that
+    one cluster serves them all (:func:`ray_cluster`). ``--dist load`` (the default ``-n``
+    implies) becomes this, given or not; any other ``--dist`` is kept."""
     if config.getvalue("dist") != "load":
         return None
     from xdist.scheduler import LoadFileScheduling
 
-    return LoadFileScheduling(config, log)
+    class FileAndRayScheduling(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            test_file = nodeid.split("::", 1)[0]
+            return "the Ray cluster's tests" if uses_ray(test_file) else test_file
+
+    return FileAndRayScheduling(config, log)
+
+
+class RayCluster:
+    """The suite's local Ray cluster (2 CPUs, a 100 MB object store), started when a test
+    first asks for it and stopped once the tests of the files that use it have run (a
+    cluster started and stopped costs about 5 CPU s and its workers' imports; it was started
+    once per package and per pytest worker, four times in a run of the suite)."""
+
+    def __init__(self) -> None:
+        self._backend = None
+
+    @property
+    def backend(self):
+        """A :class:`tap_bench.execution.RayBackend` on the cluster, started if need be."""
+        if self._backend is None:
+            from tap_bench.execution import RayBackend
+
+            self._backend = RayBackend(num_cpus=2, object_store_memory=100 << 20)
+        return self._backend
+
+    def stop(self) -> None:
+        if self._backend is not None:
+            import ray
+
+            self._backend = None
+            ray.shutdown()
+
+
+_RAY = RayCluster()
+
+
+@pytest.fixture(scope="session")
+def ray_cluster() -> RayCluster:
+    """The suite's Ray cluster (:class:`RayCluster`); skips where Ray is not installed."""
+    pytest.importorskip("ray")
+    yield _RAY
+    _RAY.stop()
+
+
+@pytest.fixture
+def ray_backend(ray_cluster: RayCluster):
+    """A :class:`tap_bench.execution.RayBackend` on the suite's local Ray cluster."""
+    return ray_cluster.backend
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_runtest_teardown(item, nextitem):
+    """The Ray cluster stops after the last test of the files that use it (the next test is
+    of another file, or none): its processes do not idle through the rest of the run."""
+    if _RAY._backend is not None and (
+            nextitem is None or not uses_ray(nextitem.nodeid.split("::", 1)[0])):
+        _RAY.stop()
 
 
 @pytest.fixture(scope="session")

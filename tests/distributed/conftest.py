@@ -1,5 +1,5 @@
-"""Fixtures for the distributed tests: one local Ray cluster of 2 CPUs for the module,
-shut down afterwards, and writer-made WOMD shards."""
+"""Fixtures for the distributed tests: writer-made WOMD shards (the Ray cluster,
+``ray_backend``, is the suite's: tests/conftest.py)."""
 
 from __future__ import annotations
 
@@ -7,19 +7,6 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-
-
-@pytest.fixture(scope="package")
-def ray_backend():
-    """A :class:`RayBackend` on a local cluster of 2 CPUs started for these tests."""
-    pytest.importorskip("ray")
-    from tap_bench.execution import RayBackend
-
-    backend = RayBackend(num_cpus=2, object_store_memory=100 << 20)
-    yield backend
-    import ray
-
-    ray.shutdown()
 
 
 def _shard_table(i: int) -> pd.DataFrame:

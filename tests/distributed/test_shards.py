@@ -20,7 +20,7 @@ def _sorted(table: pd.DataFrame, keys: list[str]) -> pd.DataFrame:
 
 
 @pytest.fixture(scope="module")
-def ingested(ray_backend, womd_shards, tmp_path_factory):
+def ingested(ray_cluster, womd_shards, tmp_path_factory):
     """The shards and a corrupt one ingested on Ray: (output dir, report, good inputs)."""
     paths, _ = womd_shards
     folder = tmp_path_factory.mktemp("inputs")
@@ -33,7 +33,7 @@ def ingested(ray_backend, womd_shards, tmp_path_factory):
     data[40:48] = b"\xff" * 8  # inside the first record: its CRC no longer matches
     corrupt.write_bytes(bytes(data))
     out = tmp_path_factory.mktemp("out") / "womd"
-    report = ingest_shards(folder, out, ray_backend, retries=1, progress=False)
+    report = ingest_shards(folder, out, ray_cluster.backend, retries=1, progress=False)
     return out, report, inputs
 
 

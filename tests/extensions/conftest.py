@@ -66,16 +66,3 @@ def extension(tmp_path, monkeypatch):
             registry.unregister(name)
     for module in ("tapext.measures", "tapext.my_formats", "tapext"):
         sys.modules.pop(module, None)
-
-
-@pytest.fixture(scope="package")
-def ray_backend():
-    """A :class:`RayBackend` on a local cluster of 2 CPUs started for these tests."""
-    pytest.importorskip("ray")
-    from tap_bench.execution import RayBackend
-
-    backend = RayBackend(num_cpus=2, object_store_memory=100 << 20)
-    yield backend
-    import ray
-
-    ray.shutdown()
