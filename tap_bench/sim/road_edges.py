@@ -351,6 +351,12 @@ def _grid_nearest(points, skip_owner, a, b, owner, start, segs, lo, nx, ny, reac
                         k = segs[q]
                         if owner[k] == skip_owner[i]:
                             continue
+                        # its bounding box farther than the nearest found (+ the tie and
+                        # a margin far above rounding): it cannot be nearer, nor tie
+                        ex = max(min(a[k, 0], b[k, 0]) - px, px - max(a[k, 0], b[k, 0]), 0.0)
+                        ey = max(min(a[k, 1], b[k, 1]) - py, py - max(a[k, 1], b[k, 1]), 0.0)
+                        if ex * ex + ey * ey > (bd + TIE + 1e-6) * (bd + TIE + 1e-6):
+                            continue
                         dx, dy = b[k, 0] - a[k, 0], b[k, 1] - a[k, 1]
                         n2 = max(dx * dx + dy * dy, 1e-12)
                         u = ((px - a[k, 0]) * dx + (py - a[k, 1]) * dy) / n2

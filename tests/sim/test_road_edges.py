@@ -381,3 +381,45 @@ def test_the_edge_grid_is_the_sorted_one(seed):
         assert got[0].tolist() == want[0].tolist()
         assert got[1].tolist() == want[1].tolist()
         assert got[2].tobytes() == want[2].tobytes() and got[3:] == want[3:]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_grid_search_finds_what_every_segment_measured_finds(seed):
+    """The nearest-edge search over the grid (rings of cells, segments whose bounding box
+    is farther than the nearest found skipped) gives each point the signed distance of
+    measuring every segment: the nearest, ties at a shared vertex to the line the point is
+    farthest from, open ends beyond them road; NaN beyond the reach. Points on, beside and
+    far from wiggly polylines, closed and open, in dense and sparse places."""
+    rng = np.random.default_rng(seed)
+    lines = []
+    for k in range(12):
+        n = int(rng.integers(2, 40))
+        step = rng.normal(0.0, rng.choice([0.3, 2.0, 8.0]), (n, 2))
+        line = rng.uniform(-60.0, 60.0, 2) + np.cumsum(step, axis=0)
+        if k % 4 == 0:
+            line = np.vstack([line, line[:1]])  # closed
+        lines.append(line)
+    edges = RoadEdges.from_polylines(lines)
+    points = np.vstack([rng.uniform(-90.0, 90.0, (150, 2)),
+                        edges.a[:40] + rng.normal(0.0, 0.05, (40, 2)),  # near vertices
+                        edges.a[:15]])  # on them
+    a, d = edges.a, edges.b - edges.a
+    n2 = np.maximum((d * d).sum(axis=1), 1e-12)
+    nearest = []  # (distance, signed distance) by measuring every segment
+    for p in points:
+        u = ((p - a) * d).sum(axis=1) / n2
+        dist = np.hypot(*(p - a - np.clip(u, 0.0, 1.0)[:, None] * d).T)
+        cross = (d[:, 0] * (p[1] - a[:, 1]) - d[:, 1] * (p[0] - a[:, 0])) / np.sqrt(n2)
+        best, pick = np.inf, -1
+        for k in np.flatnonzero(dist <= dist.min() + 1e-6):  # the rest never decide
+            if dist[k] < best - 1e-9 or (dist[k] <= best + 1e-9
+                                         and abs(cross[k]) > abs(cross[pick])):
+                best, pick = min(dist[k], best), k
+        beyond = ((edges.open_start[pick] and u[pick] < 0)
+                  or (edges.open_end[pick] and u[pick] > 1))
+        nearest.append((best, best if cross[pick] < 0 and not beyond else -best))
+    for reach in (3.0, 15.0, 500.0):
+        want = np.array([s if b <= reach else np.nan for b, s in nearest])
+        got = edges.signed_distance(points, reach)
+        assert np.allclose(got, want, rtol=0, atol=1e-9, equal_nan=True)
+        assert np.isnan(got).any() == (reach < 100)
