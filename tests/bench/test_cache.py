@@ -69,6 +69,9 @@ def run(suite, folder, cache, **kwargs):
 
 def assert_same_results(a, b):
     for name in TABLES:
+        if (a.folder / f"{name}.parquet").read_bytes() == (
+                b.folder / f"{name}.parquet").read_bytes():
+            continue  # the same file: the same table
         pd.testing.assert_frame_equal(pd.read_parquet(a.folder / f"{name}.parquet"),
                                       pd.read_parquet(b.folder / f"{name}.parquet"))
     for name, table in a.scores.tables().items():

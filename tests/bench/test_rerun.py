@@ -43,6 +43,9 @@ def run(folder, cache, workers=1, suite=None):
 def assert_identical(a, b):
     """Every table of two run results equal, floats with ==."""
     for name in TABLES:
+        if (a.folder / f"{name}.parquet").read_bytes() == (
+                b.folder / f"{name}.parquet").read_bytes():
+            continue  # the same file: the same table
         left = pd.read_parquet(a.folder / f"{name}.parquet")
         right = pd.read_parquet(b.folder / f"{name}.parquet")
         pd.testing.assert_frame_equal(left, right, check_exact=True, obj=name)

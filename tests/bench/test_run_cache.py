@@ -67,6 +67,8 @@ def assert_tables_equal(a, b):
     names = sorted(p.name for p in a.folder.glob("*.parquet"))
     assert names == sorted(p.name for p in b.folder.glob("*.parquet"))
     for name in names:
+        if (a.folder / name).read_bytes() == (b.folder / name).read_bytes():
+            continue  # the same file: the same table
         left, right = pd.read_parquet(a.folder / name), pd.read_parquet(b.folder / name)
         pd.testing.assert_frame_equal(left, right, check_exact=True, obj=name)
         assert left.equals(right), name
