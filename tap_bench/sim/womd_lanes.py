@@ -112,6 +112,36 @@ def _lane_distances(offsets, px, py, tx, ty, s, lengths, x, y, heading, use_head
 
 
 @numba.njit(cache=True, nogil=True)
+def _bounds_into(boxes, reach, x, y, bound):  # pragma: no cover - compiled
+    """Fill ``bound`` (n_lanes,) with a lower bound of each lane's distance to the point
+    (x, y) (:func:`_near_lane_distances`): the distance to the box of its poses less
+    ``reach[j]``, or with seven columns of ``boxes`` the larger of that and the bound of
+    :meth:`LaneIndex._wedges`. Returns the first lane of the smallest bound."""
+    wedges = boxes.shape[1] >= 7
+    first = 0
+    for j in range(boxes.shape[0]):
+        dx = max(boxes[j, 0] - x, x - boxes[j, 2], 0.0)
+        dy = max(boxes[j, 1] - y, y - boxes[j, 3], 0.0)
+        box = np.sqrt(dx * dx + dy * dy)
+        bound[j] = box - reach[j]
+        if wedges:
+            bound[j] = max(bound[j], min((box - boxes[j, 4]) / (1.0 + boxes[j, 5]),
+                                         box - boxes[j, 6], box))
+        if bound[j] < bound[first]:
+            first = j
+    return first
+
+
+@numba.njit(cache=True, nogil=True)
+def _bounds(boxes, reach, xs, ys):  # pragma: no cover - compiled
+    """(n_points, n_lanes) :func:`_bounds_into` of every point."""
+    out = np.empty((xs.shape[0], boxes.shape[0]))
+    for q in range(xs.shape[0]):
+        _bounds_into(boxes, reach, xs[q], ys[q], out[q])
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
 def _near_lane_distances(offsets, px, py, tx, ty, s, lengths, boxes, reach, xs, ys, headings
                          ):  # pragma: no cover - compiled
     """(n_points, n_lanes) :func:`_lane_distances` with the heading, +inf for the lanes
@@ -122,21 +152,16 @@ def _near_lane_distances(offsets, px, py, tx, ty, s, lengths, boxes, reach, xs, 
     length and its last arc length; arc lengths start at 0 and do not decrease): the
     point is ``sqrt(lon'^2 + lateral^2)`` from its pose, ``lon'`` its longitudinal offset
     there, and whatever of ``lon'`` the lateral part does not cover is overshoot beyond an
-    end, up to ``reach[j]``. A lane whose bound is beyond the nearest distance found so far
-    + TOLERANCE + 1e-6 m (rounding) is not measured; the lane of the smallest bound is
-    measured first."""
+    end, up to ``reach[j]``. Where ``boxes`` has seven columns, the larger of that and the
+    bound of :meth:`LaneIndex._wedges` (columns 4-6: slack, slope, tail) is taken. A lane
+    whose bound is beyond the nearest distance found so far + TOLERANCE + 1e-6 m
+    (rounding) is not measured; the lane of the smallest bound is measured first."""
     n_lanes = offsets.shape[0] - 1
     out = np.full((xs.shape[0], n_lanes), np.inf)
     bound = np.empty(n_lanes)
     for q in range(xs.shape[0]):
         x, y = xs[q], ys[q]
-        first = 0
-        for j in range(n_lanes):
-            dx = max(boxes[j, 0] - x, x - boxes[j, 2], 0.0)
-            dy = max(boxes[j, 1] - y, y - boxes[j, 3], 0.0)
-            bound[j] = np.sqrt(dx * dx + dy * dy) - reach[j]
-            if bound[j] < bound[first]:
-                first = j
+        first = _bounds_into(boxes, reach, x, y, bound)
         best = np.inf
         for step in range(n_lanes + 1):
             j = first if step == 0 else step - 1
@@ -504,6 +529,63 @@ class LaneIndex:
             ordered = (self.s[starts] == 0.0) & ~falls
             last = self.s[self.offsets[1:] - 1]
             self.reach = np.where(ordered, np.maximum(self.lengths, last), np.inf)
+            self.boxes = np.ascontiguousarray(np.c_[self.boxes, self._wedges(ordered, last)])
+
+    def _wedges(self, ordered: np.ndarray, last: np.ndarray) -> np.ndarray:
+        """(n_lanes, 3) per lane (slack [m], slope, tail [m]) of the tighter lower bound of
+        its distance that :func:`_near_lane_distances` takes with the box's.
+
+        A point belongs to pose k before the last when it is ahead of pose k's normal line
+        and behind pose k + 1's (module docstring). In pose k's frame (longitudinal lon,
+        lateral lat), with e the step to pose k + 1 and theta the turn from tangent k to
+        tangent k + 1 (under 90 degrees), behind the next normal line means
+        lon < e_lon + (e_lat - lat) tan(theta) <= slack + |lat| slope, so the point's
+        distance to the pose is at most slack + |lat| (1 + slope), and the lane's
+        distance (|lat| at least) is at least (D - slack) / (1 + slope), D the distance to
+        the box of the poses. A point
+        of the last pose is ``lon - s_last`` beyond it, at least D - (length - s_last) =
+        D - tail; one behind the first pose's normal line is |lon| behind its start: D.
+        A lane with a turn of 90 degrees or more between poses, with tangents that are not
+        unit vectors or with arc lengths that do not start at 0 or decrease gets slack
+        inf (no bound beyond the box's reach)."""
+        n = len(self.lanes)
+        out = np.zeros((n, 3))
+        out[:, 0] = np.inf
+        out[:, 2] = self.lengths - last
+        starts, ends = self.offsets[:-1], self.offsets[1:]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            px, py, tx, ty = self.px, self.py, self.tx, self.ty
+            # every pose k with a pose k + 1 of the same lane
+            k = np.flatnonzero(~np.isin(np.arange(len(px)), ends - 1))
+            ex, ey = px[k + 1] - px[k], py[k + 1] - py[k]
+            e_lon, e_lat = tx[k] * ex + ty[k] * ey, tx[k] * ey - ty[k] * ex
+            cos = tx[k] * tx[k + 1] + ty[k] * ty[k + 1]
+            sin = tx[k] * ty[k + 1] - ty[k] * tx[k + 1]
+            slope = np.where(cos > 0, np.abs(sin) / cos, np.inf)
+            slack = e_lon + np.abs(e_lat) * slope
+            unit = np.abs(np.hypot(tx, ty) - 1.0) <= 1e-9
+            # lane j's poses k are starts[j] .. ends[j] - 2: at k_from[j] in k (two or more)
+            two = ends - starts >= 2
+            k_from = starts - np.arange(n)
+            worst_slope = np.full(n, np.inf)
+            worst_slack = np.full(n, np.inf)
+            if len(k):
+                worst_slope[two] = np.maximum.reduceat(np.where(np.isnan(slope), np.inf,
+                                                                slope), k_from[two])
+                worst_slack[two] = np.maximum.reduceat(np.where(np.isnan(slack), np.inf,
+                                                                slack), k_from[two])
+            if n and (ends > starts).all():
+                all_unit = np.add.reduceat(~unit, starts) == 0
+            else:
+                all_unit = np.array([unit[a:b].all() for a, b in zip(starts, ends,
+                                                                     strict=True)], bool)
+            good = (ordered & all_unit & two & np.isfinite(worst_slope)
+                    & np.isfinite(worst_slack) & np.isfinite(out[:, 2]))
+        out[good, 0] = np.maximum(worst_slack[good], 0.0)
+        out[good, 1] = worst_slope[good]
+        out[~good, 1] = 0.0
+        out[~good, 2] = np.inf
+        return out
 
     def distances(self, position: np.ndarray, heading: float | None = None) -> np.ndarray:
         """(n_lanes,) each lane's distance [m (+ rad)] to the position (and heading)."""

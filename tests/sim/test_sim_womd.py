@@ -25,6 +25,7 @@ from tap_bench.sim.womd_lanes import (
     TOLERANCE,
     FastPolyLane,
     LaneIndex,
+    _bounds,
     _near_lane_distances,
     _nearest_lane,
     lane_points,
@@ -248,6 +249,56 @@ def test_lookup_measuring_only_lanes_that_can_be_closest_equals_measuring_all(se
         assert (j, n) == (int(np.argmin(row)), int((row <= row.min() + TOLERANCE).sum()))
     assert _nearest_lane(*columns, np.nan, 0.0, 0.0) == (-1, 0)
     assert index.closest(np.array([np.nan, 0.0]), 0.0) is None
+
+
+def test_lookup_wedge_bound_skips_only_lanes_that_cannot_be_closest():
+    """The bound of each pose's wedge (LaneIndex._wedges) on lanes that bend gently, turn
+    back (a U-turn of 1 m steps), spiral, zig-zag (turns over 90 degrees between poses:
+    no wedge bound) or are straight: lanes left unmeasured are farther than the nearest
+    + TOLERANCE, the measured ones measured exactly, the closest lane the one by
+    definition; it leaves out more lanes than the box's bound alone."""
+    rng = np.random.default_rng(7)
+    # back and forth in 5 m legs (a pose on each corner: turns of 106 degrees)
+    zigzag = np.cumsum(np.r_[[[0.0, 0.0]], np.tile([[4.0, 3.0], [-4.0, 3.0]], (4, 1))],
+                       axis=0)
+    lines = [arc(np.inf, 0.3, 1, 60.0), arc(40.0, 1.0, 1, 90.0, origin=(5.0, -20.0)),
+             arc(2.5, -0.5, -1, 7.0, origin=(-10.0, 10.0)),  # a U-turn
+             arc(1.2, 0.0, 1, 7.0, origin=(20.0, 20.0)),  # more than a circle
+             zigzag + np.array([-30.0, -5.0]), arc(np.inf, 2.0, 1, 0.8, origin=(0.0, 4.0))]
+    lanes = [((str(k), f"{k}>", 0), FastPolyLane(lane_points(pts).tolist(), 3.5))
+             for k, pts in enumerate(lines)]
+    index = LaneIndex(lanes)
+    slack = index.boxes[:, 4]
+    assert np.isinf(slack[4]) and np.isfinite(slack[[0, 1, 2, 5]]).all()
+    points = np.r_[rng.uniform(-60, 70, (300, 2)),
+                   np.concatenate(lines)[::3] + rng.normal(0, 1.5, (115, 2))]
+    headings = rng.uniform(-np.pi, np.pi, len(points))
+    headings[::2] = 0.3  # along the straight lane
+    args = (index.offsets, index.px, index.py, index.tx, index.ty, index.s, index.lengths)
+    xs, ys = points[:, 0].copy(), points[:, 1].copy()
+    measured = _near_lane_distances(*args, index.boxes, index.reach, xs, ys, headings)
+    box_only = _near_lane_distances(*args, index.boxes[:, :4].copy(), index.reach, xs, ys,
+                                    headings)
+    full = np.array([index.distances(p, h) for p, h in zip(points, headings, strict=True)])
+    kept = np.isfinite(measured)
+    assert np.array_equal(measured[kept], full[kept])
+    skipped = full[~kept] - np.repeat(full.min(axis=1), (~kept).sum(axis=1))
+    assert (skipped > TOLERANCE).all()
+    assert kept.sum() < np.isfinite(box_only).sum()
+    want = [_closest_by_definition(index, p, h) for p, h in zip(points, headings, strict=True)]
+    assert index.closest_many(points, headings) == want
+    assert [index.closest(p, h) for p, h in zip(points, headings, strict=True)] == want
+    # the bound itself, lane by lane, below every distance: rings of points around each
+    # lane, out to 40 m, the nearest of them beside its bends
+    for j, line in enumerate(lines):
+        centre = line[len(line) // 2]
+        angle = np.linspace(-np.pi, np.pi, 90, endpoint=False)
+        ring = np.concatenate([centre + r * np.c_[np.cos(angle), np.sin(angle)]
+                               for r in (0.5, 2.0, 5.0, 12.0, 40.0)])
+        ring = np.r_[ring, line + rng.normal(0, 3.0, line.shape)]
+        bound = _bounds(index.boxes, index.reach, ring[:, 0].copy(), ring[:, 1].copy())
+        exact = np.array([index.distances(p)[j] for p in ring])
+        assert (bound[:, j] <= exact + 1e-9).all()
 
 
 def test_lookup_bound_allows_for_the_overshoot_beyond_the_last_pose():
