@@ -794,20 +794,23 @@ class WomdIDMVehicle(_RouteMixin, IDMVehicle):
         memo = self.__dict__.get("_obstacle_memo")
         if memo is not None and memo[1] is p and memo[0] == key:
             return memo[2]
+        ahead = getattr(road, "obstacles_ahead", None)
+        found = ahead(self) if ahead is not None else None
+        if found is None:  # one search after the other
+            leader_ahead = getattr(road, "leader_ahead", None)
+            leader, d = leader_ahead(self) if leader_ahead is not None else (None, math.inf)
+            corridor = getattr(road, "corridor_leader", None)
+            found = (leader, d, corridor(self) if corridor is not None else None,
+                     self._standing_obstacles())
+        leader, d, corridor, standing = found
         out = []
-        leader_ahead = getattr(road, "leader_ahead", None)
-        if leader_ahead is not None:
-            leader, d = leader_ahead(self)
-            if leader is not None:
-                lead = float(np.dot(leader.velocity, self.direction))
-                out.append(_idm_acc(p, v, v0, d - (self.LENGTH + leader.LENGTH) / 2,
-                                    max(lead, 0.0)))
-        corridor = getattr(road, "corridor_leader", None)
+        if leader is not None:
+            lead = float(np.dot(leader.velocity, self.direction))
+            out.append(_idm_acc(p, v, v0, d - (self.LENGTH + leader.LENGTH) / 2,
+                                max(lead, 0.0)))
         if corridor is not None:
-            found = corridor(self)
-            if found is not None:
-                out.append(_idm_acc(p, v, v0, found[0], max(found[1], 0.0)))
-        for d in self._standing_obstacles():
+            out.append(_idm_acc(p, v, v0, corridor[0], max(corridor[1], 0.0)))
+        for d in standing:
             out.append(_idm_acc(p, v, v0, d, 0.0))
         self.__dict__["_obstacle_memo"] = (key, p, tuple(out))
         return self.__dict__["_obstacle_memo"][2]
@@ -1286,6 +1289,7 @@ def _first_crossing(ax, ay, acum, na, bx, by, bcum, nb, min_sin):  # pragma: no 
 
 
 _HORIZONS = np.array((0.0, *PATH_PREDICTION))
+_NONE = np.zeros(0)  # an empty column for a compiled pass's unused arguments
 PATH_CROSSING_MIN = math.sin(math.radians(5.0))  # paths crossing at a smaller angle follow
 
 
@@ -1977,6 +1981,72 @@ def _conflict_gap_on(d_ahead, conf, at, approach, offsets, lanes, px, py, tx, ty
     return best
 
 
+@numba.njit(cache=True, nogil=True)
+def _ahead_in_one(px, py, tx, ty, s, hd, whd, lanes, bases, xs, ys, hs, vs, ls, ws, walker,
+                  yielder, braking_j, row_j, conf, at, approach, offsets, clanes, sections,
+                  wx0, wy0, wx1, wy1, whs, wvs, ego, mine, row, cuts, walkers
+                  ):  # pragma: no cover - compiled
+    """:meth:`WomdRoad.obstacles_ahead`'s searches in one pass over a vehicle's lanes ahead
+    (rows of ``lanes``: poses c:d of the network's pose arrays px, py, tx, ty, s (headings
+    hd; ``whd`` the walkers' lane headings), :func:`_lane_members`' half width, lo and hi,
+    the lane's length [m]; each starting ``bases`` [m] along the way; ``cuts``: how many of
+    them :meth:`WomdRoad._lanes_ahead` gives within :data:`LEADER_LOOKAHEAD` and within
+    :data:`WALKER_LOOKAHEAD` (the first ones)):
+
+    - the leader on the next lanes: :func:`_leader_ahead_on` over lanes 1 to ``cuts[0]``;
+    - the corridor's leader: :func:`_corridor` (two movers or more);
+    - when ``walkers``: the nearest walker in the way, :func:`_any_within` the reach, then
+      :func:`_walkers_on_lane` on the lanes within :data:`WALKER_LOOKAHEAD`, where they are
+      (wx0, wy0) then where they will be (wx1, wy1), headings whs, speeds wvs, on the
+      first ``cuts[1]`` lanes;
+    - the give-way gap: :func:`_conflict_gap_on` on each lane of ``sections`` (the lanes
+      within :data:`CONFLICT_LOOKAHEAD`; the search stops at one starting beyond it) whose
+      conflicts (``sections`` row j: conf rows q0:q1, at
+      rows a0:a0 + q1 - q0 + 1, approach and offsets rows r0:r1, clanes rows u0:u1, each
+      lane's table as :meth:`WomdRoad._conflict_table` makes it) are not empty, the
+      smallest.
+
+    The movers: centres xs, ys, headings hs, speeds vs, boxes ls x ws, walker, yielder,
+    braking_j, row_j as :meth:`WomdRoad._conflict_movers`; the vehicle: mover ``mine``,
+    scene ``row``, ``ego`` = (x, y, heading, length, width, speed v_i >= 0, comfortable
+    braking, critical gap, the corridor's reach, the walkers' squared reach, their half
+    width). Returns (leader row or -1, its distance or inf, the corridor's row or -1, gap,
+    speed, the walker's distance, the conflict gap), NaN where none."""
+    x, y, heading, length, width = ego[0], ego[1], ego[2], ego[3], ego[4]
+    v_i, braking, critical, reach = ego[5], ego[6], ego[7], ego[8]
+    leader, leader_d = -1, np.inf
+    if cuts[0] > 1:
+        leader, leader_d = _leader_ahead_on(px, py, tx, ty, s, lanes[1:cuts[0]],
+                                            bases[1:cuts[0]], xs, ys, hs, mine, heading,
+                                            LEADER_LOOKAHEAD)
+    corridor, gap, speed = -1, np.nan, np.nan
+    if xs.shape[0] >= 2:
+        corridor, gap, speed = _corridor(xs, ys, hs, vs, ls, ws, x, y, heading, length,
+                                         width, reach, mine)
+    walker_d = np.nan
+    if walkers and _any_within(wx0, wy0, x, y, ego[9]):
+        for j in range(cuts[1]):
+            c, d = int(lanes[j, 0]), int(lanes[j, 1])
+            for xw, yw in ((wx0, wy0), (wx1, wy1)):
+                walker_d = _walkers_on_lane(px[c:d], py[c:d], tx[c:d], ty[c:d], s[c:d],
+                                            whd[c:d], bases[j], ego[10], lanes[j, 5], xw,
+                                            yw, whs, wvs, walker_d)
+    best = np.nan
+    for j in range(sections.shape[0]):
+        if bases[j] > CONFLICT_LOOKAHEAD:
+            break
+        q0, q1, a0, r0, r1, u0, u1 = sections[j]
+        if q1 == q0:
+            continue
+        g = _conflict_gap_on(bases[j], conf[q0:q1], at[a0:a0 + q1 - q0 + 1],
+                             approach[r0:r1], offsets[r0:r1], clanes[u0:u1], px, py, tx, ty,
+                             s, hd, xs, ys, hs, ls, ws, vs, walker, yielder, braking_j, row_j,
+                             mine, row, length, width, v_i, braking, critical)
+        if g == g and (best != best or g < best):
+            best = g
+    return leader, leader_d, corridor, gap, speed, walker_d, best
+
+
 def _intersecting(a: Vehicle, b: Vehicle) -> bool:
     """Whether two vehicles' boxes overlap now."""
     return bool(utils.are_polygons_intersecting(a.polygon(), b.polygon(), np.zeros(2),
@@ -2295,6 +2365,10 @@ class WomdRoad(Road):
         self._states_at: tuple[int, _Layout, dict] | None = None  # _snapshot's
         self._crossings: dict[int, list] | None = None
         self._stop_signs = self._stop_sign_points(network, road)
+        self._ahead_lanes: dict[tuple, np.ndarray] = {}  # obstacles_ahead's lane rows
+        self._ahead_conflicts: dict[tuple, tuple[np.ndarray, ...]] = {}  # ... conflicts
+        self._walker_hd: np.ndarray | None = None  # the walkers' lanes' headings, by pose
+        self._walker_hd_lanes: set = set()  # ... the lanes filled in
 
     def path_conflicts(self, vehicle: Vehicle) -> list[tuple[Any, float, float, bool]]:
         """(other path vehicle, where their logged paths first cross on ours [m], ... on
@@ -2615,6 +2689,138 @@ class WomdRoad(Road):
                                   float(vehicle.WIDTH), reach,
                                   self._movers.index_of(vehicle, -1))
         return None if k < 0 else (float(gap), float(speed))
+
+    def obstacles_ahead(self, vehicle: Vehicle
+                        ) -> tuple[Vehicle | None, float, tuple[float, float] | None,
+                                   list[float]] | None:
+        """What the vehicle finds on its way beyond its own lane's leader, as
+        :meth:`leader_ahead`, :meth:`corridor_leader` and the vehicle's
+        ``_standing_obstacles`` (:meth:`stop_distance`, :meth:`walker_distance`,
+        :meth:`stop_sign_distance`, :meth:`conflict_gap`, each less its margins) give it,
+        asked in that order, with the searches over the step's movers in one compiled pass
+        (:func:`_ahead_in_one`): (the leader or None, its distance [m] or inf, the
+        corridor's (gap [m], speed [m/s]) or None, the standing obstacles' gaps [m]). None
+        before the road has acted in this step or without movers (then ask each)."""
+        if self._positions is None or not len(self._positions):
+            return None
+        ahead = self._lanes_ahead(vehicle, LANES_AHEAD)
+        # each shorter look's lanes (_lanes_ahead's cut: the first lane, then those that
+        # start within it) are the first ones of the longest: the lanes start farther and
+        # farther along the way
+        key = tuple(index for index, _ in ahead)
+        bases_list = [float(base) for _, base in ahead]
+        n_leader = n_walker = n_conflict = 1
+        for base in bases_list[1:]:
+            n_leader += base <= LEADER_LOOKAHEAD
+            n_walker += base <= WALKER_LOOKAHEAD
+            n_conflict += base <= CONFLICT_LOOKAHEAD
+        if bases_list[0] > CONFLICT_LOOKAHEAD:  # conflict_gap's search ends at once
+            n_conflict = 0
+        lanes = self._ahead_lane_rows(key)
+        conflicts = self._ahead_conflict_tables(key, n_conflict)
+        bases = np.array(bases_list)
+        px, py, tx, ty, s, hd = self._pose_arrays()
+        heading, speed, length, width = self._box_columns
+        yielder, braking_j, row_j = self._conflict_movers()
+        p = vehicle.parameters() if hasattr(vehicle, "parameters") else None
+        braking = p.comfortable_braking if p is not None else 3.0
+        critical = p.critical_gap if p is not None else 3.0
+        v = max(float(vehicle.speed), 0.0)
+        x, y = float(vehicle.position[0]), float(vehicle.position[1])
+        half_length = vehicle.LENGTH / 2
+        # the walkers: remembered for the step and lane (MOBIL, the decision's own act)
+        walkers = self._walkers
+        look = remembered = None
+        reach2 = half = 0.0
+        columns = (_NONE,) * 6
+        if walkers is not None and len(walkers[0]):
+            look = (self.clock[0], vehicle.lane_index)
+            cached = vehicle.__dict__.get("_walker_distance")
+            if cached is not None and cached[0] == look:
+                remembered, look = cached[1], None
+            else:
+                reach = (WALKER_LOOKAHEAD + vehicle.LENGTH
+                         + WALKER_HORIZON * self._walker_fastest)
+                reach2, half = reach * reach, vehicle.WIDTH / 2 + WALKER_CLEARANCE
+                (wx0, wy0), (wx1, wy1) = self._walker_columns
+                columns = (wx0, wy0, wx1, wy1, walkers[2], walkers[3])
+                self._fill_walker_headings(key[:n_walker])
+        ego = np.array((x, y, float(vehicle.heading), float(vehicle.LENGTH),
+                        float(vehicle.WIDTH), v, float(braking), float(critical),
+                        CORRIDOR_MIN + CORRIDOR_TIME * max(float(vehicle.speed), 0.0),
+                        reach2, half))
+        whd = self._walker_hd if self._walker_hd is not None else hd
+        leader, leader_d, k, gap, along, walker_d, give_way = _ahead_in_one(
+            px, py, tx, ty, s, hd, whd, lanes, bases, self._xs, self._ys, heading, speed,
+            length, width, self._walker_mask, yielder, braking_j, row_j, *conflicts,
+            *columns, ego, self._movers.index_of(vehicle, -1), getattr(vehicle, "row", -1),
+            (n_leader, n_walker), look is not None)
+        standing = []
+        d = self.stop_distance(vehicle)
+        if d is not None:
+            standing.append(d - half_length - STOP_MARGIN)
+        if look is not None:
+            remembered = None if math.isnan(walker_d) else walker_d
+            vehicle.__dict__["_walker_distance"] = (look, remembered)
+        if remembered is not None:
+            standing.append(remembered - WALKER_RADIUS - half_length - STOP_MARGIN)
+        d = self.stop_sign_distance(vehicle)
+        if d is not None:
+            standing.append(d - half_length - STOP_MARGIN)
+        if give_way == give_way:
+            standing.append(give_way)
+        return (self._movers[leader] if leader >= 0 else None, leader_d,
+                None if k < 0 else (float(gap), float(along)), standing)
+
+    def _ahead_lane_rows(self, key: tuple) -> np.ndarray:
+        """(k, 6) the rows of :func:`_ahead_in_one`'s ``lanes`` for the lanes ``key`` (lane
+        indices, :meth:`_lanes_ahead`'s): each lane's poses c, d, a mover's reach across it, its
+        longitudinal range [lo, hi) (:meth:`_lane_table`'s), its length [m]; kept by the
+        lanes."""
+        rows = self._ahead_lanes.get(key)
+        if rows is None:
+            out = []
+            for index in key:
+                lane = self.network.get_lane(index)
+                c, d = lane._shared[6:8]
+                out.append((float(c), float(d), lane.width / 2 + 1.0, -lane.VEHICLE_LENGTH,
+                            lane.length + lane.VEHICLE_LENGTH, float(lane.length)))
+            rows = self._ahead_lanes[key] = np.array(out, np.float64).reshape(-1, 6)
+        return rows
+
+    def _ahead_conflict_tables(self, key: tuple, n: int) -> tuple[np.ndarray, ...]:
+        """The conflict tables (:meth:`_conflict_table`) of the first ``n`` lanes of ``key``
+        (lane indices) end to end for :func:`_ahead_in_one`: (conf, at, approach, offsets,
+        clanes, sections (k, 7): each lane's rows q0, q1 of conf, a0 of at, r0, r1 of
+        approach and offsets, u0, u1 of clanes); kept by the lanes (a lane's table is made
+        when first asked for)."""
+        made = self._ahead_conflicts.get((key, n))
+        if made is None:
+            tables = [self._conflict_table(index) for index in key[:n]]
+            sections, q, a, r, u = [], 0, 0, 0, 0
+            for conf, at, approach, _, lanes in tables:
+                sections.append((q, q + len(conf), a, r, r + len(approach), u, u + len(lanes)))
+                q, a, r, u = q + len(conf), a + len(at), r + len(approach), u + len(lanes)
+            made = self._ahead_conflicts[key, n] = (
+                np.concatenate([t[0] for t in tables] or [np.zeros((0, 2))]).reshape(-1, 2),
+                np.concatenate([t[1] for t in tables] or [np.zeros(0, np.int64)]),
+                np.concatenate([t[2] for t in tables] or [np.zeros(0, np.int64)]),
+                np.concatenate([t[3] for t in tables] or [np.zeros(0)]),
+                np.concatenate([t[4] for t in tables] or [np.zeros((0, 5))]).reshape(-1, 5),
+                np.array(sections, np.int64).reshape(-1, 7))
+        return made
+
+    def _fill_walker_headings(self, lanes: tuple) -> None:
+        """The walkers' lane headings (:meth:`_lane_headings`) of ``lanes`` (lane indices)
+        set in their poses' places of :attr:`_walker_hd`."""
+        filled = self._walker_hd_lanes
+        for index in lanes:
+            if index not in filled:
+                if self._walker_hd is None:
+                    self._walker_hd = np.full(len(self._pose_arrays()[0]), np.nan)
+                c, d = self.network.get_lane(index)._shared[6:8]
+                self._walker_hd[c:d] = self._lane_headings(index)
+                filled.add(index)
 
     @staticmethod
     def _stop_sign_points(network: WomdNetwork, road: Any) -> dict[Any, list[float]]:

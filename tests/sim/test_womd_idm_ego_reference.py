@@ -119,3 +119,40 @@ def test_the_obstacles_asked_again_within_a_step_are_those_computed_afresh(womd_
     files = [str(womd_dir / f) for f in SAMPLES[:2]]
     _drive(files, "log")
     assert asked["calls"] > 100 and asked["again"] > 50
+
+
+def test_the_obstacles_ahead_in_one_pass_are_the_searches_one_after_the_other(womd_dir,
+                                                                              monkeypatch):
+    """WomdRoad.obstacles_ahead (one compiled pass) answers what leader_ahead,
+    corridor_leader and the IDM ego's _standing_obstacles answer one after the other, at
+    every step of two sample scenes: the same leader and distance,
+    corridor, and the same gaps in the same order; the walkers it searched afresh searched
+    afresh again (what it remembered for the step is forgotten first)."""
+    from tap_bench.sim.womd_road import WomdRoad
+
+    own = WomdRoad.obstacles_ahead
+    asked = {"calls": 0, "leader": 0, "standing": 0, "walkers": 0}
+
+    def checked(self, vehicle):
+        before = vehicle.__dict__.get("_walker_distance")
+        got = own(self, vehicle)
+        if got is None:
+            return got
+        if vehicle.__dict__.get("_walker_distance") is not before:  # searched afresh
+            asked["walkers"] += 1
+            if before is None:
+                vehicle.__dict__.pop("_walker_distance")
+            else:
+                vehicle.__dict__["_walker_distance"] = before
+        want = (*self.leader_ahead(vehicle), self.corridor_leader(vehicle),
+                vehicle._standing_obstacles())
+        assert got[0] is want[0] and got[1] == want[1] and got[2] == want[2]
+        assert got[3] == want[3]
+        asked["calls"] += 1
+        asked["leader"] += got[0] is not None
+        asked["standing"] += bool(got[3])
+        return got
+
+    monkeypatch.setattr(WomdRoad, "obstacles_ahead", checked)
+    _drive([str(womd_dir / f) for f in SAMPLES[:2]], "log")
+    assert asked["calls"] > 100 and min(asked.values()) > 10, asked

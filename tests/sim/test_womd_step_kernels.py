@@ -14,13 +14,16 @@ from tap_bench.sim.womd_lanes import FastPolyLane
 from tap_bench.sim.womd_road import (
     CONFLICT_LOOKAHEAD,
     CORRIDOR_MARGIN,
+    LEADER_LOOKAHEAD,
     PATH_MARGIN,
     WALKER_ALONG,
     WALKER_CLEARANCE,
     WALKER_LOOKAHEAD,
     WALKER_STILL,
+    _ahead_in_one,
     _any_within,
     _approach_rows,
+    _conflict_gap_on,
     _corridor,
     _front_rear,
     _lane_members,
@@ -543,3 +546,127 @@ def test_the_comfortable_braking_at_conflicts_follows_each_drivers_parameters():
     assert _Layout.conflict_braking(layout) is got  # the same drivers: kept
     cars[1].parameters = lambda: soft
     np.testing.assert_array_equal(_Layout.conflict_braking(layout), [1.5, math.nan, 1.5, 1.5])
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_obstacles_ahead_in_one_pass_are_the_searches_one_by_one(seed):
+    """_ahead_in_one gives what WomdRoad's searches gave one after the other: the leader on
+    the next lanes (_leader_ahead_on over lanes 1 to the leader's cut), the corridor's
+    leader (_corridor, two movers or more), the walkers (_any_within, then
+    _walkers_on_lane on each lane of the walkers' cut with the lane's own headings, where
+    they are and where they will be), the give-way gap (_conflict_gap_on on each lane's own
+    conflict table until a lane starts beyond the look ahead, the smallest). Lanes of every
+    shape starting exactly at the look aheads, movers without a position, no walkers, no
+    conflicts, no movers."""
+    rng = np.random.default_rng(70 + seed)
+    counts = {"leader": 0, "corridor": 0, "walker": 0, "conflict": 0}
+    for _ in range(200):
+        k = int(rng.integers(1, 5))
+        lanes = [lane(rng) for _ in range(k)]
+        poses = [np.concatenate([ln.arrays[q] for ln in lanes]) for q in range(5)]
+        hd = np.arctan2(poses[3], poses[2])
+        ends = np.cumsum([0] + [len(ln.arrays[0]) for ln in lanes])
+        rows = np.array([(float(ends[j]), float(ends[j + 1]), ln.width / 2 + 1.0,
+                          -ln.VEHICLE_LENGTH, ln.length + ln.VEHICLE_LENGTH, float(ln.length))
+                         for j, ln in enumerate(lanes)])
+        edges = [CONFLICT_LOOKAHEAD, WALKER_LOOKAHEAD, LEADER_LOOKAHEAD]
+        bases = np.sort(np.r_[rng.uniform(-30.0, 10.0), [
+            float(rng.choice(edges)) if rng.random() < 0.3 else rng.uniform(-5.0, 65.0)
+            for _ in range(k - 1)]])
+        if rng.random() < 0.1:
+            bases[0] = CONFLICT_LOOKAHEAD + rng.choice([0.0, 1.0])  # its search ends at once
+        cut = {look: 1 + int(np.sum(bases[1:] <= look))
+               for look in (CONFLICT_LOOKAHEAD, WALKER_LOOKAHEAD, LEADER_LOOKAHEAD)}
+        n = int(rng.choice([0, 1, 2, int(rng.integers(3, 25))]))
+        around = np.concatenate([centre(ln) for ln in lanes])
+        xy, hs, vs, ls, ws = movers(rng, around, n)
+        xy[rng.random(n) < 0.05] = np.nan
+        xs, ys = np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1])
+        walker = rng.random(n) < 0.3
+        yielder = rng.random(n) < 0.5
+        braking_j = np.where(yielder, rng.uniform(1.5, 3.0, n), np.nan)
+        row_j = rng.integers(-1, 30, n)
+        mine = int(rng.integers(-1, n)) if n else -1
+        at_ego = around[rng.integers(len(around))] + rng.normal(0.0, 2.0, 2)
+        ego = np.array((at_ego[0], at_ego[1], rng.uniform(-math.pi, math.pi), 4.8, 2.0,
+                        rng.choice([0.0, rng.uniform(0.0, 15.0)]), rng.uniform(1.5, 3.0),
+                        rng.uniform(2.5, 3.5), rng.uniform(6.0, 30.0), 0.0,
+                        2.0 / 2 + WALKER_CLEARANCE))
+        if n >= 2 and rng.random() < 0.5:  # one in the corridor ahead
+            ahead = rng.uniform(3.0, 20.0)
+            xs[int(mine == 0)] = ego[0] + ahead * math.cos(ego[2])
+            ys[int(mine == 0)] = ego[1] + ahead * math.sin(ego[2])
+        # the conflicts of each lane within the conflicts' look ahead, as _conflict_table's
+        n_conf = 0 if bases[0] > CONFLICT_LOOKAHEAD else cut[CONFLICT_LOOKAHEAD]
+        tables = []
+        for j in range(n_conf):
+            m = int(rng.integers(0, 4))
+            others = [int(u) for u in rng.integers(0, k, int(rng.integers(1, 3)))]
+            conf = np.array([(rng.uniform(0.0, lanes[j].length), rng.uniform(
+                0.0, lanes[others[0]].length)) for _ in range(m)]).reshape(-1, 2)
+            at = np.arange(m + 1, dtype=np.int64) * len(others)
+            approach = np.tile(np.arange(len(others), dtype=np.int64), m)
+            offsets = np.tile([0.0 if q == 0 else float(lanes[u].length)
+                               for q, u in enumerate(others)], m).astype(float)
+            clanes = rows[others, :5].copy()
+            tables.append((conf, at, approach, offsets, clanes))
+        sections, q, a, r, u = [], 0, 0, 0, 0
+        for conf, at, approach, _, cl in tables:
+            sections.append((q, q + len(conf), a, r, r + len(approach), u, u + len(cl)))
+            q, a, r, u = q + len(conf), a + len(at), r + len(approach), u + len(cl)
+        joined = (np.concatenate([t[0] for t in tables] or [np.zeros((0, 2))]),
+                  np.concatenate([t[1] for t in tables] or [np.zeros(0, np.int64)]),
+                  np.concatenate([t[2] for t in tables] or [np.zeros(0, np.int64)]),
+                  np.concatenate([t[3] for t in tables] or [np.zeros(0)]),
+                  np.concatenate([t[4] for t in tables] or [np.zeros((0, 5))]),
+                  np.array(sections, np.int64).reshape(-1, 7))
+        # walkers: some of the movers, where they are and where they will be
+        w = np.flatnonzero(walker)
+        walkers = bool(len(w)) and rng.random() < 0.8
+        wx0, wy0 = xs[w].copy(), ys[w].copy()
+        wx1, wy1 = wx0 + 1.5 * vs[w] * np.cos(hs[w]), wy0 + 1.5 * vs[w] * np.sin(hs[w])
+        ego[9] = rng.choice([0.0, 30.0, 80.0]) ** 2
+        whd = hd.copy()
+
+        got = _ahead_in_one(*poses, hd, whd, rows, bases, xs, ys, hs, vs, ls, ws, walker,
+                            yielder, braking_j, row_j, *joined, wx0, wy0, wx1, wy1,
+                            hs[w].copy(), vs[w].copy(), ego, mine, 7,
+                            (cut[LEADER_LOOKAHEAD], cut[WALKER_LOOKAHEAD]), walkers)
+
+        want_leader = (-1, math.inf)
+        if cut[LEADER_LOOKAHEAD] > 1:
+            want_leader = _leader_ahead_on(*poses, rows[1:cut[LEADER_LOOKAHEAD], :5].copy(),
+                                           bases[1:cut[LEADER_LOOKAHEAD]].copy(), xs, ys, hs,
+                                           mine, ego[2], LEADER_LOOKAHEAD)
+        want_corridor = (-1, math.nan, math.nan)
+        if n >= 2:
+            want_corridor = _corridor(xs, ys, hs, vs, ls, ws, ego[0], ego[1], ego[2], ego[3],
+                                      ego[4], ego[8], mine)
+        want_walker = math.nan
+        if walkers and _any_within(wx0, wy0, ego[0], ego[1], ego[9]):
+            for j in range(cut[WALKER_LOOKAHEAD]):
+                _, _, tx, ty, _ = lanes[j].arrays
+                for wx, wy in ((wx0, wy0), (wx1, wy1)):
+                    want_walker = _walkers_on_lane(
+                        *lanes[j].arrays, np.arctan2(ty, tx), bases[j], ego[10],
+                        lanes[j].length, wx, wy, hs[w].copy(), vs[w].copy(), want_walker)
+        want_gap = None
+        for j, (conf, at, approach, offsets, cl) in enumerate(tables):
+            if bases[j] > CONFLICT_LOOKAHEAD:
+                break
+            if not len(conf):
+                continue
+            g = _conflict_gap_on(float(bases[j]), conf, at, approach, offsets, cl, *poses, hd,
+                                 xs, ys, hs, ls, ws, vs, walker, yielder, braking_j, row_j,
+                                 mine, 7, ego[3], ego[4], ego[5], ego[6], ego[7])
+            if g == g:
+                want_gap = g if want_gap is None else min(want_gap, g)
+        want = (*want_leader, *want_corridor, want_walker,
+                math.nan if want_gap is None else want_gap)
+        assert len(got) == len(want)
+        assert all(a == b or (a != a and b != b) for a, b in zip(got, want, strict=True))
+        counts["leader"] += want[0] >= 0
+        counts["corridor"] += want[2] >= 0
+        counts["walker"] += want[5] == want[5]
+        counts["conflict"] += want[6] == want[6]
+    assert min(counts.values()) >= 2, counts
