@@ -293,6 +293,9 @@ class LogVehicle(Vehicle):
         row: the track's row in the scene.
     """
 
+    _log_block: tuple[np.ndarray, ...] | None = None  # many's arrays of every vehicle made
+    _log_at: int = -1  # ... this one's place in them
+
     def __init__(self, road: Road, row: int, states: np.ndarray, valid: np.ndarray,
                  length: float, width: float, clock: list[int]) -> None:
         self.states = states  # (T, 4) x, y, heading, speed in the sim frame
@@ -342,15 +345,16 @@ class LogVehicle(Vehicle):
         xy[:, n] = hidden
         xy.flags.writeable = False  # a step's position is a view of its row
         end = np.zeros((m, 1))
-        headings = np.c_[np.where(ok, states[..., 2], 0.0), end].tolist()
-        speeds = np.c_[np.where(ok, states[..., 3], 0.0), end].tolist()
-        flags = np.c_[ok, np.zeros((m, 1), bool)].tolist()
+        block = (xy, np.c_[np.where(ok, states[..., 2], 0.0), end],
+                 np.c_[np.where(ok, states[..., 3], 0.0), end], np.c_[ok, np.zeros((m, 1), bool)])
+        headings, speeds, flags = (values.tolist() for values in block[1:])
         out = []
         for i, row in enumerate(rows.tolist()):
             vehicle = cls.__new__(cls)
             vehicle._laid_out(road, row, given[row], valid[row], xy[i], headings[i],
                               speeds[i], flags[i], float(length[row]), float(width[row]),
                               clock)
+            vehicle._log_block, vehicle._log_at = block, i  # for the road's _Layout
             out.append(vehicle)
         return out
 
@@ -2217,6 +2221,15 @@ class _Layout:
                     a is b for a, b in zip(before, self.log_vehicles, strict=True)):
                 self.xy, self.heading = previous.xy, previous.heading
                 self.speed, self.valid = previous.speed, previous.valid
+            elif len({id(v._log_block) for v in self.log_vehicles}) == 1 and (
+                    self.log_vehicles[0]._log_block is not None):
+                # made together (LogVehicle.many): their rows of its arrays, the same values
+                # as their own logs
+                xy, heading, speed, valid = self.log_vehicles[0]._log_block
+                at = np.array([v._log_at for v in self.log_vehicles], np.int64)
+                self.xy = np.ascontiguousarray(xy[at].swapaxes(0, 1))  # (T + 1, n, 2)
+                self.heading, self.speed = heading[at].T.copy(), speed[at].T.copy()
+                self.valid = valid[at].T.copy()
             else:
                 self.xy = np.stack([v._xy for v in self.log_vehicles], axis=1)  # (T + 1, n, 2)
                 self.heading = np.array([v._heading for v in self.log_vehicles]).T.copy()
@@ -2447,14 +2460,13 @@ class WomdRoad(Road):
         self._box_columns = columns  # heading, speed, length, width: (n,) contiguous each
         self._walker_mask = walker
         if walkers:
-            xy = positions[walker]
+            x, y = self._xs[walker], self._ys[walker]
             heading, speed = columns[0][walker], columns[1][walker]
-            ahead = xy + WALKER_HORIZON * speed[:, None] * np.stack((np.cos(heading),
-                                                                     np.sin(heading)), axis=1)
-            self._walkers = (xy, ahead, heading, speed)
+            reach = WALKER_HORIZON * speed  # where they will be: at their logged velocity
+            ahead = (x + reach * np.cos(heading), y + reach * np.sin(heading))
+            self._walkers = (x, y, heading, speed)
             self._walker_fastest = float(speed.max())
-            self._walker_columns = [(xy[:, 0].copy(), xy[:, 1].copy()),
-                                    (ahead[:, 0].copy(), ahead[:, 1].copy())]
+            self._walker_columns = [(x, y), ahead]
         else:
             self._walkers = None
         self._path_accelerations = self._ahead_of_paths(layout) if layout.any_path else {}

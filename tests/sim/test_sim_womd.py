@@ -1104,6 +1104,36 @@ def test_replaying_vehicles_made_together_equal_vehicles_made_one_by_one(real):
                            inner.clock) == []
 
 
+def test_the_layout_of_vehicles_made_together_is_theirs_made_one_by_one(real):
+    """_Layout reads the logs of replaying vehicles made together (LogVehicle.many) from the
+    arrays they were made from: the same position, heading, speed and validity tables (values,
+    types and order) as from each vehicle's own log, for all of them, some of them in another
+    order, and with a vehicle made alone among them (then each one's own log is read)."""
+    from tap_bench.sim.womd_road import LogVehicle, _Layout
+
+    env = make_womd_env(real[0], traffic="log")
+    env.reset(seed=0)
+    inner = env.unwrapped
+    scene, road = inner.scene, inner.road
+    valid = scene.valid.copy()
+    valid[np.random.default_rng(3).random(valid.shape) < 0.2] = False
+    rows = [r for r in range(len(valid)) if r != scene.ego]
+    together = LogVehicle.many(road, rows, inner.states, valid, scene.length, scene.width,
+                               inner.clock)
+    alone = [LogVehicle(road, r, inner.states[r], valid[r], scene.length[r], scene.width[r],
+                        inner.clock) for r in rows]
+    picked = [5, 2, 9, 0, 7, *range(10, len(rows))]
+    for these in (list(range(len(rows))), picked):
+        fast = _Layout(tuple(together[k] for k in these), frozenset())
+        plain = _Layout(tuple(alone[k] for k in these), frozenset())
+        for name in ("xy", "heading", "speed", "valid"):
+            got, want = getattr(fast, name), getattr(plain, name)
+            assert got.dtype == want.dtype and got.flags.c_contiguous
+            np.testing.assert_array_equal(got, want)
+    mixed = _Layout((*together[:3], alone[3], *together[4:]), frozenset())
+    np.testing.assert_array_equal(mixed.heading, _Layout(tuple(alone), frozenset()).heading)
+
+
 def test_the_next_lane_kept_per_lane_and_route_is_the_one_found_again(womd_dir):
     """``WomdNetwork.next_lane`` keeps its answers by lane and the route's lanes: for every
     lane of a real map, with no route, the logged ego's route, a route that skips lanes and
