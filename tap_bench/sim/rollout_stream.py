@@ -231,29 +231,20 @@ def _part_schema(path: Path) -> pa.Schema:
     return pq.read_schema(path)
 
 
-def _part_tables(path: Path) -> Iterator[pa.Table]:
-    """A part's trajectory rows (Arrow IPC or Parquet, by its suffix) as tables of one
-    chunk each, dictionaries decoded: an Arrow part whole (it is read into memory whole),
-    a Parquet part in batches of :data:`READ_BATCH_ROWS` rows as pyarrow's reader gives
-    them."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    if path.suffix != ".arrow":
-        for batch in pq.ParquetFile(path).iter_batches(batch_size=READ_BATCH_ROWS):
-            yield pa.Table.from_batches([batch])
-        return
-    with pa.OSFile(str(path)) as source:  # read into memory, not mapped
-        reader = pa.ipc.open_file(source)
-        yield reader.read_all().cast(_plain(reader.schema)).combine_chunks()
-
-
 def _part_batches(path: Path) -> Iterator[pa.RecordBatch]:
     """A part's trajectory rows (Arrow IPC or Parquet, by its suffix) in batches of
     :data:`READ_BATCH_ROWS` rows, as pyarrow's Parquet reader gives them (dictionaries
     decoded)."""
-    for table in _part_tables(path):
-        yield from table.to_batches(max_chunksize=READ_BATCH_ROWS)
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    if path.suffix != ".arrow":
+        yield from pq.ParquetFile(path).iter_batches(batch_size=READ_BATCH_ROWS)
+        return
+    with pa.OSFile(str(path)) as source:  # read into memory, not mapped
+        reader = pa.ipc.open_file(source)
+        table = reader.read_all().cast(_plain(reader.schema)).combine_chunks()
+    yield from table.to_batches(max_chunksize=READ_BATCH_ROWS)
 
 
 def join_parquet(parts: list[Path], out: Path) -> int:
@@ -281,7 +272,8 @@ def join_parquet(parts: list[Path], out: Path) -> int:
             held = table.num_rows - start
 
         for path in parts:
-            for table in _part_tables(path):
+            for batch in _part_batches(path):
+                table = pa.Table.from_batches([batch])
                 for field in schema:  # a column some parts lack: nulls there
                     if field.name not in table.column_names:
                         table = table.append_column(field, pa.nulls(table.num_rows,
