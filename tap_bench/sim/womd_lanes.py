@@ -453,8 +453,18 @@ class FastPolyLane(PolyLaneFixedWidth):
             y[i] = (y[i:i + 1] + 0.0 * np.cos(yaw))[0]
         return out
 
+    _last_frame: tuple[float, float, tuple[float, float]] | None = None  # the last asked
+
     def local_coordinates(self, position: np.ndarray) -> tuple[float, float]:
-        return _frame(*self.arrays, float(position[0]), float(position[1]))
+        x, y = float(position[0]), float(position[1])
+        # the same point asked again (a vehicle's decision asks about its own place on its
+        # lane four times or so): the answer kept, where no zero can carry its sign into it
+        last = self._last_frame
+        if last is not None and last[0] == x and last[1] == y and x != 0.0 and y != 0.0:
+            return last[2]
+        found = _frame(*self.arrays, x, y)
+        self._last_frame = (x, y, found)
+        return found
 
     def heading_at(self, longitudinal: float) -> float:
         if longitudinal != longitudinal:  # not a number: the last pose

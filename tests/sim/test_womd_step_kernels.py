@@ -670,3 +670,24 @@ def test_the_obstacles_ahead_in_one_pass_are_the_searches_one_by_one(seed):
         counts["walker"] += want[5] == want[5]
         counts["conflict"] += want[6] == want[6]
     assert min(counts.values()) >= 2, counts
+
+
+def test_a_lanes_frame_asked_again_is_the_frame_found_afresh():
+    """FastPolyLane.local_coordinates keeps the last point's answer: asking again, after
+    other points, at the same x or the same y only, at zeros of either sign and NaN, gives
+    what the compiled frame gives afresh, to the bit (the sign of a zero included)."""
+    from tap_bench.sim.womd_lanes import _frame
+
+    rng = np.random.default_rng(11)
+    for _ in range(40):
+        ln = lane(rng)
+        px, py, *_ = ln.arrays
+        points = [(float(px[0]), float(py[0])), (0.0, float(py[0])), (-0.0, float(py[0])),
+                  (float(px[-1]), 0.0), (float(px[-1]), -0.0), (math.nan, 1.0)]
+        points += [tuple(map(float, rng.uniform(-600.0, 600.0, 2))) for _ in range(6)]
+        for i in rng.integers(0, len(points), 60).tolist():
+            x, y = points[i]
+            for q in ((x, y), (x, float(py[-1])), (float(px[-1]), y)):
+                got = ln.local_coordinates(np.array(q))
+                want = _frame(*ln.arrays, *q)
+                assert np.array(got).tobytes() == np.array(want).tobytes()
