@@ -552,9 +552,9 @@ class LaneIndex:
         lon < e_lon + (e_lat - lat) tan(theta) <= slack + |lat| slope, so the point's
         distance to the pose is at most slack + |lat| (1 + slope), and the lane's
         distance (|lat| at least) is at least (D - slack) / (1 + slope), D the distance to
-        the box of the poses. A point
-        of the last pose is ``lon - s_last`` beyond it, at least D - (length - s_last) =
-        D - tail; one behind the first pose's normal line is |lon| behind its start: D.
+        the box of the poses. A point of the last pose is ``lon - s_last`` beyond it, at
+        least D - (length - s_last) = D - tail; one behind the first pose's normal line is
+        |lon| behind its start: D.
         A lane with a turn of 90 degrees or more between poses, with tangents that are not
         unit vectors or with arc lengths that do not start at 0 or decrease gets slack
         inf (no bound beyond the box's reach)."""
@@ -563,33 +563,28 @@ class LaneIndex:
         out[:, 0] = np.inf
         out[:, 2] = self.lengths - last
         starts, ends = self.offsets[:-1], self.offsets[1:]
+        px, py, tx, ty = self.px, self.py, self.tx, self.ty
+        if not n or len(px) < 2 or not (ends > starts).all():  # a lane without poses
+            out[:, 1] = 0.0
+            out[:, 2] = np.inf
+            return out
         with np.errstate(invalid="ignore", divide="ignore"):
-            px, py, tx, ty = self.px, self.py, self.tx, self.ty
-            # every pose k with a pose k + 1 of the same lane
-            k = np.flatnonzero(~np.isin(np.arange(len(px)), ends - 1))
-            ex, ey = px[k + 1] - px[k], py[k + 1] - py[k]
-            e_lon, e_lat = tx[k] * ex + ty[k] * ey, tx[k] * ey - ty[k] * ex
-            cos = tx[k] * tx[k + 1] + ty[k] * ty[k + 1]
-            sin = tx[k] * ty[k + 1] - ty[k] * tx[k + 1]
+            # pose i and pose i + 1 (of the next lane at each lane's last pose: left out)
+            ex, ey = px[1:] - px[:-1], py[1:] - py[:-1]
+            e_lon, e_lat = tx[:-1] * ex + ty[:-1] * ey, tx[:-1] * ey - ty[:-1] * ex
+            cos = tx[:-1] * tx[1:] + ty[:-1] * ty[1:]
+            sin = tx[:-1] * ty[1:] - ty[:-1] * tx[1:]
             slope = np.where(cos > 0, np.abs(sin) / cos, np.inf)
             slack = e_lon + np.abs(e_lat) * slope
-            unit = np.abs(np.hypot(tx, ty) - 1.0) <= 1e-9
-            # lane j's poses k are starts[j] .. ends[j] - 2: at k_from[j] in k (two or more)
-            two = ends - starts >= 2
-            k_from = starts - np.arange(n)
-            worst_slope = np.full(n, np.inf)
-            worst_slack = np.full(n, np.inf)
-            if len(k):
-                worst_slope[two] = np.maximum.reduceat(np.where(np.isnan(slope), np.inf,
-                                                                slope), k_from[two])
-                worst_slack[two] = np.maximum.reduceat(np.where(np.isnan(slack), np.inf,
-                                                                slack), k_from[two])
-            if n and (ends > starts).all():
-                all_unit = np.add.reduceat(~unit, starts) == 0
-            else:
-                all_unit = np.array([unit[a:b].all() for a, b in zip(starts, ends,
-                                                                     strict=True)], bool)
-            good = (ordered & all_unit & two & np.isfinite(worst_slope)
+            slope = np.r_[np.where(np.isnan(slope), np.inf, slope), 0.0]
+            slack = np.r_[np.where(np.isnan(slack), np.inf, slack), -np.inf]
+            slope[ends - 1] = 0.0  # each lane's last pose: nothing ahead of it
+            slack[ends - 1] = -np.inf
+            worst_slope = np.maximum.reduceat(slope, starts)
+            worst_slack = np.maximum.reduceat(slack, starts)
+            unit = np.abs(tx * tx + ty * ty - 1.0) <= 1e-12
+            all_unit = np.add.reduceat(~unit, starts) == 0
+            good = (ordered & all_unit & (ends - starts >= 2) & np.isfinite(worst_slope)
                     & np.isfinite(worst_slack) & np.isfinite(out[:, 2]))
         out[good, 0] = np.maximum(worst_slack[good], 0.0)
         out[good, 1] = worst_slope[good]
