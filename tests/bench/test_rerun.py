@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import sys
 import warnings
 
 import pandas as pd
@@ -81,6 +82,20 @@ def test_a_rerun_reads_labels_and_measures_and_is_identical(runs):
     assert len(list(cache.labels_folder.glob("*/*.labels"))) == 6
     assert_identical(cold, first)
     assert_identical(cold, again)
+
+
+def test_a_run_without_its_report_does_not_import_the_report_or_the_viewer(runs, tmp_path,
+                                                                         monkeypatch):
+    """The report's and the viewer's modules (and through the viewer the map readers and
+    numba, about 0.6 CPU s of a child ``bench run --no-report``) are imported only when
+    they are written: with them made unimportable, a run without its report still writes
+    its folder, the same tables."""
+    _, cold, _, _, cache = runs
+    for name in ("tap_bench.bench.report.viewer", "tap_bench.bench.report.page"):
+        monkeypatch.setitem(sys.modules, name, None)  # an import of it raises ImportError
+    result = run(tmp_path / "run", without_runs(cache))
+    assert not (result.folder / "report.html").exists()
+    assert_identical(cold, result)
 
 
 FAST_BATCHES = {(1, 1), (5, 2), (30, 1)}

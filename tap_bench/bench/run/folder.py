@@ -342,9 +342,7 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
         RunExistsError: ``output`` exists and ``overwrite`` is False.
         OutputPathError: ``output`` is a file, a link or a folder tap-bench did not write.
     """
-    from tap_bench.bench.report.page import write_report
     from tap_bench.bench.report.pages import page_templates
-    from tap_bench.bench.report.viewer import write_run_viewer
     from tap_bench.bench.scores.scoring import write_score_tables
 
     with atomic_folder(output, overwrite, kind="run") as tmp:
@@ -360,11 +358,15 @@ def write_results(output: str | os.PathLike, overwrite: bool, summary: dict[str,
         if viewer and spilled is not None:  # the viewer reads a chunk at a time
             trajectories = SpilledEpisodes(spilled)
         with page_templates(tmp, summary, pages) as shown:  # what the pages say of the run
-            if viewer:
+            if viewer:  # the viewer's imports (the map readers, numba) only when it is made
+                from tap_bench.bench.report.viewer import write_run_viewer
+
                 write_run_viewer(tmp / "viewer", shown, episodes, trajectories,
                                  segments=segments, roads=roads,
                                  novel_labels=scores.novel_labels, cache=cache)
             if report:
+                from tap_bench.bench.report.page import write_report
+
                 write_report(tmp, shown, episodes, scores, viewer="viewer/index.html"
                              if viewer else None, cache=cache)
     return Path(output)
