@@ -232,6 +232,20 @@ def uses_ray(test_file: str) -> bool:
     return any(name in source for name in _RAY_FIXTURES)
 
 
+@functools.cache
+def uses_torch(test_file: str) -> bool:
+    """Whether the test file ``test_file`` (a path from the project root) names
+    Stable-Baselines3 (``stable_baselines3``: imported, or skipped without): its tests train
+    or load agents, importing Stable-Baselines3 and torch (about 2.5 CPU s in a process,
+    and torch's first calls). A file that only names it (in a child's script, say) is
+    counted too: it then runs beside the others, at no cost but the workers' balance."""
+    try:
+        source = (PROJECT_ROOT / test_file).read_text(encoding="utf-8")
+    except OSError:
+        return False
+    return "stable_baselines3" in source
+
+
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config, log):
     """Under pytest-xdist (``-n N``), each test file runs whole in one worker (xdist's
@@ -239,8 +253,12 @@ def pytest_xdist_make_scheduler(config, log):
     chunks: a file's module fixtures (the runs that many tests of a file compare) are then
     made once, not once in each worker that got some of its tests. The files that use the
     Ray cluster (:func:`uses_ray`) run together, one after the other in one worker, so that
-    one cluster serves them all (:func:`ray_cluster`). ``--dist load`` (the default ``-n``
-    implies) becomes this, given or not; any other ``--dist`` is kept."""
+    one cluster serves them all (:func:`ray_cluster`); so do the files that import
+    Stable-Baselines3 and torch (:func:`uses_torch`), so that one worker imports them, where
+    each worker that ran one of them did. Such a group is one unit of work:
+    xdist hands out the units with the most tests first, so the groups start early and the
+    workers end about together. ``--dist load`` (the default ``-n`` implies) becomes this,
+    given or not; any other ``--dist`` is kept."""
     if config.getvalue("dist") != "load":
         return None
     from xdist.scheduler import LoadFileScheduling
@@ -248,7 +266,9 @@ def pytest_xdist_make_scheduler(config, log):
     class FileAndRayScheduling(LoadFileScheduling):
         def _split_scope(self, nodeid: str) -> str:
             test_file = nodeid.split("::", 1)[0]
-            return "the Ray cluster's tests" if uses_ray(test_file) else test_file
+            if uses_ray(test_file):
+                return "the Ray cluster's tests"
+            return "the tests that import torch" if uses_torch(test_file) else test_file
 
     return FileAndRayScheduling(config, log)
 
