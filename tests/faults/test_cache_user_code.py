@@ -74,23 +74,6 @@ register_policy_kind("const_{tag}", "constplug_{tag}:build")
 '''
 
 
-def test_an_edited_policy_kind_builder_is_simulated_again(tmp_path):
-    module = f"constplug_{TAG}"
-    (tmp_path / f"{module}.py").write_text(CONST.format(tag=TAG))
-    (tmp_path / "const.json").write_text(json.dumps({"name": "const", "kind": f"const_{TAG}",
-                                                     "params": {}}))
-    _suite(tmp_path, str(tmp_path / "const.json"))
-    first, eps1 = _run(tmp_path, "first", module)
-    assert _counts(first) == (0, 1)
-    again, _ = _run(tmp_path, "again", module)
-    assert _counts(again) == (1, 0)  # unchanged: read
-    source = tmp_path / f"{module}.py"
-    source.write_text(source.read_text().replace("ACTION = 3", "ACTION = 4"))  # SLOWER
-    edited, eps2 = _run(tmp_path, "edited", module)
-    assert _counts(edited) == (0, 1)
-    assert eps2["mean_speed"].mean() < eps1["mean_speed"].mean()
-
-
 SCENE = '''
 from highway_env.envs.merge_env import MergeEnv
 
@@ -112,7 +95,8 @@ SCENARIO_KINDS.register(ScenarioKind("slowstart-{tag}-v0", "sceneplug_{tag}:Slow
 
 @pytest.mark.slow  # 5 CPU s of child runs. Fast: test_cache_inputs.py::
 # test_every_input_edited_makes_the_rerun_fresh[scenario kind's module] (the key), and a
-# plugin's kind edited end to end: test_an_edited_policy_kind_builder_is_simulated_again
+# plugin's kind edited end to end:
+# test_edited_user_code_is_made_afresh_and_unchanged_code_is_read
 def test_an_edited_scenario_kind_is_simulated_again(tmp_path, monkeypatch):
     module = f"sceneplug_{TAG}"
     (tmp_path / f"{module}.py").write_text(SCENE.format(tag=TAG))
@@ -171,11 +155,6 @@ def _an_edited_helper_is_simulated_again(tmp_path, policy: str, source: str,
     assert eps2["mean_speed"].mean() < eps1["mean_speed"].mean()
 
 
-def test_a_module_an_import_policy_loads_by_name_is_followed(tmp_path):
-    _an_edited_helper_is_simulated_again(tmp_path, f"byname_{TAG}:ByName", BY_NAME,
-                                         f"helper_{TAG}")
-
-
 MEASURE = '''
 import importlib
 
@@ -191,17 +170,53 @@ def offset(steps):
 '''
 
 
-def test_a_module_a_measure_plugin_loads_by_name_is_followed(tmp_path):
-    module = f"measplug_{TAG}"
-    (tmp_path / f"{module}.py").write_text(MEASURE.format(tag=TAG))
-    helper = tmp_path / f"mhelper_{TAG}.py"
-    helper.write_text("OFFSET = -3.07\n")
-    _suite(tmp_path, "lane-keeping")
-    _, eps1 = _run(tmp_path, "first", module)
+def test_edited_user_code_is_made_afresh_and_unchanged_code_is_read(tmp_path):
+    """Three kinds of the user's code in one suite, edited one after the other (each edit a
+    run): a plugin's policy kind builder (``ACTION`` 3 -> 4), a module an ``import`` policy
+    loads by name as it drives (its ``ACTION`` 3 -> 4), and a module a measure plugin loads
+    by name (its ``OFFSET`` -3.07 -> 96.93). The first run simulates both policies' episodes,
+    the same run again reads both; each edit makes fresh exactly what follows that code
+    (the episodes of the policy edited, slower; the labels and measures after the measure's
+    helper), and the rest is read. Five child runs, where a test of each kind took eight."""
+    const, byname, measure = f"constplug_{TAG}", f"byname_{TAG}", f"measplug_{TAG}"
+    (tmp_path / f"{const}.py").write_text(CONST.format(tag=TAG))
+    (tmp_path / "const.json").write_text(json.dumps({"name": "const", "kind": f"const_{TAG}",
+                                                     "params": {}}))
+    (tmp_path / f"{byname}.py").write_text(BY_NAME.format(tag=TAG))
+    helper = tmp_path / f"helper_{TAG}.py"
+    helper.write_text("ACTION = 3\n")
+    (tmp_path / "mine.json").write_text(json.dumps({
+        "name": "mine", "kind": "import", "params": {"factory": f"{byname}:ByName"}}))
+    (tmp_path / f"{measure}.py").write_text(MEASURE.format(tag=TAG))
+    mhelper = tmp_path / f"mhelper_{TAG}.py"
+    mhelper.write_text("OFFSET = -3.07\n")
+    suite = _suite(tmp_path, str(tmp_path / "const.json"))
+    doc = json.loads(suite.read_text())
+    doc["policies"].append(str(tmp_path / "mine.json"))
+    suite.write_text(json.dumps(doc))
+
+    def speeds(episodes: pd.DataFrame) -> pd.Series:
+        return episodes.set_index("policy")["mean_speed"]
+
+    first, eps1 = _run(tmp_path, "first", const, measure)
+    assert _counts(first) == (0, 2)
     assert (eps1[f"offset_{TAG}"] == -3.07).all()
-    helper.write_text("OFFSET = 96.93\n")
-    edited, eps2 = _run(tmp_path, "edited", module)
-    assert (eps2[f"offset_{TAG}"] == 96.93).all()
+    again, _ = _run(tmp_path, "again", const, measure)
+    assert _counts(again) == (2, 0)  # unchanged: read
+    source = tmp_path / f"{const}.py"
+    source.write_text(source.read_text().replace("ACTION = 3", "ACTION = 4"))  # SLOWER
+    edited, eps2 = _run(tmp_path, "edited-kind", const, measure)
+    assert _counts(edited) == (1, 1)  # the plugin kind's policy simulated again, mine read
+    assert speeds(eps2)["const"] < speeds(eps1)["const"]
+    assert speeds(eps2)["mine"] == speeds(eps1)["mine"]
+    helper.write_text("ACTION = 4\n")
+    edited, eps3 = _run(tmp_path, "edited-helper", const, measure)
+    assert _counts(edited) == (1, 1)  # mine simulated again, the edited kind's now read
+    assert speeds(eps3)["mine"] < speeds(eps1)["mine"]
+    assert speeds(eps3)["const"] == speeds(eps2)["const"]
+    mhelper.write_text("OFFSET = 96.93\n")
+    edited, eps4 = _run(tmp_path, "edited-measure", const, measure)
+    assert (eps4[f"offset_{TAG}"] == 96.93).all()
     assert edited["cache"]["labelled_before"] == 0
 
 
@@ -231,7 +246,7 @@ class ByFile:
 @pytest.mark.slow  # 7 CPU s of child runs. Fast: test_cache_inputs.py::
 # test_every_input_edited_makes_the_rerun_fresh[module a policy runs from its path] (the
 # entry), and the same three runs end to end for a helper loaded by name:
-# test_a_module_an_import_policy_loads_by_name_is_followed
+# test_edited_user_code_is_made_afresh_and_unchanged_code_is_read
 def test_a_module_a_policy_runs_from_its_path_is_followed(tmp_path):
     """A policy that runs a module from its file (``spec_from_file_location`` and
     ``exec_module``: no import statement, no finder, no ``sys.modules``) is followed as a
