@@ -143,12 +143,37 @@ def _compile_kernels() -> None:
               "each process compiles what it runs", file=sys.stderr)
 
 
+def _kernels_cached() -> bool:
+    """Whether numba's cache holds an index for each of tap-bench's cached kernels (a
+    decorator line with ``cache=True``: ``<module>.<kernel>-<its line>.py*.nbi`` in its
+    folder's ``__pycache__``) written since its module was last changed. Then every process
+    reads the kernels from the cache, and :func:`_compile_kernels` would only cost its
+    rollouts (about 2 CPU s). A kernel this misses (a decorator over several lines, a
+    signature not yet compiled) is compiled when first run, as before."""
+    for source in sorted((PROJECT_ROOT / "tap_bench").rglob("*.py")):
+        try:
+            text = source.read_text(encoding="utf-8")
+            since = source.stat().st_mtime
+        except OSError:
+            return False
+        if "cache=True" not in text:
+            continue
+        folder = source.parent / "__pycache__"
+        for number, line in enumerate(text.splitlines(), 1):
+            if line.lstrip().startswith("@") and "cache=True" in line and not any(
+                    index.stat().st_mtime >= since
+                    for index in folder.glob(f"{source.stem}.*-{number}.py*.nbi")):
+                return False
+    return True
+
+
 def pytest_configure(config) -> None:
     os.environ["TAP_BENCH_CACHE"] = _CACHE
     if not hasattr(config, "workerinput"):  # xdist's workers start after this
         _compile_tap_bench()
         _rewrite_test_modules(config)
-        if getattr(config.option, "numprocesses", None):  # -n: before the workers start
+        # -n: before the workers start, unless the cache holds every kernel already
+        if getattr(config.option, "numprocesses", None) and not _kernels_cached():
             _compile_kernels()
 
 
