@@ -50,6 +50,15 @@ SHIPPED_MODELS: dict[str, str] = {
     "8d14ab45db0a85ed2ad7e5c5b211c2ba480136c4782d97c7d4ddcd1834046606": "ppo-womd-foldb-seed2.zip",
     "e8cff1eeb05ae124f39653cac7c1f598173e5750fc33749a4217c2befe99e4a3": "ppo-womd-foldb-seed3.zip",
     "096318283b363966f2ca0241f11b9c4a26f1ee04eafe92547f2d99db6f070714": "ppo-womd-foldb-seed4.zip",
+    "7bb2b6b4f904f97b411254919a54de21527eb25cdf4ce67ef5404e7e571ede54": "ppo-womd-tenth-seed0.zip",
+    "aec964c6db786e2b8cca5dc4a3f58f0106096acc90fa6a344de47cece8a4679e": "ppo-womd-tenth-seed1.zip",
+    "e0e659f88809f98a63affd63e90a5e7dea27f5b347ddd2074ea22916b9f8ba0e": "ppo-womd-tenth-seed2.zip",
+    "2826a2a65be1b140bad23b6f9e421a511e588d2ca6e6188755d7f7489a3f438b":
+        "ppo-womd-tenth-foldb-seed0.zip",
+    "df685625146ae89fa677897fedb102793b1f7c16a4dd0036edac8c85a578c3a1":
+        "ppo-womd-tenth-foldb-seed1.zip",
+    "3ab11752afa38da2de43986874f3aec540f49acd5817209aa71bdfabbe2ec2bc":
+        "ppo-womd-tenth-foldb-seed2.zip",
 }
 """SHA-256 digest of each model file shipped in ``policies/`` -> its name. Known in the
 installed code, not beside the file: a digest that a model folder could carry would vouch
