@@ -27,12 +27,16 @@ Usage::
 
 Figures go to ``benchmarks/out/<name>.json``. The last lines printed sum the runs up per
 scene count and tree (simulated steps per CPU s of each run and their median, CPU s a
-scene, peak memory, load) and, with two trees, each repeat's CPU ratio (second / first).
+scene, peak memory, load), whether every run of a scene count wrote the same trajectory and
+episode tables (their bytes' digest: two trees that should give the same results are
+checked by the same run that times them) and, with two trees, each repeat's CPU ratio
+(second / first).
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import shlex
@@ -319,16 +323,28 @@ def run_rollout(folder: Path, out: Path, policy: str, traffic: str, extra: list[
     cmd = child_command("rollout", files, out, report_file, policy=policy, traffic=traffic,
                         extra=extra, tree=tree)
     child, wall, load0 = _measured(cmd, report_file, "rollout", tree)
-    episodes = pd.read_parquet(str(out).replace(".parquet", ".episodes.parquet"))
+    episodes_file = Path(str(out).replace(".parquet", ".episodes.parquet"))
+    episodes = pd.read_parquet(episodes_file)
     steps = round((episodes["duration_s"].fillna(0) * 10).sum())
     scenes = len(episodes)
     return {**_commit(tree),
             "scenes": scenes, "ok": int((episodes["status"] == "ok").sum()),
+            "tables_sha256": tables_digest(out, episodes_file),
             "peak_mb": round(child["peak_mb"], 1), "cpu_s": round(child["cpu_s"], 2),
             "wall_s": round(wall, 2), "cpu_s_per_scene": round(child["cpu_s"] / scenes, 4),
             "steps": steps, "steps_per_cpu_s": round(steps / child["cpu_s"], 1),
             "load_before": round(load0, 2), "load_after": round(os.getloadavg()[0], 2),
             "command": _shown(folder, cmd, files)}
+
+
+def tables_digest(*files: Path) -> str:
+    """SHA-256 of the files' bytes one after the other (the trajectory and episode tables
+    of a rollout), the first 16 hex digits: two runs that wrote the same tables give the
+    same digest."""
+    digest = hashlib.sha256()
+    for file in files:
+        digest.update(Path(file).read_bytes())
+    return digest.hexdigest()[:16]
 
 
 def run_realism(folder: Path, out: Path, policy: str, traffic: str, extra: list[str],
@@ -401,7 +417,8 @@ def summary(rows: list[dict]) -> list[dict]:
     """Per scene count and tree (the runs of a whole command): the runs' simulated steps per
     CPU s, their median, CPU s a scene (median), peak memory and load (ranges); with two
     trees, each repeat's CPU ratio (second tree / first, paired in that repeat) and their
-    median."""
+    median; per scene count, whether every rollout's output tables were the same bytes
+    (``tables_sha256``)."""
     import statistics
 
     out = []
@@ -420,6 +437,12 @@ def summary(rows: list[dict]) -> list[dict]:
                     "peak_mb": [min(r["peak_mb"] for r in runs),
                                 max(r["peak_mb"] for r in runs)],
                     "load": [min(loads), max(loads)]})
+    for scenes in dict.fromkeys(n for n, _ in groups):
+        digests = {r["tables_sha256"] for (n, _), runs in groups.items() if n == scenes
+                   for r in runs if "tables_sha256" in r}
+        if digests:
+            out.append({"scenes": scenes, "tables_equal": len(digests) == 1,
+                        "tables_sha256": sorted(digests)})
     trees = list(dict.fromkeys(t for _, t in groups))
     if len(trees) == 2:
         for scenes in dict.fromkeys(n for n, _ in groups):
@@ -435,6 +458,11 @@ def summary(rows: list[dict]) -> list[dict]:
 def print_summary(lines: list[dict]) -> None:
     """The summary's lines as text (stderr stays free for the children's)."""
     for line in lines:
+        if "tables_equal" in line:
+            print(f"{line['scenes']} scenes: the output tables of every run "
+                  + ("are the same bytes" if line["tables_equal"] else
+                     f"DIFFER ({', '.join(line['tables_sha256'])})"))
+            continue
         if "ratios" in line:
             print(f"{line['scenes']} scenes, pairs {line['pairs']}: "
                   f"{', '.join(map(str, line['ratios']))} (median {line['median_ratio']})")

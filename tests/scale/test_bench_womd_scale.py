@@ -58,3 +58,26 @@ def test_a_failing_child_stops_the_script_with_its_message(tmp_path):
     with pytest.raises(SystemExit, match=r"(?s)exit code 2.*--resamples"):
         bench_womd_scale.run_realism(folder, tmp_path / "out.json", "idm", "log",
                                      ["--resamples", "20"], tree=str(PROJECT_ROOT))
+
+
+def _row(tree: str, digest: str, cpu: float) -> dict:
+    return {"tree": tree, "commit": tree, "scenes": 3, "steps_per_cpu_s": 100.0 / cpu,
+            "cpu_s": cpu, "cpu_s_per_scene": cpu / 3, "peak_mb": 1.0, "load_before": 0.5,
+            "load_after": 0.5, "tables_sha256": digest}
+
+
+def test_the_summary_says_whether_every_run_wrote_the_same_tables(tmp_path, capsys):
+    a, b = tmp_path / "a.parquet", tmp_path / "b.parquet"
+    a.write_bytes(b"one")
+    b.write_bytes(b"two")
+    same = bench_womd_scale.tables_digest(a, b)
+    assert same == bench_womd_scale.tables_digest(a, b) != bench_womd_scale.tables_digest(b, a)
+    rows = [_row("A", same, 1.0), _row("B", same, 0.9), _row("B", same, 0.8),
+            _row("A", same, 1.1)]
+    equal = [x for x in bench_womd_scale.summary(rows) if "tables_equal" in x]
+    assert equal == [{"scenes": 3, "tables_equal": True, "tables_sha256": [same]}]
+    rows[2]["tables_sha256"] = "0" * 16
+    lines = bench_womd_scale.summary(rows)
+    assert [x["tables_equal"] for x in lines if "tables_equal" in x] == [False]
+    bench_womd_scale.print_summary(lines)
+    assert "DIFFER" in capsys.readouterr().out
