@@ -1643,6 +1643,46 @@ def _lane_members_into(px, py, tx, ty, s, half, lo, hi, xs, ys, members, lon
 
 
 @numba.njit(cache=True, nogil=True)
+def _lane_members_near(px, py, tx, ty, s, half, lo, hi, xs, ys, bound
+                       ):  # pragma: no cover - compiled
+    """:func:`_lane_members` with the points that cannot be members left out before their
+    frame is found: ``bound`` = (x min, y min, x max, y max of the lane's poses, then the
+    slack, slope and tail of :meth:`~tap_bench.sim.womd_lanes.LaneIndex._wedges`, the
+    box's reach (``LaneIndex.reach``), and the largest lane distance a member can have
+    [m] + 1e-6 m for rounding: :func:`_member_limit`). A member has |lat| <= ``half`` and
+    lon in [lo, hi), so its lane distance (|lat| + overshoot beyond either end, as
+    :func:`~tap_bench.sim.womd_lanes._lane_distances`) is within that limit; a point whose
+    lower bound of that distance (as :func:`~tap_bench.sim.womd_lanes._bounds_into`) is
+    above it is not one. The same members; the longitudinal coordinate of a point left
+    out is NaN (only the members' are read)."""
+    lon = np.empty(xs.shape[0])
+    members = np.empty(xs.shape[0], np.int64)
+    n = 0
+    for i in range(xs.shape[0]):
+        x, y = xs[i], ys[i]
+        dx = max(bound[0] - x, x - bound[2], 0.0)
+        dy = max(bound[1] - y, y - bound[3], 0.0)
+        box = np.sqrt(dx * dx + dy * dy)
+        low = max(box - bound[7], min((box - bound[4]) / (1.0 + bound[5]), box - bound[6],
+                                      box))
+        if low > bound[8]:
+            lon[i] = np.nan
+            continue
+        lon[i], lat = _frame(px, py, tx, ty, s, x, y)
+        if abs(lat) <= half and lon[i] >= lo and lon[i] < hi:
+            members[n] = i
+            n += 1
+    return members[:n], lon
+
+
+def _member_limit(half: float, lo: float, hi: float, length: float) -> float:
+    """The largest lane distance [m] (|lat| + overshoot beyond either end) a point with
+    |lat| <= ``half`` and a longitudinal coordinate in [lo, hi) can have on a lane
+    ``length`` long, + 1e-6 m (the rounding of the bound it is compared with)."""
+    return half + max(-lo, hi - length, 0.0) + 1e-6
+
+
+@numba.njit(cache=True, nogil=True)
 def _front_rear(members, lon, s, mine):  # pragma: no cover - compiled
     """The nearest movers on a lane ahead of and behind the longitudinal coordinate ``s``
     [m] (:meth:`WomdRoad.neighbour_vehicles`): among ``members`` (their rows, in order;
@@ -1921,11 +1961,13 @@ def _conflict_gap_on(d_ahead, conf, at, approach, offsets, lanes, px, py, tx, ty
     Conflict q is at ``d_ahead + conf[q, 0]`` [m] along the way and at ``conf[q, 1]`` [m]
     on the other lane; the lanes approaching it are rows ``at[q]:at[q + 1]`` of
     ``approach`` (a row of ``lanes``: poses ``c:d`` of the pose arrays px, py, tx, ty, s,
-    headings hd, a mover's half-width reach, and its longitudinal range [lo, hi)) and
-    ``offsets`` (where that lane starts before the other one [m]). The movers: centres xs,
-    ys, headings hs, lengths ls, widths ws, speeds vs, walker, yielder (gives way: its
-    comfortable braking braking_j), scene row row_j; the vehicle: mover ``mine``, scene
-    ``row``, its box length x width, speed v_i, comfortable braking and critical gap.
+    headings hd, a mover's half-width reach, and its longitudinal range [lo, hi); with 14
+    columns, then the bound by which :func:`_lane_members_near` leaves out the movers that
+    cannot be on it) and ``offsets`` (where that lane starts before the other one [m]).
+    The movers: centres xs, ys, headings hs, lengths ls, widths ws, speeds vs, walker,
+    yielder (gives way: its comfortable braking braking_j), scene row row_j; the vehicle:
+    mover ``mine``, scene ``row``, its box length x width, speed v_i, comfortable braking
+    and critical gap.
     Returns the smallest gap [m] to a conflict zone where it gives way, NaN if none."""
     n = xs.shape[0]
     m = lanes.shape[0]
@@ -1943,8 +1985,14 @@ def _conflict_gap_on(d_ahead, conf, at, approach, offsets, lanes, px, py, tx, ty
             u = approach[r]
             c, d = int(lanes[u, 0]), int(lanes[u, 1])
             if count[u] < 0:
-                found, along = _lane_members(px[c:d], py[c:d], tx[c:d], ty[c:d], s[c:d],
-                                             lanes[u, 2], lanes[u, 3], lanes[u, 4], xs, ys)
+                if lanes.shape[1] >= 14:  # with the lane's bound: the far ones left out
+                    found, along = _lane_members_near(
+                        px[c:d], py[c:d], tx[c:d], ty[c:d], s[c:d], lanes[u, 2],
+                        lanes[u, 3], lanes[u, 4], xs, ys, lanes[u, 5:14])
+                else:
+                    found, along = _lane_members(px[c:d], py[c:d], tx[c:d], ty[c:d],
+                                                 s[c:d], lanes[u, 2], lanes[u, 3],
+                                                 lanes[u, 4], xs, ys)
                 lon[u, :] = along
                 count[u] = found.shape[0]
                 members[u, :count[u]] = found
@@ -2818,7 +2866,7 @@ class WomdRoad(Road):
                 np.concatenate([t[1] for t in tables] or [np.zeros(0, np.int64)]),
                 np.concatenate([t[2] for t in tables] or [np.zeros(0, np.int64)]),
                 np.concatenate([t[3] for t in tables] or [np.zeros(0)]),
-                np.concatenate([t[4] for t in tables] or [np.zeros((0, 5))]).reshape(-1, 5),
+                np.concatenate([t[4] for t in tables] or [np.zeros((0, 14))]).reshape(-1, 14),
                 np.array(sections, np.int64).reshape(-1, 7))
         return made
 
@@ -3014,8 +3062,10 @@ class WomdRoad(Road):
         :func:`_conflict_gap_on`: (conf (m, 2) where each is on this lane and on the other
         [m], at (m + 1,) its approaching lanes' rows, approach (k,) each row's lane in
         ``lanes``, offsets (k,) where that lane starts before the other one [m], lanes (u,
-        5) each lane's poses c, d, the mover's reach across it, its longitudinal range
-        [lo, hi) [m] (:meth:`_lane_table`'s)); built once per lane."""
+        14) each lane's poses c, d, the mover's reach across it, its longitudinal range
+        [lo, hi) [m] (:meth:`_lane_table`'s), then the bound of its lane distance that
+        :func:`_lane_members_near` leaves far movers out by (:meth:`_member_bound`));
+        built once per lane."""
         table = self._conflict_tables.get(lane_index)
         if table is not None:
             return table
@@ -3030,16 +3080,38 @@ class WomdRoad(Road):
                     lane = network.get_lane(index)
                     c, d = lane._shared[6:8]
                     slot[index] = len(lanes)
-                    lanes.append((c, d, lane.width / 2 + 1.0, -lane.VEHICLE_LENGTH,
-                                  lane.length + lane.VEHICLE_LENGTH))
+                    half, lo, hi = (lane.width / 2 + 1.0, -lane.VEHICLE_LENGTH,
+                                    lane.length + lane.VEHICLE_LENGTH)
+                    lanes.append((c, d, half, lo, hi,
+                                  *self._member_bound(index, c, d, half, lo, hi)))
                 approach.append(slot[index])
                 offsets.append(offset)
             at.append(len(approach))
         table = self._conflict_tables[lane_index] = (
             np.array([(a, b) for _, a, b in conflicts], dtype=np.float64).reshape(-1, 2),
             np.array(at, np.int64), np.array(approach, np.int64),
-            np.array(offsets, np.float64), np.array(lanes, np.float64).reshape(-1, 5))
+            np.array(offsets, np.float64), np.array(lanes, np.float64).reshape(-1, 14))
         return table
+
+    def _member_bound(self, lane_index: Any, c: int, d: int, half: float, lo: float,
+                      hi: float) -> tuple[float, ...]:
+        """The bound row of :func:`_lane_members_near` for a lane (its poses ``c:d`` of
+        the pose arrays; a member within ``half`` of its centre line, lon in [lo, hi)):
+        the network's :class:`~tap_bench.sim.womd_lanes.LaneIndex` row of the lane (the
+        box of its poses, the wedge's slack, slope and tail, the box's reach) and
+        :func:`_member_limit`; a limit of inf (no mover left out) where the index has no
+        such row for these poses."""
+        lookup = self.network.lookup
+        rows = self.__dict__.get("_lookup_rows")
+        if rows is None:
+            rows = self._lookup_rows = {index: j for j, index in enumerate(lookup.indexes)}
+        j = rows.get(lane_index)
+        boxes = lookup.boxes
+        if (j is None or boxes.shape[1] < 7 or int(lookup.offsets[j]) != c
+                or int(lookup.offsets[j + 1]) != d):
+            return (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, math.inf)
+        return (*boxes[j, :7].tolist(), float(lookup.reach[j]),
+                _member_limit(half, lo, hi, float(lookup.lengths[j])))
 
     # signals
     def _lanes_ahead(self, vehicle: Vehicle, lookahead: float) -> list[tuple[Any, float]]:

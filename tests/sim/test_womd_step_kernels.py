@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from tap_bench.sim.traffic import near_pairs_of, shapes_of, swept_apart
-from tap_bench.sim.womd_lanes import FastPolyLane
+from tap_bench.sim.womd_lanes import FastPolyLane, LaneIndex
 from tap_bench.sim.womd_road import (
     CONFLICT_LOOKAHEAD,
     CORRIDOR_MARGIN,
@@ -28,9 +28,11 @@ from tap_bench.sim.womd_road import (
     _front_rear,
     _lane_members,
     _lane_members_into,
+    _lane_members_near,
     _Layout,
     _leader_ahead_on,
     _leader_on,
+    _member_limit,
     _Movers,
     _movers_into,
     _movers_now,
@@ -88,6 +90,50 @@ def test_lane_members_are_highway_envs_on_lane_point_by_point(seed):
             if ln.on_lane(p, s, d, margin=1):
                 want.append(i)
         assert members.tolist() == want
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_lane_members_with_the_lanes_bound_are_the_members_found_afresh(seed):
+    """_lane_members_near (the give-way pass's tables) leaves out the movers whose lower
+    bound of the lane distance (the lane index's box and wedge) is beyond what a member can
+    have, and finds the same members with the same longitudinal coordinates as
+    _lane_members: lanes of every shape built together (one set of pose arrays, as a
+    network's), movers on, beside, at the ends, far, without a position."""
+    rng = np.random.default_rng(90 + seed)
+    left_out = kept = 0
+    for _ in range(30):
+        lanes = [lane(rng) for _ in range(int(rng.integers(1, 6)))]
+        built = FastPolyLane.many([centre(ln) for ln in lanes], [ln.width for ln in lanes],
+                                  womd_ids=list(range(len(lanes))),
+                                  speed_limits=[20.0] * len(lanes),
+                                  line_types=[None] * len(lanes))
+        index = LaneIndex([((str(j), f"{j}>", 0), ln) for j, ln in enumerate(built)])
+        for j, ln in enumerate(built):
+            a, b = int(index.offsets[j]), int(index.offsets[j + 1])
+            poses = [x[a:b] for x in (index.px, index.py, index.tx, index.ty, index.s)]
+            half, lo, hi = (ln.width / 2 + 1.0, -ln.VEHICLE_LENGTH,
+                            ln.length + ln.VEHICLE_LENGTH)
+            xy, *_ = movers(rng, centre(ln), int(rng.integers(1, 60)))
+            # some exactly at the edges of membership: half across, at lo and at hi
+            edge = rng.random(len(xy)) < 0.2
+            at = rng.uniform(lo, hi, len(xy))
+            pick = rng.random(len(xy)) < 0.3
+            at[pick] = rng.choice([lo, hi], int(pick.sum()))
+            for i in np.flatnonzero(edge):
+                p = ln.position(float(at[i]), float(rng.choice([-half, half])))
+                xy[i] = p
+            xy[rng.random(len(xy)) < 0.05] = np.nan
+            xs, ys = np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1])
+            bound = np.array([*index.boxes[j, :7], index.reach[j],
+                              _member_limit(half, lo, hi, float(index.lengths[j]))])
+            want, lon_all = _lane_members(*poses, half, lo, hi, xs, ys)
+            got, lon = _lane_members_near(*poses, half, lo, hi, xs, ys, bound)
+            assert got.tolist() == want.tolist()
+            assert lon[got].tolist() == lon_all[want].tolist()
+            far = np.isnan(lon) & ~np.isnan(xs)
+            left_out += int(far.sum())
+            kept += int((~np.isnan(lon)).sum())
+    assert left_out > 100 and kept > 100, (left_out, kept)
 
 
 def corridor_plain(positions, boxes, x, y, heading, length, width, reach, mine):
