@@ -278,6 +278,13 @@ def _arc_lengths(centre: np.ndarray) -> np.ndarray:
 # ------------------------------------------------------------------ vehicles
 
 
+_LAID_OUT = frozenset(("states", "valid_steps", "clock", "row", "_xy", "_heading", "_speed",
+                       "_valid", "_end", "LENGTH", "WIDTH", "diagonal", "check_collisions",
+                       "_log_block", "_log_at"))
+"""A replaying vehicle's attributes that :meth:`LogVehicle._laid_out` and
+:meth:`LogVehicle.many` set themselves."""
+
+
 class LogVehicle(Vehicle):
     """An agent replaying its logged states (sim frame), hidden while the log has none.
 
@@ -349,20 +356,44 @@ class LogVehicle(Vehicle):
                  np.c_[np.where(ok, states[..., 3], 0.0), end], np.c_[ok, np.zeros((m, 1), bool)])
         headings, speeds, flags = (values.tolist() for values in block[1:])
         out = []
+        made = None  # the first vehicle's attributes from highway-env's constructor
         for i, row in enumerate(rows.tolist()):
             vehicle = cls.__new__(cls)
             vehicle._laid_out(road, row, given[row], valid[row], xy[i], headings[i],
                               speeds[i], flags[i], float(length[row]), float(width[row]),
-                              clock)
+                              clock, made)
+            if made is None:
+                made = vehicle._constructed()
             vehicle._log_block, vehicle._log_at = block, i  # for the road's _Layout
             out.append(vehicle)
         return out
 
+    _CONSTRUCTED = frozenset(("road", "lane_index", "lane", "solid", "hit", "crashed",
+                              "_impact", "prediction_type", "action", "log", "history"))
+    """The attributes highway-env's ``Vehicle.__init__`` gives a replaying vehicle (its
+    position, heading, speed and collidable are the log's; impact is kept as
+    ``_impact``)."""
+
+    def _constructed(self) -> dict[str, Any] | None:
+        """The attributes highway-env's constructor gave this vehicle that are the same for
+        every replaying vehicle of a road made at one step (:meth:`many` gives them to the
+        others without the constructor), or None where the constructor gave others than
+        :data:`_CONSTRUCTED` (another highway-env: the constructor then makes each)."""
+        given = {k: v for k, v in self.__dict__.items() if k in self._CONSTRUCTED}
+        if len(given) != len(self._CONSTRUCTED) or not all(
+                k in self._CONSTRUCTED or k in _LAID_OUT for k in self.__dict__):
+            return None
+        return given
+
     def _laid_out(self, road: Road, row: int, states: np.ndarray, valid: np.ndarray,
                   xy: np.ndarray, headings: list[float], speeds: list[float],
-                  flags: list[bool], length: float, width: float, clock: list[int]) -> None:
+                  flags: list[bool], length: float, width: float, clock: list[int],
+                  made: dict[str, Any] | None = None) -> None:
         """Set the vehicle from its log laid out (``xy`` (T + 1, 2) read-only, the lists
-        T + 1 long: the constructor's)."""
+        T + 1 long: the constructor's); ``made``: another replaying vehicle's
+        :meth:`_constructed` attributes of this road and step, taken instead of
+        highway-env's constructor (its lane looked up the same way, a new action, log and
+        history each)."""
         self.states = states
         self.valid_steps = valid
         self.clock = clock
@@ -373,8 +404,18 @@ class LogVehicle(Vehicle):
         self._valid = flags
         self._end = len(flags) - 1
         self.LENGTH, self.WIDTH = length, width
-        x, y, h, v = self._state(clock[0])
-        Vehicle.__init__(self, road, np.array([x, y]), h, v)
+        if (made is not None and road is not None and made["road"] is road
+                and made["_impact"][0] == clock[0]):
+            # RoadObject's and Vehicle's constructors without their calls: the lane of the
+            # logged place (the position and heading properties), the rest as made
+            lane_index = road.network.get_closest_lane_index(self.position, self.heading)
+            self.__dict__.update(made)
+            self.lane_index, self.lane = lane_index, road.network.get_lane(lane_index)
+            self.action, self.log = dict(made["action"]), list(made["log"])
+            self.history = type(made["history"])(made["history"], made["history"].maxlen)
+        else:
+            x, y, h, v = self._state(clock[0])
+            Vehicle.__init__(self, road, np.array([x, y]), h, v)
         self.diagonal = math.hypot(self.LENGTH, self.WIDTH)
         self.check_collisions = False
 

@@ -1084,6 +1084,22 @@ def test_replaying_vehicles_made_together_equal_vehicles_made_one_by_one(real):
     alone = [LogVehicle(road, r, states[r], valid[r], scene.length[r], scene.width[r],
                         inner.clock) for r in rows]
     assert len(together) == len(alone) == len(rows)
+    # highway-env's constructor ran for the first; the others took its attributes (each
+    # its own lane, action, log and history): the same attributes as one by one
+    assert together[0]._constructed() is not None
+    for a, b in zip(together, alone, strict=True):
+        assert set(vars(a)) - {"_log_block", "_log_at"} == set(vars(b))
+        for key, value in vars(b).items():
+            if isinstance(value, np.ndarray):
+                assert np.array_equal(vars(a)[key], value, equal_nan=True), key
+            elif key == "history":
+                assert list(a.history) == list(value) and a.history.maxlen == value.maxlen
+            elif key == "_impact":
+                assert a._impact[0] == value[0] and a._impact[1] is value[1] is None
+            else:
+                assert vars(a)[key] == value or vars(a)[key] is value, key
+    for key in ("action", "log", "history"):
+        assert len({id(getattr(v, key)) for v in together}) == len(together), key
     start = inner.clock[0]
     for k in range(start, scene.n_steps + 2):
         inner.clock[0] = k
