@@ -55,12 +55,13 @@ _CHILD = """
 import json, os, sys, time
 from tap_bench.cli import main
 t0 = time.perf_counter()
-code = main(sys.argv[2:])
+report, sys.argv = sys.argv[1], ["tap-bench", *sys.argv[2:]]
+code = main()  # as the tap-bench program runs it (its arguments from sys.argv)
 peak = [int(l.split()[1]) for l in open('/proc/self/status') if l.startswith('VmHWM')][0]
 t = os.times()
 json.dump({"code": code, "peak_mb": peak / 1024, "wall_s": time.perf_counter() - t0,
            "cpu_s": t.user + t.system + t.children_user + t.children_system},
-          open(sys.argv[1], "w"))
+          open(report, "w"))
 sys.exit(code)
 """
 """The measuring child: ``python -c _CHILD REPORT ARGS...`` runs ``tap-bench ARGS`` and writes
@@ -166,11 +167,12 @@ def sample(signum, frame):
 signal.signal(signal.SIGPROF, sample)
 signal.setitimer(signal.ITIMER_PROF, 0.002, 0.002)
 from tap_bench.cli import main
-code = main(sys.argv[2:])
+report, sys.argv = sys.argv[1], ["tap-bench", *sys.argv[2:]]
+code = main()  # as the tap-bench program runs it
 signal.setitimer(signal.ITIMER_PROF, 0, 0)
 t = os.times()
 json.dump({"code": code, "cpu_s": t.user + t.system,
-           "samples": {k: v or 0 for k, v in counts.items()}}, open(sys.argv[1], "w"))
+           "samples": {k: v or 0 for k, v in counts.items()}}, open(report, "w"))
 """
 
 

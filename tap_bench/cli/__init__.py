@@ -148,10 +148,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     usage or input error, or nothing to show (every :class:`TapBenchError`, printed as one
     message, such as every episode of a rollout failing), 130 interrupted (Ctrl-C or
     SIGTERM).
-    """
-    argv = sys.argv[1:] if argv is None else list(argv)
-    from tap_bench.execution import idle_threads_sleep, keep_freed_memory
 
+    Without ``argv`` (the process's program: the ``tap-bench`` script, ``python -m
+    tap_bench``), the arguments are ``sys.argv[1:]`` and what the start-up made is kept out
+    of later garbage collections after the first task (:func:`tap_bench.execution.
+    freeze_start_up`); with ``argv`` (a caller in its own process) nothing is frozen.
+    """
+    from tap_bench.execution import freeze_start_up, idle_threads_sleep, keep_freed_memory
+
+    if argv is None:  # the process's program: its start-up's objects frozen after a task
+        freeze_start_up()
+    argv = sys.argv[1:] if argv is None else list(argv)
     keep_freed_memory()  # no page faults for every temporary column
     idle_threads_sleep()  # before NumPy's import: no BLAS thread spinning for nothing
     try:
