@@ -52,7 +52,15 @@ from womd_repeat import write_repeated
 HERE = Path(__file__).resolve().parent
 
 _CHILD = """
-import json, os, sys, time
+import gc, json, os, sys, time
+collections = [0.0, 0, 0.0]  # CPU s in the garbage collector, full collections, start
+def collecting(phase, info):
+    if phase == "start":
+        collections[2] = time.thread_time()
+    else:
+        collections[0] += time.thread_time() - collections[2]
+        collections[1] += info["generation"] == 2
+gc.callbacks.append(collecting)
 from tap_bench.cli import main
 t0 = time.perf_counter()
 report, sys.argv = sys.argv[1], ["tap-bench", *sys.argv[2:]]
@@ -60,13 +68,16 @@ code = main()  # as the tap-bench program runs it (its arguments from sys.argv)
 peak = [int(l.split()[1]) for l in open('/proc/self/status') if l.startswith('VmHWM')][0]
 t = os.times()
 json.dump({"code": code, "peak_mb": peak / 1024, "wall_s": time.perf_counter() - t0,
-           "cpu_s": t.user + t.system + t.children_user + t.children_system},
+           "cpu_s": t.user + t.system + t.children_user + t.children_system,
+           "gc_cpu_s": collections[0], "full_collections": collections[1]},
           open(report, "w"))
 sys.exit(code)
 """
-"""The measuring child: ``python -c _CHILD REPORT ARGS...`` runs ``tap-bench ARGS`` and writes
-its exit code, peak resident memory (VmHWM [MB]), wall and CPU [s] (its worker processes'
-included) to REPORT; it exits with the command's code."""
+"""The measuring child: ``python -c _CHILD REPORT ARGS...`` runs ``tap-bench ARGS`` as the
+program does (``main()`` with the arguments in ``sys.argv``) and writes its exit code, peak
+resident memory (VmHWM [MB]), wall and CPU [s] (its worker processes' included), and the
+CPU [s] its main thread spent in the garbage collector and how many full collections (from
+``gc.callbacks``) to REPORT; it exits with the command's code."""
 
 COMMANDS = ("rollout", "realism", "bench-run")
 """What the script measures: ``tap-bench rollout --womd``, ``tap-bench realism`` or
@@ -333,6 +344,8 @@ def run_rollout(folder: Path, out: Path, policy: str, traffic: str, extra: list[
             "scenes": scenes, "ok": int((episodes["status"] == "ok").sum()),
             "tables_sha256": tables_digest(out, episodes_file),
             "peak_mb": round(child["peak_mb"], 1), "cpu_s": round(child["cpu_s"], 2),
+            "gc_cpu_s": round(child.get("gc_cpu_s", float("nan")), 3),
+            "full_collections": child.get("full_collections"),
             "wall_s": round(wall, 2), "cpu_s_per_scene": round(child["cpu_s"] / scenes, 4),
             "steps": steps, "steps_per_cpu_s": round(steps / child["cpu_s"], 1),
             "load_before": round(load0, 2), "load_after": round(os.getloadavg()[0], 2),
@@ -438,6 +451,7 @@ def summary(rows: list[dict]) -> list[dict]:
                         r["cpu_s_per_scene"] for r in runs), 4),
                     "peak_mb": [min(r["peak_mb"] for r in runs),
                                 max(r["peak_mb"] for r in runs)],
+                    "gc_cpu_s": [r.get("gc_cpu_s") for r in runs],
                     "load": [min(loads), max(loads)]})
     for scenes in dict.fromkeys(n for n, _ in groups):
         digests = {r["tables_sha256"] for (n, _), runs in groups.items() if n == scenes
@@ -474,7 +488,9 @@ def print_summary(lines: list[dict]) -> None:
               f"{', '.join(f'{x:,.0f}' for x in line['steps_per_cpu_s'])} (median "
               f"{line['median_steps_per_cpu_s']:,.0f}; {line['median_cpu_s_per_scene']:.4f} "
               f"CPU s a scene), peak {line['peak_mb'][0]:.1f}-{line['peak_mb'][1]:.1f} MB, "
-              f"load {line['load'][0]:.2f}-{line['load'][1]:.2f}")
+              f"load {line['load'][0]:.2f}-{line['load'][1]:.2f}"
+              + (f", garbage collection {', '.join(f'{x:.2f}' for x in gcs)} CPU s"
+                 if (gcs := [x for x in line.get("gc_cpu_s", []) if x is not None]) else ""))
 
 
 def main() -> int:
