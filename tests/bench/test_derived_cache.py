@@ -153,11 +153,24 @@ def _changed(table: pd.DataFrame, rng: np.random.Generator) -> pd.DataFrame:
     return out.astype(table.dtypes.to_dict()) if not isinstance(new, str) else out
 
 
+@pytest.fixture(scope="module")
+def _drawn(tmp_path_factory) -> Path:
+    """A cache holding the figures of ``_scores()`` (reference idm), drawn once: each test
+    below starts from a copy (``_cache_of_drawn``) and draws changed inputs into it."""
+    root = tmp_path_factory.mktemp("drawn")
+    write_plots(_scores(), root / "a", reference="idm", cache=EpisodeCache(root / "cache"))
+    return root / "cache"
+
+
+def _cache_of_drawn(drawn: Path, tmp_path: Path) -> EpisodeCache:
+    shutil.copytree(drawn, tmp_path / "cache")
+    return EpisodeCache(tmp_path / "cache")
+
+
 @pytest.mark.parametrize("seed", range(12))
-def test_a_change_of_any_value_of_any_scores_table_redraws_the_figures(tmp_path, seed):
+def test_a_change_of_any_value_of_any_scores_table_redraws_the_figures(_drawn, tmp_path, seed):
     scores = _scores()
-    cache = EpisodeCache(tmp_path / "cache")
-    write_plots(scores, tmp_path / "a", reference="idm", cache=cache)
+    cache = _cache_of_drawn(_drawn, tmp_path)
     rng = np.random.default_rng(seed)
     names = [n for n, t in scores.tables().items() if len(t)]
     name = names[seed % len(names)]
@@ -171,10 +184,9 @@ def test_a_change_of_any_value_of_any_scores_table_redraws_the_figures(tmp_path,
     assert warm == cold
 
 
-def test_another_reference_or_level_redraws_the_figures(tmp_path):
+def test_another_reference_or_level_redraws_the_figures(_drawn, tmp_path):
     scores = _scores()
-    cache = EpisodeCache(tmp_path / "cache")
-    write_plots(scores, tmp_path / "a", reference="idm", cache=cache)
+    cache = _cache_of_drawn(_drawn, tmp_path)
     for kwargs in ({"reference": "random"}, {"reference": "idm", "level": 0.9}):
         cold = {p.name: p.read_bytes() for p in write_plots(scores, tmp_path / "c2", **kwargs)}
         warm = {p.name: p.read_bytes() for p in write_plots(scores, tmp_path / "w2",
@@ -184,7 +196,7 @@ def test_another_reference_or_level_redraws_the_figures(tmp_path):
 
 @pytest.mark.parametrize("change", [{"label": "fastest speed"}, {"unit": "km/h"},
                                     {"higher_is_better": False}, {"bounds": (0.0, 60.0)}])
-def test_a_measure_entry_changed_with_the_same_scores_redraws_the_figures(tmp_path,
+def test_a_measure_entry_changed_with_the_same_scores_redraws_the_figures(_drawn, tmp_path,
                                                                           monkeypatch, change):
     # a plug-in's measure can change its label, unit, direction or bounds with the same
     # values: the figures draw them, so they must not come from the cache unchanged
@@ -193,8 +205,7 @@ def test_a_measure_entry_changed_with_the_same_scores_redraws_the_figures(tmp_pa
     from tap_bench.bench.measures import MEASURES
 
     scores = _scores()
-    cache = EpisodeCache(tmp_path / "cache")
-    write_plots(scores, tmp_path / "a", reference="idm", cache=cache)
+    cache = _cache_of_drawn(_drawn, tmp_path)
     entries = dict(MEASURES._entries)
     entries["mean_speed"] = dataclasses.replace(entries["mean_speed"], **change)
     monkeypatch.setattr(MEASURES, "_entries", entries)
