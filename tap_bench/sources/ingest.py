@@ -479,7 +479,8 @@ def _iter_tables(paths, *, format: str, object_types, on_error: str, check_crc: 
             yield from finish(batch, _decode_batch(batch, types, skip))
         return
     shm = Path("/dev/shm")
-    spool = tempfile.mkdtemp(prefix="tap-bench-ingest-",
+    # the process in the name: a folder left behind says whose it was
+    spool = tempfile.mkdtemp(prefix=f"tap-bench-ingest-{os.getpid()}-",
                              dir=shm if shm.is_dir() and os.access(shm, os.W_OK) else None)
     sent: deque[_Batch] = deque()  # outcomes come in order: the batch of each, in turn
 
