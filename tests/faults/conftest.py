@@ -34,16 +34,21 @@ def _cmdline(pid: int) -> str:
 
 
 def _children(pid: int) -> set[int]:
-    """Every live descendant of ``pid`` but multiprocessing's helpers (from /proc)."""
+    """Every live descendant of ``pid`` but multiprocessing's helpers (from /proc; each
+    process's stat read as bytes, its state and parent split off: about 2.3 ms for 100
+    processes where pathlib's glob and the whole split took 5-6, twice a test here)."""
     parents: dict[int, int] = {}
-    for entry in Path("/proc").glob("[0-9]*"):
+    for name in os.listdir("/proc"):
+        if not name.isdigit():
+            continue
         try:
-            stat = (entry / "stat").read_text()
+            with open(f"/proc/{name}/stat", "rb") as stream:
+                stat = stream.read()
         except OSError:
             continue
-        fields = stat.rsplit(")", 1)[-1].split()
-        if fields and fields[0] != "Z":  # zombies are reaped by their parent
-            parents[int(entry.name)] = int(fields[1])
+        fields = stat.rsplit(b")", 1)[-1].split(None, 2)
+        if len(fields) > 1 and fields[0] != b"Z":  # zombies are reaped by their parent
+            parents[int(name)] = int(fields[1])
     found, todo = set(), [pid]
     while todo:
         p = todo.pop()
