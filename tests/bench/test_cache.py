@@ -270,11 +270,13 @@ def test_cli_cache_info_and_prune(cold_and_warm, tmp_path, capsys):
 
 def test_cached_episodes_labelled_in_batches_equal_single_ones(tmp_path):
     """Seeds whose names sort otherwise as text (s10 < s8), one missing entry among the
-    hits: the batch's tables still come out in the episodes' order, equal to a cold run."""
+    hits: the batch's tables still come out in the episodes' order, equal to a cold run
+    (the run that filled the empty cache, which simulated every episode: such a run equals
+    one without a cache, test_a_warm_run_reads_every_episode_and_equals_a_cold_run)."""
     suite = tiny(seeds="8-11")
     cache = EpisodeCache(tmp_path / "cache")
-    cold = run(suite, tmp_path / "cold", None)
-    run(suite, tmp_path / "fill", cache)
+    cold = run(suite, tmp_path / "fill", cache)
+    assert (cold.summary["cache"]["cached"], cold.summary["cache"]["simulated"]) == (0, 8)
     entries = sorted(cache.folder.glob("*/*.episode"))
     entries[3].unlink()
     warm = run(suite, tmp_path / "warm", without_runs(cache))
