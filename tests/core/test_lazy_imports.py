@@ -97,25 +97,39 @@ def test_help_lists_every_command_and_a_typo_is_refused(capsys):
     assert "invalid choice: 'labl'" in capsys.readouterr().err
 
 
-def test_the_runners_workers_and_scoring_do_not_load_numba(tmp_path):
-    """A worker of ``bench run`` imports the task module (and through it the scoring): the
-    label distances, not the ADE / DTW kernels that need numba."""
-    loaded = _loaded_after("import tap_bench.bench.run.tasks, tap_bench.bench.scores.scoring",
-                           tmp_path)
-    assert "numba" not in loaded
-    assert "numba" in _loaded_after("from tap_bench.similarity import ade_nearest", tmp_path)
-
-
-def test_a_worker_loads_the_task_modules_not_the_runner_gate_or_report(tmp_path):
-    """``tap_bench.bench`` resolves its names lazily: a worker importing the task module
-    loads neither the runner, the gate (and its power) nor the report and viewer."""
-    script = ("import sys\nimport tap_bench.bench.run.tasks\n"
-              "print(sorted(m for m in sys.modules if m.startswith('tap_bench.bench.')))")
-    out = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, check=True,
+@pytest.fixture(scope="module")
+def modules_of_a_worker(tmp_path_factory) -> dict[str, list[str]]:
+    """The modules loaded in a fresh interpreter after each of three imports, one after the
+    other: the task module a worker of ``bench run`` imports (``tasks``), then the scoring
+    (``scoring``), then the ADE / DTW search (``similarity``). One child process for the
+    two tests below, which only read it, where they started three."""
+    folder = tmp_path_factory.mktemp("imports")
+    script = ("import json, sys\nsteps = {}\n"
+              "import tap_bench.bench.run.tasks\nsteps['tasks'] = sorted(sys.modules)\n"
+              "import tap_bench.bench.scores.scoring\nsteps['scoring'] = sorted(sys.modules)\n"
+              "from tap_bench.similarity import ade_nearest\n"
+              "steps['similarity'] = sorted(sys.modules)\nprint(json.dumps(steps))")
+    out = subprocess.run([sys.executable, "-c", script], cwd=folder, check=True,
                          capture_output=True, text=True,
                          env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
-                              "TAP_BENCH_CACHE": str(tmp_path / "cache")})
-    loaded = set(eval(out.stdout.strip().splitlines()[-1]))
+                              "TAP_BENCH_CACHE": str(folder / "cache")})
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_the_runners_workers_and_scoring_do_not_load_numba(modules_of_a_worker):
+    """A worker of ``bench run`` imports the task module (and through it the scoring): the
+    label distances, not the ADE / DTW kernels that need numba."""
+    def top(step: str) -> set[str]:
+        return {m.split(".")[0] for m in modules_of_a_worker[step]}
+
+    assert "numba" not in top("tasks") | top("scoring")
+    assert "numba" in top("similarity")
+
+
+def test_a_worker_loads_the_task_modules_not_the_runner_gate_or_report(modules_of_a_worker):
+    """``tap_bench.bench`` resolves its names lazily: a worker importing the task module
+    loads neither the runner, the gate (and its power) nor the report and viewer."""
+    loaded = set(modules_of_a_worker["tasks"])
     assert "tap_bench.bench.run.tasks" in loaded
     assert not loaded & {"tap_bench.bench.run.runner", "tap_bench.bench.gate.regression",
                          "tap_bench.bench.gate.power", "tap_bench.bench.report.page",
