@@ -714,3 +714,96 @@ def test_a_skipped_episode_is_not_a_failed_one(tmp_path):
     assert "failed_episodes" not in set(result.table["metric"]), result.format()
     run.loc[run.index[0], "status"] = "error"
     assert "failed_episodes" in set(check(SUMMARY, run, doc, base).table["metric"])
+
+
+def _decide_as_first_written(table, config):
+    """The gate's verdict table as first written (a pandas step per column): the
+    reference the array version in regression._decide must equal."""
+    from tap_bench.bench.gate.regression import weighted_holm
+
+    metrics = set(gate_metrics())
+    for col in ("baseline", "run", "change", "margin", "p_value", "p_better", "p_min",
+                "n_baseline", "n_run", "test", "direction"):
+        if col not in table.columns:
+            table[col] = np.nan
+    tested = table["p_value"].notna().to_numpy()
+    weights = table["metric"].map(lambda m: config.share(m) if m in metrics
+                                  else np.nan).to_numpy(float)
+    table["p_adjusted"] = np.nan
+    table.loc[tested, "p_adjusted"] = weighted_holm(
+        table.loc[tested, "p_value"].to_numpy(float), weights[tested],
+        table.loc[tested, "p_min"].to_numpy(float), config.alpha)
+    sided = tested & (table["direction"].isin(["higher", "lower"])).to_numpy()
+    better_adj = np.full(len(table), np.nan)
+    better_adj[sided] = weighted_holm(table.loc[sided, "p_better"].to_numpy(float),
+                                      weights[sided], table.loc[sided, "p_min"].to_numpy(float),
+                                      config.alpha)
+    sign = table["direction"].map({"higher": 1.0, "lower": -1.0, "none": 1.0}).to_numpy(float)
+    change = table["change"].to_numpy(float)
+    margin = table["margin"].to_numpy(float)
+    worse_by = np.where(table["direction"] == "none", change, -sign * change)
+    with np.errstate(invalid="ignore"):
+        fails = (table["p_adjusted"].to_numpy(float) < config.alpha) & (worse_by > margin)
+        better = (better_adj < config.alpha) & (-worse_by > margin)
+    forced = table["forced"].fillna(False).to_numpy(bool)
+    verdict = np.where(fails | forced, "worse", np.where(better, "better", ""))
+    verdict = np.where((verdict == "worse") & (table["direction"] == "none").to_numpy()
+                       & ~forced, "changed", verdict)
+    table["verdict"] = verdict
+    table["moved"] = fails | forced
+    # an improvement shows the p-values of its side
+    improved = verdict == "better"
+    table.loc[improved, "p_value"] = table.loc[improved, "p_better"]
+    table.loc[improved, "p_adjusted"] = better_adj[improved]
+    table["note"] = table["note"].fillna("")
+    table["test"] = table["test"].fillna("")
+    table["direction"] = table["direction"].fillna("")
+    return table.drop(columns=["forced", "p_better"])
+
+
+def test_the_verdict_table_is_the_one_first_written(tmp_path):
+    """regression._decide (each column read once as an array, one table built) gives the
+    table of the pandas version first written, column for column and dtype for dtype, on
+    checks with every kind of row: unpaired and paired tests, failures, improvements,
+    label changes, definition changes, missing cells, failed episodes, a measure defined
+    on no episode and one defined on some seeds of one side only."""
+    from tap_bench.bench.gate import regression
+
+    fast, compared = regression._decide, []
+
+    def both(table, config):
+        expected = _decide_as_first_written(table.copy(), config)
+        got = fast(table.copy(), config)
+        pd.testing.assert_frame_equal(got, expected)
+        compared.append(got)
+        return got
+
+    prov = {"policies": {"idm": {"kind": "idm", "params": {"time_wanted": 1.5}}}, "envs": {}}
+    doc, base = read_baseline(write_baseline({**SUMMARY, "provenance": prov}, synthetic(0),
+                                             tmp_path / "b.json"))
+    changed = json.loads(json.dumps(prov))
+    changed["policies"]["idm"]["params"]["time_wanted"] = 3.0
+    slower, faster, labels = synthetic(1), synthetic(0), synthetic(1, p=(0.2, 0.8))
+    slower.loc[slower["policy"] == "idm", "mean_speed"] -= 3.0
+    faster.loc[faster["policy"] == "idm", "mean_speed"] += 3.0
+    faster.loc[faster["policy"] == "idm", "rms_jerk"] -= 2.0
+    missing = synthetic(1)
+    missing = missing[missing["policy"] != "random"].copy()
+    missing.loc[missing.index[0], ["status", "error"]] = ["error", "boom"]
+    undefined = synthetic(0)
+    undefined["min_ttc_s"] = np.nan  # defined on no episode of the run
+    undefined.loc[undefined.index[:3], "min_headway_s"] = np.nan  # on some seeds only
+    with mock.patch.object(regression, "_decide", both):
+        for run in (synthetic(1), slower, faster, labels, missing, undefined):
+            check(SUMMARY, run, doc, base)
+        check({**SUMMARY, "provenance": changed}, synthetic(1), doc, base)
+        rng = np.random.default_rng(11)
+        for _ in range(3):
+            b, r = _crash_cells(rng, 30, 0.05, 0.25, cells=6)
+            check(SUMMARY, r, {**SUMMARY, "suite": "s", "suite_version": 0,
+                               "level": "maneuver", "thresholds": "paper"}, b,
+                  GateConfig(n_permutations=999), power=False)
+    seen = pd.concat(compared)
+    assert set(seen["verdict"]) >= {"worse", "better", "changed", ""}
+    assert set(seen["test"]) >= {"paired", "unpaired", ""}
+    assert {"definition", "episodes", "failed_episodes"} <= set(seen["metric"])

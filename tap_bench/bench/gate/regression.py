@@ -829,9 +829,8 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
     run_ok = run_episodes[run_episodes["status"] == "ok"]
     # skipped: a recorded scene without a route, not a failure (SPEC section 8)
     run_failed = run_episodes[~run_episodes["status"].isin(("ok", "skipped"))]
-    cells = sorted(set(map(tuple, baseline_episodes[["env", "policy"]].drop_duplicates()
-                           .to_numpy())) | set(map(tuple, run_episodes[["env", "policy"]]
-                                                   .drop_duplicates().to_numpy())))
+    cells = sorted({cell for t in (baseline_episodes, run_episodes)
+                    for cell in zip(t["env"].tolist(), t["policy"].tolist(), strict=True)})
     for kind, name, what in changed:
         rows.append({"env": name if kind == "env" else "", "policy": name if kind == "policy"
                      else "", "metric": "definition", "test": "", "forced": True,
@@ -1007,45 +1006,59 @@ def _decide(table: pd.DataFrame, config: GateConfig) -> pd.DataFrame:
     more than its margin and p_adjusted < alpha: the check fails), ``changed`` (label_tv:
     the label distribution moved), ``better`` (moved the better way beyond the margin,
     the better-side p-value adjusted alike: reported, never a failure), ``untestable``,
-    or empty."""
+    or empty.
+
+    Each column is read once as an array and the result built as one table (a check's
+    tables are small: per-column pandas indexing was most of its cost)."""
+    n = len(table)
+    columns = {c: table[c] for c in table.columns}
+    nan = np.full(n, np.nan)
     for col in ("baseline", "run", "change", "margin", "p_value", "p_better", "p_min",
                 "n_baseline", "n_run", "test", "direction"):
-        if col not in table.columns:
-            table[col] = np.nan
-    tested = table["p_value"].notna().to_numpy()
+        if col not in columns:
+            columns[col] = pd.Series(nan, index=table.index)
+
+    def floats(col: str) -> np.ndarray:
+        return columns[col].to_numpy(float)
+
+    def texts(col: str) -> np.ndarray:  # the column with its NA as ""
+        values = columns[col].to_numpy(object)
+        return np.where(pd.isna(values), "", values).astype(object)
+
+    p_value, p_better, p_min = floats("p_value"), floats("p_better"), floats("p_min")
+    direction = columns["direction"].to_numpy(object)
+    tested = ~np.isnan(p_value)
     metrics = set(gate_metrics())
-    weights = table["metric"].map(lambda m: config.share(m) if m in metrics
-                                  else np.nan).to_numpy(float)
-    table["p_adjusted"] = np.nan
-    table.loc[tested, "p_adjusted"] = weighted_holm(
-        table.loc[tested, "p_value"].to_numpy(float), weights[tested],
-        table.loc[tested, "p_min"].to_numpy(float), config.alpha)
-    sided = tested & (table["direction"].isin(["higher", "lower"])).to_numpy()
-    better_adj = np.full(len(table), np.nan)
-    better_adj[sided] = weighted_holm(table.loc[sided, "p_better"].to_numpy(float),
-                                      weights[sided], table.loc[sided, "p_min"].to_numpy(float),
+    shares = {m: config.share(m) for m in set(columns["metric"].tolist()) & metrics}
+    weights = np.array([shares.get(m, np.nan) for m in columns["metric"].tolist()], float)
+    p_adjusted = np.full(n, np.nan)
+    p_adjusted[tested] = weighted_holm(p_value[tested], weights[tested], p_min[tested],
+                                       config.alpha)
+    sided = tested & np.isin(direction, ["higher", "lower"])
+    better_adj = np.full(n, np.nan)
+    better_adj[sided] = weighted_holm(p_better[sided], weights[sided], p_min[sided],
                                       config.alpha)
-    sign = table["direction"].map({"higher": 1.0, "lower": -1.0, "none": 1.0}).to_numpy(float)
-    change = table["change"].to_numpy(float)
-    margin = table["margin"].to_numpy(float)
-    worse_by = np.where(table["direction"] == "none", change, -sign * change)
+    none = direction == "none"
+    sign = np.where(direction == "lower", -1.0, np.where(
+        (direction == "higher") | none, 1.0, np.nan))
+    change, margin = floats("change"), floats("margin")
+    worse_by = np.where(none, change, -sign * change)
     with np.errstate(invalid="ignore"):
-        fails = (table["p_adjusted"].to_numpy(float) < config.alpha) & (worse_by > margin)
+        fails = (p_adjusted < config.alpha) & (worse_by > margin)
         better = (better_adj < config.alpha) & (-worse_by > margin)
-    forced = table["forced"].fillna(False).to_numpy(bool)
+    forced = columns["forced"].fillna(False).to_numpy(bool)
     verdict = np.where(fails | forced, "worse", np.where(better, "better", ""))
-    verdict = np.where((verdict == "worse") & (table["direction"] == "none").to_numpy()
-                       & ~forced, "changed", verdict)
-    table["verdict"] = verdict
-    table["moved"] = fails | forced
+    verdict = np.where((verdict == "worse") & none & ~forced, "changed", verdict)
     # an improvement shows the p-values of its side
     improved = verdict == "better"
-    table.loc[improved, "p_value"] = table.loc[improved, "p_better"]
-    table.loc[improved, "p_adjusted"] = better_adj[improved]
-    table["note"] = table["note"].fillna("")
-    table["test"] = table["test"].fillna("")
-    table["direction"] = table["direction"].fillna("")
-    return table.drop(columns=["forced", "p_better"])
+    p_value = np.where(improved, p_better, p_value)
+    p_adjusted = np.where(improved, better_adj, p_adjusted)
+    new = {"p_value": p_value, "p_adjusted": p_adjusted, "verdict": verdict,
+           "moved": fails | forced, "note": texts("note"), "test": texts("test"),
+           "direction": texts("direction")}
+    out = {c: new.get(c, s) for c, s in columns.items() if c not in ("forced", "p_better")}
+    out.update({c: v for c, v in new.items() if c not in out})
+    return pd.DataFrame(out, index=table.index)
 
 
 def _with_power(table: pd.DataFrame, plans: list, config: GateConfig) -> pd.DataFrame:
