@@ -763,13 +763,32 @@ def _decide_as_first_written(table, config):
 
 def test_the_verdict_table_is_the_one_first_written(tmp_path):
     """regression._decide (each column read once as an array, one table built) gives the
-    table of the pandas version first written, column for column and dtype for dtype, on
-    checks with every kind of row: unpaired and paired tests, failures, improvements,
-    label changes, definition changes, missing cells, failed episodes, a measure defined
-    on no episode and one defined on some seeds of one side only."""
+    table of the pandas version first written, column for column and dtype for dtype, and
+    check's table is in the order that version's stable pandas sort gives, on checks with
+    every kind of row: unpaired and paired tests, failures, improvements, label changes,
+    definition changes, missing cells, failed episodes, a measure defined on no episode
+    and one defined on some seeds of one side only."""
     from tap_bench.bench.gate import regression
 
     fast, compared = regression._decide, []
+    notes, powers, before = regression._stand_in_notes, regression._with_power, []
+
+    def stand_in_notes(*args):
+        before.append(notes(*args).assign(power=np.nan, underpowered=False))
+        return before[-1].drop(columns=["power", "underpowered"])
+
+    def with_power(*args):
+        before[-1] = powers(*args)
+        return before[-1]
+
+    def check(*args, **kwargs):
+        table = regression.check(*args, **kwargs).table
+        t = before[-1][regression._COLUMNS]
+        order = t["verdict"].map({"worse": 0, "changed": 0, "better": 1}).fillna(2)
+        expected = t.assign(_order=order).sort_values(
+            ["_order", "env", "policy"], kind="stable").drop(columns="_order").reset_index(
+            drop=True)
+        pd.testing.assert_frame_equal(table, expected)
 
     def both(table, config):
         expected = _decide_as_first_written(table.copy(), config)
@@ -793,7 +812,9 @@ def test_the_verdict_table_is_the_one_first_written(tmp_path):
     undefined = synthetic(0)
     undefined["min_ttc_s"] = np.nan  # defined on no episode of the run
     undefined.loc[undefined.index[:3], "min_headway_s"] = np.nan  # on some seeds only
-    with mock.patch.object(regression, "_decide", both):
+    with (mock.patch.object(regression, "_decide", both),
+          mock.patch.object(regression, "_stand_in_notes", stand_in_notes),
+          mock.patch.object(regression, "_with_power", with_power)):
         for run in (synthetic(1), slower, faster, labels, missing, undefined):
             check(SUMMARY, run, doc, base)
         check({**SUMMARY, "provenance": changed}, synthetic(1), doc, base)

@@ -874,11 +874,13 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
     else:
         table["power"] = np.nan
         table["underpowered"] = False
-    table = table[_COLUMNS]
-    order = table["verdict"].map({"worse": 0, "changed": 0, "better": 1}).fillna(2)
-    table = table.assign(_order=order).sort_values(
-        ["_order", "env", "policy"], kind="stable").drop(columns="_order").reset_index(
-        drop=True)
+    # failures first, then improvements, then the rest, each by env and policy (a stable
+    # sort: a cell's rows stay in test order)
+    verdict, env, policy = (table[c].tolist() for c in ("verdict", "env", "policy"))
+    rank = {"worse": 0, "changed": 0, "better": 1}
+    order = sorted(range(len(table)), key=lambda i: (rank.get(verdict[i], 2), env[i],
+                                                       policy[i]))
+    table = table[_COLUMNS].take(order).reset_index(drop=True)
     return GateResult(table, bool(table["moved"].any()), config)
 
 
@@ -944,9 +946,10 @@ def _test_cell(key: dict[str, Any], base: pd.DataFrame, run: pd.DataFrame,
     seeds_b = base["seed"].astype(np.int64).to_numpy()
     seeds_r = run["seed"].astype(np.int64).to_numpy()
     paired = len(seeds_b) == len(seeds_r) and set(seeds_b) == set(seeds_r)
+    # each side's rows in seed order when paired (in table order else), column by column
+    take_b = np.argsort(seeds_b, kind="stable") if paired else slice(None)
+    take_r = np.argsort(seeds_r, kind="stable") if paired else slice(None)
     if paired:
-        base = base.iloc[np.argsort(seeds_b, kind="stable")]
-        run = run.iloc[np.argsort(seeds_r, kind="stable")]
         seeds_r = np.sort(seeds_r)
     for metric in gate_metrics():
         name = (key["env"], key["policy"], metric)
@@ -955,15 +958,14 @@ def _test_cell(key: dict[str, Any], base: pd.DataFrame, run: pd.DataFrame,
                "direction": {1: "higher", -1: "lower", 0: "none"}[sign],
                "margin": config.margin(metric), "forced": False, "note": why}
         if metric == "label_tv":
-            b = base["sdl"].fillna(NO_LABEL).astype(str).to_numpy()
-            r = run["sdl"].fillna(NO_LABEL).astype(str).to_numpy()
+            b = base["sdl"].fillna(NO_LABEL).astype(str).to_numpy()[take_b]
+            r = run["sdl"].fillna(NO_LABEL).astype(str).to_numpy()[take_r]
             test = (_paired_tv_test(b, r, config, name) if paired
                     else _tv_test(b, r, config, name))
             rows.append({**row, "n_baseline": len(b), "n_run": len(r), "baseline": np.nan,
                          "run": np.nan, **_fields(test)})
             continue
-        b = pd.to_numeric(base[metric], errors="coerce").to_numpy(float)
-        r = pd.to_numeric(run[metric], errors="coerce").to_numpy(float)
+        b, r = _numbers(base[metric])[take_b], _numbers(run[metric])[take_r]
         if paired:
             one_side = np.isfinite(b) != np.isfinite(r)
             if one_side.any():
@@ -990,6 +992,14 @@ def _test_cell(key: dict[str, Any], base: pd.DataFrame, run: pd.DataFrame,
         rows.append({**row, "n_baseline": len(b), "n_run": len(r),
                      "baseline": float(b.mean()), "run": float(r.mean()), **_fields(test)})
     return rows
+
+
+def _numbers(column: pd.Series) -> np.ndarray:
+    """``column`` as floats, NaN where a value is not a number (``pd.to_numeric``'s
+    coercion, skipped for a column of numpy bools or numbers: the same floats)."""
+    if isinstance(column.dtype, np.dtype) and column.dtype.kind in "biuf":
+        return column.to_numpy(float)
+    return pd.to_numeric(column, errors="coerce").to_numpy(float)
 
 
 def _fields(test: _Test) -> dict[str, float]:
