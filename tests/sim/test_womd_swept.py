@@ -234,14 +234,21 @@ def test_the_safety_layer_stops_the_ego_before_the_car_in_its_swept_box(tmp_path
 
 
 def test_an_agent_trained_with_the_layer_drives_with_it_wherever_it_is_rolled_out(
-        womd_dir, tmp_path):
+        womd_dir, tmp_path, monkeypatch):
     """``tap-bench train --action safety_layer=true`` records the action config in the
     definition; a rollout of that definition builds the env with it (the layer judges the
-    ego's steps); a bad setting is refused before any work."""
+    ego's steps); a bad setting is refused before any work. The training is PPO's smallest
+    (one update of 32 steps, where the defaults' 256 steps and 10 epochs cost 2-3 CPU s):
+    what is checked is the config that the command records, not what the agent learns."""
     pytest.importorskip("stable_baselines3")
     import importlib
 
     from tap_bench.cli import main
+    from tap_bench.rl import training
+
+    monkeypatch.setitem(training.HYPERPARAMETERS, "ppo",
+                        {**training.HYPERPARAMETERS["ppo"], "n_steps": 32, "batch_size": 16,
+                         "n_epochs": 1})
     from tap_bench.sim.policies import load_policy
     from tap_bench.sim.womd_scene import WomdScenes
 
@@ -252,7 +259,7 @@ def test_an_agent_trained_with_the_layer_drives_with_it_wherever_it_is_rolled_ou
         main(["train", "--algo", "ppo", "--env", "womd", "--womd", files, "--action",
               'safety_layer={"gap": 1}', "--timesteps", "64", "-o", str(out)])
     assert main(["train", "--algo", "ppo", "--env", "womd", "--womd", files, "--observation",
-                 "leader_swept=true", "--action", "safety_layer=true", "--timesteps", "64",
+                 "leader_swept=true", "--action", "safety_layer=true", "--timesteps", "32",
                  "--n-envs", "1", "-o", str(out)]) == 0
     doc = json.loads(out.with_suffix(".json").read_text())
     assert doc["params"]["action"]["safety_layer"] is True
