@@ -828,3 +828,28 @@ def test_the_verdict_table_is_the_one_first_written(tmp_path):
     assert set(seen["verdict"]) >= {"worse", "better", "changed", ""}
     assert set(seen["test"]) >= {"paired", "unpaired", ""}
     assert {"definition", "episodes", "failed_episodes"} <= set(seen["metric"])
+
+
+@pytest.mark.parametrize("column, dtype, value, row, said", [
+    ("crashed", float, 0.5, 5, "crashed = '0.5', not true, false, 0 or 1"),
+    ("crashed", float, np.inf, 5, "crashed = 'inf'"),
+    ("min_ttc_s", float, -5.0, 5, "min_ttc_s = '-5.0', not a number in [0, 10]"),
+    ("min_headway_s", float, np.inf, 5, "min_headway_s = 'inf'"),
+    ("min_headway_s", int, 11, 5, "min_headway_s = '11', not a number in [0, 10]"),
+    ("mean_speed", bool, True, 0, "mean_speed = 'False', not a number"),
+])
+def test_a_run_value_its_measure_cannot_take_is_refused_from_a_numeric_column(
+        tmp_path, column, dtype, value, row, said):
+    """A column of numpy numbers or bools (checked at once as an array) with a value its
+    measure cannot take is refused as value-by-value reading refuses it, naming the row."""
+    import re
+
+    doc, base = baseline_of(synthetic(0), tmp_path)
+    run = synthetic(1)
+    values = (np.zeros(len(run), dtype) if dtype is not float
+              else run[column].to_numpy(float).copy())
+    values[5] = value
+    run[column] = values
+    assert run[column].dtype == np.dtype(dtype)
+    with pytest.raises(FileFormatError, match=f"row {row} .*{re.escape(said)}"):
+        check(SUMMARY, run, doc, base)

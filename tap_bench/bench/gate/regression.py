@@ -472,6 +472,25 @@ def _possible(m: Any, value: Any) -> bool:
         m.bounds[0] - BOUND_TOLERANCE <= value <= m.bounds[1] + BOUND_TOLERANCE)
 
 
+def _all_possible(m: Any, column: pd.Series) -> bool:
+    """Whether every value of ``column``, a numpy bool or number column, is NaN or one
+    measure ``m`` can take (:func:`_possible`, at once on the array); False for any other
+    column or when some value is not (the caller then reads the column value by value)."""
+    dtype = column.dtype
+    if not isinstance(dtype, np.dtype) or dtype.kind not in "bif":
+        return False
+    if dtype.kind == "b":
+        return m.kind == "rate"  # an outcome; never a number
+    v = column.to_numpy(float)
+    with np.errstate(invalid="ignore"):
+        if m.kind == "rate":
+            return bool(np.all(np.isnan(v) | (v == 0) | (v == 1)))
+        if m.bounds is None:
+            return True
+        return bool(np.all(np.isnan(v) | ((m.bounds[0] - BOUND_TOLERANCE <= v)
+                                           & (v <= m.bounds[1] + BOUND_TOLERANCE))))
+
+
 def _check_run_values(episodes: pd.DataFrame) -> None:
     """Every measure value of the run's finished episodes is one its measure can take, as a
     baseline's must be (:func:`_possible`; null or NaN where a measure is undefined): an
@@ -483,7 +502,7 @@ def _check_run_values(episodes: pd.DataFrame) -> None:
     rows = np.flatnonzero((episodes["status"] == "ok").to_numpy())  # positions in the file
     ok = episodes.iloc[rows]
     for m in MEASURES:
-        if m.name not in ok.columns:
+        if m.name not in ok.columns or _all_possible(m, ok[m.name]):
             continue
         for i, value in enumerate(ok[m.name].tolist()):
             if (pd.api.types.is_scalar(value) and pd.isna(value)) or _possible(m, value):
@@ -826,9 +845,14 @@ def check(run_summary: dict[str, Any], run_episodes: pd.DataFrame,
     changed_policy = {name: what for kind, name, what in changed if kind == "policy"}
     changed_env = {name: what for kind, name, what in changed if kind == "env"}
     as_run, run_episodes = run_episodes, scene_stand_ins(run_episodes)
-    run_ok = run_episodes[run_episodes["status"] == "ok"]
+    # (a mask that keeps every row, or none, is not applied: a copy of the table saved)
+    ok = run_episodes["status"] == "ok"
+    run_ok = (run_episodes if ok.dtype == bool and ok.to_numpy().all()
+              else run_episodes[ok])
     # skipped: a recorded scene without a route, not a failure (SPEC section 8)
-    run_failed = run_episodes[~run_episodes["status"].isin(("ok", "skipped"))]
+    failed = ~run_episodes["status"].isin(("ok", "skipped"))
+    run_failed = (run_episodes.iloc[:0] if failed.dtype == bool and not failed.to_numpy().any()
+                  else run_episodes[failed])
     cells = sorted({cell for t in (baseline_episodes, run_episodes)
                     for cell in zip(t["env"].tolist(), t["policy"].tolist(), strict=True)})
     for kind, name, what in changed:
