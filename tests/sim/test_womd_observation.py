@@ -205,11 +205,21 @@ def test_the_route_points_lie_on_the_logged_path(real):
             assert checked
 
 
-def test_the_command_trains_an_agent_on_the_route_observation(real, tmp_path, capsys):
+def test_the_command_trains_an_agent_on_the_route_observation(real, tmp_path, capsys,
+                                                              monkeypatch):
+    """The command's reward, observation and ego settings reach the definition and the
+    model's observation space. The training is PPO's smallest (one update of 32 steps,
+    where the defaults' 256 steps and 10 epochs cost 2-3 CPU s): what is checked is what
+    the command records, not what the agent learns."""
     pytest.importorskip("stable_baselines3")
     from tap_bench.cli import main
+    from tap_bench.rl import training
     from tap_bench.sim.rollout import rollout
     from tap_bench.sim.womd_scene import WomdScenes
+
+    monkeypatch.setitem(training.HYPERPARAMETERS, "ppo",
+                        {**training.HYPERPARAMETERS["ppo"], "n_steps": 32, "batch_size": 16,
+                         "n_epochs": 1})
 
     out = tmp_path / "ppo-route.zip"
     with pytest.raises(SystemExit, match="'speed_reward' is not a reward setting"):
@@ -221,7 +231,7 @@ def test_the_command_trains_an_agent_on_the_route_observation(real, tmp_path, ca
     assert main(["train", "--algo", "ppo", "--env", "womd", "--womd", real[1],
                  "--egos", "all", "--reward", "progress_gain_reward=2",
                  "--observation", "crossing=true", "leader_corners=true",
-                 "--timesteps", "64", "--n-envs", "1", "-o", str(out)]) == 0
+                 "--timesteps", "32", "--n-envs", "1", "-o", str(out)]) == 0
     doc = json.loads(out.with_suffix(".json").read_text())
     assert doc["params"]["observation"] == {"type": "KinematicsRoute", "leader": True,
                                             "crossing": True, "leader_corners": True}
