@@ -228,11 +228,14 @@ def scene_stand_ins(episodes: pd.DataFrame) -> pd.DataFrame:
 def _stand_in_notes(table: pd.DataFrame, episodes: pd.DataFrame) -> pd.DataFrame:
     """Say on each check a stand-in decided that it did, with the measure it stood in for
     beside it (``crashed``: at-fault collisions, all collisions in the run)."""
-    ok = episodes[episodes["status"] == "ok"]
     for measure, stand_in in SCENE_STANDS_IN.items():
-        if stand_in not in ok.columns or measure not in ok.columns:
+        if stand_in not in episodes.columns or measure not in episodes.columns:
             continue
-        real = ok[pd.to_numeric(ok[stand_in], errors="coerce").notna()]
+        # the finished episodes on recorded scenes, in table order (none: no table copied)
+        present = pd.to_numeric(episodes[stand_in], errors="coerce").notna()
+        if not present.any():
+            continue
+        real = episodes[present & (episodes["status"] == "ok")]
         for (env, policy), group in real.groupby(["env", "policy"], sort=False):
             at = ((table["env"] == env) & (table["policy"] == policy)
                   & (table["metric"] == measure)).to_numpy()
