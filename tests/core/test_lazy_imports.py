@@ -47,14 +47,20 @@ def test_a_missing_name_is_an_attribute_error_and_subpackages_load():
     assert tap_bench.bench.Suite is importlib.import_module("tap_bench.bench.suite").Suite
 
 
+def _fresh(script: str, folder: Path) -> subprocess.CompletedProcess:
+    """``script`` run in a fresh interpreter in ``folder`` (tap-bench from this tree, a cache
+    of the folder's own, no other environment); fails the test when it fails."""
+    return subprocess.run([sys.executable, "-c", script], cwd=folder, check=True,
+                          capture_output=True, text=True,
+                          env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
+                               "TAP_BENCH_CACHE": str(folder / "cache")})
+
+
 def _loaded_after(code: str, tmp_path: Path) -> set[str]:
     """Top-level modules loaded by ``code`` in a fresh interpreter."""
     script = (f"import sys\n{code}\nimport json\n"
               "print(json.dumps(sorted({m.split('.')[0] for m in sys.modules})))")
-    out = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, check=True,
-                         capture_output=True, text=True,
-                         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
-                              "TAP_BENCH_CACHE": str(tmp_path / "cache")})
+    out = _fresh(script, tmp_path)
     return set(json.loads(out.stdout.strip().splitlines()[-1]))
 
 
@@ -109,10 +115,7 @@ def modules_of_a_worker(tmp_path_factory) -> dict[str, list[str]]:
               "import tap_bench.bench.scores.scoring\nsteps['scoring'] = sorted(sys.modules)\n"
               "from tap_bench.similarity import ade_nearest\n"
               "steps['similarity'] = sorted(sys.modules)\nprint(json.dumps(steps))")
-    out = subprocess.run([sys.executable, "-c", script], cwd=folder, check=True,
-                         capture_output=True, text=True,
-                         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
-                              "TAP_BENCH_CACHE": str(folder / "cache")})
+    out = _fresh(script, folder)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -160,10 +163,7 @@ def test_the_env_ids_are_registered_whichever_is_imported_first(imports, tmp_pat
     in Gymnasium's registry as soon as both are imported, in either order, and the import
     hook that registers them steps aside once it has (the module's loader is Gymnasium's
     own)."""
-    out = subprocess.run([sys.executable, "-c", f"{imports}\n{_IDS}"], cwd=tmp_path,
-                         check=True, capture_output=True, text=True,
-                         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
-                              "TAP_BENCH_CACHE": str(tmp_path / "cache")})
+    out = _fresh(f"{imports}\n{_IDS}", tmp_path)
     ids = json.loads(out.stdout.strip().splitlines()[-1])
     from tap_bench.sim.registration import WOMD_ENV_ID, registered_ids
 
@@ -175,10 +175,7 @@ def test_an_env_is_made_by_id_after_import_tap_bench_alone(tmp_path):
     script = ("import sys\nimport tap_bench\nassert 'gymnasium' not in sys.modules\n"
               "import gymnasium as gym\nenv = gym.make('tap_bench/merge-v0')\n"
               "obs, info = env.reset(seed=0)\nprint(type(env.unwrapped).__name__)")
-    out = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, check=True,
-                         capture_output=True, text=True,
-                         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
-                              "TAP_BENCH_CACHE": str(tmp_path / "cache")})
+    out = _fresh(script, tmp_path)
     assert out.stdout.strip().splitlines()[-1] == "MergeEnv"
 
 
@@ -199,10 +196,7 @@ def test_the_hook_registers_once_and_steps_aside_after_a_reload_or_a_blocked_imp
               "assert pkgutil.get_data('gymnasium', '__init__.py')\n"
               "assert not any('OnGymnasium' in type(f).__name__ for f in sys.meta_path)\n"
               "import json\nprint(json.dumps(sorted(gym.registry)))")
-    out = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, check=True,
-                         capture_output=True, text=True,
-                         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
-                              "TAP_BENCH_CACHE": str(tmp_path / "cache")})
+    out = _fresh(script, tmp_path)
     assert "tap_bench/highway-v0" in json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -243,10 +237,7 @@ def test_an_import_hook_stepping_aside_skips_no_finder_of_a_walk_under_way(
     in place shifted it under the walk, which then skipped the next finder and reported an
     installed module missing (review5)."""
     script = _WALK.format(package=package, imported=imported, hook=hook)
-    subprocess.run([sys.executable, "-c", script], cwd=tmp_path, check=True,
-                   capture_output=True, text=True,
-                   env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
-                        "TAP_BENCH_CACHE": str(tmp_path / "cache")})
+    _fresh(script, tmp_path)
 
 
 def test_highway_env_keeps_its_own_loader_after_the_hook(tmp_path):
@@ -261,7 +252,4 @@ def test_highway_env_keeps_its_own_loader_after_the_hook(tmp_path):
               "assert pkgutil.get_data('highway_env', '__init__.py')\n"
               "assert any(p.name == 'envs' for p in "
               "importlib.resources.files('highway_env').iterdir())\n")
-    subprocess.run([sys.executable, "-c", script], cwd=tmp_path, check=True,
-                   capture_output=True, text=True,
-                   env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
-                        "TAP_BENCH_CACHE": str(tmp_path / "cache")})
+    _fresh(script, tmp_path)
