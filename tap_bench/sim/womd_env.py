@@ -391,6 +391,9 @@ class _WomdHighwayEnv(AbstractEnv):
                     f"another env with config={{'{name}': ...}} instead.")
 
     def _reset(self) -> None:
+        old = getattr(self, "road", None)
+        if isinstance(old, WomdRoad):  # the last episode's: freed without the collector
+            old.release()
         if self.scene is None:  # highway-env resets once in its constructor
             self.road = None
             return

@@ -2472,6 +2472,23 @@ class WomdRoad(Road):
         self._walker_hd: np.ndarray | None = None  # the walkers' lanes' headings, by pose
         self._walker_hd_lanes: set = set()  # ... the lanes filled in
 
+    def release(self) -> None:
+        """Let go of the road's vehicles (the env calls it when a reset replaces the road):
+        the vehicles point at their road and the road at them through its list and its
+        per-step tables, a cycle only the garbage collector's full passes would free; with
+        these emptied the old scene's road, vehicles, network and map are freed by reference
+        counting as soon as nothing else holds them. The road keeps its network, scene and
+        geometry but no vehicles."""
+        self.vehicles = []
+        self.objects = []
+        self.__dict__.pop("_vehicle_layout", None)
+        self._movers = []
+        self._states_at = None
+        self._crossings = None
+        self._everyone = None
+        self._positions = None
+        self._path_accelerations = {}
+
     def path_conflicts(self, vehicle: Vehicle) -> list[tuple[Any, float, float, bool]]:
         """(other path vehicle, where their logged paths first cross on ours [m], ... on
         theirs [m], whether ours passed there first in the log) for every path vehicle of

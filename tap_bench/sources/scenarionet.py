@@ -72,6 +72,7 @@ class _UnpickledArray(np.ndarray):
             raise pickle.UnpicklingError(f"an array of {count * dtype.itemsize} bytes holds "
                                          "data of another size")
         np.ndarray.__setstate__(self, state)
+        del self.unpickler  # checked: the array no longer holds the unpickler (and its file)
 
 
 class RestrictedUnpickler(pickle.Unpickler):
@@ -161,14 +162,19 @@ def load_scenarionet(path: str | os.PathLike) -> dict:
             arrays and plain containers (record 0, byte offset 0: a pickle is one record).
     """
     data = Path(path).read_bytes()
+    unpickler = RestrictedUnpickler(io.BytesIO(data), max_bytes=len(data) + ALLOCATION_SLACK)
     try:
-        scenario = RestrictedUnpickler(io.BytesIO(data), max_bytes=len(data)
-                                       + ALLOCATION_SLACK).load()
+        scenario = unpickler.load()
     except Exception as err:  # any unpickling failure is a bad file
         raise WomdRecordError(
             str(path), 0, 0, f"cannot be loaded as a ScenarioNet scenario pickle: {err}",
             "Only ScenarioNet scenario files (sd_*.pkl) are read; they must hold nothing "
             "but numpy arrays and plain containers.") from None
+    finally:
+        # its memo holds everything it made and its checks' functions hold it: a cycle
+        # that would keep the scenario and the file's bytes until a full collection
+        unpickler.memo.clear()
+        unpickler.__dict__.clear()
     return scenario
 
 
