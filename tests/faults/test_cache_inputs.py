@@ -129,7 +129,10 @@ def inputs(tmp_path_factory):
         importlib.import_module(MBYNAME)
         spec = importlib.util.spec_from_file_location(BYPATH, root / f"{BYPATH}.py")
         spec.loader.exec_module(importlib.util.module_from_spec(spec))  # no import
-    yield root, run
+    # the keys of the files as written: each example edits one byte and puts it back, so
+    # these are every example's keys before its edit (taken once, where each example took
+    # them again: about 40 ms a time, 160 times)
+    yield root, run, _keys(root)
     MEASURES.unregister(f"m{TAG}")
     SCENE_MEASURES.unregister(f"sm{TAG}")
     POLICY_KINDS.unregister(f"k{TAG}")
@@ -193,7 +196,7 @@ def test_every_input_edited_makes_the_rerun_fresh(inputs, tmp_path_factory, kind
                                                   byte):
     """Each kind of input, 4 drawn one-byte edits (68 in all, every kind edited; drawn over
     all kinds at once, as 140 edits were, each kind's share was left to chance)."""
-    root, run = inputs
+    root, run, before = inputs
     name, moves = INPUTS[kind]
     path = _file(root, name)
     original = path.read_bytes()
@@ -208,7 +211,6 @@ def test_every_input_edited_makes_the_rerun_fresh(inputs, tmp_path_factory, kind
     key = _entry(cache, run)
     lkey = label_key(key, {}, "maneuver", {})[0]
     assert cache.read(key)[0] is not None and cache.read_labels(lkey)[0] is not None
-    before = _keys(root)
     read = load_thresholds(root / "thresholds.json").to_dict()
     data[i] = byte
     path.write_bytes(bytes(data))
