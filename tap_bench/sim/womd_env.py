@@ -284,6 +284,21 @@ class _WomdHighwayEnv(AbstractEnv):
             return None
         return super().render()
 
+    def close(self) -> None:
+        """highway-env's close, and the env lets go of its scenes: the road's vehicles
+        released (:meth:`WomdRoad.release`), its road, scene and vehicles and the decoded
+        scenes, networks and routes kept for later resets dropped (a reset after it decodes
+        and builds them again; until then it has no road, as before its first). The env
+        and its observation and action point at each other: without this a closed env's
+        scenes would wait for the garbage collector's full pass."""
+        if isinstance(self.road, WomdRoad):
+            self.road.release()
+        self.road, self.scene, self.states = None, None, None
+        self.controlled_vehicles, self.simulated = [], {}
+        self._cache.clear()
+        self._built.clear()
+        super().close()
+
     # the scenes
     def scene_at(self, index: int) -> Scene:
         """The scene of index ``index`` in :attr:`catalog` (decoded once, a few kept)."""

@@ -49,3 +49,17 @@ def test_a_reset_frees_the_last_episodes_road_and_vehicles(womd_dir, no_collecto
     assert all(v() is None for v in old_vehicles)
     assert len(env.unwrapped.road.vehicles) == len(old_vehicles)
     env.close()
+
+
+def test_a_closed_env_lets_go_of_its_scenes_road_and_vehicles(womd_dir, no_collector):
+    env = make_womd_env(womd_dir / "motion_data_one_scenario.tfrecord")
+    env.reset(seed=0)
+    env.step(env.action_space.sample())
+    inner = env.unwrapped
+    held = [weakref.ref(o) for o in (inner.road, inner.scene, inner.road.network,
+                                     *inner.road.vehicles)]
+    env.close()  # the env itself is still referenced here (and points at itself)
+    assert all(o() is None for o in held)
+    assert inner.road is None and inner.render() is None
+    env.reset(seed=0)  # a closed env starts again from its files
+    assert len(inner.road.vehicles) == len(held) - 3
