@@ -98,6 +98,11 @@ def _file(root: Path, name: str) -> Path:
     return root / name
 
 
+_KEY_AS_WRITTEN: dict[Path, str] = {}
+"""The key of the module's input files as written, by their folder (the examples' key
+before their edit)."""
+
+
 @settings(max_examples=120, deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture,
                                  HealthCheck.filter_too_much])
@@ -106,7 +111,12 @@ def _file(root: Path, name: str) -> Path:
 def test_any_byte_changed_in_any_input_changes_the_key(inputs, monkeypatch, name, where,
                                                        byte):
     monkeypatch.syspath_prepend(str(inputs))
-    before = key_of(inputs)
+    # the key of the files as written, taken at the first example (each example puts its
+    # byte back); test_the_key_of_the_files_as_written_is_kept_after_the_edits checks that
+    # it is the key the files give after all the examples
+    if inputs not in _KEY_AS_WRITTEN:
+        _KEY_AS_WRITTEN[inputs] = key_of(inputs)
+    before = _KEY_AS_WRITTEN[inputs]
     path = _file(inputs, name)
     original = path.read_bytes()
     data = bytearray(original)
@@ -129,6 +139,15 @@ def test_any_byte_changed_in_any_input_changes_the_key(inputs, monkeypatch, name
         assert after != before, f"{name}: a changed byte left the key as it was"
     finally:
         path.write_bytes(original)
+
+
+def test_the_key_of_the_files_as_written_is_kept_after_the_edits(inputs, monkeypatch):
+    """The examples above put back each byte they changed, so the key they compare with
+    (taken at the first) is still the key of the files."""
+    if inputs not in _KEY_AS_WRITTEN:
+        pytest.skip("the examples above did not run in this process")
+    monkeypatch.syspath_prepend(str(inputs))
+    assert key_of(inputs) == _KEY_AS_WRITTEN[inputs]
 
 
 def test_every_field_of_the_env_and_its_name_are_in_the_key(inputs, monkeypatch):
