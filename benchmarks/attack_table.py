@@ -75,7 +75,7 @@ CLASSES_36 = {
         "tests/sim/test_sim_womd.py::"
         "test_lane_lookup_and_projection_equal_highway_envs_on_generated_lanes",
         "tests/bench/test_run_cache.py::"
-        "test_episodes_and_labels_made_while_tap_bench_was_edited_are_not_kept",
+        "test_tap_bench_or_its_data_edited_while_the_run_goes_on_keeps_nothing_of_the_run",
         F + "test_signals.py"],
     "threshold fitting keeps the best evaluated": ["tests/core/test_fitting.py"],
     "quiet and loud: progress, one MapWarning, shipped models trusted, the shipped "

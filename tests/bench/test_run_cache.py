@@ -594,55 +594,57 @@ def test_a_vehicle_class_changed_while_the_run_goes_on_is_not_kept(tmp_path, mon
     assert not any(cache.read(key)[0] is not None for key in keys.values())
 
 
-def test_tap_bench_edited_while_the_run_goes_on_is_not_kept_whole(tmp_path, monkeypatch):
-    """The run's key holds tap-bench's code as hashed at its start; the report, the viewer
-    and scoring are imported later. Edited in between, the run is written but not kept."""
+def test_tap_bench_or_its_data_edited_while_the_run_goes_on_keeps_nothing_of_the_run(
+        tmp_path, monkeypatch):
+    """Three things in one cache, one run after another (each run's key would serve the
+    next; the runs an edit leaves out are made again):
+
+    - The run's key holds tap-bench's code as hashed at its start; the report, the viewer
+      and scoring are imported later. Edited in between, the run is written but not kept
+      whole. Workers import the labelling and simulation code at their first episode,
+      perhaps after the edit; their episode and label entries would be kept under keys
+      naming the code as it was when the run started: edited mid-run, nothing of the run
+      stays in the cache, and the entries of earlier runs do.
+    - The package's data files (the viewer's page, script, style) are hashed into the run's
+      key at its start and the viewer is written at its end: edited in between, the run is
+      written but not kept whole, so a later run on the old files is not served the new
+      ones.
+    - Unedited, the same run is kept whole (made, then served)."""
     cache = EpisodeCache(tmp_path / "cache")
     suite = tiny(envs=["merge"], env_overrides={"merge": {"duration": 3}})
-    start = cache_module.package_code()
-    monkeypatch.setattr(cache_module, "_package_digest", lambda: "edited mid-run")
-    result = run(tmp_path / "edited", cache, suite)
-    assert (tmp_path / "edited" / "summary.json").exists() and not served(result)
-    assert not (cache.derived_folder / "runs").exists()
-    monkeypatch.setattr(cache_module, "_package_digest", lambda: start)
-    assert not served(run(tmp_path / "kept", cache, suite))
-    assert served(run(tmp_path / "served", cache, suite))
-
-
-def test_the_viewers_files_edited_while_the_run_goes_on_are_not_kept_whole(tmp_path,
-                                                                          monkeypatch):
-    """The package's data files (the viewer's page, script, style) are hashed into the run's
-    key at its start and the viewer is written at its end: edited in between, the run is
-    written but not kept, so a later run on the old files is not served the new ones."""
-    cache = EpisodeCache(tmp_path / "cache")
-    suite = tiny(envs=["merge"], env_overrides={"merge": {"duration": 3}})
-    # the digest taken at the start differs from the files at the end
-    monkeypatch.setattr(run_cache, "_PACKAGE_DATA", ["the files at the start"])
-    result = run(tmp_path / "edited", cache, suite)
-    assert (tmp_path / "edited" / "summary.json").exists() and not served(result)
-    assert not (cache.derived_folder / "runs").exists()
-    monkeypatch.setattr(run_cache, "_PACKAGE_DATA", [])  # unchanged from start to end
-    assert not served(run(tmp_path / "kept", cache, suite))
-    assert served(run(tmp_path / "served", cache, suite))
-
-
-def test_episodes_and_labels_made_while_tap_bench_was_edited_are_not_kept(tmp_path,
-                                                                          monkeypatch):
-    """Workers import the labelling and simulation code at their first episode, perhaps
-    after an edit to tap-bench; their episode and label entries would be kept under keys
-    naming the code as it was when the run started. Edited mid-run, nothing of the run
-    stays in the cache; entries of earlier runs do."""
-    cache = EpisodeCache(tmp_path / "cache")
     start = cache_module.package_code()
     before = run(tmp_path / "before", cache, tiny(envs=["merge"], seeds="5",
                                                   env_overrides={"merge": {"duration": 3}}))
     kept = {p for p, _ in cache._entries()}
     assert kept and not served(before)
+
+    def whole_runs() -> set[Path]:
+        return set((cache.derived_folder / "runs").rglob("*.derived"))
+
+    kept_whole = whole_runs()
+    assert len(kept_whole) == 1  # the earlier run's
+    put_derived, stored = EpisodeCache.put_derived, []
+
+    def spy(self, kind, *args):  # a run entry written, even if dropped later on
+        stored.append(kind)
+        return put_derived(self, kind, *args)
+
+    monkeypatch.setattr(EpisodeCache, "put_derived", spy)
+    # tap-bench's code edited mid-run
     monkeypatch.setattr(cache_module, "_package_digest", lambda: "edited mid-run")
-    suite = tiny(envs=["merge"], env_overrides={"merge": {"duration": 3}})
-    run(tmp_path / "edited", cache, suite)
-    assert (tmp_path / "edited" / "summary.json").exists()
+    result = run(tmp_path / "edited", cache, suite)
+    assert (tmp_path / "edited" / "summary.json").exists() and not served(result)
+    assert whole_runs() == kept_whole and "runs" not in stored
     assert {p for p, _ in cache._entries()} == kept  # the earlier run's, not this one's
     monkeypatch.setattr(cache_module, "_package_digest", lambda: start)
-    run(tmp_path / "kept", cache, suite)
-    assert {p for p, _ in cache._entries()} > kept
+    # the viewer's files edited mid-run: the digest taken at the start differs from the
+    # files at the end
+    monkeypatch.setattr(run_cache, "_PACKAGE_DATA", ["the files at the start"])
+    result = run(tmp_path / "edited-data", cache, suite)
+    assert (tmp_path / "edited-data" / "summary.json").exists() and not served(result)
+    assert whole_runs() == kept_whole and "runs" not in stored
+    monkeypatch.setattr(run_cache, "_PACKAGE_DATA", [])  # unchanged from start to end
+    assert not served(run(tmp_path / "kept", cache, suite))
+    assert {p for p, _ in cache._entries()} > kept and len(whole_runs()) == 2
+    assert "runs" in stored
+    assert served(run(tmp_path / "served", cache, suite))
