@@ -114,10 +114,7 @@ def run_episode(env: gym.Env, policy: Policy, seed: int, *, record: bool = True,
         steps += 1
     inner = env.unwrapped
     table = scenario_env.trajectories(policy=policy.name) if record else pd.DataFrame()
-    if record and len(table):
-        mean_speed = float(table.loc[table["is_ego"].to_numpy(), "speed"].mean())
-    else:
-        mean_speed = float("nan")
+    mean_speed = ego_mean_speed(table) if record and len(table) else float("nan")
     row = {"env": scenario_env.scenario.name, "policy": policy.name, "seed": int(seed),
            "return": total, "length": steps, "duration_s": inner.steps / HZ,
            "crashed": bool(inner.vehicle.crashed), "mean_speed": mean_speed,
@@ -126,6 +123,26 @@ def run_episode(env: gym.Env, policy: Policy, seed: int, *, record: bool = True,
     if hasattr(scenario_env, "episode_info"):  # recorded scenes: off road, progress ...
         row.update(scenario_env.episode_info())
     return table, row
+
+
+def ego_mean_speed(table: pd.DataFrame) -> float:
+    """The mean of the ego's ``speed`` rows of a trajectory table [m/s], NaN left out (NaN
+    when none is left): pandas' ``table.loc[table["is_ego"], "speed"].mean()``, computed as
+    pandas computes it (NaN put to 0, the float64 values summed, divided by their count)
+    without the selected Series when the columns are plain float64 and bool."""
+    import numpy as np
+
+    speed, ego = table["speed"], table["is_ego"]
+    if speed.dtype != np.float64 or ego.dtype != np.bool_:
+        return float(table.loc[ego.to_numpy(), "speed"].mean())
+    values = speed.to_numpy()[ego.to_numpy()]
+    missing = np.isnan(values)
+    count = values.size - int(missing.sum())
+    if not count:
+        return float("nan")
+    if count < values.size:
+        values = np.where(missing, 0.0, values)
+    return float(values.sum() / np.float64(count))
 
 
 # Per-process caches: a worker builds each env and policy once and reuses them across seeds

@@ -508,8 +508,10 @@ class _WomdHighwayEnv(AbstractEnv):
                 scene.length[row], scene.width[row], self.clock)
             vehicle.row = row
             return vehicle
+        if self.traffic != "idm" or scene.object_types[row] != "vehicle":
+            return replay
         steps = np.flatnonzero(valid[CURRENT_STEP:]) + CURRENT_STEP
-        if self.traffic != "idm" or scene.object_types[row] != "vehicle" or not len(steps):
+        if not len(steps):
             return replay
         first = int(steps[0])  # a vehicle that appears later drives from where it appears
         xy = sim_xy[row, steps]
