@@ -125,7 +125,43 @@ def load_model(path: str | os.PathLike, algo: str | None = None) -> Any:
     data = path.read_bytes()  # what is checked is what is loaded
     if shipped_model(data) is None:
         warn_untrusted_model(path, stacklevel=3, known=False)
-    return cls.load(io.BytesIO(data), device="cpu")
+    return _load_without_initialising(cls, data)
+
+
+def _load_without_initialising(cls: type, data: bytes) -> Any:
+    """``cls.load`` of the model file ``data`` on the CPU, without the orthogonal
+    initialisation of an actor-critic network (PPO, A2C) whose weights the file's then
+    replace: a QR decomposition per layer, about 0.1-0.3 CPU s a model, most of a load.
+
+    The network is built with ``ortho_init`` off, the file's parameters are loaded into it
+    (Stable-Baselines3 requires every one), and ``ortho_init`` is put back as the file has
+    it, in the model's ``policy_kwargs`` and its policy: the model equals a plain load,
+    parameter for parameter (tests/rl/test_sb3_loading.py). Only torch's global random
+    stream differs (not drawn from for the skipped initialisation); :class:`SB3Policy`
+    seeds it at each reset."""
+    import zipfile
+
+    from stable_baselines3.common.policies import ActorCriticPolicy
+    from stable_baselines3.common.save_util import json_to_data
+
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as archive:
+            saved = json_to_data(archive.read("data").decode())
+    except (KeyError, ValueError, zipfile.BadZipFile):  # Stable-Baselines3 says what is wrong
+        return cls.load(io.BytesIO(data), device="cpu")
+    kwargs = dict(saved.get("policy_kwargs") or {})
+    policy = saved.get("policy_class")
+    if not (isinstance(policy, type) and issubclass(policy, ActorCriticPolicy)
+            and kwargs.get("ortho_init", True)):
+        return cls.load(io.BytesIO(data), device="cpu")
+    model = cls.load(io.BytesIO(data), device="cpu",
+                     custom_objects={"policy_kwargs": {**kwargs, "ortho_init": False}})
+    if "ortho_init" in kwargs:
+        model.policy_kwargs["ortho_init"] = kwargs["ortho_init"]
+    else:
+        model.policy_kwargs.pop("ortho_init", None)
+    model.policy.ortho_init = True
+    return model
 
 
 def warn_untrusted_model(path: str | os.PathLike, *, stacklevel: int = 2,
