@@ -4,12 +4,15 @@ on sys.path)."""
 
 from __future__ import annotations
 
+import contextlib
+import json
 import os
 import shlex
 import subprocess
 import sys
 import time
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
 
 import pandas as pd
@@ -74,3 +77,82 @@ def run_process(*args: str, cwd: Path | None = None, shell_pipe: str | None = No
         time.sleep(0.1)
     assert not _marked(marker), f"processes outlived tap-bench {args}: {_marked(marker)}"
     return result
+
+
+_SERVER = r"""
+import json, os, sys, traceback
+
+from tap_bench.cli import main  # what every run imports, once
+import tap_bench.bench.run.runner, tap_bench.sim.rollout, tap_bench.labelling  # noqa: F401
+
+for line in sys.stdin:
+    request = json.loads(line)
+    pid = os.fork()
+    if pid == 0:  # one run: a process of its own that has imported nothing of the user's
+        code = 1
+        try:
+            os.chdir(request["cwd"])
+            sys.path[0] = request["cwd"]  # as python -m puts its working folder first
+            for fd, name in ((1, "stdout"), (2, "stderr")):
+                os.dup2(os.open(request[name], os.O_WRONLY | os.O_CREAT | os.O_TRUNC), fd)
+            sys.argv = ["tap_bench", *request["args"]]
+            code = main(request["args"])
+        except SystemExit as stop:
+            code = stop.code if isinstance(stop.code, int) else 1
+        except BaseException:
+            traceback.print_exc()
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(code if isinstance(code, int) else 1)
+    _, status = os.waitpid(pid, 0)
+    print(os.waitstatus_to_exitcode(status), flush=True)
+"""
+
+
+@contextlib.contextmanager
+def command_server(folder: Path) -> Iterator:
+    """``run(*args, cwd=...)``: ``python -m tap_bench ARGS`` as :func:`run_process` runs it,
+    each run in a process of its own forked from one that has imported tap-bench's command
+    line, runner, simulation and labelling (about 1.3 CPU s a run where each child imported
+    them): a user's module (a plugin, a module loaded by name) is imported afresh by each
+    run, never by the server. The server's environment is :func:`run_process`'s; when the
+    block ends it is stopped and no process it started may be alive. ``folder`` holds the
+    runs' outputs (``run-N.stdout``, ``run-N.stderr``)."""
+    marker = f"TAP_BENCH_FAULT_TEST={uuid.uuid4().hex}"
+    env = {**os.environ, "PYTHONPATH": f"{PROJECT_ROOT}{os.pathsep}"
+           f"{os.environ.get('PYTHONPATH', '')}", marker.split("=")[0]: marker.split("=")[1]}
+    server = subprocess.Popen([sys.executable, "-c", _SERVER], stdin=subprocess.PIPE,
+                              stdout=subprocess.PIPE, env=env, cwd=folder, text=True)
+    runs = []
+
+    def run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+        n = len(runs)
+        out, err = folder / f"run-{n}.stdout", folder / f"run-{n}.stderr"
+        server.stdin.write(json.dumps({"args": list(map(str, args)), "cwd": str(cwd),
+                                       "stdout": str(out), "stderr": str(err)}) + "\n")
+        server.stdin.flush()
+        line = server.stdout.readline()
+        assert line, "the command server died"
+        runs.append(args)
+        deadline = time.monotonic() + 10  # nothing the run started outlives it
+        while _marked(marker) - {server.pid} and time.monotonic() < deadline:
+            time.sleep(0.1)
+        left = _marked(marker) - {server.pid}
+        assert not left, f"processes outlived tap-bench {args}: {left}"
+        return subprocess.CompletedProcess(["tap_bench", *map(str, args)], int(line),
+                                           out.read_bytes(), err.read_bytes())
+
+    try:
+        yield run
+    finally:
+        server.stdin.close()
+        try:
+            server.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            server.kill()
+            server.wait()
+    deadline = time.monotonic() + 10
+    while _marked(marker) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not _marked(marker), f"processes outlived the runs {runs}: {_marked(marker)}"

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from fault_helpers import RUN_TAG, run_process
+from fault_helpers import RUN_TAG, command_server, run_process
 
 from tap_bench.sim.scenario_env import get_scenario
 
@@ -29,15 +29,17 @@ def _suite(folder: Path, policy: str, env: str = "merge", seeds: str = "0") -> P
     return path
 
 
-def _run(folder: Path, name: str, *plugins: str) -> tuple[dict, pd.DataFrame]:
+def _run(folder: Path, name: str, *plugins: str, server=None) -> tuple[dict, pd.DataFrame]:
     """``bench run`` of ``folder``'s suite into ``folder/name`` with ``folder/cache``: (the
     summary, the episode table). Without the report (its plots and pages: about 0.5 CPU s
-    of a child run's 3.5), which no test here reads."""
+    of a child run's 3.5), which no test here reads. ``server``: a
+    :func:`fault_helpers.command_server`'s ``run``, where each run is forked from a process
+    that has imported tap-bench (and none of the user's modules); else a fresh child."""
     args = ["bench", "run", "--suite", folder / "suite.json", "-o", folder / name,
             "--cache", folder / "cache", "--workers", "1", "--no-progress", "--no-report"]
     for plugin in plugins:
         args += ["--plugin", plugin]
-    result = run_process(*args, cwd=folder)
+    result = (server or run_process)(*args, cwd=folder)
     assert result.returncode == 0, result.stderr.decode()[-3000:]
     summary = json.loads((folder / name / "summary.json").read_text())
     return summary, pd.read_parquet(folder / name / "episodes.parquet")
@@ -198,26 +200,29 @@ def test_edited_user_code_is_made_afresh_and_unchanged_code_is_read(tmp_path):
     def speeds(episodes: pd.DataFrame) -> pd.Series:
         return episodes.set_index("policy")["mean_speed"]
 
-    first, eps1 = _run(tmp_path, "first", const, measure)
-    assert _counts(first) == (0, 2)
-    assert (eps1[f"offset_{TAG}"] == -3.07).all()
-    again, _ = _run(tmp_path, "again", const, measure)
-    assert _counts(again) == (2, 0)  # unchanged: read
-    source = tmp_path / f"{const}.py"
-    source.write_text(source.read_text().replace("ACTION = 3", "ACTION = 4"))  # SLOWER
-    edited, eps2 = _run(tmp_path, "edited-kind", const, measure)
-    assert _counts(edited) == (1, 1)  # the plugin kind's policy simulated again, mine read
-    assert speeds(eps2)["const"] < speeds(eps1)["const"]
-    assert speeds(eps2)["mine"] == speeds(eps1)["mine"]
-    helper.write_text("ACTION = 4\n")
-    edited, eps3 = _run(tmp_path, "edited-helper", const, measure)
-    assert _counts(edited) == (1, 1)  # mine simulated again, the edited kind's now read
-    assert speeds(eps3)["mine"] < speeds(eps1)["mine"]
-    assert speeds(eps3)["const"] == speeds(eps2)["const"]
-    mhelper.write_text("OFFSET = 96.93\n")
-    edited, eps4 = _run(tmp_path, "edited-measure", const, measure)
-    assert (eps4[f"offset_{TAG}"] == 96.93).all()
-    assert edited["cache"]["labelled_before"] == 0
+    outputs = tmp_path / "outputs"
+    outputs.mkdir()
+    with command_server(outputs) as server:
+        first, eps1 = _run(tmp_path, "first", const, measure, server=server)
+        assert _counts(first) == (0, 2)
+        assert (eps1[f"offset_{TAG}"] == -3.07).all()
+        again, _ = _run(tmp_path, "again", const, measure, server=server)
+        assert _counts(again) == (2, 0)  # unchanged: read
+        source = tmp_path / f"{const}.py"
+        source.write_text(source.read_text().replace("ACTION = 3", "ACTION = 4"))  # SLOWER
+        edited, eps2 = _run(tmp_path, "edited-kind", const, measure, server=server)
+        assert _counts(edited) == (1, 1)  # the plugin kind's policy simulated again, mine read
+        assert speeds(eps2)["const"] < speeds(eps1)["const"]
+        assert speeds(eps2)["mine"] == speeds(eps1)["mine"]
+        helper.write_text("ACTION = 4\n")
+        edited, eps3 = _run(tmp_path, "edited-helper", const, measure, server=server)
+        assert _counts(edited) == (1, 1)  # mine simulated again, the edited kind's now read
+        assert speeds(eps3)["mine"] < speeds(eps1)["mine"]
+        assert speeds(eps3)["const"] == speeds(eps2)["const"]
+        mhelper.write_text("OFFSET = 96.93\n")
+        edited, eps4 = _run(tmp_path, "edited-measure", const, measure, server=server)
+        assert (eps4[f"offset_{TAG}"] == 96.93).all()
+        assert edited["cache"]["labelled_before"] == 0
 
 
 BY_FILE = '''
