@@ -7,7 +7,9 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import select
 import shlex
+import signal
 import subprocess
 import sys
 import time
@@ -22,6 +24,10 @@ RUN_TAG = os.environ.get("PYTEST_XDIST_TESTRUNUID", uuid.uuid4().hex)[:8]
 """A tag of this test run for the user modules the tests write, the same in every
 pytest-xdist worker (test ids name them, and the workers must collect the same ids)."""
 
+
+
+RUN_TIMEOUT = 300
+"""Seconds a command of :func:`run_process` or :func:`command_server` may take."""
 
 
 def label_table(policy: str, seeds, label=lambda s: "Straight | Maintain Speed"):
@@ -71,7 +77,8 @@ def run_process(*args: str, cwd: Path | None = None, shell_pipe: str | None = No
     if shell_pipe:
         command = ["bash", "-o", "pipefail", "-c",
                    " ".join(shlex.quote(c) for c in command) + " | " + shell_pipe]
-    result = subprocess.run(command, capture_output=True, env=env, cwd=cwd, timeout=300)
+    result = subprocess.run(command, capture_output=True, env=env, cwd=cwd,
+                            timeout=RUN_TIMEOUT)
     deadline = time.monotonic() + 10
     while _marked(marker) and time.monotonic() < deadline:
         time.sleep(0.1)
@@ -132,6 +139,11 @@ def command_server(folder: Path) -> Iterator:
         server.stdin.write(json.dumps({"args": list(map(str, args)), "cwd": str(cwd),
                                        "stdout": str(out), "stderr": str(err)}) + "\n")
         server.stdin.flush()
+        if not select.select([server.stdout], [], [], RUN_TIMEOUT)[0]:  # as run_process's
+            for pid in _marked(marker):
+                with contextlib.suppress(OSError):
+                    os.kill(pid, signal.SIGKILL)
+            raise AssertionError(f"tap-bench {args} did not end within {RUN_TIMEOUT} s")
         line = server.stdout.readline()
         assert line, "the command server died"
         runs.append(args)
@@ -146,7 +158,8 @@ def command_server(folder: Path) -> Iterator:
     try:
         yield run
     finally:
-        server.stdin.close()
+        with contextlib.suppress(OSError):  # a server killed on a timeout
+            server.stdin.close()
         try:
             server.wait(timeout=60)
         except subprocess.TimeoutExpired:
