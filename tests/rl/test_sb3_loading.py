@@ -5,6 +5,7 @@ policy's settings, and its actions, greedy and sampled."""
 
 from __future__ import annotations
 
+import importlib.util
 import io
 import warnings
 from pathlib import Path
@@ -12,11 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytest.importorskip("stable_baselines3")
-
-import torch
-
 from tap_bench.sim.sb3 import _algo_of, algorithm_class, load_model
+
+# Stable-Baselines3 and torch are imported by the tests that run, not when the suite is
+# collected: every pytest worker collects every file, and torch's import costs about 2 CPU s
+pytestmark = pytest.mark.skipif(importlib.util.find_spec("stable_baselines3") is None,
+                                reason="needs stable-baselines3 (the sb3 extra)")
 
 POLICIES = Path(__file__).resolve().parents[2] / "policies"
 
@@ -33,6 +35,8 @@ def _made(tmp_path: Path, algo: str, **policy_kwargs) -> Path:
 
 
 def _assert_same_model(ours, theirs) -> None:
+    import torch
+
     assert type(ours) is type(theirs) and type(ours.policy) is type(theirs.policy)
     assert ours.policy_kwargs == theirs.policy_kwargs
     assert getattr(ours.policy, "ortho_init", None) == getattr(theirs.policy, "ortho_init", None)
