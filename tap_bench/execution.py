@@ -82,9 +82,8 @@ YOUNG_COLLECTION_THRESHOLD = 10_000
 freed, between two collections of the youngest generation; CPython's default is 700) in a
 process that called :func:`freeze_start_up`. A scene's objects are freed by reference
 counting when the next scene replaces them (:meth:`tap_bench.sim.womd_road.WomdRoad.release`,
-the env's ``close``), so rarer collections find little more garbage: ``rollout --womd`` on
-245 scenes, collector 0.65-0.93 -> 0.38-0.43 CPU s from the freeze on, 0.24-0.28 from the
-start, peak 424-427 -> 427 MB (49 scenes: 412 -> 410-412)."""
+the env's ``close``), so rarer collections find little more garbage and the peak memory
+does not grow (measured in docs/closed_loop.md, "The round of 2026-12-04, evening")."""
 
 
 def freeze_start_up() -> None:
@@ -94,15 +93,14 @@ def freeze_start_up() -> None:
 
     Importing pandas, gymnasium, highway-env, numba and pyarrow, numba's registries and
     first kernels and the first scene's start leave some 170,000 objects that live as long
-    as the process; every full collection walks them for nothing (``rollout --womd`` on
-    245 scenes: 10 full collections, 0.93-0.99 CPU s of the command's 15, 0.50 s with the
-    freeze). Garbage made from then on is collected as before. From the call on, the
-    youngest generation is collected every :data:`YOUNG_COLLECTION_THRESHOLD` allocations
-    (the start-up's imports make objects that live as long as the process: the young
-    collections among them found nothing). The command line asks for it
-    when it runs as the process's program (``tap-bench``, ``python -m tap_bench``): a caller
-    of :func:`tap_bench.cli.main` with its own arguments (a test, a notebook) keeps its
-    objects collectable."""
+    as the process; every full collection walks them for nothing (docs/closed_loop.md,
+    "The round of 2026-12-04"). Garbage made from then on is collected as before. From
+    the call on, the youngest generation is collected every
+    :data:`YOUNG_COLLECTION_THRESHOLD` allocations (the start-up's imports make objects that
+    live as long as the process: the young collections among them found nothing). The
+    command line asks for it when it runs as the process's program (``tap-bench``,
+    ``python -m tap_bench``): a caller of :func:`tap_bench.cli.main` with its own arguments
+    (a test, a notebook) keeps its objects collectable."""
     _START_UP["freeze"] = True
     gc.set_threshold(YOUNG_COLLECTION_THRESHOLD, *gc.get_threshold()[1:])
 
