@@ -26,7 +26,30 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from hypothesis import settings
+
+
+def _hypothesis_left_unrewritten() -> None:
+    """pytest rewrites the asserts of every module of a package that gives it a plugin
+    (hypothesis' ``_hypothesis_pytestplugin``), hypothesis' own 100-odd modules included,
+    in every process that imports them (the controller and each xdist worker): about 0.6-1.4
+    CPU s a process where ``PYTHONDONTWRITEBYTECODE`` keeps pytest from caching what it
+    rewrote (``pytest --collect-only`` of the fast suite 4.3-5.1 -> 3.2-3.8 CPU s, paired).
+    hypothesis is imported just below, its modules then unrewritten: its asserts are its
+    own checks, never a test's, and their messages are unchanged. The suite's tests and
+    conftest files are rewritten as before. Nothing here can fail the session (another
+    pytest's internals: hypothesis is then rewritten as before)."""
+    import sys
+
+    for hook in sys.meta_path:
+        must = getattr(hook, "_must_rewrite", None)
+        if isinstance(must, set):
+            must.difference_update({"hypothesis", "_hypothesis_globals",
+                                    "_hypothesis_ftz_detector"})
+            getattr(hook, "_marked_for_rewrite_cache", {}).clear()
+
+
+_hypothesis_left_unrewritten()
+from hypothesis import settings  # noqa: E402  (after the function above)
 
 # OpenMP's idle threads (torch's, in the in-process training tests) sleep instead of spinning
 # on the other core, in this process and the processes it starts, as tap-bench's own workers
