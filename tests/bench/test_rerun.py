@@ -18,6 +18,7 @@ from tap_bench.bench.cache import EpisodeCache, label_code
 from tap_bench.bench.run import tasks as run_tasks
 from tap_bench.bench.run.runner import run_suite
 from tap_bench.bench.suite import suite_from_dict
+from tap_bench.execution import LocalBackend
 
 from .conftest import without_runs
 
@@ -34,11 +35,26 @@ def tiny(thresholds="paper"):
                             "bootstrap": {"n_resamples": 200}}, check_names=False)
 
 
+_TWO_WORKERS = LocalBackend(2)
+"""The module's runs with two workers run on these two worker processes, started by the
+first such run and kept until the module ends (``two_workers_kept``), where each run
+started its own (about 1.5 CPU s a worker): what is compared here is the tables a run makes
+with its episodes spread over two processes, as ``workers=2`` spreads them (``run_suite``
+resolves ``workers=2`` to a :class:`LocalBackend` of 2, as this one)."""
+
+
+@pytest.fixture(scope="module", autouse=True)
+def two_workers_kept():
+    with _TWO_WORKERS.kept():
+        yield
+
+
 def run(folder, cache, workers=1, suite=None):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return run_suite(suite or tiny(), folder, workers=workers, progress=False,
-                         report=False, cache=cache)
+                         report=False, cache=cache,
+                         backend=_TWO_WORKERS if workers == 2 else None)
 
 
 def assert_identical(a, b):
