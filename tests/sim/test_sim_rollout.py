@@ -10,6 +10,7 @@ import pytest
 
 import tap_bench
 from tap_bench.cli import main
+from tap_bench.execution import LocalBackend
 from tap_bench.sim.policies import LaneKeepingPolicy
 from tap_bench.sim.rollout import EPISODE_COLUMNS, EpisodeFailedWarning, rollout
 from tap_bench.tableio import read_table
@@ -42,6 +43,19 @@ class KillsWorkerOnSeed(FailsOnSeed):
         return LaneKeepingPolicy.act(self, observation)
 
 
+_TWO_WORKERS = LocalBackend(2)
+"""The two worker processes of this module's rollouts with two workers, started by the
+first and kept until the module ends (``two_workers_kept``), where each rollout started its
+own (about 1 CPU s a worker): ``rollout(..., workers=2)`` runs on a :class:`LocalBackend`
+of 2 as this one; a worker that dies is replaced by a new one, as in a rollout of its own."""
+
+
+@pytest.fixture(scope="module", autouse=True)
+def two_workers_kept():
+    with _TWO_WORKERS.kept():
+        yield
+
+
 def test_the_episode_table():
     trajectories, episodes = rollout("highway", "idm", "0-1", duration=3, progress=False)
     assert tuple(episodes.columns) == EPISODE_COLUMNS
@@ -54,7 +68,8 @@ def test_the_episode_table():
 
 def test_same_seeds_same_tables_with_one_or_two_workers():
     one = rollout("merge", "random", [4, 1, 2], duration=3, progress=False)
-    two = rollout("merge", "random", [4, 1, 2], duration=3, workers=2, progress=False)
+    two = rollout("merge", "random", [4, 1, 2], duration=3, backend=_TWO_WORKERS,
+                  progress=False)
     pd.testing.assert_frame_equal(one.trajectories, two.trajectories)
     pd.testing.assert_frame_equal(one.episodes, two.episodes)
     assert one.episodes["seed"].tolist() == [4, 1, 2]
@@ -83,7 +98,7 @@ def test_a_failing_episode_is_reported_and_the_rest_kept():
 def test_a_dying_worker_loses_only_its_episode():
     with pytest.warns(EpisodeFailedWarning, match="worker process died"):
         trajectories, episodes = rollout("merge", KillsWorkerOnSeed(2), [0, 1, 2, 3],
-                                         duration=2, workers=2, progress=False)
+                                         duration=2, backend=_TWO_WORKERS, progress=False)
     assert episodes["status"].tolist() == ["ok", "ok", "error", "ok"]
     assert set(trajectories["seed"]) == {0, 1, 3}
 
