@@ -116,6 +116,7 @@ from tap_bench.sim.womd_road import (
     draw_driver,
     logged_path,
     logged_route,
+    path_columns,
     path_progress,
     sim_frame,
 )
@@ -448,6 +449,7 @@ class _WomdHighwayEnv(AbstractEnv):
         self.path = path
         self.path_cum = np.r_[0.0, np.cumsum(step_len)]
         self.path_length = float(self.path_cum[-1])
+        self._path_columns = path_columns(path, self.path_cum)  # read at every step
         # every agent's lane where it starts (hidden where the log has no state then),
         # looked up at once for the vehicles made below
         rows = np.arange(len(scene.track_ids))
@@ -581,15 +583,15 @@ class _WomdHighwayEnv(AbstractEnv):
         ego = self.vehicle
         p = np.asarray(ego.position, float)
         off, off_distance, rule = self.road.off_road(ego)
-        if np.isfinite(off_distance):
+        if math.isfinite(off_distance):
             self.off_road_max = (max(off_distance, self.off_road_max)
-                if np.isfinite(self.off_road_max) else off_distance)
+                if math.isfinite(self.off_road_max) else off_distance)
         if rule != "none":
             self.off_road_rules[rule] = self.off_road_rules.get(rule, 0) + 1
         red = self.road.crossed_red(self._last_ego, p)
         self._last_ego = p.copy()
         if self.path_length > 0 and len(self.path) >= 2:
-            s, d = path_progress(self.path, self.path_cum, p)
+            s, d = path_progress(self.path, self.path_cum, p, self._path_columns)
             if d <= ROUTE_CORRIDOR:
                 self.progress = max(self.progress, s / self.path_length)
         self.flags["off_road"] |= off

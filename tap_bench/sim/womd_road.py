@@ -47,8 +47,8 @@ __all__ = ["HIDDEN", "OFF_ROAD_MARGIN", "PATH_EXTENSION", "PATH_SPACING", "Logge
            "STOP_MARGIN", "WALKER_CLEARANCE", "WALKER_HORIZON", "WALKER_LOOKAHEAD",
            "NOMINAL_DRIVER", "ConstantVelocityVehicle", "DriverParameters", "LogVehicle",
            "WomdIDMVehicle", "WomdMDPVehicle",
-           "WomdNetwork", "WomdRoad", "draw_driver", "logged_route", "path_progress",
-           "sim_frame", "window_max"]
+           "WomdNetwork", "WomdRoad", "draw_driver", "logged_route", "path_columns",
+           "path_progress", "sim_frame", "window_max"]
 
 OFF_ROAD_MARGIN = 0.5  # [m] beyond half the lane's width, from every lane centre: off road
 ROUTE_CORRIDOR = 4.0  # [m] progress counts while the ego is this close to the logged path
@@ -3312,7 +3312,7 @@ class WomdRoad(Road):
         x, y = float(vehicle.position[0]), float(vehicle.position[1])
         d = self.road_edges.box_distance(x, -y, -float(vehicle.heading),
                                          float(vehicle.LENGTH), float(vehicle.WIDTH))
-        if np.isfinite(d):
+        if math.isfinite(d):  # a float: math's test, not numpy's on a scalar
             return d, "road edge"
         ax, ay, bx, by, owner = self._lane_segments
         if not len(ax):
@@ -3402,13 +3402,25 @@ def _bridge(network: WomdNetwork, a: Any, b: Any, depth: int = 3) -> list:
     return []
 
 
-def path_progress(path: np.ndarray, cum: np.ndarray, p: np.ndarray) -> tuple[float, float]:
+def path_progress(path: np.ndarray, cum: np.ndarray, p: np.ndarray,
+                  columns: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+                  ) -> tuple[float, float]:
     """(s, distance) [m] of point p projected on a polyline path (n >= 2) with arc lengths
-    ``cum``: on its nearest segment (the first of equally near ones)."""
-    path = np.asarray(path, dtype=np.float64)
-    s, d = _path_progress(np.ascontiguousarray(path[:, 0]), np.ascontiguousarray(path[:, 1]),
-                          np.asarray(cum, dtype=np.float64), float(p[0]), float(p[1]))
+    ``cum``: on its nearest segment (the first of equally near ones). ``columns``: the
+    path's :func:`path_columns`, made once by a caller that asks at every step (then
+    ``path`` and ``cum`` are not read)."""
+    px, py, arc = columns if columns is not None else path_columns(path, cum)
+    s, d = _path_progress(px, py, arc, float(p[0]), float(p[1]))
     return float(s), float(d)
+
+
+def path_columns(path: np.ndarray, cum: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(x, y, arc length) (n,) [m] each, contiguous float64: a polyline path (n, 2) and its
+    arc lengths ``cum`` as :func:`path_progress`'s compiled pass reads them."""
+    path = np.asarray(path, dtype=np.float64)
+    return (np.ascontiguousarray(path[:, 0]), np.ascontiguousarray(path[:, 1]),
+            np.ascontiguousarray(cum, dtype=np.float64))
 
 
 @numba.njit(cache=True, nogil=True)
