@@ -599,8 +599,8 @@ class _WomdHighwayEnv(AbstractEnv):
         k = self.clock[0]
         e = self.scene.ego
         if k < self.scene.n_steps and self.scene.valid[e, k]:
-            lx, ly = self.states[e, k, :2]
-            log_distance = math.hypot(p[0] - lx, p[1] - ly)
+            lx, ly = self.states[e, k, :2].tolist()  # floats: no numpy scalars
+            log_distance = math.hypot(float(p[0]) - lx, float(p[1]) - ly)
         else:
             log_distance = float("nan")
         return {"off_road": off, "off_road_distance": off_distance, "ran_red_light": red,

@@ -447,6 +447,8 @@ class FastPolyLane(PolyLaneFixedWidth):
                 x[i], y[i] = self._along(value)  # beyond an end: straight on
         # position adds 0 x the left normal: it changes nothing but the sign of a zero
         # coordinate (-0.0 + 0.0 is 0.0), so only there is the heading looked up
+        if x.all() and y.all():  # no zero coordinate (the usual case): nothing to do
+            return out
         for i in np.flatnonzero((x == 0.0) | (y == 0.0)).tolist():
             yaw = np.array([self.heading_at(values[i])], dtype=np.float64)
             x[i] = (x[i:i + 1] + 0.0 * -np.sin(yaw))[0]

@@ -3269,7 +3269,7 @@ class WomdRoad(Road):
         for j in active:
             index = self._signal_lanes[j]
             for lane, base in ahead:
-                if lane != index or not np.isfinite(self._stop_s[j]):
+                if lane != index or not math.isfinite(self._stop_s[j]):
                     continue
                 d = base + self._stop_s[j]
                 if d < -0.5 or d > STOP_LOOKAHEAD:
@@ -3293,7 +3293,7 @@ class WomdRoad(Road):
             return False
         for j in np.flatnonzero(self._red[k]):
             index = self._signal_lanes[j]
-            if index is None or not np.isfinite(self._stop_s[j]):
+            if index is None or not math.isfinite(self._stop_s[j]):
                 continue
             lane = self.network.get_lane(index)
             s0, d0 = lane.local_coordinates(before)
