@@ -125,6 +125,10 @@ class WomdNetwork(RoadNetwork):
             # drawn (rgb_array) with a dashed line where the map names a neighbour
             line_types=[tuple(LineType.STRIPED if side else LineType.CONTINUOUS
                               for side in (lane.left, lane.right)) for lane in kept])
+        # the pose arrays every lane of the network is a slice of (FastPolyLane.many makes
+        # one set): x, y, tangent x, y, arc length of each pose [m]
+        self.shared_poses: tuple[np.ndarray, ...] | None = (
+            built[0]._shared[1] if built else None)
         lanes = []
         for lane, fast in zip(kept, built, strict=True):
             index = (str(lane.id), f"{lane.id}>", 0)
@@ -3105,8 +3109,10 @@ class WomdRoad(Road):
         """(px, py, tx, ty, s, heading) of every pose of the network's lanes (the arrays
         their lanes are slices of; heading [rad] as :meth:`_lane_headings`)."""
         if self._poses is None:
-            # WomdNetwork builds its lanes together (FastPolyLane.many): one set of arrays
-            shared = {id(poses): poses for poses in (
+            # WomdNetwork builds its lanes together (FastPolyLane.many): one set of arrays,
+            # which it keeps; another network's lanes are asked
+            made = getattr(self.network, "shared_poses", None)
+            shared = {id(made): made} if made is not None else {id(poses): poses for poses in (
                 self.network.get_lane(i)._shared[1] for i in self._lane_list)}
             if len(shared) != 1:
                 raise ValueError(f"the lanes of the road's network have {len(shared)} sets "
