@@ -1012,6 +1012,27 @@ def test_a_lane_change_asks_for_the_neighbours_where_the_vehicle_is():
     assert "side_lanes" not in vars(network)
 
 
+def test_a_networks_shared_poses_are_the_arrays_each_lane_is_a_slice_of():
+    """``WomdNetwork.shared_poses`` (what the road's give-way searches read) is the one set
+    of pose arrays every lane of the network was built on: each lane's poses are its slice
+    of them; a network without lanes has none."""
+    from tap_bench.sim.womd_road import WomdNetwork
+    from tap_bench.womd.roadmap import RoadMap
+
+    x = np.r_[0.0, np.cumsum(np.linspace(2.0, 12.0, 10))]
+    lanes = {k: Lane(k, np.column_stack([x, np.full(11, 3.7 * k)])) for k in (1, 2, 3)}
+    network = WomdNetwork(RoadMap("three lanes", lanes))
+    shared = network.shared_poses
+    assert shared is not None and len(shared) == 5
+    for k in lanes:
+        lane = network.get_lane(network.index[k])
+        assert lane._shared[1] is shared
+        c, d = lane._shared[6:8]
+        for mine, whole in zip(lane.arrays, shared, strict=True):
+            assert mine.tobytes() == whole[c:d].tobytes()
+    assert WomdNetwork(RoadMap("none", {})).shared_poses is None
+
+
 def test_neighbours_where_the_vehicle_is_follow_numpys_search_of_the_centre_line():
     """side_lanes_at finds the centre line's point by bisecting its arc lengths: the
     neighbours at points on the line, between them, before its start, past its end and at a

@@ -21,6 +21,7 @@ from tap_bench.sim.womd_road import (
     _project_window,
     _window_chunks,
     logged_path,
+    path_columns,
     path_progress,
 )
 from tap_bench.sim.womd_scene import CURRENT_STEP
@@ -279,6 +280,8 @@ def test_path_progress_is_the_nearest_segments_arc_length():
             d = np.hypot(*(p - (a + u[:, None] * ab)).T)
             k = int(np.argmin(d))
             s, dist = path_progress(path, cum, p)
+            # the columns made once (as the env does at reset) give the same answer
+            assert path_progress(path, cum, p, path_columns(path, cum)) == (s, dist)
             assert dist == pytest.approx(d[k], abs=1e-9)
             assert s == pytest.approx(cum[k] + u[k] * math.sqrt(n2[k]), abs=1e-9)
 
