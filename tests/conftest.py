@@ -288,6 +288,23 @@ def uses_ray(test_file: str) -> bool:
     return any(name in source for name in _RAY_FIXTURES)
 
 
+_VIEWER_RUN_FIXTURES = ("tiny_run", "browser")
+"""tests/viewer's session fixtures: a finished run with its report and viewer (about 2.5
+CPU s to make) and a headless Chromium (tests/viewer/conftest.py)."""
+
+
+@functools.cache
+def uses_viewer_run(test_file: str) -> bool:
+    """Whether the test file ``test_file`` (a path from the project root) asks for
+    tests/viewer's session run or browser (names ``tiny_run`` or ``browser``)."""
+    try:
+        source = (PROJECT_ROOT / test_file).read_text(encoding="utf-8")
+    except OSError:
+        return False
+    return test_file.startswith("tests/viewer/") and any(
+        name in source for name in _VIEWER_RUN_FIXTURES)
+
+
 @functools.cache
 def uses_torch(test_file: str) -> bool:
     """Whether the test file ``test_file`` (a path from the project root) names
@@ -311,7 +328,10 @@ def pytest_xdist_make_scheduler(config, log):
     Ray cluster (:func:`uses_ray`) run together, one after the other in one worker, so that
     one cluster serves them all (:func:`ray_cluster`); so do the files that import
     Stable-Baselines3 and torch (:func:`uses_torch`), so that one worker imports them, where
-    each worker that ran one of them did. Such a group is one unit of work:
+    each worker that ran one of them did; and so do the files of tests/viewer that use its
+    session run or browser (:func:`uses_viewer_run`), so that one worker makes the run and
+    starts the browser, where in most runs of the suite both workers did (the three files
+    split between them). Such a group is one unit of work:
     xdist hands out the units with the most tests first, so the groups start early and the
     workers end about together. ``--dist load`` (the default ``-n`` implies) becomes this,
     given or not; any other ``--dist`` is kept."""
@@ -324,6 +344,8 @@ def pytest_xdist_make_scheduler(config, log):
             test_file = nodeid.split("::", 1)[0]
             if uses_ray(test_file):
                 return "the Ray cluster's tests"
+            if uses_viewer_run(test_file):
+                return "the tests of the viewer's session run"
             return "the tests that import torch" if uses_torch(test_file) else test_file
 
     return FileAndRayScheduling(config, log)
