@@ -2456,6 +2456,10 @@ class WomdRoad(Road):
             self._stop_s.append(float(network.get_lane(index).local_coordinates(p)[0]))
         self._red = signals.red
         self._red_or_yellow = signals.red_or_yellow
+        # each step's signals that are red, and red or yellow, as lists of their columns
+        # (made at a step's first asking: stop_distance and crossed_red ask at every step)
+        self._red_at: dict[int, list[int]] = {}
+        self._red_or_yellow_at: dict[int, list[int]] = {}
         self._lane_list = [network.index[lane.id] for lane in lanes]
         self._lane_slot = {index: k for k, index in enumerate(self._lane_list)}
         self._segment_boxes: tuple[np.ndarray, ...] | None = None  # conflicts' boxes
@@ -3264,13 +3268,17 @@ class WomdRoad(Road):
         k = min(self.clock[0], len(self._red) - 1)
         if not len(self._signal_lanes) or k < 0:
             return None
-        active = np.flatnonzero(self._red_or_yellow[k])
+        active = self._red_or_yellow_at.get(k)
+        if active is None:
+            active = self._red_or_yellow_at[k] = np.flatnonzero(
+                self._red_or_yellow[k]).tolist()
         # the yellow lines this vehicle decided to stop at (while they stay yellow or red)
         held = vehicle.__dict__.setdefault("yellow_stops", set())
-        held.intersection_update(active.tolist())
-        if not len(active):
+        held.intersection_update(active)
+        if not active:
             return None
         ahead = self._lanes_ahead(vehicle, STOP_LOOKAHEAD)
+        red = None
         best = None
         for j in active:
             index = self._signal_lanes[j]
@@ -3280,7 +3288,9 @@ class WomdRoad(Road):
                 d = base + self._stop_s[j]
                 if d < -0.5 or d > STOP_LOOKAHEAD:
                     continue
-                if not self._red[k, j] and j not in held:
+                if red is None:
+                    red = self._red_at_step(k)
+                if j not in red and j not in held:
                     # yellow: stop only when the bumper can stop STOP_MARGIN before the line
                     # braking comfortably; once it stops it keeps stopping (no late dash)
                     room = d - vehicle.LENGTH / 2 - STOP_MARGIN
@@ -3291,13 +3301,21 @@ class WomdRoad(Road):
                 best = d if best is None else min(best, d)
         return best
 
+    def _red_at_step(self, k: int) -> list[int]:
+        """The signals (columns of the signal states) that are red at step ``k``, in order;
+        made once per step."""
+        red = self._red_at.get(k)
+        if red is None:
+            red = self._red_at[k] = np.flatnonzero(self._red[k]).tolist()
+        return red
+
     def crossed_red(self, before: np.ndarray, after: np.ndarray) -> bool:
         """Whether a move (sim frame) crossed a stop point whose signal is red at the road's
         step: from before to beyond it along its lane, within the lane's width."""
         k = min(self.clock[0], len(self._red) - 1)
         if k < 0 or not len(self._signal_lanes):
             return False
-        for j in np.flatnonzero(self._red[k]):
+        for j in self._red_at_step(k):
             index = self._signal_lanes[j]
             if index is None or not math.isfinite(self._stop_s[j]):
                 continue
