@@ -213,7 +213,7 @@ def lane_points(centre: np.ndarray) -> np.ndarray | None:
     if len(pts) < 2:
         return None
     step = np.hypot(*np.diff(pts, axis=0).T)
-    pts = pts[np.r_[True, step > 1e-6]]
+    pts = pts[np.concatenate(([True], step > 1e-6))]
     if len(pts) < 2:
         return None
     length = float(np.hypot(*np.diff(pts, axis=0).T).sum())

@@ -77,8 +77,15 @@ CORRIDOR_MIN = 6.0  # [m] ... plus this
 
 
 def sim_frame(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """WOMD (x, y) -> highway-env's mirrored frame."""
-    return np.stack([np.asarray(x, float), -np.asarray(y, float)], axis=-1)
+    """WOMD (x, y) -> highway-env's mirrored frame: (..., 2) [m] of x and -y (the same
+    shape each; numpy's stack, without its Python-level work)."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    if x.shape != y.shape:
+        return np.stack([x, -y], axis=-1)  # numpy's error: the shapes differ
+    out = np.empty((*x.shape, 2))
+    out[..., 0] = x
+    np.negative(y, out=out[..., 1])
+    return out
 
 
 # ------------------------------------------------------------------ the road network
@@ -276,7 +283,7 @@ def _arc_lengths(centre: np.ndarray) -> np.ndarray:
     """(n,) arc length [m] of each point of a centre line (n, 2+) from its first."""
     if len(centre) < 2:
         return np.zeros(len(centre))
-    return np.r_[0.0, np.cumsum(np.hypot(*np.diff(centre, axis=0).T))]
+    return np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(centre, axis=0).T))))
 
 
 # ------------------------------------------------------------------ vehicles

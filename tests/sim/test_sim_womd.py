@@ -1012,6 +1012,26 @@ def test_a_lane_change_asks_for_the_neighbours_where_the_vehicle_is():
     assert "side_lanes" not in vars(network)
 
 
+def test_sim_frame_is_numpys_stack_of_x_and_minus_y():
+    """``sim_frame`` gives numpy's ``stack([x, -y], axis=-1)`` to the bit (shape, dtype and
+    bytes: signed zeros, NaN and infinities kept) for scalars, lines and grids, and refuses
+    x and y of different shapes as numpy's stack does."""
+    from tap_bench.sim.womd_road import sim_frame
+
+    rng = np.random.default_rng(3)
+    special = np.array([0.0, -0.0, np.nan, np.inf, -np.inf, 1e-300])
+    cases = [(1.5, -0.0), (0.0, 0.0), (np.float64(2.0), -3), ([1, 2], [3, 4]),
+             (special, special[::-1]), (rng.normal(size=9) * 1e4, rng.normal(size=9)),
+             (rng.normal(size=(3, 4)), rng.normal(size=(3, 4)))]
+    for x, y in cases:
+        want = np.stack([np.asarray(x, float), -np.asarray(y, float)], axis=-1)
+        got = sim_frame(x, y)
+        assert got.shape == want.shape and got.dtype == want.dtype
+        assert got.tobytes() == want.tobytes()
+    with pytest.raises(ValueError):
+        sim_frame(np.zeros(2), np.zeros(3))
+
+
 def test_a_networks_shared_poses_are_the_arrays_each_lane_is_a_slice_of():
     """``WomdNetwork.shared_poses`` (what the road's give-way searches read) is the one set
     of pose arrays every lane of the network was built on: each lane's poses are its slice
