@@ -17,6 +17,7 @@ from __future__ import annotations
 import functools
 import json
 import os
+import re
 import shutil
 import signal
 import tempfile
@@ -289,20 +290,22 @@ def uses_ray(test_file: str) -> bool:
 
 
 _VIEWER_RUN_FIXTURES = ("tiny_run", "browser")
-"""tests/viewer's session fixtures: a finished run with its report and viewer (about 2.5
-CPU s to make) and a headless Chromium (tests/viewer/conftest.py)."""
+"""Session fixtures of the report and viewer tests: a finished run with its report and
+viewer (about 2.5 CPU s to make; tests/viewer/conftest.py) and a headless Chromium
+(:func:`browser`, about 1.3 CPU s to start)."""
 
 
 @functools.cache
 def uses_viewer_run(test_file: str) -> bool:
-    """Whether the test file ``test_file`` (a path from the project root) asks for
-    tests/viewer's session run or browser (names ``tiny_run`` or ``browser``)."""
+    """Whether a test of the test file ``test_file`` (a path from the project root) asks for
+    tests/viewer's session run or the suite's browser (a test function's argument
+    ``tiny_run`` or ``browser``)."""
     try:
         source = (PROJECT_ROOT / test_file).read_text(encoding="utf-8")
     except OSError:
         return False
-    return test_file.startswith("tests/viewer/") and any(
-        name in source for name in _VIEWER_RUN_FIXTURES)
+    names = "|".join(_VIEWER_RUN_FIXTURES)
+    return re.search(rf"^def test_\w*\([^)]*\b({names})\b", source, flags=re.M) is not None
 
 
 @functools.cache
@@ -328,10 +331,10 @@ def pytest_xdist_make_scheduler(config, log):
     Ray cluster (:func:`uses_ray`) run together, one after the other in one worker, so that
     one cluster serves them all (:func:`ray_cluster`); so do the files that import
     Stable-Baselines3 and torch (:func:`uses_torch`), so that one worker imports them, where
-    each worker that ran one of them did; and so do the files of tests/viewer that use its
-    session run or browser (:func:`uses_viewer_run`), so that one worker makes the run and
-    starts the browser, where in most runs of the suite both workers did (the three files
-    split between them). Such a group is one unit of work:
+    each worker that ran one of them did; and so do the files whose tests use the report and
+    viewer tests' session run or browser (:func:`uses_viewer_run`), so that one worker makes
+    the run and starts Chromium, where in most runs of the suite both workers did (the
+    files split between them). Such a group is one unit of work:
     xdist hands out the units with the most tests first, so the groups start early and the
     workers end about together. ``--dist load`` (the default ``-n`` implies) becomes this,
     given or not; any other ``--dist`` is kept."""
@@ -401,6 +404,36 @@ def pytest_runtest_teardown(item, nextitem):
     if _RAY._backend is not None and (
             nextitem is None or not uses_ray(nextitem.nodeid.split("::", 1)[0])):
         _RAY.stop()
+
+
+CHROMIUM: str | None = shutil.which("chromium") or shutil.which("chromium-browser")
+CHROMEDRIVER: str | None = shutil.which("chromedriver")
+BROWSER_FLAGS = ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                 "--no-first-run", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync", "--window-size=1400,1000")
+
+@pytest.fixture(scope="session")
+def browser(tmp_path_factory):
+    """Headless Chromium (Debian's chromium and chromium-driver) with its console log, one
+    for the session: the report and viewer tests (tests/viewer, tests/bench/test_report_html.py)
+    run in one pytest worker (:func:`uses_viewer_run`) and share it."""
+    if not (CHROMIUM and CHROMEDRIVER):
+        pytest.skip("needs Debian's chromium and chromium-driver (apt-get install chromium "
+                    "chromium-driver; .ci/run installs them)")
+    webdriver = pytest.importorskip("selenium.webdriver")
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    for flag in (*BROWSER_FLAGS, f"--user-data-dir={tmp_path_factory.mktemp('profile')}"):
+        options.add_argument(flag)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+    driver.set_script_timeout(20)
+    try:
+        yield driver
+    finally:
+        driver.quit()
 
 
 @pytest.fixture(scope="session")

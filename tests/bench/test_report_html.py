@@ -4,7 +4,6 @@ its tables and images; it needs no server."""
 from __future__ import annotations
 
 import re
-import shutil
 from decimal import Decimal
 from pathlib import Path
 from xml.etree import ElementTree
@@ -18,9 +17,6 @@ from tap_bench.bench.scores.scoring import score
 from tap_bench.stats.bootstrap import BootstrapConfig
 
 from .conftest import make_episodes
-
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-CHROMEDRIVER = shutil.which("chromedriver")
 
 LABELS = ["Straight | Maintain Speed", "Left Merge > Straight | Accelerate > Maintain Speed",
           "Right Merge | Decelerate", "Straight | Decelerate > Stopped"]
@@ -82,22 +78,13 @@ def test_report_is_written_with_embedded_images(run_folder):
     assert page.index('id="summary"') < page.index('id="paired"')  # the summary comes first
 
 
-@pytest.mark.skipif(not (CHROMIUM and CHROMEDRIVER),
-                    reason="needs Debian's chromium and chromium-driver (apt-get install "
-                    "chromium chromium-driver; .ci/run installs them)")
-def test_report_renders_in_headless_chromium(run_folder, tmp_path):
-    webdriver = pytest.importorskip("selenium.webdriver")
-    from selenium.webdriver.chrome.service import Service
-
+def test_report_renders_in_headless_chromium(run_folder, tmp_path, browser):
+    """In the suite's Chromium (``browser``, shared with the viewer's tests), at a window of
+    1280 x 2000 for this page, its own size put back afterwards."""
     folder = run_folder
-    options = webdriver.ChromeOptions()
-    options.binary_location = CHROMIUM
-    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic",
-                 "--no-first-run", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--window-size=1280,2000",
-                 f"--user-data-dir={tmp_path / 'profile'}"):
-        options.add_argument(flag)
-    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+    driver = browser
+    size = driver.get_window_size()
+    driver.set_window_size(1280, 2000)
     try:
         driver.get((folder / "report.html").resolve().as_uri())
         assert driver.title == "tap-bench html-test"
@@ -117,7 +104,8 @@ def test_report_renders_in_headless_chromium(run_folder, tmp_path):
         driver.save_screenshot(str(shot))
         assert shot.stat().st_size > 10_000
     finally:
-        driver.quit()
+        driver.set_window_size(size["width"], size["height"])
+        driver.get_log("browser")  # this page's console lines are not the next test's
 
 
 def test_coverage_and_novelty_stand_beside_the_same_policy_figure(run_folder):

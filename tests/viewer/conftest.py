@@ -1,5 +1,6 @@
 """Fixtures of the viewer and report tests: a short real run (rollouts, labels, scores,
-report and viewer), the real WOMD samples, and a headless Chromium driven by Selenium.
+report and viewer), the real WOMD samples, and helpers of the browser tests (the headless
+Chromium itself, ``browser``, is the suite's: tests/conftest.py).
 
 Screenshots go to ``$TAP_BENCH_SCREENSHOTS`` (default ``<tmp>/tap-bench-screenshots``) for a
 person to look at.
@@ -8,18 +9,11 @@ person to look at.
 from __future__ import annotations
 
 import os
-import shutil
 import tempfile
 import warnings
 from pathlib import Path
 
 import pytest
-
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-CHROMEDRIVER = shutil.which("chromedriver")
-BROWSER_FLAGS = ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic",
-                 "--no-first-run", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--window-size=1400,1000")
 
 TINY_SUITE = {
     "name": "tiny", "version": 0,
@@ -52,28 +46,6 @@ def screenshots() -> Path:
                                  Path(tempfile.gettempdir()) / "tap-bench-screenshots"))
     folder.mkdir(parents=True, exist_ok=True)
     return folder
-
-
-@pytest.fixture(scope="session")
-def browser(tmp_path_factory):
-    """Headless Chromium (Debian's chromium and chromium-driver) with its console log."""
-    if not (CHROMIUM and CHROMEDRIVER):
-        pytest.skip("needs Debian's chromium and chromium-driver (apt-get install chromium "
-                    "chromium-driver; .ci/run installs them)")
-    webdriver = pytest.importorskip("selenium.webdriver")
-    from selenium.webdriver.chrome.service import Service
-
-    options = webdriver.ChromeOptions()
-    options.binary_location = CHROMIUM
-    for flag in (*BROWSER_FLAGS, f"--user-data-dir={tmp_path_factory.mktemp('profile')}"):
-        options.add_argument(flag)
-    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
-    driver.set_script_timeout(20)
-    try:
-        yield driver
-    finally:
-        driver.quit()
 
 
 def console_errors(driver) -> list[str]:
