@@ -416,14 +416,14 @@ class FastPolyLane(PolyLaneFixedWidth):
         """The centre line's point [m] at arc length ``longitudinal`` [m], continued
         straight along the first and last segments beyond the ends."""
         arc, pts = self._arc, self._points
-        x = float(np.interp(longitudinal, arc, pts[:, 0]))
-        y = float(np.interp(longitudinal, arc, pts[:, 1]))
         end = 0 if longitudinal < arc[0] else -2 if longitudinal > arc[-1] else None
-        if end is not None:
+        if end is not None:  # beyond an end: the interpolation would be thrown away
             run = arc[end + 1] - arc[end]
             x = pts[end, 0] + (pts[end + 1, 0] - pts[end, 0]) / run * (longitudinal - arc[end])
             y = pts[end, 1] + (pts[end + 1, 1] - pts[end, 1]) / run * (longitudinal - arc[end])
-        return x, y
+            return x, y
+        return (float(np.interp(longitudinal, arc, pts[:, 0])),
+                float(np.interp(longitudinal, arc, pts[:, 1])))
 
     def position(self, longitudinal: float, lateral: float) -> np.ndarray:
         """The point [m] ``lateral`` [m] left of the centre line at arc length

@@ -1012,6 +1012,35 @@ def test_a_lane_change_asks_for_the_neighbours_where_the_vehicle_is():
     assert "side_lanes" not in vars(network)
 
 
+def test_a_lines_end_direction_is_that_of_its_nearest_distinct_point():
+    """``roadmap._direction``: the heading at a polyline's first (last) point is that of
+    the first (last) other point more than 1e-6 m away, by numpy's hypot and arctan2 on
+    every point (the definition, computed here), to the bit; 0 when no point moved. Lines
+    of one point, repeated points, points within and just beyond 1e-6 m."""
+    from tap_bench.womd.roadmap import _direction
+
+    def by_definition(points: np.ndarray, at: int) -> float:
+        pts = points if at == 0 else points[::-1]
+        d = pts[1:] - pts[0]
+        moved = np.flatnonzero(np.hypot(d[:, 0], d[:, 1]) > 1e-6)
+        if not len(moved):
+            return 0.0
+        dx, dy = d[moved[0]]
+        return float(np.arctan2(dy, dx) if at == 0 else np.arctan2(-dy, -dx))
+
+    rng = np.random.default_rng(11)
+    for _ in range(2000):
+        n = int(rng.integers(1, 6))
+        points = rng.normal(size=(n, 2)) * rng.choice([1e-7, 1.0, 100.0]) + 5000.0
+        if n > 1 and rng.random() < 0.3:
+            points[1] = points[0]
+        if n > 1 and rng.random() < 0.3:
+            points[-2] = points[-1] + rng.choice([0.0, 5e-7, 2e-6]) * np.array([0.6, 0.8])
+        for at in (0, -1):
+            got, want = _direction(points, at), by_definition(points, at)
+            assert np.float64(got).tobytes() == np.float64(want).tobytes()
+
+
 def test_sim_frame_is_numpys_stack_of_x_and_minus_y():
     """``sim_frame`` gives numpy's ``stack([x, -y], axis=-1)`` to the bit (shape, dtype and
     bytes: signed zeros, NaN and infinities kept) for scalars, lines and grids, and refuses
