@@ -17,7 +17,7 @@ import warnings
 import numpy as np
 import pandas as pd
 import pytest
-from fault_helpers import PROJECT_ROOT, run_process, womd_shard
+from fault_helpers import PROJECT_ROOT, womd_shard
 
 from tap_bench.errors import FileFormatError, WomdRecordError
 
@@ -314,14 +314,15 @@ def test_a_scenarionet_rollout_keeps_read_womds_times(womd_dir):
     assert set(rolled["t"].unique()) <= set(times - times[0])
 
 
-def test_a_damaged_files_rollout_error_does_not_advise_an_option_rollout_lacks(tmp_path):
+def test_a_damaged_files_rollout_error_does_not_advise_an_option_rollout_lacks(tmp_path, cli):
+    """The command line's message (in this process, as ``cli`` runs it: the same entry
+    point and handler as ``python -m tap_bench``, without a child's start-up)."""
     path = womd_shard(tmp_path / "s.tfrecord")
     data = bytearray(path.read_bytes())
     data[14] ^= 0xFF  # a byte of the first record's data: its CRC fails
     path.write_bytes(bytes(data))
-    result = run_process("rollout", "--womd", path, "--policy", "log", "-o",
-                         tmp_path / "out.parquet", cwd=tmp_path)
-    err = result.stderr.decode()
-    assert result.returncode == 2, err
+    code, _, err = cli("rollout", "--womd", path, "--policy", "log", "-o",
+                       tmp_path / "out.parquet")
+    assert code == 2, err
     assert "on_error='skip' to" not in err and "with on_error='skip'." not in err
     assert "a rollout reads whole files" in err, err
