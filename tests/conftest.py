@@ -32,13 +32,13 @@ import pytest
 def _hypothesis_left_unrewritten() -> None:
     """pytest rewrites the asserts of every module of a package that gives it a plugin
     (hypothesis' ``_hypothesis_pytestplugin``), hypothesis' own 100-odd modules included,
-    in every process that imports them (the controller and each xdist worker): about 0.6-1.4
-    CPU s a process where ``PYTHONDONTWRITEBYTECODE`` keeps pytest from caching what it
-    rewrote (``pytest --collect-only`` of the fast suite 4.3-5.1 -> 3.2-3.8 CPU s, paired).
-    hypothesis is imported just below, its modules then unrewritten: its asserts are its
-    own checks, never a test's, and their messages are unchanged. The suite's tests and
-    conftest files are rewritten as before. Nothing here can fail the session (another
-    pytest's internals: hypothesis is then rewritten as before)."""
+    in every process that imports them (the controller and each xdist worker), again in
+    each run where ``PYTHONDONTWRITEBYTECODE`` keeps pytest from caching what it rewrote
+    (the cost: docs/contributing.md, "The test suite's cost"). hypothesis is imported just
+    below, its modules then unrewritten: its asserts are its own checks, never a test's,
+    and their messages are unchanged. The suite's tests and conftest files are rewritten as
+    before. Nothing here can fail the session (under a pytest whose internals differ,
+    hypothesis is rewritten as before)."""
     import sys
 
     for hook in sys.meta_path:
