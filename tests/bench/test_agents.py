@@ -150,7 +150,10 @@ def test_the_figures_on_some_scenes_only(run):
         agents_figures(run, groups=GROUPS, scenes=[7])
 
 
-def test_the_shipped_womd_agents_suite_names_the_human_and_ppo_womd():
+def test_the_shipped_womd_agents_suite_names_the_human_and_ppo_womd(womd_dir):
+    """The shipped suite (its scenes are the sample files beside the project: skipped where
+    they are absent, as on a user's clone, where loading it says which pattern matched no
+    file) names the human, the baselines and ppo-womd's seeds."""
     from tap_bench.bench.suite import load_suite
 
     suite = load_suite("womd-agents")

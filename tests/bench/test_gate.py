@@ -431,6 +431,29 @@ def test_rate_power_is_the_rule_s_own_firing_rate(draws):
         assert abs(fired / draws - exact) < 3.5 * se + 0.01, (n, c0, exact, fired / draws)
 
 
+def test_the_power_s_binomial_laws_are_their_definitions():
+    """The binomial probabilities every power figure is built from (the rate's outcomes,
+    the label_tv trades, the permutations' count) equal the law's definition, C(n, k) p^k
+    (1 - p)^(n - k) in exact integers and floats, over a grid of n and p, the ends (p 0 and
+    1, k 0 and n) included, and so does their lower tail P(Bin(n, q) <= m) up to the 999
+    permutations the label_tv test draws: a constant error in their logarithms, which the
+    firing-rate tests above cannot see once a figure is near 0 or 1, fails here."""
+    from tap_bench.bench.gate.power import _binomial_cdf_at_most, _binomial_pmf
+
+    for n in (0, 1, 2, 5, 16, 30, 60):
+        for p in (0.0, 1e-3, 0.05, 0.25, 0.5, 0.8, 1.0):
+            want = [math.comb(n, k) * p ** k * (1 - p) ** (n - k) for k in range(n + 1)]
+            got = _binomial_pmf(n, p)
+            assert got.shape == (n + 1,)
+            np.testing.assert_allclose(got, want, rtol=1e-11, atol=1e-300, err_msg=f"{n} {p}")
+    for n, m, q in ((999, 49, 0.03), (999, 49, 0.05), (999, 9, 0.01), (999, 1, 0.002),
+                    (40, 7, 0.2), (12, 11, 0.7), (5, 0, 0.5)):
+        want = sum(math.comb(n, k) * q ** k * (1 - q) ** (n - k) for k in range(m + 1))
+        assert _binomial_cdf_at_most(m, n, q) == pytest.approx(want, rel=1e-10), (n, m, q)
+    assert _binomial_cdf_at_most(-1, 10, 0.5) == 0.0
+    assert _binomial_cdf_at_most(10, 10, 0.5) == 1.0
+
+
 def test_the_rate_power_s_fisher_p_is_the_gate_s_own():
     """The unpaired rate power's Fisher p (the upper tail's terms alone, each from the last
     by an integer step) is hypergeom_tails' P(X >= x), the gate's figure, to the last bit
