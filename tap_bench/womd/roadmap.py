@@ -263,12 +263,12 @@ def _direction(points: np.ndarray, at: int) -> float:
     pts = points if at == 0 else points[::-1]
     if len(pts) > 1 and np.hypot(pts[1, 0] - pts[0, 0], pts[1, 1] - pts[0, 1]) > 1e-6:
         dx, dy = pts[1] - pts[0]  # the next point is distinct (the usual case)
-        return float(np.arctan2(dy, dx) if at == 0 else np.arctan2(-dy, -dx))
-    d = pts[1:] - pts[0]
-    moved = np.flatnonzero(np.hypot(d[:, 0], d[:, 1]) > 1e-6)
-    if not len(moved):
-        return 0.0
-    dx, dy = d[moved[0]]
+    else:
+        d = pts[1:] - pts[0]
+        moved = np.flatnonzero(np.hypot(d[:, 0], d[:, 1]) > 1e-6)
+        if not len(moved):
+            return 0.0
+        dx, dy = d[moved[0]]
     return float(np.arctan2(dy, dx) if at == 0 else np.arctan2(-dy, -dx))
 
 

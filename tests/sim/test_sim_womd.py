@@ -1020,13 +1020,14 @@ def test_a_lines_end_direction_is_that_of_its_nearest_distinct_point():
     from tap_bench.womd.roadmap import _direction
 
     def by_definition(points: np.ndarray, at: int) -> float:
-        pts = points if at == 0 else points[::-1]
-        d = pts[1:] - pts[0]
-        moved = np.flatnonzero(np.hypot(d[:, 0], d[:, 1]) > 1e-6)
-        if not len(moved):
-            return 0.0
-        dx, dy = d[moved[0]]
-        return float(np.arctan2(dy, dx) if at == 0 else np.arctan2(-dy, -dx))
+        ends = range(1, len(points)) if at == 0 else range(len(points) - 2, -1, -1)
+        first = points[0] if at == 0 else points[-1]
+        for i in ends:  # walk away from the end until a point is more than 1e-6 m off
+            dx, dy = points[i] - first
+            if np.hypot(dx, dy) > 1e-6:
+                # the heading from the end point into the line, reversed at the last end
+                return float(np.arctan2(dy, dx) if at == 0 else np.arctan2(-dy, -dx))
+        return 0.0
 
     rng = np.random.default_rng(11)
     for _ in range(2000):
