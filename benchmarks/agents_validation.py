@@ -3,7 +3,8 @@
 
 Every vehicle of each scene that drives from the current time to the end
 (:func:`tap_bench.rl.heldout.drivers`, the scene's own ego first) is the ego of one episode
-per policy (log traffic, the training setting), so 4 validation scenes give tens of episodes
+per policy (log traffic, the training setting, or ``--traffic idm``: the other vehicles driven
+by IDM/MOBIL from their logged states, reactive), so 4 validation scenes give tens of episodes
 instead of 4. Prints, per policy: episodes, route progress (mean and interquartile mean over
 the episodes where the driver moved), at-fault collisions and off-road (rates), and the
 probabilities that the first policy gets further than each other one, and that it collides
@@ -36,7 +37,7 @@ its ego drove with (compact JSON; blank: none of its own).
 
 Usage: python benchmarks/agents_validation.py --womd FILES --scenes 2,5,10,14
        --policies sel-all.zip sel-sdc.zip lane-keeping random [--out eps.csv]
-       [--intervals]
+       [--intervals] [--traffic idm]
        [--layer '{"predicted": true, "lanes": true, "tolerance": 0.5, "hold": true}']
        [--pool ppo-womd=ppo-womd-split-seed0,ppo-womd-split-seed1,ppo-womd-split-seed2,ppo-womd-split-seed3,ppo-womd-split-seed4]
        python benchmarks/agents_validation.py --episodes folda.csv foldb.csv
@@ -123,12 +124,14 @@ _OWN = object()  # episodes(): every policy drives with its own layer
 
 
 def episodes(files: list[str], scenes: list[int], policies: list[str],
-             layer: Any = _OWN) -> pd.DataFrame:
+             layer: Any = _OWN, traffic: str = "log") -> pd.DataFrame:
     """One row per (policy, scene, driver): the episode's measures, and the scene's file and
     record (``scene_ref``, as a policy definition's ``held_out_refs`` names it); with
     ``layer`` (a ``safety_layer`` setting) the policies that drive with a safety layer drive
-    with that one (:func:`with_layer`), and ``layer`` says so (compact JSON)."""
-    scenes_ = WomdScenes(tuple(files))
+    with that one (:func:`with_layer`), and ``layer`` says so (compact JSON). ``traffic``
+    (``"log"`` or ``"idm"``, :class:`~tap_bench.sim.womd_scene.WomdScenes`) is what the other
+    vehicles do, and each row's ``traffic`` says it."""
+    scenes_ = WomdScenes(tuple(files), traffic)
     refs = scenes_.catalog()
     rows = []
     for name in policies:
@@ -143,7 +146,7 @@ def episodes(files: list[str], scenes: list[int], policies: list[str],
                                          options={"scene": i, "ego": track})
                 layer_ = getattr(env.unwrapped.vehicle, "safety", None)
                 rows.append({"policy": name, "scene": i, "scene_ref": str(refs[i]),
-                             "track": track,
+                             "track": track, "traffic": traffic,
                              **{k: row.get(k) for k in (
                                  "status", "route_progress", "crashed", "crash_at_fault",
                                  "off_road", "return", "length")},
@@ -161,12 +164,22 @@ def episodes(files: list[str], scenes: list[int], policies: list[str],
 
 def read_episodes(paths: list[str], scenes: list[int] | None = None) -> pd.DataFrame:
     """The episode tables ``paths`` (this script's ``--out``) joined, on ``scenes`` only if
-    given; refuses a (policy, scene, track) episode found twice, and an episode that ended
-    as episodes do (status ok) without its ``crash_at_fault`` or ``off_road`` (a blank
-    would read as True)."""
-    tables = []
+    given; refuses a (policy, scene, track) episode found twice, tables of different traffic
+    (a table without a ``traffic`` column is log traffic's, as every table before it), and an
+    episode that ended as episodes do (status ok) without its ``crash_at_fault`` or
+    ``off_road`` (a blank would read as True)."""
+    tables, traffics = [], {}
     for path in paths:
         table = pd.read_csv(path, dtype={"track": str})
+        kinds = table["traffic"].dropna().unique() if "traffic" in table else ["log"]
+        for kind in kinds:
+            traffics.setdefault(str(kind), path)
+        if len(traffics) > 1:
+            raise ValueError(
+                f"{path}: episodes of {' and '.join(sorted(traffics))} traffic in one verdict "
+                f"({', '.join(f'{k}: {v}' for k, v in sorted(traffics.items()))}); the other "
+                "vehicles differ, so the episodes are not paired: read each traffic's tables "
+                "on their own")
         ok = table["status"] == "ok"
         for column in ("crash_at_fault", "off_road"):
             if column not in table:
@@ -518,6 +531,9 @@ def main() -> None:
     parser.add_argument("--layer", metavar="JSON",
                         help="drive the policies that drive with a safety layer with this "
                         "one instead (true, false or a mapping of the layer's fields)")
+    parser.add_argument("--traffic", choices=["log", "idm"], default="log",
+                        help="the other vehicles replay the log (default) or are driven by "
+                        "IDM/MOBIL from their logged states (reactive)")
     parser.add_argument("--intervals", action="store_true",
                         help="95%% intervals over the first pool's seeds and over the scenes")
     args = parser.parse_args()
@@ -525,6 +541,9 @@ def main() -> None:
         parser.error("give --womd and --scenes to drive, or --episodes to read runs")
     scenes = [int(s) for s in args.scenes.split(",")] if args.scenes else None
     layer = _OWN
+    if args.episodes and args.traffic != "log":
+        parser.error("--traffic drives with other traffic: it needs --womd and --scenes, not "
+                     "--episodes (the tables' traffic column says what each episode drove in)")
     if args.layer is not None:
         if args.episodes:
             parser.error("--layer drives with another safety layer: it needs --womd and "
@@ -561,7 +580,7 @@ def main() -> None:
         if missing:
             parser.error(f"--policies {sorted(missing)} not in the tables {args.episodes}")
     else:
-        eps = episodes(args.womd, scenes, args.policies, layer)
+        eps = episodes(args.womd, scenes, args.policies, layer, args.traffic)
     judged, runs, crossed, strata = eps, [], {}, {}
     for name, folds in crosses.items():
         flat = [p for fold in folds for p in fold]

@@ -263,6 +263,47 @@ def test_runs_read_back_from_their_tables_join_and_refuse_an_episode_twice(tmp_p
         agents_validation.read_episodes([str(tmp_path / "one.csv")] * 2)
 
 
+def test_episodes_of_log_and_idm_traffic_are_not_judged_together(tmp_path):
+    """The other vehicles differ between the two, so their episodes are not paired; a table
+    without a traffic column is log traffic's (every table before the column)."""
+    eps = _fold_episodes()
+    eps.iloc[12:].to_csv(tmp_path / "old.csv", index=False)
+    eps.assign(traffic="log").iloc[:12].to_csv(tmp_path / "log.csv", index=False)
+    eps.assign(traffic="idm").iloc[12:].to_csv(tmp_path / "idm.csv", index=False)
+    joined = agents_validation.read_episodes([str(tmp_path / "log.csv"),
+                                              str(tmp_path / "old.csv")])
+    assert len(joined) == len(eps) and set(joined["traffic"].fillna("log")) == {"log"}
+    with pytest.raises(ValueError, match=r"idm.csv: episodes of idm and log traffic"):
+        agents_validation.read_episodes([str(tmp_path / "log.csv"), str(tmp_path / "idm.csv")])
+
+
+def test_episodes_drive_in_the_traffic_asked(monkeypatch):
+    """--traffic idm reaches the scenes every policy drives in, and each row says it."""
+    made = []
+
+    class Scenes:
+        def __init__(self, files, traffic="log"):
+            made.append(traffic)
+
+        def catalog(self):
+            return {3: "scene-3"}
+
+    class Env:
+        def scene_at(self, i):
+            return i
+
+        class unwrapped:
+            vehicle = None
+
+    monkeypatch.setattr(agents_validation, "WomdScenes", Scenes)
+    monkeypatch.setattr(agents_validation, "policy_env", lambda scenes, policy: Env())
+    monkeypatch.setattr(agents_validation, "drivers", lambda scene: ["7"])
+    monkeypatch.setattr(agents_validation, "run_episode",
+                        lambda *a, **k: (None, {"status": "ok", "route_progress": 1.0}))
+    rows = agents_validation.episodes(["f.tfrecord"], [3], ["lane-keeping"], traffic="idm")
+    assert made == ["idm"] and rows["traffic"].tolist() == ["idm"]
+
+
 def test_an_episode_read_back_without_its_at_fault_or_off_road_is_refused(tmp_path):
     """A blank read back from a table counted as True (at fault, off road) where the episode
     in memory had counted as False; an error row may leave them blank."""
