@@ -2,12 +2,12 @@
 --log-dir DIR``), on the scenes it trained on and on those it never saw.
 
 Every saved checkpoint (``DIR/weights_<steps>_steps.zip``, ``--every``-th of them, and the
-final model) of every training seed drives every scene of the files once (log traffic, the
-training setting); per checkpoint, the route progress (mean over the scenes where the human
-moved), the at-fault collision rate and the off-road rate, on the training scenes and on the
-held-out ones (read from the model's definition). Beside them, the training return per
-update from SB3's log (``DIR/progress.csv``). Writes ``<name>.curve.csv`` and
-``<name>.curve.png`` beside the group's definition.
+final model) of every training seed drives every scene of the files once, in the traffic it
+trained in (its definition's ``traffic``, log or idm); per checkpoint, the route progress
+(mean over the scenes where the human moved), the at-fault collision rate and the off-road
+rate, on the training scenes and on the held-out ones (read from the model's definition).
+Beside them, the training return per update from SB3's log (``DIR/progress.csv``). Writes
+``<name>.curve.csv`` and ``<name>.curve.png`` beside the group's definition.
 
 Usage: python benchmarks/agents_learning_curve.py policies/ppo-womd.json --log-dirs
        /tmp/log-seed0 /tmp/log-seed1 /tmp/log-seed2 [--every 2]
@@ -107,7 +107,7 @@ def main() -> None:
     args = parser.parse_args()
     group = Path(args.group)
     seeds = json.loads(group.read_text())["params"]["seeds"]
-    rows, training = [], []
+    rows, training, traffics = [], [], set()
     start = time.process_time()
     for name, log_dir in zip(seeds, args.log_dirs, strict=True):
         final = group.parent / f"{name}.zip"
@@ -115,6 +115,7 @@ def main() -> None:
         root = Path(args.root) if args.root else group.parent.parent
         files = [f if Path(f).is_absolute() else str(root / f) for f in params["womd"]]
         scenes = WomdScenes(tuple(files), traffic=params["traffic"])
+        traffics.add(params["traffic"])
         held_out = set(params.get("held_out_scenes", []))
         points = [*checkpoints(Path(log_dir), args.every), (params["timesteps"], final)]
         for _, model in points[:-1]:  # a checkpoint reads what the model reads
@@ -137,7 +138,7 @@ def main() -> None:
     pd.concat(training).to_csv(f"{stem}.training.csv", index=False)
     plot(curve, pd.concat(training), Path(f"{stem}.curve.png"),
          f"{group.stem}: {len(seeds)} training seeds; solid: training scenes, dashed: "
-         "held-out scenes (log traffic)")
+         f"held-out scenes ({' and '.join(sorted(traffics))} traffic)")
     last = curve.groupby("seed").tail(1)
     report("agents_learning_curve", {
         **{f"{r['policy']}_{k}": round(v, 4) for r in last.to_dict("records")
