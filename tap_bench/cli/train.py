@@ -50,6 +50,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    "default (DiscreteMetaAction), as JSON values (e.g. safety_layer=true: "
                    "its acceleration capped by IDM's braking for the road user in its swept "
                    "box, docs/agents.md); the definition records the action")
+    p.add_argument("--hyperparameters", nargs="+", metavar="KEY=VALUE", default=[],
+                   help="the algorithm's settings over tap-bench's defaults, as JSON values "
+                   "(e.g. gamma=0.95 n_steps=512: arguments of Stable-Baselines3's PPO, DQN "
+                   "or A2C); the definition records them all")
     p.add_argument("--timesteps", type=int, required=True, help="decisions to train for")
     p.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     p.add_argument("-o", "--output", required=True,
@@ -153,11 +157,49 @@ def _observation(items: list[str], part: str = "observation",
     return config
 
 
+# arguments of an SB3 algorithm that tap-bench sets itself, not a training setting
+_NOT_HYPERPARAMETERS = frozenset({"policy", "env", "seed", "verbose", "device",
+                                  "tensorboard_log", "_init_setup_model"})
+
+
+def _hyperparameters(algo: str, items: list[str]) -> dict[str, object]:
+    """``--hyperparameters KEY=VALUE ...`` as overrides of
+    :data:`tap_bench.rl.training.HYPERPARAMETERS`: each KEY an argument of the algorithm's
+    Stable-Baselines3 class (not one tap-bench sets: policy, env, seed, ...), each VALUE read
+    as JSON (0.95, 512, {"net_arch": [64, 64]})."""
+    import inspect
+    import json
+
+    from tap_bench.sim.sb3 import algorithm_class
+
+    if not items:
+        return {}
+    known = sorted(set(inspect.signature(algorithm_class(algo)).parameters)
+                   - _NOT_HYPERPARAMETERS)
+    out: dict[str, object] = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        if not key or not eq:
+            raise SystemExit(f"tap-bench train: --hyperparameters {item}: write KEY=VALUE, "
+                             "e.g. gamma=0.95.")
+        if key not in known:
+            raise SystemExit(f"tap-bench train: --hyperparameters {item}: {key!r} is not a "
+                             f"setting of {algo.upper()}; use one of {', '.join(known)}.")
+        try:
+            out[key] = json.loads(value)
+        except ValueError:
+            raise SystemExit(f"tap-bench train: --hyperparameters {item}: {value!r} is not "
+                             "a JSON value (a number, true, false, a quoted text, a mapping)."
+                             ) from None
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     from tap_bench.rl.curve import CurveConfig
     from tap_bench.rl.training import DEFAULT_N_ENVS, train
 
     n_envs = DEFAULT_N_ENVS if args.n_envs is None else args.n_envs
+    hyperparameters = _hyperparameters(args.algo, args.hyperparameters)
     env = args.env
     recorded = []
     if args.env == "womd":
@@ -196,7 +238,9 @@ def run(args: argparse.Namespace) -> int:
         raise SystemExit("tap-bench train: --womd, --hold-out, --egos, --reward, "
                          "--observation and --action go with --env womd.")
     command = "tap-bench train " + " ".join(shlex.quote(a) for a in (
-        "--algo", args.algo, "--env", args.env, *recorded, "--timesteps", str(args.timesteps),
+        "--algo", args.algo, "--env", args.env, *recorded,
+        *(["--hyperparameters", *args.hyperparameters] if args.hyperparameters else []),
+        "--timesteps", str(args.timesteps),
         "--seed",
         str(args.seed), "--n-envs", str(n_envs), *(["--exact"] if args.exact else []),
         *(["--keep", "best"] if args.keep == "best" else []), *_curve_options(args),
@@ -205,6 +249,7 @@ def run(args: argparse.Namespace) -> int:
         points=args.curve_points, seeds=args.curve_seeds, reference=args.reference,
         level=args.level)
     result = train(args.algo, env, timesteps=args.timesteps, seed=args.seed,
+                   hyperparameters=hyperparameters,
                    output=args.output, n_envs=n_envs, fast=not args.exact, curve=curve,
                    log_dir=args.log_dir, verbose=args.verbose, command=command,
                    keep=args.keep, overwrite=args.overwrite,

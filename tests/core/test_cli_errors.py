@@ -89,3 +89,44 @@ def test_a_reward_setting_must_be_a_finite_number(value):
     assert _rewards(["progress_gain_reward=2"]) == {"progress_gain_reward": 2.0}
     with pytest.raises(SystemExit, match="is not a finite number"):
         _rewards([f"progress_gain_reward={value}"])
+
+
+def test_hyperparameters_are_the_algorithm_s_settings_as_json_values():
+    """gamma=0.95 reaches the training as a number; a key PPO does not take, one tap-bench
+    sets itself (seed: --seed) and a value that is not JSON are refused with the fix."""
+    pytest.importorskip("stable_baselines3")
+    from tap_bench.cli.train import _hyperparameters
+
+    assert _hyperparameters("ppo", ["gamma=0.95", 'policy_kwargs={"net_arch": [64]}']) == {
+        "gamma": 0.95, "policy_kwargs": {"net_arch": [64]}}
+    assert _hyperparameters("ppo", []) == {}
+    with pytest.raises(SystemExit, match=r"'gama' is not a setting of PPO; use one of .*gamma"):
+        _hyperparameters("ppo", ["gama=0.95"])
+    with pytest.raises(SystemExit, match="'seed' is not a setting of PPO"):
+        _hyperparameters("ppo", ["seed=3"])
+    with pytest.raises(SystemExit, match="'buffer_size' is not a setting of PPO"):
+        _hyperparameters("ppo", ["buffer_size=100"])
+    assert _hyperparameters("dqn", ["buffer_size=100"]) == {"buffer_size": 100}
+    with pytest.raises(SystemExit, match="'high' is not a JSON value"):
+        _hyperparameters("ppo", ["gamma=high"])
+    with pytest.raises(SystemExit, match="write KEY=VALUE"):
+        _hyperparameters("ppo", ["gamma"])
+
+
+def test_the_hyperparameters_reach_the_training_and_its_recorded_command(monkeypatch, tmp_path):
+    pytest.importorskip("stable_baselines3")
+    import tap_bench.rl.training as training
+    from tap_bench.cli import main
+
+    seen = {}
+
+    def fake_train(algo, env, **kw):
+        seen.update(kw)
+        raise SystemExit(0)
+
+    monkeypatch.setattr(training, "train", fake_train)
+    with pytest.raises(SystemExit):
+        main(["train", "--algo", "ppo", "--env", "highway", "--hyperparameters", "gamma=0.9",
+              "--timesteps", "64", "--no-curve", "-o", str(tmp_path / "m.zip")])
+    assert seen["hyperparameters"] == {"gamma": 0.9}
+    assert "--hyperparameters gamma=0.9 --timesteps 64" in seen["command"]
