@@ -59,6 +59,18 @@ SHIPPED_MODELS: dict[str, str] = {
         "ppo-womd-tenth-foldb-seed1.zip",
     "3ab11752afa38da2de43986874f3aec540f49acd5817209aa71bdfabbe2ec2bc":
         "ppo-womd-tenth-foldb-seed2.zip",
+    "7e0adcfb8c11ba252e2e8edd55d359e0cdc11ce7e79ff269f8073c2eddd1deec":
+        "ppo-womd-reactive-seed0.zip",
+    "ecc34c66e31722ace0286596c280f81001709d5fc059214e95aa14e89b95b1ce":
+        "ppo-womd-reactive-seed1.zip",
+    "36a33e52864e437bdb66fd3af8d034e66c47b7b8a8ee9da5e5fcd88abd3f1348":
+        "ppo-womd-reactive-seed2.zip",
+    "4baf643bd6fd5b4ab659fa4825825912dfcdc781cb4f9da18db0580ddeb876aa":
+        "ppo-womd-reactive-foldb-seed0.zip",
+    "8d2b4f27a02bab8f433e0db06482fdf21cdcfdc176ce2d86d0e4ca14a6dec4b9":
+        "ppo-womd-reactive-foldb-seed1.zip",
+    "cffaf149996b2d5bc117b2469e4915ef6179ad738f25d2a7e223e7f089159096":
+        "ppo-womd-reactive-foldb-seed2.zip",
 }
 """SHA-256 digest of each model file shipped in ``policies/`` -> its name. Known in the
 installed code, not beside the file: a digest that a model folder could carry would vouch
