@@ -71,6 +71,18 @@ SHIPPED_MODELS: dict[str, str] = {
         "ppo-womd-reactive-foldb-seed1.zip",
     "cffaf149996b2d5bc117b2469e4915ef6179ad738f25d2a7e223e7f089159096":
         "ppo-womd-reactive-foldb-seed2.zip",
+    "ba2a31a5d6cfb72049707a834447c0dfe6c6e0bba86e4dd43aa19b69c79cd56c":
+        "ppo-womd-horizon-seed0.zip",
+    "804c703967ef59af803071989da83d272d2d739ffedf56775867a0be60d96c9d":
+        "ppo-womd-horizon-seed1.zip",
+    "dc93e2604e305c756966ebbfd1e027a1960ec3cafc92cc038f66e1072c5ecadb":
+        "ppo-womd-horizon-seed2.zip",
+    "3909071bfed99808e4be4cbc41a8ce55ad31cec5b9251c5eb108645a4b93e810":
+        "ppo-womd-horizon-foldb-seed0.zip",
+    "6625c60b41641b4b0307d4f05259a0742ac39a4435cfc5b2be6c866ccaef98ea":
+        "ppo-womd-horizon-foldb-seed1.zip",
+    "d4e56bfa5f22190657f4cd7982ea2dcf799cee2818cbdd293dfc6e3a28ad7800":
+        "ppo-womd-horizon-foldb-seed2.zip",
 }
 """SHA-256 digest of each model file shipped in ``policies/`` -> its name. Known in the
 installed code, not beside the file: a digest that a model folder could carry would vouch
