@@ -134,27 +134,38 @@ def _rewards(items: list[str]) -> dict[str, float]:
     return out
 
 
+def _key_values(option: str, items: list[str], example: str,
+                known: list[str] | None = None, owner: str = "") -> dict[str, object]:
+    """``--OPTION KEY=VALUE ...`` as a mapping, each VALUE read as JSON (true, 5, 0.95,
+    "Kinematics", {"net_arch": [64]}); with ``known``, each KEY one of them (``owner`` names
+    whose settings they are in the error)."""
+    import json
+
+    out: dict[str, object] = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        if not key or not eq:
+            raise SystemExit(f"tap-bench train: --{option} {item}: write KEY=VALUE, e.g. "
+                             f"{example}.")
+        if known is not None and key not in known:
+            raise SystemExit(f"tap-bench train: --{option} {item}: {key!r} is not a setting "
+                             f"of {owner}; use one of {', '.join(known)}.")
+        try:
+            out[key] = json.loads(value)
+        except ValueError:
+            raise SystemExit(f"tap-bench train: --{option} {item}: {value!r} is not a JSON "
+                             "value (true, false, a number, a quoted text, a mapping).") from None
+    return out
+
+
 def _observation(items: list[str], part: str = "observation",
                  example: str = "crossing=true") -> dict[str, object]:
     """``--observation KEY=VALUE ...`` (or ``--action``, ``part``) as the observation (or
     action) config: the env's default with each KEY set to VALUE read as JSON (true, 5,
     "Kinematics")."""
-    import json
-
     from tap_bench.sim.womd_env import _WomdHighwayEnv
 
-    config = dict(_WomdHighwayEnv.default_config()[part])
-    for item in items:
-        key, eq, value = item.partition("=")
-        if not key or not eq:
-            raise SystemExit(f"tap-bench train: --{part} {item}: write KEY=VALUE, e.g. "
-                             f"{example}.")
-        try:
-            config[key] = json.loads(value)
-        except ValueError:
-            raise SystemExit(f"tap-bench train: --{part} {item}: {value!r} is not a "
-                             "JSON value (true, false, a number, a quoted text).") from None
-    return config
+    return {**_WomdHighwayEnv.default_config()[part], **_key_values(part, items, example)}
 
 
 # arguments of an SB3 algorithm that tap-bench sets itself, not a training setting
@@ -168,7 +179,6 @@ def _hyperparameters(algo: str, items: list[str]) -> dict[str, object]:
     Stable-Baselines3 class (not one tap-bench sets: policy, env, seed, ...), each VALUE read
     as JSON (0.95, 512, {"net_arch": [64, 64]})."""
     import inspect
-    import json
 
     from tap_bench.sim.sb3 import algorithm_class
 
@@ -176,22 +186,7 @@ def _hyperparameters(algo: str, items: list[str]) -> dict[str, object]:
         return {}
     known = sorted(set(inspect.signature(algorithm_class(algo)).parameters)
                    - _NOT_HYPERPARAMETERS)
-    out: dict[str, object] = {}
-    for item in items:
-        key, eq, value = item.partition("=")
-        if not key or not eq:
-            raise SystemExit(f"tap-bench train: --hyperparameters {item}: write KEY=VALUE, "
-                             "e.g. gamma=0.95.")
-        if key not in known:
-            raise SystemExit(f"tap-bench train: --hyperparameters {item}: {key!r} is not a "
-                             f"setting of {algo.upper()}; use one of {', '.join(known)}.")
-        try:
-            out[key] = json.loads(value)
-        except ValueError:
-            raise SystemExit(f"tap-bench train: --hyperparameters {item}: {value!r} is not "
-                             "a JSON value (a number, true, false, a quoted text, a mapping)."
-                             ) from None
-    return out
+    return _key_values("hyperparameters", items, "gamma=0.95", known, algo.upper())
 
 
 def run(args: argparse.Namespace) -> int:
