@@ -146,8 +146,19 @@ def test_the_figures_on_some_scenes_only(run):
     result = agents_figures(run, groups=GROUPS, n_resamples=100, scenes=[1])
     ppo = row(result.aggregates, agent="ppo", measure="route_progress")
     assert ppo["scenes"] == 1 and ppo["estimate"] == pytest.approx(0.9)  # 1.0 and 0.8
-    with pytest.raises(FileFormatError, match="no episode on scenes"):
+    with pytest.raises(FileFormatError, match="no finished episode on scene"):
         agents_figures(run, groups=GROUPS, scenes=[7])
+
+
+def test_scenes_the_run_does_not_have_are_refused_not_dropped(run):
+    """``--scenes 1,7`` on a run of scenes 0 and 1 (the held-out scenes of other files, say)
+    is refused naming the scene missing and those the run has: judged on scene 1 alone, the
+    figures would pass for those of both."""
+    with pytest.raises(FileFormatError, match=r"scene\(s\) 7 of the 1,7 asked; the run has "
+                       r"scenes 0,1\."):
+        agents_figures(run, groups=GROUPS, scenes=[1, 7])
+    with pytest.raises(FileFormatError, match=r"scene\(s\) 5-9 of the 0,5-9 asked"):
+        agents_figures(run, groups=GROUPS, scenes=[0, *range(5, 10)])
 
 
 def test_the_shipped_womd_agents_suite_names_the_human_and_ppo_womd(womd_dir):

@@ -310,7 +310,7 @@ def agents_figures(run: str | os.PathLike, *, groups: Mapping[str, Sequence[str]
 
     Raises:
         FileFormatError: the folder lacks a table, or the human's episodes, or has no
-            episode on ``scenes``.
+            episode on one of ``scenes``.
     """
     if not 0.5 <= level < 1:
         raise ParameterError("level", level, "a two-sided level in [0.5, 1), e.g. 0.95")
@@ -318,10 +318,17 @@ def agents_figures(run: str | os.PathLike, *, groups: Mapping[str, Sequence[str]
     groups = seed_groups() if groups is None else dict(groups)
     episodes = _episodes(run, groups)
     if scenes is not None:
-        episodes = episodes[episodes["seed"].isin([int(k) for k in scenes])]
-        if episodes.empty:
-            raise FileFormatError(f"{run}: no episode on scenes {list(scenes)}; the run's "
-                                  "scenes are its episodes' seeds.")
+        wanted = sorted({int(k) for k in scenes})
+        have = sorted({int(k) for k in episodes["seed"]})
+        missing = [k for k in wanted if k not in have]
+        if missing:  # judged on fewer scenes than asked, the figures would say otherwise
+            raise FileFormatError(
+                f"{run}: no finished episode on scene(s) {_seed_text(missing)} of the "
+                f"{_seed_text(wanted)} asked; the run has scenes {_seed_text(have)}. A scene "
+                "is its index in the files the run read, in their order, as 'tap-bench train "
+                "--hold-out' counts them in its own files: run the agent's training files "
+                "(tap-bench agents RUN --womd FILES), or name scenes the run has.")
+        episodes = episodes[episodes["seed"].isin(wanted)]
     agents = sorted(set(episodes["agent"]), key=lambda a: (a != HUMAN, a))
     scores = episodes[["agent", "policy", "env", "seed", "scene", "task", "scenario_id",
                        "route_progress", "crashed_at_fault", "crashed", "off_road"]]
@@ -333,6 +340,17 @@ def agents_figures(run: str | os.PathLike, *, groups: Mapping[str, Sequence[str]
     safety = _safety(episodes, items)
     return AgentsResult(scores, aggregates, improvement, profiles, coverage, unique, safety,
                         level, n_resamples, unit)
+
+
+def _seed_text(seeds: Sequence[int]) -> str:
+    """Sorted scene indices as runs: ``[0, 1, 2, 3, 7]`` -> ``"0-3,7"``."""
+    runs: list[list[int]] = []
+    for k in seeds:
+        if runs and k == runs[-1][-1] + 1:
+            runs[-1].append(k)
+        else:
+            runs.append([k])
+    return ",".join(f"{r[0]}-{r[-1]}" if len(r) > 2 else ",".join(map(str, r)) for r in runs)
 
 
 def interval_text(row: Mapping[str, float], digits: int = 2) -> str:
