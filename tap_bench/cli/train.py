@@ -147,6 +147,9 @@ def _key_values(option: str, items: list[str], example: str,
         if not key or not eq:
             raise SystemExit(f"tap-bench train: --{option} {item}: write KEY=VALUE, e.g. "
                              f"{example}.")
+        if key in out:
+            raise SystemExit(f"tap-bench train: --{option} {item}: {key!r} is given twice; "
+                             "give each setting once.")
         if known is not None and key not in known:
             raise SystemExit(f"tap-bench train: --{option} {item}: {key!r} is not a setting "
                              f"of {owner}; use one of {', '.join(known)}.")
@@ -177,16 +180,116 @@ def _hyperparameters(algo: str, items: list[str]) -> dict[str, object]:
     """``--hyperparameters KEY=VALUE ...`` as overrides of
     :data:`tap_bench.rl.training.HYPERPARAMETERS`: each KEY an argument of the algorithm's
     Stable-Baselines3 class (not one tap-bench sets: policy, env, seed, ...), each VALUE read
-    as JSON (0.95, 512, {"net_arch": [64, 64]})."""
+    as JSON (0.95, 512, {"net_arch": [64, 64]}) of the argument's type (an int a whole
+    number, a float a finite one, ...), within its range where the algorithm defines one
+    (:data:`_BOUNDS`: gamma in [0, 1], n_steps at least 1, ...)."""
     import inspect
 
     from tap_bench.sim.sb3 import algorithm_class
 
     if not items:
         return {}
-    known = sorted(set(inspect.signature(algorithm_class(algo)).parameters)
-                   - _NOT_HYPERPARAMETERS)
-    return _key_values("hyperparameters", items, "gamma=0.95", known, algo.upper())
+    parameters = inspect.signature(algorithm_class(algo)).parameters
+    known = sorted(set(parameters) - _NOT_HYPERPARAMETERS)
+    out = _key_values("hyperparameters", items, "gamma=0.95", known, algo.upper())
+    given = {item.partition("=")[0]: item for item in items}
+    for key, value in out.items():
+        item = f"--hyperparameters {given[key]}"
+        out[key] = _typed(item, key, value, parameters[key].annotation, algo.upper())
+        bounds = _BOUNDS.get(key)
+        if bounds is not None and isinstance(out[key], int | float):
+            low, low_open, high, high_open, meaning = bounds
+            number = out[key]
+            if (number < low or (low_open and number == low) or number > high
+                    or (high_open and number == high)):
+                raise SystemExit(f"tap-bench train: {item}: {key} is {meaning}; give a value "
+                                 f"in {'(' if low_open else '['}{low:g}, {high:g}"
+                                 f"{')' if high_open else ']'}.")
+    return out
+
+
+# the ranges of the algorithms' settings (as their papers define them; outside, SB3 fails
+# mid-training or trains on a meaningless objective, e.g. gamma > 1):
+# key -> (low, low excluded, high, high excluded, what it is)
+_BOUNDS: dict[str, tuple[float, bool, float, bool, str]] = {
+    "gamma": (0, False, 1, False, "the discount factor of future rewards"),
+    "gae_lambda": (0, False, 1, False, "the GAE trade-off of bias and variance"),
+    "learning_rate": (0, True, math.inf, True, "the optimiser's step size"),
+    "n_steps": (1, False, math.inf, True, "the steps per env between updates"),
+    "batch_size": (1, False, math.inf, True, "the minibatch size"),
+    "n_epochs": (1, False, math.inf, True, "the passes over each rollout"),
+    "clip_range": (0, True, math.inf, True, "PPO's clipping of the policy ratio"),
+    "clip_range_vf": (0, True, math.inf, True, "PPO's clipping of the value function"),
+    "ent_coef": (0, False, math.inf, True, "the weight of the entropy bonus"),
+    "vf_coef": (0, False, math.inf, True, "the weight of the value loss"),
+    "max_grad_norm": (0, True, math.inf, True, "the gradient norm clipped to"),
+    "target_kl": (0, True, math.inf, True, "the KL divergence that stops an update"),
+    "rms_prop_eps": (0, True, math.inf, True, "RMSprop's epsilon"),
+    "buffer_size": (1, False, math.inf, True, "the replay buffer's size"),
+    "learning_starts": (0, False, math.inf, True, "the steps before learning starts"),
+    "tau": (0, True, 1, False, "the soft update coefficient"),
+    "target_update_interval": (1, False, math.inf, True,
+                               "the steps between target network updates"),
+    "exploration_fraction": (0, False, 1, False, "the share of training epsilon decays over"),
+    "exploration_initial_eps": (0, False, 1, False, "a probability of a random action"),
+    "exploration_final_eps": (0, False, 1, False, "a probability of a random action"),
+    "stats_window_size": (1, False, math.inf, True, "the episodes of the logged means"),
+    "sde_sample_freq": (-1, False, math.inf, True, "the steps between gSDE noise samples "
+                        "(-1: at the start of each rollout only)"),
+}
+
+
+def _typed(item: str, key: str, value: object, annotation: object, owner: str) -> object:
+    """``value`` (read as JSON) as the type of the algorithm's argument (its annotation in
+    the class's signature): a whole number for an int, a finite number for a float (not
+    true/false), true or false for a bool, a mapping for a dict, null where None is taken,
+    a list of the tuple's items for a tuple (as the tuple). Exits naming what it takes
+    (``item``: the option's item, ``key`` the setting, ``owner`` the algorithm)."""
+    import inspect
+    import types
+    import typing
+
+    if annotation is inspect.Parameter.empty or isinstance(annotation, str | typing.ForwardRef):
+        return value  # a signature that does not say its type (annotations as text)
+    kinds = (typing.get_args(annotation)
+             if typing.get_origin(annotation) in (typing.Union, types.UnionType)
+             else (annotation,))
+    names = []
+    for kind in kinds:
+        origin = typing.get_origin(kind) or kind
+        if kind is type(None):
+            names.append("null")
+            if value is None:
+                return None
+        elif kind is bool:
+            names.append("true or false")
+            if isinstance(value, bool):
+                return value
+        elif kind is int:
+            names.append("a whole number")
+            if isinstance(value, int) and not isinstance(value, bool):
+                return value
+        elif kind is float:
+            names.append("a finite number")
+            if (isinstance(value, int | float) and not isinstance(value, bool)
+                    and math.isfinite(value)):
+                return float(value)
+        elif origin is dict:
+            names.append("a mapping")
+            if isinstance(value, dict):
+                return value
+        elif origin is tuple:
+            parts = typing.get_args(kind)
+            names.append(f"a list of {len(parts)} ({', '.join(p.__name__ for p in parts)})")
+            if (isinstance(value, list) and len(value) == len(parts)
+                    and all(isinstance(v, p) and not isinstance(v, bool)
+                            for v, p in zip(value, parts, strict=True))):
+                return tuple(value)
+    if set(names) <= {"null"}:  # a class or a function: nothing JSON can give but None
+        raise SystemExit(f"tap-bench train: {item}: {key} of {owner} is a class or a "
+                         "function, which a JSON value cannot give (null: the default); set "
+                         "it in Python: tap_bench.rl.training.train(..., hyperparameters=).")
+    raise SystemExit(f"tap-bench train: {item}: {key} of {owner} takes {' or '.join(names)}.")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -113,6 +113,49 @@ def test_hyperparameters_are_the_algorithm_s_settings_as_json_values():
         _hyperparameters("ppo", ["gamma"])
 
 
+@pytest.mark.parametrize(("algo", "item", "message"), [
+    ("ppo", "gamma=-5", r"gamma=-5: gamma is the discount factor .*; give a value in \[0, 1\]"),
+    ("ppo", "gamma=1.5", r"give a value in \[0, 1\]"),
+    ("ppo", "gamma=true", "gamma of PPO takes a finite number"),
+    ("ppo", "gamma=null", "gamma of PPO takes a finite number"),
+    ("ppo", "gamma=NaN", "gamma of PPO takes a finite number"),
+    ("ppo", "n_steps=0", r"n_steps=0: n_steps is the steps per env between updates; give a "
+     r"value in \[1, inf\)"),
+    ("ppo", "n_steps=1.5", "n_steps of PPO takes a whole number"),
+    ("ppo", 'learning_rate="fast"', "learning_rate of PPO takes a finite number"),
+    ("ppo", "learning_rate=0", r"give a value in \(0, inf\)"),
+    ("ppo", "normalize_advantage=1", "normalize_advantage of PPO takes true or false"),
+    ("ppo", "policy_kwargs=[64]", "policy_kwargs of PPO takes a mapping or null"),
+    ("ppo", 'rollout_buffer_class="RolloutBuffer"', "is a class or a function, which a JSON "
+     "value cannot give"),
+    ("dqn", "train_freq=[4]", r"train_freq of DQN takes a whole number or a list of 2 "
+     r"\(int, str\)"),
+    ("dqn", "exploration_final_eps=2", r"give a value in \[0, 1\]"),
+])
+def test_a_hyperparameter_of_the_wrong_type_or_range_is_refused_before_training(
+        algo, item, message):
+    """Values SB3 would take and train on to no purpose (gamma -5 or 1.5, true for a number)
+    or fail on after the envs started, with a traceback (n_steps 0 or 1.5, a text for the
+    learning rate, null for gamma), are refused naming the item and what it takes."""
+    pytest.importorskip("stable_baselines3")
+    from tap_bench.cli.train import _hyperparameters
+
+    with pytest.raises(SystemExit, match=message):
+        _hyperparameters(algo, [item])
+
+
+def test_hyperparameters_of_their_type_pass_and_a_setting_given_twice_is_refused():
+    pytest.importorskip("stable_baselines3")
+    from tap_bench.cli.train import _hyperparameters
+
+    assert _hyperparameters("ppo", ["learning_rate=1", "clip_range_vf=null", "gamma=1",
+                                    "sde_sample_freq=-1"]) == {
+        "learning_rate": 1.0, "clip_range_vf": None, "gamma": 1.0, "sde_sample_freq": -1}
+    assert _hyperparameters("dqn", ['train_freq=[4, "step"]']) == {"train_freq": (4, "step")}
+    with pytest.raises(SystemExit, match=r"gamma=0\.8: 'gamma' is given twice"):
+        _hyperparameters("ppo", ["gamma=0.9", "gamma=0.8"])
+
+
 def test_the_hyperparameters_reach_the_training_and_its_recorded_command(monkeypatch, tmp_path):
     pytest.importorskip("stable_baselines3")
     import tap_bench.rl.training as training
