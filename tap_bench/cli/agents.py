@@ -89,9 +89,32 @@ def _run_suite(args: argparse.Namespace) -> None:
 
     suite = load_suite(args.suite)
     doc = suite.to_dict()
-    doc["envs"] = [{"womd": [os.path.abspath(f) for f in args.womd], "traffic": args.traffic}]
+    doc["envs"] = [{"womd": _womd_inputs(args.womd), "traffic": args.traffic}]
     doc["seeds"] = "all"
     suite = suite_from_dict(doc, source=f"{args.suite} on {' '.join(args.womd)}")
     cache = None if args.no_cache else EpisodeCache(default_cache_dir())
     run_suite(suite, args.run, workers=args.workers, overwrite=args.overwrite, cache=cache,
               announce=lambda line: print(line, flush=True))
+
+
+def _womd_inputs(paths: list[str]) -> list[str]:
+    """``--womd`` as the suite names its scenes: files and glob patterns as given (absolute
+    paths), a folder as the WOMD files in it, in the order the run reads them (the same scene
+    indices; its other files left out with a note). The run's replay viewer reads the files
+    again for the scenes' traffic signals and takes files and patterns, not folders (given a
+    folder, it warned that the files were gone).
+
+    Raises:
+        FileFormatError: a folder without a WOMD file.
+    """
+    from pathlib import Path
+
+    from tap_bench.sources.ingest import record_files
+
+    out: list[str] = []
+    for item in paths:
+        if Path(item).is_dir():
+            out += [os.path.abspath(f) for f in record_files([item])]
+        else:
+            out.append(os.path.abspath(item))
+    return out

@@ -223,3 +223,35 @@ def test_the_bench_report_gathers_the_seeds_of_an_agent(run):
                                  groups=GROUPS) == []
     assert agents_report_section(run, episodes, reference="idm", level=0.95, viewer=None,
                                  groups=GROUPS) == []
+
+
+def test_agents_on_a_folder_names_its_womd_files_so_the_viewer_finds_them(
+        womd_dir, monkeypatch, tmp_path):
+    """``tap-bench agents RUN --womd FOLDER``: the suite names the folder's WOMD files (its
+    README left out), in the order a run reads the folder (the same scene indices), so the
+    replay viewer reads them again for the signals; named as the folder, it warned that the
+    files were gone and showed no signals."""
+    import argparse
+    import os
+    import warnings
+
+    import tap_bench.bench.run.runner as runner
+    from tap_bench.bench.report.viewer.build import _present_files
+    from tap_bench.cli.agents import _run_suite
+    from tap_bench.sources.ingest import record_files
+
+    seen = {}
+    monkeypatch.setattr(runner, "run_suite", lambda suite, *a, **k: seen.update(suite=suite))
+    args = argparse.Namespace(suite="womd-agents", womd=[str(womd_dir)], traffic="log",
+                              run=str(tmp_path / "run"), workers=1, overwrite=False,
+                              no_cache=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the folder's README is left out with a note
+        _run_suite(args)
+    envs = seen["suite"].to_dict()["envs"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        present = _present_files({"suite": {"envs": envs}})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert present == [os.path.abspath(p) for p in record_files([womd_dir])]
