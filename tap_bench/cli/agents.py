@@ -11,8 +11,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "agents", help="judge agents on real scenes over training seeds, against the human",
         description="Aggregate the agents of a run on recorded scenes (bench run) over "
         "training seeds x scenes as rliable recommends: route progress by its interquartile "
-        "mean, at-fault collisions and off-road by their rate, each with its stratified "
-        "bootstrap interval; the probability of improvement of every agent over every "
+        "mean, at-fault collisions and off-road by their rate, each with its bootstrap "
+        "interval over training seeds (whole seeds resampled; --resample task: rliable's "
+        "stratified bootstrap); the probability of improvement of every agent over every "
         "other; performance profiles (a plot); the share of the human's manoeuvres each "
         "agent performs in the same scenes, the manoeuvres it adds, and its failures by its "
         "own label. A policy of kind 'seeds' (policies/ppo-womd.json) stands for its "
@@ -70,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
     output = Path(args.output) if args.output else Path(args.run) / "agents"
     viewer = os.path.relpath(Path(args.run) / "viewer" / "index.html", output)
     page = write_agents_page(result, output, viewer=viewer)
+    print(_judged(result, args.run))
     for row in result.aggregates.to_dict("records"):
         print(f"{row['agent']:>16}  {row['measure']:<17} {row['aggregate']:<4} "
               f"{interval_text(row)}  ({row['runs']} run(s) x {row['scenes']} scene(s))")
@@ -78,6 +80,32 @@ def run(args: argparse.Namespace) -> int:
         print(f"{row['agent']:>16}  covers {row['coverage']:.0%} of the human's manoeuvres")
     print(f"wrote {page} and its tables")
     return 0
+
+
+def _judged(result: object, run: str) -> str:
+    """The line that says what the figures are of: the scenes (their indices), the env and
+    its traffic (from the run's ``summary.json``: ``log`` replays the other road users, ``idm``
+    drives them by IDM/MOBIL) and the intervals."""
+    import json
+    from pathlib import Path
+
+    from tap_bench.bench.scores.agents import _seed_text
+
+    traffic = {}
+    try:
+        suite = json.loads((Path(run) / "summary.json").read_text()).get("suite", {})
+        traffic = {str(e.get("name")): str(e.get("traffic", "log"))
+                   for e in suite.get("envs", []) if isinstance(e, dict) and "womd" in e}
+    except (OSError, ValueError, AttributeError):
+        pass  # no summary: the envs by name only
+    scores = result.scores
+    scenes = _seed_text(sorted({int(k) for k in scores["seed"]}))
+    envs = ", ".join(f"{env}" + (f" ({traffic[env]} traffic)" if env in traffic else "")
+                     for env in sorted(set(scores["env"].astype(str))))
+    what = ("whole training seeds" if result.unit == "run"
+            else "the seeds of each scene (stratified)")
+    return (f"on {scores['task'].nunique()} scene(s) ({scenes}) of env {envs}; intervals: "
+            f"{result.level:.0%} bootstrap over {what}, {result.n_resamples} resamples")
 
 
 def _run_suite(args: argparse.Namespace) -> None:

@@ -255,3 +255,24 @@ def test_agents_on_a_folder_names_its_womd_files_so_the_viewer_finds_them(
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         assert present == [os.path.abspath(p) for p in record_files([womd_dir])]
+
+
+def test_the_command_says_what_its_figures_are_of_and_which_bootstrap(run, capsys):
+    """``tap-bench agents`` prints the scenes, the env with its traffic and the bootstrap its
+    intervals come from; its help says the default interval resamples whole training seeds
+    (it said 'stratified', the one --resample task gives)."""
+    import json
+
+    from tap_bench.cli import build_parser, main
+
+    (run / "summary.json").write_text(json.dumps(
+        {"suite": {"envs": [{"womd": ["x.tfrecord"], "traffic": "idm", "name": "womd"}]}}))
+    assert main(["agents", str(run), "--resamples", "100"]) == 0
+    out = capsys.readouterr().out
+    assert ("on 2 scene(s) (0,1) of env womd (idm traffic); intervals: 95% bootstrap over "
+            "whole training seeds, 100 resamples") in out
+    parser = build_parser(["agents", str(run)])
+    agents = parser._subparsers._group_actions[0].choices["agents"]
+    text = " ".join(agents.description.split())
+    assert "bootstrap interval over training seeds (whole seeds resampled; --resample " \
+        "task: rliable's stratified bootstrap)" in text

@@ -15,7 +15,8 @@ the human ``log``: one episode per scene). A task is a scene (env and scene inde
   collision, off-road.
 - ``aggregates``: per agent and measure, over runs x scenes: route progress by its
   interquartile mean, the rates (at-fault collisions, off-road) by their mean, each with its
-  stratified bootstrap interval (:mod:`tap_bench.stats.aggregate`). Route progress is taken on
+  bootstrap interval over training seeds (:mod:`tap_bench.stats.aggregate`; whole seeds
+  resampled, or with ``unit="task"`` rliable's stratified bootstrap). Route progress is taken on
   the scenes where the human moved (it is NaN elsewhere).
 - ``improvement``: P(X > Y) of every agent over every other, on route progress (higher is
   better) and on at-fault collisions (fewer is better), with intervals.
