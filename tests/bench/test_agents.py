@@ -276,3 +276,35 @@ def test_the_command_says_what_its_figures_are_of_and_which_bootstrap(run, capsy
     text = " ".join(agents.description.split())
     assert "bootstrap interval over training seeds (whole seeds resampled; --resample " \
         "task: rliable's stratified bootstrap)" in text
+
+
+def test_the_readme_judges_ppo_womd_on_the_scenes_it_never_saw():
+    """The README's agents section shows the command that judges ``ppo-womd`` on the sample
+    and development scenes it did not train on: its --womd files are those every seed
+    trained on, in their order (a scene is an index in them), its --scenes every seed's
+    held-out scenes; and the scenes it names as trained on are the seeds' train_scenes."""
+    import re
+    import shlex
+    from pathlib import Path
+
+    from tap_bench.cli import build_parser
+    from tap_bench.sim.policies import available_policies
+    from tap_bench.sim.scenario_format import parse_seeds
+
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    section = readme[readme.index("**Agents on real scenes, over training seeds.**"):]
+    section = section[:section.index("\n## ")]
+    known = available_policies()
+    params = [known[seed].params for seed in seed_groups(known)["ppo-womd"]]
+    lines = [ln for ln in re.findall(r"^tap-bench agents .*$", section, flags=re.M)
+             if "--scenes" in ln]
+    assert lines, "no README line judges ppo-womd on its held-out scenes"
+    for line in lines:
+        argv = shlex.split(line.split("#")[0])[1:]
+        args = build_parser(argv).parse_args(argv)
+        for p in params:
+            assert [str(Path(f)) for f in args.womd] == [str(Path(f)) for f in p["womd"]]
+            assert list(parse_seeds(args.scenes)) == p["held_out_scenes"]
+    train = params[0]["train_scenes"]
+    assert all(p["train_scenes"] == train for p in params)
+    assert f"scenes {', '.join(map(str, train[:-1]))} and {train[-1]}" in " ".join(section.split())

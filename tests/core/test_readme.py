@@ -88,6 +88,10 @@ NOT_RUN = {  # command -> why the tests cannot run it as written
         "needs Ray and WOMD",
     "tap-bench bench run --suite default --backend ray --address auto -o results/run-ray/":
         "needs a Ray cluster",
+    "tap-bench agents results/womd-dev/ --womd ../shared/data/womd "
+    "../shared/data/womd-dev/dev.tfrecord --scenes 1,2,5,9,12-15":
+        "reads the development scenes beside the project, not linked here (its files and "
+        "scenes are ppo-womd's: tests/bench/test_agents.py)",
 }
 
 
