@@ -79,6 +79,9 @@ def run(args: argparse.Namespace) -> int:
     for row in means.to_dict("records"):
         print(f"{row['agent']:>16}  covers {row['coverage']:.0%} of the human's manoeuvres")
     print(f"wrote {page} and its tables")
+    if not (Path(args.run) / "viewer" / "index.html").is_file():
+        print(f"the run has no replay viewer (bench run --no-report): the page's scene links "
+              f"open once 'tap-bench view {args.run}' writes it")
     return 0
 
 
@@ -113,9 +116,16 @@ def _run_suite(args: argparse.Namespace) -> None:
     as its seeds)."""
     from tap_bench.bench.cache import EpisodeCache, default_cache_dir
     from tap_bench.bench.run.runner import run_suite
+    from tap_bench.bench.scores.agents import HUMAN
     from tap_bench.bench.suite import load_suite, suite_from_dict
+    from tap_bench.errors import ParameterError
 
     suite = load_suite(args.suite)
+    if HUMAN not in suite.policies:  # refused before its episodes run, not after
+        raise ParameterError(
+            "--suite", args.suite, f"a suite with the human ({HUMAN!r}, the reference) among "
+            "its policies", hint=f"{args.suite!r} has {', '.join(suite.policies)}: add "
+            f"{HUMAN!r} to them, or use womd-agents (the default).")
     doc = suite.to_dict()
     doc["envs"] = [{"womd": _womd_inputs(args.womd), "traffic": args.traffic}]
     doc["seeds"] = "all"

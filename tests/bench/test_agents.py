@@ -308,3 +308,35 @@ def test_the_readme_judges_ppo_womd_on_the_scenes_it_never_saw():
     train = params[0]["train_scenes"]
     assert all(p["train_scenes"] == train for p in params)
     assert f"scenes {', '.join(map(str, train[:-1]))} and {train[-1]}" in " ".join(section.split())
+
+
+def test_a_suite_without_the_human_is_refused_before_its_episodes_run(monkeypatch, tmp_path):
+    """``--womd FILES --suite S`` with a suite that lacks the human: refused naming the suite
+    and its policies before any episode runs (it ran them all, then refused)."""
+    import argparse
+
+    import tap_bench.bench.run.runner as runner
+    from tap_bench.cli.agents import _run_suite
+    from tap_bench.errors import ParameterError
+
+    monkeypatch.setattr(runner, "run_suite", lambda *a, **k: pytest.fail("the suite ran"))
+    args = argparse.Namespace(suite="rl-highway", womd=[str(tmp_path / "x.tfrecord")],
+                              traffic="log", run=str(tmp_path / "run"), workers=1,
+                              overwrite=False, no_cache=True)
+    with pytest.raises(ParameterError, match=r"--suite must be a suite with the human \('log'"
+                       r".*'rl-highway' has idm, .*: add 'log' to them, or use womd-agents"):
+        _run_suite(args)
+
+
+def test_a_run_without_a_viewer_says_how_to_make_the_links_open(run, capsys):
+    """The page links scenes to RUN/viewer/; a run without one (bench run --no-report) gets
+    a line saying which command writes it."""
+    from tap_bench.cli import main
+
+    assert main(["agents", str(run), "--resamples", "100"]) == 0
+    assert (f"the run has no replay viewer (bench run --no-report): the page's scene links "
+            f"open once 'tap-bench view {run}' writes it") in capsys.readouterr().out
+    (run / "viewer").mkdir()
+    (run / "viewer" / "index.html").write_text("<!doctype html>")
+    assert main(["agents", str(run), "--resamples", "100"]) == 0
+    assert "no replay viewer" not in capsys.readouterr().out
