@@ -62,6 +62,20 @@ def run(args: argparse.Namespace) -> int:
     groups = seed_groups()
     if args.womd:
         _run_suite(args)
+    else:
+        given = [flag for flag, value, default in (
+            ("--suite", args.suite, "womd-agents"), ("--traffic", args.traffic, "log"),
+            ("--workers", args.workers, min(2, os.cpu_count() or 1)),
+            ("--no-cache", args.no_cache, False), ("--overwrite", args.overwrite, False))
+            if value != default]
+        if given:  # ignored, they would let a log-traffic run pass for an idm one
+            from tap_bench.errors import ParameterError
+
+            flags = " and ".join([", ".join(given[:-1]), given[-1]] if len(given) > 1 else given)
+            raise ParameterError(given[0], True, "given with --womd", message=(
+                f"{flags} {'go' if len(given) > 1 else 'goes'} with --womd (how the suite "
+                f"runs): {args.run} is read as it was run. Add --womd FILES to run it, or "
+                f"leave {'them' if len(given) > 1 else 'it'} out."))
     from tap_bench.sim.scenario_format import parse_seeds
 
     scenes = None if args.scenes is None else list(parse_seeds(args.scenes))

@@ -340,3 +340,21 @@ def test_a_run_without_a_viewer_says_how_to_make_the_links_open(run, capsys):
     (run / "viewer" / "index.html").write_text("<!doctype html>")
     assert main(["agents", str(run), "--resamples", "100"]) == 0
     assert "no replay viewer" not in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(("options", "message"), [
+    (["--traffic", "idm"], "--traffic goes with --womd"),
+    (["--suite", "womd-sample", "--no-cache", "--overwrite"],
+     "--suite, --no-cache and --overwrite go with --womd"),
+])
+def test_the_suite_s_options_without_womd_are_refused_not_ignored(run, options, message,
+                                                                  capsys):
+    """``tap-bench agents RUN --traffic idm`` (no --womd) read RUN as it was run, in log
+    traffic, and judged it without a word: the options that say how the suite runs are
+    refused without --womd."""
+    from tap_bench.cli import main
+
+    assert main(["agents", str(run), "--resamples", "100", *options]) == 2
+    assert f"{message} (how the suite runs): {run} is read as it was run" in \
+        capsys.readouterr().err
+    assert not (run / "agents").exists()
