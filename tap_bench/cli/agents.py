@@ -58,8 +58,10 @@ def run(args: argparse.Namespace) -> int:
 
     from tap_bench.bench.report.agents import write_agents_page
     from tap_bench.bench.scores.agents import agents_figures, interval_text, seed_groups
+    from tap_bench.sim.policies import available_policies
 
-    groups = seed_groups()
+    definitions = available_policies()
+    groups = seed_groups(definitions)
     if args.womd:
         _run_suite(args)
     else:
@@ -86,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
     viewer = os.path.relpath(Path(args.run) / "viewer" / "index.html", output)
     page = write_agents_page(result, output, viewer=viewer)
     print(_judged(result, args.run))
+    for line in _trained_on(result, definitions):
+        print(line)
     for row in result.aggregates.to_dict("records"):
         print(f"{row['agent']:>16}  {row['measure']:<17} {row['aggregate']:<4} "
               f"{interval_text(row)}  ({row['runs']} run(s) x {row['scenes']} scene(s))")
@@ -123,6 +127,34 @@ def _judged(result: object, run: str) -> str:
             else "the seeds of each scene (stratified)")
     return (f"on {scores['task'].nunique()} scene(s) ({scenes}) of env {envs}; intervals: "
             f"{result.level:.0%} bootstrap over {what}, {result.n_resamples} resamples")
+
+
+def _trained_on(result: object, definitions: dict) -> list[str]:
+    """A line per agent of the run trained on recorded scenes (its definitions record the
+    files, ``train_scenes`` and ``held_out_scenes``): the scenes it trained on and those
+    held out, by index in those files, and the ``--scenes`` that judges it on the latter:
+    nothing else in the outputs says which scenes an agent saw in training."""
+    from tap_bench.bench.scores.agents import _seed_text
+
+    seen: dict[tuple[str, tuple], list[str]] = {}
+    for agent, policy in result.scores[["agent", "policy"]].drop_duplicates().itertuples(
+            index=False):
+        params = dict(getattr(definitions.get(policy), "params", {}) or {})
+        if not params.get("womd") or "train_scenes" not in params:
+            continue
+        key = (str(agent), (tuple(params["womd"]), tuple(params["train_scenes"]),
+                            tuple(params.get("held_out_scenes") or ())))
+        seen.setdefault(key, []).append(str(policy))
+    lines = []
+    for (agent, (files, train, held)), policies in seen.items():
+        who = f"{agent} ({len(policies)} seed(s))" if len(policies) > 1 else agent
+        line = (f"{who} trained on scenes {_seed_text(train)} of {' '.join(files)}; "
+                "a scene is its index in those files, in that order")
+        if held:
+            line += (f": on a run of them, --scenes {_seed_text(held)} judges it on the "
+                     "scenes it never saw")
+        lines.append(line)
+    return lines
 
 
 def _run_suite(args: argparse.Namespace) -> None:

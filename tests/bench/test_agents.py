@@ -358,3 +358,22 @@ def test_the_suite_s_options_without_womd_are_refused_not_ignored(run, options, 
     assert f"{message} (how the suite runs): {run} is read as it was run" in \
         capsys.readouterr().err
     assert not (run / "agents").exists()
+
+
+def test_the_command_names_the_scenes_each_agent_trained_on(run):
+    """Nothing in a run's outputs said which scenes an agent saw in training: the command
+    prints, per agent whose definitions record them, the scenes it trained on by index in
+    its training files and the --scenes that judges it on those held out."""
+    from tap_bench.cli.agents import _trained_on
+
+    trained = {"womd": ["a.tfrecord", "b.pkl"], "train_scenes": [0, 2, 3, 4],
+               "held_out_scenes": [1, 5]}
+    definitions = {"ppo-s0": SimpleNamespace(params=trained),
+                   "ppo-s1": SimpleNamespace(params=trained),
+                   "idm": SimpleNamespace(params={})}
+    result = agents_figures(run, groups=GROUPS, n_resamples=100)
+    assert _trained_on(result, definitions) == [
+        "ppo (2 seed(s)) trained on scenes 0,2-4 of a.tfrecord b.pkl; a scene is its index "
+        "in those files, in that order: on a run of them, --scenes 1,5 judges it on the "
+        "scenes it never saw"]
+    assert _trained_on(result, {}) == []
