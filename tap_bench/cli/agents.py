@@ -104,9 +104,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _judged(result: object, run: str) -> str:
-    """The line that says what the figures are of: the scenes (their indices), the env and
-    its traffic (from the run's ``summary.json``: ``log`` replays the other road users, ``idm``
-    drives them by IDM/MOBIL) and the intervals."""
+    """The line that says what the figures are of: the scenes (their indices; those route
+    progress is taken on, where the human moved, when fewer), the env and its traffic (from
+    the run's ``summary.json``: ``log`` replays the other road users, ``idm`` drives them by
+    IDM/MOBIL) and the intervals."""
     import json
     from pathlib import Path
 
@@ -125,7 +126,13 @@ def _judged(result: object, run: str) -> str:
                      for env in sorted(set(scores["env"].astype(str))))
     what = ("whole training seeds" if result.unit == "run"
             else "the seeds of each scene (stratified)")
-    return (f"on {scores['task'].nunique()} scene(s) ({scenes}) of env {envs}; intervals: "
+    progress = result.aggregates[result.aggregates["measure"] == "route_progress"]
+    moved = int(progress["scenes"].max()) if len(progress) else 0
+    n = scores["task"].nunique()
+    where = ("" if moved == n else
+             f"; route progress on the {moved} where the human moved (it is a share of the "
+             "human's route)")
+    return (f"on {n} scene(s) ({scenes}) of env {envs}{where}; intervals: "
             f"{result.level:.0%} bootstrap over {what}, {result.n_resamples} resamples")
 
 
