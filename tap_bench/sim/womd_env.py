@@ -65,7 +65,11 @@ The route also acts through the dynamics: with meta-actions the low-level contro
 follows the route's lanes (at a lane end it takes the route's next lane), and
 ``LANE_LEFT``/``LANE_RIGHT`` move to the map's neighbour on that side; an action config
 with ``safety_layer`` caps the ego's acceleration at every step by IDM's braking for the road
-user in its swept box (:mod:`tap_bench.sim.womd_safety`; off by default). Any highway-env
+user in its swept box (:mod:`tap_bench.sim.womd_safety`; off by default). ``FASTER`` and
+``SLOWER`` step the target speed along :data:`TARGET_SPEEDS` from the grid speed nearest the
+ego's speed (``speed_index``, :data:`~tap_bench.sim.womd_road.SPEED_INDEX`: ``"uniform"``
+keeps highway-env's reading of the grid as evenly spaced, for the models trained with it).
+Any highway-env
 observation can be configured instead (``config={"observation": ...}``; the shipped
 highway agents read plain ``Kinematics``).
 
@@ -241,7 +245,8 @@ class _WomdHighwayEnv(AbstractEnv):
         config = super().default_config()
         config.update({
             "observation": {"type": OBSERVATION_TYPE, "leader": True},
-            "action": {"type": "DiscreteMetaAction", "target_speeds": list(TARGET_SPEEDS)},
+            "action": {"type": "DiscreteMetaAction", "target_speeds": list(TARGET_SPEEDS),
+                       "speed_index": "nearest"},
             "simulation_frequency": 10,
             "policy_frequency": 2,
             "collision_reward": -1.0,
@@ -465,6 +470,7 @@ class _WomdHighwayEnv(AbstractEnv):
                              target_lane_index=lane_index, target_speed=target,
                              target_speeds=self.config["action"].get("target_speeds",
                                                                      TARGET_SPEEDS),
+                             speed_index=self.config["action"].get("speed_index", "nearest"),
                              route=list(self.route))
         ego.LENGTH, ego.WIDTH = float(scene.length[e]), float(scene.width[e])
         ego.diagonal = math.hypot(ego.LENGTH, ego.WIDTH)

@@ -558,13 +558,42 @@ class _RouteMixin:
         return None
 
 
+SPEED_INDEX = ("nearest", "uniform")
+"""How a meta-action vehicle finds a speed's place on its target-speed grid: ``nearest``
+(the grid speed nearest it), or ``uniform`` (highway-env's formula, which takes the grid as
+evenly spaced: what every model trained on WOMD before 2026-12-05 drove with)."""
+
+
 class WomdMDPVehicle(_RouteMixin, MDPVehicle):
     """highway-env's meta-action vehicle on a WOMD map: ``LANE_LEFT``/``LANE_RIGHT`` go to
     the map's neighbour on that side where there is one (else nothing happens). With a
     :attr:`safety` layer (:mod:`tap_bench.sim.womd_safety`, an agent's action config asks
-    for it) its controller's acceleration is capped at every step."""
+    for it) its controller's acceleration is capped at every step.
+
+    ``FASTER`` and ``SLOWER`` move the target speed one step up or down the grid from the
+    grid speed nearest the vehicle's speed (:meth:`speed_to_index`), and the start's target
+    speed is the grid speed nearest the one given. ``speed_index="uniform"`` (one of
+    :data:`SPEED_INDEX`) keeps highway-env's reading of the grid instead, for the models
+    that trained with it."""
 
     safety: Any = None
+
+    def __init__(self, *args: Any, speed_index: str = "nearest", **kwargs: Any) -> None:
+        if speed_index not in SPEED_INDEX:
+            raise ParameterError("speed_index", speed_index, f"one of {SPEED_INDEX}")
+        self.uniform_speed_index = speed_index == "uniform"
+        super().__init__(*args, **kwargs)
+
+    def speed_to_index(self, speed: float) -> int:
+        """The index of the grid speed nearest ``speed`` [m/s] (the lower of two as near).
+
+        highway-env computes it as if the grid were evenly spaced from its first to its last
+        speed; tap-bench's grid (:data:`tap_bench.sim.womd_env.TARGET_SPEEDS`, 2.5 m/s apart
+        up to 20, then 5) is not, and by that formula ``FASTER`` left the target at the
+        vehicle's speed from 7.5 m/s up while ``SLOWER`` took 5 m/s off it."""
+        if self.uniform_speed_index:
+            return int(super().speed_to_index(speed))
+        return int(np.argmin(np.abs(np.asarray(self.target_speeds, dtype=float) - speed)))
 
     def act(self, action: Any = None) -> None:
         if action in ("LANE_LEFT", "LANE_RIGHT"):

@@ -208,3 +208,75 @@ def test_highway_envs_observe_vehicles_count_rows(env_id, count):
         warnings.simplefilter("ignore")
         check_env(env.unwrapped)
         check_env(env, skip_render_check=True)
+
+
+GRID = (0.0, 2.5, 5.0, 7.5, 10.0, 12.5, 15.0, 17.5, 20.0, 25.0, 30.0)  # TARGET_SPEEDS
+
+
+def _ego_with(tmp_path: Path, speed_index: str | None = None):
+    action = {"type": "DiscreteMetaAction", "target_speeds": list(GRID)}
+    if speed_index is not None:
+        action["speed_index"] = speed_index
+    env = gym.make(WOMD_ENV_ID, files=two_lane_road(tmp_path / "sd_two.pkl"),
+                   config={"action": action})
+    env.reset(seed=0)
+    return env.unwrapped.vehicle
+
+
+def test_faster_and_slower_step_one_grid_speed_from_the_ego_s_speed(tmp_path):
+    """From every speed of the grid (2.5 m/s apart to 20, then 5: not evenly spaced),
+    FASTER targets the next grid speed and SLOWER the one before; between two grid speeds
+    the nearer one counts. highway-env's formula, which takes the grid as evenly spaced,
+    left FASTER at the ego's speed from 7.5 m/s up and took 5 m/s off with SLOWER."""
+    ego = _ego_with(tmp_path)
+    for k, speed in enumerate(GRID):
+        for jitter in (-0.4, 0.0, 0.4):
+            ego.speed = max(speed + jitter, 0.0)
+            ego.act("FASTER")
+            assert ego.target_speed == GRID[min(k + 1, len(GRID) - 1)], (speed, jitter)
+            ego.act("SLOWER")
+            assert ego.target_speed == GRID[max(k - 1, 0)], (speed, jitter)
+
+
+def test_the_models_trained_before_the_grid_fix_keep_highway_env_s_reading(tmp_path):
+    """speed_index "uniform" drives as those models trained: FASTER from 10 m/s targets
+    10 m/s again, SLOWER 5 m/s; a value that is neither is refused naming the field."""
+    ego = _ego_with(tmp_path, "uniform")
+    ego.speed = 10.0
+    ego.act("FASTER")
+    assert ego.target_speed == 10.0
+    ego.act("SLOWER")
+    assert ego.target_speed == 5.0
+    with pytest.raises(ParameterError, match="speed_index"):
+        _ego_with(tmp_path, "even")
+
+
+def test_the_start_s_target_speed_is_the_nearest_grid_speed(tmp_path):
+    """The ego starts at the route's speed limit on the grid: the nearest grid speed (13.4
+    m/s, 30 mph, is 12.5; highway-env's formula gave 10)."""
+    ego = _ego_with(tmp_path)
+    for limit, nearest in ((13.4, 12.5), (11.2, 10.0), (15.6, 15.0), (22.4, 20.0),
+                           (23.0, 25.0)):
+        ego.speed_index = ego.speed_to_index(limit)
+        assert ego.index_to_speed(ego.speed_index) == nearest, limit
+
+
+def test_every_shipped_womd_model_drives_with_the_grid_it_trained_with():
+    """Every WOMD model's definition says how it reads the grid (one without would drive
+    with the default, not with what it trained with): those trained before the grid fix
+    (2026-12-05; e.g. the tenth version's) pin "uniform"; the env's default action, which
+    `tap-bench train` records in a new model's definition, is "nearest"."""
+    import json
+
+    from tap_bench.sim.scenario_format import suite_dir
+    from tap_bench.sim.womd_env import _WomdHighwayEnv
+
+    assert _WomdHighwayEnv.default_config()["action"]["speed_index"] == "nearest"
+    read = {}
+    for path in sorted(suite_dir("policies").glob("*.json")):
+        definition = json.loads(path.read_text())
+        params = definition.get("params", {})
+        if definition.get("kind") == "sb3" and "womd" in params.get("env", ""):
+            read[definition["name"]] = params["action"].get("speed_index")
+    assert len(read) >= 34 and None not in read.values(), read
+    assert {read[f"ppo-womd-tenth-seed{s}"] for s in range(3)} == {"uniform"}
