@@ -55,7 +55,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    "(e.g. gamma=0.95 n_steps=512: arguments of Stable-Baselines3's PPO, DQN "
                    "or A2C); the definition records them all")
     p.add_argument("--timesteps", type=int, required=True, help="decisions to train for")
-    p.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
+    p.add_argument("--seed", type=_seed, default=0,
+                   help="training seed, 0 to 4294967295 (default 0)")
     p.add_argument("-o", "--output", required=True,
                    help="model file, e.g. policies/dqn-highway.zip")
     p.add_argument("--overwrite", action="store_true",
@@ -95,6 +96,19 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    "and the weights at every tenth of the training (weights_<steps>_steps.zip)")
     p.add_argument("-v", "--verbose", action="count", default=0, help="SB3 verbosity")
     p.set_defaults(func=run)
+
+
+def _seed(text: str) -> int:
+    """``--seed``: a whole number numpy and Stable-Baselines3 take as a seed (0 to 2**32 - 1;
+    a negative one failed with a traceback once the training envs had started)."""
+    try:
+        seed = int(text)
+    except ValueError:
+        seed = -1
+    if not 0 <= seed < 2**32:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a seed: give a whole number from 0 "
+                                         f"to {2**32 - 1}")
+    return seed
 
 
 def _curve_options(args: argparse.Namespace) -> list[str]:
@@ -295,6 +309,9 @@ def _typed(item: str, key: str, value: object, annotation: object, owner: str) -
 def run(args: argparse.Namespace) -> int:
     from tap_bench.rl.curve import CurveConfig
     from tap_bench.rl.training import DEFAULT_N_ENVS, train
+    from tap_bench.sim.sb3 import algorithm_class
+
+    algorithm_class(args.algo)  # an unknown one refused before anything is said or started
 
     n_envs = DEFAULT_N_ENVS if args.n_envs is None else args.n_envs
     hyperparameters = _hyperparameters(args.algo, args.hyperparameters)

@@ -173,3 +173,27 @@ def test_the_hyperparameters_reach_the_training_and_its_recorded_command(monkeyp
               "--timesteps", "64", "--no-curve", "-o", str(tmp_path / "m.zip")])
     assert seen["hyperparameters"] == {"gamma": 0.9}
     assert "--hyperparameters gamma=0.9 --timesteps 64" in seen["command"]
+
+
+@pytest.mark.parametrize("seed", ["-1", "4294967296", "x"])
+def test_a_training_seed_numpy_cannot_take_is_refused_by_the_option(seed, capsys):
+    """``--seed -1`` failed with numpy's traceback once the training envs had started."""
+    from tap_bench.cli import main
+
+    argv = ["train", "--algo", "ppo", "--env", "highway", "--timesteps", "8", "-o",
+            "never.zip", "--seed", seed]
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2
+    assert (f"argument --seed: {seed!r} is not a seed: give a whole number from 0 to "
+            "4294967295") in capsys.readouterr().err
+
+
+def test_an_unknown_algorithm_is_refused_before_anything_is_said(monkeypatch, capsys):
+    pytest.importorskip("stable_baselines3")
+    from tap_bench.cli import main
+
+    assert main(["train", "--algo", "pp0", "--env", "womd", "--womd", "x.tfrecord",
+                 "--timesteps", "8", "-o", "never.zip"]) == 2
+    out = capsys.readouterr()
+    assert "unknown algorithm 'pp0'. Did you mean 'ppo'?" in out.err and out.out == ""
