@@ -49,7 +49,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--resamples", type=int, default=2000,
                    help="bootstrap resamples of every interval (default 2000)")
     p.add_argument("--seed", type=int, default=0, help="seed of the resamples (default 0)")
-    p.add_argument("-o", "--output", help="folder of the figures (default RUN/agents)")
+    p.add_argument("-o", "--output",
+                   help="folder of the figures (default RUN/agents, the page of every scene "
+                   "the run's report links; with --scenes RUN/agents/scenes-<SEEDS>)")
     p.set_defaults(func=run)
 
 
@@ -57,7 +59,12 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from tap_bench.bench.report.agents import write_agents_page
-    from tap_bench.bench.scores.agents import agents_figures, interval_text, seed_groups
+    from tap_bench.bench.scores.agents import (
+        agents_figures,
+        interval_text,
+        seed_groups,
+        seeds_text,
+    )
     from tap_bench.sim.policies import available_policies
 
     definitions = available_policies()
@@ -84,7 +91,9 @@ def run(args: argparse.Namespace) -> int:
     result = agents_figures(args.run, groups=groups, level=args.level,
                             n_resamples=args.resamples, seed=args.seed, scenes=scenes,
                             unit=args.resample)
-    output = Path(args.output) if args.output else Path(args.run) / "agents"
+    output = (Path(args.output) if args.output else Path(args.run) / "agents" if scenes is None
+              # not over the page of every scene that the run's report links to
+              else Path(args.run) / "agents" / f"scenes-{seeds_text(sorted(set(scenes)))}")
     viewer = os.path.relpath(Path(args.run) / "viewer" / "index.html", output)
     page = write_agents_page(result, output, viewer=viewer)
     print(_judged(result, args.run))
@@ -111,7 +120,7 @@ def _judged(result: object, run: str) -> str:
     import json
     from pathlib import Path
 
-    from tap_bench.bench.scores.agents import _seed_text
+    from tap_bench.bench.scores.agents import seeds_text
 
     traffic = {}
     try:
@@ -121,7 +130,7 @@ def _judged(result: object, run: str) -> str:
     except (OSError, ValueError, AttributeError):
         pass  # no summary: the envs by name only
     scores = result.scores
-    scenes = _seed_text(sorted({int(k) for k in scores["seed"]}))
+    scenes = seeds_text(sorted({int(k) for k in scores["seed"]}))
     envs = ", ".join(f"{env}" + (f" ({traffic[env]} traffic)" if env in traffic else "")
                      for env in sorted(set(scores["env"].astype(str))))
     what = ("whole training seeds" if result.unit == "run"
@@ -141,7 +150,7 @@ def _trained_on(result: object, definitions: dict) -> list[str]:
     files, ``train_scenes`` and ``held_out_scenes``): the scenes it trained on and those
     held out, by index in those files, and the ``--scenes`` that judges it on the latter:
     nothing else in the outputs says which scenes an agent saw in training."""
-    from tap_bench.bench.scores.agents import _seed_text
+    from tap_bench.bench.scores.agents import seeds_text
 
     seen: dict[tuple[str, tuple], list[str]] = {}
     for agent, policy in result.scores[["agent", "policy"]].drop_duplicates().itertuples(
@@ -155,10 +164,10 @@ def _trained_on(result: object, definitions: dict) -> list[str]:
     lines = []
     for (agent, (files, train, held)), policies in seen.items():
         who = f"{agent} ({len(policies)} seed(s))" if len(policies) > 1 else agent
-        line = (f"{who} trained on scenes {_seed_text(train)} of {' '.join(files)}; "
+        line = (f"{who} trained on scenes {seeds_text(train)} of {' '.join(files)}; "
                 "a scene is its index in those files, in that order")
         if held:
-            line += (f": on a run of them, --scenes {_seed_text(held)} judges it on the "
+            line += (f": on a run of them, --scenes {seeds_text(held)} judges it on the "
                      "scenes it never saw")
         lines.append(line)
     return lines

@@ -381,3 +381,18 @@ def test_the_command_names_the_scenes_each_agent_trained_on(run):
         "in those files, in that order: on a run of them, --scenes 1,5 judges it on the "
         "scenes it never saw"]
     assert _trained_on(result, {}) == []
+
+
+def test_the_figures_on_some_scenes_do_not_replace_the_page_the_report_links(run, capsys):
+    """``--scenes`` without -o writes RUN/agents/scenes-<SEEDS>/: RUN/agents/ is the page of
+    every scene that the run's report links to (it was overwritten by the page of fewer
+    scenes, which does not say so), and the scene links still reach RUN/viewer/."""
+    from tap_bench.cli import main
+
+    assert main(["agents", str(run), "--resamples", "100"]) == 0
+    every = (run / "agents" / "aggregates.csv").read_text()
+    assert main(["agents", str(run), "--resamples", "100", "--scenes", "1"]) == 0
+    assert (run / "agents" / "aggregates.csv").read_text() == every
+    page = run / "agents" / "scenes-1" / "agents.html"
+    assert f"wrote {page} and its tables" in capsys.readouterr().out
+    assert 'href="../../viewer/index.html#ep=' in page.read_text()

@@ -57,7 +57,7 @@ from tap_bench.stats.aggregate import (
 from tap_bench.stats.bootstrap import named_rng
 
 __all__ = ["HUMAN", "PROFILE_THRESHOLDS", "AgentsResult", "SeedGroupError", "agent_of",
-           "agents_figures", "expand_seed_groups", "seed_group", "seed_groups"]
+           "agents_figures", "expand_seed_groups", "seed_group", "seed_groups", "seeds_text"]
 
 HUMAN = "log"
 """The policy that replays the recorded ego: the human, the reference of coverage."""
@@ -324,8 +324,8 @@ def agents_figures(run: str | os.PathLike, *, groups: Mapping[str, Sequence[str]
         missing = [k for k in wanted if k not in have]
         if missing:  # judged on fewer scenes than asked, the figures would say otherwise
             raise FileFormatError(
-                f"{run}: no finished episode on scene(s) {_seed_text(missing)} of the "
-                f"{_seed_text(wanted)} asked; the run has scenes {_seed_text(have)}. A scene "
+                f"{run}: no finished episode on scene(s) {seeds_text(missing)} of the "
+                f"{seeds_text(wanted)} asked; the run has scenes {seeds_text(have)}. A scene "
                 "is its index in the files the run read, in their order, as 'tap-bench train "
                 "--hold-out' counts them in its own files: run the agent's training files "
                 "(tap-bench agents RUN --womd FILES), or name scenes the run has.")
@@ -343,7 +343,7 @@ def agents_figures(run: str | os.PathLike, *, groups: Mapping[str, Sequence[str]
                         level, n_resamples, unit)
 
 
-def _seed_text(seeds: Sequence[int]) -> str:
+def seeds_text(seeds: Sequence[int]) -> str:
     """Sorted scene indices as runs: ``[0, 1, 2, 3, 7]`` -> ``"0-3,7"``."""
     runs: list[list[int]] = []
     for k in seeds:
