@@ -53,7 +53,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--hyperparameters", nargs="+", metavar="KEY=VALUE", default=[],
                    help="the algorithm's settings over tap-bench's defaults, as JSON values "
                    "(e.g. gamma=0.95 n_steps=512: arguments of Stable-Baselines3's PPO, DQN "
-                   "or A2C); the definition records them all")
+                   "or A2C, each of its argument's type and range: gamma in [0, 1], n_steps "
+                   "a whole number from 1, ...); the definition records them all")
     p.add_argument("--timesteps", type=int, required=True, help="decisions to train for")
     p.add_argument("--seed", type=_seed, default=0,
                    help="training seed, 0 to 4294967295 (default 0)")
