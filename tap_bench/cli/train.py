@@ -211,6 +211,8 @@ def _hyperparameters(algo: str, items: list[str]) -> dict[str, object]:
     for key, value in out.items():
         item = f"--hyperparameters {given[key]}"
         out[key] = _typed(item, key, value, parameters[key].annotation, algo.upper())
+        if key == "policy_kwargs" and isinstance(value, dict):
+            _policy_settings(algo, item, value)
         bounds = _BOUNDS.get(key)
         if bounds is not None and isinstance(out[key], int | float):
             low, low_open, high, high_open, meaning = bounds
@@ -221,6 +223,30 @@ def _hyperparameters(algo: str, items: list[str]) -> dict[str, object]:
                                  f"in {'(' if low_open else '['}{low:g}, {high:g}"
                                  f"{')' if high_open else ']'}.")
     return out
+
+
+# arguments of the policy network that the algorithm passes itself
+_NOT_POLICY_SETTINGS = frozenset({"observation_space", "action_space", "lr_schedule",
+                                  "use_sde"})
+
+
+def _policy_settings(algo: str, item: str, settings: dict) -> None:
+    """``policy_kwargs``' keys and values checked against the arguments of the algorithm's
+    ``MlpPolicy`` (the policy tap-bench trains: net_arch, ortho_init, ...), as
+    :func:`_typed` checks the algorithm's own. Exits naming the key and what it takes."""
+    import inspect
+
+    from tap_bench.sim.sb3 import algorithm_class
+
+    policy = algorithm_class(algo).policy_aliases["MlpPolicy"]
+    parameters = inspect.signature(policy).parameters
+    known = sorted(set(parameters) - _NOT_POLICY_SETTINGS)
+    owner = f"{algo.upper()}'s MlpPolicy"
+    for key, value in settings.items():
+        if key not in known:
+            raise SystemExit(f"tap-bench train: {item}: {key!r} is not a setting of {owner}; "
+                             f"use one of {', '.join(known)}.")
+        settings[key] = _typed(item, key, value, parameters[key].annotation, owner)
 
 
 # the ranges of the algorithms' settings (as their papers define them; outside, SB3 fails
@@ -254,56 +280,90 @@ _BOUNDS: dict[str, tuple[float, bool, float, bool, str]] = {
 }
 
 
+def _union(kind: object) -> tuple:
+    """The members of a union annotation (``float | None``), else the annotation alone."""
+    import types
+    import typing
+
+    return (typing.get_args(kind)
+            if typing.get_origin(kind) in (typing.Union, types.UnionType) else (kind,))
+
+
+def _matches(value: object, kind: object) -> bool:
+    """Whether a JSON value is of the annotated type ``kind`` (see :func:`_typed`)."""
+    import typing
+
+    if len(_union(kind)) > 1:
+        return any(_matches(value, k) for k in _union(kind))
+    origin, args = typing.get_origin(kind) or kind, typing.get_args(kind)
+    if kind is typing.Any:
+        return True
+    if kind is type(None):
+        return value is None
+    if kind in (bool, str):
+        return isinstance(value, kind)
+    if kind is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if kind is float:
+        return (isinstance(value, int | float) and not isinstance(value, bool)
+                and math.isfinite(value))
+    if origin is dict:
+        return isinstance(value, dict) and (not args or all(
+            _matches(v, args[1]) for v in value.values()))
+    if origin is list:
+        return isinstance(value, list) and (not args or all(_matches(v, args[0])
+                                                            for v in value))
+    if origin is tuple:
+        return (isinstance(value, list) and len(value) == len(args)
+                and all(_matches(v, a) for v, a in zip(value, args, strict=True)))
+    return False  # a class, a function: nothing JSON gives
+
+
+def _describe(kind: object) -> str:
+    """What JSON value ``kind`` takes, in words ("" where none does: a class, a function)."""
+    import typing
+
+    if len(_union(kind)) > 1:
+        return " or ".join(filter(None, (_describe(k) for k in _union(kind))))
+    origin, args = typing.get_origin(kind) or kind, typing.get_args(kind)
+    words = {typing.Any: "any JSON value", type(None): "null", bool: "true or false",
+             str: "a quoted text", int: "a whole number", float: "a finite number"}
+    if kind in words:
+        return words[kind]
+    if origin is dict:
+        inner = _describe(args[1]) if args else ""
+        return "a mapping" + (f" (each value {inner})" if args and args[1] is not typing.Any
+                              and inner else "")
+    if origin is list:
+        inner = _describe(args[0]) if args else ""
+        return "a list" + (f" (each item {inner})" if inner else "")
+    if origin is tuple:
+        return f"a list of {len(args)} ({', '.join(getattr(a, '__name__', str(a)) for a in args)})"
+    return ""
+
+
 def _typed(item: str, key: str, value: object, annotation: object, owner: str) -> object:
     """``value`` (read as JSON) as the type of the algorithm's argument (its annotation in
     the class's signature): a whole number for an int, a finite number for a float (not
-    true/false), true or false for a bool, a mapping for a dict, null where None is taken,
-    a list of the tuple's items for a tuple (as the tuple). Exits naming what it takes
-    (``item``: the option's item, ``key`` the setting, ``owner`` the algorithm)."""
+    true/false), true or false for a bool, a mapping for a dict, a list for a list, each
+    item of its type, null where None is taken, a list of the tuple's items for a tuple
+    (as the tuple). Exits naming what it takes (``item``: the option's item, ``key`` the
+    setting, ``owner`` whose setting it is)."""
     import inspect
-    import types
     import typing
 
     if annotation is inspect.Parameter.empty or isinstance(annotation, str | typing.ForwardRef):
         return value  # a signature that does not say its type (annotations as text)
-    kinds = (typing.get_args(annotation)
-             if typing.get_origin(annotation) in (typing.Union, types.UnionType)
-             else (annotation,))
-    names = []
-    for kind in kinds:
-        origin = typing.get_origin(kind) or kind
-        if kind is type(None):
-            names.append("null")
-            if value is None:
-                return None
-        elif kind is bool:
-            names.append("true or false")
-            if isinstance(value, bool):
-                return value
-        elif kind is int:
-            names.append("a whole number")
-            if isinstance(value, int) and not isinstance(value, bool):
-                return value
-        elif kind is float:
-            names.append("a finite number")
-            if (isinstance(value, int | float) and not isinstance(value, bool)
-                    and math.isfinite(value)):
-                return float(value)
-        elif origin is dict:
-            names.append("a mapping")
-            if isinstance(value, dict):
-                return value
-        elif origin is tuple:
-            parts = typing.get_args(kind)
-            names.append(f"a list of {len(parts)} ({', '.join(p.__name__ for p in parts)})")
-            if (isinstance(value, list) and len(value) == len(parts)
-                    and all(isinstance(v, p) and not isinstance(v, bool)
-                            for v, p in zip(value, parts, strict=True))):
-                return tuple(value)
+    for kind in _union(annotation):
+        if _matches(value, kind):
+            return (float(value) if kind is float else
+                    tuple(value) if (typing.get_origin(kind) or kind) is tuple else value)
+    names = [d for d in (_describe(k) for k in _union(annotation)) if d]
     if set(names) <= {"null"}:  # a class or a function: nothing JSON can give but None
         raise SystemExit(f"tap-bench train: {item}: {key} of {owner} is a class or a "
-                         "function, which a JSON value cannot give (null: the default); set "
-                         "it in Python: tap_bench.rl.training.train(..., hyperparameters=).")
+                         "function, which a JSON value cannot give"
+                         + (" (null: the default)" if names else "") + "; set it in Python: "
+                         "tap_bench.rl.training.train(..., hyperparameters=).")
     raise SystemExit(f"tap-bench train: {item}: {key} of {owner} takes {' or '.join(names)}.")
 
 

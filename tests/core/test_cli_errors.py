@@ -131,6 +131,16 @@ def test_hyperparameters_are_the_algorithm_s_settings_as_json_values():
     ("dqn", "train_freq=[4]", r"train_freq of DQN takes a whole number or a list of 2 "
      r"\(int, str\)"),
     ("dqn", "exploration_final_eps=2", r"give a value in \[0, 1\]"),
+    # policy_kwargs: the arguments of the MlpPolicy trained (activation_fn="tanh" and a
+    # misspelt key ended in tracebacks when the model was built)
+    ("ppo", 'policy_kwargs={"activation_fn": "tanh"}', "activation_fn of PPO's MlpPolicy is "
+     "a class or a function, which a JSON value cannot give"),
+    ("ppo", 'policy_kwargs={"netarch": [64]}', r"'netarch' is not a setting of PPO's "
+     r"MlpPolicy; use one of .*net_arch"),
+    ("ppo", 'policy_kwargs={"net_arch": [64, "x"]}', r"net_arch of PPO's MlpPolicy takes a "
+     r"list \(each item a whole number\) or a mapping"),
+    ("dqn", 'policy_kwargs={"net_arch": {"pi": [64]}}', r"net_arch of DQN's MlpPolicy takes a "
+     r"list \(each item a whole number\) or null\."),
 ])
 def test_a_hyperparameter_of_the_wrong_type_or_range_is_refused_before_training(
         algo, item, message):
@@ -152,6 +162,9 @@ def test_hyperparameters_of_their_type_pass_and_a_setting_given_twice_is_refused
                                     "sde_sample_freq=-1"]) == {
         "learning_rate": 1.0, "clip_range_vf": None, "gamma": 1.0, "sde_sample_freq": -1}
     assert _hyperparameters("dqn", ['train_freq=[4, "step"]']) == {"train_freq": (4, "step")}
+    arch = '{"net_arch": {"pi": [64], "vf": [32]}, "ortho_init": false}'
+    assert _hyperparameters("a2c", [f"policy_kwargs={arch}"]) == {
+        "policy_kwargs": {"net_arch": {"pi": [64], "vf": [32]}, "ortho_init": False}}
     with pytest.raises(SystemExit, match=r"gamma=0\.8: 'gamma' is given twice"):
         _hyperparameters("ppo", ["gamma=0.9", "gamma=0.8"])
 
