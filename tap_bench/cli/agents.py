@@ -4,6 +4,11 @@ from __future__ import annotations
 
 import argparse
 import os
+from collections.abc import Mapping
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from tap_bench.bench.scores.agents import AgentsResult
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -19,7 +24,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "own label. A policy of kind 'seeds' (policies/ppo-womd.json) stands for its "
         "trained seeds. With --womd the suite (default womd-agents: the human, IDM, lane "
         "keeping, random and the shipped agents) is first run on those files into RUN. "
-        "Writes RUN/agents/ (tables as CSV, profiles.png, agents.html).")
+        "Writes RUN/agents/ (tables as CSV, profiles.png, agents.html; with --scenes "
+        "RUN/agents/scenes-<SEEDS>/).")
     p.add_argument("run", help="run folder: read, or with --womd written first")
     p.add_argument("--womd", nargs="+", metavar="FILE",
                    help="WOMD files, folders or globs: run the suite on every scene of them "
@@ -66,9 +72,12 @@ def run(args: argparse.Namespace) -> int:
         seeds_text,
     )
     from tap_bench.sim.policies import available_policies
+    from tap_bench.sim.scenario_format import parse_seeds
 
     definitions = available_policies()
     groups = seed_groups(definitions)
+    # read before the suite runs: a typo fails at once, not after the episodes
+    scenes = None if args.scenes is None else list(parse_seeds(args.scenes, source="--scenes"))
     if args.womd:
         _run_suite(args)
     else:
@@ -85,9 +94,6 @@ def run(args: argparse.Namespace) -> int:
                 f"{flags} {'go' if len(given) > 1 else 'goes'} with --womd (how the suite "
                 f"runs): {args.run} is read as it was run. Add --womd FILES to run it, or "
                 f"leave {'them' if len(given) > 1 else 'it'} out."))
-    from tap_bench.sim.scenario_format import parse_seeds
-
-    scenes = None if args.scenes is None else list(parse_seeds(args.scenes))
     result = agents_figures(args.run, groups=groups, level=args.level,
                             n_resamples=args.resamples, seed=args.seed, scenes=scenes,
                             unit=args.resample)
@@ -112,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _judged(result: object, run: str) -> str:
+def _judged(result: AgentsResult, run: str) -> str:
     """The line that says what the figures are of: the scenes (their indices; those route
     progress is taken on, where the human moved, when fewer), the env and its traffic (from
     the run's ``summary.json``: ``log`` replays the other road users, ``idm`` drives them by
@@ -145,7 +151,7 @@ def _judged(result: object, run: str) -> str:
             f"{result.level:.0%} bootstrap over {what}, {result.n_resamples} resamples")
 
 
-def _trained_on(result: object, definitions: dict) -> list[str]:
+def _trained_on(result: AgentsResult, definitions: Mapping[str, object]) -> list[str]:
     """A line per agent of the run trained on recorded scenes (its definitions record the
     files, ``train_scenes`` and ``held_out_scenes``): the scenes it trained on and those
     held out, by index in those files, and the ``--scenes`` that judges it on the latter:

@@ -396,3 +396,14 @@ def test_the_figures_on_some_scenes_do_not_replace_the_page_the_report_links(run
     page = run / "agents" / "scenes-1" / "agents.html"
     assert f"wrote {page} and its tables" in capsys.readouterr().out
     assert 'href="../../viewer/index.html#ep=' in page.read_text()
+
+
+def test_a_scenes_typo_is_refused_before_the_suite_runs(monkeypatch, tmp_path, capsys):
+    """``--womd FILES --scenes 1,x``: the typo was read after every episode had run."""
+    import tap_bench.bench.run.runner as runner
+    from tap_bench.cli import main
+
+    monkeypatch.setattr(runner, "run_suite", lambda *a, **k: pytest.fail("the suite ran"))
+    assert main(["agents", str(tmp_path / "run"), "--womd", str(tmp_path),
+                 "--scenes", "1,x"]) == 2
+    assert "--scenes: 'x' in '1,x' is not a seed or a range" in capsys.readouterr().err
