@@ -141,12 +141,13 @@ def _judged(result: AgentsResult, run: str) -> str:
                      for env in sorted(set(scores["env"].astype(str))))
     what = ("whole training seeds" if result.unit == "run"
             else "the seeds of each scene (stratified)")
-    progress = result.aggregates[result.aggregates["measure"] == "route_progress"]
-    moved = int(progress["scenes"].max()) if len(progress) else 0
     n = scores["task"].nunique()
-    where = ("" if moved == n else
-             f"; route progress on the {moved} where the human moved (it is a share of the "
-             "human's route)")
+    scored = result.aggregates.groupby("measure")["scenes"].max() if len(
+        result.aggregates) else {}
+    # a measure scored on fewer scenes: route progress, a share of the human's route, is
+    # none where the human did not move
+    where = "".join(f"; {str(measure).replace('_', ' ')} on the {k} where the human moved"
+                    for measure, k in dict(scored).items() if k < n)
     return (f"on {n} scene(s) ({scenes}) of env {envs}{where}; intervals: "
             f"{result.level:.0%} bootstrap over {what}, {result.n_resamples} resamples")
 

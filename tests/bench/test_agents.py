@@ -273,8 +273,8 @@ def test_the_command_says_what_its_figures_are_of_and_which_bootstrap(run, capsy
     assert main(["agents", str(run), "--resamples", "100"]) == 0
     out = capsys.readouterr().out
     assert ("on 2 scene(s) (0,1) of env womd (idm traffic); route progress on the 1 where "
-            "the human moved (it is a share of the human's route); intervals: 95% bootstrap "
-            "over whole training seeds, 100 resamples") in out
+            "the human moved; intervals: 95% bootstrap over whole training seeds, 100 "
+            "resamples") in out
     parser = build_parser(["agents", str(run)])
     agents = parser._subparsers._group_actions[0].choices["agents"]
     text = " ".join(agents.description.split())
