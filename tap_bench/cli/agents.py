@@ -187,7 +187,7 @@ def _run_suite(args: argparse.Namespace) -> None:
     from tap_bench.bench.run.runner import run_suite
     from tap_bench.bench.scores.agents import HUMAN
     from tap_bench.bench.suite import load_suite, suite_from_dict
-    from tap_bench.errors import ParameterError
+    from tap_bench.errors import ParameterError, RunExistsError
 
     suite = load_suite(args.suite)
     if HUMAN not in suite.policies:  # refused before its episodes run, not after
@@ -200,8 +200,12 @@ def _run_suite(args: argparse.Namespace) -> None:
     doc["seeds"] = "all"
     suite = suite_from_dict(doc, source=f"{args.suite} on {' '.join(args.womd)}")
     cache = None if args.no_cache else EpisodeCache(default_cache_dir())
-    run_suite(suite, args.run, workers=args.workers, overwrite=args.overwrite, cache=cache,
-              announce=lambda line: print(line, flush=True))
+    try:
+        run_suite(suite, args.run, workers=args.workers, overwrite=args.overwrite, cache=cache,
+                  announce=lambda line: print(line, flush=True))
+    except RunExistsError as err:  # the other way a user meant: judge the run as it is
+        raise RunExistsError(f"{err} To judge the run it holds as it was run, leave out "
+                             f"--womd: tap-bench agents {args.run}") from None
 
 
 def _womd_inputs(paths: list[str]) -> list[str]:

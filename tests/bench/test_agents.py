@@ -407,3 +407,19 @@ def test_a_scenes_typo_is_refused_before_the_suite_runs(monkeypatch, tmp_path, c
     assert main(["agents", str(tmp_path / "run"), "--womd", str(tmp_path),
                  "--scenes", "1,x"]) == 2
     assert "--scenes: 'x' in '1,x' is not a seed or a range" in capsys.readouterr().err
+
+
+def test_an_existing_run_folder_says_how_to_judge_it_as_it_is(womd_dir, run, capsys):
+    """``--womd FILES`` into a run folder that exists: besides --overwrite, the error names
+    the command that judges the run it holds (the user re-running to re-judge)."""
+    import warnings
+
+    from tap_bench.cli import main
+    from tap_bench.tableio import FOLDER_MARKER
+
+    (run / FOLDER_MARKER).write_text("")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the folder's README is left out with a note
+        assert main(["agents", str(run), "--womd", str(womd_dir)]) == 2
+    assert (f"pass --overwrite to replace it. To judge the run it holds as it was run, leave "
+            f"out --womd: tap-bench agents {run}") in capsys.readouterr().err
