@@ -83,6 +83,18 @@ SHIPPED_MODELS: dict[str, str] = {
         "ppo-womd-horizon-foldb-seed1.zip",
     "d4e56bfa5f22190657f4cd7982ea2dcf799cee2818cbdd293dfc6e3a28ad7800":
         "ppo-womd-horizon-foldb-seed2.zip",
+    "26a135d030faf8cf997865b279b5a2f410be06a5132e550afda85368dbff6315":
+        "ppo-womd-grid-seed0.zip",
+    "62c3e6e49731a12f2e75a66276f89225d1715afddad843391b7d0fcdd6e1c0b7":
+        "ppo-womd-grid-seed1.zip",
+    "8e63ffda3cf8082b2cac24f26963793e4165d0695928e5a03a70d2cf1c04672f":
+        "ppo-womd-grid-seed2.zip",
+    "91af16d6e05f93de666f72ab6a826fce2e145e2e14425b3a87ac7b3e63b937c0":
+        "ppo-womd-grid-foldb-seed0.zip",
+    "97cbbf99ba1db619d6c60020a79b25d17183a4ee7bf309d3eb355a4d0fc1f01c":
+        "ppo-womd-grid-foldb-seed1.zip",
+    "5b67eaa7c4c398b85939410b2a9d4236b330e4e1e2d62ab865f1aba4e2054d56":
+        "ppo-womd-grid-foldb-seed2.zip",
 }
 """SHA-256 digest of each model file shipped in ``policies/`` -> its name. Known in the
 installed code, not beside the file: a digest that a model folder could carry would vouch
