@@ -39,10 +39,10 @@ Usage: python benchmarks/agents_validation.py --womd FILES --scenes 2,5,10,14
        --policies sel-all.zip sel-sdc.zip lane-keeping random [--out eps.csv]
        [--intervals] [--traffic idm]
        [--layer '{"predicted": true, "lanes": true, "tolerance": 0.5, "hold": true}']
-       [--pool ppo-womd=ppo-womd-split-seed0,ppo-womd-split-seed1,ppo-womd-split-seed2,ppo-womd-split-seed3,ppo-womd-split-seed4]
+       [--pool ppo-womd=ppo-womd-grid-seed0,ppo-womd-grid-seed1,ppo-womd-grid-seed2]
        python benchmarks/agents_validation.py --episodes folda.csv foldb.csv
        --policies lane-keeping random idm --intervals
-       --cross ppo-womd-xfit=ppo-womd-split-seed0,ppo-womd-split-seed1+ppo-womd-foldb-seed0,ppo-womd-foldb-seed1
+       --cross ppo-womd-xfit=ppo-womd-grid-seed0,ppo-womd-grid-seed1+ppo-womd-grid-foldb-seed0,ppo-womd-grid-foldb-seed1
 """  # noqa: E501
 
 from __future__ import annotations

@@ -473,7 +473,7 @@ def seed_groups(definitions: Mapping[str, object] | None = None) -> dict[str, tu
 
 def expand_seed_groups(policies: Sequence[object]) -> tuple[object, ...]:
     """The policies of a suite with every policy of kind ``seeds`` replaced by its training
-    seeds, in order (``["idm", "ppo-womd"]`` -> ``("idm", "ppo-womd-split-seed0", ...)``); a
+    seeds, in order (``["idm", "ppo-womd"]`` -> ``("idm", "ppo-womd-grid-seed0", ...)``); a
     policy named twice this way is kept once. What ``bench run`` runs, so that a suite can
     name an agent and ``tap-bench agents`` aggregate its seeds.
 

@@ -3,8 +3,7 @@
 
 **Agents and their runs.** A policy definition of kind ``seeds`` names a policy that stands
 for several trained seeds (``policies/ppo-womd.json``: ``{"kind": "seeds", "params":
-{"seeds": ["ppo-womd-split-seed0", "ppo-womd-split-seed1", "ppo-womd-split-seed2",
-"ppo-womd-split-seed3", "ppo-womd-split-seed4"]}}``). In a
+{"seeds": ["ppo-womd-grid-seed0", "ppo-womd-grid-seed1", "ppo-womd-grid-seed2"]}}``). In a
 run folder (``bench run`` on recorded scenes) every policy that is a seed of such a group is
 a run of that agent; any other policy is an agent of one run (IDM, lane keeping, random,
 the human ``log``: one episode per scene). A task is a scene (env and scene index).
