@@ -423,3 +423,23 @@ def test_an_existing_run_folder_says_how_to_judge_it_as_it_is(womd_dir, run, cap
         assert main(["agents", str(run), "--womd", str(womd_dir)]) == 2
     assert (f"pass --overwrite to replace it. To judge the run it holds as it was run, leave "
             f"out --womd: tap-bench agents {run}") in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("unit", "said"), [("run", "bootstrap over whole seeds"),
+                                            ("task", "stratified bootstrap")])
+def test_the_profiles_plot_says_what_its_bands_resampled(tmp_path, monkeypatch, unit, said):
+    """The default bootstrap resamples whole training seeds; the title said "stratified"
+    whatever was resampled."""
+    import matplotlib.axes
+
+    from tap_bench.bench.report.agents import plot_profiles
+
+    titles = []
+    original = matplotlib.axes.Axes.set_title
+    monkeypatch.setattr(matplotlib.axes.Axes, "set_title",
+                        lambda self, text, *a, **k: titles.append(text) or
+                        original(self, text, *a, **k))
+    profiles = pd.DataFrame({"agent": ["a", "a"], "tau": [0.0, 1.0], "share": [1.0, 0.5],
+                             "low": [1.0, 0.4], "high": [1.0, 0.6]})
+    plot_profiles(profiles, tmp_path / "p.png", level=0.95, unit=unit)
+    assert titles == [f"Performance profiles (95% bands, {said})"]

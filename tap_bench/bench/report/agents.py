@@ -29,8 +29,12 @@ _NAMES = {"route_progress": "route progress (IQM)",
           "crashed_at_fault": "at-fault collisions (rate)", "off_road": "off-road (rate)"}
 
 
-def plot_profiles(profiles: pd.DataFrame, path: str | os.PathLike, *, level: float) -> Path:
-    """The route-progress performance profiles, one line per agent with its band, as PNG."""
+def plot_profiles(profiles: pd.DataFrame, path: str | os.PathLike, *, level: float,
+                  unit: str = "run") -> Path:
+    """The route-progress performance profiles, one line per agent with its band, as PNG;
+    the title says what the bands' bootstrap resampled (``unit``, as
+    :func:`~tap_bench.bench.scores.agents.agents_figures`' : ``"run"`` whole training seeds,
+    ``"task"`` the seeds of each scene, rliable's stratified bootstrap)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -44,7 +48,8 @@ def plot_profiles(profiles: pd.DataFrame, path: str | os.PathLike, *, level: flo
     ax.set_xlabel("route progress tau")
     ax.set_ylabel("share of runs x scenes with progress > tau")
     ax.set_ylim(-0.02, 1.02)
-    ax.set_title(f"Performance profiles ({level:.0%} stratified bootstrap bands)")
+    what = "bootstrap over whole seeds" if unit == "run" else "stratified bootstrap"
+    ax.set_title(f"Performance profiles ({level:.0%} bands, {what})")
     ax.legend(fontsize=8)
     fig.tight_layout()
     path = Path(path)
@@ -109,7 +114,8 @@ def write_agents_page(result: AgentsResult, folder: str | os.PathLike, *,
     for name, table in result.tables().items():
         write_table(table, folder / f"{name}.csv")
     if len(result.profiles):
-        plot_profiles(result.profiles, folder / "profiles.png", level=result.level)
+        plot_profiles(result.profiles, folder / "profiles.png", level=result.level,
+                      unit=result.unit)
     agents = sorted(dict.fromkeys(result.scores["agent"]), key=lambda a: (a != HUMAN, a))
     improvement = result.improvement.copy()
     if len(improvement):
