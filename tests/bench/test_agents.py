@@ -443,3 +443,27 @@ def test_the_profiles_plot_says_what_its_bands_resampled(tmp_path, monkeypatch, 
                              "low": [1.0, 0.4], "high": [1.0, 0.6]})
     plot_profiles(profiles, tmp_path / "p.png", level=0.95, unit=unit)
     assert titles == [f"Performance profiles (95% bands, {said})"]
+
+
+def test_the_viewer_reads_a_suite_s_folder_of_womd_files_again(womd_dir):
+    """A suite may name a folder of WOMD files (any suite file, not only the one `tap-bench
+    agents` writes): the viewer reads its records again for the traffic signals, without
+    a warning that the files are gone."""
+    import warnings
+
+    from tap_bench.bench.report.viewer.build import _add_run_signals, _present_files
+    from tap_bench.sources.ingest import record_files
+    from tap_bench.sources.maps import iter_road_maps
+
+    summary = {"suite": {"envs": [{"name": "womd", "womd": [str(womd_dir)]}]}}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the folder's README is left out with a note
+        records = [str(p) for p in record_files([womd_dir])]
+        lit = next(road.scenario_id for road in iter_road_maps(records)
+                   if road.signals is not None and road.signals.lane.size)
+    chunks = {"c": [{"id": f"{lit}/log"}]}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert _present_files(summary) == records
+        _add_run_signals(summary, chunks)
+    assert "signals" in chunks["c"][0]

@@ -298,9 +298,7 @@ def _chunks_with_roads(summary: dict[str, Any], members: Mapping[str, list[str]]
 def _present_files(summary: dict[str, Any]) -> list[str]:
     """The suite's WOMD files that are still there, as the run read them (folders and
     globs leave out files that are not records); a warning names those gone."""
-    files = _run_womd_files(summary)
-    found = {f: (sorted(glob.glob(f)) if glob.has_magic(f) else
-                 [f] if Path(f).is_file() else []) for f in files}
+    found = _found(_run_womd_files(summary))
     gone = [f for f, paths in found.items() if not paths]
     if gone:
         warnings.warn(f"the viewer shows no traffic signals for the scenes of "
@@ -311,6 +309,14 @@ def _present_files(summary: dict[str, Any]) -> list[str]:
         return []
     return [str(p) for p in record_files([f for f, paths in found.items() if paths],
                                          note=lambda text: None)]
+
+
+def _found(files: Sequence[str]) -> dict[str, list[str]]:
+    """Each of a suite's WOMD paths -> what is there of it now: a glob's matches, a file or a
+    folder itself (:func:`~tap_bench.sources.ingest.record_files` reads a folder's records),
+    nothing where it is gone."""
+    return {f: (sorted(glob.glob(f)) if glob.has_magic(f) else [f] if Path(f).exists() else [])
+            for f in files}
 
 
 def _recorded_scenes(trajectories: pd.DataFrame) -> dict[str, str]:
@@ -431,8 +437,7 @@ def _add_run_signals(summary: dict[str, Any], chunks: dict[str, list[dict[str, A
     files = _run_womd_files(summary)
     if not files:
         return
-    found = {f: (sorted(glob.glob(f)) if glob.has_magic(f) else
-                 [f] if Path(f).is_file() else []) for f in files}
+    found = _found(files)
     # as the run read them: folders and globs leave out files that are not records
     present = ([str(p) for p in record_files([f for f, paths in found.items() if paths],
                                             note=lambda text: None)]
