@@ -57,6 +57,34 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def _training_split(policy: str, scenes: object, ok: object) -> list[str]:
+    """For an agent trained on recorded scenes (its definition records the split:
+    ``tap-bench train --hold-out``), the summary on the scenes driven that it never saw and
+    on those it trained on, apart: the two pooled would pass training scenes off as a
+    test. Nothing for other policies."""
+    from tap_bench.bench.scores.agents import seeds_text
+    from tap_bench.rl.heldout import seen_in_training
+    from tap_bench.sim.policies import get_definition
+
+    definition = get_definition(policy)
+    roots = [Path.cwd(), *([definition.path.parent.parent] if definition.path else [])]
+    seen = seen_in_training(dict(definition.params or {}), [str(r) for r in
+                                                              scenes.catalog()], roots)
+    if not seen:
+        return []
+    lines = []
+    for flag, what in ((False, "held out of its training (never seen)"),
+                       (True, "trained on"), (None, "new to it (not in its training files)")):
+        rows = ok[[seen[int(k)] is flag for k in ok["seed"]]]
+        if len(rows):
+            lines.append(
+                f"  {what}: {len(rows)} scene(s) ({seeds_text(sorted(set(rows['seed'])))}): "
+                f"route progress {rows['route_progress'].mean():.2f}, at-fault crash rate "
+                f"{rows['crash_at_fault'].astype(bool).mean():.1%}, off road "
+                f"{rows['off_road'].mean():.1%}")
+    return [f"{definition.name} (its definition's training split):", *lines]
+
+
 def run(args: argparse.Namespace) -> int:
     import sys
 
@@ -117,6 +145,9 @@ def run(args: argparse.Namespace) -> int:
                   f"{int(ok['traffic_collisions'].sum())} in "
                   f"{int((ok['traffic_collisions'] > 0).sum())} of {len(ok)} episodes, "
                   f"{int(ok['traffic_collisions_with_log'].sum())} with a replayed agent")
+    if args.womd and len(ok):
+        for line in _training_split(args.policy, env, ok):
+            print(line)
     skipped = episodes[episodes["status"] == "skipped"]
     if len(skipped):
         print(f"{len(skipped)} episode(s) skipped (not failures): no route to follow")

@@ -8,9 +8,11 @@ or suite run on the held-out scenes names the same seeds (``--seeds``).
 
 from __future__ import annotations
 
+import os
 import warnings
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -19,7 +21,8 @@ import numpy as np
 from tap_bench.errors import ParameterError
 from tap_bench.sim.womd_scene import CURRENT_STEP, Scene, SceneError, WomdScenes
 
-__all__ = ["EGOS", "MIN_TRAVEL", "SceneSplit", "SceneSubset", "drivers", "split_scenes"]
+__all__ = ["EGOS", "MIN_TRAVEL", "SceneSplit", "SceneSubset", "drivers", "seen_in_training",
+           "split_scenes"]
 
 EGOS = ("sdc", "all")
 """Who the agent drives in a training scene: the scene's ego (``"sdc"``), or every vehicle
@@ -165,3 +168,40 @@ class SceneSubset(gym.Wrapper):
         self._visits[scene] = visit + 1
         track = names[visit % len(names)]
         return None if track == names[0] else track
+
+
+def _scene_key(ref: str, root: Path) -> tuple[str, int]:
+    """A scene ref (``"file record k"``, or a pickle's ``"file"``) as (the file's real path,
+    with a relative one taken from ``root``; the record)."""
+    path, _, record = str(ref).rpartition(" record ")
+    if not path:  # no record: a one-scene file
+        path, record = str(ref), "0"
+    full = Path(path) if Path(path).is_absolute() else root / path
+    return os.path.realpath(full), int(record)
+
+
+def seen_in_training(params: Mapping[str, Any], refs: Sequence[str],
+                     roots: Sequence[str | os.PathLike]) -> list[bool | None]:
+    """For each of the scenes ``refs`` (``"file record k"``, as
+    :meth:`~tap_bench.sim.womd_scene.WomdScenes.catalog` names them): True where a trained
+    agent's definition (``params``: ``womd``, ``train_scenes``, ``held_out_refs``, as
+    ``tap-bench train --hold-out`` records them) trained on it, False where it held it out,
+    None where the files it trained on do not hold it (new to it). The definition's relative
+    paths are tried from each of ``roots`` in turn (the folder training ran in: the project
+    root for ``policies/``, or the current folder); a root under which no training file
+    exists is skipped. An empty list where the definition records no split."""
+    if not params.get("womd") or "train_scenes" not in params:
+        return []
+    for root in map(Path, roots):
+        files = [f if Path(f).is_absolute() else str(root / f) for f in params["womd"]]
+        if not all(Path(f).exists() for f in files):
+            continue
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a folder's README: noted when it was read
+            catalog = [str(r) for r in WomdScenes(tuple(files)).catalog()]
+        trained = {_scene_key(catalog[i], Path.cwd()) for i in params["train_scenes"]
+                   if i < len(catalog)}
+        held = {_scene_key(r, root) for r in params.get("held_out_refs") or ()}
+        keys = [_scene_key(r, Path.cwd()) for r in refs]
+        return [True if k in trained else False if k in held else None for k in keys]
+    return [None] * len(refs)

@@ -153,3 +153,51 @@ def test_training_on_all_drivers_drives_each_in_turn(four):
     assert seen[:2] == names[:2] and set(seen) == set(driven) and len(driven) > 3
     with pytest.raises(ParameterError, match="egos"):
         SceneSubset(WomdEnv(four, record=False, cycle=True), (0,), egos="everyone")
+
+
+def test_the_scenes_a_definition_trained_on_are_found_in_other_files_by_their_record(
+        womd_dir, tmp_path):
+    """Trained on scenes 1, 2, 5, 9, 12-15 of the samples and the development file: in the
+    development file alone (scene k is its record k there) it trained on records 1, 5, 8-11
+    and held out the rest; a file it never read is new to it; from a folder where its
+    training files are not, nothing is known."""
+    import os
+
+    from tap_bench.rl.heldout import seen_in_training
+
+    dev = womd_dir.parent / "womd-dev" / "dev.tfrecord"
+    if not dev.is_file():
+        pytest.skip(f"{dev} not found")
+    root = womd_dir.parent.parent.parent  # a folder the relative paths below start from
+    rel = os.path.relpath
+    files = [rel(womd_dir, root), rel(dev, root)]
+    params = {"womd": files, "train_scenes": [1, 2, 5, 9, 12, 13, 14, 15],
+              "held_out_scenes": [0, 3, 4, 6, 7, 8, 10, 11],
+              "held_out_refs": [f"{rel(womd_dir, root)}/motion_data_one_example.tfrecord record 0",
+                                f"{rel(womd_dir, root)}/womd_scenario_input.tfrecord record 0",
+                                *(f"{rel(dev, root)} record {k}" for k in (0, 2, 3, 4, 6, 7))]}
+    refs = [f"{dev} record {k}" for k in range(12)] + [str(tmp_path / "other.tfrecord record 0")]
+    seen = seen_in_training(params, refs, [tmp_path, root])
+    assert seen[:12] == [k in (1, 5, 8, 9, 10, 11) for k in range(12)]
+    assert seen[12] is None
+    assert seen_in_training(params, refs, [tmp_path]) == [None] * 13
+    assert seen_in_training({"womd": files}, refs, [root]) == []
+
+
+def test_a_rollout_of_a_trained_agent_gives_its_unseen_and_training_scenes_apart(
+        womd_dir, tmp_path, capsys, monkeypatch):
+    """Pooled, the summary would pass training scenes off as a test. Run from elsewhere:
+    the definition's relative training paths start from the project root (policies/..)."""
+    pytest.importorskip("stable_baselines3")
+    from tap_bench.cli import main
+
+    dev = womd_dir.parent / "womd-dev" / "dev.tfrecord"
+    if not dev.is_file():
+        pytest.skip(f"{dev} not found")
+    monkeypatch.chdir(tmp_path)
+    main(["rollout", "--womd", str(dev), "--policy", "ppo-womd-grid-foldb-seed1", "--seeds",
+          "0,1", "-o", str(tmp_path / "r.parquet"), "--no-progress"])
+    out = capsys.readouterr().out
+    assert "ppo-womd-grid-foldb-seed1 (its definition's training split):" in out
+    assert "  held out of its training (never seen): 1 scene(s) (0): route progress" in out
+    assert "  trained on: 1 scene(s) (1): route progress" in out
