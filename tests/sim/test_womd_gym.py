@@ -280,3 +280,45 @@ def test_every_shipped_womd_model_drives_with_the_grid_it_trained_with():
             read[definition["name"]] = params["action"].get("speed_index")
     assert len(read) >= 34 and None not in read.values(), read
     assert {read[f"ppo-womd-tenth-seed{s}"] for s in range(3)} == {"uniform"}
+
+
+def _grids():
+    """Strictly increasing target-speed grids of 2 to 12 speeds in [0, 40] m/s, evenly
+    spaced or not."""
+    from hypothesis import strategies as st
+
+    return st.lists(st.integers(0, 160), min_size=2, max_size=12, unique=True).map(
+        lambda quarters: [q / 4.0 for q in sorted(quarters)])
+
+
+def test_faster_and_slower_step_one_grid_speed_on_any_grid_from_any_speed():
+    """Property over generated grids and speeds: FASTER targets the grid speed after the
+    one nearest the vehicle's speed, SLOWER the one before (clipped at the ends), and the
+    start's target is the grid speed nearest the one given; "uniform" gives highway-env's
+    formula on any grid (its index of round((v - first) / (last - first) * (n - 1)))."""
+    from highway_env.road.road import Road, RoadNetwork
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from tap_bench.sim.womd_road import WomdMDPVehicle
+
+    road = Road(network=RoadNetwork.straight_road_network(1))
+
+    @settings(max_examples=300, deadline=None)
+    @given(grid=_grids(), speed=st.floats(0.0, 45.0), start=st.floats(0.0, 45.0))
+    def check(grid, speed, start):
+        ego = WomdMDPVehicle(road, [10.0, 0.0], speed=speed, target_speed=start,
+                             target_speeds=grid)
+        distance = [abs(g - start) for g in grid]
+        assert abs(ego.target_speed - start) == min(distance)
+        nearest = min(range(len(grid)), key=lambda k: (abs(grid[k] - speed), k))
+        ego.act("FASTER")
+        assert ego.target_speed == grid[min(nearest + 1, len(grid) - 1)]
+        ego.act("SLOWER")
+        assert ego.target_speed == grid[max(nearest - 1, 0)]
+        old = WomdMDPVehicle(road, [10.0, 0.0], speed=speed, target_speed=start,
+                             target_speeds=grid, speed_index="uniform")
+        x = (speed - grid[0]) / (grid[-1] - grid[0]) * (len(grid) - 1)
+        assert old.speed_to_index(speed) == int(np.clip(np.round(x), 0, len(grid) - 1))
+
+    check()
