@@ -4,9 +4,15 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from tap_bench.execution import add_backend_arguments, backend_from_args, close_backend
 from tap_bench.progress import add_progress_arguments, progress_choice
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from tap_bench.sim.womd_scene import WomdScenes
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -57,19 +63,23 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _training_split(policy: str, scenes: object, ok: object) -> list[str]:
+def _training_split(policy: str, scenes: WomdScenes, ok: pd.DataFrame) -> list[str]:
     """For an agent trained on recorded scenes (its definition records the split:
     ``tap-bench train --hold-out``), the summary on the scenes driven that it never saw and
     on those it trained on, apart: the two pooled would pass training scenes off as a
     test. Nothing for other policies."""
     from tap_bench.bench.scores.agents import seeds_text
+    from tap_bench.errors import TapBenchError
     from tap_bench.rl.heldout import seen_in_training
     from tap_bench.sim.policies import get_definition
 
-    definition = get_definition(policy)
-    roots = [Path.cwd(), *([definition.path.parent.parent] if definition.path else [])]
-    seen = seen_in_training(dict(definition.params or {}), [str(r) for r in
-                                                              scenes.catalog()], roots)
+    try:  # a line beside the outputs, written already: it never fails the command
+        definition = get_definition(policy)
+        roots = [Path.cwd(), *([definition.path.parent.parent] if definition.path else [])]
+        seen = seen_in_training(dict(definition.params or {}),
+                                [str(r) for r in scenes.catalog()], roots)
+    except (TapBenchError, OSError, ValueError) as err:
+        return [f"(which scenes {policy} trained on is not known: {err})"]
     if not seen:
         return []
     lines = []

@@ -201,3 +201,19 @@ def test_a_rollout_of_a_trained_agent_gives_its_unseen_and_training_scenes_apart
     assert "ppo-womd-grid-foldb-seed1 (its definition's training split):" in out
     assert "  held out of its training (never seen): 1 scene(s) (0): route progress" in out
     assert "  trained on: 1 scene(s) (1): route progress" in out
+
+
+def test_a_definition_that_cannot_be_read_again_does_not_fail_the_rollout(monkeypatch):
+    """The split line comes after the outputs are written: a definition gone since (or
+    unreadable) gives a line saying so, not an error."""
+    import tap_bench.sim.policies as policies
+    from tap_bench.cli.rollout import _training_split
+    from tap_bench.errors import FileFormatError
+
+    def gone(name):
+        raise FileFormatError(f"{name}: no such policy file.")
+
+    monkeypatch.setattr(policies, "get_definition", gone)
+    lines = _training_split("my.json", None, None)
+    assert lines == ["(which scenes my.json trained on is not known: my.json: no such policy "
+                     "file.)"]
